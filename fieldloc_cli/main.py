@@ -1,0 +1,79 @@
+"""`fieldloc`: one click group; subcommands live in their own modules and are imported lazily,
+so `fieldloc inspect` does not pay for OpenCV. User errors (FieldlocError) end in one line on
+stderr and exit code 1; `--debug` shows the traceback instead."""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import sys
+
+import click
+
+from stages import __version__
+from stages.common.errors import FieldlocError
+
+# command name -> "module:attribute" (each module only parses options and calls a stage)
+COMMANDS = {
+    "build-map": "fieldloc_cli.build_map:build_map",
+    "build-templates": "fieldloc_cli.build_templates:build_templates",
+    "simulate": "fieldloc_cli.simulate:simulate",
+    "calibrate": "fieldloc_cli.calibrate:calibrate",
+    "extract": "fieldloc_cli.extract:extract",
+    "localize": "fieldloc_cli.localize:localize",
+    "evaluate": "fieldloc_cli.evaluate:evaluate",
+    "show": "fieldloc_cli.show:show",
+    "bench": "fieldloc_cli.bench:bench",
+    "inspect": "fieldloc_cli.inspect:inspect",
+}
+
+
+class LazyGroup(click.Group):
+    def list_commands(self, ctx):
+        names = []
+        for name, target in COMMANDS.items():
+            mod = target.split(":")[0]
+            if importlib.util.find_spec(mod) is not None:
+                names.append(name)
+        return sorted(names)
+
+    def get_command(self, ctx, name):
+        target = COMMANDS.get(name)
+        if target is None:
+            return None
+        mod, attr = target.split(":")
+        if importlib.util.find_spec(mod) is None:
+            return None
+        return getattr(importlib.import_module(mod), attr)
+
+    def invoke(self, ctx):
+        debug = ctx.params.get("debug") or "--debug" in sys.argv
+        try:
+            return super().invoke(ctx)
+        except FieldlocError as e:
+            if debug:
+                raise
+            click.echo(f"fieldloc: error: {e}", err=True)
+            ctx.exit(1)
+        except KeyboardInterrupt:
+            if debug:
+                raise
+            click.echo("fieldloc: interrupted (finished files were kept)", err=True)
+            ctx.exit(130)
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="fieldloc")
+@click.option("-v", "--verbose", count=True, help="More log output on stderr (-vv for debug).")
+@click.option("-q", "--quiet", is_flag=True, help="No progress bars or info messages.")
+@click.option("--debug", is_flag=True, help="Show tracebacks of errors.")
+@click.pass_context
+def cli(ctx, verbose, quiet, debug):
+    """fieldloc: where a soccer robot stood on the field, from what its camera saw."""
+    level = logging.WARNING if quiet else (logging.INFO if verbose <= 1 else logging.DEBUG)
+    if verbose == 0 and not quiet:
+        level = logging.WARNING
+    logging.basicConfig(
+        level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr
+    )
+    ctx.obj = {"verbose": verbose, "quiet": quiet, "debug": debug}

@@ -1,0 +1,54 @@
+"""Stage confs: named presets plus `key=value` overrides, stored resolved in artifacts."""
+
+from __future__ import annotations
+
+import copy
+
+import yaml
+
+from .errors import FieldlocError
+
+
+def parse_overrides(items) -> dict:
+    """['a=1', 'b.c=x'] -> {'a': 1, 'b': {'c': 'x'}} (values parsed as YAML scalars)."""
+    out: dict = {}
+    for item in items or ():
+        if "=" not in item:
+            raise FieldlocError(f"conf override '{item}' is not of the form key=value")
+        key, value = item.split("=", 1)
+        try:
+            parsed = yaml.safe_load(value)
+        except yaml.YAMLError:
+            parsed = value
+        d = out
+        parts = key.strip().split(".")
+        for p in parts[:-1]:
+            d = d.setdefault(p, {})
+        d[parts[-1]] = parsed
+    return out
+
+
+def resolve_conf(confs: dict, preset: str | dict | None, overrides: dict | None = None,
+                 default: str = "default") -> dict:
+    """A copy of ``confs[preset]`` (or a given dict) with ``overrides`` merged in. Unknown
+    preset names and unknown override keys are user errors."""
+    if isinstance(preset, dict):
+        base = copy.deepcopy(preset)
+    else:
+        name = preset or default
+        if name not in confs:
+            raise FieldlocError(f"unknown preset '{name}' (presets: {', '.join(sorted(confs))})")
+        base = copy.deepcopy(confs[name])
+    for key, value in (overrides or {}).items():
+        _merge(base, key, value, key)
+    return base
+
+
+def _merge(base: dict, key, value, path):
+    if key not in base:
+        raise FieldlocError(f"unknown conf key '{path}' (known: {', '.join(sorted(base))})")
+    if isinstance(base[key], dict) and isinstance(value, dict):
+        for k, v in value.items():
+            _merge(base[key], k, v, f"{path}.{k}")
+    else:
+        base[key] = value

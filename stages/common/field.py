@@ -1,0 +1,508 @@
+"""Field models: league fields from ``maps/*.yaml`` (or a user's own YAML) as line geometry.
+
+All dimensions are metres and, as in B-Human's and the MSL rulebook drawings, measured between
+line centre lines. The model holds the white lines as straight segments and circular arcs (their
+centre lines) with one line width, the penalty marks, the goal posts, and the L/T/X crossings
+derived from the geometry (never typed by hand).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from .errors import FieldSpecError
+
+MAPS_DIR = Path(__file__).resolve().parents[2] / "maps"
+
+# MSL rulebook letters -> (key path in the generic schema). M..Q are accepted and recorded but
+# describe no white line (technical area, team areas), so they do not change the geometry.
+MSL_LETTERS = {
+    "A": ("length",),
+    "B": ("width",),
+    "C": ("penalty_area", "width"),
+    "D": ("goal_area", "width"),
+    "E": ("penalty_area", "length"),
+    "F": ("goal_area", "length"),
+    "G": ("corner_arc_radius",),
+    "H": ("centre_circle_diameter",),
+    "I": ("penalty_mark", "distance"),
+    "J": ("penalty_mark", "size"),
+    "K": ("line_width",),
+    "L": ("border",),
+}
+MSL_UNUSED_LETTERS = set("MNOPQ")
+
+# The generic schema: key -> (type, required, sub-schema or None).
+_NUM = (int, float)
+SCHEMA = {
+    "name": (str, True, None),
+    "league": (str, False, None),
+    "source": (str, True, None),
+    "length": (_NUM, True, None),
+    "width": (_NUM, True, None),
+    "line_width": (_NUM, True, None),
+    "border": (_NUM, True, None),
+    "centre_circle_diameter": (_NUM, True, None),
+    "corner_arc_radius": (_NUM, False, None),
+    "penalty_area": (dict, False, {"length": (_NUM, True, None), "width": (_NUM, True, None)}),
+    "goal_area": (dict, False, {"length": (_NUM, True, None), "width": (_NUM, True, None)}),
+    "penalty_mark": (dict, False, {"distance": (_NUM, True, None), "size": (_NUM, True, None)}),
+    "goal": (
+        dict,
+        True,
+        {
+            "width": (_NUM, True, None),
+            "depth": (_NUM, True, None),
+            "post_diameter": (_NUM, True, None),
+        },
+    ),
+    "letters": (dict, False, None),
+    "notes": (str, False, None),
+}
+
+CROSSING_TYPES = ("L", "T", "X")
+
+
+@dataclass
+class FieldModel:
+    """Line geometry of one field, in the field frame (origin at the centre spot)."""
+
+    name: str
+    source: str
+    spec: dict
+    spec_text: str
+    length: float
+    width: float
+    line_width: float
+    border: float
+    segments: np.ndarray  # (S, 2, 2) line centre lines: [[x0, y0], [x1, y1]]
+    arcs: np.ndarray  # (A, 5) cx, cy, r, start angle, sweep (rad, counter-clockwise > 0)
+    penalty_marks: np.ndarray  # (P, 2), includes the centre spot
+    goal_posts: np.ndarray  # (G, 2) post centres
+    crossings: np.ndarray = field(default=None)  # (C, 2) positions
+    crossing_types: np.ndarray = field(default=None)  # (C,) 'L' | 'T' | 'X'
+    crossing_arms: np.ndarray = field(default=None)  # (C, 4) arm directions (rad), NaN padded
+    crossing_orientation: np.ndarray = field(default=None)  # (C,) rad
+
+    def __post_init__(self):
+        if self.crossings is None:
+            pos, types, arms = derive_crossings(self.segments, self.arcs)
+            self.crossings = pos
+            self.crossing_types = types
+            self.crossing_arms = arms
+            self.crossing_orientation = np.array(
+                [crossing_orientation(t, a) for t, a in zip(types, arms)], dtype=float
+            )
+
+    # ------------------------------------------------------------------ geometry
+    def world_bounds(self, border: float | None = None):
+        """(xmin, xmax, ymin, ymax) of the field plus ``border`` (default: the field's own)."""
+        b = self.border if border is None else border
+        return (-self.length / 2 - b, self.length / 2 + b, -self.width / 2 - b, self.width / 2 + b)
+
+    def distance_to_lines(self, points) -> np.ndarray:
+        """Distance (m) from each point (..., 2) to the nearest line centre line."""
+        return distance_to_lines(points, self.segments, self.arcs)
+
+    def nearest_line_direction(self, points) -> np.ndarray:
+        """Unit vector (..., 2) from each point towards its nearest centre-line point."""
+        p = np.asarray(points, dtype=float)
+        near = nearest_line_point(p, self.segments, self.arcs)
+        d = near - p
+        n = np.linalg.norm(d, axis=-1, keepdims=True)
+        return np.divide(d, n, out=np.zeros_like(d), where=n > 0)
+
+    def is_on_field(self, points, margin: float = 0.0) -> np.ndarray:
+        p = np.asarray(points, dtype=float)
+        return (np.abs(p[..., 0]) <= self.length / 2 + margin) & (
+            np.abs(p[..., 1]) <= self.width / 2 + margin
+        )
+
+    @staticmethod
+    def mirror_pose(pose) -> np.ndarray:
+        """The pose that sees the same field under the 180 deg symmetry of the field."""
+        x, y, th = pose
+        return np.array([-x, -y, math.remainder(th + math.pi, 2 * math.pi)])
+
+    def summary(self) -> dict:
+        counts = {t: int(np.sum(self.crossing_types == t)) for t in CROSSING_TYPES}
+        return {
+            "name": self.name,
+            "length_m": self.length,
+            "width_m": self.width,
+            "line_width_m": self.line_width,
+            "segments": int(len(self.segments)),
+            "arcs": int(len(self.arcs)),
+            "crossings": counts,
+            "penalty_marks": int(len(self.penalty_marks)),
+            "goal_posts": int(len(self.goal_posts)),
+        }
+
+
+# ---------------------------------------------------------------------------- loading
+
+
+def preset_names() -> list[str]:
+    return sorted(p.stem for p in MAPS_DIR.glob("*.yaml"))
+
+
+def load_field(name_or_path: str | Path) -> FieldModel:
+    """Load a preset by name (``msl-2015``, ``msl``, ``spl``, ``kidsize``, ``adultsize``) or a
+    path to a field YAML. Raises FieldSpecError with the file and key on any problem."""
+    p = Path(name_or_path)
+    if p.suffix.lower() in (".yaml", ".yml") or p.exists():
+        path = p
+        if not path.is_file():
+            raise FieldSpecError(f"field file not found: {path}")
+    else:
+        path = MAPS_DIR / f"{name_or_path}.yaml"
+        if not path.is_file():
+            raise FieldSpecError(
+                f"unknown field preset '{name_or_path}' (presets: {', '.join(preset_names())};"
+                " or give a path to a field YAML)"
+            )
+    text = path.read_text()
+    try:
+        spec = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        raise FieldSpecError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
+    return field_from_spec(spec, str(path), text)
+
+
+def _check(spec: dict, schema: dict, where: str, prefix: str = ""):
+    if not isinstance(spec, dict):
+        raise FieldSpecError(f"{where}: '{prefix or 'field'}' must be a mapping")
+    for key in spec:
+        if key not in schema:
+            raise FieldSpecError(
+                f"{where}: unknown key '{prefix}{key}' (allowed: {', '.join(schema)})"
+            )
+    for key, (typ, required, sub) in schema.items():
+        if key not in spec:
+            if required:
+                raise FieldSpecError(f"{where}: missing key '{prefix}{key}'")
+            continue
+        v = spec[key]
+        if isinstance(v, bool) or not isinstance(v, typ):
+            want = "a number" if typ is _NUM else typ.__name__
+            raise FieldSpecError(f"{where}: key '{prefix}{key}' must be {want}, got {v!r}")
+        if typ is _NUM and (not math.isfinite(v) or v < 0):
+            raise FieldSpecError(f"{where}: key '{prefix}{key}' must be >= 0, got {v}")
+        if sub is not None:
+            _check(v, sub, where, prefix=f"{prefix}{key}.")
+
+
+def _apply_letters(spec: dict, where: str) -> dict:
+    letters = spec.get("letters")
+    if letters is None:
+        return spec
+    if not isinstance(letters, dict):
+        raise FieldSpecError(f"{where}: 'letters' must be a mapping of MSL letters A..Q")
+    out = {k: (dict(v) if isinstance(v, dict) else v) for k, v in spec.items()}
+    for letter, value in letters.items():
+        if letter not in MSL_LETTERS and letter not in MSL_UNUSED_LETTERS:
+            raise FieldSpecError(f"{where}: unknown key 'letters.{letter}' (MSL letters A..Q)")
+        if isinstance(value, bool) or not isinstance(value, _NUM):
+            raise FieldSpecError(f"{where}: key 'letters.{letter}' must be a number, got {value!r}")
+        if letter in MSL_UNUSED_LETTERS:
+            continue
+        keys = MSL_LETTERS[letter]
+        if len(keys) == 1:
+            if keys[0] in spec:
+                raise FieldSpecError(f"{where}: '{keys[0]}' given both directly and as {letter}")
+            out[keys[0]] = value
+        else:
+            out.setdefault(keys[0], {})
+            if not isinstance(out[keys[0]], dict):
+                raise FieldSpecError(f"{where}: '{keys[0]}' must be a mapping")
+            out[keys[0]][keys[1]] = value
+    return out
+
+
+def field_from_spec(spec, where: str = "<field>", text: str | None = None) -> FieldModel:
+    if not isinstance(spec, dict):
+        raise FieldSpecError(f"{where}: a field file must be a mapping of keys")
+    spec = _apply_letters(spec, where)
+    _check(spec, SCHEMA, where)
+    L, W = float(spec["length"]), float(spec["width"])
+    lw = float(spec["line_width"])
+    for key in ("length", "width", "line_width"):
+        if spec[key] <= 0:
+            raise FieldSpecError(f"{where}: key '{key}' must be > 0, got {spec[key]}")
+    for area in ("goal_area", "penalty_area"):
+        if area in spec:
+            a = spec[area]
+            if a["length"] <= 0 or a["width"] <= 0:
+                raise FieldSpecError(f"{where}: '{area}' length and width must be > 0")
+            if a["length"] >= L / 2:
+                raise FieldSpecError(
+                    f"{where}: key '{area}.length' ({a['length']} m) reaches past the halfway"
+                    f" line of a field {L} m long"
+                )
+            if a["width"] >= W:
+                raise FieldSpecError(
+                    f"{where}: key '{area}.width' ({a['width']} m) is not smaller than the field"
+                    f" width ({W} m)"
+                )
+    if "goal_area" in spec and "penalty_area" in spec:
+        g, p = spec["goal_area"], spec["penalty_area"]
+        if g["length"] >= p["length"] or g["width"] >= p["width"]:
+            raise FieldSpecError(f"{where}: 'goal_area' must lie inside 'penalty_area'")
+    r_c = float(spec["centre_circle_diameter"]) / 2
+    if r_c >= W / 2 or r_c >= L / 2:
+        raise FieldSpecError(f"{where}: key 'centre_circle_diameter' is larger than the field")
+    r_corner = float(spec.get("corner_arc_radius", 0.0))
+    if r_corner >= min(L, W) / 2:
+        raise FieldSpecError(f"{where}: key 'corner_arc_radius' is larger than the field")
+    if spec["goal"]["width"] >= W:
+        raise FieldSpecError(f"{where}: key 'goal.width' is not smaller than the field width")
+
+    hx, hy = L / 2, W / 2
+    segs = [
+        [[-hx, -hy], [hx, -hy]],  # right touch line
+        [[-hx, hy], [hx, hy]],  # left touch line
+        [[-hx, -hy], [-hx, hy]],  # own goal line
+        [[hx, -hy], [hx, hy]],  # opponent goal line
+        [[0.0, -hy], [0.0, hy]],  # halfway line
+    ]
+    for area in ("goal_area", "penalty_area"):
+        if area not in spec:
+            continue
+        al, aw = float(spec[area]["length"]), float(spec[area]["width"]) / 2
+        for sx in (-1.0, 1.0):
+            gx, fx = sx * hx, sx * (hx - al)
+            segs += [
+                [[fx, -aw], [fx, aw]],
+                [[gx, -aw], [fx, -aw]],
+                [[gx, aw], [fx, aw]],
+            ]
+    arcs = [[0.0, 0.0, r_c, 0.0, 2 * math.pi]]
+    if r_corner > 0:
+        for cx, cy in ((-hx, -hy), (hx, -hy), (hx, hy), (-hx, hy)):
+            start = math.atan2(-math.copysign(1, cy), -math.copysign(1, cx))  # into the field
+            arcs.append([cx, cy, r_corner, start - math.pi / 4, math.pi / 2])
+    marks = [[0.0, 0.0]]
+    if "penalty_mark" in spec:
+        d = float(spec["penalty_mark"]["distance"])
+        marks += [[-hx + d, 0.0], [hx - d, 0.0]]
+    gw = float(spec["goal"]["width"]) / 2
+    posts = [[sx * hx, sy * gw] for sx in (-1.0, 1.0) for sy in (-1.0, 1.0)]
+    return FieldModel(
+        name=str(spec["name"]),
+        source=str(spec["source"]),
+        spec=spec,
+        spec_text=text if text is not None else yaml.safe_dump(spec, sort_keys=False),
+        length=L,
+        width=W,
+        line_width=lw,
+        border=float(spec["border"]),
+        segments=np.asarray(segs, dtype=float),
+        arcs=np.asarray(arcs, dtype=float),
+        penalty_marks=np.asarray(marks, dtype=float),
+        goal_posts=np.asarray(posts, dtype=float),
+    )
+
+
+# ---------------------------------------------------------------------------- distances
+
+
+def _arc_angle_inside(phi, a0, sweep):
+    """Whether angle phi lies on the arc starting at a0 sweeping ``sweep`` counter-clockwise."""
+    if sweep >= 2 * math.pi - 1e-12:
+        return np.ones(np.shape(phi), dtype=bool)
+    return np.mod(phi - a0, 2 * math.pi) <= sweep
+
+
+def nearest_line_point(points, segments, arcs) -> np.ndarray:
+    """Nearest point on any line centre line for each point (..., 2)."""
+    p = np.asarray(points, dtype=float)
+    best = np.full(p.shape[:-1], np.inf)
+    out = np.zeros_like(p)
+    for (x0, y0), (x1, y1) in segments:
+        dx, dy = x1 - x0, y1 - y0
+        t = ((p[..., 0] - x0) * dx + (p[..., 1] - y0) * dy) / (dx * dx + dy * dy)
+        t = np.clip(t, 0.0, 1.0)
+        qx, qy = x0 + t * dx, y0 + t * dy
+        d2 = (p[..., 0] - qx) ** 2 + (p[..., 1] - qy) ** 2
+        m = d2 < best
+        best = np.where(m, d2, best)
+        out[..., 0] = np.where(m, qx, out[..., 0])
+        out[..., 1] = np.where(m, qy, out[..., 1])
+    for cx, cy, r, a0, sweep in arcs:
+        vx, vy = p[..., 0] - cx, p[..., 1] - cy
+        phi = np.arctan2(vy, vx)
+        inside = _arc_angle_inside(phi, a0, sweep)
+        qx_in, qy_in = cx + r * np.cos(phi), cy + r * np.sin(phi)
+        ends = [(cx + r * math.cos(a), cy + r * math.sin(a)) for a in (a0, a0 + sweep)]
+        for qx, qy, valid in [(qx_in, qy_in, inside)] + [
+            (ex, ey, ~inside) for ex, ey in ends
+        ]:
+            d2 = (p[..., 0] - qx) ** 2 + (p[..., 1] - qy) ** 2
+            m = valid & (d2 < best)
+            best = np.where(m, d2, best)
+            out[..., 0] = np.where(m, qx, out[..., 0])
+            out[..., 1] = np.where(m, qy, out[..., 1])
+    return out
+
+
+def distance_to_lines(points, segments, arcs) -> np.ndarray:
+    """Distance (m) from points (..., 2) to the nearest line centre line."""
+    p = np.asarray(points, dtype=float)
+    best = np.full(p.shape[:-1], np.inf)
+    for (x0, y0), (x1, y1) in segments:
+        dx, dy = x1 - x0, y1 - y0
+        t = ((p[..., 0] - x0) * dx + (p[..., 1] - y0) * dy) / (dx * dx + dy * dy)
+        t = np.clip(t, 0.0, 1.0)
+        d2 = (p[..., 0] - x0 - t * dx) ** 2 + (p[..., 1] - y0 - t * dy) ** 2
+        np.minimum(best, d2, out=best)
+    for cx, cy, r, a0, sweep in arcs:
+        vx, vy = p[..., 0] - cx, p[..., 1] - cy
+        rho = np.hypot(vx, vy)
+        d2 = (rho - r) ** 2
+        if sweep < 2 * math.pi - 1e-12:
+            inside = _arc_angle_inside(np.arctan2(vy, vx), a0, sweep)
+            ends = [(cx + r * math.cos(a), cy + r * math.sin(a)) for a in (a0, a0 + sweep)]
+            d_end = np.minimum(*[(p[..., 0] - ex) ** 2 + (p[..., 1] - ey) ** 2 for ex, ey in ends])
+            d2 = np.where(inside, d2, d_end)
+        np.minimum(best, d2, out=best)
+    return np.sqrt(best)
+
+
+# ---------------------------------------------------------------------------- crossings
+
+_TOL = 1e-6
+
+
+def _segment_arms(seg, p):
+    """Arm directions (rad) leaving point p along segment seg, or [] if p is not on it."""
+    a, b = np.asarray(seg[0]), np.asarray(seg[1])
+    d = b - a
+    n = np.linalg.norm(d)
+    u = d / n
+    t = float(np.dot(p - a, u))
+    if t < -_TOL or t > n + _TOL or abs(float(np.cross(u, p - a))) > 1e-6:
+        return []
+    ang = math.atan2(u[1], u[0])
+    arms = []
+    if t < n - _TOL:
+        arms.append(ang)
+    if t > _TOL:
+        arms.append(ang + math.pi)
+    return arms
+
+
+def _arc_arms(arc, p):
+    cx, cy, r, a0, sweep = arc
+    v = p - (cx, cy)
+    if abs(np.hypot(*v) - r) > 1e-6:
+        return []
+    phi = math.atan2(v[1], v[0])
+    full = sweep >= 2 * math.pi - 1e-12
+    rel = (phi - a0) % (2 * math.pi)
+    if not full and rel > 2 * math.pi - 1e-9:
+        rel = 0.0
+    if not full and rel > sweep + 1e-9:
+        return []
+    arms = []
+    tangent_ccw = phi + math.pi / 2
+    at_start = not full and (rel < 1e-9)
+    at_end = not full and abs(rel - sweep) < 1e-9
+    if not at_end:
+        arms.append(tangent_ccw)
+    if not at_start:
+        arms.append(tangent_ccw + math.pi)
+    return arms
+
+
+def _candidate_points(segments, arcs):
+    pts = []
+    for s in segments:
+        pts += [s[0], s[1]]
+    for i in range(len(segments)):
+        a, b = segments[i]
+        for j in range(i + 1, len(segments)):
+            c, d = segments[j]
+            r, s = b - a, d - c
+            den = float(np.cross(r, s))
+            if abs(den) < 1e-12:
+                continue
+            t = float(np.cross(c - a, s)) / den
+            u = float(np.cross(c - a, r)) / den
+            if -_TOL <= t <= 1 + _TOL and -_TOL <= u <= 1 + _TOL:
+                pts.append(a + t * r)
+    for cx, cy, r, a0, sweep in arcs:
+        if sweep < 2 * math.pi - 1e-12:
+            for a in (a0, a0 + sweep):
+                pts.append(np.array([cx + r * math.cos(a), cy + r * math.sin(a)]))
+        for a, b in segments:
+            d = b - a
+            f = a - (cx, cy)
+            qa, qb, qc = d @ d, 2 * f @ d, f @ f - r * r
+            disc = qb * qb - 4 * qa * qc
+            if disc < 0:
+                continue
+            for t in ((-qb - math.sqrt(disc)) / (2 * qa), (-qb + math.sqrt(disc)) / (2 * qa)):
+                if -_TOL <= t <= 1 + _TOL:
+                    pts.append(a + t * d)
+    uniq = []
+    for p in pts:
+        p = np.asarray(p, dtype=float)
+        if not any(np.linalg.norm(p - q) < 1e-6 for q in uniq):
+            uniq.append(p)
+    return uniq
+
+
+def derive_crossings(segments, arcs):
+    """Every L, T and X junction of the line centre lines: positions (C, 2), types (C,), and arm
+    directions (C, 4) in radians (NaN padded). Two collinear arms are a continuation, not an L."""
+    positions, types, arms_out = [], [], []
+    for p in _candidate_points(segments, arcs):
+        arms = []
+        for s in segments:
+            arms += _segment_arms(s, p)
+        for a in arcs:
+            arms += _arc_arms(a, p)
+        arms = sorted({round(math.remainder(a, 2 * math.pi), 9) for a in arms})
+        n = len(arms)
+        if n == 2:
+            if abs(abs(math.remainder(arms[0] - arms[1], 2 * math.pi)) - math.pi) < 1e-6:
+                continue
+            kind = "L"
+        elif n == 3:
+            kind = "T"
+        elif n == 4:
+            kind = "X"
+        else:
+            continue
+        positions.append(p)
+        types.append(kind)
+        arms_out.append(arms + [math.nan] * (4 - n))
+    order = np.lexsort((np.round([q[1] for q in positions], 6),
+                        np.round([q[0] for q in positions], 6)))
+    return (
+        np.asarray(positions, dtype=float)[order].reshape(-1, 2),
+        np.asarray(types, dtype="<U1")[order],
+        np.asarray(arms_out, dtype=float)[order].reshape(-1, 4),
+    )
+
+
+def crossing_orientation(kind: str, arms) -> float:
+    """The crossing's orientation: an L's bisector of its arms, a T's stem (the arm with no
+    opposite), an X's first arm folded into [0, pi/2)."""
+    arms = [a for a in arms if not math.isnan(a)]
+    if kind == "L":
+        a, b = arms
+        return math.atan2(math.sin(a) + math.sin(b), math.cos(a) + math.cos(b))
+    if kind == "T":
+        for a in arms:
+            if not any(
+                abs(abs(math.remainder(a - b, 2 * math.pi)) - math.pi) < 1e-6 for b in arms
+            ):
+                return math.remainder(a, 2 * math.pi)
+        return arms[0]
+    return float(np.mod(arms[0], math.pi / 2))

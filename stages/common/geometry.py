@@ -1,0 +1,48 @@
+"""SE(2) geometry in the field frame: x along the field, y left, theta counter-clockwise."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def wrap_angle(a):
+    """Wrap angles to [-pi, pi)."""
+    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
+
+
+def rotation(theta: float) -> np.ndarray:
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([[c, -s], [s, c]])
+
+
+def robot_to_field(pose, points):
+    """Points (N, 2) in the robot frame of ``pose`` (x, y, theta) -> field frame."""
+    x, y, th = pose
+    p = np.asarray(points, dtype=float).reshape(-1, 2)
+    c, s = np.cos(th), np.sin(th)
+    return np.stack([x + c * p[:, 0] - s * p[:, 1], y + s * p[:, 0] + c * p[:, 1]], axis=1)
+
+
+def field_to_robot(pose, points):
+    """Points (N, 2) in the field frame -> robot frame of ``pose``."""
+    x, y, th = pose
+    p = np.asarray(points, dtype=float).reshape(-1, 2) - (x, y)
+    c, s = np.cos(th), np.sin(th)
+    return np.stack([c * p[:, 0] + s * p[:, 1], -s * p[:, 0] + c * p[:, 1]], axis=1)
+
+
+def compose(a, b):
+    """Pose a (+) b: b expressed in a's frame, returned in a's parent frame."""
+    ax, ay, at = a
+    bx, by, bt = b
+    c, s = np.cos(at), np.sin(at)
+    return np.array([ax + c * bx - s * by, ay + s * bx + c * by, float(wrap_angle(at + bt))])
+
+
+def between(a, b):
+    """The motion (dx, dy, dtheta) in a's frame that takes pose a to pose b."""
+    ax, ay, at = a
+    bx, by, bt = b
+    c, s = np.cos(at), np.sin(at)
+    dx, dy = bx - ax, by - ay
+    return np.array([c * dx + s * dy, -s * dx + c * dy, float(wrap_angle(bt - at))])

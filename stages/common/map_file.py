@@ -1,0 +1,178 @@
+"""The map artifact (schema ``fieldloc.map``, version 1): field model plus lookup tables.
+
+Root attributes: the common ones plus
+    field        field name;  field_source: where its dimensions come from
+    origin       (x, y) of the centre of cell [0, 0] (m); cell [i, j] is at
+                 origin + (j, i) * resolution (row i along y, column j along x)
+    resolution   cell size (m);  shape: (ny, nx);  border: world margin around the field (m)
+    scanlines    JSON of the scan-line definition (stages.common.scanlines.ScanLines)
+
+    /field/segments            (S, 2, 2) f8  m    line centre lines [[x0, y0], [x1, y1]]
+    /field/arcs                (A, 5) f8     m, rad  cx, cy, r, start angle, sweep (ccw > 0)
+    /field/line_width          () f8         m
+    /field/penalty_marks       (P, 2) f8     m    (the centre spot first)
+    /field/goal_posts          (G, 2) f8     m
+    /field/crossings/position  (C, 2) f8     m
+    /field/crossings/type      (C,) str      L, T or X
+    /field/crossings/arms      (C, 4) f8     rad  arm directions, NaN padded
+    /field/crossings/orientation (C,) f8     rad  L: bisector, T: stem, X: first arm mod 90 deg
+    /field/spec_yaml           () str        the field YAML as given
+
+    /tables/radial             (72, 4, ny, nx) u2  mm   radial scan line k at 5k deg (heading 0):
+                               centre-line crossings nearest first; 65535 = none
+    /tables/spiral             (2, 72, ny, nx) u2  mm   first crossing radius of the spiral with
+                               start angle 5k deg, ccw (0) / cw (1); 65535 = none
+    /tables/distance           (ny, nx) f4    m    distance to the nearest line centre line
+    /tables/distance_gradient  (2, ny, nx) f4  -   d distance / d (x, y)
+
+Each table carries its parameters as attributes. One scan line's values over all cells are
+contiguous (C order, cells last), which is what the table search reads.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from .artifacts import open_artifact, read_json_attr, write_artifact
+from .field import FieldModel, field_from_spec
+from .scanlines import ScanLines
+
+SCHEMA = "fieldloc.map"
+VERSION = 1
+
+TABLE_UNITS = {
+    "radial": "mm",
+    "spiral": "mm",
+    "distance": "m",
+    "distance_gradient": "1",
+}
+
+
+@dataclass
+class Grid:
+    """The world grid of the tables: cell centres on multiples of the resolution."""
+
+    origin: tuple[float, float]
+    resolution: float
+    shape: tuple[int, int]  # (ny, nx)
+
+    @classmethod
+    def around(cls, fm: FieldModel, border: float, resolution: float) -> Grid:
+        xmin, xmax, ymin, ymax = fm.world_bounds(border)
+        # cell centres on multiples of the resolution, covering the world inclusive
+        j0, j1 = np.floor(xmin / resolution + 1e-9), np.ceil(xmax / resolution - 1e-9)
+        i0, i1 = np.floor(ymin / resolution + 1e-9), np.ceil(ymax / resolution - 1e-9)
+        nx, ny = int(j1 - j0) + 1, int(i1 - i0) + 1
+        return cls(origin=(j0 * resolution, i0 * resolution), resolution=resolution,
+                   shape=(ny, nx))
+
+    @property
+    def xs(self) -> np.ndarray:
+        return self.origin[0] + np.arange(self.shape[1]) * self.resolution
+
+    @property
+    def ys(self) -> np.ndarray:
+        return self.origin[1] + np.arange(self.shape[0]) * self.resolution
+
+    def cell_of(self, x, y):
+        """(row, col) of the cell containing field point (x, y), clipped to the grid."""
+        j = np.clip(np.rint((np.asarray(x) - self.origin[0]) / self.resolution), 0,
+                    self.shape[1] - 1).astype(int)
+        i = np.clip(np.rint((np.asarray(y) - self.origin[1]) / self.resolution), 0,
+                    self.shape[0] - 1).astype(int)
+        return i, j
+
+    def centre_of(self, i, j):
+        return (self.origin[0] + np.asarray(j) * self.resolution,
+                self.origin[1] + np.asarray(i) * self.resolution)
+
+
+def write_map(path: str | Path, fm: FieldModel, grid: Grid, scanlines: ScanLines,
+              tables: dict[str, tuple[np.ndarray, dict]], attrs: dict) -> Path:
+    """Write the map atomically. ``tables``: name -> (array, attributes)."""
+    path = Path(path)
+    attrs = dict(attrs)
+    attrs.update(
+        field=fm.name,
+        field_source=fm.source,
+        origin=np.asarray(grid.origin, dtype=float),
+        resolution=float(grid.resolution),
+        shape=np.asarray(grid.shape, dtype=np.int64),
+        scanlines=json.dumps(scanlines.as_dict()),
+    )
+    with write_artifact(path, attrs) as h5:
+        g = h5.create_group("field")
+        for name, arr, units in (
+            ("segments", fm.segments, "m"),
+            ("arcs", fm.arcs, "m, m, m, rad, rad"),
+            ("penalty_marks", fm.penalty_marks, "m"),
+            ("goal_posts", fm.goal_posts, "m"),
+        ):
+            g.create_dataset(name, data=arr).attrs["units"] = units
+        g.create_dataset("line_width", data=fm.line_width).attrs["units"] = "m"
+        c = g.create_group("crossings")
+        c.create_dataset("position", data=fm.crossings).attrs["units"] = "m"
+        c.create_dataset("type", data=np.array(list(fm.crossing_types), dtype=h5py.string_dtype()))
+        c.create_dataset("arms", data=fm.crossing_arms).attrs["units"] = "rad"
+        c.create_dataset("orientation", data=fm.crossing_orientation).attrs["units"] = "rad"
+        g.create_dataset("spec_yaml", data=fm.spec_text, dtype=h5py.string_dtype())
+        t = h5.create_group("tables")
+        for name, (arr, tattrs) in tables.items():
+            ds = t.create_dataset(name, data=arr)
+            ds.attrs["units"] = TABLE_UNITS.get(name, tattrs.pop("units", ""))
+            for k, v in tattrs.items():
+                ds.attrs[k] = v
+    return path
+
+
+class MapFile:
+    """Read access to a map: the field model, the grid, and tables loaded on demand."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self.h5 = open_artifact(self.path, SCHEMA, VERSION)
+        a = self.h5.attrs
+        self.grid = Grid(origin=tuple(float(v) for v in a["origin"]),
+                         resolution=float(a["resolution"]),
+                         shape=tuple(int(v) for v in a["shape"]))
+        self.scanlines = ScanLines(**json.loads(a["scanlines"]))
+        spec_text = self.h5["field/spec_yaml"][()]
+        spec_text = spec_text.decode() if isinstance(spec_text, bytes) else spec_text
+        import yaml
+
+        self.field = field_from_spec(yaml.safe_load(spec_text), str(self.path), spec_text)
+        self._cache: dict[str, np.ndarray] = {}
+
+    @property
+    def conf(self) -> dict:
+        return read_json_attr(self.h5, "conf")
+
+    def has_table(self, name: str) -> bool:
+        return name in self.h5["tables"]
+
+    def table(self, name: str) -> np.ndarray:
+        """A table fully in memory (cached)."""
+        if name not in self._cache:
+            if not self.has_table(name):
+                from .errors import SchemaError
+
+                raise SchemaError(f"{self.path}: map has no table '{name}'")
+            self._cache[name] = self.h5["tables"][name][()]
+        return self._cache[name]
+
+    def table_attrs(self, name: str) -> dict:
+        return dict(self.h5["tables"][name].attrs)
+
+    def close(self):
+        self.h5.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()

@@ -1,0 +1,80 @@
+"""The scan lines of seed 002, defined once for the table builder and the image extractor.
+
+In the robot frame (x forward, y left), from the robot's own radius outwards:
+- 72 radial scan lines, ray k at angle 5k deg counter-clockwise from +x, up to ``max_range``;
+  each reports the distances of up to 4 white-line crossings, nearest first.
+- Archimedean spiral scan lines r(phi) = r0 + (r_end - r0) phi / (2 pi), phi in [0, 2 pi], that
+  start at the robot radius r0 and reach ``spiral_end_radius`` after one full turn; start angles
+  every 5 deg (72), turning counter-clockwise (direction 0) or clockwise (direction 1); each
+  reports the radius of its first white-line crossing. A robot uses every other start angle
+  (36 each way, 10 deg apart, as in the seed); all 72 are kept so that any heading that is a
+  multiple of 5 deg is an index rotation.
+
+Heading as index rotation: what a robot with heading m * 5 deg sees on its radial line k is
+what a robot with heading 0 at the same place sees on radial line (k + m) mod 72; the same holds
+for the spiral start angles. ``rotate_to_heading`` applies it to a table row set.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+NO_HIT_MM = 65535  # uint16 marker for "no crossing" in the tables
+
+
+@dataclass(frozen=True)
+class ScanLines:
+    n_angles: int = 72  # radial lines and spiral start angles (5 deg apart)
+    max_crossings: int = 4  # per radial line
+    robot_radius: float = 0.25  # m, where every search starts (the robot's own body)
+    max_range: float = 4.0  # m, radial search limit
+    spiral_end_radius: float = 2.0  # m, spiral radius after one full turn
+    spiral_samples_per_turn: int = 1440  # polyline resolution used to walk a spiral
+
+    @property
+    def angle_step(self) -> float:
+        return 2 * math.pi / self.n_angles
+
+    @property
+    def radial_angles(self) -> np.ndarray:
+        """Angle (rad) of each radial scan line in the robot frame."""
+        return np.arange(self.n_angles) * self.angle_step
+
+    def spiral_phi(self) -> np.ndarray:
+        """Turning parameter phi (rad) of the polyline samples, 0..2 pi inclusive."""
+        return np.linspace(0.0, 2 * math.pi, self.spiral_samples_per_turn + 1)
+
+    def spiral_radius(self, phi) -> np.ndarray:
+        r0, r1 = self.robot_radius, self.spiral_end_radius
+        return r0 + (r1 - r0) * np.asarray(phi) / (2 * math.pi)
+
+    def spiral_points(self, direction: int, start_index: int) -> np.ndarray:
+        """Polyline (M, 2) of one spiral in the robot frame, from its start outwards.
+        direction 0 turns counter-clockwise, 1 clockwise."""
+        phi = self.spiral_phi()
+        r = self.spiral_radius(phi)
+        sign = 1.0 if direction == 0 else -1.0
+        ang = start_index * self.angle_step + sign * phi
+        return np.stack([r * np.cos(ang), r * np.sin(ang)], axis=1)
+
+    def radial_points(self, index: int, step: float) -> np.ndarray:
+        """Samples (M, 2) along radial line ``index`` every ``step`` metres."""
+        t = np.arange(self.robot_radius, self.max_range + 1e-9, step)
+        a = index * self.angle_step
+        return np.stack([t * math.cos(a), t * math.sin(a)], axis=1)
+
+    def heading_index(self, theta: float) -> int:
+        """The scan-line index shift for a heading (rounded to the angle step)."""
+        return int(round(theta / self.angle_step)) % self.n_angles
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def rotate_to_heading(rows: np.ndarray, shift: int, axis: int) -> np.ndarray:
+    """Scan-line values seen at heading ``shift`` * step from values at heading 0: entry k of
+    the result is entry (k + shift) mod n of ``rows`` along ``axis``."""
+    return np.roll(rows, -shift, axis=axis)
