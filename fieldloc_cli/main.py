@@ -29,16 +29,25 @@ COMMANDS = {
 
 
 class LazyGroup(click.Group):
+    """A click group whose subcommands are imported only when used.
+    ``lazy_commands``: name -> "module:attribute"."""
+
+    def __init__(self, *args, lazy_commands=None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.lazy_commands = COMMANDS if lazy_commands is None else lazy_commands
+
     def list_commands(self, ctx):
-        names = []
-        for name, target in COMMANDS.items():
+        names = list(self.commands)
+        for name, target in self.lazy_commands.items():
             mod = target.split(":")[0]
             if importlib.util.find_spec(mod) is not None:
                 names.append(name)
         return sorted(names)
 
     def get_command(self, ctx, name):
-        target = COMMANDS.get(name)
+        if name in self.commands:
+            return self.commands[name]
+        target = self.lazy_commands.get(name)
         if target is None:
             return None
         mod, attr = target.split(":")

@@ -7,6 +7,7 @@
     DIR/odometry.csv   optional: stamp, dx, dy, dtheta (robot frame, since previous frame)
     DIR/imu.csv        optional: stamp, yaw, collision
     DIR/truth.csv      optional: stamp, x, y, theta (field frame)
+    DIR/head.csv       optional, perspective cameras: stamp, pitch, roll of the camera (rad)
 
 CSV files have a header line with exactly these column names; metres and radians.
 """
@@ -29,6 +30,7 @@ CSV_COLUMNS = {
     "odometry": ("stamp", "dx", "dy", "dtheta"),
     "imu": ("stamp", "yaw", "collision"),
     "truth": ("stamp", "x", "y", "theta"),
+    "head": ("stamp", "pitch", "roll"),  # perspective cameras: head angles per frame
 }
 
 

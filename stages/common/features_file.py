@@ -32,6 +32,16 @@ FRAME_DATASETS = {
     "spiral": ("m", np.float32, "(2, 72) first crossing radius per spiral (ccw, cw), NaN = none"),
     "points": ("m", np.float32, "(N, 2) line points in the robot frame (x forward, y left)"),
     "points_px": ("px", np.float32, "(N, 2) the same line points in the image (u, v)"),
+    # perspective (seed 000); robot frame on the floor, bearings counter-clockwise from +x
+    "boundary": ("px", np.float32, "(K, 2) field boundary polyline in the image (u, v)"),
+    "line_ends": ("m", np.float32, "(L, 4) line end points on the floor x0, y0, x1, y1"),
+    "line_ends_px": ("px", np.float32, "(L, 4) line end points in the image u0, v0, u1, v1"),
+    "lines": ("m, rad, m, 1", np.float32,
+              "(L, 4) perpendicular distance, angle of the perpendicular, length, confidence"),
+    "crossings": ("1, m, rad, rad, 1", np.float32,
+                  "(C, 5) type (0 L, 1 T, 2 X), distance, bearing, orientation, confidence"),
+    "crossings_px": ("px", np.float32, "(C, 2) crossing positions in the image (u, v)"),
+    "posts": ("m, rad, 1", np.float32, "(P, 3) goal post foot: distance, bearing, confidence"),
 }
 
 
