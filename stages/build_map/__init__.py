@@ -1,0 +1,93 @@
+"""Stage build-map: a field model plus the lookup tables of seed 002 in one HDF5 map.
+
+    from stages import build_map
+    build_map.main(build_map.confs["default"], "msl-2015", "msl-2015.map.h5")
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+
+from ..common.artifacts import root_attrs, text_hash
+from ..common.conf import resolve_conf
+from ..common.errors import FieldlocError
+from ..common.field import FieldModel, load_field
+from ..common.map_file import SCHEMA, VERSION, Grid, write_map
+from ..common.scanlines import ScanLines
+from . import tables
+
+log = logging.getLogger(__name__)
+
+confs = {
+    "default": {
+        "resolution": 0.1,  # m, table cell size (seed 002: 10 cm)
+        "border": 1.0,  # m of world around the field (seed 002: 20 x 14 m for 18 x 12)
+        "max_range": 4.0,  # m, radial scan-line search limit
+        "robot_radius": 0.25,  # m, where every scan line starts
+        "spiral_end_radius": 2.0,  # m, spiral radius after one full turn
+    },
+}
+
+
+def scanlines_of(conf: dict) -> ScanLines:
+    return ScanLines(
+        robot_radius=float(conf["robot_radius"]),
+        max_range=float(conf["max_range"]),
+        spiral_end_radius=float(conf["spiral_end_radius"]),
+    )
+
+
+def build_tables(fm: FieldModel, conf: dict) -> tuple[Grid, ScanLines, dict]:
+    """All tables of a map, in memory: name -> (array, attributes)."""
+    if conf["resolution"] <= 0 or conf["border"] < 0:
+        raise FieldlocError("resolution must be > 0 and border >= 0")
+    if not 0 <= conf["robot_radius"] < conf["spiral_end_radius"] <= conf["max_range"]:
+        raise FieldlocError("need 0 <= robot_radius < spiral_end_radius <= max_range")
+    grid = Grid.around(fm, float(conf["border"]), float(conf["resolution"]))
+    sl = scanlines_of(conf)
+    common = {"resolution": grid.resolution, "robot_radius": sl.robot_radius}
+    out = {}
+    t0 = time.perf_counter()
+    out["radial"] = (
+        tables.radial_table(fm, grid, sl),
+        dict(common, heading=0.0, angle_step_deg=360.0 / sl.n_angles, max_range=sl.max_range,
+             max_crossings=sl.max_crossings, no_hit=65535,
+             description="centre-line crossings along radial scan line k at 5k deg"),
+    )
+    t1 = time.perf_counter()
+    out["spiral"] = (
+        tables.spiral_table(fm, grid, sl),
+        dict(common, heading=0.0, angle_step_deg=360.0 / sl.n_angles,
+             spiral_end_radius=sl.spiral_end_radius, no_hit=65535,
+             description="first crossing radius of spiral [ccw, cw][start angle 5k deg]"),
+    )
+    t2 = time.perf_counter()
+    dist, grad = tables.distance_table(fm, grid)
+    out["distance"] = (dist, dict(common, description="distance to nearest line centre line"))
+    out["distance_gradient"] = (grad, dict(common, description="gradient (d/dx, d/dy)"))
+    t3 = time.perf_counter()
+    log.info("tables: radial %.2fs, spiral %.2fs, distance %.2fs", t1 - t0, t2 - t1, t3 - t2)
+    try:
+        from . import crossing_lut
+    except ImportError:  # association tables arrive with the humanoid pipeline
+        crossing_lut = None
+    if crossing_lut is not None:
+        out.update(crossing_lut.crossing_association_tables(fm, grid))
+    return grid, sl, out
+
+
+def main(conf: dict | None, field: str | Path | FieldModel, output: str | Path, *,
+         overwrite: bool = False) -> Path:
+    """Build the map of ``field`` (preset name, YAML path or FieldModel) into ``output``."""
+    conf = resolve_conf(confs, conf)
+    output = Path(output)
+    if output.exists() and not overwrite:
+        raise FieldlocError(f"{output} exists (use --overwrite to replace it)")
+    fm = field if isinstance(field, FieldModel) else load_field(field)
+    grid, sl, tabs = build_tables(fm, conf)
+    attrs = root_attrs(SCHEMA, VERSION, conf=conf,
+                       inputs={"field": fm.name, "field_yaml": text_hash(fm.spec_text)})
+    attrs["border"] = float(conf["border"])
+    return write_map(output, fm, grid, sl, tabs, attrs)

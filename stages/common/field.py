@@ -378,6 +378,11 @@ def distance_to_lines(points, segments, arcs) -> np.ndarray:
 _TOL = 1e-6
 
 
+def _cross(a, b) -> float:
+    """z of the 2-D cross product."""
+    return float(a[0] * b[1] - a[1] * b[0])
+
+
 def _segment_arms(seg, p):
     """Arm directions (rad) leaving point p along segment seg, or [] if p is not on it."""
     a, b = np.asarray(seg[0]), np.asarray(seg[1])
@@ -385,7 +390,7 @@ def _segment_arms(seg, p):
     n = np.linalg.norm(d)
     u = d / n
     t = float(np.dot(p - a, u))
-    if t < -_TOL or t > n + _TOL or abs(float(np.cross(u, p - a))) > 1e-6:
+    if t < -_TOL or t > n + _TOL or abs(_cross(u, p - a)) > 1e-6:
         return []
     ang = math.atan2(u[1], u[0])
     arms = []
@@ -428,11 +433,11 @@ def _candidate_points(segments, arcs):
         for j in range(i + 1, len(segments)):
             c, d = segments[j]
             r, s = b - a, d - c
-            den = float(np.cross(r, s))
+            den = _cross(r, s)
             if abs(den) < 1e-12:
                 continue
-            t = float(np.cross(c - a, s)) / den
-            u = float(np.cross(c - a, r)) / den
+            t = _cross(c - a, s) / den
+            u = _cross(c - a, r) / den
             if -_TOL <= t <= 1 + _TOL and -_TOL <= u <= 1 + _TOL:
                 pts.append(a + t * r)
     for cx, cy, r, a0, sweep in arcs:

@@ -51,13 +51,13 @@ class ScanLines:
         r0, r1 = self.robot_radius, self.spiral_end_radius
         return r0 + (r1 - r0) * np.asarray(phi) / (2 * math.pi)
 
-    def spiral_points(self, direction: int, start_index: int) -> np.ndarray:
-        """Polyline (M, 2) of one spiral in the robot frame, from its start outwards.
-        direction 0 turns counter-clockwise, 1 clockwise."""
+    def spiral_points(self, direction: int, start_index: int, heading: float = 0.0) -> np.ndarray:
+        """Polyline (M, 2) of one spiral, from its start outwards, in the robot frame (or in a
+        frame rotated by ``heading``). direction 0 turns counter-clockwise, 1 clockwise."""
         phi = self.spiral_phi()
         r = self.spiral_radius(phi)
         sign = 1.0 if direction == 0 else -1.0
-        ang = start_index * self.angle_step + sign * phi
+        ang = heading + start_index * self.angle_step + sign * phi
         return np.stack([r * np.cos(ang), r * np.sin(ang)], axis=1)
 
     def radial_points(self, index: int, step: float) -> np.ndarray:

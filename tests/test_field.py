@@ -1,0 +1,118 @@
+"""Field presets, validation messages, geometry and derived crossings."""
+
+import math
+
+import numpy as np
+import pytest
+import yaml
+
+from stages.common.errors import FieldSpecError
+from stages.common.field import MAPS_DIR, field_from_spec, load_field, preset_names
+
+# Hand count from the rulebook drawings.
+# MSL: 4 field corners (L); per half: goal area 2 L + 2 T, penalty area 2 L + 2 T; halfway line
+# meets the touch lines (2 T) and the centre circle (2 X); the 4 corner arcs end on a touch line
+# and a goal line (8 T). L = 4 + 2 * 4 = 12, T = 2 * 4 + 2 + 8 = 18, X = 2.
+# SPL / Humanoid: the same without corner arcs: L 12, T 10, X 2.
+EXPECTED = {
+    "msl-2015": {"L": 12, "T": 18, "X": 2},
+    "msl": {"L": 12, "T": 18, "X": 2},
+    "spl": {"L": 12, "T": 10, "X": 2},
+    "kidsize": {"L": 12, "T": 10, "X": 2},
+    "adultsize": {"L": 12, "T": 10, "X": 2},
+}
+
+
+def test_every_preset_loads_with_expected_crossings():
+    assert set(EXPECTED) <= set(preset_names())
+    for name, counts in EXPECTED.items():
+        fm = load_field(name)
+        assert fm.summary()["crossings"] == counts, name
+        assert fm.source
+
+
+def test_msl2015_letters():
+    fm = load_field("msl-2015")
+    assert (fm.length, fm.width, fm.line_width) == (18.0, 12.0, 0.125)
+    # penalty mark I = 3 m from the goal line, centre circle H = 4 m diameter
+    assert np.allclose(sorted(fm.penalty_marks[:, 0]), [-6.0, 0.0, 6.0])
+    assert fm.arcs[0][2] == 2.0
+    # the penalty area front line at x = 9 - E, spanning C
+    seg = [s for s in fm.segments if np.allclose(s[:, 0], 9 - 2.25)]
+    assert len(seg) == 1 and np.isclose(abs(seg[0][0, 1] - seg[0][1, 1]), 6.5)
+
+
+def test_crossing_positions_and_orientation():
+    fm = load_field("kidsize")
+    i = np.nonzero(np.all(np.isclose(fm.crossings, [4.5, 3.0]), axis=1))[0][0]
+    assert fm.crossing_types[i] == "L"
+    # the corner at (+4.5, +3): its arms point to -x and -y, the bisector to -135 deg
+    assert math.isclose(fm.crossing_orientation[i], math.radians(-135), abs_tol=1e-9)
+    # the circle meets the halfway line at (0, +-0.75) as X
+    xs = fm.crossings[fm.crossing_types == "X"]
+    assert np.allclose(sorted(xs[:, 1]), [-0.75, 0.75]) and np.allclose(xs[:, 0], 0)
+    # T where the halfway line meets the touch line: stem along -y from (0, 3)
+    j = np.nonzero(np.all(np.isclose(fm.crossings, [0.0, 3.0]), axis=1))[0][0]
+    assert fm.crossing_types[j] == "T"
+    assert math.isclose(fm.crossing_orientation[j], -math.pi / 2, abs_tol=1e-9)
+
+
+def test_distance_to_lines_by_hand():
+    fm = load_field("msl-2015")
+    pts = np.array([[0.0, 0.0], [1.0, 0.0], [0.5, 1.0], [-9.5, 0.0], [8.7, -5.7]])
+    d = fm.distance_to_lines(pts)
+    # on the halfway line; 1 m from it (circle 1 m away too); 0.5 m; 0.5 m behind the goal
+    # line; near the corner arc of radius 0.75 centred at (9, -6)
+    arc = abs(math.hypot(0.3, 0.3) - 0.75)
+    assert np.allclose(d, [0.0, 1.0, 0.5, 0.5, min(arc, 0.3)])
+
+
+def test_mirror_pose():
+    fm = load_field("spl")
+    assert np.allclose(fm.mirror_pose((1.0, 2.0, 0.5)), [-1.0, -2.0, 0.5 - math.pi])
+
+
+def _spec():
+    return yaml.safe_load((MAPS_DIR / "kidsize.yaml").read_text())
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (lambda s: s.pop("width"), "missing key 'width'"),
+        (lambda s: s.update(length=-9.0), "key 'length' must be >= 0"),
+        (lambda s: s.update(colour="green"), "unknown key 'colour'"),
+        (lambda s: s.update(width="six"), "key 'width' must be a number"),
+        (lambda s: s["penalty_area"].update(width=7.0), "'penalty_area.width' (7.0 m) is not"),
+        (lambda s: s["penalty_area"].update(length=5.0), "reaches past the halfway"),
+        (lambda s: s["goal"].pop("depth"), "missing key 'goal.depth'"),
+        (lambda s: s["goal_area"].update(width=5.5), "'goal_area' must lie inside"),
+        (lambda s: s.update(letters={"Z": 1.0}), "unknown key 'letters.Z'"),
+    ],
+)
+def test_invalid_field_messages(tmp_path, change, message):
+    spec = _spec()
+    change(spec)
+    path = tmp_path / "venue.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    with pytest.raises(FieldSpecError) as e:
+        load_field(path)
+    assert message in str(e.value)
+    assert str(path) in str(e.value)
+
+
+def test_unknown_preset_and_bad_yaml(tmp_path):
+    with pytest.raises(FieldSpecError, match="unknown field preset 'nope'"):
+        load_field("nope")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("length: [1,\n")
+    with pytest.raises(FieldSpecError, match="not valid YAML"):
+        load_field(bad)
+
+
+def test_letters_equal_named_keys():
+    a = load_field("msl-2015")
+    spec = dict(a.spec)
+    spec.pop("letters")
+    b = field_from_spec(spec)
+    assert np.allclose(a.segments, b.segments) and np.allclose(a.arcs, b.arcs)
