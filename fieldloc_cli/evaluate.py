@@ -1,0 +1,100 @@
+"""`fieldloc evaluate POSES [POSES ...] --truth TRUTH [-o REPORT_DIR]` and
+`fieldloc evaluate --table REPORT_DIR ...`: reports per run, one table across runs on stdout."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import click
+
+from stages.common.errors import FieldlocError
+
+from .common import conf_option, overrides_dict
+
+log = logging.getLogger("fieldloc.evaluate")
+
+
+def _preset_names():
+    from stages.evaluate import confs
+
+    return sorted(confs)
+
+
+def _default_tolerance() -> float:
+    from stages.evaluate import confs
+
+    return confs["default"]["stamp_tolerance"]
+
+
+def report_dirs(poses: list[Path], output: Path | None) -> list[Path]:
+    """Where each poses file's report goes: ``output`` for one file; ``output/<stem>`` for
+    several (parent folder names prefixed where stems repeat); without ``output``,
+    ``<poses folder>/<stem>-eval`` beside each poses file."""
+    if output is None:
+        return [p.parent / f"{p.stem}-eval" for p in poses]
+    if len(poses) == 1:
+        return [output]
+    names = [p.stem for p in poses]
+    if len(set(names)) < len(names):
+        names = [f"{p.resolve().parent.name}-{p.stem}" if names.count(p.stem) > 1 else p.stem
+                 for p in poses]
+    if len(set(names)) < len(names):
+        dup = next(n for n in names if names.count(n) > 1)
+        raise FieldlocError(
+            f"two poses files would share the report folder {output / dup}; evaluate them"
+            " with separate -o folders"
+        )
+    return [output / n for n in names]
+
+
+@click.command()
+@click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("--truth", type=click.Path(path_type=Path), default=None,
+              help="truth.csv (stamp,x,y,theta) or the dataset folder holding it. Default: the"
+              " dataset the poses file names.")
+@click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
+              help="Report folder (several poses files: one subfolder per file)."
+              " Default: <poses>-eval beside each poses file.")
+@click.option("--field", default=None,
+              help="Field (preset name or YAML) to draw trajectories on; default: the poses"
+              " file's field.")
+@click.option("--table", "table_only", is_flag=True,
+              help="INPUTS are report folders (or report.json files): tabulate them without"
+              " recomputing.")
+@click.option("--preset", default="default", show_default=True, type=click.Choice(_preset_names()),
+              help="Evaluation preset (stages.evaluate.confs).")
+@click.option("--stamp-tolerance", type=float, default=None,
+              help="Largest stamp difference (s) for a frame to match a truth row"
+              f" [default: the preset's; 'default' has {_default_tolerance():g}].")
+@conf_option
+@click.option("--format", "fmt", type=click.Choice(["text", "markdown", "csv"]),
+              default="text", show_default=True, help="Table format on stdout.")
+@click.option("--overwrite", is_flag=True, help="Replace reports made from other inputs.")
+def evaluate(inputs, truth, output, field, table_only, preset, stamp_tolerance, overrides, fmt,
+             overwrite):
+    """Position and heading errors of POSES files (poses.h5) against truth: report.json,
+    errors.csv and plots per run, and a table of all runs on stdout.
+
+    Failures count as failures (infinite error). With --table, INPUTS are existing report
+    folders and only the table is printed."""
+    from stages import evaluate as stage
+
+    if table_only:
+        if truth or output or field or overwrite or stamp_tolerance is not None or overrides:
+            raise FieldlocError("--table only reads existing reports; it takes no --truth, -o,"
+                                " --field, --stamp-tolerance, -c or --overwrite")
+        click.echo(stage.tabulate(list(inputs), fmt=fmt))
+        return
+    over = overrides_dict(overrides)
+    if stamp_tolerance is not None:
+        over["stamp_tolerance"] = stamp_tolerance
+    from stages.common.conf import resolve_conf
+
+    conf = resolve_conf(stage.confs, preset, over)
+    outs = report_dirs(list(inputs), output)
+    done = []
+    for poses, out in zip(inputs, outs):
+        done.append(stage.main(conf, poses, truth, out, overwrite=overwrite, field=field))
+        log.info("report written to %s", out)
+    click.echo(stage.tabulate(done, fmt=fmt))

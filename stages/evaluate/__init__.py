@@ -1,0 +1,251 @@
+"""Evaluate a pose track against ground truth: report.json, errors.csv and plots per run, and a
+table across runs.
+
+    main(conf, poses, truth, output_dir, *, overwrite=False, field=None) -> Path
+    evaluate_poses(columns, truth, conf) -> (FrameErrors, summary dict)
+    tabulate([report dirs or report.json files], fmt="text") -> str
+
+A report folder holds:
+
+    report.json          the numbers (schema ``fieldloc.report``, see report.py), written last:
+                         its presence means the run finished
+    errors.csv           one row per frame: matched truth, position and heading error
+    plots/error_cdf.png, plots/trajectory.png, plots/error_over_time.png
+
+Failures count as failures (infinite error), never as poses; how that enters each number is
+written in metrics.py and repeated in every report under ``conventions``.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import logging
+import math
+from pathlib import Path
+
+import numpy as np
+
+from stages import __version__
+from stages.common.artifacts import file_hash
+from stages.common.conf import resolve_conf
+from stages.common.dataset import read_csv
+from stages.common.errors import FieldlocError
+from stages.common.field import load_field
+from stages.common.poses_file import read_poses
+
+from .metrics import FrameErrors, frame_errors, summarize
+from .report import (
+    ERRORS_NAME,
+    PLOTS_DIR,
+    REPORT_NAME,
+    SCHEMA,
+    VERSION,
+    load_report,
+    tabulate,
+    write_errors_csv,
+    write_report,
+)
+
+__all__ = ["confs", "main", "evaluate_poses", "tabulate", "load_report", "FrameErrors"]
+
+log = logging.getLogger("fieldloc.evaluate")
+
+confs = {
+    "default": {
+        # a frame matches the truth row nearest in stamp if it is this close (s)
+        "stamp_tolerance": 0.02,
+        # position error thresholds (m) for the "within" shares (seed 000 fig. 4)
+        "thresholds": [0.1, 0.2, 0.4],
+        "plots": True,
+        "dpi": 120,
+    },
+    # motion capture or truth logged at a lower rate than the camera
+    "loose": {
+        "stamp_tolerance": 0.05,
+        "thresholds": [0.1, 0.2, 0.4],
+        "plots": True,
+        "dpi": 120,
+    },
+    # numbers only (batch comparisons of many runs)
+    "numbers": {
+        "stamp_tolerance": 0.02,
+        "thresholds": [0.1, 0.2, 0.4],
+        "plots": False,
+        "dpi": 120,
+    },
+}
+
+PLOT_NAMES = ("error_cdf.png", "trajectory.png", "error_over_time.png")
+
+CONVENTIONS = {
+    "matching": "each frame is matched to the truth row nearest in stamp within"
+    " stamp_tolerance; unmatched frames are counted but take no part in the errors",
+    "failures": "a failed frame has infinite position and heading error: it is never 'within',"
+    " makes max and mean inf and raises median and p90 (inf when more than half failed);"
+    " 'localised' holds the same statistics over matched frames that did not fail",
+    "denominators": "position_error_m, heading_error_deg and within are over matched frames;"
+    " failures and runtime_ms over all frames",
+    "heading": "absolute difference wrapped to [0, 180] deg",
+    "json": "infinite values are the string \"inf\"; a statistic over no frames is null",
+}
+
+
+def _check_conf(conf: dict) -> dict:
+    tol = conf["stamp_tolerance"]
+    if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not tol >= 0:
+        raise FieldlocError(f"conf 'stamp_tolerance' must be a number >= 0 (s), got {tol!r}")
+    th = conf["thresholds"]
+    if isinstance(th, (int, float)) and not isinstance(th, bool):
+        th = [th]
+    if (not isinstance(th, (list, tuple)) or not th
+            or any(isinstance(t, bool) or not isinstance(t, (int, float)) or not t > 0
+                   for t in th)):
+        raise FieldlocError(f"conf 'thresholds' must be a list of distances > 0 (m), got {th!r}")
+    conf["thresholds"] = sorted(float(t) for t in th)
+    conf["stamp_tolerance"] = float(tol)
+    return conf
+
+
+def _resolve(conf) -> dict:
+    if conf is None or isinstance(conf, str):
+        return _check_conf(resolve_conf(confs, conf))
+    return _check_conf(resolve_conf(confs, "default", dict(conf)))
+
+
+def evaluate_poses(columns: dict, truth: dict, conf=None) -> tuple[FrameErrors, dict]:
+    """Per-frame errors and the summary numbers of a pose track (columns as from
+    ``read_poses``) against truth columns (stamp, x, y, theta), without touching the disk."""
+    conf = _resolve(conf)
+    fe = frame_errors(columns, truth, conf["stamp_tolerance"])
+    return fe, summarize(fe, conf["thresholds"])
+
+
+def _truth_path(truth, attrs: dict, poses: Path) -> Path:
+    if truth is None:
+        ds = attrs.get("dataset") or ""
+        if not ds:
+            raise FieldlocError(
+                f"no truth given and {poses} does not name its dataset: pass --truth TRUTH.csv"
+            )
+        truth = Path(ds)
+    truth = Path(truth)
+    if truth.is_dir():
+        truth = truth / "truth.csv"
+    return truth
+
+
+def _load_field_model(field, attrs: dict):
+    """The field to draw on: ``field`` if given (errors are the user's), else the poses'
+    ``field`` attribute (a failure there is logged and the plot drawn without field lines)."""
+    if field:
+        return load_field(field)
+    name = attrs.get("field") or ""
+    if not name:
+        log.warning("poses file names no field; trajectories drawn without field lines"
+                    " (pass --field)")
+        return None
+    try:
+        return load_field(name)
+    except FieldlocError as e:
+        log.warning("field '%s' of the poses file could not be loaded (%s); trajectories drawn"
+                    " without field lines (pass --field)", name, e)
+        return None
+
+
+def main(conf, poses, truth, output_dir, *, overwrite: bool = False, field=None) -> Path:
+    """Evaluate ``poses`` (poses.h5) against ``truth`` (truth.csv, or a dataset folder holding
+    it; None: the dataset the poses file names) into the report folder ``output_dir``.
+
+    ``conf``: a preset name, a dict of overrides of "default", or None. ``field``: the field
+    (name or YAML path) to draw trajectories on, instead of the poses file's ``field``.
+    An existing report of the same inputs and conf is kept as it is; one of other inputs is
+    replaced only with ``overwrite``. Returns the report folder."""
+    conf = _resolve(conf)
+    poses = Path(poses)
+    columns, attrs = read_poses(poses)
+    missing = [c for c in ("stamp", "x", "y", "theta", "failed") if c not in columns]
+    if missing:
+        raise FieldlocError(f"{poses}: poses file lacks column(s) {', '.join(missing)}")
+    truth = _truth_path(truth, attrs, poses)
+    truth_cols = read_csv(truth, "truth")
+    out = Path(output_dir)
+    inputs = {"poses": file_hash(poses), "truth": file_hash(truth)}
+    report_file = out / REPORT_NAME
+    if report_file.exists() and not overwrite:
+        try:
+            old = load_report(report_file, raw=True)
+        except FieldlocError:
+            old = {}
+        if (old.get("inputs") == inputs and old.get("evaluate_conf") == conf
+                and old.get("field_override") == (str(field) if field else None)):
+            log.info("%s is up to date", report_file)
+            return out
+        raise FieldlocError(
+            f"{out} already holds a report of other inputs or settings; pass --overwrite"
+            " (overwrite=True) to replace it or choose another output folder"
+        )
+
+    fe = frame_errors(columns, truth_cols, conf["stamp_tolerance"])
+    summary = summarize(fe, conf["thresholds"])
+    log.info("%s: %d of %d frames matched to truth within %g s, %d failed", poses,
+             summary["matched"], summary["frames"], conf["stamp_tolerance"],
+             summary["failures"])
+    if summary["unmatched"]:
+        log.warning("%s: %d of %d frames have no truth stamp within %g s and are not scored",
+                    poses, summary["unmatched"], summary["frames"], conf["stamp_tolerance"])
+
+    out.mkdir(parents=True, exist_ok=True)
+    write_errors_csv(out / ERRORS_NAME, fe)
+    plots_dir = out / PLOTS_DIR
+    plot_files = []
+    if conf["plots"]:
+        from .plots import write_report_plots
+
+        fm = _load_field_model(field, attrs)
+        title = f"{attrs.get('method') or 'poses'} on {out.name}"
+        plot_files = write_report_plots(
+            fe, plots_dir, thresholds=conf["thresholds"], title=title, field_model=fm,
+            truth_path=_truth_path_during(truth_cols, fe, conf["stamp_tolerance"]),
+            dpi=int(conf["dpi"]))
+    else:
+        for name in PLOT_NAMES:  # a replaced report must not keep plots of the old one
+            (plots_dir / name).unlink(missing_ok=True)
+
+    report = {
+        "schema": SCHEMA,
+        "schema_version": VERSION,
+        "fieldloc_version": __version__,
+        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "run": out.name,
+        "method": attrs.get("method", ""),
+        "field": str(field) if field else attrs.get("field", ""),
+        "dataset": attrs.get("dataset", ""),
+        "poses": str(poses),
+        "truth": str(truth),
+        "inputs": inputs,
+        "conf": attrs.get("conf", {}),
+        "evaluate_conf": conf,
+        "field_override": str(field) if field else None,
+        "conventions": CONVENTIONS,
+        **summary,
+        "files": {"errors": ERRORS_NAME,
+                  "plots": [str(p.relative_to(out)) for p in plot_files]},
+    }
+    write_report(report_file, report)
+    pos = summary["position_error_m"]
+    log.info("%s: median position error %s m, within %s", out, _short(pos["median"]),
+             summary["within"])
+    return out
+
+
+def _truth_path_during(truth: dict, fe: FrameErrors, tolerance: float):
+    """(x, y) of the truth rows, in time order, from the first to the last frame."""
+    t = truth["stamp"]
+    ok = np.isfinite(t) & np.isfinite(truth["x"]) & np.isfinite(truth["y"])
+    ok &= (t >= np.nanmin(fe.stamp) - tolerance) & (t <= np.nanmax(fe.stamp) + tolerance)
+    order = np.argsort(t[ok], kind="stable")
+    return truth["x"][ok][order], truth["y"][ok][order]
+
+
+def _short(v: float) -> str:
+    return "inf" if math.isinf(v) else ("-" if math.isnan(v) else f"{v:.3f}")

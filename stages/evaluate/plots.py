@@ -1,0 +1,284 @@
+"""Evaluation plots. Every plot function draws into a matplotlib ``ax`` it is given (as evo
+does), so callers compose figures; ``save_figure`` writes a figure atomically.
+
+Figures are built with ``matplotlib.figure.Figure`` and the Agg canvas, never pyplot, so no
+global backend or figure state is touched and nothing opens a window.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import LineCollection, PatchCollection
+from matplotlib.figure import Figure
+from matplotlib.patches import Circle, Polygon, Rectangle, Wedge
+
+from stages.common.artifacts import atomic_path
+from stages.common.field import FieldModel
+
+from .metrics import FrameErrors
+
+FIELD_GREEN = "#3a8a3a"
+BORDER_GREEN = "#2f7330"
+LINE_WHITE = "white"
+TRUTH_COLOUR = "black"
+FAILURE_COLOUR = "#d62728"
+
+
+def new_figure(width: float = 8.0, height: float = 5.0, dpi: int = 120) -> Figure:
+    """A figure on the Agg canvas (no pyplot)."""
+    fig = Figure(figsize=(width, height), dpi=dpi)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def save_figure(fig: Figure, path: str | Path, dpi: int | None = None) -> Path:
+    """Write ``fig`` as PNG to ``path`` atomically."""
+    path = Path(path)
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, format="png", dpi=dpi or fig.dpi, bbox_inches="tight")
+    return path
+
+
+# ---------------------------------------------------------------------------- the field
+
+
+def _segment_polygon(p0, p1, width: float) -> np.ndarray:
+    """The rectangle (4, 2) a line of ``width`` covers along p0 -> p1, ends extended by
+    width / 2 so that lines meeting at a corner close it."""
+    p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
+    d = p1 - p0
+    u = d / np.linalg.norm(d)
+    n = np.array([-u[1], u[0]]) * width / 2
+    a, b = p0 - u * width / 2, p1 + u * width / 2
+    return np.array([a + n, b + n, b - n, a - n])
+
+
+def draw_field(ax, field_model: FieldModel, *, border: bool = True, line_colour=LINE_WHITE,
+               field_colour=FIELD_GREEN, border_colour=BORDER_GREEN, goals: bool = True,
+               zorder: float = 0.0):
+    """Draw a field's white lines at their true width (segments and arcs of the model),
+    penalty marks, goals and posts into ``ax``, in metres in the field frame. Sets equal aspect
+    and limits to the field plus its border (``border=False``: the field only)."""
+    fm = field_model
+    xmin, xmax, ymin, ymax = fm.world_bounds(None if border else 0.0)
+    ax.add_patch(Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, facecolor=border_colour,
+                           edgecolor="none", zorder=zorder))
+    hx, hy = fm.length / 2, fm.width / 2
+    ax.add_patch(Rectangle((-hx, -hy), fm.length, fm.width, facecolor=field_colour,
+                           edgecolor="none", zorder=zorder))
+    lw = fm.line_width
+    patches = [Polygon(_segment_polygon(p0, p1, lw), closed=True) for p0, p1 in fm.segments]
+    for cx, cy, r, a0, sweep in fm.arcs:
+        t0, t1 = math.degrees(a0), math.degrees(a0 + sweep)
+        patches.append(Wedge((cx, cy), r + lw / 2, t0, t1, width=lw))
+    for px, py in fm.penalty_marks:
+        size = float(fm.spec.get("penalty_mark", {}).get("size", lw))
+        patches.append(Rectangle((px - size / 2, py - lw / 2), size, lw))
+        patches.append(Rectangle((px - lw / 2, py - size / 2), lw, size))
+    ax.add_collection(PatchCollection(patches, facecolor=line_colour, edgecolor="none",
+                                      zorder=zorder + 0.1))
+    if goals and len(fm.goal_posts):
+        goal = fm.spec.get("goal", {})
+        depth = float(goal.get("depth", 0.0))
+        post_d = float(goal.get("post_diameter", lw))
+        frames = []
+        for sx in (-1.0, 1.0):
+            posts = fm.goal_posts[np.sign(fm.goal_posts[:, 0]) == sx]
+            if len(posts) == 2 and depth > 0:
+                y0, y1 = sorted(posts[:, 1])
+                gx = sx * hx
+                frames.append([(gx, y0), (gx + sx * depth, y0), (gx + sx * depth, y1), (gx, y1)])
+        ax.add_collection(LineCollection(frames, colors="0.85", linewidths=1.5,
+                                         zorder=zorder + 0.2))
+        ax.add_collection(PatchCollection(
+            [Circle((px, py), post_d / 2) for px, py in fm.goal_posts],
+            facecolor="0.95", edgecolor="0.3", linewidth=0.5, zorder=zorder + 0.3))
+    ax.set_xlim(xmin, xmax)
+    ax.set_ylim(ymin, ymax)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    return ax
+
+
+# ---------------------------------------------------------------------------- error plots
+
+
+def plot_error_cdf(ax, position_error, thresholds=(), *, label: str | None = None,
+                   colour=None, annotate: bool = True):
+    """Cumulative share of frames by position error (cm). Failures (inf) never arrive, so the
+    curve ends below 1 by the failure share. Thresholds are drawn as vertical lines with the
+    share within each."""
+    e = np.sort(np.asarray(position_error, float)[~np.isnan(position_error)])
+    n = e.size
+    finite = e[np.isfinite(e)] * 100.0
+    share = np.arange(1, finite.size + 1) / max(n, 1)
+    t_max = max((float(t) for t in thresholds), default=0.0) * 100.0
+    right = max(1.3 * t_max, 1.02 * finite[-1] if finite.size else 1.0, 1.0)
+    # the curve runs on flat to the right edge: the share of failures never arrives
+    xs = np.concatenate([[0.0], finite, [right]])
+    ys = np.concatenate([[0.0], share, [share[-1] if share.size else 0.0]])
+    fails = n - finite.size
+    lab = label
+    if fails and label is not None:
+        lab = f"{label} ({fails} failed)"
+    elif fails:
+        lab = f"{fails} of {n} frames failed"
+    (line,) = ax.step(xs, ys, where="post", color=colour, label=lab)
+    for t in thresholds:
+        within = float(np.mean(e <= t)) if n else math.nan
+        ax.axvline(t * 100.0, color="0.6", linestyle=":", linewidth=1)
+        if annotate:
+            ax.annotate(f"{within:.0%} <= {t * 100:g} cm", (t * 100.0, within),
+                        textcoords="offset points", xytext=(4, -12), fontsize=8,
+                        color=line.get_color())
+    if fails:
+        ax.axhline(finite.size / n, color=FAILURE_COLOUR, linestyle="--", linewidth=0.8)
+    ax.set_xlabel("position error (cm)")
+    ax.set_ylabel("share of frames")
+    ax.set_ylim(0.0, 1.02)
+    ax.set_xlim(left=0.0)
+    ax.grid(True, alpha=0.3)
+    if lab:
+        ax.legend(loc="lower right", fontsize=8)
+    return ax
+
+
+def plot_trajectories(ax, fe: FrameErrors, field_model: FieldModel | None = None, *,
+                      truth_path=None, max_error: float = 0.4, heading_every: int = 0):
+    """The true trajectory (black) and the estimates coloured by position error (0 to
+    ``max_error`` m), failures as red crosses at the true position, drawn on the field when a
+    field model is given. ``truth_path``: (x, y) arrays of the whole true trajectory in time
+    order (default: the truth rows matched to frames). ``heading_every`` > 0 adds heading
+    arrows every that many frames."""
+    if field_model is not None:
+        draw_field(ax, field_model)
+    else:
+        ax.set_aspect("equal")
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+        ax.grid(True, alpha=0.3)
+    m = fe.matched
+    order = np.argsort(fe.stamp[m], kind="stable")
+    if truth_path is None:
+        tx, ty = fe.truth_x[m][order], fe.truth_y[m][order]
+    else:
+        tx, ty = (np.asarray(v, float) for v in truth_path)
+    ax.plot(tx, ty, color=TRUTH_COLOUR, linewidth=1.0, alpha=0.8, label="truth", zorder=3.2)
+    if tx.size:
+        ax.plot(tx[:1], ty[:1], "o", color=TRUTH_COLOUR, markersize=5, zorder=3.3,
+                label="start")
+    ok = ~fe.failed
+    ax.plot(fe.x[ok], fe.y[ok], color="0.9", linewidth=0.5, alpha=0.8, zorder=2.5)
+    mo = m & ok
+    sc = ax.scatter(fe.x[mo], fe.y[mo], c=fe.position_error[mo], s=10, cmap="plasma",
+                    vmin=0.0, vmax=max_error, label="estimate" if np.any(mo) else None,
+                    zorder=3, edgecolors="none")
+    uo = ~m & ok
+    if np.any(uo):
+        ax.scatter(fe.x[uo], fe.y[uo], s=8, color="0.6", zorder=3, edgecolors="none",
+                   label=f"estimate, no truth ({int(uo.sum())})")
+    cb = ax.figure.colorbar(sc, ax=ax, fraction=0.03, pad=0.02)
+    cb.set_label(f"position error (m, clipped at {max_error:g})")
+    fm = m & fe.failed
+    if np.any(fm):
+        ax.scatter(fe.truth_x[fm], fe.truth_y[fm], marker="x", s=30, color=FAILURE_COLOUR,
+                   label=f"failed ({int(fm.sum())})", zorder=4)
+    if heading_every > 0:
+        sel = np.flatnonzero(ok)[::heading_every]
+        ax.quiver(fe.x[sel], fe.y[sel], np.cos(fe.theta[sel]), np.sin(fe.theta[sel]),
+                  angles="xy", scale=40, width=0.002, color="0.95", zorder=3.5)
+    if field_model is None and np.any(m):
+        pts_x = np.concatenate([fe.truth_x[m], fe.x[ok]])
+        pts_y = np.concatenate([fe.truth_y[m], fe.y[ok]])
+        pad = 0.5
+        ax.set_xlim(np.nanmin(pts_x) - pad, np.nanmax(pts_x) + pad)
+        ax.set_ylim(np.nanmin(pts_y) - pad, np.nanmax(pts_y) + pad)
+    ax.legend(loc="upper right", fontsize=8, framealpha=0.8)
+    return ax
+
+
+def _mark_failures(ax, t, failed):
+    if np.any(failed):
+        ax.scatter(t[failed], np.full(int(failed.sum()), 0.97), marker="v", s=14,
+                   color=FAILURE_COLOUR, transform=ax.get_xaxis_transform(), clip_on=False,
+                   label=f"failed ({int(failed.sum())})", zorder=4)
+
+
+def plot_position_error_over_time(ax, fe: FrameErrors, thresholds=()):
+    """Position error (cm) of matched frames against time; failures marked at the top."""
+    m = fe.matched
+    t0 = np.nanmin(fe.stamp) if len(fe) else 0.0
+    t = fe.stamp - t0
+    ok = m & ~fe.failed
+    ax.plot(t[ok], fe.position_error[ok] * 100.0, ".-", markersize=3, linewidth=0.7,
+            label="position error")
+    for th in thresholds:
+        ax.axhline(th * 100.0, color="0.6", linestyle=":", linewidth=1)
+    _mark_failures(ax, t, m & fe.failed)
+    ax.set_ylabel("position error (cm)")
+    ax.set_ylim(bottom=0.0)
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="upper left", fontsize=8)
+    return ax
+
+
+def plot_heading_error_over_time(ax, fe: FrameErrors):
+    """Heading error (deg) of matched frames against time; failures marked at the top."""
+    m = fe.matched
+    t0 = np.nanmin(fe.stamp) if len(fe) else 0.0
+    t = fe.stamp - t0
+    ok = m & ~fe.failed
+    ax.plot(t[ok], np.degrees(fe.heading_error[ok]), ".-", markersize=3, linewidth=0.7,
+            color="tab:orange", label="heading error")
+    _mark_failures(ax, t, m & fe.failed)
+    ax.set_ylabel("heading error (deg)")
+    ax.set_xlabel("time since first frame (s)")
+    ax.set_ylim(bottom=0.0)
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="upper left", fontsize=8)
+    return ax
+
+
+# ---------------------------------------------------------------------------- report figures
+
+
+def write_report_plots(fe: FrameErrors, out_dir: str | Path, *, thresholds, title: str = "",
+                       field_model: FieldModel | None = None, truth_path=None,
+                       dpi: int = 120) -> list[Path]:
+    """The report's PNGs in ``out_dir``: error_cdf.png, trajectory.png, error_over_time.png.
+    ``truth_path``: see ``plot_trajectories``."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+
+    fig = new_figure(6.0, 4.0, dpi)
+    ax = fig.add_subplot()
+    plot_error_cdf(ax, fe.position_error[fe.matched], thresholds)
+    ax.set_title(f"{title}: position error CDF" if title else "position error CDF")
+    written.append(save_figure(fig, out_dir / "error_cdf.png"))
+
+    if field_model is not None:
+        xmin, xmax, ymin, ymax = field_model.world_bounds()
+        aspect = (ymax - ymin) / (xmax - xmin)
+    else:
+        aspect = 0.7
+    fig = new_figure(9.0, max(3.0, 9.0 * aspect), dpi)
+    ax = fig.add_subplot()
+    plot_trajectories(ax, fe, field_model, truth_path=truth_path,
+                      max_error=max(thresholds) if thresholds else 0.4)
+    ax.set_title(f"{title}: trajectories" if title else "trajectories")
+    written.append(save_figure(fig, out_dir / "trajectory.png"))
+
+    fig = new_figure(9.0, 5.0, dpi)
+    ax_pos = fig.add_subplot(2, 1, 1)
+    ax_head = fig.add_subplot(2, 1, 2, sharex=ax_pos)
+    plot_position_error_over_time(ax_pos, fe, thresholds)
+    plot_heading_error_over_time(ax_head, fe)
+    ax_pos.set_title(f"{title}: error over time" if title else "error over time")
+    written.append(save_figure(fig, out_dir / "error_over_time.png"))
+    return written
