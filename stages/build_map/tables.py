@@ -36,36 +36,63 @@ def _to_mm(metres: np.ndarray) -> np.ndarray:
 # ---------------------------------------------------------------------------- radial
 
 
-def _ray_hits(fm: FieldModel, ox, oy, angle: float, t_min: float, t_max: float) -> np.ndarray:
-    """All centre-line crossing distances of the ray from every cell (ny, nx, K), inf = none."""
+def _swept_box(grid: Grid, xlo, xhi, ylo, yhi, dx, dy, t_min, t_max):
+    """Index ranges (i0, i1, j0, j1) of the cells from which a ray (direction dx, dy) can meet
+    something inside the box [xlo, xhi] x [ylo, yhi] at a distance in [t_min, t_max]."""
+    ox0 = xlo - max(t_min * dx, t_max * dx)
+    ox1 = xhi - min(t_min * dx, t_max * dx)
+    oy0 = ylo - max(t_min * dy, t_max * dy)
+    oy1 = yhi - min(t_min * dy, t_max * dy)
+    res = grid.resolution
+    j0 = max(int(math.floor((ox0 - grid.origin[0]) / res)), 0)
+    j1 = min(int(math.ceil((ox1 - grid.origin[0]) / res)) + 1, grid.shape[1])
+    i0 = max(int(math.floor((oy0 - grid.origin[1]) / res)), 0)
+    i1 = min(int(math.ceil((oy1 - grid.origin[1]) / res)) + 1, grid.shape[0])
+    return i0, i1, j0, j1
+
+
+def _ray_hits(fm: FieldModel, grid: Grid, angle: float, t_min: float, t_max: float):
+    """All centre-line crossing distances of the ray from every cell (ny, nx, K) float32,
+    inf = none. Each line is intersected only from the cells whose ray can reach it."""
     # snapped so that a scan line along a field line is exactly parallel to it whichever way
     # its angle was computed (k * step + heading or (k + m) * step)
     dx, dy = round(math.cos(angle), 12), round(math.sin(angle), 12)
     eps = 1e-9
-    hits = []
+    xs, ys = grid.xs, grid.ys
+    n_cand = len(fm.segments) + 2 * len(fm.arcs)
+    hits = np.full(tuple(grid.shape) + (n_cand,), np.inf, dtype=np.float32)
+    col = 0
     for (ax, ay), (bx, by) in fm.segments:
         ex, ey = bx - ax, by - ay
         den = dx * ey - dy * ex
         if abs(den) < 1e-12:  # parallel: a ray along a line sees no crossing
+            col += 1
             continue
-        wx, wy = ax - ox, ay - oy
-        t = (wx * ey - wy * ex) / den
-        u = (wx * dy - wy * dx) / den
-        ok = (u >= -eps) & (u <= 1 + eps) & (t >= t_min - eps) & (t <= t_max + eps)
-        hits.append(np.where(ok, t, np.inf))
+        i0, i1, j0, j1 = _swept_box(grid, min(ax, bx), max(ax, bx), min(ay, by), max(ay, by),
+                                    dx, dy, t_min, t_max)
+        if i0 < i1 and j0 < j1:
+            wx, wy = ax - xs[None, j0:j1], ay - ys[i0:i1, None]
+            t = (wx * ey - wy * ex) / den
+            u = (wx * dy - wy * dx) / den
+            ok = (u >= -eps) & (u <= 1 + eps) & (t >= t_min - eps) & (t <= t_max + eps)
+            hits[i0:i1, j0:j1, col] = np.where(ok, t, np.inf)
+        col += 1
     for cx, cy, r, a0, sweep in fm.arcs:
-        fx, fy = ox - cx, oy - cy
-        b = fx * dx + fy * dy
-        c = fx * fx + fy * fy - r * r
-        disc = b * b - c
-        sq = np.sqrt(np.maximum(disc, 0.0))
-        for t in (-b - sq, -b + sq):
-            ok = (disc >= 0) & (t >= t_min - eps) & (t <= t_max + eps)
-            if sweep < 2 * math.pi - 1e-12:
-                phi = np.arctan2(fy + t * dy, fx + t * dx)
-                ok &= np.mod(phi - a0 + eps, 2 * math.pi) <= sweep + 2 * eps
-            hits.append(np.where(ok, t, np.inf))
-    return np.stack(hits, axis=-1)
+        i0, i1, j0, j1 = _swept_box(grid, cx - r, cx + r, cy - r, cy + r, dx, dy, t_min, t_max)
+        if i0 < i1 and j0 < j1:
+            fx, fy = xs[None, j0:j1] - cx, ys[i0:i1, None] - cy
+            b = fx * dx + fy * dy
+            c = fx * fx + fy * fy - r * r
+            disc = b * b - c
+            sq = np.sqrt(np.maximum(disc, 0.0))
+            for n, t in enumerate((-b - sq, -b + sq)):
+                ok = (disc >= 0) & (t >= t_min - eps) & (t <= t_max + eps)
+                if sweep < 2 * math.pi - 1e-12:
+                    phi = np.arctan2(fy + t * dy, fx + t * dx)
+                    ok &= np.mod(phi - a0 + eps, 2 * math.pi) <= sweep + 2 * eps
+                hits[i0:i1, j0:j1, col + n] = np.where(ok, t, np.inf)
+        col += 2
+    return hits
 
 
 def merge_crossings(sorted_hits: np.ndarray, merge_distance: float, keep: int) -> np.ndarray:
@@ -98,15 +125,19 @@ def merge_crossings(sorted_hits: np.ndarray, merge_distance: float, keep: int) -
 def radial_table(fm: FieldModel, grid: Grid, sl: ScanLines, heading: float = 0.0) -> np.ndarray:
     """(n_angles, max_crossings, ny, nx) uint16 mm for a robot with ``heading`` (the map stores
     heading 0; other headings are index rotations of it)."""
-    ox = grid.xs[None, :]
-    oy = grid.ys[:, None]
     ny, nx = grid.shape
     out = np.empty((sl.n_angles, sl.max_crossings, ny, nx), dtype=np.uint16)
     for k, angle in enumerate(sl.radial_angles):
-        hits = _ray_hits(fm, ox, oy, float(angle) + heading, sl.robot_radius, sl.max_range)
+        hits = _ray_hits(fm, grid, float(angle) + heading, sl.robot_radius, sl.max_range)
         hits = np.sort(hits, axis=-1)
-        hits = hits[..., : 2 * sl.max_crossings + 2]
-        merged = merge_crossings(hits, fm.line_width, sl.max_crossings)
+        count = np.isfinite(hits).sum(axis=-1)
+        merged = np.full((ny, nx, sl.max_crossings), np.inf)
+        merged[..., 0] = hits[..., 0]
+        several = count >= 2  # only these can hold crossings to merge
+        if several.any():
+            k_eff = int(count.max())
+            merged[several] = merge_crossings(hits[several][:, :k_eff], fm.line_width,
+                                              sl.max_crossings)
         out[k] = _to_mm(np.moveaxis(merged, -1, 0))
     return out
 
@@ -164,6 +195,7 @@ def _spiral_line_crossings(fm: FieldModel, grid: Grid, sl: ScanLines, table: np.
             for axis, lines, across, along_cells in families:
                 if not lines:
                     continue
+                res, first = grid.resolution, along_cells[0]
                 # offsets (line coordinate - cell coordinate) that the spiral can reach
                 rows, offs = [], []
                 for c, _lo, _hi in lines:
@@ -177,14 +209,17 @@ def _spiral_line_crossings(fm: FieldModel, grid: Grid, sl: ScanLines, table: np.
                 for (_c, lo, hi), sel in zip(lines, rows):
                     inv = inverse[start : start + len(sel)]
                     start += len(sel)
-                    a = A[inv][:, None, :] + along_cells[None, :, None]  # (rows, cells, K)
+                    # only cells within the spiral's reach of the segment along it
+                    c0 = max(int(math.floor((lo - reach - first) / res)), 0)
+                    c1 = min(int(math.ceil((hi + reach - first) / res)) + 1, len(along_cells))
+                    a = A[inv][:, None, :] + along_cells[None, c0:c1, None]  # (rows, cells, K)
                     ok = (a >= lo - 1e-9) & (a <= hi + 1e-9)
                     best = np.where(ok, R[inv][:, None, :], np.inf).min(axis=-1)
                     view = table[direction, k]
                     if axis == 1:  # horizontal line: rows of the grid are y
-                        view[sel, :] = np.minimum(view[sel, :], best)
+                        view[sel, c0:c1] = np.minimum(view[sel, c0:c1], best)
                     else:
-                        view[:, sel] = np.minimum(view[:, sel], best.T)
+                        view[c0:c1, sel] = np.minimum(view[c0:c1, sel], best.T)
 
 
 def _spiral_arc_crossings(fm: FieldModel, grid: Grid, sl: ScanLines, table: np.ndarray,
@@ -211,15 +246,23 @@ def _spiral_arc_crossings(fm: FieldModel, grid: Grid, sl: ScanLines, table: np.n
             h = (rphi[None, :] ** 2 + rho[:, None] ** 2 - R * R) / (
                 2 * rphi[None, :] * rho[:, None]
             )
-            cos_lut = np.cos(np.arange(n * sub)[None, :] * step - gamma[:, None])
+            cg = np.cos(gamma).astype(np.float32)[:, None, None]
+            sg = np.sin(gamma).astype(np.float32)[:, None, None]
+            h32 = h.astype(np.float32)[:, None, :]
             for direction, s in ((0, 1), (1, -1)):
-                idx = (sub * np.arange(n)[:, None] + s * m_phi[None, :]) % (n * sub)
-                g = cos_lut[:, idx] - h[:, None, :]  # (cells, k, m)
+                # lattice angles a_k + s phi_m; cos(theta - gamma) without a gather
+                theta = sl.angle_step * np.arange(n)[:, None] + s * step * m_phi[None, :]
+                ct, st = np.cos(theta).astype(np.float32), np.sin(theta).astype(np.float32)
+                g = ct[None] * cg + st[None] * sg - h32  # (cells, k, m)
                 neg = g < 0
                 ci, k, m = np.nonzero(neg[:, :, :-1] != neg[:, :, 1:])
                 if len(ci) == 0:
                     continue
-                f = g[ci, k, m] / (g[ci, k, m] - g[ci, k, m + 1])
+                if full:  # the first crossing of each spiral is the one the table keeps
+                    _, first = np.unique(ci * n + k, return_index=True)
+                    ci, k, m = ci[first], k[first], m[first]
+                g0, g1 = g[ci, k, m].astype(float), g[ci, k, m + 1].astype(float)
+                f = g0 / (g0 - g1)
                 ph = (m + f) * step
                 a = k * sl.angle_step
                 rh, gm = rho[ci], gamma[ci]
@@ -239,9 +282,12 @@ def _spiral_arc_crossings(fm: FieldModel, grid: Grid, sl: ScanLines, table: np.n
                     rel = np.mod(np.arctan2(py - cy, px - cx) - a0, 2 * math.pi)
                     on_arc = rel <= sweep + 1e-9
                     ci, k, rr = ci[on_arc], k[on_arc], rr[on_arc]
+                    # crossings come in order of phi per spiral: keep the first on the arc
+                    _, first = np.unique(ci * n + k, return_index=True)
+                    ci, k, rr = ci[first], k[first], rr[first]
                 flat = table[direction].reshape(n, -1)
                 lin = np.ravel_multi_index((cells[0][ci], cells[1][ci]), grid.shape)
-                np.minimum.at(flat, (k, lin), rr)
+                flat[k, lin] = np.minimum(flat[k, lin], rr)
 
 
 def spiral_table(fm: FieldModel, grid: Grid, sl: ScanLines, heading: float = 0.0) -> np.ndarray:
