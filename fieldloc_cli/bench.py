@@ -1,0 +1,31 @@
+"""`fieldloc bench`: speed of each stage against its goal and its in-process baseline."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from stages.evaluate import bench as stage
+
+
+@click.command("bench")
+@click.option("--only", multiple=True, metavar="NAME",
+              help=f"Run rows whose name contains NAME (rows: {', '.join(stage.ROWS)}).")
+@click.option("--repeat", type=int, default=5, show_default=True,
+              help="Timed runs per row (medians are reported).")
+@click.option("--json", "json_path", type=click.Path(dir_okay=False, path_type=Path),
+              help="Also write the rows as JSON.")
+@click.pass_context
+def bench(ctx, only, repeat, json_path):
+    """Time the stages on generated inputs and print a table."""
+    quiet = (ctx.find_root().obj or {}).get("quiet")
+
+    def progress(name):
+        if not quiet:
+            click.echo(f"bench: {name} ...", err=True)
+
+    rows = stage.run(list(only) or None, repeat=repeat, progress=progress)
+    click.echo(stage.format_table(rows))
+    if json_path:
+        stage.write_json(rows, json_path)

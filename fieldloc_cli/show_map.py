@@ -1,0 +1,27 @@
+"""`fieldloc show map MAP`: the field with a table as heat map, or scan lines from one cell."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import click
+
+from stages.evaluate import map_plots
+
+
+@click.command("map")
+@click.argument("map_file", type=click.Path(dir_okay=False))
+@click.option("--table", type=click.Choice(map_plots.TABLES), default="distance",
+              show_default=True, help="What to draw.")
+@click.option("--cell", nargs=2, type=float, metavar="X Y",
+              help="Field position (m) of the robot for radial/spiral.")
+@click.option("--heading-deg", type=float, default=0.0, show_default=True,
+              help="Robot heading for radial/spiral (rounded to 5 deg).")
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="PNG file to write.")
+def show_map(map_file, table, cell, heading_deg, output):
+    """Draw MAP's field with a table, so a person can check it by eye."""
+    path = map_plots.main(map_file, output, table=table, cell=cell,
+                          heading=math.radians(heading_deg))
+    click.echo(str(path))

@@ -1,0 +1,94 @@
+"""Pictures of a map for a person to check the tables by eye (``fieldloc show map``)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..common.errors import FieldlocError
+from ..common.map_file import MapFile
+from ..common.scanlines import NO_HIT_MM
+from .plots import draw_field, new_figure, save_figure
+
+TABLES = ("distance", "radial", "spiral")
+
+
+def draw_distance_table(ax, m: MapFile):
+    """The distance table as a heat map under the field lines."""
+    g = m.grid
+    half = g.resolution / 2
+    extent = (g.xs[0] - half, g.xs[-1] + half, g.ys[0] - half, g.ys[-1] + half)
+    draw_field(ax, m.field, border=True, zorder=0)
+    im = ax.imshow(m.table("distance"), origin="lower", extent=extent, cmap="magma",
+                   alpha=0.85, zorder=1, interpolation="nearest")
+    ax.figure.colorbar(im, ax=ax, label="distance to nearest line (m)", shrink=0.8)
+    ax.set_xlim(extent[0], extent[1])
+    ax.set_ylim(extent[2], extent[3])
+
+
+def draw_scanlines_from_cell(ax, m: MapFile, x: float, y: float, heading: float,
+                             kind: str = "radial"):
+    """The scan lines of a robot at the cell nearest (x, y) with ``heading`` (rounded to the
+    scan-line step, as the tables serve it), and the crossings the table holds for them."""
+    sl = m.scanlines
+    i, j = m.grid.cell_of(x, y)
+    cx, cy = m.grid.centre_of(i, j)
+    shift = sl.heading_index(heading)
+    h = shift * sl.angle_step
+    draw_field(ax, m.field, border=True)
+    hits = []
+    if kind == "radial":
+        rows = np.roll(m.table("radial")[:, :, i, j], -shift, axis=0)
+        for k in range(sl.n_angles):
+            a = h + k * sl.angle_step
+            p0 = (cx + sl.robot_radius * math.cos(a), cy + sl.robot_radius * math.sin(a))
+            p1 = (cx + sl.max_range * math.cos(a), cy + sl.max_range * math.sin(a))
+            ax.plot([p0[0], p1[0]], [p0[1], p1[1]], color="0.2", lw=0.4, zorder=2)
+            for v in rows[k]:
+                if v != NO_HIT_MM:
+                    hits.append((cx + v / 1000 * math.cos(a), cy + v / 1000 * math.sin(a)))
+    else:
+        rows = np.roll(m.table("spiral")[:, :, i, j], -shift, axis=1)
+        phi = sl.spiral_phi()
+        r = sl.spiral_radius(phi)
+        for direction, colour in ((0, "tab:blue"), (1, "tab:orange")):
+            for k in range(0, sl.n_angles, 2):  # the 36 a robot uses each way
+                pts = sl.spiral_points(direction, k, h) + (cx, cy)
+                ax.plot(pts[:, 0], pts[:, 1], color=colour, lw=0.3, zorder=2)
+                v = rows[direction, k]
+                if v != NO_HIT_MM:
+                    n = int(np.argmin(np.abs(r - v / 1000)))
+                    hits.append(tuple(pts[n]))
+    if hits:
+        hx, hy = np.asarray(hits).T
+        ax.scatter(hx, hy, s=12, color="red", zorder=3, label="table crossings")
+    ax.annotate("", xy=(cx + 0.6 * math.cos(h), cy + 0.6 * math.sin(h)), xytext=(cx, cy),
+                arrowprops={"arrowstyle": "-|>", "color": "k", "lw": 2}, zorder=4)
+    span = sl.max_range + 0.5
+    ax.set_xlim(cx - span, cx + span)
+    ax.set_ylim(cy - span, cy + span)
+    ax.set_title(f"{kind} scan lines from ({cx:.2f}, {cy:.2f}), heading "
+                 f"{math.degrees(h):.0f} deg")
+
+
+def main(map_path: str | Path, output: str | Path, *, table: str = "distance",
+         cell: tuple[float, float] | None = None, heading: float = 0.0) -> Path:
+    """Draw the map ``map_path`` into the PNG ``output``: the distance table as a heat map, or
+    the radial/spiral scan lines and table crossings from one cell."""
+    if table not in TABLES:
+        raise FieldlocError(f"unknown table '{table}' (one of {', '.join(TABLES)})")
+    if table != "distance" and cell is None:
+        raise FieldlocError(f"--table {table} needs --cell X Y")
+    with MapFile(map_path) as m:
+        if table == "distance":
+            fig = new_figure(11, 7.5)
+            ax = fig.add_subplot(1, 1, 1)
+            draw_distance_table(ax, m)
+            ax.set_title(f"{m.field.name}: distance table ({m.grid.resolution:g} m cells)")
+        else:
+            fig = new_figure(8, 8)
+            ax = fig.add_subplot(1, 1, 1)
+            draw_scanlines_from_cell(ax, m, cell[0], cell[1], heading, table)
+        return save_figure(fig, output)

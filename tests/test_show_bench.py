@@ -1,0 +1,37 @@
+"""`fieldloc show map` pictures and the bench table plumbing (speed itself is not tested)."""
+
+import json
+import math
+
+from click.testing import CliRunner
+
+from fieldloc_cli.main import cli
+from stages.evaluate import bench
+
+
+def test_show_map_pictures(msl2015_map, tmp_path):
+    runner = CliRunner()
+    for args in (["--table", "distance"], ["--table", "radial", "--cell", "1", "2"],
+                 ["--table", "spiral", "--cell", "-7", "-2", "--heading-deg", "35"]):
+        out = tmp_path / f"{args[1]}.png"
+        res = runner.invoke(cli, ["show", "map", str(msl2015_map), *args, "-o", str(out)])
+        assert res.exit_code == 0, res.output
+        assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    res = runner.invoke(cli, ["show", "map", str(msl2015_map), "--table", "radial",
+                              "-o", str(tmp_path / "x.png")])
+    assert res.exit_code == 1 and "needs --cell" in res.output
+
+
+def test_bench_rows_interleave_and_format(tmp_path):
+    calls = []
+    a, b = bench.time_interleaved(lambda: calls.append("a"), lambda: calls.append("b"),
+                                  repeat=3, warmup=1)
+    assert calls == ["a", "b"] * 4 and len(a) == len(b) == 3
+    rows = [bench.Row(name="x", median_ms=2.0, baseline="y", baseline_ms=4.0, ratio=0.5,
+                      goal="<= 3 ms", meets_goal=True),
+            bench.Row(name="z", median_ms=math.nan)]
+    table = bench.format_table(rows)
+    assert "x" in table and "0.5" in table and "yes" in table
+    path = bench.write_json(rows, tmp_path / "b.json")
+    data = json.loads(path.read_text())
+    assert data["rows"][1]["median_ms"] is None
