@@ -47,9 +47,9 @@ class OmniCamera:
 
     def _inverse_table(self):
         if self._inverse is None:
-            r = np.linspace(0.0, self.valid_radius[1], 4096)
+            r = np.linspace(self.valid_radius[0], self.valid_radius[1], 4096)
             d = self.distance_of_radius(r)
-            # keep the monotonic part from the centre outwards
+            # keep the monotonic part from the body mask outwards (f may dip inside the mask)
             inc = np.concatenate([[True], np.diff(d) > 0])
             stop = np.argmin(inc) if not inc.all() else len(inc)
             self._inverse = (d[:stop], r[:stop])

@@ -42,6 +42,7 @@ FRAME_DATASETS = {
                   "(C, 5) type (0 L, 1 T, 2 X), distance, bearing, orientation, confidence"),
     "crossings_px": ("px", np.float32, "(C, 2) crossing positions in the image (u, v)"),
     "posts": ("m, rad, 1", np.float32, "(P, 3) goal post foot: distance, bearing, confidence"),
+    "posts_px": ("px", np.float32, "(P, 2) goal post foot points in the image (u, v)"),
 }
 
 
@@ -75,6 +76,10 @@ class FeaturesWriter:
     def add_failure(self, name: str, reason: str):
         self._failures = [f for f in self._failures if not f.startswith(f"{name}:")]
         self._failures.append(f"{name}: {reason}")
+
+    def clear_failure(self, name: str):
+        """Forget an earlier failure of a frame that has now been extracted (resumed runs)."""
+        self._failures = [f for f in self._failures if not f.startswith(f"{name}:")]
 
     def close(self):
         if "failures" in self.h5:
