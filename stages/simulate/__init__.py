@@ -1,0 +1,285 @@
+"""Simulate: render a dataset folder (GUIDE section 4) with its ground truth.
+
+    main(conf, field, output_dir, *, overwrite=False) -> Path
+
+writes ``output_dir`` with images/000000.png ..., frames.csv (name, stamp), calib.yaml (the
+camera as written, possibly miscalibrated on purpose), odometry.csv, imu.csv, truth.csv and
+simulation.yaml (the resolved conf, the field, the seed and the true camera, for provenance).
+The same conf and seed give the same files. The folder is built in a temporary folder beside the
+target and renamed at the end, so an interrupted run leaves nothing under the real name.
+
+Pieces, each reusable on its own:
+- :mod:`.trajectory` the robot's smooth path (speeds, turns, heading behaviour as conf values);
+- :mod:`.sensors` odometry and IMU from the true motion, with slip, drift, bias, collisions;
+- :mod:`.scene` the camera-independent world (ground textures, lines, goals, walls, other
+  robots, people, clutter, lighting over time);
+- one renderer per camera kind, registered in ``RENDERERS`` (kind -> "module:Class"), with
+  ``Renderer(conf_section, scene, seed)``, ``.camera`` (the true camera model),
+  ``.render(pose, frame) -> BGR uint8`` and a module function ``perturbed_camera(camera,
+  calib_error)``. A preset names its camera kind in ``camera`` and holds the renderer's conf
+  under that kind's name (``omni``, ``perspective``, ...). A renderer may also have
+  ``.prepare(path) -> {stem: (csv kind, columns)}``, called once with the whole path, whose
+  CSV files are written beside the others (the perspective renderer's head motion: head.csv,
+  the measured head angles, and head_truth.csv);
+- :mod:`.walk` the walking humanoid: entry at a touch line (trajectory ``start: touchline``)
+  and head motion.
+"""
+
+from __future__ import annotations
+
+import copy
+import importlib
+import logging
+import math
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+import yaml
+
+from ..common.camera import save_calib
+from ..common.dataset import write_csv
+from ..common.errors import FieldlocError
+from ..common.field import FieldModel, load_field
+from . import scene as scene_mod
+from . import sensors, trajectory, walk
+from .omni_renderer import OMNI_DEFAULTS
+from .perspective_renderer import PERSPECTIVE_DEFAULTS
+
+log = logging.getLogger(__name__)
+
+# camera kind -> "module:Class" of its renderer (module relative to this package)
+RENDERERS = {
+    "omni": ".omni_renderer:OmniRenderer",
+    "perspective": ".perspective_renderer:PerspectiveRenderer",
+}
+
+_OMNI_BASE = {
+    "camera": "omni",
+    "frames": 300,
+    "seed": 0,
+    "rate_hz": 10.0,  # frames per second
+    "trajectory": dict(trajectory.DEFAULTS),
+    "odometry": dict(sensors.ODOMETRY_DEFAULTS),
+    "imu": dict(sensors.IMU_DEFAULTS),
+    "scene": copy.deepcopy(scene_mod.SCENE_DEFAULTS),
+    "omni": copy.deepcopy(OMNI_DEFAULTS),
+    # what calib.yaml says relative to the rendering camera: centre shift (px), f(r) scale
+    "calib_error": {"centre_shift": [0.0, 0.0], "scale": 1.0},
+}
+
+
+def _preset(base: dict, **changes) -> dict:
+    out = copy.deepcopy(base)
+    for key, value in changes.items():
+        if isinstance(value, dict):
+            out[key].update(value)
+        else:
+            out[key] = value
+    return out
+
+
+confs = {
+    # a MSL robot with an omnidirectional camera on a busy lab field
+    "omni-default": _preset(_OMNI_BASE),
+    # the same without clutter, movers, noise or lighting changes: for checking geometry
+    "omni-clean": _preset(
+        _OMNI_BASE,
+        scene={"robots": 0, "people": 0, "handlers": 0, "balls": 0, "cables": 0, "sticks": 0,
+               "papers": 0, "tapes": 0, "line_wear": 0.0, "line_edge_noise": 0.0,
+               "lighting": {"gain": [1.0, 1.0], "periods": [3.0, 25.0],
+                            "colour_temperature": 0.0, "tint": 0.0}},
+        omni={"imaging": {"vignetting": 0.0, "blur_sigma": 0.0, "exposure_time": 0.0,
+                          "saturation": 1.0, "knee": 1.0, "chroma_subsample": 1,
+                          "noise_sigma": 0.0, "shot_noise": 0.0, "jpeg_quality": 0}},
+        imu={"collision_rate_hz": 0.0},
+    ),
+    # harder: more robots and people, more clutter, stronger light changes, JPEG artefacts
+    "omni-hard": _preset(
+        _OMNI_BASE,
+        scene={"robots": 6, "people": 2, "handlers": 2, "cables": 8, "sticks": 6, "papers": 5,
+               "tapes": 10, "line_wear": 0.7,
+               "lighting": {"gain": [0.45, 1.7], "periods": [2.0, 15.0],
+                            "colour_temperature": 0.18, "tint": 0.1}},
+        omni={"imaging": {**OMNI_DEFAULTS["imaging"], "jpeg_quality": 70,
+                          "noise_sigma": 3.0}},
+        imu={"collision_rate_hz": 0.15},
+    ),
+}
+confs["default"] = copy.deepcopy(confs["omni-default"])
+
+# issue 4 (seed 000): a KidSize humanoid walking at about 0.2 m/s with a wide-angle head camera;
+# it enters the field at a touch line of its own half ("start": "touchline", see walk.py)
+_PERSPECTIVE_BASE = {
+    "camera": "perspective",
+    "frames": 300,
+    "seed": 0,
+    "rate_hz": 10.0,
+    "trajectory": {**trajectory.DEFAULTS, "speed_min": 0.17, "speed_max": 0.24,
+                   "accel_max": 0.3, "lateral_accel_max": 0.08, "turn_rate_max": 0.6,
+                   "heading": "along", "waypoint_margin": 0.5, "start": "touchline"},
+    # walking: feet slip and the step length varies far more than a wheel's turn
+    "odometry": {**sensors.ODOMETRY_DEFAULTS, "scale_sigma": 0.08, "rotation_scale_sigma": 0.1,
+                 "slip_sigma": 0.15, "slip_rotation": 0.15, "drift": 0.05, "noise_xy": 0.004,
+                 "noise_theta": 0.006, "collision_xy": 0.05, "collision_theta": 0.2},
+    "imu": {**sensors.IMU_DEFAULTS, "yaw_noise": 0.01, "bias_sigma": 0.02, "bias_walk": 0.003,
+            "collision_rate_hz": 0.02, "contact_distance": 0.35},
+    "scene": {**copy.deepcopy(scene_mod.SCENE_DEFAULTS), "robots": 3, "robot_radius": 0.12,
+              "robot_height": 0.6, "robot_speed": [0.1, 0.3], "goal_height": 1.2},
+    "perspective": copy.deepcopy(PERSPECTIVE_DEFAULTS),
+    # what calib.yaml says relative to the rendering camera: principal point shift (px),
+    # focal length scale
+    "calib_error": {"centre_shift": [0.0, 0.0], "scale": 1.0},
+}
+confs["perspective-default"] = _preset(_PERSPECTIVE_BASE)
+# without movers, clutter, lighting changes or imaging defects: for checking geometry
+confs["perspective-clean"] = _preset(
+    _PERSPECTIVE_BASE,
+    scene={"robots": 0, "people": 0, "handlers": 0, "balls": 0, "cables": 0, "sticks": 0,
+           "papers": 0, "tapes": 0, "line_wear": 0.0, "line_edge_noise": 0.0,
+           "lighting": {"gain": [1.0, 1.0], "periods": [3.0, 25.0],
+                        "colour_temperature": 0.0, "tint": 0.0}},
+    perspective={"imaging": {**PERSPECTIVE_DEFAULTS["imaging"], "blur": 0.0,
+                             "corner_blur": 0.0, "vignetting": 0.0,
+                             "chromatic_aberration": 0.0, "exposure_time": 0.0,
+                             "noise_sigma": 0.0, "shot_noise": 0.0, "bayer": False,
+                             "chroma_subsample": 1}},
+    imu={"collision_rate_hz": 0.0},
+)
+
+
+def renderer_class(kind: str):
+    if kind not in RENDERERS:
+        raise FieldlocError(
+            f"no renderer for camera kind '{kind}' (known: {', '.join(sorted(RENDERERS))})"
+        )
+    mod, cls = RENDERERS[kind].split(":")
+    module = importlib.import_module(mod, __name__)
+    return module, getattr(module, cls)
+
+
+def _check_target(output_dir: Path, overwrite: bool):
+    if output_dir.exists() and not output_dir.is_dir():
+        raise FieldlocError(f"cannot write dataset {output_dir}: it is a file")
+    if output_dir.is_dir() and any(output_dir.iterdir()) and not overwrite:
+        raise FieldlocError(
+            f"dataset folder {output_dir} exists and is not empty (use --overwrite to replace it)"
+        )
+    parent = output_dir.parent
+    if not parent.is_dir():
+        raise FieldlocError(f"cannot write dataset {output_dir}: folder {parent} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise FieldlocError(f"cannot write dataset {output_dir}: folder {parent} is not writable")
+
+
+def _check_conf(conf: dict):
+    n = conf["frames"]
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise FieldlocError(f"frames must be a whole number >= 1, got {n!r}")
+    if not float(conf["rate_hz"]) > 0:
+        raise FieldlocError(f"rate_hz must be > 0, got {conf['rate_hz']!r}")
+    ce = conf["calib_error"]
+    if len(ce.get("centre_shift", ())) != 2:
+        raise FieldlocError("calib_error.centre_shift must be [du, dv] (px)")
+
+
+def main(conf: dict, field, output_dir, *, overwrite: bool = False,
+         progress: bool = False) -> Path:
+    """Render a dataset of ``conf['frames']`` frames on ``field`` (a FieldModel, preset name or
+    field YAML path) into ``output_dir``; returns ``output_dir``."""
+    from tqdm import tqdm
+
+    output_dir = Path(output_dir)
+    field = field if isinstance(field, FieldModel) else load_field(field)
+    _check_conf(conf)
+    _check_target(output_dir, overwrite)
+    kind = conf["camera"]
+    module, renderer_cls = renderer_class(kind)
+    n = int(conf["frames"])
+    seed = int(conf["seed"])
+    rate = float(conf["rate_hz"])
+    ss = np.random.SeedSequence([seed, 0x51A])
+    rng_traj, rng_odo, rng_imu, rng_coll = (np.random.default_rng(s) for s in ss.spawn(4))
+
+    traj_conf = conf["trajectory"]
+    if traj_conf.get("start") == "touchline":  # issue 4: enter at a touch line, own half
+        traj_conf = {**traj_conf, "start": walk.touchline_start(
+            field, float(traj_conf.get("margin", trajectory.DEFAULTS["margin"])),
+            np.random.default_rng([seed, 0x57A27]))}
+    path = trajectory.generate(field, n, rate, traj_conf, rng_traj)
+    world = scene_mod.build(field, conf["scene"], path.stamps, seed, robot_poses=path.poses)
+    renderer = renderer_cls(conf[kind], world, seed)
+    # renderers that need the whole path first (the perspective head motion) return extra
+    # CSV files to write: {stem: (csv kind, columns)}
+    extra_csv = renderer.prepare(path) if hasattr(renderer, "prepare") else {}
+    written = module.perturbed_camera(renderer.camera, conf["calib_error"])
+
+    others = world.robot_positions()  # (K, N, 2)
+    contact = float(conf["imu"].get("contact_distance", sensors.IMU_DEFAULTS["contact_distance"]))
+    contacts = (np.linalg.norm(others - path.poses[None, :, :2], axis=-1) < contact).any(0) \
+        if len(others) else np.zeros(n, dtype=bool)
+    collisions = sensors.collision_flags(n, rate, conf["imu"], rng_coll, contacts)
+    odo = sensors.odometry(path.poses, conf["odometry"], rng_odo, collisions)
+    yaw = sensors.imu_yaw(path.poses, path.stamps, conf["imu"], rng_imu, collisions)
+
+    tmp = Path(tempfile.mkdtemp(prefix=f".{output_dir.name}.", suffix=".part",
+                                dir=output_dir.parent))
+    try:
+        (tmp / "images").mkdir()
+        names = [f"{i:06d}.png" for i in range(n)]
+        for i in tqdm(range(n), desc=f"simulate {kind}", unit="frame", disable=not progress):
+            img = renderer.render(path.poses[i], i)
+            if not cv2.imwrite(str(tmp / "images" / names[i]), img):
+                raise FieldlocError(f"could not write image {tmp / 'images' / names[i]}")
+        stamps = path.stamps
+        write_csv(tmp / "frames.csv", "frames", {"name": names, "stamp": stamps})
+        write_csv(tmp / "truth.csv", "truth", {"stamp": stamps, "x": path.poses[:, 0],
+                                               "y": path.poses[:, 1], "theta": path.poses[:, 2]})
+        write_csv(tmp / "odometry.csv", "odometry", {"stamp": stamps, "dx": odo[:, 0],
+                                                     "dy": odo[:, 1], "dtheta": odo[:, 2]})
+        write_csv(tmp / "imu.csv", "imu", {"stamp": stamps, "yaw": yaw,
+                                           "collision": collisions.astype(float)})
+        for stem, (csv_kind, columns) in extra_csv.items():
+            write_csv(tmp / f"{stem}.csv", csv_kind, columns)
+        save_calib(written, tmp / "calib.yaml")
+        info = {
+            "generator": "fieldloc simulate",
+            "field": field.name,
+            "field_source": field.source,
+            "camera": kind,
+            "seed": seed,
+            "frames": n,
+            "true_camera": renderer.camera.to_dict(),
+            "conf": _plain(conf),
+        }
+        (tmp / "simulation.yaml").write_text(yaml.safe_dump(info, sort_keys=False))
+        if output_dir.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{output_dir.name}.", suffix=".old",
+                                        dir=output_dir.parent))
+            os.replace(output_dir, old / "data")
+            os.replace(tmp, output_dir)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, output_dir)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    log.info("simulated %d frames on %s into %s (path %.1f m, %d collision frames)", n,
+             field.name, output_dir, path.length, int(collisions.sum()))
+    return output_dir
+
+
+def _plain(o):
+    """The conf as plain YAML-able values."""
+    if isinstance(o, dict):
+        return {str(k): _plain(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_plain(v) for v in o]
+    if isinstance(o, (np.floating, float)):
+        return float(o) if math.isfinite(float(o)) else str(o)
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    return o

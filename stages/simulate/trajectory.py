@@ -1,0 +1,184 @@
+"""Smooth, seeded robot trajectories on the field: poses (x, y, theta) at a fixed frame rate.
+
+The path follows waypoints with a speed-limited, acceleration-limited and curvature-limited
+controller (lateral acceleration bounds the turn rate at speed), integrated in sub-steps between
+frames, so speed and heading change smoothly. The robot stays ``margin`` metres inside the field
+lines: near the boundary it slows down to ``speed_min`` (which shrinks its turn radius) and turns
+towards its waypoint, which always lies well inside.
+
+The heading either follows the direction of travel (``heading: along``, a walking humanoid or a
+differential drive), or turns on its own towards random targets (``heading: free``, an
+omnidirectional MSL robot). Every number is a conf value, so the same generator drives a fast
+MSL robot (0.2-2 m/s) or a slow humanoid (e.g. 0.05-0.3 m/s, ``heading: along``).
+
+Kinds: ``random`` (random waypoints inside the field), ``loop`` (the same controller around a fixed
+ring of waypoints, a repeatable tour of the field).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..common.errors import FieldlocError
+
+KINDS = ("random", "loop")
+
+# The conf keys a trajectory needs (stage presets carry them under "trajectory").
+DEFAULTS = {
+    "kind": "random",
+    "speed_min": 0.2,  # m/s
+    "speed_max": 2.0,  # m/s
+    "accel_max": 1.5,  # m/s^2, along the path
+    "lateral_accel_max": 2.0,  # m/s^2: turn rate <= lateral_accel_max / speed
+    "turn_rate_max": 3.0,  # rad/s: how fast the direction of travel may turn
+    "heading": "free",  # free | along
+    "yaw_rate_max": 2.0,  # rad/s (free heading)
+    "yaw_accel_max": 4.0,  # rad/s^2 (free heading)
+    "heading_hold": [2.0, 6.0],  # s between new heading targets (free heading)
+    "margin": 0.3,  # m: the robot centre stays this far inside the field lines
+    "waypoint_margin": 0.8,  # m: waypoints lie this far inside the margin box
+    "start": None,  # [x, y, theta] or None (random, seeded)
+    "substeps": 10,  # integration steps per frame
+}
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+@dataclass
+class Trajectory:
+    stamps: np.ndarray  # (N,) s
+    poses: np.ndarray  # (N, 3) x, y, theta (field frame)
+
+    @property
+    def speeds(self) -> np.ndarray:
+        """Speed (m/s) between consecutive frames, (N-1,)."""
+        dt = np.diff(self.stamps)
+        return np.hypot(*np.diff(self.poses[:, :2], axis=0).T) / dt
+
+    @property
+    def length(self) -> float:
+        return float(np.hypot(*np.diff(self.poses[:, :2], axis=0).T).sum())
+
+
+def _check(conf: dict, box: tuple[float, float]):
+    c = {**DEFAULTS, **conf}
+    if c["kind"] not in KINDS:
+        raise FieldlocError(f"unknown trajectory '{c['kind']}' (choose from {', '.join(KINDS)})")
+    if c["heading"] not in ("free", "along"):
+        raise FieldlocError(f"trajectory heading must be 'free' or 'along', got {c['heading']!r}")
+    if not 0 < c["speed_min"] <= c["speed_max"]:
+        raise FieldlocError(
+            f"trajectory speeds need 0 < speed_min <= speed_max, got {c['speed_min']},"
+            f" {c['speed_max']}"
+        )
+    if box[0] <= 0 or box[1] <= 0:
+        raise FieldlocError(
+            f"trajectory margin {c['margin']} m leaves no room on the field"
+        )
+    if c["start"] is not None:
+        s = c["start"]
+        if len(s) != 3:
+            raise FieldlocError(f"trajectory start must be [x, y, theta], got {s!r}")
+        if abs(s[0]) > box[0] or abs(s[1]) > box[1]:
+            raise FieldlocError(
+                f"trajectory start ({s[0]}, {s[1]}) is not on the field (|x| <= {box[0]:.2f},"
+                f" |y| <= {box[1]:.2f} m with the margin)"
+            )
+    return c
+
+
+def generate(field, n_frames: int, rate_hz: float, conf: dict, rng: np.random.Generator,
+             ) -> Trajectory:
+    """A trajectory of ``n_frames`` poses at ``rate_hz`` on ``field`` (a FieldModel)."""
+    if n_frames < 1:
+        raise FieldlocError(f"need at least one frame, got {n_frames}")
+    if rate_hz <= 0:
+        raise FieldlocError(f"frame rate must be > 0, got {rate_hz}")
+    margin = float({**DEFAULTS, **conf}["margin"])
+    box = (field.length / 2 - margin, field.width / 2 - margin)
+    c = _check(conf, box)
+    vmin, vmax = float(c["speed_min"]), float(c["speed_max"])
+    a_max, a_lat = float(c["accel_max"]), float(c["lateral_accel_max"])
+    w_max = float(c["turn_rate_max"])
+    wm = float(c["waypoint_margin"])
+    wbox = (max(box[0] - wm, 0.25 * box[0]), max(box[1] - wm, 0.25 * box[1]))
+    sub = max(1, int(c["substeps"]))
+    dt = 1.0 / (rate_hz * sub)
+
+    def new_waypoint():
+        return tuple(float(a) for a in rng.uniform((-wbox[0], -wbox[1]), (wbox[0], wbox[1])))
+
+    loop = None
+    if c["kind"] == "loop":
+        ang = np.linspace(0, 2 * np.pi, 8, endpoint=False) + np.pi / 8
+        loop = np.stack([wbox[0] * np.cos(ang), wbox[1] * np.sin(ang)], axis=1)
+        loop_i = int(rng.integers(len(loop)))
+
+    if c["start"] is not None:
+        px, py, theta = (float(a) for a in c["start"])
+    else:
+        px, py = (float(a) for a in rng.uniform((-wbox[0], -wbox[1]), (wbox[0], wbox[1])))
+        theta = float(rng.uniform(-np.pi, np.pi))
+    wx, wy = loop[loop_i] if loop is not None else new_waypoint()
+    travel = math.atan2(wy - py, wx - px)
+    if c["heading"] == "along":
+        if c["start"] is not None:
+            travel = theta  # set off along the given heading, then turn smoothly
+        theta = travel
+    v = min(vmin * 1.01, vmax)
+    v_target = float(rng.uniform(vmin, vmax))
+    yaw_rate = 0.0
+    ymax, yacc = float(c["yaw_rate_max"]), float(c["yaw_accel_max"])
+    hold = c["heading_hold"]
+    heading_target = theta
+    next_heading_change = float(rng.uniform(*hold))
+    t = 0.0
+
+    poses = np.empty((n_frames, 3))
+    poses[0] = (px, py, theta)
+    for i in range(1, n_frames):
+        for _ in range(sub):
+            t += dt
+            if math.hypot(wx - px, wy - py) < max(0.4, v * v / a_lat):
+                if loop is not None:
+                    loop_i = (loop_i + 1) % len(loop)
+                    wx, wy = loop[loop_i]
+                else:
+                    wx, wy = new_waypoint()
+                v_target = float(rng.uniform(vmin, vmax))
+            turn = _wrap(math.atan2(wy - py, wx - px) - travel)
+            # near the boundary: slow down so that the turn radius shrinks
+            look = v * v / (2 * a_max) + v * v / a_lat + 0.2
+            ax, ay = px + look * math.cos(travel), py + look * math.sin(travel)
+            v_des = v_target * max(math.cos(turn), 0.0)
+            if abs(ax) > box[0] or abs(ay) > box[1]:
+                v_des = vmin
+            # the floor keeps the chord between frames (what a speed check measures) >= vmin
+            v_des = min(max(v_des, vmin * 1.01), vmax)
+            v += min(max(v_des - v, -a_max * dt), a_max * dt)
+            w_step = min(a_lat / max(v, 1e-3), w_max) * dt
+            travel = _wrap(travel + min(max(turn, -w_step), w_step))
+            px += v * dt * math.cos(travel)
+            py += v * dt * math.sin(travel)
+            # last resort, not reached with sane limits: slide along the margin box
+            px = min(max(px, -box[0]), box[0])
+            py = min(max(py, -box[1]), box[1])
+            if c["heading"] == "along":
+                theta = travel
+            else:
+                if t >= next_heading_change:
+                    heading_target = float(rng.uniform(-np.pi, np.pi))
+                    next_heading_change = t + float(rng.uniform(*hold))
+                err = _wrap(heading_target - theta)
+                # the rate that stops at the target under the yaw acceleration limit
+                want = math.copysign(min(ymax, math.sqrt(2 * yacc * abs(err))), err)
+                yaw_rate += min(max(want - yaw_rate, -yacc * dt), yacc * dt)
+                theta = _wrap(theta + yaw_rate * dt)
+        poses[i] = (px, py, theta)
+    stamps = np.arange(n_frames) / rate_hz
+    return Trajectory(stamps=stamps, poses=poses)
