@@ -32,6 +32,7 @@ import numpy as np
 
 from ..common.camera import OmniCamera
 from ..common.errors import FieldlocError
+from .scene import sample_texture
 
 # A mirror of our own design: about 40 px at 0.28 m (the body edge), 120 px at 1 m, 180 px at
 # 3 m, 200 px at 5.8 m, increasing over the whole image (max floor distance ~16 m at 228 px).
@@ -300,9 +301,8 @@ class OmniRenderer:
             cover = (np.minimum(dn + 0.5 * fp, hw) - np.maximum(dn - 0.5 * fp, -hw)) / fp
             cover = (np.clip(cover, 0.0, 1.0) * np.clip(wear[near], 0.0, 1.0))[:, None]
             llr = sc.line_light_res
-            bright = cv2.remap(sc.line_light, ((gx[near] - lx0) / llr)[:, None],
-                               ((gy[near] - ly0) / llr)[:, None], cv2.INTER_LINEAR,
-                               borderMode=cv2.BORDER_REPLICATE)[:, 0]
+            bright = sample_texture(sc.line_light, (gx[near] - lx0) / llr,
+                                    (gy[near] - ly0) / llr)
             line_col = np.asarray(sc.conf["line_bgr"], np.float32) * bright[:, None]
             img[near] = floor[near] * (1 - cover) + line_col * cover
 

@@ -36,6 +36,7 @@ import numpy as np
 from ..common.errors import DatasetError, FieldlocError
 from ..common.perspective_camera import PerspectiveCamera, head_rotation
 from . import walk
+from .scene import sample_texture
 
 PERSPECTIVE_DEFAULTS = {
     "image_size": [752, 480],  # width, height (px): the seed's WXGA camera
@@ -66,19 +67,6 @@ _UNIT_OUTLINE = np.unique(np.array(
      for a in (0.0, 1.0) for b_ in (0.0, 1.0) for c_ in (0.0, 1.0)
      for k, k2, k3 in [(0, 1, 2)]]), axis=0)
 _FAR = np.float32(1e9)
-
-
-def _sample(tex: np.ndarray, mx: np.ndarray, my: np.ndarray) -> np.ndarray:
-    """Bilinear samples of a texture at scattered texel coordinates (1-D arrays), edges
-    replicated (cv2.remap, in rows of 1024 points: it takes at most 32767 rows)."""
-    n = len(mx)
-    cols = 1024
-    rows = -(-n // cols)
-    pad = rows * cols - n
-    gx = np.pad(mx.astype(np.float32), (0, pad)).reshape(rows, cols)
-    gy = np.pad(my.astype(np.float32), (0, pad)).reshape(rows, cols)
-    out = cv2.remap(tex, gx, gy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(rows * cols, *tex.shape[2:])[:n]
 
 
 def _merged(conf: dict | None) -> dict:
@@ -365,7 +353,7 @@ class PerspectiveRenderer:
             cover = (np.minimum(dn + half * fp, hw) - np.maximum(dn - half * fp, -hw)) / fp
             cover = np.clip(cover, 0, 1) * np.clip(paint, 0, 1)
             llr = np.float32(sc.line_light_res)
-            bright = _sample(sc.line_light, (FX[idx] - np.float32(lx0)) / llr,
+            bright = sample_texture(sc.line_light, (FX[idx] - np.float32(lx0)) / llr,
                              (FY[idx] - np.float32(ly0)) / llr)
             col = self.line_bgr[None, :] * bright[:, None]
             sub = img[idx]

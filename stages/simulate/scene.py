@@ -532,3 +532,16 @@ def build(field, conf: dict | None, stamps, seed: int, robot_poses=None) -> Fiel
         wall_res=wall_res, panels=panels, posts=posts, tracks=tracks, gain=gain,
         white_balance=wb,
     )
+
+
+def sample_texture(tex: np.ndarray, mx: np.ndarray, my: np.ndarray) -> np.ndarray:
+    """Bilinear samples of a texture at scattered texel coordinates (1-D arrays), edges
+    replicated (cv2.remap, in rows of 1024 points: it takes at most 32767 rows)."""
+    n = len(mx)
+    cols = 1024
+    rows = -(-n // cols)
+    pad = rows * cols - n
+    gx = np.pad(mx.astype(np.float32), (0, pad)).reshape(rows, cols)
+    gy = np.pad(my.astype(np.float32), (0, pad)).reshape(rows, cols)
+    out = cv2.remap(tex, gx, gy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(rows * cols, *tex.shape[2:])[:n]
