@@ -1,0 +1,37 @@
+"""`fieldloc extract DIR [-o features.h5] [--overwrite] [--preset NAME] [-c key=value]`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from stages import extract as stage
+
+from .common import conf_option, overrides_dict, progress_enabled
+
+
+@click.command()
+@click.argument("dataset", type=click.Path(path_type=Path))
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Features file [default: DATASET/features.h5].")
+@click.option("--preset", default=stage.DEFAULT_PRESET, show_default=True,
+              help="Preset of the camera kind's extractor (omni: "
+              + ", ".join(sorted(stage.confs)) + ").")
+@conf_option
+@click.option("--overwrite", is_flag=True,
+              help="Extract every frame again (default: resume, skipping frames already done).")
+@click.pass_context
+def extract(ctx, dataset, output, preset, overrides, overwrite):
+    """Per-frame features of the images in DATASET (omni: scan-line distances and line points;
+    perspective: lines, crossings, boundary) into an HDF5 features file."""
+    path = stage.main(preset, dataset, output, overwrite=overwrite,
+                      progress=progress_enabled(ctx), overrides=overrides_dict(overrides))
+    from stages.common.features_file import FeaturesFile
+
+    with FeaturesFile(path) as ff:
+        n, failures, kind = len(ff), ff.failures, ff.camera_kind
+    msg = f"{path}: {n} frames ({kind} camera)"
+    if failures:
+        msg += f", {len(failures)} failed (first: {failures[0]})"
+    click.echo(msg)

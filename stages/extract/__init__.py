@@ -1,0 +1,194 @@
+"""Stage extract: per-frame features of a dataset folder's images into features.h5.
+
+    from stages import extract
+    extract.main("default", "data/run1", "data/run1/features.h5")
+
+The camera kind of the dataset's calib.yaml picks the extractor module (``KINDS``); each exposes
+``confs`` (named presets) and ``extract_frame(image_bgr, camera, conf, **frame_info) -> dict``
+whose keys are FRAME_DATASETS names of stages.common.features_file:
+
+- ``omni`` (stages.extract.omni, seed 002): scan-line distances and line points;
+  frame_info ``mask`` (the dataset's mask.png, see ``read_mask``);
+- ``perspective`` (stages.extract.perspective, seed 000, imported only when used): field
+  boundary, lines, crossings, goal posts; frame_info ``pitch``/``roll`` from DIR/head.csv
+  (nearest stamp within ``HEAD_STAMP_TOLERANCE``) when that file exists.
+
+One group per frame, named by the image's file stem. Frames already in the output are skipped
+(resume) unless ``overwrite``; a frame that cannot be read or processed is logged, recorded in
+the file's ``failures`` and skipped. The output appears atomically when the run completes.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from ..common.artifacts import file_hash, root_attrs
+from ..common.conf import resolve_conf
+from ..common.dataset import open_dataset, read_image
+from ..common.errors import DatasetError, FieldlocError, SchemaError
+from ..common.features_file import SCHEMA, VERSION, FeaturesFile, write_features
+
+log = logging.getLogger(__name__)
+
+KINDS = {"omni": "stages.extract.omni", "perspective": "stages.extract.perspective"}
+DEFAULT_PRESET = "default"
+HEAD_STAMP_TOLERANCE = 0.05  # s, head.csv row to frame matching
+MASK_NAME = "mask.png"
+
+
+def kind_module(kind: str):
+    """The extractor module of a camera kind (imported on first use)."""
+    if kind not in KINDS:
+        raise FieldlocError(f"no extractor for camera kind '{kind}' (known: {', '.join(KINDS)})")
+    return importlib.import_module(KINDS[kind])
+
+
+def kind_confs(kind: str) -> dict:
+    """The named presets of a camera kind's extractor."""
+    return kind_module(kind).confs
+
+
+# presets of the omnidirectional extractor (the perspective ones: kind_confs("perspective"))
+confs = kind_confs("omni")
+
+
+def resolve_extract_conf(kind: str, conf: str | dict | None = None,
+                         overrides: dict | None = None) -> dict:
+    """The conf for a camera kind: a preset name (default ``DEFAULT_PRESET``) or a dict of
+    values replacing those of the default preset (a complete conf or just a few keys), then
+    ``overrides``. Unknown preset names and keys are user errors."""
+    presets = kind_confs(kind)
+    if isinstance(conf, dict):
+        base = resolve_conf(presets, DEFAULT_PRESET, conf)
+        return resolve_conf(presets, base, overrides)
+    return resolve_conf(presets, conf or DEFAULT_PRESET, overrides)
+
+
+def read_mask(path: str | Path, image_size: tuple[int, int]) -> np.ndarray:
+    """A dataset's mask image -> bool (h, w), True where the floor may be used. Pixels painted
+    pure red (R >= 200, G and B <= 60; the MINHO team's convention) are excluded; a mask without
+    red is read as grey levels and its dark pixels (< 128) are excluded."""
+    import cv2
+
+    path = Path(path)
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None:
+        raise DatasetError(f"unreadable mask image: {path}")
+    w, h = image_size
+    if img.shape[:2] != (h, w):
+        raise DatasetError(
+            f"{path}: mask is {img.shape[1]} x {img.shape[0]} px, the images are {w} x {h}")
+    red = (img[..., 2] >= 200) & (img[..., 1] <= 60) & (img[..., 0] <= 60)
+    if red.any():
+        return ~red
+    return cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) >= 128
+
+
+def _head_angles(ds) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    head = ds.optional("head")
+    if head is None or len(head["stamp"]) == 0:
+        return None
+    order = np.argsort(head["stamp"])
+    return head["stamp"][order], head["pitch"][order], head["roll"][order]
+
+
+def _frame_info_head(head, stamp: float) -> dict:
+    if head is None:
+        return {}
+    stamps, pitch, roll = head
+    i = int(np.clip(np.searchsorted(stamps, stamp), 1, len(stamps) - 1)) if len(stamps) > 1 else 0
+    if len(stamps) > 1 and abs(stamps[i - 1] - stamp) <= abs(stamps[i] - stamp):
+        i -= 1
+    if abs(stamps[i] - stamp) > HEAD_STAMP_TOLERANCE:
+        return {}
+    return {"pitch": float(pitch[i]), "roll": float(roll[i])}
+
+
+def _check_resumable(output: Path, attrs: dict):
+    """An existing output may only be continued if it was made from the same calibration, mask
+    and conf; otherwise the user has to ask for --overwrite."""
+    try:
+        with FeaturesFile(output) as old:
+            same = {k: old.h5.attrs.get(k) for k in ("camera_kind", "calib_hash", "mask_hash")}
+            old_conf = old.conf
+    except SchemaError as e:
+        raise FieldlocError(f"{e}; use --overwrite to replace it") from None
+    for k, v in same.items():
+        v = v.decode() if isinstance(v, bytes) else v
+        if v != attrs[k]:
+            raise FieldlocError(
+                f"{output} was extracted with another {k.replace('_', ' ')} ({v});"
+                " use --overwrite to extract again")
+    if old_conf != json.loads(attrs["conf"]):
+        raise FieldlocError(
+            f"{output} was extracted with another conf; use --overwrite to extract again")
+
+
+def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | None = None, *,
+         overwrite: bool = False, progress: bool = False, overrides: dict | None = None) -> Path:
+    """Extract every frame of ``dataset_dir`` into ``output`` (default DIR/features.h5) and
+    return its path. ``conf``: preset name or conf dict of the dataset's camera kind (see
+    ``resolve_extract_conf``); ``overrides``: values replacing the preset's."""
+    from tqdm import tqdm
+
+    ds = open_dataset(dataset_dir)
+    camera = ds.camera()
+    kind = camera.kind
+    module = kind_module(kind)
+    conf = resolve_extract_conf(kind, conf, overrides)
+    output = Path(output) if output is not None else ds.root / "features.h5"
+
+    mask = None
+    mask_hash = ""
+    mask_path = ds.root / MASK_NAME
+    if kind == "omni" and mask_path.is_file():
+        mask = read_mask(mask_path, camera.image_size)
+        mask_hash = file_hash(mask_path)
+    head = _head_angles(ds) if kind == "perspective" else None
+    calib_hash = file_hash(ds.calib_path)
+    inputs = {"dataset": str(ds.root), "calib": str(ds.calib_path), "calib_hash": calib_hash}
+    if mask is not None:
+        inputs.update(mask=str(mask_path), mask_hash=mask_hash)
+    attrs = root_attrs(SCHEMA, VERSION, conf, inputs)
+    attrs.update(camera_kind=kind, dataset=str(ds.root), calib_hash=calib_hash,
+                 mask_hash=mask_hash)
+    if kind == "omni":
+        attrs["scanlines"] = json.dumps(module.scanlines_of(conf).as_dict())
+    resume = output.exists() and not overwrite
+    if resume:
+        _check_resumable(output, attrs)
+    log.info("extract %s (%s camera, %d frames) -> %s; conf %s", ds.root, kind, len(ds.images),
+             output, json.dumps(conf, sort_keys=True))
+
+    done = skipped = failed = 0
+    with write_features(output, attrs, resume=resume) as writer:
+        for path, name, stamp in tqdm(list(zip(ds.images, ds.names, ds.stamps)),
+                                      desc="extract", unit="frame", disable=not progress):
+            if resume and writer.has(name):
+                skipped += 1
+                continue
+            try:
+                image = read_image(path)
+                if kind == "omni":
+                    info = {"mask": mask}
+                else:
+                    info = _frame_info_head(head, float(stamp))
+                arrays = module.extract_frame(image, camera, conf, **info)
+            except FieldlocError as e:
+                log.warning("frame %s skipped: %s", name, e)
+                writer.add_failure(name, str(e))
+                failed += 1
+                continue
+            writer.add_frame(name, float(stamp), arrays)
+            writer.clear_failure(name)
+            done += 1
+    log.info("extract: %d frames extracted, %d already done, %d failed -> %s", done, skipped,
+             failed, output)
+    if done + skipped == 0:
+        log.warning("extract: no frame of %s could be extracted", ds.root)
+    return output
