@@ -1,0 +1,241 @@
+"""Line crossing detection on the key node structure (seed 000 section 4.1).
+
+A degree-2 key node whose two edges meet at a corner angle is an L-crossing candidate, a
+degree-3 node a T and a degree-4 node an X (``crossing_candidates``). The crossing is placed
+where the lines fitted to its arms meet (``arm_lines``, ``crossing_point``; an L's skeleton
+cuts its corner). A candidate is verified in the subsampled colour images by two checks
+(``verify_crossing``):
+
+- ``circle_transitions``: a state machine walks a circle centred at the crossing and counts the
+  green -> white -> green passages (one per arm leaving the crossing); the count must equal the
+  candidate's number of arms, on a circle mostly of green and white (a robot's or a person's
+  white feet on a line make false corners);
+- ``white_path_share``: from the crossing along each arm (to the next node, at most a few
+  cells) the straight path must be white.
+
+The candidate's arms are also checked on the floor (``floor_arms``): an L's arms meet at about
+90 deg, a T's bar is straight with the stem across it, an X's two lines cross at about 90 deg.
+The crossing's orientation follows the convention of ``stages.common.field``: an L's bisector
+of its arms, a T's stem, an X's arms folded into [0, pi/2).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from stages.common.field import crossing_orientation
+
+from .line_structure import KeyStructure, LineGraph
+
+TYPE_CODES = {"L": 0, "T": 1, "X": 2}
+
+
+@dataclass
+class CrossingCandidate:
+    kind: str  # "L", "T" or "X"
+    key: int  # key node index
+    pos: np.ndarray  # (2,) grid coordinates
+    arm_points: np.ndarray  # (A, 2) grid coordinates, one point along each arm
+
+
+def point_along(pos: np.ndarray, chain: list[int], reach: float) -> np.ndarray:
+    """The point ``reach`` cells along a fine chain (starting at its first node), or the chain's
+    last node when it is shorter."""
+    p = pos[chain]
+    seg = np.hypot(*np.diff(p, axis=0).T)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    if s[-1] <= reach:
+        return p[-1].copy()
+    k = int(np.searchsorted(s, reach))
+    t = (reach - s[k - 1]) / max(seg[k - 1], 1e-9)
+    return p[k - 1] + t * (p[k] - p[k - 1])
+
+
+def _angle_between(a: np.ndarray, b: np.ndarray) -> float:
+    na, nb = np.hypot(*a), np.hypot(*b)
+    if na == 0 or nb == 0:
+        return 0.0
+    return math.acos(max(-1.0, min(1.0, float(a @ b) / (na * nb))))
+
+
+def crossing_candidates(ks: KeyStructure, graph: LineGraph, arm_reach: float,
+                        l_angle_range: tuple[float, float]) -> list[CrossingCandidate]:
+    """L (degree 2 with a corner angle in ``l_angle_range``, radians, in the image), T (degree
+    3) and X (degree 4) candidates of the key structure."""
+    deg = ks.degree()
+    out = []
+    for k in range(len(ks.node)):
+        if deg[k] not in (2, 3, 4):
+            continue
+        chains = ks.incident(k)
+        centre = ks.pos[k]
+        arms = np.array([point_along(graph.pos, ch, arm_reach) for ch in chains])
+        if deg[k] == 2:
+            ang = _angle_between(arms[0] - centre, arms[1] - centre)
+            if not (l_angle_range[0] <= ang <= l_angle_range[1]):
+                continue
+            kind = "L"
+        else:
+            kind = "T" if deg[k] == 3 else "X"
+        out.append(CrossingCandidate(kind, k, centre.copy(), arms))
+    return out
+
+
+def _bilinear(image: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    p = np.asarray(pts, np.float32).reshape(-1, 1, 2)
+    return cv2.remap(image.astype(np.float32), p[..., 0], p[..., 1], cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_CONSTANT, borderValue=0).ravel()
+
+
+def circle_transitions(white: np.ndarray, green: np.ndarray, centre: np.ndarray, radii,
+                       t_white: float, t_green: float, samples: int = 48
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Number of green -> white -> green passages on circles of ``radii`` around ``centre``
+    (grid coordinates), one count per radius: a state machine over each circle's samples in
+    order, where white (share >= t_white) and green (share >= t_green) change the state and
+    anything else keeps it. A circle showing no green or no white counts 0. Also returns each
+    circle's share of samples that are neither (an object standing there)."""
+    radii = np.atleast_1d(np.asarray(radii, float))
+    t = np.linspace(0.0, 2 * math.pi, samples, endpoint=False)
+    ring = np.stack([np.cos(t), np.sin(t)], axis=1)
+    pts = (centre[None, None, :] + radii[:, None, None] * ring[None]).reshape(-1, 2)
+    w = _bilinear(white, pts).reshape(len(radii), samples)
+    g = _bilinear(green, pts).reshape(len(radii), samples)
+    state = np.where(w >= t_white, 1, np.where(g >= t_green, 0, -1))
+    # carry the last known state over unknown samples (cyclic): index of the last known one
+    known = state >= 0
+    twice = np.concatenate([known, known], axis=1)
+    idx = np.where(twice, np.arange(2 * samples)[None, :], -1)
+    last = np.maximum.accumulate(idx, axis=1)[:, samples:] % samples
+    filled = np.take_along_axis(state, last, axis=1)
+    entered = (filled == 1) & (np.roll(filled, 1, axis=1) == 0)
+    counts = entered.sum(axis=1)
+    return np.where(known.any(axis=1), counts, 0), 1.0 - known.mean(axis=1)
+
+
+def white_path_share(white: np.ndarray, p: np.ndarray, q: np.ndarray, t_white: float,
+                     step: float = 0.5) -> float:
+    """Share of the samples on the straight path p -> q (grid coordinates) that are white."""
+    n = max(2, int(np.ceil(np.hypot(*(q - p)) / step)) + 1)
+    s = np.linspace(0.0, 1.0, n)[:, None]
+    v = _bilinear(white, p[None] * (1 - s) + q[None] * s)
+    return float(np.mean(v >= t_white))
+
+
+def floor_arms(kind: str, arms: np.ndarray) -> tuple[float, float]:
+    """A candidate's orientation from its arm directions on the floor (radians, robot frame)
+    and its angular misfit (radians) from the ideal shape: an L's right angle, a T's straight
+    bar with the stem across it, an X's arms at multiples of 90 deg."""
+    a = np.asarray(arms, float)
+    if kind == "L":
+        gap = abs(math.remainder(a[0] - a[1], 2 * math.pi))
+        misfit = abs(gap - math.pi / 2)
+        return crossing_orientation("L", list(a)), misfit
+    if kind == "T":
+        # the bar: the most nearly opposite pair of arms; the stem is the remaining arm
+        pairs = [(0, 1, 2), (0, 2, 1), (1, 2, 0)]
+        opp = [abs(abs(math.remainder(a[i] - a[j], 2 * math.pi)) - math.pi) for i, j, _ in pairs]
+        i, j, s = pairs[int(np.argmin(opp))]
+        across = [abs(abs(math.remainder(a[s] - a[k], 2 * math.pi)) - math.pi / 2) for k in (i, j)]
+        misfit = max(min(opp), max(across))
+        return math.remainder(float(a[s]), 2 * math.pi), misfit
+    # X: all four arms folded into [0, pi/2) agree; circular mean of 4 * angle
+    z = np.exp(4j * a).mean()
+    orient = float(np.mod(np.angle(z) / 4.0, math.pi / 2))
+    fold = np.abs(np.angle(np.exp(4j * (a - orient)))) / 4.0
+    return orient, float(fold.max())
+
+
+def _fit_direction(points: np.ndarray, centre: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares line (centroid, unit direction pointing away from ``centre``)."""
+    c = points.mean(axis=0)
+    d = points - c
+    sxx, syy, sxy = float(d[:, 0] @ d[:, 0]), float(d[:, 1] @ d[:, 1]), float(d[:, 0] @ d[:, 1])
+    theta = 0.5 * math.atan2(2.0 * sxy, sxx - syy)  # major axis of the 2 x 2 scatter
+    u = np.array([math.cos(theta), math.sin(theta)])
+    if float((c - centre) @ u) < 0:
+        u = -u
+    return c, u
+
+
+def arm_lines(centre: np.ndarray, chains: list[list[int]], coords: np.ndarray, skip: int,
+              count: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per arm, the line fitted to its nodes number ``skip`` + 1 .. ``skip`` + ``count`` from
+    the crossing (undistorted coordinates ``coords``; the nodes right next to a crossing bend
+    towards it): (centroid, unit direction away from the centre, the points used)."""
+    out = []
+    for ch in chains:
+        pts = coords[ch[1:]]
+        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        if len(pts) == 0:
+            return []
+        sel = pts[skip: skip + count] if len(pts) >= skip + 2 else pts[:count]
+        if len(sel) < 2:
+            sel = np.vstack([centre[None], sel])
+        c, u = _fit_direction(sel, centre)
+        out.append((c, u, sel))
+    return out
+
+
+def _intersect(c1, u1, c2, u2) -> np.ndarray | None:
+    a = np.array([u1, -u2]).T
+    if abs(np.linalg.det(a)) < 1e-3:  # nearly parallel (|sin| < 1e-3)
+        return None
+    t = np.linalg.solve(a, c2 - c1)
+    return c1 + t[0] * u1
+
+
+def crossing_point(kind: str, arms: list) -> np.ndarray | None:
+    """The crossing as the intersection of its lines: an L's two arms, a T's bar (its two most
+    nearly opposite arms fitted together) with the stem, an X's two lines (opposite arms fitted
+    together). None when the lines are parallel."""
+    if kind == "L":
+        (c1, u1, _), (c2, u2, _) = arms
+        return _intersect(c1, u1, c2, u2)
+    n = len(arms)
+    dirs = np.array([u for _, u, _ in arms])
+    cos = dirs @ dirs.T
+    if kind == "T":
+        pairs = [(0, 1, 2), (0, 2, 1), (1, 2, 0)]
+        i, j, s = min(pairs, key=lambda p: cos[p[0], p[1]])
+        cb, ub = _fit_direction(np.vstack([arms[i][2], arms[j][2]]), arms[i][0])
+        return _intersect(cb, ub, arms[s][0], arms[s][1])
+    if n != 4:
+        return None
+    # X: pair arm 0 with its most opposite arm, the other two form the second line
+    j = int(np.argmin(cos[0, 1:])) + 1
+    rest = [k for k in range(1, 4) if k != j]
+    c1, u1 = _fit_direction(np.vstack([arms[0][2], arms[j][2]]), arms[0][0])
+    c2, u2 = _fit_direction(np.vstack([arms[rest[0]][2], arms[rest[1]][2]]), arms[rest[0]][0])
+    return _intersect(c1, u1, c2, u2)
+
+
+def verify_crossing(centre: np.ndarray, arm_points: np.ndarray, white: np.ndarray,
+                    green: np.ndarray, conf: dict) -> float:
+    """Image checks of section 4.1 at a crossing ``centre`` (grid coordinates): the circle's
+    transition count equals the number of arms (at any of the radii tried), and a white path
+    leads from the crossing along each arm (to ``arm_points``, the next node or the arm's
+    reach). ``white`` is the white share per cell inside the field boundary; white means at
+    least ``t_white`` and at least ``relative`` times the median white level at the arm points
+    (far lines are thin and faint). Returns a score in [0, 1] (0 = rejected): the smallest
+    white-path share."""
+    ref = float(np.median(_bilinear(white, arm_points)))
+    t = max(conf["t_white"], conf["relative"] * ref)
+    n_arms = len(arm_points)
+    # arms at a small image angle need a larger circle to be told apart: one on which
+    # neighbouring arms are ``arm_gap`` cells apart (up to ``max_radius``)
+    ang = np.sort(np.arctan2(arm_points[:, 1] - centre[1], arm_points[:, 0] - centre[0]))
+    sep = np.diff(np.concatenate([ang, ang[:1] + 2 * math.pi])).min()
+    radii = list(conf["circle_radii"])
+    if sep > 0:
+        radii.append(min(conf["max_radius"], conf["arm_gap"] / sep))
+    counts, other = circle_transitions(white, green, centre, radii, t, conf["t_green"])
+    if not np.any((counts == n_arms) & (other <= conf["max_other"])):
+        return 0.0
+    shares = [white_path_share(white, centre, arm, t) for arm in arm_points]
+    score = min(shares) if shares else 0.0
+    return score if score >= conf["min_path_share"] else 0.0

@@ -1,0 +1,142 @@
+"""Field boundary extraction on the subsampled colour-class images (seed 000 section 3.1).
+
+Three steps, each its own function:
+
+1. ``merged_grey_image``: a weighted sum of the colour-class counts by how likely each class
+   is part of the field (green) or an object on it (white lines), so that the field region
+   stands out in one grey-level image of the grid size (94 x 60 for a 752 x 480 frame).
+2. ``binarize_field``: the three thresholds, obvious cases first: the pixel itself
+   (``t_pix``), the pre-computed row sum over the row and the row above it (``t_row``), then
+   the sum of its neighbours in an 8 x 4 window below it (``t_win``).
+3. ``field_height_histogram``: per column, from the bottom up, the height of the last field
+   pixel before more than four consecutive non-field pixels; then
+   ``smooth_field_heights`` (1D Gaussian for slightly uneven bins, median for small gaps and
+   peaks) and one pass of ``local_convex_filling`` (v = (Rx-Lx)(Py-Ly) - (Px-Lx)(Ry-Ly); the
+   bins with v < 0 are replaced by the chord of the remaining ones).
+
+Heights are counted in grid rows from the bottom of the image; ``boundary_rows`` turns them
+into the first field row (from the top) per column, the form the later steps use.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+# Weights of the colour classes in the merged grey image: green is field; white is a line on
+# it, but also a wall or banner behind it, so a cell of white alone stays below the weak
+# threshold (t_weak) and counts only mixed with green; other colours (robots, people) occlude.
+DEFAULT_WEIGHTS = {"green": 1.0, "white": 0.3, "other": 0.0}
+
+
+def merged_grey_image(counts: dict[str, np.ndarray], weights: dict[str, float],
+                      area: float = 64.0) -> np.ndarray:
+    """Weighted sum of the per-cell colour counts (H, W) -> float32 grey image in [0, 1] (a cell
+    of ``area`` green pixels is 1)."""
+    first = next(iter(counts.values()))
+    grey = np.zeros(first.shape, np.float32)
+    for name, w in weights.items():
+        if w and name in counts:
+            grey += np.float32(w) * counts[name].astype(np.float32)
+    return grey / np.float32(area)
+
+
+def binarize_field(grey: np.ndarray, t_pix: float, t_row: float, t_win: float,
+                   t_weak: float) -> np.ndarray:
+    """Field pixels (H, W) bool by the three thresholds of the seed.
+
+    A pixel with ``grey >= t_pix`` is field (the obvious case). A weaker pixel (but at least
+    ``t_weak``, so empty background never becomes field) is field if the row sum over its row
+    and the row above, divided by the width, exceeds ``t_row`` (a largely green row), or else
+    if the mean of its 8 x 4 neighbourhood below exceeds ``t_win`` (enough field below it).
+    Thresholds are fractions of a full green cell."""
+    h, w = grey.shape
+    strong = grey >= t_pix
+    weak = (grey >= t_weak) & ~strong
+    rows = grey.sum(axis=1)
+    row_sum = rows + np.concatenate([[0.0], rows[:-1]])
+    by_row = (row_sum / (2.0 * w) > t_row)[:, None] & weak
+    # 8 x 4 window below (rows y+1..y+4, columns x-4..x+3): box sums over rows y..y+3 moved
+    # up by one row
+    box = cv2.boxFilter(grey.astype(np.float32), -1, (8, 4), anchor=(4, 0), normalize=False,
+                        borderType=cv2.BORDER_CONSTANT)
+    window = np.zeros_like(box)
+    window[:-1] = box[1:]
+    by_window = (window / 32.0 > t_win) & weak & ~by_row
+    return strong | by_row | by_window
+
+
+def field_height_histogram(field: np.ndarray, max_gap: int = 4) -> np.ndarray:
+    """Per column, the field height in rows counted from the bottom: scanning bottom-up, the
+    height of the last field pixel before more than ``max_gap`` consecutive non-field pixels
+    (0 when the bottom rows are not field). Returns (W,) float."""
+    h, w = field.shape
+    run = max_gap + 1
+    empty = ~field[::-1]  # row 0 = bottom of the image
+    empty = np.concatenate([empty, np.ones((run, w), bool)], axis=0)  # the scan always stops
+    c = np.concatenate([np.zeros((1, w), np.int32), np.cumsum(empty, axis=0, dtype=np.int32)])
+    runs = (c[run:] - c[:-run]) == run  # rows i..i+run-1 all empty
+    return np.argmax(runs, axis=0).astype(np.float64)
+
+
+def smooth_field_heights(heights: np.ndarray, sigma: float, median: int) -> np.ndarray:
+    """1D Gaussian filter (slightly uneven bins), then a median filter (small gaps and peaks)."""
+    out = np.asarray(heights, np.float64)
+    if sigma > 0:
+        r = max(1, int(np.ceil(3 * sigma)))
+        k = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
+        out = np.convolve(np.pad(out, r, mode="edge"), k / k.sum(), mode="valid")
+    if median > 1:
+        r = int(median) // 2
+        windows = np.lib.stride_tricks.sliding_window_view(np.pad(out, r, mode="edge"),
+                                                           2 * r + 1)
+        out = np.median(windows, axis=1)
+    return out
+
+
+def local_convexity(heights: np.ndarray) -> np.ndarray:
+    """v = (Rx - Lx)(Py - Ly) - (Px - Lx)(Ry - Ly) per bin with its left and right neighbours;
+    > 0: the bin is above the chord of its neighbours, < 0 below it (the end bins get 0)."""
+    p = np.asarray(heights, np.float64)
+    v = np.zeros_like(p)
+    ly, py, ry = p[:-2], p[1:-1], p[2:]
+    # Lx = x - 1, Px = x, Rx = x + 1
+    v[1:-1] = 2.0 * (py - ly) - 1.0 * (ry - ly)
+    return v
+
+
+def local_convex_filling(heights: np.ndarray) -> np.ndarray:
+    """One pass of the local convex corner algorithm: the field's locally convex hull is given
+    by the bins with non-negative local convexity; the others are filled in from the chord
+    between the nearest kept bins. One pass fills narrow gaps but not wide dents such as a
+    robot's body standing on the field edge."""
+    p = np.asarray(heights, np.float64)
+    keep = local_convexity(p) >= 0
+    if keep.all() or not keep.any():
+        return p.copy()
+    x = np.arange(len(p))
+    return np.interp(x, x[keep], p[keep])
+
+
+def boundary_rows(heights: np.ndarray, grid_rows: int) -> np.ndarray:
+    """Field heights (rows from the bottom) -> first field row per column (from the top)."""
+    return grid_rows - np.asarray(heights, np.float64)
+
+
+def field_boundary(counts: dict[str, np.ndarray], conf: dict, area: float = 64.0
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """The whole section 3.1: colour counts (cells of ``area`` pixels) -> (first field row per
+    column (W,) float, binary field image (H, W))."""
+    grey = merged_grey_image(counts, conf["weights"], area)
+    field = binarize_field(grey, conf["t_pix"], conf["t_row"], conf["t_win"], conf["t_weak"])
+    heights = field_height_histogram(field, conf["max_gap"])
+    heights = smooth_field_heights(heights, conf["gauss_sigma"], conf["median_size"])
+    heights = local_convex_filling(heights)
+    return boundary_rows(heights, grey.shape[0]), field
+
+
+def boundary_polyline(top: np.ndarray, cell: int) -> np.ndarray:
+    """First field row per column -> (W, 2) polyline (u, v) in full-resolution pixels: the
+    upper edge of the field region at each column's centre."""
+    x = np.arange(len(top), dtype=np.float64)
+    return np.stack([(x + 0.5) * cell - 0.5, top * cell - 0.5], axis=1).astype(np.float32)

@@ -1,0 +1,112 @@
+"""Goal posts: white vertical bars rising above the field boundary (seed 000 treats poles as
+point landmarks; a post's foot point on the floor is one).
+
+On the subsampled white image, per column (vectorised over columns):
+
+- ``bar_runs``: the run of white cells going up from the field boundary (the part of the bar
+  that rises above it) and the run going down from the boundary into the field (the part in
+  front of the field, down to the post's foot);
+- ``post_columns``: columns whose upward run is at least ``min_rise`` cells, grouped into bars
+  of adjacent columns no wider than ``max_width`` cells (a white wall or banner is wider);
+- ``post_feet``: per bar, the foot point in full-resolution pixels: the white-weighted mean
+  column and the bottom of the downward run with a subpixel fraction from the share of white
+  in the lowest cell.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def bar_runs(white: np.ndarray, top: np.ndarray, t_white: float, max_up: int, max_down: int
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per column: (run of white cells upward from the boundary, run downward from it, row of
+    the first field cell). A cell is white when its share is at least ``t_white``."""
+    h, w = white.shape
+    cols = np.arange(w)
+    start = np.clip(np.ceil(np.asarray(top, float)).astype(int), 0, h)
+    up_rows = start[None, :] - 1 - np.arange(max_up)[:, None]  # (max_up, W)
+    dn_rows = start[None, :] + np.arange(max_down)[:, None]
+    is_white = white >= t_white
+
+    def run(rows):
+        ok = (rows >= 0) & (rows < h)
+        vals = np.where(ok, is_white[np.clip(rows, 0, h - 1), cols[None, :]], False)
+        vals = np.concatenate([vals, np.zeros((1, w), bool)])
+        return np.argmin(vals, axis=0)  # first non-white
+
+    return run(up_rows), run(dn_rows), start
+
+
+def post_columns(up_run: np.ndarray, min_rise: int, max_width: int) -> list[np.ndarray]:
+    """Groups of adjacent columns whose white run above the boundary is at least ``min_rise``
+    cells, at most ``max_width`` columns wide."""
+    rising = up_run >= min_rise
+    if not rising.any():
+        return []
+    edges = np.diff(np.concatenate([[0], rising.astype(int), [0]]))
+    starts, stops = np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]
+    return [np.arange(a, b) for a, b in zip(starts, stops) if b - a <= max_width]
+
+
+def stands_out(white: np.ndarray, group: np.ndarray, start: int, rise: int, t_white: float,
+               margin: int = 2) -> bool:
+    """A bar stands out when, in the ``rise`` rows just above the boundary, the cells
+    ``margin`` columns left and right of it are not white in most rows (a white wall or banner
+    is white beside it too; the image border counts as not white)."""
+    h, w = white.shape
+    rows = np.arange(max(start - rise, 0), max(start, 0))
+    if len(rows) == 0:
+        return False
+    sides = [c for c in (group[0] - margin, group[-1] + margin) if 0 <= c < w]
+    return all(np.mean(white[rows, c] >= t_white) <= 1 / 3 for c in sides)
+
+
+def bar_width(white: np.ndarray, group: np.ndarray, start: int, rise: int, cell: int) -> float:
+    """Measured width of a bar in pixels: the median over the ``rise`` rows just above the
+    boundary of the white share summed across its columns and one column each side, times the
+    cell size."""
+    h, w = white.shape
+    rows = np.arange(max(start - rise, 0), max(start, 0))
+    cols = np.arange(max(group[0] - 1, 0), min(group[-1] + 2, w))
+    if len(rows) == 0:
+        return 0.0
+    return float(np.median(white[np.ix_(rows, cols)].sum(axis=1)) * cell)
+
+
+def post_feet(white: np.ndarray, groups: list[np.ndarray], up_run: np.ndarray,
+              down_run: np.ndarray, start: np.ndarray, t_white: float, cell: int
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Foot points (P, 2) in full-resolution pixels (u, v) and the bars' heights in cells (P,)
+    (white run above plus below the boundary)."""
+    feet, heights = [], []
+    for g in groups:
+        wts = np.array([white[max(start[c] - 1, 0), c] for c in g]) + 1e-6
+        u = float(((g + 0.5) * cell - 0.5) @ wts / wts.sum())
+        main = g[int(np.argmax(up_run[g] + down_run[g]))]
+        bottom = start[main] + down_run[main]  # first non-white row below the bar
+        frac = 0.0
+        if bottom < white.shape[0]:
+            ref = max(float(white[max(start[main] - 1, 0), main]), t_white)
+            frac = min(1.0, float(white[bottom, main]) / ref)
+        v = (bottom + frac) * cell - 0.5
+        feet.append((u, v))
+        heights.append(float(up_run[main] + down_run[main]))
+    return np.array(feet, float).reshape(-1, 2), np.array(heights, float)
+
+
+def goal_posts(white: np.ndarray, top: np.ndarray, conf: dict, cell: int):
+    """The whole step: (foot points (P, 2) px, bar heights (P,) cells, measured bar widths (P,)
+    px, column groups, the row below each group's foot). Bars that do not stand out from their
+    surroundings are dropped. The caller removes the bars from the white image before the line
+    structure is built, so a post's lower part is not taken for a line."""
+    up, down, start = bar_runs(white, top, conf["t_white"], conf["max_rise"], conf["max_below"])
+    groups = post_columns(up, conf["min_rise"], conf["max_width"])
+    near = conf["min_rise"]  # rows just above the boundary where a post is told apart
+    groups = [g for g in groups
+              if stands_out(white, g, int(start[g].min()), near, conf["t_white"])]
+    feet, heights = post_feet(white, groups, up, down, start, conf["t_white"], cell)
+    widths = np.array([bar_width(white, g, int(start[g].min()), near, cell)
+                       for g in groups], float)
+    foot_rows = np.array([int(start[g].max() + down[g].max()) for g in groups], int)
+    return feet, heights, widths, groups, foot_rows

@@ -1,0 +1,201 @@
+"""Field line extraction by split-and-merge (seed 000 section 4.2).
+
+A field line is a connected set of degree-2 nodes of the fine line structure graph plus the
+nodes of another degree connected directly to it (``line_components``). Its nodes'
+undistorted coordinates are processed by split-and-merge:
+
+- ``fit_line``: least-squares (orthogonal) regression of a line to the nodes;
+- ``split_component``: the node farthest from the fitted line splits the component in two if
+  its distance exceeds the threshold, recursively; components with fewer than three nodes are
+  discarded;
+- ``merge_segments``: components whose fitted lines have similar parameters are merged (the
+  merged fit must still pass the split threshold);
+- ``line_end_points``: the final line's end points are the component's end nodes projected
+  onto the fitted line (an end node may belong to another line that barely failed the split
+  test; with many nodes its influence on the fit is small).
+
+Coordinates here are undistorted ("ideal") pixels, where straight lines are straight.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .line_structure import LineGraph, trace_chains
+
+
+@dataclass
+class LineFit:
+    centroid: np.ndarray  # (2,)
+    direction: np.ndarray  # (2,) unit
+    normal: np.ndarray  # (2,) unit
+    rms: float  # rms orthogonal residual
+
+
+@dataclass
+class LineSegment:
+    nodes: np.ndarray  # (n,) indices into the point array, in order along the line
+    fit: LineFit
+    ends: np.ndarray  # (2, 2) end points projected on the fitted line
+
+
+def line_components(graph: LineGraph) -> list[list[int]]:
+    """Ordered node lists: each connected set of degree-2 nodes with the nodes of another
+    degree attached directly to it (a closed loop is cut at its first node)."""
+    return trace_chains(graph)
+
+
+def fit_line(points: np.ndarray) -> LineFit:
+    """Least-squares line through points (n, 2) minimising orthogonal distances."""
+    c = points.mean(axis=0)
+    d = points - c
+    sxx, syy, sxy = float(d[:, 0] @ d[:, 0]), float(d[:, 1] @ d[:, 1]), float(d[:, 0] @ d[:, 1])
+    theta = 0.5 * math.atan2(2.0 * sxy, sxx - syy)  # major axis of the 2 x 2 scatter
+    direction = np.array([math.cos(theta), math.sin(theta)])
+    normal = np.array([-direction[1], direction[0]])
+    minor = 0.5 * (sxx + syy) - math.hypot(0.5 * (sxx - syy), sxy)
+    rms = math.sqrt(max(minor, 0.0) / len(points))
+    return LineFit(c, direction, normal, rms)
+
+
+def point_line_distance(points: np.ndarray, fit: LineFit) -> np.ndarray:
+    return np.abs((points - fit.centroid) @ fit.normal)
+
+
+def split_component(points: np.ndarray, idx: np.ndarray, max_distance: float,
+                    min_nodes: int = 3) -> list[np.ndarray]:
+    """Recursive split of one ordered component (indices into ``points``): fit, find the node
+    with the largest distance to the line, split there (the node belongs to both halves) while
+    that distance exceeds ``max_distance``. Parts with fewer than ``min_nodes`` are dropped."""
+    if len(idx) < min_nodes:
+        return []
+    fit = fit_line(points[idx])
+    d = point_line_distance(points[idx], fit)
+    k = int(np.argmax(d))
+    if d[k] <= max_distance:
+        return [idx]
+    if k == 0 or k == len(idx) - 1:
+        # the worst node is an end node: the chord between the ends is the better split test
+        p0, p1 = points[idx[0]], points[idx[-1]]
+        chord = p1 - p0
+        n = np.hypot(*chord)
+        if n > 0:
+            dc = np.abs((points[idx] - p0) @ np.array([-chord[1], chord[0]]) / n)
+            k = int(np.argmax(dc[1:-1])) + 1 if len(idx) > 2 else 0
+        if k in (0, len(idx) - 1):
+            return split_component(points, idx[1:] if k == 0 else idx[:-1], max_distance,
+                                   min_nodes)
+    return (split_component(points, idx[:k + 1], max_distance, min_nodes)
+            + split_component(points, idx[k:], max_distance, min_nodes))
+
+
+def _ends_on_line(points: np.ndarray, idx: np.ndarray, fit: LineFit) -> np.ndarray:
+    t = (points[idx] - fit.centroid) @ fit.direction
+    lo, hi = t.min(), t.max()
+    return np.stack([fit.centroid + lo * fit.direction, fit.centroid + hi * fit.direction])
+
+
+def _similar_pairs(cen: np.ndarray, dirs: np.ndarray, nor: np.ndarray, ends: np.ndarray,
+                   rows: np.ndarray, cos_max: float, max_offset: float, upper: bool):
+    """(offset, i, j) for parts i in ``rows`` and every part j (j > i if ``upper``) whose lines
+    are similar: directions within acos(cos_max), end points of each within ``max_offset`` of
+    the other's line. Arrays are per part: centroids, directions, normals (P, 2), end points
+    (P, 2, 2)."""
+    cosine = np.abs(dirs[rows] @ dirs.T)  # (R, P)
+    # distance of part j's ends to part i's line, and of part i's ends to part j's line
+    to_i = np.abs(np.einsum("jkd,rd->rjk", ends, nor[rows]) - (cen[rows] * nor[rows]).sum(1)
+                  [:, None, None]).max(axis=2)
+    to_j = np.abs(np.einsum("rkd,jd->rjk", ends[rows], nor) - (cen * nor).sum(1)[None, :, None]
+                  ).max(axis=2)
+    off = np.maximum(to_i, to_j)
+    ok = (cosine >= cos_max) & (off <= max_offset)
+    ok[np.arange(len(rows)), rows] = False
+    r, j = np.nonzero(ok)
+    return [(float(off[a, b]), int(rows[a]), int(b)) for a, b in zip(r, j)
+            if rows[a] < b or not upper]
+
+
+def merge_segments(points: np.ndarray, parts: list[np.ndarray], max_angle: float,
+                   max_offset: float, max_distance: float) -> list[np.ndarray]:
+    """Merge parts whose fitted lines are similar: directions within ``max_angle`` (rad), the
+    end points of each within ``max_offset`` of the other's line, and the merged fit still
+    within ``max_distance`` of every node. Greedy, most similar pairs first, until no pair
+    merges."""
+    parts = [np.asarray(p) for p in parts]
+    if len(parts) < 2:
+        return parts
+    cos_max = math.cos(max_angle)
+    fits = [fit_line(points[p]) for p in parts]
+    cen = np.array([f.centroid for f in fits])
+    dirs = np.array([f.direction for f in fits])
+    nor = np.array([f.normal for f in fits])
+    ends = np.array([_ends_on_line(points, p, f) for p, f in zip(parts, fits)])
+    alive = [True] * len(parts)
+    pairs = _similar_pairs(cen, dirs, nor, ends, np.arange(len(parts)), cos_max, max_offset,
+                           upper=True)
+    while pairs:
+        pairs.sort()
+        _, i, j = pairs.pop(0)
+        if not (alive[i] and alive[j]):
+            continue
+        merged = np.unique(np.concatenate([parts[i], parts[j]]))
+        fit = fit_line(points[merged])
+        if point_line_distance(points[merged], fit).max() > max_distance:
+            continue  # not one line after all
+        alive[i] = alive[j] = False
+        parts.append(merged)
+        alive.append(True)
+        cen = np.vstack([cen, fit.centroid])
+        dirs = np.vstack([dirs, fit.direction])
+        nor = np.vstack([nor, fit.normal])
+        ends = np.concatenate([ends, _ends_on_line(points, merged, fit)[None]])
+        k = len(parts) - 1
+        new = _similar_pairs(cen, dirs, nor, ends, np.array([k]), cos_max, max_offset,
+                             upper=False)
+        pairs += [(o, min(a, b), max(a, b)) for o, a, b in new if alive[b]]
+    return [p for p, a in zip(parts, alive) if a]
+
+
+def split_and_merge(points: np.ndarray, components: list[list[int]], conf: dict
+                    ) -> list[LineSegment]:
+    """Split every component, merge similar parts, and give each final line its fit and its
+    end points projected onto the fit."""
+    parts = []
+    for comp in components:
+        idx = np.asarray(comp)
+        idx = idx[np.all(np.isfinite(points[idx]), axis=1)]
+        parts += split_component(points, idx, conf["split_distance"], conf["min_nodes"])
+    parts = merge_segments(points, parts, conf["merge_angle"],
+                           conf["merge_offset"], conf["split_distance"])
+    out = []
+    for p in parts:
+        p = np.asarray(p)
+        fit = fit_line(points[p])
+        out.append(LineSegment(p, fit, line_end_points(points, p, fit)))
+    return out
+
+
+def line_end_points(points: np.ndarray, idx: np.ndarray, fit: LineFit) -> np.ndarray:
+    """The component's extreme nodes along the line, projected onto the fitted line (2, 2)."""
+    return _ends_on_line(points, idx, fit)
+
+
+def floor_line_parameters(p0: np.ndarray, p1: np.ndarray) -> tuple[float, float, float]:
+    """Egocentric parameters of the floor line through p0, p1 (robot frame): the length of the
+    perpendicular dropped from the robot onto the line, the angle of that perpendicular
+    (bearing of its foot point), and the segment's length."""
+    d = p1 - p0
+    length = float(np.hypot(*d))
+    if length == 0:
+        return float(np.hypot(*p0)), float(np.arctan2(p0[1], p0[0])), 0.0
+    t = -float(p0 @ d) / (length * length)
+    foot = p0 + t * d
+    dist = float(np.hypot(*foot))
+    if dist < 1e-9:
+        angle = float(np.arctan2(d[1], d[0]) + np.pi / 2)
+    else:
+        angle = float(np.arctan2(foot[1], foot[0]))
+    return dist, angle, length

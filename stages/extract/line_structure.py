@@ -1,0 +1,616 @@
+"""The line structure graph (seed 000 sections 3.2, 3.3 and the key structure of 4.1).
+
+All of it works on the subsampled white image (one cell per 8 x 8 pixels, values are the
+share of white pixels in the cell), in grid coordinates (x = column, y = row, float for
+subpixel positions):
+
+- ``white_inside_boundary``: only the white cells inside the field boundary;
+- ``low_pass``: a binomial low-pass so each line cross-section has one maximum;
+- ``ranking_skeleton``: the ranking operator, c(x, y) = number of 8-neighbours with an equal
+  or higher grey level; a non-zero pixel with c < 3 is on the skeleton (c = 0 peaks,
+  c = 1, 2 ridges);
+- ``place_nodes``: nodes first at peaks, then on ridge pixels at least two pixels apart;
+- ``connect_nodes``: connections where the 3 x 3 regions of two nodes overlap or touch on the
+  skeleton (``remove_triangles``, ``limit_degree``: no triangles, no degree above 4);
+- ``stretch_lines``: end nodes moved to the last pixel of the skeleton;
+- ``split_isolated_nodes``: degree-0 nodes split into two connected nodes to fill gaps;
+- ``fill_gaps``: candidate connections scored by continuity, closure and simplicity (short,
+  similar grey level along the gap as at the nodes), never above degree 4;
+- ``key_structure``: the lines smoothed, nodes at low curvature removed, short lines ending in
+  junctions eliminated (and small rings), close connected junctions merged; key nodes stay on
+  the skeleton.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+_KERNEL3 = np.ones((3, 3), np.uint8)
+_CROSS3 = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], np.uint8)
+_NEIGHBOURS = [(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)]
+
+
+# ---------------------------------------------------------------------------- 3.2 skeleton
+
+
+def white_inside_boundary(white: np.ndarray, top: np.ndarray, margin: int = 1) -> np.ndarray:
+    """White share per cell (H, W) float32, zero above the field boundary (``top`` = first
+    field row per column) and in the ``margin`` rows just below it."""
+    h, _ = white.shape
+    rows = np.arange(h, dtype=np.float64)[:, None]
+    inside = rows >= np.ceil(np.asarray(top, np.float64))[None, :] + margin
+    return np.where(inside, white.astype(np.float32), np.float32(0.0))
+
+
+def low_pass(image: np.ndarray) -> np.ndarray:
+    """3 x 3 binomial low-pass, so that each line cross-section has a single maximum."""
+    k = np.array([0.25, 0.5, 0.25], np.float32)
+    return cv2.sepFilter2D(image.astype(np.float32), -1, k, k, borderType=cv2.BORDER_CONSTANT)
+
+
+def ranking_keys(image: np.ndarray) -> np.ndarray:
+    """Grey levels as exactly comparable keys (float64 holding integers): the level quantised
+    to 1/65536, ties broken by the pixel's raster index, so that a line two cells wide with
+    equal values still has one maximum per cross-section."""
+    h, w = image.shape
+    q = np.round(image.astype(np.float64) * 65536.0)
+    return q * (h * w) + np.arange(h * w, dtype=np.float64).reshape(h, w)
+
+
+def ranking_count(image: np.ndarray) -> np.ndarray:
+    """c(x, y): the number of 8-neighbours with an equal or higher grey level (int8), ties
+    broken as in ranking_keys."""
+    h, w = image.shape
+    key = ranking_keys(image)
+    pad = np.pad(key, 1, constant_values=-1.0)
+    c = np.zeros((h, w), np.int8)
+    for dy, dx in _NEIGHBOURS:
+        c += pad[1 + dy:1 + dy + h, 1 + dx:1 + dx + w] >= key
+    return c
+
+
+def ranking_skeleton(image: np.ndarray, min_value: float) -> tuple[np.ndarray, np.ndarray]:
+    """The ranking-operator skeleton: pixels above ``min_value`` (grey level zero is background)
+    with c(x, y) < 3. Returns (skeleton mask, c)."""
+    c = ranking_count(image)
+    return (image > min_value) & (c < 3), c
+
+
+# ---------------------------------------------------------------------------- 3.3 nodes
+
+
+@dataclass
+class LineGraph:
+    """Nodes on the skeleton and their connections. ``pix`` is the skeleton pixel (x, y) a node
+    sits on, ``pos`` its subpixel position, ``value`` the low-passed grey level there."""
+
+    pix: np.ndarray  # (N, 2) int
+    pos: np.ndarray  # (N, 2) float
+    value: np.ndarray  # (N,) float
+    adj: list[set] = field(default_factory=list)
+
+    def __len__(self):
+        return len(self.pix)
+
+    def degree(self) -> np.ndarray:
+        return np.array([len(a) for a in self.adj], dtype=int)
+
+    def edges(self) -> np.ndarray:
+        e = [(i, j) for i, a in enumerate(self.adj) for j in a if i < j]
+        return np.array(e, dtype=int).reshape(-1, 2)
+
+    def connect(self, i: int, j: int):
+        if i != j:
+            self.adj[i].add(j)
+            self.adj[j].add(i)
+
+    def disconnect(self, i: int, j: int):
+        self.adj[i].discard(j)
+        self.adj[j].discard(i)
+
+    def add_node(self, pix, pos, value) -> int:
+        self.pix = np.vstack([self.pix, np.asarray(pix, int)[None]])
+        self.pos = np.vstack([self.pos, np.asarray(pos, float)[None]])
+        self.value = np.append(self.value, value)
+        self.adj.append(set())
+        return len(self.pix) - 1
+
+    def copy(self) -> LineGraph:
+        return LineGraph(self.pix.copy(), self.pos.copy(), self.value.copy(),
+                         [set(a) for a in self.adj])
+
+
+def place_nodes(image: np.ndarray, skeleton: np.ndarray, c: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Nodes first at peaks (c = 0), then at ridge pixels (c = 1, 2) at least two pixels apart
+    (no two nodes 8-neighbours). Done in parallel rounds: in each round every available
+    skeleton pixel whose priority (peaks first, then grey level) is the highest in its 3 x 3
+    neighbourhood becomes a node and blocks its neighbours. The result is maximal, so every
+    skeleton pixel touches a node.
+
+    Returns node pixels (N, 2) int (x, y), ordered by priority, and the node regions: an int32
+    image with node index + 1 on every skeleton pixel (a node's pixel and the skeleton pixels
+    of its 3 x 3 region assigned to it, 4-neighbours first), 0 elsewhere."""
+    key = ranking_keys(image)
+    priority = np.where(skeleton, key + np.where(c == 0, 2.0 ** 45, 0.0), -1.0)
+    available = skeleton.copy()
+    nodes = np.zeros_like(skeleton)
+    while available.any():
+        p = np.where(available, priority, -1.0)
+        new = available & (p >= cv2.dilate(p, _KERNEL3))
+        nodes |= new
+        available &= ~(cv2.dilate(new.astype(np.uint8), _KERNEL3) > 0)
+    ys, xs = np.nonzero(nodes)
+    order = np.argsort(-priority[ys, xs], kind="stable")
+    ys, xs = ys[order], xs[order]
+    labels = np.zeros(skeleton.shape, np.float32)
+    labels[ys, xs] = np.arange(1, len(xs) + 1, dtype=np.float32)
+    regions = labels.copy()
+    rest = skeleton & (labels == 0)
+    cross = cv2.dilate(labels, _CROSS3)
+    regions[rest] = cross[rest]
+    rest &= regions == 0
+    full = cv2.dilate(labels, _KERNEL3)
+    regions[rest] = full[rest]
+    return np.stack([xs, ys], axis=1).astype(int), regions.astype(np.int32)
+
+
+def subpixel_positions(image: np.ndarray, pix: np.ndarray) -> np.ndarray:
+    """Grey-level weighted centroid of each node's 3 x 3 window (x, y)."""
+    if len(pix) == 0:
+        return np.zeros((0, 2))
+    h, w = image.shape
+    pad = np.pad(image, 1)
+    offs = np.array([(dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)])
+    xs = pix[:, 0:1] + 1 + offs[None, :, 0]
+    ys = pix[:, 1:2] + 1 + offs[None, :, 1]
+    wts = pad[ys, xs].astype(np.float64)
+    wsum = wts.sum(axis=1)
+    wsum[wsum <= 0] = 1.0
+    dx = (wts * offs[None, :, 0]).sum(axis=1) / wsum
+    dy = (wts * offs[None, :, 1]).sum(axis=1) / wsum
+    return pix.astype(np.float64) + np.stack([dx, dy], axis=1)
+
+
+def connect_nodes(regions: np.ndarray, n: int) -> list[set]:
+    """Connections where the 3 x 3 regions of two nodes overlap or touch on the skeleton: two
+    nodes are connected when skeleton pixels of their regions are 8-neighbours."""
+    r = regions
+    pairs = []
+    for a, b in ((r[:, :-1], r[:, 1:]), (r[:-1, :], r[1:, :]),
+                 (r[:-1, :-1], r[1:, 1:]), (r[:-1, 1:], r[1:, :-1])):
+        m = (a > 0) & (b > 0) & (a != b)
+        pairs.append(np.stack([a[m], b[m]], axis=1))
+    e = np.sort(np.concatenate(pairs).astype(np.int64) - 1, axis=1)
+    code = np.unique(e[:, 0] * n + e[:, 1])
+    adj = [set() for _ in range(n)]
+    for i, j in zip((code // n).tolist(), (code % n).tolist()):
+        adj[i].add(j)
+        adj[j].add(i)
+    return adj
+
+
+def remove_triangles(graph: LineGraph):
+    """Drop the longest side of each triangle of connections (in place)."""
+    for i in range(len(graph)):
+        for j in sorted(graph.adj[i]):
+            if j <= i:
+                continue
+            for k in sorted(graph.adj[i] & graph.adj[j]):
+                if k <= j:
+                    continue
+                sides = [(i, j), (j, k), (i, k)]
+                lens = [np.hypot(*(graph.pos[a] - graph.pos[b])) for a, b in sides]
+                a, b = sides[int(np.argmax(lens))]
+                graph.disconnect(a, b)
+
+
+def limit_degree(graph: LineGraph, max_degree: int = 4):
+    """No crossing of degree above ``max_degree``: a node with more connections loses its
+    longest ones (in place)."""
+    for i in range(len(graph)):
+        while len(graph.adj[i]) > max_degree:
+            far = max(graph.adj[i], key=lambda j: np.hypot(*(graph.pos[i] - graph.pos[j])))
+            graph.disconnect(i, far)
+
+
+def stretch_lines(graph: LineGraph, regions: np.ndarray):
+    """Move each end node (degree 1) to the last pixel of the skeleton: the pixel of its
+    region farthest from its neighbour (in place)."""
+    deg = graph.degree()
+    ends = np.nonzero(deg == 1)[0]
+    if len(ends) == 0:
+        return
+    ys, xs = np.nonzero(regions)
+    lab = regions[ys, xs] - 1
+    is_end = np.zeros(len(graph), bool)
+    is_end[ends] = True
+    sel = is_end[lab]
+    ys, xs, lab = ys[sel], xs[sel], lab[sel]
+    other = np.zeros(len(graph), int)
+    for i in ends:
+        other[i] = next(iter(graph.adj[i]))
+    d = np.hypot(xs - graph.pos[other[lab], 0], ys - graph.pos[other[lab], 1])
+    order = np.lexsort((-d, lab))
+    first = np.ones(len(order), bool)
+    first[1:] = lab[order][1:] != lab[order][:-1]
+    best = order[first]
+    graph.pix[lab[best]] = np.stack([xs[best], ys[best]], axis=1)
+
+
+def split_isolated_nodes(graph: LineGraph, regions: np.ndarray, image: np.ndarray):
+    """Split each degree-0 node whose region holds at least two skeleton pixels into two
+    connected nodes at the region's two farthest pixels, so that short isolated pieces can
+    bridge gaps (in place)."""
+    deg = graph.degree()
+    lonely = np.nonzero(deg == 0)[0]
+    if len(lonely) == 0:
+        return
+    ys, xs = np.nonzero(regions)
+    lab = regions[ys, xs] - 1
+    for i in lonely:
+        m = lab == i
+        if m.sum() < 2:
+            continue
+        px = np.stack([xs[m], ys[m]], axis=1)
+        d = np.hypot(*(px[:, None, :] - px[None, :, :]).transpose(2, 0, 1))
+        a, b = np.unravel_index(np.argmax(d), d.shape)
+        graph.pix[i] = px[a]
+        j = graph.add_node(px[b], px[b].astype(float), image[px[b][1], px[b][0]])
+        graph.connect(i, j)
+
+
+def _outward(graph: LineGraph, i: int, reach: int = 3) -> np.ndarray | None:
+    """Unit direction in which the line ends at end node i (from a node up to ``reach`` steps
+    back along its line towards i), or None for a node without a single neighbour."""
+    if len(graph.adj[i]) != 1:
+        return None
+    prev, cur = i, next(iter(graph.adj[i]))
+    for _ in range(reach - 1):
+        nxt = [k for k in graph.adj[cur] if k != prev]
+        if len(nxt) != 1:
+            break
+        prev, cur = cur, nxt[0]
+    d = graph.pos[i] - graph.pos[cur]
+    n = np.hypot(*d)
+    return d / n if n > 0 else None
+
+
+def fill_gaps(graph: LineGraph, image: np.ndarray, max_gap: float, min_cos: float,
+              min_grey_ratio: float, close_gap: float, max_degree: int = 4, samples: int = 8):
+    """Candidate connections from end and isolated nodes to nodes within ``max_gap`` cells,
+    evaluated by continuity (the gap continues the line's direction within acos(min_cos); a
+    gap of at most ``close_gap`` cells between two line ends closes without it, as at a
+    corner whose tip the skeleton misses), closure (short gaps first) and simplicity (the
+    grey level along the gap is at least ``min_grey_ratio`` of the nodes'; no node above degree
+    ``max_degree``; no connection to a node already three steps away). Accepted greedily by
+    score (in place)."""
+    deg = graph.degree()
+    loose = np.nonzero(deg <= 1)[0]
+    if len(loose) == 0 or len(graph) < 2:
+        return
+    pos = graph.pos
+    d = np.hypot(*(pos[loose][:, None, :] - pos[None, :, :]).transpose(2, 0, 1))
+    outward = {int(i): _outward(graph, int(i)) for i in loose}
+    cand = []
+    for a, i in enumerate(loose):
+        near = np.nonzero((d[a] <= max_gap) & (d[a] > 0))[0]
+        if len(near) == 0:
+            continue
+        i = int(i)
+        steps = {i}
+        frontier = {i}
+        for _ in range(3):
+            frontier = {k for f in frontier for k in graph.adj[f]} - steps
+            steps |= frontier
+        out_i = outward[i]
+        for j in near:
+            j = int(j)
+            if j in steps:
+                continue
+            g = (pos[j] - pos[i]) / d[a, j]
+            out_j = outward.get(j) if deg[j] <= 1 else None
+            closing = d[a, j] <= close_gap and deg[j] == 1 and deg[i] == 1
+            score = 0.0
+            if out_i is not None:
+                ci = float(out_i @ g)
+                if ci < min_cos and not closing:
+                    continue
+                score += ci
+            if out_j is not None:
+                cj = float(-out_j @ g)
+                if cj < min_cos and not closing:
+                    continue
+                score += cj
+            if out_i is None and out_j is None and deg[j] > 0:
+                continue  # an isolated node joins only where a line's direction leads
+            cand.append((score - d[a, j] / max_gap, i, j))
+    if not cand:
+        return
+    # simplicity: grey level along all candidate gaps, sampled in one pass
+    ij = np.array([(i, j) for _, i, j in cand])
+    t = np.linspace(0.0, 1.0, samples)[None, :, None]
+    pts = (pos[ij[:, 0]][:, None, :] * (1 - t) + pos[ij[:, 1]][:, None, :] * t).astype(np.float32)
+    grey = cv2.remap(image, pts[..., 0], pts[..., 1], cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_CONSTANT, borderValue=0).min(axis=1)
+    ref = 0.5 * (graph.value[ij[:, 0]] + graph.value[ij[:, 1]])
+    ratio = np.where(ref > 0, grey / np.maximum(ref, 1e-9), 0.0)
+    scored = [(sc + r, i, j) for (sc, i, j), r in zip(cand, ratio) if r >= min_grey_ratio]
+    scored.sort(key=lambda c: -c[0])
+    for _, i, j in scored:
+        if j in graph.adj[i]:
+            continue
+        if len(graph.adj[i]) >= 2 or len(graph.adj[j]) >= max_degree:
+            continue
+        graph.connect(i, j)
+
+
+def line_structure_graph(white_lp: np.ndarray, conf: dict
+                         ) -> tuple[LineGraph, np.ndarray, np.ndarray]:
+    """Section 3.2-3.3 on the low-passed white image: skeleton, nodes, connections, stretching,
+    splitting of isolated nodes and gap filling. Returns (graph, skeleton, regions)."""
+    skeleton, c = ranking_skeleton(white_lp, conf["min_white"])
+    pix, regions = place_nodes(white_lp, skeleton, c)
+    adj = connect_nodes(regions, len(pix))
+    graph = LineGraph(pix, pix.astype(np.float64), white_lp[pix[:, 1], pix[:, 0]]
+                      if len(pix) else np.zeros(0), adj)
+    if len(pix) == 0:
+        return graph, skeleton, regions
+    graph.pos = subpixel_positions(white_lp, graph.pix)
+    remove_triangles(graph)
+    limit_degree(graph, 4)
+    stretch_lines(graph, regions)
+    split_isolated_nodes(graph, regions, white_lp)
+    graph.pos = subpixel_positions(white_lp, graph.pix)
+    fill_gaps(graph, white_lp, conf["max_gap"], math.cos(conf["gap_max_angle"]),
+              conf["gap_min_grey_ratio"], conf["close_gap"])
+    return graph, skeleton, regions
+
+
+# ---------------------------------------------------------------------------- 4.1 key structure
+
+
+@dataclass
+class KeyStructure:
+    """The key node structure: key nodes (fine node index, position) and key edges, each the
+    chain of fine nodes it replaces (from its first to its second key node)."""
+
+    node: list[int]
+    pos: np.ndarray  # (K, 2) grid coordinates
+    edges: list[tuple[int, int, list[int]]]
+
+    def degree(self) -> np.ndarray:
+        deg = np.zeros(len(self.node), int)
+        for a, b, _ in self.edges:
+            deg[a] += 1
+            deg[b] += 1
+        return deg
+
+    def incident(self, k: int) -> list[list[int]]:
+        """The fine chains leaving key node k, each starting at k."""
+        out = []
+        for a, b, chain in self.edges:
+            if a == k:
+                out.append(chain)
+            if b == k:
+                out.append(chain[::-1])
+        return out
+
+    def arms(self, k: int, min_nodes: int) -> list[list[int]]:
+        """The fine chains leaving key node k, each continued through degree-2 key nodes (a
+        bend right next to a junction) until it holds ``min_nodes`` nodes or ends."""
+        deg = self.degree()
+        out = []
+        for e, (a, b, chain) in enumerate(self.edges):
+            for start, end, ch in ((a, b, chain), (b, a, chain[::-1])):
+                if start != k:
+                    continue
+                arm, at, via = list(ch), end, e
+                while len(arm) < min_nodes and deg[at] == 2 and at != k:
+                    nxt = [(i, p, q, c) for i, (p, q, c) in enumerate(self.edges)
+                           if i != via and at in (p, q)]
+                    if not nxt:
+                        break
+                    i, p, q, c = nxt[0]
+                    arm += (c if p == at else c[::-1])[1:]
+                    at, via = (q if p == at else p), i
+                out.append(arm)
+                if a == b:
+                    break
+        return out
+
+
+def _chain_length(pos: np.ndarray, chain: list[int]) -> float:
+    p = pos[chain]
+    return float(np.hypot(*np.diff(p, axis=0).T).sum()) if len(chain) > 1 else 0.0
+
+
+def remove_short_lines(graph: LineGraph, min_length: float) -> LineGraph:
+    """Eliminate short lines ending in junctions: a path from an end node to a node of degree
+    >= 3 shorter than ``min_length`` cells is removed (returns a new graph)."""
+    g = graph.copy()
+    deg = g.degree()
+    for e in np.nonzero(deg == 1)[0]:
+        path = [int(e)]
+        prev, cur = -1, int(e)
+        while True:
+            nxt = [k for k in g.adj[cur] if k != prev]
+            if len(g.adj[cur]) != (1 if cur == e else 2) or not nxt:
+                break
+            prev, cur = cur, nxt[0]
+            path.append(cur)
+        if len(g.adj[cur]) >= 3 and _chain_length(g.pos, path) < min_length:
+            for a, b in zip(path[:-1], path[1:]):
+                g.disconnect(a, b)
+    return g
+
+
+def trace_chains(graph: LineGraph) -> list[list[int]]:
+    """Chains of degree-2 nodes between nodes of another degree (each chain includes its two
+    end nodes); closed loops of degree-2 nodes start and end at their first node."""
+    adj = graph.adj
+    two = [len(a) == 2 for a in adj]
+    used = [False] * len(adj)  # degree-2 nodes already in a chain
+    direct = set()  # chains without interior nodes, as (low, high)
+    chains = []
+
+    def walk(prev, cur, chain):
+        while two[cur] and not used[cur]:
+            used[cur] = True
+            a, b = adj[cur]
+            prev, cur = cur, (b if a == prev else a)
+            chain.append(cur)
+        return chain
+
+    for s in range(len(adj)):
+        if two[s] or not adj[s]:
+            continue
+        for n in sorted(adj[s]):
+            if two[n]:
+                if not used[n]:
+                    chains.append(walk(s, n, [s, n]))
+            elif (min(s, n), max(s, n)) not in direct:
+                direct.add((min(s, n), max(s, n)))
+                chains.append([s, n])
+    for s in range(len(adj)):  # loops of degree-2 nodes only
+        if two[s] and not used[s]:
+            used[s] = True
+            n = min(adj[s])
+            chain = walk(s, n, [s, n])
+            if chain[-1] != s:
+                chain.append(s)
+            chains.append(chain)
+    return chains
+
+
+def smooth_lines(graph: LineGraph, iterations: int = 2) -> np.ndarray:
+    """Node positions smoothed along the lines: each degree-2 node moves to the mean of itself
+    and its two neighbours; other nodes stay (returns new positions)."""
+    pos = graph.pos.copy()
+    deg = graph.degree()
+    idx = np.nonzero(deg == 2)[0]
+    if len(idx) == 0:
+        return pos
+    nb = np.array([sorted(graph.adj[i]) for i in idx])
+    for _ in range(iterations):
+        pos[idx] = (pos[idx] + pos[nb[:, 0]] + pos[nb[:, 1]]) / 3.0
+    return pos
+
+
+def turning_angles(chains: list[list[int]], pos: np.ndarray, reach: float
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Turning angle (rad) at every node of every chain, measured with arms reaching ``reach``
+    along the chain on both sides (0 at a chain's ends), all chains at once. Returns the
+    angles, the arc length of each node along its chain and the chain's first index, all
+    over the chains' concatenated nodes."""
+    if not chains:
+        return np.zeros(0), np.zeros(0), np.zeros(0, int)
+    lens = np.array([len(c) for c in chains], dtype=int)
+    idx = np.concatenate(chains).astype(int)
+    pts = pos[idx]
+    start = np.repeat(np.cumsum(lens) - lens, lens)
+    last = start + np.repeat(lens, lens) - 1
+    step = np.concatenate([[0.0], np.hypot(*np.diff(pts, axis=0).T)])
+    step[np.cumsum(lens) - lens] = 0.0  # each chain starts at 0
+    arc = np.cumsum(step)
+    arc = arc - arc[start]
+    # chains laid end to end far apart, so one sorted search serves them all
+    far = (np.repeat(np.arange(len(chains)), lens) * (arc.max(initial=0.0) + 4 * reach + 1.0))
+    key = arc + far
+    back = np.clip(np.searchsorted(key, key - reach, side="right") - 1, start, last)
+    fwd = np.clip(np.searchsorted(key, key + reach, side="left"), start, last)
+    a = pts - pts[back]
+    b = pts[fwd] - pts
+    na, nb = np.hypot(*a.T), np.hypot(*b.T)
+    ok = (na > 0) & (nb > 0)
+    cosang = np.where(ok, (a * b).sum(axis=1) / np.where(ok, na * nb, 1.0), 1.0)
+    turn = np.arccos(np.clip(cosang, -1.0, 1.0))
+    turn[(np.arange(len(idx)) == start) | (np.arange(len(idx)) == last)] = 0.0
+    return turn, arc, start
+
+
+def corner_nodes(turn: np.ndarray, arc: np.ndarray, reach: float, min_turn: float) -> list[int]:
+    """Indices (in one chain, from its turning angles and arc lengths) of the nodes kept at high
+    curvature: local maxima of the turning angle above ``min_turn``, at least ``reach`` apart and
+    from the chain's ends; all other interior nodes are removed."""
+    if len(turn) < 3 or turn.max() < min_turn:
+        return []
+    kept: list[int] = []
+    for i in np.argsort(-turn, kind="stable"):
+        if turn[i] < min_turn:
+            break
+        if all(abs(arc[i] - arc[k]) >= reach for k in kept) and arc[i] >= reach * 0.5 \
+                and arc[-1] - arc[i] >= reach * 0.5:
+            kept.append(int(i))
+    return sorted(kept)
+
+
+def key_structure(graph: LineGraph, conf: dict) -> KeyStructure:
+    """Section 4.1: from the fine graph to the key node structure."""
+    pruned = remove_short_lines(graph, conf["min_spur_length"])
+    smooth = smooth_lines(pruned, conf["smooth_iterations"])
+    chains = trace_chains(pruned)
+    key_of: dict[int, int] = {}
+    nodes: list[int] = []
+
+    def key(i: int) -> int:
+        if i not in key_of:
+            key_of[i] = len(nodes)
+            nodes.append(i)
+        return key_of[i]
+
+    edges = []
+    min_turn, reach = conf["corner_min_turn"], conf["corner_reach"]
+    turn, arc, start = turning_angles(chains, smooth, reach)
+    firsts = np.unique(start)
+    for chain, i0 in zip(chains, firsts):
+        i1 = i0 + len(chain)
+        cut = corner_nodes(turn[i0:i1], arc[i0:i1], reach, min_turn)
+        bounds = [0] + cut + [len(chain) - 1]
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            edges.append((key(chain[a]), key(chain[b]), chain[a:b + 1]))
+    # small rings hanging at a node (a hole in a wide crossing blob) are no lines
+    edges = [e for e in edges if not (e[0] == e[1]
+                                       and _chain_length(pruned.pos, e[2]) < conf["max_ring"])]
+    ks = KeyStructure(nodes, pruned.pos[nodes] if nodes else np.zeros((0, 2)), edges)
+    return merge_close_junctions(ks, pruned, conf["merge_distance"])
+
+
+def merge_close_junctions(ks: KeyStructure, graph: LineGraph, max_length: float
+                          ) -> KeyStructure:
+    """Merge junctions (degree >= 3) connected by a key edge shorter than ``max_length`` cells
+    into one crossing, placed at the fine node of the two (on the skeleton) nearest to their
+    mean position."""
+    while True:
+        deg = ks.degree()
+        best = None
+        for e, (a, b, chain) in enumerate(ks.edges):
+            if a != b and deg[a] >= 3 and deg[b] >= 3:
+                ln = _chain_length(graph.pos, chain)
+                if ln < max_length and (best is None or ln < best[0]):
+                    best = (ln, e)
+        if best is None:
+            return ks
+        a, b, chain = ks.edges[best[1]]
+        mid = 0.5 * (ks.pos[a] + ks.pos[b])
+        near = min(chain, key=lambda i: np.hypot(*(graph.pos[i] - mid)))
+        ks.node[a] = near
+        ks.pos[a] = graph.pos[near]
+        edges = []
+        for e, (p, q, ch) in enumerate(ks.edges):
+            if e == best[1]:
+                continue
+            if p == b:
+                p, ch = a, chain + ch[1:] if ch and ch[0] == chain[-1] else ch
+            if q == b:
+                q, ch = a, ch + chain[::-1][1:] if ch and ch[-1] == chain[-1] else ch
+            edges.append((p, q, ch))
+        # drop node b (keep indices dense)
+        keep = [k for k in range(len(ks.node)) if k != b]
+        remap = {k: n for n, k in enumerate(keep)}
+        ks = KeyStructure([ks.node[k] for k in keep], ks.pos[keep],
+                          [(remap[p], remap[q], ch) for p, q, ch in edges])

@@ -1,0 +1,511 @@
+"""Feature extraction for a perspective (humanoid head) camera: seed 000 sections 3 and 4.
+
+``extract_frame`` runs the chain on one frame, each step in its own module:
+
+1. colour classes per pixel and their counts per 8 x 8 cell (``stages.extract.colour``); the
+   white of the wide-angle lens's unreliable corners is deleted (``delete_unreliable_corners``);
+2. the field boundary (``field_boundary``);
+3. goal posts: white bars rising above the boundary (``goal_posts``), and white bars standing
+   on the floor up to the boundary found among the line segments (``is_post_bar``);
+4. the white cells inside the boundary, low-passed, the ranking-operator skeleton, nodes,
+   connections, stretching and gap filling (``line_structure``);
+5. the key structure and the L/T/X crossings verified in the colour images (``crossings``);
+6. field lines by split-and-merge on undistorted node coordinates (``line_fit``);
+7. everything projected to the floor with the camera model at the frame's head angles.
+
+It returns the per-frame datasets of the features schema (stages.common.features_file):
+boundary, line_ends, line_ends_px, lines, crossings, crossings_px, posts, posts_px.
+``debug_overlay`` draws them on the frame like the seed's fig. 1.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+
+import cv2
+import numpy as np
+
+from ..common.errors import DatasetError
+from . import colour
+from .crossings import (
+    TYPE_CODES,
+    arm_lines,
+    crossing_candidates,
+    crossing_point,
+    floor_arms,
+    verify_crossing,
+)
+from .field_boundary import DEFAULT_WEIGHTS, boundary_polyline, field_boundary
+from .goal_posts import goal_posts
+from .line_fit import floor_line_parameters, line_components, split_and_merge
+from .line_structure import (
+    key_structure,
+    line_structure_graph,
+    low_pass,
+    white_inside_boundary,
+)
+
+confs = {
+    "default": {
+        "cell": 8,  # px per subsampled cell (the seed's 94 x 60 grid for 752 x 480)
+        "colour": copy.deepcopy(colour.confs["default"]),
+        # unreliable corners of the wide-angle lens: cells farther from the image centre than
+        # this share of the half diagonal lose their white (the boundary scan keeps them)
+        "corner_radius": 0.95,
+        "boundary": {
+            "weights": dict(DEFAULT_WEIGHTS),
+            "t_pix": 0.45,  # a cell this green (grey level, 1 = all green) is field
+            "t_row": 0.6,  # mean grey of the row and the row above for weak cells
+            "t_win": 0.75,  # mean grey of the 8 x 4 window below for weak cells
+            "t_weak": 0.2,  # weak cells below this are never field
+            "max_gap": 4,  # scan stops after more than this many non-field cells
+            "gauss_sigma": 0.7,  # bins
+            "median_size": 5,  # bins
+        },
+        "posts": {
+            "t_white": 0.2,  # white share of a cell of a post
+            "min_rise": 3,  # cells of white above the boundary
+            "max_rise": 30,
+            "max_below": 30,
+            "max_width": 4,  # cells
+            "full_height": 12,  # cells of bar at which the confidence is 1
+            "post_diameter": 0.1,  # m (KidSize goal posts)
+            "min_height": 0.4,  # m of white bar at least (of a post about 1.2 m high)
+            "width_ratio": [0.4, 2.5],  # measured / expected width in the image
+            "max_distance": 7.0,  # m
+            # a white segment inside the boundary is a post's bar, not a line, when it runs
+            # straight away from the robot on the floor (perpendicular distance below
+            # bar_radial m), starts at least bar_min_distance m away, reaches the boundary
+            # (within bar_touch cells) and keeps bar_width_ratio of a post's width (see
+            # is_post_bar)
+            "bar_radial": 0.15,
+            "bar_min_distance": 0.8,
+            "bar_touch": 3.5,
+            "bar_width_ratio": 0.6,
+            "bar_confidence": 0.5,
+        },
+        "skeleton": {
+            "boundary_margin": 1,  # cells below the boundary left out
+            "min_white": 0.04,  # low-passed white share below which a cell is background
+            "max_gap": 6.0,  # cells, gap filling
+            "gap_max_angle": math.radians(30.0),  # rad between a line's direction and the gap
+            "gap_min_grey_ratio": 0.25,  # grey along the gap relative to the nodes'
+            "close_gap": 4.0,  # cells: two line ends this close join whatever their direction
+        },
+        "key": {
+            "min_spur_length": 2.5,  # cells: shorter lines ending in a junction are removed
+            "smooth_iterations": 2,
+            "corner_reach": 3.0,  # cells: arm length for the turning angle
+            "corner_min_turn": math.radians(25.0),  # rad: lower turning is low curvature
+            "merge_distance": 3.0,  # cells: connected junctions closer than this merge
+            "max_ring": 10.0,  # cells: shorter rings hanging at a node are removed
+        },
+        "crossings": {
+            "arm_reach": 4.0,  # cells along each arm checked for a white path
+            "arm_skip": 1,  # nodes next to the crossing not fitted to its arm (they bend)
+            "arm_nodes": 4,  # nodes fitted per arm
+            "arm_step": 2.0,  # cells: arm points projected to the floor for the arm angles
+            "max_shift": 8.0,  # cells from the key node to the arms' intersection
+            "l_angle": [math.radians(25.0), math.radians(155.0)],  # rad, image angle of L arms
+            "circle_radii": [2.5, 3.5, 5.0, 7.0],  # cells (wide near lines need the larger)
+            "arm_gap": 3.0,  # cells between neighbouring arms on an extra, larger circle
+            "max_radius": 8.0,  # cells, of that circle
+            "t_white": 0.02,  # white share on the circle and the paths, at least
+            "relative": 0.35,  # ... and this share of the arms' median white level
+            "t_green": 0.3,
+            "max_other": 0.2,  # share of the circle neither white nor green (an object)
+            "object_radius": 2,  # cells: no cell mostly of other colours this near
+            "edge_margin": 1.5,  # cells: crossings closer to the field boundary (within two
+            # columns) are rejected
+            "min_path_share": 0.7,
+            "max_misfit": math.radians(30.0),  # rad: floor angle misfit from the L/T/X shape
+            # m: one grid cell is about 0.2 m of range at 2 m and 0.3 m at 2.5 m (camera
+            # 0.55 m high, 330 px focal length); on rendered walks farther crossings were
+            # mostly misplaced or of the wrong type
+            "max_distance": 2.0,
+        },
+        "lines": {
+            "split_distance": 7.0,  # undistorted px
+            "min_nodes": 3,  # smaller parts are discarded
+            "min_used_nodes": 4,  # shorter lines (a ball, a robot's white part) are not used
+            "merge_angle": math.radians(4.0),  # rad
+            "merge_offset": 7.0,  # undistorted px
+            "min_length": 0.3,  # m, shorter lines are not used
+            "max_distance": 6.0,  # m, lines whose perpendicular is longer are not used
+            "full_nodes": 8,  # nodes at which a line's confidence is 1
+        },
+    },
+}
+
+
+def delete_unreliable_corners(counts: np.ndarray, radius_share: float) -> np.ndarray:
+    """Zero the colour counts (H, W, ...) of cells beyond ``radius_share`` of the half diagonal
+    from the image centre (the wide-angle lens's unreliable corners)."""
+    if radius_share >= 1.0:
+        return counts
+    h, w = counts.shape[:2]
+    y = (np.arange(h) + 0.5 - h / 2)[:, None]
+    x = (np.arange(w) + 0.5 - w / 2)[None, :]
+    far = np.hypot(x, y) > radius_share * math.hypot(w / 2, h / 2)
+    out = counts.copy()
+    out[far] = 0
+    return out
+
+
+class IdealPixels:
+    """Undistortion of one camera by table lookup: the camera's ideal (undistorted) pixel
+    coordinates on a grid every ``stride`` pixels, interpolated bilinearly. The camera's own
+    undistort_points (Newton iterations) runs once per camera instead of on every frame."""
+
+    def __init__(self, camera, stride: int = 4):
+        w, h = camera.image_size
+        us = np.arange(0, w + stride, stride, dtype=float)
+        vs = np.arange(0, h + stride, stride, dtype=float)
+        grid = np.stack(np.meshgrid(us, vs), axis=-1)
+        ideal = camera.undistort_points(grid)
+        self.stride = stride
+        self.map_u = ideal[..., 0].astype(np.float32)
+        self.map_v = ideal[..., 1].astype(np.float32)
+
+    def __call__(self, uv) -> np.ndarray:
+        """Distorted pixels (N, 2) -> ideal pixels (N, 2); NaN outside the lens model."""
+        p = (np.asarray(uv, np.float32).reshape(-1, 1, 2) / np.float32(self.stride))
+        out = [cv2.remap(m, p[..., 0], p[..., 1], cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_CONSTANT, borderValue=float("nan"))
+               for m in (self.map_u, self.map_v)]
+        return np.stack([o.ravel() for o in out], axis=1).astype(np.float64)
+
+
+_IDEAL_CACHE: dict[int, tuple[object, IdealPixels]] = {}
+
+
+def ideal_pixels(camera) -> IdealPixels:
+    """The (cached) undistortion table of a camera."""
+    key = id(camera)
+    hit = _IDEAL_CACHE.get(key)
+    if hit is None or hit[0] is not camera:
+        if len(_IDEAL_CACHE) > 8:
+            _IDEAL_CACHE.clear()
+        hit = (camera, IdealPixels(camera))
+        _IDEAL_CACHE[key] = hit
+    return hit[1]
+
+
+class FloorProjection:
+    """Ideal (undistorted) pixels -> floor points in the robot frame for one frame's head
+    angles: each pixel's pinhole ray turned by the camera's rotation and cut with the floor
+    ``camera.height`` below the lens (NaN on or above the horizon). The rotation is computed
+    once per frame."""
+
+    def __init__(self, camera, pitch=None, roll=None):
+        m = camera.rotation(pitch, roll) @ np.linalg.inv(camera.camera_matrix)
+        self.m = m
+        self.height = float(camera.height)
+
+    def __call__(self, ideal) -> np.ndarray:
+        p = np.asarray(ideal, float).reshape(-1, 2)
+        rays = p @ self.m[:, :2].T + self.m[:, 2]
+        down = rays[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(down < -1e-9, self.height / -down, np.nan)
+        return rays[:, :2] * t[:, None]
+
+
+def ideal_to_floor(camera, ideal, pitch=None, roll=None) -> np.ndarray:
+    """Ideal pixels (N, 2) -> floor points (N, 2) in the robot frame (see FloorProjection)."""
+    return FloorProjection(camera, pitch, roll)(ideal)
+
+
+def grid_to_pixels(pos, cell: int) -> np.ndarray:
+    """Grid coordinates (x = column, y = row; cell centres at integers) -> full-resolution
+    pixels (u, v) (pixel centres at integers)."""
+    p = np.asarray(pos, float)
+    return (p + 0.5) * cell - 0.5
+
+
+def _polar(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    p = np.asarray(points, float).reshape(-1, 2)
+    return np.hypot(p[:, 0], p[:, 1]), np.arctan2(p[:, 1], p[:, 0])
+
+
+def _empty(n: int) -> np.ndarray:
+    return np.zeros((0, n), np.float32)
+
+
+def colour_shares(image_bgr: np.ndarray, conf: dict) -> dict[str, np.ndarray]:
+    """Step 1: the subsampled colour-class images as counts (0..cell^2) per class name."""
+    cell = conf["cell"]
+    counts, _ = colour.classify_grid(image_bgr, conf["colour"], None, cell)
+    return {name: counts[..., i] for i, name in enumerate(colour.CLASS_NAMES)}
+
+
+def extract_frame(image_bgr: np.ndarray, camera, conf: dict, pitch: float | None = None,
+                  roll: float | None = None, **frame_info) -> dict[str, np.ndarray]:
+    """The seed-000 chain on one BGR frame; ``camera`` is a PerspectiveCamera, ``pitch`` and
+    ``roll`` the frame's head angles (default: the calibration's nominal ones). A frame of
+    another size than the calibration's is a DatasetError (the caller skips the frame)."""
+    h, w = image_bgr.shape[:2]
+    if (w, h) != tuple(camera.image_size):
+        raise DatasetError(f"image is {w} x {h} px, the calibration is for "
+                           f"{camera.image_size[0]} x {camera.image_size[1]} px")
+    counts = colour_shares(image_bgr, conf)
+    return extract_from_counts(counts, camera, conf, pitch, roll)
+
+
+def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
+                        pitch: float | None = None, roll: float | None = None,
+                        trace: dict | None = None) -> dict[str, np.ndarray]:
+    """Steps 2-7 on the subsampled colour counts (see extract_frame). ``trace``, if given, is
+    filled with the intermediate images and graphs (for plots and tests)."""
+    cell = int(conf["cell"])
+    area = float(cell * cell)
+    # the lens's unreliable corners lose their white (lines); the boundary scan keeps them
+    white = delete_unreliable_corners(counts["white"], conf["corner_radius"]) / np.float32(area)
+    green = counts["green"].astype(np.float32) / area
+
+    # 2. field boundary
+    top, field = field_boundary(counts, conf["boundary"], area)
+    boundary = boundary_polyline(top, cell)
+
+    # 3. goal posts (their bars are taken out of the white image before the line structure)
+    pc = conf["posts"]
+    feet_px, heights, widths, groups, foot_rows = goal_posts(white, top, pc, cell)
+    white_lines = white.copy()
+    for g, row in zip(groups, foot_rows):
+        white_lines[:row, g[0]: g[-1] + 1] = 0.0  # the bar only: a line at its foot stays
+
+    # 4. line structure graph
+    sc = conf["skeleton"]
+    inside = white_inside_boundary(white_lines, top, sc["boundary_margin"])
+    lp = low_pass(inside)
+    graph, skeleton, _ = line_structure_graph(lp, sc)
+
+    # 5. key structure; 6. field lines (both on undistorted node coordinates)
+    ks = key_structure(graph, conf["key"])
+    node_px = grid_to_pixels(graph.pos, cell)
+    undistort = ideal_pixels(camera)
+    ideal = undistort(node_px) if len(node_px) else node_px.reshape(-1, 2)
+    to_floor = FloorProjection(camera, pitch, roll)
+    other = counts["other"].astype(np.float32) / area
+    crossings, crossings_px = find_crossings(ks, graph, ideal, inside, green, other, top, camera,
+                                             to_floor, conf["crossings"], cell, trace)
+    lines, line_ends, line_ends_px, bar_posts, bar_posts_px = find_lines(
+        graph, ideal, camera, to_floor, conf["lines"], top, white, cell, pc, trace)
+
+    # 7. goal post feet on the floor
+    posts, posts_px = [], []
+    if len(feet_px):
+        floor = to_floor(undistort(feet_px))
+        for f, px, hgt, wid in zip(floor, feet_px, heights, widths):
+            if not np.all(np.isfinite(f)):
+                continue
+            d, b = _polar(f[None])
+            # the bar's width must fit a post of the conf's diameter at that distance, and it
+            # must be as tall as a post's visible part at least (white socks are not)
+            expected = camera.fx * pc["post_diameter"] / max(d[0], 1e-6)
+            if d[0] > pc["max_distance"] or not (
+                    pc["width_ratio"][0] <= wid / expected <= pc["width_ratio"][1]):
+                continue
+            if hgt * cell < camera.fx * pc["min_height"] / d[0]:
+                continue
+            posts.append([d[0], b[0], min(1.0, hgt / pc["full_height"])])
+            posts_px.append(px)
+    # bars standing on the field inside the boundary, unless already found above it
+    for row, px in zip(bar_posts, bar_posts_px):
+        if all(np.hypot(*(px - q)) > 2 * cell for q in posts_px):
+            posts.append(row)
+            posts_px.append(px)
+
+    if trace is not None:
+        trace.update(top=top, field=field, white=white, green=green, inside=inside, lp=lp,
+                     skeleton=skeleton, graph=graph, key=ks, ideal=ideal, post_groups=groups)
+
+    def arr(rows, n):
+        return np.asarray(rows, np.float32).reshape(-1, n) if rows else _empty(n)
+
+    return {
+        "boundary": boundary,
+        "line_ends": arr(line_ends, 4),
+        "line_ends_px": arr(line_ends_px, 4),
+        "lines": arr(lines, 4),
+        "crossings": arr(crossings, 5),
+        "crossings_px": arr(crossings_px, 2),
+        "posts": arr(posts, 3),
+        "posts_px": arr(posts_px, 2),
+    }
+
+
+def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.ndarray,
+                   other: np.ndarray, top: np.ndarray, camera, to_floor: FloorProjection,
+                   cc: dict, cell: int, trace: dict | None = None):
+    """Section 4.1 on the key structure: L/T/X candidates, each placed at the intersection of
+    its arms' lines (fitted to the undistorted nodes), verified in the colour images (circle
+    transitions, white paths), then projected to the floor where the arms must form the
+    crossing's shape. Returns rows [type, distance, bearing, orientation, confidence] and the
+    crossings' image positions."""
+    lo, hi = cc["l_angle"]
+    cands = crossing_candidates(ks, graph, cc["arm_reach"], (lo, hi))
+    rows, pxs, verdicts = [], [], []
+    for cand in cands:
+        verdict = _crossing(cand, ks, ideal, white, green, other, top, camera, to_floor, cc,
+                            cell)
+        verdicts.append(verdict)
+        if isinstance(verdict, str):
+            continue
+        rows.append(verdict[0])
+        pxs.append(verdict[1])
+    if trace is not None:
+        trace.update(candidates=cands, crossing_verdicts=verdicts)
+    return rows, pxs
+
+
+def _crossing(cand, ks, ideal, white, green, other, top, camera, to_floor, cc, cell):
+    """One candidate -> (row, image position), or the reason it was rejected. The cheap floor
+    checks come before the image checks."""
+    centre = ideal[ks.node[cand.key]]
+    if not np.all(np.isfinite(centre)):
+        return "outside the lens model"
+    chains = ks.arms(cand.key, 1 + cc["arm_skip"] + cc["arm_nodes"])
+    arms = arm_lines(centre, chains, ideal, cc["arm_skip"], cc["arm_nodes"])
+    if len(arms) != len(cand.arm_points):
+        return "arm without nodes"
+    # an L's skeleton cuts its corner and a junction node may sit beside a thin line: the
+    # crossing is where the lines fitted to its arms meet
+    x = crossing_point(cand.kind, arms)
+    if x is None or np.hypot(*(x - centre)) > cc["max_shift"] * cell:
+        return "arms do not meet near the node"
+    dirs = np.array([u for _, u, _ in arms])
+    step = cc["arm_step"] * cell
+    floor = to_floor(np.vstack([x[None], x + step * dirs]))
+    if not np.all(np.isfinite(floor)):
+        return "above the horizon"
+    d, bearing = _polar(floor[:1])
+    if d[0] > cc["max_distance"]:
+        return "too far"
+    arm_dirs = np.arctan2(floor[1:, 1] - floor[0, 1], floor[1:, 0] - floor[0, 0])
+    orient, misfit = floor_arms(cand.kind, arm_dirs)
+    if misfit > cc["max_misfit"]:
+        return f"floor angles misfit {math.degrees(misfit):.0f} deg"
+    reach = np.array([min(cc["arm_reach"] * cell, max(float(np.max((sel - x) @ u)), step))
+                      for _, u, sel in arms])
+    px = camera.distort_points(np.vstack([x[None], x + reach[:, None] * dirs]))
+    grid = (px + 0.5) / cell - 0.5
+    col = int(np.clip(round(grid[0, 0]), 0, len(top) - 1))
+    near_top = top[max(col - 2, 0): col + 3].max()  # the boundary within two columns
+    if grid[0, 1] - near_top < cc["edge_margin"]:
+        return "at the field boundary"  # a line meeting an object or the end of the view
+    row = int(np.clip(round(grid[0, 1]), 0, other.shape[0] - 1))
+    r = cc["object_radius"]
+    if other[max(row - r, 0): row + r + 1, max(col - r, 0): col + r + 1].max() > 0.5:
+        return "next to an object"  # a robot's or a person's white foot on a line
+    score = verify_crossing(grid[0], grid[1:], white, green, cc)
+    if score <= 0:
+        return "not verified in the image"
+    row = [TYPE_CODES[cand.kind], d[0], bearing[0], orient,
+           score * (1.0 - misfit / math.radians(90.0))]
+    return row, px[0]
+
+
+def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: dict,
+               top: np.ndarray, white: np.ndarray, cell: int, pc: dict,
+               trace: dict | None = None):
+    """Section 4.2: split-and-merge lines on the undistorted node coordinates, end points
+    projected on the fits, then onto the floor. A line is used for localisation (confidence
+    > 0) when it is long enough and near enough.
+
+    A segment that is a vertical bar standing on the floor (``is_post_bar``) is no field line:
+    it is returned as a goal post instead (the goal's net lets the field boundary climb behind
+    the posts, so they do not always rise above it).
+
+    Returns line rows [perpendicular distance, its angle, length, confidence], floor end
+    points, image end points, and post rows [distance, bearing, confidence] with their image
+    foot points."""
+    segments = split_and_merge(ideal, line_components(graph), lc)
+    lines, ends_m, ends_px, posts, posts_px = [], [], [], [], []
+    if not segments:
+        return lines, ends_m, ends_px, posts, posts_px
+    ends = np.concatenate([seg.ends for seg in segments])
+    all_px = camera.distort_points(ends).reshape(-1, 2, 2)
+    all_floor = to_floor(ends).reshape(-1, 2, 2)
+    for seg, e_px, e_floor in zip(segments, all_px, all_floor):
+        if not np.all(np.isfinite(e_floor)):
+            continue
+        dist, angle, length = floor_line_parameters(e_floor[0], e_floor[1])
+        ranges = np.hypot(*e_floor.T)
+        near = float(ranges.min())
+        if is_post_bar(dist, near, e_px, top, white, camera.fx, cell, pc):
+            k = int(np.argmin(ranges))
+            posts.append([near, math.atan2(e_floor[k, 1], e_floor[k, 0]), pc["bar_confidence"]])
+            posts_px.append(e_px[k])
+            continue
+        used = length >= lc["min_length"] and dist <= lc["max_distance"] \
+            and near <= lc["max_distance"] and len(seg.nodes) >= lc["min_used_nodes"]
+        confidence = (min(1.0, len(seg.nodes) / lc["full_nodes"])
+                      * max(0.0, 1.0 - seg.fit.rms / lc["split_distance"])) if used else 0.0
+        lines.append([dist, angle, length, confidence])
+        ends_m.append(e_floor.ravel())
+        ends_px.append(e_px.ravel())
+    if trace is not None:
+        trace.update(segments=segments)
+    return lines, ends_m, ends_px, posts, posts_px
+
+
+def is_post_bar(dist: float, near: float, ends_px: np.ndarray, top: np.ndarray, white: np.ndarray,
+                fx: float, cell: int, pc: dict) -> bool:
+    """A white segment that is a vertical bar on the floor rather than a field line: its floor
+    projection runs straight away from the robot (a vertical line lies in a vertical plane
+    through the camera, which meets the floor in a line through the robot: perpendicular
+    distance below ``bar_radial``), it starts at least ``bar_min_distance`` away (a field line
+    seen along its length would reach the robot's feet), its upper end reaches the field
+    boundary (within ``bar_touch`` cells), and it keeps a post's width up to there: a field
+    line seen along its length looks the same but thins out with distance, a post (all of it
+    as far away as its foot) does not. The width is the white share summed across the bar
+    (times the cell size) over its upper half, against ``post_diameter`` at the foot's
+    distance (at least ``bar_width_ratio`` of it)."""
+    if dist > pc["bar_radial"] or near < pc["bar_min_distance"]:
+        return False
+    k = int(np.argmin(ends_px[:, 1]))
+    up, foot = ends_px[k], ends_px[1 - k]
+    col = int(np.clip((up[0] + 0.5) // cell, 0, len(top) - 1))
+    if (up[1] + 0.5) / cell - top[col] > pc["bar_touch"]:
+        return False
+    h, w = white.shape
+    t = np.linspace(0.5, 0.9, 5)[:, None]
+    grid = ((foot[None] * (1 - t) + up[None] * t) + 0.5) / cell - 0.5
+    rows = np.clip(np.round(grid[:, 1]).astype(int), 0, h - 1)
+    cols = np.clip(np.round(grid[:, 0]).astype(int)[:, None] + np.arange(-2, 3)[None], 0, w - 1)
+    width = float(np.median(white[rows[:, None], cols].sum(axis=1))) * cell
+    return width >= pc["bar_width_ratio"] * fx * pc["post_diameter"] / near
+
+
+# ---------------------------------------------------------------------------- debug images
+
+_PURPLE, _RED, _GREEN, _YELLOW, _CYAN = (200, 0, 200), (0, 0, 255), (0, 200, 0), (0, 230, 255), (
+    255, 255, 0)
+
+
+def debug_overlay(image: np.ndarray, result: dict[str, np.ndarray]) -> np.ndarray:
+    """A copy of the BGR frame with the extraction drawn like the seed's fig. 1: the field
+    boundary in purple, field lines used for localisation in red and not used in green,
+    crossings marked L, T or X (yellow), goal post feet (cyan)."""
+    out = image.copy()
+    b = result.get("boundary")
+    if b is not None and len(b) > 1:
+        cv2.polylines(out, [np.round(b).astype(np.int32).reshape(-1, 1, 2)], False, _PURPLE, 2)
+    ends = result.get("line_ends_px", _empty(4))
+    lines = result.get("lines", _empty(4))
+    for e, ln in zip(ends, lines):
+        if not np.all(np.isfinite(e)):
+            continue
+        p0, p1 = tuple(int(round(v)) for v in e[:2]), tuple(int(round(v)) for v in e[2:])
+        cv2.line(out, p0, p1, _RED if ln[3] > 0 else _GREEN, 2)
+    for c, px in zip(result.get("crossings", _empty(5)), result.get("crossings_px", _empty(2))):
+        u, v = int(round(px[0])), int(round(px[1]))
+        cv2.circle(out, (u, v), 6, _YELLOW, 2)
+        cv2.putText(out, "LTX"[int(c[0])], (u + 7, v - 7), cv2.FONT_HERSHEY_SIMPLEX, 0.7,
+                    _YELLOW, 2)
+    for px in result.get("posts_px", _empty(2)):
+        u, v = int(round(px[0])), int(round(px[1]))
+        cv2.drawMarker(out, (u, v), _CYAN, cv2.MARKER_TRIANGLE_UP, 14, 2)
+    return out

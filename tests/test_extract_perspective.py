@@ -1,0 +1,284 @@
+"""Perspective feature extraction (seed 000 sections 3-4): each step on small generated data
+with known answers, then the whole chain on drawn scenes and on frames of the perspective
+renderer compared with the field model at the true pose."""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from stages.common.features_file import FRAME_DATASETS
+from stages.common.field import distance_to_lines, load_field
+from stages.common.geometry import robot_to_field
+from stages.common.perspective_camera import PerspectiveCamera
+from stages.extract import perspective
+from stages.extract.field_boundary import (
+    field_height_histogram,
+    local_convex_filling,
+    local_convexity,
+)
+from stages.extract.line_fit import fit_line, floor_line_parameters, merge_segments, split_component
+from stages.extract.line_structure import low_pass, place_nodes, ranking_skeleton
+
+CONF = perspective.confs["default"]
+GREEN, WHITE, WALL, DARK = (40, 140, 50), (235, 235, 235), (110, 105, 100), (30, 30, 35)
+# an ideal lens keeps the drawn scenes cheap; the rendered frames below use the wide-angle one
+CAM = PerspectiveCamera(distortion=np.zeros(5))
+
+
+# ---------------------------------------------------------------------------- drawn scenes
+
+
+@functools.lru_cache(maxsize=1)
+def _floor_of_pixels() -> np.ndarray:
+    w, h = CAM.image_size
+    vv, uu = np.mgrid[0:h, 0:w]
+    uv = np.stack([uu, vv], -1).reshape(-1, 2).astype(float)
+    return CAM.pixel_to_floor(uv).reshape(h, w, 2)
+
+
+def draw_scene(segments, *, line_width=0.06, carpet_x=5.0, seed=0) -> np.ndarray:
+    """BGR frame of a green carpet reaching ``carpet_x`` m ahead of the robot with white lines
+    (robot-frame segments (S, 2, 2)), a grey wall beyond, and a little noise."""
+    fl = _floor_of_pixels()
+    h, w = fl.shape[:2]
+    img = np.empty((h, w, 3), np.float32)
+    img[:] = WALL
+    carpet = np.isfinite(fl[..., 0]) & (fl[..., 0] <= carpet_x) & (np.abs(fl[..., 1]) <= 4.0)
+    img[carpet] = GREEN
+    seg = np.asarray(segments, float).reshape(-1, 2, 2)
+    d = np.full((h, w), np.inf)
+    d[carpet] = distance_to_lines(fl[carpet], seg, np.zeros((0, 5)))
+    img[d <= line_width / 2] = WHITE
+    img += np.random.default_rng(seed).normal(0.0, 4.0, img.shape)
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def _robot_xy(row) -> np.ndarray:
+    return row[1] * np.array([math.cos(row[2]), math.sin(row[2])])
+
+
+def _used_lines(res):
+    return [(ln, e) for ln, e in zip(res["lines"], res["line_ends"]) if ln[3] > 0]
+
+
+DRAWN = {
+    # kind: (segments, crossing position, orientation (robot frame), period of the orientation)
+    "L": ([[[1.3, 0.3], [2.3, 0.3]], [[1.3, 0.3], [1.3, -0.7]]], (1.3, 0.3), -math.pi / 4,
+          2 * math.pi),
+    "T": ([[[1.5, -1.0], [1.5, 1.0]], [[1.5, 0.0], [0.6, 0.0]]], (1.5, 0.0), math.pi,
+          2 * math.pi),
+    "X": ([[[0.9, 0.0], [2.1, 0.0]], [[1.5, -0.6], [1.5, 0.6]]], (1.5, 0.0), 0.0, math.pi / 2),
+}
+
+
+@pytest.mark.parametrize("kind", ["L", "T", "X"])
+def test_drawn_crossing_is_found_as_its_type(kind):
+    segments, where, orientation, period = DRAWN[kind]
+    res = perspective.extract_frame(draw_scene(segments), CAM, CONF)
+    c = res["crossings"]
+    assert len(c) == 1, c
+    assert "LTX"[int(c[0, 0])] == kind
+    assert np.hypot(*(_robot_xy(c[0]) - where)) < 0.08
+    assert abs(math.remainder(c[0, 3] - orientation, period)) < math.radians(8)
+    assert 0 < c[0, 4] <= 1
+    # the image position is where the crossing projects
+    assert np.hypot(*(res["crossings_px"][0] - CAM.floor_to_pixel(np.array([where]))[0])) < 10
+
+
+def test_straight_line_split_by_a_gap_is_one_line():
+    segments = [[[0.7, -0.5], [1.5, -0.5]], [[1.8, -0.5], [3.0, -0.5]]]
+    res = perspective.extract_frame(draw_scene(segments), CAM, CONF)
+    used = _used_lines(res)
+    assert len(used) == 1, res["lines"]
+    (dist, angle, length, _), ends = used[0]
+    assert abs(dist - 0.5) < 0.04
+    assert abs(math.remainder(angle + math.pi / 2, 2 * math.pi)) < 0.05
+    assert length > 1.8  # both pieces: 0.7 .. 3.0 m minus what the far end loses
+    assert np.all(np.abs(ends[[1, 3]] + 0.5) < 0.06)
+    assert len(res["crossings"]) == 0
+
+
+def test_boundary_stops_at_a_robot_on_the_field_edge():
+    edge_x = 2.5
+    img = draw_scene([], carpet_x=edge_x)
+    v_edge = float(CAM.floor_to_pixel(np.array([[edge_x, 0.0]]))[0, 1])
+    # a dark robot standing on the edge: its feet a little in front of it, its body above
+    cv2.rectangle(img, (330, int(v_edge) - 120), (420, int(v_edge) + 12), DARK, -1)
+    res = perspective.extract_frame(img, CAM, CONF)
+    b = res["boundary"]
+    robot = (b[:, 0] > 345) & (b[:, 0] < 405)
+    away = (b[:, 0] < 250) | (b[:, 0] > 500)
+    # the boundary does not climb the robot's body ...
+    assert np.all(b[robot, 1] >= v_edge - 4), b[robot, 1]
+    # ... and follows the carpet's edge elsewhere (within about one grid cell)
+    assert np.all(np.abs(b[away, 1] - v_edge) <= 10), b[away, 1] - v_edge
+
+
+def test_goal_post_rising_above_the_boundary_is_a_point_landmark():
+    foot = np.array([2.0, 0.4])
+    img = draw_scene([], carpet_x=3.0)
+    base = CAM.project(np.array([[foot[0], foot[1], 0.0]]), inside=False)[0]
+    top = CAM.project(np.array([[foot[0], foot[1], 1.2]]), inside=False)[0]
+    half = CAM.fx * 0.05 / np.hypot(*foot)
+    poly = np.array([[base[0] - half, base[1]], [base[0] + half, base[1]],
+                     [top[0] + half, top[1]], [top[0] - half, top[1]]])
+    cv2.fillConvexPoly(img, np.round(poly).astype(np.int32), WHITE)
+    res = perspective.extract_frame(img, CAM, CONF)
+    assert len(res["posts"]) == 1, res["posts"]
+    d, bearing, confidence = res["posts"][0]
+    assert abs(d - np.hypot(*foot)) < 0.15
+    assert abs(bearing - math.atan2(foot[1], foot[0])) < 0.03
+    assert confidence > 0
+    assert len(_used_lines(res)) == 0  # the post's lower part is not a field line
+
+
+def test_goal_post_in_front_of_its_net_is_a_post_not_a_line():
+    """Behind a goal post the net shows carpet, so the field boundary climbs to the crossbar:
+    the post does not rise above the boundary, yet its bar is a post, not a field line."""
+    foot = np.array([2.0, 0.4])
+    img = draw_scene([], carpet_x=3.0)
+    base = CAM.project(np.array([[foot[0], foot[1], 0.0]]), inside=False)[0]
+    top = CAM.project(np.array([[foot[0], foot[1], 0.6]]), inside=False)[0]
+    u0 = int(base[0])
+    cv2.rectangle(img, (u0 - 90, int(top[1])), (u0 + 30, int(base[1])), GREEN, -1)  # the net
+    half = CAM.fx * 0.05 / np.hypot(*foot)
+    poly = np.array([[base[0] - half, base[1]], [base[0] + half, base[1]],
+                     [top[0] + half, top[1]], [top[0] - half, top[1]]])
+    cv2.fillConvexPoly(img, np.round(poly).astype(np.int32), WHITE)
+    res = perspective.extract_frame(img, CAM, CONF)
+    b = res["boundary"]
+    assert b[np.argmin(np.abs(b[:, 0] - u0)), 1] < base[1] - 40  # the boundary climbed
+    assert len(_used_lines(res)) == 0
+    assert len(res["posts"]) == 1, res["posts"]
+    d, bearing, _ = res["posts"][0]
+    assert abs(d - np.hypot(*foot)) < 0.2
+    assert abs(bearing - math.atan2(foot[1], foot[0])) < 0.03
+
+
+def test_result_has_the_schema_datasets_and_overlay_draws_them():
+    segments, *_ = DRAWN["T"]
+    img = draw_scene(segments)
+    res = perspective.extract_frame(img, CAM, CONF, pitch=CAM.pitch, roll=0.0)
+    assert set(res) <= set(FRAME_DATASETS)
+    shapes = {"boundary": 2, "line_ends": 4, "line_ends_px": 4, "lines": 4, "crossings": 5,
+              "crossings_px": 2, "posts": 3, "posts_px": 2}
+    for key, cols in shapes.items():
+        assert res[key].ndim == 2 and res[key].shape[1] == cols, key
+    assert len(res["boundary"]) == CAM.image_size[0] // CONF["cell"]
+    out = perspective.debug_overlay(img, res)
+    assert out.shape == img.shape and not np.array_equal(out, img)
+    # the crossing is marked in yellow at its image position
+    u, v = np.round(res["crossings_px"][0]).astype(int)
+    patch = out[v - 8:v + 9, u - 8:u + 9].reshape(-1, 3)
+    assert np.any(np.all(patch == (0, 230, 255), axis=1))
+
+
+def test_head_angles_change_the_floor_projection():
+    segments, where, *_ = DRAWN["L"]
+    img = draw_scene(segments)
+    near = perspective.extract_frame(img, CAM, CONF, pitch=CAM.pitch + 0.05)["crossings"]
+    assert len(near) == 1
+    # looking further down than the frame was taken: the crossing seems nearer
+    assert near[0, 1] < np.hypot(*where) - 0.1
+
+
+# ---------------------------------------------------------------------------- single steps
+
+
+def test_height_histogram_stops_after_more_than_four_empty_cells():
+    field = np.zeros((20, 3), bool)
+    field[10:, 0] = True  # field up to row 10
+    field[10:, 1] = True
+    field[3:6, 1] = True  # 4 empty rows (6..9) then field again: the scan goes on
+    field[12:, 2] = True
+    field[2:7, 2] = True  # 5 empty rows (7..11): the scan stops
+    assert field_height_histogram(field).tolist() == [10.0, 17.0, 8.0]
+
+
+def test_local_convex_filling_fills_a_narrow_gap_but_not_a_wide_dent():
+    narrow = np.array([20, 20, 20, 12, 20, 20, 20], float)
+    assert local_convexity(narrow)[3] < 0
+    assert local_convex_filling(narrow)[3] == 20
+    wide = np.array([20] * 5 + [8] * 8 + [20] * 5, float)
+    filled = local_convex_filling(wide)
+    assert np.all(filled[7:11] == 8)  # the dent's inside stays: a robot is not field
+
+
+def test_ranking_skeleton_keeps_one_ridge_of_a_two_cell_wide_line():
+    img = np.zeros((12, 30), np.float32)
+    img[5:7, 3:27] = 0.5  # a horizontal line two cells wide with equal values
+    lp = low_pass(img)
+    skeleton, c = ranking_skeleton(lp, 0.02)
+    cols = skeleton[:, 6:24]
+    assert np.all(cols.sum(axis=0) == 1)  # one skeleton pixel per cross-section
+    pix, regions = place_nodes(lp, skeleton, c)
+    gaps = np.abs(pix[:, None, :] - pix[None, :, :]).max(axis=2) + np.eye(len(pix), dtype=int) * 9
+    assert gaps.min() >= 2  # nodes at least two pixels apart
+    assert np.all(regions[skeleton] > 0)  # every skeleton pixel belongs to a node
+
+
+def test_split_and_merge():
+    t = np.linspace(0, 10, 11)
+    corner = np.concatenate([np.stack([t, 0 * t], 1), np.stack([10 + 0 * t[1:], t[1:]], 1)])
+    parts = split_component(corner, np.arange(len(corner)), 1.0)
+    assert len(parts) == 2 and parts[0][-1] == parts[1][0] == 10  # split at the corner
+    line = np.stack([np.linspace(0, 30, 16), 0.1 * np.sin(np.arange(16))], 1)
+    merged = merge_segments(line, [np.arange(0, 6), np.arange(9, 16)], math.radians(4), 1.0,
+                            1.0)
+    assert len(merged) == 1 and len(merged[0]) == 13
+    fit = fit_line(line)
+    assert abs(fit.direction[1]) < 0.01 and fit.rms < 0.1
+    dist, angle, length = floor_line_parameters(np.array([1.0, -2.0]), np.array([1.0, 2.0]))
+    assert (dist, angle, length) == pytest.approx((1.0, 0.0, 4.0))
+
+
+# ---------------------------------------------------------------------------- rendered frames
+
+
+def test_rendered_frames_match_the_field_model_at_the_true_pose():
+    """Frames of the perspective renderer (wide-angle lens, clutter, noise) near a goal area:
+    lines and crossings projected to the floor and moved to the field with the true pose lie
+    on the field model. Tolerances: used lines' worst point within 0.08 m (median) and 0.25 m
+    (for 75 % of them); crossings within 0.3 m of a model crossing of the same type (80 %),
+    median orientation error 10 deg."""
+    scene_mod = pytest.importorskip("stages.simulate.scene")
+    renderer_mod = pytest.importorskip("stages.simulate.perspective_renderer")
+    fm = load_field("kidsize")
+    n = 10
+    scene = scene_mod.build(fm, None, np.arange(n) / 30.0, 7)
+    renderer = renderer_mod.PerspectiveRenderer(None, scene, seed=7)
+    cam = renderer.camera
+    rng = np.random.default_rng(11)
+    line_err, cross = [], []
+    for k in range(n):
+        pose = np.array([rng.uniform(1.0, 3.0), rng.uniform(-2, 2), rng.uniform(-0.8, 0.8)])
+        pitch, roll = cam.pitch + rng.normal(0, 0.02), rng.normal(0, 0.02)
+        img = renderer.render_view(pose, pitch, roll, frame=k)
+        res = perspective.extract_frame(img, cam, CONF, pitch=pitch, roll=roll)
+        for _, e in _used_lines(res):
+            s = np.linspace(0, 1, 5)[:, None]
+            pts = robot_to_field(pose, e[:2] * (1 - s) + e[2:] * s)
+            line_err.append(fm.distance_to_lines(pts).max())
+        for c in res["crossings"]:
+            kind = "LTX"[int(c[0])]
+            p = robot_to_field(pose, _robot_xy(c)[None])[0]
+            same = fm.crossing_types == kind
+            d = np.hypot(*(fm.crossings[same] - p).T)
+            j = int(np.argmin(d))
+            period = math.pi / 2 if kind == "X" else 2 * math.pi
+            dori = abs(math.remainder(c[3] + pose[2] - fm.crossing_orientation[same][j], period))
+            cross.append((d[j], dori))
+    line_err = np.array(line_err)
+    assert len(line_err) >= 3 * n
+    assert np.median(line_err) < 0.08
+    assert np.mean(line_err < 0.25) >= 0.75
+    cross = np.array(cross)
+    assert len(cross) >= 4
+    good = cross[:, 0] < 0.3
+    assert good.mean() >= 0.8
+    assert np.median(cross[good, 1]) < math.radians(10)
