@@ -16,7 +16,7 @@ from ..common.errors import FieldlocError
 from ..common.field import FieldModel, load_field
 from ..common.map_file import SCHEMA, VERSION, Grid, write_map
 from ..common.scanlines import ScanLines
-from . import tables
+from . import crossing_lut, tables
 
 log = logging.getLogger(__name__)
 
@@ -69,12 +69,8 @@ def build_tables(fm: FieldModel, conf: dict) -> tuple[Grid, ScanLines, dict]:
     out["distance_gradient"] = (grad, dict(common, description="gradient (d/dx, d/dy)"))
     t3 = time.perf_counter()
     log.info("tables: radial %.2fs, spiral %.2fs, distance %.2fs", t1 - t0, t2 - t1, t3 - t2)
-    try:
-        from . import crossing_lut
-    except ImportError:  # association tables arrive with the humanoid pipeline
-        crossing_lut = None
-    if crossing_lut is not None:
-        out.update(crossing_lut.crossing_association_tables(fm, grid))
+    out.update(crossing_lut.crossing_association_tables(fm, grid))
+    log.info("crossing association tables %.2fs", time.perf_counter() - t3)
     return grid, sl, out
 
 

@@ -24,6 +24,9 @@ Root attributes: the common ones plus
                                start angle 5k deg, ccw (0) / cw (1); 65535 = none
     /tables/distance           (ny, nx) f4    m    distance to the nearest line centre line
     /tables/distance_gradient  (2, ny, nx) f4  -   d distance / d (x, y)
+    /tables/crossing_lut_L     (4, ny, nx) i2  -   index into /field/crossings of the closest L
+                               crossing of each orientation set (45, 135, 225, 315 deg), -1 none
+    /tables/crossing_lut_T     (ny, nx) i2     -   index of the closest T crossing, -1 none
 
 Each table carries its parameters as attributes. One scan line's values over all cells are
 contiguous (C order, cells last), which is what the table search reads.
@@ -50,6 +53,8 @@ TABLE_UNITS = {
     "spiral": "mm",
     "distance": "m",
     "distance_gradient": "1",
+    "crossing_lut_L": "index",
+    "crossing_lut_T": "index",
 }
 
 
