@@ -1,0 +1,69 @@
+"""`fieldloc localize DIR --map MAP [--features FILE | --points FILE.csv] [--method lut]
+[--heading imu|histogram|truth] [--init placement|uniform] [-o poses.h5] [--preset NAME]
+[-c key=value] [--overwrite]`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from stages import localize as stage
+
+from .common import conf_option, overrides_dict, progress_enabled
+
+LUT_DEFAULTS = stage.method_confs("lut")["default"]
+MCL_INIT_DEFAULT = stage.method_confs("mcl")["default"]["init"]
+
+
+@click.command()
+@click.argument("dataset", type=click.Path(path_type=Path))
+@click.option("--map", "map_path", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="Map file from `fieldloc build-map` (tables for lut and mcl).")
+@click.option("--features", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Features file from `fieldloc extract` [default: extract on the fly into"
+              " OUTPUT-stem.features.h5].")
+@click.option("--points", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="CSV of your own line points instead of images: columns frame,x,y"
+              " (robot frame, m).")
+@click.option("--method", type=click.Choice(list(stage.METHODS)), default=stage.DEFAULT_METHOD,
+              show_default=True, help="Localisation method.")
+@click.option("--heading", type=click.Choice(["imu", "histogram", "truth"]), default=None,
+              help=f"lut: heading source [default: {LUT_DEFAULTS['heading']}].")
+@click.option("--init", type=click.Choice(["placement", "uniform"]), default=None,
+              help="mcl: initial belief, the game's placement (own half, at the touch lines)"
+              f" or anywhere on the field [default: {MCL_INIT_DEFAULT}].")
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Poses file, poses.tum is written beside it"
+              " [default: DATASET/poses-METHOD.h5].")
+@click.option("--preset", default="default", show_default=True, help="Preset of the method.")
+@conf_option
+@click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
+@click.pass_context
+def localize(ctx, dataset, map_path, features, points, method, heading, init, output, preset,
+             overrides, overwrite):
+    """Poses of the frames of DATASET on the field of MAP (poses.h5 + poses.tum)."""
+    conf = {"method": method, "preset": preset, **overrides_dict(overrides)}
+    if heading is not None:
+        if method != "lut":
+            raise click.UsageError("--heading applies to --method lut")
+        conf["heading"] = heading
+    if init is not None:
+        if method != "mcl":
+            raise click.UsageError("--init applies to --method mcl")
+        conf["init"] = init
+    output = output or Path(dataset) / f"poses-{method}.h5"
+    path = stage.main(conf, dataset, map_path, output, features=features, points=points,
+                      overwrite=overwrite, progress=progress_enabled(ctx))
+    from stages.common.poses_file import read_poses
+
+    cols, _attrs = read_poses(path)
+    n = len(cols["name"])
+    failed = int(cols["failed"].sum())
+    ok = ~cols["failed"]
+    rt = float(cols["runtime"].mean()) * 1e3 if n else 0.0
+    msg = f"{path}: {n} frames, {failed} failed, mean runtime {rt:.2f} ms/frame"
+    if ok.any():
+        modes = {m: int((cols["mode"][ok] == m).sum()) for m in sorted(set(cols["mode"][ok]))}
+        msg += " (" + ", ".join(f"{m} {c}" for m, c in modes.items()) + ")"
+    click.echo(msg)

@@ -1,0 +1,171 @@
+"""The robot's heading for the table search (seed 002 section V): from the IMU, from the
+histograms of the line points, or from the ground truth (for ablations).
+
+IMU (``imu.csv``: stamp, yaw, collision). A real IMU reports yaw in its own frame: zero where it
+was switched on or magnetic north, plus a bias that drifts. The field heading is
+``yaw + offset``; the offset is
+
+- ``imu_alignment: field``: assumed zero at the start (the IMU was aligned with the field, as
+  the simulator writes it: field-frame yaw plus a small bias), or
+- ``imu_alignment: vision``: taken from the first global localisation with unknown heading
+  (offset = found heading - yaw on that frame; on a symmetric field that fix may be the mirror
+  pose, which then stays consistent with the IMU);
+
+and in both cases tracked by ``ImuAlignment``, a one-state Kalman filter on the offset
+(random-walk bias) updated from the vision heading that the table search finds between its 5 deg
+steps (TableSearch.refine_heading), so a slowly drifting bias does not turn into a position
+error. Collision frames (flag set) are not used to update the offset (the yaw jolts).
+
+Histograms (seed 002 V-B). Field lines are parallel to the field's x or y axis, so when the line
+points (robot frame) are rotated by the right heading, their x coordinates pile up on the
+vertical lines and their y coordinates on the horizontal ones. ``histogram_heading`` rotates the
+points by every angle within +-40 deg (the largest turn between frames) of the last heading in
+small steps, builds the x and y histograms (linear binning into bins of ``bin`` m), and scores
+each angle by the sum of the two histograms' peak values; the best angle, refined by a parabola
+through its neighbours, is the heading. A rotation by 90 deg swaps the histograms, so the score
+repeats every 90 deg; the +-40 deg window around the tracked heading resolves the 90/180 deg
+ambiguity.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..common.geometry import wrap_angle
+
+# ---------------------------------------------------------------------------- per-frame lookup
+
+
+def nearest_rows(stamps_src: np.ndarray, stamps_dst: np.ndarray, tolerance: float) -> np.ndarray:
+    """For each destination stamp the index of the nearest source stamp, -1 if none is within
+    ``tolerance`` seconds."""
+    src = np.asarray(stamps_src, dtype=float)
+    dst = np.asarray(stamps_dst, dtype=float)
+    if len(src) == 0:
+        return np.full(len(dst), -1, dtype=np.int64)
+    order = np.argsort(src, kind="stable")
+    s = src[order]
+    j = np.clip(np.searchsorted(s, dst), 1, max(len(s) - 1, 1))
+    lo = np.clip(j - 1, 0, len(s) - 1)
+    hi = np.clip(j, 0, len(s) - 1)
+    pick = np.where(np.abs(s[lo] - dst) <= np.abs(s[hi] - dst), lo, hi)
+    out = order[pick]
+    out[np.abs(src[out] - dst) > tolerance] = -1
+    return out
+
+
+def truth_heading(truth: dict, stamps: np.ndarray, tolerance: float) -> np.ndarray:
+    """Heading (rad) per frame from truth.csv columns; NaN where no truth row is near."""
+    idx = nearest_rows(truth["stamp"], stamps, tolerance)
+    th = np.asarray(truth["theta"], dtype=float)
+    return np.where(idx >= 0, th[np.maximum(idx, 0)], np.nan)
+
+
+def imu_per_frame(imu: dict, stamps: np.ndarray, tolerance: float):
+    """(yaw (rad, NaN where no row is near), collision (bool)) per frame from imu.csv columns."""
+    idx = nearest_rows(imu["stamp"], stamps, tolerance)
+    yaw = np.asarray(imu["yaw"], dtype=float)
+    col = np.asarray(imu["collision"], dtype=float) > 0.5
+    ok = idx >= 0
+    return (np.where(ok, yaw[np.maximum(idx, 0)], np.nan),
+            np.where(ok, col[np.maximum(idx, 0)], False))
+
+
+# ---------------------------------------------------------------------------- IMU alignment
+
+
+@dataclass
+class ImuAlignment:
+    """Offset between IMU yaw and field heading, a one-state Kalman filter (random walk)."""
+
+    offset: float = 0.0  # rad, field heading = yaw + offset
+    variance: float = math.radians(2.0) ** 2  # rad^2
+    drift: float = math.radians(0.05) ** 2  # rad^2 added per frame (bias random walk)
+    known: bool = True  # False until initialised (alignment "vision")
+
+    def heading(self, yaw: float) -> float:
+        return float(wrap_angle(yaw + self.offset))
+
+    def initialise(self, field_heading: float, yaw: float, variance: float):
+        self.offset = float(wrap_angle(field_heading - yaw))
+        self.variance = float(variance)
+        self.known = True
+
+    def predict(self):
+        self.variance += self.drift
+
+    def update(self, vision_heading: float, yaw: float, variance: float) -> float:
+        """Correct the offset with a vision heading of the given variance; returns the
+        innovation (rad). Innovations beyond 3 sigma are rejected (a wrong vision fix)."""
+        innovation = float(wrap_angle(vision_heading - yaw - self.offset))
+        s = self.variance + variance
+        if innovation * innovation > 9.0 * s:
+            return innovation
+        k = self.variance / s
+        self.offset = float(wrap_angle(self.offset + k * innovation))
+        self.variance = (1 - k) * self.variance
+        return innovation
+
+
+# ---------------------------------------------------------------------------- histograms
+
+
+def histogram_scores(points: np.ndarray, angles: np.ndarray, *, bin: float = 0.05,
+                     extent: float = 8.0, weights: np.ndarray | None = None,
+                     score: str = "peak") -> np.ndarray:
+    """Score per candidate heading of the x and y histograms of the points (robot frame)
+    rotated into the field frame by that heading: ``peak`` (seed 002) the sum of the two
+    histograms' peak values, ``energy`` the sum of their squared bin counts (every line
+    counts, not only the longest). Linear binning (each point split between its two nearest
+    bins) keeps the score smooth in the angle."""
+    p = np.asarray(points, dtype=float).reshape(-1, 2)
+    a = np.asarray(angles, dtype=float)
+    na = len(a)
+    if len(p) == 0 or na == 0:
+        return np.zeros(na)
+    w = np.ones(len(p)) if weights is None else np.asarray(weights, dtype=float)
+    c, s = np.cos(a)[:, None], np.sin(a)[:, None]
+    if score not in ("peak", "energy"):
+        raise ValueError(f"histogram score must be 'peak' or 'energy', not {score!r}")
+    nb = int(math.ceil(2 * extent / bin)) + 2
+    out = np.zeros(na)
+    for coord in (c * p[:, 0] - s * p[:, 1], s * p[:, 0] + c * p[:, 1]):  # field x, field y
+        u = np.clip((coord + extent) / bin, 0, nb - 2)
+        b0 = np.floor(u).astype(np.int64)
+        f = u - b0
+        base = (np.arange(na) * nb)[:, None]
+        hist = np.bincount((base + b0).ravel(), (w * (1 - f)).ravel(), minlength=na * nb)
+        hist += np.bincount((base + b0 + 1).ravel(), (w * f).ravel(), minlength=na * nb)
+        hist = hist.reshape(na, nb)
+        out += hist.max(axis=1) if score == "peak" else np.square(hist).sum(axis=1)
+    return out
+
+
+def histogram_heading(points: np.ndarray, last_heading: float, *, window: float = math.radians(40),
+                      step: float = math.radians(0.5), bin: float = 0.05,
+                      max_distance: float = 4.0, min_points: int = 10,
+                      score: str = "peak") -> tuple[float, float]:
+    """Heading (rad) from the line points (N, 2, robot frame) within ``window`` of the last
+    heading, and its score's sharpness (peak over mean, >= 1; 0 if too few points).
+    Returns (nan, 0) with fewer than ``min_points`` points within ``max_distance``."""
+    p = np.asarray(points, dtype=float).reshape(-1, 2)
+    p = p[np.isfinite(p).all(axis=1)]
+    p = p[np.hypot(p[:, 0], p[:, 1]) <= max_distance]
+    if len(p) < min_points:
+        return math.nan, 0.0
+    n = int(round(window / step))
+    offsets = np.arange(-n, n + 1) * step
+    scores = histogram_scores(p, last_heading + offsets, bin=bin, extent=max_distance + bin,
+                              score=score)
+    best = int(np.argmax(scores))
+    off = offsets[best]
+    if 0 < best < len(scores) - 1:
+        lo, mid, hi = scores[best - 1], scores[best], scores[best + 1]
+        den = lo - 2 * mid + hi
+        if den < 0:
+            off += float(np.clip(0.5 * (lo - hi) / den, -0.5, 0.5)) * step
+    sharp = float(scores[best] / max(scores.mean(), 1e-12))
+    return float(wrap_angle(last_heading + off)), sharp
