@@ -1,0 +1,47 @@
+"""`fieldloc show belief DIR --frame N --map MAP [--features F] [--resolution M]
+[--heading-step-deg D] [-c key=value] [--overwrite] -o FILE.png`: the particle filter's
+belief from one frame's observations on a grid of poses, in four panels (lines only, crossings
+only, goal posts only, all), like seed 000's fig. 3."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import click
+
+from stages.localize import belief as stage
+
+from .common import conf_option, overrides_dict
+
+DEFAULTS = stage.confs["default"]
+
+
+@click.command("belief")
+@click.argument("dataset", type=click.Path(path_type=Path))
+@click.option("--frame", required=True, help="Frame index (0-based) or name (image stem).")
+@click.option("--map", "map_path", required=True,
+              type=click.Path(dir_okay=False, path_type=Path),
+              help="Map file from `fieldloc build-map` (field and crossing tables).")
+@click.option("--features", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Features file to read the frame from [default: DATASET/features.h5 if"
+              " present, else extract the frame now].")
+@click.option("--resolution", type=float, default=DEFAULTS["resolution"], show_default=True,
+              help="Grid spacing of positions (m).")
+@click.option("--heading-step-deg", type=float,
+              default=round(math.degrees(DEFAULTS["heading_step"]), 6), show_default=True,
+              help="Grid spacing of headings (degrees).")
+@conf_option
+@click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="PNG file to write.")
+def show_belief(dataset, frame, map_path, features, resolution, heading_step_deg, overrides,
+                overwrite, output):
+    """Draw the belief of one frame of DATASET on the field of MAP: the likelihood of its
+    observations at every position (best heading per position), per kind of observation."""
+    conf = overrides_dict(overrides)
+    conf["resolution"] = resolution
+    conf["heading_step"] = math.radians(heading_step_deg)
+    path = stage.main(conf, dataset, map_path, output, frame=frame, features=features,
+                      overwrite=overwrite)
+    click.echo(f"{path}: belief of frame {frame}")

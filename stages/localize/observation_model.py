@@ -1,0 +1,666 @@
+"""Observation model of the particle filter (seed 000, section 5): how likely one frame's lines,
+crossings and goal posts are at many poses at once.
+
+Observations are egocentric, in the robot frame on the floor (x forward, y left), as
+``extract`` writes them for a perspective camera (stages.common.features_file):
+
+    lines      (L, 4)  perpendicular distance r (m), angle of the perpendicular a (rad),
+                       length (m), confidence
+    line_ends  (L, 4)  optional end points x0, y0, x1, y1 (m)
+    crossings  (C, 5)  type (0 L, 1 T, 2 X), distance (m), bearing (rad), orientation (rad:
+                       L bisector, T stem, X first arm mod 90 deg), confidence
+    posts      (P, 3)  goal-post foot distance (m), bearing (rad), confidence
+
+Point model (eq. 3), for crossings and goal posts, with expected egocentric distance and
+bearing (d_e, phi_e) of the associated landmark::
+
+    cost = (d_e - d_o)^2 / (2 (sigma_d + lambda_d d_o)^2) + (phi_e - phi_o)^2 / (2 sigma_phi^2)
+
+The range uncertainty grows with the distance (the camera's unknown pitch and roll). The
+squared bearing error is computed as 2 (1 - cos(phi_e - phi_o)) (equal near zero, no atan2).
+L, T and X crossings also carry an orientation term (1 - cos of the orientation error, X
+modulo 90 deg) with ``sigma_crossing_orientation``; 0 drops it, as in the seed.
+
+Line model (eqs. 4-5), with the dropped perpendiculars l_e (expected) and l_o (observed) as
+vectors in the robot frame, d_o the distance to the closest observed point of the line::
+
+    cost = d(l_e, l_o)^2 / (2 (sigma_l + lambda_l d_o)^2) + (psi_e - psi_o)^2 / (2 sigma_psi^2)
+    d(l_e, l_o) = |l_e - l_o|  if <l_e, l_o> > -tol^2  else infinity   (oriented distance)
+
+psi is the line's direction (modulo pi; sin^2 of the difference stands for its square). A line
+behind the robot has its perpendicular pointing the other way and is rejected by eq. 5. The
+tolerance ``oriented_tolerance`` (0 is the seed's rule) keeps a line the robot stands on (both
+perpendiculars ~0) from being rejected by noise. Lines shorter than ``min_line_length`` or
+farther than ``max_line_distance`` are ignored (the seed ignores short, far lines). Two
+additions to the seed, both in the same cost units: the observed segment must lie within the
+model segment's extent (the part sticking out beyond its ends, less ``extent_margin``, is a
+distance error with sigma ``sigma_extent`` + lambda_l d_o; without line_ends it is skipped),
+and the centre circle and arcs are candidate lines too (the tangent at the arc point nearest
+the observed segment's middle; a straight observation of half length h departs h^2 / 2r from
+the arc, charged like the extent).
+
+Association: L crossings through the map's orientation tables (stages.build_map.crossing_lut)
+at the field cell where the particle places the observation and the set of the observation's
+global orientation; T crossings through the T table; X crossings, goal posts and lines per
+particle, by the smallest cost ("arg min before exp"). For lines, each (line, particle) pair is
+compared with the field lines of the direction it is most nearly parallel to (the others cost
+at least sin^2(45 deg) / (2 sigma_psi^2) ~ 39, exp(-39) ~ 1e-17).
+
+Combination (section 5.3): each observation's likelihood is
+``a_uni + (1 - a_uni) exp(-cost)`` with ``a_uni = a_base + (1 - a_base) (1 - confidence)``
+(``uniform_floor`` = a_base), the uniform density taken relative to the peak of the normal
+model; the frame's likelihood is the product over observations (a sum of logarithms).
+
+Speed: every array keeps the poses on its last axis, the per-segment line work runs in float32
+with the segments on the first axis, and costs beyond 60 (exp < 1e-26) are capped before exp.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from stages.common.field import FieldModel
+from stages.common.map_file import Grid
+
+CROSSING_CODES = {"L": 0, "T": 1, "X": 2}
+PARTS = ("lines", "crossings", "posts")
+
+DEFAULTS = {
+    "sigma_range": 0.08,  # m, sigma_d of eq. 3 at distance 0
+    "range_growth": 0.08,  # lambda_d: sigma_d grows by this many m per m of distance
+    "sigma_bearing": 0.06,  # rad, sigma_phi of eq. 3
+    "sigma_crossing_orientation": 0.3,  # rad, L/T/X orientation term; 0 = off (the seed)
+    "sigma_line": 0.08,  # m, sigma_l of eq. 4 at distance 0
+    "line_growth": 0.08,  # lambda_l: sigma_l grows by this many m per m of distance
+    "sigma_line_angle": 0.08,  # rad, sigma_psi of eq. 4
+    "oriented_tolerance": 0.15,  # m, eq. 5 accepts <l_e, l_o> > -tol^2
+    "line_extent": True,  # charge the part of a segment beyond the model segment's ends
+    "sigma_extent": 0.15,  # m, at distance 0 (grows with line_growth)
+    "extent_margin": 0.1,  # m of overhang that is free
+    "arc_lines": True,  # the centre circle (and arcs) as candidate lines, by their tangent
+    "min_line_length": 0.3,  # m, shorter lines are ignored (seed: short and far lines)
+    "max_line_distance": 6.0,  # m, lines whose closest point is farther are ignored
+    "uniform_floor": 0.1,  # a_base of section 5.3, in ]0, 1[
+    "use_lines": True,
+    "use_crossings": True,
+    "use_posts": True,
+}
+
+
+@dataclass
+class Observations:
+    """One frame's egocentric observations (see the module docstring for the columns)."""
+
+    lines: np.ndarray
+    line_ends: np.ndarray | None
+    crossings: np.ndarray
+    posts: np.ndarray
+
+    @classmethod
+    def empty(cls) -> Observations:
+        return cls(np.zeros((0, 4)), None, np.zeros((0, 5)), np.zeros((0, 3)))
+
+    @classmethod
+    def from_features(cls, frame: dict) -> Observations:
+        """From a features-file frame (stages.common.features_file.FeaturesFile.frame)."""
+
+        def arr(key, cols):
+            a = frame.get(key)
+            if a is None:
+                return np.zeros((0, cols))
+            return np.asarray(a, dtype=float).reshape(-1, cols)
+
+        lines = arr("lines", 4)
+        ends = frame.get("line_ends")
+        ends = None if ends is None else np.asarray(ends, dtype=float).reshape(-1, 4)
+        if ends is not None and len(ends) != len(lines):
+            ends = None
+        return cls(lines, ends, arr("crossings", 5), arr("posts", 3))
+
+    def __len__(self) -> int:
+        return len(self.lines) + len(self.crossings) + len(self.posts)
+
+    def to_features(self) -> dict[str, np.ndarray]:
+        """The per-frame datasets of a features file (stages.common.features_file)."""
+        out = {"lines": self.lines.reshape(-1, 4), "crossings": self.crossings.reshape(-1, 5),
+               "posts": self.posts.reshape(-1, 3)}
+        if self.line_ends is not None:
+            out["line_ends"] = self.line_ends.reshape(-1, 4)
+        return out
+
+    def select(self, lines: bool = True, crossings: bool = True, posts: bool = True):
+        """A copy holding only the chosen kinds of observation."""
+        e = Observations.empty()
+        return Observations(
+            self.lines if lines else e.lines,
+            self.line_ends if lines else None,
+            self.crossings if crossings else e.crossings,
+            self.posts if posts else e.posts,
+        )
+
+    def finite(self) -> Observations:
+        """Without rows holding NaN or infinite values."""
+        ok_l = np.all(np.isfinite(self.lines), axis=1)
+        ends = self.line_ends
+        if ends is not None:
+            ok_l &= np.all(np.isfinite(ends), axis=1)
+            ends = ends[ok_l]
+        return Observations(
+            self.lines[ok_l], ends,
+            self.crossings[np.all(np.isfinite(self.crossings), axis=1)],
+            self.posts[np.all(np.isfinite(self.posts), axis=1)],
+        )
+
+
+def _log_mixture(cost, a_uni):
+    """log(a_uni + (1 - a_uni) exp(-cost)), cost (K, N), a_uni (K, 1). Costs are capped where
+    exp(-cost) no longer matters (and would underflow, which is slow)."""
+    np.minimum(cost, _COST_CAP, out=cost)
+    np.negative(cost, out=cost)
+    np.exp(cost, out=cost)
+    cost *= 1.0 - a_uni
+    cost += a_uni
+    return np.log(cost, out=cost)
+
+
+_COST_CAP = 60.0  # exp(-60) ~ 1e-26, far below any uniform floor
+_NO_LINES = np.zeros((0, 4))
+_NO_CROSSINGS = np.zeros((0, 5))
+_NO_POSTS = np.zeros((0, 3))
+_NO_DISTANCES = np.zeros((0, 1))
+_BIG = np.float32(1e6)  # cost of an excluded association
+
+
+def _project(vx, vy, sel, direction) -> np.ndarray:
+    """(vx, vy)[sel] . direction, without the multiplications an axis direction needs."""
+    dx, dy = float(direction[0]), float(direction[1])
+    if dy == 0.0:
+        return vx[sel] * dx
+    if dx == 0.0:
+        return vy[sel] * dy
+    return vx[sel] * dx + vy[sel] * dy
+
+
+def line_closest_distance(obs: Observations) -> np.ndarray:
+    """Distance from the robot to the closest observed point of each line."""
+    r = np.abs(obs.lines[:, 0])
+    if obs.line_ends is None:
+        return r
+    p0, p1 = obs.line_ends[:, 0:2], obs.line_ends[:, 2:4]
+    d = p1 - p0
+    den = np.maximum(np.einsum("ij,ij->i", d, d), 1e-12)
+    s = np.clip(-np.einsum("ij,ij->i", p0, d) / den, 0.0, 1.0)
+    return np.linalg.norm(p0 + s[:, None] * d, axis=1)
+
+
+@dataclass
+class PreparedObservations:
+    """The observations a model uses, with the per-observation constants of its equations
+    (computed once per frame, reused for every pose). Column vectors (K, 1) broadcast against
+    the particles on the last axis."""
+
+    obs: Observations
+    lines: dict
+    table_rows: dict  # L and T crossings, associated through the tables
+    candidate_rows: dict  # X crossings and goal posts, associated per particle
+
+    def __len__(self) -> int:
+        return len(self.obs)
+
+
+class ObservationModel:
+    """Likelihood of a frame's observations at N poses, vectorised over the poses.
+
+    ``lut_l`` (4, ny, nx) and ``lut_t`` (ny, nx) are the crossing association tables on
+    ``grid`` (stages.build_map.crossing_lut); ``from_field`` builds them when no map is at
+    hand, ``from_map`` reads them from a map.
+    """
+
+    def __init__(self, field_model: FieldModel, grid: Grid, lut_l: np.ndarray,
+                 lut_t: np.ndarray, conf: dict | None = None):
+        self.field = field_model
+        self.grid = grid
+        self.conf = dict(DEFAULTS, **(conf or {}))
+        unknown = set(self.conf) - set(DEFAULTS)
+        if unknown:
+            raise KeyError(f"unknown observation-model keys: {sorted(unknown)}")
+        ny, nx = grid.shape
+        if lut_l.shape != (4, ny, nx) or lut_t.shape != (ny, nx):
+            raise ValueError("crossing tables do not match the grid")
+        self._cells = ny * nx
+        # one table: the four L orientation sets, then T
+        self.lut = np.concatenate([np.asarray(lut_l).ravel(), np.asarray(lut_t).ravel()])
+        self.lut = self.lut.astype(np.int64)
+
+        fm = field_model
+        self.cross_pos = np.asarray(fm.crossings, float).reshape(-1, 2)
+        self.cross_orient = np.asarray(fm.crossing_orientation, float)
+        self.cross_x = np.ascontiguousarray(self.cross_pos[:, 0])
+        self.cross_y = np.ascontiguousarray(self.cross_pos[:, 1])
+        self.cross_c, self.cross_s = np.cos(self.cross_orient), np.sin(self.cross_orient)
+        self.x_idx = np.flatnonzero(np.asarray(fm.crossing_types) == "X")
+        self.posts = np.asarray(fm.goal_posts, float).reshape(-1, 2)
+        # lines: the straight segments, grouped by direction (parallel lines share a normal)
+        seg = np.asarray(fm.segments, float).reshape(-1, 2, 2)
+        d = seg[:, 1] - seg[:, 0]
+        length = np.linalg.norm(d, axis=1)
+        t = d / length[:, None]
+        flip = (t[:, 1] < -1e-9) | ((np.abs(t[:, 1]) <= 1e-9) & (t[:, 0] < 0))
+        t[flip] *= -1  # canonical direction, angle in [0, pi)
+        n = np.stack([-t[:, 1], t[:, 0]], axis=1)
+        offset = np.einsum("ij,ij->i", n, seg[:, 0])  # n . p = offset on the line
+        along = np.stack([np.einsum("ij,ij->i", t, seg[:, 0]),
+                          np.einsum("ij,ij->i", t, seg[:, 1])], axis=1)
+        angle = np.round(np.arctan2(t[:, 1], t[:, 0]), 6)
+        self.line_groups = []  # (normal, direction, offsets, mids, halves) per direction
+        for a in np.unique(angle):
+            k = angle == a
+            self.line_groups.append((
+                n[k][0], t[k][0],
+                offset[k].astype(np.float32)[:, None],
+                along[k].mean(axis=1).astype(np.float32)[:, None],
+                (length[k] / 2).astype(np.float32)[:, None],
+            ))
+        self.group_normals = np.array([g[0] for g in self.line_groups]).reshape(-1, 2)
+        self.arcs = np.asarray(fm.arcs, float).reshape(-1, 5)
+
+    def with_conf(self, conf: dict | None) -> ObservationModel:
+        """The same field and tables with another conf."""
+        ny, nx = self.grid.shape
+        lut_l = self.lut[:4 * self._cells].reshape(4, ny, nx)
+        return ObservationModel(self.field, self.grid, lut_l,
+                                self.lut[4 * self._cells:].reshape(ny, nx), conf)
+
+    @classmethod
+    def from_field(cls, field_model: FieldModel, conf: dict | None = None,
+                   resolution: float = 0.1) -> ObservationModel:
+        """A model with crossing tables computed on the fly (no map file needed)."""
+        from stages.build_map.crossing_lut import crossing_association_tables
+
+        grid = Grid.around(field_model, field_model.border, resolution)
+        tabs = crossing_association_tables(field_model, grid)
+        return cls(field_model, grid, tabs["crossing_lut_L"][0], tabs["crossing_lut_T"][0],
+                   conf)
+
+    @classmethod
+    def from_map(cls, map_file, conf: dict | None = None) -> ObservationModel:
+        """A model on a map (stages.common.map_file.MapFile); its crossing tables are used when
+        present, otherwise computed on the map's grid."""
+        if map_file.has_table("crossing_lut_L") and map_file.has_table("crossing_lut_T"):
+            lut_l, lut_t = map_file.table("crossing_lut_L"), map_file.table("crossing_lut_T")
+        else:
+            from stages.build_map.crossing_lut import crossing_association_tables
+
+            tabs = crossing_association_tables(map_file.field, map_file.grid)
+            lut_l, lut_t = tabs["crossing_lut_L"][0], tabs["crossing_lut_T"][0]
+        return cls(map_file.field, map_file.grid, lut_l, lut_t, conf)
+
+    # ------------------------------------------------------------------ observations in use
+    def usable(self, obs: Observations) -> Observations:
+        """The observations the model uses: finite, enabled kinds, lines long and near enough,
+        crossings of a known type."""
+        return self._usable(obs)[0]
+
+    def _usable(self, obs: Observations):
+        """``usable`` and the closest distance (L, 1) of each line kept."""
+        c = self.conf
+        lines, ends = obs.lines, obs.line_ends
+        d_o = _NO_DISTANCES
+        if not c["use_lines"] or not len(lines):
+            lines, ends = _NO_LINES, None
+        else:
+            ok = np.isfinite(lines).all(axis=1)
+            if ends is not None:
+                ok &= np.isfinite(ends).all(axis=1)
+            d_all = line_closest_distance(Observations(lines, ends, _NO_CROSSINGS, _NO_POSTS))
+            ok &= (lines[:, 2] >= c["min_line_length"]) & (d_all <= c["max_line_distance"])
+            if not ok.all():
+                lines, ends, d_all = lines[ok], None if ends is None else ends[ok], d_all[ok]
+            d_o = d_all[:, None]
+        cr = obs.crossings
+        if not c["use_crossings"] or not len(cr):
+            crossings = _NO_CROSSINGS
+        else:
+            ok = np.isfinite(cr).all(axis=1) & ((cr[:, 0] == 0) | (cr[:, 0] == 1)
+                                                 | (cr[:, 0] == 2))
+            crossings = cr if ok.all() else cr[ok]
+        posts = obs.posts
+        if not c["use_posts"] or not len(posts):
+            posts = _NO_POSTS
+        else:
+            ok = np.isfinite(posts).all(axis=1)
+            posts = posts if ok.all() else posts[ok]
+        return Observations(lines, ends, crossings, posts), d_o
+
+    def _floor(self, confidence):
+        """a_uni (K, 1) of section 5.3 for observations of the given confidence."""
+        base = float(self.conf["uniform_floor"])
+        return (base + (1.0 - base) * (1.0 - np.clip(confidence, 0.0, 1.0)))[:, None]
+
+    def prepare(self, obs: Observations) -> PreparedObservations:
+        """The usable observations with their per-observation constants."""
+        c = self.conf
+        obs, d_o = self._usable(obs)
+        # lines
+        lines = {}
+        if len(obs.lines):
+            raw = obs.lines
+            a = (raw[:, 1] + np.where(raw[:, 0] < 0, math.pi, 0.0))[:, None]
+            w_d = 1.0 / (2.0 * (c["sigma_line"] + c["line_growth"] * d_o) ** 2)
+            lines = dict(r=np.abs(raw[:, 0])[:, None], ca=np.cos(a), sa=np.sin(a), w_d=w_d,
+                         floor=self._floor(raw[:, 3]), extent=None)
+            if c["line_extent"] and obs.line_ends is not None:
+                ends = obs.line_ends
+                half = 0.5 * np.hypot(ends[:, 2] - ends[:, 0], ends[:, 3] - ends[:, 1])[:, None]
+                w_e = 1.0 / (2.0 * (c["sigma_extent"] + c["line_growth"] * d_o) ** 2)
+                lines["extent"] = dict(
+                    mid=0.5 * (ends[:, 0:2] + ends[:, 2:4]), half=half,
+                    hm=half - c["extent_margin"], ratio=w_e / w_d, w_e=w_e, h2=half * half / 2.0)
+        # points: L/T through the tables, X and posts per particle
+        cr = obs.crossings
+        table_rows, cand_rows = {}, {}
+        lt = cr[cr[:, 0] < 2] if len(cr) else cr
+        if len(lt):
+            table_rows = self._point_rows(lt[:, 1], lt[:, 2], lt[:, 4], lt[:, 3])
+            table_rows["is_l"] = (lt[:, 0] == 0)[:, None]
+            table_rows["t_offset"] = np.where(lt[:, 0] == 1, 4 * self._cells, 0)[:, None]
+        xs = cr[cr[:, 0] == 2] if len(cr) else cr
+        if not len(self.x_idx):
+            xs = xs[:0]
+        ps = obs.posts if len(self.posts) else obs.posts[:0]
+        if len(xs) or len(ps):
+            k_x, k_p = len(xs), len(ps)
+            m = max(len(self.x_idx) if k_x else 0, len(self.posts) if k_p else 0)
+            cx = np.zeros((m, k_x + k_p, 1))
+            cy = np.zeros((m, k_x + k_p, 1))
+            if k_x:  # pad by repeating the first candidate
+                sel = np.resize(self.x_idx, m)
+                cx[:, :k_x, 0] = self.cross_x[sel][:, None]
+                cy[:, :k_x, 0] = self.cross_y[sel][:, None]
+            if k_p:
+                sel = np.resize(np.arange(len(self.posts)), m)
+                cx[:, k_x:, 0] = self.posts[sel, 0][:, None]
+                cy[:, k_x:, 0] = self.posts[sel, 1][:, None]
+            cand_rows = self._point_rows(
+                np.concatenate([xs[:, 1], ps[:, 0]]), np.concatenate([xs[:, 2], ps[:, 1]]),
+                np.concatenate([xs[:, 4], ps[:, 2]]),
+                np.concatenate([xs[:, 3], np.zeros(k_p)]))
+            cand_rows.update(cx=cx, cy=cy, n_x=k_x)
+            if k_x and c["sigma_crossing_orientation"] > 0:
+                four = 4.0 * self.cross_orient[np.resize(self.x_idx, m)]
+                cand_rows["c4"] = np.cos(four)[:, None, None]
+                cand_rows["s4"] = np.sin(four)[:, None, None]
+                w_o = np.zeros((k_x + k_p, 1))
+                w_o[:k_x] = 1.0 / (16.0 * c["sigma_crossing_orientation"] ** 2)
+                cand_rows["w_o"] = w_o
+        return PreparedObservations(obs, lines, table_rows, cand_rows)
+
+    def _point_rows(self, d_o, b_o, confidence, orient):
+        c = self.conf
+        d_o = np.asarray(d_o, float)[:, None]
+        b_o = np.asarray(b_o, float)[:, None]
+        o_o = np.asarray(orient, float)[:, None]
+        return dict(d=d_o, cb=np.cos(b_o), sb=np.sin(b_o), co=np.cos(o_o), so=np.sin(o_o),
+                    w_d=1.0 / (2.0 * (c["sigma_range"] + c["range_growth"] * d_o) ** 2),
+                    floor=self._floor(np.asarray(confidence, float)))
+
+    # ------------------------------------------------------------------ likelihood
+    # Arrays keep the particles on the last (contiguous) axis: numpy's inner loops then run
+    # over the particles, not over a handful of observations or candidates.
+    def log_likelihood(self, x, y, theta, obs, *, parts: bool = False,
+                       prepared: bool = False):
+        """Log-likelihood (N,) of ``obs`` (Observations or PreparedObservations) at poses
+        (x, y, theta), each (N,). With ``parts``, a dict with the summed log-likelihood of
+        "lines", "crossings" and "posts" instead. (``prepared`` is accepted for callers that
+        passed usable observations; preparation is idempotent.)"""
+        prep = obs if isinstance(obs, PreparedObservations) else self.prepare(obs)
+        x = np.ascontiguousarray(x, dtype=float).ravel()
+        y = np.ascontiguousarray(y, dtype=float).ravel()
+        th = np.ascontiguousarray(theta, dtype=float).ravel()
+        cth, sth = np.cos(th), np.sin(th)
+        out = {}
+        if prep.lines:
+            out["lines"] = self.line_log_likelihood(x, y, cth, sth, prep).sum(axis=0)
+        if prep.table_rows:
+            out["crossings"] = self.table_log_likelihood(x, y, cth, sth, prep).sum(axis=0)
+        if prep.candidate_rows:
+            ll = self.candidate_log_likelihood(x, y, cth, sth, prep)
+            n_x = prep.candidate_rows["n_x"]
+            if n_x:
+                out["crossings"] = out.get("crossings", 0.0) + ll[:n_x].sum(axis=0)
+            if n_x < len(ll):
+                out["posts"] = ll[n_x:].sum(axis=0)
+        if parts:
+            return {k: np.broadcast_to(out.get(k, 0.0), x.shape).copy() for k in PARTS}
+        total = np.zeros(x.shape)
+        for v in out.values():
+            total += v
+        return total
+
+    # ---- points (eq. 3)
+    @staticmethod
+    def _point_cost(vx, vy, ux, uy, rows, w_b):
+        """Eq. 3: vx, vy landmark minus particle position (field frame), ux, uy the observed
+        bearing as a field-frame unit vector, broadcastable to (..., K, N). The bearing error
+        enters as 2 (1 - cos), its square near zero (no atan2)."""
+        d_e = vx * vx
+        d_e += vy * vy
+        np.sqrt(d_e, out=d_e)
+        cos_b = ux * vx
+        cos_b += uy * vy
+        cos_b /= np.maximum(d_e, 1e-9)
+        d_e -= rows["d"]
+        d_e *= d_e
+        d_e *= rows["w_d"]
+        np.subtract(1.0, cos_b, out=cos_b)
+        cos_b *= w_b
+        d_e += cos_b
+        return d_e
+
+    def table_log_likelihood(self, x, y, cth, sth, prep: PreparedObservations):
+        """Log-likelihood (K, N) of the L and T crossings, associated through the tables at
+        the cell where each particle places the observation (and, for L, the set of the
+        observation's global orientation)."""
+        c = self.conf
+        rows = prep.table_rows
+        # the observed bearing (u) and orientation (g) as field-frame unit vectors, (K, N)
+        ux = rows["cb"] * cth - rows["sb"] * sth
+        uy = rows["cb"] * sth + rows["sb"] * cth
+        gx = rows["co"] * cth - rows["so"] * sth
+        gy = rows["co"] * sth + rows["so"] * cth
+        g = self.grid
+        inv_res = 1.0 / g.resolution
+        fx = x + rows["d"] * ux  # where the particle places the crossing
+        fy = y + rows["d"] * uy
+        j = ((fx - g.origin[0]) * inv_res + 0.5).astype(np.int64)
+        i = ((fy - g.origin[1]) * inv_res + 0.5).astype(np.int64)
+        np.minimum(np.maximum(j, 0, out=j), g.shape[1] - 1, out=j)
+        np.minimum(np.maximum(i, 0, out=i), g.shape[0] - 1, out=i)
+        i *= g.shape[1]
+        i += j
+        # L: the quadrant of the global orientation picks the set (45, 135, 225, 315 deg)
+        below = gy < 0
+        quad = below * 2 + (below != (gx < 0))
+        quad *= self._cells
+        i += np.where(rows["is_l"], quad, rows["t_offset"])
+        idx = self.lut[i]  # (K, N), -1 = none
+        missing = idx < 0
+        idx[missing] = 0
+        cost = self._point_cost(self.cross_x[idx] - x, self.cross_y[idx] - y, ux, uy, rows,
+                                1.0 / c["sigma_bearing"] ** 2)
+        so = c["sigma_crossing_orientation"]
+        if so > 0:
+            cos_o = self.cross_c[idx] * gx
+            cos_o += self.cross_s[idx] * gy
+            np.subtract(1.0, cos_o, out=cos_o)
+            cos_o *= 1.0 / so ** 2
+            cost += cos_o
+        cost[missing] = _COST_CAP
+        return _log_mixture(cost, rows["floor"])
+
+    def candidate_log_likelihood(self, x, y, cth, sth, prep: PreparedObservations):
+        """Log-likelihood (K, N) of X crossings (first rows) and goal posts: each particle
+        associates each with the candidate of least cost (candidates on the first axis)."""
+        c = self.conf
+        rows = prep.candidate_rows
+        ux = rows["cb"] * cth - rows["sb"] * sth  # (K, N)
+        uy = rows["cb"] * sth + rows["sb"] * cth
+        cost = self._point_cost(rows["cx"] - x, rows["cy"] - y, ux, uy, rows,
+                                1.0 / c["sigma_bearing"] ** 2)  # (M, K, N)
+        if "c4" in rows:  # X orientation modulo 90 deg: cos(4 (o_c - theta - o_o))
+            gx = rows["co"] * cth - rows["so"] * sth
+            gy = rows["co"] * sth + rows["so"] * cth
+            c2, s2 = gx * gx - gy * gy, 2.0 * gx * gy  # the angle doubled, twice
+            c4, s4 = c2 * c2 - s2 * s2, 2.0 * c2 * s2
+            cos4 = rows["c4"] * c4 + rows["s4"] * s4
+            np.subtract(1.0, cos4, out=cos4)
+            cos4 *= rows["w_o"]
+            cost += cos4
+        return _log_mixture(cost.min(axis=0), rows["floor"])
+
+    # ---- lines (eqs. 4-5)
+    def line_log_likelihood(self, x, y, cth, sth, prep: PreparedObservations):
+        """Log-likelihood (L, N) of each line observation at each pose.
+
+        Pairs (observed line, particle) are flattened; each pair is compared with the lines of
+        the field direction it is most nearly parallel to (any other direction costs at least
+        sin^2(45 deg) / (2 sigma_psi^2) ~ 39, whose exp is negligible) and with the arcs'
+        tangents. Observations whose pairs all choose the same direction (the usual case while
+        tracking) are processed as contiguous blocks, the others pair by pair. The
+        per-segment work runs in float32 with the segments on the first axis."""
+        c = self.conf
+        ln = prep.lines
+        n_l, n_p = len(ln["r"]), x.shape[0]
+        full = (n_l, n_p)
+        # the observed perpendicular's unit vector in the field frame, (L, N)
+        ux = ln["ca"] * cth - ln["sa"] * sth
+        uy = ln["ca"] * sth + ln["sa"] * cth
+        gn = self.group_normals
+        n_g = len(gn)
+        if n_g == 2:  # the usual field: two directions (argmax along axis 0 is slow)
+            gid = (np.abs(ux * gn[1, 0] + uy * gn[1, 1])
+                   > np.abs(ux * gn[0, 0] + uy * gn[0, 1])).astype(np.int8)
+        elif n_g > 2:
+            gid = np.argmax(np.abs(gn[:, 0, None, None] * ux + gn[:, 1, None, None] * uy),
+                            axis=0).astype(np.int8)
+        else:
+            gid = np.zeros(full, np.int8)
+        lo, hi = gid.min(axis=1), gid.max(axis=1)
+        row_group = np.where(lo == hi, lo, n_g)  # n_g: mixed
+        order = np.argsort(row_group, kind="stable")
+        ext = ln["extent"]
+        obs = {k: ln[k] for k in ("r", "w_d")}
+        if ext is not None:
+            obs.update(mid=ext["mid"], hm=ext["hm"], ratio=ext["ratio"])
+        if np.any(order != np.arange(n_l)):
+            ux, uy, gid, row_group = ux[order], uy[order], gid[order], row_group[order]
+            obs = {k: v[order] for k, v in obs.items()}
+        f32 = np.float32
+        pairs = {
+            "ux": ux.astype(f32).ravel(), "uy": uy.astype(f32).ravel(),
+            # (ndarray.repeat is much cheaper per call than broadcast_to(...).ravel())
+            "px": x.astype(f32)[None, :].repeat(n_l, axis=0).ravel(),
+            "py": y.astype(f32)[None, :].repeat(n_l, axis=0).ravel(),
+            "r": obs["r"].astype(f32).repeat(n_p),
+            "wd": obs["w_d"].astype(f32).repeat(n_p),
+        }
+        # the perpendicular's foot in the field frame
+        pairs["fx"] = pairs["px"] + pairs["r"] * pairs["ux"]
+        pairs["fy"] = pairs["py"] + pairs["r"] * pairs["uy"]
+        if ext is not None:
+            mid = obs["mid"]
+            pairs["mx"] = (x + mid[:, 0, None] * cth - mid[:, 1, None] * sth).astype(f32).ravel()
+            pairs["my"] = (y + mid[:, 0, None] * sth + mid[:, 1, None] * cth).astype(f32).ravel()
+            pairs["hm"] = obs["hm"].astype(f32).repeat(n_p)
+            pairs["ratio"] = obs["ratio"].astype(f32).repeat(n_p)
+        best = np.empty(n_l * n_p)
+        starts = np.searchsorted(row_group, np.arange(n_g + 2))
+        first_mixed = starts[n_g]
+        mixed = gid[first_mixed:].ravel()
+        for g in range(n_g):
+            if starts[g + 1] > starts[g]:  # observations all of this direction: a block
+                block = slice(starts[g] * n_p, starts[g + 1] * n_p)
+                best[block] = self._line_group_cost(pairs, block, g)
+            if len(mixed):
+                sel = first_mixed * n_p + np.flatnonzero(mixed == g)
+                if len(sel):
+                    best[sel] = self._line_group_cost(pairs, sel, g)
+        if c["arc_lines"] and len(self.arcs):
+            tol2 = c["oriented_tolerance"] ** 2
+            w_a = 1.0 / (2.0 * c["sigma_line_angle"] ** 2)
+            near = (pairs["fx"], pairs["fy"], None)
+            if ext is not None:
+                near = (pairs["mx"], pairs["my"], {"h2": ext["h2"][order],
+                                                   "w_e": ext["w_e"][order]})
+            for arc in self.arcs:
+                self._arc_line_cost(best, pairs["px"], pairs["py"], pairs["ux"], pairs["uy"],
+                                    pairs["r"], pairs["wd"], w_a, tol2, arc, near, n_p)
+        out = np.empty(full)
+        out[order] = best.reshape(full)
+        return _log_mixture(out, ln["floor"])
+
+    def _line_group_cost(self, pairs: dict, sel, g: int) -> np.ndarray:
+        """Cost of the pairs ``sel`` (a slice or indices) against the field lines of direction
+        ``g``: the least over those lines of eq. 4 with eq. 5 and the extent term."""
+        c = self.conf
+        nrm, tng, off, smid, shalf = self.line_groups[g]
+        cos_d = _project(pairs["ux"], pairs["uy"], sel, nrm)
+        r_s = pairs["r"][sel]
+        rc = r_s * cos_d  # the observed perpendicular projected on the group normal
+        pn = _project(pairs["px"], pairs["py"], sel, nrm)
+        # |l_e - l_o|^2 = (e - r cos)^2 + r^2 sin^2 with e = off - pn: e - rc = off - q
+        cost = off - _project(pairs["fx"], pairs["fy"], sel, nrm)
+        cost *= cost  # (S_g, M)
+        # eq. 5: <l_e, l_o> = (off - pn) rc must exceed -tol^2: off rc > pn rc - tol^2
+        bad = np.multiply.outer(off[:, 0], rc) <= rc * pn - np.float32(
+            c["oriented_tolerance"] ** 2)
+        if "mx" in pairs:
+            over = _project(pairs["mx"], pairs["my"], sel, tng) - smid
+            np.abs(over, out=over)
+            over -= shalf
+            over += pairs["hm"][sel]
+            np.maximum(over, 0.0, out=over)
+            over *= over
+            over *= pairs["ratio"][sel]
+            cost += over
+        bad = bad * _BIG
+        cost += bad
+        wd = pairs["wd"][sel]
+        w_a = np.float32(1.0 / (2.0 * c["sigma_line_angle"] ** 2))
+        return cost.min(axis=0) * wd + (1.0 - cos_d * cos_d) * (r_s * r_s * wd + w_a)
+
+    def _arc_line_cost(self, best, px, py, ux, uy, r, wd, w_a, tol2, arc, near, n_p):
+        """Lower ``best`` (M,) where the tangent of an arc, at the arc point nearest to the
+        observed segment (its midpoint, else the perpendicular's foot), explains a (line,
+        particle) pair better. Only pairs whose segment lies within 1 m of the arc count."""
+        cx, cy, rad, a0, sweep = arc
+        qx, qy, ext = near
+        vx, vy = qx - cx, qy - cy
+        dist = np.sqrt(vx * vx + vy * vy)
+        sel = np.flatnonzero(np.abs(dist - rad) < 1.0)
+        if not len(sel):
+            return
+        vx, vy, dist = vx[sel], vy[sel], dist[sel]
+        if sweep < 2 * math.pi - 1e-9:  # clamp the nearest point to the arc's ends
+            phi = np.arctan2(vy, vx)
+            rel = np.mod(phi - a0, 2 * math.pi)
+            rel = np.where(rel > sweep, np.where(rel - sweep < 2 * math.pi - rel, sweep, 0.0),
+                           rel)
+            nx_, ny_ = np.cos(a0 + rel), np.sin(a0 + rel)
+        else:
+            dist = np.maximum(dist, 1e-9)
+            nx_, ny_ = vx / dist, vy / dist
+        r_s, w_s = r[sel], wd[sel]
+        e = (rad + cx * nx_ + cy * ny_) - (px[sel] * nx_ + py[sel] * ny_)
+        cos_d = ux[sel] * nx_ + uy[sel] * ny_
+        rc = r_s * cos_d
+        cost = (e - rc) ** 2 * w_s + (1.0 - cos_d * cos_d) * (r_s * r_s * w_s + w_a)
+        cost[e * rc <= -tol2] = _BIG
+        if ext is not None:  # a straight segment of half length h departs h^2 / 2r from the arc
+            dev = np.maximum(ext["h2"] / rad - self.conf["extent_margin"], 0.0)
+            pen = (dev * dev * ext["w_e"]).repeat(n_p)
+            cost += pen[sel]
+        best[sel] = np.minimum(best[sel], cost)

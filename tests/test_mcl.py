@@ -1,0 +1,443 @@
+"""Particle filter of seed 000 (stages.localize.mcl with its observation and motion models) and
+the belief picture, on synthetic observations generated from the field model."""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from stages.build_map.crossing_lut import crossing_association_tables
+from stages.common.field import load_field
+from stages.common.map_file import Grid, write_map
+from stages.common.scanlines import ScanLines
+from stages.localize import mcl, motion_model
+from stages.localize.observation_model import ObservationModel, Observations
+from stages.localize.synthetic_observations import (
+    synthetic_observations,
+    synthetic_walk,
+    write_synthetic_run,
+)
+
+NOISELESS = {"pitch_noise": 0.0, "roll_noise": 0.0, "point_noise": 0.0, "bearing_noise": 0.0,
+             "orientation_noise": 0.0, "p_miss_line": 0.0, "p_miss_crossing": 0.0,
+             "p_miss_post": 0.0, "false_lines": 0.0, "false_crossings": 0.0,
+             "false_posts": 0.0, "p_type_confusion": 0.0}
+
+
+@pytest.fixture(scope="module")
+def kidsize():
+    return load_field("kidsize")
+
+
+@pytest.fixture(scope="module")
+def model(kidsize):
+    return ObservationModel.from_field(kidsize)
+
+
+@pytest.fixture(scope="module")
+def map_path(kidsize, tmp_path_factory):
+    """A map holding the field and its crossing tables (the tables mcl reads)."""
+    grid = Grid.around(kidsize, kidsize.border, 0.1)
+    path = tmp_path_factory.mktemp("map") / "kidsize.map.h5"
+    from stages.common.artifacts import root_attrs
+    from stages.common.map_file import SCHEMA, VERSION
+
+    write_map(path, kidsize, grid, ScanLines(), crossing_association_tables(kidsize, grid),
+              root_attrs(SCHEMA, VERSION))
+    return path
+
+
+def _errors(poses, truth):
+    return np.hypot(poses[:, 0] - truth[:, 0], poses[:, 1] - truth[:, 1])
+
+
+def _run_walk(fm, model, conf, n=150, seed=3, obs_conf=None, start=None):
+    truth, odom, stamps = synthetic_walk(fm, n, seed=seed, start=start)
+    rng = np.random.default_rng(seed + 100)
+    if conf["observation"] != model.conf:
+        model = model.with_conf(conf["observation"])
+    pf = mcl.ParticleFilter(model, conf)
+    pf.initialise()
+    poses, flags = [], []
+    for i in range(n):
+        obs = synthetic_observations(fm, truth[i], rng, obs_conf)
+        est = pf.step(odom[i], 0.1, obs, first=i == 0)
+        poses.append(est.pose)
+        flags.append(est.flags)
+    return np.array(poses), truth, flags
+
+
+# ---------------------------------------------------------------------------- observation model
+
+
+def test_likelihood_peaks_at_the_true_pose(kidsize, model):
+    pose = np.array([-1.2, -0.8, 0.5])
+    obs = synthetic_observations(kidsize, pose, np.random.default_rng(0), NOISELESS)
+    assert len(obs.lines) >= 2 and len(obs.crossings) >= 1
+    d = np.linspace(-0.5, 0.5, 21)
+    dth = np.linspace(-0.3, 0.3, 13)
+    gx, gy, gt = np.meshgrid(d, d, dth, indexing="ij")
+    ll = model.log_likelihood(pose[0] + gx.ravel(), pose[1] + gy.ravel(),
+                              pose[2] + gt.ravel(), obs)
+    k = int(np.argmax(ll))
+    assert abs(gx.ravel()[k]) <= 0.051 and abs(gy.ravel()[k]) <= 0.051
+    assert abs(gt.ravel()[k]) <= 0.051
+    # each kind of observation on its own also prefers the truth to a pose 40 cm off
+    parts_true = model.log_likelihood([pose[0]], [pose[1]], [pose[2]], obs, parts=True)
+    parts_off = model.log_likelihood([pose[0] + 0.4], [pose[1] - 0.2], [pose[2]], obs,
+                                     parts=True)
+    for kind in ("lines", "crossings"):
+        assert parts_true[kind][0] > parts_off[kind][0] + 1.0
+
+
+def test_oriented_line_distance_tells_front_from_behind(kidsize, model):
+    """A line seen 1 m ahead: a robot 1 m inside the right touch line facing it explains this;
+    one 1 m outside it facing the same way has the line 1 m behind, which must not explain it,
+    although the distance to the line and its direction are the same."""
+    ahead = Observations(np.array([[1.0, 0.0, 2.0, 1.0]]), np.array([[1.0, -1.0, 1.0, 1.0]]),
+                         np.zeros((0, 5)), np.zeros((0, 3)))
+    front = model.log_likelihood([0.5], [-2.0], [-math.pi / 2], ahead)[0]
+    behind = model.log_likelihood([0.5], [-4.0], [-math.pi / 2], ahead)[0]
+    floor = math.log(model.conf["uniform_floor"])
+    assert front > -0.5
+    assert behind == pytest.approx(floor, abs=0.05)
+    # eq. 5 proper: near the line the perpendiculars are short, and opposite ones are excluded
+    near = Observations(np.array([[0.2, 0.0, 2.0, 1.0]]), None, np.zeros((0, 5)),
+                        np.zeros((0, 3)))
+    conf = dict(model.conf, oriented_tolerance=0.0)
+    strict = model.with_conf(conf)
+    assert strict.log_likelihood([-0.2], [2.0], [0.0], near)[0] > -0.5
+    # robot 0.05 m past the halfway line: |l_e - l_o| is only 0.25 m, but the line is behind
+    assert strict.log_likelihood([0.05], [2.0], [0.0], near)[0] == pytest.approx(
+        math.log(conf["uniform_floor"]), abs=1e-4)
+
+
+def test_crossing_association_uses_orientation(kidsize, model):
+    """An L seen 1 m ahead with its arms opening towards the robot: at a pose 1 m in front of
+    the field corner (-4.5, -3), facing it, the corner explains it; a pose at the same spot
+    facing the other way (where the observation would land on no L of that orientation) does
+    not."""
+    corner = np.array([-4.5, -3.0])
+    heading = math.atan2(-1.0, -1.0)  # facing the corner from inside the field
+    pos = corner - np.array([math.cos(heading), math.sin(heading)])
+    # the corner's bisector is 45 deg; in the robot frame:
+    orient = math.remainder(math.pi / 4 - heading, 2 * math.pi)
+    obs = Observations(np.zeros((0, 4)), None, np.array([[0, 1.0, 0.0, orient, 1.0]]),
+                       np.zeros((0, 3)))
+    good = model.log_likelihood([pos[0]], [pos[1]], [heading], obs)[0]
+    assert good > -0.3
+    # an observation of an L turned by 180 deg belongs to another set: no L that way nearby
+    turned = Observations(np.zeros((0, 4)), None,
+                          np.array([[0, 1.0, 0.0, orient + math.pi, 1.0]]), np.zeros((0, 3)))
+    assert model.log_likelihood([pos[0]], [pos[1]], [heading], turned)[0] < good - 2.0
+
+
+def test_low_confidence_observations_count_less(kidsize, model):
+    pose = np.array([1.0, 1.0, -2.0])
+    obs = synthetic_observations(kidsize, pose, np.random.default_rng(1), NOISELESS)
+    off = pose + [0.6, 0.3, 0.2]
+    sure = model.log_likelihood([pose[0], off[0]], [pose[1], off[1]], [pose[2], off[2]], obs)
+    unsure = dataclasses.replace(obs, lines=obs.lines.copy(), crossings=obs.crossings.copy(),
+                                 posts=obs.posts.copy())
+    unsure.lines[:, 3] = 0.1
+    unsure.crossings[:, 4] = 0.1
+    unsure.posts[:, 2] = 0.1
+    weak = model.log_likelihood([pose[0], off[0]], [pose[1], off[1]], [pose[2], off[2]],
+                                unsure)
+    assert sure[0] - sure[1] > weak[0] - weak[1] > 0
+
+
+# ---------------------------------------------------------------------------- motion model
+
+
+def test_motion_model_follows_odometry():
+    p = np.array([[1.0, 2.0, math.pi / 2]] * 2000)
+    rng = np.random.default_rng(0)
+    out = motion_model.sample_motion(p, (0.5, 0.0, 0.1), 0.1, rng)
+    mean = out.mean(axis=0)
+    assert mean[0] == pytest.approx(1.0, abs=0.01)  # moved along +y (heading 90 deg)
+    assert mean[1] == pytest.approx(2.5, abs=0.01)
+    assert np.std(out[:, 1]) > 0.01  # with noise
+    inc, has = motion_model.accumulate_odometry(
+        {"stamp": np.array([0.1, 0.15, 0.2]), "dx": np.array([1.0, 1.0, 0.0]),
+         "dy": np.zeros(3), "dtheta": np.array([0.0, math.pi / 2, 0.0])},
+        np.array([0.1, 0.2]))
+    assert has.tolist() == [True, True]
+    assert np.allclose(inc[0], [1.0, 0.0, 0.0])
+    assert np.allclose(inc[1], [1.0, 0.0, math.pi / 2])  # turn after the step
+
+
+def test_imu_collisions_and_yaw_per_frame():
+    """Collision flags since the previous frame, and the yaw change across the +-pi seam."""
+    imu = {"stamp": np.array([0.0, 0.05, 0.1, 0.15, 0.2]),
+           "yaw": np.array([3.1, 3.12, -3.12, -3.1, -3.08]),
+           "collision": np.array([0, 0, 0, 1, 0])}
+    coll, dyaw = motion_model.imu_per_frame(imu, np.array([0.0, 0.1, 0.2, 0.3]))
+    assert coll.tolist() == [False, False, True, False]
+    assert dyaw[0] == 0.0
+    assert dyaw[1] == pytest.approx(2 * math.pi - 6.22, abs=1e-9)
+    assert dyaw[2] == pytest.approx(0.04, abs=1e-9)
+    assert np.isnan(dyaw[3])  # past the end of the IMU's record
+    s_t, s_r = motion_model.motion_sigmas((0.02, 0.0, 0.0), 0.1)
+    s_tc, s_rc = motion_model.motion_sigmas((0.02, 0.0, 0.0), 0.1, collision=True)
+    assert s_tc > s_t + 0.05 and s_rc > s_r + 0.2  # without the IMU's yaw: much wider
+
+
+# ---------------------------------------------------------------------------- the filter
+
+
+def test_converges_from_the_initial_placement(kidsize, model):
+    conf = copy.deepcopy(mcl.confs["default"])
+    poses, truth, _ = _run_walk(kidsize, model, conf, n=150, seed=3)
+    err = _errors(poses, truth)[20:]
+    assert np.median(err) < 0.10
+    assert np.mean(err < 0.4) >= 0.95
+
+
+def test_converges_from_uniform_up_to_symmetry(kidsize, model):
+    conf = copy.deepcopy(mcl.confs["uniform"])
+    poses, truth, flags = _run_walk(kidsize, model, conf, n=150, seed=4)
+    mirrored = np.array([kidsize.mirror_pose(p) for p in poses])
+    err = np.minimum(_errors(poses, truth), _errors(mirrored, truth))[40:]
+    assert np.median(err) < 0.15
+    assert np.mean(err < 0.4) >= 0.9
+    # both goals are white: the filter says so instead of picking a side silently
+    assert all("mirror-ambiguous" in f for f in flags[40:])
+
+
+def test_placement_start_is_not_mirror_ambiguous(kidsize, model):
+    conf = copy.deepcopy(mcl.confs["default"])
+    _poses, _truth, flags = _run_walk(kidsize, model, conf, n=60, seed=5)
+    assert sum("mirror-ambiguous" in f for f in flags[20:]) <= 2
+
+
+def test_without_lines_still_localises(kidsize, model):
+    conf = copy.deepcopy(mcl.confs["no-lines"])
+    poses, truth, _ = _run_walk(kidsize, model, conf, n=150, seed=3)
+    err = _errors(poses, truth)[20:]
+    assert np.median(err) < 0.25
+
+
+def test_frame_without_observations_keeps_the_predicted_belief(kidsize, model):
+    conf = copy.deepcopy(mcl.confs["default"])
+    pf = mcl.ParticleFilter(model, conf)
+    pf.initialise("pose", [0.0, 1.0, 0.3])
+    pf.weights = np.random.default_rng(2).random(len(pf.weights))
+    pf.weights /= pf.weights.sum()
+    before_p, before_w = pf.particles.copy(), pf.weights.copy()
+    state = copy.deepcopy(pf.rng.bit_generator.state)
+    est = pf.step((0.05, 0.0, 0.02), 0.1, Observations.empty())
+    rng = np.random.default_rng()
+    rng.bit_generator.state = state
+    predicted = motion_model.sample_motion(before_p, (0.05, 0.0, 0.02), 0.1, rng,
+                                           conf["motion"])
+    assert np.array_equal(pf.particles, predicted)
+    assert np.array_equal(pf.weights, before_w)
+    assert "no-observations" in est.flags and est.mode == "predicted"
+
+
+def test_same_seed_same_poses(kidsize, model):
+    conf = copy.deepcopy(mcl.confs["default"])
+    a, _, _ = _run_walk(kidsize, model, conf, n=30, seed=7)
+    b, _, _ = _run_walk(kidsize, model, conf, n=30, seed=7)
+    assert np.array_equal(a, b)
+    conf["seed"] = 1
+    c, _, _ = _run_walk(kidsize, model, conf, n=30, seed=7)
+    assert not np.array_equal(a, c)
+
+
+def test_recovers_after_kidnapping(kidsize, model):
+    """Start tracking at a wrong pose (placement on the other touch line): augmented MCL
+    injects particles and finds the robot again (up to the field's symmetry)."""
+    conf = copy.deepcopy(mcl.confs["default"])
+    conf["init"] = "pose"
+    conf["init_pose"] = [-2.0, 2.8, -math.pi / 2]
+    conf["init_spread"] = [0.1, 0.1, 0.05]
+    start = [-2.0, -2.8, math.pi / 2]
+    poses, truth, _ = _run_walk(kidsize, model, conf, n=150, seed=8, start=start)
+    mirrored = np.array([kidsize.mirror_pose(p) for p in poses])
+    err = np.minimum(_errors(poses, truth), _errors(mirrored, truth))
+    assert np.median(err[-50:]) < 0.2
+
+
+def test_asymmetric_field_is_not_paired(kidsize):
+    extra = np.concatenate([kidsize.segments, [[[1.0, 1.0], [2.0, 1.0]]]])
+    fm = dataclasses.replace(kidsize, segments=extra)
+    assert mcl.field_is_point_symmetric(kidsize)
+    assert not mcl.field_is_point_symmetric(fm)
+
+
+# ---------------------------------------------------------------------------- the stage
+
+
+def test_localize_main_with_mcl(kidsize, map_path, tmp_path):
+    from stages import localize
+    from stages.common.poses_file import read_poses
+
+    data = tmp_path / "walk"
+    features = write_synthetic_run(kidsize, data, 120, seed=11)
+    out = localize.main({"method": "mcl"}, data, map_path, tmp_path / "poses.h5",
+                        features=features)
+    cols, attrs = read_poses(out)
+    assert attrs["method"] == "mcl" and attrs["conf"]["init"] == "placement"
+    assert len(cols["name"]) == 120 and not cols["failed"].any()
+    truth = np.loadtxt(data / "truth.csv", delimiter=",", skiprows=1)
+    err = np.hypot(cols["x"] - truth[:, 1], cols["y"] - truth[:, 2])[20:]
+    assert np.median(err) < 0.1
+    assert np.all(np.isfinite(cols["covariance"][20:]))
+    assert np.all((cols["confidence"] >= 0) & (cols["confidence"] <= 1))
+
+
+def test_mcl_refuses_omni_features(kidsize, map_path, tmp_path):
+    from stages.common.errors import FieldlocError
+    from stages.common.features_file import FeaturesFile
+
+    data = tmp_path / "walk"
+    features = write_synthetic_run(kidsize, data, 3, seed=1)
+    import h5py
+
+    with h5py.File(features, "a") as h5:
+        h5.attrs["camera_kind"] = "omni"
+    from stages.common.map_file import MapFile
+
+    with FeaturesFile(features) as ff, MapFile(map_path) as mf:
+        with pytest.raises(FieldlocError, match="perspective"):
+            mcl.run(mcl.confs["default"], None, ff, mf)
+
+
+def test_show_belief_cli(kidsize, map_path, tmp_path):
+    from click.testing import CliRunner
+
+    from fieldloc_cli.main import cli
+    from stages.localize import belief
+
+    data = tmp_path / "walk"
+    write_synthetic_run(kidsize, data, 5, seed=2)
+    out = tmp_path / "belief.png"
+    res = CliRunner().invoke(cli, ["show", "belief", str(data), "--frame", "3", "--map",
+                                   str(map_path), "--resolution", "0.25", "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # a missing frame is one clear error line
+    res = CliRunner().invoke(cli, ["show", "belief", str(data), "--frame", "99", "--map",
+                                   str(map_path), "-o", str(tmp_path / "x.png")])
+    assert res.exit_code == 1 and "out of range" in res.output
+    # the CLI's defaults are the stage's
+    from fieldloc_cli.show_belief import show_belief
+
+    params = {p.name: p.default for p in show_belief.params}
+    assert params["resolution"] == belief.confs["default"]["resolution"]
+    assert math.radians(params["heading_step_deg"]) == pytest.approx(
+        belief.confs["default"]["heading_step"])
+
+
+def test_belief_grid_peaks_near_truth(kidsize, model):
+    from stages.localize.belief import belief_grid
+
+    pose = np.array([2.0, 1.0, 2.5])
+    obs = synthetic_observations(kidsize, pose, np.random.default_rng(3), NOISELESS)
+    grid = belief_grid(model, obs, resolution=0.2, heading_step=math.radians(10))
+    ll = grid["all"]
+    i, j = np.unravel_index(int(np.argmax(ll)), ll.shape)
+    best = np.array([grid["xs"][j], grid["ys"][i]])
+    # the best cell is the truth or its mirror image (both goals look the same)
+    d = min(np.hypot(*(best - pose[:2])), np.hypot(*(best + pose[:2])))
+    assert d <= 0.21
+
+
+# ---------------------------------------------------------------------------- a rendered walk
+
+
+@pytest.fixture(scope="module")
+def rendered_walk(tmp_path_factory, map_path):
+    """A short rendered KidSize walk (perspective simulator), extracted and localised with
+    mcl three times: from the initial placement, without lines, from a uniform start."""
+    from stages import extract, localize, simulate
+    from stages.common.dataset import read_csv
+    from stages.common.poses_file import read_poses
+
+    root = tmp_path_factory.mktemp("kid")
+    conf = copy.deepcopy(simulate.confs["perspective-default"])
+    conf.update(frames=40, seed=1)
+    data = simulate.main(conf, "kidsize", root / "walk")
+    features = extract.main(None, data, root / "features.h5")
+    truth = read_csv(data / "truth.csv", "truth")
+    out = {}
+    for preset in ("default", "no-lines", "uniform"):
+        path = localize.main({"method": "mcl", "preset": preset}, data, map_path,
+                             root / f"poses-{preset}.h5", features=features)
+        cols, _ = read_poses(path)
+        i = np.searchsorted(truth["stamp"], cols["stamp"] - 1e-6)
+        tx, ty = truth["x"][i], truth["y"][i]
+        err = np.hypot(cols["x"] - tx, cols["y"] - ty)
+        mirrored = np.hypot(cols["x"] + tx, cols["y"] + ty)
+        out[preset] = (err, mirrored, cols)
+    return out
+
+
+def test_rendered_walk_from_the_initial_placement(rendered_walk):
+    """The issue's goals (median <= 10 cm, >= 95 % within 40 cm) are for a walk of a few
+    hundred frames (the bench); on these 40 frames the first ones, while the robot walks along
+    the touch line where it entered, are left out of the median."""
+    err, _, cols = rendered_walk["default"]
+    assert not cols["failed"].any()
+    assert np.mean(err <= 0.40) >= 0.95
+    assert np.median(err[20:]) <= 0.10
+
+
+def test_rendered_walk_without_lines(rendered_walk):
+    """The seed's ablation (crossings and goal posts only): lines make the poses better."""
+    err, _, cols = rendered_walk["no-lines"]
+    with_lines, _, _ = rendered_walk["default"]
+    assert not cols["failed"].any() and np.all(np.isfinite(err))
+    assert np.median(err) > np.median(with_lines)
+    assert np.mean(err <= 0.4) <= np.mean(with_lines <= 0.4)
+
+
+def test_rendered_walk_from_a_uniform_start(rendered_walk):
+    err, mirrored, cols = rendered_walk["uniform"]
+    folded = np.minimum(err, mirrored)[10:]
+    assert np.median(folded) <= 0.15
+    assert np.mean(folded <= 0.40) >= 0.9
+    assert all("mirror-ambiguous" in f for f in cols["flags"][10:])
+
+
+def test_map_without_crossing_tables_still_works(kidsize, tmp_path):
+    """An older map without the association tables: the model computes them on its grid."""
+    from stages.common.artifacts import root_attrs
+    from stages.common.map_file import SCHEMA, VERSION, MapFile
+
+    grid = Grid.around(kidsize, kidsize.border, 0.1)
+    path = write_map(tmp_path / "bare.map.h5", kidsize, grid, ScanLines(), {},
+                     root_attrs(SCHEMA, VERSION))
+    tabs = crossing_association_tables(kidsize, grid)
+    with MapFile(path) as mf:
+        m = ObservationModel.from_map(mf)
+    assert np.array_equal(m.lut[:4 * m._cells], tabs["crossing_lut_L"][0].ravel())
+    assert np.array_equal(m.lut[4 * m._cells:], tabs["crossing_lut_T"][0].ravel())
+
+
+def test_localize_cli_init_uniform(kidsize, map_path, tmp_path):
+    from click.testing import CliRunner
+
+    from fieldloc_cli.main import cli
+    from stages.common.poses_file import read_poses
+
+    data = tmp_path / "walk"
+    features = write_synthetic_run(kidsize, data, 30, seed=4)
+    out = tmp_path / "poses.h5"
+    args = ["localize", str(data), "--map", str(map_path), "--features", str(features),
+            "--method", "mcl", "--init", "uniform", "-o", str(out)]
+    res = CliRunner().invoke(cli, args)
+    assert res.exit_code == 0, res.output
+    cols, attrs = read_poses(out)
+    assert attrs["conf"]["init"] == "uniform"
+    assert all("mirror-ambiguous" in f for f in cols["flags"][5:])
+    # --init belongs to mcl
+    res = CliRunner().invoke(cli, args[:-6] + ["--method", "lut", "--init", "uniform", "-o",
+                                               str(tmp_path / "x.h5")])
+    assert res.exit_code != 0 and "--init applies to --method mcl" in res.output
