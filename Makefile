@@ -2,14 +2,19 @@
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
-FL     := $(BIN)/fieldloc
+FL     := $(BIN)/fieldloc -q
 STAMP  := $(VENV)/.installed
 
-OUT    ?= build
-FIELD  ?= msl-2015
-DATA   ?= $(OUT)/demo-omni
-FRAMES ?= 100
-SEED   ?= 1
+OUT     ?= build
+FIELD   ?= msl-2015
+FRAMES  ?= 100
+SEED    ?= 1
+METHOD  ?= lut
+HEADING ?= imu
+DATA    ?= $(OUT)/demo-omni
+MAP     := $(OUT)/maps/$(notdir $(basename $(FIELD))).map.h5
+FIELD_FILE := $(or $(wildcard maps/$(FIELD).yaml),$(wildcard $(FIELD)))
+RUN     := $(DATA)/runs/$(METHOD)-$(HEADING)
 
 .PHONY: install test lint demo bench pipeline clean
 
@@ -28,12 +33,37 @@ lint: $(STAMP)
 	$(BIN)/ruff check .
 
 bench: $(STAMP)
-	$(FL) bench
+	$(BIN)/fieldloc bench
 
-demo: $(STAMP)
+# The demo: simulate a small omnidirectional MSL dataset, build the map, localise with the
+# lookup tables, evaluate against the truth and print the table.
+DEMO := $(OUT)/demo-omni
+demo: $(STAMP) $(DEMO)/truth.csv
+	$(MAKE) --no-print-directory pipeline DATA=$(DEMO) FIELD=$(FIELD)
+
+$(DEMO)/truth.csv: | $(STAMP)
 	@mkdir -p $(OUT)
-	$(FL) build-map $(FIELD) -o $(OUT)/$(FIELD).map.h5
-	$(FL) inspect $(OUT)/$(FIELD).map.h5
+	$(FL) simulate omni --field $(FIELD) -o $(DEMO) --frames $(FRAMES) --seed $(SEED) --overwrite
+
+# File-based pipeline over any dataset folder: only stale steps run again.
+#   make pipeline DATA=path/to/dataset FIELD=msl-2015 [METHOD=lut HEADING=imu|histogram|truth]
+pipeline: $(STAMP) $(RUN)/report/report.json
+	$(BIN)/fieldloc evaluate --table $(RUN)/report
+
+$(MAP): $(FIELD_FILE) | $(STAMP)
+	@mkdir -p $(dir $@)
+	$(FL) build-map $(FIELD) -o $@ --overwrite
+
+$(DATA)/features.h5: $(DATA)/calib.yaml $(wildcard $(DATA)/images/*) | $(STAMP)
+	$(FL) extract $(DATA) -o $@
+
+$(RUN)/poses.h5: $(DATA)/features.h5 $(MAP)
+	@mkdir -p $(dir $@)
+	$(FL) localize $(DATA) --map $(MAP) --features $< --method $(METHOD) --heading $(HEADING) \
+		-o $@ --overwrite
+
+$(RUN)/report/report.json: $(RUN)/poses.h5 $(DATA)/truth.csv
+	$(FL) evaluate $< --truth $(DATA)/truth.csv -o $(RUN)/report --overwrite
 
 clean:
 	rm -rf $(OUT)
