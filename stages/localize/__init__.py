@@ -38,7 +38,6 @@ log = logging.getLogger(__name__)
 METHODS = {
     "lut": "stages.localize.lut",
     "mcl": "stages.localize.mcl",
-    "templates": "stages.localize.templates",
 }
 DEFAULT_METHOD = "lut"
 
@@ -47,12 +46,7 @@ def method_module(method: str):
     """The module of a localisation method (imported on first use)."""
     if method not in METHODS:
         raise FieldlocError(f"unknown method '{method}' (known: {', '.join(METHODS)})")
-    try:
-        return importlib.import_module(METHODS[method])
-    except ModuleNotFoundError as e:
-        if e.name == METHODS[method]:
-            raise FieldlocError(f"method '{method}' is not available in this build") from None
-        raise
+    return importlib.import_module(METHODS[method])
 
 
 def method_confs(method: str) -> dict:
