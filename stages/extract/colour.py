@@ -21,17 +21,30 @@ Per pixel (``classify_yuv``), with y_g the local green luminance:
   the ellipse valid in shaded and vignetted parts, where the chroma shrinks with the light;
 - other: everything else (robots, people, the robot's body, the surroundings, blurred edges).
 
-The perspective extractor reuses the same functions; ``class_counts`` gives the seed-000 grid of
-class counts per 8 x 8 block.
+How it is computed (the classes are exactly those of the formulas, evaluated in float32):
+- the luminance tests depend on the pixel's Y and its block's local green only: they become
+  integer thresholds per block (``luminance_thresholds``), compared with the uint8 Y;
+- the chroma tests are evaluated per pixel in float32, operation by operation as the formulas
+  (``_chroma_tests``), on strips of rows (``STRIP_ROWS``) so that the temporaries stay small
+  and in cache; the 8 x 8 counts are summed from the class masks of each strip.
+Lookup tables were measured as well: a per-frame (Y, U) -> V-interval table of both chroma
+tests gives the same classes but is not faster here (0.9 ms to build per frame, and a gather
+per pixel costs about as much as the float32 arithmetic).
+
+The perspective extractor reuses the same functions; ``classify_grid`` gives the seed-000 grid
+of class counts per 8 x 8 block.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
+from ..common.errors import FieldlocError
 
 GREEN, WHITE, OTHER = 0, 1, 2
 Y_REF = 100.0  # luminance the field green search rescales chroma to
@@ -58,6 +71,9 @@ confs = {
         "local_fill": 7,  # blocks, window used to fill blocks without green
     },
 }
+
+# luminance_thresholds channels: white if Y >= WHITE_MIN_Y; green if GREEN_MIN_Y <= Y <= ...MAX
+WHITE_MIN_Y, GREEN_MIN_Y, GREEN_MAX_Y = 0, 1, 2
 
 
 @dataclass
@@ -92,8 +108,13 @@ class FieldColour:
         """Local green luminance for every pixel of an image of ``shape`` (h, w)."""
         if self.y_map is None:
             return np.full(shape[:2], self.y, dtype=np.float32)
-        vv, uu = np.indices(shape[:2])
-        return self.local_y(uu, vv)
+        return expand_blocks(self.y_map, shape, self.cell)
+
+    def luminance_thresholds(self, conf: dict) -> np.ndarray:
+        """``luminance_thresholds`` of the local green map (hb, wb, 3), or of the frame's green
+        luminance (3,) when there is no map."""
+        return luminance_thresholds(np.float32(self.y) if self.y_map is None else self.y_map,
+                                    conf)
 
     def as_dict(self) -> dict:
         return {"y": self.y, "u": self.u, "v": self.v, "axes": list(self.axes),
@@ -105,34 +126,122 @@ def to_yuv(image_bgr: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(image_bgr, cv2.COLOR_BGR2YUV)
 
 
+def expand_blocks(blocks: np.ndarray, shape, cell: int) -> np.ndarray:
+    """A per-block map (hb, wb, ...) at full resolution (h, w, ...): pixel (v, u) takes block
+    (min(v // cell, hb - 1), min(u // cell, wb - 1)), as ``FieldColour.block_index``."""
+    h, w = shape[:2]
+    hb, wb = blocks.shape[:2]
+    rows = np.minimum(np.arange(h) // cell, hb - 1)
+    cols = np.minimum(np.arange(w) // cell, wb - 1)
+    return np.take(np.take(blocks, cols, axis=1), rows, axis=0)
+
+
+# ---------------------------------------------------------------------------- per pixel
+
+
+def _chroma_tests(y: np.ndarray, u: np.ndarray, v: np.ndarray, fc: FieldColour, conf: dict,
+                  white: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    """The chroma tests of the module doc per pixel (planes of equal shape), in float32 with
+    the formulas' operations in their order:
+        green: ((U-128) y_f - (u_g-128) Y')^2 b^2 + ((V-128) y_f - (v_g-128) Y')^2 a^2
+               <= Y'^2 (a^2 b^2), Y' = max(Y, 1) (the ellipse around the field green with the
+               chroma rescaled to the field's luminance, multiplied through by Y'^2);
+        white: (U-128)^2 + (V-128)^2 <= (sat^2) Y^2.
+    Returns (green, white) bool arrays (white None unless ``white``)."""
+    yf = np.asarray(y, np.float32)
+    du = np.asarray(u, np.float32) - np.float32(128.0)
+    dv = np.asarray(v, np.float32) - np.float32(128.0)
+    white_ok = None
+    if white:
+        s = du * du
+        s += dv * dv
+        sat = np.float32(conf["white_max_saturation"])
+        white_ok = s <= (sat * sat) * (yf * yf)
+    ym = np.maximum(yf, np.float32(1.0))
+    fy = np.float32(fc.y)
+    du *= fy
+    du -= np.float32(fc.u - 128.0) * ym
+    dv *= fy
+    dv -= np.float32(fc.v - 128.0) * ym
+    a2, b2 = np.float32(fc.axes[0] ** 2), np.float32(fc.axes[1] ** 2)
+    du *= du
+    du *= b2
+    dv *= dv
+    dv *= a2
+    du += dv
+    ym *= ym
+    ym *= a2 * b2
+    return du <= ym, white_ok
+
+
+def luminance_thresholds(y_green, conf: dict) -> np.ndarray:
+    """Integer luminance thresholds (..., 3) [WHITE_MIN_Y, GREEN_MIN_Y, GREEN_MAX_Y] for local
+    green luminances ``y_green`` (float, any shape): white needs Y >= WHITE_MIN_Y, green needs
+    GREEN_MIN_Y <= Y <= GREEN_MAX_Y. The float32 bounds of the per-pixel formulas rounded
+    inwards (Y is an integer), so the tests are exact. uint8 when all fit (always for y_green
+    in [0, 255] and the default conf), else int16 (256: never)."""
+    yg = np.asarray(y_green, dtype=np.float32)
+    white_y = np.maximum(yg + np.float32(conf["white_contrast"]) * (np.float32(255.0) - yg),
+                         np.float32(conf["white_min_y"]))
+    g_lo = np.float32(conf["green_min_ratio"]) * yg
+    g_hi = np.float32(conf["green_max_ratio"]) * yg
+    out = np.empty(yg.shape + (3,), np.int16)
+    out[..., WHITE_MIN_Y] = np.clip(np.ceil(white_y), 0, 256)
+    lo = np.clip(np.ceil(g_lo), 0, 256)
+    hi = np.clip(np.floor(g_hi), -1, 255)
+    empty = lo > hi
+    out[..., GREEN_MIN_Y] = np.where(empty, 255, np.minimum(lo, 255))
+    out[..., GREEN_MAX_Y] = np.where(empty, 254, hi)
+    if out.min() >= 0 and out.max() <= 255:
+        return out.astype(np.uint8)
+    return out
+
+
+def class_masks(y: np.ndarray, u: np.ndarray, v: np.ndarray, fc: FieldColour, conf: dict,
+                thresholds) -> tuple[np.ndarray, np.ndarray]:
+    """(green, white) bool masks of pixels given as uint8 planes ``y``, ``u``, ``v`` (same
+    shape), with ``luminance_thresholds`` as three arrays (white min, green min, green max)
+    broadcastable to the planes. A pixel is in one class at most: white wins where both hold."""
+    green, white = _chroma_tests(y, u, v, fc, conf)
+    w_min, g_min, g_max = thresholds
+    yy = y if np.asarray(w_min).dtype == np.uint8 else y.astype(np.int16)
+    white &= yy >= w_min
+    green &= yy >= g_min
+    green &= yy <= g_max
+    green &= ~white
+    return green, white
+
+
 def estimate_field_colour(yuv: np.ndarray, conf: dict, valid: np.ndarray | None = None,
                           step: int = 6) -> FieldColour:
     """The field green of a frame from its dominant green chroma cluster (see module doc).
     ``valid``: bool mask (h, w) of the floor pixels to look at; ``step``: subsampling."""
     sub = yuv[::step, ::step]
-    if valid is not None:
-        sub = sub[valid[::step, ::step]]
-    sub = sub.reshape(-1, 3)
+    sub = sub[valid[::step, ::step]] if valid is not None else sub.reshape(-1, 3)
     n_valid = max(len(sub), 1)
-    y = sub[:, 0].astype(np.int32)
-    cu, cv_ = sub[:, 1].astype(np.int32) - 128, sub[:, 2].astype(np.int32) - 128
-    hue = np.degrees(np.arctan2(cv_, cu))
-    h0, h1 = conf["green_hue_deg"]
+    y8, u8, v8 = sub[:, 0], sub[:, 1], sub[:, 2]
     y0, y1 = conf["green_search_y"]
-    cand = ((hue >= h0) & (hue <= h1) & (cu * cu + cv_ * cv_ >= conf["green_min_chroma"] ** 2)
-            & (y >= y0) & (y <= y1))
+    uv = u8.astype(np.uint16)
+    uv <<= 8
+    uv |= v8
+    cand = np.take(_green_candidate_chroma(tuple(conf["green_hue_deg"]),
+                                           float(conf["green_min_chroma"])), uv)
+    if y0 > 0:
+        cand &= y8 >= min(math.ceil(y0), 256)
+    if y1 < 255:
+        cand &= y8 <= max(math.floor(y1), -1)
     found = False
     u_c, v_c = (float(a) for a in conf["green_nominal_uv"])
     spread = 0.0
-    share = float(cand.sum()) / n_valid
-    y_field = float(np.median(y)) if len(y) else 100.0
+    share = int(np.count_nonzero(cand)) / n_valid
+    y_field = None
     if share >= conf["green_min_share"]:
         # chroma rescaled to one luminance (Y_REF): under a brightness gradient the field's
         # chroma grows with its light, its chromaticity does not
-        yy = y[cand].astype(np.float32)
+        yy = y8[cand].astype(np.float32)
         scale = Y_REF / np.maximum(yy, 1.0)
-        uu = cu[cand].astype(np.float32) * scale
-        vv = cv_[cand].astype(np.float32) * scale
+        uu = (u8[cand].astype(np.float32) - 128.0) * scale
+        vv = (v8[cand].astype(np.float32) - 128.0) * scale
         bins = (np.clip(uu + 128.0, 0, 255).astype(np.int32) >> 3) * 32 + (
             np.clip(vv + 128.0, 0, 255).astype(np.int32) >> 3)
         hist = np.bincount(bins, minlength=1024).reshape(32, 32).astype(np.float32)
@@ -148,11 +257,13 @@ def estimate_field_colour(yuv: np.ndarray, conf: dict, valid: np.ndarray | None 
         near = (uu - nu) ** 2 + (vv - nv) ** 2 <= rad2
         if near.sum() >= 10:
             found = True
-            y_field = float(np.median(yy[near]))
+            y_field = _median_of_integers(y8[cand][near])
             back = y_field / Y_REF  # to chroma at the field's luminance
             u_c, v_c = 128.0 + nu * back, 128.0 + nv * back
             spread = back * float(np.sqrt(0.5 * (uu[near].var() + vv[near].var())))
             share = float(near.sum()) / n_valid
+    if y_field is None:
+        y_field = float(np.median(y8)) if len(y8) else 100.0
     k = conf["green_spread_k"]
     axes = (max(conf["green_axes"][0], k * spread), max(conf["green_axes"][1], k * spread))
     fc = FieldColour(y=y_field, u=u_c, v=v_c, axes=axes, found=found, share=share)
@@ -160,6 +271,28 @@ def estimate_field_colour(yuv: np.ndarray, conf: dict, valid: np.ndarray | None 
     if found:
         fc.y_map = _local_green_luminance(yuv, fc, conf, valid)
     return fc
+
+
+def _median_of_integers(values: np.ndarray) -> float:
+    """``np.median`` of uint8 values, from their histogram (the mean of the two middle values
+    for an even count)."""
+    n = len(values)
+    cum = np.cumsum(np.bincount(values, minlength=256))
+    lo, hi = np.searchsorted(cum, [(n - 1) // 2 + 1, n // 2 + 1])
+    return 0.5 * (float(lo) + float(hi))
+
+
+@functools.lru_cache(maxsize=8)
+def _green_candidate_chroma(hue_deg: tuple[float, float], min_chroma: float) -> np.ndarray:
+    """(65536,) bool [U << 8 | V]: chroma that the field green search considers, hue (deg,
+    angle of (U - 128, V - 128)) in the window and chroma at least ``min_chroma``."""
+    cu = np.arange(256, dtype=np.int32)[:, None] - 128
+    cv_ = np.arange(256, dtype=np.int32)[None, :] - 128
+    hue = np.degrees(np.arctan2(cv_, cu))
+    ok = ((hue >= hue_deg[0]) & (hue <= hue_deg[1]) & (cu * cu + cv_ * cv_ >= min_chroma ** 2))
+    ok = ok.ravel()
+    ok.setflags(write=False)
+    return ok
 
 
 def _local_green_luminance(yuv, fc: FieldColour, conf: dict, valid) -> np.ndarray:
@@ -173,14 +306,25 @@ def _local_green_luminance(yuv, fc: FieldColour, conf: dict, valid) -> np.ndarra
     # green by chroma (luminance band relative to the frame's green), 2 samples per block side
     step = max(cell // 2, 1)
     k = cell // step
-    sub = yuv[:hb * cell:step, :wb * cell:step].astype(np.float32)
-    y = sub[..., 0]
-    green = _green_chroma(sub[..., 1], sub[..., 2], y, fc) & (y >= fc.y * 0.3) & (y <= fc.y * 2.2)
+    y, u, v = cv2.split(np.ascontiguousarray(yuv[:hb * cell:step, :wb * cell:step]))
+    green, _ = _chroma_tests(y, u, v, fc, conf, white=False)
+    # the luminance band, as float32 bounds (the formula's) rounded inwards for integer Y
+    lo, hi = np.ceil(np.float32(fc.y * 0.3)), np.floor(np.float32(fc.y * 2.2))
+    if lo > 0:
+        green &= y >= min(lo, 256.0)
+    if hi < 255:
+        green &= y <= max(hi, -1.0)
     if valid is not None:
         green &= valid[:hb * cell:step, :wb * cell:step]
-    g = green.astype(np.float32)
-    gs = g.reshape(hb, k, wb, k).sum(axis=(1, 3))
-    ys = (y * g).reshape(hb, k, wb, k).sum(axis=(1, 3))
+    if k == 1:
+        gs, ys = green.astype(np.float32), y * green
+    else:  # sums over the k x k samples of each block (integers)
+        g8 = green.view(np.uint8)
+        yg = y.astype(np.uint16)
+        yg *= green
+        gs = sum(g8[i::k, j::k] for i in range(k) for j in range(k))
+        ys = sum(yg[i::k, j::k] for i in range(k) for j in range(k))
+    gs, ys = gs.astype(np.float32), ys.astype(np.float32)
     fill = int(conf["local_fill"]) | 1
     gs_f = cv2.boxFilter(gs, -1, (fill, fill), normalize=False, borderType=cv2.BORDER_CONSTANT)
     ys_f = cv2.boxFilter(ys, -1, (fill, fill), normalize=False, borderType=cv2.BORDER_CONSTANT)
@@ -190,34 +334,96 @@ def _local_green_luminance(yuv, fc: FieldColour, conf: dict, valid) -> np.ndarra
     return ymap.astype(np.float32)
 
 
-def _green_chroma(u, v, y, fc: FieldColour) -> np.ndarray:
-    """Chroma test of the green ellipse, chroma rescaled to the field's luminance:
-    ((U-128) y_f / Y - (u_g-128))^2 / a^2 + (...)^2 / b^2 <= 1, multiplied through by Y^2."""
-    y = np.maximum(y, np.float32(1.0))
-    du = (u - np.float32(128.0)) * np.float32(fc.y) - np.float32(fc.u - 128.0) * y
-    dv = (v - np.float32(128.0)) * np.float32(fc.y) - np.float32(fc.v - 128.0) * y
-    a2, b2 = np.float32(fc.axes[0] ** 2), np.float32(fc.axes[1] ** 2)
-    return du * du * b2 + dv * dv * a2 <= y * y * (a2 * b2)
+def _labels(green: np.ndarray, white: np.ndarray) -> np.ndarray:
+    """Class image (GREEN, WHITE, OTHER) of exclusive green and white masks."""
+    out = np.full(green.shape, OTHER, dtype=np.uint8)  # OTHER - 1 = WHITE, OTHER - 2 = GREEN
+    out -= white.view(np.uint8)
+    out -= green.view(np.uint8) << 1
+    return out
 
 
 def classify_yuv(yuv_pixels: np.ndarray, fc: FieldColour, conf: dict,
                  y_green: np.ndarray | float | None = None) -> np.ndarray:
     """Classes (GREEN, WHITE, OTHER; uint8) of YUV pixels (..., 3). ``y_green``: the local
     green luminance at each pixel (default: the frame's)."""
-    p = np.asarray(yuv_pixels).astype(np.float32)
-    y, u, v = p[..., 0], p[..., 1], p[..., 2]
-    yg = np.float32(fc.y) if y_green is None else np.asarray(y_green, dtype=np.float32)
-    white_y = np.maximum(yg + np.float32(conf["white_contrast"]) * (np.float32(255.0) - yg),
-                         np.float32(conf["white_min_y"]))
-    du, dv = u - np.float32(128.0), v - np.float32(128.0)
-    sat = np.float32(conf["white_max_saturation"])
-    white = (y >= white_y) & (du * du + dv * dv <= (sat * sat) * (y * y))
-    green = ((y >= np.float32(conf["green_min_ratio"]) * yg)
-             & (y <= np.float32(conf["green_max_ratio"]) * yg) & _green_chroma(u, v, y, fc))
-    out = np.full(y.shape, OTHER, dtype=np.uint8)
-    out[green] = GREEN
-    out[white] = WHITE
-    return out
+    p = np.asarray(yuv_pixels, dtype=np.uint8)
+    y, u, v = (np.ascontiguousarray(p[..., k]) for k in range(3))
+    thr = luminance_thresholds(fc.y if y_green is None else y_green, conf)
+    green, white = class_masks(y, u, v, fc, conf, (thr[..., WHITE_MIN_Y],
+                                                   thr[..., GREEN_MIN_Y], thr[..., GREEN_MAX_Y]))
+    return _labels(green, white)
+
+
+def classify_pixels(yuv: np.ndarray, flat: np.ndarray, block: np.ndarray | None,
+                    fc: FieldColour, conf: dict) -> np.ndarray:
+    """Classes (uint8) of the pixels ``flat`` (flat indices v * w + u) of a YUV image, whose
+    blocks of ``fc``'s local green map are ``block`` (``FieldColour.block_index``; callers
+    that classify the same pixels every frame, like the omni scan lines, compute both once).
+    Equal to ``classify_yuv`` with the local green luminance of each pixel."""
+    if np.size(flat) == 0:
+        return np.zeros(np.shape(flat), np.uint8)
+    # one gather of 4-byte pixels (YUV + a pad byte), then their planes
+    yuva = cv2.cvtColor(np.ascontiguousarray(yuv), cv2.COLOR_RGB2RGBA)
+    y, u, v = _gather_planes(yuva.reshape(-1, 4), flat)[:3]
+    thr = fc.luminance_thresholds(conf)
+    if fc.y_map is None:
+        planes = thr
+    elif thr.dtype == np.uint8:
+        packed = np.zeros(thr.shape[:2] + (4,), np.uint8)
+        packed[..., :3] = thr
+        planes = _gather_planes(packed.reshape(-1, 4), block)[:3]
+    else:
+        thr = thr.reshape(-1, 3)
+        planes = [np.take(thr[:, k], block) for k in range(3)]
+    return _labels(*class_masks(y, u, v, fc, conf, planes))
+
+
+def _gather_planes(values: np.ndarray, index: np.ndarray) -> list[np.ndarray]:
+    """The four channels of ``values`` (N, 4) uint8 at ``index``, as four contiguous arrays
+    of the shape of ``index`` (one gather of 4-byte items, then a split)."""
+    rows = np.take(values.view(np.uint32).reshape(-1), index)
+    planes = cv2.split(rows.view(np.uint8).reshape(1, -1, 4))
+    return [p.reshape(np.shape(index)) for p in planes]
+
+
+STRIP_ROWS = 64  # rows of pixels classified together (their temporaries stay in cache)
+
+
+def _strip_masks(yuv: np.ndarray, fc: FieldColour, conf: dict, valid: np.ndarray | None,
+                 rows: int, stop: int | None = None, block: int | None = None):
+    """(r0, r1, green, white) for strips of ``rows`` rows of a YUV image, down to row
+    ``stop``: the classes of ``classify_masks`` computed strip after strip, so that the
+    temporaries are small and reused instead of image-sized. ``block``: pixels of ``yuv`` per
+    block of the local green map (default ``fc.cell``; less for a subsampled image)."""
+    h, w = yuv.shape[:2]
+    stop = h if stop is None else stop
+    block = fc.cell if block is None else block
+    thr = fc.luminance_thresholds(conf)
+    if fc.y_map is not None:  # per block row, expanded to the columns: (3, block rows, w)
+        hb, wb = thr.shape[:2]
+        cols = np.minimum(np.arange(w) // block, wb - 1)
+        thr = np.ascontiguousarray(np.moveaxis(thr[:, cols], 2, 0))
+        row_block = np.minimum(np.arange(h) // block, hb - 1)
+    for r0 in range(0, stop, rows):
+        r1 = min(r0 + rows, stop)
+        y, u, v = cv2.split(yuv[r0:r1])
+        planes = thr if fc.y_map is None else np.take(thr, row_block[r0:r1], axis=1)
+        green, white = class_masks(y, u, v, fc, conf, planes)
+        if valid is not None:
+            green &= valid[r0:r1]
+            white &= valid[r0:r1]
+        yield r0, r1, green, white
+
+
+def classify_masks(yuv: np.ndarray, fc: FieldColour, conf: dict,
+                   valid: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(green, white) bool masks of every pixel of a YUV image (h, w, 3), with the local green
+    luminance of ``fc``'s block map (pixels outside ``valid`` are in neither)."""
+    h, w = yuv.shape[:2]
+    green, white = np.empty((h, w), bool), np.empty((h, w), bool)
+    for r0, r1, g, wh in _strip_masks(yuv, fc, conf, valid, STRIP_ROWS):
+        green[r0:r1], white[r0:r1] = g, wh
+    return green, white
 
 
 def classify_image(image_bgr: np.ndarray, conf: dict, valid: np.ndarray | None = None,
@@ -227,30 +433,63 @@ def classify_image(image_bgr: np.ndarray, conf: dict, valid: np.ndarray | None =
     yuv = to_yuv(image_bgr)
     if fc is None:
         fc = estimate_field_colour(yuv, conf, valid)
-    labels = classify_yuv(yuv, fc, conf, fc.local_y_image(yuv.shape))
-    if valid is not None:
-        labels[~valid] = OTHER
-    return labels, fc
+    return _labels(*classify_masks(yuv, fc, conf, valid)), fc
+
+
+def block_counts(mask: np.ndarray, cell: int = 8) -> np.ndarray:
+    """Number of True pixels per cell x cell block of a bool image (h // cell, w // cell)
+    (partial blocks at the border are dropped), uint16."""
+    h, w = mask.shape
+    hb, wb = h // cell, w // cell
+    m = mask[:hb * cell, :wb * cell].view(np.uint8)
+    if cell == 8 and m.flags.c_contiguous:
+        # the 8 bytes (0 or 1) of a block row summed by one multiplication of their uint64
+        rows = (m.view(np.uint64) * np.uint64(0x0101010101010101)) >> np.uint64(56)
+        return rows.reshape(hb, cell, wb).sum(axis=1, dtype=np.uint16)
+    area = np.float32(cell * cell)
+    mean = cv2.resize(m.astype(np.float32), (wb, hb), interpolation=cv2.INTER_AREA)
+    return np.rint(mean * area).astype(np.uint16)
 
 
 def class_counts(labels: np.ndarray, cell: int = 8) -> np.ndarray:
     """Seed 000's subsampled colour-class images: (h // cell, w // cell, 3) counts of
     GREEN, WHITE, OTHER per cell x cell block (partial blocks at the border are dropped)."""
-    h, w = labels.shape
-    hb, wb = h // cell, w // cell
-    blocks = labels[:hb * cell, :wb * cell].reshape(hb, cell, wb, cell)
-    out = np.empty((hb, wb, 3), dtype=np.uint16)
-    for c in (GREEN, WHITE, OTHER):  # three classes, not pixels
-        out[..., c] = (blocks == c).sum(axis=(1, 3))
+    return _counts(labels == GREEN, labels == WHITE, cell)
+
+
+def _counts(green: np.ndarray, white: np.ndarray, cell: int) -> np.ndarray:
+    g, wh = block_counts(green, cell), block_counts(white, cell)
+    out = np.empty(g.shape + (3,), dtype=np.uint16)
+    out[..., GREEN] = g
+    out[..., WHITE] = wh
+    out[..., OTHER] = cell * cell - g - wh
     return out
 
 
 def classify_grid(image_bgr: np.ndarray, conf: dict, valid: np.ndarray | None = None,
-                  cell: int = 8) -> tuple[np.ndarray, FieldColour]:
+                  cell: int = 8, step: int = 1) -> tuple[np.ndarray, FieldColour]:
     """Class counts per cell x cell block of a BGR image (see class_counts) and the frame's
-    field colour."""
-    labels, fc = classify_image(image_bgr, conf, valid)
-    return class_counts(labels, cell), fc
+    field colour. ``step`` > 1 classifies only every ``step``-th pixel of every ``step``-th
+    row ((cell / step)^2 pixels per cell, counts scaled by step^2; the field colour is
+    estimated as for step 1); it must divide ``cell`` and ``local_cell``."""
+    yuv = to_yuv(image_bgr)
+    fc = estimate_field_colour(yuv, conf, valid)
+    h, w = yuv.shape[:2]
+    out = np.empty((h // cell, w // cell, 3), dtype=np.uint16)
+    if step > 1:
+        if cell % step or fc.cell % step:
+            raise FieldlocError(f"colour step {step} must divide the cell ({cell} px) and the local"
+                            f" green cell ({fc.cell} px)")
+        yuv = yuv[:(h // cell) * cell:step, :(w // cell) * cell:step]
+        valid = None if valid is None else valid[:(h // cell) * cell:step,
+                                                 :(w // cell) * cell:step]
+    sub = cell // step
+    rows = max(STRIP_ROWS // sub, 1) * sub
+    for r0, r1, green, white in _strip_masks(yuv, fc, conf, valid, rows, out.shape[0] * sub,
+                                             fc.cell // step):
+        counts = _counts(green, white, sub)
+        out[r0 // sub: r1 // sub] = counts if step == 1 else counts * (step * step)
+    return out, fc
 
 
 def hue_deg(u, v) -> np.ndarray:

@@ -50,6 +50,9 @@ confs = {
     "default": {
         "cell": 8,  # px per subsampled cell (the seed's 94 x 60 grid for 752 x 480)
         "colour": copy.deepcopy(colour.confs["default"]),
+        # classify every colour_step-th pixel of every colour_step-th row (1: all 64 pixels of
+        # a cell, as the seed; 2: 16 per cell, counts scaled, see colour.classify_grid)
+        "colour_step": 1,
         # unreliable corners of the wide-angle lens: cells farther from the image centre than
         # this share of the half diagonal lose their white (the boundary scan keeps them)
         "corner_radius": 0.95,
@@ -236,7 +239,8 @@ def _empty(n: int) -> np.ndarray:
 def colour_shares(image_bgr: np.ndarray, conf: dict) -> dict[str, np.ndarray]:
     """Step 1: the subsampled colour-class images as counts (0..cell^2) per class name."""
     cell = conf["cell"]
-    counts, _ = colour.classify_grid(image_bgr, conf["colour"], None, cell)
+    counts, _ = colour.classify_grid(image_bgr, conf["colour"], None, cell,
+                                     int(conf.get("colour_step", 1)))
     return {name: counts[..., i] for i, name in enumerate(colour.CLASS_NAMES)}
 
 
