@@ -1,56 +1,89 @@
 """Method ``lut``: localisation in the scan-line tables of seed 002, frame by frame.
 
+The matching is the seed's (lut_search.py): per observed crossing distance the error to the
+table entry of its scan line, weighted by rho(e) = 1 - c^2 / (c^2 + e^2), nearer points weighing
+more. What this module decides is whether a fix is accepted, failed, or means the robot is
+lost. Those decisions do not threshold the mean error e_norm: a frame whose line points are
+70 % clutter (a white cable on the carpet, sticks, feet, reflections) has a high e_norm at its
+true pose although the field lines in it fix the pose well, while a wrong pose can score a
+*lower* e_norm by fitting the clutter to some other line. They rest instead on
+
+- the inliers of the fix (lut_search.Support): observations within ``inlier_error`` (c / 2) of
+  their predicted crossing, their number and share of the frame's observations;
+- distinctness: a fix from a global search must beat every rival minimum farther than
+  ``ambiguity_distance`` by ``distinct_margin`` in the error term (units of full-weight
+  observations): a second minimum far away with nearly the same score makes the frame
+  ambiguous, and it fails;
+- agreement with the odometry while tracking: the fix must lie in the gate around the prior
+  (``gate_sigmas`` times the prior's position sigma from the fusion, at least ``min_gate``).
+
 Per frame:
 
-1. observations: the frame's radial (72, 4) and spiral (2, 72) crossing distances;
-   fewer than ``min_observations`` -> the frame fails;
+1. observations: the frame's radial (72, 4) and spiral (2, 72) crossing distances; fewer than
+   ``min_observations`` -> the frame fails (too-few-observations), the track is kept;
 2. heading (``heading``): ``imu`` (imu.csv yaw aligned to the field, see heading.py),
    ``histogram`` (line-point histograms within +-40 deg of the last heading moved by the
    odometry's turn; accepted when sharp and within ``histogram_gate`` of that prediction),
    or ``truth`` (truth.csv, for ablations). With no heading yet (histogram on the first frame
    or after more than ``max_predicted_frames`` failures, imu with ``imu_alignment: vision``
    before the first fix) the unknown-heading global search (all 72 headings) finds pose and
-   heading; such a fix must stand out from its runners-up other than the mirror pose
-   (``unknown_heading_distinct``) or the frame fails as ambiguous;
-3. search: on the first frame and whenever lost, global search over all cells; otherwise
-   the prior is the previous pose moved by the odometry (on IMU collision frames by the last
-   fused motion instead), and a local search in a ``window`` x ``window`` m square around it.
-   A local fix is doubtful when its normalised error exceeds ``lost_error`` or its minimum
-   lies on the window's edge; after ``lost_frames`` doubtful fixes in a row a global search
-   runs and replaces the local fix if better (if the local error is acceptable, only if below
-   ``relocalise_ratio`` times it: a flat error surface along the only line in view also puts
-   the minimum on the edge, and one ambiguous frame must not make the track jump);
-4. a fix whose normalised error exceeds ``fail_error`` is a failure: the frame is recorded as
-   failed (no pose) and the next frame searches globally (a frame with too few crossings
-   fails without losing the track: the prior moves on with the odometry for up to
-   ``max_predicted_frames`` frames); a global search needs
-   ``min_global_observations`` crossings (fewer fit too many places of a symmetric field)
-   and its fix an error below ``global_max_error`` (cluttered frames fit anywhere a little):
-   when lost, a frame with fewer fails; when tracking, the local fix is kept;
-5. fusion (``fusion.enabled``): the vision fix and the odometry in the decentralised Kalman
+   heading, accepted like a global fix (below) with the rivals other than its mirror pose;
+3. search. Lost (first frame, more than ``max_predicted_frames`` failed frames in a row, or a
+   prior so uncertain that ``gate_sigmas`` of its sigma exceed half the window):
+   global search, accepted only with at least ``min_global_inliers`` inliers, an inlier share
+   of at least ``min_global_inlier_share`` and distinct from its rivals (failure reasons
+   too-few-inliers, ambiguous). Tracking: the prior is the previous pose moved by the odometry
+   (on IMU collision frames by the last fused motion), its covariance the fusion's prediction;
+   the seed's local search in a ``window`` x ``window`` m square around it. Its minimum is the
+   fix when it passes the gate: its Mahalanobis distance from the prior under the prior's and
+   the fix's covariances (the Kalman innovation) at most ``gate_sigmas`` (a fix seeing one
+   line passes anywhere along it). Otherwise (the odometry says the robot cannot have jumped
+   to that minimum) the fix is the basin the prior lies in, found by descent from the prior's
+   cell, and when that fails the gate too there is no fit near the prior (no-fit-near-prior).
+   The fix needs ``min_inliers`` inliers and an inlier share of ``min_inlier_share``
+   (too-few-inliers). A rejected tracking fix makes
+   a global search run on the same frame: its fix is taken when it passes the global tests (a
+   clear frame after a wrong track), else the frame fails and the prior moves on with the
+   odometry. A window minimum outside the gate that passes the global support tests and beats
+   the tracked fix by ``distinct_margin`` contests the track; after ``lost_frames`` contested
+   frames in a row a global search that passes the global tests replaces it (flag
+   relocalised);
+4. fusion (``fusion.enabled``): the vision fix and the odometry in the decentralised Kalman
    filter (kalman.py); odometry is not fused on IMU collision frames. The fused pose is the
-   frame's pose; after a global search that jumped away from the track the filter restarts at
+   frame's pose; after a global fix that jumped away from the track the filter restarts at
    the fix.
 
+``start_half`` (own | opponent | any): where the robot is when the first fix is made, which
+resolves the 180 deg mirror ambiguity of a symmetric field for the unknown-heading search
+(histogram heading, ``imu_alignment: vision``): own = x < 0 (the field's +x points at the
+opponent goal), opponent = x > 0. When the first fix lies on the other half and its mirror pose
+fits as well (within ``distinct_margin``), the mirror pose is taken (flag start-half); with
+``any`` such a fix is flagged mirror-ambiguous and kept. Later re-localisations with unknown
+heading pick the mirror candidate nearest the old track's heading.
+
 Recorded per frame: pose, ``error`` = the normalised error term e_norm in [0, 1) of the fix
-(lut_search), ``confidence`` = (1 - e_norm / fail_error) * min(1, observations /
-full_observations), ``mode`` (global, global-heading, local; ``failed`` with a reason), runtime,
+(lut_search; reported, not used to decide), ``confidence`` = inlier share * min(1, inliers /
+``full_inliers``), ``mode`` (global, global-heading, local; ``failed`` with a reason), runtime,
 fused covariance, and flags: collision (IMU flag); heading-vision (the heading source could not
 be used, IMU yaw on a collision frame or a histogram without straight lines, so the search
 refined the heading itself); heading-unsure (that vision heading was not pinned down either, the
-predicted heading was kept with ``unsure_heading_sigma``); window-edge; mirror-ambiguous (an
-unknown-heading fix whose mirror pose fits as well: on a symmetric field no image can tell the
-halves apart, the first fix picks one); failure reasons too-few-observations,
-too-few-observations-to-relocalise, error-too-high, ambiguous, no-imu-row, no-truth-heading.
+predicted heading was kept with ``unsure_heading_sigma``); window-edge (the seed window's
+minimum lay on its edge); outside-gate (the window's minimum lay outside the gate, the fix is
+the minimum inside it); relocalised; mirror-ambiguous; start-half; failure reasons
+too-few-observations, too-few-inliers, no-fit-near-prior, ambiguous (each after a failed
+global attempt, flagged global-too-few-inliers / global-ambiguous), no-imu-row,
+no-truth-heading.
 
 Vision covariance for the fusion: the quadratic fit of the error surface at the fix gives its
-Hessian H (of e_norm, m^-2); a well-constrained fix has H ~ I / c^2 (every observation's error
-grows with the displacement along its scan line). The position covariance is
-``vision_sigma_xy``^2 * (1/c^2) * H^-1, with H's eigenvalues clipped from below at 0.2 % of 1/c^2
-(a fix seeing only parallel lines is uncertain along them), scaled by (1 + e_norm / 0.1) and
-capped at 1 m. The heading variance is that of the heading source (``imu_sigma``,
-``histogram_sigma``, ``truth_sigma``) or, for a heading refined by the search, from the
-curvature of the error term over the heading.
+Hessian H (of e_norm, m^-2); a well-constrained fix seen without clutter has H ~ I / c^2 (every
+observation's error grows with the displacement along its scan line). The position covariance
+is ``vision_sigma_xy``^2 * (1/c^2) * H^-1, with H's eigenvalues clipped from below at 0.2 % of
+1/c^2 (a fix seeing only parallel lines is uncertain along them), scaled by (1 + inlier_rho /
+0.05) (how tightly the inliers fit) and capped at 1 m. Clutter flattens H by the outliers' share
+of the weight (they lie on rho's flat tail), so a cluttered fix is trusted less in proportion.
+The heading variance is that of the heading source (``imu_sigma``, ``histogram_sigma``,
+``truth_sigma``) or, for a heading refined by the search, from the curvature of the error term
+over the heading.
 """
 
 from __future__ import annotations
@@ -67,7 +100,7 @@ from ..common.map_file import MapFile
 from ..common.poses_file import PoseTrack
 from . import heading as heading_mod
 from .kalman import DecentralisedFusion, FusionParams
-from .lut_search import MatchingParams, Observation, TableSearch
+from .lut_search import MatchingParams, Observation, SearchResult, Support, TableSearch
 
 log = logging.getLogger(__name__)
 
@@ -75,6 +108,8 @@ confs = {
     "default": {
         "heading": "imu",  # imu | histogram | truth
         "imu_alignment": "field",  # field: imu yaw is field-aligned (+ small bias) | vision
+        "start_half": "any",  # own (x < 0) | opponent (x > 0) | any: the half of the first
+        # fix, resolves the mirror ambiguity of the unknown-heading search (module doc)
         "imu_sigma": 0.01,  # rad, IMU heading noise for the fusion
         "imu_offset_every": 5,  # frames between vision updates of the IMU offset (0: never)
         "histogram_window": math.radians(40.0),  # rad, +- around the last heading
@@ -84,29 +119,38 @@ confs = {
         "histogram_score": "peak",  # peak (seed 002) | energy (sum of squared bin counts)
         "histogram_min_sharpness": 1.7,  # best score / mean score; below: heading by vision
         "histogram_gate": 0.15,  # rad, largest accepted deviation from the predicted heading
-        "max_predicted_frames": 10,  # failed frames in a row over which the heading is kept
+        "max_predicted_frames": 30,  # failed frames in a row over which the track is kept
+        # (sooner lost when the prior's gate outgrows the window)
         "truth_sigma": 0.001,  # rad
         "vision_heading_max_sigma": math.radians(2.4),  # rad, a vision heading less sure than
         # this is not used (collision frames, histogram without straight lines)
         "unsure_heading_sigma": 0.1,  # rad, heading noise for the fusion on such frames
         "stamp_tolerance": 0.02,  # s, imu/truth row to frame matching
         "window": 2.0,  # m, side of the local search square (seed 002: 4 m^2)
-        "global_candidates": 3,  # separated minima refined in a global search
+        "global_candidates": 8,  # separated minima of a global search compared as rivals
         "unknown_heading_candidates": 8,  # (heading, cell) candidates refined
-        "unknown_heading_distinct": 1.3,  # runners-up (but the mirror) must have this many
-        # times the error of an unknown-heading fix, or the frame is ambiguous and fails
         "min_observations": 8,  # fewer crossings: the frame fails
-        "full_observations": 40,  # crossings for full confidence
-        "min_global_observations": 40,  # fewer: too ambiguous for a global fix (frame fails
-        # when lost, the track is kept when tracking)
-        "lost_error": 0.3,  # e_norm above which a local fix triggers a global search
-        "fail_error": 0.5,  # e_norm above which the frame fails
-        "global_max_error": 0.2,  # e_norm above which a global fix is not trusted (a jump
-        # needs a clear fit; tracking tolerates up to fail_error, the prior constrains it)
-        "lost_frames": 3,  # doubtful local fixes in a row before a global search
-        "relocalise_ratio": 0.6,  # a global fix replaces an acceptable local one (e_norm below
-        # lost_error, minimum on the window edge) only when its e_norm is below this fraction
-        "mirror_margin": 0.1,  # relative error difference under which a mirror is ambiguous
+        "inlier_error": 0.125,  # m, an observation within this of its predicted crossing is
+        # an inlier of the fix (c / 2: rho = 0.2)
+        "min_inliers": 10,  # tracking: fewer inliers at the fix and the frame fails
+        "min_inlier_share": 0.1,  # tracking: smaller share of inliers and the frame fails
+        "min_global_inliers": 15,  # a global fix (no prior) needs this many inliers ...
+        "min_global_inlier_share": 0.5,  # ... and this share of the observations
+        "ambiguity_distance": 1.0,  # m, minima farther apart than this are rivals
+        "distinct_ratio": 1.5,  # a global fix's rivals must have this many times its error
+        "distinct_margin": 1.5,  # ... and this much more in error-term units (full-weight
+        # observations); a mirror pose that is not distinct is mirror-ambiguous. Or:
+        "dominance_unique": 6,  # the fix explains at least this many observations the rival
+        "dominance_ratio": 4.0,  # does not, and this many times as many as the rival explains
+        # that the fix does not
+        "second_explanation": 0.4,  # a global fix fails as ambiguous when one pose explains
+        # this share of its inliers' count (at least min_global_inliers) among its outliers
+        "unknown_heading_ratio": 2.0,  # distinct_ratio of an unknown-heading fix (72 times the
+        # poses to choose from; no dominance: its rivals are too few to hold the true pose)
+        "gate_sigmas": 3.0,  # tracking: the fix must lie this many prior sigmas from the prior
+        "min_gate": 0.3,  # m, smallest gate radius
+        "lost_frames": 3,  # contested tracked fixes in a row before a global search
+        "full_inliers": 40,  # inliers for full confidence
         "vision_sigma_xy": 0.02,  # m, noise of a well-constrained fix (tuned on rendered sets)
         "search": {
             "c": 0.25,  # m, scale of 1 - c^2 / (c^2 + e^2)
@@ -126,6 +170,7 @@ confs["no-fusion"] = {**confs["default"], "fusion": {**confs["default"]["fusion"
                                                        "enabled": False}}
 
 HEADING_SOURCES = ("imu", "histogram", "truth")
+START_HALVES = ("own", "opponent", "any")
 
 _SEARCH_CACHE: dict = {}
 
@@ -144,7 +189,8 @@ def table_search(map_file: MapFile, params: MatchingParams) -> TableSearch:
     return _SEARCH_CACHE[key]
 
 
-def vision_covariance(result, conf: dict, heading_sigma: float) -> np.ndarray:
+def vision_covariance(result: SearchResult, support: Support, conf: dict,
+                      heading_sigma: float) -> np.ndarray:
     """Covariance (3, 3) of a fix for the fusion (see the module doc)."""
     c = float(conf["search"]["c"])
     ref = 1.0 / (c * c)
@@ -156,11 +202,16 @@ def vision_covariance(result, conf: dict, heading_sigma: float) -> np.ndarray:
         cxy = (vecs / vals) @ vecs.T * ref * conf["vision_sigma_xy"] ** 2
     else:
         cxy = np.eye(2) * 1.0
-    cxy *= 1.0 + result.error_norm / 0.1
+    cxy *= 1.0 + support.inlier_rho / 0.05
     vals, vecs = np.linalg.eigh(cxy)
     cov[:2, :2] = (vecs * np.minimum(vals, 1.0)) @ vecs.T
     cov[2, 2] = heading_sigma**2
     return cov
+
+
+def fix_confidence(support: Support, conf: dict) -> float:
+    """Inlier share * min(1, inliers / full_inliers), in [0, 1]."""
+    return float(support.inlier_share * min(1.0, support.inliers / conf["full_inliers"]))
 
 
 def _check_conf(conf: dict, dataset):
@@ -169,6 +220,9 @@ def _check_conf(conf: dict, dataset):
             f"unknown heading source '{conf['heading']}' (use {', '.join(HEADING_SOURCES)})")
     if conf["imu_alignment"] not in ("field", "vision"):
         raise FieldlocError("imu_alignment must be 'field' or 'vision'")
+    if conf["start_half"] not in START_HALVES:
+        raise FieldlocError(
+            f"start_half must be one of {', '.join(START_HALVES)}, not '{conf['start_half']}'")
     need = {"imu": "imu", "truth": "truth"}.get(conf["heading"])
     if need and (dataset is None or dataset.optional(need) is None):
         where = dataset.root if dataset is not None else "the dataset"
@@ -196,22 +250,26 @@ class LutLocaliser:
         self.use_fusion = bool(conf["fusion"]["enabled"])
         self.half = 0.5 * float(conf["window"])
         self.lost = True
+        self.fixed_once = False  # whether any frame was localised (start_half applies before)
         self.failures_in_row = 0
-        self.doubtful_in_row = 0  # local fixes in a row on the window edge or above lost_error
+        self.contested_in_row = 0  # tracked fixes in a row with a clearly better rival
         self.last_pose = None  # last recorded pose (fused or vision)
 
     def failed(self, dt: float, odo, collision: bool, reason: str):
-        """Book-keeping for a failed frame: the fusion only predicts. A frame that did not fit
-        (error too high) means lost; one that saw too little keeps the track (moved by the
-        odometry) for up to ``max_predicted_frames`` frames."""
+        """Book-keeping for a failed frame: the fusion only predicts, the track moves on with
+        the odometry for up to ``max_predicted_frames`` failed frames in a row (or until the
+        prior outgrows the window, see _search), then the robot is lost (global search
+        only)."""
         self.failures_in_row += 1
-        if reason == "error-too-high" or self.failures_in_row > self.conf["max_predicted_frames"]:
+        self.contested_in_row = 0
+        if self.failures_in_row > self.conf["max_predicted_frames"]:
             self.lost = True
         if self.use_fusion:
             self.fusion.step(dt, odo, collision, None)
 
     def frame(self, i: int, fr: dict, dt: float, odo, flags: list):
-        """Localise frame i; returns (result, pose, covariance) or raises FrameFailed."""
+        """Localise frame i; returns (result, support, pose, covariance) or raises
+        FrameFailed."""
         conf, search = self.conf, self.search
         sl = search.scanlines
         col = bool(self.collision[i])
@@ -220,11 +278,9 @@ class LutLocaliser:
                                          sl.robot_radius)
         if len(obs) < conf["min_observations"]:
             raise FrameFailed("too-few-observations")
-        prior_pose = _prior(self.fusion if self.use_fusion else None, self.last_pose, odo, col)
+        prior_pose, prior_cov = self._prior(dt, odo, col)
         theta, vision_heading = self._heading(i, fr, obs, prior_pose, col, flags)
-        r = self._search(i, obs, theta, prior_pose, flags)
-        if r is None or r.error_norm > conf["fail_error"]:
-            raise FrameFailed("error-too-high")
+        r, sup = self._search(i, obs, theta, prior_pose, prior_cov, flags)
         heading_sigma = self.heading_sigma
         if vision_heading:
             # the search's own heading, when the error term pins it down (seeing only the
@@ -234,27 +290,74 @@ class LutLocaliser:
             if rh.error <= r.error and sigma <= conf["vision_heading_max_sigma"]:
                 rh.mode, rh.at_window_edge = r.mode, r.at_window_edge
                 r = rh
+                sup = search.support(obs, r, conf["inlier_error"])
                 heading_sigma = sigma
             else:  # keep the predicted (histogram) or jolted (IMU) heading, trusted little
                 heading_sigma = conf["unsure_heading_sigma"]
                 flags.append("heading-unsure")
         if r.mode == "global-heading":
             heading_sigma = conf["histogram_sigma"]
-        self._track_imu_offset(i, obs, r, col)
+        self._track_imu_offset(i, obs, r, sup, col)
 
-        R = vision_covariance(r, conf, heading_sigma)
+        R = vision_covariance(r, sup, conf, heading_sigma)
         pose, cov = r.pose, R
         if self.use_fusion:
             f = self.fusion
             if r.mode != "local" and f.state is not None:
-                if np.hypot(*(f.state.mean[:2] - r.pose[:2])) > 3 * self.half:
+                if self._innovation(r, R, prior_pose, prior_cov) > self.conf["gate_sigmas"]:
                     f.state = None  # the track was wrong: restart at the fix
             est = f.step(dt, odo, col, (r.pose, R))
             pose, cov = est.mean, est.cov
         self.lost = False
+        self.fixed_once = True
         self.failures_in_row = 0
         self.last_pose = np.asarray(pose, float)
-        return r, pose, cov, len(obs)
+        return r, sup, pose, cov
+
+    # ------------------------------------------------------------------ prior and heading
+    def _prior(self, dt: float, odo, col: bool):
+        """(prior pose or None, its position covariance (2, 2) or None): the previous pose
+        moved by the odometry (by the last fused motion on collision frames or without
+        odometry), the covariance from the fusion's prediction (without fusion: ``min_gate``
+        / ``gate_sigmas`` growing with the failed frames in a row)."""
+        f = self.fusion
+        if self.use_fusion and f.state is not None:
+            if odo is not None and not col:
+                pose = f.odometry_prior(odo)
+                cov = f.odometry_posterior(np.asarray(odo, float), dt).cov
+            else:
+                pred = f.model_prediction(dt)
+                pose, cov = compose(f.state.mean, f.last_motion), pred.cov
+            return pose, np.asarray(cov, float)[:2, :2]
+        if self.last_pose is None:
+            return None, None
+        pose = compose(self.last_pose, odo) if odo is not None and not col else self.last_pose
+        s = self.conf["min_gate"] / self.conf["gate_sigmas"] * math.sqrt(1 + self.failures_in_row)
+        return np.asarray(pose, float).copy(), np.eye(2) * s * s
+
+    def _gate_radius(self, prior_cov) -> float:
+        """Half-width (m) of the search square around the prior when the window's minimum
+        fails the gate: ``gate_sigmas`` times the prior's largest position sigma, at least
+        ``min_gate``, at most half the window."""
+        return float(min(max(self.conf["min_gate"],
+                             self.conf["gate_sigmas"] * self._prior_sigma(prior_cov)), self.half))
+
+    @staticmethod
+    def _prior_sigma(prior_cov) -> float:
+        """Largest position standard deviation (m) of the prior."""
+        return math.sqrt(max(float(np.linalg.eigvalsh(prior_cov)[-1]), 0.0))
+
+    def _innovation(self, fix: SearchResult, R: np.ndarray, prior_pose, prior_cov) -> float:
+        """Mahalanobis distance of a fix's position from the prior under the sum of the prior's
+        and the fix's covariances (the Kalman innovation): a fix along the only line in view is
+        uncertain along it and passes wherever the search put it on the line; a minimum in
+        another basin does not."""
+        d = np.array([fix.x - prior_pose[0], fix.y - prior_pose[1]])
+        floor = self.conf["min_gate"] / self.conf["gate_sigmas"]  # against overconfidence:
+        # a fix within min_gate of the prior always passes (clutter can bias a fix by 10 cm)
+        S = (np.asarray(prior_cov, float) + np.asarray(R, float)[:2, :2]
+             + np.eye(2) * floor * floor)
+        return float(math.sqrt(max(d @ np.linalg.solve(S, d), 0.0)))
 
     def _heading(self, i, fr, obs, prior_pose, col, flags):
         """(heading or None if unknown, whether the search should refine it by vision)."""
@@ -289,55 +392,208 @@ class LutLocaliser:
         flags.append("heading-vision")  # no straight lines seen (e.g. only the centre circle)
         return float(prior_pose[2]), True
 
-    def _search(self, i, obs, theta, prior_pose, flags):
-        conf, search = self.conf, self.search
+    # ------------------------------------------------------------------ searches
+    def _search(self, i, obs, theta, prior_pose, prior_cov, flags):
+        """(fix, its support) or FrameFailed."""
         if theta is None:
-            if len(obs) < conf["min_global_observations"]:
-                raise FrameFailed("too-few-observations-to-relocalise")
-            r = search.unknown_heading_search(obs, candidates=conf["unknown_heading_candidates"])
-            if r.error_norm > conf["global_max_error"]:
-                raise FrameFailed("error-too-high")
-            if not _distinct(r, conf["mirror_margin"], conf["unknown_heading_distinct"]):
-                raise FrameFailed("ambiguous")
-            if _mirror_ambiguous(r, conf["mirror_margin"]):
-                if prior_pose is not None:  # an old track, however stale, picks the half
-                    r = _nearest_heading_candidate(search, obs, r, float(prior_pose[2]),
-                                                   conf["mirror_margin"])
-                else:
-                    flags.append("mirror-ambiguous")
-            if conf["heading"] == "imu":
-                var = max(math.radians(1.5) ** 2, conf["imu_sigma"] ** 2)
-                self.alignment.initialise(r.theta, float(self.yaw[i]), var)
-            return r
+            return self._unknown_heading(i, obs, prior_pose, flags)
+        if prior_pose is not None and self._prior_sigma(prior_cov) * self.conf[
+                "gate_sigmas"] > self.half:
+            self.lost = True  # the window no longer covers where the robot may be
         if self.lost or prior_pose is None:
-            if len(obs) < conf["min_global_observations"]:
-                raise FrameFailed("too-few-observations-to-relocalise")
-            g = search.global_search(obs, theta, candidates=conf["global_candidates"])
-            if g.error_norm > conf["global_max_error"]:
-                raise FrameFailed("error-too-high")
-            return g
-        r = search.local_search(obs, theta, prior_pose[:2], half_width=self.half)
-        doubtful = r.at_window_edge or r.error_norm > conf["lost_error"]
-        self.doubtful_in_row = self.doubtful_in_row + 1 if doubtful else 0
-        if (self.doubtful_in_row >= conf["lost_frames"]
-                and len(obs) >= conf["min_global_observations"]):
-            # lost? a global fix replaces the local one only when better (clearly better when
-            # the local error is acceptable: a flat error surface along the only line in view
-            # also puts the local minimum on the window's edge)
-            g = search.global_search(obs, theta, candidates=conf["global_candidates"])
-            ratio = 1.0 if r.error_norm > conf["lost_error"] else conf["relocalise_ratio"]
-            if g.error_norm < ratio * r.error_norm and g.error_norm <= conf["global_max_error"]:
-                r = g
-                self.doubtful_in_row = 0
-        if r.mode == "local" and r.at_window_edge:
-            flags.append("window-edge")
-        return r
+            g, sup, why = self._global(obs, theta)
+            if why:
+                raise FrameFailed(why)
+            return g, sup
+        return self._track(obs, theta, prior_pose, prior_cov, flags)
 
-    def _track_imu_offset(self, i, obs, r, col):
+    def _global(self, obs, theta):
+        """Global search with a known heading: (fix, support, None) when it passes the global
+        tests, else (fix, support, failure reason)."""
+        conf = self.conf
+        g = self.search.global_search(obs, theta, candidates=conf["global_candidates"],
+                                      separation=conf["ambiguity_distance"])
+        sup = self.search.support(obs, g, conf["inlier_error"])
+        why = self._global_support_failure(sup)
+        if why is None:
+            rivals = [c for c in g.candidates
+                      if math.hypot(c[0] - g.x, c[1] - g.y) > conf["ambiguity_distance"]]
+            if not self._distinct(g, rivals, obs) or self._second_explanation(obs, g, sup):
+                why = "ambiguous"
+        return g, sup, why
+
+    def _second_explanation(self, obs, fix: SearchResult, sup: Support) -> bool:
+        """Whether the observations the fix leaves unexplained hold another consistent view:
+        a global search (at the fix's heading) over the fix's outliers finds a pose with at
+        least ``second_explanation`` times the fix's inliers among them (and at least
+        ``min_global_inliers``). Clutter near the robot (a cable) weighs more than the far
+        field lines, so a pose fitting the clutter to some line can win a frame; the field
+        lines it leaves out then fit the true pose, which the global search's runners-up,
+        ranked on all observations, need not hold."""
+        conf, search = self.conf, self.search
+        need = max(conf["min_global_inliers"], conf["second_explanation"] * sup.inliers)
+        _e, inl = search.inliers(obs, fix.x, fix.y, fix.theta, conf["inlier_error"])
+        rest = obs.subset(~inl)
+        if len(rest) < need:
+            return False
+        g = search.global_search(rest, fix.theta, candidates=1)
+        return search.support(rest, g, conf["inlier_error"]).inliers >= need
+
+    def _global_support_failure(self, sup: Support):
+        conf = self.conf
+        if (sup.inliers < conf["min_global_inliers"]
+                or sup.inlier_share < conf["min_global_inlier_share"]):
+            return "too-few-inliers"
+        return None
+
+    def _distinct(self, fix: SearchResult, rivals, obs, *, ratio=None, dominance=True) -> bool:
+        """Whether the fix stands out from every rival (x, y, theta, error_norm): the rival's
+        e_norm at least ``distinct_ratio`` (or ``ratio``) times the fix's (computed alike) and
+        above it by ``distinct_margin`` in the error term, or (with ``dominance``) the fix
+        dominates the rival: it explains
+        ``dominance_unique`` observations the rival does not, and ``dominance_ratio`` times as
+        many as the rival explains that it does not (a rival along the only line in view
+        explains a subset of what the fix explains; the true pose as a rival of a fix made of
+        clutter explains lines the fix does not)."""
+        conf, search = self.conf, self.search
+        ref = fix.candidate_error_norm if np.isfinite(fix.candidate_error_norm) \
+            else fix.error_norm
+        fix_inliers = None
+        for x, y, th, e in rivals:
+            if self._beats(ref, e, obs, ratio):
+                continue
+            if not dominance:
+                return False
+            if fix_inliers is None:
+                fix_inliers = search.inliers(obs, fix.x, fix.y, fix.theta,
+                                             conf["inlier_error"])[1]
+            rival_inliers = search.inliers(obs, x, y, th, conf["inlier_error"])[1]
+            own = int(np.sum(fix_inliers & ~rival_inliers))
+            theirs = int(np.sum(rival_inliers & ~fix_inliers))
+            if own < conf["dominance_unique"] or own < conf["dominance_ratio"] * theirs:
+                return False
+        return True
+
+    def _beats(self, e_fix: float, e_rival: float, obs, ratio=None) -> bool:
+        """Whether e_norm ``e_fix`` is distinctly lower than ``e_rival`` (see _distinct)."""
+        conf = self.conf
+        ratio = conf["distinct_ratio"] if ratio is None else ratio
+        return (e_rival >= ratio * e_fix
+                and (e_rival - e_fix) * obs.total_weight >= conf["distinct_margin"])
+
+    def _gated(self, obs, fix, prior_pose, prior_cov):
+        """(support, innovation) of a tracked fix."""
+        sup = self.search.support(obs, fix, self.conf["inlier_error"])
+        R = vision_covariance(fix, sup, self.conf, self.heading_sigma)
+        return sup, self._innovation(fix, R, prior_pose, prior_cov)
+
+    def _track(self, obs, theta, prior_pose, prior_cov, flags):
+        """Local search around the prior, gated by the odometry (module doc, step 3)."""
+        conf, search = self.conf, self.search
+        gate = conf["gate_sigmas"]
+        w = search.local_search(obs, theta, prior_pose[:2], half_width=self.half)
+        if w.at_window_edge:
+            flags.append("window-edge")
+        why = None
+        fix = w
+        sup, d = self._gated(obs, w, prior_pose, prior_cov)
+        if d > gate:  # the window's minimum is where the robot cannot be: the basin the prior
+            # lies in (descent from the prior's cell, at most the gate radius far)
+            flags.append("outside-gate")
+            steps = math.ceil(self._gate_radius(prior_cov) / search.grid.resolution)
+            fix = search.refine(obs, search.grid.cell_of(prior_pose[0], prior_pose[1]), theta,
+                                max_moves=steps)
+            sup, d = self._gated(obs, fix, prior_pose, prior_cov)
+            if d > gate:
+                why = "no-fit-near-prior"
+        if why is None and (sup.inliers < conf["min_inliers"]
+                            or sup.inlier_share < conf["min_inlier_share"]):
+            why = "too-few-inliers"
+        if why is not None:
+            # a clear frame after a wrong track: a global fix that passes the global tests
+            g, gsup, gwhy = self._global(obs, theta)
+            if gwhy is None:
+                self.contested_in_row = 0
+                return g, gsup
+            flags.append(f"global-{gwhy}")
+            raise FrameFailed(why)
+        fix.mode = "local"
+        # a clearly better minimum outside the gate, good enough for a global fix, contests
+        # the track; after lost_frames such frames a passing global search replaces it
+        contested = False
+        if fix is not w:
+            wsup = search.support(obs, w, conf["inlier_error"])
+            contested = (self._global_support_failure(wsup) is None
+                         and self._beats(w.error_norm, fix.error_norm, obs))
+        self.contested_in_row = self.contested_in_row + 1 if contested else 0
+        if self.contested_in_row >= conf["lost_frames"]:
+            self.contested_in_row = 0
+            g, gsup, gwhy = self._global(obs, theta)
+            if gwhy is None and math.hypot(g.x - fix.x, g.y - fix.y) > conf["ambiguity_distance"]:
+                flags.append("relocalised")
+                return g, gsup
+        return fix, sup
+
+    def _unknown_heading(self, i, obs, prior_pose, flags):
+        """Unknown-heading global search: accepted like a global fix, its rivals all
+        candidates but the same pose and the mirror pose; the mirror ambiguity resolved by
+        ``start_half`` on the first fix, by the old track's heading later."""
+        conf, search = self.conf, self.search
+        r = search.unknown_heading_search(obs, candidates=conf["unknown_heading_candidates"])
+        sup = search.support(obs, r, conf["inlier_error"])
+        why = self._global_support_failure(sup)
+        if why:
+            raise FrameFailed(why)
+        rivals = [c for c in r.candidates if not (_near_pose(c, r.pose)
+                                                  or _near_pose(c, _mirror(r.pose)))]
+        ratio = conf["unknown_heading_ratio"]
+        if (not self._distinct(r, rivals, obs, ratio=ratio, dominance=False)
+                or self._second_explanation(obs, r, sup)):
+            raise FrameFailed("ambiguous")
+        mirrors = [c for c in r.candidates if _near_pose(c, _mirror(r.pose))
+                   and not self._beats(r.error_norm, c[3], obs, ratio)]
+        if conf["start_half"] != "any" and not self.fixed_once:
+            r = self._on_start_half(obs, r, flags)
+            sup = search.support(obs, r, conf["inlier_error"])
+        elif mirrors:
+            if prior_pose is not None:  # an old track, however stale, picks the half
+                e_fix = r.error_norm
+                r = _nearest_heading_candidate(
+                    search, obs, r, float(prior_pose[2]),
+                    lambda e: not self._beats(e_fix, e, obs, ratio))
+                sup = search.support(obs, r, conf["inlier_error"])
+            else:
+                flags.append("mirror-ambiguous")
+        if conf["heading"] == "imu":
+            var = max(math.radians(1.5) ** 2, conf["imu_sigma"] ** 2)
+            self.alignment.initialise(r.theta, float(self.yaw[i]), var)
+        return r, sup
+
+    def _on_start_half(self, obs, r: SearchResult, flags) -> SearchResult:
+        """The fix or its mirror pose, whichever lies on ``start_half``, when the mirror fits
+        as well (within ``distinct_margin``)."""
+        want_negative = self.conf["start_half"] == "own"
+        if (r.x < 0) == want_negative:
+            return r
+        mx, my, mth = _mirror(r.pose)
+        m = self.search.refine(obs, self.search.grid.cell_of(mx, my), mth)
+        if self._beats(r.error_norm, m.error_norm, obs, self.conf["unknown_heading_ratio"]):
+            flags.append("start-half-contradicted")  # an asymmetric field: the fix stands
+            return r
+        m.mode = r.mode
+        m.candidates = r.candidates
+        m.candidate_error_norm = m.error_norm
+        flags.append("start-half")
+        return m
+
+    def _track_imu_offset(self, i, obs, r, sup, col):
         """Update the IMU offset from the vision heading every ``imu_offset_every`` frames (every
-        frame while the offset is uncertain, above 0.5 deg)."""
+        frame while the offset is uncertain, above 0.5 deg), on tracked frames clean enough for
+        a global fix (clutter can tilt the vision heading)."""
         every = int(self.conf["imu_offset_every"])
         if self.conf["heading"] != "imu" or every <= 0 or col or r.mode != "local":
+            return
+        if sup.inlier_share < self.conf["min_global_inlier_share"]:
             return
         if i % every and self.alignment.variance < math.radians(0.5) ** 2:
             return
@@ -389,17 +645,16 @@ def run(conf: dict, dataset, features, map_file: MapFile, progress=False) -> Pos
         try:
             if fr is None:
                 raise FrameFailed(reason)
-            r, pose, cov, n_obs = loc.frame(i, fr, dt, odo, flags)
+            r, sup, pose, cov = loc.frame(i, fr, dt, odo, flags)
         except FrameFailed as e:
             loc.failed(dt, odo, bool(collision[i]), str(e))
             log.debug("frame %s failed: %s", name, e)
             track.add(name, stamp, None, error=math.nan, confidence=0.0, mode="failed",
                       runtime=time.perf_counter() - t0, flags=",".join(flags + [str(e)]))
             continue
-        confidence = (max(0.0, 1.0 - r.error_norm / conf["fail_error"])
-                      * min(1.0, n_obs / conf["full_observations"]))
-        track.add(name, stamp, pose, error=r.error_norm, confidence=confidence, mode=r.mode,
-                  runtime=time.perf_counter() - t0, covariance=cov, flags=",".join(flags))
+        track.add(name, stamp, pose, error=r.error_norm, confidence=fix_confidence(sup, conf),
+                  mode=r.mode, runtime=time.perf_counter() - t0, covariance=cov,
+                  flags=",".join(flags))
     return track
 
 
@@ -413,57 +668,29 @@ def _curvature_sigma(curvature: float, obs: Observation) -> float:
     return float(np.clip(sigma, math.radians(0.5), math.radians(10.0)))
 
 
-def _prior(fusion, last_pose, odo, collision):
-    """The previous pose moved by the odometry (by the last fused motion on collision frames
-    or without odometry)."""
-    if fusion is not None and fusion.state is not None:
-        if odo is not None and not collision:
-            return fusion.odometry_prior(odo)
-        return compose(fusion.state.mean, fusion.last_motion)
-    if last_pose is None:
-        return None
-    return compose(last_pose, odo) if odo is not None and not collision else last_pose.copy()
+def _mirror(pose) -> tuple[float, float, float]:
+    """The pose seeing the same lines under the field's 180 deg symmetry."""
+    return -float(pose[0]), -float(pose[1]), float(wrap_angle(float(pose[2]) + math.pi))
+
+
+def _near_pose(candidate, pose, distance: float = 0.5, angle: float = 0.2) -> bool:
+    """Whether a candidate (x, y, theta, ...) lies within ``distance`` m and ``angle`` rad of
+    a pose."""
+    return (math.hypot(candidate[0] - pose[0], candidate[1] - pose[1]) < distance
+            and abs(float(wrap_angle(candidate[2] - pose[2]))) < angle)
 
 
 def _nearest_heading_candidate(search: TableSearch, obs: Observation, result, heading: float,
-                               margin: float):
-    """Among the fix and its runners-up that fit within ``margin`` (relative) of the best, the
-    one whose heading is nearest ``heading``, refined."""
-    limit = result.error_norm * (1 + margin) + 1e-3
+                               fits_as_well):
+    """Among the fix and its runners-up whose e_norm ``fits_as_well``, the one whose heading
+    is nearest ``heading``, refined."""
     options = [(result.x, result.y, result.theta, result.error_norm)] + [
-        c for c in result.candidates if c[3] <= limit]
+        c for c in result.candidates if fits_as_well(c[3])]
     x, y, th, _e = min(options, key=lambda c: abs(float(wrap_angle(c[2] - heading))))
     if (x, y, th) == (result.x, result.y, result.theta):
         return result
     r = search.refine(obs, search.grid.cell_of(x, y), th)
     r.mode = result.mode
+    r.candidates = result.candidates
+    r.candidate_error_norm = r.error_norm
     return r
-
-
-def _distinct(result, mirror_margin: float, ratio: float) -> bool:
-    """Whether an unknown-heading fix stands out: every runner-up that is not (close to) its
-    mirror pose has an error at least ``ratio`` times the fix's plus 0.02 (seeing only the
-    centre circle, any rotation about its centre fits; seeing one corner, poses 90 deg apart
-    fit alike)."""
-    mx, my = -result.x, -result.y
-    mth = float(wrap_angle(result.theta + math.pi))
-    for x, y, th, e in result.candidates:
-        mirror = math.hypot(x - mx, y - my) < 0.5 and abs(float(wrap_angle(th - mth))) < 0.2
-        same = math.hypot(x - result.x, y - result.y) < 0.5 and abs(
-            float(wrap_angle(th - result.theta))) < 0.2
-        if not (mirror or same) and e < ratio * result.error_norm + 0.02:
-            return False
-    return True
-
-
-def _mirror_ambiguous(result, margin: float) -> bool:
-    """Whether a runner-up of an unknown-heading search is (close to) the mirror pose of the
-    fix and fits almost as well."""
-    if result is None:
-        return False
-    mx, my, mth = -result.x, -result.y, float(wrap_angle(result.theta + math.pi))
-    for x, y, th, e in result.candidates:
-        if (math.hypot(x - mx, y - my) < 0.5 and abs(float(wrap_angle(th - mth))) < 0.2
-                and e <= result.error_norm * (1 + margin) + 1e-3):
-            return True
-    return False

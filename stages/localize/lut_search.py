@@ -125,6 +125,11 @@ class Observation:
                    angle_index=(np.concatenate(idxs) if idxs else np.zeros(0)).astype(np.int64),
                    distance=distance, weight=params.weight(distance))
 
+    def subset(self, mask) -> Observation:
+        """The observations selected by a boolean mask (or index array)."""
+        return Observation(family=self.family[mask], angle_index=self.angle_index[mask],
+                           distance=self.distance[mask], weight=self.weight[mask])
+
     def points(self, scanlines) -> np.ndarray:
         """The observations as points (N, 2) in the robot frame."""
         ang = self.angle_index * scanlines.angle_step
@@ -159,10 +164,34 @@ class SearchResult:
     at_window_edge: bool = False
     mode: str = ""
     candidates: list = field(default_factory=list)  # (x, y, theta, error_norm) of runners-up
+    # the fix's own error_norm computed as its candidates' are (global search: exact error on
+    # the best cell at the nearest table heading, before the sub-cell and heading refinement),
+    # so a fix and its runners-up compare like with like
+    candidate_error_norm: float = math.nan
 
     @property
     def pose(self) -> np.ndarray:
         return np.array([self.x, self.y, self.theta])
+
+
+@dataclass(frozen=True)
+class Support:
+    """What a fix explains: its inliers are the observations whose error (distance to the
+    predicted crossing of their scan line, ``TableSearch.observation_errors``) lies below the
+    inlier error (default c / 2, where rho(e) = 0.2). Unlike e_norm, which averages over every
+    observation and so grows with the share of clutter (cables, feet, reflections) in a frame,
+    the inliers count what the field lines at the fix actually account for."""
+
+    observations: int
+    inliers: int
+    inlier_weight: float  # sum of the inliers' weights w(d)
+    total_weight: float  # sum of all observations' weights
+    inlier_rho: float  # weighted mean of rho(e) over the inliers, in [0, 0.2) for c / 2
+
+    @property
+    def inlier_share(self) -> float:
+        """Inliers / observations."""
+        return self.inliers / max(self.observations, 1)
 
 
 class TableSearch:
@@ -289,6 +318,65 @@ class TableSearch:
         if a < 1e-6 or a > 1 - 1e-6:
             return self.exact_error(obs, cells, (m0 + (1 if a > 0.5 else 0)) % self.n_angles)
         flat = cells.ravel()
+        total = np.zeros(len(flat))
+        e_rad, e_sp = self._interpolated_errors(obs, flat, m0, a)
+        rad = obs.family == 0
+        if e_rad is not None:
+            total += obs.weight[rad].astype(np.float32) @ _rho32(e_rad, self.params.c)
+        if e_sp is not None:
+            total += obs.weight[~rad].astype(np.float32) @ _rho32(e_sp, self.params.c)
+        return total.reshape(cells.shape)
+
+    def observation_errors(self, obs: Observation, cell, theta: float) -> np.ndarray:
+        """Per observation, the error e = |d - predicted crossing| (m) at one cell (i, j) and
+        a continuous heading: the same prediction as ``exact_error_at_heading`` (the nearest
+        table crossing at a table heading, angle-interpolated crossings between them); a
+        "none" table entry gives an error of about NONE_M."""
+        flat = np.array([int(cell[0]) * self.nx + int(cell[1])], dtype=np.int64)
+        m0, a = self._heading_bracket(theta)
+        rad = obs.family == 0
+        out = np.empty(len(obs), dtype=np.float64)
+        if a < 1e-6 or a > 1 - 1e-6:
+            m = (m0 + (1 if a > 0.5 else 0)) % self.n_angles
+            k = (obs.angle_index + m) % self.n_angles
+            if rad.any():
+                rows = (k[rad][:, None] * MAX_CROSSINGS + np.arange(MAX_CROSSINGS)).ravel()
+                t = np.take(self._radial_flat, rows * self.ncell + flat[0])
+                t = t.reshape(-1, MAX_CROSSINGS)
+                out[rad] = np.abs(t - obs.distance[rad][:, None].astype(np.float32)).min(axis=1)
+            if (~rad).any():
+                line = (obs.family[~rad] - 1) * self.n_angles + k[~rad]
+                t = np.take(self._spiral_flat, line * self.ncell + flat[0])
+                out[~rad] = np.abs(t - obs.distance[~rad].astype(np.float32))
+            return out
+        e_rad, e_sp = self._interpolated_errors(obs, flat, m0, a)
+        if e_rad is not None:
+            out[rad] = e_rad[:, 0]
+        if e_sp is not None:
+            out[~rad] = e_sp[:, 0]
+        return out
+
+    def inliers(self, obs: Observation, x: float, y: float, theta: float,
+                inlier_error: float) -> tuple[np.ndarray, np.ndarray]:
+        """(errors (n,), inlier mask (n,)) of the observations at the cell nearest (x, y) and
+        heading theta: inliers have an error below ``inlier_error`` (m)."""
+        cell = self.grid.cell_of(x, y)
+        e = self.observation_errors(obs, (int(cell[0]), int(cell[1])), theta)
+        return e, e < inlier_error
+
+    def support(self, obs: Observation, result: SearchResult, inlier_error: float) -> Support:
+        """The inliers of a fix: observations with error below ``inlier_error`` (m) at the
+        cell nearest the fix's position, at its heading."""
+        e, inl = self.inliers(obs, result.x, result.y, result.theta, inlier_error)
+        w_in = float(obs.weight[inl].sum())
+        rho = float((obs.weight[inl] * self.params.rho(e[inl])).sum() / w_in) if w_in else 0.0
+        return Support(observations=len(obs), inliers=int(inl.sum()), inlier_weight=w_in,
+                       total_weight=obs.total_weight, inlier_rho=rho)
+
+    def _interpolated_errors(self, obs: Observation, flat: np.ndarray, m0: int, a: float):
+        """Errors (radial (n_r, C) or None, spiral (n_s, C) or None) of the observations at
+        flat cells ``flat`` for the heading at fraction ``a`` between table headings m0 and
+        m0 + 1 (see ``exact_error_at_heading``)."""
         C = len(flat)
         tol = np.float32(self.params.pair_tolerance)
         a32 = np.float32(a)
@@ -296,7 +384,7 @@ class TableSearch:
         k1 = (k0 + 1) % self.n_angles
         near = k1 if a > 0.5 else k0
         rad = obs.family == 0
-        total = np.zeros(C)
+        e_rad = e_sp = None
         if rad.any():
             slots = np.arange(MAX_CROSSINGS)
 
@@ -314,8 +402,7 @@ class TableSearch:
             d = d[:, :, 0]
             t_near = n1 if a > 0.5 else n0  # unpaired: the angularly nearer line
             pred = np.where(np.abs(n0 - n1) < tol, (1 - a32) * n0 + a32 * n1, t_near)
-            e = np.abs(pred - d)
-            total += obs.weight[rad].astype(np.float32) @ _rho32(e, self.params.c)
+            e_rad = np.abs(pred - d)
         sp = ~rad
         if sp.any():
             base = (obs.family[sp] - 1) * self.n_angles
@@ -325,9 +412,8 @@ class TableSearch:
             tn = np.take(self._spiral_flat, idx(near))
             d = obs.distance[sp].astype(np.float32)[:, None]
             pred = np.where(np.abs(t0 - t1) < tol, (1 - a32) * t0 + a32 * t1, tn)
-            e = np.abs(pred - d)
-            total += obs.weight[sp].astype(np.float32) @ _rho32(e, self.params.c)
-        return total.reshape(cells.shape)
+            e_sp = np.abs(pred - d)
+        return e_rad, e_sp
 
     def _heading_bracket(self, theta: float) -> tuple[int, float]:
         u = float(theta) / self.step
@@ -357,6 +443,7 @@ class TableSearch:
         best = self.refine(obs, divmod(int(first), self.nx), theta)
         best.mode = "global"
         W = max(obs.total_weight, 1e-12)
+        best.candidate_error_norm = float(exact[order[0], low[order[0]]] / W)
         for c in order[1:]:
             x, y = self.grid.centre_of(*divmod(int(nb[c, low[c]]), self.nx))
             best.candidates.append((float(x), float(y), float(theta),
@@ -516,6 +603,7 @@ class TableSearch:
         best = min(results, key=lambda r: r.error)
         best.mode = "global-heading"
         best.candidates = [(r.x, r.y, r.theta, r.error_norm) for r in results if r is not best]
+        best.candidate_error_norm = best.error_norm
         return best
 
     # ------------------------------------------------------------------ bench reference
