@@ -21,12 +21,16 @@ from .common import conf_option, overrides_dict, progress_enabled
 @conf_option
 @click.option("--overwrite", is_flag=True,
               help="Extract every frame again (default: resume, skipping frames already done).")
+@click.option("--debug-images", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Folder for one overlay PNG per extracted frame (perspective: the boundary, "
+                   "lines used / not used, crossings marked L/T/X).")
 @click.pass_context
-def extract(ctx, dataset, output, preset, overrides, overwrite):
+def extract(ctx, dataset, output, preset, overrides, overwrite, debug_images):
     """Per-frame features of the images in DATASET (omni: scan-line distances and line points;
     perspective: lines, crossings, boundary) into an HDF5 features file."""
     path = stage.main(preset, dataset, output, overwrite=overwrite,
-                      progress=progress_enabled(ctx), overrides=overrides_dict(overrides))
+                      progress=progress_enabled(ctx), overrides=overrides_dict(overrides),
+                      debug_images=debug_images)
     from stages.common.features_file import FeaturesFile
 
     with FeaturesFile(path) as ff:

@@ -130,10 +130,13 @@ def _check_resumable(output: Path, attrs: dict):
 
 
 def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | None = None, *,
-         overwrite: bool = False, progress: bool = False, overrides: dict | None = None) -> Path:
+         overwrite: bool = False, progress: bool = False, overrides: dict | None = None,
+         debug_images: str | Path | None = None) -> Path:
     """Extract every frame of ``dataset_dir`` into ``output`` (default DIR/features.h5) and
     return its path. ``conf``: preset name or conf dict of the dataset's camera kind (see
-    ``resolve_extract_conf``); ``overrides``: values replacing the preset's."""
+    ``resolve_extract_conf``); ``overrides``: values replacing the preset's.
+    ``debug_images``: a folder that receives one overlay PNG per extracted frame (the kind's
+    ``debug_overlay``: for perspective frames the seed's fig. 1)."""
     from tqdm import tqdm
 
     ds = open_dataset(dataset_dir)
@@ -165,6 +168,9 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
     log.info("extract %s (%s camera, %d frames) -> %s; conf %s", ds.root, kind, len(ds.images),
              output, json.dumps(conf, sort_keys=True))
 
+    if debug_images is not None:
+        debug_images = Path(debug_images)
+        debug_images.mkdir(parents=True, exist_ok=True)
     done = skipped = failed = 0
     with write_features(output, attrs, resume=resume) as writer:
         for path, name, stamp in tqdm(list(zip(ds.images, ds.names, ds.stamps)),
@@ -186,9 +192,24 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
                 continue
             writer.add_frame(name, float(stamp), arrays)
             writer.clear_failure(name)
+            if debug_images is not None:
+                _write_debug_image(debug_images / f"{name}.png",
+                                   module.debug_overlay(image, arrays))
             done += 1
     log.info("extract: %d frames extracted, %d already done, %d failed -> %s", done, skipped,
              failed, output)
     if done + skipped == 0:
         log.warning("extract: no frame of %s could be extracted", ds.root)
     return output
+
+
+def _write_debug_image(path: Path, image: np.ndarray) -> None:
+    import cv2
+
+    from ..common.artifacts import atomic_path
+
+    with atomic_path(path, suffix=".png") as tmp:
+        ok, buf = cv2.imencode(".png", image)
+        if not ok:
+            raise FieldlocError(f"could not encode the debug image {path}")
+        tmp.write_bytes(buf.tobytes())

@@ -491,3 +491,17 @@ def bin_points_to_scanlines(points_robot, scanlines: ScanLines | None = None,
         r_hit = np.where(ok, rho[:, None], np.inf).min(axis=0)
         spiral[direction] = np.where(np.isfinite(r_hit), r_hit, np.nan)
     return radial, spiral
+
+
+def debug_overlay(image: np.ndarray, result: dict[str, np.ndarray]) -> np.ndarray:
+    """A copy of the BGR frame with the extracted line points marked: radial and spiral
+    crossings as red dots (``points_px``)."""
+    import cv2
+
+    out = image.copy()
+    pts = result.get("points_px")
+    if pts is not None:
+        for u, v in np.asarray(pts, dtype=float):
+            if np.isfinite(u) and np.isfinite(v):
+                cv2.circle(out, (int(round(u)), int(round(v))), 2, (40, 40, 230), -1)
+    return out
