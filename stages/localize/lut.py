@@ -2,20 +2,19 @@
 
 The matching is the seed's (lut_search.py): per observed crossing distance the error to the
 table entry of its scan line, weighted by rho(e) = 1 - c^2 / (c^2 + e^2), nearer points weighing
-more. What this module decides is whether a fix is accepted, failed, or means the robot is
-lost. Those decisions do not threshold the mean error e_norm: a frame whose line points are
-70 % clutter (a white cable on the carpet, sticks, feet, reflections) has a high e_norm at its
-true pose although the field lines in it fix the pose well, while a wrong pose can score a
-*lower* e_norm by fitting the clutter to some other line. They rest instead on
+more. This module decides whether a fix is accepted, whether the frame fails, and when the
+robot is lost. None of these decisions thresholds the mean error e_norm: in a frame whose line
+points are mostly clutter (a white cable on the carpet, sticks, feet, reflections) e_norm is
+high at the true pose although the field lines in view fix the pose well, and a wrong pose can
+score a *lower* e_norm by fitting the clutter to some other line. The decisions rest on
 
-- the inliers of the fix (lut_search.Support): observations within ``inlier_error`` (c / 2) of
-  their predicted crossing, their number and share of the frame's observations;
-- distinctness: a fix from a global search must beat every rival minimum farther than
-  ``ambiguity_distance`` by ``distinct_margin`` in the error term (units of full-weight
-  observations): a second minimum far away with nearly the same score makes the frame
-  ambiguous, and it fails;
-- agreement with the odometry while tracking: the fix must lie in the gate around the prior
-  (``gate_sigmas`` times the prior's position sigma from the fusion, at least ``min_gate``).
+- support: the inliers of a fix (lut_search.Support), the observations within
+  ``inlier_error`` (c / 2) of their predicted crossing, their number and share;
+- distinctness (global fixes, made without a prior): no rival minimum farther than
+  ``ambiguity_distance`` may fit nearly as well, and no other pose may explain a large part of
+  what the fix leaves unexplained;
+- agreement with the odometry (tracking): the fix must lie in the Kalman innovation gate
+  around the prior.
 
 Per frame:
 
@@ -27,51 +26,63 @@ Per frame:
    or ``truth`` (truth.csv, for ablations). With no heading yet (histogram on the first frame
    or after more than ``max_predicted_frames`` failures, imu with ``imu_alignment: vision``
    before the first fix) the unknown-heading global search (all 72 headings) finds pose and
-   heading, accepted like a global fix (below) with the rivals other than its mirror pose;
-3. search. Lost (first frame, more than ``max_predicted_frames`` failed frames in a row, or a
-   prior so uncertain that ``gate_sigmas`` of its sigma exceed half the window):
-   global search, accepted only with at least ``min_global_inliers`` inliers, an inlier share
-   of at least ``min_global_inlier_share`` and distinct from its rivals (failure reasons
-   too-few-inliers, ambiguous). Tracking: the prior is the previous pose moved by the odometry
-   (on IMU collision frames by the last fused motion), its covariance the fusion's prediction;
-   the seed's local search in a ``window`` x ``window`` m square around it. Its minimum is the
-   fix when it passes the gate: its Mahalanobis distance from the prior under the prior's and
-   the fix's covariances (the Kalman innovation) at most ``gate_sigmas`` (a fix seeing one
-   line passes anywhere along it). Otherwise (the odometry says the robot cannot have jumped
-   to that minimum) the fix is the basin the prior lies in, found by descent from the prior's
-   cell, and when that fails the gate too there is no fit near the prior (no-fit-near-prior).
-   The fix needs ``min_inliers`` inliers and an inlier share of ``min_inlier_share``
-   (too-few-inliers). A rejected tracking fix makes
-   a global search run on the same frame: its fix is taken when it passes the global tests (a
-   clear frame after a wrong track), else the frame fails and the prior moves on with the
-   odometry. A window minimum outside the gate that passes the global support tests and beats
-   the tracked fix by ``distinct_margin`` contests the track; after ``lost_frames`` contested
-   frames in a row a global search that passes the global tests replaces it (flag
-   relocalised);
-4. fusion (``fusion.enabled``): the vision fix and the odometry in the decentralised Kalman
+   heading, accepted like a global fix with ``unknown_heading_ratio`` for ``distinct_ratio``,
+   no dominance test, and its mirror pose not counted as a rival (see ``start_half``);
+3. global search (lost: the first frame, more than ``max_predicted_frames`` failed frames in a
+   row, or a prior so uncertain that ``gate_sigmas`` of its sigma exceed half the window).
+   The fix needs ``min_global_inliers`` inliers and an inlier share of
+   ``min_global_inlier_share`` (too-few-inliers), and it must be distinct (ambiguous): every
+   rival minimum of the search (the ``global_candidates`` best, ``ambiguity_distance`` apart)
+   has an e_norm at least ``distinct_ratio`` times the fix's and ``distinct_margin`` more in
+   the error term (units of full-weight observations), or the fix dominates it: it explains
+   ``dominance_unique`` observations the rival does not and ``dominance_ratio`` times as many
+   as the rival explains that it does not (a rival along the only line in view explains a
+   subset of what the fix explains); and a global search over the fix's outliers finds no
+   pose explaining ``second_explanation`` times the fix's inlier count (at least
+   ``min_global_inliers``) of them. The last test catches clutter near the robot, which
+   weighs more than the far field lines: a pose fitting a cable to some line can win the
+   frame, the true pose, ranked on all observations, is then not among the runners-up, but
+   it explains the lines that pose leaves out;
+4. tracking: the prior is the previous pose moved by the odometry (on IMU collision frames by
+   the last fused motion), its covariance the fusion's prediction. The seed's local search in
+   a ``window`` x ``window`` m square around it gives the fix when its innovation (Mahalanobis
+   distance from the prior under the prior's covariance, the fix's covariance and a floor of
+   (``min_gate`` / ``gate_sigmas``)^2 against overconfidence) is at most ``gate_sigmas``: a fix
+   seeing one line passes anywhere along it, a fix within ``min_gate`` always passes.
+   Otherwise (the odometry says the robot cannot have jumped to that minimum) the fix is the
+   basin the prior lies in, found by descent from the prior's cell (flag outside-gate); when
+   that fails the gate too, no-fit-near-prior. The fix needs ``min_inliers`` inliers and an
+   inlier share of ``min_inlier_share`` (too-few-inliers). A rejected tracking fix makes a
+   global search run on the same frame: its fix is taken when it passes the global tests (a
+   clear frame after a wrong track), else the frame fails (flag global-<reason>) and the prior
+   moves on with the odometry. A window minimum outside the gate that passes the global
+   support tests and is distinctly better than the tracked fix contests the track; after
+   ``lost_frames`` contested frames in a row a global fix that passes the global tests
+   replaces it (flag relocalised);
+5. fusion (``fusion.enabled``): the vision fix and the odometry in the decentralised Kalman
    filter (kalman.py); odometry is not fused on IMU collision frames. The fused pose is the
-   frame's pose; after a global fix that jumped away from the track the filter restarts at
-   the fix.
+   frame's pose; after a global fix that failed the gate around the track the filter restarts
+   at the fix.
 
-``start_half`` (own | opponent | any): where the robot is when the first fix is made, which
-resolves the 180 deg mirror ambiguity of a symmetric field for the unknown-heading search
-(histogram heading, ``imu_alignment: vision``): own = x < 0 (the field's +x points at the
-opponent goal), opponent = x > 0. When the first fix lies on the other half and its mirror pose
-fits as well (within ``distinct_margin``), the mirror pose is taken (flag start-half); with
-``any`` such a fix is flagged mirror-ambiguous and kept. Later re-localisations with unknown
-heading pick the mirror candidate nearest the old track's heading.
+``start_half`` (own | opponent | any): the half of the field the robot is on at its first fix,
+which resolves the 180 deg mirror ambiguity of a symmetric field for the unknown-heading search
+(histogram heading, or IMU with ``imu_alignment: vision``): own = x < 0 (the field's +x points
+at the opponent goal), opponent = x > 0. A first fix on the other half whose mirror pose fits
+as well is replaced by the mirror pose (flag start-half; flag start-half-contradicted and the
+fix kept if the mirror pose fits clearly worse, on a field that is not symmetric). With
+``any`` a fix whose mirror fits as well is flagged mirror-ambiguous and kept; later
+re-localisations with unknown heading pick the candidate nearest the old track's heading.
+Near the centre line the half is decided by the sign of x all the same.
 
 Recorded per frame: pose, ``error`` = the normalised error term e_norm in [0, 1) of the fix
-(lut_search; reported, not used to decide), ``confidence`` = inlier share * min(1, inliers /
+(reported, not used to decide), ``confidence`` = inlier share * min(1, inliers /
 ``full_inliers``), ``mode`` (global, global-heading, local; ``failed`` with a reason), runtime,
 fused covariance, and flags: collision (IMU flag); heading-vision (the heading source could not
 be used, IMU yaw on a collision frame or a histogram without straight lines, so the search
 refined the heading itself); heading-unsure (that vision heading was not pinned down either, the
-predicted heading was kept with ``unsure_heading_sigma``); window-edge (the seed window's
-minimum lay on its edge); outside-gate (the window's minimum lay outside the gate, the fix is
-the minimum inside it); relocalised; mirror-ambiguous; start-half; failure reasons
-too-few-observations, too-few-inliers, no-fit-near-prior, ambiguous (each after a failed
-global attempt, flagged global-too-few-inliers / global-ambiguous), no-imu-row,
+predicted heading was kept with ``unsure_heading_sigma``); window-edge (the window's minimum
+lay on its edge); outside-gate; relocalised; mirror-ambiguous; start-half; failure reasons
+too-few-observations, too-few-inliers, no-fit-near-prior, ambiguous, no-imu-row,
 no-truth-heading.
 
 Vision covariance for the fusion: the quadratic fit of the error surface at the fix gives its
@@ -147,8 +158,10 @@ confs = {
         # this share of its inliers' count (at least min_global_inliers) among its outliers
         "unknown_heading_ratio": 2.0,  # distinct_ratio of an unknown-heading fix (72 times the
         # poses to choose from; no dominance: its rivals are too few to hold the true pose)
-        "gate_sigmas": 3.0,  # tracking: the fix must lie this many prior sigmas from the prior
-        "min_gate": 0.3,  # m, smallest gate radius
+        "gate_sigmas": 3.0,  # tracking: largest innovation (Mahalanobis distance of the fix
+        # from the prior under both covariances)
+        "min_gate": 0.3,  # m, a fix this near the prior always passes the gate; smallest reach
+        # of the descent from the prior
         "lost_frames": 3,  # contested tracked fixes in a row before a global search
         "full_inliers": 40,  # inliers for full confidence
         "vision_sigma_xy": 0.02,  # m, noise of a well-constrained fix (tuned on rendered sets)
@@ -488,7 +501,7 @@ class LutLocaliser:
         return sup, self._innovation(fix, R, prior_pose, prior_cov)
 
     def _track(self, obs, theta, prior_pose, prior_cov, flags):
-        """Local search around the prior, gated by the odometry (module doc, step 3)."""
+        """Local search around the prior, gated by the odometry (module doc, step 4)."""
         conf, search = self.conf, self.search
         gate = conf["gate_sigmas"]
         w = search.local_search(obs, theta, prior_pose[:2], half_width=self.half)
