@@ -172,6 +172,11 @@ _NO_CROSSINGS = np.zeros((0, 5))
 _NO_POSTS = np.zeros((0, 3))
 _NO_DISTANCES = np.zeros((0, 1))
 _BIG = np.float32(1e6)  # cost of an excluded association
+# rows of the line model's (quantity, pair) matrix: particle position, the observed
+# perpendicular as a field-frame unit vector, its length, eq. 4's weight, its foot; with
+# line ends also the observed segment's middle and the extent term's constants
+_PX, _PY, _UX, _UY, _R, _WD, _FX, _FY, _MX, _MY, _HM, _RATIO = range(12)
+_N_ROWS = 12
 
 
 def _project(vx, vy, sel, direction) -> np.ndarray:
@@ -191,9 +196,10 @@ def line_closest_distance(obs: Observations) -> np.ndarray:
         return r
     p0, p1 = obs.line_ends[:, 0:2], obs.line_ends[:, 2:4]
     d = p1 - p0
-    den = np.maximum(np.einsum("ij,ij->i", d, d), 1e-12)
-    s = np.clip(-np.einsum("ij,ij->i", p0, d) / den, 0.0, 1.0)
-    return np.linalg.norm(p0 + s[:, None] * d, axis=1)
+    dx, dy = d[:, 0], d[:, 1]
+    den = np.maximum(dx * dx + dy * dy, 1e-12)
+    s = np.minimum(np.maximum(-(p0[:, 0] * dx + p0[:, 1] * dy) / den, 0.0), 1.0)
+    return np.hypot(p0[:, 0] + s * dx, p0[:, 1] + s * dy)
 
 
 @dataclass
@@ -255,14 +261,16 @@ class ObservationModel:
         along = np.stack([np.einsum("ij,ij->i", t, seg[:, 0]),
                           np.einsum("ij,ij->i", t, seg[:, 1])], axis=1)
         angle = np.round(np.arctan2(t[:, 1], t[:, 0]), 6)
-        self.line_groups = []  # (normal, direction, offsets, mids, halves) per direction
+        # (normal, direction, offsets, first and last position along the direction) per
+        # direction, the segments on the first axis
+        self.line_groups = []
         for a in np.unique(angle):
             k = angle == a
             self.line_groups.append((
                 n[k][0], t[k][0],
                 offset[k].astype(np.float32)[:, None],
-                along[k].mean(axis=1).astype(np.float32)[:, None],
-                (length[k] / 2).astype(np.float32)[:, None],
+                along[k].min(axis=1).astype(np.float32)[:, None],
+                along[k].max(axis=1).astype(np.float32)[:, None],
             ))
         self.group_normals = np.array([g[0] for g in self.line_groups]).reshape(-1, 2)
         self.arcs = np.asarray(fm.arcs, float).reshape(-1, 5)
@@ -338,7 +346,8 @@ class ObservationModel:
     def _floor(self, confidence):
         """a_uni (K, 1) of section 5.3 for observations of the given confidence."""
         base = float(self.conf["uniform_floor"])
-        return (base + (1.0 - base) * (1.0 - np.clip(confidence, 0.0, 1.0)))[:, None]
+        conf01 = np.minimum(np.maximum(confidence, 0.0), 1.0)
+        return (base + (1.0 - base) * (1.0 - conf01))[:, None]
 
     def prepare(self, obs: Observations) -> PreparedObservations:
         """The usable observations with their per-observation constants."""
@@ -350,15 +359,24 @@ class ObservationModel:
             raw = obs.lines
             a = (raw[:, 1] + np.where(raw[:, 0] < 0, math.pi, 0.0))[:, None]
             w_d = 1.0 / (2.0 * (c["sigma_line"] + c["line_growth"] * d_o) ** 2)
-            lines = dict(r=np.abs(raw[:, 0])[:, None], ca=np.cos(a), sa=np.sin(a), w_d=w_d,
-                         floor=self._floor(raw[:, 3]), extent=None)
+            r = np.abs(raw[:, 0])[:, None]
+            ca, sa = np.cos(a), np.sin(a)
+            f32 = np.float32
+            lines = dict(r=r, ca=ca, sa=sa, w_d=w_d, floor=self._floor(raw[:, 3]), extent=None,
+                         r32=r.astype(f32), ca32=ca.astype(f32), sa32=sa.astype(f32),
+                         wd32=w_d.astype(f32))
+            lines["floor32"] = lines["floor"].astype(f32)
             if c["line_extent"] and obs.line_ends is not None:
                 ends = obs.line_ends
                 half = 0.5 * np.hypot(ends[:, 2] - ends[:, 0], ends[:, 3] - ends[:, 1])[:, None]
                 w_e = 1.0 / (2.0 * (c["sigma_extent"] + c["line_growth"] * d_o) ** 2)
+                mid = 0.5 * (ends[:, 0:2] + ends[:, 2:4])
+                hm, ratio, h2 = half - c["extent_margin"], w_e / w_d, half * half / 2.0
                 lines["extent"] = dict(
-                    mid=0.5 * (ends[:, 0:2] + ends[:, 2:4]), half=half,
-                    hm=half - c["extent_margin"], ratio=w_e / w_d, w_e=w_e, h2=half * half / 2.0)
+                    mid=mid, half=half, hm=hm, ratio=ratio, w_e=w_e, h2=h2,
+                    mx32=mid[:, 0:1].astype(f32), my32=mid[:, 1:2].astype(f32),
+                    hm32=hm.astype(f32), ratio32=ratio.astype(f32), h2_32=h2.astype(f32),
+                    we32=w_e.astype(f32))
         # points: L/T through the tables, X and posts per particle
         cr = obs.crossings
         table_rows, cand_rows = {}, {}
@@ -423,7 +441,8 @@ class ObservationModel:
         cth, sth = np.cos(th), np.sin(th)
         out = {}
         if prep.lines:
-            out["lines"] = self.line_log_likelihood(x, y, cth, sth, prep).sum(axis=0)
+            out["lines"] = self.line_log_likelihood(x, y, cth, sth, prep).sum(axis=0,
+                                                                              dtype=float)
         if prep.table_rows:
             out["crossings"] = self.table_log_likelihood(x, y, cth, sth, prep).sum(axis=0)
         if prep.candidate_rows:
@@ -528,119 +547,158 @@ class ObservationModel:
         Pairs (observed line, particle) are flattened; each pair is compared with the lines of
         the field direction it is most nearly parallel to (any other direction costs at least
         sin^2(45 deg) / (2 sigma_psi^2) ~ 39, whose exp is negligible) and with the arcs'
-        tangents. Observations whose pairs all choose the same direction (the usual case while
-        tracking) are processed as contiguous blocks, the others pair by pair. The
-        per-segment work runs in float32 with the segments on the first axis."""
-        c = self.conf
+        tangents. The pairs' quantities are the rows of one float32 matrix whose columns are
+        ordered so that the pairs of each direction form a contiguous block: observations whose
+        pairs all choose one direction (the usual case while tracking) are ordered as whole
+        rows, otherwise the pairs are sorted once. The segments of a direction lie on the first
+        axis of its block's costs."""
         ln = prep.lines
         n_l, n_p = len(ln["r"]), x.shape[0]
-        full = (n_l, n_p)
+        f32 = np.float32
+        ext = ln["extent"]
+        xf, yf = x.astype(f32), y.astype(f32)
+        cf, sf = cth.astype(f32), sth.astype(f32)
         # the observed perpendicular's unit vector in the field frame, (L, N)
-        ux = ln["ca"] * cth - ln["sa"] * sth
-        uy = ln["ca"] * sth + ln["sa"] * cth
+        ux = ln["ca32"] * cf
+        ux -= ln["sa32"] * sf
+        uy = ln["ca32"] * sf
+        uy += ln["sa32"] * cf
+        # the field direction of each pair
         gn = self.group_normals
         n_g = len(gn)
-        if n_g == 2:  # the usual field: two directions (argmax along axis 0 is slow)
-            gid = (np.abs(ux * gn[1, 0] + uy * gn[1, 1])
-                   > np.abs(ux * gn[0, 0] + uy * gn[0, 1])).astype(np.int8)
+        if n_g == 2:
+            a = _project(ux, uy, slice(None), gn[1])
+            b = _project(ux, uy, slice(None), gn[0])
+            np.abs(a, out=a)
+            np.abs(b, out=b)
+            gid = np.greater(a, b).view(np.int8)
         elif n_g > 2:
             gid = np.argmax(np.abs(gn[:, 0, None, None] * ux + gn[:, 1, None, None] * uy),
                             axis=0).astype(np.int8)
         else:
-            gid = np.zeros(full, np.int8)
+            gid = np.zeros((n_l, n_p), np.int8)
         lo, hi = gid.min(axis=1), gid.max(axis=1)
         row_group = np.where(lo == hi, lo, n_g)  # n_g: mixed
         order = np.argsort(row_group, kind="stable")
-        ext = ln["extent"]
-        obs = {k: ln[k] for k in ("r", "w_d")}
-        if ext is not None:
-            obs.update(mid=ext["mid"], hm=ext["hm"], ratio=ext["ratio"])
-        if np.any(order != np.arange(n_l)):
+        if np.any(order[1:] < order[:-1]):
             ux, uy, gid, row_group = ux[order], uy[order], gid[order], row_group[order]
-            obs = {k: v[order] for k, v in obs.items()}
-        f32 = np.float32
-        pairs = {
-            "ux": ux.astype(f32).ravel(), "uy": uy.astype(f32).ravel(),
-            # (ndarray.repeat is much cheaper per call than broadcast_to(...).ravel())
-            "px": x.astype(f32)[None, :].repeat(n_l, axis=0).ravel(),
-            "py": y.astype(f32)[None, :].repeat(n_l, axis=0).ravel(),
-            "r": obs["r"].astype(f32).repeat(n_p),
-            "wd": obs["w_d"].astype(f32).repeat(n_p),
-        }
-        # the perpendicular's foot in the field frame
-        pairs["fx"] = pairs["px"] + pairs["r"] * pairs["ux"]
-        pairs["fy"] = pairs["py"] + pairs["r"] * pairs["uy"]
-        if ext is not None:
-            mid = obs["mid"]
-            pairs["mx"] = (x + mid[:, 0, None] * cth - mid[:, 1, None] * sth).astype(f32).ravel()
-            pairs["my"] = (y + mid[:, 0, None] * sth + mid[:, 1, None] * cth).astype(f32).ravel()
-            pairs["hm"] = obs["hm"].astype(f32).repeat(n_p)
-            pairs["ratio"] = obs["ratio"].astype(f32).repeat(n_p)
-        best = np.empty(n_l * n_p)
+        else:
+            order = None
+
+        def per_line(v):  # a per-line constant (L, 1) in the order of the rows
+            return v if order is None else v[order]
+
+        rows = _N_ROWS if ext is not None else _MX
+        pr = np.empty((rows, n_l, n_p), f32)
+        pr[_PX] = xf
+        pr[_PY] = yf
+        pr[_UX] = ux
+        pr[_UY] = uy
+        pr[_R] = per_line(ln["r32"])
+        pr[_WD] = per_line(ln["wd32"])
+        np.multiply(pr[_R], ux, out=pr[_FX])  # the perpendicular's foot in the field frame
+        pr[_FX] += xf
+        np.multiply(pr[_R], uy, out=pr[_FY])
+        pr[_FY] += yf
+        if ext is not None:  # the observed segment's middle in the field frame
+            mx, my, tmp = pr[_MX], pr[_MY], pr[_HM]
+            mid_x, mid_y = per_line(ext["mx32"]), per_line(ext["my32"])
+            np.multiply(mid_x, cf, out=mx)
+            np.multiply(mid_y, sf, out=tmp)
+            mx -= tmp
+            mx += xf
+            np.multiply(mid_x, sf, out=my)
+            np.multiply(mid_y, cf, out=tmp)
+            my += tmp
+            my += yf
+            pr[_HM] = per_line(ext["hm32"])
+            pr[_RATIO] = per_line(ext["ratio32"])
+        pr = pr.reshape(rows, n_l * n_p)
+        best = np.empty(n_l * n_p, f32)
         starts = np.searchsorted(row_group, np.arange(n_g + 2))
         first_mixed = starts[n_g]
         mixed = gid[first_mixed:].ravel()
         for g in range(n_g):
             if starts[g + 1] > starts[g]:  # observations all of this direction: a block
                 block = slice(starts[g] * n_p, starts[g + 1] * n_p)
-                best[block] = self._line_group_cost(pairs, block, g)
-            if len(mixed):
+                best[block] = self._line_group_cost(pr, block, g, ext is not None)
+            if len(mixed):  # the pairs of this direction among the others
                 sel = first_mixed * n_p + np.flatnonzero(mixed == g)
                 if len(sel):
-                    best[sel] = self._line_group_cost(pairs, sel, g)
-        if c["arc_lines"] and len(self.arcs):
-            tol2 = c["oriented_tolerance"] ** 2
-            w_a = 1.0 / (2.0 * c["sigma_line_angle"] ** 2)
-            near = (pairs["fx"], pairs["fy"], None)
-            if ext is not None:
-                near = (pairs["mx"], pairs["my"], {"h2": ext["h2"][order],
-                                                   "w_e": ext["w_e"][order]})
-            for arc in self.arcs:
-                self._arc_line_cost(best, pairs["px"], pairs["py"], pairs["ux"], pairs["uy"],
-                                    pairs["r"], pairs["wd"], w_a, tol2, arc, near, n_p)
-        out = np.empty(full)
-        out[order] = best.reshape(full)
-        return _log_mixture(out, ln["floor"])
-
-    def _line_group_cost(self, pairs: dict, sel, g: int) -> np.ndarray:
-        """Cost of the pairs ``sel`` (a slice or indices) against the field lines of direction
-        ``g``: the least over those lines of eq. 4 with eq. 5 and the extent term."""
+                    best[sel] = self._line_group_cost(pr, sel, g, ext is not None)
         c = self.conf
-        nrm, tng, off, smid, shalf = self.line_groups[g]
-        cos_d = _project(pairs["ux"], pairs["uy"], sel, nrm)
-        r_s = pairs["r"][sel]
+        if c["arc_lines"] and len(self.arcs):
+            line_of_pair = None
+            if ext is not None:  # the observation of each column, for the arc's extent term
+                line_of_pair = np.arange(n_l).repeat(n_p)
+                line_of_pair = line_of_pair if order is None else order[line_of_pair]
+            for arc in self.arcs:
+                self._arc_line_cost(best, pr, arc, ext, line_of_pair)
+        best = best.reshape(n_l, n_p)
+        if order is not None:
+            out = np.empty((n_l, n_p), f32)
+            out[order] = best
+            best = out
+        return _log_mixture(best, ln["floor32"])
+
+    def _line_group_cost(self, pr: np.ndarray, sel, g: int, extent: bool) -> np.ndarray:
+        """Cost of the pairs ``sel`` (a slice or indices of the columns of ``pr``) against the
+        field lines of direction ``g``: the least over those lines of eq. 4 with eq. 5 and the
+        extent term. (With an axis-parallel direction only one of x and y is read.)"""
+        c = self.conf
+        nrm, tng, off, lo, hi = self.line_groups[g]
+        cos_d = _project(pr[_UX], pr[_UY], sel, nrm)
+        r_s = pr[_R, sel]
         rc = r_s * cos_d  # the observed perpendicular projected on the group normal
-        pn = _project(pairs["px"], pairs["py"], sel, nrm)
+        pn = _project(pr[_PX], pr[_PY], sel, nrm)
         # |l_e - l_o|^2 = (e - r cos)^2 + r^2 sin^2 with e = off - pn: e - rc = off - q
-        cost = off - _project(pairs["fx"], pairs["fy"], sel, nrm)
+        cost = off - _project(pr[_FX], pr[_FY], sel, nrm)
         cost *= cost  # (S_g, M)
         # eq. 5: <l_e, l_o> = (off - pn) rc must exceed -tol^2: off rc > pn rc - tol^2
-        bad = np.multiply.outer(off[:, 0], rc) <= rc * pn - np.float32(
-            c["oriented_tolerance"] ** 2)
-        if "mx" in pairs:
-            over = _project(pairs["mx"], pairs["my"], sel, tng) - smid
-            np.abs(over, out=over)
-            over -= shalf
-            over += pairs["hm"][sel]
+        pn *= rc
+        pn -= np.float32(c["oriented_tolerance"] ** 2)
+        bad = np.multiply.outer(off[:, 0], rc) <= pn
+        if extent:
+            # the overhang of the observed middle +- (half length - margin) beyond [lo, hi]
+            t = _project(pr[_MX], pr[_MY], sel, tng)
+            hm = pr[_HM, sel]
+            over = (t + hm) - hi
+            under = lo - (t - hm)
+            np.maximum(over, under, out=over)
             np.maximum(over, 0.0, out=over)
             over *= over
-            over *= pairs["ratio"][sel]
+            over *= pr[_RATIO, sel]
             cost += over
-        bad = bad * _BIG
-        cost += bad
-        wd = pairs["wd"][sel]
+        np.copyto(cost, _BIG, where=bad)
+        wd = pr[_WD, sel]
         w_a = np.float32(1.0 / (2.0 * c["sigma_line_angle"] ** 2))
-        return cost.min(axis=0) * wd + (1.0 - cos_d * cos_d) * (r_s * r_s * wd + w_a)
+        out = cost.min(axis=0)
+        out *= wd
+        cos_d *= cos_d
+        np.subtract(1.0, cos_d, out=cos_d)
+        r_s = r_s * r_s
+        r_s *= wd
+        r_s += w_a
+        cos_d *= r_s
+        out += cos_d
+        return out
 
-    def _arc_line_cost(self, best, px, py, ux, uy, r, wd, w_a, tol2, arc, near, n_p):
+    def _arc_line_cost(self, best, pr, arc, ext, line_of_pair):
         """Lower ``best`` (M,) where the tangent of an arc, at the arc point nearest to the
         observed segment (its midpoint, else the perpendicular's foot), explains a (line,
-        particle) pair better. Only pairs whose segment lies within 1 m of the arc count."""
+        particle) pair (columns of ``pr``; ``line_of_pair``: the observation of each, for
+        the extent term of ``ext``) better. Only pairs whose segment lies within 1 m of
+        the arc count."""
+        c = self.conf
+        tol2 = c["oriented_tolerance"] ** 2
+        w_a = 1.0 / (2.0 * c["sigma_line_angle"] ** 2)
         cx, cy, rad, a0, sweep = arc
-        qx, qy, ext = near
-        vx, vy = qx - cx, qy - cy
-        dist = np.sqrt(vx * vx + vy * vy)
-        sel = np.flatnonzero(np.abs(dist - rad) < 1.0)
+        qx, qy = (pr[_MX], pr[_MY]) if ext is not None else (pr[_FX], pr[_FY])
+        vx, vy = qx - np.float32(cx), qy - np.float32(cy)
+        dist = vx * vx
+        dist += vy * vy
+        np.sqrt(dist, out=dist)
+        sel = np.flatnonzero(np.abs(dist - np.float32(rad)) < 1.0)
         if not len(sel):
             return
         vx, vy, dist = vx[sel], vy[sel], dist[sel]
@@ -653,14 +711,14 @@ class ObservationModel:
         else:
             dist = np.maximum(dist, 1e-9)
             nx_, ny_ = vx / dist, vy / dist
-        r_s, w_s = r[sel], wd[sel]
-        e = (rad + cx * nx_ + cy * ny_) - (px[sel] * nx_ + py[sel] * ny_)
-        cos_d = ux[sel] * nx_ + uy[sel] * ny_
+        ps = pr[:, sel]
+        r_s, w_s = ps[_R], ps[_WD]
+        e = (rad + cx * nx_ + cy * ny_) - (ps[_PX] * nx_ + ps[_PY] * ny_)
+        cos_d = ps[_UX] * nx_ + ps[_UY] * ny_
         rc = r_s * cos_d
         cost = (e - rc) ** 2 * w_s + (1.0 - cos_d * cos_d) * (r_s * r_s * w_s + w_a)
         cost[e * rc <= -tol2] = _BIG
         if ext is not None:  # a straight segment of half length h departs h^2 / 2r from the arc
-            dev = np.maximum(ext["h2"] / rad - self.conf["extent_margin"], 0.0)
-            pen = (dev * dev * ext["w_e"]).repeat(n_p)
-            cost += pen[sel]
+            dev = np.maximum(ext["h2"][:, 0] / rad - c["extent_margin"], 0.0)
+            cost += (dev * dev * ext["w_e"][:, 0])[line_of_pair[sel]]
         best[sel] = np.minimum(best[sel], cost)
