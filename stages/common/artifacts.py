@@ -109,17 +109,22 @@ def write_artifact(path: str | Path, attrs: dict, *, resume: bool = False):
             f.close()
 
 
-def open_artifact(path: str | Path, schema: str, max_version: int) -> h5py.File:
-    """Open an artifact for reading, checking that it exists and is of ``schema``."""
-    path = Path(path)
+def _open_hdf5(path: Path) -> h5py.File:
+    """Open an HDF5 file for reading, or fail with one clear line."""
     if not path.exists():
         raise FieldlocError(f"file not found: {path}")
     try:
-        f = h5py.File(path, "r")
+        return h5py.File(path, "r")
     except OSError:
         raise SchemaError(
             f"{path}: not an HDF5 file (corrupt or not a fieldloc artifact)"
         ) from None
+
+
+def open_artifact(path: str | Path, schema: str, max_version: int) -> h5py.File:
+    """Open an artifact for reading, checking that it exists and is of ``schema``."""
+    path = Path(path)
+    f = _open_hdf5(path)
     got = f.attrs.get("schema")
     if isinstance(got, bytes):
         got = got.decode()
@@ -146,14 +151,7 @@ def describe(path: str | Path) -> str:
     """A text listing of an artifact's root attributes and tree (datasets with shape, dtype and
     units), for ``fieldloc inspect``."""
     path = Path(path)
-    if not path.exists():
-        raise FieldlocError(f"file not found: {path}")
-    try:
-        f = h5py.File(path, "r")
-    except OSError:
-        raise SchemaError(
-            f"{path}: not an HDF5 file (corrupt or not a fieldloc artifact)"
-        ) from None
+    f = _open_hdf5(path)
     lines = [f"{path}"]
     with f:
         if "schema" not in f.attrs:

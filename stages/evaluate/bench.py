@@ -158,37 +158,30 @@ def _work_dir() -> Path:
     return _INPUTS["dir"]
 
 
-def omni_inputs(frames: int = 20, seed: int = 3) -> dict:
-    """A rendered omni msl-2015 set, its features and map, built once per bench run."""
-    key = ("omni", frames, seed)
+def rendered_inputs(kind: str, field: str, frames: int, seed: int) -> dict:
+    """A rendered dataset of ``kind`` (omni or perspective) on ``field``, its features and
+    the field's map, built once per bench run."""
+    key = (kind, field, frames, seed)
     if key not in _INPUTS:
         from .. import build_map, extract, simulate
 
         d = _work_dir()
-        conf = dict(simulate.confs["omni-default"], frames=frames, seed=seed)
-        data = simulate.main(conf, "msl-2015", d / f"omni{frames}-{seed}")
+        conf = dict(simulate.confs[f"{kind}-default"], frames=frames, seed=seed)
+        data = simulate.main(conf, field, d / f"{kind}-{field}-{frames}-{seed}")
         feats = extract.main(None, data, data / "features.h5")
-        mp = d / "msl-2015.map.h5"
+        mp = d / f"{field}.map.h5"
         if not mp.exists():
-            build_map.main(None, "msl-2015", mp)
+            build_map.main(None, field, mp)
         _INPUTS[key] = {"data": data, "features": feats, "map": mp}
     return _INPUTS[key]
+
+
+def omni_inputs(frames: int = 20, seed: int = 3) -> dict:
+    return rendered_inputs("omni", "msl-2015", frames, seed)
 
 
 def perspective_inputs(frames: int, seed: int) -> dict:
-    key = ("perspective", frames, seed)
-    if key not in _INPUTS:
-        from .. import build_map, extract, simulate
-
-        d = _work_dir()
-        conf = dict(simulate.confs["perspective-default"], frames=frames, seed=seed)
-        data = simulate.main(conf, "kidsize", d / f"kid{frames}-{seed}")
-        feats = extract.main(None, data, data / "features.h5")
-        mp = d / "kidsize.map.h5"
-        if not mp.exists():
-            build_map.main(None, "kidsize", mp)
-        _INPUTS[key] = {"data": data, "features": feats, "map": mp}
-    return _INPUTS[key]
+    return rendered_inputs("perspective", "kidsize", frames, seed)
 
 
 def _lut_frames(inp: dict):
