@@ -24,8 +24,9 @@ w(d) * rho(e) quantised to 0..Q (Q = 151, so that the sum over the at most 432 o
 frame fits a uint16). It is stored scan-line-major ((line, bin) rows of all cells, contiguous),
 so the error surface of a frame over the whole world is the sum of one contiguous row per
 observation: one gather and one reduction (``global_search``), or the same restricted to a
-window (``local_search``). The quantised surface only picks cells; the pose is then refined with
-the exact error (float32 tables in metres, no quantisation):
+window (``local_search``), both in one numba kernel (``_lookup_sum``; the exact error and
+the refinement's cell moves are numba kernels too). The quantised surface only picks cells;
+the pose is then refined with the exact error (float32 tables in metres, no quantisation):
 
 - sub-cell position: exact error on the 3 x 3 cells around the best cell (moving to a lower
   neighbour until the centre is the minimum), then a least-squares quadratic fit of the 9 values;
@@ -47,6 +48,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from ..common.map_file import MapFile
 from ..common.scanlines import NO_HIT_MM
@@ -274,26 +276,12 @@ class TableSearch:
     def exact_errors(self, obs: Observation, cells, ms) -> np.ndarray:
         """Exact weighted error terms (len(ms), len(cells)) at flat cell indices ``cells`` for
         the table heading indices ``ms``."""
-        cells = np.asarray(cells, dtype=np.int64).ravel()
+        cells = np.ascontiguousarray(np.asarray(cells, dtype=np.int64).ravel())
         ms = np.atleast_1d(np.asarray(ms, dtype=np.int64))
-        k = (obs.angle_index[None, :] + ms[:, None]) % self.n_angles  # (H, n)
-        rad = obs.family == 0
         total = np.zeros((len(ms), len(cells)))
-        if rad.any():
-            n_r = int(rad.sum())
-            rows = (k[:, rad, None] * MAX_CROSSINGS + np.arange(MAX_CROSSINGS)).ravel()
-            t = np.take(self._radial_flat, rows[:, None] * self.ncell + cells[None, :])
-            t = t.reshape(len(ms), n_r, MAX_CROSSINGS, len(cells))
-            e = np.abs(t - obs.distance[rad][None, :, None, None].astype(np.float32)).min(axis=2)
-            total += np.einsum("n,hnc->hc", obs.weight[rad].astype(np.float32),
-                               _rho32(e, self.params.c))
-        sp = ~rad
-        if sp.any():
-            line = (obs.family[sp] - 1)[None, :] * self.n_angles + k[:, sp]  # (H, n_s)
-            t = np.take(self._spiral_flat, line[:, :, None] * self.ncell + cells[None, None, :])
-            e = np.abs(t - obs.distance[sp][None, :, None].astype(np.float32))
-            total += np.einsum("n,hnc->hc", obs.weight[sp].astype(np.float32),
-                               _rho32(e, self.params.c))
+        arrays = self._kernel_arrays(obs)
+        for h, m in enumerate(ms):
+            _exact_error_cells(*arrays, cells, int(m) % self.n_angles, 0.0, False, total[h])
         return total
 
     def exact_error(self, obs: Observation, cells, m: int) -> np.ndarray:
@@ -317,15 +305,20 @@ class TableSearch:
         m0, a = self._heading_bracket(theta)
         if a < 1e-6 or a > 1 - 1e-6:
             return self.exact_error(obs, cells, (m0 + (1 if a > 0.5 else 0)) % self.n_angles)
-        flat = cells.ravel()
+        flat = np.ascontiguousarray(cells.ravel())
         total = np.zeros(len(flat))
-        e_rad, e_sp = self._interpolated_errors(obs, flat, m0, a)
-        rad = obs.family == 0
-        if e_rad is not None:
-            total += obs.weight[rad].astype(np.float32) @ _rho32(e_rad, self.params.c)
-        if e_sp is not None:
-            total += obs.weight[~rad].astype(np.float32) @ _rho32(e_sp, self.params.c)
+        _exact_error_cells(*self._kernel_arrays(obs), flat, m0, float(a), True, total)
         return total.reshape(cells.shape)
+
+    def _kernel_arrays(self, obs: Observation) -> tuple:
+        """The leading arguments of ``_exact_error_cells`` for the observations."""
+        return (self._radial_flat, self._spiral_flat, self.ncell, self.n_angles,
+                np.ascontiguousarray(obs.family, dtype=np.int64),
+                np.ascontiguousarray(obs.angle_index, dtype=np.int64),
+                np.ascontiguousarray(obs.distance, dtype=np.float32),
+                np.ascontiguousarray(obs.weight, dtype=np.float32),
+                np.float32(self.params.pair_tolerance),
+                np.float32(self.params.c * self.params.c))
 
     def observation_errors(self, obs: Observation, cell, theta: float) -> np.ndarray:
         """Per observation, the error e = |d - predicted crossing| (m) at one cell (i, j) and
@@ -451,16 +444,31 @@ class TableSearch:
         return best
 
     def _surface(self, obs: Observation, m: int) -> np.ndarray:
-        rows = self.lookup_rows(obs, m)
-        return np.take(self.error_lookup, rows, axis=0).sum(axis=0, dtype=np.uint16)
+        out = np.empty((self.ny, self.nx), dtype=np.uint16)
+        _lookup_sum(self.error_lookup, *self._row_arrays(obs, m), 0, self.ny, 0, self.nx,
+                    self.nx, out)
+        return out.reshape(-1)
+
+    def _row_arrays(self, obs: Observation, m: int) -> tuple:
+        """The arguments of ``_lookup_sum`` that select the rows ``lookup_rows(obs, m)``."""
+        bins = np.rint(obs.distance / self.params.distance_bin).astype(np.int64)
+        return (np.ascontiguousarray(obs.family, dtype=np.int64),
+                np.ascontiguousarray(obs.angle_index, dtype=np.int64), bins, int(m),
+                self.n_angles, self.nb_radial, self.nb_spiral, self.spiral_row0)
 
     def local_surface(self, obs: Observation, m: int, i0: int, i1: int, j0: int, j1: int):
-        rows = self.lookup_rows(obs, m)
-        return self.error_lookup_3d[rows, i0:i1, j0:j1].sum(axis=0, dtype=np.uint16)
+        out = np.empty((i1 - i0, j1 - j0), dtype=np.uint16)
+        _lookup_sum(self.error_lookup, *self._row_arrays(obs, m), i0, i1, j0, j1, self.nx, out)
+        return out
 
     def local_window(self, x: float, y: float, half_width: float):
         """Cell bounds [i0, i1) x [j0, j1) of the window around (x, y), clipped to the grid."""
-        ci, cj = self.grid.cell_of(x, y)
+        g = self.grid
+        if math.isfinite(x) and math.isfinite(y):  # Grid.cell_of in scalar arithmetic
+            ci = min(max(round((y - g.origin[1]) / g.resolution), 0), self.ny - 1)
+            cj = min(max(round((x - g.origin[0]) / g.resolution), 0), self.nx - 1)
+        else:
+            ci, cj = g.cell_of(x, y)
         h = int(round(half_width / self.grid.resolution))
         return (max(0, int(ci) - h), min(self.ny, int(ci) + h + 1),
                 max(0, int(cj) - h), min(self.nx, int(cj) + h + 1))
@@ -475,7 +483,7 @@ class TableSearch:
         m = self.scanlines.heading_index(theta)
         i0, i1, j0, j1 = self.local_window(prior_xy[0], prior_xy[1], half_width)
         s = self.local_surface(obs, m, i0, i1, j0, j1)
-        bi, bj = np.unravel_index(int(np.argmin(s)), s.shape)
+        bi, bj = divmod(int(np.argmin(s)), s.shape[1])
         i, j = i0 + int(bi), j0 + int(bj)
         edge = ((i == i0 and i0 > 0) or (i == i1 - 1 and i1 < self.ny)
                 or (j == j0 and j0 > 0) or (j == j1 - 1 and j1 < self.nx))
@@ -495,20 +503,20 @@ class TableSearch:
         """Exact sub-cell refinement around ``cell``: the exact error at the continuous heading
         theta on the 3 x 3 cells around it (moving to the lowest while it is not the centre),
         then a least-squares quadratic fit of those 9 values."""
-        i, j = int(cell[0]), int(cell[1])
-        for _ in range(max_moves + 1):
-            ii = np.clip(np.arange(i - 1, i + 2), 0, self.ny - 1)
-            jj = np.clip(np.arange(j - 1, j + 2), 0, self.nx - 1)
-            e = self.exact_error_at_heading(obs, ii[:, None] * self.nx + jj[None, :], theta)
-            b = int(np.argmin(e))
-            ni, nj = int(ii[b // 3]), int(jj[b % 3])
-            if (ni, nj) == (i, j):
-                break
-            i, j = ni, nj
+        m0, a = self._heading_bracket(theta)
+        interpolate = not (a < 1e-6 or a > 1 - 1e-6)
+        if not interpolate:
+            m0, a = (m0 + (1 if a > 0.5 else 0)) % self.n_angles, 0.0
+        e = np.empty(9)
+        # the moves and the exact error on the final 3 x 3 patch (clipped to the grid)
+        i, j = divmod(_refine_moves(*self._kernel_arrays(obs), int(cell[0]), int(cell[1]),
+                                    self.ny, self.nx, m0, float(a), interpolate, max_moves, e),
+                      self.nx)
+        e = e.reshape(3, 3)
         W = max(obs.total_weight, 1e-12)
         dx, dy, fmin, hess = _quadratic_minimum(e / W)
         res = self.grid.resolution
-        x, y = self.grid.centre_of(i, j)
+        x, y = self.grid.origin[0] + j * res, self.grid.origin[1] + i * res  # Grid.centre_of
         e_norm = float(min(max(fmin, 0.0), float(e[1, 1]) / W))
         return SearchResult(
             x=float(x) + dx * res, y=float(y) + dy * res, theta=float(theta),
@@ -567,10 +575,11 @@ class TableSearch:
         cs = max(1, self.params.coarse_step)
         ncoarse = self.coarse_lookup.shape[1]
         surfaces = np.empty((n, ncoarse), dtype=np.uint16)
+        cy, cx = self.coarse_shape
+        row_arrays = self._row_arrays(obs, 0)
         for m in range(n):
-            rows = self.lookup_rows(obs, m)
-            np.sum(np.take(self.coarse_lookup, rows, axis=0), axis=0, dtype=np.uint16,
-                   out=surfaces[m])
+            _lookup_sum(self.coarse_lookup, *row_arrays[:3], m, *row_arrays[4:], 0, cy, 0, cx,
+                        cx, surfaces[m].reshape(cy, cx))
         flat = surfaces.ravel()
         pool = min(flat.size, 64 * candidates)
         cand = np.argpartition(flat, pool - 1)[:pool]
@@ -636,6 +645,133 @@ class TableSearch:
                 "table_bytes": int((len(rad_lines) * MAX_CROSSINGS + len(sp_lines))
                                    * self.ncell * 2),
                 "lookup_bytes": int(len(rows) * self.ncell)}
+
+
+# ---------------------------------------------------------------------------- kernels
+# Three numba kernels (compiled once, cached on disk): the error-lookup sum of the searches,
+# the exact error term on a few cells, and the cell moves of the sub-cell refinement. They
+# follow the numpy definitions above exactly (same float32 arithmetic per observation; the sum
+# over observations is accumulated in float64).
+
+
+@njit("void(uint8[:, ::1], int64[::1], int64[::1], int64[::1], int64, int64, int64, int64,"
+      " int64, int64, int64, int64, int64, int64, uint16[:, ::1])", cache=True, nogil=True)
+def _lookup_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
+                spiral_row0, i0, i1, j0, j1, nx, out):
+    """out[i - i0, j - j0] = sum over the observations of lookup[row, i * nx + j] (uint16), the
+    quantised error surface on the window [i0, i1) x [j0, j1) of a grid nx cells wide; the
+    rows are ``TableSearch.lookup_rows`` at heading index m (``bins``: the observed distances
+    in distance bins, rounded)."""
+    w = j1 - j0
+    out[:, :] = 0
+    for o in range(family.shape[0]):
+        k = (angle_index[o] + m) % n_angles
+        if family[o] == 0:
+            r = k * nb_radial + min(bins[o], nb_radial - 1)
+        else:
+            r = spiral_row0 + ((family[o] - 1) * n_angles + k) * nb_spiral + min(bins[o],
+                                                                                nb_spiral - 1)
+        row = lookup[r]
+        for i in range(i0, i1):
+            src = row[i * nx + j0:i * nx + j1]
+            dst = out[i - i0]
+            for j in range(w):
+                dst[j] += src[j]
+
+
+@njit("void(float32[::1], float32[::1], int64, int64, int64[::1], int64[::1], float32[::1],"
+      " float32[::1], float32, float32, int64[::1], int64, float64, boolean, float64[::1])",
+      cache=True, nogil=True)
+def _exact_error_cells(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist,
+                       weight, tol, c2, cells, m0, a, interpolate, out):
+    """out[c] = sum_i weight[i] * rho(e_i) at flat cell cells[c]: at table heading m0 with
+    e = distance to the nearest crossing of the scan line (``interpolate`` False), or at the
+    fraction ``a`` between m0 and m0 + 1 with the angle-interpolated prediction of
+    ``TableSearch.exact_error_at_heading``."""
+    a32 = np.float32(a)
+    b32 = np.float32(1.0) - a32
+    upper = a > 0.5
+    out[:] = 0.0
+    for o in range(dist.shape[0]):
+        k0 = (angle_index[o] + m0) % n_angles
+        k1 = (k0 + 1) % n_angles
+        d = dist[o]
+        w = weight[o]
+        if family[o] == 0:
+            r0 = k0 * MAX_CROSSINGS * ncell
+            r1 = k1 * MAX_CROSSINGS * ncell
+            for ci in range(cells.shape[0]):
+                c = cells[ci]
+                n0 = radial_flat[r0 + c]
+                e0 = abs(n0 - d)
+                for h in range(1, MAX_CROSSINGS):
+                    t = radial_flat[r0 + h * ncell + c]
+                    if abs(t - d) < e0:
+                        n0 = t
+                        e0 = abs(t - d)
+                if interpolate:
+                    n1 = radial_flat[r1 + c]
+                    e1 = abs(n1 - d)
+                    for h in range(1, MAX_CROSSINGS):
+                        t = radial_flat[r1 + h * ncell + c]
+                        if abs(t - d) < e1:
+                            n1 = t
+                            e1 = abs(t - d)
+                    if abs(n0 - n1) < tol:
+                        e = abs((b32 * n0 + a32 * n1) - d)
+                    elif upper:
+                        e = e1
+                    else:
+                        e = e0
+                else:
+                    e = e0
+                e2 = e * e
+                out[ci] += w * (e2 / (c2 + e2))
+        else:
+            base = (family[o] - 1) * n_angles
+            s0 = (base + k0) * ncell
+            s1 = (base + k1) * ncell
+            for ci in range(cells.shape[0]):
+                c = cells[ci]
+                t0 = spiral_flat[s0 + c]
+                if interpolate:
+                    t1 = spiral_flat[s1 + c]
+                    if abs(t0 - t1) < tol:
+                        e = abs((b32 * t0 + a32 * t1) - d)
+                    elif upper:
+                        e = abs(t1 - d)
+                    else:
+                        e = abs(t0 - d)
+                else:
+                    e = abs(t0 - d)
+                e2 = e * e
+                out[ci] += w * (e2 / (c2 + e2))
+
+
+@njit("int64(float32[::1], float32[::1], int64, int64, int64[::1], int64[::1], float32[::1],"
+      " float32[::1], float32, float32, int64, int64, int64, int64, int64, float64, boolean,"
+      " int64, float64[::1])", cache=True, nogil=True)
+def _refine_moves(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist, weight,
+                  tol, c2, i, j, ny, nx, m0, a, interpolate, max_moves, out):
+    """The cell search of ``TableSearch.refine``: the exact error (``_exact_error_cells``) on
+    the 3 x 3 cells around (i, j) (clipped to the grid, row-major, into ``out`` (9,)), moving
+    to the lowest while it is not the centre, at most ``max_moves`` times. Returns the final
+    cell as the flat index i * nx + j; ``out`` holds the last patch evaluated."""
+    cells = np.empty(9, dtype=np.int64)
+    for _ in range(max_moves + 1):
+        for di in range(3):
+            ii = min(max(i - 1 + di, 0), ny - 1)
+            for dj in range(3):
+                jj = min(max(j - 1 + dj, 0), nx - 1)
+                cells[3 * di + dj] = ii * nx + jj
+        _exact_error_cells(radial_flat, spiral_flat, ncell, n_angles, family, angle_index,
+                           dist, weight, tol, c2, cells, m0, a, interpolate, out)
+        b = np.argmin(out)
+        ni, nj = cells[b] // nx, cells[b] % nx
+        if ni == i and nj == j:
+            break
+        i, j = ni, nj
+    return i * nx + j
 
 
 # ---------------------------------------------------------------------------- helpers
@@ -730,7 +866,7 @@ def _quadratic_minimum(e: np.ndarray):
     """Sub-cell minimum of a 3 x 3 error patch (rows y, columns x): (dx, dy, value, Hessian in
     cell units). Falls back to per-axis parabolas where the fit is not a bowl; offsets are
     clipped to one cell."""
-    a, bx, by, dxx, dxy, dyy = (float(v) for v in _QPINV @ e.ravel())
+    a, bx, by, dxx, dxy, dyy = (_QPINV @ e.ravel()).tolist()
     hxx, hyy = 2 * dxx, 2 * dyy
     det = hxx * hyy - dxy * dxy
     if det > 1e-12 and hxx > 0:
