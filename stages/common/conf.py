@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import importlib
 
 import yaml
 
@@ -52,3 +53,11 @@ def _merge(base: dict, key, value, path):
             _merge(base[key], k, v, f"{path}.{k}")
     else:
         base[key] = value
+
+
+def registered_module(registry: dict[str, str], name: str, what: str):
+    """The module registered under ``name`` (imported on first use); an unknown name is a user
+    error that lists the known ones. ``what`` names the registry in the message."""
+    if name not in registry:
+        raise FieldlocError(f"unknown {what} '{name}' (known: {', '.join(registry)})")
+    return importlib.import_module(registry[name])

@@ -20,7 +20,6 @@ the file's ``failures`` and skipped. The output appears atomically when the run 
 
 from __future__ import annotations
 
-import importlib
 import json
 import logging
 from pathlib import Path
@@ -28,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common.artifacts import file_hash, root_attrs
-from ..common.conf import resolve_conf
+from ..common.conf import registered_module, resolve_conf
 from ..common.dataset import open_dataset, read_image
 from ..common.errors import DatasetError, FieldlocError, SchemaError
 from ..common.features_file import SCHEMA, VERSION, FeaturesFile, write_features
@@ -43,9 +42,7 @@ MASK_NAME = "mask.png"
 
 def kind_module(kind: str):
     """The extractor module of a camera kind (imported on first use)."""
-    if kind not in KINDS:
-        raise FieldlocError(f"no extractor for camera kind '{kind}' (known: {', '.join(KINDS)})")
-    return importlib.import_module(KINDS[kind])
+    return registered_module(KINDS, kind, "camera kind")
 
 
 def kind_confs(kind: str) -> dict:

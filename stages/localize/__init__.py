@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common.artifacts import file_hash, root_attrs
-from ..common.conf import resolve_conf
+from ..common.conf import registered_module, resolve_conf
 from ..common.dataset import open_dataset
 from ..common.errors import DatasetError, FieldlocError
 from ..common.features_file import FeaturesFile
@@ -44,9 +44,7 @@ DEFAULT_METHOD = "lut"
 
 def method_module(method: str):
     """The module of a localisation method (imported on first use)."""
-    if method not in METHODS:
-        raise FieldlocError(f"unknown method '{method}' (known: {', '.join(METHODS)})")
-    return importlib.import_module(METHODS[method])
+    return registered_module(METHODS, method, "method")
 
 
 def method_confs(method: str) -> dict:
