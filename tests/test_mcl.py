@@ -267,8 +267,8 @@ def test_recovers_after_kidnapping(kidsize, model):
 def test_asymmetric_field_is_not_paired(kidsize):
     extra = np.concatenate([kidsize.segments, [[[1.0, 1.0], [2.0, 1.0]]]])
     fm = dataclasses.replace(kidsize, segments=extra)
-    assert mcl.field_is_point_symmetric(kidsize)
-    assert not mcl.field_is_point_symmetric(fm)
+    assert kidsize.is_point_symmetric()
+    assert not fm.is_point_symmetric()
 
 
 # ---------------------------------------------------------------------------- the stage

@@ -184,7 +184,7 @@ class ParticleFilter:
         c = self.conf
         mode = mode or c["init"]
         self.paired = (mode == "uniform" and bool(c["symmetric_pairs"])
-                       and field_is_point_symmetric(self.field))
+                       and self.field.is_point_symmetric())
         n = self._base_count(int(c["init_particles"].get(mode, c["particles_max"])))
         self._last_pose = None
         self._last_estimate = None
@@ -559,51 +559,6 @@ class ParticleFilter:
         if first:
             est.mode = "initial"
         return est
-
-
-def field_is_point_symmetric(field_model, tol: float = 1e-6) -> bool:
-    """Whether the field looks the same after a 180 deg turn about the centre spot (line
-    segments, arcs, crossings with their types, goal posts): then a pose and its mirror
-    (FieldModel.mirror_pose) explain every observation equally."""
-
-    def same_sets(a, b) -> bool:
-        a = np.asarray(a, float).reshape(len(a), -1)
-        b = np.asarray(b, float).reshape(len(b), -1)
-        if a.shape != b.shape:
-            return False
-        if not len(a):
-            return True
-        d = np.abs(a[:, None, :] - b[None, :, :]).max(axis=2)
-        return bool(np.all(d.min(axis=1) < tol) and np.all(d.min(axis=0) < tol))
-
-    def unordered(seg):  # a segment as its end points in lexicographic order
-        seg = np.asarray(seg, float).reshape(-1, 2, 2)
-        swap = (seg[:, 0, 0] > seg[:, 1, 0] + tol) | (
-            (np.abs(seg[:, 0, 0] - seg[:, 1, 0]) <= tol) & (seg[:, 0, 1] > seg[:, 1, 1]))
-        seg = seg.copy()
-        seg[swap] = seg[swap][:, ::-1]
-        return seg.reshape(-1, 4)
-
-    fm = field_model
-    if not same_sets(unordered(fm.segments), unordered(-np.asarray(fm.segments, float))):
-        return False
-    arcs = np.asarray(fm.arcs, float).reshape(-1, 5)
-    arcs_m = arcs.copy()
-    arcs_m[:, 0:2] *= -1
-    arcs_m[:, 3] += math.pi
-    arcs_key = np.column_stack([arcs[:, 0:3], np.cos(arcs[:, 3]), np.sin(arcs[:, 3]), arcs[:, 4]])
-    arcs_m_key = np.column_stack([arcs_m[:, 0:3], np.cos(arcs_m[:, 3]), np.sin(arcs_m[:, 3]),
-                                  arcs_m[:, 4]])
-    full = arcs[:, 4] >= 2 * math.pi - 1e-9  # a full circle has no start to compare
-    arcs_key[full, 3:5] = arcs_m_key[full, 3:5] = 0.0
-    if not same_sets(arcs_key, arcs_m_key):
-        return False
-    types = np.asarray(fm.crossing_types)
-    for kind in np.unique(types):
-        pos = np.asarray(fm.crossings, float)[types == kind]
-        if not same_sets(-pos, pos):
-            return False
-    return same_sets(-np.asarray(fm.goal_posts, float), fm.goal_posts)
 
 
 # ---------------------------------------------------------------------------- the stage
