@@ -1,22 +1,28 @@
 """The poses artifact (schema ``fieldloc.poses``) written by ``localize``, and its TUM twin.
 
 Root attributes: the common ones plus ``method`` (lut, mcl, templates), ``field`` (name),
-``dataset``.
+``dataset``, ``min_confidence`` (the acceptance threshold the run used).
 
     /poses/name        (N,) str    frame name
     /poses/stamp       (N,) f8     s
-    /poses/x, /y       (N,) f8     m, field frame; NaN where the frame failed
+    /poses/x, /y       (N,) f8     m, field frame: the top hypothesis; NaN where the frame failed
     /poses/theta       (N,) f8     rad
-    /poses/failed      (N,) bool   the method could not localise this frame (never a fallback)
+    /poses/failed      (N,) bool   no hypothesis beat the null (never a fallback pose)
+    /poses/accepted    (N,) bool   v2: not failed and confidence >= min_confidence
     /poses/error       (N,) f4     method's own error term (lut: weighted matching error)
-    /poses/confidence  (N,) f4     0..1
+    /poses/confidence  (N,) f4     0..1, the probability of the top hypothesis
     /poses/mode        (N,) str    how the pose was found: global, local, tracking, ...
     /poses/runtime     (N,) f4     s, time the method spent on the frame
     /poses/covariance  (N, 3, 3) f4  optional, m^2 / rad^2
     /poses/flags       (N,) str    optional notes per frame (e.g. "mirror-ambiguous")
+    /hypotheses        (N, K, 4) f8  v2: per frame up to K hypotheses, ranked, as
+                                   (x m, y m, theta rad, probability); NaN rows pad
 
-``poses.tum`` beside it holds "stamp x y z qx qy qz qw" rows of the frames that did not fail,
-readable by evo.
+Version 1 files (no ``accepted``, no ``/hypotheses``) are read as if every frame that did not
+fail was accepted and had one hypothesis, its pose with its confidence.
+
+``poses.tum`` beside it holds "stamp x y z qx qy qz qw" rows of the accepted frames (the top
+hypothesis), readable by evo.
 """
 
 from __future__ import annotations
@@ -31,7 +37,7 @@ import numpy as np
 from .artifacts import atomic_path, open_artifact, read_json_attr, write_artifact
 
 SCHEMA = "fieldloc.poses"
-VERSION = 1
+VERSION = 2
 
 COLUMNS = {
     # name: (dtype, units)
@@ -40,6 +46,7 @@ COLUMNS = {
     "y": ("f8", "m"),
     "theta": ("f8", "rad"),
     "failed": ("bool", ""),
+    "accepted": ("bool", ""),
     "error": ("f4", ""),
     "confidence": ("f4", ""),
     "runtime": ("f4", "s"),
@@ -56,16 +63,21 @@ class PoseTrack:
     y: list = field(default_factory=list)
     theta: list = field(default_factory=list)
     failed: list = field(default_factory=list)
+    accepted: list = field(default_factory=list)
     error: list = field(default_factory=list)
     confidence: list = field(default_factory=list)
     mode: list = field(default_factory=list)
     runtime: list = field(default_factory=list)
     covariance: list = field(default_factory=list)
     flags: list = field(default_factory=list)
+    hypotheses: list = field(default_factory=list)  # per frame (k, 4) x, y, theta, probability
 
     def add(self, name, stamp, pose=None, *, error=math.nan, confidence=0.0, mode="",
-            runtime=0.0, covariance=None, flags=""):
-        """Record one frame; ``pose=None`` records a failure (NaN pose, failed=True)."""
+            runtime=0.0, covariance=None, flags="", hypotheses=None, accepted=None):
+        """Record one frame; ``pose=None`` records a failure (NaN pose, failed=True, no
+        hypotheses). ``hypotheses`` (k, 4): ranked (x, y, theta, probability), the first
+        being ``pose``; by default the pose alone with ``confidence``. ``accepted``: by
+        default every frame that did not fail."""
         failed = pose is None
         x, y, th = (math.nan, math.nan, math.nan) if failed else (float(v) for v in pose)
         self.name.append(str(name))
@@ -74,6 +86,7 @@ class PoseTrack:
         self.y.append(y)
         self.theta.append(th)
         self.failed.append(failed)
+        self.accepted.append(bool(not failed if accepted is None else accepted and not failed))
         self.error.append(float(error))
         self.confidence.append(float(confidence))
         self.mode.append(str(mode))
@@ -82,6 +95,13 @@ class PoseTrack:
             np.full((3, 3), np.nan) if covariance is None else np.asarray(covariance, float)
         )
         self.flags.append(str(flags))
+        if failed:
+            h = np.zeros((0, 4))
+        elif hypotheses is None:
+            h = np.array([[x, y, th, float(confidence)]])
+        else:
+            h = np.asarray(hypotheses, float).reshape(-1, 4)
+        self.hypotheses.append(h)
 
     def __len__(self):
         return len(self.name)
@@ -92,7 +112,18 @@ class PoseTrack:
         out["mode"] = np.asarray(self.mode, dtype=object)
         out["flags"] = np.asarray(self.flags, dtype=object)
         out["covariance"] = np.asarray(self.covariance, dtype=np.float32).reshape(-1, 3, 3)
+        out["hypotheses"] = pad_hypotheses(self.hypotheses)
         return out
+
+
+def pad_hypotheses(per_frame: list) -> np.ndarray:
+    """(N, K, 4) from a list of (k_i, 4) arrays, K = max k_i (at least 1), NaN padded."""
+    k = max([len(h) for h in per_frame] + [1])
+    out = np.full((len(per_frame), k, 4), np.nan)
+    for i, h in enumerate(per_frame):
+        if len(h):
+            out[i, :len(h)] = h
+    return out
 
 
 def write_poses(path: str | Path, track: PoseTrack, attrs: dict, *, tum: bool = True) -> Path:
@@ -110,14 +141,18 @@ def write_poses(path: str | Path, track: PoseTrack, attrs: dict, *, tum: bool = 
             g.create_dataset(k, data=np.array(arr[k], dtype=s))
         ds = g.create_dataset("covariance", data=arr["covariance"])
         ds.attrs["units"] = "m^2, rad^2"
+        ds = h5.create_dataset("hypotheses", data=arr["hypotheses"])
+        ds.attrs["units"] = "m, m, rad, 1"
+        ds.attrs["columns"] = "x, y, theta, probability"
     if tum:
         write_tum(path.with_suffix(".tum"), arr)
     return path
 
 
 def write_tum(path: str | Path, arr: dict) -> Path:
-    """TUM trajectory rows 'stamp x y z qx qy qz qw' (z = 0, yaw-only quaternion)."""
-    ok = ~arr["failed"]
+    """TUM trajectory rows 'stamp x y z qx qy qz qw' (z = 0, yaw-only quaternion) of the
+    accepted frames."""
+    ok = np.asarray(arr["accepted"], bool) if "accepted" in arr else ~arr["failed"]
     th = arr["theta"][ok]
     rows = np.stack(
         [arr["stamp"][ok], arr["x"][ok], arr["y"][ok], np.zeros(ok.sum()),
@@ -125,12 +160,15 @@ def write_tum(path: str | Path, arr: dict) -> Path:
         axis=1,
     )
     with atomic_path(Path(path), suffix=".tum") as tmp:
-        np.savetxt(tmp, rows, fmt="%.6f", header="stamp x y z qx qy qz qw")
+        with open(tmp, "w", newline="\n") as f:
+            np.savetxt(f, rows, fmt="%.6f", header="stamp x y z qx qy qz qw")
     return Path(path)
 
 
 def read_poses(path: str | Path) -> tuple[dict[str, np.ndarray], dict]:
-    """Columns and root attributes (with ``conf`` and ``inputs`` decoded) of a poses file."""
+    """Columns and root attributes (with ``conf`` and ``inputs`` decoded) of a poses file,
+    version 1 or 2. The columns include ``accepted`` and ``hypotheses`` (N, K, 4) for both
+    versions (see the module doc for version 1)."""
     with open_artifact(path, SCHEMA, VERSION) as h5:
         g = h5["poses"]
         out = {}
@@ -139,7 +177,17 @@ def read_poses(path: str | Path) -> tuple[dict[str, np.ndarray], dict]:
             if v.dtype.kind in ("O", "S"):
                 v = np.array([s.decode() if isinstance(s, bytes) else s for s in v], dtype=object)
             out[k] = v
+        if "hypotheses" in h5:
+            out["hypotheses"] = h5["hypotheses"][()]
         attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in h5.attrs.items()}
         attrs["conf"] = read_json_attr(h5, "conf")
         attrs["inputs"] = read_json_attr(h5, "inputs")
+    failed = np.asarray(out["failed"], bool)
+    if "accepted" not in out:
+        out["accepted"] = ~failed
+    if "hypotheses" not in out:
+        h = np.full((len(failed), 1, 4), np.nan)
+        h[:, 0, 0], h[:, 0, 1], h[:, 0, 2] = out["x"], out["y"], out["theta"]
+        h[:, 0, 3] = np.where(failed, np.nan, out["confidence"])
+        out["hypotheses"] = h
     return out, attrs

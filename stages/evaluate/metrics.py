@@ -14,6 +14,21 @@ Conventions (also written into every report.json under ``conventions``):
 - Percentiles interpolate linearly between order statistics as numpy's default does; an
   interpolation that touches an infinite value gives inf.
 - Heading error is the absolute difference wrapped to [0, pi] (an error of 350 deg is 10 deg).
+- Hypotheses (poses v2): a frame that did not fail has a ranked list of hypotheses, the first
+  being its pose, with probabilities; its confidence is the probability of the first. A frame
+  is *accepted* when the method's confidence reached its acceptance threshold. The error
+  statistics and the within shares count every matched frame without an accepted pose as a
+  failure (infinite error); ``hypotheses`` gives the accuracy of the top hypothesis over all
+  frames that have one (accepted or not), of the best of the top K, and the share of frames
+  whose truth is the mirror image of the top hypothesis.
+- Calibration: over the matched frames that have a hypothesis, a frame is *correct* when its
+  top hypothesis lies within ``calibration_threshold`` (0.4 m) of the truth. ``reliability``
+  bins the confidence in tenths and gives per bin the frames, the mean confidence and the
+  observed share of correct frames (with its binomial standard error); ``auroc`` is the area
+  under the ROC curve of the confidence as a detector of correct frames (equivalently of
+  1 - confidence for "error > threshold"): the probability that a correct frame has a higher
+  confidence than a wrong one, ties counting half; NaN when all frames are correct or all
+  wrong. ``confidently_wrong`` counts accepted frames more than 1 m off.
 """
 
 from __future__ import annotations
@@ -49,6 +64,12 @@ class FrameErrors:
     truth_theta: np.ndarray
     position_error: np.ndarray  # m
     heading_error: np.ndarray  # rad, in [0, pi]
+    # poses v2 (v1 files: accepted = not failed, one hypothesis per frame)
+    accepted: np.ndarray | None = None  # bool
+    confidence: np.ndarray | None = None  # probability of the top hypothesis
+    top_error: np.ndarray | None = None  # m, position error of the top hypothesis (inf: none)
+    best_error: np.ndarray | None = None  # m, of the best of the frame's hypotheses
+    top_mirrored: np.ndarray | None = None  # bool, the truth is the top's mirror image
 
     @property
     def matched(self) -> np.ndarray:
@@ -84,7 +105,8 @@ def heading_error(theta, truth_theta) -> np.ndarray:
     return np.abs(wrap_angle(np.asarray(theta, float) - np.asarray(truth_theta, float)))
 
 
-def frame_errors(columns: dict, truth: dict, tolerance: float) -> FrameErrors:
+def frame_errors(columns: dict, truth: dict, tolerance: float,
+                 mirror_threshold: float = 0.4) -> FrameErrors:
     """Match a pose track (columns as read by ``read_poses``) with truth (``read_csv(...,
     "truth")``) and compute per-frame errors. Raises FieldlocError when no frame matches."""
     stamp = np.asarray(columns["stamp"], dtype=float)
@@ -125,6 +147,23 @@ def frame_errors(columns: dict, truth: dict, tolerance: float) -> FrameErrors:
     head[ok] = heading_error(theta[ok], tth[ok])
     pos[matched & failed] = np.inf
     head[matched & failed] = np.inf
+    accepted = np.asarray(columns.get("accepted", ~failed), bool) & ~failed
+    top_error = pos.copy()
+    # the statistics count frames without an accepted pose as failures
+    pos[matched & ~accepted] = np.inf
+    head[matched & ~accepted] = np.inf
+    hyps = columns.get("hypotheses")
+    if hyps is None:
+        hyps = np.stack([x, y, theta, np.asarray(columns.get("confidence", ~failed), float)],
+                        axis=1)[:, None, :]
+    hyps = np.asarray(hyps, float)
+    hd = np.hypot(hyps[..., 0] - tx[:, None], hyps[..., 1] - ty[:, None])
+    hd[~np.isfinite(hd)] = np.inf
+    best_error = np.where(matched, hd.min(axis=1), np.nan)
+    best_error[matched & failed] = np.inf
+    top_mirrored = ok & (np.hypot(-x - tx, -y - ty) <= mirror_threshold) & (
+        top_error > mirror_threshold)
+    conf_col = np.asarray(columns.get("confidence", np.where(failed, 0.0, 1.0)), float)
     mode = columns.get("mode")
     runtime = columns.get("runtime")
     names = columns.get("name")
@@ -144,6 +183,11 @@ def frame_errors(columns: dict, truth: dict, tolerance: float) -> FrameErrors:
         truth_theta=tth,
         position_error=pos,
         heading_error=head,
+        accepted=accepted,
+        confidence=conf_col,
+        top_error=top_error,
+        best_error=best_error,
+        top_mirrored=top_mirrored,
     )
 
 
@@ -201,6 +245,65 @@ def mirrored_frames(fe: FrameErrors, threshold: float) -> int:
     return int(np.sum((fe.position_error[ok] > threshold) & (mirror_err <= threshold)))
 
 
+def reliability(confidence, correct, bins: int = 10) -> list[dict]:
+    """Reliability table: confidence in ``bins`` equal bins over [0, 1] (the last closed);
+    per non-empty bin the frames, the mean confidence, the observed share of correct frames
+    and its binomial standard error."""
+    c = np.asarray(confidence, float)
+    ok = np.asarray(correct, bool)
+    k = np.clip((c * bins).astype(int), 0, bins - 1)
+    out = []
+    for b in range(bins):
+        sel = k == b
+        n = int(sel.sum())
+        if not n:
+            continue
+        share = float(ok[sel].mean())
+        out.append({"bin": [b / bins, (b + 1) / bins], "frames": n,
+                    "confidence": float(c[sel].mean()), "observed": share,
+                    "stderr": float(math.sqrt(max(share * (1 - share), 0.25 / n) / n))})
+    return out
+
+
+def auroc(score, positive) -> float:
+    """Area under the ROC curve of ``score`` as a detector of ``positive``: the probability
+    that a positive scores higher than a negative, ties counting half (Mann-Whitney U / n1 n0).
+    NaN without positives or without negatives."""
+    s = np.asarray(score, float)
+    y = np.asarray(positive, bool)
+    n1, n0 = int(y.sum()), int((~y).sum())
+    if n1 == 0 or n0 == 0:
+        return math.nan
+    order = np.argsort(s, kind="mergesort")
+    ranks = np.empty(len(s))
+    sorted_s = s[order]
+    # average ranks of ties
+    i = 0
+    while i < len(s):
+        j = i
+        while j + 1 < len(s) and sorted_s[j + 1] == sorted_s[i]:
+            j += 1
+        ranks[order[i:j + 1]] = 0.5 * (i + j) + 1.0
+        i = j + 1
+    u = ranks[y].sum() - n1 * (n1 + 1) / 2.0
+    return float(u / (n1 * n0))
+
+
+def calibration(fe: FrameErrors, threshold: float = 0.4, bins: int = 10) -> dict:
+    """Reliability and AUROC of the confidence (module doc), over the matched frames that
+    have a hypothesis."""
+    sel = fe.matched & ~fe.failed
+    correct = fe.top_error[sel] <= threshold
+    conf = fe.confidence[sel]
+    table = reliability(conf, correct, bins)
+    gaps = [abs(r["observed"] - r["confidence"]) for r in table]
+    return {"threshold_m": float(threshold), "frames": int(sel.sum()),
+            "correct": int(correct.sum()), "auroc": auroc(conf, correct),
+            "max_gap": float(max(gaps)) if gaps else math.nan,
+            "brier": float(np.mean((conf - correct) ** 2)) if sel.any() else math.nan,
+            "reliability": table}
+
+
 def summarize(fe: FrameErrors, thresholds) -> dict:
     """The numbers of a report: counts, error statistics (failures as inf, and over localised
     frames only), shares within thresholds, runtime, modes."""
@@ -228,6 +331,16 @@ def summarize(fe: FrameErrors, thresholds) -> dict:
             "within": within_shares(fe.position_error[ok], thresholds),
         },
         "mirrored": mirrored_frames(fe, max(thresholds)) if thresholds else 0,
+        "accepted": int((m & fe.accepted).sum()),
+        "not_accepted": int((m & ~fe.accepted).sum()),
+        "hypotheses": {
+            "frames": int((m & ~fe.failed).sum()),
+            "top_within": within_shares(fe.top_error[m], thresholds),
+            "best_within": within_shares(fe.best_error[m], thresholds),
+            "top_mirrored": float(fe.top_mirrored[m].mean()) if m.any() else math.nan,
+        },
+        "calibration": calibration(fe, max(thresholds) if thresholds else 0.4),
+        "confidently_wrong": int((m & fe.accepted & (fe.top_error > 1.0)).sum()),
         "runtime_ms": {
             "median": percentile(rt, 50),
             "mean": float(np.mean(rt)) if rt.size else math.nan,

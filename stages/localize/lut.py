@@ -1,100 +1,84 @@
-"""Method ``lut``: localisation in the scan-line tables of seed 002, frame by frame.
+"""Method ``lut``: localisation in the scan-line tables of seed 002, as ranked hypotheses with a
+probability each.
 
 The matching is the seed's (lut_search.py): per observed crossing distance the error to the
 table entry of its scan line, weighted by rho(e) = 1 - c^2 / (c^2 + e^2), nearer points weighing
-more. This module decides whether a fix is accepted, whether the frame fails, and when the
-robot is lost. None of these decisions thresholds the mean error e_norm: in a frame whose line
-points are mostly clutter (a white cable on the carpet, sticks, feet, reflections) e_norm is
-high at the true pose although the field lines in view fix the pose well, and a wrong pose can
-score a *lower* e_norm by fitting the clutter to some other line. The decisions rest on
+more; E(pose) is the sum, in units of full-weight observations. This module turns E into a
+belief. There is one quantity behind every decision: the tempered likelihood
 
-- support: the inliers of a fix (lut_search.Support), the observations within
-  ``inlier_error`` (c / 2) of their predicted crossing, their number and share;
-- distinctness (global fixes, made without a prior): no rival minimum farther than
-  ``ambiguity_distance`` may fit nearly as well, and no other pose may explain a large part of
-  what the fix leaves unexplained;
-- agreement with the odometry (tracking): the fix must lie in the Kalman innovation gate
-  around the prior.
+    p(frame | pose)  ~  exp(-E(pose) / T)
 
-Per frame:
+(``temperature`` T: neighbouring scan lines see the same white line, so the observations are
+not independent and one full-weight observation is worth less than one nat; T is fitted so that
+the probabilities are calibrated, see the README's reliability figures) combined with the prior
+the robot's motion gives, over a short list of hypotheses.
 
-1. observations: the frame's radial (72, 4) and spiral (2, 72) crossing distances; fewer than
-   ``min_observations`` -> the frame fails (too-few-observations), the track is kept;
-2. heading (``heading``): ``imu`` (imu.csv yaw aligned to the field, see heading.py),
-   ``histogram`` (line-point histograms within +-40 deg of the last heading moved by the
-   odometry's turn; accepted when sharp and within ``histogram_gate`` of that prediction),
-   or ``truth`` (truth.csv, for ablations). With no heading yet (histogram on the first frame
-   or after more than ``max_predicted_frames`` failures, imu with ``imu_alignment: vision``
-   before the first fix) the unknown-heading global search (all 72 headings) finds pose and
-   heading, accepted like a global fix with ``unknown_heading_ratio`` for ``distinct_ratio``,
-   no dominance test, and its mirror pose not counted as a rival (see ``start_half``);
-3. global search (lost: the first frame, more than ``max_predicted_frames`` failed frames in a
-   row, or a prior so uncertain that ``gate_sigmas`` of its sigma exceed half the window).
-   The fix needs ``min_global_inliers`` inliers and an inlier share of
-   ``min_global_inlier_share`` (too-few-inliers), and it must be distinct (ambiguous): every
-   rival minimum of the search (the ``global_candidates`` best, ``ambiguity_distance`` apart)
-   has an e_norm at least ``distinct_ratio`` times the fix's and ``distinct_margin`` more in
-   the error term (units of full-weight observations), or the fix dominates it: it explains
-   ``dominance_unique`` observations the rival does not and ``dominance_ratio`` times as many
-   as the rival explains that it does not (a rival along the only line in view explains a
-   subset of what the fix explains); and a global search over the fix's outliers finds no
-   pose explaining ``second_explanation`` times the fix's inlier count (at least
-   ``min_global_inliers``) of them. The last test catches clutter near the robot, which
-   weighs more than the far field lines: a pose fitting a cable to some line can win the
-   frame, the true pose, ranked on all observations, is then not among the runners-up, but
-   it explains the lines that pose leaves out;
-4. tracking: the prior is the previous pose moved by the odometry (on IMU collision frames by
-   the last fused motion), its covariance the fusion's prediction. The seed's local search in
-   a ``window`` x ``window`` m square around it gives the fix when its innovation (Mahalanobis
-   distance from the prior under the prior's covariance, the fix's covariance and a floor of
-   (``min_gate`` / ``gate_sigmas``)^2 against overconfidence) is at most ``gate_sigmas``: a fix
-   seeing one line passes anywhere along it, a fix within ``min_gate`` always passes.
-   Otherwise (the odometry says the robot cannot have jumped to that minimum) the fix is the
-   basin the prior lies in, found by descent from the prior's cell (flag outside-gate); when
-   that fails the gate too, no-fit-near-prior. The fix needs ``min_inliers`` inliers and an
-   inlier share of ``min_inlier_share`` (too-few-inliers). A rejected tracking fix makes a
-   global search run on the same frame: its fix is taken when it passes the global tests (a
-   clear frame after a wrong track), else the frame fails (flag global-<reason>) and the prior
-   moves on with the odometry. A window minimum outside the gate that passes the global
-   support tests and is distinctly better than the tracked fix contests the track; after
-   ``lost_frames`` contested frames in a row a global fix that passes the global tests
-   replaces it (flag relocalised);
-5. fusion (``fusion.enabled``): the vision fix and the odometry in the decentralised Kalman
-   filter (kalman.py); odometry is not fused on IMU collision frames. The fused pose is the
-   frame's pose; after a global fix that failed the gate around the track the filter restarts
-   at the fix.
+Hypotheses (tracks). The belief is a mixture of a few Gaussian tracks (at most ``max_tracks``),
+each a pose tracked by the decentralised Kalman filter of seed 002 (kalman.py) with a weight.
+Per frame, for each track:
 
-``start_half`` (own | opponent | any): the half of the field the robot is on at its first fix,
-which resolves the 180 deg mirror ambiguity of a symmetric field for the unknown-heading search
-(histogram heading, or IMU with ``imu_alignment: vision``): own = x < 0 (the field's +x points
-at the opponent goal), opponent = x > 0. A first fix on the other half whose mirror pose fits
-as well is replaced by the mirror pose (flag start-half; flag start-half-contradicted and the
-fix kept if the mirror pose fits clearly worse, on a field that is not symmetric). With
-``any`` a fix whose mirror fits as well is flagged mirror-ambiguous and kept; later
-re-localisations with unknown heading pick the candidate nearest the old track's heading.
-Near the centre line the half is decided by the sign of x all the same.
+1. its prior: the previous fused pose moved by the odometry (by the last fused motion on IMU
+   collision frames), with the fusion's predicted covariance;
+2. heading: ``imu`` (imu.csv yaw aligned to the field, heading.py), ``histogram`` (the seed's
+   line-point histograms within +-40 deg of the track's predicted heading), ``truth`` (for
+   ablations); where that heading cannot be used (IMU yaw on a collision frame, a histogram
+   without straight lines) the search refines the heading itself;
+3. the seed's local search in a ``window`` x ``window`` m square around the prior, ranked by
+   the posterior E(cell) / T + Mahalanobis^2 / 2 (so a minimum far from where the odometry says
+   the robot is needs that much more evidence), refined to sub-cell in its basin: the fix;
+4. its weight is multiplied by the fix's likelihood exp(-E / T) and by the odometry's agreement
+   exp(-m^2 / 2) (m: the Kalman innovation of the fix, with a floor of ``min_gate`` /
+   ``gate_sigmas`` against overconfidence), and by 1 - ``kidnap_probability``;
+5. the fix is fused (when it beats the null, below).
 
-Recorded per frame: pose, ``error`` = the normalised error term e_norm in [0, 1) of the fix
-(reported, not used to decide), ``confidence`` = inlier share * min(1, inliers /
-``full_inliers``), ``mode`` (global, global-heading, local; ``failed`` with a reason), runtime,
-fused covariance, and flags: collision (IMU flag); heading-vision (the heading source could not
-be used, IMU yaw on a collision frame or a histogram without straight lines, so the search
-refined the heading itself); heading-unsure (that vision heading was not pinned down either, the
-predicted heading was kept with ``unsure_heading_sigma``); window-edge (the window's minimum
-lay on its edge); outside-gate; relocalised; mirror-ambiguous; start-half; failure reasons
-too-few-observations, too-few-inliers, no-fit-near-prior, ambiguous, no-imu-row,
+Global searches propose new tracks: on the first frame, when no track is left, every
+``global_every`` frames while tracking (a wrong track cannot persist unchallenged), and when
+the last frame was not accepted. Each separated minimum of the search (``global_candidates``,
+``ambiguity_distance`` apart) that is not an existing track (or its mirror) is a candidate of
+prior mass ``kidnap_probability`` / N, N the number of ``ambiguity_distance`` squares in the
+world (a uniform prior over where the robot could have been put; without tracks the uniform
+prior alone). The weights are normalised, tracks below ``prune_probability`` dropped, tracks
+that meet merged. With no heading known (histogram on the first frame, IMU with
+``imu_alignment: vision`` before its first fix) the unknown-heading search (all 72 headings)
+proposes poses and headings.
+
+The null. The same observations at random bearings (each scan line keeps its crossings, the
+lines are shuffled: ``Observation.random_bearings``), searched the same way (the global search
+for a global frame, the window around the strongest track otherwise), show what chance alone
+explains: E_null, the median over ``null_copies`` copies. A frame *fails* when no hypothesis
+beats the null (E >= E_null: ``uninformative``) or when it has fewer than ``min_observations``
+crossings (``too-few-observations``); then the tracks only predict. In a global frame the null
+also enters the normalisation as one more hypothesis ("the pose is none of these"), so a frame
+whose best pose barely beats chance gets a low probability.
+
+The 180 deg symmetry. On a point-symmetric field (FieldModel.is_point_symmetric) a pose and its
+mirror explain every frame equally: a track carries the share of its weight that belongs to
+its mirror image (``mirror``), set when the unknown-heading search finds both (about 1/2) and
+never changed by the lines. A field-aligned IMU heading rules the mirror out (share 0).
+``start_half`` (own: x < 0, opponent: x > 0, any) is a prior on the first fix: the share on
+the other half is multiplied by ``start_half_error`` (the chance that the user is wrong). On
+such a field every frame lists the mirror of its top hypothesis with its own probability.
+
+Per frame: the hypotheses (tracks and mirrors, ranked, at most ``hypotheses``) with their
+probabilities; the pose is the top one, its probability the ``confidence``; the frame is
+*accepted* when confidence >= ``min_confidence``. ``--independent`` (``independent: true``)
+localises every frame globally, with no track, prior or odometry (snapshots at unknown poses).
+
+Recorded: pose, ``error`` = e_norm = E / total weight of the fix, ``confidence``, ``mode``
+(global, global-heading: the top track was born this frame; local; failed), runtime, fused
+covariance, hypotheses, flags: collision; heading-vision and heading-unsure (the heading came
+from the search, and was not pinned down); window-edge; relocalised (the top hypothesis is a
+track born by a global search while an older track existed); mirror-ambiguous (the mirror has at
+least half the top's probability); start-half (the first fix was mirrored onto start_half);
+low-confidence; failure reasons too-few-observations, uninformative, no-imu-row,
 no-truth-heading.
 
 Vision covariance for the fusion: the quadratic fit of the error surface at the fix gives its
-Hessian H (of e_norm, m^-2); a well-constrained fix seen without clutter has H ~ I / c^2 (every
-observation's error grows with the displacement along its scan line). The position covariance
-is ``vision_sigma_xy``^2 * (1/c^2) * H^-1, with H's eigenvalues clipped from below at 0.2 % of
-1/c^2 (a fix seeing only parallel lines is uncertain along them), scaled by (1 + inlier_rho /
-0.05) (how tightly the inliers fit) and capped at 1 m. Clutter flattens H by the outliers' share
-of the weight (they lie on rho's flat tail), so a cluttered fix is trusted less in proportion.
-The heading variance is that of the heading source (``imu_sigma``, ``histogram_sigma``,
-``truth_sigma``) or, for a heading refined by the search, from the curvature of the error term
-over the heading.
+Hessian H (of e_norm, m^-2); the position covariance is ``vision_sigma_xy``^2 * (1/c^2) * H^-1
+with H's eigenvalues clipped from below at 0.2 % of 1/c^2 (a fix seeing only parallel lines is
+uncertain along them), scaled by (1 + inlier_rho / 0.05) and capped at 1 m. The heading variance
+is that of the heading source or, for a heading refined by the search, from the curvature of the
+error term over the heading.
 """
 
 from __future__ import annotations
@@ -102,6 +86,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -119,8 +104,9 @@ confs = {
     "default": {
         "heading": "imu",  # imu | histogram | truth
         "imu_alignment": "field",  # field: imu yaw is field-aligned (+ small bias) | vision
-        "start_half": "any",  # own (x < 0) | opponent (x > 0) | any: the half of the first
-        # fix, resolves the mirror ambiguity of the unknown-heading search (module doc)
+        "start_half": "any",  # own (x < 0) | opponent (x > 0) | any: where the first fix is
+        "start_half_error": 1e-3,  # probability that start_half is wrong
+        "independent": False,  # every frame globally, no tracks, no odometry
         "imu_sigma": 0.01,  # rad, IMU heading noise for the fusion
         "imu_offset_every": 5,  # frames between vision updates of the IMU offset (0: never)
         "histogram_window": math.radians(40.0),  # rad, +- around the last heading
@@ -130,40 +116,38 @@ confs = {
         "histogram_score": "peak",  # peak (seed 002) | energy (sum of squared bin counts)
         "histogram_min_sharpness": 1.7,  # best score / mean score; below: heading by vision
         "histogram_gate": 0.15,  # rad, largest accepted deviation from the predicted heading
-        "max_predicted_frames": 30,  # failed frames in a row over which the track is kept
-        # (sooner lost when the prior's gate outgrows the window)
+        "max_predicted_frames": 30,  # failed frames in a row over which tracks are kept
         "truth_sigma": 0.001,  # rad
         "vision_heading_max_sigma": math.radians(2.4),  # rad, a vision heading less sure than
         # this is not used (collision frames, histogram without straight lines)
         "unsure_heading_sigma": 0.1,  # rad, heading noise for the fusion on such frames
         "stamp_tolerance": 0.02,  # s, imu/truth row to frame matching
         "window": 2.0,  # m, side of the local search square (seed 002: 4 m^2)
-        "global_candidates": 8,  # separated minima of a global search compared as rivals
-        "unknown_heading_candidates": 8,  # (heading, cell) candidates refined
         "min_observations": 8,  # fewer crossings: the frame fails
+        "temperature": 0.5,  # evidence (full-weight observations) per nat (calibrated)
+        "track_correlation": 4.0,  # consecutive frames whose views are one measurement:
+        # a tracked frame's evidence counts 1 / track_correlation (calibrated)
+        "evidence": {  # observations of one white structure are one correlated measurement
+            "per_structure": 6.0,  # observations' worth of evidence a structure carries
+            "link": 0.2,  # m, largest gap within a structure, plus
+            "link_per_m": 0.1,  # m per m of range (scan lines spread with distance)
+        },
+        "kidnap_probability": 1e-5,  # per frame: the robot is not where its tracks say
+        "ambiguity_distance": 1.0,  # m, separation of the global search's minima
+        "global_candidates": 16,  # separated minima of a global search proposed as tracks
+        "unknown_heading_candidates": 24,  # (heading, cell) candidates refined
+        "global_every": 5,  # frames between global searches while tracking
+        "null_copies": 2,  # random-bearing copies of the observations (median)
+        "max_tracks": 4,  # hypotheses tracked at once
+        "prune_probability": 1e-4,  # tracks below this probability are dropped
+        "hypotheses": 5,  # hypotheses listed per frame
+        "min_confidence": 0.5,  # a frame is accepted at this confidence (calibrated)
         "inlier_error": 0.125,  # m, an observation within this of its predicted crossing is
-        # an inlier of the fix (c / 2: rho = 0.2)
-        "min_inliers": 10,  # tracking: fewer inliers at the fix and the frame fails
-        "min_inlier_share": 0.1,  # tracking: smaller share of inliers and the frame fails
-        "min_global_inliers": 15,  # a global fix (no prior) needs this many inliers ...
-        "min_global_inlier_share": 0.5,  # ... and this share of the observations
-        "ambiguity_distance": 1.0,  # m, minima farther apart than this are rivals
-        "distinct_ratio": 1.5,  # a global fix's rivals must have this many times its error
-        "distinct_margin": 1.5,  # ... and this much more in error-term units (full-weight
-        # observations); a mirror pose that is not distinct is mirror-ambiguous. Or:
-        "dominance_unique": 6,  # the fix explains at least this many observations the rival
-        "dominance_ratio": 4.0,  # does not, and this many times as many as the rival explains
-        # that the fix does not
-        "second_explanation": 0.4,  # a global fix fails as ambiguous when one pose explains
-        # this share of its inliers' count (at least min_global_inliers) among its outliers
-        "unknown_heading_ratio": 2.0,  # distinct_ratio of an unknown-heading fix (72 times the
-        # poses to choose from; no dominance: its rivals are too few to hold the true pose)
-        "gate_sigmas": 3.0,  # tracking: largest innovation (Mahalanobis distance of the fix
-        # from the prior under both covariances)
-        "min_gate": 0.3,  # m, a fix this near the prior always passes the gate; smallest reach
-        # of the descent from the prior
-        "lost_frames": 3,  # contested tracked fixes in a row before a global search
-        "full_inliers": 40,  # inliers for full confidence
+        # an inlier of the fix (c / 2: rho = 0.2); reported, and shapes the covariance
+        "prior_outlier_probability": 0.01,  # a track's prior is wrong beyond its covariance
+        # (a Gaussian with a uniform floor over the window: caps the Mahalanobis term)
+        "gate_sigmas": 3.0,  # the window's reach in sigmas of the prior (see _lost)
+        "min_gate": 0.3,  # m, floor of the innovation's sigma times gate_sigmas
         "vision_sigma_xy": 0.02,  # m, noise of a well-constrained fix (tuned on rendered sets)
         "search": {
             "c": 0.25,  # m, scale of 1 - c^2 / (c^2 + e^2)
@@ -181,8 +165,12 @@ confs = {
 }
 confs["no-fusion"] = {**confs["default"], "fusion": {**confs["default"]["fusion"],
                                                        "enabled": False}}
+confs["independent"] = {**confs["default"], "independent": True}
 
 HEADING_SOURCES = ("imu", "histogram", "truth")
+# two poses this close are one hypothesis (one basin of the error surface)
+SAME_BASIN_M = 0.3
+SAME_BASIN_RAD = 0.2
 START_HALVES = ("own", "opponent", "any")
 
 _SEARCH_CACHE: dict = {}
@@ -222,11 +210,6 @@ def vision_covariance(result: SearchResult, support: Support, conf: dict,
     return cov
 
 
-def fix_confidence(support: Support, conf: dict) -> float:
-    """Inlier share * min(1, inliers / full_inliers), in [0, 1]."""
-    return float(support.inlier_share * min(1.0, support.inliers / conf["full_inliers"]))
-
-
 def _check_conf(conf: dict, dataset):
     if conf["heading"] not in HEADING_SOURCES:
         raise FieldlocError(
@@ -236,6 +219,16 @@ def _check_conf(conf: dict, dataset):
     if conf["start_half"] not in START_HALVES:
         raise FieldlocError(
             f"start_half must be one of {', '.join(START_HALVES)}, not '{conf['start_half']}'")
+    for key in ("temperature", "track_correlation"):
+        if not float(conf[key]) > 0:
+            raise FieldlocError(f"{key} must be > 0, not {conf[key]}")
+    for key in ("kidnap_probability", "prune_probability", "min_confidence",
+                "start_half_error"):
+        if not 0.0 <= float(conf[key]) <= 1.0:
+            raise FieldlocError(f"{key} must lie in [0, 1], not {conf[key]}")
+    for key in ("max_tracks", "hypotheses", "null_copies", "global_every"):
+        if int(conf[key]) < 1:
+            raise FieldlocError(f"{key} must be >= 1, not {conf[key]}")
     need = {"imu": "imu", "truth": "truth"}.get(conf["heading"])
     if need and (dataset is None or dataset.optional(need) is None):
         where = dataset.root if dataset is not None else "the dataset"
@@ -247,10 +240,47 @@ class FrameFailed(Exception):
     """A frame that cannot be localised; the message is the reason recorded in its flags."""
 
 
-class LutLocaliser:
-    """The per-frame loop of method lut (see the module doc), state kept between frames."""
+@dataclass
+class Track:
+    """One hypothesis carried over frames: a Kalman-fused pose, its weight (log, normalised
+    over the tracks) and the share of that weight belonging to the pose's mirror image."""
 
-    def __init__(self, conf: dict, search: TableSearch, *, yaw, collision, truth_heading):
+    fusion: DecentralisedFusion
+    log_weight: float
+    mirror: float = 0.0
+    born: int = 0  # frame index
+    ident: int = 0
+    misses: int = 0  # frames in a row whose fix did not beat the null
+    pose: np.ndarray = field(default_factory=lambda: np.zeros(3))  # last recorded pose
+    cov: np.ndarray = field(default_factory=lambda: np.eye(3))
+
+
+@dataclass
+class Candidate:
+    """A pose proposed this frame for a track: the refined fix, its support, its (log)
+    prior, its vision covariance, the track it belongs to (None: a new track), the heading
+    variance and the share of the mirror."""
+
+    fix: SearchResult
+    support: Support
+    log_prior: float
+    R: np.ndarray
+    evidence: float = 0.0  # the fix's error term (evidence weights)
+    fit: float = 0.0  # nats: evidence / T, plus the prior's Mahalanobis^2 / 2 when tracked
+    prior: tuple | None = None  # tracked: (prior pose, inverse covariance used to search)
+    track: Track | None = None
+    mirror: float = 0.0
+    log_post: float = 0.0
+    own_mass: float = 1.0  # global candidates: likelihood of the folded fixes relative to
+    mirror_mass: float = 0.0  # the candidate's, in its basin and in its mirror image
+
+
+class LutLocaliser:
+    """The per-frame loop of method lut (see the module doc), the tracks kept between
+    frames."""
+
+    def __init__(self, conf: dict, search: TableSearch, *, yaw, collision, truth_heading,
+                 seed: int = 0):
         self.conf = conf
         self.search = search
         self.yaw, self.collision, self.truth_heading = yaw, collision, truth_heading
@@ -259,139 +289,178 @@ class LutLocaliser:
             known=conf["imu_alignment"] == "field")
         self.heading_sigma = {"imu": conf["imu_sigma"], "histogram": conf["histogram_sigma"],
                               "truth": conf["truth_sigma"]}[conf["heading"]]
-        self.fusion = DecentralisedFusion(FusionParams.from_conf(conf["fusion"]))
+        self.fusion_params = FusionParams.from_conf(conf["fusion"])
         self.use_fusion = bool(conf["fusion"]["enabled"])
         self.half = 0.5 * float(conf["window"])
-        self.lost = True
-        self.fixed_once = False  # whether any frame was localised (start_half applies before)
+        self.T_frame = float(conf["temperature"])
+        self.T_track = self.T_frame * float(conf["track_correlation"])
+        self.T = self.T_frame
+        ny, nx = search.grid.shape
+        area = nx * ny * search.grid.resolution ** 2  # the world the tables cover
+        self.log_basins = math.log(max(area / conf["ambiguity_distance"] ** 2, 1.0))
+        cells = (2 * round(self.half / search.grid.resolution) + 1) ** 2
+        # the Mahalanobis term of a prior that is wrong with prior_outlier_probability: a
+        # Gaussian over a uniform floor on the window's cells, -log of the floor
+        self.prior_cap = -math.log(max(conf["prior_outlier_probability"], 1e-300) / cells)
+        self.symmetric = search.field.is_point_symmetric()
+        self.tracks: list[Track] = []
+        self.other = 1.0  # probability that the robot is at none of the tracks
+        self._null_fit = math.inf
+        self._global_heading = None
+        self.fixed_once = False  # start_half applies to the first fix only
         self.failures_in_row = 0
-        self.contested_in_row = 0  # tracked fixes in a row with a clearly better rival
-        self.last_pose = None  # last recorded pose (fused or vision)
+        self.last_global = -10**9
+        self.last_accepted = True
+        self.top_ident = None
+        self._next_ident = 0
+        self.rng = np.random.default_rng(seed)
 
-    def failed(self, dt: float, odo, collision: bool, reason: str):
-        """Book-keeping for a failed frame: the fusion only predicts, the track moves on with
-        the odometry for up to ``max_predicted_frames`` failed frames in a row (or until the
-        prior outgrows the window, see _search), then the robot is lost (global search
-        only)."""
+    # ------------------------------------------------------------------ book-keeping
+    def failed(self, dt: float, odo, collision: bool):
+        """A failed frame: the tracks only predict; after ``max_predicted_frames`` failed
+        frames in a row they are dropped (lost: global search only)."""
         self.failures_in_row += 1
-        self.contested_in_row = 0
-        if self.failures_in_row > self.conf["max_predicted_frames"]:
-            self.lost = True
-        if self.use_fusion:
-            self.fusion.step(dt, odo, collision, None)
+        self.last_accepted = False
+        if self.failures_in_row > self.conf["max_predicted_frames"] or self.conf["independent"]:
+            self.tracks = []
+            self.other = 1.0
+            return
+        for t in self.tracks:
+            self._predict_only(t, dt, odo, collision)
 
+    def _predict_only(self, t: Track, dt: float, odo, col: bool):
+        if self.use_fusion and t.fusion.state is not None:
+            t.fusion.step(dt, odo, col, None)
+            t.pose, t.cov = t.fusion.state.mean.copy(), t.fusion.state.cov.copy()
+        elif odo is not None and not col:
+            t.pose = compose(t.pose, odo)
+        t.misses += 1
+
+    def _new_track(self, fix: SearchResult, R: np.ndarray, log_weight: float, mirror: float,
+                   i: int) -> Track:
+        f = DecentralisedFusion(self.fusion_params)
+        f.reset(fix.pose, R)
+        self._next_ident += 1
+        return Track(fusion=f, log_weight=log_weight, mirror=mirror, born=i,
+                     ident=self._next_ident, pose=fix.pose.copy(), cov=R.copy())
+
+    # ------------------------------------------------------------------ one frame
     def frame(self, i: int, fr: dict, dt: float, odo, flags: list):
-        """Localise frame i; returns (result, support, pose, covariance) or raises
-        FrameFailed."""
+        """Localise frame i: returns (hypotheses (k, 4), the top candidate, pose, covariance,
+        accepted) or raises FrameFailed."""
         conf, search = self.conf, self.search
         sl = search.scanlines
         col = bool(self.collision[i])
+        if conf["independent"]:
+            self.tracks, self.other, dt, odo = [], 1.0, 0.0, None
         obs = Observation.from_scanlines(fr.get("radial", np.zeros((0, 4))), fr.get("spiral"),
                                          search.params, sl.max_range, sl.spiral_end_radius,
                                          sl.robot_radius)
         if len(obs) < conf["min_observations"]:
             raise FrameFailed("too-few-observations")
-        prior_pose, prior_cov = self._prior(dt, odo, col)
-        theta, vision_heading = self._heading(i, fr, obs, prior_pose, col, flags)
-        r, sup = self._search(i, obs, theta, prior_pose, prior_cov, flags)
-        heading_sigma = self.heading_sigma
-        if vision_heading:
-            # the search's own heading, when the error term pins it down (seeing only the
-            # centre circle it does not: turning about the circle's centre changes nothing)
-            rh, curv = search.refine_heading(obs, r.cell, r.theta)
-            sigma = _curvature_sigma(curv, obs)
-            if rh.error <= r.error and sigma <= conf["vision_heading_max_sigma"]:
-                rh.mode, rh.at_window_edge = r.mode, r.at_window_edge
-                r = rh
-                sup = search.support(obs, r, conf["inlier_error"])
-                heading_sigma = sigma
-            else:  # keep the predicted (histogram) or jolted (IMU) heading, trusted little
-                heading_sigma = conf["unsure_heading_sigma"]
-                flags.append("heading-unsure")
-        if r.mode == "global-heading":
-            heading_sigma = conf["histogram_sigma"]
-        self._track_imu_offset(i, obs, r, sup, col)
-
-        R = vision_covariance(r, sup, conf, heading_sigma)
-        pose, cov = r.pose, R
-        if self.use_fusion:
-            f = self.fusion
-            if r.mode != "local" and f.state is not None:
-                if self._innovation(r, R, prior_pose, prior_cov) > self.conf["gate_sigmas"]:
-                    f.state = None  # the track was wrong: restart at the fix
-            est = f.step(dt, odo, col, (r.pose, R))
-            pose, cov = est.mean, est.cov
-        self.lost = False
-        self.fixed_once = True
+        ev = conf["evidence"]
+        obs = obs.with_evidence(sl, ev["per_structure"], ev["link"], ev["link_per_m"])
+        base_heading = self._frame_heading(i, col)  # None: from each track / unknown
+        # evidence of a frame alone, or of one more frame of a tracked sequence
+        self.T = self.T_track if self.tracks else self.T_frame
+        eps = float(conf["kidnap_probability"])
+        # the mass of "elsewhere": where no track is (all of it before the first fix), spread
+        # uniformly over the world's basins
+        other = max(self.other + eps * (1 - self.other), eps) if self.tracks else 1.0
+        other_prior = math.log(other)
+        tracked: list[Candidate] = []
+        lost = False
+        for t in self.tracks:
+            prior = self._prior(t, dt, odo, col)
+            lost |= self._lost(prior[1])
+            tracked.append(self._track_candidate(i, t, prior, obs, fr, base_heading, col,
+                                                 flags))
+        new: list[Candidate] = []
+        if (not tracked or not self.last_accepted or lost
+                or i - self.last_global >= conf["global_every"]):
+            heading = base_heading
+            if heading is None and tracked and self.last_accepted:
+                # a confident track's heading (histogram, or IMU before its alignment);
+                # after an unaccepted frame the heading is searched too
+                heading = float(max(tracked, key=lambda c: c.log_prior - c.fit).fix.theta)
+            new = self._global_candidates(i, obs, heading, flags,
+                                          other_prior - self.log_basins)
+            self.last_global = i
+        # the null: what chance explains, searched the same way
+        if tracked:
+            null_fit, null_evidence = self._tracked_null(obs, tracked)
+            self._null_fit = null_fit
+            if min(c.fit for c in tracked) >= null_fit:
+                raise FrameFailed("uninformative")
+        if new or not tracked:
+            null_evidence = self._global_null(obs, self._global_heading)
+            if not tracked and (not new or min(c.evidence for c in new) / self.T
+                                >= null_evidence):
+                raise FrameFailed("uninformative")
+        cands = tracked + new
+        for c in cands:
+            c.log_post = c.log_prior - c.evidence / self.T
+        if new:  # elsewhere, where the search found nothing better, explains what chance
+            # explains (the null counts as one basin of the world's)
+            other_post = other_prior - self.log_basins - null_evidence
+        else:  # elsewhere is not looked at: its share is kept
+            like = np.array([c.log_post - c.log_prior + c.track.log_weight for c in tracked])
+            wsum = np.array([c.track.log_weight for c in tracked])
+            other_post = other_prior + float(np.logaddexp.reduce(like)
+                                             - np.logaddexp.reduce(wsum))
+        logs = np.array([c.log_post for c in cands] + [other_post])
+        logs -= logs.max() + math.log(np.exp(logs - logs.max()).sum())
+        for c, lp in zip(cands, logs[:-1]):
+            c.log_post = float(lp)
+        top = self._update_tracks(i, cands, float(logs[-1]), dt, odo, col)
+        hyps = self._hypotheses()
+        self._track_imu_offset(i, obs, top, col)
+        pose = hyps[0, :3]
+        cov = self.tracks[0].cov
+        if top.track is None and tracked:
+            flags.append("relocalised")
+        if top.fix.at_window_edge:
+            flags.append("window-edge")
+        if len(hyps) > 1 and self.symmetric and _near_pose(hyps[1], _mirror(pose), 0.3, 0.2) \
+                and hyps[1, 3] >= 0.5 * hyps[0, 3]:
+            flags.append("mirror-ambiguous")
         self.failures_in_row = 0
-        self.last_pose = np.asarray(pose, float)
-        return r, sup, pose, cov
+        self.fixed_once = True
+        confidence = float(hyps[0, 3])
+        accepted = confidence >= conf["min_confidence"]
+        self.last_accepted = accepted
+        if not accepted:
+            flags.append("low-confidence")
+        return hyps, top, pose, cov, accepted
 
-    # ------------------------------------------------------------------ prior and heading
-    def _prior(self, dt: float, odo, col: bool):
-        """(prior pose or None, its position covariance (2, 2) or None): the previous pose
-        moved by the odometry (by the last fused motion on collision frames or without
-        odometry), the covariance from the fusion's prediction (without fusion: ``min_gate``
-        / ``gate_sigmas`` growing with the failed frames in a row)."""
-        f = self.fusion
-        if self.use_fusion and f.state is not None:
-            if odo is not None and not col:
-                pose = f.odometry_prior(odo)
-                cov = f.odometry_posterior(np.asarray(odo, float), dt).cov
-            else:
-                pred = f.model_prediction(dt)
-                pose, cov = compose(f.state.mean, f.last_motion), pred.cov
-            return pose, np.asarray(cov, float)[:2, :2]
-        if self.last_pose is None:
-            return None, None
-        pose = compose(self.last_pose, odo) if odo is not None and not col else self.last_pose
-        s = self.conf["min_gate"] / self.conf["gate_sigmas"] * math.sqrt(1 + self.failures_in_row)
-        return np.asarray(pose, float).copy(), np.eye(2) * s * s
-
-    def _gate_radius(self, prior_cov) -> float:
-        """Half-width (m) of the search square around the prior when the window's minimum
-        fails the gate: ``gate_sigmas`` times the prior's largest position sigma, at least
-        ``min_gate``, at most half the window."""
-        return float(min(max(self.conf["min_gate"],
-                             self.conf["gate_sigmas"] * self._prior_sigma(prior_cov)), self.half))
-
-    @staticmethod
-    def _prior_sigma(prior_cov) -> float:
-        """Largest position standard deviation (m) of the prior."""
-        return math.sqrt(max(float(np.linalg.eigvalsh(prior_cov)[-1]), 0.0))
-
-    def _innovation(self, fix: SearchResult, R: np.ndarray, prior_pose, prior_cov) -> float:
-        """Mahalanobis distance of a fix's position from the prior under the sum of the prior's
-        and the fix's covariances (the Kalman innovation): a fix along the only line in view is
-        uncertain along it and passes wherever the search put it on the line; a minimum in
-        another basin does not."""
-        d = np.array([fix.x - prior_pose[0], fix.y - prior_pose[1]])
-        floor = self.conf["min_gate"] / self.conf["gate_sigmas"]  # against overconfidence:
-        # a fix within min_gate of the prior always passes (clutter can bias a fix by 10 cm)
-        S = (np.asarray(prior_cov, float) + np.asarray(R, float)[:2, :2]
-             + np.eye(2) * floor * floor)
-        return float(math.sqrt(max(d @ np.linalg.solve(S, d), 0.0)))
-
-    def _heading(self, i, fr, obs, prior_pose, col, flags):
-        """(heading or None if unknown, whether the search should refine it by vision)."""
-        conf = self.conf
-        source = conf["heading"]
+    # ------------------------------------------------------------------ heading
+    def _frame_heading(self, i: int, col: bool):
+        """The heading of every hypothesis this frame when the source gives one (imu, truth),
+        None when each track has its own (histogram) or it is unknown."""
+        source = self.conf["heading"]
         if source == "truth":
             if not np.isfinite(self.truth_heading[i]):
                 raise FrameFailed("no-truth-heading")
-            return float(self.truth_heading[i]), False
+            return float(self.truth_heading[i])
         if source == "imu":
             if not np.isfinite(self.yaw[i]):
                 raise FrameFailed("no-imu-row")
             self.alignment.predict()
             if not self.alignment.known:
-                return None, False
-            if col:  # the IMU yaw jolts on collisions: the search refines it
-                flags.append("heading-vision")
-            return self.alignment.heading(float(self.yaw[i])), col
-        # histogram
-        if prior_pose is None or self.failures_in_row > conf["max_predicted_frames"]:
-            return None, False
+                return None
+            return self.alignment.heading(float(self.yaw[i]))
+        return None
+
+    def _track_heading(self, t: Track, prior_pose, obs, fr, base_heading, col, flags):
+        """(heading, refine by vision?) of a track this frame."""
+        conf = self.conf
+        if base_heading is not None:
+            if col and conf["heading"] == "imu":
+                flags.append("heading-vision")  # the IMU yaw jolts on collisions
+                return base_heading, True
+            return base_heading, False
+        if conf["heading"] == "imu":  # alignment unknown yet: the track's own heading
+            return float(prior_pose[2]), True
         pts = fr.get("points")
         if pts is None:
             pts = obs.points(self.search.scanlines)
@@ -405,211 +474,296 @@ class LutLocaliser:
         flags.append("heading-vision")  # no straight lines seen (e.g. only the centre circle)
         return float(prior_pose[2]), True
 
-    # ------------------------------------------------------------------ searches
-    def _search(self, i, obs, theta, prior_pose, prior_cov, flags):
-        """(fix, its support) or FrameFailed."""
-        if theta is None:
-            return self._unknown_heading(i, obs, prior_pose, flags)
-        if prior_pose is not None and self._prior_sigma(prior_cov) * self.conf[
-                "gate_sigmas"] > self.half:
-            self.lost = True  # the window no longer covers where the robot may be
-        if self.lost or prior_pose is None:
-            g, sup, why = self._global(obs, theta)
-            if why:
-                raise FrameFailed(why)
-            return g, sup
-        return self._track(obs, theta, prior_pose, prior_cov, flags)
-
-    def _global(self, obs, theta):
-        """Global search with a known heading: (fix, support, None) when it passes the global
-        tests, else (fix, support, failure reason)."""
-        conf = self.conf
-        g = self.search.global_search(obs, theta, candidates=conf["global_candidates"],
-                                      separation=conf["ambiguity_distance"])
-        sup = self.search.support(obs, g, conf["inlier_error"])
-        why = self._global_support_failure(sup)
-        if why is None:
-            rivals = [c for c in g.candidates
-                      if math.hypot(c[0] - g.x, c[1] - g.y) > conf["ambiguity_distance"]]
-            if not self._distinct(g, rivals, obs) or self._second_explanation(obs, g, sup):
-                why = "ambiguous"
-        return g, sup, why
-
-    def _second_explanation(self, obs, fix: SearchResult, sup: Support) -> bool:
-        """Whether the observations the fix leaves unexplained hold another consistent view:
-        a global search (at the fix's heading) over the fix's outliers finds a pose with at
-        least ``second_explanation`` times the fix's inliers among them (and at least
-        ``min_global_inliers``). Clutter near the robot (a cable) weighs more than the far
-        field lines, so a pose fitting the clutter to some line can win a frame; the field
-        lines it leaves out then fit the true pose, which the global search's runners-up,
-        ranked on all observations, need not hold."""
-        conf, search = self.conf, self.search
-        need = max(conf["min_global_inliers"], conf["second_explanation"] * sup.inliers)
-        _e, inl = search.inliers(obs, fix.x, fix.y, fix.theta, conf["inlier_error"])
-        rest = obs.subset(~inl)
-        if len(rest) < need:
-            return False
-        g = search.global_search(rest, fix.theta, candidates=1)
-        return search.support(rest, g, conf["inlier_error"]).inliers >= need
-
-    def _global_support_failure(self, sup: Support):
-        conf = self.conf
-        if (sup.inliers < conf["min_global_inliers"]
-                or sup.inlier_share < conf["min_global_inlier_share"]):
-            return "too-few-inliers"
-        return None
-
-    def _distinct(self, fix: SearchResult, rivals, obs, *, ratio=None, dominance=True) -> bool:
-        """Whether the fix stands out from every rival (x, y, theta, error_norm): the rival's
-        e_norm at least ``distinct_ratio`` (or ``ratio``) times the fix's (computed alike) and
-        above it by ``distinct_margin`` in the error term, or (with ``dominance``) the fix
-        dominates the rival: it explains
-        ``dominance_unique`` observations the rival does not, and ``dominance_ratio`` times as
-        many as the rival explains that it does not (a rival along the only line in view
-        explains a subset of what the fix explains; the true pose as a rival of a fix made of
-        clutter explains lines the fix does not)."""
-        conf, search = self.conf, self.search
-        ref = fix.candidate_error_norm if np.isfinite(fix.candidate_error_norm) \
-            else fix.error_norm
-        fix_inliers = None
-        for x, y, th, e in rivals:
-            if self._beats(ref, e, obs, ratio):
-                continue
-            if not dominance:
-                return False
-            if fix_inliers is None:
-                fix_inliers = search.inliers(obs, fix.x, fix.y, fix.theta,
-                                             conf["inlier_error"])[1]
-            rival_inliers = search.inliers(obs, x, y, th, conf["inlier_error"])[1]
-            own = int(np.sum(fix_inliers & ~rival_inliers))
-            theirs = int(np.sum(rival_inliers & ~fix_inliers))
-            if own < conf["dominance_unique"] or own < conf["dominance_ratio"] * theirs:
-                return False
-        return True
-
-    def _beats(self, e_fix: float, e_rival: float, obs, ratio=None) -> bool:
-        """Whether e_norm ``e_fix`` is distinctly lower than ``e_rival`` (see _distinct)."""
-        conf = self.conf
-        ratio = conf["distinct_ratio"] if ratio is None else ratio
-        return (e_rival >= ratio * e_fix
-                and (e_rival - e_fix) * obs.total_weight >= conf["distinct_margin"])
-
-    def _gated(self, obs, fix, prior_pose, prior_cov):
-        """(support, innovation) of a tracked fix."""
-        sup = self.search.support(obs, fix, self.conf["inlier_error"])
-        R = vision_covariance(fix, sup, self.conf, self.heading_sigma)
-        return sup, self._innovation(fix, R, prior_pose, prior_cov)
-
-    def _track(self, obs, theta, prior_pose, prior_cov, flags):
-        """Local search around the prior, gated by the odometry (module doc, step 4)."""
-        conf, search = self.conf, self.search
-        gate = conf["gate_sigmas"]
-        w = search.local_search(obs, theta, prior_pose[:2], half_width=self.half)
-        if w.at_window_edge:
-            flags.append("window-edge")
-        why = None
-        fix = w
-        sup, d = self._gated(obs, w, prior_pose, prior_cov)
-        if d > gate:  # the window's minimum is where the robot cannot be: the basin the prior
-            # lies in (descent from the prior's cell, at most the gate radius far)
-            flags.append("outside-gate")
-            steps = math.ceil(self._gate_radius(prior_cov) / search.grid.resolution)
-            fix = search.refine(obs, search.grid.cell_of(prior_pose[0], prior_pose[1]), theta,
-                                max_moves=steps)
-            sup, d = self._gated(obs, fix, prior_pose, prior_cov)
-            if d > gate:
-                why = "no-fit-near-prior"
-        if why is None and (sup.inliers < conf["min_inliers"]
-                            or sup.inlier_share < conf["min_inlier_share"]):
-            why = "too-few-inliers"
-        if why is not None:
-            # a clear frame after a wrong track: a global fix that passes the global tests
-            g, gsup, gwhy = self._global(obs, theta)
-            if gwhy is None:
-                self.contested_in_row = 0
-                return g, gsup
-            flags.append(f"global-{gwhy}")
-            raise FrameFailed(why)
-        fix.mode = "local"
-        # a clearly better minimum outside the gate, good enough for a global fix, contests
-        # the track; after lost_frames such frames a passing global search replaces it
-        contested = False
-        if fix is not w:
-            wsup = search.support(obs, w, conf["inlier_error"])
-            contested = (self._global_support_failure(wsup) is None
-                         and self._beats(w.error_norm, fix.error_norm, obs))
-        self.contested_in_row = self.contested_in_row + 1 if contested else 0
-        if self.contested_in_row >= conf["lost_frames"]:
-            self.contested_in_row = 0
-            g, gsup, gwhy = self._global(obs, theta)
-            if gwhy is None and math.hypot(g.x - fix.x, g.y - fix.y) > conf["ambiguity_distance"]:
-                flags.append("relocalised")
-                return g, gsup
-        return fix, sup
-
-    def _unknown_heading(self, i, obs, prior_pose, flags):
-        """Unknown-heading global search: accepted like a global fix, its rivals all
-        candidates but the same pose and the mirror pose; the mirror ambiguity resolved by
-        ``start_half`` on the first fix, by the old track's heading later."""
-        conf, search = self.conf, self.search
-        r = search.unknown_heading_search(obs, candidates=conf["unknown_heading_candidates"])
-        sup = search.support(obs, r, conf["inlier_error"])
-        why = self._global_support_failure(sup)
-        if why:
-            raise FrameFailed(why)
-        rivals = [c for c in r.candidates if not (_near_pose(c, r.pose)
-                                                  or _near_pose(c, _mirror(r.pose)))]
-        ratio = conf["unknown_heading_ratio"]
-        if (not self._distinct(r, rivals, obs, ratio=ratio, dominance=False)
-                or self._second_explanation(obs, r, sup)):
-            raise FrameFailed("ambiguous")
-        mirrors = [c for c in r.candidates if _near_pose(c, _mirror(r.pose))
-                   and not self._beats(r.error_norm, c[3], obs, ratio)]
-        if conf["start_half"] != "any" and not self.fixed_once:
-            r = self._on_start_half(obs, r, flags)
-            sup = search.support(obs, r, conf["inlier_error"])
-        elif mirrors:
-            if prior_pose is not None:  # an old track, however stale, picks the half
-                e_fix = r.error_norm
-                r = _nearest_heading_candidate(
-                    search, obs, r, float(prior_pose[2]),
-                    lambda e: not self._beats(e_fix, e, obs, ratio))
-                sup = search.support(obs, r, conf["inlier_error"])
+    # ------------------------------------------------------------------ tracks
+    def _prior(self, t: Track, dt: float, odo, col: bool):
+        """(prior pose, its position covariance (2, 2)) of a track: the previous pose moved by
+        the odometry (by the last fused motion on collision frames or without odometry), the
+        covariance from the fusion's prediction (without fusion: ``min_gate`` /
+        ``gate_sigmas`` growing with the misses)."""
+        f = t.fusion
+        if self.use_fusion and f.state is not None:
+            if odo is not None and not col:
+                pose = f.odometry_prior(odo)
+                cov = f.odometry_posterior(np.asarray(odo, float), dt).cov
             else:
-                flags.append("mirror-ambiguous")
-        if conf["heading"] == "imu":
-            var = max(math.radians(1.5) ** 2, conf["imu_sigma"] ** 2)
-            self.alignment.initialise(r.theta, float(self.yaw[i]), var)
-        return r, sup
+                pred = f.model_prediction(dt)
+                pose, cov = compose(f.state.mean, f.last_motion), pred.cov
+            return pose, np.asarray(cov, float)[:2, :2]
+        pose = compose(t.pose, odo) if odo is not None and not col else t.pose
+        s = self.conf["min_gate"] / self.conf["gate_sigmas"] * math.sqrt(1 + t.misses)
+        return np.asarray(pose, float).copy(), np.eye(2) * s * s
 
-    def _on_start_half(self, obs, r: SearchResult, flags) -> SearchResult:
-        """The fix or its mirror pose, whichever lies on ``start_half``, when the mirror fits
-        as well (within ``distinct_margin``)."""
-        want_negative = self.conf["start_half"] == "own"
-        if (r.x < 0) == want_negative:
-            return r
-        mx, my, mth = _mirror(r.pose)
-        m = self.search.refine(obs, self.search.grid.cell_of(mx, my), mth)
-        if self._beats(r.error_norm, m.error_norm, obs, self.conf["unknown_heading_ratio"]):
-            flags.append("start-half-contradicted")  # an asymmetric field: the fix stands
-            return r
-        m.mode = r.mode
-        m.candidates = r.candidates
-        m.candidate_error_norm = m.error_norm
-        flags.append("start-half")
-        return m
+    def _lost(self, prior_cov) -> bool:
+        """Whether the window no longer covers where the robot may be (``gate_sigmas`` of the
+        prior's largest sigma exceed half the window)."""
+        return math.sqrt(max(float(np.linalg.eigvalsh(prior_cov)[-1]), 0.0)) \
+            * self.conf["gate_sigmas"] > self.half
 
-    def _track_imu_offset(self, i, obs, r, sup, col):
-        """Update the IMU offset from the vision heading every ``imu_offset_every`` frames (every
-        frame while the offset is uncertain, above 0.5 deg), on tracked frames clean enough for
-        a global fix (clutter can tilt the vision heading)."""
-        every = int(self.conf["imu_offset_every"])
-        if self.conf["heading"] != "imu" or every <= 0 or col or r.mode != "local":
+    def _innovation_information(self, prior_cov, R=None) -> np.ndarray:
+        """Inverse of the innovation covariance (2, 2): the prior's, the fix's (if given) and a
+        floor of (``min_gate`` / ``gate_sigmas``)^2 against overconfidence."""
+        floor = self.conf["min_gate"] / self.conf["gate_sigmas"]
+        S = np.asarray(prior_cov, float) + np.eye(2) * floor * floor
+        if R is not None:
+            S = S + np.asarray(R, float)[:2, :2]
+        return np.linalg.inv(S)
+
+    def _track_candidate(self, i, t: Track, prior, obs, fr, base_heading, col, flags):
+        """The fix of a track this frame (step 3 of the module doc) as a Candidate, and a
+        second Candidate for a clearly better minimum elsewhere in the window."""
+        conf, search = self.conf, self.search
+        prior_pose, prior_cov = prior
+        theta, by_vision = self._track_heading(t, prior_pose, obs, fr, base_heading, col,
+                                               flags)
+        info = self._innovation_information(prior_cov)
+        # the window's error term in evidence units: scaled by the frame's evidence share
+        scale = obs.total_weight / max(obs.lookup_total_weight, 1e-12)
+        fix, _wmin = search.tracked_search(obs, theta, prior_pose[:2], info, self.T / scale,
+                                           half_width=self.half, prior_cap=self.prior_cap)
+        heading_sigma = self.heading_sigma
+        if by_vision:
+            rh, curv = search.refine_heading(obs, fix.cell, fix.theta)
+            sigma = _curvature_sigma(curv, obs)
+            if rh.error <= fix.error and sigma <= conf["vision_heading_max_sigma"]:
+                rh.mode, rh.at_window_edge = fix.mode, fix.at_window_edge
+                fix = rh
+                heading_sigma = sigma
+            else:  # keep the predicted or jolted heading, trusted little
+                heading_sigma = conf["unsure_heading_sigma"]
+                flags.append("heading-unsure")
+        sup = search.support(obs, fix, conf["inlier_error"])
+        R = vision_covariance(fix, sup, conf, heading_sigma)
+        if heading_sigma > self.heading_sigma:  # a heading this unsure moves the fix too:
+            # by the heading error times the observations' mean range
+            spread = heading_sigma * float(np.average(obs.distance, weights=obs.weight))
+            R[:2, :2] += np.eye(2) * spread * spread
+        d = np.array([fix.x - prior_pose[0], fix.y - prior_pose[1]])
+        m2 = min(float(d @ self._innovation_information(prior_cov, R) @ d), 2 * self.prior_cap)
+        return Candidate(fix=fix, support=sup, R=R, track=t, mirror=t.mirror,
+                         evidence=fix.error,
+                         fit=fix.error / self.T + min(0.5 * float(d @ info @ d), self.prior_cap),
+                         prior=(prior_pose, info),
+                         log_prior=t.log_weight + math.log1p(-conf["kidnap_probability"])
+                         - 0.5 * m2)
+
+    # ------------------------------------------------------------------ global search
+    def _global_candidates(self, i, obs, heading, flags, log_prior: float) -> list[Candidate]:
+        """New-track candidates from a global search (known heading) or the unknown-heading
+        search, those near an existing track (or its mirror) left out."""
+        conf, search = self.conf, self.search
+        headings = [heading] if heading is not None else self._histogram_headings(obs)
+        if headings is None:
+            r = search.unknown_heading_search(obs, candidates=conf["unknown_heading_candidates"])
+            fixes = [r] + [self._refined(obs, c) for c in r.candidates]
+        else:
+            fixes = []
+            for th in headings:
+                g = search.global_search(obs, th, candidates=conf["global_candidates"],
+                                         separation=conf["ambiguity_distance"])
+                fixes += [g] + [self._refined(obs, c) for c in g.candidates]
+            for f in fixes:
+                f.mode = "global" if heading is not None else "global-heading"
+        self._global_heading = headings
+        sigma = conf["histogram_sigma"] if heading is None else self.heading_sigma
+        out: list[Candidate] = []
+        scored = sorted(((f.error, f) for f in fixes), key=lambda e: e[0])
+        for e, f in scored:
+            near = [t for t in self.tracks  # the same basin as a track (or its mirror)
+                    if _near_pose(t.pose, f.pose, SAME_BASIN_M, SAME_BASIN_RAD)
+                    or (t.mirror > 0 and _near_pose(t.pose, _mirror(f.pose), SAME_BASIN_M,
+                                                    SAME_BASIN_RAD))]
+            if near:
+                continue
+            if self._fold(out, f, e):
+                continue
+            sup = search.support(obs, f, conf["inlier_error"])
+            out.append(Candidate(fix=f, support=sup, log_prior=log_prior, evidence=e,
+                                 fit=e / self.T, R=vision_covariance(f, sup, conf, sigma)))
+        for c in out:  # the folded mass: the candidate's own basin and its mirror image
+            if heading is None and self.symmetric:  # the mirror explains the frame exactly
+                c.mirror_mass = c.own_mass  # as well; the search's refinements differ a little
+            total = c.own_mass + c.mirror_mass
+            c.log_prior += math.log(total)
+            c.mirror = c.mirror_mass / total
+        if not self.fixed_once and conf["start_half"] != "any":
+            for c in out:
+                self._on_start_half(obs, c, flags)
+        return out
+
+    def _fold(self, out: list[Candidate], f: SearchResult, evidence: float) -> bool:
+        """Fold a fix into a better candidate it duplicates (the same basin: within 0.3 m and
+        0.2 rad) or mirrors (on a point-symmetric field): its likelihood relative to the
+        candidate's adds to that candidate's own or mirror mass. False if it is new."""
+        for c in out:
+            rel = math.exp(-(evidence - c.evidence) / self.T)
+            if _near_pose(c.fix.pose, f.pose, SAME_BASIN_M, SAME_BASIN_RAD):
+                c.own_mass += rel
+                return True
+            if self.symmetric and _near_pose(c.fix.pose, _mirror(f.pose), SAME_BASIN_M,
+                                             SAME_BASIN_RAD):
+                c.mirror_mass += rel
+                return True
+        return False
+
+    def _histogram_headings(self, obs):
+        """With no heading known: the four headings (90 deg apart) at which the line points'
+        histograms peak (seed 002 V-B over a full quarter turn), or None when the points show
+        no straight lines (the unknown-heading search then tries all 72 table headings)."""
+        conf = self.conf
+        if conf["heading"] != "histogram":
+            return None
+        th, sharp = heading_mod.histogram_heading(
+            obs.points(self.search.scanlines), 0.0, window=math.pi / 4,
+            step=conf["histogram_step"], bin=conf["histogram_bin"],
+            max_distance=self.search.scanlines.max_range, score=conf["histogram_score"])
+        if not np.isfinite(th) or sharp < conf["histogram_min_sharpness"]:
+            return None
+        return [float(wrap_angle(th + k * math.pi / 2)) for k in range(4)]
+
+    def _refined(self, obs, c) -> SearchResult:
+        """A runner-up (x, y, theta, e_norm) of a search refined in full resolution."""
+        r = self.search.refine(obs, self.search.grid.cell_of(c[0], c[1]), c[2])
+        r.mode = "global-heading"
+        return r
+
+    def _on_start_half(self, obs, c: Candidate, flags):
+        """The start_half prior on a first-fix candidate: the share of its weight on the
+        other half (its own or its mirror's) is multiplied by ``start_half_error``; the
+        candidate becomes the member on start_half when that carries more."""
+        conf = self.conf
+        want_negative = conf["start_half"] == "own"
+        own_ok = (c.fix.x < 0) == want_negative
+        err = float(conf["start_half_error"])
+        p_own = (1 - c.mirror) * (1.0 if own_ok else err)
+        p_mir = c.mirror * (err if own_ok else 1.0)
+        if not self.symmetric:
+            c.log_prior += math.log(max(p_own, 1e-300))
             return
-        if sup.inlier_share < self.conf["min_global_inlier_share"]:
+        total = p_own + p_mir
+        c.log_prior += math.log(max(total, 1e-300))
+        if p_mir > p_own:  # the mirror image is where the robot starts
+            mx, my, mth = _mirror(c.fix.pose)
+            m = self.search.refine(obs, self.search.grid.cell_of(mx, my), mth)
+            m.mode = c.fix.mode
+            c.fix = m
+            c.support = self.search.support(obs, m, conf["inlier_error"])
+            c.evidence, c.fit = m.error, m.error / self.T
+            flags.append("start-half")
+            p_own, p_mir = p_mir, p_own
+        c.mirror = p_mir / total if total > 0 else 0.0
+
+    # ------------------------------------------------------------------ the null
+    def _tracked_null(self, obs, tracked: list[Candidate]) -> tuple[float, float]:
+        """The null of a tracked frame: (fit, evidence / T) of the median over
+        ``null_copies`` random-bearing copies of the observations searched as the strongest
+        track searched (module doc)."""
+        search = self.search
+        top = max(tracked, key=lambda c: c.log_prior - c.fit)
+        pose, info = top.prior
+        fits, evidence = [], []
+        for _ in range(int(self.conf["null_copies"])):
+            nobs = obs.random_bearings(self.rng, search.n_angles)
+            scale = nobs.total_weight / max(nobs.lookup_total_weight, 1e-12)
+            r, _w = search.tracked_search(nobs, top.fix.theta, pose[:2], info, self.T / scale,
+                                         half_width=self.half, prior_cap=self.prior_cap)
+            d = np.array([r.x - pose[0], r.y - pose[1]])
+            fits.append(r.error / self.T + min(0.5 * float(d @ info @ d), self.prior_cap))
+            evidence.append(r.error / self.T)
+        return float(np.median(fits)), float(np.median(evidence))
+
+    def _global_null(self, obs, headings) -> float:
+        """The null of a global search: evidence / T of the median over ``null_copies``
+        random-bearing copies searched globally (at the ``headings`` the search used, or over
+        all headings)."""
+        conf, search = self.conf, self.search
+        out = []
+        for _ in range(int(conf["null_copies"])):
+            nobs = obs.random_bearings(self.rng, search.n_angles)
+            if headings is None:
+                r = search.unknown_heading_search(
+                    nobs, candidates=max(2, conf["unknown_heading_candidates"] // 4))
+                out.append(r.error / self.T)
+            else:
+                out.append(min(search.global_search(nobs, th, candidates=1).error
+                               for th in headings) / self.T)
+        return float(np.median(out))
+
+    # ------------------------------------------------------------------ the belief
+    def _update_tracks(self, i, cands: list[Candidate], other: float, dt, odo, col):
+        """The tracks after this frame from the candidates' normalised log weights (and the
+        log weight ``other`` of elsewhere): pruned below ``prune_probability`` (their mass
+        goes elsewhere), merged when in one basin, at most ``max_tracks``; each track's
+        fusion corrected with its fix when the fix beats the null (else predicted only).
+        Returns the candidate of the strongest track."""
+        conf = self.conf
+        order = sorted(range(len(cands)), key=lambda k: -cands[k].log_post)
+        kept: list[Track] = []
+        lead = cands[order[0]]
+        cap = int(conf["max_tracks"])
+        if conf["independent"]:
+            cap = max(cap, int(conf["hypotheses"]))
+        for k in order:
+            c = cands[k]
+            if c.log_post < math.log(conf["prune_probability"]) and kept:
+                continue
+            same = [t for t in kept if _near_pose(t.pose, c.fix.pose, SAME_BASIN_M,
+                                                  SAME_BASIN_RAD)]
+            if same:
+                same[0].log_weight = float(np.logaddexp(same[0].log_weight, c.log_post))
+                continue
+            if len(kept) >= cap:
+                continue
+            if c.track is None:
+                t = self._new_track(c.fix, c.R, c.log_post, c.mirror, i)
+            else:
+                t = c.track
+                t.log_weight = c.log_post
+                t.mirror = c.mirror
+                vision = (c.fix.pose, c.R) if c.fit < self._null_fit else None
+                if self.use_fusion:
+                    t.fusion.step(dt, odo, col, vision)
+                    t.pose, t.cov = t.fusion.state.mean.copy(), t.fusion.state.cov.copy()
+                elif vision is not None:
+                    t.pose, t.cov = c.fix.pose.copy(), c.R.copy()
+                t.misses = 0 if vision is not None else t.misses + 1
+            kept.append(t)
+        kept_mass = float(np.exp([t.log_weight for t in kept]).sum())
+        self.other = float(min(max(1.0 - kept_mass, math.exp(other)), 1.0 - 1e-12))
+        self.tracks = kept
+        return lead
+
+    def _hypotheses(self) -> np.ndarray:
+        """(k, 4) ranked (x, y, theta, probability) of the tracks and, on a point-symmetric
+        field, their mirror images, at most ``hypotheses``."""
+        rows = []
+        for t in self.tracks:
+            w = math.exp(t.log_weight)
+            rows.append((*t.pose, w * (1 - t.mirror)))
+            if self.symmetric:
+                rows.append((*_mirror(t.pose), w * t.mirror))
+        rows.sort(key=lambda r: -r[3])  # stable: a track before its mirror on a tie
+        return np.array(rows[:int(self.conf["hypotheses"])], float)
+
+    def _track_imu_offset(self, i, obs, top: Candidate, col):
+        """IMU alignment: initialised on the first fix of the unknown-heading search
+        (``imu_alignment: vision``), then updated from the vision heading every
+        ``imu_offset_every`` frames (every frame while the offset is uncertain, above
+        0.5 deg), on confident tracked frames clean enough (half the observations inliers:
+        clutter can tilt the vision heading)."""
+        conf = self.conf
+        if conf["heading"] != "imu" or not np.isfinite(self.yaw[i]):
+            return
+        if not self.alignment.known:
+            var = max(math.radians(1.5) ** 2, conf["imu_sigma"] ** 2)
+            theta = self.tracks[0].pose[2] if self.tracks else top.fix.theta
+            self.alignment.initialise(float(theta), float(self.yaw[i]), var)
+            return
+        every = int(conf["imu_offset_every"])
+        if every <= 0 or col or top.track is None or top.support.inlier_share < 0.5:
             return
         if i % every and self.alignment.variance < math.radians(0.5) ** 2:
             return
+        r = top.fix
         rh, curv = self.search.refine_heading(obs, r.cell, r.theta)
         if curv > 0 and rh.error <= r.error * 1.5:
             self.alignment.update(rh.theta, float(self.yaw[i]), _curvature_sigma(curv, obs) ** 2)
@@ -658,16 +812,16 @@ def run(conf: dict, dataset, features, map_file: MapFile, progress=False) -> Pos
         try:
             if fr is None:
                 raise FrameFailed(reason)
-            r, sup, pose, cov = loc.frame(i, fr, dt, odo, flags)
+            hyps, top, pose, cov, accepted = loc.frame(i, fr, dt, odo, flags)
         except FrameFailed as e:
-            loc.failed(dt, odo, bool(collision[i]), str(e))
+            loc.failed(dt, odo, bool(collision[i]))
             log.debug("frame %s failed: %s", name, e)
             track.add(name, stamp, None, error=math.nan, confidence=0.0, mode="failed",
                       runtime=time.perf_counter() - t0, flags=",".join(flags + [str(e)]))
             continue
-        track.add(name, stamp, pose, error=r.error_norm, confidence=fix_confidence(sup, conf),
-                  mode=r.mode, runtime=time.perf_counter() - t0, covariance=cov,
-                  flags=",".join(flags))
+        track.add(name, stamp, pose, error=top.fix.error_norm, confidence=float(hyps[0, 3]),
+                  mode=top.fix.mode, runtime=time.perf_counter() - t0, covariance=cov,
+                  flags=",".join(flags), hypotheses=hyps, accepted=accepted)
     return track
 
 
@@ -691,19 +845,3 @@ def _near_pose(candidate, pose, distance: float = 0.5, angle: float = 0.2) -> bo
     a pose."""
     return (math.hypot(candidate[0] - pose[0], candidate[1] - pose[1]) < distance
             and abs(float(wrap_angle(candidate[2] - pose[2]))) < angle)
-
-
-def _nearest_heading_candidate(search: TableSearch, obs: Observation, result, heading: float,
-                               fits_as_well):
-    """Among the fix and its runners-up whose e_norm ``fits_as_well``, the one whose heading
-    is nearest ``heading``, refined."""
-    options = [(result.x, result.y, result.theta, result.error_norm)] + [
-        c for c in result.candidates if fits_as_well(c[3])]
-    x, y, th, _e = min(options, key=lambda c: abs(float(wrap_angle(c[2] - heading))))
-    if (x, y, th) == (result.x, result.y, result.theta):
-        return result
-    r = search.refine(obs, search.grid.cell_of(x, y), th)
-    r.mode = result.mode
-    r.candidates = result.candidates
-    r.candidate_error_norm = r.error_norm
-    return r

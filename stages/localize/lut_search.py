@@ -24,7 +24,7 @@ w(d) * rho(e) quantised to 0..Q (Q = 151, so that the sum over the at most 432 o
 frame fits a uint16). It is stored scan-line-major ((line, bin) rows of all cells, contiguous),
 so the error surface of a frame over the whole world is the sum of one contiguous row per
 observation: one gather and one reduction (``global_search``), or the same restricted to a
-window (``local_search``), both in one numba kernel (``_lookup_sum``; the exact error and
+window (``local_search``), both in one numba kernel (``lookup_sum``; the exact error and
 the refinement's cell moves are numba kernels too). The quantised surface only picks cells;
 the pose is then refined with the exact error (float32 tables in metres, no quantisation):
 
@@ -48,12 +48,20 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
 
 from ..common.map_file import MapFile
 from ..common.scanlines import NO_HIT_MM
+from .lut_kernels import (
+    MAX_CROSSINGS,
+    exact_error_cells,
+    lookup_sum,
+    observation_errors_cell,
+    quadratic_fit,
+    refine_moves,
+    structure_sizes,
+    tracked_window,
+)
 
-MAX_CROSSINGS = 4
 NONE_M = 1.0e3  # a "none" table entry in metres: far from any observation -> saturated error
 
 
@@ -94,9 +102,34 @@ class Observation:
     angle_index: np.ndarray
     distance: np.ndarray
     weight: np.ndarray
+    # the weights of the error lookup, when ``weight`` holds evidence weights
+    # (``with_evidence``); None: ``weight`` is the lookup's
+    lookup_weight: np.ndarray | None = None
 
     def __len__(self):
         return len(self.distance)
+
+    def with_evidence(self, scanlines, per_structure: float, link: float,
+                      link_per_m: float) -> Observation:
+        """These observations weighted as evidence: the crossings of one white structure
+        (points, robot frame, chained by gaps under ``link`` + ``link_per_m`` * range m: a
+        line seen by many scan lines, a cable near the robot) are one correlated measurement,
+        so together they carry at most ``per_structure`` observations' worth: weight *
+        min(1, per_structure / structure size). The exact error terms (refinement, support)
+        use these weights; the error lookup keeps the seed's (``lookup_weight``)."""
+        p = self.points(scanlines)
+        size = structure_sizes(np.ascontiguousarray(p), np.ascontiguousarray(self.distance),
+                               float(link), float(link_per_m))
+        base = self.weight if self.lookup_weight is None else self.lookup_weight
+        return Observation(family=self.family, angle_index=self.angle_index,
+                           distance=self.distance, weight=base * np.minimum(1.0,
+                                                                            per_structure / size),
+                           lookup_weight=base)
+
+    @property
+    def lookup_total_weight(self) -> float:
+        """Total weight in the units of the error lookup (the seed's weights)."""
+        return float((self.weight if self.lookup_weight is None else self.lookup_weight).sum())
 
     @property
     def total_weight(self) -> float:
@@ -130,7 +163,18 @@ class Observation:
     def subset(self, mask) -> Observation:
         """The observations selected by a boolean mask (or index array)."""
         return Observation(family=self.family[mask], angle_index=self.angle_index[mask],
-                           distance=self.distance[mask], weight=self.weight[mask])
+                           distance=self.distance[mask], weight=self.weight[mask],
+                           lookup_weight=None if self.lookup_weight is None
+                           else self.lookup_weight[mask])
+
+    def random_bearings(self, rng: np.random.Generator, n_angles: int) -> Observation:
+        """The null copy of these observations: the same distances on scan lines shuffled at
+        random (radial lines by one permutation, each spiral family by its own), so each scan
+        line keeps its crossings but their bearings carry no information."""
+        perm = np.stack([rng.permutation(n_angles) for _ in range(3)])
+        return Observation(family=self.family, angle_index=perm[self.family, self.angle_index],
+                           distance=self.distance, weight=self.weight,
+                           lookup_weight=self.lookup_weight)
 
     def points(self, scanlines) -> np.ndarray:
         """The observations as points (N, 2) in the robot frame."""
@@ -281,7 +325,7 @@ class TableSearch:
         total = np.zeros((len(ms), len(cells)))
         arrays = self._kernel_arrays(obs)
         for h, m in enumerate(ms):
-            _exact_error_cells(*arrays, cells, int(m) % self.n_angles, 0.0, False, total[h])
+            exact_error_cells(*arrays, cells, int(m) % self.n_angles, 0.0, False, total[h])
         return total
 
     def exact_error(self, obs: Observation, cells, m: int) -> np.ndarray:
@@ -307,11 +351,11 @@ class TableSearch:
             return self.exact_error(obs, cells, (m0 + (1 if a > 0.5 else 0)) % self.n_angles)
         flat = np.ascontiguousarray(cells.ravel())
         total = np.zeros(len(flat))
-        _exact_error_cells(*self._kernel_arrays(obs), flat, m0, float(a), True, total)
+        exact_error_cells(*self._kernel_arrays(obs), flat, m0, float(a), True, total)
         return total.reshape(cells.shape)
 
     def _kernel_arrays(self, obs: Observation) -> tuple:
-        """The leading arguments of ``_exact_error_cells`` for the observations."""
+        """The leading arguments of ``exact_error_cells`` for the observations."""
         return (self._radial_flat, self._spiral_flat, self.ncell, self.n_angles,
                 np.ascontiguousarray(obs.family, dtype=np.int64),
                 np.ascontiguousarray(obs.angle_index, dtype=np.int64),
@@ -325,29 +369,21 @@ class TableSearch:
         a continuous heading: the same prediction as ``exact_error_at_heading`` (the nearest
         table crossing at a table heading, angle-interpolated crossings between them); a
         "none" table entry gives an error of about NONE_M."""
-        flat = np.array([int(cell[0]) * self.nx + int(cell[1])], dtype=np.int64)
-        m0, a = self._heading_bracket(theta)
-        rad = obs.family == 0
-        out = np.empty(len(obs), dtype=np.float64)
-        if a < 1e-6 or a > 1 - 1e-6:
-            m = (m0 + (1 if a > 0.5 else 0)) % self.n_angles
-            k = (obs.angle_index + m) % self.n_angles
-            if rad.any():
-                rows = (k[rad][:, None] * MAX_CROSSINGS + np.arange(MAX_CROSSINGS)).ravel()
-                t = np.take(self._radial_flat, rows * self.ncell + flat[0])
-                t = t.reshape(-1, MAX_CROSSINGS)
-                out[rad] = np.abs(t - obs.distance[rad][:, None].astype(np.float32)).min(axis=1)
-            if (~rad).any():
-                line = (obs.family[~rad] - 1) * self.n_angles + k[~rad]
-                t = np.take(self._spiral_flat, line * self.ncell + flat[0])
-                out[~rad] = np.abs(t - obs.distance[~rad].astype(np.float32))
-            return out
-        e_rad, e_sp = self._interpolated_errors(obs, flat, m0, a)
-        if e_rad is not None:
-            out[rad] = e_rad[:, 0]
-        if e_sp is not None:
-            out[~rad] = e_sp[:, 0]
+        m0, a, interpolate = self._heading_args(theta)
+        out = np.empty(len(obs))
+        arrays = self._kernel_arrays(obs)
+        observation_errors_cell(*arrays[:7], arrays[8], int(cell[0]) * self.nx + int(cell[1]),
+                                m0, a, interpolate, out)
         return out
+
+    def _heading_args(self, theta: float) -> tuple[int, float, bool]:
+        """(m0, a, interpolate) of the kernels for a continuous heading: the table heading
+        below it and the fraction of the step, or the nearest table heading when the heading
+        is on one."""
+        m0, a = self._heading_bracket(theta)
+        if a < 1e-6 or a > 1 - 1e-6:
+            return (m0 + (1 if a > 0.5 else 0)) % self.n_angles, 0.0, False
+        return m0, float(a), True
 
     def inliers(self, obs: Observation, x: float, y: float, theta: float,
                 inlier_error: float) -> tuple[np.ndarray, np.ndarray]:
@@ -365,48 +401,6 @@ class TableSearch:
         rho = float((obs.weight[inl] * self.params.rho(e[inl])).sum() / w_in) if w_in else 0.0
         return Support(observations=len(obs), inliers=int(inl.sum()), inlier_weight=w_in,
                        total_weight=obs.total_weight, inlier_rho=rho)
-
-    def _interpolated_errors(self, obs: Observation, flat: np.ndarray, m0: int, a: float):
-        """Errors (radial (n_r, C) or None, spiral (n_s, C) or None) of the observations at
-        flat cells ``flat`` for the heading at fraction ``a`` between table headings m0 and
-        m0 + 1 (see ``exact_error_at_heading``)."""
-        C = len(flat)
-        tol = np.float32(self.params.pair_tolerance)
-        a32 = np.float32(a)
-        k0 = (obs.angle_index + m0) % self.n_angles
-        k1 = (k0 + 1) % self.n_angles
-        near = k1 if a > 0.5 else k0
-        rad = obs.family == 0
-        e_rad = e_sp = None
-        if rad.any():
-            slots = np.arange(MAX_CROSSINGS)
-
-            def gather(k):
-                rows = (k[rad][:, None] * MAX_CROSSINGS + slots).ravel()
-                t = np.take(self._radial_flat, rows[:, None] * self.ncell + flat[None, :])
-                return t.reshape(-1, MAX_CROSSINGS, C)
-
-            t0, t1 = gather(k0), gather(k1)
-            d = obs.distance[rad].astype(np.float32)[:, None, None]
-            n_r = len(t0)
-            r_, c_ = np.arange(n_r)[:, None], np.arange(C)[None, :]
-            n0 = t0[r_, np.abs(t0 - d).argmin(axis=1), c_]  # crossing nearest d on line k+m
-            n1 = t1[r_, np.abs(t1 - d).argmin(axis=1), c_]  # ... on line k+m+1
-            d = d[:, :, 0]
-            t_near = n1 if a > 0.5 else n0  # unpaired: the angularly nearer line
-            pred = np.where(np.abs(n0 - n1) < tol, (1 - a32) * n0 + a32 * n1, t_near)
-            e_rad = np.abs(pred - d)
-        sp = ~rad
-        if sp.any():
-            base = (obs.family[sp] - 1) * self.n_angles
-            idx = lambda k: (base + k[sp])[:, None] * self.ncell + flat[None, :]  # noqa: E731
-            t0 = np.take(self._spiral_flat, idx(k0))
-            t1 = np.take(self._spiral_flat, idx(k1))
-            tn = np.take(self._spiral_flat, idx(near))
-            d = obs.distance[sp].astype(np.float32)[:, None]
-            pred = np.where(np.abs(t0 - t1) < tol, (1 - a32) * t0 + a32 * t1, tn)
-            e_sp = np.abs(pred - d)
-        return e_rad, e_sp
 
     def _heading_bracket(self, theta: float) -> tuple[int, float]:
         u = float(theta) / self.step
@@ -445,12 +439,12 @@ class TableSearch:
 
     def _surface(self, obs: Observation, m: int) -> np.ndarray:
         out = np.empty((self.ny, self.nx), dtype=np.uint16)
-        _lookup_sum(self.error_lookup, *self._row_arrays(obs, m), 0, self.ny, 0, self.nx,
+        lookup_sum(self.error_lookup, *self._row_arrays(obs, m), 0, self.ny, 0, self.nx,
                     self.nx, out)
         return out.reshape(-1)
 
     def _row_arrays(self, obs: Observation, m: int) -> tuple:
-        """The arguments of ``_lookup_sum`` that select the rows ``lookup_rows(obs, m)``."""
+        """The arguments of ``lookup_sum`` that select the rows ``lookup_rows(obs, m)``."""
         bins = np.rint(obs.distance / self.params.distance_bin).astype(np.int64)
         return (np.ascontiguousarray(obs.family, dtype=np.int64),
                 np.ascontiguousarray(obs.angle_index, dtype=np.int64), bins, int(m),
@@ -458,7 +452,7 @@ class TableSearch:
 
     def local_surface(self, obs: Observation, m: int, i0: int, i1: int, j0: int, j1: int):
         out = np.empty((i1 - i0, j1 - j0), dtype=np.uint16)
-        _lookup_sum(self.error_lookup, *self._row_arrays(obs, m), i0, i1, j0, j1, self.nx, out)
+        lookup_sum(self.error_lookup, *self._row_arrays(obs, m), i0, i1, j0, j1, self.nx, out)
         return out
 
     def local_window(self, x: float, y: float, half_width: float):
@@ -499,29 +493,55 @@ class TableSearch:
         r.mode = "local"
         return r
 
+    def tracked_search(self, obs: Observation, theta: float, prior_xy, prior_information,
+                       temperature: float, *, half_width: float = 1.0,
+                       prior_cap: float = math.inf):
+        """The seed's local search around a tracked prior, ranked by the posterior: in the
+        window (2 half_width square) around ``prior_xy`` the cell minimising
+        E(cell) / temperature + min(0.5 d^T ``prior_information`` d, ``prior_cap``) (d = cell
+        - prior, the prior's inverse position covariance (2, 2); the cap: a prior that may be
+        wrong, a Gaussian with a uniform floor), refined to sub-cell in its basin. Also the
+        window's best cell by the error term alone, which may lie in another basin. Returns
+        (fix, (i, j, error) of that best cell)."""
+        m = self.scanlines.heading_index(theta)
+        i0, i1, j0, j1 = self.local_window(prior_xy[0], prior_xy[1], half_width)
+        g = self.grid
+        best, low, low_val = tracked_window(
+            self.error_lookup, *self._row_arrays(obs, m), i0, i1, j0, j1, self.nx,
+            1.0 / (self.q_levels * temperature), float(g.origin[0]), float(g.origin[1]),
+            float(g.resolution), float(prior_xy[0]), float(prior_xy[1]),
+            float(prior_information[0, 0]), float(prior_information[0, 1]),
+            float(prior_information[1, 1]), float(min(prior_cap, 1e300)))
+        i, j = divmod(best, self.nx)
+        edge = ((i == i0 and i0 > 0) or (i == i1 - 1 and i1 < self.ny)
+                or (j == j0 and j0 > 0) or (j == j1 - 1 and j1 < self.nx))
+        fix = self.refine(obs, (i, j), theta)
+        fix.mode = "local"
+        fix.at_window_edge = bool(edge)
+        wi, wj = divmod(low, self.nx)
+        return fix, (wi, wj, low_val / self.q_levels)
+
     def refine(self, obs: Observation, cell, theta: float, *, max_moves: int = 4) -> SearchResult:
         """Exact sub-cell refinement around ``cell``: the exact error at the continuous heading
         theta on the 3 x 3 cells around it (moving to the lowest while it is not the centre),
         then a least-squares quadratic fit of those 9 values."""
-        m0, a = self._heading_bracket(theta)
-        interpolate = not (a < 1e-6 or a > 1 - 1e-6)
-        if not interpolate:
-            m0, a = (m0 + (1 if a > 0.5 else 0)) % self.n_angles, 0.0
+        m0, a, interpolate = self._heading_args(theta)
         e = np.empty(9)
         # the moves and the exact error on the final 3 x 3 patch (clipped to the grid)
-        i, j = divmod(_refine_moves(*self._kernel_arrays(obs), int(cell[0]), int(cell[1]),
-                                    self.ny, self.nx, m0, float(a), interpolate, max_moves, e),
+        i, j = divmod(refine_moves(*self._kernel_arrays(obs), int(cell[0]), int(cell[1]),
+                                   self.ny, self.nx, m0, a, interpolate, max_moves, e),
                       self.nx)
-        e = e.reshape(3, 3)
         W = max(obs.total_weight, 1e-12)
-        dx, dy, fmin, hess = _quadratic_minimum(e / W)
+        e /= W
+        dx, dy, fmin, hxx, hxy, hyy = quadratic_fit(e, _QPINV)
         res = self.grid.resolution
         x, y = self.grid.origin[0] + j * res, self.grid.origin[1] + i * res  # Grid.centre_of
-        e_norm = float(min(max(fmin, 0.0), float(e[1, 1]) / W))
+        e_norm = min(max(fmin, 0.0), float(e[4]))
+        r2 = res * res
         return SearchResult(
             x=float(x) + dx * res, y=float(y) + dy * res, theta=float(theta),
             error=e_norm * W, error_norm=e_norm, cell=(i, j), n_observations=len(obs),
-            hessian=hess / (res * res))
+            hessian=np.array([[hxx / r2, hxy / r2], [hxy / r2, hyy / r2]]))
 
     def refine_heading(self, obs: Observation, cell, theta: float, *, max_shifts: int = 2,
                        fine: bool = True) -> tuple[SearchResult, float]:
@@ -578,7 +598,7 @@ class TableSearch:
         cy, cx = self.coarse_shape
         row_arrays = self._row_arrays(obs, 0)
         for m in range(n):
-            _lookup_sum(self.coarse_lookup, *row_arrays[:3], m, *row_arrays[4:], 0, cy, 0, cx,
+            lookup_sum(self.coarse_lookup, *row_arrays[:3], m, *row_arrays[4:], 0, cy, 0, cx,
                         cx, surfaces[m].reshape(cy, cx))
         flat = surfaces.ravel()
         pool = min(flat.size, 64 * candidates)
@@ -645,133 +665,6 @@ class TableSearch:
                 "table_bytes": int((len(rad_lines) * MAX_CROSSINGS + len(sp_lines))
                                    * self.ncell * 2),
                 "lookup_bytes": int(len(rows) * self.ncell)}
-
-
-# ---------------------------------------------------------------------------- kernels
-# Three numba kernels (compiled once, cached on disk): the error-lookup sum of the searches,
-# the exact error term on a few cells, and the cell moves of the sub-cell refinement. They
-# follow the numpy definitions above exactly (same float32 arithmetic per observation; the sum
-# over observations is accumulated in float64).
-
-
-@njit("void(uint8[:, ::1], int64[::1], int64[::1], int64[::1], int64, int64, int64, int64,"
-      " int64, int64, int64, int64, int64, int64, uint16[:, ::1])", cache=True, nogil=True)
-def _lookup_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
-                spiral_row0, i0, i1, j0, j1, nx, out):
-    """out[i - i0, j - j0] = sum over the observations of lookup[row, i * nx + j] (uint16), the
-    quantised error surface on the window [i0, i1) x [j0, j1) of a grid nx cells wide; the
-    rows are ``TableSearch.lookup_rows`` at heading index m (``bins``: the observed distances
-    in distance bins, rounded)."""
-    w = j1 - j0
-    out[:, :] = 0
-    for o in range(family.shape[0]):
-        k = (angle_index[o] + m) % n_angles
-        if family[o] == 0:
-            r = k * nb_radial + min(bins[o], nb_radial - 1)
-        else:
-            r = spiral_row0 + ((family[o] - 1) * n_angles + k) * nb_spiral + min(bins[o],
-                                                                                nb_spiral - 1)
-        row = lookup[r]
-        for i in range(i0, i1):
-            src = row[i * nx + j0:i * nx + j1]
-            dst = out[i - i0]
-            for j in range(w):
-                dst[j] += src[j]
-
-
-@njit("void(float32[::1], float32[::1], int64, int64, int64[::1], int64[::1], float32[::1],"
-      " float32[::1], float32, float32, int64[::1], int64, float64, boolean, float64[::1])",
-      cache=True, nogil=True)
-def _exact_error_cells(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist,
-                       weight, tol, c2, cells, m0, a, interpolate, out):
-    """out[c] = sum_i weight[i] * rho(e_i) at flat cell cells[c]: at table heading m0 with
-    e = distance to the nearest crossing of the scan line (``interpolate`` False), or at the
-    fraction ``a`` between m0 and m0 + 1 with the angle-interpolated prediction of
-    ``TableSearch.exact_error_at_heading``."""
-    a32 = np.float32(a)
-    b32 = np.float32(1.0) - a32
-    upper = a > 0.5
-    out[:] = 0.0
-    for o in range(dist.shape[0]):
-        k0 = (angle_index[o] + m0) % n_angles
-        k1 = (k0 + 1) % n_angles
-        d = dist[o]
-        w = weight[o]
-        if family[o] == 0:
-            r0 = k0 * MAX_CROSSINGS * ncell
-            r1 = k1 * MAX_CROSSINGS * ncell
-            for ci in range(cells.shape[0]):
-                c = cells[ci]
-                n0 = radial_flat[r0 + c]
-                e0 = abs(n0 - d)
-                for h in range(1, MAX_CROSSINGS):
-                    t = radial_flat[r0 + h * ncell + c]
-                    if abs(t - d) < e0:
-                        n0 = t
-                        e0 = abs(t - d)
-                if interpolate:
-                    n1 = radial_flat[r1 + c]
-                    e1 = abs(n1 - d)
-                    for h in range(1, MAX_CROSSINGS):
-                        t = radial_flat[r1 + h * ncell + c]
-                        if abs(t - d) < e1:
-                            n1 = t
-                            e1 = abs(t - d)
-                    if abs(n0 - n1) < tol:
-                        e = abs((b32 * n0 + a32 * n1) - d)
-                    elif upper:
-                        e = e1
-                    else:
-                        e = e0
-                else:
-                    e = e0
-                e2 = e * e
-                out[ci] += w * (e2 / (c2 + e2))
-        else:
-            base = (family[o] - 1) * n_angles
-            s0 = (base + k0) * ncell
-            s1 = (base + k1) * ncell
-            for ci in range(cells.shape[0]):
-                c = cells[ci]
-                t0 = spiral_flat[s0 + c]
-                if interpolate:
-                    t1 = spiral_flat[s1 + c]
-                    if abs(t0 - t1) < tol:
-                        e = abs((b32 * t0 + a32 * t1) - d)
-                    elif upper:
-                        e = abs(t1 - d)
-                    else:
-                        e = abs(t0 - d)
-                else:
-                    e = abs(t0 - d)
-                e2 = e * e
-                out[ci] += w * (e2 / (c2 + e2))
-
-
-@njit("int64(float32[::1], float32[::1], int64, int64, int64[::1], int64[::1], float32[::1],"
-      " float32[::1], float32, float32, int64, int64, int64, int64, int64, float64, boolean,"
-      " int64, float64[::1])", cache=True, nogil=True)
-def _refine_moves(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist, weight,
-                  tol, c2, i, j, ny, nx, m0, a, interpolate, max_moves, out):
-    """The cell search of ``TableSearch.refine``: the exact error (``_exact_error_cells``) on
-    the 3 x 3 cells around (i, j) (clipped to the grid, row-major, into ``out`` (9,)), moving
-    to the lowest while it is not the centre, at most ``max_moves`` times. Returns the final
-    cell as the flat index i * nx + j; ``out`` holds the last patch evaluated."""
-    cells = np.empty(9, dtype=np.int64)
-    for _ in range(max_moves + 1):
-        for di in range(3):
-            ii = min(max(i - 1 + di, 0), ny - 1)
-            for dj in range(3):
-                jj = min(max(j - 1 + dj, 0), nx - 1)
-                cells[3 * di + dj] = ii * nx + jj
-        _exact_error_cells(radial_flat, spiral_flat, ncell, n_angles, family, angle_index,
-                           dist, weight, tol, c2, cells, m0, a, interpolate, out)
-        b = np.argmin(out)
-        ni, nj = cells[b] // nx, cells[b] % nx
-        if ni == i and nj == j:
-            break
-        i, j = ni, nj
-    return i * nx + j
 
 
 # ---------------------------------------------------------------------------- helpers
@@ -859,26 +752,4 @@ def _best_separated(surface: np.ndarray, shape, k: int, min_cells: float) -> lis
 _QY, _QX = np.mgrid[-1:2, -1:2]
 _QA = np.stack([np.ones(9), _QX.ravel(), _QY.ravel(), _QX.ravel() ** 2,
                 (_QX * _QY).ravel(), _QY.ravel() ** 2], axis=1)
-_QPINV = np.linalg.pinv(_QA)
-
-
-def _quadratic_minimum(e: np.ndarray):
-    """Sub-cell minimum of a 3 x 3 error patch (rows y, columns x): (dx, dy, value, Hessian in
-    cell units). Falls back to per-axis parabolas where the fit is not a bowl; offsets are
-    clipped to one cell."""
-    a, bx, by, dxx, dxy, dyy = (_QPINV @ e.ravel()).tolist()
-    hxx, hyy = 2 * dxx, 2 * dyy
-    det = hxx * hyy - dxy * dxy
-    if det > 1e-12 and hxx > 0:
-        ox = -(hyy * bx - dxy * by) / det
-        oy = -(hxx * by - dxy * bx) / det
-    else:
-        ox = oy = 0.0
-        for ax, (lo, mid, hi) in enumerate(((e[1, 0], e[1, 1], e[1, 2]),
-                                            (e[0, 1], e[1, 1], e[2, 1]))):
-            den = float(lo - 2 * mid + hi)
-            off = 0.5 * float(lo - hi) / den if den > 1e-12 else 0.0
-            ox, oy = (off, oy) if ax == 0 else (ox, off)
-    ox, oy = min(max(ox, -1.0), 1.0), min(max(oy, -1.0), 1.0)
-    val = a + bx * ox + by * oy + dxx * ox * ox + dxy * ox * oy + dyy * oy * oy
-    return ox, oy, val, np.array([[hxx, dxy], [dxy, hyy]])
+_QPINV = np.ascontiguousarray(np.linalg.pinv(_QA))

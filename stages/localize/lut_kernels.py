@@ -1,0 +1,274 @@
+"""The numba kernels of the table search (lut_search.py): compiled once, cached on disk.
+
+They follow the definitions of lut_search.py's module doc exactly: the same float32 arithmetic
+per observation, sums over observations accumulated in float64.
+
+- ``lookup_sum``: the quantised error surface of a frame on a window of cells, one contiguous
+  error-lookup row per observation;
+- ``tracked_window``: that surface on a tracked search's window ranked by the posterior (error
+  term over the temperature plus the prior's capped Mahalanobis term), its best cells;
+- ``observation_error``: one observation's error at one cell (nearest table crossing at a table
+  heading, the angle-interpolated prediction between two), the base of
+  ``exact_error_cells`` (the weighted error term on a few cells), ``observation_errors_cell``
+  (every observation's error at one cell) and ``refine_moves`` (the cell moves of the sub-cell
+  refinement);
+- ``quadratic_fit``: the sub-cell minimum of a 3 x 3 patch;
+- ``structure_sizes``: the white structures of a frame's line points.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+MAX_CROSSINGS = 4
+
+@njit("void(uint8[:, ::1], int64[::1], int64[::1], int64[::1], int64, int64, int64, int64,"
+      " int64, int64, int64, int64, int64, int64, uint16[:, ::1])", cache=True, nogil=True)
+def lookup_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
+                spiral_row0, i0, i1, j0, j1, nx, out):
+    """out[i - i0, j - j0] = sum over the observations of lookup[row, i * nx + j] (uint16), the
+    quantised error surface on the window [i0, i1) x [j0, j1) of a grid nx cells wide; the
+    rows are ``TableSearch.lookup_rows`` at heading index m (``bins``: the observed distances
+    in distance bins, rounded)."""
+    w = j1 - j0
+    out[:, :] = 0
+    for o in range(family.shape[0]):
+        k = (angle_index[o] + m) % n_angles
+        if family[o] == 0:
+            r = k * nb_radial + min(bins[o], nb_radial - 1)
+        else:
+            r = spiral_row0 + ((family[o] - 1) * n_angles + k) * nb_spiral + min(bins[o],
+                                                                                nb_spiral - 1)
+        row = lookup[r]
+        for i in range(i0, i1):
+            src = row[i * nx + j0:i * nx + j1]
+            dst = out[i - i0]
+            for j in range(w):
+                dst[j] += src[j]
+
+
+
+
+@njit(cache=True, nogil=True, inline="always")
+def observation_error(radial_flat, spiral_flat, ncell, n_angles, fam, ai, d, tol, c, m0, a32,
+                      b32, upper, interpolate):
+    """Error (m) of one observation (family ``fam``, scan line ``ai``, distance ``d``) at flat
+    cell ``c``: at table heading m0 the distance to the nearest crossing of its scan line
+    (``interpolate`` False); between m0 and m0 + 1 (fraction a32 = 1 - b32) the distance to
+    the angle-interpolated prediction (``TableSearch.exact_error_at_heading``)."""
+    k0 = (ai + m0) % n_angles
+    k1 = (k0 + 1) % n_angles
+    if fam == 0:
+        r0 = k0 * MAX_CROSSINGS * ncell
+        n0 = radial_flat[r0 + c]
+        e0 = abs(n0 - d)
+        for h in range(1, MAX_CROSSINGS):
+            t = radial_flat[r0 + h * ncell + c]
+            if abs(t - d) < e0:
+                n0 = t
+                e0 = abs(t - d)
+        if not interpolate:
+            return e0
+        r1 = k1 * MAX_CROSSINGS * ncell
+        n1 = radial_flat[r1 + c]
+        e1 = abs(n1 - d)
+        for h in range(1, MAX_CROSSINGS):
+            t = radial_flat[r1 + h * ncell + c]
+            if abs(t - d) < e1:
+                n1 = t
+                e1 = abs(t - d)
+        if abs(n0 - n1) < tol:
+            return abs((b32 * n0 + a32 * n1) - d)
+        return e1 if upper else e0
+    base = (fam - 1) * n_angles
+    t0 = spiral_flat[(base + k0) * ncell + c]
+    if not interpolate:
+        return abs(t0 - d)
+    t1 = spiral_flat[(base + k1) * ncell + c]
+    if abs(t0 - t1) < tol:
+        return abs((b32 * t0 + a32 * t1) - d)
+    return abs(t1 - d) if upper else abs(t0 - d)
+
+
+@njit("void(float32[::1], float32[::1], int64, int64, int64[::1], int64[::1], float32[::1],"
+      " float32[::1], float32, float32, int64[::1], int64, float64, boolean, float64[::1])",
+      cache=True, nogil=True)
+def exact_error_cells(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist,
+                      weight, tol, c2, cells, m0, a, interpolate, out):
+    """out[c] = sum_i weight[i] * rho(e_i) at flat cell cells[c] (``observation_error``)."""
+    a32 = np.float32(a)
+    b32 = np.float32(1.0) - a32
+    upper = a > 0.5
+    out[:] = 0.0
+    for o in range(dist.shape[0]):
+        w = weight[o]
+        for ci in range(cells.shape[0]):
+            e = observation_error(radial_flat, spiral_flat, ncell, n_angles, family[o],
+                                  angle_index[o], dist[o], tol, cells[ci], m0, a32, b32, upper,
+                                  interpolate)
+            e2 = e * e
+            out[ci] += w * (e2 / (c2 + e2))
+
+
+@njit("void(float32[::1], float32[::1], int64, int64, int64[::1], int64[::1], float32[::1],"
+      " float32, int64, int64, float64, boolean, float64[::1])", cache=True, nogil=True)
+def observation_errors_cell(radial_flat, spiral_flat, ncell, n_angles, family, angle_index,
+                            dist, tol, cell, m0, a, interpolate, out):
+    """out[i] = error (m) of observation i at flat cell ``cell`` (``observation_error``)."""
+    a32 = np.float32(a)
+    b32 = np.float32(1.0) - a32
+    upper = a > 0.5
+    for o in range(dist.shape[0]):
+        out[o] = observation_error(radial_flat, spiral_flat, ncell, n_angles, family[o],
+                                   angle_index[o], dist[o], tol, cell, m0, a32, b32, upper,
+                                   interpolate)
+
+
+@njit("int64(float32[::1], float32[::1], int64, int64, int64[::1], int64[::1], float32[::1],"
+      " float32[::1], float32, float32, int64, int64, int64, int64, int64, float64, boolean,"
+      " int64, float64[::1])", cache=True, nogil=True)
+def refine_moves(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist, weight,
+                 tol, c2, i, j, ny, nx, m0, a, interpolate, max_moves, out):
+    """The cell search of ``TableSearch.refine``: the exact error (``exact_error_cells``) on
+    the 3 x 3 cells around (i, j) (clipped to the grid, row-major, into ``out`` (9,)), moving
+    to the lowest while it is not the centre, at most ``max_moves`` times. Returns the final
+    cell as the flat index i * nx + j; ``out`` holds the last patch evaluated."""
+    cells = np.empty(9, dtype=np.int64)
+    for _ in range(max_moves + 1):
+        for di in range(3):
+            ii = min(max(i - 1 + di, 0), ny - 1)
+            for dj in range(3):
+                jj = min(max(j - 1 + dj, 0), nx - 1)
+                cells[3 * di + dj] = ii * nx + jj
+        exact_error_cells(radial_flat, spiral_flat, ncell, n_angles, family, angle_index,
+                          dist, weight, tol, c2, cells, m0, a, interpolate, out)
+        b = np.argmin(out)
+        ni, nj = cells[b] // nx, cells[b] % nx
+        if ni == i and nj == j:
+            break
+        i, j = ni, nj
+    return i * nx + j
+
+
+@njit("UniTuple(int64, 3)(uint8[:, ::1], int64[::1], int64[::1], int64[::1], int64, int64,"
+      " int64, int64, int64, int64, int64, int64, int64, int64, float64, float64, float64,"
+      " float64, float64, float64, float64, float64, float64, float64)", cache=True,
+      nogil=True)
+def tracked_window(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
+                   spiral_row0, i0, i1, j0, j1, nx, scale, x0, y0, res, px, py, ia, ib, ic,
+                   cap):
+    """On the window [i0, i1) x [j0, j1): the quantised error surface (``lookup_sum``) and
+    the flat index of the cell minimising surface * ``scale`` + min(0.5 d^T [[ia, ib],
+    [ib, ic]] d, ``cap``) (d = cell centre - (px, py), cell centres at (x0, y0) + (j, i) *
+    res), the flat index of the surface's own minimum and that minimum's value."""
+    h, w = i1 - i0, j1 - j0
+    surf = np.empty((h, w), dtype=np.uint16)
+    lookup_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
+               spiral_row0, i0, i1, j0, j1, nx, surf)
+    best = 0
+    best_score = np.inf
+    low = 0
+    low_val = 1 << 30
+    for i in range(h):
+        dy = y0 + (i0 + i) * res - py
+        for j in range(w):
+            dx = x0 + (j0 + j) * res - px
+            v = int(surf[i, j])
+            q = 0.5 * (ia * dx * dx + 2.0 * ib * dx * dy + ic * dy * dy)
+            score = v * scale + min(q, cap)
+            if score < best_score:
+                best_score = score
+                best = (i0 + i) * nx + j0 + j
+            if v < low_val:
+                low_val = v
+                low = (i0 + i) * nx + j0 + j
+    return best, low, low_val
+
+
+@njit("UniTuple(float64, 6)(float64[::1], float64[:, ::1])", cache=True, nogil=True)
+def quadratic_fit(e, qpinv):
+    """Sub-cell minimum of a 3 x 3 error patch ``e`` (9,, rows y, columns x) by the
+    least-squares quadratic (``qpinv``: the pseudo-inverse (6, 9) of its design matrix):
+    (dx, dy, value, hxx, hxy, hyy) in cell units. Falls back to per-axis parabolas where the
+    fit is not a bowl; offsets are clipped to one cell."""
+    coef = np.zeros(6)
+    for r in range(6):
+        acc = 0.0
+        for k in range(9):
+            acc += qpinv[r, k] * e[k]
+        coef[r] = acc
+    a, bx, by, dxx, dxy, dyy = coef[0], coef[1], coef[2], coef[3], coef[4], coef[5]
+    hxx, hyy = 2 * dxx, 2 * dyy
+    det = hxx * hyy - dxy * dxy
+    if det > 1e-12 and hxx > 0:
+        ox = -(hyy * bx - dxy * by) / det
+        oy = -(hxx * by - dxy * bx) / det
+    else:
+        den = e[3] - 2 * e[4] + e[5]
+        ox = 0.5 * (e[3] - e[5]) / den if den > 1e-12 else 0.0
+        den = e[1] - 2 * e[4] + e[7]
+        oy = 0.5 * (e[1] - e[7]) / den if den > 1e-12 else 0.0
+    ox = min(max(ox, -1.0), 1.0)
+    oy = min(max(oy, -1.0), 1.0)
+    val = a + bx * ox + by * oy + dxx * ox * ox + dxy * ox * oy + dyy * oy * oy
+    return ox, oy, val, hxx, dxy, hyy
+
+@njit("float64[::1](float64[:, ::1], float64[::1], float64, float64)", cache=True, nogil=True)
+def structure_sizes(points, distance, link, link_per_m):
+    """Per point, the number of points in its structure: points chained by gaps shorter than
+    link + link_per_m * max(distance of the two) (union-find over the pairs found on a grid
+    of cells as wide as the longest link)."""
+    n = points.shape[0]
+    out = np.ones(n)
+    if n == 0:
+        return out
+    far = 0.0
+    for i in range(n):
+        far = max(far, distance[i])
+    cell = link + link_per_m * far
+    x0 = points[0, 0]
+    y0 = points[0, 1]
+    for i in range(n):
+        x0 = min(x0, points[i, 0])
+        y0 = min(y0, points[i, 1])
+    cx = np.empty(n, np.int64)
+    cy = np.empty(n, np.int64)
+    for i in range(n):
+        cx[i] = int((points[i, 0] - x0) / cell)
+        cy[i] = int((points[i, 1] - y0) / cell)
+    order = np.argsort(cx * 100003 + cy)
+    parent = np.arange(n)
+    for a in range(n):
+        i = order[a]
+        for b in range(a + 1, n):
+            j = order[b]
+            if cx[j] > cx[i] + 1:
+                break
+            if abs(cy[j] - cy[i]) > 1:
+                continue
+            dx = points[i, 0] - points[j, 0]
+            dy = points[i, 1] - points[j, 1]
+            reach = link + link_per_m * max(distance[i], distance[j])
+            if dx * dx + dy * dy < reach * reach:
+                ri = i
+                while parent[ri] != ri:
+                    ri = parent[ri]
+                rj = j
+                while parent[rj] != rj:
+                    rj = parent[rj]
+                if ri != rj:
+                    parent[ri] = rj
+    count = np.zeros(n)
+    root = np.empty(n, np.int64)
+    for i in range(n):
+        r = i
+        while parent[r] != r:
+            r = parent[r]
+        root[i] = r
+        count[r] += 1.0
+    for i in range(n):
+        out[i] = count[root[i]]
+    return out
+
+
