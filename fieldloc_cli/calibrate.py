@@ -1,4 +1,5 @@
-"""`fieldloc calibrate omni POINTS.csv -o calib.yaml ...`: fit the mirror's radial mapping."""
+"""`fieldloc calibrate omni [POINTS.csv | --from-minho DIR] [--line-images DIR] -o calib.yaml`:
+the mirror's radial mapping from measured pairs, a team's files or images of a line."""
 
 from __future__ import annotations
 
@@ -8,8 +9,11 @@ import click
 
 from stages.calibrate import confs
 from stages.common.conf import resolve_conf
+from stages.common.errors import FieldlocError
 
 from .common import conf_option, overrides_dict
+
+DEFAULT_PRESET = {"points": "default", "minho": "minho"}
 
 
 @click.group()
@@ -18,51 +22,123 @@ def calibrate():
 
 
 @calibrate.command("omni")
-@click.argument("points", type=click.Path(dir_okay=False))
+@click.argument("points", required=False, type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="calib.yaml to write.")
-@click.option("--centre", nargs=2, type=float, required=True, metavar="U V",
-              help="Image centre of the mirror (px).")
-@click.option("--image-size", nargs=2, type=int, required=True, metavar="W H",
-              help="Image width and height (px).")
-@click.option("--valid-radius", nargs=2, type=float, required=True, metavar="RMIN RMAX",
-              help="Radii (px) of the robot-body mask and of the outer limit of the floor.")
-@click.option("--forward-angle-deg", type=float, default=90.0, show_default=True,
+@click.option("--from-minho", "minho_dir", type=click.Path(file_okay=False), metavar="DIR",
+              help="Convert the MINHO team's DIR/mirror.cfg and DIR/image.cfg (centre, TILT)"
+                   " instead of POINTS; image size from the first image in DIR/images.")
+@click.option("--line-images", type=click.Path(file_okay=False), metavar="DIR",
+              help="Images of a straight line ahead at known distances, each named by the"
+                   " distance in metres (1.25.png): their measured pairs replace the other"
+                   " source's pairs over the distances they cover.")
+@click.option("--mask", type=click.Path(dir_okay=False),
+              help="Mask image for the line images (default with --from-minho: DIR/mask.png).")
+@click.option("--centre", nargs=2, type=float, metavar="U V",
+              help="Image centre of the mirror (px); with POINTS.")
+@click.option("--image-size", nargs=2, type=int, metavar="W H",
+              help="Image width and height (px); with POINTS, or when DIR/images is empty.")
+@click.option("--valid-radius", nargs=2, type=float, metavar="RMIN RMAX",
+              help="Radii (px) of the robot-body mask and of the outer limit of the floor"
+                   " (with POINTS; with --from-minho default: the first and last table radius).")
+@click.option("--forward-angle-deg", type=float, default=None,
               help="Image angle of the robot's forward direction, counter-clockwise from +u"
-                   " with v up.")
-@click.option("--mirrored", is_flag=True, help="The image shows the floor mirrored.")
-@click.option("--preset", default="default", show_default=True, type=click.Choice(sorted(confs)),
-              help="Named conf preset of the stage.")
+                   " with v up; with POINTS (default 90). --from-minho reads TILT.")
+@click.option("--mirrored", is_flag=True, help="The image shows the floor mirrored (POINTS).")
+@click.option("--preset", default=None, type=click.Choice(sorted(confs)),
+              help="Named conf preset of the stage [default: 'default' (fifth-order polynomial)"
+                   " for POINTS, 'minho' (monotone table) for --from-minho].")
 @click.option("--overwrite", is_flag=True, help="Replace OUTPUT if it exists.")
 @conf_option
 @click.pass_context
-def calibrate_omni(ctx, points, output, centre, image_size, valid_radius, forward_angle_deg,
-                   mirrored, preset, overwrite, overrides):
-    """Least-squares fit of the fifth-order f(r) (pixel radius -> floor distance in metres,
-    seed 004 eq. 2) to measured pairs in POINTS (CSV header: radius_px,distance_m).
+def calibrate_omni(ctx, points, output, minho_dir, line_images, mask, centre, image_size,
+                   valid_radius, forward_angle_deg, mirrored, preset, overwrite, overrides):
+    """Pixel radius -> floor distance of an omnidirectional camera, into calib.yaml.
+
+    From POINTS (CSV header radius_px,distance_m: marks measured on the robot), by default the
+    least-squares fifth-order f(r) of seed 004 eq. 2; or from a team's mirror table
+    (--from-minho), by default the monotone cubic through its pairs. --line-images measures
+    pairs in images of a line at known distances and puts them in place of the other source's
+    pairs where they overlap; the report then shows how far the other source was off there.
 
     \b
-    Example:
+    Examples:
       fieldloc calibrate omni marks.csv -o calib.yaml --centre 241 233 \\
           --image-size 480 480 --valid-radius 40 230
+      fieldloc calibrate omni --from-minho robot1/ -o calib.yaml
+      fieldloc calibrate omni --from-minho robot1/ --line-images robot1/images -o calib.yaml
     """
-    from stages.calibrate import main, residual_report
+    from stages.calibrate import from_minho, main, report
+
+    if (points is None) == (minho_dir is None):
+        raise FieldlocError("calibrate omni needs POINTS or --from-minho DIR (one of them)")
+    kind = "points" if points is not None else "minho"
+    conf = resolve_conf(confs, preset or DEFAULT_PRESET[kind], overrides_dict(overrides))
+    if kind == "points":
+        missing = [name for name, v in (("--centre", centre), ("--image-size", image_size),
+                                        ("--valid-radius", valid_radius)) if not v]
+        if missing:
+            raise FieldlocError(f"calibrate omni POINTS needs {', '.join(missing)}")
+        forward = math.radians(90.0 if forward_angle_deg is None else forward_angle_deg)
+        out = main(conf, points, output, centre=centre, image_size=image_size,
+                   valid_radius=valid_radius, forward_angle=forward, mirrored=mirrored,
+                   line_images=line_images, mask=mask, overwrite=overwrite)
+    else:
+        given = [name for name, v in (("--centre", centre), ("--mirrored", mirrored),
+                                      ("--forward-angle-deg", forward_angle_deg is not None))
+                 if v]
+        if given:
+            raise FieldlocError(
+                f"{', '.join(given)}: --from-minho reads the centre and TILT from image.cfg")
+        out = from_minho(conf, minho_dir, output, image_size=image_size or None,
+                         valid_radius=valid_radius or None, line_images=line_images,
+                         mask=mask, overwrite=overwrite)
+    _echo_report(ctx, out, report(out))
+
+
+def _echo_report(ctx, out, rec: dict) -> None:
     from stages.common.camera import load_calib
 
-    conf = resolve_conf(confs, preset, overrides_dict(overrides))
-    out = main(conf, points, output, centre=centre, image_size=image_size,
-               valid_radius=valid_radius, forward_angle=math.radians(forward_angle_deg),
-               mirrored=mirrored, overwrite=overwrite)
-    report = residual_report(load_calib(out), points)
-    obj = ctx.find_root().obj or {}
-    if obj.get("verbose", 0) >= 1:
-        click.echo("radius_px,distance_m,fitted_m,residual_m")
-        fitted = report.distance_m + report.residuals_m
-        for r, d, fd, e in zip(report.radius_px, report.distance_m, fitted,
-                               report.residuals_m):
-            click.echo(f"{r:g},{d:g},{fd:.4f},{e:+.4f}")
+    verbose = (ctx.find_root().obj or {}).get("verbose", 0)
+    camera = load_calib(out)
+    pairs = rec["pairs"]
+    if verbose >= 1:
+        if rec["model"] == "table":
+            click.echo("radius_px,distance_m,source,leave_one_out_m")
+            for p in pairs:
+                loo = p.get("leave_one_out_m")
+                click.echo(f"{p['radius_px']:g},{p['distance_m']:g},{p['source']},"
+                           + ("" if loo is None else f"{loo:+.4f}"))
+        else:
+            click.echo("radius_px,distance_m,fitted_m,residual_m")
+            for p in pairs:
+                click.echo(f"{p['radius_px']:g},{p['distance_m']:g},{p['fitted_m']:.4f},"
+                           f"{p['residual_m']:+.4f}")
+    marks = rec.get("line_images")
+    if marks:
+        click.echo("line images: image,distance_m,radius_px,rays,other_source_radius_px,"
+                   "other_source_error_m")
+        for m in marks:
+            src_r = m.get("source_radius_px")
+            src_e = m.get("source_error_m")
+            click.echo(f"  {m['image']},{m['distance_m']:g},{m['radius_px']:.2f},{m['rays']},"
+                       + ("" if src_r is None else f"{src_r:.2f}") + ","
+                       + ("" if src_e is None else f"{src_e:+.3f}"))
+    if rec["model"] == "table":
+        loo = [(p["leave_one_out_m"], p["distance_m"]) for p in pairs if "leave_one_out_m" in p]
+        if loo:
+            rms = math.sqrt(sum(e * e for e, _ in loo) / len(loo))
+            worst = max(loo, key=lambda t: abs(t[0]))
+            fit_text = (f"monotone table; leave-one-out RMS {rms * 100:.2f} cm, max"
+                        f" {abs(worst[0]) * 100:.2f} cm at {worst[1]:g} m")
+        else:
+            fit_text = "monotone table"
+    else:
+        res = [p["residual_m"] for p in pairs]
+        rms = math.sqrt(sum(e * e for e in res) / len(res))
+        fit_text = (f"residual RMS {rms * 100:.2f} cm, max"
+                    f" {max(abs(e) for e in res) * 100:.2f} cm")
     click.echo(
-        f"wrote {out}: {len(report.radius_px)} pairs, residual RMS {report.rms * 100:.2f} cm,"
-        f" max {report.max_abs * 100:.2f} cm; floor visible to"
-        f" {report.camera.max_distance:.2f} m at {report.camera.valid_radius[1]:g} px"
+        f"wrote {out}: {len(pairs)} pairs, {fit_text}; floor visible to"
+        f" {camera.max_distance:.2f} m at {camera.valid_radius[1]:g} px"
     )

@@ -95,6 +95,21 @@ def test_line_ahead_at_known_distance(distance):
     assert np.allclose(back, f["points"], atol=0.02 + 0.02 * distance)
 
 
+def test_line_ahead_with_a_table_calibration():
+    """The extractor walks a table-model camera (a team's mirror table) like a polynomial one:
+    the mirror of CAMERA given as its radii every 0.25 m finds the same line within 1 cm."""
+    d = 0.25 * np.arange(1, 17)
+    table = OmniCamera(image_size=CAMERA.image_size, centre=CAMERA.centre, polynomial=None,
+                       valid_radius=CAMERA.valid_radius, forward_angle=CAMERA.forward_angle,
+                       radial_table=np.stack([CAMERA.radius_of_distance(d), d], axis=1))
+    img = draw(line_band(0.0, 1.3))
+    f = omni.extract_frame(img, table, CONF)
+    g = omni.extract_frame(img, CAMERA, CONF)
+    assert abs(f["radial"][0, 0] - 1.3) <= 0.02
+    assert np.nanmax(np.abs(f["radial"] - g["radial"])) <= 0.01
+    assert np.all(np.abs(f["points"][:, 0] - 1.3) <= 0.06)
+
+
 def test_heading_conventions_radial_and_spiral():
     """Radial line k is at 5k deg counter-clockwise from forward; spirals as in ScanLines."""
     d = 0.8

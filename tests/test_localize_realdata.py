@@ -3,16 +3,17 @@ read its README). No ground truth: a found pose is judged by the share of the fr
 line points within 15 cm of a field line, next to the null baseline: random-bearing copies of
 the same observations (radial lines and spiral start angles shuffled), searched the same way.
 
-Setup: calib fitted to mirror.cfg up to 4 m (tests/test_extract_realdata.make_dataset), map and
-extraction with the 4 m scan-line range (farther points are not used: beyond ~3.5 m one pixel
-spans 0.1-0.25 m), extraction preset "real" (max_white_m 0.6)."""
+Setup: calib from mirror.cfg by ``calibrate omni --from-minho`` with its defaults (the monotone
+table model; tests/test_extract_realdata.make_dataset), map and extraction with the 4 m
+scan-line range (farther points are not used: beyond ~3.5 m one pixel spans 0.1-0.25 m),
+extraction preset "real" (max_white_m 0.6)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 import yaml
-from test_extract_realdata import LAB_FIELD, LAB_FIT_MAX, REALDATA, make_dataset
+from test_extract_realdata import LAB_FIELD, LAB_RANGE, REALDATA, make_dataset
 
 from stages import build_map, extract
 from stages.common.features_file import FeaturesFile
@@ -31,13 +32,13 @@ NULL_COPIES = 2
 @pytest.fixture(scope="module")
 def lab_global(tmp_path_factory):
     out = tmp_path_factory.mktemp("lab")
-    ds = make_dataset(REALDATA / "minho-lab", out / "ds", LAB_FIT_MAX)
+    ds = make_dataset(REALDATA / "minho-lab", out / "ds")
     fy = out / "lab.yaml"
     fy.write_text(yaml.safe_dump(LAB_FIELD))
     fm = field_from_spec(LAB_FIELD)
-    mp = build_map.main(dict(build_map.confs["default"], max_range=LAB_FIT_MAX), fy,
+    mp = build_map.main(dict(build_map.confs["default"], max_range=LAB_RANGE), fy,
                         out / "lab.map.h5")
-    econf = extract.resolve_extract_conf("omni", "real", {"scanlines": {"max_range": LAB_FIT_MAX}})
+    econf = extract.resolve_extract_conf("omni", "real", {"scanlines": {"max_range": LAB_RANGE}})
     feats = extract.main(econf, ds, ds / "features.h5")
     params = MatchingParams.from_conf(lut.confs["default"]["search"])
     search = lut.table_search(MapFile(mp), params)

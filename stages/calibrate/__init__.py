@@ -1,45 +1,91 @@
-"""Calibrate: the omnidirectional mirror's radial mapping from measured pairs (seed 004, eq. 2).
+"""Calibrate: the omnidirectional mirror's radial mapping f(r) (pixel radius -> floor distance).
 
     main(conf, points_csv, output, *, centre, image_size, valid_radius,
-         forward_angle=pi/2, mirrored=False, overwrite=False) -> Path
+         forward_angle=pi/2, mirrored=False, line_images=None, mask=None,
+         overwrite=False) -> Path
+    from_minho(conf, minho_dir, output, *, image_size=None, valid_radius=None,
+               line_images=None, mask=None, overwrite=False) -> Path
 
-``points_csv`` holds pairs measured on the robot (marks laid on the floor at known distances and
-the image radius at which each appears), with the header ``radius_px,distance_m``. The
-fifth-order polynomial f(r) = a0 + a1 r + ... + a5 r^5 (metres at pixel radius r) is fitted by
-least squares (``camera.fit_polynomial``) and written as calib.yaml (kind omni) with the given
-image centre, size, valid radii and forward angle.
+Sources of pairs (radius_px, distance_m):
+- ``points_csv``: pairs measured on the robot (marks laid on the floor at known distances and
+  the image radius at which each appears), header ``radius_px,distance_m``;
+- ``from_minho``: the MINHO team's ``mirror.cfg`` and ``image.cfg`` (stages.calibrate.minho);
+  the image size from the first image of DIR/images unless given, DIR/mask.png for the line
+  images;
+- ``line_images``: a folder of images of a straight line at known distances, each named by its
+  distance (stages.calibrate.line_images). Measured pairs replace the other source's pairs
+  within the measured range of distances; outside it the other source's pairs are kept (those
+  that would make the mapping fall are dropped, and reported).
 
-Refused, each with one clear message: fewer than ``min_points`` pairs; fewer than
-``min_distinct_radii`` distinct radii (degenerate: the fit would be under-determined or
-unchecked); non-finite or negative values; a fit that is not increasing over the valid radius
-(a mirror mapping must grow outwards, or pixels would map to the same floor point twice).
+Models (conf ``model``):
+- ``polynomial``: the fifth-order f(r) of seed 004 eq. 2, a least-squares fit (preset
+  ``default``, for measured pairs); refused if it is not increasing over the valid radius;
+- ``table``: the monotone cubic through the pairs (stages.common.camera.MonotoneTable; preset
+  ``minho``). A team's table is used as the team measured it: their robot interpolates it
+  linearly, and a fifth-order polynomial bends away from the MINHO tables by up to 6 cm between
+  the pairs (minho-distance, pairs up to 3 m) or cannot be increasing at all (all 16 pairs). The
+  residuals of an interpolation are zero; the report gives leave-one-out residuals instead
+  (each inner pair predicted from the others): large ones point at an inconsistent pair.
+
+``max_distance_m`` limits the pairs to those up to that distance (None: all). The valid radius
+defaults to the radii of the first and last pair used.
+
+The written calib.yaml carries a ``calibration`` record (sources with content hashes, the pairs
+used with their residuals, the line images' measurements beside what the other source said for
+the same distance); ``report`` reads it back for the CLI.
+
+Refused, each with one clear message: too few pairs (``min_points``), too few distinct radii
+(``min_distinct_radii``, polynomial), non-finite or negative values, pairs that do not increase
+together (table), a polynomial that is not increasing over the valid radius, unreadable or
+incomplete team files, line images that are not named by distance or show no line ahead.
 """
 
 from __future__ import annotations
 
+import copy
 import csv
+import datetime as _dt
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from ..common.camera import OmniCamera, fit_polynomial, save_calib
+from .. import __version__
+from ..common.artifacts import file_hash
+from ..common.camera import (
+    MonotoneTable,
+    OmniCamera,
+    check_radial_table,
+    fit_polynomial,
+    read_calibration_record,
+    save_calib,
+)
+from ..common.dataset import IMAGE_SUFFIXES, read_mask
 from ..common.errors import FieldlocError
+from . import line_images as _line_images
+from .minho import read_minho
 
 log = logging.getLogger(__name__)
 
 COLUMNS = ("radius_px", "distance_m")
+MODELS = ("polynomial", "table")
+MASK_NAME = "mask.png"
 
 confs = {
     "default": {
-        "degree": 5,  # seed 004 eq. 2
+        "model": "polynomial",  # seed 004 eq. 2
+        "degree": 5,
         "min_points": 8,
         "min_distinct_radii": 7,  # degree + 2: at least one pair checks the fit
         "monotonic_samples": 1000,  # radii checked for an increasing f(r)
+        "max_distance_m": None,  # pairs farther than this are not used (None: all)
+        "line_images": copy.deepcopy(_line_images.confs["default"]),
     },
 }
+# a team's table (mirror.cfg): the monotone cubic through all its pairs (see the module doc)
+confs["minho"] = {**copy.deepcopy(confs["default"]), "model": "table", "min_points": 3}
 
 
 class CalibrationError(FieldlocError):
@@ -51,7 +97,10 @@ class CalibrationFit:
     camera: OmniCamera
     radius_px: np.ndarray
     distance_m: np.ndarray
-    residuals_m: np.ndarray  # fitted minus measured distance
+    residuals_m: np.ndarray  # fitted minus measured distance (zero for the table model)
+    model: str = "polynomial"
+    leave_one_out_m: np.ndarray | None = None  # table model: inner pairs from the others
+    source: list[str] = field(default_factory=list)  # per pair: where it came from
 
     @property
     def rms(self) -> float:
@@ -96,33 +145,81 @@ def read_points(path) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(r, dtype=float), np.asarray(d, dtype=float)
 
 
-def fit(conf: dict, radius_px, distance_m, *, centre, image_size, valid_radius,
-        forward_angle: float = math.pi / 2, mirrored: bool = False,
-        where: str = "calibration points") -> CalibrationFit:
-    """Fit f(r) to the pairs and check it; returns the camera and the residuals."""
+def leave_one_out(radius_px, distance_m) -> np.ndarray:
+    """Per pair of an increasing table: the monotone cubic through the other pairs at its radius
+    minus its distance (NaN for the first and last pair, which the others do not bracket)."""
     r = np.asarray(radius_px, dtype=float)
     d = np.asarray(distance_m, dtype=float)
-    degree = int(conf["degree"])
+    out = np.full(len(r), np.nan)
+    for i in range(1, len(r) - 1):
+        keep = np.arange(len(r)) != i
+        out[i] = float(MonotoneTable(r[keep], d[keep])(r[i])) - d[i]
+    return out
+
+
+def fit(conf: dict, radius_px, distance_m, *, centre, image_size, valid_radius=None,
+        forward_angle: float = math.pi / 2, mirrored: bool = False,
+        where: str = "calibration points", source=None) -> CalibrationFit:
+    """Fit f(r) to the pairs with the conf's model and check it; returns the camera and the
+    residuals. ``valid_radius`` None: the radii of the first and last pair used."""
+    model = conf.get("model", "polynomial")
+    if model not in MODELS:
+        raise CalibrationError(f"unknown model '{model}' (polynomial or table)")
+    r = np.asarray(radius_px, dtype=float)
+    d = np.asarray(distance_m, dtype=float)
+    source = list(source) if source is not None else ["points"] * len(r)
+    if conf.get("max_distance_m") is not None:
+        keep = d <= float(conf["max_distance_m"]) + 1e-9
+        r, d, source = r[keep], d[keep], [s for s, k in zip(source, keep) if k]
+    order = np.argsort(r, kind="stable")
+    r, d, source = r[order], d[order], [source[i] for i in order]
     if len(r) < conf["min_points"]:
+        need = (f"a degree-{conf['degree']} fit" if model == "polynomial"
+                else "the table model")
         raise CalibrationError(
-            f"{where}: {len(r)} pairs, but a degree-{degree} fit needs at least"
-            f" {conf['min_points']}"
-        )
-    distinct = len(np.unique(np.round(r, 3)))
-    if distinct < conf["min_distinct_radii"]:
-        raise CalibrationError(
-            f"{where}: only {distinct} distinct radii among {len(r)} pairs; a degree-{degree} fit"
-            f" needs at least {conf['min_distinct_radii']} (spread the marks over the mirror)"
-        )
+            f"{where}: {len(r)} pairs, but {need} needs at least {conf['min_points']}")
     w, h = (int(v) for v in image_size)
     if w <= 0 or h <= 0:
         raise CalibrationError(f"image size must be positive, got {w} x {h}")
     cu, cv = (float(v) for v in centre)
     if not (0 <= cu < w and 0 <= cv < h):
         raise CalibrationError(f"centre ({cu:g}, {cv:g}) lies outside the {w} x {h} image")
+    if valid_radius is None:
+        valid_radius = (float(r[0]), float(r[-1]))
     rmin, rmax = (float(v) for v in valid_radius)
     if not 0 <= rmin < rmax:
         raise CalibrationError(f"valid radius needs 0 <= RMIN < RMAX, got {rmin:g} {rmax:g}")
+    loo = None
+    if model == "polynomial":
+        coef, residuals = _fit_polynomial(conf, r, d, (rmin, rmax), where)
+        radial = {"polynomial": np.asarray(coef, dtype=float)}
+    else:
+        check_radial_table(r, d, where, CalibrationError)
+        residuals = np.zeros(len(r))
+        loo = leave_one_out(r, d)
+        radial = {"polynomial": None, "radial_table": np.stack([r, d], axis=1)}
+    if rmax > r.max() + 1e-9 or rmin < r.min() - 1e-9:
+        log.warning(
+            "valid radius %g..%g px reaches beyond the measured radii %g..%g px: f(r) is"
+            " extrapolated there", rmin, rmax, r.min(), r.max(),
+        )
+    camera = OmniCamera(
+        image_size=(w, h), centre=(cu, cv), valid_radius=(rmin, rmax),
+        forward_angle=float(forward_angle), mirrored=bool(mirrored), **radial,
+    )
+    return CalibrationFit(camera=camera, radius_px=r, distance_m=d, residuals_m=residuals,
+                          model=model, leave_one_out_m=loo, source=source)
+
+
+def _fit_polynomial(conf, r, d, valid_radius, where):
+    degree = int(conf["degree"])
+    distinct = len(np.unique(np.round(r, 3)))
+    if distinct < conf["min_distinct_radii"]:
+        raise CalibrationError(
+            f"{where}: only {distinct} distinct radii among {len(r)} pairs; a degree-{degree} fit"
+            f" needs at least {conf['min_distinct_radii']} (spread the marks over the mirror)"
+        )
+    rmin, rmax = valid_radius
     coef, residuals = fit_polynomial(r, d, degree=degree)
     samples = np.linspace(rmin, rmax, int(conf["monotonic_samples"]))
     slope = np.diff(np.polynomial.polynomial.polyval(samples, coef))
@@ -132,37 +229,207 @@ def fit(conf: dict, radius_px, distance_m, *, centre, image_size, valid_radius,
             f"{where}: the fitted f(r) is not increasing between {rmin:g} and {rmax:g} px (it"
             f" turns at r = {turn:.1f} px); check the pairs or narrow --valid-radius"
         )
-    if rmax > r.max() + 1e-9 or rmin < r.min() - 1e-9:
-        log.warning(
-            "valid radius %g..%g px reaches beyond the measured radii %g..%g px: f(r) is"
-            " extrapolated there", rmin, rmax, r.min(), r.max(),
-        )
-    camera = OmniCamera(
-        image_size=(w, h), centre=(cu, cv), polynomial=np.asarray(coef, dtype=float),
-        valid_radius=(rmin, rmax), forward_angle=float(forward_angle), mirrored=bool(mirrored),
-    )
-    return CalibrationFit(camera=camera, radius_px=r, distance_m=d, residuals_m=residuals)
+    return coef, residuals
 
 
-def main(conf: dict, points_csv, output, *, centre, image_size, valid_radius,
-         forward_angle: float = math.pi / 2, mirrored: bool = False,
-         overwrite: bool = False) -> Path:
-    """Fit the mirror calibration to the pairs in ``points_csv`` and write ``output``
-    (calib.yaml, kind omni). Returns ``output``."""
+# ---------------------------------------------------------------------------- line images
+
+
+def merge_line_marks(radius_px, distance_m, marks, source: str):
+    """The pairs of another source with the measured line marks in their place: within the
+    marks' range of distances only the marks count; outside it the other pairs are kept unless
+    they would make the radius fall with distance (then they are dropped). Returns (radius,
+    distance, per-pair source, dropped pairs as (radius, distance))."""
+    r = np.asarray(radius_px, dtype=float)
+    d = np.asarray(distance_m, dtype=float)
+    mr = np.array([round(m.radius_px, 3) for m in marks])
+    md = np.array([m.distance_m for m in marks])
+    lo, hi = md.min(), md.max()
+    rows = [(a, b, source) for a, b in zip(r, d) if b < lo - 1e-9 or b > hi + 1e-9]
+    rows += [(a, b, "line image") for a, b in zip(mr, md)]
+    rows.sort(key=lambda t: t[1])
+    kept, dropped = [], []
+    inner = [t for t in rows if t[2] == "line image"]
+    rmin, rmax = min(t[0] for t in inner), max(t[0] for t in inner)
+    for t in rows:
+        if t[2] != "line image" and ((t[1] < lo and t[0] >= rmin) or (t[1] > hi and t[0] <= rmax)):
+            dropped.append((t[0], t[1]))
+        else:
+            kept.append(t)
+    if dropped:
+        log.warning("line images: %d %s pair(s) dropped that would make f(r) fall: %s",
+                    len(dropped), source, ", ".join(f"({a:g} px, {b:g} m)" for a, b in dropped))
+    return (np.array([t[0] for t in kept]), np.array([t[1] for t in kept]),
+            [t[2] for t in kept], dropped)
+
+
+def _measure_line_images(conf, folder, *, centre, forward_angle, mirrored, valid_radius,
+                         image_size, mask):
+    first = _line_images.distance_images(folder)[0][0]
+    import cv2
+
+    img = cv2.imread(str(first), cv2.IMREAD_COLOR)
+    if img is not None and (img.shape[1], img.shape[0]) != tuple(image_size):
+        raise CalibrationError(
+            f"{first}: line image is {img.shape[1]} x {img.shape[0]} px, the calibration"
+            f" {image_size[0]} x {image_size[1]}")
+    return _line_images.measure_folder(folder, centre=centre, forward_angle=forward_angle,
+                                       mirrored=mirrored, valid_radius=valid_radius, mask=mask,
+                                       conf=conf["line_images"])
+
+
+def _mark_records(marks, radius_px, distance_m) -> list[dict]:
+    """Each line mark beside what the other source's pairs say for it (linear interpolation,
+    as a MINHO robot reads its table)."""
+    out = []
+    for m in marks:
+        rec = m.as_dict()
+        if len(radius_px) >= 2 and distance_m[0] <= m.distance_m <= distance_m[-1]:
+            rec["source_radius_px"] = round(float(np.interp(m.distance_m, distance_m,
+                                                            radius_px)), 3)
+        if len(radius_px) >= 2 and radius_px[0] <= m.radius_px <= radius_px[-1]:
+            rec["source_error_m"] = round(
+                float(np.interp(m.radius_px, radius_px, distance_m)) - m.distance_m, 4)
+        out.append(rec)
+    return out
+
+
+# ---------------------------------------------------------------------------- stage mains
+
+
+def _calibrate(conf, r, d, output, *, sources, source_label, centre, image_size, valid_radius,
+               forward_angle, mirrored, line_images, mask, overwrite, where):
     output = Path(output)
     if output.exists() and not overwrite:
         raise CalibrationError(f"{output} exists (use --overwrite to replace it)")
-    r, d = read_points(points_csv)
+    order = np.argsort(d, kind="stable")
+    r, d = r[order], d[order]
+    marks, dropped, labels = [], [], [source_label] * len(r)
+    if line_images is not None:
+        vr = valid_radius or (float(r.min()), float(r.max()))
+        marks = _measure_line_images(conf, line_images, centre=centre,
+                                     forward_angle=forward_angle, mirrored=mirrored,
+                                     valid_radius=vr, image_size=image_size, mask=mask)
+        sources["line_images"] = str(line_images)
+        sources["line_image_hashes"] = {
+            p.name: file_hash(p) for p, _ in _line_images.distance_images(line_images)}
+        marks_rec = _mark_records(marks, r, d)
+        r, d, labels, dropped = merge_line_marks(r, d, marks, source_label)
     result = fit(conf, r, d, centre=centre, image_size=image_size, valid_radius=valid_radius,
-                 forward_angle=forward_angle, mirrored=mirrored, where=str(points_csv))
-    save_calib(result.camera, output)
-    log.info("calibrated from %d pairs: residual RMS %.4f m, max %.4f m", len(r), result.rms,
-             result.max_abs)
+                 forward_angle=forward_angle, mirrored=mirrored, where=where, source=labels)
+    record = {
+        "fieldloc_version": __version__,
+        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "sources": sources,
+        "conf": {k: v for k, v in conf.items() if k != "line_images" or line_images is not None},
+        "model": result.model,
+        "pairs": _pair_records(result),
+    }
+    if line_images is not None:
+        record["line_images"] = marks_rec
+        if dropped:
+            record["dropped_pairs"] = [[float(a), float(b)] for a, b in dropped]
+    save_calib(result.camera, output, calibration=record)
+    if result.model == "table":
+        loo = result.leave_one_out_m[np.isfinite(result.leave_one_out_m)]
+        log.info("calibrated (table model) from %d pairs: leave-one-out RMS %.4f m", len(r),
+                 float(np.sqrt(np.mean(loo**2))) if len(loo) else float("nan"))
+    else:
+        log.info("calibrated from %d pairs: residual RMS %.4f m, max %.4f m", len(r),
+                 result.rms, result.max_abs)
     return output
+
+
+def _pair_records(result: CalibrationFit) -> list[dict]:
+    out = []
+    fitted = result.distance_m + result.residuals_m
+    for i, (a, b) in enumerate(zip(result.radius_px, result.distance_m)):
+        rec = {"radius_px": float(a), "distance_m": float(b), "source": result.source[i],
+               "fitted_m": round(float(fitted[i]), 6),
+               "residual_m": round(float(result.residuals_m[i]), 6)}
+        if result.leave_one_out_m is not None and np.isfinite(result.leave_one_out_m[i]):
+            rec["leave_one_out_m"] = round(float(result.leave_one_out_m[i]), 6)
+        out.append(rec)
+    return out
+
+
+def main(conf: dict, points_csv, output, *, centre, image_size, valid_radius,
+         forward_angle: float = math.pi / 2, mirrored: bool = False, line_images=None,
+         mask=None, overwrite: bool = False) -> Path:
+    """Fit the mirror calibration to the pairs in ``points_csv`` (and the line images, if
+    given) and write ``output`` (calib.yaml, kind omni). ``mask``: a mask image file for the
+    line images. Returns ``output``."""
+    r, d = read_points(points_csv)
+    sources = {"points": str(points_csv), "points_hash": file_hash(points_csv)}
+    mask_arr = _read_mask(mask, image_size, sources)
+    return _calibrate(conf, r, d, output, sources=sources, source_label="points",
+                      centre=centre, image_size=image_size, valid_radius=valid_radius,
+                      forward_angle=forward_angle, mirrored=mirrored, line_images=line_images,
+                      mask=mask_arr, overwrite=overwrite, where=str(points_csv))
+
+
+def from_minho(conf: dict | str | None, minho_dir, output, *, image_size=None, valid_radius=None,
+               line_images=None, mask=None, overwrite: bool = False) -> Path:
+    """calib.yaml from the MINHO team's files in ``minho_dir`` (mirror.cfg, image.cfg; see
+    stages.calibrate.minho). ``conf`` None or a preset name: ``confs`` (default ``minho``).
+    ``image_size`` None: the size of the first image in DIR/images. ``mask`` None:
+    DIR/mask.png if it exists (used for the line images). Returns ``output``."""
+    if conf is None or isinstance(conf, str):
+        from ..common.conf import resolve_conf
+
+        conf = resolve_conf(confs, conf or "minho")
+    folder = Path(minho_dir)
+    team = read_minho(folder)
+    if image_size is None:
+        image_size = _image_size_of(folder / "images")
+    sources = {"minho": str(folder), "mirror_cfg_hash": file_hash(team.mirror_cfg),
+               "image_cfg_hash": file_hash(team.image_cfg)}
+    if mask is None and (folder / MASK_NAME).is_file():
+        mask = folder / MASK_NAME
+    mask_arr = _read_mask(mask, image_size, sources)
+    return _calibrate(conf, team.radius_px, team.distance_m, output, sources=sources,
+                      source_label="mirror.cfg", centre=team.centre, image_size=image_size,
+                      valid_radius=valid_radius, forward_angle=team.forward_angle,
+                      mirrored=False, line_images=line_images, mask=mask_arr,
+                      overwrite=overwrite, where=str(team.mirror_cfg))
+
+
+def _read_mask(mask, image_size, sources):
+    if mask is None:
+        return None
+    sources["mask"] = str(mask)
+    sources["mask_hash"] = file_hash(mask) if Path(mask).is_file() else ""
+    if not Path(mask).is_file():
+        raise CalibrationError(f"mask not found: {mask}")
+    return read_mask(mask, tuple(image_size))
+
+
+def _image_size_of(folder: Path) -> tuple[int, int]:
+    import cv2
+
+    images = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES) \
+        if folder.is_dir() else []
+    if not images:
+        raise CalibrationError(
+            f"no image in {folder} to take the image size from; give --image-size W H")
+    img = cv2.imread(str(images[0]), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise CalibrationError(f"unreadable image: {images[0]}")
+    return int(img.shape[1]), int(img.shape[0])
 
 
 def residual_report(camera: OmniCamera, points_csv) -> CalibrationFit:
     """The residuals of ``camera`` on the pairs in ``points_csv`` (for reporting a fit)."""
     r, d = read_points(points_csv)
     return CalibrationFit(camera=camera, radius_px=r, distance_m=d,
-                          residuals_m=camera.distance_of_radius(r) - d)
+                          residuals_m=camera.distance_of_radius(r) - d,
+                          model=camera.radial_model)
+
+
+def report(calib_path) -> dict:
+    """The ``calibration`` record of a calib.yaml written by this stage (see the module doc)."""
+    rec = read_calibration_record(calib_path)
+    if not rec:
+        raise CalibrationError(f"{calib_path}: no calibration record (not written by fieldloc"
+                               " calibrate)")
+    return rec

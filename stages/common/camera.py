@@ -1,10 +1,16 @@
 """Camera models read from a dataset's calib.yaml.
 
-Omnidirectional (catadioptric) camera, seed 004 eq. 2: the ground distance of a pixel is a
-fifth-order polynomial f(r) of its radius r (pixels) from the image centre; its bearing is its
-image angle relative to the robot's forward direction in the image.
+Omnidirectional (catadioptric) camera: the ground distance of a pixel is a function f(r) of its
+radius r (pixels) from the image centre; its bearing is its image angle relative to the robot's
+forward direction in the image. Two radial models:
 
-calib.yaml for kind omni::
+- ``polynomial`` (seed 004 eq. 2): f(r) = a0 + a1 r + ... + a5 r^5, fitted to measured pairs;
+- ``table``: the monotone cubic (PCHIP, Fritsch-Carlson) through measured pairs (r_i, d_i),
+  extended linearly beyond the first and last pair. It passes through every pair and cannot
+  oscillate between them, so a team's own mirror table is used as the team measured it (the
+  MINHO tables are not smooth enough for a fifth-order polynomial: see stages.calibrate).
+
+calib.yaml for kind omni, polynomial model (version 1, the original format)::
 
     kind: omni
     image_size: [480, 480]          # width, height (px)
@@ -14,6 +20,17 @@ calib.yaml for kind omni::
     forward_angle: 1.5707963        # rad: image angle of the robot's +x axis, counter-clockwise
                                     # from the image's +u axis with v pointing up
     mirrored: false                 # true if the image shows the floor mirrored
+
+table model (version 2; a reader of version 1 refuses it for want of ``polynomial``)::
+
+    kind: omni
+    version: 2
+    radial_model: table
+    radial_table: {radius_px: [55, 98, ...], distance_m: [0.25, 0.5, ...]}
+    image_size, centre, valid_radius, forward_angle, mirrored: as above
+
+Both may carry a ``calibration`` mapping (how the file was made: sources, pairs, residuals;
+written by stages.calibrate); the camera model does not read it.
 """
 
 from __future__ import annotations
@@ -27,23 +44,46 @@ import yaml
 
 from .errors import DatasetError
 
+CALIB_VERSION = 2  # newest calib.yaml version this code reads (1: polynomial only)
+RADIAL_MODELS = ("polynomial", "table")
+
 
 @dataclass
 class OmniCamera:
     image_size: tuple[int, int]
     centre: tuple[float, float]
-    polynomial: np.ndarray  # (6,) a0..a5, r in px -> metres
+    polynomial: np.ndarray | None  # (<= 6,) a0..a5, r in px -> metres; None with a table
     valid_radius: tuple[float, float]
     forward_angle: float = math.pi / 2
     mirrored: bool = False
+    radial_table: np.ndarray | None = None  # (n, 2) radius_px, distance_m: the table model
     _inverse: tuple | None = field(default=None, repr=False, compare=False)
+    _table_fn: object = field(default=None, repr=False, compare=False)
 
     kind = "omni"
 
+    def __post_init__(self):
+        if (self.polynomial is None) == (self.radial_table is None):
+            raise ValueError("an omni camera needs exactly one of polynomial and radial_table")
+        if self.radial_table is not None:
+            self.radial_table = np.asarray(self.radial_table, dtype=float).reshape(-1, 2)
+            check_radial_table(self.radial_table[:, 0], self.radial_table[:, 1], "radial_table",
+                               ValueError)
+
+    @property
+    def radial_model(self) -> str:
+        return "polynomial" if self.radial_table is None else "table"
+
     # ------------------------------------------------------------------ radial mapping
     def distance_of_radius(self, r) -> np.ndarray:
-        """Ground distance (m) of pixel radius r (px): the polynomial f(r)."""
-        return np.polynomial.polynomial.polyval(np.asarray(r, dtype=float), self.polynomial)
+        """Ground distance (m) of pixel radius r (px): the polynomial f(r), or the monotone
+        cubic through the table's pairs (linear beyond its ends)."""
+        r = np.asarray(r, dtype=float)
+        if self.radial_table is None:
+            return np.polynomial.polynomial.polyval(r, self.polynomial)
+        if self._table_fn is None:
+            self._table_fn = MonotoneTable(self.radial_table[:, 0], self.radial_table[:, 1])
+        return self._table_fn(r)
 
     def _inverse_table(self):
         if self._inverse is None:
@@ -96,20 +136,53 @@ class OmniCamera:
 
     # ------------------------------------------------------------------ io
     def to_dict(self) -> dict:
-        return {
-            "kind": "omni",
-            "image_size": [int(self.image_size[0]), int(self.image_size[1])],
-            "centre": [float(self.centre[0]), float(self.centre[1])],
-            "polynomial": [float(a) for a in self.polynomial],
-            "valid_radius": [float(self.valid_radius[0]), float(self.valid_radius[1])],
-            "forward_angle": float(self.forward_angle),
-            "mirrored": bool(self.mirrored),
-        }
+        """The calib.yaml mapping: version 1 (the original format) for the polynomial model,
+        version 2 for the table model."""
+        out = {"kind": "omni"}
+        if self.radial_table is None:
+            radial = {"polynomial": [float(a) for a in self.polynomial]}
+        else:
+            out.update(version=2, radial_model="table")
+            radial = {"radial_table": {
+                "radius_px": [float(v) for v in self.radial_table[:, 0]],
+                "distance_m": [float(v) for v in self.radial_table[:, 1]]}}
+        out.update(
+            image_size=[int(self.image_size[0]), int(self.image_size[1])],
+            centre=[float(self.centre[0]), float(self.centre[1])],
+            **radial,
+            valid_radius=[float(self.valid_radius[0]), float(self.valid_radius[1])],
+            forward_angle=float(self.forward_angle),
+            mirrored=bool(self.mirrored),
+        )
+        return out
 
     @classmethod
     def from_dict(cls, d: dict, where: str = "calib") -> OmniCamera:
+        version = d.get("version", 1)
+        if not isinstance(version, int) or isinstance(version, bool) or version < 1:
+            raise DatasetError(f"{where}: 'version' must be a positive integer, got {version!r}")
+        if version > CALIB_VERSION:
+            raise DatasetError(
+                f"{where}: calib.yaml version {version} is newer than this fieldloc reads"
+                f" (up to {CALIB_VERSION}); update fieldloc")
+        model = d.get("radial_model", "polynomial") if version >= 2 else "polynomial"
+        if model not in RADIAL_MODELS:
+            raise DatasetError(f"{where}: unknown radial_model '{model}' (polynomial or table)")
+        poly = table = None
         try:
-            poly = np.asarray(d["polynomial"], dtype=float)
+            if model == "polynomial":
+                poly = np.asarray(d["polynomial"], dtype=float)
+                if poly.ndim != 1 or not 2 <= len(poly) <= 6:
+                    raise DatasetError(f"{where}: 'polynomial' needs 2..6 coefficients a0..a5")
+            else:
+                t = d["radial_table"]
+                if not isinstance(t, dict):
+                    raise DatasetError(
+                        f"{where}: 'radial_table' needs 'radius_px' and 'distance_m' lists")
+                rr = np.asarray(t["radius_px"], dtype=float)
+                dd = np.asarray(t["distance_m"], dtype=float)
+                check_radial_table(rr, dd, f"{where}: radial_table", DatasetError)
+                table = np.stack([rr, dd], axis=1)
             cam = cls(
                 image_size=(int(d["image_size"][0]), int(d["image_size"][1])),
                 centre=(float(d["centre"][0]), float(d["centre"][1])),
@@ -117,13 +190,12 @@ class OmniCamera:
                 valid_radius=(float(d["valid_radius"][0]), float(d["valid_radius"][1])),
                 forward_angle=float(d.get("forward_angle", math.pi / 2)),
                 mirrored=bool(d.get("mirrored", False)),
+                radial_table=table,
             )
         except KeyError as e:
             raise DatasetError(f"{where}: omni calibration misses key {e}") from None
         except (TypeError, ValueError, IndexError) as e:
             raise DatasetError(f"{where}: omni calibration has a malformed value ({e})") from None
-        if poly.ndim != 1 or not 2 <= len(poly) <= 6:
-            raise DatasetError(f"{where}: 'polynomial' needs 2..6 coefficients a0..a5")
         return cam
 
 
@@ -147,13 +219,67 @@ def load_calib(path: str | Path):
     raise DatasetError(f"{path}: unknown camera kind '{d['kind']}' (omni or perspective)")
 
 
-def save_calib(camera, path: str | Path) -> Path:
+def save_calib(camera, path: str | Path, calibration: dict | None = None) -> Path:
+    """Write ``camera`` as calib.yaml (atomically); ``calibration``: an optional record of how
+    it was made, stored under that key and not read back into the model."""
     from .artifacts import atomic_path
 
     path = Path(path)
+    d = camera.to_dict()
+    if calibration:
+        d["calibration"] = calibration
     with atomic_path(path, suffix=".yaml") as tmp:
-        tmp.write_text(yaml.safe_dump(camera.to_dict(), sort_keys=False))
+        tmp.write_text(yaml.safe_dump(d, sort_keys=False, default_flow_style=None))
     return path
+
+
+def read_calibration_record(path: str | Path) -> dict:
+    """The ``calibration`` record of a calib.yaml ({} when it has none)."""
+    d = yaml.safe_load(Path(path).read_text())
+    rec = d.get("calibration") if isinstance(d, dict) else None
+    return rec if isinstance(rec, dict) else {}
+
+
+def check_radial_table(radius_px, distance_m, where: str, error=DatasetError) -> None:
+    """A radial table must hold at least two finite pairs whose radius and distance both
+    increase strictly (a mirror maps farther floor to larger radii)."""
+    r = np.asarray(radius_px, dtype=float)
+    d = np.asarray(distance_m, dtype=float)
+    if r.ndim != 1 or r.shape != d.shape:
+        raise error(f"{where}: radius_px and distance_m must be lists of the same length")
+    if len(r) < 2:
+        raise error(f"{where}: needs at least 2 pairs, got {len(r)}")
+    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(d))):
+        raise error(f"{where}: radii and distances must be finite")
+    for name, v in (("radii", r), ("distances", d)):
+        bad = np.flatnonzero(np.diff(v) <= 0)
+        if len(bad):
+            i = int(bad[0])
+            raise error(
+                f"{where}: the {name} must increase from pair to pair, but pair {i + 2}"
+                f" ({r[i + 1]:g} px, {d[i + 1]:g} m) follows ({r[i]:g} px, {d[i]:g} m)")
+
+
+class MonotoneTable:
+    """The monotone piecewise cubic (PCHIP) through pairs (x_i, y_i) with increasing x and y,
+    extended linearly with the end slopes beyond the first and last pair."""
+
+    def __init__(self, x, y):
+        from scipy.interpolate import PchipInterpolator
+
+        self.x = np.asarray(x, dtype=float)
+        self.y = np.asarray(y, dtype=float)
+        self._f = PchipInterpolator(self.x, self.y, extrapolate=False)
+        slope = self._f.derivative()
+        self._ends = ((self.x[0], self.y[0], float(slope(self.x[0]))),
+                      (self.x[-1], self.y[-1], float(slope(self.x[-1]))))
+
+    def __call__(self, x) -> np.ndarray:
+        x = np.asarray(x, dtype=float)
+        out = np.asarray(self._f(x), dtype=float)
+        (x0, y0, s0), (x1, y1, s1) = self._ends
+        out = np.where(x < x0, y0 + s0 * (x - x0), out)
+        return np.where(x > x1, y1 + s1 * (x - x1), out)
 
 
 def fit_polynomial(radius_px, distance_m, degree: int = 5) -> tuple[np.ndarray, np.ndarray]:

@@ -151,3 +151,23 @@ def read_image(path: Path) -> np.ndarray:
     if img is None:
         raise DatasetError(f"unreadable image: {path}")
     return img
+
+
+def read_mask(path: str | Path, image_size: tuple[int, int]) -> np.ndarray:
+    """A dataset's mask image -> bool (h, w), True where the floor may be used. Pixels painted
+    pure red (R >= 200, G and B <= 60; the MINHO team's convention) are excluded; a mask without
+    red is read as grey levels and its dark pixels (< 128) are excluded."""
+    import cv2
+
+    path = Path(path)
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None:
+        raise DatasetError(f"unreadable mask image: {path}")
+    w, h = image_size
+    if img.shape[:2] != (h, w):
+        raise DatasetError(
+            f"{path}: mask is {img.shape[1]} x {img.shape[0]} px, the images are {w} x {h}")
+    red = (img[..., 2] >= 200) & (img[..., 1] <= 60) & (img[..., 0] <= 60)
+    if red.any():
+        return ~red
+    return cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) >= 128

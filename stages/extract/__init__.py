@@ -28,8 +28,8 @@ import numpy as np
 
 from ..common.artifacts import file_hash, root_attrs
 from ..common.conf import registered_module, resolve_conf
-from ..common.dataset import open_dataset, read_image
-from ..common.errors import DatasetError, FieldlocError, SchemaError
+from ..common.dataset import open_dataset, read_image, read_mask
+from ..common.errors import FieldlocError, SchemaError
 from ..common.features_file import SCHEMA, VERSION, FeaturesFile, write_features
 
 log = logging.getLogger(__name__)
@@ -64,26 +64,6 @@ def resolve_extract_conf(kind: str, conf: str | dict | None = None,
         base = resolve_conf(presets, DEFAULT_PRESET, conf)
         return resolve_conf(presets, base, overrides)
     return resolve_conf(presets, conf or DEFAULT_PRESET, overrides)
-
-
-def read_mask(path: str | Path, image_size: tuple[int, int]) -> np.ndarray:
-    """A dataset's mask image -> bool (h, w), True where the floor may be used. Pixels painted
-    pure red (R >= 200, G and B <= 60; the MINHO team's convention) are excluded; a mask without
-    red is read as grey levels and its dark pixels (< 128) are excluded."""
-    import cv2
-
-    path = Path(path)
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise DatasetError(f"unreadable mask image: {path}")
-    w, h = image_size
-    if img.shape[:2] != (h, w):
-        raise DatasetError(
-            f"{path}: mask is {img.shape[1]} x {img.shape[0]} px, the images are {w} x {h}")
-    red = (img[..., 2] >= 200) & (img[..., 1] <= 60) & (img[..., 0] <= 60)
-    if red.any():
-        return ~red
-    return cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) >= 128
 
 
 def _head_angles(ds) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
