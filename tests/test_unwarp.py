@@ -13,9 +13,9 @@ import pytest
 from stages import simulate
 from stages.common.errors import FieldlocError
 from stages.common.field import load_field
+from stages.extract.unwarp import build_unwarp_map, grid_of_conf, ground_grid, unwarp
 from stages.simulate import scene
 from stages.simulate.omni_renderer import OmniRenderer, camera_from_conf
-from stages.extract.unwarp import build_unwarp_map, grid_of_conf, ground_grid, unwarp
 
 
 def test_grid_from_any_two_of_size_resolution_extent():

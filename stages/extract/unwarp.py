@@ -63,7 +63,7 @@ class GroundGrid:
         return np.stack([(c - row) * m, (c - col) * m], axis=-1)
 
     def robot_to_pixel(self, points) -> np.ndarray:
-        """Floor points (..., 2) in the robot frame (metres) -> ground pixels (..., 2) (col, row)."""
+        """Floor points (..., 2) in the robot frame (m) -> ground pixels (..., 2) (col, row)."""
         p = np.asarray(points, dtype=float)
         c = self.centre
         m = self.metres_per_pixel
