@@ -92,7 +92,6 @@ confs = {
 confs["upright"] = {**confs["default"], "upright": True}
 
 HESSIAN_WEIGHT = 0.9  # Dxy weight in det(H) (Bay et al.: 0.9)
-SCALE_PER_SIZE = 1.2 / 9.0  # sigma of the Gaussian a box filter of size L approximates: 1.2 L/9
 
 
 def filter_size(octave: int, layer: int) -> int:
@@ -114,6 +113,8 @@ def blob_det(contrast: float) -> float:
 
 
 def check_conf(conf: dict) -> dict:
+    """A complete SURF conf with its values typed; a user error if a key is missing or a value
+    is out of range."""
     try:
         c = {
             "threshold": float(conf["threshold"]),
@@ -295,7 +296,7 @@ def _extrema(below, mid, above, trace, threshold, step, size, size_step, out, n)
                 return -1  # the caller grows ``out`` and asks again
             out[n, 0] = (c + ox) * step
             out[n, 1] = (r + oy) * step
-            out[n, 2] = (size + os_ * size_step) * (1.2 / 9.0)
+            out[n, 2] = (size + os_ * size_step) * (1.2 / 9.0)  # s = 1.2 L / 9
             out[n, 3] = 0.0
             out[n, 4] = v + 0.5 * (gx * ox + gy * oy + gs * os_)
             out[n, 5] = 1.0 if trace[r, c] >= 0.0 else -1.0
@@ -372,20 +373,23 @@ _ORI_KEEP = _ORI_I ** 2 + _ORI_J ** 2 < 36
 _ORI_I = np.ascontiguousarray(_ORI_I[_ORI_KEEP], dtype=np.int64)
 _ORI_J = np.ascontiguousarray(_ORI_J[_ORI_KEEP], dtype=np.int64)
 _ORI_W = np.exp(-(_ORI_I ** 2 + _ORI_J ** 2) / (2.0 * 2.0 ** 2))
-ORIENTATION_BINS = 360
-ORIENTATION_WINDOW_BINS = 60  # pi / 3
 
 
-@njit("void(float64[:, ::1], float64[:, ::1], int64[::1], int64[::1], float64[::1], boolean,"
-      " float64[::1])", cache=True, nogil=True)
-def _orientation_window(ii, kp, oi, oj, ow, assign, roundness):
-    """From the Haar responses of each keypoint's orientation window: its orientation into
-    kp[:, 3] (if ``assign``) and the Foerstner roundness 4 det(M) / tr(M)^2 of their weighted
-    second-moment matrix M into ``roundness`` (see the module docstring)."""
-    nb = 360
-    win = 60
+@njit("int64(float64[:, ::1], float64[:, ::1], int64[::1], int64[::1], float64[::1], boolean,"
+      " float64, int64, float64[::1], boolean[::1])", cache=True, nogil=True)
+def _orientation_window(ii, kp, oi, oj, ow, assign, min_round, cap, roundness, keep):
+    """From the Haar responses of each keypoint's orientation window, in the order given: the
+    Foerstner roundness 4 det(M) / tr(M)^2 of their weighted second-moment matrix M into
+    ``roundness``; ``keep`` for those at least ``min_round``, until ``cap`` are kept (the rest
+    are not looked at); for the kept ones with ``assign``, the orientation into kp[:, 3]. Returns
+    the number kept."""
+    kept = 0
+    nb = 360  # 1 deg bins
+    win = 60  # pi / 3
     bx = np.zeros(nb)
     by = np.zeros(nb)
+    hx = np.zeros(oi.shape[0])
+    hy = np.zeros(oi.shape[0])
     two_pi = 2.0 * np.pi
     for k in range(kp.shape[0]):
         x = kp[k, 0]
@@ -394,8 +398,6 @@ def _orientation_window(ii, kp, oi, oj, ow, assign, roundness):
         size = 2 * int(round(2.0 * s))  # 4s, even
         if size < 2:
             size = 2
-        bx[:] = 0.0
-        by[:] = 0.0
         mxx = 0.0
         mxy = 0.0
         myy = 0.0
@@ -407,38 +409,52 @@ def _orientation_window(ii, kp, oi, oj, ow, assign, roundness):
             mxx += wt * dx * dx
             mxy += wt * dx * dy
             myy += wt * dy * dy
-            if not assign or (dx == 0.0 and dy == 0.0):
-                continue
-            b = int(_angle(dy, dx) * (nb / two_pi))
-            if b >= nb:
-                b = nb - 1
-            bx[b] += wt * dx
-            by[b] += wt * dy
+            hx[p] = wt * dx
+            hy[p] = wt * dy
         tr = mxx + myy
         roundness[k] = 4.0 * (mxx * myy - mxy * mxy) / (tr * tr) if tr > 0.0 else 0.0
-        if not assign:
+        if roundness[k] < min_round:
+            keep[k] = False
             continue
-        sx = 0.0
-        sy = 0.0
-        for b in range(win):
-            sx += bx[b]
-            sy += by[b]
-        best = sx * sx + sy * sy
-        best_x = sx
-        best_y = sy
-        end = win - 1
-        for start in range(1, nb):
-            end += 1
-            if end == nb:
-                end = 0
-            sx += bx[end] - bx[start - 1]
-            sy += by[end] - by[start - 1]
-            m = sx * sx + sy * sy
-            if m > best:
-                best = m
-                best_x = sx
-                best_y = sy
-        kp[k, 3] = np.arctan2(best_y, best_x) if best > 0.0 else 0.0
+        keep[k] = True
+        kept += 1
+        if assign:
+            bx[:] = 0.0
+            by[:] = 0.0
+            for p in range(oi.shape[0]):
+                if hx[p] == 0.0 and hy[p] == 0.0:
+                    continue
+                b = int(_angle(hy[p], hx[p]) * (nb / two_pi))
+                if b >= nb:
+                    b = nb - 1
+                bx[b] += hx[p]
+                by[b] += hy[p]
+            sx = 0.0
+            sy = 0.0
+            for b in range(win):
+                sx += bx[b]
+                sy += by[b]
+            best = sx * sx + sy * sy
+            best_x = sx
+            best_y = sy
+            end = win - 1
+            for start in range(1, nb):
+                end += 1
+                if end == nb:
+                    end = 0
+                sx += bx[end] - bx[start - 1]
+                sy += by[end] - by[start - 1]
+                m = sx * sx + sy * sy
+                if m > best:
+                    best = m
+                    best_x = sx
+                    best_y = sy
+            kp[k, 3] = np.arctan2(best_y, best_x) if best > 0.0 else 0.0
+        if kept == cap:
+            for rest in range(k + 1, kp.shape[0]):
+                keep[rest] = False
+            break
+    return kept
 
 
 # descriptor sample offsets (units of s) and their Gaussian weights, sigma = 3.3s
@@ -547,13 +563,34 @@ def min_roundness(edge_ratio: float) -> float:
     return 4.0 * r / (1.0 + r) ** 2
 
 
-def orientation_window(ii: np.ndarray, keypoints: np.ndarray, assign: bool = True) -> np.ndarray:
-    """The roundness (N,) of each keypoint's orientation window; with ``assign`` also sets
-    the orientation column of ``keypoints`` (N, 6) in place."""
-    roundness = np.zeros(len(keypoints))
-    if len(keypoints):
-        _orientation_window(ii, keypoints, _ORI_I, _ORI_J, _ORI_W, bool(assign), roundness)
-    return roundness
+def screen_and_orient(ii: np.ndarray, keypoints: np.ndarray, conf: dict) -> np.ndarray:
+    """The keypoints (strongest first) that pass the edge test, at most ``max_keypoints`` of
+    them, with their orientations (unless ``upright``)."""
+    cap = conf["max_keypoints"] if conf["max_keypoints"] > 0 else len(keypoints)
+    kp = np.array(keypoints, dtype=np.float64, order="C")
+    if conf["edge_ratio"] == 0:
+        kp = np.ascontiguousarray(kp[:cap])
+        if conf["upright"]:
+            return kp
+    if len(kp) == 0:
+        return kp
+    min_round = min_roundness(conf["edge_ratio"]) if conf["edge_ratio"] > 0 else 0.0
+    roundness = np.zeros(len(kp))
+    keep = np.zeros(len(kp), np.bool_)
+    _orientation_window(ii, kp, _ORI_I, _ORI_J, _ORI_W, not conf["upright"], min_round, cap,
+                        roundness, keep)
+    return np.ascontiguousarray(kp[keep])
+
+
+def roundness(ii: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
+    """The Foerstner roundness (N,) of each keypoint's orientation window (the edge test's
+    quantity)."""
+    kp = np.array(keypoints, dtype=np.float64, order="C")
+    out = np.zeros(len(kp))
+    if len(kp):
+        _orientation_window(ii, kp, _ORI_I, _ORI_J, _ORI_W, False, 0.0, len(kp), out,
+                            np.zeros(len(kp), np.bool_))
+    return out
 
 
 def describe(ii: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
@@ -571,13 +608,5 @@ def detect_and_describe(image_gray: np.ndarray, mask: np.ndarray | None = None,
     (N, 64) descriptors, strongest first. ``mask``: bool, True where the image may be used."""
     c = check_conf(confs["default"] if conf is None else conf)
     ii, bad, unit = integral_images(image_gray, mask)
-    kp = detect(ii, bad, unit, c)
-    cap = c["max_keypoints"] if c["max_keypoints"] > 0 else len(kp)
-    if c["edge_ratio"] > 0:
-        roundness = orientation_window(ii, kp, assign=not c["upright"])
-        kp = np.ascontiguousarray(kp[roundness >= min_roundness(c["edge_ratio"])][:cap])
-    else:
-        kp = np.ascontiguousarray(kp[:cap])
-        if not c["upright"]:
-            orientation_window(ii, kp)
+    kp = screen_and_orient(ii, detect(ii, bad, unit, c), c)
     return kp, describe(ii, kp)
