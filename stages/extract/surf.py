@@ -1,0 +1,612 @@
+"""SURF, Speeded-Up Robust Features (Bay, Ess, Tuytelaars, Van Gool, CVIU 2008), our own.
+
+OpenCV's pip wheels leave SURF out (patented, ``OPENCV_ENABLE_NONFREE``), so fieldloc
+implements it; the numbers follow the paper, with the OpenCV contrib and OpenSURF sources as
+references where the paper leaves a choice.
+
+Detector (Fast-Hessian), on the integral image of the grey image scaled to [0, 1]:
+- box filters approximating the second Gaussian derivatives; filter size L (odd), lobe l = L/3.
+  Dxx: an L x (2l - 1) box minus 3 times its middle l x (2l - 1) box (weights +1 -2 +1), Dyy
+  its transpose, Dxy four l x l boxes around the centre (- + + -: top left, top right, bottom
+  left, bottom right). Each response is divided by the filter area L^2, so that the sizes
+  compare like scale-normalised derivatives (on a quadratic image Dxx = 1.16 s^2 L_xx at L = 9,
+  1.39 s^2 L_xx for large L, with s = 1.2 L / 9);
+- det(H) = Dxx Dyy - (0.9 Dxy)^2, and the sign of the trace Dxx + Dyy (the Laplacian: +1 for a
+  dark blob on a bright ground, -1 for a bright one) is kept for matching;
+- octave o (0-based) holds the filter sizes 3 (2^(o+1) (i + 1) + 1), i = 0..3: 9, 15, 21, 27;
+  15, 27, 39, 51; 27, 51, 75, 99; 51, 99, 147, 195, sampled every ``initial_step`` 2^o pixels
+  (the steps double from octave to octave); octave o + 1 reuses layers 1 and 3 of octave o at
+  every second sample;
+- ``threshold`` is on det(H) of these area-normalised responses for intensities in [0, 1]: its
+  unit is (intensity)^2. The boxes' lobes are wider than the Gaussian sigma = 1.2 L / 9 they
+  stand for: a Gaussian blob of width sigma_b gives its largest det(H) with L ~ 5 sigma_b, so it
+  is detected at s ~ 0.7 sigma_b, where Dxx = Dyy ~ 0.18 c for a peak contrast c (``blob_det``,
+  from the boxes' geometry). The default 4e-4 (OpenSURF's) keeps blobs from c ~ 0.11 (28 grey
+  levels of 255) up;
+- a response is computed only where its whole filter lies inside the image and on valid
+  pixels (the mask); elsewhere the layer holds -inf and no extremum uses it;
+- maxima over their 3 x 3 x 3 neighbourhood in the two middle layers of each octave, above
+  ``threshold`` (of two equal neighbouring maxima the first in (layer, row, column) order
+  counts, so that a blob centred between two samples is kept once), are refined by a 3D
+  quadratic fit (gradient and Hessian by central differences): offsets larger than 0.5 of a
+  sample in x, y or scale are rejected (6 % of the maxima on rendered ground images).
+  Position (x, y) = (column, row) + offset times the octave's step; scale
+  s = 1.2 / 9 (L + offset * the octave's filter increment), the sigma of the Gaussian the
+  filter stands for (SURF's convention; see ``threshold`` for the blob it matches).
+
+Orientation: Haar wavelet responses of size 4s at the points of a grid of step s inside a
+radius of 6s (109 points), weighted by a Gaussian of sigma 2s; the responses, binned by their
+angle in 1 deg bins, are summed over a pi/3 window sliding in 1 deg steps; the longest sum
+vector gives the orientation. ``upright`` (U-SURF) skips this: orientation 0.
+
+Edge test (``edge_ratio``, our addition; 0 turns it off and leaves Bay et al.'s detector).
+The box filters are not isotropic: on a straight line at 20-70 deg to the image axes,
+Dxx Dyy - (0.9 Dxy)^2 stays positive where the true det(H) of a ridge is 0 (up to 6x the
+default threshold on a 12 px line of contrast 0.4; exactly 0 on axis-aligned lines). Such
+responses line up along every oblique line, vanish when the image turns the line onto an axis,
+and look alike, so they cost repeatability under rotation and confuse matching. They are
+recognised by the second-moment matrix M of the orientation window's Haar responses (the same
+109 weighted samples): along a line they all point across it and M is nearly of rank one. A
+keypoint is rejected when M's eigenvalue ratio exceeds ``edge_ratio`` (10, as SIFT's edge
+threshold on its Hessian), i.e. when its Foerstner roundness 4 det M / tr(M)^2 is below
+4 r / (1 + r)^2 = 0.33. ``max_keypoints`` then keeps the strongest of the survivors.
+
+Descriptor: a square window of 20s side aligned with the orientation, 4 x 4 subregions of 5 x
+5 sample points (step s); at each, Haar responses of size 2s (axis-aligned, then rotated into
+the window's frame), weighted by a Gaussian of sigma 3.3s centred on the keypoint; each
+subregion gives (sum dx, sum dy, sum |dx|, sum |dy|): 64 values, scaled to unit length.
+
+Orientations are angles in pixel axes (x = column, y = row, pointing down): from +x towards +y.
+Haar boxes (even sizes 2 round(2s) and 2 round(s)) are centred on the pixel corner nearest each
+sample point and clipped to the image, as OpenSURF rounds its samples to pixels.
+
+The four loops that cost (box-filter layers, extrema with interpolation, orientation,
+descriptor) are numba kernels, compiled once and cached on disk.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ..common.errors import FieldlocError
+
+# keypoint columns (the layout of stages.extract.local_features)
+X, Y, SCALE, ORIENTATION, RESPONSE, LAPLACIAN = range(6)
+N_COLUMNS = 6
+DESCRIPTOR_SIZE = 64
+
+confs = {
+    "default": {
+        "threshold": 4e-4,  # det(H) of area-normalised responses, intensities in [0, 1]
+        "octaves": 4,
+        "layers": 4,  # per octave (>= 3: extrema are searched in the middle ones)
+        "initial_step": 2,  # px between samples in the first octave (doubles per octave)
+        "upright": False,  # U-SURF: no orientation assignment (orientation 0)
+        "max_keypoints": 0,  # keep the strongest n (0: all)
+        # reject keypoints whose Haar responses (orientation window) run mostly one way: the
+        # eigenvalue ratio of their second-moment matrix above this (0: keep all, as Bay et al.)
+        "edge_ratio": 10.0,
+    },
+}
+confs["upright"] = {**confs["default"], "upright": True}
+
+HESSIAN_WEIGHT = 0.9  # Dxy weight in det(H) (Bay et al.: 0.9)
+
+
+def filter_size(octave: int, layer: int) -> int:
+    """Box filter size (px) of ``layer`` in ``octave`` (both 0-based): 9, 15, 21, 27 in the
+    first octave, then the increment doubles with each octave."""
+    return 3 * ((2 ** (octave + 1)) * (layer + 1) + 1)
+
+
+BLOB_RESPONSE = 0.1815  # |Dxx| / c at the centre of a Gaussian blob, at its best filter size
+
+
+def blob_det(contrast: float) -> float:
+    """det(H) at the centre of a Gaussian blob of peak ``contrast`` (intensity, [0, 1] scale)
+    for its best filter size: a guide to ``threshold``. With lobes of width l = L / 3 and
+    height 2l and u = l / sigma_b, Dxx / c = 2 pi / (9 u^2) (2 Phi(u) - 1) 2 (Phi(1.5 u)
+    - 3 Phi(0.5 u) + 1) (Phi the normal distribution), largest in size at u = 1.68 (L = 5.0
+    sigma_b, s = 0.67 sigma_b) with 0.1815; Dxy = 0 there."""
+    return (BLOB_RESPONSE * contrast) ** 2
+
+
+def check_conf(conf: dict) -> dict:
+    """A complete SURF conf with its values typed; a user error if a key is missing or a value
+    is out of range."""
+    try:
+        c = {
+            "threshold": float(conf["threshold"]),
+            "octaves": int(conf["octaves"]),
+            "layers": int(conf["layers"]),
+            "initial_step": int(conf["initial_step"]),
+            "upright": bool(conf["upright"]),
+            "max_keypoints": int(conf["max_keypoints"]),
+            "edge_ratio": float(conf["edge_ratio"]),
+        }
+    except KeyError as e:
+        raise FieldlocError(f"surf conf misses key {e}") from None
+    except (TypeError, ValueError) as e:
+        raise FieldlocError(f"surf conf has a malformed value ({e})") from None
+    if not (1 <= c["octaves"] <= 6 and 3 <= c["layers"] <= 8 and c["initial_step"] >= 1
+            and c["threshold"] >= 0 and c["max_keypoints"] >= 0
+            and (c["edge_ratio"] == 0 or c["edge_ratio"] >= 1)):
+        raise FieldlocError("surf conf: needs 1..6 octaves, 3..8 layers, initial_step >= 1,"
+                            " threshold >= 0, max_keypoints >= 0 and edge_ratio 0 or >= 1")
+    return c
+
+
+# ---------------------------------------------------------------------------- integral images
+
+
+def check_mask(mask, shape) -> np.ndarray:
+    """``mask`` as a bool array of ``shape``; a user error otherwise."""
+    m = np.asarray(mask)
+    if m.shape != tuple(shape):
+        raise FieldlocError(f"mask is {m.shape[1] if m.ndim > 1 else '?'} x {m.shape[0]} px,"
+                            f" the image {shape[1]} x {shape[0]}")
+    return m.astype(bool, copy=False)
+
+
+def fill_invalid(image: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """A copy of ``image`` whose pixels outside ``mask`` hold the mean of those inside (rounded
+    for integer images): no edge where the valid region ends."""
+    out = image.copy()
+    fill = float(image[mask].mean()) if mask.any() else 0.0
+    out[~mask] = round(fill) if np.issubdtype(image.dtype, np.integer) else fill
+    return out
+
+
+def integral_images(image_gray: np.ndarray, mask: np.ndarray | None = None):
+    """(integral image, integral of the invalid pixels or None, unit): float64 (h + 1, w + 1)
+    with a zero first row and column; ``unit`` scales the image's values to [0, 1] (1 / the
+    dtype's maximum for integer images; float images are expected in [0, 1]). Invalid pixels
+    take the mean of the valid ones, so that the Haar responses of windows reaching over them
+    see no edge."""
+    import cv2
+
+    img = np.asarray(image_gray)
+    if img.ndim != 2 or min(img.shape) < 1:
+        raise FieldlocError(f"SURF needs a 2D grey image, got shape {img.shape}")
+    if img.dtype == np.uint8:
+        unit = 1.0 / 255.0
+    elif np.issubdtype(img.dtype, np.integer) and not np.issubdtype(img.dtype, np.signedinteger):
+        unit = 1.0 / np.iinfo(img.dtype).max
+        img = img.astype(np.float64)
+    elif np.issubdtype(img.dtype, np.floating):
+        img = img.astype(np.float64)
+        unit = 1.0
+    else:
+        raise FieldlocError(f"SURF cannot read an image of dtype {img.dtype}")
+    bad = None
+    if mask is not None:
+        m = check_mask(mask, img.shape)
+        if not m.all():
+            img = fill_invalid(img, m)
+            bad = cv2.integral((~m).view(np.uint8), sdepth=cv2.CV_64F)
+    ii = cv2.integral(np.ascontiguousarray(img), sdepth=cv2.CV_64F)
+    return ii, bad, unit
+
+
+# ---------------------------------------------------------------------------- kernels
+
+
+@njit("float64(float64[:, ::1], int64, int64, int64, int64)", cache=True, nogil=True,
+      inline="always")
+def _box(ii, row, col, rows, cols):
+    """Sum of the image over rows [row, row + rows) x cols [col, col + cols), which must lie
+    inside the image."""
+    r1 = row + rows
+    c1 = col + cols
+    return ii[r1, c1] - ii[row, c1] - ii[r1, col] + ii[row, col]
+
+
+@njit("void(float64[:, ::1], float64[:, ::1], boolean, int64, int64, float64, float64,"
+      " float32[:, ::1], float32[:, ::1])", cache=True, nogil=True)
+def _hessian_layer(ii, bad, masked, size, step, weight, unit, det, trace):
+    """det(H) and the trace Dxx + Dyy of the box filters of ``size`` at the samples
+    (row, col) = (i, j) * step, for image values times ``unit``; -inf where the filter leaves
+    the image or (``masked``) covers invalid pixels (``bad``: their integral image)."""
+    h = ii.shape[0] - 1
+    w = ii.shape[1] - 1
+    b = (size - 1) // 2
+    lobe = size // 3
+    lobe_w = 2 * lobe - 1
+    half = lobe // 2
+    inv_area = unit / (size * size)
+    w2 = weight * weight
+    for i in range(det.shape[0]):
+        r = i * step
+        for j in range(det.shape[1]):
+            c = j * step
+            if r - b < 0 or r + b >= h or c - b < 0 or c + b >= w or \
+                    (masked and _box(bad, r - b, c - b, size, size) > 0.5):
+                det[i, j] = -np.inf
+                trace[i, j] = 0.0
+                continue
+            dxx = (_box(ii, r - lobe + 1, c - b, lobe_w, size)
+                   - 3.0 * _box(ii, r - lobe + 1, c - half, lobe_w, lobe)) * inv_area
+            dyy = (_box(ii, r - b, c - lobe + 1, size, lobe_w)
+                   - 3.0 * _box(ii, r - half, c - lobe + 1, lobe, lobe_w)) * inv_area
+            dxy = (_box(ii, r - lobe, c + 1, lobe, lobe) + _box(ii, r + 1, c - lobe, lobe, lobe)
+                   - _box(ii, r - lobe, c - lobe, lobe, lobe)
+                   - _box(ii, r + 1, c + 1, lobe, lobe)) * inv_area
+            det[i, j] = dxx * dyy - w2 * dxy * dxy
+            trace[i, j] = dxx + dyy
+
+
+@njit("int64(float32[:, ::1], float32[:, ::1], float32[:, ::1], float32[:, ::1], float64,"
+      " int64, float64, float64, float64[:, ::1], int64)", cache=True, nogil=True)
+def _extrema(below, mid, above, trace, threshold, step, size, size_step, out, n):
+    """Append to ``out`` (from row n) the refined 3x3x3 maxima of the middle layer ``mid``;
+    return the new row count. Columns as the module's keypoint layout."""
+    rows, cols = mid.shape
+    for r in range(1, rows - 1):
+        for c in range(1, cols - 1):
+            v = mid[r, c]
+            if not v > threshold:
+                continue
+            is_max = True
+            finite = True
+            # strictly above the neighbours that come before (layer below, then earlier in
+            # raster order), at least equal to those after: of two equal maxima the first wins
+            for dr in range(-1, 2):
+                for dc in range(-1, 2):
+                    a = above[r + dr, c + dc]
+                    b = below[r + dr, c + dc]
+                    m = mid[r + dr, c + dc]
+                    before = dr < 0 or (dr == 0 and dc < 0)
+                    if a > v or b >= v or (before and m >= v) or (not before and m > v
+                                                                   and (dr != 0 or dc != 0)):
+                        is_max = False
+                    if a == -np.inf or b == -np.inf or m == -np.inf:
+                        finite = False
+            if not is_max or not finite:
+                continue
+            # 3D quadratic fit: gradient g and Hessian H by central differences
+            gx = 0.5 * (mid[r, c + 1] - mid[r, c - 1])
+            gy = 0.5 * (mid[r + 1, c] - mid[r - 1, c])
+            gs = 0.5 * (above[r, c] - below[r, c])
+            hxx = mid[r, c + 1] + mid[r, c - 1] - 2.0 * v
+            hyy = mid[r + 1, c] + mid[r - 1, c] - 2.0 * v
+            hss = above[r, c] + below[r, c] - 2.0 * v
+            hxy = 0.25 * (mid[r + 1, c + 1] - mid[r + 1, c - 1]
+                          - mid[r - 1, c + 1] + mid[r - 1, c - 1])
+            hxs = 0.25 * (above[r, c + 1] - above[r, c - 1]
+                          - below[r, c + 1] + below[r, c - 1])
+            hys = 0.25 * (above[r + 1, c] - above[r - 1, c]
+                          - below[r + 1, c] + below[r - 1, c])
+            # offset = -H^-1 g by the adjugate
+            c00 = hyy * hss - hys * hys
+            c01 = hxs * hys - hxy * hss
+            c02 = hxy * hys - hxs * hyy
+            c11 = hxx * hss - hxs * hxs
+            c12 = hxy * hxs - hxx * hys
+            c22 = hxx * hyy - hxy * hxy
+            d = hxx * c00 + hxy * c01 + hxs * c02
+            if d == 0.0 or not np.isfinite(d):
+                continue
+            ox = -(c00 * gx + c01 * gy + c02 * gs) / d
+            oy = -(c01 * gx + c11 * gy + c12 * gs) / d
+            os_ = -(c02 * gx + c12 * gy + c22 * gs) / d
+            if abs(ox) > 0.5 or abs(oy) > 0.5 or abs(os_) > 0.5:
+                continue
+            if n >= out.shape[0]:
+                return -1  # the caller grows ``out`` and asks again
+            out[n, 0] = (c + ox) * step
+            out[n, 1] = (r + oy) * step
+            out[n, 2] = (size + os_ * size_step) * (1.2 / 9.0)  # s = 1.2 L / 9
+            out[n, 3] = 0.0
+            out[n, 4] = v + 0.5 * (gx * ox + gy * oy + gs * os_)
+            out[n, 5] = 1.0 if trace[r, c] >= 0.0 else -1.0
+            n += 1
+    return n
+
+
+@njit("UniTuple(float64, 2)(float64[:, ::1], int64, int64, int64)", cache=True, nogil=True,
+      inline="always")
+def _haar(ii, row, col, size):
+    """Haar wavelet responses (dx: right half - left half, dy: lower half - upper half) of the
+    size x size square (size even) whose centre is the corner between pixels (row - 1, col - 1)
+    and (row, col), i.e. the point (col - 0.5, row - 0.5), clipped to the image. Both from the
+    nine corners of the 2 x 2 half-squares. A sample at (x, y) uses the corner nearest to it,
+    (floor(x) + 1, floor(y) + 1): the corners map onto corners when the image turns by 90 deg,
+    so the responses turn with it."""
+    half = size // 2
+    h = ii.shape[0] - 1
+    w = ii.shape[1] - 1
+    r0 = row - half
+    r2 = row + half
+    c0 = col - half
+    c2 = col + half
+    r1 = row
+    c1 = col
+    if r0 < 0 or c0 < 0 or r2 > h or c2 > w:
+        r0 = min(max(r0, 0), h)
+        r1 = min(max(r1, 0), h)
+        r2 = min(max(r2, 0), h)
+        c0 = min(max(c0, 0), w)
+        c1 = min(max(c1, 0), w)
+        c2 = min(max(c2, 0), w)
+    a00 = ii[r0, c0]
+    a01 = ii[r0, c1]
+    a02 = ii[r0, c2]
+    a10 = ii[r1, c0]
+    a12 = ii[r1, c2]
+    a20 = ii[r2, c0]
+    a21 = ii[r2, c1]
+    a22 = ii[r2, c2]
+    # right half minus left half; lower half minus upper half (a11 cancels in both)
+    dx = (a22 - a02 - a21 + a01) - (a21 - a01 - a20 + a00)
+    dy = (a22 - a12 - a20 + a10) - (a12 - a02 - a10 + a00)
+    return dx, dy
+
+
+@njit("float64(float64, float64)", cache=True, nogil=True, inline="always")
+def _angle(y, x):
+    """atan2(y, x) in [0, 2 pi) by a polynomial (error < 3e-4 rad), cheap enough to bin the
+    orientation window's 109 responses by angle (np.arctan2 took 60 % of the kernel)."""
+    ax = abs(x)
+    ay = abs(y)
+    big = max(ax, ay)
+    if big == 0.0:
+        return 0.0
+    a = min(ax, ay) / big
+    s = a * a
+    r = ((-0.0464964749 * s + 0.15931422) * s - 0.327622764) * s * a + a
+    if ay > ax:
+        r = 0.5 * np.pi - r
+    if x < 0.0:
+        r = np.pi - r
+    if y < 0.0:
+        r = 2.0 * np.pi - r
+    if r >= 2.0 * np.pi:
+        r -= 2.0 * np.pi
+    return r
+
+
+# the orientation's sample grid: integer offsets (i, j) with i^2 + j^2 < 36 and their
+# Gaussian weights for sigma = 2s (in units of s)
+_ORI_I, _ORI_J = (a.ravel() for a in np.meshgrid(np.arange(-6, 7), np.arange(-6, 7)))
+_ORI_KEEP = _ORI_I ** 2 + _ORI_J ** 2 < 36
+_ORI_I = np.ascontiguousarray(_ORI_I[_ORI_KEEP], dtype=np.int64)
+_ORI_J = np.ascontiguousarray(_ORI_J[_ORI_KEEP], dtype=np.int64)
+_ORI_W = np.exp(-(_ORI_I ** 2 + _ORI_J ** 2) / (2.0 * 2.0 ** 2))
+
+
+@njit("int64(float64[:, ::1], float64[:, ::1], int64[::1], int64[::1], float64[::1], boolean,"
+      " float64, int64, float64[::1], boolean[::1])", cache=True, nogil=True)
+def _orientation_window(ii, kp, oi, oj, ow, assign, min_round, cap, roundness, keep):
+    """From the Haar responses of each keypoint's orientation window, in the order given: the
+    Foerstner roundness 4 det(M) / tr(M)^2 of their weighted second-moment matrix M into
+    ``roundness``; ``keep`` for those at least ``min_round``, until ``cap`` are kept (the rest
+    are not looked at); for the kept ones with ``assign``, the orientation into kp[:, 3]. Returns
+    the number kept."""
+    kept = 0
+    nb = 360  # 1 deg bins
+    win = 60  # pi / 3
+    bx = np.zeros(nb)
+    by = np.zeros(nb)
+    hx = np.zeros(oi.shape[0])
+    hy = np.zeros(oi.shape[0])
+    two_pi = 2.0 * np.pi
+    for k in range(kp.shape[0]):
+        x = kp[k, 0]
+        y = kp[k, 1]
+        s = kp[k, 2]
+        size = 2 * int(round(2.0 * s))  # 4s, even
+        if size < 2:
+            size = 2
+        mxx = 0.0
+        mxy = 0.0
+        myy = 0.0
+        for p in range(oi.shape[0]):
+            col = int(np.floor(x + oi[p] * s)) + 1  # the pixel corner nearest the sample
+            row = int(np.floor(y + oj[p] * s)) + 1
+            dx, dy = _haar(ii, row, col, size)
+            wt = ow[p]
+            mxx += wt * dx * dx
+            mxy += wt * dx * dy
+            myy += wt * dy * dy
+            hx[p] = wt * dx
+            hy[p] = wt * dy
+        tr = mxx + myy
+        roundness[k] = 4.0 * (mxx * myy - mxy * mxy) / (tr * tr) if tr > 0.0 else 0.0
+        if roundness[k] < min_round:
+            keep[k] = False
+            continue
+        keep[k] = True
+        kept += 1
+        if assign:
+            bx[:] = 0.0
+            by[:] = 0.0
+            for p in range(oi.shape[0]):
+                if hx[p] == 0.0 and hy[p] == 0.0:
+                    continue
+                b = int(_angle(hy[p], hx[p]) * (nb / two_pi))
+                if b >= nb:
+                    b = nb - 1
+                bx[b] += hx[p]
+                by[b] += hy[p]
+            sx = 0.0
+            sy = 0.0
+            for b in range(win):
+                sx += bx[b]
+                sy += by[b]
+            best = sx * sx + sy * sy
+            best_x = sx
+            best_y = sy
+            end = win - 1
+            for start in range(1, nb):
+                end += 1
+                if end == nb:
+                    end = 0
+                sx += bx[end] - bx[start - 1]
+                sy += by[end] - by[start - 1]
+                m = sx * sx + sy * sy
+                if m > best:
+                    best = m
+                    best_x = sx
+                    best_y = sy
+            kp[k, 3] = np.arctan2(best_y, best_x) if best > 0.0 else 0.0
+        if kept == cap:
+            for rest in range(k + 1, kp.shape[0]):
+                keep[rest] = False
+            break
+    return kept
+
+
+# descriptor sample offsets (units of s) and their Gaussian weights, sigma = 3.3s
+_DESC_U = (np.arange(20) - 9.5).astype(np.float64)
+_DESC_W = np.exp(-(_DESC_U[None, :] ** 2 + _DESC_U[:, None] ** 2) / (2.0 * 3.3 ** 2))
+_DESC_W = np.ascontiguousarray(_DESC_W)
+
+
+@njit("void(float64[:, ::1], float64[:, ::1], float64[::1], float64[:, ::1], float32[:, ::1])",
+      cache=True, nogil=True)
+def _descriptors(ii, kp, offsets, weights, out):
+    """out[k] = the 64-value descriptor of keypoint k."""
+    acc = np.zeros(64)
+    for k in range(kp.shape[0]):
+        x = kp[k, 0]
+        y = kp[k, 1]
+        s = kp[k, 2]
+        co = np.cos(kp[k, 3])
+        si = np.sin(kp[k, 3])
+        size = 2 * int(round(s))  # 2s, even
+        if size < 2:
+            size = 2
+        acc[:] = 0.0
+        for a in range(20):  # along the window's y axis
+            v = offsets[a] * s
+            for b in range(20):  # along the window's x axis (the orientation)
+                u = offsets[b] * s
+                col = int(np.floor(x + u * co - v * si)) + 1
+                row = int(np.floor(y + u * si + v * co)) + 1
+                dx, dy = _haar(ii, row, col, size)
+                wt = weights[a, b]
+                ru = wt * (dx * co + dy * si)
+                rv = wt * (dy * co - dx * si)
+                o = ((a // 5) * 4 + b // 5) * 4
+                acc[o] += ru
+                acc[o + 1] += rv
+                acc[o + 2] += abs(ru)
+                acc[o + 3] += abs(rv)
+        norm = 0.0
+        for i in range(64):
+            norm += acc[i] * acc[i]
+        norm = np.sqrt(norm)
+        if norm > 0.0:
+            for i in range(64):
+                out[k, i] = acc[i] / norm
+        else:
+            for i in range(64):
+                out[k, i] = 0.0
+
+
+# ---------------------------------------------------------------------------- stages
+
+
+def hessian_pyramid(ii: np.ndarray, bad: np.ndarray | None, unit: float, conf: dict):
+    """The box-filter layers per octave: a list of (step, sizes, dets, traces), dets and traces
+    (layers, rows, cols) float32 (det -inf where undefined)."""
+    h, w = ii.shape[0] - 1, ii.shape[1] - 1
+    masked = bad is not None
+    bad = bad if masked else np.zeros((1, 1))
+    out = []
+    prev = None
+    for o in range(conf["octaves"]):
+        step = conf["initial_step"] * 2 ** o
+        rows, cols = (h - 1) // step + 1, (w - 1) // step + 1
+        sizes = [filter_size(o, i) for i in range(conf["layers"])]
+        dets = np.empty((len(sizes), rows, cols), np.float32)
+        traces = np.empty((len(sizes), rows, cols), np.float32)
+        for i, size in enumerate(sizes):
+            reuse = None
+            if prev is not None and size in prev[1]:
+                reuse = prev[1].index(size)
+            if reuse is not None:  # the same filter at every second sample of the octave below
+                dets[i] = prev[2][reuse, ::2, ::2]
+                traces[i] = prev[3][reuse, ::2, ::2]
+            else:
+                _hessian_layer(ii, bad, masked, size, step, HESSIAN_WEIGHT, unit, dets[i],
+                               traces[i])
+        prev = (step, sizes, dets, traces)
+        out.append(prev)
+    return out
+
+
+def detect(ii: np.ndarray, bad: np.ndarray | None, unit: float, conf: dict) -> np.ndarray:
+    """Fast-Hessian keypoints (N, 6), strongest first, orientation 0 (``integral_images``
+    gives ii, bad and unit); all of them, ``max_keypoints`` is applied later."""
+    buf = np.empty((4096, N_COLUMNS), np.float64)
+    n = 0
+    for step, sizes, dets, traces in hessian_pyramid(ii, bad, unit, conf):
+        for i in range(1, len(sizes) - 1):
+            while True:
+                m = _extrema(dets[i - 1], dets[i], dets[i + 1], traces[i], conf["threshold"],
+                             step, float(sizes[i]), float(sizes[i] - sizes[i - 1]), buf, n)
+                if m >= 0:
+                    n = m
+                    break
+                buf = np.concatenate([buf, np.empty_like(buf)])
+    kp = buf[:n]
+    order = np.argsort(-kp[:, RESPONSE], kind="stable")
+    return np.ascontiguousarray(kp[order])
+
+
+def min_roundness(edge_ratio: float) -> float:
+    """The Foerstner roundness 4 l1 l2 / (l1 + l2)^2 of eigenvalues in the ratio ``edge_ratio``:
+    keypoints below it are rejected (10 -> 0.33)."""
+    r = float(edge_ratio)
+    return 4.0 * r / (1.0 + r) ** 2
+
+
+def screen_and_orient(ii: np.ndarray, keypoints: np.ndarray, conf: dict) -> np.ndarray:
+    """The keypoints (strongest first) that pass the edge test, at most ``max_keypoints`` of
+    them, with their orientations (unless ``upright``)."""
+    cap = conf["max_keypoints"] if conf["max_keypoints"] > 0 else len(keypoints)
+    kp = np.array(keypoints, dtype=np.float64, order="C")
+    if conf["edge_ratio"] == 0:
+        kp = np.ascontiguousarray(kp[:cap])
+        if conf["upright"]:
+            return kp
+    if len(kp) == 0:
+        return kp
+    min_round = min_roundness(conf["edge_ratio"]) if conf["edge_ratio"] > 0 else 0.0
+    roundness = np.zeros(len(kp))
+    keep = np.zeros(len(kp), np.bool_)
+    _orientation_window(ii, kp, _ORI_I, _ORI_J, _ORI_W, not conf["upright"], min_round, cap,
+                        roundness, keep)
+    return np.ascontiguousarray(kp[keep])
+
+
+def roundness(ii: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
+    """The Foerstner roundness (N,) of each keypoint's orientation window (the edge test's
+    quantity)."""
+    kp = np.array(keypoints, dtype=np.float64, order="C")
+    out = np.zeros(len(kp))
+    if len(kp):
+        _orientation_window(ii, kp, _ORI_I, _ORI_J, _ORI_W, False, 0.0, len(kp), out,
+                            np.zeros(len(kp), np.bool_))
+    return out
+
+
+def describe(ii: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
+    """The (N, 64) float32 unit descriptors of ``keypoints`` at their orientations."""
+    out = np.empty((len(keypoints), DESCRIPTOR_SIZE), np.float32)
+    if len(keypoints):
+        _descriptors(ii, np.ascontiguousarray(keypoints, dtype=np.float64), _DESC_U, _DESC_W,
+                     out)
+    return out
+
+
+def detect_and_describe(image_gray: np.ndarray, mask: np.ndarray | None = None,
+                        conf: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """SURF keypoints (N, 6: x, y, scale, orientation, response, laplacian sign) and their
+    (N, 64) descriptors, strongest first. ``mask``: bool, True where the image may be used."""
+    c = check_conf(confs["default"] if conf is None else conf)
+    ii, bad, unit = integral_images(image_gray, mask)
+    kp = screen_and_orient(ii, detect(ii, bad, unit, c), c)
+    return kp, describe(ii, kp)

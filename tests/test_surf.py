@@ -1,0 +1,279 @@
+"""Our SURF (stages.extract.surf) against cases computed by hand, and the uniform interface of
+stages.extract.local_features over SURF, SIFT and ORB."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import norm
+
+from stages.common.errors import FieldlocError
+from stages.extract import local_features as lf
+from stages.extract import surf
+
+BAY = {**surf.confs["default"], "edge_ratio": 0.0}  # the detector exactly as Bay et al.
+
+
+def box_kernels(size: int):
+    """Dxx, Dyy, Dxy of Bay et al.'s figure 1 as explicit size x size arrays (centre at
+    size // 2), written from the lobe geometry, not from the integral-image code."""
+    lobe = size // 3
+    b = size // 2
+    dyy = np.zeros((size, size))
+    # three stacked lobes of lobe rows each, 2 lobe - 1 columns wide, weights 1 -2 1
+    cols = slice(b - lobe + 1, b + lobe)
+    dyy[0:lobe, cols] = 1
+    dyy[lobe:2 * lobe, cols] = -2
+    dyy[2 * lobe:3 * lobe, cols] = 1
+    dxx = dyy.T.copy()
+    dxy = np.zeros((size, size))
+    # four lobe x lobe squares around the centre pixel, one pixel apart
+    dxy[b - lobe:b, b + 1:b + 1 + lobe] = 1  # top right
+    dxy[b + 1:b + 1 + lobe, b - lobe:b] = 1  # bottom left
+    dxy[b - lobe:b, b - lobe:b] = -1  # top left
+    dxy[b + 1:b + 1 + lobe, b + 1:b + 1 + lobe] = -1  # bottom right
+    return dxx, dyy, dxy
+
+
+def direct_det(image: np.ndarray, size: int, row: int, col: int):
+    """det(H) and trace at one pixel by multiplying the explicit kernels with the patch."""
+    dxx, dyy, dxy = box_kernels(size)
+    b = size // 2
+    patch = image[row - b:row + b + 1, col - b:col + b + 1]
+    area = size * size
+    xx, yy, xy = ((k * patch).sum() / area for k in (dxx, dyy, dxy))
+    return xx * yy - (0.9 * xy) ** 2, xx + yy
+
+
+def gaussian_blob(n: int, centre, sigma: float, contrast: float, background: float = 0.5):
+    yy, xx = np.mgrid[0:n, 0:n].astype(float)
+    return background + contrast * np.exp(-((xx - centre[0]) ** 2 + (yy - centre[1]) ** 2)
+                                          / (2 * sigma ** 2))
+
+
+def test_box_responses_equal_a_direct_convolution():
+    rng = np.random.default_rng(3)
+    img = gaussian_blob(160, (71.3, 83.6), 6.0, -0.3) + 0.05 * rng.standard_normal((160, 160))
+    ii, bad, unit = surf.integral_images(img)
+    pyramid = surf.hessian_pyramid(ii, bad, unit, surf.check_conf(BAY))
+    checked = 0
+    for step, sizes, dets, traces in pyramid[:3]:
+        for layer, size in enumerate(sizes):
+            for i, j in [(rng.integers(0, dets.shape[1]), rng.integers(0, dets.shape[2]))
+                         for _ in range(40)] + [(round(83.6 / step), round(71.3 / step))]:
+                r, c = i * step, j * step
+                b = size // 2
+                if r - b < 0 or c - b < 0 or r + b >= 160 or c + b >= 160:
+                    assert dets[layer, i, j] == -np.inf  # the filter leaves the image
+                    continue
+                det, trace = direct_det(img, size, r, c)
+                assert dets[layer, i, j] == pytest.approx(det, rel=1e-4, abs=1e-9)
+                assert traces[layer, i, j] == pytest.approx(trace, rel=1e-4, abs=1e-7)
+                checked += 1
+    assert checked > 300
+
+
+def test_responses_skip_filters_that_touch_invalid_pixels():
+    img = gaussian_blob(120, (60, 60), 4.0, -0.3)
+    mask = np.ones((120, 120), bool)
+    mask[:, 90:] = False
+    ii, bad, unit = surf.integral_images(img, mask)
+    step, sizes, dets, _ = surf.hessian_pyramid(ii, bad, unit, surf.check_conf(BAY))[0]
+    cols = np.arange(dets.shape[2]) * step
+    for layer, size in enumerate(sizes):
+        reaches = cols + size // 2 >= 90
+        assert np.all(dets[layer][:, reaches] == -np.inf)
+        inside = (cols - size // 2 >= 0) & ~reaches
+        assert np.all(np.isfinite(dets[layer][size // 2 // step + 1:-(size // 2 // step + 1),
+                                              inside]))
+
+
+def test_a_blob_is_detected_at_its_matching_scale():
+    """The box filters' lobes are wider than sigma = 1.2 L / 9: from their geometry a Gaussian
+    blob of width sigma_b responds most to lobes of l = 1.68 sigma_b (L = 5.0 sigma_b), i.e.
+    s = 0.67 sigma_b; the discrete lobes (2 l - 1 high) and the interpolation give ~0.74. The
+    detected scale must follow the blob's size (scale covariance) at that ratio, at the
+    blob's centre, with det(H) as ``blob_det`` predicts and the Laplacian's sign of a dark
+    blob."""
+    u = np.linspace(0.5, 4.0, 20001)
+    f = (2 * np.pi / (9 * u ** 2)) * (2 * norm.cdf(u) - 1) * 2 * (
+        norm.cdf(1.5 * u) - 3 * norm.cdf(0.5 * u) + 1)
+    u_best = u[np.argmin(f)]
+    assert u_best == pytest.approx(1.68, abs=0.01)
+    assert -f.min() == pytest.approx(surf.BLOB_RESPONSE, rel=1e-3)
+    ratios = []
+    for sigma in (2.5, 3.2, 4.0, 5.0, 8.0, 10.0, 13.0):
+        centre = (150.4, 149.8)
+        img = gaussian_blob(301, centre, sigma, -0.4)
+        kp, desc = surf.detect_and_describe(img, None, BAY)
+        assert len(kp) >= 1 and desc.shape == (len(kp), 64)
+        best = kp[0]
+        assert np.hypot(best[0] - centre[0], best[1] - centre[1]) < 0.1 * sigma + 0.2
+        assert best[surf.LAPLACIAN] == 1.0  # dark blob: positive trace
+        assert best[surf.RESPONSE] == pytest.approx(surf.blob_det(0.4), rel=0.15)
+        ratios.append(best[surf.SCALE] / sigma)
+    ratios = np.array(ratios)
+    assert np.all((ratios > 0.4 * u_best) & (ratios < 0.5 * u_best + 0.02))  # 0.67 .. 0.86
+    assert ratios.max() / ratios.min() < 1.15
+    # a bright blob: negative Laplacian
+    kp, _ = surf.detect_and_describe(gaussian_blob(201, (100.4, 99.8), 5.0, 0.4), None, BAY)
+    assert kp[0][surf.LAPLACIAN] == -1.0
+
+
+def textured_image(n: int, seed: int) -> np.ndarray:
+    """Random elongated blobs and bars of several sizes: keypoints with a defined orientation."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:n, 0:n].astype(float)
+    img = np.full((n, n), 0.5)
+    for _ in range(60):
+        x, y = rng.uniform(20, n - 20, 2)
+        s1, s2 = rng.uniform(2.0, 7.0), rng.uniform(1.0, 3.0)
+        a = rng.uniform(0, np.pi)
+        u = (xx - x) * math.cos(a) + (yy - y) * math.sin(a)
+        v = -(xx - x) * math.sin(a) + (yy - y) * math.cos(a)
+        # an egg: brighter on one side, so that its orientation is defined
+        img += rng.choice([-1, 1]) * 0.3 * np.exp(-(u / s1) ** 2 / 2 - (v / s2) ** 2 / 2) * (
+            1 + 0.5 * np.tanh(u / s1))
+    return np.clip(np.round(img * 255), 0, 255).astype(np.uint8)
+
+
+def test_rotating_the_image_by_90_deg_rotates_the_orientation_and_keeps_the_descriptor():
+    n = 257  # odd: the rotation maps the sampling grid (even coordinates) onto itself
+    img = textured_image(n, 5)
+    rot = np.ascontiguousarray(np.rot90(img))  # (x, y) -> (y, n - 1 - x): turns -90 deg
+    kp, desc = surf.detect_and_describe(img, None, surf.confs["default"])
+    kr, dr = surf.detect_and_describe(rot, None, surf.confs["default"])
+    assert len(kp) >= 20
+    mapped = np.column_stack([kp[:, 1], n - 1 - kp[:, 0]])
+    d = np.hypot(mapped[:, None, 0] - kr[None, :, 0], mapped[:, None, 1] - kr[None, :, 1])
+    j = d.argmin(1)
+    same = d[np.arange(len(kp)), j] < 0.05
+    assert same.mean() > 0.95  # the detector sees exactly the same keypoints
+    k, r = kp[same], kr[j[same]]
+    np.testing.assert_allclose(r[:, surf.SCALE], k[:, surf.SCALE], rtol=1e-4)
+    turn = np.angle(np.exp(1j * (r[:, surf.ORIENTATION] - k[:, surf.ORIENTATION])))
+    assert np.median(np.abs(turn + np.pi / 2)) < math.radians(3)
+    assert np.mean(np.abs(turn + np.pi / 2) < math.radians(15)) > 0.9
+    dist = np.linalg.norm(desc[same] - dr[j[same]], axis=1)
+    assert np.median(dist) < 0.1  # unit vectors: unrelated descriptors are ~1 apart
+    assert np.median(np.linalg.norm(desc[same][:, None] - dr[j[same]][None], axis=2)) > 0.5
+    # upright SURF keeps orientation 0, and its descriptors do not follow the rotation
+    ku, du = surf.detect_and_describe(img, None, surf.confs["upright"])
+    kru, dru = surf.detect_and_describe(rot, None, surf.confs["upright"])
+    assert np.all(ku[:, surf.ORIENTATION] == 0)
+    np.testing.assert_array_equal(ku[:, :3], kp[:, :3])
+    du_pairs = np.linalg.norm(du[same] - dru[j[same]], axis=1)
+    assert np.median(du_pairs) > 3 * np.median(dist)
+
+
+def test_the_edge_test_removes_responses_along_an_oblique_line():
+    """On a straight line at 30 deg, Bay's box det(H) stays positive along the whole line (the
+    true det(H) of a ridge is 0); the default edge test rejects those keypoints."""
+    n = 301
+    yy, xx = np.mgrid[0:n, 0:n].astype(float)
+    t = math.radians(30)
+    dist = -(xx - 150) * math.sin(t) + (yy - 150) * math.cos(t)
+    img = 0.3 + 0.4 * np.clip(6.0 - np.abs(dist) + 0.5, 0, 1)  # a 12 px line, no ends inside
+    kp_bay, _ = surf.detect_and_describe(img, None, BAY)
+    kp, _ = surf.detect_and_describe(img, None, surf.confs["default"])
+    assert len(kp_bay) >= 20
+    near = np.abs(-(kp_bay[:, 0] - 150) * math.sin(t) + (kp_bay[:, 1] - 150) * math.cos(t))
+    assert np.all(near < 4 * kp_bay[:, 2])  # on the line (and on its sides, for larger filters)
+    assert len(kp) == 0
+    # turned onto an image axis, the same line gives Bay's detector nothing either
+    axis = 0.3 + 0.4 * np.clip(6.0 - np.abs(yy - 150) + 0.5, 0, 1)
+    assert len(surf.detect_and_describe(axis, None, BAY)[0]) == 0
+    assert surf.min_roundness(10.0) == pytest.approx(40 / 121)
+
+
+def test_mask_edges_make_no_keypoints_and_max_keypoints_keeps_the_strongest():
+    img = textured_image(201, 2)
+    dark = img.copy()
+    dark[:, 120:] = 0  # a black region outside the valid mask, with a hard edge
+    mask = np.ones(img.shape, bool)
+    mask[:, 120:] = False
+    kp, _ = surf.detect_and_describe(dark, mask, surf.confs["default"])
+    assert len(kp) > 5
+    assert np.all(kp[:, 0] < 120)
+    # no keypoint on the masked edge: those of the masked image are those of the unmasked one
+    full, _ = surf.detect_and_describe(img, None, surf.confs["default"])
+    inner = full[full[:, 0] + 3.75 * full[:, 2] < 119]
+    d = np.hypot(kp[:, None, 0] - inner[None, :, 0], kp[:, None, 1] - inner[None, :, 1])
+    assert np.all(d.min(1) < 1e-6)
+    few, _ = surf.detect_and_describe(img, None, {**surf.confs["default"], "max_keypoints": 5})
+    np.testing.assert_array_equal(few, full[:5])
+    assert np.all(np.diff(full[:, surf.RESPONSE]) <= 0)
+
+
+def test_bad_input_is_a_user_error():
+    with pytest.raises(FieldlocError, match="2D grey"):
+        surf.detect_and_describe(np.zeros((10, 10, 3), np.uint8))
+    with pytest.raises(FieldlocError, match="mask is"):
+        surf.detect_and_describe(np.zeros((10, 10), np.uint8), np.ones((5, 5), bool))
+    with pytest.raises(FieldlocError, match="octaves"):
+        surf.check_conf({**surf.confs["default"], "octaves": 0})
+    with pytest.raises(FieldlocError, match="misses key"):
+        surf.check_conf({"threshold": 1e-4})
+    kp, desc = surf.detect_and_describe(np.full((64, 64), 128, np.uint8))
+    assert kp.shape == (0, 6) and desc.shape == (0, 64)
+
+
+# ---------------------------------------------------------------------------- local_features
+
+
+@pytest.mark.parametrize("name, dim, dtype", [("surf", 64, np.float32),
+                                              ("surf-upright", 64, np.float32),
+                                              ("sift", 128, np.float32), ("orb", 32, np.uint8)])
+def test_one_interface_for_three_detectors(name, dim, dtype):
+    img = textured_image(257, 7)
+    kp, desc = lf.detect_and_describe(img, None, name)
+    assert kp.ndim == 2 and kp.shape[1] == len(lf.KEYPOINT_COLUMNS) and len(kp) >= 10
+    assert desc.shape == (len(kp), dim) and desc.dtype == dtype
+    assert np.all(np.diff(kp[:, 4]) <= 0)  # strongest first
+    assert np.all(np.abs(kp[:, 3]) <= np.pi + 1e-9) and np.all(kp[:, 2] > 0)
+    assert set(np.unique(kp[:, 5])) <= ({-1.0, 1.0} if name.startswith("surf") else {0.0})
+    assert lf.descriptor_metric(name) == ("hamming" if name == "orb" else "l2")
+
+
+@pytest.mark.parametrize("name", ["surf", "sift", "orb"])
+def test_orientations_share_one_convention(name):
+    """All three report orientations in pixel axes (from +x towards +y): turning the image by
+    -90 deg (np.rot90) turns the orientation of the same keypoints by -90 deg."""
+    n = 257
+    img = textured_image(n, 11)
+    kp, _ = lf.detect_and_describe(img, None, name)
+    kr, _ = lf.detect_and_describe(np.ascontiguousarray(np.rot90(img)), None, name)
+    mapped = np.column_stack([kp[:, 1], n - 1 - kp[:, 0]])
+    d = np.hypot(mapped[:, None, 0] - kr[None, :, 0], mapped[:, None, 1] - kr[None, :, 1])
+    same = (d < 1.0) & (np.abs(np.log(kr[None, :, 2] / kp[:, None, 2])) < 0.1)
+    # SIFT repeats a keypoint for each strong orientation: take the closest turn per keypoint
+    turn = np.abs(np.angle(np.exp(1j * (kr[None, :, 3] - kp[:, None, 3] + np.pi / 2))))
+    best = np.where(same, turn, np.inf).min(1)
+    assert np.isfinite(best).sum() >= 10
+    assert np.median(best[np.isfinite(best)]) < math.radians(5)
+
+
+def test_opencv_detectors_respect_the_mask():
+    img = textured_image(257, 3)
+    mask = np.ones(img.shape, bool)
+    mask[100:160, 100:160] = False
+    for name in ("sift", "orb"):
+        kp, desc = lf.detect_and_describe(img, mask, name)
+        assert len(kp) > 5 and len(desc) == len(kp)
+        inside = (kp[:, 0] > 97) & (kp[:, 0] < 163) & (kp[:, 1] > 97) & (kp[:, 1] < 163)
+        assert not inside.any()
+
+
+def test_feature_confs():
+    assert lf.resolve_feature_conf(None)["features"] == "surf"
+    c = lf.resolve_feature_conf({"features": "sift", "max_keypoints": 50})
+    assert c["max_keypoints"] == 50 and c["contrast_threshold"] == 0.04
+    assert lf.resolve_feature_conf("surf", {"threshold": 1e-3})["threshold"] == 1e-3
+    with pytest.raises(FieldlocError, match="unknown features"):
+        lf.resolve_feature_conf({"features": "akaze"})
+    with pytest.raises(FieldlocError, match="unknown conf key"):
+        lf.resolve_feature_conf({"features": "orb", "threshold": 1.0})
+    with pytest.raises(FieldlocError, match="uint8"):
+        lf.detect_and_describe(np.zeros((64, 64)), None, "sift")
