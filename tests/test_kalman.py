@@ -107,3 +107,47 @@ def test_prediction_only_frames_grow_the_covariance():
     est = f.step(0.1, inc[4], False, None)  # vision failed: odometry and model only
     assert np.trace(est.cov) > before
     assert abs(float(wrap_angle(est.mean[2] - poses[5][2]))) < 0.05
+
+
+def _reference_step(f: DecentralisedFusion, dt, odometry, collision, vision):
+    """DecentralisedFusion.step from the numpy nodes (equations 6-9 as written in
+    LocalFilter, fuse and the model/odometry noise methods)."""
+    from stages.common.geometry import between
+
+    prior = f.model_prediction(dt)
+    v, o = LocalFilter("vision"), LocalFilter("odometry")
+    v.predict(prior)
+    o.predict(prior)
+    if odometry is not None and not collision:
+        o.posterior = f.odometry_posterior(np.asarray(odometry, float), dt)
+    if vision is not None:
+        v.correct(*vision)
+    fused = fuse(prior, [v, o])
+    return fused, between(f.state.mean, fused.mean)
+
+
+def test_compiled_frame_equals_the_numpy_nodes():
+    rng = np.random.default_rng(11)
+    for trial in range(40):
+        f = DecentralisedFusion()
+        f.reset(np.array([rng.uniform(-5, 5), rng.uniform(-3, 3), rng.uniform(-3, 3)]),
+                np.diag(rng.uniform(0.001, 0.05, 3)))
+        f.last_motion = rng.normal(0, [0.05, 0.02, 0.05])
+        f.motion_known = bool(trial % 3)
+        odo = None if trial % 5 == 0 else f.last_motion + rng.normal(0, 0.01, 3)
+        col = trial % 7 == 0
+        vision = None if trial % 4 == 0 else (
+            compose(f.state.mean, f.last_motion) + rng.normal(0, [0.05, 0.05, 0.02]),
+            np.diag(rng.uniform(0.0005, 0.02, 3)))
+        ref, motion = _reference_step(f, 0.1, odo, col, vision)
+        pose, cov = f.predicted(0.1, odo, col)
+        if odo is not None and not col:
+            np.testing.assert_allclose(pose, f.odometry_prior(odo), atol=1e-12)
+            np.testing.assert_allclose(cov, f.odometry_posterior(np.asarray(odo), 0.1).cov,
+                                       atol=1e-12)
+        else:
+            np.testing.assert_allclose(cov, f.model_prediction(0.1).cov, atol=1e-12)
+        got = f.step(0.1, odo, col, vision)
+        np.testing.assert_allclose(got.mean, ref.mean, atol=1e-9)
+        np.testing.assert_allclose(got.cov, ref.cov, atol=1e-9)
+        np.testing.assert_allclose(f.last_motion, motion, atol=1e-9)

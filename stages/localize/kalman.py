@@ -28,11 +28,13 @@ nothing this frame (no vision fix, or odometry on an IMU collision frame) sends 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
-from ..common.geometry import between, compose, wrap_angle
+from ..common.geometry import compose, wrap_angle
 
 
 @dataclass
@@ -145,7 +147,11 @@ class FusionParams:
 
 
 class DecentralisedFusion:
-    """Vision node + odometry node + fusion over a sequence of frames."""
+    """Vision node + odometry node + fusion over a sequence of frames.
+
+    ``step`` and ``predicted`` run one compiled kernel (``_frame_kernel``) per frame; the
+    node classes above (LocalFilter, fuse, move) are the same equations in numpy, and a test
+    holds the kernel to them."""
 
     def __init__(self, params: FusionParams | None = None):
         self.params = params or FusionParams()
@@ -219,15 +225,163 @@ class DecentralisedFusion:
                 return None
             self.reset(*vision)
             return self.state.copy()
-        prior = self.model_prediction(dt)
-        self.vision.predict(prior)
-        self.odometry.predict(prior)
-        if odometry is not None and not collision:
-            self.odometry.posterior = self.odometry_posterior(np.asarray(odometry, float), dt)
-        if vision is not None:
-            self.vision.correct(*vision)
-        fused = fuse(prior, [self.vision, self.odometry])
-        self.last_motion = between(self.state.mean, fused.mean)
+        use_odo = odometry is not None and not collision
+        mean, cov, motion = _frame_kernel(
+            self.state.mean, self.state.cov, self.last_motion, self.motion_known, float(dt),
+            _vec3(odometry if use_odo else None), use_odo, _vec3(None if vision is None
+                                                                 else vision[0]),
+            _mat3(None if vision is None else vision[1]), vision is not None, self._params(),
+            False)
+        self.last_motion = motion
         self.motion_known = True
-        self.state = fused
-        return fused.copy()
+        self.state = Gaussian(mean, cov)
+        return self.state.copy()
+
+    def predicted(self, dt: float, odometry: np.ndarray | None, collision: bool):
+        """(pose, covariance (3, 3)) where the robot is expected this frame: the previous
+        fused pose moved by the odometry with the odometry node's covariance, or (collision
+        frames, no odometry) by the last fused motion with the model's."""
+        use_odo = odometry is not None and not collision
+        mean, cov, _m = _frame_kernel(
+            self.state.mean, self.state.cov, self.last_motion, self.motion_known, float(dt),
+            _vec3(odometry if use_odo else None), use_odo, _ZERO3, _ZERO33, False,
+            self._params(), True)
+        return mean, cov
+
+    def _params(self) -> np.ndarray:
+        if getattr(self, "_param_array", None) is None:
+            p = self.params
+            self._param_array = np.array([
+                p.model_xy, p.model_theta, p.model_min_xy, p.model_min_theta, p.max_speed,
+                p.max_turn_rate, p.odometry_xy, p.odometry_theta, p.odometry_min_xy,
+                p.odometry_min_theta], dtype=np.float64)
+        return self._param_array
+
+
+_ZERO3 = np.zeros(3)
+_ZERO33 = np.zeros((3, 3))
+
+
+def _vec3(v) -> np.ndarray:
+    return _ZERO3 if v is None else np.ascontiguousarray(v, dtype=np.float64).reshape(3)
+
+
+def _mat3(m) -> np.ndarray:
+    return _ZERO33 if m is None else np.ascontiguousarray(m, dtype=np.float64).reshape(3, 3)
+
+
+# ---------------------------------------------------------------------------- the kernel
+# The same equations as the classes above (move, LocalFilter.correct and .information, fuse,
+# DecentralisedFusion.model_noise, odometry_noise and odometry_posterior), compiled.
+
+
+@njit(cache=True, nogil=True)
+def _wrap(a):
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+@njit(cache=True, nogil=True)
+def _inv3(a):
+    out = np.empty((3, 3))
+    out[0, 0] = a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]
+    out[0, 1] = a[0, 2] * a[2, 1] - a[0, 1] * a[2, 2]
+    out[0, 2] = a[0, 1] * a[1, 2] - a[0, 2] * a[1, 1]
+    out[1, 0] = a[1, 2] * a[2, 0] - a[1, 0] * a[2, 2]
+    out[1, 1] = a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0]
+    out[1, 2] = a[0, 2] * a[1, 0] - a[0, 0] * a[1, 2]
+    out[2, 0] = a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]
+    out[2, 1] = a[0, 1] * a[2, 0] - a[0, 0] * a[2, 1]
+    out[2, 2] = a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]
+    det = a[0, 0] * out[0, 0] + a[0, 1] * out[1, 0] + a[0, 2] * out[2, 0]
+    return out / det
+
+
+@njit(cache=True, nogil=True)
+def _sym(a):
+    return 0.5 * (a + a.T)
+
+
+@njit(cache=True, nogil=True)
+def _move(mean, cov, motion, motion_cov):
+    th = mean[2]
+    c, s = math.cos(th), math.sin(th)
+    dx, dy = motion[0], motion[1]
+    jp = np.array([[1.0, 0.0, -s * dx - c * dy], [0.0, 1.0, c * dx - s * dy], [0.0, 0.0, 1.0]])
+    jm = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    out = np.array([mean[0] + c * dx - s * dy, mean[1] + s * dx + c * dy,
+                    _wrap(mean[2] + motion[2])])
+    return out, _sym(jp @ cov @ jp.T + jm @ motion_cov @ jm.T)
+
+
+@njit(cache=True, nogil=True)
+def _frame_kernel(mean, cov, last_motion, motion_known, dt, odo, use_odo, z, R, use_vision,
+                  p, prior_only):
+    """One frame of DecentralisedFusion.step (prior_only False: returns the fused mean,
+    covariance and motion) or the search prior of ``predicted`` (prior_only True: the odometry
+    node's posterior, or the model prediction without odometry; motion unused). ``p``: the
+    FusionParams as an array in their field order."""
+    # model noise Q (robot frame) over dt
+    if motion_known:
+        speed = math.hypot(last_motion[0], last_motion[1]) / max(dt, 1e-3)
+        sxy = max(p[2], p[0] * dt * (1.0 + speed))
+        sth = max(p[3], p[1] * dt)
+    else:
+        sxy = max(p[2], p[4] * dt)
+        sth = max(p[3], p[5] * dt)
+    Q = np.zeros((3, 3))
+    Q[0, 0] = Q[1, 1] = sxy * sxy
+    Q[2, 2] = sth * sth
+    prior_mean, prior_cov = _move(mean, cov, last_motion, Q)
+    odo_mean = prior_mean
+    odo_cov = prior_cov
+    if use_odo:
+        dist = math.hypot(odo[0], odo[1])
+        oxy = max(p[8], p[6] * dist)
+        oth = max(p[9], p[7] * abs(odo[2]))
+        S = np.zeros((3, 3))
+        S[0, 0] = S[1, 1] = oxy * oxy
+        S[2, 2] = oth * oth
+        K = Q @ _inv3(Q + S)
+        d = odo - last_motion
+        d[2] = _wrap(d[2])
+        motion = last_motion + K @ d
+        motion[2] = _wrap(motion[2])
+        Cu = (np.eye(3) - K) @ Q
+        odo_mean, odo_cov = _move(mean, cov, motion, _sym(Cu))
+    if prior_only:
+        if use_odo:
+            pose = np.array([mean[0] + math.cos(mean[2]) * odo[0] - math.sin(mean[2]) * odo[1],
+                             mean[1] + math.sin(mean[2]) * odo[0] + math.cos(mean[2]) * odo[1],
+                             _wrap(mean[2] + odo[2])])
+            return pose, odo_cov, last_motion
+        return prior_mean, prior_cov, last_motion
+    inv_prior = _inv3(prior_cov)
+    e_sum = np.zeros(3)
+    E_sum = np.zeros((3, 3))
+    if use_odo:  # the odometry node's information (equations 6 and 7)
+        inv_post = _inv3(odo_cov)
+        d = odo_mean - prior_mean
+        d[2] = _wrap(d[2])
+        e_sum += inv_post @ d
+        E_sum += inv_post - inv_prior
+    if use_vision:  # the vision node: a Kalman correction with H = I (Joseph form)
+        Kv = prior_cov @ _inv3(prior_cov + R)
+        d = z - prior_mean
+        d[2] = _wrap(d[2])
+        v_mean = prior_mean + Kv @ d
+        v_mean[2] = _wrap(v_mean[2])
+        ikh = np.eye(3) - Kv
+        v_cov = _sym(ikh @ prior_cov @ ikh.T + Kv @ R @ Kv.T)
+        inv_post = _inv3(v_cov)
+        d = v_mean - prior_mean
+        d[2] = _wrap(d[2])
+        e_sum += inv_post @ d
+        E_sum += inv_post - inv_prior
+    f_cov = _inv3(inv_prior + E_sum)  # equations 8 and 9
+    f_mean = prior_mean + f_cov @ e_sum
+    f_mean[2] = _wrap(f_mean[2])
+    # the fused motion since the previous pose (geometry.between)
+    c, s = math.cos(mean[2]), math.sin(mean[2])
+    dx, dy = f_mean[0] - mean[0], f_mean[1] - mean[1]
+    motion = np.array([c * dx + s * dy, -s * dx + c * dy, _wrap(f_mean[2] - mean[2])])
+    return f_mean, _sym(f_cov), motion

@@ -137,7 +137,8 @@ confs = {
         "global_candidates": 16,  # separated minima of a global search proposed as tracks
         "unknown_heading_candidates": 24,  # (heading, cell) candidates refined
         "global_every": 5,  # frames between global searches while tracking
-        "null_copies": 2,  # random-bearing copies of the observations (median)
+        "null_copies": 2,  # random-bearing copies of the observations (median), global
+        "tracked_null_copies": 1,  # ... tracked frames (their window is small)
         "max_tracks": 4,  # hypotheses tracked at once
         "prune_probability": 1e-4,  # tracks below this probability are dropped
         "hypotheses": 5,  # hypotheses listed per frame
@@ -195,19 +196,34 @@ def vision_covariance(result: SearchResult, support: Support, conf: dict,
     """Covariance (3, 3) of a fix for the fusion (see the module doc)."""
     c = float(conf["search"]["c"])
     ref = 1.0 / (c * c)
-    H = np.asarray(result.hessian, float)
+    h = result.hessian
     cov = np.zeros((3, 3))
-    if np.all(np.isfinite(H)):
-        vals, vecs = np.linalg.eigh(0.5 * (H + H.T))
-        vals = np.maximum(vals, 0.002 * ref)
-        cxy = (vecs / vals) @ vecs.T * ref * conf["vision_sigma_xy"] ** 2
+    hxx, hxy, hyy = float(h[0, 0]), float(0.5 * (h[0, 1] + h[1, 0])), float(h[1, 1])
+    if math.isfinite(hxx) and math.isfinite(hxy) and math.isfinite(hyy):
+        # the Hessian's eigenvalues clipped from below, inverted, scaled
+        (l1, l2), (ux, uy) = _eig2(hxx, hxy, hyy)
+        s = ref * conf["vision_sigma_xy"] ** 2 * (1.0 + support.inlier_rho / 0.05)
+        v1 = min(s / max(l1, 0.002 * ref), 1.0)  # capped at 1 m^2
+        v2 = min(s / max(l2, 0.002 * ref), 1.0)
+        cov[0, 0] = v1 * ux * ux + v2 * uy * uy
+        cov[1, 1] = v1 * uy * uy + v2 * ux * ux
+        cov[0, 1] = cov[1, 0] = (v1 - v2) * ux * uy
     else:
-        cxy = np.eye(2) * 1.0
-    cxy *= 1.0 + support.inlier_rho / 0.05
-    vals, vecs = np.linalg.eigh(cxy)
-    cov[:2, :2] = (vecs * np.minimum(vals, 1.0)) @ vecs.T
+        cov[0, 0] = cov[1, 1] = min(1.0 + support.inlier_rho / 0.05, 1.0)
     cov[2, 2] = heading_sigma**2
     return cov
+
+
+def _eig2(a: float, b: float, d: float):
+    """Eigenvalues (l1, l2) and the unit eigenvector (ux, uy) of l1 of the symmetric 2 x 2
+    matrix [[a, b], [b, d]] (the other eigenvector is (-uy, ux))."""
+    mean, half = 0.5 * (a + d), 0.5 * (a - d)
+    r = math.hypot(half, b)
+    l1, l2 = mean + r, mean - r
+    if r < 1e-300:
+        return (l1, l2), (1.0, 0.0)
+    ang = 0.5 * math.atan2(b, half)
+    return (l1, l2), (math.cos(ang), math.sin(ang))
 
 
 def _check_conf(conf: dict, dataset):
@@ -226,7 +242,8 @@ def _check_conf(conf: dict, dataset):
                 "start_half_error"):
         if not 0.0 <= float(conf[key]) <= 1.0:
             raise FieldlocError(f"{key} must lie in [0, 1], not {conf[key]}")
-    for key in ("max_tracks", "hypotheses", "null_copies", "global_every"):
+    for key in ("max_tracks", "hypotheses", "null_copies", "tracked_null_copies",
+                "global_every"):
         if int(conf[key]) < 1:
             raise FieldlocError(f"{key} must be >= 1, not {conf[key]}")
     need = {"imu": "imu", "truth": "truth"}.get(conf["heading"])
@@ -307,6 +324,7 @@ class LutLocaliser:
         self.other = 1.0  # probability that the robot is at none of the tracks
         self._null_fit = math.inf
         self._global_heading = None
+        self._offset_updates = 0
         self.fixed_once = False  # start_half applies to the first fix only
         self.failures_in_row = 0
         self.last_global = -10**9
@@ -388,7 +406,7 @@ class LutLocaliser:
             self.last_global = i
         # the null: what chance explains, searched the same way
         if tracked:
-            null_fit, null_evidence = self._tracked_null(obs, tracked)
+            null_fit = self._tracked_null(obs, tracked)
             self._null_fit = null_fit
             if min(c.fit for c in tracked) >= null_fit:
                 raise FrameFailed("uninformative")
@@ -482,13 +500,8 @@ class LutLocaliser:
         ``gate_sigmas`` growing with the misses)."""
         f = t.fusion
         if self.use_fusion and f.state is not None:
-            if odo is not None and not col:
-                pose = f.odometry_prior(odo)
-                cov = f.odometry_posterior(np.asarray(odo, float), dt).cov
-            else:
-                pred = f.model_prediction(dt)
-                pose, cov = compose(f.state.mean, f.last_motion), pred.cov
-            return pose, np.asarray(cov, float)[:2, :2]
+            pose, cov = f.predicted(dt, odo, col)
+            return pose, cov[:2, :2]
         pose = compose(t.pose, odo) if odo is not None and not col else t.pose
         s = self.conf["min_gate"] / self.conf["gate_sigmas"] * math.sqrt(1 + t.misses)
         return np.asarray(pose, float).copy(), np.eye(2) * s * s
@@ -496,17 +509,20 @@ class LutLocaliser:
     def _lost(self, prior_cov) -> bool:
         """Whether the window no longer covers where the robot may be (``gate_sigmas`` of the
         prior's largest sigma exceed half the window)."""
-        return math.sqrt(max(float(np.linalg.eigvalsh(prior_cov)[-1]), 0.0)) \
-            * self.conf["gate_sigmas"] > self.half
+        (largest, _), _u = _eig2(float(prior_cov[0, 0]), float(prior_cov[0, 1]),
+                                 float(prior_cov[1, 1]))
+        return math.sqrt(max(largest, 0.0)) * self.conf["gate_sigmas"] > self.half
 
     def _innovation_information(self, prior_cov, R=None) -> np.ndarray:
         """Inverse of the innovation covariance (2, 2): the prior's, the fix's (if given) and a
         floor of (``min_gate`` / ``gate_sigmas``)^2 against overconfidence."""
-        floor = self.conf["min_gate"] / self.conf["gate_sigmas"]
-        S = np.asarray(prior_cov, float) + np.eye(2) * floor * floor
+        floor = (self.conf["min_gate"] / self.conf["gate_sigmas"]) ** 2
+        a, b, d = float(prior_cov[0, 0]) + floor, float(prior_cov[0, 1]), \
+            float(prior_cov[1, 1]) + floor
         if R is not None:
-            S = S + np.asarray(R, float)[:2, :2]
-        return np.linalg.inv(S)
+            a, b, d = a + float(R[0, 0]), b + float(R[0, 1]), d + float(R[1, 1])
+        det = a * d - b * b
+        return np.array([[d / det, -b / det], [-b / det, a / det]])
 
     def _track_candidate(self, i, t: Track, prior, obs, fr, base_heading, col, flags):
         """The fix of a track this frame (step 3 of the module doc) as a Candidate, and a
@@ -518,8 +534,9 @@ class LutLocaliser:
         info = self._innovation_information(prior_cov)
         # the window's error term in evidence units: scaled by the frame's evidence share
         scale = obs.total_weight / max(obs.lookup_total_weight, 1e-12)
-        fix, _wmin = search.tracked_search(obs, theta, prior_pose[:2], info, self.T / scale,
-                                           half_width=self.half, prior_cap=self.prior_cap)
+        fix, _wmin, fit = search.tracked_search(obs, theta, prior_pose[:2], info,
+                                                self.T / scale, half_width=self.half,
+                                                prior_cap=self.prior_cap)
         heading_sigma = self.heading_sigma
         if by_vision:
             rh, curv = search.refine_heading(obs, fix.cell, fix.theta)
@@ -540,8 +557,7 @@ class LutLocaliser:
         d = np.array([fix.x - prior_pose[0], fix.y - prior_pose[1]])
         m2 = min(float(d @ self._innovation_information(prior_cov, R) @ d), 2 * self.prior_cap)
         return Candidate(fix=fix, support=sup, R=R, track=t, mirror=t.mirror,
-                         evidence=fix.error,
-                         fit=fix.error / self.T + min(0.5 * float(d @ info @ d), self.prior_cap),
+                         evidence=fix.error, fit=fit,
                          prior=(prior_pose, info),
                          log_prior=t.log_weight + math.log1p(-conf["kidnap_probability"])
                          - 0.5 * m2)
@@ -653,23 +669,33 @@ class LutLocaliser:
         c.mirror = p_mir / total if total > 0 else 0.0
 
     # ------------------------------------------------------------------ the null
-    def _tracked_null(self, obs, tracked: list[Candidate]) -> tuple[float, float]:
-        """The null of a tracked frame: (fit, evidence / T) of the median over
-        ``null_copies`` random-bearing copies of the observations searched as the strongest
-        track searched (module doc)."""
+    def _tracked_null(self, obs, tracked: list[Candidate]) -> float:
+        """The null of a tracked frame: the median over ``tracked_null_copies``
+        random-bearing copies of the observations of the best posterior score of the
+        strongest track's window (Candidate.fit; module doc)."""
         search = self.search
         top = max(tracked, key=lambda c: c.log_prior - c.fit)
         pose, info = top.prior
-        fits, evidence = [], []
-        for _ in range(int(self.conf["null_copies"])):
-            nobs = obs.random_bearings(self.rng, search.n_angles)
+        fits = []
+        for _ in range(int(self.conf["tracked_null_copies"])):
+            nobs = self._null_copy(obs)
             scale = nobs.total_weight / max(nobs.lookup_total_weight, 1e-12)
-            r, _w = search.tracked_search(nobs, top.fix.theta, pose[:2], info, self.T / scale,
-                                         half_width=self.half, prior_cap=self.prior_cap)
-            d = np.array([r.x - pose[0], r.y - pose[1]])
-            fits.append(r.error / self.T + min(0.5 * float(d @ info @ d), self.prior_cap))
-            evidence.append(r.error / self.T)
-        return float(np.median(fits)), float(np.median(evidence))
+            fits.append(search.tracked_score(nobs, top.fix.theta, pose[:2], info,
+                                             self.T / scale, half_width=self.half,
+                                             prior_cap=self.prior_cap))
+        return _median(fits)
+
+    def _null_copy(self, obs) -> Observation:
+        """The next random-bearing copy of the observations (the permutations are drawn
+        once from the seeded generator and used in turn)."""
+        n = self.search.n_angles
+        if not hasattr(self, "_perms"):
+            self._perms = np.stack([np.stack([self.rng.permutation(n) for _ in range(3)])
+                                    for _ in range(64)])
+            self._next_perm = 0
+        perm = self._perms[self._next_perm % len(self._perms)]
+        self._next_perm += 1
+        return obs.random_bearings(perm)
 
     def _global_null(self, obs, headings) -> float:
         """The null of a global search: evidence / T of the median over ``null_copies``
@@ -678,7 +704,7 @@ class LutLocaliser:
         conf, search = self.conf, self.search
         out = []
         for _ in range(int(conf["null_copies"])):
-            nobs = obs.random_bearings(self.rng, search.n_angles)
+            nobs = self._null_copy(obs)
             if headings is None:
                 r = search.unknown_heading_search(
                     nobs, candidates=max(2, conf["unknown_heading_candidates"] // 4))
@@ -686,7 +712,7 @@ class LutLocaliser:
             else:
                 out.append(min(search.global_search(nobs, th, candidates=1).error
                                for th in headings) / self.T)
-        return float(np.median(out))
+        return _median(out)
 
     # ------------------------------------------------------------------ the belief
     def _update_tracks(self, i, cands: list[Candidate], other: float, dt, odo, col):
@@ -747,9 +773,9 @@ class LutLocaliser:
     def _track_imu_offset(self, i, obs, top: Candidate, col):
         """IMU alignment: initialised on the first fix of the unknown-heading search
         (``imu_alignment: vision``), then updated from the vision heading every
-        ``imu_offset_every`` frames (every frame while the offset is uncertain, above
-        0.5 deg), on confident tracked frames clean enough (half the observations inliers:
-        clutter can tilt the vision heading)."""
+        ``imu_offset_every`` frames (every frame on the first ``imu_offset_every`` updates),
+        on tracked frames clean enough (half the observations inliers: clutter can tilt the
+        vision heading)."""
         conf = self.conf
         if conf["heading"] != "imu" or not np.isfinite(self.yaw[i]):
             return
@@ -761,7 +787,8 @@ class LutLocaliser:
         every = int(conf["imu_offset_every"])
         if every <= 0 or col or top.track is None or top.support.inlier_share < 0.5:
             return
-        if i % every and self.alignment.variance < math.radians(0.5) ** 2:
+        self._offset_updates += 1
+        if i % every and self._offset_updates > every:  # every frame while it settles
             return
         r = top.fix
         rh, curv = self.search.refine_heading(obs, r.cell, r.theta)
@@ -833,6 +860,12 @@ def _curvature_sigma(curvature: float, obs: Observation) -> float:
         return math.radians(10.0)
     sigma = math.sqrt(1.0 / (curvature * max(obs.total_weight, 1.0)))
     return float(np.clip(sigma, math.radians(0.5), math.radians(10.0)))
+
+
+def _median(values) -> float:
+    v = sorted(values)
+    n = len(v)
+    return float(v[n // 2] if n % 2 else 0.5 * (v[n // 2 - 1] + v[n // 2]))
 
 
 def _mirror(pose) -> tuple[float, float, float]:

@@ -151,7 +151,8 @@ def refine_moves(radial_flat, spiral_flat, ncell, n_angles, family, angle_index,
     return i * nx + j
 
 
-@njit("UniTuple(int64, 3)(uint8[:, ::1], int64[::1], int64[::1], int64[::1], int64, int64,"
+@njit("Tuple((int64, int64, int64, float64))(uint8[:, ::1], int64[::1], int64[::1],"
+      " int64[::1], int64, int64,"
       " int64, int64, int64, int64, int64, int64, int64, int64, float64, float64, float64,"
       " float64, float64, float64, float64, float64, float64, float64)", cache=True,
       nogil=True)
@@ -161,7 +162,8 @@ def tracked_window(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb
     """On the window [i0, i1) x [j0, j1): the quantised error surface (``lookup_sum``) and
     the flat index of the cell minimising surface * ``scale`` + min(0.5 d^T [[ia, ib],
     [ib, ic]] d, ``cap``) (d = cell centre - (px, py), cell centres at (x0, y0) + (j, i) *
-    res), the flat index of the surface's own minimum and that minimum's value."""
+    res), the flat index of the surface's own minimum, that minimum's value, and the best
+    cell's score."""
     h, w = i1 - i0, j1 - j0
     surf = np.empty((h, w), dtype=np.uint16)
     lookup_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
@@ -183,7 +185,7 @@ def tracked_window(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb
             if v < low_val:
                 low_val = v
                 low = (i0 + i) * nx + j0 + j
-    return best, low, low_val
+    return best, low, low_val, best_score
 
 
 @njit("UniTuple(float64, 6)(float64[::1], float64[:, ::1])", cache=True, nogil=True)
@@ -272,3 +274,71 @@ def structure_sizes(points, distance, link, link_per_m):
     return out
 
 
+
+
+@njit("Tuple((int64[::1], int64[::1], float64[::1]))(float64[:, ::1], float64[:, ::1], boolean,"
+      " float64, float64, float64)", cache=True, nogil=True)
+def flatten_scanlines(radial, spiral, use_spiral, robot_radius, max_range, spiral_end_radius):
+    """(family, angle_index, distance) of a frame's radial (n, 4) and spiral (2, n) crossing
+    distances (NaN = none), radial first (line-major), then the spirals, those outside the
+    scan lines' reach left out (``Observation.from_scanlines``)."""
+    n = radial.shape[0] * radial.shape[1] + (spiral.size if use_spiral else 0)
+    fam = np.empty(n, np.int64)
+    idx = np.empty(n, np.int64)
+    dist = np.empty(n, np.float64)
+    k = 0
+    for a in range(radial.shape[0]):
+        for slot in range(radial.shape[1]):
+            d = radial[a, slot]
+            if d == d and d >= robot_radius and d <= max_range:
+                fam[k] = 0
+                idx[k] = a
+                dist[k] = d
+                k += 1
+    if use_spiral:
+        for f in range(spiral.shape[0]):
+            for a in range(spiral.shape[1]):
+                d = spiral[f, a]
+                if d == d and d >= robot_radius and d <= spiral_end_radius:
+                    fam[k] = 1 + f
+                    idx[k] = a
+                    dist[k] = d
+                    k += 1
+    return fam[:k].copy(), idx[:k].copy(), dist[:k].copy()
+
+
+@njit("float64[:, ::1](int64[::1], int64[::1], float64[::1], float64, float64, float64)",
+      cache=True, nogil=True)
+def observation_points(family, angle_index, distance, angle_step, robot_radius,
+                       spiral_end_radius):
+    """Observations as points (N, 2) in the robot frame: radial crossings at their line's
+    angle, spiral crossings at the spiral's angle at that radius (``Observation.points``)."""
+    n = distance.shape[0]
+    out = np.empty((n, 2))
+    turn = 2 * np.pi / (spiral_end_radius - robot_radius)
+    for i in range(n):
+        a = angle_index[i] * angle_step
+        d = distance[i]
+        if family[i] == 1:
+            a += (d - robot_radius) * turn
+        elif family[i] == 2:
+            a -= (d - robot_radius) * turn
+        out[i, 0] = d * np.cos(a)
+        out[i, 1] = d * np.sin(a)
+    return out
+
+
+@njit("UniTuple(float64, 3)(float64[::1], float64[::1], float64, float64)", cache=True,
+      nogil=True)
+def inlier_sums(errors, weight, inlier_error, c2):
+    """(inliers, their weight, their weighted rho) of observations with ``errors`` (m)."""
+    n = 0.0
+    w_in = 0.0
+    rho = 0.0
+    for i in range(errors.shape[0]):
+        e = errors[i]
+        if e < inlier_error:
+            n += 1.0
+            w_in += weight[i]
+            rho += weight[i] * (e * e / (c2 + e * e))
+    return n, w_in, rho

@@ -54,8 +54,11 @@ from ..common.scanlines import NO_HIT_MM
 from .lut_kernels import (
     MAX_CROSSINGS,
     exact_error_cells,
+    flatten_scanlines,
+    inlier_sums,
     lookup_sum,
     observation_errors_cell,
+    observation_points,
     quadratic_fit,
     refine_moves,
     structure_sizes,
@@ -140,25 +143,14 @@ class Observation:
                        spiral_end_radius: float, robot_radius: float = 0.0) -> Observation:
         """From the features' ``radial`` (72, 4) and ``spiral`` (2, 72) arrays (m, NaN = none).
         Distances outside the scan lines' reach are dropped."""
-        fams, idxs, dists = [], [], []
-        r = np.asarray(radial, dtype=np.float64)
-        if r.size:
-            k, _slot = np.nonzero(np.isfinite(r) & (r >= robot_radius) & (r <= max_range))
-            fams.append(np.zeros(len(k), np.int64))
-            idxs.append(k)
-            dists.append(r[np.isfinite(r) & (r >= robot_radius) & (r <= max_range)])
-        if params.use_spiral and spiral is not None:
-            s = np.asarray(spiral, dtype=np.float64)
-            ok = np.isfinite(s) & (s >= robot_radius) & (s <= spiral_end_radius)
-            direction, k = np.nonzero(ok)
-            fams.append(1 + direction)
-            idxs.append(k)
-            dists.append(s[ok])
-        family = np.concatenate(fams) if fams else np.zeros(0, np.int64)
-        distance = np.concatenate(dists) if dists else np.zeros(0)
-        return cls(family=family.astype(np.int64),
-                   angle_index=(np.concatenate(idxs) if idxs else np.zeros(0)).astype(np.int64),
-                   distance=distance, weight=params.weight(distance))
+        r = np.ascontiguousarray(radial, dtype=np.float64).reshape(-1, MAX_CROSSINGS)
+        s = (np.ascontiguousarray(spiral, dtype=np.float64).reshape(2, -1)
+             if spiral is not None else np.zeros((2, 0)))
+        family, angle_index, distance = flatten_scanlines(
+            r, s, bool(params.use_spiral and spiral is not None), float(robot_radius),
+            float(max_range), float(spiral_end_radius))
+        return cls(family=family, angle_index=angle_index, distance=distance,
+                   weight=params.weight(distance))
 
     def subset(self, mask) -> Observation:
         """The observations selected by a boolean mask (or index array)."""
@@ -167,31 +159,21 @@ class Observation:
                            lookup_weight=None if self.lookup_weight is None
                            else self.lookup_weight[mask])
 
-    def random_bearings(self, rng: np.random.Generator, n_angles: int) -> Observation:
+    def random_bearings(self, perm: np.ndarray) -> Observation:
         """The null copy of these observations: the same distances on scan lines shuffled at
-        random (radial lines by one permutation, each spiral family by its own), so each scan
-        line keeps its crossings but their bearings carry no information."""
-        perm = np.stack([rng.permutation(n_angles) for _ in range(3)])
+        random, ``perm`` (3, n_angles) a permutation of the scan lines per family (radial,
+        spiral ccw, spiral cw), so each scan line keeps its crossings but their bearings
+        carry no information."""
         return Observation(family=self.family, angle_index=perm[self.family, self.angle_index],
                            distance=self.distance, weight=self.weight,
                            lookup_weight=self.lookup_weight)
 
     def points(self, scanlines) -> np.ndarray:
         """The observations as points (N, 2) in the robot frame."""
-        ang = self.angle_index * scanlines.angle_step
-        pts = np.zeros((len(self), 2))
-        rad = self.family == 0
-        pts[rad, 0] = self.distance[rad] * np.cos(ang[rad])
-        pts[rad, 1] = self.distance[rad] * np.sin(ang[rad])
-        sp = ~rad
-        if sp.any():
-            r0, r1 = scanlines.robot_radius, scanlines.spiral_end_radius
-            phi = (self.distance[sp] - r0) / (r1 - r0) * 2 * math.pi
-            sign = np.where(self.family[sp] == 1, 1.0, -1.0)
-            a = ang[sp] + sign * phi
-            pts[sp, 0] = self.distance[sp] * np.cos(a)
-            pts[sp, 1] = self.distance[sp] * np.sin(a)
-        return pts
+        return observation_points(self.family, self.angle_index,
+                                  np.ascontiguousarray(self.distance, dtype=np.float64),
+                                  float(scanlines.angle_step), float(scanlines.robot_radius),
+                                  float(scanlines.spiral_end_radius))
 
 
 @dataclass
@@ -396,11 +378,17 @@ class TableSearch:
     def support(self, obs: Observation, result: SearchResult, inlier_error: float) -> Support:
         """The inliers of a fix: observations with error below ``inlier_error`` (m) at the
         cell nearest the fix's position, at its heading."""
-        e, inl = self.inliers(obs, result.x, result.y, result.theta, inlier_error)
-        w_in = float(obs.weight[inl].sum())
-        rho = float((obs.weight[inl] * self.params.rho(e[inl])).sum() / w_in) if w_in else 0.0
-        return Support(observations=len(obs), inliers=int(inl.sum()), inlier_weight=w_in,
-                       total_weight=obs.total_weight, inlier_rho=rho)
+        e = self.observation_errors(obs, self._cell_of(result.x, result.y), result.theta)
+        n, w_in, rho = inlier_sums(e, np.ascontiguousarray(obs.weight, dtype=np.float64),
+                                   float(inlier_error), self.params.c * self.params.c)
+        return Support(observations=len(obs), inliers=int(n), inlier_weight=w_in,
+                       total_weight=obs.total_weight, inlier_rho=rho / w_in if w_in else 0.0)
+
+    def _cell_of(self, x: float, y: float) -> tuple[int, int]:
+        """Grid.cell_of for one point, in scalar arithmetic."""
+        g = self.grid
+        return (min(max(round((y - g.origin[1]) / g.resolution), 0), self.ny - 1),
+                min(max(round((x - g.origin[0]) / g.resolution), 0), self.nx - 1))
 
     def _heading_bracket(self, theta: float) -> tuple[int, float]:
         u = float(theta) / self.step
@@ -502,16 +490,9 @@ class TableSearch:
         - prior, the prior's inverse position covariance (2, 2); the cap: a prior that may be
         wrong, a Gaussian with a uniform floor), refined to sub-cell in its basin. Also the
         window's best cell by the error term alone, which may lie in another basin. Returns
-        (fix, (i, j, error) of that best cell)."""
-        m = self.scanlines.heading_index(theta)
-        i0, i1, j0, j1 = self.local_window(prior_xy[0], prior_xy[1], half_width)
-        g = self.grid
-        best, low, low_val = tracked_window(
-            self.error_lookup, *self._row_arrays(obs, m), i0, i1, j0, j1, self.nx,
-            1.0 / (self.q_levels * temperature), float(g.origin[0]), float(g.origin[1]),
-            float(g.resolution), float(prior_xy[0]), float(prior_xy[1]),
-            float(prior_information[0, 0]), float(prior_information[0, 1]),
-            float(prior_information[1, 1]), float(min(prior_cap, 1e300)))
+        (fix, (i, j, error) of that best cell, the posterior score of the fix's cell)."""
+        (best, low, low_val, score), (i0, i1, j0, j1) = self._tracked_window(
+            obs, theta, prior_xy, prior_information, temperature, half_width, prior_cap)
         i, j = divmod(best, self.nx)
         edge = ((i == i0 and i0 > 0) or (i == i1 - 1 and i1 < self.ny)
                 or (j == j0 and j0 > 0) or (j == j1 - 1 and j1 < self.nx))
@@ -519,7 +500,26 @@ class TableSearch:
         fix.mode = "local"
         fix.at_window_edge = bool(edge)
         wi, wj = divmod(low, self.nx)
-        return fix, (wi, wj, low_val / self.q_levels)
+        return fix, (wi, wj, low_val / self.q_levels), score
+
+    def tracked_score(self, obs: Observation, theta: float, prior_xy, prior_information,
+                      temperature: float, *, half_width: float = 1.0,
+                      prior_cap: float = math.inf) -> float:
+        """The best posterior score of ``tracked_search``'s window (quantised error term /
+        temperature + capped Mahalanobis term), without refining it."""
+        return self._tracked_window(obs, theta, prior_xy, prior_information, temperature,
+                                    half_width, prior_cap)[0][3]
+
+    def _tracked_window(self, obs, theta, prior_xy, info, temperature, half_width, cap):
+        m = self.scanlines.heading_index(theta)
+        i0, i1, j0, j1 = self.local_window(prior_xy[0], prior_xy[1], half_width)
+        g = self.grid
+        out = tracked_window(
+            self.error_lookup, *self._row_arrays(obs, m), i0, i1, j0, j1, self.nx,
+            1.0 / (self.q_levels * temperature), float(g.origin[0]), float(g.origin[1]),
+            float(g.resolution), float(prior_xy[0]), float(prior_xy[1]), float(info[0, 0]),
+            float(info[0, 1]), float(info[1, 1]), float(min(cap, 1e300)))
+        return out, (i0, i1, j0, j1)
 
     def refine(self, obs: Observation, cell, theta: float, *, max_moves: int = 4) -> SearchResult:
         """Exact sub-cell refinement around ``cell``: the exact error at the continuous heading
