@@ -1,6 +1,6 @@
 """`fieldloc localize DIR --map MAP [--features FILE | --points FILE.csv] [--method lut]
-[--heading imu|histogram|truth] [--init placement|uniform] [-o poses.h5] [--preset NAME]
-[-c key=value] [--overwrite]`."""
+[--heading imu|histogram|truth] [--init placement|uniform] [--independent]
+[--min-confidence P] [-o poses.h5] [--preset NAME] [-c key=value] [--overwrite]`."""
 
 from __future__ import annotations
 
@@ -33,6 +33,12 @@ MCL_INIT_DEFAULT = stage.method_confs("mcl")["default"]["init"]
 @click.option("--init", type=click.Choice(["placement", "uniform"]), default=None,
               help="mcl: initial belief, the game's placement (own half, at the touch lines)"
               f" or anywhere on the field [default: {MCL_INIT_DEFAULT}].")
+@click.option("--independent", is_flag=True, default=None,
+              help="lut: localise every frame on its own, globally, with no prior and no"
+              " odometry (snapshots at unknown poses).")
+@click.option("--min-confidence", type=click.FloatRange(0.0, 1.0), default=None,
+              help="Accept a frame when the probability of its top hypothesis reaches this"
+              f" [default: the method's, lut {LUT_DEFAULTS['min_confidence']}].")
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Poses file, poses.tum is written beside it"
               " [default: DATASET/poses-METHOD.h5].")
@@ -40,8 +46,8 @@ MCL_INIT_DEFAULT = stage.method_confs("mcl")["default"]["init"]
 @conf_option
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
 @click.pass_context
-def localize(ctx, dataset, map_path, features, points, method, heading, init, output, preset,
-             overrides, overwrite):
+def localize(ctx, dataset, map_path, features, points, method, heading, init, independent,
+             min_confidence, output, preset, overrides, overwrite):
     """Poses of the frames of DATASET on the field of MAP (poses.h5 + poses.tum)."""
     conf = {"method": method, "preset": preset, **overrides_dict(overrides)}
     if heading is not None:
@@ -52,6 +58,12 @@ def localize(ctx, dataset, map_path, features, points, method, heading, init, ou
         if method != "mcl":
             raise click.UsageError("--init applies to --method mcl")
         conf["init"] = init
+    if independent:
+        if method != "lut":
+            raise click.UsageError("--independent applies to --method lut")
+        conf["independent"] = True
+    if min_confidence is not None:
+        conf["min_confidence"] = min_confidence
     output = output or Path(dataset) / f"poses-{method}.h5"
     path = stage.main(conf, dataset, map_path, output, features=features, points=points,
                       overwrite=overwrite, progress=progress_enabled(ctx))
@@ -60,9 +72,11 @@ def localize(ctx, dataset, map_path, features, points, method, heading, init, ou
     cols, _attrs = read_poses(path)
     n = len(cols["name"])
     failed = int(cols["failed"].sum())
+    low = int((~cols["failed"] & ~cols["accepted"]).sum())
     ok = ~cols["failed"]
     rt = float(cols["runtime"].mean()) * 1e3 if n else 0.0
-    msg = f"{path}: {n} frames, {failed} failed, mean runtime {rt:.2f} ms/frame"
+    msg = (f"{path}: {n} frames, {n - failed - low} accepted, {low} low-confidence, {failed}"
+           f" failed, mean runtime {rt:.2f} ms/frame")
     if ok.any():
         modes = {m: int((cols["mode"][ok] == m).sum()) for m in sorted(set(cols["mode"][ok]))}
         msg += " (" + ", ".join(f"{m} {c}" for m, c in modes.items()) + ")"

@@ -97,6 +97,7 @@ from ..common.poses_file import PoseTrack
 from . import heading as heading_mod
 from .kalman import DecentralisedFusion, FusionParams
 from .lut_search import MatchingParams, Observation, SearchResult, Support, TableSearch
+from .point_fit import PointFit
 
 log = logging.getLogger(__name__)
 
@@ -180,14 +181,24 @@ _SEARCH_CACHE: dict = {}
 def table_search(map_file: MapFile, params: MatchingParams) -> TableSearch:
     """The TableSearch of a map (built once per map file and parameters; the last one is
     kept, building it takes seconds and hundreds of MB on a full field)."""
+    return _cached(map_file, params)[0]
+
+
+def point_fit(map_file: MapFile, params: MatchingParams) -> PointFit:
+    """The PointFit of a map's field (built once with its TableSearch)."""
+    return _cached(map_file, params)[1]
+
+
+def _cached(map_file: MapFile, params: MatchingParams):
     p = map_file.path.resolve()
     key = (str(p), p.stat().st_mtime_ns, params)
     if key not in _SEARCH_CACHE:
         _SEARCH_CACHE.clear()
         t = time.perf_counter()
-        _SEARCH_CACHE[key] = TableSearch(map_file, params)
+        search = TableSearch(map_file, params)
+        _SEARCH_CACHE[key] = (search, PointFit(map_file.field, c=params.c))
         log.info("table search for %s built in %.1f s (error lookup %.0f MB)", p.name,
-                 time.perf_counter() - t, _SEARCH_CACHE[key].error_lookup.nbytes / 1e6)
+                 time.perf_counter() - t, search.error_lookup.nbytes / 1e6)
     return _SEARCH_CACHE[key]
 
 
@@ -296,10 +307,11 @@ class LutLocaliser:
     """The per-frame loop of method lut (see the module doc), the tracks kept between
     frames."""
 
-    def __init__(self, conf: dict, search: TableSearch, *, yaw, collision, truth_heading,
-                 seed: int = 0):
+    def __init__(self, conf: dict, search: TableSearch, fit: PointFit, *, yaw, collision,
+                 truth_heading, seed: int = 0):
         self.conf = conf
         self.search = search
+        self.fit = fit
         self.yaw, self.collision, self.truth_heading = yaw, collision, truth_heading
         self.alignment = heading_mod.ImuAlignment(
             variance=(conf["imu_sigma"] ** 2 + math.radians(2.0) ** 2),
@@ -378,6 +390,7 @@ class LutLocaliser:
             raise FrameFailed("too-few-observations")
         ev = conf["evidence"]
         obs = obs.with_evidence(sl, ev["per_structure"], ev["link"], ev["link_per_m"])
+        self._points = obs.points(sl)
         base_heading = self._frame_heading(i, col)  # None: from each track / unknown
         # evidence of a frame alone, or of one more frame of a tracked sequence
         self.T = self.T_track if self.tracks else self.T_frame
@@ -534,9 +547,9 @@ class LutLocaliser:
         info = self._innovation_information(prior_cov)
         # the window's error term in evidence units: scaled by the frame's evidence share
         scale = obs.total_weight / max(obs.lookup_total_weight, 1e-12)
-        fix, _wmin, fit = search.tracked_search(obs, theta, prior_pose[:2], info,
-                                                self.T / scale, half_width=self.half,
-                                                prior_cap=self.prior_cap)
+        fix, _wmin, _score = search.tracked_search(obs, theta, prior_pose[:2], info,
+                                                   self.T / scale, half_width=self.half,
+                                                   prior_cap=self.prior_cap)
         heading_sigma = self.heading_sigma
         if by_vision:
             rh, curv = search.refine_heading(obs, fix.cell, fix.theta)
@@ -548,19 +561,37 @@ class LutLocaliser:
             else:  # keep the predicted or jolted heading, trusted little
                 heading_sigma = conf["unsure_heading_sigma"]
                 flags.append("heading-unsure")
+        d = np.array([fix.x - prior_pose[0], fix.y - prior_pose[1]])
+        evidence = fix.error
+        fit = evidence / self.T + min(0.5 * float(d @ info @ d), self.prior_cap)
         sup = search.support(obs, fix, conf["inlier_error"])
         R = vision_covariance(fix, sup, conf, heading_sigma)
+        self._fit_points(fix, obs)  # the heading was found by the search when by vision
         if heading_sigma > self.heading_sigma:  # a heading this unsure moves the fix too:
             # by the heading error times the observations' mean range
             spread = heading_sigma * float(np.average(obs.distance, weights=obs.weight))
             R[:2, :2] += np.eye(2) * spread * spread
-        d = np.array([fix.x - prior_pose[0], fix.y - prior_pose[1]])
         m2 = min(float(d @ self._innovation_information(prior_cov, R) @ d), 2 * self.prior_cap)
         return Candidate(fix=fix, support=sup, R=R, track=t, mirror=t.mirror,
-                         evidence=fix.error, fit=fit,
+                         evidence=evidence, fit=fit,
                          prior=(prior_pose, info),
                          log_prior=t.log_weight + math.log1p(-conf["kidnap_probability"])
                          - 0.5 * m2)
+
+    def _fit_points(self, fix: SearchResult, obs: Observation, *,
+                    heading_fixed: bool = True) -> float:
+        """Move a fix to where its observations' line points fit the field's lines best
+        (PointFit, the distance to the nearest line: more precise than the scan-line table's
+        10 cm cells and 5 deg headings, less specific: along a line it is flat, so it refines
+        a fix within one table cell and half a heading step and does not rank fixes); its
+        heading too unless ``heading_fixed``. Returns the scan-line evidence of the fix (its
+        error term before the move)."""
+        # within the search's own resolution: one table cell, half a table heading step
+        pose, _cost, _normal = self.fit.refine(
+            self._points, obs.weight, fix.pose, fixed_heading=heading_fixed,
+            max_shift=self.search.grid.resolution, max_turn=0.5 * self.search.step)
+        fix.x, fix.y, fix.theta = float(pose[0]), float(pose[1]), float(pose[2])
+        return fix.error
 
     # ------------------------------------------------------------------ global search
     def _global_candidates(self, i, obs, heading, flags, log_prior: float) -> list[Candidate]:
@@ -582,7 +613,8 @@ class LutLocaliser:
         self._global_heading = headings
         sigma = conf["histogram_sigma"] if heading is None else self.heading_sigma
         out: list[Candidate] = []
-        scored = sorted(((f.error, f) for f in fixes), key=lambda e: e[0])
+        scored = sorted(((self._fit_points(f, obs, heading_fixed=heading is not None), f)
+                         for f in fixes), key=lambda e: e[0])
         for e, f in scored:
             near = [t for t in self.tracks  # the same basin as a track (or its mirror)
                     if _near_pose(t.pose, f.pose, SAME_BASIN_M, SAME_BASIN_RAD)
@@ -663,7 +695,8 @@ class LutLocaliser:
             m.mode = c.fix.mode
             c.fix = m
             c.support = self.search.support(obs, m, conf["inlier_error"])
-            c.evidence, c.fit = m.error, m.error / self.T
+            c.evidence = self._fit_points(m, obs, heading_fixed=False)
+            c.fit = c.evidence / self.T
             flags.append("start-half")
             p_own, p_mir = p_mir, p_own
         c.mirror = p_mir / total if total > 0 else 0.0
@@ -671,8 +704,8 @@ class LutLocaliser:
     # ------------------------------------------------------------------ the null
     def _tracked_null(self, obs, tracked: list[Candidate]) -> float:
         """The null of a tracked frame: the median over ``tracked_null_copies``
-        random-bearing copies of the observations of the best posterior score of the
-        strongest track's window (Candidate.fit; module doc)."""
+        random-bearing copies of the observations of the fit (Candidate.fit) that the
+        strongest track's search reaches for them (module doc)."""
         search = self.search
         top = max(tracked, key=lambda c: c.log_prior - c.fit)
         pose, info = top.prior
@@ -680,9 +713,11 @@ class LutLocaliser:
         for _ in range(int(self.conf["tracked_null_copies"])):
             nobs = self._null_copy(obs)
             scale = nobs.total_weight / max(nobs.lookup_total_weight, 1e-12)
-            fits.append(search.tracked_score(nobs, top.fix.theta, pose[:2], info,
-                                             self.T / scale, half_width=self.half,
-                                             prior_cap=self.prior_cap))
+            r, _w, _s = search.tracked_search(nobs, top.fix.theta, pose[:2], info,
+                                              self.T / scale, half_width=self.half,
+                                              prior_cap=self.prior_cap)
+            d = np.array([r.x - pose[0], r.y - pose[1]])
+            fits.append(r.error / self.T + min(0.5 * float(d @ info @ d), self.prior_cap))
         return _median(fits)
 
     def _null_copy(self, obs) -> Observation:
@@ -821,7 +856,8 @@ def run(conf: dict, dataset, features, map_file: MapFile, progress=False) -> Pos
         yaw, collision = np.full(n, np.nan), np.zeros(n, dtype=bool)
     truth_th = (heading_mod.truth_heading(dataset.optional("truth"), stamps, tol)
                 if conf["heading"] == "truth" else None)
-    loc = LutLocaliser(conf, search, yaw=yaw, collision=collision, truth_heading=truth_th)
+    loc = LutLocaliser(conf, search, point_fit(map_file, search.params), yaw=yaw,
+                       collision=collision, truth_heading=truth_th)
 
     track = PoseTrack()
     prev_stamp = None
