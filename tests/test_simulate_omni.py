@@ -21,7 +21,7 @@ from stages.common.errors import FieldlocError
 from stages.common.field import load_field
 from stages.common.geometry import compose, field_to_robot, wrap_angle
 from stages.simulate import sensors, trajectory
-from stages.simulate.omni_renderer import DEFAULT_POLYNOMIAL
+from stages.simulate.omni_renderer import DEFAULT_POLYNOMIAL, TEAM_MIRROR_POLYNOMIAL
 
 
 def small_conf(preset="omni-default", frames=4, seed=3, **changes):
@@ -309,14 +309,20 @@ def test_default_conf_lines_are_mostly_visible(tmp_path, spl):
 
 
 def test_default_mirror_geometry():
-    cam = simulate.omni_renderer.camera_from_conf(simulate.confs["omni-default"]["omni"])
-    assert np.allclose(cam.polynomial, DEFAULT_POLYNOMIAL)
-    r = cam.radius_of_distance([0.3, 1.0, 3.0, 5.8])
-    assert np.allclose(r, [43, 118, 180, 200], atol=4)
-    assert cam.max_distance >= 4.0  # the tables' range
-    assert cam.centre != (240.0, 240.0)
-    rr = np.linspace(*cam.valid_radius, 500)
-    assert np.all(np.diff(cam.distance_of_radius(rr)) > 0)
+    # omni-clean: the designed mirror; omni-default and omni-hard: one with the resolution of
+    # the seed team's (checked against its mirror.cfg in test_realism_omni.py)
+    for preset, poly, dist, radius in (
+            ("omni-clean", DEFAULT_POLYNOMIAL, [0.3, 1.0, 3.0, 5.8], [43, 118, 180, 200]),
+            ("omni-default", TEAM_MIRROR_POLYNOMIAL, [0.3, 1.0, 2.0, 3.0, 4.0, 6.4],
+             [40, 94, 123, 145, 164, 192]),
+            ("omni-hard", TEAM_MIRROR_POLYNOMIAL, [1.0], [94])):
+        cam = simulate.omni_renderer.camera_from_conf(simulate.confs[preset]["omni"])
+        assert np.allclose(cam.polynomial, poly), preset
+        assert np.allclose(cam.radius_of_distance(dist), radius, atol=4), preset
+        assert cam.max_distance >= 4.0  # the tables' range
+        assert cam.centre != (240.0, 240.0)
+        rr = np.linspace(*cam.valid_radius, 500)
+        assert np.all(np.diff(cam.distance_of_radius(rr)) > 0)
 
 
 # ---------------------------------------------------------------------------- CLI
