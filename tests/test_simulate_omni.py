@@ -94,6 +94,47 @@ def test_calib_error_perturbs_only_what_is_written(tmp_path, spl):
     assert np.allclose(written.polynomial, np.asarray(true["polynomial"]) * 1.05)
 
 
+def test_team_calibration_is_off_by_its_distance_error():
+    """omni-default writes what a team's mirror table gives: f(r) fitted to radii read off with
+    a smooth random error, placing the floor `distance_error` off (rms over the table's floor),
+    increasing, drawn from the seed; omni-clean writes the true camera."""
+    from stages.simulate.omni_renderer import camera_from_conf, perturbed_camera
+
+    cam = camera_from_conf(simulate.confs["omni-default"]["omni"])
+    ce = simulate.confs["omni-default"]["calib_error"]
+    assert ce["distance_error"] > 0
+    a, b, c = (perturbed_camera(cam, ce, rng=np.random.default_rng(s)) for s in (1, 1, 2))
+    assert np.array_equal(a.polynomial, b.polynomial)
+    assert not np.allclose(a.polynomial, c.polynomial)
+    d = np.linspace(float(cam.distance_of_radius(cam.valid_radius[0])), ce["table_range"], 300)
+    for w in (a, c):
+        err = w.distance_of_radius(cam.radius_of_distance(d)) - d
+        assert np.sqrt(np.mean(err**2)) == pytest.approx(ce["distance_error"], rel=0.05)
+        assert np.abs(err).max() < 4 * ce["distance_error"]
+        rr = np.linspace(*w.valid_radius, 500)
+        assert np.all(np.diff(w.distance_of_radius(rr)) > 0)
+        # the written floor ends at the table's last mark, as a team's calibration does
+        assert w.distance_of_radius(w.valid_radius[1]) == pytest.approx(ce["table_range"],
+                                                                        abs=0.1)
+        assert w.centre == cam.centre and w.forward_angle == cam.forward_angle
+    clean = perturbed_camera(cam, simulate.confs["omni-clean"]["calib_error"],
+                             rng=np.random.default_rng(1))
+    assert np.array_equal(clean.polynomial, cam.polynomial)
+    assert clean.valid_radius == cam.valid_radius
+    with pytest.raises(FieldlocError, match="distance_error"):
+        perturbed_camera(cam, {**ce, "distance_error": 0.7}, rng=np.random.default_rng(1))
+
+
+def test_omni_default_dataset_states_a_team_calibration(tmp_path, spl):
+    out = simulate.main(small_conf(frames=1), spl, tmp_path / "d")
+    written = load_calib(out / "calib.yaml")
+    true = yaml.safe_load((out / "simulation.yaml").read_text())["true_camera"]
+    assert not np.allclose(written.polynomial, true["polynomial"])
+    assert written.valid_radius[1] < true["valid_radius"][1]
+    other = simulate.main(small_conf(frames=1, seed=4), spl, tmp_path / "e")
+    assert not np.allclose(load_calib(other / "calib.yaml").polynomial, written.polynomial)
+
+
 # ---------------------------------------------------------------------------- trajectory
 
 

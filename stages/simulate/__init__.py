@@ -17,8 +17,9 @@ Pieces, each reusable on its own:
   ``Renderer(conf_section, scene, seed)``, ``.camera`` (the true camera model),
   ``.render(pose, frame) -> BGR uint8`` and a module function ``perturbed_camera(camera,
   calib_error)`` (given ``rng=``, a generator seeded from the dataset seed, when it takes one:
-  the omni calibration error is a team's mirror table read off with random errors). A preset names its camera kind in ``camera`` and holds the renderer's conf
-  under that kind's name (``omni``, ``perspective``, ...). A renderer may also have
+  the omni calibration error is a team's mirror table read off with random errors; see
+  ``written_camera``). A preset names its camera kind in ``camera`` and holds the renderer's
+  conf under that kind's name (``omni``, ``perspective``, ...). A renderer may also have
   ``.prepare(path) -> {stem: (csv kind, columns)}``, called once with the whole path, whose
   CSV files are written beside the others (the perspective renderer's head motion: head.csv,
   the measured head angles, and head_truth.csv);
@@ -180,6 +181,16 @@ def renderer_class(kind: str):
     return module, getattr(module, cls)
 
 
+def written_camera(module, camera, calib_error: dict, seed: int):
+    """The camera calib.yaml states for the true ``camera``: the renderer module's
+    ``perturbed_camera``, given a generator seeded from the dataset seed when it takes one (the
+    omni calibration error is a team's mirror table read off with random errors)."""
+    if "rng" in inspect.signature(module.perturbed_camera).parameters:
+        return module.perturbed_camera(camera, calib_error,
+                                       rng=np.random.default_rng([int(seed), 0xCA11B]))
+    return module.perturbed_camera(camera, calib_error)
+
+
 def _check_target(output_dir: Path, overwrite: bool):
     if output_dir.exists() and not output_dir.is_dir():
         raise FieldlocError(f"cannot write dataset {output_dir}: it is a file")
@@ -234,10 +245,7 @@ def main(conf: dict, field, output_dir, *, overwrite: bool = False,
     # renderers that need the whole path first (the perspective head motion) return extra
     # CSV files to write: {stem: (csv kind, columns)}
     extra_csv = renderer.prepare(path) if hasattr(renderer, "prepare") else {}
-    # a renderer's perturbed_camera may draw its calibration error (a team's mirror table)
-    calib_kw = {"rng": np.random.default_rng([seed, 0xCA11B])} if "rng" in inspect.signature(
-        module.perturbed_camera).parameters else {}
-    written = module.perturbed_camera(renderer.camera, conf["calib_error"], **calib_kw)
+    written = written_camera(module, renderer.camera, conf["calib_error"], seed)
 
     others = world.robot_positions()  # (K, N, 2)
     contact = float(conf["imu"].get("contact_distance", sensors.IMU_DEFAULTS["contact_distance"]))
