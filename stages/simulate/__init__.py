@@ -76,9 +76,11 @@ _OMNI_BASE = {
 
 
 # what real catadioptric frames of the seed-002 team show (../shared/realdata, measured by
-# tests/test_realism_omni.py and tests/test_extract_realdata.py): a mirror table off by a few
-# pixels (minho-distance: -1..+6 px from the real line, rms 3.7 px, in one bump) and soft
-# lines (10-90 % edges of 2.5-6 px, far line contrast of 65-77 grey levels at 1.75-2.25 m)
+# tests/test_realism_omni.py and tests/test_extract_realdata.py): the team's mirror (its
+# mirror.cfg, smoothed), a calibration off by 0.15 m rms over 0.3-4 m (minho-distance: the
+# team's table places a line at a known distance 4-16 cm too far from 1 to 2 m, growing with
+# distance), soft lines (10-90 % edges of 2.5-6 px; far lines as dim as minho-distance's),
+# highlights that clip, and people's shadows reaching well beyond their feet
 _OMNI_REAL = {
     "calib_error": {"distance_error": 0.15},
     "omni": {"polynomial": list(TEAM_MIRROR_POLYNOMIAL), "valid_radius": [40.0, 193.0],

@@ -104,7 +104,7 @@ CALIB_ERROR_DEFAULTS = {
     # a team's mirror table (the MINHO mirror.cfg format): ground marks every `table_step` m
     # out to `table_range` m, their image radii read off with a smooth error (correlated over
     # `radius_error_length_px` of image radius) whose size makes the fitted f(r) place the floor
-    # `distance_error` off (rms of the relative error over the table's floor); 0: the true f(r)
+    # `distance_error` m off (rms over the table's floor); 0: the true f(r) is written
     "distance_error": 0.0,
     "radius_error_length_px": 20.0,
     "table_step": 0.25,
@@ -137,12 +137,13 @@ def team_calibration(cam: OmniCamera, calib_error: dict, rng: np.random.Generato
     ``fit_polynomial`` as ``fieldloc calibrate``) to a mirror table whose radii are read off
     with a smooth random error (a squared-exponential correlation over
     ``radius_error_length_px``), its size chosen so that the fit places the floor
-    ``distance_error`` off (relative rms over the table's floor, uniform in distance). A draw
-    whose fit does not increase is measured again, as a team would when the calibration tool
-    refuses it. Returns (coefficients, outer valid radius: the table's last mark).
+    ``distance_error`` m off (rms over the table's floor, uniform in distance). A draw whose fit
+    does not increase is measured again, as a team would when the calibration tool refuses it.
+    Returns (coefficients, outer valid radius: the table's last mark, as read).
 
-    On minho-distance (real, the team's table against lines at known distances) the table
-    puts the line 4-11 % too near from 1 to 2 m (6.6 % rms over 0.5-2.25 m), in one bump."""
+    On minho-distance (real: the team's own table against lines at known distances) the
+    calibration places the line 4-16 cm too far from 1 to 2 m (0.10 m rms over 0.5-2.25 m), in
+    one bump; px errors grow in metres with distance, where the mirror flattens."""
     ce = {**CALIB_ERROR_DEFAULTS, **calib_error}
     target = float(ce["distance_error"])
     step, reach = float(ce["table_step"]), float(ce["table_range"])
@@ -155,19 +156,20 @@ def team_calibration(cam: OmniCamera, calib_error: dict, rng: np.random.Generato
     grid = np.linspace(r[0], r[-1], max(8, int(np.ceil(4 * (r[-1] - r[0]) / length)) + 1))
     chol = np.linalg.cholesky(np.exp(-0.5 * ((grid[:, None] - grid[None, :]) / length) ** 2)
                               + 1e-9 * np.eye(len(grid)))
-    def written(size):
-        return fit_polynomial(r + size * shape, d, degree=5)[0]
+
+    def off(error):  # metres off of the f(r) fitted to radii read with this error (px)
+        return _distance_error(cam, fit_polynomial(r + error, d, degree=5)[0], judged)
 
     for _ in range(_TABLE_ATTEMPTS):
         shape = np.interp(r, grid, chol @ rng.standard_normal(len(grid)))
-        lo, hi = 0.0, 1.0  # px of reading error per unit of shape: bisect the written error
-        while _distance_error(cam, written(hi), judged) < target and hi < 1e3:
+        lo, hi = 0.0, 1.0  # size of the reading error: bisect the written error
+        while off(hi * shape) < target and hi < 1e3:
             lo, hi = hi, 2 * hi
         for _ in range(30):
             mid = 0.5 * (lo + hi)
-            lo, hi = (mid, hi) if _distance_error(cam, written(mid), judged) < target else (lo, mid)
+            lo, hi = (mid, hi) if off(mid * shape) < target else (lo, mid)
         read = r + hi * shape
-        coef = written(hi)
+        coef = fit_polynomial(read, d, degree=5)[0]
         rr = np.linspace(cam.valid_radius[0], read[-1], 1000)
         if np.all(np.diff(read) > 0) and np.all(np.diff(
                 np.polynomial.polynomial.polyval(rr, coef)) > 0):
