@@ -313,23 +313,31 @@ def off_line_points(fm, point_sets, min_points=20, seed=0):
     return off, off_null, total
 
 
+# rendered frames for the clutter comparison: RENDERED_FRAMES frames of each of RENDERED_SEEDS
+# (omni-default draws a team's calibration per seed, and clutter comes in episodes: a white
+# stick crossing many scan lines for a while), pooled
+RENDERED_SEEDS = (0, 1, 2, 3)
+RENDERED_FRAMES = 5
+
+
 @pytest.fixture(scope="module")
 def rendered_points(tmp_path_factory):
-    """Line points and true poses of rendered frames (omni-default: lab clutter). Rendered
-    clutter comes in episodes (a white stick crossing many scan lines for a while), so the
-    share is pooled over 20 frames."""
+    """Line points and true poses of rendered omni-default frames (lab clutter, the seed
+    team's mirror and a team's calibration: stages.simulate), extracted as the real ones."""
     from stages import simulate
     from stages.common.dataset import open_dataset
 
-    conf = copy.deepcopy(simulate.confs["omni-default"])
-    conf.update(frames=20, seed=3)
-    ds = simulate.main(conf, "msl-2015", tmp_path_factory.mktemp("sim") / "omni")
-    out = extract.main("dense", ds, ds / "features.h5")
-    truth = open_dataset(ds).optional("truth")
-    with FeaturesFile(out) as ff:
-        pts = [ff.frame(n)["points"].astype(float) for n in ff.names]
-    poses = np.stack([truth["x"], truth["y"], truth["theta"]], axis=1)
-    return pts, poses
+    pts, poses = [], []
+    for seed in RENDERED_SEEDS:
+        conf = copy.deepcopy(simulate.confs["omni-default"])
+        conf.update(frames=RENDERED_FRAMES, seed=seed)
+        ds = simulate.main(conf, "msl-2015", tmp_path_factory.mktemp("sim") / f"omni-{seed}")
+        out = extract.main("dense", ds, ds / "features.h5")
+        truth = open_dataset(ds).optional("truth")
+        with FeaturesFile(out) as ff:
+            pts += [ff.frame(n)["points"].astype(float) for n in ff.names]
+        poses += list(np.stack([truth["x"], truth["y"], truth["theta"]], axis=1))
+    return pts, np.asarray(poses)
 
 
 @pytest.fixture(scope="module")
@@ -360,16 +368,14 @@ def test_minho_lab_points_are_mostly_on_lines(clutter):
     assert clutter["real"] <= 0.35
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "GUIDE section 7 not met by the renderer of this commit: rendered omni-default frames keep"
-    " ~3% of the extracted points off the lines at the true pose, minho-lab ~20% at its"
-    " best-fitting pose. Most real off-line points lie on real lines that the team's mirror"
-    " table and the coarse far pixels misplace (false white proper: a few per cent by eye), so"
-    " a written calib_error and more false white would close the gap."))
 def test_rendered_clutter_is_of_the_same_order_as_real(clutter):
-    """GUIDE section 7: rendered frames hold comparable false-white and occluded-line content,
-    so that the share of extracted points off the lines is of the same order."""
-    assert 1 / 3 <= (clutter["rendered"] + 0.02) / (clutter["real"] + 0.02) <= 3
+    """GUIDE section 7 and issue 7: rendered omni-default frames are as hard as the real
+    minho-lab ones: 15-25 % of the extracted points lie off the lines at the true pose (real:
+    ~20 % at the best-fitting pose), from a team's calibration misplacing real lines, soft far
+    lines and false white, as in the real frames."""
+    assert clutter["rendered_points"] >= 2000
+    assert 0.15 <= clutter["rendered"] <= 0.25
+    assert 2 / 3 <= clutter["rendered"] / clutter["real"] <= 3 / 2
 
 
 def test_minho_lab_mask_and_extraction_run(lab_points):

@@ -554,7 +554,7 @@ def test_rendered_frames_with_a_cable_near_the_robot_are_localised(msl2015_map, 
     from stages.simulate import scene
 
     monkeypatch.setattr(scene, "build", white_cable_along_path(scene.build, start_frame=14))
-    conf = copy.deepcopy(simulate.confs["omni-default"])
+    conf = copy.deepcopy(simulate.confs["omni-clean"])
     conf.update(frames=36, seed=3)
     ds = simulate.main(conf, "msl-2015", tmp_path / "cable")
     features = extract.main(None, ds, ds / "features.h5")

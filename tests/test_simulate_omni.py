@@ -21,7 +21,7 @@ from stages.common.errors import FieldlocError
 from stages.common.field import load_field
 from stages.common.geometry import compose, field_to_robot, wrap_angle
 from stages.simulate import sensors, trajectory
-from stages.simulate.omni_renderer import DEFAULT_POLYNOMIAL
+from stages.simulate.omni_renderer import DEFAULT_POLYNOMIAL, TEAM_MIRROR_POLYNOMIAL
 
 
 def small_conf(preset="omni-default", frames=4, seed=3, **changes):
@@ -92,6 +92,47 @@ def test_calib_error_perturbs_only_what_is_written(tmp_path, spl):
     true = yaml.safe_load((out / "simulation.yaml").read_text())["true_camera"]
     assert written.centre == pytest.approx((true["centre"][0] + 3.0, true["centre"][1] - 2.0))
     assert np.allclose(written.polynomial, np.asarray(true["polynomial"]) * 1.05)
+
+
+def test_team_calibration_is_off_by_its_distance_error():
+    """omni-default writes what a team's mirror table gives: f(r) fitted to radii read off with
+    a smooth random error, placing the floor `distance_error` off (rms over the table's floor),
+    increasing, drawn from the seed; omni-clean writes the true camera."""
+    from stages.simulate.omni_renderer import camera_from_conf, perturbed_camera
+
+    cam = camera_from_conf(simulate.confs["omni-default"]["omni"])
+    ce = simulate.confs["omni-default"]["calib_error"]
+    assert ce["distance_error"] > 0
+    a, b, c = (perturbed_camera(cam, ce, rng=np.random.default_rng(s)) for s in (1, 1, 2))
+    assert np.array_equal(a.polynomial, b.polynomial)
+    assert not np.allclose(a.polynomial, c.polynomial)
+    d = np.linspace(float(cam.distance_of_radius(cam.valid_radius[0])), ce["table_range"], 300)
+    for w in (a, c):
+        err = w.distance_of_radius(cam.radius_of_distance(d)) - d
+        assert np.sqrt(np.mean(err**2)) == pytest.approx(ce["distance_error"], rel=0.05)
+        assert np.abs(err).max() < 4 * ce["distance_error"]
+        rr = np.linspace(*w.valid_radius, 500)
+        assert np.all(np.diff(w.distance_of_radius(rr)) > 0)
+        # the written floor ends at the table's last mark, as a team's calibration does
+        assert w.distance_of_radius(w.valid_radius[1]) == pytest.approx(ce["table_range"],
+                                                                        abs=0.1)
+        assert w.centre == cam.centre and w.forward_angle == cam.forward_angle
+    clean = perturbed_camera(cam, simulate.confs["omni-clean"]["calib_error"],
+                             rng=np.random.default_rng(1))
+    assert np.array_equal(clean.polynomial, cam.polynomial)
+    assert clean.valid_radius == cam.valid_radius
+    with pytest.raises(FieldlocError, match="distance_error"):
+        perturbed_camera(cam, {**ce, "distance_error": 0.7}, rng=np.random.default_rng(1))
+
+
+def test_omni_default_dataset_states_a_team_calibration(tmp_path, spl):
+    out = simulate.main(small_conf(frames=1), spl, tmp_path / "d")
+    written = load_calib(out / "calib.yaml")
+    true = yaml.safe_load((out / "simulation.yaml").read_text())["true_camera"]
+    assert not np.allclose(written.polynomial, true["polynomial"])
+    assert written.valid_radius[1] < true["valid_radius"][1]
+    other = simulate.main(small_conf(frames=1, seed=4), spl, tmp_path / "e")
+    assert not np.allclose(load_calib(other / "calib.yaml").polynomial, written.polynomial)
 
 
 # ---------------------------------------------------------------------------- trajectory
@@ -309,14 +350,20 @@ def test_default_conf_lines_are_mostly_visible(tmp_path, spl):
 
 
 def test_default_mirror_geometry():
-    cam = simulate.omni_renderer.camera_from_conf(simulate.confs["omni-default"]["omni"])
-    assert np.allclose(cam.polynomial, DEFAULT_POLYNOMIAL)
-    r = cam.radius_of_distance([0.3, 1.0, 3.0, 5.8])
-    assert np.allclose(r, [43, 118, 180, 200], atol=4)
-    assert cam.max_distance >= 4.0  # the tables' range
-    assert cam.centre != (240.0, 240.0)
-    rr = np.linspace(*cam.valid_radius, 500)
-    assert np.all(np.diff(cam.distance_of_radius(rr)) > 0)
+    # omni-clean: the designed mirror; omni-default and omni-hard: one with the resolution of
+    # the seed team's (checked against its mirror.cfg in test_realism_omni.py)
+    for preset, poly, dist, radius in (
+            ("omni-clean", DEFAULT_POLYNOMIAL, [0.3, 1.0, 3.0, 5.8], [43, 118, 180, 200]),
+            ("omni-default", TEAM_MIRROR_POLYNOMIAL, [0.3, 1.0, 2.0, 3.0, 4.0, 6.4],
+             [40, 94, 123, 145, 164, 192]),
+            ("omni-hard", TEAM_MIRROR_POLYNOMIAL, [1.0], [94])):
+        cam = simulate.omni_renderer.camera_from_conf(simulate.confs[preset]["omni"])
+        assert np.allclose(cam.polynomial, poly), preset
+        assert np.allclose(cam.radius_of_distance(dist), radius, atol=4), preset
+        assert cam.max_distance >= 4.0  # the tables' range
+        assert cam.centre != (240.0, 240.0)
+        rr = np.linspace(*cam.valid_radius, 500)
+        assert np.all(np.diff(cam.distance_of_radius(rr)) > 0)
 
 
 # ---------------------------------------------------------------------------- CLI

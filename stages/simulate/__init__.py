@@ -16,8 +16,10 @@ Pieces, each reusable on its own:
 - one renderer per camera kind, registered in ``RENDERERS`` (kind -> "module:Class"), with
   ``Renderer(conf_section, scene, seed)``, ``.camera`` (the true camera model),
   ``.render(pose, frame) -> BGR uint8`` and a module function ``perturbed_camera(camera,
-  calib_error)``. A preset names its camera kind in ``camera`` and holds the renderer's conf
-  under that kind's name (``omni``, ``perspective``, ...). A renderer may also have
+  calib_error)`` (given ``rng=``, a generator seeded from the dataset seed, when it takes one:
+  the omni calibration error is a team's mirror table read off with random errors; see
+  ``written_camera``). A preset names its camera kind in ``camera`` and holds the renderer's
+  conf under that kind's name (``omni``, ``perspective``, ...). A renderer may also have
   ``.prepare(path) -> {stem: (csv kind, columns)}``, called once with the whole path, whose
   CSV files are written beside the others (the perspective renderer's head motion: head.csv,
   the measured head angles, and head_truth.csv);
@@ -29,6 +31,7 @@ from __future__ import annotations
 
 import copy
 import importlib
+import inspect
 import logging
 import math
 import os
@@ -46,7 +49,7 @@ from ..common.errors import FieldlocError
 from ..common.field import FieldModel, load_field
 from . import scene as scene_mod
 from . import sensors, trajectory, walk
-from .omni_renderer import OMNI_DEFAULTS
+from .omni_renderer import CALIB_ERROR_DEFAULTS, OMNI_DEFAULTS, TEAM_MIRROR_POLYNOMIAL
 from .perspective_renderer import PERSPECTIVE_DEFAULTS
 
 log = logging.getLogger(__name__)
@@ -68,7 +71,21 @@ _OMNI_BASE = {
     "scene": copy.deepcopy(scene_mod.SCENE_DEFAULTS),
     "omni": copy.deepcopy(OMNI_DEFAULTS),
     # what calib.yaml says relative to the rendering camera: centre shift (px), f(r) scale
-    "calib_error": {"centre_shift": [0.0, 0.0], "scale": 1.0},
+    "calib_error": copy.deepcopy(CALIB_ERROR_DEFAULTS),
+}
+
+
+# what real catadioptric frames of the seed-002 team show (../shared/realdata, measured by
+# tests/test_realism_omni.py and tests/test_extract_realdata.py): the team's mirror (its
+# mirror.cfg, smoothed), a calibration off by 0.15 m rms over 0.3-4 m (minho-distance: the
+# team's table places a line at a known distance 4-16 cm too far from 1 to 2 m, growing with
+# distance), soft lines (10-90 % edges of 2.5-6 px; far lines as dim as minho-distance's),
+# highlights that clip, and people's shadows reaching well beyond their feet
+_OMNI_REAL = {
+    "calib_error": {"distance_error": 0.15},
+    "omni": {"polynomial": list(TEAM_MIRROR_POLYNOMIAL), "valid_radius": [40.0, 193.0],
+             "outer_elevation_rate": 0.01, "shadow_length": 0.35, "shadow_depth": 0.6,
+             "imaging": {**OMNI_DEFAULTS["imaging"], "blur_sigma": 1.5, "knee": 0.9}},
 }
 
 
@@ -82,10 +99,14 @@ def _preset(base: dict, **changes) -> dict:
     return out
 
 
+_OMNI_DEFAULT = _preset(_OMNI_BASE, **_OMNI_REAL)
+
 confs = {
-    # a MSL robot with an omnidirectional camera on a busy lab field
-    "omni-default": _preset(_OMNI_BASE),
-    # the same without clutter, movers, noise or lighting changes: for checking geometry
+    # a MSL robot with an omnidirectional camera on a busy lab field, with the seed team's
+    # mirror, its blur and a calibration as imperfect as a team's (_OMNI_REAL)
+    "omni-default": _OMNI_DEFAULT,
+    # a designed mirror (DEFAULT_POLYNOMIAL) without clutter, movers, noise, lighting changes
+    # or calibration error: for checking geometry
     "omni-clean": _preset(
         _OMNI_BASE,
         scene={"robots": 0, "people": 0, "handlers": 0, "balls": 0, "cables": 0, "sticks": 0,
@@ -97,14 +118,15 @@ confs = {
                           "noise_sigma": 0.0, "shot_noise": 0.0, "jpeg_quality": 0}},
         imu={"collision_rate_hz": 0.0},
     ),
-    # harder: more robots and people, more clutter, stronger light changes, JPEG artefacts
+    # harder than omni-default: more robots and people, more clutter, stronger light changes,
+    # JPEG artefacts
     "omni-hard": _preset(
-        _OMNI_BASE,
+        _OMNI_DEFAULT,
         scene={"robots": 6, "people": 2, "handlers": 2, "cables": 8, "sticks": 6, "papers": 5,
                "tapes": 10, "line_wear": 0.7,
                "lighting": {"gain": [0.45, 1.7], "periods": [2.0, 15.0],
                             "colour_temperature": 0.18, "tint": 0.1}},
-        omni={"imaging": {**OMNI_DEFAULTS["imaging"], "jpeg_quality": 70,
+        omni={"imaging": {**_OMNI_DEFAULT["omni"]["imaging"], "jpeg_quality": 70,
                           "noise_sigma": 3.0}},
         imu={"collision_rate_hz": 0.15},
     ),
@@ -161,6 +183,16 @@ def renderer_class(kind: str):
     return module, getattr(module, cls)
 
 
+def written_camera(module, camera, calib_error: dict, seed: int):
+    """The camera calib.yaml states for the true ``camera``: the renderer module's
+    ``perturbed_camera``, given a generator seeded from the dataset seed when it takes one (the
+    omni calibration error is a team's mirror table read off with random errors)."""
+    if "rng" in inspect.signature(module.perturbed_camera).parameters:
+        return module.perturbed_camera(camera, calib_error,
+                                       rng=np.random.default_rng([int(seed), 0xCA11B]))
+    return module.perturbed_camera(camera, calib_error)
+
+
 def _check_target(output_dir: Path, overwrite: bool):
     if output_dir.exists() and not output_dir.is_dir():
         raise FieldlocError(f"cannot write dataset {output_dir}: it is a file")
@@ -215,7 +247,7 @@ def main(conf: dict, field, output_dir, *, overwrite: bool = False,
     # renderers that need the whole path first (the perspective head motion) return extra
     # CSV files to write: {stem: (csv kind, columns)}
     extra_csv = renderer.prepare(path) if hasattr(renderer, "prepare") else {}
-    written = module.perturbed_camera(renderer.camera, conf["calib_error"])
+    written = written_camera(module, renderer.camera, conf["calib_error"], seed)
 
     others = world.robot_positions()  # (K, N, 2)
     contact = float(conf["imu"].get("contact_distance", sensors.IMU_DEFAULTS["contact_distance"]))

@@ -30,13 +30,20 @@ import math
 import cv2
 import numpy as np
 
-from ..common.camera import OmniCamera
+from ..common.camera import OmniCamera, fit_polynomial
 from ..common.errors import FieldlocError
 from .scene import sample_texture
 
 # A mirror of our own design: about 40 px at 0.28 m (the body edge), 120 px at 1 m, 180 px at
 # 3 m, 200 px at 5.8 m, increasing over the whole image (max floor distance ~16 m at 228 px).
 DEFAULT_POLYNOMIAL = [-2.12375, 0.150314, -0.00356398, 4.06874e-05, -2.15966e-07, 4.39107e-10]
+# A mirror with the resolution of the seed-002 team's own (minho-lab mirror.cfg, smoothed: a
+# fifth-order f(r) fitted to the table's 26 marks with pixel-space weights): 0.3 m at 40 px,
+# 1 m at 94 px (41 px/m), 2 m at 123 px (24 px/m), 3 m at 145 px (20 px/m), 4 m at 164 px
+# (17 px/m), 6.5 m at 193 px. Far lines keep 2-3 px of width, where DEFAULT_POLYNOMIAL's
+# 7-11 px/m beyond 3 m leaves them about one pixel under the blur of a real mirror.
+TEAM_MIRROR_POLYNOMIAL = [-4.27859, 0.265008, -0.00566672, 5.74037e-05, -2.64699e-07,
+                          4.6791e-10]
 
 OMNI_DEFAULTS = {
     "image_size": [480, 480],  # width, height (px)
@@ -51,6 +58,8 @@ OMNI_DEFAULTS = {
     "body_radius": 37.0,  # px: the robot's own body seen in the mirror
     "struts_deg": [40.0, 130.0, 220.0, 310.0],  # image angles of the mirror mount's struts
     "strut_width": 6.0,  # px
+    "shadow_depth": 0.5,  # share of the light a mover's shadow takes at its foot
+    "shadow_length": 0.0,  # m of shadow reach per m of the mover's height (beyond its foot)
     "polar_bearings": 1280,  # columns of the polar grid
     "polar_step": 1.0,  # px between rows of the polar grid
     "imaging": {
@@ -89,18 +98,107 @@ def camera_from_conf(c: dict) -> OmniCamera:
     return cam
 
 
-def perturbed_camera(cam: OmniCamera, calib_error: dict) -> OmniCamera:
-    """The camera as a miscalibration would record it: centre shifted by ``centre_shift`` px and
-    f(r) scaled by ``scale``."""
-    du, dv = (float(v) for v in calib_error.get("centre_shift", (0.0, 0.0)))
-    scale = float(calib_error.get("scale", 1.0))
+CALIB_ERROR_DEFAULTS = {
+    "centre_shift": [0.0, 0.0],  # px: written centre minus the true one
+    "scale": 1.0,  # written f(r) = scale * fitted f(r)
+    # a team's mirror table (the MINHO mirror.cfg format): ground marks every `table_step` m
+    # out to `table_range` m, their image radii read off with a smooth error (correlated over
+    # `radius_error_length_px` of image radius) whose size makes the fitted f(r) place the floor
+    # `distance_error` m off (rms over the table's floor); 0: the true f(r) is written
+    "distance_error": 0.0,
+    "radius_error_length_px": 20.0,
+    "table_step": 0.25,
+    "table_range": 4.0,
+}
+_TABLE_ATTEMPTS = 50  # draws of the table's error until its fit is increasing
+
+
+def _table_marks(cam: OmniCamera, step: float, reach: float):
+    """(radius px, distance m) of a mirror table's marks on the true camera: the body edge and
+    every ``step`` m out to ``reach``."""
+    d0 = float(cam.distance_of_radius(cam.valid_radius[0]))
+    d = np.r_[d0, step * np.arange(math.floor(d0 / step) + 1, math.floor(reach / step + 1e-9) + 1)]
+    r = cam.radius_of_distance(d)
+    ok = np.isfinite(r)
+    if ok.sum() < 8:
+        raise FieldlocError(f"calib_error: a mirror table out to {reach:g} m every {step:g} m"
+                            f" holds only {int(ok.sum())} marks on the floor; 8 are needed")
+    return r[ok], d[ok]
+
+
+def _distance_error(cam: OmniCamera, coef, d) -> float:
+    """rms over true distances ``d`` of (written distance - true distance), metres."""
+    w = np.polynomial.polynomial.polyval(cam.radius_of_distance(d), coef)
+    return float(np.sqrt(np.mean((w - d) ** 2)))
+
+
+def team_calibration(cam: OmniCamera, calib_error: dict, rng: np.random.Generator):
+    """What a team's calibration of the true camera ``cam`` writes: f(r) fitted (fifth order,
+    ``fit_polynomial`` as ``fieldloc calibrate``) to a mirror table whose radii are read off
+    with a smooth random error (a squared-exponential correlation over
+    ``radius_error_length_px``), its size chosen so that the fit places the floor
+    ``distance_error`` m off (rms over the table's floor, uniform in distance). A draw whose fit
+    does not increase is measured again, as a team would when the calibration tool refuses it.
+    Returns (coefficients, outer valid radius: the table's last mark, as read).
+
+    On minho-distance (real: the team's own table against lines at known distances) the
+    calibration places the line 4-16 cm too far from 1 to 2 m (0.10 m rms over 0.5-2.25 m), in
+    one bump; px errors grow in metres with distance, where the mirror flattens."""
+    ce = {**CALIB_ERROR_DEFAULTS, **calib_error}
+    target = float(ce["distance_error"])
+    step, reach = float(ce["table_step"]), float(ce["table_range"])
+    length = float(ce["radius_error_length_px"])
+    if not (0 < target < 0.5) or step <= 0 or length <= 0:
+        raise FieldlocError("calib_error: 0 < distance_error < 0.5, table_step > 0 and"
+                            " radius_error_length_px > 0 are needed")
+    r, d = _table_marks(cam, step, reach)
+    judged = np.linspace(d[0], d[-1], 64)
+    grid = np.linspace(r[0], r[-1], max(8, int(np.ceil(4 * (r[-1] - r[0]) / length)) + 1))
+    chol = np.linalg.cholesky(np.exp(-0.5 * ((grid[:, None] - grid[None, :]) / length) ** 2)
+                              + 1e-9 * np.eye(len(grid)))
+
+    def off(error):  # metres off of the f(r) fitted to radii read with this error (px)
+        return _distance_error(cam, fit_polynomial(r + error, d, degree=5)[0], judged)
+
+    for _ in range(_TABLE_ATTEMPTS):
+        shape = np.interp(r, grid, chol @ rng.standard_normal(len(grid)))
+        lo, hi = 0.0, 1.0  # size of the reading error: bisect the written error
+        while off(hi * shape) < target and hi < 1e3:
+            lo, hi = hi, 2 * hi
+        for _ in range(30):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if off(mid * shape) < target else (lo, mid)
+        read = r + hi * shape
+        coef = fit_polynomial(read, d, degree=5)[0]
+        rr = np.linspace(cam.valid_radius[0], read[-1], 1000)
+        if np.all(np.diff(read) > 0) and np.all(np.diff(
+                np.polynomial.polynomial.polyval(rr, coef)) > 0):
+            return coef, float(read[-1])
+    raise FieldlocError(f"calib_error: no increasing f(r) in {_TABLE_ATTEMPTS} draws of a table"
+                        f" with distance_error {target:g}; make it smaller")
+
+
+def perturbed_camera(cam: OmniCamera, calib_error: dict,
+                     rng: np.random.Generator | None = None) -> OmniCamera:
+    """The camera as a miscalibration would record it: with ``distance_error`` > 0 the f(r)
+    of a team's mirror table (:func:`team_calibration`, drawn from ``rng``) and a valid radius
+    that ends at the table's last mark; then the centre shifted by ``centre_shift`` px and f(r)
+    scaled by ``scale``."""
+    ce = {**CALIB_ERROR_DEFAULTS, **calib_error}
+    du, dv = (float(v) for v in ce["centre_shift"])
+    scale = float(ce["scale"])
     if scale <= 0:
         raise FieldlocError(f"calibration error scale must be > 0, got {scale}")
+    poly = np.asarray(cam.polynomial, dtype=float)
+    valid = cam.valid_radius
+    if float(ce["distance_error"]) != 0:
+        coef, outer = team_calibration(cam, ce, np.random.default_rng(0) if rng is None else rng)
+        poly, valid = coef, (cam.valid_radius[0], outer)
     return OmniCamera(
         image_size=cam.image_size,
         centre=(cam.centre[0] + du, cam.centre[1] + dv),
-        polynomial=np.asarray(cam.polynomial, dtype=float) * scale,
-        valid_radius=cam.valid_radius,
+        polynomial=poly * scale,
+        valid_radius=valid,
         forward_angle=cam.forward_angle,
         mirrored=cam.mirrored,
     )
@@ -339,13 +437,17 @@ class OmniRenderer:
                      int(np.searchsorted(neg, -lo_tan, "right")))
 
     def _shadows(self, img, dist, x, y, th, movers):
-        """Soft shadows on the floor around the feet of movers (light from the ceiling)."""
+        """Soft shadows on the floor around the feet of movers (light from the ceiling): a
+        Gaussian dip of ``shadow_depth`` whose reach grows by ``shadow_length`` per metre of the
+        thing's height (several lamps: a person's legs darken the carpet well beyond the feet)."""
+        depth_share = float(self.conf["shadow_depth"])
+        length = float(self.conf["shadow_length"])
         for parts in movers:
             for cyl in parts:
                 if cyl.z0 > 0 or cyl.kind == "marker":
                     continue
                 dc = math.hypot(cyl.x - x, cyl.y - y)
-                reach = cyl.radius * 1.6 + 0.08
+                reach = cyl.radius * 1.6 + 0.08 + length * (cyl.z1 - cyl.z0)
                 if dc < 0.3 or dc - reach > dist[-1]:
                     continue
                 half = math.asin(min(1.0, reach / dc))
@@ -355,7 +457,7 @@ class OmniRenderer:
                     continue
                 dd = dist[rows][:, None]
                 d2 = dd * dd + dc * dc - 2 * dd * dc * np.cos(delta)[None, :]
-                s = 1.0 - 0.5 * np.exp(-d2 / (2 * (0.4 * reach) ** 2))  # ~1 at the window edge
+                s = 1.0 - depth_share * np.exp(-d2 / (2 * (0.4 * reach) ** 2))  # ~1 at the edge
                 r0, r1 = rows[0], rows[-1] + 1
                 img[r0:r1, idx] *= s[..., None].astype(np.float32)
 
