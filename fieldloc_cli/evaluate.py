@@ -98,3 +98,7 @@ def evaluate(inputs, truth, output, field, table_only, preset, stamp_tolerance, 
         done.append(stage.main(conf, poses, truth, out, overwrite=overwrite, field=field))
         log.info("report written to %s", out)
     click.echo(stage.tabulate(done, fmt=fmt))
+    if fmt == "text":
+        for out in done:
+            click.echo("")
+            click.echo(stage.reliability_table(stage.load_report(out)))

@@ -315,10 +315,12 @@ def test_tabulate_formats(hand, tmp_path):
     assert lines[0].split()[:5] == ["run", "method", "frames", "matched", "failures"]
     assert "<=10cm" in lines[0] and "<=40cm" in lines[0] and "runtime" in lines[0]
     row_a, row_b = lines[1].split(), lines[2].split()
-    # run, method, frames, matched, failures, median cm, p90 cm, heading deg, within %, ms
-    assert row_a[1:] == ["lut", "5", "5", "1", "30.0", "inf", "3.00", "20.0", "40.0", "60.0",
-                         "3.000"]
-    assert row_b[0].endswith("b") and row_b[1:6] == ["mcl", "2", "2", "0", "3.0"]
+    # run, method, frames, matched, failures, accepted, median cm, p90 cm, heading deg,
+    # within %, top and top-K within 40 cm %, mirror %, AUROC, ms (v1-style tracks: every frame
+    # that did not fail is accepted, with one hypothesis)
+    assert row_a[1:] == ["lut", "5", "5", "1", "4", "30.0", "inf", "3.00", "20.0", "40.0",
+                         "60.0", "60.0", "60.0", "0.0", "0.500", "3.000"]
+    assert row_b[0].endswith("b") and row_b[1:7] == ["mcl", "2", "2", "0", "2", "3.0"]
     # numeric columns are right-aligned: every row ends at the same column as the header
     widths = {len(line) for line in lines}
     assert len(widths) == 1
@@ -326,7 +328,7 @@ def test_tabulate_formats(hand, tmp_path):
     md = tabulate([a, b], fmt="markdown").splitlines()
     assert md[0].startswith("| run") and set(md[1]) <= {"|", "-", ":"}
     rows = list(csv.reader(tabulate([a, b], fmt="csv").splitlines()))
-    assert rows[0][0] == "run" and rows[1][5] == "30.0" and len(rows) == 3
+    assert rows[0][0] == "run" and rows[1][6] == "30.0" and len(rows) == 3
     with pytest.raises(FieldlocError, match="format"):
         tabulate([a], fmt="html")
 
@@ -343,8 +345,11 @@ def test_cli_round_trip(hand, tmp_path):
     res = runner.invoke(cli, ["evaluate", str(poses), str(p2), "--truth", str(truth),
                               "-o", str(tmp_path / "reports")])
     assert res.exit_code == 0, res.output
-    table = res.stdout.splitlines()
+    out = res.stdout.split("\n\n")  # the table, then each run's reliability table
+    table = out[0].splitlines()
     assert len(table) == 3 and table[0].startswith("run")
+    assert len(out) == 3 and all("reliability of the confidence" in o and "AUROC" in o
+                                 for o in out[1:])
     # two files named poses.h5: report folders disambiguated by their parent folders
     dirs = [f"{tmp_path.name}-poses", "mcl-poses"]  # in the order of the poses files
     assert sorted(p.name for p in (tmp_path / "reports").iterdir()) == sorted(dirs)

@@ -545,7 +545,9 @@ def test_rendered_frames_with_a_cable_near_the_robot_are_localised(msl2015_map, 
     points are the cable's, the normalised error at the true pose is far above what a mean-error
     threshold accepts (it made the previous rule reject these frames or jump to a place where
     the cable fits a line), yet the field lines in view fix the pose: every frame is localised
-    within 10 cm and 2 deg (IMU heading)."""
+    within 20 cm and 2 deg (IMU heading). (Within 10 cm while the fusion trusted every fix to 2
+    cm; a fix's covariance now follows its inliers' rms error, honest on a miscalibrated
+    camera, so this track follows the slightly biased odometry a little longer.)"""
     import copy
 
     from stages import extract, localize, simulate
@@ -581,7 +583,7 @@ def test_rendered_frames_with_a_cable_near_the_robot_are_localised(msl2015_map, 
     assert not p["failed"].any(), p["flags"]
     pos = np.hypot(p["x"] - t["x"], p["y"] - t["y"])
     head = np.degrees(np.abs(wrap_angle(p["theta"] - t["theta"])))
-    assert pos.max() <= 0.10, np.round(pos, 3)
+    assert pos.max() <= 0.20, np.round(pos, 3)
     assert head.max() <= 2.0, np.round(head, 2)
 
 

@@ -1,7 +1,8 @@
 """The poses artifact (schema ``fieldloc.poses``) written by ``localize``, and its TUM twin.
 
 Root attributes: the common ones plus ``method`` (lut, mcl, templates), ``field`` (name),
-``dataset``, ``min_confidence`` (the acceptance threshold the run used).
+``dataset``, ``method_report`` (JSON: what the method learnt over the run, e.g. lut's
+estimated calibration error).
 
     /poses/name        (N,) str    frame name
     /poses/stamp       (N,) f8     s
@@ -71,6 +72,7 @@ class PoseTrack:
     covariance: list = field(default_factory=list)
     flags: list = field(default_factory=list)
     hypotheses: list = field(default_factory=list)  # per frame (k, 4) x, y, theta, probability
+    meta: dict = field(default_factory=dict)  # what the method learnt over the run (JSON)
 
     def add(self, name, stamp, pose=None, *, error=math.nan, confidence=0.0, mode="",
             runtime=0.0, covariance=None, flags="", hypotheses=None, accepted=None):

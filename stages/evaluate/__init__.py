@@ -41,12 +41,14 @@ from .report import (
     SCHEMA,
     VERSION,
     load_report,
+    reliability_table,
     tabulate,
     write_errors_csv,
     write_report,
 )
 
-__all__ = ["confs", "main", "evaluate_poses", "tabulate", "load_report", "FrameErrors"]
+__all__ = ["confs", "main", "evaluate_poses", "tabulate", "reliability_table", "load_report",
+           "FrameErrors"]
 
 log = logging.getLogger("fieldloc.evaluate")
 
@@ -75,7 +77,7 @@ confs = {
     },
 }
 
-PLOT_NAMES = ("error_cdf.png", "trajectory.png", "error_over_time.png")
+PLOT_NAMES = ("error_cdf.png", "trajectory.png", "error_over_time.png", "reliability.png")
 
 CONVENTIONS = {
     "matching": "each frame is matched to the truth row nearest in stamp within"
@@ -87,6 +89,13 @@ CONVENTIONS = {
     " failures and runtime_ms over all frames",
     "heading": "absolute difference wrapped to [0, 180] deg",
     "json": "infinite values are the string \"inf\"; a statistic over no frames is null",
+    "acceptance": "position_error_m, heading_error_deg and within count every matched frame"
+    " without an accepted pose (failed, or its confidence below the method's acceptance"
+    " threshold) as a failure; hypotheses.* judge the top hypothesis (and the best of the"
+    " top K) of every frame that has one",
+    "calibration": "over matched frames with a hypothesis: correct = top hypothesis within"
+    " calibration.threshold_m of the truth; reliability bins the confidence in tenths;"
+    " auroc = P(confidence of a correct frame > that of a wrong one), ties half",
 }
 
 
@@ -206,7 +215,7 @@ def main(conf, poses, truth, output_dir, *, overwrite: bool = False, field=None)
         plot_files = write_report_plots(
             fe, plots_dir, thresholds=conf["thresholds"], title=title, field_model=fm,
             truth_path=_truth_path_during(truth_cols, fe, conf["stamp_tolerance"]),
-            dpi=int(conf["dpi"]))
+            dpi=int(conf["dpi"]), calibration=summary["calibration"])
     else:
         for name in PLOT_NAMES:  # a replaced report must not keep plots of the old one
             (plots_dir / name).unlink(missing_ok=True)

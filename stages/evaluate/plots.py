@@ -247,11 +247,44 @@ def plot_heading_error_over_time(ax, fe: FrameErrors):
 # ---------------------------------------------------------------------------- report figures
 
 
+def plot_reliability(ax, calibration: dict):
+    """The reliability diagram: per confidence bin the observed share of frames whose top
+    hypothesis is within the calibration threshold (with binomial standard errors) against
+    the bin's mean confidence, the diagonal of perfect calibration, and the bins' frame counts
+    as bars."""
+    rows = calibration.get("reliability") or []
+    ax.plot([0, 1], [0, 1], color="0.6", lw=1, ls="--", label="calibrated")
+    if rows:
+        conf = np.array([r["confidence"] for r in rows])
+        obs = np.array([r["observed"] for r in rows])
+        err = np.array([r["stderr"] for r in rows])
+        ax.errorbar(conf, obs, yerr=err, fmt="o-", color="tab:blue", capsize=3,
+                    label="observed")
+        counts = np.array([r["frames"] for r in rows], float)
+        lo = np.array([r["bin"][0] for r in rows])
+        ax2 = ax.twinx()
+        ax2.bar(lo, counts, width=0.1, align="edge", color="tab:gray", alpha=0.25)
+        ax2.set_ylabel("frames")
+    else:
+        ax.text(0.5, 0.5, "no frame with a hypothesis", ha="center", va="center",
+                transform=ax.transAxes)
+    thr = calibration.get("threshold_m", 0.4)
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, 1.02)
+    ax.set_xlabel("confidence of the top hypothesis")
+    ax.set_ylabel(f"share within {thr * 100:g} cm")
+    auroc = calibration.get("auroc")
+    if auroc is not None and np.isfinite(auroc):
+        ax.set_title(f"reliability (AUROC {auroc:.3f})")
+    ax.legend(loc="upper left")
+
+
 def write_report_plots(fe: FrameErrors, out_dir: str | Path, *, thresholds, title: str = "",
                        field_model: FieldModel | None = None, truth_path=None,
-                       dpi: int = 120) -> list[Path]:
-    """The report's PNGs in ``out_dir``: error_cdf.png, trajectory.png, error_over_time.png.
-    ``truth_path``: see ``plot_trajectories``."""
+                       dpi: int = 120, calibration: dict | None = None) -> list[Path]:
+    """The report's PNGs in ``out_dir``: error_cdf.png, trajectory.png, error_over_time.png and,
+    with ``calibration`` (metrics.calibration), reliability.png. ``truth_path``: see
+    ``plot_trajectories``."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
@@ -281,4 +314,9 @@ def write_report_plots(fe: FrameErrors, out_dir: str | Path, *, thresholds, titl
     plot_heading_error_over_time(ax_head, fe)
     ax_pos.set_title(f"{title}: error over time" if title else "error over time")
     written.append(save_figure(fig, out_dir / "error_over_time.png"))
+
+    if calibration is not None:
+        fig = new_figure(5.5, 4.5, dpi)
+        plot_reliability(fig.add_subplot(), calibration)
+        written.append(save_figure(fig, out_dir / "reliability.png"))
     return written

@@ -193,10 +193,10 @@ def table_rows(items) -> tuple[list[str], list[list[str]]]:
     loaded report dicts."""
     reports = [(_label(it), it if isinstance(it, dict) else load_report(it)) for it in items]
     keys = sorted({k for _, r in reports for k in r.get("within", {})}, key=float)
-    header = ["run", "method", "frames", "matched", "failures", "median cm", "p90 cm",
-              "heading median deg"]
+    header = ["run", "method", "frames", "matched", "failures", "accepted", "median cm",
+              "p90 cm", "heading median deg"]
     header += [f"<={float(k) * 100:g}cm %" for k in keys]
-    header += ["runtime ms"]
+    header += ["top <=40cm %", "top-K <=40cm %", "mirror %", "AUROC", "runtime ms"]
     rows = []
     for label, r in reports:
         pos = r.get("position_error_m", {})
@@ -207,21 +207,49 @@ def table_rows(items) -> tuple[list[str], list[list[str]]]:
             str(r.get("frames", "-")),
             str(r.get("matched", "-")),
             str(r.get("failures", "-")),
+            str(r.get("accepted", "-")),
             _fmt(pos.get("median"), 1, 100.0),
             _fmt(pos.get("p90"), 1, 100.0),
             _fmt(head.get("median"), 2),
         ]
         row += [_fmt(r.get("within", {}).get(k), 1, 100.0) for k in keys]
-        row += [_fmt(r.get("runtime_ms", {}).get("median"), 3)]
+        hyp = r.get("hypotheses", {})
+        row += [_fmt(hyp.get("top_within", {}).get("0.4"), 1, 100.0),
+                _fmt(hyp.get("best_within", {}).get("0.4"), 1, 100.0),
+                _fmt(hyp.get("top_mirrored"), 1, 100.0),
+                _fmt(r.get("calibration", {}).get("auroc"), 3),
+                _fmt(r.get("runtime_ms", {}).get("median"), 3)]
         rows.append(row)
     return header, rows
 
 
+def reliability_table(report: dict) -> str:
+    """The reliability table of a report as text: per confidence bin the frames, their mean
+    confidence and the observed share whose top hypothesis is within the calibration
+    threshold, with its standard error; then the AUROC."""
+    cal = report.get("calibration") or {}
+    rows = cal.get("reliability") or []
+    if not rows:
+        return f"{report.get('run', '?')}: no frame with a hypothesis"
+    lines = [f"{report.get('run', '?')}: reliability of the confidence (top hypothesis within"
+             f" {_fmt(cal.get('threshold_m'), 0, 100.0)} cm), {cal.get('frames')} frames"]
+    lines.append("  confidence   frames  mean conf  observed  +-")
+    for b in rows:
+        lo, hi = b["bin"]
+        lines.append(f"  {lo:.1f}-{hi:.1f}    {b['frames']:7d}  {_fmt(b['confidence'], 3):>9}"
+                     f"  {_fmt(b['observed'], 3):>8}  {_fmt(b['stderr'], 3)}")
+    lines.append(f"  AUROC {_fmt(cal.get('auroc'), 3)}, largest gap {_fmt(cal.get('max_gap'), 3)},"
+                 f" Brier {_fmt(cal.get('brier'), 3)}")
+    return "\n".join(lines)
+
+
 def tabulate(items, fmt: str = "text") -> str:
-    """One row per run: run, method, frames, matched, failures, median and p90 position error
-    (cm), median heading error (deg), share within each threshold (%), median runtime per frame
-    (ms). ``fmt``: "text" (aligned columns), "markdown" or "csv". inf prints as "inf"; a value
-    a report does not have as "-"."""
+    """One row per run: run, method, frames, matched, failures, accepted, median and p90
+    position error (cm, frames without an accepted pose count as failures), median heading
+    error (deg), share within each threshold (%), share of frames whose top hypothesis (or best
+    of the top K) is within 40 cm, share whose truth is the top's mirror image, AUROC of the
+    confidence, median runtime per frame (ms). ``fmt``: "text" (aligned columns), "markdown"
+    or "csv". inf prints as "inf"; a value a report does not have as "-"."""
     if fmt not in ("text", "markdown", "csv"):
         raise FieldlocError(f"unknown table format '{fmt}' (text, markdown, csv)")
     header, rows = table_rows(items)

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import csv
 import importlib
+import json
 import logging
 from pathlib import Path
 
@@ -206,7 +207,8 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path,
     finally:
         map_file.close()
     attrs = root_attrs(SCHEMA, VERSION, conf, inputs)
-    attrs.update(method=conf["method"], field=map_file.field.name, dataset=str(dataset_dir))
+    attrs.update(method=conf["method"], field=map_file.field.name, dataset=str(dataset_dir),
+                 method_report=json.dumps(track.meta, sort_keys=True))
     path = write_poses(output, track, attrs)
     n_failed = int(np.sum(track.failed))
     log.info("localize %s: %d frames, %d failed -> %s", conf["method"], len(track), n_failed,

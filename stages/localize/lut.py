@@ -83,6 +83,7 @@ error term over the heading.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -98,6 +99,8 @@ from . import heading as heading_mod
 from .kalman import DecentralisedFusion, FusionParams
 from .lut_search import MatchingParams, Observation, SearchResult, Support, TableSearch
 from .point_fit import PointFit
+from .radial_correction import DEFAULTS as RADIAL_DEFAULTS
+from .radial_correction import RadialCorrection
 
 log = logging.getLogger(__name__)
 
@@ -140,17 +143,20 @@ confs = {
         "global_every": 5,  # frames between global searches while tracking
         "null_copies": 2,  # random-bearing copies of the observations (median), global
         "tracked_null_copies": 1,  # ... tracked frames (their window is small)
-        "max_tracks": 4,  # hypotheses tracked at once
+        "max_tracks": 8,  # hypotheses tracked at once
         "prune_probability": 1e-4,  # tracks below this probability are dropped
         "hypotheses": 5,  # hypotheses listed per frame
-        "min_confidence": 0.5,  # a frame is accepted at this confidence (calibrated)
+        "min_confidence": 0.8,  # a frame is accepted at this confidence (calibrated: 0.2 % of
+        # the rendered calibration frames accepted and more than 1 m off, README)
         "inlier_error": 0.125,  # m, an observation within this of its predicted crossing is
         # an inlier of the fix (c / 2: rho = 0.2); reported, and shapes the covariance
         "prior_outlier_probability": 0.01,  # a track's prior is wrong beyond its covariance
         # (a Gaussian with a uniform floor over the window: caps the Mahalanobis term)
         "gate_sigmas": 3.0,  # the window's reach in sigmas of the prior (see _lost)
         "min_gate": 0.3,  # m, floor of the innovation's sigma times gate_sigmas
-        "vision_sigma_xy": 0.02,  # m, noise of a well-constrained fix (tuned on rendered sets)
+        "vision_sigma_xy": 0.01,  # m, smallest position sigma of a well-constrained fix
+        "vision_rms_factor": 2.5,  # its sigma per m of its inliers' rms error
+        # (vision_covariance; fused poses consistent with their covariance, NEES, README)
         "search": {
             "c": 0.25,  # m, scale of 1 - c^2 / (c^2 + e^2)
             "range_scale": 2.0,  # m, weight 1 / (1 + (d / range_scale)^2): nearer weigh more
@@ -163,6 +169,8 @@ confs = {
             "enabled": True,
             **{k: getattr(FusionParams, k) for k in FusionParams.__dataclass_fields__},
         },
+        # online estimate of the calibration's distance error (radial_correction.py)
+        "radial_correction": dict(RADIAL_DEFAULTS),
     },
 }
 confs["no-fusion"] = {**confs["default"], "fusion": {**confs["default"]["fusion"],
@@ -209,18 +217,22 @@ def vision_covariance(result: SearchResult, support: Support, conf: dict,
     ref = 1.0 / (c * c)
     h = result.hessian
     cov = np.zeros((3, 3))
+    # the fix is as good as its inliers fit: their rms error times vision_rms_factor (not
+    # divided by their number: a biased mirror calibration moves them together, and the fit
+    # absorbs part of the bias), at least vision_sigma_xy
+    rms = support.inlier_rms if math.isfinite(support.inlier_rms) else c
+    s = ref * max(conf["vision_rms_factor"] * rms, conf["vision_sigma_xy"]) ** 2
     hxx, hxy, hyy = float(h[0, 0]), float(0.5 * (h[0, 1] + h[1, 0])), float(h[1, 1])
     if math.isfinite(hxx) and math.isfinite(hxy) and math.isfinite(hyy):
         # the Hessian's eigenvalues clipped from below, inverted, scaled
         (l1, l2), (ux, uy) = _eig2(hxx, hxy, hyy)
-        s = ref * conf["vision_sigma_xy"] ** 2 * (1.0 + support.inlier_rho / 0.05)
         v1 = min(s / max(l1, 0.002 * ref), 1.0)  # capped at 1 m^2
         v2 = min(s / max(l2, 0.002 * ref), 1.0)
         cov[0, 0] = v1 * ux * ux + v2 * uy * uy
         cov[1, 1] = v1 * uy * uy + v2 * ux * ux
         cov[0, 1] = cov[1, 0] = (v1 - v2) * ux * uy
     else:
-        cov[0, 0] = cov[1, 1] = min(1.0 + support.inlier_rho / 0.05, 1.0)
+        cov[0, 0] = cov[1, 1] = 1.0
     cov[2, 2] = heading_sigma**2
     return cov
 
@@ -344,6 +356,9 @@ class LutLocaliser:
         self.top_ident = None
         self._next_ident = 0
         self.rng = np.random.default_rng(seed)
+        rc = conf["radial_correction"]
+        self.radial = (RadialCorrection.from_conf(rc, search.scanlines.robot_radius)
+                       if rc["enabled"] and not conf["independent"] else None)
 
     # ------------------------------------------------------------------ book-keeping
     def failed(self, dt: float, odo, collision: bool):
@@ -388,6 +403,10 @@ class LutLocaliser:
                                          sl.robot_radius)
         if len(obs) < conf["min_observations"]:
             raise FrameFailed("too-few-observations")
+        raw_distance = obs.distance
+        if self.radial is not None and self.radial.active:  # the calibration's error removed
+            d = self.radial.correct(raw_distance)
+            obs = dataclasses.replace(obs, distance=d, weight=search.params.weight(d))
         ev = conf["evidence"]
         obs = obs.with_evidence(sl, ev["per_structure"], ev["link"], ev["link_per_m"])
         self._points = obs.points(sl)
@@ -446,6 +465,7 @@ class LutLocaliser:
         top = self._update_tracks(i, cands, float(logs[-1]), dt, odo, col)
         hyps = self._hypotheses()
         self._track_imu_offset(i, obs, top, col)
+        self._learn_radial(obs, raw_distance, top, hyps, col)
         pose = hyps[0, :3]
         cov = self.tracks[0].cov
         if top.track is None and tracked:
@@ -550,6 +570,19 @@ class LutLocaliser:
         fix, _wmin, _score = search.tracked_search(obs, theta, prior_pose[:2], info,
                                                    self.T / scale, half_width=self.half,
                                                    prior_cap=self.prior_cap)
+        if math.hypot(fix.x - prior_pose[0], fix.y - prior_pose[1]) > search.grid.resolution:
+            # the window's choice rests on the lookup's quantised error term, the basin the
+            # prior lies in may fit better by the exact one: the better of the two
+            own = search.refine(obs, search._cell_of(float(prior_pose[0]), float(prior_pose[1])),
+                                theta)
+
+            def score(f):
+                d = np.array([f.x - prior_pose[0], f.y - prior_pose[1]])
+                return f.error / self.T + min(0.5 * float(d @ info @ d), self.prior_cap)
+
+            if score(own) < score(fix):
+                own.mode, own.at_window_edge = "local", False
+                fix = own
         heading_sigma = self.heading_sigma
         if by_vision:
             rh, curv = search.refine_heading(obs, fix.cell, fix.theta)
@@ -574,7 +607,7 @@ class LutLocaliser:
         m2 = min(float(d @ self._innovation_information(prior_cov, R) @ d), 2 * self.prior_cap)
         return Candidate(fix=fix, support=sup, R=R, track=t, mirror=t.mirror,
                          evidence=evidence, fit=fit,
-                         prior=(prior_pose, info),
+                         prior=(prior_pose, info, prior_cov),
                          log_prior=t.log_weight + math.log1p(-conf["kidnap_probability"])
                          - 0.5 * m2)
 
@@ -708,7 +741,7 @@ class LutLocaliser:
         strongest track's search reaches for them (module doc)."""
         search = self.search
         top = max(tracked, key=lambda c: c.log_prior - c.fit)
-        pose, info = top.prior
+        pose, info, _cov = top.prior
         fits = []
         for _ in range(int(self.conf["tracked_null_copies"])):
             nobs = self._null_copy(obs)
@@ -805,6 +838,20 @@ class LutLocaliser:
         rows.sort(key=lambda r: -r[3])  # stable: a track before its mirror on a tie
         return np.array(rows[:int(self.conf["hypotheses"])], float)
 
+    def _learn_radial(self, obs, raw_distance, top: Candidate, hyps, col):
+        """The crossings of a confident tracked frame against their predictions at the fused
+        pose, into the radial correction (radial_correction.py)."""
+        rc = self.radial
+        if (rc is None or top.track is None or col or not self.tracks
+                or hyps[0, 3] < self.conf["radial_correction"]["min_confidence"]):
+            return
+        pose = self.tracks[0].pose
+        if self.symmetric and not _near_pose(hyps[0], pose, 0.3, 0.2):
+            return  # the mirror leads: its crossings predict the same distances anyway
+        pred = self.search.observation_predictions(
+            obs, self.search._cell_of(float(pose[0]), float(pose[1])), float(pose[2]))
+        rc.update(raw_distance, pred)
+
     def _track_imu_offset(self, i, obs, top: Candidate, col):
         """IMU alignment: initialised on the first fix of the unknown-heading search
         (``imu_alignment: vision``), then updated from the vision heading every
@@ -858,6 +905,7 @@ def run(conf: dict, dataset, features, map_file: MapFile, progress=False) -> Pos
                 if conf["heading"] == "truth" else None)
     loc = LutLocaliser(conf, search, point_fit(map_file, search.params), yaw=yaw,
                        collision=collision, truth_heading=truth_th)
+    track = PoseTrack()
 
     track = PoseTrack()
     prev_stamp = None
@@ -885,6 +933,8 @@ def run(conf: dict, dataset, features, map_file: MapFile, progress=False) -> Pos
         track.add(name, stamp, pose, error=top.fix.error_norm, confidence=float(hyps[0, 3]),
                   mode=top.fix.mode, runtime=time.perf_counter() - t0, covariance=cov,
                   flags=",".join(flags), hypotheses=hyps, accepted=accepted)
+    if loc.radial is not None:
+        track.meta["radial_correction"] = loc.radial.summary()
     return track
 
 

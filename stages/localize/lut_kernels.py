@@ -51,12 +51,12 @@ def lookup_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spi
 
 
 @njit(cache=True, nogil=True, inline="always")
-def observation_error(radial_flat, spiral_flat, ncell, n_angles, fam, ai, d, tol, c, m0, a32,
-                      b32, upper, interpolate):
-    """Error (m) of one observation (family ``fam``, scan line ``ai``, distance ``d``) at flat
-    cell ``c``: at table heading m0 the distance to the nearest crossing of its scan line
-    (``interpolate`` False); between m0 and m0 + 1 (fraction a32 = 1 - b32) the distance to
-    the angle-interpolated prediction (``TableSearch.exact_error_at_heading``)."""
+def observation_prediction(radial_flat, spiral_flat, ncell, n_angles, fam, ai, d, tol, c, m0,
+                           a32, b32, upper, interpolate):
+    """The crossing distance (m) predicted for one observation (family ``fam``, scan line
+    ``ai``, distance ``d``) at flat cell ``c``: at table heading m0 the nearest crossing of its
+    scan line (``interpolate`` False); between m0 and m0 + 1 (fraction a32 = 1 - b32) the
+    angle-interpolated prediction (``TableSearch.exact_error_at_heading``)."""
     k0 = (ai + m0) % n_angles
     k1 = (k0 + 1) % n_angles
     if fam == 0:
@@ -69,7 +69,7 @@ def observation_error(radial_flat, spiral_flat, ncell, n_angles, fam, ai, d, tol
                 n0 = t
                 e0 = abs(t - d)
         if not interpolate:
-            return e0
+            return n0
         r1 = k1 * MAX_CROSSINGS * ncell
         n1 = radial_flat[r1 + c]
         e1 = abs(n1 - d)
@@ -79,16 +79,24 @@ def observation_error(radial_flat, spiral_flat, ncell, n_angles, fam, ai, d, tol
                 n1 = t
                 e1 = abs(t - d)
         if abs(n0 - n1) < tol:
-            return abs((b32 * n0 + a32 * n1) - d)
-        return e1 if upper else e0
+            return b32 * n0 + a32 * n1
+        return n1 if upper else n0
     base = (fam - 1) * n_angles
     t0 = spiral_flat[(base + k0) * ncell + c]
     if not interpolate:
-        return abs(t0 - d)
+        return t0
     t1 = spiral_flat[(base + k1) * ncell + c]
     if abs(t0 - t1) < tol:
-        return abs((b32 * t0 + a32 * t1) - d)
-    return abs(t1 - d) if upper else abs(t0 - d)
+        return b32 * t0 + a32 * t1
+    return t1 if upper else t0
+
+
+@njit(cache=True, nogil=True, inline="always")
+def observation_error(radial_flat, spiral_flat, ncell, n_angles, fam, ai, d, tol, c, m0, a32,
+                      b32, upper, interpolate):
+    """Error (m) of one observation at flat cell ``c``: |d - observation_prediction|."""
+    return abs(observation_prediction(radial_flat, spiral_flat, ncell, n_angles, fam, ai, d,
+                                      tol, c, m0, a32, b32, upper, interpolate) - d)
 
 
 @njit("void(float32[::1], float32[::1], int64, int64, int64[::1], int64[::1], float32[::1],"
@@ -123,6 +131,20 @@ def observation_errors_cell(radial_flat, spiral_flat, ncell, n_angles, family, a
         out[o] = observation_error(radial_flat, spiral_flat, ncell, n_angles, family[o],
                                    angle_index[o], dist[o], tol, cell, m0, a32, b32, upper,
                                    interpolate)
+
+
+@njit("void(float32[::1], float32[::1], int64, int64, int64[::1], int64[::1], float32[::1],"
+      " float32, int64, int64, float64, boolean, float64[::1])", cache=True, nogil=True)
+def observation_predictions_cell(radial_flat, spiral_flat, ncell, n_angles, family,
+                                 angle_index, dist, tol, cell, m0, a, interpolate, out):
+    """out[i] = predicted crossing distance (m) of observation i at flat cell ``cell``."""
+    a32 = np.float32(a)
+    b32 = np.float32(1.0) - a32
+    upper = a > 0.5
+    for o in range(dist.shape[0]):
+        out[o] = observation_prediction(radial_flat, spiral_flat, ncell, n_angles, family[o],
+                                        angle_index[o], dist[o], tol, cell, m0, a32, b32,
+                                        upper, interpolate)
 
 
 @njit("int64(float32[::1], float32[::1], int64, int64, int64[::1], int64[::1], float32[::1],"
@@ -328,17 +350,20 @@ def observation_points(family, angle_index, distance, angle_step, robot_radius,
     return out
 
 
-@njit("UniTuple(float64, 3)(float64[::1], float64[::1], float64, float64)", cache=True,
+@njit("UniTuple(float64, 4)(float64[::1], float64[::1], float64, float64)", cache=True,
       nogil=True)
 def inlier_sums(errors, weight, inlier_error, c2):
-    """(inliers, their weight, their weighted rho) of observations with ``errors`` (m)."""
+    """(inliers, their weight, their weighted rho, their weighted squared error) of
+    observations with ``errors`` (m)."""
     n = 0.0
     w_in = 0.0
     rho = 0.0
+    sq = 0.0
     for i in range(errors.shape[0]):
         e = errors[i]
         if e < inlier_error:
             n += 1.0
             w_in += weight[i]
             rho += weight[i] * (e * e / (c2 + e * e))
-    return n, w_in, rho
+            sq += weight[i] * e * e
+    return n, w_in, rho, sq

@@ -59,6 +59,7 @@ from .lut_kernels import (
     lookup_sum,
     observation_errors_cell,
     observation_points,
+    observation_predictions_cell,
     quadratic_fit,
     refine_moves,
     structure_sizes,
@@ -215,6 +216,7 @@ class Support:
     inlier_weight: float  # sum of the inliers' weights w(d)
     total_weight: float  # sum of all observations' weights
     inlier_rho: float  # weighted mean of rho(e) over the inliers, in [0, 0.2) for c / 2
+    inlier_rms: float = math.nan  # m, weighted root mean square error of the inliers
 
     @property
     def inlier_share(self) -> float:
@@ -358,6 +360,17 @@ class TableSearch:
                                 m0, a, interpolate, out)
         return out
 
+    def observation_predictions(self, obs: Observation, cell, theta: float) -> np.ndarray:
+        """Per observation, the crossing distance (m) its scan line predicts at one cell and a
+        continuous heading (the prediction ``observation_errors`` measures against)."""
+        m0, a, interpolate = self._heading_args(theta)
+        out = np.empty(len(obs))
+        arrays = self._kernel_arrays(obs)
+        observation_predictions_cell(*arrays[:7], arrays[8],
+                                     int(cell[0]) * self.nx + int(cell[1]), m0, a,
+                                     interpolate, out)
+        return out
+
     def _heading_args(self, theta: float) -> tuple[int, float, bool]:
         """(m0, a, interpolate) of the kernels for a continuous heading: the table heading
         below it and the fraction of the step, or the nearest table heading when the heading
@@ -379,10 +392,11 @@ class TableSearch:
         """The inliers of a fix: observations with error below ``inlier_error`` (m) at the
         cell nearest the fix's position, at its heading."""
         e = self.observation_errors(obs, self._cell_of(result.x, result.y), result.theta)
-        n, w_in, rho = inlier_sums(e, np.ascontiguousarray(obs.weight, dtype=np.float64),
-                                   float(inlier_error), self.params.c * self.params.c)
+        n, w_in, rho, sq = inlier_sums(e, np.ascontiguousarray(obs.weight, dtype=np.float64),
+                                       float(inlier_error), self.params.c * self.params.c)
         return Support(observations=len(obs), inliers=int(n), inlier_weight=w_in,
-                       total_weight=obs.total_weight, inlier_rho=rho / w_in if w_in else 0.0)
+                       total_weight=obs.total_weight, inlier_rho=rho / w_in if w_in else 0.0,
+                       inlier_rms=math.sqrt(sq / w_in) if w_in else math.nan)
 
     def _cell_of(self, x: float, y: float) -> tuple[int, int]:
         """Grid.cell_of for one point, in scalar arithmetic."""

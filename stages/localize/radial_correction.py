@@ -1,0 +1,123 @@
+"""Online correction of an omni camera's distance calibration from the tracked frames.
+
+A catadioptric mirror's calibration (calib.yaml's f(r)) is rarely exact: a team's mirror table
+read by hand, or a fit that bends between its pairs, puts a line at distance d at d + e(d),
+with e smooth in d and growing with it (minho-distance: 4-16 cm at 1-2 m). Every crossing then
+lies a little off its table entry, and a frame's fix is pulled by the mismatch.
+
+While the robot is localised with confidence, each crossing's distance d (as observed) and the
+distance its scan line predicts at the fused pose, p, measure e(d) = d - p. The error is
+modelled as a polynomial in the distance from the robot's own radius r0,
+
+    e(d) = sum_k a_k ((d - r0) / scale)^k,   k = 1 .. degree
+
+(zero at r0, where the mirror's centre is best known), and the coefficients are estimated by
+recursive least squares with exponential forgetting over the crossings of confident frames whose
+residual lies within ``max_residual`` of the current e(d) (the rest are other lines or
+clutter), each with a spread of ``noise``, from a zero-mean prior (``prior_sigma``: the error
+at ``scale`` m it allows before data). Observations are corrected, d -> d - e(d), once
+``min_points`` crossings are in.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+DEFAULTS = {
+    "enabled": True,
+    "degree": 3,
+    "scale": 2.0,  # m, the unit of the polynomial's variable
+    "prior_sigma": 0.1,  # m, prior spread of each coefficient (the error at `scale` m)
+    "forgetting": 0.998,  # per frame used (the calibration drifts slowly, if at all)
+    "min_points": 300,  # crossings in before the correction is applied
+    "max_residual": 0.25,  # m, crossings farther from their prediction are not used
+    "noise": 0.05,  # m, spread of one crossing's residual about e(d)
+    "min_confidence": 0.99,  # frames whose top hypothesis is less sure are not used
+}
+
+
+@dataclass
+class RadialCorrection:
+    """e(d) by recursive least squares (module doc)."""
+
+    robot_radius: float
+    degree: int = 3
+    scale: float = 2.0
+    prior_sigma: float = 0.1
+    forgetting: float = 0.998
+    min_points: int = 300
+    max_residual: float = 0.25
+    noise: float = 0.05
+    points: float = 0.0  # crossings used (decayed with the forgetting)
+    coef: np.ndarray = field(default=None)  # a_1 .. a_degree (m)
+    info: np.ndarray = field(default=None)  # information matrix of the coefficients
+    vec: np.ndarray = field(default=None)  # information vector
+
+    def __post_init__(self):
+        n = int(self.degree)
+        self.coef = np.zeros(n)
+        self.info = np.eye(n) / self.prior_sigma**2
+        self.vec = np.zeros(n)
+
+    @classmethod
+    def from_conf(cls, conf: dict, robot_radius: float) -> RadialCorrection:
+        c = dict(DEFAULTS, **conf)
+        return cls(robot_radius=float(robot_radius), degree=int(c["degree"]),
+                   scale=float(c["scale"]), prior_sigma=float(c["prior_sigma"]),
+                   forgetting=float(c["forgetting"]), min_points=int(c["min_points"]),
+                   max_residual=float(c["max_residual"]), noise=float(c["noise"]))
+
+    @property
+    def active(self) -> bool:
+        return self.points >= self.min_points
+
+    def _basis(self, d) -> np.ndarray:
+        u = (np.asarray(d, float) - self.robot_radius) / self.scale
+        return np.stack([u ** (k + 1) for k in range(len(self.coef))], axis=-1)
+
+    def error(self, d) -> np.ndarray:
+        """e(d) (m) of observed distances d (zero until active)."""
+        d = np.asarray(d, float)
+        if not self.active:
+            return np.zeros_like(d)
+        return self._basis(d) @ self.coef
+
+    def correct(self, d) -> np.ndarray:
+        """Observed distances with the estimated error removed."""
+        return np.asarray(d, float) - self.error(d)
+
+    def update(self, observed, predicted):
+        """Add one frame's crossings: ``observed`` distances (as the camera gave them) and the
+        distances their scan lines predict at the frame's pose."""
+        d = np.asarray(observed, float)
+        r = d - np.asarray(predicted, float)
+        keep = np.isfinite(r) & (np.abs(r - self.error(d)) <= self.max_residual)
+        if not keep.any():
+            return
+        A = self._basis(d[keep])
+        prior = np.eye(len(self.coef)) / self.prior_sigma**2
+        lam = self.forgetting
+        # forget towards the prior, then add the frame
+        self.info = lam * self.info + (1 - lam) * prior + A.T @ A / self.noise**2
+        self.vec = lam * self.vec + A.T @ r[keep] / self.noise**2
+        self.points = lam * self.points + int(keep.sum())
+        self.coef = np.linalg.solve(self.info, self.vec)
+
+    def summary(self, at=(1.0, 2.0, 3.0, 4.0)) -> dict:
+        """The estimated error (m) at a few distances, and the crossings used."""
+        return {"points": float(self.points), "active": bool(self.active),
+                "error_m": {f"{d:g}": float(self._basis(d) @ self.coef) for d in at},
+                "coefficients": [float(a) for a in self.coef],
+                "scale_m": self.scale, "robot_radius_m": self.robot_radius}
+
+
+def residual_sigma(correction: RadialCorrection) -> float:
+    """Largest standard deviation of e(d) over 0..4 m implied by the coefficients' posterior
+    (for reports)."""
+    cov = np.linalg.inv(correction.info)
+    d = np.linspace(correction.robot_radius, 4.0, 16)
+    A = correction._basis(d)
+    return float(math.sqrt(max(np.max(np.einsum("ij,jk,ik->i", A, cov, A)), 0.0)))
