@@ -230,6 +230,12 @@ def estimate_field_colour(yuv: np.ndarray, conf: dict, valid: np.ndarray | None 
         cand &= y8 >= min(math.ceil(y0), 256)
     if y1 < 255:
         cand &= y8 <= max(math.floor(y1), -1)
+    min_sat = float(conf.get("green_min_saturation", 0.0))
+    if min_sat > 0:  # chroma relative to luminance: a lit white wall's tint is no field
+        du = u8.astype(np.float32) - np.float32(128.0)
+        dv = v8.astype(np.float32) - np.float32(128.0)
+        cand &= du * du + dv * dv >= np.float32(min_sat * min_sat) * (
+            y8.astype(np.float32) ** 2)
     found = False
     u_c, v_c = (float(a) for a in conf["green_nominal_uv"])
     spread = 0.0
@@ -467,13 +473,17 @@ def _counts(green: np.ndarray, white: np.ndarray, cell: int) -> np.ndarray:
 
 
 def classify_grid(image_bgr: np.ndarray, conf: dict, valid: np.ndarray | None = None,
-                  cell: int = 8, step: int = 1) -> tuple[np.ndarray, FieldColour]:
+                  cell: int = 8, step: int = 1, green_from: np.ndarray | None = None,
+                  white_out: np.ndarray | None = None) -> tuple[np.ndarray, FieldColour]:
     """Class counts per cell x cell block of a BGR image (see class_counts) and the frame's
     field colour. ``step`` > 1 classifies only every ``step``-th pixel of every ``step``-th
     row ((cell / step)^2 pixels per cell, counts scaled by step^2; the field colour is
-    estimated as for step 1); it must divide ``cell`` and ``local_cell``."""
+    estimated as for step 1); it must divide ``cell`` and ``local_cell``. ``green_from``: bool
+    mask (h, w) of the pixels the field green is estimated from (default ``valid``; a
+    perspective camera's floor below the horizon). ``white_out``: a bool array of the
+    (subsampled) image's shape that receives the white mask."""
     yuv = to_yuv(image_bgr)
-    fc = estimate_field_colour(yuv, conf, valid)
+    fc = estimate_field_colour(yuv, conf, valid if green_from is None else green_from)
     h, w = yuv.shape[:2]
     out = np.empty((h // cell, w // cell, 3), dtype=np.uint16)
     if step > 1:
@@ -489,6 +499,8 @@ def classify_grid(image_bgr: np.ndarray, conf: dict, valid: np.ndarray | None = 
                                              fc.cell // step):
         counts = _counts(green, white, sub)
         out[r0 // sub: r1 // sub] = counts if step == 1 else counts * (step * step)
+        if white_out is not None:
+            white_out[r0:r1, :white.shape[1]] = white
     return out, fc
 
 

@@ -38,7 +38,13 @@ from .crossings import (
 )
 from .field_boundary import DEFAULT_WEIGHTS, boundary_polyline, field_boundary
 from .goal_posts import goal_posts
-from .line_fit import floor_line_parameters, line_components, split_and_merge
+from .line_fit import (
+    RefinedLine,
+    floor_line_parameters,
+    line_components,
+    refine_segment,
+    split_and_merge,
+)
 from .line_structure import (
     key_structure,
     line_structure_graph,
@@ -49,7 +55,11 @@ from .line_structure import (
 confs = {
     "default": {
         "cell": 8,  # px per subsampled cell (the seed's 94 x 60 grid for 752 x 480)
-        "colour": copy.deepcopy(colour.confs["default"]),
+        "colour": {**copy.deepcopy(colour.confs["default"]),
+                   # green candidates need chroma >= this share of their luminance: lit white
+                   # walls and grey hall floors hold only a faint tint (saturation < 0.05 on
+                   # the HULKs frames), carpet green 0.2-0.6
+                   "green_min_saturation": 0.15},
         # classify every colour_step-th pixel of every colour_step-th row (1: all 64 pixels of
         # a cell, as the seed; 2: 16 per cell, counts scaled, see colour.classify_grid)
         "colour_step": 1,
@@ -63,6 +73,13 @@ confs = {
             "t_win": 0.75,  # mean grey of the 8 x 4 window below for weak cells
             "t_weak": 0.2,  # weak cells below this are never field
             "max_gap": 4,  # scan stops after more than this many non-field cells
+            # the scan starts at each column's lowest field cell (the robot's own body and
+            # feet cover the bottom of a NAO's lower camera)
+            "from_lowest": True,
+            # white runs between field cells of a row or column, up to line_run cells, are
+            # lines on the field (a near line along the view is many cells tall)
+            "line_white": 0.3,
+            "line_run": 10,
             "gauss_sigma": 0.7,  # bins
             "median_size": 5,  # bins
         },
@@ -137,6 +154,18 @@ confs = {
             "min_length": 0.3,  # m, shorter lines are not used
             "max_distance": 6.0,  # m, lines whose perpendicular is longer are not used
             "full_nodes": 8,  # nodes at which a line's confidence is 1
+            # refinement on the full-resolution white mask (line_fit.refine_segment):
+            # profiles across the segment every refine_step px, refine_reach cells to each
+            # side, from refine_extend cells before to after its ends
+            "refine": True,
+            "refine_step": 4.0,
+            "refine_reach": 2.0,
+            "refine_extend": 0.5,
+            "refine_min_points": 4,
+            # the white runs' median width over a painted line's (line_width m) at their
+            # floor positions: a seam or cable is thinner, a robot's leg or a post wider
+            "line_width": 0.05,
+            "width_ratio": [0.4, 2.5],
         },
     },
 }
@@ -180,19 +209,20 @@ class IdealPixels:
         return np.stack([o.ravel() for o in out], axis=1).astype(np.float64)
 
 
-_IDEAL_CACHE: dict[int, tuple[object, IdealPixels]] = {}
+_IDEAL_CACHE: dict[tuple, IdealPixels] = {}
 
 
 def ideal_pixels(camera) -> IdealPixels:
-    """The (cached) undistortion table of a camera."""
-    key = id(camera)
+    """The (cached) undistortion table of a camera's intrinsics and lens (the same for every
+    pose of the head, see PerspectiveCamera.with_pose)."""
+    key = (tuple(camera.image_size), camera.fx, camera.fy, camera.cx, camera.cy,
+           tuple(camera.distortion.tolist()))
     hit = _IDEAL_CACHE.get(key)
-    if hit is None or hit[0] is not camera:
+    if hit is None:
         if len(_IDEAL_CACHE) > 8:
             _IDEAL_CACHE.clear()
-        hit = (camera, IdealPixels(camera))
-        _IDEAL_CACHE[key] = hit
-    return hit[1]
+        hit = _IDEAL_CACHE[key] = IdealPixels(camera)
+    return hit
 
 
 class FloorProjection:
@@ -205,6 +235,7 @@ class FloorProjection:
         m = camera.rotation(pitch, roll) @ np.linalg.inv(camera.camera_matrix)
         self.m = m
         self.height = float(camera.height)
+        self.position = np.asarray(camera.position, float)
 
     def __call__(self, ideal) -> np.ndarray:
         p = np.asarray(ideal, float).reshape(-1, 2)
@@ -212,7 +243,19 @@ class FloorProjection:
         down = rays[:, 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             t = np.where(down < -1e-9, self.height / -down, np.nan)
-        return rays[:, :2] * t[:, None]
+        floor = rays[:, :2] * t[:, None]
+        if self.position.any():
+            floor += self.position
+        return floor
+
+    def to_ideal(self, floor) -> np.ndarray:
+        """Floor points (N, 2) in the robot frame -> ideal pixels (N, 2) (NaN behind the
+        camera)."""
+        p = np.asarray(floor, float).reshape(-1, 2) - self.position
+        rel = np.concatenate([p, np.full((len(p), 1), -self.height)], axis=1)
+        h = rel @ np.linalg.inv(self.m).T  # homogeneous ideal pixels
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(h[:, 2:] > 1e-9, h[:, :2] / h[:, 2:], np.nan)
 
 
 def ideal_to_floor(camera, ideal, pitch=None, roll=None) -> np.ndarray:
@@ -236,24 +279,56 @@ def _empty(n: int) -> np.ndarray:
     return np.zeros((0, n), np.float32)
 
 
-def colour_shares(image_bgr: np.ndarray, conf: dict) -> dict[str, np.ndarray]:
-    """Step 1: the subsampled colour-class images as counts (0..cell^2) per class name."""
+def below_horizon(camera, shape, cell: int, pitch=None, roll=None) -> np.ndarray:
+    """Bool mask (h, w) of the pixels whose cell (``cell`` x ``cell`` blocks) has its centre's
+    viewing ray pointing below the horizon, where the floor can be."""
+    h, w = shape[:2]
+    hb, wb = -(-h // cell), -(-w // cell)
+    gy, gx = np.mgrid[0:hb, 0:wb]
+    centres = grid_to_pixels(np.stack([gx.ravel(), gy.ravel()], axis=1), cell)
+    m = camera.rotation(pitch, roll) @ np.linalg.inv(camera.camera_matrix)
+    ideal = ideal_pixels(camera)(centres)
+    down = (ideal @ m[2, :2] + m[2, 2]) < 0  # NaN (outside the lens model) compares False
+    cells = down.reshape(hb, wb)
+    return np.repeat(np.repeat(cells, cell, axis=0), cell, axis=1)[:h, :w]
+
+
+def colour_shares(image_bgr: np.ndarray, conf: dict, camera=None, pitch=None, roll=None
+                  ) -> dict[str, np.ndarray]:
+    """Step 1: the subsampled colour-class images as counts (0..cell^2) per class name. The
+    field green is estimated from the floor below the horizon when the camera is given (walls
+    and the hall's other floor hold large areas of faintly green-tinted grey)."""
     cell = conf["cell"]
-    counts, _ = colour.classify_grid(image_bgr, conf["colour"], None, cell,
-                                     int(conf.get("colour_step", 1)))
-    return {name: counts[..., i] for i, name in enumerate(colour.CLASS_NAMES)}
+    floor = None if camera is None else below_horizon(camera, image_bgr.shape, cell, pitch,
+                                                      roll)
+    step = int(conf.get("colour_step", 1))
+    white_px = np.zeros(image_bgr.shape[:2], bool) if step == 1 else None
+    counts, _ = colour.classify_grid(image_bgr, conf["colour"], None, cell, step,
+                                     green_from=floor, white_out=white_px)
+    out = {name: counts[..., i] for i, name in enumerate(colour.CLASS_NAMES)}
+    if white_px is not None:
+        out["white_px"] = white_px.view(np.uint8).astype(np.float32)
+    return out
 
 
 def extract_frame(image_bgr: np.ndarray, camera, conf: dict, pitch: float | None = None,
-                  roll: float | None = None, **frame_info) -> dict[str, np.ndarray]:
+                  roll: float | None = None, yaw: float | None = None,
+                  height: float | None = None, x: float | None = None, y: float | None = None,
+                  **frame_info) -> dict[str, np.ndarray]:
     """The seed-000 chain on one BGR frame; ``camera`` is a PerspectiveCamera, ``pitch`` and
-    ``roll`` the frame's head angles (default: the calibration's nominal ones). A frame of
-    another size than the calibration's is a DatasetError (the caller skips the frame)."""
+    ``roll`` the frame's head angles, ``yaw``, ``height`` and ``x``, ``y`` (the optical
+    centre over the floor) the rest of its pose where the dataset records them (head.csv;
+    default: the calibration's nominal values). A frame of another size than the
+    calibration's is a DatasetError (the caller skips the frame)."""
     h, w = image_bgr.shape[:2]
     if (w, h) != tuple(camera.image_size):
         raise DatasetError(f"image is {w} x {h} px, the calibration is for "
                            f"{camera.image_size[0]} x {camera.image_size[1]} px")
-    counts = colour_shares(image_bgr, conf)
+    if yaw is not None or height is not None or x is not None or y is not None:
+        position = None if x is None and y is None else (
+            camera.position[0] if x is None else x, camera.position[1] if y is None else y)
+        camera = camera.with_pose(yaw=yaw, height=height, position=position)
+    counts = colour_shares(image_bgr, conf, camera, pitch, roll)
     return extract_from_counts(counts, camera, conf, pitch, roll)
 
 
@@ -295,7 +370,8 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
     crossings, crossings_px = find_crossings(ks, graph, ideal, inside, green, other, top, camera,
                                              to_floor, conf["crossings"], cell, trace)
     lines, line_ends, line_ends_px, bar_posts, bar_posts_px = find_lines(
-        graph, ideal, camera, to_floor, conf["lines"], top, white, cell, pc, trace)
+        graph, ideal, camera, to_floor, conf["lines"], top, white, cell, pc, trace,
+        counts.get("white_px"))
 
     # 7. goal post feet on the floor
     posts, posts_px = [], []
@@ -413,7 +489,7 @@ def _crossing(cand, ks, ideal, white, green, other, top, camera, to_floor, cc, c
 
 def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: dict,
                top: np.ndarray, white: np.ndarray, cell: int, pc: dict,
-               trace: dict | None = None):
+               trace: dict | None = None, white_px: np.ndarray | None = None):
     """Section 4.2: split-and-merge lines on the undistorted node coordinates, end points
     projected on the fits, then onto the floor. A line is used for localisation (confidence
     > 0) when it is long enough and near enough.
@@ -429,10 +505,16 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
     lines, ends_m, ends_px, posts, posts_px = [], [], [], [], []
     if not segments:
         return lines, ends_m, ends_px, posts, posts_px
-    ends = np.concatenate([seg.ends for seg in segments])
+    refined = [None] * len(segments)
+    if white_px is not None and lc.get("refine", True):
+        refined = [refine_segment(seg.ends, white_px, camera.distort_points, lc["refine_step"],
+                                  lc["refine_reach"] * cell, lc["refine_extend"] * cell,
+                                  lc["refine_min_points"]) for seg in segments]
+    ends = np.concatenate([seg.ends if r is None else r.ends for seg, r in
+                           zip(segments, refined)])
     all_px = camera.distort_points(ends).reshape(-1, 2, 2)
     all_floor = to_floor(ends).reshape(-1, 2, 2)
-    for seg, e_px, e_floor in zip(segments, all_px, all_floor):
+    for seg, ref, e_px, e_floor in zip(segments, refined, all_px, all_floor):
         if not np.all(np.isfinite(e_floor)):
             continue
         dist, angle, length = floor_line_parameters(e_floor[0], e_floor[1])
@@ -443,16 +525,42 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
             posts.append([near, math.atan2(e_floor[k, 1], e_floor[k, 0]), pc["bar_confidence"]])
             posts_px.append(e_px[k])
             continue
+        if ref is not None:
+            ratio = width_ratio(ref, to_floor, lc["line_width"])
+            if not (lc["width_ratio"][0] <= ratio <= lc["width_ratio"][1]):
+                continue  # a seam, a cable, a robot's leg: not of a field line's width
+        rms = seg.fit.rms if ref is None else ref.fit.rms
         used = length >= lc["min_length"] and dist <= lc["max_distance"] \
             and near <= lc["max_distance"] and len(seg.nodes) >= lc["min_used_nodes"]
         confidence = (min(1.0, len(seg.nodes) / lc["full_nodes"])
-                      * max(0.0, 1.0 - seg.fit.rms / lc["split_distance"])) if used else 0.0
+                      * max(0.0, 1.0 - rms / lc["split_distance"])) if used else 0.0
         lines.append([dist, angle, length, confidence])
         ends_m.append(e_floor.ravel())
         ends_px.append(e_px.ravel())
     if trace is not None:
-        trace.update(segments=segments)
+        trace.update(segments=segments, refined=refined)
     return lines, ends_m, ends_px, posts, posts_px
+
+
+def width_ratio(ref: RefinedLine, to_floor: FloorProjection, line_width: float) -> float:
+    """Median measured width of a refined line's white runs over the width a painted line of
+    ``line_width`` metres has in the image at each run's floor position (both across the
+    line, in ideal pixels). NaN where no run lies on the floor."""
+    n_img = ref.fit.normal
+    floor = to_floor(ref.centres)
+    ok = np.all(np.isfinite(floor), axis=1)
+    if ok.sum() == 0:
+        return float("nan")
+    e = to_floor(ref.ends)
+    d = e[1] - e[0]
+    if not np.all(np.isfinite(d)) or np.hypot(*d) < 1e-9:
+        return float("nan")
+    nf = np.array([-d[1], d[0]]) / np.hypot(*d)
+    half = 0.5 * line_width
+    a = to_floor.to_ideal(floor[ok] - half * nf)
+    b = to_floor.to_ideal(floor[ok] + half * nf)
+    expected = np.abs((b - a) @ n_img)
+    return float(np.median(ref.widths[ok] / np.maximum(expected, 1e-6)))
 
 
 def is_post_bar(dist: float, near: float, ends_px: np.ndarray, top: np.ndarray, white: np.ndarray,
