@@ -88,6 +88,11 @@ class FieldColour:
     share: float  # share of valid pixels near the green centre (what the estimate rests on)
     y_map: np.ndarray | None = None  # local green luminance per block
     cell: int = 8
+    # the hue model of the green test (conf green_model "hue"; None: the ellipse): unit
+    # chroma direction of the field (U, V), cos of the hue tolerance, saturation band
+    hue_dir: tuple[float, float] | None = None
+    hue_cos: float = 1.0
+    saturation: tuple[float, float] = (0.0, math.inf)
 
     def local_y(self, u, v) -> np.ndarray:
         """Local green luminance at pixel positions (u, v) (integer arrays)."""
@@ -117,8 +122,12 @@ class FieldColour:
                                     conf)
 
     def as_dict(self) -> dict:
-        return {"y": self.y, "u": self.u, "v": self.v, "axes": list(self.axes),
-                "found": self.found, "share": self.share}
+        out = {"y": self.y, "u": self.u, "v": self.v, "axes": list(self.axes),
+               "found": self.found, "share": self.share}
+        if self.hue_dir is not None:
+            out.update(hue_tolerance_deg=math.degrees(math.acos(self.hue_cos)),
+                       saturation=list(self.saturation))
+        return out
 
 
 def to_yuv(image_bgr: np.ndarray) -> np.ndarray:
@@ -147,16 +156,29 @@ def _chroma_tests(y: np.ndarray, u: np.ndarray, v: np.ndarray, fc: FieldColour, 
                <= Y'^2 (a^2 b^2), Y' = max(Y, 1) (the ellipse around the field green with the
                chroma rescaled to the field's luminance, multiplied through by Y'^2);
         white: (U-128)^2 + (V-128)^2 <= (sat^2) Y^2.
+    With the hue model (``fc.hue_dir`` set) green is instead:
+        c . d_f >= cos_tol |c|  and  s_lo Y <= |c| <= s_hi Y,  c = (U-128, V-128)
+    (the hue within the tolerance of the field's, the saturation |c| / Y in its band).
     Returns (green, white) bool arrays (white None unless ``white``)."""
     yf = np.asarray(y, np.float32)
     du = np.asarray(u, np.float32) - np.float32(128.0)
     dv = np.asarray(v, np.float32) - np.float32(128.0)
     white_ok = None
-    if white:
+    s = None
+    if white or fc.hue_dir is not None:
         s = du * du
         s += dv * dv
+    if white:
         sat = np.float32(conf["white_max_saturation"])
         white_ok = s <= (sat * sat) * (yf * yf)
+    if fc.hue_dir is not None:
+        dot = du * np.float32(fc.hue_dir[0])
+        dot += dv * np.float32(fc.hue_dir[1])
+        y2 = yf * yf
+        c2 = np.float32(fc.hue_cos) ** 2
+        lo, hi = (np.float32(v_) ** 2 for v_ in fc.saturation)
+        green = (dot >= 0) & (dot * dot >= c2 * s) & (s >= lo * y2) & (s <= hi * y2)
+        return green, white_ok
     ym = np.maximum(yf, np.float32(1.0))
     fy = np.float32(fc.y)
     du *= fy
@@ -273,10 +295,40 @@ def estimate_field_colour(yuv: np.ndarray, conf: dict, valid: np.ndarray | None 
     k = conf["green_spread_k"]
     axes = (max(conf["green_axes"][0], k * spread), max(conf["green_axes"][1], k * spread))
     fc = FieldColour(y=y_field, u=u_c, v=v_c, axes=axes, found=found, share=share)
+    if conf.get("green_model", "ellipse") == "hue":
+        _hue_model(fc, u8[cand], v8[cand], y8[cand], conf)
     fc.cell = int(conf["local_cell"])
     if found:
         fc.y_map = _local_green_luminance(yuv, fc, conf, valid)
     return fc
+
+
+def _hue_model(fc: FieldColour, u8, v8, y8, conf: dict) -> None:
+    """The hue model of the green test (module doc) from the green candidates: their hue
+    around the field's chroma direction (tolerance: ``green_hue_k`` robust sigmas, at least
+    ``green_hue_tolerance_deg``), their median saturation times the ``green_saturation`` band. Carpet
+    seen near and far differs more in saturation (sheen at grazing angles) than in hue."""
+    cu, cv_ = fc.u - 128.0, fc.v - 128.0
+    n = math.hypot(cu, cv_)
+    if n < 1e-6:
+        return
+    fc.hue_dir = (cu / n, cv_ / n)
+    lo_rel, hi_rel = conf["green_saturation"]
+    tol = math.radians(float(conf["green_hue_tolerance_deg"]))
+    sat = n / max(fc.y, 1.0)
+    if fc.found and len(u8):
+        du = u8.astype(np.float32) - 128.0
+        dv = v8.astype(np.float32) - 128.0
+        d = np.arctan2(dv * fc.hue_dir[0] - du * fc.hue_dir[1],
+                       du * fc.hue_dir[0] + dv * fc.hue_dir[1])
+        near = np.abs(d) <= math.radians(45.0)
+        if near.sum() >= 10:
+            sigma = 1.4826 * float(np.median(np.abs(d[near])))
+            tol = max(tol, float(conf["green_hue_k"]) * sigma)
+            sat = float(np.median(np.hypot(du[near], dv[near]) / np.maximum(
+                y8[near].astype(np.float32), 1.0)))
+    fc.hue_cos = math.cos(min(tol, math.radians(60.0)))
+    fc.saturation = (lo_rel * sat, hi_rel * sat)
 
 
 def _median_of_integers(values: np.ndarray) -> float:

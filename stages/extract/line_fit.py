@@ -254,7 +254,7 @@ def run_centres(profiles: np.ndarray, across: np.ndarray, level: float = 0.5
     return centre, mass * float(across[1] - across[0]), ok & ~touches
 
 
-def robust_fit(points: np.ndarray, min_residual: float = 1.5, max_gap: int = 2,
+def robust_fit(points: np.ndarray, min_residual: float = 1.5, max_gap: int = 12,
                iterations: int = 3) -> tuple[LineFit, np.ndarray]:
     """A line through ordered points (n, 2) (white-run centres along a segment) that may bend
     onto a neighbouring line at either end: fitted first to the middle half, then to the
@@ -292,11 +292,14 @@ def robust_fit(points: np.ndarray, min_residual: float = 1.5, max_gap: int = 2,
 
 
 def refine_segment(ends: np.ndarray, white: np.ndarray, to_image, step: float,
-                   reach: float, extend: float, min_points: int) -> RefinedLine | None:
+                   reach: float, extend: float, min_points: int, grow: float = 0.0
+                   ) -> RefinedLine | None:
     """The coarse segment ``ends`` (2, 2, ideal px) refined on the full-resolution white mask:
     perpendicular profiles every ``step`` px from ``extend`` px before its first end to
     ``extend`` px beyond its second, each ``reach`` px to either side; the centres of their
-    white runs fitted robustly (``robust_fit``); the refined segment spans the extreme inliers.
+    white runs fitted robustly (``robust_fit``); the refined segment spans the extreme inliers,
+    then grows along the fit at each end for up to ``grow`` px while the profiles there still
+    cross a white run on the line (``grow_end``: the grid's skeleton stops short of corners).
     None when fewer than ``min_points`` profiles cross a white run."""
     d = ends[1] - ends[0]
     length = float(np.hypot(*d))
@@ -319,4 +322,35 @@ def refine_segment(ends: np.ndarray, white: np.ndarray, to_image, step: float,
     lo, hi = fit.centroid + t.min() * fit.direction, fit.centroid + t.max() * fit.direction
     if (hi - lo) @ u < 0:
         lo, hi = hi, lo
+    if grow > 0:
+        r = (pts - fit.centroid) @ fit.normal
+        tol = max(1.5, 3.0 * 1.4826 * float(np.median(np.abs(r - np.median(r)))))
+        d = (hi - lo) / max(float(np.hypot(*(hi - lo))), 1e-9)
+        lo = grow_end(lo, -d, white, to_image, step, reach, grow, tol)
+        hi = grow_end(hi, d, white, to_image, step, reach, grow, tol)
     return RefinedLine(np.stack([lo, hi]), fit, pts, width)
+
+
+def grow_end(end: np.ndarray, direction: np.ndarray, white: np.ndarray, to_image, step: float,
+             reach: float, grow: float, tol: float, misses: int = 2) -> np.ndarray:
+    """``end`` moved along ``direction`` (unit, ideal px) in ``step`` px steps, up to ``grow``
+    px, to the last profile whose white run lies within ``tol`` px of the line before
+    ``misses`` consecutive profiles without (a corner's other line makes a white area across
+    the profile: no run, so the line stops there)."""
+    along = np.arange(step, grow + 1e-9, step)
+    if len(along) == 0:
+        return end
+    across = np.arange(-reach, reach + 0.5, 1.0)
+    prof = white_profiles(white, to_image, end, direction, along, across)
+    centre, _, ok = run_centres(prof, across)
+    ok &= np.abs(centre) <= tol
+    last = -1
+    miss = 0
+    for k in range(len(along)):
+        if ok[k]:
+            last, miss = k, 0
+        else:
+            miss += 1
+            if miss >= misses:
+                break
+    return end if last < 0 else end + along[last] * direction

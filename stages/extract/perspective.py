@@ -34,6 +34,7 @@ from .crossings import (
     crossing_candidates,
     crossing_point,
     floor_arms,
+    line_pair_crossings,
     verify_crossing,
 )
 from .field_boundary import DEFAULT_WEIGHTS, boundary_polyline, field_boundary
@@ -59,7 +60,14 @@ confs = {
                    # green candidates need chroma >= this share of their luminance: lit white
                    # walls and grey hall floors hold only a faint tint (saturation < 0.05 on
                    # the HULKs frames), carpet green 0.2-0.6
-                   "green_min_saturation": 0.15},
+                   "green_min_saturation": 0.15,
+                   # green by hue and saturation around the frame's field green (colour.py):
+                   # real carpet seen near and far keeps its hue (+-8..15 deg on the HULKs
+                   # frames) but its saturation spans a factor 2.2..2.6 (p5..p95)
+                   "green_model": "hue",
+                   "green_hue_tolerance_deg": 15.0,
+                   "green_hue_k": 3.0,
+                   "green_saturation": [0.4, 2.5]},
         # classify every colour_step-th pixel of every colour_step-th row (1: all 64 pixels of
         # a cell, as the seed; 2: 16 per cell, counts scaled, see colour.classify_grid)
         "colour_step": 1,
@@ -118,6 +126,9 @@ confs = {
             "smooth_iterations": 2,
             "corner_reach": 3.0,  # cells: arm length for the turning angle
             "corner_min_turn": math.radians(25.0),  # rad: lower turning is low curvature
+            # the same on the floor (used where the nodes project to the floor): an L turns by
+            # 90 deg there, the centre circle by about 40 deg over 3 cells at 2 m
+            "corner_min_turn_floor": math.radians(45.0),
             "merge_distance": 3.0,  # cells: connected junctions closer than this merge
             "max_ring": 10.0,  # cells: shorter rings hanging at a node are removed
         },
@@ -128,6 +139,7 @@ confs = {
             "arm_step": 2.0,  # cells: arm points projected to the floor for the arm angles
             "max_shift": 8.0,  # cells from the key node to the arms' intersection
             "l_angle": [math.radians(25.0), math.radians(155.0)],  # rad, image angle of L arms
+            "l_angle_floor": [math.radians(45.0), math.radians(135.0)],  # rad, on the floor
             "circle_radii": [2.5, 3.5, 5.0, 7.0],  # cells (wide near lines need the larger)
             "arm_gap": 3.0,  # cells between neighbouring arms on an extra, larger circle
             "max_radius": 8.0,  # cells, of that circle
@@ -135,15 +147,30 @@ confs = {
             "relative": 0.35,  # ... and this share of the arms' median white level
             "t_green": 0.3,
             "max_other": 0.2,  # share of the circle neither white nor green (an object)
-            "object_radius": 2,  # cells: no cell mostly of other colours this near
+            # cells: no object this near: a 3 x 3-cell window mostly (> 0.5) of other colours
+            # (a line's blurred edge makes up to half of a cell "other", not a whole window)
+            "object_radius": 2,
             "edge_margin": 1.5,  # cells: crossings closer to the field boundary (within two
             # columns) are rejected
             "min_path_share": 0.7,
             "max_misfit": math.radians(30.0),  # rad: floor angle misfit from the L/T/X shape
-            # m: one grid cell is about 0.2 m of range at 2 m and 0.3 m at 2.5 m (camera
-            # 0.55 m high, 330 px focal length); on rendered walks farther crossings were
-            # mostly misplaced or of the wrong type
-            "max_distance": 2.0,
+            # arms refined on the full-resolution white mask from refine_skip cells off the
+            # crossing (see lines.refine_*)
+            "refine": True,
+            "refine_skip": 1.0,
+            "refine_step": 3.0,
+            "refine_reach": 2.0,
+            "refine_min_points": 3,
+            # crossings of pairs of fitted lines (crossings.line_pair_crossings): lines meeting
+            # at most pair_gap cells (plus the other line's width) beyond an end
+            "line_pairs": True,
+            "pair_gap": 1.5,
+            "merge_distance": 2.0,  # cells: of verified crossings closer, the best one stays
+            # m of floor range one grid cell spans at the crossing, at most: about 0.2 m at
+            # 2 m for the KidSize camera (0.55 m high, 330 px focal length), at 2.7 m for the
+            # NAO's (0.47 m, 608 px); on rendered walks farther crossings were mostly
+            # misplaced or of the wrong type
+            "max_cell_span": 0.3,
         },
         "lines": {
             "split_distance": 7.0,  # undistorted px
@@ -162,6 +189,7 @@ confs = {
             "refine_reach": 2.0,
             "refine_extend": 0.5,
             "refine_min_points": 4,
+            "refine_grow": 4.0,  # cells the ends may grow along the refined line
             # the white runs' median width over a painted line's (line_width m) at their
             # floor positions: a seam or cable is thinner, a robot's leg or a post wider
             "line_width": 0.05,
@@ -361,17 +389,24 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
     graph, skeleton, _ = line_structure_graph(lp, sc)
 
     # 5. key structure; 6. field lines (both on undistorted node coordinates)
-    ks = key_structure(graph, conf["key"])
-    node_px = grid_to_pixels(graph.pos, cell)
     undistort = ideal_pixels(camera)
-    ideal = undistort(node_px) if len(node_px) else node_px.reshape(-1, 2)
     to_floor = FloorProjection(camera, pitch, roll)
+
+    def floor_of(grid_pos):
+        return to_floor(undistort(grid_to_pixels(grid_pos, cell)))
+
+    ks = key_structure(graph, conf["key"], floor_of)
+    node_px = grid_to_pixels(graph.pos, cell)
+    ideal = undistort(node_px) if len(node_px) else node_px.reshape(-1, 2)
     other = counts["other"].astype(np.float32) / area
+    lines, line_ends, line_ends_px, bar_posts, bar_posts_px, lines_ideal, line_widths = \
+        find_lines(graph, ideal, camera, to_floor, conf["lines"], top, white, cell, pc, trace,
+                   counts.get("white_px"))
     crossings, crossings_px = find_crossings(ks, graph, ideal, inside, green, other, top, camera,
-                                             to_floor, conf["crossings"], cell, trace)
-    lines, line_ends, line_ends_px, bar_posts, bar_posts_px = find_lines(
-        graph, ideal, camera, to_floor, conf["lines"], top, white, cell, pc, trace,
-        counts.get("white_px"))
+                                             to_floor, conf["crossings"], cell, trace,
+                                             counts.get("white_px"), floor_of,
+                                             np.asarray(lines_ideal).reshape(-1, 2, 2),
+                                             np.asarray(line_widths, float))
 
     # 7. goal post feet on the floor
     posts, posts_px = [], []
@@ -418,31 +453,57 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
 
 def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.ndarray,
                    other: np.ndarray, top: np.ndarray, camera, to_floor: FloorProjection,
-                   cc: dict, cell: int, trace: dict | None = None):
-    """Section 4.1 on the key structure: L/T/X candidates, each placed at the intersection of
-    its arms' lines (fitted to the undistorted nodes), verified in the colour images (circle
-    transitions, white paths), then projected to the floor where the arms must form the
-    crossing's shape. Returns rows [type, distance, bearing, orientation, confidence] and the
+                   cc: dict, cell: int, trace: dict | None = None,
+                   white_px: np.ndarray | None = None, floor_of=None,
+                   lines_ideal: np.ndarray | None = None,
+                   line_widths: np.ndarray | None = None):
+    """Section 4.1: L/T/X candidates of the key structure, each placed at the intersection of
+    its arms' lines (fitted to the undistorted nodes, refined on the full-resolution white
+    mask), and the crossings of pairs of fitted field lines (``lines_ideal`` (N, 2, 2) ideal
+    px, ``line_widths`` (N,) px; ``crossings.line_pair_crossings``), all verified the same
+    way (``_verify_crossing``: floor shape, range, boundary, objects, circle transitions and
+    white paths). Of verified crossings closer than ``merge_distance`` cells the best scored
+    one stays. Returns rows [type, distance, bearing, orientation, confidence] and the
     crossings' image positions."""
-    lo, hi = cc["l_angle"]
-    cands = crossing_candidates(ks, graph, cc["arm_reach"], (lo, hi))
-    rows, pxs, verdicts = [], [], []
+    lo, hi = cc["l_angle"] if floor_of is None else cc["l_angle_floor"]
+    cands = crossing_candidates(ks, graph, cc["arm_reach"], (lo, hi), floor_of)
+    other_mean = cv2.blur(other, (3, 3), borderType=cv2.BORDER_REPLICATE)
+    rows_ = np.arange(white.shape[0], dtype=np.float64)[:, None]
+    field_cells = (rows_ >= np.asarray(top, np.float64)[None, :]).astype(np.float32)
+    verdicts, found = [], []
     for cand in cands:
-        verdict = _crossing(cand, ks, ideal, white, green, other, top, camera, to_floor, cc,
-                            cell)
+        verdict = _crossing(cand, ks, ideal, white, green, other_mean, top, camera, to_floor,
+                            cc, cell, white_px, field_cells)
         verdicts.append(verdict)
-        if isinstance(verdict, str):
-            continue
-        rows.append(verdict[0])
-        pxs.append(verdict[1])
+        if not isinstance(verdict, str):
+            found.append(verdict)
+    pairs, pair_verdicts = [], []
+    if lines_ideal is not None and len(lines_ideal) > 1 and cc.get("line_pairs", True):
+        pairs = line_pair_crossings(lines_ideal, line_widths, to_floor, cc["pair_gap"] * cell,
+                                    cc["max_misfit"])
+        reach = cc["arm_reach"] * cell
+        for lc in pairs:
+            verdict = _verify_crossing(lc.kind, lc.point, lc.arms, np.full(len(lc.arms), reach),
+                                       white, green, other_mean, top, camera, to_floor, cc,
+                                       cell, field_cells)
+            pair_verdicts.append(verdict)
+            if not isinstance(verdict, str):
+                found.append(verdict)
+    found.sort(key=lambda v: -v[0][4])
+    rows, pxs = [], []
+    for row, px in found:
+        if all(np.hypot(*(px - q)) > cc["merge_distance"] * cell for q in pxs):
+            rows.append(row)
+            pxs.append(px)
     if trace is not None:
-        trace.update(candidates=cands, crossing_verdicts=verdicts)
+        trace.update(candidates=cands, crossing_verdicts=verdicts, line_pairs=pairs,
+                     line_pair_verdicts=pair_verdicts)
     return rows, pxs
 
 
-def _crossing(cand, ks, ideal, white, green, other, top, camera, to_floor, cc, cell):
-    """One candidate -> (row, image position), or the reason it was rejected. The cheap floor
-    checks come before the image checks."""
+def _crossing(cand, ks, ideal, white, green, other_mean, top, camera, to_floor, cc, cell,
+              white_px=None, field_cells=None):
+    """One key-structure candidate -> (row, image position), or the reason it was rejected."""
     centre = ideal[ks.node[cand.key]]
     if not np.all(np.isfinite(centre)):
         return "outside the lens model"
@@ -450,6 +511,8 @@ def _crossing(cand, ks, ideal, white, green, other, top, camera, to_floor, cc, c
     arms = arm_lines(centre, chains, ideal, cc["arm_skip"], cc["arm_nodes"])
     if len(arms) != len(cand.arm_points):
         return "arm without nodes"
+    if white_px is not None and cc.get("refine", True):
+        arms = [_refined_arm(arm, centre, white_px, camera, cc, cell) for arm in arms]
     # an L's skeleton cuts its corner and a junction node may sit beside a thin line: the
     # crossing is where the lines fitted to its arms meet
     x = crossing_point(cand.kind, arms)
@@ -457,34 +520,65 @@ def _crossing(cand, ks, ideal, white, green, other, top, camera, to_floor, cc, c
         return "arms do not meet near the node"
     dirs = np.array([u for _, u, _ in arms])
     step = cc["arm_step"] * cell
+    reach = np.array([min(cc["arm_reach"] * cell, max(float(np.max((sel - x) @ u)), step))
+                      for _, u, sel in arms])
+    return _verify_crossing(cand.kind, x, dirs, reach, white, green, other_mean, top, camera,
+                            to_floor, cc, cell, field_cells)
+
+
+def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera, to_floor, cc,
+                     cell, field_cells=None):
+    """A crossing of ``kind`` at ideal point ``x`` with arms along ``dirs`` (A, 2) reaching
+    ``reach`` (A,) px -> (row, image position), or the reason it is rejected. The cheap floor
+    checks come before the image checks."""
+    step = cc["arm_step"] * cell
     floor = to_floor(np.vstack([x[None], x + step * dirs]))
     if not np.all(np.isfinite(floor)):
         return "above the horizon"
     d, bearing = _polar(floor[:1])
-    if d[0] > cc["max_distance"]:
+    below = to_floor(x[None] + np.array([[0.0, float(cell)]]))
+    if not np.all(np.isfinite(below)) or np.hypot(*(below[0] - floor[0])) > cc["max_cell_span"]:
         return "too far"
     arm_dirs = np.arctan2(floor[1:, 1] - floor[0, 1], floor[1:, 0] - floor[0, 0])
-    orient, misfit = floor_arms(cand.kind, arm_dirs)
+    orient, misfit = floor_arms(kind, arm_dirs)
     if misfit > cc["max_misfit"]:
         return f"floor angles misfit {math.degrees(misfit):.0f} deg"
-    reach = np.array([min(cc["arm_reach"] * cell, max(float(np.max((sel - x) @ u)), step))
-                      for _, u, sel in arms])
     px = camera.distort_points(np.vstack([x[None], x + reach[:, None] * dirs]))
+    if not np.all(np.isfinite(px)):
+        return "outside the lens model"
     grid = (px + 0.5) / cell - 0.5
     col = int(np.clip(round(grid[0, 0]), 0, len(top) - 1))
     near_top = top[max(col - 2, 0): col + 3].max()  # the boundary within two columns
     if grid[0, 1] - near_top < cc["edge_margin"]:
         return "at the field boundary"  # a line meeting an object or the end of the view
-    row = int(np.clip(round(grid[0, 1]), 0, other.shape[0] - 1))
+    row = int(np.clip(round(grid[0, 1]), 0, other_mean.shape[0] - 1))
     r = cc["object_radius"]
-    if other[max(row - r, 0): row + r + 1, max(col - r, 0): col + r + 1].max() > 0.5:
+    if other_mean[max(row - r, 0): row + r + 1, max(col - r, 0): col + r + 1].max() > 0.5:
         return "next to an object"  # a robot's or a person's white foot on a line
-    score = verify_crossing(grid[0], grid[1:], white, green, cc)
+    score = verify_crossing(grid[0], grid[1:], white, green, cc, field_cells)
     if score <= 0:
         return "not verified in the image"
-    row = [TYPE_CODES[cand.kind], d[0], bearing[0], orient,
+    row = [TYPE_CODES[kind], d[0], bearing[0], orient,
            score * (1.0 - misfit / math.radians(90.0))]
     return row, px[0]
+
+
+def _refined_arm(arm, centre: np.ndarray, white_px: np.ndarray, camera, cc: dict, cell: int):
+    """An arm's line (centroid, unit direction away from the crossing, points) refined on the
+    full-resolution white mask (line_fit.refine_segment) over its nodes' extent from
+    ``refine_skip`` cells off the crossing on; the coarse arm where that fails."""
+    c, u, sel = arm
+    t = (sel - centre) @ u
+    t0, t1 = max(float(t.min()), cc["refine_skip"] * cell), float(t.max())
+    if t1 - t0 < cell:
+        return arm
+    ref = refine_segment(np.stack([centre + t0 * u, centre + t1 * u]), white_px,
+                         camera.distort_points, cc["refine_step"], cc["refine_reach"] * cell,
+                         0.0, cc["refine_min_points"])
+    if ref is None:
+        return arm
+    d = ref.fit.direction if float(ref.fit.direction @ u) >= 0 else -ref.fit.direction
+    return ref.fit.centroid, d, ref.centres
 
 
 def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: dict,
@@ -499,17 +593,19 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
     the posts, so they do not always rise above it).
 
     Returns line rows [perpendicular distance, its angle, length, confidence], floor end
-    points, image end points, and post rows [distance, bearing, confidence] with their image
-    foot points."""
+    points, image end points, post rows [distance, bearing, confidence] with their image
+    foot points, and per line its ideal end points (2, 2) and its white width across (px:
+    the refined runs' median, else one cell)."""
     segments = split_and_merge(ideal, line_components(graph), lc)
-    lines, ends_m, ends_px, posts, posts_px = [], [], [], [], []
+    lines, ends_m, ends_px, posts, posts_px, ends_ideal, widths = [], [], [], [], [], [], []
     if not segments:
-        return lines, ends_m, ends_px, posts, posts_px
+        return lines, ends_m, ends_px, posts, posts_px, ends_ideal, widths
     refined = [None] * len(segments)
     if white_px is not None and lc.get("refine", True):
         refined = [refine_segment(seg.ends, white_px, camera.distort_points, lc["refine_step"],
                                   lc["refine_reach"] * cell, lc["refine_extend"] * cell,
-                                  lc["refine_min_points"]) for seg in segments]
+                                  lc["refine_min_points"], lc["refine_grow"] * cell)
+                   for seg in segments]
     ends = np.concatenate([seg.ends if r is None else r.ends for seg, r in
                            zip(segments, refined)])
     all_px = camera.distort_points(ends).reshape(-1, 2, 2)
@@ -537,9 +633,11 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
         lines.append([dist, angle, length, confidence])
         ends_m.append(e_floor.ravel())
         ends_px.append(e_px.ravel())
+        ends_ideal.append(seg.ends if ref is None else ref.ends)
+        widths.append(float(cell) if ref is None else float(np.median(ref.widths)))
     if trace is not None:
         trace.update(segments=segments, refined=refined)
-    return lines, ends_m, ends_px, posts, posts_px
+    return lines, ends_m, ends_px, posts, posts_px, ends_ideal, widths
 
 
 def width_ratio(ref: RefinedLine, to_floor: FloorProjection, line_width: float) -> float:
