@@ -555,12 +555,34 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
     r = cc["object_radius"]
     if other_mean[max(row - r, 0): row + r + 1, max(col - r, 0): col + r + 1].max() > 0.5:
         return "next to an object"  # a robot's or a person's white foot on a line
+    # the arms that would make an L a T must be in view (a T's stem continued would make an
+    # X, which fields hold only where the centre circle crosses the halfway line)
+    if kind == "L" and not _alternative_in_view(x, dirs, camera, top, other_mean, cc, cell):
+        return "another arm may be out of view"
     score = verify_crossing(grid[0], grid[1:], white, green, cc, field_cells)
     if score <= 0:
         return "not verified in the image"
     row = [TYPE_CODES[kind], d[0], bearing[0], orient,
            score * (1.0 - misfit / math.radians(90.0))]
     return row, px[0]
+
+
+def _alternative_in_view(x, dirs, camera, top, other_mean, cc, cell) -> bool:
+    """Whether the image shows the floor opposite an L's arms (where the third arm of a T
+    would be), ``arm_reach`` cells from the crossing: inside the image and the field
+    boundary, with no object there. A T seen with one half of its bar out of view or hidden
+    looks like an L."""
+    pts = camera.distort_points(x[None] - cc["arm_reach"] * cell * dirs)
+    w, h = camera.image_size
+    for p in pts:
+        if not (np.all(np.isfinite(p)) and 0 <= p[0] <= w - 1 and 0 <= p[1] <= h - 1):
+            return False
+        g = (p + 0.5) / cell - 0.5
+        col = int(np.clip(round(g[0]), 0, len(top) - 1))
+        row = int(np.clip(round(g[1]), 0, other_mean.shape[0] - 1))
+        if g[1] - top[col] < cc["edge_margin"] or other_mean[row, col] > 0.5:
+            return False
+    return True
 
 
 def _refined_arm(arm, centre: np.ndarray, white_px: np.ndarray, camera, cc: dict, cell: int):
