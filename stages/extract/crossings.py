@@ -263,26 +263,28 @@ def verify_crossing(centre: np.ndarray, arm_points: np.ndarray, white: np.ndarra
 @dataclass
 class LineCrossing:
     """A crossing of two fitted field lines (ideal pixel coordinates): its type by where the
-    lines meet (L: at an end of both, T: at an end of one and inside the other, X: inside
-    both), the intersection and the unit directions of its arms."""
+    lines meet (L: at an end of both, T: at an end of one and inside the other; two straight
+    lines crossing inside both are no field crossing), the intersection and the unit
+    directions of its arms."""
 
     kind: str
     point: np.ndarray  # (2,)
     arms: np.ndarray  # (A, 2) unit directions away from the point
     lines: tuple[int, int]  # the two lines' indices
+    lengths: np.ndarray | None = None  # (A,) px of line along each arm from the point
 
 
 def _meeting(t: float, length: float, u: np.ndarray, end_gap: float, tol: float
-             ) -> list[np.ndarray] | None:
+             ) -> tuple[list[np.ndarray], list[float]] | None:
     """Arms of a line (direction ``u``, ends at 0 and ``length`` along it) at the point ``t``
-    along it where another line crosses it: two when the point is inside it by more than
-    ``tol``, one when its nearer end lies within ``tol`` of the other line (``end_gap``: that
-    end's distance from the other line), else None."""
+    along it where another line crosses it, and the line's length along each: two when the
+    point is inside it by more than ``tol``, one when its nearer end lies within ``tol`` of
+    the other line (``end_gap``: that end's distance from the other line), else None."""
     if tol < t < length - tol:
-        return [u, -u]
+        return [u, -u], [length - t, t]
     if end_gap > tol:
         return None
-    return [u] if t <= 0.5 * length else [-u]
+    return ([u], [length - t]) if t <= 0.5 * length else ([-u], [t])
 
 
 def line_pair_crossings(ends: np.ndarray, widths: np.ndarray, floor_of, tol: float,
@@ -328,9 +330,12 @@ def line_pair_crossings(ends: np.ndarray, widths: np.ndarray, floor_of, tol: flo
                               tol + float(widths[i]))
             if arms_i is None or arms_j is None:
                 continue
-            arms = np.array(arms_i + arms_j)
-            kind = {2: "L", 3: "T", 4: "X"}[len(arms)]
-            out.append(LineCrossing(kind, x, arms, (i, j)))
+            arms = np.array(arms_i[0] + arms_j[0])
+            if len(arms) == 4:
+                continue  # two straight lines crossing: fields have none (their X is the centre
+                # circle on the halfway line), so it is no crossing of field lines
+            kind = {2: "L", 3: "T"}[len(arms)]
+            out.append(LineCrossing(kind, x, arms, (i, j), np.array(arms_i[1] + arms_j[1])))
     return merge_line_crossings(out, tol)
 
 
@@ -353,13 +358,18 @@ def merge_line_crossings(crossings: list[LineCrossing], tol: float,
             out.append(c)
             continue
         arms: list[np.ndarray] = []
+        lengths: list[float] = []
         for g in group:
-            for u in g.arms:
-                if all(float(u @ v) < cos_same for v in arms):
+            for u, ln in zip(g.arms, g.lengths):
+                same = [k for k, v in enumerate(arms) if float(u @ v) >= cos_same]
+                if same:
+                    lengths[same[0]] = max(lengths[same[0]], float(ln))
+                else:
                     arms.append(u)
-        if len(arms) not in (2, 3, 4):
+                    lengths.append(float(ln))
+        if len(arms) not in (2, 3):
             continue
         point = np.mean([g.point for g in group], axis=0)
-        out.append(LineCrossing({2: "L", 3: "T", 4: "X"}[len(arms)], point, np.array(arms),
-                                group[0].lines))
+        out.append(LineCrossing({2: "L", 3: "T"}[len(arms)], point, np.array(arms),
+                                group[0].lines, np.array(lengths)))
     return out

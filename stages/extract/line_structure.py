@@ -561,7 +561,8 @@ def corner_nodes(turn: np.ndarray, arc: np.ndarray, reach: float, min_turn: floa
 def key_structure(graph: LineGraph, conf: dict, floor_of=None) -> KeyStructure:
     """Section 4.1: from the fine graph to the key node structure. ``floor_of``: a function
     of grid positions (N, 2) -> floor points (N, 2) (NaN above the horizon); with it the
-    corners are found by their turning angle on the floor (``corner_min_turn_floor``)."""
+    corners are found by their turning angle on the floor (``corner_min_turn_floor``) among
+    the nodes turning at least ``corner_min_turn_image`` in the image."""
     pruned = remove_short_lines(graph, conf["min_spur_length"])
     smooth = smooth_lines(pruned, conf["smooth_iterations"])
     chains = trace_chains(pruned)
@@ -576,11 +577,13 @@ def key_structure(graph: LineGraph, conf: dict, floor_of=None) -> KeyStructure:
 
     edges = []
     min_turn, reach = conf["corner_min_turn"], conf["corner_reach"]
-    floor = None
+    turn, arc, start = turning_angles(chains, smooth, reach)
     if floor_of is not None and len(smooth):
-        floor = floor_of(smooth)
+        # on the floor, where the image turns at least a little: far from the camera a pixel
+        # of noise is a large floor angle
+        floor_turn, _, _ = turning_angles(chains, smooth, reach, floor_of(smooth))
+        turn = np.where(turn >= conf["corner_min_turn_image"], floor_turn, 0.0)
         min_turn = conf["corner_min_turn_floor"]
-    turn, arc, start = turning_angles(chains, smooth, reach, floor)
     firsts = np.unique(start)
     for chain, i0 in zip(chains, firsts):
         i1 = i0 + len(chain)

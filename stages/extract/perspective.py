@@ -129,6 +129,8 @@ confs = {
             # the same on the floor (used where the nodes project to the floor): an L turns by
             # 90 deg there, the centre circle by about 40 deg over 3 cells at 2 m
             "corner_min_turn_floor": math.radians(45.0),
+            "corner_min_turn_image": math.radians(10.0),  # ... where the image turns this
+            "floor_angles": True,  # corners and L angles measured on the floor
             "merge_distance": 3.0,  # cells: connected junctions closer than this merge
             "max_ring": 10.0,  # cells: shorter rings hanging at a node are removed
         },
@@ -166,6 +168,8 @@ confs = {
             "line_pairs": True,
             "pair_gap": 1.5,
             "merge_distance": 2.0,  # cells: of verified crossings closer, the best one stays
+            # m of line along each arm at least (a penalty mark next to a line is no corner)
+            "min_arm_length": 0.12,
             # m of floor range one grid cell spans at the crossing, at most: about 0.2 m at
             # 2 m for the KidSize camera (0.55 m high, 330 px focal length), at 2.7 m for the
             # NAO's (0.47 m, 608 px); on rendered walks farther crossings were mostly
@@ -395,7 +399,8 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
     def floor_of(grid_pos):
         return to_floor(undistort(grid_to_pixels(grid_pos, cell)))
 
-    ks = key_structure(graph, conf["key"], floor_of)
+    floor_angles = conf["key"]["floor_angles"]
+    ks = key_structure(graph, conf["key"], floor_of if floor_angles else None)
     node_px = grid_to_pixels(graph.pos, cell)
     ideal = undistort(node_px) if len(node_px) else node_px.reshape(-1, 2)
     other = counts["other"].astype(np.float32) / area
@@ -404,7 +409,8 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
                    counts.get("white_px"))
     crossings, crossings_px = find_crossings(ks, graph, ideal, inside, green, other, top, camera,
                                              to_floor, conf["crossings"], cell, trace,
-                                             counts.get("white_px"), floor_of,
+                                             counts.get("white_px"),
+                                             floor_of if floor_angles else None,
                                              np.asarray(lines_ideal).reshape(-1, 2, 2),
                                              np.asarray(line_widths, float))
 
@@ -483,9 +489,9 @@ def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.nd
                                     cc["max_misfit"])
         reach = cc["arm_reach"] * cell
         for lc in pairs:
-            verdict = _verify_crossing(lc.kind, lc.point, lc.arms, np.full(len(lc.arms), reach),
-                                       white, green, other_mean, top, camera, to_floor, cc,
-                                       cell, field_cells)
+            verdict = _verify_crossing(lc.kind, lc.point, lc.arms,
+                                       np.minimum(reach, lc.lengths), white, green, other_mean,
+                                       top, camera, to_floor, cc, cell, field_cells, lc.lengths)
             pair_verdicts.append(verdict)
             if not isinstance(verdict, str):
                 found.append(verdict)
@@ -520,21 +526,27 @@ def _crossing(cand, ks, ideal, white, green, other_mean, top, camera, to_floor, 
         return "arms do not meet near the node"
     dirs = np.array([u for _, u, _ in arms])
     step = cc["arm_step"] * cell
-    reach = np.array([min(cc["arm_reach"] * cell, max(float(np.max((sel - x) @ u)), step))
-                      for _, u, sel in arms])
+    lengths = np.array([max(float(np.max((sel - x) @ u)), step) for _, u, sel in arms])
+    reach = np.minimum(cc["arm_reach"] * cell, lengths)
     return _verify_crossing(cand.kind, x, dirs, reach, white, green, other_mean, top, camera,
-                            to_floor, cc, cell, field_cells)
+                            to_floor, cc, cell, field_cells, lengths)
 
 
 def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera, to_floor, cc,
-                     cell, field_cells=None):
+                     cell, field_cells=None, lengths=None):
     """A crossing of ``kind`` at ideal point ``x`` with arms along ``dirs`` (A, 2) reaching
-    ``reach`` (A,) px -> (row, image position), or the reason it is rejected. The cheap floor
-    checks come before the image checks."""
+    ``reach`` (A,) px, its lines extending ``lengths`` (A,) px along them -> (row, image
+    position), or the reason it is rejected. The cheap floor checks come before the image
+    checks."""
     step = cc["arm_step"] * cell
     floor = to_floor(np.vstack([x[None], x + step * dirs]))
     if not np.all(np.isfinite(floor)):
         return "above the horizon"
+    if lengths is not None:
+        ends = to_floor(x[None] + np.asarray(lengths)[:, None] * dirs)
+        arm_m = np.hypot(*(ends - floor[0]).T)  # NaN beyond the horizon: long enough
+        if np.any(arm_m < cc["min_arm_length"]):
+            return "arm too short"
     d, bearing = _polar(floor[:1])
     below = to_floor(x[None] + np.array([[0.0, float(cell)]]))
     if not np.all(np.isfinite(below)) or np.hypot(*(below[0] - floor[0])) > cc["max_cell_span"]:
