@@ -644,8 +644,22 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
                            zip(segments, refined)])
     all_px = camera.distort_points(ends).reshape(-1, 2, 2)
     all_floor = to_floor(ends).reshape(-1, 2, 2)
-    for seg, ref, e_px, e_floor in zip(segments, refined, all_px, all_floor):
+    for seg, ref, e_px, e_floor, e_ideal in zip(segments, refined, all_px, all_floor,
+                                                ends.reshape(-1, 2, 2)):
         if not np.all(np.isfinite(e_floor)):
+            # reaching above the horizon: no field line, but maybe a post (its foot on the
+            # floor, the part below the horizon runs away from the robot)
+            clipped = _below_horizon_part(e_ideal, to_floor, lc["max_distance"])
+            if clipped is None:
+                continue
+            e_floor = to_floor(clipped)
+            dist, _, _ = floor_line_parameters(e_floor[0], e_floor[1])
+            ranges = np.hypot(*e_floor.T)
+            if is_post_bar(dist, float(ranges.min()), e_px, top, white, camera.fx, cell, pc):
+                k = int(np.argmin(ranges))
+                posts.append([float(ranges[k]), math.atan2(e_floor[k, 1], e_floor[k, 0]),
+                              pc["bar_confidence"]])
+                posts_px.append(camera.distort_points(clipped[k:k + 1])[0])
             continue
         dist, angle, length = floor_line_parameters(e_floor[0], e_floor[1])
         ranges = np.hypot(*e_floor.T)
@@ -672,6 +686,22 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
     if trace is not None:
         trace.update(segments=segments, refined=refined)
     return lines, ends_m, ends_px, posts, posts_px, ends_ideal, widths
+
+
+def _below_horizon_part(ends: np.ndarray, to_floor: FloorProjection, max_range: float,
+                        samples: int = 33) -> np.ndarray | None:
+    """The part (2, 2 ideal px) of a segment whose floor projection lies within
+    ``max_range`` m (a segment reaching above the horizon cut where it still meets the floor
+    near enough), or None when less than two of ``samples`` points along it do."""
+    t = np.linspace(0.0, 1.0, samples)[:, None]
+    pts = ends[0] * (1 - t) + ends[1] * t
+    f = to_floor(pts)
+    ok = np.all(np.isfinite(f), axis=1)
+    ok[ok] = np.hypot(*f[ok].T) <= max_range
+    idx = np.nonzero(ok)[0]
+    if len(idx) < 2:
+        return None
+    return np.stack([pts[idx[0]], pts[idx[-1]]])
 
 
 def width_ratio(ref: RefinedLine, to_floor: FloorProjection, line_width: float) -> float:
