@@ -92,7 +92,9 @@ def crossing_candidates(ks: KeyStructure, graph: LineGraph, arm_reach: float,
     return out
 
 
-def _bilinear(image: np.ndarray, pts: np.ndarray) -> np.ndarray:
+def sample_cells(image: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Bilinear samples of a per-cell image at grid points (N, 2) (x = column, y = row), 0
+    outside."""
     p = np.asarray(pts, np.float32).reshape(-1, 1, 2)
     return cv2.remap(image.astype(np.float32), p[..., 0], p[..., 1], cv2.INTER_LINEAR,
                      borderMode=cv2.BORDER_CONSTANT, borderValue=0).ravel()
@@ -112,11 +114,11 @@ def circle_transitions(white: np.ndarray, green: np.ndarray, centre: np.ndarray,
     t = np.linspace(0.0, 2 * math.pi, samples, endpoint=False)
     ring = np.stack([np.cos(t), np.sin(t)], axis=1)
     pts = (centre[None, None, :] + radii[:, None, None] * ring[None]).reshape(-1, 2)
-    w = _bilinear(white, pts).reshape(len(radii), samples)
-    g = _bilinear(green, pts).reshape(len(radii), samples)
+    w = sample_cells(white, pts).reshape(len(radii), samples)
+    g = sample_cells(green, pts).reshape(len(radii), samples)
     state = np.where(w >= t_white, 1, np.where(g >= t_green, 0, -1))
     if field is not None:
-        on = _bilinear(field, pts).reshape(len(radii), samples) >= 0.5
+        on = sample_cells(field, pts).reshape(len(radii), samples) >= 0.5
         neither = (state < 0) & on
         n_on = on.sum(axis=1)
     # carry the last known state over unknown samples (cyclic): index of the last known one
@@ -139,7 +141,7 @@ def white_path_share(white: np.ndarray, p: np.ndarray, q: np.ndarray, t_white: f
     """Share of the samples on the straight path p -> q (grid coordinates) that are white."""
     n = max(2, int(np.ceil(np.hypot(*(q - p)) / step)) + 1)
     s = np.linspace(0.0, 1.0, n)[:, None]
-    v = _bilinear(white, p[None] * (1 - s) + q[None] * s)
+    v = sample_cells(white, p[None] * (1 - s) + q[None] * s)
     return float(np.mean(v >= t_white))
 
 
@@ -241,7 +243,7 @@ def verify_crossing(centre: np.ndarray, arm_points: np.ndarray, white: np.ndarra
     (far lines are thin and faint). ``field``: the field region per cell (1 inside the
     boundary), see circle_transitions. Returns a score in [0, 1] (0 = rejected): the smallest
     white-path share."""
-    ref = float(np.median(_bilinear(white, arm_points)))
+    ref = float(np.median(sample_cells(white, arm_points)))
     t = max(conf["t_white"], conf["relative"] * ref)
     n_arms = len(arm_points)
     # arms at a small image angle need a larger circle to be told apart: one on which

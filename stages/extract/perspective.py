@@ -30,6 +30,7 @@ from ..common.errors import DatasetError
 from . import colour
 from .crossings import (
     TYPE_CODES,
+    sample_cells,
     arm_lines,
     crossing_candidates,
     crossing_point,
@@ -96,7 +97,8 @@ confs = {
             "min_rise": 3,  # cells of white above the boundary
             "max_rise": 30,
             "max_below": 30,
-            "max_width": 4,  # cells
+            "max_width": 4,  # cells (goal_posts' default; the extractor uses min_distance)
+            "min_distance": 0.7,  # m: posts nearer than this (wider in the image) are not sought
             "full_height": 12,  # cells of bar at which the confidence is 1
             "post_diameter": 0.1,  # m (KidSize goal posts)
             "min_height": 0.4,  # m of white bar at least (of a post about 1.2 m high)
@@ -170,11 +172,12 @@ confs = {
             "merge_distance": 2.0,  # cells: of verified crossings closer, the best one stays
             # m of line along each arm at least (a penalty mark next to a line is no corner)
             "min_arm_length": 0.12,
+            "post_radius": 2.0,  # cells around a goal post's foot without crossings
             # m of floor range one grid cell spans at the crossing, at most: about 0.2 m at
             # 2 m for the KidSize camera (0.55 m high, 330 px focal length), at 2.7 m for the
             # NAO's (0.47 m, 608 px); on rendered walks farther crossings were mostly
             # misplaced or of the wrong type
-            "max_cell_span": 0.3,
+            "max_cell_span": 0.25,
         },
         "lines": {
             "split_distance": 7.0,  # undistorted px
@@ -379,16 +382,16 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
     top, field = field_boundary(counts, conf["boundary"], area)
     boundary = boundary_polyline(top, cell)
 
-    # 3. goal posts (their bars are taken out of the white image before the line structure)
+    # 3. goal posts rising above the boundary
     pc = conf["posts"]
-    feet_px, heights, widths, groups, foot_rows = goal_posts(white, top, pc, cell)
-    white_lines = white.copy()
-    for g, row in zip(groups, foot_rows):
-        white_lines[:row, g[0]: g[-1] + 1] = 0.0  # the bar only: a line at its foot stays
+    # a post's width in cells at the nearest distance it is looked for
+    max_width = int(math.ceil(camera.fx * pc["post_diameter"] / pc["min_distance"] / cell)) + 1
+    feet_px, heights, widths, groups, foot_rows = goal_posts(white, top, pc, cell, max_width)
 
-    # 4. line structure graph
+    # 4. line structure graph (a post's lower part becomes a segment there: is_post_bar tells
+    # it from a line, and crossings at a post's foot are not taken)
     sc = conf["skeleton"]
-    inside = white_inside_boundary(white_lines, top, sc["boundary_margin"])
+    inside = white_inside_boundary(white, top, sc["boundary_margin"])
     lp = low_pass(inside)
     graph, skeleton, _ = line_structure_graph(lp, sc)
 
@@ -407,14 +410,8 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
     lines, line_ends, line_ends_px, bar_posts, bar_posts_px, lines_ideal, line_widths = \
         find_lines(graph, ideal, camera, to_floor, conf["lines"], top, white, cell, pc, trace,
                    counts.get("white_px"))
-    crossings, crossings_px = find_crossings(ks, graph, ideal, inside, green, other, top, camera,
-                                             to_floor, conf["crossings"], cell, trace,
-                                             counts.get("white_px"),
-                                             floor_of if floor_angles else None,
-                                             np.asarray(lines_ideal).reshape(-1, 2, 2),
-                                             np.asarray(line_widths, float))
-
-    # 7. goal post feet on the floor
+    # 6b. goal post feet on the floor (before the crossings: a post's foot on a line is no
+    # crossing)
     posts, posts_px = [], []
     if len(feet_px):
         floor = to_floor(undistort(feet_px))
@@ -437,6 +434,13 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
         if all(np.hypot(*(px - q)) > 2 * cell for q in posts_px):
             posts.append(row)
             posts_px.append(px)
+
+    crossings, crossings_px = find_crossings(ks, graph, ideal, inside, green, other, top, camera,
+                                             to_floor, conf["crossings"], cell, trace,
+                                             counts.get("white_px"),
+                                             floor_of if floor_angles else None,
+                                             np.asarray(lines_ideal).reshape(-1, 2, 2),
+                                             np.asarray(line_widths, float), posts_px)
 
     if trace is not None:
         trace.update(top=top, field=field, white=white, green=green, inside=inside, lp=lp,
@@ -462,15 +466,16 @@ def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.nd
                    cc: dict, cell: int, trace: dict | None = None,
                    white_px: np.ndarray | None = None, floor_of=None,
                    lines_ideal: np.ndarray | None = None,
-                   line_widths: np.ndarray | None = None):
+                   line_widths: np.ndarray | None = None, posts_px=()):
     """Section 4.1: L/T/X candidates of the key structure, each placed at the intersection of
     its arms' lines (fitted to the undistorted nodes, refined on the full-resolution white
     mask), and the crossings of pairs of fitted field lines (``lines_ideal`` (N, 2, 2) ideal
     px, ``line_widths`` (N,) px; ``crossings.line_pair_crossings``), all verified the same
     way (``_verify_crossing``: floor shape, range, boundary, objects, circle transitions and
     white paths). Of verified crossings closer than ``merge_distance`` cells the best scored
-    one stays. Returns rows [type, distance, bearing, orientation, confidence] and the
-    crossings' image positions."""
+    one stays; none within ``post_radius`` cells of a goal post's foot (``posts_px``). Returns
+    rows [type, distance, bearing, orientation, confidence] and the crossings' image
+    positions."""
     lo, hi = cc["l_angle"] if floor_of is None else cc["l_angle_floor"]
     cands = crossing_candidates(ks, graph, cc["arm_reach"], (lo, hi), floor_of)
     other_mean = cv2.blur(other, (3, 3), borderType=cv2.BORDER_REPLICATE)
@@ -497,6 +502,10 @@ def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.nd
                 found.append(verdict)
     found.sort(key=lambda v: -v[0][4])
     rows, pxs = [], []
+    # a goal post standing on a line makes a junction in the image, not a crossing
+    near_post = cc["post_radius"] * cell
+    found = [(row, px) for row, px in found
+             if all(np.hypot(*(px - q)) > near_post for q in posts_px)]
     for row, px in found:
         if all(np.hypot(*(px - q)) > cc["merge_distance"] * cell for q in pxs):
             rows.append(row)
@@ -569,8 +578,9 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
         return "next to an object"  # a robot's or a person's white foot on a line
     # the arms that would make an L a T must be in view (a T's stem continued would make an
     # X, which fields hold only where the centre circle crosses the halfway line)
-    if kind == "L" and not _alternative_in_view(x, dirs, camera, top, other_mean, cc, cell):
-        return "another arm may be out of view"
+    if kind == "L" and not _alternative_in_view(x, dirs, camera, top, other_mean, green, cc,
+                                                cell):
+        return "not green where a T's arm would be"
     score = verify_crossing(grid[0], grid[1:], white, green, cc, field_cells)
     if score <= 0:
         return "not verified in the image"
@@ -579,11 +589,11 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
     return row, px[0]
 
 
-def _alternative_in_view(x, dirs, camera, top, other_mean, cc, cell) -> bool:
-    """Whether the image shows the floor opposite an L's arms (where the third arm of a T
-    would be), ``arm_reach`` cells from the crossing: inside the image and the field
-    boundary, with no object there. A T seen with one half of its bar out of view or hidden
-    looks like an L."""
+def _alternative_in_view(x, dirs, camera, top, other_mean, green, cc, cell) -> bool:
+    """Whether the image shows carpet opposite an L's arms (where the third arm of a T would
+    be), ``arm_reach`` cells from the crossing: inside the image and the field boundary, no
+    object there, and green (at least ``t_green``). A T seen with one half of its bar out of
+    view or hidden looks like an L; so do a far X's arms, flattened by the perspective."""
     pts = camera.distort_points(x[None] - cc["arm_reach"] * cell * dirs)
     w, h = camera.image_size
     for p in pts:
@@ -593,6 +603,8 @@ def _alternative_in_view(x, dirs, camera, top, other_mean, cc, cell) -> bool:
         col = int(np.clip(round(g[0]), 0, len(top) - 1))
         row = int(np.clip(round(g[1]), 0, other_mean.shape[0] - 1))
         if g[1] - top[col] < cc["edge_margin"] or other_mean[row, col] > 0.5:
+            return False
+        if sample_cells(green, g[None])[0] < cc["t_green"]:
             return False
     return True
 
