@@ -43,10 +43,11 @@ from .goal_posts import goal_posts
 from .line_fit import (
     RefinedLine,
     floor_line_parameters,
+    lens_parameters,
     line_components,
-    refine_segment,
     split_and_merge,
 )
+from .line_fit import refine_segment_fast as refine_segment
 from .line_structure import (
     key_structure,
     line_structure_graph,
@@ -337,12 +338,19 @@ def colour_shares(image_bgr: np.ndarray, conf: dict, camera=None, pitch=None, ro
     floor = None if camera is None else below_horizon(camera, image_bgr.shape, cell, pitch,
                                                       roll)
     step = int(conf.get("colour_step", 1))
-    white_px = np.zeros(image_bgr.shape[:2], bool) if step == 1 else None
-    counts, _ = colour.classify_grid(image_bgr, conf["colour"], None, cell, step,
-                                     green_from=floor, white_out=white_px)
+    counts = None
+    white_px = np.zeros(image_bgr.shape[:2], np.uint8) if step == 1 else None
+    if step == 1:  # the compiled pass (the hue model of the green test)
+        yuv = colour.to_yuv(image_bgr)
+        fc = colour.estimate_field_colour(yuv, conf["colour"], floor)
+        counts = colour.classify_cells(yuv, fc, conf["colour"], cell, white_px)
+    if counts is None:
+        white_bool = None if white_px is None else white_px.view(bool)
+        counts, _ = colour.classify_grid(image_bgr, conf["colour"], None, cell, step,
+                                         green_from=floor, white_out=white_bool)
     out = {name: counts[..., i] for i, name in enumerate(colour.CLASS_NAMES)}
     if white_px is not None:
-        out["white_px"] = white_px.view(np.uint8).astype(np.float32)
+        out["white_px"] = white_px.astype(np.float32)
     return out
 
 
@@ -619,7 +627,7 @@ def _refined_arm(arm, centre: np.ndarray, white_px: np.ndarray, camera, cc: dict
     if t1 - t0 < cell:
         return arm
     ref = refine_segment(np.stack([centre + t0 * u, centre + t1 * u]), white_px,
-                         camera.distort_points, cc["refine_step"], cc["refine_reach"] * cell,
+                         lens_parameters(camera), cc["refine_step"], cc["refine_reach"] * cell,
                          0.0, cc["refine_min_points"])
     if ref is None:
         return arm
@@ -648,10 +656,12 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
         return lines, ends_m, ends_px, posts, posts_px, ends_ideal, widths
     refined = [None] * len(segments)
     if white_px is not None and lc.get("refine", True):
-        refined = [refine_segment(seg.ends, white_px, camera.distort_points, lc["refine_step"],
+        lens = lens_parameters(camera)
+        refined = [refine_segment(seg.ends, white_px, lens, lc["refine_step"],
                                   lc["refine_reach"] * cell, lc["refine_extend"] * cell,
                                   lc["refine_min_points"], lc["refine_grow"] * cell)
                    for seg in segments]
+    ratios = width_ratios([r for r in refined if r is not None], to_floor, lc["line_width"])
     ends = np.concatenate([seg.ends if r is None else r.ends for seg, r in
                            zip(segments, refined)])
     all_px = camera.distort_points(ends).reshape(-1, 2, 2)
@@ -682,7 +692,7 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
             posts_px.append(e_px[k])
             continue
         if ref is not None:
-            ratio = width_ratio(ref, to_floor, lc["line_width"])
+            ratio = ratios[id(ref)]
             if not (lc["width_ratio"][0] <= ratio <= lc["width_ratio"][1]):
                 continue  # a seam, a cable, a robot's leg: not of a field line's width
         rms = seg.fit.rms if ref is None else ref.fit.rms
@@ -716,25 +726,35 @@ def _below_horizon_part(ends: np.ndarray, to_floor: FloorProjection, max_range: 
     return np.stack([pts[idx[0]], pts[idx[-1]]])
 
 
-def width_ratio(ref: RefinedLine, to_floor: FloorProjection, line_width: float) -> float:
-    """Median measured width of a refined line's white runs over the width a painted line of
-    ``line_width`` metres has in the image at each run's floor position (both across the
-    line, in ideal pixels). NaN where no run lies on the floor."""
-    n_img = ref.fit.normal
-    floor = to_floor(ref.centres)
-    ok = np.all(np.isfinite(floor), axis=1)
-    if ok.sum() == 0:
-        return float("nan")
-    e = to_floor(ref.ends)
-    d = e[1] - e[0]
-    if not np.all(np.isfinite(d)) or np.hypot(*d) < 1e-9:
-        return float("nan")
-    nf = np.array([-d[1], d[0]]) / np.hypot(*d)
+def width_ratios(refs: list[RefinedLine], to_floor: FloorProjection, line_width: float
+                 ) -> dict[int, float]:
+    """Per refined line (by id): the median of its white runs' widths over the width a
+    painted line of ``line_width`` metres has in the image at each run's floor position (both
+    across the line, in ideal pixels); NaN where no run lies on the floor. All lines' points
+    are projected together."""
+    if not refs:
+        return {}
+    counts = np.array([len(r.centres) for r in refs])
+    floor = to_floor(np.concatenate([r.centres for r in refs]))
+    ends = to_floor(np.concatenate([r.ends for r in refs])).reshape(-1, 2, 2)
+    d = ends[:, 1] - ends[:, 0]
+    length = np.hypot(d[:, 0], d[:, 1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        nf = np.stack([-d[:, 1], d[:, 0]], axis=1) / length[:, None]
+    nf_pts = np.repeat(nf, counts, axis=0)
     half = 0.5 * line_width
-    a = to_floor.to_ideal(floor[ok] - half * nf)
-    b = to_floor.to_ideal(floor[ok] + half * nf)
-    expected = np.abs((b - a) @ n_img)
-    return float(np.median(ref.widths[ok] / np.maximum(expected, 1e-6)))
+    a = to_floor.to_ideal(floor - half * nf_pts)
+    b = to_floor.to_ideal(floor + half * nf_pts)
+    n_img = np.repeat(np.array([r.fit.normal for r in refs]), counts, axis=0)
+    expected = np.abs(((b - a) * n_img).sum(axis=1))
+    ratio = np.concatenate([r.widths for r in refs]) / np.maximum(expected, 1e-6)
+    ok = np.all(np.isfinite(floor), axis=1) & np.isfinite(ratio)
+    out, k = {}, 0
+    for r, n in zip(refs, counts):
+        sel = ok[k:k + n]
+        out[id(r)] = float(np.median(ratio[k:k + n][sel])) if sel.any() else float("nan")
+        k += n
+    return out
 
 
 def is_post_bar(dist: float, near: float, ends_px: np.ndarray, top: np.ndarray, white: np.ndarray,
