@@ -215,163 +215,6 @@ class RefinedLine:
     widths: np.ndarray  # (n,) white-run widths across the line (ideal px)
 
 
-def bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Bilinear samples (float64) of ``image`` at pixel positions (x, y) (pixel centres at
-    integers), pixels outside the image counting 0."""
-    h, w = image.shape
-    x0 = np.floor(x)
-    y0 = np.floor(y)
-    fx, fy = x - x0, y - y0
-    x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
-    out = np.zeros(np.shape(x))
-    for dy, wy in ((0, 1.0 - fy), (1, fy)):
-        for dx, wx in ((0, 1.0 - fx), (1, fx)):
-            xi, yi = x0 + dx, y0 + dy
-            ok = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
-            v = np.where(ok, image[np.clip(yi, 0, h - 1), np.clip(xi, 0, w - 1)], 0.0)
-            out += v * (wx * wy)
-    return out
-
-
-def white_profiles(white: np.ndarray, to_image, origin: np.ndarray, direction: np.ndarray,
-                   along: np.ndarray, across: np.ndarray) -> np.ndarray:
-    """White share (S, T) sampled bilinearly from the full-resolution mask ``white`` at ideal
-    points origin + along[s] * direction + across[t] * normal; ``to_image`` maps ideal pixels
-    (N, 2) to image pixels (the lens's distortion)."""
-    normal = np.array([-direction[1], direction[0]])
-    pts = (origin[None, None, :] + along[:, None, None] * direction[None, None, :]
-           + across[None, :, None] * normal[None, None, :])
-    img = to_image(pts.reshape(-1, 2)).reshape(len(along), len(across), 2)
-    return bilinear(white, img[..., 0], img[..., 1])
-
-
-def run_centres(profiles: np.ndarray, across: np.ndarray, level: float = 0.5
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per profile (row of ``profiles``, sampled at offsets ``across``, 1 px apart): the centre
-    (white-weighted mean offset) and width (summed white share, px) of the white run (samples
-    >= ``level``) nearest the profile's middle, and whether there is one that does not touch
-    the profile's ends (a run reaching both ends is a white area, not a line)."""
-    s, t = profiles.shape
-    on = profiles >= level
-    mid = t // 2
-    idx = np.arange(t)
-    # runs: label consecutive on-samples; pick the run whose nearest sample is closest to mid
-    start = on & ~np.concatenate([np.zeros((s, 1), bool), on[:, :-1]], axis=1)
-    label = np.cumsum(start, axis=1) * on
-    dist = np.where(on, np.abs(idx - mid)[None, :], t + 1)
-    best = np.argmin(dist, axis=1)
-    ok = on[np.arange(s), best]
-    chosen = label == label[np.arange(s), best][:, None]
-    chosen &= on & ok[:, None]
-    touches = chosen[:, 0] | chosen[:, -1]
-    w = np.where(chosen, profiles, 0.0)
-    mass = w.sum(axis=1)
-    centre = np.where(mass > 0, (w * across[None, :]).sum(axis=1) / np.maximum(mass, 1e-9), 0.0)
-    return centre, mass * float(across[1] - across[0]), ok & ~touches
-
-
-def robust_fit(points: np.ndarray, min_residual: float = 1.5, max_gap: int = 12,
-               iterations: int = 3) -> tuple[LineFit, np.ndarray]:
-    """A line through ordered points (n, 2) (white-run centres along a segment) that may bend
-    onto a neighbouring line at either end: fitted first to the middle half, then to the
-    points within max(``min_residual``, 3 robust sigmas) of the fit that are connected to the
-    middle (inliers with at most ``max_gap`` outliers between them), again until that set
-    stops changing. Returns the fit and the inlier mask."""
-    n = len(points)
-    keep = np.zeros(n, bool)
-    keep[n // 4: n - n // 4] = True
-    if keep.sum() < 2:
-        keep[:] = True
-    fit = fit_line(points[keep])
-    mid = n // 2
-    for _ in range(iterations):
-        r = (points - fit.centroid) @ fit.normal
-        core = r[keep]
-        sigma = 1.4826 * float(np.median(np.abs(core - np.median(core))))
-        ok = np.abs(r) <= max(min_residual, 3.0 * sigma)
-        # the run of inliers around the middle, bridging at most max_gap outliers
-        edges = np.diff(np.concatenate([[0], (~ok).astype(np.int8), [0]]))
-        starts, stops = np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]
-        wide = stops - starts > max_gap
-        lo = int(max((b for a, b in zip(starts[wide], stops[wide]) if b <= mid), default=0))
-        hi = int(min((a for a in starts[wide] if a > mid), default=n))
-        new = ok.copy()
-        new[:lo] = False
-        new[hi:] = False
-        if new.sum() < 2:
-            break
-        if np.array_equal(new, keep):
-            break
-        keep = new
-        fit = fit_line(points[keep])
-    return fit, keep
-
-
-def refine_segment(ends: np.ndarray, white: np.ndarray, to_image, step: float,
-                   reach: float, extend: float, min_points: int, grow: float = 0.0
-                   ) -> RefinedLine | None:
-    """The coarse segment ``ends`` (2, 2, ideal px) refined on the full-resolution white mask:
-    perpendicular profiles every ``step`` px from ``extend`` px before its first end to
-    ``extend`` px beyond its second, each ``reach`` px to either side; the centres of their
-    white runs fitted robustly (``robust_fit``); the refined segment spans the extreme inliers,
-    then grows along the fit at each end for up to ``grow`` px while the profiles there still
-    cross a white run on the line (``grow_end``: the grid's skeleton stops short of corners).
-    None when fewer than ``min_points`` profiles cross a white run."""
-    d = ends[1] - ends[0]
-    length = float(np.hypot(*d))
-    if length < 1e-6:
-        return None
-    u = d / length
-    along = np.arange(-extend, length + extend + 1e-9, step)
-    across = np.arange(-reach, reach + 0.5, 1.0)
-    prof = white_profiles(white, to_image, ends[0], u, along, across)
-    centre, width, ok = run_centres(prof, across)
-    if ok.sum() < min_points:
-        return None
-    n = np.array([-u[1], u[0]])
-    pts = ends[0][None] + along[ok, None] * u[None] + centre[ok, None] * n[None]
-    fit, keep = robust_fit(pts)
-    if keep.sum() < min_points:
-        return None
-    pts, width = pts[keep], width[ok][keep]
-    t = (pts - fit.centroid) @ fit.direction
-    lo, hi = fit.centroid + t.min() * fit.direction, fit.centroid + t.max() * fit.direction
-    if (hi - lo) @ u < 0:
-        lo, hi = hi, lo
-    if grow > 0:
-        r = (pts - fit.centroid) @ fit.normal
-        tol = max(1.5, 3.0 * 1.4826 * float(np.median(np.abs(r - np.median(r)))))
-        d = (hi - lo) / max(float(np.hypot(*(hi - lo))), 1e-9)
-        lo = grow_end(lo, -d, white, to_image, step, reach, grow, tol)
-        hi = grow_end(hi, d, white, to_image, step, reach, grow, tol)
-    return RefinedLine(np.stack([lo, hi]), fit, pts, width)
-
-
-def grow_end(end: np.ndarray, direction: np.ndarray, white: np.ndarray, to_image, step: float,
-             reach: float, grow: float, tol: float, misses: int = 2) -> np.ndarray:
-    """``end`` moved along ``direction`` (unit, ideal px) in ``step`` px steps, up to ``grow``
-    px, to the last profile whose white run lies within ``tol`` px of the line before
-    ``misses`` consecutive profiles without (a corner's other line makes a white area across
-    the profile: no run, so the line stops there)."""
-    along = np.arange(step, grow + 1e-9, step)
-    if len(along) == 0:
-        return end
-    across = np.arange(-reach, reach + 0.5, 1.0)
-    prof = white_profiles(white, to_image, end, direction, along, across)
-    centre, _, ok = run_centres(prof, across)
-    ok &= np.abs(centre) <= tol
-    last = -1
-    miss = 0
-    for k in range(len(along)):
-        if ok[k]:
-            last, miss = k, 0
-        else:
-            miss += 1
-            if miss >= misses:
-                break
-    return end if last < 0 else end + along[last] * direction
-
-
 # ---------------------------------------------------------------------------- compiled path
 
 
@@ -381,11 +224,29 @@ def lens_parameters(camera) -> np.ndarray:
                     np.float64)
 
 
-def refine_segment_fast(ends: np.ndarray, white: np.ndarray, lens: np.ndarray, step: float,
-                        reach: float, extend: float, min_points: int, grow: float = 0.0
-                        ) -> RefinedLine | None:
-    """``refine_segment`` by one compiled kernel (``_refine``): the same steps and formulas
-    (``white`` float32, ``lens`` from ``lens_parameters`` for the distortion)."""
+def refine_segment(ends: np.ndarray, white: np.ndarray, lens: np.ndarray, step: float,
+                   reach: float, extend: float, min_points: int, grow: float = 0.0
+                   ) -> RefinedLine | None:
+    """The coarse segment ``ends`` (2, 2, ideal px) refined on the full-resolution white mask
+    ``white`` (float32, 1 = white; ``lens`` from ``lens_parameters`` maps ideal pixels to the
+    image through the lens's distortion), in one compiled kernel (``_refine``):
+
+    - perpendicular profiles every ``step`` px from ``extend`` px before its first end to
+      ``extend`` px beyond its second, each ``reach`` px to either side, 1 px apart, sampled
+      bilinearly (pixels outside the image count 0);
+    - per profile the white run (samples >= 0.5) nearest its middle: its centre (white-weighted
+      mean offset) and width (summed white); none where the run touches a profile's end (a
+      white area, e.g. where another line crosses);
+    - the centres fitted robustly (``_robust``): first to the middle half, then to the points
+      within max(1.5 px, 3 robust sigmas (1.4826 MAD)) of the fit that are connected to the
+      middle (at most 12 outliers in a row between them: a segment may bend onto a neighbouring
+      line at either end), again until that set stops changing;
+    - the refined segment spans the extreme inliers, then grows along the fit at each end for
+      up to ``grow`` px while the profiles there still cross a white run on the line within
+      the same tolerance (``_grow``: it stops after two profiles without; the grid's skeleton
+      stops short of corners).
+
+    None when fewer than ``min_points`` profiles cross a white run or stay inliers."""
     e = np.ascontiguousarray(ends, np.float64)
     res = np.empty(12)
     pts, widths = _refine(e, white, lens, float(step), float(reach), float(extend),

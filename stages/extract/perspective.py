@@ -45,9 +45,9 @@ from .line_fit import (
     floor_line_parameters,
     lens_parameters,
     line_components,
+    refine_segment,
     split_and_merge,
 )
-from .line_fit import refine_segment_fast as refine_segment
 from .line_structure import (
     key_structure,
     line_structure_graph,
