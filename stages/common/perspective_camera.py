@@ -3,9 +3,10 @@ wide-angle lens), with its pose above the floor.
 
 Model: OpenCV's pinhole camera with radial-tangential distortion (k1, k2, p1, p2, k3) in
 normalised coordinates, mounted ``height`` metres above the floor over the point ``position``
-(x, y in the robot frame; default the robot's origin) and turned by yaw, pitch and roll (intrinsic z-y-x: yaw about the robot's up axis, then pitch about
-the camera's left axis, pitch > 0 looks down, then roll about the optical axis, roll > 0 turns
-the camera clockwise as seen from behind, so the horizon rises towards the image's right side).
+(x, y in the robot frame; default the robot's origin) and turned by yaw, pitch and roll
+(intrinsic z-y-x: yaw about the robot's up axis, then pitch about the camera's left axis,
+pitch > 0 looks down, then roll about the optical axis, roll > 0 turns the camera clockwise as
+seen from behind, so the horizon rises towards the image's right side).
 Robot frame: x forward, y left, z up; the floor is z = 0.
 
 Pixel coordinates are (u, v): u to the right, v down, origin at the top-left pixel's centre.

@@ -338,9 +338,9 @@ def bench_extract_perspective(repeat: int) -> list[Row]:
     conf = kind_confs("perspective")["default"]
     lsd = cv2.createLineSegmentDetector()
     rows = []
-    for preset, field, label in (("perspective-default", "kidsize", "KidSize 752 x 480"),
-                                 ("perspective-nao", "spl", "NAO 640 x 480")):
-        inp = rendered_inputs("perspective", field, 12, 3, preset)
+    for preset, field_name, label in (("perspective-default", "kidsize", "KidSize 752 x 480"),
+                                      ("perspective-nao", "spl", "NAO 640 x 480")):
+        inp = rendered_inputs("perspective", field_name, 12, 3, preset)
         ds = open_dataset(inp["data"])
         cam = load_calib(ds.calib_path)
         head = read_csv(Path(inp["data"]) / "head.csv", "head")
@@ -351,7 +351,7 @@ def bench_extract_perspective(repeat: int) -> list[Row]:
             persp.extract_frame(img, cam, conf, pitch=pitch, roll=roll)
             grey = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
             x, y = time_interleaved(
-                lambda img=img, pitch=pitch, roll=roll: persp.extract_frame(
+                lambda img=img, pitch=pitch, roll=roll, cam=cam: persp.extract_frame(
                     img, cam, conf, pitch=pitch, roll=roll),
                 lambda grey=grey: lsd.detect(grey), repeat=max(1, repeat), warmup=0)
             a.append(statistics.median(x))

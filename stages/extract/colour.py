@@ -307,8 +307,9 @@ def estimate_field_colour(yuv: np.ndarray, conf: dict, valid: np.ndarray | None 
 def _hue_model(fc: FieldColour, u8, v8, y8, conf: dict) -> None:
     """The hue model of the green test (module doc) from the green candidates: their hue
     around the field's chroma direction (tolerance: ``green_hue_k`` robust sigmas, at least
-    ``green_hue_tolerance_deg``), their median saturation times the ``green_saturation`` band. Carpet
-    seen near and far differs more in saturation (sheen at grazing angles) than in hue."""
+    ``green_hue_tolerance_deg``), their median saturation times the ``green_saturation``
+    band. Carpet seen near and far differs more in saturation (sheen at grazing angles) than in
+    hue."""
     cu, cv_ = fc.u - 128.0, fc.v - 128.0
     n = math.hypot(cu, cv_)
     if n < 1e-6:
@@ -598,7 +599,7 @@ def classify_cells(yuv: np.ndarray, fc: FieldColour, conf: dict, cell: int,
       " float32, float32, float32, boolean, uint16[:, :, ::1], uint8[:, ::1])",
       cache=True, nogil=True)
 def _hue_cells(yuv, thr, cell, local, sat2, hx, hy, c2, lo, hi, keep_white, out, mask):
-    h, w = yuv.shape[0], yuv.shape[1]
+    w = yuv.shape[1]
     hb, wb = out.shape[0], out.shape[1]
     th, tw = thr.shape[0], thr.shape[1]
     c128 = np.float32(128.0)

@@ -30,12 +30,12 @@ from ..common.errors import DatasetError
 from . import colour
 from .crossings import (
     TYPE_CODES,
-    sample_cells,
     arm_lines,
     crossing_candidates,
     crossing_point,
     floor_arms,
     line_pair_crossings,
+    sample_cells,
     verify_crossing,
 )
 from .field_boundary import DEFAULT_WEIGHTS, boundary_polyline, field_boundary
