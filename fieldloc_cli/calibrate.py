@@ -4,6 +4,7 @@ the mirror's radial mapping from measured pairs, a team's files or images of a l
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import click
 
@@ -142,3 +143,30 @@ def _echo_report(ctx, out, rec: dict) -> None:
         f"wrote {out}: {len(pairs)} pairs, {fit_text}; floor visible to"
         f" {camera.max_distance:.2f} m at {camera.valid_radius[1]:g} px"
     )
+
+
+@calibrate.command("perspective")
+@click.option("--from-hulks", "hulks_source", required=True,
+              type=click.Path(exists=True, path_type=Path), metavar="FILE.json|FOLDER",
+              help="A HULKs capture JSON (camera matrix of one NAO frame), or a folder of them "
+                   "beside their images.")
+@click.option("-o", "--output", required=True, type=click.Path(path_type=Path),
+              help="calib.yaml to write (from a file) or the dataset folder (from a folder).")
+@click.option("--overwrite", is_flag=True, help="Replace OUTPUT if it exists.")
+@conf_option
+def calibrate_perspective(hulks_source, output, overwrite, overrides):
+    """A perspective calib.yaml from a team's camera file: intrinsics, height, pitch, roll
+    (and yaw, position) of HULKs' camera_to_ground. From a folder of captures
+    (<stamp>.json + <stamp>.jpg) it writes a dataset: images/, calib.yaml and head.csv with
+    each frame's own camera pose, ready for `fieldloc extract`.
+
+    \b
+    Example:
+      fieldloc calibrate perspective --from-hulks 1687078170.json -o calib.yaml
+      fieldloc calibrate perspective --from-hulks measurements/ -o data/hulks
+    """
+    from stages.calibrate import hulks
+
+    conf = resolve_conf(hulks.confs, "default", overrides_dict(overrides))
+    out = hulks.main(conf, hulks_source, output, overwrite=overwrite)
+    click.echo(f"wrote {out}")

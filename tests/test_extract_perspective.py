@@ -21,7 +21,14 @@ from stages.extract.field_boundary import (
     local_convex_filling,
     local_convexity,
 )
-from stages.extract.line_fit import fit_line, floor_line_parameters, merge_segments, split_component
+from stages.extract.line_fit import (
+    LineFit,
+    RefinedLine,
+    fit_line,
+    floor_line_parameters,
+    merge_segments,
+    split_component,
+)
 from stages.extract.line_structure import low_pass, place_nodes, ranking_skeleton
 
 CONF = perspective.confs["default"]
@@ -301,3 +308,210 @@ def test_debug_images_are_written_per_frame(tmp_path):
     img = cv2.imread(str(tmp_path / "dbg" / pngs[0]))
     raw = cv2.imread(str(data / "images" / pngs[0]))
     assert img.shape == raw.shape and np.any(img != raw)  # something was drawn
+
+
+# ---------------------------------------------------------------------------- speed-up reference
+# The line refinement before it became a compiled kernel (line_fit.refine_segment), kept here as
+# the reference: numpy on whole profiles, the lens's distortion by PerspectiveCamera. The
+# colour classes' reference is colour.classify_grid (numpy, as the omni extractor uses it).
+
+
+def _ref_bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear samples (float64) of ``image`` at pixel positions (x, y) (pixel centres at
+    integers), pixels outside the image counting 0."""
+    h, w = image.shape
+    x0 = np.floor(x)
+    y0 = np.floor(y)
+    fx, fy = x - x0, y - y0
+    x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
+    out = np.zeros(np.shape(x))
+    for dy, wy in ((0, 1.0 - fy), (1, fy)):
+        for dx, wx in ((0, 1.0 - fx), (1, fx)):
+            xi, yi = x0 + dx, y0 + dy
+            ok = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
+            v = np.where(ok, image[np.clip(yi, 0, h - 1), np.clip(xi, 0, w - 1)], 0.0)
+            out += v * (wx * wy)
+    return out
+
+
+def _ref_white_profiles(white: np.ndarray, to_image, origin: np.ndarray, direction: np.ndarray,
+                   along: np.ndarray, across: np.ndarray) -> np.ndarray:
+    """White share (S, T) sampled bilinearly from the full-resolution mask ``white`` at ideal
+    points origin + along[s] * direction + across[t] * normal; ``to_image`` maps ideal pixels
+    (N, 2) to image pixels (the lens's distortion)."""
+    normal = np.array([-direction[1], direction[0]])
+    pts = (origin[None, None, :] + along[:, None, None] * direction[None, None, :]
+           + across[None, :, None] * normal[None, None, :])
+    img = to_image(pts.reshape(-1, 2)).reshape(len(along), len(across), 2)
+    return _ref_bilinear(white, img[..., 0], img[..., 1])
+
+
+def _ref_run_centres(profiles: np.ndarray, across: np.ndarray, level: float = 0.5
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per profile (row of ``profiles``, sampled at offsets ``across``, 1 px apart): the centre
+    (white-weighted mean offset) and width (summed white share, px) of the white run (samples
+    >= ``level``) nearest the profile's middle, and whether there is one that does not touch
+    the profile's ends (a run reaching both ends is a white area, not a line)."""
+    s, t = profiles.shape
+    on = profiles >= level
+    mid = t // 2
+    idx = np.arange(t)
+    # runs: label consecutive on-samples; pick the run whose nearest sample is closest to mid
+    start = on & ~np.concatenate([np.zeros((s, 1), bool), on[:, :-1]], axis=1)
+    label = np.cumsum(start, axis=1) * on
+    dist = np.where(on, np.abs(idx - mid)[None, :], t + 1)
+    best = np.argmin(dist, axis=1)
+    ok = on[np.arange(s), best]
+    chosen = label == label[np.arange(s), best][:, None]
+    chosen &= on & ok[:, None]
+    touches = chosen[:, 0] | chosen[:, -1]
+    w = np.where(chosen, profiles, 0.0)
+    mass = w.sum(axis=1)
+    centre = np.where(mass > 0, (w * across[None, :]).sum(axis=1) / np.maximum(mass, 1e-9), 0.0)
+    return centre, mass * float(across[1] - across[0]), ok & ~touches
+
+
+def _ref_robust_fit(points: np.ndarray, min_residual: float = 1.5, max_gap: int = 12,
+               iterations: int = 3) -> tuple[LineFit, np.ndarray]:
+    """A line through ordered points (n, 2) (white-run centres along a segment) that may bend
+    onto a neighbouring line at either end: fitted first to the middle half, then to the
+    points within max(``min_residual``, 3 robust sigmas) of the fit that are connected to the
+    middle (inliers with at most ``max_gap`` outliers between them), again until that set
+    stops changing. Returns the fit and the inlier mask."""
+    n = len(points)
+    keep = np.zeros(n, bool)
+    keep[n // 4: n - n // 4] = True
+    if keep.sum() < 2:
+        keep[:] = True
+    fit = fit_line(points[keep])
+    mid = n // 2
+    for _ in range(iterations):
+        r = (points - fit.centroid) @ fit.normal
+        core = r[keep]
+        sigma = 1.4826 * float(np.median(np.abs(core - np.median(core))))
+        ok = np.abs(r) <= max(min_residual, 3.0 * sigma)
+        # the run of inliers around the middle, bridging at most max_gap outliers
+        edges = np.diff(np.concatenate([[0], (~ok).astype(np.int8), [0]]))
+        starts, stops = np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]
+        wide = stops - starts > max_gap
+        lo = int(max((b for a, b in zip(starts[wide], stops[wide]) if b <= mid), default=0))
+        hi = int(min((a for a in starts[wide] if a > mid), default=n))
+        new = ok.copy()
+        new[:lo] = False
+        new[hi:] = False
+        if new.sum() < 2:
+            break
+        if np.array_equal(new, keep):
+            break
+        keep = new
+        fit = fit_line(points[keep])
+    return fit, keep
+
+
+def _ref_refine_segment(ends: np.ndarray, white: np.ndarray, to_image, step: float,
+                   reach: float, extend: float, min_points: int, grow: float = 0.0
+                   ) -> RefinedLine | None:
+    """The coarse segment ``ends`` (2, 2, ideal px) refined on the full-resolution white mask:
+    perpendicular profiles every ``step`` px from ``extend`` px before its first end to
+    ``extend`` px beyond its second, each ``reach`` px to either side; the centres of their
+    white runs fitted robustly (``robust_fit``); the refined segment spans the extreme inliers,
+    then grows along the fit at each end for up to ``grow`` px while the profiles there still
+    cross a white run on the line (``grow_end``: the grid's skeleton stops short of corners).
+    None when fewer than ``min_points`` profiles cross a white run."""
+    d = ends[1] - ends[0]
+    length = float(np.hypot(*d))
+    if length < 1e-6:
+        return None
+    u = d / length
+    along = np.arange(-extend, length + extend + 1e-9, step)
+    across = np.arange(-reach, reach + 0.5, 1.0)
+    prof = _ref_white_profiles(white, to_image, ends[0], u, along, across)
+    centre, width, ok = _ref_run_centres(prof, across)
+    if ok.sum() < min_points:
+        return None
+    n = np.array([-u[1], u[0]])
+    pts = ends[0][None] + along[ok, None] * u[None] + centre[ok, None] * n[None]
+    fit, keep = _ref_robust_fit(pts)
+    if keep.sum() < min_points:
+        return None
+    pts, width = pts[keep], width[ok][keep]
+    t = (pts - fit.centroid) @ fit.direction
+    lo, hi = fit.centroid + t.min() * fit.direction, fit.centroid + t.max() * fit.direction
+    if (hi - lo) @ u < 0:
+        lo, hi = hi, lo
+    if grow > 0:
+        r = (pts - fit.centroid) @ fit.normal
+        tol = max(1.5, 3.0 * 1.4826 * float(np.median(np.abs(r - np.median(r)))))
+        d = (hi - lo) / max(float(np.hypot(*(hi - lo))), 1e-9)
+        lo = _ref_grow_end(lo, -d, white, to_image, step, reach, grow, tol)
+        hi = _ref_grow_end(hi, d, white, to_image, step, reach, grow, tol)
+    return RefinedLine(np.stack([lo, hi]), fit, pts, width)
+
+
+def _ref_grow_end(end: np.ndarray, direction: np.ndarray, white: np.ndarray, to_image, step: float,
+             reach: float, grow: float, tol: float, misses: int = 2) -> np.ndarray:
+    """``end`` moved along ``direction`` (unit, ideal px) in ``step`` px steps, up to ``grow``
+    px, to the last profile whose white run lies within ``tol`` px of the line before
+    ``misses`` consecutive profiles without (a corner's other line makes a white area across
+    the profile: no run, so the line stops there)."""
+    along = np.arange(step, grow + 1e-9, step)
+    if len(along) == 0:
+        return end
+    across = np.arange(-reach, reach + 0.5, 1.0)
+    prof = _ref_white_profiles(white, to_image, end, direction, along, across)
+    centre, _, ok = _ref_run_centres(prof, across)
+    ok &= np.abs(centre) <= tol
+    last = -1
+    miss = 0
+    for k in range(len(along)):
+        if ok[k]:
+            last, miss = k, 0
+        else:
+            miss += 1
+            if miss >= misses:
+                break
+    return end if last < 0 else end + along[last] * direction
+
+
+def _reference_refine(ends, white, lens, step, reach, extend, min_points, grow=0.0):
+    fx, fy, cx, cy, *dist = lens
+    cam = PerspectiveCamera(fx=fx, fy=fy, cx=cx, cy=cy, distortion=np.array(dist))
+    return _ref_refine_segment(ends, white, cam.distort_points, step, reach, extend,
+                               min_points, grow)
+
+
+@pytest.mark.parametrize("preset,field", [("perspective-default", "kidsize"),
+                                          ("perspective-nao", "spl")])
+def test_compiled_kernels_give_the_reference_features(preset, field, monkeypatch):
+    """The speed-up (compiled colour classes, compiled line refinement) keeps the features:
+    rendered frames of both cameras extracted by the product path and by the reference
+    implementations give the same rows (to 1e-6)."""
+    from stages import simulate
+    from stages.extract import colour
+
+    fm = load_field(field)
+    conf = dict(simulate.confs[preset])
+    scene_mod = pytest.importorskip("stages.simulate.scene")
+    renderer_mod = pytest.importorskip("stages.simulate.perspective_renderer")
+    world = scene_mod.build(fm, conf["scene"], np.arange(3) / 10.0, 4)
+    renderer = renderer_mod.PerspectiveRenderer(conf["perspective"], world, seed=4)
+    cam = renderer.camera
+    rng = np.random.default_rng(8)
+    frames = []
+    for k in range(3):
+        pose = np.array([fm.length / 2 - rng.uniform(1.0, 3.5), rng.uniform(-2, 2),
+                         rng.uniform(-0.5, 0.5)])
+        pitch, roll = cam.pitch + rng.normal(0, 0.03), rng.normal(0, 0.02)
+        frames.append((renderer.render_view(pose, pitch, roll, frame=k), pitch, roll))
+    ext = perspective.confs["default"]
+    fast = [perspective.extract_frame(img, cam, ext, pitch=p, roll=r) for img, p, r in frames]
+    monkeypatch.setattr(perspective, "refine_segment", _reference_refine)
+    monkeypatch.setattr(colour, "classify_cells", lambda *a, **k: None)
+    slow = [perspective.extract_frame(img, cam, ext, pitch=p, roll=r) for img, p, r in frames]
+    found = 0
+    for a, b in zip(fast, slow):
+        for key in a:
+            assert a[key].shape == b[key].shape, key
+            np.testing.assert_allclose(a[key], b[key], atol=1e-6, err_msg=key)
+        found += len(a["lines"])
+    assert found >= 6  # the frames hold lines to compare

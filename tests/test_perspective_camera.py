@@ -136,3 +136,26 @@ def test_malformed_calib_is_a_clear_error(tmp_path, change, message):
     with pytest.raises(DatasetError, match=message) as err:
         load_calib(path)
     assert str(path) in str(err.value)
+
+
+def test_position_and_pose_of_a_frame(tmp_path):
+    """An optical centre over (x, y) of the robot frame moves the floor points by it;
+    with_pose gives the same lens at a frame's pose; calib.yaml keeps the position."""
+    cam = PerspectiveCamera(distortion=np.zeros(5))
+    moved = cam.with_pose(position=(0.08, -0.02), yaw=0.3, height=0.45)
+    assert moved.fx == cam.fx and np.array_equal(moved.distortion, cam.distortion)
+    assert (moved.yaw, moved.height, cam.yaw, cam.height) == (0.3, 0.45, 0.0, 0.55)
+    uv = np.array([[376.0, 400.0], [100.0, 450.0]])
+    floor = moved.pixel_to_floor(uv)
+    turned = cam.with_pose(yaw=0.3, height=0.45).pixel_to_floor(uv)
+    assert np.allclose(floor - turned, [0.08, -0.02])
+    assert np.allclose(moved.floor_to_pixel(floor), uv)
+    back = load_calib(save_calib(moved, tmp_path / "calib.yaml"))
+    assert back == moved and back.position == (0.08, -0.02)
+    assert "position" not in cam.to_dict()  # only written where it is not the origin
+    d = cam.to_dict()
+    d["position"] = [0.1]
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(d))
+    with pytest.raises(DatasetError, match="'position' must be"):
+        load_calib(path)

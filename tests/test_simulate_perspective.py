@@ -235,3 +235,30 @@ def test_cli_simulate_perspective(tmp_path):
     res = runner.invoke(cli, ["simulate", "perspective", "--field", "nowhere", "-o",
                               str(tmp_path / "x"), "--frames", "1"])
     assert res.exit_code == 1 and "unknown field preset" in res.output
+
+
+def test_nao_preset_renders_the_top_camera_on_an_spl_field(tmp_path):
+    """`simulate perspective --preset perspective-nao`: 640 x 480 frames through HULKs' NAO
+    intrinsics (no wide-angle lens), the camera about 0.45 m high; the hall's sun patches and
+    shadows, white balls and the NAOs' white legs are in the world."""
+    runner = CliRunner()
+    out = tmp_path / "nao"
+    res = runner.invoke(cli, ["-q", "simulate", "perspective", "--preset", "perspective-nao",
+                              "--field", "spl", "-o", str(out), "--frames", "2", "--seed", "1"])
+    assert res.exit_code == 0, res.output
+    cam = load_calib(out / "calib.yaml")
+    assert cam.image_size == (640, 480) and (cam.fx, cam.fy) == (608.0, 609.6)
+    assert np.all(cam.distortion == 0) and abs(cam.height - 0.45) < 0.01
+    assert cv2.imread(str(out / "images" / "000000.png")).shape == (480, 640, 3)
+    conf = confs["perspective-nao"]
+    field = load_field("spl")
+    world = scene_mod.build(field, conf["scene"], np.arange(3) / 10.0, 1)
+    # sun patches brighten and shadows darken the floor's light beyond the lamps' range
+    base = scene_mod.build(field, {**conf["scene"], "sun_patches": 0, "shadows": 0},
+                           np.arange(3) / 10.0, 1)
+    ratio = world.albedo[..., 1].astype(float) / np.maximum(base.albedo[..., 1], 1)
+    assert np.percentile(ratio, 99.5) > 1.5 and np.percentile(ratio, 0.5) < 0.8
+    movers = [c for parts in world.movers_at(0) for c in parts]
+    white = [c for c in movers if min(c.bgr) > 200]
+    assert any(c.kind == "ball" for c in white)
+    assert sum(c.kind == "body" and c.z0 > 0 and c.z1 < 0.4 for c in white) >= 2  # legs

@@ -7,9 +7,13 @@
     DIR/odometry.csv   optional: stamp, dx, dy, dtheta (robot frame, since previous frame)
     DIR/imu.csv        optional: stamp, yaw, collision
     DIR/truth.csv      optional: stamp, x, y, theta (field frame)
-    DIR/head.csv       optional, perspective cameras: stamp, pitch, roll of the camera (rad)
+    DIR/head.csv       optional, perspective cameras: stamp, pitch, roll of the camera (rad),
+                       optionally followed by any of yaw (rad), height (m), x, y (m: the
+                       optical centre over the floor in the robot frame), for robots whose
+                       head turns and whose camera height changes (imported team frames)
 
-CSV files have a header line with exactly these column names; metres and radians.
+CSV files have a header line with exactly these column names (and, where listed in
+``CSV_OPTIONAL_COLUMNS``, some of the optional ones after them); metres and radians.
 """
 
 from __future__ import annotations
@@ -32,6 +36,10 @@ CSV_COLUMNS = {
     "truth": ("stamp", "x", "y", "theta"),
     "head": ("stamp", "pitch", "roll"),  # perspective cameras: head angles per frame
 }
+# columns a file may add after the required ones (any of them, in this order)
+CSV_OPTIONAL_COLUMNS = {
+    "head": ("yaw", "height", "x", "y"),
+}
 
 
 def read_csv(path: str | Path, kind: str) -> dict[str, np.ndarray]:
@@ -45,10 +53,14 @@ def read_csv(path: str | Path, kind: str) -> dict[str, np.ndarray]:
     if not rows:
         raise DatasetError(f"{path}: empty; expected a header '{','.join(cols)}'")
     header = [h.strip() for h in rows[0]]
-    if header != list(cols):
+    extra = header[len(cols):]
+    optional = CSV_OPTIONAL_COLUMNS.get(kind, ())
+    if header[:len(cols)] != list(cols) or extra != [c for c in optional if c in extra]:
+        more = f" (then any of '{','.join(optional)}')" if optional else ""
         raise DatasetError(
-            f"{path}: expected columns '{','.join(cols)}', found '{','.join(header)}'"
+            f"{path}: expected columns '{','.join(cols)}'{more}, found '{','.join(header)}'"
         )
+    cols = tuple(header)
     out = {}
     body = rows[1:]
     for i, name in enumerate(cols):
@@ -77,7 +89,7 @@ def write_csv(path: str | Path, kind: str, columns: dict) -> Path:
     from .artifacts import atomic_path
 
     path = Path(path)
-    cols = CSV_COLUMNS[kind]
+    cols = CSV_COLUMNS[kind] + tuple(c for c in CSV_OPTIONAL_COLUMNS.get(kind, ()) if c in columns)
     n = len(columns[cols[0]])
     with atomic_path(path, suffix=".csv") as tmp:
         with open(tmp, "w", newline="") as f:

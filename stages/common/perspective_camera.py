@@ -2,10 +2,11 @@
 wide-angle lens), with its pose above the floor.
 
 Model: OpenCV's pinhole camera with radial-tangential distortion (k1, k2, p1, p2, k3) in
-normalised coordinates, mounted ``height`` metres above the floor at the robot's origin and
-turned by yaw, pitch and roll (intrinsic z-y-x: yaw about the robot's up axis, then pitch about
-the camera's left axis, pitch > 0 looks down, then roll about the optical axis, roll > 0 turns
-the camera clockwise as seen from behind, so the horizon rises towards the image's right side).
+normalised coordinates, mounted ``height`` metres above the floor over the point ``position``
+(x, y in the robot frame; default the robot's origin) and turned by yaw, pitch and roll
+(intrinsic z-y-x: yaw about the robot's up axis, then pitch about the camera's left axis,
+pitch > 0 looks down, then roll about the optical axis, roll > 0 turns the camera clockwise as
+seen from behind, so the horizon rises towards the image's right side).
 Robot frame: x forward, y left, z up; the floor is z = 0.
 
 Pixel coordinates are (u, v): u to the right, v down, origin at the top-left pixel's centre.
@@ -22,12 +23,16 @@ calib.yaml for kind perspective::
     pitch: 0.45                       # rad, nominal; > 0 looks down (per frame: head.csv)
     roll: 0.0                         # rad, nominal; about the optical axis
     yaw: 0.0                          # rad, camera heading relative to the robot's x axis
+    position: [0.0, 0.0]              # m, optional: optical centre over the floor (robot x, y)
+
+Per frame the head moves: ``with_pose`` gives the same camera at a frame's pitch, roll, yaw,
+height and position (what DIR/head.csv holds, see stages.common.dataset).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -50,6 +55,13 @@ def head_rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
     return rz @ ry @ rx @ _CAMERA_AXES
 
 
+def _pair(value, where: str) -> tuple[float, float]:
+    """calib.yaml's ``position``: [x, y] metres."""
+    if not isinstance(value, (list, tuple)) or len(value) != 2:
+        raise DatasetError(f"{where}: 'position' must be [x, y] (m), got {value!r}")
+    return float(value[0]), float(value[1])
+
+
 @dataclass(eq=False)
 class PerspectiveCamera:
     image_size: tuple[int, int] = (752, 480)
@@ -64,6 +76,7 @@ class PerspectiveCamera:
     pitch: float = 0.45
     roll: float = 0.0
     yaw: float = 0.0
+    position: tuple[float, float] = (0.0, 0.0)  # m: optical centre over the floor (robot x, y)
     _max_radius: float | None = field(default=None, repr=False, compare=False)
 
     kind = "perspective"
@@ -73,6 +86,23 @@ class PerspectiveCamera:
         given = np.asarray(self.distortion, dtype=float).ravel()
         d[: len(given)] = given
         self.distortion = d
+        self.position = (float(self.position[0]), float(self.position[1]))
+
+    def with_pose(self, pitch: float | None = None, roll: float | None = None,
+                  yaw: float | None = None, height: float | None = None,
+                  position=None) -> PerspectiveCamera:
+        """The same camera (intrinsics, lens) at another pose; None keeps a value. The lens's
+        valid cone is carried over, not computed again."""
+        self.max_ideal_radius  # noqa: B018 (computed once, shared by the copy)
+
+        def keep(v, old):
+            return old if v is None else float(v)
+
+        return replace(self, distortion=self.distortion.copy(),
+                       pitch=keep(pitch, self.pitch), roll=keep(roll, self.roll),
+                       yaw=keep(yaw, self.yaw), height=keep(height, self.height),
+                       position=self.position if position is None else tuple(position),
+                       _max_radius=self._max_radius)
 
     def __eq__(self, other) -> bool:
         return isinstance(other, PerspectiveCamera) and self.to_dict() == other.to_dict()
@@ -184,14 +214,14 @@ class PerspectiveCamera:
         down = ray[..., 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             t = np.where(down < -1e-9, self.height / -down, np.nan)
-        return ray[..., :2] * t[..., None]
+        return ray[..., :2] * t[..., None] + np.asarray(self.position)
 
     def project(self, points, pitch=None, roll=None, *, inside: bool = True,
                 clamp: bool = False) -> np.ndarray:
         """3-D points (..., 3) in the robot frame (floor z = 0) -> distorted pixels (..., 2).
         NaN for points behind the camera; see ``camera_points_to_pixels`` for the flags."""
         p = np.asarray(points, dtype=float)
-        rel = p - np.array([0.0, 0.0, self.height])
+        rel = p - np.array([self.position[0], self.position[1], self.height])
         cam = rel @ self.rotation(pitch, roll)  # = R^T rel per point
         return self.camera_points_to_pixels(cam, inside=inside, clamp=clamp)
 
@@ -270,6 +300,7 @@ class PerspectiveCamera:
             "pitch": float(self.pitch),
             "roll": float(self.roll),
             "yaw": float(self.yaw),
+            **({"position": [float(v) for v in self.position]} if any(self.position) else {}),
         }
 
     @classmethod
@@ -291,6 +322,7 @@ class PerspectiveCamera:
                 pitch=float(d["pitch"]),
                 roll=float(d.get("roll", 0.0)),
                 yaw=float(d.get("yaw", 0.0)),
+                position=_pair(d.get("position", (0.0, 0.0)), where),
             )
             if len(size) != 2:
                 raise DatasetError(f"{where}: 'image_size' must be [width, height]")
@@ -303,7 +335,7 @@ class PerspectiveCamera:
         if dist.size not in (4, 5):
             raise DatasetError(f"{where}: 'distortion' needs 4 or 5 values [k1, k2, p1, p2, k3]")
         values = [cam.fx, cam.fy, cam.cx, cam.cy, cam.height, cam.pitch, cam.roll, cam.yaw,
-                  *cam.distortion]
+                  *cam.position, *cam.distortion]
         if not all(math.isfinite(v) for v in values):
             raise DatasetError(f"{where}: perspective calibration holds a non-finite number")
         if cam.image_size[0] <= 0 or cam.image_size[1] <= 0:

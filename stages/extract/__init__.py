@@ -10,8 +10,9 @@ whose keys are FRAME_DATASETS names of stages.common.features_file:
 - ``omni`` (stages.extract.omni, seed 002): scan-line distances and line points;
   frame_info ``mask`` (the dataset's mask.png, see ``read_mask``);
 - ``perspective`` (stages.extract.perspective, seed 000, imported only when used): field
-  boundary, lines, crossings, goal posts; frame_info ``pitch``/``roll`` from DIR/head.csv
-  (nearest stamp within ``HEAD_STAMP_TOLERANCE``) when that file exists.
+  boundary, lines, crossings, goal posts; frame_info ``pitch``/``roll`` (and ``yaw``,
+  ``height``, ``x``, ``y`` where recorded) from DIR/head.csv (nearest stamp within
+  ``HEAD_STAMP_TOLERANCE``) when that file exists.
 
 One group per frame, named by the image's file stem. Frames already in the output are skipped
 (resume) unless ``overwrite``; a frame that cannot be read or processed is logged, recorded in
@@ -66,24 +67,26 @@ def resolve_extract_conf(kind: str, conf: str | dict | None = None,
     return resolve_conf(presets, conf or DEFAULT_PRESET, overrides)
 
 
-def _head_angles(ds) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+def _head_angles(ds) -> tuple[np.ndarray, dict[str, np.ndarray]] | None:
+    """head.csv sorted by stamp: (stamps, {column: values}) of the pose columns it holds
+    (pitch, roll and the optional yaw, height, x, y)."""
     head = ds.optional("head")
     if head is None or len(head["stamp"]) == 0:
         return None
     order = np.argsort(head["stamp"])
-    return head["stamp"][order], head["pitch"][order], head["roll"][order]
+    return head["stamp"][order], {k: v[order] for k, v in head.items() if k != "stamp"}
 
 
 def _frame_info_head(head, stamp: float) -> dict:
     if head is None:
         return {}
-    stamps, pitch, roll = head
+    stamps, columns = head
     i = int(np.clip(np.searchsorted(stamps, stamp), 1, len(stamps) - 1)) if len(stamps) > 1 else 0
     if len(stamps) > 1 and abs(stamps[i - 1] - stamp) <= abs(stamps[i] - stamp):
         i -= 1
     if abs(stamps[i] - stamp) > HEAD_STAMP_TOLERANCE:
         return {}
-    return {"pitch": float(pitch[i]), "roll": float(roll[i])}
+    return {k: float(v[i]) for k, v in columns.items()}
 
 
 def _check_resumable(output: Path, attrs: dict):

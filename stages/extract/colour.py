@@ -43,6 +43,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numba import njit
 
 from ..common.errors import FieldlocError
 
@@ -88,6 +89,11 @@ class FieldColour:
     share: float  # share of valid pixels near the green centre (what the estimate rests on)
     y_map: np.ndarray | None = None  # local green luminance per block
     cell: int = 8
+    # the hue model of the green test (conf green_model "hue"; None: the ellipse): unit
+    # chroma direction of the field (U, V), cos of the hue tolerance, saturation band
+    hue_dir: tuple[float, float] | None = None
+    hue_cos: float = 1.0
+    saturation: tuple[float, float] = (0.0, math.inf)
 
     def local_y(self, u, v) -> np.ndarray:
         """Local green luminance at pixel positions (u, v) (integer arrays)."""
@@ -117,8 +123,12 @@ class FieldColour:
                                     conf)
 
     def as_dict(self) -> dict:
-        return {"y": self.y, "u": self.u, "v": self.v, "axes": list(self.axes),
-                "found": self.found, "share": self.share}
+        out = {"y": self.y, "u": self.u, "v": self.v, "axes": list(self.axes),
+               "found": self.found, "share": self.share}
+        if self.hue_dir is not None:
+            out.update(hue_tolerance_deg=math.degrees(math.acos(self.hue_cos)),
+                       saturation=list(self.saturation))
+        return out
 
 
 def to_yuv(image_bgr: np.ndarray) -> np.ndarray:
@@ -147,16 +157,29 @@ def _chroma_tests(y: np.ndarray, u: np.ndarray, v: np.ndarray, fc: FieldColour, 
                <= Y'^2 (a^2 b^2), Y' = max(Y, 1) (the ellipse around the field green with the
                chroma rescaled to the field's luminance, multiplied through by Y'^2);
         white: (U-128)^2 + (V-128)^2 <= (sat^2) Y^2.
+    With the hue model (``fc.hue_dir`` set) green is instead:
+        c . d_f >= cos_tol |c|  and  s_lo Y <= |c| <= s_hi Y,  c = (U-128, V-128)
+    (the hue within the tolerance of the field's, the saturation |c| / Y in its band).
     Returns (green, white) bool arrays (white None unless ``white``)."""
     yf = np.asarray(y, np.float32)
     du = np.asarray(u, np.float32) - np.float32(128.0)
     dv = np.asarray(v, np.float32) - np.float32(128.0)
     white_ok = None
-    if white:
+    s = None
+    if white or fc.hue_dir is not None:
         s = du * du
         s += dv * dv
+    if white:
         sat = np.float32(conf["white_max_saturation"])
         white_ok = s <= (sat * sat) * (yf * yf)
+    if fc.hue_dir is not None:
+        dot = du * np.float32(fc.hue_dir[0])
+        dot += dv * np.float32(fc.hue_dir[1])
+        y2 = yf * yf
+        c2 = np.float32(fc.hue_cos) ** 2
+        lo, hi = (np.float32(v_) ** 2 for v_ in fc.saturation)
+        green = (dot >= 0) & (dot * dot >= c2 * s) & (s >= lo * y2) & (s <= hi * y2)
+        return green, white_ok
     ym = np.maximum(yf, np.float32(1.0))
     fy = np.float32(fc.y)
     du *= fy
@@ -230,6 +253,12 @@ def estimate_field_colour(yuv: np.ndarray, conf: dict, valid: np.ndarray | None 
         cand &= y8 >= min(math.ceil(y0), 256)
     if y1 < 255:
         cand &= y8 <= max(math.floor(y1), -1)
+    min_sat = float(conf.get("green_min_saturation", 0.0))
+    if min_sat > 0:  # chroma relative to luminance: a lit white wall's tint is no field
+        du = u8.astype(np.float32) - np.float32(128.0)
+        dv = v8.astype(np.float32) - np.float32(128.0)
+        cand &= du * du + dv * dv >= np.float32(min_sat * min_sat) * (
+            y8.astype(np.float32) ** 2)
     found = False
     u_c, v_c = (float(a) for a in conf["green_nominal_uv"])
     spread = 0.0
@@ -267,10 +296,41 @@ def estimate_field_colour(yuv: np.ndarray, conf: dict, valid: np.ndarray | None 
     k = conf["green_spread_k"]
     axes = (max(conf["green_axes"][0], k * spread), max(conf["green_axes"][1], k * spread))
     fc = FieldColour(y=y_field, u=u_c, v=v_c, axes=axes, found=found, share=share)
+    if conf.get("green_model", "ellipse") == "hue":
+        _hue_model(fc, u8[cand], v8[cand], y8[cand], conf)
     fc.cell = int(conf["local_cell"])
     if found:
         fc.y_map = _local_green_luminance(yuv, fc, conf, valid)
     return fc
+
+
+def _hue_model(fc: FieldColour, u8, v8, y8, conf: dict) -> None:
+    """The hue model of the green test (module doc) from the green candidates: their hue
+    around the field's chroma direction (tolerance: ``green_hue_k`` robust sigmas, at least
+    ``green_hue_tolerance_deg``), their median saturation times the ``green_saturation``
+    band. Carpet seen near and far differs more in saturation (sheen at grazing angles) than in
+    hue."""
+    cu, cv_ = fc.u - 128.0, fc.v - 128.0
+    n = math.hypot(cu, cv_)
+    if n < 1e-6:
+        return
+    fc.hue_dir = (cu / n, cv_ / n)
+    lo_rel, hi_rel = conf["green_saturation"]
+    tol = math.radians(float(conf["green_hue_tolerance_deg"]))
+    sat = n / max(fc.y, 1.0)
+    if fc.found and len(u8):
+        du = u8.astype(np.float32) - 128.0
+        dv = v8.astype(np.float32) - 128.0
+        d = np.arctan2(dv * fc.hue_dir[0] - du * fc.hue_dir[1],
+                       du * fc.hue_dir[0] + dv * fc.hue_dir[1])
+        near = np.abs(d) <= math.radians(45.0)
+        if near.sum() >= 10:
+            sigma = 1.4826 * float(np.median(np.abs(d[near])))
+            tol = max(tol, float(conf["green_hue_k"]) * sigma)
+            sat = float(np.median(np.hypot(du[near], dv[near]) / np.maximum(
+                y8[near].astype(np.float32), 1.0)))
+    fc.hue_cos = math.cos(min(tol, math.radians(60.0)))
+    fc.saturation = (lo_rel * sat, hi_rel * sat)
 
 
 def _median_of_integers(values: np.ndarray) -> float:
@@ -467,13 +527,17 @@ def _counts(green: np.ndarray, white: np.ndarray, cell: int) -> np.ndarray:
 
 
 def classify_grid(image_bgr: np.ndarray, conf: dict, valid: np.ndarray | None = None,
-                  cell: int = 8, step: int = 1) -> tuple[np.ndarray, FieldColour]:
+                  cell: int = 8, step: int = 1, green_from: np.ndarray | None = None,
+                  white_out: np.ndarray | None = None) -> tuple[np.ndarray, FieldColour]:
     """Class counts per cell x cell block of a BGR image (see class_counts) and the frame's
     field colour. ``step`` > 1 classifies only every ``step``-th pixel of every ``step``-th
     row ((cell / step)^2 pixels per cell, counts scaled by step^2; the field colour is
-    estimated as for step 1); it must divide ``cell`` and ``local_cell``."""
+    estimated as for step 1); it must divide ``cell`` and ``local_cell``. ``green_from``: bool
+    mask (h, w) of the pixels the field green is estimated from (default ``valid``; a
+    perspective camera's floor below the horizon). ``white_out``: a bool array of the
+    (subsampled) image's shape that receives the white mask."""
     yuv = to_yuv(image_bgr)
-    fc = estimate_field_colour(yuv, conf, valid)
+    fc = estimate_field_colour(yuv, conf, valid if green_from is None else green_from)
     h, w = yuv.shape[:2]
     out = np.empty((h // cell, w // cell, 3), dtype=np.uint16)
     if step > 1:
@@ -489,6 +553,8 @@ def classify_grid(image_bgr: np.ndarray, conf: dict, valid: np.ndarray | None = 
                                              fc.cell // step):
         counts = _counts(green, white, sub)
         out[r0 // sub: r1 // sub] = counts if step == 1 else counts * (step * step)
+        if white_out is not None:
+            white_out[r0:r1, :white.shape[1]] = white
     return out, fc
 
 
@@ -501,3 +567,74 @@ def uv_ellipse(fc: FieldColour, n: int = 64) -> np.ndarray:
     """(n, 2) points of the green ellipse in the UV plane at the field's luminance (plots)."""
     t = np.linspace(0, 2 * math.pi, n)
     return np.stack([fc.u + fc.axes[0] * np.cos(t), fc.v + fc.axes[1] * np.sin(t)], axis=1)
+
+
+# ---------------------------------------------------------------------------- compiled path
+
+def classify_cells(yuv: np.ndarray, fc: FieldColour, conf: dict, cell: int,
+                   white_out: np.ndarray | None = None) -> np.ndarray | None:
+    """``classify_grid``'s class counts (h // cell, w // cell, 3) of a YUV image for the hue
+    model (``fc.hue_dir`` set), every pixel, by one compiled pass (``_hue_cells``): the same
+    float32 operations as ``class_masks`` per pixel, counted per cell, and the white mask into
+    ``white_out`` (uint8 (h, w)) if given. None for the ellipse model (use classify_grid)."""
+    if fc.hue_dir is None:
+        return None
+    h, w = yuv.shape[:2]
+    thr = fc.luminance_thresholds(conf)
+    thr = np.ascontiguousarray(np.broadcast_to(thr, (1, 1, 3)) if thr.ndim == 1 else thr,
+                               dtype=np.int16)
+    local = fc.cell if fc.y_map is not None else max(h, w)
+    out = np.zeros((h // cell, w // cell, 3), np.uint16)
+    mask = np.zeros((1, 1), np.uint8) if white_out is None else white_out
+    sat = np.float32(conf["white_max_saturation"])
+    lo, hi = (np.float32(v) ** 2 for v in fc.saturation)
+    _hue_cells(np.ascontiguousarray(yuv), thr, int(cell), int(local),
+               np.float32(sat * sat), np.float32(fc.hue_dir[0]), np.float32(fc.hue_dir[1]),
+               np.float32(np.float32(fc.hue_cos) ** 2), lo, hi, white_out is not None, out,
+               mask)
+    return out
+
+
+@njit("void(uint8[:, :, ::1], int16[:, :, ::1], int64, int64, float32, float32, float32,"
+      " float32, float32, float32, boolean, uint16[:, :, ::1], uint8[:, ::1])",
+      cache=True, nogil=True)
+def _hue_cells(yuv, thr, cell, local, sat2, hx, hy, c2, lo, hi, keep_white, out, mask):
+    w = yuv.shape[1]
+    hb, wb = out.shape[0], out.shape[1]
+    th, tw = thr.shape[0], thr.shape[1]
+    c128 = np.float32(128.0)
+    zero = np.float32(0.0)
+    tcol = np.empty(w, np.int64)
+    ccol = np.empty(w, np.int64)
+    for c in range(w):
+        tcol[c] = min(c // local, tw - 1)
+        ccol[c] = c // cell if c < wb * cell else -1
+    for r in range(hb * cell):
+        tr = min(r // local, th - 1)
+        cr = r // cell
+        row = yuv[r]
+        t_row = thr[tr]
+        o_row = out[cr]
+        for c in range(w):
+            y = row[c, 0]
+            yf = np.float32(y)
+            du = np.float32(row[c, 1]) - c128
+            dv = np.float32(row[c, 2]) - c128
+            s = du * du
+            s += dv * dv
+            tc = tcol[c]
+            if y >= t_row[tc, 0] and s <= sat2 * (yf * yf):
+                if keep_white:
+                    mask[r, c] = 1
+                if ccol[c] >= 0:
+                    o_row[ccol[c], 1] += 1
+            elif ccol[c] >= 0 and t_row[tc, 1] <= y <= t_row[tc, 2]:
+                dot = du * hx
+                dot += dv * hy
+                if dot >= zero:
+                    y2 = yf * yf
+                    if dot * dot >= c2 * s and s >= lo * y2 and s <= hi * y2:
+                        o_row[ccol[c], 0] += 1
+    for i in range(hb):
+        for j in range(wb):
+            out[i, j, 2] = cell * cell - out[i, j, 0] - out[i, j, 1]

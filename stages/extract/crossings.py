@@ -63,9 +63,12 @@ def _angle_between(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def crossing_candidates(ks: KeyStructure, graph: LineGraph, arm_reach: float,
-                        l_angle_range: tuple[float, float]) -> list[CrossingCandidate]:
-    """L (degree 2 with a corner angle in ``l_angle_range``, radians, in the image), T (degree
-    3) and X (degree 4) candidates of the key structure."""
+                        l_angle_range: tuple[float, float], floor_of=None
+                        ) -> list[CrossingCandidate]:
+    """L (degree 2 with a corner angle in ``l_angle_range``, radians), T (degree 3) and X
+    (degree 4) candidates of the key structure. The L's angle is measured in the image, or on
+    the floor with ``floor_of`` (grid positions (N, 2) -> floor points, NaN above the
+    horizon) where its points are on the floor."""
     deg = ks.degree()
     out = []
     for k in range(len(ks.node)):
@@ -76,6 +79,10 @@ def crossing_candidates(ks: KeyStructure, graph: LineGraph, arm_reach: float,
         arms = np.array([point_along(graph.pos, ch, arm_reach) for ch in chains])
         if deg[k] == 2:
             ang = _angle_between(arms[0] - centre, arms[1] - centre)
+            if floor_of is not None:
+                f = floor_of(np.vstack([centre[None], arms]))
+                if np.all(np.isfinite(f)):
+                    ang = _angle_between(f[1] - f[0], f[2] - f[0])
             if not (l_angle_range[0] <= ang <= l_angle_range[1]):
                 continue
             kind = "L"
@@ -85,27 +92,35 @@ def crossing_candidates(ks: KeyStructure, graph: LineGraph, arm_reach: float,
     return out
 
 
-def _bilinear(image: np.ndarray, pts: np.ndarray) -> np.ndarray:
+def sample_cells(image: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Bilinear samples of a per-cell image at grid points (N, 2) (x = column, y = row), 0
+    outside."""
     p = np.asarray(pts, np.float32).reshape(-1, 1, 2)
     return cv2.remap(image.astype(np.float32), p[..., 0], p[..., 1], cv2.INTER_LINEAR,
                      borderMode=cv2.BORDER_CONSTANT, borderValue=0).ravel()
 
 
 def circle_transitions(white: np.ndarray, green: np.ndarray, centre: np.ndarray, radii,
-                       t_white: float, t_green: float, samples: int = 48
-                       ) -> tuple[np.ndarray, np.ndarray]:
+                       t_white: float, t_green: float, samples: int = 48,
+                       field: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Number of green -> white -> green passages on circles of ``radii`` around ``centre``
     (grid coordinates), one count per radius: a state machine over each circle's samples in
     order, where white (share >= t_white) and green (share >= t_green) change the state and
     anything else keeps it. A circle showing no green or no white counts 0. Also returns each
-    circle's share of samples that are neither (an object standing there)."""
+    circle's share of samples that are neither (an object standing there); with ``field``
+    (1 inside the field boundary, 0 beyond it, per cell) only among the samples inside it:
+    beyond the boundary the view is unknown, not an object on the field."""
     radii = np.atleast_1d(np.asarray(radii, float))
     t = np.linspace(0.0, 2 * math.pi, samples, endpoint=False)
     ring = np.stack([np.cos(t), np.sin(t)], axis=1)
     pts = (centre[None, None, :] + radii[:, None, None] * ring[None]).reshape(-1, 2)
-    w = _bilinear(white, pts).reshape(len(radii), samples)
-    g = _bilinear(green, pts).reshape(len(radii), samples)
+    w = sample_cells(white, pts).reshape(len(radii), samples)
+    g = sample_cells(green, pts).reshape(len(radii), samples)
     state = np.where(w >= t_white, 1, np.where(g >= t_green, 0, -1))
+    if field is not None:
+        on = sample_cells(field, pts).reshape(len(radii), samples) >= 0.5
+        neither = (state < 0) & on
+        n_on = on.sum(axis=1)
     # carry the last known state over unknown samples (cyclic): index of the last known one
     known = state >= 0
     twice = np.concatenate([known, known], axis=1)
@@ -114,7 +129,11 @@ def circle_transitions(white: np.ndarray, green: np.ndarray, centre: np.ndarray,
     filled = np.take_along_axis(state, last, axis=1)
     entered = (filled == 1) & (np.roll(filled, 1, axis=1) == 0)
     counts = entered.sum(axis=1)
-    return np.where(known.any(axis=1), counts, 0), 1.0 - known.mean(axis=1)
+    if field is not None:
+        other = np.where(n_on > 0, neither.sum(axis=1) / np.maximum(n_on, 1), 1.0)
+    else:
+        other = 1.0 - known.mean(axis=1)
+    return np.where(known.any(axis=1), counts, 0), other
 
 
 def white_path_share(white: np.ndarray, p: np.ndarray, q: np.ndarray, t_white: float,
@@ -122,7 +141,7 @@ def white_path_share(white: np.ndarray, p: np.ndarray, q: np.ndarray, t_white: f
     """Share of the samples on the straight path p -> q (grid coordinates) that are white."""
     n = max(2, int(np.ceil(np.hypot(*(q - p)) / step)) + 1)
     s = np.linspace(0.0, 1.0, n)[:, None]
-    v = _bilinear(white, p[None] * (1 - s) + q[None] * s)
+    v = sample_cells(white, p[None] * (1 - s) + q[None] * s)
     return float(np.mean(v >= t_white))
 
 
@@ -215,15 +234,16 @@ def crossing_point(kind: str, arms: list) -> np.ndarray | None:
 
 
 def verify_crossing(centre: np.ndarray, arm_points: np.ndarray, white: np.ndarray,
-                    green: np.ndarray, conf: dict) -> float:
+                    green: np.ndarray, conf: dict, field: np.ndarray | None = None) -> float:
     """Image checks of section 4.1 at a crossing ``centre`` (grid coordinates): the circle's
     transition count equals the number of arms (at any of the radii tried), and a white path
     leads from the crossing along each arm (to ``arm_points``, the next node or the arm's
     reach). ``white`` is the white share per cell inside the field boundary; white means at
     least ``t_white`` and at least ``relative`` times the median white level at the arm points
-    (far lines are thin and faint). Returns a score in [0, 1] (0 = rejected): the smallest
+    (far lines are thin and faint). ``field``: the field region per cell (1 inside the
+    boundary), see circle_transitions. Returns a score in [0, 1] (0 = rejected): the smallest
     white-path share."""
-    ref = float(np.median(_bilinear(white, arm_points)))
+    ref = float(np.median(sample_cells(white, arm_points)))
     t = max(conf["t_white"], conf["relative"] * ref)
     n_arms = len(arm_points)
     # arms at a small image angle need a larger circle to be told apart: one on which
@@ -233,9 +253,125 @@ def verify_crossing(centre: np.ndarray, arm_points: np.ndarray, white: np.ndarra
     radii = list(conf["circle_radii"])
     if sep > 0:
         radii.append(min(conf["max_radius"], conf["arm_gap"] / sep))
-    counts, other = circle_transitions(white, green, centre, radii, t, conf["t_green"])
+    counts, other = circle_transitions(white, green, centre, radii, t, conf["t_green"],
+                                       field=field)
     if not np.any((counts == n_arms) & (other <= conf["max_other"])):
         return 0.0
     shares = [white_path_share(white, centre, arm, t) for arm in arm_points]
     score = min(shares) if shares else 0.0
     return score if score >= conf["min_path_share"] else 0.0
+
+
+@dataclass
+class LineCrossing:
+    """A crossing of two fitted field lines (ideal pixel coordinates): its type by where the
+    lines meet (L: at an end of both, T: at an end of one and inside the other; two straight
+    lines crossing inside both are no field crossing), the intersection and the unit
+    directions of its arms."""
+
+    kind: str
+    point: np.ndarray  # (2,)
+    arms: np.ndarray  # (A, 2) unit directions away from the point
+    lines: tuple[int, int]  # the two lines' indices
+    lengths: np.ndarray | None = None  # (A,) px of line along each arm from the point
+
+
+def _meeting(t: float, length: float, u: np.ndarray, end_gap: float, tol: float
+             ) -> tuple[list[np.ndarray], list[float]] | None:
+    """Arms of a line (direction ``u``, ends at 0 and ``length`` along it) at the point ``t``
+    along it where another line crosses it, and the line's length along each: two when the
+    point is inside it by more than ``tol``, one when its nearer end lies within ``tol`` of
+    the other line (``end_gap``: that end's distance from the other line), else None."""
+    if tol < t < length - tol:
+        return [u, -u], [length - t, t]
+    if end_gap > tol:
+        return None
+    return ([u], [length - t]) if t <= 0.5 * length else ([-u], [t])
+
+
+def line_pair_crossings(ends: np.ndarray, widths: np.ndarray, floor_of, tol: float,
+                        max_misfit: float) -> list[LineCrossing]:
+    """Crossings of pairs of fitted lines (``ends`` (N, 2, 2) in ideal pixels, ``widths``
+    (N,) their white width across, px) that meet at about a right angle on the floor
+    (``floor_of``: ideal pixels (M, 2) -> floor points; within ``max_misfit`` rad of 90 deg):
+    each line either passes the intersection (by more than ``tol`` px: two arms) or ends on
+    the other line (its nearer end within ``tol`` px plus the other line's width of it: one
+    arm). Field lines cross at right angles; where a far corner's skeleton loses the junction
+    at the grid's resolution, the lines fitted at full resolution still meet."""
+    n = len(ends)
+    if n < 2:
+        return []
+    floor = floor_of(ends.reshape(-1, 2)).reshape(n, 2, 2)
+    fdir = floor[:, 1] - floor[:, 0]
+    fang = np.arctan2(fdir[:, 1], fdir[:, 0])
+    d = ends[:, 1] - ends[:, 0]
+    length = np.hypot(d[:, 0], d[:, 1])
+    u = d / np.maximum(length, 1e-9)[:, None]
+    normal = np.stack([-u[:, 1], u[:, 0]], axis=1)
+    out = []
+    for i in range(n):
+        for j in range(i + 1, n):
+            if not (np.isfinite(fang[i]) and np.isfinite(fang[j])):
+                continue
+            gap = abs(abs(math.remainder(float(fang[i] - fang[j]), math.pi)) - math.pi / 2)
+            if gap > max_misfit:
+                continue
+            a = np.array([u[i], -u[j]]).T
+            if abs(np.linalg.det(a)) < 1e-3:
+                continue
+            s = np.linalg.solve(a, ends[j, 0] - ends[i, 0])
+            x = ends[i, 0] + s[0] * u[i]
+
+            def end_gap(k, other, t):
+                e = ends[k, 0] if t <= 0.5 * length[k] else ends[k, 1]
+                return abs(float((e - ends[other, 0]) @ normal[other]))
+
+            arms_i = _meeting(float(s[0]), float(length[i]), u[i], end_gap(i, j, s[0]),
+                              tol + float(widths[j]))
+            arms_j = _meeting(float(s[1]), float(length[j]), u[j], end_gap(j, i, s[1]),
+                              tol + float(widths[i]))
+            if arms_i is None or arms_j is None:
+                continue
+            arms = np.array(arms_i[0] + arms_j[0])
+            if len(arms) == 4:
+                continue  # two straight lines crossing: fields have none (their X is the centre
+                # circle on the halfway line), so it is no crossing of field lines
+            kind = {2: "L", 3: "T"}[len(arms)]
+            out.append(LineCrossing(kind, x, arms, (i, j), np.array(arms_i[1] + arms_j[1])))
+    return merge_line_crossings(out, tol)
+
+
+def merge_line_crossings(crossings: list[LineCrossing], tol: float,
+                         same_arm: float = math.radians(20.0)) -> list[LineCrossing]:
+    """Crossings of line pairs closer than ``tol`` px are one crossing with the union of their
+    arms (arms within ``same_arm`` rad of each other are one): a T whose bar was fitted as two
+    lines, one each side of the stem, gives two L's of the same point."""
+    out, used = [], [False] * len(crossings)
+    cos_same = math.cos(same_arm)
+    for a, c in enumerate(crossings):
+        if used[a]:
+            continue
+        group = [c]
+        for b in range(a + 1, len(crossings)):
+            if not used[b] and np.hypot(*(crossings[b].point - c.point)) <= tol:
+                group.append(crossings[b])
+                used[b] = True
+        if len(group) == 1:
+            out.append(c)
+            continue
+        arms: list[np.ndarray] = []
+        lengths: list[float] = []
+        for g in group:
+            for u, ln in zip(g.arms, g.lengths):
+                same = [k for k, v in enumerate(arms) if float(u @ v) >= cos_same]
+                if same:
+                    lengths[same[0]] = max(lengths[same[0]], float(ln))
+                else:
+                    arms.append(u)
+                    lengths.append(float(ln))
+        if len(arms) not in (2, 3):
+            continue
+        point = np.mean([g.point for g in group], axis=0)
+        out.append(LineCrossing({2: "L", 3: "T"}[len(arms)], point, np.array(arms),
+                                group[0].lines, np.array(lengths)))
+    return out

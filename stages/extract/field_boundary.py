@@ -66,12 +66,49 @@ def binarize_field(grey: np.ndarray, t_pix: float, t_row: float, t_win: float,
     return strong | by_row | by_window
 
 
-def field_height_histogram(field: np.ndarray, max_gap: int = 4) -> np.ndarray:
+def _bounded_runs(candidate: np.ndarray, bound: np.ndarray, max_run: int) -> np.ndarray:
+    """Runs of ``candidate`` cells along each row (H, W), at most ``max_run`` long, with a
+    ``bound`` cell right before and right after them (bool mask of those runs)."""
+    h, w = candidate.shape
+    c = np.zeros((h, w + 2), np.int8)
+    c[:, 1:-1] = candidate
+    d = np.diff(c, axis=1)
+    rs, s = np.nonzero(d == 1)  # run starts (first cell), row-major order
+    _, e = np.nonzero(d == -1)  # first cell after each run, same order
+    ok = (e - s <= max_run) & (s > 0) & (e < w)
+    ok[ok] &= bound[rs[ok], s[ok] - 1] & bound[rs[ok], e[ok]]
+    mark = np.zeros((h, w + 1), np.int16)
+    np.add.at(mark, (rs[ok], s[ok]), 1)
+    np.add.at(mark, (rs[ok], e[ok]), -1)
+    return np.cumsum(mark, axis=1)[:, :w] > 0
+
+
+def fill_lines(field: np.ndarray, white: np.ndarray, t_white: float, max_run: int
+               ) -> np.ndarray:
+    """Field cells (H, W) with the lines on the field added: runs of white cells (share >=
+    ``t_white``) between two field cells of the same row or column, at most ``max_run`` cells
+    long. A near line seen along its length (steep in the image) holds more white cells in a
+    column than the height scan's gap allows; bounded by carpet, it is field."""
+    cand = (white >= t_white) & ~field
+    if not cand.any():
+        return field
+    return field | _bounded_runs(cand, field, max_run) | _bounded_runs(cand.T, field.T,
+                                                                        max_run).T
+
+
+def field_height_histogram(field: np.ndarray, max_gap: int = 4, from_lowest: bool = False
+                           ) -> np.ndarray:
     """Per column, the field height in rows counted from the bottom: scanning bottom-up, the
     height of the last field pixel before more than ``max_gap`` consecutive non-field pixels
-    (0 when the bottom rows are not field). Returns (W,) float."""
+    (0 when the bottom rows are not field). With ``from_lowest`` the scan starts at the
+    column's lowest field pixel (the robot's own body or feet may cover the image's bottom).
+    Returns (W,) float."""
     h, w = field.shape
     run = max_gap + 1
+    if from_lowest:
+        # no field at or below a cell, but field above it: the covered bottom of the column
+        at_or_below = np.logical_or.accumulate(field[::-1], axis=0)[::-1]
+        field = field | (~at_or_below & field.any(axis=0)[None, :])
     empty = ~field[::-1]  # row 0 = bottom of the image
     empty = np.concatenate([empty, np.ones((run, w), bool)], axis=0)  # the scan always stops
     c = np.concatenate([np.zeros((1, w), np.int32), np.cumsum(empty, axis=0, dtype=np.int32)])
@@ -129,7 +166,10 @@ def field_boundary(counts: dict[str, np.ndarray], conf: dict, area: float = 64.0
     column (W,) float, binary field image (H, W))."""
     grey = merged_grey_image(counts, conf["weights"], area)
     field = binarize_field(grey, conf["t_pix"], conf["t_row"], conf["t_win"], conf["t_weak"])
-    heights = field_height_histogram(field, conf["max_gap"])
+    if conf.get("line_run", 0) > 0:
+        white = counts["white"].astype(np.float32) / np.float32(area)
+        field = fill_lines(field, white, conf["line_white"], int(conf["line_run"]))
+    heights = field_height_histogram(field, conf["max_gap"], bool(conf.get("from_lowest")))
     heights = smooth_field_heights(heights, conf["gauss_sigma"], conf["median_size"])
     heights = local_convex_filling(heights)
     return boundary_rows(heights, grey.shape[0]), field

@@ -78,7 +78,7 @@ def post_feet(white: np.ndarray, groups: list[np.ndarray], up_run: np.ndarray,
               down_run: np.ndarray, start: np.ndarray, t_white: float, cell: int
               ) -> tuple[np.ndarray, np.ndarray]:
     """Foot points (P, 2) in full-resolution pixels (u, v) and the bars' heights in cells (P,)
-    (white run above plus below the boundary)."""
+    (white run above (``up_run``) plus below the boundary)."""
     feet, heights = [], []
     for g in groups:
         wts = np.array([white[max(start[c] - 1, 0), c] for c in g]) + 1e-6
@@ -95,18 +95,41 @@ def post_feet(white: np.ndarray, groups: list[np.ndarray], up_run: np.ndarray,
     return np.array(feet, float).reshape(-1, 2), np.array(heights, float)
 
 
-def goal_posts(white: np.ndarray, top: np.ndarray, conf: dict, cell: int):
+def rise_above_surroundings(up_run: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
+    """(excess, base): the upward white run of each column minus the run its surroundings
+    share (the grey opening of the run over ``window`` columns). A band of white that
+    rises above the boundary everywhere (a hall floor or wall that is white too, a barrier
+    board) is the base; a post narrower than ``window`` rises above it."""
+    import cv2
+
+    run = up_run.astype(np.float32)[None, :]
+    kernel = np.ones((1, max(int(window), 1)), np.uint8)
+    base = cv2.morphologyEx(run, cv2.MORPH_OPEN, kernel, borderType=cv2.BORDER_REPLICATE)[0]
+    base = np.round(base).astype(int)
+    return up_run - base, base
+
+
+def goal_posts(white: np.ndarray, top: np.ndarray, conf: dict, cell: int,
+               max_width: int | None = None):
     """The whole step: (foot points (P, 2) px, bar heights (P,) cells, measured bar widths (P,)
-    px, column groups, the row below each group's foot). Bars that do not stand out from their
-    surroundings are dropped. The caller removes the bars from the white image before the line
-    structure is built, so a post's lower part is not taken for a line."""
+    px, column groups, the row below each group's foot). Bars are columns whose white run
+    rises at least ``min_rise`` cells above their surroundings' (``rise_above_surroundings``
+    over ``max_width`` + 2 columns; ``max_width`` cells, default the conf's), told apart there
+    (``stands_out``) and measured there (``bar_width``). The caller removes the bars from the
+    white image before the line structure is built, so a post's lower part is not taken for a
+    line."""
+    max_width = int(conf["max_width"] if max_width is None else max_width)
     up, down, start = bar_runs(white, top, conf["t_white"], conf["max_rise"], conf["max_below"])
-    groups = post_columns(up, conf["min_rise"], conf["max_width"])
-    near = conf["min_rise"]  # rows just above the boundary where a post is told apart
-    groups = [g for g in groups
-              if stands_out(white, g, int(start[g].min()), near, conf["t_white"])]
-    feet, heights = post_feet(white, groups, up, down, start, conf["t_white"], cell)
-    widths = np.array([bar_width(white, g, int(start[g].min()), near, cell)
-                       for g in groups], float)
+    excess, base = rise_above_surroundings(up, max_width + 2)
+    groups = post_columns(excess, conf["min_rise"], max_width)
+    near = conf["min_rise"]  # rows above the surroundings' white where a post is told apart
+    lift = [int(base[g].max()) for g in groups]
+    keep = [k for k, g in enumerate(groups)
+            if stands_out(white, g, int(start[g].min()) - lift[k], near, conf["t_white"])]
+    groups, lift = [groups[k] for k in keep], [lift[k] for k in keep]
+    # heights: the part of the bar rising above the surroundings' white, plus below the boundary
+    feet, heights = post_feet(white, groups, excess, down, start, conf["t_white"], cell)
+    widths = np.array([bar_width(white, g, int(start[g].min()) - lf, near, cell)
+                       for g, lf in zip(groups, lift)], float)
     foot_rows = np.array([int(start[g].max() + down[g].max()) for g in groups], int)
     return feet, heights, widths, groups, foot_rows

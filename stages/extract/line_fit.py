@@ -23,6 +23,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from .line_structure import LineGraph, trace_chains
 
@@ -199,3 +200,307 @@ def floor_line_parameters(p0: np.ndarray, p1: np.ndarray) -> tuple[float, float,
     else:
         angle = float(np.arctan2(foot[1], foot[0]))
     return dist, angle, length
+
+
+# ---------------------------------------------------------------------------- refinement
+
+
+@dataclass
+class RefinedLine:
+    """A segment refined on the full-resolution white mask (ideal pixel coordinates)."""
+
+    ends: np.ndarray  # (2, 2) extreme inlier centres projected on the refined line
+    fit: LineFit
+    centres: np.ndarray  # (n, 2) inlier white-run centres
+    widths: np.ndarray  # (n,) white-run widths across the line (ideal px)
+
+
+# ---------------------------------------------------------------------------- compiled path
+
+
+def lens_parameters(camera) -> np.ndarray:
+    """(9,) fx, fy, cx, cy, k1, k2, p1, p2, k3 of a PerspectiveCamera, for the kernels."""
+    return np.array([camera.fx, camera.fy, camera.cx, camera.cy, *camera.distortion],
+                    np.float64)
+
+
+def refine_segment(ends: np.ndarray, white: np.ndarray, lens: np.ndarray, step: float,
+                   reach: float, extend: float, min_points: int, grow: float = 0.0
+                   ) -> RefinedLine | None:
+    """The coarse segment ``ends`` (2, 2, ideal px) refined on the full-resolution white mask
+    ``white`` (float32, 1 = white; ``lens`` from ``lens_parameters`` maps ideal pixels to the
+    image through the lens's distortion), in one compiled kernel (``_refine``):
+
+    - perpendicular profiles every ``step`` px from ``extend`` px before its first end to
+      ``extend`` px beyond its second, each ``reach`` px to either side, 1 px apart, sampled
+      bilinearly (pixels outside the image count 0);
+    - per profile the white run (samples >= 0.5) nearest its middle: its centre (white-weighted
+      mean offset) and width (summed white); none where the run touches a profile's end (a
+      white area, e.g. where another line crosses);
+    - the centres fitted robustly (``_robust``): first to the middle half, then to the points
+      within max(1.5 px, 3 robust sigmas (1.4826 MAD)) of the fit that are connected to the
+      middle (at most 12 outliers in a row between them: a segment may bend onto a neighbouring
+      line at either end), again until that set stops changing;
+    - the refined segment spans the extreme inliers, then grows along the fit at each end for
+      up to ``grow`` px while the profiles there still cross a white run on the line within
+      the same tolerance (``_grow``: it stops after two profiles without; the grid's skeleton
+      stops short of corners).
+
+    None when fewer than ``min_points`` profiles cross a white run or stay inliers."""
+    e = np.ascontiguousarray(ends, np.float64)
+    res = np.empty(12)
+    pts, widths = _refine(e, white, lens, float(step), float(reach), float(extend),
+                          int(min_points), float(grow), res)
+    if res[0] == 0:
+        return None
+    fit = LineFit(res[5:7].copy(), res[7:9].copy(), res[9:11].copy(), float(res[11]))
+    return RefinedLine(res[1:5].reshape(2, 2).copy(), fit, pts, widths)
+
+
+@njit(cache=True, nogil=True)
+def _distort(lens, x, y):
+    fx, fy, cx, cy, k1, k2, p1, p2, k3 = lens
+    nx = (x - cx) / fx
+    ny = (y - cy) / fy
+    r2 = nx * nx + ny * ny
+    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = nx * radial + 2 * p1 * nx * ny + p2 * (r2 + 2 * nx * nx)
+    yd = ny * radial + p1 * (r2 + 2 * ny * ny) + 2 * p2 * nx * ny
+    return xd * fx + cx, yd * fy + cy
+
+
+@njit(cache=True, nogil=True)
+def _bilinear_at(image, x, y):
+    h, w = image.shape
+    x0 = np.floor(x)
+    y0 = np.floor(y)
+    fx, fy = x - x0, y - y0
+    ix, iy = int(x0), int(y0)
+    out = 0.0
+    for dy in range(2):
+        wy = (1.0 - fy) if dy == 0 else fy
+        yi = iy + dy
+        if yi < 0 or yi >= h:
+            continue
+        for dx in range(2):
+            wx = (1.0 - fx) if dx == 0 else fx
+            xi = ix + dx
+            if xi < 0 or xi >= w:
+                continue
+            out += image[yi, xi] * (wx * wy)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _profile_runs(image, lens, ox, oy, ux, uy, along, reach, centre, width, ok):
+    """white_profiles + run_centres for one origin/direction: per position along, the centre
+    and width of the white run nearest the middle and whether there is one (not touching the
+    profile's ends)."""
+    nx, ny = -uy, ux
+    t = int(round(2 * reach)) + 1  # offsets -reach .. reach, 1 px apart
+    mid = t // 2
+    prof = np.empty(t)
+    for s in range(len(along)):
+        for k in range(t):
+            a = -reach + k
+            px = ox + along[s] * ux + a * nx
+            py = oy + along[s] * uy + a * ny
+            ix, iy = _distort(lens, px, py)
+            prof[k] = _bilinear_at(image, ix, iy)
+        best, bd = -1, t + 1
+        for k in range(t):
+            if prof[k] >= 0.5 and abs(k - mid) < bd:
+                best, bd = k, abs(k - mid)
+        if best < 0:
+            ok[s] = False
+            centre[s] = 0.0
+            width[s] = 0.0
+            continue
+        lo, hi = best, best
+        while lo > 0 and prof[lo - 1] >= 0.5:
+            lo -= 1
+        while hi < t - 1 and prof[hi + 1] >= 0.5:
+            hi += 1
+        mass, wsum = 0.0, 0.0
+        for k in range(lo, hi + 1):
+            mass += prof[k]
+            wsum += prof[k] * (-reach + k)
+        centre[s] = wsum / mass if mass > 0 else 0.0
+        width[s] = mass
+        ok[s] = not (lo == 0 or hi == t - 1)
+
+
+@njit(cache=True, nogil=True)
+def _fit(px, py, keep):
+    """fit_line on the kept points: centroid, direction, normal and rms."""
+    n = 0
+    cx, cy = 0.0, 0.0
+    for i in range(len(px)):
+        if keep[i]:
+            cx += px[i]
+            cy += py[i]
+            n += 1
+    cx /= n
+    cy /= n
+    sxx, syy, sxy = 0.0, 0.0, 0.0
+    for i in range(len(px)):
+        if keep[i]:
+            dx, dy = px[i] - cx, py[i] - cy
+            sxx += dx * dx
+            syy += dy * dy
+            sxy += dx * dy
+    theta = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
+    ux, uy = math.cos(theta), math.sin(theta)
+    minor = 0.5 * (sxx + syy) - math.hypot(0.5 * (sxx - syy), sxy)
+    rms = math.sqrt(max(minor, 0.0) / n)
+    return cx, cy, ux, uy, -uy, ux, rms
+
+
+@njit(cache=True, nogil=True)
+def _robust(px, py, min_residual, max_gap, iterations):
+    n = len(px)
+    keep = np.zeros(n, np.bool_)
+    for i in range(n // 4, n - n // 4):
+        keep[i] = True
+    if keep.sum() < 2:
+        keep[:] = True
+    cx, cy, ux, uy, nx, ny, rms = _fit(px, py, keep)
+    mid = n // 2
+    r = np.empty(n)
+    for _ in range(iterations):
+        for i in range(n):
+            r[i] = (px[i] - cx) * nx + (py[i] - cy) * ny
+        core = r[keep]
+        med = np.median(core)
+        sigma = 1.4826 * np.median(np.abs(core - med))
+        tol = max(min_residual, 3.0 * sigma)
+        ok = np.abs(r) <= tol
+        lo, hi = 0, n
+        i = 0
+        while i < n:
+            if ok[i]:
+                i += 1
+                continue
+            j = i
+            while j < n and not ok[j]:
+                j += 1
+            if j - i > max_gap:
+                if j <= mid:
+                    lo = max(lo, j)
+                elif i > mid:
+                    hi = min(hi, i)
+            i = j
+        new = ok.copy()
+        new[:lo] = False
+        new[hi:] = False
+        if new.sum() < 2:
+            break
+        same = True
+        for i in range(n):
+            if new[i] != keep[i]:
+                same = False
+                break
+        if same:
+            break
+        keep = new
+        cx, cy, ux, uy, nx, ny, rms = _fit(px, py, keep)
+    return keep, cx, cy, ux, uy, nx, ny, rms
+
+
+@njit(cache=True, nogil=True)
+def _grow(image, lens, ex, ey, dx, dy, step, reach, grow, tol):
+    n = 0
+    v = step
+    while v <= grow + 1e-9:
+        n += 1
+        v = step * (n + 1)
+    if n == 0:
+        return ex, ey
+    along = np.empty(n)
+    for k in range(n):
+        along[k] = step * (k + 1)
+    centre = np.empty(n)
+    width = np.empty(n)
+    ok = np.empty(n, np.bool_)
+    _profile_runs(image, lens, ex, ey, dx, dy, along, reach, centre, width, ok)
+    last, miss = -1, 0
+    for k in range(n):
+        if ok[k] and abs(centre[k]) <= tol:
+            last, miss = k, 0
+        else:
+            miss += 1
+            if miss >= 2:
+                break
+    if last < 0:
+        return ex, ey
+    return ex + along[last] * dx, ey + along[last] * dy
+
+
+@njit(cache=True, nogil=True)
+def _refine(ends, image, lens, step, reach, extend, min_points, grow, res):
+    res[0] = 0.0
+    dx, dy = ends[1, 0] - ends[0, 0], ends[1, 1] - ends[0, 1]
+    length = math.hypot(dx, dy)
+    empty = np.zeros((0, 2))
+    if length < 1e-6:
+        return empty, np.zeros(0)
+    ux, uy = dx / length, dy / length
+    n = 0
+    while -extend + n * step < length + extend + 1e-9:
+        n += 1
+    along = np.empty(n)
+    for k in range(n):
+        along[k] = -extend + k * step
+    centre = np.empty(n)
+    width = np.empty(n)
+    ok = np.empty(n, np.bool_)
+    _profile_runs(image, lens, ends[0, 0], ends[0, 1], ux, uy, along, reach, centre, width, ok)
+    m = int(ok.sum())
+    if m < min_points:
+        return empty, np.zeros(0)
+    nx, ny = -uy, ux
+    px = np.empty(m)
+    py = np.empty(m)
+    wd = np.empty(m)
+    j = 0
+    for k in range(n):
+        if ok[k]:
+            px[j] = ends[0, 0] + along[k] * ux + centre[k] * nx
+            py[j] = ends[0, 1] + along[k] * uy + centre[k] * ny
+            wd[j] = width[k]
+            j += 1
+    keep, cx, cy, fux, fuy, fnx, fny, rms = _robust(px, py, 1.5, 12, 3)
+    kk = int(keep.sum())
+    if kk < min_points:
+        return empty, np.zeros(0)
+    pts = np.empty((kk, 2))
+    widths = np.empty(kk)
+    tmin, tmax = np.inf, -np.inf
+    j = 0
+    for i in range(m):
+        if keep[i]:
+            pts[j, 0], pts[j, 1] = px[i], py[i]
+            widths[j] = wd[i]
+            t = (px[i] - cx) * fux + (py[i] - cy) * fuy
+            tmin, tmax = min(tmin, t), max(tmax, t)
+            j += 1
+    lox, loy = cx + tmin * fux, cy + tmin * fuy
+    hix, hiy = cx + tmax * fux, cy + tmax * fuy
+    if (hix - lox) * ux + (hiy - loy) * uy < 0:
+        lox, loy, hix, hiy = hix, hiy, lox, loy
+    if grow > 0:
+        r = np.empty(kk)
+        for i in range(kk):
+            r[i] = (pts[i, 0] - cx) * fnx + (pts[i, 1] - cy) * fny
+        med = np.median(r)
+        tol = max(1.5, 3.0 * 1.4826 * np.median(np.abs(r - med)))
+        sx, sy = hix - lox, hiy - loy
+        sl = max(math.hypot(sx, sy), 1e-9)
+        sx, sy = sx / sl, sy / sl
+        lox, loy = _grow(image, lens, lox, loy, -sx, -sy, step, reach, grow, tol)
+        hix, hiy = _grow(image, lens, hix, hiy, sx, sy, step, reach, grow, tol)
+    res[0] = 1.0
+    res[1], res[2], res[3], res[4] = lox, loy, hix, hiy
+    res[5], res[6], res[7], res[8], res[9], res[10] = cx, cy, fux, fuy, fnx, fny
+    res[11] = rms
+    return pts, widths

@@ -501,12 +501,15 @@ def smooth_lines(graph: LineGraph, iterations: int = 2) -> np.ndarray:
     return pos
 
 
-def turning_angles(chains: list[list[int]], pos: np.ndarray, reach: float
+def turning_angles(chains: list[list[int]], pos: np.ndarray, reach: float,
+                   floor: np.ndarray | None = None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Turning angle (rad) at every node of every chain, measured with arms reaching ``reach``
-    along the chain on both sides (0 at a chain's ends), all chains at once. Returns the
-    angles, the arc length of each node along its chain and the chain's first index, all
-    over the chains' concatenated nodes."""
+    along the chain on both sides (0 at a chain's ends), all chains at once. With ``floor``
+    (the nodes' floor positions, (N, 2), NaN where unknown) the arms are those nodes' floor
+    points, so the angle is the one on the floor (a far L corner looks nearly straight in a
+    perspective image). Returns the angles, the arc length of each node along its chain and
+    the chain's first index, all over the chains' concatenated nodes."""
     if not chains:
         return np.zeros(0), np.zeros(0), np.zeros(0, int)
     lens = np.array([len(c) for c in chains], dtype=int)
@@ -525,6 +528,12 @@ def turning_angles(chains: list[list[int]], pos: np.ndarray, reach: float
     fwd = np.clip(np.searchsorted(key, key + reach, side="left"), start, last)
     a = pts - pts[back]
     b = pts[fwd] - pts
+    if floor is not None:
+        fl = floor[idx]
+        fa, fb = fl - fl[back], fl[fwd] - fl
+        known = np.all(np.isfinite(fa), axis=1) & np.all(np.isfinite(fb), axis=1)
+        a = np.where(known[:, None], fa, a)
+        b = np.where(known[:, None], fb, b)
     na, nb = np.hypot(*a.T), np.hypot(*b.T)
     ok = (na > 0) & (nb > 0)
     cosang = np.where(ok, (a * b).sum(axis=1) / np.where(ok, na * nb, 1.0), 1.0)
@@ -549,8 +558,11 @@ def corner_nodes(turn: np.ndarray, arc: np.ndarray, reach: float, min_turn: floa
     return sorted(kept)
 
 
-def key_structure(graph: LineGraph, conf: dict) -> KeyStructure:
-    """Section 4.1: from the fine graph to the key node structure."""
+def key_structure(graph: LineGraph, conf: dict, floor_of=None) -> KeyStructure:
+    """Section 4.1: from the fine graph to the key node structure. ``floor_of``: a function
+    of grid positions (N, 2) -> floor points (N, 2) (NaN above the horizon); with it the
+    corners are found by their turning angle on the floor (``corner_min_turn_floor``) among
+    the nodes turning at least ``corner_min_turn_image`` in the image."""
     pruned = remove_short_lines(graph, conf["min_spur_length"])
     smooth = smooth_lines(pruned, conf["smooth_iterations"])
     chains = trace_chains(pruned)
@@ -566,6 +578,12 @@ def key_structure(graph: LineGraph, conf: dict) -> KeyStructure:
     edges = []
     min_turn, reach = conf["corner_min_turn"], conf["corner_reach"]
     turn, arc, start = turning_angles(chains, smooth, reach)
+    if floor_of is not None and len(smooth):
+        # on the floor, where the image turns at least a little: far from the camera a pixel
+        # of noise is a large floor angle
+        floor_turn, _, _ = turning_angles(chains, smooth, reach, floor_of(smooth))
+        turn = np.where(turn >= conf["corner_min_turn_image"], floor_turn, 0.0)
+        min_turn = conf["corner_min_turn_floor"]
     firsts = np.unique(start)
     for chain, i0 in zip(chains, firsts):
         i1 = i0 + len(chain)

@@ -34,11 +34,20 @@ from .crossings import (
     crossing_candidates,
     crossing_point,
     floor_arms,
+    line_pair_crossings,
+    sample_cells,
     verify_crossing,
 )
 from .field_boundary import DEFAULT_WEIGHTS, boundary_polyline, field_boundary
 from .goal_posts import goal_posts
-from .line_fit import floor_line_parameters, line_components, split_and_merge
+from .line_fit import (
+    RefinedLine,
+    floor_line_parameters,
+    lens_parameters,
+    line_components,
+    refine_segment,
+    split_and_merge,
+)
 from .line_structure import (
     key_structure,
     line_structure_graph,
@@ -49,7 +58,18 @@ from .line_structure import (
 confs = {
     "default": {
         "cell": 8,  # px per subsampled cell (the seed's 94 x 60 grid for 752 x 480)
-        "colour": copy.deepcopy(colour.confs["default"]),
+        "colour": {**copy.deepcopy(colour.confs["default"]),
+                   # green candidates need chroma >= this share of their luminance: lit white
+                   # walls and grey hall floors hold only a faint tint (saturation < 0.05 on
+                   # the HULKs frames), carpet green 0.2-0.6
+                   "green_min_saturation": 0.15,
+                   # green by hue and saturation around the frame's field green (colour.py):
+                   # real carpet seen near and far keeps its hue (+-8..15 deg on the HULKs
+                   # frames) but its saturation spans a factor 2.2..2.6 (p5..p95)
+                   "green_model": "hue",
+                   "green_hue_tolerance_deg": 15.0,
+                   "green_hue_k": 3.0,
+                   "green_saturation": [0.4, 2.5]},
         # classify every colour_step-th pixel of every colour_step-th row (1: all 64 pixels of
         # a cell, as the seed; 2: 16 per cell, counts scaled, see colour.classify_grid)
         "colour_step": 1,
@@ -63,6 +83,13 @@ confs = {
             "t_win": 0.75,  # mean grey of the 8 x 4 window below for weak cells
             "t_weak": 0.2,  # weak cells below this are never field
             "max_gap": 4,  # scan stops after more than this many non-field cells
+            # the scan starts at each column's lowest field cell (the robot's own body and
+            # feet cover the bottom of a NAO's lower camera)
+            "from_lowest": True,
+            # white runs between field cells of a row or column, up to line_run cells, are
+            # lines on the field (a near line along the view is many cells tall)
+            "line_white": 0.3,
+            "line_run": 10,
             "gauss_sigma": 0.7,  # bins
             "median_size": 5,  # bins
         },
@@ -71,7 +98,8 @@ confs = {
             "min_rise": 3,  # cells of white above the boundary
             "max_rise": 30,
             "max_below": 30,
-            "max_width": 4,  # cells
+            "max_width": 4,  # cells (goal_posts' default; the extractor uses min_distance)
+            "min_distance": 0.7,  # m: posts nearer than this (wider in the image) are not sought
             "full_height": 12,  # cells of bar at which the confidence is 1
             "post_diameter": 0.1,  # m (KidSize goal posts)
             "min_height": 0.4,  # m of white bar at least (of a post about 1.2 m high)
@@ -101,6 +129,11 @@ confs = {
             "smooth_iterations": 2,
             "corner_reach": 3.0,  # cells: arm length for the turning angle
             "corner_min_turn": math.radians(25.0),  # rad: lower turning is low curvature
+            # the same on the floor (used where the nodes project to the floor): an L turns by
+            # 90 deg there, the centre circle by about 40 deg over 3 cells at 2 m
+            "corner_min_turn_floor": math.radians(45.0),
+            "corner_min_turn_image": math.radians(10.0),  # ... where the image turns this
+            "floor_angles": True,  # corners and L angles measured on the floor
             "merge_distance": 3.0,  # cells: connected junctions closer than this merge
             "max_ring": 10.0,  # cells: shorter rings hanging at a node are removed
         },
@@ -111,6 +144,7 @@ confs = {
             "arm_step": 2.0,  # cells: arm points projected to the floor for the arm angles
             "max_shift": 8.0,  # cells from the key node to the arms' intersection
             "l_angle": [math.radians(25.0), math.radians(155.0)],  # rad, image angle of L arms
+            "l_angle_floor": [math.radians(45.0), math.radians(135.0)],  # rad, on the floor
             "circle_radii": [2.5, 3.5, 5.0, 7.0],  # cells (wide near lines need the larger)
             "arm_gap": 3.0,  # cells between neighbouring arms on an extra, larger circle
             "max_radius": 8.0,  # cells, of that circle
@@ -118,15 +152,33 @@ confs = {
             "relative": 0.35,  # ... and this share of the arms' median white level
             "t_green": 0.3,
             "max_other": 0.2,  # share of the circle neither white nor green (an object)
-            "object_radius": 2,  # cells: no cell mostly of other colours this near
+            # cells: no object this near: a 3 x 3-cell window mostly (> 0.5) of other colours
+            # (a line's blurred edge makes up to half of a cell "other", not a whole window)
+            "object_radius": 2,
             "edge_margin": 1.5,  # cells: crossings closer to the field boundary (within two
             # columns) are rejected
             "min_path_share": 0.7,
             "max_misfit": math.radians(30.0),  # rad: floor angle misfit from the L/T/X shape
-            # m: one grid cell is about 0.2 m of range at 2 m and 0.3 m at 2.5 m (camera
-            # 0.55 m high, 330 px focal length); on rendered walks farther crossings were
-            # mostly misplaced or of the wrong type
-            "max_distance": 2.0,
+            # arms refined on the full-resolution white mask from refine_skip cells off the
+            # crossing (see lines.refine_*)
+            "refine": True,
+            "refine_skip": 1.0,
+            "refine_step": 3.0,
+            "refine_reach": 2.0,
+            "refine_min_points": 3,
+            # crossings of pairs of fitted lines (crossings.line_pair_crossings): lines meeting
+            # at most pair_gap cells (plus the other line's width) beyond an end
+            "line_pairs": True,
+            "pair_gap": 1.5,
+            "merge_distance": 2.0,  # cells: of verified crossings closer, the best one stays
+            # m of line along each arm at least (a penalty mark next to a line is no corner)
+            "min_arm_length": 0.12,
+            "post_radius": 2.0,  # cells around a goal post's foot without crossings
+            # m of floor range one grid cell spans at the crossing, at most: about 0.2 m at
+            # 2 m for the KidSize camera (0.55 m high, 330 px focal length), at 2.7 m for the
+            # NAO's (0.47 m, 608 px); on rendered walks farther crossings were mostly
+            # misplaced or of the wrong type
+            "max_cell_span": 0.25,
         },
         "lines": {
             "split_distance": 7.0,  # undistorted px
@@ -137,6 +189,19 @@ confs = {
             "min_length": 0.3,  # m, shorter lines are not used
             "max_distance": 6.0,  # m, lines whose perpendicular is longer are not used
             "full_nodes": 8,  # nodes at which a line's confidence is 1
+            # refinement on the full-resolution white mask (line_fit.refine_segment):
+            # profiles across the segment every refine_step px, refine_reach cells to each
+            # side, from refine_extend cells before to after its ends
+            "refine": True,
+            "refine_step": 4.0,
+            "refine_reach": 2.0,
+            "refine_extend": 0.5,
+            "refine_min_points": 4,
+            "refine_grow": 4.0,  # cells the ends may grow along the refined line
+            # the white runs' median width over a painted line's (line_width m) at their
+            # floor positions: a seam or cable is thinner, a robot's leg or a post wider
+            "line_width": 0.05,
+            "width_ratio": [0.4, 2.5],
         },
     },
 }
@@ -180,19 +245,20 @@ class IdealPixels:
         return np.stack([o.ravel() for o in out], axis=1).astype(np.float64)
 
 
-_IDEAL_CACHE: dict[int, tuple[object, IdealPixels]] = {}
+_IDEAL_CACHE: dict[tuple, IdealPixels] = {}
 
 
 def ideal_pixels(camera) -> IdealPixels:
-    """The (cached) undistortion table of a camera."""
-    key = id(camera)
+    """The (cached) undistortion table of a camera's intrinsics and lens (the same for every
+    pose of the head, see PerspectiveCamera.with_pose)."""
+    key = (tuple(camera.image_size), camera.fx, camera.fy, camera.cx, camera.cy,
+           tuple(camera.distortion.tolist()))
     hit = _IDEAL_CACHE.get(key)
-    if hit is None or hit[0] is not camera:
+    if hit is None:
         if len(_IDEAL_CACHE) > 8:
             _IDEAL_CACHE.clear()
-        hit = (camera, IdealPixels(camera))
-        _IDEAL_CACHE[key] = hit
-    return hit[1]
+        hit = _IDEAL_CACHE[key] = IdealPixels(camera)
+    return hit
 
 
 class FloorProjection:
@@ -205,6 +271,7 @@ class FloorProjection:
         m = camera.rotation(pitch, roll) @ np.linalg.inv(camera.camera_matrix)
         self.m = m
         self.height = float(camera.height)
+        self.position = np.asarray(camera.position, float)
 
     def __call__(self, ideal) -> np.ndarray:
         p = np.asarray(ideal, float).reshape(-1, 2)
@@ -212,7 +279,19 @@ class FloorProjection:
         down = rays[:, 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             t = np.where(down < -1e-9, self.height / -down, np.nan)
-        return rays[:, :2] * t[:, None]
+        floor = rays[:, :2] * t[:, None]
+        if self.position.any():
+            floor += self.position
+        return floor
+
+    def to_ideal(self, floor) -> np.ndarray:
+        """Floor points (N, 2) in the robot frame -> ideal pixels (N, 2) (NaN behind the
+        camera)."""
+        p = np.asarray(floor, float).reshape(-1, 2) - self.position
+        rel = np.concatenate([p, np.full((len(p), 1), -self.height)], axis=1)
+        h = rel @ np.linalg.inv(self.m).T  # homogeneous ideal pixels
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(h[:, 2:] > 1e-9, h[:, :2] / h[:, 2:], np.nan)
 
 
 def ideal_to_floor(camera, ideal, pitch=None, roll=None) -> np.ndarray:
@@ -236,24 +315,63 @@ def _empty(n: int) -> np.ndarray:
     return np.zeros((0, n), np.float32)
 
 
-def colour_shares(image_bgr: np.ndarray, conf: dict) -> dict[str, np.ndarray]:
-    """Step 1: the subsampled colour-class images as counts (0..cell^2) per class name."""
+def below_horizon(camera, shape, cell: int, pitch=None, roll=None) -> np.ndarray:
+    """Bool mask (h, w) of the pixels whose cell (``cell`` x ``cell`` blocks) has its centre's
+    viewing ray pointing below the horizon, where the floor can be."""
+    h, w = shape[:2]
+    hb, wb = -(-h // cell), -(-w // cell)
+    gy, gx = np.mgrid[0:hb, 0:wb]
+    centres = grid_to_pixels(np.stack([gx.ravel(), gy.ravel()], axis=1), cell)
+    m = camera.rotation(pitch, roll) @ np.linalg.inv(camera.camera_matrix)
+    ideal = ideal_pixels(camera)(centres)
+    down = (ideal @ m[2, :2] + m[2, 2]) < 0  # NaN (outside the lens model) compares False
+    cells = down.reshape(hb, wb)
+    return np.repeat(np.repeat(cells, cell, axis=0), cell, axis=1)[:h, :w]
+
+
+def colour_shares(image_bgr: np.ndarray, conf: dict, camera=None, pitch=None, roll=None
+                  ) -> dict[str, np.ndarray]:
+    """Step 1: the subsampled colour-class images as counts (0..cell^2) per class name. The
+    field green is estimated from the floor below the horizon when the camera is given (walls
+    and the hall's other floor hold large areas of faintly green-tinted grey)."""
     cell = conf["cell"]
-    counts, _ = colour.classify_grid(image_bgr, conf["colour"], None, cell,
-                                     int(conf.get("colour_step", 1)))
-    return {name: counts[..., i] for i, name in enumerate(colour.CLASS_NAMES)}
+    floor = None if camera is None else below_horizon(camera, image_bgr.shape, cell, pitch,
+                                                      roll)
+    step = int(conf.get("colour_step", 1))
+    counts = None
+    white_px = np.zeros(image_bgr.shape[:2], np.uint8) if step == 1 else None
+    if step == 1:  # the compiled pass (the hue model of the green test)
+        yuv = colour.to_yuv(image_bgr)
+        fc = colour.estimate_field_colour(yuv, conf["colour"], floor)
+        counts = colour.classify_cells(yuv, fc, conf["colour"], cell, white_px)
+    if counts is None:
+        white_bool = None if white_px is None else white_px.view(bool)
+        counts, _ = colour.classify_grid(image_bgr, conf["colour"], None, cell, step,
+                                         green_from=floor, white_out=white_bool)
+    out = {name: counts[..., i] for i, name in enumerate(colour.CLASS_NAMES)}
+    if white_px is not None:
+        out["white_px"] = white_px.astype(np.float32)
+    return out
 
 
 def extract_frame(image_bgr: np.ndarray, camera, conf: dict, pitch: float | None = None,
-                  roll: float | None = None, **frame_info) -> dict[str, np.ndarray]:
+                  roll: float | None = None, yaw: float | None = None,
+                  height: float | None = None, x: float | None = None, y: float | None = None,
+                  **frame_info) -> dict[str, np.ndarray]:
     """The seed-000 chain on one BGR frame; ``camera`` is a PerspectiveCamera, ``pitch`` and
-    ``roll`` the frame's head angles (default: the calibration's nominal ones). A frame of
-    another size than the calibration's is a DatasetError (the caller skips the frame)."""
+    ``roll`` the frame's head angles, ``yaw``, ``height`` and ``x``, ``y`` (the optical
+    centre over the floor) the rest of its pose where the dataset records them (head.csv;
+    default: the calibration's nominal values). A frame of another size than the
+    calibration's is a DatasetError (the caller skips the frame)."""
     h, w = image_bgr.shape[:2]
     if (w, h) != tuple(camera.image_size):
         raise DatasetError(f"image is {w} x {h} px, the calibration is for "
                            f"{camera.image_size[0]} x {camera.image_size[1]} px")
-    counts = colour_shares(image_bgr, conf)
+    if yaw is not None or height is not None or x is not None or y is not None:
+        position = None if x is None and y is None else (
+            camera.position[0] if x is None else x, camera.position[1] if y is None else y)
+        camera = camera.with_pose(yaw=yaw, height=height, position=position)
+    counts = colour_shares(image_bgr, conf, camera, pitch, roll)
     return extract_from_counts(counts, camera, conf, pitch, roll)
 
 
@@ -272,32 +390,36 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
     top, field = field_boundary(counts, conf["boundary"], area)
     boundary = boundary_polyline(top, cell)
 
-    # 3. goal posts (their bars are taken out of the white image before the line structure)
+    # 3. goal posts rising above the boundary
     pc = conf["posts"]
-    feet_px, heights, widths, groups, foot_rows = goal_posts(white, top, pc, cell)
-    white_lines = white.copy()
-    for g, row in zip(groups, foot_rows):
-        white_lines[:row, g[0]: g[-1] + 1] = 0.0  # the bar only: a line at its foot stays
+    # a post's width in cells at the nearest distance it is looked for
+    max_width = int(math.ceil(camera.fx * pc["post_diameter"] / pc["min_distance"] / cell)) + 1
+    feet_px, heights, widths, groups, foot_rows = goal_posts(white, top, pc, cell, max_width)
 
-    # 4. line structure graph
+    # 4. line structure graph (a post's lower part becomes a segment there: is_post_bar tells
+    # it from a line, and crossings at a post's foot are not taken)
     sc = conf["skeleton"]
-    inside = white_inside_boundary(white_lines, top, sc["boundary_margin"])
+    inside = white_inside_boundary(white, top, sc["boundary_margin"])
     lp = low_pass(inside)
     graph, skeleton, _ = line_structure_graph(lp, sc)
 
     # 5. key structure; 6. field lines (both on undistorted node coordinates)
-    ks = key_structure(graph, conf["key"])
-    node_px = grid_to_pixels(graph.pos, cell)
     undistort = ideal_pixels(camera)
-    ideal = undistort(node_px) if len(node_px) else node_px.reshape(-1, 2)
     to_floor = FloorProjection(camera, pitch, roll)
-    other = counts["other"].astype(np.float32) / area
-    crossings, crossings_px = find_crossings(ks, graph, ideal, inside, green, other, top, camera,
-                                             to_floor, conf["crossings"], cell, trace)
-    lines, line_ends, line_ends_px, bar_posts, bar_posts_px = find_lines(
-        graph, ideal, camera, to_floor, conf["lines"], top, white, cell, pc, trace)
 
-    # 7. goal post feet on the floor
+    def floor_of(grid_pos):
+        return to_floor(undistort(grid_to_pixels(grid_pos, cell)))
+
+    floor_angles = conf["key"]["floor_angles"]
+    ks = key_structure(graph, conf["key"], floor_of if floor_angles else None)
+    node_px = grid_to_pixels(graph.pos, cell)
+    ideal = undistort(node_px) if len(node_px) else node_px.reshape(-1, 2)
+    other = counts["other"].astype(np.float32) / area
+    lines, line_ends, line_ends_px, bar_posts, bar_posts_px, lines_ideal, line_widths = \
+        find_lines(graph, ideal, camera, to_floor, conf["lines"], top, white, cell, pc, trace,
+                   counts.get("white_px"))
+    # 6b. goal post feet on the floor (before the crossings: a post's foot on a line is no
+    # crossing)
     posts, posts_px = [], []
     if len(feet_px):
         floor = to_floor(undistort(feet_px))
@@ -321,6 +443,13 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
             posts.append(row)
             posts_px.append(px)
 
+    crossings, crossings_px = find_crossings(ks, graph, ideal, inside, green, other, top, camera,
+                                             to_floor, conf["crossings"], cell, trace,
+                                             counts.get("white_px"),
+                                             floor_of if floor_angles else None,
+                                             np.asarray(lines_ideal).reshape(-1, 2, 2),
+                                             np.asarray(line_widths, float), posts_px)
+
     if trace is not None:
         trace.update(top=top, field=field, white=white, green=green, inside=inside, lp=lp,
                      skeleton=skeleton, graph=graph, key=ks, ideal=ideal, post_groups=groups)
@@ -342,31 +471,62 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
 
 def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.ndarray,
                    other: np.ndarray, top: np.ndarray, camera, to_floor: FloorProjection,
-                   cc: dict, cell: int, trace: dict | None = None):
-    """Section 4.1 on the key structure: L/T/X candidates, each placed at the intersection of
-    its arms' lines (fitted to the undistorted nodes), verified in the colour images (circle
-    transitions, white paths), then projected to the floor where the arms must form the
-    crossing's shape. Returns rows [type, distance, bearing, orientation, confidence] and the
-    crossings' image positions."""
-    lo, hi = cc["l_angle"]
-    cands = crossing_candidates(ks, graph, cc["arm_reach"], (lo, hi))
-    rows, pxs, verdicts = [], [], []
+                   cc: dict, cell: int, trace: dict | None = None,
+                   white_px: np.ndarray | None = None, floor_of=None,
+                   lines_ideal: np.ndarray | None = None,
+                   line_widths: np.ndarray | None = None, posts_px=()):
+    """Section 4.1: L/T/X candidates of the key structure, each placed at the intersection of
+    its arms' lines (fitted to the undistorted nodes, refined on the full-resolution white
+    mask), and the crossings of pairs of fitted field lines (``lines_ideal`` (N, 2, 2) ideal
+    px, ``line_widths`` (N,) px; ``crossings.line_pair_crossings``), all verified the same
+    way (``_verify_crossing``: floor shape, range, boundary, objects, circle transitions and
+    white paths). Of verified crossings closer than ``merge_distance`` cells the best scored
+    one stays; none within ``post_radius`` cells of a goal post's foot (``posts_px``). Returns
+    rows [type, distance, bearing, orientation, confidence] and the crossings' image
+    positions."""
+    lo, hi = cc["l_angle"] if floor_of is None else cc["l_angle_floor"]
+    cands = crossing_candidates(ks, graph, cc["arm_reach"], (lo, hi), floor_of)
+    other_mean = cv2.blur(other, (3, 3), borderType=cv2.BORDER_REPLICATE)
+    rows_ = np.arange(white.shape[0], dtype=np.float64)[:, None]
+    field_cells = (rows_ >= np.asarray(top, np.float64)[None, :]).astype(np.float32)
+    verdicts, found = [], []
     for cand in cands:
-        verdict = _crossing(cand, ks, ideal, white, green, other, top, camera, to_floor, cc,
-                            cell)
+        verdict = _crossing(cand, ks, ideal, white, green, other_mean, top, camera, to_floor,
+                            cc, cell, white_px, field_cells)
         verdicts.append(verdict)
-        if isinstance(verdict, str):
-            continue
-        rows.append(verdict[0])
-        pxs.append(verdict[1])
+        if not isinstance(verdict, str):
+            found.append(verdict)
+    pairs, pair_verdicts = [], []
+    if lines_ideal is not None and len(lines_ideal) > 1 and cc.get("line_pairs", True):
+        pairs = line_pair_crossings(lines_ideal, line_widths, to_floor, cc["pair_gap"] * cell,
+                                    cc["max_misfit"])
+        reach = cc["arm_reach"] * cell
+        for lc in pairs:
+            verdict = _verify_crossing(lc.kind, lc.point, lc.arms,
+                                       np.minimum(reach, lc.lengths), white, green, other_mean,
+                                       top, camera, to_floor, cc, cell, field_cells, lc.lengths)
+            pair_verdicts.append(verdict)
+            if not isinstance(verdict, str):
+                found.append(verdict)
+    found.sort(key=lambda v: -v[0][4])
+    rows, pxs = [], []
+    # a goal post standing on a line makes a junction in the image, not a crossing
+    near_post = cc["post_radius"] * cell
+    found = [(row, px) for row, px in found
+             if all(np.hypot(*(px - q)) > near_post for q in posts_px)]
+    for row, px in found:
+        if all(np.hypot(*(px - q)) > cc["merge_distance"] * cell for q in pxs):
+            rows.append(row)
+            pxs.append(px)
     if trace is not None:
-        trace.update(candidates=cands, crossing_verdicts=verdicts)
+        trace.update(candidates=cands, crossing_verdicts=verdicts, line_pairs=pairs,
+                     line_pair_verdicts=pair_verdicts)
     return rows, pxs
 
 
-def _crossing(cand, ks, ideal, white, green, other, top, camera, to_floor, cc, cell):
-    """One candidate -> (row, image position), or the reason it was rejected. The cheap floor
-    checks come before the image checks."""
+def _crossing(cand, ks, ideal, white, green, other_mean, top, camera, to_floor, cc, cell,
+              white_px=None, field_cells=None):
+    """One key-structure candidate -> (row, image position), or the reason it was rejected."""
     centre = ideal[ks.node[cand.key]]
     if not np.all(np.isfinite(centre)):
         return "outside the lens model"
@@ -374,6 +534,8 @@ def _crossing(cand, ks, ideal, white, green, other, top, camera, to_floor, cc, c
     arms = arm_lines(centre, chains, ideal, cc["arm_skip"], cc["arm_nodes"])
     if len(arms) != len(cand.arm_points):
         return "arm without nodes"
+    if white_px is not None and cc.get("refine", True):
+        arms = [_refined_arm(arm, centre, white_px, camera, cc, cell) for arm in arms]
     # an L's skeleton cuts its corner and a junction node may sit beside a thin line: the
     # crossing is where the lines fitted to its arms meet
     x = crossing_point(cand.kind, arms)
@@ -381,39 +543,101 @@ def _crossing(cand, ks, ideal, white, green, other, top, camera, to_floor, cc, c
         return "arms do not meet near the node"
     dirs = np.array([u for _, u, _ in arms])
     step = cc["arm_step"] * cell
+    lengths = np.array([max(float(np.max((sel - x) @ u)), step) for _, u, sel in arms])
+    reach = np.minimum(cc["arm_reach"] * cell, lengths)
+    return _verify_crossing(cand.kind, x, dirs, reach, white, green, other_mean, top, camera,
+                            to_floor, cc, cell, field_cells, lengths)
+
+
+def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera, to_floor, cc,
+                     cell, field_cells=None, lengths=None):
+    """A crossing of ``kind`` at ideal point ``x`` with arms along ``dirs`` (A, 2) reaching
+    ``reach`` (A,) px, its lines extending ``lengths`` (A,) px along them -> (row, image
+    position), or the reason it is rejected. The cheap floor checks come before the image
+    checks."""
+    step = cc["arm_step"] * cell
     floor = to_floor(np.vstack([x[None], x + step * dirs]))
     if not np.all(np.isfinite(floor)):
         return "above the horizon"
+    if lengths is not None:
+        ends = to_floor(x[None] + np.asarray(lengths)[:, None] * dirs)
+        arm_m = np.hypot(*(ends - floor[0]).T)  # NaN beyond the horizon: long enough
+        if np.any(arm_m < cc["min_arm_length"]):
+            return "arm too short"
     d, bearing = _polar(floor[:1])
-    if d[0] > cc["max_distance"]:
+    below = to_floor(x[None] + np.array([[0.0, float(cell)]]))
+    if not np.all(np.isfinite(below)) or np.hypot(*(below[0] - floor[0])) > cc["max_cell_span"]:
         return "too far"
     arm_dirs = np.arctan2(floor[1:, 1] - floor[0, 1], floor[1:, 0] - floor[0, 0])
-    orient, misfit = floor_arms(cand.kind, arm_dirs)
+    orient, misfit = floor_arms(kind, arm_dirs)
     if misfit > cc["max_misfit"]:
         return f"floor angles misfit {math.degrees(misfit):.0f} deg"
-    reach = np.array([min(cc["arm_reach"] * cell, max(float(np.max((sel - x) @ u)), step))
-                      for _, u, sel in arms])
     px = camera.distort_points(np.vstack([x[None], x + reach[:, None] * dirs]))
+    if not np.all(np.isfinite(px)):
+        return "outside the lens model"
     grid = (px + 0.5) / cell - 0.5
     col = int(np.clip(round(grid[0, 0]), 0, len(top) - 1))
     near_top = top[max(col - 2, 0): col + 3].max()  # the boundary within two columns
     if grid[0, 1] - near_top < cc["edge_margin"]:
         return "at the field boundary"  # a line meeting an object or the end of the view
-    row = int(np.clip(round(grid[0, 1]), 0, other.shape[0] - 1))
+    row = int(np.clip(round(grid[0, 1]), 0, other_mean.shape[0] - 1))
     r = cc["object_radius"]
-    if other[max(row - r, 0): row + r + 1, max(col - r, 0): col + r + 1].max() > 0.5:
+    if other_mean[max(row - r, 0): row + r + 1, max(col - r, 0): col + r + 1].max() > 0.5:
         return "next to an object"  # a robot's or a person's white foot on a line
-    score = verify_crossing(grid[0], grid[1:], white, green, cc)
+    # the arms that would make an L a T must be in view (a T's stem continued would make an
+    # X, which fields hold only where the centre circle crosses the halfway line)
+    if kind == "L" and not _alternative_in_view(x, dirs, camera, top, other_mean, green, cc,
+                                                cell):
+        return "not green where a T's arm would be"
+    score = verify_crossing(grid[0], grid[1:], white, green, cc, field_cells)
     if score <= 0:
         return "not verified in the image"
-    row = [TYPE_CODES[cand.kind], d[0], bearing[0], orient,
+    row = [TYPE_CODES[kind], d[0], bearing[0], orient,
            score * (1.0 - misfit / math.radians(90.0))]
     return row, px[0]
 
 
+def _alternative_in_view(x, dirs, camera, top, other_mean, green, cc, cell) -> bool:
+    """Whether the image shows carpet opposite an L's arms (where the third arm of a T would
+    be), ``arm_reach`` cells from the crossing: inside the image and the field boundary, no
+    object there, and green (at least ``t_green``). A T seen with one half of its bar out of
+    view or hidden looks like an L; so do a far X's arms, flattened by the perspective."""
+    pts = camera.distort_points(x[None] - cc["arm_reach"] * cell * dirs)
+    w, h = camera.image_size
+    for p in pts:
+        if not (np.all(np.isfinite(p)) and 0 <= p[0] <= w - 1 and 0 <= p[1] <= h - 1):
+            return False
+        g = (p + 0.5) / cell - 0.5
+        col = int(np.clip(round(g[0]), 0, len(top) - 1))
+        row = int(np.clip(round(g[1]), 0, other_mean.shape[0] - 1))
+        if g[1] - top[col] < cc["edge_margin"] or other_mean[row, col] > 0.5:
+            return False
+        if sample_cells(green, g[None])[0] < cc["t_green"]:
+            return False
+    return True
+
+
+def _refined_arm(arm, centre: np.ndarray, white_px: np.ndarray, camera, cc: dict, cell: int):
+    """An arm's line (centroid, unit direction away from the crossing, points) refined on the
+    full-resolution white mask (line_fit.refine_segment) over its nodes' extent from
+    ``refine_skip`` cells off the crossing on; the coarse arm where that fails."""
+    c, u, sel = arm
+    t = (sel - centre) @ u
+    t0, t1 = max(float(t.min()), cc["refine_skip"] * cell), float(t.max())
+    if t1 - t0 < cell:
+        return arm
+    ref = refine_segment(np.stack([centre + t0 * u, centre + t1 * u]), white_px,
+                         lens_parameters(camera), cc["refine_step"], cc["refine_reach"] * cell,
+                         0.0, cc["refine_min_points"])
+    if ref is None:
+        return arm
+    d = ref.fit.direction if float(ref.fit.direction @ u) >= 0 else -ref.fit.direction
+    return ref.fit.centroid, d, ref.centres
+
+
 def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: dict,
                top: np.ndarray, white: np.ndarray, cell: int, pc: dict,
-               trace: dict | None = None):
+               trace: dict | None = None, white_px: np.ndarray | None = None):
     """Section 4.2: split-and-merge lines on the undistorted node coordinates, end points
     projected on the fits, then onto the floor. A line is used for localisation (confidence
     > 0) when it is long enough and near enough.
@@ -423,17 +647,41 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
     the posts, so they do not always rise above it).
 
     Returns line rows [perpendicular distance, its angle, length, confidence], floor end
-    points, image end points, and post rows [distance, bearing, confidence] with their image
-    foot points."""
+    points, image end points, post rows [distance, bearing, confidence] with their image
+    foot points, and per line its ideal end points (2, 2) and its white width across (px:
+    the refined runs' median, else one cell)."""
     segments = split_and_merge(ideal, line_components(graph), lc)
-    lines, ends_m, ends_px, posts, posts_px = [], [], [], [], []
+    lines, ends_m, ends_px, posts, posts_px, ends_ideal, widths = [], [], [], [], [], [], []
     if not segments:
-        return lines, ends_m, ends_px, posts, posts_px
-    ends = np.concatenate([seg.ends for seg in segments])
+        return lines, ends_m, ends_px, posts, posts_px, ends_ideal, widths
+    refined = [None] * len(segments)
+    if white_px is not None and lc.get("refine", True):
+        lens = lens_parameters(camera)
+        refined = [refine_segment(seg.ends, white_px, lens, lc["refine_step"],
+                                  lc["refine_reach"] * cell, lc["refine_extend"] * cell,
+                                  lc["refine_min_points"], lc["refine_grow"] * cell)
+                   for seg in segments]
+    ratios = width_ratios([r for r in refined if r is not None], to_floor, lc["line_width"])
+    ends = np.concatenate([seg.ends if r is None else r.ends for seg, r in
+                           zip(segments, refined)])
     all_px = camera.distort_points(ends).reshape(-1, 2, 2)
     all_floor = to_floor(ends).reshape(-1, 2, 2)
-    for seg, e_px, e_floor in zip(segments, all_px, all_floor):
+    for seg, ref, e_px, e_floor, e_ideal in zip(segments, refined, all_px, all_floor,
+                                                ends.reshape(-1, 2, 2)):
         if not np.all(np.isfinite(e_floor)):
+            # reaching above the horizon: no field line, but maybe a post (its foot on the
+            # floor, the part below the horizon runs away from the robot)
+            clipped = _below_horizon_part(e_ideal, to_floor, lc["max_distance"])
+            if clipped is None:
+                continue
+            e_floor = to_floor(clipped)
+            dist, _, _ = floor_line_parameters(e_floor[0], e_floor[1])
+            ranges = np.hypot(*e_floor.T)
+            if is_post_bar(dist, float(ranges.min()), e_px, top, white, camera.fx, cell, pc):
+                k = int(np.argmin(ranges))
+                posts.append([float(ranges[k]), math.atan2(e_floor[k, 1], e_floor[k, 0]),
+                              pc["bar_confidence"]])
+                posts_px.append(camera.distort_points(clipped[k:k + 1])[0])
             continue
         dist, angle, length = floor_line_parameters(e_floor[0], e_floor[1])
         ranges = np.hypot(*e_floor.T)
@@ -443,16 +691,70 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
             posts.append([near, math.atan2(e_floor[k, 1], e_floor[k, 0]), pc["bar_confidence"]])
             posts_px.append(e_px[k])
             continue
+        if ref is not None:
+            ratio = ratios[id(ref)]
+            if not (lc["width_ratio"][0] <= ratio <= lc["width_ratio"][1]):
+                continue  # a seam, a cable, a robot's leg: not of a field line's width
+        rms = seg.fit.rms if ref is None else ref.fit.rms
         used = length >= lc["min_length"] and dist <= lc["max_distance"] \
             and near <= lc["max_distance"] and len(seg.nodes) >= lc["min_used_nodes"]
         confidence = (min(1.0, len(seg.nodes) / lc["full_nodes"])
-                      * max(0.0, 1.0 - seg.fit.rms / lc["split_distance"])) if used else 0.0
+                      * max(0.0, 1.0 - rms / lc["split_distance"])) if used else 0.0
         lines.append([dist, angle, length, confidence])
         ends_m.append(e_floor.ravel())
         ends_px.append(e_px.ravel())
+        ends_ideal.append(seg.ends if ref is None else ref.ends)
+        widths.append(float(cell) if ref is None else float(np.median(ref.widths)))
     if trace is not None:
-        trace.update(segments=segments)
-    return lines, ends_m, ends_px, posts, posts_px
+        trace.update(segments=segments, refined=refined)
+    return lines, ends_m, ends_px, posts, posts_px, ends_ideal, widths
+
+
+def _below_horizon_part(ends: np.ndarray, to_floor: FloorProjection, max_range: float,
+                        samples: int = 33) -> np.ndarray | None:
+    """The part (2, 2 ideal px) of a segment whose floor projection lies within
+    ``max_range`` m (a segment reaching above the horizon cut where it still meets the floor
+    near enough), or None when less than two of ``samples`` points along it do."""
+    t = np.linspace(0.0, 1.0, samples)[:, None]
+    pts = ends[0] * (1 - t) + ends[1] * t
+    f = to_floor(pts)
+    ok = np.all(np.isfinite(f), axis=1)
+    ok[ok] = np.hypot(*f[ok].T) <= max_range
+    idx = np.nonzero(ok)[0]
+    if len(idx) < 2:
+        return None
+    return np.stack([pts[idx[0]], pts[idx[-1]]])
+
+
+def width_ratios(refs: list[RefinedLine], to_floor: FloorProjection, line_width: float
+                 ) -> dict[int, float]:
+    """Per refined line (by id): the median of its white runs' widths over the width a
+    painted line of ``line_width`` metres has in the image at each run's floor position (both
+    across the line, in ideal pixels); NaN where no run lies on the floor. All lines' points
+    are projected together."""
+    if not refs:
+        return {}
+    counts = np.array([len(r.centres) for r in refs])
+    floor = to_floor(np.concatenate([r.centres for r in refs]))
+    ends = to_floor(np.concatenate([r.ends for r in refs])).reshape(-1, 2, 2)
+    d = ends[:, 1] - ends[:, 0]
+    length = np.hypot(d[:, 0], d[:, 1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        nf = np.stack([-d[:, 1], d[:, 0]], axis=1) / length[:, None]
+    nf_pts = np.repeat(nf, counts, axis=0)
+    half = 0.5 * line_width
+    a = to_floor.to_ideal(floor - half * nf_pts)
+    b = to_floor.to_ideal(floor + half * nf_pts)
+    n_img = np.repeat(np.array([r.fit.normal for r in refs]), counts, axis=0)
+    expected = np.abs(((b - a) * n_img).sum(axis=1))
+    ratio = np.concatenate([r.widths for r in refs]) / np.maximum(expected, 1e-6)
+    ok = np.all(np.isfinite(floor), axis=1) & np.isfinite(ratio)
+    out, k = {}, 0
+    for r, n in zip(refs, counts):
+        sel = ok[k:k + n]
+        out[id(r)] = float(np.median(ratio[k:k + n][sel])) if sel.any() else float("nan")
+        k += n
+    return out
 
 
 def is_post_bar(dist: float, near: float, ends_px: np.ndarray, top: np.ndarray, white: np.ndarray,

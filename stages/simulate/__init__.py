@@ -173,6 +173,35 @@ confs["perspective-clean"] = _preset(
 )
 
 
+# issue 9: a NAO v6 (SPL) with its top camera (640 x 480, no wide-angle lens, HULKs' intrinsics
+# fx 608, fy 609.6 px; the camera about 0.45 m high, looking 11 deg down as HULKs' top frames
+# do in the median) on an SPL field in a hall: sun patches and shadows across the lines, the
+# carpet's sheen, over-exposed white, white balls, other NAOs' white legs, lines of uneven
+# width and brightness, JPEG frames
+confs["perspective-nao"] = _preset(
+    _PERSPECTIVE_BASE,
+    trajectory={"speed_min": 0.1, "speed_max": 0.25, "turn_rate_max": 0.8},
+    scene={"robots": 4, "robot_radius": 0.1, "robot_height": 0.57, "robot_speed": [0.05, 0.25],
+           "robot_style": "nao", "people": 1, "handlers": 1, "balls": 2,
+           "ball_bgr": [222, 226, 228], "goal_height": 0.8, "cables": 0, "sticks": 0,
+           "papers": 0, "tapes": 2, "carpet_bgr": [43, 127, 68], "carpet_variation": 0.14,
+           "carpet_hue_variation": 0.08, "stripe_contrast": 0.03, "floor_bgr": [160, 150, 140],
+           "line_brightness": [0.8, 1.1], "line_wear": 0.3, "line_width_variation": 0.3,
+           "sun_patches": 24, "sun_strength": [0.8, 1.8], "shadows": 10,
+           "shadow_strength": [0.2, 0.45], "lamp_contrast": 0.3,
+           "lighting": {"gain": [0.45, 1.5], "periods": [3.0, 25.0],
+                        "colour_temperature": 0.12, "tint": 0.08}},
+    perspective={"image_size": [640, 480],
+                 "intrinsics": {"fx": 608.0, "fy": 609.6, "cx": 319.5, "cy": 239.5},
+                 "distortion": [0.0, 0.0, 0.0, 0.0, 0.0], "height": 0.45, "pitch": 0.19,
+                 "roll": 0.0,
+                 "imaging": {**PERSPECTIVE_DEFAULTS["imaging"], "blur": 0.7, "corner_blur": 1.0,
+                             "vignetting": 0.25, "chromatic_aberration": 0.4,
+                             "jpeg_quality": 85},
+                 "sheen": 0.45, "sheen_power": 4.0},
+)
+
+
 def renderer_class(kind: str):
     if kind not in RENDERERS:
         raise FieldlocError(

@@ -56,7 +56,13 @@ PERSPECTIVE_DEFAULTS = {
         "shot_noise": 0.35,  # sigma = shot_noise * sqrt(level)
         "bayer": True,  # RGGB mosaic + bilinear demosaicing (colour fringes)
         "chroma_subsample": 2,  # horizontal chroma subsampling (YUV 4:2:2); 1: none
+        "jpeg_quality": 0,  # > 0: JPEG round trip at this quality (frames stored as JPEG)
     },
+    # the carpet's sheen: at grazing view angles artificial turf reflects the hall's light,
+    # brighter and less saturated far away; share of the sheen colour at a ray along the floor
+    "sheen": 0.0,
+    "sheen_power": 3.0,  # falls off as (1 - |cos|)^power towards looking straight down
+    "sheen_bgr": [196, 204, 204],
 }
 
 _CEILING = np.array([46, 44, 48], np.float32)  # BGR, as the omni renderer's
@@ -250,6 +256,8 @@ class PerspectiveRenderer:
         FX = px + t_floor * dx
         FY = py + t_floor * dy
         img = self._floor(FX, FY, floor)
+        if float(self.conf["sheen"]) > 0:
+            self._sheen(img, dz, floor)
         depth = np.minimum(t_floor, t_wall)
         rows = np.nonzero(~floor.all(axis=1))[0]
         if len(rows):
@@ -359,6 +367,14 @@ class PerspectiveRenderer:
             sub = img[idx]
             img[idx] = sub + (col - sub) * cover[:, None]
         return img
+
+    def _sheen(self, img, dz, floor):
+        """Blend the floor towards the sheen colour by sheen * (1 - |dz|)^sheen_power (dz: the
+        ray's vertical component, -1 looking straight down) (in place)."""
+        k = np.float32(self.conf["sheen"]) * (np.float32(1.0) - np.abs(dz)) ** np.float32(
+            self.conf["sheen_power"])
+        k = np.where(floor, k, np.float32(0.0))[..., None]
+        img += (np.asarray(self.conf["sheen_bgr"], np.float32)[None, None, :] - img) * k
 
     def _walls(self, dx, dy, dz, tx, ty, t_wall, px, py, pz) -> np.ndarray:
         """Wall texture (or the ceiling above the walls) for a band of rows; the perimeter
@@ -591,4 +607,10 @@ class PerspectiveRenderer:
             cr, cb = (cv2.resize(cv2.resize(c, (w // k, h), interpolation=cv2.INTER_AREA),
                                  (w, h), interpolation=cv2.INTER_NEAREST) for c in (cr, cb))
             out = cv2.cvtColor(cv2.merge([y_, cr, cb]), cv2.COLOR_YCrCb2BGR)
+        q = int(im.get("jpeg_quality", 0))
+        if q > 0:
+            ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, q])
+            if not ok:
+                raise FieldlocError("JPEG encoding of a rendered frame failed")
+            out = cv2.imdecode(buf, cv2.IMREAD_COLOR)
         return out

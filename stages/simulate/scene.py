@@ -64,6 +64,15 @@ SCENE_DEFAULTS = {
     "papers": 2,  # white sheets
     "tapes": 6,  # tape marks
     "audience": 80,  # people standing along the walls
+    # additions for hall lighting and SPL-like movers (their defaults leave the world as
+    # before; the perspective-nao preset sets them)
+    "sun_patches": 0,  # patches of sunlight on the floor (through high windows)
+    "sun_strength": [0.5, 1.2],  # relative extra light in a patch
+    "shadows": 0,  # soft shadow bands across the floor (beams, people, the goal)
+    "shadow_strength": [0.25, 0.5],  # relative light lost in a band
+    "line_width_variation": 0.0,  # relative change of the painted width along the lines
+    "ball_bgr": [30, 110, 235],  # the ball's colour (an SPL ball is white)
+    "robot_style": "cylinder",  # "cylinder": dark bodies; "nao": white legs, grey torso
     "lighting": {
         "gain": [0.5, 1.6],  # range of the overall light level over time
         "periods": [3.0, 25.0],  # s, periods of its variation
@@ -130,9 +139,12 @@ class FieldScene:
         out = []
         c = self.conf
         for k, pose in enumerate(self.tracks.get("robots", np.zeros((0, 1, 3)))[:, frame]):
-            x, y, _ = pose
+            x, y, th = pose
             team = (200, 170, 40) if k % 2 else (170, 60, 200)  # cyan / magenta markers (BGR)
             r, h = c["robot_radius"], c["robot_height"]
+            if c.get("robot_style", "cylinder") == "nao":
+                out.append(nao_robot(x, y, th, r, h, team, frame + 3 * k))
+                continue
             out.append([
                 Cylinder(x, y, r, 0.0, h, (34, 34, 38), "body"),
                 Cylinder(x, y, r + 0.004, 0.55 * h, 0.72 * h, team, "marker"),
@@ -152,13 +164,37 @@ class FieldScene:
                 parts.append(Cylinder(fx, fy, 0.075, 0.0, 0.09, shoes, "body"))
             parts.append(Cylinder(x, y, 0.18, 0.85, 1.55, shirt, "body"))
             out.append(parts)
+        ball = tuple(c.get("ball_bgr", (30, 110, 235)))
         for pose in self.tracks.get("balls", np.zeros((0, 1, 3)))[:, frame]:
-            out.append([Cylinder(pose[0], pose[1], 0.11, 0.0, 0.22, (30, 110, 235), "ball")])
+            out.append([Cylinder(pose[0], pose[1], 0.11, 0.0, 0.22, ball, "ball")])
         return out
 
     def robot_positions(self) -> np.ndarray:
         """(K, N, 2) positions of the other robots over the frames."""
         return self.tracks.get("robots", np.zeros((0, 0, 3)))[..., :2]
+
+
+def nao_robot(x, y, theta, radius, height, team, phase) -> list[Cylinder]:
+    """A standing or walking NAO as cylinders: two white legs with grey knees and feet, a
+    grey-white torso with a team-coloured jersey, white arms, a head (its legs are the white
+    bars a perspective camera sees on the carpet)."""
+    side = np.array([-math.sin(theta), math.cos(theta)])
+    fwd = np.array([math.cos(theta), math.sin(theta)])
+    step = 0.04 * math.sin(0.8 * phase) * fwd
+    leg_r = 0.22 * radius
+    white, grey = (228, 230, 232), (120, 122, 126)
+    parts = []
+    for sgn in (-1.0, 1.0):
+        fx, fy = np.array([x, y]) + sgn * 0.45 * radius * side + sgn * step
+        parts.append(Cylinder(fx, fy, leg_r * 1.3, 0.0, 0.03 * height, grey, "body"))  # foot
+        parts.append(Cylinder(fx, fy, leg_r, 0.03 * height, 0.48 * height, white, "body"))
+        parts.append(Cylinder(fx, fy, leg_r * 1.05, 0.22 * height, 0.27 * height, grey, "body"))
+        ax, ay = np.array([x, y]) + sgn * 1.05 * radius * side
+        parts.append(Cylinder(ax, ay, 0.55 * leg_r, 0.5 * height, 0.8 * height, white, "body"))
+    parts.append(Cylinder(x, y, 0.8 * radius, 0.48 * height, 0.84 * height, grey, "body"))
+    parts.append(Cylinder(x, y, 0.82 * radius, 0.6 * height, 0.78 * height, team, "marker"))
+    parts.append(Cylinder(x, y, 0.55 * radius, 0.84 * height, height, white, "body"))
+    return parts
 
 
 # ---------------------------------------------------------------------------- noise
@@ -226,6 +262,45 @@ def illumination(conf, shape, res, origin) -> np.ndarray:
     light = lamp.sum(axis=(2, 3))
     light = (light - light.mean()) / max(np.ptp(light), 1e-9)
     light = (1.0 + conf["lamp_contrast"] * light).astype(np.float32)
+    big = cv2.resize(light, (int(gw * step / res), int(gh * step / res)),
+                     interpolation=cv2.INTER_LINEAR)
+    return big[:h, :w]
+
+
+def sun_and_shadows(conf, shape, res, origin, rng) -> np.ndarray:
+    """Relative light (H, W) of sun patches (soft-edged bright quadrilaterals, as light
+    falling through high windows) and shadow bands (soft dark stripes across the floor) fixed
+    in the world; 1 elsewhere."""
+    h, w = shape
+    step = 0.05  # m, then upsampled
+    gh, gw = int(h * res / step) + 2, int(w * res / step) + 2
+    light = np.ones((gh, gw), np.float32)
+    s0, s1 = conf["sun_strength"]
+    for _ in range(int(conf["sun_patches"])):
+        c = rng.uniform((0.0, 0.0), (gw, gh))
+        a = rng.uniform(0, np.pi)
+        size = rng.uniform(0.6, 2.5, 2) / step
+        u = np.array([math.cos(a), math.sin(a)]) * size[0] / 2
+        v = np.array([-math.sin(a), math.cos(a)]) * size[1] / 2
+        shear = rng.uniform(-0.4, 0.4) * u
+        poly = np.array([c - u - v, c + u - v + shear, c + u + v + shear, c - u + v])
+        m = np.zeros((gh, gw), np.float32)
+        cv2.fillConvexPoly(m, np.round(poly).astype(np.int32), 1.0)
+        m = cv2.GaussianBlur(m, (0, 0), 0.06 / step)
+        light += float(rng.uniform(s0, s1)) * m
+    d0, d1 = conf["shadow_strength"]
+    for _ in range(int(conf["shadows"])):
+        c = rng.uniform((0.0, 0.0), (gw, gh))
+        a = rng.uniform(0, np.pi)
+        half = rng.uniform(0.05, 0.25) / step
+        length = rng.uniform(1.5, 6.0) / step
+        u = np.array([math.cos(a), math.sin(a)])
+        p0, p1 = c - 0.5 * length * u, c + 0.5 * length * u
+        m = np.zeros((gh, gw), np.float32)
+        cv2.line(m, tuple(np.round(p0).astype(int)), tuple(np.round(p1).astype(int)), 1.0,
+                 max(1, int(round(2 * half))))
+        m = cv2.GaussianBlur(m, (0, 0), 0.05 / step)
+        light *= 1.0 - float(rng.uniform(d0, d1)) * m
     big = cv2.resize(light, (int(gw * step / res), int(gh * step / res)),
                      interpolation=cv2.INTER_LINEAR)
     return big[:h, :w]
@@ -322,6 +397,9 @@ def _line_field(conf, field, res, rng):
     bshape = (int(math.ceil(h * res / LINE_LIGHT_RES)) + 1,
               int(math.ceil(w * res / LINE_LIGHT_RES)) + 1)
     bright = lo + (hi - lo) * 0.5 * (1 + np.tanh(value_noise(bshape, 1.5 / LINE_LIGHT_RES, rng)))
+    if conf.get("line_width_variation", 0.0) > 0:  # uneven painted width along the lines
+        d = d - (0.5 * lw * conf["line_width_variation"]
+                 * value_noise((h, w), 0.8 / res, np.random.default_rng(rng.integers(1 << 32))))
     lf = np.stack([d + edge, c2, s2, wear], axis=-1).astype(np.float32)
     return lf, (x0, y0), bright.astype(np.float32)
 
@@ -488,6 +566,9 @@ def build(field, conf: dict | None, stamps, seed: int, robot_poses=None) -> Fiel
     origin = (walls[0], walls[2])
     ground = _carpet(c, field, shape, res, origin, rng_ground)
     light = illumination(c, shape, res, origin)
+    if int(c.get("sun_patches", 0)) or int(c.get("shadows", 0)):
+        light = light * sun_and_shadows(c, shape, res, origin,
+                                        np.random.default_rng(ss.spawn(1)[0]))
     albedo = np.clip(ground * light[..., None], 0, 255).astype(np.uint8)
     _draw_clutter(albedo, c, field, res, np.asarray(origin), rng_ground)
     lf, lorigin, line_light = _line_field(c, field, c["line_resolution"], rng_lines)

@@ -1,0 +1,43 @@
+"""Issue 9 changed shared code (stages/extract/colour.py, stages/simulate/scene.py) for the
+perspective camera only: the omni renderer's frames, the omni extractor's features and the
+colour classes of the omni conf must stay bit-identical. The hashes were computed with the code
+before those changes (commit 3c9b69e) in this project's environment; a deliberate change of the
+omni renderer or extractor updates them."""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+
+import numpy as np
+
+from stages import simulate
+from stages.common.field import load_field
+from stages.extract import colour, omni
+from stages.simulate import scene, trajectory
+from stages.simulate.omni_renderer import OmniRenderer
+
+RENDER = ["220e326303c20d84", "9d7b86509b3ff32a"]
+EXTRACT = ["0affbe988a87300d", "7f2a6f8f503be79d"]
+GRID = ["7b326b6bfdde1218", "4349d2e57e64b3d8"]
+
+
+def _hash(a) -> str:
+    return hashlib.sha256(np.ascontiguousarray(a).tobytes()).hexdigest()[:16]
+
+
+def test_omni_frames_features_and_colour_classes_are_unchanged():
+    field = load_field("msl-2015")
+    conf = copy.deepcopy(simulate.confs["omni-default"])
+    conf["scene"]["texture_resolution"] = 0.02
+    path = trajectory.generate(field, 6, conf["rate_hz"], conf["trajectory"],
+                               np.random.default_rng(1))
+    world = scene.build(field, conf["scene"], path.stamps, 1, robot_poses=path.poses)
+    renderer = OmniRenderer(conf["omni"], world, 1)
+    renderer.prepare(path)
+    images = [renderer.render(path.poses[i], i) for i in (0, 5)]
+    assert [_hash(i) for i in images] == RENDER
+    feats = [omni.extract_frame(i, renderer.camera, omni.confs["default"]) for i in images]
+    assert [_hash(np.concatenate([np.nan_to_num(f[k]).ravel() for k in sorted(f)]))
+            for f in feats] == EXTRACT
+    assert [_hash(colour.classify_grid(i, colour.confs["default"])[0]) for i in images] == GRID
