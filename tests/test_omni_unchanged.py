@@ -1,8 +1,10 @@
 """Issue 9 changed shared code (stages/extract/colour.py, stages/simulate/scene.py) for the
 perspective camera only: the omni renderer's frames, the omni extractor's features and the
 colour classes of the omni conf must stay bit-identical. The hashes were computed with the code
-before those changes (commit 3c9b69e) in this project's environment; a deliberate change of the
-omni renderer or extractor updates them."""
+before those changes in this project's environment (first at commit 3c9b69e; then after issue
+7's realistic omni-default renderer, from its branch before the perspective changes merged, and
+the merged code reproduced them); a deliberate change of the omni renderer or extractor updates
+them."""
 
 from __future__ import annotations
 
@@ -17,9 +19,9 @@ from stages.extract import colour, omni
 from stages.simulate import scene, trajectory
 from stages.simulate.omni_renderer import OmniRenderer
 
-RENDER = ["220e326303c20d84", "9d7b86509b3ff32a"]
-EXTRACT = ["0affbe988a87300d", "7f2a6f8f503be79d"]
-GRID = ["7b326b6bfdde1218", "4349d2e57e64b3d8"]
+RENDER = ["25f4ce4db4d4215d", "f8c305eb1f6a50b1"]
+EXTRACT = ["0f205ac57ed5ce5e", "f8b070b73be76421"]
+GRID = ["6cc9275035f3104b", "c8d5c428bc3a7055"]
 
 
 def _hash(a) -> str:
