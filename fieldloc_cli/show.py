@@ -11,6 +11,7 @@ SHOW_COMMANDS = {
     "map": "fieldloc_cli.show_map:show_map",
     "points": "fieldloc_cli.show_points:show_points",
     "belief": "fieldloc_cli.show_belief:show_belief",
+    "hypotheses": "fieldloc_cli.show_hypotheses:show_hypotheses",
 }
 
 

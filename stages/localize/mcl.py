@@ -103,7 +103,9 @@ _DEFAULT = {
     "cluster_heading": 0.6,  # rad
     "mirror_ratio": 0.5,  # mirrored cluster weight / best cluster weight to flag ambiguity
     "symmetric_pairs": True,  # a symmetric prior on a symmetric field keeps its symmetry
-    "min_confidence": 0.0,  # frames whose best cluster has a lower weight share fail
+    "min_confidence": 0.8,  # a frame is accepted when its best cluster holds this share (a
+    # belief split evenly between a pose and its mirror holds 0.5 each)
+    "hypotheses": 5,  # clusters of the belief listed per frame
     "observation": dict(OBSERVATION_DEFAULTS),
     "motion": dict(motion_model.DEFAULTS),
 }
@@ -142,6 +144,7 @@ class Estimate:
     n_observations: int = 0
     n_particles: int = 0
     injected: int = 0  # augmented MCL's random particles this frame
+    hypotheses: np.ndarray | None = None  # (k, 4) x, y, theta, weight share, heaviest first
 
 
 def _wrap(a):
@@ -162,6 +165,7 @@ class ParticleFilter:
         self.w_fast: float | None = None
         self._last_obs: Observations | None = None
         self.paired = False  # particles stand for themselves and their mirrored poses
+        self.symmetric = self.field.is_point_symmetric()
         self._last_pose: np.ndarray | None = None
         self._last_estimate: Estimate | None = None
         self._landmarks = None
@@ -464,12 +468,59 @@ class ParticleFilter:
     # ------------------------------------------------------------------ the estimate
     def estimate(self) -> Estimate:
         """The pose (weighted mean of the best cluster), its covariance and confidence (the
-        cluster's weight share), and the weight around the mirrored pose."""
+        cluster's weight share), the weight around the mirrored pose, and the belief's
+        hypotheses: its clusters, heaviest first (at most ``hypotheses``), each a pose with its
+        weight share; on a point-symmetric field the best cluster's mirror image is always
+        among them."""
         c = self.conf
         p, w = self.particles, self.weights
         x, y, th = (np.ascontiguousarray(p[:, k]) for k in range(3))
         cos_t, sin_t = np.cos(th), np.sin(th)
-        # heaviest 2 x 2 x 2 window of a 1 m x 1 m x 45 deg histogram (heading wraps around)
+        centre = self._cluster(w, x, y, th, cos_t, sin_t)
+        wm = w * self._members(centre, x, y, cos_t, sin_t)
+        conf_share = float(wm.sum())
+        mirror = self.field.mirror_pose(centre)
+        in_mirror = self._members(mirror, x, y, cos_t, sin_t)
+        mirror_share = float(w @ in_mirror)
+        cov = np.full((3, 3), np.nan)
+        if conf_share > 0:
+            d = np.stack([x - centre[0], y - centre[1], _wrap(th - centre[2])])
+            dw = d * (wm / conf_share)
+            cov = dw @ d.T
+        mx, my = float(w @ x), float(w @ y)
+        spread = math.sqrt(max(float(w @ ((x - mx) ** 2 + (y - my) ** 2)), 0.0))
+        flags = []
+        n_particles = len(p)
+        if self.paired:  # the belief is half the held set, half its mirror image
+            conf_share = mirror_share = 0.5 * (conf_share + mirror_share)
+            n_particles *= 2
+        if conf_share > 0 and mirror_share >= c["mirror_ratio"] * conf_share:
+            flags.append("mirror-ambiguous")
+        rows = [(*centre, conf_share)]
+        if self.symmetric:
+            rows.append((*mirror, mirror_share))
+        rest = w * ~(self._members(centre, x, y, cos_t, sin_t) | in_mirror)
+        scale = 0.5 if self.paired else 1.0  # a held particle stands for two poses
+        while len(rows) < int(c["hypotheses"]) and rest.sum() > 1e-3:
+            other = self._cluster(rest, x, y, th, cos_t, sin_t)
+            members = self._members(other, x, y, cos_t, sin_t)
+            share = float(rest @ members)
+            if share <= 0:
+                break
+            rows.append((*other, share * scale))
+            if self.paired:
+                rows.append((*self.field.mirror_pose(other), share * scale))
+            rest = rest * ~members
+        rows.sort(key=lambda r: -r[3])  # stable: the best cluster before its mirror on a tie
+        return Estimate(pose=centre, covariance=cov, confidence=conf_share,
+                        mirror_weight=mirror_share, spread=spread, flags=flags,
+                        n_particles=n_particles,
+                        hypotheses=np.array(rows[:int(c["hypotheses"])], float))
+
+    def _cluster(self, w, x, y, th, cos_t, sin_t) -> np.ndarray:
+        """The centre of the belief's heaviest cluster under weights ``w``: the heaviest
+        2 x 2 x 2 window of a 1 m x 1 m x 45 deg histogram (heading wraps around), then three
+        mean-shift steps with the cluster radius."""
         x0, x1, y0, y1 = self._bounds
         nbx, nby, nbt = max(int(math.ceil(x1 - x0)), 1), max(int(math.ceil(y1 - y0)), 1), 8
         bx = np.minimum(np.maximum((x - x0).astype(np.int64), 0), nbx - 1)
@@ -485,33 +536,12 @@ class ParticleFilter:
         inwin = (((bx - i) & ~1) == 0) & (((by - j) & ~1) == 0) & (
             ((bt - k) % nbt) <= 1)
         centre = self._weighted_mean(w * inwin, x, y, cos_t, sin_t)
-        # mean shift with the cluster radius
         for _ in range(3):
             wm = w * self._members(centre, x, y, cos_t, sin_t)
             if wm.sum() <= 0:
                 break
             centre = self._weighted_mean(wm, x, y, cos_t, sin_t)
-        wm = w * self._members(centre, x, y, cos_t, sin_t)
-        conf_share = float(wm.sum())
-        mirror = self.field.mirror_pose(centre)
-        mirror_share = float(w @ self._members(mirror, x, y, cos_t, sin_t))
-        cov = np.full((3, 3), np.nan)
-        if conf_share > 0:
-            d = np.stack([x - centre[0], y - centre[1], _wrap(th - centre[2])])
-            dw = d * (wm / conf_share)
-            cov = dw @ d.T
-        mx, my = float(w @ x), float(w @ y)
-        spread = math.sqrt(max(float(w @ ((x - mx) ** 2 + (y - my) ** 2)), 0.0))
-        flags = []
-        n_particles = len(p)
-        if self.paired:  # the belief is half the held set, half its mirror image
-            conf_share = mirror_share = 0.5 * (conf_share + mirror_share)
-            n_particles *= 2
-        if conf_share > 0 and mirror_share >= c["mirror_ratio"] * conf_share:
-            flags.append("mirror-ambiguous")
-        return Estimate(pose=centre, covariance=cov, confidence=conf_share,
-                        mirror_weight=mirror_share, spread=spread, flags=flags,
-                        n_particles=n_particles)
+        return centre
 
     def _members(self, centre, x, y, cos_t, sin_t) -> np.ndarray:
         """Particles within the cluster radius and heading of ``centre``."""
@@ -616,8 +646,10 @@ def run(conf: dict, dataset, features, map_file, progress=None) -> PoseTrack:
             est.flags.append("collision")
         prev_stamp = stamp
         runtime = time.perf_counter() - t0
-        failed = est.confidence < conf["min_confidence"]
-        track.add(name, stamp, None if failed else est.pose,
+        accepted = est.confidence >= conf["min_confidence"]
+        if not accepted:
+            est.flags.append("low-confidence")
+        track.add(name, stamp, est.pose, hypotheses=est.hypotheses, accepted=accepted,
                   error=float(np.sqrt(max(np.trace(est.covariance[:2, :2]), 0.0)))
                   if np.all(np.isfinite(est.covariance)) else math.nan,
                   confidence=est.confidence, mode=est.mode, runtime=runtime,
