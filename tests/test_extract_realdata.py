@@ -26,6 +26,7 @@ from stages import calibrate, extract
 from stages.common.camera import load_calib
 from stages.common.features_file import FeaturesFile
 from stages.common.field import field_from_spec
+from stages.evaluate.line_share import LineRaster
 from stages.extract import read_mask
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
@@ -243,49 +244,6 @@ LAB_FIELD = {
 }
 
 
-class LineRaster:
-    """Distance to the nearest line centre line on a 2 cm raster of the world, for scoring many
-    poses at once."""
-
-    def __init__(self, fm, res=0.02, margin=3.0):
-        xmin, xmax, ymin, ymax = fm.world_bounds(margin)
-        xs, ys = np.arange(xmin, xmax, res), np.arange(ymin, ymax, res)
-        self.dist = fm.distance_to_lines(np.stack(np.meshgrid(xs, ys), axis=-1))
-        self.origin, self.res = (xmin, ymin), res
-
-    def share_near(self, points, poses, near):
-        c, s = np.cos(poses[:, 2:3]), np.sin(poses[:, 2:3])
-        fx = poses[:, :1] + c * points[None, :, 0] - s * points[None, :, 1]
-        fy = poses[:, 1:2] + s * points[None, :, 0] + c * points[None, :, 1]
-        j = np.clip(((fx - self.origin[0]) / self.res).astype(int), 0, self.dist.shape[1] - 1)
-        i = np.clip(((fy - self.origin[1]) / self.res).astype(int), 0, self.dist.shape[0] - 1)
-        return (self.dist[i, j] <= near).mean(axis=1)
-
-    def best_pose(self, fm, points, near=0.15, seed=0):
-        """The pose on the field that puts the largest share of points within ``near`` of a
-        line: a coarse grid (0.35 m, 6 deg, scored with 0.3 m on at most 80 of the points),
-        then a local refinement of the 12 best with all points. Returns (share, pose)."""
-        hx, hy = fm.length / 2, fm.width / 2
-        grid = np.stack(np.meshgrid(np.arange(-hx, hx + 1e-9, 0.35),
-                                    np.arange(-hy, hy + 1e-9, 0.35),
-                                    np.radians(np.arange(0, 360, 6)), indexing="ij"),
-                        axis=-1).reshape(-1, 3)
-        rng = np.random.default_rng(seed)
-        few = points[rng.permutation(len(points))[:80]]
-        coarse = np.concatenate([self.share_near(few, grid[k:k + 8000], 0.3)
-                                 for k in range(0, len(grid), 8000)])
-        d = np.arange(-0.18, 0.181, 0.045)
-        local = np.stack(np.meshgrid(d, d, np.radians(np.arange(-3, 3.1, 1.5)),
-                                     indexing="ij"), axis=-1).reshape(-1, 3)
-        best = (-1.0, None)
-        for p in grid[np.argsort(-coarse)[:12]]:
-            s = self.share_near(points, p + local, near)
-            k = int(np.argmax(s))
-            if s[k] > best[0]:
-                best = (float(s[k]), p + local[k])
-        return best
-
-
 @pytest.fixture(scope="module")
 def lab_points(tmp_path_factory):
     ds = make_dataset(REALDATA / "minho-lab", tmp_path_factory.mktemp("real") / "minho-lab")
@@ -307,8 +265,8 @@ def off_line_points(fm, point_sets, min_points=20, seed=0):
         rho = np.hypot(p[:, 0], p[:, 1])
         b = rng.uniform(0, 2 * np.pi, len(p))
         null = np.stack([rho * np.cos(b), rho * np.sin(b)], axis=1)
-        off += round((1 - raster.best_pose(fm, p)[0]) * len(p))
-        off_null += round((1 - raster.best_pose(fm, null)[0]) * len(p))
+        off += round((1 - raster.best_pose(p)[0]) * len(p))
+        off_null += round((1 - raster.best_pose(null)[0]) * len(p))
         total += len(p)
     return off, off_null, total
 

@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 from ..common.artifacts import root_attrs, text_hash
-from ..common.conf import resolve_conf
+from ..common.conf import stage_conf
 from ..common.errors import FieldlocError
 from ..common.field import FieldModel, load_field
 from ..common.map_file import SCHEMA, VERSION, Grid, write_map
@@ -76,8 +76,9 @@ def build_tables(fm: FieldModel, conf: dict) -> tuple[Grid, ScanLines, dict]:
 
 def main(conf: dict | None, field: str | Path | FieldModel, output: str | Path, *,
          overwrite: bool = False) -> Path:
-    """Build the map of ``field`` (preset name, YAML path or FieldModel) into ``output``."""
-    conf = resolve_conf(confs, conf)
+    """Build the map of ``field`` (preset name, YAML path or FieldModel) into ``output``.
+    ``conf``: a preset name, None, or a dict of values replacing the default preset's."""
+    conf = stage_conf(confs, conf)
     output = Path(output)
     if output.exists() and not overwrite:
         raise FieldlocError(f"{output} exists (use --overwrite to replace it)")

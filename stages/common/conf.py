@@ -45,6 +45,17 @@ def resolve_conf(confs: dict, preset: str | dict | None, overrides: dict | None 
     return base
 
 
+def stage_conf(confs: dict, conf: str | dict | None, default: str = "default") -> dict:
+    """The stage contract's conf: a preset name, None (the default preset), or a dict of
+    overrides on the default preset (a complete conf is a dict of overrides too); unknown
+    preset names and keys are user errors."""
+    if conf is None or isinstance(conf, str):
+        return resolve_conf(confs, conf, default=default)
+    if not isinstance(conf, dict):
+        raise FieldlocError(f"a conf is a preset name or a dict of values, not {conf!r}")
+    return resolve_conf(confs, default, conf, default=default)
+
+
 def _merge(base: dict, key, value, path):
     if key not in base:
         raise FieldlocError(f"unknown conf key '{path}' (known: {', '.join(sorted(base))})")

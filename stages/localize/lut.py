@@ -67,7 +67,8 @@ localises every frame globally, with no track, prior or odometry (snapshots at u
 Recorded: pose, ``error`` = e_norm = E / total weight of the fix, ``confidence``, ``mode``
 (global, global-heading: the top track was born this frame; local; failed), runtime, fused
 covariance, hypotheses, flags: collision; heading-vision and heading-unsure (the heading came
-from the search, and was not pinned down); window-edge; relocalised (the top hypothesis is a
+from the search, and was not pinned down); window-edge; global-check (a global search ran
+beside the tracks); relocalised (the top hypothesis is a
 track born by a global search while an older track existed); mirror-ambiguous (the mirror has at
 least half the top's probability); start-half (the first fix was mirrored onto start_half);
 low-confidence; failure reasons too-few-observations, uninformative, no-imu-row,
@@ -307,6 +308,7 @@ class Candidate:
     R: np.ndarray
     evidence: float = 0.0  # the fix's error term (evidence weights)
     fit: float = 0.0  # nats: evidence / T, plus the prior's Mahalanobis^2 / 2 when tracked
+    window_fit: float = math.inf  # tracked: the same from the window's quantised error term
     prior: tuple | None = None  # tracked: (prior pose, inverse covariance used to search)
     track: Track | None = None
     mirror: float = 0.0
@@ -350,6 +352,7 @@ class LutLocaliser:
         self._global_heading = None
         self._offset_updates = 0
         self.fixed_once = False  # start_half applies to the first fix only
+        self.has_odometry = True  # whether the dataset measures the robot's motion
         self.failures_in_row = 0
         self.last_global = -10**9
         self.last_accepted = True
@@ -436,11 +439,13 @@ class LutLocaliser:
             new = self._global_candidates(i, obs, heading, flags,
                                           other_prior - self.log_basins)
             self.last_global = i
+            if tracked:
+                flags.append("global-check")
         # the null: what chance explains, searched the same way
         if tracked:
             null_fit = self._tracked_null(obs, tracked)
             self._null_fit = null_fit
-            if min(c.fit for c in tracked) >= null_fit:
+            if min(c.window_fit for c in tracked) >= null_fit:
                 raise FrameFailed("uninformative")
         if new or not tracked:
             null_evidence = self._global_null(obs, self._global_heading)
@@ -528,11 +533,16 @@ class LutLocaliser:
     # ------------------------------------------------------------------ tracks
     def _prior(self, t: Track, dt: float, odo, col: bool):
         """(prior pose, its position covariance (2, 2)) of a track: the previous pose moved by
-        the odometry (by the last fused motion on collision frames or without odometry), the
+        the odometry (by the last fused motion on collision frames; a random walk of up to the
+        fusion's max_speed when the dataset has no odometry), the
         covariance from the fusion's prediction (without fusion: ``min_gate`` /
         ``gate_sigmas`` growing with the misses)."""
         f = t.fusion
         if self.use_fusion and f.state is not None:
+            if not self.has_odometry:  # no motion measured at all: a random walk (repeating
+                # the last fused motion would feed each correction back as a velocity)
+                f.motion_known = False
+                f.last_motion = np.zeros(3)
             pose, cov = f.predicted(dt, odo, col)
             return pose, cov[:2, :2]
         pose = compose(t.pose, odo) if odo is not None and not col else t.pose
@@ -567,10 +577,10 @@ class LutLocaliser:
         info = self._innovation_information(prior_cov)
         # the window's error term in evidence units: scaled by the frame's evidence share
         scale = obs.total_weight / max(obs.lookup_total_weight, 1e-12)
-        fix, _wmin, _score = search.tracked_search(obs, theta, prior_pose[:2], info,
-                                                   self.T / scale, half_width=self.half,
-                                                   prior_cap=self.prior_cap)
-        if math.hypot(fix.x - prior_pose[0], fix.y - prior_pose[1]) > search.grid.resolution:
+        fix, _wmin, window_fit = search.tracked_search(obs, theta, prior_pose[:2], info,
+                                                       self.T / scale, half_width=self.half,
+                                                       prior_cap=self.prior_cap)
+        if math.hypot(fix.x - prior_pose[0], fix.y - prior_pose[1]) > 2 * search.grid.resolution:
             # the window's choice rests on the lookup's quantised error term, the basin the
             # prior lies in may fit better by the exact one: the better of the two
             own = search.refine(obs, search._cell_of(float(prior_pose[0]), float(prior_pose[1])),
@@ -606,7 +616,7 @@ class LutLocaliser:
             R[:2, :2] += np.eye(2) * spread * spread
         m2 = min(float(d @ self._innovation_information(prior_cov, R) @ d), 2 * self.prior_cap)
         return Candidate(fix=fix, support=sup, R=R, track=t, mirror=t.mirror,
-                         evidence=evidence, fit=fit,
+                         evidence=evidence, fit=fit, window_fit=window_fit,
                          prior=(prior_pose, info, prior_cov),
                          log_prior=t.log_weight + math.log1p(-conf["kidnap_probability"])
                          - 0.5 * m2)
@@ -737,8 +747,9 @@ class LutLocaliser:
     # ------------------------------------------------------------------ the null
     def _tracked_null(self, obs, tracked: list[Candidate]) -> float:
         """The null of a tracked frame: the median over ``tracked_null_copies``
-        random-bearing copies of the observations of the fit (Candidate.fit) that the
-        strongest track's search reaches for them (module doc)."""
+        random-bearing copies of the observations of the best posterior score of the
+        strongest track's window (its quantised error term, as Candidate.window_fit;
+        module doc)."""
         search = self.search
         top = max(tracked, key=lambda c: c.log_prior - c.fit)
         pose, info, _cov = top.prior
@@ -746,11 +757,9 @@ class LutLocaliser:
         for _ in range(int(self.conf["tracked_null_copies"])):
             nobs = self._null_copy(obs)
             scale = nobs.total_weight / max(nobs.lookup_total_weight, 1e-12)
-            r, _w, _s = search.tracked_search(nobs, top.fix.theta, pose[:2], info,
-                                              self.T / scale, half_width=self.half,
-                                              prior_cap=self.prior_cap)
-            d = np.array([r.x - pose[0], r.y - pose[1]])
-            fits.append(r.error / self.T + min(0.5 * float(d @ info @ d), self.prior_cap))
+            fits.append(search.tracked_score(nobs, top.fix.theta, pose[:2], info,
+                                             self.T / scale, half_width=self.half,
+                                             prior_cap=self.prior_cap))
         return _median(fits)
 
     def _null_copy(self, obs) -> Observation:
@@ -813,7 +822,7 @@ class LutLocaliser:
                 t = c.track
                 t.log_weight = c.log_post
                 t.mirror = c.mirror
-                vision = (c.fix.pose, c.R) if c.fit < self._null_fit else None
+                vision = (c.fix.pose, c.R) if c.window_fit < self._null_fit else None
                 if self.use_fusion:
                     t.fusion.step(dt, odo, col, vision)
                     t.pose, t.cov = t.fusion.state.mean.copy(), t.fusion.state.cov.copy()
@@ -836,7 +845,14 @@ class LutLocaliser:
             if self.symmetric:
                 rows.append((*_mirror(t.pose), w * t.mirror))
         rows.sort(key=lambda r: -r[3])  # stable: a track before its mirror on a tie
-        return np.array(rows[:int(self.conf["hypotheses"])], float)
+        k = int(self.conf["hypotheses"])
+        out = rows[:k]
+        if self.symmetric and k > 1:  # the top's mirror image is always listed
+            m = _mirror(out[0][:3])
+            if not any(_near_pose(r, m, 1e-6, 1e-6) for r in out[1:]):
+                out[-1 if len(out) == k else len(out):] = [
+                    next(r for r in rows if _near_pose(r, m, 1e-6, 1e-6))]
+        return np.array(out, float)
 
     def _learn_radial(self, obs, raw_distance, top: Candidate, hyps, col):
         """The crossings of a confident tracked frame against their predictions at the fused
@@ -905,6 +921,7 @@ def run(conf: dict, dataset, features, map_file: MapFile, progress=False) -> Pos
                 if conf["heading"] == "truth" else None)
     loc = LutLocaliser(conf, search, point_fit(map_file, search.params), yaw=yaw,
                        collision=collision, truth_heading=truth_th)
+    loc.has_odometry = bool(np.any(has_odo))
     track = PoseTrack()
 
     track = PoseTrack()

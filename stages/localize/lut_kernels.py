@@ -154,21 +154,57 @@ def refine_moves(radial_flat, spiral_flat, ncell, n_angles, family, angle_index,
                  tol, c2, i, j, ny, nx, m0, a, interpolate, max_moves, out):
     """The cell search of ``TableSearch.refine``: the exact error (``exact_error_cells``) on
     the 3 x 3 cells around (i, j) (clipped to the grid, row-major, into ``out`` (9,)), moving
-    to the lowest while it is not the centre, at most ``max_moves`` times. Returns the final
-    cell as the flat index i * nx + j; ``out`` holds the last patch evaluated."""
+    to the lowest while it is not the centre, at most ``max_moves`` times; after a move only
+    the cells new to the patch are evaluated. Returns the final cell as the flat index
+    i * nx + j; ``out`` holds the last patch."""
     cells = np.empty(9, dtype=np.int64)
-    for _ in range(max_moves + 1):
-        for di in range(3):
-            ii = min(max(i - 1 + di, 0), ny - 1)
-            for dj in range(3):
-                jj = min(max(j - 1 + dj, 0), nx - 1)
-                cells[3 * di + dj] = ii * nx + jj
-        exact_error_cells(radial_flat, spiral_flat, ncell, n_angles, family, angle_index,
-                          dist, weight, tol, c2, cells, m0, a, interpolate, out)
+    for di in range(3):
+        ii = min(max(i - 1 + di, 0), ny - 1)
+        for dj in range(3):
+            jj = min(max(j - 1 + dj, 0), nx - 1)
+            cells[3 * di + dj] = ii * nx + jj
+    exact_error_cells(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist,
+                      weight, tol, c2, cells, m0, a, interpolate, out)
+    new_cells = np.empty(9, dtype=np.int64)
+    new_out = np.empty(9)
+    todo = np.empty(9, dtype=np.int64)
+    vals = np.empty(9)
+    for _ in range(max_moves):
         b = np.argmin(out)
-        ni, nj = cells[b] // nx, cells[b] % nx
-        if ni == i and nj == j:
+        if b == 4:
             break
+        mi, mj = b // 3 - 1, b % 3 - 1
+        ni = min(max(i + mi, 0), ny - 1)
+        nj = min(max(j + mj, 0), nx - 1)
+        if ni == i and nj == j:  # the lowest is a clipped copy of the centre: at the edge
+            break
+        n_todo = 0
+        for di in range(3):
+            ii = min(max(ni - 1 + di, 0), ny - 1)
+            for dj in range(3):
+                jj = min(max(nj - 1 + dj, 0), nx - 1)
+                c = ii * nx + jj
+                new_cells[3 * di + dj] = c
+                found = -1
+                for k in range(9):
+                    if cells[k] == c:
+                        found = k
+                        break
+                if found >= 0:
+                    new_out[3 * di + dj] = out[found]
+                else:
+                    todo[n_todo] = 3 * di + dj
+                    n_todo += 1
+        if n_todo:
+            sub = np.empty(n_todo, dtype=np.int64)
+            for k in range(n_todo):
+                sub[k] = new_cells[todo[k]]
+            exact_error_cells(radial_flat, spiral_flat, ncell, n_angles, family, angle_index,
+                              dist, weight, tol, c2, sub, m0, a, interpolate, vals[:n_todo])
+            for k in range(n_todo):
+                new_out[todo[k]] = vals[k]
+        cells[:] = new_cells
+        out[:] = new_out
         i, j = ni, nj
     return i * nx + j
 

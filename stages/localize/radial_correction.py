@@ -94,7 +94,8 @@ class RadialCorrection:
         distances their scan lines predict at the frame's pose."""
         d = np.asarray(observed, float)
         r = d - np.asarray(predicted, float)
-        keep = np.isfinite(r) & (np.abs(r - self.error(d)) <= self.max_residual)
+        # gated about the current estimate (used before it is applied, too)
+        keep = np.isfinite(r) & (np.abs(r - self._basis(d) @ self.coef) <= self.max_residual)
         if not keep.any():
             return
         A = self._basis(d[keep])

@@ -1,0 +1,156 @@
+"""The real-data checks of the omni chain, run as a user runs it: stage mains with the CLI's
+defaults on ../shared/realdata (read its README), judged by the brute-force line share
+(stages.evaluate.line_share), never by the method under test.
+
+``minho_lab(realdata, work)``: the 10 minho-lab images as one dataset of independent frames:
+``calibrate.from_minho`` on the team's mirror.cfg / image.cfg, the lab field of Lar.view,
+``build_map``, ``extract`` (preset real), ``localize`` (lut, histogram heading, independent);
+per image the share of its line points within 15 cm at the top hypothesis, the null baseline
+(random-bearing copies at their best pose), the brute-force best pose, whether the top or second
+hypothesis is that pose (or its mirror) within 15 cm / 2 deg; the same with the range limit at
+3.5, 4 and 5 m (how far the found pose, or its mirror, moves); and the line points of each
+image as a ``frame,x,y`` CSV through ``--points --independent``.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+# Lar.view (mm): length 10200, width 7540, line 100, centre circle radius 1370, goal area
+# 700 x 3200, penalty area 1550 x 4420, penalty mark 1980, corner arc 400, goal 2000 x 500
+LAB_FIELD = {
+    "name": "minho-lab", "source": "minho-lab/Lar.view", "length": 10.2, "width": 7.54,
+    "line_width": 0.1, "border": 0.7, "centre_circle_diameter": 2.74, "corner_arc_radius": 0.4,
+    "penalty_area": {"length": 1.55, "width": 4.42}, "goal_area": {"length": 0.7, "width": 3.2},
+    "penalty_mark": {"distance": 1.98, "size": 0.1},
+    "goal": {"width": 2.0, "depth": 0.5, "post_diameter": 0.125},
+}
+
+NEAR = 0.15  # m
+RANGES = (3.5, 4.0, 5.0)  # m, range limits of the stability check
+
+
+def lab_dataset(realdata: Path, out: Path) -> tuple[Path, Path]:
+    """(dataset folder, field YAML) of minho-lab: images, mask and a calib.yaml made by
+    ``calibrate.from_minho`` with its defaults."""
+    from .. import calibrate
+
+    src = Path(realdata) / "minho-lab"
+    ds = Path(out) / "minho-lab"
+    (ds / "images").mkdir(parents=True, exist_ok=True)
+    for p in sorted((src / "images").glob("*.png")):
+        shutil.copy(p, ds / "images" / p.name)
+    shutil.copy(src / "mask.png", ds / "mask.png")
+    calibrate.from_minho(None, src, ds / "calib.yaml", overwrite=True)
+    field = Path(out) / "minho-lab.yaml"
+    field.write_text(yaml.safe_dump(LAB_FIELD))
+    return ds, field
+
+
+def _localise(ds: Path, field: Path, work: Path, max_range: float | None = None,
+              points: Path | None = None):
+    """(poses columns, features path) of the lab images, independent frames, histogram
+    heading, with the map's and the scan lines' range at ``max_range`` (None: defaults)."""
+    from .. import build_map, extract, localize
+    from ..common.poses_file import read_poses
+
+    tag = "default" if max_range is None else f"{max_range:g}"
+    bconf = None if max_range is None else {"max_range": max_range}
+    mp = build_map.main(bconf, field, work / f"lab-{tag}.map.h5", overwrite=True)
+    econf = extract.resolve_extract_conf(
+        "omni", "real", None if max_range is None else {"scanlines": {"max_range": max_range}})
+    feats = extract.main(econf, ds, work / f"lab-{tag}.features.h5", overwrite=True)
+    conf = {"method": "lut", "heading": "histogram", "independent": True}
+    out = work / f"lab-{tag}{'-points' if points else ''}.poses.h5"
+    localize.main(conf, ds, mp, out, features=None if points else feats, points=points,
+                  overwrite=True)
+    return read_poses(out)[0], feats
+
+
+def minho_lab(realdata: Path, work: Path) -> dict:
+    """The minho-lab figures (module doc)."""
+    from ..common.features_file import FeaturesFile
+    from ..common.field import field_from_spec
+    from ..common.geometry import robot_to_field, wrap_angle
+    from ..evaluate.line_share import LineRaster
+
+    work = Path(work)
+    work.mkdir(parents=True, exist_ok=True)
+    ds, field = lab_dataset(realdata, work)
+    fm = field_from_spec(LAB_FIELD)
+    raster = LineRaster(fm)
+    cols, feats = _localise(ds, field, work)
+    with FeaturesFile(feats) as ff:
+        names = list(ff.names)
+        pts = {n: np.asarray(ff.frame(n)["points"], float) for n in names}
+
+    def share(pose, p):
+        return float(np.mean(fm.distance_to_lines(robot_to_field(pose, p)) <= NEAR))
+
+    def near(a, b):
+        return (math.hypot(a[0] - b[0], a[1] - b[1]) <= NEAR
+                and abs(float(wrap_angle(a[2] - b[2]))) <= math.radians(2.0))
+
+    def at_best(h, best):
+        mb = fm.mirror_pose(best)
+        return any(np.isfinite(h[k, 0]) and (near(h[k, :3], best) or near(h[k, :3], mb))
+                   for k in range(min(2, len(h))))
+
+    rows = {}
+    for i, n in enumerate(cols["name"]):
+        p = pts[str(n)]
+        best_share, best = raster.best_pose(p, NEAR)
+        h = cols["hypotheses"][i]
+        top = h[0, :3]
+        rows[str(n)] = {
+            "points": len(p), "failed": bool(cols["failed"][i]),
+            "confidence": float(cols["confidence"][i]),
+            "share": share(top, p) if np.isfinite(top[0]) else math.nan,
+            "null": raster.null_share(p, 3, NEAR, seed=i), "best_share": best_share,
+            "best_pose": [float(v) for v in best], "top": [float(v) for v in top],
+            "top_or_second_at_best": bool(at_best(h, best)),
+        }
+    # range stability: the top pose (or its mirror) at each range limit against the default's
+    moves = {str(n): [] for n in cols["name"]}
+    for r in RANGES:
+        c2, _ = _localise(ds, field, work, max_range=r)
+        for i, n in enumerate(c2["name"]):
+            a, b = rows[str(n)]["top"], c2["hypotheses"][i][0, :3]
+            if not (np.isfinite(a[0]) and np.isfinite(b[0])):
+                moves[str(n)].append((math.inf, math.inf))
+                continue
+            mb = fm.mirror_pose(b)
+            d = min((math.hypot(a[0] - q[0], a[1] - q[1]),
+                     abs(float(wrap_angle(a[2] - q[2])))) for q in (b, mb))
+            moves[str(n)].append((d[0], math.degrees(d[1])))
+    for n, m in moves.items():
+        rows[n]["range_move_m"] = max(v[0] for v in m)
+        rows[n]["range_move_deg"] = max(v[1] for v in m)
+    # the same points through --points
+    csv_path = work / "lab-points.csv"
+    with open(csv_path, "w", newline="\n") as f:
+        f.write("frame,x,y\n")
+        for n in names:
+            for x, y in pts[n]:
+                f.write(f"{n},{x:.4f},{y:.4f}\n")
+    cp, _ = _localise(ds, field, work, points=csv_path)
+    for i, n in enumerate(cp["name"]):
+        rows[str(n)]["points_top_or_second_at_best"] = bool(
+            at_best(cp["hypotheses"][i], np.asarray(rows[str(n)]["best_pose"])))
+    good = [r for r in rows.values() if r["share"] >= 0.7 and r["share"] >= r["null"] + 0.15]
+    return {
+        "images": len(rows),
+        "with_pose": sum(not r["failed"] for r in rows.values()),
+        "explained": len(good),  # >= 70 % within 15 cm and >= null + 0.15
+        "stable": sum(r["range_move_m"] <= 0.3 and r["range_move_deg"] <= 5.0
+                      for r in rows.values()),
+        "top_or_second_at_best": sum(r["top_or_second_at_best"] for r in rows.values()),
+        "points_top_or_second_at_best": sum(r["points_top_or_second_at_best"]
+                                            for r in rows.values()),
+        "rows": rows,
+    }
