@@ -535,6 +535,68 @@ def bench_feature_quality(repeat: int) -> list[Row]:
     return rows
 
 
+# ---------------------------------------------------------------------------- rows: import
+
+
+def _import_bag(fmt: str, kind: str, frames: int = 1000, size: int = 480) -> Path:
+    """A bag of ``frames`` rendered-looking frames (``kind`` jpeg: CompressedImage, raw:
+    Image bgr8) with odometry and IMU at 100 Hz, written once per bench run."""
+    key = ("bag", fmt, kind, frames, size)
+    if key not in _INPUTS:
+        import cv2
+
+        from ..ingest.bag_writer import write_bag
+
+        rng = np.random.default_rng(11)
+        base = cv2.GaussianBlur(rng.integers(0, 256, (size, size, 3), dtype=np.uint8), (9, 9), 3)
+        stamps = 1700000000.0 + np.arange(frames) / 30.0
+        imgs = (np.roll(base, 3 * k, axis=1) for k in range(frames))
+        payload = ([(cv2.imencode(".jpg", im)[1].tobytes(), "jpeg") for im in imgs]
+                   if kind == "jpeg" else [(im, "bgr8") for im in imgs])
+        t = stamps[0] + np.arange(int(frames / 30.0 * 100) + 2) / 100.0
+        odo = np.c_[t, 0.5 * (t - t[0]), np.zeros_like(t), 0.2 * (t - t[0])]
+        path = _work_dir() / (f"{fmt}-{kind}-{frames}" + (".bag" if fmt == "ros1" else ""))
+        write_bag(path, fmt, frames=list(zip(stamps, payload)), odometry=odo,
+                  imu=np.c_[t, 0.2 * (t - t[0])])
+        _INPUTS[key] = path
+    return _INPUTS[key]
+
+
+def bench_import_rosbag(repeat: int) -> list[Row]:
+    import shutil
+
+    from ..ingest import rosbag
+
+    topics = ["/camera/image", "/odom", "/imu"]
+    rows = []
+    for fmt, kind, preset, n_rep in (("ros1", "jpeg", "default", repeat),
+                                     ("ros2-mcap", "raw", "fast", max(2, repeat // 2)),
+                                     ("ros2-mcap", "raw", "default", max(2, repeat // 2))):
+        bag = _import_bag(fmt, kind)
+        out_root = _work_dir() / f"import-{fmt}-{kind}-{preset}"
+        out_root.mkdir(exist_ok=True)
+        count = [0]
+
+        def do_import():
+            count[0] += 1
+            rosbag.main(rosbag.confs[preset], bag, out_root / f"run{count[0]}",
+                        image_topic="/camera/image", odom_topic="/odom", imu_topic="/imu")
+
+        a, b = time_interleaved(do_import, lambda: rosbag.read_messages(bag, topics),
+                                repeat=n_rep, warmup=1)
+        shutil.rmtree(out_root, ignore_errors=True)
+        ratio = _ms(a) / _ms(b)
+        what = ("CompressedImage JPEG, copied" if kind == "jpeg"
+                else f"Image bgr8 480 x 480 -> PNG level {rosbag.confs[preset]['png_compression']}")
+        rows.append(Row(
+            name=f"import rosbag {fmt}, 1000 frames ({kind}, preset {preset})",
+            median_ms=_ms(a), baseline="rosbags reading + deserialising the same messages",
+            baseline_ms=_ms(b), ratio=ratio, goal="<= 1.5 x reading",
+            meets_goal=ratio <= 1.5, repeats=len(a),
+            note=f"{what}; + odometry and IMU at 100 Hz; outputs kept until the row ends"))
+    return rows
+
+
 # ---------------------------------------------------------------------------- registry
 
 ROWS: dict[str, Callable[[int], Row | list[Row]]] = {
@@ -549,6 +611,7 @@ ROWS: dict[str, Callable[[int], Row | list[Row]]] = {
     "mcl-accuracy": bench_mcl_accuracy,
     "surf-speed": bench_surf_speed,
     "surf-quality": bench_feature_quality,
+    "import-rosbag": bench_import_rosbag,
 }
 
 
