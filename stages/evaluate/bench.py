@@ -577,12 +577,12 @@ def bench_import_rosbag(repeat: int) -> list[Row]:
         out_root.mkdir(exist_ok=True)
         count = [0]
 
-        def do_import():
+        def do_import(bag=bag, preset=preset, out_root=out_root, count=count):
             count[0] += 1
             rosbag.main(rosbag.confs[preset], bag, out_root / f"run{count[0]}",
                         image_topic="/camera/image", odom_topic="/odom", imu_topic="/imu")
 
-        a, b = time_interleaved(do_import, lambda: rosbag.read_messages(bag, topics),
+        a, b = time_interleaved(do_import, lambda bag=bag: rosbag.read_messages(bag, topics),
                                 repeat=n_rep, warmup=1)
         shutil.rmtree(out_root, ignore_errors=True)
         ratio = _ms(a) / _ms(b)
