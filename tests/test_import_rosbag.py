@@ -181,6 +181,18 @@ def test_bad_frames_skipped_and_user_errors(tmp_path):
     assert res.exit_code == 1 and "not a ROS bag" in res.output
 
 
+def test_zero_header_stamps_fall_back_to_receive_times(tmp_path, caplog):
+    imgs = _frames(3)
+    stamps = 5.0 + np.arange(3) * 0.2
+    bag = write_bag(tmp_path / "z.bag", "ros1", frames=[(s, (im, "bgr8"))
+                                                        for s, im in zip(stamps, imgs)],
+                    zero_image_stamps=True, receive_delay=0.01)
+    out = rosbag.main(rosbag.confs["default"], bag, tmp_path / "ds", image_topic="/camera/image")
+    np.testing.assert_allclose(open_dataset(out).stamps, stamps + 0.01, atol=1e-6)
+    assert rosbag.describe(out)["stamps"]["images"] == "bag"
+    assert "zero header stamp" in caplog.text
+
+
 def test_pose_interpolation_unwraps_heading():
     t = np.array([0.0, 1.0, 2.0])
     yaw = np.array([3.0, -3.0, -2.9])  # crossing +-pi: +0.28 rad, not -6 rad

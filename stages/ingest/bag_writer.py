@@ -9,7 +9,9 @@ sensor_msgs/Image with that encoding (the array already laid out in it: (h, w) f
 Bayer, (h, w, 3) for bgr8/rgb8, (h, w, 2) for yuv422); a compressed one is (bytes, format) and
 is stored as sensor_msgs/CompressedImage. ``odometry``: rows (stamp, x, y, yaw) as
 nav_msgs/Odometry; ``imu``: rows (stamp, yaw) as sensor_msgs/Imu. Messages are written at their
-stamps (the bag's receive time equals the header stamp unless ``receive_delay`` s is given).
+stamps (the bag's receive time equals the header stamp unless ``receive_delay`` s is given;
+``zero_image_stamps``: the frames' header stamps are 0, as from a driver that never fills
+them).
 """
 
 from __future__ import annotations
@@ -88,7 +90,8 @@ def _imu(ts, fmt, stamp, yaw, has_orientation=True):
 
 def write_bag(path, fmt: str, *, image_topic: str = "/camera/image", frames=(),
               odometry=None, imu=None, odom_topic: str = "/odom", imu_topic: str = "/imu",
-              imu_has_orientation: bool = True, receive_delay: float = 0.0) -> Path:
+              imu_has_orientation: bool = True, receive_delay: float = 0.0,
+              zero_image_stamps: bool = False) -> Path:
     """Write a bag (see the module doc); returns its path (a .bag file or a bag folder)."""
     if fmt not in FORMATS:
         raise ValueError(f"unknown bag format {fmt!r} ({', '.join(FORMATS)})")
@@ -96,7 +99,7 @@ def write_bag(path, fmt: str, *, image_topic: str = "/camera/image", frames=(),
     path = Path(path)
     rows = []  # (stamp, topic, msgtype, msg)
     for stamp, payload in frames:
-        typ, msg = _image(ts, fmt, float(stamp), payload)
+        typ, msg = _image(ts, fmt, 0.0 if zero_image_stamps else float(stamp), payload)
         rows.append((float(stamp), image_topic, typ, msg))
     for stamp, x, y, yaw in (odometry if odometry is not None else ()):
         rows.append((float(stamp), odom_topic, "nav_msgs/msg/Odometry",

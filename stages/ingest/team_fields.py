@@ -371,7 +371,8 @@ _RULE_NOT_LINES = set("MNOPQ")
 
 
 def _falcons_convert(v: dict, t: float, spec: dict):
-    """Outer-side MSL measurements to centre lines (see the module doc)."""
+    """Outer-side MSL measurements to centre lines (see the module doc); J is the penalty
+    mark's diameter in both Falcons formats."""
     for letter, path in (("A", ("length",)), ("B", ("width",)),
                          ("C", ("penalty_area", "width")), ("D", ("goal_area", "width")),
                          ("E", ("penalty_area", "length")), ("F", ("goal_area", "length")),
@@ -380,6 +381,8 @@ def _falcons_convert(v: dict, t: float, spec: dict):
         if letter in v:
             _set(spec, path, v[letter] - t)
     _set(spec, ("line_width",), t)
+    if "J" in v:
+        _set(spec, ("penalty_mark", "size"), v["J"])
 
 
 def read_falcons(path: Path, venue: str | None):
@@ -420,8 +423,6 @@ def read_falcons(path: Path, venue: str | None):
             raise TeamFieldError(f"{where}: venue {chosen} has no lineThickness")
         t = v["lineThickness"]
         _falcons_convert(v, t, spec)
-        if "J" in v:
-            _set(spec, ("penalty_mark", "size"), v["J"])
         post = v.get("goalPostTichness", t)
         if "goalWidth" in v:
             _set(spec, ("goal", "width"), v["goalWidth"] - post)
@@ -465,8 +466,6 @@ def read_falcons(path: Path, venue: str | None):
             raise TeamFieldError(f"{where}: letters list without K (the line width)")
         t = v["K"]
         _falcons_convert(v, t, spec)
-        if "J" in v:
-            _set(spec, ("penalty_mark", "size"), v["J"])
         if "L" in v:
             _set(spec, ("border",), v["L"] + t / 2)
         used = dict(v)
