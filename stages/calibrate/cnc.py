@@ -21,6 +21,11 @@ mirror's rim, and the slope would rise again between 5 and 6 m (leave-one-out RM
 cm at 5 m). Which camera set-up that table belongs to is not recorded, so neither reading can
 be proved: the pairs to 5 m are common to both, the outer two are the user's choice.
 
+The picture is a 460 x 460 view (``ImageArea = 460`` in the team's Vision.conf) centred on the
+mirror; for their full 640 x 480 frames Vision.conf's ``CameraMX = 235``, ``CameraMY = 322`` are
+the centre's row and column (u, v = 322, 235), with no check that the mirror was unchanged
+between those frames (2015-09-02) and the picture.
+
 ``rings``: the radii (px) to pair in order with the conf's distances, ``None`` for a distance
 whose ring is not in the image (the second reading above is ``--rings
 103.7,130,146.8,158.1,166.2,177.2,184.4,192.2,-``), or the string ``detected``: the rings found

@@ -32,8 +32,10 @@ Stamps (conf ``stamp``): ``header`` uses each message's header stamp, except for
 whose messages has a zero header stamp (a driver that never fills it): that topic uses the
 bag's receive times instead, with a warning. ``bag`` always uses the receive times.
 
-The folder is written atomically (stages.common.artifacts.atomic_dir). Raw frames are encoded
-on ``workers`` threads while the bag is read (OpenCV releases the GIL while encoding).
+The folder is written atomically (stages.common.artifacts.atomic_dir). Frames to encode (raw,
+Bayer) are encoded and written on ``workers`` threads while the bag is read (OpenCV releases
+the GIL while encoding); compressed frames are copied in the reading thread, which is faster
+than handing them to a thread that must win the GIL back after every system call.
 """
 
 from __future__ import annotations
@@ -260,7 +262,9 @@ class _FrameWriter:
             return None
         self.encodings[key] = self.encodings.get(key, 0) + 1
         name = name_stem + suffix
-        if self.pool is None:
+        if self.pool is None or isinstance(job[0], bytes):
+            # bytes to copy are written at once: a worker thread would wait for the GIL
+            # after each system call while this thread deserialises (slower, not faster)
             self._write(index, name, *job)
         else:
             if len(self.pending) >= self.limit:
