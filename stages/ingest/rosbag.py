@@ -293,10 +293,10 @@ class _FrameWriter:
         if isinstance(content, np.ndarray):
             import cv2
 
-            ok, buf = cv2.imencode(".png", content, self.png_params())
-            if not ok:
-                raise FieldlocError(f"could not encode frame {name}")
-            content = buf
+            # one call that encodes and writes without the GIL
+            if not cv2.imwrite(str(self.folder / name), content, self.png_params()):
+                raise FieldlocError(f"could not write frame {self.folder / name}")
+            return
         fd = os.open(self.folder / name, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         try:
             view = memoryview(content).cast("B")
