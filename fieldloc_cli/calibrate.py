@@ -14,7 +14,7 @@ from stages.common.errors import FieldlocError
 
 from .common import conf_option, overrides_dict
 
-DEFAULT_PRESET = {"points": "default", "minho": "minho"}
+DEFAULT_PRESET = {"points": "default", "minho": "minho", "cnc": "cnc"}
 
 
 @click.group()
@@ -29,6 +29,15 @@ def calibrate():
 @click.option("--from-minho", "minho_dir", type=click.Path(file_okay=False), metavar="DIR",
               help="Convert the MINHO team's DIR/mirror.cfg and DIR/image.cfg (centre, TILT)"
                    " instead of POINTS; image size from the first image in DIR/images.")
+@click.option("--from-cnc", "cnc_conf", type=click.Path(dir_okay=False), metavar="FILE",
+              help="The Carpe Noctem team's CarpetCalibrator.conf (ring distances) instead of"
+                   " POINTS; ring radii by --rings.")
+@click.option("--rings", metavar="SPEC",
+              help="With --from-cnc: 'detected' (the rings of the calibration picture, in"
+                   " order) or one radius in px per conf distance, '-' for a ring not seen.")
+@click.option("--calib-image", type=click.Path(dir_okay=False), metavar="FILE",
+              help="With --from-cnc: the rings' picture [default: CarpetCalibImage.png beside"
+                   " FILE]; gives the centre and image size unless given.")
 @click.option("--line-images", type=click.Path(file_okay=False), metavar="DIR",
               help="Images of a straight line ahead at known distances, each named by the"
                    " distance in metres (1.25.png): their measured pairs replace the other"
@@ -52,8 +61,9 @@ def calibrate():
 @click.option("--overwrite", is_flag=True, help="Replace OUTPUT if it exists.")
 @conf_option
 @click.pass_context
-def calibrate_omni(ctx, points, output, minho_dir, line_images, mask, centre, image_size,
-                   valid_radius, forward_angle_deg, mirrored, preset, overwrite, overrides):
+def calibrate_omni(ctx, points, output, minho_dir, cnc_conf, rings, calib_image, line_images,
+                   mask, centre, image_size, valid_radius, forward_angle_deg, mirrored, preset,
+                   overwrite, overrides):
     """Pixel radius -> floor distance of an omnidirectional camera, into calib.yaml.
 
     From POINTS (CSV header radius_px,distance_m: marks measured on the robot), by default the
@@ -68,13 +78,30 @@ def calibrate_omni(ctx, points, output, minho_dir, line_images, mask, centre, im
           --image-size 480 480 --valid-radius 40 230
       fieldloc calibrate omni --from-minho robot1/ -o calib.yaml
       fieldloc calibrate omni --from-minho robot1/ --line-images robot1/images -o calib.yaml
+      fieldloc calibrate omni --from-cnc etc/CarpetCalibrator.conf --rings detected -o calib.yaml
     """
-    from stages.calibrate import from_minho, main, report
+    from stages.calibrate import from_cnc, from_minho, main, report
 
-    if (points is None) == (minho_dir is None):
-        raise FieldlocError("calibrate omni needs POINTS or --from-minho DIR (one of them)")
-    kind = "points" if points is not None else "minho"
+    given_sources = [v for v in (points, minho_dir, cnc_conf) if v is not None]
+    if len(given_sources) != 1:
+        raise FieldlocError("calibrate omni needs POINTS or --from-minho DIR or --from-cnc FILE"
+                            " (one of them)")
+    kind = "points" if points is not None else "minho" if minho_dir is not None else "cnc"
+    if kind != "cnc" and (rings or calib_image):
+        raise FieldlocError("--rings and --calib-image go with --from-cnc")
     conf = resolve_conf(confs, preset or DEFAULT_PRESET[kind], overrides_dict(overrides))
+    if kind == "cnc":
+        if line_images or mask:
+            raise FieldlocError("--line-images and --mask do not go with --from-cnc")
+        if not rings:
+            raise FieldlocError(_rings_needed(cnc_conf, calib_image, centre, conf))
+        forward = math.radians(90.0 if forward_angle_deg is None else forward_angle_deg)
+        out = from_cnc(conf, cnc_conf, output, rings=rings, calib_image=calib_image,
+                       centre=centre or None, image_size=image_size or None,
+                       valid_radius=valid_radius or None, forward_angle=forward,
+                       mirrored=mirrored, overwrite=overwrite)
+        _echo_report(ctx, out, report(out))
+        return
     if kind == "points":
         missing = [name for name, v in (("--centre", centre), ("--image-size", image_size),
                                         ("--valid-radius", valid_radius)) if not v]
@@ -95,6 +122,27 @@ def calibrate_omni(ctx, points, output, minho_dir, line_images, mask, centre, im
                          valid_radius=valid_radius or None, line_images=line_images,
                          mask=mask, overwrite=overwrite)
     _echo_report(ctx, out, report(out))
+
+
+def _rings_needed(cnc_conf, calib_image, centre, conf) -> str:
+    """The message when --rings is missing: the conf's distances and the picture's rings."""
+    from pathlib import Path
+
+    from stages.calibrate import cnc
+
+    d = cnc.read_distances(cnc_conf)
+    text = (f"--from-cnc needs --rings: {Path(cnc_conf).name} lists {len(d)} ring distances"
+            f" ({', '.join(f'{v:g}' for v in d)} m) and no radii")
+    image = calib_image or (Path(cnc_conf).parent / cnc.IMAGE_NAME)
+    if Path(image).is_file():
+        import cv2
+
+        rings = cnc.detect_rings(cv2.imread(str(image)), centre=centre or None,
+                                 conf=conf.get("rings"))
+        text += (f"; {Path(image).name} shows {len(rings.radius_px)} rings at"
+                 f" {', '.join(f'{v:.1f}' for v in rings.radius_px)} px")
+    return (text + ". Pair them: --rings detected (in order, as many rings as distances) or"
+            " one radius per distance, '-' for a ring not seen (see stages/calibrate/cnc.py)")
 
 
 def _echo_report(ctx, out, rec: dict) -> None:

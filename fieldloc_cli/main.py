@@ -25,6 +25,10 @@ COMMANDS = {
     "show": "fieldloc_cli.show:show",
     "bench": "fieldloc_cli.bench:bench",
     "inspect": "fieldloc_cli.inspect:inspect",
+    "import": "fieldloc_cli.import_cmd:import_group",
+    "field": "fieldloc_cli.field:field",
+    "export": "fieldloc_cli.export:export",
+    "report": "fieldloc_cli.report:report",
 }
 
 

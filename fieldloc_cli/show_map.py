@@ -18,10 +18,14 @@ from stages.evaluate import map_plots
               help="Field position (m) of the robot for radial/spiral.")
 @click.option("--heading-deg", type=float, default=0.0, show_default=True,
               help="Robot heading for radial/spiral (rounded to 5 deg).")
+@click.option("--family", type=click.Choice(sorted(map_plots.FAMILIES)), default="ccw",
+              show_default=True, help="Spirals: the counter-clockwise or clockwise family.")
+@click.option("--spirals", type=int, default=6, show_default=True,
+              help="Spirals: how many of the family's 36 to draw (evenly spaced).")
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="PNG file to write.")
-def show_map(map_file, table, cell, heading_deg, output):
+def show_map(map_file, table, cell, heading_deg, family, spirals, output):
     """Draw MAP's field with a table, so a person can check it by eye."""
     path = map_plots.main(map_file, output, table=table, cell=cell,
-                          heading=math.radians(heading_deg))
+                          heading=math.radians(heading_deg), family=family, spirals=spirals)
     click.echo(str(path))

@@ -413,7 +413,10 @@ def test_cli_defaults_equal_stage_defaults():
 
     opts = {p.name: p.default for p in calibrate_omni.params}
     assert opts["preset"] is None and opts["forward_angle_deg"] is None
-    assert DEFAULT_PRESET == {"points": "default", "minho": "minho"}
+    assert DEFAULT_PRESET == {"points": "default", "minho": "minho", "cnc": "cnc"}
+    cnc_sig = __import__("inspect").signature(calibrate.from_cnc)
+    assert cnc_sig.parameters["centre"].default is None
+    assert cnc_sig.parameters["image_size"].default is None
     sig = __import__("inspect").signature(calibrate.from_minho)
     assert sig.parameters["image_size"].default is None
     assert sig.parameters["valid_radius"].default is None

@@ -5,6 +5,9 @@
          overwrite=False) -> Path
     from_minho(conf, minho_dir, output, *, image_size=None, valid_radius=None,
                line_images=None, mask=None, overwrite=False) -> Path
+    from_cnc(conf, carpet_conf, output, *, rings, calib_image=None, centre=None,
+             image_size=None, valid_radius=None, forward_angle=pi/2, mirrored=False,
+             overwrite=False) -> Path
 
 Sources of pairs (radius_px, distance_m):
 - ``points_csv``: pairs measured on the robot (marks laid on the floor at known distances and
@@ -12,6 +15,9 @@ Sources of pairs (radius_px, distance_m):
 - ``from_minho``: the MINHO team's ``mirror.cfg`` and ``image.cfg`` (stages.calibrate.minho);
   the image size from the first image of DIR/images unless given, DIR/mask.png for the line
   images;
+- ``from_cnc``: the Carpe Noctem team's ``CarpetCalibrator.conf`` ring distances with ring radii
+  measured in their calibration picture or given by hand (stages.calibrate.cnc, where the
+  pairing is discussed); the centre from ``centre`` or the picture;
 - ``line_images``: a folder of images of a straight line at known distances, each named by its
   distance (stages.calibrate.line_images). Measured pairs replace the other source's pairs
   within the measured range of distances; outside it the other source's pairs are kept (those
@@ -64,6 +70,7 @@ from ..common.camera import (
 )
 from ..common.dataset import IMAGE_SUFFIXES, read_mask
 from ..common.errors import FieldlocError
+from . import cnc as _cnc
 from . import line_images as _line_images
 from .minho import read_minho
 
@@ -86,6 +93,9 @@ confs = {
 }
 # a team's table (mirror.cfg): the monotone cubic through all its pairs (see the module doc)
 confs["minho"] = {**copy.deepcopy(confs["default"]), "model": "table", "min_points": 3}
+# the Carpe Noctem rings: as few as 2 pairs, through each of them
+confs["cnc"] = {**copy.deepcopy(confs["minho"]), "min_points": 2,
+                "rings": copy.deepcopy(_cnc.confs["default"])}
 
 
 class CalibrationError(FieldlocError):
@@ -298,7 +308,7 @@ def _mark_records(marks, radius_px, distance_m) -> list[dict]:
 
 
 def _calibrate(conf, r, d, output, *, sources, source_label, centre, image_size, valid_radius,
-               forward_angle, mirrored, line_images, mask, overwrite, where):
+               forward_angle, mirrored, line_images, mask, overwrite, where, extra_record=None):
     output = Path(output)
     if output.exists() and not overwrite:
         raise CalibrationError(f"{output} exists (use --overwrite to replace it)")
@@ -322,6 +332,7 @@ def _calibrate(conf, r, d, output, *, sources, source_label, centre, image_size,
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "sources": sources,
         "conf": {k: v for k, v in conf.items() if k != "line_images" or line_images is not None},
+        **(extra_record or {}),
         "model": result.model,
         "pairs": _pair_records(result),
     }
@@ -392,6 +403,62 @@ def from_minho(conf: dict | str | None, minho_dir, output, *, image_size=None, v
                       valid_radius=valid_radius, forward_angle=team.forward_angle,
                       mirrored=False, line_images=line_images, mask=mask_arr,
                       overwrite=overwrite, where=str(team.mirror_cfg))
+
+
+def from_cnc(conf: dict | str | None, carpet_conf, output, *, rings, calib_image=None,
+             centre=None, image_size=None, valid_radius=None, forward_angle: float = math.pi / 2,
+             mirrored: bool = False, overwrite: bool = False) -> Path:
+    """calib.yaml from the Carpe Noctem ``CarpetCalibrator.conf`` (ring distances) and ring
+    radii: ``rings`` is the user's pairing (stages.calibrate.cnc: 'detected', or radii with
+    '-' / None for a distance whose ring is not seen). ``calib_image`` (default
+    CarpetCalibImage.png beside the conf, if there): where rings are detected, and the centre
+    and image size unless given. The rings' detection is recorded beside the pairs.
+    ``conf`` None or a preset name: ``confs`` (default ``cnc``). Returns ``output``."""
+    import cv2
+
+    if conf is None or isinstance(conf, str):
+        from ..common.conf import resolve_conf
+
+        conf = resolve_conf(confs, conf or "cnc")
+    carpet_conf = Path(carpet_conf)
+    distances = _cnc.read_distances(carpet_conf)
+    sources = {"cnc": str(carpet_conf), "carpet_conf_hash": file_hash(carpet_conf)}
+    if calib_image is None and (carpet_conf.parent / _cnc.IMAGE_NAME).is_file():
+        calib_image = carpet_conf.parent / _cnc.IMAGE_NAME
+    detected = None
+    extra = {"ring_distances_m": [float(v) for v in distances]}
+    if calib_image is not None:
+        img = cv2.imread(str(calib_image), cv2.IMREAD_COLOR)
+        if img is None:
+            raise CalibrationError(f"unreadable calibration image: {calib_image}")
+        detected = _cnc.detect_rings(img, centre=centre, conf=conf.get("rings"))
+        sources["calib_image"] = str(calib_image)
+        sources["calib_image_hash"] = file_hash(calib_image)
+        extra["detected_rings"] = {"centre": [round(v, 2) for v in detected.centre],
+                                   "rings": detected.as_records()}
+        if centre is None:
+            centre = detected.centre
+        if image_size is None:
+            image_size = detected.image_size
+    if centre is None or image_size is None:
+        raise CalibrationError("--from-cnc needs the calibration picture (--calib-image) or"
+                               " --centre U V and --image-size W H")
+    if isinstance(rings, str) and rings != "detected":
+        rings = _cnc.parse_rings(rings)
+    r, d = _cnc.pair_rings(distances, rings, detected, str(carpet_conf))
+    slope = _cnc.slopes(r, d)
+    extra["pairing"] = "detected rings in order" if rings == "detected" else "given (--rings)"
+    extra["slope_px_per_m"] = [round(float(v), 2) for v in slope]
+    if np.any(np.diff(slope) > 0):
+        log.warning("the image radius grows faster again between %s m: check the pairing of"
+                    " rings and distances", ", ".join(
+                        f"{d[i + 1]:g}-{d[i + 2]:g}" for i in np.flatnonzero(np.diff(slope) > 0)))
+    rest = {k: v for k, v in conf.items() if k != "rings"}
+    return _calibrate(rest, r, d, output, sources=sources, source_label=_cnc.CONF_NAME,
+                      centre=centre, image_size=image_size, valid_radius=valid_radius,
+                      forward_angle=forward_angle, mirrored=mirrored, line_images=None,
+                      mask=None, overwrite=overwrite, where=str(carpet_conf),
+                      extra_record=extra)
 
 
 def _read_mask(mask, image_size, sources):

@@ -87,6 +87,37 @@ def atomic_path(path: str | Path, suffix: str | None = None):
 
 
 @contextlib.contextmanager
+def atomic_dir(path: str | Path, *, overwrite: bool = False):
+    """Yield a temporary folder beside ``path``; on success it replaces ``path`` (an existing
+    folder only with ``overwrite``), so an interrupted run leaves neither a half folder under
+    the real name nor a damaged earlier one."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise FieldlocError(f"cannot write folder {path}: it is a file")
+    if path.is_dir() and any(path.iterdir()) and not overwrite:
+        raise FieldlocError(f"folder {path} exists and is not empty (use --overwrite to"
+                            " replace it)")
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise FieldlocError(f"cannot write {path}: folder {parent} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise FieldlocError(f"cannot write {path}: folder {parent} is not writable")
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".part", dir=parent))
+    try:
+        yield tmp
+        if path.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=parent))
+            os.replace(path, old / "previous")
+            os.replace(tmp, path)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+@contextlib.contextmanager
 def write_artifact(path: str | Path, attrs: dict, *, resume: bool = False):
     """Open a new HDF5 artifact for writing, atomically.
 

@@ -63,6 +63,9 @@ SCHEMA = {
     ),
     "letters": (dict, False, None),
     "notes": (str, False, None),
+    # how `fieldloc field import` made the file (team file, its values, unknown keys); the
+    # model does not read it
+    "imported": (dict, False, None),
 }
 
 CROSSING_TYPES = ("L", "T", "X")

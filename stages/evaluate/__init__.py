@@ -205,6 +205,9 @@ def main(conf, poses, truth, output_dir, *, overwrite: bool = False, field=None)
 
     out.mkdir(parents=True, exist_ok=True)
     write_errors_csv(out / ERRORS_NAME, fe)
+    from .export import write_truth_tum  # truth.tum: evo_ape tum truth.tum poses.tum
+
+    write_truth_tum(out / "truth.tum", truth_cols)
     plots_dir = out / PLOTS_DIR
     plot_files = []
     if conf["plots"]:

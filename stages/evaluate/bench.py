@@ -547,6 +547,85 @@ def bench_feature_quality(repeat: int) -> list[Row]:
     return rows
 
 
+# ---------------------------------------------------------------------------- rows: import
+
+
+def _import_bag(fmt: str, kind: str, frames: int = 1000, size: int = 480) -> Path:
+    """A bag of ``frames`` rendered-looking frames (``kind`` jpeg: CompressedImage, raw:
+    Image bgr8) with odometry and IMU at 100 Hz, written once per bench run."""
+    key = ("bag", fmt, kind, frames, size)
+    if key not in _INPUTS:
+        import cv2
+
+        from ..ingest.bag_writer import write_bag
+
+        rng = np.random.default_rng(11)
+        base = cv2.GaussianBlur(rng.integers(0, 256, (size, size, 3), dtype=np.uint8), (9, 9), 3)
+        stamps = 1700000000.0 + np.arange(frames) / 30.0
+        imgs = (np.roll(base, 3 * k, axis=1) for k in range(frames))
+        payload = ([(cv2.imencode(".jpg", im)[1].tobytes(), "jpeg") for im in imgs]
+                   if kind == "jpeg" else [(im, "bgr8") for im in imgs])
+        t = stamps[0] + np.arange(int(frames / 30.0 * 100) + 2) / 100.0
+        odo = np.c_[t, 0.5 * (t - t[0]), np.zeros_like(t), 0.2 * (t - t[0])]
+        path = _work_dir() / (f"{fmt}-{kind}-{frames}" + (".bag" if fmt == "ros1" else ""))
+        write_bag(path, fmt, frames=list(zip(stamps, payload)), odometry=odo,
+                  imu=np.c_[t, 0.2 * (t - t[0])])
+        _INPUTS[key] = path
+    return _INPUTS[key]
+
+
+def bench_import_rosbag(repeat: int) -> list[Row]:
+    import shutil
+
+    from ..ingest import rosbag
+
+    topics = ["/camera/image", "/odom", "/imu"]
+    rows = []
+    for fmt, kind, preset, n_rep in (("ros1", "jpeg", "default", repeat),
+                                     ("ros2-mcap", "raw", "fast", max(2, repeat // 2)),
+                                     ("ros2-mcap", "raw", "default", max(2, repeat // 2))):
+        bag = _import_bag(fmt, kind)
+        out_root = _work_dir() / f"import-{fmt}-{kind}-{preset}"
+        out_root.mkdir(exist_ok=True)
+        a, b, floor = [], [], []
+        for k in range(n_rep + 1):  # the first round warms up (imports, page cache)
+            out = out_root / f"run{k}"
+            t = time.perf_counter()
+            rosbag.main(rosbag.confs[preset], bag, out, image_topic="/camera/image",
+                        odom_topic="/odom", imu_topic="/imu")
+            t_import = time.perf_counter() - t
+            t = time.perf_counter()
+            rosbag.read_messages(bag, topics)
+            t_read = time.perf_counter() - t
+            # the disk's share: writing the same files again, nothing else
+            files = [(p.name, p.read_bytes()) for p in sorted((out / "images").iterdir())]
+            again = out_root / f"again{k}"
+            again.mkdir()
+            t = time.perf_counter()
+            for name, data in files:
+                (again / name).write_bytes(data)
+            t_floor = time.perf_counter() - t
+            # not timed: a folder full of earlier runs' files makes new ones slower to create
+            shutil.rmtree(out, ignore_errors=True)
+            shutil.rmtree(again, ignore_errors=True)
+            if k:
+                a.append(t_import)
+                b.append(t_read)
+                floor.append(t_floor)
+        shutil.rmtree(out_root, ignore_errors=True)
+        ratio = _ms(a) / _ms(b)
+        what = ("CompressedImage JPEG, copied" if kind == "jpeg"
+                else f"Image bgr8 480 x 480 -> PNG level {rosbag.confs[preset]['png_compression']}")
+        rows.append(Row(
+            name=f"import rosbag {fmt}, 1000 frames ({kind}, preset {preset})",
+            median_ms=_ms(a), baseline="rosbags reading + deserialising the same messages",
+            baseline_ms=_ms(b), ratio=ratio, goal="<= 1.5 x reading",
+            meets_goal=ratio <= 1.5, repeats=len(a),
+            note=f"{what}; + odometry and IMU at 100 Hz; writing the same image files alone"
+                 f" took {_ms(floor):.0f} ms"))
+    return rows
+
+
 # ---------------------------------------------------------------------------- registry
 
 ROWS: dict[str, Callable[[int], Row | list[Row]]] = {
@@ -566,6 +645,7 @@ ROWS: dict[str, Callable[[int], Row | list[Row]]] = {
     "mcl-calibration": lambda n: _hyp().bench_mcl_calibration(n),
     "lut-hidden-run": lambda n: _hyp().bench_lut_hidden(n),
     "real": lambda n: _hyp().bench_real(n),
+    "import-rosbag": bench_import_rosbag,
 }
 
 

@@ -28,18 +28,27 @@ def draw_distance_table(ax, m: MapFile):
     ax.set_ylim(extent[2], extent[3])
 
 
+FAMILIES = {"ccw": 0, "cw": 1}
+
+
 def draw_scanlines_from_cell(ax, m: MapFile, x: float, y: float, heading: float,
-                             kind: str = "radial"):
+                             kind: str = "radial", *, family: str = "ccw", spirals: int = 6):
     """The scan lines of a robot at the cell nearest (x, y) with ``heading`` (rounded to the
-    scan-line step, as the tables serve it), and the crossings the table holds for them."""
+    scan-line step, as the tables serve it), and the crossings the table holds for them.
+
+    Spirals: one ``family`` (ccw: counter-clockwise, cw: clockwise) at a time. All 36 spirals
+    a robot walks that way are too dense to tell apart (a moire disc), so ``spirals`` of them,
+    evenly spaced in start angle, are drawn, each in its own colour with its table crossing
+    and a legend entry; the table crossings of all 36 are small dots."""
     sl = m.scanlines
     i, j = m.grid.cell_of(x, y)
     cx, cy = m.grid.centre_of(i, j)
     shift = sl.heading_index(heading)
     h = shift * sl.angle_step
     draw_field(ax, m.field, border=True)
-    hits = []
+    title_extra = ""
     if kind == "radial":
+        hits = []
         rows = np.roll(m.table("radial")[:, :, i, j], -shift, axis=0)
         for k in range(sl.n_angles):
             a = h + k * sl.angle_step
@@ -49,34 +58,58 @@ def draw_scanlines_from_cell(ax, m: MapFile, x: float, y: float, heading: float,
             for v in rows[k]:
                 if v != NO_HIT_MM:
                     hits.append((cx + v / 1000 * math.cos(a), cy + v / 1000 * math.sin(a)))
+        if hits:
+            hx, hy = np.asarray(hits).T
+            ax.scatter(hx, hy, s=12, color="red", zorder=3, label="table crossings")
+            ax.legend(loc="upper right", fontsize=8)
     else:
+        if family not in FAMILIES:
+            raise FieldlocError(f"unknown spiral family '{family}' (ccw or cw)")
+        direction = FAMILIES[family]
+        used = list(range(0, sl.n_angles, 2))  # the 36 a robot walks each way
+        n_draw = max(1, min(int(spirals), len(used)))
+        drawn = [used[int(round(q * len(used) / n_draw)) % len(used)] for q in range(n_draw)]
         rows = np.roll(m.table("spiral")[:, :, i, j], -shift, axis=1)
-        phi = sl.spiral_phi()
-        r = sl.spiral_radius(phi)
-        for direction, colour in ((0, "tab:blue"), (1, "tab:orange")):
-            for k in range(0, sl.n_angles, 2):  # the 36 a robot uses each way
-                pts = sl.spiral_points(direction, k, h) + (cx, cy)
-                ax.plot(pts[:, 0], pts[:, 1], color=colour, lw=0.3, zorder=2)
-                v = rows[direction, k]
-                if v != NO_HIT_MM:
-                    n = int(np.argmin(np.abs(r - v / 1000)))
-                    hits.append(tuple(pts[n]))
-    if hits:
-        hx, hy = np.asarray(hits).T
-        ax.scatter(hx, hy, s=12, color="red", zorder=3, label="table crossings")
+        r = sl.spiral_radius(sl.spiral_phi())
+        dots = []
+        colours = [f"C{q % 10}" for q in range(n_draw)]
+        for k in used:
+            pts = sl.spiral_points(direction, k, h) + (cx, cy)
+            v = rows[direction, k]
+            hit = None if v == NO_HIT_MM else tuple(pts[int(np.argmin(np.abs(r - v / 1000)))])
+            if k in drawn:
+                c = colours[drawn.index(k)]
+                start = math.degrees(h + k * sl.angle_step) % 360
+                label = (f"from {start:.0f} deg: " + ("no crossing" if hit is None else
+                                                      f"first crossing r = {v / 1000:.2f} m"))
+                ax.plot(pts[:, 0], pts[:, 1], color=c, lw=1.4, zorder=3, label=label)
+                ax.plot(*pts[0], "o", color=c, ms=4, zorder=3)
+                if hit is not None:
+                    ax.plot(*hit, "o", ms=9, mfc="none", mec=c, mew=2, zorder=4)
+            if hit is not None:
+                dots.append(hit)
+        if dots:
+            hx, hy = np.asarray(dots).T
+            ax.scatter(hx, hy, s=10, color="red", zorder=5,
+                       label=f"table crossings of all {len(used)} {family} spirals")
+        ax.legend(loc="upper right", fontsize=7, title=f"{n_draw} of {len(used)} {family}"
+                  " spirals", title_fontsize=7)
+        title_extra = f" ({family})"
     ax.annotate("", xy=(cx + 0.6 * math.cos(h), cy + 0.6 * math.sin(h)), xytext=(cx, cy),
-                arrowprops={"arrowstyle": "-|>", "color": "k", "lw": 2}, zorder=4)
-    span = sl.max_range + 0.5
+                arrowprops={"arrowstyle": "-|>", "color": "k", "lw": 2}, zorder=6)
+    span = (sl.max_range if kind == "radial" else sl.spiral_end_radius) + 0.5
     ax.set_xlim(cx - span, cx + span)
     ax.set_ylim(cy - span, cy + span)
-    ax.set_title(f"{kind} scan lines from ({cx:.2f}, {cy:.2f}), heading "
+    ax.set_title(f"{kind} scan lines{title_extra} from ({cx:.2f}, {cy:.2f}), heading "
                  f"{math.degrees(h):.0f} deg")
 
 
 def main(map_path: str | Path, output: str | Path, *, table: str = "distance",
-         cell: tuple[float, float] | None = None, heading: float = 0.0) -> Path:
+         cell: tuple[float, float] | None = None, heading: float = 0.0, family: str = "ccw",
+         spirals: int = 6) -> Path:
     """Draw the map ``map_path`` into the PNG ``output``: the distance table as a heat map, or
-    the radial/spiral scan lines and table crossings from one cell."""
+    the radial/spiral scan lines and table crossings from one cell (spirals: ``spirals`` of
+    one ``family``, see ``draw_scanlines_from_cell``)."""
     if table not in TABLES:
         raise FieldlocError(f"unknown table '{table}' (one of {', '.join(TABLES)})")
     if table != "distance" and cell is None:
@@ -90,5 +123,6 @@ def main(map_path: str | Path, output: str | Path, *, table: str = "distance",
         else:
             fig = new_figure(8, 8)
             ax = fig.add_subplot(1, 1, 1)
-            draw_scanlines_from_cell(ax, m, cell[0], cell[1], heading, table)
+            draw_scanlines_from_cell(ax, m, cell[0], cell[1], heading, table, family=family,
+                                     spirals=spirals)
         return save_figure(fig, output)

@@ -1,0 +1,29 @@
+"""`fieldloc export POSES.h5 --format csv|tum|json [-o FILE]`: poses for a team's own tools."""
+
+from __future__ import annotations
+
+import click
+
+from stages.evaluate.export import FORMATS
+
+
+@click.command()
+@click.argument("poses", type=click.Path(dir_okay=False))
+@click.option("--format", "fmt", required=True, type=click.Choice(sorted(FORMATS)),
+              help="csv: one row per frame; tum: accepted frames for evo; json: frames with"
+                   " their ranked hypotheses.")
+@click.option("-o", "--output", type=click.Path(dir_okay=False),
+              help="File to write [default: beside POSES with the format's suffix].")
+@click.option("--overwrite", is_flag=True, help="Replace OUTPUT if it exists.")
+def export(poses, fmt, output, overwrite):
+    """Write POSES (poses.h5 from `fieldloc localize`) as CSV, TUM or JSON.
+
+    \b
+    Examples:
+      fieldloc export run/poses.h5 --format csv
+      fieldloc export run/poses.h5 --format json -o run/poses-with-hypotheses.json
+    """
+    from stages.evaluate.export import main
+
+    out = main(None, poses, output, fmt=fmt, overwrite=overwrite)
+    click.echo(str(out))

@@ -1,0 +1,59 @@
+"""`fieldloc field import FILE --format bhuman|bitbots|falcons -o field.yaml`: a team's field
+file as a fieldloc field YAML."""
+
+from __future__ import annotations
+
+import click
+
+from stages.ingest.team_fields import FORMATS
+
+
+@click.group()
+def field():
+    """Field definitions: import a team's own field file."""
+
+
+@field.command("import")
+@click.argument("path", type=click.Path(dir_okay=False))
+@click.option("--format", "fmt", required=True, type=click.Choice(FORMATS),
+              help="bhuman: fieldDimensions.cfg (mm); bitbots: map generator config (cm) or"
+                   " config.yaml (m); falcons: multiCam.yaml or an MSL letters list (m).")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="Field YAML to write.")
+@click.option("--venue", help="falcons multiCam.yaml: the venue block (DeLocht for"
+                              " dimensionsDeLocht) [default: the one global.dimensions names].")
+@click.option("--base", metavar="FIELD",
+              help="Preset or field YAML giving the dimensions the team file lacks.")
+@click.option("--name", help="Field name [default: FORMAT-FILE or FORMAT-VENUE].")
+@click.option("--overwrite", is_flag=True, help="Replace OUTPUT if it exists.")
+def field_import(path, fmt, output, venue, base, name, overwrite):
+    """Read a team's field file and write it as a fieldloc field YAML (metres, between line
+    centre lines). Keys of the team file that describe no line and keys this importer does not
+    know are kept in the YAML's `imported` record and listed here.
+
+    \b
+    Examples:
+      fieldloc field import fieldDimensions.cfg --format bhuman -o spl-hall.yaml
+      fieldloc field import multiCam.yaml --format falcons --venue DeLocht -o delocht.yaml
+      fieldloc field import config.yaml --format bitbots --base kidsize -o lab.yaml
+    """
+    from stages.common.field import load_field
+    from stages.ingest.team_fields import main
+
+    out = main(None, path, output, fmt=fmt, venue=venue, base=base, name=name,
+               overwrite=overwrite)
+    fm = load_field(out)
+    rec = fm.spec.get("imported", {})
+    click.echo(f"wrote {out}: {fm.name}, {fm.length:g} x {fm.width:g} m between line centres,"
+               f" lines {fm.line_width:g} m, border {fm.border:g} m; {len(fm.segments)} lines,"
+               f" {len(fm.arcs)} arcs")
+    if rec.get("from_base"):
+        click.echo(f"from {rec['from_base']['field']}: {', '.join(rec['from_base']['keys'])}")
+    for note in rec.get("notes", []):
+        click.echo(f"note: {note}")
+    if rec.get("field_lines_check"):
+        click.echo(f"check: {rec['field_lines_check']}")
+    unknown = rec.get("unknown") or {}
+    if unknown:
+        click.echo(f"unknown keys ({len(unknown)}, kept under imported.unknown): "
+                   + ", ".join(f"{k}={v}" for k, v in unknown.items()), err=True)

@@ -1,0 +1,34 @@
+"""`fieldloc report RESULTS_OR_REPORT_DIR -o report.html`: one self-contained HTML page."""
+
+from __future__ import annotations
+
+import click
+
+from .common import conf_option, overrides_dict
+
+
+@click.command()
+@click.argument("source", type=click.Path(exists=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="HTML file to write.")
+@click.option("--worst", type=int, default=None,
+              help="How many of the worst frames to show with overlays [default: 4].")
+@click.option("--overwrite", is_flag=True, help="Replace OUTPUT if it exists.")
+@conf_option
+def report(source, output, worst, overwrite, overrides):
+    """One HTML page of the evaluation report(s) in SOURCE (a report folder, or a folder of
+    runs with reports below it): table, plots, reliability, worst frames with overlays. Every
+    picture is embedded: the page can be sent on its own.
+
+    \b
+    Example:
+      fieldloc report build/demo-omni/runs -o demo.html
+    """
+    from stages.common.conf import resolve_conf
+    from stages.evaluate.html_report import confs, main
+
+    conf = resolve_conf(confs, "default", overrides_dict(overrides))
+    if worst is not None:
+        conf["worst"] = worst
+    out = main(conf, source, output, overwrite=overwrite)
+    click.echo(str(out))

@@ -1,0 +1,286 @@
+"""The Carpe Noctem Cassel (dasys-lab/cnc-msl) carpet calibration: rings laid on the carpet at
+the distances of ``CarpetCalibrator.conf`` and a picture of them (``CarpetCalibImage.png``).
+
+``CarpetCalibrator.conf``: a ``[Dist]`` ... ``[!Dist]`` block of ``distN = MM`` lines, the ring
+distances from the robot's centre in millimetres; ``dist0 = 0`` is the robot's centre, not a
+ring. The file holds no radii: where each ring lies in the image is measured in the picture
+(``detect_rings``) or given by hand, and pairing rings with distances is the user's choice
+(``pair_rings``), because the picture alone does not always decide it:
+
+In the team's picture (460 x 460, 2016-01-20) nine bright rings are seen in all eight 45 deg
+sectors, at 103.7, 130.0, 146.8, 158.1, 166.2, 177.2, 184.4, 189.0 and 192.2 px from (231.0,
+231.25), and the conf lists nine distances (1, 1.5, 2, 2.5, 3, 4, 5, 6, 7 m). Paired in order,
+the image radius grows by 52.6, 33.6, 22.5, 16.3, 10.9, 7.2, 4.6 and 3.3 px per metre: a slope
+that falls steadily, as a convex mirror's does, and the monotone table through the pairs
+predicts each inner pair from the others within 6.2 cm (leave-one-out RMS 3.3 cm). The team's
+later per-pixel table (``DistanceLookup.txt``, 2016-03-30, made after the calibration picture
+was replaced) reads these rings as 0.996, 1.495, 1.978, 2.474, 2.989, 4.295, 5.145, 5.741 and
+6.091 m: within 1.1 % of the conf to 3 m, 3-7 % off at 4 and 5 m, and the outermost ring as
+6 m rather than 7 m. Read that way the 189 px ring is none of the conf's, 7 m lies beyond the
+mirror's rim, and the slope would rise again between 5 and 6 m (leave-one-out RMS 7.7 cm, 13.5
+cm at 5 m). Which camera set-up that table belongs to is not recorded, so neither reading can
+be proved: the pairs to 5 m are common to both, the outer two are the user's choice.
+
+The picture is a 460 x 460 view (``ImageArea = 460`` in the team's Vision.conf) centred on the
+mirror; for their full 640 x 480 frames Vision.conf's ``CameraMX = 235``, ``CameraMY = 322`` are
+the centre's row and column (u, v = 322, 235), with no check that the mirror was unchanged
+between those frames (2015-09-02) and the picture.
+
+``rings``: the radii (px) to pair in order with the conf's distances, ``None`` for a distance
+whose ring is not in the image (the second reading above is ``--rings
+103.7,130,146.8,158.1,166.2,177.2,184.4,192.2,-``), or the string ``detected``: the rings found
+in the picture, in order, which needs as many rings as distances (the first reading).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..common.errors import FieldlocError
+
+CONF_NAME = "CarpetCalibrator.conf"
+IMAGE_NAME = "CarpetCalibImage.png"
+
+confs = {
+    "default": {
+        "ray_step_deg": 1.0,
+        "sample_px": 0.25,
+        "min_radius_px": 20.0,  # inside this the robot's own body
+        "min_prominence": 10.0,  # grey levels a ring rises above the carpet on both sides, in
+        # the median over all rays (the weakest ring of the team's picture: 19; noise ~1-2)
+        "sectors": 8,  # a ring must be seen in at least min_sectors of these
+        "min_sectors": 6,
+        "centre_search_px": 16.0,  # the centre is searched this far around the image middle
+        "max_width_growth": 1.5,  # a ring of tape is narrower in the image than the ring
+        # inside it (the radius grows ever slower with distance); a peak this much wider is
+        # the glare beyond the mirror's rim, and the search stops there
+    },
+}
+
+
+class CncCalibrationError(FieldlocError):
+    """The CNC calibration files cannot give pairs."""
+
+
+@dataclass
+class CarpetRings:
+    """Rings measured in a calibration picture."""
+
+    centre: tuple[float, float]
+    radius_px: np.ndarray  # (R,) the rings' middles, increasing
+    prominence: np.ndarray  # (R,) grey levels above the carpet
+    width_px: np.ndarray  # (R,) at half prominence
+    sectors: np.ndarray  # (R,) in how many sectors the ring is seen
+    image_size: tuple[int, int]
+    spread_px: np.ndarray = field(default=None)  # (R,) std of the per-sector radii
+
+    def as_records(self) -> list[dict]:
+        return [{"radius_px": round(float(r), 2), "prominence": round(float(p), 1),
+                 "width_px": round(float(w), 2), "sectors": int(s),
+                 "sector_spread_px": round(float(d), 2)}
+                for r, p, w, s, d in zip(self.radius_px, self.prominence, self.width_px,
+                                         self.sectors, self.spread_px)]
+
+
+def read_distances(path) -> np.ndarray:
+    """The ring distances (m, increasing, without the centre's 0) of a CarpetCalibrator.conf."""
+    path = Path(path)
+    if not path.is_file():
+        raise CncCalibrationError(f"CNC calibration file not found: {path}")
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as e:
+        raise CncCalibrationError(f"{path}: unreadable ({e})") from None
+    m = re.search(r"\[Dist\](.*?)\[!Dist\]", text, re.S)
+    if not m:
+        raise CncCalibrationError(f"{path}: no [Dist] ... [!Dist] block")
+    values = {}
+    for line in m.group(1).splitlines():
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        kv = re.fullmatch(r"dist(\d+)\s*=\s*(\S+)", line)
+        if not kv:
+            raise CncCalibrationError(f"{path}: cannot read '{line}' (expected distN = MM)")
+        try:
+            values[int(kv.group(1))] = float(kv.group(2))
+        except ValueError:
+            raise CncCalibrationError(f"{path}: '{line}' is not a number of mm") from None
+    d = np.array([values[k] for k in sorted(values)], float) / 1000.0
+    if not np.all(np.isfinite(d)) or np.any(d < 0):
+        raise CncCalibrationError(f"{path}: distances must be finite and >= 0")
+    d = d[d > 0]
+    if len(d) < 2 or np.any(np.diff(d) <= 0):
+        raise CncCalibrationError(f"{path}: the ring distances must increase ({d * 1000} mm)")
+    return d
+
+
+def _grey(image) -> np.ndarray:
+    import cv2
+
+    img = np.asarray(image)
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    return img.astype(np.float32)
+
+
+def _polar(grey, centre, radii, angles):
+    import cv2
+
+    a, r = np.meshgrid(angles, radii, indexing="ij")
+    u = (centre[0] + r * np.cos(a)).astype(np.float32)
+    v = (centre[1] - r * np.sin(a)).astype(np.float32)
+    return cv2.remap(grey, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                     borderValue=float("nan"))
+
+
+def _profile_peaks(profile, radii, min_prominence):
+    from scipy.signal import find_peaks, peak_widths
+
+    p = np.nan_to_num(profile, nan=float(np.nanmin(profile)))
+    idx, props = find_peaks(p, prominence=min_prominence)
+    if not len(idx):
+        return np.zeros(0), np.zeros(0), np.zeros(0)
+    w, _, left, right = peak_widths(p, idx, rel_height=0.5, prominence_data=(
+        props["prominences"], props["left_bases"], props["right_bases"]))
+    step = radii[1] - radii[0]
+    mid = radii[0] + step * (left + right) / 2  # the middle of the ring between its edges
+    return mid, props["prominences"], w * step
+
+
+def _sharpness(grey, centre, radii, angles):
+    prof = np.nanmedian(_polar(grey, centre, radii, angles), axis=0)
+    return float(np.nansum(np.abs(np.diff(prof))))
+
+
+def find_centre(grey, conf) -> tuple[float, float]:
+    """The centre about which the rings are sharpest (total variation of the ray-median
+    profile), searched on a 1 px grid around the image middle, then refined to 0.25 px."""
+    h, w = grey.shape
+    radii = np.arange(float(conf["min_radius_px"]), min(h, w) / 2 - 1, 1.0)
+    angles = np.radians(np.arange(0.0, 360.0, 4.0))
+    best = (-1.0, (w / 2, h / 2))
+    span = float(conf["centre_search_px"])
+    for step in (2.0, 1.0, 0.25):
+        c0 = best[1]
+        offs = np.arange(-span, span + 1e-9, step)
+        for du in offs:
+            for dv in offs:
+                c = (c0[0] + du, c0[1] + dv)
+                s = _sharpness(grey, c, radii, angles)
+                if s > best[0]:
+                    best = (s, c)
+        span = 2 * step
+    return float(best[1][0]), float(best[1][1])
+
+
+def detect_rings(image, *, centre=None, conf=None) -> CarpetRings:
+    """The bright rings of a carpet calibration picture (BGR or grey): each a peak of the
+    ray-median luminance profile (robust to the mirror holder's spokes) of at least
+    ``min_prominence``, placed at the middle of its half-prominence edges and kept when it is
+    also seen in ``min_sectors`` of ``sectors`` angular sectors."""
+    conf = conf or confs["default"]
+    grey = _grey(image)
+    h, w = grey.shape
+    if centre is None:
+        centre = find_centre(grey, conf)
+    cu, cv = (float(c) for c in centre)
+    rmax = min(cu, cv, w - 1 - cu, h - 1 - cv)
+    step = float(conf["sample_px"])
+    radii = np.arange(float(conf["min_radius_px"]), rmax, step)
+    angles = np.radians(np.arange(0.0, 360.0, float(conf["ray_step_deg"])))
+    polar = _polar(grey, (cu, cv), radii, angles)
+    mid, prom, width = _profile_peaks(np.nanmedian(polar, axis=0), radii,
+                                      float(conf["min_prominence"]))
+    n_sec = int(conf["sectors"])
+    per_sector = np.full((n_sec, len(mid)), np.nan)
+    for s in range(n_sec):
+        rows = (np.arange(len(angles)) * n_sec) // len(angles) == s
+        sm, _, _ = _profile_peaks(np.nanmedian(polar[rows], axis=0), radii,
+                                  float(conf["min_prominence"]) / 2)
+        for k, r in enumerate(mid):
+            if len(sm):
+                j = int(np.argmin(np.abs(sm - r)))
+                if abs(sm[j] - r) <= max(2.0, width[k]):
+                    per_sector[s, k] = sm[j]
+    seen = np.isfinite(per_sector).sum(axis=0)
+    keep = seen >= int(conf["min_sectors"])
+    last_width = math.inf
+    for k in range(len(mid)):
+        if not keep[k]:
+            continue
+        if width[k] > float(conf["max_width_growth"]) * last_width:
+            keep[k:] = False
+            break
+        last_width = width[k]
+    spread = np.array([np.nanstd(per_sector[:, k]) if seen[k] else np.nan
+                       for k in range(len(mid))])
+    return CarpetRings(centre=(cu, cv), radius_px=mid[keep], prominence=prom[keep],
+                       width_px=width[keep], sectors=seen[keep], image_size=(w, h),
+                       spread_px=spread[keep])
+
+
+def parse_rings(text: str):
+    """``--rings``: 'detected', or comma-separated radii (px) with '-' for a distance whose
+    ring is not in the image."""
+    text = text.strip()
+    if text == "detected":
+        return "detected"
+    out = []
+    for part in text.split(","):
+        part = part.strip()
+        if part in ("-", ""):
+            out.append(None)
+            continue
+        try:
+            v = float(part)
+        except ValueError:
+            raise CncCalibrationError(f"--rings: '{part}' is not a radius in px or '-'") from None
+        if not math.isfinite(v) or v <= 0:
+            raise CncCalibrationError(f"--rings: radius {part} must be > 0")
+        out.append(v)
+    return out
+
+
+def pair_rings(distances, rings, detected: CarpetRings | None, where: str):
+    """(radius_px, distance_m) pairs from the user's choice (see the module doc)."""
+    d = np.asarray(distances, float)
+    if isinstance(rings, str):
+        if rings != "detected":
+            rings = parse_rings(rings)
+        else:
+            if detected is None:
+                raise CncCalibrationError("--rings detected needs the calibration picture"
+                                          " (--calib-image)")
+            if len(detected.radius_px) != len(d):
+                raise CncCalibrationError(
+                    f"{where}: {len(d)} ring distances but {len(detected.radius_px)} rings in"
+                    " the picture; pass --rings with one radius per distance ('-' for a ring"
+                    f" not seen). Rings found: {_fmt(detected.radius_px)} px")
+            rings = list(detected.radius_px)
+    if len(rings) != len(d):
+        raise CncCalibrationError(
+            f"{where}: --rings gives {len(rings)} entries for {len(d)} distances"
+            f" ({_fmt(d)} m); one radius (or '-') per distance")
+    r = np.array([np.nan if v is None else float(v) for v in rings])
+    keep = np.isfinite(r)
+    if keep.sum() < 2:
+        raise CncCalibrationError("--rings: at least two rings are needed")
+    if np.any(np.diff(r[keep]) <= 0):
+        raise CncCalibrationError(f"--rings: the radii must increase with the distance, got"
+                                  f" {_fmt(r[keep])} px")
+    return r[keep], d[keep]
+
+
+def slopes(radius_px, distance_m) -> np.ndarray:
+    """Image radius gained per metre between consecutive pairs (px/m)."""
+    return np.diff(np.asarray(radius_px, float)) / np.diff(np.asarray(distance_m, float))
+
+
+def _fmt(a) -> str:
+    return ", ".join(f"{float(v):g}" for v in a)

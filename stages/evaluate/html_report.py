@@ -1,0 +1,315 @@
+"""One self-contained HTML page of evaluation reports, to send to a teammate.
+
+    main(conf, source, output, *, overwrite=False) -> Path
+
+``source``: a report folder (report.json, errors.csv, plots/ written by ``fieldloc evaluate``)
+or a results folder holding report folders anywhere below it (each becomes a section, with a
+table of all runs at the top). Per report the page holds:
+
+- the figures of report.json in a table (every number cell carries ``data-key``, its path in
+  report.json with '/' between the keys, and ``data-value``, the number as report.json has
+  it, so a script can check the page against the report);
+- the report's plots (error CDF, trajectory on the field, error over time, and
+  ``plots/reliability.png`` when the report has it) and the reliability table of
+  ``calibration.reliability`` when report.json has one;
+- the ``worst`` frames by position error (failures first: they are infinitely wrong) with
+  their overlays: the image with its extracted line points, and the points put on the field
+  at the estimated pose beside the true one (from the features file the poses file names,
+  else DATASET/features.h5; a frame whose image or features cannot be found is listed
+  without a picture, saying why).
+
+Every picture is embedded as a base64 PNG (``data:image/png``): the page needs no other file.
+"""
+
+from __future__ import annotations
+
+import base64
+import datetime as _dt
+import html
+import io
+import logging
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from ..common.artifacts import atomic_path
+from ..common.errors import FieldlocError
+from .report import REPORT_NAME, load_report, read_errors_csv, table_rows
+
+log = logging.getLogger(__name__)
+
+confs = {"default": {"worst": 4, "plots": ["error_cdf.png", "trajectory.png",
+                                           "error_over_time.png", "reliability.png"],
+                     "overlay_dpi": 80}}
+
+# (label, key path in report.json, scale, digits, unit)
+FIGURES = [
+    ("frames", ("frames",), 1, 0, ""),
+    ("matched to truth", ("matched",), 1, 0, ""),
+    ("failures", ("failures",), 1, 0, ""),
+    ("accepted", ("accepted",), 1, 0, ""),
+    ("position error median", ("position_error_m", "median"), 100, 1, "cm"),
+    ("position error p90", ("position_error_m", "p90"), 100, 1, "cm"),
+    ("position error RMSE", ("position_error_m", "rmse"), 100, 1, "cm"),
+    ("heading error median", ("heading_error_deg", "median"), 1, 2, "deg"),
+    ("localised frames", ("localised", "frames"), 1, 0, ""),
+    ("localised: position median", ("localised", "position_error_m", "median"), 100, 1, "cm"),
+    ("localised: position RMSE", ("localised", "position_error_m", "rmse"), 100, 1, "cm"),
+    ("localised: position max", ("localised", "position_error_m", "max"), 100, 1, "cm"),
+    ("localised: heading median", ("localised", "heading_error_deg", "median"), 1, 2, "deg"),
+    ("confidently wrong (> 1 m, accepted)", ("confidently_wrong",), 1, 0, ""),
+    ("calibration AUROC", ("calibration", "auroc"), 1, 3, ""),
+    ("runtime median", ("runtime_ms", "median"), 1, 3, "ms"),
+]
+
+_CSS = """
+body{font-family:sans-serif;margin:2em;max-width:1100px;color:#222}
+h1{font-size:1.5em}h2{font-size:1.25em;border-bottom:1px solid #ccc;margin-top:2em}
+table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #ccc;padding:3px 8px}
+td.num{text-align:right;font-variant-numeric:tabular-nums}th{background:#f3f3f3}
+img{max-width:100%;border:1px solid #ddd;margin:4px 0}.note{color:#666;font-size:0.9em}
+figure{margin:0.5em 0}figcaption{font-size:0.9em;color:#444}
+"""
+
+
+def find_reports(source) -> list[Path]:
+    """Report folders: ``source`` itself if it holds report.json, else every folder below it
+    that does (sorted)."""
+    source = Path(source)
+    if not source.exists():
+        raise FieldlocError(f"not found: {source}")
+    if source.is_file():
+        if source.name == REPORT_NAME:
+            return [source.parent]
+        raise FieldlocError(f"{source}: give a report folder or a folder of reports")
+    if (source / REPORT_NAME).is_file():
+        return [source]
+    found = sorted(p.parent for p in source.rglob(REPORT_NAME))
+    if not found:
+        raise FieldlocError(f"{source}: no {REPORT_NAME} in it or below it (run fieldloc"
+                            " evaluate first)")
+    return found
+
+
+def lookup(report: dict, path: tuple):
+    """The value at a key path of report.json (list items by index), or None."""
+    d = report
+    for k in path:
+        if isinstance(d, list) and str(k).isdigit() and int(k) < len(d):
+            d = d[int(k)]
+        elif isinstance(d, dict) and k in d:
+            d = d[k]
+        else:
+            return None
+    return d
+
+
+def _fmt(v, scale, digits, unit) -> str:
+    if v is None:
+        return "-"
+    v = float(v)
+    if math.isnan(v):
+        return "-"
+    if math.isinf(v):
+        return "inf"
+    return f"{v * scale:.{digits}f}" + (f" {unit}" if unit else "")
+
+
+def _data_value(v) -> str:
+    if v is None:
+        return ""
+    v = float(v)
+    return "nan" if math.isnan(v) else ("inf" if math.isinf(v) else repr(v))
+
+
+def _img(data: bytes, alt: str) -> str:
+    return (f'<img alt="{html.escape(alt)}" src="data:image/png;base64,'
+            f'{base64.b64encode(data).decode()}">')
+
+
+def _figure_png(fig, dpi) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
+    return buf.getvalue()
+
+
+def figures_table(report: dict) -> str:
+    rows = []
+    for label, path, scale, digits, unit in FIGURES:
+        v = lookup(report, path)
+        if v is None:
+            continue
+        rows.append(f'<tr><th>{html.escape(label)}</th><td class="num" data-key='
+                    f'"{"/".join(path)}" data-value="{_data_value(v)}" data-scale="{scale}">'
+                    f"{_fmt(v, scale, digits, unit)}</td></tr>")
+    for k, v in sorted((report.get("within") or {}).items(), key=lambda kv: float(kv[0])):
+        rows.append(f'<tr><th>within {float(k) * 100:g} cm</th><td class="num" data-key='
+                    f'"within/{k}" data-value="{_data_value(v)}" data-scale="100">'
+                    f"{_fmt(v, 100, 1, '%')}</td></tr>")
+    return "<table>" + "".join(rows) + "</table>"
+
+
+def reliability_table(report: dict) -> str:
+    table = lookup(report, ("calibration", "reliability"))
+    if not isinstance(table, list) or not table:
+        return ""
+    keys = [k for k in table[0] if not isinstance(table[0][k], (list, dict))]
+    head = "".join(f"<th>{html.escape(str(k))}</th>" for k in keys)
+    body = []
+    for i, row in enumerate(table):
+        cells = []
+        for k in keys:
+            v = row.get(k)
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                cells.append(f'<td class="num" data-key="calibration/reliability/{i}/{k}"'
+                             f' data-value="{_data_value(v)}" data-scale="1">'
+                             f"{_fmt(v, 1, 3 if isinstance(v, float) else 0, '')}</td>")
+            else:
+                cells.append(f"<td>{html.escape(str(v))}</td>")
+        body.append("<tr>" + "".join(cells) + "</tr>")
+    return ("<h3>Reliability (confidence against the share of correct frames)</h3><table><tr>"
+            + head + "</tr>" + "".join(body) + "</table>")
+
+
+def worst_frames(report_dir: Path, n: int) -> list[dict]:
+    """The ``n`` matched frames with the largest position error (failures first)."""
+    errors = report_dir / "errors.csv"
+    if n <= 0 or not errors.is_file():
+        return []
+    e = read_errors_csv(errors)
+    matched = e["matched"] > 0
+    idx = np.flatnonzero(matched)
+    err = e["position_error_m"][idx]
+    order = idx[np.argsort(-np.nan_to_num(err, nan=-1.0), kind="stable")][:n]
+    return [{"name": str(e["name"][i]), "stamp": float(e["stamp"][i]),
+             "failed": bool(e["failed"][i]), "error_m": float(e["position_error_m"][i]),
+             "pose": (float(e["x"][i]), float(e["y"][i]), float(e["theta"][i])),
+             "truth": (float(e["truth_x"][i]), float(e["truth_y"][i]),
+                       float(e["truth_theta"][i]))} for i in order]
+
+
+def _frame_sources(report: dict):
+    """(dataset folder, features file or None) of a report's run, or (None, None)."""
+    from ..common.poses_file import read_poses
+
+    dataset = Path(report["dataset"]) if report.get("dataset") else None
+    features = None
+    poses = report.get("poses")
+    if poses and Path(poses).is_file():
+        try:
+            _, attrs = read_poses(poses)
+            f = (attrs.get("inputs") or {}).get("features")
+            features = Path(f) if f and Path(f).is_file() else None
+            if dataset is None and attrs.get("dataset"):
+                dataset = Path(attrs["dataset"])
+        except FieldlocError:
+            pass
+    if features is None and dataset is not None and (dataset / "features.h5").is_file():
+        features = dataset / "features.h5"
+    return dataset, features
+
+
+def overlay_png(dataset, features, frame: dict, field_model, dpi: int) -> tuple[bytes | None,
+                                                                               str]:
+    """The overlay of one worst frame, or (None, why not)."""
+    from ..common.dataset import open_dataset, read_image
+    from ..common.features_file import FeaturesFile
+    from ..extract.overlay import points_figure  # the pictures move to stages/show (issue 10)
+
+    if dataset is None or not Path(dataset).is_dir():
+        return None, "the run's dataset folder is not at hand"
+    if features is None:
+        return None, "no features file for the run"
+    try:
+        ds = open_dataset(dataset)
+        names = ds.names
+        if frame["name"] not in names:
+            return None, f"no image of frame {frame['name']} in {dataset}"
+        image = read_image(ds.images[names.index(frame["name"])])
+        with FeaturesFile(features) as ff:
+            if frame["name"] not in ff.names:
+                return None, f"frame {frame['name']} is not in {features}"
+            arrays = ff.frame(frame["name"])
+    except FieldlocError as e:
+        return None, str(e)
+    pose = None if frame["failed"] else frame["pose"]
+    shown = pose if pose is not None else frame["truth"]
+    fig = points_figure(image, arrays, field_model=field_model, pose=shown,
+                        title=f"frame {frame['name']}")
+    if field_model is not None and len(fig.axes) > 1:
+        ax = fig.axes[1]
+        tx, ty, tt = frame["truth"]
+        ax.plot([tx], [ty], "s", color="yellow", ms=7, zorder=7, label="truth")
+        ax.arrow(tx, ty, 0.5 * math.cos(tt), 0.5 * math.sin(tt), width=0.03, color="yellow",
+                 zorder=7)
+        ax.legend(loc="upper right", fontsize=7)
+        if pose is None:
+            ax.set_title("failed frame: points at the true pose", fontsize=9)
+    return _figure_png(fig, dpi), ""
+
+
+def report_section(report_dir: Path, conf: dict, index: int) -> str:
+    from ..common.field import load_field
+
+    report = load_report(report_dir, raw=True)
+    title = html.escape(str(report.get("run") or report_dir.name))
+    parts = [f'<section id="report-{index}"><h2>{title}</h2>',
+             f'<p class="note">method {html.escape(str(report.get("method", "")))}, field'
+             f' {html.escape(str(report.get("field", "")))}; poses'
+             f' {html.escape(str(report.get("poses", "")))}; truth'
+             f' {html.escape(str(report.get("truth", "")))}; report'
+             f' {html.escape(str(report_dir))}</p>', figures_table(report)]
+    plots_dir = report_dir / "plots"
+    for name in conf["plots"]:
+        p = plots_dir / name
+        if p.is_file():
+            parts.append(f"<figure>{_img(p.read_bytes(), name)}<figcaption>"
+                         f"{html.escape(name)}</figcaption></figure>")
+    parts.append(reliability_table(report))
+    worst = worst_frames(report_dir, int(conf["worst"]))
+    if worst:
+        parts.append(f"<h3>The {len(worst)} worst frames</h3>")
+        dataset, features = _frame_sources(report)
+        try:
+            fm = load_field(report["field"]) if report.get("field") else None
+        except FieldlocError:
+            fm = None
+        for fr in worst:
+            err = ("failed (infinite error)" if fr["failed"] else
+                   "not accepted (counted as infinite error)" if math.isinf(fr["error_m"])
+                   else f"{fr['error_m'] * 100:.1f} cm")
+            png, why = overlay_png(dataset, features, fr, fm, int(conf["overlay_dpi"]))
+            cap = f"frame {html.escape(fr['name'])} at {fr['stamp']:.3f} s: {err}"
+            parts.append(f"<figure>{_img(png, fr['name'])}<figcaption>{cap}</figcaption>"
+                         "</figure>" if png else f"<p>{cap}; no overlay: {html.escape(why)}</p>")
+    parts.append("</section>")
+    return "\n".join(parts)
+
+
+def main(conf, source, output, *, overwrite: bool = False) -> Path:
+    """Write the HTML page of the report(s) in ``source`` to ``output``; returns it."""
+    if conf is None or isinstance(conf, str):
+        from ..common.conf import resolve_conf
+
+        conf = resolve_conf(confs, conf)
+    output = Path(output)
+    if output.exists() and not overwrite:
+        raise FieldlocError(f"{output} exists (use --overwrite to replace it)")
+    dirs = find_reports(source)
+    header, rows = table_rows(dirs)
+    runs = ("<table><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in header) + "</tr>"
+            + "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>"
+                      for r in rows) + "</table>")
+    sections = [report_section(d, conf, i) for i, d in enumerate(dirs)]
+    created = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>fieldloc report:"
+            f" {html.escape(Path(source).name)}</title><style>{_CSS}</style></head><body>"
+            f"<h1>fieldloc report: {html.escape(str(source))}</h1><p class='note'>{len(dirs)}"
+            f" run(s); written {created} by fieldloc {__version__}. Distances between line"
+            " centre lines; failures count as infinite error.</p>" + runs
+            + "\n".join(sections) + "</body></html>\n")
+    with atomic_path(output, suffix=".html") as tmp:
+        tmp.write_text(page)
+    return output

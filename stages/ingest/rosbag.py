@@ -1,0 +1,470 @@
+"""A ROS bag into a dataset folder (GUIDE section 4), read with ``rosbags`` (no ROS install).
+
+    main(conf, bag, output, *, image_topic, odom_topic=None, imu_topic=None, every=1,
+         calib=None, overwrite=False, progress=False) -> Path
+
+``bag``: a ROS 1 ``.bag`` file, or a ROS 2 bag folder (``metadata.yaml`` beside sqlite3
+``.db3`` or ``.mcap`` files; the path of one of those files is taken as its folder).
+
+What is written into ``output``:
+
+- ``images/NNNNNN.png`` (or ``.jpg``): every ``every``-th message of ``image_topic``
+  (sensor_msgs/Image or CompressedImage; encodings in stages.ingest.ros_images), numbered in
+  bag order. Compressed JPEG/PNG frames are copied byte for byte; raw frames are written as
+  PNG (``png_compression``: 0 stores them uncompressed and is about ten times faster, 1 is
+  zlib's fastest level, about a third of the size). A frame that cannot be decoded is reported
+  and skipped;
+- ``frames.csv``: name, stamp: each frame's header stamp (s);
+- ``odometry.csv`` (with ``odom_topic``, nav_msgs/Odometry): per frame the robot-frame
+  increment (dx, dy, dtheta) since the previous frame, from the odometry pose interpolated at
+  both frames' stamps (position linearly, heading linearly after unwrapping). Frames whose
+  stamp or whose previous frame's stamp lies outside the odometry's time span get no row (the
+  localiser then has no odometry for them) rather than an extrapolated one;
+- ``imu.csv`` (with ``imu_topic``, sensor_msgs/Imu): the yaw of the IMU orientation
+  interpolated at each frame's stamp (frames outside the IMU's time span get no row);
+  collision 0 (a sensor_msgs/Imu message has no such flag). An IMU that publishes no
+  orientation (``orientation_covariance[0] == -1``) is refused;
+- ``calib.yaml``: a copy of ``calib`` when given (a bag holds no fieldloc calibration);
+- ``import.yaml``: where the data came from (bag, topics, message types, counts, encodings,
+  which stamps were used, skipped frames).
+
+Stamps (conf ``stamp``): ``header`` uses each message's header stamp, except for a topic any of
+whose messages has a zero header stamp (a driver that never fills it): that topic uses the
+bag's receive times instead, with a warning. ``bag`` always uses the receive times.
+
+The folder is written atomically (stages.common.artifacts.atomic_dir). Frames to encode (raw,
+Bayer) are encoded and written on ``workers`` threads while the bag is read (OpenCV releases
+the GIL while encoding); compressed frames are copied in the reading thread, which is faster
+than handing them to a thread that must win the GIL back after every system call.
+"""
+
+from __future__ import annotations
+
+import copy
+import datetime as _dt
+import logging
+import math
+import os
+import shutil
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from .. import __version__
+from ..common.artifacts import atomic_dir, file_hash
+from ..common.dataset import write_csv
+from ..common.errors import FieldlocError
+from ..common.geometry import wrap_angle
+from . import ros_images
+
+log = logging.getLogger(__name__)
+
+IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+ODOMETRY_TYPES = ("nav_msgs/msg/Odometry",)
+IMU_TYPES = ("sensor_msgs/msg/Imu",)
+STAMPS = ("header", "bag")
+
+confs = {
+    "default": {
+        "png_compression": 1,  # zlib level of raw frames written as PNG (0..9)
+        "workers": 2,  # threads encoding and writing frames (0: in the reading thread)
+        "max_in_flight": 8,  # frames read but not yet written, per worker
+        "stamp": "header",  # header | bag (see the module doc)
+    },
+}
+confs["fast"] = {**copy.deepcopy(confs["default"]), "png_compression": 0}
+
+
+class BagError(FieldlocError):
+    """A bag that cannot be read or does not hold what was asked for."""
+
+
+@dataclass
+class _Series:
+    """Stamps (header and bag receive time, s) and values of one topic's messages."""
+
+    header: list = field(default_factory=list)
+    received: list = field(default_factory=list)
+    values: list = field(default_factory=list)
+
+    def stamps(self, mode: str, topic: str) -> tuple[np.ndarray, str]:
+        header = np.asarray(self.header, float)
+        if mode == "header" and len(header) and np.all(header > 0):
+            return header, "header"
+        if mode == "header" and len(header):
+            log.warning("%s: %d message(s) have a zero header stamp; using the bag's receive"
+                        " times for this topic", topic, int(np.sum(header <= 0)))
+        return np.asarray(self.received, float), "bag"
+
+
+# ---------------------------------------------------------------------------- reading
+
+
+def bag_paths(bag) -> list[Path]:
+    """The paths ``rosbags.highlevel.AnyReader`` takes for a bag given by the user."""
+    p = Path(bag)
+    if not p.exists():
+        raise BagError(f"bag not found: {p}")
+    if p.is_file() and p.suffix == ".bag":
+        return [p]
+    if p.is_file() and p.suffix in (".db3", ".mcap") and (p.parent / "metadata.yaml").is_file():
+        return [p.parent]
+    if p.is_dir() and (p / "metadata.yaml").is_file():
+        return [p]
+    if p.is_file() and p.suffix == ".mcap":
+        raise BagError(f"{p}: an mcap file without metadata.yaml beside it; give the ROS 2 bag"
+                       " folder (ros2 bag record writes one)")
+    raise BagError(f"{p}: not a ROS bag (a ROS 1 .bag file, or a ROS 2 bag folder with"
+                   " metadata.yaml)")
+
+
+def open_reader(bag):
+    """An AnyReader on the bag, not yet opened; unreadable bags are a BagError."""
+    from rosbags.highlevel import AnyReader
+
+    paths = bag_paths(bag)
+    try:
+        return AnyReader(paths)
+    except Exception as e:  # rosbags raises its own errors for foreign or broken files
+        raise BagError(f"{bag}: cannot read the bag ({e})") from None
+
+
+def _connections(reader, topic: str, types: tuple, what: str, bag) -> list:
+    conns = [c for c in reader.connections if c.topic == topic]
+    if not conns:
+        have = sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})
+        raise BagError(f"{bag}: no topic {topic} for the {what}; the bag has: "
+                       + (", ".join(have) if have else "no topics"))
+    bad = sorted({c.msgtype for c in conns if c.msgtype not in types})
+    if bad:
+        raise BagError(f"{bag}: topic {topic} carries {', '.join(bad)}; the {what} must be "
+                       + " or ".join(types))
+    return conns
+
+
+def read_messages(bag, topics) -> int:
+    """Read and deserialise every message of ``topics`` with rosbags and nothing else (what an
+    import cannot do with less; the bench's baseline). Returns the number of messages."""
+    reader = open_reader(bag)
+    n = 0
+    with reader:
+        conns = [c for c in reader.connections if c.topic in set(topics)]
+        for conn, _t, raw in reader.messages(connections=conns):
+            reader.deserialize(raw, conn.msgtype)
+            n += 1
+    return n
+
+
+def _stamp(msg) -> float:
+    st = msg.header.stamp
+    return float(st.sec) + 1e-9 * float(st.nanosec)
+
+
+def quaternion_yaw(x: float, y: float, z: float, w: float) -> float:
+    """Rotation about z of a quaternion (rad)."""
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+# ---------------------------------------------------------------------------- interpolation
+
+
+def pose_at(stamps, x, y, yaw, at) -> tuple[np.ndarray, np.ndarray]:
+    """Poses (F, 3) interpolated at the stamps ``at`` (x, y linearly, yaw linearly after
+    unwrapping, wrapped back) and a (F,) bool: whether each stamp lies within the samples' span.
+    Samples with equal stamps keep the last one."""
+    t = np.asarray(stamps, float)
+    order = np.argsort(t, kind="stable")
+    t = t[order]
+    vals = np.stack([np.asarray(x, float)[order], np.asarray(y, float)[order],
+                     np.unwrap(np.asarray(yaw, float)[order])], axis=1)
+    keep = np.append(t[1:] != t[:-1], True)
+    t, vals = t[keep], vals[keep]
+    at = np.asarray(at, float)
+    out = np.full((len(at), 3), np.nan)
+    if len(t) == 0:
+        return out, np.zeros(len(at), bool)
+    inside = (at >= t[0] - 1e-9) & (at <= t[-1] + 1e-9)
+    for k in range(3):
+        out[:, k] = np.interp(at, t, vals[:, k])
+    out[:, 2] = wrap_angle(out[:, 2])
+    out[~inside] = np.nan
+    return out, inside
+
+
+def increments_between(poses, inside) -> tuple[np.ndarray, np.ndarray]:
+    """Robot-frame increments (F, 3) from frame k-1 to frame k of interpolated odometry poses,
+    and a (F,) bool: defined (both frames inside the odometry's span; never for frame 0)."""
+    poses = np.asarray(poses, float)
+    inc = np.zeros_like(poses)
+    ok = np.zeros(len(poses), bool)
+    if len(poses) < 2:
+        return inc, ok
+    a, b = poses[:-1], poses[1:]
+    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
+    dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
+    inc[1:, 0] = c * dx + s * dy
+    inc[1:, 1] = -s * dx + c * dy
+    inc[1:, 2] = wrap_angle(b[:, 2] - a[:, 2])
+    ok[1:] = inside[:-1] & inside[1:]
+    inc[~ok] = 0.0
+    return inc, ok
+
+
+# ---------------------------------------------------------------------------- writing
+
+
+def _check_conf(conf: dict, every):
+    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+        raise FieldlocError(f"--every must be a whole number >= 1, got {every!r}")
+    lvl = conf["png_compression"]
+    if isinstance(lvl, bool) or not isinstance(lvl, int) or not 0 <= lvl <= 9:
+        raise FieldlocError(f"png_compression must be 0..9, got {lvl!r}")
+    w = conf["workers"]
+    if isinstance(w, bool) or not isinstance(w, int) or w < 0:
+        raise FieldlocError(f"workers must be a whole number >= 0, got {w!r}")
+    if conf["stamp"] not in STAMPS:
+        raise FieldlocError(f"stamp must be one of {', '.join(STAMPS)}, got {conf['stamp']!r}")
+
+
+class _FrameWriter:
+    """Turns image messages into files, on worker threads when asked."""
+
+    def __init__(self, folder: Path, conf: dict):
+        self.folder = folder
+        self.png_compression = int(conf["png_compression"])
+        self._png_params = None
+        workers = int(conf["workers"])
+        self.pool = ThreadPoolExecutor(max_workers=workers) if workers > 0 else None
+        self.limit = max(1, workers) * int(conf["max_in_flight"])
+        self.pending: list = []
+        self.skipped: list[dict] = []
+        self.encodings: dict[str, int] = {}
+
+    def add(self, index: int, name_stem: str, msgtype: str, msg) -> str | None:
+        """Queue one frame; returns its file name, or None if it was skipped."""
+        try:
+            if msgtype.endswith("CompressedImage"):
+                key = msg.format or "(none)"
+                suffix, content = ros_images.compressed_to_file(msg.format, msg.data)
+                job = (content, None)
+            else:
+                key = msg.encoding
+                ros_images.raw_pixels(msg.height, msg.width, msg.encoding, msg.step, msg.data,
+                                      bool(msg.is_bigendian))  # checks the layout here
+                suffix = ".png"
+                job = (None, (msg.height, msg.width, msg.encoding, msg.step, msg.data,
+                              bool(msg.is_bigendian)))
+        except ros_images.ImageMessageError as e:
+            self._skip(index, str(e))
+            return None
+        self.encodings[key] = self.encodings.get(key, 0) + 1
+        name = name_stem + suffix
+        if self.pool is None or isinstance(job[0], bytes):
+            # bytes to copy are written at once: a worker thread would wait for the GIL
+            # after each system call while this thread deserialises (slower, not faster)
+            self._write(index, name, *job)
+        else:
+            if len(self.pending) >= self.limit:
+                self._drain(self.limit // 2)
+            self.pending.append(self.pool.submit(self._write, index, name, *job))
+        return name
+
+    def _skip(self, index, reason):
+        log.warning("image message %d skipped: %s", index, reason)
+        self.skipped.append({"message": int(index), "reason": reason})
+
+    def png_params(self) -> list:
+        import cv2
+
+        if self._png_params is None:
+            params = [cv2.IMWRITE_PNG_COMPRESSION, self.png_compression]
+            if self.png_compression == 0 and hasattr(cv2, "IMWRITE_PNG_FILTER"):
+                # a stored PNG: row filters would cost time and save nothing
+                params += [cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_NONE]
+            self._png_params = params
+        return self._png_params
+
+    def _write(self, index, name, content, raw):
+        if raw is not None:
+            content = ros_images.raw_to_image(*raw)
+        if isinstance(content, np.ndarray):
+            import cv2
+
+            # one call that encodes and writes without the GIL
+            if not cv2.imwrite(str(self.folder / name), content, self.png_params()):
+                raise FieldlocError(f"could not write frame {self.folder / name}")
+            return
+        fd = os.open(self.folder / name, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        try:
+            view = memoryview(content).cast("B")
+            while view:
+                view = view[os.write(fd, view):]
+        finally:
+            os.close(fd)
+
+    def _drain(self, keep: int = 0):
+        while len(self.pending) > keep:
+            self.pending.pop(0).result()
+
+    def close(self):
+        try:
+            self._drain(0)
+        finally:
+            if self.pool is not None:
+                self.pool.shutdown(wait=True)
+
+
+def main(conf: dict, bag, output, *, image_topic: str, odom_topic: str | None = None,
+         imu_topic: str | None = None, every: int = 1, calib=None, overwrite: bool = False,
+         progress: bool = False) -> Path:
+    """Import ``bag`` into the dataset folder ``output`` (see the module doc). Returns
+    ``output``."""
+    from tqdm import tqdm
+
+    _check_conf(conf, every)
+    output = Path(output)
+    if calib is not None and not Path(calib).is_file():
+        raise FieldlocError(f"calibration not found: {calib}")
+    reader = open_reader(bag)
+    with reader:
+        img_conns = _connections(reader, image_topic, IMAGE_TYPES, "images", bag)
+        odo_conns = (_connections(reader, odom_topic, ODOMETRY_TYPES, "odometry", bag)
+                     if odom_topic else [])
+        imu_conns = _connections(reader, imu_topic, IMU_TYPES, "IMU", bag) if imu_topic else []
+        role = {id(c): "image" for c in img_conns}
+        role.update({id(c): "odometry" for c in odo_conns})
+        role.update({id(c): "imu" for c in imu_conns})
+        conns = img_conns + odo_conns + imu_conns
+        total = sum(int(c.msgcount) for c in conns)
+        frames, odo, imu = _Series(), _Series(), _Series()
+        names: list[str] = []
+        with atomic_dir(output, overwrite=overwrite) as tmp:
+            (tmp / "images").mkdir()
+            writer = _FrameWriter(tmp / "images", conf)
+            n_image = 0
+            try:
+                bar = tqdm(total=total, desc="import rosbag", unit="msg", disable=not progress)
+                for conn, t_ns, raw in reader.messages(connections=conns):
+                    bar.update(1)
+                    kind = role[id(conn)]
+                    if kind == "image":
+                        index, n_image = n_image, n_image + 1
+                        if index % every:
+                            continue
+                    msg = _deserialize(reader, raw, conn, bag)
+                    if kind == "image":
+                        name = writer.add(index, f"{len(names):06d}", conn.msgtype, msg)
+                        if name is None:
+                            continue
+                        names.append(name)
+                        frames.header.append(_stamp(msg))
+                        frames.received.append(t_ns * 1e-9)
+                    elif kind == "odometry":
+                        p = msg.pose.pose
+                        q = p.orientation
+                        odo.header.append(_stamp(msg))
+                        odo.received.append(t_ns * 1e-9)
+                        odo.values.append((p.position.x, p.position.y,
+                                           quaternion_yaw(q.x, q.y, q.z, q.w)))
+                    else:
+                        if float(msg.orientation_covariance[0]) == -1.0:
+                            raise BagError(f"{bag}: topic {imu_topic} publishes no orientation"
+                                           " (orientation_covariance[0] = -1): no yaw to import")
+                        q = msg.orientation
+                        imu.header.append(_stamp(msg))
+                        imu.received.append(t_ns * 1e-9)
+                        imu.values.append(quaternion_yaw(q.x, q.y, q.z, q.w))
+                bar.close()
+            finally:
+                writer.close()
+            if not names:
+                raise BagError(f"{bag}: no frame written from {image_topic} ("
+                               + (writer.skipped[0]["reason"] if writer.skipped else
+                                  "the topic has no messages") + ")")
+            record = _write_tables(tmp, names, frames, odo, imu, conf["stamp"], image_topic,
+                                   odom_topic, imu_topic)
+            if calib is not None:
+                shutil.copyfile(calib, tmp / "calib.yaml")
+            record.update({
+                "generator": "fieldloc import rosbag",
+                "fieldloc_version": __version__,
+                "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+                "bag": str(bag),
+                "bag_format": _bag_format(bag),
+                "every": int(every),
+                "image_messages": int(n_image),
+                "frames": len(names),
+                "encodings": writer.encodings,
+                "skipped": writer.skipped,
+                "message_types": {c.topic: c.msgtype for c in conns},
+                "conf": dict(conf),
+            })
+            if calib is not None:
+                record["calib"] = {"source": str(calib), "hash": file_hash(calib)}
+            (tmp / "import.yaml").write_text(yaml.safe_dump(record, sort_keys=False))
+    log.info("imported %d frames from %s into %s", len(names), bag, output)
+    return output
+
+
+def _deserialize(reader, raw, conn, bag):
+    try:
+        return reader.deserialize(raw, conn.msgtype)
+    except Exception as e:  # a message that does not match its own definition
+        raise BagError(f"{bag}: a {conn.msgtype} message on {conn.topic} cannot be"
+                       f" deserialised ({e})") from None
+
+
+def _bag_format(bag) -> str:
+    p = bag_paths(bag)[0]
+    if p.suffix == ".bag":
+        return "ros1"
+    storage = {f.suffix for f in p.iterdir()}
+    return "ros2-mcap" if ".mcap" in storage else "ros2-sqlite3"
+
+
+def _write_tables(folder, names, frames, odo, imu, stamp_mode, image_topic, odom_topic,
+                  imu_topic) -> dict:
+    stamps, frame_source = frames.stamps(stamp_mode, image_topic)
+    if len(stamps) > 1 and np.any(np.diff(stamps) < 0):
+        log.warning("%s: frame stamps go backwards %d time(s) (frames are numbered in bag"
+                    " order)", image_topic, int(np.sum(np.diff(stamps) < 0)))
+    write_csv(folder / "frames.csv", "frames", {"name": names, "stamp": stamps})
+    record = {"stamps": {"images": frame_source},
+              "topics": {"images": image_topic}}
+    if odom_topic:
+        t, source = odo.stamps(stamp_mode, odom_topic)
+        v = np.asarray(odo.values, float).reshape(-1, 3)
+        poses, inside = pose_at(t, v[:, 0], v[:, 1], v[:, 2], stamps)
+        inc, ok = increments_between(poses, inside)
+        write_csv(folder / "odometry.csv", "odometry", {
+            "stamp": stamps[ok], "dx": inc[ok, 0], "dy": inc[ok, 1], "dtheta": inc[ok, 2]})
+        record["stamps"]["odometry"] = source
+        record["topics"]["odometry"] = odom_topic
+        record["odometry_messages"] = len(v)
+        record["odometry_rows"] = int(ok.sum())
+        if len(names) > 1 and ok.sum() < len(names) - 1:
+            log.warning("%s covers %d of %d frame intervals; the others have no odometry row",
+                        odom_topic, int(ok.sum()), len(names) - 1)
+    if imu_topic:
+        t, source = imu.stamps(stamp_mode, imu_topic)
+        yaw = np.asarray(imu.values, float)
+        poses, inside = pose_at(t, np.zeros_like(yaw), np.zeros_like(yaw), yaw, stamps)
+        write_csv(folder / "imu.csv", "imu", {
+            "stamp": stamps[inside], "yaw": poses[inside, 2],
+            "collision": np.zeros(int(inside.sum()))})
+        record["stamps"]["imu"] = source
+        record["topics"]["imu"] = imu_topic
+        record["imu_messages"] = len(yaw)
+        record["imu_rows"] = int(inside.sum())
+    return record
+
+
+def describe(output) -> dict:
+    """The import record of a dataset folder written by this stage (for the CLI's report)."""
+    p = Path(output) / "import.yaml"
+    if not p.is_file():
+        raise FieldlocError(f"{output}: no import.yaml (not written by fieldloc import rosbag)")
+    return yaml.safe_load(p.read_text())

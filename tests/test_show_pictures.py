@@ -1,0 +1,69 @@
+"""The `show map` spiral picture (one family, a few spirals, a legend) and the belief picture
+(a colour bar, sparse arrows, empty panels that say so)."""
+
+import math
+
+import numpy as np
+from click.testing import CliRunner
+
+from fieldloc_cli.main import cli
+from stages.common.field import load_field
+from stages.common.map_file import MapFile
+from stages.evaluate.map_plots import draw_scanlines_from_cell
+from stages.evaluate.plots import new_figure
+from stages.localize.belief import draw_belief
+
+
+def test_spiral_picture_one_family_few_spirals(msl2015_map, tmp_path):
+    with MapFile(msl2015_map) as m:
+        for family, n in (("ccw", 6), ("cw", 3)):
+            fig = new_figure(6, 6)
+            ax = fig.add_subplot()
+            draw_scanlines_from_cell(ax, m, -7.0, -2.0, math.radians(35), "spiral",
+                                     family=family, spirals=n)
+            handles, labels = ax.get_legend_handles_labels()
+            spiral_labels = [lb for lb in labels if lb.startswith("from ")]
+            assert len(spiral_labels) == n
+            assert any(f"all 36 {family} spirals" in lb for lb in labels)
+            # n spirals drawn (plus their start dots), not 72
+            assert sum(1 for ln in ax.get_lines() if len(ln.get_xdata()) > 100) == n
+            assert ax.get_legend().get_title().get_text() == f"{n} of 36 {family} spirals"
+    res = CliRunner().invoke(cli, ["show", "map", str(msl2015_map), "--table", "spiral",
+                                   "--cell", "1", "1", "--family", "cw", "--spirals", "4",
+                                   "-o", str(tmp_path / "s.png")])
+    assert res.exit_code == 0, res.output
+
+
+def _grid(counts):
+    xs = np.arange(-5.0, 5.01, 0.1)
+    ys = np.arange(-3.5, 3.51, 0.1)
+    gx, gy = np.meshgrid(xs, ys)
+    bump = -((gx - 2.0) ** 2 + (gy + 1.0) ** 2) / 0.1
+    grid = {"xs": xs, "ys": ys, "counts": counts}
+    for k in ("lines", "crossings", "posts", "all"):
+        n = sum(counts.values()) if k == "all" else counts[k]
+        grid[k] = bump.copy() if n else np.zeros_like(bump)
+        grid[f"{k}_theta"] = np.full_like(bump, 0.3)
+    return grid
+
+
+def test_belief_picture_colour_bar_sparse_arrows_and_empty_panel():
+    fig = new_figure(12, 8.5)
+    axes = draw_belief(fig, load_field("kidsize"), _grid({"lines": 5, "crossings": 2,
+                                                          "posts": 0}),
+                       truth=(2.0, -1.0, 0.3), arrow_spacing=0.5, arrow_min=0.25)
+    assert len(fig.axes) == 5  # four panels and one colour bar
+    assert "likelihood relative" in fig.axes[4].get_ylabel()
+    posts = axes[1, 0]
+    assert any("no goal posts observed" in t.get_text() for t in posts.texts)
+    assert not posts.images  # no likelihood image
+    assert not any(c.__class__.__name__ == "Quiver" for c in posts.collections)
+    assert not any(ln.get_marker() == "o" for ln in posts.get_lines())  # no "best pose"
+    lines = axes[0, 0]
+    quiver = [c for c in lines.collections if c.__class__.__name__ == "Quiver"][0]
+    # arrows 0.5 m apart where the likelihood is >= 0.25 of the best: a handful near the peak
+    assert 1 <= len(quiver.get_offsets()) <= 6
+    off = quiver.get_offsets()
+    if len(off) > 1:
+        d = np.abs(off[:, None, :] - off[None, :, :]).max(-1)
+        assert d[d > 0].min() >= 0.5 - 1e-9
