@@ -213,6 +213,9 @@ def fit(conf: dict, radius_px, distance_m, *, centre, image_size, valid_radius=N
 
 def _fit_polynomial(conf, r, d, valid_radius, where):
     degree = int(conf["degree"])
+    if not 1 <= degree <= 5:
+        raise CalibrationError(
+            f"conf 'degree' must be 1..5 (calib.yaml holds a0..a5), got {degree}")
     distinct = len(np.unique(np.round(r, 3)))
     if distinct < conf["min_distinct_radii"]:
         raise CalibrationError(
@@ -229,7 +232,7 @@ def _fit_polynomial(conf, r, d, valid_radius, where):
             f"{where}: the fitted f(r) is not increasing between {rmin:g} and {rmax:g} px (it"
             f" turns at r = {turn:.1f} px); check the pairs or narrow --valid-radius"
         )
-    return coef, residuals
+    return np.concatenate([coef, np.zeros(5 - degree)]), residuals  # a0..a5, as calib.yaml
 
 
 # ---------------------------------------------------------------------------- line images
