@@ -32,6 +32,7 @@ import numpy as np
 from .errors import DatasetError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+SIMULATION_RECORD = "simulation.yaml"  # written by fieldloc simulate: how the dataset was made
 DEFAULT_RATE_HZ = 30.0
 
 CSV_COLUMNS = {
@@ -196,10 +197,33 @@ class Dataset:
         p = self.root / f"{kind}.csv"
         return read_csv(p, kind) if p.is_file() else None
 
+    def field_record(self) -> dict:
+        """The field the dataset was recorded on, where the dataset says so: the ``field``
+        (name) and ``field_size`` ([length, width], m; newer datasets) of simulation.yaml, the
+        record ``fieldloc simulate`` writes. {} when the dataset does not say."""
+        p = self.root / SIMULATION_RECORD
+        if not p.is_file():
+            return {}
+        import yaml
+
+        try:
+            d = yaml.safe_load(p.read_text())
+        except (OSError, UnicodeDecodeError, yaml.YAMLError):
+            return {}
+        if not isinstance(d, dict) or not isinstance(d.get("field"), str):
+            return {}
+        out = {"name": d["field"]}
+        size = d.get("field_size")
+        if (isinstance(size, list) and len(size) == 2
+                and all(isinstance(v, (int, float)) for v in size)):
+            out["size"] = [float(v) for v in size]
+        return out
+
     def files(self) -> dict[str, list[Path]]:
         """The dataset's own files that exist (role -> paths): what no command may write over."""
         out = {"images": list(self.images)}
-        for name in ("calib.yaml", "mask.png", *(f"{k}.csv" for k in CSV_COLUMNS)):
+        for name in ("calib.yaml", "mask.png", SIMULATION_RECORD,
+                     *(f"{k}.csv" for k in CSV_COLUMNS)):
             if (self.root / name).exists():
                 out[name] = [self.root / name]
         return out

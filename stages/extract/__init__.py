@@ -15,7 +15,13 @@ whose keys are FRAME_DATASETS names of stages.common.features_file:
 
 One group per frame, named by the image's file stem. Frames already in the output are skipped
 (resume) unless ``overwrite``; a frame that cannot be read or processed is logged, recorded in
-the file's ``failures`` and skipped. The output appears atomically when the run completes.
+the file's ``failures`` and skipped. If no frame at all can be extracted (images of another
+size than calib.yaml says, every image unreadable), that is an error and nothing is written.
+
+Every finished frame is committed at once (stages.common.features_file.FrameParts), so a run
+that is killed keeps its frames and the next run resumes there; the features file itself appears
+atomically when the run completes, and a run with nothing left to do leaves it untouched. The
+output is never one of the dataset's own files (calib.yaml, images, CSVs), --overwrite or not.
 """
 
 from __future__ import annotations
@@ -26,11 +32,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..common.artifacts import file_hash, root_attrs
+from ..common.artifacts import check_output, file_hash, root_attrs
 from ..common.conf import registered_module, resolve_conf
 from ..common.dataset import open_dataset, read_image, read_mask
 from ..common.errors import FieldlocError, SchemaError
-from ..common.features_file import SCHEMA, VERSION, FeaturesFile, write_features
+from ..common.features_file import SCHEMA, VERSION, FeaturesFile, FrameParts, write_features
 
 log = logging.getLogger(__name__)
 
@@ -122,6 +128,15 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
     module = kind_module(kind)
     conf = resolve_extract_conf(kind, conf, overrides)
     output = Path(output) if output is not None else ds.root / "features.h5"
+    check_output(output, ds.files(), overwrite=None)
+    if debug_images is not None:
+        debug_images = Path(debug_images)
+        if debug_images.exists() and not debug_images.is_dir():
+            raise FieldlocError(f"--debug-images {debug_images}: it is a file, not a folder")
+        if debug_images.is_dir():  # overlays are never written over a frame of the dataset
+            for name, img in zip(ds.names, ds.images):
+                check_output(debug_images / f"{name}.png", {"dataset image": img},
+                             overwrite=None)
 
     mask = None
     mask_hash = ""
@@ -131,52 +146,69 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
         mask_hash = file_hash(mask_path)
     head = _head_angles(ds) if kind == "perspective" else None
     calib_hash = file_hash(ds.calib_path)
-    inputs = {"dataset": str(ds.root), "calib": str(ds.calib_path), "calib_hash": calib_hash}
+    root = ds.root.resolve()
+    inputs = {"dataset": str(root), "calib": str(ds.calib_path.resolve()),
+              "calib_hash": calib_hash}
     if mask is not None:
-        inputs.update(mask=str(mask_path), mask_hash=mask_hash)
+        inputs.update(mask=str(mask_path.resolve()), mask_hash=mask_hash)
     attrs = root_attrs(SCHEMA, VERSION, conf, inputs)
-    attrs.update(camera_kind=kind, dataset=str(ds.root), calib_hash=calib_hash,
-                 mask_hash=mask_hash)
+    attrs.update(camera_kind=kind, dataset=str(root), calib_hash=calib_hash,
+                 mask_hash=mask_hash, field=json.dumps(ds.field_record()))
     if kind == "omni":
         attrs["scanlines"] = json.dumps(module.scanlines_of(conf).as_dict())
     resume = output.exists() and not overwrite
+    in_output: set[str] = set()
     if resume:
         _check_resumable(output, attrs)
+        with FeaturesFile(output) as old:
+            in_output = set(old.names)
+    parts = FrameParts(output, attrs)
+    if overwrite:
+        parts.discard("--overwrite extracts every frame again")
+    resumed = parts.open()
+    todo = [(p, n, s) for p, n, s in zip(ds.images, ds.names, ds.stamps)
+            if n not in in_output and not parts.has(n)]
     log.info("extract %s (%s camera, %d frames) -> %s; conf %s", ds.root, kind, len(ds.images),
              output, json.dumps(conf, sort_keys=True))
+    if resume and not todo and not resumed:
+        parts.discard()
+        log.info("extract: all %d frames of %s are already in %s", len(in_output), ds.root,
+                 output)
+        return output
 
     if debug_images is not None:
-        debug_images = Path(debug_images)
         debug_images.mkdir(parents=True, exist_ok=True)
-    done = skipped = failed = 0
+    done = failed = 0
+    for path, name, stamp in tqdm(todo, desc="extract", unit="frame", disable=not progress):
+        try:
+            image = read_image(path)
+            if kind == "omni":
+                info = {"mask": mask}
+            else:
+                info = _frame_info_head(head, float(stamp))
+            arrays = module.extract_frame(image, camera, conf, **info)
+        except FieldlocError as e:
+            log.warning("frame %s skipped: %s", name, e)
+            parts.add_failure(name, str(e))
+            failed += 1
+            continue
+        parts.add_frame(name, float(stamp), arrays)
+        if debug_images is not None:
+            _write_debug_image(debug_images / f"{name}.png", module.debug_overlay(image, arrays))
+        done += 1
+    good = len(in_output) + len(parts.frame_names)
+    if good == 0:
+        first = next(iter(sorted(parts.failures.items())), None)
+        n_failed = len(parts.failures)
+        parts.discard()
+        raise FieldlocError(
+            f"no frame of {ds.root} could be extracted ({n_failed} of {len(ds.images)} failed"
+            + (f"; first: {first[0]}: {first[1]}" if first else "") + ")")
     with write_features(output, attrs, resume=resume) as writer:
-        for path, name, stamp in tqdm(list(zip(ds.images, ds.names, ds.stamps)),
-                                      desc="extract", unit="frame", disable=not progress):
-            if resume and writer.has(name):
-                skipped += 1
-                continue
-            try:
-                image = read_image(path)
-                if kind == "omni":
-                    info = {"mask": mask}
-                else:
-                    info = _frame_info_head(head, float(stamp))
-                arrays = module.extract_frame(image, camera, conf, **info)
-            except FieldlocError as e:
-                log.warning("frame %s skipped: %s", name, e)
-                writer.add_failure(name, str(e))
-                failed += 1
-                continue
-            writer.add_frame(name, float(stamp), arrays)
-            writer.clear_failure(name)
-            if debug_images is not None:
-                _write_debug_image(debug_images / f"{name}.png",
-                                   module.debug_overlay(image, arrays))
-            done += 1
-    log.info("extract: %d frames extracted, %d already done, %d failed -> %s", done, skipped,
-             failed, output)
-    if done + skipped == 0:
-        log.warning("extract: no frame of %s could be extracted", ds.root)
+        parts.merge_into(writer)
+    parts.discard()
+    log.info("extract: %d frames extracted, %d already done (%d of them by an interrupted run),"
+             " %d failed -> %s", done, len(in_output) + resumed, resumed, failed, output)
     return output
 
 
