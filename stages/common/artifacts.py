@@ -81,6 +81,9 @@ def _json_default(o):
 
 def _check_writable(path: Path, kind: str = "file"):
     parent = path.parent if str(path.parent) else Path(".")
+    if kind == "folder":  # folders are made with their parents: the nearest existing one counts
+        while not parent.exists() and parent != parent.parent:
+            parent = parent.parent
     if not parent.exists():
         raise FieldlocError(f"cannot write {path}: folder {parent} does not exist")
     if not parent.is_dir():
@@ -109,7 +112,8 @@ def _inside(inner: Path, outer: Path) -> bool:
 
 
 def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *,
-                 overwrite: bool | None = False, kind: str = "file") -> Path:
+                 overwrite: bool | None = False, kind: str = "file",
+                 error: type[FieldlocError] = FieldlocError) -> Path:
     """Check an output path before any work is done, and return it as a Path.
 
     - never one of the command's ``inputs`` (role -> path, or an iterable of paths; None
@@ -120,6 +124,22 @@ def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *
       and a folder output not a file.
     """
     path = Path(path)
+    refuse_inputs(path, inputs, kind=kind, error=error)
+    try:
+        _check_writable(path, kind)
+    except FieldlocError as e:
+        raise error(str(e)) from None
+    if overwrite is not None and not overwrite and path.exists():
+        if kind == "file" or any(path.iterdir()):
+            raise error(f"{path} exists (use --overwrite to replace it)")
+    return path
+
+
+def refuse_inputs(path: str | Path, inputs: Mapping[str, object] | None, *, kind: str = "file",
+                  error: type[FieldlocError] = FieldlocError) -> None:
+    """The part of ``check_output`` about inputs: ``path`` is none of them (and, for a folder
+    replaced as a whole, holds none of them)."""
+    path = Path(path)
     for role, given in (inputs or {}).items():
         if given is None:
             continue
@@ -129,18 +149,13 @@ def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *
                 continue
             item = Path(item)
             if _same_path(path, item):
-                raise FieldlocError(
+                raise error(
                     f"{path} is an input of this command ({role}); it is never written over,"
                     " --overwrite or not: choose another output")
             if kind == "folder" and item.exists() and _inside(item, path):
-                raise FieldlocError(
+                raise error(
                     f"{path} holds an input of this command ({role}: {item}); replacing the"
                     " folder would delete it: choose another output")
-    _check_writable(path, kind)
-    if overwrite is not None and not overwrite and path.exists():
-        if kind == "file" or any(path.iterdir()):
-            raise FieldlocError(f"{path} exists (use --overwrite to replace it)")
-    return path
 
 
 def _pid_alive(pid: int) -> bool:
@@ -203,11 +218,11 @@ def _tree_size(p: Path) -> int:
 
 
 def _human_bytes(n: float) -> str:
-    for unit in ("B", "KB", "MB", "GB", "TB", "PB"):
-        if n < 1024 or unit == "PB":
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if n < 1024 or unit == "PiB":
             return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
         n /= 1024
-    return f"{n:.1f} PB"
+    return f"{n:.1f} PiB"
 
 
 human_bytes = _human_bytes

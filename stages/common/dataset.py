@@ -58,7 +58,7 @@ def read_csv(path: str | Path, kind: str) -> dict[str, np.ndarray]:
     cols = CSV_COLUMNS[kind]
     if not path.is_file():
         raise DatasetError(f"file not found: {path}")
-    lines = _csv_rows(path)
+    lines = csv_rows(path)
     if not lines:
         raise DatasetError(f"{path}: empty; expected a header '{','.join(cols)}'")
     header = [h.strip() for h in lines[0][1]]
@@ -115,7 +115,7 @@ def read_csv(path: str | Path, kind: str) -> dict[str, np.ndarray]:
     return out
 
 
-def _csv_rows(path: Path) -> list[tuple[int, list[str]]]:
+def csv_rows(path: Path) -> list[tuple[int, list[str]]]:
     """(line number, cells) of the non-empty, non-comment rows of a text CSV file."""
     try:
         text = path.read_bytes().decode("utf-8-sig")

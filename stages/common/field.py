@@ -211,7 +211,12 @@ def load_field(name_or_path: str | Path) -> FieldModel:
                 f"unknown field preset '{name_or_path}' (presets: {', '.join(preset_names())};"
                 " or give a path to a field YAML)"
             )
-    text = path.read_text()
+    try:
+        text = path.read_bytes().decode("utf-8-sig")
+    except UnicodeDecodeError:
+        raise FieldSpecError(f"{path}: not a text YAML file (binary content)") from None
+    except OSError as e:
+        raise FieldSpecError(f"{path}: cannot be read ({e.strerror or e})") from None
     try:
         spec = yaml.safe_load(text)
     except yaml.YAMLError as e:

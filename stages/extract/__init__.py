@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 from pathlib import Path
 
 import numpy as np
@@ -112,6 +113,55 @@ def _check_resumable(output: Path, attrs: dict):
             f"{output} was extracted with another conf; use --overwrite to extract again")
 
 
+def _run_attrs(ds, camera, module, conf: dict):
+    """(root attributes of the features file, mask, head angles) of extracting ``ds``."""
+    kind = camera.kind
+    mask = None
+    mask_hash = ""
+    mask_path = ds.root / MASK_NAME
+    if kind == "omni" and mask_path.is_file():
+        mask = read_mask(mask_path, camera.image_size)
+        mask_hash = file_hash(mask_path)
+    head = _head_angles(ds) if kind == "perspective" else None
+    calib_hash = file_hash(ds.calib_path)
+    root = os.path.abspath(ds.root)
+    inputs = {"dataset": root, "calib": os.path.abspath(ds.calib_path),
+              "calib_hash": calib_hash}
+    if mask is not None:
+        inputs.update(mask=os.path.abspath(mask_path), mask_hash=mask_hash)
+    attrs = root_attrs(SCHEMA, VERSION, conf, inputs)
+    attrs.update(camera_kind=kind, dataset=root, calib_hash=calib_hash,
+                 mask_hash=mask_hash, field=json.dumps(ds.field_record()))
+    if kind == "omni":
+        attrs["scanlines"] = json.dumps(module.scanlines_of(conf).as_dict())
+    return attrs, mask, head
+
+
+def reusable_features(path: str | Path, dataset_dir: str | Path, conf=None,
+                      overrides: dict | None = None) -> str | None:
+    """Why the features file ``path`` cannot stand for extracting ``dataset_dir`` now with
+    ``conf`` (None: it can): it must exist, be made from the same calibration, mask and conf,
+    and hold every frame of the dataset (extracted or recorded as failed)."""
+    path = Path(path)
+    if not path.is_file():
+        return f"{path} does not exist"
+    ds = open_dataset(dataset_dir)
+    camera = ds.camera()
+    module = kind_module(camera.kind)
+    attrs, _mask, _head = _run_attrs(ds, camera, module,
+                                     resolve_extract_conf(camera.kind, conf, overrides))
+    try:
+        _check_resumable(path, attrs)
+        with FeaturesFile(path) as ff:
+            have = set(ff.names) | {f.split(":", 1)[0] for f in ff.failures}
+    except FieldlocError as e:
+        return str(e).split(";")[0]
+    missing = [n for n in ds.names if n not in have]
+    if missing:
+        return f"{path} lacks {len(missing)} frames of {ds.root} (first: {missing[0]})"
+    return None
+
+
 def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | None = None, *,
          overwrite: bool = False, progress: bool = False, overrides: dict | None = None,
          debug_images: str | Path | None = None) -> Path:
@@ -138,24 +188,7 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
                 check_output(debug_images / f"{name}.png", {"dataset image": img},
                              overwrite=None)
 
-    mask = None
-    mask_hash = ""
-    mask_path = ds.root / MASK_NAME
-    if kind == "omni" and mask_path.is_file():
-        mask = read_mask(mask_path, camera.image_size)
-        mask_hash = file_hash(mask_path)
-    head = _head_angles(ds) if kind == "perspective" else None
-    calib_hash = file_hash(ds.calib_path)
-    root = ds.root.resolve()
-    inputs = {"dataset": str(root), "calib": str(ds.calib_path.resolve()),
-              "calib_hash": calib_hash}
-    if mask is not None:
-        inputs.update(mask=str(mask_path.resolve()), mask_hash=mask_hash)
-    attrs = root_attrs(SCHEMA, VERSION, conf, inputs)
-    attrs.update(camera_kind=kind, dataset=str(root), calib_hash=calib_hash,
-                 mask_hash=mask_hash, field=json.dumps(ds.field_record()))
-    if kind == "omni":
-        attrs["scanlines"] = json.dumps(module.scanlines_of(conf).as_dict())
+    attrs, mask, head = _run_attrs(ds, camera, module, conf)
     resume = output.exists() and not overwrite
     in_output: set[str] = set()
     if resume:
