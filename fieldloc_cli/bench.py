@@ -12,14 +12,19 @@ from stages.evaluate import bench as stage
 @click.command("bench")
 @click.option("--only", multiple=True, metavar="NAME",
               help=f"Run rows whose name contains NAME (rows: {', '.join(stage.ROWS)}).")
-@click.option("--repeat", type=int, default=5, show_default=True,
+@click.option("--repeat", type=click.IntRange(min=1), default=5, show_default=True,
               help="Timed runs per row (medians are reported).")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False, path_type=Path),
               help="Also write the rows as JSON.")
+@click.option("--overwrite", is_flag=True, help="Replace an existing --json file.")
 @click.pass_context
-def bench(ctx, only, repeat, json_path):
+def bench(ctx, only, repeat, json_path, overwrite):
     """Time the stages on generated inputs and print a table."""
     quiet = (ctx.find_root().obj or {}).get("quiet")
+    if json_path:
+        from stages.common.artifacts import check_output
+
+        check_output(json_path, {}, overwrite=overwrite)  # before minutes of timing
 
     def progress(name):
         if not quiet:
