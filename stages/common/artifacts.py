@@ -263,7 +263,10 @@ def atomic_path(path: str | Path, suffix: str | None = None):
     _check_writable(path)
     remove_stale_parts(path)
     prefix, suffix = part_name(path, suffix or ".part")
-    fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=path.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=path.parent)
+    except OSError as e:
+        raise FieldlocError(f"cannot write {path}: {e.strerror or e}") from None
     os.close(fd)
     tmp = Path(tmp)
     try:

@@ -35,7 +35,7 @@ import h5py
 import numpy as np
 
 from .artifacts import open_artifact, part_name, read_json_attr, write_artifact
-from .errors import FieldlocError
+from .errors import FieldlocError, SchemaError
 
 log = logging.getLogger(__name__)
 
@@ -127,9 +127,13 @@ class FeaturesFile:
     def __init__(self, path: str | Path):
         self.path = Path(path)
         self.h5 = open_artifact(self.path, SCHEMA, VERSION)
-        frames = self.h5.get("frames")
-        self.names = sorted(frames.keys()) if frames is not None else []
-        self.stamps = np.array([frames[n].attrs["stamp"] for n in self.names], dtype=float)
+        try:
+            frames = self.h5.get("frames")
+            self.names = sorted(frames.keys()) if frames is not None else []
+            self.stamps = np.array([frames[n].attrs["stamp"] for n in self.names], dtype=float)
+        except (KeyError, ValueError, TypeError, OSError, AttributeError) as e:
+            self.h5.close()
+            raise SchemaError(f"{self.path}: damaged features file ({e})") from None
         order = np.argsort(self.stamps, kind="stable")
         self.names = [self.names[i] for i in order]
         self.stamps = self.stamps[order]
