@@ -37,7 +37,7 @@ def build_map(ctx, field, output, resolution, border, max_range, robot_radius, s
     output = output or Path(f"{fm.name}.map.h5")
     conf = dict(resolution=resolution, border=border, max_range=max_range,
                 robot_radius=robot_radius, spiral_end_radius=spiral_end_radius)
-    path = stage.main(conf, fm, output, overwrite=overwrite)
+    path = stage.main(conf, field, output, overwrite=overwrite)  # the name: main checks it
     s = fm.summary()
     c = s["crossings"]
     summary(ctx, f"{path}: field {fm.name} {fm.length:g} x {fm.width:g} m, "

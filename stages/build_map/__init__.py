@@ -89,8 +89,11 @@ def build_tables(fm: FieldModel, conf: dict) -> tuple[Grid, ScanLines, dict]:
 
 def main(conf: dict | None, field: str | Path | FieldModel, output: str | Path, *,
          overwrite: bool = False) -> Path:
-    """Build the map of ``field`` (preset name, YAML path or FieldModel) into ``output``."""
-    conf = resolve_conf(confs, conf)
+    """Build the map of ``field`` (preset name, YAML path or FieldModel) into ``output``.
+    ``conf``: a preset name, or a dict of values replacing the default preset's."""
+    # a dict holds values replacing the default preset's (all of them, or a few)
+    conf = resolve_conf(confs, "default", conf) if isinstance(conf, dict) else resolve_conf(
+        confs, conf)
     field_file = None if isinstance(field, FieldModel) else _field_file(field)
     output = check_output(output, {"field": field_file}, overwrite=overwrite)
     fm = field if isinstance(field, FieldModel) else load_field(field)
