@@ -55,6 +55,7 @@ def build_tables(fm: FieldModel, conf: dict) -> tuple[Grid, ScanLines, dict]:
         raise FieldlocError("need 0 <= robot_radius < spiral_end_radius <= max_range")
     grid = Grid.around(fm, float(conf["border"]), float(conf["resolution"]))
     ny, nx = grid.shape
+    log.info("build-map %s: %d x %d cells of %g m", fm.name, nx, ny, grid.resolution)
     check_memory(
         f"build-map of {fm.name} ({fm.length:g} x {fm.width:g} m + {conf['border']:g} m border"
         f" at {conf['resolution']:g} m: {nx} x {ny} cells)",

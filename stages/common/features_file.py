@@ -211,13 +211,19 @@ class FrameParts:
         self._write_json(self.dir / "run.json", self.run)
         return 0
 
-    def discard(self, why: str = "") -> None:
+    def discard(self, why: str) -> None:
+        """Remove the frames of an interrupted run that cannot be used, saying why."""
         if self.dir.is_dir():
             n = sum(1 for p in self.dir.iterdir() if p.suffix in (".npz", ".failed"))
-            shutil.rmtree(self.dir, ignore_errors=True)
             if n:
-                log.warning("extract: discarded %d frames of an interrupted run in %s%s", n,
-                            self.dir, f": {why}" if why else "")
+                log.warning("extract: discarded %d frames of an interrupted run in %s: %s", n,
+                            self.dir, why)
+        self.remove()
+
+    def remove(self) -> None:
+        """Remove the parts folder (its frames are in the features file, or not wanted)."""
+        if self.dir.is_dir():
+            shutil.rmtree(self.dir, ignore_errors=True)
         self._frames.clear()
         self._failures.clear()
 

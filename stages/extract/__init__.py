@@ -204,7 +204,7 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
     log.info("extract %s (%s camera, %d frames) -> %s; conf %s", ds.root, kind, len(ds.images),
              output, json.dumps(conf, sort_keys=True))
     if resume and not todo and not resumed:
-        parts.discard()
+        parts.remove()
         log.info("extract: all %d frames of %s are already in %s", len(in_output), ds.root,
                  output)
         return output
@@ -233,13 +233,13 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
     if good == 0:
         first = next(iter(sorted(parts.failures.items())), None)
         n_failed = len(parts.failures)
-        parts.discard()
+        parts.remove()
         raise FieldlocError(
             f"no frame of {ds.root} could be extracted ({n_failed} of {len(ds.images)} failed"
             + (f"; first: {first[0]}: {first[1]}" if first else "") + ")")
     with write_features(output, attrs, resume=resume) as writer:
         parts.merge_into(writer)
-    parts.discard()
+    parts.remove()
     log.info("extract: %d frames extracted, %d already done (%d of them by an interrupted run),"
              " %d failed -> %s", done, len(in_output) + resumed, resumed, failed, output)
     return output

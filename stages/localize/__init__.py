@@ -287,6 +287,8 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path,
             if not allow_field_mismatch:
                 _check_same_field(recorded, map_file, features or points)
             _warn_stamps(dataset, feats.stamps, series, conf)
+            log.info("localize %s with %s: %d frames on %s", dataset_dir, conf["method"],
+                     len(feats.names), map_path)
             track = (module.run(conf, dataset, feats, map_file, progress) if len(feats.names)
                      else PoseTrack())
             track = _with_missing_frames(track, dataset, feats, recorded["failures"])
