@@ -268,13 +268,15 @@ def load_calib(path: str | Path):
     if not path.is_file():
         raise DatasetError(f"calibration not found: {path}")
     try:
-        d = yaml.safe_load(path.read_text())
+        d = yaml.safe_load(path.read_bytes().decode("utf-8-sig"))
+    except UnicodeDecodeError:
+        raise DatasetError(f"{path}: not a text YAML file (binary content)") from None
     except yaml.YAMLError as e:
         raise DatasetError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
     if not isinstance(d, dict) or "kind" not in d:
         raise DatasetError(f"{path}: calibration needs a 'kind' (omni or perspective)")
     kind = d["kind"]
-    if kind not in CALIB_KEYS:
+    if not isinstance(kind, str) or kind not in CALIB_KEYS:
         raise DatasetError(f"{path}: unknown camera kind {kind!r} (omni or perspective)")
     unknown = [str(k) for k in d if k not in CALIB_KEYS[kind]]
     if unknown:

@@ -66,6 +66,10 @@ SCHEMA = {
 }
 
 CROSSING_TYPES = ("L", "T", "X")
+# no dimension beyond this (m): far past any venue, and far below where the geometry's squares
+# lose their precision or overflow; a run too large for the machine is refused by its stage
+# with a memory estimate (stages.common.resources)
+MAX_DIMENSION = 1e6
 
 
 @dataclass
@@ -243,6 +247,10 @@ def _check(spec: dict, schema: dict, where: str, prefix: str = ""):
             raise FieldSpecError(f"{where}: key '{prefix}{key}' must be {want}, got {v!r}")
         if typ is _NUM and (not math.isfinite(v) or v < 0):
             raise FieldSpecError(f"{where}: key '{prefix}{key}' must be >= 0, got {v}")
+        if typ is _NUM and v > MAX_DIMENSION:
+            raise FieldSpecError(
+                f"{where}: key '{prefix}{key}' is {v:g} m; dimensions are metres, at most"
+                f" {MAX_DIMENSION:g}")
         if sub is not None:
             _check(v, sub, where, prefix=f"{prefix}{key}.")
 
