@@ -19,6 +19,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import pytest
 import yaml
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
@@ -87,6 +88,7 @@ FIELD = yaml.safe_load((ROOT / "maps" / "spl.yaml").read_text())
 MSL = yaml.safe_load((ROOT / "maps" / "msl.yaml").read_text())
 
 
+@pytest.mark.filterwarnings("error::RuntimeWarning")  # no overflow or 0/0 in what is read
 @FUZZ
 @given(data=st.data())
 def test_field_yaml_reader(data):
@@ -105,7 +107,7 @@ def test_field_yaml_reader(data):
         event("read")
         assert fm.length > 0 and fm.width > 0 and math.isfinite(fm.length * fm.width)
         assert len(fm.crossings) == len(fm.crossing_types)
-        assert np.all(np.isfinite(fm.segments))
+        assert np.all(np.isfinite(fm.segments)) and np.all(np.isfinite(fm.crossings))
 
 
 # ---------------------------------------------------------------------------- calib.yaml

@@ -70,6 +70,7 @@ CROSSING_TYPES = ("L", "T", "X")
 # lose their precision or overflow; a run too large for the machine is refused by its stage
 # with a memory estimate (stages.common.resources)
 MAX_DIMENSION = 1e6
+MIN_DIMENSION = 1e-3  # below a millimetre a value is a unit slip, and segments degenerate
 
 
 @dataclass
@@ -247,6 +248,10 @@ def _check(spec: dict, schema: dict, where: str, prefix: str = ""):
             raise FieldSpecError(f"{where}: key '{prefix}{key}' must be {want}, got {v!r}")
         if typ is _NUM and (not math.isfinite(v) or v < 0):
             raise FieldSpecError(f"{where}: key '{prefix}{key}' must be >= 0, got {v}")
+        if typ is _NUM and 0 < v < MIN_DIMENSION:
+            raise FieldSpecError(
+                f"{where}: key '{prefix}{key}' is {v:g} m; dimensions are metres, 0 or at least"
+                f" {MIN_DIMENSION:g}")
         if typ is _NUM and v > MAX_DIMENSION:
             raise FieldSpecError(
                 f"{where}: key '{prefix}{key}' is {v:g} m; dimensions are metres, at most"
