@@ -627,3 +627,49 @@ def test_make_pipeline_with_mcl_prints_the_table_once(world, tmp_path):
     assert r.returncode == 0, r.stdout + r.stderr
     assert "--heading" not in r.stdout
     assert r.stdout.count("median cm") == 1, r.stdout
+
+
+# ---------------------------------------------------------------------------- the figures
+
+
+KIND_NAMES = {"data-lost": "data lost", "traceback": "tracebacks",
+              "silent": "silent or misleading", "newcomer": "newcomer"}
+
+
+def figures_block() -> str:
+    """The README's figures, from what this suite holds."""
+    import test_fuzz_readers
+    import test_kill
+
+    counts = {k: sum(c.kind == k for c in CASES) for k in KIND_NAMES}
+    checks = [n for n in globals() if n.startswith("test_") and n not in
+              ("test_fault", "test_readme_states_the_figures")]
+    fuzz = [n for n in dir(test_fuzz_readers) if n.startswith("test_")]
+    stages = sorted({s for s, _ in test_kill.INTERRUPTIONS})
+    n_fuzz = len(fuzz) * test_fuzz_readers.EXAMPLES
+    tried = len(CASES) + len(checks) + len(test_kill.INTERRUPTIONS) + n_fuzz
+    by_kind = ", ".join(f"{counts[k]} {v}" for k, v in KIND_NAMES.items())
+    return "\n".join([
+        f"- {len(CASES)} command cases ({by_kind}), each checked for its exit code, its one-line"
+        " message, the hashes of every input file afterwards, and that a refused command"
+        f" writes nothing; {len(checks)} more checks of the output rules and the README's"
+        " examples;",
+        f"- {len(test_kill.INTERRUPTIONS)} interruptions at seeded random moments (kill -9 of"
+        f" {', '.join(stages)}; Ctrl-C of extract), each followed by a run that must clean up,"
+        " resume and match an uninterrupted run;",
+        f"- {n_fuzz} fuzzed inputs ({test_fuzz_readers.EXAMPLES} each for {len(fuzz)} readers:"
+        " field YAML, calib.yaml, dataset CSVs, points and calibration-pair CSVs, MINHO .cfg,"
+        " -c overrides);",
+        f"- in all {tried} inputs tried, {len(CASES) + len(test_kill.INTERRUPTIONS)} deliberate"
+        f" faults injected beside the fuzzed inputs; survived: all {tried}; tracebacks 0; data"
+        " lost 0 (any of them is a failing test).",
+    ])
+
+
+def test_readme_states_the_figures():
+    text = (ROOT / "README.md").read_text()
+    m = re.search(r"<!-- faults:begin -->\n(.*?)<!-- faults:end -->", text, flags=re.S)
+    assert m, "README lacks the faults figures block"
+    want = figures_block()
+    got = " ".join(m.group(1).split())
+    assert got == " ".join(want.split()), f"update the README's figures to:\n{want}"

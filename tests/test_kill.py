@@ -32,6 +32,9 @@ from stages import build_map, extract, localize, simulate
 from stages.common.dataset import write_csv
 
 SEED = int(os.environ.get("FIELDLOC_KILL_SEED", "8"))
+# the interruptions below (stage, signal): the README states their number
+INTERRUPTIONS = [("simulate", "SIGKILL"), ("extract", "SIGKILL"), ("extract", "SIGINT"),
+                 ("build-map", "SIGKILL"), ("localize", "SIGKILL")]
 FIELDLOC = [sys.executable, "-c", "from fieldloc_cli.main import cli; cli()"]
 
 
