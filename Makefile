@@ -18,7 +18,7 @@ FIELD_FILE := $(or $(wildcard maps/$(FIELD).yaml),$(wildcard $(FIELD)))
 HEADING_OPT := $(if $(filter lut,$(METHOD)),--heading $(HEADING))
 RUN     := $(DATA)/runs/$(METHOD)$(if $(filter lut,$(METHOD)),-$(HEADING))
 
-.PHONY: install test lint demo bench pipeline clean
+.PHONY: install test lint demo bench bench-readme pipeline clean
 
 install: $(STAMP)
 
@@ -36,6 +36,16 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/fieldloc bench
+
+# README's performance table, from one bench run (its JSON is kept in $(OUT)/bench.json)
+bench-readme: $(STAMP)
+	@mkdir -p $(OUT)
+	$(FL) bench --json $(OUT)/bench.json --overwrite > /dev/null
+	$(BIN)/fieldloc bench --from-json $(OUT)/bench.json --format markdown > $(OUT)/bench.md
+	$(BIN)/python -c "import pathlib, re; r = pathlib.Path('README.md'); \
+	b = pathlib.Path('$(OUT)/bench.md').read_text(); \
+	r.write_text(re.sub(r'(<!-- bench:begin -->\n).*?(<!-- bench:end -->)', \
+	lambda m: m.group(1) + b + m.group(2), r.read_text(), flags=re.S))"
 
 # The demo: simulate a small omnidirectional MSL dataset, build the map, localise with the
 # lookup tables, evaluate against the truth and print the table.
