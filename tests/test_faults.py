@@ -609,6 +609,24 @@ def test_readme_yaml_examples_parse(tmp_path):
     assert sorted(kinds) == ["field", "omni", "omni-table", "perspective"]
 
 
+def test_bench_table_of_the_readme_comes_from_a_bench_json(tmp_path):
+    """The README's performance table is `bench --from-json --format markdown` of one run:
+    rows survive the JSON round trip (NaN as null) and become one table line each."""
+    from stages.evaluate import bench
+
+    rows = [bench.Row("a row", median_ms=1.5, goal="<= 2 ms", meets_goal=True,
+                      baseline="the other", baseline_ms=3.0, ratio=0.5, note="a note"),
+            bench.Row("no numbers")]
+    path = bench.write_json(rows, tmp_path / "b.json")
+    r = CliRunner().invoke(cli, ["bench", "--from-json", str(path), "--format", "markdown"])
+    assert r.exit_code == 0, r.output
+    lines = r.stdout.splitlines()
+    assert lines[2] == "| a row | 1.5 ms |  | the other: 3 ms | 0.5 |  | <= 2 ms | yes |"
+    assert lines[3].startswith("| no numbers |") and "- a row: a note" in lines
+    text = (ROOT / "README.md").read_text()
+    assert "<!-- bench:begin -->\n| row | median | CPU |" in text
+
+
 @pytest.mark.skipif(shutil.which("make") is None, reason="needs make")
 def test_make_pipeline_with_mcl_prints_the_table_once(world, tmp_path):
     """`make pipeline METHOD=mcl` on a perspective dataset: no --heading passed to mcl, and
