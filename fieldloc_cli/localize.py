@@ -21,8 +21,9 @@ MCL_INIT_DEFAULT = stage.method_confs("mcl")["default"]["init"]
 @click.option("--map", "map_path", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help="Map file from `fieldloc build-map` (tables for lut and mcl).")
 @click.option("--features", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Features file from `fieldloc extract` [default: extract on the fly into"
-              " OUTPUT-stem.features.h5].")
+              help="Features file from `fieldloc extract` [default: DATASET/features.h5 if it"
+              " matches the calibration, mask and default conf and holds every frame, else"
+              " extract on the fly into OUTPUT-stem.features.h5].")
 @click.option("--points", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="CSV of your own line points instead of images: columns frame,x,y"
               " (robot frame, m).")
