@@ -20,7 +20,8 @@ size than calib.yaml says, every image unreadable), that is an error and nothing
 
 Every finished frame is committed at once (stages.common.features_file.FrameParts), so a run
 that is killed keeps its frames and the next run resumes there; the features file itself appears
-atomically when the run completes, and a run with nothing left to do leaves it untouched. The
+atomically when the run completes, and a run with nothing left to do (every frame extracted;
+frames recorded as failed are tried again) leaves it untouched. The
 output is never one of the dataset's own files (calib.yaml, images, CSVs), --overwrite or not.
 """
 

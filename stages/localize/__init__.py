@@ -53,7 +53,7 @@ import numpy as np
 
 from ..common.artifacts import check_output, file_hash, root_attrs
 from ..common.conf import registered_module, resolve_conf
-from ..common.dataset import STAMP_SOURCES, open_dataset
+from ..common.dataset import STAMP_SOURCES, csv_rows, open_dataset
 from ..common.errors import DatasetError, FieldlocError
 from ..common.features_file import FeaturesFile
 from ..common.map_file import MapFile
@@ -147,8 +147,6 @@ class PointFrames:
 
 
 def _read_points_csv(path: Path) -> list[tuple[str, float, float]]:
-    from ..common.dataset import csv_rows
-
     if not path.is_file():
         raise DatasetError(f"points file not found: {path}")
     rows = csv_rows(path)
@@ -220,6 +218,13 @@ def _point_frames_in_dataset(path: Path, ids: list[str], dataset):
             v = _whole_number(i)
             if v is not None and v in by_number:
                 rename[i] = by_number[v]
+    taken: dict[str, str] = {}
+    for i, nm in rename.items():
+        if nm in taken:
+            raise DatasetError(
+                f"{path}: frame ids '{taken[nm]}' and '{i}' are both frame '{nm}' of"
+                f" {dataset.root}; give each frame one id")
+        taken[nm] = i
     unknown = [i for i in ids if i not in rename]
     sample = ", ".join(sorted(known)[:3])
     if not rename:
