@@ -563,6 +563,26 @@ def test_quiet_prints_no_summaries_and_results_go_to_stdout(world, tmp_path):
     assert r.exit_code == 0 and "median cm" in r.stdout and r.stderr == ""  # the result
 
 
+def test_dataset_moved_aside_by_a_killed_replacement_is_restored(tmp_path, caplog):
+    """simulate --overwrite moves the old dataset aside, then the new one in: killed between
+    the two, the old one is under .data.fieldloc-<pid>-*.old/data. The next run puts it back
+    (instead of removing it as a stale part) and then refuses without --overwrite."""
+    data = simulate.main(dict(simulate.confs["omni-clean"], frames=1), "spl", tmp_path / "data")
+    before = snapshot(data)
+    p = subprocess.Popen([sys.executable, "-c", "pass"])
+    p.wait()
+    aside = tmp_path / f".data.fieldloc-{p.pid}-x1y2z3.old"
+    aside.mkdir()
+    os.replace(data, aside / "data")
+    with caplog.at_level(logging.WARNING):
+        r = CliRunner().invoke(cli, ["simulate", "omni", "--field", "spl", "-o", str(data),
+                                     "--frames", "1"])
+    assert r.exit_code == 1 and "exists and is not empty" in r.output, r.output
+    assert "restored" in caplog.text
+    assert snapshot(data) == before
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["data"]
+
+
 def test_csv_files_have_lf_line_endings(world):
     for name in ("truth.csv", "odometry.csv", "imu.csv", "frames.csv"):
         assert b"\r" not in (world["omni"] / name).read_bytes()

@@ -158,7 +158,8 @@ def refuse_inputs(path: str | Path, inputs: Mapping[str, object] | None, *, kind
                     " folder would delete it: choose another output")
 
 
-def _pid_alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` still runs (ours counts as running)."""
     if pid == os.getpid():
         return True
     try:
@@ -194,7 +195,7 @@ def remove_stale_parts(path: str | Path) -> list[Path]:
         return []
     for entry in entries:
         m = pat.match(entry.name)
-        if not m or (m.group(1) and _pid_alive(int(m.group(1)))):
+        if not m or (m.group(1) and pid_alive(int(m.group(1)))):
             continue
         try:
             size = _tree_size(entry)

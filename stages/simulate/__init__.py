@@ -53,6 +53,8 @@ from ..common.artifacts import (
     check_output,
     give_default_mode,
     part_name,
+    part_pattern,
+    pid_alive,
     remove_stale_parts,
     text_hash,
 )
@@ -217,6 +219,24 @@ def _check_target(output_dir: Path, overwrite: bool, field_file: Path | None):
                 " it")
 
 
+def _restore_interrupted_replacement(output_dir: Path) -> None:
+    """A run killed between moving the old dataset aside (``.<name>.fieldloc-<pid>-*.old/data``)
+    and moving the new one in leaves no dataset under the real name: put the old one back
+    before the stale parts are removed."""
+    if output_dir.exists() or not output_dir.parent.is_dir():
+        return
+    pat = part_pattern(output_dir)
+    for entry in sorted(output_dir.parent.iterdir()):
+        m = pat.match(entry.name)
+        if (m and entry.name.endswith(".old") and (entry / "data").is_dir()
+                and not (m.group(1) and pid_alive(int(m.group(1))))):
+            os.replace(entry / "data", output_dir)
+            shutil.rmtree(entry, ignore_errors=True)
+            log.warning("restored %s from %s, left by a run killed while replacing it",
+                        output_dir, entry)
+            return
+
+
 def estimate_needs(conf: dict, field: FieldModel) -> tuple[dict, float]:
     """(memory by purpose in bytes, disk bytes) of simulating ``conf`` on ``field``."""
     sc = {**scene_mod.SCENE_DEFAULTS, **conf.get("scene", {})}
@@ -256,6 +276,7 @@ def main(conf: dict, field, output_dir, *, overwrite: bool = False,
         field_file = p if p.suffix.lower() in (".yaml", ".yml") or p.exists() else None
         field = load_field(field)
     _check_conf(conf)
+    _restore_interrupted_replacement(output_dir)
     _check_target(output_dir, overwrite, field_file)
     remove_stale_parts(output_dir)
     memory, disk = estimate_needs(conf, field)
