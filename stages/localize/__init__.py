@@ -51,7 +51,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..common.artifacts import check_output, file_hash, root_attrs
+from ..common.artifacts import check_output, file_hash, refuse_inputs, root_attrs
 from ..common.conf import registered_module, resolve_conf
 from ..common.dataset import STAMP_SOURCES, csv_rows, open_dataset
 from ..common.errors import DatasetError, FieldlocError
@@ -280,6 +280,8 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path,
         else:
             if features is None:
                 features = _features_for(dataset_dir, output, inputs_given, progress)
+                for written in (output, output.with_suffix(".tum")):  # the features it chose
+                    refuse_inputs(written, {"features": features})
             feats = FeaturesFile(features)
             inputs.update(features=_abs(features), features_hash=file_hash(features))
             recorded = {"field": _json_attr(feats, "field"),
