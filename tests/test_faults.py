@@ -592,6 +592,12 @@ def test_csv_files_have_lf_line_endings(world):
         assert b"\r" not in (world["omni"] / name).read_bytes()
 
 
+@pytest.mark.xfail(strict=True, reason="stages/evaluate/report.py write_errors_csv uses csv's"
+                   " default CRLF (owned by the lead): remove this mark when it writes \\n")
+def test_errors_csv_has_lf_line_endings(world_report):
+    assert b"\r" not in (world_report["omni"] / "runs" / "r" / "errors.csv").read_bytes()
+
+
 def test_simulated_folder_has_the_umask_mode(world):
     umask = os.umask(0o022)
     os.umask(umask)
@@ -684,8 +690,9 @@ def figures_block() -> str:
     import test_kill
 
     counts = {k: sum(c.kind == k for c in CASES) for k in KIND_NAMES}
-    checks = [n for n in globals() if n.startswith("test_") and n not in
-              ("test_fault", "test_readme_states_the_figures")]
+    checks = [n for n, f in globals().items() if n.startswith("test_") and n not in
+              ("test_fault", "test_readme_states_the_figures")
+              and not any(m.name == "xfail" for m in getattr(f, "pytestmark", []))]
     fuzz = [n for n in dir(test_fuzz_readers) if n.startswith("test_")]
     stages = sorted({s for s, _ in test_kill.INTERRUPTIONS})
     n_fuzz = len(fuzz) * test_fuzz_readers.EXAMPLES
