@@ -14,9 +14,11 @@ HEADING ?= imu
 DATA    ?= $(OUT)/demo-omni
 MAP     := $(OUT)/maps/$(notdir $(basename $(FIELD))).map.h5
 FIELD_FILE := $(or $(wildcard maps/$(FIELD).yaml),$(wildcard $(FIELD)))
-RUN     := $(DATA)/runs/$(METHOD)-$(HEADING)
+# --heading is an option of lut only
+HEADING_OPT := $(if $(filter lut,$(METHOD)),--heading $(HEADING))
+RUN     := $(DATA)/runs/$(METHOD)$(if $(filter lut,$(METHOD)),-$(HEADING))
 
-.PHONY: install test lint demo bench pipeline clean
+.PHONY: install test lint demo bench bench-readme pipeline clean
 
 install: $(STAMP)
 
@@ -35,6 +37,16 @@ lint: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/fieldloc bench
 
+# README's performance table, from one bench run (its JSON is kept in $(OUT)/bench.json)
+bench-readme: $(STAMP)
+	@mkdir -p $(OUT)
+	$(FL) bench --json $(OUT)/bench.json --overwrite > /dev/null
+	$(BIN)/fieldloc bench --from-json $(OUT)/bench.json --format markdown > $(OUT)/bench.md
+	$(BIN)/python -c "import pathlib, re; r = pathlib.Path('README.md'); \
+	b = pathlib.Path('$(OUT)/bench.md').read_text(); \
+	r.write_text(re.sub(r'(<!-- bench:begin -->\n).*?(<!-- bench:end -->)', \
+	lambda m: m.group(1) + b + m.group(2), r.read_text(), flags=re.S))"
+
 # The demo: simulate a small omnidirectional MSL dataset, build the map, localise with the
 # lookup tables, evaluate against the truth and print the table.
 DEMO := $(OUT)/demo-omni
@@ -47,6 +59,7 @@ $(DEMO)/truth.csv: | $(STAMP)
 
 # File-based pipeline over any dataset folder: only stale steps run again.
 #   make pipeline DATA=path/to/dataset FIELD=msl-2015 [METHOD=lut HEADING=imu|histogram|truth]
+#   make pipeline DATA=path/to/kidsize-dataset FIELD=kidsize METHOD=mcl
 pipeline: $(STAMP) $(RUN)/report/report.json
 	$(BIN)/fieldloc evaluate --table $(RUN)/report
 
@@ -59,11 +72,12 @@ $(DATA)/features.h5: $(DATA)/calib.yaml $(wildcard $(DATA)/images/*) | $(STAMP)
 
 $(RUN)/poses.h5: $(DATA)/features.h5 $(MAP)
 	@mkdir -p $(dir $@)
-	$(FL) localize $(DATA) --map $(MAP) --features $< --method $(METHOD) --heading $(HEADING) \
+	$(FL) localize $(DATA) --map $(MAP) --features $< --method $(METHOD) $(HEADING_OPT) \
 		-o $@ --overwrite
 
+# the table is printed once, by `pipeline`
 $(RUN)/report/report.json: $(RUN)/poses.h5 $(DATA)/truth.csv
-	$(FL) evaluate $< --truth $(DATA)/truth.csv -o $(RUN)/report --overwrite
+	$(FL) evaluate $< --truth $(DATA)/truth.csv -o $(RUN)/report --overwrite > /dev/null
 
 clean:
 	rm -rf $(OUT)

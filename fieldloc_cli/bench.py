@@ -12,20 +12,33 @@ from stages.evaluate import bench as stage
 @click.command("bench")
 @click.option("--only", multiple=True, metavar="NAME",
               help=f"Run rows whose name contains NAME (rows: {', '.join(stage.ROWS)}).")
-@click.option("--repeat", type=int, default=5, show_default=True,
+@click.option("--repeat", type=click.IntRange(min=1), default=5, show_default=True,
               help="Timed runs per row (medians are reported).")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False, path_type=Path),
               help="Also write the rows as JSON.")
+@click.option("--overwrite", is_flag=True, help="Replace an existing --json file.")
+@click.option("--format", "fmt", type=click.Choice(["text", "markdown"]), default="text",
+              show_default=True, help="Table format (markdown: the README's table).")
+@click.option("--from-json", "from_json", type=click.Path(dir_okay=False, path_type=Path),
+              help="Print the table of a saved --json run instead of timing again.")
 @click.pass_context
-def bench(ctx, only, repeat, json_path):
+def bench(ctx, only, repeat, json_path, overwrite, fmt, from_json):
     """Time the stages on generated inputs and print a table."""
     quiet = (ctx.find_root().obj or {}).get("quiet")
+    show = stage.format_markdown if fmt == "markdown" else stage.format_table
+    if from_json:
+        click.echo(show(stage.read_json(from_json)), nl=fmt != "markdown")
+        return
+    if json_path:
+        from stages.common.artifacts import check_output
+
+        check_output(json_path, {}, overwrite=overwrite)  # before minutes of timing
 
     def progress(name):
         if not quiet:
             click.echo(f"bench: {name} ...", err=True)
 
     rows = stage.run(list(only) or None, repeat=repeat, progress=progress)
-    click.echo(stage.format_table(rows))
+    click.echo(show(rows), nl=fmt != "markdown")
     if json_path:
         stage.write_json(rows, json_path)

@@ -12,7 +12,7 @@ from stages.calibrate import confs
 from stages.common.conf import resolve_conf
 from stages.common.errors import FieldlocError
 
-from .common import conf_option, overrides_dict
+from .common import FINITE, conf_option, overrides_dict, summary
 
 DEFAULT_PRESET = {"points": "default", "minho": "minho", "cnc": "cnc"}
 
@@ -44,14 +44,14 @@ def calibrate():
                    " source's pairs over the distances they cover.")
 @click.option("--mask", type=click.Path(dir_okay=False),
               help="Mask image for the line images (default with --from-minho: DIR/mask.png).")
-@click.option("--centre", nargs=2, type=float, metavar="U V",
+@click.option("--centre", nargs=2, type=FINITE, metavar="U V",
               help="Image centre of the mirror (px); with POINTS.")
 @click.option("--image-size", nargs=2, type=int, metavar="W H",
               help="Image width and height (px); with POINTS, or when DIR/images is empty.")
-@click.option("--valid-radius", nargs=2, type=float, metavar="RMIN RMAX",
+@click.option("--valid-radius", nargs=2, type=FINITE, metavar="RMIN RMAX",
               help="Radii (px) of the robot-body mask and of the outer limit of the floor"
                    " (with POINTS; with --from-minho default: the first and last table radius).")
-@click.option("--forward-angle-deg", type=float, default=None,
+@click.option("--forward-angle-deg", type=FINITE, default=None,
               help="Image angle of the robot's forward direction, counter-clockwise from +u"
                    " with v up; with POINTS (default 90). --from-minho reads TILT.")
 @click.option("--mirrored", is_flag=True, help="The image shows the floor mirrored (POINTS).")
@@ -187,10 +187,10 @@ def _echo_report(ctx, out, rec: dict) -> None:
         rms = math.sqrt(sum(e * e for e in res) / len(res))
         fit_text = (f"residual RMS {rms * 100:.2f} cm, max"
                     f" {max(abs(e) for e in res) * 100:.2f} cm")
-    click.echo(
-        f"wrote {out}: {len(pairs)} pairs, {fit_text}; floor visible to"
-        f" {camera.max_distance:.2f} m at {camera.valid_radius[1]:g} px"
-    )
+    summary(ctx,
+            f"wrote {out}: {len(pairs)} pairs, {fit_text}; floor visible to"
+            f" {camera.max_distance:.2f} m at {camera.valid_radius[1]:g} px")
+
 
 
 @calibrate.command("perspective")
@@ -202,7 +202,8 @@ def _echo_report(ctx, out, rec: dict) -> None:
               help="calib.yaml to write (from a file) or the dataset folder (from a folder).")
 @click.option("--overwrite", is_flag=True, help="Replace OUTPUT if it exists.")
 @conf_option
-def calibrate_perspective(hulks_source, output, overwrite, overrides):
+@click.pass_context
+def calibrate_perspective(ctx, hulks_source, output, overwrite, overrides):
     """A perspective calib.yaml from a team's camera file: intrinsics, height, pitch, roll
     (and yaw, position) of HULKs' camera_to_ground. From a folder of captures
     (<stamp>.json + <stamp>.jpg) it writes a dataset: images/, calib.yaml and head.csv with
@@ -217,4 +218,4 @@ def calibrate_perspective(hulks_source, output, overwrite, overrides):
 
     conf = resolve_conf(hulks.confs, "default", overrides_dict(overrides))
     out = hulks.main(conf, hulks_source, output, overwrite=overwrite)
-    click.echo(f"wrote {out}")
+    summary(ctx, f"wrote {out}")

@@ -1,7 +1,10 @@
-"""Small CLI helpers shared by subcommands: conf overrides, progress settings."""
+"""Small CLI helpers shared by subcommands: conf overrides, progress settings, finite numbers,
+and the one output rule: results on stdout, summaries, logs and progress on stderr (summaries
+hidden by -q)."""
 
 from __future__ import annotations
 
+import math
 import sys
 
 import click
@@ -17,10 +20,36 @@ def conf_option(f):
     )(f)
 
 
+class FiniteFloat(click.ParamType):
+    """A float option that refuses nan and inf (click's FLOAT accepts both)."""
+
+    name = "number"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, float) and math.isfinite(value):
+            return value
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            self.fail(f"{value!r} is not a number", param, ctx)
+        if not math.isfinite(v):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return v
+
+
+FINITE = FiniteFloat()
+
+
 def progress_enabled(ctx: click.Context) -> bool:
     """Progress bars only on a terminal and never with --quiet."""
     obj = ctx.find_root().obj or {}
     return not obj.get("quiet") and sys.stderr.isatty()
+
+
+def summary(ctx: click.Context, message: str) -> None:
+    """A command's closing summary ("wrote X: N frames"): stderr, and nothing with -q."""
+    if not (ctx.find_root().obj or {}).get("quiet"):
+        click.echo(message, err=True)
 
 
 def overrides_dict(overrides) -> dict:

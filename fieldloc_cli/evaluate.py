@@ -10,7 +10,7 @@ import click
 
 from stages.common.errors import FieldlocError
 
-from .common import conf_option, overrides_dict
+from .common import FINITE, conf_option, overrides_dict
 
 log = logging.getLogger("fieldloc.evaluate")
 
@@ -64,7 +64,7 @@ def report_dirs(poses: list[Path], output: Path | None) -> list[Path]:
               " recomputing.")
 @click.option("--preset", default="default", show_default=True, type=click.Choice(_preset_names()),
               help="Evaluation preset (stages.evaluate.confs).")
-@click.option("--stamp-tolerance", type=float, default=None,
+@click.option("--stamp-tolerance", type=FINITE, default=None,
               help="Largest stamp difference (s) for a frame to match a truth row"
               f" [default: the preset's; 'default' has {_default_tolerance():g}].")
 @conf_option

@@ -8,7 +8,7 @@ import click
 
 from stages import extract as stage
 
-from .common import conf_option, overrides_dict, progress_enabled
+from .common import conf_option, overrides_dict, progress_enabled, summary
 
 
 @click.command()
@@ -38,4 +38,4 @@ def extract(ctx, dataset, output, preset, overrides, overwrite, debug_images):
     msg = f"{path}: {n} frames ({kind} camera)"
     if failures:
         msg += f", {len(failures)} failed (first: {failures[0]})"
-    click.echo(msg)
+    summary(ctx, msg)

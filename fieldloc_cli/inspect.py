@@ -1,14 +1,13 @@
-"""`fieldloc inspect FILE`: an artifact's attributes and tree."""
+"""`fieldloc inspect FILE`: what any file fieldloc writes or reads holds."""
 
 from __future__ import annotations
 
 import click
 
-from stages.common.artifacts import describe
+from stages.common.describe import READS, describe_file
 
 
-@click.command("inspect")
-@click.argument("file", type=click.Path(dir_okay=False))
+@click.command("inspect", help=f"Print what FILE holds. Reads {READS}.")
+@click.argument("file", type=click.Path())
 def inspect(file):
-    """Print FILE's root attributes and its datasets (shape, dtype, units)."""
-    click.echo(describe(file))
+    click.echo(describe_file(file))

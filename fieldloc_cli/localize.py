@@ -10,7 +10,7 @@ import click
 
 from stages import localize as stage
 
-from .common import conf_option, overrides_dict, progress_enabled
+from .common import conf_option, overrides_dict, progress_enabled, summary
 
 LUT_DEFAULTS = stage.method_confs("lut")["default"]
 MCL_INIT_DEFAULT = stage.method_confs("mcl")["default"]["init"]
@@ -21,8 +21,9 @@ MCL_INIT_DEFAULT = stage.method_confs("mcl")["default"]["init"]
 @click.option("--map", "map_path", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help="Map file from `fieldloc build-map` (tables for lut and mcl).")
 @click.option("--features", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Features file from `fieldloc extract` [default: extract on the fly into"
-              " OUTPUT-stem.features.h5].")
+              help="Features file from `fieldloc extract` [default: DATASET/features.h5 if it"
+              " matches the calibration, mask and default conf and holds every frame, else"
+              " extract on the fly into OUTPUT-stem.features.h5].")
 @click.option("--points", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="CSV of your own line points instead of images: columns frame,x,y"
               " (robot frame, m).")
@@ -45,9 +46,12 @@ MCL_INIT_DEFAULT = stage.method_confs("mcl")["default"]["init"]
 @click.option("--preset", default="default", show_default=True, help="Preset of the method.")
 @conf_option
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
+@click.option("--allow-field-mismatch", is_flag=True,
+              help="Localise even when the features were recorded on another field or with"
+              " other scan lines than the map's.")
 @click.pass_context
 def localize(ctx, dataset, map_path, features, points, method, heading, init, independent,
-             min_confidence, output, preset, overrides, overwrite):
+             min_confidence, output, preset, overrides, overwrite, allow_field_mismatch):
     """Poses of the frames of DATASET on the field of MAP (poses.h5 + poses.tum)."""
     conf = {"method": method, "preset": preset, **overrides_dict(overrides)}
     if heading is not None:
@@ -66,7 +70,8 @@ def localize(ctx, dataset, map_path, features, points, method, heading, init, in
         conf["min_confidence"] = min_confidence
     output = output or Path(dataset) / f"poses-{method}.h5"
     path = stage.main(conf, dataset, map_path, output, features=features, points=points,
-                      overwrite=overwrite, progress=progress_enabled(ctx))
+                      overwrite=overwrite, progress=progress_enabled(ctx),
+                      allow_field_mismatch=allow_field_mismatch)
     from stages.common.poses_file import read_poses
 
     cols, _attrs = read_poses(path)
@@ -80,4 +85,4 @@ def localize(ctx, dataset, map_path, features, points, method, heading, init, in
     if ok.any():
         modes = {m: int((cols["mode"][ok] == m).sum()) for m in sorted(set(cols["mode"][ok]))}
         msg += " (" + ", ".join(f"{m} {c}" for m, c in modes.items()) + ")"
-    click.echo(msg)
+    summary(ctx, msg)

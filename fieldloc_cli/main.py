@@ -1,6 +1,7 @@
 """`fieldloc`: one click group; subcommands live in their own modules and are imported lazily,
-so `fieldloc inspect` does not pay for OpenCV. User errors (FieldlocError) end in one line on
-stderr and exit code 1; `--debug` shows the traceback instead."""
+so `fieldloc inspect` does not pay for OpenCV. User errors (FieldlocError) and what the system
+refuses (OSError: permission, disk full; MemoryError) end in one line on stderr and exit code 1;
+`--debug` shows the traceback instead."""
 
 from __future__ import annotations
 
@@ -68,10 +69,23 @@ class LazyGroup(click.Group):
                 raise
             click.echo(f"fieldloc: error: {e}", err=True)
             ctx.exit(1)
+        except OSError as e:  # the system refused: permission, disk full, a path that vanished
+            if debug:
+                raise
+            where = f"{e.filename}: " if e.filename else ""
+            click.echo(f"fieldloc: error: {where}{e.strerror or e}", err=True)
+            ctx.exit(1)
+        except MemoryError:
+            if debug:
+                raise
+            click.echo("fieldloc: error: out of memory (try a coarser resolution or fewer"
+                       " frames)", err=True)
+            ctx.exit(1)
         except KeyboardInterrupt:
             if debug:
                 raise
-            click.echo("fieldloc: interrupted (finished files were kept)", err=True)
+            click.echo("fieldloc: interrupted (finished files were kept; extract resumes"
+                       " where it stopped)", err=True)
             ctx.exit(130)
 
 

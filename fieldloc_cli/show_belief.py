@@ -12,7 +12,7 @@ import click
 
 from stages.localize import belief as stage
 
-from .common import conf_option, overrides_dict
+from .common import FINITE, conf_option, overrides_dict, summary
 
 DEFAULTS = stage.confs["default"]
 
@@ -26,16 +26,17 @@ DEFAULTS = stage.confs["default"]
 @click.option("--features", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Features file to read the frame from [default: DATASET/features.h5 if"
               " present, else extract the frame now].")
-@click.option("--resolution", type=float, default=DEFAULTS["resolution"], show_default=True,
+@click.option("--resolution", type=FINITE, default=DEFAULTS["resolution"], show_default=True,
               help="Grid spacing of positions (m).")
-@click.option("--heading-step-deg", type=float,
+@click.option("--heading-step-deg", type=FINITE,
               default=round(math.degrees(DEFAULTS["heading_step"]), 6), show_default=True,
               help="Grid spacing of headings (degrees).")
 @conf_option
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="PNG file to write.")
-def show_belief(dataset, frame, map_path, features, resolution, heading_step_deg, overrides,
+@click.pass_context
+def show_belief(ctx, dataset, frame, map_path, features, resolution, heading_step_deg, overrides,
                 overwrite, output):
     """Draw the belief of one frame of DATASET on the field of MAP: the likelihood of its
     observations at every position (best heading per position), per kind of observation."""
@@ -44,4 +45,4 @@ def show_belief(dataset, frame, map_path, features, resolution, heading_step_deg
     conf["heading_step"] = math.radians(heading_step_deg)
     path = stage.main(conf, dataset, map_path, output, frame=frame, features=features,
                       overwrite=overwrite)
-    click.echo(f"{path}: belief of frame {frame}")
+    summary(ctx, f"{path}: belief of frame {frame}")

@@ -9,14 +9,16 @@ import click
 
 from stages.evaluate import map_plots
 
+from .common import FINITE, summary
+
 
 @click.command("map")
 @click.argument("map_file", type=click.Path(dir_okay=False))
 @click.option("--table", type=click.Choice(map_plots.TABLES), default="distance",
               show_default=True, help="What to draw.")
-@click.option("--cell", nargs=2, type=float, metavar="X Y",
+@click.option("--cell", nargs=2, type=FINITE, metavar="X Y",
               help="Field position (m) of the robot for radial/spiral.")
-@click.option("--heading-deg", type=float, default=0.0, show_default=True,
+@click.option("--heading-deg", type=FINITE, default=0.0, show_default=True,
               help="Robot heading for radial/spiral (rounded to 5 deg).")
 @click.option("--family", type=click.Choice(sorted(map_plots.FAMILIES)), default="ccw",
               show_default=True, help="Spirals: the counter-clockwise or clockwise family.")
@@ -24,8 +26,11 @@ from stages.evaluate import map_plots
               help="Spirals: how many of the family's 36 to draw (evenly spaced).")
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="PNG file to write.")
-def show_map(map_file, table, cell, heading_deg, family, spirals, output):
+@click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
+@click.pass_context
+def show_map(ctx, map_file, table, cell, heading_deg, family, spirals, output, overwrite):
     """Draw MAP's field with a table, so a person can check it by eye."""
     path = map_plots.main(map_file, output, table=table, cell=cell,
-                          heading=math.radians(heading_deg), family=family, spirals=spirals)
-    click.echo(str(path))
+                          heading=math.radians(heading_deg), family=family, spirals=spirals,
+                          overwrite=overwrite)
+    summary(ctx, str(path))

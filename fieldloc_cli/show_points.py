@@ -10,7 +10,7 @@ import click
 
 from stages.extract import DEFAULT_PRESET
 
-from .common import conf_option, overrides_dict
+from .common import FINITE, conf_option, overrides_dict, summary
 
 
 def _field(map_or_field: str):
@@ -33,7 +33,7 @@ def _field(map_or_field: str):
               help="Features file to read the frame from [default: extract it now].")
 @click.option("--map", "map_or_field", default=None,
               help="Map file or field (preset name or YAML) to draw the points on.")
-@click.option("--pose", nargs=3, type=float, default=None, metavar="X Y THETA_DEG",
+@click.option("--pose", nargs=3, type=FINITE, default=None, metavar="X Y THETA_DEG",
               help="Robot pose for the field drawing: metres, metres, degrees"
               " [default: truth.csv at the frame].")
 @click.option("--preset", default=DEFAULT_PRESET, show_default=True,
@@ -41,18 +41,23 @@ def _field(map_or_field: str):
 @conf_option
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="PNG file to write.")
-def show_points(dataset, frame, features, map_or_field, pose, preset, overrides, output):
+@click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
+@click.pass_context
+def show_points(ctx, dataset, frame, features, map_or_field, pose, preset, overrides, output,
+                overwrite):
     """Draw the extracted line points of one frame of DATASET over its image, and over the
     field at a pose (given with --pose, or truth.csv's) when --map is given."""
     from stages.extract.overlay import show_points as draw
 
     field = _field(map_or_field) if map_or_field else None
     pose_rad = None if not pose else (pose[0], pose[1], math.radians(pose[2]))
+    field_file = Path(map_or_field) if map_or_field and Path(map_or_field).exists() else None
     path, s = draw(dataset, frame, output, features=features, field=field, pose=pose_rad,
-                   conf=preset, overrides=overrides_dict(overrides))
+                   conf=preset, overrides=overrides_dict(overrides), overwrite=overwrite,
+                   field_file=field_file)
     msg = f"{path}: frame {s['frame']}, {s['points']} line points"
     if "share_near_lines" in s:
         x, y, th = s["pose"]
         msg += (f"; at pose ({x:.2f}, {y:.2f}, {math.degrees(th):.1f} deg)"
                 f" {s['share_near_lines']:.0%} within 15 cm of a line")
-    click.echo(msg)
+    summary(ctx, msg)

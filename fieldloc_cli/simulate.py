@@ -16,7 +16,7 @@ from stages.common.conf import resolve_conf
 from stages.simulate import confs
 from stages.simulate.trajectory import KINDS
 
-from .common import conf_option, overrides_dict, progress_enabled
+from .common import FINITE, conf_option, overrides_dict, progress_enabled, summary
 
 
 def simulate_options(preset: str):
@@ -37,7 +37,7 @@ def simulate_options(preset: str):
                          default=None,
                          help="Path of the robot: random waypoints or a loop of the field"
                               f" [preset: {base['trajectory']['kind']}]."),
-            click.option("--calib-error", nargs=3, type=float, default=None,
+            click.option("--calib-error", nargs=3, type=FINITE, default=None,
                          metavar="DU DV SCALE",
                          help="Write calib.yaml off from the rendering camera: centre (principal"
                               " point) shifted by DU, DV px and the radial mapping scaled by"
@@ -75,8 +75,7 @@ def run_simulation(ctx, *, field, output, frames, seed, trajectory_kind, preset,
         du, dv, scale = calib_error
         conf["calib_error"] = {"centre_shift": [du, dv], "scale": scale}
     out = main(conf, field, output, overwrite=overwrite, progress=progress_enabled(ctx))
-    if not (ctx.find_root().obj or {}).get("quiet"):
-        click.echo(f"wrote {conf['frames']} frames to {out}", err=True)
+    summary(ctx, f"wrote {conf['frames']} frames to {out}")
     return out
 
 
@@ -104,10 +103,10 @@ def simulate_omni(ctx, field, output, frames, seed, trajectory_kind, calib_error
 
 @simulate.command("perspective")
 @simulate_options("perspective-default")
-@click.option("--camera-height", type=float, default=None, metavar="M",
+@click.option("--camera-height", type=FINITE, default=None, metavar="M",
               help="Camera height above the floor (m) [preset: "
                    f"{confs['perspective-default']['perspective']['height']}].")
-@click.option("--pitch-deg", type=float, default=None,
+@click.option("--pitch-deg", type=FINITE, default=None,
               help="Nominal camera pitch (degrees, > 0 looks down) [preset: "
                    f"{math.degrees(confs['perspective-default']['perspective']['pitch']):.1f}].")
 @click.pass_context

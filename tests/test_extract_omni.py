@@ -281,7 +281,9 @@ def test_failed_frame_is_retried_on_resume(tmp_path):
         assert ff.names == ["000", "001"] and ff.failures == []
 
 
-def test_interrupted_run_leaves_no_file(tmp_path, monkeypatch):
+def test_interrupted_run_leaves_no_file_and_keeps_finished_frames(tmp_path, monkeypatch):
+    """Ctrl-C on the second frame: no features file (not even a half one), the first frame
+    kept in the resume folder, and the next run takes it over and leaves nothing behind."""
     ds = make_dataset(tmp_path / "ds", n=2)
     out = tmp_path / "f.h5"
     original = omni.extract_frame
@@ -296,7 +298,15 @@ def test_interrupted_run_leaves_no_file(tmp_path, monkeypatch):
     monkeypatch.setattr(omni, "extract_frame", interrupted_on_second)
     with pytest.raises(KeyboardInterrupt):
         extract.main(None, ds, out)
-    assert not out.exists() and list(tmp_path.glob(".f.h5*")) == []
+    assert not out.exists()
+    assert [p.name for p in tmp_path.glob(".f.h5*")] == [".f.h5.parts"]
+    assert sorted(p.name for p in (tmp_path / ".f.h5.parts").iterdir()) == ["000.npz", "run.json"]
+    monkeypatch.setattr(omni, "extract_frame", original)
+    calls.clear()
+    extract.main(None, ds, out)
+    assert list(tmp_path.glob(".f.h5*")) == []
+    with FeaturesFile(out) as ff:
+        assert ff.names == ["000", "001"]
 
 
 def test_wrong_image_size_is_a_bad_frame(tmp_path):
@@ -353,7 +363,8 @@ def test_show_points_png(tmp_path):
     # the line ahead at 0.7 m from (-4.5, 0) heading 0 is x = -3.8: not a field line
     assert "0% within 15 cm" in r.output
     r = CliRunner().invoke(cli, ["show", "points", str(ds), "--frame", "0", "--map", "msl-2015",
-                                 "--pose", "-0.7", "0.0", "0", "-o", str(out)])
+                                 "--pose", "-0.7", "0.0", "0", "-o", str(out),
+                                 "--overwrite"])  # issue 8: show replaces only with it
     assert "100% within 15 cm" in r.output  # ... and from (-0.7, 0) it is the halfway line
 
 

@@ -391,7 +391,7 @@ def test_cli_localize_points_csv(rendered, msl2015_map, tmp_path):
     csv_path = tmp_path / "points.csv"
     csv_path.write_text("\n".join(rows) + "\n")
     out = tmp_path / "poses-points.h5"
-    res = CliRunner().invoke(cli, ["-q", "localize", str(ds), "--map", str(msl2015_map),
+    res = CliRunner().invoke(cli, ["localize", str(ds), "--map", str(msl2015_map),
                                    "--points", str(csv_path), "-o", str(out)])
     assert res.exit_code == 0, res.output
     assert "15 frames" in res.output

@@ -76,8 +76,15 @@ def test_refuses_non_empty_folder_unless_overwrite(tmp_path, spl):
     with pytest.raises(FieldlocError, match="not empty"):
         simulate.main(small_conf(frames=1), spl, out)
     assert (out / "keep.txt").exists()
+    # issue 8: --overwrite replaces only a dataset simulate made, never a user's folder
+    with pytest.raises(FieldlocError, match="not a dataset made by fieldloc simulate"):
+        simulate.main(small_conf(frames=1), spl, out, overwrite=True)
+    assert (out / "keep.txt").read_text() == "mine"
+    (out / "keep.txt").unlink()
+    simulate.main(small_conf(frames=1), spl, out)
+    (out / "features.h5").write_text("derived")  # what the pipeline adds to a dataset
     simulate.main(small_conf(frames=1), spl, out, overwrite=True)
-    assert not (out / "keep.txt").exists() and (out / "images/000000.png").exists()
+    assert not (out / "features.h5").exists() and (out / "images/000000.png").exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["data"]
     empty = tmp_path / "empty"
     empty.mkdir()

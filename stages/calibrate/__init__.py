@@ -49,7 +49,6 @@ incomplete team files, line images that are not named by distance or show no lin
 from __future__ import annotations
 
 import copy
-import csv
 import datetime as _dt
 import logging
 import math
@@ -59,7 +58,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..common.artifacts import file_hash
+from ..common.artifacts import check_output, file_hash
 from ..common.camera import (
     MonotoneTable,
     OmniCamera,
@@ -68,7 +67,7 @@ from ..common.camera import (
     read_calibration_record,
     save_calib,
 )
-from ..common.dataset import IMAGE_SUFFIXES, read_mask
+from ..common.dataset import IMAGE_SUFFIXES, csv_rows, read_mask
 from ..common.errors import FieldlocError
 from . import cnc as _cnc
 from . import line_images as _line_images
@@ -126,17 +125,16 @@ def read_points(path) -> tuple[np.ndarray, np.ndarray]:
     path = Path(path)
     if not path.is_file():
         raise CalibrationError(f"calibration points not found: {path}")
-    with open(path, newline="") as f:
-        rows = [r for r in csv.reader(f) if r and not r[0].strip().startswith("#")]
+    rows = csv_rows(path)
     if not rows:
         raise CalibrationError(f"{path}: empty; expected a header '{','.join(COLUMNS)}'")
-    header = tuple(h.strip() for h in rows[0])
+    header = tuple(h.strip() for h in rows[0][1])
     if header != COLUMNS:
         raise CalibrationError(
-            f"{path}: expected columns '{','.join(COLUMNS)}', found '{','.join(header)}'"
+            f"{path}: expected columns '{','.join(COLUMNS)}', found '{','.join(header)[:80]}'"
         )
     r, d = [], []
-    for n, row in enumerate(rows[1:], start=2):
+    for n, row in rows[1:]:
         try:
             if len(row) != 2:
                 raise ValueError
@@ -223,6 +221,9 @@ def fit(conf: dict, radius_px, distance_m, *, centre, image_size, valid_radius=N
 
 def _fit_polynomial(conf, r, d, valid_radius, where):
     degree = int(conf["degree"])
+    if not 1 <= degree <= 5:
+        raise CalibrationError(
+            f"conf 'degree' must be 1..5 (calib.yaml holds a0..a5), got {degree}")
     distinct = len(np.unique(np.round(r, 3)))
     if distinct < conf["min_distinct_radii"]:
         raise CalibrationError(
@@ -239,7 +240,7 @@ def _fit_polynomial(conf, r, d, valid_radius, where):
             f"{where}: the fitted f(r) is not increasing between {rmin:g} and {rmax:g} px (it"
             f" turns at r = {turn:.1f} px); check the pairs or narrow --valid-radius"
         )
-    return coef, residuals
+    return np.concatenate([coef, np.zeros(5 - degree)]), residuals  # a0..a5, as calib.yaml
 
 
 # ---------------------------------------------------------------------------- line images
@@ -310,8 +311,6 @@ def _mark_records(marks, radius_px, distance_m) -> list[dict]:
 def _calibrate(conf, r, d, output, *, sources, source_label, centre, image_size, valid_radius,
                forward_angle, mirrored, line_images, mask, overwrite, where, extra_record=None):
     output = Path(output)
-    if output.exists() and not overwrite:
-        raise CalibrationError(f"{output} exists (use --overwrite to replace it)")
     order = np.argsort(d, kind="stable")
     r, d = r[order], d[order]
     marks, dropped, labels = [], [], [source_label] * len(r)
@@ -370,6 +369,9 @@ def main(conf: dict, points_csv, output, *, centre, image_size, valid_radius,
     """Fit the mirror calibration to the pairs in ``points_csv`` (and the line images, if
     given) and write ``output`` (calib.yaml, kind omni). ``mask``: a mask image file for the
     line images. Returns ``output``."""
+    check_output(output, {"points": points_csv, "mask": mask,
+                          "line images": _files_in(line_images)}, overwrite=overwrite,
+                 error=CalibrationError)
     r, d = read_points(points_csv)
     sources = {"points": str(points_csv), "points_hash": file_hash(points_csv)}
     mask_arr = _read_mask(mask, image_size, sources)
@@ -390,6 +392,10 @@ def from_minho(conf: dict | str | None, minho_dir, output, *, image_size=None, v
 
         conf = resolve_conf(confs, conf or "minho")
     folder = Path(minho_dir)
+    check_output(output, {"the MINHO folder": _files_in(folder),
+                          "its images": _files_in(folder / "images"), "mask": mask,
+                          "line images": _files_in(line_images)}, overwrite=overwrite,
+                 error=CalibrationError)
     team = read_minho(folder)
     if image_size is None:
         image_size = _image_size_of(folder / "images")
@@ -459,6 +465,13 @@ def from_cnc(conf: dict | str | None, carpet_conf, output, *, rings, calib_image
                       forward_angle=forward_angle, mirrored=mirrored, line_images=None,
                       mask=None, overwrite=overwrite, where=str(carpet_conf),
                       extra_record=extra)
+
+
+def _files_in(folder) -> list[Path]:
+    """The files directly in ``folder`` (none if it is None or not a folder)."""
+    if folder is None or not Path(folder).is_dir():
+        return []
+    return [p for p in Path(folder).iterdir() if p.is_file()]
 
 
 def _read_mask(mask, image_size, sources):

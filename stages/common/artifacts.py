@@ -4,6 +4,16 @@ Each artifact schema (map, features, poses, templates) is owned by one module in
 that builds on these helpers. Writing always goes to a temporary file beside the target that is
 renamed over it at the end, so an interrupted run leaves neither a half file under the real name
 nor a damaged earlier result.
+
+Temporary parts are named ``.<target name>.fieldloc-<pid>-<random><suffix>``: a run that was
+killed (kill -9, power loss) leaves its part behind, and the next run writing the same target
+removes the parts whose process no longer runs, with a warning (``remove_stale_parts``). A
+finished file gets the mode a plain ``open()`` would give it (0666 less the umask), not the
+temporary file's 0600, so teammates can read shared maps.
+
+``check_output`` is the one rule every command applies to what it writes: never one of its own
+inputs (with ``--overwrite`` or without), never an existing file without ``--overwrite``, and a
+folder that exists and is writable.
 """
 
 from __future__ import annotations
@@ -12,9 +22,12 @@ import contextlib
 import datetime as _dt
 import hashlib
 import json
+import logging
 import os
+import re
 import shutil
 import tempfile
+from collections.abc import Mapping
 from pathlib import Path
 
 import h5py
@@ -22,6 +35,12 @@ import numpy as np
 
 from .. import __version__
 from .errors import FieldlocError, SchemaError
+
+log = logging.getLogger(__name__)
+
+PART_TAG = "fieldloc"  # temporary parts: .<name>.fieldloc-<pid>-<random><suffix>
+# parts of fieldloc versions before the pid tag: .<name>.<8 random characters><suffix>
+_LEGACY_PART = r"[a-z0-9_]{8}\.(part|old|png|csv|json|yaml|tum)"
 
 
 def file_hash(path: str | Path, algo: str = "sha256") -> str:
@@ -60,26 +79,201 @@ def _json_default(o):
     raise TypeError(f"not JSON serialisable: {type(o)}")
 
 
-def _check_writable(path: Path):
+def _check_writable(path: Path, kind: str = "file"):
     parent = path.parent if str(path.parent) else Path(".")
+    if kind == "folder":  # folders are made with their parents: the nearest existing one counts
+        while not parent.exists() and parent != parent.parent:
+            parent = parent.parent
     if not parent.exists():
         raise FieldlocError(f"cannot write {path}: folder {parent} does not exist")
-    if not os.access(parent, os.W_OK):
+    if not parent.is_dir():
+        raise FieldlocError(f"cannot write {path}: {parent} is a file, not a folder")
+    if not os.access(parent, os.W_OK | os.X_OK):
         raise FieldlocError(f"cannot write {path}: folder {parent} is not writable")
-    if path.is_dir():
+    if kind == "file" and path.is_dir():
         raise FieldlocError(f"cannot write {path}: it is a folder")
+    if kind == "folder" and path.exists() and not path.is_dir():
+        raise FieldlocError(f"cannot write the folder {path}: it is a file")
+    if kind == "folder" and path.is_dir() and not os.access(path, os.W_OK | os.X_OK):
+        raise FieldlocError(f"cannot write into {path}: the folder is not writable")
+
+
+def _same_path(a: Path, b: Path) -> bool:
+    try:
+        if a.exists() and b.exists():
+            return os.path.samefile(a, b)
+    except OSError:
+        pass
+    return os.path.realpath(a) == os.path.realpath(b)
+
+
+def _inside(inner: Path, outer: Path) -> bool:
+    return Path(os.path.realpath(inner)).is_relative_to(os.path.realpath(outer))
+
+
+def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *,
+                 overwrite: bool | None = False, kind: str = "file",
+                 error: type[FieldlocError] = FieldlocError) -> Path:
+    """Check an output path before any work is done, and return it as a Path.
+
+    - never one of the command's ``inputs`` (role -> path, or an iterable of paths; None
+      entries are ignored), with ``overwrite`` or without; for ``kind="folder"`` (a folder the
+      command replaces as a whole) no input may lie inside it either;
+    - an existing output needs ``overwrite`` (``overwrite=None``: the caller decides itself);
+    - the folder it goes into must exist and be writable; a file output must not be a folder
+      and a folder output not a file.
+    """
+    path = Path(path)
+    refuse_inputs(path, inputs, kind=kind, error=error)
+    try:
+        _check_writable(path, kind)
+    except FieldlocError as e:
+        raise error(str(e)) from None
+    if overwrite is not None and not overwrite and path.exists():
+        if kind == "file" or any(path.iterdir()):
+            raise error(f"{path} exists (use --overwrite to replace it)")
+    return path
+
+
+def refuse_inputs(path: str | Path, inputs: Mapping[str, object] | None, *, kind: str = "file",
+                  error: type[FieldlocError] = FieldlocError) -> None:
+    """The part of ``check_output`` about inputs: ``path`` is none of them (and, for a folder
+    replaced as a whole, holds none of them)."""
+    path = Path(path)
+    for role, given in (inputs or {}).items():
+        if given is None:
+            continue
+        items = [given] if isinstance(given, (str, os.PathLike)) else list(given)
+        for item in items:
+            if item is None:
+                continue
+            item = Path(item)
+            if _same_path(path, item):
+                raise error(
+                    f"{path} is an input of this command ({role}); it is never written over,"
+                    " --overwrite or not: choose another output")
+            if kind == "folder" and item.exists() and _inside(item, path):
+                raise error(
+                    f"{path} holds an input of this command ({role}: {item}); replacing the"
+                    " folder would delete it: choose another output")
+
+
+def pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` still runs (ours counts as running)."""
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    except OSError:
+        return False
+    return True
+
+
+def part_pattern(path: Path) -> re.Pattern:
+    """Names of the temporary parts of target ``path`` (group 1: the writer's pid, if any)."""
+    name = re.escape(path.name)
+    return re.compile(rf"^\.{name}\.(?:{PART_TAG}-(\d+)-[^/]+|{_LEGACY_PART})$")
+
+
+def remove_stale_parts(path: str | Path) -> list[Path]:
+    """Remove temporary parts (files or folders) of target ``path`` left by runs that were
+    killed: those whose writing process no longer runs (untagged parts of older versions
+    always). Each removal is logged as a warning. Returns the removed paths."""
+    path = Path(path)
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        return []
+    pat = part_pattern(path)
+    removed = []
+    try:
+        entries = list(parent.iterdir())
+    except OSError:
+        return []
+    for entry in entries:
+        m = pat.match(entry.name)
+        if not m or (m.group(1) and pid_alive(int(m.group(1)))):
+            continue
+        try:
+            size = _tree_size(entry)
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry)
+            else:
+                entry.unlink()
+        except OSError as e:
+            log.warning("could not remove the stale partial file %s (%s)", entry, e)
+            continue
+        log.warning("removed %s (%s) left by an interrupted run writing %s", entry,
+                    _human_bytes(size), path)
+        removed.append(entry)
+    return removed
+
+
+def _tree_size(p: Path) -> int:
+    if p.is_dir() and not p.is_symlink():
+        return sum(f.stat().st_size for f in p.rglob("*") if f.is_file())
+    return p.stat().st_size
+
+
+def _human_bytes(n: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if n < 1024 or unit == "PiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n:.1f} PiB"
+
+
+human_bytes = _human_bytes
+
+
+def current_umask() -> int:
+    """The process's umask (read without changing it where the system allows)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    old = os.umask(0o022)
+    os.umask(old)
+    return old
+
+
+def give_default_mode(path: str | Path) -> None:
+    """Give a finished file (0666) or folder (0777) the mode less the umask, as ``open()`` and
+    ``mkdir()`` would."""
+    path = Path(path)
+    base = 0o777 if path.is_dir() else 0o666
+    os.chmod(path, base & ~current_umask())
+
+
+def part_name(path: Path, suffix: str = ".part") -> tuple[str, str]:
+    """(prefix, suffix) for tempfile.mkstemp/mkdtemp: a part of ``path`` tagged with our pid."""
+    return f".{path.name}.{PART_TAG}-{os.getpid()}-", suffix
 
 
 @contextlib.contextmanager
 def atomic_path(path: str | Path, suffix: str | None = None):
-    """Yield a temporary path beside ``path``; rename it onto ``path`` only on success."""
+    """Yield a temporary path beside ``path``; rename it onto ``path`` only on success. Stale
+    parts of the same target from killed runs are removed first."""
     path = Path(path)
     _check_writable(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or ".part", dir=path.parent)
+    remove_stale_parts(path)
+    prefix, suffix = part_name(path, suffix or ".part")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=path.parent)
+    except OSError as e:
+        raise FieldlocError(f"cannot write {path}: {e.strerror or e}") from None
     os.close(fd)
     tmp = Path(tmp)
     try:
         yield tmp
+        if tmp.exists():
+            give_default_mode(tmp)
         os.replace(tmp, path)
     finally:
         if tmp.exists():

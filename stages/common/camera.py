@@ -31,6 +31,12 @@ table model (version 2; a reader of version 1 refuses it for want of ``polynomia
 
 Both may carry a ``calibration`` mapping (how the file was made: sources, pairs, residuals;
 written by stages.calibrate); the camera model does not read it.
+
+Checked on reading, each failure one line naming the file and the key: no unknown keys (a
+perspective calibration's ``fx`` belongs under ``intrinsics:``), ``image_size`` two whole
+numbers > 0, ``centre`` inside the image, ``valid_radius`` 0 <= RMIN < RMAX, ``polynomial``
+exactly six finite coefficients a0..a5 (0 for unused higher orders) with f(r) increasing over the
+valid radius, ``mirrored`` true or false.
 """
 
 from __future__ import annotations
@@ -46,6 +52,14 @@ from .errors import DatasetError
 
 CALIB_VERSION = 2  # newest calib.yaml version this code reads (1: polynomial only)
 RADIAL_MODELS = ("polynomial", "table")
+POLYNOMIAL_COEFFICIENTS = 6  # a0..a5, seed 004 eq. 2
+# top-level keys of calib.yaml per camera kind
+CALIB_KEYS = {
+    "omni": ("kind", "version", "image_size", "centre", "polynomial", "radial_model",
+             "radial_table", "valid_radius", "forward_angle", "mirrored", "calibration"),
+    "perspective": ("kind", "version", "image_size", "intrinsics", "distortion", "height",
+                    "pitch", "roll", "yaw", "calibration"),
+}
 
 
 @dataclass
@@ -172,8 +186,13 @@ class OmniCamera:
         try:
             if model == "polynomial":
                 poly = np.asarray(d["polynomial"], dtype=float)
-                if poly.ndim != 1 or not 2 <= len(poly) <= 6:
-                    raise DatasetError(f"{where}: 'polynomial' needs 2..6 coefficients a0..a5")
+                if poly.ndim != 1 or len(poly) != POLYNOMIAL_COEFFICIENTS:
+                    n = len(poly) if poly.ndim == 1 else "a nested list of"
+                    raise DatasetError(
+                        f"{where}: 'polynomial' needs the six coefficients a0..a5 of f(r) (write"
+                        f" 0 for unused higher orders), got {n} values")
+                if not np.all(np.isfinite(poly)):
+                    raise DatasetError(f"{where}: 'polynomial' holds a non-finite coefficient")
             else:
                 t = d["radial_table"]
                 if not isinstance(t, dict):
@@ -183,20 +202,64 @@ class OmniCamera:
                 dd = np.asarray(t["distance_m"], dtype=float)
                 check_radial_table(rr, dd, f"{where}: radial_table", DatasetError)
                 table = np.stack([rr, dd], axis=1)
-            cam = cls(
-                image_size=(int(d["image_size"][0]), int(d["image_size"][1])),
-                centre=(float(d["centre"][0]), float(d["centre"][1])),
-                polynomial=poly,
-                valid_radius=(float(d["valid_radius"][0]), float(d["valid_radius"][1])),
-                forward_angle=float(d.get("forward_angle", math.pi / 2)),
-                mirrored=bool(d.get("mirrored", False)),
-                radial_table=table,
-            )
+            size = image_size_of(d, where)
+            centre = _finite_pair(d, "centre", where)
+            valid = _finite_pair(d, "valid_radius", where)
+            forward = float(d.get("forward_angle", math.pi / 2))
+            mirrored = d.get("mirrored", False)
         except KeyError as e:
             raise DatasetError(f"{where}: omni calibration misses key {e}") from None
         except (TypeError, ValueError, IndexError) as e:
             raise DatasetError(f"{where}: omni calibration has a malformed value ({e})") from None
-        return cam
+        if not isinstance(mirrored, bool):
+            raise DatasetError(f"{where}: 'mirrored' must be true or false, got {mirrored!r}")
+        if not math.isfinite(forward):
+            raise DatasetError(f"{where}: 'forward_angle' must be a finite angle (rad)")
+        w, h = size
+        if not (0 <= centre[0] <= w and 0 <= centre[1] <= h):
+            raise DatasetError(
+                f"{where}: 'centre' ({centre[0]:g}, {centre[1]:g}) lies outside the {w} x {h}"
+                " image")
+        if not 0 <= valid[0] < valid[1]:
+            raise DatasetError(
+                f"{where}: 'valid_radius' needs 0 <= RMIN < RMAX (px), got [{valid[0]:g},"
+                f" {valid[1]:g}]")
+        if poly is not None:
+            samples = np.linspace(valid[0], valid[1], 512)
+            slope = np.diff(np.polynomial.polynomial.polyval(samples, poly))
+            if not np.all(slope > 0):
+                turn = samples[1:][int(np.argmax(slope <= 0))]
+                raise DatasetError(
+                    f"{where}: 'polynomial' f(r) is not increasing over 'valid_radius'"
+                    f" {valid[0]:g}..{valid[1]:g} px (it turns at r = {turn:.1f} px); a mirror"
+                    " maps farther floor to larger radii")
+        return cls(image_size=size, centre=centre, polynomial=poly, valid_radius=valid,
+                   forward_angle=forward, mirrored=mirrored, radial_table=table)
+
+
+def _finite_pair(d: dict, key: str, where: str) -> tuple[float, float]:
+    v = d[key]
+    if not isinstance(v, (list, tuple)) or len(v) != 2:
+        raise DatasetError(f"{where}: '{key}' must be a list of two numbers, got {v!r}")
+    if any(isinstance(a, bool) for a in v):
+        raise DatasetError(f"{where}: '{key}' must be a list of two numbers, got {v!r}")
+    a, b = float(v[0]), float(v[1])
+    if not (math.isfinite(a) and math.isfinite(b)):
+        raise DatasetError(f"{where}: '{key}' must hold finite numbers, got {v!r}")
+    return a, b
+
+
+def image_size_of(d: dict, where: str) -> tuple[int, int]:
+    """calib.yaml's ``image_size``: [width, height], whole numbers > 0."""
+    v = d["image_size"]
+    ok = (isinstance(v, (list, tuple)) and len(v) == 2
+          and all(isinstance(a, (int, float)) and not isinstance(a, bool) for a in v))
+    if ok:
+        ok = all(math.isfinite(a) and a == int(a) and a > 0 for a in v)
+    if not ok:
+        raise DatasetError(
+            f"{where}: 'image_size' must be [width, height] in whole pixels > 0, got {v!r}")
+    return int(v[0]), int(v[1])
 
 
 def load_calib(path: str | Path):
@@ -205,18 +268,34 @@ def load_calib(path: str | Path):
     if not path.is_file():
         raise DatasetError(f"calibration not found: {path}")
     try:
-        d = yaml.safe_load(path.read_text())
+        d = yaml.safe_load(path.read_bytes().decode("utf-8-sig"))
+    except UnicodeDecodeError:
+        raise DatasetError(f"{path}: not a text YAML file (binary content)") from None
     except yaml.YAMLError as e:
         raise DatasetError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
     if not isinstance(d, dict) or "kind" not in d:
         raise DatasetError(f"{path}: calibration needs a 'kind' (omni or perspective)")
-    if d["kind"] == "omni":
+    kind = d["kind"]
+    if not isinstance(kind, str) or kind not in CALIB_KEYS:
+        raise DatasetError(f"{path}: unknown camera kind {kind!r} (omni or perspective)")
+    unknown = [str(k) for k in d if k not in CALIB_KEYS[kind]]
+    if unknown:
+        hint = ""
+        if kind == "perspective" and set(unknown) & {"fx", "fy", "cx", "cy"}:
+            hint = "; fx, fy, cx, cy go under 'intrinsics:'"
+        raise DatasetError(
+            f"{path}: unknown key '{unknown[0]}' for a {kind} camera (keys:"
+            f" {', '.join(CALIB_KEYS[kind])}){hint}")
+    if "image_size" in d:
+        image_size_of(d, str(path))
+    if kind == "omni":
         return OmniCamera.from_dict(d, str(path))
-    if d["kind"] == "perspective":
-        from .perspective_camera import PerspectiveCamera  # issue 4
+    from .perspective_camera import PerspectiveCamera  # issue 4
 
+    try:
         return PerspectiveCamera.from_dict(d, str(path))
-    raise DatasetError(f"{path}: unknown camera kind '{d['kind']}' (omni or perspective)")
+    except (TypeError, ValueError, IndexError, AttributeError) as e:
+        raise DatasetError(f"{path}: perspective calibration has a malformed value ({e})") from None
 
 
 def save_calib(camera, path: str | Path, calibration: dict | None = None) -> Path:

@@ -1,30 +1,55 @@
-"""Stage confs: named presets plus `key=value` overrides, stored resolved in artifacts."""
+"""Stage confs: named presets plus `key=value` overrides, stored resolved in artifacts.
+
+An override is checked against the type of the preset's value when it is merged
+(``resolve_conf``), so a wrong value fails at once with the key's name instead of deep inside
+a stage: a number where the preset has a number (``1e-4`` too, which YAML reads as text), a
+whole number where it has one, true/false for a flag, a list for a list (a single value becomes
+a one-element list), a group of keys only key by key (``a.b=1``). Numbers must be finite.
+Presets whose value is None (optional) take anything.
+"""
 
 from __future__ import annotations
 
 import copy
 import importlib
+import math
+import numbers
 
+import numpy as np
 import yaml
 
 from .errors import FieldlocError
 
 
 def parse_overrides(items) -> dict:
-    """['a=1', 'b.c=x'] -> {'a': 1, 'b': {'c': 'x'}} (values parsed as YAML scalars)."""
+    """['a=1', 'b.c=x'] -> {'a': 1, 'b': {'c': 'x'}} (values parsed as YAML scalars; their type
+    is checked against the preset in ``resolve_conf``)."""
     out: dict = {}
     for item in items or ():
         if "=" not in item:
             raise FieldlocError(f"conf override '{item}' is not of the form key=value")
         key, value = item.split("=", 1)
+        parts = [p.strip() for p in key.strip().split(".")]
+        if not all(parts):
+            raise FieldlocError(f"conf override '{item}': the key '{key}' is not a conf key name")
         try:
             parsed = yaml.safe_load(value)
         except yaml.YAMLError:
             parsed = value
+        if isinstance(parsed, (dict, list)) and not isinstance(parsed, list):
+            raise FieldlocError(
+                f"conf override '{item}': give the keys of a group one by one (key.sub=value)")
         d = out
-        parts = key.strip().split(".")
-        for p in parts[:-1]:
+        for i, p in enumerate(parts[:-1]):
             d = d.setdefault(p, {})
+            if not isinstance(d, dict):
+                raise FieldlocError(
+                    f"conf override '{item}': '{'.'.join(parts[:i + 1])}' was given a value"
+                    " before; it cannot also hold keys")
+        if isinstance(d.get(parts[-1]), dict):
+            raise FieldlocError(
+                f"conf override '{item}': '{key.strip()}' was given keys before; it cannot"
+                " also hold a value")
         d[parts[-1]] = parsed
     return out
 
@@ -57,13 +82,88 @@ def stage_conf(confs: dict, conf: str | dict | None, default: str = "default") -
 
 
 def _merge(base: dict, key, value, path):
+    if not isinstance(base, dict):
+        raise FieldlocError(f"conf '{path}': its parent is not a group of keys")
     if key not in base:
-        raise FieldlocError(f"unknown conf key '{path}' (known: {', '.join(sorted(base))})")
+        known = ", ".join(sorted(map(str, base)))
+        raise FieldlocError(f"unknown conf key '{path}' (known: {known})")
     if isinstance(base[key], dict) and isinstance(value, dict):
         for k, v in value.items():
             _merge(base[key], k, v, f"{path}.{k}")
     else:
-        base[key] = value
+        base[key] = checked_value(base[key], value, path)
+
+
+def _show(v) -> str:
+    s = repr(v)
+    return s if len(s) <= 60 else s[:57] + "..."
+
+
+def _number(value, path: str, whole: bool):
+    """A finite number (int when ``whole``) from an override value, or FieldlocError."""
+    want = "a whole number" if whole else "a number"
+    v = value
+    if isinstance(v, str):
+        try:
+            v = float(v.strip())
+        except ValueError:
+            raise FieldlocError(f"conf '{path}' must be {want}, got {_show(value)}") from None
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real):
+        raise FieldlocError(f"conf '{path}' must be {want}, got {_show(value)}")
+    if not math.isfinite(float(v)):
+        raise FieldlocError(f"conf '{path}' must be a finite number, got {_show(value)}")
+    if whole:
+        if float(v) != int(v):
+            raise FieldlocError(f"conf '{path}' must be a whole number, got {_show(value)}")
+        return int(v)
+    return float(v)
+
+
+def checked_value(old, value, path: str):
+    """``value`` as a replacement of the preset value ``old`` (see the module doc), or a
+    FieldlocError naming ``path``."""
+    if old is None:
+        return value
+    if isinstance(old, dict):
+        keys = ", ".join(f"{path}.{k}" for k in list(old)[:4])
+        raise FieldlocError(
+            f"conf '{path}' is a group of keys; set them one by one ({keys}, ...), got"
+            f" {_show(value)}")
+    if isinstance(old, (bool, np.bool_)):
+        if isinstance(value, (bool, np.bool_)):
+            return bool(value)
+        raise FieldlocError(f"conf '{path}' must be true or false, got {_show(value)}")
+    if isinstance(old, numbers.Integral):
+        return _number(value, path, whole=True)
+    if isinstance(old, numbers.Real):
+        return _number(value, path, whole=False)
+    if isinstance(old, str):
+        if isinstance(value, str):
+            return value
+        if isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)):
+            return str(value)
+        raise FieldlocError(f"conf '{path}' must be a text, got {_show(value)}")
+    if isinstance(old, (list, tuple, np.ndarray)):
+        if isinstance(value, np.ndarray):
+            value = value.tolist()
+        if isinstance(value, tuple):
+            value = list(value)
+        if not isinstance(value, list):
+            if isinstance(value, (dict, type(None))):
+                raise FieldlocError(f"conf '{path}' must be a list, got {_show(value)}")
+            value = [value]
+        template = list(old)
+        if template and all(_is_number(t) for t in template):
+            whole = all(isinstance(t, numbers.Integral) for t in template)
+            return [_number(v, f"{path}[{i}]", whole) for i, v in enumerate(value)]
+        if template and all(isinstance(t, str) for t in template):
+            return [checked_value(template[0], v, f"{path}[{i}]") for i, v in enumerate(value)]
+        return value
+    return value
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_))
 
 
 def registered_module(registry: dict[str, str], name: str, what: str):

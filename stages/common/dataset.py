@@ -13,12 +13,21 @@
                        head turns and whose camera height changes (imported team frames)
 
 CSV files have a header line with exactly these column names (and, where listed in
-``CSV_OPTIONAL_COLUMNS``, some of the optional ones after them); metres and radians.
+``CSV_OPTIONAL_COLUMNS``, some of the optional ones after them); metres and radians. Every value
+must be a finite number (a row without a value is left out; only truth.csv may hold NaN poses,
+where a motion capture lost the robot), and the rows of
+the time series (odometry, imu, truth, head) must be in time order with one row per stamp: a
+file that breaks this is refused with its line number, because a NaN increment or a row out of
+order cannot be placed without guessing (odometry rows are increments since the previous row).
+Two images with the same stem (``000003.png`` and ``000003.jpg``) would be one frame name and
+are refused too.
 """
 
 from __future__ import annotations
 
 import csv
+import io
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,6 +36,7 @@ import numpy as np
 from .errors import DatasetError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+SIMULATION_RECORD = "simulation.yaml"  # written by fieldloc simulate: how the dataset was made
 DEFAULT_RATE_HZ = 30.0
 
 CSV_COLUMNS = {
@@ -42,38 +52,102 @@ CSV_OPTIONAL_COLUMNS = {
 }
 
 
+TIME_SERIES = ("odometry", "imu", "truth", "head")  # rows in time order, one per stamp
+# columns that may hold NaN: a motion capture that lost the robot writes a truth row without a
+# pose, and a frame at that stamp is then unmatched (stages.evaluate)
+NAN_ALLOWED = {"truth": ("x", "y", "theta")}
+
+
 def read_csv(path: str | Path, kind: str) -> dict[str, np.ndarray]:
-    """Read one of the dataset CSVs, checking its header. Returns column -> array."""
+    """Read one of the dataset CSVs, checking its header, that every value is a finite number
+    (names excepted) and, for time series, that the stamps increase from row to row. Returns
+    column -> array. Every problem is a DatasetError naming the file and line."""
     path = Path(path)
     cols = CSV_COLUMNS[kind]
     if not path.is_file():
         raise DatasetError(f"file not found: {path}")
-    with open(path, newline="") as f:
-        rows = [r for r in csv.reader(f) if r and not r[0].startswith("#")]
-    if not rows:
+    lines = csv_rows(path)
+    if not lines:
         raise DatasetError(f"{path}: empty; expected a header '{','.join(cols)}'")
-    header = [h.strip() for h in rows[0]]
+    header = [h.strip() for h in lines[0][1]]
     extra = header[len(cols):]
     optional = CSV_OPTIONAL_COLUMNS.get(kind, ())
     if header[:len(cols)] != list(cols) or extra != [c for c in optional if c in extra]:
         more = f" (then any of '{','.join(optional)}')" if optional else ""
         raise DatasetError(
-            f"{path}: expected columns '{','.join(cols)}'{more}, found '{','.join(header)}'"
+            f"{path}: expected columns '{','.join(cols)}'{more}, found"
+            f" '{','.join(header)[:80]}'"
         )
     cols = tuple(header)
-    out = {}
-    body = rows[1:]
-    for i, name in enumerate(cols):
-        if name == "name":
-            out[name] = np.array([r[i].strip() for r in body], dtype=object)
-            continue
-        try:
-            out[name] = np.array([float(r[i]) for r in body], dtype=float)
-        except (ValueError, IndexError):
-            bad = next(
-                (n + 2 for n, r in enumerate(body) if len(r) <= i or not _is_float(r[i])), "?"
-            )
-            raise DatasetError(f"{path}: line {bad}: '{name}' is not a number") from None
+    body = lines[1:]
+    if not body:
+        raise DatasetError(f"{path}: no rows after the header '{','.join(cols)}'")
+    values: dict[str, list] = {c: [] for c in cols}
+    for line_no, row in body:
+        if len(row) != len(cols):
+            raise DatasetError(
+                f"{path}: line {line_no}: expected {len(cols)} values ({','.join(cols)}),"
+                f" found {len(row)}")
+        for name, cell in zip(cols, row):
+            cell = cell.strip()
+            if name == "name":
+                if not cell:
+                    raise DatasetError(f"{path}: line {line_no}: empty name")
+                values[name].append(cell)
+                continue
+            try:
+                v = float(cell)
+            except ValueError:
+                raise DatasetError(
+                    f"{path}: line {line_no}: '{name}' is not a number ({cell[:20]!r})"
+                ) from None
+            if not math.isfinite(v) and not (math.isnan(v)
+                                             and name in NAN_ALLOWED.get(kind, ())):
+                raise DatasetError(
+                    f"{path}: line {line_no}: '{name}' is {cell}; every value must be a finite"
+                    " number (leave a row without a value out)")
+            values[name].append(v)
+    out = {name: (np.array(v, dtype=object) if name == "name" else np.array(v, dtype=float))
+           for name, v in values.items()}
+    if kind in TIME_SERIES:
+        st = out["stamp"]
+        bad = np.flatnonzero(np.diff(st) <= 0)
+        if len(bad):
+            i = int(bad[0])
+            what = "repeats" if st[i + 1] == st[i] else "is before"
+            raise DatasetError(
+                f"{path}: line {body[i + 1][0]}: stamp {st[i + 1]:g} {what} line"
+                f" {body[i][0]}'s stamp {st[i]:g}; rows must be in time order, one per stamp")
+    if kind == "frames":
+        seen: dict[str, int] = {}
+        for (line_no, _), nm in zip(body, out["name"]):
+            if nm in seen:
+                raise DatasetError(
+                    f"{path}: line {line_no}: name '{nm}' is given twice (line {seen[nm]})")
+            seen[nm] = line_no
+    return out
+
+
+def csv_rows(path: Path) -> list[tuple[int, list[str]]]:
+    """(line number, cells) of the non-empty, non-comment rows of a text CSV file."""
+    try:
+        text = path.read_bytes().decode("utf-8-sig")
+    except UnicodeDecodeError:
+        raise DatasetError(
+            f"{path}: not a text CSV file (binary content; is it the file you meant?)"
+        ) from None
+    except OSError as e:
+        raise DatasetError(f"{path}: cannot be read ({e.strerror or e})") from None
+    if "\0" in text:
+        raise DatasetError(f"{path}: not a text CSV file (it holds NUL bytes)")
+    reader = csv.reader(io.StringIO(text, newline=""))
+    out = []
+    try:
+        for row in reader:
+            if row and any(c.strip() for c in row) and not row[0].lstrip().startswith("#"):
+                out.append((reader.line_num, row))
+    except csv.Error as e:
+        raise DatasetError(f"{path}: line {reader.line_num}: not valid CSV ({e})") from None
     return out
 
 
@@ -93,7 +167,7 @@ def write_csv(path: str | Path, kind: str, columns: dict) -> Path:
     n = len(columns[cols[0]])
     with atomic_path(path, suffix=".csv") as tmp:
         with open(tmp, "w", newline="") as f:
-            w = csv.writer(f)
+            w = csv.writer(f, lineterminator="\n")
             w.writerow(cols)
             for i in range(n):
                 row = []
@@ -104,11 +178,20 @@ def write_csv(path: str | Path, kind: str, columns: dict) -> Path:
     return path
 
 
+STAMP_SOURCES = {
+    "frames.csv": "from frames.csv",
+    "file names": "from the image file names (000005.png = 5 s; there is no frames.csv)",
+    "frame order": f"from the frame order at {DEFAULT_RATE_HZ:g} Hz (there is no frames.csv"
+                   " and the file names are not numbers)",
+}
+
+
 @dataclass
 class Dataset:
     root: Path
     images: list[Path]
     stamps: np.ndarray
+    stamp_source: str = "frames.csv"  # a key of STAMP_SOURCES: where the frame stamps come from
 
     @property
     def names(self) -> list[str]:
@@ -127,19 +210,61 @@ class Dataset:
         p = self.root / f"{kind}.csv"
         return read_csv(p, kind) if p.is_file() else None
 
+    def field_record(self) -> dict:
+        """The field the dataset was recorded on, where the dataset says so: the ``field``
+        (name) and ``field_size`` ([length, width], m; newer datasets) of simulation.yaml, the
+        record ``fieldloc simulate`` writes. {} when the dataset does not say."""
+        p = self.root / SIMULATION_RECORD
+        if not p.is_file():
+            return {}
+        import yaml
+
+        try:
+            d = yaml.safe_load(p.read_text())
+        except (OSError, UnicodeDecodeError, yaml.YAMLError):
+            return {}
+        if not isinstance(d, dict) or not isinstance(d.get("field"), str):
+            return {}
+        out = {"name": d["field"]}
+        size = d.get("field_size")
+        if (isinstance(size, list) and len(size) == 2
+                and all(isinstance(v, (int, float)) for v in size)):
+            out["size"] = [float(v) for v in size]
+        return out
+
+    def files(self) -> dict[str, list[Path]]:
+        """The dataset's own files that exist (role -> paths): what no command may write over."""
+        out = {"images": list(self.images)}
+        for name in ("calib.yaml", "mask.png", SIMULATION_RECORD,
+                     *(f"{k}.csv" for k in CSV_COLUMNS)):
+            if (self.root / name).exists():
+                out[name] = [self.root / name]
+        return out
+
 
 def open_dataset(root: str | Path, *, need_images: bool = True) -> Dataset:
     root = Path(root)
     if not root.is_dir():
         raise DatasetError(f"dataset folder not found: {root}")
     img_dir = root / "images"
-    images = (
-        sorted(p for p in img_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-        if img_dir.is_dir()
-        else []
-    )
+    try:
+        images = (
+            sorted(p for p in img_dir.iterdir()
+                   if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
+            if img_dir.is_dir()
+            else []
+        )
+    except OSError as e:
+        raise DatasetError(f"{img_dir}: cannot be listed ({e.strerror or e})") from None
     if need_images and not images:
         raise DatasetError(f"{root}: no images (png or jpg) in {img_dir}")
+    by_stem: dict[str, Path] = {}
+    for p in images:
+        if p.stem in by_stem:
+            raise DatasetError(
+                f"{img_dir}: {by_stem[p.stem].name} and {p.name} would both be frame"
+                f" '{p.stem}'; rename or remove one")
+        by_stem[p.stem] = p
     frames = root / "frames.csv"
     if frames.is_file():
         tab = read_csv(frames, "frames")
@@ -148,11 +273,14 @@ def open_dataset(root: str | Path, *, need_images: bool = True) -> Dataset:
         if missing:
             raise DatasetError(f"{frames}: no stamp for image {missing[0]}")
         stamps = np.array([by_name.get(p.name, by_name.get(p.stem)) for p in images], float)
-    elif images and all(_is_float(p.stem) for p in images):
+        source = "frames.csv"
+    elif images and all(_is_float(p.stem) and math.isfinite(float(p.stem)) for p in images):
         stamps = np.array([float(p.stem) for p in images])
+        source = "file names"
     else:
         stamps = np.arange(len(images)) / DEFAULT_RATE_HZ
-    return Dataset(root=root, images=images, stamps=stamps)
+        source = "frame order"
+    return Dataset(root=root, images=images, stamps=stamps, stamp_source=source)
 
 
 def read_image(path: Path) -> np.ndarray:

@@ -11,16 +11,33 @@ definition, omni only).
 
 A frame with no group was not processed (or failed); re-running extract skips frames that
 already have a group unless asked to overwrite.
+
+Resume after an interruption (``FrameParts``): while extract runs, every finished frame is
+committed at once as its own small file in ``.<features name>.parts/`` beside the target (written
+to a temporary name and renamed, so a frame file is complete or absent), with ``run.json``
+holding what the frames depend on (camera kind, calibration and mask hashes, conf). A run killed
+at any moment (kill -9, Ctrl-C, power loss) keeps those frames; the next run with the same
+inputs takes them over and extracts only the rest, and one with other inputs discards them with
+a warning. At the end the frames are merged into the features file (atomically, see
+write_artifact) and the parts folder is removed; the target never holds a half file.
 """
 
 from __future__ import annotations
 
+import json
+import logging
+import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import h5py
 import numpy as np
 
-from .artifacts import open_artifact, read_json_attr, write_artifact
+from .artifacts import open_artifact, part_name, read_json_attr, write_artifact
+from .errors import FieldlocError, SchemaError
+
+log = logging.getLogger(__name__)
 
 SCHEMA = "fieldloc.features"
 VERSION = 1
@@ -110,9 +127,13 @@ class FeaturesFile:
     def __init__(self, path: str | Path):
         self.path = Path(path)
         self.h5 = open_artifact(self.path, SCHEMA, VERSION)
-        frames = self.h5.get("frames")
-        self.names = sorted(frames.keys()) if frames is not None else []
-        self.stamps = np.array([frames[n].attrs["stamp"] for n in self.names], dtype=float)
+        try:
+            frames = self.h5.get("frames")
+            self.names = sorted(frames.keys()) if frames is not None else []
+            self.stamps = np.array([frames[n].attrs["stamp"] for n in self.names], dtype=float)
+        except (KeyError, ValueError, TypeError, OSError, AttributeError) as e:
+            self.h5.close()
+            raise SchemaError(f"{self.path}: damaged features file ({e})") from None
         order = np.argsort(self.stamps, kind="stable")
         self.names = [self.names[i] for i in order]
         self.stamps = self.stamps[order]
@@ -150,3 +171,148 @@ class FeaturesFile:
 
     def __exit__(self, *exc):
         self.close()
+
+
+# ---------------------------------------------------------------------------- resume parts
+
+RUN_KEYS = ("camera_kind", "calib_hash", "mask_hash", "conf", "scanlines")  # what frames depend on
+
+
+class FrameParts:
+    """Frames of an unfinished extraction, one committed file per frame (see the module doc).
+
+    ``attrs``: the run's root attributes; frames in an existing parts folder are taken over only
+    if its ``run.json`` has the same values under RUN_KEYS."""
+
+    def __init__(self, target: str | Path, attrs: dict):
+        self.target = Path(target)
+        self.dir = self.target.with_name(f".{self.target.name}.parts")
+        self.run = {k: _plain_attr(attrs.get(k, "")) for k in RUN_KEYS}
+        self._frames: dict[str, Path] = {}
+        self._failures: dict[str, str] = {}
+
+    # -------------------------------------------------------------- open / discard
+    def open(self) -> int:
+        """Take over the frames of an interrupted run with the same inputs (returns how many),
+        or start an empty parts folder."""
+        if self.dir.is_dir():
+            old = self._read_run()
+            if old == self.run:
+                self._scan()
+                n = len(self._frames) + len(self._failures)
+                if n:
+                    log.warning("extract: resuming %d frames finished by an interrupted run"
+                                " (%s)", n, self.dir)
+                return n
+            self.discard(f"they were extracted with other inputs ({self._what_differs(old)})")
+        elif self.dir.exists():
+            raise FieldlocError(f"{self.dir} is in the way of extract's resume folder; remove it")
+        self.dir.mkdir()
+        self._write_json(self.dir / "run.json", self.run)
+        return 0
+
+    def discard(self, why: str) -> None:
+        """Remove the frames of an interrupted run that cannot be used, saying why."""
+        if self.dir.is_dir():
+            n = sum(1 for p in self.dir.iterdir() if p.suffix in (".npz", ".failed"))
+            if n:
+                log.warning("extract: discarded %d frames of an interrupted run in %s: %s", n,
+                            self.dir, why)
+        self.remove()
+
+    def remove(self) -> None:
+        """Remove the parts folder (its frames are in the features file, or not wanted)."""
+        if self.dir.is_dir():
+            shutil.rmtree(self.dir, ignore_errors=True)
+        self._frames.clear()
+        self._failures.clear()
+
+    def _read_run(self):
+        try:
+            return json.loads((self.dir / "run.json").read_text())
+        except (OSError, ValueError):
+            return None
+
+    def _what_differs(self, old) -> str:
+        if not isinstance(old, dict):
+            return "no readable run.json"
+        return ", ".join(k.replace("_", " ") for k in RUN_KEYS if old.get(k) != self.run[k])
+
+    def _scan(self):
+        for p in self.dir.iterdir():
+            if p.name.startswith("."):  # a frame being written when the run was killed
+                p.unlink(missing_ok=True)
+            elif p.suffix == ".npz":
+                self._frames[p.stem] = p
+            elif p.suffix == ".failed":
+                self._failures[p.stem] = p.read_text()
+
+    # -------------------------------------------------------------- frames
+    def has(self, name: str) -> bool:
+        return name in self._frames or name in self._failures
+
+    @property
+    def frame_names(self) -> list[str]:
+        return sorted(self._frames)
+
+    @property
+    def failures(self) -> dict[str, str]:
+        return dict(self._failures)
+
+    def add_frame(self, name: str, stamp: float, arrays: dict[str, np.ndarray]) -> None:
+        """Commit one finished frame (complete or absent after any interruption)."""
+        for key in arrays:
+            if key not in FRAME_DATASETS:
+                raise KeyError(f"features schema has no dataset '{key}'")
+        path = self.dir / f"{name}.npz"
+        self._commit(path, lambda f: np.savez(f, __stamp__=np.float64(stamp), **arrays))
+        (self.dir / f"{name}.failed").unlink(missing_ok=True)
+        self._failures.pop(name, None)
+        self._frames[name] = path
+
+    def add_failure(self, name: str, reason: str) -> None:
+        path = self.dir / f"{name}.failed"
+        self._commit(path, lambda f: f.write(reason.encode()))
+        self._failures[name] = reason
+
+    def frame(self, name: str) -> tuple[float, dict[str, np.ndarray]]:
+        with np.load(self._frames[name], allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files if k != "__stamp__"}
+            return float(z["__stamp__"]), arrays
+
+    def _commit(self, path: Path, write) -> None:
+        prefix, suffix = part_name(path)
+        fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=self.dir)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                write(f)
+            os.replace(tmp, path)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+
+    @staticmethod
+    def _write_json(path: Path, obj) -> None:
+        path.write_text(json.dumps(obj, sort_keys=True))
+
+    def merge_into(self, writer: FeaturesWriter) -> int:
+        """Add every committed frame and failure to ``writer``; returns the frames added."""
+        for name in self.frame_names:
+            stamp, arrays = self.frame(name)
+            writer.add_frame(name, stamp, arrays)
+            writer.clear_failure(name)
+        for name, reason in sorted(self._failures.items()):
+            writer.add_failure(name, reason)
+        return len(self._frames)
+
+
+def _plain_attr(v):
+    if isinstance(v, bytes):
+        v = v.decode()
+    if isinstance(v, str):
+        try:  # JSON attributes compare by content, not by formatting
+            return json.loads(v)
+        except ValueError:
+            return v
+    return v
+

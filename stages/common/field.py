@@ -69,6 +69,11 @@ SCHEMA = {
 }
 
 CROSSING_TYPES = ("L", "T", "X")
+# no dimension beyond this (m): far past any venue, and far below where the geometry's squares
+# lose their precision or overflow; a run too large for the machine is refused by its stage
+# with a memory estimate (stages.common.resources)
+MAX_DIMENSION = 1e6
+MIN_DIMENSION = 1e-3  # below a millimetre a value is a unit slip, and segments degenerate
 
 
 @dataclass
@@ -214,7 +219,12 @@ def load_field(name_or_path: str | Path) -> FieldModel:
                 f"unknown field preset '{name_or_path}' (presets: {', '.join(preset_names())};"
                 " or give a path to a field YAML)"
             )
-    text = path.read_text()
+    try:
+        text = path.read_bytes().decode("utf-8-sig")
+    except UnicodeDecodeError:
+        raise FieldSpecError(f"{path}: not a text YAML file (binary content)") from None
+    except OSError as e:
+        raise FieldSpecError(f"{path}: cannot be read ({e.strerror or e})") from None
     try:
         spec = yaml.safe_load(text)
     except yaml.YAMLError as e:
@@ -241,6 +251,14 @@ def _check(spec: dict, schema: dict, where: str, prefix: str = ""):
             raise FieldSpecError(f"{where}: key '{prefix}{key}' must be {want}, got {v!r}")
         if typ is _NUM and (not math.isfinite(v) or v < 0):
             raise FieldSpecError(f"{where}: key '{prefix}{key}' must be >= 0, got {v}")
+        if typ is _NUM and 0 < v < MIN_DIMENSION:
+            raise FieldSpecError(
+                f"{where}: key '{prefix}{key}' is {v:g} m; dimensions are metres, 0 or at least"
+                f" {MIN_DIMENSION:g}")
+        if typ is _NUM and v > MAX_DIMENSION:
+            raise FieldSpecError(
+                f"{where}: key '{prefix}{key}' is {v:g} m; dimensions are metres, at most"
+                f" {MAX_DIMENSION:g}")
         if sub is not None:
             _check(v, sub, where, prefix=f"{prefix}{key}.")
 

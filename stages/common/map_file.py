@@ -40,8 +40,10 @@ from pathlib import Path
 
 import h5py
 import numpy as np
+import yaml
 
 from .artifacts import open_artifact, read_json_attr, write_artifact
+from .errors import SchemaError
 from .field import FieldModel, field_from_spec
 from .scanlines import ScanLines
 
@@ -141,16 +143,18 @@ class MapFile:
     def __init__(self, path: str | Path):
         self.path = Path(path)
         self.h5 = open_artifact(self.path, SCHEMA, VERSION)
-        a = self.h5.attrs
-        self.grid = Grid(origin=tuple(float(v) for v in a["origin"]),
-                         resolution=float(a["resolution"]),
-                         shape=tuple(int(v) for v in a["shape"]))
-        self.scanlines = ScanLines(**json.loads(a["scanlines"]))
-        spec_text = self.h5["field/spec_yaml"][()]
-        spec_text = spec_text.decode() if isinstance(spec_text, bytes) else spec_text
-        import yaml
-
-        self.field = field_from_spec(yaml.safe_load(spec_text), str(self.path), spec_text)
+        try:
+            a = self.h5.attrs
+            self.grid = Grid(origin=tuple(float(v) for v in a["origin"]),
+                             resolution=float(a["resolution"]),
+                             shape=tuple(int(v) for v in a["shape"]))
+            self.scanlines = ScanLines(**json.loads(a["scanlines"]))
+            spec_text = self.h5["field/spec_yaml"][()]
+            spec_text = spec_text.decode() if isinstance(spec_text, bytes) else spec_text
+            self.field = field_from_spec(yaml.safe_load(spec_text), str(self.path), spec_text)
+        except (KeyError, ValueError, TypeError, OSError, yaml.YAMLError) as e:
+            self.h5.close()
+            raise SchemaError(f"{self.path}: damaged map file ({e})") from None
         self._cache: dict[str, np.ndarray] = {}
 
     @property
@@ -158,16 +162,17 @@ class MapFile:
         return read_json_attr(self.h5, "conf")
 
     def has_table(self, name: str) -> bool:
-        return name in self.h5["tables"]
+        return "tables" in self.h5 and name in self.h5["tables"]
 
     def table(self, name: str) -> np.ndarray:
         """A table fully in memory (cached)."""
         if name not in self._cache:
             if not self.has_table(name):
-                from .errors import SchemaError
-
                 raise SchemaError(f"{self.path}: map has no table '{name}'")
-            self._cache[name] = self.h5["tables"][name][()]
+            try:
+                self._cache[name] = self.h5["tables"][name][()]
+            except (OSError, KeyError) as e:
+                raise SchemaError(f"{self.path}: damaged table '{name}' ({e})") from None
         return self._cache[name]
 
     def table_attrs(self, name: str) -> dict:

@@ -36,6 +36,7 @@ import h5py
 import numpy as np
 
 from .artifacts import atomic_path, open_artifact, read_json_attr, write_artifact
+from .errors import SchemaError
 
 SCHEMA = "fieldloc.poses"
 VERSION = 2
@@ -171,6 +172,13 @@ def read_poses(path: str | Path) -> tuple[dict[str, np.ndarray], dict]:
     """Columns and root attributes (with ``conf`` and ``inputs`` decoded) of a poses file,
     version 1 or 2. The columns include ``accepted`` and ``hypotheses`` (N, K, 4) for both
     versions (see the module doc for version 1)."""
+    try:
+        return _read_poses(path)
+    except (KeyError, ValueError, TypeError, OSError) as e:
+        raise SchemaError(f"{path}: damaged poses file ({e})") from None
+
+
+def _read_poses(path):
     with open_artifact(path, SCHEMA, VERSION) as h5:
         g = h5["poses"]
         out = {}

@@ -21,12 +21,13 @@ from __future__ import annotations
 import datetime as _dt
 import logging
 import math
+import os
 from pathlib import Path
 
 import numpy as np
 
 from stages import __version__
-from stages.common.artifacts import file_hash
+from stages.common.artifacts import check_output, file_hash, refuse_inputs
 from stages.common.conf import resolve_conf
 from stages.common.dataset import read_csv
 from stages.common.errors import FieldlocError
@@ -143,6 +144,13 @@ def _truth_path(truth, attrs: dict, poses: Path) -> Path:
     return truth
 
 
+def _field_file(field) -> Path | None:
+    if not field:
+        return None
+    p = Path(field)
+    return p if p.suffix.lower() in (".yaml", ".yml") or p.exists() else None
+
+
 def _load_field_model(field, attrs: dict):
     """The field to draw on: ``field`` if given (errors are the user's), else the poses'
     ``field`` attribute (a failure there is logged and the plot drawn without field lines)."""
@@ -176,8 +184,14 @@ def main(conf, poses, truth, output_dir, *, overwrite: bool = False, field=None)
     if missing:
         raise FieldlocError(f"{poses}: poses file lacks column(s) {', '.join(missing)}")
     truth = _truth_path(truth, attrs, poses)
-    truth_cols = read_csv(truth, "truth")
     out = Path(output_dir)
+    given = {"poses": poses, "truth": truth, "field": _field_file(field),
+             "poses.tum": poses.with_suffix(".tum")}
+    refuse_inputs(out, given)  # files are written into it; it is not replaced as a whole
+    check_output(out, None, overwrite=None, kind="folder")
+    for written in (REPORT_NAME, ERRORS_NAME, *(f"{PLOTS_DIR}/{n}" for n in PLOT_NAMES)):
+        refuse_inputs(out / written, given)
+    truth_cols = read_csv(truth, "truth")
     inputs = {"poses": file_hash(poses), "truth": file_hash(truth)}
     report_file = out / REPORT_NAME
     if report_file.exists() and not overwrite:
@@ -232,8 +246,8 @@ def main(conf, poses, truth, output_dir, *, overwrite: bool = False, field=None)
         "method": attrs.get("method", ""),
         "field": str(field) if field else attrs.get("field", ""),
         "dataset": attrs.get("dataset", ""),
-        "poses": str(poses),
-        "truth": str(truth),
+        "poses": os.path.abspath(poses),
+        "truth": os.path.abspath(truth),
         "inputs": inputs,
         "conf": attrs.get("conf", {}),
         "evaluate_conf": conf,

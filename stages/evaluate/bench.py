@@ -692,6 +692,41 @@ def format_table(rows: list[Row]) -> str:
     return "\n".join(out + (["", "notes:"] + notes if notes else []))
 
 
+def format_markdown(rows: list[Row]) -> str:
+    """The rows as the README's performance table (``make bench-readme``)."""
+    def f(v, unit=""):
+        if v is None or (isinstance(v, float) and not math.isfinite(v)):
+            return ""
+        if isinstance(v, float):
+            return f"{v:.3g}{unit}" if v < 100 else f"{v:.0f}{unit}"
+        return str(v)
+
+    out = ["| row | median | CPU | baseline (same run) | ratio | peak MB | goal | met |",
+           "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for r in rows:
+        base = f"{r.baseline}: {f(r.baseline_ms, ' ms')}" if r.baseline else ""
+        met = "" if r.meets_goal is None else ("yes" if r.meets_goal else "not met")
+        cells = [r.name, f(r.median_ms, " ms"), f(r.cpu_ms, " ms"), base, f(r.ratio),
+                 f(r.peak_mb), r.goal, met]
+        out.append("| " + " | ".join(str(c).replace("|", "/") for c in cells) + " |")
+    notes = [f"- {r.name}: {r.note}" for r in rows if r.note]
+    return "\n".join(out + ([""] + notes if notes else [])) + "\n"
+
+
+def read_json(path: str | Path) -> list[Row]:
+    """The rows of a ``bench --json`` file."""
+    from ..common.errors import FieldlocError
+
+    try:
+        data = json.loads(Path(path).read_text())
+        names = {f for f in Row.__dataclass_fields__}
+        return [Row(**{k: (math.nan if v is None and k.endswith(("_ms", "_mb", "ratio"))
+                           else v) for k, v in r.items() if k in names})
+                for r in data["rows"]]
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise FieldlocError(f"{path}: not a bench --json file ({e})") from None
+
+
 def write_json(rows: list[Row], path: str | Path) -> Path:
     def clean(v):
         if isinstance(v, float) and not math.isfinite(v):

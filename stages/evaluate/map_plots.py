@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..common.artifacts import check_output
 from ..common.errors import FieldlocError
 from ..common.map_file import MapFile
 from ..common.scanlines import NO_HIT_MM
@@ -106,10 +107,16 @@ def draw_scanlines_from_cell(ax, m: MapFile, x: float, y: float, heading: float,
 
 def main(map_path: str | Path, output: str | Path, *, table: str = "distance",
          cell: tuple[float, float] | None = None, heading: float = 0.0, family: str = "ccw",
-         spirals: int = 6) -> Path:
+         spirals: int = 6, overwrite: bool = False) -> Path:
     """Draw the map ``map_path`` into the PNG ``output``: the distance table as a heat map, or
     the radial/spiral scan lines and table crossings from one cell (spirals: ``spirals`` of
-    one ``family``, see ``draw_scanlines_from_cell``)."""
+    one ``family``, see ``draw_scanlines_from_cell``). An existing ``output`` is replaced only
+    with ``overwrite``, and never the map itself."""
+    check_output(output, {"map": map_path}, overwrite=overwrite)
+    if not math.isfinite(heading):
+        raise FieldlocError(f"heading must be a finite angle, got {heading}")
+    if cell is not None and not all(math.isfinite(v) for v in cell):
+        raise FieldlocError(f"cell must be a finite position (m), got {tuple(cell)}")
     if table not in TABLES:
         raise FieldlocError(f"unknown table '{table}' (one of {', '.join(TABLES)})")
     if table != "distance" and cell is None:

@@ -16,22 +16,30 @@ whose keys are FRAME_DATASETS names of stages.common.features_file:
 
 One group per frame, named by the image's file stem. Frames already in the output are skipped
 (resume) unless ``overwrite``; a frame that cannot be read or processed is logged, recorded in
-the file's ``failures`` and skipped. The output appears atomically when the run completes.
+the file's ``failures`` and skipped. If no frame at all can be extracted (images of another
+size than calib.yaml says, every image unreadable), that is an error and nothing is written.
+
+Every finished frame is committed at once (stages.common.features_file.FrameParts), so a run
+that is killed keeps its frames and the next run resumes there; the features file itself appears
+atomically when the run completes, and a run with nothing left to do (every frame extracted;
+frames recorded as failed are tried again) leaves it untouched. The
+output is never one of the dataset's own files (calib.yaml, images, CSVs), --overwrite or not.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import os
 from pathlib import Path
 
 import numpy as np
 
-from ..common.artifacts import file_hash, root_attrs
+from ..common.artifacts import check_output, file_hash, root_attrs
 from ..common.conf import registered_module, resolve_conf
 from ..common.dataset import open_dataset, read_image, read_mask
 from ..common.errors import FieldlocError, SchemaError
-from ..common.features_file import SCHEMA, VERSION, FeaturesFile, write_features
+from ..common.features_file import SCHEMA, VERSION, FeaturesFile, FrameParts, write_features
 
 log = logging.getLogger(__name__)
 
@@ -109,6 +117,55 @@ def _check_resumable(output: Path, attrs: dict):
             f"{output} was extracted with another conf; use --overwrite to extract again")
 
 
+def _run_attrs(ds, camera, module, conf: dict):
+    """(root attributes of the features file, mask, head angles) of extracting ``ds``."""
+    kind = camera.kind
+    mask = None
+    mask_hash = ""
+    mask_path = ds.root / MASK_NAME
+    if kind == "omni" and mask_path.is_file():
+        mask = read_mask(mask_path, camera.image_size)
+        mask_hash = file_hash(mask_path)
+    head = _head_angles(ds) if kind == "perspective" else None
+    calib_hash = file_hash(ds.calib_path)
+    root = os.path.abspath(ds.root)
+    inputs = {"dataset": root, "calib": os.path.abspath(ds.calib_path),
+              "calib_hash": calib_hash}
+    if mask is not None:
+        inputs.update(mask=os.path.abspath(mask_path), mask_hash=mask_hash)
+    attrs = root_attrs(SCHEMA, VERSION, conf, inputs)
+    attrs.update(camera_kind=kind, dataset=root, calib_hash=calib_hash,
+                 mask_hash=mask_hash, field=json.dumps(ds.field_record()))
+    if kind == "omni":
+        attrs["scanlines"] = json.dumps(module.scanlines_of(conf).as_dict())
+    return attrs, mask, head
+
+
+def reusable_features(path: str | Path, dataset_dir: str | Path, conf=None,
+                      overrides: dict | None = None) -> str | None:
+    """Why the features file ``path`` cannot stand for extracting ``dataset_dir`` now with
+    ``conf`` (None: it can): it must exist, be made from the same calibration, mask and conf,
+    and hold every frame of the dataset (extracted or recorded as failed)."""
+    path = Path(path)
+    if not path.is_file():
+        return f"{path} does not exist"
+    ds = open_dataset(dataset_dir)
+    camera = ds.camera()
+    module = kind_module(camera.kind)
+    attrs, _mask, _head = _run_attrs(ds, camera, module,
+                                     resolve_extract_conf(camera.kind, conf, overrides))
+    try:
+        _check_resumable(path, attrs)
+        with FeaturesFile(path) as ff:
+            have = set(ff.names) | {f.split(":", 1)[0] for f in ff.failures}
+    except FieldlocError as e:
+        return str(e).split(";")[0]
+    missing = [n for n in ds.names if n not in have]
+    if missing:
+        return f"{path} lacks {len(missing)} frames of {ds.root} (first: {missing[0]})"
+    return None
+
+
 def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | None = None, *,
          overwrite: bool = False, progress: bool = False, overrides: dict | None = None,
          debug_images: str | Path | None = None) -> Path:
@@ -125,61 +182,70 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
     module = kind_module(kind)
     conf = resolve_extract_conf(kind, conf, overrides)
     output = Path(output) if output is not None else ds.root / "features.h5"
-
-    mask = None
-    mask_hash = ""
-    mask_path = ds.root / MASK_NAME
-    if kind == "omni" and mask_path.is_file():
-        mask = read_mask(mask_path, camera.image_size)
-        mask_hash = file_hash(mask_path)
-    head = _head_angles(ds) if kind == "perspective" else None
-    calib_hash = file_hash(ds.calib_path)
-    inputs = {"dataset": str(ds.root), "calib": str(ds.calib_path), "calib_hash": calib_hash}
-    if mask is not None:
-        inputs.update(mask=str(mask_path), mask_hash=mask_hash)
-    attrs = root_attrs(SCHEMA, VERSION, conf, inputs)
-    attrs.update(camera_kind=kind, dataset=str(ds.root), calib_hash=calib_hash,
-                 mask_hash=mask_hash)
-    if kind == "omni":
-        attrs["scanlines"] = json.dumps(module.scanlines_of(conf).as_dict())
-    resume = output.exists() and not overwrite
-    if resume:
-        _check_resumable(output, attrs)
-    log.info("extract %s (%s camera, %d frames) -> %s; conf %s", ds.root, kind, len(ds.images),
-             output, json.dumps(conf, sort_keys=True))
-
+    check_output(output, ds.files(), overwrite=None)
     if debug_images is not None:
         debug_images = Path(debug_images)
+        if debug_images.exists() and not debug_images.is_dir():
+            raise FieldlocError(f"--debug-images {debug_images}: it is a file, not a folder")
+        if debug_images.is_dir():  # overlays are never written over a frame of the dataset
+            for name, img in zip(ds.names, ds.images):
+                check_output(debug_images / f"{name}.png", {"dataset image": img},
+                             overwrite=None)
+
+    attrs, mask, head = _run_attrs(ds, camera, module, conf)
+    resume = output.exists() and not overwrite
+    in_output: set[str] = set()
+    if resume:
+        _check_resumable(output, attrs)
+        with FeaturesFile(output) as old:
+            in_output = set(old.names)
+    parts = FrameParts(output, attrs)
+    if overwrite:
+        parts.discard("--overwrite extracts every frame again")
+    resumed = parts.open()
+    todo = [(p, n, s) for p, n, s in zip(ds.images, ds.names, ds.stamps)
+            if n not in in_output and not parts.has(n)]
+    log.info("extract %s (%s camera, %d frames) -> %s; conf %s", ds.root, kind, len(ds.images),
+             output, json.dumps(conf, sort_keys=True))
+    if resume and not todo and not resumed:
+        parts.remove()
+        log.info("extract: all %d frames of %s are already in %s", len(in_output), ds.root,
+                 output)
+        return output
+
+    if debug_images is not None:
         debug_images.mkdir(parents=True, exist_ok=True)
-    done = skipped = failed = 0
+    done = failed = 0
+    for path, name, stamp in tqdm(todo, desc="extract", unit="frame", disable=not progress):
+        try:
+            image = read_image(path)
+            if kind == "omni":
+                info = {"mask": mask}
+            else:
+                info = _frame_info_head(head, float(stamp))
+            arrays = module.extract_frame(image, camera, conf, **info)
+        except FieldlocError as e:
+            log.warning("frame %s skipped: %s", name, e)
+            parts.add_failure(name, str(e))
+            failed += 1
+            continue
+        parts.add_frame(name, float(stamp), arrays)
+        if debug_images is not None:
+            _write_debug_image(debug_images / f"{name}.png", module.debug_overlay(image, arrays))
+        done += 1
+    good = len(in_output) + len(parts.frame_names)
+    if good == 0:
+        first = next(iter(sorted(parts.failures.items())), None)
+        n_failed = len(parts.failures)
+        parts.remove()
+        raise FieldlocError(
+            f"no frame of {ds.root} could be extracted ({n_failed} of {len(ds.images)} failed"
+            + (f"; first: {first[0]}: {first[1]}" if first else "") + ")")
     with write_features(output, attrs, resume=resume) as writer:
-        for path, name, stamp in tqdm(list(zip(ds.images, ds.names, ds.stamps)),
-                                      desc="extract", unit="frame", disable=not progress):
-            if resume and writer.has(name):
-                skipped += 1
-                continue
-            try:
-                image = read_image(path)
-                if kind == "omni":
-                    info = {"mask": mask}
-                else:
-                    info = _frame_info_head(head, float(stamp))
-                arrays = module.extract_frame(image, camera, conf, **info)
-            except FieldlocError as e:
-                log.warning("frame %s skipped: %s", name, e)
-                writer.add_failure(name, str(e))
-                failed += 1
-                continue
-            writer.add_frame(name, float(stamp), arrays)
-            writer.clear_failure(name)
-            if debug_images is not None:
-                _write_debug_image(debug_images / f"{name}.png",
-                                   module.debug_overlay(image, arrays))
-            done += 1
-    log.info("extract: %d frames extracted, %d already done, %d failed -> %s", done, skipped,
-             failed, output)
-    if done + skipped == 0:
-        log.warning("extract: no frame of %s could be extracted", ds.root)
+        parts.merge_into(writer)
+    parts.remove()
+    log.info("extract: %d frames extracted, %d already done (%d of them by an interrupted run),"
+             " %d failed -> %s", done, len(in_output) + resumed, resumed, failed, output)
     return output
 
 

@@ -103,16 +103,22 @@ def truth_pose(ds, stamp: float, tolerance: float = 0.05):
 
 
 def show_points(dataset_dir, frame, output, *, features=None, field=None, pose=None,
-                conf=None, overrides=None) -> tuple[Path, dict]:
+                conf=None, overrides=None, overwrite=False,
+                field_file=None) -> tuple[Path, dict]:
     """Write the overlay of one frame to ``output`` (PNG). ``features``: a features file to
     read the frame from (default: extract it now with ``conf`` (preset name or dict) and
     ``overrides``, see stages.extract.resolve_extract_conf); ``field``: a FieldModel;
     ``pose``: (x, y, theta) in metres and radians (default: truth.csv's pose at the frame, if
-    any). Returns the path and a summary (points, share near lines, pose used)."""
+    any); ``field_file``: the map or field YAML it came from. ``output`` is never an input
+    and an existing one is replaced only with ``overwrite``. Returns the path and a summary
+    (points, share near lines, pose used)."""
+    from ..common.artifacts import check_output
     from ..evaluate.plots import save_figure
     from . import kind_module, read_mask, resolve_extract_conf
 
     ds = open_dataset(dataset_dir)
+    check_output(output, {**ds.files(), "features": features, "map or field": field_file},
+                 overwrite=overwrite)
     i = frame_index(ds, frame)
     name, stamp = ds.names[i], float(ds.stamps[i])
     image = read_image(ds.images[i])

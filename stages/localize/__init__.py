@@ -12,27 +12,53 @@ conf is stored in poses.h5.
 
 Features come from a features file (``features``), from line points of a team's own detector
 (``points``: CSV with columns frame, x, y in the robot frame, binned into the scan lines by
-stages.extract.omni.bin_points_to_scanlines), or, with neither, from running extract on the
-dataset on the fly into ``<output stem>.features.h5`` beside the output (resumed if present).
+stages.extract.omni.bin_points_to_scanlines), or, with neither, from the dataset's own
+``DIR/features.h5`` when it was extracted from the same calibration, mask and default conf and
+holds every frame, else from running extract on the fly into ``<output stem>.features.h5``
+beside the output (resumed if present).
+
+Checked before any frame is localised (each a one-line error, or a warning where the run can
+still mean something):
+- the output and poses.tum beside it are none of the inputs (map, features, points, the
+  dataset's files), and an existing output needs ``overwrite``;
+- odometry.csv, imu.csv and truth.csv are read once: a NaN or infinite value, a stamp out of
+  order or repeated is refused with its line (stages.common.dataset.read_csv). Refused rather
+  than skipped: an odometry row is an increment since the previous row, so dropping or
+  reordering one moves every later pose, and no rule can tell what the robot did instead;
+- the features were recorded on the map's field with the map's scan lines (features record the
+  dataset's field, from simulation.yaml, and their scan lines): otherwise an error unless
+  ``allow_field_mismatch``;
+- lut needs omni features (scan-line distances), mcl perspective ones;
+- points files: frame ids are the dataset's frame names, or the same numbers (``3`` is frame
+  ``000003``); ids that match no frame are skipped with a warning, a file matching none is
+  refused;
+- frames whose stamps have no imu/odometry row: a warning that says how many and where the
+  frame stamps come from (frames.csv, the file names, the frame order).
+
+Every dataset frame that extract could not read is recorded as failed ("unreadable-image", or
+"extract-failed" for other reasons) with its dataset stamp, and a frame missing from the
+features altogether as "not-extracted", so evaluate scores the dataset's frames, not only the
+readable ones.
 """
 
 from __future__ import annotations
 
-import csv
 import importlib
 import json
 import logging
+import math
+import os
 from pathlib import Path
 
 import numpy as np
 
-from ..common.artifacts import file_hash, root_attrs
+from ..common.artifacts import check_output, file_hash, refuse_inputs, root_attrs
 from ..common.conf import registered_module, resolve_conf
-from ..common.dataset import open_dataset
+from ..common.dataset import STAMP_SOURCES, csv_rows, open_dataset
 from ..common.errors import DatasetError, FieldlocError
 from ..common.features_file import FeaturesFile
 from ..common.map_file import MapFile
-from ..common.poses_file import SCHEMA, VERSION, write_poses
+from ..common.poses_file import SCHEMA, VERSION, PoseTrack, write_poses
 
 log = logging.getLogger(__name__)
 
@@ -89,25 +115,29 @@ class PointFrames:
 
         self.path = Path(path)
         rows = _read_points_csv(self.path)
-        names = list(dict.fromkeys(r[0] for r in rows))
-        self.names = names
-        by_name: dict[str, list] = {nm: [] for nm in names}
-        for nm, x, y in rows:
-            by_name[nm].append((x, y))
-        self.stamps = _stamps_for(names, dataset)
-        order = np.argsort(self.stamps, kind="stable")
+        ids = list(dict.fromkeys(r[0] for r in rows))
+        by_id: dict[str, list] = {i: [] for i in ids}
+        for i, x, y in rows:
+            by_id[i].append((x, y))
+        rename, stamps = _point_frames_in_dataset(self.path, ids, dataset)
+        names = [rename[i] for i in ids if i in rename]
+        stamps = np.array([stamps[i] for i in ids if i in rename], dtype=float)
+        order = np.argsort(stamps, kind="stable")
         self.names = [names[i] for i in order]
-        self.stamps = self.stamps[order]
+        self.stamps = stamps[order]
+        self._index = {nm: k for k, nm in enumerate(self.names)}
         self._frames = {}
-        for nm, pts in by_name.items():
+        for i, pts in by_id.items():
+            if i not in rename:
+                continue
             p = np.asarray(pts, dtype=float).reshape(-1, 2)
             radial, spiral = bin_points_to_scanlines(p, scanlines)
-            self._frames[nm] = {"radial": radial, "spiral": spiral,
-                                "points": p.astype(np.float32)}
+            self._frames[rename[i]] = {"radial": radial, "spiral": spiral,
+                                       "points": p.astype(np.float32)}
 
     def frame(self, name: str) -> dict:
         out = dict(self._frames[name])
-        out["stamp"] = float(self.stamps[self.names.index(name)])
+        out["stamp"] = float(self.stamps[self._index[name]])
         return out
 
     def __len__(self):
@@ -120,43 +150,93 @@ class PointFrames:
 def _read_points_csv(path: Path) -> list[tuple[str, float, float]]:
     if not path.is_file():
         raise DatasetError(f"points file not found: {path}")
-    with open(path, newline="") as f:
-        rows = [r for r in csv.reader(f) if r and not r[0].startswith("#")]
-    if not rows or [h.strip() for h in rows[0]] != ["frame", "x", "y"]:
-        found = ",".join(h.strip() for h in rows[0]) if rows else "nothing"
+    rows = csv_rows(path)
+    if not rows or [h.strip() for h in rows[0][1]] != ["frame", "x", "y"]:
+        found = ",".join(h.strip() for h in rows[0][1])[:80] if rows else "nothing"
         raise DatasetError(f"{path}: expected columns 'frame,x,y', found '{found}'")
     out = []
-    for n, r in enumerate(rows[1:], start=2):
+    for n, r in rows[1:]:
+        if len(r) != 3:
+            raise DatasetError(f"{path}: line {n}: expected 3 values (frame,x,y), found {len(r)}")
+        name = r[0].strip()
+        if not name:
+            raise DatasetError(f"{path}: line {n}: empty frame id")
         try:
-            out.append((r[0].strip(), float(r[1]), float(r[2])))
-        except (ValueError, IndexError):
+            x, y = float(r[1]), float(r[2])
+        except ValueError:
             raise DatasetError(f"{path}: line {n}: x and y must be numbers") from None
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise DatasetError(f"{path}: line {n}: x and y must be finite numbers")
+        out.append((name, x, y))
     if not out:
         raise DatasetError(f"{path}: no points")
     return out
 
 
-def _stamps_for(names: list[str], dataset) -> np.ndarray:
-    """Stamps of point frames: the dataset's image/frame stamps by name, else the numeric
-    frame name, else frame order at 30 Hz."""
-    known = {}
+def _whole_number(s: str) -> int | None:
+    try:
+        v = float(s)
+    except ValueError:
+        return None
+    return int(v) if math.isfinite(v) and v == int(v) else None
+
+
+def _point_frames_in_dataset(path: Path, ids: list[str], dataset):
+    """Which dataset frame each points-file frame id is, and its stamp: (id -> name, id ->
+    stamp). Ids are frame names (image stems or frames.csv names) or the same whole numbers
+    (``3`` for ``000003``). Ids matching no frame are left out with a warning; a file matching
+    none is an error. A dataset without frames takes numeric ids as stamps (s), else the order
+    at 30 Hz."""
+    known: dict[str, float] = {}
     if dataset is not None:
         known.update({nm: float(s) for nm, s in zip(dataset.names, dataset.stamps)})
         frames = dataset.optional("frames")
         if frames is not None:
             for nm, s in zip(frames["name"], frames["stamp"]):
-                known[str(nm)] = float(s)
-                known[Path(str(nm)).stem] = float(s)
-    if all(nm in known for nm in names):
-        return np.array([known[nm] for nm in names])
-    try:
-        return np.array([float(nm) for nm in names])
-    except ValueError:
-        from ..common.dataset import DEFAULT_RATE_HZ
+                known.setdefault(Path(str(nm)).stem, float(s))
+    if not known:
+        try:
+            stamps = {i: float(i) for i in ids}
+            if not all(math.isfinite(v) for v in stamps.values()):
+                raise ValueError
+        except ValueError:
+            from ..common.dataset import DEFAULT_RATE_HZ
 
-        log.warning("points: frame names are not dataset frames nor numbers; stamps from the"
-                    " frame order at %.0f Hz", DEFAULT_RATE_HZ)
-        return np.arange(len(names)) / DEFAULT_RATE_HZ
+            log.warning("points: the dataset has no frames and the frame ids are not numbers;"
+                        " stamps from the frame order at %.0f Hz", DEFAULT_RATE_HZ)
+            stamps = {i: k / DEFAULT_RATE_HZ for k, i in enumerate(ids)}
+        return {i: i for i in ids}, stamps
+    by_number: dict[int, str] = {}
+    for nm in known:
+        v = _whole_number(nm)
+        if v is not None:
+            by_number.setdefault(v, nm)
+    rename = {}
+    for i in ids:
+        if i in known:
+            rename[i] = i
+        else:
+            v = _whole_number(i)
+            if v is not None and v in by_number:
+                rename[i] = by_number[v]
+    taken: dict[str, str] = {}
+    for i, nm in rename.items():
+        if nm in taken:
+            raise DatasetError(
+                f"{path}: frame ids '{taken[nm]}' and '{i}' are both frame '{nm}' of"
+                f" {dataset.root}; give each frame one id")
+        taken[nm] = i
+    unknown = [i for i in ids if i not in rename]
+    sample = ", ".join(sorted(known)[:3])
+    if not rename:
+        raise DatasetError(
+            f"{path}: no frame id matches a frame of {dataset.root} (ids like '{ids[0]}';"
+            f" the dataset's frames: {sample}, ...)")
+    if unknown:
+        log.warning("points: %d of %d frame ids of %s match no frame of %s and are skipped"
+                    " (first: '%s'; the dataset's frames: %s, ...)", len(unknown), len(ids),
+                    path, dataset.root, unknown[0], sample)
+    return rename, {i: known[rename[i]] for i in rename}
 
 
 # ---------------------------------------------------------------------------- main
@@ -166,51 +246,206 @@ def default_features_path(output: Path) -> Path:
     return output.with_name(output.stem + ".features.h5")
 
 
+def _abs(p) -> str:
+    return os.path.abspath(p)
+
+
 def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path,
          output: str | Path, *, features: str | Path | None = None,
          points: str | Path | None = None, overwrite: bool = False,
-         progress: bool = False) -> Path:
+         progress: bool = False, allow_field_mismatch: bool = False) -> Path:
     """Localise the frames of ``dataset_dir`` on ``map_path`` into ``output`` (poses.h5 and
-    poses.tum beside it) and return its path."""
+    poses.tum beside it) and return its path. ``allow_field_mismatch``: localise even when the
+    features were recorded on another field or with other scan lines than the map's."""
     conf = resolve_localize_conf(conf)
     output = Path(output)
-    if output.exists() and not overwrite:
-        raise FieldlocError(f"{output} exists (use --overwrite to replace it)")
     if features is not None and points is not None:
         raise FieldlocError("give either a features file or a points file, not both")
     dataset_dir = Path(dataset_dir)
     if not dataset_dir.is_dir():
         raise DatasetError(f"dataset folder not found: {dataset_dir}")
     dataset = open_dataset(dataset_dir, need_images=False)
+    inputs_given = {**dataset.files(), "map": map_path, "features": features, "points": points}
+    check_output(output, inputs_given, overwrite=overwrite)
+    check_output(output.with_suffix(".tum"), inputs_given, overwrite=None)
+    series = {k: dataset.optional(k) for k in ("odometry", "imu", "truth")}  # refused if bad
     module = method_module(conf["method"])
     map_file = MapFile(map_path)
-    inputs = {"dataset": str(dataset_dir), "map": str(map_path), "map_hash": file_hash(map_path)}
+    inputs = {"dataset": _abs(dataset_dir), "map": _abs(map_path),
+              "map_hash": file_hash(map_path)}
     try:
         if points is not None:
             feats = PointFrames(points, dataset, map_file.scanlines)
-            inputs.update(points=str(points), points_hash=file_hash(points))
+            inputs.update(points=_abs(points), points_hash=file_hash(points))
+            recorded = {"field": dataset.field_record(), "scanlines": None, "failures": []}
         else:
             if features is None:
-                from .. import extract
-
-                features = default_features_path(output)
-                log.info("no features given: extracting %s into %s", dataset_dir, features)
-                extract.main(None, dataset_dir, features, progress=progress)
+                features = _features_for(dataset_dir, output, inputs_given, progress)
+                for written in (output, output.with_suffix(".tum")):  # the features it chose
+                    refuse_inputs(written, {"features": features})
             feats = FeaturesFile(features)
-            inputs.update(features=str(features), features_hash=file_hash(features))
-        if len(feats.names) == 0:
-            raise FieldlocError(f"{features or points}: no frames to localise")
+            inputs.update(features=_abs(features), features_hash=file_hash(features))
+            recorded = {"field": _json_attr(feats, "field"),
+                        "scanlines": _json_attr(feats, "scanlines"),
+                        "failures": feats.failures}
         try:
-            track = module.run(conf, dataset, feats, map_file, progress)
+            if len(feats.names) == 0 and not recorded["failures"]:
+                raise FieldlocError(f"{features or points}: no frames to localise")
+            _check_camera_kind(conf["method"], feats, features)
+            if not allow_field_mismatch:
+                _check_same_field(recorded, map_file, features or points)
+            _warn_stamps(dataset, feats.stamps, series, conf)
+            log.info("localize %s with %s: %d frames on %s", dataset_dir, conf["method"],
+                     len(feats.names), map_path)
+            track = (module.run(conf, dataset, feats, map_file, progress) if len(feats.names)
+                     else PoseTrack())
+            track = _with_missing_frames(track, dataset, feats, recorded["failures"])
         finally:
             feats.close()
     finally:
         map_file.close()
     attrs = root_attrs(SCHEMA, VERSION, conf, inputs)
-    attrs.update(method=conf["method"], field=map_file.field.name, dataset=str(dataset_dir),
+    attrs.update(method=conf["method"], field=map_file.field.name, dataset=_abs(dataset_dir),
                  method_report=json.dumps(track.meta, sort_keys=True))
     path = write_poses(output, track, attrs)
     n_failed = int(np.sum(track.failed))
     log.info("localize %s: %d frames, %d failed -> %s", conf["method"], len(track), n_failed,
              path)
     return path
+
+
+def _json_attr(feats, key: str):
+    try:
+        return feats.attr_json(key) if key in feats.h5.attrs else None
+    except ValueError:
+        return None
+
+
+def _features_for(dataset_dir: Path, output: Path, inputs: dict, progress: bool) -> Path:
+    """The features of a dataset localised without --features: DIR/features.h5 when it matches
+    what extract would make now, else extracted on the fly beside the output."""
+    from .. import extract
+
+    own = dataset_dir / "features.h5"
+    why = extract.reusable_features(own, dataset_dir) if own.exists() else None
+    if own.exists() and why is None:
+        log.info("no features given: using %s (same calibration, mask and conf, every frame)",
+                 own)
+        return own
+    target = default_features_path(output)
+    check_output(target, inputs, overwrite=None)
+    log.info("no features given: extracting %s into %s%s", dataset_dir, target,
+             f" ({own} is not used: {why})" if why else "")
+    extract.main(None, dataset_dir, target, progress=progress)
+    return target
+
+
+def _check_camera_kind(method: str, feats, features) -> None:
+    kind = getattr(feats, "camera_kind", "")
+    if method == "lut" and kind == "perspective":
+        raise FieldlocError(
+            f"{features}: features of a 'perspective' camera; --method lut needs omni features"
+            " (scan-line distances): use --method mcl")
+
+
+def _check_same_field(recorded: dict, map_file, source) -> None:
+    """The features' field and scan lines must be the map's (see the module doc)."""
+    hint = "build the map of that field, or pass --allow-field-mismatch"
+    fm = map_file.field
+    rec = recorded.get("field") or {}
+    if rec.get("name"):
+        size = rec.get("size")
+        same_size = size is None or (abs(size[0] - fm.length) < 0.01
+                                     and abs(size[1] - fm.width) < 0.01)
+        if rec["name"] != fm.name or not same_size:
+            where = f" ({size[0]:g} x {size[1]:g} m)" if size else ""
+            raise FieldlocError(
+                f"{source}: the dataset was recorded on field '{rec['name']}'{where}, the map"
+                f" {map_file.path} is of '{fm.name}' ({fm.length:g} x {fm.width:g} m); {hint}")
+    sl = recorded.get("scanlines")
+    if isinstance(sl, dict):
+        mine = map_file.scanlines.as_dict()
+        diff = [k for k in ("n_angles", "max_crossings", "robot_radius", "max_range",
+                            "spiral_end_radius")
+                if k in sl and not math.isclose(float(sl[k]), float(mine[k]), abs_tol=1e-6)]
+        if diff:
+            k = diff[0]
+            raise FieldlocError(
+                f"{source}: the features' scan lines have {k} = {sl[k]:g}, the map"
+                f" {map_file.path} was built with {mine[k]:g}; extract with the map's scan"
+                " lines or build the map with the features' (or pass --allow-field-mismatch)")
+
+
+def _warn_stamps(dataset, stamps, series: dict, conf: dict) -> None:
+    """Warn when the frame stamps do not meet the imu/odometry stamps, and say why."""
+    from .heading import nearest_rows
+    from .motion_model import accumulate_odometry
+
+    stamps = np.asarray(stamps, float)
+    if not len(stamps):
+        return
+    source = STAMP_SOURCES.get(dataset.stamp_source, dataset.stamp_source)
+    span = f"{stamps.min():g}..{stamps.max():g} s"
+    tol = float(conf.get("stamp_tolerance", 0.02))
+    imu = series.get("imu")
+    if imu is not None:
+        missing = int(np.sum(nearest_rows(imu["stamp"], stamps, tol) < 0))
+        if missing:
+            log.warning(
+                "%d of %d frames have no imu.csv row within %g s: the frame stamps (%s, %s)"
+                " and imu.csv (%g..%g s) do not meet", missing, len(stamps), tol, source, span,
+                imu["stamp"].min(), imu["stamp"].max())
+    odo = series.get("odometry")
+    if odo is not None and len(stamps) > 1:
+        _inc, has = accumulate_odometry(odo, stamps)
+        missing = int(np.sum(~has[1:]))
+        if missing:
+            log.warning(
+                "%d of %d frames have no odometry.csv row since the previous frame: the frame"
+                " stamps (%s, %s) and odometry.csv (%g..%g s) do not meet", missing,
+                len(stamps) - 1, source, span, odo["stamp"].min(), odo["stamp"].max())
+
+
+def _failure_reason(text: str) -> str:
+    return "unreadable-image" if "unreadable image" in text else "extract-failed"
+
+
+def _with_missing_frames(track: PoseTrack, dataset, feats, failures: list[str]) -> PoseTrack:
+    """``track`` plus a failed row for every dataset frame the features lack: frames extract
+    could not read or process (their recorded reason) and frames not extracted at all; in
+    stamp order."""
+    have = set(track.name)
+    stamp_of = dict(zip(dataset.names, (float(s) for s in dataset.stamps)))
+    extra = []
+    for f in failures:
+        name, _, text = f.partition(":")
+        name = name.strip()
+        if name in have or name not in stamp_of:
+            continue
+        extra.append((name, stamp_of[name], _failure_reason(text)))
+        have.add(name)
+    if isinstance(feats, FeaturesFile) and dataset.names:
+        absent = [n for n in dataset.names if n not in have]
+        if absent and len(absent) == len(dataset.names):
+            raise FieldlocError(
+                f"{feats.path}: no frame of {dataset.root} is in the features file (its frames"
+                f" are like '{(feats.names or ['?'])[0]}'): is it another dataset's?")
+        if absent:
+            log.warning("%d frames of %s are not in %s (first: %s); recorded as failed"
+                        " (not-extracted)", len(absent), dataset.root, feats.path, absent[0])
+        extra += [(n, stamp_of[n], "not-extracted") for n in absent]
+    if not extra:
+        return track
+    rows = [(track.stamp[i], 0, i) for i in range(len(track))]
+    rows += [(stamp, 1, k) for k, (_n, stamp, _r) in enumerate(extra)]
+    rows.sort(key=lambda r: (r[0], r[1]))
+    out = PoseTrack()
+    fields = [f for f in PoseTrack.__dataclass_fields__]
+    for stamp, is_extra, k in rows:
+        if is_extra:
+            name, stamp, reason = extra[k]
+            out.add(name, stamp, None, mode="failed", flags=reason)
+        else:
+            for f in fields:
+                getattr(out, f).append(getattr(track, f)[k])
+    return out

@@ -238,12 +238,15 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path,
 
     conf = resolve_conf(confs, conf) if not isinstance(conf, dict) else resolve_conf(
         confs, "default", conf)
+    from stages.common.artifacts import check_output
+    from stages.common.dataset import open_dataset
+
     output = Path(output)
-    if output.exists() and not overwrite:
-        raise FieldlocError(f"{output} exists (use --overwrite to replace it)")
     dataset_dir = Path(dataset_dir)
     if not dataset_dir.is_dir():
         raise DatasetError(f"dataset folder not found: {dataset_dir}")
+    check_output(output, {**open_dataset(dataset_dir, need_images=False).files(),
+                          "map": map_path, "features": features}, overwrite=overwrite)
     name, stamp, obs = frame_observations(dataset_dir, frame,
                                           None if features is None else Path(features))
     with MapFile(map_path) as mf:

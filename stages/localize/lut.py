@@ -353,6 +353,7 @@ class LutLocaliser:
         self._offset_updates = 0
         self.fixed_once = False  # start_half applies to the first fix only
         self.has_odometry = True  # whether the dataset measures the robot's motion
+        self._radial_frames = 0  # confident tracked frames seen by the radial correction
         self.failures_in_row = 0
         self.last_global = -10**9
         self.last_accepted = True
@@ -858,8 +859,12 @@ class LutLocaliser:
         """The crossings of a confident tracked frame against their predictions at the fused
         pose, into the radial correction (radial_correction.py)."""
         rc = self.radial
+        rconf = self.conf["radial_correction"]
         if (rc is None or top.track is None or col or not self.tracks
-                or hyps[0, 3] < self.conf["radial_correction"]["min_confidence"]):
+                or hyps[0, 3] < rconf["min_confidence"]):
+            return
+        self._radial_frames += 1
+        if self._radial_frames % max(1, int(rconf["every"])):
             return
         pose = self.tracks[0].pose
         if self.symmetric and not _near_pose(hyps[0], pose, 0.3, 0.2):

@@ -36,6 +36,7 @@ DEFAULTS = {
     "max_residual": 0.25,  # m, crossings farther from their prediction are not used
     "noise": 0.05,  # m, spread of one crossing's residual about e(d)
     "min_confidence": 0.99,  # frames whose top hypothesis is less sure are not used
+    "every": 4,  # frames between updates (consecutive frames see nearly the same crossings)
 }
 
 

@@ -6,7 +6,16 @@ writes ``output_dir`` with images/000000.png ..., frames.csv (name, stamp), cali
 camera as written, possibly miscalibrated on purpose), odometry.csv, imu.csv, truth.csv and
 simulation.yaml (the resolved conf, the field, the seed and the true camera, for provenance).
 The same conf and seed give the same files. The folder is built in a temporary folder beside the
-target and renamed at the end, so an interrupted run leaves nothing under the real name.
+target and renamed at the end, so an interrupted run leaves nothing under the real name; the
+next run onto the same target removes what a killed run left there (``.<name>.fieldloc-<pid>-*
+.part``), with a warning.
+
+simulation.yaml is also the marker of a dataset made here: ``overwrite`` replaces an existing
+folder only if it holds that marker (``generator: fieldloc simulate``), never another folder (a
+user's files, the folder holding the field YAML), and never one that holds an input. Before
+anything is rendered, the memory the scene needs (ground textures grow with the field's area)
+and the disk the frames need are estimated, and a run that cannot fit is refused with the
+estimate.
 
 Pieces, each reusable on its own:
 - :mod:`.trajectory` the robot's smooth path (speeds, turns, heading behaviour as conf values);
@@ -43,10 +52,20 @@ import cv2
 import numpy as np
 import yaml
 
+from ..common.artifacts import (
+    check_output,
+    give_default_mode,
+    part_name,
+    part_pattern,
+    pid_alive,
+    remove_stale_parts,
+    text_hash,
+)
 from ..common.camera import save_calib
-from ..common.dataset import write_csv
+from ..common.dataset import SIMULATION_RECORD, write_csv
 from ..common.errors import FieldlocError
 from ..common.field import FieldModel, load_field
+from ..common.resources import check_disk, check_memory
 from . import scene as scene_mod
 from . import sensors, trajectory, walk
 from .omni_renderer import CALIB_ERROR_DEFAULTS, OMNI_DEFAULTS, TEAM_MIRROR_POLYNOMIAL
@@ -222,25 +241,83 @@ def written_camera(module, camera, calib_error: dict, seed: int):
     return module.perturbed_camera(camera, calib_error)
 
 
-def _check_target(output_dir: Path, overwrite: bool):
-    if output_dir.exists() and not output_dir.is_dir():
-        raise FieldlocError(f"cannot write dataset {output_dir}: it is a file")
-    if output_dir.is_dir() and any(output_dir.iterdir()) and not overwrite:
-        raise FieldlocError(
-            f"dataset folder {output_dir} exists and is not empty (use --overwrite to replace it)"
-        )
-    parent = output_dir.parent
-    if not parent.is_dir():
-        raise FieldlocError(f"cannot write dataset {output_dir}: folder {parent} does not exist")
-    if not os.access(parent, os.W_OK):
-        raise FieldlocError(f"cannot write dataset {output_dir}: folder {parent} is not writable")
+GENERATOR = "fieldloc simulate"  # simulation.yaml's generator: the marker of our datasets
+# measured peak memory of the scene per texel: ground colour (float32 temporaries of the
+# carpet) and line field; per frame: the paths of the robot and the movers, sensors
+BYTES_PER_GROUND_TEXEL = 50.0
+BYTES_PER_LINE_TEXEL = 40.0
+BYTES_PER_FRAME = 1024.0
+PNG_RATIO = 0.6  # a rendered PNG's size / raw BGR size (noisy carpet compresses poorly)
+
+
+def is_simulated_dataset(folder: Path) -> bool:
+    """Whether ``folder`` is a dataset written by simulate (its simulation.yaml says so)."""
+    rec = folder / SIMULATION_RECORD
+    if not rec.is_file():
+        return False
+    try:
+        d = yaml.safe_load(rec.read_text())
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        return False
+    return isinstance(d, dict) and d.get("generator") == GENERATOR
+
+
+def _check_target(output_dir: Path, overwrite: bool, field_file: Path | None):
+    check_output(output_dir, {"field YAML": field_file}, overwrite=None, kind="folder")
+    if output_dir.is_dir() and any(output_dir.iterdir()):
+        if not overwrite:
+            raise FieldlocError(
+                f"dataset folder {output_dir} exists and is not empty (use --overwrite to"
+                " replace it)")
+        if not is_simulated_dataset(output_dir):
+            raise FieldlocError(
+                f"{output_dir} is not a dataset made by fieldloc simulate (no {SIMULATION_RECORD}"
+                " marker); --overwrite replaces only those: choose another folder or remove it"
+                " yourself")
+        if Path.cwd().resolve().is_relative_to(output_dir.resolve()):
+            raise FieldlocError(
+                f"{output_dir} holds the current folder; run simulate from elsewhere to replace"
+                " it")
+
+
+def _restore_interrupted_replacement(output_dir: Path) -> None:
+    """A run killed between moving the old dataset aside (``.<name>.fieldloc-<pid>-*.old/data``)
+    and moving the new one in leaves no dataset under the real name: put the old one back
+    before the stale parts are removed."""
+    if output_dir.exists() or not output_dir.parent.is_dir():
+        return
+    pat = part_pattern(output_dir)
+    for entry in sorted(output_dir.parent.iterdir()):
+        m = pat.match(entry.name)
+        if (m and entry.name.endswith(".old") and (entry / "data").is_dir()
+                and not (m.group(1) and pid_alive(int(m.group(1))))):
+            os.replace(entry / "data", output_dir)
+            shutil.rmtree(entry, ignore_errors=True)
+            log.warning("restored %s from %s, left by a run killed while replacing it",
+                        output_dir, entry)
+            return
+
+
+def estimate_needs(conf: dict, field: FieldModel) -> tuple[dict, float]:
+    """(memory by purpose in bytes, disk bytes) of simulating ``conf`` on ``field``."""
+    sc = {**scene_mod.SCENE_DEFAULTS, **conf.get("scene", {})}
+    x0, x1, y0, y1 = field.world_bounds()
+    gap = float(sc["wall_gap"])
+    ground = (x1 - x0 + 2 * gap) * (y1 - y0 + 2 * gap) / float(sc["texture_resolution"]) ** 2
+    lines = (x1 - x0) * (y1 - y0) / float(sc["line_resolution"]) ** 2
+    n = float(conf["frames"])
+    w, h = conf[conf["camera"]]["image_size"]
+    memory = {"ground texture": ground * BYTES_PER_GROUND_TEXEL,
+              "line field": lines * BYTES_PER_LINE_TEXEL,
+              f"{n:.0f} frames of paths and sensors": n * BYTES_PER_FRAME}
+    return memory, n * float(w) * float(h) * 3 * PNG_RATIO
 
 
 def _check_conf(conf: dict):
     n = conf["frames"]
     if isinstance(n, bool) or not isinstance(n, int) or n < 1:
         raise FieldlocError(f"frames must be a whole number >= 1, got {n!r}")
-    if not float(conf["rate_hz"]) > 0:
+    if not 0 < float(conf["rate_hz"]) < math.inf:
         raise FieldlocError(f"rate_hz must be > 0, got {conf['rate_hz']!r}")
     ce = conf["calib_error"]
     if len(ce.get("centre_shift", ())) != 2:
@@ -254,9 +331,20 @@ def main(conf: dict, field, output_dir, *, overwrite: bool = False,
     from tqdm import tqdm
 
     output_dir = Path(output_dir)
-    field = field if isinstance(field, FieldModel) else load_field(field)
+    field_file = None
+    if not isinstance(field, FieldModel):
+        p = Path(field)
+        field_file = p if p.suffix.lower() in (".yaml", ".yml") or p.exists() else None
+        field = load_field(field)
     _check_conf(conf)
-    _check_target(output_dir, overwrite)
+    _restore_interrupted_replacement(output_dir)
+    _check_target(output_dir, overwrite, field_file)
+    remove_stale_parts(output_dir)
+    memory, disk = estimate_needs(conf, field)
+    what = (f"simulate of {conf['frames']} frames on {field.name}"
+            f" ({field.length:g} x {field.width:g} m)")
+    check_memory(what, memory)
+    check_disk(what, output_dir.parent if str(output_dir.parent) else Path("."), disk)
     kind = conf["camera"]
     module, renderer_cls = renderer_class(kind)
     n = int(conf["frames"])
@@ -286,8 +374,8 @@ def main(conf: dict, field, output_dir, *, overwrite: bool = False,
     odo = sensors.odometry(path.poses, conf["odometry"], rng_odo, collisions)
     yaw = sensors.imu_yaw(path.poses, path.stamps, conf["imu"], rng_imu, collisions)
 
-    tmp = Path(tempfile.mkdtemp(prefix=f".{output_dir.name}.", suffix=".part",
-                                dir=output_dir.parent))
+    prefix, suffix = part_name(output_dir, ".part")
+    tmp = Path(tempfile.mkdtemp(prefix=prefix, suffix=suffix, dir=output_dir.parent))
     try:
         (tmp / "images").mkdir()
         names = [f"{i:06d}.png" for i in range(n)]
@@ -307,19 +395,22 @@ def main(conf: dict, field, output_dir, *, overwrite: bool = False,
             write_csv(tmp / f"{stem}.csv", csv_kind, columns)
         save_calib(written, tmp / "calib.yaml")
         info = {
-            "generator": "fieldloc simulate",
+            "generator": GENERATOR,
             "field": field.name,
             "field_source": field.source,
+            "field_size": [float(field.length), float(field.width)],
+            "field_yaml_hash": text_hash(field.spec_text),
             "camera": kind,
             "seed": seed,
             "frames": n,
             "true_camera": renderer.camera.to_dict(),
             "conf": _plain(conf),
         }
-        (tmp / "simulation.yaml").write_text(yaml.safe_dump(info, sort_keys=False))
+        (tmp / SIMULATION_RECORD).write_text(yaml.safe_dump(info, sort_keys=False))
+        give_default_mode(tmp)
         if output_dir.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{output_dir.name}.", suffix=".old",
-                                        dir=output_dir.parent))
+            prefix, suffix = part_name(output_dir, ".old")
+            old = Path(tempfile.mkdtemp(prefix=prefix, suffix=suffix, dir=output_dir.parent))
             os.replace(output_dir, old / "data")
             os.replace(tmp, output_dir)
             shutil.rmtree(old, ignore_errors=True)
