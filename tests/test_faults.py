@@ -592,8 +592,6 @@ def test_csv_files_have_lf_line_endings(world):
         assert b"\r" not in (world["omni"] / name).read_bytes()
 
 
-@pytest.mark.xfail(strict=True, reason="stages/evaluate/report.py write_errors_csv uses csv's"
-                   " default CRLF (owned by the lead): remove this mark when it writes \\n")
 def test_errors_csv_has_lf_line_endings(world_report):
     assert b"\r" not in (world_report["omni"] / "runs" / "r" / "errors.csv").read_bytes()
 

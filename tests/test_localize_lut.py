@@ -578,7 +578,7 @@ def test_rendered_frames_with_a_cable_near_the_robot_are_localised(msl2015_map, 
             share.append(np.mean(search_field(msl2015_map).distance_to_lines(world) > 0.15))
     share = np.array(share)
     assert np.sum(share > 0.6) >= 10 and share.max() > 0.8, np.round(share, 2)
-    assert np.sum(p["error"] > 0.5) >= 10  # e_norm above the old fail_error on those frames
+    assert np.sum(p["error"] > 0.4) >= 10  # e_norm far above that of clear frames (< 0.2)
 
     assert not p["failed"].any(), p["flags"]
     pos = np.hypot(p["x"] - t["x"], p["y"] - t["y"])

@@ -134,7 +134,7 @@ def write_errors_csv(path: str | Path, fe: FrameErrors) -> Path:
     deg = np.degrees(fe.heading_error)
     with atomic_path(path, suffix=".csv") as tmp:
         with open(tmp, "w", newline="") as f:
-            w = csv.writer(f)
+            w = csv.writer(f, lineterminator="\n")
             w.writerow(ERRORS_COLUMNS)
             for i in range(len(fe)):
                 w.writerow([

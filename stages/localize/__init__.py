@@ -439,8 +439,8 @@ def _with_missing_frames(track: PoseTrack, dataset, feats, failures: list[str]) 
     rows = [(track.stamp[i], 0, i) for i in range(len(track))]
     rows += [(stamp, 1, k) for k, (_n, stamp, _r) in enumerate(extra)]
     rows.sort(key=lambda r: (r[0], r[1]))
-    out = PoseTrack()
-    fields = [f for f in PoseTrack.__dataclass_fields__]
+    out = PoseTrack(meta=track.meta)
+    fields = [f for f in PoseTrack.__dataclass_fields__ if f != "meta"]  # the per-frame ones
     for stamp, is_extra, k in rows:
         if is_extra:
             name, stamp, reason = extra[k]
