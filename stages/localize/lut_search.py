@@ -49,6 +49,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..common.geometry import wrap_angle
 from ..common.map_file import MapFile
 from ..common.scanlines import NO_HIT_MM
 from .lut_kernels import (
@@ -592,7 +593,7 @@ class TableSearch:
             cell = fine_res[1].cell
             if den2 > 1e-12:
                 curvature = den2 / h**2
-        out = self.refine(obs, cell, float(_wrap(th)))
+        out = self.refine(obs, cell, float(wrap_angle(th)))
         return out, float(max(curvature, 0.0))
 
     def unknown_heading_search(self, obs: Observation, *, candidates: int = 8,
@@ -635,7 +636,7 @@ class TableSearch:
                     break
         results = []
         for q in chosen:
-            theta = float(_wrap(int(cm[q]) * self.step))
+            theta = float(wrap_angle(int(cm[q]) * self.step))
             r = self.local_search(obs, theta, (float(px[q]), float(py[q])),
                                   half_width=half_width, refine=False)
             r, _ = self.refine_heading(obs, r.cell, theta, fine=False)
@@ -693,10 +694,6 @@ def _to_metres(mm: np.ndarray) -> np.ndarray:
 def _rho32(e: np.ndarray, c: float) -> np.ndarray:
     e2 = e * e
     return e2 / (np.float32(c * c) + e2)
-
-
-def _wrap(a):
-    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
 
 
 def _median_time(fn, repeats: int) -> float:

@@ -69,6 +69,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from stages.common.errors import FieldlocError
+from stages.common.geometry import wrap_angle
 from stages.common.poses_file import PoseTrack
 
 from . import motion_model
@@ -147,10 +148,6 @@ class Estimate:
     hypotheses: np.ndarray | None = None  # (k, 4) x, y, theta, weight share, heaviest first
 
 
-def _wrap(a):
-    return (a + np.pi) % (2 * np.pi) - np.pi
-
-
 class ParticleFilter:
     """The particle set and its update; ``step`` runs one frame."""
 
@@ -203,7 +200,7 @@ class ParticleFilter:
                 raise FieldlocError("init=pose needs init_pose=[x, y, theta]")
             s = np.asarray(c["init_spread"], float)
             p = np.asarray(pose, float) + self.rng.standard_normal((n, 3)) * s
-            p[:, 2] = _wrap(p[:, 2])
+            p[:, 2] = wrap_angle(p[:, 2])
         else:
             raise FieldlocError(f"unknown init '{mode}' (placement, uniform or pose)")
         self.particles = p
@@ -228,7 +225,7 @@ class ParticleFilter:
         x = self.rng.uniform(-fm.length / 2, 0.0, n)
         y = side * (fm.width / 2 + self.rng.standard_normal(n) * s_across)
         th = -side * math.pi / 2 + self.rng.standard_normal(n) * s_heading
-        return np.stack([x, y, _wrap(th)], axis=1)
+        return np.stack([x, y, wrap_angle(th)], axis=1)
 
     # ------------------------------------------------------------------ the update
     def predict(self, odometry, dt: float, has_odometry: bool = True, collision: bool = False,
@@ -251,7 +248,7 @@ class ParticleFilter:
             flip = (p[:, 0] + cx) ** 2 + (p[:, 1] + cy) ** 2 < (p[:, 0] - cx) ** 2 + (
                 p[:, 1] - cy) ** 2
         p[flip, 0:2] *= -1.0
-        p[flip, 2] = _wrap(p[flip, 2] + math.pi)
+        p[flip, 2] = wrap_angle(p[flip, 2] + math.pi)
 
     def correct(self, obs: Observations) -> int:
         """Weight the particles by the observations; returns how many were used."""
@@ -358,7 +355,7 @@ class ParticleFilter:
             poses[:, 1] - cy) ** 2
         out = poses.copy()
         out[flip, 0:2] *= -1.0
-        out[flip, 2] = _wrap(out[flip, 2] + math.pi)
+        out[flip, 2] = wrap_angle(out[flip, 2] + math.pi)
         return out
 
     def _particle_count(self, spread: float | None, share: float) -> int:
@@ -459,7 +456,7 @@ class ParticleFilter:
         th = orient[k] + turns - o[r] + noise[2] * 0.1
         psi = np.where(post, (2.0 * u[3] - 1.0) * math.pi, th + bb)
         th = np.where(post, psi - bb, th)
-        p = np.stack([pos[k, 0] - dd * np.cos(psi), pos[k, 1] - dd * np.sin(psi), _wrap(th)],
+        p = np.stack([pos[k, 0] - dd * np.cos(psi), pos[k, 1] - dd * np.sin(psi), wrap_angle(th)],
                      axis=1)
         x0, x1, y0, y1 = self._bounds
         ok = (p[:, 0] >= x0) & (p[:, 0] <= x1) & (p[:, 1] >= y0) & (p[:, 1] <= y1)
@@ -484,7 +481,7 @@ class ParticleFilter:
         mirror_share = float(w @ in_mirror)
         cov = np.full((3, 3), np.nan)
         if conf_share > 0:
-            d = np.stack([x - centre[0], y - centre[1], _wrap(th - centre[2])])
+            d = np.stack([x - centre[0], y - centre[1], wrap_angle(th - centre[2])])
             dw = d * (wm / conf_share)
             cov = dw @ d.T
         mx, my = float(w @ x), float(w @ y)
