@@ -223,9 +223,11 @@ class ParticleFilter:
         s_across, s_heading = float(self.conf["init_spread"][0]), float(self.conf["init_spread"][2])
         side = np.where(self.rng.random(n) < 0.5, 1.0, -1.0)
         x = self.rng.uniform(-fm.length / 2, 0.0, n)
-        y = side * (fm.width / 2 + self.rng.standard_normal(n) * s_across)
-        th = -side * math.pi / 2 + self.rng.standard_normal(n) * s_heading
-        return np.stack([x, y, wrap_angle(th)], axis=1)
+        across = self.rng.standard_normal(n) * s_across  # beyond the line is outwards
+        turn = self.rng.standard_normal(n) * s_heading
+        p = fm.touchline_pose(x, side, inset=-across)
+        p[:, 2] = wrap_angle(p[:, 2] + turn)
+        return p
 
     # ------------------------------------------------------------------ the update
     def predict(self, odometry, dt: float, has_odometry: bool = True, collision: bool = False,

@@ -197,7 +197,7 @@ def initial_placement_pose(field_model: FieldModel, rng: np.random.Generator) ->
     fm = field_model
     side = 1.0 if rng.random() < 0.5 else -1.0  # +1: left touch line (y > 0)
     x = rng.uniform(-fm.length / 2 + 0.5, -0.5)
-    return np.array([x, side * fm.width / 2, -side * math.pi / 2])
+    return fm.touchline_pose(x, side)
 
 
 def synthetic_walk(field_model: FieldModel, n_frames: int, *, seed: int = 0,
