@@ -12,7 +12,7 @@ conf is stored in poses.h5.
 
 Features come from a features file (``features``), from line points of a team's own detector
 (``points``: CSV with columns frame, x, y in the robot frame, binned into the scan lines by
-stages.extract.omni.bin_points_to_scanlines), or, with neither, from the dataset's own
+stages.common.scanlines.bin_points_to_scanlines), or, with neither, from the dataset's own
 ``DIR/features.h5`` when it was extracted from the same calibration, mask and default conf and
 holds every frame, else from running extract on the fly into ``<output stem>.features.h5``
 beside the output (resumed if present).
@@ -59,6 +59,7 @@ from ..common.errors import DatasetError, FieldlocError
 from ..common.features_file import FeaturesFile
 from ..common.map_file import MapFile
 from ..common.poses_file import SCHEMA, VERSION, PoseTrack, write_poses
+from ..common.scanlines import bin_points_to_scanlines
 
 log = logging.getLogger(__name__)
 
@@ -111,8 +112,6 @@ class PointFrames:
     camera_kind = "omni"
 
     def __init__(self, path: str | Path, dataset, scanlines):
-        from ..extract.omni import bin_points_to_scanlines
-
         self.path = Path(path)
         rows = _read_points_csv(self.path)
         ids = list(dict.fromkeys(r[0] for r in rows))
