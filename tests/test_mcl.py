@@ -13,9 +13,10 @@ import pytest
 from stages.build_map.crossing_lut import crossing_association_tables
 from stages.common.field import load_field
 from stages.common.map_file import Grid, write_map
+from stages.common.observations import Observations
 from stages.common.scanlines import ScanLines
 from stages.localize import mcl, motion_model
-from stages.localize.observation_model import ObservationModel, Observations
+from stages.localize.observation_model import ObservationModel
 from stages.localize.synthetic_observations import (
     synthetic_observations,
     synthetic_walk,

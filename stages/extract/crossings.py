@@ -31,8 +31,6 @@ from stages.common.field import crossing_orientation
 
 from .line_structure import KeyStructure, LineGraph
 
-TYPE_CODES = {"L": 0, "T": 1, "X": 2}
-
 
 @dataclass
 class CrossingCandidate:

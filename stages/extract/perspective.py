@@ -27,9 +27,9 @@ import cv2
 import numpy as np
 
 from ..common.errors import DatasetError
+from ..common.features_file import CROSSING_CODES
 from . import colour
 from .crossings import (
-    TYPE_CODES,
     arm_lines,
     crossing_candidates,
     crossing_point,
@@ -592,7 +592,7 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
     score = verify_crossing(grid[0], grid[1:], white, green, cc, field_cells)
     if score <= 0:
         return "not verified in the image"
-    row = [TYPE_CODES[kind], d[0], bearing[0], orient,
+    row = [CROSSING_CODES[kind], d[0], bearing[0], orient,
            score * (1.0 - misfit / math.radians(90.0))]
     return row, px[0]
 

@@ -23,9 +23,10 @@ import numpy as np
 
 from stages.common.conf import resolve_conf
 from stages.common.errors import DatasetError, FieldlocError
+from stages.common.observations import Observations
 
 from .observation_model import DEFAULTS as OBSERVATION_DEFAULTS
-from .observation_model import PARTS, ObservationModel, Observations
+from .observation_model import PARTS, ObservationModel
 
 confs = {
     "default": {

@@ -70,11 +70,12 @@ import numpy as np
 
 from stages.common.errors import FieldlocError
 from stages.common.geometry import wrap_angle
+from stages.common.observations import Observations
 from stages.common.poses_file import PoseTrack
 
 from . import motion_model
 from .observation_model import DEFAULTS as OBSERVATION_DEFAULTS
-from .observation_model import ObservationModel, Observations
+from .observation_model import ObservationModel
 
 log = logging.getLogger(__name__)
 

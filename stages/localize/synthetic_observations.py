@@ -20,8 +20,7 @@ import numpy as np
 
 from stages.common.field import FieldModel
 from stages.common.geometry import field_to_robot
-
-from .observation_model import CROSSING_CODES, Observations
+from stages.common.observations import CROSSING_CODES, Observations
 
 DEFAULTS = {
     "fov": math.radians(80.0),  # rad, horizontal field of view, centred on the heading
