@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from stages.build_map.crossing_lut import crossing_association_tables
+from stages.common.crossing_tables import crossing_association_tables
 from stages.common.field import load_field
 from stages.common.map_file import Grid, write_map
 from stages.common.observations import Observations

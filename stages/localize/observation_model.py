@@ -33,7 +33,7 @@ and the centre circle and arcs are candidate lines too (the tangent at the arc p
 the observed segment's middle; a straight observation of half length h departs h^2 / 2r from
 the arc, charged like the extent).
 
-Association: L crossings through the map's orientation tables (stages.build_map.crossing_lut)
+Association: L crossings through the map's orientation tables (stages.common.crossing_tables)
 at the field cell where the particle places the observation and the set of the observation's
 global orientation; T crossings through the T table; X crossings, goal posts and lines per
 particle, by the smallest cost ("arg min before exp"). For lines, each (line, particle) pair is
@@ -56,6 +56,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stages.common.crossing_tables import crossing_association_tables
 from stages.common.field import FieldModel
 from stages.common.map_file import Grid
 from stages.common.observations import Observations
@@ -150,7 +151,7 @@ class ObservationModel:
     """Likelihood of a frame's observations at N poses, vectorised over the poses.
 
     ``lut_l`` (4, ny, nx) and ``lut_t`` (ny, nx) are the crossing association tables on
-    ``grid`` (stages.build_map.crossing_lut); ``from_field`` builds them when no map is at
+    ``grid`` (stages.common.crossing_tables); ``from_field`` builds them when no map is at
     hand, ``from_map`` reads them from a map.
     """
 
@@ -215,8 +216,6 @@ class ObservationModel:
     def from_field(cls, field_model: FieldModel, conf: dict | None = None,
                    resolution: float = 0.1) -> ObservationModel:
         """A model with crossing tables computed on the fly (no map file needed)."""
-        from stages.build_map.crossing_lut import crossing_association_tables
-
         grid = Grid.around(field_model, field_model.border, resolution)
         tabs = crossing_association_tables(field_model, grid)
         return cls(field_model, grid, tabs["crossing_lut_L"][0], tabs["crossing_lut_T"][0],
@@ -224,15 +223,8 @@ class ObservationModel:
 
     @classmethod
     def from_map(cls, map_file, conf: dict | None = None) -> ObservationModel:
-        """A model on a map (stages.common.map_file.MapFile); its crossing tables are used when
-        present, otherwise computed on the map's grid."""
-        if map_file.has_table("crossing_lut_L") and map_file.has_table("crossing_lut_T"):
-            lut_l, lut_t = map_file.table("crossing_lut_L"), map_file.table("crossing_lut_T")
-        else:
-            from stages.build_map.crossing_lut import crossing_association_tables
-
-            tabs = crossing_association_tables(map_file.field, map_file.grid)
-            lut_l, lut_t = tabs["crossing_lut_L"][0], tabs["crossing_lut_T"][0]
+        """A model on a map (stages.common.map_file.MapFile) and its crossing tables."""
+        lut_l, lut_t = map_file.crossing_tables()
         return cls(map_file.field, map_file.grid, lut_l, lut_t, conf)
 
     # ------------------------------------------------------------------ observations in use
