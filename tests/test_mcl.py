@@ -17,7 +17,7 @@ from stages.common.observations import Observations
 from stages.common.scanlines import ScanLines
 from stages.localize import mcl, motion_model
 from stages.localize.observation_model import ObservationModel
-from stages.localize.synthetic_observations import (
+from stages.simulate.synthetic_observations import (
     synthetic_observations,
     synthetic_walk,
     write_synthetic_run,

@@ -416,7 +416,7 @@ def time_mcl_update(field_model=None, *, n_particles: int = 1000, repeats: int =
     from ..common.errors import FieldlocError
     from ..common.field import load_field
     from ..localize.mcl import ParticleFilter, confs
-    from ..localize.synthetic_observations import synthetic_observations
+    from ..simulate.synthetic_observations import synthetic_observations
 
     fm = load_field("kidsize") if field_model is None else field_model
     conf = copy.deepcopy(confs["default"] if conf is None else conf)

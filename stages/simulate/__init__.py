@@ -33,7 +33,11 @@ Pieces, each reusable on its own:
   CSV files are written beside the others (the perspective renderer's head motion: head.csv,
   the measured head angles, and head_truth.csv);
 - :mod:`.walk` the walking humanoid: entry at a touch line (trajectory ``start: touchline``)
-  and head motion.
+  and head motion;
+- :mod:`.synthetic_observations` what a perspective camera would report (lines, crossings,
+  goal posts in the robot frame) made from the field model without images, and walks with
+  truth and odometry (a dataset with features.h5 and no images): for the particle filter's
+  tests and bench.
 """
 
 from __future__ import annotations

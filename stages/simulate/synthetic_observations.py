@@ -1,7 +1,7 @@
 """Synthetic perspective observations and walks, generated from a field model at known poses.
 
 What a forward-looking humanoid camera would report through ``extract`` (lines, crossings, goal
-posts in the robot frame, see stages.localize.observation_model), made directly from the field
+posts in the robot frame, see stages.common.observations), made directly from the field
 geometry: for tests of the particle filter, for the bench, and for measuring the filter apart
 from the image pipeline. The errors follow a head camera at ``camera_height``: one pitch and
 roll error per frame shifts all floor points coherently (far points much more than near ones),
