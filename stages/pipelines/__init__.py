@@ -1,2 +1,2 @@
-"""Chains of stage mains: what a user runs end to end, and the checks of the product on real
-recordings (realdata.py). Nothing below this package imports it."""
+"""Chains of stage mains: what a user runs end to end (``bench``, the real-data checks of
+realdata.py). Nothing below this package imports it."""

@@ -333,7 +333,7 @@ def bench_lut_accuracy(repeat: int) -> Row:
     from .. import localize
     from ..common.dataset import read_csv
     from ..common.poses_file import read_poses
-    from . import evaluate_poses
+    from ..evaluate import evaluate_poses
 
     inp = omni_inputs(frames=100, seed=1)
     out = _work_dir() / "omni-lut.poses.h5"
@@ -488,7 +488,7 @@ def bench_mcl_accuracy(repeat: int) -> list[Row]:
     from .. import localize
     from ..common.dataset import read_csv
     from ..common.poses_file import read_poses
-    from . import evaluate_poses
+    from ..evaluate import evaluate_poses
 
     inp = perspective_inputs(frames=300, seed=5)
     truth = read_csv(Path(inp["data"]) / "truth.csv", "truth")
@@ -556,8 +556,8 @@ def pair_scores(conf, H: np.ndarray, images: list) -> dict:
     """Repeatability and matching score of a feature conf over image pairs (A, A warped by H),
     pooled: correspondences and correct matches summed over the pairs, divided by the summed
     min(n_A, n_B)."""
+    from ..evaluate import feature_repeatability as fr
     from ..extract import local_features
-    from . import feature_repeatability as fr
 
     corr = correct = n_min = detected = 0
     for grey, valid in images:
@@ -609,7 +609,7 @@ def bench_feature_quality(repeat: int) -> list[Row]:
     """Issue 11: SURF against SIFT (and ORB, U-SURF, SURF without the edge test) on synthetic
     pairs of rendered ground images, Mikolajczyk-Schmid protocol (overlap error < 0.4,
     one-to-one matching): repeatability >= SIFT's, matching score >= 0.5 at 30 deg."""
-    from . import feature_repeatability as fr
+    from ..evaluate import feature_repeatability as fr
 
     images = ground_images()
     c = 0.5 * (images[0][0].shape[1] - 1), 0.5 * (images[0][0].shape[0] - 1)
