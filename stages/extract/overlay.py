@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..common.dataset import open_dataset, read_image
+from ..common.dataset import frame_index, open_dataset, read_image, truth_at
 from ..common.errors import FieldlocError
 from ..common.geometry import robot_to_field
 
@@ -77,31 +77,6 @@ def points_figure(image_bgr, arrays: dict, *, field_model=None, pose=None, title
     return fig
 
 
-def frame_index(ds, frame: str | int) -> int:
-    """Index of a frame given by its position (0-based) or its name (image file stem)."""
-    names = ds.names
-    if isinstance(frame, str) and frame in names:
-        return names.index(frame)
-    try:
-        i = int(frame)
-    except (TypeError, ValueError):
-        raise FieldlocError(f"{ds.root}: no frame named '{frame}'") from None
-    if not 0 <= i < len(names):
-        raise FieldlocError(f"{ds.root}: frame {i} out of range (0..{len(names) - 1})")
-    return i
-
-
-def truth_pose(ds, stamp: float, tolerance: float = 0.05):
-    """The truth.csv pose nearest to ``stamp`` (within ``tolerance`` s), or None."""
-    truth = ds.optional("truth")
-    if truth is None or len(truth["stamp"]) == 0:
-        return None
-    i = int(np.argmin(np.abs(truth["stamp"] - stamp)))
-    if abs(truth["stamp"][i] - stamp) > tolerance:
-        return None
-    return np.array([truth["x"][i], truth["y"][i], truth["theta"][i]])
-
-
 def show_points(dataset_dir, frame, output, *, features=None, field=None, pose=None,
                 conf=None, overrides=None, overwrite=False,
                 field_file=None) -> tuple[Path, dict]:
@@ -119,7 +94,7 @@ def show_points(dataset_dir, frame, output, *, features=None, field=None, pose=N
     ds = open_dataset(dataset_dir)
     check_output(output, {**ds.files(), "features": features, "map or field": field_file},
                  overwrite=overwrite)
-    i = frame_index(ds, frame)
+    i = frame_index(ds.names, frame, str(ds.root))
     name, stamp = ds.names[i], float(ds.stamps[i])
     image = read_image(ds.images[i])
     if features is not None:
@@ -137,7 +112,7 @@ def show_points(dataset_dir, frame, output, *, features=None, field=None, pose=N
             info["mask"] = read_mask(ds.root / "mask.png", camera.image_size)
         arrays = kind_module(camera.kind).extract_frame(image, camera, c, **info)
     if pose is None and field is not None:
-        pose = truth_pose(ds, stamp)
+        pose = truth_at(ds.optional("truth"), stamp)
         if pose is None:
             log.warning("no --pose and no truth at frame %s: drawing the image only", name)
     fig = points_figure(image, arrays, field_model=field, pose=pose,

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from stages.common.conf import resolve_conf
+from stages.common.dataset import frame_index, readable_truth, truth_at
 from stages.common.errors import DatasetError, FieldlocError
 from stages.common.observations import Observations
 
@@ -168,12 +169,12 @@ def frame_observations(dataset_dir: Path, frame: str | int, features: Path | Non
         features = dataset_dir / "features.h5"
     if features is not None:
         with FeaturesFile(features) as ff:
-            name = _pick_frame(ff.names, frame, str(features))
+            name = ff.names[frame_index(ff.names, frame, str(features))]
             data = ff.frame(name)
             return name, float(data["stamp"]), Observations.from_features(data)
     ds = open_dataset(dataset_dir)
-    name = _pick_frame(ds.names, frame, str(dataset_dir))
-    i = ds.names.index(name)
+    i = frame_index(ds.names, frame, str(dataset_dir))
+    name = ds.names[i]
     from stages import extract
     from stages.common.dataset import read_image
 
@@ -192,38 +193,6 @@ def frame_observations(dataset_dir: Path, frame: str | int, features: Path | Non
             info = {"pitch": float(head["pitch"][k]), "roll": float(head["roll"][k])}
     result = module.extract_frame(read_image(ds.images[i]), camera, conf, **info)
     return name, float(ds.stamps[i]), Observations.from_features(result)
-
-
-def _pick_frame(names: list[str], frame: str | int, where: str) -> str:
-    """A frame by name, or by index when it is not a name."""
-    frame = str(frame)
-    if frame in names:
-        return frame
-    try:
-        i = int(frame)
-    except ValueError:
-        raise FieldlocError(f"{where}: no frame named '{frame}'") from None
-    if not -len(names) <= i < len(names):
-        raise FieldlocError(f"{where}: frame index {i} out of range (0..{len(names) - 1})")
-    return names[i]
-
-
-def _truth_at(dataset_dir: Path, stamp: float):
-    from stages.common.dataset import read_csv
-
-    p = dataset_dir / "truth.csv"
-    if not p.is_file():
-        return None
-    try:
-        t = read_csv(p, "truth")
-    except DatasetError:
-        return None
-    if not len(t["stamp"]):
-        return None
-    k = int(np.argmin(np.abs(t["stamp"] - stamp)))
-    if abs(t["stamp"][k] - stamp) > 0.05:
-        return None
-    return float(t["x"][k]), float(t["y"][k]), float(t["theta"][k])
 
 
 # ---------------------------------------------------------------------------- main
@@ -256,7 +225,7 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path,
                            heading_step=float(conf["heading_step"]),
                            margin=float(conf["margin"]))
         fig = new_figure(12.0, 8.5)
-        draw_belief(fig, mf.field, grid, truth=_truth_at(dataset_dir, stamp),
+        draw_belief(fig, mf.field, grid, truth=truth_at(readable_truth(dataset_dir), stamp),
                     arrow_spacing=float(conf["arrow_spacing"]),
                     arrow_min=float(conf["arrow_min"]),
                     title=f"{dataset_dir.name} frame {name} (t = {stamp:.2f} s): belief from"

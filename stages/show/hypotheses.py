@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common.conf import resolve_conf
+from ..common.dataset import frame_index, readable_truth, truth_at
 from ..common.errors import FieldlocError
 from ..common.field import load_field
 from ..common.geometry import robot_to_field
@@ -83,7 +84,7 @@ def main(conf, poses: str | Path, output: str | Path, *, frame: str | int = 0,
         raise FieldlocError(f"{output} exists (use --overwrite to replace it)")
     cols, attrs = read_poses(poses)
     names = [str(n) for n in cols["name"]]
-    i = _frame_index(names, frame, str(poses))
+    i = frame_index(names, frame, str(poses))
     fm = load_field(field or attrs.get("field") or "")
     h = cols["hypotheses"][i]
     h = h[np.isfinite(h[:, 3]) & (h[:, 3] >= conf["min_probability"])][:conf["max_hypotheses"]]
@@ -97,7 +98,7 @@ def main(conf, poses: str | Path, output: str | Path, *, frame: str | int = 0,
                     points = np.asarray(data["points"], float)
                 elif "line_ends" in data:
                     points = np.asarray(data["line_ends"], float).reshape(-1, 2)
-    truth = _truth(attrs.get("dataset"), float(cols["stamp"][i]))
+    truth = truth_at(readable_truth(attrs.get("dataset")), float(cols["stamp"][i]))
     xmin, xmax, ymin, ymax = fm.world_bounds()
     fig = new_figure(10.0, max(4.0, 10.0 * (ymax - ymin) / (xmax - xmin)))
     ax = fig.add_subplot()
@@ -109,34 +110,3 @@ def main(conf, poses: str | Path, output: str | Path, *, frame: str | int = 0,
     return save_figure(fig, output)
 
 
-def _frame_index(names: list[str], frame, where: str) -> int:
-    frame = str(frame)
-    if frame in names:
-        return names.index(frame)
-    try:
-        i = int(frame)
-    except ValueError:
-        raise FieldlocError(f"{where}: no frame named '{frame}'") from None
-    if not -len(names) <= i < len(names):
-        raise FieldlocError(f"{where}: frame index {i} out of range (0..{len(names) - 1})")
-    return i % len(names)
-
-
-def _truth(dataset, stamp: float):
-    if not dataset:
-        return None
-    from ..common.dataset import read_csv
-
-    p = Path(dataset) / "truth.csv"
-    if not p.is_file():
-        return None
-    try:
-        t = read_csv(p, "truth")
-    except FieldlocError:
-        return None
-    if not len(t["stamp"]):
-        return None
-    k = int(np.argmin(np.abs(t["stamp"] - stamp)))
-    if abs(t["stamp"][k] - stamp) > 0.05:
-        return None
-    return float(t["x"][k]), float(t["y"][k]), float(t["theta"][k])
