@@ -23,8 +23,9 @@ from stages.evaluate.metrics import (
     match_by_stamp,
     percentile,
 )
-from stages.evaluate.plots import draw_field, new_figure, save_figure
 from stages.evaluate.report import load_report, read_errors_csv, tabulate
+from stages.show.field import draw_field
+from stages.show.figure import new_figure, save_figure
 
 
 def write_track(path, frames, *, method="lut", field="msl-2015", dataset=""):

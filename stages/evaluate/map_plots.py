@@ -11,7 +11,8 @@ from ..common.artifacts import check_output
 from ..common.errors import FieldlocError
 from ..common.map_file import MapFile
 from ..common.scanlines import NO_HIT_MM
-from .plots import draw_field, new_figure, save_figure
+from ..show.field import draw_field
+from ..show.figure import new_figure, save_figure
 
 TABLES = ("distance", "radial", "spiral")
 

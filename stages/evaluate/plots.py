@@ -1,8 +1,5 @@
 """Evaluation plots. Every plot function draws into a matplotlib ``ax`` it is given (as evo
-does), so callers compose figures; ``save_figure`` writes a figure atomically.
-
-Figures are built with ``matplotlib.figure.Figure`` and the Agg canvas, never pyplot, so no
-global backend or figure state is touched and nothing opens a window.
+does), so callers compose figures (stages.show.figure).
 """
 
 from __future__ import annotations
@@ -11,98 +8,15 @@ import math
 from pathlib import Path
 
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.collections import LineCollection, PatchCollection
-from matplotlib.figure import Figure
-from matplotlib.patches import Circle, Polygon, Rectangle, Wedge
 
-from stages.common.artifacts import atomic_path
 from stages.common.field import FieldModel
 
+from ..show.field import draw_field
+from ..show.figure import new_figure, save_figure
 from .metrics import FrameErrors
 
-FIELD_GREEN = "#3a8a3a"
-BORDER_GREEN = "#2f7330"
-LINE_WHITE = "white"
 TRUTH_COLOUR = "black"
 FAILURE_COLOUR = "#d62728"
-
-
-def new_figure(width: float = 8.0, height: float = 5.0, dpi: int = 120) -> Figure:
-    """A figure on the Agg canvas (no pyplot)."""
-    fig = Figure(figsize=(width, height), dpi=dpi)
-    FigureCanvasAgg(fig)
-    return fig
-
-
-def save_figure(fig: Figure, path: str | Path, dpi: int | None = None) -> Path:
-    """Write ``fig`` as PNG to ``path`` atomically."""
-    path = Path(path)
-    with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, format="png", dpi=dpi or fig.dpi, bbox_inches="tight")
-    return path
-
-
-# ---------------------------------------------------------------------------- the field
-
-
-def _segment_polygon(p0, p1, width: float) -> np.ndarray:
-    """The rectangle (4, 2) a line of ``width`` covers along p0 -> p1, ends extended by
-    width / 2 so that lines meeting at a corner close it."""
-    p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
-    d = p1 - p0
-    u = d / np.linalg.norm(d)
-    n = np.array([-u[1], u[0]]) * width / 2
-    a, b = p0 - u * width / 2, p1 + u * width / 2
-    return np.array([a + n, b + n, b - n, a - n])
-
-
-def draw_field(ax, field_model: FieldModel, *, border: bool = True, line_colour=LINE_WHITE,
-               field_colour=FIELD_GREEN, border_colour=BORDER_GREEN, goals: bool = True,
-               zorder: float = 0.0):
-    """Draw a field's white lines at their true width (segments and arcs of the model),
-    penalty marks, goals and posts into ``ax``, in metres in the field frame. Sets equal aspect
-    and limits to the field plus its border (``border=False``: the field only)."""
-    fm = field_model
-    xmin, xmax, ymin, ymax = fm.world_bounds(None if border else 0.0)
-    ax.add_patch(Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, facecolor=border_colour,
-                           edgecolor="none", zorder=zorder))
-    hx, hy = fm.length / 2, fm.width / 2
-    ax.add_patch(Rectangle((-hx, -hy), fm.length, fm.width, facecolor=field_colour,
-                           edgecolor="none", zorder=zorder))
-    lw = fm.line_width
-    patches = [Polygon(_segment_polygon(p0, p1, lw), closed=True) for p0, p1 in fm.segments]
-    for cx, cy, r, a0, sweep in fm.arcs:
-        t0, t1 = math.degrees(a0), math.degrees(a0 + sweep)
-        patches.append(Wedge((cx, cy), r + lw / 2, t0, t1, width=lw))
-    for px, py in fm.penalty_marks:
-        size = float(fm.spec.get("penalty_mark", {}).get("size", lw))
-        patches.append(Rectangle((px - size / 2, py - lw / 2), size, lw))
-        patches.append(Rectangle((px - lw / 2, py - size / 2), lw, size))
-    ax.add_collection(PatchCollection(patches, facecolor=line_colour, edgecolor="none",
-                                      zorder=zorder + 0.1))
-    if goals and len(fm.goal_posts):
-        goal = fm.spec.get("goal", {})
-        depth = float(goal.get("depth", 0.0))
-        post_d = float(goal.get("post_diameter", lw))
-        frames = []
-        for sx in (-1.0, 1.0):
-            posts = fm.goal_posts[np.sign(fm.goal_posts[:, 0]) == sx]
-            if len(posts) == 2 and depth > 0:
-                y0, y1 = sorted(posts[:, 1])
-                gx = sx * hx
-                frames.append([(gx, y0), (gx + sx * depth, y0), (gx + sx * depth, y1), (gx, y1)])
-        ax.add_collection(LineCollection(frames, colors="0.85", linewidths=1.5,
-                                         zorder=zorder + 0.2))
-        ax.add_collection(PatchCollection(
-            [Circle((px, py), post_d / 2) for px, py in fm.goal_posts],
-            facecolor="0.95", edgecolor="0.3", linewidth=0.5, zorder=zorder + 0.3))
-    ax.set_xlim(xmin, xmax)
-    ax.set_ylim(ymin, ymax)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    return ax
 
 
 # ---------------------------------------------------------------------------- error plots

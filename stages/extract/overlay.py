@@ -37,7 +37,8 @@ def points_figure(image_bgr, arrays: dict, *, field_model=None, pose=None, title
                   near: float = 0.15):
     """A matplotlib figure (Agg canvas): the frame with its extracted features, and the line
     points on the field at ``pose`` when a field model and a pose are given."""
-    from ..evaluate.plots import draw_field, new_figure
+    from ..show.field import draw_field
+    from ..show.figure import new_figure
 
     on_field = field_model is not None and pose is not None
     fig = new_figure(12.0 if on_field else 6.5, 6.0)
@@ -88,7 +89,7 @@ def show_points(dataset_dir, frame, output, *, features=None, field=None, pose=N
     and an existing one is replaced only with ``overwrite``. Returns the path and a summary
     (points, share near lines, pose used)."""
     from ..common.artifacts import check_output
-    from ..evaluate.plots import save_figure
+    from ..show.figure import save_figure
     from . import kind_module, read_mask, resolve_extract_conf
 
     ds = open_dataset(dataset_dir)

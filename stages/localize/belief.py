@@ -147,7 +147,7 @@ def _draw_truth(ax, truth):
 
 def _draw_field(ax, field_model):
     try:
-        from stages.evaluate.plots import draw_field
+        from stages.show.field import draw_field
     except ImportError:  # a plain drawing of the centre lines
         for (x0, y0), (x1, y1) in field_model.segments:
             ax.plot([x0, x1], [y0, y1], color="white", lw=1, zorder=1)
@@ -204,7 +204,7 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path,
     """Draw the belief of one frame's observations on the map's field into ``output`` (PNG).
     ``frame``: a frame name or index."""
     from stages.common.map_file import MapFile
-    from stages.evaluate.plots import new_figure, save_figure
+    from stages.show.figure import new_figure, save_figure
 
     conf = resolve_conf(confs, conf) if not isinstance(conf, dict) else resolve_conf(
         confs, "default", conf)

@@ -28,7 +28,7 @@ def draw_hypotheses(ax, field_model, hypotheses: np.ndarray, points: np.ndarray 
                     *, truth=None, robot_radius: float = 0.25, title: str = ""):
     """Draw ``hypotheses`` ((k, 4) x, y, theta, probability, ranked) on the field in ``ax``,
     with ``points`` ((n, 2) robot frame) placed at each, and ``truth`` (x, y, theta)."""
-    from ..evaluate.plots import draw_field
+    from .field import draw_field
 
     draw_field(ax, field_model, zorder=0)
     h = np.asarray(hypotheses, float).reshape(-1, 4)
@@ -75,7 +75,7 @@ def main(conf, poses: str | Path, output: str | Path, *, frame: str | int = 0,
     from ``field`` (default: the poses file's)."""
     from ..common.features_file import FeaturesFile
     from ..common.poses_file import read_poses
-    from ..evaluate.plots import new_figure, save_figure
+    from .figure import new_figure, save_figure
 
     conf = resolve_conf(confs, "default", conf) if isinstance(conf, dict) else \
         resolve_conf(confs, conf)
