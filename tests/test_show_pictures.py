@@ -9,9 +9,9 @@ from click.testing import CliRunner
 from fieldloc_cli.main import cli
 from stages.common.field import load_field
 from stages.common.map_file import MapFile
-from stages.evaluate.map_plots import draw_scanlines_from_cell
 from stages.localize.belief import draw_belief
 from stages.show.figure import new_figure
+from stages.show.map import draw_scanlines_from_cell
 
 
 def test_spiral_picture_one_family_few_spirals(msl2015_map, tmp_path):
