@@ -216,7 +216,7 @@ def overlay_png(dataset, features, frame: dict, field_model, dpi: int) -> tuple[
     """The overlay of one worst frame, or (None, why not)."""
     from ..common.dataset import open_dataset, read_image
     from ..common.features_file import FeaturesFile
-    from ..extract.overlay import points_figure  # the pictures move to stages/show (issue 10)
+    from ..show.points import points_figure
 
     if dataset is None or not Path(dataset).is_dir():
         return None, "the run's dataset folder is not at hand"
