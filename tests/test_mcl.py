@@ -314,7 +314,7 @@ def test_show_belief_cli(kidsize, map_path, tmp_path):
     from click.testing import CliRunner
 
     from fieldloc_cli.main import cli
-    from stages.localize import belief
+    from stages.show import belief
 
     data = tmp_path / "walk"
     write_synthetic_run(kidsize, data, 5, seed=2)

@@ -9,7 +9,7 @@ from click.testing import CliRunner
 from fieldloc_cli.main import cli
 from stages.common.field import load_field
 from stages.common.map_file import MapFile
-from stages.localize.belief import draw_belief
+from stages.show.belief import draw_belief
 from stages.show.figure import new_figure
 from stages.show.map import draw_scanlines_from_cell
 
@@ -49,7 +49,7 @@ def _grid(counts):
 
 def test_belief_picture_colour_bar_sparse_arrows_and_empty_panel():
     fig = new_figure(12, 8.5)
-    axes = draw_belief(fig, load_field("kidsize"), _grid({"lines": 5, "crossings": 2,
+    axes = draw_belief(fig.subplots(2, 2), load_field("kidsize"), _grid({"lines": 5, "crossings": 2,
                                                           "posts": 0}),
                        truth=(2.0, -1.0, 0.3), arrow_spacing=0.5, arrow_min=0.25)
     assert len(fig.axes) == 5  # four panels and one colour bar

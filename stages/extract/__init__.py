@@ -85,6 +85,11 @@ def _head_angles(ds) -> tuple[np.ndarray, dict[str, np.ndarray]] | None:
     return head["stamp"][order], {k: v[order] for k, v in head.items() if k != "stamp"}
 
 
+def _frame_info(kind: str, mask, head, stamp: float) -> dict:
+    """The frame_info of one frame for its kind's ``extract_frame`` (module doc)."""
+    return {"mask": mask} if kind == "omni" else _frame_info_head(head, stamp)
+
+
 def _frame_info_head(head, stamp: float) -> dict:
     if head is None:
         return {}
@@ -139,6 +144,17 @@ def _run_attrs(ds, camera, module, conf: dict):
     if kind == "omni":
         attrs["scanlines"] = json.dumps(module.scanlines_of(conf).as_dict())
     return attrs, mask, head
+
+
+def extract_dataset_frame(ds, index: int, conf: dict) -> dict:
+    """The features of frame ``index`` of the dataset ``ds`` (stages.common.dataset.Dataset)
+    with the resolved ``conf``, as ``main`` extracts them (the omni mask, the perspective head
+    angles of head.csv): for pictures that need one frame without a features file."""
+    camera = ds.camera()
+    module = kind_module(camera.kind)
+    _attrs, mask, head = _run_attrs(ds, camera, module, conf)
+    info = _frame_info(camera.kind, mask, head, float(ds.stamps[index]))
+    return module.extract_frame(read_image(ds.images[index]), camera, conf, **info)
 
 
 def reusable_features(path: str | Path, dataset_dir: str | Path, conf=None,
@@ -219,11 +235,8 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
     for path, name, stamp in tqdm(todo, desc="extract", unit="frame", disable=not progress):
         try:
             image = read_image(path)
-            if kind == "omni":
-                info = {"mask": mask}
-            else:
-                info = _frame_info_head(head, float(stamp))
-            arrays = module.extract_frame(image, camera, conf, **info)
+            arrays = module.extract_frame(image, camera, conf,
+                                          **_frame_info(kind, mask, head, float(stamp)))
         except FieldlocError as e:
             log.warning("frame %s skipped: %s", name, e)
             parts.add_failure(name, str(e))
