@@ -17,13 +17,14 @@ from stages.common.dataset import write_csv
 from stages.common.errors import FieldlocError
 from stages.common.field import load_field, preset_names
 from stages.common.poses_file import PoseTrack, write_poses
+from stages.common.report_file import load_report, read_errors_csv
 from stages.evaluate.metrics import (
     error_stats,
     heading_error,
     match_by_stamp,
     percentile,
 )
-from stages.evaluate.report import load_report, read_errors_csv, tabulate
+from stages.evaluate.report import tabulate
 from stages.show.field import draw_field
 from stages.show.figure import new_figure, save_figure
 

@@ -7,7 +7,8 @@ table across runs.
 
 A report folder holds:
 
-    report.json          the numbers (schema ``fieldloc.report``, see report.py), written last:
+    report.json          the numbers (schema ``fieldloc.report``, see
+                         stages.common.report_file), written last:
                          its presence means the run finished
     errors.csv           one row per frame: matched truth, position and heading error
     plots/error_cdf.png, plots/trajectory.png, plots/error_over_time.png
@@ -18,7 +19,6 @@ written in metrics.py and repeated in every report under ``conventions``.
 
 from __future__ import annotations
 
-import datetime as _dt
 import logging
 import math
 import os
@@ -26,27 +26,25 @@ from pathlib import Path
 
 import numpy as np
 
-from stages import __version__
 from stages.common.artifacts import check_output, file_hash, refuse_inputs
 from stages.common.conf import resolve_conf
 from stages.common.dataset import read_csv
 from stages.common.errors import FieldlocError
 from stages.common.field import load_field
 from stages.common.poses_file import read_poses
-
-from .metrics import FrameErrors, frame_errors, summarize
-from .report import (
+from stages.common.report_file import (
     ERRORS_NAME,
+    PLOT_NAMES,
     PLOTS_DIR,
     REPORT_NAME,
-    SCHEMA,
-    VERSION,
     load_report,
-    reliability_table,
-    tabulate,
+    report_head,
     write_errors_csv,
     write_report,
 )
+
+from .metrics import FrameErrors, frame_errors, summarize
+from .report import reliability_table, tabulate
 
 __all__ = ["confs", "main", "evaluate_poses", "tabulate", "reliability_table", "load_report",
            "FrameErrors"]
@@ -77,8 +75,6 @@ confs = {
         "dpi": 120,
     },
 }
-
-PLOT_NAMES = ("error_cdf.png", "trajectory.png", "error_over_time.png", "reliability.png")
 
 CONVENTIONS = {
     "matching": "each frame is matched to the truth row nearest in stamp within"
@@ -238,10 +234,7 @@ def main(conf, poses, truth, output_dir, *, overwrite: bool = False, field=None)
             (plots_dir / name).unlink(missing_ok=True)
 
     report = {
-        "schema": SCHEMA,
-        "schema_version": VERSION,
-        "fieldloc_version": __version__,
-        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        **report_head(),
         "run": out.name,
         "method": attrs.get("method", ""),
         "field": str(field) if field else attrs.get("field", ""),

@@ -36,7 +36,8 @@ import numpy as np
 from .. import __version__
 from ..common.artifacts import atomic_path
 from ..common.errors import FieldlocError
-from .report import REPORT_NAME, load_report, read_errors_csv, table_rows
+from ..common.report_file import REPORT_NAME, load_report, read_errors_csv
+from .report import table_rows
 
 log = logging.getLogger(__name__)
 
