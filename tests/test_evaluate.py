@@ -25,6 +25,7 @@ from stages.evaluate.metrics import (
     percentile,
 )
 from stages.evaluate.report import tabulate
+from stages.pipelines import evaluation
 from stages.show.field import draw_field
 from stages.show.figure import new_figure, save_figure
 
@@ -188,7 +189,7 @@ def _cols(poses, truth):
 
 def test_report_files(hand, tmp_path):
     poses, truth = hand
-    out = stage.main(None, poses, truth, tmp_path / "report")
+    out = evaluation.main(None, poses, truth, tmp_path / "report")
     text = (out / "report.json").read_text()
 
     def no_constants(name):
@@ -226,10 +227,14 @@ def test_report_files(hand, tmp_path):
 
 def test_existing_report_kept_or_refused(hand, tmp_path):
     poses, truth = hand
-    out = stage.main(None, poses, truth, tmp_path / "r")
-    mtime = (out / "report.json").stat().st_mtime_ns
-    stage.main(None, poses, truth, out)  # same inputs and conf: kept as it is
-    assert (out / "report.json").stat().st_mtime_ns == mtime
+    out = evaluation.main(None, poses, truth, tmp_path / "r")
+    mtimes = {p: p.stat().st_mtime_ns for p in [out / "report.json", *(out / "plots").iterdir()]}
+    evaluation.main(None, poses, truth, out)  # same inputs and conf: kept as it is, plots too
+    assert {p: p.stat().st_mtime_ns for p in mtimes} == mtimes
+    (out / "plots" / "trajectory.png").unlink()  # a run stopped while drawing: drawn again
+    evaluation.main(None, poses, truth, out)
+    assert (out / "plots" / "trajectory.png").is_file()
+    assert (out / "report.json").stat().st_mtime_ns == mtimes[out / "report.json"]
     with pytest.raises(FieldlocError, match="overwrite"):
         stage.main({"stamp_tolerance": 0.01}, poses, truth, out)
     stage.main({"stamp_tolerance": 0.01, "plots": False}, poses, truth, out, overwrite=True)
@@ -293,12 +298,13 @@ def test_draw_field_every_preset(tmp_path, name):
 def test_unknown_field_of_poses_still_plots(tmp_path, caplog):
     poses = write_track(tmp_path / "p.h5", HAND, field="no-such-field")
     truth = write_truth(tmp_path / "t.csv", [0, 1, 2, 3, 4])
-    out = stage.main(None, poses, truth, tmp_path / "r")
+    out = evaluation.main(None, poses, truth, tmp_path / "r")
     assert (out / "plots" / "trajectory.png").stat().st_size > 1000
     assert "without field lines" in caplog.text
     with pytest.raises(FieldlocError, match="no-such-field"):  # an explicit --field must load
         stage.main(None, poses, truth, tmp_path / "r2", field="no-such-field")
-    out3 = stage.main(None, poses, truth, tmp_path / "r3", field="spl")
+    assert not (tmp_path / "r2" / "errors.csv").exists()  # refused before anything is written
+    out3 = evaluation.main(None, poses, truth, tmp_path / "r3", field="spl")
     assert load_report(out3)["field"] == "spl"
 
 

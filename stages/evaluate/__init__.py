@@ -11,7 +11,12 @@ A report folder holds:
                          stages.common.report_file), written last:
                          its presence means the run finished
     errors.csv           one row per frame: matched truth, position and heading error
-    plots/error_cdf.png, plots/trajectory.png, plots/error_over_time.png
+    truth.tum            the truth for evo (evo_ape tum truth.tum poses.tum)
+    plots/error_cdf.png, plots/trajectory.png, plots/error_over_time.png, plots/reliability.png
+                         listed in report.json when the conf's ``plots`` is on, and drawn
+                         from the report by stages.show.report_plots (``fieldloc evaluate``,
+                         stages.pipelines.evaluation, runs both); a report that is written
+                         anew removes the plots of the one it replaces
 
 Failures count as failures (infinite error), never as poses; how that enters each number is
 written in metrics.py and repeated in every report under ``conventions``.
@@ -23,8 +28,6 @@ import logging
 import math
 import os
 from pathlib import Path
-
-import numpy as np
 
 from stages.common.artifacts import check_output, file_hash, refuse_inputs
 from stages.common.conf import resolve_conf
@@ -147,30 +150,13 @@ def _field_file(field) -> Path | None:
     return p if p.suffix.lower() in (".yaml", ".yml") or p.exists() else None
 
 
-def _load_field_model(field, attrs: dict):
-    """The field to draw on: ``field`` if given (errors are the user's), else the poses'
-    ``field`` attribute (a failure there is logged and the plot drawn without field lines)."""
-    if field:
-        return load_field(field)
-    name = attrs.get("field") or ""
-    if not name:
-        log.warning("poses file names no field; trajectories drawn without field lines"
-                    " (pass --field)")
-        return None
-    try:
-        return load_field(name)
-    except FieldlocError as e:
-        log.warning("field '%s' of the poses file could not be loaded (%s); trajectories drawn"
-                    " without field lines (pass --field)", name, e)
-        return None
-
-
 def main(conf, poses, truth, output_dir, *, overwrite: bool = False, field=None) -> Path:
     """Evaluate ``poses`` (poses.h5) against ``truth`` (truth.csv, or a dataset folder holding
     it; None: the dataset the poses file names) into the report folder ``output_dir``.
 
     ``conf``: a preset name, a dict of overrides of "default", or None. ``field``: the field
-    (name or YAML path) to draw trajectories on, instead of the poses file's ``field``.
+    (name or YAML path) to draw trajectories on, instead of the poses file's ``field``
+    (checked here, drawn by stages.show.report_plots).
     An existing report of the same inputs and conf is kept as it is; one of other inputs is
     replaced only with ``overwrite``. Returns the report folder."""
     conf = _resolve(conf)
@@ -204,6 +190,8 @@ def main(conf, poses, truth, output_dir, *, overwrite: bool = False, field=None)
             " (overwrite=True) to replace it or choose another output folder"
         )
 
+    if field:
+        load_field(field)  # the plots' field: a user's error is refused before writing
     fe = frame_errors(columns, truth_cols, conf["stamp_tolerance"])
     summary = summarize(fe, conf["thresholds"])
     log.info("%s: %d of %d frames matched to truth within %g s, %d failed", poses,
@@ -218,20 +206,8 @@ def main(conf, poses, truth, output_dir, *, overwrite: bool = False, field=None)
     from .export import write_truth_tum  # truth.tum: evo_ape tum truth.tum poses.tum
 
     write_truth_tum(out / "truth.tum", truth_cols)
-    plots_dir = out / PLOTS_DIR
-    plot_files = []
-    if conf["plots"]:
-        from .plots import write_report_plots
-
-        fm = _load_field_model(field, attrs)
-        title = f"{attrs.get('method') or 'poses'} on {out.name}"
-        plot_files = write_report_plots(
-            fe, plots_dir, thresholds=conf["thresholds"], title=title, field_model=fm,
-            truth_path=_truth_path_during(truth_cols, fe, conf["stamp_tolerance"]),
-            dpi=int(conf["dpi"]), calibration=summary["calibration"])
-    else:
-        for name in PLOT_NAMES:  # a replaced report must not keep plots of the old one
-            (plots_dir / name).unlink(missing_ok=True)
+    for name in PLOT_NAMES:  # a replaced report must not keep plots of the old one
+        (out / PLOTS_DIR / name).unlink(missing_ok=True)
 
     report = {
         **report_head(),
@@ -248,22 +224,13 @@ def main(conf, poses, truth, output_dir, *, overwrite: bool = False, field=None)
         "conventions": CONVENTIONS,
         **summary,
         "files": {"errors": ERRORS_NAME,
-                  "plots": [str(p.relative_to(out)) for p in plot_files]},
+                  "plots": [f"{PLOTS_DIR}/{n}" for n in PLOT_NAMES] if conf["plots"] else []},
     }
     write_report(report_file, report)
     pos = summary["position_error_m"]
     log.info("%s: median position error %s m, within %s", out, _short(pos["median"]),
              summary["within"])
     return out
-
-
-def _truth_path_during(truth: dict, fe: FrameErrors, tolerance: float):
-    """(x, y) of the truth rows, in time order, from the first to the last frame."""
-    t = truth["stamp"]
-    ok = np.isfinite(t) & np.isfinite(truth["x"]) & np.isfinite(truth["y"])
-    ok &= (t >= np.nanmin(fe.stamp) - tolerance) & (t <= np.nanmax(fe.stamp) + tolerance)
-    order = np.argsort(t[ok], kind="stable")
-    return truth["x"][ok][order], truth["y"][ok][order]
 
 
 def _short(v: float) -> str:

@@ -1,19 +1,36 @@
-"""Evaluation plots. Every plot function draws into a matplotlib ``ax`` it is given (as evo
-does), so callers compose figures (stages.show.figure).
+"""The plots of an evaluation report (plots/ of a report folder): the error CDF, the
+trajectories on the field, the errors over time and the reliability diagram. Every plot
+function draws into a matplotlib ``ax`` it is given (as evo does), so callers compose figures.
+
+    main(conf, report_dir, *, overwrite=False) -> Path   # the plots folder
+
+draws them from a report folder written by stages.evaluate: its frames are matched to the
+truth again from the poses and truth files the report names, with the report's settings
+(stamp tolerance, thresholds, dpi), so the plots show exactly what the report counts.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 from pathlib import Path
 
 import numpy as np
 
-from stages.common.field import FieldModel
+from ..common.artifacts import check_output
+from ..common.conf import stage_conf
+from ..common.dataset import read_csv
+from ..common.errors import FieldlocError
+from ..common.field import FieldModel, load_field
+from ..common.poses_file import read_poses
+from ..common.report_file import PLOT_NAMES, PLOTS_DIR, decode_numbers, load_report
+from ..evaluate.metrics import FrameErrors, frame_errors
+from .field import draw_field
+from .figure import new_figure, save_figure
 
-from ..show.field import draw_field
-from ..show.figure import new_figure, save_figure
-from .metrics import FrameErrors
+log = logging.getLogger("fieldloc.evaluate")
+
+confs = {"default": {"dpi": None}}  # dpi None: the dpi the report was evaluated with
 
 TRUTH_COLOUR = "black"
 FAILURE_COLOUR = "#d62728"
@@ -234,3 +251,60 @@ def write_report_plots(fe: FrameErrors, out_dir: str | Path, *, thresholds, titl
         plot_reliability(fig.add_subplot(), calibration)
         written.append(save_figure(fig, out_dir / "reliability.png"))
     return written
+
+
+# ---------------------------------------------------------------------------- main
+
+
+def main(conf: str | dict | None, report_dir: str | Path, *, overwrite: bool = False,
+         progress: bool = False) -> Path:
+    """Draw the plots of the report folder ``report_dir`` (report.json) into its plots/ folder
+    and return that folder. Existing plots are replaced only with ``overwrite``."""
+    conf = stage_conf(confs, conf)
+    report_dir = Path(report_dir)
+    report = load_report(report_dir, raw=True)
+    econf = report["evaluate_conf"]
+    plots_dir = report_dir / PLOTS_DIR
+    inputs = {"poses": report["poses"], "truth": report["truth"]}
+    check_output(plots_dir, None, overwrite=None, kind="folder")
+    plots_dir.mkdir(exist_ok=True)
+    for name in PLOT_NAMES:
+        check_output(plots_dir / name, inputs, overwrite=overwrite)
+    columns, _attrs = read_poses(report["poses"])
+    truth = read_csv(report["truth"], "truth")
+    tolerance = float(econf["stamp_tolerance"])
+    fe = frame_errors(columns, truth, tolerance)
+    method = report.get("method") or "poses"
+    write_report_plots(
+        fe, plots_dir, thresholds=econf["thresholds"], title=f"{method} on {report_dir.name}",
+        field_model=_field_model(report.get("field_override"), report.get("field") or ""),
+        truth_path=truth_path_during(truth, fe, tolerance),
+        dpi=int(conf["dpi"] if conf["dpi"] is not None else econf["dpi"]),
+        calibration=decode_numbers(report["calibration"]))
+    return plots_dir
+
+
+def _field_model(override, name: str):
+    """The field to draw on: the one evaluate was given (errors are the user's), else the
+    poses' own (a failure there is logged and the plot drawn without field lines)."""
+    if override:
+        return load_field(override)
+    if not name:
+        log.warning("poses file names no field; trajectories drawn without field lines"
+                    " (pass --field)")
+        return None
+    try:
+        return load_field(name)
+    except FieldlocError as e:
+        log.warning("field '%s' of the poses file could not be loaded (%s); trajectories drawn"
+                    " without field lines (pass --field)", name, e)
+        return None
+
+
+def truth_path_during(truth: dict, fe: FrameErrors, tolerance: float):
+    """(x, y) of the truth rows, in time order, from the first to the last frame."""
+    t = truth["stamp"]
+    ok = np.isfinite(t) & np.isfinite(truth["x"]) & np.isfinite(truth["y"])
+    ok &= (t >= np.nanmin(fe.stamp) - tolerance) & (t <= np.nanmax(fe.stamp) + tolerance)
+    order = np.argsort(t[ok], kind="stable")
+    return truth["x"][ok][order], truth["y"][ok][order]
