@@ -242,6 +242,24 @@ def test_existing_report_kept_or_refused(hand, tmp_path):
     assert not (out / "plots" / "trajectory.png").exists()  # no plots of the old report left
 
 
+def test_report_plots_drawn_from_a_report_folder(hand, tmp_path):
+    """evaluate writes the numbers and lists the plots; show.report_plots draws them from the
+    report folder alone, and replaces existing ones only when asked."""
+    from stages.show import report_plots
+
+    poses, truth = hand
+    out = stage.main(None, poses, truth, tmp_path / "r")
+    listed = load_report(out)["files"]["plots"]
+    assert listed == [f"plots/{n}" for n in ("error_cdf.png", "trajectory.png",
+                                             "error_over_time.png", "reliability.png")]
+    assert not any((out / p).exists() for p in listed)
+    assert report_plots.main(None, out) == out / "plots"
+    assert all((out / p).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in listed)
+    with pytest.raises(FieldlocError, match="overwrite"):
+        report_plots.main(None, out)
+    report_plots.main({"dpi": 60}, out, overwrite=True)
+
+
 def test_bad_inputs_raise_fieldloc_errors(hand, tmp_path):
     poses, truth = hand
     with pytest.raises(FieldlocError, match="not found"):
