@@ -15,8 +15,8 @@ from stages import extract, simulate
 from stages.common.artifacts import file_hash, root_attrs
 from stages.common.dataset import read_csv
 from stages.common.poses_file import PoseTrack, write_poses
-from stages.evaluate.html_report import lookup
 from stages.pipelines import evaluation
+from stages.show.html_report import lookup
 
 
 class _Page(HTMLParser):
