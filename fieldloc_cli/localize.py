@@ -69,9 +69,16 @@ def localize(ctx, dataset, map_path, features, points, method, heading, init, in
     if min_confidence is not None:
         conf["min_confidence"] = min_confidence
     output = output or Path(dataset) / f"poses-{method}.h5"
-    path = stage.main(conf, dataset, map_path, output, features=features, points=points,
-                      overwrite=overwrite, progress=progress_enabled(ctx),
-                      allow_field_mismatch=allow_field_mismatch)
+    if features is None and points is None:  # from the images: extract first, or reuse
+        from stages.pipelines import images_to_poses
+
+        path = images_to_poses.main(conf, dataset, map_path, output, overwrite=overwrite,
+                                    progress=progress_enabled(ctx),
+                                    allow_field_mismatch=allow_field_mismatch)
+    else:
+        path = stage.main(conf, dataset, map_path, output, features=features, points=points,
+                          overwrite=overwrite, progress=progress_enabled(ctx),
+                          allow_field_mismatch=allow_field_mismatch)
     from stages.common.poses_file import read_poses
 
     cols, _attrs = read_poses(path)

@@ -10,12 +10,11 @@ is ``{"method": name, "preset": preset name (optional, default "default"), **ove
 the overrides are merged into the method's preset (unknown keys are errors), and the resolved
 conf is stored in poses.h5.
 
-Features come from a features file (``features``), from line points of a team's own detector
-(``points``: CSV with columns frame, x, y in the robot frame, binned into the scan lines by
-stages.common.scanlines.bin_points_to_scanlines), or, with neither, from the dataset's own
-``DIR/features.h5`` when it was extracted from the same calibration, mask and default conf and
-holds every frame, else from running extract on the fly into ``<output stem>.features.h5``
-beside the output (resumed if present).
+Features come from a features file (``features``) or from line points of a team's own
+detector (``points``: CSV with columns frame, x, y in the robot frame, binned into the scan
+lines by stages.common.scanlines.bin_points_to_scanlines). From a dataset's images without a
+features file, stages.pipelines.images_to_poses reuses ``DIR/features.h5`` or runs extract
+first (``fieldloc localize DIR`` without ``--features``).
 
 Checked before any frame is localised (each a one-line error, or a warning where the run can
 still mean something):
@@ -52,7 +51,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..common.artifacts import check_output, file_hash, refuse_inputs, root_attrs
+from ..common.artifacts import check_output, file_hash, root_attrs
 from ..common.conf import registered_module, resolve_conf
 from ..common.dataset import STAMP_SOURCES, csv_rows, open_dataset
 from ..common.errors import DatasetError, FieldlocError
@@ -241,21 +240,17 @@ def _point_frames_in_dataset(path: Path, ids: list[str], dataset):
 # ---------------------------------------------------------------------------- main
 
 
-def default_features_path(output: Path) -> Path:
-    return output.with_name(output.stem + ".features.h5")
-
-
 def _abs(p) -> str:
     return os.path.abspath(p)
 
 
-def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path,
-         output: str | Path, *, features: str | Path | None = None,
-         points: str | Path | None = None, overwrite: bool = False,
-         progress: bool = False, allow_field_mismatch: bool = False) -> Path:
-    """Localise the frames of ``dataset_dir`` on ``map_path`` into ``output`` (poses.h5 and
-    poses.tum beside it) and return its path. ``allow_field_mismatch``: localise even when the
-    features were recorded on another field or with other scan lines than the map's."""
+def check_run(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path,
+              output: str | Path, *, features: str | Path | None = None,
+              points: str | Path | None = None, overwrite: bool = False):
+    """What ``main`` refuses before it reads a frame (module doc): the output and poses.tum
+    beside it, the dataset's time series, the method, the map. Returns (resolved conf, the
+    dataset, its series, the inputs the outputs must not be), so that a chain that makes the
+    features first (stages.pipelines.images_to_poses) refuses a run before extracting."""
     conf = resolve_localize_conf(conf)
     output = Path(output)
     if features is not None and points is not None:
@@ -268,6 +263,27 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path,
     check_output(output, inputs_given, overwrite=overwrite)
     check_output(output.with_suffix(".tum"), inputs_given, overwrite=None)
     series = {k: dataset.optional(k) for k in ("odometry", "imu", "truth")}  # refused if bad
+    method_module(conf["method"])
+    MapFile(map_path).close()
+    return conf, dataset, series, inputs_given
+
+
+def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path,
+         output: str | Path, *, features: str | Path | None = None,
+         points: str | Path | None = None, overwrite: bool = False,
+         progress: bool = False, allow_field_mismatch: bool = False) -> Path:
+    """Localise the frames of ``dataset_dir`` on ``map_path`` into ``output`` (poses.h5 and
+    poses.tum beside it) from ``features`` (a features file) or ``points`` (a points CSV), and
+    return its path. ``allow_field_mismatch``: localise even when the features were recorded
+    on another field or with other scan lines than the map's."""
+    if features is None and points is None:
+        raise FieldlocError(
+            "localize needs the features of the frames (features=, from extract) or line"
+            " points (points=); stages.pipelines.images_to_poses extracts them first")
+    conf, dataset, series, _given = check_run(conf, dataset_dir, map_path, output,
+                                              features=features, points=points,
+                                              overwrite=overwrite)
+    output, dataset_dir = Path(output), Path(dataset_dir)
     module = method_module(conf["method"])
     map_file = MapFile(map_path)
     inputs = {"dataset": _abs(dataset_dir), "map": _abs(map_path),
@@ -278,10 +294,6 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path,
             inputs.update(points=_abs(points), points_hash=file_hash(points))
             recorded = {"field": dataset.field_record(), "scanlines": None, "failures": []}
         else:
-            if features is None:
-                features = _features_for(dataset_dir, output, inputs_given, progress)
-                for written in (output, output.with_suffix(".tum")):  # the features it chose
-                    refuse_inputs(written, {"features": features})
             feats = FeaturesFile(features)
             inputs.update(features=_abs(features), features_hash=file_hash(features))
             recorded = {"field": _json_attr(feats, "field"),
@@ -318,25 +330,6 @@ def _json_attr(feats, key: str):
         return feats.attr_json(key) if key in feats.h5.attrs else None
     except ValueError:
         return None
-
-
-def _features_for(dataset_dir: Path, output: Path, inputs: dict, progress: bool) -> Path:
-    """The features of a dataset localised without --features: DIR/features.h5 when it matches
-    what extract would make now, else extracted on the fly beside the output."""
-    from .. import extract
-
-    own = dataset_dir / "features.h5"
-    why = extract.reusable_features(own, dataset_dir) if own.exists() else None
-    if own.exists() and why is None:
-        log.info("no features given: using %s (same calibration, mask and conf, every frame)",
-                 own)
-        return own
-    target = default_features_path(output)
-    check_output(target, inputs, overwrite=None)
-    log.info("no features given: extracting %s into %s%s", dataset_dir, target,
-             f" ({own} is not used: {why})" if why else "")
-    extract.main(None, dataset_dir, target, progress=progress)
-    return target
 
 
 def _check_camera_kind(method: str, feats, features) -> None:
