@@ -93,7 +93,7 @@ def test_refuses_non_empty_folder_unless_overwrite(tmp_path, spl):
 
 def test_calib_error_perturbs_only_what_is_written(tmp_path, spl):
     conf = small_conf(frames=1)
-    conf["calib_error"] = {"centre_shift": [3.0, -2.0], "scale": 1.05}
+    conf["calib_error"] = {"centre_shift": [3.0, -2.0], "scale": 1.05, "distance_error": 0.0}
     out = simulate.main(conf, spl, tmp_path / "d")
     written = load_calib(out / "calib.yaml")
     true = yaml.safe_load((out / "simulation.yaml").read_text())["true_camera"]
@@ -387,7 +387,7 @@ def test_cli_round_trip_and_defaults(tmp_path):
     expected = resolve_conf(simulate.confs, "omni-default",
                             {"scene": {"texture_resolution": 0.02}})
     expected["frames"] = 2
-    expected["calib_error"] = {"centre_shift": [1.0, 2.0], "scale": 1.1}
+    expected["calib_error"].update(centre_shift=[1.0, 2.0], scale=1.1, distance_error=0.0)
     assert info["conf"] == yaml.safe_load(yaml.safe_dump(simulate._plain(expected)))
     assert info["seed"] == simulate.confs["omni-default"]["seed"]
     assert len(list((out / "images").iterdir())) == 2
