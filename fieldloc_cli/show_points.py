@@ -52,9 +52,15 @@ def show_points(ctx, dataset, frame, features, map_or_field, pose, preset, overr
     field = _field(map_or_field) if map_or_field else None
     pose_rad = None if not pose else (pose[0], pose[1], math.radians(pose[2]))
     field_file = Path(map_or_field) if map_or_field and Path(map_or_field).exists() else None
-    path, s = stage.write_picture(preset, dataset, output, frame=frame, features=features,
-                                  field=field, pose=pose_rad, overrides=overrides_dict(overrides),
-                                  overwrite=overwrite, field_file=field_file)
+    conf = preset
+    if overrides:  # the preset of the dataset's camera kind with the -c values
+        from stages import extract
+
+        conf = extract.resolve_extract_conf(extract.camera_kind(dataset), preset,
+                                            overrides_dict(overrides))
+    path, s = stage.write_picture(conf, dataset, output, frame=frame, features=features,
+                                  field=field, pose=pose_rad, overwrite=overwrite,
+                                  field_file=field_file)
     msg = f"{path}: frame {s['frame']}, {s['points']} line points"
     if "share_near_lines" in s:
         x, y, th = s["pose"]

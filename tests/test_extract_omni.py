@@ -265,7 +265,7 @@ def test_main_writes_features_records_bad_frame_and_resumes(tmp_path, caplog):
         assert ff.failures == []
     # another conf cannot be mixed into the same file
     with pytest.raises(FieldlocError, match="another conf"):
-        extract.main(None, ds, out, overrides={"min_white_m": 0.05})
+        extract.main({"min_white_m": 0.05}, ds, out)
 
 
 def test_failed_frame_is_retried_on_resume(tmp_path):

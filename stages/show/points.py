@@ -96,7 +96,7 @@ def points_figure(image_bgr, arrays: dict, *, field_model=None, pose=None, title
 
 
 def write_picture(conf, dataset_dir, output, *, frame: str | int = 0, features=None,
-                  field=None, pose=None, overrides=None, overwrite: bool = False,
+                  field=None, pose=None, overwrite: bool = False,
                   field_file=None) -> tuple[Path, dict]:
     """``main``, returning the path and a summary of the frame drawn: its name, its number of
     line points, the pose used and the share of points near a line at that pose."""
@@ -115,7 +115,7 @@ def write_picture(conf, dataset_dir, output, *, frame: str | int = 0, features=N
             arrays = ff.frame(name)
     else:
         camera = ds.camera()
-        c = extract.resolve_extract_conf(camera.kind, conf, overrides)
+        c = extract.resolve_extract_conf(camera.kind, conf)
         info = {}
         if camera.kind == "omni" and (ds.root / extract.MASK_NAME).is_file():
             info["mask"] = read_mask(ds.root / extract.MASK_NAME, camera.image_size)
