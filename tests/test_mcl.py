@@ -369,7 +369,7 @@ def rendered_walk(tmp_path_factory, map_path):
     truth = read_csv(data / "truth.csv", "truth")
     out = {}
     for preset in ("default", "no-lines", "uniform"):
-        path = localize.main({"method": "mcl", "preset": preset}, data, map_path,
+        path = localize.main(f"mcl-{preset}", data, map_path,
                              root / f"poses-{preset}.h5", features=features)
         cols, _ = read_poses(path)
         i = np.searchsorted(truth["stamp"], cols["stamp"] - 1e-6)

@@ -1,14 +1,16 @@
 """Stage localize: poses of a dataset's frames from their features and a map.
 
     from stages import localize
-    localize.main({"method": "lut"}, "data/run1", "msl-2015.map.h5", "data/run1/poses.h5")
+    localize.main({"method": "lut"}, "data/run1", "msl-2015.map.h5", "data/run1/poses.h5",
+                  features="data/run1/features.h5")
 
-``conf["method"]`` picks the method module (``METHODS``, imported when used); each exposes
-``confs`` (named presets, at least "default") and
-``run(conf, dataset, features, map_file, progress) -> PoseTrack``. The conf given to ``main``
-is ``{"method": name, "preset": preset name (optional, default "default"), **overrides}``;
-the overrides are merged into the method's preset (unknown keys are errors), and the resolved
-conf is stored in poses.h5.
+``conf["method"]`` picks the method module (``METHODS``); each exposes ``confs`` (named
+presets, at least "default") and ``run(conf, dataset, features, map_file, progress) ->
+PoseTrack``. ``confs`` here lists the presets of every method as ``<method>-<preset>``
+(``mcl-uniform``), each with its ``method``, and "default" (``lut-default``). The conf given
+to ``main`` is a name of ``confs``, None ("default"), or a dict of overrides on the default
+preset of its method (``{"method": "mcl", "init": "uniform"}``; the method "lut" when it names
+none); unknown keys are errors, and the resolved conf is stored in poses.h5.
 
 Features come from a features file (``features``) or from line points of a team's own
 detector (``points``: CSV with columns frame, x, y in the robot frame, binned into the scan
@@ -52,7 +54,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common.artifacts import check_output, file_hash, root_attrs
-from ..common.conf import registered_module, resolve_conf
+from ..common.conf import registered_module, stage_conf
 from ..common.dataset import STAMP_SOURCES, csv_rows, open_dataset
 from ..common.errors import DatasetError, FieldlocError
 from ..common.features_file import FeaturesFile
@@ -83,22 +85,31 @@ def available_methods() -> list[str]:
     return [m for m, mod in METHODS.items() if importlib.util.find_spec(mod) is not None]
 
 
-# presets of the default method (the others: method_confs(name))
-confs = {name: {"method": DEFAULT_METHOD, **c} for name, c in method_confs(DEFAULT_METHOD).items()}
+# the presets of every method: "<method>-<preset>" -> conf with its "method"; "default" is the
+# default method's
+confs = {"default": {"method": DEFAULT_METHOD, **method_confs(DEFAULT_METHOD)["default"]}}
+confs.update({f"{m}-{name}": {"method": m, **c} for m in METHODS
+              for name, c in method_confs(m).items()})
+
+
+def preset_name(method: str, preset: str) -> str:
+    """The name in ``confs`` of ``preset`` of ``method`` (lut, no-fusion -> lut-no-fusion)."""
+    presets = method_confs(method)
+    if preset not in presets:
+        raise FieldlocError(f"unknown preset '{preset}' (presets: {', '.join(sorted(presets))})")
+    return f"{method}-{preset}"
 
 
 def resolve_localize_conf(conf: dict | str | None) -> dict:
-    """The full conf of a run: the method's preset with the overrides merged, plus ``method``."""
-    if conf is None:
-        conf = {}
-    if isinstance(conf, str):
-        conf = {"preset": conf}
-    conf = dict(conf)
-    method = conf.pop("method", DEFAULT_METHOD)
-    preset = conf.pop("preset", "default")
-    out = resolve_conf(method_confs(method), preset, conf)
-    out["method"] = method
-    return out
+    """The full conf of a run (module doc): a preset with the overrides merged, ``method``
+    included."""
+    if isinstance(conf, dict):
+        method = conf.get("method", DEFAULT_METHOD)
+        if not isinstance(method, str):
+            raise FieldlocError(f"conf 'method' must be a method name, got {method!r}")
+        method_module(method)  # an unknown method is refused as one, listing the known
+        return stage_conf(confs, conf, default=f"{method}-default")
+    return stage_conf(confs, conf)
 
 
 # ---------------------------------------------------------------------------- points input

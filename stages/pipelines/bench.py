@@ -495,7 +495,7 @@ def bench_mcl_accuracy(repeat: int) -> list[Row]:
     rows = []
     for preset, label in (("default", "with lines"), ("no-lines", "lines disabled")):
         out = _work_dir() / f"kid-mcl-{preset}.poses.h5"
-        localize.main({"method": "mcl", "preset": preset}, inp["data"], inp["map"], out,
+        localize.main(f"mcl-{preset}", inp["data"], inp["map"], out,
                       features=inp["features"], overwrite=True)
         cols, _ = read_poses(out)
         _, s = evaluate_poses(cols, truth)
