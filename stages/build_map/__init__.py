@@ -89,8 +89,8 @@ def build_tables(fm: FieldModel, conf: dict) -> tuple[Grid, ScanLines, dict]:
     return grid, sl, out
 
 
-def main(conf: dict | None, field: str | Path | FieldModel, output: str | Path, *,
-         overwrite: bool = False) -> Path:
+def main(conf: str | dict | None, field: str | Path | FieldModel, output: str | Path, *,
+         overwrite: bool = False, progress: bool = False) -> Path:
     """Build the map of ``field`` (preset name, YAML path or FieldModel) into ``output``.
     ``conf``: a preset name, None, or a dict of values replacing the default preset's."""
     conf = stage_conf(confs, conf)

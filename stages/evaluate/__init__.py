@@ -30,7 +30,7 @@ import os
 from pathlib import Path
 
 from stages.common.artifacts import check_output, file_hash, refuse_inputs
-from stages.common.conf import resolve_conf
+from stages.common.conf import stage_conf
 from stages.common.dataset import read_csv
 from stages.common.errors import FieldlocError
 from stages.common.field import load_field
@@ -116,9 +116,7 @@ def _check_conf(conf: dict) -> dict:
 
 
 def _resolve(conf) -> dict:
-    if conf is None or isinstance(conf, str):
-        return _check_conf(resolve_conf(confs, conf))
-    return _check_conf(resolve_conf(confs, "default", dict(conf)))
+    return _check_conf(stage_conf(confs, conf))
 
 
 def evaluate_poses(columns: dict, truth: dict, conf=None) -> tuple[FrameErrors, dict]:
@@ -150,7 +148,8 @@ def _field_file(field) -> Path | None:
     return p if p.suffix.lower() in (".yaml", ".yml") or p.exists() else None
 
 
-def main(conf, poses, truth, output_dir, *, overwrite: bool = False, field=None) -> Path:
+def main(conf: str | dict | None, poses, truth, output_dir, *, overwrite: bool = False,
+         field=None, progress: bool = False) -> Path:
     """Evaluate ``poses`` (poses.h5) against ``truth`` (truth.csv, or a dataset folder holding
     it; None: the dataset the poses file names) into the report folder ``output_dir``.
 

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..common.conf import resolve_conf
+from ..common.conf import stage_conf
 from ..common.dataset import frame_index, readable_truth, truth_at
 from ..common.errors import FieldlocError
 from ..common.field import load_field
@@ -67,9 +67,10 @@ def _robot(x, y, r, colour, edge="black"):
     return Circle((x, y), r, facecolor=colour, edgecolor=edge, lw=1.2, alpha=0.8, zorder=4)
 
 
-def main(conf, poses: str | Path, output: str | Path, *, frame: str | int = 0,
-         features: str | Path | None = None, field: str | Path | None = None,
-         overwrite: bool = False) -> Path:
+def main(conf: str | dict | None, poses: str | Path, output: str | Path, *,
+         frame: str | int = 0, features: str | Path | None = None,
+         field: str | Path | None = None, overwrite: bool = False,
+         progress: bool = False) -> Path:
     """Draw the hypotheses of one frame (name or index) of ``poses`` into ``output`` (PNG).
     Points from ``features`` (default: the features file the poses were made from), the field
     from ``field`` (default: the poses file's)."""
@@ -77,8 +78,7 @@ def main(conf, poses: str | Path, output: str | Path, *, frame: str | int = 0,
     from ..common.poses_file import read_poses
     from .figure import new_figure, save_figure
 
-    conf = resolve_conf(confs, "default", conf) if isinstance(conf, dict) else \
-        resolve_conf(confs, conf)
+    conf = stage_conf(confs, conf)
     output = Path(output)
     if output.exists() and not overwrite:
         raise FieldlocError(f"{output} exists (use --overwrite to replace it)")
