@@ -344,14 +344,6 @@ def test_cli_extract_and_errors(tmp_path):
     assert r.exit_code == 1 and "unknown preset 'nope'" in r.output
 
 
-def test_cli_defaults_equal_stage_defaults():
-    from fieldloc_cli.extract import extract as cmd
-
-    opts = {p.name: p.default for p in cmd.params}
-    assert opts["preset"] == extract.DEFAULT_PRESET
-    assert extract.resolve_extract_conf("omni", opts["preset"]) == omni.confs["default"]
-
-
 def test_show_points_png(tmp_path):
     ds = make_dataset(tmp_path / "ds", n=1)
     out = tmp_path / "pts.png"

@@ -445,19 +445,6 @@ def test_cli_errors_are_one_line(msl2015_map, tmp_path):
         assert len(lines) == 1 and lines[0].startswith("fieldloc: error:"), (what, res.output)
 
 
-def test_cli_defaults_equal_stage_defaults():
-    from stages import localize
-    from stages.localize import lut as lut_mod
-
-    assert localize.DEFAULT_METHOD == "lut"
-    assert localize.confs["default"]["method"] == "lut"
-    full = localize.resolve_localize_conf(None)
-    assert full == {**lut_mod.confs["default"], "method": "lut"}
-    from fieldloc_cli import localize as cli_localize
-
-    assert cli_localize.LUT_DEFAULTS is lut_mod.confs["default"]
-
-
 # ---------------------------------------------------------------------------- decisions
 
 

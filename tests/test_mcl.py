@@ -314,7 +314,6 @@ def test_show_belief_cli(kidsize, map_path, tmp_path):
     from click.testing import CliRunner
 
     from fieldloc_cli.main import cli
-    from stages.show import belief
 
     data = tmp_path / "walk"
     write_synthetic_run(kidsize, data, 5, seed=2)
@@ -327,13 +326,6 @@ def test_show_belief_cli(kidsize, map_path, tmp_path):
     res = CliRunner().invoke(cli, ["show", "belief", str(data), "--frame", "99", "--map",
                                    str(map_path), "-o", str(tmp_path / "x.png")])
     assert res.exit_code == 1 and "out of range" in res.output
-    # the CLI's defaults are the stage's
-    from fieldloc_cli.show_belief import show_belief
-
-    params = {p.name: p.default for p in show_belief.params}
-    assert params["resolution"] == belief.confs["default"]["resolution"]
-    assert math.radians(params["heading_step_deg"]) == pytest.approx(
-        belief.confs["default"]["heading_step"])
 
 
 def test_belief_grid_peaks_near_truth(kidsize, model):
