@@ -2,7 +2,7 @@
 report.json, errors.csv, truth.tum), then its plots by stages.show.report_plots when the conf
 asks for them.
 
-    main(conf, poses, truth, output_dir, *, overwrite=False, field=None) -> Path
+    main(conf, poses, truth, output_dir, *, overwrite=False, field=None, progress=False) -> Path
 
 The plots are drawn when the report lists a plot that is missing: after a report written anew
 (evaluate removes the plots of the one it replaces), or after a run stopped while drawing; an
@@ -18,7 +18,8 @@ from ..common.report_file import load_report
 from ..show import report_plots
 
 
-def main(conf, poses, truth, output_dir, *, overwrite: bool = False, field=None) -> Path:
+def main(conf, poses, truth, output_dir, *, overwrite: bool = False, field=None,
+         progress: bool = False) -> Path:
     """Evaluate ``poses`` against ``truth`` into the report folder ``output_dir`` (see
     stages.evaluate.main) and draw the report's plots; returns the report folder."""
     out = evaluate.main(conf, poses, truth, output_dir, overwrite=overwrite, field=field)
