@@ -15,7 +15,7 @@ from stages.common.features_file import FRAME_DATASETS
 from stages.common.field import distance_to_lines, load_field
 from stages.common.geometry import robot_to_field
 from stages.common.perspective_camera import PerspectiveCamera
-from stages.extract import perspective
+from stages.extract import crossings, perspective
 from stages.extract.field_boundary import (
     field_height_histogram,
     local_convex_filling,
@@ -503,7 +503,8 @@ def test_compiled_kernels_give_the_reference_features(preset, field, monkeypatch
         frames.append((renderer.render_view(pose, pitch, roll, frame=k), pitch, roll))
     ext = perspective.confs["default"]
     fast = [perspective.extract_frame(img, cam, ext, pitch=p, roll=r) for img, p, r in frames]
-    monkeypatch.setattr(perspective, "refine_segment", _reference_refine)
+    monkeypatch.setattr(perspective, "refine_segment", _reference_refine)  # lines
+    monkeypatch.setattr(crossings, "refine_segment", _reference_refine)  # crossings' arms
     monkeypatch.setattr(colour, "classify_cells", lambda *a, **k: None)
     slow = [perspective.extract_frame(img, cam, ext, pitch=p, roll=r) for img, p, r in frames]
     found = 0
