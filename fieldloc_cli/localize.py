@@ -55,6 +55,8 @@ def localize(ctx, dataset, map_path, features, points, method, heading, init, in
              min_confidence, output, preset, overrides, overwrite, allow_field_mismatch):
     """Poses of the frames of DATASET on the field of MAP (poses.h5 + poses.tum)."""
     conf = overrides_dict(overrides)
+    if "method" in conf:
+        raise click.UsageError("the method is chosen with --method, not -c method=...")
     if heading is not None:
         if method != "lut":
             raise click.UsageError("--heading applies to --method lut")
