@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from stages.evaluate import bench as stage
+from stages.pipelines import bench as stage
 
 
 @click.command("bench")

@@ -79,6 +79,7 @@ def evaluate(inputs, truth, output, field, table_only, preset, stamp_tolerance, 
     Failures count as failures (infinite error). With --table, INPUTS are existing report
     folders and only the table is printed."""
     from stages import evaluate as stage
+    from stages.pipelines import evaluation
 
     if table_only:
         if truth or output or field or overwrite or stamp_tolerance is not None or overrides:
@@ -95,7 +96,7 @@ def evaluate(inputs, truth, output, field, table_only, preset, stamp_tolerance, 
     outs = report_dirs(list(inputs), output)
     done = []
     for poses, out in zip(inputs, outs):
-        done.append(stage.main(conf, poses, truth, out, overwrite=overwrite, field=field))
+        done.append(evaluation.main(conf, poses, truth, out, overwrite=overwrite, field=field))
         log.info("report written to %s", out)
     click.echo(stage.tabulate(done, fmt=fmt))
     if fmt == "text":

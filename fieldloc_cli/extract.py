@@ -17,7 +17,7 @@ from .common import conf_option, overrides_dict, progress_enabled, summary
               help="Features file [default: DATASET/features.h5].")
 @click.option("--preset", default=stage.DEFAULT_PRESET, show_default=True,
               help="Preset of the camera kind's extractor (omni: "
-              + ", ".join(sorted(stage.confs)) + ").")
+              + ", ".join(sorted(stage.kind_confs("omni"))) + ").")
 @conf_option
 @click.option("--overwrite", is_flag=True,
               help="Extract every frame again (default: resume, skipping frames already done).")
@@ -28,9 +28,10 @@ from .common import conf_option, overrides_dict, progress_enabled, summary
 def extract(ctx, dataset, output, preset, overrides, overwrite, debug_images):
     """Per-frame features of the images in DATASET (omni: scan-line distances and line points;
     perspective: lines, crossings, boundary) into an HDF5 features file."""
-    path = stage.main(preset, dataset, output, overwrite=overwrite,
-                      progress=progress_enabled(ctx), overrides=overrides_dict(overrides),
-                      debug_images=debug_images)
+    conf = stage.resolve_extract_conf(stage.camera_kind(dataset), preset,
+                                      overrides_dict(overrides))
+    path = stage.main(conf, dataset, output, overwrite=overwrite,
+                      progress=progress_enabled(ctx), debug_images=debug_images)
     from stages.common.features_file import FeaturesFile
 
     with FeaturesFile(path) as ff:

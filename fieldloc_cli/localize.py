@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from stages import localize as stage
+from stages.common.conf import resolve_conf
 
 from .common import conf_option, overrides_dict, progress_enabled, summary
 
@@ -53,7 +54,9 @@ MCL_INIT_DEFAULT = stage.method_confs("mcl")["default"]["init"]
 def localize(ctx, dataset, map_path, features, points, method, heading, init, independent,
              min_confidence, output, preset, overrides, overwrite, allow_field_mismatch):
     """Poses of the frames of DATASET on the field of MAP (poses.h5 + poses.tum)."""
-    conf = {"method": method, "preset": preset, **overrides_dict(overrides)}
+    conf = overrides_dict(overrides)
+    if "method" in conf:
+        raise click.UsageError("the method is chosen with --method, not -c method=...")
     if heading is not None:
         if method != "lut":
             raise click.UsageError("--heading applies to --method lut")
@@ -68,10 +71,18 @@ def localize(ctx, dataset, map_path, features, points, method, heading, init, in
         conf["independent"] = True
     if min_confidence is not None:
         conf["min_confidence"] = min_confidence
+    conf = resolve_conf(stage.confs, stage.preset_name(method, preset), conf)
     output = output or Path(dataset) / f"poses-{method}.h5"
-    path = stage.main(conf, dataset, map_path, output, features=features, points=points,
-                      overwrite=overwrite, progress=progress_enabled(ctx),
-                      allow_field_mismatch=allow_field_mismatch)
+    if features is None and points is None:  # from the images: extract first, or reuse
+        from stages.pipelines import images_to_poses
+
+        path = images_to_poses.main(conf, dataset, map_path, output, overwrite=overwrite,
+                                    progress=progress_enabled(ctx),
+                                    allow_field_mismatch=allow_field_mismatch)
+    else:
+        path = stage.main(conf, dataset, map_path, output, features=features, points=points,
+                          overwrite=overwrite, progress=progress_enabled(ctx),
+                          allow_field_mismatch=allow_field_mismatch)
     from stages.common.poses_file import read_poses
 
     cols, _attrs = read_poses(path)

@@ -25,7 +25,7 @@ def report(source, output, worst, overwrite, overrides):
       fieldloc report build/demo-omni/runs -o demo.html
     """
     from stages.common.conf import resolve_conf
-    from stages.evaluate.html_report import confs, main
+    from stages.show.html_report import confs, main
 
     conf = resolve_conf(confs, "default", overrides_dict(overrides))
     if worst is not None:

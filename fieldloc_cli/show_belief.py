@@ -10,7 +10,7 @@ from pathlib import Path
 
 import click
 
-from stages.localize import belief as stage
+from stages.show import belief as stage
 
 from .common import FINITE, conf_option, overrides_dict, summary
 

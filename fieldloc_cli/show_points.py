@@ -47,14 +47,20 @@ def show_points(ctx, dataset, frame, features, map_or_field, pose, preset, overr
                 overwrite):
     """Draw the extracted line points of one frame of DATASET over its image, and over the
     field at a pose (given with --pose, or truth.csv's) when --map is given."""
-    from stages.extract.overlay import show_points as draw
+    from stages.show import points as stage
 
     field = _field(map_or_field) if map_or_field else None
     pose_rad = None if not pose else (pose[0], pose[1], math.radians(pose[2]))
     field_file = Path(map_or_field) if map_or_field and Path(map_or_field).exists() else None
-    path, s = draw(dataset, frame, output, features=features, field=field, pose=pose_rad,
-                   conf=preset, overrides=overrides_dict(overrides), overwrite=overwrite,
-                   field_file=field_file)
+    conf = preset
+    if overrides:  # the preset of the dataset's camera kind with the -c values
+        from stages import extract
+
+        conf = extract.resolve_extract_conf(extract.camera_kind(dataset), preset,
+                                            overrides_dict(overrides))
+    path, s = stage.write_picture(conf, dataset, output, frame=frame, features=features,
+                                  field=field, pose=pose_rad, overwrite=overwrite,
+                                  field_file=field_file)
     msg = f"{path}: frame {s['frame']}, {s['points']} line points"
     if "share_near_lines" in s:
         x, y, th = s["pose"]

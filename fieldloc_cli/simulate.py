@@ -41,7 +41,7 @@ def simulate_options(preset: str):
                          metavar="DU DV SCALE",
                          help="Write calib.yaml off from the rendering camera: centre (principal"
                               " point) shifted by DU, DV px and the radial mapping scaled by"
-                              " SCALE [preset: "
+                              " SCALE, and no other error (omni: no mirror-table error) [preset: "
                               f"{' '.join(str(v) for v in base['calib_error']['centre_shift'])}"
                               f" {base['calib_error']['scale']}]."),
             click.option("--preset", default=preset, show_default=True,
@@ -72,8 +72,11 @@ def run_simulation(ctx, *, field, output, frames, seed, trajectory_kind, preset,
     if trajectory_kind is not None:
         conf["trajectory"]["kind"] = trajectory_kind
     if calib_error is not None:
-        du, dv, scale = calib_error
-        conf["calib_error"] = {"centre_shift": [du, dv], "scale": scale}
+        du, dv, scale = calib_error  # exactly this error: omni's mirror-table error off
+        ce = conf["calib_error"]
+        ce.update(centre_shift=[du, dv], scale=scale)
+        if "distance_error" in ce:
+            ce["distance_error"] = 0.0
     out = main(conf, field, output, overwrite=overwrite, progress=progress_enabled(ctx))
     summary(ctx, f"wrote {conf['frames']} frames to {out}")
     return out

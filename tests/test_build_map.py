@@ -211,13 +211,6 @@ def test_cli_build_map_inspect_and_errors(tmp_path):
     assert res.exit_code == 1 and "not an HDF5 file" in res.output
 
 
-def test_cli_defaults_equal_stage_defaults():
-    cmd = cli.get_command(None, "build-map")
-    defaults = {p.name: p.default for p in cmd.params}
-    for key, value in build_map.confs["default"].items():
-        assert defaults[key] == value, key
-
-
 def test_interrupted_build_keeps_previous_map(tmp_path, monkeypatch):
     out = tmp_path / "k.map.h5"
     build_map.main({**build_map.confs["default"], "resolution": 0.5}, "kidsize", out)

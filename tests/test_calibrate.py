@@ -408,16 +408,3 @@ def test_cli_from_minho(tmp_path, line_image_folder):
         assert message in res.output and "Traceback" not in res.output
 
 
-def test_cli_defaults_equal_stage_defaults():
-    from fieldloc_cli.calibrate import DEFAULT_PRESET, calibrate_omni
-
-    opts = {p.name: p.default for p in calibrate_omni.params}
-    assert opts["preset"] is None and opts["forward_angle_deg"] is None
-    assert DEFAULT_PRESET == {"points": "default", "minho": "minho", "cnc": "cnc"}
-    cnc_sig = __import__("inspect").signature(calibrate.from_cnc)
-    assert cnc_sig.parameters["centre"].default is None
-    assert cnc_sig.parameters["image_size"].default is None
-    sig = __import__("inspect").signature(calibrate.from_minho)
-    assert sig.parameters["image_size"].default is None
-    assert sig.parameters["valid_radius"].default is None
-    assert sig.parameters["line_images"].default is None

@@ -1,4 +1,4 @@
-"""Crossing association tables (seed 000, section 5.1): stages.build_map.crossing_lut."""
+"""Crossing association tables (seed 000, section 5.1): stages.common.crossing_tables."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from stages.build_map.crossing_lut import (
+from stages.common.crossing_tables import (
     L_ORIENTATIONS,
     crossing_association_tables,
     l_orientation_bin,

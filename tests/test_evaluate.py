@@ -17,14 +17,17 @@ from stages.common.dataset import write_csv
 from stages.common.errors import FieldlocError
 from stages.common.field import load_field, preset_names
 from stages.common.poses_file import PoseTrack, write_poses
+from stages.common.report_file import load_report, read_errors_csv
 from stages.evaluate.metrics import (
     error_stats,
     heading_error,
     match_by_stamp,
     percentile,
 )
-from stages.evaluate.plots import draw_field, new_figure, save_figure
-from stages.evaluate.report import load_report, read_errors_csv, tabulate
+from stages.evaluate.report import tabulate
+from stages.pipelines import evaluation
+from stages.show.field import draw_field
+from stages.show.figure import new_figure, save_figure
 
 
 def write_track(path, frames, *, method="lut", field="msl-2015", dataset=""):
@@ -186,7 +189,7 @@ def _cols(poses, truth):
 
 def test_report_files(hand, tmp_path):
     poses, truth = hand
-    out = stage.main(None, poses, truth, tmp_path / "report")
+    out = evaluation.main(None, poses, truth, tmp_path / "report")
     text = (out / "report.json").read_text()
 
     def no_constants(name):
@@ -224,15 +227,37 @@ def test_report_files(hand, tmp_path):
 
 def test_existing_report_kept_or_refused(hand, tmp_path):
     poses, truth = hand
-    out = stage.main(None, poses, truth, tmp_path / "r")
-    mtime = (out / "report.json").stat().st_mtime_ns
-    stage.main(None, poses, truth, out)  # same inputs and conf: kept as it is
-    assert (out / "report.json").stat().st_mtime_ns == mtime
+    out = evaluation.main(None, poses, truth, tmp_path / "r")
+    mtimes = {p: p.stat().st_mtime_ns for p in [out / "report.json", *(out / "plots").iterdir()]}
+    evaluation.main(None, poses, truth, out)  # same inputs and conf: kept as it is, plots too
+    assert {p: p.stat().st_mtime_ns for p in mtimes} == mtimes
+    (out / "plots" / "trajectory.png").unlink()  # a run stopped while drawing: drawn again
+    evaluation.main(None, poses, truth, out)
+    assert (out / "plots" / "trajectory.png").is_file()
+    assert (out / "report.json").stat().st_mtime_ns == mtimes[out / "report.json"]
     with pytest.raises(FieldlocError, match="overwrite"):
         stage.main({"stamp_tolerance": 0.01}, poses, truth, out)
     stage.main({"stamp_tolerance": 0.01, "plots": False}, poses, truth, out, overwrite=True)
     assert load_report(out)["evaluate_conf"]["stamp_tolerance"] == 0.01
     assert not (out / "plots" / "trajectory.png").exists()  # no plots of the old report left
+
+
+def test_report_plots_drawn_from_a_report_folder(hand, tmp_path):
+    """evaluate writes the numbers and lists the plots; show.report_plots draws them from the
+    report folder alone, and replaces existing ones only when asked."""
+    from stages.show import report_plots
+
+    poses, truth = hand
+    out = stage.main(None, poses, truth, tmp_path / "r")
+    listed = load_report(out)["files"]["plots"]
+    assert listed == [f"plots/{n}" for n in ("error_cdf.png", "trajectory.png",
+                                             "error_over_time.png", "reliability.png")]
+    assert not any((out / p).exists() for p in listed)
+    assert report_plots.main(None, out) == out / "plots"
+    assert all((out / p).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in listed)
+    with pytest.raises(FieldlocError, match="overwrite"):
+        report_plots.main(None, out)
+    report_plots.main({"dpi": 60}, out, overwrite=True)
 
 
 def test_bad_inputs_raise_fieldloc_errors(hand, tmp_path):
@@ -291,12 +316,13 @@ def test_draw_field_every_preset(tmp_path, name):
 def test_unknown_field_of_poses_still_plots(tmp_path, caplog):
     poses = write_track(tmp_path / "p.h5", HAND, field="no-such-field")
     truth = write_truth(tmp_path / "t.csv", [0, 1, 2, 3, 4])
-    out = stage.main(None, poses, truth, tmp_path / "r")
+    out = evaluation.main(None, poses, truth, tmp_path / "r")
     assert (out / "plots" / "trajectory.png").stat().st_size > 1000
     assert "without field lines" in caplog.text
     with pytest.raises(FieldlocError, match="no-such-field"):  # an explicit --field must load
         stage.main(None, poses, truth, tmp_path / "r2", field="no-such-field")
-    out3 = stage.main(None, poses, truth, tmp_path / "r3", field="spl")
+    assert not (tmp_path / "r2" / "errors.csv").exists()  # refused before anything is written
+    out3 = evaluation.main(None, poses, truth, tmp_path / "r3", field="spl")
     assert load_report(out3)["field"] == "spl"
 
 

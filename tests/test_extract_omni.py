@@ -17,7 +17,7 @@ from stages import extract
 from stages.common.camera import OmniCamera, save_calib
 from stages.common.errors import FieldlocError
 from stages.common.features_file import FeaturesFile
-from stages.common.scanlines import ScanLines
+from stages.common.scanlines import ScanLines, bin_points_to_scanlines
 from stages.extract import colour, omni
 
 # a mirror like a MSL robot's: 0.25 m at ~50 px, 2 m at ~200 px, 4 m at ~225 px
@@ -208,7 +208,7 @@ def test_bin_points_to_scanlines():
     d = 1.1
     ys = np.linspace(-3, 3, 601)
     pts = np.stack([np.full_like(ys, d), ys], axis=1)  # a line ahead, sampled every cm
-    radial, spiral = omni.bin_points_to_scanlines(pts, sl, tolerance=0.03)
+    radial, spiral = bin_points_to_scanlines(pts, sl, tolerance=0.03)
     assert radial.shape == (72, 4) and spiral.shape == (2, 72)
     assert abs(radial[0, 0] - d) <= 0.01
     assert abs(radial[6, 0] - d / math.cos(math.radians(30))) <= 0.02
@@ -219,7 +219,7 @@ def test_bin_points_to_scanlines():
             if expect is not None and np.isfinite(expect):
                 assert abs(spiral[direction, k] - expect) <= 0.04
     # points far from every scan line leave everything empty
-    r2, s2 = omni.bin_points_to_scanlines([[0.5 * math.cos(0.04), 0.5 * math.sin(0.04)]], sl,
+    r2, s2 = bin_points_to_scanlines([[0.5 * math.cos(0.04), 0.5 * math.sin(0.04)]], sl,
                                           tolerance=0.005)
     assert np.isnan(r2).all()
 
@@ -265,7 +265,7 @@ def test_main_writes_features_records_bad_frame_and_resumes(tmp_path, caplog):
         assert ff.failures == []
     # another conf cannot be mixed into the same file
     with pytest.raises(FieldlocError, match="another conf"):
-        extract.main(None, ds, out, overrides={"min_white_m": 0.05})
+        extract.main({"min_white_m": 0.05}, ds, out)
 
 
 def test_failed_frame_is_retried_on_resume(tmp_path):
@@ -342,14 +342,6 @@ def test_cli_extract_and_errors(tmp_path):
     assert r.exit_code == 1 and "dataset folder not found" in r.output
     r = CliRunner().invoke(cli, ["extract", str(ds), "--preset", "nope"])
     assert r.exit_code == 1 and "unknown preset 'nope'" in r.output
-
-
-def test_cli_defaults_equal_stage_defaults():
-    from fieldloc_cli.extract import extract as cmd
-
-    opts = {p.name: p.default for p in cmd.params}
-    assert opts["preset"] == extract.DEFAULT_PRESET
-    assert extract.resolve_extract_conf("omni", opts["preset"]) == omni.confs["default"]
 
 
 def test_show_points_png(tmp_path):

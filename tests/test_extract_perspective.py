@@ -15,7 +15,7 @@ from stages.common.features_file import FRAME_DATASETS
 from stages.common.field import distance_to_lines, load_field
 from stages.common.geometry import robot_to_field
 from stages.common.perspective_camera import PerspectiveCamera
-from stages.extract import perspective
+from stages.extract import crossings, perspective
 from stages.extract.field_boundary import (
     field_height_histogram,
     local_convex_filling,
@@ -30,6 +30,8 @@ from stages.extract.line_fit import (
     split_component,
 )
 from stages.extract.line_structure import low_pass, place_nodes, ranking_skeleton
+from stages.simulate import scene
+from stages.simulate.perspective_renderer import PerspectiveRenderer
 
 CONF = perspective.confs["default"]
 GREEN, WHITE, WALL, DARK = (40, 140, 50), (235, 235, 235), (110, 105, 100), (30, 30, 35)
@@ -253,12 +255,10 @@ def test_rendered_frames_match_the_field_model_at_the_true_pose():
     on the field model. Tolerances: used lines' worst point within 0.08 m (median) and 0.25 m
     (for 75 % of them); crossings within 0.3 m of a model crossing of the same type (80 %),
     median orientation error 10 deg."""
-    scene_mod = pytest.importorskip("stages.simulate.scene")
-    renderer_mod = pytest.importorskip("stages.simulate.perspective_renderer")
     fm = load_field("kidsize")
     n = 10
-    scene = scene_mod.build(fm, None, np.arange(n) / 30.0, 7)
-    renderer = renderer_mod.PerspectiveRenderer(None, scene, seed=7)
+    world = scene.build(fm, None, np.arange(n) / 30.0, 7)
+    renderer = PerspectiveRenderer(None, world, seed=7)
     cam = renderer.camera
     rng = np.random.default_rng(11)
     line_err, cross = [], []
@@ -491,10 +491,8 @@ def test_compiled_kernels_give_the_reference_features(preset, field, monkeypatch
 
     fm = load_field(field)
     conf = dict(simulate.confs[preset])
-    scene_mod = pytest.importorskip("stages.simulate.scene")
-    renderer_mod = pytest.importorskip("stages.simulate.perspective_renderer")
-    world = scene_mod.build(fm, conf["scene"], np.arange(3) / 10.0, 4)
-    renderer = renderer_mod.PerspectiveRenderer(conf["perspective"], world, seed=4)
+    world = scene.build(fm, conf["scene"], np.arange(3) / 10.0, 4)
+    renderer = PerspectiveRenderer(conf["perspective"], world, seed=4)
     cam = renderer.camera
     rng = np.random.default_rng(8)
     frames = []
@@ -505,7 +503,8 @@ def test_compiled_kernels_give_the_reference_features(preset, field, monkeypatch
         frames.append((renderer.render_view(pose, pitch, roll, frame=k), pitch, roll))
     ext = perspective.confs["default"]
     fast = [perspective.extract_frame(img, cam, ext, pitch=p, roll=r) for img, p, r in frames]
-    monkeypatch.setattr(perspective, "refine_segment", _reference_refine)
+    monkeypatch.setattr(perspective, "refine_segment", _reference_refine)  # lines
+    monkeypatch.setattr(crossings, "refine_segment", _reference_refine)  # crossings' arms
     monkeypatch.setattr(colour, "classify_cells", lambda *a, **k: None)
     slow = [perspective.extract_frame(img, cam, ext, pitch=p, roll=r) for img, p, r in frames]
     found = 0

@@ -121,7 +121,8 @@ def distance_run(ds, max_named=2.0):
     up to ``max_named`` m: the named and measured distances, the points used, and how far out
     (px) the extractor's points lie from where the calibration puts a straight line at the
     named distance (median over the points within 15 deg of its normal)."""
-    out = extract.main("real", ds, ds / "features.h5", overrides=REAL_DENSE)
+    out = extract.main(extract.resolve_extract_conf("omni", "real", REAL_DENSE), ds,
+                       ds / "features.h5")
     with FeaturesFile(out) as ff:
         names = [n for n in ff.names if float(n) <= max_named + 1e-9]
         points = [ff.frame(n)["points"].astype(float) for n in names]

@@ -640,7 +640,7 @@ def test_readme_yaml_examples_parse(tmp_path):
 def test_bench_table_of_the_readme_comes_from_a_bench_json(tmp_path):
     """The README's performance table is `bench --from-json --format markdown` of one run:
     rows survive the JSON round trip (NaN as null) and become one table line each."""
-    from stages.evaluate import bench
+    from stages.pipelines import bench
 
     rows = [bench.Row("a row", median_ms=1.5, goal="<= 2 ms", meets_goal=True,
                       baseline="the other", baseline_ms=3.0, ratio=0.5, note="a note"),

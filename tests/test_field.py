@@ -72,6 +72,20 @@ def test_mirror_pose():
     assert np.allclose(fm.mirror_pose((1.0, 2.0, 0.5)), [-1.0, -2.0, 0.5 - math.pi])
 
 
+def test_touchline_pose_faces_into_the_field():
+    fm = load_field("kidsize")
+    hy = fm.width / 2
+    left, right = fm.touchline_pose(-2.0, 1.0), fm.touchline_pose(-1.0, -1.0, inset=0.3)
+    assert np.allclose(left, [-2.0, hy, -math.pi / 2]) and np.allclose(right, [-1.0, -hy + 0.3,
+                                                                               math.pi / 2])
+    for pose in (left, right):  # a step forward leads onto the field
+        ahead = pose[:2] + 0.5 * np.array([math.cos(pose[2]), math.sin(pose[2])])
+        assert abs(ahead[1]) < abs(pose[1])
+    many = fm.touchline_pose(np.array([-3.0, -1.0]), np.array([1.0, -1.0]),
+                             inset=np.array([0.1, -0.2]))
+    assert many.shape == (2, 3) and np.allclose(many[:, 1], [hy - 0.1, -hy - 0.2])
+
+
 def _spec():
     return yaml.safe_load((MAPS_DIR / "kidsize.yaml").read_text())
 

@@ -295,7 +295,7 @@ def test_minho_cfg_reader(mirror, image):
 def _all_presets() -> dict[str, dict]:
     from stages import build_map, calibrate, evaluate, localize, simulate
     from stages.extract import kind_confs
-    from stages.localize import belief
+    from stages.show import belief
 
     out = {}
     for stage, confs in (("build-map", build_map.confs), ("simulate", simulate.confs),

@@ -11,11 +11,12 @@ import pytest
 from click.testing import CliRunner
 
 from fieldloc_cli.main import cli
-from stages import evaluate, extract, simulate
+from stages import extract, simulate
 from stages.common.artifacts import file_hash, root_attrs
 from stages.common.dataset import read_csv
 from stages.common.poses_file import PoseTrack, write_poses
-from stages.evaluate.html_report import lookup
+from stages.pipelines import evaluation
+from stages.show.html_report import lookup
 
 
 class _Page(HTMLParser):
@@ -67,7 +68,7 @@ def run(tmp_path_factory):
     attrs.update(method="lut", field="msl-2015", dataset=str(ds))
     (d / "runs" / "a").mkdir(parents=True)
     poses = write_poses(d / "runs" / "a" / "poses.h5", track, attrs)
-    rep = evaluate.main(None, poses, ds, d / "runs" / "a" / "report")
+    rep = evaluation.main(None, poses, ds, d / "runs" / "a" / "report")
     return d, rep
 
 

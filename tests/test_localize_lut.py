@@ -375,6 +375,27 @@ def test_rendered_dataset_with_imu_heading(rendered, msl2015_map, tmp_path):
     assert p["hypotheses"].shape[0] == 40 and p["hypotheses"].shape[2] == 4
 
 
+def test_images_to_poses_reuses_the_datasets_features(rendered, msl2015_map, tmp_path):
+    """localize takes features or points; the chain from images (stages.pipelines) reuses
+    DIR/features.h5 when extract would make the same, and refuses a bad run before that."""
+    from stages import localize
+    from stages.common.errors import FieldlocError
+    from stages.common.poses_file import read_poses
+    from stages.pipelines import images_to_poses
+
+    ds, features = rendered
+    with pytest.raises(FieldlocError, match="features"):
+        localize.main(None, ds, msl2015_map, tmp_path / "p.h5")
+    chained = images_to_poses.main(None, ds, msl2015_map, tmp_path / "chained.h5")
+    direct = localize.main(None, ds, msl2015_map, tmp_path / "direct.h5", features=features)
+    a, b = read_poses(chained), read_poses(direct)
+    assert a[1]["inputs"]["features"] == str(features)
+    assert np.array_equal(a[0]["hypotheses"], b[0]["hypotheses"], equal_nan=True)
+    assert not images_to_poses.default_features_path(tmp_path / "chained.h5").exists()
+    with pytest.raises(FieldlocError, match="is an input"):  # onto the features it would use
+        images_to_poses.main(None, ds, msl2015_map, features, overwrite=True)
+
+
 def test_cli_localize_points_csv(rendered, msl2015_map, tmp_path):
     """`fieldloc localize DIR --points FILE.csv`: a team's own line points (here: the rendered
     frames' extracted points) binned into the scan lines."""
@@ -422,19 +443,6 @@ def test_cli_errors_are_one_line(msl2015_map, tmp_path):
         assert res.exit_code == 1, (what, res.output)
         lines = res.output.strip().splitlines()
         assert len(lines) == 1 and lines[0].startswith("fieldloc: error:"), (what, res.output)
-
-
-def test_cli_defaults_equal_stage_defaults():
-    from stages import localize
-    from stages.localize import lut as lut_mod
-
-    assert localize.DEFAULT_METHOD == "lut"
-    assert localize.confs["default"]["method"] == "lut"
-    full = localize.resolve_localize_conf(None)
-    assert full == {**lut_mod.confs["default"], "method": "lut"}
-    from fieldloc_cli import localize as cli_localize
-
-    assert cli_localize.LUT_DEFAULTS is lut_mod.confs["default"]
 
 
 # ---------------------------------------------------------------------------- decisions

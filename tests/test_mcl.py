@@ -10,13 +10,14 @@ import math
 import numpy as np
 import pytest
 
-from stages.build_map.crossing_lut import crossing_association_tables
+from stages.common.crossing_tables import crossing_association_tables
 from stages.common.field import load_field
 from stages.common.map_file import Grid, write_map
+from stages.common.observations import Observations
 from stages.common.scanlines import ScanLines
 from stages.localize import mcl, motion_model
-from stages.localize.observation_model import ObservationModel, Observations
-from stages.localize.synthetic_observations import (
+from stages.localize.observation_model import ObservationModel
+from stages.simulate.synthetic_observations import (
     synthetic_observations,
     synthetic_walk,
     write_synthetic_run,
@@ -313,7 +314,6 @@ def test_show_belief_cli(kidsize, map_path, tmp_path):
     from click.testing import CliRunner
 
     from fieldloc_cli.main import cli
-    from stages.localize import belief
 
     data = tmp_path / "walk"
     write_synthetic_run(kidsize, data, 5, seed=2)
@@ -326,13 +326,6 @@ def test_show_belief_cli(kidsize, map_path, tmp_path):
     res = CliRunner().invoke(cli, ["show", "belief", str(data), "--frame", "99", "--map",
                                    str(map_path), "-o", str(tmp_path / "x.png")])
     assert res.exit_code == 1 and "out of range" in res.output
-    # the CLI's defaults are the stage's
-    from fieldloc_cli.show_belief import show_belief
-
-    params = {p.name: p.default for p in show_belief.params}
-    assert params["resolution"] == belief.confs["default"]["resolution"]
-    assert math.radians(params["heading_step_deg"]) == pytest.approx(
-        belief.confs["default"]["heading_step"])
 
 
 def test_belief_grid_peaks_near_truth(kidsize, model):
@@ -368,7 +361,7 @@ def rendered_walk(tmp_path_factory, map_path):
     truth = read_csv(data / "truth.csv", "truth")
     out = {}
     for preset in ("default", "no-lines", "uniform"):
-        path = localize.main({"method": "mcl", "preset": preset}, data, map_path,
+        path = localize.main(f"mcl-{preset}", data, map_path,
                              root / f"poses-{preset}.h5", features=features)
         cols, _ = read_poses(path)
         i = np.searchsorted(truth["stamp"], cols["stamp"] - 1e-6)

@@ -6,7 +6,7 @@ import math
 from click.testing import CliRunner
 
 from fieldloc_cli.main import cli
-from stages.evaluate import bench
+from stages.pipelines import bench
 
 
 def test_show_map_pictures(msl2015_map, tmp_path):

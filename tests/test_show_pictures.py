@@ -9,9 +9,9 @@ from click.testing import CliRunner
 from fieldloc_cli.main import cli
 from stages.common.field import load_field
 from stages.common.map_file import MapFile
-from stages.evaluate.map_plots import draw_scanlines_from_cell
-from stages.evaluate.plots import new_figure
-from stages.localize.belief import draw_belief
+from stages.show.belief import draw_belief
+from stages.show.figure import new_figure
+from stages.show.map import draw_scanlines_from_cell
 
 
 def test_spiral_picture_one_family_few_spirals(msl2015_map, tmp_path):
@@ -49,7 +49,7 @@ def _grid(counts):
 
 def test_belief_picture_colour_bar_sparse_arrows_and_empty_panel():
     fig = new_figure(12, 8.5)
-    axes = draw_belief(fig, load_field("kidsize"), _grid({"lines": 5, "crossings": 2,
+    axes = draw_belief(fig.subplots(2, 2), load_field("kidsize"), _grid({"lines": 5, "crossings": 2,
                                                           "posts": 0}),
                        truth=(2.0, -1.0, 0.3), arrow_spacing=0.5, arrow_min=0.25)
     assert len(fig.axes) == 5  # four panels and one colour bar
@@ -67,3 +67,26 @@ def test_belief_picture_colour_bar_sparse_arrows_and_empty_panel():
     if len(off) > 1:
         d = np.abs(off[:, None, :] - off[None, :, :]).max(-1)
         assert d[d > 0].min() >= 0.5 - 1e-9
+
+
+def test_frame_by_name_or_position_and_truth_at_its_stamp(tmp_path):
+    """The one frame lookup and truth lookup every picture uses (show points, belief,
+    hypotheses): names first, then positions, negative from the end."""
+    import pytest
+
+    from stages.common.dataset import frame_index, readable_truth, truth_at, write_csv
+    from stages.common.errors import FieldlocError
+
+    names = ["000000", "000001", "000005"]
+    assert frame_index(names, "000005", "d") == 2 and frame_index(names, 1, "d") == 1
+    assert frame_index(names, "-1", "d") == 2 and frame_index(names, -3, "d") == 0
+    for bad, msg in (("3", "out of range"), ("-4", "out of range"), ("x", "no frame named")):
+        with pytest.raises(FieldlocError, match=msg):
+            frame_index(names, bad, "d")
+    write_csv(tmp_path / "truth.csv", "truth", {"stamp": [0.0, 0.1], "x": [1.0, 2.0],
+                                                "y": [0.5, 0.6], "theta": [0.1, 0.2]})
+    truth = readable_truth(tmp_path)
+    assert np.allclose(truth_at(truth, 0.12), [2.0, 0.6, 0.2])
+    assert truth_at(truth, 0.2) is None and truth_at(None, 0.0) is None
+    (tmp_path / "truth.csv").write_text("stamp,x\n0,1\n")  # broken: the picture goes without
+    assert readable_truth(tmp_path) is None and readable_truth(None) is None

@@ -93,7 +93,7 @@ def test_refuses_non_empty_folder_unless_overwrite(tmp_path, spl):
 
 def test_calib_error_perturbs_only_what_is_written(tmp_path, spl):
     conf = small_conf(frames=1)
-    conf["calib_error"] = {"centre_shift": [3.0, -2.0], "scale": 1.05}
+    conf["calib_error"] = {"centre_shift": [3.0, -2.0], "scale": 1.05, "distance_error": 0.0}
     out = simulate.main(conf, spl, tmp_path / "d")
     written = load_calib(out / "calib.yaml")
     true = yaml.safe_load((out / "simulation.yaml").read_text())["true_camera"]
@@ -387,7 +387,7 @@ def test_cli_round_trip_and_defaults(tmp_path):
     expected = resolve_conf(simulate.confs, "omni-default",
                             {"scene": {"texture_resolution": 0.02}})
     expected["frames"] = 2
-    expected["calib_error"] = {"centre_shift": [1.0, 2.0], "scale": 1.1}
+    expected["calib_error"].update(centre_shift=[1.0, 2.0], scale=1.1, distance_error=0.0)
     assert info["conf"] == yaml.safe_load(yaml.safe_dump(simulate._plain(expected)))
     assert info["seed"] == simulate.confs["omni-default"]["seed"]
     assert len(list((out / "images").iterdir())) == 2
@@ -451,3 +451,28 @@ def test_turning_smears_the_world_but_not_the_robot(spl):
     assert smeared < 0.8 * sharp  # edges across the turn are softer
     body = rad < 30
     assert np.abs(a[body] - b[body]).max() <= 1  # the robot's own body turns with the camera
+
+
+def test_imaging_steps_shared_by_the_renderers():
+    """stages.simulate.imaging: noise sigma = shot * sqrt(level) + read; chroma subsampling
+    keeps the luma; the JPEG round trip with quality 0 is no round trip."""
+    import cv2
+
+    from stages.common.errors import FieldlocError
+    from stages.simulate import imaging
+
+    rng = np.random.default_rng(0)
+    levels = np.full((200, 200, 3), 100.0, np.float32)
+    noise = rng.standard_normal((200, 200, 3)).astype(np.float32)
+    imaging.add_sensor_noise(levels, noise, 0.35, 2.0)
+    assert abs(float(np.std(levels)) - (0.35 * 10.0 + 2.0)) < 0.1
+    img = rng.integers(90, 160, (40, 64, 3), dtype=np.uint8)  # colours no channel clips
+    luma = cv2.cvtColor(img, cv2.COLOR_BGR2YUV)[..., 0].astype(int)
+    for method in imaging.CHROMA_METHODS:
+        out = imaging.chroma_subsample(img, 4, method)
+        assert np.abs(cv2.cvtColor(out, cv2.COLOR_BGR2YUV)[..., 0].astype(int) - luma).max() <= 3
+    assert imaging.chroma_subsample(img, 1, "box") is img
+    with pytest.raises(FieldlocError, match="chroma"):
+        imaging.chroma_subsample(img, 2, "nope")
+    assert imaging.jpeg_round_trip(img, 0) is img
+    assert imaging.jpeg_round_trip(img, 90).shape == img.shape

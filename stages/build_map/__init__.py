@@ -13,12 +13,13 @@ from pathlib import Path
 
 from ..common.artifacts import check_output, root_attrs, text_hash
 from ..common.conf import stage_conf
+from ..common.crossing_tables import crossing_association_tables
 from ..common.errors import FieldlocError
 from ..common.field import FieldModel, load_field
 from ..common.map_file import SCHEMA, VERSION, Grid, write_map
 from ..common.resources import check_memory
 from ..common.scanlines import ScanLines
-from . import crossing_lut, tables
+from . import tables
 
 log = logging.getLogger(__name__)
 
@@ -83,13 +84,13 @@ def build_tables(fm: FieldModel, conf: dict) -> tuple[Grid, ScanLines, dict]:
     out["distance_gradient"] = (grad, dict(common, description="gradient (d/dx, d/dy)"))
     t3 = time.perf_counter()
     log.info("tables: radial %.2fs, spiral %.2fs, distance %.2fs", t1 - t0, t2 - t1, t3 - t2)
-    out.update(crossing_lut.crossing_association_tables(fm, grid))
+    out.update(crossing_association_tables(fm, grid))
     log.info("crossing association tables %.2fs", time.perf_counter() - t3)
     return grid, sl, out
 
 
-def main(conf: dict | None, field: str | Path | FieldModel, output: str | Path, *,
-         overwrite: bool = False) -> Path:
+def main(conf: str | dict | None, field: str | Path | FieldModel, output: str | Path, *,
+         overwrite: bool = False, progress: bool = False) -> Path:
     """Build the map of ``field`` (preset name, YAML path or FieldModel) into ``output``.
     ``conf``: a preset name, None, or a dict of values replacing the default preset's."""
     conf = stage_conf(confs, conf)

@@ -67,6 +67,7 @@ from ..common.camera import (
     read_calibration_record,
     save_calib,
 )
+from ..common.conf import stage_conf
 from ..common.dataset import IMAGE_SUFFIXES, csv_rows, read_mask
 from ..common.errors import FieldlocError
 from . import cnc as _cnc
@@ -363,12 +364,14 @@ def _pair_records(result: CalibrationFit) -> list[dict]:
     return out
 
 
-def main(conf: dict, points_csv, output, *, centre, image_size, valid_radius,
+def main(conf: str | dict | None, points_csv, output, *, centre, image_size, valid_radius,
          forward_angle: float = math.pi / 2, mirrored: bool = False, line_images=None,
-         mask=None, overwrite: bool = False) -> Path:
+         mask=None, overwrite: bool = False, progress: bool = False) -> Path:
     """Fit the mirror calibration to the pairs in ``points_csv`` (and the line images, if
-    given) and write ``output`` (calib.yaml, kind omni). ``mask``: a mask image file for the
+    given) and write ``output`` (calib.yaml, kind omni). ``conf``: a preset name, None
+    (``default``) or a dict of overrides on ``default``. ``mask``: a mask image file for the
     line images. Returns ``output``."""
+    conf = stage_conf(confs, conf)
     check_output(output, {"points": points_csv, "mask": mask,
                           "line images": _files_in(line_images)}, overwrite=overwrite,
                  error=CalibrationError)
@@ -382,15 +385,14 @@ def main(conf: dict, points_csv, output, *, centre, image_size, valid_radius,
 
 
 def from_minho(conf: dict | str | None, minho_dir, output, *, image_size=None, valid_radius=None,
-               line_images=None, mask=None, overwrite: bool = False) -> Path:
+               line_images=None, mask=None, overwrite: bool = False,
+               progress: bool = False) -> Path:
     """calib.yaml from the MINHO team's files in ``minho_dir`` (mirror.cfg, image.cfg; see
-    stages.calibrate.minho). ``conf`` None or a preset name: ``confs`` (default ``minho``).
+    stages.calibrate.minho). ``conf``: a preset name, None (``minho``) or a dict of overrides
+    on ``minho``.
     ``image_size`` None: the size of the first image in DIR/images. ``mask`` None:
     DIR/mask.png if it exists (used for the line images). Returns ``output``."""
-    if conf is None or isinstance(conf, str):
-        from ..common.conf import resolve_conf
-
-        conf = resolve_conf(confs, conf or "minho")
+    conf = stage_conf(confs, conf, default="minho")
     folder = Path(minho_dir)
     check_output(output, {"the MINHO folder": _files_in(folder),
                           "its images": _files_in(folder / "images"), "mask": mask,
@@ -413,19 +415,17 @@ def from_minho(conf: dict | str | None, minho_dir, output, *, image_size=None, v
 
 def from_cnc(conf: dict | str | None, carpet_conf, output, *, rings, calib_image=None,
              centre=None, image_size=None, valid_radius=None, forward_angle: float = math.pi / 2,
-             mirrored: bool = False, overwrite: bool = False) -> Path:
+             mirrored: bool = False, overwrite: bool = False, progress: bool = False) -> Path:
     """calib.yaml from the Carpe Noctem ``CarpetCalibrator.conf`` (ring distances) and ring
     radii: ``rings`` is the user's pairing (stages.calibrate.cnc: 'detected', or radii with
     '-' / None for a distance whose ring is not seen). ``calib_image`` (default
     CarpetCalibImage.png beside the conf, if there): where rings are detected, and the centre
     and image size unless given. The rings' detection is recorded beside the pairs.
-    ``conf`` None or a preset name: ``confs`` (default ``cnc``). Returns ``output``."""
+    ``conf``: a preset name, None (``cnc``) or a dict of overrides on ``cnc``. Returns
+    ``output``."""
     import cv2
 
-    if conf is None or isinstance(conf, str):
-        from ..common.conf import resolve_conf
-
-        conf = resolve_conf(confs, conf or "cnc")
+    conf = stage_conf(confs, conf, default="cnc")
     carpet_conf = Path(carpet_conf)
     distances = _cnc.read_distances(carpet_conf)
     sources = {"cnc": str(carpet_conf), "carpet_conf_hash": file_hash(carpet_conf)}

@@ -57,6 +57,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common.camera import save_calib
+from ..common.conf import stage_conf
 from ..common.dataset import write_csv
 from ..common.errors import FieldlocError
 from ..common.perspective_camera import PerspectiveCamera
@@ -206,10 +207,12 @@ def _frames_of_folder(folder: Path, conf: dict) -> list[tuple[HulksFrame, Path]]
     return out
 
 
-def main(conf: dict | None, source, output, *, overwrite: bool = False) -> Path:
+def main(conf: str | dict | None, source, output, *, overwrite: bool = False,
+         progress: bool = False) -> Path:
     """Import ``source`` (a HULKs capture JSON, or a folder of them with their images) and
-    write ``output`` (calib.yaml, or a dataset folder for a folder). Returns ``output``."""
-    conf = {**confs["default"], **(conf or {})}
+    write ``output`` (calib.yaml, or a dataset folder for a folder). ``conf``: a preset name,
+    None or a dict of overrides on ``default``. Returns ``output``."""
+    conf = stage_conf(confs, conf)
     source, output = Path(source), Path(output)
     if source.is_file():
         if output.exists() and not overwrite:

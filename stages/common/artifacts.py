@@ -55,13 +55,22 @@ def text_hash(text: str) -> str:
     return "sha256:" + hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def root_attrs(schema: str, version: int, conf: dict | None = None, inputs: dict | None = None):
-    """The attributes every artifact carries at its root."""
+def provenance(schema: str, version: int) -> dict:
+    """What every artifact says first of itself (HDF5 root attributes, report.json): its schema
+    and version, the fieldloc that wrote it, and when."""
     return {
         "schema": schema,
         "schema_version": int(version),
         "fieldloc_version": __version__,
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+    }
+
+
+def root_attrs(schema: str, version: int, conf: dict | None = None, inputs: dict | None = None):
+    """The attributes every HDF5 artifact carries at its root: ``provenance``, and the conf
+    and inputs (content hashes) as JSON."""
+    return {
+        **provenance(schema, version),
         "conf": json.dumps(conf or {}, sort_keys=True, default=_json_default),
         "inputs": json.dumps(inputs or {}, sort_keys=True, default=_json_default),
     }

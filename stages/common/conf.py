@@ -72,8 +72,10 @@ def resolve_conf(confs: dict, preset: str | dict | None, overrides: dict | None 
 
 def stage_conf(confs: dict, conf: str | dict | None, default: str = "default") -> dict:
     """The stage contract's conf: a preset name, None (the default preset), or a dict of
-    overrides on the default preset (a complete conf is a dict of overrides too); unknown
-    preset names and keys are user errors."""
+    overrides on the default preset (a complete conf is a dict of overrides too; groups are
+    merged key by key); unknown preset names and keys are user errors. A stage with kinds of
+    presets passes the default preset of the kind in play as ``default`` (simulate: of the
+    conf's camera, localize: of its method, extract: of the dataset's camera)."""
     if conf is None or isinstance(conf, str):
         return resolve_conf(confs, conf, default=default)
     if not isinstance(conf, dict):

@@ -283,6 +283,51 @@ def open_dataset(root: str | Path, *, need_images: bool = True) -> Dataset:
     return Dataset(root=root, images=images, stamps=stamps, stamp_source=source)
 
 
+def frame_index(names: list[str], frame: str | int, where: str) -> int:
+    """The index of a frame given by its name, or else by its position in ``names`` (0-based;
+    negative counts from the end: -1 is the last frame). An unknown name or a position out of
+    range is a user error naming ``where``."""
+    frame = str(frame)
+    if frame in names:
+        return names.index(frame)
+    try:
+        i = int(frame)
+    except ValueError:
+        raise DatasetError(f"{where}: no frame named '{frame}'") from None
+    if not -len(names) <= i < len(names):
+        raise DatasetError(f"{where}: frame index {i} out of range (0..{len(names) - 1})")
+    return i % len(names)
+
+
+TRUTH_TOLERANCE = 0.05  # s: the largest stamp difference of a frame and its truth row
+
+
+def truth_at(truth: dict[str, np.ndarray] | None, stamp: float,
+             tolerance: float = TRUTH_TOLERANCE) -> np.ndarray | None:
+    """The true pose (x, y, theta) of the ``truth`` row (truth.csv columns) nearest to
+    ``stamp``, or None when there is no truth or no row within ``tolerance`` s."""
+    if truth is None or len(truth["stamp"]) == 0:
+        return None
+    i = int(np.argmin(np.abs(truth["stamp"] - stamp)))
+    if abs(truth["stamp"][i] - stamp) > tolerance:
+        return None
+    return np.array([truth["x"][i], truth["y"][i], truth["theta"][i]], dtype=float)
+
+
+def readable_truth(dataset_dir) -> dict[str, np.ndarray] | None:
+    """truth.csv of the dataset folder ``dataset_dir``, or None when there is no folder, no
+    truth.csv, or one that cannot be read (a picture then goes without the truth)."""
+    if not dataset_dir:
+        return None
+    p = Path(dataset_dir) / "truth.csv"
+    if not p.is_file():
+        return None
+    try:
+        return read_csv(p, "truth")
+    except DatasetError:
+        return None
+
+
 def read_image(path: Path) -> np.ndarray:
     """Read an image as BGR uint8; raises DatasetError if unreadable (callers skip the frame)."""
     import cv2

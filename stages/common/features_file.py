@@ -42,6 +42,9 @@ log = logging.getLogger(__name__)
 SCHEMA = "fieldloc.features"
 VERSION = 1
 
+# the type column of "crossings"
+CROSSING_CODES = {"L": 0, "T": 1, "X": 2}
+
 # name -> (units, dtype, description). Shapes are per frame.
 FRAME_DATASETS = {
     # omnidirectional (seed 002)

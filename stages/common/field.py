@@ -137,6 +137,14 @@ class FieldModel:
         x, y, th = pose
         return np.array([-x, -y, math.remainder(th + math.pi, 2 * math.pi)])
 
+    def touchline_pose(self, x, side, inset=0.0) -> np.ndarray:
+        """Where a robot enters in a game: on a touch line at ``x`` along it, facing into the
+        field; ``side`` +1 is the left touch line (y > 0), -1 the right one; ``inset`` metres
+        inside the line (negative: outside). Arrays broadcast to poses (..., 3). The own half
+        (x < 0) and the spread along and across the line are the caller's draw."""
+        x, side, inset = np.broadcast_arrays(*(np.asarray(v, float) for v in (x, side, inset)))
+        return np.stack([x, side * (self.width / 2 - inset), -side * math.pi / 2], axis=-1)
+
     def is_point_symmetric(self, tol: float = 1e-6) -> bool:
         """Whether the field looks the same after a 180 deg turn about the centre spot (line
         segments, arcs, crossings with their types, goal posts): then a pose and its mirror

@@ -10,6 +10,13 @@ def wrap_angle(a):
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
 
 
+def polar(points) -> tuple[np.ndarray, np.ndarray]:
+    """(distance, bearing) of points (N, 2) in the robot frame (bearing counter-clockwise from
+    +x)."""
+    p = np.asarray(points, float).reshape(-1, 2)
+    return np.hypot(p[:, 0], p[:, 1]), np.arctan2(p[:, 1], p[:, 0])
+
+
 def rotation(theta: float) -> np.ndarray:
     c, s = np.cos(theta), np.sin(theta)
     return np.array([[c, -s], [s, c]])

@@ -13,6 +13,9 @@ In the robot frame (x forward, y left), from the robot's own radius outwards:
 Heading as index rotation: what a robot with heading m * 5 deg sees on its radial line k is
 what a robot with heading 0 at the same place sees on radial line (k + m) mod 72; the same holds
 for the spiral start angles. ``rotate_to_heading`` applies it to a table row set.
+
+Line points of a team's own detector (robot frame) become scan-line crossings through
+``bin_points_to_scanlines``, the layout extract writes and localize reads.
 """
 
 from __future__ import annotations
@@ -78,3 +81,62 @@ def rotate_to_heading(rows: np.ndarray, shift: int, axis: int) -> np.ndarray:
     """Scan-line values seen at heading ``shift`` * step from values at heading 0: entry k of
     the result is entry (k + shift) mod n of ``rows`` along ``axis``."""
     return np.roll(rows, -shift, axis=axis)
+
+
+def bin_points_to_scanlines(points_robot, scanlines: ScanLines | None = None,
+                            tolerance: float = 0.05, merge: float = 0.15):
+    """Line points from a team's own detector (robot frame, metres, (N, 2)) -> the tables'
+    layout: ``radial`` (72, 4) nearest first NaN padded, ``spiral`` (2, 72) NaN if none.
+
+    A point counts as a crossing of a scan line when its perpendicular distance to that line is
+    at most ``tolerance`` (m) and it lies between the robot radius and the line's end (max_range
+    for radial lines, spiral_end_radius for spirals). Radial crossings are the point's
+    projection on the ray; points of one radial line closer than ``merge`` (m) to the previous
+    one are taken as the same white line and averaged. A spiral's crossing is the ground radius
+    of its nearest qualifying point. Points from detectors that sample lines sparsely leave
+    most scan lines empty, which the table matching ignores (seed 002: scan lines without a
+    crossing are skipped)."""
+    sl = scanlines or ScanLines()
+    p = np.asarray(points_robot, dtype=float).reshape(-1, 2)
+    p = p[np.isfinite(p).all(axis=1)]
+    n = sl.n_angles
+    radial = np.full((n, sl.max_crossings), np.nan, np.float32)
+    spiral = np.full((2, n), np.nan, np.float32)
+    if len(p) == 0:
+        return radial, spiral
+    rho = np.hypot(p[:, 0], p[:, 1])
+    beta = np.arctan2(p[:, 1], p[:, 0])
+    # radial: every ray within tolerance (near the robot several rays can qualify)
+    rel = (beta[:, None] - sl.radial_angles[None, :] + np.pi) % (2 * np.pi) - np.pi  # (N, n)
+    perp = rho[:, None] * np.abs(np.sin(rel))
+    along = rho[:, None] * np.cos(rel)
+    hit = (perp <= tolerance) & (along >= sl.robot_radius) & (along <= sl.max_range)
+    pi_, li = np.nonzero(hit)
+    if len(li):
+        d = along[pi_, li]
+        order = np.lexsort((d, li))
+        li, d = li[order], d[order]
+        # merge crossings of one line closer than `merge` into clusters (mean distance)
+        new = np.ones(len(li), bool)
+        new[1:] = (li[1:] != li[:-1]) | (np.diff(d) > merge)
+        grp = np.cumsum(new) - 1
+        cnt = np.bincount(grp)
+        dm = np.bincount(grp, d) / cnt
+        gl = li[new]
+        first = np.searchsorted(gl, gl, side="left")
+        rank = np.arange(len(gl)) - first
+        keep = rank < sl.max_crossings
+        radial[gl[keep], rank[keep]] = dm[keep]
+    # spirals: at radius rho the spiral (direction, k) is at angle a_k +- phi(rho)
+    r0, r1 = sl.robot_radius, sl.spiral_end_radius
+    inside = (rho >= r0) & (rho <= r1)
+    phi = 2 * np.pi * (rho - r0) / (r1 - r0)
+    cos_psi = 1.0 / np.sqrt(1.0 + ((r1 - r0) / (2 * np.pi * np.maximum(rho, 1e-6))) ** 2)
+    for direction, sign in ((0, 1.0), (1, -1.0)):  # the two spiral directions
+        rel = (beta[:, None] - sign * phi[:, None] - sl.radial_angles[None, :] + np.pi) % (
+            2 * np.pi) - np.pi
+        perp = rho[:, None] * np.abs(rel) * cos_psi[:, None]
+        ok = (perp <= tolerance) & inside[:, None]
+        r_hit = np.where(ok, rho[:, None], np.inf).min(axis=0)
+        spiral[direction] = np.where(np.isfinite(r_hit), r_hit, np.nan)
+    return radial, spiral

@@ -7,10 +7,16 @@ table across runs.
 
 A report folder holds:
 
-    report.json          the numbers (schema ``fieldloc.report``, see report.py), written last:
+    report.json          the numbers (schema ``fieldloc.report``, see
+                         stages.common.report_file), written last:
                          its presence means the run finished
     errors.csv           one row per frame: matched truth, position and heading error
-    plots/error_cdf.png, plots/trajectory.png, plots/error_over_time.png
+    truth.tum            the truth for evo (evo_ape tum truth.tum poses.tum)
+    plots/error_cdf.png, plots/trajectory.png, plots/error_over_time.png, plots/reliability.png
+                         listed in report.json when the conf's ``plots`` is on, and drawn
+                         from the report by stages.show.report_plots (``fieldloc evaluate``,
+                         stages.pipelines.evaluation, runs both); a report that is written
+                         anew removes the plots of the one it replaces
 
 Failures count as failures (infinite error), never as poses; how that enters each number is
 written in metrics.py and repeated in every report under ``conventions``.
@@ -18,35 +24,30 @@ written in metrics.py and repeated in every report under ``conventions``.
 
 from __future__ import annotations
 
-import datetime as _dt
 import logging
 import math
 import os
 from pathlib import Path
 
-import numpy as np
-
-from stages import __version__
 from stages.common.artifacts import check_output, file_hash, refuse_inputs
-from stages.common.conf import resolve_conf
+from stages.common.conf import stage_conf
 from stages.common.dataset import read_csv
 from stages.common.errors import FieldlocError
 from stages.common.field import load_field
 from stages.common.poses_file import read_poses
-
-from .metrics import FrameErrors, frame_errors, summarize
-from .report import (
+from stages.common.report_file import (
     ERRORS_NAME,
+    PLOT_NAMES,
     PLOTS_DIR,
     REPORT_NAME,
-    SCHEMA,
-    VERSION,
     load_report,
-    reliability_table,
-    tabulate,
+    report_head,
     write_errors_csv,
     write_report,
 )
+
+from .metrics import FrameErrors, frame_errors, summarize
+from .report import reliability_table, tabulate
 
 __all__ = ["confs", "main", "evaluate_poses", "tabulate", "reliability_table", "load_report",
            "FrameErrors"]
@@ -77,8 +78,6 @@ confs = {
         "dpi": 120,
     },
 }
-
-PLOT_NAMES = ("error_cdf.png", "trajectory.png", "error_over_time.png", "reliability.png")
 
 CONVENTIONS = {
     "matching": "each frame is matched to the truth row nearest in stamp within"
@@ -117,9 +116,7 @@ def _check_conf(conf: dict) -> dict:
 
 
 def _resolve(conf) -> dict:
-    if conf is None or isinstance(conf, str):
-        return _check_conf(resolve_conf(confs, conf))
-    return _check_conf(resolve_conf(confs, "default", dict(conf)))
+    return _check_conf(stage_conf(confs, conf))
 
 
 def evaluate_poses(columns: dict, truth: dict, conf=None) -> tuple[FrameErrors, dict]:
@@ -151,30 +148,14 @@ def _field_file(field) -> Path | None:
     return p if p.suffix.lower() in (".yaml", ".yml") or p.exists() else None
 
 
-def _load_field_model(field, attrs: dict):
-    """The field to draw on: ``field`` if given (errors are the user's), else the poses'
-    ``field`` attribute (a failure there is logged and the plot drawn without field lines)."""
-    if field:
-        return load_field(field)
-    name = attrs.get("field") or ""
-    if not name:
-        log.warning("poses file names no field; trajectories drawn without field lines"
-                    " (pass --field)")
-        return None
-    try:
-        return load_field(name)
-    except FieldlocError as e:
-        log.warning("field '%s' of the poses file could not be loaded (%s); trajectories drawn"
-                    " without field lines (pass --field)", name, e)
-        return None
-
-
-def main(conf, poses, truth, output_dir, *, overwrite: bool = False, field=None) -> Path:
+def main(conf: str | dict | None, poses, truth, output_dir, *, overwrite: bool = False,
+         field=None, progress: bool = False) -> Path:
     """Evaluate ``poses`` (poses.h5) against ``truth`` (truth.csv, or a dataset folder holding
     it; None: the dataset the poses file names) into the report folder ``output_dir``.
 
     ``conf``: a preset name, a dict of overrides of "default", or None. ``field``: the field
-    (name or YAML path) to draw trajectories on, instead of the poses file's ``field``.
+    (name or YAML path) to draw trajectories on, instead of the poses file's ``field``
+    (checked here, drawn by stages.show.report_plots).
     An existing report of the same inputs and conf is kept as it is; one of other inputs is
     replaced only with ``overwrite``. Returns the report folder."""
     conf = _resolve(conf)
@@ -208,6 +189,8 @@ def main(conf, poses, truth, output_dir, *, overwrite: bool = False, field=None)
             " (overwrite=True) to replace it or choose another output folder"
         )
 
+    if field:
+        load_field(field)  # the plots' field: a user's error is refused before writing
     fe = frame_errors(columns, truth_cols, conf["stamp_tolerance"])
     summary = summarize(fe, conf["thresholds"])
     log.info("%s: %d of %d frames matched to truth within %g s, %d failed", poses,
@@ -222,26 +205,11 @@ def main(conf, poses, truth, output_dir, *, overwrite: bool = False, field=None)
     from .export import write_truth_tum  # truth.tum: evo_ape tum truth.tum poses.tum
 
     write_truth_tum(out / "truth.tum", truth_cols)
-    plots_dir = out / PLOTS_DIR
-    plot_files = []
-    if conf["plots"]:
-        from .plots import write_report_plots
-
-        fm = _load_field_model(field, attrs)
-        title = f"{attrs.get('method') or 'poses'} on {out.name}"
-        plot_files = write_report_plots(
-            fe, plots_dir, thresholds=conf["thresholds"], title=title, field_model=fm,
-            truth_path=_truth_path_during(truth_cols, fe, conf["stamp_tolerance"]),
-            dpi=int(conf["dpi"]), calibration=summary["calibration"])
-    else:
-        for name in PLOT_NAMES:  # a replaced report must not keep plots of the old one
-            (plots_dir / name).unlink(missing_ok=True)
+    for name in PLOT_NAMES:  # a replaced report must not keep plots of the old one
+        (out / PLOTS_DIR / name).unlink(missing_ok=True)
 
     report = {
-        "schema": SCHEMA,
-        "schema_version": VERSION,
-        "fieldloc_version": __version__,
-        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        **report_head(),
         "run": out.name,
         "method": attrs.get("method", ""),
         "field": str(field) if field else attrs.get("field", ""),
@@ -255,22 +223,13 @@ def main(conf, poses, truth, output_dir, *, overwrite: bool = False, field=None)
         "conventions": CONVENTIONS,
         **summary,
         "files": {"errors": ERRORS_NAME,
-                  "plots": [str(p.relative_to(out)) for p in plot_files]},
+                  "plots": [f"{PLOTS_DIR}/{n}" for n in PLOT_NAMES] if conf["plots"] else []},
     }
     write_report(report_file, report)
     pos = summary["position_error_m"]
     log.info("%s: median position error %s m, within %s", out, _short(pos["median"]),
              summary["within"])
     return out
-
-
-def _truth_path_during(truth: dict, fe: FrameErrors, tolerance: float):
-    """(x, y) of the truth rows, in time order, from the first to the last frame."""
-    t = truth["stamp"]
-    ok = np.isfinite(t) & np.isfinite(truth["x"]) & np.isfinite(truth["y"])
-    ok &= (t >= np.nanmin(fe.stamp) - tolerance) & (t <= np.nanmax(fe.stamp) + tolerance)
-    order = np.argsort(t[ok], kind="stable")
-    return truth["x"][ok][order], truth["y"][ok][order]
 
 
 def _short(v: float) -> str:

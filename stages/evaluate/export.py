@@ -94,14 +94,14 @@ def _csv_value(v):
     return v if isinstance(v, str) else repr(v) if isinstance(v, float) else str(v)
 
 
-def main(conf, poses, output=None, *, fmt: str, overwrite: bool = False) -> Path:
+def main(conf: str | dict | None, poses, output=None, *, fmt: str, overwrite: bool = False,
+         progress: bool = False) -> Path:
     """Write ``poses`` (poses.h5) as ``fmt`` (csv, tum or json) to ``output``; returns it."""
+    from ..common.conf import stage_conf
+
     if fmt not in FORMATS:
         raise FieldlocError(f"unknown export format '{fmt}' ({', '.join(FORMATS)})")
-    if conf is None or isinstance(conf, str):
-        from ..common.conf import resolve_conf
-
-        conf = resolve_conf(confs, conf)
+    conf = stage_conf(confs, conf)
     poses = Path(poses)
     output = Path(output) if output is not None else default_output(poses, fmt)
     if output.resolve() == poses.resolve():

@@ -5,7 +5,10 @@
 
 The camera kind of the dataset's calib.yaml picks the extractor module (``KINDS``); each exposes
 ``confs`` (named presets) and ``extract_frame(image_bgr, camera, conf, **frame_info) -> dict``
-whose keys are FRAME_DATASETS names of stages.common.features_file:
+whose keys are FRAME_DATASETS names of stages.common.features_file. ``confs`` here lists the
+presets of every kind as ``<kind>-<preset>`` (``omni-dense``); ``main``'s conf is a preset
+name of the dataset's kind (``dense`` or ``omni-dense``), None (the kind's ``default``), or a
+dict of overrides on the kind's default preset (``resolve_extract_conf``):
 
 - ``omni`` (stages.extract.omni, seed 002): scan-line distances and line points;
   frame_info ``mask`` (the dataset's mask.png, see ``read_mask``);
@@ -36,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common.artifacts import check_output, file_hash, root_attrs
-from ..common.conf import registered_module, resolve_conf
+from ..common.conf import registered_module, resolve_conf, stage_conf
 from ..common.dataset import open_dataset, read_image, read_mask
 from ..common.errors import FieldlocError, SchemaError
 from ..common.features_file import SCHEMA, VERSION, FeaturesFile, FrameParts, write_features
@@ -59,20 +62,27 @@ def kind_confs(kind: str) -> dict:
     return kind_module(kind).confs
 
 
-# presets of the omnidirectional extractor (the perspective ones: kind_confs("perspective"))
-confs = kind_confs("omni")
+# the presets of every kind: "<kind>-<preset>" -> conf
+confs = {f"{kind}-{name}": c for kind in KINDS for name, c in kind_confs(kind).items()}
 
 
 def resolve_extract_conf(kind: str, conf: str | dict | None = None,
                          overrides: dict | None = None) -> dict:
-    """The conf for a camera kind: a preset name (default ``DEFAULT_PRESET``) or a dict of
-    values replacing those of the default preset (a complete conf or just a few keys), then
-    ``overrides``. Unknown preset names and keys are user errors."""
+    """The conf for a camera kind: a preset name of the kind (``dense``, or ``omni-dense`` as
+    in ``confs``; None: ``DEFAULT_PRESET``) or a dict of overrides on the kind's default
+    preset, then ``overrides``. Unknown preset names and keys are user errors."""
     presets = kind_confs(kind)
-    if isinstance(conf, dict):
-        base = resolve_conf(presets, DEFAULT_PRESET, conf)
-        return resolve_conf(presets, base, overrides)
-    return resolve_conf(presets, conf or DEFAULT_PRESET, overrides)
+    if isinstance(conf, str) and conf not in presets and conf in confs:
+        if not conf.startswith(f"{kind}-"):
+            raise FieldlocError(f"preset '{conf}' is one of {conf.split('-')[0]} cameras; the"
+                                f" dataset's camera is {kind}")
+        conf = conf[len(kind) + 1:]
+    return resolve_conf(presets, stage_conf(presets, conf, DEFAULT_PRESET), overrides)
+
+
+def camera_kind(dataset_dir: str | Path) -> str:
+    """The camera kind of a dataset folder (its calib.yaml), which picks the presets."""
+    return open_dataset(dataset_dir).camera().kind
 
 
 def _head_angles(ds) -> tuple[np.ndarray, dict[str, np.ndarray]] | None:
@@ -83,6 +93,11 @@ def _head_angles(ds) -> tuple[np.ndarray, dict[str, np.ndarray]] | None:
         return None
     order = np.argsort(head["stamp"])
     return head["stamp"][order], {k: v[order] for k, v in head.items() if k != "stamp"}
+
+
+def _frame_info(kind: str, mask, head, stamp: float) -> dict:
+    """The frame_info of one frame for its kind's ``extract_frame`` (module doc)."""
+    return {"mask": mask} if kind == "omni" else _frame_info_head(head, stamp)
 
 
 def _frame_info_head(head, stamp: float) -> dict:
@@ -141,8 +156,18 @@ def _run_attrs(ds, camera, module, conf: dict):
     return attrs, mask, head
 
 
-def reusable_features(path: str | Path, dataset_dir: str | Path, conf=None,
-                      overrides: dict | None = None) -> str | None:
+def extract_dataset_frame(ds, index: int, conf: dict) -> dict:
+    """The features of frame ``index`` of the dataset ``ds`` (stages.common.dataset.Dataset)
+    with the resolved ``conf``, as ``main`` extracts them (the omni mask, the perspective head
+    angles of head.csv): for pictures that need one frame without a features file."""
+    camera = ds.camera()
+    module = kind_module(camera.kind)
+    _attrs, mask, head = _run_attrs(ds, camera, module, conf)
+    info = _frame_info(camera.kind, mask, head, float(ds.stamps[index]))
+    return module.extract_frame(read_image(ds.images[index]), camera, conf, **info)
+
+
+def reusable_features(path: str | Path, dataset_dir: str | Path, conf=None) -> str | None:
     """Why the features file ``path`` cannot stand for extracting ``dataset_dir`` now with
     ``conf`` (None: it can): it must exist, be made from the same calibration, mask and conf,
     and hold every frame of the dataset (extracted or recorded as failed)."""
@@ -153,7 +178,7 @@ def reusable_features(path: str | Path, dataset_dir: str | Path, conf=None,
     camera = ds.camera()
     module = kind_module(camera.kind)
     attrs, _mask, _head = _run_attrs(ds, camera, module,
-                                     resolve_extract_conf(camera.kind, conf, overrides))
+                                     resolve_extract_conf(camera.kind, conf))
     try:
         _check_resumable(path, attrs)
         with FeaturesFile(path) as ff:
@@ -167,11 +192,11 @@ def reusable_features(path: str | Path, dataset_dir: str | Path, conf=None,
 
 
 def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | None = None, *,
-         overwrite: bool = False, progress: bool = False, overrides: dict | None = None,
+         overwrite: bool = False, progress: bool = False,
          debug_images: str | Path | None = None) -> Path:
     """Extract every frame of ``dataset_dir`` into ``output`` (default DIR/features.h5) and
-    return its path. ``conf``: preset name or conf dict of the dataset's camera kind (see
-    ``resolve_extract_conf``); ``overrides``: values replacing the preset's.
+    return its path. ``conf``: a preset name of the dataset's camera kind, None, or a dict of
+    overrides on the kind's default preset (``resolve_extract_conf``).
     ``debug_images``: a folder that receives one overlay PNG per extracted frame (the kind's
     ``debug_overlay``: for perspective frames the seed's fig. 1)."""
     from tqdm import tqdm
@@ -180,7 +205,7 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
     camera = ds.camera()
     kind = camera.kind
     module = kind_module(kind)
-    conf = resolve_extract_conf(kind, conf, overrides)
+    conf = resolve_extract_conf(kind, conf)
     output = Path(output) if output is not None else ds.root / "features.h5"
     check_output(output, ds.files(), overwrite=None)
     if debug_images is not None:
@@ -219,11 +244,8 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
     for path, name, stamp in tqdm(todo, desc="extract", unit="frame", disable=not progress):
         try:
             image = read_image(path)
-            if kind == "omni":
-                info = {"mask": mask}
-            else:
-                info = _frame_info_head(head, float(stamp))
-            arrays = module.extract_frame(image, camera, conf, **info)
+            arrays = module.extract_frame(image, camera, conf,
+                                          **_frame_info(kind, mask, head, float(stamp)))
         except FieldlocError as e:
             log.warning("frame %s skipped: %s", name, e)
             parts.add_failure(name, str(e))

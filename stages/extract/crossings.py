@@ -17,6 +17,10 @@ The candidate's arms are also checked on the floor (``floor_arms``): an L's arms
 90 deg, a T's bar is straight with the stem across it, an X's two lines cross at about 90 deg.
 The crossing's orientation follows the convention of ``stages.common.field``: an L's bisector
 of its arms, a T's stem, an X's arms folded into [0, pi/2).
+
+``find_crossings`` runs the chain of a frame: the key structure's candidates and the crossings
+of pairs of fitted lines (``line_pair_crossings``), each placed, refined on the
+full-resolution white mask and verified, then merged.
 """
 
 from __future__ import annotations
@@ -27,11 +31,12 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from stages.common.features_file import CROSSING_CODES
 from stages.common.field import crossing_orientation
+from stages.common.geometry import polar
 
+from .line_fit import lens_parameters, refine_segment
 from .line_structure import KeyStructure, LineGraph
-
-TYPE_CODES = {"L": 0, "T": 1, "X": 2}
 
 
 @dataclass
@@ -375,3 +380,172 @@ def merge_line_crossings(crossings: list[LineCrossing], tol: float,
         out.append(LineCrossing({2: "L", 3: "T"}[len(arms)], point, np.array(arms),
                                 group[0].lines, np.array(lengths)))
     return out
+
+
+# ---------------------------------------------------------------------------- the chain
+
+
+def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.ndarray,
+                   other: np.ndarray, top: np.ndarray, camera, to_floor,
+                   cc: dict, cell: int, trace: dict | None = None,
+                   white_px: np.ndarray | None = None, floor_of=None,
+                   lines_ideal: np.ndarray | None = None,
+                   line_widths: np.ndarray | None = None, posts_px=()):
+    """Section 4.1: L/T/X candidates of the key structure, each placed at the intersection of
+    its arms' lines (fitted to the undistorted nodes, refined on the full-resolution white
+    mask), and the crossings of pairs of fitted field lines (``lines_ideal`` (N, 2, 2) ideal
+    px, ``line_widths`` (N,) px; ``crossings.line_pair_crossings``), all verified the same
+    way (``_verify_crossing``: floor shape, range, boundary, objects, circle transitions and
+    white paths). Of verified crossings closer than ``merge_distance`` cells the best scored
+    one stays; none within ``post_radius`` cells of a goal post's foot (``posts_px``). Returns
+    rows [type, distance, bearing, orientation, confidence] and the crossings' image
+    positions."""
+    lo, hi = cc["l_angle"] if floor_of is None else cc["l_angle_floor"]
+    cands = crossing_candidates(ks, graph, cc["arm_reach"], (lo, hi), floor_of)
+    other_mean = cv2.blur(other, (3, 3), borderType=cv2.BORDER_REPLICATE)
+    rows_ = np.arange(white.shape[0], dtype=np.float64)[:, None]
+    field_cells = (rows_ >= np.asarray(top, np.float64)[None, :]).astype(np.float32)
+    verdicts, found = [], []
+    for cand in cands:
+        verdict = _crossing(cand, ks, ideal, white, green, other_mean, top, camera, to_floor,
+                            cc, cell, white_px, field_cells)
+        verdicts.append(verdict)
+        if not isinstance(verdict, str):
+            found.append(verdict)
+    pairs, pair_verdicts = [], []
+    if lines_ideal is not None and len(lines_ideal) > 1 and cc.get("line_pairs", True):
+        pairs = line_pair_crossings(lines_ideal, line_widths, to_floor, cc["pair_gap"] * cell,
+                                    cc["max_misfit"])
+        reach = cc["arm_reach"] * cell
+        for lc in pairs:
+            verdict = _verify_crossing(lc.kind, lc.point, lc.arms,
+                                       np.minimum(reach, lc.lengths), white, green, other_mean,
+                                       top, camera, to_floor, cc, cell, field_cells, lc.lengths)
+            pair_verdicts.append(verdict)
+            if not isinstance(verdict, str):
+                found.append(verdict)
+    found.sort(key=lambda v: -v[0][4])
+    rows, pxs = [], []
+    # a goal post standing on a line makes a junction in the image, not a crossing
+    near_post = cc["post_radius"] * cell
+    found = [(row, px) for row, px in found
+             if all(np.hypot(*(px - q)) > near_post for q in posts_px)]
+    for row, px in found:
+        if all(np.hypot(*(px - q)) > cc["merge_distance"] * cell for q in pxs):
+            rows.append(row)
+            pxs.append(px)
+    if trace is not None:
+        trace.update(candidates=cands, crossing_verdicts=verdicts, line_pairs=pairs,
+                     line_pair_verdicts=pair_verdicts)
+    return rows, pxs
+
+
+def _crossing(cand, ks, ideal, white, green, other_mean, top, camera, to_floor, cc, cell,
+              white_px=None, field_cells=None):
+    """One key-structure candidate -> (row, image position), or the reason it was rejected."""
+    centre = ideal[ks.node[cand.key]]
+    if not np.all(np.isfinite(centre)):
+        return "outside the lens model"
+    chains = ks.arms(cand.key, 1 + cc["arm_skip"] + cc["arm_nodes"])
+    arms = arm_lines(centre, chains, ideal, cc["arm_skip"], cc["arm_nodes"])
+    if len(arms) != len(cand.arm_points):
+        return "arm without nodes"
+    if white_px is not None and cc.get("refine", True):
+        arms = [_refined_arm(arm, centre, white_px, camera, cc, cell) for arm in arms]
+    # an L's skeleton cuts its corner and a junction node may sit beside a thin line: the
+    # crossing is where the lines fitted to its arms meet
+    x = crossing_point(cand.kind, arms)
+    if x is None or np.hypot(*(x - centre)) > cc["max_shift"] * cell:
+        return "arms do not meet near the node"
+    dirs = np.array([u for _, u, _ in arms])
+    step = cc["arm_step"] * cell
+    lengths = np.array([max(float(np.max((sel - x) @ u)), step) for _, u, sel in arms])
+    reach = np.minimum(cc["arm_reach"] * cell, lengths)
+    return _verify_crossing(cand.kind, x, dirs, reach, white, green, other_mean, top, camera,
+                            to_floor, cc, cell, field_cells, lengths)
+
+
+def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera, to_floor, cc,
+                     cell, field_cells=None, lengths=None):
+    """A crossing of ``kind`` at ideal point ``x`` with arms along ``dirs`` (A, 2) reaching
+    ``reach`` (A,) px, its lines extending ``lengths`` (A,) px along them -> (row, image
+    position), or the reason it is rejected. The cheap floor checks come before the image
+    checks."""
+    step = cc["arm_step"] * cell
+    floor = to_floor(np.vstack([x[None], x + step * dirs]))
+    if not np.all(np.isfinite(floor)):
+        return "above the horizon"
+    if lengths is not None:
+        ends = to_floor(x[None] + np.asarray(lengths)[:, None] * dirs)
+        arm_m = np.hypot(*(ends - floor[0]).T)  # NaN beyond the horizon: long enough
+        if np.any(arm_m < cc["min_arm_length"]):
+            return "arm too short"
+    d, bearing = polar(floor[:1])
+    below = to_floor(x[None] + np.array([[0.0, float(cell)]]))
+    if not np.all(np.isfinite(below)) or np.hypot(*(below[0] - floor[0])) > cc["max_cell_span"]:
+        return "too far"
+    arm_dirs = np.arctan2(floor[1:, 1] - floor[0, 1], floor[1:, 0] - floor[0, 0])
+    orient, misfit = floor_arms(kind, arm_dirs)
+    if misfit > cc["max_misfit"]:
+        return f"floor angles misfit {math.degrees(misfit):.0f} deg"
+    px = camera.distort_points(np.vstack([x[None], x + reach[:, None] * dirs]))
+    if not np.all(np.isfinite(px)):
+        return "outside the lens model"
+    grid = (px + 0.5) / cell - 0.5
+    col = int(np.clip(round(grid[0, 0]), 0, len(top) - 1))
+    near_top = top[max(col - 2, 0): col + 3].max()  # the boundary within two columns
+    if grid[0, 1] - near_top < cc["edge_margin"]:
+        return "at the field boundary"  # a line meeting an object or the end of the view
+    row = int(np.clip(round(grid[0, 1]), 0, other_mean.shape[0] - 1))
+    r = cc["object_radius"]
+    if other_mean[max(row - r, 0): row + r + 1, max(col - r, 0): col + r + 1].max() > 0.5:
+        return "next to an object"  # a robot's or a person's white foot on a line
+    # the arms that would make an L a T must be in view (a T's stem continued would make an
+    # X, which fields hold only where the centre circle crosses the halfway line)
+    if kind == "L" and not _alternative_in_view(x, dirs, camera, top, other_mean, green, cc,
+                                                cell):
+        return "not green where a T's arm would be"
+    score = verify_crossing(grid[0], grid[1:], white, green, cc, field_cells)
+    if score <= 0:
+        return "not verified in the image"
+    row = [CROSSING_CODES[kind], d[0], bearing[0], orient,
+           score * (1.0 - misfit / math.radians(90.0))]
+    return row, px[0]
+
+
+def _alternative_in_view(x, dirs, camera, top, other_mean, green, cc, cell) -> bool:
+    """Whether the image shows carpet opposite an L's arms (where the third arm of a T would
+    be), ``arm_reach`` cells from the crossing: inside the image and the field boundary, no
+    object there, and green (at least ``t_green``). A T seen with one half of its bar out of
+    view or hidden looks like an L; so do a far X's arms, flattened by the perspective."""
+    pts = camera.distort_points(x[None] - cc["arm_reach"] * cell * dirs)
+    w, h = camera.image_size
+    for p in pts:
+        if not (np.all(np.isfinite(p)) and 0 <= p[0] <= w - 1 and 0 <= p[1] <= h - 1):
+            return False
+        g = (p + 0.5) / cell - 0.5
+        col = int(np.clip(round(g[0]), 0, len(top) - 1))
+        row = int(np.clip(round(g[1]), 0, other_mean.shape[0] - 1))
+        if g[1] - top[col] < cc["edge_margin"] or other_mean[row, col] > 0.5:
+            return False
+        if sample_cells(green, g[None])[0] < cc["t_green"]:
+            return False
+    return True
+
+
+def _refined_arm(arm, centre: np.ndarray, white_px: np.ndarray, camera, cc: dict, cell: int):
+    """An arm's line (centroid, unit direction away from the crossing, points) refined on the
+    full-resolution white mask (line_fit.refine_segment) over its nodes' extent from
+    ``refine_skip`` cells off the crossing on; the coarse arm where that fails."""
+    c, u, sel = arm
+    t = (sel - centre) @ u
+    t0, t1 = max(float(t.min()), cc["refine_skip"] * cell), float(t.max())
+    if t1 - t0 < cell:
+        return arm
+    ref = refine_segment(np.stack([centre + t0 * u, centre + t1 * u]), white_px,
+                         lens_parameters(camera), cc["refine_step"], cc["refine_reach"] * cell,
+                         0.0, cc["refine_min_points"])
+    if ref is None:
+        return arm
+    d = ref.fit.direction if float(ref.fit.direction @ u) >= 0 else -ref.fit.direction
+    return ref.fit.centroid, d, ref.centres

@@ -11,6 +11,9 @@ On the subsampled white image, per column (vectorised over columns):
 - ``post_feet``: per bar, the foot point in full-resolution pixels: the white-weighted mean
   column and the bottom of the downward run with a subpixel fraction from the share of white
   in the lowest cell.
+
+``is_post_bar`` tells a post's lower part, which the line structure makes a segment, from a
+field line seen along its length.
 """
 
 from __future__ import annotations
@@ -133,3 +136,31 @@ def goal_posts(white: np.ndarray, top: np.ndarray, conf: dict, cell: int,
                        for g, lf in zip(groups, lift)], float)
     foot_rows = np.array([int(start[g].max() + down[g].max()) for g in groups], int)
     return feet, heights, widths, groups, foot_rows
+
+
+def is_post_bar(dist: float, near: float, ends_px: np.ndarray, top: np.ndarray, white: np.ndarray,
+                fx: float, cell: int, pc: dict) -> bool:
+    """A white segment that is a vertical bar on the floor rather than a field line: its floor
+    projection runs straight away from the robot (a vertical line lies in a vertical plane
+    through the camera, which meets the floor in a line through the robot: perpendicular
+    distance below ``bar_radial``), it starts at least ``bar_min_distance`` away (a field line
+    seen along its length would reach the robot's feet), its upper end reaches the field
+    boundary (within ``bar_touch`` cells), and it keeps a post's width up to there: a field
+    line seen along its length looks the same but thins out with distance, a post (all of it
+    as far away as its foot) does not. The width is the white share summed across the bar
+    (times the cell size) over its upper half, against ``post_diameter`` at the foot's
+    distance (at least ``bar_width_ratio`` of it)."""
+    if dist > pc["bar_radial"] or near < pc["bar_min_distance"]:
+        return False
+    k = int(np.argmin(ends_px[:, 1]))
+    up, foot = ends_px[k], ends_px[1 - k]
+    col = int(np.clip((up[0] + 0.5) // cell, 0, len(top) - 1))
+    if (up[1] + 0.5) / cell - top[col] > pc["bar_touch"]:
+        return False
+    h, w = white.shape
+    t = np.linspace(0.5, 0.9, 5)[:, None]
+    grid = ((foot[None] * (1 - t) + up[None] * t) + 0.5) / cell - 0.5
+    rows = np.clip(np.round(grid[:, 1]).astype(int), 0, h - 1)
+    cols = np.clip(np.round(grid[:, 0]).astype(int)[:, None] + np.arange(-2, 3)[None], 0, w - 1)
+    width = float(np.median(white[rows[:, None], cols].sum(axis=1))) * cell
+    return width >= pc["bar_width_ratio"] * fx * pc["post_diameter"] / near

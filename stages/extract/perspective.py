@@ -27,19 +27,11 @@ import cv2
 import numpy as np
 
 from ..common.errors import DatasetError
+from ..common.geometry import polar
 from . import colour
-from .crossings import (
-    TYPE_CODES,
-    arm_lines,
-    crossing_candidates,
-    crossing_point,
-    floor_arms,
-    line_pair_crossings,
-    sample_cells,
-    verify_crossing,
-)
+from .crossings import find_crossings
 from .field_boundary import DEFAULT_WEIGHTS, boundary_polyline, field_boundary
-from .goal_posts import goal_posts
+from .goal_posts import goal_posts, is_post_bar
 from .line_fit import (
     RefinedLine,
     floor_line_parameters,
@@ -306,11 +298,6 @@ def grid_to_pixels(pos, cell: int) -> np.ndarray:
     return (p + 0.5) * cell - 0.5
 
 
-def _polar(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    p = np.asarray(points, float).reshape(-1, 2)
-    return np.hypot(p[:, 0], p[:, 1]), np.arctan2(p[:, 1], p[:, 0])
-
-
 def _empty(n: int) -> np.ndarray:
     return np.zeros((0, n), np.float32)
 
@@ -426,7 +413,7 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
         for f, px, hgt, wid in zip(floor, feet_px, heights, widths):
             if not np.all(np.isfinite(f)):
                 continue
-            d, b = _polar(f[None])
+            d, b = polar(f[None])
             # the bar's width must fit a post of the conf's diameter at that distance, and it
             # must be as tall as a post's visible part at least (white socks are not)
             expected = camera.fx * pc["post_diameter"] / max(d[0], 1e-6)
@@ -467,172 +454,6 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
         "posts": arr(posts, 3),
         "posts_px": arr(posts_px, 2),
     }
-
-
-def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.ndarray,
-                   other: np.ndarray, top: np.ndarray, camera, to_floor: FloorProjection,
-                   cc: dict, cell: int, trace: dict | None = None,
-                   white_px: np.ndarray | None = None, floor_of=None,
-                   lines_ideal: np.ndarray | None = None,
-                   line_widths: np.ndarray | None = None, posts_px=()):
-    """Section 4.1: L/T/X candidates of the key structure, each placed at the intersection of
-    its arms' lines (fitted to the undistorted nodes, refined on the full-resolution white
-    mask), and the crossings of pairs of fitted field lines (``lines_ideal`` (N, 2, 2) ideal
-    px, ``line_widths`` (N,) px; ``crossings.line_pair_crossings``), all verified the same
-    way (``_verify_crossing``: floor shape, range, boundary, objects, circle transitions and
-    white paths). Of verified crossings closer than ``merge_distance`` cells the best scored
-    one stays; none within ``post_radius`` cells of a goal post's foot (``posts_px``). Returns
-    rows [type, distance, bearing, orientation, confidence] and the crossings' image
-    positions."""
-    lo, hi = cc["l_angle"] if floor_of is None else cc["l_angle_floor"]
-    cands = crossing_candidates(ks, graph, cc["arm_reach"], (lo, hi), floor_of)
-    other_mean = cv2.blur(other, (3, 3), borderType=cv2.BORDER_REPLICATE)
-    rows_ = np.arange(white.shape[0], dtype=np.float64)[:, None]
-    field_cells = (rows_ >= np.asarray(top, np.float64)[None, :]).astype(np.float32)
-    verdicts, found = [], []
-    for cand in cands:
-        verdict = _crossing(cand, ks, ideal, white, green, other_mean, top, camera, to_floor,
-                            cc, cell, white_px, field_cells)
-        verdicts.append(verdict)
-        if not isinstance(verdict, str):
-            found.append(verdict)
-    pairs, pair_verdicts = [], []
-    if lines_ideal is not None and len(lines_ideal) > 1 and cc.get("line_pairs", True):
-        pairs = line_pair_crossings(lines_ideal, line_widths, to_floor, cc["pair_gap"] * cell,
-                                    cc["max_misfit"])
-        reach = cc["arm_reach"] * cell
-        for lc in pairs:
-            verdict = _verify_crossing(lc.kind, lc.point, lc.arms,
-                                       np.minimum(reach, lc.lengths), white, green, other_mean,
-                                       top, camera, to_floor, cc, cell, field_cells, lc.lengths)
-            pair_verdicts.append(verdict)
-            if not isinstance(verdict, str):
-                found.append(verdict)
-    found.sort(key=lambda v: -v[0][4])
-    rows, pxs = [], []
-    # a goal post standing on a line makes a junction in the image, not a crossing
-    near_post = cc["post_radius"] * cell
-    found = [(row, px) for row, px in found
-             if all(np.hypot(*(px - q)) > near_post for q in posts_px)]
-    for row, px in found:
-        if all(np.hypot(*(px - q)) > cc["merge_distance"] * cell for q in pxs):
-            rows.append(row)
-            pxs.append(px)
-    if trace is not None:
-        trace.update(candidates=cands, crossing_verdicts=verdicts, line_pairs=pairs,
-                     line_pair_verdicts=pair_verdicts)
-    return rows, pxs
-
-
-def _crossing(cand, ks, ideal, white, green, other_mean, top, camera, to_floor, cc, cell,
-              white_px=None, field_cells=None):
-    """One key-structure candidate -> (row, image position), or the reason it was rejected."""
-    centre = ideal[ks.node[cand.key]]
-    if not np.all(np.isfinite(centre)):
-        return "outside the lens model"
-    chains = ks.arms(cand.key, 1 + cc["arm_skip"] + cc["arm_nodes"])
-    arms = arm_lines(centre, chains, ideal, cc["arm_skip"], cc["arm_nodes"])
-    if len(arms) != len(cand.arm_points):
-        return "arm without nodes"
-    if white_px is not None and cc.get("refine", True):
-        arms = [_refined_arm(arm, centre, white_px, camera, cc, cell) for arm in arms]
-    # an L's skeleton cuts its corner and a junction node may sit beside a thin line: the
-    # crossing is where the lines fitted to its arms meet
-    x = crossing_point(cand.kind, arms)
-    if x is None or np.hypot(*(x - centre)) > cc["max_shift"] * cell:
-        return "arms do not meet near the node"
-    dirs = np.array([u for _, u, _ in arms])
-    step = cc["arm_step"] * cell
-    lengths = np.array([max(float(np.max((sel - x) @ u)), step) for _, u, sel in arms])
-    reach = np.minimum(cc["arm_reach"] * cell, lengths)
-    return _verify_crossing(cand.kind, x, dirs, reach, white, green, other_mean, top, camera,
-                            to_floor, cc, cell, field_cells, lengths)
-
-
-def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera, to_floor, cc,
-                     cell, field_cells=None, lengths=None):
-    """A crossing of ``kind`` at ideal point ``x`` with arms along ``dirs`` (A, 2) reaching
-    ``reach`` (A,) px, its lines extending ``lengths`` (A,) px along them -> (row, image
-    position), or the reason it is rejected. The cheap floor checks come before the image
-    checks."""
-    step = cc["arm_step"] * cell
-    floor = to_floor(np.vstack([x[None], x + step * dirs]))
-    if not np.all(np.isfinite(floor)):
-        return "above the horizon"
-    if lengths is not None:
-        ends = to_floor(x[None] + np.asarray(lengths)[:, None] * dirs)
-        arm_m = np.hypot(*(ends - floor[0]).T)  # NaN beyond the horizon: long enough
-        if np.any(arm_m < cc["min_arm_length"]):
-            return "arm too short"
-    d, bearing = _polar(floor[:1])
-    below = to_floor(x[None] + np.array([[0.0, float(cell)]]))
-    if not np.all(np.isfinite(below)) or np.hypot(*(below[0] - floor[0])) > cc["max_cell_span"]:
-        return "too far"
-    arm_dirs = np.arctan2(floor[1:, 1] - floor[0, 1], floor[1:, 0] - floor[0, 0])
-    orient, misfit = floor_arms(kind, arm_dirs)
-    if misfit > cc["max_misfit"]:
-        return f"floor angles misfit {math.degrees(misfit):.0f} deg"
-    px = camera.distort_points(np.vstack([x[None], x + reach[:, None] * dirs]))
-    if not np.all(np.isfinite(px)):
-        return "outside the lens model"
-    grid = (px + 0.5) / cell - 0.5
-    col = int(np.clip(round(grid[0, 0]), 0, len(top) - 1))
-    near_top = top[max(col - 2, 0): col + 3].max()  # the boundary within two columns
-    if grid[0, 1] - near_top < cc["edge_margin"]:
-        return "at the field boundary"  # a line meeting an object or the end of the view
-    row = int(np.clip(round(grid[0, 1]), 0, other_mean.shape[0] - 1))
-    r = cc["object_radius"]
-    if other_mean[max(row - r, 0): row + r + 1, max(col - r, 0): col + r + 1].max() > 0.5:
-        return "next to an object"  # a robot's or a person's white foot on a line
-    # the arms that would make an L a T must be in view (a T's stem continued would make an
-    # X, which fields hold only where the centre circle crosses the halfway line)
-    if kind == "L" and not _alternative_in_view(x, dirs, camera, top, other_mean, green, cc,
-                                                cell):
-        return "not green where a T's arm would be"
-    score = verify_crossing(grid[0], grid[1:], white, green, cc, field_cells)
-    if score <= 0:
-        return "not verified in the image"
-    row = [TYPE_CODES[kind], d[0], bearing[0], orient,
-           score * (1.0 - misfit / math.radians(90.0))]
-    return row, px[0]
-
-
-def _alternative_in_view(x, dirs, camera, top, other_mean, green, cc, cell) -> bool:
-    """Whether the image shows carpet opposite an L's arms (where the third arm of a T would
-    be), ``arm_reach`` cells from the crossing: inside the image and the field boundary, no
-    object there, and green (at least ``t_green``). A T seen with one half of its bar out of
-    view or hidden looks like an L; so do a far X's arms, flattened by the perspective."""
-    pts = camera.distort_points(x[None] - cc["arm_reach"] * cell * dirs)
-    w, h = camera.image_size
-    for p in pts:
-        if not (np.all(np.isfinite(p)) and 0 <= p[0] <= w - 1 and 0 <= p[1] <= h - 1):
-            return False
-        g = (p + 0.5) / cell - 0.5
-        col = int(np.clip(round(g[0]), 0, len(top) - 1))
-        row = int(np.clip(round(g[1]), 0, other_mean.shape[0] - 1))
-        if g[1] - top[col] < cc["edge_margin"] or other_mean[row, col] > 0.5:
-            return False
-        if sample_cells(green, g[None])[0] < cc["t_green"]:
-            return False
-    return True
-
-
-def _refined_arm(arm, centre: np.ndarray, white_px: np.ndarray, camera, cc: dict, cell: int):
-    """An arm's line (centroid, unit direction away from the crossing, points) refined on the
-    full-resolution white mask (line_fit.refine_segment) over its nodes' extent from
-    ``refine_skip`` cells off the crossing on; the coarse arm where that fails."""
-    c, u, sel = arm
-    t = (sel - centre) @ u
-    t0, t1 = max(float(t.min()), cc["refine_skip"] * cell), float(t.max())
-    if t1 - t0 < cell:
-        return arm
-    ref = refine_segment(np.stack([centre + t0 * u, centre + t1 * u]), white_px,
-                         lens_parameters(camera), cc["refine_step"], cc["refine_reach"] * cell,
-                         0.0, cc["refine_min_points"])
-    if ref is None:
-        return arm
-    d = ref.fit.direction if float(ref.fit.direction @ u) >= 0 else -ref.fit.direction
-    return ref.fit.centroid, d, ref.centres
 
 
 def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: dict,
@@ -755,34 +576,6 @@ def width_ratios(refs: list[RefinedLine], to_floor: FloorProjection, line_width:
         out[id(r)] = float(np.median(ratio[k:k + n][sel])) if sel.any() else float("nan")
         k += n
     return out
-
-
-def is_post_bar(dist: float, near: float, ends_px: np.ndarray, top: np.ndarray, white: np.ndarray,
-                fx: float, cell: int, pc: dict) -> bool:
-    """A white segment that is a vertical bar on the floor rather than a field line: its floor
-    projection runs straight away from the robot (a vertical line lies in a vertical plane
-    through the camera, which meets the floor in a line through the robot: perpendicular
-    distance below ``bar_radial``), it starts at least ``bar_min_distance`` away (a field line
-    seen along its length would reach the robot's feet), its upper end reaches the field
-    boundary (within ``bar_touch`` cells), and it keeps a post's width up to there: a field
-    line seen along its length looks the same but thins out with distance, a post (all of it
-    as far away as its foot) does not. The width is the white share summed across the bar
-    (times the cell size) over its upper half, against ``post_diameter`` at the foot's
-    distance (at least ``bar_width_ratio`` of it)."""
-    if dist > pc["bar_radial"] or near < pc["bar_min_distance"]:
-        return False
-    k = int(np.argmin(ends_px[:, 1]))
-    up, foot = ends_px[k], ends_px[1 - k]
-    col = int(np.clip((up[0] + 0.5) // cell, 0, len(top) - 1))
-    if (up[1] + 0.5) / cell - top[col] > pc["bar_touch"]:
-        return False
-    h, w = white.shape
-    t = np.linspace(0.5, 0.9, 5)[:, None]
-    grid = ((foot[None] * (1 - t) + up[None] * t) + 0.5) / cell - 0.5
-    rows = np.clip(np.round(grid[:, 1]).astype(int), 0, h - 1)
-    cols = np.clip(np.round(grid[:, 0]).astype(int)[:, None] + np.arange(-2, 3)[None], 0, w - 1)
-    width = float(np.median(white[rows[:, None], cols].sum(axis=1))) * cell
-    return width >= pc["bar_width_ratio"] * fx * pc["post_diameter"] / near
 
 
 # ---------------------------------------------------------------------------- debug images

@@ -55,6 +55,7 @@ import yaml
 
 from .. import __version__
 from ..common.artifacts import atomic_dir, file_hash
+from ..common.conf import stage_conf
 from ..common.dataset import write_csv
 from ..common.errors import FieldlocError
 from ..common.geometry import wrap_angle
@@ -317,13 +318,14 @@ class _FrameWriter:
                 self.pool.shutdown(wait=True)
 
 
-def main(conf: dict, bag, output, *, image_topic: str, odom_topic: str | None = None,
+def main(conf: str | dict | None, bag, output, *, image_topic: str, odom_topic: str | None = None,
          imu_topic: str | None = None, every: int = 1, calib=None, overwrite: bool = False,
          progress: bool = False) -> Path:
-    """Import ``bag`` into the dataset folder ``output`` (see the module doc). Returns
-    ``output``."""
+    """Import ``bag`` into the dataset folder ``output`` (see the module doc); ``conf``: a
+    preset name, None or a dict of overrides on ``default``. Returns ``output``."""
     from tqdm import tqdm
 
+    conf = stage_conf(confs, conf)
     _check_conf(conf, every)
     output = Path(output)
     if calib is not None and not Path(calib).is_file():

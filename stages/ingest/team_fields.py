@@ -568,13 +568,13 @@ def _plain(v):
     return v
 
 
-def main(conf, path, output, *, fmt: str, venue: str | None = None, base=None,
-         name: str | None = None, overwrite: bool = False) -> Path:
+def main(conf: str | dict | None, path, output, *, fmt: str, venue: str | None = None,
+         base=None, name: str | None = None, overwrite: bool = False,
+         progress: bool = False) -> Path:
     """Write the field YAML of a team file to ``output``; returns ``output``."""
-    if conf is None or isinstance(conf, str):
-        from ..common.conf import resolve_conf
+    from ..common.conf import stage_conf
 
-        conf = resolve_conf(confs, conf)
+    conf = stage_conf(confs, conf)
     output = Path(output)
     if output.exists() and not overwrite:
         raise TeamFieldError(f"{output} exists (use --overwrite to replace it)")

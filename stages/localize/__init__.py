@@ -1,21 +1,22 @@
 """Stage localize: poses of a dataset's frames from their features and a map.
 
     from stages import localize
-    localize.main({"method": "lut"}, "data/run1", "msl-2015.map.h5", "data/run1/poses.h5")
+    localize.main({"method": "lut"}, "data/run1", "msl-2015.map.h5", "data/run1/poses.h5",
+                  features="data/run1/features.h5")
 
-``conf["method"]`` picks the method module (``METHODS``, imported when used); each exposes
-``confs`` (named presets, at least "default") and
-``run(conf, dataset, features, map_file, progress) -> PoseTrack``. The conf given to ``main``
-is ``{"method": name, "preset": preset name (optional, default "default"), **overrides}``;
-the overrides are merged into the method's preset (unknown keys are errors), and the resolved
-conf is stored in poses.h5.
+``conf["method"]`` picks the method module (``METHODS``); each exposes ``confs`` (named
+presets, at least "default") and ``run(conf, dataset, features, map_file, progress) ->
+PoseTrack``. ``confs`` here lists the presets of every method as ``<method>-<preset>``
+(``mcl-uniform``), each with its ``method``, and "default" (``lut-default``). The conf given
+to ``main`` is a name of ``confs``, None ("default"), or a dict of overrides on the default
+preset of its method (``{"method": "mcl", "init": "uniform"}``; the method "lut" when it names
+none); unknown keys are errors, and the resolved conf is stored in poses.h5.
 
-Features come from a features file (``features``), from line points of a team's own detector
-(``points``: CSV with columns frame, x, y in the robot frame, binned into the scan lines by
-stages.extract.omni.bin_points_to_scanlines), or, with neither, from the dataset's own
-``DIR/features.h5`` when it was extracted from the same calibration, mask and default conf and
-holds every frame, else from running extract on the fly into ``<output stem>.features.h5``
-beside the output (resumed if present).
+Features come from a features file (``features``) or from line points of a team's own
+detector (``points``: CSV with columns frame, x, y in the robot frame, binned into the scan
+lines by stages.common.scanlines.bin_points_to_scanlines). From a dataset's images without a
+features file, stages.pipelines.images_to_poses reuses ``DIR/features.h5`` or runs extract
+first (``fieldloc localize DIR`` without ``--features``).
 
 Checked before any frame is localised (each a one-line error, or a warning where the run can
 still mean something):
@@ -52,13 +53,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..common.artifacts import check_output, file_hash, refuse_inputs, root_attrs
-from ..common.conf import registered_module, resolve_conf
+from ..common.artifacts import check_output, file_hash, root_attrs
+from ..common.conf import registered_module, stage_conf
 from ..common.dataset import STAMP_SOURCES, csv_rows, open_dataset
 from ..common.errors import DatasetError, FieldlocError
 from ..common.features_file import FeaturesFile
 from ..common.map_file import MapFile
 from ..common.poses_file import SCHEMA, VERSION, PoseTrack, write_poses
+from ..common.scanlines import bin_points_to_scanlines
 
 log = logging.getLogger(__name__)
 
@@ -83,22 +85,31 @@ def available_methods() -> list[str]:
     return [m for m, mod in METHODS.items() if importlib.util.find_spec(mod) is not None]
 
 
-# presets of the default method (the others: method_confs(name))
-confs = {name: {"method": DEFAULT_METHOD, **c} for name, c in method_confs(DEFAULT_METHOD).items()}
+# the presets of every method: "<method>-<preset>" -> conf with its "method"; "default" is the
+# default method's
+confs = {"default": {"method": DEFAULT_METHOD, **method_confs(DEFAULT_METHOD)["default"]}}
+confs.update({f"{m}-{name}": {"method": m, **c} for m in METHODS
+              for name, c in method_confs(m).items()})
+
+
+def preset_name(method: str, preset: str) -> str:
+    """The name in ``confs`` of ``preset`` of ``method`` (lut, no-fusion -> lut-no-fusion)."""
+    presets = method_confs(method)
+    if preset not in presets:
+        raise FieldlocError(f"unknown preset '{preset}' (presets: {', '.join(sorted(presets))})")
+    return f"{method}-{preset}"
 
 
 def resolve_localize_conf(conf: dict | str | None) -> dict:
-    """The full conf of a run: the method's preset with the overrides merged, plus ``method``."""
-    if conf is None:
-        conf = {}
-    if isinstance(conf, str):
-        conf = {"preset": conf}
-    conf = dict(conf)
-    method = conf.pop("method", DEFAULT_METHOD)
-    preset = conf.pop("preset", "default")
-    out = resolve_conf(method_confs(method), preset, conf)
-    out["method"] = method
-    return out
+    """The full conf of a run (module doc): a preset with the overrides merged, ``method``
+    included."""
+    if isinstance(conf, dict):
+        method = conf.get("method", DEFAULT_METHOD)
+        if not isinstance(method, str):
+            raise FieldlocError(f"conf 'method' must be a method name, got {method!r}")
+        method_module(method)  # an unknown method is refused as one, listing the known
+        return stage_conf(confs, conf, default=f"{method}-default")
+    return stage_conf(confs, conf)
 
 
 # ---------------------------------------------------------------------------- points input
@@ -111,8 +122,6 @@ class PointFrames:
     camera_kind = "omni"
 
     def __init__(self, path: str | Path, dataset, scanlines):
-        from ..extract.omni import bin_points_to_scanlines
-
         self.path = Path(path)
         rows = _read_points_csv(self.path)
         ids = list(dict.fromkeys(r[0] for r in rows))
@@ -242,21 +251,17 @@ def _point_frames_in_dataset(path: Path, ids: list[str], dataset):
 # ---------------------------------------------------------------------------- main
 
 
-def default_features_path(output: Path) -> Path:
-    return output.with_name(output.stem + ".features.h5")
-
-
 def _abs(p) -> str:
     return os.path.abspath(p)
 
 
-def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path,
-         output: str | Path, *, features: str | Path | None = None,
-         points: str | Path | None = None, overwrite: bool = False,
-         progress: bool = False, allow_field_mismatch: bool = False) -> Path:
-    """Localise the frames of ``dataset_dir`` on ``map_path`` into ``output`` (poses.h5 and
-    poses.tum beside it) and return its path. ``allow_field_mismatch``: localise even when the
-    features were recorded on another field or with other scan lines than the map's."""
+def check_run(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path,
+              output: str | Path, *, features: str | Path | None = None,
+              points: str | Path | None = None, overwrite: bool = False):
+    """What ``main`` refuses before it reads a frame (module doc): the output and poses.tum
+    beside it, the dataset's time series, the method, the map. Returns (resolved conf, the
+    dataset, its series, the inputs the outputs must not be), so that a chain that makes the
+    features first (stages.pipelines.images_to_poses) refuses a run before extracting."""
     conf = resolve_localize_conf(conf)
     output = Path(output)
     if features is not None and points is not None:
@@ -269,6 +274,27 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path,
     check_output(output, inputs_given, overwrite=overwrite)
     check_output(output.with_suffix(".tum"), inputs_given, overwrite=None)
     series = {k: dataset.optional(k) for k in ("odometry", "imu", "truth")}  # refused if bad
+    method_module(conf["method"])
+    MapFile(map_path).close()
+    return conf, dataset, series, inputs_given
+
+
+def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path,
+         output: str | Path, *, features: str | Path | None = None,
+         points: str | Path | None = None, overwrite: bool = False,
+         progress: bool = False, allow_field_mismatch: bool = False) -> Path:
+    """Localise the frames of ``dataset_dir`` on ``map_path`` into ``output`` (poses.h5 and
+    poses.tum beside it) from ``features`` (a features file) or ``points`` (a points CSV), and
+    return its path. ``allow_field_mismatch``: localise even when the features were recorded
+    on another field or with other scan lines than the map's."""
+    if features is None and points is None:
+        raise FieldlocError(
+            "localize needs the features of the frames (features=, from extract) or line"
+            " points (points=); stages.pipelines.images_to_poses extracts them first")
+    conf, dataset, series, _given = check_run(conf, dataset_dir, map_path, output,
+                                              features=features, points=points,
+                                              overwrite=overwrite)
+    output, dataset_dir = Path(output), Path(dataset_dir)
     module = method_module(conf["method"])
     map_file = MapFile(map_path)
     inputs = {"dataset": _abs(dataset_dir), "map": _abs(map_path),
@@ -279,10 +305,6 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path,
             inputs.update(points=_abs(points), points_hash=file_hash(points))
             recorded = {"field": dataset.field_record(), "scanlines": None, "failures": []}
         else:
-            if features is None:
-                features = _features_for(dataset_dir, output, inputs_given, progress)
-                for written in (output, output.with_suffix(".tum")):  # the features it chose
-                    refuse_inputs(written, {"features": features})
             feats = FeaturesFile(features)
             inputs.update(features=_abs(features), features_hash=file_hash(features))
             recorded = {"field": _json_attr(feats, "field"),
@@ -319,25 +341,6 @@ def _json_attr(feats, key: str):
         return feats.attr_json(key) if key in feats.h5.attrs else None
     except ValueError:
         return None
-
-
-def _features_for(dataset_dir: Path, output: Path, inputs: dict, progress: bool) -> Path:
-    """The features of a dataset localised without --features: DIR/features.h5 when it matches
-    what extract would make now, else extracted on the fly beside the output."""
-    from .. import extract
-
-    own = dataset_dir / "features.h5"
-    why = extract.reusable_features(own, dataset_dir) if own.exists() else None
-    if own.exists() and why is None:
-        log.info("no features given: using %s (same calibration, mask and conf, every frame)",
-                 own)
-        return own
-    target = default_features_path(output)
-    check_output(target, inputs, overwrite=None)
-    log.info("no features given: extracting %s into %s%s", dataset_dir, target,
-             f" ({own} is not used: {why})" if why else "")
-    extract.main(None, dataset_dir, target, progress=progress)
-    return target
 
 
 def _check_camera_kind(method: str, feats, features) -> None:

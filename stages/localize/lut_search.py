@@ -44,11 +44,11 @@ in full resolution with a local search, the exact refinement, and heading refine
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..common.geometry import wrap_angle
 from ..common.map_file import MapFile
 from ..common.scanlines import NO_HIT_MM
 from .lut_kernels import (
@@ -592,7 +592,7 @@ class TableSearch:
             cell = fine_res[1].cell
             if den2 > 1e-12:
                 curvature = den2 / h**2
-        out = self.refine(obs, cell, float(_wrap(th)))
+        out = self.refine(obs, cell, float(wrap_angle(th)))
         return out, float(max(curvature, 0.0))
 
     def unknown_heading_search(self, obs: Observation, *, candidates: int = 8,
@@ -635,7 +635,7 @@ class TableSearch:
                     break
         results = []
         for q in chosen:
-            theta = float(_wrap(int(cm[q]) * self.step))
+            theta = float(wrap_angle(int(cm[q]) * self.step))
             r = self.local_search(obs, theta, (float(px[q]), float(py[q])),
                                   half_width=half_width, refine=False)
             r, _ = self.refine_heading(obs, r.cell, theta, fine=False)
@@ -648,37 +648,6 @@ class TableSearch:
         best.candidates = [(r.x, r.y, r.theta, r.error_norm) for r in results if r is not best]
         best.candidate_error_norm = best.error_norm
         return best
-
-    # ------------------------------------------------------------------ bench reference
-    def table_rows_touched(self, obs: Observation, theta: float) -> tuple[np.ndarray, ...]:
-        """Raw uint16 table rows (all cells) of the scan lines the observations lie on."""
-        m = self.scanlines.heading_index(theta)
-        k = (obs.angle_index + m) % self.n_angles
-        rad_lines = np.unique(k[obs.family == 0])
-        sp = obs.family > 0
-        sp_lines = np.unique((obs.family[sp] - 1) * self.n_angles + k[sp])
-        return rad_lines, sp_lines
-
-    def time_table_reads(self, obs: Observation, theta: float, repeats: int = 50) -> dict:
-        """Median seconds to just read (sum) the memory a global search with known heading
-        touches: ``table_rows`` = the raw uint16 table rows of the observed scan lines (all
-        crossing slots, all cells), ``lookup_rows`` = the error-lookup rows the search gathers.
-        The memory-bound reference for ``fieldloc bench``."""
-        rad_lines, sp_lines = self.table_rows_touched(obs, theta)
-        rows = self.lookup_rows(obs, self.scanlines.heading_index(theta))
-
-        def read_tables():  # a max over each row: one vectorised pass over its memory
-            return ([self.radial_mm[k].max() for k in rad_lines]
-                    + [self.spiral_mm[k].max() for k in sp_lines])
-
-        def read_lookup():
-            return [self.error_lookup[r].max() for r in rows]
-
-        return {"table_rows": _median_time(read_tables, repeats),
-                "lookup_rows": _median_time(read_lookup, repeats),
-                "table_bytes": int((len(rad_lines) * MAX_CROSSINGS + len(sp_lines))
-                                   * self.ncell * 2),
-                "lookup_bytes": int(len(rows) * self.ncell)}
 
 
 # ---------------------------------------------------------------------------- helpers
@@ -693,19 +662,6 @@ def _to_metres(mm: np.ndarray) -> np.ndarray:
 def _rho32(e: np.ndarray, c: float) -> np.ndarray:
     e2 = e * e
     return e2 / (np.float32(c * c) + e2)
-
-
-def _wrap(a):
-    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
-
-
-def _median_time(fn, repeats: int) -> float:
-    ts = []
-    for _ in range(max(1, repeats)):
-        t = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t)
-    return float(np.median(ts))
 
 
 def _parabola_vertex(e: np.ndarray, limit: float) -> tuple[float, float]:

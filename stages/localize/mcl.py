@@ -69,11 +69,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from stages.common.errors import FieldlocError
+from stages.common.geometry import wrap_angle
+from stages.common.observations import Observations
 from stages.common.poses_file import PoseTrack
 
 from . import motion_model
 from .observation_model import DEFAULTS as OBSERVATION_DEFAULTS
-from .observation_model import ObservationModel, Observations
+from .observation_model import ObservationModel
 
 log = logging.getLogger(__name__)
 
@@ -147,10 +149,6 @@ class Estimate:
     hypotheses: np.ndarray | None = None  # (k, 4) x, y, theta, weight share, heaviest first
 
 
-def _wrap(a):
-    return (a + np.pi) % (2 * np.pi) - np.pi
-
-
 class ParticleFilter:
     """The particle set and its update; ``step`` runs one frame."""
 
@@ -203,7 +201,7 @@ class ParticleFilter:
                 raise FieldlocError("init=pose needs init_pose=[x, y, theta]")
             s = np.asarray(c["init_spread"], float)
             p = np.asarray(pose, float) + self.rng.standard_normal((n, 3)) * s
-            p[:, 2] = _wrap(p[:, 2])
+            p[:, 2] = wrap_angle(p[:, 2])
         else:
             raise FieldlocError(f"unknown init '{mode}' (placement, uniform or pose)")
         self.particles = p
@@ -226,9 +224,11 @@ class ParticleFilter:
         s_across, s_heading = float(self.conf["init_spread"][0]), float(self.conf["init_spread"][2])
         side = np.where(self.rng.random(n) < 0.5, 1.0, -1.0)
         x = self.rng.uniform(-fm.length / 2, 0.0, n)
-        y = side * (fm.width / 2 + self.rng.standard_normal(n) * s_across)
-        th = -side * math.pi / 2 + self.rng.standard_normal(n) * s_heading
-        return np.stack([x, y, _wrap(th)], axis=1)
+        across = self.rng.standard_normal(n) * s_across  # beyond the line is outwards
+        turn = self.rng.standard_normal(n) * s_heading
+        p = fm.touchline_pose(x, side, inset=-across)
+        p[:, 2] = wrap_angle(p[:, 2] + turn)
+        return p
 
     # ------------------------------------------------------------------ the update
     def predict(self, odometry, dt: float, has_odometry: bool = True, collision: bool = False,
@@ -251,7 +251,7 @@ class ParticleFilter:
             flip = (p[:, 0] + cx) ** 2 + (p[:, 1] + cy) ** 2 < (p[:, 0] - cx) ** 2 + (
                 p[:, 1] - cy) ** 2
         p[flip, 0:2] *= -1.0
-        p[flip, 2] = _wrap(p[flip, 2] + math.pi)
+        p[flip, 2] = wrap_angle(p[flip, 2] + math.pi)
 
     def correct(self, obs: Observations) -> int:
         """Weight the particles by the observations; returns how many were used."""
@@ -358,7 +358,7 @@ class ParticleFilter:
             poses[:, 1] - cy) ** 2
         out = poses.copy()
         out[flip, 0:2] *= -1.0
-        out[flip, 2] = _wrap(out[flip, 2] + math.pi)
+        out[flip, 2] = wrap_angle(out[flip, 2] + math.pi)
         return out
 
     def _particle_count(self, spread: float | None, share: float) -> int:
@@ -459,7 +459,7 @@ class ParticleFilter:
         th = orient[k] + turns - o[r] + noise[2] * 0.1
         psi = np.where(post, (2.0 * u[3] - 1.0) * math.pi, th + bb)
         th = np.where(post, psi - bb, th)
-        p = np.stack([pos[k, 0] - dd * np.cos(psi), pos[k, 1] - dd * np.sin(psi), _wrap(th)],
+        p = np.stack([pos[k, 0] - dd * np.cos(psi), pos[k, 1] - dd * np.sin(psi), wrap_angle(th)],
                      axis=1)
         x0, x1, y0, y1 = self._bounds
         ok = (p[:, 0] >= x0) & (p[:, 0] <= x1) & (p[:, 1] >= y0) & (p[:, 1] <= y1)
@@ -484,7 +484,7 @@ class ParticleFilter:
         mirror_share = float(w @ in_mirror)
         cov = np.full((3, 3), np.nan)
         if conf_share > 0:
-            d = np.stack([x - centre[0], y - centre[1], _wrap(th - centre[2])])
+            d = np.stack([x - centre[0], y - centre[1], wrap_angle(th - centre[2])])
             dw = d * (wm / conf_share)
             cov = dw @ d.T
         mx, my = float(w @ x), float(w @ y)
@@ -655,72 +655,3 @@ def run(conf: dict, dataset, features, map_file, progress=None) -> PoseTrack:
                   confidence=est.confidence, mode=est.mode, runtime=runtime,
                   covariance=est.covariance, flags=",".join(est.flags))
     return track
-
-
-# ---------------------------------------------------------------------------- speed
-
-
-def time_update(field_model=None, *, n_particles: int = 1000, repeats: int = 200,
-                seed: int = 0, conf: dict | None = None) -> dict:
-    """Median wall time (s) of one filter update (predict, weight, resample) with
-    ``n_particles`` particles on a synthetic frame of 8 observations (4 lines, 2 crossings,
-    2 goal posts, seeded), for ``fieldloc bench``; also of the observation model alone and of
-    the estimate. The particles are spread around the true pose as in tracking (so the
-    sensor-reset share is placed every ``sensor_reset_every`` updates: ``update_mean_s`` is the
-    mean over all updates, these included)."""
-    from stages.common.field import load_field
-
-    from .synthetic_observations import synthetic_observations
-
-    fm = load_field("kidsize") if field_model is None else field_model
-    conf = copy.deepcopy(confs["default"] if conf is None else conf)
-    conf["particles_min"] = conf["particles_max"] = int(n_particles)
-    conf["init_particles"] = {k: int(n_particles) for k in conf["init_particles"]}
-    rng = np.random.default_rng(seed)
-    quiet = {"false_lines": 0.0, "false_crossings": 0.0, "false_posts": 0.0}
-    obs, pose = None, None
-    for _ in range(5000):
-        p = np.array([rng.uniform(-4, 4), rng.uniform(-3, 3), rng.uniform(-math.pi, math.pi)])
-        o = synthetic_observations(fm, p, rng, quiet)
-        if len(o.lines) == 4 and len(o.crossings) == 2 and len(o.posts) == 2:
-            obs, pose = o, p
-            break
-    if obs is None:
-        raise FieldlocError(f"no pose on {fm.name} shows 4 lines, 2 crossings and 2 posts")
-    pf = ParticleFilter.from_field(fm, conf)
-    pf.initialise("pose", pose)
-    pf._last_estimate = pf.estimate()  # tracking: sensor resets every few frames
-    start = pf.particles.copy()
-    model = pf.model
-    prep = model.prepare(obs)
-
-    def run_times(fn) -> np.ndarray:
-        times = []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            fn()
-            times.append(time.perf_counter() - t0)
-        return np.array(times)
-
-    def median_time(fn) -> float:
-        return float(np.median(run_times(fn)))
-
-    def update():
-        pf.particles = start.copy()
-        pf.weights = np.full(len(start), 1.0 / len(start))
-        pf.predict((0.02, 0.0, 0.01), 0.1)
-        pf.correct(obs)
-        pf.resample(obs, 0.5)
-
-    x, y, th = start[:, 0].copy(), start[:, 1].copy(), start[:, 2].copy()
-    update_times = run_times(update)
-    return {
-        "update_s": float(np.median(update_times)),
-        # the mean includes the frames that place the sensor-reset share (sensor_reset_every)
-        "update_mean_s": float(np.mean(update_times)),
-        "observation_model_s": median_time(lambda: model.log_likelihood(x, y, th, prep)),
-        "estimate_s": median_time(pf.estimate),
-        "particles": int(n_particles),
-        "observations": len(obs),
-        "repeats": int(repeats),
-    }

@@ -2,14 +2,8 @@
 crossings and goal posts are at many poses at once.
 
 Observations are egocentric, in the robot frame on the floor (x forward, y left), as
-``extract`` writes them for a perspective camera (stages.common.features_file):
-
-    lines      (L, 4)  perpendicular distance r (m), angle of the perpendicular a (rad),
-                       length (m), confidence
-    line_ends  (L, 4)  optional end points x0, y0, x1, y1 (m)
-    crossings  (C, 5)  type (0 L, 1 T, 2 X), distance (m), bearing (rad), orientation (rad:
-                       L bisector, T stem, X first arm mod 90 deg), confidence
-    posts      (P, 3)  goal-post foot distance (m), bearing (rad), confidence
+``extract`` writes them for a perspective camera: lines, optional line ends, crossings and goal
+posts (stages.common.observations lists the columns).
 
 Point model (eq. 3), for crossings and goal posts, with expected egocentric distance and
 bearing (d_e, phi_e) of the associated landmark::
@@ -39,7 +33,7 @@ and the centre circle and arcs are candidate lines too (the tangent at the arc p
 the observed segment's middle; a straight observation of half length h departs h^2 / 2r from
 the arc, charged like the extent).
 
-Association: L crossings through the map's orientation tables (stages.build_map.crossing_lut)
+Association: L crossings through the map's orientation tables (stages.common.crossing_tables)
 at the field cell where the particle places the observation and the set of the observation's
 global orientation; T crossings through the T table; X crossings, goal posts and lines per
 particle, by the smallest cost ("arg min before exp"). For lines, each (line, particle) pair is
@@ -62,10 +56,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stages.common.crossing_tables import crossing_association_tables
 from stages.common.field import FieldModel
 from stages.common.map_file import Grid
+from stages.common.observations import Observations
 
-CROSSING_CODES = {"L": 0, "T": 1, "X": 2}
 PARTS = ("lines", "crossings", "posts")
 
 DEFAULTS = {
@@ -88,71 +83,6 @@ DEFAULTS = {
     "use_crossings": True,
     "use_posts": True,
 }
-
-
-@dataclass
-class Observations:
-    """One frame's egocentric observations (see the module docstring for the columns)."""
-
-    lines: np.ndarray
-    line_ends: np.ndarray | None
-    crossings: np.ndarray
-    posts: np.ndarray
-
-    @classmethod
-    def empty(cls) -> Observations:
-        return cls(np.zeros((0, 4)), None, np.zeros((0, 5)), np.zeros((0, 3)))
-
-    @classmethod
-    def from_features(cls, frame: dict) -> Observations:
-        """From a features-file frame (stages.common.features_file.FeaturesFile.frame)."""
-
-        def arr(key, cols):
-            a = frame.get(key)
-            if a is None:
-                return np.zeros((0, cols))
-            return np.asarray(a, dtype=float).reshape(-1, cols)
-
-        lines = arr("lines", 4)
-        ends = frame.get("line_ends")
-        ends = None if ends is None else np.asarray(ends, dtype=float).reshape(-1, 4)
-        if ends is not None and len(ends) != len(lines):
-            ends = None
-        return cls(lines, ends, arr("crossings", 5), arr("posts", 3))
-
-    def __len__(self) -> int:
-        return len(self.lines) + len(self.crossings) + len(self.posts)
-
-    def to_features(self) -> dict[str, np.ndarray]:
-        """The per-frame datasets of a features file (stages.common.features_file)."""
-        out = {"lines": self.lines.reshape(-1, 4), "crossings": self.crossings.reshape(-1, 5),
-               "posts": self.posts.reshape(-1, 3)}
-        if self.line_ends is not None:
-            out["line_ends"] = self.line_ends.reshape(-1, 4)
-        return out
-
-    def select(self, lines: bool = True, crossings: bool = True, posts: bool = True):
-        """A copy holding only the chosen kinds of observation."""
-        e = Observations.empty()
-        return Observations(
-            self.lines if lines else e.lines,
-            self.line_ends if lines else None,
-            self.crossings if crossings else e.crossings,
-            self.posts if posts else e.posts,
-        )
-
-    def finite(self) -> Observations:
-        """Without rows holding NaN or infinite values."""
-        ok_l = np.all(np.isfinite(self.lines), axis=1)
-        ends = self.line_ends
-        if ends is not None:
-            ok_l &= np.all(np.isfinite(ends), axis=1)
-            ends = ends[ok_l]
-        return Observations(
-            self.lines[ok_l], ends,
-            self.crossings[np.all(np.isfinite(self.crossings), axis=1)],
-            self.posts[np.all(np.isfinite(self.posts), axis=1)],
-        )
 
 
 def _log_mixture(cost, a_uni):
@@ -221,7 +151,7 @@ class ObservationModel:
     """Likelihood of a frame's observations at N poses, vectorised over the poses.
 
     ``lut_l`` (4, ny, nx) and ``lut_t`` (ny, nx) are the crossing association tables on
-    ``grid`` (stages.build_map.crossing_lut); ``from_field`` builds them when no map is at
+    ``grid`` (stages.common.crossing_tables); ``from_field`` builds them when no map is at
     hand, ``from_map`` reads them from a map.
     """
 
@@ -286,8 +216,6 @@ class ObservationModel:
     def from_field(cls, field_model: FieldModel, conf: dict | None = None,
                    resolution: float = 0.1) -> ObservationModel:
         """A model with crossing tables computed on the fly (no map file needed)."""
-        from stages.build_map.crossing_lut import crossing_association_tables
-
         grid = Grid.around(field_model, field_model.border, resolution)
         tabs = crossing_association_tables(field_model, grid)
         return cls(field_model, grid, tabs["crossing_lut_L"][0], tabs["crossing_lut_T"][0],
@@ -295,15 +223,8 @@ class ObservationModel:
 
     @classmethod
     def from_map(cls, map_file, conf: dict | None = None) -> ObservationModel:
-        """A model on a map (stages.common.map_file.MapFile); its crossing tables are used when
-        present, otherwise computed on the map's grid."""
-        if map_file.has_table("crossing_lut_L") and map_file.has_table("crossing_lut_T"):
-            lut_l, lut_t = map_file.table("crossing_lut_L"), map_file.table("crossing_lut_T")
-        else:
-            from stages.build_map.crossing_lut import crossing_association_tables
-
-            tabs = crossing_association_tables(map_file.field, map_file.grid)
-            lut_l, lut_t = tabs["crossing_lut_L"][0], tabs["crossing_lut_T"][0]
+        """A model on a map (stages.common.map_file.MapFile) and its crossing tables."""
+        lut_l, lut_t = map_file.crossing_tables()
         return cls(map_file.field, map_file.grid, lut_l, lut_t, conf)
 
     # ------------------------------------------------------------------ observations in use

@@ -1,2 +1,9 @@
-"""Chains of stage mains: what a user runs end to end, and the checks of the product on real
-recordings (realdata.py). Nothing below this package imports it."""
+"""Chains of stage mains (and picture mains): what a user runs end to end.
+
+- :mod:`.images_to_poses` a dataset's images to poses (extract, or reuse DIR/features.h5, then
+  localize): ``fieldloc localize DIR`` without ``--features``;
+- :mod:`.evaluation` the report of a run and its plots: ``fieldloc evaluate``;
+- :mod:`.bench` (with :mod:`.bench_hypotheses`) ``fieldloc bench``;
+- :mod:`.realdata` the real-data checks of the omni chain.
+
+Nothing below this package imports it."""

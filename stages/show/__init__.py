@@ -1,3 +1,12 @@
 """Pictures a person checks, each drawing into an ``ax`` it is given (the figure and the PNG
-are the caller's): one module per picture, with a ``main(conf, inputs..., output, *,
-overwrite=False) -> Path`` that writes the PNG."""
+are the caller's): one module per picture with ``confs`` and a ``main(conf, inputs..., output,
+*, overwrite=False, progress=False) -> Path`` that writes it.
+
+- :mod:`.field` the field as every picture draws it; :mod:`.figure` Agg figures, atomic PNGs;
+- :mod:`.map` a map's tables; :mod:`.points` a frame's extracted features, on the image and on
+  the field; :mod:`.belief` the particle filter's belief of one frame; :mod:`.hypotheses` a
+  frame's ranked hypotheses; :mod:`.report_plots` the plots of an evaluation report;
+  :mod:`.html_report` one self-contained page of reports and their pictures.
+
+Pictures read the stages' artifacts and may call a stage (show.points extracts a frame on
+the spot); no stage imports them."""

@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..common.conf import resolve_conf
+from ..common.conf import stage_conf
+from ..common.dataset import frame_index, readable_truth, truth_at
 from ..common.errors import FieldlocError
 from ..common.field import load_field
 from ..common.geometry import robot_to_field
@@ -27,7 +28,7 @@ def draw_hypotheses(ax, field_model, hypotheses: np.ndarray, points: np.ndarray 
                     *, truth=None, robot_radius: float = 0.25, title: str = ""):
     """Draw ``hypotheses`` ((k, 4) x, y, theta, probability, ranked) on the field in ``ax``,
     with ``points`` ((n, 2) robot frame) placed at each, and ``truth`` (x, y, theta)."""
-    from ..evaluate.plots import draw_field
+    from .field import draw_field
 
     draw_field(ax, field_model, zorder=0)
     h = np.asarray(hypotheses, float).reshape(-1, 4)
@@ -66,24 +67,24 @@ def _robot(x, y, r, colour, edge="black"):
     return Circle((x, y), r, facecolor=colour, edgecolor=edge, lw=1.2, alpha=0.8, zorder=4)
 
 
-def main(conf, poses: str | Path, output: str | Path, *, frame: str | int = 0,
-         features: str | Path | None = None, field: str | Path | None = None,
-         overwrite: bool = False) -> Path:
+def main(conf: str | dict | None, poses: str | Path, output: str | Path, *,
+         frame: str | int = 0, features: str | Path | None = None,
+         field: str | Path | None = None, overwrite: bool = False,
+         progress: bool = False) -> Path:
     """Draw the hypotheses of one frame (name or index) of ``poses`` into ``output`` (PNG).
     Points from ``features`` (default: the features file the poses were made from), the field
     from ``field`` (default: the poses file's)."""
     from ..common.features_file import FeaturesFile
     from ..common.poses_file import read_poses
-    from ..evaluate.plots import new_figure, save_figure
+    from .figure import new_figure, save_figure
 
-    conf = resolve_conf(confs, "default", conf) if isinstance(conf, dict) else \
-        resolve_conf(confs, conf)
+    conf = stage_conf(confs, conf)
     output = Path(output)
     if output.exists() and not overwrite:
         raise FieldlocError(f"{output} exists (use --overwrite to replace it)")
     cols, attrs = read_poses(poses)
     names = [str(n) for n in cols["name"]]
-    i = _frame_index(names, frame, str(poses))
+    i = frame_index(names, frame, str(poses))
     fm = load_field(field or attrs.get("field") or "")
     h = cols["hypotheses"][i]
     h = h[np.isfinite(h[:, 3]) & (h[:, 3] >= conf["min_probability"])][:conf["max_hypotheses"]]
@@ -97,7 +98,7 @@ def main(conf, poses: str | Path, output: str | Path, *, frame: str | int = 0,
                     points = np.asarray(data["points"], float)
                 elif "line_ends" in data:
                     points = np.asarray(data["line_ends"], float).reshape(-1, 2)
-    truth = _truth(attrs.get("dataset"), float(cols["stamp"][i]))
+    truth = truth_at(readable_truth(attrs.get("dataset")), float(cols["stamp"][i]))
     xmin, xmax, ymin, ymax = fm.world_bounds()
     fig = new_figure(10.0, max(4.0, 10.0 * (ymax - ymin) / (xmax - xmin)))
     ax = fig.add_subplot()
@@ -109,34 +110,3 @@ def main(conf, poses: str | Path, output: str | Path, *, frame: str | int = 0,
     return save_figure(fig, output)
 
 
-def _frame_index(names: list[str], frame, where: str) -> int:
-    frame = str(frame)
-    if frame in names:
-        return names.index(frame)
-    try:
-        i = int(frame)
-    except ValueError:
-        raise FieldlocError(f"{where}: no frame named '{frame}'") from None
-    if not -len(names) <= i < len(names):
-        raise FieldlocError(f"{where}: frame index {i} out of range (0..{len(names) - 1})")
-    return i % len(names)
-
-
-def _truth(dataset, stamp: float):
-    if not dataset:
-        return None
-    from ..common.dataset import read_csv
-
-    p = Path(dataset) / "truth.csv"
-    if not p.is_file():
-        return None
-    try:
-        t = read_csv(p, "truth")
-    except FieldlocError:
-        return None
-    if not len(t["stamp"]):
-        return None
-    k = int(np.argmin(np.abs(t["stamp"] - stamp)))
-    if abs(t["stamp"][k] - stamp) > 0.05:
-        return None
-    return float(t["x"][k]), float(t["y"][k]), float(t["theta"][k])

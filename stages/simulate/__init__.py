@@ -1,6 +1,6 @@
 """Simulate: render a dataset folder (GUIDE section 4) with its ground truth.
 
-    main(conf, field, output_dir, *, overwrite=False) -> Path
+    main(conf, field, output_dir, *, overwrite=False, progress=False) -> Path
 
 writes ``output_dir`` with images/000000.png ..., frames.csv (name, stamp), calib.yaml (the
 camera as written, possibly miscalibrated on purpose), odometry.csv, imu.csv, truth.csv and
@@ -33,7 +33,11 @@ Pieces, each reusable on its own:
   CSV files are written beside the others (the perspective renderer's head motion: head.csv,
   the measured head angles, and head_truth.csv);
 - :mod:`.walk` the walking humanoid: entry at a touch line (trajectory ``start: touchline``)
-  and head motion.
+  and head motion;
+- :mod:`.synthetic_observations` what a perspective camera would report (lines, crossings,
+  goal posts in the robot frame) made from the field model without images, and walks with
+  truth and odometry (a dataset with features.h5 and no images): for the particle filter's
+  tests and bench.
 """
 
 from __future__ import annotations
@@ -62,6 +66,7 @@ from ..common.artifacts import (
     text_hash,
 )
 from ..common.camera import save_calib
+from ..common.conf import stage_conf
 from ..common.dataset import SIMULATION_RECORD, write_csv
 from ..common.errors import FieldlocError
 from ..common.field import FieldModel, load_field
@@ -221,6 +226,19 @@ confs["perspective-nao"] = _preset(
 )
 
 
+def resolve_simulate_conf(conf: str | dict | None) -> dict:
+    """The conf of a run: a preset name of ``confs``, None ("default"), or a dict of overrides
+    on the default preset of its ``camera`` kind (``<camera>-default``; "default" without a
+    ``camera``)."""
+    if isinstance(conf, dict) and "camera" in conf:
+        kind = conf["camera"]
+        if not isinstance(kind, str) or f"{kind}-default" not in confs:
+            raise FieldlocError(f"no renderer for camera kind {kind!r} (known:"
+                                f" {', '.join(sorted(RENDERERS))})")
+        return stage_conf(confs, conf, default=f"{kind}-default")
+    return stage_conf(confs, conf)
+
+
 def renderer_class(kind: str):
     if kind not in RENDERERS:
         raise FieldlocError(
@@ -324,12 +342,14 @@ def _check_conf(conf: dict):
         raise FieldlocError("calib_error.centre_shift must be [du, dv] (px)")
 
 
-def main(conf: dict, field, output_dir, *, overwrite: bool = False,
+def main(conf: str | dict | None, field, output_dir, *, overwrite: bool = False,
          progress: bool = False) -> Path:
     """Render a dataset of ``conf['frames']`` frames on ``field`` (a FieldModel, preset name or
-    field YAML path) into ``output_dir``; returns ``output_dir``."""
+    field YAML path) into ``output_dir``; returns ``output_dir``. ``conf``: see
+    ``resolve_simulate_conf``."""
     from tqdm import tqdm
 
+    conf = resolve_simulate_conf(conf)
     output_dir = Path(output_dir)
     field_file = None
     if not isinstance(field, FieldModel):

@@ -32,6 +32,7 @@ import numpy as np
 
 from ..common.camera import OmniCamera, fit_polynomial
 from ..common.errors import FieldlocError
+from .imaging import add_sensor_noise, chroma_subsample, frame_light, jpeg_round_trip, noise_window
 from .scene import sample_texture
 
 # A mirror of our own design: about 40 px at 0.28 m (the body edge), 120 px at 1 m, 180 px at
@@ -585,33 +586,19 @@ class OmniRenderer:
         luma = np.array([0.114, 0.587, 0.299], np.float32)
         colour = sat * np.eye(3, dtype=np.float32) + (1.0 - sat) * np.outer(
             np.ones(3, np.float32), luma)
-        light = (sc.gain[frame] * sc.white_balance[frame]).astype(np.float32)
+        gain, wb = frame_light(sc, frame)
+        light = (gain * wb).astype(np.float32)
         img = cv2.transform(img, colour * light[None, :])
         # sensor noise: read noise plus shot noise, from a bank shifted per frame
         rng = np.random.default_rng([self.seed, int(frame), 0x1A6E])
         h, w = img.shape[:2]
         oy, ox = (int(v) for v in rng.integers(0, (self._noise.shape[0] - h,
                                                     self._noise.shape[1] - w)))
-        noise = self._noise[oy: oy + h, ox: ox + w]
-        if rng.random() < 0.5:
-            noise = noise[::-1]
-        sigma = np.sqrt(np.maximum(img, 0))
-        sigma *= float(im["shot_noise"])
-        sigma += float(im["noise_sigma"])
-        sigma *= noise
-        img += sigma
+        add_sensor_noise(img, noise_window(self._noise, rng, oy, ox, h, w),
+                         im["shot_noise"], im["noise_sigma"])
         # tone curve (highlights compressed above the knee, clipped at full scale) by a table
         np.clip(img, 0.0, 399.0, out=img)
         out = self._tone[(img * 4.0).astype(np.int32)]
-        k = int(im["chroma_subsample"])
-        if k > 1:
-            # chroma shared by k neighbouring pixels of a row (a box over k, as in YUV 4:1:1)
-            yuv = cv2.cvtColor(out, cv2.COLOR_BGR2YUV)
-            y = cv2.split(yuv)[0]
-            _, u, v = cv2.split(cv2.blur(yuv, (k, 1)))
-            out = cv2.cvtColor(cv2.merge([y, u, v]), cv2.COLOR_YUV2BGR)
-        q = int(im["jpeg_quality"])
-        if q > 0:
-            ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, q])
-            out = cv2.imdecode(buf, cv2.IMREAD_COLOR)
-        return out
+        # chroma shared by k neighbouring pixels of a row (a box over k, as in YUV 4:1:1)
+        out = chroma_subsample(out, int(im["chroma_subsample"]), "box")
+        return jpeg_round_trip(out, int(im["jpeg_quality"]))

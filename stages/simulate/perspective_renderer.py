@@ -36,6 +36,7 @@ import numpy as np
 from ..common.errors import DatasetError, FieldlocError
 from ..common.perspective_camera import PerspectiveCamera, head_rotation
 from . import walk
+from .imaging import add_sensor_noise, chroma_subsample, frame_light, jpeg_round_trip, noise_window
 from .scene import sample_texture
 
 PERSPECTIVE_DEFAULTS = {
@@ -575,16 +576,12 @@ class PerspectiveRenderer:
                 k[int(round(n + s * sv)), int(round(n + s * su))] += 1
             img = cv2.filter2D(img, -1, k / k.sum())
         # light level, white balance, vignetting; sensor noise from a bank shifted per frame
-        frame_i = min(int(frame), len(sc.gain) - 1) if sc.gain is not None else 0
-        gain = float(sc.gain[frame_i]) if sc.gain is not None else 1.0
-        wb = (np.asarray(sc.white_balance[frame_i], np.float32) if sc.white_balance is not None
-              else np.ones(3, np.float32))
+        gain, wb = frame_light(sc, frame)
+        wb = wb.astype(np.float32)
         rng = np.random.default_rng([self.seed, int(frame), 0x9E25])
         oy, ox = (int(v) for v in rng.integers(0, 64, 2))
-        noise = self.noise_bank[oy: oy + h, ox: ox + w]
-        if rng.random() < 0.5:
-            noise = noise[::-1]
-        read, shot = np.float32(im["noise_sigma"]), np.float32(im["shot_noise"])
+        noise = noise_window(self.noise_bank, rng, oy, ox, h, w)
+        read, shot = im["noise_sigma"], im["shot_noise"]
         if im["bayer"]:
             planes = np.ascontiguousarray(img.transpose(2, 0, 1)).reshape(3 * h, w)
             raw = cv2.remap(planes, *self.mosaic_maps, cv2.INTER_LINEAR)
@@ -594,23 +591,12 @@ class PerspectiveRenderer:
             raw[0::2, 1::2] *= gg
             raw[1::2, 0::2] *= gg
             raw[1::2, 1::2] *= gb
-            raw += (np.sqrt(np.maximum(raw, 0)) * shot + read) * noise
+            add_sensor_noise(raw, noise, shot, read)
             raw8 = np.clip(raw + 0.5, 0, 255).astype(np.uint8)
             out = cv2.cvtColor(raw8, cv2.COLOR_BayerBG2BGR)
         else:
             img = img * (self.vignette[..., None] * (np.float32(gain) * wb))
-            img += (np.sqrt(np.maximum(img, 0)) * shot + read) * noise[..., None]
+            add_sensor_noise(img, noise[..., None], shot, read)
             out = np.clip(img + 0.5, 0, 255).astype(np.uint8)
-        k = int(im["chroma_subsample"])
-        if k > 1:
-            y_, cr, cb = cv2.split(cv2.cvtColor(out, cv2.COLOR_BGR2YCrCb))
-            cr, cb = (cv2.resize(cv2.resize(c, (w // k, h), interpolation=cv2.INTER_AREA),
-                                 (w, h), interpolation=cv2.INTER_NEAREST) for c in (cr, cb))
-            out = cv2.cvtColor(cv2.merge([y_, cr, cb]), cv2.COLOR_YCrCb2BGR)
-        q = int(im.get("jpeg_quality", 0))
-        if q > 0:
-            ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, q])
-            if not ok:
-                raise FieldlocError("JPEG encoding of a rendered frame failed")
-            out = cv2.imdecode(buf, cv2.IMREAD_COLOR)
-        return out
+        out = chroma_subsample(out, int(im["chroma_subsample"]), "decimate")
+        return jpeg_round_trip(out, int(im.get("jpeg_quality", 0)))

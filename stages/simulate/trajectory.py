@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..common.errors import FieldlocError
+from ..common.geometry import wrap_angle
 
 KINDS = ("random", "loop")
 
@@ -43,10 +44,6 @@ DEFAULTS = {
     "start": None,  # [x, y, theta] or None (random, seeded)
     "substeps": 10,  # integration steps per frame
 }
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi
 
 
 @dataclass
@@ -151,7 +148,7 @@ def generate(field, n_frames: int, rate_hz: float, conf: dict, rng: np.random.Ge
                 else:
                     wx, wy = new_waypoint()
                 v_target = float(rng.uniform(vmin, vmax))
-            turn = _wrap(math.atan2(wy - py, wx - px) - travel)
+            turn = float(wrap_angle(math.atan2(wy - py, wx - px) - travel))
             # near the boundary: slow down so that the turn radius shrinks
             look = v * v / (2 * a_max) + v * v / a_lat + 0.2
             ax, ay = px + look * math.cos(travel), py + look * math.sin(travel)
@@ -162,7 +159,7 @@ def generate(field, n_frames: int, rate_hz: float, conf: dict, rng: np.random.Ge
             v_des = min(max(v_des, vmin * 1.01), vmax)
             v += min(max(v_des - v, -a_max * dt), a_max * dt)
             w_step = min(a_lat / max(v, 1e-3), w_max) * dt
-            travel = _wrap(travel + min(max(turn, -w_step), w_step))
+            travel = float(wrap_angle(travel + min(max(turn, -w_step), w_step)))
             px += v * dt * math.cos(travel)
             py += v * dt * math.sin(travel)
             # last resort, not reached with sane limits: slide along the margin box
@@ -174,11 +171,11 @@ def generate(field, n_frames: int, rate_hz: float, conf: dict, rng: np.random.Ge
                 if t >= next_heading_change:
                     heading_target = float(rng.uniform(-np.pi, np.pi))
                     next_heading_change = t + float(rng.uniform(*hold))
-                err = _wrap(heading_target - theta)
+                err = float(wrap_angle(heading_target - theta))
                 # the rate that stops at the target under the yaw acceleration limit
                 want = math.copysign(min(ymax, math.sqrt(2 * yacc * abs(err))), err)
                 yaw_rate += min(max(want - yaw_rate, -yacc * dt), yacc * dt)
-                theta = _wrap(theta + yaw_rate * dt)
+                theta = float(wrap_angle(theta + yaw_rate * dt))
         poses[i] = (px, py, theta)
     stamps = np.arange(n_frames) / rate_hz
     return Trajectory(stamps=stamps, poses=poses)

@@ -13,8 +13,6 @@ moves while it walks.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from ..common.errors import FieldlocError
@@ -35,14 +33,13 @@ HEAD_DEFAULTS = {
 def touchline_start(field, margin: float, rng: np.random.Generator) -> list[float]:
     """[x, y, theta]: a point on a touch line of the own half (``margin`` inside the line so the
     trajectory generator accepts it), facing into the field."""
-    hx, hy = field.length / 2, field.width / 2
+    hx = field.length / 2
     lo, hi = -hx + max(1.0, margin), -max(0.5, margin)
     if lo >= hi:
         raise FieldlocError(f"field {field.name} is too short for a touch-line start")
     x = float(rng.uniform(lo, hi))
     side = float(rng.choice([-1.0, 1.0]))
-    y = side * (hy - margin)
-    return [x, y, -side * math.pi / 2]
+    return [float(v) for v in field.touchline_pose(x, side, margin)]
 
 
 def head_motion(stamps, poses, pitch: float, roll: float, conf: dict,

@@ -1,4 +1,9 @@
-"""Pictures of a map for a person to check the tables by eye (``fieldloc show map``)."""
+"""Pictures of a map for a person to check the tables by eye (``fieldloc show map``): the
+distance table as a heat map (``draw_distance_table``), or the scan lines of one cell with the
+crossings the tables hold for them (``draw_scanlines_from_cell``).
+
+    main(conf, map_path, output, *, overwrite=False) -> Path
+"""
 
 from __future__ import annotations
 
@@ -8,12 +13,24 @@ from pathlib import Path
 import numpy as np
 
 from ..common.artifacts import check_output
+from ..common.conf import stage_conf
 from ..common.errors import FieldlocError
 from ..common.map_file import MapFile
 from ..common.scanlines import NO_HIT_MM
-from .plots import draw_field, new_figure, save_figure
+from .field import draw_field
+from .figure import new_figure, save_figure
 
 TABLES = ("distance", "radial", "spiral")
+
+confs = {
+    "default": {
+        "table": "distance",  # distance | radial | spiral
+        "cell": None,  # [x, y] (m): the robot's position for radial and spiral
+        "heading": 0.0,  # rad, rounded to the scan-line step as the tables serve it
+        "family": "ccw",  # spirals: ccw | cw
+        "spirals": 6,  # spirals: how many of the family's 36 to draw
+    },
+}
 
 
 def draw_distance_table(ax, m: MapFile):
@@ -105,13 +122,15 @@ def draw_scanlines_from_cell(ax, m: MapFile, x: float, y: float, heading: float,
                  f"{math.degrees(h):.0f} deg")
 
 
-def main(map_path: str | Path, output: str | Path, *, table: str = "distance",
-         cell: tuple[float, float] | None = None, heading: float = 0.0, family: str = "ccw",
-         spirals: int = 6, overwrite: bool = False) -> Path:
+def main(conf: str | dict | None, map_path: str | Path, output: str | Path, *,
+         overwrite: bool = False, progress: bool = False) -> Path:
     """Draw the map ``map_path`` into the PNG ``output``: the distance table as a heat map, or
-    the radial/spiral scan lines and table crossings from one cell (spirals: ``spirals`` of
-    one ``family``, see ``draw_scanlines_from_cell``). An existing ``output`` is replaced only
-    with ``overwrite``, and never the map itself."""
+    the radial/spiral scan lines and table crossings from one cell (``conf``: which table, the
+    cell and heading, the spiral family and how many spirals; see ``draw_scanlines_from_cell``).
+    An existing ``output`` is replaced only with ``overwrite``, and never the map itself."""
+    conf = stage_conf(confs, conf)
+    table, cell, family = conf["table"], conf["cell"], conf["family"]
+    heading, spirals = float(conf["heading"]), int(conf["spirals"])
     check_output(output, {"map": map_path}, overwrite=overwrite)
     if not math.isfinite(heading):
         raise FieldlocError(f"heading must be a finite angle, got {heading}")

@@ -1,7 +1,7 @@
 """Synthetic perspective observations and walks, generated from a field model at known poses.
 
 What a forward-looking humanoid camera would report through ``extract`` (lines, crossings, goal
-posts in the robot frame, see stages.localize.observation_model), made directly from the field
+posts in the robot frame, see stages.common.observations), made directly from the field
 geometry: for tests of the particle filter, for the bench, and for measuring the filter apart
 from the image pipeline. The errors follow a head camera at ``camera_height``: one pitch and
 roll error per frame shifts all floor points coherently (far points much more than near ones),
@@ -20,8 +20,7 @@ import numpy as np
 
 from stages.common.field import FieldModel
 from stages.common.geometry import field_to_robot
-
-from .observation_model import CROSSING_CODES, Observations
+from stages.common.observations import CROSSING_CODES, Observations
 
 DEFAULTS = {
     "fov": math.radians(80.0),  # rad, horizontal field of view, centred on the heading
@@ -197,7 +196,7 @@ def initial_placement_pose(field_model: FieldModel, rng: np.random.Generator) ->
     fm = field_model
     side = 1.0 if rng.random() < 0.5 else -1.0  # +1: left touch line (y > 0)
     x = rng.uniform(-fm.length / 2 + 0.5, -0.5)
-    return np.array([x, side * fm.width / 2, -side * math.pi / 2])
+    return fm.touchline_pose(x, side)
 
 
 def synthetic_walk(field_model: FieldModel, n_frames: int, *, seed: int = 0,

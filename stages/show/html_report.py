@@ -35,8 +35,10 @@ import numpy as np
 
 from .. import __version__
 from ..common.artifacts import atomic_path
+from ..common.conf import stage_conf
 from ..common.errors import FieldlocError
-from .report import REPORT_NAME, load_report, read_errors_csv, table_rows
+from ..common.report_file import REPORT_NAME, load_report, read_errors_csv
+from ..evaluate.report import table_rows
 
 log = logging.getLogger(__name__)
 
@@ -216,7 +218,7 @@ def overlay_png(dataset, features, frame: dict, field_model, dpi: int) -> tuple[
     """The overlay of one worst frame, or (None, why not)."""
     from ..common.dataset import open_dataset, read_image
     from ..common.features_file import FeaturesFile
-    from ..extract.overlay import points_figure  # the pictures move to stages/show (issue 10)
+    from .points import points_figure
 
     if dataset is None or not Path(dataset).is_dir():
         return None, "the run's dataset folder is not at hand"
@@ -288,12 +290,10 @@ def report_section(report_dir: Path, conf: dict, index: int) -> str:
     return "\n".join(parts)
 
 
-def main(conf, source, output, *, overwrite: bool = False) -> Path:
+def main(conf: str | dict | None, source, output, *, overwrite: bool = False,
+         progress: bool = False) -> Path:
     """Write the HTML page of the report(s) in ``source`` to ``output``; returns it."""
-    if conf is None or isinstance(conf, str):
-        from ..common.conf import resolve_conf
-
-        conf = resolve_conf(confs, conf)
+    conf = stage_conf(confs, conf)
     output = Path(output)
     if output.exists() and not overwrite:
         raise FieldlocError(f"{output} exists (use --overwrite to replace it)")

@@ -1,108 +1,39 @@
-"""Evaluation plots. Every plot function draws into a matplotlib ``ax`` it is given (as evo
-does), so callers compose figures; ``save_figure`` writes a figure atomically.
+"""The plots of an evaluation report (plots/ of a report folder): the error CDF, the
+trajectories on the field, the errors over time and the reliability diagram. Every plot
+function draws into a matplotlib ``ax`` it is given (as evo does), so callers compose figures.
 
-Figures are built with ``matplotlib.figure.Figure`` and the Agg canvas, never pyplot, so no
-global backend or figure state is touched and nothing opens a window.
+    main(conf, report_dir, *, overwrite=False) -> Path   # the plots folder
+
+draws them from a report folder written by stages.evaluate: its frames are matched to the
+truth again from the poses and truth files the report names, with the report's settings
+(stamp tolerance, thresholds, dpi), so the plots show exactly what the report counts.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 from pathlib import Path
 
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.collections import LineCollection, PatchCollection
-from matplotlib.figure import Figure
-from matplotlib.patches import Circle, Polygon, Rectangle, Wedge
 
-from stages.common.artifacts import atomic_path
-from stages.common.field import FieldModel
+from ..common.artifacts import check_output
+from ..common.conf import stage_conf
+from ..common.dataset import read_csv
+from ..common.errors import FieldlocError
+from ..common.field import FieldModel, load_field
+from ..common.poses_file import read_poses
+from ..common.report_file import PLOT_NAMES, PLOTS_DIR, decode_numbers, load_report
+from ..evaluate.metrics import FrameErrors, frame_errors
+from .field import draw_field
+from .figure import new_figure, save_figure
 
-from .metrics import FrameErrors
+log = logging.getLogger("fieldloc.evaluate")
 
-FIELD_GREEN = "#3a8a3a"
-BORDER_GREEN = "#2f7330"
-LINE_WHITE = "white"
+confs = {"default": {"dpi": None}}  # dpi None: the dpi the report was evaluated with
+
 TRUTH_COLOUR = "black"
 FAILURE_COLOUR = "#d62728"
-
-
-def new_figure(width: float = 8.0, height: float = 5.0, dpi: int = 120) -> Figure:
-    """A figure on the Agg canvas (no pyplot)."""
-    fig = Figure(figsize=(width, height), dpi=dpi)
-    FigureCanvasAgg(fig)
-    return fig
-
-
-def save_figure(fig: Figure, path: str | Path, dpi: int | None = None) -> Path:
-    """Write ``fig`` as PNG to ``path`` atomically."""
-    path = Path(path)
-    with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, format="png", dpi=dpi or fig.dpi, bbox_inches="tight")
-    return path
-
-
-# ---------------------------------------------------------------------------- the field
-
-
-def _segment_polygon(p0, p1, width: float) -> np.ndarray:
-    """The rectangle (4, 2) a line of ``width`` covers along p0 -> p1, ends extended by
-    width / 2 so that lines meeting at a corner close it."""
-    p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
-    d = p1 - p0
-    u = d / np.linalg.norm(d)
-    n = np.array([-u[1], u[0]]) * width / 2
-    a, b = p0 - u * width / 2, p1 + u * width / 2
-    return np.array([a + n, b + n, b - n, a - n])
-
-
-def draw_field(ax, field_model: FieldModel, *, border: bool = True, line_colour=LINE_WHITE,
-               field_colour=FIELD_GREEN, border_colour=BORDER_GREEN, goals: bool = True,
-               zorder: float = 0.0):
-    """Draw a field's white lines at their true width (segments and arcs of the model),
-    penalty marks, goals and posts into ``ax``, in metres in the field frame. Sets equal aspect
-    and limits to the field plus its border (``border=False``: the field only)."""
-    fm = field_model
-    xmin, xmax, ymin, ymax = fm.world_bounds(None if border else 0.0)
-    ax.add_patch(Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, facecolor=border_colour,
-                           edgecolor="none", zorder=zorder))
-    hx, hy = fm.length / 2, fm.width / 2
-    ax.add_patch(Rectangle((-hx, -hy), fm.length, fm.width, facecolor=field_colour,
-                           edgecolor="none", zorder=zorder))
-    lw = fm.line_width
-    patches = [Polygon(_segment_polygon(p0, p1, lw), closed=True) for p0, p1 in fm.segments]
-    for cx, cy, r, a0, sweep in fm.arcs:
-        t0, t1 = math.degrees(a0), math.degrees(a0 + sweep)
-        patches.append(Wedge((cx, cy), r + lw / 2, t0, t1, width=lw))
-    for px, py in fm.penalty_marks:
-        size = float(fm.spec.get("penalty_mark", {}).get("size", lw))
-        patches.append(Rectangle((px - size / 2, py - lw / 2), size, lw))
-        patches.append(Rectangle((px - lw / 2, py - size / 2), lw, size))
-    ax.add_collection(PatchCollection(patches, facecolor=line_colour, edgecolor="none",
-                                      zorder=zorder + 0.1))
-    if goals and len(fm.goal_posts):
-        goal = fm.spec.get("goal", {})
-        depth = float(goal.get("depth", 0.0))
-        post_d = float(goal.get("post_diameter", lw))
-        frames = []
-        for sx in (-1.0, 1.0):
-            posts = fm.goal_posts[np.sign(fm.goal_posts[:, 0]) == sx]
-            if len(posts) == 2 and depth > 0:
-                y0, y1 = sorted(posts[:, 1])
-                gx = sx * hx
-                frames.append([(gx, y0), (gx + sx * depth, y0), (gx + sx * depth, y1), (gx, y1)])
-        ax.add_collection(LineCollection(frames, colors="0.85", linewidths=1.5,
-                                         zorder=zorder + 0.2))
-        ax.add_collection(PatchCollection(
-            [Circle((px, py), post_d / 2) for px, py in fm.goal_posts],
-            facecolor="0.95", edgecolor="0.3", linewidth=0.5, zorder=zorder + 0.3))
-    ax.set_xlim(xmin, xmax)
-    ax.set_ylim(ymin, ymax)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    return ax
 
 
 # ---------------------------------------------------------------------------- error plots
@@ -320,3 +251,60 @@ def write_report_plots(fe: FrameErrors, out_dir: str | Path, *, thresholds, titl
         plot_reliability(fig.add_subplot(), calibration)
         written.append(save_figure(fig, out_dir / "reliability.png"))
     return written
+
+
+# ---------------------------------------------------------------------------- main
+
+
+def main(conf: str | dict | None, report_dir: str | Path, *, overwrite: bool = False,
+         progress: bool = False) -> Path:
+    """Draw the plots of the report folder ``report_dir`` (report.json) into its plots/ folder
+    and return that folder. Existing plots are replaced only with ``overwrite``."""
+    conf = stage_conf(confs, conf)
+    report_dir = Path(report_dir)
+    report = load_report(report_dir, raw=True)
+    econf = report["evaluate_conf"]
+    plots_dir = report_dir / PLOTS_DIR
+    inputs = {"poses": report["poses"], "truth": report["truth"]}
+    check_output(plots_dir, None, overwrite=None, kind="folder")
+    plots_dir.mkdir(exist_ok=True)
+    for name in PLOT_NAMES:
+        check_output(plots_dir / name, inputs, overwrite=overwrite)
+    columns, _attrs = read_poses(report["poses"])
+    truth = read_csv(report["truth"], "truth")
+    tolerance = float(econf["stamp_tolerance"])
+    fe = frame_errors(columns, truth, tolerance)
+    method = report.get("method") or "poses"
+    write_report_plots(
+        fe, plots_dir, thresholds=econf["thresholds"], title=f"{method} on {report_dir.name}",
+        field_model=_field_model(report.get("field_override"), report.get("field") or ""),
+        truth_path=truth_path_during(truth, fe, tolerance),
+        dpi=int(conf["dpi"] if conf["dpi"] is not None else econf["dpi"]),
+        calibration=decode_numbers(report["calibration"]))
+    return plots_dir
+
+
+def _field_model(override, name: str):
+    """The field to draw on: the one evaluate was given (errors are the user's), else the
+    poses' own (a failure there is logged and the plot drawn without field lines)."""
+    if override:
+        return load_field(override)
+    if not name:
+        log.warning("poses file names no field; trajectories drawn without field lines"
+                    " (pass --field)")
+        return None
+    try:
+        return load_field(name)
+    except FieldlocError as e:
+        log.warning("field '%s' of the poses file could not be loaded (%s); trajectories drawn"
+                    " without field lines (pass --field)", name, e)
+        return None
+
+
+def truth_path_during(truth: dict, fe: FrameErrors, tolerance: float):
+    """(x, y) of the truth rows, in time order, from the first to the last frame."""
+    t = truth["stamp"]
+    ok = np.isfinite(t) & np.isfinite(truth["x"]) & np.isfinite(truth["y"])
+    ok &= (t >= np.nanmin(fe.stamp) - tolerance) & (t <= np.nanmax(fe.stamp) + tolerance)
+    order = np.argsort(t[ok], kind="stable")
+    return truth["x"][ok][order], truth["y"][ok][order]

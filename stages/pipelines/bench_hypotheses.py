@@ -26,7 +26,7 @@ REALDATA = Path(__file__).resolve().parents[3] / "shared" / "realdata"
 def _errors(poses_path: Path, data: Path):
     from ..common.dataset import read_csv
     from ..common.poses_file import read_poses
-    from .metrics import frame_errors
+    from ..evaluate.metrics import frame_errors
 
     cols, _ = read_poses(poses_path)
     return frame_errors(cols, read_csv(data / "truth.csv", "truth"), 0.02), cols
@@ -93,7 +93,7 @@ def bench_lut_tracked_frame(repeat: int) -> Row:
 
 def _calibration_rows(method: str, sets, label: str) -> list[Row]:
     from .. import localize
-    from .metrics import auroc, reliability
+    from ..evaluate.metrics import auroc, reliability
 
     conf_all, ok_all, rows, frames = [], [], [], 0
     wrong = not_acc = within = 0
@@ -234,7 +234,7 @@ def bench_real(repeat: int) -> list[Row]:
     (stages.pipelines.realdata), when ../shared/realdata is present."""
     if not REALDATA.exists():
         return [Row(name="real data (minho-lab)", note=f"skipped: {REALDATA} is absent")]
-    from ..pipelines.realdata import minho_lab
+    from .realdata import minho_lab
 
     r = minho_lab(REALDATA, _work_dir() / "realdata")
     per = ", ".join(f"{n} {v['share']:.2f}/{v['null']:.2f}" for n, v in r["rows"].items())

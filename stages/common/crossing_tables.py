@@ -8,7 +8,9 @@ to the observation's global orientation. T crossings are far enough apart that t
 per position suffices. X crossings (and lines) are associated per particle (see
 stages.localize.observation_model).
 
-Tables (stored by build-map under /tables, cells as in stages.common.map_file.Grid):
+Computed from the field model by build-map, which stores them in the map under /tables (cells
+as in stages.common.map_file.Grid); localize reads them through MapFile.crossing_tables, or
+computes them here when it has a field and no map:
 
     crossing_lut_L   (4, ny, nx) i2   index into /field/crossings of the closest L crossing
                                       whose orientation is nearest to 45, 135, 225, 315 deg
@@ -23,8 +25,8 @@ import math
 
 import numpy as np
 
-from stages.common.field import FieldModel
-from stages.common.map_file import Grid
+from .field import FieldModel
+from .map_file import Grid
 
 # The four global L orientations of the seed (bisector of the arms), in radians.
 L_ORIENTATIONS = np.array([0.25, 0.75, 1.25, 1.75]) * math.pi

@@ -1,0 +1,174 @@
+"""The evaluation report on disk (written by evaluate, read by the report pictures, the HTML
+page and the table across runs): report.json (schema ``fieldloc.report``, version 1) and
+errors.csv in a report folder, with its plots in plots/.
+
+report.json starts with the keys every artifact starts with (``report_head``: schema,
+schema_version, fieldloc_version, created; stages.common.artifacts.provenance). It is strict
+JSON. Infinite numbers (the errors of failed frames, see metrics.py) are
+written as the strings ``"inf"`` / ``"-inf"``; a statistic over no frames (e.g. the localised
+frames of a run where every frame failed) is ``null``. ``load_report`` turns them back into
+floats (inf and NaN).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .artifacts import atomic_path, provenance
+from .errors import FieldlocError, SchemaError
+
+SCHEMA = "fieldloc.report"
+VERSION = 1
+REPORT_NAME = "report.json"
+ERRORS_NAME = "errors.csv"
+PLOTS_DIR = "plots"
+PLOT_NAMES = ("error_cdf.png", "trajectory.png", "error_over_time.png", "reliability.png")
+
+ERRORS_COLUMNS = (
+    "name", "stamp", "matched", "truth_stamp", "x", "y", "theta", "truth_x", "truth_y",
+    "truth_theta", "failed", "position_error_m", "heading_error_deg", "mode", "runtime_ms",
+)
+
+
+# ---------------------------------------------------------------------------- JSON
+
+
+def report_head() -> dict:
+    """The first keys of a report.json: schema, schema_version, fieldloc_version, created."""
+    return provenance(SCHEMA, VERSION)
+
+
+def encode_numbers(obj):
+    """A copy of ``obj`` that strict JSON accepts: inf -> "inf", -inf -> "-inf", NaN -> None,
+    numpy scalars and arrays -> Python numbers and lists."""
+    if isinstance(obj, dict):
+        return {str(k): encode_numbers(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [encode_numbers(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return encode_numbers(obj.tolist())
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        v = float(obj)
+        if math.isnan(v):
+            return None
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        return v
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
+
+
+def decode_numbers(obj):
+    """Inverse of ``encode_numbers`` for report values: "inf" -> inf, None -> NaN."""
+    if isinstance(obj, dict):
+        return {k: decode_numbers(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [decode_numbers(v) for v in obj]
+    if obj == "inf":
+        return math.inf
+    if obj == "-inf":
+        return -math.inf
+    if obj is None:
+        return math.nan
+    return obj
+
+
+def write_report(path: str | Path, report: dict) -> Path:
+    """Write report.json atomically (strict JSON, see module docstring)."""
+    path = Path(path)
+    text = json.dumps(encode_numbers(report), indent=2, allow_nan=False) + "\n"
+    with atomic_path(path, suffix=".json") as tmp:
+        tmp.write_text(text)
+    return path
+
+
+def report_path(path: str | Path) -> Path:
+    """report.json of a report folder, or the given JSON file itself."""
+    p = Path(path)
+    return p / REPORT_NAME if p.is_dir() else p
+
+
+def load_report(path: str | Path, *, raw: bool = False) -> dict:
+    """Read a report folder or report.json, checking the schema. Numbers decoded (inf, NaN)
+    unless ``raw``."""
+    p = report_path(path)
+    if not p.is_file():
+        where = f"no {REPORT_NAME} in folder {path}" if Path(path).is_dir() else f"{p}"
+        raise FieldlocError(f"report not found: {where}")
+    try:
+        data = json.loads(p.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise SchemaError(f"{p}: not valid JSON ({e})") from None
+    if not isinstance(data, dict) or data.get("schema") != SCHEMA:
+        got = data.get("schema") if isinstance(data, dict) else None
+        raise SchemaError(
+            f"{p}: expected a '{SCHEMA}' report (written by fieldloc evaluate), got"
+            f" {repr(got) if got else 'no schema'}"
+        )
+    if not 1 <= int(data.get("schema_version", -1)) <= VERSION:
+        raise SchemaError(
+            f"{p}: '{SCHEMA}' version {data.get('schema_version')} is not supported (this"
+            f" fieldloc reads versions 1..{VERSION})"
+        )
+    return data if raw else decode_numbers(data)
+
+
+# ---------------------------------------------------------------------------- errors.csv
+
+
+def _num(v: float, fmt: str) -> str:
+    if math.isnan(v):
+        return ""
+    if math.isinf(v):
+        return "inf" if v > 0 else "-inf"
+    return format(v, fmt)
+
+
+def write_errors_csv(path: str | Path, fe) -> Path:
+    """One row per frame of ``fe`` (stages.evaluate.metrics.FrameErrors). Unmatched frames
+    have empty truth and error cells; failed frames have empty pose cells and errors "inf"."""
+    path = Path(path)
+    deg = np.degrees(fe.heading_error)
+    with atomic_path(path, suffix=".csv") as tmp:
+        with open(tmp, "w", newline="") as f:
+            w = csv.writer(f, lineterminator="\n")
+            w.writerow(ERRORS_COLUMNS)
+            for i in range(len(fe)):
+                w.writerow([
+                    fe.name[i], _num(fe.stamp[i], ".6f"), int(fe.matched[i]),
+                    _num(fe.truth_stamp[i], ".6f"), _num(fe.x[i], ".4f"), _num(fe.y[i], ".4f"),
+                    _num(fe.theta[i], ".5f"), _num(fe.truth_x[i], ".4f"),
+                    _num(fe.truth_y[i], ".4f"), _num(fe.truth_theta[i], ".5f"),
+                    int(fe.failed[i]), _num(fe.position_error[i], ".5f"), _num(deg[i], ".4f"),
+                    fe.mode[i], _num(fe.runtime[i] * 1000.0, ".4f"),
+                ])
+    return path
+
+
+def read_errors_csv(path: str | Path) -> dict[str, np.ndarray]:
+    """errors.csv back as columns (numbers as floats, empty cells NaN)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FieldlocError(f"file not found: {path}")
+    with open(path, newline="") as f:
+        rows = list(csv.reader(f))
+    if not rows or tuple(rows[0]) != ERRORS_COLUMNS:
+        raise SchemaError(f"{path}: expected columns '{','.join(ERRORS_COLUMNS)}'")
+    out = {}
+    for j, c in enumerate(ERRORS_COLUMNS):
+        cells = [r[j] for r in rows[1:]]
+        if c in ("name", "mode"):
+            out[c] = np.array(cells, dtype=object)
+        else:
+            out[c] = np.array([float(v) if v else math.nan for v in cells], dtype=float)
+    return out
