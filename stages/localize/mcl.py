@@ -79,6 +79,8 @@ from .observation_model import ObservationModel
 
 log = logging.getLogger(__name__)
 
+_NO_SUPPORT = -30.0  # log belief density below which a pose counts as unsupported
+
 _DEFAULT = {
     "seed": 0,
     "init": "placement",  # placement | uniform | pose
@@ -390,18 +392,50 @@ class ParticleFilter:
     def _mirror_guard(self, poses: np.ndarray) -> np.ndarray:
         """Without the pairing of a symmetric prior the track has chosen a side of the field: a
         new pose and its mirror image explain the observations equally, so each new pose is
-        taken as whichever of the two lies nearer to the last estimate (the new poses can then
-        find a lost robot, but not flip the track to the mirrored side)."""
-        last = self._last_estimate
-        if self.paired or last is None or not len(poses):
+        taken as whichever of the two the current belief supports more (the new poses can then
+        find a lost robot, but not flip the track to the mirrored side). The support is the
+        belief's density at the pose (``_log_support``); where the belief holds neither (a far
+        kidnap), the one nearer the last estimate."""
+        if self.paired or not len(poses):
             return poses
-        cx, cy = float(last.pose[0]), float(last.pose[1])
-        flip = (poses[:, 0] + cx) ** 2 + (poses[:, 1] + cy) ** 2 < (poses[:, 0] - cx) ** 2 + (
-            poses[:, 1] - cy) ** 2
+        mirror = poses.copy()
+        mirror[:, 0:2] *= -1.0
+        mirror[:, 2] = wrap_angle(mirror[:, 2] + math.pi)
+        own, other = self._log_support(poses), self._log_support(mirror)
+        flip = other > own
+        last = self._last_estimate
+        if last is not None:
+            cx, cy = float(last.pose[0]), float(last.pose[1])
+            nearer = (poses[:, 0] + cx) ** 2 + (poses[:, 1] + cy) ** 2 < (
+                poses[:, 0] - cx) ** 2 + (poses[:, 1] - cy) ** 2
+            none = np.maximum(own, other) < _NO_SUPPORT
+            flip = np.where(none, nearer, flip)
         out = poses.copy()
-        out[flip, 0:2] *= -1.0
-        out[flip, 2] = wrap_angle(out[flip, 2] + math.pi)
+        out[flip] = mirror[flip]
         return out
+
+    def _log_support(self, poses: np.ndarray, held: int = 256) -> np.ndarray:
+        """log of the belief's density at ``poses`` (M, 3), up to a constant: the weighted sum
+        of Gaussian kernels (``cluster_radius``, ``cluster_heading``) on ``held`` particles
+        drawn from the belief by their weight (evenly spaced on the weights' cumulative sum,
+        no random draw)."""
+        c = self.conf
+        w = self.weights
+        cum = np.cumsum(w)
+        k = min(held, len(w))
+        idx = np.minimum(np.searchsorted(cum, (np.arange(k) + 0.5) / k * cum[-1]), len(w) - 1)
+        q = self.particles[idx]
+        if self.paired:  # each held particle stands for its mirror image too
+            m = q.copy()
+            m[:, 0:2] *= -1.0
+            m[:, 2] += math.pi
+            q = np.concatenate([q, m])
+        dx = poses[:, 0:1] - q[None, :, 0]
+        dy = poses[:, 1:2] - q[None, :, 1]
+        e = (dx * dx + dy * dy) / (2.0 * c["cluster_radius"] ** 2)
+        e += (1.0 - np.cos(poses[:, 2:3] - q[None, :, 2])) / max(c["cluster_heading"], 1e-6) ** 2
+        top = (-e).max(axis=1)
+        return top + np.log(np.exp(-e - top[:, None]).sum(axis=1)) - math.log(len(q))
 
     def _particle_count(self, spread: float | None, share: float) -> int:
         """Particles (held) after resampling: by the belief's spread between particles_min and
