@@ -306,17 +306,25 @@ class ParticleFilter:
         world's hypothesis regions (a cluster's radius and heading window), the best placed
         pose standing for the place it would be, against the predicted belief's likelihood
         sum(w_i L_i)."""
-        c = self.conf
-        prior = max(float(c["kidnap_probability"]), self.inject_share())
-        x0, x1, y0, y1 = self._bounds
-        regions = ((x1 - x0) * (y1 - y0) / (math.pi * c["cluster_radius"] ** 2)
-                   * math.pi / max(c["cluster_heading"], 1e-6))
-        log_prior = math.log(max(prior, 1e-300) / max(regions, 1.0))
+        log_prior = math.log(self._elsewhere() / self._regions())
         lw = np.log(np.maximum(self.weights, 1e-300)) + ll
         top = float(lw.max())
         log_tracked = top + math.log(float(np.exp(lw - top).sum()))
         log_elsewhere = log_prior + float(ll_pool.max())
         return 1.0 / (1.0 + math.exp(min(log_tracked - log_elsewhere, 700.0)))
+
+    def _elsewhere(self) -> float:
+        """The prior probability that the robot is not where the belief says: the larger of
+        ``kidnap_probability`` and augmented MCL's share (``inject_share``)."""
+        return max(float(self.conf["kidnap_probability"]), self.inject_share(), 1e-300)
+
+    def _regions(self) -> float:
+        """How many hypothesis regions (a cluster's radius and heading window) the world holds:
+        a uniform belief's density in the units of ``_log_support`` is about 1 / this."""
+        c = self.conf
+        x0, x1, y0, y1 = self._bounds
+        return max((x1 - x0) * (y1 - y0) / (math.pi * c["cluster_radius"] ** 2)
+                   * math.pi / max(c["cluster_heading"], 1e-6), 1.0)
 
     def inject_share(self) -> float:
         """Augmented MCL: the share of random particles, max(0, 1 - w_fast / w_slow)."""
