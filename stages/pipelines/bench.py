@@ -742,6 +742,7 @@ ROWS: dict[str, Callable[[int], Row | list[Row]]] = {
     "extract-perspective": bench_extract_perspective,
     "mcl-update": bench_mcl_update,
     "mcl-accuracy": bench_mcl_accuracy,
+    "mcl-nao-accuracy": lambda n: _mcl_nao().bench_mcl_nao_accuracy(n),
     "surf-speed": bench_surf_speed,
     "surf-quality": bench_feature_quality,
     "lut-tracked-frame": lambda n: _hyp().bench_lut_tracked_frame(n),
@@ -751,6 +752,12 @@ ROWS: dict[str, Callable[[int], Row | list[Row]]] = {
     "real": lambda n: _hyp().bench_real(n),
     "import-rosbag": bench_import_rosbag,
 }
+
+
+def _mcl_nao():
+    from . import bench_mcl_nao
+
+    return bench_mcl_nao
 
 
 def _hyp():
