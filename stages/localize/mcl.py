@@ -14,21 +14,30 @@ New particles at resampling:
 - augmented MCL (Thrun et al.): the mean per-observation likelihood of the predicted belief is
   followed by a slow and a fast exponential average (``alpha_slow``, ``alpha_fast``); a share
   ``max(0, 1 - w_fast / w_slow)`` (at most ``max_inject``) of the particles is replaced, half
-  of them (``inject_from_observations``) by poses that explain a crossing or goal post seen in
-  this frame by a field landmark of its kind, the rest uniformly; the frame's mode is then
-  "recovering" and its flags hold "injected=N";
-- sensor resetting: a constant share ``sensor_reset_fraction`` per frame placed by the
-  frame's landmarks, so that a filter sure of a wrong place still meets the right one; to
-  save the candidates' cost on most frames, the share of ``sensor_reset_every`` frames is
-  placed at once on every that many-th frame with landmarks. Poses placed by landmarks are
-  drawn from ``reset_pool`` candidates (an observed crossing or post explained by a random
-  field landmark of its kind) in proportion to their likelihood under all of the frame's
-  observations; on a resetting frame the candidates are weighted in the same call as the
-  particles, otherwise (augmented MCL injecting) in a call of their own;
+  of them (``inject_from_observations``) by poses placed by this frame's observations (below),
+  the rest uniformly; the frame's mode is then "recovering" and its flags hold "injected=N";
+- sensor resetting: poses at which one observation of the frame is explained by a random field
+  feature of its kind (a crossing by a crossing of a type it may be, a post by a post, a line
+  by a straight field line, either side of it, anywhere along it where the observed segment
+  fits), ``reset_pool`` candidates per resetting frame, weighted in the same call as the
+  particles; the placed poses are drawn from them in proportion to their likelihood under all
+  of the frame's observations. While the belief is wide (spread at or above ``spread_high``:
+  global localisation) every frame with observations places ``sensor_reset_fraction``. While tracking, every ``sensor_reset_every``-th frame (every frame while
+  augmented MCL's averages say the likelihood dropped) places the posterior share of "the
+  robot is elsewhere": its prior, the larger of ``kidnap_probability`` and augmented MCL's
+  share, spread over the world's hypothesis regions (a cluster's radius and heading window),
+  the best candidate standing for the place it would be, against the predicted belief's
+  likelihood sum(w_i L_i). A tracked robot whose observations fit places (almost) nothing; a
+  kidnapped one, whose observations fit a candidate far better than the belief, gets most of
+  its particles placed there;
 - ``random_fraction``: a constant share of uniform particles (0 by default).
 Unless the prior was symmetric (below), each new pose is taken as whichever of itself and its
-mirror image lies nearer to the last estimate: no observation can tell the two apart, and the
-other would only let the track flip to the mirrored side.
+mirror image the belief supports more (its density there: Gaussian kernels of the cluster's
+radius and heading window on 256 particles drawn by weight), the one nearer the last estimate
+where it supports neither: no observation can tell the two apart, and the other would only let
+the track flip to the mirrored side. (The side nearer a wide belief's estimate is not the
+belief's side: on a placement start, the estimate of the first frames can sit at the other
+touch line, nearer the true pose's mirror than the true pose.)
 
 Particle count (250-1000, ``particles_min`` / ``particles_max``): at resampling the number
 follows the belief's spread s = sqrt(var x + var y): ``particles_min`` when s <= ``spread_low``,
@@ -433,11 +442,6 @@ class ParticleFilter:
         k = min(held, len(w))
         idx = np.minimum(np.searchsorted(cum, (np.arange(k) + 0.5) / k * cum[-1]), len(w) - 1)
         q = self.particles[idx]
-        if self.paired:  # each held particle stands for its mirror image too
-            m = q.copy()
-            m[:, 0:2] *= -1.0
-            m[:, 2] += math.pi
-            q = np.concatenate([q, m])
         dx = poses[:, 0:1] - q[None, :, 0]
         dy = poses[:, 1:2] - q[None, :, 1]
         e = (dx * dx + dy * dy) / (2.0 * c["cluster_radius"] ** 2)
