@@ -227,6 +227,21 @@ class IdealPixels:
         self.stride = stride
         self.map_u = ideal[..., 0].astype(np.float32)
         self.map_v = ideal[..., 1].astype(np.float32)
+        self._cell_centres: dict[tuple, np.ndarray] = {}
+
+    def cell_centres(self, shape, cell: int) -> np.ndarray:
+        """Ideal pixels (hb * wb, 2) of the centres of the ``cell`` x ``cell`` blocks of an
+        image of ``shape`` (h, w), row by row (computed once per grid)."""
+        h, w = shape[:2]
+        key = (h, w, cell)
+        hit = self._cell_centres.get(key)
+        if hit is None:
+            hb, wb = -(-h // cell), -(-w // cell)
+            gy, gx = np.mgrid[0:hb, 0:wb]
+            hit = self(grid_to_pixels(np.stack([gx.ravel(), gy.ravel()], axis=1), cell))
+            hit.setflags(write=False)
+            self._cell_centres[key] = hit
+        return hit
 
     def __call__(self, uv) -> np.ndarray:
         """Distorted pixels (N, 2) -> ideal pixels (N, 2); NaN outside the lens model."""
@@ -302,18 +317,16 @@ def _empty(n: int) -> np.ndarray:
     return np.zeros((0, n), np.float32)
 
 
-def below_horizon(camera, shape, cell: int, pitch=None, roll=None) -> np.ndarray:
-    """Bool mask (h, w) of the pixels whose cell (``cell`` x ``cell`` blocks) has its centre's
-    viewing ray pointing below the horizon, where the floor can be."""
+def below_horizon(camera, shape, cell: int, pitch=None, roll=None) -> colour.BlockMask:
+    """Mask (h, w, kept per block: colour.BlockMask) of the pixels whose cell (``cell`` x
+    ``cell`` blocks) has its centre's viewing ray pointing below the horizon, where the floor
+    can be."""
     h, w = shape[:2]
     hb, wb = -(-h // cell), -(-w // cell)
-    gy, gx = np.mgrid[0:hb, 0:wb]
-    centres = grid_to_pixels(np.stack([gx.ravel(), gy.ravel()], axis=1), cell)
     m = camera.rotation(pitch, roll) @ np.linalg.inv(camera.camera_matrix)
-    ideal = ideal_pixels(camera)(centres)
+    ideal = ideal_pixels(camera).cell_centres(shape, cell)
     down = (ideal @ m[2, :2] + m[2, 2]) < 0  # NaN (outside the lens model) compares False
-    cells = down.reshape(hb, wb)
-    return np.repeat(np.repeat(cells, cell, axis=0), cell, axis=1)[:h, :w]
+    return colour.BlockMask(down.reshape(hb, wb), cell, (h, w))
 
 
 def colour_shares(image_bgr: np.ndarray, conf: dict, camera=None, pitch=None, roll=None
@@ -337,7 +350,7 @@ def colour_shares(image_bgr: np.ndarray, conf: dict, camera=None, pitch=None, ro
                                          green_from=floor, white_out=white_bool)
     out = {name: counts[..., i] for i, name in enumerate(colour.CLASS_NAMES)}
     if white_px is not None:
-        out["white_px"] = white_px.astype(np.float32)
+        out["white_px"] = white_px  # uint8, 1 = white (the refinement kernels read it as is)
     return out
 
 
