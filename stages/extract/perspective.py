@@ -37,6 +37,7 @@ from .line_fit import (
     floor_line_parameters,
     lens_parameters,
     line_components,
+    median,
     refine_segment,
     split_and_merge,
 )
@@ -277,6 +278,7 @@ class FloorProjection:
     def __init__(self, camera, pitch=None, roll=None):
         m = camera.rotation(pitch, roll) @ np.linalg.inv(camera.camera_matrix)
         self.m = m
+        self.m_inv = np.linalg.inv(m)
         self.height = float(camera.height)
         self.position = np.asarray(camera.position, float)
 
@@ -296,7 +298,7 @@ class FloorProjection:
         camera)."""
         p = np.asarray(floor, float).reshape(-1, 2) - self.position
         rel = np.concatenate([p, np.full((len(p), 1), -self.height)], axis=1)
-        h = rel @ np.linalg.inv(self.m).T  # homogeneous ideal pixels
+        h = rel @ self.m_inv.T  # homogeneous ideal pixels
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.where(h[:, 2:] > 1e-9, h[:, :2] / h[:, 2:], np.nan)
 
@@ -538,7 +540,7 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
         ends_m.append(e_floor.ravel())
         ends_px.append(e_px.ravel())
         ends_ideal.append(seg.ends if ref is None else ref.ends)
-        widths.append(float(cell) if ref is None else float(np.median(ref.widths)))
+        widths.append(float(cell) if ref is None else float(median(ref.widths)))
     if trace is not None:
         trace.update(segments=segments, refined=refined)
     return lines, ends_m, ends_px, posts, posts_px, ends_ideal, widths
@@ -586,7 +588,7 @@ def width_ratios(refs: list[RefinedLine], to_floor: FloorProjection, line_width:
     out, k = {}, 0
     for r, n in zip(refs, counts):
         sel = ok[k:k + n]
-        out[id(r)] = float(np.median(ratio[k:k + n][sel])) if sel.any() else float("nan")
+        out[id(r)] = float(median(ratio[k:k + n][sel])) if sel.any() else float("nan")
         k += n
     return out
 
