@@ -218,6 +218,15 @@ def lens_parameters(camera) -> np.ndarray:
                     np.float64)
 
 
+def distort_ideal(lens: np.ndarray, ideal) -> np.ndarray:
+    """Ideal pixels (N, 2) -> image pixels through the lens's distortion (``lens`` from
+    ``lens_parameters``): PerspectiveCamera.distort_points, operation by operation, compiled."""
+    p = np.ascontiguousarray(np.asarray(ideal, np.float64).reshape(-1, 2))
+    out = np.empty_like(p)
+    _distort_all(lens, p, out)
+    return out
+
+
 def refine_segment(ends: np.ndarray, white: np.ndarray, lens: np.ndarray, step: float,
                    reach: float, extend: float, min_points: int, grow: float = 0.0
                    ) -> RefinedLine | None:
@@ -261,6 +270,12 @@ def _distort(lens, x, y):
     xd = nx * radial + 2 * p1 * nx * ny + p2 * (r2 + 2 * nx * nx)
     yd = ny * radial + p1 * (r2 + 2 * ny * ny) + 2 * p2 * nx * ny
     return xd * fx + cx, yd * fy + cy
+
+
+@njit(cache=True, nogil=True)
+def _distort_all(lens, p, out):
+    for i in range(p.shape[0]):
+        out[i, 0], out[i, 1] = _distort(lens, p[i, 0], p[i, 1])
 
 
 @njit(cache=True, nogil=True, inline="always")
