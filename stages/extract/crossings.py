@@ -597,16 +597,20 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
     position), or the reason it is rejected. The cheap floor checks come before the image
     checks."""
     step = cc["arm_step"] * cell
-    floor = to_floor(np.vstack([x[None], x + step * dirs]))
+    n = len(dirs)
+    # all floor points at once: the crossing, a step along each arm, the cell below, the ends
+    pts = [x[None], x + step * dirs, x[None] + np.array([[0.0, float(cell)]])]
+    if lengths is not None:
+        pts.append(x[None] + np.asarray(lengths)[:, None] * dirs)
+    on_floor = to_floor(np.vstack(pts))
+    floor, below, ends = on_floor[:n + 1], on_floor[n + 1:n + 2], on_floor[n + 2:]
     if not np.all(np.isfinite(floor)):
         return "above the horizon"
     if lengths is not None:
-        ends = to_floor(x[None] + np.asarray(lengths)[:, None] * dirs)
         arm_m = np.hypot(*(ends - floor[0]).T)  # NaN beyond the horizon: long enough
         if np.any(arm_m < cc["min_arm_length"]):
             return "arm too short"
     d, bearing = polar(floor[:1])
-    below = to_floor(x[None] + np.array([[0.0, float(cell)]]))
     if not np.all(np.isfinite(below)) or np.hypot(*(below[0] - floor[0])) > cc["max_cell_span"]:
         return "too far"
     arm_dirs = np.arctan2(floor[1:, 1] - floor[0, 1], floor[1:, 0] - floor[0, 0])

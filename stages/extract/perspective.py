@@ -25,6 +25,7 @@ import math
 
 import cv2
 import numpy as np
+from numba import njit
 
 from ..common.errors import DatasetError
 from ..common.geometry import polar
@@ -283,15 +284,10 @@ class FloorProjection:
         self.position = np.asarray(camera.position, float)
 
     def __call__(self, ideal) -> np.ndarray:
-        p = np.asarray(ideal, float).reshape(-1, 2)
-        rays = p @ self.m[:, :2].T + self.m[:, 2]
-        down = rays[:, 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.where(down < -1e-9, self.height / -down, np.nan)
-        floor = rays[:, :2] * t[:, None]
-        if self.position.any():
-            floor += self.position
-        return floor
+        p = np.ascontiguousarray(np.asarray(ideal, np.float64).reshape(-1, 2))
+        out = np.empty_like(p)
+        _to_floor(p, self.m, self.height, self.position, bool(self.position.any()), out)
+        return out
 
     def to_ideal(self, floor) -> np.ndarray:
         """Floor points (N, 2) in the robot frame -> ideal pixels (N, 2) (NaN behind the
@@ -301,6 +297,22 @@ class FloorProjection:
         h = rel @ self.m_inv.T  # homogeneous ideal pixels
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.where(h[:, 2:] > 1e-9, h[:, :2] / h[:, 2:], np.nan)
+
+
+@njit(cache=True, nogil=True)
+def _to_floor(p, m, height, position, shifted, out):
+    """FloorProjection on ideal pixels p (N, 2) into ``out``: each pixel's ray m (u, v, 1)
+    cut with the floor ``height`` below the lens (NaN unless the ray points down), plus the
+    lens's ``position`` over the floor if ``shifted``."""
+    for i in range(p.shape[0]):
+        rx = p[i, 0] * m[0, 0] + p[i, 1] * m[0, 1] + m[0, 2]
+        ry = p[i, 0] * m[1, 0] + p[i, 1] * m[1, 1] + m[1, 2]
+        down = p[i, 0] * m[2, 0] + p[i, 1] * m[2, 1] + m[2, 2]
+        t = height / -down if down < -1e-9 else np.nan
+        out[i, 0], out[i, 1] = rx * t, ry * t
+        if shifted:
+            out[i, 0] += position[0]
+            out[i, 1] += position[1]
 
 
 def ideal_to_floor(camera, ideal, pitch=None, roll=None) -> np.ndarray:
