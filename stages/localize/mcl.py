@@ -13,7 +13,8 @@ of the particles, when particles are to be injected, or when the particle count 
 New particles at resampling:
 - augmented MCL (Thrun et al.): the mean per-observation likelihood of the predicted belief is
   followed by a slow and a fast exponential average (``alpha_slow``, ``alpha_fast``); a share
-  ``max(0, 1 - w_fast / w_slow)`` (at most ``max_inject``) of the particles is replaced, half
+  ``max(0, 1 - w_fast / w_slow)`` (at most ``max_inject``) of the particles is replaced while
+  the belief is wide (while tracking, the share raises the kidnap prior, below), half
   of them (``inject_from_observations``) by poses placed by this frame's observations (below),
   the rest uniformly; the frame's mode is then "recovering" and its flags hold "injected=N";
 - sensor resetting: poses at which one observation of the frame is explained by a random field
@@ -22,8 +23,9 @@ New particles at resampling:
   fits), ``reset_pool`` candidates per resetting frame, weighted in the same call as the
   particles; the placed poses are drawn from them in proportion to their likelihood under all
   of the frame's observations. While the belief is wide (spread at or above ``spread_high``:
-  global localisation) every frame with observations places ``sensor_reset_fraction``. While tracking, every ``sensor_reset_every``-th frame (every frame while
-  augmented MCL's averages say the likelihood dropped) places the posterior share of "the
+  global localisation) every frame with observations places ``sensor_reset_fraction``. While
+  tracking, every ``sensor_reset_every``-th frame (every frame while augmented MCL's averages
+  say the likelihood dropped) places the posterior share of "the
   robot is elsewhere": its prior, the larger of ``kidnap_probability`` and augmented MCL's
   share, spread over the world's hypothesis regions (a cluster's radius and heading window),
   the best candidate standing for the place it would be, against the predicted belief's

@@ -33,7 +33,7 @@ def bench_mcl_nao_accuracy(repeat: int) -> list[Row]:
     rows = []
     # from the placement: every walk evaluated, the figures pooled over their frames
     errors, runtimes, per_walk = [], [], []
-    for (n, seed), inp in zip(NAO_WALKS, walks):
+    for (_n, seed), inp in zip(NAO_WALKS, walks):
         out = _work_dir() / f"nao-mcl-default-{seed}.poses.h5"
         localize.main("mcl-default", inp["data"], inp["map"], out, features=inp["features"],
                       overwrite=True)
@@ -55,7 +55,7 @@ def bench_mcl_nao_accuracy(repeat: int) -> list[Row]:
              f" count as misses); {'; '.join(per_walk)}"))
     # from a uniform start: judged by the pair
     folded, high = [], 0
-    for (n, seed), inp in zip(NAO_WALKS, walks):
+    for (_n, seed), inp in zip(NAO_WALKS, walks):
         out = _work_dir() / f"nao-mcl-uniform-{seed}.poses.h5"
         localize.main("mcl-uniform", inp["data"], inp["map"], out, features=inp["features"],
                       overwrite=True)
