@@ -1,5 +1,7 @@
-"""The table across evaluated runs (``fieldloc evaluate`` and ``evaluate --table``) and the
-reliability table of one report, from report.json files (stages.common.report_file)."""
+"""The table across evaluated runs (``fieldloc evaluate`` and ``evaluate --table``), the
+reliability table of one report, and the comparison of a batch's runs (``fieldloc batch``,
+``evaluate --table RESULTS``: methods x datasets), all from report.json files
+(stages.common.report_file; a batch's runs listed by its batch.json, stages.common.batch_file)."""
 
 from __future__ import annotations
 
