@@ -217,3 +217,44 @@ def test_two_workers_give_the_serial_results_value_for_value(serial, tmp_path):
     first = runs[0]["dir"]
     assert np.array_equal(read_poses(out / first / "poses.h5")[0]["x"],
                           read_poses(par / first / "poses.h5")[0]["x"], equal_nan=True)
+
+
+def test_a_dataset_rendered_again_is_extracted_anew(serial, tmp_path, monkeypatch):
+    """Other simulate options render the dataset again: neither its earlier features nor the
+    frames of an interrupted extraction of the earlier rendering are taken over."""
+    from stages import extract
+    from stages.common.features_file import FeaturesFile
+
+    _, out, _ = serial
+    mp = str(next((out / "maps").glob("*.map.h5")))
+
+    def spec(frames, seed):
+        return _write_spec(tmp_path / f"s{frames}", {"map": mp, "methods": ["lut"], "datasets": [
+            {"name": "omni-a", "simulate": {"preset": "omni-clean", "field": "kidsize",
+                                            "frames": frames, "seed": seed}}]})
+
+    real, calls = extract.read_image, []
+
+    def interrupted(path):
+        calls.append(path)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return real(path)
+
+    monkeypatch.setattr(extract, "read_image", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        batch.main("serial", spec(4, 7), tmp_path / "res")
+    assert list((tmp_path / "res" / "features").glob(".omni-a.*.parts"))  # 2 frames in it
+    monkeypatch.setattr(extract, "read_image", real)
+    res = batch.main("serial", spec(3, 8), tmp_path / "res")
+    assert not list((res / "features").glob(".omni-a.*"))
+    (feats,) = (res / "features").glob("omni-a.*.features.h5")
+    fresh = extract.main(None, res / "datasets" / "omni-a", tmp_path / "fresh.h5")
+    with FeaturesFile(feats) as a, FeaturesFile(fresh) as b:
+        assert list(a.names) == list(b.names) == ["000000", "000001", "000002"]
+        for n in a.names:
+            fa, fb = a.frame(n), b.frame(n)
+            assert fa.keys() == fb.keys()
+            for k in fa:
+                va, vb = np.asarray(fa[k]), np.asarray(fb[k])
+                assert np.array_equal(va, vb, equal_nan=va.dtype.kind == "f"), (n, k)

@@ -230,8 +230,14 @@ def prepare_dataset(ds: DatasetSpec) -> str:
             from .. import simulate
 
             ds.dir.parent.mkdir(parents=True, exist_ok=True)
-            for old in ds.dir.parent.parent.glob(f"features/{ds.name}.*.features.h5"):
-                old.unlink()  # the features of an earlier rendering of this name
+            # the features of an earlier rendering of this name, and the frames of an
+            # extraction of it that was interrupted (extract would resume from them: it knows
+            # the calibration and conf a frame was made with, not the images)
+            feats = ds.dir.parent.parent / "features"
+            for old in feats.glob(f"{ds.name}.*.features.h5"):
+                old.unlink()
+            for old in feats.glob(f".{ds.name}.*.features.h5.parts"):
+                shutil.rmtree(old)
             simulate.main(ds.simulate, ds.sim_field, ds.dir, overwrite=True)
         return str(ds.dir)
     return _calibrated_view(ds)
