@@ -13,8 +13,8 @@ cache (stages.localize.lookup_cache), registered in bench.ROWS:
   (recorded in poses.h5): an upper bound, since writing the poses and the interpreter's exit
   are left in;
 - ``bench_worker_memory``: the peak resident memory of each worker process of a 2-worker batch
-  of lut runs on the 22 x 14 m msl field with the lookup mapped (goal <= 1.5 GB), next to the
-  lookup's size.
+  of lut runs on the msl field (21.9 x 13.9 m between centre lines) with the lookup mapped
+  (goal <= 1.5 GB), next to the lookup's size.
 """
 
 from __future__ import annotations
@@ -189,7 +189,7 @@ def bench_worker_memory(repeat: int) -> Row:
         peaks = client.run(_worker_peak_mb)
     peak = max(peaks.values())
     return Row(
-        name="batch worker peak memory, lut on msl (22 x 14 m), lookup mapped",
+        name="batch worker peak memory, lut on msl (21.9 x 13.9 m), lookup mapped",
         median_ms=float("nan"), peak_mb=peak, goal="<= 1.5 GB per worker",
         meets_goal=peak <= 1536, repeats=1,
         note=f"peak RSS of each of 2 workers after {len(plan.runs)} lut runs:"
