@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ..common.errors import FieldlocError
+from .errors import FieldlocError
 
 confs = {
     # 512 x 512 px of 1 cm: +-2.56 m around the robot, about as fine as the default mirror's
@@ -126,7 +126,7 @@ class UnwarpMap:
 
 def build_unwarp_map(camera, grid: GroundGrid, mask: np.ndarray | None = None) -> UnwarpMap:
     """The pixel map of ``grid`` through ``camera`` (an OmniCamera). ``mask``: the dataset's
-    bool (h, w) mask of usable image pixels (stages.extract.read_mask), or None."""
+    bool (h, w) mask of usable image pixels (stages.common.dataset.read_mask), or None."""
     if getattr(camera, "kind", None) != "omni":
         raise FieldlocError("a ground image needs an omnidirectional camera (calib kind omni)")
     idx = np.arange(grid.size, dtype=float)
