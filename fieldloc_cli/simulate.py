@@ -101,9 +101,12 @@ def simulate():
 @click.option("--calib-seed", type=int, default=None,
               help="Seed of the calibration error calib.yaml states [default: --seed]: the"
               " same for two datasets makes them one robot's (a template grid and a run).")
+@click.option("--world-seed", type=int, default=None,
+              help="Seed of the venue (carpet, paint, walls) [default: --seed]: the same for"
+              " two datasets records both in one lab.")
 @click.pass_context
 def simulate_omni(ctx, field, output, frames, seed, trajectory_kind, calib_error, preset,
-                  overwrite, overrides, grid_spacing, grid_headings, calib_seed):
+                  overwrite, overrides, grid_spacing, grid_headings, calib_seed, world_seed):
     """An omnidirectional (catadioptric) camera on a MSL robot.
 
     \b
@@ -125,6 +128,8 @@ def simulate_omni(ctx, field, output, frames, seed, trajectory_kind, calib_error
         extra.append(f"trajectory.grid_headings={grid_headings}")
     if calib_seed is not None:
         extra.append(f"calib_seed={calib_seed}")
+    if world_seed is not None:
+        extra.append(f"world_seed={world_seed}")
     run_simulation(ctx, field=field, output=output, frames=frames, seed=seed,
                    trajectory_kind=trajectory_kind, preset=preset, overwrite=overwrite,
                    overrides=tuple(extra), calib_error=calib_error)

@@ -15,7 +15,9 @@ a grid (``trajectory.grid_poses``; ``frames`` is then the number of placements),
 node and heading, and the dataset has no odometry.csv (the robot was carried from node to node).
 ``calib_seed`` (None: ``seed``) draws the calibration error calib.yaml states: two datasets of
 the same ``calib_seed`` and different seeds are one robot recorded twice (another scene, path,
-sensor noise), as a template grid and a run localised against it are.
+sensor noise), as a template grid and a run localised against it are; ``world_seed`` (None:
+``seed``) likewise draws the venue (carpet, paint, walls; simulate.scene), so that both are
+recorded in one lab, with the clutter, movers and lighting of their own seeds.
 
 simulation.yaml is also the marker of a dataset made here: ``overwrite`` replaces an existing
 folder only if it holds that marker (``generator: fieldloc simulate``), never another folder (a
@@ -96,6 +98,7 @@ _OMNI_BASE = {
     "frames": 300,
     "seed": 0,
     "calib_seed": None,  # seed of calib.yaml's calibration error (None: seed)
+    "world_seed": None,  # seed of the venue: carpet, paint, walls (None: seed; scene.build)
     "rate_hz": 10.0,  # frames per second
     "trajectory": dict(trajectory.DEFAULTS),
     "odometry": dict(sensors.ODOMETRY_DEFAULTS),
@@ -172,6 +175,7 @@ _PERSPECTIVE_BASE = {
     "frames": 300,
     "seed": 0,
     "calib_seed": None,  # seed of calib.yaml's calibration error (None: seed)
+    "world_seed": None,  # seed of the venue: carpet, paint, walls (None: seed; scene.build)
     "rate_hz": 10.0,
     "trajectory": {**trajectory.DEFAULTS, "speed_min": 0.17, "speed_max": 0.24,
                    "accel_max": 0.3, "lateral_accel_max": 0.08, "turn_rate_max": 0.6,
@@ -346,9 +350,10 @@ def _check_conf(conf: dict):
         raise FieldlocError(f"frames must be a whole number >= 1, got {n!r}")
     if not 0 < float(conf["rate_hz"]) < math.inf:
         raise FieldlocError(f"rate_hz must be > 0, got {conf['rate_hz']!r}")
-    cs = conf.get("calib_seed")
-    if cs is not None and (isinstance(cs, bool) or not isinstance(cs, int)):
-        raise FieldlocError(f"calib_seed must be a whole number or null, got {cs!r}")
+    for key in ("calib_seed", "world_seed"):
+        v = conf.get(key)
+        if v is not None and (isinstance(v, bool) or not isinstance(v, int)):
+            raise FieldlocError(f"{key} must be a whole number or null, got {v!r}")
     ce = conf["calib_error"]
     if len(ce.get("centre_shift", ())) != 2:
         raise FieldlocError("calib_error.centre_shift must be [du, dv] (px)")
@@ -394,7 +399,8 @@ def main(conf: str | dict | None, field, output_dir, *, overwrite: bool = False,
             field, float(traj_conf.get("margin", trajectory.DEFAULTS["margin"])),
             np.random.default_rng([seed, 0x57A27]))}
     path = trajectory.generate(field, n, rate, traj_conf, rng_traj)
-    world = scene_mod.build(field, conf["scene"], path.stamps, seed, robot_poses=path.poses)
+    world = scene_mod.build(field, conf["scene"], path.stamps, seed, robot_poses=path.poses,
+                            world_seed=conf.get("world_seed"))
     renderer = renderer_cls(conf[kind], world, seed)
     # renderers that need the whole path first (the perspective head motion) return extra
     # CSV files to write: {stem: (csv kind, columns)}
@@ -440,6 +446,7 @@ def main(conf: str | dict | None, field, output_dir, *, overwrite: bool = False,
             "camera": kind,
             "seed": seed,
             "calib_seed": calib_seed,
+            "world_seed": seed if conf.get("world_seed") is None else int(conf["world_seed"]),
             "frames": n,
             "true_camera": renderer.camera.to_dict(),
             "conf": _plain(conf),
