@@ -71,6 +71,17 @@ confs = {"default": _preset("surf-upright", True), "surf": _preset("surf", False
 FEATURE_PRESETS = {"surf": "default", "surf-rotating": "surf", "sift": "sift", "orb": "orb"}
 
 
+def resolve_build_conf(conf: str | dict | None) -> dict:
+    """The stage contract's conf: a dict of overrides goes on the default preset of its
+    feature kind (``{"features": {"features": "sift"}}`` on ``sift``)."""
+    default = "default"
+    if isinstance(conf, dict) and isinstance(conf.get("features"), dict):
+        kind = conf["features"].get("features")
+        if kind in ("sift", "orb"):
+            default = kind
+    return stage_conf(confs, conf, default=default)
+
+
 def ground_conf(conf: dict) -> dict:
     """The ground-feature part of a build_templates conf (what queries must use too)."""
     return {k: conf[k] for k in gf.confs["default"]}
@@ -81,7 +92,7 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path, *
     """The templates of the captures in ``dataset_dir`` into ``output``; returns its path."""
     from tqdm import tqdm
 
-    conf = stage_conf(confs, conf)
+    conf = resolve_build_conf(conf)
     gconf = gf.check_conf(ground_conf(conf))
     min_features = int(conf["min_features"])
     ds = open_dataset(dataset_dir)

@@ -75,13 +75,15 @@ confs = {
         **tracking.DEFAULTS,
         "heading": "imu",  # imu (imu.csv yaw, field-aligned) | track (the tracks' own)
         "lost_headings": 12,  # headings tried when lost with no heading (track, no tracks)
-        "consensus_m": 0.12,  # m, pairs agreeing on one translation (template_matching)
+        "consensus_m": 0.2,  # m, pairs agreeing on one translation (template_matching)
         "pose_solver": "descent",  # descent (seed 004) | closed-form (2D Kabsch)
-        "ratio": 0.8,  # Lowe's ratio test
+        # Lowe's ratio test, loose: the floor repeats itself (paint, carpet), a correct match's
+        # runner-up is often close, and the consensus removes what the test lets through
+        "ratio": 0.95,
         "outlier_sigmas": 3.0,  # pair distances beyond median + this x robust sigma removed
         "min_outlier_m": 0.05,  # m, never removed below this
         "outlier_passes": 3,
-        "min_pairs": 6,  # inlier pairs of a fix
+        "min_pairs": 5,  # inlier pairs of a fix
         "pair_sigma_m": 0.03,  # m per axis, a correct pair's distance after the fit
         "inlier_prior": 0.3,  # share of the pairs that are correct matches
         "temperature": 3.0,  # nats of evidence per nat of likelihood

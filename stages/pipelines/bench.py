@@ -750,6 +750,7 @@ ROWS: dict[str, Callable[[int], Row | list[Row]]] = {
     "lut-hidden-run": lambda n: _hyp().bench_lut_hidden(n),
     "real": lambda n: _hyp().bench_real(n),
     "import-rosbag": bench_import_rosbag,
+    "templates": lambda n: _templates(n),
 }
 
 
@@ -757,6 +758,12 @@ def _hyp():
     from . import bench_hypotheses
 
     return bench_hypotheses
+
+
+def _templates(repeat: int):
+    from .bench_templates import bench_templates
+
+    return bench_templates(repeat)
 
 
 def run(only: list[str] | None = None, repeat: int = 5, progress=None) -> list[Row]:
