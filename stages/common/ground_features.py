@@ -141,16 +141,16 @@ def ground_features(image_bgr: np.ndarray, camera, conf: dict,
     compare; the features are returned in the robot frame all the same."""
     grid = unwarp.grid_of_conf(conf["ground"])
     ground, field = field_mask(image_bgr, camera, conf, mask)
+    grey = cv2.cvtColor(ground, cv2.COLOR_BGR2GRAY)  # turned as one channel, not three
     turn = None
     if heading is not None and float(heading) != 0.0:
         # robot-frame points turned counter-clockwise by ``heading`` are the image turned by
         # +heading as cv2 counts (the image's row axis points down, the robot's y left)
         c = grid.centre
         turn = cv2.getRotationMatrix2D((c, c), math.degrees(float(heading)), 1.0)
-        ground = cv2.warpAffine(ground, turn, (grid.size, grid.size), flags=cv2.INTER_LINEAR)
+        grey = cv2.warpAffine(grey, turn, (grid.size, grid.size), flags=cv2.INTER_LINEAR)
         field = cv2.warpAffine(field.view(np.uint8), turn, (grid.size, grid.size),
                                flags=cv2.INTER_NEAREST).astype(bool)
-    grey = cv2.cvtColor(ground, cv2.COLOR_BGR2GRAY)
     kp, desc = local_features.detect_and_describe(grey, field, conf["features"])
     if not len(kp):
         return GroundFeatures.empty(*descriptor_shape(conf))

@@ -180,5 +180,5 @@ def unwarp(image: np.ndarray, camera, grid: GroundGrid,
     m = unwarp_map(camera, grid, mask)
     ground = cv2.remap(image, m.map_u, m.map_v, cv2.INTER_LINEAR,
                        borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    ground[~m.valid] = 0
+    ground = cv2.bitwise_and(ground, ground, mask=m.valid.view(np.uint8))  # invalid: 0
     return ground, m.valid

@@ -6,7 +6,9 @@ CLI's defaults (IMU heading), once with the seed's coordinate descent and once w
 form on the same frames.
 
 Goals: median <= 5 cm and <= 1 deg, >= 95 % of the frames within 40 cm counting failures, a
-frame <= 20 ms (the method's time: ground features, matching, pose, belief; PoseTrack runtime);
+frame <= 20 ms (the method's time: ground features, matching, pose, belief; judged on the
+process CPU time, which the machine's load does not inflate; the wall time is beside it), also
+for the speed alternative, a coarser ground image (COARSE_GROUND);
 templates.h5 against the map (the seed's "compact database"), in MB.
 """
 
@@ -28,6 +30,10 @@ HIDDEN_TEMPLATE_RUN = ("omni-default", "msl-2015", 149, 93)
 DEVELOPMENT_RUN = ("omni-default", "msl-2015", 151, 89)
 
 
+# the speed alternative: a coarser ground image (400 px of 2 cm, +-4 m: 0.56 x the pixels)
+COARSE_GROUND = {"ground": {"size": 400, "metres_per_pixel": 0.02}}
+
+
 def template_inputs(spacing: float = GRID_SPACING) -> dict:
     """The grid captures, their templates.h5 and the hidden run (built once per bench run)."""
     from .. import build_templates, simulate
@@ -44,10 +50,50 @@ def template_inputs(spacing: float = GRID_SPACING) -> dict:
     db = d / f"templates-{spacing:g}.h5"
     if not db.exists():
         build_templates.main(None, grid, db)
+    coarse = d / f"templates-{spacing:g}-coarse.h5"
+    if not coarse.exists():
+        build_templates.main(COARSE_GROUND, grid, coarse)
     run = d / f"run-{seed}"
     if not run.exists():
         simulate.main(dict(simulate.confs[preset], frames=n, seed=seed, **base), field, run)
-    return {"grid": grid, "templates": db, "run": run}
+    return {"grid": grid, "templates": db, "coarse": coarse, "run": run}
+
+
+def frame_times(templates: Path, run: Path, frames: int = 60) -> tuple[float, float]:
+    """(median wall ms, median process CPU ms) of a frame of the template method (ground
+    features, matching, pose, belief; the images read beforehand), over the run's first
+    ``frames`` frames in order (tracking as localize does). CPU time counts every thread's,
+    so it is what the frame costs whatever else the machine runs."""
+    import time
+
+    from ..common.dataset import open_dataset, read_image
+    from ..common.field import load_field
+    from ..common.templates import read_templates
+    from ..localize import heading as heading_mod
+    from ..localize import templates as method
+    from ..localize.motion_model import accumulate_odometry
+
+    db = read_templates(templates)
+    ds = open_dataset(run)
+    images = [read_image(p) for p in ds.images[:frames]]
+    stamps = np.asarray(ds.stamps[:frames], float)
+    inc, has = accumulate_odometry(ds.optional("odometry"), stamps)
+    yaw, _c = heading_mod.imu_per_frame(ds.optional("imu"), stamps, 0.02)
+    conf = method.confs["default"]
+    loc = method.TemplateLocaliser(conf, method.TemplateMatcher(db, conf),
+                                   load_field(db.field["name"]), ds.camera(), None)
+    wall, cpu = [], []
+    for i, image in enumerate(images):
+        dt = float(stamps[i] - stamps[i - 1]) if i else 0.0
+        odo = inc[i] if has[i] else None
+        t, c = time.perf_counter(), time.process_time()
+        try:
+            loc.frame(i, image, dt, odo, [], float(yaw[i]))
+        except method.FrameFailed:
+            loc.failed(dt, odo)
+        wall.append(time.perf_counter() - t)
+        cpu.append(time.process_time() - c)
+    return 1e3 * float(np.median(wall)), 1e3 * float(np.median(cpu))
 
 
 def _figures(poses: Path, run: Path) -> dict:
@@ -103,6 +149,12 @@ def bench_templates(repeat: int) -> list[Row]:
     from ..common.templates import read_templates
 
     db = read_templates(inp["templates"])
+    wall, cpu = frame_times(inp["templates"], inp["run"])
+    pc = _work_dir() / "templates" / "poses-coarse.h5"
+    localize.main({"method": "templates"}, inp["run"], None, pc, templates=inp["coarse"],
+                  overwrite=True)
+    co = _figures(pc, inp["run"])
+    co_wall, co_cpu = frame_times(inp["coarse"], inp["run"])
     rows = []
     for solver, f in out.items():
         rows.append(Row(
@@ -116,13 +168,20 @@ def bench_templates(repeat: int) -> list[Row]:
                  f" failed" + (f", {f['rounds']:.0f} descent rounds per fit"
                                if solver == "descent" else "")))
     rows.append(Row(
-        name="templates frame (ground features + matching + pose + belief)",
-        median_ms=d["frame_ms"], goal="<= 20 ms", meets_goal=d["frame_ms"] <= 20, repeats=1,
-        baseline="closed-form", baseline_ms=c["frame_ms"],
-        ratio=d["frame_ms"] / c["frame_ms"] if c["frame_ms"] else math.nan,
-        note=f"of it ground features {d['features_ms']:.1f} ms, matching, pose and belief"
-             f" {d['matching_ms']:.1f} ms (medians); descent and closed form at most"
-             f" {apart:.2f} cm apart"))
+        name="templates frame (ground features + matching + pose + belief), 534 px ground",
+        median_ms=wall, cpu_ms=cpu, goal="<= 20 ms (CPU)", meets_goal=cpu <= 20, repeats=1,
+        note=f"of a localize run's frames: ground features {d['features_ms']:.1f} ms, matching,"
+             f" pose and belief {d['matching_ms']:.1f} ms (medians, wall); closed form"
+             f" {c['frame_ms']:.1f} ms against descent {d['frame_ms']:.1f} ms; their poses at"
+             f" most {apart:.2f} cm apart"))
+    rows.append(Row(
+        name="templates frame, 400 px ground of 2 cm (the speed alternative)",
+        median_ms=co_wall, cpu_ms=co_cpu, goal="<= 20 ms (CPU)", meets_goal=co_cpu <= 20,
+        baseline="534 px ground", baseline_ms=cpu, ratio=co_cpu / cpu if cpu else math.nan,
+        repeats=1,
+        note=f"median {co['median_cm']:.1f} cm {co['median_deg']:.2f} deg,"
+             f" {100 * co['within_40']:.1f} % accepted within 40 cm, {co['failed']} failed"
+             f" (ratio: CPU against the 534 px ground's)"))
     rows.append(Row(
         name="templates.h5 for msl-2015 at 1 m against the map (tables at 10 cm)",
         goal="smaller than the map", meets_goal=db_mb < map_mb, repeats=1,
