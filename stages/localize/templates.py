@@ -27,7 +27,11 @@ match within ``pair_sigma_m`` or a wrong one anywhere on the ground image) tempe
 ``temperature`` is the frame's log-likelihood ratio against "no template explains the frame":
 nll = -L / T. The null, what chance explains: the same fit on the same pairs with the query
 points shuffled among them (``null_copies`` copies, the median evidence); a fix that does not
-beat it is not fused, a frame where none does fails (``uninformative``).
+beat it is not fused, a frame where none does fails (``uninformative``). In a frame with a
+global search, elsewhere (the mass of tracking.TrackBank's "other") explains what the null
+explains, also when the vote found nothing but the tracks (then the search has looked
+elsewhere and found nothing better: the mass a poor tracked frame gave elsewhere comes back to
+the tracks); in a frame without one it keeps its share, as for lut.
 
 The fix's covariance for the fusion: position sigma the inliers' rms pair distance (at least
 ``vision_sigma_xy``; not divided by their number: one calibration error moves them together),
@@ -331,8 +335,9 @@ class TemplateLocaliser:
                 fixes_seen.append(fix)
             tracked.append(c)
         new: list[Candidate] = []
-        if (not tracked or not self.last_accepted or lost
-                or i - self.last_global >= int(conf["global_every"])):
+        searched = (not tracked or not self.last_accepted or lost
+                    or i - self.last_global >= int(conf["global_every"]))
+        if searched:
             self.last_global = i
             if tracked:
                 flags.append("global-check")
@@ -371,7 +376,9 @@ class TemplateLocaliser:
             c.beats_null = c.beats_null and c.fix.evidence > null_ev
         if not any(c.fix.evidence > null_ev for c in tracked + new):
             raise FrameFailed("uninformative")
-        other = bank.posterior(tracked, new, other_prior, -null_ev / self.T if new else None)
+        # a global search that ran found what elsewhere explains: the null's share (module doc)
+        other = bank.posterior(tracked, new, other_prior,
+                               -null_ev / self.T if searched else None)
         top = bank.update(i, tracked + new, other, dt, odo, False)
         hyps = bank.hypotheses()
         pose, cov, _confidence, accepted = bank.conclude(hyps, top, bool(tracked), flags)
