@@ -399,8 +399,9 @@ def main(conf: str | dict | None, field, output_dir, *, overwrite: bool = False,
             field, float(traj_conf.get("margin", trajectory.DEFAULTS["margin"])),
             np.random.default_rng([seed, 0x57A27]))}
     path = trajectory.generate(field, n, rate, traj_conf, rng_traj)
+    venue = {} if conf.get("world_seed") is None else {"world_seed": int(conf["world_seed"])}
     world = scene_mod.build(field, conf["scene"], path.stamps, seed, robot_poses=path.poses,
-                            world_seed=conf.get("world_seed"))
+                            **venue)
     renderer = renderer_cls(conf[kind], world, seed)
     # renderers that need the whole path first (the perspective head motion) return extra
     # CSV files to write: {stem: (csv kind, columns)}
