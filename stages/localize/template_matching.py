@@ -28,6 +28,19 @@ and never when r_i <= ``min_outlier_m`` (pairs this close fit within the feature
 precision); the pose is estimated again from the rest, and this is repeated ``outlier_passes``
 times or until no pair is removed (the seed does one pass).
 
+Consensus (``consensus_fit``, what localize's template method uses). On the weakly textured
+floor the correct matches are often fewer than half of the pairs, and a fit from all pairs,
+judged by the spread of its own pair distances, then settles between the wrong ones. With both
+point sets turned to the field's axes (the rotation between them only the heading's error),
+correct pairs agree on one translation t - q and wrong ones scatter: the pairs within
+``radius`` of the densest translation are fitted as above (descent or closed form, the outlier
+rule), every pair within the final outlier limit is taken back, and the pose estimated once
+more.
+
+Matching. A template's own descriptors (about a hundred) are compared with all the query's
+exactly (one matrix product, faster than FLANN's trees at that size, ``BRUTE_FORCE_ROWS``); the
+whole database's, for the vote when lost, are searched by FLANN (kd-trees; LSH for ORB).
+
 Likelihood (what the confidence rests on; stages.localize.templates). A query keypoint matched
 to a template either is the same floor point (its pair distance after the fit is Gaussian with
 sigma ``pair_sigma_m`` per axis) or a wrong match, which lands anywhere on the ground image
@@ -192,7 +205,7 @@ def descent(t: np.ndarray, q: np.ndarray, start=(0.0, 0.0, 0.0), *, tol: float =
             max_steps: int = 10000) -> tuple[np.ndarray, int]:
     """(pose (dx, dy, dtheta), rounds) minimising eq. 4 by the seed's coordinate descent (module
     doc), from ``start``, until no coordinate changes by more than ``tol`` (m, rad) in a round.
-    The sums it needs are computed once: each step is O(1)."""
+    The sums it needs are computed once: each step is O(1) (compiled, ``_descent_rounds``)."""
     t = np.asarray(t, float)
     q = np.asarray(q, float)
     n = len(t)
