@@ -709,6 +709,9 @@ ROWS: dict[str, Callable[[int], Row | list[Row]]] = {
     "real": lambda n: _hyp().bench_real(n),
     "import-rosbag": bench_import_rosbag,
     "templates": lambda n: _templates(n),
+    "batch-throughput": lambda n: _batch().bench_batch_throughput(n),
+    "lut-first-frame": lambda n: _batch().bench_first_frame(n),
+    "batch-worker-memory": lambda n: _batch().bench_worker_memory(n),
 }
 
 
@@ -722,6 +725,12 @@ def _templates(repeat: int):
     from .bench_templates import bench_templates
 
     return bench_templates(repeat)
+
+
+def _batch():
+    from . import bench_batch
+
+    return bench_batch
 
 
 def _persp():
