@@ -73,6 +73,7 @@ log = logging.getLogger(__name__)
 # read by localize.main: this method localises the dataset's images against a template
 # database (templates=), not a features file
 INPUT = "templates"
+camera_kinds = ("omni",)  # localize.method_camera_kinds
 
 confs = {
     "default": {
