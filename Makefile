@@ -18,7 +18,7 @@ FIELD_FILE := $(or $(wildcard maps/$(FIELD).yaml),$(wildcard $(FIELD)))
 HEADING_OPT := $(if $(filter lut,$(METHOD)),--heading $(HEADING))
 RUN     := $(DATA)/runs/$(METHOD)$(if $(filter lut,$(METHOD)),-$(HEADING))
 
-.PHONY: install test lint demo bench bench-readme compare pipeline clean
+.PHONY: install test lint demo templates-demo bench bench-readme compare pipeline clean
 
 install: $(STAMP)
 
@@ -69,6 +69,35 @@ demo: $(STAMP) $(DEMO)/truth.csv
 $(DEMO)/truth.csv: | $(STAMP)
 	@mkdir -p $(OUT)
 	$(FL) simulate omni --field $(FIELD) -o $(DEMO) --frames $(FRAMES) --seed $(SEED) --overwrite
+
+# Seed 004's template method: template captures on a GRID m grid of the whole field and a run
+# in the same venue by the same robot (calib and world seeds shared), templates.h5 from the
+# grid, the run localised against it, evaluated.
+GRID     ?= 1
+TPL      := $(OUT)/templates-demo
+templates-demo: $(STAMP) $(TPL)/runs/templates/report/report.json
+	$(BIN)/fieldloc evaluate --table $(TPL)/runs/templates/report
+
+$(TPL)/grid/truth.csv: | $(STAMP)
+	@mkdir -p $(TPL)
+	$(FL) simulate omni --field $(FIELD) --grid $(GRID) -o $(TPL)/grid --seed $(SEED) \
+		--calib-seed $(SEED) --world-seed $(SEED) --overwrite
+
+$(TPL)/run/truth.csv: | $(STAMP)
+	@mkdir -p $(TPL)
+	$(FL) simulate omni --field $(FIELD) -o $(TPL)/run --frames $(FRAMES) --seed $$(($(SEED) + 1)) \
+		--calib-seed $(SEED) --world-seed $(SEED) --overwrite
+
+$(TPL)/templates.h5: $(TPL)/grid/truth.csv
+	$(FL) build-templates $(TPL)/grid -o $@ --overwrite
+
+$(TPL)/runs/templates/poses.h5: $(TPL)/templates.h5 $(TPL)/run/truth.csv
+	@mkdir -p $(dir $@)
+	$(FL) localize $(TPL)/run --method templates --templates $< -o $@ --overwrite
+
+$(TPL)/runs/templates/report/report.json: $(TPL)/runs/templates/poses.h5
+	$(FL) evaluate $< --truth $(TPL)/run/truth.csv -o $(TPL)/runs/templates/report \
+		--overwrite > /dev/null
 
 # File-based pipeline over any dataset folder: only stale steps run again.
 #   make pipeline DATA=path/to/dataset FIELD=msl-2015 [METHOD=lut HEADING=imu|histogram|truth]

@@ -1,4 +1,5 @@
 """`fieldloc localize DIR --map MAP [--features FILE | --points FILE.csv] [--method lut]
+[--templates templates.h5 (--method templates; --map then optional)]
 [--heading imu|histogram|truth] [--init placement|uniform] [--independent]
 [--min-confidence P] [-o poses.h5] [--preset NAME] [-c key=value] [--overwrite]`."""
 
@@ -19,8 +20,15 @@ MCL_INIT_DEFAULT = stage.method_confs("mcl")["default"]["init"]
 
 @click.command()
 @click.argument("dataset", type=click.Path(path_type=Path))
-@click.option("--map", "map_path", required=True, type=click.Path(dir_okay=False, path_type=Path),
-              help="Map file from `fieldloc build-map` (tables for lut and mcl).")
+@click.option("--map", "map_path", default=None, type=click.Path(dir_okay=False, path_type=Path),
+              help="Map file from `fieldloc build-map` (tables for lut and mcl; required but"
+              " for --method templates, where it only names the field).")
+@click.option("--templates", "templates", default=None,
+              type=click.Path(dir_okay=False, path_type=Path),
+              help="Template database from `fieldloc build-templates` (--method templates).")
+@click.option("--pose-solver", type=click.Choice(["descent", "closed-form"]), default=None,
+              help="templates: the pose of seed 004 eq. 4 by its coordinate descent or in closed"
+              " form (2D Kabsch) [default: descent].")
 @click.option("--features", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Features file from `fieldloc extract` [default: DATASET/features.h5 if it"
               " matches the calibration, mask and default conf and holds every frame, else"
@@ -51,8 +59,9 @@ MCL_INIT_DEFAULT = stage.method_confs("mcl")["default"]["init"]
               help="Localise even when the features were recorded on another field or with"
               " other scan lines than the map's.")
 @click.pass_context
-def localize(ctx, dataset, map_path, features, points, method, heading, init, independent,
-             min_confidence, output, preset, overrides, overwrite, allow_field_mismatch):
+def localize(ctx, dataset, map_path, templates, pose_solver, features, points, method, heading,
+             init, independent, min_confidence, output, preset, overrides, overwrite,
+             allow_field_mismatch):
     """Poses of the frames of DATASET on the field of MAP (poses.h5 + poses.tum)."""
     conf = overrides_dict(overrides)
     if "method" in conf:
@@ -65,15 +74,34 @@ def localize(ctx, dataset, map_path, features, points, method, heading, init, in
         if method != "mcl":
             raise click.UsageError("--init applies to --method mcl")
         conf["init"] = init
+    if method == "templates":
+        if templates is None:
+            raise click.UsageError("--method templates needs --templates FILE (from"
+                                   " fieldloc build-templates)")
+        if features is not None or points is not None:
+            raise click.UsageError("--method templates reads the images: no --features or"
+                                   " --points")
+    else:
+        if templates is not None:
+            raise click.UsageError("--templates applies to --method templates")
+        if map_path is None:
+            raise click.UsageError("Missing option '--map'.")
+    if pose_solver is not None:
+        if method != "templates":
+            raise click.UsageError("--pose-solver applies to --method templates")
+        conf["pose_solver"] = pose_solver
     if independent:
-        if method != "lut":
-            raise click.UsageError("--independent applies to --method lut")
+        if method not in ("lut", "templates"):
+            raise click.UsageError("--independent applies to --method lut and templates")
         conf["independent"] = True
     if min_confidence is not None:
         conf["min_confidence"] = min_confidence
     conf = resolve_conf(stage.confs, stage.preset_name(method, preset), conf)
     output = output or Path(dataset) / f"poses-{method}.h5"
-    if features is None and points is None:  # from the images: extract first, or reuse
+    if method == "templates":
+        path = stage.main(conf, dataset, map_path, output, templates=templates,
+                          overwrite=overwrite, progress=progress_enabled(ctx))
+    elif features is None and points is None:  # from the images: extract first, or reuse
         from stages.pipelines import images_to_poses
 
         path = images_to_poses.main(conf, dataset, map_path, output, overwrite=overwrite,

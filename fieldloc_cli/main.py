@@ -17,6 +17,7 @@ from stages.common.errors import FieldlocError
 # command name -> "module:attribute" (each module only parses options and calls a stage)
 COMMANDS = {
     "build-map": "fieldloc_cli.build_map:build_map",
+    "build-templates": "fieldloc_cli.build_templates:build_templates",
     "simulate": "fieldloc_cli.simulate:simulate",
     "calibrate": "fieldloc_cli.calibrate:calibrate",
     "extract": "fieldloc_cli.extract:extract",

@@ -14,7 +14,7 @@ import click
 
 from stages.common.conf import resolve_conf
 from stages.simulate import confs
-from stages.simulate.trajectory import KINDS
+from stages.simulate.trajectory import PATH_KINDS
 
 from .common import FINITE, conf_option, overrides_dict, progress_enabled, summary
 
@@ -33,7 +33,7 @@ def simulate_options(preset: str):
                          help=f"Number of frames [preset: {base['frames']}]."),
             click.option("--seed", type=int, default=None,
                          help=f"Seed of every random choice [preset: {base['seed']}]."),
-            click.option("--trajectory", "trajectory_kind", type=click.Choice(KINDS),
+            click.option("--trajectory", "trajectory_kind", type=click.Choice(PATH_KINDS),
                          default=None,
                          help="Path of the robot: random waypoints or a loop of the field"
                               f" [preset: {base['trajectory']['kind']}]."),
@@ -78,7 +78,8 @@ def run_simulation(ctx, *, field, output, frames, seed, trajectory_kind, preset,
         if "distance_error" in ce:
             ce["distance_error"] = 0.0
     out = main(conf, field, output, overwrite=overwrite, progress=progress_enabled(ctx))
-    summary(ctx, f"wrote {conf['frames']} frames to {out}")
+    n = sum(1 for _ in (out / "images").glob("*.png"))  # a grid's count is the grid's
+    summary(ctx, f"wrote {n} frames to {out}")
     return out
 
 
@@ -90,18 +91,48 @@ def simulate():
 
 @simulate.command("omni")
 @simulate_options("omni-default")
+@click.option("--grid", "grid_spacing", type=FINITE, default=None, metavar="SPACING",
+              help="Template captures (seed 004): the robot placed at the nodes of a grid of"
+              " SPACING m over the field instead of a path (one frame per node and heading,"
+              " no odometry.csv; --frames and --trajectory do not apply).")
+@click.option("--grid-headings", type=click.IntRange(min=1), default=None, metavar="N",
+              help="With --grid: N headings per node, 360/N deg apart from 0"
+              f" [preset: {confs['omni-default']['trajectory']['grid_headings']}].")
+@click.option("--calib-seed", type=int, default=None,
+              help="Seed of the calibration error calib.yaml states [default: --seed]: the"
+              " same for two datasets makes them one robot's (a template grid and a run).")
+@click.option("--world-seed", type=int, default=None,
+              help="Seed of the venue (carpet, paint, walls) [default: --seed]: the same for"
+              " two datasets records both in one lab.")
 @click.pass_context
 def simulate_omni(ctx, field, output, frames, seed, trajectory_kind, calib_error, preset,
-                  overwrite, overrides):
+                  overwrite, overrides, grid_spacing, grid_headings, calib_seed, world_seed):
     """An omnidirectional (catadioptric) camera on a MSL robot.
 
     \b
-    Example:
+    Examples:
       fieldloc simulate omni --field msl-2015 -o data/omni --frames 100 --seed 1
+      fieldloc simulate omni --field msl-2015 -o data/grid --grid 1.0 --seed 2 --calib-seed 1
     """
+    extra = list(overrides)
+    if grid_spacing is not None:
+        if frames is not None or trajectory_kind is not None:
+            raise click.UsageError("--grid places the robot at the grid's nodes: --frames and"
+                                   " --trajectory do not apply")
+        if not grid_spacing > 0:
+            raise click.UsageError(f"--grid must be > 0 m, got {grid_spacing:g}")
+        extra += ["trajectory.kind=grid", f"trajectory.grid_spacing={grid_spacing!r}"]
+    if grid_headings is not None:
+        if grid_spacing is None:
+            raise click.UsageError("--grid-headings applies to --grid")
+        extra.append(f"trajectory.grid_headings={grid_headings}")
+    if calib_seed is not None:
+        extra.append(f"calib_seed={calib_seed}")
+    if world_seed is not None:
+        extra.append(f"world_seed={world_seed}")
     run_simulation(ctx, field=field, output=output, frames=frames, seed=seed,
                    trajectory_kind=trajectory_kind, preset=preset, overwrite=overwrite,
-                   overrides=overrides, calib_error=calib_error)
+                   overrides=tuple(extra), calib_error=calib_error)
 
 
 @simulate.command("perspective")

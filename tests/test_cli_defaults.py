@@ -17,7 +17,7 @@ import pytest
 from click.testing import CliRunner
 
 from fieldloc_cli.main import cli
-from stages import build_map, calibrate, evaluate, extract, localize, simulate
+from stages import build_map, build_templates, calibrate, evaluate, extract, localize, simulate
 from stages.calibrate import hulks
 from stages.common.conf import stage_conf
 from stages.evaluate import export
@@ -61,6 +61,11 @@ CASES = [
     ("localize mcl", ["localize", "ds", "--map", "m.h5", "--features", "f.h5", "--method",
                       "mcl"], "stages.localize:main", localize.resolve_localize_conf,
      localize.confs["mcl-default"], ("features",), None),
+    ("localize templates", ["localize", "ds", "--method", "templates", "--templates", "t.h5"],
+     "stages.localize:main", localize.resolve_localize_conf, localize.confs["templates-default"],
+     ("templates",), None),
+    ("build-templates", ["build-templates", "ds", "-o", "t.h5"], "stages.build_templates:main",
+     build_templates.resolve_build_conf, build_templates.confs["default"], (), None),
     ("localize from images", ["localize", "ds", "--map", "m.h5"],
      "stages.pipelines.images_to_poses:main", localize.resolve_localize_conf,
      localize.confs["default"], (), None),

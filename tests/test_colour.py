@@ -1,4 +1,4 @@
-"""Colour classes (stages/extract/colour.py): the fast classifier (integer luminance thresholds
+"""Colour classes (stages/common/colour.py): the fast classifier (integer luminance thresholds
 per block, in-place float32 chroma tests on strips of rows, counts per cell) gives the classes
 of the per-pixel formulas of the module doc, evaluated here as written (the reference, as the
 extractor computed them before), on all YUV values and on whole frames."""
@@ -11,8 +11,8 @@ import cv2
 import numpy as np
 import pytest
 
+from stages.common import colour
 from stages.common.errors import FieldlocError
-from stages.extract import colour
 
 CONF = colour.confs["default"]
 

@@ -14,11 +14,12 @@ from click.testing import CliRunner
 
 from fieldloc_cli.main import cli
 from stages import extract
+from stages.common import colour
 from stages.common.camera import OmniCamera, save_calib
 from stages.common.errors import FieldlocError
 from stages.common.features_file import FeaturesFile
 from stages.common.scanlines import ScanLines, bin_points_to_scanlines
-from stages.extract import colour, omni
+from stages.extract import omni
 
 # a mirror like a MSL robot's: 0.25 m at ~50 px, 2 m at ~200 px, 4 m at ~225 px
 CAMERA = OmniCamera(image_size=(480, 480), centre=(238.0, 243.0),

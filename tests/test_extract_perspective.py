@@ -487,7 +487,7 @@ def test_compiled_kernels_give_the_reference_features(preset, field, monkeypatch
     rendered frames of both cameras extracted by the product path and by the reference
     implementations give the same rows (to 1e-6)."""
     from stages import simulate
-    from stages.extract import colour
+    from stages.common import colour
 
     fm = load_field(field)
     conf = dict(simulate.confs[preset])

@@ -1,4 +1,4 @@
-"""Issue 9 changed shared code (stages/extract/colour.py, stages/simulate/scene.py) for the
+"""Issue 9 changed shared code (stages/common/colour.py, stages/simulate/scene.py) for the
 perspective camera only: the omni renderer's frames, the omni extractor's features and the
 colour classes of the omni conf must stay bit-identical. The hashes were computed with the code
 before those changes in this project's environment (first at commit 3c9b69e; then after issue
@@ -15,8 +15,9 @@ import hashlib
 import numpy as np
 
 from stages import simulate
+from stages.common import colour
 from stages.common.field import load_field
-from stages.extract import colour, omni
+from stages.extract import omni
 from stages.simulate import scene, trajectory
 from stages.simulate.omni_renderer import OmniRenderer
 

@@ -1,7 +1,7 @@
 """Rendered omni frames held against real ones (GUIDE section 7), on measurable points.
 
 Colour space: YUV as OpenCV's COLOR_BGR2YUV (BT.601, U and V centred on 128), the one the omni
-extractor classifies in (stages/extract/colour.py). Field green and line white are picked by
+extractor classifies in (stages/common/colour.py). Field green and line white are picked by
 the same loose, classifier-independent rule in real and rendered images (green hue with some
 saturation; white: brighter than the local median by 35, near-neutral chroma, among green).
 

@@ -145,7 +145,7 @@ def test_omni_default_dataset_states_a_team_calibration(tmp_path, spl):
 # ---------------------------------------------------------------------------- trajectory
 
 
-@pytest.mark.parametrize("kind", trajectory.KINDS)
+@pytest.mark.parametrize("kind", trajectory.PATH_KINDS)
 @pytest.mark.parametrize("heading", ["free", "along"])
 def test_trajectory_stays_on_field_with_speeds_in_range(msl, kind, heading):
     conf = {**trajectory.DEFAULTS, "kind": kind, "heading": heading}

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stages import build_map, calibrate, evaluate, extract, localize, simulate
+from stages import build_map, build_templates, calibrate, evaluate, extract, localize, simulate
 from stages.calibrate import hulks
 from stages.common.camera import save_calib
 from stages.common.conf import stage_conf
@@ -42,6 +42,10 @@ def _mains(ds, tmp):
     out = tmp / "out"
     return [
         ("build_map", lambda c: build_map.main(c, "kidsize", out)),
+        ("build_templates", lambda c: build_templates.main(c, ds, out)),
+        ("localize templates", lambda c: localize.main(
+            {"method": "templates", **c} if isinstance(c, dict) else c, ds, None, out,
+            templates=tmp / "t.h5")),
         ("simulate", lambda c: simulate.main(c, "kidsize", out)),
         ("extract", lambda c: extract.main(c, ds, out)),
         ("localize", lambda c: localize.main(c, ds, tmp / "m.h5", out, features=tmp / "f.h5")),
@@ -91,6 +95,8 @@ def _resolvers():
 
     return [
         ("build_map", build_map.confs, lambda c, n: stage_conf(build_map.confs, c)),
+        ("build_templates", build_templates.confs,
+         lambda c, n: build_templates.resolve_build_conf(c)),
         ("simulate", simulate.confs, lambda c, n: simulate.resolve_simulate_conf(c)),
         ("extract", extract.confs,
          lambda c, n: extract.resolve_extract_conf(kind_of_extract(n), c)),

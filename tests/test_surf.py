@@ -1,5 +1,5 @@
-"""Our SURF (stages.extract.surf) against cases computed by hand, and the uniform interface of
-stages.extract.local_features over SURF, SIFT and ORB."""
+"""Our SURF (stages.common.surf) against cases computed by hand, and the uniform interface of
+stages.common.local_features over SURF, SIFT and ORB."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from scipy.stats import norm
 
+from stages.common import local_features as lf
+from stages.common import surf
 from stages.common.errors import FieldlocError
-from stages.extract import local_features as lf
-from stages.extract import surf
 
 BAY = {**surf.confs["default"], "edge_ratio": 0.0}  # the detector exactly as Bay et al.
 

@@ -1,4 +1,4 @@
-"""The robot-centred ground image (stages.extract.unwarp): grid geometry, and rendered lines at
+"""The robot-centred ground image (stages.common.unwarp): grid geometry, and rendered lines at
 known distances landing on the ground pixels they should."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import pytest
 from stages import simulate
 from stages.common.errors import FieldlocError
 from stages.common.field import load_field
-from stages.extract.unwarp import build_unwarp_map, grid_of_conf, ground_grid, unwarp
+from stages.common.unwarp import build_unwarp_map, grid_of_conf, ground_grid, unwarp
 from stages.simulate import scene
 from stages.simulate.omni_renderer import OmniRenderer, camera_from_conf
 

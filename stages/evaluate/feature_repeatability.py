@@ -3,7 +3,7 @@ protocol of Mikolajczyk and Schmid (Mikolajczyk et al., "A comparison of affine 
 detectors", IJCV 2005; as vlbenchmarks' RepeatabilityBenchmark computes it).
 
 Regions. A keypoint (x, y, scale) stands for the circle of radius ``REGION_SCALES`` x scale
-around it (stages.extract.local_features: scale is a sigma for every detector). Image A's
+around it (stages.common.local_features: scale is a sigma for every detector). Image A's
 circles are mapped into image B by the homography H (A -> B); a circle goes through H's local
 affine map at its centre, which for the similarities used here (rotation, scale, translation)
 is exact: a circle of radius r |det J|^(1/2). (For a general homography this replaces the

@@ -11,7 +11,7 @@ through the calibration (stages.common.camera.OmniCamera):
   removed; each pixel keeps the ground position of the samples it holds (robot frame, metres),
   its ground distance from the robot centre and the ground arc length along its scan line;
 - per frame (``extract_frame``): one gather of the scan-line pixels, their colour classes
-  (stages.extract.colour, field green estimated per frame), and run detection on the
+  (stages.common.colour, field green estimated per frame), and run detection on the
   concatenated class sequence. Short holes are closed first (up to ``white_hole_px`` non-white
   pixels between white ones, up to ``max_gap_px`` unclassified pixels between green ones),
   then a crossing is a white run with a green run (>= ``min_green_px`` pixels and >=
@@ -53,8 +53,8 @@ import math
 
 import numpy as np
 
+from ..common import colour
 from ..common.scanlines import ScanLines
-from . import colour
 
 _SL = ScanLines()
 

@@ -2,7 +2,7 @@
 
 ``extract_frame`` runs the chain on one frame, each step in its own module:
 
-1. colour classes per pixel and their counts per 8 x 8 cell (``stages.extract.colour``); the
+1. colour classes per pixel and their counts per 8 x 8 cell (``stages.common.colour``); the
    white of the wide-angle lens's unreliable corners is deleted (``delete_unreliable_corners``);
 2. the field boundary (``field_boundary``);
 3. goal posts: white bars rising above the boundary (``goal_posts``), and white bars standing
@@ -27,9 +27,9 @@ import cv2
 import numpy as np
 from numba import njit
 
+from ..common import colour
 from ..common.errors import DatasetError
 from ..common.geometry import polar
-from . import colour
 from .crossings import find_crossings
 from .field_boundary import DEFAULT_WEIGHTS, boundary_polyline, field_boundary
 from .goal_posts import goal_posts, is_post_bar

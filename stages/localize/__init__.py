@@ -14,6 +14,11 @@ every method as ``<method>-<preset>`` (``mcl-uniform``), each with its ``method`
 "init": "uniform"}``; the method "lut" when it names none); unknown keys are errors, and the
 resolved conf is stored in poses.h5.
 
+Method ``templates`` (seed 004) reads no features: it matches the dataset's own images against
+a template database (``templates``, from build-templates; stages.common.templates), and the map
+is optional (it gives the field; without it, the field the templates record). Its module says
+so with ``INPUT = "templates"``, and its ``run`` takes the database in place of the features.
+
 Features come from a features file (``features``) or from line points of a team's own
 detector (``points``: CSV with columns frame, x, y in the robot frame, binned into the scan
 lines by stages.common.scanlines.bin_points_to_scanlines). From a dataset's images without a
@@ -69,6 +74,7 @@ log = logging.getLogger(__name__)
 METHODS = {
     "lut": "stages.localize.lut",
     "mcl": "stages.localize.mcl",
+    "templates": "stages.localize.templates",
 }
 DEFAULT_METHOD = "lut"
 
@@ -264,9 +270,15 @@ def _abs(p) -> str:
     return os.path.abspath(p)
 
 
-def check_run(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path,
+def uses_templates(method: str) -> bool:
+    """Whether a method localises images against a template database (module doc)."""
+    return getattr(method_module(method), "INPUT", "features") == "templates"
+
+
+def check_run(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path | None,
               output: str | Path, *, features: str | Path | None = None,
-              points: str | Path | None = None, overwrite: bool = False):
+              points: str | Path | None = None, overwrite: bool = False,
+              templates: str | Path | None = None):
     """What ``main`` refuses before it reads a frame (module doc): the output and poses.tum
     beside it, the dataset's time series, the method, the map. Returns (resolved conf, the
     dataset, its series, the inputs the outputs must not be), so that a chain that makes the
@@ -279,23 +291,75 @@ def check_run(conf: dict | str | None, dataset_dir: str | Path, map_path: str | 
     if not dataset_dir.is_dir():
         raise DatasetError(f"dataset folder not found: {dataset_dir}")
     dataset = open_dataset(dataset_dir, need_images=False)
-    inputs_given = {**dataset.files(), "map": map_path, "features": features, "points": points}
+    inputs_given = {**dataset.files(), "map": map_path, "features": features, "points": points,
+                    "templates": templates}
     check_output(output, inputs_given, overwrite=overwrite)
     check_output(output.with_suffix(".tum"), inputs_given, overwrite=None)
     series = {k: dataset.optional(k) for k in ("odometry", "imu", "truth")}  # refused if bad
     method_module(conf["method"])
-    MapFile(map_path).close()
+    if map_path is not None:
+        MapFile(map_path).close()
+    elif not uses_templates(conf["method"]):
+        raise FieldlocError(f"method {conf['method']} needs a map (--map)")
     return conf, dataset, series, inputs_given
 
 
-def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path,
+def _main_templates(conf, dataset_dir, map_path, output, templates, *, overwrite, progress):
+    """``main`` of a method that localises images against templates (module doc)."""
+    from ..common.templates import read_templates
+
+    if templates is None:
+        raise FieldlocError(f"method {conf['method']} needs a template database (--templates,"
+                            " from fieldloc build-templates)")
+    conf, dataset, _series, _given = check_run(conf, dataset_dir, map_path, output,
+                                               overwrite=overwrite, templates=templates)
+    dataset = open_dataset(dataset_dir)  # the images this time
+    db = read_templates(templates)
+    inputs = {"dataset": _abs(dataset_dir), "templates": _abs(templates),
+              "templates_hash": file_hash(templates)}
+    map_file = None
+    if map_path is not None:
+        map_file = MapFile(map_path)
+        inputs.update(map=_abs(map_path), map_hash=file_hash(map_path))
+        name = db.field.get("name")
+        if name and name != map_file.field.name:
+            map_file.close()
+            raise FieldlocError(f"{templates}: templates of field '{name}', the map {map_path}"
+                                f" is of '{map_file.field.name}'")
+    try:
+        log.info("localize %s with %s: %d frames against %d templates", dataset_dir,
+                 conf["method"], len(dataset.names), len(db))
+        track = method_module(conf["method"]).run(conf, dataset, db, map_file, progress)
+    finally:
+        if map_file is not None:
+            map_file.close()
+    field_name = map_file.field.name if map_file is not None else db.field.get("name", "")
+    attrs = root_attrs(SCHEMA, VERSION, conf, inputs)
+    attrs.update(method=conf["method"], field=field_name, dataset=_abs(dataset_dir),
+                 method_report=json.dumps(track.meta, sort_keys=True))
+    path = write_poses(output, track, attrs)
+    log.info("localize %s: %d frames, %d failed -> %s", conf["method"], len(track),
+             int(np.sum(track.failed)), path)
+    return path
+
+
+def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path | None,
          output: str | Path, *, features: str | Path | None = None,
          points: str | Path | None = None, overwrite: bool = False,
-         progress: bool = False, allow_field_mismatch: bool = False) -> Path:
+         progress: bool = False, allow_field_mismatch: bool = False,
+         templates: str | Path | None = None) -> Path:
     """Localise the frames of ``dataset_dir`` on ``map_path`` into ``output`` (poses.h5 and
     poses.tum beside it) from ``features`` (a features file) or ``points`` (a points CSV), and
     return its path. ``allow_field_mismatch``: localise even when the features were recorded
-    on another field or with other scan lines than the map's."""
+    on another field or with other scan lines than the map's. ``templates``: the template
+    database of method templates (module doc; ``map_path`` may then be None)."""
+    resolved = resolve_localize_conf(conf)
+    if uses_templates(resolved["method"]):
+        return _main_templates(resolved, dataset_dir, map_path, output, templates,
+                               overwrite=overwrite, progress=progress)
+    if templates is not None:
+        raise FieldlocError(f"a template database is for --method templates, not"
+                            f" {resolved['method']}")
     if features is None and points is None:
         raise FieldlocError(
             "localize needs the features of the frames (features=, from extract) or line"

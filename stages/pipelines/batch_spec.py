@@ -381,6 +381,9 @@ def _methods(w, entries, skipped) -> list[MethodSpec]:
         if method not in localize.available_methods():
             skipped.append(f"method '{method}' ({where}): not registered in"
                            f" stages.localize.METHODS (known: {', '.join(localize.METHODS)})")
+        elif localize.uses_templates(method):  # its input is a template database per venue
+            skipped.append(f"method '{method}' ({where}): needs a template database"
+                           " (fieldloc build-templates), which batch does not make yet")
         else:
             try:
                 spec.conf = resolve_conf(localize.confs, localize.preset_name(method, preset),

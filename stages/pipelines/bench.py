@@ -483,7 +483,7 @@ FEATURE_CONFS = {"SURF": "surf", "U-SURF": "surf-upright", "SIFT": "sift", "ORB"
 
 
 def ground_images(seed: int = 7, preset: str = "omni-default") -> list:
-    """Grey 512 x 512 ground images (1 cm/px, stages.extract.unwarp defaults) and their valid
+    """Grey 512 x 512 ground images (1 cm/px, stages.common.unwarp defaults) and their valid
     masks, of frames rendered at ``GROUND_POSITIONS`` with headings drawn from ``seed``."""
     key = ("ground", seed, preset)
     if key not in _INPUTS:
@@ -492,8 +492,8 @@ def ground_images(seed: int = 7, preset: str = "omni-default") -> list:
         import cv2
 
         from .. import simulate
+        from ..common import unwarp
         from ..common.field import load_field
-        from ..extract import unwarp
         from ..simulate import scene
         from ..simulate.omni_renderer import OmniRenderer
 
@@ -514,8 +514,8 @@ def pair_scores(conf, H: np.ndarray, images: list) -> dict:
     """Repeatability and matching score of a feature conf over image pairs (A, A warped by H),
     pooled: correspondences and correct matches summed over the pairs, divided by the summed
     min(n_A, n_B)."""
+    from ..common import local_features
     from ..evaluate import feature_repeatability as fr
-    from ..extract import local_features
 
     corr = correct = n_min = detected = 0
     for grey, valid in images:
@@ -536,7 +536,7 @@ def pair_scores(conf, H: np.ndarray, images: list) -> dict:
 def bench_surf_speed(repeat: int) -> list[Row]:
     """Issue 11: SURF detection + description of a 512 x 512 ground image with about 1000
     keypoints <= 0.3 x OpenCV SIFT's time, interleaved on the same image."""
-    from ..extract import local_features
+    from ..common import local_features
 
     grey, valid = ground_images()[0]
     surf_1000 = {"features": "surf", "threshold": 0.0, "max_keypoints": 1000}
@@ -709,6 +709,7 @@ ROWS: dict[str, Callable[[int], Row | list[Row]]] = {
     "lut-hidden-run": lambda n: _hyp().bench_lut_hidden(n),
     "real": lambda n: _hyp().bench_real(n),
     "import-rosbag": bench_import_rosbag,
+    "templates": lambda n: _templates(n),
     "batch-throughput": lambda n: _batch().bench_batch_throughput(n),
     "lut-first-frame": lambda n: _batch().bench_first_frame(n),
     "batch-worker-memory": lambda n: _batch().bench_worker_memory(n),
@@ -725,6 +726,12 @@ def _hyp():
     from . import bench_hypotheses
 
     return bench_hypotheses
+
+
+def _templates(repeat: int):
+    from .bench_templates import bench_templates
+
+    return bench_templates(repeat)
 
 
 def _batch():

@@ -10,6 +10,15 @@ target and renamed at the end, so an interrupted run leaves nothing under the re
 next run onto the same target removes what a killed run left there (``.<name>.fieldloc-<pid>-*
 .part``), with a warning.
 
+Template captures (seed 004): with trajectory kind ``grid`` the robot is placed at the nodes of
+a grid (``trajectory.grid_poses``; ``frames`` is then the number of placements), one frame per
+node and heading, and the dataset has no odometry.csv (the robot was carried from node to node).
+``calib_seed`` (None: ``seed``) draws the calibration error calib.yaml states: two datasets of
+the same ``calib_seed`` and different seeds are one robot recorded twice (another scene, path,
+sensor noise), as a template grid and a run localised against it are; ``world_seed`` (None:
+``seed``) likewise draws the venue (carpet, paint, walls; simulate.scene), so that both are
+recorded in one lab, with the clutter, movers and lighting of their own seeds.
+
 simulation.yaml is also the marker of a dataset made here: ``overwrite`` replaces an existing
 folder only if it holds that marker (``generator: fieldloc simulate``), never another folder (a
 user's files, the folder holding the field YAML), and never one that holds an input. Before
@@ -88,6 +97,8 @@ _OMNI_BASE = {
     "camera": "omni",
     "frames": 300,
     "seed": 0,
+    "calib_seed": None,  # seed of calib.yaml's calibration error (None: seed)
+    "world_seed": None,  # seed of the venue: carpet, paint, walls (None: seed; scene.build)
     "rate_hz": 10.0,  # frames per second
     "trajectory": dict(trajectory.DEFAULTS),
     "odometry": dict(sensors.ODOMETRY_DEFAULTS),
@@ -163,6 +174,8 @@ _PERSPECTIVE_BASE = {
     "camera": "perspective",
     "frames": 300,
     "seed": 0,
+    "calib_seed": None,  # seed of calib.yaml's calibration error (None: seed)
+    "world_seed": None,  # seed of the venue: carpet, paint, walls (None: seed; scene.build)
     "rate_hz": 10.0,
     "trajectory": {**trajectory.DEFAULTS, "speed_min": 0.17, "speed_max": 0.24,
                    "accel_max": 0.3, "lateral_accel_max": 0.08, "turn_rate_max": 0.6,
@@ -337,6 +350,10 @@ def _check_conf(conf: dict):
         raise FieldlocError(f"frames must be a whole number >= 1, got {n!r}")
     if not 0 < float(conf["rate_hz"]) < math.inf:
         raise FieldlocError(f"rate_hz must be > 0, got {conf['rate_hz']!r}")
+    for key in ("calib_seed", "world_seed"):
+        v = conf.get(key)
+        if v is not None and (isinstance(v, bool) or not isinstance(v, int)):
+            raise FieldlocError(f"{key} must be a whole number or null, got {v!r}")
     ce = conf["calib_error"]
     if len(ce.get("centre_shift", ())) != 2:
         raise FieldlocError("calib_error.centre_shift must be [du, dv] (px)")
@@ -356,6 +373,9 @@ def main(conf: str | dict | None, field, output_dir, *, overwrite: bool = False,
         p = Path(field)
         field_file = p if p.suffix.lower() in (".yaml", ".yml") or p.exists() else None
         field = load_field(field)
+    grid = conf["trajectory"].get("kind") == "grid"
+    if grid:  # one frame per placement
+        conf["frames"] = len(trajectory.grid_poses(field, conf["trajectory"]))
     _check_conf(conf)
     _restore_interrupted_replacement(output_dir)
     _check_target(output_dir, overwrite, field_file)
@@ -379,12 +399,15 @@ def main(conf: str | dict | None, field, output_dir, *, overwrite: bool = False,
             field, float(traj_conf.get("margin", trajectory.DEFAULTS["margin"])),
             np.random.default_rng([seed, 0x57A27]))}
     path = trajectory.generate(field, n, rate, traj_conf, rng_traj)
-    world = scene_mod.build(field, conf["scene"], path.stamps, seed, robot_poses=path.poses)
+    venue = {} if conf.get("world_seed") is None else {"world_seed": int(conf["world_seed"])}
+    world = scene_mod.build(field, conf["scene"], path.stamps, seed, robot_poses=path.poses,
+                            **venue)
     renderer = renderer_cls(conf[kind], world, seed)
     # renderers that need the whole path first (the perspective head motion) return extra
     # CSV files to write: {stem: (csv kind, columns)}
     extra_csv = renderer.prepare(path) if hasattr(renderer, "prepare") else {}
-    written = written_camera(module, renderer.camera, conf["calib_error"], seed)
+    calib_seed = seed if conf.get("calib_seed") is None else int(conf["calib_seed"])
+    written = written_camera(module, renderer.camera, conf["calib_error"], calib_seed)
 
     others = world.robot_positions()  # (K, N, 2)
     contact = float(conf["imu"].get("contact_distance", sensors.IMU_DEFAULTS["contact_distance"]))
@@ -407,8 +430,9 @@ def main(conf: str | dict | None, field, output_dir, *, overwrite: bool = False,
         write_csv(tmp / "frames.csv", "frames", {"name": names, "stamp": stamps})
         write_csv(tmp / "truth.csv", "truth", {"stamp": stamps, "x": path.poses[:, 0],
                                                "y": path.poses[:, 1], "theta": path.poses[:, 2]})
-        write_csv(tmp / "odometry.csv", "odometry", {"stamp": stamps, "dx": odo[:, 0],
-                                                     "dy": odo[:, 1], "dtheta": odo[:, 2]})
+        if not grid:  # placements have no odometry between them
+            write_csv(tmp / "odometry.csv", "odometry", {"stamp": stamps, "dx": odo[:, 0],
+                                                         "dy": odo[:, 1], "dtheta": odo[:, 2]})
         write_csv(tmp / "imu.csv", "imu", {"stamp": stamps, "yaw": yaw,
                                            "collision": collisions.astype(float)})
         for stem, (csv_kind, columns) in extra_csv.items():
@@ -422,6 +446,8 @@ def main(conf: str | dict | None, field, output_dir, *, overwrite: bool = False,
             "field_yaml_hash": text_hash(field.spec_text),
             "camera": kind,
             "seed": seed,
+            "calib_seed": calib_seed,
+            "world_seed": seed if conf.get("world_seed") is None else int(conf["world_seed"]),
             "frames": n,
             "true_camera": renderer.camera.to_dict(),
             "conf": _plain(conf),

@@ -14,7 +14,10 @@ renderer looks at.
   lamps on them.
 - Lighting over time: a gain and a white balance per frame (lamps, daylight, auto exposure).
 
-All of it is drawn from one seed. Texture coordinates: column = (x - x0) / res, row =
+All of it is drawn from one seed, or two: ``world_seed`` (the venue: carpet, paint, sun patches,
+walls) apart from ``seed`` (a session in it: the clutter lying about, the movers, the lighting
+over time), so that two sessions recorded in one lab see the same floor; by default both are
+``seed``. Texture coordinates: column = (x - x0) / res, row =
 (y - y0) / res over the world rectangle inside the walls.
 """
 
@@ -548,14 +551,24 @@ def handler_tracks(robot_poses, count: int, distance, rng) -> np.ndarray:
     return out
 
 
-def build(field, conf: dict | None, stamps, seed: int, robot_poses=None) -> FieldScene:
-    """The world for ``field`` over the frames at ``stamps``, all drawn from ``seed``;
-    ``robot_poses`` (N, 3), the recording robot's path, places the people who walk along."""
+def build(field, conf: dict | None, stamps, seed: int, robot_poses=None,
+          world_seed: int | None = None) -> FieldScene:
+    """The world for ``field`` over the frames at ``stamps``, drawn from ``seed`` (the venue
+    from ``world_seed`` when given, module doc); ``robot_poses`` (N, 3), the recording robot's
+    path, places the people who walk along."""
     c = _merged(conf)
+    same_world = world_seed is None or int(world_seed) == int(seed)
     ss = np.random.SeedSequence([int(seed), 0x5CE2E])
     rng_ground, rng_lines, rng_walls, rng_movers, rng_light = (
         np.random.default_rng(s) for s in ss.spawn(5)
     )
+    rng_clutter = rng_ground  # drawn after the carpet
+    if not same_world:  # the venue from world_seed, the session's clutter from seed
+        ws = np.random.SeedSequence([int(world_seed), 0x5CE2E])
+        rng_ground, rng_lines, rng_walls, _m, _l = (np.random.default_rng(s)
+                                                    for s in ws.spawn(5))
+        rng_clutter = np.random.default_rng([int(seed), 0xC1077E2])
+        ss = ws  # sun patches and shadows below belong to the venue
     stamps = np.asarray(stamps, dtype=float)
     cx0, cx1, cy0, cy1 = field.world_bounds()
     gap = c["wall_gap"]
@@ -570,7 +583,7 @@ def build(field, conf: dict | None, stamps, seed: int, robot_poses=None) -> Fiel
         light = light * sun_and_shadows(c, shape, res, origin,
                                         np.random.default_rng(ss.spawn(1)[0]))
     albedo = np.clip(ground * light[..., None], 0, 255).astype(np.uint8)
-    _draw_clutter(albedo, c, field, res, np.asarray(origin), rng_ground)
+    _draw_clutter(albedo, c, field, res, np.asarray(origin), rng_clutter)
     lf, lorigin, line_light = _line_field(c, field, c["line_resolution"], rng_lines)
     # the lamps light the paint too
     rows = (lorigin[1] - origin[1] + np.arange(line_light.shape[0]) * LINE_LIGHT_RES) / res

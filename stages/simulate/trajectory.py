@@ -12,7 +12,9 @@ omnidirectional MSL robot). Every number is a conf value, so the same generator 
 MSL robot (0.2-2 m/s) or a slow humanoid (e.g. 0.05-0.3 m/s, ``heading: along``).
 
 Kinds: ``random`` (random waypoints inside the field), ``loop`` (the same controller around a fixed
-ring of waypoints, a repeatable tour of the field).
+ring of waypoints, a repeatable tour of the field), ``grid`` (no path: the robot placed at the
+nodes of a square grid, each at ``grid_headings`` headings, as template captures of seed 004 are
+taken; ``grid_poses``).
 """
 
 from __future__ import annotations
@@ -25,7 +27,8 @@ import numpy as np
 from ..common.errors import FieldlocError
 from ..common.geometry import wrap_angle
 
-KINDS = ("random", "loop")
+PATH_KINDS = ("random", "loop")  # a path driven by the controller
+KINDS = (*PATH_KINDS, "grid")
 
 # The conf keys a trajectory needs (stage presets carry them under "trajectory").
 DEFAULTS = {
@@ -43,6 +46,15 @@ DEFAULTS = {
     "waypoint_margin": 0.8,  # m: waypoints lie this far inside the margin box
     "start": None,  # [x, y, theta] or None (random, seeded)
     "substeps": 10,  # integration steps per frame
+    # kind grid: nodes at multiples of grid_spacing (m) on the field (inside its lines), each at
+    # grid_headings headings 360 / grid_headings deg apart from grid_heading (rad); with
+    # grid_centre [x, y] and grid_half_size (m) only the nodes of that square, spaced from its
+    # centre
+    "grid_spacing": 1.0,
+    "grid_headings": 1,
+    "grid_heading": 0.0,
+    "grid_centre": None,
+    "grid_half_size": None,
 }
 
 
@@ -89,6 +101,47 @@ def _check(conf: dict, box: tuple[float, float]):
     return c
 
 
+def grid_poses(field, conf: dict) -> np.ndarray:
+    """The poses (N, 3) of kind ``grid`` (module doc): nodes in rows of increasing y, x
+    increasing within a row, all headings of a node in a row, headings counter-clockwise."""
+    c = {**DEFAULTS, **conf}
+    try:
+        spacing = float(c["grid_spacing"])
+        n_head = int(c["grid_headings"])
+        heading = float(c["grid_heading"])
+    except (TypeError, ValueError) as e:
+        raise FieldlocError(f"trajectory grid: malformed value ({e})") from None
+    if not (spacing > 0 and math.isfinite(spacing)) or n_head < 1 or not math.isfinite(heading):
+        raise FieldlocError(f"trajectory grid needs grid_spacing > 0 and grid_headings >= 1, got"
+                            f" {c['grid_spacing']!r} and {c['grid_headings']!r}")
+    hx, hy = field.length / 2, field.width / 2
+    if c["grid_centre"] is None:
+        cx = cy = 0.0
+        ax, ay = hx, hy
+    else:
+        try:
+            cx, cy = (float(v) for v in c["grid_centre"])
+            half = float(c["grid_half_size"]) if c["grid_half_size"] is not None else max(hx, hy)
+        except (TypeError, ValueError):
+            raise FieldlocError("trajectory grid_centre must be [x, y] and grid_half_size a"
+                                " number of metres") from None
+        ax = ay = half
+    eps = 1e-9 * max(1.0, hx, hy)
+
+    def axis(c0, a, lim):
+        k = np.arange(-math.floor(a / spacing + 1e-9), math.floor(a / spacing + 1e-9) + 1)
+        v = c0 + k * spacing
+        return v[np.abs(v) <= lim + eps]
+
+    xs, ys = axis(cx, ax, hx), axis(cy, ay, hy)
+    if not len(xs) or not len(ys):
+        raise FieldlocError(f"trajectory grid: no node of the grid around ({cx:g}, {cy:g}) lies"
+                            f" on the field ({field.length:g} x {field.width:g} m)")
+    th = wrap_angle(heading + 2 * math.pi * np.arange(n_head) / n_head)
+    gy, gx, gt = np.meshgrid(ys, xs, th, indexing="ij")
+    return np.stack([gx.ravel(), gy.ravel(), np.asarray(gt, float).ravel()], axis=1)
+
+
 def generate(field, n_frames: int, rate_hz: float, conf: dict, rng: np.random.Generator,
              ) -> Trajectory:
     """A trajectory of ``n_frames`` poses at ``rate_hz`` on ``field`` (a FieldModel)."""
@@ -99,6 +152,9 @@ def generate(field, n_frames: int, rate_hz: float, conf: dict, rng: np.random.Ge
     margin = float({**DEFAULTS, **conf}["margin"])
     box = (field.length / 2 - margin, field.width / 2 - margin)
     c = _check(conf, box)
+    if c["kind"] == "grid":  # placements, no path: n_frames is the grid's
+        poses = grid_poses(field, c)
+        return Trajectory(stamps=np.arange(len(poses)) / rate_hz, poses=poses)
     vmin, vmax = float(c["speed_min"]), float(c["speed_max"])
     a_max, a_lat = float(c["accel_max"]), float(c["lateral_accel_max"])
     w_max = float(c["turn_rate_max"])

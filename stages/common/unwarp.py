@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ..common.errors import FieldlocError
+from .errors import FieldlocError
 
 confs = {
     # 512 x 512 px of 1 cm: +-2.56 m around the robot, about as fine as the default mirror's
@@ -126,7 +126,7 @@ class UnwarpMap:
 
 def build_unwarp_map(camera, grid: GroundGrid, mask: np.ndarray | None = None) -> UnwarpMap:
     """The pixel map of ``grid`` through ``camera`` (an OmniCamera). ``mask``: the dataset's
-    bool (h, w) mask of usable image pixels (stages.extract.read_mask), or None."""
+    bool (h, w) mask of usable image pixels (stages.common.dataset.read_mask), or None."""
     if getattr(camera, "kind", None) != "omni":
         raise FieldlocError("a ground image needs an omnidirectional camera (calib kind omni)")
     idx = np.arange(grid.size, dtype=float)
@@ -180,5 +180,5 @@ def unwarp(image: np.ndarray, camera, grid: GroundGrid,
     m = unwarp_map(camera, grid, mask)
     ground = cv2.remap(image, m.map_u, m.map_v, cv2.INTER_LINEAR,
                        borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    ground[~m.valid] = 0
+    ground = cv2.bitwise_and(ground, ground, mask=m.valid.view(np.uint8))  # invalid: 0
     return ground, m.valid

@@ -45,7 +45,7 @@ import cv2
 import numpy as np
 from numba import njit
 
-from ..common.errors import FieldlocError
+from .errors import FieldlocError
 
 GREEN, WHITE, OTHER = 0, 1, 2
 Y_REF = 100.0  # luminance the field green search rescales chroma to

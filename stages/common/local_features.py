@@ -1,4 +1,4 @@
-"""Local image features behind one interface: our SURF (stages.extract.surf), OpenCV's SIFT
+"""Local image features behind one interface: our SURF (stages.common.surf), OpenCV's SIFT
 and ORB, so that users can compare them (``--features surf|sift|orb``).
 
     keypoints, descriptors = detect_and_describe(image_gray, mask, "surf")
@@ -30,9 +30,9 @@ import math
 
 import numpy as np
 
-from ..common.conf import resolve_conf
-from ..common.errors import FieldlocError
 from . import surf
+from .conf import resolve_conf
+from .errors import FieldlocError
 
 KEYPOINT_COLUMNS = ("x", "y", "scale", "orientation", "response", "laplacian")
 FEATURES = ("surf", "sift", "orb")

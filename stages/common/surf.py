@@ -69,9 +69,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..common.errors import FieldlocError
+from .errors import FieldlocError
 
-# keypoint columns (the layout of stages.extract.local_features)
+# keypoint columns (the layout of stages.common.local_features)
 X, Y, SCALE, ORIENTATION, RESPONSE, LAPLACIAN = range(6)
 N_COLUMNS = 6
 DESCRIPTOR_SIZE = 64

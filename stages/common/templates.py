@@ -1,0 +1,187 @@
+"""The template database (schema ``fieldloc.templates``, version 1): seed 004's sets of local
+features of the floor, one per capture at a known pose, from ``build-templates``; localize's
+template method matches queries against it.
+
+Root attributes: the common ones (artifacts.root_attrs: schema, version, conf, inputs) plus
+
+    @feature_kind        surf | sift | orb
+    @descriptor_metric   l2 | hamming (ORB's bytes)
+    @ground_features     JSON: the stages.common.ground_features conf the features were made
+                         with (ground image grid, i.e. the unwarp conf, feature conf, field mask
+                         conf); a query must be made with the same conf
+    @field               JSON: the field record of the captures (name, size), as in features
+    @n_templates         T
+    @field_axes          1: every template was described in its ground image turned to the
+                         field's axes by its heading (upright descriptors that compare across
+                         headings; a query must be described so too), 0: in the robot's axes
+
+Datasets (the features of all templates one after another, template k owning rows
+``offsets[k]:offsets[k + 1]``, each template's strongest first):
+
+    /names        (T,)    str     the capture's frame name
+    /poses        (T, 3)  m, rad  the capture's pose on the field (x, y, theta)
+    /offsets      (T + 1,) int64  first feature row of each template, then N
+    /points       (N, 2)  m       keypoint positions in the capture's robot frame (x forward,
+                                  y left)
+    /orientation  (N,)    rad     keypoint orientation in the robot frame (0 for upright SURF)
+    /scale        (N,)    m       the detector's sigma on the floor
+    /laplacian    (N,)    int8    sign of the Laplacian (+1 dark blob, -1 bright; 0: unknown)
+    /response     (N,)            detector strength
+    /descriptors  (N, D)          float32 (SURF 64, SIFT 128) or uint8 (ORB 32 bytes)
+
+A flat layout (not one group per template): the whole database loads in a few reads, and a
+descriptor index over it is one array. A file that is not of this schema, or whose arrays do
+not agree (lengths, offsets, descriptor width), is refused with one line (SchemaError).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from dataclasses import field as _field
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from .artifacts import open_artifact, read_json_attr, write_artifact
+from .errors import SchemaError
+from .ground_features import GroundFeatures
+
+SCHEMA = "fieldloc.templates"
+VERSION = 1
+
+# name -> units of the per-feature datasets
+FEATURE_DATASETS = {"points": "m", "orientation": "rad", "scale": "m", "laplacian": "",
+                    "response": "", "descriptors": ""}
+
+
+@dataclass
+class TemplateDatabase:
+    """All templates of a file, in memory (module doc for the fields)."""
+
+    names: list[str]
+    poses: np.ndarray  # (T, 3)
+    offsets: np.ndarray  # (T + 1,)
+    points: np.ndarray  # (N, 2)
+    orientation: np.ndarray
+    scale: np.ndarray
+    laplacian: np.ndarray  # int8
+    response: np.ndarray
+    descriptors: np.ndarray  # (N, D)
+    feature_kind: str
+    ground_conf: dict
+    field: dict = _field(default_factory=dict)
+    field_axes: bool = False
+    path: Path | None = None
+    attrs: dict = _field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    @property
+    def owner(self) -> np.ndarray:
+        """(N,) the template index of every feature row."""
+        return np.repeat(np.arange(len(self.names)), np.diff(self.offsets))
+
+    def template(self, k: int) -> GroundFeatures:
+        """Template k's features (views into the database's arrays)."""
+        a, b = int(self.offsets[k]), int(self.offsets[k + 1])
+        return GroundFeatures(points=self.points[a:b], orientation=self.orientation[a:b],
+                              scale=self.scale[a:b], laplacian=self.laplacian[a:b],
+                              response=self.response[a:b], descriptors=self.descriptors[a:b])
+
+    @classmethod
+    def from_templates(cls, names, poses, feats: list[GroundFeatures], *, feature_kind: str,
+                       ground_conf: dict, field_record: dict | None = None,
+                       field_axes: bool = False,
+                       descriptor_width: int, descriptor_dtype) -> TemplateDatabase:
+        """A database of the captures ``names`` at ``poses`` with features ``feats``."""
+        counts = [len(f) for f in feats]
+        offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+
+        def cat(attr, shape, dtype):
+            parts = [np.asarray(getattr(f, attr), dtype).reshape((-1, *shape)) for f in feats]
+            return np.concatenate(parts) if parts else np.zeros((0, *shape), dtype)
+
+        return cls(names=[str(n) for n in names],
+                   poses=np.asarray(poses, float).reshape(-1, 3), offsets=offsets,
+                   points=cat("points", (2,), np.float64),
+                   orientation=cat("orientation", (), np.float64),
+                   scale=cat("scale", (), np.float64),
+                   laplacian=cat("laplacian", (), np.int8),
+                   response=cat("response", (), np.float64),
+                   descriptors=cat("descriptors", (descriptor_width,), descriptor_dtype),
+                   feature_kind=feature_kind, ground_conf=ground_conf,
+                   field=dict(field_record or {}), field_axes=bool(field_axes))
+
+
+def write_templates(path: str | Path, db: TemplateDatabase, attrs: dict) -> Path:
+    """Write ``db`` atomically with the root ``attrs`` (artifacts.root_attrs) to ``path``."""
+    from .local_features import DESCRIPTOR_METRIC
+
+    path = Path(path)
+    all_attrs = dict(attrs)
+    all_attrs.update(feature_kind=db.feature_kind,
+                     descriptor_metric=DESCRIPTOR_METRIC[db.feature_kind],
+                     ground_features=json.dumps(db.ground_conf, sort_keys=True),
+                     field=json.dumps(db.field, sort_keys=True), n_templates=len(db),
+                     field_axes=int(db.field_axes))
+    with write_artifact(path, all_attrs) as f:
+        f.create_dataset("names", data=np.array(db.names, dtype=object),
+                         dtype=h5py.string_dtype())
+        d = f.create_dataset("poses", data=db.poses.astype(np.float64))
+        d.attrs["units"] = "m, m, rad"
+        f.create_dataset("offsets", data=db.offsets.astype(np.int64))
+        for name, units in FEATURE_DATASETS.items():
+            arr = getattr(db, name)
+            d = f.create_dataset(name, data=arr, compression="gzip" if arr.size > 4096 else None,
+                                 shuffle=arr.size > 4096)
+            if units:
+                d.attrs["units"] = units
+    return path
+
+
+def read_templates(path: str | Path) -> TemplateDatabase:
+    """The database of a templates file; SchemaError (one line) for anything else."""
+    path = Path(path)
+    f = open_artifact(path, SCHEMA, VERSION)
+    with f:
+        try:
+            names = [n.decode() if isinstance(n, bytes) else str(n) for n in f["names"][()]]
+            arrays = {k: f[k][()] for k in ("poses", "offsets", *FEATURE_DATASETS)}
+            kind = f.attrs["feature_kind"]
+            kind = kind.decode() if isinstance(kind, bytes) else str(kind)
+            ground_conf = read_json_attr(f, "ground_features")
+            field_record = read_json_attr(f, "field")
+            field_axes = bool(int(f.attrs["field_axes"]))
+            attrs = {k: f.attrs[k] for k in f.attrs}
+        except (KeyError, OSError, ValueError, TypeError) as e:
+            raise SchemaError(f"{path}: damaged '{SCHEMA}' file ({e})") from None
+    t, n = len(names), len(arrays["points"])
+    off = np.asarray(arrays["offsets"])
+    problems = []
+    if arrays["poses"].shape != (t, 3):
+        problems.append(f"poses {arrays['poses'].shape} for {t} templates")
+    if off.shape != (t + 1,) or (t + 1 and (off[0] != 0 or off[-1] != n
+                                             or np.any(np.diff(off) < 0))):
+        problems.append("offsets do not partition the features")
+    for k in FEATURE_DATASETS:
+        if len(arrays[k]) != n:
+            problems.append(f"{k} has {len(arrays[k])} rows, points {n}")
+    if arrays["points"].ndim != 2 or arrays["points"].shape[1:] != (2,):
+        problems.append("points are not (N, 2)")
+    if arrays["descriptors"].ndim != 2:
+        problems.append("descriptors are not (N, D)")
+    if problems:
+        raise SchemaError(f"{path}: damaged '{SCHEMA}' file: {problems[0]}")
+    return TemplateDatabase(names=names, poses=np.asarray(arrays["poses"], float),
+                            offsets=off.astype(np.int64),
+                            points=np.asarray(arrays["points"], float),
+                            orientation=np.asarray(arrays["orientation"], float),
+                            scale=np.asarray(arrays["scale"], float),
+                            laplacian=np.asarray(arrays["laplacian"]).astype(np.int8),
+                            response=np.asarray(arrays["response"], float),
+                            descriptors=arrays["descriptors"], feature_kind=kind,
+                            ground_conf=ground_conf, field=field_record, field_axes=field_axes,
+                            path=path, attrs=attrs)
