@@ -53,7 +53,7 @@ from ..common.artifacts import check_output, file_hash, refuse_inputs, text_hash
 from ..common.batch_file import RUN_NAME, read_json, write_batch, write_json
 from ..common.conf import stage_conf
 from ..common.errors import FieldlocError
-from .batch_spec import DatasetSpec, Plan, RunSpec, read_spec
+from .batch_spec import DatasetSpec, Plan, RunSpec, TemplatesSpec, read_spec
 
 log = logging.getLogger("fieldloc.batch")
 
@@ -135,6 +135,11 @@ def _check_results(plan: Plan) -> Path:
             inputs[f"dataset {ds.name}"] = ds.source
         if isinstance(ds.calib, str):
             inputs[f"calibration of {ds.name}"] = ds.calib
+    for t in plan.templates.values():
+        if t.kind == "file":
+            inputs[f"templates {Path(t.path).name}"] = t.path
+        elif t.kind == "captures":
+            inputs[f"captures {t.captures.name}"] = t.captures
     inputs["maps"] = sorted({ds.map for ds in plan.datasets} - set(plan.maps))
     refuse_inputs(results, inputs, kind="folder")
     check_output(results, None, overwrite=None, kind="folder")
@@ -177,10 +182,12 @@ def _dataset_identity(ds: DatasetSpec) -> str:
 
 
 def run_inputs(plan: Plan, run: RunSpec) -> dict:
-    """What a finished run was made from, as recorded in its run.json."""
+    """What a finished run was made from, as recorded in its run.json: a template method's
+    template database in place of the features."""
     ds = run.dataset
-    return {"dataset": _dataset_identity(ds), "map": _hash(ds.map),
-            "features": _hash(_features_path(ds)),
+    source = ({"templates": _hash(ds.templates.path)} if run.method.templates
+              else {"features": _hash(_features_path(ds))})
+    return {"dataset": _dataset_identity(ds), "map": _hash(ds.map), **source,
             "truth": _hash(ds.dir / "truth.csv") if ds.truth else "",
             "localize": run.method.conf, "evaluate": plan.evaluate}
 
@@ -198,6 +205,8 @@ def finished(plan: Plan, run: RunSpec) -> bool:
         return False
     ds = run.dataset
     if ds.kind == "simulate" and not _simulated_as_asked(ds):
+        return False
+    if run.method.templates and reusable_templates(ds.templates) is not None:
         return False
     return _same(rec.get("inputs"), run_inputs(plan, run))
 
@@ -244,11 +253,16 @@ def prepare_dataset(ds: DatasetSpec) -> str:
 
 
 def _simulated_as_asked(ds: DatasetSpec) -> bool:
+    return _rendered_as_asked(ds.dir, ds.simulate, ds.sim_field)
+
+
+def _rendered_as_asked(folder: Path, conf: dict, field_arg: str) -> bool:
+    """Whether ``folder`` holds a rendering by simulate of ``conf`` on ``field_arg``."""
     import yaml
 
     from ..common.dataset import SIMULATION_RECORD
 
-    rec = ds.dir / SIMULATION_RECORD
+    rec = folder / SIMULATION_RECORD
     if not rec.is_file():
         return False
     try:
@@ -257,9 +271,9 @@ def _simulated_as_asked(ds: DatasetSpec) -> bool:
         return False
     from ..common.field import load_field
 
-    want = json.loads(json.dumps(ds.simulate))
+    want = json.loads(json.dumps(conf))
     return (isinstance(got, dict) and _same(got.get("conf"), want)
-            and got.get("field_yaml_hash") == text_hash(load_field(ds.sim_field).spec_text))
+            and got.get("field_yaml_hash") == text_hash(load_field(field_arg).spec_text))
 
 
 def _calibrated_view(ds: DatasetSpec) -> str:
@@ -314,6 +328,58 @@ def prepare_map(path: str, field_arg: str, build_conf: dict) -> str:
     p.parent.mkdir(parents=True, exist_ok=True)
     build_map.main(build_conf, field_arg, p, overwrite=True)
     return path
+
+
+def reusable_templates(t: TemplatesSpec) -> str | None:
+    """Why the template database of ``t`` cannot be read as it is (None: it can): a file of
+    the user's always can; one built here must exist, from the captures as they are (a grid
+    rendered from its simulate conf; their calib.yaml, truth.csv and mask by content hash) and
+    with the build conf of the SPEC."""
+    import h5py
+
+    if t.kind == "file":
+        return None
+    path = Path(t.path)
+    if not path.is_file():
+        return f"{path} does not exist"
+    if t.kind == "grid" and not _rendered_as_asked(t.captures, t.simulate, t.sim_field):
+        return f"{t.captures} is not rendered from the SPEC's grid"
+    try:
+        with h5py.File(path, "r") as f:
+            conf = json.loads(f.attrs["conf"])
+            inputs = json.loads(f.attrs["inputs"])
+    except (OSError, KeyError, ValueError):
+        return f"{path} is not a template database"
+    want = {"dataset": os.path.abspath(t.captures), "calib_hash": _hash(t.captures / "calib.yaml"),
+            "truth_hash": _hash(t.captures / "truth.csv")}
+    if (t.captures / "mask.png").is_file():
+        want["mask_hash"] = _hash(t.captures / "mask.png")
+    if not _same(inputs, want):
+        return f"{path} was built from other captures"
+    if not _same(conf, t.build):
+        return f"{path} was built with another conf"
+    return None
+
+
+def prepare_templates(t: TemplatesSpec) -> str:
+    """The template database of ``t``: a file of the user's as it is; one built here reused
+    when it is what build-templates would make now (``reusable_templates``), else built, from
+    the grid rendered first (again, when it was rendered from other options)."""
+    from .. import build_templates
+
+    if reusable_templates(t) is None:
+        return t.path
+    path = Path(t.path)
+    if t.kind == "grid" and not _rendered_as_asked(t.captures, t.simulate, t.sim_field):
+        from .. import simulate
+
+        t.captures.parent.mkdir(parents=True, exist_ok=True)
+        for old in path.parent.glob(f"{t.captures.name}.*.templates.h5"):
+            old.unlink()  # built from an earlier rendering of this grid
+        simulate.main(t.simulate, t.sim_field, t.captures, overwrite=True)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    build_templates.main(t.build, t.captures, path, overwrite=True)
+    return t.path
 
 
 def _features_path(ds: DatasetSpec) -> Path:
@@ -381,9 +447,10 @@ def _captured_logs():
 
 
 def do_run(run: RunSpec, results: str, evaluate_conf: dict, inputs_plan: dict,
-           dataset_dir: str, map_path: str, features: str) -> dict:
-    """One run: localize, then evaluate against the dataset's truth (without truth: the poses'
-    frame counts and runtimes), then run.json. Never raises: a failure is the record's."""
+           dataset_dir: str, map_path: str, source: str) -> dict:
+    """One run: localize from ``source`` (the features file, or a template method's template
+    database), then evaluate against the dataset's truth (without truth: the poses' frame
+    counts and runtimes), then run.json. Never raises: a failure is the record's."""
     from .. import evaluate, localize
     from ..common.poses_file import read_poses
 
@@ -398,8 +465,10 @@ def do_run(run: RunSpec, results: str, evaluate_conf: dict, inputs_plan: dict,
         try:
             out.mkdir(parents=True, exist_ok=True)
             (out / RUN_NAME).unlink(missing_ok=True)
+            given = ({"templates": source} if run.method.templates
+                     else {"features": source})
             poses = localize.main(run.method.conf, dataset_dir, map_path, out / "poses.h5",
-                                  features=features, overwrite=True)
+                                  overwrite=True, **given)
             if run.dataset.truth:
                 evaluate.main(evaluate_conf, poses, Path(dataset_dir) / "truth.csv",
                               out / REPORT_DIR, overwrite=True)
@@ -412,9 +481,14 @@ def do_run(run: RunSpec, results: str, evaluate_conf: dict, inputs_plan: dict,
             log.debug("run %s failed:\n%s", run.key, traceback.format_exc())
     rec["warnings"] = warnings
     rec["seconds"] = time.perf_counter() - t0
-    rec["inputs"] = {**inputs_plan, "map": _hash(map_path), "features": _hash(features)}
+    rec["inputs"] = {**inputs_plan, "map": _hash(map_path),
+                     _source_key(run): _hash(source)}
     write_json(out / RUN_NAME, rec)
     return rec
+
+
+def _source_key(run: RunSpec) -> str:
+    return "templates" if run.method.templates else "features"
 
 
 def one_line(e: BaseException) -> str:
@@ -443,18 +517,22 @@ def _summary_without_truth(cols) -> dict:
 
 
 def _steps(plan: Plan, todo: list[RunSpec]):
-    """The preparation steps the runs need: (datasets by name, maps by path, features by
-    dataset name), each once."""
+    """The preparation steps the runs need, each once: (datasets by name, maps by path, the
+    names of the datasets whose features are read, template databases by path)."""
     datasets = {r.dataset.name: r.dataset for r in todo}
     maps = {r.dataset.map: plan.maps[r.dataset.map] for r in todo
             if r.dataset.map in plan.maps}
-    return datasets, maps
+    featured = [n for n in datasets if any(r.dataset.name == n and not r.method.templates
+                                           for r in todo)]
+    templates = {r.dataset.templates.path: r.dataset.templates for r in todo
+                 if r.method.templates}
+    return datasets, maps, featured, templates
 
 
 def _inputs_plan(plan: Plan, run: RunSpec) -> dict:
     i = run_inputs(plan, run)
     i.pop("map")
-    i.pop("features")
+    i.pop(_source_key(run))
     return i
 
 
@@ -472,11 +550,12 @@ def _bar(total: int, progress: bool):
 
 def _execute_serial(plan: Plan, todo, progress, say) -> dict:
     say(f"running {len(todo)} runs one after the other in this process")
-    datasets, maps = _steps(plan, todo)
+    datasets, maps, _featured, _templates = _steps(plan, todo)
     records = {}
     ready_ds: dict[str, str | Exception] = {}
     ready_feat: dict[str, str | Exception] = {}
     ready_map: dict[str, str | Exception] = {}
+    ready_tpl: dict[str, str | Exception] = {}
     with _bar(len(todo), progress) as bar:
         for run in todo:
             ds = run.dataset
@@ -486,10 +565,16 @@ def _execute_serial(plan: Plan, todo, progress, say) -> dict:
                 if ds.map in maps and ds.map not in ready_map:
                     ready_map[ds.map] = _attempt(prepare_map, ds.map, *maps[ds.map])
                 d = _ok(ready_ds[ds.name])
-                if ds.name not in ready_feat:
-                    ready_feat[ds.name] = _attempt(prepare_features, ds, d)
                 m = _ok(ready_map.get(ds.map, ds.map))
-                f = _ok(ready_feat[ds.name])
+                if run.method.templates:
+                    t = ds.templates.path
+                    if t not in ready_tpl:
+                        ready_tpl[t] = _attempt(prepare_templates, ds.templates)
+                    f = _ok(ready_tpl[t])
+                else:
+                    if ds.name not in ready_feat:
+                        ready_feat[ds.name] = _attempt(prepare_features, ds, d)
+                    f = _ok(ready_feat[ds.name])
             except Exception as e:
                 records[run.key] = _failed_before(plan, run, e)
             else:
@@ -552,20 +637,23 @@ def _execute_dask(plan: Plan, todo, conf, progress, say) -> dict:
         say(f"running {len(todo)} runs on {where} ({nw} workers)")
         if _has_dashboard() and client.dashboard_link:
             say(f"dashboard: {client.dashboard_link}")
-        datasets, maps = _steps(plan, todo)
+        datasets, maps, featured, templates = _steps(plan, todo)
         f_ds = {n: client.submit(prepare_dataset, ds, key=f"dataset-{n}-{_tag()}", pure=False)
                 for n, ds in datasets.items()}
         f_map = {p: client.submit(prepare_map, p, *a, key=f"map-{Path(p).name}-{_tag()}",
                                   pure=False) for p, a in maps.items()}
         f_feat = {n: client.submit(prepare_features, datasets[n], f_ds[n],
                                    key=f"features-{n}-{_tag()}", pure=False)
-                  for n in datasets}
+                  for n in featured}
+        f_tpl = {p: client.submit(prepare_templates, t, key=f"templates-{Path(p).name}-{_tag()}",
+                                  pure=False) for p, t in templates.items()}
         futures = {}
         for i, run in enumerate(todo):
             ds = run.dataset
+            source = f_tpl[ds.templates.path] if run.method.templates else f_feat[ds.name]
             fut = client.submit(do_run, run, str(plan.results), plan.evaluate,
                                 _inputs_plan(plan, run), f_ds[ds.name],
-                                f_map.get(ds.map, ds.map), f_feat[ds.name],
+                                f_map.get(ds.map, ds.map), source,
                                 key=f"run-{run.key}-{_tag()}", pure=False, priority=-i)
             futures[fut] = run
         records = {}
@@ -602,7 +690,8 @@ def _index(plan: Plan, records: dict) -> dict:
     return {
         "spec": {"path": str(plan.spec), "hash": plan.spec_hash},
         "datasets": {ds.name: {"dir": str(ds.dir), "camera": ds.camera, "map": ds.map,
-                               "features": str(_features_path(ds)), "truth": ds.truth}
+                               "features": str(_features_path(ds)), "truth": ds.truth,
+                               "templates": ds.templates.path if ds.templates else ""}
                      for ds in plan.datasets},
         "runs": [_public(records[r.key]) for r in plan.runs if r.key in records],
         "skipped": plan.skipped,

@@ -55,8 +55,13 @@ from ..common.artifacts import file_hash, text_hash
 from ..common.conf import parse_overrides, resolve_conf, stage_conf
 from ..common.errors import FieldlocError
 
-TOP_KEYS = ("field", "map", "build_map", "datasets", "extract", "evaluate", "methods", "runs")
-DATASET_KEYS = ("name", "path", "glob", "simulate", "calib", "field", "map", "extract")
+TOP_KEYS = ("field", "map", "build_map", "datasets", "extract", "evaluate", "templates",
+            "methods", "runs")
+DATASET_KEYS = ("name", "path", "glob", "simulate", "calib", "field", "map", "extract",
+                "templates")
+TEMPLATES_KEYS = ("grid", "headings", "centre", "half_size", "seed", "conf", "captures", "build")
+# keys of a template grid's simulate conf that are the dataset's robot and venue, or the grid's
+GRID_OWN_KEYS = ("camera", "frames", "seed", "calib_seed", "world_seed", "trajectory")
 SIMULATE_KEYS = ("preset", "field", "frames", "seed", "conf")
 METHOD_KEYS = ("name", "method", "preset", "conf")
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]*$")
@@ -76,6 +81,20 @@ class DatasetSpec:
     extract: dict = field(default_factory=dict)  # the resolved extract conf
     features: str = ""  # the features file its runs read
     truth: bool = True
+    templates: TemplatesSpec | None = None  # the template database of method templates
+
+
+@dataclass
+class TemplatesSpec:
+    """A template database a dataset's template runs read: a file of the user's (``file``),
+    built from a folder of captures at measured poses (``captures``), or built from a grid of
+    captures rendered for the dataset's robot in its venue (``grid``; module doc)."""
+    kind: str  # file | captures | grid
+    path: str  # the templates.h5 the runs read
+    captures: Path | None = None  # the captures folder (grid: rendered into RESULTS)
+    build: dict | None = None  # the resolved build-templates conf (captures, grid)
+    simulate: dict | None = None  # grid: the resolved simulate conf of the captures
+    sim_field: str | None = None
 
 
 @dataclass
@@ -87,6 +106,7 @@ class MethodSpec:
     key: str  # <method>-<preset>[-<hash>]
     conf: dict | None = None  # the resolved localize conf (None: not registered)
     cameras: tuple | None = None
+    templates: bool = False  # it reads a template database in place of features
 
 
 @dataclass
@@ -114,6 +134,7 @@ class Plan:
     maps: dict  # map file -> (field argument, build-map conf); files of the user: absent
     evaluate: dict
     skipped: list[str]
+    templates: dict = field(default_factory=dict)  # database path -> TemplatesSpec, each once
 
 
 def short_hash(value) -> str:
@@ -178,14 +199,15 @@ def read_spec(spec_path: str | Path, results: str | Path) -> Plan:
     except FieldlocError as e:
         w.fail("evaluate", str(e))
     maps: dict = {}
+    templates: dict = {}
     datasets = _datasets(w, data["datasets"], base, results, default_map, build_conf,
-                         extract_default, maps)
+                         extract_default, maps, data.get("templates"), templates)
     skipped: list[str] = []
     methods = _methods(w, data["methods"], skipped)
     runs = _runs(w, data.get("runs", "all"), datasets, methods, skipped)
     return Plan(spec=spec_path.resolve(), spec_hash=file_hash(spec_path), results=results,
                 datasets=datasets, methods=methods, runs=runs, maps=maps,
-                evaluate=evaluate_conf, skipped=skipped)
+                evaluate=evaluate_conf, skipped=skipped, templates=templates)
 
 
 # ---------------------------------------------------------------------------- datasets
@@ -234,7 +256,8 @@ def _map_for(w: _Where, source, where: str, results: Path, build_conf: dict, map
     return path
 
 
-def _datasets(w, entries, base, results, default_map, build_conf, extract_default, maps):
+def _datasets(w, entries, base, results, default_map, build_conf, extract_default, maps,
+              templates_default, templates):
     if not isinstance(entries, list) or not entries:
         w.fail("datasets", "expected a list of datasets")
     out: list[DatasetSpec] = []
@@ -281,6 +304,13 @@ def _datasets(w, entries, base, results, default_map, build_conf, extract_defaul
             tag = ex if isinstance(ex, str) else ("default" if ex is None else
                                                   f"custom-{short_hash(ds.extract)}")
             ds.features = str((results / "features" / f"{ds.name}.{tag}.features.h5").resolve())
+            if "templates" in d:
+                ds.templates = _templates(w, d["templates"], ds, f"{where}.templates", base,
+                                          results, templates)
+            elif templates_default is not None and ds.camera == "omni" \
+                    and (ds.kind == "simulate" or not _is_grid(templates_default)):
+                ds.templates = _templates(w, templates_default, ds, "templates", base, results,
+                                          templates)
             out.append(ds)
     names = [ds.name for ds in out]
     for n in names:
@@ -351,6 +381,117 @@ def _simulated(w, d, where, results):
                        simulate=conf, sim_field=field_arg)
 
 
+# ---------------------------------------------------------------------------- templates
+
+
+def _is_grid(entry) -> bool:
+    return isinstance(entry, dict) and "grid" in entry
+
+
+def _templates(w, entry, ds: DatasetSpec, where: str, base: Path, results: Path,
+               planned: dict) -> TemplatesSpec | None:
+    """The template database of dataset ``ds`` from its SPEC entry (module doc); databases
+    planned alike are one (``planned``: path -> TemplatesSpec)."""
+    if entry is None:
+        return None  # none for this dataset (a venue's default declined)
+    if ds.camera != "omni":
+        w.fail(where, f"dataset {ds.name} has a {ds.camera} camera; templates are made from"
+               " omni frames (seed 004)")
+    if isinstance(entry, str):
+        p = _path(base, w.text(entry, where))
+        if not p.is_file():
+            w.fail(where, f"template database not found: {p}")
+        spec = TemplatesSpec(kind="file", path=str(p.resolve()))
+        return planned.setdefault(spec.path, spec)
+    w.keys(entry, where, TEMPLATES_KEYS)
+    if ("grid" in entry) == ("captures" in entry):
+        w.fail(where, "give 'grid' (captures rendered for the dataset's robot) or 'captures'"
+               " (a folder of captures at measured poses), or a templates.h5 path")
+    from .. import build_templates
+
+    try:
+        build = build_templates.resolve_build_conf(entry.get("build"))
+    except FieldlocError as e:
+        w.fail(f"{where}.build", str(e))
+    b = entry.get("build")
+    tag = b if isinstance(b, str) else ("default" if b is None else
+                                        f"custom-{short_hash(build)}")
+    folder = results / "templates"
+    if "captures" in entry:
+        extra = [k for k in entry if k not in ("captures", "build")]
+        if extra:
+            w.fail(where, f"'{extra[0]}' goes with 'grid' (captures rendered), not 'captures'")
+        c = _path(base, w.text(entry["captures"], f"{where}.captures"))
+        if not (c / "truth.csv").is_file():
+            w.fail(f"{where}.captures", f"{c} is not a folder of captures with a truth.csv")
+        c = c.resolve()
+        name = f"{c.name}-{short_hash(str(c))}"
+        spec = TemplatesSpec(kind="captures", captures=c, build=build,
+                             path=str((folder / f"{name}.{tag}.templates.h5").resolve()))
+        return planned.setdefault(spec.path, spec)
+    if ds.kind != "simulate":
+        w.fail(where, f"dataset {ds.name} is a recording: a rendered grid is for a simulated"
+               " dataset (give a recording 'captures' or a templates.h5 path)")
+    conf, name = _grid_conf(w, entry, ds, where)
+    spec = TemplatesSpec(kind="grid", captures=(folder / "grids" / name).resolve(),
+                         build=build, simulate=conf, sim_field=ds.sim_field,
+                         path=str((folder / f"{name}.{tag}.templates.h5").resolve()))
+    return planned.setdefault(spec.path, spec)
+
+
+def _grid_conf(w, entry: dict, ds: DatasetSpec, where: str) -> tuple[dict, str]:
+    """The simulate conf of a dataset's template grid and the grid's name: the dataset's conf
+    (its camera, calibration error and calib_seed: the same robot; its world_seed: the same
+    venue) with ``conf``'s overrides (the capture session: clutter, lighting), the robot placed
+    at the grid's nodes, and the session's own ``seed`` (movers, clutter, noise)."""
+    from ..common.field import load_field
+    from ..simulate import trajectory
+
+    if "seed" not in entry:
+        w.fail(where, "missing key 'seed' (the capture session's: its clutter, movers and"
+               " noise)")
+    seed = entry["seed"]
+    if isinstance(seed, bool) or not isinstance(seed, int):
+        w.fail(f"{where}.seed", f"expected a whole number, got {seed!r}")
+    if seed == ds.simulate["seed"]:
+        w.fail(f"{where}.seed", f"seed {seed} is dataset {ds.name}'s own: the captures would"
+               " hold its session's clutter and movers; give them another seed")
+    over = entry.get("conf") or {}
+    if isinstance(over, list):
+        try:
+            over = parse_overrides(over)
+        except FieldlocError as e:
+            w.fail(f"{where}.conf", str(e))
+    if not isinstance(over, dict):
+        w.fail(f"{where}.conf", "expected a mapping or a list of key=value")
+    own = [k for k in over if k in GRID_OWN_KEYS]
+    if own:
+        w.fail(f"{where}.conf", f"'{own[0]}' is the dataset's robot and venue or the grid's"
+               " own (grid, headings, centre, half_size, seed)")
+    try:
+        conf = resolve_conf({}, ds.simulate, over)
+    except FieldlocError as e:
+        w.fail(f"{where}.conf", str(e))
+    sim = ds.simulate
+    conf["calib_seed"] = sim["seed"] if sim.get("calib_seed") is None else sim["calib_seed"]
+    conf["world_seed"] = sim["seed"] if sim.get("world_seed") is None else sim["world_seed"]
+    conf["seed"] = seed
+    traj = conf["trajectory"]
+    traj["kind"] = "grid"
+    for key, name in (("grid", "grid_spacing"), ("headings", "grid_headings"),
+                      ("centre", "grid_centre"), ("half_size", "grid_half_size")):
+        if key in entry:
+            traj[name] = entry[key]
+    fm = load_field(ds.sim_field)
+    try:
+        conf["frames"] = len(trajectory.grid_poses(fm, traj))  # as simulate counts them
+    except FieldlocError as e:
+        w.fail(where, str(e))
+    name = (f"{fm.name}-grid{traj['grid_spacing']:g}-s{seed}-"
+            f"{short_hash([conf, fm.spec_text])}")
+    return conf, name
+
+
 # ---------------------------------------------------------------------------- methods
 
 
@@ -381,9 +522,6 @@ def _methods(w, entries, skipped) -> list[MethodSpec]:
         if method not in localize.available_methods():
             skipped.append(f"method '{method}' ({where}): not registered in"
                            f" stages.localize.METHODS (known: {', '.join(localize.METHODS)})")
-        elif localize.uses_templates(method):  # its input is a template database per venue
-            skipped.append(f"method '{method}' ({where}): needs a template database"
-                           " (fieldloc build-templates), which batch does not make yet")
         else:
             try:
                 spec.conf = resolve_conf(localize.confs, localize.preset_name(method, preset),
@@ -391,6 +529,7 @@ def _methods(w, entries, skipped) -> list[MethodSpec]:
             except FieldlocError as e:
                 w.fail(where, str(e))
             spec.cameras = localize.method_camera_kinds(method)
+            spec.templates = localize.uses_templates(method)
         out.append(spec)
     names = [m.name for m in out]
     for n in names:
@@ -436,18 +575,23 @@ def _runs(w, runs, datasets, methods, skipped) -> list[RunSpec]:
                 if d.name in ds and m.name in ms and (d, m) not in pairs:
                     pairs.append((d, m))
     out = []
-    mismatched = []
+    mismatched, untemplated = [], []
     for d, m in pairs:
         if m.conf is None:
             continue  # not registered: said once in skipped
         if m.cameras is not None and d.camera not in m.cameras:
             mismatched.append(f"{m.name} x {d.name}")
             continue
+        if m.templates and d.templates is None:
+            untemplated.append(f"{m.name} x {d.name}")
+            continue
         out.append(RunSpec(d, m))
-    if mismatched:
-        more = ", ..." if len(mismatched) > 6 else ""
-        skipped.append(f"{len(mismatched)} runs whose method does not read the dataset's camera"
-                       f" kind: {', '.join(mismatched[:6])}{more}")
+    for runs_, why in ((mismatched, "whose method does not read the dataset's camera kind"),
+                       (untemplated, "of a template method on a dataset without templates"
+                                     " (give it 'templates')")):
+        if runs_:
+            more = ", ..." if len(runs_) > 6 else ""
+            skipped.append(f"{len(runs_)} runs {why}: {', '.join(runs_[:6])}{more}")
     keys = [r.key for r in out]
     for k in keys:
         if keys.count(k) > 1:
