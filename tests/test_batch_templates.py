@@ -174,3 +174,12 @@ def test_perspective_dataset_given_templates_is_refused(tmp_path):
     spec = _write_spec(tmp_path, {**SPEC, "datasets": [ds]})
     with pytest.raises(FieldlocError, match=r"datasets\[0\]\.templates: .*perspective camera"):
         read_spec(spec, tmp_path / "results")
+
+
+def test_dataset_declines_the_venue_templates(tmp_path):
+    ds = dict(SPEC["datasets"][0], templates=None)
+    plan = read_spec(_write_spec(tmp_path, {**SPEC, "datasets": [ds, SPEC["datasets"][1]]}),
+                     tmp_path / "results")
+    assert plan.datasets[0].templates is None and plan.datasets[1].templates is not None
+    assert [r.key for r in plan.runs] == ["omni-b/templates-default", "omni-a/lut-default"]
+    assert any("without templates" in s and "templates x omni-a" in s for s in plan.skipped)

@@ -13,18 +13,24 @@ stages.pipelines.batch_spec; RESULTS holds:
                              made elsewhere (links to their files, and the calib.yaml made)
     maps/<field>.map.h5      maps built from the SPEC's fields (with their lookup caches)
     features/<dataset>.<extract preset>.features.h5
+    templates/grids/<grid>/  template captures rendered for a dataset's robot (batch_spec)
+    templates/<grid or captures>.<build tag>.templates.h5   the template databases built
     runs/<dataset>/<method>-<preset>[-<hash>]/   poses.h5, poses.tum, report/ (evaluate's
                              report.json, errors.csv, truth.tum), run.json (written last)
     batch.json               the index of the runs (stages.common.batch_file)
     comparison.csv, comparison.md   methods x datasets (stages.evaluate.report.comparison_table)
     plots/cdf-<dataset>.png, plots/summary.png   (stages.show.comparison)
 
-Resumable: a run whose run.json says it finished from the same inputs (the map, the features
-and the truth by content hash, the dataset's simulate options, the localize and evaluate confs)
-is not run again; an interrupted batch leaves every finished run as it is (every file is
-written atomically, run.json last), and the next one does only what is missing. A failed run
-is recorded with its error (run.json, the summary, the comparison) and the others go on; it is
-tried again by the next batch. ``overwrite``: every run again.
+Resumable: a run whose run.json says it finished from the same inputs (the map, the features or
+the template database and the truth by content hash, the dataset's simulate options, the
+localize and evaluate confs) is not run again; an interrupted batch leaves every finished run
+as it is (every file is written atomically, run.json last), and the next one does only what is
+missing. A failed run is recorded with its error (run.json, the summary, the comparison) and
+the others go on; it is tried again by the next batch. ``overwrite``: every run again. A
+template database built here is reused while it is what build-templates would make now
+(``reusable_templates``: its grid rendered from the same options, its captures' calib.yaml,
+truth.csv and mask by content hash, the same build conf), else built again (its grid rendered
+again first when the grid is not).
 
 Where the runs go (``conf``): ``serial`` runs them one after the other in this process;
 otherwise on Dask: ``scheduler`` (an address, ``tcp://host:8786``) is an existing cluster

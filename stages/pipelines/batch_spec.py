@@ -17,10 +17,13 @@ the place (``methods[2].conf``), never a traceback.
         field: minho-lab.yaml          # its own field (or map:)
     extract: {omni: default}           # optional: extract preset or conf per camera kind
     evaluate: numbers                  # optional: evaluate preset or conf (default numbers)
+    templates: {grid: 1.0, seed: 7}    # optional: the template database of every omni dataset
+                                       # that gives none (a grid: of the simulated ones only)
     methods:
       - lut                            # a method (its default preset) or <method>-<preset>
       - {method: lut, preset: default, conf: {heading: histogram}, name: lut-histogram}
       - {method: mcl, conf: ["init=uniform"]}     # -c overrides as on the command line
+      - templates                      # reads a template database in place of features
       - fit                            # not registered (yet): skipped, with a line saying so
     runs:                              # default: all, every method on every dataset whose
       - lut, fit x omni-*              # camera it takes; else "METHODS x DATASETS" lines of
@@ -33,6 +36,31 @@ simulated on, else the SPEC's ``map`` or ``field``. Methods come from the regist
 (stages.localize.METHODS): a method the registry lacks is skipped with a line, so a SPEC may
 list methods that land later. Which camera kinds a method reads is its module's
 ``camera_kinds`` (every kind when it does not say).
+
+Method templates (a module with ``INPUT = "templates"``) reads a template database (seed
+004; stages.build_templates) in place of features, from the dataset's ``templates`` (else the
+SPEC's ``templates``, for omni datasets; ``templates: null`` on a dataset declines it):
+
+    templates: path/to/templates.h5    # a database of the user's, read as it is
+    templates: {captures: lab/grid, build: default}   # a folder of captures at measured poses
+                                       # (frames with a truth.csv), built into RESULTS/templates/
+    templates:                         # a simulated dataset: captures rendered for it
+      grid: 1.0                        # node spacing (m): simulate's trajectory kind grid
+      headings: 1                      # optional: headings per node (the preset's otherwise)
+      centre: [0, 0]                   # optional, with half_size: only that square's nodes
+      half_size: 2.0
+      seed: 7                          # the capture session's (another than the dataset's)
+      conf: {scene: {robots: 0}}       # optional: simulate overrides of the capture session
+      build: default                   # optional: build-templates preset or conf
+
+A grid's captures are the dataset's robot in its venue: the dataset's simulate conf (camera,
+calibration error, conditions) with its calib_seed and world_seed (each its seed when unset),
+``conf``'s overrides, the robot placed at the grid's nodes, and the session's own ``seed``
+(movers, clutter, noise; the dataset's seed is refused: the captures would hold its session).
+The grid is rendered into ``RESULTS/templates/grids/<field>-grid<spacing>-s<seed>-<hash>/``
+(hash of its simulate conf and the field's YAML: datasets of one robot in one venue share it),
+its database is ``RESULTS/templates/<grid>.<build tag>.templates.h5``, each made once however
+many runs read it. A template run of a dataset without templates is skipped with a line.
 
 Runs are named by their key ``<dataset>/<method>-<preset>[-<hash of the overrides>]`` (as hloc
 names its outputs), and their outputs go to ``RESULTS/runs/<key>/``.
