@@ -7,6 +7,7 @@ given a templates.h5 path localises against it as the rendered dataset did."""
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -183,3 +184,21 @@ def test_dataset_declines_the_venue_templates(tmp_path):
     assert plan.datasets[0].templates is None and plan.datasets[1].templates is not None
     assert [r.key for r in plan.runs] == ["omni-b/templates-default", "omni-a/lut-default"]
     assert any("without templates" in s and "templates x omni-a" in s for s in plan.skipped)
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="LocalCluster on loopback, Linux")
+def test_a_dask_batch_from_nothing_is_resumed(first, tmp_path):
+    """On 2 workers a batch renders its dataset and grid after planning its runs; its records
+    still name what the runs read (the truth hashed where it exists), so the next batch runs
+    nothing; and lut's poses are the serial batch's."""
+    spec, out, *_ = first
+    s = {**SPEC, "datasets": SPEC["datasets"][:1], "runs": "all"}
+    spec2 = _write_spec(tmp_path, s)
+    res = batch.main({"workers": 2}, spec2, tmp_path / "results", report=lambda line: None)
+    assert all(r["status"] == "ok" for r in load_batch(res)["runs"])
+    lines: list[str] = []
+    batch.main("serial", spec2, res, report=lines.append)
+    assert "2 runs: 2 finished before, 0 to do" in lines
+    got, _ = read_poses(res / "runs" / "omni-a" / "lut-default" / "poses.h5")
+    want, _ = read_poses(out / "runs" / "omni-a" / "lut-default" / "poses.h5")
+    np.testing.assert_array_equal(got["x"], want["x"])

@@ -471,6 +471,7 @@ def do_run(run: RunSpec, results: str, evaluate_conf: dict, inputs_plan: dict,
         try:
             out.mkdir(parents=True, exist_ok=True)
             (out / RUN_NAME).unlink(missing_ok=True)
+            fresh_random_state()
             given = ({"templates": source} if run.method.templates
                      else {"features": source})
             poses = localize.main(run.method.conf, dataset_dir, map_path, out / "poses.h5",
@@ -487,10 +488,22 @@ def do_run(run: RunSpec, results: str, evaluate_conf: dict, inputs_plan: dict,
             log.debug("run %s failed:\n%s", run.key, traceback.format_exc())
     rec["warnings"] = warnings
     rec["seconds"] = time.perf_counter() - t0
-    rec["inputs"] = {**inputs_plan, "map": _hash(map_path),
-                     _source_key(run): _hash(source)}
+    # hashed here, where they exist: a Dask batch plans its runs before their datasets are made
+    rec["inputs"] = {**inputs_plan, "map": _hash(map_path), _source_key(run): _hash(source),
+                     "truth": _hash(Path(dataset_dir) / "truth.csv") if run.dataset.truth
+                     else ""}
     write_json(out / RUN_NAME, rec)
     return rec
+
+
+def fresh_random_state():
+    """OpenCV's random generator (cv::theRNG, of this thread) as a new process has it. FLANN's
+    randomised kd-trees draw from it (method templates' descriptor index): without this a
+    template run's poses depended on the runs its worker did before (measured on compare's
+    omni-default: a second run in one process moved 59 of 100 frames by up to 22 cm)."""
+    import cv2
+
+    cv2.setRNGSeed(0)  # state 0 is the default state 0xffffffff (cv::RNG)
 
 
 def _source_key(run: RunSpec) -> str:
@@ -536,9 +549,10 @@ def _steps(plan: Plan, todo: list[RunSpec]):
 
 
 def _inputs_plan(plan: Plan, run: RunSpec) -> dict:
+    """What a run's record says of its inputs but the files it reads (hashed by do_run)."""
     i = run_inputs(plan, run)
-    i.pop("map")
-    i.pop(_source_key(run))
+    for key in ("map", _source_key(run), "truth"):
+        i.pop(key)
     return i
 
 
