@@ -90,3 +90,37 @@ def test_frame_by_name_or_position_and_truth_at_its_stamp(tmp_path):
     assert truth_at(truth, 0.2) is None and truth_at(None, 0.0) is None
     (tmp_path / "truth.csv").write_text("stamp,x\n0,1\n")  # broken: the picture goes without
     assert readable_truth(tmp_path) is None and readable_truth(None) is None
+
+
+def test_show_points_extracts_a_perspective_frame_with_its_head_angles(tmp_path, monkeypatch):
+    """Without a features file, show points extracts the frame as extract.main does: the
+    head.csv pitch and roll of its stamp reach the extractor (they did not before)."""
+    import cv2
+    import yaml
+
+    from stages import extract
+    from stages.common.dataset import write_csv
+    from stages.show import points
+
+    root = tmp_path / "persp"
+    (root / "images").mkdir(parents=True)
+    (root / "calib.yaml").write_text(yaml.safe_dump({
+        "kind": "perspective", "image_size": [64, 48],
+        "intrinsics": {"fx": 40.0, "fy": 40.0, "cx": 31.5, "cy": 23.5},
+        "distortion": [0.0, 0.0, 0.0, 0.0, 0.0], "height": 0.5, "pitch": 0.4, "roll": 0.0}))
+    for i in range(2):
+        cv2.imwrite(str(root / "images" / f"{i:02d}.png"), np.full((48, 64, 3), 90, np.uint8))
+    write_csv(root / "frames.csv", "frames", {"name": ["00.png", "01.png"],
+                                             "stamp": [0.0, 0.1]})
+    write_csv(root / "head.csv", "head", {"stamp": [0.0, 0.1], "pitch": [0.3, 0.35],
+                                         "roll": [0.01, -0.02]})
+    seen = []
+
+    def record(image, camera, conf, pitch=None, roll=None, **info):
+        seen.append((pitch, roll))
+        return {"lines": np.zeros((0, 4)), "boundary": np.zeros((0, 2)),
+                "points": np.zeros((0, 2))}
+
+    monkeypatch.setattr(extract.kind_module("perspective"), "extract_frame", record)
+    points.write_picture(None, root, tmp_path / "p.png", frame=1)
+    assert seen == [(0.35, -0.02)]

@@ -16,6 +16,7 @@ import numpy as np
 import yaml
 
 from .errors import FieldSpecError
+from .geometry import wrap_angle
 
 MAPS_DIR = Path(__file__).resolve().parents[2] / "maps"
 
@@ -135,7 +136,7 @@ class FieldModel:
     def mirror_pose(pose) -> np.ndarray:
         """The pose that sees the same field under the 180 deg symmetry of the field."""
         x, y, th = pose
-        return np.array([-x, -y, math.remainder(th + math.pi, 2 * math.pi)])
+        return np.array([-x, -y, float(wrap_angle(th + math.pi))])
 
     def touchline_pose(self, x, side, inset=0.0) -> np.ndarray:
         """Where a robot enters in a game: on a touch line at ``x`` along it, facing into the

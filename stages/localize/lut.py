@@ -13,6 +13,10 @@ not independent and one full-weight observation is worth less than one nat; T is
 the probabilities are calibrated, see the README's reliability figures) combined with the prior
 the robot's motion gives, over a short list of hypotheses.
 
+The belief (tracks, the mass of elsewhere, the posterior, the mirror listing, acceptance) is
+tracking.TrackBank, which every pose-fixing method shares; this module is its engine for the
+scan-line tables: the fixes, their tempered likelihoods and the null.
+
 Hypotheses (tracks). The belief is a mixture of a few Gaussian tracks (at most ``max_tracks``),
 each a pose tracked by the decentralised Kalman filter of seed 002 (kalman.py) with a weight.
 Per frame, for each track:
@@ -88,30 +92,33 @@ import dataclasses
 import logging
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..common.errors import FieldlocError
-from ..common.geometry import compose, wrap_angle
+from ..common.geometry import wrap_angle
 from ..common.map_file import MapFile
 from ..common.poses_file import PoseTrack
 from . import heading as heading_mod
-from .kalman import DecentralisedFusion, FusionParams
+from . import tracking
 from .lut_search import MatchingParams, Observation, SearchResult, Support, TableSearch
 from .point_fit import PointFit
 from .radial_correction import DEFAULTS as RADIAL_DEFAULTS
 from .radial_correction import RadialCorrection
+from .tracking import Candidate, Track, TrackBank, eig2, near_pose
 
 log = logging.getLogger(__name__)
 
 confs = {
+    # the belief's keys (tracking.DEFAULTS; min_confidence 0.8 calibrated: 0.2 % of the
+    # rendered calibration frames accepted and more than 1 m off, README), then the search's
     "default": {
+        **tracking.DEFAULTS,
         "heading": "imu",  # imu | histogram | truth
         "imu_alignment": "field",  # field: imu yaw is field-aligned (+ small bias) | vision
         "start_half": "any",  # own (x < 0) | opponent (x > 0) | any: where the first fix is
         "start_half_error": 1e-3,  # probability that start_half is wrong
-        "independent": False,  # every frame globally, no tracks, no odometry
         "imu_sigma": 0.01,  # rad, IMU heading noise for the fusion
         "imu_offset_every": 5,  # frames between vision updates of the IMU offset (0: never)
         "histogram_window": math.radians(40.0),  # rad, +- around the last heading
@@ -121,7 +128,6 @@ confs = {
         "histogram_score": "peak",  # peak (seed 002) | energy (sum of squared bin counts)
         "histogram_min_sharpness": 1.7,  # best score / mean score; below: heading by vision
         "histogram_gate": 0.15,  # rad, largest accepted deviation from the predicted heading
-        "max_predicted_frames": 30,  # failed frames in a row over which tracks are kept
         "truth_sigma": 0.001,  # rad
         "vision_heading_max_sigma": math.radians(2.4),  # rad, a vision heading less sure than
         # this is not used (collision frames, histogram without straight lines)
@@ -137,24 +143,13 @@ confs = {
             "link": 0.2,  # m, largest gap within a structure, plus
             "link_per_m": 0.1,  # m per m of range (scan lines spread with distance)
         },
-        "kidnap_probability": 1e-5,  # per frame: the robot is not where its tracks say
-        "ambiguity_distance": 1.0,  # m, separation of the global search's minima
         "global_candidates": 16,  # separated minima of a global search proposed as tracks
         "unknown_heading_candidates": 24,  # (heading, cell) candidates refined
         "global_every": 5,  # frames between global searches while tracking
         "null_copies": 2,  # random-bearing copies of the observations (median), global
         "tracked_null_copies": 1,  # ... tracked frames (their window is small)
-        "max_tracks": 8,  # hypotheses tracked at once
-        "prune_probability": 1e-4,  # tracks below this probability are dropped
-        "hypotheses": 5,  # hypotheses listed per frame
-        "min_confidence": 0.8,  # a frame is accepted at this confidence (calibrated: 0.2 % of
-        # the rendered calibration frames accepted and more than 1 m off, README)
         "inlier_error": 0.125,  # m, an observation within this of its predicted crossing is
         # an inlier of the fix (c / 2: rho = 0.2); reported, and shapes the covariance
-        "prior_outlier_probability": 0.01,  # a track's prior is wrong beyond its covariance
-        # (a Gaussian with a uniform floor over the window: caps the Mahalanobis term)
-        "gate_sigmas": 3.0,  # the window's reach in sigmas of the prior (see _lost)
-        "min_gate": 0.3,  # m, floor of the innovation's sigma times gate_sigmas
         "vision_sigma_xy": 0.01,  # m, smallest position sigma of a well-constrained fix
         "vision_rms_factor": 2.5,  # its sigma per m of its inliers' rms error
         # (vision_covariance; fused poses consistent with their covariance, NEES, README)
@@ -166,10 +161,6 @@ confs = {
             "coarse_step": 3,  # cells, subsampling of the unknown-heading pass
             "pair_tolerance": 0.6,  # m, same white line on neighbouring scan lines
         },
-        "fusion": {
-            "enabled": True,
-            **{k: getattr(FusionParams, k) for k in FusionParams.__dataclass_fields__},
-        },
         # online estimate of the calibration's distance error (radial_correction.py)
         "radial_correction": dict(RADIAL_DEFAULTS),
     },
@@ -179,9 +170,6 @@ confs["no-fusion"] = {**confs["default"], "fusion": {**confs["default"]["fusion"
 confs["independent"] = {**confs["default"], "independent": True}
 
 HEADING_SOURCES = ("imu", "histogram", "truth")
-# two poses this close are one hypothesis (one basin of the error surface)
-SAME_BASIN_M = 0.3
-SAME_BASIN_RAD = 0.2
 START_HALVES = ("own", "opponent", "any")
 
 _SEARCH_CACHE: dict = {}
@@ -226,7 +214,7 @@ def vision_covariance(result: SearchResult, support: Support, conf: dict,
     hxx, hxy, hyy = float(h[0, 0]), float(0.5 * (h[0, 1] + h[1, 0])), float(h[1, 1])
     if math.isfinite(hxx) and math.isfinite(hxy) and math.isfinite(hyy):
         # the Hessian's eigenvalues clipped from below, inverted, scaled
-        (l1, l2), (ux, uy) = _eig2(hxx, hxy, hyy)
+        (l1, l2), (ux, uy) = eig2(hxx, hxy, hyy)
         v1 = min(s / max(l1, 0.002 * ref), 1.0)  # capped at 1 m^2
         v2 = min(s / max(l2, 0.002 * ref), 1.0)
         cov[0, 0] = v1 * ux * ux + v2 * uy * uy
@@ -236,18 +224,6 @@ def vision_covariance(result: SearchResult, support: Support, conf: dict,
         cov[0, 0] = cov[1, 1] = 1.0
     cov[2, 2] = heading_sigma**2
     return cov
-
-
-def _eig2(a: float, b: float, d: float):
-    """Eigenvalues (l1, l2) and the unit eigenvector (ux, uy) of l1 of the symmetric 2 x 2
-    matrix [[a, b], [b, d]] (the other eigenvector is (-uy, ux))."""
-    mean, half = 0.5 * (a + d), 0.5 * (a - d)
-    r = math.hypot(half, b)
-    l1, l2 = mean + r, mean - r
-    if r < 1e-300:
-        return (l1, l2), (1.0, 0.0)
-    ang = 0.5 * math.atan2(b, half)
-    return (l1, l2), (math.cos(ang), math.sin(ang))
 
 
 def _check_conf(conf: dict, dataset):
@@ -262,12 +238,10 @@ def _check_conf(conf: dict, dataset):
     for key in ("temperature", "track_correlation"):
         if not float(conf[key]) > 0:
             raise FieldlocError(f"{key} must be > 0, not {conf[key]}")
-    for key in ("kidnap_probability", "prune_probability", "min_confidence",
-                "start_half_error"):
-        if not 0.0 <= float(conf[key]) <= 1.0:
-            raise FieldlocError(f"{key} must lie in [0, 1], not {conf[key]}")
-    for key in ("max_tracks", "hypotheses", "null_copies", "tracked_null_copies",
-                "global_every"):
+    tracking.check_conf(conf)
+    if not 0.0 <= float(conf["start_half_error"]) <= 1.0:
+        raise FieldlocError(f"start_half_error must lie in [0, 1], not {conf['start_half_error']}")
+    for key in ("null_copies", "tracked_null_copies", "global_every"):
         if int(conf[key]) < 1:
             raise FieldlocError(f"{key} must be >= 1, not {conf[key]}")
     need = {"imu": "imu", "truth": "truth"}.get(conf["heading"])
@@ -281,40 +255,19 @@ class FrameFailed(Exception):
     """A frame that cannot be localised; the message is the reason recorded in its flags."""
 
 
-@dataclass
-class Track:
-    """One hypothesis carried over frames: a Kalman-fused pose, its weight (log, normalised
-    over the tracks) and the share of that weight belonging to the pose's mirror image."""
+@dataclass(kw_only=True)
+class LutCandidate(Candidate):
+    """A Candidate of the table search: its fix (SearchResult) with the fix's support, its
+    error term (``evidence``, full-weight observations; ``nll`` = evidence / T), ``fit`` (nats:
+    nll plus the prior's Mahalanobis^2 / 2 when tracked), ``window_fit`` (tracked: the same
+    from the window's quantised error term, which the null is compared with) and ``prior``
+    (tracked: prior pose, inverse covariance used to search, prior covariance)."""
 
-    fusion: DecentralisedFusion
-    log_weight: float
-    mirror: float = 0.0
-    born: int = 0  # frame index
-    ident: int = 0
-    misses: int = 0  # frames in a row whose fix did not beat the null
-    pose: np.ndarray = field(default_factory=lambda: np.zeros(3))  # last recorded pose
-    cov: np.ndarray = field(default_factory=lambda: np.eye(3))
-
-
-@dataclass
-class Candidate:
-    """A pose proposed this frame for a track: the refined fix, its support, its (log)
-    prior, its vision covariance, the track it belongs to (None: a new track), the heading
-    variance and the share of the mirror."""
-
-    fix: SearchResult
     support: Support
-    log_prior: float
-    R: np.ndarray
-    evidence: float = 0.0  # the fix's error term (evidence weights)
-    fit: float = 0.0  # nats: evidence / T, plus the prior's Mahalanobis^2 / 2 when tracked
-    window_fit: float = math.inf  # tracked: the same from the window's quantised error term
-    prior: tuple | None = None  # tracked: (prior pose, inverse covariance used to search)
-    track: Track | None = None
-    mirror: float = 0.0
-    log_post: float = 0.0
-    own_mass: float = 1.0  # global candidates: likelihood of the folded fixes relative to
-    mirror_mass: float = 0.0  # the candidate's, in its basin and in its mirror image
+    evidence: float = 0.0
+    fit: float = 0.0
+    window_fit: float = math.inf
+    prior: tuple | None = None
 
 
 class LutLocaliser:
@@ -332,33 +285,23 @@ class LutLocaliser:
             known=conf["imu_alignment"] == "field")
         self.heading_sigma = {"imu": conf["imu_sigma"], "histogram": conf["histogram_sigma"],
                               "truth": conf["truth_sigma"]}[conf["heading"]]
-        self.fusion_params = FusionParams.from_conf(conf["fusion"])
-        self.use_fusion = bool(conf["fusion"]["enabled"])
         self.half = 0.5 * float(conf["window"])
         self.T_frame = float(conf["temperature"])
         self.T_track = self.T_frame * float(conf["track_correlation"])
         self.T = self.T_frame
         ny, nx = search.grid.shape
-        area = nx * ny * search.grid.resolution ** 2  # the world the tables cover
-        self.log_basins = math.log(max(area / conf["ambiguity_distance"] ** 2, 1.0))
-        cells = (2 * round(self.half / search.grid.resolution) + 1) ** 2
-        # the Mahalanobis term of a prior that is wrong with prior_outlier_probability: a
-        # Gaussian over a uniform floor on the window's cells, -log of the floor
-        self.prior_cap = -math.log(max(conf["prior_outlier_probability"], 1e-300) / cells)
         self.symmetric = search.field.is_point_symmetric()
-        self.tracks: list[Track] = []
-        self.other = 1.0  # probability that the robot is at none of the tracks
-        self._null_fit = math.inf
+        # the belief: over the world the tables cover; a tracked fix is searched in the window
+        self.bank = TrackBank(conf, area=nx * ny * search.grid.resolution ** 2,
+                              reach=self.half,
+                              reach_cells=(2 * round(self.half / search.grid.resolution) + 1) ** 2,
+                              symmetric=self.symmetric)
         self._global_heading = None
         self._offset_updates = 0
         self.fixed_once = False  # start_half applies to the first fix only
-        self.has_odometry = True  # whether the dataset measures the robot's motion
         self._radial_frames = 0  # confident tracked frames seen by the radial correction
-        self.failures_in_row = 0
         self.last_global = -10**9
         self.last_accepted = True
-        self.top_ident = None
-        self._next_ident = 0
         self.rng = np.random.default_rng(seed)
         rc = conf["radial_correction"]
         self.radial = (RadialCorrection.from_conf(rc, search.scanlines.robot_radius)
@@ -366,32 +309,9 @@ class LutLocaliser:
 
     # ------------------------------------------------------------------ book-keeping
     def failed(self, dt: float, odo, collision: bool):
-        """A failed frame: the tracks only predict; after ``max_predicted_frames`` failed
-        frames in a row they are dropped (lost: global search only)."""
-        self.failures_in_row += 1
+        """A failed frame: the tracks only predict (TrackBank.failed)."""
         self.last_accepted = False
-        if self.failures_in_row > self.conf["max_predicted_frames"] or self.conf["independent"]:
-            self.tracks = []
-            self.other = 1.0
-            return
-        for t in self.tracks:
-            self._predict_only(t, dt, odo, collision)
-
-    def _predict_only(self, t: Track, dt: float, odo, col: bool):
-        if self.use_fusion and t.fusion.state is not None:
-            t.fusion.step(dt, odo, col, None)
-            t.pose, t.cov = t.fusion.state.mean.copy(), t.fusion.state.cov.copy()
-        elif odo is not None and not col:
-            t.pose = compose(t.pose, odo)
-        t.misses += 1
-
-    def _new_track(self, fix: SearchResult, R: np.ndarray, log_weight: float, mirror: float,
-                   i: int) -> Track:
-        f = DecentralisedFusion(self.fusion_params)
-        f.reset(fix.pose, R)
-        self._next_ident += 1
-        return Track(fusion=f, log_weight=log_weight, mirror=mirror, born=i,
-                     ident=self._next_ident, pose=fix.pose.copy(), cov=R.copy())
+        self.bank.failed(dt, odo, collision)
 
     # ------------------------------------------------------------------ one frame
     def frame(self, i: int, fr: dict, dt: float, odo, flags: list):
@@ -400,8 +320,10 @@ class LutLocaliser:
         conf, search = self.conf, self.search
         sl = search.scanlines
         col = bool(self.collision[i])
+        bank = self.bank
         if conf["independent"]:
-            self.tracks, self.other, dt, odo = [], 1.0, 0.0, None
+            bank.reset()
+            dt, odo = 0.0, None
         obs = Observation.from_scanlines(fr.get("radial", np.zeros((0, 4))), fr.get("spiral"),
                                          search.params, sl.max_range, sl.spiral_end_radius,
                                          sl.robot_radius)
@@ -416,20 +338,16 @@ class LutLocaliser:
         self._points = obs.points(sl)
         base_heading = self._frame_heading(i, col)  # None: from each track / unknown
         # evidence of a frame alone, or of one more frame of a tracked sequence
-        self.T = self.T_track if self.tracks else self.T_frame
-        eps = float(conf["kidnap_probability"])
-        # the mass of "elsewhere": where no track is (all of it before the first fix), spread
-        # uniformly over the world's basins
-        other = max(self.other + eps * (1 - self.other), eps) if self.tracks else 1.0
-        other_prior = math.log(other)
-        tracked: list[Candidate] = []
+        self.T = self.T_track if bank.tracks else self.T_frame
+        other_prior = bank.other_prior()  # the mass of "elsewhere"
+        tracked: list[LutCandidate] = []
         lost = False
-        for t in self.tracks:
-            prior = self._prior(t, dt, odo, col)
-            lost |= self._lost(prior[1])
+        for t in bank.tracks:
+            prior = bank.prior(t, dt, odo, col)
+            lost |= bank.lost(prior[1])
             tracked.append(self._track_candidate(i, t, prior, obs, fr, base_heading, col,
                                                  flags))
-        new: list[Candidate] = []
+        new: list[LutCandidate] = []
         if (not tracked or not self.last_accepted or lost
                 or i - self.last_global >= conf["global_every"]):
             heading = base_heading
@@ -438,56 +356,34 @@ class LutLocaliser:
                 # after an unaccepted frame the heading is searched too
                 heading = float(max(tracked, key=lambda c: c.log_prior - c.fit).fix.theta)
             new = self._global_candidates(i, obs, heading, flags,
-                                          other_prior - self.log_basins)
+                                          bank.global_log_prior(other_prior))
             self.last_global = i
             if tracked:
                 flags.append("global-check")
         # the null: what chance explains, searched the same way
         if tracked:
             null_fit = self._tracked_null(obs, tracked)
-            self._null_fit = null_fit
             if min(c.window_fit for c in tracked) >= null_fit:
                 raise FrameFailed("uninformative")
+            for c in tracked:  # a fix is fused into its track only where it beats the null
+                c.beats_null = c.window_fit < null_fit
         if new or not tracked:
             null_evidence = self._global_null(obs, self._global_heading)
             if not tracked and (not new or min(c.evidence for c in new) / self.T
                                 >= null_evidence):
                 raise FrameFailed("uninformative")
-        cands = tracked + new
-        for c in cands:
-            c.log_post = c.log_prior - c.evidence / self.T
-        if new:  # elsewhere, where the search found nothing better, explains what chance
-            # explains (the null counts as one basin of the world's)
-            other_post = other_prior - self.log_basins - null_evidence
-        else:  # elsewhere is not looked at: its share is kept
-            like = np.array([c.log_post - c.log_prior + c.track.log_weight for c in tracked])
-            wsum = np.array([c.track.log_weight for c in tracked])
-            other_post = other_prior + float(np.logaddexp.reduce(like)
-                                             - np.logaddexp.reduce(wsum))
-        logs = np.array([c.log_post for c in cands] + [other_post])
-        logs -= logs.max() + math.log(np.exp(logs - logs.max()).sum())
-        for c, lp in zip(cands, logs[:-1]):
-            c.log_post = float(lp)
-        top = self._update_tracks(i, cands, float(logs[-1]), dt, odo, col)
-        hyps = self._hypotheses()
+        # elsewhere, where a global search found nothing better, explains what chance
+        # explains (the null counts as one basin of the world's); else its share is kept
+        other = bank.posterior(tracked, new, other_prior, null_evidence if new else None)
+        top = bank.update(i, tracked + new, other, dt, odo, col)
+        hyps = bank.hypotheses()
         self._track_imu_offset(i, obs, top, col)
         self._learn_radial(obs, raw_distance, top, hyps, col)
-        pose = hyps[0, :3]
-        cov = self.tracks[0].cov
-        if top.track is None and tracked:
-            flags.append("relocalised")
         if top.fix.at_window_edge:
             flags.append("window-edge")
-        if len(hyps) > 1 and self.symmetric and _near_pose(hyps[1], _mirror(pose), 0.3, 0.2) \
-                and hyps[1, 3] >= 0.5 * hyps[0, 3]:
-            flags.append("mirror-ambiguous")
-        self.failures_in_row = 0
+        pose, cov, _confidence, accepted = bank.conclude(hyps, top, bool(tracked), flags)
         self.fixed_once = True
-        confidence = float(hyps[0, 3])
-        accepted = confidence >= conf["min_confidence"]
         self.last_accepted = accepted
-        if not accepted:
-            flags.append("low-confidence")
         return hyps, top, pose, cov, accepted
 
     # ------------------------------------------------------------------ heading
@@ -532,42 +428,6 @@ class LutLocaliser:
         return float(prior_pose[2]), True
 
     # ------------------------------------------------------------------ tracks
-    def _prior(self, t: Track, dt: float, odo, col: bool):
-        """(prior pose, its position covariance (2, 2)) of a track: the previous pose moved by
-        the odometry (by the last fused motion on collision frames; a random walk of up to the
-        fusion's max_speed when the dataset has no odometry), the
-        covariance from the fusion's prediction (without fusion: ``min_gate`` /
-        ``gate_sigmas`` growing with the misses)."""
-        f = t.fusion
-        if self.use_fusion and f.state is not None:
-            if not self.has_odometry:  # no motion measured at all: a random walk (repeating
-                # the last fused motion would feed each correction back as a velocity)
-                f.motion_known = False
-                f.last_motion = np.zeros(3)
-            pose, cov = f.predicted(dt, odo, col)
-            return pose, cov[:2, :2]
-        pose = compose(t.pose, odo) if odo is not None and not col else t.pose
-        s = self.conf["min_gate"] / self.conf["gate_sigmas"] * math.sqrt(1 + t.misses)
-        return np.asarray(pose, float).copy(), np.eye(2) * s * s
-
-    def _lost(self, prior_cov) -> bool:
-        """Whether the window no longer covers where the robot may be (``gate_sigmas`` of the
-        prior's largest sigma exceed half the window)."""
-        (largest, _), _u = _eig2(float(prior_cov[0, 0]), float(prior_cov[0, 1]),
-                                 float(prior_cov[1, 1]))
-        return math.sqrt(max(largest, 0.0)) * self.conf["gate_sigmas"] > self.half
-
-    def _innovation_information(self, prior_cov, R=None) -> np.ndarray:
-        """Inverse of the innovation covariance (2, 2): the prior's, the fix's (if given) and a
-        floor of (``min_gate`` / ``gate_sigmas``)^2 against overconfidence."""
-        floor = (self.conf["min_gate"] / self.conf["gate_sigmas"]) ** 2
-        a, b, d = float(prior_cov[0, 0]) + floor, float(prior_cov[0, 1]), \
-            float(prior_cov[1, 1]) + floor
-        if R is not None:
-            a, b, d = a + float(R[0, 0]), b + float(R[0, 1]), d + float(R[1, 1])
-        det = a * d - b * b
-        return np.array([[d / det, -b / det], [-b / det, a / det]])
-
     def _track_candidate(self, i, t: Track, prior, obs, fr, base_heading, col, flags):
         """The fix of a track this frame (step 3 of the module doc) as a Candidate, and a
         second Candidate for a clearly better minimum elsewhere in the window."""
@@ -575,12 +435,13 @@ class LutLocaliser:
         prior_pose, prior_cov = prior
         theta, by_vision = self._track_heading(t, prior_pose, obs, fr, base_heading, col,
                                                flags)
-        info = self._innovation_information(prior_cov)
+        bank = self.bank
+        info = bank.innovation_information(prior_cov)
         # the window's error term in evidence units: scaled by the frame's evidence share
         scale = obs.total_weight / max(obs.lookup_total_weight, 1e-12)
         fix, _wmin, window_fit = search.tracked_search(obs, theta, prior_pose[:2], info,
                                                        self.T / scale, half_width=self.half,
-                                                       prior_cap=self.prior_cap)
+                                                       prior_cap=bank.prior_cap)
         if math.hypot(fix.x - prior_pose[0], fix.y - prior_pose[1]) > 2 * search.grid.resolution:
             # the window's choice rests on the lookup's quantised error term, the basin the
             # prior lies in may fit better by the exact one: the better of the two
@@ -589,7 +450,7 @@ class LutLocaliser:
 
             def score(f):
                 d = np.array([f.x - prior_pose[0], f.y - prior_pose[1]])
-                return f.error / self.T + min(0.5 * float(d @ info @ d), self.prior_cap)
+                return f.error / self.T + bank.prior_term(d, info)
 
             if score(own) < score(fix):
                 own.mode, own.at_window_edge = "local", False
@@ -607,7 +468,8 @@ class LutLocaliser:
                 flags.append("heading-unsure")
         d = np.array([fix.x - prior_pose[0], fix.y - prior_pose[1]])
         evidence = fix.error
-        fit = evidence / self.T + min(0.5 * float(d @ info @ d), self.prior_cap)
+        nll = evidence / self.T
+        fit = nll + bank.prior_term(d, info)
         sup = search.support(obs, fix, conf["inlier_error"])
         R = vision_covariance(fix, sup, conf, heading_sigma)
         self._fit_points(fix, obs)  # the heading was found by the search when by vision
@@ -615,12 +477,10 @@ class LutLocaliser:
             # by the heading error times the observations' mean range
             spread = heading_sigma * float(np.average(obs.distance, weights=obs.weight))
             R[:2, :2] += np.eye(2) * spread * spread
-        m2 = min(float(d @ self._innovation_information(prior_cov, R) @ d), 2 * self.prior_cap)
-        return Candidate(fix=fix, support=sup, R=R, track=t, mirror=t.mirror,
-                         evidence=evidence, fit=fit, window_fit=window_fit,
-                         prior=(prior_pose, info, prior_cov),
-                         log_prior=t.log_weight + math.log1p(-conf["kidnap_probability"])
-                         - 0.5 * m2)
+        return LutCandidate(fix=fix, support=sup, R=R, track=t, mirror=t.mirror,
+                            evidence=evidence, nll=nll, fit=fit, window_fit=window_fit,
+                            prior=(prior_pose, info, prior_cov),
+                            log_prior=bank.tracked_log_prior(t, d, prior_cov, R))
 
     def _fit_points(self, fix: SearchResult, obs: Observation, *,
                     heading_fixed: bool = True) -> float:
@@ -638,7 +498,8 @@ class LutLocaliser:
         return fix.error
 
     # ------------------------------------------------------------------ global search
-    def _global_candidates(self, i, obs, heading, flags, log_prior: float) -> list[Candidate]:
+    def _global_candidates(self, i, obs, heading, flags,
+                           log_prior: float) -> list[LutCandidate]:
         """New-track candidates from a global search (known heading) or the unknown-heading
         search, those near an existing track (or its mirror) left out."""
         conf, search = self.conf, self.search
@@ -656,46 +517,22 @@ class LutLocaliser:
                 f.mode = "global" if heading is not None else "global-heading"
         self._global_heading = headings
         sigma = conf["histogram_sigma"] if heading is None else self.heading_sigma
-        out: list[Candidate] = []
+        out: list[LutCandidate] = []
         scored = sorted(((self._fit_points(f, obs, heading_fixed=heading is not None), f)
                          for f in fixes), key=lambda e: e[0])
         for e, f in scored:
-            near = [t for t in self.tracks  # the same basin as a track (or its mirror)
-                    if _near_pose(t.pose, f.pose, SAME_BASIN_M, SAME_BASIN_RAD)
-                    or (t.mirror > 0 and _near_pose(t.pose, _mirror(f.pose), SAME_BASIN_M,
-                                                    SAME_BASIN_RAD))]
-            if near:
-                continue
-            if self._fold(out, f, e):
+            # the same basin as a track (or its mirror), or as a better candidate
+            if self.bank.near_track(f.pose) or self.bank.fold(out, f.pose, e / self.T):
                 continue
             sup = search.support(obs, f, conf["inlier_error"])
-            out.append(Candidate(fix=f, support=sup, log_prior=log_prior, evidence=e,
-                                 fit=e / self.T, R=vision_covariance(f, sup, conf, sigma)))
-        for c in out:  # the folded mass: the candidate's own basin and its mirror image
-            if heading is None and self.symmetric:  # the mirror explains the frame exactly
-                c.mirror_mass = c.own_mass  # as well; the search's refinements differ a little
-            total = c.own_mass + c.mirror_mass
-            c.log_prior += math.log(total)
-            c.mirror = c.mirror_mass / total
+            out.append(LutCandidate(fix=f, support=sup, log_prior=log_prior, evidence=e,
+                                    nll=e / self.T, fit=e / self.T,
+                                    R=vision_covariance(f, sup, conf, sigma)))
+        self.bank.finish_global(out, heading is not None)
         if not self.fixed_once and conf["start_half"] != "any":
             for c in out:
                 self._on_start_half(obs, c, flags)
         return out
-
-    def _fold(self, out: list[Candidate], f: SearchResult, evidence: float) -> bool:
-        """Fold a fix into a better candidate it duplicates (the same basin: within 0.3 m and
-        0.2 rad) or mirrors (on a point-symmetric field): its likelihood relative to the
-        candidate's adds to that candidate's own or mirror mass. False if it is new."""
-        for c in out:
-            rel = math.exp(-(evidence - c.evidence) / self.T)
-            if _near_pose(c.fix.pose, f.pose, SAME_BASIN_M, SAME_BASIN_RAD):
-                c.own_mass += rel
-                return True
-            if self.symmetric and _near_pose(c.fix.pose, _mirror(f.pose), SAME_BASIN_M,
-                                             SAME_BASIN_RAD):
-                c.mirror_mass += rel
-                return True
-        return False
 
     def _histogram_headings(self, obs):
         """With no heading known: the four headings (90 deg apart) at which the line points'
@@ -718,35 +555,26 @@ class LutLocaliser:
         r.mode = "global-heading"
         return r
 
-    def _on_start_half(self, obs, c: Candidate, flags):
-        """The start_half prior on a first-fix candidate: the share of its weight on the
-        other half (its own or its mirror's) is multiplied by ``start_half_error``; the
-        candidate becomes the member on start_half when that carries more."""
+    def _on_start_half(self, obs, c: LutCandidate, flags):
+        """The start_half prior on a first-fix candidate (TrackBank.start_half); a candidate
+        moved to its mirror image is refitted there."""
         conf = self.conf
-        want_negative = conf["start_half"] == "own"
-        own_ok = (c.fix.x < 0) == want_negative
-        err = float(conf["start_half_error"])
-        p_own = (1 - c.mirror) * (1.0 if own_ok else err)
-        p_mir = c.mirror * (err if own_ok else 1.0)
-        if not self.symmetric:
-            c.log_prior += math.log(max(p_own, 1e-300))
-            return
-        total = p_own + p_mir
-        c.log_prior += math.log(max(total, 1e-300))
-        if p_mir > p_own:  # the mirror image is where the robot starts
-            mx, my, mth = _mirror(c.fix.pose)
+
+        def mirrored(c, pose):
+            mx, my, mth = pose
             m = self.search.refine(obs, self.search.grid.cell_of(mx, my), mth)
             m.mode = c.fix.mode
             c.fix = m
             c.support = self.search.support(obs, m, conf["inlier_error"])
             c.evidence = self._fit_points(m, obs, heading_fixed=False)
-            c.fit = c.evidence / self.T
+            c.fit = c.nll = c.evidence / self.T
+
+        if self.bank.start_half(c, conf["start_half"], float(conf["start_half_error"]),
+                                mirrored):
             flags.append("start-half")
-            p_own, p_mir = p_mir, p_own
-        c.mirror = p_mir / total if total > 0 else 0.0
 
     # ------------------------------------------------------------------ the null
-    def _tracked_null(self, obs, tracked: list[Candidate]) -> float:
+    def _tracked_null(self, obs, tracked: list[LutCandidate]) -> float:
         """The null of a tracked frame: the median over ``tracked_null_copies``
         random-bearing copies of the observations of the best posterior score of the
         strongest track's window (its quantised error term, as Candidate.window_fit;
@@ -760,7 +588,7 @@ class LutLocaliser:
             scale = nobs.total_weight / max(nobs.lookup_total_weight, 1e-12)
             fits.append(search.tracked_score(nobs, top.fix.theta, pose[:2], info,
                                              self.T / scale, half_width=self.half,
-                                             prior_cap=self.prior_cap))
+                                             prior_cap=self.bank.prior_cap))
         return _median(fits)
 
     def _null_copy(self, obs) -> Observation:
@@ -792,88 +620,26 @@ class LutLocaliser:
                                for th in headings) / self.T)
         return _median(out)
 
-    # ------------------------------------------------------------------ the belief
-    def _update_tracks(self, i, cands: list[Candidate], other: float, dt, odo, col):
-        """The tracks after this frame from the candidates' normalised log weights (and the
-        log weight ``other`` of elsewhere): pruned below ``prune_probability`` (their mass
-        goes elsewhere), merged when in one basin, at most ``max_tracks``; each track's
-        fusion corrected with its fix when the fix beats the null (else predicted only).
-        Returns the candidate of the strongest track."""
-        conf = self.conf
-        order = sorted(range(len(cands)), key=lambda k: -cands[k].log_post)
-        kept: list[Track] = []
-        lead = cands[order[0]]
-        cap = int(conf["max_tracks"])
-        if conf["independent"]:
-            cap = max(cap, int(conf["hypotheses"]))
-        for k in order:
-            c = cands[k]
-            if c.log_post < math.log(conf["prune_probability"]) and kept:
-                continue
-            same = [t for t in kept if _near_pose(t.pose, c.fix.pose, SAME_BASIN_M,
-                                                  SAME_BASIN_RAD)]
-            if same:
-                same[0].log_weight = float(np.logaddexp(same[0].log_weight, c.log_post))
-                continue
-            if len(kept) >= cap:
-                continue
-            if c.track is None:
-                t = self._new_track(c.fix, c.R, c.log_post, c.mirror, i)
-            else:
-                t = c.track
-                t.log_weight = c.log_post
-                t.mirror = c.mirror
-                vision = (c.fix.pose, c.R) if c.window_fit < self._null_fit else None
-                if self.use_fusion:
-                    t.fusion.step(dt, odo, col, vision)
-                    t.pose, t.cov = t.fusion.state.mean.copy(), t.fusion.state.cov.copy()
-                elif vision is not None:
-                    t.pose, t.cov = c.fix.pose.copy(), c.R.copy()
-                t.misses = 0 if vision is not None else t.misses + 1
-            kept.append(t)
-        kept_mass = float(np.exp([t.log_weight for t in kept]).sum())
-        self.other = float(min(max(1.0 - kept_mass, math.exp(other)), 1.0 - 1e-12))
-        self.tracks = kept
-        return lead
-
-    def _hypotheses(self) -> np.ndarray:
-        """(k, 4) ranked (x, y, theta, probability) of the tracks and, on a point-symmetric
-        field, their mirror images, at most ``hypotheses``."""
-        rows = []
-        for t in self.tracks:
-            w = math.exp(t.log_weight)
-            rows.append((*t.pose, w * (1 - t.mirror)))
-            if self.symmetric:
-                rows.append((*_mirror(t.pose), w * t.mirror))
-        rows.sort(key=lambda r: -r[3])  # stable: a track before its mirror on a tie
-        k = int(self.conf["hypotheses"])
-        out = rows[:k]
-        if self.symmetric and k > 1:  # the top's mirror image is always listed
-            m = _mirror(out[0][:3])
-            if not any(_near_pose(r, m, 1e-6, 1e-6) for r in out[1:]):
-                out[-1 if len(out) == k else len(out):] = [
-                    next(r for r in rows if _near_pose(r, m, 1e-6, 1e-6))]
-        return np.array(out, float)
-
-    def _learn_radial(self, obs, raw_distance, top: Candidate, hyps, col):
+    # ------------------------------------------------------------------ learning
+    def _learn_radial(self, obs, raw_distance, top: LutCandidate, hyps, col):
         """The crossings of a confident tracked frame against their predictions at the fused
         pose, into the radial correction (radial_correction.py)."""
         rc = self.radial
         rconf = self.conf["radial_correction"]
-        if (rc is None or top.track is None or col or not self.tracks
+        if (rc is None or top.track is None or col or not self.bank.tracks
                 or hyps[0, 3] < rconf["min_confidence"]):
             return
         self._radial_frames += 1
         if self._radial_frames % max(1, int(rconf["every"])):
             return
-        pose = self.tracks[0].pose
-        if self.symmetric and not _near_pose(hyps[0], pose, 0.3, 0.2):
+        pose = self.bank.tracks[0].pose
+        if self.symmetric and not near_pose(hyps[0], pose, 0.3, 0.2):
             return  # the mirror leads: its crossings predict the same distances anyway
         pred = self.search.observation_predictions(
             obs, self.search._cell_of(float(pose[0]), float(pose[1])), float(pose[2]))
         rc.update(raw_distance, pred)
 
-    def _track_imu_offset(self, i, obs, top: Candidate, col):
+    def _track_imu_offset(self, i, obs, top: LutCandidate, col):
         """IMU alignment: initialised on the first fix of the unknown-heading search
         (``imu_alignment: vision``), then updated from the vision heading every
         ``imu_offset_every`` frames (every frame on the first ``imu_offset_every`` updates),
@@ -884,7 +650,8 @@ class LutLocaliser:
             return
         if not self.alignment.known:
             var = max(math.radians(1.5) ** 2, conf["imu_sigma"] ** 2)
-            theta = self.tracks[0].pose[2] if self.tracks else top.fix.theta
+            tracks = self.bank.tracks
+            theta = tracks[0].pose[2] if tracks else top.fix.theta
             self.alignment.initialise(float(theta), float(self.yaw[i]), var)
             return
         every = int(conf["imu_offset_every"])
@@ -926,7 +693,7 @@ def run(conf: dict, dataset, features, map_file: MapFile, progress=False) -> Pos
                 if conf["heading"] == "truth" else None)
     loc = LutLocaliser(conf, search, point_fit(map_file, search.params), yaw=yaw,
                        collision=collision, truth_heading=truth_th)
-    loc.has_odometry = bool(np.any(has_odo))
+    loc.bank.has_odometry = bool(np.any(has_odo))
     track = PoseTrack()
 
     track = PoseTrack()
@@ -974,15 +741,3 @@ def _median(values) -> float:
     v = sorted(values)
     n = len(v)
     return float(v[n // 2] if n % 2 else 0.5 * (v[n // 2 - 1] + v[n // 2]))
-
-
-def _mirror(pose) -> tuple[float, float, float]:
-    """The pose seeing the same lines under the field's 180 deg symmetry."""
-    return -float(pose[0]), -float(pose[1]), float(wrap_angle(float(pose[2]) + math.pi))
-
-
-def _near_pose(candidate, pose, distance: float = 0.5, angle: float = 0.2) -> bool:
-    """Whether a candidate (x, y, theta, ...) lies within ``distance`` m and ``angle`` rad of
-    a pose."""
-    return (math.hypot(candidate[0] - pose[0], candidate[1] - pose[1]) < distance
-            and abs(float(wrap_angle(candidate[2] - pose[2]))) < angle)

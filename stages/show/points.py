@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common.artifacts import check_output
-from ..common.dataset import frame_index, open_dataset, read_image, read_mask, truth_at
+from ..common.dataset import frame_index, open_dataset, read_image, truth_at
 from ..common.errors import FieldlocError
 from ..common.features_file import FeaturesFile
 from ..common.geometry import robot_to_field
@@ -114,12 +114,9 @@ def write_picture(conf, dataset_dir, output, *, frame: str | int = 0, features=N
                 raise FieldlocError(f"{features}: no frame '{name}' (extract it first)")
             arrays = ff.frame(name)
     else:
-        camera = ds.camera()
-        c = extract.resolve_extract_conf(camera.kind, conf)
-        info = {}
-        if camera.kind == "omni" and (ds.root / extract.MASK_NAME).is_file():
-            info["mask"] = read_mask(ds.root / extract.MASK_NAME, camera.image_size)
-        arrays = extract.kind_module(camera.kind).extract_frame(image, camera, c, **info)
+        # as extract.main does it: the omni mask, the perspective head angles of head.csv
+        c = extract.resolve_extract_conf(ds.camera().kind, conf)
+        arrays = extract.extract_dataset_frame(ds, i, c)
     if pose is None and field is not None:
         pose = truth_at(ds.optional("truth"), stamp)
         if pose is None:
