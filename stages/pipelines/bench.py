@@ -10,6 +10,7 @@ lists them in order.
 
 from __future__ import annotations
 
+import importlib
 import json
 import math
 import statistics
@@ -750,6 +751,7 @@ ROWS: dict[str, Callable[[int], Row | list[Row]]] = {
     "lut-hidden-run": lambda n: _hyp().bench_lut_hidden(n),
     "real": lambda n: _hyp().bench_real(n),
     "import-rosbag": bench_import_rosbag,
+    "fit": lambda n: importlib.import_module(".bench_fit", __package__).rows(n),
 }
 
 
