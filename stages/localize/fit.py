@@ -80,7 +80,7 @@ confs = {
         "unsure_heading_sigma": 0.1,  # rad, heading prior where the source gives none
         # (IMU on a collision frame, a histogram without straight lines)
         "stamp_tolerance": 0.02,  # s, imu/truth row to frame matching
-        "min_points": 8,  # fewer line points: the frame fails
+        "min_points": 4,  # fewer line points: the frame fails (the null judges the rest)
         "max_range": 4.0,  # m, line points farther from the robot are not used
         "c": 0.25,  # m, rho(d) = d^2 / (c^2 + d^2) (Lauer et al.: 250 mm)
         "range_scale": None,  # m: weight 1 / (1 + (r / range_scale)^2), nearer points
@@ -101,6 +101,8 @@ confs = {
             "min_step_theta": 1e-5,  # rad
         },
         "reach": 0.5,  # m, how far from a prior the fit finds the robot (its basin)
+        "tracked_prior": True,  # the tracked fit minimises E / T plus the track's position
+        # prior (its Mahalanobis^2 / 2): the posterior's mode; False: E alone from the prior
         "global": {  # the multi-start global search
             "step": 0.25,  # m, grid of starts over the field and its margin
             "margin": 0.5,  # m, how far beyond the outer lines a start may lie
@@ -326,20 +328,28 @@ class FitEngine:
         self.grid_xs = np.arange(-hx, hx + 1e-9, self.global_step)
         self.grid_ys = np.arange(-hy, hy + 1e-9, self.global_step)
 
-    def fit(self, obs: FitObservation, start, *, heading=None, temperature: float = 1.0,
-            mode: str = "", step_theta: float | None = None) -> Fix:
+    def fit(self, obs: FitObservation, start, *, heading=None, position=None,
+            temperature: float = 1.0, mode: str = "", step_theta: float | None = None) -> Fix:
         """E minimised by RPROP from ``start`` (x, y, theta). ``heading`` (theta, sigma) adds
         the Gaussian prior of a measured heading: wrap(theta - theta0)^2 / (2 sigma^2) nats,
-        in E's units times ``temperature``."""
+        in E's units times ``temperature``; ``position`` ((x, y), information (2, 2)) adds a
+        Gaussian prior on the position the same way (the track's prior: the fit then finds
+        the posterior's mode, not a basin the prior rules out)."""
         out = np.empty(3)
         if heading is None:
             pth, pw = 0.0, 0.0
         else:
             pth, pw = float(heading[0]), float(temperature) / float(heading[1]) ** 2
+        if position is None:
+            px = py = ixx = ixy = iyy = 0.0
+        else:
+            (px, py), info = position
+            ixx, ixy, iyy = (float(temperature) * float(v)
+                             for v in (info[0][0], info[0][1], info[1][1]))
         st = self.step_theta if step_theta is None else float(step_theta)
         K.rprop(*self.field.args(), obs.points, obs.weight, float(start[0]), float(start[1]),
                 float(start[2]), self.c * self.c, self.iterations, self.step_xy, st, pth, pw,
-                self.min_step[0], self.min_step[1], out)
+                float(px), float(py), ixx, ixy, iyy, self.min_step[0], self.min_step[1], out)
         return self.fix_at(obs, out, mode=mode)
 
     def fix_at(self, obs: FitObservation, pose, *, mode: str = "") -> Fix:
@@ -599,16 +609,23 @@ class FitLocaliser:
         prior_pose, prior_cov = prior
         th, sigma = self._track_heading(prior_pose, obs, base, flags)
         start = np.array([prior_pose[0], prior_pose[1], th])
+        info = self.bank.innovation_information(prior_cov)
         fix = self.engine.fit(obs, start, heading=(th, sigma), temperature=self.T,
-                              mode="local")
+                              position=self._position_prior(prior_pose, info), mode="local")
         R = self.engine.vision_covariance(fix, self.T, sigma)
         nll = fix.error / self.T
         d = fix.pose[:2] - np.asarray(prior_pose[:2], float)
-        info = self.bank.innovation_information(prior_cov)
         return FitCandidate(fix=fix, R=R, nll=nll, track=t, mirror=t.mirror,
                             log_prior=self.bank.tracked_log_prior(t, d, prior_cov, R),
                             score=nll + self.bank.prior_term(d, info), heading_sigma=sigma,
                             prior=prior)
+
+    def _position_prior(self, prior_pose, info):
+        """The track's prior on the position for the tracked fit (``tracked_prior``), or None
+        (the fit sees the points alone, the Kalman filter the prior)."""
+        if not self.conf["tracked_prior"]:
+            return None
+        return (float(prior_pose[0]), float(prior_pose[1])), info
 
     def _null_copy(self, obs: FitObservation) -> FitObservation:
         perm = self._perms[self._next_perm % len(self._perms)]
@@ -626,7 +643,8 @@ class FitLocaliser:
             nobs = self._null_copy(obs)
             th = top.fix.theta if base is None else base[0]
             f = self.engine.fit(nobs, np.array([prior_pose[0], prior_pose[1], th]),
-                                heading=(th, top.heading_sigma), temperature=self.T)
+                                heading=(th, top.heading_sigma), temperature=self.T,
+                                position=self._position_prior(prior_pose, info))
             d = f.pose[:2] - np.asarray(prior_pose[:2], float)
             out.append(f.error / self.T + self.bank.prior_term(d, info))
         return float(np.median(out))

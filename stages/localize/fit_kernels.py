@@ -134,15 +134,19 @@ def cost_gradient(dist, grad, x0, y0, res, points, weights, px, py, pth, c2, out
 
 @njit("float64(float32[:, ::1], float32[:, :, ::1], float64, float64, float64, float64[:, ::1],"
       " float64[::1], float64, float64, float64, float64, int64, float64, float64, float64,"
-      " float64, float64, float64, float64[::1])", cache=True, nogil=True)
+      " float64, float64, float64, float64, float64, float64, float64, float64, float64[::1])",
+      cache=True, nogil=True)
 def rprop(dist, grad, x0, y0, res, points, weights, px, py, pth, c2, iterations, step_xy,
-          step_theta, prior_theta, prior_weight, min_step_xy, min_step_theta, out):
+          step_theta, prior_theta, prior_weight, prior_x, prior_y, info_xx, info_xy, info_yy,
+          min_step_xy, min_step_theta, out):
     """E minimised by RPROP from (px, py, pth) (module doc): at most ``iterations`` gradient
     evaluations, first steps ``step_xy`` (m) and ``step_theta`` (rad), stopping when every step
     is below ``min_step_xy`` / ``min_step_theta``. ``prior_weight`` > 0 adds
     prior_weight * wrap(theta - prior_theta)^2 / 2 (a heading measured beside the points, in
-    the units of E). The pose into ``out`` (3,); returns E at it (without the prior term),
-    and the best pose met is kept (RPROP does not test its steps)."""
+    the units of E); an information (info_xx, info_xy, info_yy) other than 0 adds the position
+    prior (p - prior)^T info (p - prior) / 2 likewise. The pose into ``out`` (3,); returns E at
+    it (without the prior terms), and the best pose met is kept (RPROP does not test its
+    steps)."""
     pose = np.array([px, py, pth])
     step = np.array([step_xy, step_xy, step_theta])
     last = np.zeros(3)
@@ -158,6 +162,11 @@ def rprop(dist, grad, x0, y0, res, points, weights, px, py, pth, c2, iterations,
             dth = (pose[2] - prior_theta + math.pi) % (2.0 * math.pi) - math.pi
             total += 0.5 * prior_weight * dth * dth
             g[2] += prior_weight * dth
+        ex = pose[0] - prior_x
+        ey = pose[1] - prior_y
+        total += 0.5 * (info_xx * ex * ex + 2.0 * info_xy * ex * ey + info_yy * ey * ey)
+        g[0] += info_xx * ex + info_xy * ey
+        g[1] += info_xy * ex + info_yy * ey
         if total < best_total:
             best_total = total
             best_e = e
@@ -186,6 +195,9 @@ def rprop(dist, grad, x0, y0, res, points, weights, px, py, pth, c2, iterations,
     if prior_weight > 0.0:
         dth = (pose[2] - prior_theta + math.pi) % (2.0 * math.pi) - math.pi
         total += 0.5 * prior_weight * dth * dth
+    ex = pose[0] - prior_x
+    ey = pose[1] - prior_y
+    total += 0.5 * (info_xx * ex * ex + 2.0 * info_xy * ex * ey + info_yy * ey * ey)
     if total < best_total:
         best_e = e
         best[:] = pose
