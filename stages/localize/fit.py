@@ -615,10 +615,17 @@ class FitLocaliser:
         R = self.engine.vision_covariance(fix, self.T, sigma)
         nll = fix.error / self.T
         d = fix.pose[:2] - np.asarray(prior_pose[:2], float)
+        score = nll + self.bank.prior_term(d, info)
+        if self.conf["tracked_prior"]:
+            # the fix is the posterior's mode m; what the points alone say is the measurement
+            # z with m = the Kalman update of the prior by z (covariance R): z = m + R info
+            # (m - prior), so the filter does not count the prior twice
+            z = fix.pose[:2] + R[:2, :2] @ info @ d
+            fix = dataclasses.replace(fix, x=float(z[0]), y=float(z[1]))
+            d = z - np.asarray(prior_pose[:2], float)
         return FitCandidate(fix=fix, R=R, nll=nll, track=t, mirror=t.mirror,
                             log_prior=self.bank.tracked_log_prior(t, d, prior_cov, R),
-                            score=nll + self.bank.prior_term(d, info), heading_sigma=sigma,
-                            prior=prior)
+                            score=score, heading_sigma=sigma, prior=prior)
 
     def _position_prior(self, prior_pose, info):
         """The track's prior on the position for the tracked fit (``tracked_prior``), or None
