@@ -32,14 +32,27 @@ def test_every_preset_loads_with_expected_crossings():
 
 
 def test_msl2015_letters():
+    """The rulebook's letters are measured from the lines' outer side: the centre lines are
+    one line width (K = 0.125 m) less, as the teams' own files have them (CAMBADA 17875 mm)."""
     fm = load_field("msl-2015")
-    assert (fm.length, fm.width, fm.line_width) == (18.0, 12.0, 0.125)
-    # penalty mark I = 3 m from the goal line, centre circle H = 4 m diameter
-    assert np.allclose(sorted(fm.penalty_marks[:, 0]), [-6.0, 0.0, 6.0])
-    assert fm.arcs[0][2] == 2.0
-    # the penalty area front line at x = 9 - E, spanning C
-    seg = [s for s in fm.segments if np.allclose(s[:, 0], 9 - 2.25)]
-    assert len(seg) == 1 and np.isclose(abs(seg[0][0, 1] - seg[0][1, 1]), 6.5)
+    assert (fm.length, fm.width, fm.line_width) == (17.875, 11.875, 0.125)
+    # penalty mark I - K = 2.875 m from the goal line's centre, centre circle H - K diameter
+    assert np.allclose(sorted(fm.penalty_marks[:, 0]), [-(8.9375 - 2.875), 0.0, 8.9375 - 2.875])
+    assert fm.arcs[0][2] == (4.0 - 0.125) / 2
+    # the penalty area front line at x = (A - K) / 2 - (E - K), spanning C - K
+    seg = [s for s in fm.segments if np.allclose(s[:, 0], 8.9375 - 2.125)]
+    assert len(seg) == 1 and np.isclose(abs(seg[0][0, 1] - seg[0][1, 1]), 6.375)
+    assert fm.spec["border"] == 1.0 + 0.125 / 2  # L from the lines' outer side
+
+
+def test_letters_need_the_line_width(tmp_path):
+    spec = dict(load_field("msl-2015").spec)
+    for key in ("length", "width", "line_width", "penalty_area", "goal_area",
+                "centre_circle_diameter", "corner_arc_radius", "penalty_mark", "border"):
+        spec.pop(key, None)
+    spec["letters"] = {k: v for k, v in spec["letters"].items() if k != "K"}
+    with pytest.raises(FieldSpecError, match="needs K"):
+        field_from_spec(spec)
 
 
 def test_crossing_positions_and_orientation():
@@ -61,10 +74,13 @@ def test_distance_to_lines_by_hand():
     fm = load_field("msl-2015")
     pts = np.array([[0.0, 0.0], [1.0, 0.0], [0.5, 1.0], [-9.5, 0.0], [8.7, -5.7]])
     d = fm.distance_to_lines(pts)
-    # on the halfway line; 1 m from it (circle 1 m away too); 0.5 m; 0.5 m behind the goal
-    # line; near the corner arc of radius 0.75 centred at (9, -6)
-    arc = abs(math.hypot(0.3, 0.3) - 0.75)
-    assert np.allclose(d, [0.0, 1.0, 0.5, 0.5, min(arc, 0.3)])
+    # centre lines: goal lines at x = +-8.9375, touch lines at y = +-5.9375, centre circle of
+    # radius 1.9375, corner arcs of radius 0.625 about the corners
+    # on the halfway line; 1 m from it but 0.9375 from the circle; 0.5 m; 0.5625 m behind the
+    # goal line; near the corner (8.9375, -5.9375): 0.2375 from both lines, farther from the arc
+    arc = abs(math.hypot(0.2375, 0.2375) - 0.625)
+    assert arc > 0.2375
+    assert np.allclose(d, [0.0, 0.9375, 0.5, 0.5625, 0.2375])
 
 
 def test_mirror_pose():

@@ -63,12 +63,15 @@ def _line_centre(profile: np.ndarray, expected: float, half: int = 15) -> float:
     return lo + float((w * np.arange(len(seg))).sum() / w.sum())
 
 
+# from (-1, 4): the touch line's middle (y = B/2 - K/2 = 5.9375 m) is 1.9375 m away
+TOUCH_FROM_Y4 = load_field("msl-2015").width / 2 - 4.0
+
+
 @pytest.mark.parametrize("heading, ahead_m, side_m", [
-    # at (-1, 4) facing +x: the halfway line (x = 0) is 1 m ahead, the touch line (y = 6)
-    # 2 m to the left
-    (0.0, 1.0, 2.0),
-    # facing +y: the touch line is 2 m ahead, the halfway line 1 m to the right
-    (math.pi / 2, 2.0, -1.0),
+    # at (-1, 4) facing +x: the halfway line (x = 0) is 1 m ahead, the touch line to the left
+    (0.0, 1.0, TOUCH_FROM_Y4),
+    # facing +y: the touch line is ahead, the halfway line 1 m to the right
+    (math.pi / 2, TOUCH_FROM_Y4, -1.0),
 ])
 def test_rendered_lines_land_at_their_ground_pixels(clean_renderer, heading, ahead_m, side_m):
     grid = ground_grid(512, 0.01)

@@ -1,9 +1,13 @@
 """Field models: league fields from ``maps/*.yaml`` (or a user's own YAML) as line geometry.
 
-All dimensions are metres and, as in B-Human's and the MSL rulebook drawings, measured between
-line centre lines. The model holds the white lines as straight segments and circular arcs (their
-centre lines) with one line width, the penalty marks, the goal posts, and the L/T/X crossings
-derived from the geometry (never typed by hand).
+All dimensions are metres, measured between line centre lines (as B-Human's field files do). The
+MSL rulebook measures its letters "from the outer side of any line" (a line belongs to the area
+it bounds), as the teams' own field files show (CAMBADA: field_length 17875 mm for A = 18 m;
+Carpe Noctem 17870; Falcons subtract the line thickness from every letter): a field given by
+letters gets its centre lines from them as the Falcons do (``msl_letter_value``: A..I minus the
+line width K, J and K as they are, the border L plus K / 2). The model holds the white lines as
+straight segments and circular arcs (their centre lines) with one line width, the penalty marks,
+the goal posts, and the L/T/X crossings derived from the geometry (never typed by hand).
 """
 
 from __future__ import annotations
@@ -37,6 +41,20 @@ MSL_LETTERS = {
     "L": ("border",),
 }
 MSL_UNUSED_LETTERS = set("MNOPQ")
+# letters measured from the outer side of the lines: one line width more than the centre lines
+MSL_OUTER_SIDE_LETTERS = set("ABCDEFGHI")
+
+
+def msl_letter_value(letter: str, value: float, line_width: float) -> float:
+    """The centre-line dimension of MSL rulebook letter ``letter`` (metres, measured from the
+    lines' outer side): A..I less the line width, the border L (from the lines' outer side to
+    the field's edge) plus half of it, J (the penalty mark's size) and K as they are."""
+    if letter in MSL_OUTER_SIDE_LETTERS:
+        return float(value) - line_width
+    if letter == "L":
+        return float(value) + line_width / 2
+    return float(value)
+
 
 # The generic schema: key -> (type, required, sub-schema or None).
 _NUM = (int, float)
@@ -284,8 +302,14 @@ def _apply_letters(spec: dict, where: str) -> dict:
             raise FieldSpecError(f"{where}: unknown key 'letters.{letter}' (MSL letters A..Q)")
         if isinstance(value, bool) or not isinstance(value, _NUM):
             raise FieldSpecError(f"{where}: key 'letters.{letter}' must be a number, got {value!r}")
+    line_width = letters.get("K", spec.get("line_width"))
+    if not isinstance(line_width, _NUM) or isinstance(line_width, bool):
+        raise FieldSpecError(f"{where}: 'letters' needs K (the line width): the rulebook's"
+                             " letters are measured from the lines' outer side")
+    for letter, value in letters.items():
         if letter in MSL_UNUSED_LETTERS:
             continue
+        value = msl_letter_value(letter, value, float(line_width))
         keys = MSL_LETTERS[letter]
         if len(keys) == 1:
             if keys[0] in spec:

@@ -131,6 +131,28 @@ class FieldColour:
         return out
 
 
+class BlockMask:
+    """A bool mask of an image (h, w) that is constant on ``cell`` x ``cell`` blocks, kept per
+    block (``blocks`` (ceil(h / cell), ceil(w / cell)) bool). Indexed with two slices it gives
+    what the full-resolution mask would (``valid[::step, ::step]``, as the field green search
+    reads its ``valid``) without building that mask."""
+
+    def __init__(self, blocks: np.ndarray, cell: int, shape):
+        self.blocks = np.asarray(blocks, bool)
+        self.cell = int(cell)
+        self.shape = tuple(shape[:2])
+
+    def __getitem__(self, key) -> np.ndarray:
+        rows, cols = key
+        r = np.arange(self.shape[0])[rows] // self.cell
+        c = np.arange(self.shape[1])[cols] // self.cell
+        return self.blocks[r[:, None], c[None, :]]
+
+    def full(self) -> np.ndarray:
+        """The full-resolution mask (h, w)."""
+        return self[:, :]
+
+
 def to_yuv(image_bgr: np.ndarray) -> np.ndarray:
     """BGR uint8 -> YUV uint8 (BT.601, U and V centred on 128)."""
     return cv2.cvtColor(image_bgr, cv2.COLOR_BGR2YUV)
@@ -238,9 +260,9 @@ def class_masks(y: np.ndarray, u: np.ndarray, v: np.ndarray, fc: FieldColour, co
 def estimate_field_colour(yuv: np.ndarray, conf: dict, valid: np.ndarray | None = None,
                           step: int = 6) -> FieldColour:
     """The field green of a frame from its dominant green chroma cluster (see module doc).
-    ``valid``: bool mask (h, w) of the floor pixels to look at; ``step``: subsampling."""
-    sub = yuv[::step, ::step]
-    sub = sub[valid[::step, ::step]] if valid is not None else sub.reshape(-1, 3)
+    ``valid``: bool mask (h, w) of the floor pixels to look at (or a BlockMask); ``step``:
+    subsampling."""
+    sub = _sample_pixels(yuv, step, None if valid is None else valid[::step, ::step])
     n_valid = max(len(sub), 1)
     y8, u8, v8 = sub[:, 0], sub[:, 1], sub[:, 2]
     y0, y1 = conf["green_search_y"]
@@ -366,16 +388,28 @@ def _local_green_luminance(yuv, fc: FieldColour, conf: dict, valid) -> np.ndarra
     # green by chroma (luminance band relative to the frame's green), 2 samples per block side
     step = max(cell // 2, 1)
     k = cell // step
-    y, u, v = cv2.split(np.ascontiguousarray(yuv[:hb * cell:step, :wb * cell:step]))
-    green, _ = _chroma_tests(y, u, v, fc, conf, white=False)
     # the luminance band, as float32 bounds (the formula's) rounded inwards for integer Y
     lo, hi = np.ceil(np.float32(fc.y * 0.3)), np.floor(np.float32(fc.y * 2.2))
+    mask = None if valid is None else valid[:hb * cell:step, :wb * cell:step]
+    if fc.hue_dir is not None:  # the hue model: one compiled pass (_hue_block_sums)
+        gs = np.zeros((hb, wb), np.float32)
+        ys = np.zeros((hb, wb), np.float32)
+        lo_s, hi_s = (np.float32(v_) ** 2 for v_ in fc.saturation)
+        _hue_block_sums(yuv, step, k, hb, wb, np.zeros((0, 0), bool) if mask is None else
+                        np.ascontiguousarray(mask), mask is not None,
+                        np.float32(fc.hue_dir[0]), np.float32(fc.hue_dir[1]),
+                        np.float32(np.float32(fc.hue_cos) ** 2), lo_s, hi_s,
+                        int(min(lo, 256.0)) if lo > 0 else 0,
+                        int(max(hi, -1.0)) if hi < 255 else 255, gs, ys)
+        return _fill_green_luminance(gs, ys, k, fc, conf)
+    y, u, v = cv2.split(np.ascontiguousarray(yuv[:hb * cell:step, :wb * cell:step]))
+    green, _ = _chroma_tests(y, u, v, fc, conf, white=False)
     if lo > 0:
         green &= y >= min(lo, 256.0)
     if hi < 255:
         green &= y <= max(hi, -1.0)
-    if valid is not None:
-        green &= valid[:hb * cell:step, :wb * cell:step]
+    if mask is not None:
+        green &= mask
     if k == 1:
         gs, ys = green.astype(np.float32), y * green
     else:  # sums over the k x k samples of each block (integers)
@@ -384,7 +418,14 @@ def _local_green_luminance(yuv, fc: FieldColour, conf: dict, valid) -> np.ndarra
         yg *= green
         gs = sum(g8[i::k, j::k] for i in range(k) for j in range(k))
         ys = sum(yg[i::k, j::k] for i in range(k) for j in range(k))
-    gs, ys = gs.astype(np.float32), ys.astype(np.float32)
+    return _fill_green_luminance(gs.astype(np.float32), ys.astype(np.float32), k, fc, conf)
+
+
+def _fill_green_luminance(gs: np.ndarray, ys: np.ndarray, k: int, fc: FieldColour, conf: dict
+                          ) -> np.ndarray:
+    """The local green luminance map from the per-block count of green samples ``gs`` and sum
+    of their Y ``ys`` (float32, of k x k samples per block): their mean where a quarter of the
+    samples are green, else the mean over the ``local_fill`` window, else the frame's."""
     fill = int(conf["local_fill"]) | 1
     gs_f = cv2.boxFilter(gs, -1, (fill, fill), normalize=False, borderType=cv2.BORDER_CONSTANT)
     ys_f = cv2.boxFilter(ys, -1, (fill, fill), normalize=False, borderType=cv2.BORDER_CONSTANT)
@@ -638,3 +679,59 @@ def _hue_cells(yuv, thr, cell, local, sat2, hx, hy, c2, lo, hi, keep_white, out,
     for i in range(hb):
         for j in range(wb):
             out[i, j, 2] = cell * cell - out[i, j, 0] - out[i, j, 1]
+
+
+@njit(cache=True, nogil=True)
+def _sample_rows(yuv, step, mask, use_mask, out):
+    n = 0
+    for i in range(0, yuv.shape[0], step):
+        for j in range(0, yuv.shape[1], step):
+            if use_mask and not mask[i // step, j // step]:
+                continue
+            out[n, 0] = yuv[i, j, 0]
+            out[n, 1] = yuv[i, j, 1]
+            out[n, 2] = yuv[i, j, 2]
+            n += 1
+    return n
+
+
+def _sample_pixels(yuv: np.ndarray, step: int, mask: np.ndarray | None) -> np.ndarray:
+    """The pixels (n, 3) of ``yuv[::step, ::step]`` where ``mask`` (of that shape; None: all)
+    holds, row by row: ``yuv[::step, ::step][mask]`` by one compiled pass."""
+    rows, cols = -(-yuv.shape[0] // step), -(-yuv.shape[1] // step)
+    use = mask is not None
+    m = np.ascontiguousarray(mask, dtype=bool) if use else np.zeros((0, 0), bool)
+    out = np.empty((int(m.sum()) if use else rows * cols, 3), np.uint8)
+    n = _sample_rows(np.ascontiguousarray(yuv), step, m, use, out)
+    return out[:n]
+
+
+@njit(cache=True, nogil=True)
+def _hue_block_sums(yuv, step, k, hb, wb, mask, use_mask, hx, hy, c2, lo, hi, y_lo, y_hi,
+                    gs, ys):
+    """_local_green_luminance's per-block sums for the hue model: over the samples every
+    ``step`` px of the hb x wb blocks (k x k per block), the count of green ones (the hue
+    test of _chroma_tests in float32, Y in [y_lo, y_hi], in ``mask`` if used) into ``gs``
+    and their summed Y into ``ys``."""
+    c128 = np.float32(128.0)
+    zero = np.float32(0.0)
+    for a in range(hb * k):
+        i = a * step
+        for b in range(wb * k):
+            j = b * step
+            if use_mask and not mask[a, b]:
+                continue
+            y = yuv[i, j, 0]
+            if y < y_lo or y > y_hi:
+                continue
+            yf = np.float32(y)
+            du = np.float32(yuv[i, j, 1]) - c128
+            dv = np.float32(yuv[i, j, 2]) - c128
+            s = du * du
+            s += dv * dv
+            dot = du * hx
+            dot += dv * hy
+            y2 = yf * yf
+            if dot >= zero and dot * dot >= c2 * s and s >= lo * y2 and s <= hi * y2:
+                gs[a // k, b // k] += np.float32(1.0)
+                ys[a // k, b // k] += yf

@@ -30,12 +30,13 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numba import njit
 
 from stages.common.features_file import CROSSING_CODES
 from stages.common.field import crossing_orientation
 from stages.common.geometry import polar
 
-from .line_fit import lens_parameters, refine_segment
+from .line_fit import distort_ideal, fit_line, lens_parameters, median, refine_segment
 from .line_structure import KeyStructure, LineGraph
 
 
@@ -101,7 +102,7 @@ def sample_cells(image: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Bilinear samples of a per-cell image at grid points (N, 2) (x = column, y = row), 0
     outside."""
     p = np.asarray(pts, np.float32).reshape(-1, 1, 2)
-    return cv2.remap(image.astype(np.float32), p[..., 0], p[..., 1], cv2.INTER_LINEAR,
+    return cv2.remap(np.asarray(image, np.float32), p[..., 0], p[..., 1], cv2.INTER_LINEAR,
                      borderMode=cv2.BORDER_CONSTANT, borderValue=0).ravel()
 
 
@@ -144,10 +145,17 @@ def circle_transitions(white: np.ndarray, green: np.ndarray, centre: np.ndarray,
 def white_path_share(white: np.ndarray, p: np.ndarray, q: np.ndarray, t_white: float,
                      step: float = 0.5) -> float:
     """Share of the samples on the straight path p -> q (grid coordinates) that are white."""
-    n = max(2, int(np.ceil(np.hypot(*(q - p)) / step)) + 1)
-    s = np.linspace(0.0, 1.0, n)[:, None]
-    v = sample_cells(white, p[None] * (1 - s) + q[None] * s)
-    return float(np.mean(v >= t_white))
+    return float(white_path_shares(white, p, np.asarray(q)[None], t_white, step)[0])
+
+
+def white_path_shares(white: np.ndarray, p: np.ndarray, qs: np.ndarray, t_white: float,
+                      step: float = 0.5) -> np.ndarray:
+    """white_path_share from p to each of the points ``qs`` (A, 2), sampled together."""
+    ns = [max(2, int(np.ceil(np.hypot(*(q - p)) / step)) + 1) for q in qs]
+    pts = np.concatenate([p[None] * (1 - s) + q[None] * s for q, s in
+                          zip(qs, (np.linspace(0.0, 1.0, n)[:, None] for n in ns))])
+    on = sample_cells(white, pts) >= t_white
+    return np.array([float(np.mean(part)) for part in np.split(on, np.cumsum(ns)[:-1])])
 
 
 def floor_arms(kind: str, arms: np.ndarray) -> tuple[float, float]:
@@ -176,11 +184,8 @@ def floor_arms(kind: str, arms: np.ndarray) -> tuple[float, float]:
 
 def _fit_direction(points: np.ndarray, centre: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares line (centroid, unit direction pointing away from ``centre``)."""
-    c = points.mean(axis=0)
-    d = points - c
-    sxx, syy, sxy = float(d[:, 0] @ d[:, 0]), float(d[:, 1] @ d[:, 1]), float(d[:, 0] @ d[:, 1])
-    theta = 0.5 * math.atan2(2.0 * sxy, sxx - syy)  # major axis of the 2 x 2 scatter
-    u = np.array([math.cos(theta), math.sin(theta)])
+    fit = fit_line(points)
+    c, u = fit.centroid, fit.direction
     if float((c - centre) @ u) < 0:
         u = -u
     return c, u
@@ -245,26 +250,146 @@ def verify_crossing(centre: np.ndarray, arm_points: np.ndarray, white: np.ndarra
     leads from the crossing along each arm (to ``arm_points``, the next node or the arm's
     reach). ``white`` is the white share per cell inside the field boundary; white means at
     least ``t_white`` and at least ``relative`` times the median white level at the arm points
-    (far lines are thin and faint). ``field``: the field region per cell (1 inside the
+    (far lines are thin and faint). Arms at a small image angle need a larger circle to be
+    told apart: one on which neighbouring arms are ``arm_gap`` cells apart (up to
+    ``max_radius``) is tried too. ``field``: the field region per cell (1 inside the
     boundary), see circle_transitions. Returns a score in [0, 1] (0 = rejected): the smallest
-    white-path share."""
-    ref = float(np.median(sample_cells(white, arm_points)))
-    t = max(conf["t_white"], conf["relative"] * ref)
-    n_arms = len(arm_points)
-    # arms at a small image angle need a larger circle to be told apart: one on which
-    # neighbouring arms are ``arm_gap`` cells apart (up to ``max_radius``)
-    ang = np.sort(np.arctan2(arm_points[:, 1] - centre[1], arm_points[:, 0] - centre[0]))
-    sep = np.diff(np.concatenate([ang, ang[:1] + 2 * math.pi])).min()
-    radii = list(conf["circle_radii"])
-    if sep > 0:
-        radii.append(min(conf["max_radius"], conf["arm_gap"] / sep))
-    counts, other = circle_transitions(white, green, centre, radii, t, conf["t_green"],
-                                       field=field)
-    if not np.any((counts == n_arms) & (other <= conf["max_other"])):
+    white-path share.
+
+    It runs compiled (``_verify``): circle_transitions and white_path_share with the cells
+    sampled bilinearly as sample_cells does (to float32 rounding)."""
+    use_field = field is not None
+    return float(_verify(np.ascontiguousarray(centre, np.float64),
+                         np.ascontiguousarray(arm_points, np.float64).reshape(-1, 2),
+                         np.asarray(white, np.float32), np.asarray(green, np.float32),
+                         np.asarray(field, np.float32) if use_field
+                         else np.zeros((1, 1), np.float32), use_field, _RING,
+                         np.asarray(conf["circle_radii"], np.float64), float(conf["t_white"]),
+                         float(conf["relative"]), float(conf["t_green"]),
+                         float(conf["arm_gap"]), float(conf["max_radius"]),
+                         float(conf["max_other"]), float(conf["min_path_share"])))
+
+
+CIRCLE_SAMPLES = 48  # samples on each circle of circle_transitions
+_T = np.linspace(0.0, 2 * math.pi, CIRCLE_SAMPLES, endpoint=False)
+_RING = np.ascontiguousarray(np.stack([np.cos(_T), np.sin(_T)], axis=1))
+
+
+@njit(cache=True, nogil=True)
+def _sample_cell(image, x64, y64):
+    """sample_cells at one point: bilinear in float32, 0 outside the image."""
+    h, w = image.shape
+    one = np.float32(1.0)
+    x, y = np.float32(x64), np.float32(y64)
+    fx, fy = np.floor(x), np.floor(y)
+    ix, iy = int(fx), int(fy)
+    ax, ay = x - fx, y - fy
+    out = np.float32(0.0)
+    if 0 <= iy < h:
+        if 0 <= ix < w:
+            out += image[iy, ix] * ((one - ay) * (one - ax))
+        if 0 <= ix + 1 < w:
+            out += image[iy, ix + 1] * ((one - ay) * ax)
+    if 0 <= iy + 1 < h:
+        if 0 <= ix < w:
+            out += image[iy + 1, ix] * (ay * (one - ax))
+        if 0 <= ix + 1 < w:
+            out += image[iy + 1, ix + 1] * (ay * ax)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _circle(white, green, field, use_field, cx, cy, r, ring, t_white, t_green, state):
+    """circle_transitions for one radius: (count, share of neither white nor green)."""
+    n = ring.shape[0]
+    n_on, neither, any_known = 0, 0, False
+    for k in range(n):
+        px, py = cx + r * ring[k, 0], cy + r * ring[k, 1]
+        if _sample_cell(white, px, py) >= t_white:
+            state[k] = 1
+        elif _sample_cell(green, px, py) >= t_green:
+            state[k] = 0
+        else:
+            state[k] = -1
+        if state[k] >= 0:
+            any_known = True
+        if use_field and _sample_cell(field, px, py) >= 0.5:
+            n_on += 1
+            if state[k] < 0:
+                neither += 1
+    if use_field:
+        other = neither / n_on if n_on > 0 else 1.0
+    else:
+        known = 0
+        for k in range(n):
+            known += state[k] >= 0
+        other = 1.0 - known / n
+    if not any_known:
+        return 0, other
+    # the last known state carried over unknown samples (cyclic)
+    last = -1
+    for k in range(n):
+        if state[k] >= 0:
+            last = state[k]
+    count, prev = 0, last
+    for k in range(n):
+        cur = state[k] if state[k] >= 0 else prev
+        if cur == 1 and prev == 0:
+            count += 1
+        prev = cur
+    return count, other
+
+
+@njit(cache=True, nogil=True)
+def _path_share(white, px, py, qx, qy, t, step):
+    """white_path_share from (px, py) to (qx, qy)."""
+    n = max(2, int(np.ceil(math.hypot(qx - px, qy - py) / step)) + 1)
+    d = 1.0 / (n - 1)
+    on = 0
+    for k in range(n):
+        s = k * d if k < n - 1 else 1.0
+        if _sample_cell(white, px * (1 - s) + qx * s, py * (1 - s) + qy * s) >= t:
+            on += 1
+    return on / n
+
+
+@njit(cache=True, nogil=True)
+def _verify(centre, arms, white, green, field, use_field, ring, radii, t_white, relative,
+            t_green, arm_gap, max_radius, max_other, min_path_share):
+    n_arms = arms.shape[0]
+    cx, cy = centre[0], centre[1]
+    levels = np.empty(n_arms, np.float32)
+    ang = np.empty(n_arms)
+    for a in range(n_arms):
+        levels[a] = _sample_cell(white, arms[a, 0], arms[a, 1])
+        ang[a] = math.atan2(arms[a, 1] - cy, arms[a, 0] - cx)
+    ref = np.median(levels) if n_arms else np.float32(np.nan)
+    t = max(t_white, relative * ref)
+    ang.sort()
+    sep = np.inf
+    for a in range(n_arms):
+        gap = (ang[a + 1] if a + 1 < n_arms else ang[0] + 2 * math.pi) - ang[a]
+        sep = min(sep, gap)
+    state = np.empty(ring.shape[0], np.int64)
+    found = False
+    for k in range(len(radii) + 1):
+        if k < len(radii):
+            r = radii[k]
+        elif sep > 0:
+            r = min(max_radius, arm_gap / sep)
+        else:
+            break
+        count, other = _circle(white, green, field, use_field, cx, cy, r, ring, t, t_green,
+                               state)
+        if count == n_arms and other <= max_other:
+            found = True
+            break
+    if not found or n_arms == 0:
         return 0.0
-    shares = [white_path_share(white, centre, arm, t) for arm in arm_points]
-    score = min(shares) if shares else 0.0
-    return score if score >= conf["min_path_share"] else 0.0
+    score = 1.0
+    for a in range(n_arms):
+        score = min(score, _path_share(white, cx, cy, arms[a, 0], arms[a, 1], t, 0.5))
+    return score if score >= min_path_share else 0.0
 
 
 @dataclass
@@ -472,23 +597,27 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
     position), or the reason it is rejected. The cheap floor checks come before the image
     checks."""
     step = cc["arm_step"] * cell
-    floor = to_floor(np.vstack([x[None], x + step * dirs]))
+    n = len(dirs)
+    # all floor points at once: the crossing, a step along each arm, the cell below, the ends
+    pts = [x[None], x + step * dirs, x[None] + np.array([[0.0, float(cell)]])]
+    if lengths is not None:
+        pts.append(x[None] + np.asarray(lengths)[:, None] * dirs)
+    on_floor = to_floor(np.vstack(pts))
+    floor, below, ends = on_floor[:n + 1], on_floor[n + 1:n + 2], on_floor[n + 2:]
     if not np.all(np.isfinite(floor)):
         return "above the horizon"
     if lengths is not None:
-        ends = to_floor(x[None] + np.asarray(lengths)[:, None] * dirs)
         arm_m = np.hypot(*(ends - floor[0]).T)  # NaN beyond the horizon: long enough
         if np.any(arm_m < cc["min_arm_length"]):
             return "arm too short"
     d, bearing = polar(floor[:1])
-    below = to_floor(x[None] + np.array([[0.0, float(cell)]]))
     if not np.all(np.isfinite(below)) or np.hypot(*(below[0] - floor[0])) > cc["max_cell_span"]:
         return "too far"
     arm_dirs = np.arctan2(floor[1:, 1] - floor[0, 1], floor[1:, 0] - floor[0, 0])
     orient, misfit = floor_arms(kind, arm_dirs)
     if misfit > cc["max_misfit"]:
         return f"floor angles misfit {math.degrees(misfit):.0f} deg"
-    px = camera.distort_points(np.vstack([x[None], x + reach[:, None] * dirs]))
+    px = distort_ideal(lens_parameters(camera), np.vstack([x[None], x + reach[:, None] * dirs]))
     if not np.all(np.isfinite(px)):
         return "outside the lens model"
     grid = (px + 0.5) / cell - 0.5
@@ -518,7 +647,7 @@ def _alternative_in_view(x, dirs, camera, top, other_mean, green, cc, cell) -> b
     be), ``arm_reach`` cells from the crossing: inside the image and the field boundary, no
     object there, and green (at least ``t_green``). A T seen with one half of its bar out of
     view or hidden looks like an L; so do a far X's arms, flattened by the perspective."""
-    pts = camera.distort_points(x[None] - cc["arm_reach"] * cell * dirs)
+    pts = distort_ideal(lens_parameters(camera), x[None] - cc["arm_reach"] * cell * dirs)
     w, h = camera.image_size
     for p in pts:
         if not (np.all(np.isfinite(p)) and 0 <= p[0] <= w - 1 and 0 <= p[1] <= h - 1):

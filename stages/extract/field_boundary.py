@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from numba import njit
 
 # Weights of the colour classes in the merged grey image: green is field; white is a line on
 # it, but also a wall or banner behind it, so a cell of white alone stays below the weak
@@ -69,18 +70,27 @@ def binarize_field(grey: np.ndarray, t_pix: float, t_row: float, t_win: float,
 def _bounded_runs(candidate: np.ndarray, bound: np.ndarray, max_run: int) -> np.ndarray:
     """Runs of ``candidate`` cells along each row (H, W), at most ``max_run`` long, with a
     ``bound`` cell right before and right after them (bool mask of those runs)."""
+    out = np.zeros(candidate.shape, np.bool_)
+    _mark_bounded_runs(candidate, bound, int(max_run), out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _mark_bounded_runs(candidate, bound, max_run, out):
     h, w = candidate.shape
-    c = np.zeros((h, w + 2), np.int8)
-    c[:, 1:-1] = candidate
-    d = np.diff(c, axis=1)
-    rs, s = np.nonzero(d == 1)  # run starts (first cell), row-major order
-    _, e = np.nonzero(d == -1)  # first cell after each run, same order
-    ok = (e - s <= max_run) & (s > 0) & (e < w)
-    ok[ok] &= bound[rs[ok], s[ok] - 1] & bound[rs[ok], e[ok]]
-    mark = np.zeros((h, w + 1), np.int16)
-    np.add.at(mark, (rs[ok], s[ok]), 1)
-    np.add.at(mark, (rs[ok], e[ok]), -1)
-    return np.cumsum(mark, axis=1)[:, :w] > 0
+    for r in range(h):
+        c = 0
+        while c < w:
+            if not candidate[r, c]:
+                c += 1
+                continue
+            s = c
+            while c < w and candidate[r, c]:
+                c += 1
+            # the run is s .. c - 1
+            if c - s <= max_run and s > 0 and c < w and bound[r, s - 1] and bound[r, c]:
+                for k in range(s, c):
+                    out[r, k] = True
 
 
 def fill_lines(field: np.ndarray, white: np.ndarray, t_white: float, max_run: int
@@ -127,7 +137,7 @@ def smooth_field_heights(heights: np.ndarray, sigma: float, median: int) -> np.n
         r = int(median) // 2
         windows = np.lib.stride_tricks.sliding_window_view(np.pad(out, r, mode="edge"),
                                                            2 * r + 1)
-        out = np.median(windows, axis=1)
+        out = np.sort(windows, axis=1)[:, r]  # the middle of an odd window: its median
     return out
 
 

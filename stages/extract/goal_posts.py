@@ -19,6 +19,7 @@ field line seen along its length.
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 
 def bar_runs(white: np.ndarray, top: np.ndarray, t_white: float, max_up: int, max_down: int
@@ -26,19 +27,26 @@ def bar_runs(white: np.ndarray, top: np.ndarray, t_white: float, max_up: int, ma
     """Per column: (run of white cells upward from the boundary, run downward from it, row of
     the first field cell). A cell is white when its share is at least ``t_white``."""
     h, w = white.shape
-    cols = np.arange(w)
     start = np.clip(np.ceil(np.asarray(top, float)).astype(int), 0, h)
-    up_rows = start[None, :] - 1 - np.arange(max_up)[:, None]  # (max_up, W)
-    dn_rows = start[None, :] + np.arange(max_down)[:, None]
-    is_white = white >= t_white
+    up, down = np.empty(w, np.int64), np.empty(w, np.int64)
+    _white_runs(white >= t_white, start, int(max_up), int(max_down), up, down)
+    return up, down, start
 
-    def run(rows):
-        ok = (rows >= 0) & (rows < h)
-        vals = np.where(ok, is_white[np.clip(rows, 0, h - 1), cols[None, :]], False)
-        vals = np.concatenate([vals, np.zeros((1, w), bool)])
-        return np.argmin(vals, axis=0)  # first non-white
 
-    return run(up_rows), run(dn_rows), start
+@njit(cache=True, nogil=True)
+def _white_runs(is_white, start, max_up, max_down, up, down):
+    """Per column, the white cells in a row upward from the row above ``start`` (at most
+    ``max_up``) and downward from ``start`` (at most ``max_down``)."""
+    h = is_white.shape[0]
+    for c in range(is_white.shape[1]):
+        n = 0
+        while n < max_up and 0 <= start[c] - 1 - n < h and is_white[start[c] - 1 - n, c]:
+            n += 1
+        up[c] = n
+        n = 0
+        while n < max_down and 0 <= start[c] + n < h and is_white[start[c] + n, c]:
+            n += 1
+        down[c] = n
 
 
 def post_columns(up_run: np.ndarray, min_rise: int, max_width: int) -> list[np.ndarray]:

@@ -50,16 +50,10 @@ def line_components(graph: LineGraph) -> list[list[int]]:
 
 
 def fit_line(points: np.ndarray) -> LineFit:
-    """Least-squares line through points (n, 2) minimising orthogonal distances."""
-    c = points.mean(axis=0)
-    d = points - c
-    sxx, syy, sxy = float(d[:, 0] @ d[:, 0]), float(d[:, 1] @ d[:, 1]), float(d[:, 0] @ d[:, 1])
-    theta = 0.5 * math.atan2(2.0 * sxy, sxx - syy)  # major axis of the 2 x 2 scatter
-    direction = np.array([math.cos(theta), math.sin(theta)])
-    normal = np.array([-direction[1], direction[0]])
-    minor = 0.5 * (sxx + syy) - math.hypot(0.5 * (sxx - syy), sxy)
-    rms = math.sqrt(max(minor, 0.0) / len(points))
-    return LineFit(c, direction, normal, rms)
+    """Least-squares line through points (n, 2) minimising orthogonal distances (the major
+    axis of their 2 x 2 scatter; compiled: ``_fit_points``)."""
+    cx, cy, ux, uy, nx, ny, rms = _fit_points(np.asarray(points, np.float64))
+    return LineFit(np.array([cx, cy]), np.array([ux, uy]), np.array([nx, ny]), rms)
 
 
 def point_line_distance(points: np.ndarray, fit: LineFit) -> np.ndarray:
@@ -70,33 +64,26 @@ def split_component(points: np.ndarray, idx: np.ndarray, max_distance: float,
                     min_nodes: int = 3) -> list[np.ndarray]:
     """Recursive split of one ordered component (indices into ``points``): fit, find the node
     with the largest distance to the line, split there (the node belongs to both halves) while
-    that distance exceeds ``max_distance``. Parts with fewer than ``min_nodes`` are dropped."""
+    that distance exceeds ``max_distance``. When the farthest node is an end node, the chord
+    between the ends is the better split test: its farthest interior node splits, or without
+    one the end node is dropped. Parts with fewer than ``min_nodes`` are dropped. Every part
+    is a run of ``idx``; the recursion runs compiled (``_split_ranges``), depth first, so the
+    parts come in order along the component."""
+    idx = np.asarray(idx)
     if len(idx) < min_nodes:
         return []
-    fit = fit_line(points[idx])
-    d = point_line_distance(points[idx], fit)
-    k = int(np.argmax(d))
-    if d[k] <= max_distance:
-        return [idx]
-    if k == 0 or k == len(idx) - 1:
-        # the worst node is an end node: the chord between the ends is the better split test
-        p0, p1 = points[idx[0]], points[idx[-1]]
-        chord = p1 - p0
-        n = np.hypot(*chord)
-        if n > 0:
-            dc = np.abs((points[idx] - p0) @ np.array([-chord[1], chord[0]]) / n)
-            k = int(np.argmax(dc[1:-1])) + 1 if len(idx) > 2 else 0
-        if k in (0, len(idx) - 1):
-            return split_component(points, idx[1:] if k == 0 else idx[:-1], max_distance,
-                                   min_nodes)
-    return (split_component(points, idx[:k + 1], max_distance, min_nodes)
-            + split_component(points, idx[k:], max_distance, min_nodes))
+    ranges = np.empty((len(idx), 2), np.int64)
+    m = _split_ranges(np.ascontiguousarray(points[idx], np.float64), float(max_distance),
+                      int(min_nodes), ranges)
+    return [idx[a:b] for a, b in ranges[:m]]
 
 
 def _ends_on_line(points: np.ndarray, idx: np.ndarray, fit: LineFit) -> np.ndarray:
-    t = (points[idx] - fit.centroid) @ fit.direction
-    lo, hi = t.min(), t.max()
-    return np.stack([fit.centroid + lo * fit.direction, fit.centroid + hi * fit.direction])
+    """The extreme points of ``points[idx]`` along the fitted line, projected on it (2, 2)."""
+    out = np.empty((2, 2))
+    _extent(points, np.asarray(idx, np.int64), fit.centroid[0], fit.centroid[1],
+            fit.direction[0], fit.direction[1], out)
+    return out
 
 
 def _similar_pairs(cen: np.ndarray, dirs: np.ndarray, nor: np.ndarray, ends: np.ndarray,
@@ -218,17 +205,33 @@ class RefinedLine:
 # ---------------------------------------------------------------------------- compiled path
 
 
+@njit(cache=True, nogil=True)
+def median(values):
+    """``np.median`` of a 1-D array, compiled (the same value: the middle order statistic, or
+    the mean of the two middle ones; without numpy's call overhead on short arrays)."""
+    return np.median(values)
+
+
 def lens_parameters(camera) -> np.ndarray:
     """(9,) fx, fy, cx, cy, k1, k2, p1, p2, k3 of a PerspectiveCamera, for the kernels."""
     return np.array([camera.fx, camera.fy, camera.cx, camera.cy, *camera.distortion],
                     np.float64)
 
 
+def distort_ideal(lens: np.ndarray, ideal) -> np.ndarray:
+    """Ideal pixels (N, 2) -> image pixels through the lens's distortion (``lens`` from
+    ``lens_parameters``): PerspectiveCamera.distort_points, operation by operation, compiled."""
+    p = np.ascontiguousarray(np.asarray(ideal, np.float64).reshape(-1, 2))
+    out = np.empty_like(p)
+    _distort_all(lens, p, out)
+    return out
+
+
 def refine_segment(ends: np.ndarray, white: np.ndarray, lens: np.ndarray, step: float,
                    reach: float, extend: float, min_points: int, grow: float = 0.0
                    ) -> RefinedLine | None:
     """The coarse segment ``ends`` (2, 2, ideal px) refined on the full-resolution white mask
-    ``white`` (float32, 1 = white; ``lens`` from ``lens_parameters`` maps ideal pixels to the
+    ``white`` (uint8 or float32, 1 = white; ``lens`` from ``lens_parameters`` maps ideal pixels to the
     image through the lens's distortion), in one compiled kernel (``_refine``):
 
     - perpendicular profiles every ``step`` px from ``extend`` px before its first end to
@@ -257,7 +260,7 @@ def refine_segment(ends: np.ndarray, white: np.ndarray, lens: np.ndarray, step: 
     return RefinedLine(res[1:5].reshape(2, 2).copy(), fit, pts, widths)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _distort(lens, x, y):
     fx, fy, cx, cy, k1, k2, p1, p2, k3 = lens
     nx = (x - cx) / fx
@@ -270,6 +273,12 @@ def _distort(lens, x, y):
 
 
 @njit(cache=True, nogil=True)
+def _distort_all(lens, p, out):
+    for i in range(p.shape[0]):
+        out[i, 0], out[i, 1] = _distort(lens, p[i, 0], p[i, 1])
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _bilinear_at(image, x, y):
     h, w = image.shape
     x0 = np.floor(x)
@@ -291,6 +300,17 @@ def _bilinear_at(image, x, y):
     return out
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _profile_sample(image, lens, bx, by, nx, ny, reach, k, prof):
+    """Sample k of a profile across a line at (bx, by) (offset -reach + k along the normal
+    (nx, ny)), taken once into ``prof``."""
+    if np.isnan(prof[k]):
+        a = -reach + k
+        ix, iy = _distort(lens, bx + a * nx, by + a * ny)
+        prof[k] = _bilinear_at(image, ix, iy)
+    return prof[k]
+
+
 @njit(cache=True, nogil=True)
 def _profile_runs(image, lens, ox, oy, ux, uy, along, reach, centre, width, ok):
     """white_profiles + run_centres for one origin/direction: per position along, the centre
@@ -300,26 +320,32 @@ def _profile_runs(image, lens, ox, oy, ux, uy, along, reach, centre, width, ok):
     t = int(round(2 * reach)) + 1  # offsets -reach .. reach, 1 px apart
     mid = t // 2
     prof = np.empty(t)
+    # the samples are taken as needed, outward from the middle (NaN: not yet sampled): the
+    # run nearest the middle and its extent need only those up to one past its ends
     for s in range(len(along)):
-        for k in range(t):
-            a = -reach + k
-            px = ox + along[s] * ux + a * nx
-            py = oy + along[s] * uy + a * ny
-            ix, iy = _distort(lens, px, py)
-            prof[k] = _bilinear_at(image, ix, iy)
-        best, bd = -1, t + 1
-        for k in range(t):
-            if prof[k] >= 0.5 and abs(k - mid) < bd:
-                best, bd = k, abs(k - mid)
+        prof[:] = np.nan
+        bx, by = ox + along[s] * ux, oy + along[s] * uy
+        best = -1
+        for d in range(mid + 1):
+            k = mid - d
+            if k >= 0 and _profile_sample(image, lens, bx, by, nx, ny, reach, k, prof) >= 0.5:
+                best = k
+                break
+            k = mid + d
+            if k < t and _profile_sample(image, lens, bx, by, nx, ny, reach, k, prof) >= 0.5:
+                best = k
+                break
         if best < 0:
             ok[s] = False
             centre[s] = 0.0
             width[s] = 0.0
             continue
         lo, hi = best, best
-        while lo > 0 and prof[lo - 1] >= 0.5:
+        while lo > 0 and _profile_sample(image, lens, bx, by, nx, ny, reach, lo - 1,
+                                         prof) >= 0.5:
             lo -= 1
-        while hi < t - 1 and prof[hi + 1] >= 0.5:
+        while hi < t - 1 and _profile_sample(image, lens, bx, by, nx, ny, reach, hi + 1,
+                                             prof) >= 0.5:
             hi += 1
         mass, wsum = 0.0, 0.0
         for k in range(lo, hi + 1):
@@ -328,6 +354,88 @@ def _profile_runs(image, lens, ox, oy, ux, uy, along, reach, centre, width, ok):
         centre[s] = wsum / mass if mass > 0 else 0.0
         width[s] = mass
         ok[s] = not (lo == 0 or hi == t - 1)
+
+
+@njit(cache=True, nogil=True)
+def _fit_points(p):
+    """fit_line on points (n, 2): centroid, direction, normal and rms."""
+    n = p.shape[0]
+    cx, cy = 0.0, 0.0
+    for i in range(n):
+        cx += p[i, 0]
+        cy += p[i, 1]
+    cx /= n
+    cy /= n
+    sxx, syy, sxy = 0.0, 0.0, 0.0
+    for i in range(n):
+        dx, dy = p[i, 0] - cx, p[i, 1] - cy
+        sxx += dx * dx
+        syy += dy * dy
+        sxy += dx * dy
+    theta = 0.5 * math.atan2(2.0 * sxy, sxx - syy)  # major axis of the 2 x 2 scatter
+    ux, uy = math.cos(theta), math.sin(theta)
+    minor = 0.5 * (sxx + syy) - math.hypot(0.5 * (sxx - syy), sxy)
+    return cx, cy, ux, uy, -uy, ux, math.sqrt(max(minor, 0.0) / n)
+
+
+@njit(cache=True, nogil=True)
+def _extent(points, idx, cx, cy, ux, uy, out):
+    lo, hi = np.inf, -np.inf
+    for i in idx:
+        t = (points[i, 0] - cx) * ux + (points[i, 1] - cy) * uy
+        lo = min(lo, t)
+        hi = max(hi, t)
+    out[0, 0], out[0, 1] = cx + lo * ux, cy + lo * uy
+    out[1, 0], out[1, 1] = cx + hi * ux, cy + hi * uy
+
+
+@njit(cache=True, nogil=True)
+def _split_ranges(p, max_distance, min_nodes, out):
+    """split_component on the ordered points p (n, 2): the parts as runs [a, b) of them into
+    ``out`` (n, 2), in order; returns their number."""
+    n = p.shape[0]
+    stack = np.empty((2 * n + 4, 2), np.int64)
+    stack[0, 0], stack[0, 1] = 0, n
+    top, m = 1, 0
+    while top > 0:
+        top -= 1
+        a, b = stack[top, 0], stack[top, 1]
+        if b - a < min_nodes:
+            continue
+        cx, cy, ux, uy, nx, ny, rms = _fit_points(p[a:b])
+        k, dmax = 0, -1.0
+        for i in range(b - a):
+            d = abs((p[a + i, 0] - cx) * nx + (p[a + i, 1] - cy) * ny)
+            if d > dmax:
+                k, dmax = i, d
+        if dmax <= max_distance:
+            out[m, 0], out[m, 1] = a, b
+            m += 1
+            continue
+        last = b - a - 1
+        if k == 0 or k == last:
+            # the worst node is an end node: the chord between the ends is the better test
+            c0, c1 = p[b - 1, 0] - p[a, 0], p[b - 1, 1] - p[a, 1]
+            length = math.hypot(c0, c1)
+            if length > 0:
+                if b - a > 2:
+                    k, dmax = 1, -1.0
+                    for i in range(1, last):
+                        d = abs(((p[a + i, 0] - p[a, 0]) * -c1 + (p[a + i, 1] - p[a, 1]) * c0)
+                                / length)
+                        if d > dmax:
+                            k, dmax = i, d
+                else:
+                    k = 0
+            if k == 0 or k == last:
+                stack[top, 0], stack[top, 1] = (a + 1, b) if k == 0 else (a, b - 1)
+                top += 1
+                continue
+        # the right half below the left one: the left is split first
+        stack[top, 0], stack[top, 1] = a + k, b
+        stack[top + 1, 0], stack[top + 1, 1] = a, a + k + 1
+        top += 2
+    return m
 
 
 @njit(cache=True, nogil=True)

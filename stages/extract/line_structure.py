@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from numba import njit
 
 _KERNEL3 = np.ones((3, 3), np.uint8)
 _CROSS3 = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], np.uint8)
@@ -137,16 +138,13 @@ def place_nodes(image: np.ndarray, skeleton: np.ndarray, c: np.ndarray
     of its 3 x 3 region assigned to it, 4-neighbours first), 0 elsewhere."""
     key = ranking_keys(image)
     priority = np.where(skeleton, key + np.where(c == 0, 2.0 ** 45, 0.0), -1.0)
-    available = skeleton.copy()
-    nodes = np.zeros_like(skeleton)
-    while available.any():
-        p = np.where(available, priority, -1.0)
-        new = available & (p >= cv2.dilate(p, _KERNEL3))
-        nodes |= new
-        available &= ~(cv2.dilate(new.astype(np.uint8), _KERNEL3) > 0)
-    ys, xs = np.nonzero(nodes)
-    order = np.argsort(-priority[ys, xs], kind="stable")
-    ys, xs = ys[order], xs[order]
+    # the parallel rounds pick the same pixels as one greedy pass in priority order (every
+    # priority differs: a pixel that is the highest available one in its neighbourhood is
+    # taken in both, and so, round after round, is every pixel the greedy pass takes)
+    sy, sx = np.nonzero(skeleton)
+    order = np.argsort(-priority[sy, sx], kind="stable")
+    taken = _greedy_nodes(sy[order], sx[order], skeleton.shape[0], skeleton.shape[1])
+    ys, xs = sy[order][taken], sx[order][taken]
     labels = np.zeros(skeleton.shape, np.float32)
     labels[ys, xs] = np.arange(1, len(xs) + 1, dtype=np.float32)
     regions = labels.copy()
@@ -157,6 +155,22 @@ def place_nodes(image: np.ndarray, skeleton: np.ndarray, c: np.ndarray
     full = cv2.dilate(labels, _KERNEL3)
     regions[rest] = full[rest]
     return np.stack([xs, ys], axis=1).astype(int), regions.astype(np.int32)
+
+
+@njit(cache=True, nogil=True)
+def _greedy_nodes(ys, xs, h, w):
+    """Pixels (in the order given) taken while none of their 8-neighbours is taken."""
+    blocked = np.zeros((h + 2, w + 2), np.bool_)
+    taken = np.zeros(len(ys), np.bool_)
+    for k in range(len(ys)):
+        y, x = ys[k] + 1, xs[k] + 1
+        if blocked[y, x]:
+            continue
+        taken[k] = True
+        for dy in range(-1, 2):
+            for dx in range(-1, 2):
+                blocked[y + dy, x + dx] = True
+    return taken
 
 
 def subpixel_positions(image: np.ndarray, pix: np.ndarray) -> np.ndarray:
@@ -197,6 +211,8 @@ def connect_nodes(regions: np.ndarray, n: int) -> list[set]:
 def remove_triangles(graph: LineGraph):
     """Drop the longest side of each triangle of connections (in place)."""
     for i in range(len(graph)):
+        if len(graph.adj[i]) < 2:
+            continue  # no triangle at i
         for j in sorted(graph.adj[i]):
             if j <= i:
                 continue
@@ -295,40 +311,47 @@ def fill_gaps(graph: LineGraph, image: np.ndarray, max_gap: float, min_cos: floa
         return
     pos = graph.pos
     d = np.hypot(*(pos[loose][:, None, :] - pos[None, :, :]).transpose(2, 0, 1))
-    outward = {int(i): _outward(graph, int(i)) for i in loose}
+    near_all = (d <= max_gap) & (d > 0)
+    outward = {}
+    for i in loose.tolist():
+        o = _outward(graph, i)
+        outward[i] = None if o is None else (float(o[0]), float(o[1]))
+    xy = pos.tolist()
+    deg_l = deg.tolist()
     cand = []
-    for a, i in enumerate(loose):
-        near = np.nonzero((d[a] <= max_gap) & (d[a] > 0))[0]
+    for a, i in enumerate(loose.tolist()):
+        near = np.nonzero(near_all[a])[0]
         if len(near) == 0:
             continue
-        i = int(i)
         steps = {i}
         frontier = {i}
         for _ in range(3):
             frontier = {k for f in frontier for k in graph.adj[f]} - steps
             steps |= frontier
         out_i = outward[i]
-        for j in near:
-            j = int(j)
+        xi, yi = xy[i]
+        da = d[a]
+        for j in near.tolist():
             if j in steps:
                 continue
-            g = (pos[j] - pos[i]) / d[a, j]
-            out_j = outward.get(j) if deg[j] <= 1 else None
-            closing = d[a, j] <= close_gap and deg[j] == 1 and deg[i] == 1
+            dj = float(da[j])
+            gx, gy = (xy[j][0] - xi) / dj, (xy[j][1] - yi) / dj
+            out_j = outward.get(j) if deg_l[j] <= 1 else None
+            closing = dj <= close_gap and deg_l[j] == 1 and deg_l[i] == 1
             score = 0.0
             if out_i is not None:
-                ci = float(out_i @ g)
+                ci = out_i[0] * gx + out_i[1] * gy
                 if ci < min_cos and not closing:
                     continue
                 score += ci
             if out_j is not None:
-                cj = float(-out_j @ g)
+                cj = -out_j[0] * gx + -out_j[1] * gy
                 if cj < min_cos and not closing:
                     continue
                 score += cj
-            if out_i is None and out_j is None and deg[j] > 0:
+            if out_i is None and out_j is None and deg_l[j] > 0:
                 continue  # an isolated node joins only where a line's direction leads
-            cand.append((score - d[a, j] / max_gap, i, j))
+            cand.append((score - dj / max_gap, i, j))
     if not cand:
         return
     # simplicity: grey level along all candidate gaps, sampled in one pass

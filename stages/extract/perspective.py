@@ -25,6 +25,7 @@ import math
 
 import cv2
 import numpy as np
+from numba import njit
 
 from ..common.errors import DatasetError
 from ..common.geometry import polar
@@ -37,6 +38,7 @@ from .line_fit import (
     floor_line_parameters,
     lens_parameters,
     line_components,
+    median,
     refine_segment,
     split_and_merge,
 )
@@ -227,6 +229,21 @@ class IdealPixels:
         self.stride = stride
         self.map_u = ideal[..., 0].astype(np.float32)
         self.map_v = ideal[..., 1].astype(np.float32)
+        self._cell_centres: dict[tuple, np.ndarray] = {}
+
+    def cell_centres(self, shape, cell: int) -> np.ndarray:
+        """Ideal pixels (hb * wb, 2) of the centres of the ``cell`` x ``cell`` blocks of an
+        image of ``shape`` (h, w), row by row (computed once per grid)."""
+        h, w = shape[:2]
+        key = (h, w, cell)
+        hit = self._cell_centres.get(key)
+        if hit is None:
+            hb, wb = -(-h // cell), -(-w // cell)
+            gy, gx = np.mgrid[0:hb, 0:wb]
+            hit = self(grid_to_pixels(np.stack([gx.ravel(), gy.ravel()], axis=1), cell))
+            hit.setflags(write=False)
+            self._cell_centres[key] = hit
+        return hit
 
     def __call__(self, uv) -> np.ndarray:
         """Distorted pixels (N, 2) -> ideal pixels (N, 2); NaN outside the lens model."""
@@ -262,28 +279,40 @@ class FloorProjection:
     def __init__(self, camera, pitch=None, roll=None):
         m = camera.rotation(pitch, roll) @ np.linalg.inv(camera.camera_matrix)
         self.m = m
+        self.m_inv = np.linalg.inv(m)
         self.height = float(camera.height)
         self.position = np.asarray(camera.position, float)
 
     def __call__(self, ideal) -> np.ndarray:
-        p = np.asarray(ideal, float).reshape(-1, 2)
-        rays = p @ self.m[:, :2].T + self.m[:, 2]
-        down = rays[:, 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.where(down < -1e-9, self.height / -down, np.nan)
-        floor = rays[:, :2] * t[:, None]
-        if self.position.any():
-            floor += self.position
-        return floor
+        p = np.ascontiguousarray(np.asarray(ideal, np.float64).reshape(-1, 2))
+        out = np.empty_like(p)
+        _to_floor(p, self.m, self.height, self.position, bool(self.position.any()), out)
+        return out
 
     def to_ideal(self, floor) -> np.ndarray:
         """Floor points (N, 2) in the robot frame -> ideal pixels (N, 2) (NaN behind the
         camera)."""
         p = np.asarray(floor, float).reshape(-1, 2) - self.position
         rel = np.concatenate([p, np.full((len(p), 1), -self.height)], axis=1)
-        h = rel @ np.linalg.inv(self.m).T  # homogeneous ideal pixels
+        h = rel @ self.m_inv.T  # homogeneous ideal pixels
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.where(h[:, 2:] > 1e-9, h[:, :2] / h[:, 2:], np.nan)
+
+
+@njit(cache=True, nogil=True)
+def _to_floor(p, m, height, position, shifted, out):
+    """FloorProjection on ideal pixels p (N, 2) into ``out``: each pixel's ray m (u, v, 1)
+    cut with the floor ``height`` below the lens (NaN unless the ray points down), plus the
+    lens's ``position`` over the floor if ``shifted``."""
+    for i in range(p.shape[0]):
+        rx = p[i, 0] * m[0, 0] + p[i, 1] * m[0, 1] + m[0, 2]
+        ry = p[i, 0] * m[1, 0] + p[i, 1] * m[1, 1] + m[1, 2]
+        down = p[i, 0] * m[2, 0] + p[i, 1] * m[2, 1] + m[2, 2]
+        t = height / -down if down < -1e-9 else np.nan
+        out[i, 0], out[i, 1] = rx * t, ry * t
+        if shifted:
+            out[i, 0] += position[0]
+            out[i, 1] += position[1]
 
 
 def ideal_to_floor(camera, ideal, pitch=None, roll=None) -> np.ndarray:
@@ -302,18 +331,16 @@ def _empty(n: int) -> np.ndarray:
     return np.zeros((0, n), np.float32)
 
 
-def below_horizon(camera, shape, cell: int, pitch=None, roll=None) -> np.ndarray:
-    """Bool mask (h, w) of the pixels whose cell (``cell`` x ``cell`` blocks) has its centre's
-    viewing ray pointing below the horizon, where the floor can be."""
+def below_horizon(camera, shape, cell: int, pitch=None, roll=None) -> colour.BlockMask:
+    """Mask (h, w, kept per block: colour.BlockMask) of the pixels whose cell (``cell`` x
+    ``cell`` blocks) has its centre's viewing ray pointing below the horizon, where the floor
+    can be."""
     h, w = shape[:2]
     hb, wb = -(-h // cell), -(-w // cell)
-    gy, gx = np.mgrid[0:hb, 0:wb]
-    centres = grid_to_pixels(np.stack([gx.ravel(), gy.ravel()], axis=1), cell)
     m = camera.rotation(pitch, roll) @ np.linalg.inv(camera.camera_matrix)
-    ideal = ideal_pixels(camera)(centres)
+    ideal = ideal_pixels(camera).cell_centres(shape, cell)
     down = (ideal @ m[2, :2] + m[2, 2]) < 0  # NaN (outside the lens model) compares False
-    cells = down.reshape(hb, wb)
-    return np.repeat(np.repeat(cells, cell, axis=0), cell, axis=1)[:h, :w]
+    return colour.BlockMask(down.reshape(hb, wb), cell, (h, w))
 
 
 def colour_shares(image_bgr: np.ndarray, conf: dict, camera=None, pitch=None, roll=None
@@ -337,7 +364,7 @@ def colour_shares(image_bgr: np.ndarray, conf: dict, camera=None, pitch=None, ro
                                          green_from=floor, white_out=white_bool)
     out = {name: counts[..., i] for i, name in enumerate(colour.CLASS_NAMES)}
     if white_px is not None:
-        out["white_px"] = white_px.astype(np.float32)
+        out["white_px"] = white_px  # uint8, 1 = white (the refinement kernels read it as is)
     return out
 
 
@@ -525,7 +552,7 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
         ends_m.append(e_floor.ravel())
         ends_px.append(e_px.ravel())
         ends_ideal.append(seg.ends if ref is None else ref.ends)
-        widths.append(float(cell) if ref is None else float(np.median(ref.widths)))
+        widths.append(float(cell) if ref is None else float(median(ref.widths)))
     if trace is not None:
         trace.update(segments=segments, refined=refined)
     return lines, ends_m, ends_px, posts, posts_px, ends_ideal, widths
@@ -573,7 +600,7 @@ def width_ratios(refs: list[RefinedLine], to_floor: FloorProjection, line_width:
     out, k = {}, 0
     for r, n in zip(refs, counts):
         sel = ok[k:k + n]
-        out[id(r)] = float(np.median(ratio[k:k + n][sel])) if sel.any() else float("nan")
+        out[id(r)] = float(median(ratio[k:k + n][sel])) if sel.any() else float("nan")
         k += n
     return out
 

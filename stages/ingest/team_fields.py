@@ -55,7 +55,7 @@ import yaml
 from .. import __version__
 from ..common.artifacts import atomic_path, file_hash
 from ..common.errors import FieldlocError, FieldSpecError
-from ..common.field import field_from_spec, load_field
+from ..common.field import MSL_LETTERS, field_from_spec, load_field, msl_letter_value
 
 FORMATS = ("bhuman", "bitbots", "falcons")
 confs = {"default": {"decimals": 6, "check_tolerance_m": 0.001}}
@@ -373,16 +373,10 @@ _RULE_NOT_LINES = set("MNOPQ")
 def _falcons_convert(v: dict, t: float, spec: dict):
     """Outer-side MSL measurements to centre lines (see the module doc); J is the penalty
     mark's diameter in both Falcons formats."""
-    for letter, path in (("A", ("length",)), ("B", ("width",)),
-                         ("C", ("penalty_area", "width")), ("D", ("goal_area", "width")),
-                         ("E", ("penalty_area", "length")), ("F", ("goal_area", "length")),
-                         ("G", ("corner_arc_radius",)), ("H", ("centre_circle_diameter",)),
-                         ("I", ("penalty_mark", "distance"))):
+    for letter in "ABCDEFGHIJ":  # the rulebook's convention, as the field model reads it
         if letter in v:
-            _set(spec, path, v[letter] - t)
+            _set(spec, MSL_LETTERS[letter], msl_letter_value(letter, v[letter], t))
     _set(spec, ("line_width",), t)
-    if "J" in v:
-        _set(spec, ("penalty_mark", "size"), v["J"])
 
 
 def read_falcons(path: Path, venue: str | None):
@@ -467,7 +461,7 @@ def read_falcons(path: Path, venue: str | None):
         t = v["K"]
         _falcons_convert(v, t, spec)
         if "L" in v:
-            _set(spec, ("border",), v["L"] + t / 2)
+            _set(spec, ("border",), msl_letter_value("L", v["L"], t))
         used = dict(v)
         for key in doc:
             if key != "model" and "model" in doc:

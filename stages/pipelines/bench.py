@@ -362,48 +362,6 @@ def _pct(s, k):
 # ---------------------------------------------------------------------------- rows: humanoid
 
 
-def bench_extract_perspective(repeat: int) -> list[Row]:
-    """Issue 9: a perspective frame in <= 5 ms and <= 0.3 x OpenCV's line segment detector on
-    the same frame, for the KidSize camera (752 x 480, wide-angle) and the NAO's (640 x 480),
-    on rendered frames, each frame timed interleaved with LSD (medians over frames)."""
-    import cv2
-
-    from ..common.camera import load_calib
-    from ..common.dataset import open_dataset, read_csv, read_image
-    from ..extract import kind_confs
-    from ..extract import perspective as persp
-
-    conf = kind_confs("perspective")["default"]
-    lsd = cv2.createLineSegmentDetector()
-    rows = []
-    for preset, field_name, label in (("perspective-default", "kidsize", "KidSize 752 x 480"),
-                                      ("perspective-nao", "spl", "NAO 640 x 480")):
-        inp = rendered_inputs("perspective", field_name, 12, 3, preset)
-        ds = open_dataset(inp["data"])
-        cam = load_calib(ds.calib_path)
-        head = read_csv(Path(inp["data"]) / "head.csv", "head")
-        a, b = [], []
-        for i, p in enumerate(ds.images[:10]):
-            img = read_image(p)
-            pitch, roll = float(head["pitch"][i]), float(head["roll"][i])
-            persp.extract_frame(img, cam, conf, pitch=pitch, roll=roll)
-            grey = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-            x, y = time_interleaved(
-                lambda img=img, pitch=pitch, roll=roll, cam=cam: persp.extract_frame(
-                    img, cam, conf, pitch=pitch, roll=roll),
-                lambda grey=grey: lsd.detect(grey), repeat=max(1, repeat), warmup=0)
-            a.append(statistics.median(x))
-            b.append(statistics.median(y))
-        ratio = _ms(a) / _ms(b)
-        rows.append(Row(
-            name=f"perspective extraction per frame ({label})", median_ms=_ms(a),
-            goal="<= 5 ms, <= 0.3 x LSD", meets_goal=_ms(a) <= 5.0 and ratio <= 0.3,
-            baseline="OpenCV line segment detector on the same frame", baseline_ms=_ms(b),
-            ratio=ratio, repeats=repeat,
-            note="colour counts, boundary, skeleton graph, crossings, lines, posts"))
-    return rows
-
-
 def time_mcl_update(field_model=None, *, n_particles: int = 1000, repeats: int = 200,
                     seed: int = 0, conf: dict | None = None) -> dict:
     """Median wall time (s) of one particle-filter update (predict, weight, resample) with
@@ -740,7 +698,7 @@ ROWS: dict[str, Callable[[int], Row | list[Row]]] = {
     "lut-search": bench_lut_searches,
     "extract-omni": bench_extract_omni,
     "lut-accuracy": bench_lut_accuracy,
-    "extract-perspective": bench_extract_perspective,
+    "extract-perspective": lambda n: _persp().bench_extract_perspective(n),
     "mcl-update": bench_mcl_update,
     "mcl-accuracy": bench_mcl_accuracy,
     "surf-speed": bench_surf_speed,
@@ -759,6 +717,12 @@ def _hyp():
     from . import bench_hypotheses
 
     return bench_hypotheses
+
+
+def _persp():
+    from . import bench_perspective
+
+    return bench_perspective
 
 
 def run(only: list[str] | None = None, repeat: int = 5, progress=None) -> list[Row]:
