@@ -89,7 +89,8 @@ confs = {
         "temperature": 0.5,  # evidence (full-weight points) per nat
         "track_correlation": 4.0,  # a tracked frame's evidence counts 1 / track_correlation
         "evidence": {  # points of one white structure as one correlated measurement:
-            "per_structure": None,  # points' worth a structure carries at most (None: no cap)
+            "per_structure": 6.0,  # points' worth a structure carries at most (None: no cap),
+            # lut's: the evidence only, the fit weighs every point alike
             "link": 0.2,
             "link_per_m": 0.1,
         },
@@ -195,13 +196,16 @@ def _fill_on_line(d: np.ndarray, g: np.ndarray, res: float) -> np.ndarray:
 @dataclass
 class FitObservation:
     """One frame's line points for the fit: robot-frame points (N, 2) within the range, their
-    range, and their weights: the range weight 1 / (1 + (r / range_scale)^2), times
-    min(1, per_structure / structure size) (the points of one white structure are one
-    correlated measurement)."""
+    range, their weights in the fit (the range weight 1 / (1 + (r / range_scale)^2), 1 by
+    default) and ``evidence``, the share of the weighted points that count as independent
+    evidence: the points of one white structure are one correlated measurement, worth at most
+    ``evidence.per_structure`` points (the frame's temperature is divided by it, the fit's
+    optimum is Lauer et al.'s)."""
 
     points: np.ndarray
     distance: np.ndarray
     weight: np.ndarray
+    evidence: float = 1.0
 
     def __len__(self):
         return len(self.distance)
@@ -257,10 +261,13 @@ def observation_from_points(points, conf: dict, radial: RadialCorrection | None 
     rs = conf["range_scale"]
     w = np.ones(len(r)) if rs is None else 1.0 / (1.0 + (r / float(rs)) ** 2)
     ev = conf["evidence"]
+    share = 1.0
     if len(p) and ev["per_structure"] is not None:
         size = structure_sizes(p, r, float(ev["link"]), float(ev["link_per_m"]))
-        w = w * np.minimum(1.0, float(ev["per_structure"]) / size)
-    return FitObservation(points=p, distance=r, weight=np.ascontiguousarray(w))
+        cap = np.minimum(1.0, float(ev["per_structure"]) / size)
+        share = float(np.sum(w * cap) / max(float(np.sum(w)), 1e-12))
+    return FitObservation(points=p, distance=r, weight=np.ascontiguousarray(w),
+                          evidence=share)
 
 
 def frame_points(fr: dict, scanlines) -> np.ndarray:
@@ -712,7 +719,8 @@ class FitLocaliser:
         if len(obs) < conf["min_points"]:
             raise FrameFailed("too-few-observations")
         base = self._frame_heading(i, col)
-        self.T = self.T_track if bank.tracks else self.T_frame
+        # correlated points count as the independent evidence they carry (FitObservation)
+        self.T = (self.T_track if bank.tracks else self.T_frame) / max(obs.evidence, 1e-6)
         other_prior = bank.other_prior()
         tracked: list[FitCandidate] = []
         lost = False
