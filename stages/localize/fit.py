@@ -2,7 +2,7 @@
 Lauer, Lange, Riedmiller, the Tribots method most MSL teams run).
 
 The error of a pose (x, y, theta) of a frame's robot-frame line points p_i (within
-``max_range``, weights w_i, 1 unless ``range_scale`` or ``evidence.per_structure`` is set) is
+``max_range``, weights w_i, 1 unless ``range_scale`` is set) is
 
     E = sum_i w_i rho(d(q_i)),   q_i = (x, y) + R(theta) p_i,
     rho(d) = 1 - c^2 / (c^2 + d^2) = d^2 / (c^2 + d^2),   c = 0.25 m (``c``, Lauer et al.'s),
@@ -15,7 +15,12 @@ over x, y and the heading, with the measured heading (IMU, histogram or truth) a
 prior on theta. Tracking: each track of the belief (tracking.TrackBank, as lut's) is fitted
 from its prior (last pose moved by odometry), its fix weighed with the Gauss-Newton covariance
 of E (tempered: ``temperature`` points per nat, a tracked frame's evidence divided by
-``track_correlation``) and fused by the bank's Kalman filter.
+``track_correlation``, and the points of one white structure worth at most
+``evidence.per_structure`` = 6 independent points, as lut's observations) and fused by the
+bank's Kalman filter. With ``tracked_prior`` the fit minimises E / T plus the prior's
+Mahalanobis^2 / 2 (the posterior's mode m, so a frame of few or stray points cannot pull the
+track into another basin), and the filter gets the measurement z the points alone make,
+z = m + R info (m - prior), so the prior is not counted twice.
 
 Global mode (no track, lost, or every ``global_every`` frames as a check): a multi-start search
 from a grid of starts, not random restarts (reproducible): positions every ``global.step`` =
