@@ -633,13 +633,34 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
     # X, which fields hold only where the centre circle crosses the halfway line)
     if kind == "L" and not _alternative_in_view(x, dirs, camera, top, other_mean, green, cc,
                                                 cell):
-        return "not green where a T's arm would be"
+        return _continued_as_t(x, dirs, reach, white, green, other_mean, top, camera,
+                               to_floor, cc, cell, field_cells, lengths)
     score = verify_crossing(grid[0], grid[1:], white, green, cc, field_cells)
     if score <= 0:
         return "not verified in the image"
     row = [CROSSING_CODES[kind], d[0], bearing[0], orient,
            score * (1.0 - misfit / math.radians(90.0))]
     return row, px[0]
+
+
+def _continued_as_t(x, dirs, reach, white, green, other_mean, top, camera, to_floor, cc, cell,
+                    field_cells, lengths):
+    """An L whose view opposite its arms is not carpet: where one arm's line goes on through
+    the crossing (the fit of a T's bar ended at the stem, or the bar's far half was fitted as
+    a line of its own that missed the pair), the crossing is that T. Each arm continued is
+    verified as a T, by the same floor and image checks (the circle then counts three
+    passages, and the continued arm needs its white path); the best verified one is returned,
+    else the L's rejection."""
+    best = "not green where a T's arm would be"
+    for k in range(len(dirs)):
+        arms = np.vstack([dirs, -dirs[k][None]])
+        ext = np.append(reach, reach[k])
+        lens = None if lengths is None else np.append(lengths, reach[k])
+        v = _verify_crossing("T", x, arms, ext, white, green, other_mean, top, camera, to_floor,
+                             cc, cell, field_cells, lens)
+        if not isinstance(v, str) and (isinstance(best, str) or v[0][4] > best[0][4]):
+            best = v
+    return best
 
 
 def _alternative_in_view(x, dirs, camera, top, other_mean, green, cc, cell) -> bool:
