@@ -18,7 +18,7 @@ FIELD_FILE := $(or $(wildcard maps/$(FIELD).yaml),$(wildcard $(FIELD)))
 HEADING_OPT := $(if $(filter lut,$(METHOD)),--heading $(HEADING))
 RUN     := $(DATA)/runs/$(METHOD)$(if $(filter lut,$(METHOD)),-$(HEADING))
 
-.PHONY: install test lint demo bench bench-readme pipeline clean
+.PHONY: install test lint demo bench bench-readme compare pipeline clean
 
 install: $(STAMP)
 
@@ -45,6 +45,19 @@ bench-readme: $(STAMP)
 	$(BIN)/python -c "import pathlib, re; r = pathlib.Path('README.md'); \
 	b = pathlib.Path('$(OUT)/bench.md').read_text(); \
 	r.write_text(re.sub(r'(<!-- bench:begin -->\n).*?(<!-- bench:end -->)', \
+	lambda m: m.group(1) + b + m.group(2), r.read_text(), flags=re.S))"
+
+# README's comparison of the methods (specs/compare.yaml: six rendered datasets, both cameras,
+# clean and hard), from one batch: its table and summary picture between the compare markers
+COMPARE := $(OUT)/compare
+compare: $(STAMP)
+	@mkdir -p $(OUT) docs
+	$(BIN)/fieldloc batch specs/compare.yaml -o $(COMPARE)
+	cp $(COMPARE)/plots/summary.png docs/compare-summary.png
+	$(BIN)/python -c "import pathlib, re; r = pathlib.Path('README.md'); \
+	b = pathlib.Path('$(COMPARE)/comparison.md').read_text() \
+	+ '\n![methods x datasets](docs/compare-summary.png)\n'; \
+	r.write_text(re.sub(r'(<!-- compare:begin -->\n).*?(<!-- compare:end -->)', \
 	lambda m: m.group(1) + b + m.group(2), r.read_text(), flags=re.S))"
 
 # The demo: simulate a small omnidirectional MSL dataset, build the map, localise with the

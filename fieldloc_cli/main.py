@@ -29,6 +29,7 @@ COMMANDS = {
     "field": "fieldloc_cli.field:field",
     "export": "fieldloc_cli.export:export",
     "report": "fieldloc_cli.report:report",
+    "batch": "fieldloc_cli.batch:batch",
 }
 
 

@@ -22,6 +22,7 @@ from stages.calibrate import hulks
 from stages.common.conf import stage_conf
 from stages.evaluate import export
 from stages.ingest import rosbag, team_fields
+from stages.pipelines import batch
 from stages.show import belief, html_report, hypotheses
 from stages.show import map as show_map
 
@@ -104,6 +105,8 @@ CASES = [
      team_fields.confs["default"], ("fmt",), None),
     ("export", ["export", "p.h5", "--format", "csv"], "stages.evaluate.export:main",
      lambda c: stage_conf(export.confs, c), export.confs["default"], ("fmt",), None),
+    ("batch", ["batch", "spec.yaml", "-o", "results"], "stages.pipelines.batch:main",
+     lambda c: stage_conf(batch.confs, c), batch.confs["default"], ("report",), None),
 ]
 
 

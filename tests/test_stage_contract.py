@@ -19,8 +19,8 @@ from stages.common.conf import stage_conf
 from stages.common.errors import FieldlocError
 from stages.evaluate import export
 from stages.ingest import rosbag, team_fields
-from stages.pipelines import evaluation, images_to_poses
-from stages.show import belief, html_report, hypotheses, points, report_plots
+from stages.pipelines import batch, evaluation, images_to_poses
+from stages.show import belief, comparison, html_report, hypotheses, points, report_plots
 from stages.show import map as show_map
 from stages.simulate.omni_renderer import OMNI_DEFAULTS, camera_from_conf
 
@@ -61,8 +61,10 @@ def _mains(ds, tmp):
         ("show.hypotheses", lambda c: hypotheses.main(c, tmp / "p.h5", out)),
         ("show.report_plots", lambda c: report_plots.main(c, tmp)),
         ("show.html_report", lambda c: html_report.main(c, tmp, out)),
+        ("show.comparison", lambda c: comparison.main(c, tmp / "results")),
         ("pipelines.evaluation", lambda c: evaluation.main(c, tmp / "p.h5", None, out)),
         ("pipelines.images_to_poses", lambda c: images_to_poses.main(c, ds, tmp / "m.h5", out)),
+        ("pipelines.batch", lambda c: batch.main(c, tmp / "spec.yaml", out)),
     ]
 
 
@@ -106,6 +108,8 @@ def _resolvers():
         ("show.report_plots", report_plots.confs,
          lambda c, n: stage_conf(report_plots.confs, c)),
         ("show.html_report", html_report.confs, lambda c, n: stage_conf(html_report.confs, c)),
+        ("pipelines.batch", batch.confs, lambda c, n: stage_conf(batch.confs, c)),
+        ("show.comparison", comparison.confs, lambda c, n: stage_conf(comparison.confs, c)),
     ]
 
 

@@ -1,5 +1,7 @@
-"""The table across evaluated runs (``fieldloc evaluate`` and ``evaluate --table``) and the
-reliability table of one report, from report.json files (stages.common.report_file)."""
+"""The table across evaluated runs (``fieldloc evaluate`` and ``evaluate --table``), the
+reliability table of one report, and the comparison of a batch's runs (``fieldloc batch``,
+``evaluate --table RESULTS``: methods x datasets), all from report.json files
+(stages.common.report_file; a batch's runs listed by its batch.json, stages.common.batch_file)."""
 
 from __future__ import annotations
 
@@ -90,9 +92,20 @@ def tabulate(items, fmt: str = "text") -> str:
     error (deg), share within each threshold (%), share of frames whose top hypothesis (or best
     of the top K) is within 40 cm, share whose truth is the top's mirror image, AUROC of the
     confidence, median runtime per frame (ms). ``fmt``: "text" (aligned columns), "markdown"
-    or "csv". inf prints as "inf"; a value a report does not have as "-"."""
+    or "csv". inf prints as "inf"; a value a report does not have as "-".
+
+    Items that are batch results folders (written by ``fieldloc batch``) give their comparison
+    instead (``comparison_table``), one after the other; they are not mixed with reports."""
     if fmt not in ("text", "markdown", "csv"):
         raise FieldlocError(f"unknown table format '{fmt}' (text, markdown, csv)")
+    from stages.common.batch_file import is_batch_folder
+
+    batches = [it for it in items if not isinstance(it, dict) and is_batch_folder(it)]
+    if batches:
+        if len(batches) != len(items):
+            raise FieldlocError("give either report folders or batch results folders, not"
+                                " both")
+        return "\n\n".join(comparison_table(b, fmt) for b in batches)
     header, rows = table_rows(items)
     if fmt == "csv":
         import io
@@ -102,7 +115,81 @@ def tabulate(items, fmt: str = "text") -> str:
         w.writerow(header)
         w.writerows(rows)
         return buf.getvalue().rstrip("\n")
-    left = {0, 1}  # text columns
+    return _aligned(header, rows, fmt, left={0, 1})
+
+
+# ---------------------------------------------------------------------------- batch comparison
+
+COMPARISON_HEADER = ["dataset", "method", "frames", "median cm", "p90 cm", "<=40cm %",
+                     "failed %", "AUROC", "ms/frame"]
+COMPARISON_THRESHOLD = "0.4"  # the within share of the comparison: 40 cm, failures counted
+
+
+def comparison_rows(results_dir) -> list[dict]:
+    """One row per run of a batch results folder (stages.common.batch_file), in the SPEC's
+    order: dataset, method, run key, status, error, and the figures of its report.json read
+    as the runs table reads them (frames; median and p90 position error, frames without an
+    accepted pose as failures; share within 40 cm of the matched frames, failures never within;
+    the share of failed frames; AUROC of the confidence; median runtime per frame). A run
+    without truth has frames, failed share and runtime only (from its poses); a failed run
+    none."""
+    from stages.common.batch_file import load_batch
+
+    results_dir = Path(results_dir)
+    index = load_batch(results_dir)
+    out = []
+    for run in index.get("runs", []):
+        row = {"dataset": run["dataset"], "method": run["method"], "run": run["key"],
+               "status": run["status"], "error": run.get("error") or "", "report": None}
+        if run["status"] == "ok" and run.get("report"):
+            rep = load_report(results_dir / run["report"])
+            row["report"] = rep
+        elif run["status"] == "ok":
+            row["report"] = run.get("summary") or {}
+        out.append(row)
+    return out
+
+
+def _comparison_cells(rep: dict | None) -> list[str]:
+    if rep is None:
+        return ["-"] * (len(COMPARISON_HEADER) - 2)
+    pos = rep.get("position_error_m", {})
+    return [str(rep.get("frames", "-")), _fmt(pos.get("median"), 1, 100.0),
+            _fmt(pos.get("p90"), 1, 100.0),
+            _fmt(rep.get("within", {}).get(COMPARISON_THRESHOLD), 1, 100.0),
+            _fmt(rep.get("failure_rate"), 1, 100.0),
+            _fmt(rep.get("calibration", {}).get("auroc"), 3),
+            _fmt(rep.get("runtime_ms", {}).get("median"), 3)]
+
+
+def comparison_table(results_dir, fmt: str = "text") -> str:
+    """The comparison of a batch (``fieldloc batch``; ``evaluate --table RESULTS/``): one row
+    per run, methods x datasets, with ``comparison_rows``' figures; failed runs are rows
+    without figures, and their errors follow the table (csv: columns run, status, error)."""
+    if fmt not in ("text", "markdown", "csv"):
+        raise FieldlocError(f"unknown table format '{fmt}' (text, markdown, csv)")
+    rows = comparison_rows(results_dir)
+    if fmt == "csv":
+        import io
+
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(COMPARISON_HEADER + ["run", "status", "error"])
+        for r in rows:
+            w.writerow([r["dataset"], r["method"], *_comparison_cells(r["report"]), r["run"],
+                        r["status"], r["error"]])
+        return buf.getvalue().rstrip("\n")
+    body = [[r["dataset"], r["method"], *_comparison_cells(r["report"])] for r in rows]
+    text = _aligned(COMPARISON_HEADER, body, fmt, left={0, 1})
+    failed = [r for r in rows if r["status"] != "ok"]
+    if failed:
+        text += "\n\n" + "\n".join(
+            [f"failed runs ({len(failed)}):"] + [f"- {r['run']}: {r['error']}" for r in failed])
+    return text
+
+
+def _aligned(header, rows, fmt: str, left) -> str:
+    """Text (aligned columns) or markdown lines of a table; ``left``: text columns."""
     widths = [max(len(c) for c in col) for col in zip(header, *rows)]
 
     def line(cells):

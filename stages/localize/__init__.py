@@ -6,11 +6,13 @@
 
 ``conf["method"]`` picks the method module (``METHODS``); each exposes ``confs`` (named
 presets, at least "default") and ``run(conf, dataset, features, map_file, progress) ->
-PoseTrack``. ``confs`` here lists the presets of every method as ``<method>-<preset>``
-(``mcl-uniform``), each with its ``method``, and "default" (``lut-default``). The conf given
-to ``main`` is a name of ``confs``, None ("default"), or a dict of overrides on the default
-preset of its method (``{"method": "mcl", "init": "uniform"}``; the method "lut" when it names
-none); unknown keys are errors, and the resolved conf is stored in poses.h5.
+PoseTrack``, and may say which camera kinds' features it reads (``camera_kinds``, e.g.
+``("omni",)``: batch runs pair it only with such datasets). ``confs`` here lists the presets of
+every method as ``<method>-<preset>`` (``mcl-uniform``), each with its ``method``, and
+"default" (``lut-default``). The conf given to ``main`` is a name of ``confs``, None
+("default"), or a dict of overrides on the default preset of its method (``{"method": "mcl",
+"init": "uniform"}``; the method "lut" when it names none); unknown keys are errors, and the
+resolved conf is stored in poses.h5.
 
 Features come from a features file (``features``) or from line points of a team's own
 detector (``points``: CSV with columns frame, x, y in the robot frame, binned into the scan
@@ -80,6 +82,13 @@ def method_module(method: str):
 def method_confs(method: str) -> dict:
     """The named presets of a method."""
     return method_module(method).confs
+
+
+def method_camera_kinds(method: str) -> tuple[str, ...] | None:
+    """The camera kinds whose features a method reads (its module's ``camera_kinds``), or
+    None when the module does not say (then every kind is tried)."""
+    kinds = getattr(method_module(method), "camera_kinds", None)
+    return tuple(kinds) if kinds is not None else None
 
 
 def available_methods() -> list[str]:

@@ -110,6 +110,7 @@ from .tracking import Candidate, Track, TrackBank, eig2, near_pose
 
 log = logging.getLogger(__name__)
 
+camera_kinds = ("omni",)  # the features it reads
 confs = {
     # the belief's keys (tracking.DEFAULTS; min_confidence 0.8 calibrated: 0.2 % of the
     # rendered calibration frames accepted and more than 1 m off, README), then the search's
@@ -193,9 +194,9 @@ def _cached(map_file: MapFile, params: MatchingParams):
         _SEARCH_CACHE.clear()
         t = time.perf_counter()
         search = TableSearch(map_file, params)
-        _SEARCH_CACHE[key] = (search, PointFit(map_file.field, c=params.c))
-        log.info("table search for %s built in %.1f s (error lookup %.0f MB)", p.name,
-                 time.perf_counter() - t, search.error_lookup.nbytes / 1e6)
+        _SEARCH_CACHE[key] = (search, PointFit(map_file.field, c=params.c, map_path=p))
+        log.info("table search for %s ready in %.1f s (error lookup %.0f MB, %s)", p.name,
+                 time.perf_counter() - t, search.error_lookup.nbytes / 1e6, search.lookup_source)
     return _SEARCH_CACHE[key]
 
 

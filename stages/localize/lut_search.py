@@ -19,14 +19,15 @@ sum over observations; its normalised value e_norm = sum / sum(w) lies in [0, 1)
 
 Speed. The search never evaluates rho inside the loop over cells. At load time an *error
 lookup* is precomputed from the tables: for every scan line (72 radial, 144 spiral), every
-observed distance quantised to ``distance_bin`` (5 cm) and every cell, the value
-w(d) * rho(e) quantised to 0..Q (Q = 151, so that the sum over the at most 432 observations of a
-frame fits a uint16). It is stored scan-line-major ((line, bin) rows of all cells, contiguous),
-so the error surface of a frame over the whole world is the sum of one contiguous row per
-observation: one gather and one reduction (``global_search``), or the same restricted to a
-window (``local_search``), both in one numba kernel (``lookup_sum``; the exact error and
-the refinement's cell moves are numba kernels too). The quantised surface only picks cells;
-the pose is then refined with the exact error (float32 tables in metres, no quantisation):
+observed distance quantised to ``distance_bin`` (5 cm) and every cell, the value w(d) * rho(e)
+quantised to 0..Q (Q = 151, so that the sum over the at most 432 observations of a frame fits a
+uint16; built once per map and parameters and then mapped from its cache beside the map,
+stages.localize.lookup_cache). It is stored scan-line-major ((line, bin) rows of all cells,
+contiguous), so the error surface of a frame over the whole world is the sum of one contiguous
+row per observation: one gather and one reduction (``global_search``), or the same restricted
+to a window (``local_search``), both in one numba kernel (``lookup_sum``; the exact error and
+the refinement's cell moves are numba kernels too). The quantised surface only picks cells; the
+pose is then refined with the exact error (float32 tables in metres, no quantisation):
 
 - sub-cell position: exact error on the 3 x 3 cells around the best cell (moving to a lower
   neighbour until the centre is the minimum), then a least-squares quadratic fit of the 9 values;
@@ -51,6 +52,7 @@ import numpy as np
 from ..common.geometry import wrap_angle
 from ..common.map_file import MapFile
 from ..common.scanlines import NO_HIT_MM
+from . import lookup_cache
 from .lut_kernels import (
     MAX_CROSSINGS,
     exact_error_cells,
@@ -226,9 +228,13 @@ class Support:
 
 class TableSearch:
     """The per-map data of the table search (float tables in metres, the error lookup) and the
-    searches. Build once per map and matching parameters; reuse over frames."""
+    searches. Build once per map and matching parameters; reuse over frames. The error lookup
+    is mapped from its cache beside the map (lookup_cache) when it was built before, and
+    written there otherwise; ``cache=False`` builds it in memory only (``lookup_source`` says
+    which happened)."""
 
-    def __init__(self, map_file: MapFile, params: MatchingParams | None = None):
+    def __init__(self, map_file: MapFile, params: MatchingParams | None = None, *,
+                 cache: bool = True):
         self.params = params or MatchingParams()
         self.grid = map_file.grid
         self.scanlines = map_file.scanlines
@@ -254,19 +260,53 @@ class TableSearch:
         self.spiral_m = _to_metres(self.spiral_mm)
         self._radial_flat = self.radial_m.reshape(-1)
         self._spiral_flat = self.spiral_m.reshape(-1)
-        self._build_error_lookup()
+        self._lookup_layout()
+        p = self.params
+        step = max(1, p.coarse_step)
+        shapes = {"error": ((self.lookup_rows_total, self.ncell), np.uint8)}
+        if step > 1:
+            shapes["coarse"] = ((self.lookup_rows_total,
+                                 ((ny + step - 1) // step) * ((nx + step - 1) // step)), np.uint8)
+        if cache:  # mapped from beside the map when it was built before (lookup_cache)
+            arrays, self.lookup_source = lookup_cache.load_or_build(
+                map_file.path, "error lookup",
+                {"c": p.c, "range_scale": p.range_scale, "distance_bin": p.distance_bin,
+                 "coarse_step": step}, shapes, self._build_error_lookup)
+        else:
+            arrays, self.lookup_source = self._build_error_lookup(), "built, not cached"
+        self._set_error_lookup(arrays)
 
     # ------------------------------------------------------------------ error lookup
-    def _build_error_lookup(self):
-        p = self.params
+    def _lookup_layout(self):
+        """The error lookup's rows: distance bins per scan line, quantisation levels."""
         n = self.n_angles
-        b = p.distance_bin
+        b = self.params.distance_bin
         self.nb_radial = int(math.ceil(self.scanlines.max_range / b)) + 1
         self.nb_spiral = int(math.ceil(self.scanlines.spiral_end_radius / b)) + 1
         max_obs = n * MAX_CROSSINGS + 2 * n
         self.q_levels = int(np.iinfo(np.uint16).max // max_obs)
+        self.spiral_row0 = n * self.nb_radial
+        self.lookup_rows_total = n * self.nb_radial + 2 * n * self.nb_spiral
+
+    def _set_error_lookup(self, arrays: dict):
+        self.error_lookup = arrays["error"]
+        rows = self.error_lookup.shape[0]
+        self.error_lookup_3d = self.error_lookup.reshape(rows, self.ny, self.nx)
+        step = max(1, self.params.coarse_step)
+        if step > 1:
+            self.coarse_lookup = arrays["coarse"]
+            self.coarse_shape = ((self.ny + step - 1) // step, (self.nx + step - 1) // step)
+        else:
+            self.coarse_lookup, self.coarse_shape = _min_pooled(self.error_lookup_3d, 1)
+
+    def _build_error_lookup(self) -> dict:
+        """The error lookup and its min-pooled copy (``error``, ``coarse``), computed from the
+        tables (module doc)."""
+        p = self.params
+        n = self.n_angles
+        b = p.distance_bin
         q = float(self.q_levels)
-        rows = n * self.nb_radial + 2 * n * self.nb_spiral
+        rows = self.lookup_rows_total
         lut = np.empty((rows, self.ncell), dtype=np.uint8)
         d_r = np.arange(self.nb_radial) * b
         scale_r = (q * p.weight(d_r)).astype(np.float32)[:, None]
@@ -277,17 +317,17 @@ class TableSearch:
                 np.minimum(e, np.abs(t[h][None, :] - d_r[:, None].astype(np.float32)), out=e)
             lut[k * self.nb_radial:(k + 1) * self.nb_radial] = np.rint(
                 scale_r * _rho32(e, p.c))
-        self.spiral_row0 = n * self.nb_radial
         d_s = np.arange(self.nb_spiral) * b
         scale_s = (q * p.weight(d_s)).astype(np.float32)[:, None]
         for s in range(2 * n):
             e = np.abs(self.spiral_m[s][None, :] - d_s[:, None].astype(np.float32))
             r0 = self.spiral_row0 + s * self.nb_spiral
             lut[r0:r0 + self.nb_spiral] = np.rint(scale_s * _rho32(e, p.c))
-        self.error_lookup = lut
-        self.error_lookup_3d = lut.reshape(rows, self.ny, self.nx)
-        self.coarse_lookup, self.coarse_shape = _min_pooled(self.error_lookup_3d,
-                                                            max(1, p.coarse_step))
+        out = {"error": lut}
+        step = max(1, p.coarse_step)
+        if step > 1:
+            out["coarse"] = _min_pooled(lut.reshape(rows, self.ny, self.nx), step)[0]
+        return out
 
     def lookup_rows(self, obs: Observation, m: int) -> np.ndarray:
         """Rows of the error lookup for the observations at table heading index ``m``."""

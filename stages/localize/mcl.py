@@ -123,6 +123,7 @@ def _preset(**changes) -> dict:
     return c
 
 
+camera_kinds = ("perspective",)  # the features it reads
 confs = {
     "default": _preset(),
     # the seed's ablation: crossings and goal posts only

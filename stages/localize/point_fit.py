@@ -32,14 +32,27 @@ class PointFit:
     """The distance raster of a field and the fits of line points against it."""
 
     def __init__(self, field_model: FieldModel, *, c: float = 0.25, resolution: float = 0.02,
-                 margin: float = 1.0):
+                 margin: float = 1.0, map_path=None):
+        """``map_path``: the map ``field_model`` is from; the raster is then cached beside it
+        (stages.localize.lookup_cache) and mapped from there by later processes."""
         xmin, xmax, ymin, ymax = field_model.world_bounds()
         xmin, xmax, ymin, ymax = xmin - margin, xmax + margin, ymin - margin, ymax + margin
         xs = np.arange(xmin, xmax + 0.5 * resolution, resolution)
         ys = np.arange(ymin, ymax + 0.5 * resolution, resolution)
-        rows = [field_model.distance_to_lines(np.stack(np.broadcast_arrays(xs, y), axis=-1))
-                for y in ys]  # row by row: bounded memory on large fields
-        self.table = np.ascontiguousarray(np.stack(rows), dtype=np.float32)
+
+        def build():
+            rows = [field_model.distance_to_lines(np.stack(np.broadcast_arrays(xs, y), axis=-1))
+                    for y in ys]  # row by row: bounded memory on large fields
+            return {"distance": np.ascontiguousarray(np.stack(rows), dtype=np.float32)}
+
+        if map_path is None:
+            self.table = build()["distance"]
+        else:
+            from .lookup_cache import load_or_build
+
+            self.table = load_or_build(
+                map_path, "line-distance raster", {"resolution": resolution, "margin": margin},
+                {"distance": ((len(ys), len(xs)), np.float32)}, build)[0]["distance"]
         self.origin = (float(xmin), float(ymin))
         self.resolution = float(resolution)
         self.c = float(c)

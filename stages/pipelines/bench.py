@@ -710,6 +710,9 @@ ROWS: dict[str, Callable[[int], Row | list[Row]]] = {
     "real": lambda n: _hyp().bench_real(n),
     "import-rosbag": bench_import_rosbag,
     "fit": lambda n: importlib.import_module(".bench_fit", __package__).rows(n),
+    "batch-throughput": lambda n: _batch().bench_batch_throughput(n),
+    "lut-first-frame": lambda n: _batch().bench_first_frame(n),
+    "batch-worker-memory": lambda n: _batch().bench_worker_memory(n),
 }
 
 
@@ -717,6 +720,12 @@ def _hyp():
     from . import bench_hypotheses
 
     return bench_hypotheses
+
+
+def _batch():
+    from . import bench_batch
+
+    return bench_batch
 
 
 def _persp():

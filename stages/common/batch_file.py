@@ -1,0 +1,82 @@
+"""The index of a batch's results (written by stages.pipelines.batch, read by the comparison
+table of stages.evaluate and the comparison pictures of stages.show): ``RESULTS/batch.json``,
+schema ``fieldloc.batch``, version 1, strict JSON as report.json is (stages.common.report_file:
+inf as "inf", NaN as null).
+
+    schema, schema_version, fieldloc_version, created   (stages.common.artifacts.provenance)
+    spec           the SPEC file's absolute path and content hash
+    datasets       name -> {"dir": dataset folder, "camera": omni|perspective, "map": map file,
+                   "truth": whether it has truth.csv}
+    runs           one per (dataset, method, conf), in the SPEC's order:
+                   {"key": "<dataset>/<method>-<preset>[-<overrides hash>]", "dataset",
+                    "method" (the SPEC's name of the method entry), "localize_method",
+                    "preset", "overrides", "dir" (relative to RESULTS), "status": ok | failed,
+                    "error" (failed: one line, else ""), "report" (the report folder relative
+                    to RESULTS, "" without truth), "summary" (without truth: frames,
+                    failures, failure_rate, runtime_ms of the poses), "seconds", "warnings"}
+    skipped        lines saying what the SPEC asked for and the batch did not run, and why
+
+Texts are never null (an empty text is ""), so null always reads back as a number (NaN).
+Each run folder holds ``run.json`` (the run's entry above, written last: a run without it did
+not finish).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from .artifacts import atomic_path, provenance
+from .errors import FieldlocError, SchemaError
+from .report_file import decode_numbers, encode_numbers
+
+SCHEMA = "fieldloc.batch"
+VERSION = 1
+BATCH_NAME = "batch.json"
+RUN_NAME = "run.json"
+
+
+def write_json(path: str | Path, data: dict) -> Path:
+    """Strict JSON (inf as "inf"), atomically."""
+    path = Path(path)
+    text = json.dumps(encode_numbers(data), indent=2, allow_nan=False) + "\n"
+    with atomic_path(path, suffix=".json") as tmp:
+        tmp.write_text(text)
+    return path
+
+
+def read_json(path: str | Path, *, raw: bool = False) -> dict:
+    """A JSON file written by ``write_json`` (numbers decoded unless ``raw``), or
+    SchemaError."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise SchemaError(f"{path}: not a readable JSON file ({e})") from None
+    if not isinstance(data, dict):
+        raise SchemaError(f"{path}: expected a JSON object")
+    return data if raw else decode_numbers(data)
+
+
+def write_batch(results_dir: str | Path, index: dict) -> Path:
+    """RESULTS/batch.json: the provenance keys, then ``index``."""
+    return write_json(Path(results_dir) / BATCH_NAME, {**provenance(SCHEMA, VERSION), **index})
+
+
+def is_batch_folder(path: str | Path) -> bool:
+    return (Path(path) / BATCH_NAME).is_file()
+
+
+def load_batch(results_dir: str | Path) -> dict:
+    """The index of a results folder, its schema checked."""
+    path = Path(results_dir) / BATCH_NAME
+    if not path.is_file():
+        raise FieldlocError(f"no {BATCH_NAME} in {results_dir}: not a folder written by"
+                            " `fieldloc batch`")
+    data = read_json(path)
+    if data.get("schema") != SCHEMA:
+        raise SchemaError(f"{path}: expected a '{SCHEMA}' file, got {data.get('schema')!r}")
+    if not 1 <= int(data.get("schema_version", -1)) <= VERSION:
+        raise SchemaError(f"{path}: '{SCHEMA}' version {data.get('schema_version')} is not"
+                          f" supported (this fieldloc reads versions 1..{VERSION})")
+    return data

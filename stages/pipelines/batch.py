@@ -1,0 +1,614 @@
+"""``fieldloc batch SPEC.yaml -o RESULTS/``: every method of a SPEC on every dataset, each run
+one task of extract (shared by the runs that read the same features), localize and evaluate,
+on Dask (dask.distributed), then one comparison.
+
+    main(conf, spec, results, *, overwrite=False, progress=False) -> Path   # RESULTS
+
+A chain of stage mains (simulate, calibrate, build_map, extract, localize, evaluate) and of the
+comparison pictures (stages.show.comparison), so it lives here in pipelines (README
+"Architecture": a stage may import no other stage, and no stage draws). The SPEC is read by
+stages.pipelines.batch_spec; RESULTS holds:
+
+    datasets/<name>/         rendered datasets (simulate), and recordings with a calibration
+                             made elsewhere (links to their files, and the calib.yaml made)
+    maps/<field>.map.h5      maps built from the SPEC's fields (with their lookup caches)
+    features/<dataset>.<extract preset>.features.h5
+    runs/<dataset>/<method>-<preset>[-<hash>]/   poses.h5, poses.tum, report/ (evaluate's
+                             report.json, errors.csv, truth.tum), run.json (written last)
+    batch.json               the index of the runs (stages.common.batch_file)
+    comparison.csv, comparison.md   methods x datasets (stages.evaluate.report.comparison_table)
+    plots/cdf-<dataset>.png, plots/summary.png   (stages.show.comparison)
+
+Resumable: a run whose run.json says it finished from the same inputs (the map, the features
+and the truth by content hash, the dataset's simulate options, the localize and evaluate confs)
+is not run again; an interrupted batch leaves every finished run as it is (every file is
+written atomically, run.json last), and the next one does only what is missing. A failed run
+is recorded with its error (run.json, the summary, the comparison) and the others go on; it is
+tried again by the next batch. ``overwrite``: every run again.
+
+Where the runs go (``conf``): ``serial`` runs them one after the other in this process;
+otherwise on Dask: ``scheduler`` (an address, ``tcp://host:8786``) is an existing cluster
+(``dask scheduler``, ``dask worker``), else a LocalCluster of ``workers`` worker processes (0:
+one per core) with one thread each, started and stopped here. The tasks pass only paths and
+small records: workers read datasets, maps and features from the shared folder (RESULTS and
+the SPEC's paths must be the same paths on every worker), and the table search maps its error
+lookup from beside the map (stages.localize.lookup_cache). Results do not depend on where a run
+ran: poses and every error figure are the same as with ``serial`` value for value (runtimes
+are measurements, and differ).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import math
+import os
+import shutil
+import time
+import traceback
+from pathlib import Path
+
+from ..common.artifacts import check_output, file_hash, refuse_inputs, text_hash
+from ..common.batch_file import RUN_NAME, read_json, write_batch, write_json
+from ..common.conf import stage_conf
+from ..common.errors import FieldlocError
+from .batch_spec import DatasetSpec, Plan, RunSpec, read_spec
+
+log = logging.getLogger("fieldloc.batch")
+
+confs = {
+    "default": {"workers": 0, "scheduler": "", "serial": False},
+    "serial": {"workers": 0, "scheduler": "", "serial": True},
+}
+
+REPORT_DIR = "report"
+
+
+def _check_conf(conf: dict) -> dict:
+    if conf["workers"] < 0:
+        raise FieldlocError(f"conf 'workers' must be >= 0 (0: one per core), got"
+                            f" {conf['workers']}")
+    if conf["serial"] and (conf["scheduler"] or conf["workers"]):
+        raise FieldlocError("a serial batch takes no scheduler and no workers")
+    if conf["scheduler"] and conf["workers"]:
+        raise FieldlocError("an existing scheduler brings its own workers: give --workers only"
+                            " with a LocalCluster")
+    return conf
+
+
+def core_count() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+# ---------------------------------------------------------------------------- main
+
+
+def main(conf, spec, results, *, overwrite: bool = False, progress: bool = False,
+         report=None) -> Path:
+    """Run the SPEC ``spec`` into the folder ``results`` (module doc) and return it.
+    ``report``: a callable taking one line for the person at the terminal (what runs where,
+    the dashboard link, skipped methods, the summary); default: the log."""
+    conf = _check_conf(stage_conf(confs, conf))
+    say = report or log.info
+    plan = read_spec(spec, results)
+    results = _check_results(plan)
+    for line in plan.skipped:
+        say(f"skipped: {line}")
+    todo, done = [], []
+    for run in plan.runs:
+        (done if not overwrite and finished(plan, run) else todo).append(run)
+    say(f"{len(plan.runs)} runs: {len(done)} finished before, {len(todo)} to do")
+    records = {r.key: _record_of(results, r) for r in done}
+    if todo:
+        records.update(_execute(plan, todo, conf, progress, say))
+    index = _index(plan, records)
+    write_batch(results, index)
+    from ..evaluate.report import comparison_table
+
+    for fmt, name in (("csv", "comparison.csv"), ("markdown", "comparison.md")):
+        from ..common.artifacts import atomic_path
+
+        with atomic_path(results / name, suffix=Path(name).suffix) as tmp:
+            tmp.write_text(comparison_table(results, fmt=fmt) + "\n")
+    from ..show import comparison
+
+    comparison.main(None, results, overwrite=True)
+    failed = [r for r in index["runs"] if r["status"] != "ok"]
+    say(f"{len(index['runs']) - len(failed)} of {len(index['runs'])} runs finished, "
+        f"{len(failed)} failed" + ("" if not failed else ":"))
+    for r in failed:
+        say(f"  {r['key']}: {r['error']}")
+    return results
+
+
+def _check_results(plan: Plan) -> Path:
+    """RESULTS: a new folder, or one an earlier batch wrote; never one holding the SPEC's own
+    inputs."""
+    results = Path(plan.results)
+    inputs = {"the SPEC": plan.spec}
+    for ds in plan.datasets:
+        if ds.source is not None:
+            inputs[f"dataset {ds.name}"] = ds.source
+        if isinstance(ds.calib, str):
+            inputs[f"calibration of {ds.name}"] = ds.calib
+    inputs["maps"] = sorted({ds.map for ds in plan.datasets} - set(plan.maps))
+    refuse_inputs(results, inputs, kind="folder")
+    check_output(results, None, overwrite=None, kind="folder")
+    from ..common.batch_file import is_batch_folder
+
+    if results.is_dir() and any(results.iterdir()) and not is_batch_folder(results) \
+            and not any((results / d).is_dir() for d in ("runs", "datasets", "features")):
+        raise FieldlocError(f"{results} holds other files: batch results go into a new folder"
+                            " or one an earlier batch wrote")
+    results.mkdir(parents=True, exist_ok=True)
+    return results
+
+
+# ---------------------------------------------------------------------------- resume
+
+
+_HASHES: dict = {}
+
+
+def _hash(path) -> str:
+    """Content hash of a file, memoised by (path, size, mtime); "" when it does not exist."""
+    p = Path(path)
+    try:
+        st = p.stat()
+    except OSError:
+        return ""
+    ident = (str(p.resolve()), st.st_size, st.st_mtime_ns)
+    if ident not in _HASHES:
+        _HASHES[ident] = file_hash(p)
+    return _HASHES[ident]
+
+
+def _dataset_identity(ds: DatasetSpec) -> str:
+    """What a run's outputs depend on in the dataset beyond its files' hashes: how it is made."""
+    if ds.kind == "simulate":
+        return text_hash(json.dumps([ds.simulate, ds.sim_field], sort_keys=True))
+    if ds.kind == "calibrated":
+        return text_hash(json.dumps([str(ds.source), ds.calib], sort_keys=True))
+    return str(ds.dir)
+
+
+def run_inputs(plan: Plan, run: RunSpec) -> dict:
+    """What a finished run was made from, as recorded in its run.json."""
+    ds = run.dataset
+    return {"dataset": _dataset_identity(ds), "map": _hash(ds.map),
+            "features": _hash(_features_path(ds)),
+            "truth": _hash(ds.dir / "truth.csv") if ds.truth else "",
+            "localize": run.method.conf, "evaluate": plan.evaluate}
+
+
+def finished(plan: Plan, run: RunSpec) -> bool:
+    """Whether the run finished before from the inputs it would read now."""
+    path = Path(plan.results) / run.dir / RUN_NAME
+    if not path.is_file():
+        return False
+    try:
+        rec = read_json(path, raw=True)  # the inputs as written (a None conf value stays None)
+    except FieldlocError:
+        return False
+    if rec.get("status") != "ok":
+        return False
+    ds = run.dataset
+    if ds.kind == "simulate" and not _simulated_as_asked(ds):
+        return False
+    return _same(rec.get("inputs"), run_inputs(plan, run))
+
+
+def _same(a, b) -> bool:
+    """Equal as written to JSON (stages.common.report_file.encode_numbers)."""
+    from ..common.report_file import encode_numbers
+
+    return (json.dumps(encode_numbers(a), sort_keys=True, default=str)
+            == json.dumps(encode_numbers(b), sort_keys=True, default=str))
+
+
+def _record_of(results: Path, run: RunSpec) -> dict:
+    return read_json(results / run.dir / RUN_NAME)
+
+
+# ---------------------------------------------------------------------------- tasks
+# Module functions: Dask ships them to the workers by reference. Each takes and returns paths
+# and small records only.
+
+
+def prepare_dataset(ds: DatasetSpec) -> str:
+    """The dataset folder the stages read: a user's folder as it is; a rendered one simulated
+    (again, when it was rendered from other options); a recording with a calibration made
+    elsewhere as links to its files beside the calib.yaml made for it."""
+    if ds.kind == "folder":
+        return str(ds.dir)
+    if ds.kind == "simulate":
+        if not _simulated_as_asked(ds):
+            from .. import simulate
+
+            ds.dir.parent.mkdir(parents=True, exist_ok=True)
+            # the features of an earlier rendering of this name, and the frames of an
+            # extraction of it that was interrupted (extract would resume from them: it knows
+            # the calibration and conf a frame was made with, not the images)
+            feats = ds.dir.parent.parent / "features"
+            for old in feats.glob(f"{ds.name}.*.features.h5"):
+                old.unlink()
+            for old in feats.glob(f".{ds.name}.*.features.h5.parts"):
+                shutil.rmtree(old)
+            simulate.main(ds.simulate, ds.sim_field, ds.dir, overwrite=True)
+        return str(ds.dir)
+    return _calibrated_view(ds)
+
+
+def _simulated_as_asked(ds: DatasetSpec) -> bool:
+    import yaml
+
+    from ..common.dataset import SIMULATION_RECORD
+
+    rec = ds.dir / SIMULATION_RECORD
+    if not rec.is_file():
+        return False
+    try:
+        got = yaml.safe_load(rec.read_text())
+    except (OSError, yaml.YAMLError):
+        return False
+    from ..common.field import load_field
+
+    want = json.loads(json.dumps(ds.simulate))
+    return (isinstance(got, dict) and _same(got.get("conf"), want)
+            and got.get("field_yaml_hash") == text_hash(load_field(ds.sim_field).spec_text))
+
+
+def _calibrated_view(ds: DatasetSpec) -> str:
+    """RESULTS/datasets/<name>: a link to each file of the recording but calib.yaml, and the
+    calib.yaml of the SPEC (copied, or made by calibrate from the team's files)."""
+    from .. import calibrate
+
+    out = ds.dir
+    out.mkdir(parents=True, exist_ok=True)
+    for entry in sorted(ds.source.iterdir()):
+        if entry.name == "calib.yaml" or entry.name.startswith("."):
+            continue
+        link = out / entry.name
+        if link.is_symlink() and os.readlink(link) == str(entry):
+            continue
+        if link.is_symlink() or link.exists():
+            link.unlink()
+        link.symlink_to(entry)
+    calib = out / "calib.yaml"
+    if isinstance(ds.calib, dict):
+        made = calibrate.from_minho(None, ds.calib["from_minho"], out / ".calib.new.yaml",
+                                    overwrite=True)
+    else:
+        made = out / ".calib.new.yaml"
+        shutil.copyfile(ds.calib, made)
+    if calib.is_file() and calib.read_bytes() == made.read_bytes():
+        made.unlink()  # unchanged: the features stay valid
+    else:
+        os.replace(made, calib)
+    return str(out)
+
+
+def prepare_map(path: str, field_arg: str, build_conf: dict) -> str:
+    """The map built from ``field_arg`` into ``path``, unless it is there, built from the same
+    field and conf."""
+    from .. import build_map
+    from ..common.field import load_field
+    from ..common.map_file import MapFile
+
+    p = Path(path)
+    fm = load_field(field_arg)
+    if p.is_file():
+        try:
+            with MapFile(p) as mf:
+                inputs = json.loads(mf.h5.attrs.get("inputs", "{}"))
+                same = mf.conf == build_conf and inputs.get("field_yaml") == text_hash(
+                    fm.spec_text)
+        except (FieldlocError, ValueError):
+            same = False
+        if same:
+            return path
+    p.parent.mkdir(parents=True, exist_ok=True)
+    build_map.main(build_conf, field_arg, p, overwrite=True)
+    return path
+
+
+def _features_path(ds: DatasetSpec) -> Path:
+    """The features a dataset's runs read: the folder's own features.h5 when it is what extract
+    would make now with the SPEC's conf, else RESULTS/features/... (planned in the SPEC)."""
+    if ds.kind == "folder":
+        own = ds.dir / "features.h5"
+        if own.is_file():
+            from .. import extract
+
+            try:
+                if extract.reusable_features(own, ds.dir, ds.extract) is None:
+                    return own
+            except FieldlocError:
+                pass
+    return Path(ds.features)
+
+
+def prepare_features(ds: DatasetSpec, dataset_dir: str) -> str:
+    """The dataset's features: reused when complete, else extracted (resumed when an earlier
+    extraction of the same conf stopped; extracted anew when it cannot be continued)."""
+    from .. import extract
+
+    path = _features_path(ds)
+    if path.is_file() and extract.reusable_features(path, dataset_dir, ds.extract) is None:
+        return str(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        extract.main(ds.extract, dataset_dir, path)
+    except FieldlocError:
+        if not path.exists():
+            raise
+        extract.main(ds.extract, dataset_dir, path, overwrite=True)  # ours, from other inputs
+    return str(path)
+
+
+class _Captured(logging.Handler):
+    """The warnings of one run, kept for its run.json instead of printed by whichever process
+    ran it."""
+
+    def __init__(self):
+        super().__init__(logging.WARNING)
+        self.lines: list[str] = []
+
+    def emit(self, record):
+        self.lines.append(f"{record.name}: {record.getMessage()}")
+
+
+@contextlib.contextmanager
+def _captured_logs():
+    handler = _Captured()
+    loggers = [logging.getLogger(n) for n in ("stages", "fieldloc")]
+    saved = [(lg.propagate, lg.level) for lg in loggers]
+    for lg in loggers:
+        lg.addHandler(handler)
+        lg.propagate = False
+        lg.setLevel(logging.WARNING)
+    try:
+        yield handler.lines
+    finally:
+        for lg, (prop, level) in zip(loggers, saved):
+            lg.removeHandler(handler)
+            lg.propagate = prop
+            lg.setLevel(level)
+
+
+def do_run(run: RunSpec, results: str, evaluate_conf: dict, inputs_plan: dict,
+           dataset_dir: str, map_path: str, features: str) -> dict:
+    """One run: localize, then evaluate against the dataset's truth (without truth: the poses'
+    frame counts and runtimes), then run.json. Never raises: a failure is the record's."""
+    from .. import evaluate, localize
+    from ..common.poses_file import read_poses
+
+    out = Path(results) / run.dir
+    t0 = time.perf_counter()
+    rec = {"key": run.key, "dataset": run.dataset.name, "method": run.method.name,
+           "localize_method": run.method.method, "preset": run.method.preset,
+           "overrides": run.method.overrides, "dir": run.dir, "status": "failed", "error": "",
+           "report": "", "summary": {}, "seconds": math.nan, "warnings": [],
+           "worker": f"{os.uname().nodename}:{os.getpid()}"}
+    with _captured_logs() as warnings:
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+            (out / RUN_NAME).unlink(missing_ok=True)
+            poses = localize.main(run.method.conf, dataset_dir, map_path, out / "poses.h5",
+                                  features=features, overwrite=True)
+            if run.dataset.truth:
+                evaluate.main(evaluate_conf, poses, Path(dataset_dir) / "truth.csv",
+                              out / REPORT_DIR, overwrite=True)
+                rec["report"] = f"{run.dir}/{REPORT_DIR}"
+            else:
+                rec["summary"] = _summary_without_truth(read_poses(poses)[0])
+            rec["status"] = "ok"
+        except Exception as e:  # recorded, and the batch goes on
+            rec["error"] = one_line(e)
+            log.debug("run %s failed:\n%s", run.key, traceback.format_exc())
+    rec["warnings"] = warnings
+    rec["seconds"] = time.perf_counter() - t0
+    rec["inputs"] = {**inputs_plan, "map": _hash(map_path), "features": _hash(features)}
+    write_json(out / RUN_NAME, rec)
+    return rec
+
+
+def one_line(e: BaseException) -> str:
+    """A failure as one line: a FieldlocError's message, otherwise the type and message."""
+    text = str(e).strip().splitlines()[0] if str(e).strip() else ""
+    return text if isinstance(e, FieldlocError) else f"{type(e).__name__}: {text}"
+
+
+def _summary_without_truth(cols) -> dict:
+    """The figures of a run that has no truth, with evaluate's definitions (its
+    ``percentile``): frames, failures, failure_rate, runtime_ms."""
+    import numpy as np
+
+    from ..evaluate.metrics import percentile
+
+    failed = np.asarray(cols["failed"], bool)
+    rt = np.asarray(cols["runtime"], float)
+    rt = rt[np.isfinite(rt)] * 1000.0
+    return {"frames": int(len(failed)), "failures": int(failed.sum()),
+            "failure_rate": float(failed.mean()) if len(failed) else math.nan,
+            "runtime_ms": {"median": percentile(rt, 50),
+                           "mean": float(np.mean(rt)) if rt.size else math.nan}}
+
+
+# ---------------------------------------------------------------------------- execution
+
+
+def _steps(plan: Plan, todo: list[RunSpec]):
+    """The preparation steps the runs need: (datasets by name, maps by path, features by
+    dataset name), each once."""
+    datasets = {r.dataset.name: r.dataset for r in todo}
+    maps = {r.dataset.map: plan.maps[r.dataset.map] for r in todo
+            if r.dataset.map in plan.maps}
+    return datasets, maps
+
+
+def _inputs_plan(plan: Plan, run: RunSpec) -> dict:
+    i = run_inputs(plan, run)
+    i.pop("map")
+    i.pop("features")
+    return i
+
+
+def _execute(plan: Plan, todo: list[RunSpec], conf: dict, progress: bool, say) -> dict:
+    if conf["serial"]:
+        return _execute_serial(plan, todo, progress, say)
+    return _execute_dask(plan, todo, conf, progress, say)
+
+
+def _bar(total: int, progress: bool):
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc="batch", unit="run", disable=not progress)
+
+
+def _execute_serial(plan: Plan, todo, progress, say) -> dict:
+    say(f"running {len(todo)} runs one after the other in this process")
+    datasets, maps = _steps(plan, todo)
+    records = {}
+    ready_ds: dict[str, str | Exception] = {}
+    ready_feat: dict[str, str | Exception] = {}
+    ready_map: dict[str, str | Exception] = {}
+    with _bar(len(todo), progress) as bar:
+        for run in todo:
+            ds = run.dataset
+            try:
+                if ds.name not in ready_ds:
+                    ready_ds[ds.name] = _attempt(prepare_dataset, ds)
+                if ds.map in maps and ds.map not in ready_map:
+                    ready_map[ds.map] = _attempt(prepare_map, ds.map, *maps[ds.map])
+                d = _ok(ready_ds[ds.name])
+                if ds.name not in ready_feat:
+                    ready_feat[ds.name] = _attempt(prepare_features, ds, d)
+                m = _ok(ready_map.get(ds.map, ds.map))
+                f = _ok(ready_feat[ds.name])
+            except Exception as e:
+                records[run.key] = _failed_before(plan, run, e)
+            else:
+                records[run.key] = do_run(run, str(plan.results), plan.evaluate,
+                                          _inputs_plan(plan, run), d, m, f)
+            bar.update(1)
+    return records
+
+
+def _attempt(fn, *args):
+    try:
+        return fn(*args)
+    except Exception as e:
+        return e
+
+
+def _ok(value):
+    if isinstance(value, Exception):
+        raise value
+    return value
+
+
+def _failed_before(plan: Plan, run: RunSpec, e: BaseException) -> dict:
+    """The record of a run whose dataset, map or features could not be made."""
+    rec = {"key": run.key, "dataset": run.dataset.name, "method": run.method.name,
+           "localize_method": run.method.method, "preset": run.method.preset,
+           "overrides": run.method.overrides, "dir": run.dir, "status": "failed",
+           "error": one_line(e), "report": "", "summary": {}, "seconds": math.nan,
+           "warnings": [], "inputs": {}}
+    out = Path(plan.results) / run.dir
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(out / RUN_NAME, rec)
+    return rec
+
+
+def _execute_dask(plan: Plan, todo, conf, progress, say) -> dict:
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    with contextlib.ExitStack() as stack:
+        # Dask's own INFO lines (cluster start and stop) only when our log shows INFO
+        dask_log = logging.getLogger("distributed")
+        stack.callback(dask_log.setLevel, dask_log.level)
+        if not logging.getLogger().isEnabledFor(logging.INFO):
+            dask_log.setLevel(logging.WARNING)
+        if conf["scheduler"]:
+            try:
+                client = stack.enter_context(Client(conf["scheduler"], timeout="10s"))
+            except (OSError, TimeoutError) as e:
+                raise FieldlocError(f"cannot reach the Dask scheduler {conf['scheduler']}"
+                                    f" ({one_line(e)})") from None
+            where = f"the Dask cluster at {conf['scheduler']}"
+        else:
+            n = conf["workers"] or core_count()
+            cluster = stack.enter_context(LocalCluster(
+                n_workers=n, threads_per_worker=1, processes=True,
+                dashboard_address=":0", silence_logs=logging.WARNING))
+            client = stack.enter_context(Client(cluster))
+            where = f"a local Dask cluster of {n} worker processes"
+        nw = len(client.scheduler_info().get("workers", {}))
+        say(f"running {len(todo)} runs on {where} ({nw} workers)")
+        if _has_dashboard() and client.dashboard_link:
+            say(f"dashboard: {client.dashboard_link}")
+        datasets, maps = _steps(plan, todo)
+        f_ds = {n: client.submit(prepare_dataset, ds, key=f"dataset-{n}-{_tag()}", pure=False)
+                for n, ds in datasets.items()}
+        f_map = {p: client.submit(prepare_map, p, *a, key=f"map-{Path(p).name}-{_tag()}",
+                                  pure=False) for p, a in maps.items()}
+        f_feat = {n: client.submit(prepare_features, datasets[n], f_ds[n],
+                                   key=f"features-{n}-{_tag()}", pure=False)
+                  for n in datasets}
+        futures = {}
+        for i, run in enumerate(todo):
+            ds = run.dataset
+            fut = client.submit(do_run, run, str(plan.results), plan.evaluate,
+                                _inputs_plan(plan, run), f_ds[ds.name],
+                                f_map.get(ds.map, ds.map), f_feat[ds.name],
+                                key=f"run-{run.key}-{_tag()}", pure=False, priority=-i)
+            futures[fut] = run
+        records = {}
+        with _bar(len(todo), progress) as bar:
+            try:
+                for fut in as_completed(list(futures)):
+                    run = futures[fut]
+                    try:
+                        records[run.key] = fut.result()
+                    except Exception as e:  # its dataset, map or features could not be made
+                        records[run.key] = _failed_before(plan, run, e)
+                    bar.update(1)
+            except KeyboardInterrupt:
+                client.cancel(list(futures))
+                raise
+    return records
+
+
+def _tag() -> str:
+    return os.urandom(4).hex()
+
+
+def _has_dashboard() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("bokeh") is not None
+
+
+# ---------------------------------------------------------------------------- index
+
+
+def _index(plan: Plan, records: dict) -> dict:
+    results = Path(plan.results)
+    return {
+        "spec": {"path": str(plan.spec), "hash": plan.spec_hash},
+        "datasets": {ds.name: {"dir": str(ds.dir), "camera": ds.camera, "map": ds.map,
+                               "features": str(_features_path(ds)), "truth": ds.truth}
+                     for ds in plan.datasets},
+        "runs": [_public(records[r.key]) for r in plan.runs if r.key in records],
+        "skipped": plan.skipped,
+        "results": str(results.resolve()),
+    }
+
+
+def _public(rec: dict) -> dict:
+    return {k: v for k, v in rec.items() if k != "inputs"}

@@ -1,0 +1,462 @@
+"""The SPEC of ``fieldloc batch``: which datasets, which map, which methods, which runs. Read
+and checked at once (``read_spec``), before anything runs: a key it does not know, a value of
+the wrong kind, a preset or conf key the stage does not have is one line naming the file and
+the place (``methods[2].conf``), never a traceback.
+
+    field: msl-2015            # the map of datasets naming none: built into RESULTS/maps/
+    # map: maps/msl-2015.map.h5   (or a map you have; not both)
+    build_map: {resolution: 0.1}   # optional: build-map conf of the maps built
+    datasets:
+      - path: recordings/lab-1         # a dataset folder (named by its folder)
+      - glob: recordings/hall-*        # every folder matching, sorted
+      - name: omni-clean               # rendered into RESULTS/datasets/, rebuilt from this
+        simulate: {preset: omni-clean, field: msl-2015, frames: 60, seed: 1}
+      - name: minho-lab                # a recording whose calibration is made elsewhere
+        path: ../shared/realdata/minho-lab
+        calib: {from_minho: ../shared/realdata/minho-lab}   # or a calib.yaml
+        field: minho-lab.yaml          # its own field (or map:)
+    extract: {omni: default}           # optional: extract preset or conf per camera kind
+    evaluate: numbers                  # optional: evaluate preset or conf (default numbers)
+    methods:
+      - lut                            # a method (its default preset) or <method>-<preset>
+      - {method: lut, preset: default, conf: {heading: histogram}, name: lut-histogram}
+      - {method: mcl, conf: ["init=uniform"]}     # -c overrides as on the command line
+      - fit                            # not registered (yet): skipped, with a line saying so
+    runs:                              # default: all, every method on every dataset whose
+      - lut, fit x omni-*              # camera it takes; else "METHODS x DATASETS" lines of
+      - mcl x persp-*                  # comma-separated name patterns (fnmatch)
+
+Relative paths are relative to the SPEC's folder. A simulated dataset is named by its simulate
+options (``name`` optional: ``<preset>-<field>-f<frames>-s<seed>``, plus a hash of further
+``conf`` overrides). A dataset's map: its own ``map`` or ``field``, else the field it is
+simulated on, else the SPEC's ``map`` or ``field``. Methods come from the registry
+(stages.localize.METHODS): a method the registry lacks is skipped with a line, so a SPEC may
+list methods that land later. Which camera kinds a method reads is its module's
+``camera_kinds`` (every kind when it does not say).
+
+Runs are named by their key ``<dataset>/<method>-<preset>[-<hash of the overrides>]`` (as hloc
+names its outputs), and their outputs go to ``RESULTS/runs/<key>/``.
+"""
+
+from __future__ import annotations
+
+import copy
+import fnmatch
+import glob as globmod
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+from .. import evaluate, extract, localize, simulate
+from ..common.artifacts import file_hash, text_hash
+from ..common.conf import parse_overrides, resolve_conf, stage_conf
+from ..common.errors import FieldlocError
+
+TOP_KEYS = ("field", "map", "build_map", "datasets", "extract", "evaluate", "methods", "runs")
+DATASET_KEYS = ("name", "path", "glob", "simulate", "calib", "field", "map", "extract")
+SIMULATE_KEYS = ("preset", "field", "frames", "seed", "conf")
+METHOD_KEYS = ("name", "method", "preset", "conf")
+NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]*$")
+
+
+@dataclass
+class DatasetSpec:
+    name: str
+    kind: str  # folder | simulate | calibrated (a folder with its calibration made elsewhere)
+    camera: str  # omni | perspective
+    dir: Path  # the dataset folder the stages read (a folder of RESULTS for the others)
+    source: Path | None = None  # the user's folder (folder, calibrated)
+    simulate: dict | None = None  # the resolved simulate conf
+    sim_field: str | None = None
+    calib: str | dict | None = None  # calibrated: a calib.yaml path or {"from_minho": DIR}
+    map: str = ""  # the map file its runs use
+    extract: dict = field(default_factory=dict)  # the resolved extract conf
+    features: str = ""  # the features file its runs read
+    truth: bool = True
+
+
+@dataclass
+class MethodSpec:
+    name: str  # as the tables call it
+    method: str
+    preset: str
+    overrides: dict
+    key: str  # <method>-<preset>[-<hash>]
+    conf: dict | None = None  # the resolved localize conf (None: not registered)
+    cameras: tuple | None = None
+
+
+@dataclass
+class RunSpec:
+    dataset: DatasetSpec
+    method: MethodSpec
+
+    @property
+    def key(self) -> str:
+        return f"{self.dataset.name}/{self.method.key}"
+
+    @property
+    def dir(self) -> str:
+        return f"runs/{self.key}"
+
+
+@dataclass
+class Plan:
+    spec: Path
+    spec_hash: str
+    results: Path
+    datasets: list[DatasetSpec]
+    methods: list[MethodSpec]
+    runs: list[RunSpec]
+    maps: dict  # map file -> (field argument, build-map conf); files of the user: absent
+    evaluate: dict
+    skipped: list[str]
+
+
+def short_hash(value) -> str:
+    return text_hash(json.dumps(value, sort_keys=True, default=str)).split(":")[1][:6]
+
+
+class _Where:
+    """Error messages that name the SPEC file and the place in it."""
+
+    def __init__(self, spec: Path):
+        self.spec = spec
+
+    def fail(self, where: str, message: str):
+        raise FieldlocError(f"{self.spec}: {where + ': ' if where else ''}{message}")
+
+    def keys(self, d, where: str, allowed, required=()) -> dict:
+        if not isinstance(d, dict):
+            self.fail(where, f"expected a mapping of {', '.join(allowed)}, got {d!r}"[:160])
+        unknown = [k for k in d if k not in allowed]
+        if unknown:
+            self.fail(where, f"unknown key '{unknown[0]}' (known: {', '.join(allowed)})")
+        for k in required:
+            if k not in d:
+                self.fail(where, f"missing key '{k}'")
+        return d
+
+    def text(self, v, where: str) -> str:
+        if not isinstance(v, str) or not v.strip():
+            self.fail(where, f"expected a text, got {v!r}")
+        return v.strip()
+
+
+def read_spec(spec_path: str | Path, results: str | Path) -> Plan:
+    """The plan of the SPEC at ``spec_path`` for the results folder ``results`` (module doc)."""
+    spec_path = Path(spec_path)
+    if not spec_path.is_file():
+        raise FieldlocError(f"SPEC not found: {spec_path}")
+    try:
+        data = yaml.safe_load(spec_path.read_text())
+    except (yaml.YAMLError, UnicodeDecodeError) as e:
+        line = getattr(getattr(e, "problem_mark", None), "line", None)
+        where = f" (line {line + 1})" if line is not None else ""
+        raise FieldlocError(f"{spec_path}: not valid YAML{where}") from None
+    w = _Where(spec_path)
+    base = spec_path.resolve().parent
+    results = Path(results)
+    w.keys(data, "", TOP_KEYS, required=("datasets", "methods"))
+    if "field" in data and "map" in data:
+        w.fail("", "give either 'field' (the map is built) or 'map', not both")
+    default_map = _map_source(w, data, "", base)
+    build_conf = data.get("build_map")
+    try:
+        from .. import build_map
+
+        build_conf = stage_conf(build_map.confs, build_conf)
+    except FieldlocError as e:
+        w.fail("build_map", str(e))
+    extract_default = data.get("extract") or {}
+    w.keys(extract_default, "extract", tuple(extract.KINDS))
+    try:
+        evaluate_conf = stage_conf(evaluate.confs, data.get("evaluate"), default="numbers")
+    except FieldlocError as e:
+        w.fail("evaluate", str(e))
+    maps: dict = {}
+    datasets = _datasets(w, data["datasets"], base, results, default_map, build_conf,
+                         extract_default, maps)
+    skipped: list[str] = []
+    methods = _methods(w, data["methods"], skipped)
+    runs = _runs(w, data.get("runs", "all"), datasets, methods, skipped)
+    return Plan(spec=spec_path.resolve(), spec_hash=file_hash(spec_path), results=results,
+                datasets=datasets, methods=methods, runs=runs, maps=maps,
+                evaluate=evaluate_conf, skipped=skipped)
+
+
+# ---------------------------------------------------------------------------- datasets
+
+
+def _path(base: Path, v: str) -> Path:
+    p = Path(v).expanduser()
+    return p if p.is_absolute() else base / p
+
+
+def _field_arg(base: Path, v: str) -> str:
+    """A field preset name as it is, a YAML file as its absolute path."""
+    p = _path(base, v)
+    return str(p) if p.suffix.lower() in (".yaml", ".yml") or p.exists() else v
+
+
+def _map_source(w: _Where, d: dict, where: str, base: Path):
+    """("map", path) or ("field", argument) of an entry, or None."""
+    if "map" in d:
+        p = _path(base, w.text(d["map"], f"{where}map".lstrip(".")))
+        if not p.is_file():
+            w.fail(f"{where}map".lstrip("."), f"map not found: {p}")
+        return ("map", p)
+    if "field" in d:
+        return ("field", _field_arg(base, w.text(d["field"], f"{where}field".lstrip("."))))
+    return None
+
+
+def _map_for(w: _Where, source, where: str, results: Path, build_conf: dict, maps: dict) -> str:
+    """The map file of a map source; a field's map is planned under RESULTS/maps/."""
+    kind, value = source
+    if kind == "map":
+        return str(Path(value).resolve())
+    from ..common.field import load_field
+
+    try:
+        fm = load_field(value)
+    except FieldlocError as e:
+        w.fail(where, str(e))
+    from .. import build_map
+
+    plain = not Path(str(value)).suffix and build_conf == build_map.confs["default"]
+    name = fm.name if plain else f"{fm.name}-{short_hash([fm.spec_text, build_conf])}"
+    path = str((results / "maps" / f"{name}.map.h5").resolve())
+    maps[path] = (value, build_conf)
+    return path
+
+
+def _datasets(w, entries, base, results, default_map, build_conf, extract_default, maps):
+    if not isinstance(entries, list) or not entries:
+        w.fail("datasets", "expected a list of datasets")
+    out: list[DatasetSpec] = []
+    for i, d in enumerate(entries):
+        where = f"datasets[{i}]"
+        if isinstance(d, str):
+            d = {"path": d}
+        w.keys(d, where, DATASET_KEYS)
+        given = [k for k in ("path", "glob", "simulate") if k in d]
+        if len(given) != 1:
+            w.fail(where, "give one of 'path', 'glob' or 'simulate'")
+        if "calib" in d and "path" not in d:
+            w.fail(where, "'calib' goes with 'path' (a recording whose calibration is made"
+                   " elsewhere)")
+        if "glob" in d and "name" in d:
+            w.fail(where, "a glob names its datasets by their folders; 'name' goes with"
+                   " 'path' or 'simulate'")
+        own_map = _map_source(w, d, f"{where}.", base)
+        found = []
+        if "simulate" in d:
+            found.append(_simulated(w, d, where, results))
+            if own_map is None:
+                own_map = ("field", found[0].sim_field)
+        elif "glob" in d:
+            pattern = str(_path(base, w.text(d["glob"], f"{where}.glob")))
+            folders = sorted(Path(p) for p in globmod.glob(pattern) if Path(p).is_dir())
+            if not folders:
+                w.fail(f"{where}.glob", f"no folder matches {pattern}")
+            found += [_folder(w, p, p.name, where, results, None) for p in folders]
+        else:
+            p = _path(base, w.text(d["path"], f"{where}.path"))
+            name = w.text(d["name"], f"{where}.name") if "name" in d else p.name
+            found.append(_folder(w, p, name, where, results, d.get("calib"), base))
+        source = own_map or default_map
+        if source is None:
+            w.fail(where, "no map: give the SPEC (or the dataset) a 'map' or a 'field'")
+        for ds in found:
+            ds.map = _map_for(w, source, f"{where}.field", results, build_conf, maps)
+            ex = d.get("extract", extract_default.get(ds.camera))
+            try:
+                ds.extract = extract.resolve_extract_conf(ds.camera, ex)
+            except FieldlocError as e:
+                w.fail(f"{where}.extract", str(e))
+            tag = ex if isinstance(ex, str) else ("default" if ex is None else
+                                                  f"custom-{short_hash(ds.extract)}")
+            ds.features = str((results / "features" / f"{ds.name}.{tag}.features.h5").resolve())
+            out.append(ds)
+    names = [ds.name for ds in out]
+    for n in names:
+        if not NAME_RE.match(n):
+            w.fail("datasets", f"dataset name '{n}' is not a plain name (letters, digits,"
+                   " . _ + -): give it a 'name'")
+        if names.count(n) > 1:
+            w.fail("datasets", f"two datasets are named '{n}': give one a 'name'")
+    return out
+
+
+def _folder(w, path: Path, name: str, where: str, results: Path, calib, base=None):
+    from ..common.camera import load_calib
+
+    if not path.is_dir():
+        w.fail(f"{where}.path", f"dataset folder not found: {path}")
+    if calib is None:
+        calib_file = path / "calib.yaml"
+        if not calib_file.is_file():
+            w.fail(where, f"{path} has no calib.yaml (give the dataset a 'calib')")
+        camera = load_calib(calib_file).kind
+        return DatasetSpec(name=name, kind="folder", camera=camera, dir=path.resolve(),
+                           source=path.resolve(), truth=(path / "truth.csv").is_file())
+    if isinstance(calib, dict):
+        w.keys(calib, f"{where}.calib", ("from_minho",), required=("from_minho",))
+        minho = _path(base, w.text(calib["from_minho"], f"{where}.calib.from_minho"))
+        if not minho.is_dir():
+            w.fail(f"{where}.calib.from_minho", f"folder not found: {minho}")
+        calib, camera = {"from_minho": str(minho.resolve())}, "omni"
+    else:
+        c = _path(base, w.text(calib, f"{where}.calib"))
+        if not c.is_file():
+            w.fail(f"{where}.calib", f"calibration not found: {c}")
+        camera = load_calib(c).kind
+        calib = str(c.resolve())
+    return DatasetSpec(name=name, kind="calibrated", camera=camera,
+                       dir=(results / "datasets" / name).resolve(), source=path.resolve(),
+                       calib=calib, truth=(path / "truth.csv").is_file())
+
+
+def _simulated(w, d, where, results):
+    s = w.keys(d["simulate"], f"{where}.simulate", SIMULATE_KEYS, required=("field",))
+    preset = w.text(s.get("preset", "default"), f"{where}.simulate.preset")
+    if preset not in simulate.confs:
+        w.fail(f"{where}.simulate.preset", f"unknown preset '{preset}' (presets:"
+               f" {', '.join(sorted(simulate.confs))})")
+    over = s.get("conf") or {}
+    over = parse_overrides(over) if isinstance(over, list) else copy.deepcopy(over)
+    for k in ("frames", "seed"):
+        if k in s:
+            over[k] = s[k]
+    try:
+        conf = resolve_conf(simulate.confs, preset, over)
+    except FieldlocError as e:
+        w.fail(f"{where}.simulate", str(e))
+    field_arg = w.text(s["field"], f"{where}.simulate.field")
+    from ..common.field import load_field
+
+    try:
+        fm = load_field(field_arg)
+    except FieldlocError as e:
+        w.fail(f"{where}.simulate.field", str(e))
+    extra = {k: v for k, v in over.items() if k not in ("frames", "seed")}
+    name = d.get("name") or (f"{preset}-{fm.name}-f{conf['frames']}-s{conf['seed']}"
+                             + (f"-{short_hash(extra)}" if extra else ""))
+    return DatasetSpec(name=w.text(name, f"{where}.name"), kind="simulate",
+                       camera=conf["camera"], dir=(results / "datasets" / name).resolve(),
+                       simulate=conf, sim_field=field_arg)
+
+
+# ---------------------------------------------------------------------------- methods
+
+
+def _methods(w, entries, skipped) -> list[MethodSpec]:
+    if not isinstance(entries, list) or not entries:
+        w.fail("methods", "expected a list of methods")
+    out: list[MethodSpec] = []
+    for i, m in enumerate(entries):
+        where = f"methods[{i}]"
+        if isinstance(m, str):
+            m = _method_of_name(w, m, where)
+        w.keys(m, where, METHOD_KEYS, required=("method",))
+        method = w.text(m["method"], f"{where}.method")
+        preset = w.text(m.get("preset", "default"), f"{where}.preset")
+        over = m.get("conf") or {}
+        if isinstance(over, list):
+            try:
+                over = parse_overrides(over)
+            except FieldlocError as e:
+                w.fail(f"{where}.conf", str(e))
+        if not isinstance(over, dict):
+            w.fail(f"{where}.conf", "expected a mapping or a list of key=value")
+        if "method" in over:
+            w.fail(f"{where}.conf", "the method is the entry's 'method', not a conf key")
+        key = f"{method}-{preset}" + (f"-{short_hash(over)}" if over else "")
+        name = w.text(m.get("name", key), f"{where}.name")
+        spec = MethodSpec(name=name, method=method, preset=preset, overrides=over, key=key)
+        if method not in localize.available_methods():
+            skipped.append(f"method '{method}' ({where}): not registered in"
+                           f" stages.localize.METHODS (known: {', '.join(localize.METHODS)})")
+        else:
+            try:
+                spec.conf = resolve_conf(localize.confs, localize.preset_name(method, preset),
+                                         over)
+            except FieldlocError as e:
+                w.fail(where, str(e))
+            spec.cameras = localize.method_camera_kinds(method)
+        out.append(spec)
+    names = [m.name for m in out]
+    for n in names:
+        if names.count(n) > 1:
+            w.fail("methods", f"two methods are named '{n}': give one a 'name'")
+        if not NAME_RE.match(n):
+            w.fail("methods", f"method name '{n}' is not a plain name (letters, digits, . _ +"
+                   " -)")
+    return out
+
+
+def _method_of_name(w, text: str, where: str) -> dict:
+    """'lut' -> lut's default preset; 'lut-no-fusion' -> that preset of lut (a registered
+    method's preset it lacks is an error); any other name is a method (maybe not registered)."""
+    text = w.text(text, where)
+    for method in localize.available_methods():
+        if text.startswith(f"{method}-"):
+            return {"method": method, "preset": text[len(method) + 1:], "name": text}
+    return {"method": text, "preset": "default", "name": text}
+
+
+# ---------------------------------------------------------------------------- runs
+
+
+def _runs(w, runs, datasets, methods, skipped) -> list[RunSpec]:
+    if runs == "all" or runs is None:
+        lines = ["* x *"]
+    elif isinstance(runs, list) and runs and all(isinstance(r, str) for r in runs):
+        lines = runs
+    else:
+        w.fail("runs", "expected 'all' or a list of 'METHODS x DATASETS' lines")
+    pairs: list[tuple[DatasetSpec, MethodSpec]] = []
+    for i, line in enumerate(lines):
+        where = f"runs[{i}]" if runs not in ("all", None) else "runs"
+        parts = re.split(r"\s+x\s+", line.strip())
+        if len(parts) != 2:
+            w.fail(where, f"'{line}' is not of the form 'METHODS x DATASETS'")
+        mp, dp = ([p.strip() for p in part.split(",") if p.strip()] for part in parts)
+        ms = _matching(w, mp, [m.name for m in methods], where, "method")
+        ds = _matching(w, dp, [d.name for d in datasets], where, "dataset")
+        for d in datasets:
+            for m in methods:
+                if d.name in ds and m.name in ms and (d, m) not in pairs:
+                    pairs.append((d, m))
+    out = []
+    mismatched = []
+    for d, m in pairs:
+        if m.conf is None:
+            continue  # not registered: said once in skipped
+        if m.cameras is not None and d.camera not in m.cameras:
+            mismatched.append(f"{m.name} x {d.name}")
+            continue
+        out.append(RunSpec(d, m))
+    if mismatched:
+        more = ", ..." if len(mismatched) > 6 else ""
+        skipped.append(f"{len(mismatched)} runs whose method does not read the dataset's camera"
+                       f" kind: {', '.join(mismatched[:6])}{more}")
+    keys = [r.key for r in out]
+    for k in keys:
+        if keys.count(k) > 1:
+            w.fail("methods", f"two method entries run the same conf ({k}); drop one")
+    return out
+
+
+def _matching(w, patterns, names, where, what) -> set[str]:
+    out = set()
+    for p in patterns:
+        hit = [n for n in names if fnmatch.fnmatchcase(n, p)]
+        if not hit:
+            w.fail(where, f"'{p}' names no {what} of the SPEC ({what}s: {', '.join(names)})")
+        out.update(hit)
+    return out
