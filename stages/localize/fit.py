@@ -66,6 +66,8 @@ from .tracking import Candidate, TrackBank, near_pose
 
 log = logging.getLogger(__name__)
 
+camera_kinds = ("omni",)  # the features it reads (line points of the scan lines, or --points)
+
 confs = {
     "default": {
         "heading": "imu",  # imu | histogram | truth: the heading prior of the fit
