@@ -434,3 +434,40 @@ def test_localize_cli_init_uniform(kidsize, map_path, tmp_path):
     res = CliRunner().invoke(cli, args[:-6] + ["--method", "lut", "--init", "uniform", "-o",
                                                str(tmp_path / "x.h5")])
     assert res.exit_code != 0 and "--init applies to --method mcl" in res.output
+
+
+def test_rendered_nao_walk_with_the_cli_defaults(tmp_path):
+    """Issue 9: a short rendered NAO walk (``perspective-nao``: 640 x 480, the SPL field, hall
+    lighting, other robots, people and balls) localised by ``fieldloc localize --method mcl``
+    with its defaults, from the game's placement. The camera height comes from the dataset's
+    calib.yaml (0.45 m, not the model's 0.5). Stated error, 40 frames: from frame 10 on
+    >= 90 % within 40 cm and median <= 10 cm (seed 2 today: 100 %, 6.5 cm; before the
+    kidnap share, the line-placed poses and the posts' own floor: 53 %); never accepted more
+    than 1 m off. The 300-frame goals are the bench's (``mcl-nao-accuracy``)."""
+    from click.testing import CliRunner
+
+    from fieldloc_cli.main import cli
+    from stages import build_map, extract, simulate
+    from stages.common.dataset import read_csv
+    from stages.common.poses_file import read_poses
+
+    conf = copy.deepcopy(simulate.confs["perspective-nao"])
+    conf.update(frames=40, seed=2)
+    data = simulate.main(conf, "spl", tmp_path / "nao")
+    features = extract.main(None, data, tmp_path / "features.h5")
+    map_path = build_map.main(None, "spl", tmp_path / "spl.map.h5")
+    out = tmp_path / "poses.h5"
+    res = CliRunner().invoke(cli, ["-q", "localize", str(data), "--map", str(map_path),
+                                   "--features", str(features), "--method", "mcl", "-o",
+                                   str(out)])
+    assert res.exit_code == 0, res.output
+    cols, attrs = read_poses(out)
+    assert attrs["conf"]["init"] == "placement"
+    assert attrs["conf"]["observation"]["camera_height"] is None  # resolved from calib.yaml
+    truth = read_csv(data / "truth.csv", "truth")
+    i = np.searchsorted(truth["stamp"], cols["stamp"] - 1e-6)
+    err = np.hypot(cols["x"] - truth["x"][i], cols["y"] - truth["y"][i])
+    assert not cols["failed"].any()
+    assert np.mean(err[10:] <= 0.40) >= 0.9
+    assert np.median(err[10:]) <= 0.10
+    assert not np.any(cols["accepted"] & (err > 1.0))

@@ -13,22 +13,33 @@ of the particles, when particles are to be injected, or when the particle count 
 New particles at resampling:
 - augmented MCL (Thrun et al.): the mean per-observation likelihood of the predicted belief is
   followed by a slow and a fast exponential average (``alpha_slow``, ``alpha_fast``); a share
-  ``max(0, 1 - w_fast / w_slow)`` (at most ``max_inject``) of the particles is replaced, half
-  of them (``inject_from_observations``) by poses that explain a crossing or goal post seen in
-  this frame by a field landmark of its kind, the rest uniformly; the frame's mode is then
-  "recovering" and its flags hold "injected=N";
-- sensor resetting: a constant share ``sensor_reset_fraction`` per frame placed by the
-  frame's landmarks, so that a filter sure of a wrong place still meets the right one; to
-  save the candidates' cost on most frames, the share of ``sensor_reset_every`` frames is
-  placed at once on every that many-th frame with landmarks. Poses placed by landmarks are
-  drawn from ``reset_pool`` candidates (an observed crossing or post explained by a random
-  field landmark of its kind) in proportion to their likelihood under all of the frame's
-  observations; on a resetting frame the candidates are weighted in the same call as the
-  particles, otherwise (augmented MCL injecting) in a call of their own;
+  ``max(0, 1 - w_fast / w_slow)`` (at most ``max_inject``) of the particles is replaced while
+  the belief is wide (while tracking, the share raises the kidnap prior, below), half
+  of them (``inject_from_observations``) by poses placed by this frame's observations (below),
+  the rest uniformly; the frame's mode is then "recovering" and its flags hold "injected=N";
+- sensor resetting: poses at which one observation of the frame is explained by a random field
+  feature of its kind (a crossing by a crossing of a type it may be, a post by a post, a line
+  by a straight field line, either side of it, anywhere along it where the observed segment
+  fits), ``reset_pool`` candidates per resetting frame, weighted in the same call as the
+  particles; the placed poses are drawn from them in proportion to their likelihood under all
+  of the frame's observations. While the belief is wide (spread at or above ``spread_high``:
+  global localisation) every frame with observations places ``sensor_reset_fraction``. While
+  tracking, every ``sensor_reset_every``-th frame (every frame while augmented MCL's averages
+  say the likelihood dropped) places the posterior share of "the
+  robot is elsewhere": its prior, the larger of ``kidnap_probability`` and augmented MCL's
+  share, spread over the world's hypothesis regions (a cluster's radius and heading window),
+  the best candidate standing for the place it would be, against the predicted belief's
+  likelihood sum(w_i L_i). A tracked robot whose observations fit places (almost) nothing; a
+  kidnapped one, whose observations fit a candidate far better than the belief, gets most of
+  its particles placed there;
 - ``random_fraction``: a constant share of uniform particles (0 by default).
 Unless the prior was symmetric (below), each new pose is taken as whichever of itself and its
-mirror image lies nearer to the last estimate: no observation can tell the two apart, and the
-other would only let the track flip to the mirrored side.
+mirror image the belief supports more (its density there: Gaussian kernels of the cluster's
+radius and heading window on 256 particles drawn by weight), the one nearer the last estimate
+where it supports neither: no observation can tell the two apart, and the other would only let
+the track flip to the mirrored side. (The side nearer a wide belief's estimate is not the
+belief's side: on a placement start, the estimate of the first frames can sit at the other
+touch line, nearer the true pose's mirror than the true pose.)
 
 Particle count (250-1000, ``particles_min`` / ``particles_max``): at resampling the number
 follows the belief's spread s = sqrt(var x + var y): ``particles_min`` when s <= ``spread_low``,
@@ -79,6 +90,8 @@ from .observation_model import ObservationModel
 
 log = logging.getLogger(__name__)
 
+_NO_SUPPORT = -30.0  # log belief density below which a pose counts as unsupported
+
 _DEFAULT = {
     "seed": 0,
     "init": "placement",  # placement | uniform | pose
@@ -96,7 +109,10 @@ _DEFAULT = {
     "alpha_fast": 0.1,  # ... and the fast one
     "max_inject": 0.25,  # at most this share of particles injected per frame
     "random_fraction": 0.0,  # constant share of uniform random particles per resampling
-    "sensor_reset_fraction": 0.02,  # constant share placed by the landmarks (per frame)
+    "sensor_reset_fraction": 0.02,  # share placed by the landmarks per frame while the
+    # belief is wide (global localisation)
+    "kidnap_probability": 1e-3,  # per frame, that the robot is not where the belief says:
+    # while tracking, the landmarks place the posterior share of "elsewhere" (module doc)
     "sensor_reset_every": 3,  # ... placed at every this many frames with landmarks, at once
     "reset_pool": 100,  # candidate poses per frame for the placed shares (by likelihood)
     "inject_from_observations": 0.5,  # share of injected poses placed by observed landmarks
@@ -168,10 +184,12 @@ class ParticleFilter:
         self._last_pose: np.ndarray | None = None
         self._last_estimate: Estimate | None = None
         self._landmarks = None
+        self._segments = None
         self._pool: tuple | None = None
         self._prep = None  # this frame's prepared observations (after correct)
         self._since_reset = 0  # frames with landmarks since the last sensor reset
         self._reset_now: bool | None = None  # correct's decision for this frame
+        self._kidnap: float | None = None  # this frame's posterior share of "elsewhere"
         hx, hy = self.field.length / 2, self.field.width / 2
         m = float(self.conf["world_margin"])
         self._bounds = (-hx - m, hx + m, -hy - m, hy + m)
@@ -261,14 +279,16 @@ class ParticleFilter:
         if k == 0:
             return 0
         p = self.particles
-        # on a resetting frame, candidate poses placed by this frame's landmarks are weighted
-        # in the same call; the placed poses of ``resample`` draw from them by their likelihood
+        # on a resetting frame, candidate poses placed by this frame's observations are
+        # weighted in the same call; ``resample`` draws the placed poses from them by their
+        # likelihood, and while tracking their best says how likely "elsewhere" is
         self._prep = prep
         self._pool = None
+        self._kidnap = None
         self._reset_now = self._resetting(prep.obs)
         pool = np.zeros((0, 3))
         if self._reset_now:
-            pool = self._poses_from_landmarks(int(self.conf["reset_pool"]), prep.obs)
+            pool = self._poses_from_observations(int(self.conf["reset_pool"]), prep.obs)
         if len(pool):
             p = np.concatenate([p, pool])
         ll = self.model.log_likelihood(p[:, 0], p[:, 1], p[:, 2], prep)
@@ -276,6 +296,8 @@ class ParticleFilter:
         if len(pool):
             self._pool = (pool, ll[n:])
         ll = ll[:n]
+        if len(pool) and not self._wide():
+            self._kidnap = self._kidnap_share(ll, self._pool[1])
         # augmented MCL: the mean per-observation likelihood under the predicted belief
         w_avg = float(np.dot(self.weights, np.exp(ll / k)))
         if self.w_slow is None:
@@ -290,6 +312,32 @@ class ParticleFilter:
         self._last_obs = prep.obs
         return k
 
+    def _kidnap_share(self, ll: np.ndarray, ll_pool: np.ndarray) -> float:
+        """The posterior share of "the robot is elsewhere" in this frame: its prior (the larger
+        of ``kidnap_probability`` and augmented MCL's share, ``inject_share``) spread over the
+        world's hypothesis regions (a cluster's radius and heading window), the best placed
+        pose standing for the place it would be, against the predicted belief's likelihood
+        sum(w_i L_i)."""
+        log_prior = math.log(self._elsewhere() / self._regions())
+        lw = np.log(np.maximum(self.weights, 1e-300)) + ll
+        top = float(lw.max())
+        log_tracked = top + math.log(float(np.exp(lw - top).sum()))
+        log_elsewhere = log_prior + float(ll_pool.max())
+        return 1.0 / (1.0 + math.exp(min(log_tracked - log_elsewhere, 700.0)))
+
+    def _elsewhere(self) -> float:
+        """The prior probability that the robot is not where the belief says: the larger of
+        ``kidnap_probability`` and augmented MCL's share (``inject_share``)."""
+        return max(float(self.conf["kidnap_probability"]), self.inject_share(), 1e-300)
+
+    def _regions(self) -> float:
+        """How many hypothesis regions (a cluster's radius and heading window) the world holds:
+        a uniform belief's density in the units of ``_log_support`` is about 1 / this."""
+        c = self.conf
+        x0, x1, y0, y1 = self._bounds
+        return max((x1 - x0) * (y1 - y0) / (math.pi * c["cluster_radius"] ** 2)
+                   * math.pi / max(c["cluster_heading"], 1e-6), 1.0)
+
     def inject_share(self) -> float:
         """Augmented MCL: the share of random particles, max(0, 1 - w_fast / w_slow)."""
         c = self.conf
@@ -300,26 +348,28 @@ class ParticleFilter:
 
     def resample(self, obs: Observations | None = None, spread: float | None = None):
         """Low-variance resampling when needed, with new particles; returns how many were
-        injected by augmented MCL (certainty dropped) and how many placed by this frame's
-        landmarks (the constant ``sensor_reset_fraction``)."""
+        injected by augmented MCL and how many placed by this frame's observations. While the
+        belief is wide (global localisation) augmented MCL injects its share and the
+        observations place ``sensor_reset_fraction`` per frame; while tracking, the placed
+        poses are the posterior share of "elsewhere" (``_kidnap_share``)."""
         c = self.conf
         n = len(self.weights)
         ess = 1.0 / float(np.dot(self.weights, self.weights))
-        share = self.inject_share()
+        wide = self._wide()
+        share = self.inject_share() if wide else 0.0
         n_target = self._particle_count(spread, share)
         n_aug = int(self.rng.binomial(n_target, share)) if share > 0 else 0
-        landmarks = obs is not None and (len(obs.crossings) or len(obs.posts))
         reset = 0.0
-        if landmarks:
+        if obs is not None and self._places(obs):
             now = self._resetting(obs) if self._reset_now is None else self._reset_now
-            if now:  # the share of the frames since the last reset
+            if now and wide:  # the share of the frames since the last reset
                 reset = min(float(c["sensor_reset_fraction"]) * (self._since_reset + 1), 1.0)
-                self._since_reset = 0
-            else:
-                self._since_reset += 1
+            elif now:
+                reset = self._kidnap or 0.0
+            self._since_reset = 0 if now else self._since_reset + 1
         n_reset = int(self.rng.binomial(n_target, reset)) if reset > 0 else 0
         aug = self._mirror_guard(self._injected_poses(n_aug, obs)) if n_aug else np.zeros((0, 3))
-        placed = (self._mirror_guard(self._landmark_poses(n_reset, obs)) if n_reset
+        placed = (self._mirror_guard(self._placed_poses(n_reset, obs)) if n_reset
                   else np.zeros((0, 3)))
         new = np.concatenate([aug, placed])[: n_target - 1]
         needed = ess < c["resample_threshold"] * n or len(new) > 0 or abs(n_target - n) > 0.25 * n
@@ -335,32 +385,72 @@ class ParticleFilter:
         n_aug = min(len(aug), len(new))
         return n_aug, len(new) - n_aug
 
-    def _resetting(self, obs: Observations) -> bool:
-        """Whether this frame places the sensor-reset share: it has landmarks, and either the
-        belief is wide (the last spread at or above ``spread_high``: every frame) or
-        ``sensor_reset_every`` - 1 frames with landmarks have passed since the last."""
-        if not (len(obs.crossings) or len(obs.posts)):
-            return False
+    def _wide(self) -> bool:
+        """Whether the belief was wide at the last estimate (spread at or above spread_high:
+        global localisation)."""
         last = self._last_estimate
-        if last is None or not last.spread < self.conf["spread_high"]:
+        return last is None or not last.spread < self.conf["spread_high"]
+
+    def _resetting(self, obs: Observations) -> bool:
+        """Whether this frame places poses by its observations (sensor resetting): it has
+        observations that place one (``_places``), and the belief is wide (the last spread at
+        or above ``spread_high``: every frame), augmented MCL's averages say the likelihood
+        dropped (every frame), or ``sensor_reset_every`` - 1 such frames have passed since the
+        last."""
+        if not self._places(obs):
+            return False
+        if self._wide() or self.inject_share() > 0:
             return True
         return self._since_reset + 1 >= max(int(self.conf["sensor_reset_every"]), 1)
+
+    @staticmethod
+    def _places(obs: Observations) -> bool:
+        """Whether ``obs`` holds an observation that places a pose (a crossing, a goal post or
+        a line)."""
+        return bool(len(obs.crossings) or len(obs.posts) or len(obs.lines))
 
     def _mirror_guard(self, poses: np.ndarray) -> np.ndarray:
         """Without the pairing of a symmetric prior the track has chosen a side of the field: a
         new pose and its mirror image explain the observations equally, so each new pose is
-        taken as whichever of the two lies nearer to the last estimate (the new poses can then
-        find a lost robot, but not flip the track to the mirrored side)."""
-        last = self._last_estimate
-        if self.paired or last is None or not len(poses):
+        taken as whichever of the two the current belief supports more (the new poses can then
+        find a lost robot, but not flip the track to the mirrored side). The support is the
+        belief's density at the pose (``_log_support``); where the belief holds neither (a far
+        kidnap), the one nearer the last estimate."""
+        if self.paired or not len(poses):
             return poses
-        cx, cy = float(last.pose[0]), float(last.pose[1])
-        flip = (poses[:, 0] + cx) ** 2 + (poses[:, 1] + cy) ** 2 < (poses[:, 0] - cx) ** 2 + (
-            poses[:, 1] - cy) ** 2
+        mirror = poses.copy()
+        mirror[:, 0:2] *= -1.0
+        mirror[:, 2] = wrap_angle(mirror[:, 2] + math.pi)
+        own, other = self._log_support(poses), self._log_support(mirror)
+        flip = other > own
+        last = self._last_estimate
+        if last is not None:
+            cx, cy = float(last.pose[0]), float(last.pose[1])
+            nearer = (poses[:, 0] + cx) ** 2 + (poses[:, 1] + cy) ** 2 < (
+                poses[:, 0] - cx) ** 2 + (poses[:, 1] - cy) ** 2
+            none = np.maximum(own, other) < _NO_SUPPORT
+            flip = np.where(none, nearer, flip)
         out = poses.copy()
-        out[flip, 0:2] *= -1.0
-        out[flip, 2] = wrap_angle(out[flip, 2] + math.pi)
+        out[flip] = mirror[flip]
         return out
+
+    def _log_support(self, poses: np.ndarray, held: int = 256) -> np.ndarray:
+        """log of the belief's density at ``poses`` (M, 3), up to a constant: the weighted sum
+        of Gaussian kernels (``cluster_radius``, ``cluster_heading``) on ``held`` particles
+        drawn from the belief by their weight (evenly spaced on the weights' cumulative sum,
+        no random draw)."""
+        c = self.conf
+        w = self.weights
+        cum = np.cumsum(w)
+        k = min(held, len(w))
+        idx = np.minimum(np.searchsorted(cum, (np.arange(k) + 0.5) / k * cum[-1]), len(w) - 1)
+        q = self.particles[idx]
+        dx = poses[:, 0:1] - q[None, :, 0]
+        dy = poses[:, 1:2] - q[None, :, 1]
+        e = (dx * dx + dy * dy) / (2.0 * c["cluster_radius"] ** 2)
+        e += (1.0 - np.cos(poses[:, 2:3] - q[None, :, 2])) / max(c["cluster_heading"], 1e-6) ** 2
+        top = (-e).max(axis=1)
+        return top + np.log(np.exp(-e - top[:, None]).sum(axis=1)) - math.log(len(q))
 
     def _particle_count(self, spread: float | None, share: float) -> int:
         """Particles (held) after resampling: by the belief's spread between particles_min and
@@ -376,30 +466,30 @@ class ParticleFilter:
         return self._base_count(int(round(lo + (hi - lo) * min(max(f, 0.0), 1.0))))
 
     def _injected_poses(self, n: int, obs: Observations | None) -> np.ndarray:
-        """New poses: a share explained by this frame's crossings and posts, the rest uniform."""
-        n_obs_based = 0
+        """New poses: a share placed by this frame's observations, the rest uniform."""
+        n_placed = 0
         out = []
-        if obs is not None and (len(obs.crossings) or len(obs.posts)):
-            n_obs_based = int(round(n * float(self.conf["inject_from_observations"])))
-        if n_obs_based:
-            out.append(self._landmark_poses(n_obs_based, obs))
+        if obs is not None and self._places(obs):
+            n_placed = int(round(n * float(self.conf["inject_from_observations"])))
+        if n_placed:
+            out.append(self._placed_poses(n_placed, obs))
         out.append(self._uniform(n - sum(len(q) for q in out)))
         return np.concatenate(out)
 
-    def _landmark_poses(self, n: int, obs: Observations) -> np.ndarray:
-        """``n`` poses explained by this frame's landmarks: drawn from the candidate pool of
+    def _placed_poses(self, n: int, obs: Observations) -> np.ndarray:
+        """``n`` poses explained by this frame's observations: drawn from the candidate pool of
         ``correct`` in proportion to their likelihood under all of the frame's observations
         (likelihood-filtered sensor resetting), else placed directly."""
         if n <= 0:
             return np.zeros((0, 3))
         if self._pool is None and self._prep is not None:  # not weighted with the particles
-            pool = self._poses_from_landmarks(int(self.conf["reset_pool"]), self._prep.obs)
+            pool = self._poses_from_observations(int(self.conf["reset_pool"]), self._prep.obs)
             ll = (self.model.log_likelihood(pool[:, 0], pool[:, 1], pool[:, 2], self._prep)
                   if len(pool) else None)
             self._pool = (pool, ll)
         pool, ll = self._pool if self._pool is not None else (np.zeros((0, 3)), None)
         if not len(pool):
-            return self._poses_from_landmarks(n, obs)
+            return self._poses_from_observations(n, obs)
         w = np.exp(ll - ll.max())
         cum = np.cumsum(w / w.sum())
         cum[-1] = 1.0
@@ -430,9 +520,39 @@ class ParticleFilter:
                                np.array(count))
         return self._landmarks
 
-    def _poses_from_landmarks(self, n: int, obs: Observations) -> np.ndarray:
+    def _segment_table(self):
+        """The field's straight lines: unit normal (S, 2), offset (S,) with n . p = offset,
+        unit direction (S, 2), first and last position along it (S,)."""
+        if self._segments is None:
+            seg = np.asarray(self.field.segments, float).reshape(-1, 2, 2)
+            d = seg[:, 1] - seg[:, 0]
+            t = d / np.maximum(np.linalg.norm(d, axis=1), 1e-12)[:, None]
+            nrm = np.stack([-t[:, 1], t[:, 0]], axis=1)
+            along = np.stack([np.einsum("ij,ij->i", t, seg[:, 0]),
+                              np.einsum("ij,ij->i", t, seg[:, 1])], axis=1)
+            self._segments = (nrm, np.einsum("ij,ij->i", nrm, seg[:, 0]), t,
+                              along.min(axis=1), along.max(axis=1))
+        return self._segments
+
+    def _poses_from_observations(self, n: int, obs: Observations) -> np.ndarray:
+        """Poses at which one observation is explained by a random field feature of its kind
+        (sensor resetting): half by a crossing or goal post, half by a line (all by one kind
+        when the frame has no other); poses off the world are dropped."""
+        usable = self.model.usable(obs)
+        points = len(usable.crossings) + len(usable.posts)
+        lines = len(usable.lines) if len(self.field.segments) else 0
+        if n <= 0 or not (points or lines):
+            return np.zeros((0, 3))
+        n_lines = (n - n // 2 if points else n) if lines else 0
+        p = np.concatenate([self._poses_from_points(n - n_lines, usable),
+                            self._poses_from_lines(n_lines, usable)])
+        x0, x1, y0, y1 = self._bounds
+        ok = (p[:, 0] >= x0) & (p[:, 0] <= x1) & (p[:, 1] >= y0) & (p[:, 1] <= y1)
+        return p[ok]
+
+    def _poses_from_points(self, n: int, obs: Observations) -> np.ndarray:
         """Poses at which one observed crossing or goal post is explained by a random field
-        landmark of its kind (sensor resetting); poses off the world are dropped."""
+        landmark of a kind it may be (the model's type confusions)."""
         rng = self.rng
         pos, orient, start, count = self._landmark_table()
         cr, po = obs.crossings, obs.posts
@@ -451,7 +571,8 @@ class ParticleFilter:
         r_kind = kind[r]
         k = start[r_kind] + (u[1] * count[r_kind]).astype(np.int64)
         mc = self.model.conf
-        dd = d[r] * (1.0 + noise[0] * (mc["sigma_range"] + mc["range_growth"]))
+        elevation = np.where(r_kind == 3, mc["post_elevation_sigma"], mc["elevation_sigma"])
+        dd = d[r] + noise[0] * self.model.range_sigma(d[r], mc["sigma_range"], elevation)
         bb = b[r] + noise[1] * mc["sigma_bearing"]
         post = r_kind == 3
         # a crossing fixes the heading by its orientation (X: up to quarter turns); a post
@@ -460,11 +581,43 @@ class ParticleFilter:
         th = orient[k] + turns - o[r] + noise[2] * 0.1
         psi = np.where(post, (2.0 * u[3] - 1.0) * math.pi, th + bb)
         th = np.where(post, psi - bb, th)
-        p = np.stack([pos[k, 0] - dd * np.cos(psi), pos[k, 1] - dd * np.sin(psi), wrap_angle(th)],
-                     axis=1)
-        x0, x1, y0, y1 = self._bounds
-        ok = (p[:, 0] >= x0) & (p[:, 0] <= x1) & (p[:, 1] >= y0) & (p[:, 1] <= y1)
-        return p[ok]
+        return np.stack([pos[k, 0] - dd * np.cos(psi), pos[k, 1] - dd * np.sin(psi),
+                         wrap_angle(th)], axis=1)
+
+    def _poses_from_lines(self, n: int, obs: Observations) -> np.ndarray:
+        """Poses at which one observed line lies on a random straight field line: the heading
+        turns the observed perpendicular onto the field line's normal (either side of it), the
+        distance puts the line at its offset, and the observed segment's middle lies at a
+        random place along the field segment where the whole segment fits."""
+        if n <= 0 or not len(obs.lines):
+            return np.zeros((0, 3))
+        rng = self.rng
+        nrm, off, tng, lo, hi = self._segment_table()
+        ln = obs.lines
+        r_obs = np.abs(ln[:, 0])
+        a_obs = ln[:, 1] + np.where(ln[:, 0] < 0, math.pi, 0.0)
+        if obs.line_ends is not None:
+            mid = 0.5 * (obs.line_ends[:, 0:2] + obs.line_ends[:, 2:4])
+        else:
+            mid = r_obs[:, None] * np.stack([np.cos(a_obs), np.sin(a_obs)], axis=1)
+        half = 0.5 * ln[:, 2]
+        u = rng.random((3, n))
+        noise = rng.standard_normal((2, n))
+        i = (u[0] * len(ln)).astype(np.int64)
+        j = (u[1] * len(off)).astype(np.int64)
+        side = np.where(rng.random(n) < 0.5, 1.0, -1.0)
+        mc = self.model.conf
+        th = (np.arctan2(side * nrm[j, 1], side * nrm[j, 0]) - a_obs[i]
+              + noise[0] * mc["sigma_line_angle"])
+        c, s_ = np.cos(th), np.sin(th)
+        mx, my = c * mid[i, 0] - s_ * mid[i, 1], s_ * mid[i, 0] + c * mid[i, 1]
+        room = np.maximum(hi[j] - lo[j] - 2.0 * half[i], 0.0)
+        t = lo[j] + 0.5 * (hi[j] - lo[j] - room) + u[2] * room  # where the middle lies
+        normal = off[j] - side * (r_obs[i] + noise[1] * self.model.range_sigma(
+            r_obs[i], mc["sigma_line"]))
+        along = t - (mx * tng[j, 0] + my * tng[j, 1])
+        return np.stack([normal * nrm[j, 0] + along * tng[j, 0],
+                         normal * nrm[j, 1] + along * tng[j, 1], wrap_angle(th)], axis=1)
 
     # ------------------------------------------------------------------ the estimate
     def estimate(self) -> Estimate:
@@ -605,6 +758,19 @@ def _iterate(items, progress):
     return items
 
 
+def _camera_height(dataset) -> float | None:
+    """The camera's height above the floor from the dataset's perspective calibration (None
+    without one: the observation model's default)."""
+    if dataset is None:
+        return None
+    try:
+        camera = dataset.camera()
+    except FieldlocError:
+        return None
+    h = getattr(camera, "height", None)
+    return float(h) if h is not None and math.isfinite(h) and h > 0 else None
+
+
 def run(conf: dict, dataset, features, map_file, progress=None) -> PoseTrack:
     """Localise every frame of ``features`` (stages.common.features_file.FeaturesFile, with
     perspective features) on ``map_file`` (stages.common.map_file.MapFile) with the odometry of
@@ -618,7 +784,10 @@ def run(conf: dict, dataset, features, map_file, progress=None) -> PoseTrack:
         raise FieldlocError(
             f"{features.path}: features of a '{kind}' camera; --method mcl needs perspective"
             " features (lines, crossings, goal posts)")
-    model = ObservationModel.from_map(map_file, conf["observation"])
+    obs_conf = dict(conf["observation"])
+    if obs_conf["camera_height"] is None:
+        obs_conf["camera_height"] = _camera_height(dataset)
+    model = ObservationModel.from_map(map_file, obs_conf)
     pf = ParticleFilter(model, conf)
     pf.initialise()
     odometry = dataset.optional("odometry") if dataset is not None else None

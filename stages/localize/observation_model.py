@@ -42,8 +42,9 @@ at least sin^2(45 deg) / (2 sigma_psi^2) ~ 39, exp(-39) ~ 1e-17).
 
 Combination (section 5.3): each observation's likelihood is
 ``a_uni + (1 - a_uni) exp(-cost)`` with ``a_uni = a_base + (1 - a_base) (1 - confidence)``
-(``uniform_floor`` = a_base), the uniform density taken relative to the peak of the normal
-model; the frame's likelihood is the product over observations (a sum of logarithms).
+(``uniform_floor`` = a_base; ``post_uniform_floor`` for goal posts, most of whose detections
+are other robots' or people's legs), the uniform density taken relative to the peak of the
+normal model; the frame's likelihood is the product over observations (a sum of logarithms).
 
 Speed: every array keeps the poses on its last axis, the per-segment line work runs in float32
 with the segments on the first axis, and costs beyond 60 (exp < 1e-26) are capped before exp.
@@ -62,23 +63,32 @@ from stages.common.map_file import Grid
 from stages.common.observations import Observations
 
 PARTS = ("lines", "crossings", "posts")
+DEFAULT_CAMERA_HEIGHT = 0.5  # m, when neither the conf nor a calibration gives one
 
 DEFAULTS = {
-    "sigma_range": 0.08,  # m, sigma_d of eq. 3 at distance 0
-    "range_growth": 0.08,  # lambda_d: sigma_d grows by this many m per m of distance
+    "camera_height": None,  # m, the camera above the floor; None: the dataset's calib.yaml
+    # (mcl.run), 0.5 without one
+    "sigma_range": 0.03,  # m, range sigma of eq. 3 at distance 0
+    "elevation_sigma": 0.01,  # rad, sigma of a floor point's angle below the horizon (the
+    # camera's pitch and the pixel's error): the range sigma grows as (h^2 + d^2) / h
+    "post_elevation_sigma": 0.03,  # rad, the same for a goal post's foot (less sharp)
     "sigma_bearing": 0.06,  # rad, sigma_phi of eq. 3
     "sigma_crossing_orientation": 0.3,  # rad, L/T/X orientation term; 0 = off (the seed)
-    "sigma_line": 0.08,  # m, sigma_l of eq. 4 at distance 0
-    "line_growth": 0.08,  # lambda_l: sigma_l grows by this many m per m of distance
+    "crossing_type_confusion": 0.2,  # probability that a crossing shows fewer arms than it
+    # has (an L of a T or X, a T of an X: an arm unseen); 0 = types as observed (the seed)
+    "sigma_line": 0.03,  # m, sigma_l of eq. 4 at distance 0 (grows as the range sigma)
     "sigma_line_angle": 0.08,  # rad, sigma_psi of eq. 4
     "oriented_tolerance": 0.15,  # m, eq. 5 accepts <l_e, l_o> > -tol^2
     "line_extent": True,  # charge the part of a segment beyond the model segment's ends
-    "sigma_extent": 0.15,  # m, at distance 0 (grows with line_growth)
+    "sigma_extent": 0.15,  # m, at distance 0 (grows as the range sigma of the farther end)
     "extent_margin": 0.1,  # m of overhang that is free
     "arc_lines": True,  # the centre circle (and arcs) as candidate lines, by their tangent
     "min_line_length": 0.3,  # m, shorter lines are ignored (seed: short and far lines)
     "max_line_distance": 6.0,  # m, lines whose closest point is farther are ignored
     "uniform_floor": 0.1,  # a_base of section 5.3, in ]0, 1[
+    "post_uniform_floor": 0.6,  # a_base for goal posts: most detected posts are no goal
+    # post (robots' and people's legs; measured on rendered NAO walks: 61-88 % of them lie at
+    # no post at the true pose, 19 % on the KidSize walk); None = uniform_floor
     "use_lines": True,
     "use_crossings": True,
     "use_posts": True,
@@ -264,9 +274,19 @@ class ObservationModel:
             posts = posts if ok.all() else posts[ok]
         return Observations(lines, ends, crossings, posts), d_o
 
-    def _floor(self, confidence):
+    def range_sigma(self, d, base: float, elevation: float | np.ndarray | None = None):
+        """Range sigma (m) of a floor point at distance ``d``: ``base`` in quadrature with the
+        error that an elevation-angle sigma (``elevation_sigma``) makes there, d(range) /
+        d(angle) = (h^2 + d^2) / h for a camera at height h."""
+        c = self.conf
+        h = DEFAULT_CAMERA_HEIGHT if c["camera_height"] is None else float(c["camera_height"])
+        e = c["elevation_sigma"] if elevation is None else elevation
+        grow = e * (h * h + np.asarray(d, float) ** 2) / h
+        return np.sqrt(base * base + grow * grow)
+
+    def _floor(self, confidence, base=None):
         """a_uni (K, 1) of section 5.3 for observations of the given confidence."""
-        base = float(self.conf["uniform_floor"])
+        base = float(self.conf["uniform_floor"] if base is None else base)
         conf01 = np.minimum(np.maximum(confidence, 0.0), 1.0)
         return (base + (1.0 - base) * (1.0 - conf01))[:, None]
 
@@ -279,7 +299,7 @@ class ObservationModel:
         if len(obs.lines):
             raw = obs.lines
             a = (raw[:, 1] + np.where(raw[:, 0] < 0, math.pi, 0.0))[:, None]
-            w_d = 1.0 / (2.0 * (c["sigma_line"] + c["line_growth"] * d_o) ** 2)
+            w_d = 1.0 / (2.0 * self.range_sigma(d_o, c["sigma_line"]) ** 2)
             r = np.abs(raw[:, 0])[:, None]
             ca, sa = np.cos(a), np.sin(a)
             f32 = np.float32
@@ -290,7 +310,9 @@ class ObservationModel:
             if c["line_extent"] and obs.line_ends is not None:
                 ends = obs.line_ends
                 half = 0.5 * np.hypot(ends[:, 2] - ends[:, 0], ends[:, 3] - ends[:, 1])[:, None]
-                w_e = 1.0 / (2.0 * (c["sigma_extent"] + c["line_growth"] * d_o) ** 2)
+                far = np.maximum(np.hypot(ends[:, 0], ends[:, 1]),
+                                 np.hypot(ends[:, 2], ends[:, 3]))[:, None]
+                w_e = 1.0 / (2.0 * self.range_sigma(far, c["sigma_extent"]) ** 2)
                 mid = 0.5 * (ends[:, 0:2] + ends[:, 2:4])
                 hm, ratio, h2 = half - c["extent_margin"], w_e / w_d, half * half / 2.0
                 lines["extent"] = dict(
@@ -304,8 +326,17 @@ class ObservationModel:
         lt = cr[cr[:, 0] < 2] if len(cr) else cr
         if len(lt):
             table_rows = self._point_rows(lt[:, 1], lt[:, 2], lt[:, 4], lt[:, 3])
-            table_rows["is_l"] = (lt[:, 0] == 0)[:, None]
+            is_l = (lt[:, 0] == 0)[:, None]
+            table_rows["is_l"] = is_l
             table_rows["t_offset"] = np.where(lt[:, 0] == 1, 4 * self._cells, 0)[:, None]
+            p_conf = float(c["crossing_type_confusion"])
+            if p_conf > 0:
+                # the penalty of explaining a crossing by a feature with more arms
+                table_rows["confusion_cost"] = -math.log(min(p_conf, 1.0))
+                if len(self.x_idx):  # L and T as an X, orientation modulo 90 deg (an L's
+                    # bisector lies halfway between two arms)
+                    table_rows["as_x"] = self._x_candidates(
+                        len(lt), np.where(is_l[:, 0], -1.0, 1.0))
         xs = cr[cr[:, 0] == 2] if len(cr) else cr
         if not len(self.x_idx):
             xs = xs[:0]
@@ -326,8 +357,12 @@ class ObservationModel:
             cand_rows = self._point_rows(
                 np.concatenate([xs[:, 1], ps[:, 0]]), np.concatenate([xs[:, 2], ps[:, 1]]),
                 np.concatenate([xs[:, 4], ps[:, 2]]),
-                np.concatenate([xs[:, 3], np.zeros(k_p)]))
+                np.concatenate([xs[:, 3], np.zeros(k_p)]),
+                np.concatenate([np.full(k_x, c["elevation_sigma"]),
+                                np.full(k_p, c["post_elevation_sigma"])]))
             cand_rows.update(cx=cx, cy=cy, n_x=k_x)
+            if k_p and c.get("post_uniform_floor") is not None:
+                cand_rows["floor"][k_x:] = self._floor(ps[:, 2], c["post_uniform_floor"])
             if k_x and c["sigma_crossing_orientation"] > 0:
                 four = 4.0 * self.cross_orient[np.resize(self.x_idx, m)]
                 cand_rows["c4"] = np.cos(four)[:, None, None]
@@ -337,13 +372,30 @@ class ObservationModel:
                 cand_rows["w_o"] = w_o
         return PreparedObservations(obs, lines, table_rows, cand_rows)
 
-    def _point_rows(self, d_o, b_o, confidence, orient):
+    def _x_candidates(self, k: int, sign: np.ndarray) -> dict:
+        """The field's X crossings as candidates (M, 1, 1) for ``k`` observations, with their
+        orientation term modulo 90 deg: ``sign`` (K,) 1 where the observed orientation lies
+        along an arm, -1 where it lies halfway between two."""
+        c = self.conf
+        out = {"cx": np.repeat(self.cross_x[self.x_idx][:, None, None], k, axis=1),
+               "cy": np.repeat(self.cross_y[self.x_idx][:, None, None], k, axis=1)}
+        if c["sigma_crossing_orientation"] > 0:
+            four = 4.0 * self.cross_orient[self.x_idx]
+            out["c4"] = np.cos(four)[:, None, None]
+            out["s4"] = np.sin(four)[:, None, None]
+            out["w_o"] = np.full((k, 1), 1.0 / (16.0 * c["sigma_crossing_orientation"] ** 2))
+            out["sign"] = np.asarray(sign, float)[:, None]
+        return out
+
+    def _point_rows(self, d_o, b_o, confidence, orient, elevation=None):
         c = self.conf
         d_o = np.asarray(d_o, float)[:, None]
+        if elevation is not None:
+            elevation = np.asarray(elevation, float)[:, None]
         b_o = np.asarray(b_o, float)[:, None]
         o_o = np.asarray(orient, float)[:, None]
         return dict(d=d_o, cb=np.cos(b_o), sb=np.sin(b_o), co=np.cos(o_o), so=np.sin(o_o),
-                    w_d=1.0 / (2.0 * (c["sigma_range"] + c["range_growth"] * d_o) ** 2),
+                    w_d=1.0 / (2.0 * self.range_sigma(d_o, c["sigma_range"], elevation) ** 2),
                     floor=self._floor(np.asarray(confidence, float)))
 
     # ------------------------------------------------------------------ likelihood
@@ -403,29 +455,60 @@ class ObservationModel:
     def table_log_likelihood(self, x, y, cth, sth, prep: PreparedObservations):
         """Log-likelihood (K, N) of the L and T crossings, associated through the tables at
         the cell where each particle places the observation (and, for L, the set of the
-        observation's global orientation)."""
-        c = self.conf
+        observation's global orientation); with ``crossing_type_confusion`` also by the T
+        table (an L) and the X crossings (an L or T), whichever costs least with the
+        confusion's penalty."""
         rows = prep.table_rows
         # the observed bearing (u) and orientation (g) as field-frame unit vectors, (K, N)
         ux = rows["cb"] * cth - rows["sb"] * sth
         uy = rows["cb"] * sth + rows["sb"] * cth
         gx = rows["co"] * cth - rows["so"] * sth
         gy = rows["co"] * sth + rows["so"] * cth
+        cell = self._cell(x, y, ux, uy, rows["d"])
+        # L: the quadrant of the global orientation picks the set (45, 135, 225, 315 deg)
+        below = gy < 0
+        quad = below * 2 + (below != (gx < 0))
+        quad *= self._cells
+        quad += cell
+        cost = self._table_cost(np.where(rows["is_l"], quad, cell + rows["t_offset"]), x, y,
+                                ux, uy, gx, gy, rows, False)
+        if "confusion_cost" in rows:
+            pen = rows["confusion_cost"]
+            is_l = rows["is_l"][:, 0]
+            if is_l.any() and self.lut[4 * self._cells:].max() >= 0:  # an L of a T
+                sel = np.flatnonzero(is_l)
+                sub = {k: rows[k][sel] for k in ("d", "w_d")}
+                as_t = self._table_cost(cell[sel] + 4 * self._cells, x, y, ux[sel], uy[sel],
+                                        gx[sel], gy[sel], sub, True)
+                as_t += pen
+                np.minimum(cost[sel], as_t, out=as_t)
+                cost[sel] = as_t
+            if "as_x" in rows:
+                as_x = self._candidate_cost(x, ux, uy, gx, gy, y, rows, rows["as_x"])
+                as_x += pen
+                np.minimum(cost, as_x, out=cost)
+        return _log_mixture(cost, rows["floor"])
+
+    def _cell(self, x, y, ux, uy, d) -> np.ndarray:
+        """The index (K, N) of the grid cell where each pose places each point observation
+        (distance ``d`` (K, 1) along the field-frame bearing ux, uy)."""
         g = self.grid
         inv_res = 1.0 / g.resolution
-        fx = x + rows["d"] * ux  # where the particle places the crossing
-        fy = y + rows["d"] * uy
+        fx = x + d * ux
+        fy = y + d * uy
         j = ((fx - g.origin[0]) * inv_res + 0.5).astype(np.int64)
         i = ((fy - g.origin[1]) * inv_res + 0.5).astype(np.int64)
         np.minimum(np.maximum(j, 0, out=j), g.shape[1] - 1, out=j)
         np.minimum(np.maximum(i, 0, out=i), g.shape[0] - 1, out=i)
         i *= g.shape[1]
         i += j
-        # L: the quadrant of the global orientation picks the set (45, 135, 225, 315 deg)
-        below = gy < 0
-        quad = below * 2 + (below != (gx < 0))
-        quad *= self._cells
-        i += np.where(rows["is_l"], quad, rows["t_offset"])
+        return i
+
+    def _table_cost(self, i, x, y, ux, uy, gx, gy, rows, l_at_t: bool) -> np.ndarray:
+        """Eq. 3 and the orientation term (K, N) of point observations associated with the
+        crossings the tables hold at the indices ``i``; ``l_at_t``: L observations at T
+        crossings, whose bisector lies 45 deg from the stem."""
+        c = self.conf
         idx = self.lut[i]  # (K, N), -1 = none
         missing = idx < 0
         idx[missing] = 0
@@ -433,33 +516,49 @@ class ObservationModel:
                                 1.0 / c["sigma_bearing"] ** 2)
         so = c["sigma_crossing_orientation"]
         if so > 0:
-            cos_o = self.cross_c[idx] * gx
-            cos_o += self.cross_s[idx] * gy
+            ci, si = self.cross_c[idx], self.cross_s[idx]
+            cos_o = ci * gx
+            cos_o += si * gy
+            if l_at_t:  # cos of the angle to the nearer of stem +- 45 deg
+                sin_o = ci * gy
+                sin_o -= si * gx
+                np.abs(sin_o, out=sin_o)
+                cos_o += sin_o
+                cos_o *= math.sqrt(0.5)
             np.subtract(1.0, cos_o, out=cos_o)
             cos_o *= 1.0 / so ** 2
             cost += cos_o
         cost[missing] = _COST_CAP
-        return _log_mixture(cost, rows["floor"])
+        return cost
+
+    def _candidate_cost(self, x, ux, uy, gx, gy, y, rows, cand) -> np.ndarray:
+        """Eq. 3 (K, N) with the candidate of least cost (candidates ``cand`` on the first
+        axis: cx, cy and the X orientation term modulo 90 deg, c4, s4, w_o, sign)."""
+        cost = self._point_cost(cand["cx"] - x, cand["cy"] - y, ux, uy, rows,
+                                1.0 / self.conf["sigma_bearing"] ** 2)  # (M, K, N)
+        if "c4" in cand:  # X orientation modulo 90 deg: cos(4 (o_c - theta - o_o))
+            c2, s2 = gx * gx - gy * gy, 2.0 * gx * gy  # the angle doubled, twice
+            c4, s4 = c2 * c2 - s2 * s2, 2.0 * c2 * s2
+            cos4 = cand["c4"] * c4 + cand["s4"] * s4
+            if "sign" in cand:
+                cos4 *= cand["sign"]
+            np.subtract(1.0, cos4, out=cos4)
+            cos4 *= cand["w_o"]
+            cost += cos4
+        return cost.min(axis=0)
 
     def candidate_log_likelihood(self, x, y, cth, sth, prep: PreparedObservations):
         """Log-likelihood (K, N) of X crossings (first rows) and goal posts: each particle
         associates each with the candidate of least cost (candidates on the first axis)."""
-        c = self.conf
         rows = prep.candidate_rows
         ux = rows["cb"] * cth - rows["sb"] * sth  # (K, N)
         uy = rows["cb"] * sth + rows["sb"] * cth
-        cost = self._point_cost(rows["cx"] - x, rows["cy"] - y, ux, uy, rows,
-                                1.0 / c["sigma_bearing"] ** 2)  # (M, K, N)
-        if "c4" in rows:  # X orientation modulo 90 deg: cos(4 (o_c - theta - o_o))
+        gx = gy = None
+        if "c4" in rows:
             gx = rows["co"] * cth - rows["so"] * sth
             gy = rows["co"] * sth + rows["so"] * cth
-            c2, s2 = gx * gx - gy * gy, 2.0 * gx * gy  # the angle doubled, twice
-            c4, s4 = c2 * c2 - s2 * s2, 2.0 * c2 * s2
-            cos4 = rows["c4"] * c4 + rows["s4"] * s4
-            np.subtract(1.0, cos4, out=cos4)
-            cos4 *= rows["w_o"]
-            cost += cos4
-        return _log_mixture(cost.min(axis=0), rows["floor"])
+        return _log_mixture(self._candidate_cost(x, ux, uy, gx, gy, y, rows, rows),
+                            rows["floor"])
 
     # ---- lines (eqs. 4-5)
     def line_log_likelihood(self, x, y, cth, sth, prep: PreparedObservations):

@@ -5,7 +5,8 @@
 - :mod:`.evaluation` the report of a run and its plots: ``fieldloc evaluate``;
 - :mod:`.batch` (its SPEC read by :mod:`.batch_spec`) every method of a SPEC on every dataset,
   on Dask, and their comparison: ``fieldloc batch``;
-- :mod:`.bench` (with :mod:`.bench_hypotheses`, :mod:`.bench_batch`) ``fieldloc bench``;
+- :mod:`.bench` (with :mod:`.bench_hypotheses`, :mod:`.bench_batch`,
+  :mod:`.bench_perspective`, :mod:`.bench_mcl_nao`) ``fieldloc bench``;
 - :mod:`.realdata` the real-data checks of the omni chain.
 
 Nothing below this package imports it."""

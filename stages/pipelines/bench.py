@@ -701,6 +701,7 @@ ROWS: dict[str, Callable[[int], Row | list[Row]]] = {
     "extract-perspective": lambda n: _persp().bench_extract_perspective(n),
     "mcl-update": bench_mcl_update,
     "mcl-accuracy": bench_mcl_accuracy,
+    "mcl-nao-accuracy": lambda n: _mcl_nao().bench_mcl_nao_accuracy(n),
     "surf-speed": bench_surf_speed,
     "surf-quality": bench_feature_quality,
     "lut-tracked-frame": lambda n: _hyp().bench_lut_tracked_frame(n),
@@ -714,6 +715,12 @@ ROWS: dict[str, Callable[[int], Row | list[Row]]] = {
     "lut-first-frame": lambda n: _batch().bench_first_frame(n),
     "batch-worker-memory": lambda n: _batch().bench_worker_memory(n),
 }
+
+
+def _mcl_nao():
+    from . import bench_mcl_nao
+
+    return bench_mcl_nao
 
 
 def _hyp():
