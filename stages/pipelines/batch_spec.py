@@ -24,7 +24,7 @@ the place (``methods[2].conf``), never a traceback.
       - {method: lut, preset: default, conf: {heading: histogram}, name: lut-histogram}
       - {method: mcl, conf: ["init=uniform"]}     # -c overrides as on the command line
       - templates                      # reads a template database in place of features
-      - fit                            # not registered (yet): skipped, with a line saying so
+      - fit                            # a method not registered (yet): skipped, with a line
     runs:                              # default: all, every method on every dataset whose
       - lut, fit x omni-*              # camera it takes; else "METHODS x DATASETS" lines of
       - mcl x persp-*                  # comma-separated name patterns (fnmatch)
