@@ -241,3 +241,21 @@ def test_consensus_finds_a_minority_of_correct_pairs():
     f = tm.consensus_fit(t, q, radius=0.2, min_pairs=5)
     assert f is not None and np.allclose(f.pose, true, atol=0.02)
     assert not f.inliers[wrong].any() and f.inliers[~wrong].mean() > 0.9
+
+
+def test_feature_index_does_not_depend_on_earlier_random_draws():
+    """FLANN's randomised trees draw from OpenCV's generator: the index seeds it, so two
+    indexes of the same descriptors give the same approximate matches whatever the process
+    drew in between (without the seed, a second batch run in one worker moved frames)."""
+    import cv2
+
+    from stages.localize.template_matching import FeatureIndex
+
+    rng = np.random.default_rng(5)
+    desc = rng.normal(size=(3000, 64)).astype(np.float32)
+    lap = np.ones(3000, np.int8)
+    query = rng.normal(size=(400, 64)).astype(np.float32)
+    first = FeatureIndex(desc, lap, checks=8).knn(query, np.ones(400, np.int8))
+    cv2.randu(np.zeros((100, 100), np.uint8), 0, 255)  # other OpenCV work draws numbers
+    second = FeatureIndex(desc, lap, checks=8).knn(query, np.ones(400, np.int8))
+    np.testing.assert_array_equal(first[0], second[0])

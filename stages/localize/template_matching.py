@@ -77,10 +77,12 @@ class FeatureIndex:
     """A FLANN index over a set of descriptors (a template's, or a whole database's), one per
     sign of the Laplacian so that a query feature is only ever matched to features of its own
     sign (SIFT and ORB carry sign 0: one group). ``metric`` 'l2' (kd-trees) or 'hamming'
-    (LSH, ORB's bytes)."""
+    (LSH, ORB's bytes). FLANN's randomised trees and hash tables draw from OpenCV's random
+    generator (cv::theRNG of the thread): it is seeded with ``seed`` before each build, so an
+    index, and the matches it gives, do not depend on what the process drew before."""
 
     def __init__(self, descriptors: np.ndarray, laplacian: np.ndarray, metric: str = "l2",
-                 *, trees: int = 4, checks: int = 32):
+                 *, trees: int = 4, checks: int = 32, seed: int = 0):
         self.metric = metric
         self.checks = int(checks)
         lap = np.asarray(laplacian).astype(np.int8)
@@ -100,6 +102,8 @@ class FeatureIndex:
             # that comparing with all of it is cheaper than the tree (one template's, for L2),
             # is compared directly (exactly)
             direct = len(d) < 2 or (metric != "hamming" and len(d) <= BRUTE_FORCE_ROWS)
+            if not direct:
+                cv2.setRNGSeed(int(seed))
             self.groups[int(sign)] = (rows, None if direct else cv2.flann_Index(d, params), d)
 
     def knn(self, descriptors: np.ndarray, laplacian: np.ndarray, k: int = 2):
