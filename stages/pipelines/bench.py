@@ -710,6 +710,7 @@ ROWS: dict[str, Callable[[int], Row | list[Row]]] = {
     "real": lambda n: _hyp().bench_real(n),
     "import-rosbag": bench_import_rosbag,
     "templates": lambda n: _templates(n),
+    "error-surface": lambda n: _error_surface(n),
     "batch-throughput": lambda n: _batch().bench_batch_throughput(n),
     "lut-first-frame": lambda n: _batch().bench_first_frame(n),
     "batch-worker-memory": lambda n: _batch().bench_worker_memory(n),
@@ -732,6 +733,12 @@ def _templates(repeat: int):
     from .bench_templates import bench_templates
 
     return bench_templates(repeat)
+
+
+def _error_surface(repeat: int):
+    from .bench_error_surface import bench_error_surface
+
+    return bench_error_surface(repeat)
 
 
 def _batch():
