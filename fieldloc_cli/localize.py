@@ -1,7 +1,8 @@
-"""`fieldloc localize DIR --map MAP [--features FILE | --points FILE.csv] [--method lut]
-[--templates templates.h5 (--method templates; --map then optional)]
-[--heading imu|histogram|truth] [--init placement|uniform] [--independent]
-[--min-confidence P] [-o poses.h5] [--preset NAME] [-c key=value] [--overwrite]`."""
+"""`fieldloc localize DIR --map MAP [--features FILE | --points FILE.csv]
+[--method lut|mcl|fit|templates] [--templates templates.h5 (--method templates; --map then
+optional)] [--heading imu|histogram|truth] [--start-half own|opponent|any]
+[--init placement|uniform] [--independent] [--min-confidence P] [-o poses.h5] [--preset NAME]
+[-c key=value] [--overwrite]`."""
 
 from __future__ import annotations
 
@@ -15,7 +16,9 @@ from stages.common.conf import resolve_conf
 from .common import conf_option, overrides_dict, progress_enabled, summary
 
 LUT_DEFAULTS = stage.method_confs("lut")["default"]
+FIT_DEFAULTS = stage.method_confs("fit")["default"]
 MCL_INIT_DEFAULT = stage.method_confs("mcl")["default"]["init"]
+TABLE_METHODS = ("lut", "fit")  # the omni methods: heading source, start half, independent
 
 
 @click.command()
@@ -39,16 +42,21 @@ MCL_INIT_DEFAULT = stage.method_confs("mcl")["default"]["init"]
 @click.option("--method", type=click.Choice(list(stage.METHODS)), default=stage.DEFAULT_METHOD,
               show_default=True, help="Localisation method.")
 @click.option("--heading", type=click.Choice(["imu", "histogram", "truth"]), default=None,
-              help=f"lut: heading source [default: {LUT_DEFAULTS['heading']}].")
+              help=f"lut, fit: heading source [default: {LUT_DEFAULTS['heading']}].")
+@click.option("--start-half", type=click.Choice(["own", "opponent", "any"]), default=None,
+              help="lut, fit: where the first fix lies (own: x < 0), which resolves the"
+              " field's 180 deg symmetry when no field-aligned IMU heading does"
+              f" [default: {FIT_DEFAULTS['start_half']}].")
 @click.option("--init", type=click.Choice(["placement", "uniform"]), default=None,
               help="mcl: initial belief, the game's placement (own half, at the touch lines)"
               f" or anywhere on the field [default: {MCL_INIT_DEFAULT}].")
 @click.option("--independent", is_flag=True, default=None,
-              help="lut: localise every frame on its own, globally, with no prior and no"
-              " odometry (snapshots at unknown poses).")
+              help="lut, fit, templates: localise every frame on its own, globally, with no prior and"
+              " no odometry (snapshots at unknown poses).")
 @click.option("--min-confidence", type=click.FloatRange(0.0, 1.0), default=None,
               help="Accept a frame when the probability of its top hypothesis reaches this"
-              f" [default: the method's, lut {LUT_DEFAULTS['min_confidence']}].")
+              f" [default: the method's, lut {LUT_DEFAULTS['min_confidence']}, fit"
+              f" {FIT_DEFAULTS['min_confidence']}].")
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Poses file, poses.tum is written beside it"
               " [default: DATASET/poses-METHOD.h5].")
@@ -60,16 +68,20 @@ MCL_INIT_DEFAULT = stage.method_confs("mcl")["default"]["init"]
               " other scan lines than the map's.")
 @click.pass_context
 def localize(ctx, dataset, map_path, templates, pose_solver, features, points, method, heading,
-             init, independent, min_confidence, output, preset, overrides, overwrite,
+             start_half, init, independent, min_confidence, output, preset, overrides, overwrite,
              allow_field_mismatch):
     """Poses of the frames of DATASET on the field of MAP (poses.h5 + poses.tum)."""
     conf = overrides_dict(overrides)
     if "method" in conf:
         raise click.UsageError("the method is chosen with --method, not -c method=...")
     if heading is not None:
-        if method != "lut":
-            raise click.UsageError("--heading applies to --method lut")
+        if method not in TABLE_METHODS:
+            raise click.UsageError("--heading applies to --method lut and fit")
         conf["heading"] = heading
+    if start_half is not None:
+        if method not in TABLE_METHODS:
+            raise click.UsageError("--start-half applies to --method lut and fit")
+        conf["start_half"] = start_half
     if init is not None:
         if method != "mcl":
             raise click.UsageError("--init applies to --method mcl")
@@ -91,8 +103,8 @@ def localize(ctx, dataset, map_path, templates, pose_solver, features, points, m
             raise click.UsageError("--pose-solver applies to --method templates")
         conf["pose_solver"] = pose_solver
     if independent:
-        if method not in ("lut", "templates"):
-            raise click.UsageError("--independent applies to --method lut and templates")
+        if method not in TABLE_METHODS + ("templates",):
+            raise click.UsageError("--independent applies to --method lut, fit and templates")
         conf["independent"] = True
     if min_confidence is not None:
         conf["min_confidence"] = min_confidence

@@ -36,7 +36,7 @@ still mean something):
 - the features were recorded on the map's field with the map's scan lines (features record the
   dataset's field, from simulation.yaml, and their scan lines): otherwise an error unless
   ``allow_field_mismatch``;
-- lut needs omni features (scan-line distances), mcl perspective ones;
+- lut and fit need omni features (scan-line distances, line points), mcl perspective ones;
 - points files: frame ids are the dataset's frame names, or the same numbers (``3`` is frame
   ``000003``); ids that match no frame are skipped with a warning, a file matching none is
   refused;
@@ -75,6 +75,7 @@ METHODS = {
     "lut": "stages.localize.lut",
     "mcl": "stages.localize.mcl",
     "templates": "stages.localize.templates",
+    "fit": "stages.localize.fit",
 }
 DEFAULT_METHOD = "lut"
 
@@ -418,10 +419,11 @@ def _json_attr(feats, key: str):
 
 def _check_camera_kind(method: str, feats, features) -> None:
     kind = getattr(feats, "camera_kind", "")
-    if method == "lut" and kind == "perspective":
+    if method in ("lut", "fit") and kind == "perspective":
+        need = "scan-line distances" if method == "lut" else "the omni scan lines' line points"
         raise FieldlocError(
-            f"{features}: features of a 'perspective' camera; --method lut needs omni features"
-            " (scan-line distances): use --method mcl")
+            f"{features}: features of a 'perspective' camera; --method {method} needs omni"
+            f" features ({need}): use --method mcl")
 
 
 def _check_same_field(recorded: dict, map_file, source) -> None:

@@ -6,7 +6,7 @@
 - :mod:`.batch` (its SPEC read by :mod:`.batch_spec`) every method of a SPEC on every dataset,
   on Dask, and their comparison: ``fieldloc batch``;
 - :mod:`.bench` (with :mod:`.bench_hypotheses`, :mod:`.bench_batch`,
-  :mod:`.bench_perspective`, :mod:`.bench_mcl_nao`) ``fieldloc bench``;
+  :mod:`.bench_perspective`, :mod:`.bench_mcl_nao`, :mod:`.bench_fit`) ``fieldloc bench``;
 - :mod:`.realdata` the real-data checks of the omni chain.
 
 Nothing below this package imports it."""

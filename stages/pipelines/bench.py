@@ -10,6 +10,7 @@ lists them in order.
 
 from __future__ import annotations
 
+import importlib
 import json
 import math
 import statistics
@@ -710,7 +711,8 @@ ROWS: dict[str, Callable[[int], Row | list[Row]]] = {
     "real": lambda n: _hyp().bench_real(n),
     "import-rosbag": bench_import_rosbag,
     "templates": lambda n: _templates(n),
-    "error-surface": lambda n: _error_surface(n),
+    "fit": lambda n: importlib.import_module(".bench_fit", __package__).rows(n),
+    "error-surface": lambda n: importlib.import_module(".bench_error_surface", __package__).rows(n),
     "batch-throughput": lambda n: _batch().bench_batch_throughput(n),
     "lut-first-frame": lambda n: _batch().bench_first_frame(n),
     "batch-worker-memory": lambda n: _batch().bench_worker_memory(n),
@@ -733,12 +735,6 @@ def _templates(repeat: int):
     from .bench_templates import bench_templates
 
     return bench_templates(repeat)
-
-
-def _error_surface(repeat: int):
-    from .bench_error_surface import bench_error_surface
-
-    return bench_error_surface(repeat)
 
 
 def _batch():

@@ -46,7 +46,7 @@ def error_surface_inputs() -> dict:
             "headings": grid("headings", HEADING_SEED, QUERY_SPACING, QUERY_SPACING, HEADINGS)}
 
 
-def bench_error_surface(repeat: int) -> list[Row]:
+def rows(repeat: int) -> list[Row]:
     """The minima counts of (a) and (b), the (c) summary (module doc)."""
     from ..show import error_surface as es
 

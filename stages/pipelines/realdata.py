@@ -53,9 +53,10 @@ def lab_dataset(realdata: Path, out: Path) -> tuple[Path, Path]:
 
 
 def _localise(ds: Path, field: Path, work: Path, max_range: float | None = None,
-              points: Path | None = None):
-    """(poses columns, features path) of the lab images, independent frames, histogram
-    heading, with the map's and the scan lines' range at ``max_range`` (None: defaults)."""
+              points: Path | None = None, method: str = "lut"):
+    """(poses columns, features path) of the lab images by ``method``, independent frames,
+    histogram heading, with the map's and the scan lines' range at ``max_range`` (None:
+    defaults)."""
     from .. import build_map, extract, localize
     from ..common.poses_file import read_poses
 
@@ -65,15 +66,15 @@ def _localise(ds: Path, field: Path, work: Path, max_range: float | None = None,
     econf = extract.resolve_extract_conf(
         "omni", "real", None if max_range is None else {"scanlines": {"max_range": max_range}})
     feats = extract.main(econf, ds, work / f"lab-{tag}.features.h5", overwrite=True)
-    conf = {"method": "lut", "heading": "histogram", "independent": True}
-    out = work / f"lab-{tag}{'-points' if points else ''}.poses.h5"
+    conf = {"method": method, "heading": "histogram", "independent": True}
+    out = work / f"lab-{method}-{tag}{'-points' if points else ''}.poses.h5"
     localize.main(conf, ds, mp, out, features=None if points else feats, points=points,
                   overwrite=True)
     return read_poses(out)[0], feats
 
 
-def minho_lab(realdata: Path, work: Path) -> dict:
-    """The minho-lab figures (module doc)."""
+def minho_lab(realdata: Path, work: Path, method: str = "lut") -> dict:
+    """The minho-lab figures (module doc) of ``method`` (lut, fit)."""
     from ..common.features_file import FeaturesFile
     from ..common.field import field_from_spec
     from ..common.geometry import robot_to_field, wrap_angle
@@ -84,7 +85,7 @@ def minho_lab(realdata: Path, work: Path) -> dict:
     ds, field = lab_dataset(realdata, work)
     fm = field_from_spec(LAB_FIELD)
     raster = LineRaster(fm)
-    cols, feats = _localise(ds, field, work)
+    cols, feats = _localise(ds, field, work, method=method)
     with FeaturesFile(feats) as ff:
         names = list(ff.names)
         pts = {n: np.asarray(ff.frame(n)["points"], float) for n in names}
@@ -118,7 +119,7 @@ def minho_lab(realdata: Path, work: Path) -> dict:
     # range stability: the top pose (or its mirror) at each range limit against the default's
     moves = {str(n): [] for n in cols["name"]}
     for r in RANGES:
-        c2, _ = _localise(ds, field, work, max_range=r)
+        c2, _ = _localise(ds, field, work, max_range=r, method=method)
         for i, n in enumerate(c2["name"]):
             a, b = rows[str(n)]["top"], c2["hypotheses"][i][0, :3]
             if not (np.isfinite(a[0]) and np.isfinite(b[0])):
@@ -138,7 +139,7 @@ def minho_lab(realdata: Path, work: Path) -> dict:
         for n in names:
             for x, y in pts[n]:
                 f.write(f"{n},{x:.4f},{y:.4f}\n")
-    cp, _ = _localise(ds, field, work, points=csv_path)
+    cp, _ = _localise(ds, field, work, points=csv_path, method=method)
     for i, n in enumerate(cp["name"]):
         rows[str(n)]["points_top_or_second_at_best"] = bool(
             at_best(cp["hypotheses"][i], np.asarray(rows[str(n)]["best_pose"])))
