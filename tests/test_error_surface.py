@@ -56,6 +56,8 @@ def test_the_white_point_surface_is_lowest_at_the_true_pose_of_its_own_points():
     assert np.all(np.delete(s["xy"].ravel(), c * s["xy"].shape[1] + c) > 0.5)
     assert s["theta"][len(s["theta"]) // 2] == pytest.approx(0.0, abs=1e-3)
     assert tuple(local_minima(s["xy"])[0]) == (c, c)  # the lowest minimum is the truth
+    assert s["xyt"].shape == (21, 11, 11) and np.allclose(s["xyt"][10], s["xy"])
+    assert tuple(local_minima(s["xyt"])[0]) == (10, c, c)
 
 
 def test_local_minima_are_strict_interior_minima_below_the_level():
@@ -67,8 +69,11 @@ def test_local_minima_are_strict_interior_minima_below_the_level():
     assert local_minima(s).tolist() == [[1, 1], [1, 3]]
     assert count_minima(s, level=2.0) == 1
     assert count_minima(np.array([3.0, 1.0, 2.0, 0.5, 4.0])) == 2
+    cube = np.ones((3, 4, 3))
+    cube[1, 2, 1] = 0.0
+    assert local_minima(cube).tolist() == [[1, 2, 1]]
     with pytest.raises(FieldlocError):
-        local_minima(np.zeros((3, 3, 3)))
+        local_minima(np.zeros((3, 3, 3, 3)))
 
 
 def test_the_template_pairs_surface_has_one_minimum_at_the_true_displacement():
@@ -80,6 +85,11 @@ def test_the_template_pairs_surface_has_one_minimum_at_the_true_displacement():
     c = s["xy"].shape[0] // 2
     assert count_minima(s["xy"]) == 1 and tuple(local_minima(s["xy"])[0]) == (c, c)
     assert count_minima(s["theta"]) == 1 and int(np.argmin(s["theta"])) == len(s["theta"]) // 2
+    assert count_minima(s["xyt"]) == 1
+    # the surface is eq. 4 (template_matching.matching_error) of the displaced query
+    h, i, j = 3, 2, 15
+    pose = (true[0] + s["dx"][j], true[1] + s["dy"][i], true[2] + s["dtheta"][h])
+    assert s["xyt"][h, i, j] == pytest.approx(tm.matching_error(pose, t, q))
 
 
 def _grid(seed, tmp, name, **grid):

@@ -103,8 +103,8 @@ def error_surface(fm: FieldModel, pose, points_robot: np.ndarray, *, half_size: 
                   max_range: float = 4.0) -> dict:
     """Seed 004's figure 3: eq. 1 of the white points ``points_robot`` (robot frame) against
     Dm around ``pose`` (x, y, theta): ``xy`` (ny, nx) over the cells (dx, dy) at the pose's
-    heading, ``theta`` (H,) over heading offsets at the pose's position, with their axes
-    ``dx``, ``dy`` (m) and ``dtheta`` (rad)."""
+    heading, ``theta`` (H,) over heading offsets at the pose's position, ``xyt`` (H, ny, nx)
+    over all three, with their axes ``dx``, ``dy`` (m) and ``dtheta`` (rad)."""
     x, y, th = (float(v) for v in pose)
     grid = region_grid(x, y, half_size, step)
     table = white_point_table(fm, grid, th, angle_step_deg=angle_step_deg,
@@ -113,9 +113,8 @@ def error_surface(fm: FieldModel, pose, points_robot: np.ndarray, *, half_size: 
     r, b = query_bins(points_robot, n)
     m = int(math.floor(float(dtheta_deg) / float(angle_step_deg) + 1e-9))
     shifts = np.arange(-m, m + 1)
-    xy = matching_error(table, r, b, (0,), e_none)[0]
+    xyt = matching_error(table, r, b, shifts, e_none)
     c = grid.shape[0] // 2
-    theta = matching_error(table[c : c + 1, c : c + 1], r, b, shifts, e_none)[:, 0, 0]
-    return {"xy": xy, "theta": theta, "dx": grid.xs - x, "dy": grid.ys - y,
+    return {"xy": xyt[m], "theta": xyt[:, c, c], "xyt": xyt, "dx": grid.xs - x, "dy": grid.ys - y,
             "dtheta": shifts * math.radians(float(angle_step_deg)), "points": len(r),
             "table_bytes_per_cell": table.shape[2] * table.shape[3] * 2}

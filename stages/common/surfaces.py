@@ -2,11 +2,13 @@
 against "one minimum", counted rather than drawn).
 
 A local minimum is a sample strictly below every neighbour it has on the sampled grid: the 8
-neighbours in 2D (the 2 in 1D), and not on the grid's border (a border sample's missing
-neighbours may be lower); with ``level`` only the minima below it count.
+neighbours in 2D (the 2 in 1D, the 26 in 3D), and not on the grid's border (a border sample's
+missing neighbours may be lower); with ``level`` only the minima below it count.
 """
 
 from __future__ import annotations
+
+import itertools
 
 import numpy as np
 
@@ -14,18 +16,17 @@ from .errors import FieldlocError
 
 
 def local_minima(surface: np.ndarray, level: float = np.inf) -> np.ndarray:
-    """Indices (M, ndim) of the strict interior local minima of a 1D or 2D ``surface`` below
-    ``level`` (module doc), lowest first."""
+    """Indices (M, ndim) of the strict interior local minima of a 1D, 2D or 3D ``surface``
+    below ``level`` (module doc), lowest first."""
     s = np.asarray(surface, float)
-    if s.ndim not in (1, 2):
-        raise FieldlocError(f"a surface is 1D or 2D, not {s.ndim}D")
+    if s.ndim not in (1, 2, 3):
+        raise FieldlocError(f"a surface is 1D, 2D or 3D, not {s.ndim}D")
     if min(s.shape) < 3:
         return np.zeros((0, s.ndim), np.int64)
     inner = tuple(slice(1, -1) for _ in range(s.ndim))
     centre = s[inner]
     ok = np.isfinite(centre) & (centre < level)
-    offsets = [(-1,), (1,)] if s.ndim == 1 else [
-        (di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1) if (di, dj) != (0, 0)]
+    offsets = [o for o in itertools.product((-1, 0, 1), repeat=s.ndim) if any(o)]
     for off in offsets:
         view = tuple(slice(1 + o, s.shape[a] - 1 + o) for a, o in enumerate(off))
         ok &= centre < s[view]

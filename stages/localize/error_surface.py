@@ -38,16 +38,21 @@ def template_surface(pairs_t: np.ndarray, pairs_q: np.ndarray, pose0, *, half_si
                      dtheta_step_deg: float = 1.0) -> dict:
     """Eq. 4 of the pairs (t, q) at ``pose0`` (the query's true pose relative to the template,
     field axes) plus displacements: ``xy`` (ny, nx) over (dx, dy), ``theta`` (H,) over dtheta,
-    with the axes ``dx``, ``dy`` (m), ``dtheta`` (rad)."""
+    ``xyt`` (H, ny, nx) over all three, with the axes ``dx``, ``dy`` (m), ``dtheta`` (rad)."""
     n = int(math.floor(half_size / step + 1e-9))
     d = np.arange(-n, n + 1) * float(step)
     m = int(math.floor(dtheta_deg / dtheta_step_deg + 1e-9))
     dth = np.radians(np.arange(-m, m + 1) * float(dtheta_step_deg))
     x0, y0, t0 = (float(v) for v in pose0)
-    xy = np.array([[tm.matching_error((x0 + dx, y0 + dy, t0), pairs_t, pairs_q) for dx in d]
-                   for dy in d])
-    theta = np.array([tm.matching_error((x0, y0, t0 + a), pairs_t, pairs_q) for a in dth])
-    return {"xy": xy, "theta": theta, "dx": d, "dy": d.copy(), "dtheta": dth,
+    t = np.asarray(pairs_t, float)
+    xyt = np.empty((len(dth), len(d), len(d)))
+    for h, a in enumerate(dth):
+        # eq. 4 at (x0 + dx, y0 + dy, t0 + a): the residuals u - (dx, dy), u = t - A(x0, y0) q
+        u = t - tm.transform((x0, y0, t0 + a), pairs_q)
+        rx = u[:, 0][None, :] - d[:, None]  # (nx, M)
+        ry = u[:, 1][None, :] - d[:, None]  # (ny, M)
+        xyt[h] = (ry * ry).sum(1)[:, None] + (rx * rx).sum(1)[None, :]
+    return {"xy": xyt[m], "theta": xyt[:, n, n], "xyt": xyt, "dx": d, "dy": d.copy(), "dtheta": dth,
             "pairs": len(pairs_t)}
 
 

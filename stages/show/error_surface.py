@@ -13,8 +13,9 @@ frames near the template, e.g. ``simulate omni --grid 0.2`` around it).
   distance from the template, heading error against the query's heading from the template's.
 
 The local minima of (a) and (b) are counted (stages.common.surfaces: strict minima of the
-8-neighbourhood, 2 in 1D, on the sampled grid, border samples excluded), all of them and those
-below the surface's median; (c) is summarised per ring of distance from the template.
+8-neighbourhood, 2 in 1D, 26 over (dx, dy, dtheta), on the sampled grid, border samples
+excluded), all of them and those below the surface's median; (c) is summarised per ring of
+distance from the template.
 
     main(conf, templates, queries, output, *, overwrite=False, progress=False) -> Path
     measure(conf, templates, queries) -> dict  (the numbers; ``summary_lines`` prints them)
@@ -81,11 +82,12 @@ def _surface_numbers(s: dict) -> dict:
     """Minima counts of a surface pair (module doc) and where the lowest sample lies."""
     xy, th = s["xy"], s["theta"]
     i, j = np.unravel_index(int(np.argmin(xy)), xy.shape)
-    return {"minima_xy": count_minima(xy), "minima_xy_below_median": count_minima(
-        xy, float(np.median(xy))), "minima_theta": count_minima(th),
-        "minima_theta_below_median": count_minima(th, float(np.median(th))),
-        "lowest_dxy": (float(s["dx"][j]), float(s["dy"][i])),
-        "lowest_dtheta": float(s["dtheta"][int(np.argmin(th))])}
+    return {"minima_xyt": count_minima(s["xyt"]), "minima_xy": count_minima(xy),
+            "minima_xy_below_median": count_minima(xy, float(np.median(xy))),
+            "minima_theta": count_minima(th),
+            "minima_theta_below_median": count_minima(th, float(np.median(th))),
+            "lowest_dxy": (float(s["dx"][j]), float(s["dy"][i])),
+            "lowest_dtheta": float(s["dtheta"][int(np.argmin(th))])}
 
 
 def measure(conf, templates, queries, *, progress: bool = False) -> dict:
@@ -157,7 +159,8 @@ def summary_lines(m: dict) -> list[str]:
         out.append(
             f"({tag}) {name}: {s['minima_xy']} local minima over (dx, dy)"
             f" ({s['minima_xy_below_median']} below the median), {s['minima_theta']} over"
-            f" dtheta ({s['minima_theta_below_median']} below the median); lowest at"
+            f" dtheta ({s['minima_theta_below_median']} below the median),"
+            f" {s['minima_xyt']} over (dx, dy, dtheta); lowest at"
             f" ({100 * s['lowest_dxy'][0]:.0f}, {100 * s['lowest_dxy'][1]:.0f}) cm,"
             f" {math.degrees(s['lowest_dtheta']):.0f} deg")
     out[-2] += f"; {m['white_points']['points']} white points"
