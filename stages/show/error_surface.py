@@ -209,7 +209,8 @@ def draw_theta(ax, s: dict, title: str):
 
 def draw_query_errors(ax_position, ax_heading, fits: dict):
     """Figure 5: position error (cm) against the distance from the template, and heading error
-    (deg) against the query's heading from the template's; failures as crosses on the axis."""
+    (deg) against the query's heading from the template's (against the distance when all
+    queries share one heading); failures as crosses on the axis."""
     d = fits["distance"]
     e = fits["position_error"]
     ok = np.isfinite(e)
@@ -222,13 +223,17 @@ def draw_query_errors(ax_position, ax_heading, fits: dict):
     ax_position.legend(fontsize=8)
     ax_position.set_title("(c) position error", fontsize=9)
     h = np.degrees(fits["heading_error"])
-    ax_heading.scatter(np.degrees(fits["dheading"][ok]), h[ok], s=8, c=d[ok], cmap="plasma",
-                       edgecolors="none")
+    turned = np.ptp(fits["dheading"]) > 1e-6  # queries at several headings
+    x = np.degrees(fits["dheading"]) if turned else d
+    colour = {"c": d[ok], "cmap": "plasma"} if turned else {"c": "tab:blue"}
+    ax_heading.scatter(x[ok], h[ok], s=8, edgecolors="none", **colour)
     ax_heading.axhline(15, color="grey", lw=0.8, ls="--")
     ax_heading.axhline(-15, color="grey", lw=0.8, ls="--")
-    ax_heading.set_xlabel("query heading from the template's (deg)")
+    ax_heading.set_xlabel("query heading from the template's (deg)" if turned
+                          else "query distance from the template (m)")
     ax_heading.set_ylabel("heading error (deg)")
-    ax_heading.set_title("(c) heading error (colour: distance)", fontsize=9)
+    ax_heading.set_title("(c) heading error" + (" (colour: distance)" if turned else ""),
+                         fontsize=9)
 
 
 def error_surface_figure(m: dict):
