@@ -118,7 +118,8 @@ def test_show_error_surface_draws_and_counts_on_a_rendered_template(template_and
     assert out.stat().st_size > 10_000
     lines = r.stdout.strip().splitlines()
     assert lines[0].startswith("template 0 at (1.00, 1.00) m")
-    assert "(b) template pairs (eq. 4): 1 local minima over (dx, dy)" in lines[2]
+    assert lines[2].startswith("(b) template pairs (eq. 4), local minima (below the median):"
+                               " 1 (1) over (dx, dy, dtheta), 1 (1) over (dx, dy), 1 (1)")
     near = [ln for ln in lines if ln.startswith("(c) 0.0-0.5 m")][0]
     assert "9 queries, 0 failed" in near
     median_cm = float(near.split("median ")[1].split(" cm")[0])

@@ -59,7 +59,8 @@ def rows(repeat: int) -> list[Row]:
         goal="(a) many minima, (b) one (over dx, dy, dtheta)",
         meets_goal=a["minima_xyt"] > 1 and b["minima_xyt"] == 1,
         repeats=1,
-        note=f"(a) white-point table: {a['minima_xyt']} over (dx, dy, dtheta), {a['minima_xy']}"
+        note=f"(a) white-point table: {a['minima_xyt']} ({a['minima_xyt_below_median']} below the"
+             f" median) over (dx, dy, dtheta), {a['minima_xy']}"
              f" over (dx, dy) ({a['minima_xy_below_median']} below the median),"
              f" {a['minima_theta']} over dtheta, lowest at ({100 * a['lowest_dxy'][0]:.0f},"
              f" {100 * a['lowest_dxy'][1]:.0f}) cm; (b) template pairs: {b['minima_xyt']} over"

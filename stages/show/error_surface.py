@@ -82,7 +82,9 @@ def _surface_numbers(s: dict) -> dict:
     """Minima counts of a surface pair (module doc) and where the lowest sample lies."""
     xy, th = s["xy"], s["theta"]
     i, j = np.unravel_index(int(np.argmin(xy)), xy.shape)
-    return {"minima_xyt": count_minima(s["xyt"]), "minima_xy": count_minima(xy),
+    return {"minima_xyt": count_minima(s["xyt"]),
+            "minima_xyt_below_median": count_minima(s["xyt"], float(np.median(s["xyt"]))),
+            "minima_xy": count_minima(xy),
             "minima_xy_below_median": count_minima(xy, float(np.median(xy))),
             "minima_theta": count_minima(th),
             "minima_theta_below_median": count_minima(th, float(np.median(th))),
@@ -157,10 +159,10 @@ def summary_lines(m: dict) -> list[str]:
     for tag, name, s in (("a", "white-point table (eq. 1)", a), ("b", "template pairs (eq. 4)",
                                                                    b)):
         out.append(
-            f"({tag}) {name}: {s['minima_xy']} local minima over (dx, dy)"
-            f" ({s['minima_xy_below_median']} below the median), {s['minima_theta']} over"
-            f" dtheta ({s['minima_theta_below_median']} below the median),"
-            f" {s['minima_xyt']} over (dx, dy, dtheta); lowest at"
+            f"({tag}) {name}, local minima (below the median): {s['minima_xyt']}"
+            f" ({s['minima_xyt_below_median']}) over (dx, dy, dtheta), {s['minima_xy']}"
+            f" ({s['minima_xy_below_median']}) over (dx, dy), {s['minima_theta']}"
+            f" ({s['minima_theta_below_median']}) over dtheta; lowest at"
             f" ({100 * s['lowest_dxy'][0]:.0f}, {100 * s['lowest_dxy'][1]:.0f}) cm,"
             f" {math.degrees(s['lowest_dtheta']):.0f} deg")
     out[-2] += f"; {m['white_points']['points']} white points"
