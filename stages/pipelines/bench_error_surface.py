@@ -85,4 +85,69 @@ def rows(repeat: int) -> list[Row]:
         note=f"median position error per ring {ring}; largest {100 * far['max_m']:.0f} cm"
              f" beyond 1.5 m; headings every 10 deg at {n // HEADINGS} nodes within 0.3 m:"
              f" |heading error| max {math.degrees(worst):.1f} deg, {fails} of {n} failed"))
+    rows.append(_real_row())
     return rows
+
+
+def _real_row() -> Row:
+    """Surface (a) on the real minho-lab images (real_white_point_surfaces), when
+    ../shared/realdata is present."""
+    import numpy as np
+
+    from .bench_hypotheses import REALDATA
+
+    name = "error surface (a) on real minho-lab images, at the line-share best pose"
+    if not (REALDATA / "minho-lab").exists():
+        return Row(name=name, note=f"skipped: {REALDATA} is absent")
+    work = _work_dir() / "error-surface-real"
+    work.mkdir(exist_ok=True)
+    r = real_white_point_surfaces(REALDATA, work)
+    parts = []
+    for e in (1.0, 0.25):
+        xyt = [v[e]["minima_xyt"] for v in r]
+        xy = [v[e]["minima_xy"] for v in r]
+        at = sum(v[e]["lowest_m"] <= 0.15 for v in r)
+        parts.append(f"e_none {e:g} m: minima over (dx, dy, dtheta) {min(xyt)}-{max(xyt)}"
+                     f" (median {np.median(xyt):.0f}), over (dx, dy) {min(xy)}-{max(xy)};"
+                     f" lowest sample within 15 cm of the pose in {at} of {len(r)}")
+    return Row(name=name, goal="many minima; the lowest at the pose (e_none 1 m)",
+               meets_goal=bool(min(v[1.0]["minima_xyt"] for v in r) > 1
+                               and sum(v[1.0]["lowest_m"] <= 0.15 for v in r) >= 0.8 * len(r)),
+               repeats=1, note="; ".join(parts))
+
+
+def real_white_point_surfaces(realdata, work, e_nones=(1.0, 0.25)) -> list[dict]:
+    """Surface (a) on the real minho-lab images (no pose known): each image's line points
+    (extract preset real, the team's mirror calibration) against Dm of the lab field around
+    the brute-force best pose of evaluate.line_share (the pose that puts most points within
+    15 cm of a line), at each ``e_none``: minima over (dx, dy, dtheta) and (dx, dy), and
+    where the lowest sample of (dx, dy) lies from that pose (m)."""
+    import numpy as np
+
+    from .. import extract
+    from ..build_map import white_points
+    from ..common.features_file import FeaturesFile
+    from ..common.field import field_from_spec
+    from ..common.surfaces import count_minima
+    from ..evaluate.line_share import LineRaster
+    from .realdata import LAB_FIELD, lab_dataset
+
+    ds, _field = lab_dataset(realdata, work)
+    feats = extract.main(extract.resolve_extract_conf("omni", "real"), ds,
+                         work / "lab-real.features.h5", overwrite=True)
+    fm = field_from_spec(LAB_FIELD)
+    raster = LineRaster(fm)
+    out = []
+    with FeaturesFile(feats) as ff:
+        for name in ff.names:
+            p = np.asarray(ff.frame(name)["points"], float)
+            share, pose = raster.best_pose(p)
+            row = {"image": name, "points": len(p), "share": share}
+            for e in e_nones:
+                s = white_points.error_surface(fm, pose, p, e_none=e)
+                i, j = np.unravel_index(int(np.argmin(s["xy"])), s["xy"].shape)
+                row[e] = {"minima_xyt": count_minima(s["xyt"]),
+                          "minima_xy": count_minima(s["xy"]),
+                          "lowest_m": float(np.hypot(s["dx"][j], s["dy"][i]))}
+            out.append(row)
+    return out
