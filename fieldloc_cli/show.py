@@ -12,9 +12,10 @@ SHOW_COMMANDS = {
     "points": "fieldloc_cli.show_points:show_points",
     "belief": "fieldloc_cli.show_belief:show_belief",
     "hypotheses": "fieldloc_cli.show_hypotheses:show_hypotheses",
+    "error-surface": "fieldloc_cli.show_error_surface:show_error_surface",
 }
 
 
 @click.group(cls=LazyGroup, lazy_commands=SHOW_COMMANDS)
 def show():
-    """Draw maps, extracted points and beliefs as PNG files."""
+    """Draw maps, extracted points, beliefs and error surfaces as PNG files."""

@@ -712,6 +712,7 @@ ROWS: dict[str, Callable[[int], Row | list[Row]]] = {
     "import-rosbag": bench_import_rosbag,
     "templates": lambda n: _templates(n),
     "fit": lambda n: importlib.import_module(".bench_fit", __package__).rows(n),
+    "error-surface": lambda n: importlib.import_module(".bench_error_surface", __package__).rows(n),
     "batch-throughput": lambda n: _batch().bench_batch_throughput(n),
     "lut-first-frame": lambda n: _batch().bench_first_frame(n),
     "batch-worker-memory": lambda n: _batch().bench_worker_memory(n),
