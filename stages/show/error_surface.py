@@ -263,6 +263,7 @@ def error_surface_figure(m: dict):
 def write_picture(conf, templates, queries, output, *, overwrite: bool = False,
                   progress: bool = False) -> tuple[Path, dict]:
     """``main``, returning the path and ``measure``'s result."""
+    conf = _conf(conf)  # the conf before the inputs (the stage contract)
     ds = open_dataset(queries)
     check_output(output, {**ds.files(), "templates": Path(templates)}, overwrite=overwrite)
     m = measure(conf, templates, queries, progress=progress)
