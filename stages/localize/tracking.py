@@ -47,7 +47,7 @@ from .kalman import DecentralisedFusion, FusionParams
 DEFAULTS = {
     "independent": False,  # every frame globally, no tracks, no odometry
     "max_predicted_frames": 30,  # failed frames in a row over which tracks are kept
-    "kidnap_probability": 1e-3,  # per frame: the robot is not where its tracks say
+    "kidnap_probability": 1e-5,  # per frame: the robot is not where its tracks say
     "ambiguity_distance": 1.0,  # m, separation of the global search's minima
     "max_tracks": 8,  # hypotheses tracked at once
     "prune_probability": 1e-4,  # tracks below this probability are dropped
