@@ -51,8 +51,8 @@ TABLE_METHODS = ("lut", "fit")  # the omni methods: heading source, start half, 
               help="mcl: initial belief, the game's placement (own half, at the touch lines)"
               f" or anywhere on the field [default: {MCL_INIT_DEFAULT}].")
 @click.option("--independent", is_flag=True, default=None,
-              help="lut, fit, templates: localise every frame on its own, globally, with no prior and"
-              " no odometry (snapshots at unknown poses).")
+              help="lut, fit, templates: localise every frame on its own, globally, with no"
+              " prior and no odometry (snapshots at unknown poses).")
 @click.option("--min-confidence", type=click.FloatRange(0.0, 1.0), default=None,
               help="Accept a frame when the probability of its top hypothesis reaches this"
               f" [default: the method's, lut {LUT_DEFAULTS['min_confidence']}, fit"

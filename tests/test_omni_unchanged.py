@@ -4,8 +4,8 @@ colour classes of the omni conf must stay bit-identical. The hashes were compute
 before those changes in this project's environment (first at commit 3c9b69e; then after issue
 7's realistic omni-default renderer, from its branch before the perspective changes merged, and
 the merged code reproduced them; last after msl-2015's letters were read from the lines' outer
-side, which moved every line by half a line width); a deliberate change of the omni renderer or extractor updates
-them."""
+side, which moved every line by half a line width); a deliberate change of the omni renderer
+or extractor updates them."""
 
 from __future__ import annotations
 

@@ -20,8 +20,15 @@ from stages.common.errors import FieldlocError
 from stages.evaluate import export
 from stages.ingest import rosbag, team_fields
 from stages.pipelines import batch, evaluation, images_to_poses
-from stages.show import (belief, comparison, error_surface, html_report, hypotheses, points,
-                         report_plots)
+from stages.show import (
+    belief,
+    comparison,
+    error_surface,
+    html_report,
+    hypotheses,
+    points,
+    report_plots,
+)
 from stages.show import map as show_map
 from stages.simulate.omni_renderer import OMNI_DEFAULTS, camera_from_conf
 

@@ -18,10 +18,10 @@ None (default), or a dict of overrides on the default (the keys of ground_featur
 ``ground``, ``features``, ``field``; and ``field_axes``, ``min_features``,
 ``truth_tolerance``). With ``field_axes`` every capture is described in its ground image
 turned by its true heading (keypoints still stored in its robot frame): queries then need a
-heading too (localize's template method takes the IMU's or the track's). A frame without a truth row within
-``truth_tolerance`` s, or with fewer than ``min_features`` features on the field, is left out
-with a warning; a folder with no usable frame is an error, and so is a dataset of another
-camera than omni.
+heading too (localize's template method takes the IMU's or the track's). A frame without a
+truth row within ``truth_tolerance`` s, or with fewer than ``min_features`` features on the
+field, is left out with a warning; a folder with no usable frame is an error, and so is a
+dataset of another camera than omni.
 """
 
 from __future__ import annotations

@@ -36,7 +36,7 @@ from stages.common.features_file import CROSSING_CODES
 from stages.common.field import crossing_orientation
 from stages.common.geometry import polar
 
-from .line_fit import distort_ideal, fit_line, lens_parameters, median, refine_segment
+from .line_fit import distort_ideal, fit_line, lens_parameters, refine_segment
 from .line_structure import KeyStructure, LineGraph
 
 

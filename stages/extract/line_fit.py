@@ -231,8 +231,8 @@ def refine_segment(ends: np.ndarray, white: np.ndarray, lens: np.ndarray, step: 
                    reach: float, extend: float, min_points: int, grow: float = 0.0
                    ) -> RefinedLine | None:
     """The coarse segment ``ends`` (2, 2, ideal px) refined on the full-resolution white mask
-    ``white`` (uint8 or float32, 1 = white; ``lens`` from ``lens_parameters`` maps ideal pixels to the
-    image through the lens's distortion), in one compiled kernel (``_refine``):
+    ``white`` (uint8 or float32, 1 = white; ``lens`` from ``lens_parameters`` maps ideal pixels
+    to the image through the lens's distortion), in one compiled kernel (``_refine``):
 
     - perpendicular profiles every ``step`` px from ``extend`` px before its first end to
       ``extend`` px beyond its second, each ``reach`` px to either side, 1 px apart, sampled

@@ -64,8 +64,8 @@ from ..common.errors import DatasetError, FieldlocError
 from ..common.geometry import wrap_angle
 from ..common.poses_file import PoseTrack
 from . import heading as heading_mod
-from . import tracking
 from . import template_matching as tm
+from . import tracking
 from .tracking import Candidate, TrackBank
 
 log = logging.getLogger(__name__)
@@ -405,7 +405,7 @@ def run(conf: dict, dataset, templates, map_file=None, progress=False) -> PoseTr
         field = load_field(db.field["name"])
     else:
         raise FieldlocError(f"{db.path}: the templates do not name their field; give --map")
-    gconf = gf.check_conf(db.ground_conf)
+    gf.check_conf(db.ground_conf)  # the database's ground-image conf, checked
     camera = dataset.camera()
     if camera.kind != "omni":
         raise FieldlocError(f"{dataset.root}: a '{camera.kind}' camera; method templates needs"
