@@ -47,7 +47,6 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -62,7 +61,7 @@ from . import tracking
 from .lut_kernels import inlier_sums, structure_sizes
 from .radial_correction import DEFAULTS as RADIAL_DEFAULTS
 from .radial_correction import RadialCorrection
-from .tracking import Candidate, TrackBank, near_pose
+from .tracking import Candidate, FrameFailed, TrackBank, near_pose
 
 log = logging.getLogger(__name__)
 
@@ -511,10 +510,6 @@ def _positive(v) -> bool:
         return False
 
 
-class FrameFailed(Exception):
-    """A frame that cannot be localised; the message is the reason recorded in its flags."""
-
-
 @dataclass(kw_only=True)
 class FitCandidate(Candidate):
     """A tracking Candidate with the fit's own numbers: ``score`` (tracked: nll plus the
@@ -834,53 +829,11 @@ def run(conf: dict, dataset, features, map_file: MapFile, progress=False) -> Pos
     """Localise every frame of ``features`` (names, stamps, frame(name) with ``points``, or
     ``radial`` and ``spiral``) on ``map_file``'s distance table, with the odometry, IMU and
     truth of ``dataset`` (stages.common.dataset.Dataset or None). ``progress``: tqdm."""
-    from tqdm import tqdm
-
-    from .motion_model import accumulate_odometry
-
     _check_conf(conf, dataset)
     engine = fit_engine(map_file, conf)
-    names = list(features.names)
-    stamps = np.asarray(features.stamps, dtype=float)
-    n = len(names)
-    tol = float(conf["stamp_tolerance"])
-    odometry = dataset.optional("odometry") if dataset is not None else None
-    increments, has_odo = accumulate_odometry(odometry, stamps)
-    imu = dataset.optional("imu") if dataset is not None else None
-    if imu is not None:
-        yaw, collision = heading_mod.imu_per_frame(imu, stamps, tol)
-    else:
-        yaw, collision = np.full(n, np.nan), np.zeros(n, dtype=bool)
-    truth_th = (heading_mod.truth_heading(dataset.optional("truth"), stamps, tol)
-                if conf["heading"] == "truth" else None)
-    loc = FitLocaliser(conf, engine, map_file.field, map_file.scanlines, yaw=yaw,
-                       collision=collision, truth_heading=truth_th)
-    loc.bank.has_odometry = bool(np.any(has_odo))
-    track = PoseTrack()
-    prev_stamp = None
-    for i in tqdm(range(n), desc="localize fit", unit="frame", disable=not progress):
-        name, stamp = names[i], float(stamps[i])
-        dt = 0.0 if prev_stamp is None else max(stamp - prev_stamp, 0.0)
-        prev_stamp = stamp
-        odo = increments[i] if has_odo[i] else None
-        flags = ["collision"] if collision[i] else []
-        try:
-            fr = features.frame(name)
-        except (KeyError, OSError) as e:
-            fr, reason = None, f"unreadable-features ({e})"
-        t0 = time.perf_counter()
-        try:
-            if fr is None:
-                raise FrameFailed(reason)
-            hyps, top, pose, cov, accepted = loc.frame(i, fr, dt, odo, flags)
-        except FrameFailed as e:
-            loc.failed(dt, odo, bool(collision[i]))
-            track.add(name, stamp, None, error=math.nan, confidence=0.0, mode="failed",
-                      runtime=time.perf_counter() - t0, flags=",".join(flags + [str(e)]))
-            continue
-        track.add(name, stamp, pose, error=top.fix.error_norm, confidence=float(hyps[0, 3]),
-                  mode=top.fix.mode, runtime=time.perf_counter() - t0, covariance=cov,
-                  flags=",".join(flags), hypotheses=hyps, accepted=accepted)
-    if loc.radial is not None:
-        track.meta["radial_correction"] = loc.radial.summary()
-    return track
+    sensors = tracking.frame_sensors(conf, dataset, features.stamps)
+    loc = FitLocaliser(conf, engine, map_file.field, map_file.scanlines, yaw=sensors.yaw,
+                       collision=sensors.collision, truth_heading=sensors.truth_heading)
+    loc.bank.has_odometry = bool(np.any(sensors.has_odometry))
+    return tracking.localise_frames(loc, features, sensors, desc="localize fit",
+                                    progress=progress)

@@ -35,14 +35,19 @@ The conf keys the bank reads are ``DEFAULTS`` (a method's confs start from them)
 
 from __future__ import annotations
 
+import logging
 import math
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..common.field import FieldModel
 from ..common.geometry import compose, wrap_angle
+from ..common.poses_file import PoseTrack
 from .kalman import DecentralisedFusion, FusionParams
+
+log = logging.getLogger(__name__)
 
 DEFAULTS = {
     "independent": False,  # every frame globally, no tracks, no odometry
@@ -417,3 +422,87 @@ def near_pose(candidate, pose, distance: float = 0.5, angle: float = 0.2) -> boo
     a pose."""
     return (math.hypot(candidate[0] - pose[0], candidate[1] - pose[1]) < distance
             and abs(float(wrap_angle(candidate[2] - pose[2]))) < angle)
+
+
+# ---------------------------------------------------------------------------- the frame loop
+
+
+class FrameFailed(Exception):
+    """A frame that cannot be localised; the message is the reason recorded in its flags."""
+
+
+@dataclass
+class FrameSensors:
+    """What a dataset says of each frame besides its features: the odometry increment since
+    the previous frame (``has_odometry`` where there is one), the IMU yaw and collisions, and
+    the truth's heading (``heading: truth`` only)."""
+
+    increments: np.ndarray
+    has_odometry: np.ndarray
+    yaw: np.ndarray
+    collision: np.ndarray
+    truth_heading: np.ndarray | None
+
+
+def frame_sensors(conf: dict, dataset, stamps) -> FrameSensors:
+    """The FrameSensors of frames at ``stamps`` from ``dataset`` (Dataset or None), matched
+    within ``conf['stamp_tolerance']`` s."""
+    from . import heading as heading_mod
+    from .motion_model import accumulate_odometry
+
+    stamps = np.asarray(stamps, dtype=float)
+    n = len(stamps)
+    tol = float(conf["stamp_tolerance"])
+    odometry = dataset.optional("odometry") if dataset is not None else None
+    increments, has_odo = accumulate_odometry(odometry, stamps)
+    imu = dataset.optional("imu") if dataset is not None else None
+    if imu is not None:
+        yaw, collision = heading_mod.imu_per_frame(imu, stamps, tol)
+    else:
+        yaw, collision = np.full(n, np.nan), np.zeros(n, dtype=bool)
+    truth_th = (heading_mod.truth_heading(dataset.optional("truth"), stamps, tol)
+                if conf["heading"] == "truth" else None)
+    return FrameSensors(increments, has_odo, yaw, collision, truth_th)
+
+
+def localise_frames(loc, features, sensors: FrameSensors, *, desc: str,
+                    progress: bool = False) -> PoseTrack:
+    """Every frame of ``features`` (names, stamps, frame(name)) through a localiser ``loc``
+    of the bank (``frame(i, features, dt, odometry, flags)`` -> (hypotheses, top candidate,
+    pose, covariance, accepted), or FrameFailed; ``failed(dt, odometry, collision)``; and
+    ``radial``, a RadialCorrection or None), recorded as a PoseTrack. A frame's runtime is
+    the method's, without reading its features."""
+    from tqdm import tqdm
+
+    names = list(features.names)
+    stamps = np.asarray(features.stamps, dtype=float)
+    track = PoseTrack()
+    prev_stamp = None
+    for i in tqdm(range(len(names)), desc=desc, unit="frame", disable=not progress):
+        name, stamp = names[i], float(stamps[i])
+        dt = 0.0 if prev_stamp is None else max(stamp - prev_stamp, 0.0)
+        prev_stamp = stamp
+        odo = sensors.increments[i] if sensors.has_odometry[i] else None
+        col = bool(sensors.collision[i])
+        flags = ["collision"] if col else []
+        try:
+            fr = features.frame(name)
+        except (KeyError, OSError) as e:
+            fr, reason = None, f"unreadable-features ({e})"
+        t0 = time.perf_counter()
+        try:
+            if fr is None:
+                raise FrameFailed(reason)
+            hyps, top, pose, cov, accepted = loc.frame(i, fr, dt, odo, flags)
+        except FrameFailed as e:
+            loc.failed(dt, odo, col)
+            log.debug("frame %s failed: %s", name, e)
+            track.add(name, stamp, None, error=math.nan, confidence=0.0, mode="failed",
+                      runtime=time.perf_counter() - t0, flags=",".join(flags + [str(e)]))
+            continue
+        track.add(name, stamp, pose, error=top.fix.error_norm, confidence=float(hyps[0, 3]),
+                  mode=top.fix.mode, runtime=time.perf_counter() - t0, covariance=cov,
+                  flags=",".join(flags), hypotheses=hyps, accepted=accepted)
+    if loc.radial is not None:
+        track.meta["radial_correction"] = loc.radial.summary()
+    return track
