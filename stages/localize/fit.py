@@ -130,8 +130,6 @@ confs["no-fusion"] = {**confs["default"], "fusion": {**confs["default"]["fusion"
                                                        "enabled": False}}
 confs["independent"] = {**confs["default"], "independent": True}
 
-HEADING_SOURCES = ("imu", "histogram", "truth")
-START_HALVES = ("own", "opponent", "any")
 NULL_SECTORS = 72  # bearing sectors of the null copies (the scan lines' 5 deg)
 
 
@@ -467,14 +465,7 @@ class FitEngine:
 
 
 def _check_conf(conf: dict, dataset):
-    if conf["heading"] not in HEADING_SOURCES:
-        raise FieldlocError(
-            f"unknown heading source '{conf['heading']}' (use {', '.join(HEADING_SOURCES)})")
-    if conf["imu_alignment"] not in ("field", "vision"):
-        raise FieldlocError("imu_alignment must be 'field' or 'vision'")
-    if conf["start_half"] not in START_HALVES:
-        raise FieldlocError(
-            f"start_half must be one of {', '.join(START_HALVES)}, not '{conf['start_half']}'")
+    heading_mod.check_conf(conf, dataset)
     tracking.check_conf(conf)
     for key, value in [(k, conf[k]) for k in ("temperature", "track_correlation", "c",
                                                "max_range", "reach", "vision_inflation")] + [
@@ -494,13 +485,6 @@ def _check_conf(conf: dict, dataset):
                        ("global_every", conf["global_every"]), ("min_points", conf["min_points"])):
         if int(value) < 1:
             raise FieldlocError(f"{key} must be >= 1, not {value}")
-    if not 0.0 <= float(conf["start_half_error"]) <= 1.0:
-        raise FieldlocError(f"start_half_error must lie in [0, 1], not {conf['start_half_error']}")
-    need = {"imu": "imu", "truth": "truth"}.get(conf["heading"])
-    if need and (dataset is None or dataset.optional(need) is None):
-        where = dataset.root if dataset is not None else "the dataset"
-        raise FieldlocError(
-            f"--heading {conf['heading']} needs {need}.csv in {where}; use --heading histogram")
 
 
 def _positive(v) -> bool:

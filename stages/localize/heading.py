@@ -34,7 +34,32 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..common.errors import FieldlocError
 from ..common.geometry import wrap_angle
+
+SOURCES = ("imu", "histogram", "truth")  # where a frame's heading comes from
+START_HALVES = ("own", "opponent", "any")  # where the first fix lies (the field's symmetry)
+
+
+def check_conf(conf: dict, dataset) -> None:
+    """The heading keys of a method's conf (``heading``, ``imu_alignment``, ``start_half``,
+    ``start_half_error``) checked, and the file the heading source reads present in
+    ``dataset`` (FieldlocError)."""
+    if conf["heading"] not in SOURCES:
+        raise FieldlocError(
+            f"unknown heading source '{conf['heading']}' (use {', '.join(SOURCES)})")
+    if conf["imu_alignment"] not in ("field", "vision"):
+        raise FieldlocError("imu_alignment must be 'field' or 'vision'")
+    if conf["start_half"] not in START_HALVES:
+        raise FieldlocError(
+            f"start_half must be one of {', '.join(START_HALVES)}, not '{conf['start_half']}'")
+    if not 0.0 <= float(conf["start_half_error"]) <= 1.0:
+        raise FieldlocError(f"start_half_error must lie in [0, 1], not {conf['start_half_error']}")
+    need = {"imu": "imu", "truth": "truth"}.get(conf["heading"])
+    if need and (dataset is None or dataset.optional(need) is None):
+        where = dataset.root if dataset is not None else "the dataset"
+        raise FieldlocError(
+            f"--heading {conf['heading']} needs {need}.csv in {where}; use --heading histogram")
 
 # ---------------------------------------------------------------------------- per-frame lookup
 

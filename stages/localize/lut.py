@@ -170,8 +170,6 @@ confs["no-fusion"] = {**confs["default"], "fusion": {**confs["default"]["fusion"
                                                        "enabled": False}}
 confs["independent"] = {**confs["default"], "independent": True}
 
-HEADING_SOURCES = ("imu", "histogram", "truth")
-START_HALVES = ("own", "opponent", "any")
 
 _SEARCH_CACHE: dict = {}
 
@@ -228,28 +226,14 @@ def vision_covariance(result: SearchResult, support: Support, conf: dict,
 
 
 def _check_conf(conf: dict, dataset):
-    if conf["heading"] not in HEADING_SOURCES:
-        raise FieldlocError(
-            f"unknown heading source '{conf['heading']}' (use {', '.join(HEADING_SOURCES)})")
-    if conf["imu_alignment"] not in ("field", "vision"):
-        raise FieldlocError("imu_alignment must be 'field' or 'vision'")
-    if conf["start_half"] not in START_HALVES:
-        raise FieldlocError(
-            f"start_half must be one of {', '.join(START_HALVES)}, not '{conf['start_half']}'")
+    heading_mod.check_conf(conf, dataset)
     for key in ("temperature", "track_correlation"):
         if not float(conf[key]) > 0:
             raise FieldlocError(f"{key} must be > 0, not {conf[key]}")
     tracking.check_conf(conf)
-    if not 0.0 <= float(conf["start_half_error"]) <= 1.0:
-        raise FieldlocError(f"start_half_error must lie in [0, 1], not {conf['start_half_error']}")
     for key in ("null_copies", "tracked_null_copies", "global_every"):
         if int(conf[key]) < 1:
             raise FieldlocError(f"{key} must be >= 1, not {conf[key]}")
-    need = {"imu": "imu", "truth": "truth"}.get(conf["heading"])
-    if need and (dataset is None or dataset.optional(need) is None):
-        where = dataset.root if dataset is not None else "the dataset"
-        raise FieldlocError(
-            f"--heading {conf['heading']} needs {need}.csv in {where}; use --heading histogram")
 
 
 @dataclass(kw_only=True)
