@@ -471,7 +471,6 @@ def do_run(run: RunSpec, results: str, evaluate_conf: dict, inputs_plan: dict,
         try:
             out.mkdir(parents=True, exist_ok=True)
             (out / RUN_NAME).unlink(missing_ok=True)
-            fresh_random_state()
             given = ({"templates": source} if run.method.templates
                      else {"features": source})
             poses = localize.main(run.method.conf, dataset_dir, map_path, out / "poses.h5",
@@ -494,16 +493,6 @@ def do_run(run: RunSpec, results: str, evaluate_conf: dict, inputs_plan: dict,
                      else ""}
     write_json(out / RUN_NAME, rec)
     return rec
-
-
-def fresh_random_state():
-    """OpenCV's random generator (cv::theRNG, of this thread) as a new process has it. FLANN's
-    randomised kd-trees draw from it (method templates' descriptor index): without this a
-    template run's poses depended on the runs its worker did before (measured on compare's
-    omni-default: a second run in one process moved 59 of 100 frames by up to 22 cm)."""
-    import cv2
-
-    cv2.setRNGSeed(0)  # state 0 is the default state 0xffffffff (cv::RNG)
 
 
 def _source_key(run: RunSpec) -> str:
