@@ -194,6 +194,18 @@ class _Where:
             self.fail(where, f"expected a text, got {v!r}")
         return v.strip()
 
+    def overrides(self, v, where: str) -> dict:
+        """A conf's overrides: a mapping, or a list of key=value (as ``-c`` takes them)."""
+        over = v or {}
+        if isinstance(over, list):
+            try:
+                over = parse_overrides(over)
+            except FieldlocError as e:
+                self.fail(where, str(e))
+        if not isinstance(over, dict):
+            self.fail(where, "expected a mapping or a list of key=value")
+        return over
+
 
 def read_spec(spec_path: str | Path, results: str | Path) -> Plan:
     """The plan of the SPEC at ``spec_path`` for the results folder ``results`` (module doc)."""
@@ -484,14 +496,7 @@ def _grid_conf(w, entry: dict, ds: DatasetSpec, where: str) -> tuple[dict, str]:
     if seed == ds.simulate["seed"]:
         w.fail(f"{where}.seed", f"seed {seed} is dataset {ds.name}'s own: the captures would"
                " hold its session's clutter and movers; give them another seed")
-    over = entry.get("conf") or {}
-    if isinstance(over, list):
-        try:
-            over = parse_overrides(over)
-        except FieldlocError as e:
-            w.fail(f"{where}.conf", str(e))
-    if not isinstance(over, dict):
-        w.fail(f"{where}.conf", "expected a mapping or a list of key=value")
+    over = w.overrides(entry.get("conf"), f"{where}.conf")
     own = [k for k in over if k in GRID_OWN_KEYS]
     if own:
         w.fail(f"{where}.conf", f"'{own[0]}' is the dataset's robot and venue or the grid's"
@@ -534,14 +539,7 @@ def _methods(w, entries, skipped) -> list[MethodSpec]:
         w.keys(m, where, METHOD_KEYS, required=("method",))
         method = w.text(m["method"], f"{where}.method")
         preset = w.text(m.get("preset", "default"), f"{where}.preset")
-        over = m.get("conf") or {}
-        if isinstance(over, list):
-            try:
-                over = parse_overrides(over)
-            except FieldlocError as e:
-                w.fail(f"{where}.conf", str(e))
-        if not isinstance(over, dict):
-            w.fail(f"{where}.conf", "expected a mapping or a list of key=value")
+        over = w.overrides(m.get("conf"), f"{where}.conf")
         if "method" in over:
             w.fail(f"{where}.conf", "the method is the entry's 'method', not a conf key")
         key = f"{method}-{preset}" + (f"-{short_hash(over)}" if over else "")
