@@ -12,3 +12,22 @@ def msl2015_map(tmp_path_factory):
 
     out = tmp_path_factory.mktemp("maps") / "msl-2015.map.h5"
     return build_map.main(None, "msl-2015", out)
+
+
+@pytest.fixture(scope="session")
+def hulks_extracted(tmp_path_factory):
+    """The HULKs folder (realdata/hulks-goalbox-labels) imported and extracted by the CLI with
+    its defaults, once per session: (dataset folder, features.h5)."""
+    from click.testing import CliRunner
+
+    from fieldloc_cli.main import cli
+
+    data = tmp_path_factory.mktemp("hulks") / "hulks"
+    runner = CliRunner()
+    res = runner.invoke(cli, ["-q", "calibrate", "perspective", "--from-hulks",
+                              str(REALDATA / "hulks-goalbox-labels" / "measurements"),
+                              "-o", str(data)])
+    assert res.exit_code == 0, res.output
+    res = runner.invoke(cli, ["-q", "extract", str(data)])
+    assert res.exit_code == 0, res.output
+    return data, data / "features.h5"

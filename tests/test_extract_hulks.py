@@ -256,21 +256,9 @@ def summary(res: dict) -> dict:
 
 
 @pytest.fixture(scope="module")
-def extracted(tmp_path_factory):
-    """The HULKs folder imported and extracted by the CLI with its defaults."""
-    from click.testing import CliRunner
-
-    from fieldloc_cli.main import cli
-
-    tmp = tmp_path_factory.mktemp("hulks")
-    data = tmp / "hulks"
-    runner = CliRunner()
-    res = runner.invoke(cli, ["-q", "calibrate", "perspective", "--from-hulks", str(HULKS),
-                              "-o", str(data)])
-    assert res.exit_code == 0, res.output
-    res = runner.invoke(cli, ["-q", "extract", str(data)])
-    assert res.exit_code == 0, res.output
-    return data, data / "features.h5"
+def extracted(hulks_extracted):
+    """The HULKs folder imported and extracted by the CLI with its defaults (conftest)."""
+    return hulks_extracted
 
 
 def test_projection_of_the_labels_reproduces_the_source_figures(extracted):

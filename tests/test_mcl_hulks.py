@@ -38,10 +38,8 @@ def _informative(obs) -> bool:
     return bool(np.any(np.abs(np.sin(d[:, None] - d[None, :])) > math.sin(NON_PARALLEL)))
 
 
-def test_still_robot_from_a_uniform_start_on_the_hulks_frames(tmp_path):
-    from click.testing import CliRunner
+def test_still_robot_from_a_uniform_start_on_the_hulks_frames(hulks_extracted, tmp_path):
 
-    from fieldloc_cli.main import cli
     from stages import build_map
     from stages.calibrate import hulks
     from stages.common.features_file import FeaturesFile
@@ -52,16 +50,10 @@ def test_still_robot_from_a_uniform_start_on_the_hulks_frames(tmp_path):
     from stages.localize.mcl import ParticleFilter
     from stages.localize.observation_model import ObservationModel
 
-    data = tmp_path / "hulks"
-    runner = CliRunner()
-    res = runner.invoke(cli, ["-q", "calibrate", "perspective", "--from-hulks", str(HULKS),
-                              "-o", str(data)])
-    assert res.exit_code == 0, res.output
-    res = runner.invoke(cli, ["-q", "extract", str(data)])
-    assert res.exit_code == 0, res.output
+    features = hulks_extracted[1]
     spl = load_field("spl")
     map_file = MapFile(build_map.main(None, "spl", tmp_path / "spl.map.h5"))
-    with FeaturesFile(data / "features.h5") as ff:
+    with FeaturesFile(features) as ff:
         frames = {n: ff.frame(n) for n in ff.names}
     hits = []
     for k, (name, frame) in enumerate(sorted(frames.items())):
