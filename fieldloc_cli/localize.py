@@ -13,11 +13,14 @@ import click
 from stages import localize as stage
 from stages.common.conf import resolve_conf
 
-from .common import conf_option, overrides_dict, progress_enabled, summary
+from .common import DeferredHelp, conf_option, overrides_dict, progress_enabled, summary
 
-LUT_DEFAULTS = stage.method_confs("lut")["default"]
-FIT_DEFAULTS = stage.method_confs("fit")["default"]
-MCL_INIT_DEFAULT = stage.method_confs("mcl")["default"]["init"]
+
+def _default(method: str, key: str):
+    """A key of a method's default preset, for help texts (DeferredHelp: read only when the
+    help is shown, so a run imports only its own method)."""
+    return stage.method_confs(method)["default"][key]
+
 TABLE_METHODS = ("lut", "fit")  # the omni methods: heading source, start half, independent
 
 
@@ -42,21 +45,25 @@ TABLE_METHODS = ("lut", "fit")  # the omni methods: heading source, start half, 
 @click.option("--method", type=click.Choice(list(stage.METHODS)), default=stage.DEFAULT_METHOD,
               show_default=True, help="Localisation method.")
 @click.option("--heading", type=click.Choice(["imu", "histogram", "truth"]), default=None,
-              help=f"lut, fit: heading source [default: {LUT_DEFAULTS['heading']}].")
+              cls=DeferredHelp,
+              help=lambda: f"lut, fit: heading source [default: {_default('lut', 'heading')}].")
 @click.option("--start-half", type=click.Choice(["own", "opponent", "any"]), default=None,
-              help="lut, fit: where the first fix lies (own: x < 0), which resolves the"
+              cls=DeferredHelp,
+              help=lambda: "lut, fit: where the first fix lies (own: x < 0), which resolves the"
               " field's 180 deg symmetry when no field-aligned IMU heading does"
-              f" [default: {FIT_DEFAULTS['start_half']}].")
+              f" [default: {_default('fit', 'start_half')}].")
 @click.option("--init", type=click.Choice(["placement", "uniform"]), default=None,
-              help="mcl: initial belief, the game's placement (own half, at the touch lines)"
-              f" or anywhere on the field [default: {MCL_INIT_DEFAULT}].")
+              cls=DeferredHelp,
+              help=lambda: "mcl: initial belief, the game's placement (own half, at the touch"
+              f" lines) or anywhere on the field [default: {_default('mcl', 'init')}].")
 @click.option("--independent", is_flag=True, default=None,
               help="lut, fit, templates: localise every frame on its own, globally, with no"
               " prior and no odometry (snapshots at unknown poses).")
 @click.option("--min-confidence", type=click.FloatRange(0.0, 1.0), default=None,
-              help="Accept a frame when the probability of its top hypothesis reaches this"
-              f" [default: the method's, lut {LUT_DEFAULTS['min_confidence']}, fit"
-              f" {FIT_DEFAULTS['min_confidence']}].")
+              cls=DeferredHelp,
+              help=lambda: "Accept a frame when the probability of its top hypothesis reaches"
+              f" this [default: the method's, lut {_default('lut', 'min_confidence')}, fit"
+              f" {_default('fit', 'min_confidence')}].")
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Poses file, poses.tum is written beside it"
               " [default: DATASET/poses-METHOD.h5].")

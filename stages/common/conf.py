@@ -14,6 +14,7 @@ import copy
 import importlib
 import math
 import numbers
+from collections.abc import Callable, Iterator, Mapping
 
 import numpy as np
 import yaml
@@ -174,3 +175,45 @@ def registered_module(registry: dict[str, str], name: str, what: str):
     if name not in registry:
         raise FieldlocError(f"unknown {what} '{name}' (known: {', '.join(registry)})")
     return importlib.import_module(registry[name])
+
+
+class KindPresets(Mapping):
+    """The presets of every kind of a stage (its methods, its cameras) as one read-only
+    mapping, ``"<kind>-<preset>"`` -> conf, whose kinds' modules are imported only when one of
+    their presets is asked for: ``fieldloc localize --method lut`` then loads lut's compiled
+    kernels and not mcl's or the template matcher's (a process's start time, issue 12).
+    ``presets_of(kind)`` gives a kind's presets; ``entry(kind, conf)`` the stored entry (e.g.
+    with the kind's name added); ``aliases`` maps further names to ``(kind, preset)``
+    ("default"). Listing the keys imports every kind."""
+
+    def __init__(self, kinds, presets_of: Callable[[str], dict],
+                 entry: Callable[[str, dict], dict] = lambda kind, conf: conf,
+                 aliases: dict[str, tuple[str, str]] | None = None):
+        self._kinds = list(kinds)
+        self._presets_of = presets_of
+        self._entry = entry
+        self._aliases = dict(aliases or {})
+
+    def __getitem__(self, name: str) -> dict:
+        if not isinstance(name, str):
+            raise KeyError(name)
+        if name in self._aliases:
+            kind, preset = self._aliases[name]
+        else:
+            kind = next((k for k in self._kinds if name.startswith(f"{k}-")), None)
+            if kind is None:
+                raise KeyError(name)
+            preset = name[len(kind) + 1:]
+        presets = self._presets_of(kind)
+        if preset not in presets:
+            raise KeyError(name)
+        return self._entry(kind, presets[preset])
+
+    def __iter__(self) -> Iterator[str]:
+        yield from self._aliases
+        for kind in self._kinds:
+            for preset in self._presets_of(kind):
+                yield f"{kind}-{preset}"
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)

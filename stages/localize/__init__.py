@@ -61,7 +61,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common.artifacts import check_output, file_hash, root_attrs
-from ..common.conf import registered_module, stage_conf
+from ..common.conf import KindPresets, registered_module, stage_conf
 from ..common.dataset import STAMP_SOURCES, csv_rows, open_dataset
 from ..common.errors import DatasetError, FieldlocError
 from ..common.features_file import FeaturesFile
@@ -102,10 +102,9 @@ def available_methods() -> list[str]:
 
 
 # the presets of every method: "<method>-<preset>" -> conf with its "method"; "default" is the
-# default method's
-confs = {"default": {"method": DEFAULT_METHOD, **method_confs(DEFAULT_METHOD)["default"]}}
-confs.update({f"{m}-{name}": {"method": m, **c} for m in METHODS
-              for name, c in method_confs(m).items()})
+# default method's. A method's module is imported when one of its presets is read.
+confs = KindPresets(METHODS, method_confs, lambda m, c: {"method": m, **c},
+                    aliases={"default": (DEFAULT_METHOD, "default")})
 
 
 def preset_name(method: str, preset: str) -> str:
