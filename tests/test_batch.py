@@ -213,6 +213,11 @@ def test_two_workers_give_the_serial_results_value_for_value(serial, tmp_path):
     for x, y in zip(ca, cb):
         x.pop("ms/frame"), y.pop("ms/frame")
         assert x == y
+    # a dataset's CDF picture, drawn by a worker once its runs were done: the serial one
+    cdfs = sorted(p.name for p in (ser / "plots").glob("cdf-*.png"))
+    assert cdfs == sorted(p.name for p in (par / "plots").glob("cdf-*.png")) and cdfs
+    for name in cdfs:
+        assert (ser / "plots" / name).read_bytes() == (par / "plots" / name).read_bytes(), name
     # and the runs of the serial batch of the same datasets: the same poses
     first = runs[0]["dir"]
     assert np.array_equal(read_poses(out / first / "poses.h5")[0]["x"],

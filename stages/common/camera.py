@@ -48,6 +48,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from .conf import load_yaml
 from .errors import DatasetError
 
 CALIB_VERSION = 2  # newest calib.yaml version this code reads (1: polynomial only)
@@ -268,7 +269,7 @@ def load_calib(path: str | Path):
     if not path.is_file():
         raise DatasetError(f"calibration not found: {path}")
     try:
-        d = yaml.safe_load(path.read_bytes().decode("utf-8-sig"))
+        d = load_yaml(path.read_bytes().decode("utf-8-sig"))
     except UnicodeDecodeError:
         raise DatasetError(f"{path}: not a text YAML file (binary content)") from None
     except yaml.YAMLError as e:
@@ -314,7 +315,7 @@ def save_calib(camera, path: str | Path, calibration: dict | None = None) -> Pat
 
 def read_calibration_record(path: str | Path) -> dict:
     """The ``calibration`` record of a calib.yaml ({} when it has none)."""
-    d = yaml.safe_load(Path(path).read_text())
+    d = load_yaml(Path(path).read_text())
     rec = d.get("calibration") if isinstance(d, dict) else None
     return rec if isinstance(rec, dict) else {}
 

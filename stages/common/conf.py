@@ -21,6 +21,14 @@ import yaml
 
 from .errors import FieldlocError
 
+_YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
+def load_yaml(text: str | bytes):
+    """``yaml.safe_load`` with libyaml's parser where PyYAML has it (the same documents, read
+    10-20x faster: a batch reads every dataset's records several times)."""
+    return yaml.load(text, Loader=_YAML_LOADER)  # noqa: S506 (a safe loader)
+
 
 def parse_overrides(items) -> dict:
     """['a=1', 'b.c=x'] -> {'a': 1, 'b': {'c': 'x'}} (values parsed as YAML scalars; their type
@@ -34,7 +42,7 @@ def parse_overrides(items) -> dict:
         if not all(parts):
             raise FieldlocError(f"conf override '{item}': the key '{key}' is not a conf key name")
         try:
-            parsed = yaml.safe_load(value)
+            parsed = load_yaml(value)
         except yaml.YAMLError:
             parsed = value
         if isinstance(parsed, (dict, list)) and not isinstance(parsed, list):

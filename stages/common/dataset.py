@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .conf import load_yaml
 from .errors import DatasetError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -220,7 +221,7 @@ class Dataset:
         import yaml
 
         try:
-            d = yaml.safe_load(p.read_text())
+            d = load_yaml(p.read_text())
         except (OSError, UnicodeDecodeError, yaml.YAMLError):
             return {}
         if not isinstance(d, dict) or not isinstance(d.get("field"), str):

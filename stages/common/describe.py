@@ -17,6 +17,7 @@ import numpy as np
 
 from .artifacts import describe as describe_hdf5
 from .artifacts import human_bytes
+from .conf import load_yaml
 from .dataset import CSV_COLUMNS, IMAGE_SUFFIXES, SIMULATION_RECORD, csv_rows
 from .errors import FieldlocError
 
@@ -144,7 +145,7 @@ def _yaml(path: Path, text: str) -> str | None:
     import yaml
 
     try:
-        d = yaml.safe_load(text)
+        d = load_yaml(text)
     except yaml.YAMLError:
         return None
     if not isinstance(d, dict):

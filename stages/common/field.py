@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from .conf import load_yaml
 from .errors import FieldSpecError
 from .geometry import wrap_angle
 
@@ -253,7 +254,7 @@ def load_field(name_or_path: str | Path) -> FieldModel:
     except OSError as e:
         raise FieldSpecError(f"{path}: cannot be read ({e.strerror or e})") from None
     try:
-        spec = yaml.safe_load(text)
+        spec = load_yaml(text)
     except yaml.YAMLError as e:
         raise FieldSpecError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
     return field_from_spec(spec, str(path), text)

@@ -43,6 +43,7 @@ import numpy as np
 import yaml
 
 from .artifacts import open_artifact, read_json_attr, write_artifact
+from .conf import load_yaml
 from .errors import SchemaError
 from .field import FieldModel, field_from_spec
 from .scanlines import ScanLines
@@ -151,7 +152,7 @@ class MapFile:
             self.scanlines = ScanLines(**json.loads(a["scanlines"]))
             spec_text = self.h5["field/spec_yaml"][()]
             spec_text = spec_text.decode() if isinstance(spec_text, bytes) else spec_text
-            self.field = field_from_spec(yaml.safe_load(spec_text), str(self.path), spec_text)
+            self.field = field_from_spec(load_yaml(spec_text), str(self.path), spec_text)
         except (KeyError, ValueError, TypeError, OSError, yaml.YAMLError) as e:
             self.h5.close()
             raise SchemaError(f"{self.path}: damaged map file ({e})") from None

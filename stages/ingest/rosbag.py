@@ -55,7 +55,7 @@ import yaml
 
 from .. import __version__
 from ..common.artifacts import atomic_dir, file_hash
-from ..common.conf import stage_conf
+from ..common.conf import load_yaml, stage_conf
 from ..common.dataset import write_csv
 from ..common.errors import FieldlocError
 from ..common.geometry import wrap_angle
@@ -469,4 +469,4 @@ def describe(output) -> dict:
     p = Path(output) / "import.yaml"
     if not p.is_file():
         raise FieldlocError(f"{output}: no import.yaml (not written by fieldloc import rosbag)")
-    return yaml.safe_load(p.read_text())
+    return load_yaml(p.read_text())

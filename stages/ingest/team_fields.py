@@ -54,6 +54,7 @@ import yaml
 
 from .. import __version__
 from ..common.artifacts import atomic_path, file_hash
+from ..common.conf import load_yaml
 from ..common.errors import FieldlocError, FieldSpecError
 from ..common.field import MSL_LETTERS, field_from_spec, load_field, msl_letter_value
 
@@ -308,7 +309,7 @@ def _number(v, key, where) -> float:
 def read_bitbots(path: Path):
     where = str(path)
     try:
-        doc = yaml.safe_load(_read_text(path))
+        doc = load_yaml(_read_text(path))
     except yaml.YAMLError as e:
         raise TeamFieldError(f"{where}: not valid YAML ({str(e).splitlines()[0]})") from None
     if not isinstance(doc, dict):
@@ -390,7 +391,7 @@ def read_falcons(path: Path, venue: str | None):
     else:
         body = "\n".join(line for line in text.splitlines() if not line.startswith("%YAML"))
         try:
-            doc = yaml.safe_load(body)
+            doc = load_yaml(body)
         except yaml.YAMLError as e:
             raise TeamFieldError(f"{where}: not valid YAML ({str(e).splitlines()[0]})") from None
     if not isinstance(doc, dict):

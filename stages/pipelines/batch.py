@@ -45,6 +45,7 @@ are measurements, and differ).
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import json
 import logging
@@ -57,7 +58,7 @@ from pathlib import Path
 
 from ..common.artifacts import check_output, file_hash, refuse_inputs, text_hash
 from ..common.batch_file import RUN_NAME, read_json, write_batch, write_json
-from ..common.conf import stage_conf
+from ..common.conf import load_yaml, stage_conf
 from ..common.errors import FieldlocError
 from .batch_spec import DatasetSpec, Plan, RunSpec, TemplatesSpec, read_spec
 
@@ -109,8 +110,12 @@ def main(conf, spec, results, *, overwrite: bool = False, progress: bool = False
         (done if not overwrite and finished(plan, run) else todo).append(run)
     say(f"{len(plan.runs)} runs: {len(done)} finished before, {len(todo)} to do")
     records = {r.key: _record_of(results, r) for r in done}
+    drawn: set[str] = set()  # datasets whose CDF picture a Dask worker drew already
     if todo:
-        records.update(_execute(plan, todo, conf, progress, say))
+        if conf["serial"]:
+            records.update(_execute_serial(plan, todo, progress, say))
+        else:
+            drawn = _execute_dask(plan, todo, conf, progress, say, records)
     index = _index(plan, records)
     write_batch(results, index)
     from ..evaluate.report import comparison_table
@@ -122,7 +127,7 @@ def main(conf, spec, results, *, overwrite: bool = False, progress: bool = False
             tmp.write_text(comparison_table(results, fmt=fmt) + "\n")
     from ..show import comparison
 
-    comparison.main(None, results, overwrite=True)
+    comparison.main(None, results, overwrite=True, drawn=drawn)
     failed = [r for r in index["runs"] if r["status"] != "ok"]
     say(f"{len(index['runs']) - len(failed)} of {len(index['runs'])} runs finished, "
         f"{len(failed)} failed" + ("" if not failed else ":"))
@@ -272,7 +277,7 @@ def _rendered_as_asked(folder: Path, conf: dict, field_arg: str) -> bool:
     if not rec.is_file():
         return False
     try:
-        got = yaml.safe_load(rec.read_text())
+        got = load_yaml(rec.read_text())
     except (OSError, yaml.YAMLError):
         return False
     from ..common.field import load_field
@@ -545,12 +550,6 @@ def _inputs_plan(plan: Plan, run: RunSpec) -> dict:
     return i
 
 
-def _execute(plan: Plan, todo: list[RunSpec], conf: dict, progress: bool, say) -> dict:
-    if conf["serial"]:
-        return _execute_serial(plan, todo, progress, say)
-    return _execute_dask(plan, todo, conf, progress, say)
-
-
 def _bar(total: int, progress: bool):
     from tqdm import tqdm
 
@@ -619,8 +618,14 @@ def _failed_before(plan: Plan, run: RunSpec, e: BaseException) -> dict:
     return rec
 
 
-def _execute_dask(plan: Plan, todo, conf, progress, say) -> dict:
+def _execute_dask(plan: Plan, todo, conf, progress, say, records: dict) -> set[str]:
+    """Run ``todo`` on Dask, adding their records to ``records`` (which holds the finished
+    runs' before). A dataset's CDF picture (show.comparison.draw_dataset_cdf) is drawn by a
+    worker as soon as the dataset's last run is done, beside the other runs rather than after
+    them all; returns the datasets drawn so."""
     from dask.distributed import Client, LocalCluster, as_completed
+
+    from ..show import comparison
 
     with contextlib.ExitStack() as stack:
         # Dask's own INFO lines (cluster start and stop) only when our log shows INFO
@@ -665,7 +670,8 @@ def _execute_dask(plan: Plan, todo, conf, progress, say) -> dict:
                                 f_map.get(ds.map, ds.map), source,
                                 key=f"run-{run.key}-{_tag()}", pure=False, priority=-i)
             futures[fut] = run
-        records = {}
+        left = collections.Counter(r.dataset.name for r in todo)
+        pictures = {}
         with _bar(len(todo), progress) as bar:
             try:
                 for fut in as_completed(list(futures)):
@@ -675,10 +681,25 @@ def _execute_dask(plan: Plan, todo, conf, progress, say) -> dict:
                     except Exception as e:  # its dataset, map or features could not be made
                         records[run.key] = _failed_before(plan, run, e)
                     bar.update(1)
+                    name = run.dataset.name
+                    left[name] -= 1
+                    if not left[name]:
+                        runs = [_public(records[r.key]) for r in plan.runs
+                                if r.dataset.name == name and r.key in records]
+                        pictures[name] = client.submit(
+                            comparison.draw_dataset_cdf, str(plan.results), name, runs,
+                            key=f"cdf-{name}-{_tag()}", pure=False)
+                drawn = set()
+                for name, fut in pictures.items():
+                    try:
+                        fut.result()
+                        drawn.add(name)
+                    except Exception as e:  # drawn again, and reported, by the client
+                        log.debug("the CDF of %s on a worker failed: %s", name, one_line(e))
             except KeyboardInterrupt:
-                client.cancel(list(futures))
+                client.cancel(list(futures) + list(pictures.values()))
                 raise
-    return records
+    return drawn
 
 
 def _tag() -> str:

@@ -80,7 +80,7 @@ import yaml
 
 from .. import evaluate, extract, localize, simulate
 from ..common.artifacts import file_hash, text_hash
-from ..common.conf import parse_overrides, resolve_conf, stage_conf
+from ..common.conf import load_yaml, parse_overrides, resolve_conf, stage_conf
 from ..common.errors import FieldlocError
 
 TOP_KEYS = ("field", "map", "build_map", "datasets", "extract", "evaluate", "templates",
@@ -213,7 +213,7 @@ def read_spec(spec_path: str | Path, results: str | Path) -> Plan:
     if not spec_path.is_file():
         raise FieldlocError(f"SPEC not found: {spec_path}")
     try:
-        data = yaml.safe_load(spec_path.read_text())
+        data = load_yaml(spec_path.read_text())
     except (yaml.YAMLError, UnicodeDecodeError) as e:
         line = getattr(getattr(e, "problem_mark", None), "line", None)
         where = f" (line {line + 1})" if line is not None else ""

@@ -3,7 +3,8 @@ methods overlaid, and one summary of every method on every dataset.
 
     draw_error_cdfs(ax, curves, thresholds)     curves: [(label, position errors (m))]
     draw_summary(ax, rows)                      rows: stages.evaluate.report.comparison_rows
-    main(conf, results_dir, *, overwrite=False, progress=False) -> Path   # RESULTS/plots
+    draw_dataset_cdf(results_dir, dataset, runs, conf=None) -> Path | None
+    main(conf, results_dir, *, overwrite=False, progress=False, drawn=()) -> Path  # RESULTS/plots
 
 The CDFs are drawn from each run's errors.csv (position errors of the matched frames, a frame
 without an accepted pose at inf: the curve ends below 1 by the share of failures), the
@@ -22,7 +23,7 @@ import numpy as np
 from ..common.artifacts import check_output
 from ..common.batch_file import load_batch
 from ..common.conf import stage_conf
-from ..common.report_file import ERRORS_NAME, read_errors_csv
+from ..common.report_file import ERRORS_NAME, load_report, read_errors_csv
 from .figure import new_figure, save_figure
 from .report_plots import plot_error_cdf
 
@@ -90,9 +91,12 @@ def _colours(n: int):
     return [cmap(k % 10) for k in range(n)]
 
 
-def main(conf, results_dir, *, overwrite: bool = False, progress: bool = False) -> Path:
+def main(conf, results_dir, *, overwrite: bool = False, progress: bool = False,
+         drawn=()) -> Path:
     """The comparison pictures of the batch results folder ``results_dir`` into its plots/:
-    cdf-<dataset>.png per dataset with truth, summary.png. Returns the plots folder."""
+    cdf-<dataset>.png per dataset with truth, summary.png. Returns the plots folder.
+    ``drawn``: datasets whose CDF ``draw_dataset_cdf`` wrote already, from the runs this index
+    holds (a Dask batch draws each dataset's as soon as its runs are done)."""
     from ..evaluate.report import comparison_rows
 
     conf = stage_conf(confs, conf)
@@ -107,33 +111,45 @@ def main(conf, results_dir, *, overwrite: bool = False, progress: bool = False) 
             if (out / n).exists():
                 raise_exists(out / n)
     out.mkdir(parents=True, exist_ok=True)
-    thresholds = [float(t) for t in conf["thresholds"]]
     for dataset in dict.fromkeys(r["dataset"] for r in rows):
-        curves = []
-        for r in rows:
-            rep = r["report"]
-            if r["dataset"] != dataset or not rep or "position_error_m" not in rep:
-                continue
-            run = next(x for x in index["runs"] if x["key"] == r["run"])
-            err = read_errors_csv(results_dir / run["report"] / ERRORS_NAME)
-            matched = err["matched"] > 0
-            curves.append((r["method"], err["position_error_m"][matched]))
-        target = out / f"cdf-{dataset}.png"
-        if not curves:
-            target.unlink(missing_ok=True)
-            continue
-        fig = new_figure(7.0, 4.2, conf["dpi"])
-        ax = fig.add_subplot(1, 1, 1)
-        draw_error_cdfs(ax, curves, thresholds)
-        ax.set_title(f"{dataset}: position error", fontsize=10)
-        ax.set_xlim(0.0, 100.0 * max(1.3 * max(thresholds), 0.5))
-        save_figure(fig, target)
+        if dataset not in drawn:
+            draw_dataset_cdf(results_dir, dataset, index["runs"], conf)
     n_ds = len({r["dataset"] for r in rows})
     n_m = len({r["method"] for r in rows})
     fig = new_figure(max(5.0, 1.3 * n_ds + 2.5), max(2.5, 0.7 * n_m + 1.8), conf["dpi"])
     draw_summary(fig.add_subplot(1, 1, 1), rows)
     save_figure(fig, out / SUMMARY_NAME)
     return out
+
+
+def draw_dataset_cdf(results_dir, dataset: str, runs: list[dict], conf=None) -> Path | None:
+    """plots/cdf-<dataset>.png of a batch results folder: the overlaid error CDFs of the
+    dataset's finished runs with truth, from ``runs`` (run records as the batch index holds
+    them, in its order; other datasets' are ignored). None, and an older picture removed, when
+    no run of the dataset has position errors."""
+    conf = stage_conf(confs, conf)
+    results_dir = Path(results_dir)
+    curves = []
+    for run in runs:
+        if run["dataset"] != dataset or run["status"] != "ok" or not run.get("report"):
+            continue
+        if "position_error_m" not in load_report(results_dir / run["report"]):
+            continue
+        err = read_errors_csv(results_dir / run["report"] / ERRORS_NAME)
+        matched = err["matched"] > 0
+        curves.append((run["method"], err["position_error_m"][matched]))
+    target = results_dir / PLOTS_DIR / f"cdf-{dataset}.png"
+    if not curves:
+        target.unlink(missing_ok=True)
+        return None
+    target.parent.mkdir(parents=True, exist_ok=True)
+    thresholds = [float(t) for t in conf["thresholds"]]
+    fig = new_figure(7.0, 4.2, conf["dpi"])
+    ax = fig.add_subplot(1, 1, 1)
+    draw_error_cdfs(ax, curves, thresholds)
+    ax.set_title(f"{dataset}: position error", fontsize=10)
+    ax.set_xlim(0.0, 100.0 * max(1.3 * max(thresholds), 0.5))
+    return save_figure(fig, target)
 
 
 def raise_exists(path: Path):

@@ -75,7 +75,7 @@ from ..common.artifacts import (
     text_hash,
 )
 from ..common.camera import save_calib
-from ..common.conf import stage_conf
+from ..common.conf import load_yaml, stage_conf
 from ..common.dataset import SIMULATION_RECORD, write_csv
 from ..common.errors import FieldlocError
 from ..common.field import FieldModel, load_field
@@ -287,7 +287,7 @@ def is_simulated_dataset(folder: Path) -> bool:
     if not rec.is_file():
         return False
     try:
-        d = yaml.safe_load(rec.read_text())
+        d = load_yaml(rec.read_text())
     except (OSError, UnicodeDecodeError, yaml.YAMLError):
         return False
     return isinstance(d, dict) and d.get("generator") == GENERATOR
