@@ -711,6 +711,8 @@ ROWS: dict[str, Callable[[int], Row | list[Row]]] = {
     "real": lambda n: _hyp().bench_real(n),
     "import-rosbag": bench_import_rosbag,
     "templates": lambda n: _templates(n),
+    "templates-calibration": lambda n: importlib.import_module(
+        ".bench_templates", __package__).bench_templates_calibration(n),
     "fit": lambda n: importlib.import_module(".bench_fit", __package__).rows(n),
     "error-surface": lambda n: importlib.import_module(".bench_error_surface", __package__).rows(n),
     "batch-throughput": lambda n: _batch().bench_batch_throughput(n),

@@ -93,17 +93,28 @@ def bench_lut_tracked_frame(repeat: int) -> Row:
 
 def _calibration_rows(method: str, sets, label: str) -> list[Row]:
     from .. import localize
-    from ..evaluate.metrics import auroc, reliability
 
-    conf_all, ok_all, rows, frames = [], [], [], 0
-    wrong = not_acc = within = 0
+    runs = []
     t0 = time.perf_counter()
     for preset, field, n, seed, conf in sets:
         inp = rendered_inputs(preset.split("-")[0], field, n, seed, preset)
         out = _work_dir() / f"cal-{method}-{preset}-{seed}-{conf.get('init', '')}.poses.h5"
         localize.main({"method": method, **conf}, inp["data"], inp["map"], out,
                       features=inp["features"], overwrite=True)
-        fe, _cols = _errors(out, Path(inp["data"]))
+        runs.append((out, Path(inp["data"])))
+    return calibration_rows(method, runs, label, time.perf_counter() - t0)
+
+
+def calibration_rows(method: str, runs, label: str, seconds: float) -> list[Row]:
+    """The reliability of a method's confidence over localised rendered runs ``runs`` ((poses
+    file, dataset folder) pairs): AUROC and reliability table of "top hypothesis within 40 cm"
+    (a failed frame has confidence 0), and the frames accepted while more than 1 m off."""
+    from ..evaluate.metrics import auroc, reliability
+
+    conf_all, ok_all, rows, frames = [], [], [], 0
+    wrong = not_acc = within = 0
+    for out, data in runs:
+        fe, _cols = _errors(out, data)
         sel = fe.matched & ~fe.failed
         conf_all.append(np.where(sel, fe.confidence, 0.0)[fe.matched])
         ok_all.append((fe.top_error <= 0.4)[fe.matched])
@@ -122,7 +133,7 @@ def _calibration_rows(method: str, sets, label: str) -> list[Row]:
         name=f"{method} confidence calibration, {label}", median_ms=math.nan,
         goal="AUROC >= 0.95; per bin |observed - confidence| <= 0.1",
         meets_goal=bool(a >= 0.95 and gap <= 0.1), repeats=1,
-        note=f"{len(sets)} sets, {frames} frames, {time.perf_counter() - t0:.0f} s; AUROC"
+        note=f"{len(runs)} sets, {frames} frames, {seconds:.0f} s; AUROC"
              f" {a:.3f}; largest gap {gap:.2f} over bins of >= 20 frames; {rel}",
         extra={"reliability": table, "auroc": a}))
     share = wrong / max(frames, 1)

@@ -30,6 +30,11 @@ HIDDEN_TEMPLATE_RUN = ("omni-default", "msl-2015", 149, 93)
 DEVELOPMENT_RUN = ("omni-default", "msl-2015", 151, 89)
 
 
+# the confidence's reliability: the hidden run, and harder runs of the same robot and venue
+CALIBRATION_RUNS = [HIDDEN_TEMPLATE_RUN, ("omni-hard", "msl-2015", 120, 94),
+                    ("omni-hard", "msl-2015", 120, 95)]
+
+
 # the speed alternative: a coarser ground image (400 px of 2 cm, +-4 m: 0.56 x the pixels)
 COARSE_GROUND = {"ground": {"size": 400, "metres_per_pixel": 0.02}}
 
@@ -57,6 +62,39 @@ def template_inputs(spacing: float = GRID_SPACING) -> dict:
     if not run.exists():
         simulate.main(dict(simulate.confs[preset], frames=n, seed=seed, **base), field, run)
     return {"grid": grid, "templates": db, "coarse": coarse, "run": run}
+
+
+def calibration_run(preset: str, field: str, frames: int, seed: int) -> Path:
+    """A rendered run of the templates' robot and venue (built once per bench run)."""
+    from .. import simulate
+
+    run = _work_dir() / "templates" / f"run-{preset}-{seed}"
+    if not run.exists():
+        simulate.main(dict(simulate.confs[preset], frames=frames, seed=seed,
+                           calib_seed=CALIB_SEED, world_seed=WORLD_SEED), field, run)
+    return run
+
+
+def bench_templates_calibration(repeat: int) -> list[Row]:
+    """The templates method's confidence against its errors (as lut's and mcl's,
+    bench_hypotheses.calibration_rows): the hidden run and two omni-hard runs."""
+    import time
+
+    from .. import localize
+    from .bench_hypotheses import calibration_rows
+
+    inp = template_inputs()
+    runs = []
+    t0 = time.perf_counter()
+    for preset, field, n, seed in CALIBRATION_RUNS:
+        run = inp["run"] if (preset, field, n, seed) == HIDDEN_TEMPLATE_RUN else \
+            calibration_run(preset, field, n, seed)
+        out = _work_dir() / "templates" / f"cal-{preset}-{seed}.poses.h5"
+        localize.main({"method": "templates"}, run, None, out, templates=inp["templates"],
+                      overwrite=True)
+        runs.append((out, run))
+    return calibration_rows("templates", runs, "rendered msl-2015 (1 omni-default, 2"
+                            " omni-hard; 1 m grid)", time.perf_counter() - t0)
 
 
 def frame_times(templates: Path, run: Path, frames: int = 60) -> tuple[float, float]:
