@@ -66,6 +66,7 @@ from .lut_kernels import (
     refine_moves,
     structure_sizes,
     tracked_window,
+    tracked_window_bound,
 )
 
 NONE_M = 1.0e3  # a "none" table entry in metres: far from any observation -> saturated error
@@ -563,6 +564,23 @@ class TableSearch:
         temperature + capped Mahalanobis term), without refining it."""
         return self._tracked_window(obs, theta, prior_xy, prior_information, temperature,
                                     half_width, prior_cap)[0][3]
+
+    def tracked_score_bound(self, obs: Observation, theta: float, prior_xy, prior_information,
+                            temperature: float, *, half_width: float = 1.0,
+                            prior_cap: float = math.inf) -> float:
+        """A lower bound of ``tracked_score`` from the min-pooled error lookup (the
+        unknown-heading search's; ``tracked_window_bound``): never above it, about
+        ``coarse_step``^2 times cheaper, so a score below the bound is below the score."""
+        m = self.scanlines.heading_index(theta)
+        i0, i1, j0, j1 = self.local_window(prior_xy[0], prior_xy[1], half_width)
+        g, info = self.grid, prior_information
+        cy, cx = self.coarse_shape
+        return tracked_window_bound(
+            self.coarse_lookup, max(1, self.params.coarse_step), cy, cx,
+            *self._row_arrays(obs, m), i0, i1, j0, j1, 1.0 / (self.q_levels * temperature),
+            float(g.origin[0]), float(g.origin[1]), float(g.resolution), float(prior_xy[0]),
+            float(prior_xy[1]), float(info[0, 0]), float(info[0, 1]), float(info[1, 1]),
+            float(min(prior_cap, 1e300)))
 
     def _tracked_window(self, obs, theta, prior_xy, info, temperature, half_width, cap):
         m = self.scanlines.heading_index(theta)
