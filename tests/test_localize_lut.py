@@ -518,6 +518,34 @@ def test_two_views_in_one_frame_give_the_view_that_explains_more(search, msl2015
     assert e_two > 1.3 * c["error"][0]
 
 
+def test_start_half_any_keeps_the_mirror_second_without_searching_every_frame(
+        search, msl2015_map):
+    """Histogram heading, start_half any: a pose and its mirror explain every frame alike,
+    so the top hypothesis never passes 0.5 nor min_confidence; the belief is confident up to
+    that symmetry (TrackBank.confident), so global searches stay every global_every frames
+    (not every frame, where new rivals would be born), every frame lists the mirror second
+    at the top's probability and the top never jumps."""
+    rng = np.random.default_rng(24)
+    poses, t = drive(16)
+    frames = SyntheticFrames(search, poses, rng)
+    from stages.common.geometry import between
+
+    inc = np.array([between(poses[max(i - 1, 0)], poses[i]) for i in range(len(poses))])
+    odometry = {"stamp": t, "dx": inc[:, 0], "dy": inc[:, 1], "dtheta": inc[:, 2]}
+    conf = lut.confs["default"] | {"heading": "histogram", "start_half": "any"}
+    c = lut.run(conf, Dataset(odometry=odometry), frames, MapFile(msl2015_map)).arrays()
+    assert not c["failed"].any()
+    h = c["hypotheses"]
+    assert np.allclose(h[:, 1, :2], -h[:, 0, :2]) and np.allclose(h[:, 1, 3], h[:, 0, 3])
+    assert (h[:, 0, 3] <= 0.5 + 1e-9).all() and (h[4:, 0, 3] + h[4:, 1, 3] > 0.9).all()
+    checks = sum("global-check" in f for f in c["flags"][4:])  # once the belief gathered
+    assert checks <= math.ceil((len(poses) - 4) / conf["global_every"]), c["flags"]
+    assert np.hypot(np.diff(c["x"]), np.diff(c["y"])).max() < 0.5
+    sign = 1.0 if math.hypot(c["x"][0] - poses[0, 0], c["y"][0] - poses[0, 1]) < 0.3 else -1.0
+    err = np.hypot(c["x"] - sign * poses[:, 0], c["y"] - sign * poses[:, 1])
+    assert np.median(err) < 0.1
+
+
 @pytest.mark.parametrize("half, mirrored", [("own", False), ("opponent", True)])
 def test_start_half_resolves_the_mirror_ambiguity(search, msl2015_map, half, mirrored):
     """imu_alignment vision: the first fix (unknown heading) is on the half start_half names,

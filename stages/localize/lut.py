@@ -282,7 +282,10 @@ class LutLocaliser:
         self.fixed_once = False  # start_half applies to the first fix only
         self._radial_frames = 0  # confident tracked frames seen by the radial correction
         self.last_global = -10**9
-        self.last_accepted = True
+        self.last_confident = True  # the last frame's belief, up to the mirror (TrackBank)
+        # whether the heading source tells a heading from its opposite (rules the mirror out)
+        self.field_heading = conf["heading"] == "truth" or (
+            conf["heading"] == "imu" and conf["imu_alignment"] == "field")
         self.rng = np.random.default_rng(seed)
         rc = conf["radial_correction"]
         self.radial = (RadialCorrection.from_conf(rc, search.scanlines.robot_radius)
@@ -291,7 +294,7 @@ class LutLocaliser:
     # ------------------------------------------------------------------ book-keeping
     def failed(self, dt: float, odo, collision: bool):
         """A failed frame: the tracks only predict (TrackBank.failed)."""
-        self.last_accepted = False
+        self.last_confident = False
         self.bank.failed(dt, odo, collision)
 
     # ------------------------------------------------------------------ one frame
@@ -329,15 +332,17 @@ class LutLocaliser:
             tracked.append(self._track_candidate(i, t, prior, obs, fr, base_heading, col,
                                                  flags))
         new: list[LutCandidate] = []
-        if (not tracked or not self.last_accepted or lost
+        if (not tracked or not self.last_confident or lost
                 or i - self.last_global >= conf["global_every"]):
             heading = base_heading
-            if heading is None and tracked and self.last_accepted:
+            if heading is None and tracked and self.last_confident:
                 # a confident track's heading (histogram, or IMU before its alignment);
-                # after an unaccepted frame the heading is searched too
+                # after a frame not confident (up to the mirror) the heading is searched too
                 heading = float(max(tracked, key=lambda c: c.log_prior - c.fit).fix.theta)
             new = self._global_candidates(i, obs, heading, flags,
-                                          bank.global_log_prior(other_prior))
+                                          bank.global_log_prior(other_prior),
+                                          field_heading=base_heading is not None
+                                          and self.field_heading)
             self.last_global = i
             if tracked:
                 flags.append("global-check")
@@ -364,7 +369,7 @@ class LutLocaliser:
             flags.append("window-edge")
         pose, cov, _confidence, accepted = bank.conclude(hyps, top, bool(tracked), flags)
         self.fixed_once = True
-        self.last_accepted = accepted
+        self.last_confident = bank.confident()
         return hyps, top, pose, cov, accepted
 
     # ------------------------------------------------------------------ heading
@@ -479,10 +484,12 @@ class LutLocaliser:
         return fix.error
 
     # ------------------------------------------------------------------ global search
-    def _global_candidates(self, i, obs, heading, flags,
-                           log_prior: float) -> list[LutCandidate]:
+    def _global_candidates(self, i, obs, heading, flags, log_prior: float, *,
+                           field_heading: bool = False) -> list[LutCandidate]:
         """New-track candidates from a global search (known heading) or the unknown-heading
-        search, those near an existing track (or its mirror) left out."""
+        search, those near an existing track (or its mirror) left out. ``field_heading``:
+        the heading is field-aligned (rules the mirror out); otherwise a candidate's mirror
+        image explains the frame as well (TrackBank.finish_global)."""
         conf, search = self.conf, self.search
         headings = [heading] if heading is not None else self._histogram_headings(obs)
         if headings is None:
@@ -509,7 +516,7 @@ class LutLocaliser:
             out.append(LutCandidate(fix=f, support=sup, log_prior=log_prior, evidence=e,
                                     nll=e / self.T, fit=e / self.T,
                                     R=vision_covariance(f, sup, conf, sigma)))
-        self.bank.finish_global(out, heading is not None)
+        self.bank.finish_global(out, field_heading)
         if not self.fixed_once and conf["start_half"] != "any":
             for c in out:
                 self._on_start_half(obs, c, flags)

@@ -246,8 +246,10 @@ class TrackBank:
 
     def finish_global(self, out: list[Candidate], heading_known: bool):
         """The folded masses into the global candidates' priors and mirror shares; with no
-        heading known on a point-symmetric field the mirror explains the frame exactly as
-        well (the search's refinements differ a little)."""
+        field-aligned heading known (``heading_known``: one that tells a heading from its
+        opposite, as a field-aligned IMU) on a point-symmetric field the mirror explains
+        the frame exactly as well, searched or not (the search's refinements differ a
+        little), so it carries the candidate's own mass."""
         for c in out:
             if not heading_known and self.symmetric:
                 c.mirror_mass = c.own_mass
@@ -385,6 +387,15 @@ class TrackBank:
                 out[-1 if len(out) == k else len(out):] = [
                     next(r for r in rows if near_pose(r, m, 1e-6, 1e-6))]
         return np.array(out, float)
+
+    def confident(self) -> bool:
+        """Whether the belief is confident up to the field's symmetry: a track (a pose and,
+        on a point-symmetric field, its mirror image, whose shares no observation can move
+        without a field-aligned heading) holds at least ``min_confidence``. Without a mirror
+        share this is the top hypothesis's acceptance; with one it is what a search could
+        still change (a global search cannot tell a pose from its mirror either)."""
+        return bool(self.tracks) and max(t.log_weight for t in self.tracks) >= math.log(
+            max(float(self.conf["min_confidence"]), 1e-300))
 
     def conclude(self, hyps: np.ndarray, top: Candidate, tracked: bool, flags: list):
         """(pose, covariance, confidence, accepted) of the frame from its hypotheses, and the
