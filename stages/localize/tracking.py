@@ -375,9 +375,11 @@ class TrackBank:
         rows = []
         for t in self.tracks:
             w = math.exp(t.log_weight)
-            rows.append((*t.pose, w * (1 - t.mirror)))
-            if self.symmetric:
-                rows.append((*_mirror(t.pose), w * t.mirror))
+            x, y, th = t.pose.tolist()
+            rows.append((x, y, th, w * (1 - t.mirror)))
+            if self.symmetric:  # FieldModel.mirror_pose in scalar arithmetic
+                rows.append((-x, -y, (th + math.pi + math.pi) % _TWO_PI - math.pi,
+                             w * t.mirror))
         rows.sort(key=lambda r: -r[3])  # stable: a track before its mirror on a tie
         k = int(self.conf["hypotheses"])
         out = rows[:k]
@@ -431,8 +433,13 @@ def eig2(a: float, b: float, d: float):
 def near_pose(candidate, pose, distance: float = 0.5, angle: float = 0.2) -> bool:
     """Whether a candidate (x, y, theta, ...) lies within ``distance`` m and ``angle`` rad of
     a pose."""
-    return (math.hypot(candidate[0] - pose[0], candidate[1] - pose[1]) < distance
-            and abs(float(wrap_angle(candidate[2] - pose[2]))) < angle)
+    if math.hypot(candidate[0] - pose[0], candidate[1] - pose[1]) >= distance:
+        return False
+    # geometry.wrap_angle in scalar arithmetic (the same floating-point result)
+    return abs((float(candidate[2] - pose[2]) + math.pi) % _TWO_PI - math.pi) < angle
+
+
+_TWO_PI = 2 * math.pi
 
 
 # ---------------------------------------------------------------------------- the frame loop
