@@ -37,11 +37,15 @@ Per frame, for each track:
 
 Global searches propose new tracks: on the first frame, when no track is left, every
 ``global_every`` frames while tracking (a wrong track cannot persist unchallenged), and when
-the last frame was not accepted. Each separated minimum of the search (``global_candidates``,
+the last frame's belief was not confident up to the mirror (no track, a pose with its mirror
+image, holding ``min_confidence``: TrackBank.confident; on a point-symmetric field without a
+field-aligned heading the top hypothesis alone never reaches it, and a global search cannot
+tell the two apart either). Each separated minimum of the search (``global_candidates``,
 ``ambiguity_distance`` apart) that is not an existing track (or its mirror) is a candidate of
 prior mass ``kidnap_probability`` / N, N the number of ``ambiguity_distance`` squares in the
 world (a uniform prior over where the robot could have been put; without tracks the uniform
-prior alone). The weights are normalised, tracks below ``prune_probability`` dropped, tracks
+prior alone; a candidate's mirror image carries its own mass unless the heading is
+field-aligned). The weights are normalised, tracks below ``prune_probability`` dropped, tracks
 that meet merged. With no heading known (histogram on the first frame, IMU with
 ``imu_alignment: vision`` before its first fix) the unknown-heading search (all 72 headings)
 proposes poses and headings.
@@ -51,7 +55,10 @@ lines are shuffled: ``Observation.random_bearings``), searched the same way (the
 for a global frame, the window around the strongest track otherwise), show what chance alone
 explains: E_null, the median over ``null_copies`` copies. A frame *fails* when no hypothesis
 beats the null (E >= E_null: ``uninformative``) or when it has fewer than ``min_observations``
-crossings (``too-few-observations``); then the tracks only predict. In a global frame the null
+crossings (``too-few-observations``); then the tracks only predict. A tracked frame's null is
+first bounded from below on the min-pooled error lookup (TableSearch.tracked_score_bound,
+a few times cheaper than the window): when every fix beats the bound it beats the null, and
+the window itself is searched only otherwise. In a global frame the null
 also enters the normalisation as one more hypothesis ("the pose is none of these"), so a frame
 whose best pose barely beats chance gets a low probability.
 
