@@ -218,6 +218,31 @@ def test_min_pooled_lookup_is_a_lower_bound():
             assert np.all(pooled[:, i // 2, j // 2] <= a[:, i, j])
 
 
+def test_tracked_score_bound_lies_below_the_windows_score(search):
+    """The min-pooled bound the tracked null is first compared with never exceeds the
+    window's exact best score (at the true pose, off it, near the grid's edge, for a
+    random-bearing copy), and is close enough to decide: over 60 % of it."""
+    rng = np.random.default_rng(23)
+    ratios = []
+    for k in range(30):
+        pose = random_pose(rng, search.field)
+        obs = obs_at(search, pose, rng)
+        if k % 3 == 1:
+            obs = obs.random_bearings(np.stack([rng.permutation(search.n_angles)
+                                                for _ in range(3)]))
+        prior = ((pose[0], pose[1]) if k % 3 == 0 else
+                 (search.grid.origin[0] + 0.3, pose[1]) if k % 5 == 0 else
+                 (pose[0] + rng.normal(0, 0.4), pose[1] + rng.normal(0, 0.4)))
+        a = rng.uniform(0.5, 30.0)
+        info = np.array([[a, 0.3 * a], [0.3 * a, 2.0 * a]])
+        kw = {"half_width": 1.0, "prior_cap": 9.0}
+        exact = search.tracked_score(obs, pose[2], prior, info, 0.7, **kw)
+        bound = search.tracked_score_bound(obs, pose[2], prior, info, 0.7, **kw)
+        assert bound <= exact + 1e-9
+        ratios.append(bound / exact)
+    assert np.median(ratios) > 0.6, np.round(ratios, 2)
+
+
 def test_no_observations_is_no_result(search):
     empty = Observation.from_scanlines(np.full((72, 4), np.nan), np.full((2, 72), np.nan),
                                        search.params, 4.0, 2.0)
@@ -491,6 +516,34 @@ def test_two_views_in_one_frame_give_the_view_that_explains_more(search, msl2015
     c = lut.run(conf, ds, OneFrame(), MapFile(msl2015_map)).arrays()
     assert c["accepted"][0] and math.hypot(c["x"][0] - a[0], c["y"][0] - a[1]) < 0.1
     assert e_two > 1.3 * c["error"][0]
+
+
+def test_start_half_any_keeps_the_mirror_second_without_searching_every_frame(
+        search, msl2015_map):
+    """Histogram heading, start_half any: a pose and its mirror explain every frame alike,
+    so the top hypothesis never passes 0.5 nor min_confidence; the belief is confident up to
+    that symmetry (TrackBank.confident), so global searches stay every global_every frames
+    (not every frame, where new rivals would be born), every frame lists the mirror second
+    at the top's probability and the top never jumps."""
+    rng = np.random.default_rng(24)
+    poses, t = drive(16)
+    frames = SyntheticFrames(search, poses, rng)
+    from stages.common.geometry import between
+
+    inc = np.array([between(poses[max(i - 1, 0)], poses[i]) for i in range(len(poses))])
+    odometry = {"stamp": t, "dx": inc[:, 0], "dy": inc[:, 1], "dtheta": inc[:, 2]}
+    conf = lut.confs["default"] | {"heading": "histogram", "start_half": "any"}
+    c = lut.run(conf, Dataset(odometry=odometry), frames, MapFile(msl2015_map)).arrays()
+    assert not c["failed"].any()
+    h = c["hypotheses"]
+    assert np.allclose(h[:, 1, :2], -h[:, 0, :2]) and np.allclose(h[:, 1, 3], h[:, 0, 3])
+    assert (h[:, 0, 3] <= 0.5 + 1e-9).all() and (h[4:, 0, 3] + h[4:, 1, 3] > 0.9).all()
+    checks = sum("global-check" in f for f in c["flags"][4:])  # once the belief gathered
+    assert checks <= math.ceil((len(poses) - 4) / conf["global_every"]), c["flags"]
+    assert np.hypot(np.diff(c["x"]), np.diff(c["y"])).max() < 0.5
+    sign = 1.0 if math.hypot(c["x"][0] - poses[0, 0], c["y"][0] - poses[0, 1]) < 0.3 else -1.0
+    err = np.hypot(c["x"] - sign * poses[:, 0], c["y"] - sign * poses[:, 1])
+    assert np.median(err) < 0.1
 
 
 @pytest.mark.parametrize("half, mirrored", [("own", False), ("opponent", True)])

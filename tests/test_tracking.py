@@ -69,6 +69,30 @@ def test_the_top_mirror_is_always_listed_on_a_symmetric_field():
     assert hyps[0, 3] == pytest.approx(0.75 * w) and hyps[1, 3] == pytest.approx(0.25 * w)
 
 
+def test_a_mirror_pair_is_confident_as_one_belief():
+    """A pose and its mirror image sharing a track's weight half and half: neither
+    hypothesis reaches min_confidence, the pair does (TrackBank.confident); without a mirror
+    share the pair is the top hypothesis. finish_global without a field-aligned heading
+    gives every new candidate its mirror's equal share, searched or not."""
+    bank = _bank(symmetric=True)
+    lp = bank.global_log_prior(0.0)
+    cands = [_cand(1, 1, 0, 1.0, lp), _cand(3, -2, 0.5, 9.0, lp)]
+    bank.finish_global(cands, heading_known=False)
+    assert [c.mirror for c in cands] == [0.5, 0.5]
+    other = bank.posterior([], cands, 0.0, null_nll=50.0)
+    top = bank.update(0, cands, other, 0.1, None, False)
+    hyps = bank.hypotheses()
+    _pose, _cov, confidence, accepted = bank.conclude(hyps, top, False, [])
+    assert confidence < 0.5 and not accepted
+    assert bank.confident() and math.exp(bank.tracks[0].log_weight) > 0.99
+    single = _bank(symmetric=True)
+    c = [_cand(1, 1, 0, 1.0, lp), _cand(3, -2, 0.5, 1.2, lp)]
+    single.finish_global(c, heading_known=True)
+    assert [x.mirror for x in c] == [0.0, 0.0]
+    single.update(0, c, single.posterior([], c, 0.0, null_nll=50.0), 0.1, None, False)
+    assert not single.confident()  # 0.55 / 0.45: neither reaches 0.8
+
+
 def test_a_tracked_fix_that_does_not_beat_the_null_is_not_fused():
     bank = _bank(symmetric=False, fusion={**tracking.DEFAULTS["fusion"], "enabled": False})
     lp = bank.global_log_prior(0.0)

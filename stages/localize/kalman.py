@@ -302,6 +302,26 @@ def _sym(a):
 
 
 @njit(cache=True, nogil=True)
+def _mm(a, b):
+    """a @ b of 3 x 3 matrices in plain loops (numba's matmul calls BLAS, whose call costs
+    more than the product of two 3 x 3 matrices)."""
+    out = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = a[i, 0] * b[0, j] + a[i, 1] * b[1, j] + a[i, 2] * b[2, j]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _mv(a, v):
+    """a @ v of a 3 x 3 matrix and a 3-vector in plain loops (as _mm)."""
+    out = np.empty(3)
+    for i in range(3):
+        out[i] = a[i, 0] * v[0] + a[i, 1] * v[1] + a[i, 2] * v[2]
+    return out
+
+
+@njit(cache=True, nogil=True)
 def _move(mean, cov, motion, motion_cov):
     th = mean[2]
     c, s = math.cos(th), math.sin(th)
@@ -310,7 +330,7 @@ def _move(mean, cov, motion, motion_cov):
     jm = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     out = np.array([mean[0] + c * dx - s * dy, mean[1] + s * dx + c * dy,
                     _wrap(mean[2] + motion[2])])
-    return out, _sym(jp @ cov @ jp.T + jm @ motion_cov @ jm.T)
+    return out, _sym(_mm(_mm(jp, cov), jp.T) + _mm(_mm(jm, motion_cov), jm.T))
 
 
 @njit(cache=True, nogil=True)
@@ -341,12 +361,12 @@ def _frame_kernel(mean, cov, last_motion, motion_known, dt, odo, use_odo, z, R, 
         S = np.zeros((3, 3))
         S[0, 0] = S[1, 1] = oxy * oxy
         S[2, 2] = oth * oth
-        K = Q @ _inv3(Q + S)
+        K = _mm(Q, _inv3(Q + S))
         d = odo - last_motion
         d[2] = _wrap(d[2])
-        motion = last_motion + K @ d
+        motion = last_motion + _mv(K, d)
         motion[2] = _wrap(motion[2])
-        Cu = (np.eye(3) - K) @ Q
+        Cu = _mm(np.eye(3) - K, Q)
         odo_mean, odo_cov = _move(mean, cov, motion, _sym(Cu))
     if prior_only:
         if use_odo:
@@ -362,23 +382,23 @@ def _frame_kernel(mean, cov, last_motion, motion_known, dt, odo, use_odo, z, R, 
         inv_post = _inv3(odo_cov)
         d = odo_mean - prior_mean
         d[2] = _wrap(d[2])
-        e_sum += inv_post @ d
+        e_sum += _mv(inv_post, d)
         E_sum += inv_post - inv_prior
     if use_vision:  # the vision node: a Kalman correction with H = I (Joseph form)
-        Kv = prior_cov @ _inv3(prior_cov + R)
+        Kv = _mm(prior_cov, _inv3(prior_cov + R))
         d = z - prior_mean
         d[2] = _wrap(d[2])
-        v_mean = prior_mean + Kv @ d
+        v_mean = prior_mean + _mv(Kv, d)
         v_mean[2] = _wrap(v_mean[2])
         ikh = np.eye(3) - Kv
-        v_cov = _sym(ikh @ prior_cov @ ikh.T + Kv @ R @ Kv.T)
+        v_cov = _sym(_mm(_mm(ikh, prior_cov), ikh.T) + _mm(_mm(Kv, R), Kv.T))
         inv_post = _inv3(v_cov)
         d = v_mean - prior_mean
         d[2] = _wrap(d[2])
-        e_sum += inv_post @ d
+        e_sum += _mv(inv_post, d)
         E_sum += inv_post - inv_prior
     f_cov = _inv3(inv_prior + E_sum)  # equations 8 and 9
-    f_mean = prior_mean + f_cov @ e_sum
+    f_mean = prior_mean + _mv(f_cov, e_sum)
     f_mean[2] = _wrap(f_mean[2])
     # the fused motion since the previous pose (geometry.between)
     c, s = math.cos(mean[2]), math.sin(mean[2])

@@ -37,11 +37,15 @@ Per frame, for each track:
 
 Global searches propose new tracks: on the first frame, when no track is left, every
 ``global_every`` frames while tracking (a wrong track cannot persist unchallenged), and when
-the last frame was not accepted. Each separated minimum of the search (``global_candidates``,
+the last frame's belief was not confident up to the mirror (no track, a pose with its mirror
+image, holding ``min_confidence``: TrackBank.confident; on a point-symmetric field without a
+field-aligned heading the top hypothesis alone never reaches it, and a global search cannot
+tell the two apart either). Each separated minimum of the search (``global_candidates``,
 ``ambiguity_distance`` apart) that is not an existing track (or its mirror) is a candidate of
 prior mass ``kidnap_probability`` / N, N the number of ``ambiguity_distance`` squares in the
 world (a uniform prior over where the robot could have been put; without tracks the uniform
-prior alone). The weights are normalised, tracks below ``prune_probability`` dropped, tracks
+prior alone; a candidate's mirror image carries its own mass unless the heading is
+field-aligned). The weights are normalised, tracks below ``prune_probability`` dropped, tracks
 that meet merged. With no heading known (histogram on the first frame, IMU with
 ``imu_alignment: vision`` before its first fix) the unknown-heading search (all 72 headings)
 proposes poses and headings.
@@ -51,7 +55,10 @@ lines are shuffled: ``Observation.random_bearings``), searched the same way (the
 for a global frame, the window around the strongest track otherwise), show what chance alone
 explains: E_null, the median over ``null_copies`` copies. A frame *fails* when no hypothesis
 beats the null (E >= E_null: ``uninformative``) or when it has fewer than ``min_observations``
-crossings (``too-few-observations``); then the tracks only predict. In a global frame the null
+crossings (``too-few-observations``); then the tracks only predict. A tracked frame's null is
+first bounded from below on the min-pooled error lookup (TableSearch.tracked_score_bound,
+a few times cheaper than the window): when every fix beats the bound it beats the null, and
+the window itself is searched only otherwise. In a global frame the null
 also enters the normalisation as one more hypothesis ("the pose is none of these"), so a frame
 whose best pose barely beats chance gets a low probability.
 
@@ -282,7 +289,10 @@ class LutLocaliser:
         self.fixed_once = False  # start_half applies to the first fix only
         self._radial_frames = 0  # confident tracked frames seen by the radial correction
         self.last_global = -10**9
-        self.last_accepted = True
+        self.last_confident = True  # the last frame's belief, up to the mirror (TrackBank)
+        # whether the heading source tells a heading from its opposite (rules the mirror out)
+        self.field_heading = conf["heading"] == "truth" or (
+            conf["heading"] == "imu" and conf["imu_alignment"] == "field")
         self.rng = np.random.default_rng(seed)
         rc = conf["radial_correction"]
         self.radial = (RadialCorrection.from_conf(rc, search.scanlines.robot_radius)
@@ -291,7 +301,7 @@ class LutLocaliser:
     # ------------------------------------------------------------------ book-keeping
     def failed(self, dt: float, odo, collision: bool):
         """A failed frame: the tracks only predict (TrackBank.failed)."""
-        self.last_accepted = False
+        self.last_confident = False
         self.bank.failed(dt, odo, collision)
 
     # ------------------------------------------------------------------ one frame
@@ -329,15 +339,17 @@ class LutLocaliser:
             tracked.append(self._track_candidate(i, t, prior, obs, fr, base_heading, col,
                                                  flags))
         new: list[LutCandidate] = []
-        if (not tracked or not self.last_accepted or lost
+        if (not tracked or not self.last_confident or lost
                 or i - self.last_global >= conf["global_every"]):
             heading = base_heading
-            if heading is None and tracked and self.last_accepted:
+            if heading is None and tracked and self.last_confident:
                 # a confident track's heading (histogram, or IMU before its alignment);
-                # after an unaccepted frame the heading is searched too
+                # after a frame not confident (up to the mirror) the heading is searched too
                 heading = float(max(tracked, key=lambda c: c.log_prior - c.fit).fix.theta)
             new = self._global_candidates(i, obs, heading, flags,
-                                          bank.global_log_prior(other_prior))
+                                          bank.global_log_prior(other_prior),
+                                          field_heading=base_heading is not None
+                                          and self.field_heading)
             self.last_global = i
             if tracked:
                 flags.append("global-check")
@@ -364,7 +376,7 @@ class LutLocaliser:
             flags.append("window-edge")
         pose, cov, _confidence, accepted = bank.conclude(hyps, top, bool(tracked), flags)
         self.fixed_once = True
-        self.last_accepted = accepted
+        self.last_confident = bank.confident()
         return hyps, top, pose, cov, accepted
 
     # ------------------------------------------------------------------ heading
@@ -479,10 +491,12 @@ class LutLocaliser:
         return fix.error
 
     # ------------------------------------------------------------------ global search
-    def _global_candidates(self, i, obs, heading, flags,
-                           log_prior: float) -> list[LutCandidate]:
+    def _global_candidates(self, i, obs, heading, flags, log_prior: float, *,
+                           field_heading: bool = False) -> list[LutCandidate]:
         """New-track candidates from a global search (known heading) or the unknown-heading
-        search, those near an existing track (or its mirror) left out."""
+        search, those near an existing track (or its mirror) left out. ``field_heading``:
+        the heading is field-aligned (rules the mirror out); otherwise a candidate's mirror
+        image explains the frame as well (TrackBank.finish_global)."""
         conf, search = self.conf, self.search
         headings = [heading] if heading is not None else self._histogram_headings(obs)
         if headings is None:
@@ -509,7 +523,7 @@ class LutLocaliser:
             out.append(LutCandidate(fix=f, support=sup, log_prior=log_prior, evidence=e,
                                     nll=e / self.T, fit=e / self.T,
                                     R=vision_covariance(f, sup, conf, sigma)))
-        self.bank.finish_global(out, heading is not None)
+        self.bank.finish_global(out, field_heading)
         if not self.fixed_once and conf["start_half"] != "any":
             for c in out:
                 self._on_start_half(obs, c, flags)
@@ -559,18 +573,24 @@ class LutLocaliser:
         """The null of a tracked frame: the median over ``tracked_null_copies``
         random-bearing copies of the observations of the best posterior score of the
         strongest track's window (its quantised error term, as Candidate.window_fit;
-        module doc)."""
+        module doc). The null only decides which fixes beat it; when a lower bound of every
+        copy's score (TableSearch.tracked_score_bound, a few times cheaper) lies above every
+        fix's window_fit, every fix beats it and that bound is returned (each comparison
+        with a window_fit comes out as with the exact scores)."""
         search = self.search
         top = max(tracked, key=lambda c: c.log_prior - c.fit)
         pose, info, _cov = top.prior
-        fits = []
+        worst = max(c.window_fit for c in tracked)
+        args = []
         for _ in range(int(self.conf["tracked_null_copies"])):
             nobs = self._null_copy(obs)
             scale = nobs.total_weight / max(nobs.lookup_total_weight, 1e-12)
-            fits.append(search.tracked_score(nobs, top.fix.theta, pose[:2], info,
-                                             self.T / scale, half_width=self.half,
-                                             prior_cap=self.bank.prior_cap))
-        return _median(fits)
+            args.append((nobs, top.fix.theta, pose[:2], info, self.T / scale))
+        kw = {"half_width": self.half, "prior_cap": self.bank.prior_cap}
+        bounds = [search.tracked_score_bound(*a, **kw) for a in args]
+        if min(bounds) > worst:
+            return min(bounds)
+        return _median([search.tracked_score(*a, **kw) for a in args])
 
     def _null_copy(self, obs) -> Observation:
         """The next random-bearing copy of the observations (the permutations are drawn

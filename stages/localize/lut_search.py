@@ -66,6 +66,7 @@ from .lut_kernels import (
     refine_moves,
     structure_sizes,
     tracked_window,
+    tracked_window_bound,
 )
 
 NONE_M = 1.0e3  # a "none" table entry in metres: far from any observation -> saturated error
@@ -111,6 +112,11 @@ class Observation:
     # the weights of the error lookup, when ``weight`` holds evidence weights
     # (``with_evidence``); None: ``weight`` is the lookup's
     lookup_weight: np.ndarray | None = None
+    # the arrays the kernels take, converted once (TableSearch._kernel_arrays, _row_arrays;
+    # an Observation is not changed after it is made: its derived copies are new ones)
+    _kernel: tuple | None = field(default=None, init=False, repr=False, compare=False)
+    _rows: tuple | None = field(default=None, init=False, repr=False, compare=False)
+    _points: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
     def __len__(self):
         return len(self.distance)
@@ -127,10 +133,12 @@ class Observation:
         size = structure_sizes(np.ascontiguousarray(p), np.ascontiguousarray(self.distance),
                                float(link), float(link_per_m))
         base = self.weight if self.lookup_weight is None else self.lookup_weight
-        return Observation(family=self.family, angle_index=self.angle_index,
-                           distance=self.distance, weight=base * np.minimum(1.0,
-                                                                            per_structure / size),
-                           lookup_weight=base)
+        out = Observation(family=self.family, angle_index=self.angle_index,
+                          distance=self.distance, weight=base * np.minimum(1.0,
+                                                                           per_structure / size),
+                          lookup_weight=base)
+        out._points = self._points  # the same scan lines and distances: the same points
+        return out
 
     @property
     def lookup_total_weight(self) -> float:
@@ -172,11 +180,15 @@ class Observation:
                            lookup_weight=self.lookup_weight)
 
     def points(self, scanlines) -> np.ndarray:
-        """The observations as points (N, 2) in the robot frame."""
-        return observation_points(self.family, self.angle_index,
-                                  np.ascontiguousarray(self.distance, dtype=np.float64),
-                                  float(scanlines.angle_step), float(scanlines.robot_radius),
-                                  float(scanlines.spiral_end_radius))
+        """The observations as points (N, 2) in the robot frame (computed once per scan-line
+        geometry; not to be written to)."""
+        key = (float(scanlines.angle_step), float(scanlines.robot_radius),
+               float(scanlines.spiral_end_radius))
+        if self._points is None or self._points[0] != key:
+            self._points = (key, observation_points(
+                self.family, self.angle_index,
+                np.ascontiguousarray(self.distance, dtype=np.float64), *key))
+        return self._points[1]
 
 
 @dataclass
@@ -256,6 +268,8 @@ class TableSearch:
         else:
             metres = self._tables_in_metres()
         self.radial_m, self.spiral_m = metres["radial"], metres["spiral"]
+        self._tol32 = np.float32(self.params.pair_tolerance)
+        self._c2_32 = np.float32(self.params.c * self.params.c)
         self._radial_flat = self.radial_m.reshape(-1)
         self._spiral_flat = self.spiral_m.reshape(-1)
         self._lookup_layout()
@@ -283,8 +297,7 @@ class TableSearch:
     @property
     def spiral_mm(self) -> np.ndarray:
         """The map's spiral table (uint16 mm), (2 n_angles, ncell)."""
-        return self._map_table("spiral").reshape(2 * self.n_angles,
-                                                                      self.ncell)
+        return self._map_table("spiral").reshape(2 * self.n_angles, self.ncell)
 
     def _map_table(self, name: str) -> np.ndarray:
         n, (ny, nx) = self.n_angles, self.grid.shape
@@ -404,13 +417,13 @@ class TableSearch:
 
     def _kernel_arrays(self, obs: Observation) -> tuple:
         """The leading arguments of ``exact_error_cells`` for the observations."""
+        if obs._kernel is None:
+            obs._kernel = (np.ascontiguousarray(obs.family, dtype=np.int64),
+                           np.ascontiguousarray(obs.angle_index, dtype=np.int64),
+                           np.ascontiguousarray(obs.distance, dtype=np.float32),
+                           np.ascontiguousarray(obs.weight, dtype=np.float32))
         return (self._radial_flat, self._spiral_flat, self.ncell, self.n_angles,
-                np.ascontiguousarray(obs.family, dtype=np.int64),
-                np.ascontiguousarray(obs.angle_index, dtype=np.int64),
-                np.ascontiguousarray(obs.distance, dtype=np.float32),
-                np.ascontiguousarray(obs.weight, dtype=np.float32),
-                np.float32(self.params.pair_tolerance),
-                np.float32(self.params.c * self.params.c))
+                *obs._kernel, self._tol32, self._c2_32)
 
     def observation_errors(self, obs: Observation, cell, theta: float) -> np.ndarray:
         """Per observation, the error e = |d - predicted crossing| (m) at one cell (i, j) and
@@ -511,10 +524,13 @@ class TableSearch:
 
     def _row_arrays(self, obs: Observation, m: int) -> tuple:
         """The arguments of ``lookup_sum`` that select the rows ``lookup_rows(obs, m)``."""
-        bins = np.rint(obs.distance / self.params.distance_bin).astype(np.int64)
-        return (np.ascontiguousarray(obs.family, dtype=np.int64),
-                np.ascontiguousarray(obs.angle_index, dtype=np.int64), bins, int(m),
-                self.n_angles, self.nb_radial, self.nb_spiral, self.spiral_row0)
+        b = self.params.distance_bin
+        if obs._rows is None or obs._rows[0] != b:
+            obs._rows = (b, np.ascontiguousarray(obs.family, dtype=np.int64),
+                         np.ascontiguousarray(obs.angle_index, dtype=np.int64),
+                         np.rint(obs.distance / b).astype(np.int64))
+        return (*obs._rows[1:], int(m), self.n_angles, self.nb_radial, self.nb_spiral,
+                self.spiral_row0)
 
     def local_surface(self, obs: Observation, m: int, i0: int, i1: int, j0: int, j1: int):
         out = np.empty((i1 - i0, j1 - j0), dtype=np.uint16)
@@ -587,6 +603,23 @@ class TableSearch:
         temperature + capped Mahalanobis term), without refining it."""
         return self._tracked_window(obs, theta, prior_xy, prior_information, temperature,
                                     half_width, prior_cap)[0][3]
+
+    def tracked_score_bound(self, obs: Observation, theta: float, prior_xy, prior_information,
+                            temperature: float, *, half_width: float = 1.0,
+                            prior_cap: float = math.inf) -> float:
+        """A lower bound of ``tracked_score`` from the min-pooled error lookup (the
+        unknown-heading search's; ``tracked_window_bound``): never above it, about
+        ``coarse_step``^2 times cheaper, so a score below the bound is below the score."""
+        m = self.scanlines.heading_index(theta)
+        i0, i1, j0, j1 = self.local_window(prior_xy[0], prior_xy[1], half_width)
+        g, info = self.grid, prior_information
+        cy, cx = self.coarse_shape
+        return tracked_window_bound(
+            self.coarse_lookup, max(1, self.params.coarse_step), cy, cx,
+            *self._row_arrays(obs, m), i0, i1, j0, j1, 1.0 / (self.q_levels * temperature),
+            float(g.origin[0]), float(g.origin[1]), float(g.resolution), float(prior_xy[0]),
+            float(prior_xy[1]), float(info[0, 0]), float(info[0, 1]), float(info[1, 1]),
+            float(min(prior_cap, 1e300)))
 
     def _tracked_window(self, obs, theta, prior_xy, info, temperature, half_width, cap):
         m = self.scanlines.heading_index(theta)

@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..common.field import FieldModel
-from ..common.geometry import compose, wrap_angle
+from ..common.geometry import compose
 from ..common.poses_file import PoseTrack
 from .kalman import DecentralisedFusion, FusionParams
 
@@ -246,8 +246,10 @@ class TrackBank:
 
     def finish_global(self, out: list[Candidate], heading_known: bool):
         """The folded masses into the global candidates' priors and mirror shares; with no
-        heading known on a point-symmetric field the mirror explains the frame exactly as
-        well (the search's refinements differ a little)."""
+        field-aligned heading known (``heading_known``: one that tells a heading from its
+        opposite, as a field-aligned IMU) on a point-symmetric field the mirror explains
+        the frame exactly as well, searched or not (the search's refinements differ a
+        little), so it carries the candidate's own mass."""
         for c in out:
             if not heading_known and self.symmetric:
                 c.mirror_mass = c.own_mass
@@ -373,9 +375,11 @@ class TrackBank:
         rows = []
         for t in self.tracks:
             w = math.exp(t.log_weight)
-            rows.append((*t.pose, w * (1 - t.mirror)))
-            if self.symmetric:
-                rows.append((*_mirror(t.pose), w * t.mirror))
+            x, y, th = t.pose.tolist()
+            rows.append((x, y, th, w * (1 - t.mirror)))
+            if self.symmetric:  # FieldModel.mirror_pose in scalar arithmetic
+                rows.append((-x, -y, (th + math.pi + math.pi) % _TWO_PI - math.pi,
+                             w * t.mirror))
         rows.sort(key=lambda r: -r[3])  # stable: a track before its mirror on a tie
         k = int(self.conf["hypotheses"])
         out = rows[:k]
@@ -385,6 +389,15 @@ class TrackBank:
                 out[-1 if len(out) == k else len(out):] = [
                     next(r for r in rows if near_pose(r, m, 1e-6, 1e-6))]
         return np.array(out, float)
+
+    def confident(self) -> bool:
+        """Whether the belief is confident up to the field's symmetry: a track (a pose and,
+        on a point-symmetric field, its mirror image, whose shares no observation can move
+        without a field-aligned heading) holds at least ``min_confidence``. Without a mirror
+        share this is the top hypothesis's acceptance; with one it is what a search could
+        still change (a global search cannot tell a pose from its mirror either)."""
+        return bool(self.tracks) and max(t.log_weight for t in self.tracks) >= math.log(
+            max(float(self.conf["min_confidence"]), 1e-300))
 
     def conclude(self, hyps: np.ndarray, top: Candidate, tracked: bool, flags: list):
         """(pose, covariance, confidence, accepted) of the frame from its hypotheses, and the
@@ -420,8 +433,13 @@ def eig2(a: float, b: float, d: float):
 def near_pose(candidate, pose, distance: float = 0.5, angle: float = 0.2) -> bool:
     """Whether a candidate (x, y, theta, ...) lies within ``distance`` m and ``angle`` rad of
     a pose."""
-    return (math.hypot(candidate[0] - pose[0], candidate[1] - pose[1]) < distance
-            and abs(float(wrap_angle(candidate[2] - pose[2]))) < angle)
+    if math.hypot(candidate[0] - pose[0], candidate[1] - pose[1]) >= distance:
+        return False
+    # geometry.wrap_angle in scalar arithmetic (the same floating-point result)
+    return abs((float(candidate[2] - pose[2]) + math.pi) % _TWO_PI - math.pi) < angle
+
+
+_TWO_PI = 2 * math.pi
 
 
 # ---------------------------------------------------------------------------- the frame loop
