@@ -534,7 +534,10 @@ class FitLocaliser:
         self._perms = np.stack([self.rng.permutation(NULL_SECTORS) for _ in range(64)])
         self._next_perm = 0
         self.last_global = -10**9
-        self.last_accepted = True
+        self.last_confident = True  # the last frame's belief, up to the mirror (TrackBank)
+        # whether the heading source tells a heading from its opposite (rules the mirror out)
+        self.field_heading = conf["heading"] == "truth" or (
+            conf["heading"] == "imu" and conf["imu_alignment"] == "field")
         self.fixed_once = False
         self._offset_updates = 0
         self._radial_frames = 0
@@ -660,7 +663,11 @@ class FitLocaliser:
             out.append(fixes[0].error / self.T if fixes else math.inf)
         return float(np.median(out))
 
-    def _global(self, obs, headings, flags, log_prior: float) -> list[FitCandidate]:
+    def _global(self, obs, headings, flags, log_prior: float, *,
+                field_heading: bool = False) -> list[FitCandidate]:
+        """New-track candidates from the multi-start search at ``headings``; ``field_heading``:
+        the one heading is field-aligned (rules the mirror out), otherwise a candidate's mirror
+        image explains the frame as well (TrackBank.finish_global)."""
         conf = self.conf
         mode = "global" if headings is not None and len(headings) == 1 else "global-heading"
         fixes = self.engine.global_search(obs, headings, temperature=self.T,
@@ -676,7 +683,7 @@ class FitLocaliser:
                 sigma = headings[0][1]
             out.append(FitCandidate(fix=f, R=self.engine.vision_covariance(f, self.T, sigma),
                                     nll=nll, log_prior=log_prior, heading_sigma=sigma))
-        self.bank.finish_global(out, heading_known=headings is not None and len(headings) == 1)
+        self.bank.finish_global(out, heading_known=field_heading)
         if not self.fixed_once and conf["start_half"] != "any":
             for c in out:
                 if self.bank.start_half(c, conf["start_half"], conf["start_half_error"],
@@ -716,13 +723,15 @@ class FitLocaliser:
             tracked.append(self._tracked(t, prior, obs, base, flags))
         new: list[FitCandidate] = []
         headings = None
-        if (not tracked or not self.last_accepted or lost
+        if (not tracked or not self.last_confident or lost
                 or i - self.last_global >= conf["global_every"]):
             headings = self._global_headings(obs, base)
-            if headings is None and tracked and self.last_accepted and conf["heading"] != "imu":
+            if (headings is None and tracked and self.last_confident
+                    and conf["heading"] != "imu"):
                 top = max(tracked, key=lambda c: c.log_prior - c.nll)
                 headings = [(top.fix.theta, conf["unsure_heading_sigma"])]
-            new = self._global(obs, headings, flags, bank.global_log_prior(other_prior))
+            new = self._global(obs, headings, flags, bank.global_log_prior(other_prior),
+                               field_heading=base is not None and self.field_heading)
             self.last_global = i
             if tracked:
                 flags.append("global-check")
@@ -744,11 +753,11 @@ class FitLocaliser:
         self._track_imu_offset(i, obs, top, col)
         self._learn_radial(raw, hyps, top, col)
         self.fixed_once = True
-        self.last_accepted = accepted
+        self.last_confident = bank.confident()
         return hyps, top, pose, cov, accepted
 
     def failed(self, dt: float, odo, col: bool):
-        self.last_accepted = False
+        self.last_confident = False
         self.bank.failed(dt, odo, col)
 
     # ------------------------------------------------------------------ learning
