@@ -75,6 +75,29 @@ def _run_walk(fm, model, conf, n=150, seed=3, obs_conf=None, start=None):
 # ---------------------------------------------------------------------------- observation model
 
 
+@pytest.mark.parametrize("field_name", ["kidsize", "spl"])
+@pytest.mark.parametrize("change", [{}, {"crossing_type_confusion": 0.0},
+                                    {"sigma_crossing_orientation": 0.0},
+                                    {"line_extent": False, "arc_lines": False}])
+def test_kernel_matches_the_numpy_reference(field_name, change):
+    """The compiled observation model (mcl_kernels) gives the numpy reference's
+    log-likelihood, part by part, near the true pose and anywhere (the reference's lines run
+    in float32: up to ~1e-4 apart)."""
+    fm = load_field(field_name)
+    m = ObservationModel.from_field(fm, change)
+    rng = np.random.default_rng(7)
+    for _ in range(6):
+        pose = np.array([rng.uniform(-4, 4), rng.uniform(-3, 3), rng.uniform(-3, 3)])
+        obs = synthetic_observations(fm, pose, rng, {"false_crossings": 0.3, "false_posts": 0.3,
+                                                     "p_type_confusion": 0.3})
+        p = np.concatenate([pose + rng.normal(0.0, 0.3, (200, 3)),
+                            rng.uniform([-5, -4, -3.2], [5, 4, 3.2], (200, 3))])
+        fast = m.log_likelihood(p[:, 0], p[:, 1], p[:, 2], obs, parts=True)
+        ref = m.reference_log_likelihood(p[:, 0], p[:, 1], p[:, 2], obs, parts=True)
+        for k in ref:
+            np.testing.assert_allclose(fast[k], ref[k], atol=1e-3, rtol=1e-5, err_msg=k)
+
+
 def test_likelihood_peaks_at_the_true_pose(kidsize, model):
     pose = np.array([-1.2, -0.8, 0.5])
     obs = synthetic_observations(kidsize, pose, np.random.default_rng(0), NOISELESS)

@@ -538,7 +538,7 @@ class ParticleFilter:
         """Poses at which one observation is explained by a random field feature of its kind
         (sensor resetting): half by a crossing or goal post, half by a line (all by one kind
         when the frame has no other); poses off the world are dropped."""
-        usable = self.model.usable(obs)
+        usable = obs if self._prep is not None and obs is self._prep.obs else self.model.usable(obs)
         points = len(usable.crossings) + len(usable.posts)
         lines = len(usable.lines) if len(self.field.segments) else 0
         if n <= 0 or not (points or lines):
