@@ -75,6 +75,29 @@ def _run_walk(fm, model, conf, n=150, seed=3, obs_conf=None, start=None):
 # ---------------------------------------------------------------------------- observation model
 
 
+@pytest.mark.parametrize("field_name", ["kidsize", "spl"])
+@pytest.mark.parametrize("change", [{}, {"crossing_type_confusion": 0.0},
+                                    {"sigma_crossing_orientation": 0.0},
+                                    {"line_extent": False, "arc_lines": False}])
+def test_kernel_matches_the_numpy_reference(field_name, change):
+    """The compiled observation model (mcl_kernels) gives the numpy reference's
+    log-likelihood, part by part, near the true pose and anywhere (the reference's lines run
+    in float32: up to ~1e-4 apart)."""
+    fm = load_field(field_name)
+    m = ObservationModel.from_field(fm, change)
+    rng = np.random.default_rng(7)
+    for _ in range(6):
+        pose = np.array([rng.uniform(-4, 4), rng.uniform(-3, 3), rng.uniform(-3, 3)])
+        obs = synthetic_observations(fm, pose, rng, {"false_crossings": 0.3, "false_posts": 0.3,
+                                                     "p_type_confusion": 0.3})
+        p = np.concatenate([pose + rng.normal(0.0, 0.3, (200, 3)),
+                            rng.uniform([-5, -4, -3.2], [5, 4, 3.2], (200, 3))])
+        fast = m.log_likelihood(p[:, 0], p[:, 1], p[:, 2], obs, parts=True)
+        ref = m.reference_log_likelihood(p[:, 0], p[:, 1], p[:, 2], obs, parts=True)
+        for k in ref:
+            np.testing.assert_allclose(fast[k], ref[k], atol=1e-3, rtol=1e-5, err_msg=k)
+
+
 def test_likelihood_peaks_at_the_true_pose(kidsize, model):
     pose = np.array([-1.2, -0.8, 0.5])
     obs = synthetic_observations(kidsize, pose, np.random.default_rng(0), NOISELESS)
@@ -471,3 +494,29 @@ def test_rendered_nao_walk_with_the_cli_defaults(tmp_path):
     assert np.mean(err[10:] <= 0.40) >= 0.9
     assert np.median(err[10:]) <= 0.10
     assert not np.any(cols["accepted"] & (err > 1.0))
+
+
+def test_rivals_sum_their_evidence_over_frames(kidsize, model):
+    """After a uniform start, a place that explains each frame 2 nats better than the belief
+    (far below the ~13 nats the kidnap prior asks of one frame) becomes "elsewhere" after a
+    few frames; one inside the belief's cluster is dropped; from the placement none is kept."""
+    conf = copy.deepcopy(mcl.confs["uniform"])
+    pf = mcl.ParticleFilter(model, conf)
+    pf.initialise()
+    pf._last_estimate = dataclasses.replace(pf.estimate(), pose=np.array([2.0, 1.0, 0.0]))
+    rival = np.array([[-3.0, -1.5, 1.0]])
+    inside = np.array([[2.1, 1.0, 0.05]])
+    pf._update_rivals(np.concatenate([rival, inside]), np.array([-1.0, -1.0]), np.zeros(0), 0.0)
+    assert len(pf._rivals) == 1 and pf._rival_evidence[0] == 0.0
+    shares = []
+    for _ in range(12):
+        pf._update_rivals(np.zeros((0, 3)), np.zeros(0), np.array([2.0]), 0.0)
+        shares.append(pf._kidnap_share(0.0, np.array([2.0])))
+    assert shares[0] < 1e-3 < 0.5 < shares[-1]
+    np.testing.assert_allclose(pf._rival_placed, rival[0])
+    # forgetting: the evidence of a constant 2 nats a frame stays below 2 * rival_memory
+    assert pf._rival_evidence[0] < 2.0 * conf["rival_memory"]
+    placed = mcl.ParticleFilter(model, copy.deepcopy(mcl.confs["default"]))
+    placed.initialise()
+    placed._update_rivals(rival, np.array([-1.0]), np.zeros(0), 0.0)
+    assert len(placed._rivals) == 0

@@ -1,88 +1,85 @@
-"""mcl on real NAO frames standing still (issue 9): each of the HULKs frames
-(../shared/realdata/hulks-goalbox-labels, imported and extracted by the CLI with its defaults)
-is given to the particle filter of ``localize --method mcl --init uniform`` 15 times with no
-motion, the frame's own camera height in the observation model. The pose the labels give
-(test_extract_hulks.field_pose_from_labels: the goal area's lines placed on the SPL field) is
-the truth; the field is 180 deg symmetric, so the top hypothesis or its mirror counts.
+"""mcl on real NAO frames standing still (issue 9), through the product path: each HULKs
+capture (../shared/realdata/hulks-goalbox-labels) becomes a dataset folder of a robot standing
+still (the image 15 times, zero odometry, calib.yaml from the capture's own camera matrix, so
+the observation model gets that frame's camera height), extracted and localised by the stage
+mains with the CLI's defaults (stages.pipelines.bench_mcl_hulks; ``fieldloc bench --only
+mcl-hulks`` runs every capture). The labels' pose is the truth; the field is 180 deg symmetric,
+so the top hypothesis or its mirror counts.
 
-Issue 9's goal: within 50 cm (and here 15 deg) on every frame that shows at least two
-non-parallel lines or a crossing. Not met: 88 % of 100 frames today (84 % before the kidnap
-share, the line-placed poses and the range sigma from the camera height). The labels' own pose
+Issue 9's goal: within 50 cm (here also 15 deg) on every frame that shows at least two
+non-parallel lines or a crossing. Not met: on all 107 captures with labels (the four with
+swapped labels corrected), 94 of the 104 informative ones (90 %); on the third of them this
+test runs (every third capture, to keep it near 25 s), 32 of 34 (94 %). The labels' own pose
 is rough (the robots' uncalibrated camera matrices put the labelled lines 0.57 m apart where
-the rules say 0.6 m), and on most misses the extracted lines fit the found pose better than
-the labels' pose. Skipped when ../shared/realdata is absent."""
+the rules say 0.6 m); most misses are 0.5-0.7 m off. The goal's second half, a low confidence
+where the frame shows neither, is met only by the uniform start's cap: a belief that cannot
+tell a pose from its mirror gives each at most 0.5, so no frame of this path is accepted
+(min_confidence 0.8); on the three uninformative captures the top pose and its mirror hold
+0.79-1.0 of the belief, as much as on informative ones (a line and a goal post already place
+the robot there, and two of the three are within 50 cm). Skipped when ../shared/realdata is
+absent."""
 
 from __future__ import annotations
 
-import copy
 import math
 
 import numpy as np
 import pytest
-from test_extract_hulks import HULKS, SWAPPED, field_pose_from_labels, read_labels
+
+from stages.pipelines.bench_mcl_hulks import HULKS, STILL_UPDATES, still_dataset, still_robot
 
 pytestmark = [
     pytest.mark.realdata,
     pytest.mark.skipif(not HULKS.is_dir(), reason="needs ../shared/realdata"),
 ]
 
-STILL_FRAMES = 15
-NON_PARALLEL = math.radians(20)
+EVERY = 3  # every third capture: 36 of the 107
 
 
-def _informative(obs) -> bool:
-    """At least two lines more than 20 deg from parallel, or a crossing."""
-    if len(obs.crossings):
-        return True
-    d = obs.lines[:, 1] if len(obs.lines) else np.zeros(0)
-    return bool(np.any(np.abs(np.sin(d[:, None] - d[None, :])) > math.sin(NON_PARALLEL)))
+@pytest.fixture(scope="module")
+def still(tmp_path_factory):
+    captures = sorted(HULKS.glob("*.json"))[::EVERY]
+    return still_robot(tmp_path_factory.mktemp("still"), captures)
 
 
-def test_still_robot_from_a_uniform_start_on_the_hulks_frames(hulks_extracted, tmp_path):
+def test_still_robot_from_a_uniform_start_on_the_hulks_frames(still):
+    informative = [r for r in still if r.informative]
+    assert len(still) == 36 and len(informative) >= 32
+    hits = np.array([r.hit for r in informative])
+    assert hits.mean() >= 32 / 34, [(r.name, round(r.error_m, 2)) for r in informative
+                                   if not r.hit]
 
-    from stages import build_map
-    from stages.calibrate import hulks
-    from stages.common.features_file import FeaturesFile
-    from stages.common.field import load_field
-    from stages.common.map_file import MapFile
-    from stages.common.observations import Observations
-    from stages.localize import confs
-    from stages.localize.mcl import ParticleFilter
-    from stages.localize.observation_model import ObservationModel
 
-    features = hulks_extracted[1]
-    spl = load_field("spl")
-    map_file = MapFile(build_map.main(None, "spl", tmp_path / "spl.map.h5"))
-    with FeaturesFile(features) as ff:
-        frames = {n: ff.frame(n) for n in ff.names}
-    hits = []
-    for k, (name, frame) in enumerate(sorted(frames.items())):
-        js = HULKS / f"{name}.json"
-        if name in SWAPPED:
-            continue
-        camera = hulks.read_frame(js).camera
-        floor = {key: camera.pixel_to_floor(px) for key, px in read_labels(js).items()}
-        if not all(np.all(np.isfinite(v)) for v in floor.values()):
-            continue
-        truth = field_pose_from_labels(floor, spl)
-        if truth is None:
-            continue
-        conf = copy.deepcopy(confs["mcl-uniform"])
-        conf["seed"] = k
-        obs_conf = dict(conf["observation"], camera_height=float(camera.height))
-        model = ObservationModel.from_map(map_file, obs_conf)
-        obs = Observations.from_features(frame)
-        if not _informative(model.usable(obs)):
-            continue
-        pf = ParticleFilter(model, conf)
-        pf.initialise()
-        for i in range(STILL_FRAMES):
-            est = pf.step((0.0, 0.0, 0.0), 0.1, obs, first=i == 0)
-        top = np.asarray(est.hypotheses[0][:3] if len(est.hypotheses) else est.pose, float)
-        ok = False
-        for p in (top, spl.mirror_pose(top)):
-            turn = abs((p[2] - truth[2] + math.pi) % (2 * math.pi) - math.pi)
-            ok |= math.hypot(p[0] - truth[0], p[1] - truth[1]) <= 0.5 and turn <= math.radians(15)
-        hits.append(ok)
-    assert len(hits) >= 90
-    assert np.mean(hits) >= 0.85, (np.mean(hits), len(hits))
+def test_no_frame_of_a_uniform_start_is_accepted(still):
+    """The cap of a symmetric belief: the top hypothesis at most 0.5 (below min_confidence),
+    on informative and uninformative frames alike."""
+    assert max(r.confidence for r in still) <= 0.5 + 1e-9
+    assert any(not r.informative for r in still)
+
+
+def test_the_pipeline_is_the_cli(tmp_path):
+    """The still-robot chain gives what ``fieldloc calibrate perspective --from-hulks``,
+    ``fieldloc extract`` and ``fieldloc localize --method mcl --init uniform`` give on the
+    same folder."""
+    from click.testing import CliRunner
+
+    from fieldloc_cli.main import cli
+    from stages.common.poses_file import read_poses
+
+    capture = sorted(HULKS.glob("*.json"))[0]
+    r = still_robot(tmp_path / "pipeline", [capture])[0]
+    data = still_dataset(capture, tmp_path / "cli", STILL_UPDATES)
+    runner = CliRunner()
+    for args in (["calibrate", "perspective", "--from-hulks", str(capture), "-o",
+                  str(data / "calib.yaml"), "--overwrite"],
+                 ["build-map", "spl", "-o", str(tmp_path / "spl.map.h5")],
+                 ["extract", str(data)],
+                 ["localize", str(data), "--map", str(tmp_path / "spl.map.h5"), "--method",
+                  "mcl", "--init", "uniform", "-o", str(tmp_path / "poses.h5")]):
+        res = runner.invoke(cli, ["-q", *args])
+        assert res.exit_code == 0, res.output
+    cols, _ = read_poses(tmp_path / "poses.h5")
+    top = cols["hypotheses"][-1, 0]
+    assert math.isclose(top[3], r.confidence)
+    pipeline, _ = read_poses(tmp_path / "pipeline" / capture.stem / "poses-mcl.h5")
+    np.testing.assert_allclose(cols["hypotheses"][-1], pipeline["hypotheses"][-1])

@@ -46,8 +46,12 @@ Combination (section 5.3): each observation's likelihood is
 are other robots' or people's legs), the uniform density taken relative to the peak of the
 normal model; the frame's likelihood is the product over observations (a sum of logarithms).
 
-Speed: every array keeps the poses on its last axis, the per-segment line work runs in float32
-with the segments on the first axis, and costs beyond 60 (exp < 1e-26) are capped before exp.
+Speed: ``log_likelihood`` runs the numba kernel of stages.localize.mcl_kernels (one pass per
+observation over the poses, the alternatives of a crossing's type evaluated in registers, and
+only where the observed type costs more than the confusion's penalty). The numpy code below
+(``reference_log_likelihood``) is its reference: every array keeps the poses on its last
+axis, the per-segment line work runs in float32 with the segments on the first axis. Both cap
+costs at 60 (exp < 1e-26).
 """
 
 from __future__ import annotations
@@ -61,6 +65,8 @@ from stages.common.crossing_tables import crossing_association_tables
 from stages.common.field import FieldModel
 from stages.common.map_file import Grid
 from stages.common.observations import Observations
+
+from . import mcl_kernels as K
 
 PARTS = ("lines", "crossings", "posts")
 DEFAULT_CAMERA_HEIGHT = 0.5  # m, when neither the conf nor a calibration gives one
@@ -143,15 +149,28 @@ def line_closest_distance(obs: Observations) -> np.ndarray:
 
 
 @dataclass
-class PreparedObservations:
-    """The observations a model uses, with the per-observation constants of its equations
-    (computed once per frame, reused for every pose). Column vectors (K, 1) broadcast against
-    the particles on the last axis."""
+class ReferenceRows:
+    """The numpy reference's per-observation constants (column vectors (K, 1) that broadcast
+    against the particles on the last axis)."""
 
     obs: Observations
     lines: dict
     table_rows: dict  # L and T crossings, associated through the tables
     candidate_rows: dict  # X crossings and goal posts, associated per particle
+
+
+@dataclass
+class PreparedObservations:
+    """The observations a model uses, with the per-observation constants of its equations
+    (computed once per frame, reused for every pose): the kernel's rows
+    (stages.localize.mcl_kernels: ``lines`` (L, 12), ``points`` (K, 12) and the sum ``part``
+    (K,) each point adds to), and the numpy reference's on demand."""
+
+    obs: Observations
+    lines: np.ndarray
+    points: np.ndarray
+    part: np.ndarray
+    reference: ReferenceRows | None = None
 
     def __len__(self) -> int:
         return len(self.obs)
@@ -204,8 +223,11 @@ class ObservationModel:
         # (normal, direction, offsets, first and last position along the direction) per
         # direction, the segments on the first axis
         self.line_groups = []
+        seg64 = []  # the same in float64, the kernel's
         for a in np.unique(angle):
             k = angle == a
+            seg64.append(np.stack([offset[k], along[k].min(axis=1), along[k].max(axis=1)],
+                                  axis=1))
             self.line_groups.append((
                 n[k][0], t[k][0],
                 offset[k].astype(np.float32)[:, None],
@@ -214,6 +236,40 @@ class ObservationModel:
             ))
         self.group_normals = np.array([g[0] for g in self.line_groups]).reshape(-1, 2)
         self.arcs = np.asarray(fm.arcs, float).reshape(-1, 5)
+        self._kernel_constants(seg64)
+
+    def _kernel_constants(self, seg64):
+        """The field and conf as the kernel's arrays (mcl_kernels)."""
+        c = self.conf
+        g = self.grid
+        self._t_table = bool(self.lut[4 * self._cells:].max() >= 0)
+        self._k_grid = np.array([g.origin[0], g.origin[1], 1.0 / g.resolution, g.shape[1],
+                                 g.shape[0]], float)
+        self._k_cross = np.ascontiguousarray(np.stack(
+            [self.cross_x, self.cross_y, self.cross_c, self.cross_s], axis=1).reshape(-1, 4))
+        so = float(c["sigma_crossing_orientation"])
+        w_x = 1.0 / (16.0 * so * so) if so > 0 else 0.0
+        self._k_w_o = 1.0 / (so * so) if so > 0 else 0.0
+        x = self.x_idx
+        four = 4.0 * self.cross_orient[x]
+        n_x, n_p = len(x), len(self.posts)
+        cand = np.zeros((2 * n_x + n_p, 6))
+        for block, sign in ((slice(0, n_x), -1.0), (slice(n_x, 2 * n_x), 1.0)):
+            cand[block] = np.stack([self.cross_x[x], self.cross_y[x], np.cos(four),
+                                    np.sin(four), np.full(n_x, w_x), np.full(n_x, sign)],
+                                   axis=1).reshape(-1, 6)
+        cand[2 * n_x:, 0:2] = self.posts
+        self._k_cand = cand
+        # candidate ranges: the X crossings as an L's (sign -1: its bisector lies halfway
+        # between two arms), as a T's or X's (sign 1), the goal posts
+        self._cand_ranges = ((0, n_x), (n_x, 2 * n_x), (2 * n_x, 2 * n_x + n_p))
+        groups = self.line_groups
+        self._k_normals = np.array([gr[0] for gr in groups], float).reshape(-1, 2)
+        self._k_tangents = np.array([gr[1] for gr in groups], float).reshape(-1, 2)
+        self._k_seg = np.concatenate(seg64).reshape(-1, 3) if seg64 else np.zeros((0, 3))
+        self._k_group_start = np.cumsum([0] + [len(gr[2]) for gr in groups]).astype(np.int64)
+        self._k_arcs = (np.ascontiguousarray(self.arcs) if c["arc_lines"]
+                        else np.zeros((0, 5)))
 
     def with_conf(self, conf: dict | None) -> ObservationModel:
         """The same field and tables with another conf."""
@@ -290,10 +346,98 @@ class ObservationModel:
         conf01 = np.minimum(np.maximum(confidence, 0.0), 1.0)
         return (base + (1.0 - base) * (1.0 - conf01))[:, None]
 
-    def prepare(self, obs: Observations) -> PreparedObservations:
-        """The usable observations with their per-observation constants."""
+    def prepare(self, obs: Observations, *, usable: bool = False) -> PreparedObservations:
+        """The usable observations with the kernel's per-observation rows. ``usable``: ``obs``
+        is already the model's usable set (a PreparedObservations' ``obs``)."""
+        if usable:
+            d_o = line_closest_distance(obs)[:, None] if len(obs.lines) else _NO_DISTANCES
+        else:
+            obs, d_o = self._usable(obs)
+        return PreparedObservations(obs, self._line_rows(obs, d_o), *self._point_rows_kernel(obs))
+
+    def _line_rows(self, obs: Observations, d_o) -> np.ndarray:
+        """The kernel's rows of the usable lines (mcl_kernels.L_*)."""
+        raw = obs.lines
+        rows = np.zeros((len(raw), K.N_LINE_COLS))
+        if not len(raw):
+            return rows
         c = self.conf
-        obs, d_o = self._usable(obs)
+        a = raw[:, 1] + np.where(raw[:, 0] < 0, math.pi, 0.0)
+        w_d = 1.0 / (2.0 * self.range_sigma(d_o[:, 0], c["sigma_line"]) ** 2)
+        rows[:, K.L_R] = np.abs(raw[:, 0])
+        rows[:, K.L_CA], rows[:, K.L_SA] = np.cos(a), np.sin(a)
+        rows[:, K.L_WD] = w_d
+        rows[:, K.L_FLOOR] = self._floor(raw[:, 3])[:, 0]
+        if c["line_extent"] and obs.line_ends is not None:
+            ends = obs.line_ends
+            half = 0.5 * np.hypot(ends[:, 2] - ends[:, 0], ends[:, 3] - ends[:, 1])
+            far = np.maximum(np.hypot(ends[:, 0], ends[:, 1]), np.hypot(ends[:, 2], ends[:, 3]))
+            w_e = 1.0 / (2.0 * self.range_sigma(far, c["sigma_extent"]) ** 2)
+            rows[:, K.L_MX] = 0.5 * (ends[:, 0] + ends[:, 2])
+            rows[:, K.L_MY] = 0.5 * (ends[:, 1] + ends[:, 3])
+            rows[:, K.L_HM] = half - c["extent_margin"]
+            rows[:, K.L_RATIO] = w_e / w_d
+            rows[:, K.L_H2] = half * half / 2.0
+            rows[:, K.L_WE] = w_e
+            rows[:, K.L_EXT] = 1.0
+        return rows
+
+    def _point_rows_kernel(self, obs: Observations):
+        """The kernel's rows (mcl_kernels.P_*) of the usable crossings and posts, and the sum
+        each adds to (1 crossings, 2 posts). X crossings on a field without X, and posts on a
+        field without posts, are left out (nothing to associate them with)."""
+        c = self.conf
+        cr, po = obs.crossings, obs.posts
+        if not len(self.x_idx):
+            cr = cr[cr[:, 0] != 2]
+        if not len(self.posts):
+            po = po[:0]
+        k_c, k_p = len(cr), len(po)
+        rows = np.zeros((k_c + k_p, K.N_POINT_COLS))
+        part = np.concatenate([np.ones(k_c, np.int64), np.full(k_p, 2, np.int64)])
+        if not len(rows):
+            return rows, part
+        kind = cr[:, 0]
+        d = np.concatenate([cr[:, 1], po[:, 0]])
+        b = np.concatenate([cr[:, 2], po[:, 1]])
+        o = np.concatenate([cr[:, 3], np.zeros(k_p)])
+        elevation = np.concatenate([np.full(k_c, c["elevation_sigma"]),
+                                    np.full(k_p, c["post_elevation_sigma"])])
+        rows[:, K.P_D] = d
+        rows[:, K.P_CB], rows[:, K.P_SB] = np.cos(b), np.sin(b)
+        rows[:, K.P_CO], rows[:, K.P_SO] = np.cos(o), np.sin(o)
+        rows[:, K.P_WD] = 1.0 / (2.0 * self.range_sigma(d, c["sigma_range"], elevation) ** 2)
+        rows[:k_c, K.P_FLOOR] = self._floor(cr[:, 4])[:, 0]
+        post_base = c.get("post_uniform_floor")
+        rows[k_c:, K.P_FLOOR] = self._floor(po[:, 2], post_base)[:, 0]
+        is_l, is_t, is_x = kind == 0, kind == 1, kind == 2
+        rows[:, K.P_TABLE] = -1.0
+        rows[:k_c, K.P_TABLE][is_l] = K.TABLE_L
+        rows[:k_c, K.P_TABLE][is_t] = 4 * self._cells
+        rows[:, K.P_AS_T] = -1.0
+        x_l, x_t, posts = self._cand_ranges
+        p_conf = float(c["crossing_type_confusion"])
+        if p_conf > 0:
+            rows[:k_c, K.P_PEN] = -math.log(min(p_conf, 1.0))
+            if self._t_table:  # an L of a T
+                rows[:k_c, K.P_AS_T][is_l] = 4 * self._cells
+            rows[:k_c, K.P_C0:K.P_C1 + 1][is_l] = x_l  # an L or T of an X
+            rows[:k_c, K.P_C0:K.P_C1 + 1][is_t] = x_t
+        rows[:k_c, K.P_C0:K.P_C1 + 1][is_x] = x_t
+        rows[k_c:, K.P_C0:K.P_C1 + 1] = posts
+        return rows, part
+
+    def _reference_rows(self, prep: PreparedObservations) -> ReferenceRows:
+        """The numpy reference's constants of ``prep``'s observations (computed once)."""
+        if prep.reference is None:
+            obs = prep.obs
+            d_o = line_closest_distance(obs)[:, None] if len(obs.lines) else _NO_DISTANCES
+            prep.reference = self._prepare_reference(obs, d_o)
+        return prep.reference
+
+    def _prepare_reference(self, obs: Observations, d_o) -> ReferenceRows:
+        """The usable observations ``obs`` with the numpy reference's constants."""
+        c = self.conf
         # lines
         lines = {}
         if len(obs.lines):
@@ -370,7 +514,7 @@ class ObservationModel:
                 w_o = np.zeros((k_x + k_p, 1))
                 w_o[:k_x] = 1.0 / (16.0 * c["sigma_crossing_orientation"] ** 2)
                 cand_rows["w_o"] = w_o
-        return PreparedObservations(obs, lines, table_rows, cand_rows)
+        return ReferenceRows(obs, lines, table_rows, cand_rows)
 
     def _x_candidates(self, k: int, sign: np.ndarray) -> dict:
         """The field's X crossings as candidates (M, 1, 1) for ``k`` observations, with their
@@ -404,23 +548,49 @@ class ObservationModel:
     def log_likelihood(self, x, y, theta, obs, *, parts: bool = False,
                        prepared: bool = False):
         """Log-likelihood (N,) of ``obs`` (Observations or PreparedObservations) at poses
-        (x, y, theta), each (N,). With ``parts``, a dict with the summed log-likelihood of
-        "lines", "crossings" and "posts" instead. (``prepared`` is accepted for callers that
-        passed usable observations; preparation is idempotent.)"""
+        (x, y, theta), each (N,), by the kernel (stages.localize.mcl_kernels). With ``parts``,
+        a dict with the summed log-likelihood of "lines", "crossings" and "posts" instead.
+        (``prepared`` is accepted for callers that passed usable observations; preparation
+        is idempotent.)"""
         prep = obs if isinstance(obs, PreparedObservations) else self.prepare(obs)
         x = np.ascontiguousarray(x, dtype=float).ravel()
         y = np.ascontiguousarray(y, dtype=float).ravel()
         th = np.ascontiguousarray(theta, dtype=float).ravel()
         cth, sth = np.cos(th), np.sin(th)
+        out = np.zeros((3, len(x)))
+        c = self.conf
+        if len(prep.lines):
+            K.line_log_likelihood(out, x, y, cth, sth, prep.lines, self._k_normals,
+                                  self._k_tangents, self._k_seg, self._k_group_start,
+                                  self._k_arcs, float(c["oriented_tolerance"]) ** 2,
+                                  1.0 / (2.0 * float(c["sigma_line_angle"]) ** 2),
+                                  float(c["extent_margin"]))
+        if len(prep.points):
+            K.point_log_likelihood(out, x, y, cth, sth, prep.points, prep.part, self._k_cand,
+                                   self.lut, self._k_cross, self._k_grid,
+                                   1.0 / float(c["sigma_bearing"]) ** 2, self._k_w_o)
+        if parts:
+            return dict(zip(PARTS, out))
+        return out.sum(axis=0)
+
+    def reference_log_likelihood(self, x, y, theta, obs, *, parts: bool = False):
+        """``log_likelihood`` by the numpy reference (the equations as array passes; the
+        kernel is held against it)."""
+        prep = obs if isinstance(obs, PreparedObservations) else self.prepare(obs)
+        ref = self._reference_rows(prep)
+        x = np.ascontiguousarray(x, dtype=float).ravel()
+        y = np.ascontiguousarray(y, dtype=float).ravel()
+        th = np.ascontiguousarray(theta, dtype=float).ravel()
+        cth, sth = np.cos(th), np.sin(th)
         out = {}
-        if prep.lines:
-            out["lines"] = self.line_log_likelihood(x, y, cth, sth, prep).sum(axis=0,
-                                                                              dtype=float)
-        if prep.table_rows:
-            out["crossings"] = self.table_log_likelihood(x, y, cth, sth, prep).sum(axis=0)
-        if prep.candidate_rows:
-            ll = self.candidate_log_likelihood(x, y, cth, sth, prep)
-            n_x = prep.candidate_rows["n_x"]
+        if ref.lines:
+            out["lines"] = self.line_log_likelihood(x, y, cth, sth, ref).sum(axis=0,
+                                                                             dtype=float)
+        if ref.table_rows:
+            out["crossings"] = self.table_log_likelihood(x, y, cth, sth, ref).sum(axis=0)
+        if ref.candidate_rows:
+            ll = self.candidate_log_likelihood(x, y, cth, sth, ref)
+            n_x = ref.candidate_rows["n_x"]
             if n_x:
                 out["crossings"] = out.get("crossings", 0.0) + ll[:n_x].sum(axis=0)
             if n_x < len(ll):
@@ -452,7 +622,7 @@ class ObservationModel:
         d_e += cos_b
         return d_e
 
-    def table_log_likelihood(self, x, y, cth, sth, prep: PreparedObservations):
+    def table_log_likelihood(self, x, y, cth, sth, prep: ReferenceRows):
         """Log-likelihood (K, N) of the L and T crossings, associated through the tables at
         the cell where each particle places the observation (and, for L, the set of the
         observation's global orientation); with ``crossing_type_confusion`` also by the T
@@ -547,7 +717,7 @@ class ObservationModel:
             cost += cos4
         return cost.min(axis=0)
 
-    def candidate_log_likelihood(self, x, y, cth, sth, prep: PreparedObservations):
+    def candidate_log_likelihood(self, x, y, cth, sth, prep: ReferenceRows):
         """Log-likelihood (K, N) of X crossings (first rows) and goal posts: each particle
         associates each with the candidate of least cost (candidates on the first axis)."""
         rows = prep.candidate_rows
@@ -561,7 +731,7 @@ class ObservationModel:
                             rows["floor"])
 
     # ---- lines (eqs. 4-5)
-    def line_log_likelihood(self, x, y, cth, sth, prep: PreparedObservations):
+    def line_log_likelihood(self, x, y, cth, sth, prep: ReferenceRows):
         """Log-likelihood (L, N) of each line observation at each pose.
 
         Pairs (observed line, particle) are flattened; each pair is compared with the lines of

@@ -369,7 +369,8 @@ def time_mcl_update(field_model=None, *, n_particles: int = 1000, repeats: int =
     2 goal posts, seeded); also of the observation model alone and of the estimate. The
     particles are spread around the true pose as in tracking (so the sensor-reset share is
     placed every ``sensor_reset_every`` updates: ``update_mean_s`` is the mean over all
-    updates, these included)."""
+    updates, these included); the baseline, interleaved with it: the same filter with the
+    observation model's numpy reference (``reference_update_s``, ``reference_model_s``)."""
     import copy
 
     from ..common.errors import FieldlocError
@@ -399,31 +400,46 @@ def time_mcl_update(field_model=None, *, n_particles: int = 1000, repeats: int =
     model = pf.model
     prep = model.prepare(obs)
 
-    def run_times(fn) -> np.ndarray:
-        times = []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            fn()
-            times.append(time.perf_counter() - t0)
-        return np.array(times)
+    def update(f):
+        def run():
+            f.particles = start.copy()  # the same belief each time, rivals included
+            f.weights = np.full(len(start), 1.0 / len(start))
+            f._rivals, f._rival_evidence = rivals.copy(), evidence.copy()
+            f.predict((0.02, 0.0, 0.01), 0.1)
+            f.correct(obs)
+            f.resample(obs, 0.5)
+        return run
 
     def median_time(fn) -> float:
-        return float(np.median(run_times(fn)))
+        return float(np.median(time_interleaved(fn, repeat=repeats, warmup=5)[0]))
 
-    def update():
-        pf.particles = start.copy()
-        pf.weights = np.full(len(start), 1.0 / len(start))
+    # the rivals of "elsewhere" that a tracked belief holds: those of a few tracked updates
+    for _ in range(6):
         pf.predict((0.02, 0.0, 0.01), 0.1)
         pf.correct(obs)
         pf.resample(obs, 0.5)
-
+    rivals, evidence = pf._rivals.copy(), pf._rival_evidence.copy()
+    # the baseline: the same filter with the observation model's numpy reference (the
+    # equations as array passes, before its kernel), on its own generator
+    ref = copy.deepcopy(pf)
+    ref.model = copy.copy(model)
+    ref.model.log_likelihood = ref.model.reference_log_likelihood
     x, y, th = start[:, 0].copy(), start[:, 1].copy(), start[:, 2].copy()
-    update_times = run_times(update)
+    update_times, ref_times = time_interleaved(update(pf), update(ref), repeat=repeats, warmup=5)
+    cpu, run = [], update(pf)  # what one core spends on an update, load or not
+    for _ in range(repeats):
+        t0 = time.process_time()
+        run()
+        cpu.append(time.process_time() - t0)
     return {
+        "update_cpu_s": float(np.median(cpu)),
         "update_s": float(np.median(update_times)),
         # the mean includes the frames that place the sensor-reset share (sensor_reset_every)
         "update_mean_s": float(np.mean(update_times)),
+        "reference_update_s": float(np.median(ref_times)),
         "observation_model_s": median_time(lambda: model.log_likelihood(x, y, th, prep)),
+        "reference_model_s": median_time(
+            lambda: model.reference_log_likelihood(x, y, th, prep)),
         "estimate_s": median_time(pf.estimate),
         "particles": int(n_particles),
         "observations": len(obs),
@@ -434,11 +450,17 @@ def time_mcl_update(field_model=None, *, n_particles: int = 1000, repeats: int =
 def bench_mcl_update(repeat: int) -> Row:
     r = time_mcl_update(n_particles=1000, repeats=max(50, 40 * repeat))
     return Row(name="mcl update, 1000 particles, ~8 observations",
-               median_ms=1000 * r["update_s"], goal="<= 1 ms",
-               meets_goal=r["update_s"] <= 1e-3,
-               baseline="observation model alone", baseline_ms=1000 * r["observation_model_s"],
-               ratio=r["update_s"] / r["observation_model_s"], repeats=r["repeats"],
-               note=f"predict + weight + resample, {r['observations']} observations")
+               median_ms=1000 * r["update_s"], cpu_ms=1000 * r["update_cpu_s"],
+               goal="<= 1 ms (CPU time: the machines are shared)",
+               meets_goal=r["update_cpu_s"] <= 1e-3,
+               baseline="the same with the numpy observation model",
+               baseline_ms=1000 * r["reference_update_s"],
+               ratio=r["update_s"] / r["reference_update_s"], repeats=r["repeats"],
+               note=f"predict + weight + resample, {r['observations']} observations; the "
+                    f"observation model alone {1000 * r['observation_model_s']:.3f} ms (numpy"
+                    f" reference {1000 * r['reference_model_s']:.3f} ms); mean update "
+                    f"{1000 * r['update_mean_s']:.3f} ms",
+               extra=r)
 
 
 def bench_mcl_accuracy(repeat: int) -> list[Row]:
@@ -702,6 +724,7 @@ ROWS: dict[str, Callable[[int], Row | list[Row]]] = {
     "mcl-update": bench_mcl_update,
     "mcl-accuracy": bench_mcl_accuracy,
     "mcl-nao-accuracy": lambda n: _mcl_nao().bench_mcl_nao_accuracy(n),
+    "mcl-hulks": lambda n: importlib.import_module(".bench_mcl_hulks", __package__).rows(n),
     "surf-speed": bench_surf_speed,
     "surf-quality": bench_feature_quality,
     "lut-tracked-frame": lambda n: _hyp().bench_lut_tracked_frame(n),
