@@ -36,7 +36,7 @@ from stages.common.features_file import CROSSING_CODES
 from stages.common.field import crossing_orientation
 from stages.common.geometry import polar
 
-from .line_fit import distort_ideal, fit_line, lens_parameters, refine_segment
+from .line_fit import distort_ideal, fit_line, grow_along, lens_parameters, refine_segment
 from .line_structure import KeyStructure, LineGraph
 
 
@@ -468,14 +468,79 @@ def line_pair_crossings(ends: np.ndarray, widths: np.ndarray, floor_of, tol: flo
                 # circle on the halfway line), so it is no crossing of field lines
             kind = {2: "L", 3: "T"}[len(arms)]
             out.append(LineCrossing(kind, x, arms, (i, j), np.array(arms_i[1] + arms_j[1])))
-    return merge_line_crossings(out, tol)
+    return merge_line_crossings(out, tol, floor_of=floor_of)
+
+
+def stem_lines(lines: np.ndarray, white_px: np.ndarray, camera, to_floor, cc: dict,
+               cell: int) -> np.ndarray:
+    """Short lines leaving the ends of fitted lines (``lines`` (N, 2, 2) ideal px) at a right
+    angle on the floor, found on the full-resolution white mask where the grid has too few
+    cells of them for a line of its own (a far goal area's side line between its front line
+    and the goal line is 2 or 3 cells long): from each end, on both sides, the white line is
+    followed along the floor's perpendicular (line_fit.grow_along from one ``line_width``
+    past the end, profiles every px up to ``refine_step``), refitted on its white runs
+    (line_fit.refine_segment) and kept when it is at least ``min_arm_length`` m long and
+    within ``max_misfit`` of the right angle. Only at ends whose cell spans more than
+    ``stem_min_span`` m of floor along the stem. Returns the stems (S, 2, 2) ideal px, for
+    line_pair_crossings."""
+    out = []
+    if len(lines) == 0:
+        return np.zeros((0, 2, 2))
+    lens = lens_parameters(camera)
+    floor = to_floor(lines.reshape(-1, 2)).reshape(-1, 2, 2)
+    for e, f in zip(lines, floor):
+        if not np.all(np.isfinite(f)):
+            continue
+        a = f[1] - f[0]
+        la = float(np.hypot(*a))
+        if la <= 0:
+            continue
+        a = a / la
+        perp = np.array([-a[1], a[0]])
+        for k in (0, 1):
+            for sign in (1.0, -1.0):
+                q = to_floor.to_ideal(f[k] + sign * 0.05 * perp)[0]
+                v = q - e[k]
+                nv = float(np.hypot(*v))
+                if not np.isfinite(nv) or nv <= 0:
+                    continue
+                v = v / nv
+                scale = 0.05 / nv  # m of floor per px along v
+                if scale * cell <= cc["stem_min_span"]:
+                    continue
+                start = max(1.0, cc["line_width"] / scale)
+                step = float(np.clip(cc["line_width"] / scale, 1.0, cc["refine_step"]))
+                end = grow_along(white_px, lens, e[k] + start * v, v, step,
+                                 cc["refine_reach"] * cell, cc["arm_grow"] * cell,
+                                 cc["arm_tolerance"])
+                t = float((end - e[k]) @ v)
+                if t * scale < cc["min_arm_length"]:
+                    continue
+                ref = refine_segment(np.stack([e[k] + start * v, end]), white_px, lens, step,
+                                     cc["refine_reach"] * cell, 0.0, cc["refine_min_points"],
+                                     cc["refine_step"])
+                if ref is None:
+                    continue
+                fs = to_floor(ref.ends)
+                if not np.all(np.isfinite(fs)):
+                    continue
+                ds = fs[1] - fs[0]
+                ls = float(np.hypot(*ds))
+                if ls < cc["min_arm_length"] or abs(float(ds @ a)) / ls > math.sin(
+                        cc["max_misfit"]):
+                    continue
+                out.append(ref.ends)
+    return np.array(out).reshape(-1, 2, 2)
 
 
 def merge_line_crossings(crossings: list[LineCrossing], tol: float,
-                         same_arm: float = math.radians(20.0)) -> list[LineCrossing]:
+                         same_arm: float = math.radians(20.0), floor_of=None
+                         ) -> list[LineCrossing]:
     """Crossings of line pairs closer than ``tol`` px are one crossing with the union of their
-    arms (arms within ``same_arm`` rad of each other are one): a T whose bar was fitted as two
-    lines, one each side of the stem, gives two L's of the same point."""
+    arms (arms within ``same_arm`` rad of each other are one; on the floor with ``floor_of``,
+    ideal pixels (M, 2) -> floor points, where the arms' first ``tol`` px are on it: far
+    away the perspective flattens a right angle in the image): a T whose bar was fitted as
+    two lines, one each side of the stem, gives two L's of the same point."""
     out, used = [], [False] * len(crossings)
     cos_same = math.cos(same_arm)
     for a, c in enumerate(crossings):
@@ -489,20 +554,28 @@ def merge_line_crossings(crossings: list[LineCrossing], tol: float,
         if len(group) == 1:
             out.append(c)
             continue
-        arms: list[np.ndarray] = []
+        point = np.mean([g.point for g in group], axis=0)
+        all_arms = np.concatenate([g.arms for g in group])
+        all_lengths = np.concatenate([g.lengths for g in group])
+        cmp = all_arms
+        if floor_of is not None:
+            f = floor_of(np.vstack([point[None], point[None] + tol * all_arms]))
+            d = f[1:] - f[0]
+            n = np.hypot(d[:, 0], d[:, 1])
+            if np.all(np.isfinite(n)) and np.all(n > 0):
+                cmp = d / n[:, None]
+        arms: list[int] = []
         lengths: list[float] = []
-        for g in group:
-            for u, ln in zip(g.arms, g.lengths):
-                same = [k for k, v in enumerate(arms) if float(u @ v) >= cos_same]
-                if same:
-                    lengths[same[0]] = max(lengths[same[0]], float(ln))
-                else:
-                    arms.append(u)
-                    lengths.append(float(ln))
+        for k, ln in enumerate(all_lengths):
+            same = [m for m, j in enumerate(arms) if float(cmp[k] @ cmp[j]) >= cos_same]
+            if same:
+                lengths[same[0]] = max(lengths[same[0]], float(ln))
+            else:
+                arms.append(k)
+                lengths.append(float(ln))
         if len(arms) not in (2, 3):
             continue
-        point = np.mean([g.point for g in group], axis=0)
-        out.append(LineCrossing({2: "L", 3: "T"}[len(arms)], point, np.array(arms),
+        out.append(LineCrossing({2: "L", 3: "T"}[len(arms)], point, all_arms[arms],
                                 group[0].lines, np.array(lengths)))
     return out
 
@@ -539,13 +612,20 @@ def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.nd
             found.append(verdict)
     pairs, pair_verdicts = [], []
     if lines_ideal is not None and len(lines_ideal) > 1 and cc.get("line_pairs", True):
-        pairs = line_pair_crossings(lines_ideal, line_widths, to_floor, cc["pair_gap"] * cell,
+        lines_all, widths_all = lines_ideal, line_widths
+        if white_px is not None and cc.get("stems", True):
+            stems = stem_lines(lines_ideal, white_px, camera, to_floor, cc, cell)
+            if len(stems):
+                lines_all = np.concatenate([lines_ideal, stems])
+                widths_all = np.concatenate([line_widths, np.full(len(stems), 0.0)])
+        pairs = line_pair_crossings(lines_all, widths_all, to_floor, cc["pair_gap"] * cell,
                                     cc["max_misfit"])
         reach = cc["arm_reach"] * cell
         for lc in pairs:
             verdict = _verify_crossing(lc.kind, lc.point, lc.arms,
                                        np.minimum(reach, lc.lengths), white, green, other_mean,
-                                       top, camera, to_floor, cc, cell, field_cells, lc.lengths)
+                                       top, camera, to_floor, cc, cell, field_cells, lc.lengths,
+                                       white_px)
             pair_verdicts.append(verdict)
             if not isinstance(verdict, str):
                 found.append(verdict)
@@ -587,11 +667,11 @@ def _crossing(cand, ks, ideal, white, green, other_mean, top, camera, to_floor, 
     lengths = np.array([max(float(np.max((sel - x) @ u)), step) for _, u, sel in arms])
     reach = np.minimum(cc["arm_reach"] * cell, lengths)
     return _verify_crossing(cand.kind, x, dirs, reach, white, green, other_mean, top, camera,
-                            to_floor, cc, cell, field_cells, lengths)
+                            to_floor, cc, cell, field_cells, lengths, white_px)
 
 
 def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera, to_floor, cc,
-                     cell, field_cells=None, lengths=None):
+                     cell, field_cells=None, lengths=None, white_px=None):
     """A crossing of ``kind`` at ideal point ``x`` with arms along ``dirs`` (A, 2) reaching
     ``reach`` (A,) px, its lines extending ``lengths`` (A,) px along them -> (row, image
     position), or the reason it is rejected. The cheap floor checks come before the image
@@ -608,15 +688,33 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
         return "above the horizon"
     if lengths is not None:
         arm_m = np.hypot(*(ends - floor[0]).T)  # NaN beyond the horizon: long enough
+        short = arm_m < cc["min_arm_length"]
+        if np.any(short) and white_px is not None:
+            # the fitted nodes or lines may end early (a far arm's few nodes, a line cut at a
+            # junction): the arm is as long as the white line goes on along it in the image
+            lengths = white_arm_lengths(x, dirs, lengths, short, white_px, camera, cc, cell)
+            ends = to_floor(x[None] + lengths[:, None] * dirs)
+            arm_m = np.hypot(*(ends - floor[0]).T)
+            reach = np.maximum(reach, np.minimum(cc["arm_reach"] * cell, lengths))
         if np.any(arm_m < cc["min_arm_length"]):
             return "arm too short"
+    # an arm leaving the image is verified on its part in view
+    reach = np.minimum(reach, _in_image(x, dirs, camera, 0.5 * cell))
     d, bearing = polar(floor[:1])
-    if not np.all(np.isfinite(below)) or np.hypot(*(below[0] - floor[0])) > cc["max_cell_span"]:
+    span = np.hypot(*(below[0] - floor[0])) if np.all(np.isfinite(below)) else np.inf
+    # beyond the grid's resolution the full-resolution white mask decides (_verify_fine), as
+    # far as its profiles (refine_step px apart) resolve the floor
+    fine = span > cc["max_cell_span"]
+    if fine and (white_px is None or not cc.get("fine", True)
+                 or span * cc["refine_step"] / cell > cc["max_cell_span"]):
         return "too far"
     arm_dirs = np.arctan2(floor[1:, 1] - floor[0, 1], floor[1:, 0] - floor[0, 0])
     orient, misfit = floor_arms(kind, arm_dirs)
     if misfit > cc["max_misfit"]:
         return f"floor angles misfit {math.degrees(misfit):.0f} deg"
+    if fine:
+        return _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera, to_floor,
+                            cc, cell, d[0], bearing[0], orient, misfit, span)
     px = distort_ideal(lens_parameters(camera), np.vstack([x[None], x + reach[:, None] * dirs]))
     if not np.all(np.isfinite(px)):
         return "outside the lens model"
@@ -631,20 +729,155 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
         return "next to an object"  # a robot's or a person's white foot on a line
     # the arms that would make an L a T must be in view (a T's stem continued would make an
     # X, which fields hold only where the centre circle crosses the halfway line)
-    if kind == "L" and not _alternative_in_view(x, dirs, camera, top, other_mean, green, cc,
-                                                cell):
+    # (a thin line leaves a cell mostly green: where the full-resolution mask shows an arm's
+    # line going on through the crossing, the L is no L)
+    if kind == "L" and (not _alternative_in_view(x, dirs, camera, top, other_mean, green, cc,
+                                                 cell)
+                        or (white_px is not None and any(
+                            arm_state(x, -u, white_px, green, other_mean, top, camera,
+                                      to_floor, cc, cell) == "white" for u in dirs))):
         return _continued_as_t(x, dirs, reach, white, green, other_mean, top, camera,
-                               to_floor, cc, cell, field_cells, lengths)
+                               to_floor, cc, cell, field_cells, lengths, white_px)
     score = verify_crossing(grid[0], grid[1:], white, green, cc, field_cells)
     if score <= 0:
+        if white_px is not None and cc.get("fine", True):
+            # the grid's circles may take in a neighbouring line (a far goal area's lines
+            # lie two cells apart): the full-resolution check decides
+            return _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera,
+                                to_floor, cc, cell, d[0], bearing[0], orient, misfit,
+                                max(span, cc["max_cell_span"]))
         return "not verified in the image"
     row = [CROSSING_CODES[kind], d[0], bearing[0], orient,
            score * (1.0 - misfit / math.radians(90.0))]
     return row, px[0]
 
 
+def _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera, to_floor, cc, cell,
+                 dist, bearing, orient, misfit, span):
+    """A crossing beyond the grid's resolution (one cell spans more than ``max_cell_span`` m
+    of floor there), verified on the full-resolution white mask: every arm's opposite
+    direction is looked at (``arm_state``). An L needs both opposites green (one white makes
+    it the T of that arm, neither known leaves it untold), a T its stem's opposite not white
+    (an X). Its confidence is the grid's resolving power there (max_cell_span over the cell's
+    span), times the shape's fit as on the grid. Returns (row, image position) or the reason
+    it is rejected."""
+    lens = lens_parameters(camera)
+    px = distort_ideal(lens, x[None])[0]
+    g = (px + 0.5) / cell - 0.5
+    col = int(np.clip(round(g[0]), 0, len(top) - 1))
+    if not np.isfinite(g[1]) or g[1] < top[col]:
+        return "at the field boundary"
+    row = int(np.clip(round(g[1]), 0, other_mean.shape[0] - 1))
+    r = cc["object_radius"]
+    if other_mean[max(row - r, 0): row + r + 1, max(col - r, 0): col + r + 1].max() > 0.5:
+        return "next to an object"
+    for u in dirs:
+        if arm_state(x, u, white_px, green, other_mean, top, camera, to_floor, cc,
+                     cell) != "white":
+            return "not verified in the image"  # an arm without its white line
+    cos_same = math.cos(math.radians(20.0))
+    opposite = [k for k in range(len(dirs))
+                if not any(float(dirs[k] @ dirs[j]) <= -cos_same for j in range(len(dirs)))]
+    if kind == "T":
+        # the stem: the arm without an opposite arm
+        if len(opposite) != 1:
+            return "floor angles misfit"
+        if arm_state(x, -dirs[opposite[0]], white_px, green, other_mean, top, camera,
+                     to_floor, cc, cell) == "white":
+            return "not verified in the image"  # white on through the bar: two lines crossing
+    elif kind == "L":
+        states = [arm_state(x, -dirs[k], white_px, green, other_mean, top, camera, to_floor,
+                            cc, cell) for k in opposite]
+        white_k = [k for k, st in zip(opposite, states) if st == "white"]
+        if len(white_k) == 1:
+            k = white_k[0]
+            arms = np.vstack([dirs, -dirs[k][None]])
+            f = to_floor(np.vstack([x[None], x + cc["arm_step"] * cell * arms]))
+            t_orient, t_misfit = floor_arms("T", np.arctan2(f[1:, 1] - f[0, 1],
+                                                            f[1:, 0] - f[0, 0]))
+            if t_misfit > cc["max_misfit"]:
+                return f"floor angles misfit {math.degrees(t_misfit):.0f} deg"
+            kind, orient, misfit = "T", t_orient, t_misfit
+        elif white_k:
+            return "not verified in the image"
+        elif any(st != "green" for st in states):
+            return "not green where a T's arm would be"
+    else:
+        return "too far"
+    score = min(1.0, cc["max_cell_span"] / span) * (1.0 - misfit / math.radians(90.0))
+    return [CROSSING_CODES[kind], dist, bearing, orient, score], px
+
+
+def arm_state(x: np.ndarray, u: np.ndarray, white_px: np.ndarray, green: np.ndarray,
+              other_mean: np.ndarray, top: np.ndarray, camera, to_floor, cc: dict,
+              cell: int) -> str:
+    """What the image shows along the half-line from a crossing ``x`` (ideal px) along the
+    unit ``u``, from one line width (``line_width`` m on the floor: past the crossing line's
+    edge) to ``min_arm_length`` m: "white" where the full-resolution white mask shows a line
+    on it that long (line_fit.grow_along, profiles every px up to ``refine_step``), or up to
+    the image's edge; "green" where it does not and the cells along it are field (inside the
+    boundary, no object, green at least ``t_green``); else "unknown" (out of view, hidden)."""
+    lens = lens_parameters(camera)
+    f = to_floor(np.vstack([x[None], x[None] + 4.0 * u[None]]))
+    scale = float(np.hypot(*(f[1] - f[0]))) / 4.0  # m of floor per px along u
+    if not np.isfinite(scale) or scale <= 0:
+        return "unknown"
+    start = max(1.0, cc["line_width"] / scale)
+    need = max(start + cc["fine_px"], cc["min_arm_length"] / scale)
+    step = float(np.clip(cc["line_width"] / scale, 1.0, cc["refine_step"]))
+    edge = _in_image(x, u[None], camera, step)[0]
+    end = grow_along(white_px, lens, x + start * u, u, step, cc["refine_reach"] * cell,
+                     need, cc["arm_tolerance"])
+    t = float((end - x) @ u)
+    if t >= need - 1e-6 or t >= edge - 1e-6:
+        # white on: a painted line's, if its runs are centred on the arm and as wide as a
+        # line of line_width m there (else something white that is no line: "unknown")
+        stop = min(t, max(need, start + 3 * step))
+        ref = refine_segment(np.stack([x + start * u, x + stop * u]), white_px, lens, step,
+                             cc["refine_reach"] * cell, 0.0, 3)
+        if ref is None:
+            return "unknown"
+        nu = np.array([-u[1], u[0]])
+        if np.max(np.abs((ref.ends - x) @ nu)) > 2 * cc["arm_tolerance"]:
+            return "unknown"
+        expected = _line_px_width(x + 0.5 * (start + stop) * u, u, to_floor, cc["line_width"])
+        ratio = float(np.median(ref.widths)) / max(expected, 1e-6)
+        lo, hi = cc["width_ratio"]
+        return "white" if lo <= ratio <= hi else "unknown"
+    if need > edge:
+        return "unknown"
+    # a line thinner in the image than half the judged length (fine_px) may break up in the
+    # white mask: no white there is no evidence of no line
+    if not _line_px_width(x + 0.5 * (start + need) * u, u, to_floor,
+                          cc["line_width"]) >= 0.5 * cc["fine_px"]:
+        return "unknown"
+    pts = distort_ideal(lens, x[None] + np.linspace(start, need, 3)[:, None] * u[None])
+    g = (pts + 0.5) / cell - 0.5
+    for q in g:
+        col = int(np.clip(round(q[0]), 0, len(top) - 1))
+        row = int(np.clip(round(q[1]), 0, other_mean.shape[0] - 1))
+        if q[1] < top[col] or other_mean[row, col] > 0.5:
+            return "unknown"
+    if np.min(sample_cells(green, g)) < cc["t_green"]:
+        return "unknown"
+    return "green"
+
+
+def _line_px_width(p: np.ndarray, u: np.ndarray, to_floor, line_width: float) -> float:
+    """The width (ideal px, across the image direction ``u``) of a painted line ``line_width``
+    m wide running along ``u`` through the ideal point ``p``; NaN off the floor."""
+    f = to_floor(np.vstack([p[None], p[None] + u[None]]))
+    a = f[1] - f[0]
+    na = float(np.hypot(*a))
+    if not np.isfinite(na) or na <= 0:
+        return float("nan")
+    n = np.array([-a[1], a[0]]) / na * (0.5 * line_width)
+    ab = to_floor.to_ideal(np.vstack([f[0] - n, f[0] + n]))
+    return abs(float((ab[1] - ab[0]) @ np.array([-u[1], u[0]])))
+
+
 def _continued_as_t(x, dirs, reach, white, green, other_mean, top, camera, to_floor, cc, cell,
-                    field_cells, lengths):
+                    field_cells, lengths, white_px=None):
     """An L whose view opposite its arms is not carpet: where one arm's line goes on through
     the crossing (the fit of a T's bar ended at the stem, or the bar's far half was fitted as
     a line of its own that missed the pair), the crossing is that T. Each arm continued is
@@ -657,7 +890,7 @@ def _continued_as_t(x, dirs, reach, white, green, other_mean, top, camera, to_fl
         ext = np.append(reach, reach[k])
         lens = None if lengths is None else np.append(lengths, reach[k])
         v = _verify_crossing("T", x, arms, ext, white, green, other_mean, top, camera, to_floor,
-                             cc, cell, field_cells, lens)
+                             cc, cell, field_cells, lens, white_px)
         if not isinstance(v, str) and (isinstance(best, str) or v[0][4] > best[0][4]):
             best = v
     return best
@@ -681,6 +914,40 @@ def _alternative_in_view(x, dirs, camera, top, other_mean, green, cc, cell) -> b
         if sample_cells(green, g[None])[0] < cc["t_green"]:
             return False
     return True
+
+
+def white_arm_lengths(x: np.ndarray, dirs: np.ndarray, lengths: np.ndarray, which: np.ndarray,
+                      white_px: np.ndarray, camera, cc: dict, cell: int) -> np.ndarray:
+    """Arm lengths (A,) px from the crossing ``x`` (ideal px) along ``dirs``: for the arms
+    ``which`` (A,) bool, ``lengths`` grown while the full-resolution white mask still shows
+    a white run on the arm's line (line_fit's profile walk: a profile across the arm every
+    ``refine_step`` px, ``refine_reach`` cells to each side, its run's centre within
+    ``arm_tolerance`` px of the line; it stops after two profiles without), up to
+    ``arm_grow`` cells; the others as given."""
+    out = np.asarray(lengths, float).copy()
+    lens = lens_parameters(camera)
+    for k in np.nonzero(which)[0]:
+        u = dirs[k]
+        e = x + out[k] * u
+        g = grow_along(white_px, lens, e, u, cc["refine_step"], cc["refine_reach"] * cell,
+                       cc["arm_grow"] * cell, cc["arm_tolerance"])
+        out[k] = max(out[k], float((g - x) @ u))
+        if out[k] >= _in_image(x, u[None], camera, cc["refine_step"])[0]:
+            out[k] = np.inf  # white up to the image's edge: longer than what is in view
+    return out
+
+
+def _in_image(x: np.ndarray, dirs: np.ndarray, camera, margin: float) -> np.ndarray:
+    """Per direction (A, 2), the distance (ideal px) from ``x`` along it to ``margin`` px
+    inside the image's edge (in ideal pixels: the lens's distortion is small at the edges
+    of the views this is used for)."""
+    w, h = camera.image_size
+    lo = np.array([margin, margin])
+    hi = np.array([w - 1 - margin, h - 1 - margin])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(dirs > 1e-12, (hi - x) / dirs, np.where(dirs < -1e-12, (lo - x) / dirs,
+                                                               np.inf))
+    return np.maximum(t.min(axis=1), 0.0)
 
 
 def _refined_arm(arm, centre: np.ndarray, white_px: np.ndarray, camera, cc: dict, cell: int):

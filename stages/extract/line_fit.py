@@ -260,6 +260,17 @@ def refine_segment(ends: np.ndarray, white: np.ndarray, lens: np.ndarray, step: 
     return RefinedLine(res[1:5].reshape(2, 2).copy(), fit, pts, widths)
 
 
+def grow_along(white: np.ndarray, lens: np.ndarray, end: np.ndarray, direction: np.ndarray,
+               step: float, reach: float, grow: float, tol: float) -> np.ndarray:
+    """The point (2,) ideal px up to which the white line goes on from ``end`` along the unit
+    ``direction``, by at most ``grow`` px: profiles across it every ``step`` px, ``reach``
+    px to each side, whose white run's centre lies within ``tol`` px of the line; the walk
+    stops after two profiles without (the compiled ``_grow`` of refine_segment)."""
+    x, y = _grow(white, lens, float(end[0]), float(end[1]), float(direction[0]),
+                 float(direction[1]), float(step), float(reach), float(grow), float(tol))
+    return np.array([x, y])
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _distort(lens, x, y):
     fx, fy, cx, cy, k1, k2, p1, p2, k3 = lens
