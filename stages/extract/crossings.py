@@ -735,7 +735,7 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
                                                  cell)
                         or (white_px is not None and any(
                             arm_state(x, -u, white_px, green, other_mean, top, camera,
-                                      to_floor, cc, cell) == "white" for u in dirs))):
+                                      to_floor, cc, cell, dirs) == "white" for u in dirs))):
         return _continued_as_t(x, dirs, reach, white, green, other_mean, top, camera,
                                to_floor, cc, cell, field_cells, lengths, white_px)
     score = verify_crossing(grid[0], grid[1:], white, green, cc, field_cells)
@@ -772,22 +772,30 @@ def _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera, to_flo
     if other_mean[max(row - r, 0): row + r + 1, max(col - r, 0): col + r + 1].max() > 0.5:
         return "next to an object"
     for u in dirs:
-        if arm_state(x, u, white_px, green, other_mean, top, camera, to_floor, cc,
-                     cell) != "white":
-            return "not verified in the image"  # an arm without its white line
-    cos_same = math.cos(math.radians(20.0))
+        st = arm_state(x, u, white_px, green, other_mean, top, camera, to_floor, cc, cell,
+                       dirs)
+        if st != "white":
+            return f"an arm {st}, not white"  # an arm without its white line
+    # the arms without an opposite arm, by their directions on the floor (far away the
+    # perspective folds a right angle in the image)
+    f = to_floor(np.vstack([x[None], x[None] + cc["arm_step"] * cell * dirs]))
+    fd = f[1:] - f[0]
+    fd = fd / np.hypot(fd[:, 0], fd[:, 1])[:, None]
+    if not np.all(np.isfinite(fd)):
+        return "above the horizon"
+    cos_same = math.cos(cc["max_misfit"])
     opposite = [k for k in range(len(dirs))
-                if not any(float(dirs[k] @ dirs[j]) <= -cos_same for j in range(len(dirs)))]
+                if not any(float(fd[k] @ fd[j]) <= -cos_same for j in range(len(dirs)))]
     if kind == "T":
         # the stem: the arm without an opposite arm
         if len(opposite) != 1:
             return "floor angles misfit"
         if arm_state(x, -dirs[opposite[0]], white_px, green, other_mean, top, camera,
-                     to_floor, cc, cell) == "white":
-            return "not verified in the image"  # white on through the bar: two lines crossing
+                     to_floor, cc, cell, dirs) == "white":
+            return "white beyond the stem"  # white on through the bar: two lines crossing
     elif kind == "L":
         states = [arm_state(x, -dirs[k], white_px, green, other_mean, top, camera, to_floor,
-                            cc, cell) for k in opposite]
+                            cc, cell, dirs) for k in opposite]
         white_k = [k for k, st in zip(opposite, states) if st == "white"]
         if len(white_k) == 1:
             k = white_k[0]
@@ -810,20 +818,34 @@ def _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera, to_flo
 
 def arm_state(x: np.ndarray, u: np.ndarray, white_px: np.ndarray, green: np.ndarray,
               other_mean: np.ndarray, top: np.ndarray, camera, to_floor, cc: dict,
-              cell: int) -> str:
+              cell: int, arms: np.ndarray | None = None) -> str:
     """What the image shows along the half-line from a crossing ``x`` (ideal px) along the
-    unit ``u``, from one line width (``line_width`` m on the floor: past the crossing line's
-    edge) to ``min_arm_length`` m: "white" where the full-resolution white mask shows a line
-    on it that long (line_fit.grow_along, profiles every px up to ``refine_step``), or up to
-    the image's edge; "green" where it does not and the cells along it are field (inside the
-    boundary, no object, green at least ``t_green``); else "unknown" (out of view, hidden)."""
+    unit ``u``, over ``min_arm_length`` m less a line width, from where it stands clear of
+    the crossing's lines (one ``line_width`` m on the floor past the crossing line's edge,
+    and far enough that the lines along ``arms`` (A, 2), as wide as painted lines there,
+    no longer touch it in the image: far away a right angle on the floor is a narrow one in
+    the image): "white" where the full-resolution white mask shows a line on it that long
+    (line_fit.grow_along, profiles every px up to ``refine_step``; its runs centred on it and
+    of a painted line's width, ``width_ratio``), or up to the image's edge; "green" where no
+    white goes on, the line would be wide enough in the image to show (``fine_px`` / 2) and
+    the cells along it are field (inside the boundary, no object, green at least
+    ``t_green``); else "unknown" (out of view, hidden, not resolved, white of no line)."""
     lens = lens_parameters(camera)
     f = to_floor(np.vstack([x[None], x[None] + 4.0 * u[None]]))
     scale = float(np.hypot(*(f[1] - f[0]))) / 4.0  # m of floor per px along u
     if not np.isfinite(scale) or scale <= 0:
         return "unknown"
     start = max(1.0, cc["line_width"] / scale)
-    need = max(start + cc["fine_px"], cc["min_arm_length"] / scale)
+    if arms is not None:
+        w_u = _line_px_width(x, u, to_floor, cc["line_width"])
+        for v in arms:
+            sin = abs(float(u[0] * v[1] - u[1] * v[0]))
+            if float(u @ v) > 0.0 and sin < 0.999:
+                w_v = _line_px_width(x, v, to_floor, cc["line_width"])
+                if np.isfinite(w_u) and np.isfinite(w_v) and float(u @ v) < 0.999:
+                    start = max(start, (0.5 * (w_u + w_v) + cc["arm_tolerance"])
+                                / max(sin, 1e-3))
+    need = start + max(cc["fine_px"], (cc["min_arm_length"] - cc["line_width"]) / scale)
     step = float(np.clip(cc["line_width"] / scale, 1.0, cc["refine_step"]))
     edge = _in_image(x, u[None], camera, step)[0]
     end = grow_along(white_px, lens, x + start * u, u, step, cc["refine_reach"] * cell,
