@@ -508,17 +508,17 @@ def stem_lines(lines: np.ndarray, white_px: np.ndarray, camera, to_floor, cc: di
                 scale = 0.05 / nv  # m of floor per px along v
                 if scale * cell <= cc["stem_min_span"]:
                     continue
-                start = max(1.0, cc["line_width"] / scale)
+                back = e[1 - k] - e[k]
+                back = back / max(float(np.hypot(*back)), 1e-9)
+                start, reach = _clear_start(e[k], v, back[None], scale, to_floor, cc, cell)
                 step = float(np.clip(cc["line_width"] / scale, 1.0, cc["refine_step"]))
-                end = grow_along(white_px, lens, e[k] + start * v, v, step,
-                                 cc["refine_reach"] * cell, cc["arm_grow"] * cell,
-                                 cc["arm_tolerance"])
+                end = grow_along(white_px, lens, e[k] + start * v, v, step, reach,
+                                 cc["arm_grow"] * cell, cc["arm_tolerance"])
                 t = float((end - e[k]) @ v)
-                if t * scale < cc["min_arm_length"]:
+                if t * scale < cc["min_arm_length"] or t <= start:
                     continue
                 ref = refine_segment(np.stack([e[k] + start * v, end]), white_px, lens, step,
-                                     cc["refine_reach"] * cell, 0.0, cc["refine_min_points"],
-                                     cc["refine_step"])
+                                     reach, 0.0, cc["refine_min_points"], cc["refine_step"])
                 if ref is None:
                     continue
                 fs = to_floor(ref.ends)
@@ -835,28 +835,18 @@ def arm_state(x: np.ndarray, u: np.ndarray, white_px: np.ndarray, green: np.ndar
     scale = float(np.hypot(*(f[1] - f[0]))) / 4.0  # m of floor per px along u
     if not np.isfinite(scale) or scale <= 0:
         return "unknown"
-    start = max(1.0, cc["line_width"] / scale)
-    if arms is not None:
-        w_u = _line_px_width(x, u, to_floor, cc["line_width"])
-        for v in arms:
-            sin = abs(float(u[0] * v[1] - u[1] * v[0]))
-            if float(u @ v) > 0.0 and sin < 0.999:
-                w_v = _line_px_width(x, v, to_floor, cc["line_width"])
-                if np.isfinite(w_u) and np.isfinite(w_v) and float(u @ v) < 0.999:
-                    start = max(start, (0.5 * (w_u + w_v) + cc["arm_tolerance"])
-                                / max(sin, 1e-3))
+    start, reach = _clear_start(x, u, arms, scale, to_floor, cc, cell)
     need = start + max(cc["fine_px"], (cc["min_arm_length"] - cc["line_width"]) / scale)
     step = float(np.clip(cc["line_width"] / scale, 1.0, cc["refine_step"]))
     edge = _in_image(x, u[None], camera, step)[0]
-    end = grow_along(white_px, lens, x + start * u, u, step, cc["refine_reach"] * cell,
-                     need, cc["arm_tolerance"])
+    end = grow_along(white_px, lens, x + start * u, u, step, reach, need, cc["arm_tolerance"])
     t = float((end - x) @ u)
     if t >= need - 1e-6 or t >= edge - 1e-6:
         # white on: a painted line's, if its runs are centred on the arm and as wide as a
         # line of line_width m there (else something white that is no line: "unknown")
         stop = min(t, max(need, start + 3 * step))
         ref = refine_segment(np.stack([x + start * u, x + stop * u]), white_px, lens, step,
-                             cc["refine_reach"] * cell, 0.0, 3)
+                             reach, 0.0, 3)
         if ref is None:
             return "unknown"
         nu = np.array([-u[1], u[0]])
@@ -883,6 +873,32 @@ def arm_state(x: np.ndarray, u: np.ndarray, white_px: np.ndarray, green: np.ndar
     if np.min(sample_cells(green, g)) < cc["t_green"]:
         return "unknown"
     return "green"
+
+
+def _clear_start(x: np.ndarray, u: np.ndarray, arms, scale: float, to_floor, cc: dict,
+                 cell: int) -> tuple[float, float]:
+    """Where (px from ``x`` along the unit ``u``) a line leaving a crossing along ``u`` stands
+    clear of the crossing's lines: one ``line_width`` m of floor (``scale`` m per px along
+    ``u``) past the crossing line's edge, and far enough that the lines along ``arms``
+    (A, 2; None: none), as wide as painted lines there, no longer touch it in the image.
+    Also the reach (px to each side) of profiles across it: enough for its width and the
+    tolerance (``arm_tolerance``), at most ``refine_reach`` cells, so that a neighbouring
+    line at a narrow image angle stays out of them."""
+    start = max(1.0, cc["line_width"] / scale)
+    w_u = _line_px_width(x, u, to_floor, cc["line_width"])
+    if not np.isfinite(w_u):
+        w_u = 1.0
+    if arms is not None:
+        for v in arms:
+            sin = abs(float(u[0] * v[1] - u[1] * v[0]))
+            if 0.0 < float(u @ v) < 0.999:  # ahead of the line, and not the line itself
+                w_v = _line_px_width(x, v, to_floor, cc["line_width"])
+                if np.isfinite(w_v):
+                    start = max(start, (0.5 * (w_u + w_v) + cc["arm_tolerance"])
+                                / max(sin, 1e-3))
+    reach = float(np.clip(1.5 * w_u + 2 * cc["arm_tolerance"], 2 * cc["arm_tolerance"],
+                          cc["refine_reach"] * cell))
+    return start, reach
 
 
 def _line_px_width(p: np.ndarray, u: np.ndarray, to_floor, line_width: float) -> float:
