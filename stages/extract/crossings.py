@@ -36,7 +36,16 @@ from stages.common.features_file import CROSSING_CODES
 from stages.common.field import crossing_orientation
 from stages.common.geometry import polar
 
-from .line_fit import distort_ideal, fit_line, grow_along, lens_parameters, refine_segment
+from .line_fit import (
+    _distort,
+    _grow,
+    _refine,
+    distort_ideal,
+    fit_line,
+    grow_along,
+    lens_parameters,
+    refine_segment,
+)
 from .line_structure import KeyStructure, LineGraph
 
 
@@ -420,14 +429,16 @@ def _meeting(t: float, length: float, u: np.ndarray, end_gap: float, tol: float
 
 
 def line_pair_crossings(ends: np.ndarray, widths: np.ndarray, floor_of, tol: float,
-                        max_misfit: float) -> list[LineCrossing]:
+                        max_misfit: float, first_stem: int | None = None
+                        ) -> list[LineCrossing]:
     """Crossings of pairs of fitted lines (``ends`` (N, 2, 2) in ideal pixels, ``widths``
     (N,) their white width across, px) that meet at about a right angle on the floor
     (``floor_of``: ideal pixels (M, 2) -> floor points; within ``max_misfit`` rad of 90 deg):
     each line either passes the intersection (by more than ``tol`` px: two arms) or ends on
     the other line (its nearer end within ``tol`` px plus the other line's width of it: one
     arm). Field lines cross at right angles; where a far corner's skeleton loses the junction
-    at the grid's resolution, the lines fitted at full resolution still meet."""
+    at the grid's resolution, the lines fitted at full resolution still meet. Lines from
+    ``first_stem`` on are stems (stem_lines): they are not paired with each other."""
     n = len(ends)
     if n < 2:
         return []
@@ -439,35 +450,36 @@ def line_pair_crossings(ends: np.ndarray, widths: np.ndarray, floor_of, tol: flo
     u = d / np.maximum(length, 1e-9)[:, None]
     normal = np.stack([-u[:, 1], u[:, 0]], axis=1)
     out = []
-    for i in range(n):
-        for j in range(i + 1, n):
-            if not (np.isfinite(fang[i]) and np.isfinite(fang[j])):
-                continue
-            gap = abs(abs(math.remainder(float(fang[i] - fang[j]), math.pi)) - math.pi / 2)
-            if gap > max_misfit:
-                continue
-            a = np.array([u[i], -u[j]]).T
-            if abs(np.linalg.det(a)) < 1e-3:
-                continue
-            s = np.linalg.solve(a, ends[j, 0] - ends[i, 0])
-            x = ends[i, 0] + s[0] * u[i]
+    # the pairs at about a right angle on the floor, all at once
+    diff = np.remainder(fang[:, None] - fang[None, :], math.pi)
+    gap = np.abs(np.minimum(diff, math.pi - diff) - math.pi / 2)
+    ok = np.triu(gap <= max_misfit, 1)  # NaN (off the floor) compares False
+    if first_stem is not None:
+        ok[first_stem:, first_stem:] = False
+    for i, j in zip(*np.nonzero(ok)):
+        i, j = int(i), int(j)
+        a = np.array([u[i], -u[j]]).T
+        if abs(np.linalg.det(a)) < 1e-3:
+            continue
+        s = np.linalg.solve(a, ends[j, 0] - ends[i, 0])
+        x = ends[i, 0] + s[0] * u[i]
 
-            def end_gap(k, other, t):
-                e = ends[k, 0] if t <= 0.5 * length[k] else ends[k, 1]
-                return abs(float((e - ends[other, 0]) @ normal[other]))
+        def end_gap(k, other, t):
+            e = ends[k, 0] if t <= 0.5 * length[k] else ends[k, 1]
+            return abs(float((e - ends[other, 0]) @ normal[other]))
 
-            arms_i = _meeting(float(s[0]), float(length[i]), u[i], end_gap(i, j, s[0]),
-                              tol + float(widths[j]))
-            arms_j = _meeting(float(s[1]), float(length[j]), u[j], end_gap(j, i, s[1]),
-                              tol + float(widths[i]))
-            if arms_i is None or arms_j is None:
-                continue
-            arms = np.array(arms_i[0] + arms_j[0])
-            if len(arms) == 4:
-                continue  # two straight lines crossing: fields have none (their X is the centre
-                # circle on the halfway line), so it is no crossing of field lines
-            kind = {2: "L", 3: "T"}[len(arms)]
-            out.append(LineCrossing(kind, x, arms, (i, j), np.array(arms_i[1] + arms_j[1])))
+        arms_i = _meeting(float(s[0]), float(length[i]), u[i], end_gap(i, j, s[0]),
+                          tol + float(widths[j]))
+        arms_j = _meeting(float(s[1]), float(length[j]), u[j], end_gap(j, i, s[1]),
+                          tol + float(widths[i]))
+        if arms_i is None or arms_j is None:
+            continue
+        arms = np.array(arms_i[0] + arms_j[0])
+        if len(arms) == 4:
+            continue  # two straight lines crossing: fields have none (their X is the centre
+            # circle on the halfway line), so it is no crossing of field lines
+        kind = {2: "L", 3: "T"}[len(arms)]
+        out.append(LineCrossing(kind, x, arms, (i, j), np.array(arms_i[1] + arms_j[1])))
     return merge_line_crossings(out, tol, floor_of=floor_of)
 
 
@@ -483,54 +495,74 @@ def stem_lines(lines: np.ndarray, white_px: np.ndarray, camera, to_floor, cc: di
     within ``max_misfit`` of the right angle. Only at ends whose cell spans more than
     ``stem_min_span`` m of floor along the stem. Returns the stems (S, 2, 2) ideal px, for
     line_pair_crossings."""
-    out = []
     if len(lines) == 0:
         return np.zeros((0, 2, 2))
-    lens = lens_parameters(camera)
+    lines = np.ascontiguousarray(lines, np.float64)
     floor = to_floor(lines.reshape(-1, 2)).reshape(-1, 2, 2)
-    for e, f in zip(lines, floor):
-        if not np.all(np.isfinite(f)):
+    out = np.empty((4 * len(lines), 2, 2))
+    n = _stems(lines, floor, white_px, lens_parameters(camera), to_floor.m, to_floor.m_inv,
+               to_floor.height, np.asarray(to_floor.position, np.float64), float(cell),
+               float(cc["stem_min_span"]), float(cc["line_width"]), float(cc["refine_step"]),
+               float(cc["refine_reach"] * cell), float(cc["arm_grow"] * cell),
+               float(cc["arm_tolerance"]), float(cc["min_arm_length"]),
+               int(cc["refine_min_points"]), math.sin(cc["max_misfit"]), out)
+    return out[:n]
+
+
+@njit(cache=True, nogil=True)
+def _stems(lines, floor, white_px, lens, m, m_inv, height, pos, cell, min_span, line_width,
+           refine_step, max_reach, grow, tolerance, min_length, min_points, sin_misfit, out):
+    """stem_lines, compiled: the stems into ``out`` (4 N, 2, 2); returns their number."""
+    n = 0
+    res = np.empty(12)
+    seg = np.empty((2, 2))
+    back = np.empty((1, 2))
+    for i in range(lines.shape[0]):
+        ax, ay = floor[i, 1, 0] - floor[i, 0, 0], floor[i, 1, 1] - floor[i, 0, 1]
+        la = math.hypot(ax, ay)
+        if not np.isfinite(la) or la <= 0:
             continue
-        a = f[1] - f[0]
-        la = float(np.hypot(*a))
-        if la <= 0:
-            continue
-        a = a / la
-        perp = np.array([-a[1], a[0]])
-        for k in (0, 1):
+        ax, ay = ax / la, ay / la
+        for k in range(2):
+            ex, ey = lines[i, k, 0], lines[i, k, 1]
+            bx, by = lines[i, 1 - k, 0] - ex, lines[i, 1 - k, 1] - ey
+            nb = max(math.hypot(bx, by), 1e-9)
+            back[0, 0], back[0, 1] = bx / nb, by / nb
             for sign in (1.0, -1.0):
-                q = to_floor.to_ideal(f[k] + sign * 0.05 * perp)[0]
-                v = q - e[k]
-                nv = float(np.hypot(*v))
+                qx, qy = _ideal_point(m_inv, height, pos, floor[i, k, 0] - sign * 0.05 * ay,
+                                      floor[i, k, 1] + sign * 0.05 * ax)
+                vx, vy = qx - ex, qy - ey
+                nv = math.hypot(vx, vy)
                 if not np.isfinite(nv) or nv <= 0:
                     continue
-                v = v / nv
+                vx, vy = vx / nv, vy / nv
                 scale = 0.05 / nv  # m of floor per px along v
-                if scale * cell <= cc["stem_min_span"]:
+                if scale * cell <= min_span:
                     continue
-                back = e[1 - k] - e[k]
-                back = back / max(float(np.hypot(*back)), 1e-9)
-                start, reach = _clear_start(e[k], v, back[None], scale, to_floor, cc, cell)
-                step = float(np.clip(cc["line_width"] / scale, 1.0, cc["refine_step"]))
-                end = grow_along(white_px, lens, e[k] + start * v, v, step, reach,
-                                 cc["arm_grow"] * cell, cc["arm_tolerance"])
-                t = float((end - e[k]) @ v)
-                if t * scale < cc["min_arm_length"] or t <= start:
+                start, reach = _clear_start_kernel(ex, ey, vx, vy, back, scale, m, m_inv,
+                                                   height, pos, line_width, tolerance,
+                                                   max_reach)
+                step = min(max(line_width / scale, 1.0), refine_step)
+                sx, sy = ex + start * vx, ey + start * vy
+                gx, gy = _grow(white_px, lens, sx, sy, vx, vy, step, reach, grow, tolerance)
+                t = (gx - ex) * vx + (gy - ey) * vy
+                if t * scale < min_length or t <= start:
                     continue
-                ref = refine_segment(np.stack([e[k] + start * v, end]), white_px, lens, step,
-                                     reach, 0.0, cc["refine_min_points"], cc["refine_step"])
-                if ref is None:
+                seg[0, 0], seg[0, 1], seg[1, 0], seg[1, 1] = sx, sy, gx, gy
+                _refine(seg, white_px, lens, step, reach, 0.0, min_points, refine_step, res)
+                if res[0] == 0:
                     continue
-                fs = to_floor(ref.ends)
-                if not np.all(np.isfinite(fs)):
+                f0x, f0y = _floor_point(m, height, pos, res[1], res[2])
+                f1x, f1y = _floor_point(m, height, pos, res[3], res[4])
+                dx, dy = f1x - f0x, f1y - f0y
+                ls = math.hypot(dx, dy)
+                if not np.isfinite(ls) or ls < min_length or abs(dx * ax + dy * ay) / ls \
+                        > sin_misfit:
                     continue
-                ds = fs[1] - fs[0]
-                ls = float(np.hypot(*ds))
-                if ls < cc["min_arm_length"] or abs(float(ds @ a)) / ls > math.sin(
-                        cc["max_misfit"]):
-                    continue
-                out.append(ref.ends)
-    return np.array(out).reshape(-1, 2, 2)
+                out[n, 0, 0], out[n, 0, 1], out[n, 1, 0], out[n, 1, 1] = \
+                    res[1], res[2], res[3], res[4]
+                n += 1
+    return n
 
 
 def merge_line_crossings(crossings: list[LineCrossing], tol: float,
@@ -613,13 +645,15 @@ def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.nd
     pairs, pair_verdicts = [], []
     if lines_ideal is not None and len(lines_ideal) > 1 and cc.get("line_pairs", True):
         lines_all, widths_all = lines_ideal, line_widths
+        first_stem = None
         if white_px is not None and cc.get("stems", True):
             stems = stem_lines(lines_ideal, white_px, camera, to_floor, cc, cell)
             if len(stems):
+                first_stem = len(lines_ideal)
                 lines_all = np.concatenate([lines_ideal, stems])
                 widths_all = np.concatenate([line_widths, np.full(len(stems), 0.0)])
         pairs = line_pair_crossings(lines_all, widths_all, to_floor, cc["pair_gap"] * cell,
-                                    cc["max_misfit"])
+                                    cc["max_misfit"], first_stem)
         reach = cc["arm_reach"] * cell
         for lc in pairs:
             verdict = _verify_crossing(lc.kind, lc.point, lc.arms,
@@ -830,49 +864,85 @@ def arm_state(x: np.ndarray, u: np.ndarray, white_px: np.ndarray, green: np.ndar
     white goes on, the line would be wide enough in the image to show (``fine_px`` / 2) and
     the cells along it are field (inside the boundary, no object, green at least
     ``t_green``); else "unknown" (out of view, hidden, not resolved, white of no line)."""
-    lens = lens_parameters(camera)
-    f = to_floor(np.vstack([x[None], x[None] + 4.0 * u[None]]))
-    scale = float(np.hypot(*(f[1] - f[0]))) / 4.0  # m of floor per px along u
+    w, h = camera.image_size
+    a = np.zeros((0, 2)) if arms is None else np.ascontiguousarray(arms, np.float64)
+    code = _arm_state(float(x[0]), float(x[1]), float(u[0]), float(u[1]), a, white_px,
+                      np.asarray(green, np.float32), np.asarray(other_mean, np.float32),
+                      np.asarray(top, np.float64), lens_parameters(camera), to_floor.m,
+                      to_floor.m_inv, to_floor.height,
+                      np.asarray(to_floor.position, np.float64), float(w), float(h),
+                      float(cell), float(cc["line_width"]), float(cc["arm_tolerance"]),
+                      float(cc["refine_reach"] * cell), float(cc["fine_px"]),
+                      float(cc["min_arm_length"]), float(cc["refine_step"]),
+                      float(cc["width_ratio"][0]), float(cc["width_ratio"][1]),
+                      float(cc["t_green"]))
+    return ("unknown", "white", "green")[code]
+
+
+@njit(cache=True, nogil=True)
+def _arm_state(x0, x1, ux, uy, arms, white_px, green, other_mean, top, lens, m, m_inv,
+               height, pos, w, h, cell, line_width, tolerance, max_reach, fine_px,
+               min_length, refine_step, ratio_lo, ratio_hi, t_green):
+    """arm_state, compiled: 0 unknown, 1 white, 2 green."""
+    f0x, f0y = _floor_point(m, height, pos, x0, x1)
+    f1x, f1y = _floor_point(m, height, pos, x0 + 4.0 * ux, x1 + 4.0 * uy)
+    scale = math.hypot(f1x - f0x, f1y - f0y) / 4.0  # m of floor per px along u
     if not np.isfinite(scale) or scale <= 0:
-        return "unknown"
-    start, reach = _clear_start(x, u, arms, scale, to_floor, cc, cell)
-    need = start + max(cc["fine_px"], (cc["min_arm_length"] - cc["line_width"]) / scale)
-    step = float(np.clip(cc["line_width"] / scale, 1.0, cc["refine_step"]))
-    edge = _in_image(x, u[None], camera, step)[0]
-    end = grow_along(white_px, lens, x + start * u, u, step, reach, need, cc["arm_tolerance"])
-    t = float((end - x) @ u)
+        return 0
+    start, reach = _clear_start_kernel(x0, x1, ux, uy, arms, scale, m, m_inv, height, pos,
+                                       line_width, tolerance, max_reach)
+    need = start + max(fine_px, (min_length - line_width) / scale)
+    step = min(max(line_width / scale, 1.0), refine_step)
+    # the distance to ``step`` px inside the image's edge (as _in_image)
+    edge = np.inf
+    for c, d, hi in ((x0, ux, w - 1 - step), (x1, uy, h - 1 - step)):
+        if d > 1e-12:
+            edge = min(edge, (hi - c) / d)
+        elif d < -1e-12:
+            edge = min(edge, (step - c) / d)
+    edge = max(edge, 0.0)
+    sx, sy = x0 + start * ux, x1 + start * uy
+    gx, gy = _grow(white_px, lens, sx, sy, ux, uy, step, reach, need, tolerance)
+    t = (gx - x0) * ux + (gy - x1) * uy
+    nx, ny = -uy, ux
     if t >= need - 1e-6 or t >= edge - 1e-6:
         # white on: a painted line's, if its runs are centred on the arm and as wide as a
-        # line of line_width m there (else something white that is no line: "unknown")
+        # line of line_width m there (else something white that is no line: unknown)
         stop = min(t, max(need, start + 3 * step))
-        ref = refine_segment(np.stack([x + start * u, x + stop * u]), white_px, lens, step,
-                             reach, 0.0, 3)
-        if ref is None:
-            return "unknown"
-        nu = np.array([-u[1], u[0]])
-        if np.max(np.abs((ref.ends - x) @ nu)) > 2 * cc["arm_tolerance"]:
-            return "unknown"
-        expected = _line_px_width(x + 0.5 * (start + stop) * u, u, to_floor, cc["line_width"])
-        ratio = float(np.median(ref.widths)) / max(expected, 1e-6)
-        lo, hi = cc["width_ratio"]
-        return "white" if lo <= ratio <= hi else "unknown"
+        seg = np.empty((2, 2))
+        seg[0, 0], seg[0, 1] = sx, sy
+        seg[1, 0], seg[1, 1] = x0 + stop * ux, x1 + stop * uy
+        res = np.empty(12)
+        _, widths = _refine(seg, white_px, lens, step, reach, 0.0, 3, 0.0, res)
+        if res[0] == 0:
+            return 0
+        for k in (1, 3):
+            if abs((res[k] - x0) * nx + (res[k + 1] - x1) * ny) > 2 * tolerance:
+                return 0
+        mid = 0.5 * (start + stop)
+        expected = _px_width(m, m_inv, height, pos, x0 + mid * ux, x1 + mid * uy, ux, uy,
+                             line_width)
+        ratio = np.median(widths) / max(expected, 1e-6)
+        return 1 if ratio_lo <= ratio <= ratio_hi else 0
     if need > edge:
-        return "unknown"
+        return 0
     # a line thinner in the image than half the judged length (fine_px) may break up in the
     # white mask: no white there is no evidence of no line
-    if not _line_px_width(x + 0.5 * (start + need) * u, u, to_floor,
-                          cc["line_width"]) >= 0.5 * cc["fine_px"]:
-        return "unknown"
-    pts = distort_ideal(lens, x[None] + np.linspace(start, need, 3)[:, None] * u[None])
-    g = (pts + 0.5) / cell - 0.5
-    for q in g:
-        col = int(np.clip(round(q[0]), 0, len(top) - 1))
-        row = int(np.clip(round(q[1]), 0, other_mean.shape[0] - 1))
-        if q[1] < top[col] or other_mean[row, col] > 0.5:
-            return "unknown"
-    if np.min(sample_cells(green, g)) < cc["t_green"]:
-        return "unknown"
-    return "green"
+    mid = 0.5 * (start + need)
+    if not _px_width(m, m_inv, height, pos, x0 + mid * ux, x1 + mid * uy, ux, uy,
+                     line_width) >= 0.5 * fine_px:
+        return 0
+    for k in range(3):
+        tk = start + 0.5 * k * (need - start)
+        px, py = _distort(lens, x0 + tk * ux, x1 + tk * uy)
+        gx_, gy_ = (px + 0.5) / cell - 0.5, (py + 0.5) / cell - 0.5
+        col = min(max(int(round(gx_)), 0), top.shape[0] - 1)
+        row = min(max(int(round(gy_)), 0), other_mean.shape[0] - 1)
+        if gy_ < top[col] or other_mean[row, col] > 0.5:
+            return 0
+        if _sample_cell(green, gx_, gy_) < t_green:
+            return 0
+    return 2
 
 
 def _clear_start(x: np.ndarray, u: np.ndarray, arms, scale: float, to_floor, cc: dict,
@@ -883,35 +953,77 @@ def _clear_start(x: np.ndarray, u: np.ndarray, arms, scale: float, to_floor, cc:
     (A, 2; None: none), as wide as painted lines there, no longer touch it in the image.
     Also the reach (px to each side) of profiles across it: enough for its width and the
     tolerance (``arm_tolerance``), at most ``refine_reach`` cells, so that a neighbouring
-    line at a narrow image angle stays out of them."""
-    start = max(1.0, cc["line_width"] / scale)
-    w_u = _line_px_width(x, u, to_floor, cc["line_width"])
-    if not np.isfinite(w_u):
-        w_u = 1.0
-    if arms is not None:
-        for v in arms:
-            sin = abs(float(u[0] * v[1] - u[1] * v[0]))
-            if 0.0 < float(u @ v) < 0.999:  # ahead of the line, and not the line itself
-                w_v = _line_px_width(x, v, to_floor, cc["line_width"])
-                if np.isfinite(w_v):
-                    start = max(start, (0.5 * (w_u + w_v) + cc["arm_tolerance"])
-                                / max(sin, 1e-3))
-    reach = float(np.clip(1.5 * w_u + 2 * cc["arm_tolerance"], 2 * cc["arm_tolerance"],
-                          cc["refine_reach"] * cell))
-    return start, reach
+    line at a narrow image angle stays out of them. Compiled (``_clear_start_kernel``)."""
+    a = np.zeros((0, 2)) if arms is None else np.ascontiguousarray(arms, np.float64)
+    return _clear_start_kernel(float(x[0]), float(x[1]), float(u[0]), float(u[1]), a,
+                               float(scale), to_floor.m, to_floor.m_inv, to_floor.height,
+                               to_floor.position, float(cc["line_width"]),
+                               float(cc["arm_tolerance"]), float(cc["refine_reach"] * cell))
 
 
 def _line_px_width(p: np.ndarray, u: np.ndarray, to_floor, line_width: float) -> float:
     """The width (ideal px, across the image direction ``u``) of a painted line ``line_width``
-    m wide running along ``u`` through the ideal point ``p``; NaN off the floor."""
-    f = to_floor(np.vstack([p[None], p[None] + u[None]]))
-    a = f[1] - f[0]
-    na = float(np.hypot(*a))
+    m wide running along ``u`` through the ideal point ``p``; NaN off the floor (compiled:
+    ``_px_width``)."""
+    return _px_width(to_floor.m, to_floor.m_inv, to_floor.height, to_floor.position,
+                     float(p[0]), float(p[1]), float(u[0]), float(u[1]), float(line_width))
+
+
+@njit(cache=True, nogil=True)
+def _floor_point(m, height, pos, x, y):
+    """perspective.FloorProjection at one ideal pixel."""
+    rx = x * m[0, 0] + y * m[0, 1] + m[0, 2]
+    ry = x * m[1, 0] + y * m[1, 1] + m[1, 2]
+    down = x * m[2, 0] + y * m[2, 1] + m[2, 2]
+    if down >= -1e-9:
+        return np.nan, np.nan
+    t = height / -down
+    return rx * t + pos[0], ry * t + pos[1]
+
+
+@njit(cache=True, nogil=True)
+def _ideal_point(m_inv, height, pos, fx, fy):
+    """perspective.FloorProjection.to_ideal at one floor point."""
+    px, py, pz = fx - pos[0], fy - pos[1], -height
+    h0 = m_inv[0, 0] * px + m_inv[0, 1] * py + m_inv[0, 2] * pz
+    h1 = m_inv[1, 0] * px + m_inv[1, 1] * py + m_inv[1, 2] * pz
+    h2 = m_inv[2, 0] * px + m_inv[2, 1] * py + m_inv[2, 2] * pz
+    if h2 <= 1e-9:
+        return np.nan, np.nan
+    return h0 / h2, h1 / h2
+
+
+@njit(cache=True, nogil=True)
+def _px_width(m, m_inv, height, pos, px, py, ux, uy, line_width):
+    f0x, f0y = _floor_point(m, height, pos, px, py)
+    f1x, f1y = _floor_point(m, height, pos, px + ux, py + uy)
+    ax, ay = f1x - f0x, f1y - f0y
+    na = math.hypot(ax, ay)
     if not np.isfinite(na) or na <= 0:
-        return float("nan")
-    n = np.array([-a[1], a[0]]) / na * (0.5 * line_width)
-    ab = to_floor.to_ideal(np.vstack([f[0] - n, f[0] + n]))
-    return abs(float((ab[1] - ab[0]) @ np.array([-u[1], u[0]])))
+        return np.nan
+    nx, ny = -ay / na * (0.5 * line_width), ax / na * (0.5 * line_width)
+    a0, a1 = _ideal_point(m_inv, height, pos, f0x - nx, f0y - ny)
+    b0, b1 = _ideal_point(m_inv, height, pos, f0x + nx, f0y + ny)
+    return abs((b0 - a0) * -uy + (b1 - a1) * ux)
+
+
+@njit(cache=True, nogil=True)
+def _clear_start_kernel(x0, x1, ux, uy, arms, scale, m, m_inv, height, pos, line_width,
+                        tolerance, max_reach):
+    start = max(1.0, line_width / scale)
+    w_u = _px_width(m, m_inv, height, pos, x0, x1, ux, uy, line_width)
+    if not np.isfinite(w_u):
+        w_u = 1.0
+    for k in range(arms.shape[0]):
+        vx, vy = arms[k, 0], arms[k, 1]
+        sin = abs(ux * vy - uy * vx)
+        dot = ux * vx + uy * vy
+        if 0.0 < dot < 0.999:  # ahead of the line, and not the line itself
+            w_v = _px_width(m, m_inv, height, pos, x0, x1, vx, vy, line_width)
+            if np.isfinite(w_v):
+                start = max(start, (0.5 * (w_u + w_v) + tolerance) / max(sin, 1e-3))
+    reach = min(max(1.5 * w_u + 2 * tolerance, 2 * tolerance), max_reach)
+    return start, reach
 
 
 def _continued_as_t(x, dirs, reach, white, green, other_mean, top, camera, to_floor, cc, cell,
