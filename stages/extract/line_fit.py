@@ -535,16 +535,16 @@ def _grow(image, lens, ex, ey, dx, dy, step, reach, grow, tol):
         v = step * (n + 1)
     if n == 0:
         return ex, ey
-    along = np.empty(n)
-    for k in range(n):
-        along[k] = step * (k + 1)
-    centre = np.empty(n)
-    width = np.empty(n)
-    ok = np.empty(n, np.bool_)
-    _profile_runs(image, lens, ex, ey, dx, dy, along, reach, centre, width, ok)
+    # one profile at a time, so that the walk ends with its second miss in a row
+    along = np.empty(1)
+    centre = np.empty(1)
+    width = np.empty(1)
+    ok = np.empty(1, np.bool_)
     last, miss = -1, 0
     for k in range(n):
-        if ok[k] and abs(centre[k]) <= tol:
+        along[0] = step * (k + 1)
+        _profile_runs(image, lens, ex, ey, dx, dy, along, reach, centre, width, ok)
+        if ok[0] and abs(centre[0]) <= tol:
             last, miss = k, 0
         else:
             miss += 1
@@ -552,7 +552,7 @@ def _grow(image, lens, ex, ey, dx, dy, step, reach, grow, tol):
                 break
     if last < 0:
         return ex, ey
-    return ex + along[last] * dx, ey + along[last] * dy
+    return ex + step * (last + 1) * dx, ey + step * (last + 1) * dy
 
 
 @njit(cache=True, nogil=True)
