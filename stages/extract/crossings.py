@@ -715,7 +715,8 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
     # all floor points at once: the crossing, a step along each arm, the cell below, the ends
     pts = [x[None], x + step * dirs, x[None] + np.array([[0.0, float(cell)]])]
     if lengths is not None:
-        pts.append(x[None] + np.asarray(lengths)[:, None] * dirs)
+        with np.errstate(invalid="ignore"):  # an arm out of the image is infinite
+            pts.append(x[None] + np.asarray(lengths)[:, None] * dirs)
     on_floor = to_floor(np.vstack(pts))
     floor, below, ends = on_floor[:n + 1], on_floor[n + 1:n + 2], on_floor[n + 2:]
     if not np.all(np.isfinite(floor)):
@@ -727,7 +728,8 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
             # the fitted nodes or lines may end early (a far arm's few nodes, a line cut at a
             # junction): the arm is as long as the white line goes on along it in the image
             lengths = white_arm_lengths(x, dirs, lengths, short, white_px, camera, cc, cell)
-            ends = to_floor(x[None] + lengths[:, None] * dirs)
+            with np.errstate(invalid="ignore"):  # an arm out of the image is infinite
+                ends = to_floor(x[None] + lengths[:, None] * dirs)
             arm_m = np.hypot(*(ends - floor[0]).T)
             reach = np.maximum(reach, np.minimum(cc["arm_reach"] * cell, lengths))
         if np.any(arm_m < cc["min_arm_length"]):
