@@ -36,7 +36,16 @@ from stages.common.features_file import CROSSING_CODES
 from stages.common.field import crossing_orientation
 from stages.common.geometry import polar
 
-from .line_fit import distort_ideal, fit_line, lens_parameters, refine_segment
+from .line_fit import (
+    _distort,
+    _grow,
+    _refine,
+    distort_ideal,
+    fit_line,
+    grow_along,
+    lens_parameters,
+    refine_segment,
+)
 from .line_structure import KeyStructure, LineGraph
 
 
@@ -420,14 +429,16 @@ def _meeting(t: float, length: float, u: np.ndarray, end_gap: float, tol: float
 
 
 def line_pair_crossings(ends: np.ndarray, widths: np.ndarray, floor_of, tol: float,
-                        max_misfit: float) -> list[LineCrossing]:
+                        max_misfit: float, first_stem: int | None = None
+                        ) -> list[LineCrossing]:
     """Crossings of pairs of fitted lines (``ends`` (N, 2, 2) in ideal pixels, ``widths``
     (N,) their white width across, px) that meet at about a right angle on the floor
     (``floor_of``: ideal pixels (M, 2) -> floor points; within ``max_misfit`` rad of 90 deg):
     each line either passes the intersection (by more than ``tol`` px: two arms) or ends on
     the other line (its nearer end within ``tol`` px plus the other line's width of it: one
     arm). Field lines cross at right angles; where a far corner's skeleton loses the junction
-    at the grid's resolution, the lines fitted at full resolution still meet."""
+    at the grid's resolution, the lines fitted at full resolution still meet. Lines from
+    ``first_stem`` on are stems (stem_lines): they are not paired with each other."""
     n = len(ends)
     if n < 2:
         return []
@@ -439,43 +450,129 @@ def line_pair_crossings(ends: np.ndarray, widths: np.ndarray, floor_of, tol: flo
     u = d / np.maximum(length, 1e-9)[:, None]
     normal = np.stack([-u[:, 1], u[:, 0]], axis=1)
     out = []
-    for i in range(n):
-        for j in range(i + 1, n):
-            if not (np.isfinite(fang[i]) and np.isfinite(fang[j])):
-                continue
-            gap = abs(abs(math.remainder(float(fang[i] - fang[j]), math.pi)) - math.pi / 2)
-            if gap > max_misfit:
-                continue
-            a = np.array([u[i], -u[j]]).T
-            if abs(np.linalg.det(a)) < 1e-3:
-                continue
-            s = np.linalg.solve(a, ends[j, 0] - ends[i, 0])
-            x = ends[i, 0] + s[0] * u[i]
+    # the pairs at about a right angle on the floor, all at once
+    diff = np.remainder(fang[:, None] - fang[None, :], math.pi)
+    gap = np.abs(np.minimum(diff, math.pi - diff) - math.pi / 2)
+    ok = np.triu(gap <= max_misfit, 1)  # NaN (off the floor) compares False
+    if first_stem is not None:
+        ok[first_stem:, first_stem:] = False
+    for i, j in zip(*np.nonzero(ok)):
+        i, j = int(i), int(j)
+        a = np.array([u[i], -u[j]]).T
+        if abs(np.linalg.det(a)) < 1e-3:
+            continue
+        s = np.linalg.solve(a, ends[j, 0] - ends[i, 0])
+        x = ends[i, 0] + s[0] * u[i]
 
-            def end_gap(k, other, t):
-                e = ends[k, 0] if t <= 0.5 * length[k] else ends[k, 1]
-                return abs(float((e - ends[other, 0]) @ normal[other]))
+        def end_gap(k, other, t):
+            e = ends[k, 0] if t <= 0.5 * length[k] else ends[k, 1]
+            return abs(float((e - ends[other, 0]) @ normal[other]))
 
-            arms_i = _meeting(float(s[0]), float(length[i]), u[i], end_gap(i, j, s[0]),
-                              tol + float(widths[j]))
-            arms_j = _meeting(float(s[1]), float(length[j]), u[j], end_gap(j, i, s[1]),
-                              tol + float(widths[i]))
-            if arms_i is None or arms_j is None:
-                continue
-            arms = np.array(arms_i[0] + arms_j[0])
-            if len(arms) == 4:
-                continue  # two straight lines crossing: fields have none (their X is the centre
-                # circle on the halfway line), so it is no crossing of field lines
-            kind = {2: "L", 3: "T"}[len(arms)]
-            out.append(LineCrossing(kind, x, arms, (i, j), np.array(arms_i[1] + arms_j[1])))
-    return merge_line_crossings(out, tol)
+        arms_i = _meeting(float(s[0]), float(length[i]), u[i], end_gap(i, j, s[0]),
+                          tol + float(widths[j]))
+        arms_j = _meeting(float(s[1]), float(length[j]), u[j], end_gap(j, i, s[1]),
+                          tol + float(widths[i]))
+        if arms_i is None or arms_j is None:
+            continue
+        arms = np.array(arms_i[0] + arms_j[0])
+        if len(arms) == 4:
+            continue  # two straight lines crossing: fields have none (their X is the centre
+            # circle on the halfway line), so it is no crossing of field lines
+        kind = {2: "L", 3: "T"}[len(arms)]
+        out.append(LineCrossing(kind, x, arms, (i, j), np.array(arms_i[1] + arms_j[1])))
+    return merge_line_crossings(out, tol, floor_of=floor_of)
+
+
+def stem_lines(lines: np.ndarray, white_px: np.ndarray, camera, to_floor, cc: dict,
+               cell: int) -> np.ndarray:
+    """Short lines leaving the ends of fitted lines (``lines`` (N, 2, 2) ideal px) at a right
+    angle on the floor, found on the full-resolution white mask where the grid has too few
+    cells of them for a line of its own (a far goal area's side line between its front line
+    and the goal line is 2 or 3 cells long): from each end, on both sides, the white line is
+    followed along the floor's perpendicular (line_fit.grow_along from one ``line_width``
+    past the end, profiles every px up to ``refine_step``), refitted on its white runs
+    (line_fit.refine_segment) and kept when it is at least ``min_arm_length`` m long and
+    within ``max_misfit`` of the right angle. Only at ends whose cell spans more than
+    ``stem_min_span`` m of floor along the stem. Returns the stems (S, 2, 2) ideal px, for
+    line_pair_crossings."""
+    if len(lines) == 0:
+        return np.zeros((0, 2, 2))
+    lines = np.ascontiguousarray(lines, np.float64)
+    floor = to_floor(lines.reshape(-1, 2)).reshape(-1, 2, 2)
+    out = np.empty((4 * len(lines), 2, 2))
+    n = _stems(lines, floor, white_px, lens_parameters(camera), to_floor.m, to_floor.m_inv,
+               to_floor.height, np.asarray(to_floor.position, np.float64), float(cell),
+               float(cc["stem_min_span"]), float(cc["line_width"]), float(cc["refine_step"]),
+               float(cc["refine_reach"] * cell), float(cc["arm_grow"] * cell),
+               float(cc["arm_tolerance"]), float(cc["min_arm_length"]),
+               int(cc["refine_min_points"]), math.sin(cc["max_misfit"]), out)
+    return out[:n]
+
+
+@njit(cache=True, nogil=True)
+def _stems(lines, floor, white_px, lens, m, m_inv, height, pos, cell, min_span, line_width,
+           refine_step, max_reach, grow, tolerance, min_length, min_points, sin_misfit, out):
+    """stem_lines, compiled: the stems into ``out`` (4 N, 2, 2); returns their number."""
+    n = 0
+    res = np.empty(12)
+    seg = np.empty((2, 2))
+    back = np.empty((1, 2))
+    for i in range(lines.shape[0]):
+        ax, ay = floor[i, 1, 0] - floor[i, 0, 0], floor[i, 1, 1] - floor[i, 0, 1]
+        la = math.hypot(ax, ay)
+        if not np.isfinite(la) or la <= 0:
+            continue
+        ax, ay = ax / la, ay / la
+        for k in range(2):
+            ex, ey = lines[i, k, 0], lines[i, k, 1]
+            bx, by = lines[i, 1 - k, 0] - ex, lines[i, 1 - k, 1] - ey
+            nb = max(math.hypot(bx, by), 1e-9)
+            back[0, 0], back[0, 1] = bx / nb, by / nb
+            for sign in (1.0, -1.0):
+                qx, qy = _ideal_point(m_inv, height, pos, floor[i, k, 0] - sign * 0.05 * ay,
+                                      floor[i, k, 1] + sign * 0.05 * ax)
+                vx, vy = qx - ex, qy - ey
+                nv = math.hypot(vx, vy)
+                if not np.isfinite(nv) or nv <= 0:
+                    continue
+                vx, vy = vx / nv, vy / nv
+                scale = 0.05 / nv  # m of floor per px along v
+                if scale * cell <= min_span:
+                    continue
+                start, reach = _clear_start_kernel(ex, ey, vx, vy, back, scale, m, m_inv,
+                                                   height, pos, line_width, tolerance,
+                                                   max_reach)
+                step = min(max(line_width / scale, 1.0), refine_step)
+                sx, sy = ex + start * vx, ey + start * vy
+                gx, gy = _grow(white_px, lens, sx, sy, vx, vy, step, reach, grow, tolerance)
+                t = (gx - ex) * vx + (gy - ey) * vy
+                if t * scale < min_length or t <= start:
+                    continue
+                seg[0, 0], seg[0, 1], seg[1, 0], seg[1, 1] = sx, sy, gx, gy
+                _refine(seg, white_px, lens, step, reach, 0.0, min_points, refine_step, res)
+                if res[0] == 0:
+                    continue
+                f0x, f0y = _floor_point(m, height, pos, res[1], res[2])
+                f1x, f1y = _floor_point(m, height, pos, res[3], res[4])
+                dx, dy = f1x - f0x, f1y - f0y
+                ls = math.hypot(dx, dy)
+                if not np.isfinite(ls) or ls < min_length or abs(dx * ax + dy * ay) / ls \
+                        > sin_misfit:
+                    continue
+                out[n, 0, 0], out[n, 0, 1], out[n, 1, 0], out[n, 1, 1] = \
+                    res[1], res[2], res[3], res[4]
+                n += 1
+    return n
 
 
 def merge_line_crossings(crossings: list[LineCrossing], tol: float,
-                         same_arm: float = math.radians(20.0)) -> list[LineCrossing]:
+                         same_arm: float = math.radians(20.0), floor_of=None
+                         ) -> list[LineCrossing]:
     """Crossings of line pairs closer than ``tol`` px are one crossing with the union of their
-    arms (arms within ``same_arm`` rad of each other are one): a T whose bar was fitted as two
-    lines, one each side of the stem, gives two L's of the same point."""
+    arms (arms within ``same_arm`` rad of each other are one; on the floor with ``floor_of``,
+    ideal pixels (M, 2) -> floor points, where the arms' first ``tol`` px are on it: far
+    away the perspective flattens a right angle in the image): a T whose bar was fitted as
+    two lines, one each side of the stem, gives two L's of the same point."""
     out, used = [], [False] * len(crossings)
     cos_same = math.cos(same_arm)
     for a, c in enumerate(crossings):
@@ -489,20 +586,28 @@ def merge_line_crossings(crossings: list[LineCrossing], tol: float,
         if len(group) == 1:
             out.append(c)
             continue
-        arms: list[np.ndarray] = []
+        point = np.mean([g.point for g in group], axis=0)
+        all_arms = np.concatenate([g.arms for g in group])
+        all_lengths = np.concatenate([g.lengths for g in group])
+        cmp = all_arms
+        if floor_of is not None:
+            f = floor_of(np.vstack([point[None], point[None] + tol * all_arms]))
+            d = f[1:] - f[0]
+            n = np.hypot(d[:, 0], d[:, 1])
+            if np.all(np.isfinite(n)) and np.all(n > 0):
+                cmp = d / n[:, None]
+        arms: list[int] = []
         lengths: list[float] = []
-        for g in group:
-            for u, ln in zip(g.arms, g.lengths):
-                same = [k for k, v in enumerate(arms) if float(u @ v) >= cos_same]
-                if same:
-                    lengths[same[0]] = max(lengths[same[0]], float(ln))
-                else:
-                    arms.append(u)
-                    lengths.append(float(ln))
+        for k, ln in enumerate(all_lengths):
+            same = [m for m, j in enumerate(arms) if float(cmp[k] @ cmp[j]) >= cos_same]
+            if same:
+                lengths[same[0]] = max(lengths[same[0]], float(ln))
+            else:
+                arms.append(k)
+                lengths.append(float(ln))
         if len(arms) not in (2, 3):
             continue
-        point = np.mean([g.point for g in group], axis=0)
-        out.append(LineCrossing({2: "L", 3: "T"}[len(arms)], point, np.array(arms),
+        out.append(LineCrossing({2: "L", 3: "T"}[len(arms)], point, all_arms[arms],
                                 group[0].lines, np.array(lengths)))
     return out
 
@@ -539,13 +644,22 @@ def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.nd
             found.append(verdict)
     pairs, pair_verdicts = [], []
     if lines_ideal is not None and len(lines_ideal) > 1 and cc.get("line_pairs", True):
-        pairs = line_pair_crossings(lines_ideal, line_widths, to_floor, cc["pair_gap"] * cell,
-                                    cc["max_misfit"])
+        lines_all, widths_all = lines_ideal, line_widths
+        first_stem = None
+        if white_px is not None and cc.get("stems", True):
+            stems = stem_lines(lines_ideal, white_px, camera, to_floor, cc, cell)
+            if len(stems):
+                first_stem = len(lines_ideal)
+                lines_all = np.concatenate([lines_ideal, stems])
+                widths_all = np.concatenate([line_widths, np.full(len(stems), 0.0)])
+        pairs = line_pair_crossings(lines_all, widths_all, to_floor, cc["pair_gap"] * cell,
+                                    cc["max_misfit"], first_stem)
         reach = cc["arm_reach"] * cell
         for lc in pairs:
             verdict = _verify_crossing(lc.kind, lc.point, lc.arms,
                                        np.minimum(reach, lc.lengths), white, green, other_mean,
-                                       top, camera, to_floor, cc, cell, field_cells, lc.lengths)
+                                       top, camera, to_floor, cc, cell, field_cells, lc.lengths,
+                                       white_px)
             pair_verdicts.append(verdict)
             if not isinstance(verdict, str):
                 found.append(verdict)
@@ -587,11 +701,11 @@ def _crossing(cand, ks, ideal, white, green, other_mean, top, camera, to_floor, 
     lengths = np.array([max(float(np.max((sel - x) @ u)), step) for _, u, sel in arms])
     reach = np.minimum(cc["arm_reach"] * cell, lengths)
     return _verify_crossing(cand.kind, x, dirs, reach, white, green, other_mean, top, camera,
-                            to_floor, cc, cell, field_cells, lengths)
+                            to_floor, cc, cell, field_cells, lengths, white_px)
 
 
 def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera, to_floor, cc,
-                     cell, field_cells=None, lengths=None):
+                     cell, field_cells=None, lengths=None, white_px=None):
     """A crossing of ``kind`` at ideal point ``x`` with arms along ``dirs`` (A, 2) reaching
     ``reach`` (A,) px, its lines extending ``lengths`` (A,) px along them -> (row, image
     position), or the reason it is rejected. The cheap floor checks come before the image
@@ -601,22 +715,42 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
     # all floor points at once: the crossing, a step along each arm, the cell below, the ends
     pts = [x[None], x + step * dirs, x[None] + np.array([[0.0, float(cell)]])]
     if lengths is not None:
-        pts.append(x[None] + np.asarray(lengths)[:, None] * dirs)
+        with np.errstate(invalid="ignore"):  # an arm out of the image is infinite
+            pts.append(x[None] + np.asarray(lengths)[:, None] * dirs)
     on_floor = to_floor(np.vstack(pts))
     floor, below, ends = on_floor[:n + 1], on_floor[n + 1:n + 2], on_floor[n + 2:]
     if not np.all(np.isfinite(floor)):
         return "above the horizon"
     if lengths is not None:
         arm_m = np.hypot(*(ends - floor[0]).T)  # NaN beyond the horizon: long enough
+        short = arm_m < cc["min_arm_length"]
+        if np.any(short) and white_px is not None:
+            # the fitted nodes or lines may end early (a far arm's few nodes, a line cut at a
+            # junction): the arm is as long as the white line goes on along it in the image
+            lengths = white_arm_lengths(x, dirs, lengths, short, white_px, camera, cc, cell)
+            with np.errstate(invalid="ignore"):  # an arm out of the image is infinite
+                ends = to_floor(x[None] + lengths[:, None] * dirs)
+            arm_m = np.hypot(*(ends - floor[0]).T)
+            reach = np.maximum(reach, np.minimum(cc["arm_reach"] * cell, lengths))
         if np.any(arm_m < cc["min_arm_length"]):
             return "arm too short"
+    # an arm leaving the image is verified on its part in view
+    reach = np.minimum(reach, _in_image(x, dirs, camera, 0.5 * cell))
     d, bearing = polar(floor[:1])
-    if not np.all(np.isfinite(below)) or np.hypot(*(below[0] - floor[0])) > cc["max_cell_span"]:
+    span = np.hypot(*(below[0] - floor[0])) if np.all(np.isfinite(below)) else np.inf
+    # beyond the grid's resolution the full-resolution white mask decides (_verify_fine), as
+    # far as its profiles (refine_step px apart) resolve the floor
+    fine = span > cc["max_cell_span"]
+    if fine and (white_px is None or not cc.get("fine", True)
+                 or span * cc["refine_step"] / cell > cc["max_cell_span"]):
         return "too far"
     arm_dirs = np.arctan2(floor[1:, 1] - floor[0, 1], floor[1:, 0] - floor[0, 0])
     orient, misfit = floor_arms(kind, arm_dirs)
     if misfit > cc["max_misfit"]:
         return f"floor angles misfit {math.degrees(misfit):.0f} deg"
+    if fine:
+        return _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera, to_floor,
+                            cc, cell, d[0], bearing[0], orient, misfit, span)
     px = distort_ideal(lens_parameters(camera), np.vstack([x[None], x + reach[:, None] * dirs]))
     if not np.all(np.isfinite(px)):
         return "outside the lens model"
@@ -631,20 +765,271 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
         return "next to an object"  # a robot's or a person's white foot on a line
     # the arms that would make an L a T must be in view (a T's stem continued would make an
     # X, which fields hold only where the centre circle crosses the halfway line)
-    if kind == "L" and not _alternative_in_view(x, dirs, camera, top, other_mean, green, cc,
-                                                cell):
+    # (a thin line leaves a cell mostly green: where the full-resolution mask shows an arm's
+    # line going on through the crossing, the L is no L)
+    if kind == "L" and (not _alternative_in_view(x, dirs, camera, top, other_mean, green, cc,
+                                                 cell)
+                        or (white_px is not None and any(
+                            arm_state(x, -u, white_px, green, other_mean, top, camera,
+                                      to_floor, cc, cell, dirs) == "white" for u in dirs))):
         return _continued_as_t(x, dirs, reach, white, green, other_mean, top, camera,
-                               to_floor, cc, cell, field_cells, lengths)
+                               to_floor, cc, cell, field_cells, lengths, white_px)
     score = verify_crossing(grid[0], grid[1:], white, green, cc, field_cells)
     if score <= 0:
+        if white_px is not None and cc.get("fine", True):
+            # the grid's circles may take in a neighbouring line (a far goal area's lines
+            # lie two cells apart): the full-resolution check decides
+            return _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera,
+                                to_floor, cc, cell, d[0], bearing[0], orient, misfit,
+                                max(span, cc["max_cell_span"]))
         return "not verified in the image"
     row = [CROSSING_CODES[kind], d[0], bearing[0], orient,
            score * (1.0 - misfit / math.radians(90.0))]
     return row, px[0]
 
 
+def _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera, to_floor, cc, cell,
+                 dist, bearing, orient, misfit, span):
+    """A crossing beyond the grid's resolution (one cell spans more than ``max_cell_span`` m
+    of floor there), verified on the full-resolution white mask: every arm's opposite
+    direction is looked at (``arm_state``). An L needs both opposites green (one white makes
+    it the T of that arm, neither known leaves it untold), a T its stem's opposite not white
+    (an X). Its confidence is the grid's resolving power there (max_cell_span over the cell's
+    span), times the shape's fit as on the grid. Returns (row, image position) or the reason
+    it is rejected."""
+    lens = lens_parameters(camera)
+    px = distort_ideal(lens, x[None])[0]
+    g = (px + 0.5) / cell - 0.5
+    col = int(np.clip(round(g[0]), 0, len(top) - 1))
+    if not np.isfinite(g[1]) or g[1] < top[col]:
+        return "at the field boundary"
+    row = int(np.clip(round(g[1]), 0, other_mean.shape[0] - 1))
+    r = cc["object_radius"]
+    if other_mean[max(row - r, 0): row + r + 1, max(col - r, 0): col + r + 1].max() > 0.5:
+        return "next to an object"
+    for u in dirs:
+        st = arm_state(x, u, white_px, green, other_mean, top, camera, to_floor, cc, cell,
+                       dirs)
+        if st != "white":
+            return f"an arm {st}, not white"  # an arm without its white line
+    # the arms without an opposite arm, by their directions on the floor (far away the
+    # perspective folds a right angle in the image)
+    f = to_floor(np.vstack([x[None], x[None] + cc["arm_step"] * cell * dirs]))
+    fd = f[1:] - f[0]
+    fd = fd / np.hypot(fd[:, 0], fd[:, 1])[:, None]
+    if not np.all(np.isfinite(fd)):
+        return "above the horizon"
+    cos_same = math.cos(cc["max_misfit"])
+    opposite = [k for k in range(len(dirs))
+                if not any(float(fd[k] @ fd[j]) <= -cos_same for j in range(len(dirs)))]
+    if kind == "T":
+        # the stem: the arm without an opposite arm
+        if len(opposite) != 1:
+            return "floor angles misfit"
+        if arm_state(x, -dirs[opposite[0]], white_px, green, other_mean, top, camera,
+                     to_floor, cc, cell, dirs) == "white":
+            return "white beyond the stem"  # white on through the bar: two lines crossing
+    elif kind == "L":
+        states = [arm_state(x, -dirs[k], white_px, green, other_mean, top, camera, to_floor,
+                            cc, cell, dirs) for k in opposite]
+        white_k = [k for k, st in zip(opposite, states) if st == "white"]
+        if len(white_k) == 1:
+            k = white_k[0]
+            arms = np.vstack([dirs, -dirs[k][None]])
+            f = to_floor(np.vstack([x[None], x + cc["arm_step"] * cell * arms]))
+            t_orient, t_misfit = floor_arms("T", np.arctan2(f[1:, 1] - f[0, 1],
+                                                            f[1:, 0] - f[0, 0]))
+            if t_misfit > cc["max_misfit"]:
+                return f"floor angles misfit {math.degrees(t_misfit):.0f} deg"
+            kind, orient, misfit = "T", t_orient, t_misfit
+        elif white_k:
+            return "not verified in the image"
+        elif any(st != "green" for st in states):
+            return "not green where a T's arm would be"
+    else:
+        return "too far"
+    score = min(1.0, cc["max_cell_span"] / span) * (1.0 - misfit / math.radians(90.0))
+    return [CROSSING_CODES[kind], dist, bearing, orient, score], px
+
+
+def arm_state(x: np.ndarray, u: np.ndarray, white_px: np.ndarray, green: np.ndarray,
+              other_mean: np.ndarray, top: np.ndarray, camera, to_floor, cc: dict,
+              cell: int, arms: np.ndarray | None = None) -> str:
+    """What the image shows along the half-line from a crossing ``x`` (ideal px) along the
+    unit ``u``, over ``min_arm_length`` m less a line width, from where it stands clear of
+    the crossing's lines (one ``line_width`` m on the floor past the crossing line's edge,
+    and far enough that the lines along ``arms`` (A, 2), as wide as painted lines there,
+    no longer touch it in the image: far away a right angle on the floor is a narrow one in
+    the image): "white" where the full-resolution white mask shows a line on it that long
+    (line_fit.grow_along, profiles every px up to ``refine_step``; its runs centred on it and
+    of a painted line's width, ``width_ratio``), or up to the image's edge; "green" where no
+    white goes on, the line would be wide enough in the image to show (``fine_px`` / 2) and
+    the cells along it are field (inside the boundary, no object, green at least
+    ``t_green``); else "unknown" (out of view, hidden, not resolved, white of no line)."""
+    w, h = camera.image_size
+    a = np.zeros((0, 2)) if arms is None else np.ascontiguousarray(arms, np.float64)
+    code = _arm_state(float(x[0]), float(x[1]), float(u[0]), float(u[1]), a, white_px,
+                      np.asarray(green, np.float32), np.asarray(other_mean, np.float32),
+                      np.asarray(top, np.float64), lens_parameters(camera), to_floor.m,
+                      to_floor.m_inv, to_floor.height,
+                      np.asarray(to_floor.position, np.float64), float(w), float(h),
+                      float(cell), float(cc["line_width"]), float(cc["arm_tolerance"]),
+                      float(cc["refine_reach"] * cell), float(cc["fine_px"]),
+                      float(cc["min_arm_length"]), float(cc["refine_step"]),
+                      float(cc["width_ratio"][0]), float(cc["width_ratio"][1]),
+                      float(cc["t_green"]))
+    return ("unknown", "white", "green")[code]
+
+
+@njit(cache=True, nogil=True)
+def _arm_state(x0, x1, ux, uy, arms, white_px, green, other_mean, top, lens, m, m_inv,
+               height, pos, w, h, cell, line_width, tolerance, max_reach, fine_px,
+               min_length, refine_step, ratio_lo, ratio_hi, t_green):
+    """arm_state, compiled: 0 unknown, 1 white, 2 green."""
+    f0x, f0y = _floor_point(m, height, pos, x0, x1)
+    f1x, f1y = _floor_point(m, height, pos, x0 + 4.0 * ux, x1 + 4.0 * uy)
+    scale = math.hypot(f1x - f0x, f1y - f0y) / 4.0  # m of floor per px along u
+    if not np.isfinite(scale) or scale <= 0:
+        return 0
+    start, reach = _clear_start_kernel(x0, x1, ux, uy, arms, scale, m, m_inv, height, pos,
+                                       line_width, tolerance, max_reach)
+    need = start + max(fine_px, (min_length - line_width) / scale)
+    step = min(max(line_width / scale, 1.0), refine_step)
+    # the distance to ``step`` px inside the image's edge (as _in_image)
+    edge = np.inf
+    for c, d, hi in ((x0, ux, w - 1 - step), (x1, uy, h - 1 - step)):
+        if d > 1e-12:
+            edge = min(edge, (hi - c) / d)
+        elif d < -1e-12:
+            edge = min(edge, (step - c) / d)
+    edge = max(edge, 0.0)
+    sx, sy = x0 + start * ux, x1 + start * uy
+    gx, gy = _grow(white_px, lens, sx, sy, ux, uy, step, reach, need, tolerance)
+    t = (gx - x0) * ux + (gy - x1) * uy
+    nx, ny = -uy, ux
+    if t >= need - 1e-6 or t >= edge - 1e-6:
+        # white on: a painted line's, if its runs are centred on the arm and as wide as a
+        # line of line_width m there (else something white that is no line: unknown)
+        stop = min(t, max(need, start + 3 * step))
+        seg = np.empty((2, 2))
+        seg[0, 0], seg[0, 1] = sx, sy
+        seg[1, 0], seg[1, 1] = x0 + stop * ux, x1 + stop * uy
+        res = np.empty(12)
+        _, widths = _refine(seg, white_px, lens, step, reach, 0.0, 3, 0.0, res)
+        if res[0] == 0:
+            return 0
+        for k in (1, 3):
+            if abs((res[k] - x0) * nx + (res[k + 1] - x1) * ny) > 2 * tolerance:
+                return 0
+        mid = 0.5 * (start + stop)
+        expected = _px_width(m, m_inv, height, pos, x0 + mid * ux, x1 + mid * uy, ux, uy,
+                             line_width)
+        ratio = np.median(widths) / max(expected, 1e-6)
+        return 1 if ratio_lo <= ratio <= ratio_hi else 0
+    if need > edge:
+        return 0
+    # a line thinner in the image than half the judged length (fine_px) may break up in the
+    # white mask: no white there is no evidence of no line
+    mid = 0.5 * (start + need)
+    if not _px_width(m, m_inv, height, pos, x0 + mid * ux, x1 + mid * uy, ux, uy,
+                     line_width) >= 0.5 * fine_px:
+        return 0
+    for k in range(3):
+        tk = start + 0.5 * k * (need - start)
+        px, py = _distort(lens, x0 + tk * ux, x1 + tk * uy)
+        gx_, gy_ = (px + 0.5) / cell - 0.5, (py + 0.5) / cell - 0.5
+        col = min(max(int(round(gx_)), 0), top.shape[0] - 1)
+        row = min(max(int(round(gy_)), 0), other_mean.shape[0] - 1)
+        if gy_ < top[col] or other_mean[row, col] > 0.5:
+            return 0
+        if _sample_cell(green, gx_, gy_) < t_green:
+            return 0
+    return 2
+
+
+def _clear_start(x: np.ndarray, u: np.ndarray, arms, scale: float, to_floor, cc: dict,
+                 cell: int) -> tuple[float, float]:
+    """Where (px from ``x`` along the unit ``u``) a line leaving a crossing along ``u`` stands
+    clear of the crossing's lines: one ``line_width`` m of floor (``scale`` m per px along
+    ``u``) past the crossing line's edge, and far enough that the lines along ``arms``
+    (A, 2; None: none), as wide as painted lines there, no longer touch it in the image.
+    Also the reach (px to each side) of profiles across it: enough for its width and the
+    tolerance (``arm_tolerance``), at most ``refine_reach`` cells, so that a neighbouring
+    line at a narrow image angle stays out of them. Compiled (``_clear_start_kernel``)."""
+    a = np.zeros((0, 2)) if arms is None else np.ascontiguousarray(arms, np.float64)
+    return _clear_start_kernel(float(x[0]), float(x[1]), float(u[0]), float(u[1]), a,
+                               float(scale), to_floor.m, to_floor.m_inv, to_floor.height,
+                               to_floor.position, float(cc["line_width"]),
+                               float(cc["arm_tolerance"]), float(cc["refine_reach"] * cell))
+
+
+def _line_px_width(p: np.ndarray, u: np.ndarray, to_floor, line_width: float) -> float:
+    """The width (ideal px, across the image direction ``u``) of a painted line ``line_width``
+    m wide running along ``u`` through the ideal point ``p``; NaN off the floor (compiled:
+    ``_px_width``)."""
+    return _px_width(to_floor.m, to_floor.m_inv, to_floor.height, to_floor.position,
+                     float(p[0]), float(p[1]), float(u[0]), float(u[1]), float(line_width))
+
+
+@njit(cache=True, nogil=True)
+def _floor_point(m, height, pos, x, y):
+    """perspective.FloorProjection at one ideal pixel."""
+    rx = x * m[0, 0] + y * m[0, 1] + m[0, 2]
+    ry = x * m[1, 0] + y * m[1, 1] + m[1, 2]
+    down = x * m[2, 0] + y * m[2, 1] + m[2, 2]
+    if down >= -1e-9:
+        return np.nan, np.nan
+    t = height / -down
+    return rx * t + pos[0], ry * t + pos[1]
+
+
+@njit(cache=True, nogil=True)
+def _ideal_point(m_inv, height, pos, fx, fy):
+    """perspective.FloorProjection.to_ideal at one floor point."""
+    px, py, pz = fx - pos[0], fy - pos[1], -height
+    h0 = m_inv[0, 0] * px + m_inv[0, 1] * py + m_inv[0, 2] * pz
+    h1 = m_inv[1, 0] * px + m_inv[1, 1] * py + m_inv[1, 2] * pz
+    h2 = m_inv[2, 0] * px + m_inv[2, 1] * py + m_inv[2, 2] * pz
+    if h2 <= 1e-9:
+        return np.nan, np.nan
+    return h0 / h2, h1 / h2
+
+
+@njit(cache=True, nogil=True)
+def _px_width(m, m_inv, height, pos, px, py, ux, uy, line_width):
+    f0x, f0y = _floor_point(m, height, pos, px, py)
+    f1x, f1y = _floor_point(m, height, pos, px + ux, py + uy)
+    ax, ay = f1x - f0x, f1y - f0y
+    na = math.hypot(ax, ay)
+    if not np.isfinite(na) or na <= 0:
+        return np.nan
+    nx, ny = -ay / na * (0.5 * line_width), ax / na * (0.5 * line_width)
+    a0, a1 = _ideal_point(m_inv, height, pos, f0x - nx, f0y - ny)
+    b0, b1 = _ideal_point(m_inv, height, pos, f0x + nx, f0y + ny)
+    return abs((b0 - a0) * -uy + (b1 - a1) * ux)
+
+
+@njit(cache=True, nogil=True)
+def _clear_start_kernel(x0, x1, ux, uy, arms, scale, m, m_inv, height, pos, line_width,
+                        tolerance, max_reach):
+    start = max(1.0, line_width / scale)
+    w_u = _px_width(m, m_inv, height, pos, x0, x1, ux, uy, line_width)
+    if not np.isfinite(w_u):
+        w_u = 1.0
+    for k in range(arms.shape[0]):
+        vx, vy = arms[k, 0], arms[k, 1]
+        sin = abs(ux * vy - uy * vx)
+        dot = ux * vx + uy * vy
+        if 0.0 < dot < 0.999:  # ahead of the line, and not the line itself
+            w_v = _px_width(m, m_inv, height, pos, x0, x1, vx, vy, line_width)
+            if np.isfinite(w_v):
+                start = max(start, (0.5 * (w_u + w_v) + tolerance) / max(sin, 1e-3))
+    reach = min(max(1.5 * w_u + 2 * tolerance, 2 * tolerance), max_reach)
+    return start, reach
+
+
 def _continued_as_t(x, dirs, reach, white, green, other_mean, top, camera, to_floor, cc, cell,
-                    field_cells, lengths):
+                    field_cells, lengths, white_px=None):
     """An L whose view opposite its arms is not carpet: where one arm's line goes on through
     the crossing (the fit of a T's bar ended at the stem, or the bar's far half was fitted as
     a line of its own that missed the pair), the crossing is that T. Each arm continued is
@@ -657,7 +1042,7 @@ def _continued_as_t(x, dirs, reach, white, green, other_mean, top, camera, to_fl
         ext = np.append(reach, reach[k])
         lens = None if lengths is None else np.append(lengths, reach[k])
         v = _verify_crossing("T", x, arms, ext, white, green, other_mean, top, camera, to_floor,
-                             cc, cell, field_cells, lens)
+                             cc, cell, field_cells, lens, white_px)
         if not isinstance(v, str) and (isinstance(best, str) or v[0][4] > best[0][4]):
             best = v
     return best
@@ -681,6 +1066,40 @@ def _alternative_in_view(x, dirs, camera, top, other_mean, green, cc, cell) -> b
         if sample_cells(green, g[None])[0] < cc["t_green"]:
             return False
     return True
+
+
+def white_arm_lengths(x: np.ndarray, dirs: np.ndarray, lengths: np.ndarray, which: np.ndarray,
+                      white_px: np.ndarray, camera, cc: dict, cell: int) -> np.ndarray:
+    """Arm lengths (A,) px from the crossing ``x`` (ideal px) along ``dirs``: for the arms
+    ``which`` (A,) bool, ``lengths`` grown while the full-resolution white mask still shows
+    a white run on the arm's line (line_fit's profile walk: a profile across the arm every
+    ``refine_step`` px, ``refine_reach`` cells to each side, its run's centre within
+    ``arm_tolerance`` px of the line; it stops after two profiles without), up to
+    ``arm_grow`` cells; the others as given."""
+    out = np.asarray(lengths, float).copy()
+    lens = lens_parameters(camera)
+    for k in np.nonzero(which)[0]:
+        u = dirs[k]
+        e = x + out[k] * u
+        g = grow_along(white_px, lens, e, u, cc["refine_step"], cc["refine_reach"] * cell,
+                       cc["arm_grow"] * cell, cc["arm_tolerance"])
+        out[k] = max(out[k], float((g - x) @ u))
+        if out[k] >= _in_image(x, u[None], camera, cc["refine_step"])[0]:
+            out[k] = np.inf  # white up to the image's edge: longer than what is in view
+    return out
+
+
+def _in_image(x: np.ndarray, dirs: np.ndarray, camera, margin: float) -> np.ndarray:
+    """Per direction (A, 2), the distance (ideal px) from ``x`` along it to ``margin`` px
+    inside the image's edge (in ideal pixels: the lens's distortion is small at the edges
+    of the views this is used for)."""
+    w, h = camera.image_size
+    lo = np.array([margin, margin])
+    hi = np.array([w - 1 - margin, h - 1 - margin])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(dirs > 1e-12, (hi - x) / dirs, np.where(dirs < -1e-12, (lo - x) / dirs,
+                                                               np.inf))
+    return np.maximum(t.min(axis=1), 0.0)
 
 
 def _refined_arm(arm, centre: np.ndarray, white_px: np.ndarray, camera, cc: dict, cell: int):

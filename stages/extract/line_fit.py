@@ -260,6 +260,17 @@ def refine_segment(ends: np.ndarray, white: np.ndarray, lens: np.ndarray, step: 
     return RefinedLine(res[1:5].reshape(2, 2).copy(), fit, pts, widths)
 
 
+def grow_along(white: np.ndarray, lens: np.ndarray, end: np.ndarray, direction: np.ndarray,
+               step: float, reach: float, grow: float, tol: float) -> np.ndarray:
+    """The point (2,) ideal px up to which the white line goes on from ``end`` along the unit
+    ``direction``, by at most ``grow`` px: profiles across it every ``step`` px, ``reach``
+    px to each side, whose white run's centre lies within ``tol`` px of the line; the walk
+    stops after two profiles without (the compiled ``_grow`` of refine_segment)."""
+    x, y = _grow(white, lens, float(end[0]), float(end[1]), float(direction[0]),
+                 float(direction[1]), float(step), float(reach), float(grow), float(tol))
+    return np.array([x, y])
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _distort(lens, x, y):
     fx, fy, cx, cy, k1, k2, p1, p2, k3 = lens
@@ -524,16 +535,16 @@ def _grow(image, lens, ex, ey, dx, dy, step, reach, grow, tol):
         v = step * (n + 1)
     if n == 0:
         return ex, ey
-    along = np.empty(n)
-    for k in range(n):
-        along[k] = step * (k + 1)
-    centre = np.empty(n)
-    width = np.empty(n)
-    ok = np.empty(n, np.bool_)
-    _profile_runs(image, lens, ex, ey, dx, dy, along, reach, centre, width, ok)
+    # one profile at a time, so that the walk ends with its second miss in a row
+    along = np.empty(1)
+    centre = np.empty(1)
+    width = np.empty(1)
+    ok = np.empty(1, np.bool_)
     last, miss = -1, 0
     for k in range(n):
-        if ok[k] and abs(centre[k]) <= tol:
+        along[0] = step * (k + 1)
+        _profile_runs(image, lens, ex, ey, dx, dy, along, reach, centre, width, ok)
+        if ok[0] and abs(centre[0]) <= tol:
             last, miss = k, 0
         else:
             miss += 1
@@ -541,7 +552,7 @@ def _grow(image, lens, ex, ey, dx, dy, step, reach, grow, tol):
                 break
     if last < 0:
         return ex, ey
-    return ex + along[last] * dx, ey + along[last] * dy
+    return ex + step * (last + 1) * dx, ey + step * (last + 1) * dy
 
 
 @njit(cache=True, nogil=True)

@@ -160,6 +160,12 @@ confs = {
             "refine_step": 3.0,
             "refine_reach": 2.0,
             "refine_min_points": 3,
+            # an arm shorter than min_arm_length by its fitted nodes or line is grown along
+            # the white line on the full-resolution mask (crossings.white_arm_lengths): by
+            # at most arm_grow cells, while the white run's centre stays within
+            # arm_tolerance px of the arm's line
+            "arm_grow": 12.0,
+            "arm_tolerance": 3.0,
             # crossings of pairs of fitted lines (crossings.line_pair_crossings): lines meeting
             # at most pair_gap cells (plus the other line's width) beyond an end
             "line_pairs": True,
@@ -173,6 +179,21 @@ confs = {
             # NAO's (0.47 m, 608 px); on rendered walks farther crossings were mostly
             # misplaced or of the wrong type
             "max_cell_span": 0.25,
+            # ... and farther, where one profile step (refine_step px) spans no more, checked
+            # on the full-resolution white mask (crossings._verify_fine: the arms' opposites
+            # white, green or unknown from one line width to min_arm_length m beyond the
+            # crossing); False: rejected as too far
+            "fine": True,
+            "line_width": 0.05,  # m, of the painted lines
+            "fine_px": 3.0,  # px of white (or green) at least on which an arm is judged
+            # white along an arm is a line's when its runs' median width over a painted
+            # line's (line_width m) there lies in this range (as lines.width_ratio)
+            "width_ratio": [0.4, 2.5],
+            # short lines leaving a fitted line's end at a right angle, found on the
+            # full-resolution white mask (crossings.stem_lines) where a cell spans more than
+            # stem_min_span m of floor along them
+            "stems": True,
+            "stem_min_span": 0.0,
         },
         "lines": {
             "split_distance": 7.0,  # undistorted px
