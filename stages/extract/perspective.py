@@ -184,11 +184,9 @@ confs = {
             # white, green or unknown from one line width to min_arm_length m beyond the
             # crossing); False: rejected as too far
             "fine": True,
-            "line_width": 0.05,  # m, of the painted lines
             "fine_px": 3.0,  # px of white (or green) at least on which an arm is judged
-            # white along an arm is a line's when its runs' median width over a painted
-            # line's (line_width m) there lies in this range (as lines.width_ratio)
-            "width_ratio": [0.4, 2.5],
+            # (white along an arm is a line's when its runs' median width over a painted
+            # line's lies in lines.width_ratio, lines.line_width m wide: the lines' own test)
             # short lines leaving a fitted line's end at a right angle, found on the
             # full-resolution white mask (crossings.stem_lines) where a cell spans more than
             # stem_min_span m of floor along them
@@ -478,8 +476,11 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
             posts.append(row)
             posts_px.append(px)
 
+    # the crossings' arms are white as lines are: the lines' painted width and width test
+    lc = conf["lines"]
+    cc = {**conf["crossings"], "line_width": lc["line_width"], "width_ratio": lc["width_ratio"]}
     crossings, crossings_px = find_crossings(ks, graph, ideal, inside, green, other, top, camera,
-                                             to_floor, conf["crossings"], cell, trace,
+                                             to_floor, cc, cell, trace,
                                              counts.get("white_px"),
                                              floor_of if floor_angles else None,
                                              np.asarray(lines_ideal).reshape(-1, 2, 2),
