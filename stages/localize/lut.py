@@ -432,22 +432,9 @@ class LutLocaliser:
         info = bank.innovation_information(prior_cov)
         # the window's error term in evidence units: scaled by the frame's evidence share
         scale = obs.total_weight / max(obs.lookup_total_weight, 1e-12)
-        fix, _wmin, window_fit = search.tracked_search(obs, theta, prior_pose[:2], info,
-                                                       self.T / scale, half_width=self.half,
-                                                       prior_cap=bank.prior_cap)
-        if math.hypot(fix.x - prior_pose[0], fix.y - prior_pose[1]) > 2 * search.grid.resolution:
-            # the window's choice rests on the lookup's quantised error term, the basin the
-            # prior lies in may fit better by the exact one: the better of the two
-            own = search.refine(obs, search._cell_of(float(prior_pose[0]), float(prior_pose[1])),
-                                theta)
-
-            def score(f):
-                d = np.array([f.x - prior_pose[0], f.y - prior_pose[1]])
-                return f.error / self.T + bank.prior_term(d, info)
-
-            if score(own) < score(fix):
-                own.mode, own.at_window_edge = "local", False
-                fix = own
+        fix, sup, window_fit = search.tracked_fix(
+            obs, theta, prior_pose[:2], info, self.T / scale, self.T, conf["inlier_error"],
+            half_width=self.half, prior_cap=bank.prior_cap)
         heading_sigma = self.heading_sigma
         if by_vision:
             rh, curv = search.refine_heading(obs, fix.cell, fix.theta)
@@ -455,6 +442,7 @@ class LutLocaliser:
             if rh.error <= fix.error and sigma <= conf["vision_heading_max_sigma"]:
                 rh.mode, rh.at_window_edge = fix.mode, fix.at_window_edge
                 fix = rh
+                sup = search.support(obs, fix, conf["inlier_error"])
                 heading_sigma = sigma
             else:  # keep the predicted or jolted heading, trusted little
                 heading_sigma = conf["unsure_heading_sigma"]
@@ -463,7 +451,6 @@ class LutLocaliser:
         evidence = fix.error
         nll = evidence / self.T
         fit = nll + bank.prior_term(d, info)
-        sup = search.support(obs, fix, conf["inlier_error"])
         R = vision_covariance(fix, sup, conf, heading_sigma)
         self._fit_points(fix, obs)  # the heading was found by the search when by vision
         if heading_sigma > self.heading_sigma:  # a heading this unsure moves the fix too:

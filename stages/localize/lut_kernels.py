@@ -8,6 +8,8 @@ per observation, sums over observations accumulated in float64.
 - ``tracked_window``: that surface on a tracked search's window ranked by the posterior (error
   term over the temperature plus the prior's capped Mahalanobis term), its best cells;
   ``tracked_window_bound`` a lower bound of its best score from the min-pooled lookup;
+  ``tracked_fix`` a track's whole fix in one call (window, sub-cell refinement in the chosen
+  basin and in the prior's, support);
 - ``observation_error``: one observation's error at one cell (nearest table crossing at a table
   heading, the angle-interpolated prediction between two), the base of
   ``exact_error_cells`` (the weighted error term on a few cells), ``observation_errors_cell``
@@ -18,6 +20,8 @@ per observation, sums over observations accumulated in float64.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numba import njit
@@ -245,6 +249,97 @@ def tracked_window(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb
                 low_val = v
                 low = (i0 + i) * nx + j0 + j
     return best, low, low_val, best_score
+
+
+@njit(cache=True, nogil=True)
+def _refine_into(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist, weight,
+                 tol, c2, i, j, ny, nx, m0, a, interpolate, total_weight, x0, y0, res, qpinv,
+                 out):
+    """``TableSearch.refine`` from cell (i, j) (its 4 cell moves, the quadratic fit of the last
+    3 x 3 patch), the same arithmetic, into ``out`` (9,): x, y, error, error_norm, cell i,
+    cell j, and the Hessian of error_norm hxx, hxy, hyy (m^-2)."""
+    e = np.empty(9)
+    flat = refine_moves(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist,
+                        weight, tol, c2, i, j, ny, nx, m0, a, interpolate, 4, e)
+    fi, fj = flat // nx, flat % nx
+    for k in range(9):
+        e[k] /= total_weight
+    dx, dy, fmin, hxx, hxy, hyy = quadratic_fit(e, qpinv)
+    e_norm = min(max(fmin, 0.0), e[4])
+    r2 = res * res
+    out[0] = (x0 + fj * res) + dx * res
+    out[1] = (y0 + fi * res) + dy * res
+    out[2] = e_norm * total_weight
+    out[3] = e_norm
+    out[4] = fi
+    out[5] = fj
+    out[6] = hxx / r2
+    out[7] = hxy / r2
+    out[8] = hyy / r2
+
+
+@njit(cache=True, nogil=True)
+def tracked_fix(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
+                spiral_row0, i0, i1, j0, j1, ny, nx, scale, x0, y0, res, px, py, ia, ib, ic,
+                cap, radial_flat, spiral_flat, ncell, dist, weight, tol, c2, m0, a,
+                interpolate, total_weight, temperature, qpinv, weight64, inlier_error, c2_64,
+                out):
+    """A track's fix in one call (``TableSearch.tracked_fix``): the window's best cell by
+    the posterior score (``tracked_window``), refined to sub-cell in its basin
+    (``_refine_into``, the heading m0 / a); when that lies more than two cells from the prior
+    (px, py), the basin the prior lies in refined too and kept when its exact score
+    error / ``temperature`` + min(0.5 d^T [[ia, ib], [ib, ic]] d, ``cap``) is lower; then
+    the fix's support (``observation_errors_cell`` at the cell nearest it, ``inlier_sums``
+    with the float64 weights ``weight64``). ``out`` (16,): the refined fix (``_refine_into``'s
+    9 values), at window edge (0 / 1), the window's best posterior score, the prior's basin
+    taken (0 / 1), then the support's inliers, inlier weight, weighted rho, weighted squared
+    error."""
+    best, _low, _low_val, window_fit = tracked_window(
+        lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral, spiral_row0,
+        i0, i1, j0, j1, nx, scale, x0, y0, res, px, py, ia, ib, ic, cap)
+    i, j = best // nx, best % nx
+    edge = ((i == i0 and i0 > 0) or (i == i1 - 1 and i1 < ny)
+            or (j == j0 and j0 > 0) or (j == j1 - 1 and j1 < nx))
+    _refine_into(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist, weight,
+                 tol, c2, i, j, ny, nx, m0, a, interpolate, total_weight, x0, y0, res, qpinv,
+                 out[:9])
+    out[9] = 1.0 if edge else 0.0
+    out[10] = window_fit
+    out[11] = 0.0
+    if math.hypot(out[0] - px, out[1] - py) > 2 * res:
+        # the window's choice rests on the quantised error term; the prior's basin may fit
+        # better by the exact one
+        own = np.empty(9)
+        ci = min(max(int(np.rint((py - y0) / res)), 0), ny - 1)
+        cj = min(max(int(np.rint((px - x0) / res)), 0), nx - 1)
+        _refine_into(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist,
+                     weight, tol, c2, ci, cj, ny, nx, m0, a, interpolate, total_weight, x0, y0,
+                     res, qpinv, own)
+        if _posterior_score(own, temperature, px, py, ia, ib, ic, cap) < _posterior_score(
+                out, temperature, px, py, ia, ib, ic, cap):
+            out[:9] = own
+            out[9] = 0.0
+            out[11] = 1.0
+    # the support at the cell nearest the fix (TableSearch.support)
+    ci = min(max(int(np.rint((out[1] - y0) / res)), 0), ny - 1)
+    cj = min(max(int(np.rint((out[0] - x0) / res)), 0), nx - 1)
+    errors = np.empty(dist.shape[0])
+    observation_errors_cell(radial_flat, spiral_flat, ncell, n_angles, family, angle_index,
+                            dist, tol, ci * nx + cj, m0, a, interpolate, errors)
+    n_in, w_in, rho, sq = inlier_sums(errors, weight64, inlier_error, c2_64)
+    out[12] = n_in
+    out[13] = w_in
+    out[14] = rho
+    out[15] = sq
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _posterior_score(fix, temperature, px, py, ia, ib, ic, cap):
+    """error / temperature + min(0.5 d^T info d, cap) of a refined fix (``_refine_into``'s
+    layout), d its offset from the prior (TrackBank.prior_term)."""
+    dx, dy = fix[0] - px, fix[1] - py
+    q = (dx * ia + dy * ib) * dx + (dx * ib + dy * ic) * dy
+    return fix[2] / temperature + min(0.5 * q, cap)
 
 
 @njit("float64(uint8[:, ::1], int64, int64, int64, int64[::1], int64[::1], int64[::1], int64,"

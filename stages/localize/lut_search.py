@@ -65,6 +65,7 @@ from .lut_kernels import (
     quadratic_fit,
     refine_moves,
     structure_sizes,
+    tracked_fix,
     tracked_window,
     tracked_window_bound,
 )
@@ -148,6 +149,11 @@ class Observation:
     @property
     def total_weight(self) -> float:
         return float(self.weight.sum())
+
+    @property
+    def weight64(self) -> np.ndarray:
+        """``weight`` as the kernels' contiguous float64 array."""
+        return np.ascontiguousarray(self.weight, dtype=np.float64)
 
     @classmethod
     def from_scanlines(cls, radial, spiral, params: MatchingParams, max_range: float,
@@ -469,8 +475,13 @@ class TableSearch:
         """The inliers of a fix: observations with error below ``inlier_error`` (m) at the
         cell nearest the fix's position, at its heading."""
         e = self.observation_errors(obs, self._cell_of(result.x, result.y), result.theta)
-        n, w_in, rho, sq = inlier_sums(e, np.ascontiguousarray(obs.weight, dtype=np.float64),
-                                       float(inlier_error), self.params.c * self.params.c)
+        return self._support(obs, *inlier_sums(e, obs.weight64, float(inlier_error),
+                                               self.params.c * self.params.c))
+
+    @staticmethod
+    def _support(obs: Observation, n, w_in, rho, sq) -> Support:
+        """The Support of ``inlier_sums``' (inliers, weight, weighted rho, weighted squared
+        error)."""
         return Support(observations=len(obs), inliers=int(n), inlier_weight=w_in,
                        total_weight=obs.total_weight, inlier_rho=rho / w_in if w_in else 0.0,
                        inlier_rms=math.sqrt(sq / w_in) if w_in else math.nan)
@@ -575,34 +586,49 @@ class TableSearch:
         r.mode = "local"
         return r
 
-    def tracked_search(self, obs: Observation, theta: float, prior_xy, prior_information,
-                       temperature: float, *, half_width: float = 1.0,
-                       prior_cap: float = math.inf):
-        """The seed's local search around a tracked prior, ranked by the posterior: in the
-        window (2 half_width square) around ``prior_xy`` the cell minimising
-        E(cell) / temperature + min(0.5 d^T ``prior_information`` d, ``prior_cap``) (d = cell
-        - prior, the prior's inverse position covariance (2, 2); the cap: a prior that may be
-        wrong, a Gaussian with a uniform floor), refined to sub-cell in its basin. Also the
-        window's best cell by the error term alone, which may lie in another basin. Returns
-        (fix, (i, j, error) of that best cell, the posterior score of the fix's cell)."""
-        (best, low, low_val, score), (i0, i1, j0, j1) = self._tracked_window(
-            obs, theta, prior_xy, prior_information, temperature, half_width, prior_cap)
-        i, j = divmod(best, self.nx)
-        edge = ((i == i0 and i0 > 0) or (i == i1 - 1 and i1 < self.ny)
-                or (j == j0 and j0 > 0) or (j == j1 - 1 and j1 < self.nx))
-        fix = self.refine(obs, (i, j), theta)
-        fix.mode = "local"
-        fix.at_window_edge = bool(edge)
-        wi, wj = divmod(low, self.nx)
-        return fix, (wi, wj, low_val / self.q_levels), score
+    def tracked_fix(self, obs: Observation, theta: float, prior_xy, prior_information,
+                    temperature: float, fix_temperature: float, inlier_error: float, *,
+                    half_width: float = 1.0, prior_cap: float = math.inf):
+        """The seed's local search around a tracked prior, ranked by the posterior, in one
+        compiled call (``lut_kernels.tracked_fix``): in the window (2 half_width square)
+        around ``prior_xy`` the cell minimising E(cell) / temperature + min(0.5 d^T
+        ``prior_information`` d, ``prior_cap``) (d = cell - prior, the prior's inverse
+        position covariance (2, 2); the cap: a prior that may be wrong, a Gaussian with a
+        uniform floor), refined to sub-cell in its basin (``refine``). The window's choice
+        rests on the lookup's quantised error term: when it lies more than two cells from
+        the prior, the basin the prior lies in is refined too and taken when its exact error
+        / ``fix_temperature`` + the capped Mahalanobis term is lower. Returns (fix, its
+        ``support`` with ``inlier_error``, the posterior score of the window's best cell)."""
+        m = self.scanlines.heading_index(theta)
+        i0, i1, j0, j1 = self.local_window(prior_xy[0], prior_xy[1], half_width)
+        m0, a, interpolate = self._heading_args(theta)
+        g, info = self.grid, prior_information
+        W = max(obs.total_weight, 1e-12)
+        radial, spiral, ncell, _n, _f, _a, dist, weight, tol, c2 = self._kernel_arrays(obs)
+        out = np.empty(16)
+        tracked_fix(self.error_lookup, *self._row_arrays(obs, m), i0, i1, j0, j1, self.ny,
+                    self.nx, 1.0 / (self.q_levels * temperature), float(g.origin[0]),
+                    float(g.origin[1]), float(g.resolution), float(prior_xy[0]),
+                    float(prior_xy[1]), float(info[0, 0]), float(info[0, 1]),
+                    float(info[1, 1]), float(min(prior_cap, 1e300)), radial, spiral, ncell,
+                    dist, weight, tol, c2, m0, a, interpolate, W, float(fix_temperature),
+                    _QPINV, obs.weight64, float(inlier_error), self.params.c * self.params.c,
+                    out)
+        x, y, e, e_norm, ci, cj, hxx, hxy, hyy, edge, window_fit, own = out[:12].tolist()
+        fix = SearchResult(x=x, y=y, theta=float(theta), error=e, error_norm=e_norm,
+                           cell=(int(ci), int(cj)), n_observations=len(obs),
+                           hessian=np.array([[hxx, hxy], [hxy, hyy]]),
+                           at_window_edge=edge > 0, mode="local")
+        n, w_in, rho, sq = out[12:].tolist()
+        return fix, self._support(obs, n, w_in, rho, sq), window_fit
 
     def tracked_score(self, obs: Observation, theta: float, prior_xy, prior_information,
                       temperature: float, *, half_width: float = 1.0,
                       prior_cap: float = math.inf) -> float:
-        """The best posterior score of ``tracked_search``'s window (quantised error term /
+        """The best posterior score of ``tracked_fix``'s window (quantised error term /
         temperature + capped Mahalanobis term), without refining it."""
         return self._tracked_window(obs, theta, prior_xy, prior_information, temperature,
-                                    half_width, prior_cap)[0][3]
+                                    half_width, prior_cap)[3]
 
     def tracked_score_bound(self, obs: Observation, theta: float, prior_xy, prior_information,
                             temperature: float, *, half_width: float = 1.0,
@@ -630,7 +656,7 @@ class TableSearch:
             1.0 / (self.q_levels * temperature), float(g.origin[0]), float(g.origin[1]),
             float(g.resolution), float(prior_xy[0]), float(prior_xy[1]), float(info[0, 0]),
             float(info[0, 1]), float(info[1, 1]), float(min(cap, 1e300)))
-        return out, (i0, i1, j0, j1)
+        return out
 
     def refine(self, obs: Observation, cell, theta: float, *, max_moves: int = 4) -> SearchResult:
         """Exact sub-cell refinement around ``cell``: the exact error at the continuous heading
