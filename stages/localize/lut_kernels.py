@@ -56,16 +56,27 @@ def lookup_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spi
 
 
 @njit(cache=True, nogil=True, inline="always")
-def observation_prediction(radial_flat, spiral_flat, ncell, n_angles, fam, ai, d, tol, c, m0,
-                           a32, b32, upper, interpolate):
-    """The crossing distance (m) predicted for one observation (family ``fam``, scan line
-    ``ai``, distance ``d``) at flat cell ``c``: at table heading m0 the nearest crossing of its
-    scan line (``interpolate`` False); between m0 and m0 + 1 (fraction a32 = 1 - b32) the
-    angle-interpolated prediction (``TableSearch.exact_error_at_heading``)."""
+def line_offsets(fam, ai, m0, n_angles, ncell):
+    """Where observation (family ``fam``, scan line ``ai``) reads its predictions at table
+    heading m0 and m0 + 1: the offsets of its table lines in the flat radial table (first
+    crossing; the others follow ncell apart) or the flat spiral table (``fam`` > 0)."""
     k0 = (ai + m0) % n_angles
     k1 = (k0 + 1) % n_angles
     if fam == 0:
-        r0 = k0 * MAX_CROSSINGS * ncell
+        return k0 * MAX_CROSSINGS * ncell, k1 * MAX_CROSSINGS * ncell
+    base = (fam - 1) * n_angles
+    return (base + k0) * ncell, (base + k1) * ncell
+
+
+@njit(cache=True, nogil=True, inline="always")
+def line_prediction(radial_flat, spiral_flat, ncell, fam, r0, r1, d, tol, c, a32, b32, upper,
+                    interpolate):
+    """The crossing distance (m) predicted for an observation at distance ``d`` whose table
+    lines start at r0, r1 (``line_offsets``) at flat cell ``c``: at table heading m0 the
+    nearest crossing of its scan line (``interpolate`` False); between m0 and m0 + 1
+    (fraction a32 = 1 - b32) the angle-interpolated prediction
+    (``TableSearch.exact_error_at_heading``)."""
+    if fam == 0:
         n0 = radial_flat[r0 + c]
         e0 = abs(n0 - d)
         for h in range(1, MAX_CROSSINGS):
@@ -75,7 +86,6 @@ def observation_prediction(radial_flat, spiral_flat, ncell, n_angles, fam, ai, d
                 e0 = abs(t - d)
         if not interpolate:
             return n0
-        r1 = k1 * MAX_CROSSINGS * ncell
         n1 = radial_flat[r1 + c]
         e1 = abs(n1 - d)
         for h in range(1, MAX_CROSSINGS):
@@ -86,14 +96,23 @@ def observation_prediction(radial_flat, spiral_flat, ncell, n_angles, fam, ai, d
         if abs(n0 - n1) < tol:
             return b32 * n0 + a32 * n1
         return n1 if upper else n0
-    base = (fam - 1) * n_angles
-    t0 = spiral_flat[(base + k0) * ncell + c]
+    t0 = spiral_flat[r0 + c]
     if not interpolate:
         return t0
-    t1 = spiral_flat[(base + k1) * ncell + c]
+    t1 = spiral_flat[r1 + c]
     if abs(t0 - t1) < tol:
         return b32 * t0 + a32 * t1
     return t1 if upper else t0
+
+
+@njit(cache=True, nogil=True, inline="always")
+def observation_prediction(radial_flat, spiral_flat, ncell, n_angles, fam, ai, d, tol, c, m0,
+                           a32, b32, upper, interpolate):
+    """The crossing distance (m) predicted for one observation (family ``fam``, scan line
+    ``ai``, distance ``d``) at flat cell ``c`` (``line_offsets``, ``line_prediction``)."""
+    r0, r1 = line_offsets(fam, ai, m0, n_angles, ncell)
+    return line_prediction(radial_flat, spiral_flat, ncell, fam, r0, r1, d, tol, c, a32, b32,
+                           upper, interpolate)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -109,17 +128,18 @@ def observation_error(radial_flat, spiral_flat, ncell, n_angles, fam, ai, d, tol
       cache=True, nogil=True)
 def exact_error_cells(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist,
                       weight, tol, c2, cells, m0, a, interpolate, out):
-    """out[c] = sum_i weight[i] * rho(e_i) at flat cell cells[c] (``observation_error``)."""
+    """out[c] = sum_i weight[i] * rho(e_i) at flat cell cells[c] (``observation_error``; an
+    observation's table lines found once for all the cells)."""
     a32 = np.float32(a)
     b32 = np.float32(1.0) - a32
     upper = a > 0.5
     out[:] = 0.0
     for o in range(dist.shape[0]):
-        w = weight[o]
+        w, d, fam = weight[o], dist[o], family[o]
+        r0, r1 = line_offsets(fam, angle_index[o], m0, n_angles, ncell)
         for ci in range(cells.shape[0]):
-            e = observation_error(radial_flat, spiral_flat, ncell, n_angles, family[o],
-                                  angle_index[o], dist[o], tol, cells[ci], m0, a32, b32, upper,
-                                  interpolate)
+            e = abs(line_prediction(radial_flat, spiral_flat, ncell, fam, r0, r1, d, tol,
+                                    cells[ci], a32, b32, upper, interpolate) - d)
             e2 = e * e
             out[ci] += w * (e2 / (c2 + e2))
 
