@@ -26,6 +26,8 @@ import math
 import numpy as np
 from numba import njit
 
+from .point_fit import fit_refine
+
 MAX_CROSSINGS = 4
 
 @njit("void(uint8[:, ::1], int64[::1], int64[::1], int64[::1], int64, int64, int64, int64,"
@@ -303,17 +305,21 @@ def tracked_fix(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_sp
                 spiral_row0, i0, i1, j0, j1, ny, nx, scale, x0, y0, res, px, py, ia, ib, ic,
                 cap, radial_flat, spiral_flat, ncell, dist, weight, tol, c2, m0, a,
                 interpolate, total_weight, temperature, qpinv, weight64, inlier_error, c2_64,
-                out):
+                theta, fit_points, fit_table, fit_x0, fit_y0, fit_res, points, fit_c2,
+                max_shift, max_turn, out):
     """A track's fix in one call (``TableSearch.tracked_fix``): the window's best cell by
     the posterior score (``tracked_window``), refined to sub-cell in its basin
     (``_refine_into``, the heading m0 / a); when that lies more than two cells from the prior
     (px, py), the basin the prior lies in refined too and kept when its exact score
     error / ``temperature`` + min(0.5 d^T [[ia, ib], [ib, ic]] d, ``cap``) is lower; then
     the fix's support (``observation_errors_cell`` at the cell nearest it, ``inlier_sums``
-    with the float64 weights ``weight64``). ``out`` (16,): the refined fix (``_refine_into``'s
-    9 values), at window edge (0 / 1), the window's best posterior score, the prior's basin
-    taken (0 / 1), then the support's inliers, inlier weight, weighted rho, weighted squared
-    error."""
+    with the float64 weights ``weight64``); with ``fit_points``, the fix at heading ``theta``
+    moved by the line points' fit (``point_fit.fit_refine`` of ``points`` on the distance
+    raster ``fit_table``, the heading kept, within ``max_shift`` / ``max_turn``). ``out``
+    (19,): the refined fix (``_refine_into``'s 9 values), at window edge (0 / 1), the
+    window's best posterior score, the prior's basin taken (0 / 1), the support's inliers,
+    inlier weight, weighted rho, weighted squared error, then the fitted pose (x, y, theta;
+    NaN without ``fit_points``)."""
     best, _low, _low_val, window_fit = tracked_window(
         lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral, spiral_row0,
         i0, i1, j0, j1, nx, scale, x0, y0, res, px, py, ia, ib, ic, cap)
@@ -351,6 +357,11 @@ def tracked_fix(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_sp
     out[13] = w_in
     out[14] = rho
     out[15] = sq
+    out[16:19] = np.nan
+    if fit_points:
+        normal = np.empty((3, 3))
+        fit_refine(fit_table, fit_x0, fit_y0, fit_res, points, weight64, out[0], out[1], theta,
+                   fit_c2, 8, True, max_shift, max_turn, out[16:19], normal)
 
 
 @njit(cache=True, nogil=True, inline="always")
