@@ -29,7 +29,9 @@ Per frame, for each track:
    without straight lines) the search refines the heading itself;
 3. the seed's local search in a ``window`` x ``window`` m square around the prior, ranked by
    the posterior E(cell) / T + Mahalanobis^2 / 2 (so a minimum far from where the odometry says
-   the robot is needs that much more evidence), refined to sub-cell in its basin: the fix;
+   the robot is needs that much more evidence), refined to sub-cell in its basin (and in the
+   prior's, kept when its exact score is lower), then moved by the line points' fit: the fix
+   (one compiled call, TableSearch.tracked_fix, unless the heading is refined by vision);
 4. its weight is multiplied by the fix's likelihood exp(-E / T) and by the odometry's agreement
    exp(-m^2 / 2) (m: the Kalman innovation of the fix, with a floor of ``min_gate`` /
    ``gate_sigmas`` against overconfidence), and by 1 - ``kidnap_probability``;

@@ -26,7 +26,9 @@ stages.localize.lookup_cache). It is stored scan-line-major ((line, bin) rows of
 contiguous), so the error surface of a frame over the whole world is the sum of one contiguous
 row per observation: one gather and one reduction (``global_search``), or the same restricted
 to a window (``local_search``), both in one numba kernel (``lookup_sum``; the exact error and
-the refinement's cell moves are numba kernels too). The quantised surface only picks cells; the
+the refinement's cell moves are numba kernels too). A track's fix (``tracked_fix``: the window
+ranked by the posterior, the refinement of its basin and of the prior's, the support, the line
+points' fit) is one compiled call. The quantised surface only picks cells; the
 pose is then refined with the exact error (float32 tables in metres, no quantisation):
 
 - sub-cell position: exact error on the 3 x 3 cells around the best cell (moving to a lower
@@ -194,6 +196,9 @@ class Observation:
                           distance=self.distance, weight=self.weight,
                           lookup_weight=self.lookup_weight)
         out._sums = self._sums  # the same weights
+        if self._rows is not None:  # and distance bins
+            b, family, _angle, bins = self._rows
+            out._rows = (b, family, np.ascontiguousarray(out.angle_index, dtype=np.int64), bins)
         return out
 
     def points(self, scanlines) -> np.ndarray:
