@@ -243,6 +243,63 @@ def test_tracked_score_bound_lies_below_the_windows_score(search):
     assert np.median(ratios) > 0.6, np.round(ratios, 2)
 
 
+def test_tracked_fix_is_the_window_refined_supported_and_fitted(search, msl2015_map):
+    """TableSearch.tracked_fix (one compiled call) against its definition in the search's
+    own pieces: the window's cell of least posterior score (lookup surface / T + capped
+    Mahalanobis term), refined (``refine``); when that lies more than two cells from the
+    prior, the prior's basin refined too and kept if its exact score is lower; the support
+    at the fix (``support``); the points' fit at the fix's heading (PointFit.refine). The
+    same arithmetic: equal results (the prior's basin wins on some of the cases)."""
+    rng = np.random.default_rng(31)
+    pf = lut.point_fit(MapFile(msl2015_map), search.params)
+    res, q = search.grid.resolution, search.q_levels
+    took_prior_basin = 0
+    for k in range(24):
+        pose = random_pose(rng, search.field)
+        obs = obs_at(search, pose, rng)
+        prior = np.array([pose[0] + rng.normal(0, 0.3), pose[1] + rng.normal(0, 0.3)])
+        a = rng.uniform(0.5, 30.0)
+        info = np.array([[a, 0.2 * a], [0.2 * a, 1.5 * a]])
+        T, fix_T, cap = rng.uniform(0.3, 3.0), rng.uniform(0.3, 3.0), 9.0
+        th = pose[2] + rng.normal(0, 0.02)
+        pts = obs.points(search.scanlines)
+        fit = (pf, pts, res, 0.5 * search.step) if k % 2 else None
+        fix, sup, window_fit, table_xy = search.tracked_fix(
+            obs, th, prior, info, T, fix_T, 0.125, half_width=1.0, prior_cap=cap, fit=fit)
+        # the definition
+        i0, i1, j0, j1 = search.local_window(prior[0], prior[1], 1.0)
+        surf = search.local_surface(obs, search.scanlines.heading_index(th), i0, i1, j0, j1)
+        ii, jj = np.mgrid[i0:i1, j0:j1]
+        cx, cy = search.grid.centre_of(ii, jj)
+        dx, dy = cx - prior[0], cy - prior[1]
+        m2 = info[0, 0] * dx * dx + 2 * info[0, 1] * dx * dy + info[1, 1] * dy * dy
+        score = surf / (q * T) + np.minimum(0.5 * m2, cap)
+        bi, bj = np.unravel_index(np.argmin(score), score.shape)
+        assert window_fit == pytest.approx(score[bi, bj], rel=1e-12, abs=1e-12)
+        want = search.refine(obs, (i0 + bi, j0 + bj), th)
+        if math.hypot(want.x - prior[0], want.y - prior[1]) > 2 * res:
+            own = search.refine(obs, search._cell_of(prior[0], prior[1]), th)
+
+            def post(f):
+                d = np.array([f.x - prior[0], f.y - prior[1]])
+                return f.error / fix_T + min(0.5 * float(d @ info @ d), cap)
+
+            if post(own) < post(want):
+                want = own
+                took_prior_basin += 1
+        assert table_xy == (want.x, want.y)
+        assert fix.cell == want.cell and fix.error == want.error
+        np.testing.assert_array_equal(fix.hessian, want.hessian)
+        assert sup == search.support(obs, want, 0.125)
+        if fit is None:
+            assert (fix.x, fix.y, fix.theta) == (want.x, want.y, want.theta)
+        else:
+            fitted, _c, _n = pf.refine(pts, obs.weight, want.pose, fixed_heading=True,
+                                       max_shift=res, max_turn=0.5 * search.step)
+            np.testing.assert_array_equal(fix.pose, fitted)
+    assert took_prior_basin >= 1
+
+
 def test_no_observations_is_no_result(search):
     empty = Observation.from_scanlines(np.full((72, 4), np.nan), np.full((2, 72), np.nan),
                                        search.params, 4.0, 2.0)

@@ -29,7 +29,9 @@ Per frame, for each track:
    without straight lines) the search refines the heading itself;
 3. the seed's local search in a ``window`` x ``window`` m square around the prior, ranked by
    the posterior E(cell) / T + Mahalanobis^2 / 2 (so a minimum far from where the odometry says
-   the robot is needs that much more evidence), refined to sub-cell in its basin: the fix;
+   the robot is needs that much more evidence), refined to sub-cell in its basin (and in the
+   prior's, kept when its exact score is lower), then moved by the line points' fit: the fix
+   (one compiled call, TableSearch.tracked_fix, unless the heading is refined by vision);
 4. its weight is multiplied by the fix's likelihood exp(-E / T) and by the odometry's agreement
    exp(-m^2 / 2) (m: the Kalman innovation of the fix, with a floor of ``min_gate`` /
    ``gate_sigmas`` against overconfidence), and by 1 - ``kidnap_probability``;
@@ -274,6 +276,9 @@ class LutLocaliser:
         self.heading_sigma = {"imu": conf["imu_sigma"], "histogram": conf["histogram_sigma"],
                               "truth": conf["truth_sigma"]}[conf["heading"]]
         self.half = 0.5 * float(conf["window"])
+        # a points' fit moves a fix within the search's own resolution: one table cell, half
+        # a table heading step (_fit_points)
+        self._fit_reach = (search.grid.resolution, 0.5 * search.step)
         self.T_frame = float(conf["temperature"])
         self.T_track = self.T_frame * float(conf["track_correlation"])
         self.T = self.T_frame
@@ -432,22 +437,11 @@ class LutLocaliser:
         info = bank.innovation_information(prior_cov)
         # the window's error term in evidence units: scaled by the frame's evidence share
         scale = obs.total_weight / max(obs.lookup_total_weight, 1e-12)
-        fix, _wmin, window_fit = search.tracked_search(obs, theta, prior_pose[:2], info,
-                                                       self.T / scale, half_width=self.half,
-                                                       prior_cap=bank.prior_cap)
-        if math.hypot(fix.x - prior_pose[0], fix.y - prior_pose[1]) > 2 * search.grid.resolution:
-            # the window's choice rests on the lookup's quantised error term, the basin the
-            # prior lies in may fit better by the exact one: the better of the two
-            own = search.refine(obs, search._cell_of(float(prior_pose[0]), float(prior_pose[1])),
-                                theta)
-
-            def score(f):
-                d = np.array([f.x - prior_pose[0], f.y - prior_pose[1]])
-                return f.error / self.T + bank.prior_term(d, info)
-
-            if score(own) < score(fix):
-                own.mode, own.at_window_edge = "local", False
-                fix = own
+        # a heading refined by vision below is fitted by the points after it; else in the call
+        fit = None if by_vision else (self.fit, self._points, *self._fit_reach)
+        fix, sup, window_fit, table_xy = search.tracked_fix(
+            obs, theta, prior_pose[:2], info, self.T / scale, self.T, conf["inlier_error"],
+            half_width=self.half, prior_cap=bank.prior_cap, fit=fit)
         heading_sigma = self.heading_sigma
         if by_vision:
             rh, curv = search.refine_heading(obs, fix.cell, fix.theta)
@@ -455,17 +449,19 @@ class LutLocaliser:
             if rh.error <= fix.error and sigma <= conf["vision_heading_max_sigma"]:
                 rh.mode, rh.at_window_edge = fix.mode, fix.at_window_edge
                 fix = rh
+                sup = search.support(obs, fix, conf["inlier_error"])
                 heading_sigma = sigma
             else:  # keep the predicted or jolted heading, trusted little
                 heading_sigma = conf["unsure_heading_sigma"]
                 flags.append("heading-unsure")
-        d = np.array([fix.x - prior_pose[0], fix.y - prior_pose[1]])
+            table_xy = (fix.x, fix.y)
+        d = np.array([table_xy[0] - prior_pose[0], table_xy[1] - prior_pose[1]])
         evidence = fix.error
         nll = evidence / self.T
         fit = nll + bank.prior_term(d, info)
-        sup = search.support(obs, fix, conf["inlier_error"])
         R = vision_covariance(fix, sup, conf, heading_sigma)
-        self._fit_points(fix, obs)  # the heading was found by the search when by vision
+        if by_vision:
+            self._fit_points(fix, obs)
         if heading_sigma > self.heading_sigma:  # a heading this unsure moves the fix too:
             # by the heading error times the observations' mean range
             spread = heading_sigma * float(np.average(obs.distance, weights=obs.weight))
@@ -483,10 +479,10 @@ class LutLocaliser:
         a fix within one table cell and half a heading step and does not rank fixes); its
         heading too unless ``heading_fixed``. Returns the scan-line evidence of the fix (its
         error term before the move)."""
-        # within the search's own resolution: one table cell, half a table heading step
+        max_shift, max_turn = self._fit_reach
         pose, _cost, _normal = self.fit.refine(
             self._points, obs.weight, fix.pose, fixed_heading=heading_fixed,
-            max_shift=self.search.grid.resolution, max_turn=0.5 * self.search.step)
+            max_shift=max_shift, max_turn=max_turn)
         fix.x, fix.y, fix.theta = float(pose[0]), float(pose[1]), float(pose[2])
         return fix.error
 

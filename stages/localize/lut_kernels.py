@@ -8,6 +8,8 @@ per observation, sums over observations accumulated in float64.
 - ``tracked_window``: that surface on a tracked search's window ranked by the posterior (error
   term over the temperature plus the prior's capped Mahalanobis term), its best cells;
   ``tracked_window_bound`` a lower bound of its best score from the min-pooled lookup;
+  ``tracked_fix`` a track's whole fix in one call (window, sub-cell refinement in the chosen
+  basin and in the prior's, support);
 - ``observation_error``: one observation's error at one cell (nearest table crossing at a table
   heading, the angle-interpolated prediction between two), the base of
   ``exact_error_cells`` (the weighted error term on a few cells), ``observation_errors_cell``
@@ -19,8 +21,12 @@ per observation, sums over observations accumulated in float64.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
+
+from .point_fit import fit_refine
 
 MAX_CROSSINGS = 4
 
@@ -52,16 +58,27 @@ def lookup_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spi
 
 
 @njit(cache=True, nogil=True, inline="always")
-def observation_prediction(radial_flat, spiral_flat, ncell, n_angles, fam, ai, d, tol, c, m0,
-                           a32, b32, upper, interpolate):
-    """The crossing distance (m) predicted for one observation (family ``fam``, scan line
-    ``ai``, distance ``d``) at flat cell ``c``: at table heading m0 the nearest crossing of its
-    scan line (``interpolate`` False); between m0 and m0 + 1 (fraction a32 = 1 - b32) the
-    angle-interpolated prediction (``TableSearch.exact_error_at_heading``)."""
+def line_offsets(fam, ai, m0, n_angles, ncell):
+    """Where observation (family ``fam``, scan line ``ai``) reads its predictions at table
+    heading m0 and m0 + 1: the offsets of its table lines in the flat radial table (first
+    crossing; the others follow ncell apart) or the flat spiral table (``fam`` > 0)."""
     k0 = (ai + m0) % n_angles
     k1 = (k0 + 1) % n_angles
     if fam == 0:
-        r0 = k0 * MAX_CROSSINGS * ncell
+        return k0 * MAX_CROSSINGS * ncell, k1 * MAX_CROSSINGS * ncell
+    base = (fam - 1) * n_angles
+    return (base + k0) * ncell, (base + k1) * ncell
+
+
+@njit(cache=True, nogil=True, inline="always")
+def line_prediction(radial_flat, spiral_flat, ncell, fam, r0, r1, d, tol, c, a32, b32, upper,
+                    interpolate):
+    """The crossing distance (m) predicted for an observation at distance ``d`` whose table
+    lines start at r0, r1 (``line_offsets``) at flat cell ``c``: at table heading m0 the
+    nearest crossing of its scan line (``interpolate`` False); between m0 and m0 + 1
+    (fraction a32 = 1 - b32) the angle-interpolated prediction
+    (``TableSearch.exact_error_at_heading``)."""
+    if fam == 0:
         n0 = radial_flat[r0 + c]
         e0 = abs(n0 - d)
         for h in range(1, MAX_CROSSINGS):
@@ -71,7 +88,6 @@ def observation_prediction(radial_flat, spiral_flat, ncell, n_angles, fam, ai, d
                 e0 = abs(t - d)
         if not interpolate:
             return n0
-        r1 = k1 * MAX_CROSSINGS * ncell
         n1 = radial_flat[r1 + c]
         e1 = abs(n1 - d)
         for h in range(1, MAX_CROSSINGS):
@@ -82,14 +98,23 @@ def observation_prediction(radial_flat, spiral_flat, ncell, n_angles, fam, ai, d
         if abs(n0 - n1) < tol:
             return b32 * n0 + a32 * n1
         return n1 if upper else n0
-    base = (fam - 1) * n_angles
-    t0 = spiral_flat[(base + k0) * ncell + c]
+    t0 = spiral_flat[r0 + c]
     if not interpolate:
         return t0
-    t1 = spiral_flat[(base + k1) * ncell + c]
+    t1 = spiral_flat[r1 + c]
     if abs(t0 - t1) < tol:
         return b32 * t0 + a32 * t1
     return t1 if upper else t0
+
+
+@njit(cache=True, nogil=True, inline="always")
+def observation_prediction(radial_flat, spiral_flat, ncell, n_angles, fam, ai, d, tol, c, m0,
+                           a32, b32, upper, interpolate):
+    """The crossing distance (m) predicted for one observation (family ``fam``, scan line
+    ``ai``, distance ``d``) at flat cell ``c`` (``line_offsets``, ``line_prediction``)."""
+    r0, r1 = line_offsets(fam, ai, m0, n_angles, ncell)
+    return line_prediction(radial_flat, spiral_flat, ncell, fam, r0, r1, d, tol, c, a32, b32,
+                           upper, interpolate)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -105,17 +130,18 @@ def observation_error(radial_flat, spiral_flat, ncell, n_angles, fam, ai, d, tol
       cache=True, nogil=True)
 def exact_error_cells(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist,
                       weight, tol, c2, cells, m0, a, interpolate, out):
-    """out[c] = sum_i weight[i] * rho(e_i) at flat cell cells[c] (``observation_error``)."""
+    """out[c] = sum_i weight[i] * rho(e_i) at flat cell cells[c] (``observation_error``; an
+    observation's table lines found once for all the cells)."""
     a32 = np.float32(a)
     b32 = np.float32(1.0) - a32
     upper = a > 0.5
     out[:] = 0.0
     for o in range(dist.shape[0]):
-        w = weight[o]
+        w, d, fam = weight[o], dist[o], family[o]
+        r0, r1 = line_offsets(fam, angle_index[o], m0, n_angles, ncell)
         for ci in range(cells.shape[0]):
-            e = observation_error(radial_flat, spiral_flat, ncell, n_angles, family[o],
-                                  angle_index[o], dist[o], tol, cells[ci], m0, a32, b32, upper,
-                                  interpolate)
+            e = abs(line_prediction(radial_flat, spiral_flat, ncell, fam, r0, r1, d, tol,
+                                    cells[ci], a32, b32, upper, interpolate) - d)
             e2 = e * e
             out[ci] += w * (e2 / (c2 + e2))
 
@@ -245,6 +271,106 @@ def tracked_window(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb
                 low_val = v
                 low = (i0 + i) * nx + j0 + j
     return best, low, low_val, best_score
+
+
+@njit(cache=True, nogil=True)
+def _refine_into(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist, weight,
+                 tol, c2, i, j, ny, nx, m0, a, interpolate, total_weight, x0, y0, res, qpinv,
+                 out):
+    """``TableSearch.refine`` from cell (i, j) (its 4 cell moves, the quadratic fit of the last
+    3 x 3 patch), the same arithmetic, into ``out`` (9,): x, y, error, error_norm, cell i,
+    cell j, and the Hessian of error_norm hxx, hxy, hyy (m^-2)."""
+    e = np.empty(9)
+    flat = refine_moves(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist,
+                        weight, tol, c2, i, j, ny, nx, m0, a, interpolate, 4, e)
+    fi, fj = flat // nx, flat % nx
+    for k in range(9):
+        e[k] /= total_weight
+    dx, dy, fmin, hxx, hxy, hyy = quadratic_fit(e, qpinv)
+    e_norm = min(max(fmin, 0.0), e[4])
+    r2 = res * res
+    out[0] = (x0 + fj * res) + dx * res
+    out[1] = (y0 + fi * res) + dy * res
+    out[2] = e_norm * total_weight
+    out[3] = e_norm
+    out[4] = fi
+    out[5] = fj
+    out[6] = hxx / r2
+    out[7] = hxy / r2
+    out[8] = hyy / r2
+
+
+@njit(cache=True, nogil=True)
+def tracked_fix(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
+                spiral_row0, i0, i1, j0, j1, ny, nx, scale, x0, y0, res, px, py, ia, ib, ic,
+                cap, radial_flat, spiral_flat, ncell, dist, weight, tol, c2, m0, a,
+                interpolate, total_weight, temperature, qpinv, weight64, inlier_error, c2_64,
+                theta, fit_points, fit_table, fit_x0, fit_y0, fit_res, points, fit_c2,
+                max_shift, max_turn, out):
+    """A track's fix in one call (``TableSearch.tracked_fix``): the window's best cell by
+    the posterior score (``tracked_window``), refined to sub-cell in its basin
+    (``_refine_into``, the heading m0 / a); when that lies more than two cells from the prior
+    (px, py), the basin the prior lies in refined too and kept when its exact score
+    error / ``temperature`` + min(0.5 d^T [[ia, ib], [ib, ic]] d, ``cap``) is lower; then
+    the fix's support (``observation_errors_cell`` at the cell nearest it, ``inlier_sums``
+    with the float64 weights ``weight64``); with ``fit_points``, the fix at heading ``theta``
+    moved by the line points' fit (``point_fit.fit_refine`` of ``points`` on the distance
+    raster ``fit_table``, the heading kept, within ``max_shift`` / ``max_turn``). ``out``
+    (19,): the refined fix (``_refine_into``'s 9 values), at window edge (0 / 1), the
+    window's best posterior score, the prior's basin taken (0 / 1), the support's inliers,
+    inlier weight, weighted rho, weighted squared error, then the fitted pose (x, y, theta;
+    NaN without ``fit_points``)."""
+    best, _low, _low_val, window_fit = tracked_window(
+        lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral, spiral_row0,
+        i0, i1, j0, j1, nx, scale, x0, y0, res, px, py, ia, ib, ic, cap)
+    i, j = best // nx, best % nx
+    edge = ((i == i0 and i0 > 0) or (i == i1 - 1 and i1 < ny)
+            or (j == j0 and j0 > 0) or (j == j1 - 1 and j1 < nx))
+    _refine_into(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist, weight,
+                 tol, c2, i, j, ny, nx, m0, a, interpolate, total_weight, x0, y0, res, qpinv,
+                 out[:9])
+    out[9] = 1.0 if edge else 0.0
+    out[10] = window_fit
+    out[11] = 0.0
+    if math.hypot(out[0] - px, out[1] - py) > 2 * res:
+        # the window's choice rests on the quantised error term; the prior's basin may fit
+        # better by the exact one
+        own = np.empty(9)
+        ci = min(max(int(np.rint((py - y0) / res)), 0), ny - 1)
+        cj = min(max(int(np.rint((px - x0) / res)), 0), nx - 1)
+        _refine_into(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist,
+                     weight, tol, c2, ci, cj, ny, nx, m0, a, interpolate, total_weight, x0, y0,
+                     res, qpinv, own)
+        if _posterior_score(own, temperature, px, py, ia, ib, ic, cap) < _posterior_score(
+                out, temperature, px, py, ia, ib, ic, cap):
+            out[:9] = own
+            out[9] = 0.0
+            out[11] = 1.0
+    # the support at the cell nearest the fix (TableSearch.support)
+    ci = min(max(int(np.rint((out[1] - y0) / res)), 0), ny - 1)
+    cj = min(max(int(np.rint((out[0] - x0) / res)), 0), nx - 1)
+    errors = np.empty(dist.shape[0])
+    observation_errors_cell(radial_flat, spiral_flat, ncell, n_angles, family, angle_index,
+                            dist, tol, ci * nx + cj, m0, a, interpolate, errors)
+    n_in, w_in, rho, sq = inlier_sums(errors, weight64, inlier_error, c2_64)
+    out[12] = n_in
+    out[13] = w_in
+    out[14] = rho
+    out[15] = sq
+    out[16:19] = np.nan
+    if fit_points:
+        normal = np.empty((3, 3))
+        fit_refine(fit_table, fit_x0, fit_y0, fit_res, points, weight64, out[0], out[1], theta,
+                   fit_c2, 8, True, max_shift, max_turn, out[16:19], normal)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _posterior_score(fix, temperature, px, py, ia, ib, ic, cap):
+    """error / temperature + min(0.5 d^T info d, cap) of a refined fix (``_refine_into``'s
+    layout), d its offset from the prior (TrackBank.prior_term)."""
+    dx, dy = fix[0] - px, fix[1] - py
+    q = (dx * ia + dy * ib) * dx + (dx * ib + dy * ic) * dy
+    return fix[2] / temperature + min(0.5 * q, cap)
 
 
 @njit("float64(uint8[:, ::1], int64, int64, int64, int64[::1], int64[::1], int64[::1], int64,"

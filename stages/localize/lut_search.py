@@ -26,7 +26,9 @@ stages.localize.lookup_cache). It is stored scan-line-major ((line, bin) rows of
 contiguous), so the error surface of a frame over the whole world is the sum of one contiguous
 row per observation: one gather and one reduction (``global_search``), or the same restricted
 to a window (``local_search``), both in one numba kernel (``lookup_sum``; the exact error and
-the refinement's cell moves are numba kernels too). The quantised surface only picks cells; the
+the refinement's cell moves are numba kernels too). A track's fix (``tracked_fix``: the window
+ranked by the posterior, the refinement of its basin and of the prior's, the support, the line
+points' fit) is one compiled call. The quantised surface only picks cells; the
 pose is then refined with the exact error (float32 tables in metres, no quantisation):
 
 - sub-cell position: exact error on the 3 x 3 cells around the best cell (moving to a lower
@@ -65,6 +67,7 @@ from .lut_kernels import (
     quadratic_fit,
     refine_moves,
     structure_sizes,
+    tracked_fix,
     tracked_window,
     tracked_window_bound,
 )
@@ -117,6 +120,7 @@ class Observation:
     _kernel: tuple | None = field(default=None, init=False, repr=False, compare=False)
     _rows: tuple | None = field(default=None, init=False, repr=False, compare=False)
     _points: tuple | None = field(default=None, init=False, repr=False, compare=False)
+    _sums: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
     def __len__(self):
         return len(self.distance)
@@ -140,14 +144,27 @@ class Observation:
         out._points = self._points  # the same scan lines and distances: the same points
         return out
 
+    def _weight_sums(self) -> tuple:
+        """(total weight, total lookup weight, weight as contiguous float64), computed once."""
+        if self._sums is None:
+            lw = self.weight if self.lookup_weight is None else self.lookup_weight
+            self._sums = (float(self.weight.sum()), float(lw.sum()),
+                          np.ascontiguousarray(self.weight, dtype=np.float64))
+        return self._sums
+
     @property
     def lookup_total_weight(self) -> float:
         """Total weight in the units of the error lookup (the seed's weights)."""
-        return float((self.weight if self.lookup_weight is None else self.lookup_weight).sum())
+        return self._weight_sums()[1]
 
     @property
     def total_weight(self) -> float:
-        return float(self.weight.sum())
+        return self._weight_sums()[0]
+
+    @property
+    def weight64(self) -> np.ndarray:
+        """``weight`` as the kernels' contiguous float64 array."""
+        return self._weight_sums()[2]
 
     @classmethod
     def from_scanlines(cls, radial, spiral, params: MatchingParams, max_range: float,
@@ -175,9 +192,14 @@ class Observation:
         random, ``perm`` (3, n_angles) a permutation of the scan lines per family (radial,
         spiral ccw, spiral cw), so each scan line keeps its crossings but their bearings
         carry no information."""
-        return Observation(family=self.family, angle_index=perm[self.family, self.angle_index],
-                           distance=self.distance, weight=self.weight,
-                           lookup_weight=self.lookup_weight)
+        out = Observation(family=self.family, angle_index=perm[self.family, self.angle_index],
+                          distance=self.distance, weight=self.weight,
+                          lookup_weight=self.lookup_weight)
+        out._sums = self._sums  # the same weights
+        if self._rows is not None:  # and distance bins
+            b, family, _angle, bins = self._rows
+            out._rows = (b, family, np.ascontiguousarray(out.angle_index, dtype=np.int64), bins)
+        return out
 
     def points(self, scanlines) -> np.ndarray:
         """The observations as points (N, 2) in the robot frame (computed once per scan-line
@@ -469,8 +491,13 @@ class TableSearch:
         """The inliers of a fix: observations with error below ``inlier_error`` (m) at the
         cell nearest the fix's position, at its heading."""
         e = self.observation_errors(obs, self._cell_of(result.x, result.y), result.theta)
-        n, w_in, rho, sq = inlier_sums(e, np.ascontiguousarray(obs.weight, dtype=np.float64),
-                                       float(inlier_error), self.params.c * self.params.c)
+        return self._support(obs, *inlier_sums(e, obs.weight64, float(inlier_error),
+                                               self.params.c * self.params.c))
+
+    @staticmethod
+    def _support(obs: Observation, n, w_in, rho, sq) -> Support:
+        """The Support of ``inlier_sums``' (inliers, weight, weighted rho, weighted squared
+        error)."""
         return Support(observations=len(obs), inliers=int(n), inlier_weight=w_in,
                        total_weight=obs.total_weight, inlier_rho=rho / w_in if w_in else 0.0,
                        inlier_rms=math.sqrt(sq / w_in) if w_in else math.nan)
@@ -540,12 +567,13 @@ class TableSearch:
     def local_window(self, x: float, y: float, half_width: float):
         """Cell bounds [i0, i1) x [j0, j1) of the window around (x, y), clipped to the grid."""
         g = self.grid
+        x, y = float(x), float(y)
         if math.isfinite(x) and math.isfinite(y):  # Grid.cell_of in scalar arithmetic
             ci = min(max(round((y - g.origin[1]) / g.resolution), 0), self.ny - 1)
             cj = min(max(round((x - g.origin[0]) / g.resolution), 0), self.nx - 1)
         else:
             ci, cj = g.cell_of(x, y)
-        h = int(round(half_width / self.grid.resolution))
+        h = int(round(half_width / g.resolution))
         return (max(0, int(ci) - h), min(self.ny, int(ci) + h + 1),
                 max(0, int(cj) - h), min(self.nx, int(cj) + h + 1))
 
@@ -575,34 +603,59 @@ class TableSearch:
         r.mode = "local"
         return r
 
-    def tracked_search(self, obs: Observation, theta: float, prior_xy, prior_information,
-                       temperature: float, *, half_width: float = 1.0,
-                       prior_cap: float = math.inf):
-        """The seed's local search around a tracked prior, ranked by the posterior: in the
-        window (2 half_width square) around ``prior_xy`` the cell minimising
-        E(cell) / temperature + min(0.5 d^T ``prior_information`` d, ``prior_cap``) (d = cell
-        - prior, the prior's inverse position covariance (2, 2); the cap: a prior that may be
-        wrong, a Gaussian with a uniform floor), refined to sub-cell in its basin. Also the
-        window's best cell by the error term alone, which may lie in another basin. Returns
-        (fix, (i, j, error) of that best cell, the posterior score of the fix's cell)."""
-        (best, low, low_val, score), (i0, i1, j0, j1) = self._tracked_window(
-            obs, theta, prior_xy, prior_information, temperature, half_width, prior_cap)
-        i, j = divmod(best, self.nx)
-        edge = ((i == i0 and i0 > 0) or (i == i1 - 1 and i1 < self.ny)
-                or (j == j0 and j0 > 0) or (j == j1 - 1 and j1 < self.nx))
-        fix = self.refine(obs, (i, j), theta)
-        fix.mode = "local"
-        fix.at_window_edge = bool(edge)
-        wi, wj = divmod(low, self.nx)
-        return fix, (wi, wj, low_val / self.q_levels), score
+    def tracked_fix(self, obs: Observation, theta: float, prior_xy, prior_information,
+                    temperature: float, fix_temperature: float, inlier_error: float, *,
+                    half_width: float = 1.0, prior_cap: float = math.inf, fit=None):
+        """The seed's local search around a tracked prior, ranked by the posterior, in one
+        compiled call (``lut_kernels.tracked_fix``): in the window (2 half_width square)
+        around ``prior_xy`` the cell minimising E(cell) / temperature + min(0.5 d^T
+        ``prior_information`` d, ``prior_cap``) (d = cell - prior, the prior's inverse
+        position covariance (2, 2); the cap: a prior that may be wrong, a Gaussian with a
+        uniform floor), refined to sub-cell in its basin (``refine``). The window's choice
+        rests on the lookup's quantised error term: when it lies more than two cells from
+        the prior, the basin the prior lies in is refined too and taken when its exact error
+        / ``fix_temperature`` + the capped Mahalanobis term is lower. ``fit``: (PointFit, the
+        observations' points, max_shift, max_turn): the fix is then moved by the line
+        points' fit at its heading (PointFit.refine with ``fixed_heading``) after its support
+        is counted (its ``cell``, ``error`` and Hessian stay the table's). Returns (fix, its
+        ``support`` with ``inlier_error``, the posterior score of the window's best cell,
+        the fix's position (x, y) before the points' fit)."""
+        m = self.scanlines.heading_index(theta)
+        i0, i1, j0, j1 = self.local_window(prior_xy[0], prior_xy[1], half_width)
+        m0, a, interpolate = self._heading_args(theta)
+        g, info = self.grid, prior_information
+        W = max(obs.total_weight, 1e-12)
+        radial, spiral, ncell, _n, _f, _a, dist, weight, tol, c2 = self._kernel_arrays(obs)
+        pf, points, max_shift, max_turn = fit if fit is not None else (None, _NO_POINTS, 0, 0)
+        table, fx0, fy0, fres, fc2 = ((pf.table, *pf.origin, pf.resolution, pf.c * pf.c)
+                                      if pf is not None else (_NO_RASTER, 0.0, 0.0, 1.0, 1.0))
+        out = np.empty(19)
+        tracked_fix(self.error_lookup, *self._row_arrays(obs, m), i0, i1, j0, j1, self.ny,
+                    self.nx, 1.0 / (self.q_levels * temperature), float(g.origin[0]),
+                    float(g.origin[1]), float(g.resolution), float(prior_xy[0]),
+                    float(prior_xy[1]), float(info[0, 0]), float(info[0, 1]),
+                    float(info[1, 1]), float(min(prior_cap, 1e300)), radial, spiral, ncell,
+                    dist, weight, tol, c2, m0, a, interpolate, W, float(fix_temperature),
+                    _QPINV, obs.weight64, float(inlier_error), self.params.c * self.params.c,
+                    float(theta), pf is not None, table, fx0, fy0, fres, points, fc2,
+                    float(min(max_shift, 1e9)), float(min(max_turn, 1e9)), out)
+        x, y, e, e_norm, ci, cj, hxx, hxy, hyy, edge, window_fit, own = out[:12].tolist()
+        fix = SearchResult(x=x, y=y, theta=float(theta), error=e, error_norm=e_norm,
+                           cell=(int(ci), int(cj)), n_observations=len(obs),
+                           hessian=np.array([[hxx, hxy], [hxy, hyy]]),
+                           at_window_edge=edge > 0, mode="local")
+        n, w_in, rho, sq, fx, fy, fth = out[12:].tolist()
+        if pf is not None:
+            fix.x, fix.y, fix.theta = fx, fy, fth
+        return fix, self._support(obs, n, w_in, rho, sq), window_fit, (x, y)
 
     def tracked_score(self, obs: Observation, theta: float, prior_xy, prior_information,
                       temperature: float, *, half_width: float = 1.0,
                       prior_cap: float = math.inf) -> float:
-        """The best posterior score of ``tracked_search``'s window (quantised error term /
+        """The best posterior score of ``tracked_fix``'s window (quantised error term /
         temperature + capped Mahalanobis term), without refining it."""
         return self._tracked_window(obs, theta, prior_xy, prior_information, temperature,
-                                    half_width, prior_cap)[0][3]
+                                    half_width, prior_cap)[3]
 
     def tracked_score_bound(self, obs: Observation, theta: float, prior_xy, prior_information,
                             temperature: float, *, half_width: float = 1.0,
@@ -630,7 +683,7 @@ class TableSearch:
             1.0 / (self.q_levels * temperature), float(g.origin[0]), float(g.origin[1]),
             float(g.resolution), float(prior_xy[0]), float(prior_xy[1]), float(info[0, 0]),
             float(info[0, 1]), float(info[1, 1]), float(min(cap, 1e300)))
-        return out, (i0, i1, j0, j1)
+        return out
 
     def refine(self, obs: Observation, cell, theta: float, *, max_moves: int = 4) -> SearchResult:
         """Exact sub-cell refinement around ``cell``: the exact error at the continuous heading
@@ -813,6 +866,9 @@ def _best_separated(surface: np.ndarray, shape, k: int, min_cells: float) -> lis
         s[max(0, i - r):i + r + 1, max(0, j - r):j + r + 1] = top
     return out
 
+
+_NO_POINTS = np.zeros((0, 2))
+_NO_RASTER = np.zeros((2, 2), dtype=np.float32)
 
 # least-squares quadratic on the 3 x 3 offsets (-1, 0, 1)^2:
 # f = a + b x + c y + d x^2 + e x y + f y^2

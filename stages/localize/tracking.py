@@ -225,7 +225,7 @@ class TrackBank:
     def near_track(self, pose) -> bool:
         """Whether a pose lies in the basin of a track (or of its mirror image)."""
         return any(near_pose(t.pose, pose, SAME_BASIN_M, SAME_BASIN_RAD)
-                   or (t.mirror > 0 and near_pose(t.pose, _mirror(pose), SAME_BASIN_M,
+                   or (t.mirror > 0 and near_pose(t.pose, mirror_scalar(*pose), SAME_BASIN_M,
                                                   SAME_BASIN_RAD))
                    for t in self.tracks)
 
@@ -233,13 +233,13 @@ class TrackBank:
         """Fold a fix (pose, nll) into a better candidate of ``out`` it duplicates (the same
         basin) or mirrors (on a point-symmetric field): its likelihood relative to the
         candidate's adds to that candidate's own or mirror mass. False if it is new."""
+        mirror = mirror_scalar(*pose)
         for c in out:
             rel = math.exp(-(nll - c.nll))
             if near_pose(c.pose, pose, SAME_BASIN_M, SAME_BASIN_RAD):
                 c.own_mass += rel
                 return True
-            if self.symmetric and near_pose(c.pose, _mirror(pose), SAME_BASIN_M,
-                                            SAME_BASIN_RAD):
+            if self.symmetric and near_pose(c.pose, mirror, SAME_BASIN_M, SAME_BASIN_RAD):
                 c.mirror_mass += rel
                 return True
         return False
@@ -291,6 +291,10 @@ class TrackBank:
             c.log_post = c.log_prior - c.nll
         if null_nll is not None:
             other_post = other_prior - self.log_basins - null_nll
+        elif len(tracked) == 1:  # the common frame: the sums below of one term each
+            c = tracked[0]
+            w = c.track.log_weight
+            other_post = other_prior + float((c.log_post - c.log_prior + w) - w)
         else:
             like = np.array([c.log_post - c.log_prior + c.track.log_weight for c in tracked])
             wsum = np.array([c.track.log_weight for c in tracked])
@@ -377,14 +381,13 @@ class TrackBank:
             w = math.exp(t.log_weight)
             x, y, th = t.pose.tolist()
             rows.append((x, y, th, w * (1 - t.mirror)))
-            if self.symmetric:  # FieldModel.mirror_pose in scalar arithmetic
-                rows.append((-x, -y, (th + math.pi + math.pi) % _TWO_PI - math.pi,
-                             w * t.mirror))
+            if self.symmetric:
+                rows.append((*mirror_scalar(x, y, th), w * t.mirror))
         rows.sort(key=lambda r: -r[3])  # stable: a track before its mirror on a tie
         k = int(self.conf["hypotheses"])
         out = rows[:k]
         if self.symmetric and k > 1:  # the top's mirror image is always listed
-            m = _mirror(out[0][:3])
+            m = mirror_scalar(*out[0][:3])
             if not any(near_pose(r, m, 1e-6, 1e-6) for r in out[1:]):
                 out[-1 if len(out) == k else len(out):] = [
                     next(r for r in rows if near_pose(r, m, 1e-6, 1e-6))]
@@ -408,7 +411,8 @@ class TrackBank:
         cov = self.tracks[0].cov
         if top.track is None and tracked:
             flags.append("relocalised")
-        if len(hyps) > 1 and self.symmetric and near_pose(hyps[1], _mirror(pose), 0.3, 0.2) \
+        if len(hyps) > 1 and self.symmetric and near_pose(hyps[1], mirror_scalar(*pose), 0.3,
+                                                          0.2) \
                 and hyps[1, 3] >= 0.5 * hyps[0, 3]:
             flags.append("mirror-ambiguous")
         confidence = float(hyps[0, 3])
@@ -440,6 +444,13 @@ def near_pose(candidate, pose, distance: float = 0.5, angle: float = 0.2) -> boo
 
 
 _TWO_PI = 2 * math.pi
+
+
+def mirror_scalar(x, y, theta) -> tuple[float, float, float]:
+    """FieldModel.mirror_pose in scalar arithmetic (the same floating-point result, without
+    a numpy array per call)."""
+    x, y, theta = float(x), float(y), float(theta)
+    return -x, -y, (theta + math.pi + math.pi) % _TWO_PI - math.pi
 
 
 # ---------------------------------------------------------------------------- the frame loop
