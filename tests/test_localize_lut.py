@@ -280,7 +280,7 @@ def test_tracked_fix_is_the_window_refined_supported_and_fitted(search, msl2015_
         if math.hypot(want.x - prior[0], want.y - prior[1]) > 2 * res:
             own = search.refine(obs, search._cell_of(prior[0], prior[1]), th)
 
-            def post(f):
+            def post(f, prior=prior, fix_T=fix_T, info=info, cap=cap):
                 d = np.array([f.x - prior[0], f.y - prior[1]])
                 return f.error / fix_T + min(0.5 * float(d @ info @ d), cap)
 
