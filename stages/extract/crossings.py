@@ -456,12 +456,21 @@ def line_pair_crossings(ends: np.ndarray, widths: np.ndarray, floor_of, tol: flo
     ok = np.triu(gap <= max_misfit, 1)  # NaN (off the floor) compares False
     if first_stem is not None:
         ok[first_stem:, first_stem:] = False
-    for i, j in zip(*np.nonzero(ok)):
-        i, j = int(i), int(j)
-        a = np.array([u[i], -u[j]]).T
-        if abs(np.linalg.det(a)) < 1e-3:
+    pi, pj = np.nonzero(ok)
+    if len(pi) == 0:
+        return merge_line_crossings(out, tol, floor_of=floor_of)
+    # each pair's 2 x 2 system [u_i, -u_j] s = e_j - e_i, all in one batched call (LAPACK per
+    # matrix, as one call per pair would be)
+    a_all = np.stack([u[pi], -u[pj]], axis=2)
+    det_all = np.abs(np.linalg.det(a_all))
+    meet = det_all >= 1e-3
+    s_all = np.zeros((len(pi), 2))
+    if meet.any():
+        s_all[meet] = np.linalg.solve(a_all[meet], (ends[pj, 0] - ends[pi, 0])[meet][..., None]
+                                      )[..., 0]
+    for i, j, m, s in zip(pi.tolist(), pj.tolist(), meet.tolist(), s_all):
+        if not m:
             continue
-        s = np.linalg.solve(a, ends[j, 0] - ends[i, 0])
         x = ends[i, 0] + s[0] * u[i]
 
         def end_gap(k, other, t):
