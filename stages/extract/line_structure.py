@@ -268,11 +268,15 @@ def split_isolated_nodes(graph: LineGraph, regions: np.ndarray, image: np.ndarra
         return
     ys, xs = np.nonzero(regions)
     lab = regions[ys, xs] - 1
-    for i in lonely:
-        m = lab == i
-        if m.sum() < 2:
+    # each region's pixels in row-major order, as a mask per region would pick them
+    order = np.argsort(lab, kind="stable")
+    count = np.bincount(lab, minlength=int(lonely.max()) + 1)
+    start = np.concatenate([[0], np.cumsum(count)])
+    for i in lonely.tolist():
+        if count[i] < 2:
             continue
-        px = np.stack([xs[m], ys[m]], axis=1)
+        sel = order[start[i]:start[i + 1]]
+        px = np.stack([xs[sel], ys[sel]], axis=1)
         d = np.hypot(*(px[:, None, :] - px[None, :, :]).transpose(2, 0, 1))
         a, b = np.unravel_index(np.argmax(d), d.shape)
         graph.pix[i] = px[a]
