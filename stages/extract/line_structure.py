@@ -295,9 +295,10 @@ def _outward(graph: LineGraph, i: int, reach: int = 3) -> np.ndarray | None:
         if len(nxt) != 1:
             break
         prev, cur = cur, nxt[0]
-    d = graph.pos[i] - graph.pos[cur]
-    n = np.hypot(*d)
-    return d / n if n > 0 else None
+    dx = float(graph.pos[i, 0] - graph.pos[cur, 0])
+    dy = float(graph.pos[i, 1] - graph.pos[cur, 1])
+    n = float(np.hypot(dx, dy))
+    return np.array([dx / n, dy / n]) if n > 0 else None
 
 
 def fill_gaps(graph: LineGraph, image: np.ndarray, max_gap: float, min_cos: float,
