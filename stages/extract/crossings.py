@@ -25,6 +25,7 @@ full-resolution white mask and verified, then merged.
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 
@@ -61,11 +62,13 @@ def point_along(pos: np.ndarray, chain: list[int], reach: float) -> np.ndarray:
     """The point ``reach`` cells along a fine chain (starting at its first node), or the chain's
     last node when it is shorter."""
     p = pos[chain]
-    seg = np.hypot(*np.diff(p, axis=0).T)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
+    seg = np.hypot(*np.diff(p, axis=0).T).tolist()
+    s = [0.0]
+    for length in seg:  # the arc length at each node, added in order as np.cumsum does
+        s.append(s[-1] + length)
     if s[-1] <= reach:
         return p[-1].copy()
-    k = int(np.searchsorted(s, reach))
+    k = bisect.bisect_left(s, reach)  # np.searchsorted's side "left"
     t = (reach - s[k - 1]) / max(seg[k - 1], 1e-9)
     return p[k - 1] + t * (p[k] - p[k - 1])
 
