@@ -1106,12 +1106,25 @@ def _in_image(x: np.ndarray, dirs: np.ndarray, camera, margin: float) -> np.ndar
     inside the image's edge (in ideal pixels: the lens's distortion is small at the edges
     of the views this is used for)."""
     w, h = camera.image_size
-    lo = np.array([margin, margin])
-    hi = np.array([w - 1 - margin, h - 1 - margin])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(dirs > 1e-12, (hi - x) / dirs, np.where(dirs < -1e-12, (lo - x) / dirs,
-                                                               np.inf))
-    return np.maximum(t.min(axis=1), 0.0)
+    x0, x1 = float(x[0]), float(x[1])
+    if not (math.isfinite(x0) and math.isfinite(x1)):  # NaN distances, as numpy gives them
+        lo_, hi_ = np.array([margin, margin]), np.array([w - 1 - margin, h - 1 - margin])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(dirs > 1e-12, (hi_ - x) / dirs,
+                         np.where(dirs < -1e-12, (lo_ - x) / dirs, np.inf))
+        return np.maximum(t.min(axis=1), 0.0)
+    hi = (float(w - 1 - margin) - x0, float(h - 1 - margin) - x1)
+    lo = (float(margin) - x0, float(margin) - x1)
+    out = []
+    for d in np.asarray(dirs, float).reshape(-1, 2).tolist():  # a few arms: scalar arithmetic
+        t = math.inf
+        for k in (0, 1):
+            if d[k] > 1e-12:
+                t = min(t, hi[k] / d[k])
+            elif d[k] < -1e-12:
+                t = min(t, lo[k] / d[k])
+        out.append(max(t, 0.0))
+    return np.array(out)
 
 
 def _refined_arm(arm, centre: np.ndarray, white_px: np.ndarray, camera, cc: dict, cell: int):
