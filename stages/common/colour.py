@@ -146,7 +146,7 @@ class BlockMask:
         rows, cols = key
         r = np.arange(self.shape[0])[rows] // self.cell
         c = np.arange(self.shape[1])[cols] // self.cell
-        return self.blocks[r[:, None], c[None, :]]
+        return np.take(np.take(self.blocks, r, axis=0), c, axis=1)
 
     def full(self) -> np.ndarray:
         """The full-resolution mask (h, w)."""
@@ -286,13 +286,15 @@ def estimate_field_colour(yuv: np.ndarray, conf: dict, valid: np.ndarray | None 
     spread = 0.0
     share = int(np.count_nonzero(cand)) / n_valid
     y_field = None
+    y_c = u_c8 = v_c8 = None  # the candidates' planes, taken once
     if share >= conf["green_min_share"]:
         # chroma rescaled to one luminance (Y_REF): under a brightness gradient the field's
         # chroma grows with its light, its chromaticity does not
-        yy = y8[cand].astype(np.float32)
+        y_c, u_c8, v_c8 = y8[cand], u8[cand], v8[cand]
+        yy = y_c.astype(np.float32)
         scale = Y_REF / np.maximum(yy, 1.0)
-        uu = (u8[cand].astype(np.float32) - 128.0) * scale
-        vv = (v8[cand].astype(np.float32) - 128.0) * scale
+        uu = (u_c8.astype(np.float32) - 128.0) * scale
+        vv = (v_c8.astype(np.float32) - 128.0) * scale
         bins = (np.clip(uu + 128.0, 0, 255).astype(np.int32) >> 3) * 32 + (
             np.clip(vv + 128.0, 0, 255).astype(np.int32) >> 3)
         hist = np.bincount(bins, minlength=1024).reshape(32, 32).astype(np.float32)
@@ -308,7 +310,7 @@ def estimate_field_colour(yuv: np.ndarray, conf: dict, valid: np.ndarray | None 
         near = (uu - nu) ** 2 + (vv - nv) ** 2 <= rad2
         if near.sum() >= 10:
             found = True
-            y_field = _median_of_integers(y8[cand][near])
+            y_field = _median_of_integers(y_c[near])
             back = y_field / Y_REF  # to chroma at the field's luminance
             u_c, v_c = 128.0 + nu * back, 128.0 + nv * back
             spread = back * float(np.sqrt(0.5 * (uu[near].var() + vv[near].var())))
@@ -319,7 +321,9 @@ def estimate_field_colour(yuv: np.ndarray, conf: dict, valid: np.ndarray | None 
     axes = (max(conf["green_axes"][0], k * spread), max(conf["green_axes"][1], k * spread))
     fc = FieldColour(y=y_field, u=u_c, v=v_c, axes=axes, found=found, share=share)
     if conf.get("green_model", "ellipse") == "hue":
-        _hue_model(fc, u8[cand], v8[cand], y8[cand], conf)
+        if y_c is None:
+            y_c, u_c8, v_c8 = y8[cand], u8[cand], v8[cand]
+        _hue_model(fc, u_c8, v_c8, y_c, conf)
     fc.cell = int(conf["local_cell"])
     if found:
         fc.y_map = _local_green_luminance(yuv, fc, conf, valid)

@@ -25,6 +25,7 @@ full-resolution white mask and verified, then merged.
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 
@@ -61,11 +62,13 @@ def point_along(pos: np.ndarray, chain: list[int], reach: float) -> np.ndarray:
     """The point ``reach`` cells along a fine chain (starting at its first node), or the chain's
     last node when it is shorter."""
     p = pos[chain]
-    seg = np.hypot(*np.diff(p, axis=0).T)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
+    seg = np.hypot(*np.diff(p, axis=0).T).tolist()
+    s = [0.0]
+    for length in seg:  # the arc length at each node, added in order as np.cumsum does
+        s.append(s[-1] + length)
     if s[-1] <= reach:
         return p[-1].copy()
-    k = int(np.searchsorted(s, reach))
+    k = bisect.bisect_left(s, reach)  # np.searchsorted's side "left"
     t = (reach - s[k - 1]) / max(seg[k - 1], 1e-9)
     return p[k - 1] + t * (p[k] - p[k - 1])
 
@@ -96,7 +99,7 @@ def crossing_candidates(ks: KeyStructure, graph: LineGraph, arm_reach: float,
             ang = _angle_between(arms[0] - centre, arms[1] - centre)
             if floor_of is not None:
                 f = floor_of(np.vstack([centre[None], arms]))
-                if np.all(np.isfinite(f)):
+                if np.isfinite(f).all():
                     ang = _angle_between(f[1] - f[0], f[2] - f[0])
             if not (l_angle_range[0] <= ang <= l_angle_range[1]):
                 continue
@@ -456,12 +459,21 @@ def line_pair_crossings(ends: np.ndarray, widths: np.ndarray, floor_of, tol: flo
     ok = np.triu(gap <= max_misfit, 1)  # NaN (off the floor) compares False
     if first_stem is not None:
         ok[first_stem:, first_stem:] = False
-    for i, j in zip(*np.nonzero(ok)):
-        i, j = int(i), int(j)
-        a = np.array([u[i], -u[j]]).T
-        if abs(np.linalg.det(a)) < 1e-3:
+    pi, pj = np.nonzero(ok)
+    if len(pi) == 0:
+        return merge_line_crossings(out, tol, floor_of=floor_of)
+    # each pair's 2 x 2 system [u_i, -u_j] s = e_j - e_i, all in one batched call (LAPACK per
+    # matrix, as one call per pair would be)
+    a_all = np.stack([u[pi], -u[pj]], axis=2)
+    det_all = np.abs(np.linalg.det(a_all))
+    meet = det_all >= 1e-3
+    s_all = np.zeros((len(pi), 2))
+    if meet.any():
+        s_all[meet] = np.linalg.solve(a_all[meet], (ends[pj, 0] - ends[pi, 0])[meet][..., None]
+                                      )[..., 0]
+    for i, j, m, s in zip(pi.tolist(), pj.tolist(), meet.tolist(), s_all):
+        if not m:
             continue
-        s = np.linalg.solve(a, ends[j, 0] - ends[i, 0])
         x = ends[i, 0] + s[0] * u[i]
 
         def end_gap(k, other, t):
@@ -594,7 +606,7 @@ def merge_line_crossings(crossings: list[LineCrossing], tol: float,
             f = floor_of(np.vstack([point[None], point[None] + tol * all_arms]))
             d = f[1:] - f[0]
             n = np.hypot(d[:, 0], d[:, 1])
-            if np.all(np.isfinite(n)) and np.all(n > 0):
+            if np.isfinite(n).all() and np.all(n > 0):
                 cmp = d / n[:, None]
         arms: list[int] = []
         lengths: list[float] = []
@@ -683,7 +695,7 @@ def _crossing(cand, ks, ideal, white, green, other_mean, top, camera, to_floor, 
               white_px=None, field_cells=None):
     """One key-structure candidate -> (row, image position), or the reason it was rejected."""
     centre = ideal[ks.node[cand.key]]
-    if not np.all(np.isfinite(centre)):
+    if not np.isfinite(centre).all():
         return "outside the lens model"
     chains = ks.arms(cand.key, 1 + cc["arm_skip"] + cc["arm_nodes"])
     arms = arm_lines(centre, chains, ideal, cc["arm_skip"], cc["arm_nodes"])
@@ -719,7 +731,7 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
             pts.append(x[None] + np.asarray(lengths)[:, None] * dirs)
     on_floor = to_floor(np.vstack(pts))
     floor, below, ends = on_floor[:n + 1], on_floor[n + 1:n + 2], on_floor[n + 2:]
-    if not np.all(np.isfinite(floor)):
+    if not np.isfinite(floor).all():
         return "above the horizon"
     if lengths is not None:
         arm_m = np.hypot(*(ends - floor[0]).T)  # NaN beyond the horizon: long enough
@@ -737,7 +749,7 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
     # an arm leaving the image is verified on its part in view
     reach = np.minimum(reach, _in_image(x, dirs, camera, 0.5 * cell))
     d, bearing = polar(floor[:1])
-    span = np.hypot(*(below[0] - floor[0])) if np.all(np.isfinite(below)) else np.inf
+    span = np.hypot(*(below[0] - floor[0])) if np.isfinite(below).all() else np.inf
     # beyond the grid's resolution the full-resolution white mask decides (_verify_fine), as
     # far as its profiles (refine_step px apart) resolve the floor
     fine = span > cc["max_cell_span"]
@@ -752,14 +764,14 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
         return _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera, to_floor,
                             cc, cell, d[0], bearing[0], orient, misfit, span)
     px = distort_ideal(lens_parameters(camera), np.vstack([x[None], x + reach[:, None] * dirs]))
-    if not np.all(np.isfinite(px)):
+    if not np.isfinite(px).all():
         return "outside the lens model"
     grid = (px + 0.5) / cell - 0.5
-    col = int(np.clip(round(grid[0, 0]), 0, len(top) - 1))
+    col = min(max(round(grid[0, 0]), 0), len(top) - 1)
     near_top = top[max(col - 2, 0): col + 3].max()  # the boundary within two columns
     if grid[0, 1] - near_top < cc["edge_margin"]:
         return "at the field boundary"  # a line meeting an object or the end of the view
-    row = int(np.clip(round(grid[0, 1]), 0, other_mean.shape[0] - 1))
+    row = min(max(round(grid[0, 1]), 0), other_mean.shape[0] - 1)
     r = cc["object_radius"]
     if other_mean[max(row - r, 0): row + r + 1, max(col - r, 0): col + r + 1].max() > 0.5:
         return "next to an object"  # a robot's or a person's white foot on a line
@@ -800,10 +812,10 @@ def _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera, to_flo
     lens = lens_parameters(camera)
     px = distort_ideal(lens, x[None])[0]
     g = (px + 0.5) / cell - 0.5
-    col = int(np.clip(round(g[0]), 0, len(top) - 1))
+    col = min(max(round(g[0]), 0), len(top) - 1)
     if not np.isfinite(g[1]) or g[1] < top[col]:
         return "at the field boundary"
-    row = int(np.clip(round(g[1]), 0, other_mean.shape[0] - 1))
+    row = min(max(round(g[1]), 0), other_mean.shape[0] - 1)
     r = cc["object_radius"]
     if other_mean[max(row - r, 0): row + r + 1, max(col - r, 0): col + r + 1].max() > 0.5:
         return "next to an object"
@@ -817,7 +829,7 @@ def _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera, to_flo
     f = to_floor(np.vstack([x[None], x[None] + cc["arm_step"] * cell * dirs]))
     fd = f[1:] - f[0]
     fd = fd / np.hypot(fd[:, 0], fd[:, 1])[:, None]
-    if not np.all(np.isfinite(fd)):
+    if not np.isfinite(fd).all():
         return "above the horizon"
     cos_same = math.cos(cc["max_misfit"])
     opposite = [k for k in range(len(dirs))
@@ -1056,11 +1068,11 @@ def _alternative_in_view(x, dirs, camera, top, other_mean, green, cc, cell) -> b
     pts = distort_ideal(lens_parameters(camera), x[None] - cc["arm_reach"] * cell * dirs)
     w, h = camera.image_size
     for p in pts:
-        if not (np.all(np.isfinite(p)) and 0 <= p[0] <= w - 1 and 0 <= p[1] <= h - 1):
+        if not (np.isfinite(p).all() and 0 <= p[0] <= w - 1 and 0 <= p[1] <= h - 1):
             return False
         g = (p + 0.5) / cell - 0.5
-        col = int(np.clip(round(g[0]), 0, len(top) - 1))
-        row = int(np.clip(round(g[1]), 0, other_mean.shape[0] - 1))
+        col = min(max(round(g[0]), 0), len(top) - 1)
+        row = min(max(round(g[1]), 0), other_mean.shape[0] - 1)
         if g[1] - top[col] < cc["edge_margin"] or other_mean[row, col] > 0.5:
             return False
         if sample_cells(green, g[None])[0] < cc["t_green"]:
@@ -1094,12 +1106,25 @@ def _in_image(x: np.ndarray, dirs: np.ndarray, camera, margin: float) -> np.ndar
     inside the image's edge (in ideal pixels: the lens's distortion is small at the edges
     of the views this is used for)."""
     w, h = camera.image_size
-    lo = np.array([margin, margin])
-    hi = np.array([w - 1 - margin, h - 1 - margin])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(dirs > 1e-12, (hi - x) / dirs, np.where(dirs < -1e-12, (lo - x) / dirs,
-                                                               np.inf))
-    return np.maximum(t.min(axis=1), 0.0)
+    x0, x1 = float(x[0]), float(x[1])
+    if not (math.isfinite(x0) and math.isfinite(x1)):  # NaN distances, as numpy gives them
+        lo_, hi_ = np.array([margin, margin]), np.array([w - 1 - margin, h - 1 - margin])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(dirs > 1e-12, (hi_ - x) / dirs,
+                         np.where(dirs < -1e-12, (lo_ - x) / dirs, np.inf))
+        return np.maximum(t.min(axis=1), 0.0)
+    hi = (float(w - 1 - margin) - x0, float(h - 1 - margin) - x1)
+    lo = (float(margin) - x0, float(margin) - x1)
+    out = []
+    for d in np.asarray(dirs, float).reshape(-1, 2).tolist():  # a few arms: scalar arithmetic
+        t = math.inf
+        for k in (0, 1):
+            if d[k] > 1e-12:
+                t = min(t, hi[k] / d[k])
+            elif d[k] < -1e-12:
+                t = min(t, lo[k] / d[k])
+        out.append(max(t, 0.0))
+    return np.array(out)
 
 
 def _refined_arm(arm, centre: np.ndarray, white_px: np.ndarray, camera, cc: dict, cell: int):

@@ -126,17 +126,23 @@ def field_height_histogram(field: np.ndarray, max_gap: int = 4, from_lowest: boo
     return np.argmax(runs, axis=0).astype(np.float64)
 
 
+def _edge_padded(values: np.ndarray, r: int) -> np.ndarray:
+    """``np.pad(values, r, mode="edge")`` of a 1-D array, without np.pad's per-call overhead."""
+    if len(values) == 0:
+        return np.pad(values, r, mode="edge")  # its error
+    return np.concatenate([np.full(r, values[0]), values, np.full(r, values[-1])])
+
+
 def smooth_field_heights(heights: np.ndarray, sigma: float, median: int) -> np.ndarray:
     """1D Gaussian filter (slightly uneven bins), then a median filter (small gaps and peaks)."""
     out = np.asarray(heights, np.float64)
     if sigma > 0:
         r = max(1, int(np.ceil(3 * sigma)))
         k = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
-        out = np.convolve(np.pad(out, r, mode="edge"), k / k.sum(), mode="valid")
+        out = np.convolve(_edge_padded(out, r), k / k.sum(), mode="valid")
     if median > 1:
         r = int(median) // 2
-        windows = np.lib.stride_tricks.sliding_window_view(np.pad(out, r, mode="edge"),
-                                                           2 * r + 1)
+        windows = np.lib.stride_tricks.sliding_window_view(_edge_padded(out, r), 2 * r + 1)
         out = np.sort(windows, axis=1)[:, r]  # the middle of an odd window: its median
     return out
 

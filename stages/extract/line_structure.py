@@ -62,12 +62,21 @@ def ranking_keys(image: np.ndarray) -> np.ndarray:
     return q * (h * w) + np.arange(h * w, dtype=np.float64).reshape(h, w)
 
 
+def _framed(image: np.ndarray, value) -> np.ndarray:
+    """``np.pad(image, 1, constant_values=value)`` of a 2-D image, without np.pad's per-call
+    overhead."""
+    h, w = image.shape
+    out = np.full((h + 2, w + 2), value, image.dtype)
+    out[1:-1, 1:-1] = image
+    return out
+
+
 def ranking_count(image: np.ndarray) -> np.ndarray:
     """c(x, y): the number of 8-neighbours with an equal or higher grey level (int8), ties
     broken as in ranking_keys."""
     h, w = image.shape
     key = ranking_keys(image)
-    pad = np.pad(key, 1, constant_values=-1.0)
+    pad = _framed(key, -1.0)
     c = np.zeros((h, w), np.int8)
     for dy, dx in _NEIGHBOURS:
         c += pad[1 + dy:1 + dy + h, 1 + dx:1 + dx + w] >= key
@@ -178,7 +187,7 @@ def subpixel_positions(image: np.ndarray, pix: np.ndarray) -> np.ndarray:
     if len(pix) == 0:
         return np.zeros((0, 2))
     h, w = image.shape
-    pad = np.pad(image, 1)
+    pad = _framed(image, 0)
     offs = np.array([(dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)])
     xs = pix[:, 0:1] + 1 + offs[None, :, 0]
     ys = pix[:, 1:2] + 1 + offs[None, :, 1]
@@ -268,11 +277,15 @@ def split_isolated_nodes(graph: LineGraph, regions: np.ndarray, image: np.ndarra
         return
     ys, xs = np.nonzero(regions)
     lab = regions[ys, xs] - 1
-    for i in lonely:
-        m = lab == i
-        if m.sum() < 2:
+    # each region's pixels in row-major order, as a mask per region would pick them
+    order = np.argsort(lab, kind="stable")
+    count = np.bincount(lab, minlength=int(lonely.max()) + 1)
+    start = np.concatenate([[0], np.cumsum(count)])
+    for i in lonely.tolist():
+        if count[i] < 2:
             continue
-        px = np.stack([xs[m], ys[m]], axis=1)
+        sel = order[start[i]:start[i + 1]]
+        px = np.stack([xs[sel], ys[sel]], axis=1)
         d = np.hypot(*(px[:, None, :] - px[None, :, :]).transpose(2, 0, 1))
         a, b = np.unravel_index(np.argmax(d), d.shape)
         graph.pix[i] = px[a]
@@ -291,9 +304,10 @@ def _outward(graph: LineGraph, i: int, reach: int = 3) -> np.ndarray | None:
         if len(nxt) != 1:
             break
         prev, cur = cur, nxt[0]
-    d = graph.pos[i] - graph.pos[cur]
-    n = np.hypot(*d)
-    return d / n if n > 0 else None
+    dx = float(graph.pos[i, 0] - graph.pos[cur, 0])
+    dy = float(graph.pos[i, 1] - graph.pos[cur, 1])
+    n = float(np.hypot(dx, dy))
+    return np.array([dx / n, dy / n]) if n > 0 else None
 
 
 def fill_gaps(graph: LineGraph, image: np.ndarray, max_gap: float, min_cos: float,

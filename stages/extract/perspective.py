@@ -457,7 +457,7 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
     if len(feet_px):
         floor = to_floor(undistort(feet_px))
         for f, px, hgt, wid in zip(floor, feet_px, heights, widths):
-            if not np.all(np.isfinite(f)):
+            if not np.isfinite(f).all():
                 continue
             d, b = polar(f[None])
             # the bar's width must fit a post of the conf's diameter at that distance, and it
@@ -538,7 +538,7 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
     all_floor = to_floor(ends).reshape(-1, 2, 2)
     for seg, ref, e_px, e_floor, e_ideal in zip(segments, refined, all_px, all_floor,
                                                 ends.reshape(-1, 2, 2)):
-        if not np.all(np.isfinite(e_floor)):
+        if not np.isfinite(e_floor).all():
             # reaching above the horizon: no field line, but maybe a post (its foot on the
             # floor, the part below the horizon runs away from the robot)
             clipped = _below_horizon_part(e_ideal, to_floor, lc["max_distance"])
@@ -644,7 +644,7 @@ def debug_overlay(image: np.ndarray, result: dict[str, np.ndarray]) -> np.ndarra
     ends = result.get("line_ends_px", _empty(4))
     lines = result.get("lines", _empty(4))
     for e, ln in zip(ends, lines):
-        if not np.all(np.isfinite(e)):
+        if not np.isfinite(e).all():
             continue
         p0, p1 = tuple(int(round(v)) for v in e[:2]), tuple(int(round(v)) for v in e[2:])
         cv2.line(out, p0, p1, _RED if ln[3] > 0 else _GREEN, 2)
