@@ -1,24 +1,23 @@
-"""mcl on real NAO frames standing still (issue 9), through the product path: each HULKs
-capture (../shared/realdata/hulks-goalbox-labels) becomes a dataset folder of a robot standing
-still (the image 15 times, zero odometry, calib.yaml from the capture's own camera matrix, so
-the observation model gets that frame's camera height), extracted and localised by the stage
-mains with the CLI's defaults (stages.pipelines.bench_mcl_hulks; ``fieldloc bench --only
-mcl-hulks`` runs every capture). The labels' pose is the truth; the field is 180 deg symmetric,
-so the top hypothesis or its mirror counts.
+"""mcl on real NAO frames standing still (issue 9), through the product path: each HULKs capture
+(../shared/realdata/hulks-goalbox-labels) becomes a dataset folder of a robot standing still
+(the image 15 times, zero odometry, calib.yaml from the capture's own camera matrix, so the
+observation model gets that frame's camera height), extracted and localised by the stage mains
+with the CLI's defaults (stages.pipelines.bench_mcl_hulks; ``fieldloc bench --only mcl-hulks``
+runs every capture). The labels' pose is the truth; the field is 180 deg symmetric, so the top
+hypothesis or its mirror counts.
 
 Issue 9's goal: within 50 cm (here also 15 deg) on every frame that shows at least two
 non-parallel lines or a crossing. Not met: on all 107 captures with labels (the four with
-swapped labels corrected), 98 of the 105 informative ones (93 %; 94 of 104 before the
-crossings' full-resolution checks found more crossings); on the third of them this test runs
-(every third capture, to keep it near 25 s), 32 of 34 (94 %) before those checks. The labels' own pose
-is rough (the robots' uncalibrated camera matrices put the labelled lines 0.57 m apart where
-the rules say 0.6 m); most misses are 0.5-0.7 m off. The goal's second half, a low confidence
-where the frame shows neither, is met only by the uniform start's cap: a belief that cannot
-tell a pose from its mirror gives each at most 0.5, so no frame of this path is accepted
+swapped labels corrected), 98 of the 105 informative ones (93 %; 94 of 104 before the crossings'
+full-resolution checks found more crossings); on the third of them this test runs (every third
+capture, to keep it near 25 s), 32 of 34 (94 %) before those checks. The labels' own pose is
+rough (the robots' uncalibrated camera matrices put the labelled lines 0.57 m apart where the
+rules say 0.6 m); most misses are 0.5-0.7 m off. The goal's second half, a low confidence where
+the frame shows neither, is met only by the uniform start's cap: a belief that cannot tell a
+pose from its mirror gives each at most 0.5, so no frame of this path is accepted
 (min_confidence 0.8); on the three uninformative captures the top pose and its mirror hold
-0.79-1.0 of the belief, as much as on informative ones (a line and a goal post already place
-the robot there, and two of the three are within 50 cm). Skipped when ../shared/realdata is
-absent."""
+0.79-1.0 of the belief, as much as on informative ones (a line and a goal post already place the
+robot there, and two of the three are within 50 cm). Skipped when ../shared/realdata is absent."""
 
 from __future__ import annotations
 
