@@ -540,7 +540,6 @@ class FitLocaliser:
             conf["heading"] == "imu" and conf["imu_alignment"] == "field")
         self.fixed_once = False
         self._offset_updates = 0
-        self._radial_frames = 0
         rc = conf["radial_correction"]
         self.radial = (RadialCorrection.from_conf(rc, scanlines.robot_radius)
                        if rc["enabled"] and not conf["independent"] else None)
@@ -765,18 +764,11 @@ class FitLocaliser:
         """The line points of a confident tracked frame, as observed, against where their rays
         meet the lines at the fused pose, into the radial correction (radial_correction.py)."""
         rc = self.radial
-        rconf = self.conf["radial_correction"]
-        if (rc is None or top.track is None or col or not self.bank.tracks
-                or hyps[0, 3] < rconf["min_confidence"]):
-            return
-        self._radial_frames += 1
-        if self._radial_frames % max(1, int(rconf["every"])):
-            return
-        pose = self.bank.tracks[0].pose
-        if self.symmetric and not near_pose(hyps[0], pose, 0.3, 0.2):
+        pose = None if rc is None else rc.teaching_pose(self.bank, top, hyps, col)
+        if pose is None:
             return
         obs = observation_from_points(raw_points, self.conf)
-        pred = self.engine.ray_ranges(obs, pose, float(rconf["max_residual"]))
+        pred = self.engine.ray_ranges(obs, pose, rc.max_residual)
         ok = np.isfinite(pred)
         if ok.any():
             rc.update(obs.distance[ok], pred[ok])

@@ -115,7 +115,7 @@ from .lut_search import MatchingParams, Observation, SearchResult, Support, Tabl
 from .point_fit import PointFit
 from .radial_correction import DEFAULTS as RADIAL_DEFAULTS
 from .radial_correction import RadialCorrection
-from .tracking import Candidate, FrameFailed, Track, TrackBank, eig2, near_pose
+from .tracking import Candidate, FrameFailed, Track, TrackBank, eig2
 
 log = logging.getLogger(__name__)
 
@@ -292,7 +292,6 @@ class LutLocaliser:
         self._global_heading = None
         self._offset_updates = 0
         self.fixed_once = False  # start_half applies to the first fix only
-        self._radial_frames = 0  # confident tracked frames seen by the radial correction
         self.last_global = -10**9
         self.last_confident = True  # the last frame's belief, up to the mirror (TrackBank)
         # whether the heading source tells a heading from its opposite (rules the mirror out)
@@ -621,20 +620,13 @@ class LutLocaliser:
     def _learn_radial(self, obs, raw_distance, top: LutCandidate, hyps, col):
         """The crossings of a confident tracked frame against their predictions at the fused
         pose, into the radial correction (radial_correction.py)."""
-        rc = self.radial
-        rconf = self.conf["radial_correction"]
-        if (rc is None or top.track is None or col or not self.bank.tracks
-                or hyps[0, 3] < rconf["min_confidence"]):
+        pose = None if self.radial is None else self.radial.teaching_pose(
+            self.bank, top, hyps, col)
+        if pose is None:
             return
-        self._radial_frames += 1
-        if self._radial_frames % max(1, int(rconf["every"])):
-            return
-        pose = self.bank.tracks[0].pose
-        if self.symmetric and not near_pose(hyps[0], pose, 0.3, 0.2):
-            return  # the mirror leads: its crossings predict the same distances anyway
         pred = self.search.observation_predictions(
             obs, self.search._cell_of(float(pose[0]), float(pose[1])), float(pose[2]))
-        rc.update(raw_distance, pred)
+        self.radial.update(raw_distance, pred)
 
     def _track_imu_offset(self, i, obs, top: LutCandidate, col):
         """IMU alignment: initialised on the first fix of the unknown-heading search

@@ -26,6 +26,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .tracking import near_pose
+
 DEFAULTS = {
     "enabled": True,
     "degree": 3,
@@ -52,7 +54,10 @@ class RadialCorrection:
     min_points: int = 300
     max_residual: float = 0.25
     noise: float = 0.05
+    min_confidence: float = 0.99
+    every: int = 4
     points: float = 0.0  # crossings used (decayed with the forgetting)
+    frames: int = 0  # confident tracked frames seen (teaching_pose)
     coef: np.ndarray = field(default=None)  # a_1 .. a_degree (m)
     info: np.ndarray = field(default=None)  # information matrix of the coefficients
     vec: np.ndarray = field(default=None)  # information vector
@@ -69,7 +74,26 @@ class RadialCorrection:
         return cls(robot_radius=float(robot_radius), degree=int(c["degree"]),
                    scale=float(c["scale"]), prior_sigma=float(c["prior_sigma"]),
                    forgetting=float(c["forgetting"]), min_points=int(c["min_points"]),
-                   max_residual=float(c["max_residual"]), noise=float(c["noise"]))
+                   max_residual=float(c["max_residual"]), noise=float(c["noise"]),
+                   min_confidence=float(c["min_confidence"]), every=int(c["every"]))
+
+    def teaching_pose(self, bank, top, hyps, collision: bool):
+        """The pose at which a frame's observations may teach e(d), or None: the leading
+        track's pose (tracking.TrackBank ``bank``) on a tracked frame (``top`` from a track)
+        without a collision whose top hypothesis (``hyps`` row 0) holds ``min_confidence``,
+        every ``every``-th such frame, and on a point-symmetric field only while the top
+        hypothesis is that track's pose, not its mirror image (whose predictions are the
+        same anyway)."""
+        if (top.track is None or collision or not bank.tracks
+                or hyps[0, 3] < self.min_confidence):
+            return None
+        self.frames += 1
+        if self.frames % max(1, self.every):
+            return None
+        pose = bank.tracks[0].pose
+        if bank.symmetric and not near_pose(hyps[0], pose, 0.3, 0.2):
+            return None
+        return pose
 
     @property
     def active(self) -> bool:
