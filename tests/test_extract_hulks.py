@@ -28,7 +28,6 @@ swapped back here. Skipped when ../shared/realdata is absent.
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -37,6 +36,7 @@ import pytest
 
 from stages.common.field import load_field
 from stages.common.geometry import robot_to_field
+from stages.evaluate.hulks_labels import SWAPPED, field_pose_from_labels, intersect, read_labels
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 HULKS = REALDATA / "hulks-goalbox-labels" / "measurements"
@@ -45,8 +45,6 @@ pytestmark = [
     pytest.mark.skipif(not HULKS.is_dir(), reason="needs ../shared/realdata"),
 ]
 
-SWAPPED = {"1687083970", "1687083999", "1687084023", "1687084029"}  # SOURCE.txt
-LABEL_KEYS = {"goal": "border_line", "front": "goal_box_line", "side": "connecting_line"}
 MIN_LABEL_PX = 40.0
 LINE_DEG, LINE_PX, LINE_M, LINE_RANGE = 3.0, 5.0, 0.10, 3.0
 CROSSING_PX = 15.0
@@ -55,24 +53,6 @@ POST_DEG = 3.0
 
 
 # ---------------------------------------------------------------------------- labels
-
-
-def read_labels(path: Path) -> dict[str, np.ndarray]:
-    """The three labelled lines of a capture, each (2, 2) in fieldloc pixels."""
-    d = json.loads(path.read_text())["crossings"]
-    out = {k: np.array([d[f"{v}_0"], d[f"{v}_1"]], float) - 0.5 for k, v in LABEL_KEYS.items()}
-    if path.stem in SWAPPED:
-        out["front"], out["side"] = out["side"], out["front"]
-    return out
-
-
-def _intersect(a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-    da, db = a[1] - a[0], b[1] - b[0]
-    den = da[0] * db[1] - da[1] * db[0]
-    if abs(den) < 1e-9:
-        return None
-    t = ((b[0] - a[0])[0] * db[1] - (b[0] - a[0])[1] * db[0]) / den
-    return a[0] + t * da
 
 
 def _direction_deg(p: np.ndarray) -> float:
@@ -127,29 +107,6 @@ def line_matches(label_px: np.ndarray, label_floor: np.ndarray, ends_px: np.ndar
             and _point_line_distance(near, label_floor).max() <= LINE_M)
 
 
-def field_pose_from_labels(floor: dict[str, np.ndarray], field) -> np.ndarray | None:
-    """The robot's pose (x, y, theta) in a field frame whose goal at x = +length / 2 is the one
-    the labels show: the T (goal x side line) is the goal area's corner on the goal line, the
-    side line leads from it into the field, and the front line leaves the L corner towards the
-    goal area's inside (which says on which side of the goal the labelled side line is)."""
-    t = _intersect(floor["goal"], floor["side"])
-    corner = _intersect(floor["front"], floor["side"])
-    if t is None or corner is None:
-        return None
-    inward = corner - t
-    if np.hypot(*inward) < 1e-6:
-        return None
-    ex = -inward / np.hypot(*inward)  # field +x: towards the goal
-    ey = np.array([-ex[1], ex[0]])
-    far = floor["front"][np.argmax(np.hypot(*(floor["front"] - corner).T))]
-    inside = far - corner  # along the front line, into the goal area
-    half_w = field.spec["goal_area"]["width"] / 2
-    t_field = np.array([field.length / 2, half_w if inside @ ey < 0 else -half_w])
-    theta = math.atan2(ey[0], ex[0])
-    origin = t_field - np.array([ex @ t, ey @ t])
-    return np.array([origin[0], origin[1], theta])
-
-
 def post_positions(floor: dict[str, np.ndarray], field, pose: np.ndarray) -> np.ndarray:
     """The goal's post feet (2, 2) in the robot frame at ``pose`` (field_pose_from_labels)."""
     half = field.spec["goal"]["width"] / 2
@@ -193,7 +150,7 @@ def evaluate(dataset: Path, features: Path) -> dict:
             out["lines_used"].append(found_used)
             rec["lines"][key] = found
         for kind, (a, b) in (("L", ("front", "side")), ("T", ("goal", "side"))):
-            x = _intersect(lab[a], lab[b])
+            x = intersect(lab[a], lab[b])
             if x is None or not (0 <= x[0] <= w - 1 and 0 <= x[1] <= h - 1):
                 continue
             near = [("LTX"[int(c[0])], np.hypot(*(p - x))) for c, p in

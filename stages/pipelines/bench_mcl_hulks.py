@@ -13,7 +13,6 @@ lines or a crossing; the confidence low when it does not."""
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import dataclass
@@ -27,8 +26,6 @@ from .bench import Row
 REALDATA = Path(__file__).resolve().parents[3] / "shared" / "realdata"
 HULKS = REALDATA / "hulks-goalbox-labels" / "measurements"
 # captures whose goal-area front and side labels are swapped (the folder's SOURCE.txt)
-SWAPPED = {"1687083970", "1687083999", "1687084023", "1687084029"}
-LABEL_KEYS = {"goal": "border_line", "front": "goal_box_line", "side": "connecting_line"}
 STILL_UPDATES = 15  # frames of a still robot: the capture repeated
 STILL_DT = 0.1  # s between them
 NON_PARALLEL = math.radians(20)  # two lines this far from parallel fix a pose (with the map)
@@ -48,44 +45,19 @@ class StillResult:
 
 
 def label_pose(capture: Path, field) -> np.ndarray | None:
-    """The robot's pose (x, y, theta) that a capture's labels give: the goal line, the goal
-    area's front line and its side line (HULKs' border_line, goal_box_line, connecting_line),
-    projected to the floor with the capture's camera; the T (goal line x side line) is the goal
-    area's corner on the goal line at x = +length / 2, the side line leads from it into the
-    field, and the front line leaves the L corner towards the goal area's inside. None where a
-    label point lies above the horizon or the lines do not meet."""
+    """The robot's pose (x, y, theta) that a capture's labels give
+    (evaluate.hulks_labels.field_pose_from_labels, the labels projected to the floor with the
+    capture's camera). None where a label point lies above the horizon or the lines do not
+    meet."""
     from ..calibrate import hulks
+    from ..evaluate.hulks_labels import field_pose_from_labels, read_labels
 
-    d = json.loads(Path(capture).read_text())["crossings"]
     camera = hulks.read_frame(capture).camera
-    floor = {}
-    for key, name in LABEL_KEYS.items():
-        px = np.array([d[f"{name}_0"], d[f"{name}_1"]], float) - 0.5  # HULKs: pixel corners
-        floor[key] = np.asarray(camera.pixel_to_floor(px), float)
-        if not np.all(np.isfinite(floor[key])):
-            return None
-    if Path(capture).stem in SWAPPED:
-        floor["front"], floor["side"] = floor["side"], floor["front"]
-    t = _intersect(floor["goal"], floor["side"])
-    corner = _intersect(floor["front"], floor["side"])
-    if t is None or corner is None or np.hypot(*(corner - t)) < 1e-6:
+    floor = {k: np.asarray(camera.pixel_to_floor(px), float)
+             for k, px in read_labels(capture).items()}
+    if not all(np.all(np.isfinite(v)) for v in floor.values()):
         return None
-    ex = -(corner - t) / np.hypot(*(corner - t))  # field +x in the robot frame: to the goal
-    ey = np.array([-ex[1], ex[0]])
-    far = floor["front"][np.argmax(np.hypot(*(floor["front"] - corner).T))]
-    half_w = field.spec["goal_area"]["width"] / 2
-    t_field = np.array([field.length / 2, half_w if (far - corner) @ ey < 0 else -half_w])
-    origin = t_field - np.array([ex @ t, ey @ t])
-    return np.array([origin[0], origin[1], math.atan2(ey[0], ex[0])])
-
-
-def _intersect(a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-    da, db = a[1] - a[0], b[1] - b[0]
-    den = da[0] * db[1] - da[1] * db[0]
-    if abs(den) < 1e-9:
-        return None
-    t = ((b[0] - a[0])[0] * db[1] - (b[0] - a[0])[1] * db[0]) / den
-    return a[0] + t * da
+    return field_pose_from_labels(floor, field)
 
 
 def still_dataset(capture: Path, out: Path, updates: int = STILL_UPDATES) -> Path:
