@@ -535,9 +535,7 @@ class FitLocaliser:
         self._next_perm = 0
         self.last_global = -10**9
         self.last_confident = True  # the last frame's belief, up to the mirror (TrackBank)
-        # whether the heading source tells a heading from its opposite (rules the mirror out)
-        self.field_heading = conf["heading"] == "truth" or (
-            conf["heading"] == "imu" and conf["imu_alignment"] == "field")
+        self.field_heading = heading_mod.field_aligned(conf)  # rules the mirror out
         self.fixed_once = False
         self._offset_updates = 0
         rc = conf["radial_correction"]

@@ -61,6 +61,15 @@ def check_conf(conf: dict, dataset) -> None:
         raise FieldlocError(
             f"--heading {conf['heading']} needs {need}.csv in {where}; use --heading histogram")
 
+def field_aligned(conf: dict) -> bool:
+    """Whether a method's heading source tells a heading from its opposite: the truth, or an
+    IMU aligned with the field (``imu_alignment: field``). Only such a heading rules out the
+    mirror pose on a point-symmetric field; a histogram's, or a vision-aligned IMU's, does
+    not."""
+    return conf["heading"] == "truth" or (
+        conf["heading"] == "imu" and conf["imu_alignment"] == "field")
+
+
 # ---------------------------------------------------------------------------- per-frame lookup
 
 

@@ -294,9 +294,7 @@ class LutLocaliser:
         self.fixed_once = False  # start_half applies to the first fix only
         self.last_global = -10**9
         self.last_confident = True  # the last frame's belief, up to the mirror (TrackBank)
-        # whether the heading source tells a heading from its opposite (rules the mirror out)
-        self.field_heading = conf["heading"] == "truth" or (
-            conf["heading"] == "imu" and conf["imu_alignment"] == "field")
+        self.field_heading = heading_mod.field_aligned(conf)  # rules the mirror out
         self.rng = np.random.default_rng(seed)
         rc = conf["radial_correction"]
         self.radial = (RadialCorrection.from_conf(rc, search.scanlines.robot_radius)
