@@ -197,7 +197,7 @@ def run_inputs(plan: Plan, run: RunSpec) -> dict:
     template database in place of the features."""
     ds = run.dataset
     source = ({"templates": _hash(ds.templates.path)} if run.method.templates
-              else {"features": _hash(_features_path(ds))})
+              else {"features": _hash(_features_path(ds, plan))})
     return {"dataset": _dataset_identity(ds), "map": _hash(ds.map), **source,
             "truth": _hash(ds.dir / "truth.csv") if ds.truth else "",
             "localize": run.method.conf, "evaluate": plan.evaluate}
@@ -393,9 +393,15 @@ def prepare_templates(t: TemplatesSpec) -> str:
     return t.path
 
 
-def _features_path(ds: DatasetSpec) -> Path:
+def _features_path(ds: DatasetSpec, plan: Plan | None = None) -> Path:
     """The features a dataset's runs read: the folder's own features.h5 when it is what extract
-    would make now with the SPEC's conf, else RESULTS/features/... (planned in the SPEC)."""
+    would make now with the SPEC's conf, else RESULTS/features/... (planned in the SPEC).
+    With ``plan``, decided once per batch (``Plan.features_read``: checking the own file reads
+    it and the dataset's records, and a batch never writes it)."""
+    if plan is not None:
+        if ds.name not in plan.features_read:
+            plan.features_read[ds.name] = _features_path(ds)
+        return plan.features_read[ds.name]
     if ds.kind == "folder":
         own = ds.dir / "features.h5"
         if own.is_file():
@@ -720,7 +726,7 @@ def _index(plan: Plan, records: dict) -> dict:
     return {
         "spec": {"path": str(plan.spec), "hash": plan.spec_hash},
         "datasets": {ds.name: {"dir": str(ds.dir), "camera": ds.camera, "map": ds.map,
-                               "features": str(_features_path(ds)), "truth": ds.truth,
+                               "features": str(_features_path(ds, plan)), "truth": ds.truth,
                                "templates": ds.templates.path if ds.templates else ""}
                      for ds in plan.datasets},
         "runs": [_public(records[r.key]) for r in plan.runs if r.key in records],

@@ -163,6 +163,8 @@ class Plan:
     evaluate: dict
     skipped: list[str]
     templates: dict = field(default_factory=dict)  # database path -> TemplatesSpec, each once
+    # dataset name -> the features file its runs read, decided once per batch (batch.py)
+    features_read: dict = field(default_factory=dict)
 
 
 def short_hash(value) -> str:
