@@ -15,6 +15,22 @@ def msl2015_map(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
+def omni_default_rendered(tmp_path_factory):
+    """40 rendered omni-default frames of msl-2015, seed 3 (a busy lab field: other robots,
+    clutter, lighting changes, a team's imperfect calibration, odometry slip, IMU bias and
+    collisions) and their features, once per session: (dataset folder, features.h5). Tests
+    read them and write elsewhere."""
+    import copy
+
+    from stages import extract, simulate
+
+    conf = copy.deepcopy(simulate.confs["omni-default"])
+    conf.update(frames=40, seed=3)
+    ds = simulate.main(conf, "msl-2015", tmp_path_factory.mktemp("sim") / "omni")
+    return ds, extract.main(None, ds, ds / "features.h5")
+
+
+@pytest.fixture(scope="session")
 def hulks_extracted(tmp_path_factory):
     """The HULKs folder (realdata/hulks-goalbox-labels) imported and extracted by the CLI with
     its defaults, once per session: (dataset folder, features.h5)."""

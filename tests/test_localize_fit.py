@@ -77,20 +77,6 @@ def test_global_search_finds_the_pose_or_its_mirror(engine):
     assert err < 0.05, best
 
 
-@pytest.fixture(scope="module")
-def rendered(tmp_path_factory):
-    """40 rendered omni-default frames of msl-2015 (a team's imperfect calibration, clutter,
-    odometry slip, IMU bias and collisions) with their features."""
-    import copy
-
-    from stages import extract, simulate
-
-    conf = copy.deepcopy(simulate.confs["omni-default"])
-    conf.update(frames=40, seed=3)
-    ds = simulate.main(conf, "msl-2015", tmp_path_factory.mktemp("sim") / "omni")
-    return ds, extract.main(None, ds, ds / "features.h5")
-
-
 def _errors(poses, ds):
     from stages.common.dataset import read_csv
     from stages.common.poses_file import read_poses
@@ -101,15 +87,15 @@ def _errors(poses, ds):
     return cols, attrs, np.asarray(e.position_error, float)  # failed frames: inf
 
 
-def test_rendered_run_through_the_stage_main_with_the_cli_defaults(rendered, msl2015_map,
-                                                                   tmp_path):
+def test_rendered_run_through_the_stage_main_with_the_cli_defaults(omni_default_rendered,
+                                                                   msl2015_map, tmp_path):
     """`fieldloc localize DIR --map M --method fit` as a stage call (the conf the CLI resolves
     with no other option): the run is localised within 15 cm median and 90 % of the frames within
     40 cm (the set's calibration is off by up to 20 cm, which biases every pose: 12 cm median
     here), with ranked hypotheses and a confidence in the poses schema."""
     from stages import localize
 
-    ds, features = rendered
+    ds, features = omni_default_rendered
     conf = localize.resolve_localize_conf({"method": "fit"})
     assert conf == localize.confs["fit-default"]
     out = localize.main(conf, ds, msl2015_map, tmp_path / "poses-fit.h5", features=features)
@@ -125,14 +111,14 @@ def test_rendered_run_through_the_stage_main_with_the_cli_defaults(rendered, msl
     assert np.all((conf_v >= 0) & (conf_v <= 1)) and np.allclose(conf_v[ok], h[ok, 0, 3])
 
 
-def test_cli_points_path(rendered, msl2015_map, tmp_path):
+def test_cli_points_path(omni_default_rendered, msl2015_map, tmp_path):
     """`--method fit --points FILE.csv`: a team's robot-frame points give poses too."""
     from click.testing import CliRunner
 
     from fieldloc_cli.main import cli
     from stages.common.features_file import FeaturesFile
 
-    ds, features = rendered
+    ds, features = omni_default_rendered
     rows = ["frame,x,y"]
     with FeaturesFile(features) as ff:
         for name in ff.names[:15]:
@@ -156,12 +142,13 @@ def test_cli_points_path(rendered, msl2015_map, tmp_path):
     (["--init", "uniform"], "--init applies to --method mcl"),
     (["-c", "nope=1"], "nope"),
 ])
-def test_a_bad_option_gives_one_clear_line(rendered, msl2015_map, tmp_path, args, words):
+def test_a_bad_option_gives_one_clear_line(omni_default_rendered, msl2015_map, tmp_path, args,
+                                           words):
     from click.testing import CliRunner
 
     from fieldloc_cli.main import cli
 
-    ds, features = rendered
+    ds, features = omni_default_rendered
     res = CliRunner().invoke(cli, ["localize", str(ds), "--map", str(msl2015_map), "--method",
                                    "fit", "--features", str(features), "-o",
                                    str(tmp_path / "p.h5"), *args])

@@ -410,20 +410,6 @@ def test_brute_force_spirals_agree_with_the_spiral_table(msl2015_map):
 # ---------------------------------------------------------------------------- end to end
 
 
-@pytest.fixture(scope="module")
-def rendered(tmp_path_factory):
-    """A small rendered omni dataset (busy lab field: other robots, clutter, lighting
-    changes, odometry slip, IMU bias and collisions) with its features."""
-    import copy
-
-    from stages import extract, simulate
-
-    conf = copy.deepcopy(simulate.confs["omni-default"])
-    conf.update(frames=40, seed=3)
-    ds = simulate.main(conf, "msl-2015", tmp_path_factory.mktemp("sim") / "omni")
-    return ds, extract.main(None, ds, ds / "features.h5")
-
-
 def errors_against_truth(poses_path, ds):
     from stages.common.dataset import read_csv
     from stages.common.poses_file import read_poses
@@ -437,12 +423,12 @@ def errors_against_truth(poses_path, ds):
     return pos, head, p, attrs
 
 
-def test_rendered_dataset_with_imu_heading(rendered, msl2015_map, tmp_path):
+def test_rendered_dataset_with_imu_heading(omni_default_rendered, msl2015_map, tmp_path):
     """Seed 002's pipeline on rendered images: median position error <= 13 cm, heading error
     <= 2 deg with the IMU heading, failures recorded as failures."""
     from stages import localize
 
-    ds, features = rendered
+    ds, features = omni_default_rendered
     out = localize.main({"method": "lut", "heading": "imu"}, ds, msl2015_map,
                         tmp_path / "poses.h5", features=features)
     pos, head, p, attrs = errors_against_truth(out, ds)
@@ -459,7 +445,7 @@ def test_rendered_dataset_with_imu_heading(rendered, msl2015_map, tmp_path):
     assert p["hypotheses"].shape[0] == 40 and p["hypotheses"].shape[2] == 4
 
 
-def test_images_to_poses_reuses_the_datasets_features(rendered, msl2015_map, tmp_path):
+def test_images_to_poses_reuses_the_datasets_features(omni_default_rendered, msl2015_map, tmp_path):
     """localize takes features or points; the chain from images (stages.pipelines) reuses
     DIR/features.h5 when extract would make the same, and refuses a bad run before that."""
     from stages import localize
@@ -467,7 +453,7 @@ def test_images_to_poses_reuses_the_datasets_features(rendered, msl2015_map, tmp
     from stages.common.poses_file import read_poses
     from stages.pipelines import images_to_poses
 
-    ds, features = rendered
+    ds, features = omni_default_rendered
     with pytest.raises(FieldlocError, match="features"):
         localize.main(None, ds, msl2015_map, tmp_path / "p.h5")
     chained = images_to_poses.main(None, ds, msl2015_map, tmp_path / "chained.h5")
@@ -480,7 +466,7 @@ def test_images_to_poses_reuses_the_datasets_features(rendered, msl2015_map, tmp
         images_to_poses.main(None, ds, msl2015_map, features, overwrite=True)
 
 
-def test_cli_localize_points_csv(rendered, msl2015_map, tmp_path):
+def test_cli_localize_points_csv(omni_default_rendered, msl2015_map, tmp_path):
     """`fieldloc localize DIR --points FILE.csv`: a team's own line points (here: the rendered
     frames' extracted points) binned into the scan lines."""
     from click.testing import CliRunner
@@ -488,7 +474,7 @@ def test_cli_localize_points_csv(rendered, msl2015_map, tmp_path):
     from fieldloc_cli.main import cli
     from stages.common.features_file import FeaturesFile
 
-    ds, features = rendered
+    ds, features = omni_default_rendered
     rows = ["frame,x,y"]
     with FeaturesFile(features) as ff:
         for name in ff.names[:15]:
