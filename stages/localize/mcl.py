@@ -285,11 +285,7 @@ class ParticleFilter:
             collision=collision, imu_yaw=imu_yaw)
         if len(self._rivals):  # the rivals move by the odometry, without noise (each is one
             # pose: a random walk would carry it off the place whose evidence it sums)
-            r = self._rivals
-            dx, dy, dth = (float(v) for v in odometry)
-            c, s_ = np.cos(r[:, 2]), np.sin(r[:, 2])
-            self._rivals = np.stack([r[:, 0] + c * dx - s_ * dy, r[:, 1] + s_ * dx + c * dy,
-                                     wrap_angle(r[:, 2] + dth)], axis=1)
+            self._rivals = motion_model.moved(self._rivals, *(float(v) for v in odometry))
 
     def fold(self):
         """Paired mode: hold each particle as whichever of itself and its mirrored pose lies

@@ -72,11 +72,18 @@ def sample_motion(particles: np.ndarray, odometry, dt: float, rng: np.random.Gen
     mx = dx + s_t * noise[0]
     my = dy + s_t * noise[1]
     mth = dth + s_r * noise[2]
+    return moved(p, mx, my, mth)
+
+
+def moved(poses: np.ndarray, dx, dy, dtheta) -> np.ndarray:
+    """Poses (N, 3) moved by the increment (dx, dy, dtheta) in each pose's own frame (scalars,
+    or (N,) arrays: one increment per pose); a new array."""
+    p = np.asarray(poses, dtype=float)
     c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
     out = np.empty_like(p)
-    out[:, 0] = p[:, 0] + c * mx - s * my
-    out[:, 1] = p[:, 1] + s * mx + c * my
-    out[:, 2] = (p[:, 2] + mth + np.pi) % (2 * np.pi) - np.pi
+    out[:, 0] = p[:, 0] + c * dx - s * dy
+    out[:, 1] = p[:, 1] + s * dx + c * dy
+    out[:, 2] = (p[:, 2] + dtheta + np.pi) % (2 * np.pi) - np.pi
     return out
 
 
