@@ -38,13 +38,13 @@ from stages.common.field import crossing_orientation
 from stages.common.geometry import polar
 
 from .line_fit import (
-    _distort,
-    _grow,
-    _refine,
     distort_ideal,
+    distort_point,
     fit_line,
     grow_along,
+    grow_kernel,
     lens_parameters,
+    refine_kernel,
     refine_segment,
 )
 from .line_structure import KeyStructure, LineGraph
@@ -556,12 +556,12 @@ def _stems(lines, floor, white_px, lens, m, m_inv, height, pos, cell, min_span, 
                                                    max_reach)
                 step = min(max(line_width / scale, 1.0), refine_step)
                 sx, sy = ex + start * vx, ey + start * vy
-                gx, gy = _grow(white_px, lens, sx, sy, vx, vy, step, reach, grow, tolerance)
+                gx, gy = grow_kernel(white_px, lens, sx, sy, vx, vy, step, reach, grow, tolerance)
                 t = (gx - ex) * vx + (gy - ey) * vy
                 if t * scale < min_length or t <= start:
                     continue
                 seg[0, 0], seg[0, 1], seg[1, 0], seg[1, 1] = sx, sy, gx, gy
-                _refine(seg, white_px, lens, step, reach, 0.0, min_points, refine_step, res)
+                refine_kernel(seg, white_px, lens, step, reach, 0.0, min_points, refine_step, res)
                 if res[0] == 0:
                     continue
                 f0x, f0y = _floor_point(m, height, pos, res[1], res[2])
@@ -916,7 +916,7 @@ def _arm_state(x0, x1, ux, uy, arms, white_px, green, other_mean, top, lens, m, 
             edge = min(edge, (step - c) / d)
     edge = max(edge, 0.0)
     sx, sy = x0 + start * ux, x1 + start * uy
-    gx, gy = _grow(white_px, lens, sx, sy, ux, uy, step, reach, need, tolerance)
+    gx, gy = grow_kernel(white_px, lens, sx, sy, ux, uy, step, reach, need, tolerance)
     t = (gx - x0) * ux + (gy - x1) * uy
     nx, ny = -uy, ux
     if t >= need - 1e-6 or t >= edge - 1e-6:
@@ -927,7 +927,7 @@ def _arm_state(x0, x1, ux, uy, arms, white_px, green, other_mean, top, lens, m, 
         seg[0, 0], seg[0, 1] = sx, sy
         seg[1, 0], seg[1, 1] = x0 + stop * ux, x1 + stop * uy
         res = np.empty(12)
-        _, widths = _refine(seg, white_px, lens, step, reach, 0.0, 3, 0.0, res)
+        _, widths = refine_kernel(seg, white_px, lens, step, reach, 0.0, 3, 0.0, res)
         if res[0] == 0:
             return 0
         for k in (1, 3):
@@ -948,7 +948,7 @@ def _arm_state(x0, x1, ux, uy, arms, white_px, green, other_mean, top, lens, m, 
         return 0
     for k in range(3):
         tk = start + 0.5 * k * (need - start)
-        px, py = _distort(lens, x0 + tk * ux, x1 + tk * uy)
+        px, py = distort_point(lens, x0 + tk * ux, x1 + tk * uy)
         gx_, gy_ = (px + 0.5) / cell - 0.5, (py + 0.5) / cell - 0.5
         col = min(max(int(round(gx_)), 0), top.shape[0] - 1)
         row = min(max(int(round(gy_)), 0), other_mean.shape[0] - 1)

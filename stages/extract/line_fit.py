@@ -232,7 +232,7 @@ def refine_segment(ends: np.ndarray, white: np.ndarray, lens: np.ndarray, step: 
                    ) -> RefinedLine | None:
     """The coarse segment ``ends`` (2, 2, ideal px) refined on the full-resolution white mask
     ``white`` (uint8 or float32, 1 = white; ``lens`` from ``lens_parameters`` maps ideal pixels
-    to the image through the lens's distortion), in one compiled kernel (``_refine``):
+    to the image through the lens's distortion), in one compiled kernel (``refine_kernel``):
 
     - perpendicular profiles every ``step`` px from ``extend`` px before its first end to
       ``extend`` px beyond its second, each ``reach`` px to either side, 1 px apart, sampled
@@ -246,14 +246,14 @@ def refine_segment(ends: np.ndarray, white: np.ndarray, lens: np.ndarray, step: 
       line at either end), again until that set stops changing;
     - the refined segment spans the extreme inliers, then grows along the fit at each end for
       up to ``grow`` px while the profiles there still cross a white run on the line within
-      the same tolerance (``_grow``: it stops after two profiles without; the grid's skeleton
+      the same tolerance (``grow_kernel``: it stops after two profiles without; the grid's skeleton
       stops short of corners).
 
     None when fewer than ``min_points`` profiles cross a white run or stay inliers."""
     e = np.ascontiguousarray(ends, np.float64)
     res = np.empty(12)
-    pts, widths = _refine(e, white, lens, float(step), float(reach), float(extend),
-                          int(min_points), float(grow), res)
+    pts, widths = refine_kernel(e, white, lens, float(step), float(reach), float(extend),
+                                int(min_points), float(grow), res)
     if res[0] == 0:
         return None
     fit = LineFit(res[5:7].copy(), res[7:9].copy(), res[9:11].copy(), float(res[11]))
@@ -265,14 +265,16 @@ def grow_along(white: np.ndarray, lens: np.ndarray, end: np.ndarray, direction: 
     """The point (2,) ideal px up to which the white line goes on from ``end`` along the unit
     ``direction``, by at most ``grow`` px: profiles across it every ``step`` px, ``reach``
     px to each side, whose white run's centre lies within ``tol`` px of the line; the walk
-    stops after two profiles without (the compiled ``_grow`` of refine_segment)."""
-    x, y = _grow(white, lens, float(end[0]), float(end[1]), float(direction[0]),
-                 float(direction[1]), float(step), float(reach), float(grow), float(tol))
+    stops after two profiles without (the compiled ``grow_kernel`` of refine_segment)."""
+    x, y = grow_kernel(white, lens, float(end[0]), float(end[1]), float(direction[0]),
+                       float(direction[1]), float(step), float(reach), float(grow), float(tol))
     return np.array([x, y])
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _distort(lens, x, y):
+def distort_point(lens, x, y):
+    """An ideal pixel (x, y) -> the distorted image pixel (the lens of ``lens_parameters``);
+    the compiled one-point form of ``distort_ideal``."""
     fx, fy, cx, cy, k1, k2, p1, p2, k3 = lens
     nx = (x - cx) / fx
     ny = (y - cy) / fy
@@ -286,7 +288,7 @@ def _distort(lens, x, y):
 @njit(cache=True, nogil=True)
 def _distort_all(lens, p, out):
     for i in range(p.shape[0]):
-        out[i, 0], out[i, 1] = _distort(lens, p[i, 0], p[i, 1])
+        out[i, 0], out[i, 1] = distort_point(lens, p[i, 0], p[i, 1])
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -317,7 +319,7 @@ def _profile_sample(image, lens, bx, by, nx, ny, reach, k, prof):
     (nx, ny)), taken once into ``prof``."""
     if np.isnan(prof[k]):
         a = -reach + k
-        ix, iy = _distort(lens, bx + a * nx, by + a * ny)
+        ix, iy = distort_point(lens, bx + a * nx, by + a * ny)
         prof[k] = _bilinear_at(image, ix, iy)
     return prof[k]
 
@@ -527,7 +529,8 @@ def _robust(px, py, min_residual, max_gap, iterations):
 
 
 @njit(cache=True, nogil=True)
-def _grow(image, lens, ex, ey, dx, dy, step, reach, grow, tol):
+def grow_kernel(image, lens, ex, ey, dx, dy, step, reach, grow, tol):
+    """``grow_along`` compiled: the end (ideal px) reached from (ex, ey) along (dx, dy)."""
     n = 0
     v = step
     while v <= grow + 1e-9:
@@ -556,7 +559,9 @@ def _grow(image, lens, ex, ey, dx, dy, step, reach, grow, tol):
 
 
 @njit(cache=True, nogil=True)
-def _refine(ends, image, lens, step, reach, extend, min_points, grow, res):
+def refine_kernel(ends, image, lens, step, reach, extend, min_points, grow, res):
+    """``refine_segment`` compiled: the refined ends and their line fit into ``res`` (res[0] =
+    0 when it fails); returns the profiles' white points and widths."""
     res[0] = 0.0
     dx, dy = ends[1, 0] - ends[0, 0], ends[1, 1] - ends[0, 1]
     length = math.hypot(dx, dy)
@@ -616,8 +621,8 @@ def _refine(ends, image, lens, step, reach, extend, min_points, grow, res):
         sx, sy = hix - lox, hiy - loy
         sl = max(math.hypot(sx, sy), 1e-9)
         sx, sy = sx / sl, sy / sl
-        lox, loy = _grow(image, lens, lox, loy, -sx, -sy, step, reach, grow, tol)
-        hix, hiy = _grow(image, lens, hix, hiy, sx, sy, step, reach, grow, tol)
+        lox, loy = grow_kernel(image, lens, lox, loy, -sx, -sy, step, reach, grow, tol)
+        hix, hiy = grow_kernel(image, lens, hix, hiy, sx, sy, step, reach, grow, tol)
     res[0] = 1.0
     res[1], res[2], res[3], res[4] = lox, loy, hix, hiy
     res[5], res[6], res[7], res[8], res[9], res[10] = cx, cy, fux, fuy, fnx, fny
