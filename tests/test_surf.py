@@ -188,6 +188,75 @@ def test_the_edge_test_removes_responses_along_an_oblique_line():
     assert surf.min_roundness(10.0) == pytest.approx(40 / 121)
 
 
+GAUSSIAN_BAY = {**BAY, "hessian": "gaussian"}  # Bay's detector with Gaussian derivatives
+
+
+def test_gaussian_layers_give_the_hessian_of_a_quadratic_in_the_boxes_units():
+    """On I = a x^2 + b y^2 + c x y a Gaussian blur leaves the second derivatives as they are
+    and central differences are exact, so every layer, whichever pyramid level it is computed
+    on, holds (4 BLOB_RESPONSE)^2 sigma^4 (4 a b - c^2) with sigma = L / BLOB_SIZE (the
+    Gaussian a box filter of size L stands for), and the trace's sign of 2 a + 2 b; away from
+    the borders, where pyrDown reflects the image."""
+    n = 400
+    yy, xx = np.mgrid[0:n, 0:n].astype(float) - 200.0
+    a, b, c = 4e-6, 2.5e-6, -1.5e-6
+    img = 0.4 + a * xx ** 2 + b * yy ** 2 + c * xx * yy
+    ii, bad, unit = surf.integral_images(img)
+    conf = surf.check_conf({**GAUSSIAN_BAY, "octaves": 3})
+    checked = 0
+    for step, sizes, dets, traces in surf.hessian_pyramid(ii, bad, unit, conf, img):
+        for layer, size in enumerate(sizes):
+            sigma = size / surf.BLOB_SIZE
+            want = (4 * surf.BLOB_RESPONSE) ** 2 * sigma ** 4 * (4 * a * b - c * c)
+            lo, hi = (90 + step - 1) // step, (310 - 1) // step
+            inner = dets[layer, lo:hi, lo:hi]
+            assert inner.size and np.allclose(inner, want, rtol=0.02)
+            assert np.all(traces[layer, lo:hi, lo:hi] > 0)
+            checked += 1
+    assert checked == 12
+    assert surf.BLOB_SIZE == pytest.approx(3 * 1.68, abs=0.01)  # L of a blob's best box (above)
+
+
+def test_gaussian_hessian_detects_a_blob_where_and_as_large_as_the_boxes_do():
+    """The Gaussian layers stand for the box filters: a Gaussian blob is found at its centre,
+    at the scale the boxes give it (within 10 %), with det(H) as ``blob_det`` says."""
+    for sigma in (3.2, 5.0, 8.0, 13.0):
+        centre = (150.4, 149.8)
+        img = gaussian_blob(301, centre, sigma, -0.4)
+        box = surf.detect_and_describe(img, None, BAY)[0][0]
+        kp, desc = surf.detect_and_describe(img, None, GAUSSIAN_BAY)
+        g = kp[0]
+        assert desc.shape == (len(kp), 64)
+        assert np.hypot(g[0] - centre[0], g[1] - centre[1]) < 0.1 * sigma + 0.2
+        assert g[surf.SCALE] == pytest.approx(box[surf.SCALE], rel=0.1)
+        assert g[surf.RESPONSE] == pytest.approx(surf.blob_det(0.4), rel=0.15)
+        assert g[surf.LAPLACIAN] == 1.0
+
+
+def test_gaussian_hessian_has_no_response_along_an_oblique_line():
+    """The true det(H) of a straight ridge is 0 at any angle: on the 30 deg line where Bay's
+    boxes respond all along (the edge test's case), the Gaussian derivatives find nothing,
+    with or without the edge test: the largest det(H) on the line (what is left of the
+    pixels' ramp and the differences' error) is under a quarter of the default threshold and
+    a tenth of the boxes' largest."""
+    n = 301
+    yy, xx = np.mgrid[0:n, 0:n].astype(float)
+    t = math.radians(30)
+    dist = -(xx - 150) * math.sin(t) + (yy - 150) * math.cos(t)
+    img = 0.3 + 0.4 * np.clip(6.0 - np.abs(dist) + 0.5, 0, 1)
+    assert len(surf.detect_and_describe(img, None, GAUSSIAN_BAY)[0]) == 0
+    ii, bad, unit = surf.integral_images(img)
+
+    def biggest(conf):
+        return max(float(np.max(d[np.isfinite(d)])) for _, _, d, _ in surf.hessian_pyramid(
+            ii, bad, unit, surf.check_conf(conf), img))
+
+    assert biggest(GAUSSIAN_BAY) < 0.25 * surf.confs["default"]["threshold"]
+    assert biggest(GAUSSIAN_BAY) < 0.1 * biggest(BAY)
+    with pytest.raises(FieldlocError, match="hessian must be one of"):
+        surf.check_conf({**BAY, "hessian": "log"})
+
+
 def test_mask_edges_make_no_keypoints_and_max_keypoints_keeps_the_strongest():
     img = textured_image(201, 2)
     dark = img.copy()

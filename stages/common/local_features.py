@@ -46,6 +46,8 @@ ORB_FAST_RADIUS = 3.0  # px at the keypoint's pyramid level
 confs = {
     "surf": {"features": "surf", **surf.confs["default"]},
     "surf-upright": {"features": "surf", **surf.confs["upright"]},
+    # SURF with the Gaussian derivatives its box filters stand for (surf.py, ``hessian``)
+    "surf-gaussian": {"features": "surf", **surf.confs["gaussian"]},
     # OpenCV's defaults (cv2.SIFT_create)
     "sift": {"features": "sift", "max_keypoints": 0, "octave_layers": 3,
              "contrast_threshold": 0.04, "edge_threshold": 10.0, "sigma": 1.6},
