@@ -146,3 +146,32 @@ def test_letters_equal_named_keys():
     spec.pop("letters")
     b = field_from_spec(spec)
     assert np.allclose(a.segments, b.segments) and np.allclose(a.arcs, b.arcs)
+
+
+def test_a_field_built_again_gets_its_own_crossings():
+    """derive_crossings works a geometry out once per process: a second model of the same
+    field has equal crossings, in arrays of its own (changing one leaves the other)."""
+    a, b = load_field("msl-2015"), load_field("msl-2015")
+    assert np.array_equal(a.crossings, b.crossings)
+    assert list(a.crossing_types) == list(b.crossing_types)
+    assert np.array_equal(a.crossing_arms, b.crossing_arms, equal_nan=True)
+    a.crossings[0, 0] += 1.0
+    assert not np.array_equal(a.crossings, b.crossings)
+    assert np.array_equal(b.crossings, load_field("msl-2015").crossings)
+
+
+def test_file_hash_follows_the_file(tmp_path):
+    """file_hash is memoised in the process, by inode, size and mtime: a file rewritten with
+    other bytes (even of the same size) gets its new hash."""
+    import os
+
+    from stages.common.artifacts import file_hash
+
+    p = tmp_path / "f.bin"
+    p.write_bytes(b"a" * 64)
+    first = file_hash(p)
+    assert file_hash(p) == first
+    st = os.stat(p)
+    p.write_bytes(b"b" * 64)
+    os.utime(p, ns=(st.st_atime_ns, st.st_mtime_ns + 1000))
+    assert file_hash(p) != first

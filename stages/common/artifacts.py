@@ -43,12 +43,21 @@ PART_TAG = "fieldloc"  # temporary parts: .<name>.fieldloc-<pid>-<random><suffix
 _LEGACY_PART = r"[a-z0-9_]{8}\.(part|old|png|csv|json|yaml|tum)"
 
 
+_HASHES: dict[tuple, str] = {}  # file_hash by (file, inode, size, mtime ns, algo)
+
+
 def file_hash(path: str | Path, algo: str = "sha256") -> str:
-    h = hashlib.new(algo)
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return f"{algo}:{h.hexdigest()[:16]}"
+    """``algo:`` and the first 16 hex digits of the file's digest. A file hashed before in this
+    process, with the same inode, size and modification time (ns), is not read again."""
+    st = os.stat(path)
+    key = (os.path.realpath(path), st.st_ino, st.st_size, st.st_mtime_ns, algo)
+    if key not in _HASHES:
+        h = hashlib.new(algo)
+        with open(path, "rb") as f:
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                h.update(chunk)
+        _HASHES[key] = f"{algo}:{h.hexdigest()[:16]}"
+    return _HASHES[key]
 
 
 def text_hash(text: str) -> str:

@@ -562,9 +562,23 @@ def _candidate_points(segments, arcs):
     return uniq
 
 
+_CROSSINGS: dict[bytes, tuple] = {}  # derive_crossings per line geometry, in this process
+
+
 def derive_crossings(segments, arcs):
     """Every L, T and X junction of the line centre lines: positions (C, 2), types (C,), and arm
-    directions (C, 4) in radians (NaN padded). Two collinear arms are a continuation, not an L."""
+    directions (C, 4) in radians (NaN padded). Two collinear arms are a continuation, not an L.
+    Worked out once per geometry in a process (a map's field is built by each reader); each
+    call gets its own arrays."""
+    seg = np.ascontiguousarray(segments, dtype=float)
+    arc = np.ascontiguousarray(arcs, dtype=float)
+    key = repr((seg.shape, arc.shape)).encode() + seg.tobytes() + arc.tobytes()
+    if key not in _CROSSINGS:
+        _CROSSINGS[key] = _derive_crossings(segments, arcs)
+    return tuple(a.copy() for a in _CROSSINGS[key])
+
+
+def _derive_crossings(segments, arcs):
     positions, types, arms_out = [], [], []
     for p in _candidate_points(segments, arcs):
         arms = []

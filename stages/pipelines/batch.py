@@ -167,20 +167,13 @@ def _check_results(plan: Plan) -> Path:
 # ---------------------------------------------------------------------------- resume
 
 
-_HASHES: dict = {}
-
-
 def _hash(path) -> str:
-    """Content hash of a file, memoised by (path, size, mtime); "" when it does not exist."""
-    p = Path(path)
+    """Content hash of a file (file_hash, memoised by its inode, size and mtime); "" when it
+    does not exist."""
     try:
-        st = p.stat()
+        return file_hash(path)
     except OSError:
         return ""
-    ident = (str(p.resolve()), st.st_size, st.st_mtime_ns)
-    if ident not in _HASHES:
-        _HASHES[ident] = file_hash(p)
-    return _HASHES[ident]
 
 
 def _dataset_identity(ds: DatasetSpec) -> str:
