@@ -60,8 +60,9 @@ def lookup_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spi
 @njit(cache=True, nogil=True, inline="always")
 def line_offsets(fam, ai, m0, n_angles, ncell):
     """Where observation (family ``fam``, scan line ``ai``) reads its predictions at table
-    heading m0 and m0 + 1: the offsets of its table lines in the flat radial table (first
-    crossing; the others follow ncell apart) or the flat spiral table (``fam`` > 0)."""
+    heading m0 and m0 + 1: the offsets of its table lines in the flat radial table
+    ((line, cell, crossing): a cell's MAX_CROSSINGS crossings side by side) or the flat spiral
+    table (``fam`` > 0)."""
     k0 = (ai + m0) % n_angles
     k1 = (k0 + 1) % n_angles
     if fam == 0:
@@ -79,19 +80,21 @@ def line_prediction(radial_flat, spiral_flat, ncell, fam, r0, r1, d, tol, c, a32
     (fraction a32 = 1 - b32) the angle-interpolated prediction
     (``TableSearch.exact_error_at_heading``)."""
     if fam == 0:
-        n0 = radial_flat[r0 + c]
+        c0 = r0 + c * MAX_CROSSINGS
+        n0 = radial_flat[c0]
         e0 = abs(n0 - d)
         for h in range(1, MAX_CROSSINGS):
-            t = radial_flat[r0 + h * ncell + c]
+            t = radial_flat[c0 + h]
             if abs(t - d) < e0:
                 n0 = t
                 e0 = abs(t - d)
         if not interpolate:
             return n0
-        n1 = radial_flat[r1 + c]
+        c1 = r1 + c * MAX_CROSSINGS
+        n1 = radial_flat[c1]
         e1 = abs(n1 - d)
         for h in range(1, MAX_CROSSINGS):
-            t = radial_flat[r1 + h * ncell + c]
+            t = radial_flat[c1 + h]
             if abs(t - d) < e1:
                 n1 = t
                 e1 = abs(t - d)

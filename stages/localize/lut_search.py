@@ -281,8 +281,11 @@ class TableSearch:
         self._map_file = map_file
         # exact tables in metres, scan-line-major; "none" -> NONE_M (saturated error): derived
         # from the map's millimetre tables, mapped from the cache beside the map like the
-        # error lookup (converting them costs a process 0.15-0.3 s)
-        shapes_m = {"radial": ((n, MAX_CROSSINGS, self.ncell), np.float32),
+        # error lookup (converting them costs a process 0.15-0.3 s). The radial table holds a
+        # cell's crossings side by side ((line, cell, crossing)): the exact error of a few
+        # neighbouring cells (refinement, support) reads one or two cache lines per scan line
+        # and row of cells, where crossing-major rows cost one per crossing
+        shapes_m = {"radial": ((n, self.ncell, MAX_CROSSINGS), np.float32),
                     "spiral": ((2 * n, self.ncell), np.float32)}
         if cache:
             metres, _ = lookup_cache.load_or_build(map_file.path, "tables in metres", {},
@@ -333,7 +336,8 @@ class TableSearch:
         return t
 
     def _tables_in_metres(self) -> dict:
-        return {"radial": _to_metres(self.radial_mm), "spiral": _to_metres(self.spiral_mm)}
+        return {"radial": _to_metres(self.radial_mm.transpose(0, 2, 1)),
+                "spiral": _to_metres(self.spiral_mm)}
 
     # ------------------------------------------------------------------ error lookup
     def _lookup_layout(self):
@@ -370,7 +374,7 @@ class TableSearch:
         d_r = np.arange(self.nb_radial) * b
         scale_r = (q * p.weight(d_r)).astype(np.float32)[:, None]
         for k in range(n):
-            t = self.radial_m[k]  # (4, ncell)
+            t = self.radial_m[k].T  # (4, ncell)
             e = np.abs(t[0][None, :] - d_r[:, None].astype(np.float32))
             for h in range(1, MAX_CROSSINGS):
                 np.minimum(e, np.abs(t[h][None, :] - d_r[:, None].astype(np.float32)), out=e)
