@@ -4,7 +4,8 @@ They follow the definitions of lut_search.py's module doc exactly: the same floa
 per observation, sums over observations accumulated in float64.
 
 - ``lookup_sum``: the quantised error surface of a frame on a window of cells, one contiguous
-  error-lookup row per observation;
+  lookup row per observation (the min-pooled lookup); ``tiled_sum`` the same on the tiled
+  error lookup;
 - ``tracked_window``: that surface on a tracked search's window ranked by the posterior (error
   term over the temperature plus the prior's capped Mahalanobis term), its best cells;
   ``tracked_window_bound`` a lower bound of its best score from the min-pooled lookup;
@@ -29,6 +30,7 @@ from numba import njit
 from .point_fit import fit_refine
 
 MAX_CROSSINGS = 4
+TILE = 8  # cells per side of a block of the tiled error lookup (64 cells: one cache line)
 
 @njit("void(uint8[:, ::1], int64[::1], int64[::1], int64[::1], int64, int64, int64, int64,"
       " int64, int64, int64, int64, int64, int64, uint16[:, ::1])", cache=True, nogil=True)
@@ -239,23 +241,59 @@ def refine_moves(radial_flat, spiral_flat, ncell, n_angles, family, angle_index,
     return i * nx + j
 
 
+@njit("void(uint8[:, ::1], int64[::1], int64[::1], int64[::1], int64, int64, int64, int64,"
+      " int64, int64, int64, int64, int64, int64, uint16[:, ::1])", cache=True, nogil=True)
+def tiled_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
+              spiral_row0, i0, i1, j0, j1, ntx, out):
+    """``lookup_sum`` on the tiled error lookup (``TableSearch``: each row holds the cells in
+    TILE x TILE blocks, ``ntx`` blocks per block row, block-row-major, a block's cells
+    row-major): out[i - i0, j - j0] = the sum over the observations of cell (i, j) of their
+    rows. The blocks that cover the window are summed whole, one contiguous stretch per block
+    row and observation (a few cache lines, where rows of cells cost one per row of the
+    window), and the window is taken from them once."""
+    t = TILE
+    tt = TILE * TILE
+    ti0, ti1 = i0 // t, (i1 - 1) // t + 1
+    tj0, tj1 = j0 // t, (j1 - 1) // t + 1
+    span = (tj1 - tj0) * tt
+    acc = np.zeros((ti1 - ti0) * span, dtype=np.uint16)
+    for o in range(family.shape[0]):
+        k = (angle_index[o] + m) % n_angles
+        if family[o] == 0:
+            r = k * nb_radial + min(bins[o], nb_radial - 1)
+        else:
+            r = spiral_row0 + ((family[o] - 1) * n_angles + k) * nb_spiral + min(bins[o],
+                                                                                nb_spiral - 1)
+        row = lookup[r]
+        for a in range(ti1 - ti0):
+            src = row[((ti0 + a) * ntx + tj0) * tt:((ti0 + a) * ntx + tj0) * tt + span]
+            dst = acc[a * span:(a + 1) * span]
+            for q in range(span):
+                dst[q] += src[q]
+    for i in range(i0, i1):
+        a, ii = i // t - ti0, i % t
+        for j in range(j0, j1):
+            out[i - i0, j - j0] = acc[a * span + (j // t - tj0) * tt + ii * t + j % t]
+
+
 @njit("Tuple((int64, int64, int64, float64))(uint8[:, ::1], int64[::1], int64[::1],"
       " int64[::1], int64, int64,"
-      " int64, int64, int64, int64, int64, int64, int64, int64, float64, float64, float64,"
-      " float64, float64, float64, float64, float64, float64, float64)", cache=True,
+      " int64, int64, int64, int64, int64, int64, int64, int64, int64, float64, float64,"
+      " float64, float64, float64, float64, float64, float64, float64, float64)", cache=True,
       nogil=True)
 def tracked_window(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
-                   spiral_row0, i0, i1, j0, j1, nx, scale, x0, y0, res, px, py, ia, ib, ic,
-                   cap):
-    """On the window [i0, i1) x [j0, j1): the quantised error surface (``lookup_sum``) and
+                   spiral_row0, i0, i1, j0, j1, nx, ntx, scale, x0, y0, res, px, py, ia, ib,
+                   ic, cap):
+    """On the window [i0, i1) x [j0, j1) of a grid nx cells wide: the quantised error
+    surface (``tiled_sum`` of the tiled lookup, ``ntx`` blocks wide) and
     the flat index of the cell minimising surface * ``scale`` + min(0.5 d^T [[ia, ib],
     [ib, ic]] d, ``cap``) (d = cell centre - (px, py), cell centres at (x0, y0) + (j, i) *
     res), the flat index of the surface's own minimum, that minimum's value, and the best
     cell's score."""
     h, w = i1 - i0, j1 - j0
     surf = np.empty((h, w), dtype=np.uint16)
-    lookup_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
-               spiral_row0, i0, i1, j0, j1, nx, surf)
+    tiled_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
+              spiral_row0, i0, i1, j0, j1, ntx, surf)
     best = 0
     best_score = np.inf
     low = 0
@@ -305,7 +343,7 @@ def _refine_into(radial_flat, spiral_flat, ncell, n_angles, family, angle_index,
 
 @njit(cache=True, nogil=True)
 def tracked_fix(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
-                spiral_row0, i0, i1, j0, j1, ny, nx, scale, x0, y0, res, px, py, ia, ib, ic,
+                spiral_row0, i0, i1, j0, j1, ny, nx, ntx, scale, x0, y0, res, px, py, ia, ib, ic,
                 cap, radial_flat, spiral_flat, ncell, dist, weight, tol, c2, m0, a,
                 interpolate, total_weight, temperature, qpinv, weight64, inlier_error, c2_64,
                 theta, fit_points, fit_table, fit_x0, fit_y0, fit_res, points, fit_c2,
@@ -325,7 +363,7 @@ def tracked_fix(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_sp
     NaN without ``fit_points``)."""
     best, _low, _low_val, window_fit = tracked_window(
         lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral, spiral_row0,
-        i0, i1, j0, j1, nx, scale, x0, y0, res, px, py, ia, ib, ic, cap)
+        i0, i1, j0, j1, nx, ntx, scale, x0, y0, res, px, py, ia, ib, ic, cap)
     i, j = best // nx, best % nx
     edge = ((i == i0 and i0 > 0) or (i == i1 - 1 and i1 < ny)
             or (j == j0 and j0 > 0) or (j == j1 - 1 and j1 < nx))
