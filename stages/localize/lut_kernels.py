@@ -522,11 +522,13 @@ def structure_sizes(points, distance, link, link_per_m):
             dy = points[i, 1] - points[j, 1]
             reach = link + link_per_m * max(distance[i], distance[j])
             if dx * dx + dy * dy < reach * reach:
-                ri = i
+                ri = i  # the roots, halving the paths on the way (the same structures)
                 while parent[ri] != ri:
+                    parent[ri] = parent[parent[ri]]
                     ri = parent[ri]
                 rj = j
                 while parent[rj] != rj:
+                    parent[rj] = parent[parent[rj]]
                     rj = parent[rj]
                 if ri != rj:
                     parent[ri] = rj
