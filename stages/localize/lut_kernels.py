@@ -3,9 +3,8 @@
 They follow the definitions of lut_search.py's module doc exactly: the same float32 arithmetic
 per observation, sums over observations accumulated in float64.
 
-- ``lookup_sum``: the quantised error surface of a frame on a window of cells, one contiguous
-  lookup row per observation (the min-pooled lookup); ``tiled_sum`` the same on the tiled
-  error lookup;
+- ``tiled_sum``: the quantised error surface of a frame on a window of cells, one lookup row
+  per observation (the error lookup and its min-pooled copy, both tiled);
 - ``tracked_window``: that surface on a tracked search's window ranked by the posterior (error
   term over the temperature plus the prior's capped Mahalanobis term), its best cells;
   ``tracked_window_bound`` a lower bound of its best score from the min-pooled lookup;
@@ -31,33 +30,6 @@ from .point_fit import fit_refine
 
 MAX_CROSSINGS = 4
 TILE = 8  # cells per side of a block of the tiled error lookup (64 cells: one cache line)
-
-@njit("void(uint8[:, ::1], int64[::1], int64[::1], int64[::1], int64, int64, int64, int64,"
-      " int64, int64, int64, int64, int64, int64, uint16[:, ::1])", cache=True, nogil=True)
-def lookup_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
-                spiral_row0, i0, i1, j0, j1, nx, out):
-    """out[i - i0, j - j0] = sum over the observations of lookup[row, i * nx + j] (uint16), the
-    quantised error surface on the window [i0, i1) x [j0, j1) of a grid nx cells wide; the
-    rows are ``TableSearch.lookup_rows`` at heading index m (``bins``: the observed distances
-    in distance bins, rounded)."""
-    w = j1 - j0
-    out[:, :] = 0
-    for o in range(family.shape[0]):
-        k = (angle_index[o] + m) % n_angles
-        if family[o] == 0:
-            r = k * nb_radial + min(bins[o], nb_radial - 1)
-        else:
-            r = spiral_row0 + ((family[o] - 1) * n_angles + k) * nb_spiral + min(bins[o],
-                                                                                nb_spiral - 1)
-        row = lookup[r]
-        for i in range(i0, i1):
-            src = row[i * nx + j0:i * nx + j1]
-            dst = out[i - i0]
-            for j in range(w):
-                dst[j] += src[j]
-
-
-
 
 @njit(cache=True, nogil=True, inline="always")
 def line_offsets(fam, ai, m0, n_angles, ncell):
@@ -245,12 +217,14 @@ def refine_moves(radial_flat, spiral_flat, ncell, n_angles, family, angle_index,
       " int64, int64, int64, int64, int64, int64, uint16[:, ::1])", cache=True, nogil=True)
 def tiled_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
               spiral_row0, i0, i1, j0, j1, ntx, out):
-    """``lookup_sum`` on the tiled error lookup (``TableSearch``: each row holds the cells in
-    TILE x TILE blocks, ``ntx`` blocks per block row, block-row-major, a block's cells
-    row-major): out[i - i0, j - j0] = the sum over the observations of cell (i, j) of their
-    rows. The blocks that cover the window are summed whole, one contiguous stretch per block
-    row and observation (a few cache lines, where rows of cells cost one per row of the
-    window), and the window is taken from them once."""
+    """out[i - i0, j - j0] = sum over the observations of their lookup rows' cell (i, j)
+    (uint16), the quantised error surface on the window [i0, i1) x [j0, j1); the rows are
+    ``TableSearch.lookup_rows`` at heading index m (``bins``: the observed distances in
+    distance bins, rounded), tiled (``TableSearch``: each row holds the cells in TILE x TILE
+    blocks, ``ntx`` blocks per block row, block-row-major, a block's cells row-major). The
+    blocks that cover the window are summed whole, one contiguous stretch per block row and
+    observation (a few cache lines, where rows of cells cost one per row of the window), and
+    the window is taken from them once."""
     t = TILE
     tt = TILE * TILE
     ti0, ti1 = i0 // t, (i1 - 1) // t + 1
@@ -270,10 +244,14 @@ def tiled_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spir
             dst = acc[a * span:(a + 1) * span]
             for q in range(span):
                 dst[q] += src[q]
+    col = np.empty(j1 - j0, dtype=np.int64)  # the window out of the blocks
+    for j in range(j0, j1):
+        col[j - j0] = (j // t - tj0) * tt + j % t
     for i in range(i0, i1):
-        a, ii = i // t - ti0, i % t
-        for j in range(j0, j1):
-            out[i - i0, j - j0] = acc[a * span + (j // t - tj0) * tt + ii * t + j % t]
+        src = acc[(i // t - ti0) * span + (i % t) * t:]
+        dst = out[i - i0]
+        for j in range(j1 - j0):
+            dst[j] = src[col[j]]
 
 
 @njit("Tuple((int64, int64, int64, float64))(uint8[:, ::1], int64[::1], int64[::1],"
@@ -414,35 +392,27 @@ def _posterior_score(fix, temperature, px, py, ia, ib, ic, cap):
     return fix[2] / temperature + min(0.5 * q, cap)
 
 
-@njit("float64(uint8[:, ::1], int64, int64, int64, int64[::1], int64[::1], int64[::1], int64,"
-      " int64, int64, int64, int64, int64, int64, int64, int64, float64, float64, float64,"
-      " float64, float64, float64, float64, float64, float64, float64)", cache=True,
+@njit("float64(uint8[:, ::1], int64, int64, int64, int64, int64[::1], int64[::1], int64[::1],"
+      " int64, int64, int64, int64, int64, int64, int64, int64, int64, float64, float64,"
+      " float64, float64, float64, float64, float64, float64, float64, float64)", cache=True,
       nogil=True)
-def tracked_window_bound(coarse, step, cy, cx, family, angle_index, bins, m, n_angles,
+def tracked_window_bound(coarse, step, cy, cx, ntx, family, angle_index, bins, m, n_angles,
                          nb_radial, nb_spiral, spiral_row0, i0, i1, j0, j1, scale, x0, y0,
                          res, px, py, ia, ib, ic, cap):
     """A lower bound of ``tracked_window``'s best score on the window [i0, i1) x [j0, j1),
-    from the min-pooled error lookup ``coarse`` (every ``step``-th cell, cy x cx, each the
-    minimum over the fine cells within step // 2 of it): fine cell (i, j) lies in coarse
-    cell ((i + step // 2) // step, (j + step // 2) // step), whose sum over the observations
-    is at most the fine cell's, so surface * scale + the capped Mahalanobis term of each fine
-    cell is bounded from below; the least such bound over the window. About step^2 times
-    fewer lookups than the window itself."""
+    from the min-pooled error lookup ``coarse`` (every ``step``-th cell, cy x cx, tiled as the
+    error lookup, ``ntx`` blocks wide; each the minimum over the fine cells within step // 2
+    of it): fine cell (i, j) lies in coarse cell ((i + step // 2) // step,
+    (j + step // 2) // step), whose sum over the observations is at most the fine cell's, so
+    surface * scale + the capped Mahalanobis term of each fine cell is bounded from below;
+    the least such bound over the window. About step^2 times fewer lookups than the window
+    itself."""
     r = step // 2
     c0, c1 = (i0 + r) // step, min((i1 - 1 + r) // step + 1, cy)
     d0, d1 = (j0 + r) // step, min((j1 - 1 + r) // step + 1, cx)
-    sums = np.zeros((c1 - c0, d1 - d0), dtype=np.int64)
-    for o in range(family.shape[0]):
-        k = (angle_index[o] + m) % n_angles
-        if family[o] == 0:
-            row = k * nb_radial + min(bins[o], nb_radial - 1)
-        else:
-            row = spiral_row0 + ((family[o] - 1) * n_angles + k) * nb_spiral + min(
-                bins[o], nb_spiral - 1)
-        src = coarse[row]
-        for a in range(c0, c1):
-            for b in range(d0, d1):
-                sums[a - c0, b - d0] += src[a * cx + b]
+    sums = np.empty((c1 - c0, d1 - d0), dtype=np.uint16)
+    tiled_sum(coarse, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
+              spiral_row0, c0, c1, d0, d1, ntx, sums)
     best = np.inf
     for i in range(i0, i1):
         dy = y0 + i * res - py
@@ -451,7 +421,7 @@ def tracked_window_bound(coarse, step, cy, cx, family, angle_index, bins, m, n_a
             dx = x0 + j * res - px
             q = 0.5 * (ia * dx * dx + 2.0 * ib * dx * dy + ic * dy * dy)
             b = min((j + r) // step, cx - 1) - d0
-            score = sums[a, b] * scale + min(q, cap)
+            score = int(sums[a, b]) * scale + min(q, cap)
             if score < best:
                 best = score
     return best

@@ -65,7 +65,6 @@ from .lut_kernels import (
     exact_error_cells,
     flatten_scanlines,
     inlier_sums,
-    lookup_sum,
     observation_errors_cell,
     observation_points,
     observation_predictions_cell,
@@ -309,7 +308,7 @@ class TableSearch:
         shapes = {"error": ((self.lookup_rows_total, self.nty * self.ntx * TILE * TILE),
                             np.uint8),
                   "coarse": ((self.lookup_rows_total,
-                              ((ny + step - 1) // step) * ((nx + step - 1) // step)), np.uint8)}
+                              self.coarse_nty * self.coarse_ntx * TILE * TILE), np.uint8)}
         if cache:  # mapped from beside the map when it was built before (lookup_cache)
             arrays, self.lookup_source = lookup_cache.load_or_build(
                 map_file.path, "error lookup",
@@ -358,12 +357,14 @@ class TableSearch:
         self.lookup_rows_total = n * self.nb_radial + 2 * n * self.nb_spiral
         # the tiled rows: blocks of TILE x TILE cells, nty x ntx of them
         self.nty, self.ntx = -(-self.ny // TILE), -(-self.nx // TILE)
+        step = max(1, self.params.coarse_step)  # the min-pooled lookup, tiled the same way
+        self.coarse_shape = ((self.ny + step - 1) // step, (self.nx + step - 1) // step)
+        self.coarse_nty = -(-self.coarse_shape[0] // TILE)
+        self.coarse_ntx = -(-self.coarse_shape[1] // TILE)
 
     def _set_error_lookup(self, arrays: dict):
         self.error_lookup = arrays["error"]  # tiled (module doc)
-        step = max(1, self.params.coarse_step)
-        self.coarse_lookup = arrays["coarse"]  # rows of cells (with step 1 a copy untiled)
-        self.coarse_shape = ((self.ny + step - 1) // step, (self.nx + step - 1) // step)
+        self.coarse_lookup = arrays["coarse"]  # tiled too (with coarse_step 1 a copy)
 
     def _build_error_lookup(self) -> dict:
         """The error lookup (tiled) and its min-pooled copy (``error``, ``coarse``), computed
@@ -376,12 +377,13 @@ class TableSearch:
         step = max(1, p.coarse_step)
         cy, cx = (self.ny + step - 1) // step, (self.nx + step - 1) // step
         lut = np.empty((rows, self.nty * self.ntx * TILE * TILE), dtype=np.uint8)
-        coarse = np.empty((rows, cy * cx), dtype=np.uint8)
+        coarse = np.empty((rows, self.coarse_nty * self.coarse_ntx * TILE * TILE),
+                          dtype=np.uint8)
 
         def put(r0, block):  # rows r0.. of cells into the tiled and the min-pooled lookups
             block = block.reshape(-1, self.ny, self.nx)
             lut[r0:r0 + len(block)] = _tiled(block)
-            coarse[r0:r0 + len(block)] = _min_pooled(block, step)[0]
+            coarse[r0:r0 + len(block)] = _tiled(_min_pooled(block, step)[0].reshape(-1, cy, cx))
 
         d_r = np.arange(self.nb_radial) * b
         scale_r = (q * p.weight(d_r)).astype(np.float32)[:, None]
@@ -561,7 +563,7 @@ class TableSearch:
         return out.reshape(-1)
 
     def _row_arrays(self, obs: Observation, m: int) -> tuple:
-        """The arguments of ``lookup_sum`` / ``tiled_sum`` that select the rows
+        """The arguments of ``tiled_sum`` that select the rows
         ``lookup_rows(obs, m)``."""
         b = self.params.distance_bin
         if obs._rows is None or obs._rows[0] != b:
@@ -680,7 +682,7 @@ class TableSearch:
         g, info = self.grid, prior_information
         cy, cx = self.coarse_shape
         return tracked_window_bound(
-            self.coarse_lookup, max(1, self.params.coarse_step), cy, cx,
+            self.coarse_lookup, max(1, self.params.coarse_step), cy, cx, self.coarse_ntx,
             *self._row_arrays(obs, m), i0, i1, j0, j1, 1.0 / (self.q_levels * temperature),
             float(g.origin[0]), float(g.origin[1]), float(g.resolution), float(prior_xy[0]),
             float(prior_xy[1]), float(info[0, 0]), float(info[0, 1]), float(info[1, 1]),
@@ -769,13 +771,13 @@ class TableSearch:
             return None
         n = self.n_angles
         cs = max(1, self.params.coarse_step)
-        ncoarse = self.coarse_lookup.shape[1]
-        surfaces = np.empty((n, ncoarse), dtype=np.uint16)
         cy, cx = self.coarse_shape
+        ncoarse = cy * cx
+        surfaces = np.empty((n, ncoarse), dtype=np.uint16)
         row_arrays = self._row_arrays(obs, 0)
         for m in range(n):
-            lookup_sum(self.coarse_lookup, *row_arrays[:3], m, *row_arrays[4:], 0, cy, 0, cx,
-                        cx, surfaces[m].reshape(cy, cx))
+            tiled_sum(self.coarse_lookup, *row_arrays[:3], m, *row_arrays[4:], 0, cy, 0, cx,
+                      self.coarse_ntx, surfaces[m].reshape(cy, cx))
         flat = surfaces.ravel()
         pool = min(flat.size, 64 * candidates)
         cand = np.argpartition(flat, pool - 1)[:pool]
