@@ -110,6 +110,8 @@ def imu_per_frame(imu: dict, stamps: np.ndarray, tolerance: float):
 
 # ---------------------------------------------------------------------------- IMU alignment
 
+_TWO_PI = 2 * math.pi
+
 
 @dataclass
 class ImuAlignment:
@@ -121,7 +123,8 @@ class ImuAlignment:
     known: bool = True  # False until initialised (alignment "vision")
 
     def heading(self, yaw: float) -> float:
-        return float(wrap_angle(yaw + self.offset))
+        # wrap_angle in scalar arithmetic (the same floating-point result, without an array)
+        return (float(yaw) + self.offset + math.pi) % _TWO_PI - math.pi
 
     def initialise(self, field_heading: float, yaw: float, variance: float):
         self.offset = float(wrap_angle(field_heading - yaw))

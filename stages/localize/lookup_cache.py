@@ -44,7 +44,8 @@ from ..common.errors import FieldlocError
 
 log = logging.getLogger(__name__)
 
-CACHE_VERSION = 1  # raise when an array is computed differently: older files are not read
+CACHE_VERSION = 2  # raise when an array is computed differently: older files are not read
+# (2: the radial table in metres as (line, cell, crossing))
 SUFFIX = ".lookup"
 _HASHES: dict = {}  # (path, inode, size, mtime) -> content hash: a map is hashed once per process
 

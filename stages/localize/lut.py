@@ -97,7 +97,6 @@ error term over the heading.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import time
@@ -325,7 +324,8 @@ class LutLocaliser:
         raw_distance = obs.distance
         if self.radial is not None and self.radial.active:  # the calibration's error removed
             d = self.radial.correct(raw_distance)
-            obs = dataclasses.replace(obs, distance=d, weight=search.params.weight(d))
+            obs = Observation(family=obs.family, angle_index=obs.angle_index, distance=d,
+                              weight=search.params.weight(d), lookup_weight=obs.lookup_weight)
         ev = conf["evidence"]
         obs = obs.with_evidence(sl, ev["per_structure"], ev["link"], ev["link_per_m"])
         self._points = obs.points(sl)

@@ -3,8 +3,8 @@
 They follow the definitions of lut_search.py's module doc exactly: the same float32 arithmetic
 per observation, sums over observations accumulated in float64.
 
-- ``lookup_sum``: the quantised error surface of a frame on a window of cells, one contiguous
-  error-lookup row per observation;
+- ``tiled_sum``: the quantised error surface of a frame on a window of cells, one lookup row
+  per observation (the error lookup and its min-pooled copy, both tiled);
 - ``tracked_window``: that surface on a tracked search's window ranked by the posterior (error
   term over the temperature plus the prior's capped Mahalanobis term), its best cells;
   ``tracked_window_bound`` a lower bound of its best score from the min-pooled lookup;
@@ -29,39 +29,14 @@ from numba import njit
 from .point_fit import fit_refine
 
 MAX_CROSSINGS = 4
-
-@njit("void(uint8[:, ::1], int64[::1], int64[::1], int64[::1], int64, int64, int64, int64,"
-      " int64, int64, int64, int64, int64, int64, uint16[:, ::1])", cache=True, nogil=True)
-def lookup_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
-                spiral_row0, i0, i1, j0, j1, nx, out):
-    """out[i - i0, j - j0] = sum over the observations of lookup[row, i * nx + j] (uint16), the
-    quantised error surface on the window [i0, i1) x [j0, j1) of a grid nx cells wide; the
-    rows are ``TableSearch.lookup_rows`` at heading index m (``bins``: the observed distances
-    in distance bins, rounded)."""
-    w = j1 - j0
-    out[:, :] = 0
-    for o in range(family.shape[0]):
-        k = (angle_index[o] + m) % n_angles
-        if family[o] == 0:
-            r = k * nb_radial + min(bins[o], nb_radial - 1)
-        else:
-            r = spiral_row0 + ((family[o] - 1) * n_angles + k) * nb_spiral + min(bins[o],
-                                                                                nb_spiral - 1)
-        row = lookup[r]
-        for i in range(i0, i1):
-            src = row[i * nx + j0:i * nx + j1]
-            dst = out[i - i0]
-            for j in range(w):
-                dst[j] += src[j]
-
-
-
+TILE = 8  # cells per side of a block of the tiled error lookup (64 cells: one cache line)
 
 @njit(cache=True, nogil=True, inline="always")
 def line_offsets(fam, ai, m0, n_angles, ncell):
     """Where observation (family ``fam``, scan line ``ai``) reads its predictions at table
-    heading m0 and m0 + 1: the offsets of its table lines in the flat radial table (first
-    crossing; the others follow ncell apart) or the flat spiral table (``fam`` > 0)."""
+    heading m0 and m0 + 1: the offsets of its table lines in the flat radial table
+    ((line, cell, crossing): a cell's MAX_CROSSINGS crossings side by side) or the flat spiral
+    table (``fam`` > 0)."""
     k0 = (ai + m0) % n_angles
     k1 = (k0 + 1) % n_angles
     if fam == 0:
@@ -79,19 +54,21 @@ def line_prediction(radial_flat, spiral_flat, ncell, fam, r0, r1, d, tol, c, a32
     (fraction a32 = 1 - b32) the angle-interpolated prediction
     (``TableSearch.exact_error_at_heading``)."""
     if fam == 0:
-        n0 = radial_flat[r0 + c]
+        c0 = r0 + c * MAX_CROSSINGS
+        n0 = radial_flat[c0]
         e0 = abs(n0 - d)
         for h in range(1, MAX_CROSSINGS):
-            t = radial_flat[r0 + h * ncell + c]
+            t = radial_flat[c0 + h]
             if abs(t - d) < e0:
                 n0 = t
                 e0 = abs(t - d)
         if not interpolate:
             return n0
-        n1 = radial_flat[r1 + c]
+        c1 = r1 + c * MAX_CROSSINGS
+        n1 = radial_flat[c1]
         e1 = abs(n1 - d)
         for h in range(1, MAX_CROSSINGS):
-            t = radial_flat[r1 + h * ncell + c]
+            t = radial_flat[c1 + h]
             if abs(t - d) < e1:
                 n1 = t
                 e1 = abs(t - d)
@@ -236,23 +213,65 @@ def refine_moves(radial_flat, spiral_flat, ncell, n_angles, family, angle_index,
     return i * nx + j
 
 
+@njit("void(uint8[:, ::1], int64[::1], int64[::1], int64[::1], int64, int64, int64, int64,"
+      " int64, int64, int64, int64, int64, int64, uint16[:, ::1])", cache=True, nogil=True)
+def tiled_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
+              spiral_row0, i0, i1, j0, j1, ntx, out):
+    """out[i - i0, j - j0] = sum over the observations of their lookup rows' cell (i, j)
+    (uint16), the quantised error surface on the window [i0, i1) x [j0, j1); the rows are
+    ``TableSearch.lookup_rows`` at heading index m (``bins``: the observed distances in
+    distance bins, rounded), tiled (``TableSearch``: each row holds the cells in TILE x TILE
+    blocks, ``ntx`` blocks per block row, block-row-major, a block's cells row-major). The
+    blocks that cover the window are summed whole, one contiguous stretch per block row and
+    observation (a few cache lines, where rows of cells cost one per row of the window), and
+    the window is taken from them once."""
+    t = TILE
+    tt = TILE * TILE
+    ti0, ti1 = i0 // t, (i1 - 1) // t + 1
+    tj0, tj1 = j0 // t, (j1 - 1) // t + 1
+    span = (tj1 - tj0) * tt
+    acc = np.zeros((ti1 - ti0) * span, dtype=np.uint16)
+    for o in range(family.shape[0]):
+        k = (angle_index[o] + m) % n_angles
+        if family[o] == 0:
+            r = k * nb_radial + min(bins[o], nb_radial - 1)
+        else:
+            r = spiral_row0 + ((family[o] - 1) * n_angles + k) * nb_spiral + min(bins[o],
+                                                                                nb_spiral - 1)
+        row = lookup[r]
+        for a in range(ti1 - ti0):
+            src = row[((ti0 + a) * ntx + tj0) * tt:((ti0 + a) * ntx + tj0) * tt + span]
+            dst = acc[a * span:(a + 1) * span]
+            for q in range(span):
+                dst[q] += src[q]
+    col = np.empty(j1 - j0, dtype=np.int64)  # the window out of the blocks
+    for j in range(j0, j1):
+        col[j - j0] = (j // t - tj0) * tt + j % t
+    for i in range(i0, i1):
+        src = acc[(i // t - ti0) * span + (i % t) * t:]
+        dst = out[i - i0]
+        for j in range(j1 - j0):
+            dst[j] = src[col[j]]
+
+
 @njit("Tuple((int64, int64, int64, float64))(uint8[:, ::1], int64[::1], int64[::1],"
       " int64[::1], int64, int64,"
-      " int64, int64, int64, int64, int64, int64, int64, int64, float64, float64, float64,"
-      " float64, float64, float64, float64, float64, float64, float64)", cache=True,
+      " int64, int64, int64, int64, int64, int64, int64, int64, int64, float64, float64,"
+      " float64, float64, float64, float64, float64, float64, float64, float64)", cache=True,
       nogil=True)
 def tracked_window(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
-                   spiral_row0, i0, i1, j0, j1, nx, scale, x0, y0, res, px, py, ia, ib, ic,
-                   cap):
-    """On the window [i0, i1) x [j0, j1): the quantised error surface (``lookup_sum``) and
+                   spiral_row0, i0, i1, j0, j1, nx, ntx, scale, x0, y0, res, px, py, ia, ib,
+                   ic, cap):
+    """On the window [i0, i1) x [j0, j1) of a grid nx cells wide: the quantised error
+    surface (``tiled_sum`` of the tiled lookup, ``ntx`` blocks wide) and
     the flat index of the cell minimising surface * ``scale`` + min(0.5 d^T [[ia, ib],
     [ib, ic]] d, ``cap``) (d = cell centre - (px, py), cell centres at (x0, y0) + (j, i) *
     res), the flat index of the surface's own minimum, that minimum's value, and the best
     cell's score."""
     h, w = i1 - i0, j1 - j0
     surf = np.empty((h, w), dtype=np.uint16)
-    lookup_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
-               spiral_row0, i0, i1, j0, j1, nx, surf)
+    tiled_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
+              spiral_row0, i0, i1, j0, j1, ntx, surf)
     best = 0
     best_score = np.inf
     low = 0
@@ -302,7 +321,7 @@ def _refine_into(radial_flat, spiral_flat, ncell, n_angles, family, angle_index,
 
 @njit(cache=True, nogil=True)
 def tracked_fix(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
-                spiral_row0, i0, i1, j0, j1, ny, nx, scale, x0, y0, res, px, py, ia, ib, ic,
+                spiral_row0, i0, i1, j0, j1, ny, nx, ntx, scale, x0, y0, res, px, py, ia, ib, ic,
                 cap, radial_flat, spiral_flat, ncell, dist, weight, tol, c2, m0, a,
                 interpolate, total_weight, temperature, qpinv, weight64, inlier_error, c2_64,
                 theta, fit_points, fit_table, fit_x0, fit_y0, fit_res, points, fit_c2,
@@ -322,7 +341,7 @@ def tracked_fix(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_sp
     NaN without ``fit_points``)."""
     best, _low, _low_val, window_fit = tracked_window(
         lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral, spiral_row0,
-        i0, i1, j0, j1, nx, scale, x0, y0, res, px, py, ia, ib, ic, cap)
+        i0, i1, j0, j1, nx, ntx, scale, x0, y0, res, px, py, ia, ib, ic, cap)
     i, j = best // nx, best % nx
     edge = ((i == i0 and i0 > 0) or (i == i1 - 1 and i1 < ny)
             or (j == j0 and j0 > 0) or (j == j1 - 1 and j1 < nx))
@@ -373,35 +392,27 @@ def _posterior_score(fix, temperature, px, py, ia, ib, ic, cap):
     return fix[2] / temperature + min(0.5 * q, cap)
 
 
-@njit("float64(uint8[:, ::1], int64, int64, int64, int64[::1], int64[::1], int64[::1], int64,"
-      " int64, int64, int64, int64, int64, int64, int64, int64, float64, float64, float64,"
-      " float64, float64, float64, float64, float64, float64, float64)", cache=True,
+@njit("float64(uint8[:, ::1], int64, int64, int64, int64, int64[::1], int64[::1], int64[::1],"
+      " int64, int64, int64, int64, int64, int64, int64, int64, int64, float64, float64,"
+      " float64, float64, float64, float64, float64, float64, float64, float64)", cache=True,
       nogil=True)
-def tracked_window_bound(coarse, step, cy, cx, family, angle_index, bins, m, n_angles,
+def tracked_window_bound(coarse, step, cy, cx, ntx, family, angle_index, bins, m, n_angles,
                          nb_radial, nb_spiral, spiral_row0, i0, i1, j0, j1, scale, x0, y0,
                          res, px, py, ia, ib, ic, cap):
     """A lower bound of ``tracked_window``'s best score on the window [i0, i1) x [j0, j1),
-    from the min-pooled error lookup ``coarse`` (every ``step``-th cell, cy x cx, each the
-    minimum over the fine cells within step // 2 of it): fine cell (i, j) lies in coarse
-    cell ((i + step // 2) // step, (j + step // 2) // step), whose sum over the observations
-    is at most the fine cell's, so surface * scale + the capped Mahalanobis term of each fine
-    cell is bounded from below; the least such bound over the window. About step^2 times
-    fewer lookups than the window itself."""
+    from the min-pooled error lookup ``coarse`` (every ``step``-th cell, cy x cx, tiled as the
+    error lookup, ``ntx`` blocks wide; each the minimum over the fine cells within step // 2
+    of it): fine cell (i, j) lies in coarse cell ((i + step // 2) // step,
+    (j + step // 2) // step), whose sum over the observations is at most the fine cell's, so
+    surface * scale + the capped Mahalanobis term of each fine cell is bounded from below;
+    the least such bound over the window. About step^2 times fewer lookups than the window
+    itself."""
     r = step // 2
     c0, c1 = (i0 + r) // step, min((i1 - 1 + r) // step + 1, cy)
     d0, d1 = (j0 + r) // step, min((j1 - 1 + r) // step + 1, cx)
-    sums = np.zeros((c1 - c0, d1 - d0), dtype=np.int64)
-    for o in range(family.shape[0]):
-        k = (angle_index[o] + m) % n_angles
-        if family[o] == 0:
-            row = k * nb_radial + min(bins[o], nb_radial - 1)
-        else:
-            row = spiral_row0 + ((family[o] - 1) * n_angles + k) * nb_spiral + min(
-                bins[o], nb_spiral - 1)
-        src = coarse[row]
-        for a in range(c0, c1):
-            for b in range(d0, d1):
-                sums[a - c0, b - d0] += src[a * cx + b]
+    sums = np.empty((c1 - c0, d1 - d0), dtype=np.uint16)
+    tiled_sum(coarse, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
+              spiral_row0, c0, c1, d0, d1, ntx, sums)
     best = np.inf
     for i in range(i0, i1):
         dy = y0 + i * res - py
@@ -410,7 +421,7 @@ def tracked_window_bound(coarse, step, cy, cx, family, angle_index, bins, m, n_a
             dx = x0 + j * res - px
             q = 0.5 * (ia * dx * dx + 2.0 * ib * dx * dy + ic * dy * dy)
             b = min((j + r) // step, cx - 1) - d0
-            score = sums[a, b] * scale + min(q, cap)
+            score = int(sums[a, b]) * scale + min(q, cap)
             if score < best:
                 best = score
     return best
@@ -481,11 +492,13 @@ def structure_sizes(points, distance, link, link_per_m):
             dy = points[i, 1] - points[j, 1]
             reach = link + link_per_m * max(distance[i], distance[j])
             if dx * dx + dy * dy < reach * reach:
-                ri = i
+                ri = i  # the roots, halving the paths on the way (the same structures)
                 while parent[ri] != ri:
+                    parent[ri] = parent[parent[ri]]
                     ri = parent[ri]
                 rj = j
                 while parent[rj] != rj:
+                    parent[rj] = parent[parent[rj]]
                     rj = parent[rj]
                 if ri != rj:
                     parent[ri] = rj

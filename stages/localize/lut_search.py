@@ -25,11 +25,15 @@ uint16; built once per map and parameters and then mapped from its cache beside 
 stages.localize.lookup_cache). It is stored scan-line-major ((line, bin) rows of all cells,
 contiguous), so the error surface of a frame over the whole world is the sum of one contiguous
 row per observation: one gather and one reduction (``global_search``), or the same restricted
-to a window (``local_search``), both in one numba kernel (``lookup_sum``; the exact error and
-the refinement's cell moves are numba kernels too). A track's fix (``tracked_fix``: the window
-ranked by the posterior, the refinement of its basin and of the prior's, the support, the line
-points' fit) is one compiled call. The quantised surface only picks cells; the
-pose is then refined with the exact error (float32 tables in metres, no quantisation):
+to a window (``local_search``), both in one numba kernel (``tiled_sum``; the exact error and
+the refinement's cell moves are numba kernels too). Within a row the cells lie in 8 x 8
+blocks (``lut_kernels.TILE``; block-row-major, a block's cells row-major, the grid padded to
+whole blocks), so the window of a tracked frame reads a few contiguous 64-byte blocks per
+observation where rows of cells would cost one cache line per row of the window. A track's
+fix (``tracked_fix``: the window ranked by the posterior, the refinement of its basin and of
+the prior's, the support, the line points' fit) is one compiled call. The quantised surface
+only picks cells; the pose is then refined with the exact error (float32 tables in metres,
+no quantisation):
 
 - sub-cell position: exact error on the 3 x 3 cells around the best cell (moving to a lower
   neighbour until the centre is the minimum), then a least-squares quadratic fit of the 9 values;
@@ -57,16 +61,17 @@ from ..common.scanlines import NO_HIT_MM
 from . import lookup_cache
 from .lut_kernels import (
     MAX_CROSSINGS,
+    TILE,
     exact_error_cells,
     flatten_scanlines,
     inlier_sums,
-    lookup_sum,
     observation_errors_cell,
     observation_points,
     observation_predictions_cell,
     quadratic_fit,
     refine_moves,
     structure_sizes,
+    tiled_sum,
     tracked_fix,
     tracked_window,
     tracked_window_bound,
@@ -281,8 +286,11 @@ class TableSearch:
         self._map_file = map_file
         # exact tables in metres, scan-line-major; "none" -> NONE_M (saturated error): derived
         # from the map's millimetre tables, mapped from the cache beside the map like the
-        # error lookup (converting them costs a process 0.15-0.3 s)
-        shapes_m = {"radial": ((n, MAX_CROSSINGS, self.ncell), np.float32),
+        # error lookup (converting them costs a process 0.15-0.3 s). The radial table holds a
+        # cell's crossings side by side ((line, cell, crossing)): the exact error of a few
+        # neighbouring cells (refinement, support) reads one or two cache lines per scan line
+        # and row of cells, where crossing-major rows cost one per crossing
+        shapes_m = {"radial": ((n, self.ncell, MAX_CROSSINGS), np.float32),
                     "spiral": ((2 * n, self.ncell), np.float32)}
         if cache:
             metres, _ = lookup_cache.load_or_build(map_file.path, "tables in metres", {},
@@ -297,10 +305,10 @@ class TableSearch:
         self._lookup_layout()
         p = self.params
         step = max(1, p.coarse_step)
-        shapes = {"error": ((self.lookup_rows_total, self.ncell), np.uint8)}
-        if step > 1:
-            shapes["coarse"] = ((self.lookup_rows_total,
-                                 ((ny + step - 1) // step) * ((nx + step - 1) // step)), np.uint8)
+        shapes = {"error": ((self.lookup_rows_total, self.nty * self.ntx * TILE * TILE),
+                            np.uint8),
+                  "coarse": ((self.lookup_rows_total,
+                              self.coarse_nty * self.coarse_ntx * TILE * TILE), np.uint8)}
         if cache:  # mapped from beside the map when it was built before (lookup_cache)
             arrays, self.lookup_source = lookup_cache.load_or_build(
                 map_file.path, "error lookup",
@@ -333,7 +341,8 @@ class TableSearch:
         return t
 
     def _tables_in_metres(self) -> dict:
-        return {"radial": _to_metres(self.radial_mm), "spiral": _to_metres(self.spiral_mm)}
+        return {"radial": _to_metres(self.radial_mm.transpose(0, 2, 1)),
+                "spiral": _to_metres(self.spiral_mm)}
 
     # ------------------------------------------------------------------ error lookup
     def _lookup_layout(self):
@@ -346,47 +355,51 @@ class TableSearch:
         self.q_levels = int(np.iinfo(np.uint16).max // max_obs)
         self.spiral_row0 = n * self.nb_radial
         self.lookup_rows_total = n * self.nb_radial + 2 * n * self.nb_spiral
+        # the tiled rows: blocks of TILE x TILE cells, nty x ntx of them
+        self.nty, self.ntx = -(-self.ny // TILE), -(-self.nx // TILE)
+        step = max(1, self.params.coarse_step)  # the min-pooled lookup, tiled the same way
+        self.coarse_shape = ((self.ny + step - 1) // step, (self.nx + step - 1) // step)
+        self.coarse_nty = -(-self.coarse_shape[0] // TILE)
+        self.coarse_ntx = -(-self.coarse_shape[1] // TILE)
 
     def _set_error_lookup(self, arrays: dict):
-        self.error_lookup = arrays["error"]
-        rows = self.error_lookup.shape[0]
-        self.error_lookup_3d = self.error_lookup.reshape(rows, self.ny, self.nx)
-        step = max(1, self.params.coarse_step)
-        if step > 1:
-            self.coarse_lookup = arrays["coarse"]
-            self.coarse_shape = ((self.ny + step - 1) // step, (self.nx + step - 1) // step)
-        else:
-            self.coarse_lookup, self.coarse_shape = _min_pooled(self.error_lookup_3d, 1)
+        self.error_lookup = arrays["error"]  # tiled (module doc)
+        self.coarse_lookup = arrays["coarse"]  # tiled too (with coarse_step 1 a copy)
 
     def _build_error_lookup(self) -> dict:
-        """The error lookup and its min-pooled copy (``error``, ``coarse``), computed from the
-        tables (module doc)."""
+        """The error lookup (tiled) and its min-pooled copy (``error``, ``coarse``), computed
+        from the tables (module doc), one scan line's rows at a time."""
         p = self.params
         n = self.n_angles
         b = p.distance_bin
         q = float(self.q_levels)
         rows = self.lookup_rows_total
-        lut = np.empty((rows, self.ncell), dtype=np.uint8)
+        step = max(1, p.coarse_step)
+        cy, cx = (self.ny + step - 1) // step, (self.nx + step - 1) // step
+        lut = np.empty((rows, self.nty * self.ntx * TILE * TILE), dtype=np.uint8)
+        coarse = np.empty((rows, self.coarse_nty * self.coarse_ntx * TILE * TILE),
+                          dtype=np.uint8)
+
+        def put(r0, block):  # rows r0.. of cells into the tiled and the min-pooled lookups
+            block = block.reshape(-1, self.ny, self.nx)
+            lut[r0:r0 + len(block)] = _tiled(block)
+            coarse[r0:r0 + len(block)] = _tiled(_min_pooled(block, step)[0].reshape(-1, cy, cx))
+
         d_r = np.arange(self.nb_radial) * b
         scale_r = (q * p.weight(d_r)).astype(np.float32)[:, None]
         for k in range(n):
-            t = self.radial_m[k]  # (4, ncell)
+            t = self.radial_m[k].T  # (4, ncell)
             e = np.abs(t[0][None, :] - d_r[:, None].astype(np.float32))
             for h in range(1, MAX_CROSSINGS):
                 np.minimum(e, np.abs(t[h][None, :] - d_r[:, None].astype(np.float32)), out=e)
-            lut[k * self.nb_radial:(k + 1) * self.nb_radial] = np.rint(
-                scale_r * _rho32(e, p.c))
+            put(k * self.nb_radial, np.rint(scale_r * _rho32(e, p.c)).astype(np.uint8))
         d_s = np.arange(self.nb_spiral) * b
         scale_s = (q * p.weight(d_s)).astype(np.float32)[:, None]
         for s in range(2 * n):
             e = np.abs(self.spiral_m[s][None, :] - d_s[:, None].astype(np.float32))
-            r0 = self.spiral_row0 + s * self.nb_spiral
-            lut[r0:r0 + self.nb_spiral] = np.rint(scale_s * _rho32(e, p.c))
-        out = {"error": lut}
-        step = max(1, p.coarse_step)
-        if step > 1:
-            out["coarse"] = _min_pooled(lut.reshape(rows, self.ny, self.nx), step)[0]
-        return out
+            put(self.spiral_row0 + s * self.nb_spiral,
+                np.rint(scale_s * _rho32(e, p.c)).astype(np.uint8))
+        return {"error": lut, "coarse": coarse}
 
     def lookup_rows(self, obs: Observation, m: int) -> np.ndarray:
         """Rows of the error lookup for the observations at table heading index ``m``."""
@@ -545,12 +558,13 @@ class TableSearch:
 
     def _surface(self, obs: Observation, m: int) -> np.ndarray:
         out = np.empty((self.ny, self.nx), dtype=np.uint16)
-        lookup_sum(self.error_lookup, *self._row_arrays(obs, m), 0, self.ny, 0, self.nx,
-                    self.nx, out)
+        tiled_sum(self.error_lookup, *self._row_arrays(obs, m), 0, self.ny, 0, self.nx,
+                  self.ntx, out)
         return out.reshape(-1)
 
     def _row_arrays(self, obs: Observation, m: int) -> tuple:
-        """The arguments of ``lookup_sum`` that select the rows ``lookup_rows(obs, m)``."""
+        """The arguments of ``tiled_sum`` that select the rows
+        ``lookup_rows(obs, m)``."""
         b = self.params.distance_bin
         if obs._rows is None or obs._rows[0] != b:
             obs._rows = (b, np.ascontiguousarray(obs.family, dtype=np.int64),
@@ -561,7 +575,7 @@ class TableSearch:
 
     def local_surface(self, obs: Observation, m: int, i0: int, i1: int, j0: int, j1: int):
         out = np.empty((i1 - i0, j1 - j0), dtype=np.uint16)
-        lookup_sum(self.error_lookup, *self._row_arrays(obs, m), i0, i1, j0, j1, self.nx, out)
+        tiled_sum(self.error_lookup, *self._row_arrays(obs, m), i0, i1, j0, j1, self.ntx, out)
         return out
 
     def local_window(self, x: float, y: float, half_width: float):
@@ -631,7 +645,7 @@ class TableSearch:
                                       if pf is not None else (_NO_RASTER, 0.0, 0.0, 1.0, 1.0))
         out = np.empty(19)
         tracked_fix(self.error_lookup, *self._row_arrays(obs, m), i0, i1, j0, j1, self.ny,
-                    self.nx, 1.0 / (self.q_levels * temperature), float(g.origin[0]),
+                    self.nx, self.ntx, 1.0 / (self.q_levels * temperature), float(g.origin[0]),
                     float(g.origin[1]), float(g.resolution), float(prior_xy[0]),
                     float(prior_xy[1]), float(info[0, 0]), float(info[0, 1]),
                     float(info[1, 1]), float(min(prior_cap, 1e300)), radial, spiral, ncell,
@@ -668,7 +682,7 @@ class TableSearch:
         g, info = self.grid, prior_information
         cy, cx = self.coarse_shape
         return tracked_window_bound(
-            self.coarse_lookup, max(1, self.params.coarse_step), cy, cx,
+            self.coarse_lookup, max(1, self.params.coarse_step), cy, cx, self.coarse_ntx,
             *self._row_arrays(obs, m), i0, i1, j0, j1, 1.0 / (self.q_levels * temperature),
             float(g.origin[0]), float(g.origin[1]), float(g.resolution), float(prior_xy[0]),
             float(prior_xy[1]), float(info[0, 0]), float(info[0, 1]), float(info[1, 1]),
@@ -679,7 +693,7 @@ class TableSearch:
         i0, i1, j0, j1 = self.local_window(prior_xy[0], prior_xy[1], half_width)
         g = self.grid
         out = tracked_window(
-            self.error_lookup, *self._row_arrays(obs, m), i0, i1, j0, j1, self.nx,
+            self.error_lookup, *self._row_arrays(obs, m), i0, i1, j0, j1, self.nx, self.ntx,
             1.0 / (self.q_levels * temperature), float(g.origin[0]), float(g.origin[1]),
             float(g.resolution), float(prior_xy[0]), float(prior_xy[1]), float(info[0, 0]),
             float(info[0, 1]), float(info[1, 1]), float(min(cap, 1e300)))
@@ -757,13 +771,13 @@ class TableSearch:
             return None
         n = self.n_angles
         cs = max(1, self.params.coarse_step)
-        ncoarse = self.coarse_lookup.shape[1]
-        surfaces = np.empty((n, ncoarse), dtype=np.uint16)
         cy, cx = self.coarse_shape
+        ncoarse = cy * cx
+        surfaces = np.empty((n, ncoarse), dtype=np.uint16)
         row_arrays = self._row_arrays(obs, 0)
         for m in range(n):
-            lookup_sum(self.coarse_lookup, *row_arrays[:3], m, *row_arrays[4:], 0, cy, 0, cx,
-                        cx, surfaces[m].reshape(cy, cx))
+            tiled_sum(self.coarse_lookup, *row_arrays[:3], m, *row_arrays[4:], 0, cy, 0, cx,
+                      self.coarse_ntx, surfaces[m].reshape(cy, cx))
         flat = surfaces.ravel()
         pool = min(flat.size, 64 * candidates)
         cand = np.argpartition(flat, pool - 1)[:pool]
@@ -821,6 +835,17 @@ def _parabola_vertex(e: np.ndarray, limit: float) -> tuple[float, float]:
     if den <= 1e-12:
         return 0.0, 0.0
     return float(np.clip(0.5 * (e[0] - e[2]) / den, -limit, limit)), den
+
+
+def _tiled(block: np.ndarray) -> np.ndarray:
+    """Rows of cells (rows, ny, nx) as the tiled error lookup's rows (module doc): blocks of
+    TILE x TILE cells, the grid padded with zeros to whole blocks (never read: windows lie in
+    the grid)."""
+    rows, ny, nx = block.shape
+    nty, ntx = -(-ny // TILE), -(-nx // TILE)
+    padded = np.zeros((rows, nty * TILE, ntx * TILE), dtype=block.dtype)
+    padded[:, :ny, :nx] = block
+    return padded.reshape(rows, nty, TILE, ntx, TILE).transpose(0, 1, 3, 2, 4).reshape(rows, -1)
 
 
 def _min_pooled(lookup_3d: np.ndarray, step: int):
