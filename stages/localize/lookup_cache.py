@@ -47,7 +47,6 @@ log = logging.getLogger(__name__)
 CACHE_VERSION = 2  # raise when an array is computed differently: older files are not read
 # (2: the radial table in metres as (line, cell, crossing))
 SUFFIX = ".lookup"
-_HASHES: dict = {}  # (path, inode, size, mtime) -> content hash: a map is hashed once per process
 
 
 def cache_folder(map_path: str | Path) -> Path:
@@ -57,14 +56,9 @@ def cache_folder(map_path: str | Path) -> Path:
 
 
 def map_hash(map_path: str | Path) -> str:
-    """The content hash of a map file (stages.common.artifacts.file_hash), computed once per
-    process for an unchanged file."""
-    p = Path(map_path).resolve()
-    st = p.stat()
-    ident = (str(p), st.st_ino, st.st_size, st.st_mtime_ns)
-    if ident not in _HASHES:
-        _HASHES[ident] = file_hash(p)
-    return _HASHES[ident]
+    """The content hash of a map file (stages.common.artifacts.file_hash, which reads an
+    unchanged file once per process)."""
+    return file_hash(Path(map_path).resolve())
 
 
 def cache_key(map_digest: str, what: str, params: dict, shapes: dict) -> str:
