@@ -185,7 +185,7 @@ class Estimate:
 
     pose: np.ndarray  # (3,)
     covariance: np.ndarray  # (3, 3)
-    confidence: float  # weight share of the best cluster
+    confidence: float  # weight share of the best cluster (less the rivals' share)
     mirror_weight: float  # weight share around the mirrored pose
     spread: float  # m, position spread of the whole particle set
     flags: list = field(default_factory=list)
