@@ -1,0 +1,71 @@
+"""mcl from a uniform start on a rendered still robot (issue 9): the confidence says how much the
+frame tells. One rendered frame, extracted by the perspective chain with its defaults and given
+to the particle filter 15 times with zero odometry (stages.pipelines.bench_mcl_hulks
+rendered_still, which ``fieldloc bench --only mcl-hulks`` runs on 60 random poses). The belief's
+pair share (the top pose and its mirror image, its confidence up to the field's symmetry; the
+reported confidence is half of it) must be low on a frame with a single line in view and on one
+with nothing, and high, at the truth, on a frame with lines and crossings."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from stages.common.field import load_field
+from stages.localize import mcl
+from stages.pipelines.bench_mcl_hulks import rendered_still
+
+ONE_LINE = {("perspective-nao", "spl"): [-1.5, 2.3, math.pi / 2],  # the touch line ahead
+            ("perspective-default", "kidsize"): [1.2, -2.3, -math.pi / 2]}
+NOTHING = {("perspective-nao", "spl"): [2.0, -2.5, -math.pi / 2]}  # facing out of the field
+INFORMATIVE = {("perspective-nao", "spl"): [3.0, 1.0, 0.3],  # the goal area's lines and corners
+               ("perspective-default", "kidsize"): [2.5, 1.0, 0.3]}
+
+
+@pytest.mark.parametrize("camera", sorted(ONE_LINE))
+def test_one_line_in_view_gives_a_low_confidence(camera):
+    res = rendered_still(*camera, [ONE_LINE[camera]])
+    assert all(not r.informative for r in res)
+    assert max(r.pair for r in res) < 0.5, [(r.name, r.pair) for r in res]
+    # the reported confidence is the top pose's own share: half the pair on a symmetric field
+    assert all(r.confidence <= 0.5 * r.pair + 1e-9 for r in res)
+
+
+def test_nothing_in_view_gives_no_confidence():
+    camera = ("perspective-nao", "spl")
+    res = rendered_still(*camera, [NOTHING[camera]])
+    assert max(r.pair for r in res) < 0.1
+
+
+@pytest.mark.parametrize("camera", sorted(INFORMATIVE))
+def test_an_informative_frame_gives_the_pose_with_a_high_confidence(camera):
+    res = rendered_still(*camera, [INFORMATIVE[camera]])
+    assert all(r.informative and r.hit for r in res), [(r.name, r.error_m) for r in res]
+    assert min(r.pair for r in res) >= 0.9
+    assert max(r.confidence for r in res) <= 0.5 + 1e-9  # not accepted: pose or mirror
+
+
+def test_rivals_take_their_share_of_the_belief():
+    """Two places that explain a frame alike: the belief holds one, a rival the other; each
+    rival outside the belief's clusters is a hypothesis with the odds of its summed evidence,
+    and the belief's shares (the confidence among them) are what is left."""
+    fm = load_field("kidsize")
+    pf = mcl.ParticleFilter.from_field(fm, mcl.confs["uniform"])
+    pf.initialise()
+    rng = np.random.default_rng(0)
+    pf.particles = np.array([1.0, 1.0, 0.0]) + rng.normal(0, 0.05, (500, 3))
+    pf.weights = np.full(500, 1 / 500)
+    alone = pf.estimate()
+    pf._rivals = np.array([[-2.0, 2.0, 1.0], [1.05, 1.0, 0.0]])  # the second: in the belief
+    pf._rival_evidence = np.zeros(2)
+    pf._rival_odds = np.array([0.0, 3.0])
+    est = pf.estimate()
+    assert math.isclose(est.confidence, 0.5 * alone.confidence)  # odds 1: half
+    h = est.hypotheses
+    np.testing.assert_allclose(h[0, :3], alone.pose)  # the pose stays first, its mirror second
+    np.testing.assert_allclose(h[1, :3], fm.mirror_pose(alone.pose), atol=1e-9)
+    rival = [r for r in h if math.hypot(r[0] + 2.0, r[1] - 2.0) < 1e-9]
+    assert len(rival) == 1 and math.isclose(rival[0][3], 0.25)  # half of it, half its mirror
+    assert math.isclose(h[:, 3].sum(), 1.0, rel_tol=1e-6)
