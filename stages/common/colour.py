@@ -633,56 +633,83 @@ def classify_cells(yuv: np.ndarray, fc: FieldColour, conf: dict, cell: int,
     mask = np.zeros((1, 1), np.uint8) if white_out is None else white_out
     sat = np.float32(conf["white_max_saturation"])
     lo, hi = (np.float32(v) ** 2 for v in fc.saturation)
-    _hue_cells(np.ascontiguousarray(yuv), thr, int(cell), int(local),
+    _hue_cells(np.ascontiguousarray(yuv).reshape(h, 3 * w), thr, int(cell), int(local),
                np.float32(sat * sat), np.float32(fc.hue_dir[0]), np.float32(fc.hue_dir[1]),
                np.float32(np.float32(fc.hue_cos) ** 2), lo, hi, white_out is not None, out,
                mask)
     return out
 
 
-@njit("void(uint8[:, :, ::1], int16[:, :, ::1], int64, int64, float32, float32, float32,"
-      " float32, float32, float32, boolean, uint16[:, :, ::1], uint8[:, ::1])",
-      cache=True, nogil=True)
-def _hue_cells(yuv, thr, cell, local, sat2, hx, hy, c2, lo, hi, keep_white, out, mask):
-    w = yuv.shape[1]
-    hb, wb = out.shape[0], out.shape[1]
-    th, tw = thr.shape[0], thr.shape[1]
+@njit("void(uint8[::1], float32[::1], float32[::1], float32[::1], float32, float32, float32,"
+      " float32, float32, float32, uint8[::1], uint8[::1], uint8[::1])", cache=True, nogil=True)
+def _hue_row(px, t_white, t_lo, t_hi, sat2, hx, hy, c2, lo, hi, white, col_white, col_green):
+    """One row of _hue_cells: ``px`` the row's interleaved YUV bytes (3 w), the luminance
+    thresholds per column as float32 (integers, so the comparisons are those of the uint8 Y);
+    the white mask (0 / 1) into ``white`` and the white and green pixels added to the column
+    counts. Branch-free, so that it runs on vectors."""
     c128 = np.float32(128.0)
     zero = np.float32(0.0)
-    tcol = np.empty(w, np.int64)
-    ccol = np.empty(w, np.int64)
-    for c in range(w):
-        tcol[c] = min(c // local, tw - 1)
-        ccol[c] = c // cell if c < wb * cell else -1
+    for c in range(px.shape[0] // 3):
+        yf = np.float32(px[3 * c])
+        du = np.float32(px[3 * c + 1]) - c128
+        dv = np.float32(px[3 * c + 2]) - c128
+        s = du * du
+        s += dv * dv
+        y2 = yf * yf
+        is_white = (yf >= t_white[c]) & (s <= sat2 * y2)
+        dot = du * hx
+        dot += dv * hy
+        is_green = ((yf >= t_lo[c]) & (yf <= t_hi[c]) & (dot >= zero) & (dot * dot >= c2 * s)
+                    & (s >= lo * y2) & (s <= hi * y2))
+        wb = np.uint8(is_white)
+        white[c] = wb
+        col_white[c] += wb
+        col_green[c] += np.uint8(is_green & ~is_white)
+
+
+@njit("void(uint8[:, ::1], int16[:, :, ::1], int64, int64, float32, float32, float32,"
+      " float32, float32, float32, boolean, uint16[:, :, ::1], uint8[:, ::1])",
+      cache=True, nogil=True)
+def _hue_cells(yuv_rows, thr, cell, local, sat2, hx, hy, c2, lo, hi, keep_white, out, mask):
+    """classify_cells' pass over the rows (h, 3 w) of a YUV image: each row by _hue_row
+    (white wins over green), the column counts summed per cell every ``cell`` rows."""
+    w = yuv_rows.shape[1] // 3
+    hb, wb = out.shape[0], out.shape[1]
+    th, tw = thr.shape[0], thr.shape[1]
+    t_white = np.empty(w, np.float32)
+    t_lo = np.empty(w, np.float32)
+    t_hi = np.empty(w, np.float32)
+    scratch = np.empty(w, np.uint8)
+    col_white = np.zeros(w, np.uint8)
+    col_green = np.zeros(w, np.uint8)
+    last = -1
     for r in range(hb * cell):
         tr = min(r // local, th - 1)
-        cr = r // cell
-        row = yuv[r]
-        t_row = thr[tr]
-        o_row = out[cr]
-        for c in range(w):
-            y = row[c, 0]
-            yf = np.float32(y)
-            du = np.float32(row[c, 1]) - c128
-            dv = np.float32(row[c, 2]) - c128
-            s = du * du
-            s += dv * dv
-            tc = tcol[c]
-            if y >= t_row[tc, 0] and s <= sat2 * (yf * yf):
-                if keep_white:
-                    mask[r, c] = 1
-                if ccol[c] >= 0:
-                    o_row[ccol[c], 1] += 1
-            elif ccol[c] >= 0 and t_row[tc, 1] <= y <= t_row[tc, 2]:
-                dot = du * hx
-                dot += dv * hy
-                if dot >= zero:
-                    y2 = yf * yf
-                    if dot * dot >= c2 * s and s >= lo * y2 and s <= hi * y2:
-                        o_row[ccol[c], 0] += 1
-    for i in range(hb):
-        for j in range(wb):
-            out[i, j, 2] = cell * cell - out[i, j, 0] - out[i, j, 1]
+        if tr != last:  # the thresholds of this row of local blocks, per column
+            last = tr
+            for c in range(w):
+                tc = min(c // local, tw - 1)
+                t_white[c] = thr[tr, tc, 0]
+                t_lo[c] = thr[tr, tc, 1]
+                t_hi[c] = thr[tr, tc, 2]
+        row_white = scratch
+        if keep_white:
+            row_white = mask[r]
+        _hue_row(yuv_rows[r], t_white, t_lo, t_hi, sat2, hx, hy, c2, lo, hi, row_white,
+                 col_white, col_green)
+        if r % cell == cell - 1:
+            cr = r // cell
+            for j in range(wb):
+                g = 0
+                wh = 0
+                for c in range(j * cell, j * cell + cell):
+                    g += col_green[c]
+                    wh += col_white[c]
+                out[cr, j, 0] = g
+                out[cr, j, 1] = wh
+                out[cr, j, 2] = cell * cell - g - wh
+            col_white[:] = 0
+            col_green[:] = 0
 
 
 @njit(cache=True, nogil=True)
