@@ -293,23 +293,6 @@ def split_isolated_nodes(graph: LineGraph, regions: np.ndarray, image: np.ndarra
         graph.connect(i, j)
 
 
-def _outward(graph: LineGraph, i: int, reach: int = 3) -> np.ndarray | None:
-    """Unit direction in which the line ends at end node i (from a node up to ``reach`` steps
-    back along its line towards i), or None for a node without a single neighbour."""
-    if len(graph.adj[i]) != 1:
-        return None
-    prev, cur = i, next(iter(graph.adj[i]))
-    for _ in range(reach - 1):
-        nxt = [k for k in graph.adj[cur] if k != prev]
-        if len(nxt) != 1:
-            break
-        prev, cur = cur, nxt[0]
-    dx = float(graph.pos[i, 0] - graph.pos[cur, 0])
-    dy = float(graph.pos[i, 1] - graph.pos[cur, 1])
-    n = float(np.hypot(dx, dy))
-    return np.array([dx / n, dy / n]) if n > 0 else None
-
-
 def fill_gaps(graph: LineGraph, image: np.ndarray, max_gap: float, min_cos: float,
               min_grey_ratio: float, close_gap: float, max_degree: int = 4, samples: int = 8):
     """Candidate connections from end and isolated nodes to nodes within ``max_gap`` cells,
@@ -325,51 +308,16 @@ def fill_gaps(graph: LineGraph, image: np.ndarray, max_gap: float, min_cos: floa
         return
     pos = graph.pos
     d = np.hypot(*(pos[loose][:, None, :] - pos[None, :, :]).transpose(2, 0, 1))
-    near_all = (d <= max_gap) & (d > 0)
-    outward = {}
-    for i in loose.tolist():
-        o = _outward(graph, i)
-        outward[i] = None if o is None else (float(o[0]), float(o[1]))
-    xy = pos.tolist()
-    deg_l = deg.tolist()
-    cand = []
-    for a, i in enumerate(loose.tolist()):
-        near = np.nonzero(near_all[a])[0]
-        if len(near) == 0:
-            continue
-        steps = {i}
-        frontier = {i}
-        for _ in range(3):
-            frontier = {k for f in frontier for k in graph.adj[f]} - steps
-            steps |= frontier
-        out_i = outward[i]
-        xi, yi = xy[i]
-        da = d[a]
-        for j in near.tolist():
-            if j in steps:
-                continue
-            dj = float(da[j])
-            gx, gy = (xy[j][0] - xi) / dj, (xy[j][1] - yi) / dj
-            out_j = outward.get(j) if deg_l[j] <= 1 else None
-            closing = dj <= close_gap and deg_l[j] == 1 and deg_l[i] == 1
-            score = 0.0
-            if out_i is not None:
-                ci = out_i[0] * gx + out_i[1] * gy
-                if ci < min_cos and not closing:
-                    continue
-                score += ci
-            if out_j is not None:
-                cj = -out_j[0] * gx + -out_j[1] * gy
-                if cj < min_cos and not closing:
-                    continue
-                score += cj
-            if out_i is None and out_j is None and deg_l[j] > 0:
-                continue  # an isolated node joins only where a line's direction leads
-            cand.append((score - dj / max_gap, i, j))
+    # the candidates (continuity, closure) by one compiled pass over the loose nodes
+    start, nbr = _neighbour_lists(graph.adj)
+    score, ci, cj = _gap_candidates(np.ascontiguousarray(pos, np.float64), start, nbr,
+                                    deg.astype(np.int64), loose.astype(np.int64), d,
+                                    float(max_gap), float(min_cos), float(close_gap))
+    cand = list(zip(score.tolist(), ci.tolist(), cj.tolist()))
     if not cand:
         return
     # simplicity: grey level along all candidate gaps, sampled in one pass
-    ij = np.array([(i, j) for _, i, j in cand])
+    ij = np.stack([ci, cj], axis=1)
     t = np.linspace(0.0, 1.0, samples)[None, :, None]
     pts = (pos[ij[:, 0]][:, None, :] * (1 - t) + pos[ij[:, 1]][:, None, :] * t).astype(np.float32)
     grey = cv2.remap(image, pts[..., 0], pts[..., 1], cv2.INTER_LINEAR,
@@ -384,6 +332,131 @@ def fill_gaps(graph: LineGraph, image: np.ndarray, max_gap: float, min_cos: floa
         if len(graph.adj[i]) >= 2 or len(graph.adj[j]) >= max_degree:
             continue
         graph.connect(i, j)
+
+
+def _neighbour_lists(adj: list[set]) -> tuple[np.ndarray, np.ndarray]:
+    """The graph's connections as flat lists for the kernels: node i's neighbours are
+    ``nbr[start[i]:start[i + 1]]`` (in no particular order)."""
+    counts = np.fromiter((len(a) for a in adj), np.int64, len(adj))
+    start = np.zeros(len(adj) + 1, np.int64)
+    np.cumsum(counts, out=start[1:])
+    nbr = np.fromiter((k for a in adj for k in a), np.int64, int(start[-1]))
+    return start, nbr
+
+
+@njit("UniTuple(float64, 2)(float64[:, ::1], int64[::1], int64[::1], int64)",
+      cache=True, nogil=True)
+def _outward(pos, start, nbr, i):
+    """The unit direction (dx, dy) in which the line ends at end node i (from a node up to
+    three steps back along its line towards i); (nan, nan) for a node without a single
+    neighbour."""
+    if start[i + 1] - start[i] != 1:
+        return np.nan, np.nan
+    prev, cur = i, nbr[start[i]]
+    for _ in range(2):  # reach 3: up to two more steps back along the line
+        count, nxt = 0, -1
+        for k in range(start[cur], start[cur + 1]):
+            if nbr[k] != prev:
+                count += 1
+                nxt = nbr[k]
+        if count != 1:
+            break
+        prev, cur = cur, nxt
+    dx = pos[i, 0] - pos[cur, 0]
+    dy = pos[i, 1] - pos[cur, 1]
+    n = math.hypot(dx, dy)
+    if n > 0:
+        return dx / n, dy / n
+    return np.nan, np.nan
+
+
+@njit("Tuple((float64[::1], int64[::1], int64[::1]))(float64[:, ::1], int64[::1], int64[::1],"
+      " int64[::1], int64[::1], float64[:, :], float64, float64, float64)",
+      cache=True, nogil=True)
+def _gap_candidates(pos, start, nbr, deg, loose, d, max_gap, min_cos, close_gap):
+    """fill_gaps' candidate connections (score, i, j), in its order: loose node by loose node,
+    the nodes within ``max_gap`` (distances ``d`` (loose, N)) by index, those not within three
+    steps of i, continuing the lines' outward directions (or closing a short gap between two
+    line ends)."""
+    n = pos.shape[0]
+    ox = np.full(n, np.nan)
+    oy = np.full(n, np.nan)
+    for a in range(len(loose)):
+        ox[loose[a]], oy[loose[a]] = _outward(pos, start, nbr, loose[a])
+    cap = 16
+    score = np.empty(cap)
+    ci = np.empty(cap, np.int64)
+    cj = np.empty(cap, np.int64)
+    m = 0
+    steps = np.zeros(n, np.bool_)
+    frontier = np.empty(n, np.int64)
+    nxt = np.empty(n, np.int64)
+    seen = np.empty(n, np.int64)
+    for a in range(len(loose)):
+        i = loose[a]
+        any_near = False
+        for j in range(n):
+            if d[a, j] <= max_gap and d[a, j] > 0:
+                any_near = True
+                break
+        if not any_near:
+            continue
+        # the nodes within three steps of i
+        steps[i] = True
+        seen[0] = i
+        n_seen = 1
+        frontier[0] = i
+        nf = 1
+        for _ in range(3):
+            nn = 0
+            for f in range(nf):
+                c = frontier[f]
+                for k in range(start[c], start[c + 1]):
+                    q = nbr[k]
+                    if not steps[q]:
+                        steps[q] = True
+                        seen[n_seen] = q
+                        n_seen += 1
+                        nxt[nn] = q
+                        nn += 1
+            frontier[:nn] = nxt[:nn]
+            nf = nn
+        has_i = not np.isnan(ox[i])
+        xi, yi = pos[i, 0], pos[i, 1]
+        for j in range(n):
+            dj = d[a, j]
+            if not (dj <= max_gap and dj > 0) or steps[j]:
+                continue
+            gx, gy = (pos[j, 0] - xi) / dj, (pos[j, 1] - yi) / dj
+            has_j = deg[j] <= 1 and not np.isnan(ox[j])
+            closing = dj <= close_gap and deg[j] == 1 and deg[i] == 1
+            s = 0.0
+            if has_i:
+                c_i = ox[i] * gx + oy[i] * gy
+                if c_i < min_cos and not closing:
+                    continue
+                s += c_i
+            if has_j:
+                c_j = -ox[j] * gx + -oy[j] * gy
+                if c_j < min_cos and not closing:
+                    continue
+                s += c_j
+            if not has_i and not has_j and deg[j] > 0:
+                continue  # an isolated node joins only where a line's direction leads
+            if m == cap:
+                cap *= 2
+                score2 = np.empty(cap)
+                ci2 = np.empty(cap, np.int64)
+                cj2 = np.empty(cap, np.int64)
+                score2[:m], ci2[:m], cj2[:m] = score[:m], ci[:m], cj[:m]
+                score, ci, cj = score2, ci2, cj2
+            score[m] = s - dj / max_gap
+            ci[m] = i
+            cj[m] = j
+            m += 1
+        for k in range(n_seen):
+            steps[seen[k]] = False
+    return score[:m].copy(), ci[:m].copy(), cj[:m].copy()
 
 
 def line_structure_graph(white_lp: np.ndarray, conf: dict
