@@ -281,16 +281,43 @@ def split_isolated_nodes(graph: LineGraph, regions: np.ndarray, image: np.ndarra
     order = np.argsort(lab, kind="stable")
     count = np.bincount(lab, minlength=int(lonely.max()) + 1)
     start = np.concatenate([[0], np.cumsum(count)])
-    for i in lonely.tolist():
-        if count[i] < 2:
+    # per lonely node the region's two farthest pixels (compiled: _farthest_pairs)
+    far = _farthest_pairs(xs[order].astype(np.int64), ys[order].astype(np.int64),
+                          start.astype(np.int64), lonely.astype(np.int64))
+    split = far[:, 0] >= 0
+    if not split.any():
+        return
+    ids, ends = lonely[split], far[split]
+    graph.pix[ids] = ends[:, 0:2]
+    new = ends[:, 2:4].astype(graph.pix.dtype)
+    first = len(graph)
+    graph.pix = np.vstack([graph.pix, new])
+    graph.pos = np.vstack([graph.pos, new.astype(float)])
+    graph.value = np.append(graph.value, image[new[:, 1], new[:, 0]])
+    graph.adj.extend(set() for _ in range(len(new)))
+    for k, i in enumerate(ids.tolist()):
+        graph.connect(i, first + k)
+
+
+@njit("int64[:, ::1](int64[::1], int64[::1], int64[::1], int64[::1])", cache=True, nogil=True)
+def _farthest_pairs(xs, ys, start, lonely):
+    """For each lonely node i, the pixels (xa, ya, xb, yb) of its region (``xs``, ``ys``
+    [start[i]:start[i + 1]], row-major) farthest apart (the first such pair in row-major order
+    of the distance matrix, as np.argmax takes it), or -1 where the region holds one pixel."""
+    out = np.full((len(lonely), 4), -1, np.int64)
+    for k in range(len(lonely)):
+        i = lonely[k]
+        s, e = start[i], start[i + 1]
+        if e - s < 2:
             continue
-        sel = order[start[i]:start[i + 1]]
-        px = np.stack([xs[sel], ys[sel]], axis=1)
-        d = np.hypot(*(px[:, None, :] - px[None, :, :]).transpose(2, 0, 1))
-        a, b = np.unravel_index(np.argmax(d), d.shape)
-        graph.pix[i] = px[a]
-        j = graph.add_node(px[b], px[b].astype(float), image[px[b][1], px[b][0]])
-        graph.connect(i, j)
+        best, ba, bb = -1.0, s, s
+        for a in range(s, e):
+            for b in range(s, e):
+                d = math.hypot(float(xs[a] - xs[b]), float(ys[a] - ys[b]))
+                if d > best:
+                    best, ba, bb = d, a, b
+        out[k, 0], out[k, 1], out[k, 2], out[k, 3] = xs[ba], ys[ba], xs[bb], ys[bb]
+    return out
 
 
 def fill_gaps(graph: LineGraph, image: np.ndarray, max_gap: float, min_cos: float,
