@@ -43,7 +43,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numba import njit
+from numba import njit, types
 
 from .errors import FieldlocError
 
@@ -266,38 +266,24 @@ def estimate_field_colour(yuv: np.ndarray, conf: dict, valid: np.ndarray | None 
     n_valid = max(len(sub), 1)
     y8, u8, v8 = sub[:, 0], sub[:, 1], sub[:, 2]
     y0, y1 = conf["green_search_y"]
-    uv = u8.astype(np.uint16)
-    uv <<= 8
-    uv |= v8
-    cand = np.take(_green_candidate_chroma(tuple(conf["green_hue_deg"]),
-                                           float(conf["green_min_chroma"])), uv)
-    if y0 > 0:
-        cand &= y8 >= min(math.ceil(y0), 256)
-    if y1 < 255:
-        cand &= y8 <= max(math.floor(y1), -1)
     min_sat = float(conf.get("green_min_saturation", 0.0))
-    if min_sat > 0:  # chroma relative to luminance: a lit white wall's tint is no field
-        du = u8.astype(np.float32) - np.float32(128.0)
-        dv = v8.astype(np.float32) - np.float32(128.0)
-        cand &= du * du + dv * dv >= np.float32(min_sat * min_sat) * (
-            y8.astype(np.float32) ** 2)
+    # the green candidates (hue window, luminance range, chroma relative to luminance: a lit
+    # white wall's tint is no field), their chroma rescaled to Y_REF and its histogram, by one
+    # compiled pass (_green_candidates)
+    y_c, u_c8, v_c8, uu, vv, counts = _green_candidates(
+        sub, _green_candidate_chroma(tuple(conf["green_hue_deg"]),
+                                     float(conf["green_min_chroma"])),
+        min(math.ceil(y0), 256) if y0 > 0 else 0, max(math.floor(y1), -1) if y1 < 255 else 255,
+        min_sat > 0, np.float32(min_sat * min_sat))
     found = False
     u_c, v_c = (float(a) for a in conf["green_nominal_uv"])
     spread = 0.0
-    share = int(np.count_nonzero(cand)) / n_valid
+    share = len(y_c) / n_valid
     y_field = None
-    y_c = u_c8 = v_c8 = None  # the candidates' planes, taken once
     if share >= conf["green_min_share"]:
         # chroma rescaled to one luminance (Y_REF): under a brightness gradient the field's
         # chroma grows with its light, its chromaticity does not
-        y_c, u_c8, v_c8 = y8[cand], u8[cand], v8[cand]
-        yy = y_c.astype(np.float32)
-        scale = Y_REF / np.maximum(yy, 1.0)
-        uu = (u_c8.astype(np.float32) - 128.0) * scale
-        vv = (v_c8.astype(np.float32) - 128.0) * scale
-        bins = (np.clip(uu + 128.0, 0, 255).astype(np.int32) >> 3) * 32 + (
-            np.clip(vv + 128.0, 0, 255).astype(np.int32) >> 3)
-        hist = np.bincount(bins, minlength=1024).reshape(32, 32).astype(np.float32)
+        hist = counts.reshape(32, 32).astype(np.float32)
         hist = cv2.GaussianBlur(hist, (3, 3), 0)
         pi, pj = np.unravel_index(int(np.argmax(hist)), hist.shape)
         nu, nv = 8.0 * pi + 4.0 - 128.0, 8.0 * pj + 4.0 - 128.0
@@ -321,13 +307,55 @@ def estimate_field_colour(yuv: np.ndarray, conf: dict, valid: np.ndarray | None 
     axes = (max(conf["green_axes"][0], k * spread), max(conf["green_axes"][1], k * spread))
     fc = FieldColour(y=y_field, u=u_c, v=v_c, axes=axes, found=found, share=share)
     if conf.get("green_model", "ellipse") == "hue":
-        if y_c is None:
-            y_c, u_c8, v_c8 = y8[cand], u8[cand], v8[cand]
         _hue_model(fc, u_c8, v_c8, y_c, conf)
     fc.cell = int(conf["local_cell"])
     if found:
         fc.y_map = _local_green_luminance(yuv, fc, conf, valid)
     return fc
+
+
+@njit(types.Tuple((types.uint8[::1], types.uint8[::1], types.uint8[::1], types.float32[::1],
+                   types.float32[::1], types.int64[::1]))(
+    types.uint8[:, ::1], types.Array(types.boolean, 1, "C", readonly=True), types.int64,
+    types.int64, types.boolean, types.float32), cache=True, nogil=True)
+def _green_candidates(sub, chroma_ok, y_lo, y_hi, use_sat, min_sat2):
+    """estimate_field_colour's green candidates among the sampled pixels ``sub`` (n, 3 YUV):
+    chroma ``chroma_ok[U << 8 | V]``, Y in [y_lo, y_hi] and (``use_sat``) (U-128)^2 + (V-128)^2
+    >= min_sat2 Y^2 in float32. Returns their Y, U, V in order, their chroma rescaled to Y_REF
+    (float32, (U - 128) * (Y_REF / max(Y, 1))) and its 32 x 32 histogram of 8-unit bins."""
+    n = sub.shape[0]
+    c128 = np.float32(128.0)
+    y_ref = np.float32(Y_REF)
+    idx = np.empty(n, np.int64)
+    m = 0
+    for i in range(n):
+        y, u, v = sub[i, 0], sub[i, 1], sub[i, 2]
+        if not chroma_ok[(np.int64(u) << 8) | np.int64(v)] or y < y_lo or y > y_hi:
+            continue
+        if use_sat:
+            du = np.float32(u) - c128
+            dv = np.float32(v) - c128
+            yf = np.float32(y)
+            if not (du * du + dv * dv >= min_sat2 * (yf * yf)):
+                continue
+        idx[m] = i
+        m += 1
+    ys = np.empty(m, np.uint8)
+    us = np.empty(m, np.uint8)
+    vs = np.empty(m, np.uint8)
+    uu = np.empty(m, np.float32)
+    vv = np.empty(m, np.float32)
+    hist = np.zeros(1024, np.int64)
+    for k in range(m):
+        i = idx[k]
+        ys[k], us[k], vs[k] = sub[i, 0], sub[i, 1], sub[i, 2]
+        scale = y_ref / max(np.float32(ys[k]), np.float32(1.0))
+        uu[k] = (np.float32(us[k]) - c128) * scale
+        vv[k] = (np.float32(vs[k]) - c128) * scale
+        bu = min(max(uu[k] + c128, np.float32(0.0)), np.float32(255.0))
+        bv = min(max(vv[k] + c128, np.float32(0.0)), np.float32(255.0))
+        hist[(np.int64(bu) >> 3) * 32 + (np.int64(bv) >> 3)] += 1
+    return ys, us, vs, uu, vv, hist
 
 
 def _hue_model(fc: FieldColour, u8, v8, y8, conf: dict) -> None:
