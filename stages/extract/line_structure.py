@@ -640,15 +640,18 @@ def smooth_lines(graph: LineGraph, iterations: int = 2) -> np.ndarray:
 
 def turning_angles(chains: list[list[int]], pos: np.ndarray, reach: float,
                    floor: np.ndarray | None = None
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
     """Turning angle (rad) at every node of every chain, measured with arms reaching ``reach``
-    along the chain on both sides (0 at a chain's ends), all chains at once. With ``floor``
-    (the nodes' floor positions, (N, 2), NaN where unknown) the arms are those nodes' floor
-    points, so the angle is the one on the floor (a far L corner looks nearly straight in a
-    perspective image). Returns the angles, the arc length of each node along its chain and
-    the chain's first index, all over the chains' concatenated nodes."""
+    along the chain on both sides (0 at a chain's ends), all chains at once, in the image and,
+    with ``floor`` (the nodes' floor positions, (N, 2), NaN where unknown), on the floor too:
+    there the arms are those nodes' floor points where known (a far L corner looks nearly
+    straight in a perspective image). The chains' arcs and arms are found once for both.
+    Returns the image angles, the floor angles (None without ``floor``), the arc length of
+    each node along its chain and the chain's first index, all over the chains' concatenated
+    nodes."""
     if not chains:
-        return np.zeros(0), np.zeros(0), np.zeros(0, int)
+        return np.zeros(0), (None if floor is None else np.zeros(0)), np.zeros(0), \
+            np.zeros(0, int)
     lens = np.array([len(c) for c in chains], dtype=int)
     idx = np.concatenate(chains).astype(int)
     pts = pos[idx]
@@ -663,20 +666,29 @@ def turning_angles(chains: list[list[int]], pos: np.ndarray, reach: float,
     key = arc + far
     back = np.clip(np.searchsorted(key, key - reach, side="right") - 1, start, last)
     fwd = np.clip(np.searchsorted(key, key + reach, side="left"), start, last)
+    ends = (np.arange(len(idx)) == start) | (np.arange(len(idx)) == last)
     a = pts - pts[back]
     b = pts[fwd] - pts
+    turn = _turns(a, b, ends)
+    floor_turn = None
     if floor is not None:
         fl = floor[idx]
         fa, fb = fl - fl[back], fl[fwd] - fl
         known = np.all(np.isfinite(fa), axis=1) & np.all(np.isfinite(fb), axis=1)
-        a = np.where(known[:, None], fa, a)
-        b = np.where(known[:, None], fb, b)
+        floor_turn = _turns(np.where(known[:, None], fa, a), np.where(known[:, None], fb, b),
+                            ends)
+    return turn, floor_turn, arc, start
+
+
+def _turns(a: np.ndarray, b: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """The angles (rad) between the arms a (back) and b (forward), (N, 2) each; 0 at ``ends``
+    and where an arm is empty."""
     na, nb = np.hypot(*a.T), np.hypot(*b.T)
     ok = (na > 0) & (nb > 0)
     cosang = np.where(ok, (a * b).sum(axis=1) / np.where(ok, na * nb, 1.0), 1.0)
     turn = np.arccos(np.clip(cosang, -1.0, 1.0))
-    turn[(np.arange(len(idx)) == start) | (np.arange(len(idx)) == last)] = 0.0
-    return turn, arc, start
+    turn[ends] = 0.0
+    return turn
 
 
 def corner_nodes(turn: np.ndarray, arc: np.ndarray, reach: float, min_turn: float) -> list[int]:
@@ -714,11 +726,12 @@ def key_structure(graph: LineGraph, conf: dict, floor_of=None) -> KeyStructure:
 
     edges = []
     min_turn, reach = conf["corner_min_turn"], conf["corner_reach"]
-    turn, arc, start = turning_angles(chains, smooth, reach)
-    if floor_of is not None and len(smooth):
+    on_floor = floor_of is not None and len(smooth)
+    turn, floor_turn, arc, start = turning_angles(
+        chains, smooth, reach, floor_of(smooth) if on_floor else None)
+    if on_floor:
         # on the floor, where the image turns at least a little: far from the camera a pixel
         # of noise is a large floor angle
-        floor_turn, _, _ = turning_angles(chains, smooth, reach, floor_of(smooth))
         turn = np.where(turn >= conf["corner_min_turn_image"], floor_turn, 0.0)
         min_turn = conf["corner_min_turn_floor"]
     firsts = np.unique(start)
