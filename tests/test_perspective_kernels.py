@@ -1,0 +1,206 @@
+"""Issue 9's compiled kernels of the perspective chain give what the numpy and Python code
+they replaced computed, exactly (the features must not change: see also
+test_extract_perspective_unchanged.py), on random inputs beyond the reference frames:
+
+- colour.classify_cells (``_hue_row``, ``_hue_cells``) against the per-pixel class masks;
+- colour's ``_green_candidates`` against the field green search's numpy formulas;
+- line_structure's ``_gap_candidates`` (fill_gaps) against its former Python loop;
+- line_structure's ``_farthest_pairs`` (split_isolated_nodes) against np.argmax of the
+  regions' distance matrices.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from stages.common import colour
+from stages.extract import line_structure as ls
+from stages.extract import perspective
+
+
+def _random_frame(rng, h, w):
+    """A YUV frame (h, w, 3) uint8: noisy green carpet, white strokes, grey and coloured
+    patches, clipped bright and dark areas."""
+    yuv = np.empty((h, w, 3), np.uint8)
+    yuv[..., 0] = np.clip(rng.normal(95, 25, (h, w)), 0, 255)
+    yuv[..., 1] = np.clip(rng.normal(105, 8, (h, w)), 0, 255)
+    yuv[..., 2] = np.clip(rng.normal(100, 8, (h, w)), 0, 255)
+    for _ in range(12):  # white strokes, other colours, saturated blocks
+        r, c = rng.integers(0, h - 8), rng.integers(0, w - 8)
+        hh, ww = rng.integers(2, 40), rng.integers(2, 40)
+        kind = rng.integers(3)
+        patch = yuv[r:r + hh, c:c + ww]
+        if kind == 0:
+            patch[..., 0] = rng.integers(170, 256)
+            patch[..., 1:] = 128 + rng.integers(-6, 7, patch[..., 1:].shape)
+        elif kind == 1:
+            patch[...] = rng.integers(0, 256, patch.shape)
+        else:
+            patch[..., 0] = rng.choice([0, 255])
+    return yuv
+
+
+@pytest.mark.parametrize("seed,shape,local_map", [(0, (480, 752), True), (1, (480, 640), True),
+                                                   (2, (483, 757), True), (3, (96, 120), False)])
+def test_classify_cells_equals_the_class_masks(seed, shape, local_map):
+    rng = np.random.default_rng(seed)
+    yuv = _random_frame(rng, *shape)
+    conf = perspective.confs["default"]["colour"]
+    fc = colour.estimate_field_colour(yuv, conf)
+    assert fc.hue_dir is not None
+    fc.hue_cos = math.cos(rng.uniform(0.2, 0.6))  # a few tolerances, bands and thresholds
+    fc.saturation = (rng.uniform(0.02, 0.1), rng.uniform(0.2, 0.6))
+    if not local_map:
+        fc.y_map = None
+    cell = 8
+    white_px = np.zeros(shape, np.uint8)
+    counts = colour.classify_cells(yuv, fc, conf, cell, white_px)
+    green, white = colour.classify_masks(yuv, fc, conf)
+    hb, wb = shape[0] // cell, shape[1] // cell
+    np.testing.assert_array_equal(counts, colour._counts(green, white, cell))
+    np.testing.assert_array_equal(white_px[:hb * cell].view(bool), white[:hb * cell])
+    assert not white_px[hb * cell:].any()  # rows below the last whole cell are not classified
+    assert counts[..., 0].sum() > 100 and counts[..., 1].sum() > 100  # both classes occur
+    assert colour.classify_cells(yuv, fc, conf, cell) is not None  # without the white mask
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_green_candidates_equal_the_numpy_formulas(seed):
+    rng = np.random.default_rng(seed)
+    sub = rng.integers(0, 256, (5000, 3)).astype(np.uint8)
+    sub[:2000, 1:] = np.clip(rng.normal(110, 10, (2000, 2)), 0, 255)
+    chroma = colour._green_candidate_chroma((-170.0, -75.0), 6.0)
+    y_lo, y_hi, min_sat = int(rng.integers(0, 40)), int(rng.integers(200, 256)), 0.15
+    y_c, u_c, v_c, uu, vv, hist = colour._green_candidates(sub, chroma, y_lo, y_hi, True,
+                                                           np.float32(min_sat * min_sat))
+    y8, u8, v8 = sub[:, 0], sub[:, 1], sub[:, 2]
+    cand = chroma[(u8.astype(np.int64) << 8) | v8] & (y8 >= y_lo) & (y8 <= y_hi)
+    du, dv = u8.astype(np.float32) - np.float32(128.0), v8.astype(np.float32) - np.float32(128.0)
+    cand &= du * du + dv * dv >= np.float32(min_sat * min_sat) * (y8.astype(np.float32) ** 2)
+    assert cand.sum() > 100
+    np.testing.assert_array_equal(y_c, y8[cand])
+    np.testing.assert_array_equal(u_c, u8[cand])
+    np.testing.assert_array_equal(v_c, v8[cand])
+    scale = colour.Y_REF / np.maximum(y8[cand].astype(np.float32), 1.0)
+    ref_u = (u8[cand].astype(np.float32) - 128.0) * scale
+    ref_v = (v8[cand].astype(np.float32) - 128.0) * scale
+    np.testing.assert_array_equal(uu, ref_u)
+    np.testing.assert_array_equal(vv, ref_v)
+    bins = (np.clip(ref_u + 128.0, 0, 255).astype(np.int32) >> 3) * 32 + (
+        np.clip(ref_v + 128.0, 0, 255).astype(np.int32) >> 3)
+    np.testing.assert_array_equal(hist, np.bincount(bins, minlength=1024))
+
+
+def _random_graph(rng, n=60):
+    """A LineGraph of polylines, isolated nodes and a few junctions on a 40 x 30 grid."""
+    pos = rng.uniform(0, [40, 30], (n, 2))
+    adj = [set() for _ in range(n)]
+    k = 0
+    while k < n - 6:
+        length = int(rng.integers(1, 6))
+        for a in range(k, min(k + length, n - 1)):
+            adj[a].add(a + 1)
+            adj[a + 1].add(a)
+            pos[a + 1] = pos[a] + rng.normal(0, 1.2, 2)
+        k += length + 1 + int(rng.integers(0, 2))
+    for _ in range(3):  # junctions
+        a, b = (int(v) for v in rng.integers(0, n, 2))
+        if a != b:
+            adj[a].add(b)
+            adj[b].add(a)
+    pix = np.round(pos).astype(int)
+    return ls.LineGraph(pix, pos, rng.uniform(0.1, 1.0, n).astype(np.float32), adj)
+
+
+def _reference_outward(graph, i, reach=3):
+    if len(graph.adj[i]) != 1:
+        return None
+    prev, cur = i, next(iter(graph.adj[i]))
+    for _ in range(reach - 1):
+        nxt = [k for k in graph.adj[cur] if k != prev]
+        if len(nxt) != 1:
+            break
+        prev, cur = cur, nxt[0]
+    dx = float(graph.pos[i, 0] - graph.pos[cur, 0])
+    dy = float(graph.pos[i, 1] - graph.pos[cur, 1])
+    n = float(np.hypot(dx, dy))
+    return (dx / n, dy / n) if n > 0 else None
+
+
+def _reference_candidates(graph, max_gap, min_cos, close_gap):
+    """fill_gaps' candidate loop as it was written in Python before the kernel."""
+    deg = graph.degree()
+    loose = np.nonzero(deg <= 1)[0]
+    pos = graph.pos
+    d = np.hypot(*(pos[loose][:, None, :] - pos[None, :, :]).transpose(2, 0, 1))
+    near_all = (d <= max_gap) & (d > 0)
+    outward = {i: _reference_outward(graph, i) for i in loose.tolist()}
+    xy, deg_l, cand = pos.tolist(), deg.tolist(), []
+    for a, i in enumerate(loose.tolist()):
+        near = np.nonzero(near_all[a])[0]
+        steps, frontier = {i}, {i}
+        for _ in range(3):
+            frontier = {k for f in frontier for k in graph.adj[f]} - steps
+            steps |= frontier
+        out_i = outward[i]
+        for j in near.tolist():
+            if j in steps:
+                continue
+            dj = float(d[a][j])
+            gx, gy = (xy[j][0] - xy[i][0]) / dj, (xy[j][1] - xy[i][1]) / dj
+            out_j = outward.get(j) if deg_l[j] <= 1 else None
+            closing = dj <= close_gap and deg_l[j] == 1 and deg_l[i] == 1
+            score = 0.0
+            if out_i is not None:
+                ci = out_i[0] * gx + out_i[1] * gy
+                if ci < min_cos and not closing:
+                    continue
+                score += ci
+            if out_j is not None:
+                cj = -out_j[0] * gx + -out_j[1] * gy
+                if cj < min_cos and not closing:
+                    continue
+                score += cj
+            if out_i is None and out_j is None and deg_l[j] > 0:
+                continue
+            cand.append((score - dj / max_gap, i, j))
+    return cand
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_gap_candidates_equal_the_python_loop(seed):
+    rng = np.random.default_rng(seed)
+    graph = _random_graph(rng)
+    sc = perspective.confs["default"]["skeleton"]
+    max_gap, min_cos, close_gap = sc["max_gap"], math.cos(sc["gap_max_angle"]), sc["close_gap"]
+    deg = graph.degree()
+    loose = np.nonzero(deg <= 1)[0]
+    d = np.hypot(*(graph.pos[loose][:, None, :] - graph.pos[None, :, :]).transpose(2, 0, 1))
+    start, nbr = ls._neighbour_lists(graph.adj)
+    score, ci, cj = ls._gap_candidates(graph.pos, start, nbr, deg.astype(np.int64),
+                                       loose.astype(np.int64), d, max_gap, min_cos, close_gap)
+    ref = _reference_candidates(graph, max_gap, min_cos, close_gap)
+    assert len(ref) >= 3
+    assert list(zip(score.tolist(), ci.tolist(), cj.tolist())) == ref
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_farthest_pairs_are_the_first_argmax_of_the_distances(seed):
+    rng = np.random.default_rng(seed)
+    counts = rng.integers(1, 10, 30)  # pixels per region (ties: few distinct distances)
+    start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    xs = rng.integers(0, 4, start[-1]).astype(np.int64)
+    ys = rng.integers(0, 4, start[-1]).astype(np.int64)
+    lonely = np.sort(rng.choice(30, 20, replace=False)).astype(np.int64)
+    got = ls._farthest_pairs(xs, ys, start, lonely)
+    for k, i in enumerate(lonely):
+        px = np.stack([xs[start[i]:start[i + 1]], ys[start[i]:start[i + 1]]], axis=1)
+        if len(px) < 2:
+            assert (got[k] == -1).all()
+            continue
+        d = np.hypot(*(px[:, None, :] - px[None, :, :]).transpose(2, 0, 1))
+        a, b = np.unravel_index(np.argmax(d), d.shape)
+        assert got[k].tolist() == [*px[a], *px[b]]
