@@ -204,3 +204,35 @@ def test_farthest_pairs_are_the_first_argmax_of_the_distances(seed):
         d = np.hypot(*(px[:, None, :] - px[None, :, :]).transpose(2, 0, 1))
         a, b = np.unravel_index(np.argmax(d), d.shape)
         assert got[k].tolist() == [*px[a], *px[b]]
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_stretched_ends_are_the_farthest_region_pixels(seed):
+    """stretch_lines (compiled) against its former numpy form: per end node, the first
+    pixel in row-major order of its region at the largest distance from its neighbour."""
+    rng = np.random.default_rng(seed)
+    graph = _random_graph(rng, 40)
+    regions = np.zeros((30, 40), np.int32)
+    for i, (x, y) in enumerate(graph.pix.tolist()):  # each node's 3 x 3 region, clipped
+        regions[max(y - 1, 0):y + 2, max(x - 1, 0):x + 2] = i + 1
+    for i, (x, y) in enumerate(graph.pix.tolist()):
+        regions[min(max(y, 0), 29), min(max(x, 0), 39)] = i + 1
+    ref = graph.pix.copy()
+    deg = graph.degree()
+    ends = np.nonzero(deg == 1)[0]
+    ys, xs = np.nonzero(regions)
+    lab = regions[ys, xs] - 1
+    sel = np.isin(lab, ends)
+    ys, xs, lab = ys[sel], xs[sel], lab[sel]
+    other = np.zeros(len(graph), int)
+    for i in ends:
+        other[i] = next(iter(graph.adj[i]))
+    d = np.hypot(xs - graph.pos[other[lab], 0], ys - graph.pos[other[lab], 1])
+    order = np.lexsort((-d, lab))
+    first = np.ones(len(order), bool)
+    first[1:] = lab[order][1:] != lab[order][:-1]
+    best = order[first]
+    ref[lab[best]] = np.stack([xs[best], ys[best]], axis=1)
+    assert len(best) >= 5
+    ls.stretch_lines(graph, regions)
+    np.testing.assert_array_equal(graph.pix, ref)

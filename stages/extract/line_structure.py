@@ -245,26 +245,40 @@ def limit_degree(graph: LineGraph, max_degree: int = 4):
 
 def stretch_lines(graph: LineGraph, regions: np.ndarray):
     """Move each end node (degree 1) to the last pixel of the skeleton: the pixel of its
-    region farthest from its neighbour (in place)."""
+    region farthest from its neighbour (the first in row-major order of equally far ones; in
+    place)."""
     deg = graph.degree()
     ends = np.nonzero(deg == 1)[0]
     if len(ends) == 0:
         return
-    ys, xs = np.nonzero(regions)
-    lab = regions[ys, xs] - 1
-    is_end = np.zeros(len(graph), bool)
-    is_end[ends] = True
-    sel = is_end[lab]
-    ys, xs, lab = ys[sel], xs[sel], lab[sel]
-    other = np.zeros(len(graph), int)
-    for i in ends:
+    other = np.full(len(graph), -1, np.int64)
+    for i in ends.tolist():
         other[i] = next(iter(graph.adj[i]))
-    d = np.hypot(xs - graph.pos[other[lab], 0], ys - graph.pos[other[lab], 1])
-    order = np.lexsort((-d, lab))
-    first = np.ones(len(order), bool)
-    first[1:] = lab[order][1:] != lab[order][:-1]
-    best = order[first]
-    graph.pix[lab[best]] = np.stack([xs[best], ys[best]], axis=1)
+    _farthest_region_pixels(np.ascontiguousarray(regions, np.int32), other,
+                            np.ascontiguousarray(graph.pos, np.float64), graph.pix)
+
+
+@njit("void(int32[:, ::1], int64[::1], float64[:, ::1], int64[:, ::1])", cache=True,
+      nogil=True)
+def _farthest_region_pixels(regions, other, pos, pix):
+    """stretch_lines compiled: for each node i with ``other[i]`` >= 0 (its neighbour), the
+    pixel of its region (``regions`` = node index + 1) farthest from the neighbour's position
+    into ``pix[i]``."""
+    n = len(other)
+    best = np.full(n, -1.0)
+    bx = np.zeros(n, np.int64)
+    by = np.zeros(n, np.int64)
+    for r in range(regions.shape[0]):
+        for c in range(regions.shape[1]):
+            i = regions[r, c] - 1
+            if i < 0 or other[i] < 0:
+                continue
+            d = math.hypot(c - pos[other[i], 0], r - pos[other[i], 1])
+            if d > best[i]:
+                best[i], bx[i], by[i] = d, c, r
+    for i in range(n):
+        if best[i] >= 0:
+            pix[i, 0], pix[i, 1] = bx[i], by[i]
 
 
 def split_isolated_nodes(graph: LineGraph, regions: np.ndarray, image: np.ndarray):
