@@ -30,8 +30,6 @@ import cv2
 import numpy as np
 from numba import njit
 
-_KERNEL3 = np.ones((3, 3), np.uint8)
-_CROSS3 = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], np.uint8)
 _NEIGHBOURS = [(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)]
 
 
@@ -154,16 +152,36 @@ def place_nodes(image: np.ndarray, skeleton: np.ndarray, c: np.ndarray
     order = np.argsort(-priority[sy, sx], kind="stable")
     taken = _greedy_nodes(sy[order], sx[order], skeleton.shape[0], skeleton.shape[1])
     ys, xs = sy[order][taken], sx[order][taken]
-    labels = np.zeros(skeleton.shape, np.float32)
-    labels[ys, xs] = np.arange(1, len(xs) + 1, dtype=np.float32)
-    regions = labels.copy()
-    rest = skeleton & (labels == 0)
-    cross = cv2.dilate(labels, _CROSS3)
-    regions[rest] = cross[rest]
-    rest &= regions == 0
-    full = cv2.dilate(labels, _KERNEL3)
-    regions[rest] = full[rest]
-    return np.stack([xs, ys], axis=1).astype(int), regions.astype(np.int32)
+    regions = _node_regions(np.ascontiguousarray(skeleton), ys.astype(np.int64),
+                            xs.astype(np.int64))
+    return np.stack([xs, ys], axis=1).astype(int), regions
+
+
+@njit("int32[:, ::1](boolean[:, ::1], int64[::1], int64[::1])", cache=True, nogil=True)
+def _node_regions(skeleton, ys, xs):
+    """place_nodes' region image: node k + 1 at its pixel (ys[k], xs[k]); every other
+    skeleton pixel takes the largest node label among its 4-neighbours, else among its
+    8-neighbours (a grey dilation of the labels, first with the cross, then the square)."""
+    h, w = skeleton.shape
+    labels = np.zeros((h, w), np.int32)
+    for k in range(len(ys)):
+        labels[ys[k], xs[k]] = k + 1
+    out = labels.copy()
+    for r in range(h):
+        for c in range(w):
+            if not skeleton[r, c] or labels[r, c] != 0:
+                continue
+            m = 0
+            for dr, dc in ((-1, 0), (0, -1), (0, 1), (1, 0)):
+                if 0 <= r + dr < h and 0 <= c + dc < w:
+                    m = max(m, labels[r + dr, c + dc])
+            if m == 0:
+                for dr in range(-1, 2):
+                    for dc in range(-1, 2):
+                        if 0 <= r + dr < h and 0 <= c + dc < w:
+                            m = max(m, labels[r + dr, c + dc])
+            out[r, c] = m
+    return out
 
 
 @njit(cache=True, nogil=True)
