@@ -30,7 +30,6 @@ import cv2
 import numpy as np
 from numba import njit
 
-_NEIGHBOURS = [(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)]
 
 
 # ---------------------------------------------------------------------------- 3.2 skeleton
@@ -69,22 +68,41 @@ def _framed(image: np.ndarray, value) -> np.ndarray:
     return out
 
 
-def ranking_count(image: np.ndarray) -> np.ndarray:
+def ranking_count(image: np.ndarray, key: np.ndarray | None = None) -> np.ndarray:
     """c(x, y): the number of 8-neighbours with an equal or higher grey level (int8), ties
-    broken as in ranking_keys."""
-    h, w = image.shape
-    key = ranking_keys(image)
-    pad = _framed(key, -1.0)
-    c = np.zeros((h, w), np.int8)
-    for dy, dx in _NEIGHBOURS:
-        c += pad[1 + dy:1 + dy + h, 1 + dx:1 + dx + w] >= key
+    broken as in ranking_keys (``key``: the image's ranking_keys, if already computed)."""
+    key = ranking_keys(image) if key is None else key
+    c = np.empty(key.shape, np.int8)
+    _rank_counts(np.ascontiguousarray(key, np.float64), c)
     return c
 
 
-def ranking_skeleton(image: np.ndarray, min_value: float) -> tuple[np.ndarray, np.ndarray]:
+@njit("void(float64[:, ::1], int8[:, ::1])", cache=True, nogil=True)
+def _rank_counts(key, c):
+    """ranking_count compiled: per pixel, the 8-neighbours whose key is >= its own (outside
+    the image a key of -1)."""
+    h, w = key.shape
+    for r in range(h):
+        for x in range(w):
+            k = key[r, x]
+            n = 0
+            for dy in range(-1, 2):
+                for dx in range(-1, 2):
+                    if dy == 0 and dx == 0:
+                        continue
+                    rr, xx = r + dy, x + dx
+                    other = key[rr, xx] if 0 <= rr < h and 0 <= xx < w else -1.0
+                    if other >= k:
+                        n += 1
+            c[r, x] = n
+
+
+def ranking_skeleton(image: np.ndarray, min_value: float, key: np.ndarray | None = None
+                     ) -> tuple[np.ndarray, np.ndarray]:
     """The ranking-operator skeleton: pixels above ``min_value`` (grey level zero is background)
-    with c(x, y) < 3. Returns (skeleton mask, c)."""
-    c = ranking_count(image)
+    with c(x, y) < 3 (``key``: the image's ranking_keys, if already computed). Returns
+    (skeleton mask, c)."""
+    c = ranking_count(image, key)
     return (image > min_value) & (c < 3), c
 
 
@@ -132,8 +150,8 @@ class LineGraph:
                          [set(a) for a in self.adj])
 
 
-def place_nodes(image: np.ndarray, skeleton: np.ndarray, c: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray]:
+def place_nodes(image: np.ndarray, skeleton: np.ndarray, c: np.ndarray,
+                key: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Nodes first at peaks (c = 0), then at ridge pixels (c = 1, 2) at least two pixels apart
     (no two nodes 8-neighbours). Done in parallel rounds: in each round every available
     skeleton pixel whose priority (peaks first, then grey level) is the highest in its 3 x 3
@@ -142,8 +160,9 @@ def place_nodes(image: np.ndarray, skeleton: np.ndarray, c: np.ndarray
 
     Returns node pixels (N, 2) int (x, y), ordered by priority, and the node regions: an int32
     image with node index + 1 on every skeleton pixel (a node's pixel and the skeleton pixels
-    of its 3 x 3 region assigned to it, 4-neighbours first), 0 elsewhere."""
-    key = ranking_keys(image)
+    of its 3 x 3 region assigned to it, 4-neighbours first), 0 elsewhere. ``key``: the
+    image's ranking_keys, if already computed."""
+    key = ranking_keys(image) if key is None else key
     priority = np.where(skeleton, key + np.where(c == 0, 2.0 ** 45, 0.0), -1.0)
     # the parallel rounds pick the same pixels as one greedy pass in priority order (every
     # priority differs: a pixel that is the highest available one in its neighbourhood is
@@ -522,8 +541,9 @@ def line_structure_graph(white_lp: np.ndarray, conf: dict
                          ) -> tuple[LineGraph, np.ndarray, np.ndarray]:
     """Section 3.2-3.3 on the low-passed white image: skeleton, nodes, connections, stretching,
     splitting of isolated nodes and gap filling. Returns (graph, skeleton, regions)."""
-    skeleton, c = ranking_skeleton(white_lp, conf["min_white"])
-    pix, regions = place_nodes(white_lp, skeleton, c)
+    key = ranking_keys(white_lp)
+    skeleton, c = ranking_skeleton(white_lp, conf["min_white"], key)
+    pix, regions = place_nodes(white_lp, skeleton, c, key)
     adj = connect_nodes(regions, len(pix))
     graph = LineGraph(pix, pix.astype(np.float64), white_lp[pix[:, 1], pix[:, 0]]
                       if len(pix) else np.zeros(0), adj)
