@@ -236,3 +236,33 @@ def test_stretched_ends_are_the_farthest_region_pixels(seed):
     assert len(best) >= 5
     ls.stretch_lines(graph, regions)
     np.testing.assert_array_equal(graph.pix, ref)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_subpixel_positions_equal_the_numpy_centroids(dtype):
+    """subpixel_positions (compiled, numpy's summation order) against its former numpy
+    form, bit for bit: windows at the image's edges, all-zero windows, ties."""
+    rng = np.random.default_rng(5)
+    image = rng.uniform(0, 1, (30, 40)).astype(dtype)
+    image[rng.uniform(size=image.shape) < 0.3] = 0  # empty and partly empty windows
+    image[10:13, 10:13] = 0
+    pix = np.concatenate([rng.integers(0, [40, 30], (300, 2)), [[0, 0], [39, 29], [11, 11]]])
+    pad = np.zeros((32, 42), dtype)
+    pad[1:-1, 1:-1] = image
+    offs = np.array([(dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)])
+    wts = pad[pix[:, 1:2] + 1 + offs[None, :, 1], pix[:, 0:1] + 1 + offs[None, :, 0]].astype(
+        np.float64)
+    wsum = wts.sum(axis=1)
+    wsum[wsum <= 0] = 1.0
+    ref = pix.astype(np.float64) + np.stack([(wts * offs[None, :, 0]).sum(axis=1) / wsum,
+                                             (wts * offs[None, :, 1]).sum(axis=1) / wsum], 1)
+    got = ls.subpixel_positions(image, pix)
+    assert got.tobytes() == ref.tobytes()
+
+
+@pytest.mark.parametrize("n", [1, 5, 8, 9, 17, 64, 128])
+def test_block_sum_is_numpys_sum(n):
+    rng = np.random.default_rng(n)
+    for _ in range(200):
+        a = rng.normal(size=n) * 10.0 ** rng.integers(-3, 4, n)
+        assert ls.block_sum(a) == a.sum()
