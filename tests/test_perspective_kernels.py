@@ -260,9 +260,46 @@ def test_subpixel_positions_equal_the_numpy_centroids(dtype):
     assert got.tobytes() == ref.tobytes()
 
 
-@pytest.mark.parametrize("n", [1, 5, 8, 9, 17, 64, 128])
+@pytest.mark.parametrize("n", [1, 5, 8, 9, 17, 64, 128, 129, 300, 1000])
 def test_block_sum_is_numpys_sum(n):
     rng = np.random.default_rng(n)
     for _ in range(200):
         a = rng.normal(size=n) * 10.0 ** rng.integers(-3, 4, n)
         assert ls.block_sum(a) == a.sum()
+
+
+def _reference_remove_short_lines(graph, min_length):
+    g = graph.copy()
+    deg = g.degree()
+    for e in np.nonzero(deg == 1)[0]:
+        path = [int(e)]
+        prev, cur = -1, int(e)
+        while True:
+            nxt = [k for k in g.adj[cur] if k != prev]
+            if len(g.adj[cur]) != (1 if cur == e else 2) or not nxt:
+                break
+            prev, cur = cur, nxt[0]
+            path.append(cur)
+        p = g.pos[path]
+        length = float(np.hypot(*np.diff(p, axis=0).T).sum()) if len(path) > 1 else 0.0
+        if len(g.adj[cur]) >= 3 and length < min_length:
+            for a, b in zip(path[:-1], path[1:]):
+                g.disconnect(a, b)
+    return g
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_remove_short_lines_equals_the_python_walks(seed):
+    """The compiled walks remove the same connections, in the same order (the sets left
+    iterate alike), as the former Python loop; spurs sharing a junction see each other's
+    removal."""
+    rng = np.random.default_rng(seed)
+    graph = _random_graph(rng, 80)
+    for _ in range(12):  # spurs of one to three nodes at junctions
+        j, a = int(rng.integers(0, 80)), int(rng.integers(0, 80))
+        if a != j and len(graph.adj[a]) == 0:
+            graph.connect(a, j)
+    ref = _reference_remove_short_lines(graph, 2.5)
+    got = ls.remove_short_lines(graph, 2.5)
+    assert [list(a) for a in got.adj] == [list(a) for a in ref.adj]
+    assert sum(map(len, ref.adj)) < sum(map(len, graph.adj))  # some were removed

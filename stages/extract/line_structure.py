@@ -218,17 +218,22 @@ def subpixel_positions(image: np.ndarray, pix: np.ndarray) -> np.ndarray:
     return _centroids(np.ascontiguousarray(image), np.ascontiguousarray(pix, np.int64))
 
 
-@njit(["float64(float64[::1])"], cache=True, nogil=True, inline="always")
+@njit("float64(float64[:])", cache=True, nogil=True)
 def block_sum(a):
-    """``np.sum`` of a float64 array of at most 128 values, in numpy's order (its pairwise
-    summation: one accumulator below 8 values, else eight, combined pairwise, then the
-    rest), so that the sum is numpy's to the bit."""
+    """``np.sum`` of a float64 array in numpy's order (its pairwise summation: one
+    accumulator below 8 values; up to 128, eight combined pairwise, then the rest; beyond,
+    the two halves (split at a multiple of 8) summed so and added), so that the sum is
+    numpy's to the bit."""
     n = a.shape[0]
     if n < 8:
         res = -0.0
         for i in range(n):
             res += a[i]
         return res
+    if n > 128:
+        n2 = n // 2
+        n2 -= n2 % 8
+        return block_sum(a[:n2]) + block_sum(a[n2:])
     r0, r1, r2, r3 = a[0], a[1], a[2], a[3]
     r4, r5, r6, r7 = a[4], a[5], a[6], a[7]
     i = 8
@@ -661,22 +666,80 @@ def _chain_length(pos: np.ndarray, chain: list[int]) -> float:
 
 def remove_short_lines(graph: LineGraph, min_length: float) -> LineGraph:
     """Eliminate short lines ending in junctions: a path from an end node to a node of degree
-    >= 3 shorter than ``min_length`` cells is removed (returns a new graph)."""
+    >= 3 shorter than ``min_length`` cells is removed (returns a new graph). The end nodes
+    are walked in order, each on the graph as the earlier removals left it (compiled:
+    ``_short_spurs``); the removed connections are then taken out of the copy's sets in the
+    same order."""
     g = graph.copy()
-    deg = g.degree()
-    for e in np.nonzero(deg == 1)[0]:
-        path = [int(e)]
-        prev, cur = -1, int(e)
-        while True:
-            nxt = [k for k in g.adj[cur] if k != prev]
-            if len(g.adj[cur]) != (1 if cur == e else 2) or not nxt:
-                break
-            prev, cur = cur, nxt[0]
-            path.append(cur)
-        if len(g.adj[cur]) >= 3 and _chain_length(g.pos, path) < min_length:
-            for a, b in zip(path[:-1], path[1:]):
-                g.disconnect(a, b)
+    if len(g) == 0:
+        return g
+    start, nbr = _neighbour_lists(g.adj)
+    cut = _short_spurs(start, nbr, np.ascontiguousarray(g.pos, np.float64), float(min_length))
+    for a, b in cut.tolist():
+        g.disconnect(a, b)
     return g
+
+
+@njit("int64[:, ::1](int64[::1], int64[::1], float64[:, ::1], float64)", cache=True,
+      nogil=True)
+def _short_spurs(start, nbr, pos, min_length):
+    """remove_short_lines' walks: from each end node (degree 1 at the start, in index order)
+    along nodes of degree 2 to the first node of another degree; where that is a junction
+    (degree >= 3) and the path is shorter than ``min_length`` (its steps' lengths summed as
+    numpy sums them, block_sum), the path's connections are removed (here and from the
+    degrees the later walks see). Returns the removed connections (a, b) in order."""
+    n = len(start) - 1
+    alive = np.ones(len(nbr), np.bool_)
+    deg = np.empty(n, np.int64)
+    for i in range(n):
+        deg[i] = start[i + 1] - start[i]
+    ends = np.nonzero(deg == 1)[0]
+    path = np.empty(n + 1, np.int64)
+    steps = np.empty(n + 1)
+    cut = np.empty((len(nbr), 2), np.int64)
+    m = 0
+    for e in ends:
+        path[0] = e
+        np_ = 1
+        prev, cur = -1, e
+        while True:
+            if deg[cur] != (1 if cur == e else 2):
+                break
+            nxt = -1
+            for k in range(start[cur], start[cur + 1]):
+                if alive[k] and nbr[k] != prev:
+                    nxt = nbr[k]
+                    break
+            if nxt < 0:
+                break
+            prev, cur = cur, nxt
+            path[np_] = cur
+            np_ += 1
+            if np_ > n:  # a ring of degree-2 nodes back to the end: the walk went round
+                break
+        if deg[cur] < 3:
+            continue
+        length = 0.0
+        if np_ > 1:
+            for k in range(np_ - 1):
+                steps[k] = math.hypot(pos[path[k + 1], 0] - pos[path[k], 0],
+                                      pos[path[k + 1], 1] - pos[path[k], 1])
+            length = block_sum(steps[:np_ - 1])
+        if length >= min_length:
+            continue
+        for k in range(np_ - 1):
+            a, b = path[k], path[k + 1]
+            for q in range(start[a], start[a + 1]):
+                if alive[q] and nbr[q] == b:
+                    alive[q] = False
+                    deg[a] -= 1
+            for q in range(start[b], start[b + 1]):
+                if alive[q] and nbr[q] == a:
+                    alive[q] = False
+                    deg[b] -= 1
+            cut[m, 0], cut[m, 1] = a, b
+            m += 1
+    return cut[:m].copy()
 
 
 def trace_chains(graph: LineGraph) -> list[list[int]]:
