@@ -303,3 +303,33 @@ def test_remove_short_lines_equals_the_python_walks(seed):
     got = ls.remove_short_lines(graph, 2.5)
     assert [list(a) for a in got.adj] == [list(a) for a in ref.adj]
     assert sum(map(len, ref.adj)) < sum(map(len, graph.adj))  # some were removed
+
+
+def _reference_connect_nodes(regions, n):
+    r = regions
+    pairs = []
+    for a, b in ((r[:, :-1], r[:, 1:]), (r[:-1, :], r[1:, :]),
+                 (r[:-1, :-1], r[1:, 1:]), (r[:-1, 1:], r[1:, :-1])):
+        m = (a > 0) & (b > 0) & (a != b)
+        pairs.append(np.stack([a[m], b[m]], axis=1))
+    e = np.sort(np.concatenate(pairs).astype(np.int64) - 1, axis=1)
+    code = np.unique(e[:, 0] * n + e[:, 1])
+    adj = [set() for _ in range(n)]
+    for i, j in zip((code // n).tolist(), (code % n).tolist()):
+        adj[i].add(j)
+        adj[j].add(i)
+    return adj
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_connect_nodes_fills_the_sets_as_before(seed):
+    """The compiled links give the same sets, iterating in the same order (set order follows
+    insertion), as adding the connections one by one did."""
+    rng = np.random.default_rng(seed)
+    n = 150
+    regions = rng.integers(0, n + 1, (40, 60)).astype(np.int32)
+    regions[rng.uniform(size=regions.shape) < 0.6] = 0
+    ref = _reference_connect_nodes(regions, n)
+    got = ls.connect_nodes(regions, n)
+    assert sum(map(len, ref)) > 100
+    assert [list(a) for a in got] == [list(a) for a in ref]

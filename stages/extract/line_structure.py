@@ -284,20 +284,44 @@ def _centroids(image, pix):
 
 def connect_nodes(regions: np.ndarray, n: int) -> list[set]:
     """Connections where the 3 x 3 regions of two nodes overlap or touch on the skeleton: two
-    nodes are connected when skeleton pixels of their regions are 8-neighbours."""
-    r = regions
-    pairs = []
-    for a, b in ((r[:, :-1], r[:, 1:]), (r[:-1, :], r[1:, :]),
-                 (r[:-1, :-1], r[1:, 1:]), (r[:-1, 1:], r[1:, :-1])):
-        m = (a > 0) & (b > 0) & (a != b)
-        pairs.append(np.stack([a[m], b[m]], axis=1))
-    e = np.sort(np.concatenate(pairs).astype(np.int64) - 1, axis=1)
-    code = np.unique(e[:, 0] * n + e[:, 1])
-    adj = [set() for _ in range(n)]
-    for i, j in zip((code // n).tolist(), (code % n).tolist()):
-        adj[i].add(j)
-        adj[j].add(i)
-    return adj
+    nodes are connected when skeleton pixels of their regions are 8-neighbours. Each node's
+    set is filled in ascending order of its neighbours (``_region_links``), the order in
+    which adding the connections one by one, by (lower, higher) node, fills it."""
+    start, nbrs = _region_links(np.ascontiguousarray(regions, np.int32), int(n))
+    b, nb = start.tolist(), nbrs.tolist()
+    return [set(nb[b[k]:b[k + 1]]) for k in range(n)]
+
+
+@njit("Tuple((int64[::1], int64[::1]))(int32[:, ::1], int64)", cache=True, nogil=True)
+def _region_links(regions, n):
+    """connect_nodes compiled: the pairs of different node labels (``regions`` = node + 1)
+    on 8-neighbouring pixels, as each node's neighbours in ascending order (``nbrs[start[i]:
+    start[i + 1]]``)."""
+    h, w = regions.shape
+    linked = np.zeros((n, n), np.bool_)
+    for r in range(h):
+        for c in range(w):
+            a = regions[r, c]
+            if a <= 0:
+                continue
+            for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+                rr, cc = r + dr, c + dc
+                if rr < h and 0 <= cc < w:
+                    b = regions[rr, cc]
+                    if b > 0 and b != a:
+                        linked[a - 1, b - 1] = True
+                        linked[b - 1, a - 1] = True
+    start = np.zeros(n + 1, np.int64)
+    for i in range(n):
+        start[i + 1] = start[i] + linked[i].sum()
+    nbrs = np.empty(start[n], np.int64)
+    k = 0
+    for i in range(n):
+        for j in range(n):
+            if linked[i, j]:
+                nbrs[k] = j
+                k += 1
+    return start, nbrs
 
 
 def remove_triangles(graph: LineGraph):
