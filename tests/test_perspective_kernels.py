@@ -333,3 +333,39 @@ def test_connect_nodes_fills_the_sets_as_before(seed):
     got = ls.connect_nodes(regions, n)
     assert sum(map(len, ref)) > 100
     assert [list(a) for a in got] == [list(a) for a in ref]
+
+
+def _reference_split_isolated_nodes(graph, regions, image):
+    deg = graph.degree()
+    ys, xs = np.nonzero(regions)
+    lab = regions[ys, xs] - 1
+    for i in np.nonzero(deg == 0)[0].tolist():
+        px = np.stack([xs[lab == i], ys[lab == i]], axis=1)
+        if len(px) < 2:
+            continue
+        d = np.hypot(*(px[:, None, :] - px[None, :, :]).transpose(2, 0, 1))
+        a, b = np.unravel_index(np.argmax(d), d.shape)
+        graph.pix[i] = px[a]
+        j = graph.add_node(px[b], px[b].astype(float), image[px[b][1], px[b][0]])
+        graph.connect(i, j)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_split_isolated_nodes_as_before(seed):
+    rng = np.random.default_rng(seed)
+    graph = _random_graph(rng, 40)
+    graph.pix = np.clip(graph.pix, 0, [39, 29])
+    regions = np.zeros((30, 40), np.int32)
+    for i, (x, y) in enumerate(graph.pix.tolist()):
+        win = regions[max(y - 1, 0):y + 2, max(x - 1, 0):x + 2]
+        win[rng.uniform(size=win.shape) < 0.5] = i + 1
+        regions[y, x] = i + 1
+    image = rng.uniform(0, 1, regions.shape).astype(np.float32)
+    ref, got = graph.copy(), graph.copy()
+    _reference_split_isolated_nodes(ref, regions, image)
+    ls.split_isolated_nodes(got, regions, image)
+    assert len(ref) > len(graph)
+    for name in ("pix", "pos", "value"):
+        a, b = getattr(got, name), getattr(ref, name)
+        assert a.dtype == b.dtype and a.tobytes() == b.tobytes(), name
+    assert [list(a) for a in got.adj] == [list(a) for a in ref.adj]

@@ -396,15 +396,11 @@ def split_isolated_nodes(graph: LineGraph, regions: np.ndarray, image: np.ndarra
     lonely = np.nonzero(deg == 0)[0]
     if len(lonely) == 0:
         return
-    ys, xs = np.nonzero(regions)
-    lab = regions[ys, xs] - 1
-    # each region's pixels in row-major order, as a mask per region would pick them
-    order = np.argsort(lab, kind="stable")
-    count = np.bincount(lab, minlength=int(lonely.max()) + 1)
-    start = np.concatenate([[0], np.cumsum(count)])
-    # per lonely node the region's two farthest pixels (compiled: _farthest_pairs)
-    far = _farthest_pairs(xs[order].astype(np.int64), ys[order].astype(np.int64),
-                          start.astype(np.int64), lonely.astype(np.int64))
+    # each region's pixels in row-major order, as a mask per region would pick them, and per
+    # lonely node the region's two farthest pixels (compiled: _region_pixels, _farthest_pairs)
+    xs, ys, start = _region_pixels(np.ascontiguousarray(regions, np.int32),
+                                   max(len(graph), int(regions.max(initial=0))))
+    far = _farthest_pairs(xs, ys, start, lonely.astype(np.int64))
     split = far[:, 0] >= 0
     if not split.any():
         return
@@ -418,6 +414,32 @@ def split_isolated_nodes(graph: LineGraph, regions: np.ndarray, image: np.ndarra
     graph.adj.extend(set() for _ in range(len(new)))
     for k, i in enumerate(ids.tolist()):
         graph.connect(i, first + k)
+
+
+@njit("Tuple((int64[::1], int64[::1], int64[::1]))(int32[:, ::1], int64)", cache=True,
+      nogil=True)
+def _region_pixels(regions, n):
+    """The pixels (x, y) of each node's region (``regions`` = node + 1), node by node, each
+    region's in row-major order: node i's are ``[start[i]:start[i + 1]]`` (a counting sort
+    of the labelled pixels)."""
+    h, w = regions.shape
+    start = np.zeros(n + 1, np.int64)
+    for r in range(h):
+        for c in range(w):
+            if regions[r, c] > 0:
+                start[regions[r, c]] += 1
+    for i in range(n):
+        start[i + 1] += start[i]
+    fill = start[:n].copy()
+    xs = np.empty(start[n], np.int64)
+    ys = np.empty(start[n], np.int64)
+    for r in range(h):
+        for c in range(w):
+            lab = regions[r, c] - 1
+            if lab >= 0:
+                xs[fill[lab]], ys[fill[lab]] = c, r
+                fill[lab] += 1
+    return xs, ys, start
 
 
 @njit("int64[:, ::1](int64[::1], int64[::1], int64[::1], int64[::1])", cache=True, nogil=True)
