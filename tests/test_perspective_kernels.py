@@ -178,10 +178,9 @@ def test_gap_candidates_equal_the_python_loop(seed):
     max_gap, min_cos, close_gap = sc["max_gap"], math.cos(sc["gap_max_angle"]), sc["close_gap"]
     deg = graph.degree()
     loose = np.nonzero(deg <= 1)[0]
-    d = np.hypot(*(graph.pos[loose][:, None, :] - graph.pos[None, :, :]).transpose(2, 0, 1))
     start, nbr = ls._neighbour_lists(graph.adj)
     score, ci, cj = ls._gap_candidates(graph.pos, start, nbr, deg.astype(np.int64),
-                                       loose.astype(np.int64), d, max_gap, min_cos, close_gap)
+                                       loose.astype(np.int64), max_gap, min_cos, close_gap)
     ref = _reference_candidates(graph, max_gap, min_cos, close_gap)
     assert len(ref) >= 3
     assert list(zip(score.tolist(), ci.tolist(), cj.tolist())) == ref

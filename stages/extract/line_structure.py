@@ -477,11 +477,10 @@ def fill_gaps(graph: LineGraph, image: np.ndarray, max_gap: float, min_cos: floa
     if len(loose) == 0 or len(graph) < 2:
         return
     pos = graph.pos
-    d = np.hypot(*(pos[loose][:, None, :] - pos[None, :, :]).transpose(2, 0, 1))
     # the candidates (continuity, closure) by one compiled pass over the loose nodes
     start, nbr = _neighbour_lists(graph.adj)
     score, ci, cj = _gap_candidates(np.ascontiguousarray(pos, np.float64), start, nbr,
-                                    deg.astype(np.int64), loose.astype(np.int64), d,
+                                    deg.astype(np.int64), loose.astype(np.int64),
                                     float(max_gap), float(min_cos), float(close_gap))
     cand = list(zip(score.tolist(), ci.tolist(), cj.tolist()))
     if not cand:
@@ -541,14 +540,14 @@ def _outward(pos, start, nbr, i):
 
 
 @njit("Tuple((float64[::1], int64[::1], int64[::1]))(float64[:, ::1], int64[::1], int64[::1],"
-      " int64[::1], int64[::1], float64[:, :], float64, float64, float64)",
-      cache=True, nogil=True)
-def _gap_candidates(pos, start, nbr, deg, loose, d, max_gap, min_cos, close_gap):
+      " int64[::1], int64[::1], float64, float64, float64)", cache=True, nogil=True)
+def _gap_candidates(pos, start, nbr, deg, loose, max_gap, min_cos, close_gap):
     """fill_gaps' candidate connections (score, i, j), in its order: loose node by loose node,
-    the nodes within ``max_gap`` (distances ``d`` (loose, N)) by index, those not within three
-    steps of i, continuing the lines' outward directions (or closing a short gap between two
-    line ends)."""
+    the nodes within ``max_gap`` by index (math.hypot, numpy's np.hypot to the bit), those
+    not within three steps of i, continuing the lines' outward directions (or closing a short
+    gap between two line ends)."""
     n = pos.shape[0]
+    d_row = np.empty(n)
     ox = np.full(n, np.nan)
     oy = np.full(n, np.nan)
     for a in range(len(loose)):
@@ -566,9 +565,9 @@ def _gap_candidates(pos, start, nbr, deg, loose, d, max_gap, min_cos, close_gap)
         i = loose[a]
         any_near = False
         for j in range(n):
-            if d[a, j] <= max_gap and d[a, j] > 0:
+            d_row[j] = math.hypot(pos[i, 0] - pos[j, 0], pos[i, 1] - pos[j, 1])
+            if d_row[j] <= max_gap and d_row[j] > 0:
                 any_near = True
-                break
         if not any_near:
             continue
         # the nodes within three steps of i
@@ -594,7 +593,7 @@ def _gap_candidates(pos, start, nbr, deg, loose, d, max_gap, min_cos, close_gap)
         has_i = not np.isnan(ox[i])
         xi, yi = pos[i, 0], pos[i, 1]
         for j in range(n):
-            dj = d[a, j]
+            dj = d_row[j]
             if not (dj <= max_gap and dj > 0) or steps[j]:
                 continue
             gx, gy = (pos[j, 0] - xi) / dj, (pos[j, 1] - yi) / dj
