@@ -43,7 +43,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numba import njit
+from numba import njit, types
 
 from .errors import FieldlocError
 
@@ -266,38 +266,24 @@ def estimate_field_colour(yuv: np.ndarray, conf: dict, valid: np.ndarray | None 
     n_valid = max(len(sub), 1)
     y8, u8, v8 = sub[:, 0], sub[:, 1], sub[:, 2]
     y0, y1 = conf["green_search_y"]
-    uv = u8.astype(np.uint16)
-    uv <<= 8
-    uv |= v8
-    cand = np.take(_green_candidate_chroma(tuple(conf["green_hue_deg"]),
-                                           float(conf["green_min_chroma"])), uv)
-    if y0 > 0:
-        cand &= y8 >= min(math.ceil(y0), 256)
-    if y1 < 255:
-        cand &= y8 <= max(math.floor(y1), -1)
     min_sat = float(conf.get("green_min_saturation", 0.0))
-    if min_sat > 0:  # chroma relative to luminance: a lit white wall's tint is no field
-        du = u8.astype(np.float32) - np.float32(128.0)
-        dv = v8.astype(np.float32) - np.float32(128.0)
-        cand &= du * du + dv * dv >= np.float32(min_sat * min_sat) * (
-            y8.astype(np.float32) ** 2)
+    # the green candidates (hue window, luminance range, chroma relative to luminance: a lit
+    # white wall's tint is no field), their chroma rescaled to Y_REF and its histogram, by one
+    # compiled pass (_green_candidates)
+    y_c, u_c8, v_c8, uu, vv, counts = _green_candidates(
+        sub, _green_candidate_chroma(tuple(conf["green_hue_deg"]),
+                                     float(conf["green_min_chroma"])),
+        min(math.ceil(y0), 256) if y0 > 0 else 0, max(math.floor(y1), -1) if y1 < 255 else 255,
+        min_sat > 0, np.float32(min_sat * min_sat))
     found = False
     u_c, v_c = (float(a) for a in conf["green_nominal_uv"])
     spread = 0.0
-    share = int(np.count_nonzero(cand)) / n_valid
+    share = len(y_c) / n_valid
     y_field = None
-    y_c = u_c8 = v_c8 = None  # the candidates' planes, taken once
     if share >= conf["green_min_share"]:
         # chroma rescaled to one luminance (Y_REF): under a brightness gradient the field's
         # chroma grows with its light, its chromaticity does not
-        y_c, u_c8, v_c8 = y8[cand], u8[cand], v8[cand]
-        yy = y_c.astype(np.float32)
-        scale = Y_REF / np.maximum(yy, 1.0)
-        uu = (u_c8.astype(np.float32) - 128.0) * scale
-        vv = (v_c8.astype(np.float32) - 128.0) * scale
-        bins = (np.clip(uu + 128.0, 0, 255).astype(np.int32) >> 3) * 32 + (
-            np.clip(vv + 128.0, 0, 255).astype(np.int32) >> 3)
-        hist = np.bincount(bins, minlength=1024).reshape(32, 32).astype(np.float32)
+        hist = counts.reshape(32, 32).astype(np.float32)
         hist = cv2.GaussianBlur(hist, (3, 3), 0)
         pi, pj = np.unravel_index(int(np.argmax(hist)), hist.shape)
         nu, nv = 8.0 * pi + 4.0 - 128.0, 8.0 * pj + 4.0 - 128.0
@@ -321,13 +307,55 @@ def estimate_field_colour(yuv: np.ndarray, conf: dict, valid: np.ndarray | None 
     axes = (max(conf["green_axes"][0], k * spread), max(conf["green_axes"][1], k * spread))
     fc = FieldColour(y=y_field, u=u_c, v=v_c, axes=axes, found=found, share=share)
     if conf.get("green_model", "ellipse") == "hue":
-        if y_c is None:
-            y_c, u_c8, v_c8 = y8[cand], u8[cand], v8[cand]
         _hue_model(fc, u_c8, v_c8, y_c, conf)
     fc.cell = int(conf["local_cell"])
     if found:
         fc.y_map = _local_green_luminance(yuv, fc, conf, valid)
     return fc
+
+
+@njit(types.Tuple((types.uint8[::1], types.uint8[::1], types.uint8[::1], types.float32[::1],
+                   types.float32[::1], types.int64[::1]))(
+    types.uint8[:, ::1], types.Array(types.boolean, 1, "C", readonly=True), types.int64,
+    types.int64, types.boolean, types.float32), cache=True, nogil=True)
+def _green_candidates(sub, chroma_ok, y_lo, y_hi, use_sat, min_sat2):
+    """estimate_field_colour's green candidates among the sampled pixels ``sub`` (n, 3 YUV):
+    chroma ``chroma_ok[U << 8 | V]``, Y in [y_lo, y_hi] and (``use_sat``) (U-128)^2 + (V-128)^2
+    >= min_sat2 Y^2 in float32. Returns their Y, U, V in order, their chroma rescaled to Y_REF
+    (float32, (U - 128) * (Y_REF / max(Y, 1))) and its 32 x 32 histogram of 8-unit bins."""
+    n = sub.shape[0]
+    c128 = np.float32(128.0)
+    y_ref = np.float32(Y_REF)
+    idx = np.empty(n, np.int64)
+    m = 0
+    for i in range(n):
+        y, u, v = sub[i, 0], sub[i, 1], sub[i, 2]
+        if not chroma_ok[(np.int64(u) << 8) | np.int64(v)] or y < y_lo or y > y_hi:
+            continue
+        if use_sat:
+            du = np.float32(u) - c128
+            dv = np.float32(v) - c128
+            yf = np.float32(y)
+            if not (du * du + dv * dv >= min_sat2 * (yf * yf)):
+                continue
+        idx[m] = i
+        m += 1
+    ys = np.empty(m, np.uint8)
+    us = np.empty(m, np.uint8)
+    vs = np.empty(m, np.uint8)
+    uu = np.empty(m, np.float32)
+    vv = np.empty(m, np.float32)
+    hist = np.zeros(1024, np.int64)
+    for k in range(m):
+        i = idx[k]
+        ys[k], us[k], vs[k] = sub[i, 0], sub[i, 1], sub[i, 2]
+        scale = y_ref / max(np.float32(ys[k]), np.float32(1.0))
+        uu[k] = (np.float32(us[k]) - c128) * scale
+        vv[k] = (np.float32(vs[k]) - c128) * scale
+        bu = min(max(uu[k] + c128, np.float32(0.0)), np.float32(255.0))
+        bv = min(max(vv[k] + c128, np.float32(0.0)), np.float32(255.0))
+        hist[(np.int64(bu) >> 3) * 32 + (np.int64(bv) >> 3)] += 1
+    return ys, us, vs, uu, vv, hist
 
 
 def _hue_model(fc: FieldColour, u8, v8, y8, conf: dict) -> None:
@@ -633,56 +661,83 @@ def classify_cells(yuv: np.ndarray, fc: FieldColour, conf: dict, cell: int,
     mask = np.zeros((1, 1), np.uint8) if white_out is None else white_out
     sat = np.float32(conf["white_max_saturation"])
     lo, hi = (np.float32(v) ** 2 for v in fc.saturation)
-    _hue_cells(np.ascontiguousarray(yuv), thr, int(cell), int(local),
+    _hue_cells(np.ascontiguousarray(yuv).reshape(h, 3 * w), thr, int(cell), int(local),
                np.float32(sat * sat), np.float32(fc.hue_dir[0]), np.float32(fc.hue_dir[1]),
                np.float32(np.float32(fc.hue_cos) ** 2), lo, hi, white_out is not None, out,
                mask)
     return out
 
 
-@njit("void(uint8[:, :, ::1], int16[:, :, ::1], int64, int64, float32, float32, float32,"
-      " float32, float32, float32, boolean, uint16[:, :, ::1], uint8[:, ::1])",
-      cache=True, nogil=True)
-def _hue_cells(yuv, thr, cell, local, sat2, hx, hy, c2, lo, hi, keep_white, out, mask):
-    w = yuv.shape[1]
-    hb, wb = out.shape[0], out.shape[1]
-    th, tw = thr.shape[0], thr.shape[1]
+@njit("void(uint8[::1], float32[::1], float32[::1], float32[::1], float32, float32, float32,"
+      " float32, float32, float32, uint8[::1], uint8[::1], uint8[::1])", cache=True, nogil=True)
+def _hue_row(px, t_white, t_lo, t_hi, sat2, hx, hy, c2, lo, hi, white, col_white, col_green):
+    """One row of _hue_cells: ``px`` the row's interleaved YUV bytes (3 w), the luminance
+    thresholds per column as float32 (integers, so the comparisons are those of the uint8 Y);
+    the white mask (0 / 1) into ``white`` and the white and green pixels added to the column
+    counts. Branch-free, so that it runs on vectors."""
     c128 = np.float32(128.0)
     zero = np.float32(0.0)
-    tcol = np.empty(w, np.int64)
-    ccol = np.empty(w, np.int64)
-    for c in range(w):
-        tcol[c] = min(c // local, tw - 1)
-        ccol[c] = c // cell if c < wb * cell else -1
+    for c in range(px.shape[0] // 3):
+        yf = np.float32(px[3 * c])
+        du = np.float32(px[3 * c + 1]) - c128
+        dv = np.float32(px[3 * c + 2]) - c128
+        s = du * du
+        s += dv * dv
+        y2 = yf * yf
+        is_white = (yf >= t_white[c]) & (s <= sat2 * y2)
+        dot = du * hx
+        dot += dv * hy
+        is_green = ((yf >= t_lo[c]) & (yf <= t_hi[c]) & (dot >= zero) & (dot * dot >= c2 * s)
+                    & (s >= lo * y2) & (s <= hi * y2))
+        wb = np.uint8(is_white)
+        white[c] = wb
+        col_white[c] += wb
+        col_green[c] += np.uint8(is_green & ~is_white)
+
+
+@njit("void(uint8[:, ::1], int16[:, :, ::1], int64, int64, float32, float32, float32,"
+      " float32, float32, float32, boolean, uint16[:, :, ::1], uint8[:, ::1])",
+      cache=True, nogil=True)
+def _hue_cells(yuv_rows, thr, cell, local, sat2, hx, hy, c2, lo, hi, keep_white, out, mask):
+    """classify_cells' pass over the rows (h, 3 w) of a YUV image: each row by _hue_row
+    (white wins over green), the column counts summed per cell every ``cell`` rows."""
+    w = yuv_rows.shape[1] // 3
+    hb, wb = out.shape[0], out.shape[1]
+    th, tw = thr.shape[0], thr.shape[1]
+    t_white = np.empty(w, np.float32)
+    t_lo = np.empty(w, np.float32)
+    t_hi = np.empty(w, np.float32)
+    scratch = np.empty(w, np.uint8)
+    col_white = np.zeros(w, np.uint8)
+    col_green = np.zeros(w, np.uint8)
+    last = -1
     for r in range(hb * cell):
         tr = min(r // local, th - 1)
-        cr = r // cell
-        row = yuv[r]
-        t_row = thr[tr]
-        o_row = out[cr]
-        for c in range(w):
-            y = row[c, 0]
-            yf = np.float32(y)
-            du = np.float32(row[c, 1]) - c128
-            dv = np.float32(row[c, 2]) - c128
-            s = du * du
-            s += dv * dv
-            tc = tcol[c]
-            if y >= t_row[tc, 0] and s <= sat2 * (yf * yf):
-                if keep_white:
-                    mask[r, c] = 1
-                if ccol[c] >= 0:
-                    o_row[ccol[c], 1] += 1
-            elif ccol[c] >= 0 and t_row[tc, 1] <= y <= t_row[tc, 2]:
-                dot = du * hx
-                dot += dv * hy
-                if dot >= zero:
-                    y2 = yf * yf
-                    if dot * dot >= c2 * s and s >= lo * y2 and s <= hi * y2:
-                        o_row[ccol[c], 0] += 1
-    for i in range(hb):
-        for j in range(wb):
-            out[i, j, 2] = cell * cell - out[i, j, 0] - out[i, j, 1]
+        if tr != last:  # the thresholds of this row of local blocks, per column
+            last = tr
+            for c in range(w):
+                tc = min(c // local, tw - 1)
+                t_white[c] = thr[tr, tc, 0]
+                t_lo[c] = thr[tr, tc, 1]
+                t_hi[c] = thr[tr, tc, 2]
+        row_white = scratch
+        if keep_white:
+            row_white = mask[r]
+        _hue_row(yuv_rows[r], t_white, t_lo, t_hi, sat2, hx, hy, c2, lo, hi, row_white,
+                 col_white, col_green)
+        if r % cell == cell - 1:
+            cr = r // cell
+            for j in range(wb):
+                g = 0
+                wh = 0
+                for c in range(j * cell, j * cell + cell):
+                    g += col_green[c]
+                    wh += col_white[c]
+                out[cr, j, 0] = g
+                out[cr, j, 1] = wh
+                out[cr, j, 2] = cell * cell - g - wh
+            col_white[:] = 0
+            col_green[:] = 0
 
 
 @njit(cache=True, nogil=True)

@@ -30,9 +30,6 @@ import cv2
 import numpy as np
 from numba import njit
 
-_KERNEL3 = np.ones((3, 3), np.uint8)
-_CROSS3 = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], np.uint8)
-_NEIGHBOURS = [(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)]
 
 
 # ---------------------------------------------------------------------------- 3.2 skeleton
@@ -62,31 +59,41 @@ def ranking_keys(image: np.ndarray) -> np.ndarray:
     return q * (h * w) + np.arange(h * w, dtype=np.float64).reshape(h, w)
 
 
-def _framed(image: np.ndarray, value) -> np.ndarray:
-    """``np.pad(image, 1, constant_values=value)`` of a 2-D image, without np.pad's per-call
-    overhead."""
-    h, w = image.shape
-    out = np.full((h + 2, w + 2), value, image.dtype)
-    out[1:-1, 1:-1] = image
-    return out
-
-
-def ranking_count(image: np.ndarray) -> np.ndarray:
+def ranking_count(image: np.ndarray, key: np.ndarray | None = None) -> np.ndarray:
     """c(x, y): the number of 8-neighbours with an equal or higher grey level (int8), ties
-    broken as in ranking_keys."""
-    h, w = image.shape
-    key = ranking_keys(image)
-    pad = _framed(key, -1.0)
-    c = np.zeros((h, w), np.int8)
-    for dy, dx in _NEIGHBOURS:
-        c += pad[1 + dy:1 + dy + h, 1 + dx:1 + dx + w] >= key
+    broken as in ranking_keys (``key``: the image's ranking_keys, if already computed)."""
+    key = ranking_keys(image) if key is None else key
+    c = np.empty(key.shape, np.int8)
+    _rank_counts(np.ascontiguousarray(key, np.float64), c)
     return c
 
 
-def ranking_skeleton(image: np.ndarray, min_value: float) -> tuple[np.ndarray, np.ndarray]:
+@njit("void(float64[:, ::1], int8[:, ::1])", cache=True, nogil=True)
+def _rank_counts(key, c):
+    """ranking_count compiled: per pixel, the 8-neighbours whose key is >= its own (outside
+    the image a key of -1)."""
+    h, w = key.shape
+    for r in range(h):
+        for x in range(w):
+            k = key[r, x]
+            n = 0
+            for dy in range(-1, 2):
+                for dx in range(-1, 2):
+                    if dy == 0 and dx == 0:
+                        continue
+                    rr, xx = r + dy, x + dx
+                    other = key[rr, xx] if 0 <= rr < h and 0 <= xx < w else -1.0
+                    if other >= k:
+                        n += 1
+            c[r, x] = n
+
+
+def ranking_skeleton(image: np.ndarray, min_value: float, key: np.ndarray | None = None
+                     ) -> tuple[np.ndarray, np.ndarray]:
     """The ranking-operator skeleton: pixels above ``min_value`` (grey level zero is background)
-    with c(x, y) < 3. Returns (skeleton mask, c)."""
-    c = ranking_count(image)
+    with c(x, y) < 3 (``key``: the image's ranking_keys, if already computed). Returns
+    (skeleton mask, c)."""
+    c = ranking_count(image, key)
     return (image > min_value) & (c < 3), c
 
 
@@ -134,8 +141,8 @@ class LineGraph:
                          [set(a) for a in self.adj])
 
 
-def place_nodes(image: np.ndarray, skeleton: np.ndarray, c: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray]:
+def place_nodes(image: np.ndarray, skeleton: np.ndarray, c: np.ndarray,
+                key: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Nodes first at peaks (c = 0), then at ridge pixels (c = 1, 2) at least two pixels apart
     (no two nodes 8-neighbours). Done in parallel rounds: in each round every available
     skeleton pixel whose priority (peaks first, then grey level) is the highest in its 3 x 3
@@ -144,8 +151,9 @@ def place_nodes(image: np.ndarray, skeleton: np.ndarray, c: np.ndarray
 
     Returns node pixels (N, 2) int (x, y), ordered by priority, and the node regions: an int32
     image with node index + 1 on every skeleton pixel (a node's pixel and the skeleton pixels
-    of its 3 x 3 region assigned to it, 4-neighbours first), 0 elsewhere."""
-    key = ranking_keys(image)
+    of its 3 x 3 region assigned to it, 4-neighbours first), 0 elsewhere. ``key``: the
+    image's ranking_keys, if already computed."""
+    key = ranking_keys(image) if key is None else key
     priority = np.where(skeleton, key + np.where(c == 0, 2.0 ** 45, 0.0), -1.0)
     # the parallel rounds pick the same pixels as one greedy pass in priority order (every
     # priority differs: a pixel that is the highest available one in its neighbourhood is
@@ -154,16 +162,36 @@ def place_nodes(image: np.ndarray, skeleton: np.ndarray, c: np.ndarray
     order = np.argsort(-priority[sy, sx], kind="stable")
     taken = _greedy_nodes(sy[order], sx[order], skeleton.shape[0], skeleton.shape[1])
     ys, xs = sy[order][taken], sx[order][taken]
-    labels = np.zeros(skeleton.shape, np.float32)
-    labels[ys, xs] = np.arange(1, len(xs) + 1, dtype=np.float32)
-    regions = labels.copy()
-    rest = skeleton & (labels == 0)
-    cross = cv2.dilate(labels, _CROSS3)
-    regions[rest] = cross[rest]
-    rest &= regions == 0
-    full = cv2.dilate(labels, _KERNEL3)
-    regions[rest] = full[rest]
-    return np.stack([xs, ys], axis=1).astype(int), regions.astype(np.int32)
+    regions = _node_regions(np.ascontiguousarray(skeleton), ys.astype(np.int64),
+                            xs.astype(np.int64))
+    return np.stack([xs, ys], axis=1).astype(int), regions
+
+
+@njit("int32[:, ::1](boolean[:, ::1], int64[::1], int64[::1])", cache=True, nogil=True)
+def _node_regions(skeleton, ys, xs):
+    """place_nodes' region image: node k + 1 at its pixel (ys[k], xs[k]); every other
+    skeleton pixel takes the largest node label among its 4-neighbours, else among its
+    8-neighbours (a grey dilation of the labels, first with the cross, then the square)."""
+    h, w = skeleton.shape
+    labels = np.zeros((h, w), np.int32)
+    for k in range(len(ys)):
+        labels[ys[k], xs[k]] = k + 1
+    out = labels.copy()
+    for r in range(h):
+        for c in range(w):
+            if not skeleton[r, c] or labels[r, c] != 0:
+                continue
+            m = 0
+            for dr, dc in ((-1, 0), (0, -1), (0, 1), (1, 0)):
+                if 0 <= r + dr < h and 0 <= c + dc < w:
+                    m = max(m, labels[r + dr, c + dc])
+            if m == 0:
+                for dr in range(-1, 2):
+                    for dc in range(-1, 2):
+                        if 0 <= r + dr < h and 0 <= c + dc < w:
+                            m = max(m, labels[r + dr, c + dc])
+            out[r, c] = m
+    return out
 
 
 @njit(cache=True, nogil=True)
@@ -183,38 +211,117 @@ def _greedy_nodes(ys, xs, h, w):
 
 
 def subpixel_positions(image: np.ndarray, pix: np.ndarray) -> np.ndarray:
-    """Grey-level weighted centroid of each node's 3 x 3 window (x, y)."""
+    """Grey-level weighted centroid of each node's 3 x 3 window (x, y) (compiled:
+    ``_centroids``)."""
     if len(pix) == 0:
         return np.zeros((0, 2))
+    return _centroids(np.ascontiguousarray(image), np.ascontiguousarray(pix, np.int64))
+
+
+@njit("float64(float64[:])", cache=True, nogil=True)
+def block_sum(a):
+    """``np.sum`` of a float64 array in numpy's order (its pairwise summation: one
+    accumulator below 8 values; up to 128, eight combined pairwise, then the rest; beyond,
+    the two halves (split at a multiple of 8) summed so and added), so that the sum is
+    numpy's to the bit."""
+    n = a.shape[0]
+    if n < 8:
+        res = -0.0
+        for i in range(n):
+            res += a[i]
+        return res
+    if n > 128:
+        n2 = n // 2
+        n2 -= n2 % 8
+        return block_sum(a[:n2]) + block_sum(a[n2:])
+    r0, r1, r2, r3 = a[0], a[1], a[2], a[3]
+    r4, r5, r6, r7 = a[4], a[5], a[6], a[7]
+    i = 8
+    while i < n - n % 8:
+        r0 += a[i]
+        r1 += a[i + 1]
+        r2 += a[i + 2]
+        r3 += a[i + 3]
+        r4 += a[i + 4]
+        r5 += a[i + 5]
+        r6 += a[i + 6]
+        r7 += a[i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[i]
+        i += 1
+    return res
+
+
+@njit(["float64[:, ::1](float32[:, ::1], int64[:, ::1])",
+       "float64[:, ::1](float64[:, ::1], int64[:, ::1])"], cache=True, nogil=True)
+def _centroids(image, pix):
+    """subpixel_positions compiled: per node pixel, its 3 x 3 window's grey levels (0 outside
+    the image) as weights, the weighted mean offset summed as numpy sums (block_sum)."""
     h, w = image.shape
-    pad = _framed(image, 0)
-    offs = np.array([(dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)])
-    xs = pix[:, 0:1] + 1 + offs[None, :, 0]
-    ys = pix[:, 1:2] + 1 + offs[None, :, 1]
-    wts = pad[ys, xs].astype(np.float64)
-    wsum = wts.sum(axis=1)
-    wsum[wsum <= 0] = 1.0
-    dx = (wts * offs[None, :, 0]).sum(axis=1) / wsum
-    dy = (wts * offs[None, :, 1]).sum(axis=1) / wsum
-    return pix.astype(np.float64) + np.stack([dx, dy], axis=1)
+    out = np.empty((pix.shape[0], 2))
+    wts = np.empty(9)
+    ax = np.empty(9)
+    ay = np.empty(9)
+    for i in range(pix.shape[0]):
+        k = 0
+        for dy in range(-1, 2):
+            for dx in range(-1, 2):
+                y, x = pix[i, 1] + dy, pix[i, 0] + dx
+                v = np.float64(image[y, x]) if 0 <= y < h and 0 <= x < w else 0.0
+                wts[k] = v
+                ax[k] = v * dx
+                ay[k] = v * dy
+                k += 1
+        wsum = block_sum(wts)
+        if wsum <= 0:
+            wsum = 1.0
+        out[i, 0] = np.float64(pix[i, 0]) + block_sum(ax) / wsum
+        out[i, 1] = np.float64(pix[i, 1]) + block_sum(ay) / wsum
+    return out
 
 
 def connect_nodes(regions: np.ndarray, n: int) -> list[set]:
     """Connections where the 3 x 3 regions of two nodes overlap or touch on the skeleton: two
-    nodes are connected when skeleton pixels of their regions are 8-neighbours."""
-    r = regions
-    pairs = []
-    for a, b in ((r[:, :-1], r[:, 1:]), (r[:-1, :], r[1:, :]),
-                 (r[:-1, :-1], r[1:, 1:]), (r[:-1, 1:], r[1:, :-1])):
-        m = (a > 0) & (b > 0) & (a != b)
-        pairs.append(np.stack([a[m], b[m]], axis=1))
-    e = np.sort(np.concatenate(pairs).astype(np.int64) - 1, axis=1)
-    code = np.unique(e[:, 0] * n + e[:, 1])
-    adj = [set() for _ in range(n)]
-    for i, j in zip((code // n).tolist(), (code % n).tolist()):
-        adj[i].add(j)
-        adj[j].add(i)
-    return adj
+    nodes are connected when skeleton pixels of their regions are 8-neighbours. Each node's
+    set is filled in ascending order of its neighbours (``_region_links``), the order in
+    which adding the connections one by one, by (lower, higher) node, fills it."""
+    start, nbrs = _region_links(np.ascontiguousarray(regions, np.int32), int(n))
+    b, nb = start.tolist(), nbrs.tolist()
+    return [set(nb[b[k]:b[k + 1]]) for k in range(n)]
+
+
+@njit("Tuple((int64[::1], int64[::1]))(int32[:, ::1], int64)", cache=True, nogil=True)
+def _region_links(regions, n):
+    """connect_nodes compiled: the pairs of different node labels (``regions`` = node + 1)
+    on 8-neighbouring pixels, as each node's neighbours in ascending order (``nbrs[start[i]:
+    start[i + 1]]``)."""
+    h, w = regions.shape
+    linked = np.zeros((n, n), np.bool_)
+    for r in range(h):
+        for c in range(w):
+            a = regions[r, c]
+            if a <= 0:
+                continue
+            for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+                rr, cc = r + dr, c + dc
+                if rr < h and 0 <= cc < w:
+                    b = regions[rr, cc]
+                    if b > 0 and b != a:
+                        linked[a - 1, b - 1] = True
+                        linked[b - 1, a - 1] = True
+    start = np.zeros(n + 1, np.int64)
+    for i in range(n):
+        start[i + 1] = start[i] + linked[i].sum()
+    nbrs = np.empty(start[n], np.int64)
+    k = 0
+    for i in range(n):
+        for j in range(n):
+            if linked[i, j]:
+                nbrs[k] = j
+                k += 1
+    return start, nbrs
 
 
 def remove_triangles(graph: LineGraph):
@@ -245,26 +352,40 @@ def limit_degree(graph: LineGraph, max_degree: int = 4):
 
 def stretch_lines(graph: LineGraph, regions: np.ndarray):
     """Move each end node (degree 1) to the last pixel of the skeleton: the pixel of its
-    region farthest from its neighbour (in place)."""
+    region farthest from its neighbour (the first in row-major order of equally far ones; in
+    place)."""
     deg = graph.degree()
     ends = np.nonzero(deg == 1)[0]
     if len(ends) == 0:
         return
-    ys, xs = np.nonzero(regions)
-    lab = regions[ys, xs] - 1
-    is_end = np.zeros(len(graph), bool)
-    is_end[ends] = True
-    sel = is_end[lab]
-    ys, xs, lab = ys[sel], xs[sel], lab[sel]
-    other = np.zeros(len(graph), int)
-    for i in ends:
+    other = np.full(len(graph), -1, np.int64)
+    for i in ends.tolist():
         other[i] = next(iter(graph.adj[i]))
-    d = np.hypot(xs - graph.pos[other[lab], 0], ys - graph.pos[other[lab], 1])
-    order = np.lexsort((-d, lab))
-    first = np.ones(len(order), bool)
-    first[1:] = lab[order][1:] != lab[order][:-1]
-    best = order[first]
-    graph.pix[lab[best]] = np.stack([xs[best], ys[best]], axis=1)
+    _farthest_region_pixels(np.ascontiguousarray(regions, np.int32), other,
+                            np.ascontiguousarray(graph.pos, np.float64), graph.pix)
+
+
+@njit("void(int32[:, ::1], int64[::1], float64[:, ::1], int64[:, ::1])", cache=True,
+      nogil=True)
+def _farthest_region_pixels(regions, other, pos, pix):
+    """stretch_lines compiled: for each node i with ``other[i]`` >= 0 (its neighbour), the
+    pixel of its region (``regions`` = node index + 1) farthest from the neighbour's position
+    into ``pix[i]``."""
+    n = len(other)
+    best = np.full(n, -1.0)
+    bx = np.zeros(n, np.int64)
+    by = np.zeros(n, np.int64)
+    for r in range(regions.shape[0]):
+        for c in range(regions.shape[1]):
+            i = regions[r, c] - 1
+            if i < 0 or other[i] < 0:
+                continue
+            d = math.hypot(c - pos[other[i], 0], r - pos[other[i], 1])
+            if d > best[i]:
+                best[i], bx[i], by[i] = d, c, r
+    for i in range(n):
+        if best[i] >= 0:
+            pix[i, 0], pix[i, 1] = bx[i], by[i]
 
 
 def split_isolated_nodes(graph: LineGraph, regions: np.ndarray, image: np.ndarray):
@@ -275,39 +396,71 @@ def split_isolated_nodes(graph: LineGraph, regions: np.ndarray, image: np.ndarra
     lonely = np.nonzero(deg == 0)[0]
     if len(lonely) == 0:
         return
-    ys, xs = np.nonzero(regions)
-    lab = regions[ys, xs] - 1
-    # each region's pixels in row-major order, as a mask per region would pick them
-    order = np.argsort(lab, kind="stable")
-    count = np.bincount(lab, minlength=int(lonely.max()) + 1)
-    start = np.concatenate([[0], np.cumsum(count)])
-    for i in lonely.tolist():
-        if count[i] < 2:
+    # each region's pixels in row-major order, as a mask per region would pick them, and per
+    # lonely node the region's two farthest pixels (compiled: _region_pixels, _farthest_pairs)
+    xs, ys, start = _region_pixels(np.ascontiguousarray(regions, np.int32),
+                                   max(len(graph), int(regions.max(initial=0))))
+    far = _farthest_pairs(xs, ys, start, lonely.astype(np.int64))
+    split = far[:, 0] >= 0
+    if not split.any():
+        return
+    ids, ends = lonely[split], far[split]
+    graph.pix[ids] = ends[:, 0:2]
+    new = ends[:, 2:4].astype(graph.pix.dtype)
+    first = len(graph)
+    graph.pix = np.vstack([graph.pix, new])
+    graph.pos = np.vstack([graph.pos, new.astype(float)])
+    graph.value = np.append(graph.value, image[new[:, 1], new[:, 0]])
+    graph.adj.extend(set() for _ in range(len(new)))
+    for k, i in enumerate(ids.tolist()):
+        graph.connect(i, first + k)
+
+
+@njit("Tuple((int64[::1], int64[::1], int64[::1]))(int32[:, ::1], int64)", cache=True,
+      nogil=True)
+def _region_pixels(regions, n):
+    """The pixels (x, y) of each node's region (``regions`` = node + 1), node by node, each
+    region's in row-major order: node i's are ``[start[i]:start[i + 1]]`` (a counting sort
+    of the labelled pixels)."""
+    h, w = regions.shape
+    start = np.zeros(n + 1, np.int64)
+    for r in range(h):
+        for c in range(w):
+            if regions[r, c] > 0:
+                start[regions[r, c]] += 1
+    for i in range(n):
+        start[i + 1] += start[i]
+    fill = start[:n].copy()
+    xs = np.empty(start[n], np.int64)
+    ys = np.empty(start[n], np.int64)
+    for r in range(h):
+        for c in range(w):
+            lab = regions[r, c] - 1
+            if lab >= 0:
+                xs[fill[lab]], ys[fill[lab]] = c, r
+                fill[lab] += 1
+    return xs, ys, start
+
+
+@njit("int64[:, ::1](int64[::1], int64[::1], int64[::1], int64[::1])", cache=True, nogil=True)
+def _farthest_pairs(xs, ys, start, lonely):
+    """For each lonely node i, the pixels (xa, ya, xb, yb) of its region (``xs``, ``ys``
+    [start[i]:start[i + 1]], row-major) farthest apart (the first such pair in row-major order
+    of the distance matrix, as np.argmax takes it), or -1 where the region holds one pixel."""
+    out = np.full((len(lonely), 4), -1, np.int64)
+    for k in range(len(lonely)):
+        i = lonely[k]
+        s, e = start[i], start[i + 1]
+        if e - s < 2:
             continue
-        sel = order[start[i]:start[i + 1]]
-        px = np.stack([xs[sel], ys[sel]], axis=1)
-        d = np.hypot(*(px[:, None, :] - px[None, :, :]).transpose(2, 0, 1))
-        a, b = np.unravel_index(np.argmax(d), d.shape)
-        graph.pix[i] = px[a]
-        j = graph.add_node(px[b], px[b].astype(float), image[px[b][1], px[b][0]])
-        graph.connect(i, j)
-
-
-def _outward(graph: LineGraph, i: int, reach: int = 3) -> np.ndarray | None:
-    """Unit direction in which the line ends at end node i (from a node up to ``reach`` steps
-    back along its line towards i), or None for a node without a single neighbour."""
-    if len(graph.adj[i]) != 1:
-        return None
-    prev, cur = i, next(iter(graph.adj[i]))
-    for _ in range(reach - 1):
-        nxt = [k for k in graph.adj[cur] if k != prev]
-        if len(nxt) != 1:
-            break
-        prev, cur = cur, nxt[0]
-    dx = float(graph.pos[i, 0] - graph.pos[cur, 0])
-    dy = float(graph.pos[i, 1] - graph.pos[cur, 1])
-    n = float(np.hypot(dx, dy))
-    return np.array([dx / n, dy / n]) if n > 0 else None
+        best, ba, bb = -1.0, s, s
+        for a in range(s, e):
+            for b in range(s, e):
+                d = math.hypot(float(xs[a] - xs[b]), float(ys[a] - ys[b]))
+                if d > best:
+                    best, ba, bb = d, a, b
+        out[k, 0], out[k, 1], out[k, 2], out[k, 3] = xs[ba], ys[ba], xs[bb], ys[bb]
+    return out
 
 
 def fill_gaps(graph: LineGraph, image: np.ndarray, max_gap: float, min_cos: float,
@@ -324,52 +477,16 @@ def fill_gaps(graph: LineGraph, image: np.ndarray, max_gap: float, min_cos: floa
     if len(loose) == 0 or len(graph) < 2:
         return
     pos = graph.pos
-    d = np.hypot(*(pos[loose][:, None, :] - pos[None, :, :]).transpose(2, 0, 1))
-    near_all = (d <= max_gap) & (d > 0)
-    outward = {}
-    for i in loose.tolist():
-        o = _outward(graph, i)
-        outward[i] = None if o is None else (float(o[0]), float(o[1]))
-    xy = pos.tolist()
-    deg_l = deg.tolist()
-    cand = []
-    for a, i in enumerate(loose.tolist()):
-        near = np.nonzero(near_all[a])[0]
-        if len(near) == 0:
-            continue
-        steps = {i}
-        frontier = {i}
-        for _ in range(3):
-            frontier = {k for f in frontier for k in graph.adj[f]} - steps
-            steps |= frontier
-        out_i = outward[i]
-        xi, yi = xy[i]
-        da = d[a]
-        for j in near.tolist():
-            if j in steps:
-                continue
-            dj = float(da[j])
-            gx, gy = (xy[j][0] - xi) / dj, (xy[j][1] - yi) / dj
-            out_j = outward.get(j) if deg_l[j] <= 1 else None
-            closing = dj <= close_gap and deg_l[j] == 1 and deg_l[i] == 1
-            score = 0.0
-            if out_i is not None:
-                ci = out_i[0] * gx + out_i[1] * gy
-                if ci < min_cos and not closing:
-                    continue
-                score += ci
-            if out_j is not None:
-                cj = -out_j[0] * gx + -out_j[1] * gy
-                if cj < min_cos and not closing:
-                    continue
-                score += cj
-            if out_i is None and out_j is None and deg_l[j] > 0:
-                continue  # an isolated node joins only where a line's direction leads
-            cand.append((score - dj / max_gap, i, j))
+    # the candidates (continuity, closure) by one compiled pass over the loose nodes
+    start, nbr = _neighbour_lists(graph.adj)
+    score, ci, cj = _gap_candidates(np.ascontiguousarray(pos, np.float64), start, nbr,
+                                    deg.astype(np.int64), loose.astype(np.int64),
+                                    float(max_gap), float(min_cos), float(close_gap))
+    cand = list(zip(score.tolist(), ci.tolist(), cj.tolist()))
     if not cand:
         return
     # simplicity: grey level along all candidate gaps, sampled in one pass
-    ij = np.array([(i, j) for _, i, j in cand])
+    ij = np.stack([ci, cj], axis=1)
     t = np.linspace(0.0, 1.0, samples)[None, :, None]
     pts = (pos[ij[:, 0]][:, None, :] * (1 - t) + pos[ij[:, 1]][:, None, :] * t).astype(np.float32)
     grey = cv2.remap(image, pts[..., 0], pts[..., 1], cv2.INTER_LINEAR,
@@ -386,12 +503,138 @@ def fill_gaps(graph: LineGraph, image: np.ndarray, max_gap: float, min_cos: floa
         graph.connect(i, j)
 
 
+def _neighbour_lists(adj: list[set]) -> tuple[np.ndarray, np.ndarray]:
+    """The graph's connections as flat lists for the kernels: node i's neighbours are
+    ``nbr[start[i]:start[i + 1]]`` (in no particular order)."""
+    counts = np.fromiter((len(a) for a in adj), np.int64, len(adj))
+    start = np.zeros(len(adj) + 1, np.int64)
+    np.cumsum(counts, out=start[1:])
+    nbr = np.fromiter((k for a in adj for k in a), np.int64, int(start[-1]))
+    return start, nbr
+
+
+@njit("UniTuple(float64, 2)(float64[:, ::1], int64[::1], int64[::1], int64)",
+      cache=True, nogil=True)
+def _outward(pos, start, nbr, i):
+    """The unit direction (dx, dy) in which the line ends at end node i (from a node up to
+    three steps back along its line towards i); (nan, nan) for a node without a single
+    neighbour."""
+    if start[i + 1] - start[i] != 1:
+        return np.nan, np.nan
+    prev, cur = i, nbr[start[i]]
+    for _ in range(2):  # reach 3: up to two more steps back along the line
+        count, nxt = 0, -1
+        for k in range(start[cur], start[cur + 1]):
+            if nbr[k] != prev:
+                count += 1
+                nxt = nbr[k]
+        if count != 1:
+            break
+        prev, cur = cur, nxt
+    dx = pos[i, 0] - pos[cur, 0]
+    dy = pos[i, 1] - pos[cur, 1]
+    n = math.hypot(dx, dy)
+    if n > 0:
+        return dx / n, dy / n
+    return np.nan, np.nan
+
+
+@njit("Tuple((float64[::1], int64[::1], int64[::1]))(float64[:, ::1], int64[::1], int64[::1],"
+      " int64[::1], int64[::1], float64, float64, float64)", cache=True, nogil=True)
+def _gap_candidates(pos, start, nbr, deg, loose, max_gap, min_cos, close_gap):
+    """fill_gaps' candidate connections (score, i, j), in its order: loose node by loose node,
+    the nodes within ``max_gap`` by index (math.hypot, numpy's np.hypot to the bit), those
+    not within three steps of i, continuing the lines' outward directions (or closing a short
+    gap between two line ends)."""
+    n = pos.shape[0]
+    d_row = np.empty(n)
+    ox = np.full(n, np.nan)
+    oy = np.full(n, np.nan)
+    for a in range(len(loose)):
+        ox[loose[a]], oy[loose[a]] = _outward(pos, start, nbr, loose[a])
+    cap = 16
+    score = np.empty(cap)
+    ci = np.empty(cap, np.int64)
+    cj = np.empty(cap, np.int64)
+    m = 0
+    steps = np.zeros(n, np.bool_)
+    frontier = np.empty(n, np.int64)
+    nxt = np.empty(n, np.int64)
+    seen = np.empty(n, np.int64)
+    for a in range(len(loose)):
+        i = loose[a]
+        any_near = False
+        for j in range(n):
+            d_row[j] = math.hypot(pos[i, 0] - pos[j, 0], pos[i, 1] - pos[j, 1])
+            if d_row[j] <= max_gap and d_row[j] > 0:
+                any_near = True
+        if not any_near:
+            continue
+        # the nodes within three steps of i
+        steps[i] = True
+        seen[0] = i
+        n_seen = 1
+        frontier[0] = i
+        nf = 1
+        for _ in range(3):
+            nn = 0
+            for f in range(nf):
+                c = frontier[f]
+                for k in range(start[c], start[c + 1]):
+                    q = nbr[k]
+                    if not steps[q]:
+                        steps[q] = True
+                        seen[n_seen] = q
+                        n_seen += 1
+                        nxt[nn] = q
+                        nn += 1
+            frontier[:nn] = nxt[:nn]
+            nf = nn
+        has_i = not np.isnan(ox[i])
+        xi, yi = pos[i, 0], pos[i, 1]
+        for j in range(n):
+            dj = d_row[j]
+            if not (dj <= max_gap and dj > 0) or steps[j]:
+                continue
+            gx, gy = (pos[j, 0] - xi) / dj, (pos[j, 1] - yi) / dj
+            has_j = deg[j] <= 1 and not np.isnan(ox[j])
+            closing = dj <= close_gap and deg[j] == 1 and deg[i] == 1
+            s = 0.0
+            if has_i:
+                c_i = ox[i] * gx + oy[i] * gy
+                if c_i < min_cos and not closing:
+                    continue
+                s += c_i
+            if has_j:
+                c_j = -ox[j] * gx + -oy[j] * gy
+                if c_j < min_cos and not closing:
+                    continue
+                s += c_j
+            if not has_i and not has_j and deg[j] > 0:
+                continue  # an isolated node joins only where a line's direction leads
+            if m == cap:
+                cap *= 2
+                score2 = np.empty(cap)
+                ci2 = np.empty(cap, np.int64)
+                cj2 = np.empty(cap, np.int64)
+                score2[:m], ci2[:m], cj2[:m] = score[:m], ci[:m], cj[:m]
+                score, ci, cj = score2, ci2, cj2
+            score[m] = s - dj / max_gap
+            ci[m] = i
+            cj[m] = j
+            m += 1
+        for k in range(n_seen):
+            steps[seen[k]] = False
+    return score[:m].copy(), ci[:m].copy(), cj[:m].copy()
+
+
 def line_structure_graph(white_lp: np.ndarray, conf: dict
                          ) -> tuple[LineGraph, np.ndarray, np.ndarray]:
     """Section 3.2-3.3 on the low-passed white image: skeleton, nodes, connections, stretching,
     splitting of isolated nodes and gap filling. Returns (graph, skeleton, regions)."""
-    skeleton, c = ranking_skeleton(white_lp, conf["min_white"])
-    pix, regions = place_nodes(white_lp, skeleton, c)
+    key = ranking_keys(white_lp)
+    skeleton, c = ranking_skeleton(white_lp, conf["min_white"], key)
+    pix, regions = place_nodes(white_lp, skeleton, c, key)
     adj = connect_nodes(regions, len(pix))
     graph = LineGraph(pix, pix.astype(np.float64), white_lp[pix[:, 1], pix[:, 0]]
                       if len(pix) else np.zeros(0), adj)
@@ -468,22 +711,80 @@ def _chain_length(pos: np.ndarray, chain: list[int]) -> float:
 
 def remove_short_lines(graph: LineGraph, min_length: float) -> LineGraph:
     """Eliminate short lines ending in junctions: a path from an end node to a node of degree
-    >= 3 shorter than ``min_length`` cells is removed (returns a new graph)."""
+    >= 3 shorter than ``min_length`` cells is removed (returns a new graph). The end nodes
+    are walked in order, each on the graph as the earlier removals left it (compiled:
+    ``_short_spurs``); the removed connections are then taken out of the copy's sets in the
+    same order."""
     g = graph.copy()
-    deg = g.degree()
-    for e in np.nonzero(deg == 1)[0]:
-        path = [int(e)]
-        prev, cur = -1, int(e)
-        while True:
-            nxt = [k for k in g.adj[cur] if k != prev]
-            if len(g.adj[cur]) != (1 if cur == e else 2) or not nxt:
-                break
-            prev, cur = cur, nxt[0]
-            path.append(cur)
-        if len(g.adj[cur]) >= 3 and _chain_length(g.pos, path) < min_length:
-            for a, b in zip(path[:-1], path[1:]):
-                g.disconnect(a, b)
+    if len(g) == 0:
+        return g
+    start, nbr = _neighbour_lists(g.adj)
+    cut = _short_spurs(start, nbr, np.ascontiguousarray(g.pos, np.float64), float(min_length))
+    for a, b in cut.tolist():
+        g.disconnect(a, b)
     return g
+
+
+@njit("int64[:, ::1](int64[::1], int64[::1], float64[:, ::1], float64)", cache=True,
+      nogil=True)
+def _short_spurs(start, nbr, pos, min_length):
+    """remove_short_lines' walks: from each end node (degree 1 at the start, in index order)
+    along nodes of degree 2 to the first node of another degree; where that is a junction
+    (degree >= 3) and the path is shorter than ``min_length`` (its steps' lengths summed as
+    numpy sums them, block_sum), the path's connections are removed (here and from the
+    degrees the later walks see). Returns the removed connections (a, b) in order."""
+    n = len(start) - 1
+    alive = np.ones(len(nbr), np.bool_)
+    deg = np.empty(n, np.int64)
+    for i in range(n):
+        deg[i] = start[i + 1] - start[i]
+    ends = np.nonzero(deg == 1)[0]
+    path = np.empty(n + 1, np.int64)
+    steps = np.empty(n + 1)
+    cut = np.empty((len(nbr), 2), np.int64)
+    m = 0
+    for e in ends:
+        path[0] = e
+        np_ = 1
+        prev, cur = -1, e
+        while True:
+            if deg[cur] != (1 if cur == e else 2):
+                break
+            nxt = -1
+            for k in range(start[cur], start[cur + 1]):
+                if alive[k] and nbr[k] != prev:
+                    nxt = nbr[k]
+                    break
+            if nxt < 0:
+                break
+            prev, cur = cur, nxt
+            path[np_] = cur
+            np_ += 1
+            if np_ > n:  # a ring of degree-2 nodes back to the end: the walk went round
+                break
+        if deg[cur] < 3:
+            continue
+        length = 0.0
+        if np_ > 1:
+            for k in range(np_ - 1):
+                steps[k] = math.hypot(pos[path[k + 1], 0] - pos[path[k], 0],
+                                      pos[path[k + 1], 1] - pos[path[k], 1])
+            length = block_sum(steps[:np_ - 1])
+        if length >= min_length:
+            continue
+        for k in range(np_ - 1):
+            a, b = path[k], path[k + 1]
+            for q in range(start[a], start[a + 1]):
+                if alive[q] and nbr[q] == b:
+                    alive[q] = False
+                    deg[a] -= 1
+            for q in range(start[b], start[b + 1]):
+                if alive[q] and nbr[q] == a:
+                    alive[q] = False
+                    deg[b] -= 1
+            cut[m, 0], cut[m, 1] = a, b
+            m += 1
+    return cut[:m].copy()
 
 
 def trace_chains(graph: LineGraph) -> list[list[int]]:
@@ -540,15 +841,18 @@ def smooth_lines(graph: LineGraph, iterations: int = 2) -> np.ndarray:
 
 def turning_angles(chains: list[list[int]], pos: np.ndarray, reach: float,
                    floor: np.ndarray | None = None
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
     """Turning angle (rad) at every node of every chain, measured with arms reaching ``reach``
-    along the chain on both sides (0 at a chain's ends), all chains at once. With ``floor``
-    (the nodes' floor positions, (N, 2), NaN where unknown) the arms are those nodes' floor
-    points, so the angle is the one on the floor (a far L corner looks nearly straight in a
-    perspective image). Returns the angles, the arc length of each node along its chain and
-    the chain's first index, all over the chains' concatenated nodes."""
+    along the chain on both sides (0 at a chain's ends), all chains at once, in the image and,
+    with ``floor`` (the nodes' floor positions, (N, 2), NaN where unknown), on the floor too:
+    there the arms are those nodes' floor points where known (a far L corner looks nearly
+    straight in a perspective image). The chains' arcs and arms are found once for both.
+    Returns the image angles, the floor angles (None without ``floor``), the arc length of
+    each node along its chain and the chain's first index, all over the chains' concatenated
+    nodes."""
     if not chains:
-        return np.zeros(0), np.zeros(0), np.zeros(0, int)
+        return np.zeros(0), (None if floor is None else np.zeros(0)), np.zeros(0), \
+            np.zeros(0, int)
     lens = np.array([len(c) for c in chains], dtype=int)
     idx = np.concatenate(chains).astype(int)
     pts = pos[idx]
@@ -563,20 +867,29 @@ def turning_angles(chains: list[list[int]], pos: np.ndarray, reach: float,
     key = arc + far
     back = np.clip(np.searchsorted(key, key - reach, side="right") - 1, start, last)
     fwd = np.clip(np.searchsorted(key, key + reach, side="left"), start, last)
+    ends = (np.arange(len(idx)) == start) | (np.arange(len(idx)) == last)
     a = pts - pts[back]
     b = pts[fwd] - pts
+    turn = _turns(a, b, ends)
+    floor_turn = None
     if floor is not None:
         fl = floor[idx]
         fa, fb = fl - fl[back], fl[fwd] - fl
         known = np.all(np.isfinite(fa), axis=1) & np.all(np.isfinite(fb), axis=1)
-        a = np.where(known[:, None], fa, a)
-        b = np.where(known[:, None], fb, b)
+        floor_turn = _turns(np.where(known[:, None], fa, a), np.where(known[:, None], fb, b),
+                            ends)
+    return turn, floor_turn, arc, start
+
+
+def _turns(a: np.ndarray, b: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """The angles (rad) between the arms a (back) and b (forward), (N, 2) each; 0 at ``ends``
+    and where an arm is empty."""
     na, nb = np.hypot(*a.T), np.hypot(*b.T)
     ok = (na > 0) & (nb > 0)
     cosang = np.where(ok, (a * b).sum(axis=1) / np.where(ok, na * nb, 1.0), 1.0)
     turn = np.arccos(np.clip(cosang, -1.0, 1.0))
-    turn[(np.arange(len(idx)) == start) | (np.arange(len(idx)) == last)] = 0.0
-    return turn, arc, start
+    turn[ends] = 0.0
+    return turn
 
 
 def corner_nodes(turn: np.ndarray, arc: np.ndarray, reach: float, min_turn: float) -> list[int]:
@@ -614,11 +927,12 @@ def key_structure(graph: LineGraph, conf: dict, floor_of=None) -> KeyStructure:
 
     edges = []
     min_turn, reach = conf["corner_min_turn"], conf["corner_reach"]
-    turn, arc, start = turning_angles(chains, smooth, reach)
-    if floor_of is not None and len(smooth):
+    on_floor = floor_of is not None and len(smooth)
+    turn, floor_turn, arc, start = turning_angles(
+        chains, smooth, reach, floor_of(smooth) if on_floor else None)
+    if on_floor:
         # on the floor, where the image turns at least a little: far from the camera a pixel
         # of noise is a large floor angle
-        floor_turn, _, _ = turning_angles(chains, smooth, reach, floor_of(smooth))
         turn = np.where(turn >= conf["corner_min_turn_image"], floor_turn, 0.0)
         min_turn = conf["corner_min_turn_floor"]
     firsts = np.unique(start)

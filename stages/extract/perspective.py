@@ -21,6 +21,7 @@ boundary, line_ends, line_ends_px, lines, crossings, crossings_px, posts, posts_
 from __future__ import annotations
 
 import copy
+import functools
 import math
 
 import cv2
@@ -225,13 +226,19 @@ def delete_unreliable_corners(counts: np.ndarray, radius_share: float) -> np.nda
     from the image centre (the wide-angle lens's unreliable corners)."""
     if radius_share >= 1.0:
         return counts
-    h, w = counts.shape[:2]
+    out = counts.copy()
+    out[_far_cells(counts.shape[0], counts.shape[1], float(radius_share))] = 0
+    return out
+
+
+@functools.lru_cache(maxsize=8)
+def _far_cells(h: int, w: int, radius_share: float) -> np.ndarray:
+    """The cells (h, w) bool of delete_unreliable_corners (computed once per grid)."""
     y = (np.arange(h) + 0.5 - h / 2)[:, None]
     x = (np.arange(w) + 0.5 - w / 2)[None, :]
     far = np.hypot(x, y) > radius_share * math.hypot(w / 2, h / 2)
-    out = counts.copy()
-    out[far] = 0
-    return out
+    far.setflags(write=False)
+    return far
 
 
 class IdealPixels:

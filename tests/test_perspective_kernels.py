@@ -1,0 +1,370 @@
+"""Issue 9's compiled kernels of the perspective chain give what the numpy and Python code
+they replaced computed, exactly (the features must not change: see also
+test_extract_perspective_unchanged.py), on random inputs beyond the reference frames:
+
+- colour.classify_cells (``_hue_row``, ``_hue_cells``) against the per-pixel class masks;
+- colour's ``_green_candidates`` against the field green search's numpy formulas;
+- line_structure's ``_gap_candidates`` (fill_gaps) against its former Python loop;
+- line_structure's ``_farthest_pairs`` (split_isolated_nodes) against np.argmax of the
+  regions' distance matrices.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from stages.common import colour
+from stages.extract import line_structure as ls
+from stages.extract import perspective
+
+
+def _random_frame(rng, h, w):
+    """A YUV frame (h, w, 3) uint8: noisy green carpet, white strokes, grey and coloured
+    patches, clipped bright and dark areas."""
+    yuv = np.empty((h, w, 3), np.uint8)
+    yuv[..., 0] = np.clip(rng.normal(95, 25, (h, w)), 0, 255)
+    yuv[..., 1] = np.clip(rng.normal(105, 8, (h, w)), 0, 255)
+    yuv[..., 2] = np.clip(rng.normal(100, 8, (h, w)), 0, 255)
+    for _ in range(12):  # white strokes, other colours, saturated blocks
+        r, c = rng.integers(0, h - 8), rng.integers(0, w - 8)
+        hh, ww = rng.integers(2, 40), rng.integers(2, 40)
+        kind = rng.integers(3)
+        patch = yuv[r:r + hh, c:c + ww]
+        if kind == 0:
+            patch[..., 0] = rng.integers(170, 256)
+            patch[..., 1:] = 128 + rng.integers(-6, 7, patch[..., 1:].shape)
+        elif kind == 1:
+            patch[...] = rng.integers(0, 256, patch.shape)
+        else:
+            patch[..., 0] = rng.choice([0, 255])
+    return yuv
+
+
+@pytest.mark.parametrize("seed,shape,local_map", [(0, (480, 752), True), (1, (480, 640), True),
+                                                   (2, (483, 757), True), (3, (96, 120), False)])
+def test_classify_cells_equals_the_class_masks(seed, shape, local_map):
+    rng = np.random.default_rng(seed)
+    yuv = _random_frame(rng, *shape)
+    conf = perspective.confs["default"]["colour"]
+    fc = colour.estimate_field_colour(yuv, conf)
+    assert fc.hue_dir is not None
+    fc.hue_cos = math.cos(rng.uniform(0.2, 0.6))  # a few tolerances, bands and thresholds
+    fc.saturation = (rng.uniform(0.02, 0.1), rng.uniform(0.2, 0.6))
+    if not local_map:
+        fc.y_map = None
+    cell = 8
+    white_px = np.zeros(shape, np.uint8)
+    counts = colour.classify_cells(yuv, fc, conf, cell, white_px)
+    green, white = colour.classify_masks(yuv, fc, conf)
+    hb, wb = shape[0] // cell, shape[1] // cell
+    np.testing.assert_array_equal(counts, colour._counts(green, white, cell))
+    np.testing.assert_array_equal(white_px[:hb * cell].view(bool), white[:hb * cell])
+    assert not white_px[hb * cell:].any()  # rows below the last whole cell are not classified
+    assert counts[..., 0].sum() > 100 and counts[..., 1].sum() > 100  # both classes occur
+    assert colour.classify_cells(yuv, fc, conf, cell) is not None  # without the white mask
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_green_candidates_equal_the_numpy_formulas(seed):
+    rng = np.random.default_rng(seed)
+    sub = rng.integers(0, 256, (5000, 3)).astype(np.uint8)
+    sub[:2000, 1:] = np.clip(rng.normal(110, 10, (2000, 2)), 0, 255)
+    chroma = colour._green_candidate_chroma((-170.0, -75.0), 6.0)
+    y_lo, y_hi, min_sat = int(rng.integers(0, 40)), int(rng.integers(200, 256)), 0.15
+    y_c, u_c, v_c, uu, vv, hist = colour._green_candidates(sub, chroma, y_lo, y_hi, True,
+                                                           np.float32(min_sat * min_sat))
+    y8, u8, v8 = sub[:, 0], sub[:, 1], sub[:, 2]
+    cand = chroma[(u8.astype(np.int64) << 8) | v8] & (y8 >= y_lo) & (y8 <= y_hi)
+    du, dv = u8.astype(np.float32) - np.float32(128.0), v8.astype(np.float32) - np.float32(128.0)
+    cand &= du * du + dv * dv >= np.float32(min_sat * min_sat) * (y8.astype(np.float32) ** 2)
+    assert cand.sum() > 100
+    np.testing.assert_array_equal(y_c, y8[cand])
+    np.testing.assert_array_equal(u_c, u8[cand])
+    np.testing.assert_array_equal(v_c, v8[cand])
+    scale = colour.Y_REF / np.maximum(y8[cand].astype(np.float32), 1.0)
+    ref_u = (u8[cand].astype(np.float32) - 128.0) * scale
+    ref_v = (v8[cand].astype(np.float32) - 128.0) * scale
+    np.testing.assert_array_equal(uu, ref_u)
+    np.testing.assert_array_equal(vv, ref_v)
+    bins = (np.clip(ref_u + 128.0, 0, 255).astype(np.int32) >> 3) * 32 + (
+        np.clip(ref_v + 128.0, 0, 255).astype(np.int32) >> 3)
+    np.testing.assert_array_equal(hist, np.bincount(bins, minlength=1024))
+
+
+def _random_graph(rng, n=60):
+    """A LineGraph of polylines, isolated nodes and a few junctions on a 40 x 30 grid."""
+    pos = rng.uniform(0, [40, 30], (n, 2))
+    adj = [set() for _ in range(n)]
+    k = 0
+    while k < n - 6:
+        length = int(rng.integers(1, 6))
+        for a in range(k, min(k + length, n - 1)):
+            adj[a].add(a + 1)
+            adj[a + 1].add(a)
+            pos[a + 1] = pos[a] + rng.normal(0, 1.2, 2)
+        k += length + 1 + int(rng.integers(0, 2))
+    for _ in range(3):  # junctions
+        a, b = (int(v) for v in rng.integers(0, n, 2))
+        if a != b:
+            adj[a].add(b)
+            adj[b].add(a)
+    pix = np.round(pos).astype(int)
+    return ls.LineGraph(pix, pos, rng.uniform(0.1, 1.0, n).astype(np.float32), adj)
+
+
+def _reference_outward(graph, i, reach=3):
+    if len(graph.adj[i]) != 1:
+        return None
+    prev, cur = i, next(iter(graph.adj[i]))
+    for _ in range(reach - 1):
+        nxt = [k for k in graph.adj[cur] if k != prev]
+        if len(nxt) != 1:
+            break
+        prev, cur = cur, nxt[0]
+    dx = float(graph.pos[i, 0] - graph.pos[cur, 0])
+    dy = float(graph.pos[i, 1] - graph.pos[cur, 1])
+    n = float(np.hypot(dx, dy))
+    return (dx / n, dy / n) if n > 0 else None
+
+
+def _reference_candidates(graph, max_gap, min_cos, close_gap):
+    """fill_gaps' candidate loop as it was written in Python before the kernel."""
+    deg = graph.degree()
+    loose = np.nonzero(deg <= 1)[0]
+    pos = graph.pos
+    d = np.hypot(*(pos[loose][:, None, :] - pos[None, :, :]).transpose(2, 0, 1))
+    near_all = (d <= max_gap) & (d > 0)
+    outward = {i: _reference_outward(graph, i) for i in loose.tolist()}
+    xy, deg_l, cand = pos.tolist(), deg.tolist(), []
+    for a, i in enumerate(loose.tolist()):
+        near = np.nonzero(near_all[a])[0]
+        steps, frontier = {i}, {i}
+        for _ in range(3):
+            frontier = {k for f in frontier for k in graph.adj[f]} - steps
+            steps |= frontier
+        out_i = outward[i]
+        for j in near.tolist():
+            if j in steps:
+                continue
+            dj = float(d[a][j])
+            gx, gy = (xy[j][0] - xy[i][0]) / dj, (xy[j][1] - xy[i][1]) / dj
+            out_j = outward.get(j) if deg_l[j] <= 1 else None
+            closing = dj <= close_gap and deg_l[j] == 1 and deg_l[i] == 1
+            score = 0.0
+            if out_i is not None:
+                ci = out_i[0] * gx + out_i[1] * gy
+                if ci < min_cos and not closing:
+                    continue
+                score += ci
+            if out_j is not None:
+                cj = -out_j[0] * gx + -out_j[1] * gy
+                if cj < min_cos and not closing:
+                    continue
+                score += cj
+            if out_i is None and out_j is None and deg_l[j] > 0:
+                continue
+            cand.append((score - dj / max_gap, i, j))
+    return cand
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_gap_candidates_equal_the_python_loop(seed):
+    rng = np.random.default_rng(seed)
+    graph = _random_graph(rng)
+    sc = perspective.confs["default"]["skeleton"]
+    max_gap, min_cos, close_gap = sc["max_gap"], math.cos(sc["gap_max_angle"]), sc["close_gap"]
+    deg = graph.degree()
+    loose = np.nonzero(deg <= 1)[0]
+    start, nbr = ls._neighbour_lists(graph.adj)
+    score, ci, cj = ls._gap_candidates(graph.pos, start, nbr, deg.astype(np.int64),
+                                       loose.astype(np.int64), max_gap, min_cos, close_gap)
+    ref = _reference_candidates(graph, max_gap, min_cos, close_gap)
+    assert len(ref) >= 3
+    assert list(zip(score.tolist(), ci.tolist(), cj.tolist())) == ref
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_farthest_pairs_are_the_first_argmax_of_the_distances(seed):
+    rng = np.random.default_rng(seed)
+    counts = rng.integers(1, 10, 30)  # pixels per region (ties: few distinct distances)
+    start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    xs = rng.integers(0, 4, start[-1]).astype(np.int64)
+    ys = rng.integers(0, 4, start[-1]).astype(np.int64)
+    lonely = np.sort(rng.choice(30, 20, replace=False)).astype(np.int64)
+    got = ls._farthest_pairs(xs, ys, start, lonely)
+    for k, i in enumerate(lonely):
+        px = np.stack([xs[start[i]:start[i + 1]], ys[start[i]:start[i + 1]]], axis=1)
+        if len(px) < 2:
+            assert (got[k] == -1).all()
+            continue
+        d = np.hypot(*(px[:, None, :] - px[None, :, :]).transpose(2, 0, 1))
+        a, b = np.unravel_index(np.argmax(d), d.shape)
+        assert got[k].tolist() == [*px[a], *px[b]]
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_stretched_ends_are_the_farthest_region_pixels(seed):
+    """stretch_lines (compiled) against its former numpy form: per end node, the first
+    pixel in row-major order of its region at the largest distance from its neighbour."""
+    rng = np.random.default_rng(seed)
+    graph = _random_graph(rng, 40)
+    regions = np.zeros((30, 40), np.int32)
+    for i, (x, y) in enumerate(graph.pix.tolist()):  # each node's 3 x 3 region, clipped
+        regions[max(y - 1, 0):y + 2, max(x - 1, 0):x + 2] = i + 1
+    for i, (x, y) in enumerate(graph.pix.tolist()):
+        regions[min(max(y, 0), 29), min(max(x, 0), 39)] = i + 1
+    ref = graph.pix.copy()
+    deg = graph.degree()
+    ends = np.nonzero(deg == 1)[0]
+    ys, xs = np.nonzero(regions)
+    lab = regions[ys, xs] - 1
+    sel = np.isin(lab, ends)
+    ys, xs, lab = ys[sel], xs[sel], lab[sel]
+    other = np.zeros(len(graph), int)
+    for i in ends:
+        other[i] = next(iter(graph.adj[i]))
+    d = np.hypot(xs - graph.pos[other[lab], 0], ys - graph.pos[other[lab], 1])
+    order = np.lexsort((-d, lab))
+    first = np.ones(len(order), bool)
+    first[1:] = lab[order][1:] != lab[order][:-1]
+    best = order[first]
+    ref[lab[best]] = np.stack([xs[best], ys[best]], axis=1)
+    assert len(best) >= 5
+    ls.stretch_lines(graph, regions)
+    np.testing.assert_array_equal(graph.pix, ref)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_subpixel_positions_equal_the_numpy_centroids(dtype):
+    """subpixel_positions (compiled, numpy's summation order) against its former numpy
+    form, bit for bit: windows at the image's edges, all-zero windows, ties."""
+    rng = np.random.default_rng(5)
+    image = rng.uniform(0, 1, (30, 40)).astype(dtype)
+    image[rng.uniform(size=image.shape) < 0.3] = 0  # empty and partly empty windows
+    image[10:13, 10:13] = 0
+    pix = np.concatenate([rng.integers(0, [40, 30], (300, 2)), [[0, 0], [39, 29], [11, 11]]])
+    pad = np.zeros((32, 42), dtype)
+    pad[1:-1, 1:-1] = image
+    offs = np.array([(dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)])
+    wts = pad[pix[:, 1:2] + 1 + offs[None, :, 1], pix[:, 0:1] + 1 + offs[None, :, 0]].astype(
+        np.float64)
+    wsum = wts.sum(axis=1)
+    wsum[wsum <= 0] = 1.0
+    ref = pix.astype(np.float64) + np.stack([(wts * offs[None, :, 0]).sum(axis=1) / wsum,
+                                             (wts * offs[None, :, 1]).sum(axis=1) / wsum], 1)
+    got = ls.subpixel_positions(image, pix)
+    assert got.tobytes() == ref.tobytes()
+
+
+@pytest.mark.parametrize("n", [1, 5, 8, 9, 17, 64, 128, 129, 300, 1000])
+def test_block_sum_is_numpys_sum(n):
+    rng = np.random.default_rng(n)
+    for _ in range(200):
+        a = rng.normal(size=n) * 10.0 ** rng.integers(-3, 4, n)
+        assert ls.block_sum(a) == a.sum()
+
+
+def _reference_remove_short_lines(graph, min_length):
+    g = graph.copy()
+    deg = g.degree()
+    for e in np.nonzero(deg == 1)[0]:
+        path = [int(e)]
+        prev, cur = -1, int(e)
+        while True:
+            nxt = [k for k in g.adj[cur] if k != prev]
+            if len(g.adj[cur]) != (1 if cur == e else 2) or not nxt:
+                break
+            prev, cur = cur, nxt[0]
+            path.append(cur)
+        p = g.pos[path]
+        length = float(np.hypot(*np.diff(p, axis=0).T).sum()) if len(path) > 1 else 0.0
+        if len(g.adj[cur]) >= 3 and length < min_length:
+            for a, b in zip(path[:-1], path[1:]):
+                g.disconnect(a, b)
+    return g
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_remove_short_lines_equals_the_python_walks(seed):
+    """The compiled walks remove the same connections, in the same order (the sets left
+    iterate alike), as the former Python loop; spurs sharing a junction see each other's
+    removal."""
+    rng = np.random.default_rng(seed)
+    graph = _random_graph(rng, 80)
+    for _ in range(12):  # spurs of one to three nodes at junctions
+        j, a = int(rng.integers(0, 80)), int(rng.integers(0, 80))
+        if a != j and len(graph.adj[a]) == 0:
+            graph.connect(a, j)
+    ref = _reference_remove_short_lines(graph, 2.5)
+    got = ls.remove_short_lines(graph, 2.5)
+    assert [list(a) for a in got.adj] == [list(a) for a in ref.adj]
+    assert sum(map(len, ref.adj)) < sum(map(len, graph.adj))  # some were removed
+
+
+def _reference_connect_nodes(regions, n):
+    r = regions
+    pairs = []
+    for a, b in ((r[:, :-1], r[:, 1:]), (r[:-1, :], r[1:, :]),
+                 (r[:-1, :-1], r[1:, 1:]), (r[:-1, 1:], r[1:, :-1])):
+        m = (a > 0) & (b > 0) & (a != b)
+        pairs.append(np.stack([a[m], b[m]], axis=1))
+    e = np.sort(np.concatenate(pairs).astype(np.int64) - 1, axis=1)
+    code = np.unique(e[:, 0] * n + e[:, 1])
+    adj = [set() for _ in range(n)]
+    for i, j in zip((code // n).tolist(), (code % n).tolist()):
+        adj[i].add(j)
+        adj[j].add(i)
+    return adj
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_connect_nodes_fills_the_sets_as_before(seed):
+    """The compiled links give the same sets, iterating in the same order (set order follows
+    insertion), as adding the connections one by one did."""
+    rng = np.random.default_rng(seed)
+    n = 150
+    regions = rng.integers(0, n + 1, (40, 60)).astype(np.int32)
+    regions[rng.uniform(size=regions.shape) < 0.6] = 0
+    ref = _reference_connect_nodes(regions, n)
+    got = ls.connect_nodes(regions, n)
+    assert sum(map(len, ref)) > 100
+    assert [list(a) for a in got] == [list(a) for a in ref]
+
+
+def _reference_split_isolated_nodes(graph, regions, image):
+    deg = graph.degree()
+    ys, xs = np.nonzero(regions)
+    lab = regions[ys, xs] - 1
+    for i in np.nonzero(deg == 0)[0].tolist():
+        px = np.stack([xs[lab == i], ys[lab == i]], axis=1)
+        if len(px) < 2:
+            continue
+        d = np.hypot(*(px[:, None, :] - px[None, :, :]).transpose(2, 0, 1))
+        a, b = np.unravel_index(np.argmax(d), d.shape)
+        graph.pix[i] = px[a]
+        j = graph.add_node(px[b], px[b].astype(float), image[px[b][1], px[b][0]])
+        graph.connect(i, j)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_split_isolated_nodes_as_before(seed):
+    rng = np.random.default_rng(seed)
+    graph = _random_graph(rng, 40)
+    graph.pix = np.clip(graph.pix, 0, [39, 29])
+    regions = np.zeros((30, 40), np.int32)
+    for i, (x, y) in enumerate(graph.pix.tolist()):
+        win = regions[max(y - 1, 0):y + 2, max(x - 1, 0):x + 2]
+        win[rng.uniform(size=win.shape) < 0.5] = i + 1
+        regions[y, x] = i + 1
+    image = rng.uniform(0, 1, regions.shape).astype(np.float32)
+    ref, got = graph.copy(), graph.copy()
+    _reference_split_isolated_nodes(ref, regions, image)
+    ls.split_isolated_nodes(got, regions, image)
+    assert len(ref) > len(graph)
+    for name in ("pix", "pos", "value"):
+        a, b = getattr(got, name), getattr(ref, name)
+        assert a.dtype == b.dtype and a.tobytes() == b.tobytes(), name
+    assert [list(a) for a in got.adj] == [list(a) for a in ref.adj]
