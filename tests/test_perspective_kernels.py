@@ -59,7 +59,7 @@ def test_classify_cells_equals_the_class_masks(seed, shape, local_map):
     white_px = np.zeros(shape, np.uint8)
     counts = colour.classify_cells(yuv, fc, conf, cell, white_px)
     green, white = colour.classify_masks(yuv, fc, conf)
-    hb, wb = shape[0] // cell, shape[1] // cell
+    hb = shape[0] // cell
     np.testing.assert_array_equal(counts, colour._counts(green, white, cell))
     np.testing.assert_array_equal(white_px[:hb * cell].view(bool), white[:hb * cell])
     assert not white_px[hb * cell:].any()  # rows below the last whole cell are not classified

@@ -264,7 +264,7 @@ def estimate_field_colour(yuv: np.ndarray, conf: dict, valid: np.ndarray | None 
     subsampling."""
     sub = _sample_pixels(yuv, step, None if valid is None else valid[::step, ::step])
     n_valid = max(len(sub), 1)
-    y8, u8, v8 = sub[:, 0], sub[:, 1], sub[:, 2]
+    y8 = sub[:, 0]
     y0, y1 = conf["green_search_y"]
     min_sat = float(conf.get("green_min_saturation", 0.0))
     # the green candidates (hue window, luminance range, chroma relative to luminance: a lit

@@ -30,8 +30,6 @@ import cv2
 import numpy as np
 from numba import njit
 
-
-
 # ---------------------------------------------------------------------------- 3.2 skeleton
 
 
