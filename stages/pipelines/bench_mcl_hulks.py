@@ -29,6 +29,8 @@ HULKS = REALDATA / "hulks-goalbox-labels" / "measurements"
 STILL_UPDATES = 15  # frames of a still robot: the capture repeated
 STILL_DT = 0.1  # s between them
 NON_PARALLEL = math.radians(20)  # two lines this far from parallel fix a pose (with the map)
+DECIDED_NATS = math.log(20.0)  # a frame decides its place when every other is 20x less likely
+PLACE_M, PLACE_DEG = 1.0, 30.0  # poses farther apart than this are other places
 GOAL_M, GOAL_DEG = 0.5, 15.0
 
 
@@ -42,6 +44,10 @@ class StillResult:
     confidence: float  # the last frame's top hypothesis probability
     pair: float  # the last frame's top hypothesis and its mirror together
     error_m: float  # position error of the better of the top pose and its mirror
+    # what the frame itself decides (``decided``): its best place by brute force, unique up to
+    # the mirror by DECIDED_NATS, and whether that place is the truth (or its mirror)
+    decided: bool = False
+    truth_best: bool = False
 
 
 def label_pose(capture: Path, field) -> np.ndarray | None:
@@ -91,6 +97,65 @@ def _write(path: Path, lines: list[str]) -> None:
         Path(tmp).write_text("\n".join(lines) + "\n")
 
 
+def decided(model, obs, field, truth, frames: int = STILL_UPDATES) -> tuple[bool, bool]:
+    """(whether the frame decides its place, whether that place is the truth): the
+    observation model's log-likelihood of one frame's ``obs`` over the whole field by brute
+    force (0.1 m x 3 deg, the field and half a metre around), its five best places (poses
+    more than PLACE_M or PLACE_DEG apart, a place's mirror image counted with it) each refined
+    on two finer local grids (to 1 cm x 0.25 deg); the frame decides its place when the best
+    beats every other by DECIDED_NATS (20 : 1), and that place is the truth when it or its
+    mirror lies within GOAL_M and GOAL_DEG of ``truth``. The odds are those of ``frames``
+    still frames as the filter weighs them (each repeated frame as new evidence: the model's
+    one-frame log-likelihoods are tempered, a frame's best and second place often lie 1-2
+    nats apart). Independent of the filter's search: what the map and the model decide, so
+    that a miss there is the filter's, a wrong place the model's or the extraction's, and an
+    undecided frame ambiguous."""
+    hx, hy = field.length / 2 + 0.5, field.width / 2 + 0.5
+    xs, ys = np.arange(-hx, hx + 1e-9, 0.1), np.arange(-hy, hy + 1e-9, 0.1)
+    ths = np.radians(np.arange(-180.0, 180.0, 3.0))
+    X, Y, T = np.meshgrid(xs, ys, ths, indexing="ij")
+    prep = model.prepare(obs)
+    ll = model.log_likelihood(X.ravel(), Y.ravel(), T.ravel(), prep)
+
+    def same_place(a, b) -> bool:
+        for q in (b, field.mirror_pose(b)):
+            turn = abs((a[2] - q[2] + math.pi) % (2 * math.pi) - math.pi)
+            if math.hypot(a[0] - q[0], a[1] - q[1]) <= PLACE_M and \
+                    turn <= math.radians(PLACE_DEG):
+                return True
+        return False
+
+    order = np.argsort(-ll, kind="stable")
+    poses = np.stack([X.ravel(), Y.ravel(), T.ravel()], axis=1)
+    places: list[np.ndarray] = []
+    for i in order[:20000]:
+        if not any(same_place(poses[i], q) for q in places):
+            places.append(poses[i])
+            if len(places) == 5:
+                break
+
+    def refined(p):
+        best, val = np.asarray(p, float), -math.inf
+        for half, step, turn, dstep in ((0.1, 0.02, 3.0, 0.5), (0.02, 0.005, 0.5, 0.125)):
+            d = np.arange(-half, half + 1e-9, step)
+            a = np.radians(np.arange(-turn, turn + 1e-9, dstep))
+            DX, DY, DA = np.meshgrid(d, d, a, indexing="ij")
+            v = model.log_likelihood(best[0] + DX.ravel(), best[1] + DY.ravel(),
+                                     best[2] + DA.ravel(), prep)
+            k = int(np.argmax(v))
+            if v[k] > val:
+                val = float(v[k])
+                best = np.array([best[0] + DX.ravel()[k], best[1] + DY.ravel()[k],
+                                 best[2] + DA.ravel()[k]])
+        return best, val
+
+    scored = sorted((refined(p) for p in places), key=lambda e: -e[1])
+    top, top_ll = scored[0]
+    rest = [v for q, v in scored[1:] if not same_place(top, q)]
+    is_decided = not rest or frames * (top_ll - max(rest)) >= DECIDED_NATS
+    return bool(is_decided), bool(judged(top, truth, field)[0])
+
+
 def localise_still(capture: Path, map_file: Path, work: Path, field, model,
                    updates: int = STILL_UPDATES) -> StillResult | None:
     """One capture through the product path (still_dataset, extract and localize mains with
@@ -98,6 +163,7 @@ def localise_still(capture: Path, map_file: Path, work: Path, field, model,
     the labels give no pose. ``model``: an mcl observation model (its ``usable`` says which
     observations count for the goal's condition)."""
     from .. import extract, localize
+    from ..common.camera import load_calib
     from ..common.features_file import FeaturesFile
     from ..common.observations import Observations
     from ..common.poses_file import read_poses
@@ -114,8 +180,11 @@ def localise_still(capture: Path, map_file: Path, work: Path, field, model,
     cols, _ = read_poses(poses)
     h = np.asarray(cols["hypotheses"][-1], float)
     hit, best = judged(h[0, :3], truth, field)
+    own = model.with_conf(dict(model.conf, camera_height=load_calib(
+        data / "calib.yaml").height))  # as localize's mcl takes it from calib.yaml
+    is_decided, truth_best = decided(own, obs, field, truth, updates)
     return StillResult(capture.stem, informative(obs), bool(hit), float(h[0, 3]),
-                       pair_share(h, field), best)
+                       pair_share(h, field), best, is_decided, truth_best)
 
 
 def judged(top, truth, field) -> tuple[bool, float]:
@@ -206,15 +275,18 @@ def rendered_still(preset: str, field_name: str, poses, seeds=(0, 1),
         image = renderer.render_view(pose, cam.pitch, cam.roll, frame=0)
         obs = Observations.from_features(perspective.extract_frame(
             image, cam, perspective.confs["default"], pitch=cam.pitch, roll=cam.roll))
+        usable = model.usable(obs)
+        is_decided, truth_best = decided(model, usable, fm, pose, updates)
         for seed in seeds:
             pf = mcl.ParticleFilter(model, dict(conf, observation=obs_conf, seed=seed))
             pf.initialise()
             for i in range(updates):
                 est = pf.step(np.zeros(3), STILL_DT, obs, first=i == 0)
             hit, best = judged(est.hypotheses[0, :3], pose, fm)
-            out.append(StillResult(f"{preset}-{k}-seed{seed}", informative(model.usable(obs)),
+            out.append(StillResult(f"{preset}-{k}-seed{seed}", informative(usable),
                                    hit, float(est.hypotheses[0, 3]),
-                                   pair_share(est.hypotheses, fm), best))
+                                   pair_share(est.hypotheses, fm), best, is_decided,
+                                   truth_best))
     return out
 
 
@@ -255,6 +327,12 @@ def summary(res: list[StillResult], min_confidence: float) -> dict:
         "auroc_1m": auroc(pair, near) if 0 < near.sum() < len(near) else math.nan,
         "confidently_wrong": int(np.sum((pair >= min_confidence) & ~near)),
         "frames": len(res),
+        # the informative frames that decide their place (decided), and of those the ones
+        # whose place is the truth: there a miss is the filter's
+        "decided": sum(r.decided for r in inf),
+        "decided_truth": sum(r.decided and r.truth_best for r in inf),
+        "decided_truth_hits": sum(r.decided and r.truth_best and r.hit for r in inf),
+        "undecided_hits": sum((not r.decided) and r.hit for r in inf),
     }
 
 
@@ -269,7 +347,11 @@ def _note(s: dict) -> str:
             f" ({len(s['pair_uninformative'])}): {few(s['pair_uninformative']) or '-'}; AUROC"
             f" of the pair share for a hit {s['auroc_hit']:.3f}, for within 1 m"
             f" {s['auroc_1m']:.3f}; >= min_confidence and > 1 m off: {s['confidently_wrong']}"
-            f" of {s['frames']}")
+            f" of {s['frames']}; what the frames decide (brute force over the field: the"
+            f" still frames' odds >= 20 : 1 up to the mirror): {s['decided']} of the {s['informative']}"
+            f" informative frames decide a place, {s['decided_truth']} of them the truth, and"
+            f" mcl hits {s['decided_truth_hits']} of those; of the"
+            f" {s['informative'] - s['decided']} undecided, mcl hits {s['undecided_hits']}")
 
 
 def rows(repeat: int) -> list[Row]:
