@@ -349,8 +349,9 @@ def _note(s: dict) -> str:
             f" {s['auroc_1m']:.3f}; >= min_confidence and > 1 m off: {s['confidently_wrong']}"
             f" of {s['frames']}; what the frames decide (brute force over the field: the"
             f" still frames' odds >= 20 : 1 up to the mirror): {s['decided']} of the"
-            f" {s['informative']} informative frames decide a place, {s['decided_truth']} of them the truth, and"
-            f" mcl hits {s['decided_truth_hits']} of those; of the"
+            f" {s['informative']} informative frames decide a place,"
+            f" {s['decided_truth']} of them the truth, and mcl hits"
+            f" {s['decided_truth_hits']} of those; of the"
             f" {s['informative'] - s['decided']} undecided, mcl hits {s['undecided_hits']}")
 
 
