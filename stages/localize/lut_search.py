@@ -276,6 +276,10 @@ class TableSearch:
                  cache: bool = True):
         self.params = params or MatchingParams()
         self.grid = map_file.grid
+        # the grid's origin and resolution as Python floats, for the scalar cell arithmetic
+        # (_cell_of, local_window: the same float64 operations without numpy scalars)
+        self._x0, self._y0 = float(self.grid.origin[0]), float(self.grid.origin[1])
+        self._res = float(self.grid.resolution)
         self.scanlines = map_file.scanlines
         self.field = map_file.field
         ny, nx = self.grid.shape
@@ -517,9 +521,8 @@ class TableSearch:
 
     def _cell_of(self, x: float, y: float) -> tuple[int, int]:
         """Grid.cell_of for one point, in scalar arithmetic."""
-        g = self.grid
-        return (min(max(round((y - g.origin[1]) / g.resolution), 0), self.ny - 1),
-                min(max(round((x - g.origin[0]) / g.resolution), 0), self.nx - 1))
+        return (min(max(round((y - self._y0) / self._res), 0), self.ny - 1),
+                min(max(round((x - self._x0) / self._res), 0), self.nx - 1))
 
     def _heading_bracket(self, theta: float) -> tuple[int, float]:
         u = float(theta) / self.step
@@ -580,14 +583,13 @@ class TableSearch:
 
     def local_window(self, x: float, y: float, half_width: float):
         """Cell bounds [i0, i1) x [j0, j1) of the window around (x, y), clipped to the grid."""
-        g = self.grid
         x, y = float(x), float(y)
         if math.isfinite(x) and math.isfinite(y):  # Grid.cell_of in scalar arithmetic
-            ci = min(max(round((y - g.origin[1]) / g.resolution), 0), self.ny - 1)
-            cj = min(max(round((x - g.origin[0]) / g.resolution), 0), self.nx - 1)
+            ci = min(max(round((y - self._y0) / self._res), 0), self.ny - 1)
+            cj = min(max(round((x - self._x0) / self._res), 0), self.nx - 1)
         else:
-            ci, cj = g.cell_of(x, y)
-        h = int(round(half_width / g.resolution))
+            ci, cj = self.grid.cell_of(x, y)
+        h = int(round(half_width / self._res))
         return (max(0, int(ci) - h), min(self.ny, int(ci) + h + 1),
                 max(0, int(cj) - h), min(self.nx, int(cj) + h + 1))
 
