@@ -517,12 +517,14 @@ def structure_sizes(points, distance, link, link_per_m):
 
 
 
-@njit("Tuple((int64[::1], int64[::1], float64[::1]))(float64[:, ::1], float64[:, ::1], boolean,"
-      " float64, float64, float64)", cache=True, nogil=True)
-def flatten_scanlines(radial, spiral, use_spiral, robot_radius, max_range, spiral_end_radius):
-    """(family, angle_index, distance) of a frame's radial (n, 4) and spiral (2, n) crossing
-    distances (NaN = none), radial first (line-major), then the spirals, those outside the
-    scan lines' reach left out (``Observation.from_scanlines``)."""
+@njit("Tuple((int64[::1], int64[::1], float64[::1], float64[::1]))(float64[:, ::1],"
+      " float64[:, ::1], boolean, float64, float64, float64, float64)", cache=True, nogil=True)
+def flatten_scanlines(radial, spiral, use_spiral, robot_radius, max_range, spiral_end_radius,
+                      range_scale):
+    """(family, angle_index, distance, weight) of a frame's radial (n, 4) and spiral (2, n)
+    crossing distances (NaN = none), radial first (line-major), then the spirals, those
+    outside the scan lines' reach left out (``Observation.from_scanlines``); the weights
+    MatchingParams.weight's, 1 / (1 + (d / ``range_scale``)^2), in the same arithmetic."""
     n = radial.shape[0] * radial.shape[1] + (spiral.size if use_spiral else 0)
     fam = np.empty(n, np.int64)
     idx = np.empty(n, np.int64)
@@ -545,7 +547,11 @@ def flatten_scanlines(radial, spiral, use_spiral, robot_radius, max_range, spira
                     idx[k] = a
                     dist[k] = d
                     k += 1
-    return fam[:k].copy(), idx[:k].copy(), dist[:k].copy()
+    w = np.empty(k, np.float64)
+    for i in range(k):
+        q = dist[i] / range_scale
+        w[i] = 1.0 / (1.0 + q * q)
+    return fam[:k].copy(), idx[:k].copy(), dist[:k].copy(), w
 
 
 @njit("float64[:, ::1](int64[::1], int64[::1], float64[::1], float64, float64, float64)",

@@ -179,11 +179,10 @@ class Observation:
         r = np.ascontiguousarray(radial, dtype=np.float64).reshape(-1, MAX_CROSSINGS)
         s = (np.ascontiguousarray(spiral, dtype=np.float64).reshape(2, -1)
              if spiral is not None else np.zeros((2, 0)))
-        family, angle_index, distance = flatten_scanlines(
+        family, angle_index, distance, weight = flatten_scanlines(
             r, s, bool(params.use_spiral and spiral is not None), float(robot_radius),
-            float(max_range), float(spiral_end_radius))
-        return cls(family=family, angle_index=angle_index, distance=distance,
-                   weight=params.weight(distance))
+            float(max_range), float(spiral_end_radius), float(params.range_scale))
+        return cls(family=family, angle_index=angle_index, distance=distance, weight=weight)
 
     def subset(self, mask) -> Observation:
         """The observations selected by a boolean mask (or index array)."""
