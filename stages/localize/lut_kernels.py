@@ -16,7 +16,8 @@ per observation, sums over observations accumulated in float64.
   (every observation's error at one cell) and ``refine_moves`` (the cell moves of the sub-cell
   refinement);
 - ``quadratic_fit``: the sub-cell minimum of a 3 x 3 patch;
-- ``structure_sizes``: the white structures of a frame's line points.
+- ``structure_sizes``: the white structures of a frame's line points (``evidence_weights``:
+  the evidence weights from them).
 """
 
 from __future__ import annotations
@@ -515,6 +516,19 @@ def structure_sizes(points, distance, link, link_per_m):
     return out
 
 
+
+
+@njit("float64[::1](float64[:, ::1], float64[::1], float64[::1], float64, float64, float64)",
+      cache=True, nogil=True)
+def evidence_weights(points, distance, base, link, link_per_m, per_structure):
+    """The evidence weights of a frame's observations (``Observation.with_evidence``): the
+    ``base`` weight times min(1, ``per_structure`` / the size of the point's structure
+    (``structure_sizes``))."""
+    size = structure_sizes(points, distance, link, link_per_m)
+    out = np.empty(base.shape[0])
+    for i in range(base.shape[0]):
+        out[i] = base[i] * min(1.0, per_structure / size[i])
+    return out
 
 
 @njit("Tuple((int64[::1], int64[::1], float64[::1], float64[::1]))(float64[:, ::1],"

@@ -62,6 +62,7 @@ from . import lookup_cache
 from .lut_kernels import (
     MAX_CROSSINGS,
     TILE,
+    evidence_weights,
     exact_error_cells,
     flatten_scanlines,
     inlier_sums,
@@ -70,7 +71,6 @@ from .lut_kernels import (
     observation_predictions_cell,
     quadratic_fit,
     refine_moves,
-    structure_sizes,
     tiled_sum,
     tracked_fix,
     tracked_window,
@@ -139,13 +139,12 @@ class Observation:
         min(1, per_structure / structure size). The exact error terms (refinement, support)
         use these weights; the error lookup keeps the seed's (``lookup_weight``)."""
         p = self.points(scanlines)
-        size = structure_sizes(np.ascontiguousarray(p), np.ascontiguousarray(self.distance),
-                               float(link), float(link_per_m))
         base = self.weight if self.lookup_weight is None else self.lookup_weight
+        weight = evidence_weights(p, np.ascontiguousarray(self.distance, dtype=np.float64),
+                                  np.ascontiguousarray(base, dtype=np.float64), float(link),
+                                  float(link_per_m), float(per_structure))
         out = Observation(family=self.family, angle_index=self.angle_index,
-                          distance=self.distance, weight=base * np.minimum(1.0,
-                                                                           per_structure / size),
-                          lookup_weight=base)
+                          distance=self.distance, weight=weight, lookup_weight=base)
         out._points = self._points  # the same scan lines and distances: the same points
         return out
 
