@@ -11,7 +11,13 @@ import pytest
 from stages import build_map
 from stages.common.map_file import MapFile
 from stages.common.scanlines import NO_HIT_MM
-from stages.localize.lut_kernels import TILE, structure_sizes, tiled_sum
+from stages.localize.lut_kernels import (
+    TILE,
+    evidence_weights,
+    flatten_scanlines,
+    structure_sizes,
+    tiled_sum,
+)
 from stages.localize.lut_search import MatchingParams, Observation, TableSearch
 
 
@@ -112,3 +118,27 @@ def test_structure_sizes_are_the_sizes_of_the_chained_groups():
     want = np.bincount(group, minlength=len(pts))[group]
     assert np.array_equal(got, want)
     assert got.max() >= 40  # the line is one structure
+
+
+def test_evidence_weights_cap_each_structure_at_per_structure_observations():
+    rng = np.random.default_rng(5)
+    pts = np.concatenate([rng.uniform(-3, 3, (30, 2)),
+                          np.stack([np.linspace(0.5, 3, 20), np.full(20, 1.0)], axis=1)])
+    dist = np.hypot(pts[:, 0], pts[:, 1])
+    base = MatchingParams().weight(dist)
+    size = structure_sizes(np.ascontiguousarray(pts), dist, 0.2, 0.1)
+    got = evidence_weights(np.ascontiguousarray(pts), dist, base, 0.2, 0.1, 3.0)
+    # bit for bit the numpy expression it replaced
+    assert np.array_equal(got.view(np.int64), (base * np.minimum(1.0, 3.0 / size)).view(np.int64))
+    line = size >= 20
+    assert np.isclose(got[line].sum(), 3.0 * base[line].mean(), rtol=0.2)
+
+
+def test_flattened_weights_are_the_matching_weights():
+    rng = np.random.default_rng(6)
+    radial = rng.uniform(0, 9, (72, 4))
+    radial[rng.random((72, 4)) < 0.4] = np.nan
+    spiral = rng.uniform(0, 6, (2, 72))
+    p = MatchingParams(range_scale=3.3)
+    _f, _a, d, w = flatten_scanlines(radial, spiral, True, 0.2, 8.0, 5.0, p.range_scale)
+    assert len(d) > 0 and np.array_equal(w.view(np.int64), p.weight(d).view(np.int64))

@@ -16,7 +16,8 @@ per observation, sums over observations accumulated in float64.
   (every observation's error at one cell) and ``refine_moves`` (the cell moves of the sub-cell
   refinement);
 - ``quadratic_fit``: the sub-cell minimum of a 3 x 3 patch;
-- ``structure_sizes``: the white structures of a frame's line points.
+- ``structure_sizes``: the white structures of a frame's line points (``evidence_weights``:
+  the evidence weights from them).
 """
 
 from __future__ import annotations
@@ -517,12 +518,27 @@ def structure_sizes(points, distance, link, link_per_m):
 
 
 
-@njit("Tuple((int64[::1], int64[::1], float64[::1]))(float64[:, ::1], float64[:, ::1], boolean,"
-      " float64, float64, float64)", cache=True, nogil=True)
-def flatten_scanlines(radial, spiral, use_spiral, robot_radius, max_range, spiral_end_radius):
-    """(family, angle_index, distance) of a frame's radial (n, 4) and spiral (2, n) crossing
-    distances (NaN = none), radial first (line-major), then the spirals, those outside the
-    scan lines' reach left out (``Observation.from_scanlines``)."""
+@njit("float64[::1](float64[:, ::1], float64[::1], float64[::1], float64, float64, float64)",
+      cache=True, nogil=True)
+def evidence_weights(points, distance, base, link, link_per_m, per_structure):
+    """The evidence weights of a frame's observations (``Observation.with_evidence``): the
+    ``base`` weight times min(1, ``per_structure`` / the size of the point's structure
+    (``structure_sizes``))."""
+    size = structure_sizes(points, distance, link, link_per_m)
+    out = np.empty(base.shape[0])
+    for i in range(base.shape[0]):
+        out[i] = base[i] * min(1.0, per_structure / size[i])
+    return out
+
+
+@njit("Tuple((int64[::1], int64[::1], float64[::1], float64[::1]))(float64[:, ::1],"
+      " float64[:, ::1], boolean, float64, float64, float64, float64)", cache=True, nogil=True)
+def flatten_scanlines(radial, spiral, use_spiral, robot_radius, max_range, spiral_end_radius,
+                      range_scale):
+    """(family, angle_index, distance, weight) of a frame's radial (n, 4) and spiral (2, n)
+    crossing distances (NaN = none), radial first (line-major), then the spirals, those
+    outside the scan lines' reach left out (``Observation.from_scanlines``); the weights
+    MatchingParams.weight's, 1 / (1 + (d / ``range_scale``)^2), in the same arithmetic."""
     n = radial.shape[0] * radial.shape[1] + (spiral.size if use_spiral else 0)
     fam = np.empty(n, np.int64)
     idx = np.empty(n, np.int64)
@@ -545,7 +561,11 @@ def flatten_scanlines(radial, spiral, use_spiral, robot_radius, max_range, spira
                     idx[k] = a
                     dist[k] = d
                     k += 1
-    return fam[:k].copy(), idx[:k].copy(), dist[:k].copy()
+    w = np.empty(k, np.float64)
+    for i in range(k):
+        q = dist[i] / range_scale
+        w[i] = 1.0 / (1.0 + q * q)
+    return fam[:k].copy(), idx[:k].copy(), dist[:k].copy(), w
 
 
 @njit("float64[:, ::1](int64[::1], int64[::1], float64[::1], float64, float64, float64)",

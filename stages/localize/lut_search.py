@@ -62,6 +62,7 @@ from . import lookup_cache
 from .lut_kernels import (
     MAX_CROSSINGS,
     TILE,
+    evidence_weights,
     exact_error_cells,
     flatten_scanlines,
     inlier_sums,
@@ -70,7 +71,6 @@ from .lut_kernels import (
     observation_predictions_cell,
     quadratic_fit,
     refine_moves,
-    structure_sizes,
     tiled_sum,
     tracked_fix,
     tracked_window,
@@ -139,13 +139,12 @@ class Observation:
         min(1, per_structure / structure size). The exact error terms (refinement, support)
         use these weights; the error lookup keeps the seed's (``lookup_weight``)."""
         p = self.points(scanlines)
-        size = structure_sizes(np.ascontiguousarray(p), np.ascontiguousarray(self.distance),
-                               float(link), float(link_per_m))
         base = self.weight if self.lookup_weight is None else self.lookup_weight
+        weight = evidence_weights(p, np.ascontiguousarray(self.distance, dtype=np.float64),
+                                  np.ascontiguousarray(base, dtype=np.float64), float(link),
+                                  float(link_per_m), float(per_structure))
         out = Observation(family=self.family, angle_index=self.angle_index,
-                          distance=self.distance, weight=base * np.minimum(1.0,
-                                                                           per_structure / size),
-                          lookup_weight=base)
+                          distance=self.distance, weight=weight, lookup_weight=base)
         out._points = self._points  # the same scan lines and distances: the same points
         return out
 
@@ -179,11 +178,10 @@ class Observation:
         r = np.ascontiguousarray(radial, dtype=np.float64).reshape(-1, MAX_CROSSINGS)
         s = (np.ascontiguousarray(spiral, dtype=np.float64).reshape(2, -1)
              if spiral is not None else np.zeros((2, 0)))
-        family, angle_index, distance = flatten_scanlines(
+        family, angle_index, distance, weight = flatten_scanlines(
             r, s, bool(params.use_spiral and spiral is not None), float(robot_radius),
-            float(max_range), float(spiral_end_radius))
-        return cls(family=family, angle_index=angle_index, distance=distance,
-                   weight=params.weight(distance))
+            float(max_range), float(spiral_end_radius), float(params.range_scale))
+        return cls(family=family, angle_index=angle_index, distance=distance, weight=weight)
 
     def subset(self, mask) -> Observation:
         """The observations selected by a boolean mask (or index array)."""
@@ -276,6 +274,10 @@ class TableSearch:
                  cache: bool = True):
         self.params = params or MatchingParams()
         self.grid = map_file.grid
+        # the grid's origin and resolution as Python floats, for the scalar cell arithmetic
+        # (_cell_of, local_window: the same float64 operations without numpy scalars)
+        self._x0, self._y0 = float(self.grid.origin[0]), float(self.grid.origin[1])
+        self._res = float(self.grid.resolution)
         self.scanlines = map_file.scanlines
         self.field = map_file.field
         ny, nx = self.grid.shape
@@ -517,9 +519,8 @@ class TableSearch:
 
     def _cell_of(self, x: float, y: float) -> tuple[int, int]:
         """Grid.cell_of for one point, in scalar arithmetic."""
-        g = self.grid
-        return (min(max(round((y - g.origin[1]) / g.resolution), 0), self.ny - 1),
-                min(max(round((x - g.origin[0]) / g.resolution), 0), self.nx - 1))
+        return (min(max(round((y - self._y0) / self._res), 0), self.ny - 1),
+                min(max(round((x - self._x0) / self._res), 0), self.nx - 1))
 
     def _heading_bracket(self, theta: float) -> tuple[int, float]:
         u = float(theta) / self.step
@@ -580,14 +581,13 @@ class TableSearch:
 
     def local_window(self, x: float, y: float, half_width: float):
         """Cell bounds [i0, i1) x [j0, j1) of the window around (x, y), clipped to the grid."""
-        g = self.grid
         x, y = float(x), float(y)
         if math.isfinite(x) and math.isfinite(y):  # Grid.cell_of in scalar arithmetic
-            ci = min(max(round((y - g.origin[1]) / g.resolution), 0), self.ny - 1)
-            cj = min(max(round((x - g.origin[0]) / g.resolution), 0), self.nx - 1)
+            ci = min(max(round((y - self._y0) / self._res), 0), self.ny - 1)
+            cj = min(max(round((x - self._x0) / self._res), 0), self.nx - 1)
         else:
-            ci, cj = g.cell_of(x, y)
-        h = int(round(half_width / g.resolution))
+            ci, cj = self.grid.cell_of(x, y)
+        h = int(round(half_width / self._res))
         return (max(0, int(ci) - h), min(self.ny, int(ci) + h + 1),
                 max(0, int(cj) - h), min(self.nx, int(cj) + h + 1))
 

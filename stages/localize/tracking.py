@@ -339,8 +339,8 @@ class TrackBank:
                 t.mirror = c.mirror
                 vision = (c.pose, c.R) if c.beats_null else None
                 if self.use_fusion:
-                    t.fusion.step(dt, odo, col, vision)
-                    t.pose, t.cov = t.fusion.state.mean.copy(), t.fusion.state.cov.copy()
+                    fused = t.fusion.step(dt, odo, col, vision)  # a copy of its state
+                    t.pose, t.cov = fused.mean, fused.cov
                 elif vision is not None:
                     t.pose, t.cov = c.pose.copy(), c.R.copy()
                 t.misses = 0 if vision is not None else t.misses + 1
@@ -367,8 +367,8 @@ class TrackBank:
             return
         for t in self.tracks:
             if self.use_fusion and t.fusion.state is not None:
-                t.fusion.step(dt, odo, col, None)
-                t.pose, t.cov = t.fusion.state.mean.copy(), t.fusion.state.cov.copy()
+                fused = t.fusion.step(dt, odo, col, None)  # a copy of its state
+                t.pose, t.cov = fused.mean, fused.cov
             elif odo is not None and not col:
                 t.pose = compose(t.pose, odo)
             t.misses += 1
