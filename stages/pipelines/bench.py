@@ -543,7 +543,7 @@ def real_ground_images() -> list:
     """Grey ground images (stages.common.unwarp defaults) and valid masks of the 10 real
     minho-lab frames, unwarped with the team's own mirror calibration (calibrate's minho
     import) and the folder's mask.png; [] without ../shared/realdata."""
-    from .bench_hypotheses import REALDATA
+    from .realdata import REALDATA
 
     key = ("ground", "minho-lab")
     if key not in _INPUTS:

@@ -94,7 +94,7 @@ def _real_row() -> Row:
     ../shared/realdata is present."""
     import numpy as np
 
-    from .bench_hypotheses import REALDATA
+    from .realdata import REALDATA
 
     name = "error surface (a) on real minho-lab images, at the line-share best pose"
     if not (REALDATA / "minho-lab").exists():

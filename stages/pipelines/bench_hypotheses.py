@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from .bench import Row, _ms, _work_dir, rendered_inputs
+from .realdata import REALDATA
 
 # rendered calibration sets: (simulate preset, field, frames, seed, lut conf) — seeds no test
 # uses; the omni sets with the IMU heading, and without it (histogram heading, start_half)
@@ -20,7 +21,6 @@ CALIBRATION_SETS = [
     ("omni-default", "msl-2015", 100, s, {"heading": "imu"}) for s in (41, 42, 43, 44)
 ] + [("omni-hard", "msl-2015", 100, s, {"heading": "imu"}) for s in (41, 42)]
 HIDDEN_RUN = ("omni-default", "msl-2015", 137, 97)
-REALDATA = Path(__file__).resolve().parents[3] / "shared" / "realdata"
 
 
 def _errors(poses_path: Path, data: Path):

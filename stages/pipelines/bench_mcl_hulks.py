@@ -22,8 +22,8 @@ import numpy as np
 
 from ..common.artifacts import atomic_path
 from .bench import Row
+from .realdata import REALDATA
 
-REALDATA = Path(__file__).resolve().parents[3] / "shared" / "realdata"
 HULKS = REALDATA / "hulks-goalbox-labels" / "measurements"
 # captures whose goal-area front and side labels are swapped (the folder's SOURCE.txt)
 STILL_UPDATES = 15  # frames of a still robot: the capture repeated

@@ -21,6 +21,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+# the real recordings beside the repository (../shared/realdata; read its README)
+REALDATA = Path(__file__).resolve().parents[3] / "shared" / "realdata"
+
 # Lar.view (mm): length 10200, width 7540, line 100, centre circle radius 1370, goal area
 # 700 x 3200, penalty area 1550 x 4420, penalty mark 1980, corner arc 400, goal 2000 x 500
 LAB_FIELD = {
