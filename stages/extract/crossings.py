@@ -959,30 +959,6 @@ def _arm_state(x0, x1, ux, uy, arms, white_px, green, other_mean, top, lens, m, 
     return 2
 
 
-def _clear_start(x: np.ndarray, u: np.ndarray, arms, scale: float, to_floor, cc: dict,
-                 cell: int) -> tuple[float, float]:
-    """Where (px from ``x`` along the unit ``u``) a line leaving a crossing along ``u`` stands
-    clear of the crossing's lines: one ``line_width`` m of floor (``scale`` m per px along
-    ``u``) past the crossing line's edge, and far enough that the lines along ``arms``
-    (A, 2; None: none), as wide as painted lines there, no longer touch it in the image.
-    Also the reach (px to each side) of profiles across it: enough for its width and the
-    tolerance (``arm_tolerance``), at most ``refine_reach`` cells, so that a neighbouring
-    line at a narrow image angle stays out of them. Compiled (``_clear_start_kernel``)."""
-    a = np.zeros((0, 2)) if arms is None else np.ascontiguousarray(arms, np.float64)
-    return _clear_start_kernel(float(x[0]), float(x[1]), float(u[0]), float(u[1]), a,
-                               float(scale), to_floor.m, to_floor.m_inv, to_floor.height,
-                               to_floor.position, float(cc["line_width"]),
-                               float(cc["arm_tolerance"]), float(cc["refine_reach"] * cell))
-
-
-def _line_px_width(p: np.ndarray, u: np.ndarray, to_floor, line_width: float) -> float:
-    """The width (ideal px, across the image direction ``u``) of a painted line ``line_width``
-    m wide running along ``u`` through the ideal point ``p``; NaN off the floor (compiled:
-    ``_px_width``)."""
-    return _px_width(to_floor.m, to_floor.m_inv, to_floor.height, to_floor.position,
-                     float(p[0]), float(p[1]), float(u[0]), float(u[1]), float(line_width))
-
-
 @njit(cache=True, nogil=True)
 def _floor_point(m, height, pos, x, y):
     """perspective.FloorProjection at one ideal pixel."""
