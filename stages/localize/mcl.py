@@ -823,12 +823,8 @@ class ParticleFilter:
         observations land at one of them first), while the rivals find the other."""
         if not len(self._rivals) or not rows:
             return rows, 1.0
-        c = self.conf
-        r2, cos_h = float(c["cluster_radius"]) ** 2, math.cos(float(c["cluster_heading"]))
-
-        def near(a, b) -> bool:
-            return ((a[0] - b[0]) ** 2 + (a[1] - b[1]) ** 2 <= r2
-                    and math.cos(a[2] - b[2]) >= cos_h)
+        def near(a, b) -> bool:  # b a member of a's cluster (the clusters' own rule)
+            return bool(self._members(a, b[0], b[1], math.cos(b[2]), math.sin(b[2])))
 
         held = [np.asarray(r[:3], float) for r in rows]
         found = []
