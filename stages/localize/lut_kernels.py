@@ -255,7 +255,7 @@ def tiled_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spir
             dst[j] = src[col[j]]
 
 
-@njit("Tuple((int64, int64, int64, float64))(uint8[:, ::1], int64[::1], int64[::1],"
+@njit("Tuple((int64, float64))(uint8[:, ::1], int64[::1], int64[::1],"
       " int64[::1], int64, int64,"
       " int64, int64, int64, int64, int64, int64, int64, int64, int64, float64, float64,"
       " float64, float64, float64, float64, float64, float64, float64, float64)", cache=True,
@@ -267,16 +267,13 @@ def tracked_window(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb
     surface (``tiled_sum`` of the tiled lookup, ``ntx`` blocks wide) and
     the flat index of the cell minimising surface * ``scale`` + min(0.5 d^T [[ia, ib],
     [ib, ic]] d, ``cap``) (d = cell centre - (px, py), cell centres at (x0, y0) + (j, i) *
-    res), the flat index of the surface's own minimum, that minimum's value, and the best
-    cell's score."""
+    res), and that cell's score."""
     h, w = i1 - i0, j1 - j0
     surf = np.empty((h, w), dtype=np.uint16)
     tiled_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
               spiral_row0, i0, i1, j0, j1, ntx, surf)
     best = 0
     best_score = np.inf
-    low = 0
-    low_val = 1 << 30
     for i in range(h):
         dy = y0 + (i0 + i) * res - py
         for j in range(w):
@@ -287,10 +284,7 @@ def tracked_window(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb
             if score < best_score:
                 best_score = score
                 best = (i0 + i) * nx + j0 + j
-            if v < low_val:
-                low_val = v
-                low = (i0 + i) * nx + j0 + j
-    return best, low, low_val, best_score
+    return best, best_score
 
 
 @njit(cache=True, nogil=True)
@@ -340,7 +334,7 @@ def tracked_fix(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_sp
     window's best posterior score, the prior's basin taken (0 / 1), the support's inliers,
     inlier weight, weighted rho, weighted squared error, then the fitted pose (x, y, theta;
     NaN without ``fit_points``)."""
-    best, _low, _low_val, window_fit = tracked_window(
+    best, window_fit = tracked_window(
         lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral, spiral_row0,
         i0, i1, j0, j1, nx, ntx, scale, x0, y0, res, px, py, ia, ib, ic, cap)
     i, j = best // nx, best % nx

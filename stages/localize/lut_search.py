@@ -669,7 +669,7 @@ class TableSearch:
         """The best posterior score of ``tracked_fix``'s window (quantised error term /
         temperature + capped Mahalanobis term), without refining it."""
         return self._tracked_window(obs, theta, prior_xy, prior_information, temperature,
-                                    half_width, prior_cap)[3]
+                                    half_width, prior_cap)[1]
 
     def tracked_score_bound(self, obs: Observation, theta: float, prior_xy, prior_information,
                             temperature: float, *, half_width: float = 1.0,
