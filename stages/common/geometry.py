@@ -2,12 +2,23 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
 def wrap_angle(a):
     """Wrap angles to [-pi, pi)."""
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
+
+
+def wrap_scalar(a: float) -> float:
+    """``wrap_angle`` of one angle in Python's float arithmetic: the same result, without a
+    numpy array per call (for the per-frame bookkeeping that calls it many times)."""
+    return (float(a) + math.pi) % _TWO_PI - math.pi
+
+
+_TWO_PI = 2 * math.pi
 
 
 def polar(points) -> tuple[np.ndarray, np.ndarray]:

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..common.errors import FieldlocError
-from ..common.geometry import wrap_angle
+from ..common.geometry import wrap_angle, wrap_scalar
 
 SOURCES = ("imu", "histogram", "truth")  # where a frame's heading comes from
 START_HALVES = ("own", "opponent", "any")  # where the first fix lies (the field's symmetry)
@@ -110,9 +110,6 @@ def imu_per_frame(imu: dict, stamps: np.ndarray, tolerance: float):
 
 # ---------------------------------------------------------------------------- IMU alignment
 
-_TWO_PI = 2 * math.pi
-
-
 @dataclass
 class ImuAlignment:
     """Offset between IMU yaw and field heading, a one-state Kalman filter (random walk)."""
@@ -123,8 +120,7 @@ class ImuAlignment:
     known: bool = True  # False until initialised (alignment "vision")
 
     def heading(self, yaw: float) -> float:
-        # wrap_angle in scalar arithmetic (the same floating-point result, without an array)
-        return (float(yaw) + self.offset + math.pi) % _TWO_PI - math.pi
+        return wrap_scalar(float(yaw) + self.offset)
 
     def initialise(self, field_heading: float, yaw: float, variance: float):
         self.offset = float(wrap_angle(field_heading - yaw))

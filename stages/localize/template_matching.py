@@ -377,6 +377,3 @@ def evidence(residuals: np.ndarray, sigma: float, area: float, inlier_prior: flo
     """The evidence (nats) of a pose from its pairs' distances: the sum of pair_evidence."""
     return float(pair_evidence(residuals, sigma, area, inlier_prior).sum())
 
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi

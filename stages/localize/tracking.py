@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..common.field import FieldModel
-from ..common.geometry import compose
+from ..common.geometry import compose, wrap_scalar
 from ..common.poses_file import PoseTrack
 from .kalman import DecentralisedFusion, FusionParams
 
@@ -439,18 +439,14 @@ def near_pose(candidate, pose, distance: float = 0.5, angle: float = 0.2) -> boo
     a pose."""
     if math.hypot(candidate[0] - pose[0], candidate[1] - pose[1]) >= distance:
         return False
-    # geometry.wrap_angle in scalar arithmetic (the same floating-point result)
-    return abs((float(candidate[2] - pose[2]) + math.pi) % _TWO_PI - math.pi) < angle
-
-
-_TWO_PI = 2 * math.pi
+    return abs(wrap_scalar(float(candidate[2] - pose[2]))) < angle
 
 
 def mirror_scalar(x, y, theta) -> tuple[float, float, float]:
     """FieldModel.mirror_pose in scalar arithmetic (the same floating-point result, without
     a numpy array per call)."""
     x, y, theta = float(x), float(y), float(theta)
-    return -x, -y, (theta + math.pi + math.pi) % _TWO_PI - math.pi
+    return -x, -y, wrap_scalar(theta + math.pi)
 
 
 # ---------------------------------------------------------------------------- the frame loop

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common.artifacts import atomic_path
+from ..common.geometry import wrap_scalar
 from .bench import Row
 from .realdata import REALDATA
 
@@ -119,7 +120,7 @@ def decided(model, obs, field, truth, frames: int = STILL_UPDATES) -> tuple[bool
 
     def same_place(a, b) -> bool:
         for q in (b, field.mirror_pose(b)):
-            turn = abs((a[2] - q[2] + math.pi) % (2 * math.pi) - math.pi)
+            turn = abs(wrap_scalar(a[2] - q[2]))
             if math.hypot(a[0] - q[0], a[1] - q[1]) <= PLACE_M and \
                     turn <= math.radians(PLACE_DEG):
                 return True
@@ -193,7 +194,7 @@ def judged(top, truth, field) -> tuple[bool, float]:
     best, hit = math.inf, False
     for p in (top, field.mirror_pose(top)):
         dist = math.hypot(p[0] - truth[0], p[1] - truth[1])
-        turn = abs((p[2] - truth[2] + math.pi) % (2 * math.pi) - math.pi)
+        turn = abs(wrap_scalar(p[2] - truth[2]))
         best = min(best, dist)
         hit |= dist <= GOAL_M and turn <= math.radians(GOAL_DEG)
     return bool(hit), best
