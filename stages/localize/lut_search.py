@@ -637,7 +637,6 @@ class TableSearch:
         m = self.scanlines.heading_index(theta)
         i0, i1, j0, j1 = self.local_window(prior_xy[0], prior_xy[1], half_width)
         m0, a, interpolate = self._heading_args(theta)
-        g, info = self.grid, prior_information
         W = max(obs.total_weight, 1e-12)
         radial, spiral, ncell, _n, _f, _a, dist, weight, tol, c2 = self._kernel_arrays(obs)
         pf, points, max_shift, max_turn = fit if fit is not None else (None, _NO_POINTS, 0, 0)
@@ -645,10 +644,9 @@ class TableSearch:
                                       if pf is not None else (_NO_RASTER, 0.0, 0.0, 1.0, 1.0))
         out = np.empty(19)
         tracked_fix(self.error_lookup, *self._row_arrays(obs, m), i0, i1, j0, j1, self.ny,
-                    self.nx, self.ntx, 1.0 / (self.q_levels * temperature), float(g.origin[0]),
-                    float(g.origin[1]), float(g.resolution), float(prior_xy[0]),
-                    float(prior_xy[1]), float(info[0, 0]), float(info[0, 1]),
-                    float(info[1, 1]), float(min(prior_cap, 1e300)), radial, spiral, ncell,
+                    self.nx, self.ntx, *self._prior_args(prior_xy, prior_information,
+                                                         temperature, prior_cap),
+                    radial, spiral, ncell,
                     dist, weight, tol, c2, m0, a, interpolate, W, float(fix_temperature),
                     _QPINV, obs.weight64, float(inlier_error), self.params.c * self.params.c,
                     float(theta), pf is not None, table, fx0, fy0, fres, points, fc2,
@@ -679,25 +677,26 @@ class TableSearch:
         ``coarse_step``^2 times cheaper, so a score below the bound is below the score."""
         m = self.scanlines.heading_index(theta)
         i0, i1, j0, j1 = self.local_window(prior_xy[0], prior_xy[1], half_width)
-        g, info = self.grid, prior_information
         cy, cx = self.coarse_shape
         return tracked_window_bound(
             self.coarse_lookup, max(1, self.params.coarse_step), cy, cx, self.coarse_ntx,
-            *self._row_arrays(obs, m), i0, i1, j0, j1, 1.0 / (self.q_levels * temperature),
-            float(g.origin[0]), float(g.origin[1]), float(g.resolution), float(prior_xy[0]),
-            float(prior_xy[1]), float(info[0, 0]), float(info[0, 1]), float(info[1, 1]),
-            float(min(prior_cap, 1e300)))
+            *self._row_arrays(obs, m), i0, i1, j0, j1,
+            *self._prior_args(prior_xy, prior_information, temperature, prior_cap))
 
     def _tracked_window(self, obs, theta, prior_xy, info, temperature, half_width, cap):
         m = self.scanlines.heading_index(theta)
         i0, i1, j0, j1 = self.local_window(prior_xy[0], prior_xy[1], half_width)
-        g = self.grid
-        out = tracked_window(
+        return tracked_window(
             self.error_lookup, *self._row_arrays(obs, m), i0, i1, j0, j1, self.nx, self.ntx,
-            1.0 / (self.q_levels * temperature), float(g.origin[0]), float(g.origin[1]),
-            float(g.resolution), float(prior_xy[0]), float(prior_xy[1]), float(info[0, 0]),
-            float(info[0, 1]), float(info[1, 1]), float(min(cap, 1e300)))
-        return out
+            *self._prior_args(prior_xy, info, temperature, cap))
+
+    def _prior_args(self, prior_xy, info, temperature: float, cap: float) -> tuple:
+        """The tracked kernels' prior arguments: the error term's scale (1 / (q_levels
+        temperature)), the grid's origin and resolution, the prior's position, its
+        information (xx, xy, yy) and the Mahalanobis term's cap."""
+        return (1.0 / (self.q_levels * temperature), self._x0, self._y0, self._res,
+                float(prior_xy[0]), float(prior_xy[1]), float(info[0, 0]), float(info[0, 1]),
+                float(info[1, 1]), float(min(cap, 1e300)))
 
     def refine(self, obs: Observation, cell, theta: float, *, max_moves: int = 4) -> SearchResult:
         """Exact sub-cell refinement around ``cell``: the exact error at the continuous heading
