@@ -746,8 +746,6 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
             reach = np.maximum(reach, np.minimum(cc["arm_reach"] * cell, lengths))
         if np.any(arm_m < cc["min_arm_length"]):
             return "arm too short"
-    # an arm leaving the image is verified on its part in view
-    reach = np.minimum(reach, _in_image(x, dirs, camera, 0.5 * cell))
     d, bearing = polar(floor[:1])
     span = np.hypot(*(below[0] - floor[0])) if np.isfinite(below).all() else np.inf
     # beyond the grid's resolution the full-resolution white mask decides (_verify_fine), as
@@ -763,6 +761,8 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
     if fine:
         return _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera, to_floor,
                             cc, cell, d[0], bearing[0], orient, misfit, span)
+    # an arm leaving the image is verified on its part in view
+    reach = np.minimum(reach, _in_image(x, dirs, camera, 0.5 * cell))
     px = distort_ideal(lens_parameters(camera), np.vstack([x[None], x + reach[:, None] * dirs]))
     if not np.isfinite(px).all():
         return "outside the lens model"
