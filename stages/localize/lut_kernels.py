@@ -288,15 +288,16 @@ def tracked_window(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb
 
 
 @njit(cache=True, nogil=True)
-def _refine_into(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist, weight,
-                 tol, c2, i, j, ny, nx, m0, a, interpolate, total_weight, x0, y0, res, qpinv,
-                 out):
-    """``TableSearch.refine`` from cell (i, j) (its 4 cell moves, the quadratic fit of the last
-    3 x 3 patch), the same arithmetic, into ``out`` (9,): x, y, error, error_norm, cell i,
-    cell j, and the Hessian of error_norm hxx, hxy, hyy (m^-2)."""
+def refine_cell(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist, weight,
+                tol, c2, i, j, ny, nx, m0, a, interpolate, max_moves, total_weight, x0, y0,
+                res, qpinv, out):
+    """``TableSearch.refine`` from cell (i, j): at most ``max_moves`` cell moves
+    (``refine_moves``), then the quadratic fit of the last 3 x 3 patch, into ``out`` (9,): x,
+    y, error, error_norm, cell i, cell j, and the Hessian of error_norm hxx, hxy, hyy
+    (m^-2)."""
     e = np.empty(9)
     flat = refine_moves(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist,
-                        weight, tol, c2, i, j, ny, nx, m0, a, interpolate, 4, e)
+                        weight, tol, c2, i, j, ny, nx, m0, a, interpolate, max_moves, e)
     fi, fj = flat // nx, flat % nx
     for k in range(9):
         e[k] /= total_weight
@@ -323,14 +324,14 @@ def tracked_fix(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_sp
                 max_shift, max_turn, out):
     """A track's fix in one call (``TableSearch.tracked_fix``): the window's best cell by
     the posterior score (``tracked_window``), refined to sub-cell in its basin
-    (``_refine_into``, the heading m0 / a); when that lies more than two cells from the prior
+    (``refine_cell``, the heading m0 / a); when that lies more than two cells from the prior
     (px, py), the basin the prior lies in refined too and kept when its exact score
     error / ``temperature`` + min(0.5 d^T [[ia, ib], [ib, ic]] d, ``cap``) is lower; then
     the fix's support (``observation_errors_cell`` at the cell nearest it, ``inlier_sums``
     with the float64 weights ``weight64``); with ``fit_points``, the fix at heading ``theta``
     moved by the line points' fit (``point_fit.fit_refine`` of ``points`` on the distance
     raster ``fit_table``, the heading kept, within ``max_shift`` / ``max_turn``). ``out``
-    (19,): the refined fix (``_refine_into``'s 9 values), at window edge (0 / 1), the
+    (19,): the refined fix (``refine_cell``'s 9 values), at window edge (0 / 1), the
     window's best posterior score, the prior's basin taken (0 / 1), the support's inliers,
     inlier weight, weighted rho, weighted squared error, then the fitted pose (x, y, theta;
     NaN without ``fit_points``)."""
@@ -340,9 +341,9 @@ def tracked_fix(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_sp
     i, j = best // nx, best % nx
     edge = ((i == i0 and i0 > 0) or (i == i1 - 1 and i1 < ny)
             or (j == j0 and j0 > 0) or (j == j1 - 1 and j1 < nx))
-    _refine_into(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist, weight,
-                 tol, c2, i, j, ny, nx, m0, a, interpolate, total_weight, x0, y0, res, qpinv,
-                 out[:9])
+    refine_cell(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist, weight,
+                tol, c2, i, j, ny, nx, m0, a, interpolate, 4, total_weight, x0, y0, res, qpinv,
+                out[:9])
     out[9] = 1.0 if edge else 0.0
     out[10] = window_fit
     out[11] = 0.0
@@ -352,9 +353,9 @@ def tracked_fix(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_sp
         own = np.empty(9)
         ci = min(max(int(np.rint((py - y0) / res)), 0), ny - 1)
         cj = min(max(int(np.rint((px - x0) / res)), 0), nx - 1)
-        _refine_into(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist,
-                     weight, tol, c2, ci, cj, ny, nx, m0, a, interpolate, total_weight, x0, y0,
-                     res, qpinv, own)
+        refine_cell(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist,
+                    weight, tol, c2, ci, cj, ny, nx, m0, a, interpolate, 4, total_weight, x0,
+                    y0, res, qpinv, own)
         if _posterior_score(own, temperature, px, py, ia, ib, ic, cap) < _posterior_score(
                 out, temperature, px, py, ia, ib, ic, cap):
             out[:9] = own
@@ -380,7 +381,7 @@ def tracked_fix(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_sp
 
 @njit(cache=True, nogil=True, inline="always")
 def _posterior_score(fix, temperature, px, py, ia, ib, ic, cap):
-    """error / temperature + min(0.5 d^T info d, cap) of a refined fix (``_refine_into``'s
+    """error / temperature + min(0.5 d^T info d, cap) of a refined fix (``refine_cell``'s
     layout), d its offset from the prior (TrackBank.prior_term)."""
     dx, dy = fix[0] - px, fix[1] - py
     q = (dx * ia + dy * ib) * dx + (dx * ib + dy * ic) * dy

@@ -69,8 +69,7 @@ from .lut_kernels import (
     observation_errors_cell,
     observation_points,
     observation_predictions_cell,
-    quadratic_fit,
-    refine_moves,
+    refine_cell,
     tiled_sum,
     tracked_fix,
     tracked_window,
@@ -700,25 +699,18 @@ class TableSearch:
 
     def refine(self, obs: Observation, cell, theta: float, *, max_moves: int = 4) -> SearchResult:
         """Exact sub-cell refinement around ``cell``: the exact error at the continuous heading
-        theta on the 3 x 3 cells around it (moving to the lowest while it is not the centre),
-        then a least-squares quadratic fit of those 9 values."""
+        theta on the 3 x 3 cells around it (moving to the lowest while it is not the centre,
+        at most ``max_moves`` times), then a least-squares quadratic fit of those 9 values (the
+        compiled ``refine_cell``, which tracked_fix runs too)."""
         m0, a, interpolate = self._heading_args(theta)
-        e = np.empty(9)
-        # the moves and the exact error on the final 3 x 3 patch (clipped to the grid)
-        i, j = divmod(refine_moves(*self._kernel_arrays(obs), int(cell[0]), int(cell[1]),
-                                   self.ny, self.nx, m0, a, interpolate, max_moves, e),
-                      self.nx)
-        W = max(obs.total_weight, 1e-12)
-        e /= W
-        dx, dy, fmin, hxx, hxy, hyy = quadratic_fit(e, _QPINV)
-        res = self.grid.resolution
-        x, y = self.grid.origin[0] + j * res, self.grid.origin[1] + i * res  # Grid.centre_of
-        e_norm = min(max(fmin, 0.0), float(e[4]))
-        r2 = res * res
+        out = np.empty(9)
+        refine_cell(*self._kernel_arrays(obs), int(cell[0]), int(cell[1]), self.ny, self.nx,
+                    m0, a, interpolate, int(max_moves), max(obs.total_weight, 1e-12), self._x0,
+                    self._y0, self._res, _QPINV, out)
+        x, y, e, e_norm, ci, cj, hxx, hxy, hyy = out.tolist()
         return SearchResult(
-            x=float(x) + dx * res, y=float(y) + dy * res, theta=float(theta),
-            error=e_norm * W, error_norm=e_norm, cell=(i, j), n_observations=len(obs),
-            hessian=np.array([[hxx / r2, hxy / r2], [hxy / r2, hyy / r2]]))
+            x=x, y=y, theta=float(theta), error=e, error_norm=e_norm, cell=(int(ci), int(cj)),
+            n_observations=len(obs), hessian=np.array([[hxx, hxy], [hxy, hyy]]))
 
     def refine_heading(self, obs: Observation, cell, theta: float, *, max_shifts: int = 2,
                        fine: bool = True) -> tuple[SearchResult, float]:
