@@ -288,3 +288,22 @@ def test_a_dataset_rendered_again_is_extracted_anew(serial, tmp_path, monkeypatc
             for k in fa:
                 va, vb = np.asarray(fa[k]), np.asarray(fb[k])
                 assert np.array_equal(va, vb, equal_nan=va.dtype.kind == "f"), (n, k)
+
+
+def test_runs_start_longest_first_and_never_run_first(serial, tmp_path):
+    """Dask starts the runs by the seconds their run.json recorded, the longest first; a run
+    with no record (never run, or its record gone) first of all."""
+    spec, out, _ = serial
+    results = tmp_path / "res"
+    shutil.copytree(out, results)
+    plan = read_spec(spec, results)
+    seconds = {r.key: json.loads((out / r.dir / RUN_NAME).read_text()).get("seconds")
+               for r in plan.runs if (out / r.dir / RUN_NAME).is_file()}
+    ran = [r for r in plan.runs if isinstance(seconds.get(r.key), float)]
+    assert len(ran) >= 3
+    (results / ran[-1].dir / RUN_NAME).unlink()
+    order = batch.longest_first(plan, ran)
+    assert order[0].key == ran[-1].key
+    rest = [seconds[r.key] for r in order[1:]]
+    assert rest == sorted(rest, reverse=True)
+

@@ -110,24 +110,29 @@ def main(conf, spec, results, *, overwrite: bool = False, progress: bool = False
         (done if not overwrite and finished(plan, run) else todo).append(run)
     say(f"{len(plan.runs)} runs: {len(done)} finished before, {len(todo)} to do")
     records = {r.key: _record_of(results, r) for r in done}
-    drawn: set[str] = set()  # datasets whose CDF picture a Dask worker drew already
-    if todo:
-        if conf["serial"]:
-            records.update(_execute_serial(plan, todo, progress, say))
-        else:
-            drawn = _execute_dask(plan, todo, conf, progress, say, records)
-    index = _index(plan, records)
-    write_batch(results, index)
-    from ..evaluate.report import comparison_table
 
-    for fmt, name in (("csv", "comparison.csv"), ("markdown", "comparison.md")):
+    def summarise(drawn=frozenset()) -> dict:
+        """batch.json, the comparison tables and pictures (the CDFs of the datasets in
+        ``drawn`` are a Dask worker's); returns the index."""
+        index = _index(plan, records)
+        write_batch(results, index)
         from ..common.artifacts import atomic_path
+        from ..evaluate.report import comparison_table
 
-        with atomic_path(results / name, suffix=Path(name).suffix) as tmp:
-            tmp.write_text(comparison_table(results, fmt=fmt) + "\n")
-    from ..show import comparison
+        for fmt, name in (("csv", "comparison.csv"), ("markdown", "comparison.md")):
+            with atomic_path(results / name, suffix=Path(name).suffix) as tmp:
+                tmp.write_text(comparison_table(results, fmt=fmt) + "\n")
+        from ..show import comparison
 
-    comparison.main(None, results, overwrite=True, drawn=drawn)
+        comparison.main(None, results, overwrite=True, drawn=drawn)
+        return index
+
+    if todo and not conf["serial"]:
+        index = _execute_dask(plan, todo, conf, progress, say, records, summarise)
+    else:
+        if todo:
+            records.update(_execute_serial(plan, todo, progress, say))
+        index = summarise()
     failed = [r for r in index["runs"] if r["status"] != "ok"]
     say(f"{len(index['runs']) - len(failed)} of {len(index['runs'])} runs finished, "
         f"{len(failed)} failed" + ("" if not failed else ":"))
@@ -617,11 +622,12 @@ def _failed_before(plan: Plan, run: RunSpec, e: BaseException) -> dict:
     return rec
 
 
-def _execute_dask(plan: Plan, todo, conf, progress, say, records: dict) -> set[str]:
+def _execute_dask(plan: Plan, todo, conf, progress, say, records: dict, summarise) -> dict:
     """Run ``todo`` on Dask, adding their records to ``records`` (which holds the finished
-    runs' before). A dataset's CDF picture (show.comparison.draw_dataset_cdf) is drawn by a
-    worker as soon as the dataset's last run is done, beside the other runs rather than after
-    them all; returns the datasets drawn so."""
+    runs' before), then ``summarise`` them; returns its index. A dataset's CDF picture
+    (show.comparison.draw_dataset_cdf) is drawn by a worker as soon as the dataset's last run
+    is done, beside the other runs rather than after them all, and the last ones while this
+    process summarises; one a worker could not draw is drawn here."""
     from dask.distributed import Client, LocalCluster, as_completed
 
     from ..show import comparison
@@ -660,45 +666,102 @@ def _execute_dask(plan: Plan, todo, conf, progress, say, records: dict) -> set[s
                   for n in featured}
         f_tpl = {p: client.submit(prepare_templates, t, key=f"templates-{Path(p).name}-{_tag()}",
                                   pure=False) for p, t in templates.items()}
-        futures = {}
-        for i, run in enumerate(todo):
+        # A run is submitted only once its inputs are made, with their paths as plain
+        # arguments, and only while a worker thread is free, the longest first. Passed as
+        # futures, its inputs would pin it to the worker that made them (Dask places a task
+        # beside its dependencies), and all its dataset's runs would queue there while
+        # another worker idles; submitted all at once, the runs would be spread before their
+        # lengths are known.
+        needs = {}
+        for run in todo:
             ds = run.dataset
             source = f_tpl[ds.templates.path] if run.method.templates else f_feat[ds.name]
-            fut = client.submit(do_run, run, str(plan.results), plan.evaluate,
-                                _inputs_plan(plan, run), f_ds[ds.name],
-                                f_map.get(ds.map, ds.map), source,
-                                key=f"run-{run.key}-{_tag()}", pure=False, priority=-i)
-            futures[fut] = run
+            needs[run.key] = (f_ds[ds.name], f_map.get(ds.map, ds.map), source)
+        waiting = longest_first(plan, todo)
+        running: dict = {}
         left = collections.Counter(r.dataset.name for r in todo)
         pictures = {}
+        events = as_completed([*f_ds.values(), *f_map.values(), *f_feat.values(),
+                               *f_tpl.values()])
+
+        def finish(run, rec):
+            records[run.key] = rec
+            bar.update(1)
+            name = run.dataset.name
+            left[name] -= 1
+            if not left[name]:
+                runs = [_public(records[r.key]) for r in plan.runs
+                        if r.dataset.name == name and r.key in records]
+                pictures[name] = client.submit(
+                    comparison.draw_dataset_cdf, str(plan.results), name, runs,
+                    key=f"cdf-{name}-{_tag()}", pure=False)
+
+        def launch():
+            """Submit the waiting runs whose inputs are made, while threads are free."""
+            free = max(1, sum(client.nthreads().values())) - len(running)
+            for run in list(waiting):
+                if free <= 0:
+                    break
+                inputs = needs[run.key]
+                futs = [f for f in inputs if not isinstance(f, str)]
+                if any(f.status == "pending" for f in futs):
+                    continue
+                waiting.remove(run)
+                failed = [f for f in futs if f.status != "finished"]
+                if failed:  # its dataset, map or features could not be made
+                    bad = failed[0]
+                    e = (bad.exception() if bad.status == "error"
+                         else RuntimeError(f"{bad.key}: {bad.status}"))
+                    finish(run, _failed_before(plan, run, e))
+                    continue
+                d, m, f = (x if isinstance(x, str) else x.result() for x in inputs)
+                fut = client.submit(do_run, run, str(plan.results), plan.evaluate,
+                                    _inputs_plan(plan, run), d, m, f,
+                                    key=f"run-{run.key}-{_tag()}", pure=False)
+                running[fut] = run
+                events.add(fut)
+                free -= 1
+
         with _bar(len(todo), progress) as bar:
             try:
-                for fut in as_completed(list(futures)):
-                    run = futures[fut]
-                    try:
-                        records[run.key] = fut.result()
-                    except Exception as e:  # its dataset, map or features could not be made
-                        records[run.key] = _failed_before(plan, run, e)
-                    bar.update(1)
-                    name = run.dataset.name
-                    left[name] -= 1
-                    if not left[name]:
-                        runs = [_public(records[r.key]) for r in plan.runs
-                                if r.dataset.name == name and r.key in records]
-                        pictures[name] = client.submit(
-                            comparison.draw_dataset_cdf, str(plan.results), name, runs,
-                            key=f"cdf-{name}-{_tag()}", pure=False)
-                drawn = set()
+                launch()
+                for fut in events:
+                    run = running.pop(fut, None)
+                    if run is not None:
+                        try:
+                            rec = fut.result()
+                        except Exception as e:  # the worker died, say
+                            rec = _failed_before(plan, run, e)
+                        finish(run, rec)
+                    launch()
+                index = summarise(drawn=set(pictures))
                 for name, fut in pictures.items():
                     try:
                         fut.result()
-                        drawn.add(name)
-                    except Exception as e:  # drawn again, and reported, by the client
+                    except Exception as e:  # drawn again, and reported, by this process
                         log.debug("the CDF of %s on a worker failed: %s", name, one_line(e))
+                        comparison.draw_dataset_cdf(plan.results, name, index["runs"])
             except KeyboardInterrupt:
-                client.cancel(list(futures) + list(pictures.values()))
+                client.cancel(list(running) + list(pictures.values()))
                 raise
-    return drawn
+    return index
+
+
+def longest_first(plan: Plan, todo: list[RunSpec]) -> list[RunSpec]:
+    """``todo`` in the order Dask should start them: the longest first, so that the batch
+    does not end with one worker on a long run while the others wait (longest-processing-
+    time-first scheduling). A run's length is the seconds its run.json recorded when it ran
+    before (an overwritten or failed run); runs that never ran come first, in the SPEC's
+    order, since nothing says they are short."""
+
+    def seconds(run: RunSpec) -> float:
+        try:
+            s = float(_record_of(Path(plan.results), run).get("seconds", math.nan))
+        except (FieldlocError, TypeError, ValueError):
+            return math.inf
+        return s if math.isfinite(s) else math.inf
+
+    return sorted(todo, key=seconds, reverse=True)  # stable: equal lengths keep SPEC order
 
 
 def _tag() -> str:
