@@ -59,7 +59,7 @@ def bench_batch_throughput(repeat: int) -> Row:
 
     from . import batch
 
-    frames = 60
+    frames = 120
     inputs = [rendered_inputs("omni", "msl-2015", frames, 21 + k) for k in range(4)]
     map_path = inputs[0]["map"]
     _warm(map_path)
@@ -75,7 +75,7 @@ def bench_batch_throughput(repeat: int) -> Row:
     run_s: list[float] = []  # the runs' own seconds on 1 worker (their sum: the runs' share)
     with LocalCluster(n_workers=1, **quiet) as one, LocalCluster(n_workers=2, **quiet) as two:
         clusters = {1: one.scheduler_address, 2: two.scheduler_address}
-        for k in range(1 + max(1, repeat // 2)):
+        for k in range(1 + max(1, repeat)):
             for n in (1, 2):
                 out = work / f"results-{n}"
                 t = time.perf_counter()
