@@ -6,11 +6,13 @@ stages.evaluate.line_share. Skipped when ../shared/realdata is absent.
 Goals (issue 7, item 4) and what this commit reaches (the README's results table):
 - a pose on >= 9 of 10 minho-lab images: met (10 of 10);
 - >= 70 % of the points within 15 cm and >= the image's null baseline + 0.15 on >= 8 of 10:
-  not met (4 of 10; a few images hold 12-17 points, whose null baseline is 0.7-0.86);
+  not met (7 of 10 since a global frame's candidates are weighed by their line points,
+  lut's ``global_evidence``; 4 before. Image 04 holds 12 points whose null baseline, 0.86,
+  lies above the brute-force best share, 0.83: no pose can meet it);
 - the pose, or its mirror, moving <= 30 cm / 5 deg between range limits 3.5, 4 and 5 m: not
-  met on every image (4 of 10);
+  met on every image (5 of 10);
 - the top or second hypothesis at the brute-force best pose, or its mirror, for the images
-  and for their points through --points: not met (2 and 1 of 10).
+  and for their points through --points: not met (4 and 1 of 10).
 Where a goal is not met the test holds the level reached, so a regression fails it; every
 image's probability is low (below the acceptance threshold) wherever the pose is unsure, and
 the test checks that too: no image is accepted with a pose explaining less than its null."""
@@ -43,11 +45,11 @@ def test_every_minho_lab_image_gets_a_pose(lab):
 
 
 def test_minho_lab_poses_explain_the_points_beyond_the_null(lab):
-    assert lab["explained"] >= 4, lab["rows"]  # goal 8 of 10: not met (module doc)
+    assert lab["explained"] >= 7, lab["rows"]  # goal 8 of 10: not met (module doc)
 
 
 def test_minho_lab_poses_are_stable_over_the_range_limit(lab):
-    assert lab["stable"] >= 4  # goal: every image (module doc)
+    assert lab["stable"] >= 5  # goal: every image (module doc)
 
 
 def test_an_unsure_minho_lab_image_is_not_accepted(lab):
@@ -62,5 +64,5 @@ def test_an_unsure_minho_lab_image_is_not_accepted(lab):
 
 
 def test_minho_lab_hypotheses_hold_the_brute_force_pose(lab):
-    assert lab["top_or_second_at_best"] >= 2  # goal: every image (module doc)
+    assert lab["top_or_second_at_best"] >= 4  # goal: every image (module doc)
     assert lab["points_top_or_second_at_best"] >= 1
