@@ -191,20 +191,27 @@ def test_the_edge_test_removes_responses_along_an_oblique_line():
 GAUSSIAN_BAY = {**BAY, "hessian": "gaussian"}  # Bay's detector with Gaussian derivatives
 
 
-def test_gaussian_layers_give_the_hessian_of_a_quadratic_in_the_boxes_units():
+@pytest.mark.parametrize("first_octave, layers", [(0, 12), (-1, 16)])
+def test_gaussian_layers_give_the_hessian_of_a_quadratic_in_the_boxes_units(first_octave,
+                                                                             layers):
     """On I = a x^2 + b y^2 + c x y a Gaussian blur leaves the second derivatives as they are
     and central differences are exact, so every layer, whichever pyramid level it is computed
     on, holds (4 BLOB_RESPONSE)^2 sigma^4 (4 a b - c^2) with sigma = L / BLOB_SIZE (the
     Gaussian a box filter of size L stands for), and the trace's sign of 2 a + 2 b; away from
-    the borders, where pyrDown reflects the image."""
+    the borders, where pyrDown reflects the image. ``first_octave`` -1 adds the octave of
+    sizes 6, 9, 12, 15 sampled every pixel."""
     n = 400
     yy, xx = np.mgrid[0:n, 0:n].astype(float) - 200.0
     a, b, c = 4e-6, 2.5e-6, -1.5e-6
     img = 0.4 + a * xx ** 2 + b * yy ** 2 + c * xx * yy
     ii, bad, unit = surf.integral_images(img)
-    conf = surf.check_conf({**GAUSSIAN_BAY, "octaves": 3})
+    conf = surf.check_conf({**GAUSSIAN_BAY, "octaves": 3, "first_octave": first_octave})
+    pyramid = surf.hessian_pyramid(ii, bad, unit, conf, img)
+    assert [(step, sizes) for step, sizes, _, _ in pyramid][:2] == (
+        [(1, [6, 9, 12, 15]), (2, [9, 15, 21, 27])] if first_octave else
+        [(2, [9, 15, 21, 27]), (4, [15, 27, 39, 51])])
     checked = 0
-    for step, sizes, dets, traces in surf.hessian_pyramid(ii, bad, unit, conf, img):
+    for step, sizes, dets, traces in pyramid:
         for layer, size in enumerate(sizes):
             sigma = size / surf.BLOB_SIZE
             want = (4 * surf.BLOB_RESPONSE) ** 2 * sigma ** 4 * (4 * a * b - c * c)
@@ -213,7 +220,7 @@ def test_gaussian_layers_give_the_hessian_of_a_quadratic_in_the_boxes_units():
             assert inner.size and np.allclose(inner, want, rtol=0.02)
             assert np.all(traces[layer, lo:hi, lo:hi] > 0)
             checked += 1
-    assert checked == 12
+    assert checked == layers
     assert surf.BLOB_SIZE == pytest.approx(3 * 1.68, abs=0.01)  # L of a blob's best box (above)
 
 
@@ -255,6 +262,72 @@ def test_gaussian_hessian_has_no_response_along_an_oblique_line():
     assert biggest(GAUSSIAN_BAY) < 0.1 * biggest(BAY)
     with pytest.raises(FieldlocError, match="hessian must be one of"):
         surf.check_conf({**BAY, "hessian": "log"})
+
+
+def test_the_doubled_image_lies_at_half_its_pixels_minus_a_quarter():
+    """``double_image``: pixel k of the doubled image lies at k / 2 - 1 / 4 of the image (a ramp
+    says where), the mask doubles by its nearest pixel, and keypoints come back by the same
+    map: (10, 20) at scale 4 of the doubled image is (4.75, 9.75) at scale 2."""
+    yy, xx = np.mgrid[0:40, 0:50].astype(float)
+    img = 0.2 + 0.004 * xx + 0.002 * yy
+    mask = np.ones(img.shape, bool)
+    mask[:, 30:] = False
+    big, big_mask = surf.doubled_image(img, mask)
+    assert big.shape == big_mask.shape == (80, 100)
+    y2, x2 = np.mgrid[0:80, 0:100].astype(float)
+    want = 0.2 + 0.004 * (x2 / 2 - 0.25) + 0.002 * (y2 / 2 - 0.25)
+    np.testing.assert_allclose(big[1:-1, 1:-1], want[1:-1, 1:-1], atol=1e-6)
+    assert big_mask[:, :60].all() and not big_mask[:, 60:].any()
+    kp = surf.halved_keypoints(np.array([[10.0, 20.0, 4.0, 0.3, 1e-3, -1.0]]))
+    np.testing.assert_allclose(kp, [[4.75, 9.75, 2.0, 0.3, 1e-3, -1.0]])
+
+
+@pytest.mark.parametrize("conf", [{**BAY, "double_image": True},
+                                  {**GAUSSIAN_BAY, "double_image": True},
+                                  {**GAUSSIAN_BAY, "first_octave": -1}],
+                         ids=["boxes, doubled image", "gaussian, doubled image",
+                              "gaussian, first octave -1"])
+def test_a_blob_below_the_first_octave_is_found_at_its_scale_with_the_finer_options(conf):
+    """Bay's first searched filter is L = 15 (s = 2.0; L = 9 only a neighbour), so the default
+    finds no keypoint on a blob of sigma 1.6 (its best box L = 5.04 sigma = 8). Doubling the
+    image (the blob then has sigma 3.2, where the boxes find it) or the octave of sizes 6, 9,
+    12, 15 find it at its centre in the image's pixels, at the scale the detector gives a
+    blob (s = 0.67-0.86 sigma for the boxes, test_a_blob_is_detected_at_its_matching_scale;
+    1.2 BLOB_SIZE / 9 = 0.67 sigma for the Gaussians, up to the interpolation), with its
+    det(H) and its Laplacian's sign; a larger blob is found as without the option (within
+    10 %). The default misses a blob of sigma 2.0 too."""
+    centre = (60.4, 59.8)
+    for sigma in (1.6, 2.0):
+        small = gaussian_blob(121, centre, sigma, -0.4)
+        assert len(surf.detect_and_describe(small, None, BAY)[0]) == 0
+        assert len(surf.detect_and_describe(small, None, GAUSSIAN_BAY)[0]) == 0
+    for sigma in (1.6, 2.0, 2.5, 5.0):
+        img = gaussian_blob(121, centre, sigma, -0.4)
+        kp, desc = surf.detect_and_describe(img, None, conf)
+        assert len(kp) >= 1 and desc.shape == (len(kp), 64)
+        best = kp[0]
+        assert np.hypot(best[0] - centre[0], best[1] - centre[1]) < 0.1 * sigma + 0.2
+        assert 0.6 < best[surf.SCALE] / sigma < 0.86
+        # within 20 %: the linear interpolation of the doubled image flattens a narrow blob
+        assert best[surf.RESPONSE] == pytest.approx(surf.blob_det(0.4), rel=0.2)
+        assert best[surf.LAPLACIAN] == 1.0
+        if sigma == 5.0:
+            plain = surf.detect_and_describe(img, None, {**conf, "double_image": False,
+                                                         "first_octave": 0})[0][0]
+            assert best[surf.SCALE] == pytest.approx(plain[surf.SCALE], rel=0.1)
+
+
+def test_first_octave_needs_the_gaussian_hessian_and_an_even_step():
+    for bad, why in (({**BAY, "first_octave": -1}, "needs hessian 'gaussian'"),
+                     ({**GAUSSIAN_BAY, "first_octave": -1, "initial_step": 1}, "even"),
+                     ({**GAUSSIAN_BAY, "first_octave": -2}, "must be 0 or -1")):
+        with pytest.raises(FieldlocError, match=why):
+            surf.check_conf(bad)
+    # confs written before the options read as without them
+    old = {k: v for k, v in surf.confs["default"].items()
+           if k not in ("first_octave", "double_image")}
+    c = surf.check_conf(old)
+    assert c["first_octave"] == 0 and c["double_image"] is False
 
 
 def test_mask_edges_make_no_keypoints_and_max_keypoints_keeps_the_strongest():

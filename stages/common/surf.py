@@ -109,6 +109,12 @@ confs = {
         # the second derivatives of the detector: "box" (Bay et al.'s box filters on the
         # integral image) or "gaussian" (the Gaussians the boxes stand for; module doc)
         "hessian": "box",
+        # "first_octave" -1: an octave below Bay et al.'s first, of filter sizes 6, 9, 12, 15
+        # at half the initial step (hessian "gaussian" only; module doc); 0: none
+        "first_octave": 0,
+        # detect and describe on the image doubled by linear interpolation (as Lowe's SIFT
+        # does), keypoints reported in the image's pixels (module doc)
+        "double_image": False,
     },
 }
 confs["upright"] = {**confs["default"], "upright": True}
@@ -118,14 +124,22 @@ HESSIAN_WEIGHT = 0.9  # Dxy weight in det(H) (Bay et al.: 0.9)
 
 
 def filter_size(octave: int, layer: int) -> int:
-    """Box filter size (px) of ``layer`` in ``octave`` (both 0-based): 9, 15, 21, 27 in the
-    first octave, then the increment doubles with each octave."""
-    return 3 * ((2 ** (octave + 1)) * (layer + 1) + 1)
+    """Box filter size (px) of ``layer`` in ``octave`` (0-based layer): 9, 15, 21, 27 in
+    octave 0, then the increment doubles with each octave; octave -1 (``first_octave``) holds
+    6, 9, 12, 15."""
+    return 3 * ((1 << (octave + 1)) * (layer + 1) + 1)
+
+
+def octave_step(initial_step: int, octave: int) -> int:
+    """Pixels between the samples of ``octave``: ``initial_step`` 2^octave (octave -1: half
+    of it)."""
+    return initial_step << octave if octave >= 0 else initial_step >> -octave
 
 
 BLOB_RESPONSE = 0.1815  # |Dxx| / c at the centre of a Gaussian blob, at its best filter size
 BLOB_SIZE = 5.04  # that best filter size L in units of the blob's sigma (blob_det)
 HESSIANS = ("box", "gaussian")
+FIRST_OCTAVES = (0, -1)
 
 
 def blob_det(contrast: float) -> float:
@@ -150,6 +164,8 @@ def check_conf(conf: dict) -> dict:
             "max_keypoints": int(conf["max_keypoints"]),
             "edge_ratio": float(conf["edge_ratio"]),
             "hessian": str(conf.get("hessian", "box")),
+            "first_octave": int(conf.get("first_octave", 0)),
+            "double_image": bool(conf.get("double_image", False)),
         }
     except KeyError as e:
         raise FieldlocError(f"surf conf misses key {e}") from None
@@ -163,6 +179,12 @@ def check_conf(conf: dict) -> dict:
     if c["hessian"] not in HESSIANS:
         raise FieldlocError(f"surf conf: hessian must be one of {', '.join(HESSIANS)},"
                             f" not {c['hessian']!r}")
+    if c["first_octave"] not in FIRST_OCTAVES:
+        raise FieldlocError(f"surf conf: first_octave must be 0 or -1, not {c['first_octave']}")
+    if c["first_octave"] < 0 and (c["hessian"] != "gaussian" or c["initial_step"] % 2):
+        raise FieldlocError("surf conf: first_octave -1 needs hessian 'gaussian' (its filter"
+                            " sizes 6 and 12 have no centred box filter) and an even"
+                            " initial_step (it samples at half of it)")
     return c
 
 
@@ -617,8 +639,8 @@ def hessian_pyramid(ii: np.ndarray, bad: np.ndarray | None, unit: float, conf: d
         levels = _GaussianLevels(np.asarray(image, np.float32) * np.float32(unit))
     out = []
     prev = None
-    for o in range(conf["octaves"]):
-        step = conf["initial_step"] * 2 ** o
+    for o in range(conf.get("first_octave", 0), conf["octaves"]):
+        step = octave_step(conf["initial_step"], o)
         rows, cols = (h - 1) // step + 1, (w - 1) // step + 1
         sizes = [filter_size(o, i) for i in range(conf["layers"])]
         dets = np.empty((len(sizes), rows, cols), np.float32)
@@ -750,7 +772,35 @@ def detect_and_describe(image_gray: np.ndarray, mask: np.ndarray | None = None,
     (N, 64) descriptors, strongest first. ``mask``: bool, True where the image may be used."""
     c = check_conf(confs["default"] if conf is None else conf)
     img, m, unit = prepared_image(image_gray, mask)
+    if c["double_image"]:
+        img, m = doubled_image(img, m)
     ii, bad, unit = _integrals(img, m, unit)
     kp = screen_and_orient(ii, detect(ii, bad, unit, c, img if c["hessian"] == "gaussian"
                                       else None), c)
-    return kp, describe(ii, kp)
+    desc = describe(ii, kp)
+    if c["double_image"]:
+        kp = halved_keypoints(kp)
+    return kp, desc
+
+
+def doubled_image(img: np.ndarray, mask: np.ndarray | None):
+    """``prepared_image``'s image (float32, its values unchanged) and mask doubled: the image
+    by linear interpolation, pixel k lying at k / 2 - 1 / 4 of the original (cv2.resize's
+    alignment of pixel areas), the mask by its nearest pixel (k // 2)."""
+    import cv2
+
+    h, w = img.shape
+    big = cv2.resize(np.asarray(img, np.float32), (2 * w, 2 * h), interpolation=cv2.INTER_LINEAR)
+    if mask is None:
+        return big, None
+    return big, cv2.resize(mask.view(np.uint8), (2 * w, 2 * h),
+                           interpolation=cv2.INTER_NEAREST).view(bool)
+
+
+def halved_keypoints(keypoints: np.ndarray) -> np.ndarray:
+    """Keypoints of the doubled image (``doubled_image``) in the original's pixels: x / 2 - 1 / 4,
+    y / 2 - 1 / 4, scale / 2, the rest as they are."""
+    kp = np.array(keypoints, dtype=np.float64, order="C")
+    kp[:, [X, Y]] = 0.5 * kp[:, [X, Y]] - 0.25
+    kp[:, SCALE] *= 0.5
+    return kp
