@@ -191,25 +191,28 @@ def test_the_edge_test_removes_responses_along_an_oblique_line():
 GAUSSIAN_BAY = {**BAY, "hessian": "gaussian"}  # Bay's detector with Gaussian derivatives
 
 
-@pytest.mark.parametrize("first_octave, layers", [(0, 12), (-1, 16)])
-def test_gaussian_layers_give_the_hessian_of_a_quadratic_in_the_boxes_units(first_octave,
+@pytest.mark.parametrize("geometric_layers, layers", [(0, 12), (3, 15)])
+def test_gaussian_layers_give_the_hessian_of_a_quadratic_in_the_boxes_units(geometric_layers,
                                                                              layers):
     """On I = a x^2 + b y^2 + c x y a Gaussian blur leaves the second derivatives as they are
     and central differences are exact, so every layer, whichever pyramid level it is computed
     on, holds (4 BLOB_RESPONSE)^2 sigma^4 (4 a b - c^2) with sigma = L / BLOB_SIZE (the
     Gaussian a box filter of size L stands for), and the trace's sign of 2 a + 2 b; away from
-    the borders, where pyrDown reflects the image. ``first_octave`` -1 adds the octave of
-    sizes 6, 9, 12, 15 sampled every pixel."""
+    the borders, where pyrDown reflects the image. With ``geometric_layers`` 3 the sizes are
+    15 2^(o + k / 3), k = -1..3, in octave o."""
     n = 400
     yy, xx = np.mgrid[0:n, 0:n].astype(float) - 200.0
     a, b, c = 4e-6, 2.5e-6, -1.5e-6
     img = 0.4 + a * xx ** 2 + b * yy ** 2 + c * xx * yy
     ii, bad, unit = surf.integral_images(img)
-    conf = surf.check_conf({**GAUSSIAN_BAY, "octaves": 3, "first_octave": first_octave})
+    conf = surf.check_conf({**GAUSSIAN_BAY, "octaves": 3, "geometric_layers": geometric_layers})
     pyramid = surf.hessian_pyramid(ii, bad, unit, conf, img)
-    assert [(step, sizes) for step, sizes, _, _ in pyramid][:2] == (
-        [(1, [6, 9, 12, 15]), (2, [9, 15, 21, 27])] if first_octave else
-        [(2, [9, 15, 21, 27]), (4, [15, 27, 39, 51])])
+    r = 2 ** (1 / 3)
+    want_sizes = ([[15 / r, 15, 15 * r, 15 * r * r, 30], [30 / r, 30, 30 * r, 30 * r * r, 60]]
+                  if geometric_layers else [[9, 15, 21, 27], [15, 27, 39, 51]])
+    assert [step for step, _, _, _ in pyramid] == [2, 4, 8]
+    for (_, sizes, _, _), want in zip(pyramid, want_sizes):
+        np.testing.assert_allclose(sizes, want, rtol=1e-12)
     checked = 0
     for step, sizes, dets, traces in pyramid:
         for layer, size in enumerate(sizes):
@@ -283,15 +286,13 @@ def test_the_doubled_image_lies_at_half_its_pixels_minus_a_quarter():
 
 
 @pytest.mark.parametrize("conf", [{**BAY, "double_image": True},
-                                  {**GAUSSIAN_BAY, "double_image": True},
-                                  {**GAUSSIAN_BAY, "first_octave": -1}],
-                         ids=["boxes, doubled image", "gaussian, doubled image",
-                              "gaussian, first octave -1"])
-def test_a_blob_below_the_first_octave_is_found_at_its_scale_with_the_finer_options(conf):
+                                  {**GAUSSIAN_BAY, "double_image": True}],
+                         ids=["boxes", "gaussian"])
+def test_a_blob_below_the_first_octave_is_found_at_its_scale_in_the_doubled_image(conf):
     """Bay's first searched filter is L = 15 (s = 2.0; L = 9 only a neighbour), so the default
     finds no keypoint on a blob of sigma 1.6 (its best box L = 5.04 sigma = 8). Doubling the
-    image (the blob then has sigma 3.2, where the boxes find it) or the octave of sizes 6, 9,
-    12, 15 find it at its centre in the image's pixels, at the scale the detector gives a
+    image (the blob then has sigma 3.2, where the boxes find it) finds it at its centre in
+    the image's pixels, at the scale the detector gives a
     blob (s = 0.67-0.86 sigma for the boxes, test_a_blob_is_detected_at_its_matching_scale;
     1.2 BLOB_SIZE / 9 = 0.67 sigma for the Gaussians, up to the interpolation), with its
     det(H) and its Laplacian's sign; a larger blob is found as without the option (within
@@ -312,22 +313,56 @@ def test_a_blob_below_the_first_octave_is_found_at_its_scale_with_the_finer_opti
         assert best[surf.RESPONSE] == pytest.approx(surf.blob_det(0.4), rel=0.2)
         assert best[surf.LAPLACIAN] == 1.0
         if sigma == 5.0:
-            plain = surf.detect_and_describe(img, None, {**conf, "double_image": False,
-                                                         "first_octave": 0})[0][0]
+            plain = surf.detect_and_describe(img, None, {**conf, "double_image": False})[0][0]
             assert best[surf.SCALE] == pytest.approx(plain[surf.SCALE], rel=0.1)
 
 
-def test_first_octave_needs_the_gaussian_hessian_and_an_even_step():
-    for bad, why in (({**BAY, "first_octave": -1}, "needs hessian 'gaussian'"),
-                     ({**GAUSSIAN_BAY, "first_octave": -1, "initial_step": 1}, "even"),
-                     ({**GAUSSIAN_BAY, "first_octave": -2}, "must be 0 or -1")):
+def test_geometric_layers_give_every_blob_the_same_scale_per_sigma():
+    """Bay's sizes grow by linear steps (9, 15, 21, 27; then 15, 27, 39, 51, ...: neighbours
+    up to 1.8x apart) and the scale interpolated between them follows a blob's sigma only
+    roughly (s / sigma 0.68-0.80 over sigma 3-14, and no keypoint at all for some sizes
+    between the octaves). With ``geometric_layers`` 3 each octave searches 15 2^(o + k / 3):
+    every blob is found, at its centre, at s = 1.2 BLOB_SIZE / 9 = 0.672 of its sigma within
+    3 % (the Gaussian derivatives' own ratio), and its det(H) as ``blob_det`` says."""
+    conf = {**GAUSSIAN_BAY, "geometric_layers": 3}
+    want = 1.2 * surf.BLOB_SIZE / 9
+    ratios, linear = [], []
+    for sigma in np.geomspace(3.0, 14.0, 15):
+        centre = (150.4, 149.8)
+        img = gaussian_blob(301, centre, sigma, -0.4)
+        kp, desc = surf.detect_and_describe(img, None, conf)
+        assert len(kp) >= 1 and desc.shape == (len(kp), 64)
+        best = kp[0]
+        assert np.hypot(best[0] - centre[0], best[1] - centre[1]) < 0.1 * sigma + 0.2
+        assert best[surf.RESPONSE] == pytest.approx(surf.blob_det(0.4), rel=0.15)
+        assert best[surf.LAPLACIAN] == 1.0
+        ratios.append(best[surf.SCALE] / sigma)
+        plain = surf.detect_and_describe(img, None, GAUSSIAN_BAY)[0]
+        linear.append(plain[0, surf.SCALE] / sigma if len(plain) else np.nan)
+    np.testing.assert_allclose(ratios, want, rtol=0.03)
+    linear = np.array(linear)
+    assert np.isnan(linear).any() or np.nanmax(linear) / np.nanmin(linear) > 1.08
+    # octave o + 1 begins with the last two sizes of octave o: the same layers, every second
+    # sample
+    img = gaussian_blob(301, (150.4, 149.8), 6.0, -0.4)
+    ii, bad, unit = surf.integral_images(img)
+    (_, s0, d0, t0), (_, s1, d1, t1) = surf.hessian_pyramid(
+        ii, bad, unit, surf.check_conf({**conf, "octaves": 2}), img)
+    assert s1[:2] == s0[-2:]
+    np.testing.assert_array_equal(d1[:2], d0[-2:, ::2, ::2])
+    np.testing.assert_array_equal(t1[:2], t0[-2:, ::2, ::2])
+
+
+def test_the_new_options_check_their_values_and_default_to_bay():
+    for bad, why in (({**BAY, "geometric_layers": 3}, "needs hessian 'gaussian'"),
+                     ({**GAUSSIAN_BAY, "geometric_layers": 9}, "must be 0..8")):
         with pytest.raises(FieldlocError, match=why):
             surf.check_conf(bad)
     # confs written before the options read as without them
     old = {k: v for k, v in surf.confs["default"].items()
-           if k not in ("first_octave", "double_image")}
+           if k not in ("geometric_layers", "double_image")}
     c = surf.check_conf(old)
-    assert c["first_octave"] == 0 and c["double_image"] is False
+    assert c["geometric_layers"] == 0 and c["double_image"] is False
 
 
 def test_mask_edges_make_no_keypoints_and_max_keypoints_keeps_the_strongest():

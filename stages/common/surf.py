@@ -109,12 +109,13 @@ confs = {
         # the second derivatives of the detector: "box" (Bay et al.'s box filters on the
         # integral image) or "gaussian" (the Gaussians the boxes stand for; module doc)
         "hessian": "box",
-        # "first_octave" -1: an octave below Bay et al.'s first, of filter sizes 6, 9, 12, 15
-        # at half the initial step (hessian "gaussian" only; module doc); 0: none
-        "first_octave": 0,
         # detect and describe on the image doubled by linear interpolation (as Lowe's SIFT
         # does), keypoints reported in the image's pixels (module doc)
         "double_image": False,
+        # > 0: each octave searches this many filter sizes spaced by 2^(1 / n), from L = 15
+        # (SIFT's layout of scales; hessian "gaussian" only; module doc); 0: Bay et al.'s
+        # ``layers`` sizes 9, 15, 21, 27, ... of linear increments
+        "geometric_layers": 0,
     },
 }
 confs["upright"] = {**confs["default"], "upright": True}
@@ -124,22 +125,34 @@ HESSIAN_WEIGHT = 0.9  # Dxy weight in det(H) (Bay et al.: 0.9)
 
 
 def filter_size(octave: int, layer: int) -> int:
-    """Box filter size (px) of ``layer`` in ``octave`` (0-based layer): 9, 15, 21, 27 in
-    octave 0, then the increment doubles with each octave; octave -1 (``first_octave``) holds
-    6, 9, 12, 15."""
-    return 3 * ((1 << (octave + 1)) * (layer + 1) + 1)
+    """Box filter size (px) of ``layer`` in ``octave`` (both 0-based): 9, 15, 21, 27 in the
+    first octave, then the increment doubles with each octave."""
+    return 3 * ((2 ** (octave + 1)) * (layer + 1) + 1)
 
 
-def octave_step(initial_step: int, octave: int) -> int:
-    """Pixels between the samples of ``octave``: ``initial_step`` 2^octave (octave -1: half
-    of it)."""
-    return initial_step << octave if octave >= 0 else initial_step >> -octave
+FIRST_SEARCHED_SIZE = 15  # filter_size(0, 1): the smallest size octave 0 searches
+
+
+def geometric_sizes(octave: int, n: int) -> list[float]:
+    """The filter sizes of ``octave`` when each octave searches ``n`` sizes spaced by 2^(1/n)
+    (``geometric_layers``): 15 2^(octave + k / n) for k = -1..n, the first and the last only
+    the searched ones' neighbours; octave o + 1 begins with the last two sizes of octave o
+    (the same floats, so that their layers are reused)."""
+    return [FIRST_SEARCHED_SIZE * 2.0 ** ((octave * n + k) / n) for k in range(-1, n + 1)]
+
+
+def octave_sizes(conf: dict, octave: int) -> list:
+    """The filter sizes of ``octave``: ``geometric_sizes`` when ``geometric_layers`` is set,
+    else Bay et al.'s ``layers`` sizes (``filter_size``)."""
+    if conf.get("geometric_layers", 0):
+        return geometric_sizes(octave, conf["geometric_layers"])
+    return [filter_size(octave, i) for i in range(conf["layers"])]
+
 
 
 BLOB_RESPONSE = 0.1815  # |Dxx| / c at the centre of a Gaussian blob, at its best filter size
 BLOB_SIZE = 5.04  # that best filter size L in units of the blob's sigma (blob_det)
 HESSIANS = ("box", "gaussian")
-FIRST_OCTAVES = (0, -1)
 
 
 def blob_det(contrast: float) -> float:
@@ -164,8 +177,8 @@ def check_conf(conf: dict) -> dict:
             "max_keypoints": int(conf["max_keypoints"]),
             "edge_ratio": float(conf["edge_ratio"]),
             "hessian": str(conf.get("hessian", "box")),
-            "first_octave": int(conf.get("first_octave", 0)),
             "double_image": bool(conf.get("double_image", False)),
+            "geometric_layers": int(conf.get("geometric_layers", 0)),
         }
     except KeyError as e:
         raise FieldlocError(f"surf conf misses key {e}") from None
@@ -179,12 +192,11 @@ def check_conf(conf: dict) -> dict:
     if c["hessian"] not in HESSIANS:
         raise FieldlocError(f"surf conf: hessian must be one of {', '.join(HESSIANS)},"
                             f" not {c['hessian']!r}")
-    if c["first_octave"] not in FIRST_OCTAVES:
-        raise FieldlocError(f"surf conf: first_octave must be 0 or -1, not {c['first_octave']}")
-    if c["first_octave"] < 0 and (c["hessian"] != "gaussian" or c["initial_step"] % 2):
-        raise FieldlocError("surf conf: first_octave -1 needs hessian 'gaussian' (its filter"
-                            " sizes 6 and 12 have no centred box filter) and an even"
-                            " initial_step (it samples at half of it)")
+    if not 0 <= c["geometric_layers"] <= 8:
+        raise FieldlocError("surf conf: geometric_layers must be 0..8")
+    if c["geometric_layers"] and c["hessian"] != "gaussian":
+        raise FieldlocError("surf conf: geometric_layers needs hessian 'gaussian' (box filters"
+                            " come in sizes of 3 (2 k + 1) only)")
     return c
 
 
@@ -639,10 +651,10 @@ def hessian_pyramid(ii: np.ndarray, bad: np.ndarray | None, unit: float, conf: d
         levels = _GaussianLevels(np.asarray(image, np.float32) * np.float32(unit))
     out = []
     prev = None
-    for o in range(conf.get("first_octave", 0), conf["octaves"]):
-        step = octave_step(conf["initial_step"], o)
+    for o in range(conf["octaves"]):
+        step = conf["initial_step"] * 2 ** o
         rows, cols = (h - 1) // step + 1, (w - 1) // step + 1
-        sizes = [filter_size(o, i) for i in range(conf["layers"])]
+        sizes = octave_sizes(conf, o)
         dets = np.empty((len(sizes), rows, cols), np.float32)
         traces = np.empty((len(sizes), rows, cols), np.float32)
         for i, size in enumerate(sizes):
@@ -654,7 +666,7 @@ def hessian_pyramid(ii: np.ndarray, bad: np.ndarray | None, unit: float, conf: d
                 traces[i] = prev[3][reuse, ::2, ::2]
             elif gaussian:
                 blurred, q, gain = levels.layer(size, step)
-                _gaussian_layer(blurred, q, step, size, gain, bad, masked, h, w, dets[i],
+                _gaussian_layer(blurred, q, step, round(size), gain, bad, masked, h, w, dets[i],
                                 traces[i])
             else:
                 _hessian_layer(ii, bad, masked, size, step, HESSIAN_WEIGHT, unit, dets[i],
@@ -710,7 +722,8 @@ def detect(ii: np.ndarray, bad: np.ndarray | None, unit: float, conf: dict,
         for i in range(1, len(sizes) - 1):
             while True:
                 m = _extrema(dets[i - 1], dets[i], dets[i + 1], traces[i], conf["threshold"],
-                             step, float(sizes[i]), float(sizes[i] - sizes[i - 1]), buf, n)
+                             step, float(sizes[i]), 0.5 * (sizes[i + 1] - sizes[i - 1]), buf,
+                             n)
                 if m >= 0:
                     n = m
                     break
