@@ -454,3 +454,25 @@ def test_feature_confs():
         lf.resolve_feature_conf({"features": "orb", "threshold": 1.0})
     with pytest.raises(FieldlocError, match="uint8"):
         lf.detect_and_describe(np.zeros((64, 64)), None, "sift")
+    geometric = lf.resolve_feature_conf("surf-geometric")
+    assert geometric["hessian"] == "gaussian" and geometric["geometric_layers"] == 3
+    assert lf.resolve_feature_conf("surf")["geometric_layers"] == 0  # the default keeps Bay's
+
+
+def test_a_template_database_takes_the_geometric_scales_by_conf():
+    """`fieldloc build-templates DIR -c features.hessian=gaussian -c
+    features.geometric_layers=3`: the overrides reach the template method's upright floor SURF,
+    which then detects with them."""
+    from stages import build_templates
+    from stages.common import ground_features as gf
+    from stages.common.conf import resolve_conf
+
+    conf = resolve_conf(build_templates.confs, "default",
+                        {"features": {"hessian": "gaussian", "geometric_layers": 3}})
+    features = gf.check_conf(build_templates.ground_conf(conf))["features"]
+    assert features["upright"] and features["threshold"] == 3e-5
+    assert features["hessian"] == "gaussian" and features["geometric_layers"] == 3
+    img = textured_image(257, 7)
+    kp, _ = lf.detect_and_describe(img, None, features)
+    plain, _ = lf.detect_and_describe(img, None, build_templates.confs["default"]["features"])
+    assert len(kp) >= 10 and not np.array_equal(kp[:, :3], plain[:len(kp), :3])

@@ -120,6 +120,9 @@ confs = {
 }
 confs["upright"] = {**confs["default"], "upright": True}
 confs["gaussian"] = {**confs["default"], "hessian": "gaussian"}
+# the Gaussian derivatives at SIFT's layout of scales, 3 per octave (module doc): the SURF that
+# repeats as SIFT does under rotation and scale (bench row surf-quality)
+confs["geometric"] = {**confs["gaussian"], "geometric_layers": 3}
 
 HESSIAN_WEIGHT = 0.9  # Dxy weight in det(H) (Bay et al.: 0.9)
 
