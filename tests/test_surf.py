@@ -353,16 +353,60 @@ def test_geometric_layers_give_every_blob_the_same_scale_per_sigma():
     np.testing.assert_array_equal(t1[:2], t0[-2:, ::2, ::2])
 
 
+def test_refine_moves_follows_the_fit_to_the_sample_it_points_to():
+    """A quadratic det(H) over (column, row, layer), long and narrow along the diagonal, with its
+    peak at column 10.3, row 10.7, layer 2.1: its largest samples are (10, 10) and (11, 11)
+    (equal; the first in raster order wins), and the fit there finds the peak exactly, 0.7 of
+    a sample away in the row, which Bay's refinement rejects. With refine_moves the fit moves
+    to row 11, where the offset is (0.3, -0.3, 0.1): the keypoint at the peak, in pixels at
+    the octave's step, with the peak's value and the size interpolated at layer 2.1."""
+    rows, cols, layers = 21, 21, 5
+    ll, rr, cc = np.meshgrid(np.arange(layers), np.arange(rows), np.arange(cols), indexing="ij")
+    x, y, s_ = 10.3, 10.7, 2.1
+    dets = (100.0 - 100.0 * ((cc - rr) - (x - y)) ** 2 - ((cc + rr) - (x + y)) ** 2
+            - 0.5 * (ll - s_) ** 2).astype(np.float32)
+    traces = np.ones_like(dets)
+    sizes = np.array([9.0, 15.0, 21.0, 27.0, 33.0])
+    step = 2
+    out = np.empty((16, 6))
+    assert dets[2, 10, 10] == dets[2, 11, 11] == dets[2].max()
+    bay = sum(surf._extrema(dets[i - 1], dets[i], dets[i + 1], traces[i], 0.0, step,
+                            sizes[i], 6.0, out, 0) for i in (1, 2, 3))
+    assert bay == 0
+    n = sum(surf._extrema_moving(dets, traces, i, 0.0, step, sizes, 5, out, 0)
+            for i in (1, 2, 3))
+    assert n == 1
+    kp = out[0]
+    np.testing.assert_allclose(kp[:2], [x * step, y * step], atol=1e-3)
+    assert kp[surf.SCALE] == pytest.approx((21.0 + 0.1 * 6.0) * 1.2 / 9, rel=1e-3)
+    assert kp[surf.RESPONSE] == pytest.approx(100.0, abs=1e-3)
+    # no move allowed: rejected as Bay's refinement rejects it
+    assert surf._extrema_moving(dets, traces, 2, 0.0, step, sizes, 0, out, 0) == 0
+
+
+def test_refine_moves_keeps_every_keypoint_of_bays_refinement_and_adds_some():
+    """A maximum whose first fit lies within half a sample is kept as it was; the others are
+    followed instead of rejected."""
+    img = textured_image(257, 7)
+    conf = {**GAUSSIAN_BAY, "geometric_layers": 3}
+    bay = surf.detect_and_describe(img, None, conf)[0]
+    moved = surf.detect_and_describe(img, None, {**conf, "refine_moves": 5})[0]
+    assert len(moved) > len(bay) >= 20
+    d = np.abs(bay[:, None, :3] - moved[None, :, :3]).sum(2)
+    assert np.all(d.min(1) == 0)
+
+
 def test_the_new_options_check_their_values_and_default_to_bay():
     for bad, why in (({**BAY, "geometric_layers": 3}, "needs hessian 'gaussian'"),
-                     ({**GAUSSIAN_BAY, "geometric_layers": 9}, "must be 0..8")):
+                     ({**GAUSSIAN_BAY, "geometric_layers": 9}, "must be 0..8"),
+                     ({**BAY, "refine_moves": -1}, "refine_moves must be 0..10")):
         with pytest.raises(FieldlocError, match=why):
             surf.check_conf(bad)
     # confs written before the options read as without them
     old = {k: v for k, v in surf.confs["default"].items()
-           if k not in ("geometric_layers", "double_image")}
+           if k not in ("geometric_layers", "double_image", "refine_moves")}
     c = surf.check_conf(old)
-    assert c["geometric_layers"] == 0 and c["double_image"] is False
+    assert c["geometric_layers"] == 0 and c["double_image"] is False and c["refine_moves"] == 0
 
 
 def test_mask_edges_make_no_keypoints_and_max_keypoints_keeps_the_strongest():
@@ -456,6 +500,7 @@ def test_feature_confs():
         lf.detect_and_describe(np.zeros((64, 64)), None, "sift")
     geometric = lf.resolve_feature_conf("surf-geometric")
     assert geometric["hessian"] == "gaussian" and geometric["geometric_layers"] == 3
+    assert geometric["refine_moves"] == 5
     assert lf.resolve_feature_conf("surf")["geometric_layers"] == 0  # the default keeps Bay's
 
 

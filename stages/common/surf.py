@@ -147,13 +147,17 @@ confs = {
         # (SIFT's layout of scales; hessian "gaussian" only; module doc); 0: Bay et al.'s
         # ``layers`` sizes 9, 15, 21, 27, ... of linear increments
         "geometric_layers": 0,
+        # a fit whose offset exceeds half a sample or layer moves to the neighbour it points
+        # to and fits again, at most this many times (Lowe's SIFT: 5); 0: rejected (Bay)
+        "refine_moves": 0,
     },
 }
 confs["upright"] = {**confs["default"], "upright": True}
 confs["gaussian"] = {**confs["default"], "hessian": "gaussian"}
-# the Gaussian derivatives at SIFT's layout of scales, 3 per octave (module doc): the SURF that
-# repeats as SIFT does under rotation and scale (bench row surf-quality)
-confs["geometric"] = {**confs["gaussian"], "geometric_layers": 3}
+# the Gaussian derivatives at SIFT's layout of scales, 3 per octave, and its refinement that
+# moves to the sample a fit points to (module doc): the SURF that repeats as SIFT does under
+# rotation and scale (bench row surf-quality)
+confs["geometric"] = {**confs["gaussian"], "geometric_layers": 3, "refine_moves": 5}
 
 HESSIAN_WEIGHT = 0.9  # Dxy weight in det(H) (Bay et al.: 0.9)
 
@@ -213,6 +217,7 @@ def check_conf(conf: dict) -> dict:
             "hessian": str(conf.get("hessian", "box")),
             "double_image": bool(conf.get("double_image", False)),
             "geometric_layers": int(conf.get("geometric_layers", 0)),
+            "refine_moves": int(conf.get("refine_moves", 0)),
         }
     except KeyError as e:
         raise FieldlocError(f"surf conf misses key {e}") from None
@@ -226,6 +231,8 @@ def check_conf(conf: dict) -> dict:
     if c["hessian"] not in HESSIANS:
         raise FieldlocError(f"surf conf: hessian must be one of {', '.join(HESSIANS)},"
                             f" not {c['hessian']!r}")
+    if not 0 <= c["refine_moves"] <= 10:
+        raise FieldlocError("surf conf: refine_moves must be 0..10")
     if not 0 <= c["geometric_layers"] <= 8:
         raise FieldlocError("surf conf: geometric_layers must be 0..8")
     if c["geometric_layers"] and c["hessian"] != "gaussian":
@@ -398,6 +405,63 @@ def _gaussian_layer(blurred, q, step, size, gain, bad, masked, h, w, det, trace)
             trace[i, j] = dxx + dyy
 
 
+@njit("boolean(float32[:, ::1], float32[:, ::1], float32[:, ::1], int64, int64)", cache=True,
+      nogil=True, inline="always")
+def _is_maximum(below, mid, above, r, c):
+    """Whether mid[r, c] is the maximum of its 3 x 3 x 3 neighbourhood, all of it defined:
+    strictly above the neighbours that come before (layer below, then earlier in raster
+    order), at least equal to those after, so that of two equal maxima the first wins."""
+    v = mid[r, c]
+    is_max = True
+    finite = True
+    for dr in range(-1, 2):
+        for dc in range(-1, 2):
+            a = above[r + dr, c + dc]
+            b = below[r + dr, c + dc]
+            m = mid[r + dr, c + dc]
+            before = dr < 0 or (dr == 0 and dc < 0)
+            if a > v or b >= v or (before and m >= v) or (not before and m > v
+                                                           and (dr != 0 or dc != 0)):
+                is_max = False
+            if a == -np.inf or b == -np.inf or m == -np.inf:
+                finite = False
+    return is_max and finite
+
+
+@njit("Tuple((boolean, float64, float64, float64, float64))(float32[:, ::1], float32[:, ::1],"
+      " float32[:, ::1], int64, int64)", cache=True, nogil=True, inline="always")
+def _quadratic_fit(below, mid, above, r, c):
+    """The 3D quadratic fit at mid[r, c] (gradient g and Hessian H by central differences):
+    (solved, offset x, y, scale = -H^-1 g in samples and layers, the value's rise 0.5 g . o)."""
+    v = mid[r, c]
+    gx = 0.5 * (mid[r, c + 1] - mid[r, c - 1])
+    gy = 0.5 * (mid[r + 1, c] - mid[r - 1, c])
+    gs = 0.5 * (above[r, c] - below[r, c])
+    hxx = mid[r, c + 1] + mid[r, c - 1] - 2.0 * v
+    hyy = mid[r + 1, c] + mid[r - 1, c] - 2.0 * v
+    hss = above[r, c] + below[r, c] - 2.0 * v
+    hxy = 0.25 * (mid[r + 1, c + 1] - mid[r + 1, c - 1]
+                  - mid[r - 1, c + 1] + mid[r - 1, c - 1])
+    hxs = 0.25 * (above[r, c + 1] - above[r, c - 1]
+                  - below[r, c + 1] + below[r, c - 1])
+    hys = 0.25 * (above[r + 1, c] - above[r - 1, c]
+                  - below[r + 1, c] + below[r - 1, c])
+    # offset = -H^-1 g by the adjugate
+    c00 = hyy * hss - hys * hys
+    c01 = hxs * hys - hxy * hss
+    c02 = hxy * hys - hxs * hyy
+    c11 = hxx * hss - hxs * hxs
+    c12 = hxy * hxs - hxx * hys
+    c22 = hxx * hyy - hxy * hxy
+    d = hxx * c00 + hxy * c01 + hxs * c02
+    if d == 0.0 or not np.isfinite(d):
+        return False, 0.0, 0.0, 0.0, 0.0
+    ox = -(c00 * gx + c01 * gy + c02 * gs) / d
+    oy = -(c01 * gx + c11 * gy + c12 * gs) / d
+    os_ = -(c02 * gx + c12 * gy + c22 * gs) / d
+    return True, ox, oy, os_, 0.5 * (gx * ox + gy * oy + gs * os_)
+
+
 @njit("int64(float32[:, ::1], float32[:, ::1], float32[:, ::1], float32[:, ::1], float64,"
       " int64, float64, float64, float64[:, ::1], int64)", cache=True, nogil=True)
 def _extrema(below, mid, above, trace, threshold, step, size, size_step, out, n):
@@ -409,50 +473,10 @@ def _extrema(below, mid, above, trace, threshold, step, size, size_step, out, n)
             v = mid[r, c]
             if not v > threshold:
                 continue
-            is_max = True
-            finite = True
-            # strictly above the neighbours that come before (layer below, then earlier in
-            # raster order), at least equal to those after: of two equal maxima the first wins
-            for dr in range(-1, 2):
-                for dc in range(-1, 2):
-                    a = above[r + dr, c + dc]
-                    b = below[r + dr, c + dc]
-                    m = mid[r + dr, c + dc]
-                    before = dr < 0 or (dr == 0 and dc < 0)
-                    if a > v or b >= v or (before and m >= v) or (not before and m > v
-                                                                   and (dr != 0 or dc != 0)):
-                        is_max = False
-                    if a == -np.inf or b == -np.inf or m == -np.inf:
-                        finite = False
-            if not is_max or not finite:
+            if not _is_maximum(below, mid, above, r, c):
                 continue
-            # 3D quadratic fit: gradient g and Hessian H by central differences
-            gx = 0.5 * (mid[r, c + 1] - mid[r, c - 1])
-            gy = 0.5 * (mid[r + 1, c] - mid[r - 1, c])
-            gs = 0.5 * (above[r, c] - below[r, c])
-            hxx = mid[r, c + 1] + mid[r, c - 1] - 2.0 * v
-            hyy = mid[r + 1, c] + mid[r - 1, c] - 2.0 * v
-            hss = above[r, c] + below[r, c] - 2.0 * v
-            hxy = 0.25 * (mid[r + 1, c + 1] - mid[r + 1, c - 1]
-                          - mid[r - 1, c + 1] + mid[r - 1, c - 1])
-            hxs = 0.25 * (above[r, c + 1] - above[r, c - 1]
-                          - below[r, c + 1] + below[r, c - 1])
-            hys = 0.25 * (above[r + 1, c] - above[r - 1, c]
-                          - below[r + 1, c] + below[r - 1, c])
-            # offset = -H^-1 g by the adjugate
-            c00 = hyy * hss - hys * hys
-            c01 = hxs * hys - hxy * hss
-            c02 = hxy * hys - hxs * hyy
-            c11 = hxx * hss - hxs * hxs
-            c12 = hxy * hxs - hxx * hys
-            c22 = hxx * hyy - hxy * hxy
-            d = hxx * c00 + hxy * c01 + hxs * c02
-            if d == 0.0 or not np.isfinite(d):
-                continue
-            ox = -(c00 * gx + c01 * gy + c02 * gs) / d
-            oy = -(c01 * gx + c11 * gy + c12 * gs) / d
-            os_ = -(c02 * gx + c12 * gy + c22 * gs) / d
-            if abs(ox) > 0.5 or abs(oy) > 0.5 or abs(os_) > 0.5:
+            solved, ox, oy, os_, rise = _quadratic_fit(below, mid, above, r, c)
+            if not solved or abs(ox) > 0.5 or abs(oy) > 0.5 or abs(os_) > 0.5:
                 continue
             if n >= out.shape[0]:
                 return -1  # the caller grows ``out`` and asks again
@@ -460,8 +484,64 @@ def _extrema(below, mid, above, trace, threshold, step, size, size_step, out, n)
             out[n, 1] = (r + oy) * step
             out[n, 2] = (size + os_ * size_step) * (1.2 / 9.0)  # s = 1.2 L / 9
             out[n, 3] = 0.0
-            out[n, 4] = v + 0.5 * (gx * ox + gy * oy + gs * os_)
+            out[n, 4] = v + rise
             out[n, 5] = 1.0 if trace[r, c] >= 0.0 else -1.0
+            n += 1
+    return n
+
+
+@njit("int64(float32[:, :, ::1], float32[:, :, ::1], int64, float64, int64, float64[::1],"
+      " int64, float64[:, ::1], int64)", cache=True, nogil=True)
+def _extrema_moving(dets, traces, layer, threshold, step, sizes, moves, out, n):
+    """As _extrema for the maxima of dets[layer] (an octave's layers, ``sizes`` their filter
+    sizes), but a fit whose offset exceeds half a sample or layer moves to the neighbouring
+    sample (or layer) it points to and fits again there, at most ``moves`` times (Lowe's
+    SIFT: 5), instead of being rejected; it is rejected when it would leave the searched
+    layers or the defined samples."""
+    nl, rows, cols = dets.shape
+    for r0 in range(1, rows - 1):
+        for c0 in range(1, cols - 1):
+            if not dets[layer, r0, c0] > threshold:
+                continue
+            if not _is_maximum(dets[layer - 1], dets[layer], dets[layer + 1], r0, c0):
+                continue
+            r = r0
+            c = c0
+            lay = layer
+            kept = False
+            ox = oy = os_ = rise = 0.0
+            for _ in range(moves + 1):
+                solved, ox, oy, os_, rise = _quadratic_fit(dets[lay - 1], dets[lay],
+                                                           dets[lay + 1], r, c)
+                if not solved:
+                    break
+                if abs(ox) <= 0.5 and abs(oy) <= 0.5 and abs(os_) <= 0.5:
+                    kept = True
+                    break
+                c += int(np.rint(ox)) if abs(ox) > 0.5 else 0
+                r += int(np.rint(oy)) if abs(oy) > 0.5 else 0
+                lay += int(np.rint(os_)) if abs(os_) > 0.5 else 0
+                if (lay < 1 or lay > nl - 2 or r < 1 or r > rows - 2 or c < 1
+                        or c > cols - 2):
+                    break
+                defined = True
+                for dl in range(-1, 2):
+                    for dr in range(-1, 2):
+                        for dc in range(-1, 2):
+                            if dets[lay + dl, r + dr, c + dc] == -np.inf:
+                                defined = False
+                if not defined:
+                    break
+            if not kept:
+                continue
+            if n >= out.shape[0]:
+                return -1  # the caller grows ``out`` and asks again
+            out[n, 0] = (c + ox) * step
+            out[n, 1] = (r + oy) * step
+            out[n, 2] = (sizes[lay] + os_ * 0.5 * (sizes[lay + 1] - sizes[lay - 1])) * (1.2 / 9.0)
+            out[n, 3] = 0.0
+            out[n, 4] = dets[lay, r, c] + rise
+            out[n, 5] = 1.0 if traces[lay, r, c] >= 0.0 else -1.0
             n += 1
     return n
 
@@ -753,16 +833,24 @@ def detect(ii: np.ndarray, bad: np.ndarray | None, unit: float, conf: dict,
     buf = np.empty((4096, N_COLUMNS), np.float64)
     n = 0
     for step, sizes, dets, traces in hessian_pyramid(ii, bad, unit, conf, image):
+        moves = conf.get("refine_moves", 0)
+        size_array = np.asarray(sizes, np.float64)
         for i in range(1, len(sizes) - 1):
             while True:
-                m = _extrema(dets[i - 1], dets[i], dets[i + 1], traces[i], conf["threshold"],
-                             step, float(sizes[i]), 0.5 * (sizes[i + 1] - sizes[i - 1]), buf,
-                             n)
+                if moves:
+                    m = _extrema_moving(dets, traces, i, conf["threshold"], step, size_array,
+                                        moves, buf, n)
+                else:
+                    m = _extrema(dets[i - 1], dets[i], dets[i + 1], traces[i],
+                                 conf["threshold"], step, float(sizes[i]),
+                                 0.5 * (sizes[i + 1] - sizes[i - 1]), buf, n)
                 if m >= 0:
                     n = m
                     break
                 buf = np.concatenate([buf, np.empty_like(buf)])
     kp = buf[:n]
+    if conf.get("refine_moves", 0):  # two maxima may move to the same sample: keep one
+        kp = np.unique(kp, axis=0)
     order = np.argsort(-kp[:, RESPONSE], kind="stable")
     return np.ascontiguousarray(kp[order])
 
