@@ -61,8 +61,8 @@ found no correspondence, half had a keypoint at their place in the other image, 
 0.75-0.9 of the one expected: the overlap error (< 0.4 needs scales within 1 / 0.775 of each
 other) rejects them. The smallest searched size (L = 15, s = 2) costs less: one keypoint in
 twenty lies below s = 2 / 0.7, which the scaled image cannot reach, and one unmatched one in
-ten; an octave below (sizes 6-15 at step 1) and the doubled image (below) gained nothing
-there. With the option each octave o searches n sizes spaced by
+ten; an octave below (sizes 6-15 at step 1) gained nothing there (0.745 against 0.746), the
+doubled image (below) 0.02. With the option each octave o searches n sizes spaced by
 2^(1 / n), 15 2^(o + k / n) for k = 0..n-1, with 15 2^(o - 1 / n) and 15 2^(o + 1) as
 neighbours (SIFT's layout of scales: Lowe's s = n intervals per octave), sampled every
 ``initial_step`` 2^o as before; the last two sizes of an octave are the first two of the next,
