@@ -52,8 +52,9 @@ give it, so that ``threshold`` keeps its meaning. On a straight line at 30 deg t
 det(H) is 1/24 of the boxes'.
 
 Geometric scales (``geometric_layers`` n > 0, our option, with ``hessian: gaussian``; preset
-``geometric`` with n = 3). Bay's sizes grow by linear steps within an octave (9, 15, 21, 27;
-15, 27, 39, 51; ...), so the sizes around a searched one lie up to 1.8x apart, unevenly, and
+``geometric``: n = 3 and ``refine_moves`` 5, below). Bay's sizes grow by linear steps within
+an octave (9, 15, 21, 27; 15, 27, 39, 51; ...), so the sizes around a searched one lie up to
+1.8x apart, unevenly, and
 the quadratic fit over them places a blob's scale only roughly: over sigma 3-14 a Gaussian
 blob gets s = 0.68-0.80 sigma, and none at all at some sizes between the octaves. On the
 bench's rendered ground images turned to scale 0.7, of the Gaussian variant's keypoints that
