@@ -54,9 +54,9 @@ det(H) is 1/24 of the boxes'.
 Geometric scales (``geometric_layers`` n > 0, our option, with ``hessian: gaussian``; preset
 ``geometric``: n = 3 and ``refine_moves`` 5, below). Bay's sizes grow by linear steps within
 an octave (9, 15, 21, 27; 15, 27, 39, 51; ...), so the sizes around a searched one lie up to
-1.8x apart, unevenly, and
-the quadratic fit over them places a blob's scale only roughly: over sigma 3-14 a Gaussian
-blob gets s = 0.68-0.80 sigma, and none at all at some sizes between the octaves. On the
+1.8x apart, unevenly, and the quadratic fit over them places a blob's scale only roughly:
+over sigma 3-14 a Gaussian blob gets s = 0.68-0.80 sigma, and none at all at some sizes
+between the octaves. On the
 bench's rendered ground images turned to scale 0.7, of the Gaussian variant's keypoints that
 found no correspondence, half had a keypoint at their place in the other image, at a scale
 0.75-0.9 of the one expected: the overlap error (< 0.4 needs scales within 1 / 0.775 of each
@@ -203,7 +203,6 @@ def octave_sizes(conf: dict, octave: int) -> list:
     if conf.get("geometric_layers", 0):
         return geometric_sizes(octave, conf["geometric_layers"])
     return [filter_size(octave, i) for i in range(conf["layers"])]
-
 
 
 BLOB_RESPONSE = 0.1815  # |Dxx| / c at the centre of a Gaussian blob, at its best filter size
