@@ -191,20 +191,30 @@ def test_the_edge_test_removes_responses_along_an_oblique_line():
 GAUSSIAN_BAY = {**BAY, "hessian": "gaussian"}  # Bay's detector with Gaussian derivatives
 
 
-def test_gaussian_layers_give_the_hessian_of_a_quadratic_in_the_boxes_units():
+@pytest.mark.parametrize("geometric_layers, layers", [(0, 12), (3, 15)])
+def test_gaussian_layers_give_the_hessian_of_a_quadratic_in_the_boxes_units(geometric_layers,
+                                                                             layers):
     """On I = a x^2 + b y^2 + c x y a Gaussian blur leaves the second derivatives as they are
     and central differences are exact, so every layer, whichever pyramid level it is computed
     on, holds (4 BLOB_RESPONSE)^2 sigma^4 (4 a b - c^2) with sigma = L / BLOB_SIZE (the
     Gaussian a box filter of size L stands for), and the trace's sign of 2 a + 2 b; away from
-    the borders, where pyrDown reflects the image."""
+    the borders, where pyrDown reflects the image. With ``geometric_layers`` 3 the sizes are
+    15 2^(o + k / 3), k = -1..3, in octave o."""
     n = 400
     yy, xx = np.mgrid[0:n, 0:n].astype(float) - 200.0
     a, b, c = 4e-6, 2.5e-6, -1.5e-6
     img = 0.4 + a * xx ** 2 + b * yy ** 2 + c * xx * yy
     ii, bad, unit = surf.integral_images(img)
-    conf = surf.check_conf({**GAUSSIAN_BAY, "octaves": 3})
+    conf = surf.check_conf({**GAUSSIAN_BAY, "octaves": 3, "geometric_layers": geometric_layers})
+    pyramid = surf.hessian_pyramid(ii, bad, unit, conf, img)
+    r = 2 ** (1 / 3)
+    want_sizes = ([[15 / r, 15, 15 * r, 15 * r * r, 30], [30 / r, 30, 30 * r, 30 * r * r, 60]]
+                  if geometric_layers else [[9, 15, 21, 27], [15, 27, 39, 51]])
+    assert [step for step, _, _, _ in pyramid] == [2, 4, 8]
+    for (_, sizes, _, _), want in zip(pyramid, want_sizes):
+        np.testing.assert_allclose(sizes, want, rtol=1e-12)
     checked = 0
-    for step, sizes, dets, traces in surf.hessian_pyramid(ii, bad, unit, conf, img):
+    for step, sizes, dets, traces in pyramid:
         for layer, size in enumerate(sizes):
             sigma = size / surf.BLOB_SIZE
             want = (4 * surf.BLOB_RESPONSE) ** 2 * sigma ** 4 * (4 * a * b - c * c)
@@ -213,7 +223,7 @@ def test_gaussian_layers_give_the_hessian_of_a_quadratic_in_the_boxes_units():
             assert inner.size and np.allclose(inner, want, rtol=0.02)
             assert np.all(traces[layer, lo:hi, lo:hi] > 0)
             checked += 1
-    assert checked == 12
+    assert checked == layers
     assert surf.BLOB_SIZE == pytest.approx(3 * 1.68, abs=0.01)  # L of a blob's best box (above)
 
 
@@ -255,6 +265,148 @@ def test_gaussian_hessian_has_no_response_along_an_oblique_line():
     assert biggest(GAUSSIAN_BAY) < 0.1 * biggest(BAY)
     with pytest.raises(FieldlocError, match="hessian must be one of"):
         surf.check_conf({**BAY, "hessian": "log"})
+
+
+def test_the_doubled_image_lies_at_half_its_pixels_minus_a_quarter():
+    """``double_image``: pixel k of the doubled image lies at k / 2 - 1 / 4 of the image (a ramp
+    says where), the mask doubles by its nearest pixel, and keypoints come back by the same
+    map: (10, 20) at scale 4 of the doubled image is (4.75, 9.75) at scale 2."""
+    yy, xx = np.mgrid[0:40, 0:50].astype(float)
+    img = 0.2 + 0.004 * xx + 0.002 * yy
+    mask = np.ones(img.shape, bool)
+    mask[:, 30:] = False
+    big, big_mask = surf.doubled_image(img, mask)
+    assert big.shape == big_mask.shape == (80, 100)
+    y2, x2 = np.mgrid[0:80, 0:100].astype(float)
+    want = 0.2 + 0.004 * (x2 / 2 - 0.25) + 0.002 * (y2 / 2 - 0.25)
+    np.testing.assert_allclose(big[1:-1, 1:-1], want[1:-1, 1:-1], atol=1e-6)
+    assert big_mask[:, :60].all() and not big_mask[:, 60:].any()
+    kp = surf.halved_keypoints(np.array([[10.0, 20.0, 4.0, 0.3, 1e-3, -1.0]]))
+    np.testing.assert_allclose(kp, [[4.75, 9.75, 2.0, 0.3, 1e-3, -1.0]])
+
+
+@pytest.mark.parametrize("conf", [{**BAY, "double_image": True},
+                                  {**GAUSSIAN_BAY, "double_image": True}],
+                         ids=["boxes", "gaussian"])
+def test_a_blob_below_the_first_octave_is_found_at_its_scale_in_the_doubled_image(conf):
+    """Bay's first searched filter is L = 15 (s = 2.0; L = 9 only a neighbour), so the default
+    finds no keypoint on a blob of sigma 1.6 (its best box L = 5.04 sigma = 8). Doubling the
+    image (the blob then has sigma 3.2, where the boxes find it) finds it at its centre in
+    the image's pixels, at the scale the detector gives a
+    blob (s = 0.67-0.86 sigma for the boxes, test_a_blob_is_detected_at_its_matching_scale;
+    1.2 BLOB_SIZE / 9 = 0.67 sigma for the Gaussians, up to the interpolation), with its
+    det(H) and its Laplacian's sign; a larger blob is found as without the option (within
+    10 %). The default misses a blob of sigma 2.0 too."""
+    centre = (60.4, 59.8)
+    for sigma in (1.6, 2.0):
+        small = gaussian_blob(121, centre, sigma, -0.4)
+        assert len(surf.detect_and_describe(small, None, BAY)[0]) == 0
+        assert len(surf.detect_and_describe(small, None, GAUSSIAN_BAY)[0]) == 0
+    for sigma in (1.6, 2.0, 2.5, 5.0):
+        img = gaussian_blob(121, centre, sigma, -0.4)
+        kp, desc = surf.detect_and_describe(img, None, conf)
+        assert len(kp) >= 1 and desc.shape == (len(kp), 64)
+        best = kp[0]
+        assert np.hypot(best[0] - centre[0], best[1] - centre[1]) < 0.1 * sigma + 0.2
+        assert 0.6 < best[surf.SCALE] / sigma < 0.86
+        # within 20 %: the linear interpolation of the doubled image flattens a narrow blob
+        assert best[surf.RESPONSE] == pytest.approx(surf.blob_det(0.4), rel=0.2)
+        assert best[surf.LAPLACIAN] == 1.0
+        if sigma == 5.0:
+            plain = surf.detect_and_describe(img, None, {**conf, "double_image": False})[0][0]
+            assert best[surf.SCALE] == pytest.approx(plain[surf.SCALE], rel=0.1)
+
+
+def test_geometric_layers_give_every_blob_the_same_scale_per_sigma():
+    """Bay's sizes grow by linear steps (9, 15, 21, 27; then 15, 27, 39, 51, ...: neighbours
+    up to 1.8x apart) and the scale interpolated between them follows a blob's sigma only
+    roughly (s / sigma 0.68-0.80 over sigma 3-14, and no keypoint at all for some sizes
+    between the octaves). With ``geometric_layers`` 3 each octave searches 15 2^(o + k / 3):
+    every blob is found, at its centre, at s = 1.2 BLOB_SIZE / 9 = 0.672 of its sigma within
+    3 % (the Gaussian derivatives' own ratio), and its det(H) as ``blob_det`` says."""
+    conf = {**GAUSSIAN_BAY, "geometric_layers": 3}
+    want = 1.2 * surf.BLOB_SIZE / 9
+    ratios, linear = [], []
+    for sigma in np.geomspace(3.0, 14.0, 15):
+        centre = (150.4, 149.8)
+        img = gaussian_blob(301, centre, sigma, -0.4)
+        kp, desc = surf.detect_and_describe(img, None, conf)
+        assert len(kp) >= 1 and desc.shape == (len(kp), 64)
+        best = kp[0]
+        assert np.hypot(best[0] - centre[0], best[1] - centre[1]) < 0.1 * sigma + 0.2
+        assert best[surf.RESPONSE] == pytest.approx(surf.blob_det(0.4), rel=0.15)
+        assert best[surf.LAPLACIAN] == 1.0
+        ratios.append(best[surf.SCALE] / sigma)
+        plain = surf.detect_and_describe(img, None, GAUSSIAN_BAY)[0]
+        linear.append(plain[0, surf.SCALE] / sigma if len(plain) else np.nan)
+    np.testing.assert_allclose(ratios, want, rtol=0.03)
+    linear = np.array(linear)
+    assert np.isnan(linear).any() or np.nanmax(linear) / np.nanmin(linear) > 1.08
+    # octave o + 1 begins with the last two sizes of octave o: the same layers, every second
+    # sample
+    img = gaussian_blob(301, (150.4, 149.8), 6.0, -0.4)
+    ii, bad, unit = surf.integral_images(img)
+    (_, s0, d0, t0), (_, s1, d1, t1) = surf.hessian_pyramid(
+        ii, bad, unit, surf.check_conf({**conf, "octaves": 2}), img)
+    assert s1[:2] == s0[-2:]
+    np.testing.assert_array_equal(d1[:2], d0[-2:, ::2, ::2])
+    np.testing.assert_array_equal(t1[:2], t0[-2:, ::2, ::2])
+
+
+def test_refine_moves_follows_the_fit_to_the_sample_it_points_to():
+    """A quadratic det(H) over (column, row, layer), long and narrow along the diagonal, with its
+    peak at column 10.3, row 10.7, layer 2.1: its largest samples are (10, 10) and (11, 11)
+    (equal; the first in raster order wins), and the fit there finds the peak exactly, 0.7 of
+    a sample away in the row, which Bay's refinement rejects. With refine_moves the fit moves
+    to row 11, where the offset is (0.3, -0.3, 0.1): the keypoint at the peak, in pixels at
+    the octave's step, with the peak's value and the size interpolated at layer 2.1."""
+    rows, cols, layers = 21, 21, 5
+    ll, rr, cc = np.meshgrid(np.arange(layers), np.arange(rows), np.arange(cols), indexing="ij")
+    x, y, s_ = 10.3, 10.7, 2.1
+    dets = (100.0 - 100.0 * ((cc - rr) - (x - y)) ** 2 - ((cc + rr) - (x + y)) ** 2
+            - 0.5 * (ll - s_) ** 2).astype(np.float32)
+    traces = np.ones_like(dets)
+    sizes = np.array([9.0, 15.0, 21.0, 27.0, 33.0])
+    step = 2
+    out = np.empty((16, 6))
+    assert dets[2, 10, 10] == dets[2, 11, 11] == dets[2].max()
+    bay = sum(surf._extrema(dets[i - 1], dets[i], dets[i + 1], traces[i], 0.0, step,
+                            sizes[i], 6.0, out, 0) for i in (1, 2, 3))
+    assert bay == 0
+    n = sum(surf._extrema_moving(dets, traces, i, 0.0, step, sizes, 5, out, 0)
+            for i in (1, 2, 3))
+    assert n == 1
+    kp = out[0]
+    np.testing.assert_allclose(kp[:2], [x * step, y * step], atol=1e-3)
+    assert kp[surf.SCALE] == pytest.approx((21.0 + 0.1 * 6.0) * 1.2 / 9, rel=1e-3)
+    assert kp[surf.RESPONSE] == pytest.approx(100.0, abs=1e-3)
+    # no move allowed: rejected as Bay's refinement rejects it
+    assert surf._extrema_moving(dets, traces, 2, 0.0, step, sizes, 0, out, 0) == 0
+
+
+def test_refine_moves_keeps_every_keypoint_of_bays_refinement_and_adds_some():
+    """A maximum whose first fit lies within half a sample is kept as it was; the others are
+    followed instead of rejected."""
+    img = textured_image(257, 7)
+    conf = {**GAUSSIAN_BAY, "geometric_layers": 3}
+    bay = surf.detect_and_describe(img, None, conf)[0]
+    moved = surf.detect_and_describe(img, None, {**conf, "refine_moves": 5})[0]
+    assert len(moved) > len(bay) >= 20
+    d = np.abs(bay[:, None, :3] - moved[None, :, :3]).sum(2)
+    assert np.all(d.min(1) == 0)
+
+
+def test_the_new_options_check_their_values_and_default_to_bay():
+    for bad, why in (({**BAY, "geometric_layers": 3}, "needs hessian 'gaussian'"),
+                     ({**GAUSSIAN_BAY, "geometric_layers": 9}, "must be 0..8"),
+                     ({**BAY, "refine_moves": -1}, "refine_moves must be 0..10")):
+        with pytest.raises(FieldlocError, match=why):
+            surf.check_conf(bad)
+    # confs written before the options read as without them
+    old = {k: v for k, v in surf.confs["default"].items()
+           if k not in ("geometric_layers", "double_image", "refine_moves")}
+    c = surf.check_conf(old)
+    assert c["geometric_layers"] == 0 and c["double_image"] is False and c["refine_moves"] == 0
 
 
 def test_mask_edges_make_no_keypoints_and_max_keypoints_keeps_the_strongest():
@@ -346,3 +498,26 @@ def test_feature_confs():
         lf.resolve_feature_conf({"features": "orb", "threshold": 1.0})
     with pytest.raises(FieldlocError, match="uint8"):
         lf.detect_and_describe(np.zeros((64, 64)), None, "sift")
+    geometric = lf.resolve_feature_conf("surf-geometric")
+    assert geometric["hessian"] == "gaussian" and geometric["geometric_layers"] == 3
+    assert geometric["refine_moves"] == 5
+    assert lf.resolve_feature_conf("surf")["geometric_layers"] == 0  # the default keeps Bay's
+
+
+def test_a_template_database_takes_the_geometric_scales_by_conf():
+    """`fieldloc build-templates DIR -c features.hessian=gaussian -c
+    features.geometric_layers=3`: the overrides reach the template method's upright floor SURF,
+    which then detects with them."""
+    from stages import build_templates
+    from stages.common import ground_features as gf
+    from stages.common.conf import resolve_conf
+
+    conf = resolve_conf(build_templates.confs, "default",
+                        {"features": {"hessian": "gaussian", "geometric_layers": 3}})
+    features = gf.check_conf(build_templates.ground_conf(conf))["features"]
+    assert features["upright"] and features["threshold"] == 3e-5
+    assert features["hessian"] == "gaussian" and features["geometric_layers"] == 3
+    img = textured_image(257, 7)
+    kp, _ = lf.detect_and_describe(img, None, features)
+    plain, _ = lf.detect_and_describe(img, None, build_templates.confs["default"]["features"])
+    assert len(kp) >= 10 and not np.array_equal(kp[:, :3], plain[:len(kp), :3])

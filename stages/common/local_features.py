@@ -48,6 +48,9 @@ confs = {
     "surf-upright": {"features": "surf", **surf.confs["upright"]},
     # SURF with the Gaussian derivatives its box filters stand for (surf.py, ``hessian``)
     "surf-gaussian": {"features": "surf", **surf.confs["gaussian"]},
+    # the same at SIFT's layout of scales, 3 per octave, refined as SIFT's (surf.py,
+    # ``geometric_layers``, ``refine_moves``)
+    "surf-geometric": {"features": "surf", **surf.confs["geometric"]},
     # OpenCV's defaults (cv2.SIFT_create)
     "sift": {"features": "sift", "max_keypoints": 0, "octave_layers": 3,
              "contrast_threshold": 0.04, "edge_threshold": 10.0, "sigma": 1.6},

@@ -505,9 +505,19 @@ FEATURE_CONFS = {"SURF": "surf", "U-SURF": "surf-upright", "SIFT": "sift", "ORB"
                  "SURF without edge test": {"features": "surf", "edge_ratio": 0.0},
                  "SURF, Gaussian derivatives": "surf-gaussian",
                  "SURF, Gaussian derivatives, step 1": {"features": "surf", "hessian": "gaussian",
-                                                        "initial_step": 1}}
+                                                        "initial_step": 1},
+                 "SURF, geometric scales": "surf-geometric",
+                 # surf-geometric without its moves (Bay's refinement), and on the doubled image
+                 "SURF, geometric scales, no moves": {"features": "surf", "hessian": "gaussian",
+                                                      "geometric_layers": 3},
+                 "SURF, geometric scales, doubled image": {"features": "surf",
+                                                           "hessian": "gaussian",
+                                                           "geometric_layers": 3,
+                                                           "refine_moves": 5,
+                                                           "double_image": True, "octaves": 5}}
 # the SURF variants held to the quality goal, each in its own row
-QUALITY_VARIANTS = ("SURF", "SURF, Gaussian derivatives", "SURF, Gaussian derivatives, step 1")
+QUALITY_VARIANTS = ("SURF", "SURF, Gaussian derivatives", "SURF, Gaussian derivatives, step 1",
+                    "SURF, geometric scales")
 QUALITY_SEEDS = (7, 8, 9)  # ground images: GROUND_POSITIONS at the headings of each seed
 
 
@@ -602,6 +612,9 @@ def bench_surf_speed(repeat: int) -> list[Row]:
              sift_1000, True),
             ("Gaussian derivatives (surf-gaussian), no threshold, at most 1000 keypoints",
              {**surf_1000, "hessian": "gaussian"}, sift_1000, True),
+            ("geometric scales (surf-geometric), no threshold, at most 1000 keypoints",
+             {**local_features.confs["surf-geometric"], "threshold": 0.0, "max_keypoints": 1000},
+             sift_1000, True),
             ("default presets", "surf", "sift", False)):
         n_a = len(local_features.detect_and_describe(grey, valid, a_conf)[0])
         n_b = len(local_features.detect_and_describe(grey, valid, b_conf)[0])
@@ -625,8 +638,9 @@ def bench_feature_quality(repeat: int) -> list[Row]:
     pairs of rendered ground images, Mikolajczyk-Schmid protocol (overlap error < 0.4,
     one-to-one matching): repeatability >= SIFT's, matching score >= 0.5 at 30 deg. Each of
     QUALITY_VARIANTS is held to the goal in its own row: Bay et al.'s box filters (the
-    default), and the Gaussian derivatives they stand for (``hessian: gaussian``), at the
-    default sampling step and at step 1."""
+    default), the Gaussian derivatives they stand for (``hessian: gaussian``), at the
+    default sampling step and at step 1, and those at SIFT's layout of scales (3 per octave,
+    ``geometric_layers``) refined as SIFT's (``refine_moves``): preset surf-geometric."""
     from ..evaluate import feature_repeatability as fr
 
     images = [im for seed in QUALITY_SEEDS for im in ground_images(seed)]
