@@ -103,7 +103,7 @@ from stages.common.geometry import wrap_angle
 from stages.common.observations import Observations
 from stages.common.poses_file import PoseTrack
 
-from . import motion_model
+from . import motion_model, place_search
 from .observation_model import DEFAULTS as OBSERVATION_DEFAULTS
 from .observation_model import ObservationModel
 
@@ -141,6 +141,17 @@ _DEFAULT = {
     # pose) the prior has chosen, and rivals there took rendered NAO walks off the truth
     # (96.8 -> 94.4 % within 40 cm) where people's legs and other robots pass for posts
     "rivals": {"placement": 0, "uniform": 8, "pose": 0},
+    # a uniform start's first frame with observations places its particles at the places
+    # where that frame fits best (place_search: the observation model on a coarse grid over
+    # the world, the best poses that are other places, each refined), each place an equal
+    # share, the rest uniform, weighted by prior / proposal density (importance sampling): the
+    # belief is the frame's posterior as before, but every place that explains the frame
+    # holds particles at its best pose, where particles drawn uniformly or placed by one
+    # observation reach one place first and hold it while the frames repeat
+    "start_places": 16,  # places searched for (0: a uniform belief, as before)
+    "start_grid": [0.2, 6.0],  # m, deg: the coarse grid's step and turn
+    "start_uniform_share": None,  # share of the first particles drawn uniformly; None: the
+    # grid's share of the likelihood outside the places found
     "rival_floor": 10.0,  # nats: a rival whose evidence falls this far below the belief's
     # is dropped
     "rival_memory": 20.0,  # frames: a rival's evidence forgets with this time constant, so
@@ -229,6 +240,7 @@ class ParticleFilter:
         self._frames_weighed = 0.0  # frames weighed while tracking, forgetting as the rivals
         self._rival_placed: np.ndarray | None = None  # the rival this frame places, if any
         self._n_rivals = 0  # rivals kept, by the initial belief (conf "rivals")
+        self._start_search = False  # a uniform start: the first observations place the belief
         hx, hy = self.field.length / 2, self.field.width / 2
         m = float(self.conf["world_margin"])
         self._bounds = (-hx - m, hx + m, -hy - m, hy + m)
@@ -251,6 +263,7 @@ class ParticleFilter:
         self._since_reset = 0
         self._clear_rivals()
         self._n_rivals = int(c["rivals"].get(mode, 0))
+        self._start_search = mode == "uniform" and int(c["start_places"]) > 0
         if mode == "uniform":
             p = self._uniform(n)
         elif mode == "placement":
@@ -322,6 +335,9 @@ class ParticleFilter:
         k = len(prep)
         if k == 0:
             return 0
+        if self._start_search:
+            self._start_search = False
+            self._place_start(prep)
         p = self.particles
         # on a resetting frame, candidate poses placed by this frame's observations are
         # weighted in the same call; ``resample`` draws the placed poses from them by their
@@ -368,6 +384,42 @@ class ParticleFilter:
         self.weights = w / w.sum()
         self._last_obs = prep.obs
         return k
+
+    def _place_start(self, prep):
+        """A uniform start's first frame with observations: the belief placed at the places
+        where the frame fits best (place_search.search: ``start_places`` of them on the coarse
+        grid ``start_grid`` over the world, or its half x <= 0 while particles stand for
+        mirrored pairs, each refined), an equal share of the particles around each (a
+        Gaussian of the frame's posterior near it, place_search.local_posterior), and the
+        grid's share of the likelihood outside them uniform over the world (or
+        ``start_uniform_share`` when given)."""
+        c = self.conf
+        n = len(self.particles)
+        x0, x1, y0, y1 = self._bounds
+        bounds = (x0, 0.0, y0, y1) if self.paired else self._bounds
+        step, turn = (float(v) for v in c["start_grid"])
+        places, elsewhere = place_search.search(
+            self.model, prep, bounds, step, turn, int(c["start_places"]),
+            mirror=self.symmetric, cells=True)
+        if not places:
+            return
+        if c["start_uniform_share"] is not None:
+            elsewhere = float(c["start_uniform_share"])
+        n_uni = int(round(n * min(max(elsewhere, 0.0), 1.0)))
+        counts = np.full(len(places), (n - n_uni) // len(places))
+        counts[:(n - n_uni) - int(counts.sum())] += 1
+        drawn = [self._uniform(n_uni)]
+        for (pose, _ll), m in zip(places, counts):
+            mean, cov = place_search.local_posterior(self.model, prep, pose)
+            q = mean + self.rng.standard_normal((int(m), 3)) @ np.linalg.cholesky(cov).T
+            if self.symmetric and not self.paired:  # the place or its mirror image, alike
+                flip = self.rng.random(len(q)) < 0.5
+                q[flip] = place_search.mirror_poses(q[flip])
+            drawn.append(q)
+        p = np.concatenate(drawn)
+        p[:, 2] = wrap_angle(p[:, 2])
+        self.particles = p
+        self.weights = np.full(len(p), 1.0 / len(p))
 
     def _kidnap_share(self, log_tracked: float, ll_pool: np.ndarray) -> float:
         """The posterior share of "the robot is elsewhere": its prior (the larger of
