@@ -42,12 +42,10 @@ def mirror_poses(p: np.ndarray) -> np.ndarray:
 
 
 def same_place(a, b, mirror: bool = True) -> bool:
-    """Whether poses ``a`` and ``b`` (or ``b``'s mirror image) are one place."""
-    for q in ((b, mirror_poses(b)) if mirror else (b,)):
-        turn = abs(wrap_scalar(a[2] - q[2]))
-        if math.hypot(a[0] - q[0], a[1] - q[1]) <= PLACE_M and turn <= math.radians(PLACE_DEG):
-            return True
-    return False
+    """Whether poses ``a`` and ``b`` (or ``b``'s mirror image) are one place: within
+    ``PLACE_M`` and ``PLACE_DEG``."""
+    return bool(_same(float(a[0]), float(a[1]), float(a[2]), np.asarray(b, float), mirror,
+                      PLACE_M, math.radians(PLACE_DEG)))
 
 
 def separate(poses: np.ndarray, ll: np.ndarray, count: int, mirror: bool = True,
@@ -74,7 +72,8 @@ def within_places(poses: np.ndarray, places: np.ndarray, mirror: bool = True) ->
 def _same(x, y, th, q, mirror, place_m, place_turn):
     """``same_place`` of the pose (x, y, th) and ``q``."""
     for side in range(2 if mirror else 1):
-        qx, qy, qt = (q[0], q[1], q[2]) if side == 0 else (-q[0], -q[1], q[2] + math.pi)
+        qx, qy, qt = (q[0], q[1], q[2]) if side == 0 else (
+            -q[0], -q[1], (q[2] + math.pi + math.pi) % (2.0 * math.pi) - math.pi)  # mirror_poses
         if abs(x - qx) > place_m or abs(y - qy) > place_m:  # (the cheap test first)
             continue
         turn = abs((th - qt + math.pi) % (2.0 * math.pi) - math.pi)

@@ -212,12 +212,13 @@ RENDERED_POSES = 30  # random poses per camera, each localised from two seeds
 
 
 def rendered_still(preset: str, field_name: str, poses, seeds=(0, 1),
-                   updates: int = STILL_UPDATES) -> list[StillResult]:
+                   updates: int = STILL_UPDATES, conf: dict | None = None) -> list[StillResult]:
     """Rendered frames of a still robot: for each pose one frame of ``preset`` (simulate's
     renderer, the camera at its nominal pitch and roll) through extract's perspective chain
     with its default conf, and mcl from a uniform start with the CLI's defaults (the
     renderer's camera height, as calib.yaml gives it) updated ``updates`` times on it, once per
-    seed. The truth is the pose; judged as the HULKs frames are."""
+    seed (``conf``: changes to mcl's uniform preset). The truth is the pose; judged as the
+    HULKs frames are."""
     from .. import simulate
     from ..common.field import load_field
     from ..common.observations import Observations
@@ -232,7 +233,7 @@ def rendered_still(preset: str, field_name: str, poses, seeds=(0, 1),
     renderer = PerspectiveRenderer(sim["perspective"], scene.build(fm, sim["scene"],
                                                                    np.zeros(1), 4), seed=4)
     cam = renderer.camera
-    conf = mcl.confs["uniform"]
+    conf = dict(mcl.confs["uniform"], **(conf or {}))
     obs_conf = dict(conf["observation"], camera_height=cam.height)
     model = ObservationModel.from_field(fm, obs_conf)
     out = []
