@@ -91,7 +91,7 @@ share for a hit goes from 0.88 to 0.94 on 120 rendered NAO and KidSize runs and 
 0.84 on the 107 HULKs frames (for within 1 m: 0.86 to 0.93; 0.994 to 0.984); the poses stay
 as they were. (Still 18 of the 120 rendered runs held >= 0.8 on a place > 1 m off: the rivals
 did not find the other place. Since a uniform start places its belief at the first frame's
-places, 6, each at a place the frame's observations fit better than the truth by 1-2 nats a
+places, 6, each at a place the frame's observations fit better than the truth by 1.1-2.2 nats a
 frame, and the AUROCs are 0.92 and 0.90 on the rendered runs, 0.69 and 0.97 on the HULKs
 frames: the misses there are places the frames decide, held at the pair share the model
 gives them.)
