@@ -66,8 +66,8 @@ before the frames could tell them apart: on bench mcl-hulks' rendered still fram
 70 runs whose frames decide the truth (by the brute force) settled 0.8-3.8 m off; with the
 places, none (the equal shares matter: drawn in proportion to the first frame's likelihood,
 by importance weights, a broad plateau outweighs a sharp peak and 1-2 of them still did). The
-search costs about 40 ms of CPU once (median, 0.2-0.3 s on frames of many lines), not per
-frame.
+search costs about 40 ms of CPU once (median over the rendered still frames; 80-90 ms on frames
+of 11-13 lines), not per frame.
 
 Particle count (250-1000, ``particles_min`` / ``particles_max``): at resampling the number
 follows the belief's spread s = sqrt(var x + var y): ``particles_min`` when s <= ``spread_low``,
