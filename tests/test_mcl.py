@@ -520,3 +520,62 @@ def test_rivals_sum_their_evidence_over_frames(kidsize, model):
     placed.initialise()
     placed._update_rivals(rival, np.array([-1.0]), np.zeros(0), 0.0)
     assert len(placed._rivals) == 0
+
+
+def test_place_search_separates_places_as_the_scalar_rule():
+    """place_search.separate (the compiled greedy pass) picks the poses the scalar rule does:
+    in order of the likelihood, each pose that is no place (same_place, up to the mirror) of
+    those picked before, among the ``limit`` best when given (ties too)."""
+    from stages.localize import place_search
+
+    rng = np.random.default_rng(1)
+    poses = place_search.grid_poses((-5, 5, -3.5, 3.5), 0.3, 10.0)
+    for trial in range(6):
+        ll = rng.normal(size=len(poses)).round(1)
+        limit = 3000 if trial % 2 else None
+        got = place_search.separate(poses, ll, 8, limit=limit)
+        order = np.argsort(-ll, kind="stable")[:limit]
+        want = []
+        for i in order:
+            if not any(place_search.same_place(poses[i], poses[q]) for q in want):
+                want.append(i)
+                if len(want) == 8:
+                    break
+        assert list(got) == want
+        inside = place_search.within_places(poses[::37], poses[got])
+        assert list(inside) == [any(place_search.same_place(p, poses[q]) for q in got)
+                                for p in poses[::37]]
+
+
+def test_uniform_start_searches_its_places_once(kidsize, model, monkeypatch):
+    """A uniform start runs the place search on its first frame with observations only (not
+    per frame: the update stays a particle update), a start from the placement never; the
+    first belief holds particles at the truth's place (or its mirror)."""
+    from stages.localize import place_search
+
+    calls = []
+    search = place_search.search
+
+    def counted(*args, **kwargs):
+        out = search(*args, **kwargs)
+        calls.append(out)
+        return out
+
+    monkeypatch.setattr(place_search, "search", counted)
+    truth, odom, _stamps = synthetic_walk(kidsize, 8, seed=4)
+    rng = np.random.default_rng(104)
+    for preset, searches in (("uniform", 1), ("default", 0)):  # the default: placement
+        calls.clear()
+        pf = mcl.ParticleFilter(model, copy.deepcopy(mcl.confs[preset]))
+        pf.initialise()
+        pf.step(odom[0], 0.1, Observations.empty(), first=True)  # nothing seen: no search
+        assert not calls
+        for i in range(1, 8):
+            obs = synthetic_observations(kidsize, truth[i], rng, NOISELESS)
+            pf.step(odom[i], 0.1, obs)
+            if i == 1 and preset == "uniform":
+                p = pf.particles
+                near = [np.hypot(p[:, 0] - t[0], p[:, 1] - t[1]) < 0.3
+                        for t in (truth[i], kidsize.mirror_pose(truth[i]))]
+                assert (near[0] | near[1]).sum() >= 20
+        assert len(calls) == searches

@@ -4,7 +4,9 @@ to the particle filter 15 times with zero odometry (stages.pipelines.bench_mcl_h
 rendered_still, which ``fieldloc bench --only mcl-hulks`` runs on 60 random poses). The belief's
 pair share (the top pose and its mirror image, its confidence up to the field's symmetry; the
 reported confidence is half of it) must be low on a frame with a single line in view and on one
-with nothing, and high, at the truth, on a frame with lines and crossings."""
+with nothing, and high, at the truth, on a frame with lines and crossings. A frame that decides
+its pose (by the brute force over the field) is found: the uniform start places its belief at
+the frame's best places (mcl's ``start_places``)."""
 
 from __future__ import annotations
 
@@ -15,11 +17,16 @@ import pytest
 
 from stages.common.field import load_field
 from stages.localize import mcl
-from stages.pipelines.bench_mcl_hulks import rendered_still
+from stages.pipelines.bench_mcl_hulks import RENDERED_POSES, random_poses, rendered_still
 
 ONE_LINE = {("perspective-nao", "spl"): [-1.5, 2.3, math.pi / 2],  # the touch line ahead
             ("perspective-default", "kidsize"): [1.2, -2.3, -math.pi / 2]}
 NOTHING = {("perspective-nao", "spl"): [2.0, -2.5, -math.pi / 2]}  # facing out of the field
+# bench mcl-hulks' random poses whose still frames decide the truth (the brute force's odds
+# >= 20 : 1 up to the mirror) where a uniform belief settled 2.5-3.1 m off on both filter
+# seeds (pair shares 0.7-1.0) before the uniform start placed its belief at the frame's places:
+# four lines and no crossing on the SPL field, nine lines on the KidSize field
+DECIDED = {("perspective-nao", "spl"): 24, ("perspective-default", "kidsize"): 27}
 INFORMATIVE = {("perspective-nao", "spl"): [3.0, 1.0, 0.3],  # the goal area's lines and corners
                ("perspective-default", "kidsize"): [2.5, 1.0, 0.3]}
 
@@ -72,3 +79,21 @@ def test_rivals_take_their_share_of_the_belief():
     rival = [r for r in h if math.hypot(r[0] + 2.0, r[1] - 2.0) < 1e-9]
     assert len(rival) == 1 and math.isclose(rival[0][3], 0.25)  # half of it, half its mirror
     assert math.isclose(h[:, 3].sum(), 1.0, rel_tol=1e-6)
+
+
+@pytest.mark.parametrize("camera", sorted(DECIDED))
+def test_a_frame_that_decides_its_pose_is_found_from_a_uniform_start(camera):
+    pose = random_poses(camera[1], RENDERED_POSES)[DECIDED[camera]]
+    res = rendered_still(*camera, [pose])
+    assert all(r.informative and r.decided and r.truth_best for r in res)
+    assert all(r.hit for r in res), [(r.name, round(r.error_m, 2), round(r.pair, 2)) for r in res]
+    assert min(r.pair for r in res) >= 0.9
+
+
+def test_a_uniform_start_without_the_places_misses_one_of_them():
+    """The same frame with the belief drawn uniformly (``start_places`` 0, as before): the
+    particles settle on another place on both seeds, with a high pair share."""
+    camera = ("perspective-default", "kidsize")
+    pose = random_poses(camera[1], RENDERED_POSES)[DECIDED[camera]]
+    res = rendered_still(*camera, [pose], conf={"start_places": 0})
+    assert not any(r.hit for r in res)

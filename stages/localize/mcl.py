@@ -50,6 +50,25 @@ the track flip to the mirrored side. (The side nearer a wide belief's estimate i
 belief's side: on a placement start, the estimate of the first frames can sit at the other
 touch line, nearer the true pose's mirror than the true pose.)
 
+A uniform start (``init: uniform``) places its belief at the first frame with observations:
+the observation model on a coarse grid over the world (``start_grid``, 0.2 m x 6 deg; its half
+x <= 0 while particles stand for mirrored pairs; each grid pose scored as a pose anywhere in
+its cell, place_search.cell_model), the ``start_places`` best grid poses that are other places
+(1 m or 30 deg apart, up to the mirror), each refined on two local grids (place_search.search,
+the search the still-robot bench's brute force runs at 0.1 m x 3 deg); each place gets an
+equal share of the particles, drawn from a Gaussian of the frame's posterior around it
+(place_search.local_posterior), and the grid's share of the likelihood outside the places is
+drawn uniformly (``start_uniform_share`` sets it instead). The particles then weigh that frame
+and the ones after as any others. Drawn uniformly, the particles of a frame's sharp peaks are
+few and off their peak; the first frames settled by chance on one of the places that explain
+them alike (whose particles were nearest its peak) and resampling took the others' particles
+before the frames could tell them apart: on bench mcl-hulks' rendered still frames, 9 of the
+70 runs whose frames decide the truth (by the brute force) settled 0.8-3.8 m off; with the
+places, none (the equal shares matter: drawn in proportion to the first frame's likelihood,
+by importance weights, a broad plateau outweighs a sharp peak and 1-2 of them still did). The
+search costs about 40 ms of CPU once (median over the rendered still frames; 80-90 ms on frames
+of 11-13 lines), not per frame.
+
 Particle count (250-1000, ``particles_min`` / ``particles_max``): at resampling the number
 follows the belief's spread s = sqrt(var x + var y): ``particles_min`` when s <= ``spread_low``,
 ``particles_max`` when s >= ``spread_high``, linear between, and the maximum whenever augmented
@@ -70,8 +89,12 @@ explain a still robot's frames alike (which keeps the mass is the luck of the fi
 On still robots (``fieldloc bench --only mcl-hulks``) the AUROC of the top pose and mirror's
 share for a hit goes from 0.88 to 0.94 on 120 rendered NAO and KidSize runs and from 0.81 to
 0.84 on the 107 HULKs frames (for within 1 m: 0.86 to 0.93; 0.994 to 0.984); the poses stay
-as they were. (Still 18 of the 120 rendered runs hold >= 0.8 on a place > 1 m off: the rivals
-did not find the other place.)
+as they were. (Still 18 of the 120 rendered runs held >= 0.8 on a place > 1 m off: the rivals
+did not find the other place. Since a uniform start places its belief at the first frame's
+places, 6, each at a place the frame's observations fit better than the truth by 1.1-2.2 nats a
+frame, and the AUROCs are 0.92 and 0.90 on the rendered runs, 0.69 and 0.97 on the HULKs
+frames: the misses there are places the frames decide, held at the pair share the model
+gives them.)
 
 Symmetry: the field looks the same after a 180 deg turn about the centre spot (both goals
 white), so a pose and its mirror (FieldModel.mirror_pose) explain every image equally. With
@@ -103,7 +126,7 @@ from stages.common.geometry import wrap_angle
 from stages.common.observations import Observations
 from stages.common.poses_file import PoseTrack
 
-from . import motion_model
+from . import motion_model, place_search
 from .observation_model import DEFAULTS as OBSERVATION_DEFAULTS
 from .observation_model import ObservationModel
 
@@ -141,6 +164,17 @@ _DEFAULT = {
     # pose) the prior has chosen, and rivals there took rendered NAO walks off the truth
     # (96.8 -> 94.4 % within 40 cm) where people's legs and other robots pass for posts
     "rivals": {"placement": 0, "uniform": 8, "pose": 0},
+    # a uniform start's first frame with observations places the particles at the places
+    # where that frame fits best (place_search: the observation model on a coarse grid over
+    # the world, the best poses that are other places, each refined), an equal share each,
+    # the grid's likelihood share outside them uniform: every place that explains the frame
+    # holds particles at its best pose, and the frames that follow decide between them,
+    # where particles drawn uniformly or placed by one observation reached one of them first
+    # and held it (module doc)
+    "start_places": 16,  # places searched for (0: a uniform belief, as before)
+    "start_grid": [0.2, 6.0],  # m, deg: the coarse grid's step and turn
+    "start_uniform_share": None,  # share of the first particles drawn uniformly; None: the
+    # grid's share of the likelihood outside the places found
     "rival_floor": 10.0,  # nats: a rival whose evidence falls this far below the belief's
     # is dropped
     "rival_memory": 20.0,  # frames: a rival's evidence forgets with this time constant, so
@@ -229,6 +263,7 @@ class ParticleFilter:
         self._frames_weighed = 0.0  # frames weighed while tracking, forgetting as the rivals
         self._rival_placed: np.ndarray | None = None  # the rival this frame places, if any
         self._n_rivals = 0  # rivals kept, by the initial belief (conf "rivals")
+        self._start_search = False  # a uniform start: the first observations place the belief
         hx, hy = self.field.length / 2, self.field.width / 2
         m = float(self.conf["world_margin"])
         self._bounds = (-hx - m, hx + m, -hy - m, hy + m)
@@ -251,6 +286,7 @@ class ParticleFilter:
         self._since_reset = 0
         self._clear_rivals()
         self._n_rivals = int(c["rivals"].get(mode, 0))
+        self._start_search = mode == "uniform" and int(c["start_places"]) > 0
         if mode == "uniform":
             p = self._uniform(n)
         elif mode == "placement":
@@ -322,6 +358,9 @@ class ParticleFilter:
         k = len(prep)
         if k == 0:
             return 0
+        if self._start_search:
+            self._start_search = False
+            self._place_start(prep)
         p = self.particles
         # on a resetting frame, candidate poses placed by this frame's observations are
         # weighted in the same call; ``resample`` draws the placed poses from them by their
@@ -368,6 +407,42 @@ class ParticleFilter:
         self.weights = w / w.sum()
         self._last_obs = prep.obs
         return k
+
+    def _place_start(self, prep):
+        """A uniform start's first frame with observations: the belief placed at the places
+        where the frame fits best (place_search.search: ``start_places`` of them on the coarse
+        grid ``start_grid`` over the world, or its half x <= 0 while particles stand for
+        mirrored pairs, each refined), an equal share of the particles around each (a
+        Gaussian of the frame's posterior near it, place_search.local_posterior), and the
+        grid's share of the likelihood outside them uniform over the world (or
+        ``start_uniform_share`` when given)."""
+        c = self.conf
+        n = len(self.particles)
+        x0, x1, y0, y1 = self._bounds
+        bounds = (x0, 0.0, y0, y1) if self.paired else self._bounds
+        step, turn = (float(v) for v in c["start_grid"])
+        places, elsewhere = place_search.search(
+            self.model, prep, bounds, step, turn, int(c["start_places"]),
+            mirror=self.symmetric, cells=True)
+        if not places:
+            return
+        if c["start_uniform_share"] is not None:
+            elsewhere = float(c["start_uniform_share"])
+        n_uni = int(round(n * min(max(elsewhere, 0.0), 1.0)))
+        counts = np.full(len(places), (n - n_uni) // len(places))
+        counts[:(n - n_uni) - int(counts.sum())] += 1
+        drawn = [self._uniform(n_uni)]
+        for (pose, _ll), m in zip(places, counts):
+            mean, cov = place_search.local_posterior(self.model, prep, pose)
+            q = mean + self.rng.standard_normal((int(m), 3)) @ np.linalg.cholesky(cov).T
+            if self.symmetric and not self.paired:  # the place or its mirror image, alike
+                flip = self.rng.random(len(q)) < 0.5
+                q[flip] = place_search.mirror_poses(q[flip])
+            drawn.append(q)
+        p = np.concatenate(drawn)
+        p[:, 2] = wrap_angle(p[:, 2])
+        self.particles = p
+        self.weights = np.full(len(p), 1.0 / len(p))
 
     def _kidnap_share(self, log_tracked: float, ll_pool: np.ndarray) -> float:
         """The posterior share of "the robot is elsewhere": its prior (the larger of

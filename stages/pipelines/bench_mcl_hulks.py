@@ -22,6 +22,7 @@ import numpy as np
 
 from ..common.artifacts import atomic_path
 from ..common.geometry import wrap_scalar
+from ..localize.place_search import best_places, same_place
 from .bench import Row
 from .realdata import REALDATA
 
@@ -31,7 +32,6 @@ STILL_UPDATES = 15  # frames of a still robot: the capture repeated
 STILL_DT = 0.1  # s between them
 NON_PARALLEL = math.radians(20)  # two lines this far from parallel fix a pose (with the map)
 DECIDED_NATS = math.log(20.0)  # a frame decides its place when every other is 20x less likely
-PLACE_M, PLACE_DEG = 1.0, 30.0  # poses farther apart than this are other places
 GOAL_M, GOAL_DEG = 0.5, 15.0
 
 
@@ -102,8 +102,9 @@ def decided(model, obs, field, truth, frames: int = STILL_UPDATES) -> tuple[bool
     """(whether the frame decides its place, whether that place is the truth): the
     observation model's log-likelihood of one frame's ``obs`` over the whole field by brute
     force (0.1 m x 3 deg, the field and half a metre around), its five best places (poses
-    more than PLACE_M or PLACE_DEG apart, a place's mirror image counted with it) each refined
-    on two finer local grids (to 1 cm x 0.25 deg); the frame decides its place when the best
+    more than 1 m or 30 deg apart, a place's mirror image counted with it) each refined on two
+    finer local grids (to 1 cm x 0.25 deg; stages.localize.place_search, which mcl's uniform
+    start searches with too); the frame decides its place when the best
     beats every other by DECIDED_NATS (20 : 1), and that place is the truth when it or its
     mirror lies within GOAL_M and GOAL_DEG of ``truth``. The odds are those of ``frames``
     still frames as the filter weighs them (each repeated frame as new evidence: the model's
@@ -112,45 +113,8 @@ def decided(model, obs, field, truth, frames: int = STILL_UPDATES) -> tuple[bool
     that a miss there is the filter's, a wrong place the model's or the extraction's, and an
     undecided frame ambiguous."""
     hx, hy = field.length / 2 + 0.5, field.width / 2 + 0.5
-    xs, ys = np.arange(-hx, hx + 1e-9, 0.1), np.arange(-hy, hy + 1e-9, 0.1)
-    ths = np.radians(np.arange(-180.0, 180.0, 3.0))
-    X, Y, T = np.meshgrid(xs, ys, ths, indexing="ij")
-    prep = model.prepare(obs)
-    ll = model.log_likelihood(X.ravel(), Y.ravel(), T.ravel(), prep)
-
-    def same_place(a, b) -> bool:
-        for q in (b, field.mirror_pose(b)):
-            turn = abs(wrap_scalar(a[2] - q[2]))
-            if math.hypot(a[0] - q[0], a[1] - q[1]) <= PLACE_M and \
-                    turn <= math.radians(PLACE_DEG):
-                return True
-        return False
-
-    order = np.argsort(-ll, kind="stable")
-    poses = np.stack([X.ravel(), Y.ravel(), T.ravel()], axis=1)
-    places: list[np.ndarray] = []
-    for i in order[:20000]:
-        if not any(same_place(poses[i], q) for q in places):
-            places.append(poses[i])
-            if len(places) == 5:
-                break
-
-    def refined(p):
-        best, val = np.asarray(p, float), -math.inf
-        for half, step, turn, dstep in ((0.1, 0.02, 3.0, 0.5), (0.02, 0.005, 0.5, 0.125)):
-            d = np.arange(-half, half + 1e-9, step)
-            a = np.radians(np.arange(-turn, turn + 1e-9, dstep))
-            DX, DY, DA = np.meshgrid(d, d, a, indexing="ij")
-            v = model.log_likelihood(best[0] + DX.ravel(), best[1] + DY.ravel(),
-                                     best[2] + DA.ravel(), prep)
-            k = int(np.argmax(v))
-            if v[k] > val:
-                val = float(v[k])
-                best = np.array([best[0] + DX.ravel()[k], best[1] + DY.ravel()[k],
-                                 best[2] + DA.ravel()[k]])
-        return best, val
-
-    scored = sorted((refined(p) for p in places), key=lambda e: -e[1])
+    scored = best_places(model, model.prepare(obs), (-hx, hx, -hy, hy), 0.1, 3.0, 5,
+                         limit=20000)
     top, top_ll = scored[0]
     rest = [v for q, v in scored[1:] if not same_place(top, q)]
     is_decided = not rest or frames * (top_ll - max(rest)) >= DECIDED_NATS
@@ -248,12 +212,13 @@ RENDERED_POSES = 30  # random poses per camera, each localised from two seeds
 
 
 def rendered_still(preset: str, field_name: str, poses, seeds=(0, 1),
-                   updates: int = STILL_UPDATES) -> list[StillResult]:
+                   updates: int = STILL_UPDATES, conf: dict | None = None) -> list[StillResult]:
     """Rendered frames of a still robot: for each pose one frame of ``preset`` (simulate's
     renderer, the camera at its nominal pitch and roll) through extract's perspective chain
     with its default conf, and mcl from a uniform start with the CLI's defaults (the
     renderer's camera height, as calib.yaml gives it) updated ``updates`` times on it, once per
-    seed. The truth is the pose; judged as the HULKs frames are."""
+    seed (``conf``: changes to mcl's uniform preset). The truth is the pose; judged as the
+    HULKs frames are."""
     from .. import simulate
     from ..common.field import load_field
     from ..common.observations import Observations
@@ -268,7 +233,7 @@ def rendered_still(preset: str, field_name: str, poses, seeds=(0, 1),
     renderer = PerspectiveRenderer(sim["perspective"], scene.build(fm, sim["scene"],
                                                                    np.zeros(1), 4), seed=4)
     cam = renderer.camera
-    conf = mcl.confs["uniform"]
+    conf = dict(mcl.confs["uniform"], **(conf or {}))
     obs_conf = dict(conf["observation"], camera_height=cam.height)
     model = ObservationModel.from_field(fm, obs_conf)
     out = []
