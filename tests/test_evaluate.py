@@ -421,3 +421,29 @@ def test_cli_errors_are_one_line(hand, tmp_path, case):
     assert len(lines) == 1 and lines[0].startswith("fieldloc: error: "), res.stderr
     assert "Traceback" not in res.output
     assert res.stdout == ""
+
+
+def test_the_line_share_judge_tells_a_unique_best_pose_from_one_of_a_few():
+    """LineRaster.rivals: the centre circle and the halfway line seen from a pose are what
+    only that pose (and its mirror) explain; a stretch of the touch line is explained as well
+    by poses all along the field's lines."""
+    from stages.common.field import field_from_spec
+    from stages.common.geometry import field_to_robot
+    from stages.evaluate.line_share import LineRaster
+    from stages.pipelines.realdata import LAB_FIELD
+
+    fm = field_from_spec(LAB_FIELD)
+    raster = LineRaster(fm)
+    a = np.radians(np.arange(0, 360, 10))
+    circle = 1.37 * np.stack([np.cos(a), np.sin(a)], axis=1)
+    halfway = np.stack([np.zeros(31), np.linspace(-3, 3, 31)], axis=1)
+    pose = np.array([1.0, 0.5, 0.3])
+    seen = field_to_robot(pose, np.concatenate([circle, halfway]))
+    best = raster.best_pose(seen)
+    assert best[0] >= 0.95
+    assert min(np.hypot(*(best[1][:2] - q[:2])) for q in (pose, fm.mirror_pose(pose))) < 0.15
+    assert raster.rivals(seen, best) == []
+    touch = np.stack([np.linspace(-1, 1, 21), np.full(21, 7.54 / 2)], axis=1)
+    seen = field_to_robot(np.array([0.0, 2.5, 0.0]), touch)
+    best = raster.best_pose(seen)
+    assert best[0] == 1.0 and len(raster.rivals(seen, best)) >= 2

@@ -12,7 +12,10 @@ Goals (issue 7, item 4) and what this commit reaches (the README's results table
 - the pose, or its mirror, moving <= 30 cm / 5 deg between range limits 3.5, 4 and 5 m: not
   met on every image (5 of 10);
 - the top or second hypothesis at the brute-force best pose, or its mirror, for the images
-  and for their points through --points: not met (4 and 1 of 10).
+  and for their points through --points: not met (4 and 1 of 10). On 7 of the 10 images the
+  judge's best is one of a few: poses elsewhere explain within 0.03 of its share
+  (LineRaster.rivals), so no method can be held to it there; on the 3 where it is unique, the
+  top or second hypothesis holds it on every one.
 Where a goal is not met the test holds the level reached, so a regression fails it; every
 image's probability is low (below the acceptance threshold) wherever the pose is unsure, and
 the test checks that too: no image is accepted with a pose explaining less than its null."""
@@ -66,3 +69,7 @@ def test_an_unsure_minho_lab_image_is_not_accepted(lab):
 def test_minho_lab_hypotheses_hold_the_brute_force_pose(lab):
     assert lab["top_or_second_at_best"] >= 4  # goal: every image (module doc)
     assert lab["points_top_or_second_at_best"] >= 1
+    # where the judge's best pose is what the points decide (no pose elsewhere within 0.03 of
+    # its share: 3 of the 10 images), the top or second hypothesis holds it on every one
+    assert lab["unique_best"] >= 3
+    assert lab["top_or_second_at_unique_best"] == lab["unique_best"], lab["rows"]

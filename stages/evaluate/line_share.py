@@ -42,6 +42,11 @@ class LineRaster:
         """(share, pose) of the pose on the field that puts the largest share of points
         within ``near`` of a line: a coarse grid (0.35 m, 6 deg, scored with 0.3 m on at most
         80 of the points), then a local refinement of the 12 best with all points."""
+        return self._refined(points, near, seed, 12)[0]
+
+    def _refined(self, points, near: float, seed: int, k: int) -> list:
+        """The ``k`` best poses of the coarse grid (best_pose), each refined locally with all
+        points: [(share, pose)], best first."""
         fm = self.field
         points = np.asarray(points, float).reshape(-1, 2)
         hx, hy = fm.length / 2, fm.width / 2
@@ -51,18 +56,41 @@ class LineRaster:
                         axis=-1).reshape(-1, 3)
         rng = np.random.default_rng(seed)
         few = points[rng.permutation(len(points))[:80]]
-        coarse = np.concatenate([self.share_near(few, grid[k:k + 8000], 0.3)
-                                 for k in range(0, len(grid), 8000)])
+        coarse = np.concatenate([self.share_near(few, grid[j:j + 8000], 0.3)
+                                 for j in range(0, len(grid), 8000)])
         d = np.arange(-0.18, 0.181, 0.045)
         local = np.stack(np.meshgrid(d, d, np.radians(np.arange(-3, 3.1, 1.5)),
                                      indexing="ij"), axis=-1).reshape(-1, 3)
-        best = (-1.0, None)
-        for p in grid[np.argsort(-coarse)[:12]]:
+        out = []
+        for p in grid[np.argsort(-coarse)[:k]]:
             s = self.share_near(points, p + local, near)
-            k = int(np.argmax(s))
-            if s[k] > best[0]:
-                best = (float(s[k]), p + local[k])
-        return best
+            j = int(np.argmax(s))
+            out.append((float(s[j]), p + local[j]))
+        out.sort(key=lambda e: -e[0])  # stable: of equal shares the coarse grid's order
+        return out
+
+    def rivals(self, points, best, near: float = 0.15, within: float = 0.03,
+               apart: float = 0.5, apart_rad: float = np.radians(10.0), seed: int = 0,
+               k: int = 200) -> list:
+        """Poses that explain the points about as well as ``best`` (share, pose) does
+        elsewhere: the 200 best coarse poses refined (best_pose's search, wider), those
+        within ``within`` of its share and more than ``apart`` m or ``apart_rad`` from it, from
+        its mirror image and from each other ([(share, pose)], best first). When the list is
+        not empty the best pose is not what the points decide, only one of a few."""
+        fm = self.field
+
+        def far(a, b):
+            dth = abs((a[2] - b[2] + np.pi) % (2 * np.pi) - np.pi)
+            return np.hypot(a[0] - b[0], a[1] - b[1]) > apart or dth > apart_rad
+
+        share, pose = best
+        out: list = []
+        for s, q in self._refined(points, near, seed, k):
+            if s < share - within:
+                break
+            if all(far(q, r) and far(q, fm.mirror_pose(r)) for r in [pose] + [r for _, r in out]):
+                out.append((s, q))
+        return out
 
     def null_share(self, points, copies: int = 3, near: float = 0.15, seed: int = 0) -> float:
         """The null baseline: the mean best share of ``copies`` copies of the points at

@@ -7,7 +7,9 @@ defaults on ../shared/realdata (read its README), judged by the brute-force line
 ``build_map``, ``extract`` (preset real), ``localize`` (lut, histogram heading, independent);
 per image the share of its line points within 15 cm at the top hypothesis, the null baseline
 (random-bearing copies at their best pose), the brute-force best pose, whether the top or second
-hypothesis is that pose (or its mirror) within 15 cm / 2 deg; the same with the range limit at
+hypothesis is that pose (or its mirror) within 15 cm / 2 deg, and whether that pose is what the
+points decide or one of a few (LineRaster.rivals: poses elsewhere within 0.03 of its share);
+the same with the range limit at
 3.5, 4 and 5 m (how far the found pose, or its mirror, moves); and the line points of each
 image as a ``frame,x,y`` CSV through ``--points --independent``.
 """
@@ -109,6 +111,7 @@ def minho_lab(realdata: Path, work: Path, method: str = "lut") -> dict:
     for i, n in enumerate(cols["name"]):
         p = pts[str(n)]
         best_share, best = raster.best_pose(p, NEAR)
+        rivals = raster.rivals(p, (best_share, best), NEAR)
         h = cols["hypotheses"][i]
         top = h[0, :3]
         rows[str(n)] = {
@@ -118,6 +121,8 @@ def minho_lab(realdata: Path, work: Path, method: str = "lut") -> dict:
             "null": raster.null_share(p, 3, NEAR, seed=i), "best_share": best_share,
             "best_pose": [float(v) for v in best], "top": [float(v) for v in top],
             "top_or_second_at_best": bool(at_best(h, best)),
+            # poses elsewhere within 0.03 of the best share: the best is one of a few
+            "rivals": len(rivals),
         }
     # range stability: the top pose (or its mirror) at each range limit against the default's
     moves = {str(n): [] for n in cols["name"]}
@@ -155,6 +160,9 @@ def minho_lab(realdata: Path, work: Path, method: str = "lut") -> dict:
                       for r in rows.values()),
         "top_or_second_at_best": sum(r["top_or_second_at_best"] for r in rows.values()),
         "points_top_or_second_at_best": sum(r["points_top_or_second_at_best"]
+                                            for r in rows.values()),
+        "unique_best": sum(r["rivals"] == 0 for r in rows.values()),
+        "top_or_second_at_unique_best": sum(r["top_or_second_at_best"] and r["rivals"] == 0
                                             for r in rows.values()),
         "rows": rows,
     }
