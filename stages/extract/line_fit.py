@@ -275,7 +275,15 @@ def grow_along(white: np.ndarray, lens: np.ndarray, end: np.ndarray, direction: 
 def distort_point(lens, x, y):
     """An ideal pixel (x, y) -> the distorted image pixel (the lens of ``lens_parameters``);
     the compiled one-point form of ``distort_ideal``."""
-    fx, fy, cx, cy, k1, k2, p1, p2, k3 = lens
+    return _distort(x, y, lens[0], lens[1], lens[2], lens[3], lens[4], lens[5], lens[6],
+                    lens[7], lens[8])
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _distort(x, y, fx, fy, cx, cy, k1, k2, p1, p2, k3):
+    """distort_point with the lens's values given one by one (a loop that reads them once
+    before it runs on vectors: read from the array inside it, they might change with its
+    stores)."""
     nx = (x - cx) / fx
     ny = (y - cy) / fy
     r2 = nx * nx + ny * ny
@@ -293,35 +301,28 @@ def _distort_all(lens, p, out):
 
 @njit(cache=True, nogil=True, inline="always")
 def _bilinear_at(image, x, y):
+    """The image bilinearly at (x, y), pixels outside it 0: each of the four pixels read at
+    its index clamped to the image and taken where it lies inside (no branch, so that a loop
+    of these runs on vectors; adding +0.0 for a pixel outside leaves the sum as skipping it
+    would)."""
     h, w = image.shape
     x0 = np.floor(x)
     y0 = np.floor(y)
     fx, fy = x - x0, y - y0
-    ix, iy = int(x0), int(y0)
+    ix, iy = np.int64(x0), np.int64(y0)
     out = 0.0
     for dy in range(2):
         wy = (1.0 - fy) if dy == 0 else fy
         yi = iy + dy
-        if yi < 0 or yi >= h:
-            continue
+        in_y = (yi >= 0) and (yi < h)
+        yc = min(max(yi, 0), h - 1)
         for dx in range(2):
             wx = (1.0 - fx) if dx == 0 else fx
             xi = ix + dx
-            if xi < 0 or xi >= w:
-                continue
-            out += image[yi, xi] * (wx * wy)
+            xc = min(max(xi, 0), w - 1)
+            v = np.float64(image[yc, xc]) if (in_y and (xi >= 0) and (xi < w)) else 0.0
+            out += v * (wx * wy)
     return out
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _profile_sample(image, lens, bx, by, nx, ny, reach, k, prof):
-    """Sample k of a profile across a line at (bx, by) (offset -reach + k along the normal
-    (nx, ny)), taken once into ``prof``."""
-    if np.isnan(prof[k]):
-        a = -reach + k
-        ix, iy = distort_point(lens, bx + a * nx, by + a * ny)
-        prof[k] = _bilinear_at(image, ix, iy)
-    return prof[k]
 
 
 @njit(cache=True, nogil=True)
@@ -333,19 +334,29 @@ def _profile_runs(image, lens, ox, oy, ux, uy, along, reach, centre, width, ok):
     t = int(round(2 * reach)) + 1  # offsets -reach .. reach, 1 px apart
     mid = t // 2
     prof = np.empty(t)
-    # the samples are taken as needed, outward from the middle (NaN: not yet sampled): the
-    # run nearest the middle and its extent need only those up to one past its ends
+    xs = np.empty(t)  # the samples' image positions
+    ys = np.empty(t)
+    fx, fy, cx, cy = lens[0], lens[1], lens[2], lens[3]
+    k1, k2, p1, p2, k3 = lens[4], lens[5], lens[6], lens[7], lens[8]
     for s in range(len(along)):
-        prof[:] = np.nan
         bx, by = ox + along[s] * ux, oy + along[s] * uy
+        # the whole profile, in two passes that run on vectors: the samples' image
+        # positions through the lens, then their bilinear values (cheaper than taking only
+        # the samples the run search below reads, one by one)
+        for k in range(t):
+            a = -reach + k
+            xs[k], ys[k] = _distort(bx + a * nx, by + a * ny, fx, fy, cx, cy, k1, k2, p1, p2,
+                                    k3)
+        for k in range(t):
+            prof[k] = _bilinear_at(image, xs[k], ys[k])
         best = -1
         for d in range(mid + 1):
             k = mid - d
-            if k >= 0 and _profile_sample(image, lens, bx, by, nx, ny, reach, k, prof) >= 0.5:
+            if k >= 0 and prof[k] >= 0.5:
                 best = k
                 break
             k = mid + d
-            if k < t and _profile_sample(image, lens, bx, by, nx, ny, reach, k, prof) >= 0.5:
+            if k < t and prof[k] >= 0.5:
                 best = k
                 break
         if best < 0:
@@ -354,11 +365,9 @@ def _profile_runs(image, lens, ox, oy, ux, uy, along, reach, centre, width, ok):
             width[s] = 0.0
             continue
         lo, hi = best, best
-        while lo > 0 and _profile_sample(image, lens, bx, by, nx, ny, reach, lo - 1,
-                                         prof) >= 0.5:
+        while lo > 0 and prof[lo - 1] >= 0.5:
             lo -= 1
-        while hi < t - 1 and _profile_sample(image, lens, bx, by, nx, ny, reach, hi + 1,
-                                             prof) >= 0.5:
+        while hi < t - 1 and prof[hi + 1] >= 0.5:
             hi += 1
         mass, wsum = 0.0, 0.0
         for k in range(lo, hi + 1):
