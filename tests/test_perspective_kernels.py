@@ -3,7 +3,10 @@ they replaced computed, exactly (the features must not change: see also
 test_extract_perspective_unchanged.py), on random inputs beyond the reference frames:
 
 - colour.classify_cells (``_hue_row``, ``_hue_cells``) against the per-pixel class masks;
-- colour's ``_green_candidates`` against the field green search's numpy formulas;
+- colour's ``_green_candidates`` against the field green search's numpy formulas, its
+  ``_green_cluster`` (mean shift, cluster median and variances) and ``_hue_spread`` (the hue
+  model's medians) against the numpy expressions they replaced, and ``pairwise_sum32``
+  against numpy's float32 sum;
 - line_structure's ``_gap_candidates`` (fill_gaps) against its former Python loop;
 - line_structure's ``_farthest_pairs`` (split_isolated_nodes) against np.argmax of the
   regions' distance matrices.
@@ -92,6 +95,62 @@ def test_green_candidates_equal_the_numpy_formulas(seed):
     bins = (np.clip(ref_u + 128.0, 0, 255).astype(np.int32) >> 3) * 32 + (
         np.clip(ref_v + 128.0, 0, 255).astype(np.int32) >> 3)
     np.testing.assert_array_equal(hist, np.bincount(bins, minlength=1024))
+
+
+def _reference_cluster(uu, vv, y_c, nu, nv, rad2):
+    """The field green search's mean shift and cluster statistics as numpy computed them."""
+    for _ in range(3):
+        near = (uu - nu) ** 2 + (vv - nv) ** 2 <= rad2
+        if not near.any():
+            break
+        nu, nv = float(uu[near].mean()), float(vv[near].mean())
+    near = (uu - nu) ** 2 + (vv - nv) ** 2 <= rad2
+    if not near.any():
+        return nu, nv, 0, None, None
+    n = int(near.sum())
+    cum = np.cumsum(np.bincount(y_c[near], minlength=256))
+    lo, hi = np.searchsorted(cum, [(n - 1) // 2 + 1, n // 2 + 1])
+    spread = float(np.sqrt(0.5 * (uu[near].var() + vv[near].var())))
+    return nu, nv, n, 0.5 * (float(lo) + float(hi)), spread
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_green_cluster_equals_the_numpy_mean_shift(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(5, 20000))
+    y_c = rng.integers(0, 256, n).astype(np.uint8)
+    centre = rng.uniform(-40, 10, 2)
+    uu = (rng.normal(centre[0], rng.uniform(2, 20), n)).astype(np.float32)
+    vv = (rng.normal(centre[1], rng.uniform(2, 20), n)).astype(np.float32)
+    for start in (centre + rng.normal(0, 8, 2), centre + 100.0):  # the second finds none
+        nu, nv = (float(np.round(c / 8.0) * 8.0 + 4.0) for c in start)
+        ref = _reference_cluster(uu, vv, y_c, nu, nv, 196.0)
+        got_u, got_v, m, y_med, var_u, var_v = colour._green_cluster(uu, vv, y_c, nu, nv,
+                                                                     196.0, 3)
+        assert (got_u, got_v, m) == ref[:3]
+        if m:
+            spread = float(np.sqrt(np.float32(0.5) * (np.float32(var_u) + np.float32(var_v))))
+            assert (y_med, spread) == ref[3:]
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 8, 9, 127, 128, 129, 300, 6121, 8193, 20000])
+def test_float32_sums_and_medians_are_numpys(n):
+    rng = np.random.default_rng(n)
+    for _ in range(40):
+        a = (rng.normal(size=n) * 10.0 ** rng.integers(-3, 4)).astype(np.float32)
+        assert colour.pairwise_sum32(a) == a.sum()
+        assert colour._mean32(a) == a.mean() and colour._var32(a) == a.var()
+    d = rng.uniform(-1.5, 1.5, n).astype(np.float32)
+    hyp = rng.uniform(0, 180, n).astype(np.float32)
+    y8 = rng.integers(0, 256, n).astype(np.uint8)
+    max_dev = np.float32(math.radians(45.0))
+    m, med_d, med_sat = colour._hue_spread(d, hyp, y8, max_dev)
+    near = np.abs(d) <= math.radians(45.0)
+    assert m == near.sum()
+    if m:
+        assert med_d == float(np.median(np.abs(d[near])))
+        assert med_sat == float(np.median(hyp[near] / np.maximum(y8[near].astype(np.float32),
+                                                                 1.0)))
 
 
 def _random_graph(rng, n=60):

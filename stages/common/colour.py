@@ -287,20 +287,18 @@ def estimate_field_colour(yuv: np.ndarray, conf: dict, valid: np.ndarray | None 
         hist = cv2.GaussianBlur(hist, (3, 3), 0)
         pi, pj = np.unravel_index(int(np.argmax(hist)), hist.shape)
         nu, nv = 8.0 * pi + 4.0 - 128.0, 8.0 * pj + 4.0 - 128.0
-        rad2 = conf["green_cluster_radius"] ** 2
-        for _ in range(3):  # mean shift towards the cluster centre
-            near = (uu - nu) ** 2 + (vv - nv) ** 2 <= rad2
-            if not near.any():
-                break
-            nu, nv = float(uu[near].mean()), float(vv[near].mean())
-        near = (uu - nu) ** 2 + (vv - nv) ** 2 <= rad2
-        if near.sum() >= 10:
+        # mean shift towards the cluster centre (3 steps), then the cluster's pixels: their
+        # count, median Y and chroma variances (compiled: _green_cluster)
+        nu, nv, n_near, y_med, var_u, var_v = _green_cluster(
+            uu, vv, y_c, nu, nv, float(conf["green_cluster_radius"] ** 2), 3)
+        if n_near >= 10:
             found = True
-            y_field = _median_of_integers(y_c[near])
+            y_field = y_med
             back = y_field / Y_REF  # to chroma at the field's luminance
             u_c, v_c = 128.0 + nu * back, 128.0 + nv * back
-            spread = back * float(np.sqrt(0.5 * (uu[near].var() + vv[near].var())))
-            share = float(near.sum()) / n_valid
+            spread = back * float(np.sqrt(np.float32(0.5) * (np.float32(var_u)
+                                                             + np.float32(var_v))))
+            share = float(n_near) / n_valid
     if y_field is None:
         y_field = float(np.median(y8)) if len(y8) else 100.0
     k = conf["green_spread_k"]
@@ -377,23 +375,148 @@ def _hue_model(fc: FieldColour, u8, v8, y8, conf: dict) -> None:
         dv = v8.astype(np.float32) - 128.0
         d = np.arctan2(dv * fc.hue_dir[0] - du * fc.hue_dir[1],
                        du * fc.hue_dir[0] + dv * fc.hue_dir[1])
-        near = np.abs(d) <= math.radians(45.0)
-        if near.sum() >= 10:
-            sigma = 1.4826 * float(np.median(np.abs(d[near])))
+        # within 45 deg of the field's hue: the median |hue offset| and saturation
+        # (compiled: _hue_spread)
+        n_near, med_d, med_sat = _hue_spread(d, np.hypot(du, dv), y8,
+                                             np.float32(math.radians(45.0)))
+        if n_near >= 10:
+            sigma = 1.4826 * med_d
             tol = max(tol, float(conf["green_hue_k"]) * sigma)
-            sat = float(np.median(np.hypot(du[near], dv[near]) / np.maximum(
-                y8[near].astype(np.float32), 1.0)))
+            sat = med_sat
     fc.hue_cos = math.cos(min(tol, math.radians(60.0)))
     fc.saturation = (lo_rel * sat, hi_rel * sat)
 
 
-def _median_of_integers(values: np.ndarray) -> float:
-    """``np.median`` of uint8 values, from their histogram (the mean of the two middle values
-    for an even count)."""
-    n = len(values)
-    cum = np.cumsum(np.bincount(values, minlength=256))
-    lo, hi = np.searchsorted(cum, [(n - 1) // 2 + 1, n // 2 + 1])
-    return 0.5 * (float(lo) + float(hi))
+@njit("float32(float32[::1])", cache=True, nogil=True)
+def pairwise_sum32(a):
+    """``np.sum`` of a float32 array in numpy's order and precision (its pairwise summation
+    in float32, as line_structure.block_sum for float64), so that the sum is numpy's to the
+    bit."""
+    n = a.shape[0]
+    if n < 8:
+        res = np.float32(-0.0)
+        for i in range(n):
+            res += a[i]
+        return res
+    if n > 128:
+        n2 = n // 2
+        n2 -= n2 % 8
+        return pairwise_sum32(a[:n2]) + pairwise_sum32(a[n2:])
+    r0, r1, r2, r3 = a[0], a[1], a[2], a[3]
+    r4, r5, r6, r7 = a[4], a[5], a[6], a[7]
+    i = 8
+    while i < n - n % 8:
+        r0 += a[i]
+        r1 += a[i + 1]
+        r2 += a[i + 2]
+        r3 += a[i + 3]
+        r4 += a[i + 4]
+        r5 += a[i + 5]
+        r6 += a[i + 6]
+        r7 += a[i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[i]
+        i += 1
+    return res
+
+
+@njit(cache=True, nogil=True)
+def _mean32(a):
+    """``a.mean()`` of a float32 array as numpy computes it: the float32 pairwise sum over
+    the count in float64, rounded to float32."""
+    return np.float32(np.float64(pairwise_sum32(a)) / np.float64(a.shape[0]))
+
+
+@njit(cache=True, nogil=True)
+def _var32(a):
+    """``a.var()`` of a float32 array as numpy computes it (its mean as _mean32, the squared
+    deviations in float32, their mean likewise)."""
+    m = _mean32(a)
+    x = np.empty_like(a)
+    for i in range(a.shape[0]):
+        x[i] = a[i] - m
+        x[i] = x[i] * x[i]
+    return _mean32(x)
+
+
+@njit(cache=True, nogil=True)
+def _near_cluster(uu, vv, nu, nv, rad2, bu, bv):
+    """The samples with (uu - nu)^2 + (vv - nv)^2 <= rad2 (float32, as numpy evaluates it)
+    copied in order into bu, bv; returns their number."""
+    m = 0
+    for i in range(uu.shape[0]):
+        du = uu[i] - nu
+        dv = vv[i] - nv
+        if du * du + dv * dv <= rad2:
+            bu[m] = uu[i]
+            bv[m] = vv[i]
+            m += 1
+    return m
+
+
+@njit(cache=True, nogil=True)
+def _green_cluster(uu, vv, ys, nu, nv, rad2, iterations):
+    """estimate_field_colour's mean shift of the green candidates' rescaled chroma (uu, vv
+    float32, their luminance ``ys`` uint8) from (nu, nv): ``iterations`` steps to the mean
+    of the candidates within sqrt(rad2) (float32 arithmetic and numpy's float32 means, as
+    the numpy expressions it replaces), then those candidates' number, median luminance
+    (np.median's, from their histogram) and chroma variances (numpy's float32 ``var``). Returns (nu,
+    nv, count, median Y, var U, var V); the last three are 0 without candidates near."""
+    n = uu.shape[0]
+    bu = np.empty(n, np.float32)
+    bv = np.empty(n, np.float32)
+    r2 = np.float32(rad2)
+    for _ in range(iterations):
+        m = _near_cluster(uu, vv, np.float32(nu), np.float32(nv), r2, bu, bv)
+        if m == 0:
+            break
+        nu, nv = np.float64(_mean32(bu[:m])), np.float64(_mean32(bv[:m]))
+    fu, fv = np.float32(nu), np.float32(nv)
+    hist = np.zeros(256, np.int64)
+    m = 0
+    for i in range(n):
+        du = uu[i] - fu
+        dv = vv[i] - fv
+        if du * du + dv * dv <= r2:
+            bu[m] = uu[i]
+            bv[m] = vv[i]
+            hist[ys[i]] += 1
+            m += 1
+    if m == 0:
+        return nu, nv, 0, 0.0, np.float32(0.0), np.float32(0.0)
+    # the median of the integers: the mean of the values at ranks (m - 1) // 2 and m // 2
+    lo, hi, cum = -1, -1, 0
+    for v in range(256):
+        cum += hist[v]
+        if lo < 0 and cum >= (m - 1) // 2 + 1:
+            lo = v
+        if hi < 0 and cum >= m // 2 + 1:
+            hi = v
+    return nu, nv, m, 0.5 * (float(lo) + float(hi)), _var32(bu[:m]), _var32(bv[:m])
+
+
+@njit(cache=True, nogil=True)
+def _hue_spread(d, hyp, y8, max_dev):
+    """_hue_model's statistics of the green candidates whose hue offset ``d`` (float32, rad)
+    from the field's is at most ``max_dev`` (float32): their number, the median |d| and the
+    median saturation hyp / max(Y, 1) (chroma length ``hyp`` float32, luminance ``y8``), in
+    float32 as the numpy expressions it replaces (np.median: the middle value, or the mean of
+    the two middle ones)."""
+    n = d.shape[0]
+    ad = np.empty(n, np.float32)
+    sat = np.empty(n, np.float32)
+    m = 0
+    for i in range(n):
+        a = abs(d[i])
+        if a <= max_dev:
+            ad[m] = a
+            sat[m] = hyp[i] / max(np.float32(y8[i]), np.float32(1.0))
+            m += 1
+    if m == 0:
+        return 0, np.nan, np.nan
+    return m, float(np.median(ad[:m])), float(np.median(sat[:m]))
 
 
 @functools.lru_cache(maxsize=8)
