@@ -7,6 +7,7 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
   ``_green_cluster`` (mean shift, cluster median and variances) and ``_hue_spread`` (the hue
   model's medians) against the numpy expressions they replaced, and ``pairwise_sum32``
   against numpy's float32 sum;
+- crossings' ``_points_along`` (the candidates' arm points) against its former Python walk;
 - line_structure's ``_gap_candidates`` (fill_gaps) against its former Python loop;
 - line_structure's ``_farthest_pairs`` (split_isolated_nodes) against np.argmax of the
   regions' distance matrices.
@@ -151,6 +152,39 @@ def test_float32_sums_and_medians_are_numpys(n):
         assert med_d == float(np.median(np.abs(d[near])))
         assert med_sat == float(np.median(hyp[near] / np.maximum(y8[near].astype(np.float32),
                                                                  1.0)))
+
+
+def _reference_point_along(pos, chain, reach):
+    """crossings.point_along as Python computed it (np.hypot steps, arcs summed in order,
+    bisect)."""
+    import bisect
+
+    p = pos[chain]
+    seg = np.hypot(*np.diff(p, axis=0).T).tolist()
+    s = [0.0]
+    for length in seg:
+        s.append(s[-1] + length)
+    if s[-1] <= reach:
+        return p[-1].copy()
+    k = bisect.bisect_left(s, reach)
+    t = (reach - s[k - 1]) / max(seg[k - 1], 1e-9)
+    return p[k - 1] + t * (p[k] - p[k - 1])
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_points_along_equal_the_python_walk(seed):
+    from stages.extract import crossings
+
+    rng = np.random.default_rng(seed)
+    pos = rng.uniform(0, 40, (80, 2))
+    pos[10] = pos[9]  # a step of zero length
+    pos[40:44] = np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 1.0], [3.0, 1.0]])  # exactly 4 long
+    chains = [list(rng.integers(0, 80, int(rng.integers(1, 9)))) for _ in range(200)]
+    chains += [[8, 9, 10, 11], [40, 41, 42, 43], [40, 41, 42], [5]]
+    for reach in (0.5, 4.0, 6.0):
+        got = crossings.points_along(pos, chains, reach)
+        ref = np.array([_reference_point_along(pos, ch, reach) for ch in chains])
+        assert got.tobytes() == ref.tobytes()
 
 
 def _random_graph(rng, n=60):

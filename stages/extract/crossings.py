@@ -25,7 +25,6 @@ full-resolution white mask and verified, then merged.
 
 from __future__ import annotations
 
-import bisect
 import math
 from dataclasses import dataclass
 
@@ -61,16 +60,45 @@ class CrossingCandidate:
 def point_along(pos: np.ndarray, chain: list[int], reach: float) -> np.ndarray:
     """The point ``reach`` cells along a fine chain (starting at its first node), or the chain's
     last node when it is shorter."""
-    p = pos[chain]
-    seg = np.hypot(*np.diff(p, axis=0).T).tolist()
-    s = [0.0]
-    for length in seg:  # the arc length at each node, added in order as np.cumsum does
-        s.append(s[-1] + length)
-    if s[-1] <= reach:
-        return p[-1].copy()
-    k = bisect.bisect_left(s, reach)  # np.searchsorted's side "left"
-    t = (reach - s[k - 1]) / max(seg[k - 1], 1e-9)
-    return p[k - 1] + t * (p[k] - p[k - 1])
+    return points_along(pos, [chain], reach)[0]
+
+
+def points_along(pos: np.ndarray, chains: list[list[int]], reach: float) -> np.ndarray:
+    """point_along of each chain (C, 2), in one compiled pass (``_points_along``)."""
+    lens = np.fromiter((len(ch) for ch in chains), np.int64, len(chains))
+    start = np.zeros(len(chains) + 1, np.int64)
+    np.cumsum(lens, out=start[1:])
+    flat = np.fromiter((i for ch in chains for i in ch), np.int64, int(start[-1]))
+    out = np.empty((len(chains), 2))
+    _points_along(np.ascontiguousarray(pos, np.float64), flat, start, float(reach), out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _points_along(pos, flat, start, reach, out):
+    """points_along, compiled: for chain c (nodes ``flat[start[c]:start[c + 1]]``) the arc
+    length at each node summed in order (as np.cumsum), the first node at least ``reach``
+    along (np.searchsorted's side "left") and the point between it and the node before."""
+    for c in range(len(start) - 1):
+        a, b = start[c], start[c + 1]
+        s_prev, s, total = 0.0, 0.0, 0.0
+        k = -1
+        for i in range(a + 1, b):
+            total = total + np.hypot(pos[flat[i], 0] - pos[flat[i - 1], 0],
+                                     pos[flat[i], 1] - pos[flat[i - 1], 1])
+            if k < 0:
+                s_prev, s = s, total
+                if s >= reach:
+                    k = i
+        last = flat[b - 1]
+        if total <= reach:
+            out[c, 0], out[c, 1] = pos[last, 0], pos[last, 1]
+            continue
+        p0, p1 = flat[k - 1], flat[k]
+        seg = np.hypot(pos[p1, 0] - pos[p0, 0], pos[p1, 1] - pos[p0, 1])
+        t = (reach - s_prev) / max(seg, 1e-9)
+        out[c, 0] = pos[p0, 0] + t * (pos[p1, 0] - pos[p0, 0])
+        out[c, 1] = pos[p0, 1] + t * (pos[p1, 1] - pos[p0, 1])
 
 
 def _angle_between(a: np.ndarray, b: np.ndarray) -> float:
@@ -88,17 +116,28 @@ def crossing_candidates(ks: KeyStructure, graph: LineGraph, arm_reach: float,
     the floor with ``floor_of`` (grid positions (N, 2) -> floor points, NaN above the
     horizon) where its points are on the floor."""
     deg = ks.degree()
+    keys = [k for k in range(len(ks.node)) if deg[k] in (2, 3, 4)]
+    if not keys:
+        return []
+    chains = [ks.incident(k) for k in keys]
+    along = points_along(graph.pos, [ch for cs in chains for ch in cs], arm_reach)
+    first = np.cumsum([0] + [len(cs) for cs in chains])
+    # the L candidates' centres and arm points on the floor, all at once
+    two = [n for n, k in enumerate(keys) if deg[k] == 2]
+    floor = {}
+    if floor_of is not None and two:
+        f = floor_of(np.concatenate([np.vstack([ks.pos[keys[n]][None],
+                                                along[first[n]:first[n + 1]]])
+                                     for n in two])).reshape(-1, 3, 2)
+        floor = dict(zip(two, f))
     out = []
-    for k in range(len(ks.node)):
-        if deg[k] not in (2, 3, 4):
-            continue
-        chains = ks.incident(k)
+    for n, k in enumerate(keys):
         centre = ks.pos[k]
-        arms = np.array([point_along(graph.pos, ch, arm_reach) for ch in chains])
+        arms = along[first[n]:first[n + 1]].copy()
         if deg[k] == 2:
             ang = _angle_between(arms[0] - centre, arms[1] - centre)
-            if floor_of is not None:
-                f = floor_of(np.vstack([centre[None], arms]))
+            if n in floor:
+                f = floor[n]
                 if np.isfinite(f).all():
                     ang = _angle_between(f[1] - f[0], f[2] - f[0])
             if not (l_angle_range[0] <= ang <= l_angle_range[1]):
