@@ -215,17 +215,19 @@ def floor_arms(kind: str, arms: np.ndarray) -> tuple[float, float]:
     bar with the stem across it, an X's arms at multiples of 90 deg."""
     a = np.asarray(arms, float)
     if kind == "L":
+        a = a.tolist()  # a few angles: Python floats (the same arithmetic, less overhead)
         gap = abs(math.remainder(a[0] - a[1], 2 * math.pi))
         misfit = abs(gap - math.pi / 2)
-        return crossing_orientation("L", list(a)), misfit
+        return crossing_orientation("L", a), misfit
     if kind == "T":
+        a = a.tolist()
         # the bar: the most nearly opposite pair of arms; the stem is the remaining arm
         pairs = [(0, 1, 2), (0, 2, 1), (1, 2, 0)]
         opp = [abs(abs(math.remainder(a[i] - a[j], 2 * math.pi)) - math.pi) for i, j, _ in pairs]
-        i, j, s = pairs[int(np.argmin(opp))]
+        i, j, s = pairs[min(range(3), key=opp.__getitem__)]  # the first smallest, as argmin
         across = [abs(abs(math.remainder(a[s] - a[k], 2 * math.pi)) - math.pi / 2) for k in (i, j)]
         misfit = max(min(opp), max(across))
-        return math.remainder(float(a[s]), 2 * math.pi), misfit
+        return math.remainder(a[s], 2 * math.pi), misfit
     # X: all four arms folded into [0, pi/2) agree; circular mean of 4 * angle
     z = np.exp(4j * a).mean()
     orient = float(np.mod(np.angle(z) / 4.0, math.pi / 2))
@@ -637,7 +639,9 @@ def merge_line_crossings(crossings: list[LineCrossing], tol: float,
         if len(group) == 1:
             out.append(c)
             continue
-        point = np.mean([g.point for g in group], axis=0)
+        # the points' mean as np.mean over the rows computes it (summed row by row)
+        point = np.array([sum(float(g.point[0]) for g in group),
+                          sum(float(g.point[1]) for g in group)]) / len(group)
         all_arms = np.concatenate([g.arms for g in group])
         all_lengths = np.concatenate([g.lengths for g in group])
         cmp = all_arms

@@ -308,11 +308,12 @@ class FloorProjection:
         self.m_inv = np.linalg.inv(m)
         self.height = float(camera.height)
         self.position = np.asarray(camera.position, float)
+        self._shifted = bool(self.position.any())
 
     def __call__(self, ideal) -> np.ndarray:
-        p = np.ascontiguousarray(np.asarray(ideal, np.float64).reshape(-1, 2))
+        p = np.ascontiguousarray(ideal, np.float64).reshape(-1, 2)
         out = np.empty_like(p)
-        _to_floor(p, self.m, self.height, self.position, bool(self.position.any()), out)
+        _to_floor(p, self.m, self.height, self.position, self._shifted, out)
         return out
 
     def to_ideal(self, floor) -> np.ndarray:
