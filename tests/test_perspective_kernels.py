@@ -7,6 +7,8 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
   ``_green_cluster`` (mean shift, cluster median and variances) and ``_hue_spread`` (the hue
   model's medians) against the numpy expressions they replaced, and ``pairwise_sum32``
   against numpy's float32 sum;
+- line_fit's ``split_components`` and ``part_fits`` (all components split and fitted in one
+  pass) against split_component, fit_line and the end points per part;
 - crossings' ``_points_along`` (the candidates' arm points) against its former Python walk;
 - line_structure's ``_gap_candidates`` (fill_gaps) against its former Python loop;
 - line_structure's ``_farthest_pairs`` (split_isolated_nodes) against np.argmax of the
@@ -185,6 +187,36 @@ def test_points_along_equal_the_python_walk(seed):
         got = crossings.points_along(pos, chains, reach)
         ref = np.array([_reference_point_along(pos, ch, reach) for ch in chains])
         assert got.tobytes() == ref.tobytes()
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_split_components_and_part_fits_equal_the_per_part_functions(seed):
+    from stages.extract import line_fit as lf
+
+    rng = np.random.default_rng(seed)
+    # polylines with corners and noise, some points outside the lens model (NaN)
+    points = np.cumsum(rng.normal(0, 4, (300, 2)), axis=0)
+    points[rng.random(300) < 0.03] = np.nan
+    order = rng.permutation(300)
+    components, k = [], 0
+    while k < 300:
+        n = int(rng.integers(1, 30))
+        components.append([int(i) for i in order[k:k + n]])
+        k += n
+    got = lf.split_components(points, components, 7.0, 3)
+    ref = []
+    for comp in components:
+        idx = np.asarray(comp)
+        idx = idx[np.all(np.isfinite(points[idx]), axis=1)]
+        ref += lf.split_component(points, idx, 7.0, 3)
+    assert len(got) == len(ref) > 10
+    for a, b in zip(got, ref):
+        np.testing.assert_array_equal(a, b)
+    fits, ends = lf.part_fits(points, got)
+    for p, f, e in zip(got, fits, ends):
+        fit = lf.fit_line(points[p])
+        assert f.tolist() == [*fit.centroid, *fit.direction, *fit.normal, fit.rms]
+        assert e.tobytes() == lf.line_end_points(points, p, fit).tobytes()
 
 
 def _random_graph(rng, n=60):

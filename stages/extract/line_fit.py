@@ -116,11 +116,8 @@ def merge_segments(points: np.ndarray, parts: list[np.ndarray], max_angle: float
     if len(parts) < 2:
         return parts
     cos_max = math.cos(max_angle)
-    fits = [fit_line(points[p]) for p in parts]
-    cen = np.array([f.centroid for f in fits])
-    dirs = np.array([f.direction for f in fits])
-    nor = np.array([f.normal for f in fits])
-    ends = np.array([_ends_on_line(points, p, f) for p, f in zip(parts, fits)])
+    fits, ends = part_fits(points, parts)
+    cen, dirs, nor = fits[:, 0:2].copy(), fits[:, 2:4].copy(), fits[:, 4:6].copy()
     alive = [True] * len(parts)
     pairs = _similar_pairs(cen, dirs, nor, ends, np.arange(len(parts)), cos_max, max_offset,
                            upper=True)
@@ -151,19 +148,48 @@ def split_and_merge(points: np.ndarray, components: list[list[int]], conf: dict
                     ) -> list[LineSegment]:
     """Split every component, merge similar parts, and give each final line its fit and its
     end points projected onto the fit."""
-    parts = []
-    for comp in components:
-        idx = np.asarray(comp)
-        idx = idx[np.all(np.isfinite(points[idx]), axis=1)]
-        parts += split_component(points, idx, conf["split_distance"], conf["min_nodes"])
+    parts = split_components(points, components, conf["split_distance"], conf["min_nodes"])
     parts = merge_segments(points, parts, conf["merge_angle"],
                            conf["merge_offset"], conf["split_distance"])
-    out = []
-    for p in parts:
-        p = np.asarray(p)
-        fit = fit_line(points[p])
-        out.append(LineSegment(p, fit, line_end_points(points, p, fit)))
-    return out
+    if not parts:
+        return []
+    fits, ends = part_fits(points, parts)
+    return [LineSegment(np.asarray(p), LineFit(f[0:2].copy(), f[2:4].copy(), f[4:6].copy(),
+                                               float(f[6])), e.copy())
+            for p, f, e in zip(parts, fits, ends)]
+
+
+def _flat(lists) -> tuple[np.ndarray, np.ndarray]:
+    """Index lists (or arrays) as one int64 array and their starts (L + 1,)."""
+    start = np.zeros(len(lists) + 1, np.int64)
+    np.cumsum(np.fromiter((len(a) for a in lists), np.int64, len(lists)), out=start[1:])
+    flat = np.fromiter((i for a in lists for i in a), np.int64, int(start[-1]))
+    return flat, start
+
+
+def split_components(points: np.ndarray, components, max_distance: float, min_nodes: int = 3
+                     ) -> list[np.ndarray]:
+    """split_component of every component (its nodes with finite points, in order), all in
+    one compiled pass (``_split_all``): the parts of all components, in order."""
+    if not components:
+        return []
+    flat, start = _flat(components)
+    out = np.empty(2 * len(flat) + 2, np.int64)
+    out_start = np.zeros(len(flat) + 2, np.int64)
+    m = _split_all(np.ascontiguousarray(points, np.float64), flat, start, float(max_distance),
+                   int(min_nodes), out, out_start)
+    return [out[out_start[k]:out_start[k + 1]] for k in range(m)]
+
+
+def part_fits(points: np.ndarray, parts) -> tuple[np.ndarray, np.ndarray]:
+    """fit_line and the end points on the fit (_ends_on_line) of each part (indices into
+    ``points``), at once: (P, 7) rows [centroid x, y, direction x, y, normal x, y, rms] and
+    (P, 2, 2) end points."""
+    flat, start = _flat(parts)
+    fits = np.empty((len(parts), 7))
+    ends = np.empty((len(parts), 2, 2))
+    _fit_parts(np.ascontiguousarray(points, np.float64), flat, start, fits, ends)
+    return fits, ends
 
 
 def line_end_points(points: np.ndarray, idx: np.ndarray, fit: LineFit) -> np.ndarray:
@@ -458,6 +484,52 @@ def _split_ranges(p, max_distance, min_nodes, out):
         stack[top + 1, 0], stack[top + 1, 1] = a, a + k + 1
         top += 2
     return m
+
+
+@njit(cache=True, nogil=True)
+def _split_all(points, flat, start, max_distance, min_nodes, out, out_start):
+    """split_components, compiled: per component (``flat[start[c]:start[c + 1]]``) its nodes
+    with finite points, split by _split_ranges; the parts' node indices one after another
+    into ``out``, part k at ``out[out_start[k]:out_start[k + 1]]``. Returns their number."""
+    m, k = 0, 0
+    for c in range(len(start) - 1):
+        a, b = start[c], start[c + 1]
+        idx = np.empty(b - a, np.int64)
+        n = 0
+        for i in range(a, b):
+            j = flat[i]
+            if np.isfinite(points[j, 0]) and np.isfinite(points[j, 1]):
+                idx[n] = j
+                n += 1
+        if n < min_nodes:
+            continue
+        p = np.empty((n, 2))
+        for i in range(n):
+            p[i, 0], p[i, 1] = points[idx[i], 0], points[idx[i], 1]
+        ranges = np.empty((n, 2), np.int64)
+        parts = _split_ranges(p, max_distance, min_nodes, ranges)
+        for r in range(parts):
+            for q in range(ranges[r, 0], ranges[r, 1]):
+                out[k] = idx[q]
+                k += 1
+            m += 1
+            out_start[m] = k
+    return m
+
+
+@njit(cache=True, nogil=True)
+def _fit_parts(points, flat, start, fits, ends):
+    """part_fits, compiled: per part (``flat[start[k]:start[k + 1]]``) _fit_points of its
+    points and _extent along the fit."""
+    for k in range(len(start) - 1):
+        idx = flat[start[k]:start[k + 1]]
+        p = np.empty((len(idx), 2))
+        for i in range(len(idx)):
+            p[i, 0], p[i, 1] = points[idx[i], 0], points[idx[i], 1]
+        cx, cy, ux, uy, nx, ny, rms = _fit_points(p)
+        fits[k, 0], fits[k, 1], fits[k, 2], fits[k, 3] = cx, cy, ux, uy
+        fits[k, 4], fits[k, 5], fits[k, 6] = nx, ny, rms
+        _extent(points, idx, cx, cy, ux, uy, ends[k])
 
 
 @njit(cache=True, nogil=True)
