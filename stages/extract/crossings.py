@@ -697,9 +697,10 @@ def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.nd
     rows_ = np.arange(white.shape[0], dtype=np.float64)[:, None]
     field_cells = (rows_ >= np.asarray(top, np.float64)[None, :]).astype(np.float32)
     verdicts, found = [], []
+    deg = ks.degree()
     for cand in cands:
         verdict = _crossing(cand, ks, ideal, white, green, other_mean, top, camera, to_floor,
-                            cc, cell, white_px, field_cells)
+                            cc, cell, white_px, field_cells, deg)
         verdicts.append(verdict)
         if not isinstance(verdict, str):
             found.append(verdict)
@@ -741,17 +742,19 @@ def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.nd
 
 
 def _crossing(cand, ks, ideal, white, green, other_mean, top, camera, to_floor, cc, cell,
-              white_px=None, field_cells=None):
-    """One key-structure candidate -> (row, image position), or the reason it was rejected."""
+              white_px=None, field_cells=None, deg=None):
+    """One key-structure candidate -> (row, image position), or the reason it was rejected
+    (``deg``: the key structure's node degrees, if already computed)."""
     centre = ideal[ks.node[cand.key]]
     if not np.isfinite(centre).all():
         return "outside the lens model"
-    chains = ks.arms(cand.key, 1 + cc["arm_skip"] + cc["arm_nodes"])
+    chains = ks.arms(cand.key, 1 + cc["arm_skip"] + cc["arm_nodes"], deg)
     arms = arm_lines(centre, chains, ideal, cc["arm_skip"], cc["arm_nodes"])
     if len(arms) != len(cand.arm_points):
         return "arm without nodes"
     if white_px is not None and cc.get("refine", True):
-        arms = [_refined_arm(arm, centre, white_px, camera, cc, cell) for arm in arms]
+        lens = lens_parameters(camera)
+        arms = [_refined_arm(arm, centre, white_px, camera, cc, cell, lens) for arm in arms]
     # an L's skeleton cuts its corner and a junction node may sit beside a thin line: the
     # crossing is where the lines fitted to its arms meet
     x = crossing_point(cand.kind, arms)
@@ -1152,17 +1155,20 @@ def _in_image(x: np.ndarray, dirs: np.ndarray, camera, margin: float) -> np.ndar
     return np.array(out)
 
 
-def _refined_arm(arm, centre: np.ndarray, white_px: np.ndarray, camera, cc: dict, cell: int):
+def _refined_arm(arm, centre: np.ndarray, white_px: np.ndarray, camera, cc: dict, cell: int,
+                 lens: np.ndarray | None = None):
     """An arm's line (centroid, unit direction away from the crossing, points) refined on the
     full-resolution white mask (line_fit.refine_segment) over its nodes' extent from
-    ``refine_skip`` cells off the crossing on; the coarse arm where that fails."""
+    ``refine_skip`` cells off the crossing on; the coarse arm where that fails. ``lens``: the
+    camera's lens_parameters, if already built."""
     c, u, sel = arm
     t = (sel - centre) @ u
     t0, t1 = max(float(t.min()), cc["refine_skip"] * cell), float(t.max())
     if t1 - t0 < cell:
         return arm
     ref = refine_segment(np.stack([centre + t0 * u, centre + t1 * u]), white_px,
-                         lens_parameters(camera), cc["refine_step"], cc["refine_reach"] * cell,
+                         lens_parameters(camera) if lens is None else lens, cc["refine_step"],
+                         cc["refine_reach"] * cell,
                          0.0, cc["refine_min_points"])
     if ref is None:
         return arm

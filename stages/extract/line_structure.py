@@ -678,10 +678,11 @@ class KeyStructure:
                 out.append(chain[::-1])
         return out
 
-    def arms(self, k: int, min_nodes: int) -> list[list[int]]:
+    def arms(self, k: int, min_nodes: int, deg: np.ndarray | None = None) -> list[list[int]]:
         """The fine chains leaving key node k, each continued through degree-2 key nodes (a
-        bend right next to a junction) until it holds ``min_nodes`` nodes or ends."""
-        deg = self.degree()
+        bend right next to a junction) until it holds ``min_nodes`` nodes or ends (``deg``:
+        the degrees, if already computed)."""
+        deg = self.degree() if deg is None else deg
         out = []
         for e, (a, b, chain) in enumerate(self.edges):
             for start, end, ch in ((a, b, chain), (b, a, chain[::-1])):
