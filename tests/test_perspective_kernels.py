@@ -9,6 +9,8 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
   against numpy's float32 sum;
 - line_fit's ``split_components`` and ``part_fits`` (all components split and fitted in one
   pass) against split_component, fit_line and the end points per part;
+- field_boundary's ``_column_heights`` (field_height_histogram) and its median windows
+  against the former cumulative-sum scan and sliding_window_view;
 - crossings' ``_points_along`` (the candidates' arm points) against its former Python walk;
 - line_structure's ``_gap_candidates`` (fill_gaps) against its former Python loop;
 - line_structure's ``_farthest_pairs`` (split_isolated_nodes) against np.argmax of the
@@ -217,6 +219,39 @@ def test_split_components_and_part_fits_equal_the_per_part_functions(seed):
         fit = lf.fit_line(points[p])
         assert f.tolist() == [*fit.centroid, *fit.direction, *fit.normal, fit.rms]
         assert e.tobytes() == lf.line_end_points(points, p, fit).tobytes()
+
+
+def _reference_field_heights(field, max_gap, from_lowest):
+    """field_height_histogram as numpy computed it: cumulative sums of the empty rows."""
+    h, w = field.shape
+    run = max_gap + 1
+    if from_lowest:
+        at_or_below = np.logical_or.accumulate(field[::-1], axis=0)[::-1]
+        field = field | (~at_or_below & field.any(axis=0)[None, :])
+    empty = np.concatenate([~field[::-1], np.ones((run, w), bool)], axis=0)
+    c = np.concatenate([np.zeros((1, w), np.int32), np.cumsum(empty, axis=0, dtype=np.int32)])
+    return np.argmax((c[run:] - c[:-run]) == run, axis=0).astype(np.float64)
+
+
+def test_field_heights_and_their_smoothing_equal_the_numpy_scan():
+    from stages.extract import field_boundary as fb
+
+    rng = np.random.default_rng(5)
+    for _ in range(500):
+        h, w = int(rng.integers(1, 70)), int(rng.integers(1, 100))
+        field = rng.random((h, w)) < rng.random()
+        for max_gap in (0, 2, 4):
+            for from_lowest in (False, True):
+                np.testing.assert_array_equal(
+                    fb.field_height_histogram(field, max_gap, from_lowest),
+                    _reference_field_heights(field, max_gap, from_lowest))
+        heights = rng.integers(0, h + 1, w).astype(float)
+        for size in (3, 5):
+            r = size // 2
+            windows = np.lib.stride_tricks.sliding_window_view(fb._edge_padded(heights, r),
+                                                               size)
+            np.testing.assert_array_equal(fb.smooth_field_heights(heights, 0.0, size),
+                                          np.sort(windows, axis=1)[:, r])
 
 
 def _random_graph(rng, n=60):

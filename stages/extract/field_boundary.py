@@ -113,17 +113,36 @@ def field_height_histogram(field: np.ndarray, max_gap: int = 4, from_lowest: boo
     (0 when the bottom rows are not field). With ``from_lowest`` the scan starts at the
     column's lowest field pixel (the robot's own body or feet may cover the image's bottom).
     Returns (W,) float."""
+    out = np.empty(field.shape[1], np.float64)
+    _column_heights(np.ascontiguousarray(field, np.bool_), int(max_gap) + 1, bool(from_lowest),
+                    out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _column_heights(field, run, from_lowest, out):
+    """field_height_histogram per column, compiled: from the bottom row up (with
+    ``from_lowest`` the cells below the column's lowest field cell count as field: the covered
+    bottom of the column), the rows before the first ``run`` empty ones in a row (rows above
+    the image are empty, so the scan stops)."""
     h, w = field.shape
-    run = max_gap + 1
-    if from_lowest:
-        # no field at or below a cell, but field above it: the covered bottom of the column
-        at_or_below = np.logical_or.accumulate(field[::-1], axis=0)[::-1]
-        field = field | (~at_or_below & field.any(axis=0)[None, :])
-    empty = ~field[::-1]  # row 0 = bottom of the image
-    empty = np.concatenate([empty, np.ones((run, w), bool)], axis=0)  # the scan always stops
-    c = np.concatenate([np.zeros((1, w), np.int32), np.cumsum(empty, axis=0, dtype=np.int32)])
-    runs = (c[run:] - c[:-run]) == run  # rows i..i+run-1 all empty
-    return np.argmax(runs, axis=0).astype(np.float64)
+    for c in range(w):
+        lowest = -1  # the lowest field row, counted from the top
+        if from_lowest:
+            for r in range(h - 1, -1, -1):
+                if field[r, c]:
+                    lowest = r
+                    break
+        empty = 0
+        for i in range(h + run):  # i: rows from the bottom
+            r = h - 1 - i
+            if r >= 0 and (field[r, c] or r > lowest >= 0):
+                empty = 0
+            else:
+                empty += 1
+                if empty == run:
+                    out[c] = i - run + 1
+                    break
 
 
 def _edge_padded(values: np.ndarray, r: int) -> np.ndarray:
@@ -142,7 +161,9 @@ def smooth_field_heights(heights: np.ndarray, sigma: float, median: int) -> np.n
         out = np.convolve(_edge_padded(out, r), k / k.sum(), mode="valid")
     if median > 1:
         r = int(median) // 2
-        windows = np.lib.stride_tricks.sliding_window_view(_edge_padded(out, r), 2 * r + 1)
+        padded = _edge_padded(out, r)  # the windows: a few shifted copies (cheaper to make
+        # than sliding_window_view's)
+        windows = np.stack([padded[k:k + len(out)] for k in range(2 * r + 1)], axis=1)
         out = np.sort(windows, axis=1)[:, r]  # the middle of an odd window: its median
     return out
 
