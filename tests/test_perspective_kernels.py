@@ -12,6 +12,7 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - field_boundary's ``_column_heights`` (field_height_histogram) and its median windows
   against the former cumulative-sum scan and sliding_window_view;
 - crossings' ``_points_along`` (the candidates' arm points) against its former Python walk;
+- line_structure's ``_triangle_cuts`` (remove_triangles) against its former Python loop;
 - line_structure's ``_gap_candidates`` (fill_gaps) against its former Python loop;
 - line_structure's ``_farthest_pairs`` (split_isolated_nodes) against np.argmax of the
   regions' distance matrices.
@@ -425,6 +426,47 @@ def test_block_sum_is_numpys_sum(n):
     for _ in range(200):
         a = rng.normal(size=n) * 10.0 ** rng.integers(-3, 4, n)
         assert ls.block_sum(a) == a.sum()
+
+
+def _reference_remove_triangles(graph):
+    """remove_triangles as the Python loop did it."""
+    for i in range(len(graph)):
+        if len(graph.adj[i]) < 2:
+            continue
+        for j in sorted(graph.adj[i]):
+            if j <= i:
+                continue
+            for k in sorted(graph.adj[i] & graph.adj[j]):
+                if k <= j:
+                    continue
+                sides = [(i, j), (j, k), (i, k)]
+                lens = [np.hypot(*(graph.pos[a] - graph.pos[b])) for a, b in sides]
+                a, b = sides[int(np.argmax(lens))]
+                graph.disconnect(a, b)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_remove_triangles_equals_the_python_loop(seed):
+    def dense_graph():  # built twice the same way, so that its sets iterate alike
+        rng = np.random.default_rng(seed)
+        n = 40
+        pos = rng.uniform(0, 8, (n, 2))
+        pos[5] = pos[3] + (pos[4] - pos[3])[::-1]  # sides of equal length
+        adj = [set() for _ in range(n)]
+        for _ in range(int(rng.integers(60, 160))):  # dense: triangles sharing sides
+            a, b = (int(v) for v in rng.integers(0, n, 2))
+            if a != b:
+                adj[a].add(b)
+                adj[b].add(a)
+        return ls.LineGraph(np.zeros((n, 2), int), pos, np.ones(n), adj)
+
+    graph, ref = dense_graph(), dense_graph()
+    before = sum(map(len, graph.adj))
+    ls.remove_triangles(graph)
+    _reference_remove_triangles(ref)
+    assert graph.adj == ref.adj
+    assert [list(a) for a in graph.adj] == [list(a) for a in ref.adj]  # the sets' order too
+    assert sum(map(len, graph.adj)) < before
 
 
 def _reference_remove_short_lines(graph, min_length):
