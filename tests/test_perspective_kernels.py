@@ -2,7 +2,8 @@
 they replaced computed, exactly (the features must not change: see also
 test_extract_perspective_unchanged.py), on random inputs beyond the reference frames:
 
-- colour.classify_cells (``_hue_row``, ``_hue_cells``) against the per-pixel class masks;
+- colour.classify_cells (``_hue_row``, ``_hue_cells``) against the per-pixel class masks,
+  its ``_threshold_table`` against luminance_thresholds;
 - colour's ``_green_candidates`` against the field green search's numpy formulas, its
   ``_green_cluster`` (mean shift, cluster median and variances) and ``_hue_spread`` (the hue
   model's medians) against the numpy expressions they replaced, and ``pairwise_sum32``
@@ -74,6 +75,20 @@ def test_classify_cells_equals_the_class_masks(seed, shape, local_map):
     assert not white_px[hb * cell:].any()  # rows below the last whole cell are not classified
     assert counts[..., 0].sum() > 100 and counts[..., 1].sum() > 100  # both classes occur
     assert colour.classify_cells(yuv, fc, conf, cell) is not None  # without the white mask
+
+
+def test_threshold_table_equals_luminance_thresholds():
+    conf = perspective.confs["default"]["colour"]
+    rng = np.random.default_rng(7)
+    for _ in range(50):
+        y_map = rng.uniform(-5, 300, (60, 94)).astype(np.float32)
+        y_map[0, :6] = [0.0, 255.0, 256.0, 1e-3, 200.5, 100.0 / 0.35]
+        out = np.empty(y_map.shape + (3,), np.int16)
+        colour._threshold_table(y_map, np.float32(conf["white_contrast"]),
+                                np.float32(conf["white_min_y"]),
+                                np.float32(conf["green_min_ratio"]),
+                                np.float32(conf["green_max_ratio"]), out)
+        np.testing.assert_array_equal(out, colour.luminance_thresholds(y_map, conf))
 
 
 @pytest.mark.parametrize("seed", range(4))
