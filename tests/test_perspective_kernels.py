@@ -12,6 +12,8 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
   pass) against split_component, fit_line and the end points per part;
 - field_boundary's ``_column_heights`` (field_height_histogram) and its median windows
   against the former cumulative-sum scan and sliding_window_view;
+- goal_posts' ``stands_out`` and ``bar_width`` (slices, the compiled median) against their
+  former fancy-indexed numpy;
 - crossings' ``_points_along`` (the candidates' arm points) against its former Python walk;
 - line_structure's ``_triangle_cuts`` (remove_triangles) against its former Python loop;
 - line_structure's ``_gap_candidates`` (fill_gaps) against its former Python loop;
@@ -268,6 +270,26 @@ def test_field_heights_and_their_smoothing_equal_the_numpy_scan():
                                                                size)
             np.testing.assert_array_equal(fb.smooth_field_heights(heights, 0.0, size),
                                           np.sort(windows, axis=1)[:, r])
+
+
+def test_post_bar_checks_equal_the_fancy_indexed_numpy():
+    from stages.extract import goal_posts as gp
+
+    rng = np.random.default_rng(11)
+    for _ in range(2000):
+        white = (rng.random((60, 94)) ** 3).astype(np.float32)
+        g0 = int(rng.integers(0, 94))
+        group = np.arange(g0, min(g0 + int(rng.integers(1, 5)), 94))
+        start, rise = int(rng.integers(-3, 61)), int(rng.integers(0, 8))
+        rows = np.arange(max(start - rise, 0), max(start, 0))
+        cols = np.arange(max(group[0] - 1, 0), min(group[-1] + 2, 94))
+        sides = [c for c in (group[0] - 2, group[-1] + 2) if 0 <= c < 94]
+        stands = len(rows) > 0 and all(np.mean(white[rows, c] >= 0.2) <= 1 / 3 for c in sides)
+        assert gp.stands_out(white, group, start, rise, 0.2) == stands
+        for cell in (8, 6):
+            width = float(np.median(white[np.ix_(rows, cols)].sum(axis=1)) * cell) \
+                if len(rows) else 0.0
+            assert gp.bar_width(white, group, start, rise, cell) == width
 
 
 def _random_graph(rng, n=60):

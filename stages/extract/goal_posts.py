@@ -21,6 +21,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .line_fit import median
+
 
 def bar_runs(white: np.ndarray, top: np.ndarray, t_white: float, max_up: int, max_down: int
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -66,11 +68,13 @@ def stands_out(white: np.ndarray, group: np.ndarray, start: int, rise: int, t_wh
     ``margin`` columns left and right of it are not white in most rows (a white wall or banner
     is white beside it too; the image border counts as not white)."""
     h, w = white.shape
-    rows = np.arange(max(start - rise, 0), max(start, 0))
-    if len(rows) == 0:
+    r0, r1 = max(start - rise, 0), max(start, 0)
+    if r1 <= r0:
         return False
     sides = [c for c in (group[0] - margin, group[-1] + margin) if 0 <= c < w]
-    return all(np.mean(white[rows, c] >= t_white) <= 1 / 3 for c in sides)
+    # the share of white rows beside it (as np.mean of the column's white test)
+    return all(np.count_nonzero(white[r0:r1, c] >= t_white) / (r1 - r0) <= 1 / 3
+               for c in sides)
 
 
 def bar_width(white: np.ndarray, group: np.ndarray, start: int, rise: int, cell: int) -> float:
@@ -78,11 +82,12 @@ def bar_width(white: np.ndarray, group: np.ndarray, start: int, rise: int, cell:
     boundary of the white share summed across its columns and one column each side, times the
     cell size."""
     h, w = white.shape
-    rows = np.arange(max(start - rise, 0), max(start, 0))
-    cols = np.arange(max(group[0] - 1, 0), min(group[-1] + 2, w))
-    if len(rows) == 0:
+    r0, r1 = max(start - rise, 0), max(start, 0)
+    if r1 <= r0:
         return 0.0
-    return float(np.median(white[np.ix_(rows, cols)].sum(axis=1)) * cell)
+    sums = white[r0:r1, max(group[0] - 1, 0):min(group[-1] + 2, w)].sum(axis=1)
+    # np.median's value (the compiled median) times the cell, in float32 as numpy has it
+    return float(np.float32(median(sums)) * np.float32(cell))
 
 
 def post_feet(white: np.ndarray, groups: list[np.ndarray], up_run: np.ndarray,
