@@ -36,6 +36,7 @@ from .field_boundary import DEFAULT_WEIGHTS, boundary_polyline, field_boundary
 from .goal_posts import goal_posts, is_post_bar
 from .line_fit import (
     RefinedLine,
+    distort_ideal,
     floor_line_parameters,
     lens_parameters,
     line_components,
@@ -542,7 +543,7 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
     ratios = width_ratios([r for r in refined if r is not None], to_floor, lc["line_width"])
     ends = np.concatenate([seg.ends if r is None else r.ends for seg, r in
                            zip(segments, refined)])
-    all_px = camera.distort_points(ends).reshape(-1, 2, 2)
+    all_px = distort_ideal(lens_parameters(camera), ends).reshape(-1, 2, 2)
     all_floor = to_floor(ends).reshape(-1, 2, 2)
     for seg, ref, e_px, e_floor, e_ideal in zip(segments, refined, all_px, all_floor,
                                                 ends.reshape(-1, 2, 2)):
