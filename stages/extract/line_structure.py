@@ -23,6 +23,7 @@ subpixel positions):
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -539,13 +540,13 @@ def fill_gaps(graph: LineGraph, image: np.ndarray, max_gap: float, min_cos: floa
         return
     # simplicity: grey level along all candidate gaps, sampled in one pass
     ij = np.stack([ci, cj], axis=1)
-    t = np.linspace(0.0, 1.0, samples)[None, :, None]
+    t = _gap_steps(samples)
     pts = (pos[ij[:, 0]][:, None, :] * (1 - t) + pos[ij[:, 1]][:, None, :] * t).astype(np.float32)
     grey = cv2.remap(image, pts[..., 0], pts[..., 1], cv2.INTER_LINEAR,
                      borderMode=cv2.BORDER_CONSTANT, borderValue=0).min(axis=1)
     ref = 0.5 * (graph.value[ij[:, 0]] + graph.value[ij[:, 1]])
     ratio = np.where(ref > 0, grey / np.maximum(ref, 1e-9), 0.0)
-    scored = [(sc + r, i, j) for (sc, i, j), r in zip(cand, ratio) if r >= min_grey_ratio]
+    scored = [(sc + r, i, j) for (sc, i, j), r in zip(cand, ratio.tolist()) if r >= min_grey_ratio]
     scored.sort(key=lambda c: -c[0])
     for _, i, j in scored:
         if j in graph.adj[i]:
@@ -553,6 +554,14 @@ def fill_gaps(graph: LineGraph, image: np.ndarray, max_gap: float, min_cos: floa
         if len(graph.adj[i]) >= 2 or len(graph.adj[j]) >= max_degree:
             continue
         graph.connect(i, j)
+
+
+@functools.lru_cache(maxsize=4)
+def _gap_steps(samples: int) -> np.ndarray:
+    """np.linspace(0, 1, samples) shaped (1, samples, 1), made once (read-only)."""
+    t = np.linspace(0.0, 1.0, samples)[None, :, None]
+    t.setflags(write=False)
+    return t
 
 
 def _neighbour_lists(adj: list[set]) -> tuple[np.ndarray, np.ndarray]:
