@@ -4,6 +4,8 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 
 - colour.classify_cells (``_hue_row``, ``_hue_cells``) against the per-pixel class masks,
   its ``_threshold_table`` against luminance_thresholds;
+- colour's ``_hue_block_sums`` and ``_sample_rows`` (the local green map's and the field
+  green search's samples) against numpy's masks and strided copies;
 - colour's ``_green_candidates`` against the field green search's numpy formulas, its
   ``_green_cluster`` (mean shift, cluster median and variances) and ``_hue_spread`` (the hue
   model's medians) against the numpy expressions they replaced, and ``pairwise_sum32``
@@ -91,6 +93,36 @@ def test_threshold_table_equals_luminance_thresholds():
                                 np.float32(conf["green_min_ratio"]),
                                 np.float32(conf["green_max_ratio"]), out)
         np.testing.assert_array_equal(out, colour.luminance_thresholds(y_map, conf))
+
+
+@pytest.mark.parametrize("seed,shape", [(0, (480, 752)), (1, (483, 645))])
+def test_green_samples_equal_the_numpy_masks(seed, shape):
+    rng = np.random.default_rng(seed)
+    yuv = _random_frame(rng, *shape)
+    conf = perspective.confs["default"]["colour"]
+    fc = colour.estimate_field_colour(yuv, conf)
+    assert fc.hue_dir is not None
+    cell, step = fc.cell, fc.cell // 2
+    hb, wb = shape[0] // cell, shape[1] // cell
+    valid = rng.random((hb * 2, wb * 2)) < 0.8
+    gs = np.zeros((hb, wb), np.float32)
+    ys = np.zeros((hb, wb), np.float32)
+    lo_s, hi_s = (np.float32(v_) ** 2 for v_ in fc.saturation)
+    colour._hue_block_sums(yuv, step, 2, hb, wb, valid, True, np.float32(fc.hue_dir[0]),
+                           np.float32(fc.hue_dir[1]), np.float32(np.float32(fc.hue_cos) ** 2),
+                           lo_s, hi_s, 30, 220, gs, ys)
+    y, u, v = (np.ascontiguousarray(yuv[:hb * cell:step, :wb * cell:step, c]) for c in range(3))
+    green, _ = colour._chroma_tests(y, u, v, fc, conf, white=False)
+    green &= (y >= 30) & (y <= 220) & valid
+    ref_g = green.reshape(hb, 2, wb, 2).sum(axis=(1, 3)).astype(np.float32)
+    ref_y = (y * green).reshape(hb, 2, wb, 2).sum(axis=(1, 3)).astype(np.float32)
+    np.testing.assert_array_equal(gs, ref_g)
+    np.testing.assert_array_equal(ys, ref_y)
+    assert ref_g.sum() > 100
+    mask = rng.random((-(-shape[0] // 6), -(-shape[1] // 6))) < 0.7
+    np.testing.assert_array_equal(colour._sample_pixels(yuv, 6, mask), yuv[::6, ::6][mask])
+    np.testing.assert_array_equal(colour._sample_pixels(yuv, 6, None),
+                                  yuv[::6, ::6].reshape(-1, 3))
 
 
 @pytest.mark.parametrize("seed", range(4))

@@ -892,9 +892,9 @@ def _hue_cells(yuv_rows, thr, cell, local, sat2, hx, hy, c2, lo, hi, keep_white,
 @njit(cache=True, nogil=True)
 def _sample_rows(yuv, step, mask, use_mask, out):
     n = 0
-    for i in range(0, yuv.shape[0], step):
-        for j in range(0, yuv.shape[1], step):
-            if use_mask and not mask[i // step, j // step]:
+    for a, i in enumerate(range(0, yuv.shape[0], step)):
+        for b, j in enumerate(range(0, yuv.shape[1], step)):
+            if use_mask and not mask[a, b]:
                 continue
             out[n, 0] = yuv[i, j, 0]
             out[n, 1] = yuv[i, j, 1]
@@ -923,23 +923,28 @@ def _hue_block_sums(yuv, step, k, hb, wb, mask, use_mask, hx, hy, c2, lo, hi, y_
     and their summed Y into ``ys``."""
     c128 = np.float32(128.0)
     zero = np.float32(0.0)
-    for a in range(hb * k):
-        i = a * step
-        for b in range(wb * k):
-            j = b * step
-            if use_mask and not mask[a, b]:
-                continue
-            y = yuv[i, j, 0]
-            if y < y_lo or y > y_hi:
-                continue
-            yf = np.float32(y)
-            du = np.float32(yuv[i, j, 1]) - c128
-            dv = np.float32(yuv[i, j, 2]) - c128
-            s = du * du
-            s += dv * dv
-            dot = du * hx
-            dot += dv * hy
-            y2 = yf * yf
-            if dot >= zero and dot * dot >= c2 * s and s >= lo * y2 and s <= hi * y2:
-                gs[a // k, b // k] += np.float32(1.0)
-                ys[a // k, b // k] += yf
+    # blocks and samples within them counted apart (no integer division per sample)
+    for br in range(hb):
+        for ka in range(k):
+            a = br * k + ka
+            i = a * step
+            for bc in range(wb):
+                for kb in range(k):
+                    b = bc * k + kb
+                    j = b * step
+                    if use_mask and not mask[a, b]:
+                        continue
+                    y = yuv[i, j, 0]
+                    if y < y_lo or y > y_hi:
+                        continue
+                    yf = np.float32(y)
+                    du = np.float32(yuv[i, j, 1]) - c128
+                    dv = np.float32(yuv[i, j, 2]) - c128
+                    s = du * du
+                    s += dv * dv
+                    dot = du * hx
+                    dot += dv * hy
+                    y2 = yf * yf
+                    if dot >= zero and dot * dot >= c2 * s and s >= lo * y2 and s <= hi * y2:
+                        gs[br, bc] += np.float32(1.0)
+                        ys[br, bc] += yf
