@@ -864,8 +864,11 @@ def _hue_cells(yuv_rows, thr, cell, local, sat2, hx, hy, c2, lo, hi, keep_white,
         tr = min(r // local, th - 1)
         if tr != last:  # the thresholds of this row of local blocks, per column
             last = tr
+            tc, left = 0, local  # the column's local block, and its columns still to go
             for c in range(w):
-                tc = min(c // local, tw - 1)
+                if left == 0:
+                    tc, left = min(tc + 1, tw - 1), local
+                left -= 1
                 t_white[c] = thr[tr, tc, 0]
                 t_lo[c] = thr[tr, tc, 1]
                 t_hi[c] = thr[tr, tc, 2]
