@@ -324,6 +324,15 @@ def test_post_bar_checks_equal_the_fancy_indexed_numpy():
             assert gp.bar_width(white, group, start, rise, cell) == width
 
 
+def test_key_incidence_equals_incident_per_node():
+    rng = np.random.default_rng(3)
+    edges = [(int(a), int(b), [int(a)] + list(rng.integers(0, 99, 3)) + [int(b)])
+             for a, b in rng.integers(0, 12, (30, 2))]
+    edges.append((4, 4, [4, 50, 51, 4]))  # a ring at a node
+    ks = ls.KeyStructure(list(range(12)), np.zeros((12, 2)), edges)
+    assert ks.incidence() == [ks.incident(k) for k in range(12)]
+
+
 def _random_graph(rng, n=60):
     """A LineGraph of polylines, isolated nodes and a few junctions on a 40 x 30 grid."""
     pos = rng.uniform(0, [40, 30], (n, 2))

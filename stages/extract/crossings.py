@@ -119,7 +119,8 @@ def crossing_candidates(ks: KeyStructure, graph: LineGraph, arm_reach: float,
     keys = [k for k in range(len(ks.node)) if deg[k] in (2, 3, 4)]
     if not keys:
         return []
-    chains = [ks.incident(k) for k in keys]
+    incidence = ks.incidence()
+    chains = [incidence[k] for k in keys]
     along = points_along(graph.pos, [ch for cs in chains for ch in cs], arm_reach)
     first = np.cumsum([0] + [len(cs) for cs in chains])
     # the L candidates' centres and arm points on the floor, all at once

@@ -741,6 +741,14 @@ class KeyStructure:
                 out.append(chain[::-1])
         return out
 
+    def incidence(self) -> list[list[list[int]]]:
+        """``incident`` of every key node, by one pass over the edges."""
+        out: list[list[list[int]]] = [[] for _ in self.node]
+        for a, b, chain in self.edges:
+            out[a].append(chain)
+            out[b].append(chain[::-1])
+        return out
+
     def arms(self, k: int, min_nodes: int, deg: np.ndarray | None = None) -> list[list[int]]:
         """The fine chains leaving key node k, each continued through degree-2 key nodes (a
         bend right next to a junction) until it holds ``min_nodes`` nodes or ends (``deg``:
