@@ -1096,15 +1096,17 @@ def _alternative_in_view(x, dirs, camera, top, other_mean, green, cc, cell) -> b
     view or hidden looks like an L; so do a far X's arms, flattened by the perspective."""
     pts = distort_ideal(lens_parameters(camera), x[None] - cc["arm_reach"] * cell * dirs)
     w, h = camera.image_size
-    for p in pts:
-        if not (np.isfinite(p).all() and 0 <= p[0] <= w - 1 and 0 <= p[1] <= h - 1):
+    grid = (pts + 0.5) / cell - 0.5
+    greens = sample_cells(green, grid).tolist()  # all points at once (each sampled alone)
+    for p, g, green_here in zip(pts.tolist(), grid.tolist(), greens):
+        if not (math.isfinite(p[0]) and math.isfinite(p[1]) and 0 <= p[0] <= w - 1
+                and 0 <= p[1] <= h - 1):
             return False
-        g = (p + 0.5) / cell - 0.5
         col = min(max(round(g[0]), 0), len(top) - 1)
         row = min(max(round(g[1]), 0), other_mean.shape[0] - 1)
         if g[1] - top[col] < cc["edge_margin"] or other_mean[row, col] > 0.5:
             return False
-        if sample_cells(green, g[None])[0] < cc["t_green"]:
+        if green_here < cc["t_green"]:
             return False
     return True
 

@@ -381,7 +381,10 @@ def colour_shares(image_bgr: np.ndarray, conf: dict, camera=None, pitch=None, ro
                                                       roll)
     step = int(conf.get("colour_step", 1))
     counts = None
-    white_px = np.zeros(image_bgr.shape[:2], np.uint8) if step == 1 else None
+    white_px = None
+    if step == 1:  # the class kernel writes every row of whole cells; the rest stay 0
+        white_px = np.empty(image_bgr.shape[:2], np.uint8)
+        white_px[image_bgr.shape[0] // cell * cell:] = 0
     if step == 1:  # the compiled pass (the hue model of the green test)
         yuv = colour.to_yuv(image_bgr)
         fc = colour.estimate_field_colour(yuv, conf["colour"], floor)
