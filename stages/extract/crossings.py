@@ -778,11 +778,14 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
     step = cc["arm_step"] * cell
     n = len(dirs)
     # all floor points at once: the crossing, a step along each arm, the cell below, the ends
-    pts = [x[None], x + step * dirs, x[None] + np.array([[0.0, float(cell)]])]
+    pts = np.empty((n + 2 + (0 if lengths is None else n), 2))
+    pts[0] = x
+    pts[1:n + 1] = x + step * dirs
+    pts[n + 1] = x[0] + 0.0, x[1] + float(cell)
     if lengths is not None:
         with np.errstate(invalid="ignore"):  # an arm out of the image is infinite
-            pts.append(x[None] + np.asarray(lengths)[:, None] * dirs)
-    on_floor = to_floor(np.vstack(pts))
+            pts[n + 2:] = x[None] + np.asarray(lengths)[:, None] * dirs
+    on_floor = to_floor(pts)
     floor, below, ends = on_floor[:n + 1], on_floor[n + 1:n + 2], on_floor[n + 2:]
     if not np.isfinite(floor).all():
         return "above the horizon"
