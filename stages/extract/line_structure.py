@@ -756,6 +756,8 @@ class KeyStructure:
         deg = self.degree() if deg is None else deg
         out = []
         for e, (a, b, chain) in enumerate(self.edges):
+            if a != k and b != k:
+                continue  # (most edges: no reversed copy of their chain made)
             for start, end, ch in ((a, b, chain), (b, a, chain[::-1])):
                 if start != k:
                     continue
