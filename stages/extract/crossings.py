@@ -265,16 +265,11 @@ def arm_lines(centre: np.ndarray, chains: list[list[int]], coords: np.ndarray, s
 
 
 def _intersect(c1, u1, c2, u2) -> np.ndarray | None:
-    """Where the lines c1 + t u1 and c2 + s u2 meet (None when nearly parallel): the 2 x 2
-    system [u1, -u2] (t, s) = c2 - c1 solved by Cramer's rule (LAPACK's LU, which it
-    replaced, differs in the last bits; the call cost more than the solve)."""
-    a, b = float(u1[0]), -float(u2[0])
-    c, d = float(u1[1]), -float(u2[1])
-    det = a * d - b * c
-    if abs(det) < 1e-3:  # nearly parallel (|sin| < 1e-3)
+    a = np.array([u1, -u2]).T
+    if abs(np.linalg.det(a)) < 1e-3:  # nearly parallel (|sin| < 1e-3)
         return None
-    r0, r1 = float(c2[0]) - float(c1[0]), float(c2[1]) - float(c1[1])
-    return c1 + ((r0 * d - b * r1) / det) * u1
+    t = np.linalg.solve(a, c2 - c1)
+    return c1 + t[0] * u1
 
 
 def crossing_point(kind: str, arms: list) -> np.ndarray | None:
@@ -509,16 +504,15 @@ def line_pair_crossings(ends: np.ndarray, widths: np.ndarray, floor_of, tol: flo
     pi, pj = np.nonzero(ok)
     if len(pi) == 0:
         return merge_line_crossings(out, tol, floor_of=floor_of)
-    # each pair's 2 x 2 system [u_i, -u_j] s = e_j - e_i, all at once by Cramer's rule (as
-    # _intersect)
-    a, b = u[pi, 0], -u[pj, 0]
-    c, d = u[pi, 1], -u[pj, 1]
-    det = a * d - b * c
-    meet = np.abs(det) >= 1e-3
-    r = ends[pj, 0] - ends[pi, 0]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s_all = np.stack([(r[:, 0] * d - b * r[:, 1]) / det,
-                          (a * r[:, 1] - c * r[:, 0]) / det], axis=1)
+    # each pair's 2 x 2 system [u_i, -u_j] s = e_j - e_i, all in one batched call (LAPACK per
+    # matrix, as one call per pair would be)
+    a_all = np.stack([u[pi], -u[pj]], axis=2)
+    det_all = np.abs(np.linalg.det(a_all))
+    meet = det_all >= 1e-3
+    s_all = np.zeros((len(pi), 2))
+    if meet.any():
+        s_all[meet] = np.linalg.solve(a_all[meet], (ends[pj, 0] - ends[pi, 0])[meet][..., None]
+                                      )[..., 0]
     for i, j, m, s in zip(pi.tolist(), pj.tolist(), meet.tolist(), s_all):
         if not m:
             continue
