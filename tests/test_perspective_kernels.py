@@ -17,6 +17,7 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - goal_posts' ``stands_out`` and ``bar_width`` (slices, the compiled median) against their
   former fancy-indexed numpy;
 - crossings' ``_points_along`` (the candidates' arm points) against its former Python walk;
+- line_structure's ``_turn_cosines`` (turning_angles) against its former numpy expressions;
 - line_structure's ``_triangle_cuts`` (remove_triangles) against its former Python loop;
 - line_structure's ``_gap_candidates`` (fill_gaps) against its former Python loop;
 - line_structure's ``_farthest_pairs`` (split_isolated_nodes) against np.argmax of the
@@ -545,6 +546,62 @@ def test_remove_triangles_equals_the_python_loop(seed):
     assert graph.adj == ref.adj
     assert [list(a) for a in graph.adj] == [list(a) for a in ref.adj]  # the sets' order too
     assert sum(map(len, graph.adj)) < before
+
+
+def _reference_turning_angles(chains, pos, reach, floor=None):
+    """turning_angles as numpy computed it (arcs, a sorted search of the chains laid end to
+    end, the arms' angles by np.arccos)."""
+    def turns(a, b, ends):
+        na, nb = np.hypot(*a.T), np.hypot(*b.T)
+        ok = (na > 0) & (nb > 0)
+        cosang = np.where(ok, (a * b).sum(axis=1) / np.where(ok, na * nb, 1.0), 1.0)
+        turn = np.arccos(np.clip(cosang, -1.0, 1.0))
+        turn[ends] = 0.0
+        return turn
+
+    lens = np.array([len(c) for c in chains], dtype=int)
+    idx = np.concatenate(chains).astype(int)
+    pts = pos[idx]
+    start = np.repeat(np.cumsum(lens) - lens, lens)
+    last = start + np.repeat(lens, lens) - 1
+    step = np.concatenate([[0.0], np.hypot(*np.diff(pts, axis=0).T)])
+    step[np.cumsum(lens) - lens] = 0.0
+    arc = np.cumsum(step)
+    arc = arc - arc[start]
+    far = np.repeat(np.arange(len(chains)), lens) * (arc.max(initial=0.0) + 4 * reach + 1.0)
+    key = arc + far
+    back = np.clip(np.searchsorted(key, key - reach, side="right") - 1, start, last)
+    fwd = np.clip(np.searchsorted(key, key + reach, side="left"), start, last)
+    ends = (np.arange(len(idx)) == start) | (np.arange(len(idx)) == last)
+    a, b = pts - pts[back], pts[fwd] - pts
+    floor_turn = None
+    if floor is not None:
+        fl = floor[idx]
+        fa, fb = fl - fl[back], fl[fwd] - fl
+        known = np.all(np.isfinite(fa), axis=1) & np.all(np.isfinite(fb), axis=1)
+        floor_turn = turns(np.where(known[:, None], fa, a), np.where(known[:, None], fb, b),
+                           ends)
+    return turns(a, b, ends), floor_turn, arc, start
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_turning_angles_equal_the_numpy_expressions(seed):
+    rng = np.random.default_rng(seed)
+    for _ in range(200):
+        n = 80
+        pos = np.cumsum(rng.normal(0, 1.5, (n, 2)), axis=0)
+        pos[5] = pos[4]  # an empty arm
+        floor = pos * rng.uniform(0.01, 0.1) + rng.normal(0, 0.01, (n, 2))
+        floor[rng.random(n) < 0.1] = np.nan  # above the horizon
+        chains = [list(rng.integers(0, n, int(rng.integers(1, 12))))
+                  for _ in range(int(rng.integers(1, 15)))]
+        for fl in (None, floor):
+            got = ls.turning_angles(chains, pos, 3.0, fl)
+            ref = _reference_turning_angles(chains, pos, 3.0, fl)
+            for g, r in zip(got, ref):
+                assert (g is None) == (r is None)
+                if g is not None:
+                    assert g.dtype == r.dtype and g.tobytes() == r.tobytes()
 
 
 def _reference_remove_short_lines(graph, min_length):

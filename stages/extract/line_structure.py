@@ -925,43 +925,107 @@ def turning_angles(chains: list[list[int]], pos: np.ndarray, reach: float,
     if not chains:
         return np.zeros(0), (None if floor is None else np.zeros(0)), np.zeros(0), \
             np.zeros(0, int)
-    lens = np.array([len(c) for c in chains], dtype=int)
-    idx = np.concatenate(chains).astype(int)
-    pts = pos[idx]
-    start = np.repeat(np.cumsum(lens) - lens, lens)
-    last = start + np.repeat(lens, lens) - 1
-    step = np.concatenate([[0.0], np.hypot(*np.diff(pts, axis=0).T)])
-    step[np.cumsum(lens) - lens] = 0.0  # each chain starts at 0
-    arc = np.cumsum(step)
-    arc = arc - arc[start]
-    # chains laid end to end far apart, so one sorted search serves them all
-    far = (np.repeat(np.arange(len(chains)), lens) * (arc.max(initial=0.0) + 4 * reach + 1.0))
-    key = arc + far
-    back = np.clip(np.searchsorted(key, key - reach, side="right") - 1, start, last)
-    fwd = np.clip(np.searchsorted(key, key + reach, side="left"), start, last)
-    ends = (np.arange(len(idx)) == start) | (np.arange(len(idx)) == last)
-    a = pts - pts[back]
-    b = pts[fwd] - pts
-    turn = _turns(a, b, ends)
+    lens = np.array([len(c) for c in chains], dtype=np.int64)
+    idx = np.concatenate(chains).astype(np.int64)
+    n = len(idx)
+    cos_img = np.empty(n)
+    cos_floor = np.empty(n)
+    arc = np.empty(n)
+    start = np.empty(n, np.int64)
+    ends = np.empty(n, np.bool_)
+    use_floor = floor is not None
+    _turn_cosines(np.ascontiguousarray(pos, np.float64), idx, lens, float(reach),
+                  np.ascontiguousarray(floor, np.float64) if use_floor else np.zeros((1, 2)),
+                  use_floor, cos_img, cos_floor, arc, start, ends)
+    turn = np.arccos(cos_img)  # numpy's arccos (its SIMD one, as before)
+    turn[ends] = 0.0
     floor_turn = None
-    if floor is not None:
-        fl = floor[idx]
-        fa, fb = fl - fl[back], fl[fwd] - fl
-        known = np.all(np.isfinite(fa), axis=1) & np.all(np.isfinite(fb), axis=1)
-        floor_turn = _turns(np.where(known[:, None], fa, a), np.where(known[:, None], fb, b),
-                            ends)
+    if use_floor:
+        floor_turn = np.arccos(cos_floor)
+        floor_turn[ends] = 0.0
     return turn, floor_turn, arc, start
 
 
-def _turns(a: np.ndarray, b: np.ndarray, ends: np.ndarray) -> np.ndarray:
-    """The angles (rad) between the arms a (back) and b (forward), (N, 2) each; 0 at ``ends``
-    and where an arm is empty."""
-    na, nb = np.hypot(*a.T), np.hypot(*b.T)
-    ok = (na > 0) & (nb > 0)
-    cosang = np.where(ok, (a * b).sum(axis=1) / np.where(ok, na * nb, 1.0), 1.0)
-    turn = np.arccos(np.clip(cosang, -1.0, 1.0))
-    turn[ends] = 0.0
-    return turn
+@njit(cache=True, nogil=True, inline="always")
+def _arm_cosine(ax, ay, bx, by):
+    """The clipped cosine of the angle between the arms a (back) and b (forward), as numpy
+    had it ((a . b) / (|a| |b|), np.hypot lengths; 1 where an arm is empty)."""
+    na, nb = np.hypot(ax, ay), np.hypot(bx, by)
+    if not (na > 0 and nb > 0):
+        return 1.0
+    c = (ax * bx + ay * by) / (na * nb)
+    if c < -1.0:
+        return -1.0
+    if c > 1.0:
+        return 1.0
+    return c
+
+
+@njit(cache=True, nogil=True)
+def _search(key, v, right):
+    """np.searchsorted(key, v, side "right" if ``right`` else "left")."""
+    lo, hi = 0, len(key)
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if key[mid] < v or (right and key[mid] == v):
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True, nogil=True)
+def _turn_cosines(pos, idx, lens, reach, floor, use_floor, cos_img, cos_floor, arc, start,
+                  ends):
+    """turning_angles before the arccos, compiled, as its numpy expressions computed it: the
+    arcs (np.hypot steps, one cumulative sum over all chains, less each chain's first), the
+    arms' far ends by a sorted search of the chains laid end to end (the same keys), and the
+    arms' clipped cosines in the image and (``use_floor``) on the floor where both floor
+    arms are known; ``ends`` marks each chain's first and last node."""
+    n = len(idx)
+    cum = np.empty(n)  # the steps' cumulative sum over all chains (a chain's first step 0)
+    total = 0.0
+    k = 0
+    for c in range(len(lens)):
+        for j in range(lens[c]):
+            if j > 0:
+                i0, i1 = idx[k - 1], idx[k]
+                total = total + np.hypot(pos[i1, 0] - pos[i0, 0], pos[i1, 1] - pos[i0, 1])
+            else:
+                total = total + 0.0
+            cum[k] = total
+            start[k] = k - j
+            k += 1
+    top = 0.0
+    for k in range(n):
+        arc[k] = cum[k] - cum[start[k]]
+        top = max(top, arc[k])
+    span = top + 4 * reach + 1.0
+    key = np.empty(n)
+    k = 0
+    for c in range(len(lens)):
+        for _ in range(lens[c]):
+            key[k] = arc[k] + c * span
+            k += 1
+    k = 0
+    for c in range(len(lens)):
+        first, last = k, k + lens[c] - 1
+        for j in range(lens[c]):
+            back = min(max(_search(key, key[k] - reach, True) - 1, first), last)
+            fwd = min(max(_search(key, key[k] + reach, False), first), last)
+            ends[k] = j == 0 or j == lens[c] - 1
+            p, q, r = idx[back], idx[k], idx[fwd]
+            ax, ay = pos[q, 0] - pos[p, 0], pos[q, 1] - pos[p, 1]
+            bx, by = pos[r, 0] - pos[q, 0], pos[r, 1] - pos[q, 1]
+            cos_img[k] = _arm_cosine(ax, ay, bx, by)
+            if use_floor:
+                fax, fay = floor[q, 0] - floor[p, 0], floor[q, 1] - floor[p, 1]
+                fbx, fby = floor[r, 0] - floor[q, 0], floor[r, 1] - floor[q, 1]
+                if (np.isfinite(fax) and np.isfinite(fay) and np.isfinite(fbx)
+                        and np.isfinite(fby)):
+                    ax, ay, bx, by = fax, fay, fbx, fby
+                cos_floor[k] = _arm_cosine(ax, ay, bx, by)
+            k += 1
 
 
 def corner_nodes(turn: np.ndarray, arc: np.ndarray, reach: float, min_turn: float) -> list[int]:
