@@ -10,6 +10,7 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
   ``_green_cluster`` (mean shift, cluster median and variances) and ``_hue_spread`` (the hue
   model's medians) against the numpy expressions they replaced, and ``pairwise_sum32``
   against numpy's float32 sum;
+- line_fit's ``floor_lines_parameters`` (all lines at once) against floor_line_parameters;
 - line_fit's ``split_components`` and ``part_fits`` (all components split and fitted in one
   pass) against split_component, fit_line and the end points per part;
 - field_boundary's ``_column_heights`` (field_height_histogram) and its median windows
@@ -332,6 +333,18 @@ def test_key_incidence_equals_incident_per_node():
     edges.append((4, 4, [4, 50, 51, 4]))  # a ring at a node
     ks = ls.KeyStructure(list(range(12)), np.zeros((12, 2)), edges)
     assert ks.incidence() == [ks.incident(k) for k in range(12)]
+
+
+def test_floor_lines_parameters_equal_the_per_line_function():
+    from stages.extract import line_fit as lf
+
+    rng = np.random.default_rng(2)
+    p0, p1 = rng.normal(0, 3, (5000, 2)), rng.normal(0, 3, (5000, 2))
+    p1[:20] = p0[:20]  # no length
+    p1[20:40] = -p0[20:40] * rng.uniform(0.5, 2, (20, 1))  # through the robot
+    got = np.stack(lf.floor_lines_parameters(p0, p1), axis=1)
+    ref = np.array([lf.floor_line_parameters(a, b) for a, b in zip(p0, p1)])
+    assert got.tobytes() == ref.tobytes()
 
 
 def _random_graph(rng, n=60):

@@ -215,6 +215,26 @@ def floor_line_parameters(p0: np.ndarray, p1: np.ndarray) -> tuple[float, float,
     return dist, angle, length
 
 
+def floor_lines_parameters(p0: np.ndarray, p1: np.ndarray
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """floor_line_parameters of many lines at once (end points p0, p1 (N, 2)): (N,) each of
+    the perpendicular distances, their angles and the lengths, with the same arithmetic (the
+    dot products by np.vecdot, which computes them as ``p0 @ d`` does)."""
+    d = p1 - p0
+    length = np.hypot(d[:, 0], d[:, 1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = -np.vecdot(p0, d) / (length * length)
+    foot = p0 + t[:, None] * d
+    dist = np.hypot(foot[:, 0], foot[:, 1])
+    angle = np.where(dist < 1e-9, np.arctan2(d[:, 1], d[:, 0]) + np.pi / 2,
+                     np.arctan2(foot[:, 1], foot[:, 0]))
+    zero = length == 0
+    if zero.any():
+        dist = np.where(zero, np.hypot(p0[:, 0], p0[:, 1]), dist)
+        angle = np.where(zero, np.arctan2(p0[:, 1], p0[:, 0]), angle)
+    return dist, angle, length
+
+
 # ---------------------------------------------------------------------------- refinement
 
 

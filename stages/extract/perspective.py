@@ -38,6 +38,7 @@ from .line_fit import (
     RefinedLine,
     distort_ideal,
     floor_line_parameters,
+    floor_lines_parameters,
     lens_parameters,
     line_components,
     median,
@@ -548,9 +549,17 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
                            zip(segments, refined)])
     all_px = distort_ideal(lens_parameters(camera), ends).reshape(-1, 2, 2)
     all_floor = to_floor(ends).reshape(-1, 2, 2)
-    for seg, ref, e_px, e_floor, e_ideal in zip(segments, refined, all_px, all_floor,
-                                                ends.reshape(-1, 2, 2)):
-        if not np.isfinite(e_floor).all():
+    # every line's floor parameters and end ranges at once (used where both ends are on it)
+    with np.errstate(invalid="ignore"):
+        params = np.stack(floor_lines_parameters(all_floor[:, 0], all_floor[:, 1]),
+                          axis=1).tolist()
+    all_ranges = np.hypot(all_floor[..., 0], all_floor[..., 1])
+    nearest = all_ranges.min(axis=1).tolist()
+    on_floor = np.isfinite(all_floor).all(axis=(1, 2)).tolist()
+    for seg, ref, e_px, e_floor, e_ideal, (dist, angle, length), ranges, near, finite in zip(
+            segments, refined, all_px, all_floor, ends.reshape(-1, 2, 2), params, all_ranges,
+            nearest, on_floor):
+        if not finite:
             # reaching above the horizon: no field line, but maybe a post (its foot on the
             # floor, the part below the horizon runs away from the robot)
             clipped = _below_horizon_part(e_ideal, to_floor, lc["max_distance"])
@@ -565,9 +574,6 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
                               pc["bar_confidence"]])
                 posts_px.append(camera.distort_points(clipped[k:k + 1])[0])
             continue
-        dist, angle, length = floor_line_parameters(e_floor[0], e_floor[1])
-        ranges = np.hypot(*e_floor.T)
-        near = float(ranges.min())
         if is_post_bar(dist, near, e_px, top, white, camera.fx, cell, pc):
             k = int(np.argmin(ranges))
             posts.append([near, math.atan2(e_floor[k, 1], e_floor[k, 0]), pc["bar_confidence"]])
