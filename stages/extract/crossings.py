@@ -780,11 +780,14 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
         with np.errstate(invalid="ignore"):  # an arm out of the image is infinite
             pts[n + 2:] = x[None] + np.asarray(lengths)[:, None] * dirs
     on_floor = to_floor(pts)
-    floor, below, ends = on_floor[:n + 1], on_floor[n + 1:n + 2], on_floor[n + 2:]
+    floor = on_floor[:n + 1]
     if not np.isfinite(floor).all():
         return "above the horizon"
+    # every point's offset from the crossing on the floor and its length, at once
+    rel = on_floor - on_floor[0]
+    rel_m = np.hypot(rel[:, 0], rel[:, 1])
     if lengths is not None:
-        arm_m = np.hypot(*(ends - floor[0]).T)  # NaN beyond the horizon: long enough
+        arm_m = rel_m[n + 2:]  # NaN beyond the horizon: long enough
         short = arm_m < cc["min_arm_length"]
         if np.any(short) and white_px is not None:
             # the fitted nodes or lines may end early (a far arm's few nodes, a line cut at a
@@ -797,14 +800,14 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
         if np.any(arm_m < cc["min_arm_length"]):
             return "arm too short"
     d, bearing = polar(floor[:1])
-    span = np.hypot(*(below[0] - floor[0])) if np.isfinite(below).all() else np.inf
+    span = rel_m[n + 1] if np.isfinite(rel_m[n + 1]) else np.inf  # the cell below
     # beyond the grid's resolution the full-resolution white mask decides (_verify_fine), as
     # far as its profiles (refine_step px apart) resolve the floor
     fine = span > cc["max_cell_span"]
     if fine and (white_px is None or not cc.get("fine", True)
                  or span * cc["refine_step"] / cell > cc["max_cell_span"]):
         return "too far"
-    arm_dirs = np.arctan2(floor[1:, 1] - floor[0, 1], floor[1:, 0] - floor[0, 0])
+    arm_dirs = np.arctan2(rel[1:n + 1, 1], rel[1:n + 1, 0])
     orient, misfit = floor_arms(kind, arm_dirs)
     if misfit > cc["max_misfit"]:
         return f"floor angles misfit {math.degrees(misfit):.0f} deg"
