@@ -255,6 +255,9 @@ class IdealPixels:
         grid = np.stack(np.meshgrid(us, vs), axis=-1)
         ideal = camera.undistort_points(grid)
         self.stride = stride
+        # the inverse intrinsics, for the floor projections of every frame
+        self.k_inv = np.linalg.inv(camera.camera_matrix)
+        self.k_inv.setflags(write=False)
         self.map_u = ideal[..., 0].astype(np.float32)
         self.map_v = ideal[..., 1].astype(np.float32)
         self._cell_centres: dict[tuple, np.ndarray] = {}
@@ -305,7 +308,7 @@ class FloorProjection:
     once per frame."""
 
     def __init__(self, camera, pitch=None, roll=None):
-        m = camera.rotation(pitch, roll) @ np.linalg.inv(camera.camera_matrix)
+        m = camera.rotation(pitch, roll) @ ideal_pixels(camera).k_inv
         self.m = m
         self.m_inv = np.linalg.inv(m)
         self.height = float(camera.height)
@@ -366,8 +369,9 @@ def below_horizon(camera, shape, cell: int, pitch=None, roll=None) -> colour.Blo
     can be."""
     h, w = shape[:2]
     hb, wb = -(-h // cell), -(-w // cell)
-    m = camera.rotation(pitch, roll) @ np.linalg.inv(camera.camera_matrix)
-    ideal = ideal_pixels(camera).cell_centres(shape, cell)
+    undistort = ideal_pixels(camera)
+    m = camera.rotation(pitch, roll) @ undistort.k_inv
+    ideal = undistort.cell_centres(shape, cell)
     down = (ideal @ m[2, :2] + m[2, 2]) < 0  # NaN (outside the lens model) compares False
     return colour.BlockMask(down.reshape(hb, wb), cell, (h, w))
 
