@@ -513,19 +513,21 @@ def line_pair_crossings(ends: np.ndarray, widths: np.ndarray, floor_of, tol: flo
     if meet.any():
         s_all[meet] = np.linalg.solve(a_all[meet], (ends[pj, 0] - ends[pi, 0])[meet][..., None]
                                       )[..., 0]
-    for i, j, m, s in zip(pi.tolist(), pj.tolist(), meet.tolist(), s_all):
+    # of all pairs at once: the intersection, and each line's end nearer to it and that
+    # end's distance from the other line (the dot products by np.vecdot, as ``@`` gives them)
+    s0, s1 = s_all[:, 0], s_all[:, 1]
+    xs = ends[pi, 0] + s0[:, None] * u[pi]
+    e_i = np.where((s0 <= 0.5 * length[pi])[:, None], ends[pi, 0], ends[pi, 1])
+    gap_i = np.abs(np.vecdot(e_i - ends[pj, 0], normal[pj])).tolist()
+    e_j = np.where((s1 <= 0.5 * length[pj])[:, None], ends[pj, 0], ends[pj, 1])
+    gap_j = np.abs(np.vecdot(e_j - ends[pi, 0], normal[pi])).tolist()
+    lengths, line_widths = length.tolist(), np.asarray(widths, float).tolist()
+    for i, j, m, t_i, t_j, g_i, g_j, x in zip(pi.tolist(), pj.tolist(), meet.tolist(),
+                                              s0.tolist(), s1.tolist(), gap_i, gap_j, xs):
         if not m:
             continue
-        x = ends[i, 0] + s[0] * u[i]
-
-        def end_gap(k, other, t):
-            e = ends[k, 0] if t <= 0.5 * length[k] else ends[k, 1]
-            return abs(float((e - ends[other, 0]) @ normal[other]))
-
-        arms_i = _meeting(float(s[0]), float(length[i]), u[i], end_gap(i, j, s[0]),
-                          tol + float(widths[j]))
-        arms_j = _meeting(float(s[1]), float(length[j]), u[j], end_gap(j, i, s[1]),
-                          tol + float(widths[i]))
+        arms_i = _meeting(t_i, lengths[i], u[i], g_i, tol + line_widths[j])
+        arms_j = _meeting(t_j, lengths[j], u[j], g_j, tol + line_widths[i])
         if arms_i is None or arms_j is None:
             continue
         arms = np.array(arms_i[0] + arms_j[0])
