@@ -24,6 +24,7 @@ subpixel positions):
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 from dataclasses import dataclass, field
 
@@ -567,10 +568,9 @@ def _gap_steps(samples: int) -> np.ndarray:
 def _neighbour_lists(adj: list[set]) -> tuple[np.ndarray, np.ndarray]:
     """The graph's connections as flat lists for the kernels: node i's neighbours are
     ``nbr[start[i]:start[i + 1]]`` (in no particular order)."""
-    counts = np.fromiter((len(a) for a in adj), np.int64, len(adj))
     start = np.zeros(len(adj) + 1, np.int64)
-    np.cumsum(counts, out=start[1:])
-    nbr = np.fromiter((k for a in adj for k in a), np.int64, int(start[-1]))
+    np.cumsum(np.fromiter(map(len, adj), np.int64, len(adj)), out=start[1:])
+    nbr = np.fromiter(itertools.chain.from_iterable(adj), np.int64, int(start[-1]))
     return start, nbr
 
 
