@@ -25,6 +25,7 @@ full-resolution white mask and verified, then merged.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -65,10 +66,10 @@ def point_along(pos: np.ndarray, chain: list[int], reach: float) -> np.ndarray:
 
 def points_along(pos: np.ndarray, chains: list[list[int]], reach: float) -> np.ndarray:
     """point_along of each chain (C, 2), in one compiled pass (``_points_along``)."""
-    lens = np.fromiter((len(ch) for ch in chains), np.int64, len(chains))
+    lens = np.fromiter(map(len, chains), np.int64, len(chains))
     start = np.zeros(len(chains) + 1, np.int64)
     np.cumsum(lens, out=start[1:])
-    flat = np.fromiter((i for ch in chains for i in ch), np.int64, int(start[-1]))
+    flat = np.fromiter(itertools.chain.from_iterable(chains), np.int64, int(start[-1]))
     out = np.empty((len(chains), 2))
     _points_along(np.ascontiguousarray(pos, np.float64), flat, start, float(reach), out)
     return out

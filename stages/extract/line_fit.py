@@ -19,6 +19,7 @@ Coordinates here are undistorted ("ideal") pixels, where straight lines are stra
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -162,8 +163,8 @@ def split_and_merge(points: np.ndarray, components: list[list[int]], conf: dict
 def _flat(lists) -> tuple[np.ndarray, np.ndarray]:
     """Index lists (or arrays) as one int64 array and their starts (L + 1,)."""
     start = np.zeros(len(lists) + 1, np.int64)
-    np.cumsum(np.fromiter((len(a) for a in lists), np.int64, len(lists)), out=start[1:])
-    flat = np.fromiter((i for a in lists for i in a), np.int64, int(start[-1]))
+    np.cumsum(np.fromiter(map(len, lists), np.int64, len(lists)), out=start[1:])
+    flat = np.fromiter(itertools.chain.from_iterable(lists), np.int64, int(start[-1]))
     return flat, start
 
 
