@@ -363,27 +363,29 @@ def _empty(n: int) -> np.ndarray:
     return np.zeros((0, n), np.float32)
 
 
-def below_horizon(camera, shape, cell: int, pitch=None, roll=None) -> colour.BlockMask:
+def below_horizon(camera, shape, cell: int, pitch=None, roll=None,
+                  to_floor: FloorProjection | None = None) -> colour.BlockMask:
     """Mask (h, w, kept per block: colour.BlockMask) of the pixels whose cell (``cell`` x
     ``cell`` blocks) has its centre's viewing ray pointing below the horizon, where the floor
-    can be."""
+    can be (``to_floor``: the frame's FloorProjection at these angles, if already made)."""
     h, w = shape[:2]
     hb, wb = -(-h // cell), -(-w // cell)
     undistort = ideal_pixels(camera)
-    m = camera.rotation(pitch, roll) @ undistort.k_inv
+    m = camera.rotation(pitch, roll) @ undistort.k_inv if to_floor is None else to_floor.m
     ideal = undistort.cell_centres(shape, cell)
     down = (ideal @ m[2, :2] + m[2, 2]) < 0  # NaN (outside the lens model) compares False
     return colour.BlockMask(down.reshape(hb, wb), cell, (h, w))
 
 
-def colour_shares(image_bgr: np.ndarray, conf: dict, camera=None, pitch=None, roll=None
-                  ) -> dict[str, np.ndarray]:
+def colour_shares(image_bgr: np.ndarray, conf: dict, camera=None, pitch=None, roll=None,
+                  to_floor: FloorProjection | None = None) -> dict[str, np.ndarray]:
     """Step 1: the subsampled colour-class images as counts (0..cell^2) per class name. The
     field green is estimated from the floor below the horizon when the camera is given (walls
-    and the hall's other floor hold large areas of faintly green-tinted grey)."""
+    and the hall's other floor hold large areas of faintly green-tinted grey; ``to_floor``:
+    the frame's FloorProjection, if already made)."""
     cell = conf["cell"]
     floor = None if camera is None else below_horizon(camera, image_bgr.shape, cell, pitch,
-                                                      roll)
+                                                      roll, to_floor)
     step = int(conf.get("colour_step", 1))
     counts = None
     white_px = None
@@ -421,15 +423,18 @@ def extract_frame(image_bgr: np.ndarray, camera, conf: dict, pitch: float | None
         position = None if x is None and y is None else (
             camera.position[0] if x is None else x, camera.position[1] if y is None else y)
         camera = camera.with_pose(yaw=yaw, height=height, position=position)
-    counts = colour_shares(image_bgr, conf, camera, pitch, roll)
-    return extract_from_counts(counts, camera, conf, pitch, roll)
+    to_floor = FloorProjection(camera, pitch, roll)  # the frame's rotation, made once
+    counts = colour_shares(image_bgr, conf, camera, pitch, roll, to_floor)
+    return extract_from_counts(counts, camera, conf, pitch, roll, to_floor=to_floor)
 
 
 def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
                         pitch: float | None = None, roll: float | None = None,
-                        trace: dict | None = None) -> dict[str, np.ndarray]:
+                        trace: dict | None = None,
+                        to_floor: FloorProjection | None = None) -> dict[str, np.ndarray]:
     """Steps 2-7 on the subsampled colour counts (see extract_frame). ``trace``, if given, is
-    filled with the intermediate images and graphs (for plots and tests)."""
+    filled with the intermediate images and graphs (for plots and tests); ``to_floor``: the
+    frame's FloorProjection at these angles, if already made."""
     cell = int(conf["cell"])
     area = float(cell * cell)
     # the lens's unreliable corners lose their white (lines); the boundary scan keeps them
@@ -455,7 +460,7 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
 
     # 5. key structure; 6. field lines (both on undistorted node coordinates)
     undistort = ideal_pixels(camera)
-    to_floor = FloorProjection(camera, pitch, roll)
+    to_floor = FloorProjection(camera, pitch, roll) if to_floor is None else to_floor
 
     def floor_of(grid_pos):
         return to_floor(undistort(grid_to_pixels(grid_pos, cell)))
