@@ -7,9 +7,10 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - colour's ``_hue_block_sums`` and ``_sample_rows`` (the local green map's and the field
   green search's samples) against numpy's masks and strided copies;
 - colour's ``_green_candidates`` against the field green search's numpy formulas, its
-  ``_green_cluster`` (mean shift, cluster median and variances) and ``_hue_spread`` (the hue
-  model's medians) against the numpy expressions they replaced, and ``pairwise_sum32``
-  against numpy's float32 sum;
+  ``_histogram_peak`` (the blurred chroma histogram's peak) against cv2.GaussianBlur and
+  np.argmax, ``_green_cluster`` (mean shift, cluster median and variances) and
+  ``_hue_spread`` (the hue model's medians) against the numpy expressions they replaced, and
+  ``pairwise_sum32`` against numpy's float32 sum;
 - line_fit's ``floor_lines_parameters`` (all lines at once) against floor_line_parameters;
 - line_fit's ``split_components`` and ``part_fits`` (all components split and fitted in one
   pass) against split_component, fit_line and the end points per part;
@@ -152,6 +153,23 @@ def test_green_candidates_equal_the_numpy_formulas(seed):
     bins = (np.clip(ref_u + 128.0, 0, 255).astype(np.int32) >> 3) * 32 + (
         np.clip(ref_v + 128.0, 0, 255).astype(np.int32) >> 3)
     np.testing.assert_array_equal(hist, np.bincount(bins, minlength=1024))
+
+
+def test_histogram_peak_equals_the_blurred_argmax():
+    import cv2
+
+    rng = np.random.default_rng(9)
+    for k in range(4000):
+        if k % 3 == 0:
+            counts = rng.integers(0, 3000, (32, 32))
+        elif k % 3 == 1:  # sparse: ties and borders
+            counts = (rng.random((32, 32)) < 0.05) * rng.integers(0, 5, (32, 32))
+        else:
+            counts = np.zeros((32, 32), np.int64)
+            counts[rng.integers(0, 32), rng.integers(0, 32)] = rng.integers(0, 9000)
+        blurred = cv2.GaussianBlur(counts.astype(np.float32), (3, 3), 0)
+        peak = np.unravel_index(int(np.argmax(blurred)), blurred.shape)
+        assert colour._histogram_peak(counts.astype(np.int64)) == tuple(int(v) for v in peak)
 
 
 def _reference_cluster(uu, vv, y_c, nu, nv, rad2):
