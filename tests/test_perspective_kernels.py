@@ -4,6 +4,7 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 
 - colour.classify_cells (``_hue_row``, ``_hue_cells``) against the per-pixel class masks,
   its ``_threshold_table`` against luminance_thresholds;
+- colour's ``_fill_blocks`` (the local green map's gaps) against cv2.boxFilter and np.where;
 - colour's ``_hue_block_sums`` and ``_sample_rows`` (the local green map's and the field
   green search's samples) against numpy's masks and strided copies;
 - colour's ``_green_candidates`` against the field green search's numpy formulas, its
@@ -153,6 +154,31 @@ def test_green_candidates_equal_the_numpy_formulas(seed):
     bins = (np.clip(ref_u + 128.0, 0, 255).astype(np.int32) >> 3) * 32 + (
         np.clip(ref_v + 128.0, 0, 255).astype(np.int32) >> 3)
     np.testing.assert_array_equal(hist, np.bincount(bins, minlength=1024))
+
+
+def test_filled_green_map_equals_the_box_filter_expressions():
+    import cv2
+
+    class Frame:
+        y = 0.0
+
+    rng = np.random.default_rng(12)
+    for _ in range(1000):
+        h, w, k = int(rng.integers(1, 70)), int(rng.integers(1, 100)), int(rng.choice([1, 2]))
+        gs = (rng.integers(0, k * k + 1, (h, w)) * (rng.random((h, w)) < rng.random())
+              ).astype(np.float32)
+        ys = (gs * rng.integers(0, 256, (h, w))).astype(np.float32)
+        fc = Frame()
+        fc.y = float(rng.uniform(20, 200))
+        for fill in (3, 7):
+            gs_f = cv2.boxFilter(gs, -1, (fill, fill), normalize=False,
+                                 borderType=cv2.BORDER_CONSTANT)
+            ys_f = cv2.boxFilter(ys, -1, (fill, fill), normalize=False,
+                                 borderType=cv2.BORDER_CONSTANT)
+            ref = np.where(gs >= 0.25 * k * k, ys / np.maximum(gs, 1e-6),
+                           np.where(gs_f > 0, ys_f / np.maximum(gs_f, 1e-6), fc.y))
+            got = colour._fill_green_luminance(gs, ys, k, fc, {"local_fill": fill})
+            assert got.tobytes() == ref.astype(np.float32).tobytes()
 
 
 def test_histogram_peak_equals_the_blurred_argmax():

@@ -606,13 +606,41 @@ def _fill_green_luminance(gs: np.ndarray, ys: np.ndarray, k: int, fc: FieldColou
     """The local green luminance map from the per-block count of green samples ``gs`` and sum
     of their Y ``ys`` (float32, of k x k samples per block): their mean where a quarter of the
     samples are green, else the mean over the ``local_fill`` window, else the frame's."""
-    fill = int(conf["local_fill"]) | 1
-    gs_f = cv2.boxFilter(gs, -1, (fill, fill), normalize=False, borderType=cv2.BORDER_CONSTANT)
-    ys_f = cv2.boxFilter(ys, -1, (fill, fill), normalize=False, borderType=cv2.BORDER_CONSTANT)
-    own = gs >= 0.25 * k * k
-    ymap = np.where(own, ys / np.maximum(gs, 1e-6),
-                    np.where(gs_f > 0, ys_f / np.maximum(gs_f, 1e-6), fc.y))
-    return ymap.astype(np.float32)
+    out = np.empty(gs.shape, np.float32)
+    _fill_blocks(np.ascontiguousarray(gs, np.float32), np.ascontiguousarray(ys, np.float32),
+                 int(conf["local_fill"]) | 1, np.float32(0.25 * k * k), np.float32(fc.y), out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _fill_blocks(gs, ys, fill, own_min, y_frame, out):
+    """_fill_green_luminance, compiled: per block ys / gs where gs >= own_min, else the sums
+    over the fill x fill window around it (blocks beyond the map count 0) divided alike, else
+    y_frame; float32 as the numpy expressions (the divisors at least float32(1e-6)). The
+    sums are of counts and integer luminances, exact in any order (as cv2.boxFilter's)."""
+    h, w = gs.shape
+    r = fill // 2
+    # summed-area tables of both (float64 holds the integer sums exactly)
+    sg = np.zeros((h + 1, w + 1))
+    sy = np.zeros((h + 1, w + 1))
+    for i in range(h):
+        for j in range(w):
+            sg[i + 1, j + 1] = sg[i, j + 1] + sg[i + 1, j] - sg[i, j] + gs[i, j]
+            sy[i + 1, j + 1] = sy[i, j + 1] + sy[i + 1, j] - sy[i, j] + ys[i, j]
+    eps = np.float32(1e-6)
+    for i in range(h):
+        i0, i1 = max(i - r, 0), min(i + r + 1, h)
+        for j in range(w):
+            if gs[i, j] >= own_min:
+                out[i, j] = ys[i, j] / max(gs[i, j], eps)
+                continue
+            j0, j1 = max(j - r, 0), min(j + r + 1, w)
+            g = np.float32(sg[i1, j1] - sg[i0, j1] - sg[i1, j0] + sg[i0, j0])
+            if g > 0:
+                y = np.float32(sy[i1, j1] - sy[i0, j1] - sy[i1, j0] + sy[i0, j0])
+                out[i, j] = y / max(g, eps)
+            else:
+                out[i, j] = y_frame
 
 
 def _labels(green: np.ndarray, white: np.ndarray) -> np.ndarray:
