@@ -12,7 +12,9 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
   np.argmax, ``_green_cluster`` (mean shift, cluster median and variances) and
   ``_hue_spread`` (the hue model's medians) against the numpy expressions they replaced, and
   ``pairwise_sum32`` against numpy's float32 sum;
-- line_fit's ``floor_lines_parameters`` (all lines at once) against floor_line_parameters;
+- line_fit's ``floor_lines_parameters`` (all lines at once) against floor_line_parameters,
+  its ``row_dots`` against numpy's 1-D ``@`` (a dot of two 2-vectors is not the sum of
+  their products to the bit);
 - line_fit's ``split_components`` and ``part_fits`` (all components split and fitted in one
   pass) against split_component, fit_line and the end points per part;
 - field_boundary's ``_column_heights`` (field_height_histogram) and its median windows
@@ -377,6 +379,16 @@ def test_key_incidence_equals_incident_per_node():
     edges.append((4, 4, [4, 50, 51, 4]))  # a ring at a node
     ks = ls.KeyStructure(list(range(12)), np.zeros((12, 2)), edges)
     assert ks.incidence() == [ks.incident(k) for k in range(12)]
+
+
+def test_row_dots_are_the_single_dots():
+    from stages.extract import line_fit as lf
+
+    rng = np.random.default_rng(4)
+    for n in (1, 2, 3, 7, 8, 33, 5000):
+        a = rng.normal(size=(n, 2)) * 10.0 ** rng.integers(-4, 4, (n, 1))
+        b = rng.normal(size=(n, 2)) * 10.0 ** rng.integers(-4, 4, (n, 1))
+        assert lf.row_dots(a, b).tobytes() == np.array([x @ y for x, y in zip(a, b)]).tobytes()
 
 
 def test_floor_lines_parameters_equal_the_per_line_function():

@@ -46,6 +46,7 @@ from .line_fit import (
     lens_parameters,
     refine_kernel,
     refine_segment,
+    row_dots,
 )
 from .line_structure import KeyStructure, LineGraph
 
@@ -515,13 +516,13 @@ def line_pair_crossings(ends: np.ndarray, widths: np.ndarray, floor_of, tol: flo
         s_all[meet] = np.linalg.solve(a_all[meet], (ends[pj, 0] - ends[pi, 0])[meet][..., None]
                                       )[..., 0]
     # of all pairs at once: the intersection, and each line's end nearer to it and that
-    # end's distance from the other line (the dot products by np.vecdot, as ``@`` gives them)
+    # end's distance from the other line (the dot products by row_dots, as ``@`` gives them)
     s0, s1 = s_all[:, 0], s_all[:, 1]
     xs = ends[pi, 0] + s0[:, None] * u[pi]
     e_i = np.where((s0 <= 0.5 * length[pi])[:, None], ends[pi, 0], ends[pi, 1])
-    gap_i = np.abs(np.vecdot(e_i - ends[pj, 0], normal[pj])).tolist()
+    gap_i = np.abs(row_dots(e_i - ends[pj, 0], normal[pj])).tolist()
     e_j = np.where((s1 <= 0.5 * length[pj])[:, None], ends[pj, 0], ends[pj, 1])
-    gap_j = np.abs(np.vecdot(e_j - ends[pi, 0], normal[pi])).tolist()
+    gap_j = np.abs(row_dots(e_j - ends[pi, 0], normal[pi])).tolist()
     lengths, line_widths = length.tolist(), np.asarray(widths, float).tolist()
     for i, j, m, t_i, t_j, g_i, g_j, x in zip(pi.tolist(), pj.tolist(), meet.tolist(),
                                               s0.tolist(), s1.tolist(), gap_i, gap_j, xs):

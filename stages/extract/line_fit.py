@@ -216,15 +216,22 @@ def floor_line_parameters(p0: np.ndarray, p1: np.ndarray) -> tuple[float, float,
     return dist, angle, length
 
 
+def row_dots(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a[k] @ b[k]`` of every row pair of a, b (N, 2), as numpy's 1-D ``@`` gives them (a
+    stacked matmul: the same products and fused addition as the single dot, which a sum of
+    products is not)."""
+    return np.matmul(a[:, None, :], b[:, :, None])[:, 0, 0]
+
+
 def floor_lines_parameters(p0: np.ndarray, p1: np.ndarray
                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """floor_line_parameters of many lines at once (end points p0, p1 (N, 2)): (N,) each of
     the perpendicular distances, their angles and the lengths, with the same arithmetic (the
-    dot products by np.vecdot, which computes them as ``p0 @ d`` does)."""
+    dot products by row_dots, which computes them as ``p0 @ d`` does)."""
     d = p1 - p0
     length = np.hypot(d[:, 0], d[:, 1])
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = -np.vecdot(p0, d) / (length * length)
+        t = -row_dots(p0, d) / (length * length)
     foot = p0 + t[:, None] * d
     dist = np.hypot(foot[:, 0], foot[:, 1])
     angle = np.where(dist < 1e-9, np.arctan2(d[:, 1], d[:, 0]) + np.pi / 2,
