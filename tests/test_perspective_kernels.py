@@ -10,7 +10,8 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - colour's ``_green_candidates`` against the field green search's numpy formulas, its
   ``_histogram_peak`` (the blurred chroma histogram's peak) against cv2.GaussianBlur and
   np.argmax, ``_green_cluster`` (mean shift, cluster median and variances) and
-  ``_hue_spread`` (the hue model's medians) against the numpy expressions they replaced, and
+  ``_hue_turned`` and ``_hue_spread`` (the hue model's offsets and medians) against the numpy
+  expressions they replaced, and
   ``pairwise_sum32`` against numpy's float32 sum;
 - line_fit's ``floor_lines_parameters`` (all lines at once) against floor_line_parameters,
   its ``row_dots`` against numpy's 1-D ``@`` (a dot of two 2-vectors is not the sum of
@@ -243,17 +244,22 @@ def test_float32_sums_and_medians_are_numpys(n):
         a = (rng.normal(size=n) * 10.0 ** rng.integers(-3, 4)).astype(np.float32)
         assert colour.pairwise_sum32(a) == a.sum()
         assert colour._mean32(a) == a.mean() and colour._var32(a) == a.var()
-    d = rng.uniform(-1.5, 1.5, n).astype(np.float32)
-    hyp = rng.uniform(0, 180, n).astype(np.float32)
-    y8 = rng.integers(0, 256, n).astype(np.uint8)
-    max_dev = np.float32(math.radians(45.0))
-    m, med_d, med_sat = colour._hue_spread(d, hyp, y8, max_dev)
+    # the hue model's statistics of random candidates around a random field direction
+    u8, v8, y8 = (rng.integers(0, 256, n).astype(np.uint8) for _ in range(3))
+    angle = rng.uniform(-math.pi, math.pi)
+    hx, hy = math.cos(angle), math.sin(angle)
+    du, dv = u8.astype(np.float32) - 128.0, v8.astype(np.float32) - 128.0
+    num, den = colour._hue_turned(u8, v8, np.float32(hx), np.float32(hy))
+    assert num.tobytes() == (dv * hx - du * hy).tobytes()
+    assert den.tobytes() == (du * hx + dv * hy).tobytes()
+    d = np.arctan2(num, den)
+    m, med_d, med_sat = colour._hue_spread(d, u8, v8, y8, np.float32(math.radians(45.0)))
     near = np.abs(d) <= math.radians(45.0)
     assert m == near.sum()
     if m:
         assert med_d == float(np.median(np.abs(d[near])))
-        assert med_sat == float(np.median(hyp[near] / np.maximum(y8[near].astype(np.float32),
-                                                                 1.0)))
+        assert med_sat == float(np.median(np.hypot(du[near], dv[near]) / np.maximum(
+            y8[near].astype(np.float32), 1.0)))
 
 
 def _reference_point_along(pos, chain, reach):

@@ -369,13 +369,11 @@ def _hue_model(fc: FieldColour, u8, v8, y8, conf: dict) -> None:
     tol = math.radians(float(conf["green_hue_tolerance_deg"]))
     sat = n / max(fc.y, 1.0)
     if fc.found and len(u8):
-        du = u8.astype(np.float32) - 128.0
-        dv = v8.astype(np.float32) - 128.0
-        d = np.arctan2(dv * fc.hue_dir[0] - du * fc.hue_dir[1],
-                       du * fc.hue_dir[0] + dv * fc.hue_dir[1])
-        # within 45 deg of the field's hue: the median |hue offset| and saturation
-        # (compiled: _hue_spread)
-        n_near, med_d, med_sat = _hue_spread(d, np.hypot(du, dv), y8,
+        # the hue offsets from the field's (numpy's float32 arctan2 of the chroma turned onto
+        # the field's direction, compiled: _hue_turned), then within 45 deg of it the median
+        # |hue offset| and saturation (compiled: _hue_spread)
+        num, den = _hue_turned(u8, v8, np.float32(fc.hue_dir[0]), np.float32(fc.hue_dir[1]))
+        n_near, med_d, med_sat = _hue_spread(np.arctan2(num, den), u8, v8, y8,
                                              np.float32(math.radians(45.0)))
         if n_near >= 10:
             sigma = 1.4826 * med_d
@@ -523,21 +521,40 @@ def _green_cluster(uu, vv, ys, nu, nv, rad2, iterations):
 
 
 @njit(cache=True, nogil=True)
-def _hue_spread(d, hyp, y8, max_dev):
+def _hue_turned(u8, v8, hx, hy):
+    """_hue_model's chroma (U - 128, V - 128) turned onto the field's direction (hx, hy):
+    the float32 arrays (dv hx - du hy, du hx + dv hy) whose arctan2 is the hue offset, as
+    numpy computed them."""
+    n = u8.shape[0]
+    num = np.empty(n, np.float32)
+    den = np.empty(n, np.float32)
+    c128 = np.float32(128.0)
+    for i in range(n):
+        du = np.float32(u8[i]) - c128
+        dv = np.float32(v8[i]) - c128
+        num[i] = dv * hx - du * hy
+        den[i] = du * hx + dv * hy
+    return num, den
+
+
+@njit(cache=True, nogil=True)
+def _hue_spread(d, u8, v8, y8, max_dev):
     """_hue_model's statistics of the green candidates whose hue offset ``d`` (float32, rad)
     from the field's is at most ``max_dev`` (float32): their number, the median |d| and the
-    median saturation hyp / max(Y, 1) (chroma length ``hyp`` float32, luminance ``y8``), in
-    float32 as the numpy expressions it replaces (np.median: the middle value, or the mean of
-    the two middle ones)."""
+    median saturation |(U - 128, V - 128)| / max(Y, 1) (np.hypot in float32), in float32 as
+    the numpy expressions it replaces (np.median: the middle value, or the mean of the two
+    middle ones)."""
     n = d.shape[0]
     ad = np.empty(n, np.float32)
     sat = np.empty(n, np.float32)
+    c128 = np.float32(128.0)
     m = 0
     for i in range(n):
         a = abs(d[i])
         if a <= max_dev:
             ad[m] = a
-            sat[m] = hyp[i] / max(np.float32(y8[i]), np.float32(1.0))
+            hyp = np.hypot(np.float32(u8[i]) - c128, np.float32(v8[i]) - c128)
+            sat[m] = hyp / max(np.float32(y8[i]), np.float32(1.0))
             m += 1
     if m == 0:
         return 0, np.nan, np.nan
