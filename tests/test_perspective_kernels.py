@@ -16,6 +16,7 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - line_fit's ``floor_lines_parameters`` (all lines at once) against floor_line_parameters,
   its ``row_dots`` against numpy's 1-D ``@`` (a dot of two 2-vectors is not the sum of
   their products to the bit);
+- line_fit's ``_similar_kernel`` (the merge's similar pairs) against its former einsums;
 - line_fit's ``split_components`` and ``part_fits`` (all components split and fitted in one
   pass) against split_component, fit_line and the end points per part;
 - field_boundary's ``_column_heights`` (field_height_histogram) and its median windows
@@ -385,6 +386,42 @@ def test_key_incidence_equals_incident_per_node():
     edges.append((4, 4, [4, 50, 51, 4]))  # a ring at a node
     ks = ls.KeyStructure(list(range(12)), np.zeros((12, 2)), edges)
     assert ks.incidence() == [ks.incident(k) for k in range(12)]
+
+
+def test_similar_pairs_equal_the_einsum_expressions():
+    from stages.extract import line_fit as lf
+
+    def reference(cen, dirs, nor, ends, rows, cos_max, max_offset, upper):
+        cosine = np.abs(dirs[rows] @ dirs.T)
+        to_i = np.abs(np.einsum("jkd,rd->rjk", ends, nor[rows])
+                      - (cen[rows] * nor[rows]).sum(1)[:, None, None]).max(axis=2)
+        to_j = np.abs(np.einsum("rkd,jd->rjk", ends[rows], nor)
+                      - (cen * nor).sum(1)[None, :, None]).max(axis=2)
+        off = np.maximum(to_i, to_j)
+        ok = (cosine >= cos_max) & (off <= max_offset)
+        ok[np.arange(len(rows)), rows] = False
+        r, j = np.nonzero(ok)
+        return [(float(off[a, b]), int(rows[a]), int(b)) for a, b in zip(r, j)
+                if rows[a] < b or not upper]
+
+    rng = np.random.default_rng(6)
+    found = 0
+    for _ in range(500):
+        n = int(rng.integers(2, 30))
+        # parts along a few directions, some side by side (similar pairs)
+        ang = np.repeat(rng.uniform(0, math.pi, 3), n)[:n] + rng.normal(0, 0.02, n)
+        dirs = np.stack([np.cos(ang), np.sin(ang)], 1)
+        nor = np.stack([-dirs[:, 1], dirs[:, 0]], 1)
+        cen = rng.normal(0, 200, (n, 2))
+        cen[n // 2:] = cen[:n - n // 2] + rng.normal(0, 3, (n - n // 2, 2))
+        ends = cen[:, None, :] + (rng.uniform(20, 100, (n, 2)) * [-1, 1])[:, :, None] \
+            * dirs[:, None, :]
+        for rows, upper in ((np.arange(n), True), (np.array([n - 1]), False)):
+            ref = reference(cen, dirs, nor, ends, rows, math.cos(math.radians(4)), 7.0, upper)
+            assert lf._similar_pairs(cen, dirs, nor, ends, rows, math.cos(math.radians(4)),
+                                     7.0, upper) == ref
+            found += len(ref)
+    assert found > 100
 
 
 def test_row_dots_are_the_single_dots():

@@ -94,17 +94,40 @@ def _similar_pairs(cen: np.ndarray, dirs: np.ndarray, nor: np.ndarray, ends: np.
     the other's line. Arrays are per part: centroids, directions, normals (P, 2), end points
     (P, 2, 2)."""
     cosine = np.abs(dirs[rows] @ dirs.T)  # (R, P)
-    # distance of part j's ends to part i's line, and of part i's ends to part j's line
-    to_i = np.abs(np.einsum("jkd,rd->rjk", ends, nor[rows]) - (cen[rows] * nor[rows]).sum(1)
-                  [:, None, None]).max(axis=2)
-    to_j = np.abs(np.einsum("rkd,jd->rjk", ends[rows], nor) - (cen * nor).sum(1)[None, :, None]
-                  ).max(axis=2)
-    off = np.maximum(to_i, to_j)
-    ok = (cosine >= cos_max) & (off <= max_offset)
-    ok[np.arange(len(rows)), rows] = False
-    r, j = np.nonzero(ok)
-    return [(float(off[a, b]), int(rows[a]), int(b)) for a, b in zip(r, j)
-            if rows[a] < b or not upper]
+    # the rest compiled (_similar_kernel): distance of part j's ends to part i's line, and of
+    # part i's ends to part j's line, and the pairs within both limits
+    off, pi, pj = _similar_kernel(np.ascontiguousarray(cosine), np.ascontiguousarray(cen),
+                                  np.ascontiguousarray(nor), np.ascontiguousarray(ends),
+                                  np.asarray(rows, np.int64), float(cos_max), float(max_offset),
+                                  bool(upper))
+    return list(zip(off.tolist(), pi.tolist(), pj.tolist()))
+
+
+@njit(cache=True, nogil=True)
+def _similar_kernel(cosine, cen, nor, ends, rows, cos_max, max_offset, upper):
+    """_similar_pairs after the directions' cosines: per row part i = rows[a] and part j in
+    row-major order, the larger of the ends' distances (max over the two ends of |e . n -
+    c . n|, the sums of two products as numpy's einsum and sum form them) and the pairs
+    within cos_max and max_offset (not i itself; j > i if ``upper``)."""
+    n_rows, n = cosine.shape
+    off = np.empty(n_rows * n)
+    pi = np.empty(n_rows * n, np.int64)
+    pj = np.empty(n_rows * n, np.int64)
+    m = 0
+    for a in range(n_rows):
+        i = rows[a]
+        ci = cen[i, 0] * nor[i, 0] + cen[i, 1] * nor[i, 1]
+        for j in range(n):
+            cj = cen[j, 0] * nor[j, 0] + cen[j, 1] * nor[j, 1]
+            to_i = max(abs((ends[j, 0, 0] * nor[i, 0] + ends[j, 0, 1] * nor[i, 1]) - ci),
+                       abs((ends[j, 1, 0] * nor[i, 0] + ends[j, 1, 1] * nor[i, 1]) - ci))
+            to_j = max(abs((ends[i, 0, 0] * nor[j, 0] + ends[i, 0, 1] * nor[j, 1]) - cj),
+                       abs((ends[i, 1, 0] * nor[j, 0] + ends[i, 1, 1] * nor[j, 1]) - cj))
+            o = max(to_i, to_j)
+            if cosine[a, j] >= cos_max and o <= max_offset and j != i and (i < j or not upper):
+                off[m], pi[m], pj[m] = o, i, j
+                m += 1
+    return off[:m], pi[:m], pj[:m]
 
 
 def merge_segments(points: np.ndarray, parts: list[np.ndarray], max_angle: float,
