@@ -16,6 +16,7 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - line_fit's ``floor_lines_parameters`` (all lines at once) against floor_line_parameters,
   its ``row_dots`` against numpy's 1-D ``@`` (a dot of two 2-vectors is not the sum of
   their products to the bit);
+- line_fit's ``refine_segments`` (all segments refined in one call) against refine_segment;
 - line_fit's ``_similar_kernel`` (the merge's similar pairs) against its former einsums;
 - line_fit's ``split_components`` and ``part_fits`` (all components split and fitted in one
   pass) against split_component, fit_line and the end points per part;
@@ -386,6 +387,35 @@ def test_key_incidence_equals_incident_per_node():
     edges.append((4, 4, [4, 50, 51, 4]))  # a ring at a node
     ks = ls.KeyStructure(list(range(12)), np.zeros((12, 2)), edges)
     assert ks.incidence() == [ks.incident(k) for k in range(12)]
+
+
+def test_refine_segments_equal_refine_segment_per_segment():
+    import cv2
+
+    from stages.extract import line_fit as lf
+
+    rng = np.random.default_rng(8)
+    white = np.zeros((480, 640), np.uint8)
+    for _ in range(12):  # white lines of a few px, some crossing
+        p, q = rng.uniform(0, [640, 480], (2, 2)).astype(int)
+        cv2.line(white, tuple(int(v) for v in p), tuple(int(v) for v in q), 1,
+                 int(rng.integers(2, 8)))
+    lens = np.array([500.0, 500.0, 320.0, 240.0, -0.2, 0.04, 0.0, 0.0, 0.0])
+    ends = rng.uniform(0, [640, 480], (40, 2, 2))
+    ends[:3, 1] = ends[:3, 0]  # no length
+    got = lf.refine_segments(ends, white, lens, 4.0, 16.0, 4.0, 4, 32.0)
+    kept = 0
+    for e, g in zip(ends, got):
+        r = lf.refine_segment(e, white, lens, 4.0, 16.0, 4.0, 4, 32.0)
+        assert (g is None) == (r is None)
+        if r is not None:
+            kept += 1
+            assert g.ends.tobytes() == r.ends.tobytes()
+            assert g.centres.tobytes() == r.centres.tobytes()
+            assert g.widths.tobytes() == r.widths.tobytes()
+            assert [*g.fit.centroid, *g.fit.direction, *g.fit.normal, g.fit.rms] == \
+                [*r.fit.centroid, *r.fit.direction, *r.fit.normal, r.fit.rms]
+    assert kept >= 5
 
 
 def test_similar_pairs_equal_the_einsum_expressions():

@@ -337,6 +337,35 @@ def refine_segment(ends: np.ndarray, white: np.ndarray, lens: np.ndarray, step: 
     return RefinedLine(res[1:5].reshape(2, 2).copy(), fit, pts, widths)
 
 
+def refine_segments(ends: np.ndarray, white: np.ndarray, lens: np.ndarray, step: float,
+                    reach: float, extend: float, min_points: int, grow: float = 0.0
+                    ) -> list[RefinedLine | None]:
+    """refine_segment of every segment (ends (N, 2, 2) ideal px), in one compiled call
+    (``_refine_all``: refine_kernel per segment, the points and widths of all of them one
+    after another)."""
+    ends = np.ascontiguousarray(ends, np.float64).reshape(-1, 2, 2)
+    n = len(ends)
+    res = np.empty((n, 12))
+    # at most one point per profile: (length + 2 extend) / step + 1 per segment
+    length = np.hypot(*(ends[:, 1] - ends[:, 0]).T)
+    cap = int(np.sum(np.floor((length + 2 * extend) / step) + 2)) if n else 0
+    pts = np.empty((cap, 2))
+    widths = np.empty(cap)
+    start = np.zeros(n + 1, np.int64)
+    _refine_all(ends, white, lens, float(step), float(reach), float(extend), int(min_points),
+                float(grow), res, pts, widths, start)
+    out: list[RefinedLine | None] = []
+    for k in range(n):
+        if res[k, 0] == 0:
+            out.append(None)
+            continue
+        r = res[k]
+        fit = LineFit(r[5:7].copy(), r[7:9].copy(), r[9:11].copy(), float(r[11]))
+        out.append(RefinedLine(r[1:5].reshape(2, 2).copy(), fit, pts[start[k]:start[k + 1]],
+                               widths[start[k]:start[k + 1]]))
+    return out
+
+
 def grow_along(white: np.ndarray, lens: np.ndarray, end: np.ndarray, direction: np.ndarray,
                step: float, reach: float, grow: float, tol: float) -> np.ndarray:
     """The point (2,) ideal px up to which the white line goes on from ``end`` along the unit
@@ -760,3 +789,20 @@ def refine_kernel(ends, image, lens, step, reach, extend, min_points, grow, res)
     res[5], res[6], res[7], res[8], res[9], res[10] = cx, cy, fux, fuy, fnx, fny
     res[11] = rms
     return pts, widths
+
+
+@njit(cache=True, nogil=True)
+def _refine_all(ends, image, lens, step, reach, extend, min_points, grow, res, pts, widths,
+                start):
+    """refine_segments, compiled: refine_kernel of each segment into ``res[k]``, its points
+    and widths into ``pts`` and ``widths`` from ``start[k]`` on."""
+    for k in range(ends.shape[0]):
+        p, w = refine_kernel(ends[k], image, lens, step, reach, extend, min_points, grow,
+                             res[k])
+        a = start[k]
+        if a + p.shape[0] > pts.shape[0]:
+            raise ValueError("refine_segments: more points than profiles")
+        for i in range(p.shape[0]):
+            pts[a + i, 0], pts[a + i, 1] = p[i, 0], p[i, 1]
+            widths[a + i] = w[i]
+        start[k + 1] = a + p.shape[0]

@@ -42,7 +42,7 @@ from .line_fit import (
     lens_parameters,
     line_components,
     median,
-    refine_segment,
+    refine_segments,
     split_and_merge,
 )
 from .line_structure import (
@@ -549,10 +549,10 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
     refined = [None] * len(segments)
     if white_px is not None and lc.get("refine", True):
         lens = lens_parameters(camera)
-        refined = [refine_segment(seg.ends, white_px, lens, lc["refine_step"],
-                                  lc["refine_reach"] * cell, lc["refine_extend"] * cell,
-                                  lc["refine_min_points"], lc["refine_grow"] * cell)
-                   for seg in segments]
+        refined = refine_segments(np.stack([seg.ends for seg in segments]), white_px, lens,
+                                  lc["refine_step"], lc["refine_reach"] * cell,
+                                  lc["refine_extend"] * cell, lc["refine_min_points"],
+                                  lc["refine_grow"] * cell)
     ratios = width_ratios([r for r in refined if r is not None], to_floor, lc["line_width"])
     ends = np.concatenate([seg.ends if r is None else r.ends for seg, r in
                            zip(segments, refined)])
