@@ -25,6 +25,7 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - goal_posts' ``stands_out`` and ``bar_width`` (slices, the compiled median) against their
   former fancy-indexed numpy;
 - crossings' ``_points_along`` (the candidates' arm points) against its former Python walk;
+- line_structure's ``_smooth_chains`` (smooth_lines) against its former numpy rounds;
 - line_structure's ``_turn_cosines`` (turning_angles) against its former numpy expressions;
 - line_structure's ``_triangle_cuts`` (remove_triangles) against its former Python loop;
 - line_structure's ``_gap_candidates`` (fill_gaps) against its former Python loop;
@@ -688,6 +689,27 @@ def test_remove_triangles_equals_the_python_loop(seed):
     assert graph.adj == ref.adj
     assert [list(a) for a in graph.adj] == [list(a) for a in ref.adj]  # the sets' order too
     assert sum(map(len, graph.adj)) < before
+
+
+def test_smooth_lines_equals_the_numpy_rounds():
+    rng = np.random.default_rng(13)
+    for _ in range(500):
+        n = int(rng.integers(1, 80))
+        adj = [set() for _ in range(n)]
+        for _ in range(int(rng.integers(0, 2 * n))):
+            a, b = (int(v) for v in rng.integers(0, n, 2))
+            if a != b:
+                adj[a].add(b)
+                adj[b].add(a)
+        graph = ls.LineGraph(np.zeros((n, 2), int), rng.normal(0, 10, (n, 2)), np.ones(n), adj)
+        idx = np.nonzero(graph.degree() == 2)[0]
+        for rounds in (0, 1, 2, 3):
+            ref = graph.pos.copy()
+            if len(idx):
+                nb = np.array([sorted(graph.adj[i]) for i in idx])
+                for _ in range(rounds):
+                    ref[idx] = (ref[idx] + ref[nb[:, 0]] + ref[nb[:, 1]]) / 3.0
+            assert ls.smooth_lines(graph, rounds).tobytes() == ref.tobytes()
 
 
 def _reference_turning_angles(chains, pos, reach, floor=None):

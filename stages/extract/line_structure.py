@@ -900,15 +900,36 @@ def trace_chains(graph: LineGraph) -> list[list[int]]:
 def smooth_lines(graph: LineGraph, iterations: int = 2) -> np.ndarray:
     """Node positions smoothed along the lines: each degree-2 node moves to the mean of itself
     and its two neighbours; other nodes stay (returns new positions)."""
-    pos = graph.pos.copy()
-    deg = graph.degree()
-    idx = np.nonzero(deg == 2)[0]
-    if len(idx) == 0:
+    pos = np.array(graph.pos, np.float64)  # a copy
+    if len(pos) == 0:
         return pos
-    nb = np.array([sorted(graph.adj[i]) for i in idx])
-    for _ in range(iterations):
-        pos[idx] = (pos[idx] + pos[nb[:, 0]] + pos[nb[:, 1]]) / 3.0
+    start, nbr = _neighbour_lists(graph.adj)
+    _smooth_chains(pos, start, nbr, int(iterations))
     return pos
+
+
+@njit(cache=True, nogil=True)
+def _smooth_chains(pos, start, nbr, iterations):
+    """smooth_lines in place, compiled: each round every degree-2 node's new position is
+    (its own + its lower neighbour's + its higher neighbour's) / 3 from the round's old
+    positions, as the numpy expression computed it."""
+    n = len(start) - 1
+    idx = np.empty(n, np.int64)
+    lo = np.empty(n, np.int64)
+    hi = np.empty(n, np.int64)
+    m = 0
+    for i in range(n):
+        if start[i + 1] - start[i] == 2:
+            a, b = nbr[start[i]], nbr[start[i] + 1]
+            idx[m], lo[m], hi[m] = i, min(a, b), max(a, b)
+            m += 1
+    new = np.empty((m, 2))
+    for _ in range(iterations):
+        for k in range(m):
+            for d in range(2):
+                new[k, d] = (pos[idx[k], d] + pos[lo[k], d] + pos[hi[k], d]) / 3.0
+        for k in range(m):
+            pos[idx[k], 0], pos[idx[k], 1] = new[k, 0], new[k, 1]
 
 
 def turning_angles(chains: list[list[int]], pos: np.ndarray, reach: float,
