@@ -25,6 +25,7 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - goal_posts' ``stands_out`` and ``bar_width`` (slices, the compiled median) against their
   former fancy-indexed numpy;
 - crossings' ``_points_along`` (the candidates' arm points) against its former Python walk;
+- line_structure's ``_nodes_by_priority`` (place_nodes) against its former numpy sort;
 - line_structure's ``_smooth_chains`` (smooth_lines) against its former numpy rounds;
 - line_structure's ``_turn_cosines`` (turning_angles) against its former numpy expressions;
 - line_structure's ``_triangle_cuts`` (remove_triangles) against its former Python loop;
@@ -689,6 +690,25 @@ def test_remove_triangles_equals_the_python_loop(seed):
     assert graph.adj == ref.adj
     assert [list(a) for a in graph.adj] == [list(a) for a in ref.adj]  # the sets' order too
     assert sum(map(len, graph.adj)) < before
+
+
+def test_place_nodes_equals_the_numpy_sort():
+    rng = np.random.default_rng(14)
+    for _ in range(200):
+        img = (rng.random((60, 94)) ** 4).astype(np.float32)
+        img[rng.random(img.shape) < 0.5] = 0
+        lp = ls.low_pass(img)
+        key = ls.ranking_keys(lp)
+        skeleton, c = ls.ranking_skeleton(lp, 0.02, key)
+        priority = np.where(skeleton, key + np.where(c == 0, 2.0 ** 45, 0.0), -1.0)
+        sy, sx = np.nonzero(skeleton)
+        order = np.argsort(-priority[sy, sx], kind="stable")
+        taken = ls._greedy_nodes(sy[order], sx[order], *skeleton.shape)
+        ys, xs = sy[order][taken], sx[order][taken]
+        pix, regions = ls.place_nodes(lp, skeleton, c, key)
+        np.testing.assert_array_equal(pix, np.stack([xs, ys], axis=1))
+        np.testing.assert_array_equal(regions, ls._node_regions(skeleton, ys.astype(np.int64),
+                                                                xs.astype(np.int64)))
 
 
 def test_smooth_lines_equals_the_numpy_rounds():

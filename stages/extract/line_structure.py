@@ -154,17 +154,42 @@ def place_nodes(image: np.ndarray, skeleton: np.ndarray, c: np.ndarray,
     of its 3 x 3 region assigned to it, 4-neighbours first), 0 elsewhere. ``key``: the
     image's ranking_keys, if already computed."""
     key = ranking_keys(image) if key is None else key
-    priority = np.where(skeleton, key + np.where(c == 0, 2.0 ** 45, 0.0), -1.0)
     # the parallel rounds pick the same pixels as one greedy pass in priority order (every
     # priority differs: a pixel that is the highest available one in its neighbourhood is
     # taken in both, and so, round after round, is every pixel the greedy pass takes)
-    sy, sx = np.nonzero(skeleton)
-    order = np.argsort(-priority[sy, sx], kind="stable")
-    taken = _greedy_nodes(sy[order], sx[order], skeleton.shape[0], skeleton.shape[1])
-    ys, xs = sy[order][taken], sx[order][taken]
-    regions = _node_regions(np.ascontiguousarray(skeleton), ys.astype(np.int64),
-                            xs.astype(np.int64))
+    skeleton = np.ascontiguousarray(skeleton, np.bool_)
+    ys, xs = _nodes_by_priority(np.ascontiguousarray(key, np.float64),
+                                np.ascontiguousarray(c, np.int8), skeleton)
+    regions = _node_regions(skeleton, ys, xs)
     return np.stack([xs, ys], axis=1).astype(int), regions
+
+
+@njit(cache=True, nogil=True)
+def _nodes_by_priority(key, c, skeleton):
+    """place_nodes' greedy pass, compiled: the skeleton pixels (row-major, as np.nonzero)
+    sorted by falling priority (the ranking key, peaks (c = 0) first: 2^45 added), stably,
+    and taken while none of their 8-neighbours is (_greedy_nodes). Returns the nodes' rows
+    and columns in that order."""
+    h, w = skeleton.shape
+    n = 0
+    for y in range(h):
+        for x in range(w):
+            if skeleton[y, x]:
+                n += 1
+    sy = np.empty(n, np.int64)
+    sx = np.empty(n, np.int64)
+    neg = np.empty(n)
+    k = 0
+    for y in range(h):
+        for x in range(w):
+            if skeleton[y, x]:
+                sy[k], sx[k] = y, x
+                neg[k] = -(key[y, x] + (2.0 ** 45 if c[y, x] == 0 else 0.0))
+                k += 1
+    order = np.argsort(neg, kind="mergesort")
+    oy, ox = sy[order], sx[order]
+    taken = _greedy_nodes(oy, ox, h, w)
+    return oy[taken].copy(), ox[taken].copy()
 
 
 @njit("int32[:, ::1](boolean[:, ::1], int64[::1], int64[::1])", cache=True, nogil=True)
