@@ -29,6 +29,8 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - line_structure's ``_smooth_chains`` (smooth_lines) against its former numpy rounds;
 - line_structure's ``_turn_cosines`` (turning_angles) against its former numpy expressions;
 - line_structure's ``_triangle_cuts`` (remove_triangles) against its former Python loop;
+- line_structure's ``_gap_choice`` (fill_gaps' ratios, order and greedy choice) against
+  the former Python;
 - line_structure's ``_gap_candidates`` (fill_gaps) against its former Python loop;
 - line_structure's ``_farthest_pairs`` (split_isolated_nodes) against np.argmax of the
   regions' distance matrices.
@@ -497,6 +499,56 @@ def _random_graph(rng, n=60):
             adj[b].add(a)
     pix = np.round(pos).astype(int)
     return ls.LineGraph(pix, pos, rng.uniform(0.1, 1.0, n).astype(np.float32), adj)
+
+
+def _reference_fill_gaps(graph, image, max_gap, min_cos, min_grey_ratio, close_gap,
+                         max_degree=4, samples=8):
+    """fill_gaps as it was: the candidates' grey ratios in numpy, Python's sort and loop."""
+    import cv2
+
+    deg = graph.degree()
+    loose = np.nonzero(deg <= 1)[0]
+    if len(loose) == 0 or len(graph) < 2:
+        return
+    pos = graph.pos
+    start, nbr = ls._neighbour_lists(graph.adj)
+    score, ci, cj = ls._gap_candidates(np.ascontiguousarray(pos, np.float64), start, nbr,
+                                       deg.astype(np.int64), loose.astype(np.int64),
+                                       float(max_gap), float(min_cos), float(close_gap))
+    cand = list(zip(score.tolist(), ci.tolist(), cj.tolist()))
+    if not cand:
+        return
+    ij = np.stack([ci, cj], axis=1)
+    t = np.linspace(0.0, 1.0, samples)[None, :, None]
+    pts = (pos[ij[:, 0]][:, None, :] * (1 - t) + pos[ij[:, 1]][:, None, :] * t).astype(np.float32)
+    grey = cv2.remap(image, pts[..., 0], pts[..., 1], cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_CONSTANT, borderValue=0).min(axis=1)
+    ref = 0.5 * (graph.value[ij[:, 0]] + graph.value[ij[:, 1]])
+    ratio = np.where(ref > 0, grey / np.maximum(ref, 1e-9), 0.0)
+    scored = [(sc + r, i, j) for (sc, i, j), r in zip(cand, ratio) if r >= min_grey_ratio]
+    scored.sort(key=lambda c: -c[0])
+    for _, i, j in scored:
+        if j in graph.adj[i]:
+            continue
+        if len(graph.adj[i]) >= 2 or len(graph.adj[j]) >= max_degree:
+            continue
+        graph.connect(i, j)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_fill_gaps_equals_the_former_python(seed):
+    rng = np.random.default_rng(seed)
+    added = 0
+    for _ in range(20):
+        image = (rng.random((30, 40)) ** 2).astype(np.float32)
+        graph = _random_graph(rng, int(rng.integers(20, 90)))
+        ref = graph.copy()
+        before = sum(map(len, graph.adj))
+        ls.fill_gaps(graph, image, 6.0, math.cos(math.radians(30)), 0.25, 4.0)
+        _reference_fill_gaps(ref, image, 6.0, math.cos(math.radians(30)), 0.25, 4.0)
+        assert graph.adj == ref.adj
+        added += sum(map(len, graph.adj)) - before
+    assert added > 20  # gaps were filled
 
 
 def _reference_outward(graph, i, reach=3):

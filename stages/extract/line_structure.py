@@ -551,35 +551,75 @@ def fill_gaps(graph: LineGraph, image: np.ndarray, max_gap: float, min_cos: floa
     grey level along the gap is at least ``min_grey_ratio`` of the nodes'; no node above degree
     ``max_degree``; no connection to a node already three steps away). Accepted greedily by
     score (in place)."""
-    deg = graph.degree()
-    loose = np.nonzero(deg <= 1)[0]
-    if len(loose) == 0 or len(graph) < 2:
+    if len(graph) < 2:
         return
-    pos = graph.pos
-    # the candidates (continuity, closure) by one compiled pass over the loose nodes
     start, nbr = _neighbour_lists(graph.adj)
-    score, ci, cj = _gap_candidates(np.ascontiguousarray(pos, np.float64), start, nbr,
-                                    deg.astype(np.int64), loose.astype(np.int64),
-                                    float(max_gap), float(min_cos), float(close_gap))
-    cand = list(zip(score.tolist(), ci.tolist(), cj.tolist()))
-    if not cand:
+    deg = np.diff(start)
+    loose = np.nonzero(deg <= 1)[0]
+    if len(loose) == 0:
+        return
+    pos = np.ascontiguousarray(graph.pos, np.float64)
+    # the candidates (continuity, closure) by one compiled pass over the loose nodes
+    score, ci, cj = _gap_candidates(pos, start, nbr, deg, loose, float(max_gap), float(min_cos),
+                                    float(close_gap))
+    if len(score) == 0:
         return
     # simplicity: grey level along all candidate gaps, sampled in one pass
-    ij = np.stack([ci, cj], axis=1)
     t = _gap_steps(samples)
-    pts = (pos[ij[:, 0]][:, None, :] * (1 - t) + pos[ij[:, 1]][:, None, :] * t).astype(np.float32)
+    pts = (pos[ci][:, None, :] * (1 - t) + pos[cj][:, None, :] * t).astype(np.float32)
     grey = cv2.remap(image, pts[..., 0], pts[..., 1], cv2.INTER_LINEAR,
                      borderMode=cv2.BORDER_CONSTANT, borderValue=0).min(axis=1)
-    ref = 0.5 * (graph.value[ij[:, 0]] + graph.value[ij[:, 1]])
-    ratio = np.where(ref > 0, grey / np.maximum(ref, 1e-9), 0.0)
-    scored = [(sc + r, i, j) for (sc, i, j), r in zip(cand, ratio.tolist()) if r >= min_grey_ratio]
-    scored.sort(key=lambda c: -c[0])
-    for _, i, j in scored:
-        if j in graph.adj[i]:
-            continue
-        if len(graph.adj[i]) >= 2 or len(graph.adj[j]) >= max_degree:
-            continue
+    # the grey ratios, the scores' order and the greedy choice, compiled (_gap_choice)
+    value = np.ascontiguousarray(graph.value)
+    accepted = np.empty((len(score), 2), np.int64)
+    n = _gap_choice(score, ci, cj, np.ascontiguousarray(grey), value, value.dtype.type(1e-9),
+                    float(min_grey_ratio), start, nbr, int(max_degree), accepted)
+    for i, j in accepted[:n].tolist():
         graph.connect(i, j)
+
+
+@njit(cache=True, nogil=True)
+def _gap_choice(score, ci, cj, grey, value, eps, min_ratio, start, nbr, max_degree, accepted):
+    """fill_gaps' choice, compiled: per candidate (score, i, j) its grey ratio (the gap's
+    least grey over the mean of the nodes' values, in their float type, as numpy had it),
+    those of at least ``min_ratio`` ordered by score plus ratio (falling, stably, as Python's
+    sort), and accepted in turn unless already connected, i has two connections or j
+    ``max_degree``. The accepted connections (i, j) go into ``accepted`` in order; returns
+    their number."""
+    m = len(score)
+    total = np.empty(m)
+    keep = np.empty(m, np.int64)
+    k = 0
+    for q in range(m):
+        ref = value.dtype.type(0.5) * (value[ci[q]] + value[cj[q]])
+        r = grey[q] / max(ref, eps) if ref > 0 else grey.dtype.type(0.0)
+        if np.float64(r) >= min_ratio:
+            total[k] = score[q] + np.float64(r)
+            keep[k] = q
+            k += 1
+    order = np.argsort(-total[:k], kind="mergesort")
+    deg = np.empty(len(start) - 1, np.int64)
+    for i in range(len(start) - 1):
+        deg[i] = start[i + 1] - start[i]
+    n = 0
+    for o in order:
+        q = keep[o]
+        i, j = ci[q], cj[q]
+        linked = False
+        for p in range(start[i], start[i + 1]):
+            if nbr[p] == j:
+                linked = True
+        for a in range(n):
+            if (accepted[a, 0] == i and accepted[a, 1] == j) or (accepted[a, 0] == j
+                                                                 and accepted[a, 1] == i):
+                linked = True
+        if linked or deg[i] >= 2 or deg[j] >= max_degree:
+            continue
+        accepted[n, 0], accepted[n, 1] = i, j
+        n += 1
+        deg[i] += 1
+        deg[j] += 1
+    return n
 
 
 @functools.lru_cache(maxsize=4)
