@@ -25,6 +25,7 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - goal_posts' ``stands_out`` and ``bar_width`` (slices, the compiled median) against their
   former fancy-indexed numpy;
 - crossings' ``_points_along`` (the candidates' arm points) against its former Python walk;
+- line_structure's ``_trace`` (trace_chains) against its former Python walk;
 - line_structure's ``_nodes_by_priority`` (place_nodes) against its former numpy sort;
 - line_structure's ``_smooth_chains`` (smooth_lines) against its former numpy rounds;
 - line_structure's ``_turn_cosines`` (turning_angles) against its former numpy expressions;
@@ -742,6 +743,70 @@ def test_remove_triangles_equals_the_python_loop(seed):
     assert graph.adj == ref.adj
     assert [list(a) for a in graph.adj] == [list(a) for a in ref.adj]  # the sets' order too
     assert sum(map(len, graph.adj)) < before
+
+
+def _reference_trace_chains(graph):
+    """trace_chains as the Python walk did it."""
+    adj = graph.adj
+    two = [len(a) == 2 for a in adj]
+    used = [False] * len(adj)
+    direct = set()
+    chains = []
+
+    def walk(prev, cur, chain):
+        while two[cur] and not used[cur]:
+            used[cur] = True
+            a, b = adj[cur]
+            prev, cur = cur, (b if a == prev else a)
+            chain.append(cur)
+        return chain
+
+    for s in range(len(adj)):
+        if two[s] or not adj[s]:
+            continue
+        for n in sorted(adj[s]):
+            if two[n]:
+                if not used[n]:
+                    chains.append(walk(s, n, [s, n]))
+            elif (min(s, n), max(s, n)) not in direct:
+                direct.add((min(s, n), max(s, n)))
+                chains.append([s, n])
+    for s in range(len(adj)):
+        if two[s] and not used[s]:
+            used[s] = True
+            chain = walk(s, min(adj[s]), [s, min(adj[s])])
+            if chain[-1] != s:
+                chain.append(s)
+            chains.append(chain)
+    return chains
+
+
+def test_trace_chains_equals_the_python_walk():
+    rng = np.random.default_rng(15)
+    loops = 0
+    for _ in range(1000):
+        n = int(rng.integers(1, 120))
+        adj = [set() for _ in range(n)]
+        k = 0
+        while k < n - 1:  # polylines, some closed into rings
+            length = int(rng.integers(1, 10))
+            for a in range(k, min(k + length, n - 1)):
+                adj[a].add(a + 1)
+                adj[a + 1].add(a)
+            if rng.random() < 0.2 and length > 2 and k + length < n:
+                adj[k].add(k + length)
+                adj[k + length].add(k)
+            k += length + 1
+        for _ in range(int(rng.integers(0, n // 4 + 1))):  # junctions
+            a, b = (int(v) for v in rng.integers(0, n, 2))
+            if a != b:
+                adj[a].add(b)
+                adj[b].add(a)
+        graph = ls.LineGraph(np.zeros((n, 2), int), np.zeros((n, 2)), np.ones(n), adj)
+        ref = _reference_trace_chains(graph)
+        assert ls.trace_chains(graph) == ref
+        loops += sum(c[0] == c[-1] for c in ref)
+    assert loops > 10
 
 
 def test_place_nodes_equals_the_numpy_sort():

@@ -926,40 +926,81 @@ def _short_spurs(start, nbr, pos, min_length):
 
 def trace_chains(graph: LineGraph) -> list[list[int]]:
     """Chains of degree-2 nodes between nodes of another degree (each chain includes its two
-    end nodes); closed loops of degree-2 nodes start and end at their first node."""
-    adj = graph.adj
-    two = [len(a) == 2 for a in adj]
-    used = [False] * len(adj)  # degree-2 nodes already in a chain
-    direct = set()  # chains without interior nodes, as (low, high)
-    chains = []
+    end nodes); closed loops of degree-2 nodes start and end at their first node. Walked by
+    a compiled pass (``_trace``) over the neighbour lists."""
+    n = len(graph.adj)
+    if n == 0:
+        return []
+    start, nbr = _neighbour_lists(graph.adj)
+    flat = np.empty(3 * (len(nbr) + n) + 4, np.int64)
+    bounds = np.empty(len(nbr) + n + 2, np.int64)
+    m = _trace(start, nbr, flat, bounds)
+    nodes, b = flat[:bounds[m]].tolist(), bounds[:m + 1].tolist()
+    return [nodes[b[k]:b[k + 1]] for k in range(m)]
 
-    def walk(prev, cur, chain):
-        while two[cur] and not used[cur]:
-            used[cur] = True
-            a, b = adj[cur]
-            prev, cur = cur, (b if a == prev else a)
-            chain.append(cur)
-        return chain
 
-    for s in range(len(adj)):
-        if two[s] or not adj[s]:
+@njit("int64(int64[::1], int64[::1], int64[::1], int64[::1])", cache=True, nogil=True)
+def _trace(start, nbr, flat, bounds):
+    """trace_chains' walk: nodes of degree other than 2 (and not 0) in order, each one's
+    neighbours in ascending order: a walk along the degree-2 nodes not yet used, or a direct
+    chain to another such node (once per pair); then the loops of unused degree-2 nodes,
+    each from its first node through its lower neighbour. Chain k's nodes into
+    ``flat[bounds[k]:bounds[k + 1]]``; returns the number of chains."""
+    n = len(start) - 1
+    used = np.zeros(n, np.bool_)
+    direct = np.zeros((n, n), np.bool_)
+    m, k = 0, 0
+    for s in range(n):
+        d = start[s + 1] - start[s]
+        if d == 2 or d == 0:
             continue
-        for n in sorted(adj[s]):
-            if two[n]:
-                if not used[n]:
-                    chains.append(walk(s, n, [s, n]))
-            elif (min(s, n), max(s, n)) not in direct:
-                direct.add((min(s, n), max(s, n)))
-                chains.append([s, n])
-    for s in range(len(adj)):  # loops of degree-2 nodes only
-        if two[s] and not used[s]:
+        nb = np.sort(nbr[start[s]:start[s + 1]])
+        for t in nb:
+            if start[t + 1] - start[t] == 2:
+                if used[t]:
+                    continue
+                bounds[m] = k
+                flat[k], flat[k + 1] = s, t
+                k += 2
+                prev, cur = s, t
+                while start[cur + 1] - start[cur] == 2 and not used[cur]:
+                    used[cur] = True
+                    a = nbr[start[cur]]
+                    nxt = nbr[start[cur] + 1] if a == prev else a
+                    prev, cur = cur, nxt
+                    flat[k] = cur
+                    k += 1
+                m += 1
+            else:
+                lo, hi = min(s, t), max(s, t)
+                if direct[lo, hi]:
+                    continue
+                direct[lo, hi] = True
+                bounds[m] = k
+                flat[k], flat[k + 1] = s, t
+                k += 2
+                m += 1
+    for s in range(n):  # loops of degree-2 nodes only
+        if start[s + 1] - start[s] == 2 and not used[s]:
             used[s] = True
-            n = min(adj[s])
-            chain = walk(s, n, [s, n])
-            if chain[-1] != s:
-                chain.append(s)
-            chains.append(chain)
-    return chains
+            t = min(nbr[start[s]], nbr[start[s] + 1])
+            bounds[m] = k
+            flat[k], flat[k + 1] = s, t
+            k += 2
+            prev, cur = s, t
+            while start[cur + 1] - start[cur] == 2 and not used[cur]:
+                used[cur] = True
+                a = nbr[start[cur]]
+                nxt = nbr[start[cur] + 1] if a == prev else a
+                prev, cur = cur, nxt
+                flat[k] = cur
+                k += 1
+            if flat[k - 1] != s:
+                flat[k] = s
+                k += 1
+            m += 1
+    bounds[m] = k
+    return m
 
 
 def smooth_lines(graph: LineGraph, iterations: int = 2) -> np.ndarray:
