@@ -25,6 +25,7 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - goal_posts' ``stands_out`` and ``bar_width`` (slices, the compiled median) against their
   former fancy-indexed numpy;
 - crossings' ``_points_along`` (the candidates' arm points) against its former Python walk;
+- line_structure's ``_corner_cuts`` (every chain's corner_nodes at once) against corner_nodes;
 - line_structure's ``_trace`` (trace_chains) against its former Python walk;
 - line_structure's ``_nodes_by_priority`` (place_nodes) against its former numpy sort;
 - line_structure's ``_smooth_chains`` (smooth_lines) against its former numpy rounds;
@@ -743,6 +744,29 @@ def test_remove_triangles_equals_the_python_loop(seed):
     assert graph.adj == ref.adj
     assert [list(a) for a in graph.adj] == [list(a) for a in ref.adj]  # the sets' order too
     assert sum(map(len, graph.adj)) < before
+
+
+def test_corner_cuts_equal_corner_nodes_per_chain():
+    rng = np.random.default_rng(16)
+    found = 0
+    for _ in range(1000):
+        lens = rng.integers(1, 30, int(rng.integers(1, 20)))
+        n = int(lens.sum())
+        turn = rng.uniform(0, 2.5, n) * (rng.random(n) < 0.5)
+        turn[rng.random(n) < 0.05] = 1.0  # equal turns
+        arc = np.concatenate([np.cumsum(np.concatenate([[0], rng.uniform(0.2, 3, k - 1)]))
+                              for k in lens])
+        offsets = np.concatenate([[0], np.cumsum(lens)]).astype(np.int64)
+        cuts, cut_start = np.empty(n, np.int64), np.empty(len(lens) + 1, np.int64)
+        by_python = np.zeros(len(lens), np.bool_)
+        ls._corner_cuts(turn, arc, offsets, 3.0, 0.8, cuts, cut_start, by_python)
+        assert not by_python.any()
+        for c in range(len(lens)):
+            a, b = offsets[c], offsets[c + 1]
+            ref = ls.corner_nodes(turn[a:b], arc[a:b], 3.0, 0.8)
+            assert cuts[cut_start[c]:cut_start[c + 1]].tolist() == ref
+            found += len(ref)
+    assert found > 1000
 
 
 def _reference_trace_chains(graph):

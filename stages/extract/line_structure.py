@@ -1171,6 +1171,47 @@ def corner_nodes(turn: np.ndarray, arc: np.ndarray, reach: float, min_turn: floa
     return sorted(kept)
 
 
+@njit(cache=True, nogil=True)
+def _corner_cuts(turn, arc, offsets, reach, min_turn, cuts, cut_start, by_python):
+    """corner_nodes of every chain (``offsets``: its first index in turn and arc), compiled:
+    the same stable order by falling turn and the same tests; chain c's cuts, ascending,
+    into ``cuts[cut_start[c]:cut_start[c + 1]]``. A chain with a NaN turn is left to
+    corner_nodes (``by_python``)."""
+    m = 0
+    kept = np.empty(len(turn), np.int64)
+    for c in range(len(offsets) - 1):
+        cut_start[c] = m
+        i0, i1 = offsets[c], offsets[c + 1]
+        n = i1 - i0
+        t, a = turn[i0:i1], arc[i0:i1]
+        top = -np.inf
+        for i in range(n):
+            if np.isnan(t[i]):
+                by_python[c] = True
+            top = max(top, t[i])
+        if by_python[c] or n < 3 or top < min_turn:
+            continue
+        neg = np.empty(n)
+        for i in range(n):
+            neg[i] = -t[i]
+        nk = 0
+        for i in np.argsort(neg, kind="mergesort"):
+            if t[i] < min_turn:
+                break
+            ok = a[i] >= reach * 0.5 and a[n - 1] - a[i] >= reach * 0.5
+            for q in range(nk):
+                if not abs(a[i] - a[kept[q]]) >= reach:
+                    ok = False
+            if ok:
+                kept[nk] = i
+                nk += 1
+        chosen = np.sort(kept[:nk])
+        for q in range(nk):
+            cuts[m] = chosen[q]
+            m += 1
+    cut_start[len(offsets) - 1] = m
+
+
 def key_structure(graph: LineGraph, conf: dict, floor_of=None) -> KeyStructure:
     """Section 4.1: from the fine graph to the key node structure. ``floor_of``: a function
     of grid positions (N, 2) -> floor points (N, 2) (NaN above the horizon); with it the
@@ -1198,10 +1239,19 @@ def key_structure(graph: LineGraph, conf: dict, floor_of=None) -> KeyStructure:
         # of noise is a large floor angle
         turn = np.where(turn >= conf["corner_min_turn_image"], floor_turn, 0.0)
         min_turn = conf["corner_min_turn_floor"]
-    firsts = np.unique(start)
-    for chain, i0 in zip(chains, firsts):
-        i1 = i0 + len(chain)
-        cut = corner_nodes(turn[i0:i1], arc[i0:i1], reach, min_turn)
+    # the corners of all chains at once (corner_nodes, compiled: _corner_cuts)
+    offsets = np.zeros(len(chains) + 1, np.int64)
+    np.cumsum(np.fromiter(map(len, chains), np.int64, len(chains)), out=offsets[1:])
+    cuts = np.empty(len(turn), np.int64)
+    cut_start = np.empty(len(chains) + 1, np.int64)
+    by_python = np.zeros(len(chains), np.bool_)
+    _corner_cuts(np.ascontiguousarray(turn, np.float64), np.ascontiguousarray(arc, np.float64),
+                 offsets, float(reach), float(min_turn), cuts, cut_start, by_python)
+    cut_list, cut_at = cuts.tolist(), cut_start.tolist()
+    for c, chain in enumerate(chains):
+        i0, i1 = offsets[c], offsets[c + 1]
+        cut = corner_nodes(turn[i0:i1], arc[i0:i1], reach, min_turn) if by_python[c] \
+            else cut_list[cut_at[c]:cut_at[c + 1]]
         bounds = [0] + cut + [len(chain) - 1]
         for a, b in zip(bounds[:-1], bounds[1:]):
             edges.append((key(chain[a]), key(chain[b]), chain[a:b + 1]))
