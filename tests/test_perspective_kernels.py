@@ -25,6 +25,8 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - goal_posts' ``stands_out`` and ``bar_width`` (slices, the compiled median) against their
   former fancy-indexed numpy;
 - crossings' ``_points_along`` (the candidates' arm points) against its former Python walk;
+- line_structure's ``_skeleton_grid`` (the inside, low-pass, ranking keys and skeleton of
+  white shares) against white_inside_boundary, cv2's low_pass and the ranking functions;
 - line_structure's ``_corner_cuts`` (every chain's corner_nodes at once) against corner_nodes;
 - line_structure's ``_trace`` (trace_chains) against its former Python walk;
 - line_structure's ``_nodes_by_priority`` (place_nodes) against its former numpy sort;
@@ -744,6 +746,23 @@ def test_remove_triangles_equals_the_python_loop(seed):
     assert graph.adj == ref.adj
     assert [list(a) for a in graph.adj] == [list(a) for a in ref.adj]  # the sets' order too
     assert sum(map(len, graph.adj)) < before
+
+
+@pytest.mark.parametrize("cell", [8, 4])
+def test_skeleton_grid_equals_the_numpy_and_opencv_path(cell):
+    rng = np.random.default_rng(cell)
+    area = cell * cell
+    for _ in range(500):
+        h, w = int(rng.integers(1, 70)), int(rng.integers(1, 100))
+        counts = (rng.integers(0, area + 1, (h, w)) * (rng.random((h, w)) < rng.random())
+                  ).astype(np.uint16)
+        white = counts / np.float32(area)
+        top = rng.uniform(-2, h + 2, w)
+        top[rng.random(w) < 0.05] = np.nan
+        fast = ls.skeleton_grid(white, top, 1, 0.04, True)
+        slow = ls.skeleton_grid(white, top, 1, 0.04, False)
+        for a, b in ((fast[0], slow[0]), (fast[1], slow[1]), *zip(fast[2], slow[2])):
+            assert a.dtype == b.dtype and a.tobytes() == b.tobytes()
 
 
 def test_corner_cuts_equal_corner_nodes_per_chain():

@@ -97,6 +97,59 @@ def ranking_skeleton(image: np.ndarray, min_value: float, key: np.ndarray | None
     return (image > min_value) & (c < 3), c
 
 
+def skeleton_grid(white: np.ndarray, top: np.ndarray, margin: int, min_value: float,
+                  exact_shares: bool) -> tuple[np.ndarray, np.ndarray, tuple]:
+    """white_inside_boundary, low_pass, ranking_keys and ranking_skeleton of a white-share
+    image in one compiled pass (``_skeleton_grid``) where ``exact_shares``: its values are
+    multiples of a power of two no finer than 2^-6 (counts over a power-of-two cell area),
+    so that the low-pass's quarter and half weights sum them exactly in float32 in any order
+    and the grid is cv2.sepFilter2D's to the bit; else by those functions. Returns (inside,
+    low-passed, (ranking keys, skeleton, ranking count))."""
+    if not exact_shares:
+        inside = white_inside_boundary(white, top, margin)
+        lp = low_pass(inside)
+        key = ranking_keys(lp)
+        skeleton, c = ranking_skeleton(lp, min_value, key)
+        return inside, lp, (key, skeleton, c)
+    h, w = white.shape
+    inside = np.empty((h, w), np.float32)
+    lp = np.empty((h, w), np.float32)
+    key = np.empty((h, w))
+    skeleton = np.empty((h, w), np.bool_)
+    c = np.empty((h, w), np.int8)
+    _skeleton_grid(np.ascontiguousarray(white, np.float32), np.asarray(top, np.float64),
+                   float(margin), np.float32(min_value), inside, lp, key, skeleton, c)
+    return inside, lp, (key, skeleton, c)
+
+
+@njit(cache=True, nogil=True)
+def _skeleton_grid(white, top, margin, min_value, inside, lp, key, skeleton, c):
+    """skeleton_grid's compiled pass (see there): inside the boundary (rows from ceil(top) +
+    margin), the 3 x 3 binomial low-pass (zero beyond the grid), its ranking keys, the
+    ranking count (_rank_counts) and the skeleton (low-passed above min_value, count < 3)."""
+    h, w = white.shape
+    for y in range(h):
+        for x in range(w):
+            inside[y, x] = white[y, x] if y >= np.ceil(top[x]) + margin else np.float32(0.0)
+    quarter, half = np.float32(0.25), np.float32(0.5)
+    rows = np.empty((h, w), np.float32)
+    for y in range(h):
+        for x in range(w):
+            left = inside[y, x - 1] if x > 0 else np.float32(0.0)
+            right = inside[y, x + 1] if x < w - 1 else np.float32(0.0)
+            rows[y, x] = quarter * left + half * inside[y, x] + quarter * right
+    for y in range(h):
+        for x in range(w):
+            up = rows[y - 1, x] if y > 0 else np.float32(0.0)
+            down = rows[y + 1, x] if y < h - 1 else np.float32(0.0)
+            lp[y, x] = quarter * up + half * rows[y, x] + quarter * down
+            key[y, x] = np.rint(np.float64(lp[y, x]) * 65536.0) * (h * w) + (y * w + x)
+    _rank_counts(key, c)
+    for y in range(h):
+        for x in range(w):
+            skeleton[y, x] = lp[y, x] > min_value and c[y, x] < 3
+
+
 # ---------------------------------------------------------------------------- 3.3 nodes
 
 
@@ -754,12 +807,17 @@ def _gap_candidates(pos, start, nbr, deg, loose, max_gap, min_cos, close_gap):
     return score[:m].copy(), ci[:m].copy(), cj[:m].copy()
 
 
-def line_structure_graph(white_lp: np.ndarray, conf: dict
+def line_structure_graph(white_lp: np.ndarray, conf: dict, ranked=None
                          ) -> tuple[LineGraph, np.ndarray, np.ndarray]:
     """Section 3.2-3.3 on the low-passed white image: skeleton, nodes, connections, stretching,
-    splitting of isolated nodes and gap filling. Returns (graph, skeleton, regions)."""
-    key = ranking_keys(white_lp)
-    skeleton, c = ranking_skeleton(white_lp, conf["min_white"], key)
+    splitting of isolated nodes and gap filling. ``ranked``: the image's (ranking keys,
+    skeleton, ranking count), if already computed (skeleton_grid). Returns (graph, skeleton,
+    regions)."""
+    if ranked is None:
+        key = ranking_keys(white_lp)
+        skeleton, c = ranking_skeleton(white_lp, conf["min_white"], key)
+    else:
+        key, skeleton, c = ranked
     pix, regions = place_nodes(white_lp, skeleton, c, key)
     adj = connect_nodes(regions, len(pix))
     graph = LineGraph(pix, pix.astype(np.float64), white_lp[pix[:, 1], pix[:, 0]]

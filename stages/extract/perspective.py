@@ -48,8 +48,7 @@ from .line_fit import (
 from .line_structure import (
     key_structure,
     line_structure_graph,
-    low_pass,
-    white_inside_boundary,
+    skeleton_grid,
 )
 
 confs = {
@@ -454,9 +453,11 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
     # 4. line structure graph (a post's lower part becomes a segment there: is_post_bar tells
     # it from a line, and crossings at a post's foot are not taken)
     sc = conf["skeleton"]
-    inside = white_inside_boundary(white, top, sc["boundary_margin"])
-    lp = low_pass(inside)
-    graph, skeleton, _ = line_structure_graph(lp, sc)
+    # (the white shares are counts over the cell's area: exact binary fractions when the
+    # cell is a power of two, and the compiled low-pass is then OpenCV's to the bit)
+    inside, lp, ranked = skeleton_grid(white, top, sc["boundary_margin"], sc["min_white"],
+                                       cell & (cell - 1) == 0 and cell <= 8)
+    graph, skeleton, _ = line_structure_graph(lp, sc, ranked)
 
     # 5. key structure; 6. field lines (both on undistorted node coordinates)
     undistort = ideal_pixels(camera)
