@@ -22,6 +22,7 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
   pass) against split_component, fit_line and the end points per part;
 - field_boundary's ``_column_heights`` (field_height_histogram) and its median windows
   against the former cumulative-sum scan and sliding_window_view;
+- goal_posts' ``_opening`` (rise_above_surroundings) against cv2.morphologyEx;
 - goal_posts' ``stands_out`` and ``bar_width`` (slices, the compiled median) against their
   former fancy-indexed numpy;
 - crossings' ``_points_along`` (the candidates' arm points) against its former Python walk;
@@ -366,6 +367,23 @@ def test_field_heights_and_their_smoothing_equal_the_numpy_scan():
                                                                size)
             np.testing.assert_array_equal(fb.smooth_field_heights(heights, 0.0, size),
                                           np.sort(windows, axis=1)[:, r])
+
+
+def test_surroundings_opening_equals_opencvs():
+    import cv2
+
+    from stages.extract import goal_posts as gp
+
+    rng = np.random.default_rng(17)
+    for _ in range(5000):
+        n, window = int(rng.integers(1, 120)), int(rng.integers(1, 14))
+        up = (rng.integers(0, 31, n) * (rng.random(n) < rng.random())).astype(np.int64)
+        base = cv2.morphologyEx(up.astype(np.float32)[None, :], cv2.MORPH_OPEN,
+                                np.ones((1, window), np.uint8),
+                                borderType=cv2.BORDER_REPLICATE)[0]
+        excess, got = gp.rise_above_surroundings(up, window)
+        np.testing.assert_array_equal(got, np.round(base).astype(int))
+        np.testing.assert_array_equal(excess, up - got)
 
 
 def test_post_bar_checks_equal_the_fancy_indexed_numpy():

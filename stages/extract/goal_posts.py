@@ -113,16 +113,34 @@ def post_feet(white: np.ndarray, groups: list[np.ndarray], up_run: np.ndarray,
 
 def rise_above_surroundings(up_run: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
     """(excess, base): the upward white run of each column minus the run its surroundings
-    share (the grey opening of the run over ``window`` columns). A band of white that
-    rises above the boundary everywhere (a hall floor or wall that is white too, a barrier
-    board) is the base; a post narrower than ``window`` rises above it."""
-    import cv2
+    share (the grey opening of the run over ``window`` columns, borders replicated, as
+    cv2.morphologyEx opens it: compiled, ``_opening``). A band of white that rises above the
+    boundary everywhere (a hall floor or wall that is white too, a barrier board) is the
+    base; a post narrower than ``window`` rises above it."""
+    run = np.asarray(up_run, np.int64)
+    base = _opening(np.ascontiguousarray(run), max(int(window), 1))
+    return run - base, base
 
-    run = up_run.astype(np.float32)[None, :]
-    kernel = np.ones((1, max(int(window), 1)), np.uint8)
-    base = cv2.morphologyEx(run, cv2.MORPH_OPEN, kernel, borderType=cv2.BORDER_REPLICATE)[0]
-    base = np.round(base).astype(int)
-    return up_run - base, base
+
+@njit(cache=True, nogil=True)
+def _opening(run, window):
+    """Grey opening of a row of integers: the minimum over ``window`` columns (anchored at
+    window // 2, the row's ends replicated), then the maximum over the same."""
+    n = len(run)
+    a = window // 2
+    eroded = np.empty(n, np.int64)
+    for x in range(n):
+        m = run[min(max(x - a, 0), n - 1)]
+        for j in range(1, window):
+            m = min(m, run[min(max(x + j - a, 0), n - 1)])
+        eroded[x] = m
+    out = np.empty(n, np.int64)
+    for x in range(n):
+        m = eroded[min(max(x - a, 0), n - 1)]
+        for j in range(1, window):
+            m = max(m, eroded[min(max(x + j - a, 0), n - 1)])
+        out[x] = m
+    return out
 
 
 def goal_posts(white: np.ndarray, top: np.ndarray, conf: dict, cell: int,
