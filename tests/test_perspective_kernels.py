@@ -20,6 +20,8 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - line_fit's ``_similar_kernel`` (the merge's similar pairs) against its former einsums;
 - line_fit's ``split_components`` and ``part_fits`` (all components split and fitted in one
   pass) against split_component, fit_line and the end points per part;
+- field_boundary's ``_grey_field`` (the merged grey image binarised) against
+  merged_grey_image, binarize_field and its cv2.boxFilter;
 - field_boundary's ``_column_heights`` (field_height_histogram) and its median windows
   against the former cumulative-sum scan and sliding_window_view;
 - goal_posts' ``_opening`` (rise_above_surroundings) against cv2.morphologyEx;
@@ -334,6 +336,32 @@ def test_split_components_and_part_fits_equal_the_per_part_functions(seed):
         fit = lf.fit_line(points[p])
         assert f.tolist() == [*fit.centroid, *fit.direction, *fit.normal, fit.rms]
         assert e.tobytes() == lf.line_end_points(points, p, fit).tobytes()
+
+
+def test_grey_field_equals_the_numpy_and_opencv_binarisation():
+    from stages.extract import field_boundary as fb
+
+    conf = perspective.confs["default"]["boundary"]
+    rng = np.random.default_rng(18)
+    by_window = 0
+    for _ in range(1500):
+        h, w = int(rng.integers(1, 70)), int(rng.integers(1, 100))
+        # carpet with weak cells (grey 0.2..0.45): their row or the window below decides
+        g = (rng.uniform(0.7, 1.0, (h, w)) * 64).astype(np.int64)
+        weak = rng.random((h, w)) < rng.uniform(0.05, 0.6)
+        g[weak] = (rng.uniform(0.15, 0.45, weak.sum()) * 64).astype(np.int64)
+        g[rng.random((h, w)) < 0.05] = 0
+        wh = np.minimum(64 - g, rng.integers(0, 65, (h, w)) * (rng.random((h, w)) < 0.3))
+        counts = {"green": g.astype(np.uint16), "white": wh.astype(np.uint16),
+                  "other": (64 - g - wh).astype(np.uint16)}
+        grey = fb.merged_grey_image(counts, conf["weights"], 64.0)
+        ref = fb.binarize_field(grey, conf["t_pix"], conf["t_row"], conf["t_win"],
+                                conf["t_weak"])
+        got = fb.grey_field(counts, conf["weights"], 64.0, conf["t_pix"], conf["t_row"],
+                            conf["t_win"], conf["t_weak"])
+        np.testing.assert_array_equal(got, ref)
+        by_window += int((ref & (grey < conf["t_pix"])).sum())
+    assert by_window > 1000  # weak cells taken by their row or window
 
 
 def _reference_field_heights(field, max_gap, from_lowest):

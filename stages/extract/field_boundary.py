@@ -24,6 +24,8 @@ import cv2
 import numpy as np
 from numba import njit
 
+from ..common.colour import pairwise_sum32
+
 # Weights of the colour classes in the merged grey image: green is field; white is a line on
 # it, but also a wall or banner behind it, so a cell of white alone stays below the weak
 # threshold (t_weak) and counts only mixed with green; other colours (robots, people) occlude.
@@ -65,6 +67,61 @@ def binarize_field(grey: np.ndarray, t_pix: float, t_row: float, t_win: float,
     window[:-1] = box[1:]
     by_window = (window / 32.0 > t_win) & weak & ~by_row
     return strong | by_row | by_window
+
+
+def grey_field(counts: dict[str, np.ndarray], weights: dict[str, float], area: float,
+               t_pix: float, t_row: float, t_win: float, t_weak: float) -> np.ndarray:
+    """binarize_field(merged_grey_image(counts, weights, area), ...) by one compiled pass
+    (``_grey_field``): the same float32 grey levels, the rows' float32 pairwise sums
+    (colour.pairwise_sum32) and the 8 x 4 windows' sums exact in float64, rounded once, as
+    cv2.boxFilter gives them for float32 input."""
+    names = [n for n, w in weights.items() if w and n in counts]
+    if not names:  # no class weighs: the grey image is 0
+        return binarize_field(merged_grey_image(counts, weights, area), t_pix, t_row, t_win,
+                              t_weak)
+    classes = np.stack([np.asarray(counts[n]) for n in names]).astype(np.float32)
+    field = np.empty(classes.shape[1:], np.bool_)
+    _grey_field(classes, np.array([weights[n] for n in names], np.float32),
+                np.float32(area), float(t_pix), float(t_row), float(t_win), float(t_weak),
+                field)
+    return field
+
+
+@njit(cache=True, nogil=True)
+def _grey_field(classes, weights, area, t_pix, t_row, t_win, t_weak, field):
+    """grey_field's pass: grey = (sum of weight * class count, in order, float32) / area; a
+    cell is strong at t_pix, weak from t_weak; a weak one is field when the mean of its row
+    and the row above (float32 row sums, added in float64) exceeds t_row, else when its
+    8 x 4 window below (rows under it, columns -4..3) averages above t_win."""
+    k, h, w = classes.shape
+    grey = np.zeros((h, w), np.float32)
+    for c in range(k):
+        for y in range(h):
+            for x in range(w):
+                grey[y, x] += weights[c] * classes[c, y, x]
+    for y in range(h):
+        for x in range(w):
+            grey[y, x] = grey[y, x] / area
+    rows = np.empty(h, np.float32)
+    for y in range(h):
+        rows[y] = pairwise_sum32(grey[y])
+    t_pix32, t_win32, t_weak32 = np.float32(t_pix), np.float32(t_win), np.float32(t_weak)
+    for y in range(h):
+        row_sum = np.float64(rows[y]) + (np.float64(rows[y - 1]) if y > 0 else 0.0)
+        by_row_y = row_sum / (2.0 * w) > t_row
+        for x in range(w):
+            g = grey[y, x]
+            strong = g >= t_pix32
+            weak = g >= t_weak32 and not strong
+            by_row = by_row_y and weak
+            by_window = False
+            if weak and not by_row and y + 1 < h:
+                s = 0.0  # the window of the cell below: rows y + 1..y + 4, columns x - 4..x + 3
+                for yy in range(y + 1, min(y + 5, h)):
+                    for xx in range(max(x - 4, 0), min(x + 4, w)):
+                        s += np.float64(grey[yy, xx])
+                by_window = np.float32(s) / np.float32(32.0) > t_win32
+            field[y, x] = strong or by_row or by_window
 
 
 def _bounded_runs(candidate: np.ndarray, bound: np.ndarray, max_run: int) -> np.ndarray:
@@ -201,15 +258,15 @@ def field_boundary(counts: dict[str, np.ndarray], conf: dict, area: float = 64.0
                    ) -> tuple[np.ndarray, np.ndarray]:
     """The whole section 3.1: colour counts (cells of ``area`` pixels) -> (first field row per
     column (W,) float, binary field image (H, W))."""
-    grey = merged_grey_image(counts, conf["weights"], area)
-    field = binarize_field(grey, conf["t_pix"], conf["t_row"], conf["t_win"], conf["t_weak"])
+    field = grey_field(counts, conf["weights"], area, conf["t_pix"], conf["t_row"],
+                       conf["t_win"], conf["t_weak"])
     if conf.get("line_run", 0) > 0:
         white = counts["white"].astype(np.float32) / np.float32(area)
         field = fill_lines(field, white, conf["line_white"], int(conf["line_run"]))
     heights = field_height_histogram(field, conf["max_gap"], bool(conf.get("from_lowest")))
     heights = smooth_field_heights(heights, conf["gauss_sigma"], conf["median_size"])
     heights = local_convex_filling(heights)
-    return boundary_rows(heights, grey.shape[0]), field
+    return boundary_rows(heights, field.shape[0]), field
 
 
 def boundary_polyline(top: np.ndarray, cell: int) -> np.ndarray:
