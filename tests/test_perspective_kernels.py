@@ -24,6 +24,7 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
   merged_grey_image, binarize_field and its cv2.boxFilter;
 - field_boundary's ``_column_heights`` (field_height_histogram) and its median windows
   against the former cumulative-sum scan and sliding_window_view;
+- goal_posts' ``_white_runs`` (bar_runs, with the columns' first field rows) against numpy;
 - goal_posts' ``_opening`` (rise_above_surroundings) against cv2.morphologyEx;
 - goal_posts' ``stands_out`` and ``bar_width`` (slices, the compiled median) against their
   former fancy-indexed numpy;
@@ -395,6 +396,34 @@ def test_field_heights_and_their_smoothing_equal_the_numpy_scan():
                                                                size)
             np.testing.assert_array_equal(fb.smooth_field_heights(heights, 0.0, size),
                                           np.sort(windows, axis=1)[:, r])
+
+
+def test_bar_runs_equal_the_numpy_start_rows_and_walks():
+    import warnings
+
+    from stages.extract import goal_posts as gp
+
+    rng = np.random.default_rng(19)
+    for _ in range(1000):
+        h, w = int(rng.integers(1, 70)), int(rng.integers(1, 100))
+        white = (rng.random((h, w)) ** 2).astype(np.float32)
+        top = rng.uniform(-5, h + 5, w)
+        top[rng.random(w) < 0.1] = float(rng.integers(0, h + 1))  # whole rows
+        top[rng.random(w) < 0.05] = np.nan
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # numpy's NaN to int cast
+            start = np.clip(np.ceil(top).astype(int), 0, h)
+        is_white = white >= 0.2
+        up, down = np.zeros(w, int), np.zeros(w, int)
+        for c in range(w):
+            while (up[c] < 30 and 0 <= start[c] - 1 - up[c] < h
+                   and is_white[start[c] - 1 - up[c], c]):
+                up[c] += 1
+            while (down[c] < 30 and 0 <= start[c] + down[c] < h
+                   and is_white[start[c] + down[c], c]):
+                down[c] += 1
+        for got, ref in zip(gp.bar_runs(white, top, 0.2, 30, 30), (up, down, start)):
+            np.testing.assert_array_equal(got, ref)
 
 
 def test_surroundings_opening_equals_opencvs():

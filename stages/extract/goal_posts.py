@@ -29,18 +29,23 @@ def bar_runs(white: np.ndarray, top: np.ndarray, t_white: float, max_up: int, ma
     """Per column: (run of white cells upward from the boundary, run downward from it, row of
     the first field cell). A cell is white when its share is at least ``t_white``."""
     h, w = white.shape
-    start = np.clip(np.ceil(np.asarray(top, float)).astype(int), 0, h)
-    up, down = np.empty(w, np.int64), np.empty(w, np.int64)
-    _white_runs(white >= t_white, start, int(max_up), int(max_down), up, down)
+    up, down, start = (np.empty(w, np.int64) for _ in range(3))
+    white = np.ascontiguousarray(white)
+    _white_runs(white, white.dtype.type(t_white), np.asarray(top, np.float64), int(max_up),
+                int(max_down), up, down, start)
     return up, down, start
 
 
 @njit(cache=True, nogil=True)
-def _white_runs(is_white, start, max_up, max_down, up, down):
-    """Per column, the white cells in a row upward from the row above ``start`` (at most
-    ``max_up``) and downward from ``start`` (at most ``max_down``)."""
-    h = is_white.shape[0]
-    for c in range(is_white.shape[1]):
+def _white_runs(white, t_white, top, max_up, max_down, up, down, start):
+    """Per column, its first field row ``start`` (ceil(top) within 0..h; a NaN top as numpy
+    casts it, to 0) and the white cells (share >= t_white) in a row upward from the row
+    above it (at most ``max_up``) and downward from it (at most ``max_down``)."""
+    h = white.shape[0]
+    for c in range(white.shape[1]):
+        start[c] = 0 if np.isnan(top[c]) else min(max(int(np.ceil(top[c])), 0), h)
+    is_white = white >= t_white
+    for c in range(white.shape[1]):
         n = 0
         while n < max_up and 0 <= start[c] - 1 - n < h and is_white[start[c] - 1 - n, c]:
             n += 1
