@@ -503,7 +503,8 @@ def test_compiled_kernels_give_the_reference_features(preset, field, monkeypatch
         frames.append((renderer.render_view(pose, pitch, roll, frame=k), pitch, roll))
     ext = perspective.confs["default"]
     fast = [perspective.extract_frame(img, cam, ext, pitch=p, roll=r) for img, p, r in frames]
-    monkeypatch.setattr(perspective, "refine_segment", _reference_refine)  # lines
+    monkeypatch.setattr(perspective, "refine_segments",  # lines
+                        lambda ends, *a, **k: [_reference_refine(e, *a, **k) for e in ends])
     monkeypatch.setattr(crossings, "refine_segment", _reference_refine)  # crossings' arms
     monkeypatch.setattr(colour, "classify_cells", lambda *a, **k: None)
     slow = [perspective.extract_frame(img, cam, ext, pitch=p, roll=r) for img, p, r in frames]

@@ -2,8 +2,43 @@
 they replaced computed, exactly (the features must not change: see also
 test_extract_perspective_unchanged.py), on random inputs beyond the reference frames:
 
-- colour.classify_cells (``_hue_row``, ``_hue_cells``) against the per-pixel class masks;
-- colour's ``_green_candidates`` against the field green search's numpy formulas;
+- colour.classify_cells (``_hue_row``, ``_hue_cells``) against the per-pixel class masks,
+  its ``_threshold_table`` against luminance_thresholds;
+- colour's ``_fill_blocks`` (the local green map's gaps) against cv2.boxFilter and np.where;
+- colour's ``_hue_block_sums`` and ``_sample_rows`` (the local green map's and the field
+  green search's samples) against numpy's masks and strided copies;
+- colour's ``_green_candidates`` against the field green search's numpy formulas, its
+  ``_histogram_peak`` (the blurred chroma histogram's peak) against cv2.GaussianBlur and
+  np.argmax, ``_green_cluster`` (mean shift, cluster median and variances) and
+  ``_hue_turned`` and ``_hue_spread`` (the hue model's offsets and medians) against the numpy
+  expressions they replaced, and
+  ``pairwise_sum32`` against numpy's float32 sum;
+- line_fit's ``floor_lines_parameters`` (all lines at once) against floor_line_parameters,
+  its ``row_dots`` against numpy's 1-D ``@`` (a dot of two 2-vectors is not the sum of
+  their products to the bit);
+- line_fit's ``refine_segments`` (all segments refined in one call) against refine_segment;
+- line_fit's ``_similar_kernel`` (the merge's similar pairs) against its former einsums;
+- line_fit's ``split_components`` and ``part_fits`` (all components split and fitted in one
+  pass) against split_component, fit_line and the end points per part;
+- field_boundary's ``_grey_field`` (the merged grey image binarised) against
+  merged_grey_image, binarize_field and its cv2.boxFilter;
+- field_boundary's ``_column_heights`` (field_height_histogram) and its median windows
+  against the former cumulative-sum scan and sliding_window_view;
+- goal_posts' ``_white_runs`` (bar_runs, with the columns' first field rows) against numpy;
+- goal_posts' ``_opening`` (rise_above_surroundings) against cv2.morphologyEx;
+- goal_posts' ``stands_out`` and ``bar_width`` (slices, the compiled median) against their
+  former fancy-indexed numpy;
+- crossings' ``_points_along`` (the candidates' arm points) against its former Python walk;
+- line_structure's ``_skeleton_grid`` (the inside, low-pass, ranking keys and skeleton of
+  white shares) against white_inside_boundary, cv2's low_pass and the ranking functions;
+- line_structure's ``_corner_cuts`` (every chain's corner_nodes at once) against corner_nodes;
+- line_structure's ``_trace`` (trace_chains) against its former Python walk;
+- line_structure's ``_nodes_by_priority`` (place_nodes) against its former numpy sort;
+- line_structure's ``_smooth_chains`` (smooth_lines) against its former numpy rounds;
+- line_structure's ``_turn_cosines`` (turning_angles) against its former numpy expressions;
+- line_structure's ``_triangle_cuts`` (remove_triangles) against its former Python loop;
+- line_structure's ``_gap_choice`` (fill_gaps' ratios, order and greedy choice) against
+  the former Python;
 - line_structure's ``_gap_candidates`` (fill_gaps) against its former Python loop;
 - line_structure's ``_farthest_pairs`` (split_isolated_nodes) against np.argmax of the
   regions' distance matrices.
@@ -67,6 +102,50 @@ def test_classify_cells_equals_the_class_masks(seed, shape, local_map):
     assert colour.classify_cells(yuv, fc, conf, cell) is not None  # without the white mask
 
 
+def test_threshold_table_equals_luminance_thresholds():
+    conf = perspective.confs["default"]["colour"]
+    rng = np.random.default_rng(7)
+    for _ in range(50):
+        y_map = rng.uniform(-5, 300, (60, 94)).astype(np.float32)
+        y_map[0, :6] = [0.0, 255.0, 256.0, 1e-3, 200.5, 100.0 / 0.35]
+        out = np.empty(y_map.shape + (3,), np.int16)
+        colour._threshold_table(y_map, np.float32(conf["white_contrast"]),
+                                np.float32(conf["white_min_y"]),
+                                np.float32(conf["green_min_ratio"]),
+                                np.float32(conf["green_max_ratio"]), out)
+        np.testing.assert_array_equal(out, colour.luminance_thresholds(y_map, conf))
+
+
+@pytest.mark.parametrize("seed,shape", [(0, (480, 752)), (1, (483, 645))])
+def test_green_samples_equal_the_numpy_masks(seed, shape):
+    rng = np.random.default_rng(seed)
+    yuv = _random_frame(rng, *shape)
+    conf = perspective.confs["default"]["colour"]
+    fc = colour.estimate_field_colour(yuv, conf)
+    assert fc.hue_dir is not None
+    cell, step = fc.cell, fc.cell // 2
+    hb, wb = shape[0] // cell, shape[1] // cell
+    valid = rng.random((hb * 2, wb * 2)) < 0.8
+    gs = np.zeros((hb, wb), np.float32)
+    ys = np.zeros((hb, wb), np.float32)
+    lo_s, hi_s = (np.float32(v_) ** 2 for v_ in fc.saturation)
+    colour._hue_block_sums(yuv, step, 2, hb, wb, valid, True, np.float32(fc.hue_dir[0]),
+                           np.float32(fc.hue_dir[1]), np.float32(np.float32(fc.hue_cos) ** 2),
+                           lo_s, hi_s, 30, 220, gs, ys)
+    y, u, v = (np.ascontiguousarray(yuv[:hb * cell:step, :wb * cell:step, c]) for c in range(3))
+    green, _ = colour._chroma_tests(y, u, v, fc, conf, white=False)
+    green &= (y >= 30) & (y <= 220) & valid
+    ref_g = green.reshape(hb, 2, wb, 2).sum(axis=(1, 3)).astype(np.float32)
+    ref_y = (y * green).reshape(hb, 2, wb, 2).sum(axis=(1, 3)).astype(np.float32)
+    np.testing.assert_array_equal(gs, ref_g)
+    np.testing.assert_array_equal(ys, ref_y)
+    assert ref_g.sum() > 100
+    mask = rng.random((-(-shape[0] // 6), -(-shape[1] // 6))) < 0.7
+    np.testing.assert_array_equal(colour._sample_pixels(yuv, 6, mask), yuv[::6, ::6][mask])
+    np.testing.assert_array_equal(colour._sample_pixels(yuv, 6, None),
+                                  yuv[::6, ::6].reshape(-1, 3))
+
+
 @pytest.mark.parametrize("seed", range(4))
 def test_green_candidates_equal_the_numpy_formulas(seed):
     rng = np.random.default_rng(seed)
@@ -94,6 +173,392 @@ def test_green_candidates_equal_the_numpy_formulas(seed):
     np.testing.assert_array_equal(hist, np.bincount(bins, minlength=1024))
 
 
+def test_filled_green_map_equals_the_box_filter_expressions():
+    import cv2
+
+    class Frame:
+        y = 0.0
+
+    rng = np.random.default_rng(12)
+    for _ in range(1000):
+        h, w, k = int(rng.integers(1, 70)), int(rng.integers(1, 100)), int(rng.choice([1, 2]))
+        gs = (rng.integers(0, k * k + 1, (h, w)) * (rng.random((h, w)) < rng.random())
+              ).astype(np.float32)
+        ys = (gs * rng.integers(0, 256, (h, w))).astype(np.float32)
+        fc = Frame()
+        fc.y = float(rng.uniform(20, 200))
+        for fill in (3, 7):
+            gs_f = cv2.boxFilter(gs, -1, (fill, fill), normalize=False,
+                                 borderType=cv2.BORDER_CONSTANT)
+            ys_f = cv2.boxFilter(ys, -1, (fill, fill), normalize=False,
+                                 borderType=cv2.BORDER_CONSTANT)
+            ref = np.where(gs >= 0.25 * k * k, ys / np.maximum(gs, 1e-6),
+                           np.where(gs_f > 0, ys_f / np.maximum(gs_f, 1e-6), fc.y))
+            got = colour._fill_green_luminance(gs, ys, k, fc, {"local_fill": fill})
+            assert got.tobytes() == ref.astype(np.float32).tobytes()
+
+
+def test_histogram_peak_equals_the_blurred_argmax():
+    import cv2
+
+    rng = np.random.default_rng(9)
+    for k in range(4000):
+        if k % 3 == 0:
+            counts = rng.integers(0, 3000, (32, 32))
+        elif k % 3 == 1:  # sparse: ties and borders
+            counts = (rng.random((32, 32)) < 0.05) * rng.integers(0, 5, (32, 32))
+        else:
+            counts = np.zeros((32, 32), np.int64)
+            counts[rng.integers(0, 32), rng.integers(0, 32)] = rng.integers(0, 9000)
+        blurred = cv2.GaussianBlur(counts.astype(np.float32), (3, 3), 0)
+        peak = np.unravel_index(int(np.argmax(blurred)), blurred.shape)
+        assert colour._histogram_peak(counts.astype(np.int64)) == tuple(int(v) for v in peak)
+
+
+def _reference_cluster(uu, vv, y_c, nu, nv, rad2):
+    """The field green search's mean shift and cluster statistics as numpy computed them."""
+    for _ in range(3):
+        near = (uu - nu) ** 2 + (vv - nv) ** 2 <= rad2
+        if not near.any():
+            break
+        nu, nv = float(uu[near].mean()), float(vv[near].mean())
+    near = (uu - nu) ** 2 + (vv - nv) ** 2 <= rad2
+    if not near.any():
+        return nu, nv, 0, None, None
+    n = int(near.sum())
+    cum = np.cumsum(np.bincount(y_c[near], minlength=256))
+    lo, hi = np.searchsorted(cum, [(n - 1) // 2 + 1, n // 2 + 1])
+    spread = float(np.sqrt(0.5 * (uu[near].var() + vv[near].var())))
+    return nu, nv, n, 0.5 * (float(lo) + float(hi)), spread
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_green_cluster_equals_the_numpy_mean_shift(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(5, 20000))
+    y_c = rng.integers(0, 256, n).astype(np.uint8)
+    centre = rng.uniform(-40, 10, 2)
+    uu = (rng.normal(centre[0], rng.uniform(2, 20), n)).astype(np.float32)
+    vv = (rng.normal(centre[1], rng.uniform(2, 20), n)).astype(np.float32)
+    for start in (centre + rng.normal(0, 8, 2), centre + 100.0):  # the second finds none
+        nu, nv = (float(np.round(c / 8.0) * 8.0 + 4.0) for c in start)
+        ref = _reference_cluster(uu, vv, y_c, nu, nv, 196.0)
+        got_u, got_v, m, y_med, var_u, var_v = colour._green_cluster(uu, vv, y_c, nu, nv,
+                                                                     196.0, 3)
+        assert (got_u, got_v, m) == ref[:3]
+        if m:
+            spread = float(np.sqrt(np.float32(0.5) * (np.float32(var_u) + np.float32(var_v))))
+            assert (y_med, spread) == ref[3:]
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 8, 9, 127, 128, 129, 300, 6121, 8193, 20000])
+def test_float32_sums_and_medians_are_numpys(n):
+    rng = np.random.default_rng(n)
+    for _ in range(40):
+        a = (rng.normal(size=n) * 10.0 ** rng.integers(-3, 4)).astype(np.float32)
+        assert colour.pairwise_sum32(a) == a.sum()
+        assert colour._mean32(a) == a.mean() and colour._var32(a) == a.var()
+    # the hue model's statistics of random candidates around a random field direction
+    u8, v8, y8 = (rng.integers(0, 256, n).astype(np.uint8) for _ in range(3))
+    angle = rng.uniform(-math.pi, math.pi)
+    hx, hy = math.cos(angle), math.sin(angle)
+    du, dv = u8.astype(np.float32) - 128.0, v8.astype(np.float32) - 128.0
+    num, den = colour._hue_turned(u8, v8, np.float32(hx), np.float32(hy))
+    assert num.tobytes() == (dv * hx - du * hy).tobytes()
+    assert den.tobytes() == (du * hx + dv * hy).tobytes()
+    d = np.arctan2(num, den)
+    m, med_d, med_sat = colour._hue_spread(d, u8, v8, y8, np.float32(math.radians(45.0)))
+    near = np.abs(d) <= math.radians(45.0)
+    assert m == near.sum()
+    if m:
+        assert med_d == float(np.median(np.abs(d[near])))
+        assert med_sat == float(np.median(np.hypot(du[near], dv[near]) / np.maximum(
+            y8[near].astype(np.float32), 1.0)))
+
+
+def _reference_point_along(pos, chain, reach):
+    """crossings.point_along as Python computed it (np.hypot steps, arcs summed in order,
+    bisect)."""
+    import bisect
+
+    p = pos[chain]
+    seg = np.hypot(*np.diff(p, axis=0).T).tolist()
+    s = [0.0]
+    for length in seg:
+        s.append(s[-1] + length)
+    if s[-1] <= reach:
+        return p[-1].copy()
+    k = bisect.bisect_left(s, reach)
+    t = (reach - s[k - 1]) / max(seg[k - 1], 1e-9)
+    return p[k - 1] + t * (p[k] - p[k - 1])
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_points_along_equal_the_python_walk(seed):
+    from stages.extract import crossings
+
+    rng = np.random.default_rng(seed)
+    pos = rng.uniform(0, 40, (80, 2))
+    pos[10] = pos[9]  # a step of zero length
+    pos[40:44] = np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 1.0], [3.0, 1.0]])  # exactly 4 long
+    chains = [list(rng.integers(0, 80, int(rng.integers(1, 9)))) for _ in range(200)]
+    chains += [[8, 9, 10, 11], [40, 41, 42, 43], [40, 41, 42], [5]]
+    for reach in (0.5, 4.0, 6.0):
+        got = crossings.points_along(pos, chains, reach)
+        ref = np.array([_reference_point_along(pos, ch, reach) for ch in chains])
+        assert got.tobytes() == ref.tobytes()
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_split_components_and_part_fits_equal_the_per_part_functions(seed):
+    from stages.extract import line_fit as lf
+
+    rng = np.random.default_rng(seed)
+    # polylines with corners and noise, some points outside the lens model (NaN)
+    points = np.cumsum(rng.normal(0, 4, (300, 2)), axis=0)
+    points[rng.random(300) < 0.03] = np.nan
+    order = rng.permutation(300)
+    components, k = [], 0
+    while k < 300:
+        n = int(rng.integers(1, 30))
+        components.append([int(i) for i in order[k:k + n]])
+        k += n
+    got = lf.split_components(points, components, 7.0, 3)
+    ref = []
+    for comp in components:
+        idx = np.asarray(comp)
+        idx = idx[np.all(np.isfinite(points[idx]), axis=1)]
+        ref += lf.split_component(points, idx, 7.0, 3)
+    assert len(got) == len(ref) > 10
+    for a, b in zip(got, ref):
+        np.testing.assert_array_equal(a, b)
+    fits, ends = lf.part_fits(points, got)
+    for p, f, e in zip(got, fits, ends):
+        fit = lf.fit_line(points[p])
+        assert f.tolist() == [*fit.centroid, *fit.direction, *fit.normal, fit.rms]
+        assert e.tobytes() == lf.line_end_points(points, p, fit).tobytes()
+
+
+def test_grey_field_equals_the_numpy_and_opencv_binarisation():
+    from stages.extract import field_boundary as fb
+
+    conf = perspective.confs["default"]["boundary"]
+    rng = np.random.default_rng(18)
+    by_window = 0
+    for _ in range(1500):
+        h, w = int(rng.integers(1, 70)), int(rng.integers(1, 100))
+        # carpet with weak cells (grey 0.2..0.45): their row or the window below decides
+        g = (rng.uniform(0.7, 1.0, (h, w)) * 64).astype(np.int64)
+        weak = rng.random((h, w)) < rng.uniform(0.05, 0.6)
+        g[weak] = (rng.uniform(0.15, 0.45, weak.sum()) * 64).astype(np.int64)
+        g[rng.random((h, w)) < 0.05] = 0
+        wh = np.minimum(64 - g, rng.integers(0, 65, (h, w)) * (rng.random((h, w)) < 0.3))
+        counts = {"green": g.astype(np.uint16), "white": wh.astype(np.uint16),
+                  "other": (64 - g - wh).astype(np.uint16)}
+        grey = fb.merged_grey_image(counts, conf["weights"], 64.0)
+        ref = fb.binarize_field(grey, conf["t_pix"], conf["t_row"], conf["t_win"],
+                                conf["t_weak"])
+        got = fb.grey_field(counts, conf["weights"], 64.0, conf["t_pix"], conf["t_row"],
+                            conf["t_win"], conf["t_weak"])
+        np.testing.assert_array_equal(got, ref)
+        by_window += int((ref & (grey < conf["t_pix"])).sum())
+    assert by_window > 1000  # weak cells taken by their row or window
+
+
+def _reference_field_heights(field, max_gap, from_lowest):
+    """field_height_histogram as numpy computed it: cumulative sums of the empty rows."""
+    h, w = field.shape
+    run = max_gap + 1
+    if from_lowest:
+        at_or_below = np.logical_or.accumulate(field[::-1], axis=0)[::-1]
+        field = field | (~at_or_below & field.any(axis=0)[None, :])
+    empty = np.concatenate([~field[::-1], np.ones((run, w), bool)], axis=0)
+    c = np.concatenate([np.zeros((1, w), np.int32), np.cumsum(empty, axis=0, dtype=np.int32)])
+    return np.argmax((c[run:] - c[:-run]) == run, axis=0).astype(np.float64)
+
+
+def test_field_heights_and_their_smoothing_equal_the_numpy_scan():
+    from stages.extract import field_boundary as fb
+
+    rng = np.random.default_rng(5)
+    for _ in range(500):
+        h, w = int(rng.integers(1, 70)), int(rng.integers(1, 100))
+        field = rng.random((h, w)) < rng.random()
+        for max_gap in (0, 2, 4):
+            for from_lowest in (False, True):
+                np.testing.assert_array_equal(
+                    fb.field_height_histogram(field, max_gap, from_lowest),
+                    _reference_field_heights(field, max_gap, from_lowest))
+        heights = rng.integers(0, h + 1, w).astype(float)
+        for size in (3, 5):
+            r = size // 2
+            windows = np.lib.stride_tricks.sliding_window_view(fb._edge_padded(heights, r),
+                                                               size)
+            np.testing.assert_array_equal(fb.smooth_field_heights(heights, 0.0, size),
+                                          np.sort(windows, axis=1)[:, r])
+
+
+def test_bar_runs_equal_the_numpy_start_rows_and_walks():
+    import warnings
+
+    from stages.extract import goal_posts as gp
+
+    rng = np.random.default_rng(19)
+    for _ in range(1000):
+        h, w = int(rng.integers(1, 70)), int(rng.integers(1, 100))
+        white = (rng.random((h, w)) ** 2).astype(np.float32)
+        top = rng.uniform(-5, h + 5, w)
+        top[rng.random(w) < 0.1] = float(rng.integers(0, h + 1))  # whole rows
+        top[rng.random(w) < 0.05] = np.nan
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # numpy's NaN to int cast
+            start = np.clip(np.ceil(top).astype(int), 0, h)
+        is_white = white >= 0.2
+        up, down = np.zeros(w, int), np.zeros(w, int)
+        for c in range(w):
+            while (up[c] < 30 and 0 <= start[c] - 1 - up[c] < h
+                   and is_white[start[c] - 1 - up[c], c]):
+                up[c] += 1
+            while (down[c] < 30 and 0 <= start[c] + down[c] < h
+                   and is_white[start[c] + down[c], c]):
+                down[c] += 1
+        for got, ref in zip(gp.bar_runs(white, top, 0.2, 30, 30), (up, down, start)):
+            np.testing.assert_array_equal(got, ref)
+
+
+def test_surroundings_opening_equals_opencvs():
+    import cv2
+
+    from stages.extract import goal_posts as gp
+
+    rng = np.random.default_rng(17)
+    for _ in range(5000):
+        n, window = int(rng.integers(1, 120)), int(rng.integers(1, 14))
+        up = (rng.integers(0, 31, n) * (rng.random(n) < rng.random())).astype(np.int64)
+        base = cv2.morphologyEx(up.astype(np.float32)[None, :], cv2.MORPH_OPEN,
+                                np.ones((1, window), np.uint8),
+                                borderType=cv2.BORDER_REPLICATE)[0]
+        excess, got = gp.rise_above_surroundings(up, window)
+        np.testing.assert_array_equal(got, np.round(base).astype(int))
+        np.testing.assert_array_equal(excess, up - got)
+
+
+def test_post_bar_checks_equal_the_fancy_indexed_numpy():
+    from stages.extract import goal_posts as gp
+
+    rng = np.random.default_rng(11)
+    for _ in range(2000):
+        white = (rng.random((60, 94)) ** 3).astype(np.float32)
+        g0 = int(rng.integers(0, 94))
+        group = np.arange(g0, min(g0 + int(rng.integers(1, 5)), 94))
+        start, rise = int(rng.integers(-3, 61)), int(rng.integers(0, 8))
+        rows = np.arange(max(start - rise, 0), max(start, 0))
+        cols = np.arange(max(group[0] - 1, 0), min(group[-1] + 2, 94))
+        sides = [c for c in (group[0] - 2, group[-1] + 2) if 0 <= c < 94]
+        stands = len(rows) > 0 and all(np.mean(white[rows, c] >= 0.2) <= 1 / 3 for c in sides)
+        assert gp.stands_out(white, group, start, rise, 0.2) == stands
+        for cell in (8, 6):
+            width = float(np.median(white[np.ix_(rows, cols)].sum(axis=1)) * cell) \
+                if len(rows) else 0.0
+            assert gp.bar_width(white, group, start, rise, cell) == width
+
+
+def test_key_incidence_equals_incident_per_node():
+    rng = np.random.default_rng(3)
+    edges = [(int(a), int(b), [int(a)] + list(rng.integers(0, 99, 3)) + [int(b)])
+             for a, b in rng.integers(0, 12, (30, 2))]
+    edges.append((4, 4, [4, 50, 51, 4]))  # a ring at a node
+    ks = ls.KeyStructure(list(range(12)), np.zeros((12, 2)), edges)
+    assert ks.incidence() == [ks.incident(k) for k in range(12)]
+
+
+def test_refine_segments_equal_refine_segment_per_segment():
+    import cv2
+
+    from stages.extract import line_fit as lf
+
+    rng = np.random.default_rng(8)
+    white = np.zeros((480, 640), np.uint8)
+    for _ in range(12):  # white lines of a few px, some crossing
+        p, q = rng.uniform(0, [640, 480], (2, 2)).astype(int)
+        cv2.line(white, tuple(int(v) for v in p), tuple(int(v) for v in q), 1,
+                 int(rng.integers(2, 8)))
+    lens = np.array([500.0, 500.0, 320.0, 240.0, -0.2, 0.04, 0.0, 0.0, 0.0])
+    ends = rng.uniform(0, [640, 480], (40, 2, 2))
+    ends[:3, 1] = ends[:3, 0]  # no length
+    got = lf.refine_segments(ends, white, lens, 4.0, 16.0, 4.0, 4, 32.0)
+    kept = 0
+    for e, g in zip(ends, got):
+        r = lf.refine_segment(e, white, lens, 4.0, 16.0, 4.0, 4, 32.0)
+        assert (g is None) == (r is None)
+        if r is not None:
+            kept += 1
+            assert g.ends.tobytes() == r.ends.tobytes()
+            assert g.centres.tobytes() == r.centres.tobytes()
+            assert g.widths.tobytes() == r.widths.tobytes()
+            assert [*g.fit.centroid, *g.fit.direction, *g.fit.normal, g.fit.rms] == \
+                [*r.fit.centroid, *r.fit.direction, *r.fit.normal, r.fit.rms]
+    assert kept >= 5
+
+
+def test_similar_pairs_equal_the_einsum_expressions():
+    from stages.extract import line_fit as lf
+
+    def reference(cen, dirs, nor, ends, rows, cos_max, max_offset, upper):
+        cosine = np.abs(dirs[rows] @ dirs.T)
+        to_i = np.abs(np.einsum("jkd,rd->rjk", ends, nor[rows])
+                      - (cen[rows] * nor[rows]).sum(1)[:, None, None]).max(axis=2)
+        to_j = np.abs(np.einsum("rkd,jd->rjk", ends[rows], nor)
+                      - (cen * nor).sum(1)[None, :, None]).max(axis=2)
+        off = np.maximum(to_i, to_j)
+        ok = (cosine >= cos_max) & (off <= max_offset)
+        ok[np.arange(len(rows)), rows] = False
+        r, j = np.nonzero(ok)
+        return [(float(off[a, b]), int(rows[a]), int(b)) for a, b in zip(r, j)
+                if rows[a] < b or not upper]
+
+    rng = np.random.default_rng(6)
+    found = 0
+    for _ in range(500):
+        n = int(rng.integers(2, 30))
+        # parts along a few directions, some side by side (similar pairs)
+        ang = np.repeat(rng.uniform(0, math.pi, 3), n)[:n] + rng.normal(0, 0.02, n)
+        dirs = np.stack([np.cos(ang), np.sin(ang)], 1)
+        nor = np.stack([-dirs[:, 1], dirs[:, 0]], 1)
+        cen = rng.normal(0, 200, (n, 2))
+        cen[n // 2:] = cen[:n - n // 2] + rng.normal(0, 3, (n - n // 2, 2))
+        ends = cen[:, None, :] + (rng.uniform(20, 100, (n, 2)) * [-1, 1])[:, :, None] \
+            * dirs[:, None, :]
+        for rows, upper in ((np.arange(n), True), (np.array([n - 1]), False)):
+            ref = reference(cen, dirs, nor, ends, rows, math.cos(math.radians(4)), 7.0, upper)
+            assert lf._similar_pairs(cen, dirs, nor, ends, rows, math.cos(math.radians(4)),
+                                     7.0, upper) == ref
+            found += len(ref)
+    assert found > 100
+
+
+def test_row_dots_are_the_single_dots():
+    from stages.extract import line_fit as lf
+
+    rng = np.random.default_rng(4)
+    for n in (1, 2, 3, 7, 8, 33, 5000):
+        a = rng.normal(size=(n, 2)) * 10.0 ** rng.integers(-4, 4, (n, 1))
+        b = rng.normal(size=(n, 2)) * 10.0 ** rng.integers(-4, 4, (n, 1))
+        assert lf.row_dots(a, b).tobytes() == np.array([x @ y for x, y in zip(a, b)]).tobytes()
+
+
+def test_floor_lines_parameters_equal_the_per_line_function():
+    from stages.extract import line_fit as lf
+
+    rng = np.random.default_rng(2)
+    p0, p1 = rng.normal(0, 3, (5000, 2)), rng.normal(0, 3, (5000, 2))
+    p1[:20] = p0[:20]  # no length
+    p1[20:40] = -p0[20:40] * rng.uniform(0.5, 2, (20, 1))  # through the robot
+    got = np.stack(lf.floor_lines_parameters(p0, p1), axis=1)
+    ref = np.array([lf.floor_line_parameters(a, b) for a, b in zip(p0, p1)])
+    assert got.tobytes() == ref.tobytes()
+
+
 def _random_graph(rng, n=60):
     """A LineGraph of polylines, isolated nodes and a few junctions on a 40 x 30 grid."""
     pos = rng.uniform(0, [40, 30], (n, 2))
@@ -113,6 +578,56 @@ def _random_graph(rng, n=60):
             adj[b].add(a)
     pix = np.round(pos).astype(int)
     return ls.LineGraph(pix, pos, rng.uniform(0.1, 1.0, n).astype(np.float32), adj)
+
+
+def _reference_fill_gaps(graph, image, max_gap, min_cos, min_grey_ratio, close_gap,
+                         max_degree=4, samples=8):
+    """fill_gaps as it was: the candidates' grey ratios in numpy, Python's sort and loop."""
+    import cv2
+
+    deg = graph.degree()
+    loose = np.nonzero(deg <= 1)[0]
+    if len(loose) == 0 or len(graph) < 2:
+        return
+    pos = graph.pos
+    start, nbr = ls._neighbour_lists(graph.adj)
+    score, ci, cj = ls._gap_candidates(np.ascontiguousarray(pos, np.float64), start, nbr,
+                                       deg.astype(np.int64), loose.astype(np.int64),
+                                       float(max_gap), float(min_cos), float(close_gap))
+    cand = list(zip(score.tolist(), ci.tolist(), cj.tolist()))
+    if not cand:
+        return
+    ij = np.stack([ci, cj], axis=1)
+    t = np.linspace(0.0, 1.0, samples)[None, :, None]
+    pts = (pos[ij[:, 0]][:, None, :] * (1 - t) + pos[ij[:, 1]][:, None, :] * t).astype(np.float32)
+    grey = cv2.remap(image, pts[..., 0], pts[..., 1], cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_CONSTANT, borderValue=0).min(axis=1)
+    ref = 0.5 * (graph.value[ij[:, 0]] + graph.value[ij[:, 1]])
+    ratio = np.where(ref > 0, grey / np.maximum(ref, 1e-9), 0.0)
+    scored = [(sc + r, i, j) for (sc, i, j), r in zip(cand, ratio) if r >= min_grey_ratio]
+    scored.sort(key=lambda c: -c[0])
+    for _, i, j in scored:
+        if j in graph.adj[i]:
+            continue
+        if len(graph.adj[i]) >= 2 or len(graph.adj[j]) >= max_degree:
+            continue
+        graph.connect(i, j)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_fill_gaps_equals_the_former_python(seed):
+    rng = np.random.default_rng(seed)
+    added = 0
+    for _ in range(20):
+        image = (rng.random((30, 40)) ** 2).astype(np.float32)
+        graph = _random_graph(rng, int(rng.integers(20, 90)))
+        ref = graph.copy()
+        before = sum(map(len, graph.adj))
+        ls.fill_gaps(graph, image, 6.0, math.cos(math.radians(30)), 0.25, 4.0)
+        _reference_fill_gaps(ref, image, 6.0, math.cos(math.radians(30)), 0.25, 4.0)
+        assert graph.adj == ref.adj
+        added += sum(map(len, graph.adj)) - before
+    assert added > 20  # gaps were filled
 
 
 def _reference_outward(graph, i, reach=3):
@@ -265,6 +780,247 @@ def test_block_sum_is_numpys_sum(n):
     for _ in range(200):
         a = rng.normal(size=n) * 10.0 ** rng.integers(-3, 4, n)
         assert ls.block_sum(a) == a.sum()
+
+
+def _reference_remove_triangles(graph):
+    """remove_triangles as the Python loop did it."""
+    for i in range(len(graph)):
+        if len(graph.adj[i]) < 2:
+            continue
+        for j in sorted(graph.adj[i]):
+            if j <= i:
+                continue
+            for k in sorted(graph.adj[i] & graph.adj[j]):
+                if k <= j:
+                    continue
+                sides = [(i, j), (j, k), (i, k)]
+                lens = [np.hypot(*(graph.pos[a] - graph.pos[b])) for a, b in sides]
+                a, b = sides[int(np.argmax(lens))]
+                graph.disconnect(a, b)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_remove_triangles_equals_the_python_loop(seed):
+    def dense_graph():  # built twice the same way, so that its sets iterate alike
+        rng = np.random.default_rng(seed)
+        n = 40
+        pos = rng.uniform(0, 8, (n, 2))
+        pos[5] = pos[3] + (pos[4] - pos[3])[::-1]  # sides of equal length
+        adj = [set() for _ in range(n)]
+        for _ in range(int(rng.integers(60, 160))):  # dense: triangles sharing sides
+            a, b = (int(v) for v in rng.integers(0, n, 2))
+            if a != b:
+                adj[a].add(b)
+                adj[b].add(a)
+        return ls.LineGraph(np.zeros((n, 2), int), pos, np.ones(n), adj)
+
+    graph, ref = dense_graph(), dense_graph()
+    before = sum(map(len, graph.adj))
+    ls.remove_triangles(graph)
+    _reference_remove_triangles(ref)
+    assert graph.adj == ref.adj
+    assert [list(a) for a in graph.adj] == [list(a) for a in ref.adj]  # the sets' order too
+    assert sum(map(len, graph.adj)) < before
+
+
+@pytest.mark.parametrize("cell", [8, 4])
+def test_skeleton_grid_equals_the_numpy_and_opencv_path(cell):
+    rng = np.random.default_rng(cell)
+    area = cell * cell
+    for _ in range(500):
+        h, w = int(rng.integers(1, 70)), int(rng.integers(1, 100))
+        counts = (rng.integers(0, area + 1, (h, w)) * (rng.random((h, w)) < rng.random())
+                  ).astype(np.uint16)
+        white = counts / np.float32(area)
+        top = rng.uniform(-2, h + 2, w)
+        top[rng.random(w) < 0.05] = np.nan
+        fast = ls.skeleton_grid(white, top, 1, 0.04, True)
+        slow = ls.skeleton_grid(white, top, 1, 0.04, False)
+        for a, b in ((fast[0], slow[0]), (fast[1], slow[1]), *zip(fast[2], slow[2])):
+            assert a.dtype == b.dtype and a.tobytes() == b.tobytes()
+
+
+def test_corner_cuts_equal_corner_nodes_per_chain():
+    rng = np.random.default_rng(16)
+    found = 0
+    for _ in range(1000):
+        lens = rng.integers(1, 30, int(rng.integers(1, 20)))
+        n = int(lens.sum())
+        turn = rng.uniform(0, 2.5, n) * (rng.random(n) < 0.5)
+        turn[rng.random(n) < 0.05] = 1.0  # equal turns
+        arc = np.concatenate([np.cumsum(np.concatenate([[0], rng.uniform(0.2, 3, k - 1)]))
+                              for k in lens])
+        offsets = np.concatenate([[0], np.cumsum(lens)]).astype(np.int64)
+        cuts, cut_start = np.empty(n, np.int64), np.empty(len(lens) + 1, np.int64)
+        by_python = np.zeros(len(lens), np.bool_)
+        ls._corner_cuts(turn, arc, offsets, 3.0, 0.8, cuts, cut_start, by_python)
+        assert not by_python.any()
+        for c in range(len(lens)):
+            a, b = offsets[c], offsets[c + 1]
+            ref = ls.corner_nodes(turn[a:b], arc[a:b], 3.0, 0.8)
+            assert cuts[cut_start[c]:cut_start[c + 1]].tolist() == ref
+            found += len(ref)
+    assert found > 1000
+
+
+def _reference_trace_chains(graph):
+    """trace_chains as the Python walk did it."""
+    adj = graph.adj
+    two = [len(a) == 2 for a in adj]
+    used = [False] * len(adj)
+    direct = set()
+    chains = []
+
+    def walk(prev, cur, chain):
+        while two[cur] and not used[cur]:
+            used[cur] = True
+            a, b = adj[cur]
+            prev, cur = cur, (b if a == prev else a)
+            chain.append(cur)
+        return chain
+
+    for s in range(len(adj)):
+        if two[s] or not adj[s]:
+            continue
+        for n in sorted(adj[s]):
+            if two[n]:
+                if not used[n]:
+                    chains.append(walk(s, n, [s, n]))
+            elif (min(s, n), max(s, n)) not in direct:
+                direct.add((min(s, n), max(s, n)))
+                chains.append([s, n])
+    for s in range(len(adj)):
+        if two[s] and not used[s]:
+            used[s] = True
+            chain = walk(s, min(adj[s]), [s, min(adj[s])])
+            if chain[-1] != s:
+                chain.append(s)
+            chains.append(chain)
+    return chains
+
+
+def test_trace_chains_equals_the_python_walk():
+    rng = np.random.default_rng(15)
+    loops = 0
+    for _ in range(1000):
+        n = int(rng.integers(1, 120))
+        adj = [set() for _ in range(n)]
+        k = 0
+        while k < n - 1:  # polylines, some closed into rings
+            length = int(rng.integers(1, 10))
+            for a in range(k, min(k + length, n - 1)):
+                adj[a].add(a + 1)
+                adj[a + 1].add(a)
+            if rng.random() < 0.2 and length > 2 and k + length < n:
+                adj[k].add(k + length)
+                adj[k + length].add(k)
+            k += length + 1
+        for _ in range(int(rng.integers(0, n // 4 + 1))):  # junctions
+            a, b = (int(v) for v in rng.integers(0, n, 2))
+            if a != b:
+                adj[a].add(b)
+                adj[b].add(a)
+        graph = ls.LineGraph(np.zeros((n, 2), int), np.zeros((n, 2)), np.ones(n), adj)
+        ref = _reference_trace_chains(graph)
+        assert ls.trace_chains(graph) == ref
+        loops += sum(c[0] == c[-1] for c in ref)
+    assert loops > 10
+
+
+def test_place_nodes_equals_the_numpy_sort():
+    rng = np.random.default_rng(14)
+    for _ in range(200):
+        img = (rng.random((60, 94)) ** 4).astype(np.float32)
+        img[rng.random(img.shape) < 0.5] = 0
+        lp = ls.low_pass(img)
+        key = ls.ranking_keys(lp)
+        skeleton, c = ls.ranking_skeleton(lp, 0.02, key)
+        priority = np.where(skeleton, key + np.where(c == 0, 2.0 ** 45, 0.0), -1.0)
+        sy, sx = np.nonzero(skeleton)
+        order = np.argsort(-priority[sy, sx], kind="stable")
+        taken = ls._greedy_nodes(sy[order], sx[order], *skeleton.shape)
+        ys, xs = sy[order][taken], sx[order][taken]
+        pix, regions = ls.place_nodes(lp, skeleton, c, key)
+        np.testing.assert_array_equal(pix, np.stack([xs, ys], axis=1))
+        np.testing.assert_array_equal(regions, ls._node_regions(skeleton, ys.astype(np.int64),
+                                                                xs.astype(np.int64)))
+
+
+def test_smooth_lines_equals_the_numpy_rounds():
+    rng = np.random.default_rng(13)
+    for _ in range(500):
+        n = int(rng.integers(1, 80))
+        adj = [set() for _ in range(n)]
+        for _ in range(int(rng.integers(0, 2 * n))):
+            a, b = (int(v) for v in rng.integers(0, n, 2))
+            if a != b:
+                adj[a].add(b)
+                adj[b].add(a)
+        graph = ls.LineGraph(np.zeros((n, 2), int), rng.normal(0, 10, (n, 2)), np.ones(n), adj)
+        idx = np.nonzero(graph.degree() == 2)[0]
+        for rounds in (0, 1, 2, 3):
+            ref = graph.pos.copy()
+            if len(idx):
+                nb = np.array([sorted(graph.adj[i]) for i in idx])
+                for _ in range(rounds):
+                    ref[idx] = (ref[idx] + ref[nb[:, 0]] + ref[nb[:, 1]]) / 3.0
+            assert ls.smooth_lines(graph, rounds).tobytes() == ref.tobytes()
+
+
+def _reference_turning_angles(chains, pos, reach, floor=None):
+    """turning_angles as numpy computed it (arcs, a sorted search of the chains laid end to
+    end, the arms' angles by np.arccos)."""
+    def turns(a, b, ends):
+        na, nb = np.hypot(*a.T), np.hypot(*b.T)
+        ok = (na > 0) & (nb > 0)
+        cosang = np.where(ok, (a * b).sum(axis=1) / np.where(ok, na * nb, 1.0), 1.0)
+        turn = np.arccos(np.clip(cosang, -1.0, 1.0))
+        turn[ends] = 0.0
+        return turn
+
+    lens = np.array([len(c) for c in chains], dtype=int)
+    idx = np.concatenate(chains).astype(int)
+    pts = pos[idx]
+    start = np.repeat(np.cumsum(lens) - lens, lens)
+    last = start + np.repeat(lens, lens) - 1
+    step = np.concatenate([[0.0], np.hypot(*np.diff(pts, axis=0).T)])
+    step[np.cumsum(lens) - lens] = 0.0
+    arc = np.cumsum(step)
+    arc = arc - arc[start]
+    far = np.repeat(np.arange(len(chains)), lens) * (arc.max(initial=0.0) + 4 * reach + 1.0)
+    key = arc + far
+    back = np.clip(np.searchsorted(key, key - reach, side="right") - 1, start, last)
+    fwd = np.clip(np.searchsorted(key, key + reach, side="left"), start, last)
+    ends = (np.arange(len(idx)) == start) | (np.arange(len(idx)) == last)
+    a, b = pts - pts[back], pts[fwd] - pts
+    floor_turn = None
+    if floor is not None:
+        fl = floor[idx]
+        fa, fb = fl - fl[back], fl[fwd] - fl
+        known = np.all(np.isfinite(fa), axis=1) & np.all(np.isfinite(fb), axis=1)
+        floor_turn = turns(np.where(known[:, None], fa, a), np.where(known[:, None], fb, b),
+                           ends)
+    return turns(a, b, ends), floor_turn, arc, start
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_turning_angles_equal_the_numpy_expressions(seed):
+    rng = np.random.default_rng(seed)
+    for _ in range(200):
+        n = 80
+        pos = np.cumsum(rng.normal(0, 1.5, (n, 2)), axis=0)
+        pos[5] = pos[4]  # an empty arm
+        floor = pos * rng.uniform(0.01, 0.1) + rng.normal(0, 0.01, (n, 2))
+        floor[rng.random(n) < 0.1] = np.nan  # above the horizon
+        chains = [list(rng.integers(0, n, int(rng.integers(1, 12))))
+                  for _ in range(int(rng.integers(1, 15)))]
+        for fl in (None, floor):
+            got = ls.turning_angles(chains, pos, 3.0, fl)
+            ref = _reference_turning_angles(chains, pos, 3.0, fl)
+            for g, r in zip(got, ref):
+                assert (g is None) == (r is None)
+                if g is not None:
+                    assert g.dtype == r.dtype and g.tobytes() == r.tobytes()
 
 
 def _reference_remove_short_lines(graph, min_length):

@@ -283,24 +283,20 @@ def estimate_field_colour(yuv: np.ndarray, conf: dict, valid: np.ndarray | None 
     if share >= conf["green_min_share"]:
         # chroma rescaled to one luminance (Y_REF): under a brightness gradient the field's
         # chroma grows with its light, its chromaticity does not
-        hist = counts.reshape(32, 32).astype(np.float32)
-        hist = cv2.GaussianBlur(hist, (3, 3), 0)
-        pi, pj = np.unravel_index(int(np.argmax(hist)), hist.shape)
+        pi, pj = _histogram_peak(counts.reshape(32, 32))
         nu, nv = 8.0 * pi + 4.0 - 128.0, 8.0 * pj + 4.0 - 128.0
-        rad2 = conf["green_cluster_radius"] ** 2
-        for _ in range(3):  # mean shift towards the cluster centre
-            near = (uu - nu) ** 2 + (vv - nv) ** 2 <= rad2
-            if not near.any():
-                break
-            nu, nv = float(uu[near].mean()), float(vv[near].mean())
-        near = (uu - nu) ** 2 + (vv - nv) ** 2 <= rad2
-        if near.sum() >= 10:
+        # mean shift towards the cluster centre (3 steps), then the cluster's pixels: their
+        # count, median Y and chroma variances (compiled: _green_cluster)
+        nu, nv, n_near, y_med, var_u, var_v = _green_cluster(
+            uu, vv, y_c, nu, nv, float(conf["green_cluster_radius"] ** 2), 3)
+        if n_near >= 10:
             found = True
-            y_field = _median_of_integers(y_c[near])
+            y_field = y_med
             back = y_field / Y_REF  # to chroma at the field's luminance
             u_c, v_c = 128.0 + nu * back, 128.0 + nv * back
-            spread = back * float(np.sqrt(0.5 * (uu[near].var() + vv[near].var())))
-            share = float(near.sum()) / n_valid
+            spread = back * float(np.sqrt(np.float32(0.5) * (np.float32(var_u)
+                                                             + np.float32(var_v))))
+            share = float(n_near) / n_valid
     if y_field is None:
         y_field = float(np.median(y8)) if len(y8) else 100.0
     k = conf["green_spread_k"]
@@ -373,27 +369,196 @@ def _hue_model(fc: FieldColour, u8, v8, y8, conf: dict) -> None:
     tol = math.radians(float(conf["green_hue_tolerance_deg"]))
     sat = n / max(fc.y, 1.0)
     if fc.found and len(u8):
-        du = u8.astype(np.float32) - 128.0
-        dv = v8.astype(np.float32) - 128.0
-        d = np.arctan2(dv * fc.hue_dir[0] - du * fc.hue_dir[1],
-                       du * fc.hue_dir[0] + dv * fc.hue_dir[1])
-        near = np.abs(d) <= math.radians(45.0)
-        if near.sum() >= 10:
-            sigma = 1.4826 * float(np.median(np.abs(d[near])))
+        # the hue offsets from the field's (numpy's float32 arctan2 of the chroma turned onto
+        # the field's direction, compiled: _hue_turned), then within 45 deg of it the median
+        # |hue offset| and saturation (compiled: _hue_spread)
+        num, den = _hue_turned(u8, v8, np.float32(fc.hue_dir[0]), np.float32(fc.hue_dir[1]))
+        n_near, med_d, med_sat = _hue_spread(np.arctan2(num, den), u8, v8, y8,
+                                             np.float32(math.radians(45.0)))
+        if n_near >= 10:
+            sigma = 1.4826 * med_d
             tol = max(tol, float(conf["green_hue_k"]) * sigma)
-            sat = float(np.median(np.hypot(du[near], dv[near]) / np.maximum(
-                y8[near].astype(np.float32), 1.0)))
+            sat = med_sat
     fc.hue_cos = math.cos(min(tol, math.radians(60.0)))
     fc.saturation = (lo_rel * sat, hi_rel * sat)
 
 
-def _median_of_integers(values: np.ndarray) -> float:
-    """``np.median`` of uint8 values, from their histogram (the mean of the two middle values
-    for an even count)."""
-    n = len(values)
-    cum = np.cumsum(np.bincount(values, minlength=256))
-    lo, hi = np.searchsorted(cum, [(n - 1) // 2 + 1, n // 2 + 1])
-    return 0.5 * (float(lo) + float(hi))
+@njit("float32(float32[::1])", cache=True, nogil=True)
+def pairwise_sum32(a):
+    """``np.sum`` of a float32 array in numpy's order and precision (its pairwise summation
+    in float32, as line_structure.block_sum for float64), so that the sum is numpy's to the
+    bit."""
+    n = a.shape[0]
+    if n < 8:
+        res = np.float32(-0.0)
+        for i in range(n):
+            res += a[i]
+        return res
+    if n > 128:
+        n2 = n // 2
+        n2 -= n2 % 8
+        return pairwise_sum32(a[:n2]) + pairwise_sum32(a[n2:])
+    r0, r1, r2, r3 = a[0], a[1], a[2], a[3]
+    r4, r5, r6, r7 = a[4], a[5], a[6], a[7]
+    i = 8
+    while i < n - n % 8:
+        r0 += a[i]
+        r1 += a[i + 1]
+        r2 += a[i + 2]
+        r3 += a[i + 3]
+        r4 += a[i + 4]
+        r5 += a[i + 5]
+        r6 += a[i + 6]
+        r7 += a[i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[i]
+        i += 1
+    return res
+
+
+@njit(cache=True, nogil=True)
+def _histogram_peak(counts):
+    """The bin (row, column) of the highest value of the chroma histogram ``counts`` (32,
+    32) after a 3 x 3 Gaussian blur, as cv2.GaussianBlur(counts as float32, (3, 3), 0) and
+    np.argmax found it: weights 1/4, 1/2, 1/4 along rows, then columns, mirrored borders
+    (BORDER_REFLECT_101); on bin counts these sums are exact in float32 in any order, so the
+    blurred values and the first highest are the same."""
+    h, w = counts.shape
+    quarter, half = np.float32(0.25), np.float32(0.5)
+    rows = np.empty((h, w), np.float32)
+    for r in range(h):
+        for c in range(w):
+            left = c - 1 if c > 0 else 1
+            right = c + 1 if c < w - 1 else w - 2
+            rows[r, c] = (quarter * np.float32(counts[r, left]) + half * np.float32(counts[r, c])
+                          + quarter * np.float32(counts[r, right]))
+    best, bi, bj = np.float32(-1.0), 0, 0
+    for r in range(h):
+        up = r - 1 if r > 0 else 1
+        down = r + 1 if r < h - 1 else h - 2
+        for c in range(w):
+            v = quarter * rows[up, c] + half * rows[r, c] + quarter * rows[down, c]
+            if v > best:
+                best, bi, bj = v, r, c
+    return bi, bj
+
+
+@njit(cache=True, nogil=True)
+def _mean32(a):
+    """``a.mean()`` of a float32 array as numpy computes it: the float32 pairwise sum over
+    the count in float64, rounded to float32."""
+    return np.float32(np.float64(pairwise_sum32(a)) / np.float64(a.shape[0]))
+
+
+@njit(cache=True, nogil=True)
+def _var32(a):
+    """``a.var()`` of a float32 array as numpy computes it (its mean as _mean32, the squared
+    deviations in float32, their mean likewise)."""
+    m = _mean32(a)
+    x = np.empty_like(a)
+    for i in range(a.shape[0]):
+        x[i] = a[i] - m
+        x[i] = x[i] * x[i]
+    return _mean32(x)
+
+
+@njit(cache=True, nogil=True)
+def _near_cluster(uu, vv, nu, nv, rad2, bu, bv):
+    """The samples with (uu - nu)^2 + (vv - nv)^2 <= rad2 (float32, as numpy evaluates it)
+    copied in order into bu, bv; returns their number."""
+    m = 0
+    for i in range(uu.shape[0]):
+        du = uu[i] - nu
+        dv = vv[i] - nv
+        if du * du + dv * dv <= rad2:
+            bu[m] = uu[i]
+            bv[m] = vv[i]
+            m += 1
+    return m
+
+
+@njit(cache=True, nogil=True)
+def _green_cluster(uu, vv, ys, nu, nv, rad2, iterations):
+    """estimate_field_colour's mean shift of the green candidates' rescaled chroma (uu, vv
+    float32, their luminance ``ys`` uint8) from (nu, nv): ``iterations`` steps to the mean
+    of the candidates within sqrt(rad2) (float32 arithmetic and numpy's float32 means, as
+    the numpy expressions it replaces), then those candidates' number, median luminance
+    (np.median's, from their histogram) and chroma variances (numpy's float32 ``var``). Returns (nu,
+    nv, count, median Y, var U, var V); the last three are 0 without candidates near."""
+    n = uu.shape[0]
+    bu = np.empty(n, np.float32)
+    bv = np.empty(n, np.float32)
+    r2 = np.float32(rad2)
+    for _ in range(iterations):
+        m = _near_cluster(uu, vv, np.float32(nu), np.float32(nv), r2, bu, bv)
+        if m == 0:
+            break
+        nu, nv = np.float64(_mean32(bu[:m])), np.float64(_mean32(bv[:m]))
+    fu, fv = np.float32(nu), np.float32(nv)
+    hist = np.zeros(256, np.int64)
+    m = 0
+    for i in range(n):
+        du = uu[i] - fu
+        dv = vv[i] - fv
+        if du * du + dv * dv <= r2:
+            bu[m] = uu[i]
+            bv[m] = vv[i]
+            hist[ys[i]] += 1
+            m += 1
+    if m == 0:
+        return nu, nv, 0, 0.0, np.float32(0.0), np.float32(0.0)
+    # the median of the integers: the mean of the values at ranks (m - 1) // 2 and m // 2
+    lo, hi, cum = -1, -1, 0
+    for v in range(256):
+        cum += hist[v]
+        if lo < 0 and cum >= (m - 1) // 2 + 1:
+            lo = v
+        if hi < 0 and cum >= m // 2 + 1:
+            hi = v
+    return nu, nv, m, 0.5 * (float(lo) + float(hi)), _var32(bu[:m]), _var32(bv[:m])
+
+
+@njit(cache=True, nogil=True)
+def _hue_turned(u8, v8, hx, hy):
+    """_hue_model's chroma (U - 128, V - 128) turned onto the field's direction (hx, hy):
+    the float32 arrays (dv hx - du hy, du hx + dv hy) whose arctan2 is the hue offset, as
+    numpy computed them."""
+    n = u8.shape[0]
+    num = np.empty(n, np.float32)
+    den = np.empty(n, np.float32)
+    c128 = np.float32(128.0)
+    for i in range(n):
+        du = np.float32(u8[i]) - c128
+        dv = np.float32(v8[i]) - c128
+        num[i] = dv * hx - du * hy
+        den[i] = du * hx + dv * hy
+    return num, den
+
+
+@njit(cache=True, nogil=True)
+def _hue_spread(d, u8, v8, y8, max_dev):
+    """_hue_model's statistics of the green candidates whose hue offset ``d`` (float32, rad)
+    from the field's is at most ``max_dev`` (float32): their number, the median |d| and the
+    median saturation |(U - 128, V - 128)| / max(Y, 1) (np.hypot in float32), in float32 as
+    the numpy expressions it replaces (np.median: the middle value, or the mean of the two
+    middle ones)."""
+    n = d.shape[0]
+    ad = np.empty(n, np.float32)
+    sat = np.empty(n, np.float32)
+    c128 = np.float32(128.0)
+    m = 0
+    for i in range(n):
+        a = abs(d[i])
+        if a <= max_dev:
+            ad[m] = a
+            hyp = np.hypot(np.float32(u8[i]) - c128, np.float32(v8[i]) - c128)
+            sat[m] = hyp / max(np.float32(y8[i]), np.float32(1.0))
+            m += 1
+    if m == 0:
+        return 0, np.nan, np.nan
+    return m, float(np.median(ad[:m])), float(np.median(sat[:m]))
 
 
 @functools.lru_cache(maxsize=8)
@@ -458,13 +623,41 @@ def _fill_green_luminance(gs: np.ndarray, ys: np.ndarray, k: int, fc: FieldColou
     """The local green luminance map from the per-block count of green samples ``gs`` and sum
     of their Y ``ys`` (float32, of k x k samples per block): their mean where a quarter of the
     samples are green, else the mean over the ``local_fill`` window, else the frame's."""
-    fill = int(conf["local_fill"]) | 1
-    gs_f = cv2.boxFilter(gs, -1, (fill, fill), normalize=False, borderType=cv2.BORDER_CONSTANT)
-    ys_f = cv2.boxFilter(ys, -1, (fill, fill), normalize=False, borderType=cv2.BORDER_CONSTANT)
-    own = gs >= 0.25 * k * k
-    ymap = np.where(own, ys / np.maximum(gs, 1e-6),
-                    np.where(gs_f > 0, ys_f / np.maximum(gs_f, 1e-6), fc.y))
-    return ymap.astype(np.float32)
+    out = np.empty(gs.shape, np.float32)
+    _fill_blocks(np.ascontiguousarray(gs, np.float32), np.ascontiguousarray(ys, np.float32),
+                 int(conf["local_fill"]) | 1, np.float32(0.25 * k * k), np.float32(fc.y), out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _fill_blocks(gs, ys, fill, own_min, y_frame, out):
+    """_fill_green_luminance, compiled: per block ys / gs where gs >= own_min, else the sums
+    over the fill x fill window around it (blocks beyond the map count 0) divided alike, else
+    y_frame; float32 as the numpy expressions (the divisors at least float32(1e-6)). The
+    sums are of counts and integer luminances, exact in any order (as cv2.boxFilter's)."""
+    h, w = gs.shape
+    r = fill // 2
+    # summed-area tables of both (float64 holds the integer sums exactly)
+    sg = np.zeros((h + 1, w + 1))
+    sy = np.zeros((h + 1, w + 1))
+    for i in range(h):
+        for j in range(w):
+            sg[i + 1, j + 1] = sg[i, j + 1] + sg[i + 1, j] - sg[i, j] + gs[i, j]
+            sy[i + 1, j + 1] = sy[i, j + 1] + sy[i + 1, j] - sy[i, j] + ys[i, j]
+    eps = np.float32(1e-6)
+    for i in range(h):
+        i0, i1 = max(i - r, 0), min(i + r + 1, h)
+        for j in range(w):
+            if gs[i, j] >= own_min:
+                out[i, j] = ys[i, j] / max(gs[i, j], eps)
+                continue
+            j0, j1 = max(j - r, 0), min(j + r + 1, w)
+            g = np.float32(sg[i1, j1] - sg[i0, j1] - sg[i1, j0] + sg[i0, j0])
+            if g > 0:
+                y = np.float32(sy[i1, j1] - sy[i0, j1] - sy[i1, j0] + sy[i0, j0])
+                out[i, j] = y / max(g, eps)
+            else:
+                out[i, j] = y_frame
 
 
 def _labels(green: np.ndarray, white: np.ndarray) -> np.ndarray:
@@ -653,9 +846,15 @@ def classify_cells(yuv: np.ndarray, fc: FieldColour, conf: dict, cell: int,
     if fc.hue_dir is None:
         return None
     h, w = yuv.shape[:2]
-    thr = fc.luminance_thresholds(conf)
-    thr = np.ascontiguousarray(np.broadcast_to(thr, (1, 1, 3)) if thr.ndim == 1 else thr,
-                               dtype=np.int16)
+    if fc.y_map is not None:  # the local map's thresholds, by one compiled pass
+        thr = np.empty(fc.y_map.shape + (3,), np.int16)
+        _threshold_table(np.ascontiguousarray(fc.y_map, np.float32),
+                         np.float32(conf["white_contrast"]), np.float32(conf["white_min_y"]),
+                         np.float32(conf["green_min_ratio"]), np.float32(conf["green_max_ratio"]),
+                         thr)
+    else:
+        thr = np.ascontiguousarray(np.broadcast_to(fc.luminance_thresholds(conf), (1, 1, 3)),
+                                   dtype=np.int16)
     local = fc.cell if fc.y_map is not None else max(h, w)
     out = np.zeros((h // cell, w // cell, 3), np.uint16)
     mask = np.zeros((1, 1), np.uint8) if white_out is None else white_out
@@ -666,6 +865,26 @@ def classify_cells(yuv: np.ndarray, fc: FieldColour, conf: dict, cell: int,
                np.float32(np.float32(fc.hue_cos) ** 2), lo, hi, white_out is not None, out,
                mask)
     return out
+
+
+@njit("void(float32[:, ::1], float32, float32, float32, float32, int16[:, :, ::1])",
+      cache=True, nogil=True)
+def _threshold_table(y_map, contrast, min_y, lo_ratio, hi_ratio, out):
+    """luminance_thresholds of a local green map (finite), compiled: the same float32
+    operations per block, as int16 (hb, wb, 3)."""
+    c255 = np.float32(255.0)
+    for r in range(y_map.shape[0]):
+        for c in range(y_map.shape[1]):
+            yg = y_map[r, c]
+            white_y = max(yg + contrast * (c255 - yg), min_y)
+            out[r, c, WHITE_MIN_Y] = min(max(np.ceil(white_y), np.float32(0.0)), np.float32(256.0))
+            lo = min(max(np.ceil(lo_ratio * yg), np.float32(0.0)), np.float32(256.0))
+            hi = min(max(np.floor(hi_ratio * yg), np.float32(-1.0)), c255)
+            if lo > hi:
+                out[r, c, GREEN_MIN_Y], out[r, c, GREEN_MAX_Y] = 255, 254
+            else:
+                out[r, c, GREEN_MIN_Y] = min(lo, c255)
+                out[r, c, GREEN_MAX_Y] = hi
 
 
 @njit("void(uint8[::1], float32[::1], float32[::1], float32[::1], float32, float32, float32,"
@@ -715,8 +934,11 @@ def _hue_cells(yuv_rows, thr, cell, local, sat2, hx, hy, c2, lo, hi, keep_white,
         tr = min(r // local, th - 1)
         if tr != last:  # the thresholds of this row of local blocks, per column
             last = tr
+            tc, left = 0, local  # the column's local block, and its columns still to go
             for c in range(w):
-                tc = min(c // local, tw - 1)
+                if left == 0:
+                    tc, left = min(tc + 1, tw - 1), local
+                left -= 1
                 t_white[c] = thr[tr, tc, 0]
                 t_lo[c] = thr[tr, tc, 1]
                 t_hi[c] = thr[tr, tc, 2]
@@ -743,9 +965,9 @@ def _hue_cells(yuv_rows, thr, cell, local, sat2, hx, hy, c2, lo, hi, keep_white,
 @njit(cache=True, nogil=True)
 def _sample_rows(yuv, step, mask, use_mask, out):
     n = 0
-    for i in range(0, yuv.shape[0], step):
-        for j in range(0, yuv.shape[1], step):
-            if use_mask and not mask[i // step, j // step]:
+    for a, i in enumerate(range(0, yuv.shape[0], step)):
+        for b, j in enumerate(range(0, yuv.shape[1], step)):
+            if use_mask and not mask[a, b]:
                 continue
             out[n, 0] = yuv[i, j, 0]
             out[n, 1] = yuv[i, j, 1]
@@ -774,23 +996,28 @@ def _hue_block_sums(yuv, step, k, hb, wb, mask, use_mask, hx, hy, c2, lo, hi, y_
     and their summed Y into ``ys``."""
     c128 = np.float32(128.0)
     zero = np.float32(0.0)
-    for a in range(hb * k):
-        i = a * step
-        for b in range(wb * k):
-            j = b * step
-            if use_mask and not mask[a, b]:
-                continue
-            y = yuv[i, j, 0]
-            if y < y_lo or y > y_hi:
-                continue
-            yf = np.float32(y)
-            du = np.float32(yuv[i, j, 1]) - c128
-            dv = np.float32(yuv[i, j, 2]) - c128
-            s = du * du
-            s += dv * dv
-            dot = du * hx
-            dot += dv * hy
-            y2 = yf * yf
-            if dot >= zero and dot * dot >= c2 * s and s >= lo * y2 and s <= hi * y2:
-                gs[a // k, b // k] += np.float32(1.0)
-                ys[a // k, b // k] += yf
+    # blocks and samples within them counted apart (no integer division per sample)
+    for br in range(hb):
+        for ka in range(k):
+            a = br * k + ka
+            i = a * step
+            for bc in range(wb):
+                for kb in range(k):
+                    b = bc * k + kb
+                    j = b * step
+                    if use_mask and not mask[a, b]:
+                        continue
+                    y = yuv[i, j, 0]
+                    if y < y_lo or y > y_hi:
+                        continue
+                    yf = np.float32(y)
+                    du = np.float32(yuv[i, j, 1]) - c128
+                    dv = np.float32(yuv[i, j, 2]) - c128
+                    s = du * du
+                    s += dv * dv
+                    dot = du * hx
+                    dot += dv * hy
+                    y2 = yf * yf
+                    if dot >= zero and dot * dot >= c2 * s and s >= lo * y2 and s <= hi * y2:
+                        gs[br, bc] += np.float32(1.0)
+                        ys[br, bc] += yf

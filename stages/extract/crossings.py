@@ -25,7 +25,7 @@ full-resolution white mask and verified, then merged.
 
 from __future__ import annotations
 
-import bisect
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -46,6 +46,7 @@ from .line_fit import (
     lens_parameters,
     refine_kernel,
     refine_segment,
+    row_dots,
 )
 from .line_structure import KeyStructure, LineGraph
 
@@ -61,16 +62,45 @@ class CrossingCandidate:
 def point_along(pos: np.ndarray, chain: list[int], reach: float) -> np.ndarray:
     """The point ``reach`` cells along a fine chain (starting at its first node), or the chain's
     last node when it is shorter."""
-    p = pos[chain]
-    seg = np.hypot(*np.diff(p, axis=0).T).tolist()
-    s = [0.0]
-    for length in seg:  # the arc length at each node, added in order as np.cumsum does
-        s.append(s[-1] + length)
-    if s[-1] <= reach:
-        return p[-1].copy()
-    k = bisect.bisect_left(s, reach)  # np.searchsorted's side "left"
-    t = (reach - s[k - 1]) / max(seg[k - 1], 1e-9)
-    return p[k - 1] + t * (p[k] - p[k - 1])
+    return points_along(pos, [chain], reach)[0]
+
+
+def points_along(pos: np.ndarray, chains: list[list[int]], reach: float) -> np.ndarray:
+    """point_along of each chain (C, 2), in one compiled pass (``_points_along``)."""
+    lens = np.fromiter(map(len, chains), np.int64, len(chains))
+    start = np.zeros(len(chains) + 1, np.int64)
+    np.cumsum(lens, out=start[1:])
+    flat = np.fromiter(itertools.chain.from_iterable(chains), np.int64, int(start[-1]))
+    out = np.empty((len(chains), 2))
+    _points_along(np.ascontiguousarray(pos, np.float64), flat, start, float(reach), out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _points_along(pos, flat, start, reach, out):
+    """points_along, compiled: for chain c (nodes ``flat[start[c]:start[c + 1]]``) the arc
+    length at each node summed in order (as np.cumsum), the first node at least ``reach``
+    along (np.searchsorted's side "left") and the point between it and the node before."""
+    for c in range(len(start) - 1):
+        a, b = start[c], start[c + 1]
+        s_prev, s, total = 0.0, 0.0, 0.0
+        k = -1
+        for i in range(a + 1, b):
+            total = total + np.hypot(pos[flat[i], 0] - pos[flat[i - 1], 0],
+                                     pos[flat[i], 1] - pos[flat[i - 1], 1])
+            if k < 0:
+                s_prev, s = s, total
+                if s >= reach:
+                    k = i
+        last = flat[b - 1]
+        if total <= reach:
+            out[c, 0], out[c, 1] = pos[last, 0], pos[last, 1]
+            continue
+        p0, p1 = flat[k - 1], flat[k]
+        seg = np.hypot(pos[p1, 0] - pos[p0, 0], pos[p1, 1] - pos[p0, 1])
+        t = (reach - s_prev) / max(seg, 1e-9)
+        out[c, 0] = pos[p0, 0] + t * (pos[p1, 0] - pos[p0, 0])
+        out[c, 1] = pos[p0, 1] + t * (pos[p1, 1] - pos[p0, 1])
 
 
 def _angle_between(a: np.ndarray, b: np.ndarray) -> float:
@@ -88,17 +118,29 @@ def crossing_candidates(ks: KeyStructure, graph: LineGraph, arm_reach: float,
     the floor with ``floor_of`` (grid positions (N, 2) -> floor points, NaN above the
     horizon) where its points are on the floor."""
     deg = ks.degree()
+    keys = [k for k in range(len(ks.node)) if deg[k] in (2, 3, 4)]
+    if not keys:
+        return []
+    incidence = ks.incidence()
+    chains = [incidence[k] for k in keys]
+    along = points_along(graph.pos, [ch for cs in chains for ch in cs], arm_reach)
+    first = np.cumsum([0] + [len(cs) for cs in chains])
+    # the L candidates' centres and arm points on the floor, all at once
+    two = [n for n, k in enumerate(keys) if deg[k] == 2]
+    floor = {}
+    if floor_of is not None and two:
+        f = floor_of(np.concatenate([np.vstack([ks.pos[keys[n]][None],
+                                                along[first[n]:first[n + 1]]])
+                                     for n in two])).reshape(-1, 3, 2)
+        floor = dict(zip(two, f))
     out = []
-    for k in range(len(ks.node)):
-        if deg[k] not in (2, 3, 4):
-            continue
-        chains = ks.incident(k)
+    for n, k in enumerate(keys):
         centre = ks.pos[k]
-        arms = np.array([point_along(graph.pos, ch, arm_reach) for ch in chains])
+        arms = along[first[n]:first[n + 1]].copy()
         if deg[k] == 2:
             ang = _angle_between(arms[0] - centre, arms[1] - centre)
-            if floor_of is not None:
-                f = floor_of(np.vstack([centre[None], arms]))
+            if n in floor:
+                f = floor[n]
                 if np.isfinite(f).all():
                     ang = _angle_between(f[1] - f[0], f[2] - f[0])
             if not (l_angle_range[0] <= ang <= l_angle_range[1]):
@@ -176,17 +218,19 @@ def floor_arms(kind: str, arms: np.ndarray) -> tuple[float, float]:
     bar with the stem across it, an X's arms at multiples of 90 deg."""
     a = np.asarray(arms, float)
     if kind == "L":
+        a = a.tolist()  # a few angles: Python floats (the same arithmetic, less overhead)
         gap = abs(math.remainder(a[0] - a[1], 2 * math.pi))
         misfit = abs(gap - math.pi / 2)
-        return crossing_orientation("L", list(a)), misfit
+        return crossing_orientation("L", a), misfit
     if kind == "T":
+        a = a.tolist()
         # the bar: the most nearly opposite pair of arms; the stem is the remaining arm
         pairs = [(0, 1, 2), (0, 2, 1), (1, 2, 0)]
         opp = [abs(abs(math.remainder(a[i] - a[j], 2 * math.pi)) - math.pi) for i, j, _ in pairs]
-        i, j, s = pairs[int(np.argmin(opp))]
+        i, j, s = pairs[min(range(3), key=opp.__getitem__)]  # the first smallest, as argmin
         across = [abs(abs(math.remainder(a[s] - a[k], 2 * math.pi)) - math.pi / 2) for k in (i, j)]
         misfit = max(min(opp), max(across))
-        return math.remainder(float(a[s]), 2 * math.pi), misfit
+        return math.remainder(a[s], 2 * math.pi), misfit
     # X: all four arms folded into [0, pi/2) agree; circular mean of 4 * angle
     z = np.exp(4j * a).mean()
     orient = float(np.mod(np.angle(z) / 4.0, math.pi / 2))
@@ -471,19 +515,21 @@ def line_pair_crossings(ends: np.ndarray, widths: np.ndarray, floor_of, tol: flo
     if meet.any():
         s_all[meet] = np.linalg.solve(a_all[meet], (ends[pj, 0] - ends[pi, 0])[meet][..., None]
                                       )[..., 0]
-    for i, j, m, s in zip(pi.tolist(), pj.tolist(), meet.tolist(), s_all):
+    # of all pairs at once: the intersection, and each line's end nearer to it and that
+    # end's distance from the other line (the dot products by row_dots, as ``@`` gives them)
+    s0, s1 = s_all[:, 0], s_all[:, 1]
+    xs = ends[pi, 0] + s0[:, None] * u[pi]
+    e_i = np.where((s0 <= 0.5 * length[pi])[:, None], ends[pi, 0], ends[pi, 1])
+    gap_i = np.abs(row_dots(e_i - ends[pj, 0], normal[pj])).tolist()
+    e_j = np.where((s1 <= 0.5 * length[pj])[:, None], ends[pj, 0], ends[pj, 1])
+    gap_j = np.abs(row_dots(e_j - ends[pi, 0], normal[pi])).tolist()
+    lengths, line_widths = length.tolist(), np.asarray(widths, float).tolist()
+    for i, j, m, t_i, t_j, g_i, g_j, x in zip(pi.tolist(), pj.tolist(), meet.tolist(),
+                                              s0.tolist(), s1.tolist(), gap_i, gap_j, xs):
         if not m:
             continue
-        x = ends[i, 0] + s[0] * u[i]
-
-        def end_gap(k, other, t):
-            e = ends[k, 0] if t <= 0.5 * length[k] else ends[k, 1]
-            return abs(float((e - ends[other, 0]) @ normal[other]))
-
-        arms_i = _meeting(float(s[0]), float(length[i]), u[i], end_gap(i, j, s[0]),
-                          tol + float(widths[j]))
-        arms_j = _meeting(float(s[1]), float(length[j]), u[j], end_gap(j, i, s[1]),
-                          tol + float(widths[i]))
+        arms_i = _meeting(t_i, lengths[i], u[i], g_i, tol + line_widths[j])
+        arms_j = _meeting(t_j, lengths[j], u[j], g_j, tol + line_widths[i])
         if arms_i is None or arms_j is None:
             continue
         arms = np.array(arms_i[0] + arms_j[0])
@@ -598,7 +644,9 @@ def merge_line_crossings(crossings: list[LineCrossing], tol: float,
         if len(group) == 1:
             out.append(c)
             continue
-        point = np.mean([g.point for g in group], axis=0)
+        # the points' mean as np.mean over the rows computes it (summed row by row)
+        point = np.array([sum(float(g.point[0]) for g in group),
+                          sum(float(g.point[1]) for g in group)]) / len(group)
         all_arms = np.concatenate([g.arms for g in group])
         all_lengths = np.concatenate([g.lengths for g in group])
         cmp = all_arms
@@ -648,9 +696,10 @@ def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.nd
     rows_ = np.arange(white.shape[0], dtype=np.float64)[:, None]
     field_cells = (rows_ >= np.asarray(top, np.float64)[None, :]).astype(np.float32)
     verdicts, found = [], []
+    deg = ks.degree()
     for cand in cands:
         verdict = _crossing(cand, ks, ideal, white, green, other_mean, top, camera, to_floor,
-                            cc, cell, white_px, field_cells)
+                            cc, cell, white_px, field_cells, deg)
         verdicts.append(verdict)
         if not isinstance(verdict, str):
             found.append(verdict)
@@ -692,17 +741,19 @@ def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.nd
 
 
 def _crossing(cand, ks, ideal, white, green, other_mean, top, camera, to_floor, cc, cell,
-              white_px=None, field_cells=None):
-    """One key-structure candidate -> (row, image position), or the reason it was rejected."""
+              white_px=None, field_cells=None, deg=None):
+    """One key-structure candidate -> (row, image position), or the reason it was rejected
+    (``deg``: the key structure's node degrees, if already computed)."""
     centre = ideal[ks.node[cand.key]]
     if not np.isfinite(centre).all():
         return "outside the lens model"
-    chains = ks.arms(cand.key, 1 + cc["arm_skip"] + cc["arm_nodes"])
+    chains = ks.arms(cand.key, 1 + cc["arm_skip"] + cc["arm_nodes"], deg)
     arms = arm_lines(centre, chains, ideal, cc["arm_skip"], cc["arm_nodes"])
     if len(arms) != len(cand.arm_points):
         return "arm without nodes"
     if white_px is not None and cc.get("refine", True):
-        arms = [_refined_arm(arm, centre, white_px, camera, cc, cell) for arm in arms]
+        lens = lens_parameters(camera)
+        arms = [_refined_arm(arm, centre, white_px, camera, cc, cell, lens) for arm in arms]
     # an L's skeleton cuts its corner and a junction node may sit beside a thin line: the
     # crossing is where the lines fitted to its arms meet
     x = crossing_point(cand.kind, arms)
@@ -725,16 +776,22 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
     step = cc["arm_step"] * cell
     n = len(dirs)
     # all floor points at once: the crossing, a step along each arm, the cell below, the ends
-    pts = [x[None], x + step * dirs, x[None] + np.array([[0.0, float(cell)]])]
+    pts = np.empty((n + 2 + (0 if lengths is None else n), 2))
+    pts[0] = x
+    pts[1:n + 1] = x + step * dirs
+    pts[n + 1] = x[0] + 0.0, x[1] + float(cell)
     if lengths is not None:
         with np.errstate(invalid="ignore"):  # an arm out of the image is infinite
-            pts.append(x[None] + np.asarray(lengths)[:, None] * dirs)
-    on_floor = to_floor(np.vstack(pts))
-    floor, below, ends = on_floor[:n + 1], on_floor[n + 1:n + 2], on_floor[n + 2:]
+            pts[n + 2:] = x[None] + np.asarray(lengths)[:, None] * dirs
+    on_floor = to_floor(pts)
+    floor = on_floor[:n + 1]
     if not np.isfinite(floor).all():
         return "above the horizon"
+    # every point's offset from the crossing on the floor and its length, at once
+    rel = on_floor - on_floor[0]
+    rel_m = np.hypot(rel[:, 0], rel[:, 1])
     if lengths is not None:
-        arm_m = np.hypot(*(ends - floor[0]).T)  # NaN beyond the horizon: long enough
+        arm_m = rel_m[n + 2:]  # NaN beyond the horizon: long enough
         short = arm_m < cc["min_arm_length"]
         if np.any(short) and white_px is not None:
             # the fitted nodes or lines may end early (a far arm's few nodes, a line cut at a
@@ -747,14 +804,14 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
         if np.any(arm_m < cc["min_arm_length"]):
             return "arm too short"
     d, bearing = polar(floor[:1])
-    span = np.hypot(*(below[0] - floor[0])) if np.isfinite(below).all() else np.inf
+    span = rel_m[n + 1] if np.isfinite(rel_m[n + 1]) else np.inf  # the cell below
     # beyond the grid's resolution the full-resolution white mask decides (_verify_fine), as
     # far as its profiles (refine_step px apart) resolve the floor
     fine = span > cc["max_cell_span"]
     if fine and (white_px is None or not cc.get("fine", True)
                  or span * cc["refine_step"] / cell > cc["max_cell_span"]):
         return "too far"
-    arm_dirs = np.arctan2(floor[1:, 1] - floor[0, 1], floor[1:, 0] - floor[0, 0])
+    arm_dirs = np.arctan2(rel[1:n + 1, 1], rel[1:n + 1, 0])
     orient, misfit = floor_arms(kind, arm_dirs)
     if misfit > cc["max_misfit"]:
         return f"floor angles misfit {math.degrees(misfit):.0f} deg"
@@ -1043,15 +1100,17 @@ def _alternative_in_view(x, dirs, camera, top, other_mean, green, cc, cell) -> b
     view or hidden looks like an L; so do a far X's arms, flattened by the perspective."""
     pts = distort_ideal(lens_parameters(camera), x[None] - cc["arm_reach"] * cell * dirs)
     w, h = camera.image_size
-    for p in pts:
-        if not (np.isfinite(p).all() and 0 <= p[0] <= w - 1 and 0 <= p[1] <= h - 1):
+    grid = (pts + 0.5) / cell - 0.5
+    greens = sample_cells(green, grid).tolist()  # all points at once (each sampled alone)
+    for p, g, green_here in zip(pts.tolist(), grid.tolist(), greens):
+        if not (math.isfinite(p[0]) and math.isfinite(p[1]) and 0 <= p[0] <= w - 1
+                and 0 <= p[1] <= h - 1):
             return False
-        g = (p + 0.5) / cell - 0.5
         col = min(max(round(g[0]), 0), len(top) - 1)
         row = min(max(round(g[1]), 0), other_mean.shape[0] - 1)
         if g[1] - top[col] < cc["edge_margin"] or other_mean[row, col] > 0.5:
             return False
-        if sample_cells(green, g[None])[0] < cc["t_green"]:
+        if green_here < cc["t_green"]:
             return False
     return True
 
@@ -1103,17 +1162,20 @@ def _in_image(x: np.ndarray, dirs: np.ndarray, camera, margin: float) -> np.ndar
     return np.array(out)
 
 
-def _refined_arm(arm, centre: np.ndarray, white_px: np.ndarray, camera, cc: dict, cell: int):
+def _refined_arm(arm, centre: np.ndarray, white_px: np.ndarray, camera, cc: dict, cell: int,
+                 lens: np.ndarray | None = None):
     """An arm's line (centroid, unit direction away from the crossing, points) refined on the
     full-resolution white mask (line_fit.refine_segment) over its nodes' extent from
-    ``refine_skip`` cells off the crossing on; the coarse arm where that fails."""
+    ``refine_skip`` cells off the crossing on; the coarse arm where that fails. ``lens``: the
+    camera's lens_parameters, if already built."""
     c, u, sel = arm
     t = (sel - centre) @ u
     t0, t1 = max(float(t.min()), cc["refine_skip"] * cell), float(t.max())
     if t1 - t0 < cell:
         return arm
     ref = refine_segment(np.stack([centre + t0 * u, centre + t1 * u]), white_px,
-                         lens_parameters(camera), cc["refine_step"], cc["refine_reach"] * cell,
+                         lens_parameters(camera) if lens is None else lens, cc["refine_step"],
+                         cc["refine_reach"] * cell,
                          0.0, cc["refine_min_points"])
     if ref is None:
         return arm

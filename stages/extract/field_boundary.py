@@ -24,6 +24,8 @@ import cv2
 import numpy as np
 from numba import njit
 
+from ..common.colour import pairwise_sum32
+
 # Weights of the colour classes in the merged grey image: green is field; white is a line on
 # it, but also a wall or banner behind it, so a cell of white alone stays below the weak
 # threshold (t_weak) and counts only mixed with green; other colours (robots, people) occlude.
@@ -65,6 +67,61 @@ def binarize_field(grey: np.ndarray, t_pix: float, t_row: float, t_win: float,
     window[:-1] = box[1:]
     by_window = (window / 32.0 > t_win) & weak & ~by_row
     return strong | by_row | by_window
+
+
+def grey_field(counts: dict[str, np.ndarray], weights: dict[str, float], area: float,
+               t_pix: float, t_row: float, t_win: float, t_weak: float) -> np.ndarray:
+    """binarize_field(merged_grey_image(counts, weights, area), ...) by one compiled pass
+    (``_grey_field``): the same float32 grey levels, the rows' float32 pairwise sums
+    (colour.pairwise_sum32) and the 8 x 4 windows' sums exact in float64, rounded once, as
+    cv2.boxFilter gives them for float32 input."""
+    names = [n for n, w in weights.items() if w and n in counts]
+    if not names:  # no class weighs: the grey image is 0
+        return binarize_field(merged_grey_image(counts, weights, area), t_pix, t_row, t_win,
+                              t_weak)
+    classes = np.stack([np.asarray(counts[n]) for n in names]).astype(np.float32)
+    field = np.empty(classes.shape[1:], np.bool_)
+    _grey_field(classes, np.array([weights[n] for n in names], np.float32),
+                np.float32(area), float(t_pix), float(t_row), float(t_win), float(t_weak),
+                field)
+    return field
+
+
+@njit(cache=True, nogil=True)
+def _grey_field(classes, weights, area, t_pix, t_row, t_win, t_weak, field):
+    """grey_field's pass: grey = (sum of weight * class count, in order, float32) / area; a
+    cell is strong at t_pix, weak from t_weak; a weak one is field when the mean of its row
+    and the row above (float32 row sums, added in float64) exceeds t_row, else when its
+    8 x 4 window below (rows under it, columns -4..3) averages above t_win."""
+    k, h, w = classes.shape
+    grey = np.zeros((h, w), np.float32)
+    for c in range(k):
+        for y in range(h):
+            for x in range(w):
+                grey[y, x] += weights[c] * classes[c, y, x]
+    for y in range(h):
+        for x in range(w):
+            grey[y, x] = grey[y, x] / area
+    rows = np.empty(h, np.float32)
+    for y in range(h):
+        rows[y] = pairwise_sum32(grey[y])
+    t_pix32, t_win32, t_weak32 = np.float32(t_pix), np.float32(t_win), np.float32(t_weak)
+    for y in range(h):
+        row_sum = np.float64(rows[y]) + (np.float64(rows[y - 1]) if y > 0 else 0.0)
+        by_row_y = row_sum / (2.0 * w) > t_row
+        for x in range(w):
+            g = grey[y, x]
+            strong = g >= t_pix32
+            weak = g >= t_weak32 and not strong
+            by_row = by_row_y and weak
+            by_window = False
+            if weak and not by_row and y + 1 < h:
+                s = 0.0  # the window of the cell below: rows y + 1..y + 4, columns x - 4..x + 3
+                for yy in range(y + 1, min(y + 5, h)):
+                    for xx in range(max(x - 4, 0), min(x + 4, w)):
+                        s += np.float64(grey[yy, xx])
+                by_window = np.float32(s) / np.float32(32.0) > t_win32
+            field[y, x] = strong or by_row or by_window
 
 
 def _bounded_runs(candidate: np.ndarray, bound: np.ndarray, max_run: int) -> np.ndarray:
@@ -113,17 +170,36 @@ def field_height_histogram(field: np.ndarray, max_gap: int = 4, from_lowest: boo
     (0 when the bottom rows are not field). With ``from_lowest`` the scan starts at the
     column's lowest field pixel (the robot's own body or feet may cover the image's bottom).
     Returns (W,) float."""
+    out = np.empty(field.shape[1], np.float64)
+    _column_heights(np.ascontiguousarray(field, np.bool_), int(max_gap) + 1, bool(from_lowest),
+                    out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _column_heights(field, run, from_lowest, out):
+    """field_height_histogram per column, compiled: from the bottom row up (with
+    ``from_lowest`` the cells below the column's lowest field cell count as field: the covered
+    bottom of the column), the rows before the first ``run`` empty ones in a row (rows above
+    the image are empty, so the scan stops)."""
     h, w = field.shape
-    run = max_gap + 1
-    if from_lowest:
-        # no field at or below a cell, but field above it: the covered bottom of the column
-        at_or_below = np.logical_or.accumulate(field[::-1], axis=0)[::-1]
-        field = field | (~at_or_below & field.any(axis=0)[None, :])
-    empty = ~field[::-1]  # row 0 = bottom of the image
-    empty = np.concatenate([empty, np.ones((run, w), bool)], axis=0)  # the scan always stops
-    c = np.concatenate([np.zeros((1, w), np.int32), np.cumsum(empty, axis=0, dtype=np.int32)])
-    runs = (c[run:] - c[:-run]) == run  # rows i..i+run-1 all empty
-    return np.argmax(runs, axis=0).astype(np.float64)
+    for c in range(w):
+        lowest = -1  # the lowest field row, counted from the top
+        if from_lowest:
+            for r in range(h - 1, -1, -1):
+                if field[r, c]:
+                    lowest = r
+                    break
+        empty = 0
+        for i in range(h + run):  # i: rows from the bottom
+            r = h - 1 - i
+            if r >= 0 and (field[r, c] or r > lowest >= 0):
+                empty = 0
+            else:
+                empty += 1
+                if empty == run:
+                    out[c] = i - run + 1
+                    break
 
 
 def _edge_padded(values: np.ndarray, r: int) -> np.ndarray:
@@ -142,7 +218,9 @@ def smooth_field_heights(heights: np.ndarray, sigma: float, median: int) -> np.n
         out = np.convolve(_edge_padded(out, r), k / k.sum(), mode="valid")
     if median > 1:
         r = int(median) // 2
-        windows = np.lib.stride_tricks.sliding_window_view(_edge_padded(out, r), 2 * r + 1)
+        padded = _edge_padded(out, r)  # the windows: a few shifted copies (cheaper to make
+        # than sliding_window_view's)
+        windows = np.stack([padded[k:k + len(out)] for k in range(2 * r + 1)], axis=1)
         out = np.sort(windows, axis=1)[:, r]  # the middle of an odd window: its median
     return out
 
@@ -180,15 +258,15 @@ def field_boundary(counts: dict[str, np.ndarray], conf: dict, area: float = 64.0
                    ) -> tuple[np.ndarray, np.ndarray]:
     """The whole section 3.1: colour counts (cells of ``area`` pixels) -> (first field row per
     column (W,) float, binary field image (H, W))."""
-    grey = merged_grey_image(counts, conf["weights"], area)
-    field = binarize_field(grey, conf["t_pix"], conf["t_row"], conf["t_win"], conf["t_weak"])
+    field = grey_field(counts, conf["weights"], area, conf["t_pix"], conf["t_row"],
+                       conf["t_win"], conf["t_weak"])
     if conf.get("line_run", 0) > 0:
         white = counts["white"].astype(np.float32) / np.float32(area)
         field = fill_lines(field, white, conf["line_white"], int(conf["line_run"]))
     heights = field_height_histogram(field, conf["max_gap"], bool(conf.get("from_lowest")))
     heights = smooth_field_heights(heights, conf["gauss_sigma"], conf["median_size"])
     heights = local_convex_filling(heights)
-    return boundary_rows(heights, grey.shape[0]), field
+    return boundary_rows(heights, field.shape[0]), field
 
 
 def boundary_polyline(top: np.ndarray, cell: int) -> np.ndarray:

@@ -21,24 +21,31 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .line_fit import median
+
 
 def bar_runs(white: np.ndarray, top: np.ndarray, t_white: float, max_up: int, max_down: int
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per column: (run of white cells upward from the boundary, run downward from it, row of
     the first field cell). A cell is white when its share is at least ``t_white``."""
     h, w = white.shape
-    start = np.clip(np.ceil(np.asarray(top, float)).astype(int), 0, h)
-    up, down = np.empty(w, np.int64), np.empty(w, np.int64)
-    _white_runs(white >= t_white, start, int(max_up), int(max_down), up, down)
+    up, down, start = (np.empty(w, np.int64) for _ in range(3))
+    white = np.ascontiguousarray(white)
+    _white_runs(white, white.dtype.type(t_white), np.asarray(top, np.float64), int(max_up),
+                int(max_down), up, down, start)
     return up, down, start
 
 
 @njit(cache=True, nogil=True)
-def _white_runs(is_white, start, max_up, max_down, up, down):
-    """Per column, the white cells in a row upward from the row above ``start`` (at most
-    ``max_up``) and downward from ``start`` (at most ``max_down``)."""
-    h = is_white.shape[0]
-    for c in range(is_white.shape[1]):
+def _white_runs(white, t_white, top, max_up, max_down, up, down, start):
+    """Per column, its first field row ``start`` (ceil(top) within 0..h; a NaN top as numpy
+    casts it, to 0) and the white cells (share >= t_white) in a row upward from the row
+    above it (at most ``max_up``) and downward from it (at most ``max_down``)."""
+    h = white.shape[0]
+    for c in range(white.shape[1]):
+        start[c] = 0 if np.isnan(top[c]) else min(max(int(np.ceil(top[c])), 0), h)
+    is_white = white >= t_white
+    for c in range(white.shape[1]):
         n = 0
         while n < max_up and 0 <= start[c] - 1 - n < h and is_white[start[c] - 1 - n, c]:
             n += 1
@@ -66,11 +73,13 @@ def stands_out(white: np.ndarray, group: np.ndarray, start: int, rise: int, t_wh
     ``margin`` columns left and right of it are not white in most rows (a white wall or banner
     is white beside it too; the image border counts as not white)."""
     h, w = white.shape
-    rows = np.arange(max(start - rise, 0), max(start, 0))
-    if len(rows) == 0:
+    r0, r1 = max(start - rise, 0), max(start, 0)
+    if r1 <= r0:
         return False
     sides = [c for c in (group[0] - margin, group[-1] + margin) if 0 <= c < w]
-    return all(np.mean(white[rows, c] >= t_white) <= 1 / 3 for c in sides)
+    # the share of white rows beside it (as np.mean of the column's white test)
+    return all(np.count_nonzero(white[r0:r1, c] >= t_white) / (r1 - r0) <= 1 / 3
+               for c in sides)
 
 
 def bar_width(white: np.ndarray, group: np.ndarray, start: int, rise: int, cell: int) -> float:
@@ -78,11 +87,12 @@ def bar_width(white: np.ndarray, group: np.ndarray, start: int, rise: int, cell:
     boundary of the white share summed across its columns and one column each side, times the
     cell size."""
     h, w = white.shape
-    rows = np.arange(max(start - rise, 0), max(start, 0))
-    cols = np.arange(max(group[0] - 1, 0), min(group[-1] + 2, w))
-    if len(rows) == 0:
+    r0, r1 = max(start - rise, 0), max(start, 0)
+    if r1 <= r0:
         return 0.0
-    return float(np.median(white[np.ix_(rows, cols)].sum(axis=1)) * cell)
+    sums = white[r0:r1, max(group[0] - 1, 0):min(group[-1] + 2, w)].sum(axis=1)
+    # np.median's value (the compiled median) times the cell, in float32 as numpy has it
+    return float(np.float32(median(sums)) * np.float32(cell))
 
 
 def post_feet(white: np.ndarray, groups: list[np.ndarray], up_run: np.ndarray,
@@ -108,16 +118,34 @@ def post_feet(white: np.ndarray, groups: list[np.ndarray], up_run: np.ndarray,
 
 def rise_above_surroundings(up_run: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
     """(excess, base): the upward white run of each column minus the run its surroundings
-    share (the grey opening of the run over ``window`` columns). A band of white that
-    rises above the boundary everywhere (a hall floor or wall that is white too, a barrier
-    board) is the base; a post narrower than ``window`` rises above it."""
-    import cv2
+    share (the grey opening of the run over ``window`` columns, borders replicated, as
+    cv2.morphologyEx opens it: compiled, ``_opening``). A band of white that rises above the
+    boundary everywhere (a hall floor or wall that is white too, a barrier board) is the
+    base; a post narrower than ``window`` rises above it."""
+    run = np.asarray(up_run, np.int64)
+    base = _opening(np.ascontiguousarray(run), max(int(window), 1))
+    return run - base, base
 
-    run = up_run.astype(np.float32)[None, :]
-    kernel = np.ones((1, max(int(window), 1)), np.uint8)
-    base = cv2.morphologyEx(run, cv2.MORPH_OPEN, kernel, borderType=cv2.BORDER_REPLICATE)[0]
-    base = np.round(base).astype(int)
-    return up_run - base, base
+
+@njit(cache=True, nogil=True)
+def _opening(run, window):
+    """Grey opening of a row of integers: the minimum over ``window`` columns (anchored at
+    window // 2, the row's ends replicated), then the maximum over the same."""
+    n = len(run)
+    a = window // 2
+    eroded = np.empty(n, np.int64)
+    for x in range(n):
+        m = run[min(max(x - a, 0), n - 1)]
+        for j in range(1, window):
+            m = min(m, run[min(max(x + j - a, 0), n - 1)])
+        eroded[x] = m
+    out = np.empty(n, np.int64)
+    for x in range(n):
+        m = eroded[min(max(x - a, 0), n - 1)]
+        for j in range(1, window):
+            m = max(m, eroded[min(max(x + j - a, 0), n - 1)])
+        out[x] = m
+    return out
 
 
 def goal_posts(white: np.ndarray, top: np.ndarray, conf: dict, cell: int,

@@ -19,6 +19,7 @@ Coordinates here are undistorted ("ideal") pixels, where straight lines are stra
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -93,17 +94,40 @@ def _similar_pairs(cen: np.ndarray, dirs: np.ndarray, nor: np.ndarray, ends: np.
     the other's line. Arrays are per part: centroids, directions, normals (P, 2), end points
     (P, 2, 2)."""
     cosine = np.abs(dirs[rows] @ dirs.T)  # (R, P)
-    # distance of part j's ends to part i's line, and of part i's ends to part j's line
-    to_i = np.abs(np.einsum("jkd,rd->rjk", ends, nor[rows]) - (cen[rows] * nor[rows]).sum(1)
-                  [:, None, None]).max(axis=2)
-    to_j = np.abs(np.einsum("rkd,jd->rjk", ends[rows], nor) - (cen * nor).sum(1)[None, :, None]
-                  ).max(axis=2)
-    off = np.maximum(to_i, to_j)
-    ok = (cosine >= cos_max) & (off <= max_offset)
-    ok[np.arange(len(rows)), rows] = False
-    r, j = np.nonzero(ok)
-    return [(float(off[a, b]), int(rows[a]), int(b)) for a, b in zip(r, j)
-            if rows[a] < b or not upper]
+    # the rest compiled (_similar_kernel): distance of part j's ends to part i's line, and of
+    # part i's ends to part j's line, and the pairs within both limits
+    off, pi, pj = _similar_kernel(np.ascontiguousarray(cosine), np.ascontiguousarray(cen),
+                                  np.ascontiguousarray(nor), np.ascontiguousarray(ends),
+                                  np.asarray(rows, np.int64), float(cos_max), float(max_offset),
+                                  bool(upper))
+    return list(zip(off.tolist(), pi.tolist(), pj.tolist()))
+
+
+@njit(cache=True, nogil=True)
+def _similar_kernel(cosine, cen, nor, ends, rows, cos_max, max_offset, upper):
+    """_similar_pairs after the directions' cosines: per row part i = rows[a] and part j in
+    row-major order, the larger of the ends' distances (max over the two ends of |e . n -
+    c . n|, the sums of two products as numpy's einsum and sum form them) and the pairs
+    within cos_max and max_offset (not i itself; j > i if ``upper``)."""
+    n_rows, n = cosine.shape
+    off = np.empty(n_rows * n)
+    pi = np.empty(n_rows * n, np.int64)
+    pj = np.empty(n_rows * n, np.int64)
+    m = 0
+    for a in range(n_rows):
+        i = rows[a]
+        ci = cen[i, 0] * nor[i, 0] + cen[i, 1] * nor[i, 1]
+        for j in range(n):
+            cj = cen[j, 0] * nor[j, 0] + cen[j, 1] * nor[j, 1]
+            to_i = max(abs((ends[j, 0, 0] * nor[i, 0] + ends[j, 0, 1] * nor[i, 1]) - ci),
+                       abs((ends[j, 1, 0] * nor[i, 0] + ends[j, 1, 1] * nor[i, 1]) - ci))
+            to_j = max(abs((ends[i, 0, 0] * nor[j, 0] + ends[i, 0, 1] * nor[j, 1]) - cj),
+                       abs((ends[i, 1, 0] * nor[j, 0] + ends[i, 1, 1] * nor[j, 1]) - cj))
+            o = max(to_i, to_j)
+            if cosine[a, j] >= cos_max and o <= max_offset and j != i and (i < j or not upper):
+                off[m], pi[m], pj[m] = o, i, j
+                m += 1
+    return off[:m], pi[:m], pj[:m]
 
 
 def merge_segments(points: np.ndarray, parts: list[np.ndarray], max_angle: float,
@@ -116,11 +140,8 @@ def merge_segments(points: np.ndarray, parts: list[np.ndarray], max_angle: float
     if len(parts) < 2:
         return parts
     cos_max = math.cos(max_angle)
-    fits = [fit_line(points[p]) for p in parts]
-    cen = np.array([f.centroid for f in fits])
-    dirs = np.array([f.direction for f in fits])
-    nor = np.array([f.normal for f in fits])
-    ends = np.array([_ends_on_line(points, p, f) for p, f in zip(parts, fits)])
+    fits, ends = part_fits(points, parts)
+    cen, dirs, nor = fits[:, 0:2].copy(), fits[:, 2:4].copy(), fits[:, 4:6].copy()
     alive = [True] * len(parts)
     pairs = _similar_pairs(cen, dirs, nor, ends, np.arange(len(parts)), cos_max, max_offset,
                            upper=True)
@@ -151,19 +172,48 @@ def split_and_merge(points: np.ndarray, components: list[list[int]], conf: dict
                     ) -> list[LineSegment]:
     """Split every component, merge similar parts, and give each final line its fit and its
     end points projected onto the fit."""
-    parts = []
-    for comp in components:
-        idx = np.asarray(comp)
-        idx = idx[np.all(np.isfinite(points[idx]), axis=1)]
-        parts += split_component(points, idx, conf["split_distance"], conf["min_nodes"])
+    parts = split_components(points, components, conf["split_distance"], conf["min_nodes"])
     parts = merge_segments(points, parts, conf["merge_angle"],
                            conf["merge_offset"], conf["split_distance"])
-    out = []
-    for p in parts:
-        p = np.asarray(p)
-        fit = fit_line(points[p])
-        out.append(LineSegment(p, fit, line_end_points(points, p, fit)))
-    return out
+    if not parts:
+        return []
+    fits, ends = part_fits(points, parts)
+    return [LineSegment(np.asarray(p), LineFit(f[0:2].copy(), f[2:4].copy(), f[4:6].copy(),
+                                               float(f[6])), e.copy())
+            for p, f, e in zip(parts, fits, ends)]
+
+
+def _flat(lists) -> tuple[np.ndarray, np.ndarray]:
+    """Index lists (or arrays) as one int64 array and their starts (L + 1,)."""
+    start = np.zeros(len(lists) + 1, np.int64)
+    np.cumsum(np.fromiter(map(len, lists), np.int64, len(lists)), out=start[1:])
+    flat = np.fromiter(itertools.chain.from_iterable(lists), np.int64, int(start[-1]))
+    return flat, start
+
+
+def split_components(points: np.ndarray, components, max_distance: float, min_nodes: int = 3
+                     ) -> list[np.ndarray]:
+    """split_component of every component (its nodes with finite points, in order), all in
+    one compiled pass (``_split_all``): the parts of all components, in order."""
+    if not components:
+        return []
+    flat, start = _flat(components)
+    out = np.empty(2 * len(flat) + 2, np.int64)
+    out_start = np.zeros(len(flat) + 2, np.int64)
+    m = _split_all(np.ascontiguousarray(points, np.float64), flat, start, float(max_distance),
+                   int(min_nodes), out, out_start)
+    return [out[out_start[k]:out_start[k + 1]] for k in range(m)]
+
+
+def part_fits(points: np.ndarray, parts) -> tuple[np.ndarray, np.ndarray]:
+    """fit_line and the end points on the fit (_ends_on_line) of each part (indices into
+    ``points``), at once: (P, 7) rows [centroid x, y, direction x, y, normal x, y, rms] and
+    (P, 2, 2) end points."""
+    flat, start = _flat(parts)
+    fits = np.empty((len(parts), 7))
+    ends = np.empty((len(parts), 2, 2))
+    _fit_parts(np.ascontiguousarray(points, np.float64), flat, start, fits, ends)
+    return fits, ends
 
 
 def line_end_points(points: np.ndarray, idx: np.ndarray, fit: LineFit) -> np.ndarray:
@@ -186,6 +236,33 @@ def floor_line_parameters(p0: np.ndarray, p1: np.ndarray) -> tuple[float, float,
         angle = float(np.arctan2(d[1], d[0]) + np.pi / 2)
     else:
         angle = float(np.arctan2(foot[1], foot[0]))
+    return dist, angle, length
+
+
+def row_dots(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a[k] @ b[k]`` of every row pair of a, b (N, 2), as numpy's 1-D ``@`` gives them (a
+    stacked matmul: the same products and fused addition as the single dot, which a sum of
+    products is not)."""
+    return np.matmul(a[:, None, :], b[:, :, None])[:, 0, 0]
+
+
+def floor_lines_parameters(p0: np.ndarray, p1: np.ndarray
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """floor_line_parameters of many lines at once (end points p0, p1 (N, 2)): (N,) each of
+    the perpendicular distances, their angles and the lengths, with the same arithmetic (the
+    dot products by row_dots, which computes them as ``p0 @ d`` does)."""
+    d = p1 - p0
+    length = np.hypot(d[:, 0], d[:, 1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = -row_dots(p0, d) / (length * length)
+    foot = p0 + t[:, None] * d
+    dist = np.hypot(foot[:, 0], foot[:, 1])
+    angle = np.where(dist < 1e-9, np.arctan2(d[:, 1], d[:, 0]) + np.pi / 2,
+                     np.arctan2(foot[:, 1], foot[:, 0]))
+    zero = length == 0
+    if zero.any():
+        dist = np.where(zero, np.hypot(p0[:, 0], p0[:, 1]), dist)
+        angle = np.where(zero, np.arctan2(p0[:, 1], p0[:, 0]), angle)
     return dist, angle, length
 
 
@@ -260,6 +337,35 @@ def refine_segment(ends: np.ndarray, white: np.ndarray, lens: np.ndarray, step: 
     return RefinedLine(res[1:5].reshape(2, 2).copy(), fit, pts, widths)
 
 
+def refine_segments(ends: np.ndarray, white: np.ndarray, lens: np.ndarray, step: float,
+                    reach: float, extend: float, min_points: int, grow: float = 0.0
+                    ) -> list[RefinedLine | None]:
+    """refine_segment of every segment (ends (N, 2, 2) ideal px), in one compiled call
+    (``_refine_all``: refine_kernel per segment, the points and widths of all of them one
+    after another)."""
+    ends = np.ascontiguousarray(ends, np.float64).reshape(-1, 2, 2)
+    n = len(ends)
+    res = np.empty((n, 12))
+    # at most one point per profile: (length + 2 extend) / step + 1 per segment
+    length = np.hypot(*(ends[:, 1] - ends[:, 0]).T)
+    cap = int(np.sum(np.floor((length + 2 * extend) / step) + 2)) if n else 0
+    pts = np.empty((cap, 2))
+    widths = np.empty(cap)
+    start = np.zeros(n + 1, np.int64)
+    _refine_all(ends, white, lens, float(step), float(reach), float(extend), int(min_points),
+                float(grow), res, pts, widths, start)
+    out: list[RefinedLine | None] = []
+    for k in range(n):
+        if res[k, 0] == 0:
+            out.append(None)
+            continue
+        r = res[k]
+        fit = LineFit(r[5:7].copy(), r[7:9].copy(), r[9:11].copy(), float(r[11]))
+        out.append(RefinedLine(r[1:5].reshape(2, 2).copy(), fit, pts[start[k]:start[k + 1]],
+                               widths[start[k]:start[k + 1]]))
+    return out
+
+
 def grow_along(white: np.ndarray, lens: np.ndarray, end: np.ndarray, direction: np.ndarray,
                step: float, reach: float, grow: float, tol: float) -> np.ndarray:
     """The point (2,) ideal px up to which the white line goes on from ``end`` along the unit
@@ -275,7 +381,15 @@ def grow_along(white: np.ndarray, lens: np.ndarray, end: np.ndarray, direction: 
 def distort_point(lens, x, y):
     """An ideal pixel (x, y) -> the distorted image pixel (the lens of ``lens_parameters``);
     the compiled one-point form of ``distort_ideal``."""
-    fx, fy, cx, cy, k1, k2, p1, p2, k3 = lens
+    return _distort(x, y, lens[0], lens[1], lens[2], lens[3], lens[4], lens[5], lens[6],
+                    lens[7], lens[8])
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _distort(x, y, fx, fy, cx, cy, k1, k2, p1, p2, k3):
+    """distort_point with the lens's values given one by one (a loop that reads them once
+    before it runs on vectors: read from the array inside it, they might change with its
+    stores)."""
     nx = (x - cx) / fx
     ny = (y - cy) / fy
     r2 = nx * nx + ny * ny
@@ -293,35 +407,28 @@ def _distort_all(lens, p, out):
 
 @njit(cache=True, nogil=True, inline="always")
 def _bilinear_at(image, x, y):
+    """The image bilinearly at (x, y), pixels outside it 0: each of the four pixels read at
+    its index clamped to the image and taken where it lies inside (no branch, so that a loop
+    of these runs on vectors; adding +0.0 for a pixel outside leaves the sum as skipping it
+    would)."""
     h, w = image.shape
     x0 = np.floor(x)
     y0 = np.floor(y)
     fx, fy = x - x0, y - y0
-    ix, iy = int(x0), int(y0)
+    ix, iy = np.int64(x0), np.int64(y0)
     out = 0.0
     for dy in range(2):
         wy = (1.0 - fy) if dy == 0 else fy
         yi = iy + dy
-        if yi < 0 or yi >= h:
-            continue
+        in_y = (yi >= 0) and (yi < h)
+        yc = min(max(yi, 0), h - 1)
         for dx in range(2):
             wx = (1.0 - fx) if dx == 0 else fx
             xi = ix + dx
-            if xi < 0 or xi >= w:
-                continue
-            out += image[yi, xi] * (wx * wy)
+            xc = min(max(xi, 0), w - 1)
+            v = np.float64(image[yc, xc]) if (in_y and (xi >= 0) and (xi < w)) else 0.0
+            out += v * (wx * wy)
     return out
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _profile_sample(image, lens, bx, by, nx, ny, reach, k, prof):
-    """Sample k of a profile across a line at (bx, by) (offset -reach + k along the normal
-    (nx, ny)), taken once into ``prof``."""
-    if np.isnan(prof[k]):
-        a = -reach + k
-        ix, iy = distort_point(lens, bx + a * nx, by + a * ny)
-        prof[k] = _bilinear_at(image, ix, iy)
-    return prof[k]
 
 
 @njit(cache=True, nogil=True)
@@ -333,19 +440,29 @@ def _profile_runs(image, lens, ox, oy, ux, uy, along, reach, centre, width, ok):
     t = int(round(2 * reach)) + 1  # offsets -reach .. reach, 1 px apart
     mid = t // 2
     prof = np.empty(t)
-    # the samples are taken as needed, outward from the middle (NaN: not yet sampled): the
-    # run nearest the middle and its extent need only those up to one past its ends
+    xs = np.empty(t)  # the samples' image positions
+    ys = np.empty(t)
+    fx, fy, cx, cy = lens[0], lens[1], lens[2], lens[3]
+    k1, k2, p1, p2, k3 = lens[4], lens[5], lens[6], lens[7], lens[8]
     for s in range(len(along)):
-        prof[:] = np.nan
         bx, by = ox + along[s] * ux, oy + along[s] * uy
+        # the whole profile, in two passes that run on vectors: the samples' image
+        # positions through the lens, then their bilinear values (cheaper than taking only
+        # the samples the run search below reads, one by one)
+        for k in range(t):
+            a = -reach + k
+            xs[k], ys[k] = _distort(bx + a * nx, by + a * ny, fx, fy, cx, cy, k1, k2, p1, p2,
+                                    k3)
+        for k in range(t):
+            prof[k] = _bilinear_at(image, xs[k], ys[k])
         best = -1
         for d in range(mid + 1):
             k = mid - d
-            if k >= 0 and _profile_sample(image, lens, bx, by, nx, ny, reach, k, prof) >= 0.5:
+            if k >= 0 and prof[k] >= 0.5:
                 best = k
                 break
             k = mid + d
-            if k < t and _profile_sample(image, lens, bx, by, nx, ny, reach, k, prof) >= 0.5:
+            if k < t and prof[k] >= 0.5:
                 best = k
                 break
         if best < 0:
@@ -354,11 +471,9 @@ def _profile_runs(image, lens, ox, oy, ux, uy, along, reach, centre, width, ok):
             width[s] = 0.0
             continue
         lo, hi = best, best
-        while lo > 0 and _profile_sample(image, lens, bx, by, nx, ny, reach, lo - 1,
-                                         prof) >= 0.5:
+        while lo > 0 and prof[lo - 1] >= 0.5:
             lo -= 1
-        while hi < t - 1 and _profile_sample(image, lens, bx, by, nx, ny, reach, hi + 1,
-                                             prof) >= 0.5:
+        while hi < t - 1 and prof[hi + 1] >= 0.5:
             hi += 1
         mass, wsum = 0.0, 0.0
         for k in range(lo, hi + 1):
@@ -449,6 +564,52 @@ def _split_ranges(p, max_distance, min_nodes, out):
         stack[top + 1, 0], stack[top + 1, 1] = a, a + k + 1
         top += 2
     return m
+
+
+@njit(cache=True, nogil=True)
+def _split_all(points, flat, start, max_distance, min_nodes, out, out_start):
+    """split_components, compiled: per component (``flat[start[c]:start[c + 1]]``) its nodes
+    with finite points, split by _split_ranges; the parts' node indices one after another
+    into ``out``, part k at ``out[out_start[k]:out_start[k + 1]]``. Returns their number."""
+    m, k = 0, 0
+    for c in range(len(start) - 1):
+        a, b = start[c], start[c + 1]
+        idx = np.empty(b - a, np.int64)
+        n = 0
+        for i in range(a, b):
+            j = flat[i]
+            if np.isfinite(points[j, 0]) and np.isfinite(points[j, 1]):
+                idx[n] = j
+                n += 1
+        if n < min_nodes:
+            continue
+        p = np.empty((n, 2))
+        for i in range(n):
+            p[i, 0], p[i, 1] = points[idx[i], 0], points[idx[i], 1]
+        ranges = np.empty((n, 2), np.int64)
+        parts = _split_ranges(p, max_distance, min_nodes, ranges)
+        for r in range(parts):
+            for q in range(ranges[r, 0], ranges[r, 1]):
+                out[k] = idx[q]
+                k += 1
+            m += 1
+            out_start[m] = k
+    return m
+
+
+@njit(cache=True, nogil=True)
+def _fit_parts(points, flat, start, fits, ends):
+    """part_fits, compiled: per part (``flat[start[k]:start[k + 1]]``) _fit_points of its
+    points and _extent along the fit."""
+    for k in range(len(start) - 1):
+        idx = flat[start[k]:start[k + 1]]
+        p = np.empty((len(idx), 2))
+        for i in range(len(idx)):
+            p[i, 0], p[i, 1] = points[idx[i], 0], points[idx[i], 1]
+        cx, cy, ux, uy, nx, ny, rms = _fit_points(p)
+        fits[k, 0], fits[k, 1], fits[k, 2], fits[k, 3] = cx, cy, ux, uy
+        fits[k, 4], fits[k, 5], fits[k, 6] = nx, ny, rms
+        _extent(points, idx, cx, cy, ux, uy, ends[k])
 
 
 @njit(cache=True, nogil=True)
@@ -628,3 +789,20 @@ def refine_kernel(ends, image, lens, step, reach, extend, min_points, grow, res)
     res[5], res[6], res[7], res[8], res[9], res[10] = cx, cy, fux, fuy, fnx, fny
     res[11] = rms
     return pts, widths
+
+
+@njit(cache=True, nogil=True)
+def _refine_all(ends, image, lens, step, reach, extend, min_points, grow, res, pts, widths,
+                start):
+    """refine_segments, compiled: refine_kernel of each segment into ``res[k]``, its points
+    and widths into ``pts`` and ``widths`` from ``start[k]`` on."""
+    for k in range(ends.shape[0]):
+        p, w = refine_kernel(ends[k], image, lens, step, reach, extend, min_points, grow,
+                             res[k])
+        a = start[k]
+        if a + p.shape[0] > pts.shape[0]:
+            raise ValueError("refine_segments: more points than profiles")
+        for i in range(p.shape[0]):
+            pts[a + i, 0], pts[a + i, 1] = p[i, 0], p[i, 1]
+            widths[a + i] = w[i]
+        start[k + 1] = a + p.shape[0]

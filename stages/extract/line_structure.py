@@ -23,6 +23,8 @@ subpixel positions):
 
 from __future__ import annotations
 
+import functools
+import itertools
 import math
 from dataclasses import dataclass, field
 
@@ -95,6 +97,59 @@ def ranking_skeleton(image: np.ndarray, min_value: float, key: np.ndarray | None
     return (image > min_value) & (c < 3), c
 
 
+def skeleton_grid(white: np.ndarray, top: np.ndarray, margin: int, min_value: float,
+                  exact_shares: bool) -> tuple[np.ndarray, np.ndarray, tuple]:
+    """white_inside_boundary, low_pass, ranking_keys and ranking_skeleton of a white-share
+    image in one compiled pass (``_skeleton_grid``) where ``exact_shares``: its values are
+    multiples of a power of two no finer than 2^-6 (counts over a power-of-two cell area),
+    so that the low-pass's quarter and half weights sum them exactly in float32 in any order
+    and the grid is cv2.sepFilter2D's to the bit; else by those functions. Returns (inside,
+    low-passed, (ranking keys, skeleton, ranking count))."""
+    if not exact_shares:
+        inside = white_inside_boundary(white, top, margin)
+        lp = low_pass(inside)
+        key = ranking_keys(lp)
+        skeleton, c = ranking_skeleton(lp, min_value, key)
+        return inside, lp, (key, skeleton, c)
+    h, w = white.shape
+    inside = np.empty((h, w), np.float32)
+    lp = np.empty((h, w), np.float32)
+    key = np.empty((h, w))
+    skeleton = np.empty((h, w), np.bool_)
+    c = np.empty((h, w), np.int8)
+    _skeleton_grid(np.ascontiguousarray(white, np.float32), np.asarray(top, np.float64),
+                   float(margin), np.float32(min_value), inside, lp, key, skeleton, c)
+    return inside, lp, (key, skeleton, c)
+
+
+@njit(cache=True, nogil=True)
+def _skeleton_grid(white, top, margin, min_value, inside, lp, key, skeleton, c):
+    """skeleton_grid's compiled pass (see there): inside the boundary (rows from ceil(top) +
+    margin), the 3 x 3 binomial low-pass (zero beyond the grid), its ranking keys, the
+    ranking count (_rank_counts) and the skeleton (low-passed above min_value, count < 3)."""
+    h, w = white.shape
+    for y in range(h):
+        for x in range(w):
+            inside[y, x] = white[y, x] if y >= np.ceil(top[x]) + margin else np.float32(0.0)
+    quarter, half = np.float32(0.25), np.float32(0.5)
+    rows = np.empty((h, w), np.float32)
+    for y in range(h):
+        for x in range(w):
+            left = inside[y, x - 1] if x > 0 else np.float32(0.0)
+            right = inside[y, x + 1] if x < w - 1 else np.float32(0.0)
+            rows[y, x] = quarter * left + half * inside[y, x] + quarter * right
+    for y in range(h):
+        for x in range(w):
+            up = rows[y - 1, x] if y > 0 else np.float32(0.0)
+            down = rows[y + 1, x] if y < h - 1 else np.float32(0.0)
+            lp[y, x] = quarter * up + half * rows[y, x] + quarter * down
+            key[y, x] = np.rint(np.float64(lp[y, x]) * 65536.0) * (h * w) + (y * w + x)
+    _rank_counts(key, c)
+    for y in range(h):
+        for x in range(w):
+            skeleton[y, x] = lp[y, x] > min_value and c[y, x] < 3
+
+
 # ---------------------------------------------------------------------------- 3.3 nodes
 
 
@@ -152,17 +207,42 @@ def place_nodes(image: np.ndarray, skeleton: np.ndarray, c: np.ndarray,
     of its 3 x 3 region assigned to it, 4-neighbours first), 0 elsewhere. ``key``: the
     image's ranking_keys, if already computed."""
     key = ranking_keys(image) if key is None else key
-    priority = np.where(skeleton, key + np.where(c == 0, 2.0 ** 45, 0.0), -1.0)
     # the parallel rounds pick the same pixels as one greedy pass in priority order (every
     # priority differs: a pixel that is the highest available one in its neighbourhood is
     # taken in both, and so, round after round, is every pixel the greedy pass takes)
-    sy, sx = np.nonzero(skeleton)
-    order = np.argsort(-priority[sy, sx], kind="stable")
-    taken = _greedy_nodes(sy[order], sx[order], skeleton.shape[0], skeleton.shape[1])
-    ys, xs = sy[order][taken], sx[order][taken]
-    regions = _node_regions(np.ascontiguousarray(skeleton), ys.astype(np.int64),
-                            xs.astype(np.int64))
+    skeleton = np.ascontiguousarray(skeleton, np.bool_)
+    ys, xs = _nodes_by_priority(np.ascontiguousarray(key, np.float64),
+                                np.ascontiguousarray(c, np.int8), skeleton)
+    regions = _node_regions(skeleton, ys, xs)
     return np.stack([xs, ys], axis=1).astype(int), regions
+
+
+@njit(cache=True, nogil=True)
+def _nodes_by_priority(key, c, skeleton):
+    """place_nodes' greedy pass, compiled: the skeleton pixels (row-major, as np.nonzero)
+    sorted by falling priority (the ranking key, peaks (c = 0) first: 2^45 added), stably,
+    and taken while none of their 8-neighbours is (_greedy_nodes). Returns the nodes' rows
+    and columns in that order."""
+    h, w = skeleton.shape
+    n = 0
+    for y in range(h):
+        for x in range(w):
+            if skeleton[y, x]:
+                n += 1
+    sy = np.empty(n, np.int64)
+    sx = np.empty(n, np.int64)
+    neg = np.empty(n)
+    k = 0
+    for y in range(h):
+        for x in range(w):
+            if skeleton[y, x]:
+                sy[k], sx[k] = y, x
+                neg[k] = -(key[y, x] + (2.0 ** 45 if c[y, x] == 0 else 0.0))
+                k += 1
+    order = np.argsort(neg, kind="mergesort")
+    oy, ox = sy[order], sx[order]
+    taken = _greedy_nodes(oy, ox, h, w)
+    return oy[taken].copy(), ox[taken].copy()
 
 
 @njit("int32[:, ::1](boolean[:, ::1], int64[::1], int64[::1])", cache=True, nogil=True)
@@ -323,20 +403,74 @@ def _region_links(regions, n):
 
 
 def remove_triangles(graph: LineGraph):
-    """Drop the longest side of each triangle of connections (in place)."""
-    for i in range(len(graph)):
-        if len(graph.adj[i]) < 2:
-            continue  # no triangle at i
-        for j in sorted(graph.adj[i]):
-            if j <= i:
-                continue
-            for k in sorted(graph.adj[i] & graph.adj[j]):
-                if k <= j:
-                    continue
-                sides = [(i, j), (j, k), (i, k)]
-                lens = [np.hypot(*(graph.pos[a] - graph.pos[b])) for a, b in sides]
-                a, b = sides[int(np.argmax(lens))]
-                graph.disconnect(a, b)
+    """Drop the longest side of each triangle of connections (in place). The triangles are
+    found by a compiled walk (``_triangle_cuts``: nodes in order, each one's higher neighbours
+    and their common higher neighbours as the sets held them then); the sides it cuts are
+    then taken out of the sets in the same order."""
+    n = len(graph)
+    if n < 3:
+        return
+    start, nbr = _neighbour_lists(graph.adj)
+    cuts = _triangle_cuts(start, nbr, np.ascontiguousarray(graph.pos, np.float64))
+    for a, b in cuts.tolist():
+        graph.disconnect(a, b)
+
+
+@njit("int64[:, ::1](int64[::1], int64[::1], float64[:, ::1])", cache=True, nogil=True)
+def _triangle_cuts(start, nbr, pos):
+    """remove_triangles' walk: for i in order (of degree >= 2 then), for each neighbour j > i
+    (sorted, as connected when i's turn came), for each common neighbour k > j (sorted, as
+    connected when j's turn came), the longest side of (i, j), (j, k), (i, k) (np.hypot,
+    the first of equal ones) is cut. Returns the cuts (a, b) in order."""
+    n = len(start) - 1
+    linked = np.zeros((n, n), np.bool_)
+    deg = np.zeros(n, np.int64)
+    for i in range(n):
+        for q in range(start[i], start[i + 1]):
+            linked[i, nbr[q]] = True
+        deg[i] = start[i + 1] - start[i]
+    cuts = np.empty((len(nbr) + 1, 2), np.int64)
+    m = 0
+    js = np.empty(n, np.int64)
+    ks = np.empty(n, np.int64)
+    lens = np.empty(3)
+    for i in range(n):
+        if deg[i] < 2:
+            continue
+        nj = 0
+        for j in range(i + 1, n):  # ascending: sorted(adj[i]), those above i
+            if linked[i, j]:
+                js[nj] = j
+                nj += 1
+        for a in range(nj):
+            j = js[a]
+            nk = 0
+            for k in range(j + 1, n):
+                if linked[i, k] and linked[j, k]:
+                    ks[nk] = k
+                    nk += 1
+            for b in range(nk):
+                k = ks[b]
+                lens[0] = np.hypot(pos[i, 0] - pos[j, 0], pos[i, 1] - pos[j, 1])
+                lens[1] = np.hypot(pos[j, 0] - pos[k, 0], pos[j, 1] - pos[k, 1])
+                lens[2] = np.hypot(pos[i, 0] - pos[k, 0], pos[i, 1] - pos[k, 1])
+                w = 0
+                for t in range(1, 3):
+                    if lens[t] > lens[w]:
+                        w = t
+                p, q = (i, j) if w == 0 else ((j, k) if w == 1 else (i, k))
+                if linked[p, q]:
+                    linked[p, q] = False
+                    linked[q, p] = False
+                    deg[p] -= 1
+                    deg[q] -= 1
+                if m == len(cuts):
+                    more = np.empty((2 * m, 2), np.int64)
+                    more[:m] = cuts
+                    cuts = more
+                cuts[m, 0], cuts[m, 1] = p, q
+                m += 1
+    return cuts[:m].copy()
 
 
 def limit_degree(graph: LineGraph, max_degree: int = 4):
@@ -470,44 +604,91 @@ def fill_gaps(graph: LineGraph, image: np.ndarray, max_gap: float, min_cos: floa
     grey level along the gap is at least ``min_grey_ratio`` of the nodes'; no node above degree
     ``max_degree``; no connection to a node already three steps away). Accepted greedily by
     score (in place)."""
-    deg = graph.degree()
-    loose = np.nonzero(deg <= 1)[0]
-    if len(loose) == 0 or len(graph) < 2:
+    if len(graph) < 2:
         return
-    pos = graph.pos
-    # the candidates (continuity, closure) by one compiled pass over the loose nodes
     start, nbr = _neighbour_lists(graph.adj)
-    score, ci, cj = _gap_candidates(np.ascontiguousarray(pos, np.float64), start, nbr,
-                                    deg.astype(np.int64), loose.astype(np.int64),
-                                    float(max_gap), float(min_cos), float(close_gap))
-    cand = list(zip(score.tolist(), ci.tolist(), cj.tolist()))
-    if not cand:
+    deg = np.diff(start)
+    loose = np.nonzero(deg <= 1)[0]
+    if len(loose) == 0:
+        return
+    pos = np.ascontiguousarray(graph.pos, np.float64)
+    # the candidates (continuity, closure) by one compiled pass over the loose nodes
+    score, ci, cj = _gap_candidates(pos, start, nbr, deg, loose, float(max_gap), float(min_cos),
+                                    float(close_gap))
+    if len(score) == 0:
         return
     # simplicity: grey level along all candidate gaps, sampled in one pass
-    ij = np.stack([ci, cj], axis=1)
-    t = np.linspace(0.0, 1.0, samples)[None, :, None]
-    pts = (pos[ij[:, 0]][:, None, :] * (1 - t) + pos[ij[:, 1]][:, None, :] * t).astype(np.float32)
+    t = _gap_steps(samples)
+    pts = (pos[ci][:, None, :] * (1 - t) + pos[cj][:, None, :] * t).astype(np.float32)
     grey = cv2.remap(image, pts[..., 0], pts[..., 1], cv2.INTER_LINEAR,
                      borderMode=cv2.BORDER_CONSTANT, borderValue=0).min(axis=1)
-    ref = 0.5 * (graph.value[ij[:, 0]] + graph.value[ij[:, 1]])
-    ratio = np.where(ref > 0, grey / np.maximum(ref, 1e-9), 0.0)
-    scored = [(sc + r, i, j) for (sc, i, j), r in zip(cand, ratio) if r >= min_grey_ratio]
-    scored.sort(key=lambda c: -c[0])
-    for _, i, j in scored:
-        if j in graph.adj[i]:
-            continue
-        if len(graph.adj[i]) >= 2 or len(graph.adj[j]) >= max_degree:
-            continue
+    # the grey ratios, the scores' order and the greedy choice, compiled (_gap_choice)
+    value = np.ascontiguousarray(graph.value)
+    accepted = np.empty((len(score), 2), np.int64)
+    n = _gap_choice(score, ci, cj, np.ascontiguousarray(grey), value, value.dtype.type(1e-9),
+                    float(min_grey_ratio), start, nbr, int(max_degree), accepted)
+    for i, j in accepted[:n].tolist():
         graph.connect(i, j)
+
+
+@njit(cache=True, nogil=True)
+def _gap_choice(score, ci, cj, grey, value, eps, min_ratio, start, nbr, max_degree, accepted):
+    """fill_gaps' choice, compiled: per candidate (score, i, j) its grey ratio (the gap's
+    least grey over the mean of the nodes' values, in their float type, as numpy had it),
+    those of at least ``min_ratio`` ordered by score plus ratio (falling, stably, as Python's
+    sort), and accepted in turn unless already connected, i has two connections or j
+    ``max_degree``. The accepted connections (i, j) go into ``accepted`` in order; returns
+    their number."""
+    m = len(score)
+    total = np.empty(m)
+    keep = np.empty(m, np.int64)
+    k = 0
+    for q in range(m):
+        ref = value.dtype.type(0.5) * (value[ci[q]] + value[cj[q]])
+        r = grey[q] / max(ref, eps) if ref > 0 else grey.dtype.type(0.0)
+        if np.float64(r) >= min_ratio:
+            total[k] = score[q] + np.float64(r)
+            keep[k] = q
+            k += 1
+    order = np.argsort(-total[:k], kind="mergesort")
+    deg = np.empty(len(start) - 1, np.int64)
+    for i in range(len(start) - 1):
+        deg[i] = start[i + 1] - start[i]
+    n = 0
+    for o in order:
+        q = keep[o]
+        i, j = ci[q], cj[q]
+        linked = False
+        for p in range(start[i], start[i + 1]):
+            if nbr[p] == j:
+                linked = True
+        for a in range(n):
+            if (accepted[a, 0] == i and accepted[a, 1] == j) or (accepted[a, 0] == j
+                                                                 and accepted[a, 1] == i):
+                linked = True
+        if linked or deg[i] >= 2 or deg[j] >= max_degree:
+            continue
+        accepted[n, 0], accepted[n, 1] = i, j
+        n += 1
+        deg[i] += 1
+        deg[j] += 1
+    return n
+
+
+@functools.lru_cache(maxsize=4)
+def _gap_steps(samples: int) -> np.ndarray:
+    """np.linspace(0, 1, samples) shaped (1, samples, 1), made once (read-only)."""
+    t = np.linspace(0.0, 1.0, samples)[None, :, None]
+    t.setflags(write=False)
+    return t
 
 
 def _neighbour_lists(adj: list[set]) -> tuple[np.ndarray, np.ndarray]:
     """The graph's connections as flat lists for the kernels: node i's neighbours are
     ``nbr[start[i]:start[i + 1]]`` (in no particular order)."""
-    counts = np.fromiter((len(a) for a in adj), np.int64, len(adj))
     start = np.zeros(len(adj) + 1, np.int64)
-    np.cumsum(counts, out=start[1:])
-    nbr = np.fromiter((k for a in adj for k in a), np.int64, int(start[-1]))
+    np.cumsum(np.fromiter(map(len, adj), np.int64, len(adj)), out=start[1:])
+    nbr = np.fromiter(itertools.chain.from_iterable(adj), np.int64, int(start[-1]))
     return start, nbr
 
 
@@ -626,12 +807,17 @@ def _gap_candidates(pos, start, nbr, deg, loose, max_gap, min_cos, close_gap):
     return score[:m].copy(), ci[:m].copy(), cj[:m].copy()
 
 
-def line_structure_graph(white_lp: np.ndarray, conf: dict
+def line_structure_graph(white_lp: np.ndarray, conf: dict, ranked=None
                          ) -> tuple[LineGraph, np.ndarray, np.ndarray]:
     """Section 3.2-3.3 on the low-passed white image: skeleton, nodes, connections, stretching,
-    splitting of isolated nodes and gap filling. Returns (graph, skeleton, regions)."""
-    key = ranking_keys(white_lp)
-    skeleton, c = ranking_skeleton(white_lp, conf["min_white"], key)
+    splitting of isolated nodes and gap filling. ``ranked``: the image's (ranking keys,
+    skeleton, ranking count), if already computed (skeleton_grid). Returns (graph, skeleton,
+    regions)."""
+    if ranked is None:
+        key = ranking_keys(white_lp)
+        skeleton, c = ranking_skeleton(white_lp, conf["min_white"], key)
+    else:
+        key, skeleton, c = ranked
     pix, regions = place_nodes(white_lp, skeleton, c, key)
     adj = connect_nodes(regions, len(pix))
     graph = LineGraph(pix, pix.astype(np.float64), white_lp[pix[:, 1], pix[:, 0]]
@@ -678,12 +864,23 @@ class KeyStructure:
                 out.append(chain[::-1])
         return out
 
-    def arms(self, k: int, min_nodes: int) -> list[list[int]]:
+    def incidence(self) -> list[list[list[int]]]:
+        """``incident`` of every key node, by one pass over the edges."""
+        out: list[list[list[int]]] = [[] for _ in self.node]
+        for a, b, chain in self.edges:
+            out[a].append(chain)
+            out[b].append(chain[::-1])
+        return out
+
+    def arms(self, k: int, min_nodes: int, deg: np.ndarray | None = None) -> list[list[int]]:
         """The fine chains leaving key node k, each continued through degree-2 key nodes (a
-        bend right next to a junction) until it holds ``min_nodes`` nodes or ends."""
-        deg = self.degree()
+        bend right next to a junction) until it holds ``min_nodes`` nodes or ends (``deg``:
+        the degrees, if already computed)."""
+        deg = self.degree() if deg is None else deg
         out = []
         for e, (a, b, chain) in enumerate(self.edges):
+            if a != k and b != k:
+                continue  # (most edges: no reversed copy of their chain made)
             for start, end, ch in ((a, b, chain), (b, a, chain[::-1])):
                 if start != k:
                     continue
@@ -787,54 +984,116 @@ def _short_spurs(start, nbr, pos, min_length):
 
 def trace_chains(graph: LineGraph) -> list[list[int]]:
     """Chains of degree-2 nodes between nodes of another degree (each chain includes its two
-    end nodes); closed loops of degree-2 nodes start and end at their first node."""
-    adj = graph.adj
-    two = [len(a) == 2 for a in adj]
-    used = [False] * len(adj)  # degree-2 nodes already in a chain
-    direct = set()  # chains without interior nodes, as (low, high)
-    chains = []
+    end nodes); closed loops of degree-2 nodes start and end at their first node. Walked by
+    a compiled pass (``_trace``) over the neighbour lists."""
+    n = len(graph.adj)
+    if n == 0:
+        return []
+    start, nbr = _neighbour_lists(graph.adj)
+    flat = np.empty(3 * (len(nbr) + n) + 4, np.int64)
+    bounds = np.empty(len(nbr) + n + 2, np.int64)
+    m = _trace(start, nbr, flat, bounds)
+    nodes, b = flat[:bounds[m]].tolist(), bounds[:m + 1].tolist()
+    return [nodes[b[k]:b[k + 1]] for k in range(m)]
 
-    def walk(prev, cur, chain):
-        while two[cur] and not used[cur]:
-            used[cur] = True
-            a, b = adj[cur]
-            prev, cur = cur, (b if a == prev else a)
-            chain.append(cur)
-        return chain
 
-    for s in range(len(adj)):
-        if two[s] or not adj[s]:
+@njit("int64(int64[::1], int64[::1], int64[::1], int64[::1])", cache=True, nogil=True)
+def _trace(start, nbr, flat, bounds):
+    """trace_chains' walk: nodes of degree other than 2 (and not 0) in order, each one's
+    neighbours in ascending order: a walk along the degree-2 nodes not yet used, or a direct
+    chain to another such node (once per pair); then the loops of unused degree-2 nodes,
+    each from its first node through its lower neighbour. Chain k's nodes into
+    ``flat[bounds[k]:bounds[k + 1]]``; returns the number of chains."""
+    n = len(start) - 1
+    used = np.zeros(n, np.bool_)
+    direct = np.zeros((n, n), np.bool_)
+    m, k = 0, 0
+    for s in range(n):
+        d = start[s + 1] - start[s]
+        if d == 2 or d == 0:
             continue
-        for n in sorted(adj[s]):
-            if two[n]:
-                if not used[n]:
-                    chains.append(walk(s, n, [s, n]))
-            elif (min(s, n), max(s, n)) not in direct:
-                direct.add((min(s, n), max(s, n)))
-                chains.append([s, n])
-    for s in range(len(adj)):  # loops of degree-2 nodes only
-        if two[s] and not used[s]:
+        nb = np.sort(nbr[start[s]:start[s + 1]])
+        for t in nb:
+            if start[t + 1] - start[t] == 2:
+                if used[t]:
+                    continue
+                bounds[m] = k
+                flat[k], flat[k + 1] = s, t
+                k += 2
+                prev, cur = s, t
+                while start[cur + 1] - start[cur] == 2 and not used[cur]:
+                    used[cur] = True
+                    a = nbr[start[cur]]
+                    nxt = nbr[start[cur] + 1] if a == prev else a
+                    prev, cur = cur, nxt
+                    flat[k] = cur
+                    k += 1
+                m += 1
+            else:
+                lo, hi = min(s, t), max(s, t)
+                if direct[lo, hi]:
+                    continue
+                direct[lo, hi] = True
+                bounds[m] = k
+                flat[k], flat[k + 1] = s, t
+                k += 2
+                m += 1
+    for s in range(n):  # loops of degree-2 nodes only
+        if start[s + 1] - start[s] == 2 and not used[s]:
             used[s] = True
-            n = min(adj[s])
-            chain = walk(s, n, [s, n])
-            if chain[-1] != s:
-                chain.append(s)
-            chains.append(chain)
-    return chains
+            t = min(nbr[start[s]], nbr[start[s] + 1])
+            bounds[m] = k
+            flat[k], flat[k + 1] = s, t
+            k += 2
+            prev, cur = s, t
+            while start[cur + 1] - start[cur] == 2 and not used[cur]:
+                used[cur] = True
+                a = nbr[start[cur]]
+                nxt = nbr[start[cur] + 1] if a == prev else a
+                prev, cur = cur, nxt
+                flat[k] = cur
+                k += 1
+            if flat[k - 1] != s:
+                flat[k] = s
+                k += 1
+            m += 1
+    bounds[m] = k
+    return m
 
 
 def smooth_lines(graph: LineGraph, iterations: int = 2) -> np.ndarray:
     """Node positions smoothed along the lines: each degree-2 node moves to the mean of itself
     and its two neighbours; other nodes stay (returns new positions)."""
-    pos = graph.pos.copy()
-    deg = graph.degree()
-    idx = np.nonzero(deg == 2)[0]
-    if len(idx) == 0:
+    pos = np.array(graph.pos, np.float64)  # a copy
+    if len(pos) == 0:
         return pos
-    nb = np.array([sorted(graph.adj[i]) for i in idx])
-    for _ in range(iterations):
-        pos[idx] = (pos[idx] + pos[nb[:, 0]] + pos[nb[:, 1]]) / 3.0
+    start, nbr = _neighbour_lists(graph.adj)
+    _smooth_chains(pos, start, nbr, int(iterations))
     return pos
+
+
+@njit(cache=True, nogil=True)
+def _smooth_chains(pos, start, nbr, iterations):
+    """smooth_lines in place, compiled: each round every degree-2 node's new position is
+    (its own + its lower neighbour's + its higher neighbour's) / 3 from the round's old
+    positions, as the numpy expression computed it."""
+    n = len(start) - 1
+    idx = np.empty(n, np.int64)
+    lo = np.empty(n, np.int64)
+    hi = np.empty(n, np.int64)
+    m = 0
+    for i in range(n):
+        if start[i + 1] - start[i] == 2:
+            a, b = nbr[start[i]], nbr[start[i] + 1]
+            idx[m], lo[m], hi[m] = i, min(a, b), max(a, b)
+            m += 1
+    new = np.empty((m, 2))
+    for _ in range(iterations):
+        for k in range(m):
+            for d in range(2):
+                new[k, d] = (pos[idx[k], d] + pos[lo[k], d] + pos[hi[k], d]) / 3.0
+        for k in range(m):
+            pos[idx[k], 0], pos[idx[k], 1] = new[k, 0], new[k, 1]
 
 
 def turning_angles(chains: list[list[int]], pos: np.ndarray, reach: float,
@@ -851,43 +1110,107 @@ def turning_angles(chains: list[list[int]], pos: np.ndarray, reach: float,
     if not chains:
         return np.zeros(0), (None if floor is None else np.zeros(0)), np.zeros(0), \
             np.zeros(0, int)
-    lens = np.array([len(c) for c in chains], dtype=int)
-    idx = np.concatenate(chains).astype(int)
-    pts = pos[idx]
-    start = np.repeat(np.cumsum(lens) - lens, lens)
-    last = start + np.repeat(lens, lens) - 1
-    step = np.concatenate([[0.0], np.hypot(*np.diff(pts, axis=0).T)])
-    step[np.cumsum(lens) - lens] = 0.0  # each chain starts at 0
-    arc = np.cumsum(step)
-    arc = arc - arc[start]
-    # chains laid end to end far apart, so one sorted search serves them all
-    far = (np.repeat(np.arange(len(chains)), lens) * (arc.max(initial=0.0) + 4 * reach + 1.0))
-    key = arc + far
-    back = np.clip(np.searchsorted(key, key - reach, side="right") - 1, start, last)
-    fwd = np.clip(np.searchsorted(key, key + reach, side="left"), start, last)
-    ends = (np.arange(len(idx)) == start) | (np.arange(len(idx)) == last)
-    a = pts - pts[back]
-    b = pts[fwd] - pts
-    turn = _turns(a, b, ends)
+    lens = np.array([len(c) for c in chains], dtype=np.int64)
+    idx = np.concatenate(chains).astype(np.int64)
+    n = len(idx)
+    cos_img = np.empty(n)
+    cos_floor = np.empty(n)
+    arc = np.empty(n)
+    start = np.empty(n, np.int64)
+    ends = np.empty(n, np.bool_)
+    use_floor = floor is not None
+    _turn_cosines(np.ascontiguousarray(pos, np.float64), idx, lens, float(reach),
+                  np.ascontiguousarray(floor, np.float64) if use_floor else np.zeros((1, 2)),
+                  use_floor, cos_img, cos_floor, arc, start, ends)
+    turn = np.arccos(cos_img)  # numpy's arccos (its SIMD one, as before)
+    turn[ends] = 0.0
     floor_turn = None
-    if floor is not None:
-        fl = floor[idx]
-        fa, fb = fl - fl[back], fl[fwd] - fl
-        known = np.all(np.isfinite(fa), axis=1) & np.all(np.isfinite(fb), axis=1)
-        floor_turn = _turns(np.where(known[:, None], fa, a), np.where(known[:, None], fb, b),
-                            ends)
+    if use_floor:
+        floor_turn = np.arccos(cos_floor)
+        floor_turn[ends] = 0.0
     return turn, floor_turn, arc, start
 
 
-def _turns(a: np.ndarray, b: np.ndarray, ends: np.ndarray) -> np.ndarray:
-    """The angles (rad) between the arms a (back) and b (forward), (N, 2) each; 0 at ``ends``
-    and where an arm is empty."""
-    na, nb = np.hypot(*a.T), np.hypot(*b.T)
-    ok = (na > 0) & (nb > 0)
-    cosang = np.where(ok, (a * b).sum(axis=1) / np.where(ok, na * nb, 1.0), 1.0)
-    turn = np.arccos(np.clip(cosang, -1.0, 1.0))
-    turn[ends] = 0.0
-    return turn
+@njit(cache=True, nogil=True, inline="always")
+def _arm_cosine(ax, ay, bx, by):
+    """The clipped cosine of the angle between the arms a (back) and b (forward), as numpy
+    had it ((a . b) / (|a| |b|), np.hypot lengths; 1 where an arm is empty)."""
+    na, nb = np.hypot(ax, ay), np.hypot(bx, by)
+    if not (na > 0 and nb > 0):
+        return 1.0
+    c = (ax * bx + ay * by) / (na * nb)
+    if c < -1.0:
+        return -1.0
+    if c > 1.0:
+        return 1.0
+    return c
+
+
+@njit(cache=True, nogil=True)
+def _search(key, v, right):
+    """np.searchsorted(key, v, side "right" if ``right`` else "left")."""
+    lo, hi = 0, len(key)
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if key[mid] < v or (right and key[mid] == v):
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True, nogil=True)
+def _turn_cosines(pos, idx, lens, reach, floor, use_floor, cos_img, cos_floor, arc, start,
+                  ends):
+    """turning_angles before the arccos, compiled, as its numpy expressions computed it: the
+    arcs (np.hypot steps, one cumulative sum over all chains, less each chain's first), the
+    arms' far ends by a sorted search of the chains laid end to end (the same keys), and the
+    arms' clipped cosines in the image and (``use_floor``) on the floor where both floor
+    arms are known; ``ends`` marks each chain's first and last node."""
+    n = len(idx)
+    cum = np.empty(n)  # the steps' cumulative sum over all chains (a chain's first step 0)
+    total = 0.0
+    k = 0
+    for c in range(len(lens)):
+        for j in range(lens[c]):
+            if j > 0:
+                i0, i1 = idx[k - 1], idx[k]
+                total = total + np.hypot(pos[i1, 0] - pos[i0, 0], pos[i1, 1] - pos[i0, 1])
+            else:
+                total = total + 0.0
+            cum[k] = total
+            start[k] = k - j
+            k += 1
+    top = 0.0
+    for k in range(n):
+        arc[k] = cum[k] - cum[start[k]]
+        top = max(top, arc[k])
+    span = top + 4 * reach + 1.0
+    key = np.empty(n)
+    k = 0
+    for c in range(len(lens)):
+        for _ in range(lens[c]):
+            key[k] = arc[k] + c * span
+            k += 1
+    k = 0
+    for c in range(len(lens)):
+        first, last = k, k + lens[c] - 1
+        for j in range(lens[c]):
+            back = min(max(_search(key, key[k] - reach, True) - 1, first), last)
+            fwd = min(max(_search(key, key[k] + reach, False), first), last)
+            ends[k] = j == 0 or j == lens[c] - 1
+            p, q, r = idx[back], idx[k], idx[fwd]
+            ax, ay = pos[q, 0] - pos[p, 0], pos[q, 1] - pos[p, 1]
+            bx, by = pos[r, 0] - pos[q, 0], pos[r, 1] - pos[q, 1]
+            cos_img[k] = _arm_cosine(ax, ay, bx, by)
+            if use_floor:
+                fax, fay = floor[q, 0] - floor[p, 0], floor[q, 1] - floor[p, 1]
+                fbx, fby = floor[r, 0] - floor[q, 0], floor[r, 1] - floor[q, 1]
+                if (np.isfinite(fax) and np.isfinite(fay) and np.isfinite(fbx)
+                        and np.isfinite(fby)):
+                    ax, ay, bx, by = fax, fay, fbx, fby
+                cos_floor[k] = _arm_cosine(ax, ay, bx, by)
+            k += 1
 
 
 def corner_nodes(turn: np.ndarray, arc: np.ndarray, reach: float, min_turn: float) -> list[int]:
@@ -904,6 +1227,47 @@ def corner_nodes(turn: np.ndarray, arc: np.ndarray, reach: float, min_turn: floa
                 and arc[-1] - arc[i] >= reach * 0.5:
             kept.append(int(i))
     return sorted(kept)
+
+
+@njit(cache=True, nogil=True)
+def _corner_cuts(turn, arc, offsets, reach, min_turn, cuts, cut_start, by_python):
+    """corner_nodes of every chain (``offsets``: its first index in turn and arc), compiled:
+    the same stable order by falling turn and the same tests; chain c's cuts, ascending,
+    into ``cuts[cut_start[c]:cut_start[c + 1]]``. A chain with a NaN turn is left to
+    corner_nodes (``by_python``)."""
+    m = 0
+    kept = np.empty(len(turn), np.int64)
+    for c in range(len(offsets) - 1):
+        cut_start[c] = m
+        i0, i1 = offsets[c], offsets[c + 1]
+        n = i1 - i0
+        t, a = turn[i0:i1], arc[i0:i1]
+        top = -np.inf
+        for i in range(n):
+            if np.isnan(t[i]):
+                by_python[c] = True
+            top = max(top, t[i])
+        if by_python[c] or n < 3 or top < min_turn:
+            continue
+        neg = np.empty(n)
+        for i in range(n):
+            neg[i] = -t[i]
+        nk = 0
+        for i in np.argsort(neg, kind="mergesort"):
+            if t[i] < min_turn:
+                break
+            ok = a[i] >= reach * 0.5 and a[n - 1] - a[i] >= reach * 0.5
+            for q in range(nk):
+                if not abs(a[i] - a[kept[q]]) >= reach:
+                    ok = False
+            if ok:
+                kept[nk] = i
+                nk += 1
+        chosen = np.sort(kept[:nk])
+        for q in range(nk):
+            cuts[m] = chosen[q]
+            m += 1
+    cut_start[len(offsets) - 1] = m
 
 
 def key_structure(graph: LineGraph, conf: dict, floor_of=None) -> KeyStructure:
@@ -933,10 +1297,19 @@ def key_structure(graph: LineGraph, conf: dict, floor_of=None) -> KeyStructure:
         # of noise is a large floor angle
         turn = np.where(turn >= conf["corner_min_turn_image"], floor_turn, 0.0)
         min_turn = conf["corner_min_turn_floor"]
-    firsts = np.unique(start)
-    for chain, i0 in zip(chains, firsts):
-        i1 = i0 + len(chain)
-        cut = corner_nodes(turn[i0:i1], arc[i0:i1], reach, min_turn)
+    # the corners of all chains at once (corner_nodes, compiled: _corner_cuts)
+    offsets = np.zeros(len(chains) + 1, np.int64)
+    np.cumsum(np.fromiter(map(len, chains), np.int64, len(chains)), out=offsets[1:])
+    cuts = np.empty(len(turn), np.int64)
+    cut_start = np.empty(len(chains) + 1, np.int64)
+    by_python = np.zeros(len(chains), np.bool_)
+    _corner_cuts(np.ascontiguousarray(turn, np.float64), np.ascontiguousarray(arc, np.float64),
+                 offsets, float(reach), float(min_turn), cuts, cut_start, by_python)
+    cut_list, cut_at = cuts.tolist(), cut_start.tolist()
+    for c, chain in enumerate(chains):
+        i0, i1 = offsets[c], offsets[c + 1]
+        cut = corner_nodes(turn[i0:i1], arc[i0:i1], reach, min_turn) if by_python[c] \
+            else cut_list[cut_at[c]:cut_at[c + 1]]
         bounds = [0] + cut + [len(chain) - 1]
         for a, b in zip(bounds[:-1], bounds[1:]):
             edges.append((key(chain[a]), key(chain[b]), chain[a:b + 1]))

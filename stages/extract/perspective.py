@@ -36,18 +36,19 @@ from .field_boundary import DEFAULT_WEIGHTS, boundary_polyline, field_boundary
 from .goal_posts import goal_posts, is_post_bar
 from .line_fit import (
     RefinedLine,
+    distort_ideal,
     floor_line_parameters,
+    floor_lines_parameters,
     lens_parameters,
     line_components,
     median,
-    refine_segment,
+    refine_segments,
     split_and_merge,
 )
 from .line_structure import (
     key_structure,
     line_structure_graph,
-    low_pass,
-    white_inside_boundary,
+    skeleton_grid,
 )
 
 confs = {
@@ -253,6 +254,9 @@ class IdealPixels:
         grid = np.stack(np.meshgrid(us, vs), axis=-1)
         ideal = camera.undistort_points(grid)
         self.stride = stride
+        # the inverse intrinsics, for the floor projections of every frame
+        self.k_inv = np.linalg.inv(camera.camera_matrix)
+        self.k_inv.setflags(write=False)
         self.map_u = ideal[..., 0].astype(np.float32)
         self.map_v = ideal[..., 1].astype(np.float32)
         self._cell_centres: dict[tuple, np.ndarray] = {}
@@ -303,16 +307,17 @@ class FloorProjection:
     once per frame."""
 
     def __init__(self, camera, pitch=None, roll=None):
-        m = camera.rotation(pitch, roll) @ np.linalg.inv(camera.camera_matrix)
+        m = camera.rotation(pitch, roll) @ ideal_pixels(camera).k_inv
         self.m = m
         self.m_inv = np.linalg.inv(m)
         self.height = float(camera.height)
         self.position = np.asarray(camera.position, float)
+        self._shifted = bool(self.position.any())
 
     def __call__(self, ideal) -> np.ndarray:
-        p = np.ascontiguousarray(np.asarray(ideal, np.float64).reshape(-1, 2))
+        p = np.ascontiguousarray(ideal, np.float64).reshape(-1, 2)
         out = np.empty_like(p)
-        _to_floor(p, self.m, self.height, self.position, bool(self.position.any()), out)
+        _to_floor(p, self.m, self.height, self.position, self._shifted, out)
         return out
 
     def to_ideal(self, floor) -> np.ndarray:
@@ -357,29 +362,35 @@ def _empty(n: int) -> np.ndarray:
     return np.zeros((0, n), np.float32)
 
 
-def below_horizon(camera, shape, cell: int, pitch=None, roll=None) -> colour.BlockMask:
+def below_horizon(camera, shape, cell: int, pitch=None, roll=None,
+                  to_floor: FloorProjection | None = None) -> colour.BlockMask:
     """Mask (h, w, kept per block: colour.BlockMask) of the pixels whose cell (``cell`` x
     ``cell`` blocks) has its centre's viewing ray pointing below the horizon, where the floor
-    can be."""
+    can be (``to_floor``: the frame's FloorProjection at these angles, if already made)."""
     h, w = shape[:2]
     hb, wb = -(-h // cell), -(-w // cell)
-    m = camera.rotation(pitch, roll) @ np.linalg.inv(camera.camera_matrix)
-    ideal = ideal_pixels(camera).cell_centres(shape, cell)
+    undistort = ideal_pixels(camera)
+    m = camera.rotation(pitch, roll) @ undistort.k_inv if to_floor is None else to_floor.m
+    ideal = undistort.cell_centres(shape, cell)
     down = (ideal @ m[2, :2] + m[2, 2]) < 0  # NaN (outside the lens model) compares False
     return colour.BlockMask(down.reshape(hb, wb), cell, (h, w))
 
 
-def colour_shares(image_bgr: np.ndarray, conf: dict, camera=None, pitch=None, roll=None
-                  ) -> dict[str, np.ndarray]:
+def colour_shares(image_bgr: np.ndarray, conf: dict, camera=None, pitch=None, roll=None,
+                  to_floor: FloorProjection | None = None) -> dict[str, np.ndarray]:
     """Step 1: the subsampled colour-class images as counts (0..cell^2) per class name. The
     field green is estimated from the floor below the horizon when the camera is given (walls
-    and the hall's other floor hold large areas of faintly green-tinted grey)."""
+    and the hall's other floor hold large areas of faintly green-tinted grey; ``to_floor``:
+    the frame's FloorProjection, if already made)."""
     cell = conf["cell"]
     floor = None if camera is None else below_horizon(camera, image_bgr.shape, cell, pitch,
-                                                      roll)
+                                                      roll, to_floor)
     step = int(conf.get("colour_step", 1))
     counts = None
-    white_px = np.zeros(image_bgr.shape[:2], np.uint8) if step == 1 else None
+    white_px = None
+    if step == 1:  # the class kernel writes every row of whole cells; the rest stay 0
+        white_px = np.empty(image_bgr.shape[:2], np.uint8)
+        white_px[image_bgr.shape[0] // cell * cell:] = 0
     if step == 1:  # the compiled pass (the hue model of the green test)
         yuv = colour.to_yuv(image_bgr)
         fc = colour.estimate_field_colour(yuv, conf["colour"], floor)
@@ -411,15 +422,18 @@ def extract_frame(image_bgr: np.ndarray, camera, conf: dict, pitch: float | None
         position = None if x is None and y is None else (
             camera.position[0] if x is None else x, camera.position[1] if y is None else y)
         camera = camera.with_pose(yaw=yaw, height=height, position=position)
-    counts = colour_shares(image_bgr, conf, camera, pitch, roll)
-    return extract_from_counts(counts, camera, conf, pitch, roll)
+    to_floor = FloorProjection(camera, pitch, roll)  # the frame's rotation, made once
+    counts = colour_shares(image_bgr, conf, camera, pitch, roll, to_floor)
+    return extract_from_counts(counts, camera, conf, pitch, roll, to_floor=to_floor)
 
 
 def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
                         pitch: float | None = None, roll: float | None = None,
-                        trace: dict | None = None) -> dict[str, np.ndarray]:
+                        trace: dict | None = None,
+                        to_floor: FloorProjection | None = None) -> dict[str, np.ndarray]:
     """Steps 2-7 on the subsampled colour counts (see extract_frame). ``trace``, if given, is
-    filled with the intermediate images and graphs (for plots and tests)."""
+    filled with the intermediate images and graphs (for plots and tests); ``to_floor``: the
+    frame's FloorProjection at these angles, if already made."""
     cell = int(conf["cell"])
     area = float(cell * cell)
     # the lens's unreliable corners lose their white (lines); the boundary scan keeps them
@@ -439,13 +453,15 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
     # 4. line structure graph (a post's lower part becomes a segment there: is_post_bar tells
     # it from a line, and crossings at a post's foot are not taken)
     sc = conf["skeleton"]
-    inside = white_inside_boundary(white, top, sc["boundary_margin"])
-    lp = low_pass(inside)
-    graph, skeleton, _ = line_structure_graph(lp, sc)
+    # (the white shares are counts over the cell's area: exact binary fractions when the
+    # cell is a power of two, and the compiled low-pass is then OpenCV's to the bit)
+    inside, lp, ranked = skeleton_grid(white, top, sc["boundary_margin"], sc["min_white"],
+                                       cell & (cell - 1) == 0 and cell <= 8)
+    graph, skeleton, _ = line_structure_graph(lp, sc, ranked)
 
     # 5. key structure; 6. field lines (both on undistorted node coordinates)
     undistort = ideal_pixels(camera)
-    to_floor = FloorProjection(camera, pitch, roll)
+    to_floor = FloorProjection(camera, pitch, roll) if to_floor is None else to_floor
 
     def floor_of(grid_pos):
         return to_floor(undistort(grid_to_pixels(grid_pos, cell)))
@@ -534,18 +550,26 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
     refined = [None] * len(segments)
     if white_px is not None and lc.get("refine", True):
         lens = lens_parameters(camera)
-        refined = [refine_segment(seg.ends, white_px, lens, lc["refine_step"],
-                                  lc["refine_reach"] * cell, lc["refine_extend"] * cell,
-                                  lc["refine_min_points"], lc["refine_grow"] * cell)
-                   for seg in segments]
+        refined = refine_segments(np.stack([seg.ends for seg in segments]), white_px, lens,
+                                  lc["refine_step"], lc["refine_reach"] * cell,
+                                  lc["refine_extend"] * cell, lc["refine_min_points"],
+                                  lc["refine_grow"] * cell)
     ratios = width_ratios([r for r in refined if r is not None], to_floor, lc["line_width"])
     ends = np.concatenate([seg.ends if r is None else r.ends for seg, r in
                            zip(segments, refined)])
-    all_px = camera.distort_points(ends).reshape(-1, 2, 2)
+    all_px = distort_ideal(lens_parameters(camera), ends).reshape(-1, 2, 2)
     all_floor = to_floor(ends).reshape(-1, 2, 2)
-    for seg, ref, e_px, e_floor, e_ideal in zip(segments, refined, all_px, all_floor,
-                                                ends.reshape(-1, 2, 2)):
-        if not np.isfinite(e_floor).all():
+    # every line's floor parameters and end ranges at once (used where both ends are on it)
+    with np.errstate(invalid="ignore"):
+        params = np.stack(floor_lines_parameters(all_floor[:, 0], all_floor[:, 1]),
+                          axis=1).tolist()
+    all_ranges = np.hypot(all_floor[..., 0], all_floor[..., 1])
+    nearest = all_ranges.min(axis=1).tolist()
+    on_floor = np.isfinite(all_floor).all(axis=(1, 2)).tolist()
+    for seg, ref, e_px, e_floor, e_ideal, (dist, angle, length), ranges, near, finite in zip(
+            segments, refined, all_px, all_floor, ends.reshape(-1, 2, 2), params, all_ranges,
+            nearest, on_floor):
+        if not finite:
             # reaching above the horizon: no field line, but maybe a post (its foot on the
             # floor, the part below the horizon runs away from the robot)
             clipped = _below_horizon_part(e_ideal, to_floor, lc["max_distance"])
@@ -560,9 +584,6 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
                               pc["bar_confidence"]])
                 posts_px.append(camera.distort_points(clipped[k:k + 1])[0])
             continue
-        dist, angle, length = floor_line_parameters(e_floor[0], e_floor[1])
-        ranges = np.hypot(*e_floor.T)
-        near = float(ranges.min())
         if is_post_bar(dist, near, e_px, top, white, camera.fx, cell, pc):
             k = int(np.argmin(ranges))
             posts.append([near, math.atan2(e_floor[k, 1], e_floor[k, 0]), pc["bar_confidence"]])
