@@ -210,3 +210,15 @@ def test_lut_learns_the_calibration_error_of_a_rendered_set(tmp_path, msl2015_ma
         rep = json.loads(f.attrs["method_report"])["radial_correction"]
     assert rep["active"] and rep["points"] > 300
     assert max(abs(v) for v in rep["error_m"].values()) > 0.02  # it found an error
+
+
+def test_global_evidence_is_checked(search, msl2015_map):
+    """A mistyped global_evidence is one clear error, not a silent fallback."""
+    from stages.common.errors import FieldlocError
+
+    frames = Frames([observe(search.field, search.scanlines, (0.0, 0.0, 0.0),
+                             np.random.default_rng(0))])
+    conf = dict(lut.confs["default"], heading="truth", global_evidence="rays")
+    ds = Dataset(truth={"stamp": frames.stamps, "x": [0.0], "y": [0.0], "theta": [0.0]})
+    with pytest.raises(FieldlocError, match="global_evidence"):
+        lut.run(conf, ds, frames, MapFile(msl2015_map))
