@@ -383,21 +383,23 @@ def _hue_model(fc: FieldColour, u8, v8, y8, conf: dict) -> None:
     fc.saturation = (lo_rel * sat, hi_rel * sat)
 
 
-@njit("float32(float32[::1])", cache=True, nogil=True)
-def pairwise_sum32(a):
-    """``np.sum`` of a float32 array in numpy's order and precision (its pairwise summation
-    in float32, as line_structure.block_sum for float64), so that the sum is numpy's to the
-    bit."""
+@njit(["float32(float32[::1], float32)", "float64(float64[:], float64)"], cache=True,
+      nogil=True)
+def _pairwise_sum(a, zero):
+    """``np.sum`` of a float array in numpy's order and precision (its pairwise summation:
+    one accumulator below 8 values; up to 128, eight combined pairwise, then the rest;
+    beyond, the two halves (split at a multiple of 8) summed so and added), so that the sum
+    is numpy's to the bit. ``zero``: -0.0 of the array's type."""
     n = a.shape[0]
     if n < 8:
-        res = np.float32(-0.0)
+        res = zero
         for i in range(n):
             res += a[i]
         return res
     if n > 128:
         n2 = n // 2
         n2 -= n2 % 8
-        return pairwise_sum32(a[:n2]) + pairwise_sum32(a[n2:])
+        return _pairwise_sum(a[:n2], zero) + _pairwise_sum(a[n2:], zero)
     r0, r1, r2, r3 = a[0], a[1], a[2], a[3]
     r4, r5, r6, r7 = a[4], a[5], a[6], a[7]
     i = 8
@@ -416,6 +418,18 @@ def pairwise_sum32(a):
         res += a[i]
         i += 1
     return res
+
+
+@njit("float32(float32[::1])", cache=True, nogil=True)
+def pairwise_sum32(a):
+    """``np.sum`` of a float32 array, to the bit (_pairwise_sum in float32)."""
+    return _pairwise_sum(a, np.float32(-0.0))
+
+
+@njit("float64(float64[:])", cache=True, nogil=True)
+def pairwise_sum64(a):
+    """``np.sum`` of a float64 array, to the bit (_pairwise_sum)."""
+    return _pairwise_sum(a, -0.0)
 
 
 @njit(cache=True, nogil=True)

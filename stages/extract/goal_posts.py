@@ -131,19 +131,21 @@ def rise_above_surroundings(up_run: np.ndarray, window: int) -> tuple[np.ndarray
 def _opening(run, window):
     """Grey opening of a row of integers: the minimum over ``window`` columns (anchored at
     window // 2, the row's ends replicated), then the maximum over the same."""
-    n = len(run)
+    return _window_extreme(_window_extreme(run, window, False), window, True)
+
+
+@njit(cache=True, nogil=True)
+def _window_extreme(row, window, largest):
+    """The minimum (``largest``: maximum) of a row of integers over ``window`` columns
+    anchored at window // 2, the row's ends replicated."""
+    n = len(row)
     a = window // 2
-    eroded = np.empty(n, np.int64)
-    for x in range(n):
-        m = run[min(max(x - a, 0), n - 1)]
-        for j in range(1, window):
-            m = min(m, run[min(max(x + j - a, 0), n - 1)])
-        eroded[x] = m
     out = np.empty(n, np.int64)
     for x in range(n):
-        m = eroded[min(max(x - a, 0), n - 1)]
+        m = row[min(max(x - a, 0), n - 1)]
         for j in range(1, window):
-            m = max(m, eroded[min(max(x + j - a, 0), n - 1)])
+            v = row[min(max(x + j - a, 0), n - 1)]
+            m = max(m, v) if largest else min(m, v)
         out[x] = m
     return out
 

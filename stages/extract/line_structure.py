@@ -32,6 +32,9 @@ import cv2
 import numpy as np
 from numba import njit
 
+# np.sum of a float64 array to the bit (numpy's pairwise order)
+from ..common.colour import pairwise_sum64 as block_sum
+
 # ---------------------------------------------------------------------------- 3.2 skeleton
 
 
@@ -294,42 +297,6 @@ def subpixel_positions(image: np.ndarray, pix: np.ndarray) -> np.ndarray:
     if len(pix) == 0:
         return np.zeros((0, 2))
     return _centroids(np.ascontiguousarray(image), np.ascontiguousarray(pix, np.int64))
-
-
-@njit("float64(float64[:])", cache=True, nogil=True)
-def block_sum(a):
-    """``np.sum`` of a float64 array in numpy's order (its pairwise summation: one
-    accumulator below 8 values; up to 128, eight combined pairwise, then the rest; beyond,
-    the two halves (split at a multiple of 8) summed so and added), so that the sum is
-    numpy's to the bit."""
-    n = a.shape[0]
-    if n < 8:
-        res = -0.0
-        for i in range(n):
-            res += a[i]
-        return res
-    if n > 128:
-        n2 = n // 2
-        n2 -= n2 % 8
-        return block_sum(a[:n2]) + block_sum(a[n2:])
-    r0, r1, r2, r3 = a[0], a[1], a[2], a[3]
-    r4, r5, r6, r7 = a[4], a[5], a[6], a[7]
-    i = 8
-    while i < n - n % 8:
-        r0 += a[i]
-        r1 += a[i + 1]
-        r2 += a[i + 2]
-        r3 += a[i + 3]
-        r4 += a[i + 4]
-        r5 += a[i + 5]
-        r6 += a[i + 6]
-        r7 += a[i + 7]
-        i += 8
-    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    while i < n:
-        res += a[i]
-        i += 1
-    return res
 
 
 @njit(["float64[:, ::1](float32[:, ::1], int64[:, ::1])",
@@ -997,6 +964,23 @@ def trace_chains(graph: LineGraph) -> list[list[int]]:
     return [nodes[b[k]:b[k + 1]] for k in range(m)]
 
 
+@njit(cache=True, nogil=True)
+def _follow(start, nbr, used, flat, k, s, t):
+    """One chain of _trace into ``flat`` from ``k``: s, t, then the degree-2 nodes not yet
+    used that follow t (each marked used); returns the next free index."""
+    flat[k], flat[k + 1] = s, t
+    k += 2
+    prev, cur = s, t
+    while start[cur + 1] - start[cur] == 2 and not used[cur]:
+        used[cur] = True
+        a = nbr[start[cur]]
+        nxt = nbr[start[cur] + 1] if a == prev else a
+        prev, cur = cur, nxt
+        flat[k] = cur
+        k += 1
+    return k
+
+
 @njit("int64(int64[::1], int64[::1], int64[::1], int64[::1])", cache=True, nogil=True)
 def _trace(start, nbr, flat, bounds):
     """trace_chains' walk: nodes of degree other than 2 (and not 0) in order, each one's
@@ -1018,16 +1002,7 @@ def _trace(start, nbr, flat, bounds):
                 if used[t]:
                     continue
                 bounds[m] = k
-                flat[k], flat[k + 1] = s, t
-                k += 2
-                prev, cur = s, t
-                while start[cur + 1] - start[cur] == 2 and not used[cur]:
-                    used[cur] = True
-                    a = nbr[start[cur]]
-                    nxt = nbr[start[cur] + 1] if a == prev else a
-                    prev, cur = cur, nxt
-                    flat[k] = cur
-                    k += 1
+                k = _follow(start, nbr, used, flat, k, s, t)
                 m += 1
             else:
                 lo, hi = min(s, t), max(s, t)
@@ -1043,16 +1018,7 @@ def _trace(start, nbr, flat, bounds):
             used[s] = True
             t = min(nbr[start[s]], nbr[start[s] + 1])
             bounds[m] = k
-            flat[k], flat[k + 1] = s, t
-            k += 2
-            prev, cur = s, t
-            while start[cur + 1] - start[cur] == 2 and not used[cur]:
-                used[cur] = True
-                a = nbr[start[cur]]
-                nxt = nbr[start[cur] + 1] if a == prev else a
-                prev, cur = cur, nxt
-                flat[k] = cur
-                k += 1
+            k = _follow(start, nbr, used, flat, k, s, t)
             if flat[k - 1] != s:
                 flat[k] = s
                 k += 1
