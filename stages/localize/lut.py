@@ -540,15 +540,8 @@ class LutLocaliser:
         image explains the frame as well (TrackBank.finish_global)."""
         conf, search = self.conf, self.search
         headings = [heading] if heading is not None else self._histogram_headings(obs)
-        if headings is None:
-            r = search.unknown_heading_search(obs, candidates=conf["unknown_heading_candidates"])
-            fixes = [r] + [self._refined(obs, c) for c in r.candidates]
-        else:
-            fixes = []
-            for th in headings:
-                g = search.global_search(obs, th, candidates=conf["global_candidates"],
-                                         separation=conf["ambiguity_distance"])
-                fixes += [g] + [self._refined(obs, c) for c in g.candidates]
+        fixes = self._search_fixes(obs, headings, conf["unknown_heading_candidates"])
+        if headings is not None:
             for f in fixes:
                 f.mode = "global" if heading is not None else "global-heading"
         self._global_heading = headings
@@ -574,6 +567,21 @@ class LutLocaliser:
             for c in out:
                 self._on_start_half(obs, c, flags)
         return out
+
+    def _search_fixes(self, obs, headings, unknown_candidates: int) -> list[SearchResult]:
+        """The fixes of a global search: at each of ``headings`` its best pose and its
+        separated runners-up, or with no heading (None) the unknown-heading search's best and
+        its ``unknown_candidates`` runners-up, each runner-up refined in full resolution."""
+        conf, search = self.conf, self.search
+        if headings is None:
+            r = search.unknown_heading_search(obs, candidates=unknown_candidates)
+            return [r] + [self._refined(obs, c) for c in r.candidates]
+        fixes = []
+        for th in headings:
+            g = search.global_search(obs, th, candidates=conf["global_candidates"],
+                                     separation=conf["ambiguity_distance"])
+            fixes += [g] + [self._refined(obs, c) for c in g.candidates]
+        return fixes
 
     def _histogram_headings(self, obs):
         """With no heading known: the four headings (90 deg apart) at which the line points'
@@ -658,29 +666,18 @@ class LutLocaliser:
         all headings)."""
         conf, search = self.conf, self.search
         by_points = self._by_points()
+        unknown = max(2, conf["unknown_heading_candidates"] // 4)
         out = []
         for _ in range(int(conf["null_copies"])):
             nobs = self._null_copy(obs)
-            if headings is None:
-                r = search.unknown_heading_search(
-                    nobs, candidates=max(2, conf["unknown_heading_candidates"] // 4))
-                if by_points:  # its candidates weighed as the frame's are
-                    pts = nobs.points(search.scanlines)
-                    out.append(min(self._point_evidence(f, nobs, pts, heading_fixed=False)
-                                   for f in [r] + [self._refined(nobs, c)
-                                                   for c in r.candidates]) / self.T)
-                else:
-                    out.append(r.error / self.T)
-            elif by_points:
+            if by_points:  # searched and weighed as the frame's candidates are
                 pts = nobs.points(search.scanlines)
-                best = math.inf
-                for th in headings:
-                    g = search.global_search(nobs, th, candidates=conf["global_candidates"],
-                                             separation=conf["ambiguity_distance"])
-                    for f in [g] + [self._refined(nobs, c) for c in g.candidates]:
-                        best = min(best, self._point_evidence(
-                            f, nobs, pts, heading_fixed=self._global_fixed))
-                out.append(best / self.T)
+                out.append(min(self._point_evidence(f, nobs, pts,
+                                                    heading_fixed=self._global_fixed)
+                               for f in self._search_fixes(nobs, headings, unknown)) / self.T)
+            elif headings is None:
+                r = search.unknown_heading_search(nobs, candidates=unknown)
+                out.append(r.error / self.T)
             else:
                 out.append(min(search.global_search(nobs, th, candidates=1).error
                                for th in headings) / self.T)
