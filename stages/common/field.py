@@ -153,9 +153,10 @@ class FieldModel:
 
     @staticmethod
     def mirror_pose(pose) -> np.ndarray:
-        """The pose that sees the same field under the 180 deg symmetry of the field."""
-        x, y, th = pose
-        return np.array([-x, -y, float(wrap_angle(th + math.pi))])
+        """The pose that sees the same field under the 180 deg symmetry of the field; of
+        poses (..., 3) each one's."""
+        p = np.asarray(pose, dtype=float)
+        return np.stack([-p[..., 0], -p[..., 1], wrap_angle(p[..., 2] + math.pi)], axis=-1)
 
     def touchline_pose(self, x, side, inset=0.0) -> np.ndarray:
         """Where a robot enters in a game: on a touch line at ``x`` along it, facing into the

@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..common.field import FieldModel
+from ..common.geometry import wrap_scalar
 
 
 class LineRaster:
@@ -80,8 +81,8 @@ class LineRaster:
         fm = self.field
 
         def far(a, b):
-            dth = abs((a[2] - b[2] + np.pi) % (2 * np.pi) - np.pi)
-            return np.hypot(a[0] - b[0], a[1] - b[1]) > apart or dth > apart_rad
+            return (np.hypot(a[0] - b[0], a[1] - b[1]) > apart
+                    or abs(wrap_scalar(a[2] - b[2])) > apart_rad)
 
         share, pose = best
         out: list = []

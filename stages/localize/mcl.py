@@ -437,7 +437,7 @@ class ParticleFilter:
             q = mean + self.rng.standard_normal((int(m), 3)) @ np.linalg.cholesky(cov).T
             if self.symmetric and not self.paired:  # the place or its mirror image, alike
                 flip = self.rng.random(len(q)) < 0.5
-                q[flip] = place_search.mirror_poses(q[flip])
+                q[flip] = self.field.mirror_pose(q[flip])
             drawn.append(q)
         p = np.concatenate(drawn)
         p[:, 2] = wrap_angle(p[:, 2])

@@ -18,7 +18,7 @@ import math
 import numpy as np
 from numba import njit
 
-from stages.common.geometry import wrap_angle, wrap_scalar
+from stages.common.geometry import wrap_scalar
 
 PLACE_M, PLACE_DEG = 1.0, 30.0  # poses farther apart than this are other places
 # the local grids of ``refine``: half width (m), step (m), half turn (deg), turn step (deg)
@@ -33,12 +33,6 @@ def grid_poses(bounds, step: float, turn_deg: float) -> np.ndarray:
     ths = np.radians(np.arange(-180.0, 180.0, turn_deg))
     X, Y, T = np.meshgrid(xs, ys, ths, indexing="ij")
     return np.stack([X.ravel(), Y.ravel(), T.ravel()], axis=1)
-
-
-def mirror_poses(p: np.ndarray) -> np.ndarray:
-    """FieldModel.mirror_pose of poses (..., 3)."""
-    p = np.asarray(p, float)
-    return np.stack([-p[..., 0], -p[..., 1], wrap_angle(p[..., 2] + math.pi)], axis=-1)
 
 
 def same_place(a, b, mirror: bool = True) -> bool:
@@ -73,7 +67,7 @@ def _same(x, y, th, q, mirror, place_m, place_turn):
     """``same_place`` of the pose (x, y, th) and ``q``."""
     for side in range(2 if mirror else 1):
         qx, qy, qt = (q[0], q[1], q[2]) if side == 0 else (
-            -q[0], -q[1], (q[2] + math.pi + math.pi) % (2.0 * math.pi) - math.pi)  # mirror_poses
+            -q[0], -q[1], (q[2] + math.pi + math.pi) % (2.0 * math.pi) - math.pi)  # mirror_pose
         if abs(x - qx) > place_m or abs(y - qy) > place_m:  # (the cheap test first)
             continue
         turn = abs((th - qt + math.pi) % (2.0 * math.pi) - math.pi)
