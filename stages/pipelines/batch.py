@@ -698,6 +698,8 @@ def _execute_dask(plan: Plan, todo, conf, progress, say, records: dict, summaris
 
         def launch():
             """Submit the waiting runs whose inputs are made, while threads are free."""
+            if not waiting:  # all submitted: no need to ask the scheduler for its threads
+                return
             free = max(1, sum(client.nthreads().values())) - len(running)
             for run in list(waiting):
                 if free <= 0:
