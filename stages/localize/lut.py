@@ -51,10 +51,13 @@ field-aligned). The weights are normalised, tracks below ``prune_probability`` d
 that meet merged. With no heading known (histogram on the first frame, IMU with
 ``imu_alignment: vision`` before its first fix) the unknown-heading search (all 72 headings)
 proposes poses and headings. In ``independent`` runs (``global_evidence: auto``; ``points``
-for every frame with no track) the candidates are weighed by their line points rather than by
-the scan-line error: each is refined in its basin by the points' distance to the nearest line
-(PointFit) and that cost, in the same units, is its evidence, and the null's copies are weighed
-the same way. The scan-line error measures a miss along the ray, and a point beside a line its
+for every frame with no track) the candidates are weighed by the frame's line points (all of
+them: the features' ``points``, every white run the scan lines crossed, or a points file's)
+rather than by the scan-line error: each is refined in its basin by the points' distance to
+the nearest line (PointFit) and that cost, in the same units, is its evidence, and the null's
+copies (the points turned with their scan lines' shuffled bearings:
+lut_search.random_bearing_points) are weighed the same way; the histogram headings come from
+those points too. The scan-line error measures a miss along the ray, and a point beside a line its
 ray meets at a grazing angle misses far along it: on real images it chose poses that explain
 fewer points (README). A tracked run keeps the scan-line error for its first and lost frames,
 as for its tracks: with the points there, the rendered omni-hard run of `make compare` locked
@@ -118,7 +121,8 @@ from ..common.map_file import MapFile
 from ..common.poses_file import PoseTrack
 from . import heading as heading_mod
 from . import tracking
-from .lut_search import MatchingParams, Observation, SearchResult, Support, TableSearch
+from .lut_search import (MatchingParams, Observation, SearchResult, Support, TableSearch,
+                         random_bearing_points)
 from .point_fit import PointFit
 from .radial_correction import DEFAULTS as RADIAL_DEFAULTS
 from .radial_correction import RadialCorrection
@@ -349,6 +353,13 @@ class LutLocaliser:
         ev = conf["evidence"]
         obs = obs.with_evidence(sl, ev["per_structure"], ev["link"], ev["link_per_m"])
         self._points = obs.points(sl)
+        # the frame's line points (every white run its scan lines crossed, or a team's
+        # detector's points: what the line share of a pose counts), which weigh a global
+        # candidate whose evidence is the points (_by_points); the observations' own without
+        fp = fr.get("points")
+        fp = None if fp is None else np.asarray(fp, np.float64).reshape(-1, 2)
+        self._line_points = (self._points if fp is None or not len(fp)
+                             else fp[np.isfinite(fp).all(axis=1)])
         base_heading = self._frame_heading(i, col)  # None: from each track / unknown
         # evidence of a frame alone, or of one more frame of a tracked sequence
         self.T = self.T_track if bank.tracks else self.T_frame
@@ -549,7 +560,7 @@ class LutLocaliser:
         out: list[LutCandidate] = []
         fixed = self._global_fixed = heading is not None
         if self._by_points():
-            scored = [(self._point_evidence(f, obs, self._points, heading_fixed=fixed), f)
+            scored = [(self._point_evidence(f, obs, self._line_points, heading_fixed=fixed), f)
                       for f in fixes]
         else:
             scored = [(self._fit_points(f, obs, heading_fixed=fixed), f) for f in fixes]
@@ -591,7 +602,7 @@ class LutLocaliser:
         if conf["heading"] != "histogram":
             return None
         th, sharp = heading_mod.histogram_heading(
-            obs.points(self.search.scanlines), 0.0, window=math.pi / 4,
+            self._line_points, 0.0, window=math.pi / 4,
             step=conf["histogram_step"], bin=conf["histogram_bin"],
             max_distance=self.search.scanlines.max_range, score=conf["histogram_score"])
         if not np.isfinite(th) or sharp < conf["histogram_min_sharpness"]:
@@ -615,7 +626,7 @@ class LutLocaliser:
             m.mode = c.fix.mode
             c.fix = m
             c.support = self.search.support(obs, m, conf["inlier_error"])
-            c.evidence = (self._point_evidence(m, obs, self._points, heading_fixed=False)
+            c.evidence = (self._point_evidence(m, obs, self._line_points, heading_fixed=False)
                           if self._by_points()
                           else self._fit_points(m, obs, heading_fixed=False))
             c.fit = c.nll = c.evidence / self.T
@@ -658,6 +669,7 @@ class LutLocaliser:
             self._next_perm = 0
         perm = self._perms[self._next_perm % len(self._perms)]
         self._next_perm += 1
+        self._null_perm = perm
         return obs.random_bearings(perm)
 
     def _global_null(self, obs, headings) -> float:
@@ -671,7 +683,9 @@ class LutLocaliser:
         for _ in range(int(conf["null_copies"])):
             nobs = self._null_copy(obs)
             if by_points:  # searched and weighed as the frame's candidates are
-                pts = nobs.points(search.scanlines)
+                pts = (nobs.points(search.scanlines) if self._line_points is self._points
+                       else random_bearing_points(self._line_points, self._null_perm[0],
+                                                  search.scanlines.angle_step))
                 out.append(min(self._point_evidence(f, nobs, pts,
                                                     heading_fixed=self._global_fixed)
                                for f in self._search_fixes(nobs, headings, unknown)) / self.T)

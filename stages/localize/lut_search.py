@@ -215,6 +215,21 @@ class Observation:
         return self._points[1]
 
 
+def random_bearing_points(points: np.ndarray, perm: np.ndarray, angle_step: float
+                          ) -> np.ndarray:
+    """The null copy of line points (N, 2, robot frame): each point turned with its nearest
+    radial scan line to where ``perm`` (n_angles,) sends that line (Observation.
+    random_bearings' radial permutation), keeping its range and its offset from the line, so
+    the points and the scan lines of one copy are shuffled alike."""
+    p = np.asarray(points, np.float64).reshape(-1, 2)
+    n = len(perm)
+    bearing = np.arctan2(p[:, 1], p[:, 0])
+    line = np.rint(bearing / angle_step).astype(np.int64) % n
+    turned = bearing + (np.asarray(perm, np.int64)[line] - line) * angle_step
+    rho = np.hypot(p[:, 0], p[:, 1])
+    return np.stack([rho * np.cos(turned), rho * np.sin(turned)], axis=1)
+
+
 @dataclass
 class SearchResult:
     """A pose found by the search. ``error`` is the weighted error term (sum over

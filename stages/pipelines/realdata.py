@@ -124,22 +124,30 @@ def minho_lab(realdata: Path, work: Path, method: str = "lut") -> dict:
             # poses elsewhere within 0.03 of the best share: the best is one of a few
             "rivals": len(rivals),
         }
-    # range stability: the top pose (or its mirror) at each range limit against the default's
+    # range stability: the top pose (or its mirror) at each range limit against the default's,
+    # and the same of the brute-force best pose of each range's points (the judge's own)
+    def move(a, b):
+        if not (np.isfinite(a[0]) and np.isfinite(b[0])):
+            return math.inf, math.inf
+        d = min((math.hypot(a[0] - q[0], a[1] - q[1]), abs(float(wrap_angle(a[2] - q[2]))))
+                for q in (b, fm.mirror_pose(b)))
+        return d[0], math.degrees(d[1])
+
     moves = {str(n): [] for n in cols["name"]}
+    best_moves = {str(n): [] for n in cols["name"]}
     for r in RANGES:
-        c2, _ = _localise(ds, field, work, max_range=r, method=method)
+        c2, f2 = _localise(ds, field, work, max_range=r, method=method)
+        with FeaturesFile(f2) as ff:
+            pts_r = {n: np.asarray(ff.frame(n)["points"], float) for n in ff.names}
         for i, n in enumerate(c2["name"]):
-            a, b = rows[str(n)]["top"], c2["hypotheses"][i][0, :3]
-            if not (np.isfinite(a[0]) and np.isfinite(b[0])):
-                moves[str(n)].append((math.inf, math.inf))
-                continue
-            mb = fm.mirror_pose(b)
-            d = min((math.hypot(a[0] - q[0], a[1] - q[1]),
-                     abs(float(wrap_angle(a[2] - q[2])))) for q in (b, mb))
-            moves[str(n)].append((d[0], math.degrees(d[1])))
+            moves[str(n)].append(move(rows[str(n)]["top"], c2["hypotheses"][i][0, :3]))
+            best_moves[str(n)].append(move(rows[str(n)]["best_pose"],
+                                           raster.best_pose(pts_r[str(n)], NEAR)[1]))
     for n, m in moves.items():
         rows[n]["range_move_m"] = max(v[0] for v in m)
         rows[n]["range_move_deg"] = max(v[1] for v in m)
+        rows[n]["best_range_move_m"] = max(v[0] for v in best_moves[n])
+        rows[n]["best_range_move_deg"] = max(v[1] for v in best_moves[n])
     # the same points through --points
     csv_path = work / "lab-points.csv"
     with open(csv_path, "w", newline="\n") as f:
@@ -156,8 +164,13 @@ def minho_lab(realdata: Path, work: Path, method: str = "lut") -> dict:
         "images": len(rows),
         "with_pose": sum(not r["failed"] for r in rows.values()),
         "explained": len(good),  # >= 70 % within 15 cm and >= null + 0.15
-        "stable": sum(r["range_move_m"] <= 0.3 and r["range_move_deg"] <= 5.0
-                      for r in rows.values()),
+        "stable": sum(_still(r, "range_move") for r in rows.values()),
+        # the images whose brute-force best pose itself stays put across the range limits
+        # (elsewhere the points of one range limit decide another place), and of them those
+        # where the method's pose does
+        "best_stable": sum(_still(r, "best_range_move") for r in rows.values()),
+        "stable_where_best_stable": sum(_still(r, "range_move") and _still(r, "best_range_move")
+                                        for r in rows.values()),
         "top_or_second_at_best": sum(r["top_or_second_at_best"] for r in rows.values()),
         "points_top_or_second_at_best": sum(r["points_top_or_second_at_best"]
                                             for r in rows.values()),
@@ -166,3 +179,8 @@ def minho_lab(realdata: Path, work: Path, method: str = "lut") -> dict:
                                             for r in rows.values()),
         "rows": rows,
     }
+
+
+def _still(row: dict, key: str) -> bool:
+    """Whether a pose moved at most 30 cm and 5 deg (``key``_m, ``key``_deg of ``row``)."""
+    return row[f"{key}_m"] <= 0.3 and row[f"{key}_deg"] <= 5.0
