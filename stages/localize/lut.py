@@ -121,8 +121,14 @@ from ..common.map_file import MapFile
 from ..common.poses_file import PoseTrack
 from . import heading as heading_mod
 from . import tracking
-from .lut_search import (MatchingParams, Observation, SearchResult, Support, TableSearch,
-                         random_bearing_points)
+from .lut_search import (
+    MatchingParams,
+    Observation,
+    SearchResult,
+    Support,
+    TableSearch,
+    random_bearing_points,
+)
 from .point_fit import PointFit
 from .radial_correction import DEFAULTS as RADIAL_DEFAULTS
 from .radial_correction import RadialCorrection
