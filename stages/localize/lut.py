@@ -56,12 +56,13 @@ them: the features' ``points``, every white run the scan lines crossed, or a poi
 rather than by the scan-line error: each is refined in its basin by the points' distance to
 the nearest line (PointFit) and that cost, in the same units, is its evidence, and the null's
 copies (the points turned with their scan lines' shuffled bearings:
-lut_search.random_bearing_points) are weighed the same way; the histogram headings come from
-those points too. The scan-line error measures a miss along the ray, and a point beside a line its
-ray meets at a grazing angle misses far along it: on real images it chose poses that explain
-fewer points (README). A tracked run keeps the scan-line error for its first and lost frames,
-as for its tracks: with the points there, the rendered omni-hard run of `make compare` locked
-onto the look-alike place for good (0 % within 40 cm against 28 %).
+lut_search.random_bearing_points) are weighed the same way; the histogram headings of such a
+frame come from those points too. The scan-line error measures a miss along the ray, and a
+point beside a line its ray meets at a grazing angle misses far along it: on real images it
+chose poses that explain fewer points (README). A tracked run keeps the scan-line error for
+its first and lost frames, as for its tracks: with the points there, the rendered omni-hard
+run of `make compare` locked onto the look-alike place for good (0 % within 40 cm against
+28 %).
 
 The null. The same observations at random bearings (each scan line keeps its crossings, the
 lines are shuffled: ``Observation.random_bearings``), searched the same way (the global search
@@ -608,7 +609,8 @@ class LutLocaliser:
         if conf["heading"] != "histogram":
             return None
         th, sharp = heading_mod.histogram_heading(
-            self._line_points, 0.0, window=math.pi / 4,
+            self._line_points if self._by_points() else obs.points(self.search.scanlines),
+            0.0, window=math.pi / 4,
             step=conf["histogram_step"], bin=conf["histogram_bin"],
             max_distance=self.search.scanlines.max_range, score=conf["histogram_score"])
         if not np.isfinite(th) or sharp < conf["histogram_min_sharpness"]:
