@@ -360,13 +360,7 @@ class LutLocaliser:
         ev = conf["evidence"]
         obs = obs.with_evidence(sl, ev["per_structure"], ev["link"], ev["link_per_m"])
         self._points = obs.points(sl)
-        # the frame's line points (every white run its scan lines crossed, or a team's
-        # detector's points: what the line share of a pose counts), which weigh a global
-        # candidate whose evidence is the points (_by_points); the observations' own without
-        fp = fr.get("points")
-        fp = None if fp is None else np.asarray(fp, np.float64).reshape(-1, 2)
-        self._line_points = (self._points if fp is None or not len(fp)
-                             else fp[np.isfinite(fp).all(axis=1)])
+        self._frame_points, self._all_points = fr.get("points"), None  # (_line_points)
         base_heading = self._frame_heading(i, col)  # None: from each track / unknown
         # evidence of a frame alone, or of one more frame of a tracked sequence
         self.T = self.T_track if bank.tracks else self.T_frame
@@ -540,6 +534,18 @@ class LutLocaliser:
         fix.x, fix.y, fix.theta = float(pose[0]), float(pose[1]), float(pose[2])
         return cost * obs.total_weight / max(float(len(points)), 1e-12)
 
+    def _line_points(self) -> np.ndarray:
+        """The frame's line points (every white run its scan lines crossed, or a team's
+        detector's points: what the line share of a pose counts), which weigh a global
+        candidate whose evidence is the points (_by_points); the observations' own where the
+        frame has none. Made when first asked for (a tracked frame never asks)."""
+        if self._all_points is None:
+            fp = self._frame_points
+            fp = None if fp is None else np.asarray(fp, np.float64).reshape(-1, 2)
+            self._all_points = (self._points if fp is None or not len(fp)
+                                else fp[np.isfinite(fp).all(axis=1)])
+        return self._all_points
+
     def _by_points(self) -> bool:
         """Whether this frame's global candidates are weighed by their points: the conf
         says so (``auto``: for independent frames) and no track competes (a track's fix is
@@ -567,7 +573,7 @@ class LutLocaliser:
         out: list[LutCandidate] = []
         fixed = self._global_fixed = heading is not None
         if self._by_points():
-            scored = [(self._point_evidence(f, obs, self._line_points, heading_fixed=fixed), f)
+            scored = [(self._point_evidence(f, obs, self._line_points(), heading_fixed=fixed), f)
                       for f in fixes]
         else:
             scored = [(self._fit_points(f, obs, heading_fixed=fixed), f) for f in fixes]
@@ -609,7 +615,7 @@ class LutLocaliser:
         if conf["heading"] != "histogram":
             return None
         th, sharp = heading_mod.histogram_heading(
-            self._line_points if self._by_points() else obs.points(self.search.scanlines),
+            self._line_points() if self._by_points() else obs.points(self.search.scanlines),
             0.0, window=math.pi / 4,
             step=conf["histogram_step"], bin=conf["histogram_bin"],
             max_distance=self.search.scanlines.max_range, score=conf["histogram_score"])
@@ -634,7 +640,7 @@ class LutLocaliser:
             m.mode = c.fix.mode
             c.fix = m
             c.support = self.search.support(obs, m, conf["inlier_error"])
-            c.evidence = (self._point_evidence(m, obs, self._line_points, heading_fixed=False)
+            c.evidence = (self._point_evidence(m, obs, self._line_points(), heading_fixed=False)
                           if self._by_points()
                           else self._fit_points(m, obs, heading_fixed=False))
             c.fit = c.nll = c.evidence / self.T
@@ -691,8 +697,8 @@ class LutLocaliser:
         for _ in range(int(conf["null_copies"])):
             nobs = self._null_copy(obs)
             if by_points:  # searched and weighed as the frame's candidates are
-                pts = (nobs.points(search.scanlines) if self._line_points is self._points
-                       else random_bearing_points(self._line_points, self._null_perm[0],
+                pts = (nobs.points(search.scanlines) if self._line_points() is self._points
+                       else random_bearing_points(self._line_points(), self._null_perm[0],
                                                   search.scanlines.angle_step))
                 out.append(min(self._point_evidence(f, nobs, pts,
                                                     heading_fixed=self._global_fixed)
