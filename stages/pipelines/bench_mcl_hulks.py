@@ -49,6 +49,9 @@ class StillResult:
     # the mirror by DECIDED_NATS, and whether that place is the truth (or its mirror)
     decided: bool = False
     truth_best: bool = False
+    # the truth (or its mirror) within GOAL_M and GOAL_DEG of a listed hypothesis (the top,
+    # its mirror, the other clusters and rivals)
+    listed: bool = False
 
 
 def label_pose(capture: Path, field) -> np.ndarray | None:
@@ -149,7 +152,8 @@ def localise_still(capture: Path, map_file: Path, work: Path, field, model,
         data / "calib.yaml").height))  # as localize's mcl takes it from calib.yaml
     is_decided, truth_best = decided(own, obs, field, truth, updates)
     return StillResult(capture.stem, informative(obs), bool(hit), float(h[0, 3]),
-                       pair_share(h, field), best, is_decided, truth_best)
+                       pair_share(h, field), best, is_decided, truth_best,
+                       listed(h, truth, field))
 
 
 def judged(top, truth, field) -> tuple[bool, float]:
@@ -162,6 +166,13 @@ def judged(top, truth, field) -> tuple[bool, float]:
         best = min(best, dist)
         hit |= dist <= GOAL_M and turn <= math.radians(GOAL_DEG)
     return bool(hit), best
+
+
+def listed(hypotheses, truth, field) -> bool:
+    """Whether a listed hypothesis (rows (k, 4), NaN rows unused) or its mirror lies within
+    GOAL_M and GOAL_DEG of ``truth``."""
+    return any(judged(r[:3], truth, field)[0] for r in np.asarray(hypotheses, float)
+               if np.all(np.isfinite(r[:3])))
 
 
 def pair_share(hypotheses, field) -> float:
@@ -252,7 +263,7 @@ def rendered_still(preset: str, field_name: str, poses, seeds=(0, 1),
             out.append(StillResult(f"{preset}-{k}-seed{seed}", informative(usable),
                                    hit, float(est.hypotheses[0, 3]),
                                    pair_share(est.hypotheses, fm), best, is_decided,
-                                   truth_best))
+                                   truth_best, listed(est.hypotheses, pose, fm)))
     return out
 
 
@@ -299,6 +310,8 @@ def summary(res: list[StillResult], min_confidence: float) -> dict:
         "decided_truth": sum(r.decided and r.truth_best for r in inf),
         "decided_truth_hits": sum(r.decided and r.truth_best and r.hit for r in inf),
         "undecided_hits": sum((not r.decided) and r.hit for r in inf),
+        # the informative frames whose truth is among the listed hypotheses
+        "listed": sum(r.listed for r in inf),
     }
 
 
@@ -318,7 +331,9 @@ def _note(s: dict) -> str:
             f" {s['informative']} informative frames decide a place,"
             f" {s['decided_truth']} of them the truth, and mcl hits"
             f" {s['decided_truth_hits']} of those; of the"
-            f" {s['informative'] - s['decided']} undecided, mcl hits {s['undecided_hits']}")
+            f" {s['informative'] - s['decided']} undecided, mcl hits {s['undecided_hits']};"
+            f" the truth is a listed hypothesis (top, mirror, other clusters, rivals) on"
+            f" {s['listed']} of the {s['informative']} informative frames")
 
 
 def rows(repeat: int) -> list[Row]:
