@@ -209,11 +209,8 @@ def test_bin_points_to_scanlines():
     d = 1.1
     ys = np.linspace(-3, 3, 601)
     pts = np.stack([np.full_like(ys, d), ys], axis=1)  # a line ahead, sampled every cm
-    radial, spiral = bin_points_to_scanlines(pts, sl, tolerance=0.03, spirals=True)
+    radial, spiral = bin_points_to_scanlines(pts, sl, tolerance=0.03)
     assert radial.shape == (72, 4) and spiral.shape == (2, 72)
-    # by default the spirals stay empty (a point set cannot tell their first crossing)
-    r0, s0 = bin_points_to_scanlines(pts, sl, tolerance=0.03)
-    assert np.isnan(s0).all() and np.array_equal(r0, radial, equal_nan=True)
     assert abs(radial[0, 0] - d) <= 0.01
     assert abs(radial[6, 0] - d / math.cos(math.radians(30))) <= 0.02
     assert np.isnan(radial[36, 0])

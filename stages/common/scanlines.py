@@ -84,18 +84,9 @@ def rotate_to_heading(rows: np.ndarray, shift: int, axis: int) -> np.ndarray:
 
 
 def bin_points_to_scanlines(points_robot, scanlines: ScanLines | None = None,
-                            tolerance: float = 0.05, merge: float = 0.15,
-                            spirals: bool = False):
+                            tolerance: float = 0.05, merge: float = 0.15):
     """Line points from a team's own detector (robot frame, metres, (N, 2)) -> the tables'
     layout: ``radial`` (72, 4) nearest first NaN padded, ``spiral`` (2, 72) NaN if none.
-
-    The spirals stay empty unless ``spirals``: a spiral's table holds its *first* crossing
-    only, and a point set cannot tell a spiral's first crossing from a later one (the
-    detector may not have sampled the line the spiral met first). On the real minho-lab
-    images' own points, the spirals so binned were often a later line, and their table
-    errors chose the wrong place (README: lut on ``--points``). Radial lines keep every
-    crossing, and each observation is matched to the nearest of them, so a sparse point
-    set gives valid radial observations.
 
     A point counts as a crossing of a scan line when its perpendicular distance to that line is
     at most ``tolerance`` (m) and it lies between the robot radius and the line's end (max_range
@@ -136,8 +127,6 @@ def bin_points_to_scanlines(points_robot, scanlines: ScanLines | None = None,
         rank = np.arange(len(gl)) - first
         keep = rank < sl.max_crossings
         radial[gl[keep], rank[keep]] = dm[keep]
-    if not spirals:
-        return radial, spiral
     # spirals: at radius rho the spiral (direction, k) is at angle a_k +- phi(rho)
     r0, r1 = sl.robot_radius, sl.spiral_end_radius
     inside = (rho >= r0) & (rho <= r1)
