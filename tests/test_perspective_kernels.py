@@ -29,6 +29,8 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - goal_posts' ``stands_out`` and ``bar_width`` (slices, the compiled median) against their
   former fancy-indexed numpy;
 - crossings' ``_points_along`` (the candidates' arm points) against its former Python walk;
+- crossings' ``_place`` (place_crossing: a candidate's arm lines fitted, refined and cut)
+  against the former arm_lines, _refined_arm and crossing_point;
 - line_structure's ``_skeleton_grid`` (the inside, low-pass, ranking keys and skeleton of
   white shares) against white_inside_boundary, cv2's low_pass and the ranking functions;
 - line_structure's ``_corner_cuts`` (every chain's corner_nodes at once) against corner_nodes;
@@ -1124,3 +1126,172 @@ def test_split_isolated_nodes_as_before(seed):
         a, b = getattr(got, name), getattr(ref, name)
         assert a.dtype == b.dtype and a.tobytes() == b.tobytes(), name
     assert [list(a) for a in got.adj] == [list(a) for a in ref.adj]
+
+
+# the placement of a key-structure candidate as it was before ``crossings._place`` (arm_lines,
+# _refined_arm and crossing_point of crossings.py, Python and numpy)
+from stages.extract import line_fit as lf  # noqa: E402
+
+
+def _reference_fit_direction(points: np.ndarray, centre: np.ndarray):
+    """Least-squares line (centroid, unit direction pointing away from ``centre``)."""
+    fit = lf.fit_line(points)
+    c, u = fit.centroid, fit.direction
+    if float((c - centre) @ u) < 0:
+        u = -u
+    return c, u
+
+
+def _reference_arm_lines(centre: np.ndarray, chains: list[list[int]], coords: np.ndarray, skip: int,
+              count: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per arm, the line fitted to its nodes number ``skip`` + 1 .. ``skip`` + ``count`` from
+    the crossing (undistorted coordinates ``coords``; the nodes right next to a crossing bend
+    towards it): (centroid, unit direction away from the centre, the points used)."""
+    out = []
+    for ch in chains:
+        pts = coords[ch[1:]]
+        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        if len(pts) == 0:
+            return []
+        sel = pts[skip: skip + count] if len(pts) >= skip + 2 else pts[:count]
+        if len(sel) < 2:
+            sel = np.vstack([centre[None], sel])
+        c, u = _reference_fit_direction(sel, centre)
+        out.append((c, u, sel))
+    return out
+
+
+def _reference_intersect(c1, u1, c2, u2) -> np.ndarray | None:
+    a = np.array([u1, -u2]).T
+    if abs(np.linalg.det(a)) < 1e-3:  # nearly parallel (|sin| < 1e-3)
+        return None
+    t = np.linalg.solve(a, c2 - c1)
+    return c1 + t[0] * u1
+
+
+def _reference_crossing_point(kind: str, arms: list) -> np.ndarray | None:
+    """The crossing as the intersection of its lines: an L's two arms, a T's bar (its two most
+    nearly opposite arms fitted together) with the stem, an X's two lines (opposite arms fitted
+    together). None when the lines are parallel."""
+    if kind == "L":
+        (c1, u1, _), (c2, u2, _) = arms
+        return _reference_intersect(c1, u1, c2, u2)
+    n = len(arms)
+    dirs = np.array([u for _, u, _ in arms])
+    cos = dirs @ dirs.T
+    if kind == "T":
+        pairs = [(0, 1, 2), (0, 2, 1), (1, 2, 0)]
+        i, j, s = min(pairs, key=lambda p: cos[p[0], p[1]])
+        cb, ub = _reference_fit_direction(np.vstack([arms[i][2], arms[j][2]]), arms[i][0])
+        return _reference_intersect(cb, ub, arms[s][0], arms[s][1])
+    if n != 4:
+        return None
+    # X: pair arm 0 with its most opposite arm, the other two form the second line
+    j = int(np.argmin(cos[0, 1:])) + 1
+    rest = [k for k in range(1, 4) if k != j]
+    c1, u1 = _reference_fit_direction(np.vstack([arms[0][2], arms[j][2]]), arms[0][0])
+    c2, u2 = _reference_fit_direction(np.vstack([arms[rest[0]][2], arms[rest[1]][2]]),
+                                      arms[rest[0]][0])
+    return _reference_intersect(c1, u1, c2, u2)
+
+
+def _reference_refined_arm(arm, centre: np.ndarray, white_px: np.ndarray, camera, cc: dict,
+                           cell: int, lens: np.ndarray | None = None):
+    """An arm's line (centroid, unit direction away from the crossing, points) refined on the
+    full-resolution white mask (line_fit.refine_segment) over its nodes' extent from
+    ``refine_skip`` cells off the crossing on; the coarse arm where that fails. ``lens``: the
+    camera's lens_parameters, if already built."""
+    c, u, sel = arm
+    t = (sel - centre) @ u
+    t0, t1 = max(float(t.min()), cc["refine_skip"] * cell), float(t.max())
+    if t1 - t0 < cell:
+        return arm
+    ref = lf.refine_segment(np.stack([centre + t0 * u, centre + t1 * u]), white_px,
+                         lf.lens_parameters(camera) if lens is None else lens, cc["refine_step"],
+                         cc["refine_reach"] * cell,
+                         0.0, cc["refine_min_points"])
+    if ref is None:
+        return arm
+    d = ref.fit.direction if float(ref.fit.direction @ u) >= 0 else -ref.fit.direction
+    return ref.fit.centroid, d, ref.centres
+
+
+def _reference_place(kind, centre, chains, ideal, cc, cell, white_px, lens):
+    arms = _reference_arm_lines(centre, chains, ideal, cc["arm_skip"], cc["arm_nodes"])
+    if len(arms) != len(chains):
+        return "arm without nodes"
+    if white_px is not None:
+        arms = [_reference_refined_arm(arm, centre, white_px, None, cc, cell, lens)
+                for arm in arms]
+    x = _reference_crossing_point(kind, arms)
+    if x is None or np.hypot(*(x - centre)) > cc["max_shift"] * cell:
+        return "arms do not meet near the node"
+    dirs = np.array([u for _, u, _ in arms])
+    step = cc["arm_step"] * cell
+    lengths = np.array([max(float(np.max((sel - x) @ u)), step) for _, u, sel in arms])
+    return x, dirs, lengths
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_place_crossing_equals_the_arm_lines_refined_and_cut(seed):
+    """crossings.place_crossing (``_place``) gives what arm_lines, _refined_arm and
+    crossing_point gave, to the bit: on the full-resolution white mask and without it, for
+    L, T and X candidates with nodes along white arms, off them and out of the lens model."""
+    import cv2
+
+    from stages.extract import crossings, perspective
+
+    rng = np.random.default_rng(seed)
+    cell = 8
+    cc = {**perspective.confs["default"]["crossings"]}
+    lens = np.array([330.0, 330.0, 375.5, 239.5, -0.02, 0.004, 0.0, 0.0, 0.0])
+
+    class Camera:  # what lens_parameters reads
+        fx, fy, cx, cy = lens[:4]
+        distortion = lens[4:]
+
+    kinds = {"L": 2, "T": 3, "X": 4}
+    placed = {k: 0 for k in kinds}
+    rejected = set()
+    for trial in range(150):
+        kind = list(kinds)[trial % 3]
+        white = np.zeros((480, 752), np.uint8)
+        centre = rng.uniform([150, 100], [600, 380])
+        base = rng.uniform(0, 2 * math.pi)
+        step_ang = {"L": rng.uniform(0.4, 2.5), "T": math.pi / 2, "X": math.pi / 2}[kind]
+        if kind == "L":
+            angles = [base, base + step_ang]
+        elif kind == "T":
+            angles = [base, base + math.pi, base + math.pi / 2]
+        else:
+            angles = [base + k * step_ang for k in range(4)]
+        angles = [a + rng.normal(0, 0.05) for a in angles]
+        nodes = [centre]
+        chains = []
+        for a in angles:
+            u = np.array([math.cos(a), math.sin(a)])
+            far = centre + 120 * u
+            cv2.line(white, tuple(int(v) for v in centre), tuple(int(v) for v in far), 1,
+                     int(rng.integers(2, 7)))
+            n = int(rng.integers(1, 7)) if rng.random() > 0.03 else 0  # no nodes
+            chain = [0]
+            for k in range(n):
+                chain.append(len(nodes))
+                nodes.append(centre + (k + 1) * cell * u + rng.normal(0, 1.5, 2))
+            chains.append(chain)
+        ideal = np.array(nodes)
+        ideal[rng.random(len(ideal)) < 0.08] = np.nan  # out of the lens model
+        ideal[0] = centre + rng.normal(0, 3 if trial % 10 else 60, 2)  # some far off
+        for white_px in (white, None):
+            got = crossings.place_crossing(kind, ideal[0], chains, ideal, cc, cell, white_px,
+                                           Camera)
+            ref = _reference_place(kind, ideal[0], chains, ideal, cc, cell, white_px, lens)
+            assert type(got) is type(ref)
+            if isinstance(ref, str):
+                assert got == ref
+                rejected.add(ref)
+                continue
+            placed[kind] += 1
+            for a, b in zip(got, ref):
+                assert a.shape == b.shape and a.tobytes() == b.tobytes()
+    assert min(placed.values()) >= 10 and len(rejected) == 2

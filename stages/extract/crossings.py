@@ -2,8 +2,8 @@
 
 A degree-2 key node whose two edges meet at a corner angle is an L-crossing candidate, a
 degree-3 node a T and a degree-4 node an X (``crossing_candidates``). The crossing is placed
-where the lines fitted to its arms meet (``arm_lines``, ``crossing_point``; an L's skeleton
-cuts its corner). A candidate is verified in the subsampled colour images by two checks
+where the lines fitted to its arms meet (``place_crossing``; an L's skeleton cuts its
+corner). A candidate is verified in the subsampled colour images by two checks
 (``verify_crossing``):
 
 - ``circle_transitions``: a state machine walks a circle centred at the crossing and counts the
@@ -38,14 +38,14 @@ from stages.common.field import crossing_orientation
 from stages.common.geometry import polar
 
 from .line_fit import (
+    _fit_points,
     distort_ideal,
     distort_point,
-    fit_line,
+    fused_multiply_add,
     grow_along,
     grow_kernel,
     lens_parameters,
     refine_kernel,
-    refine_segment,
     row_dots,
 )
 from .line_structure import KeyStructure, LineGraph
@@ -236,67 +236,6 @@ def floor_arms(kind: str, arms: np.ndarray) -> tuple[float, float]:
     orient = float(np.mod(np.angle(z) / 4.0, math.pi / 2))
     fold = np.abs(np.angle(np.exp(4j * (a - orient)))) / 4.0
     return orient, float(fold.max())
-
-
-def _fit_direction(points: np.ndarray, centre: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares line (centroid, unit direction pointing away from ``centre``)."""
-    fit = fit_line(points)
-    c, u = fit.centroid, fit.direction
-    if float((c - centre) @ u) < 0:
-        u = -u
-    return c, u
-
-
-def arm_lines(centre: np.ndarray, chains: list[list[int]], coords: np.ndarray, skip: int,
-              count: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Per arm, the line fitted to its nodes number ``skip`` + 1 .. ``skip`` + ``count`` from
-    the crossing (undistorted coordinates ``coords``; the nodes right next to a crossing bend
-    towards it): (centroid, unit direction away from the centre, the points used)."""
-    out = []
-    for ch in chains:
-        pts = coords[ch[1:]]
-        pts = pts[np.all(np.isfinite(pts), axis=1)]
-        if len(pts) == 0:
-            return []
-        sel = pts[skip: skip + count] if len(pts) >= skip + 2 else pts[:count]
-        if len(sel) < 2:
-            sel = np.vstack([centre[None], sel])
-        c, u = _fit_direction(sel, centre)
-        out.append((c, u, sel))
-    return out
-
-
-def _intersect(c1, u1, c2, u2) -> np.ndarray | None:
-    a = np.array([u1, -u2]).T
-    if abs(np.linalg.det(a)) < 1e-3:  # nearly parallel (|sin| < 1e-3)
-        return None
-    t = np.linalg.solve(a, c2 - c1)
-    return c1 + t[0] * u1
-
-
-def crossing_point(kind: str, arms: list) -> np.ndarray | None:
-    """The crossing as the intersection of its lines: an L's two arms, a T's bar (its two most
-    nearly opposite arms fitted together) with the stem, an X's two lines (opposite arms fitted
-    together). None when the lines are parallel."""
-    if kind == "L":
-        (c1, u1, _), (c2, u2, _) = arms
-        return _intersect(c1, u1, c2, u2)
-    n = len(arms)
-    dirs = np.array([u for _, u, _ in arms])
-    cos = dirs @ dirs.T
-    if kind == "T":
-        pairs = [(0, 1, 2), (0, 2, 1), (1, 2, 0)]
-        i, j, s = min(pairs, key=lambda p: cos[p[0], p[1]])
-        cb, ub = _fit_direction(np.vstack([arms[i][2], arms[j][2]]), arms[i][0])
-        return _intersect(cb, ub, arms[s][0], arms[s][1])
-    if n != 4:
-        return None
-    # X: pair arm 0 with its most opposite arm, the other two form the second line
-    j = int(np.argmin(cos[0, 1:])) + 1
-    rest = [k for k in range(1, 4) if k != j]
-    c1, u1 = _fit_direction(np.vstack([arms[0][2], arms[j][2]]), arms[0][0])
-    c2, u2 = _fit_direction(np.vstack([arms[rest[0]][2], arms[rest[1]][2]]), arms[rest[0]][0])
-    return _intersect(c1, u1, c2, u2)
 
 
 def verify_crossing(centre: np.ndarray, arm_points: np.ndarray, white: np.ndarray,
@@ -748,23 +687,192 @@ def _crossing(cand, ks, ideal, white, green, other_mean, top, camera, to_floor, 
     if not np.isfinite(centre).all():
         return "outside the lens model"
     chains = ks.arms(cand.key, 1 + cc["arm_skip"] + cc["arm_nodes"], deg)
-    arms = arm_lines(centre, chains, ideal, cc["arm_skip"], cc["arm_nodes"])
-    if len(arms) != len(cand.arm_points):
+    if len(chains) != len(cand.arm_points):
         return "arm without nodes"
-    if white_px is not None and cc.get("refine", True):
-        lens = lens_parameters(camera)
-        arms = [_refined_arm(arm, centre, white_px, camera, cc, cell, lens) for arm in arms]
-    # an L's skeleton cuts its corner and a junction node may sit beside a thin line: the
-    # crossing is where the lines fitted to its arms meet
-    x = crossing_point(cand.kind, arms)
-    if x is None or np.hypot(*(x - centre)) > cc["max_shift"] * cell:
-        return "arms do not meet near the node"
-    dirs = np.array([u for _, u, _ in arms])
-    step = cc["arm_step"] * cell
-    lengths = np.array([max(float(np.max((sel - x) @ u)), step) for _, u, sel in arms])
+    placed = place_crossing(cand.kind, centre, chains, ideal, cc, cell,
+                            white_px if cc.get("refine", True) else None, camera)
+    if isinstance(placed, str):
+        return placed
+    x, dirs, lengths = placed
     reach = np.minimum(cc["arm_reach"] * cell, lengths)
     return _verify_crossing(cand.kind, x, dirs, reach, white, green, other_mean, top, camera,
                             to_floor, cc, cell, field_cells, lengths, white_px)
+
+
+PLACE_REASONS = ("", "arm without nodes", "arms do not meet near the node")
+KIND_INDEX = {"L": 0, "T": 1, "X": 2}
+
+
+def place_crossing(kind: str, centre: np.ndarray, chains: list[list[int]], ideal: np.ndarray,
+                   cc: dict, cell: int, white_px: np.ndarray | None, camera):
+    """A key-structure candidate placed where its arms' lines meet: each arm's line fitted to
+    its nodes (the chains' nodes from ``arm_skip`` + 1 on, undistorted ``ideal``), refined
+    on the full-resolution white mask ``white_px`` unless None, and cut with the others.
+    Returns (crossing (2,), the arms' unit directions (A, 2), the lines' lengths along them
+    from it (A,), at least ``arm_step`` cells) in ideal px, or the reason it is rejected (an
+    arm without nodes in the lens model, lines that do not meet within ``max_shift`` cells
+    of the node).
+
+    Per arm: the least-squares line of its nodes number ``arm_skip`` + 1 .. ``arm_skip`` +
+    ``arm_nodes`` from the crossing (the nodes right next to a crossing bend towards it; the
+    node itself joins an arm of one node), pointing away from it; refined over the nodes'
+    extent from ``refine_skip`` cells off the crossing on (line_fit.refine_kernel; the
+    coarse line where that fails). The lines meet as an L's two arms, a T's bar (its two most
+    nearly opposite arms fitted together) with the stem, an X's two lines (opposite arms
+    fitted together). It runs compiled (``_place``), with the dot products as numpy's BLAS
+    forms them (line_fit.fused_multiply_add) and np.linalg's 2 x 2 determinant and solve."""
+    n = len(chains)
+    lens_ = np.fromiter(map(len, chains), np.int64, n)
+    start = np.zeros(n + 1, np.int64)
+    np.cumsum(lens_, out=start[1:])
+    flat = np.fromiter(itertools.chain.from_iterable(chains), np.int64, int(start[-1]))
+    refine = white_px is not None
+    out = np.empty((n + 1, 3))
+    code = _place(KIND_INDEX[kind], np.ascontiguousarray(centre, np.float64), flat, start,
+                  np.ascontiguousarray(ideal, np.float64), int(cc["arm_skip"]),
+                  int(cc["arm_nodes"]), refine,
+                  white_px if refine else np.zeros((1, 1), np.uint8),
+                  lens_parameters(camera) if refine else np.zeros(9),
+                  float(cc["refine_skip"] * cell), float(cell), float(cc["refine_step"]),
+                  float(cc["refine_reach"] * cell), int(cc["refine_min_points"]),
+                  float(cc["max_shift"] * cell), float(cc["arm_step"] * cell), out)
+    if code:
+        return PLACE_REASONS[code]
+    return out[0, :2].copy(), out[1:, :2].copy(), out[1:, 2].copy()
+
+
+@njit(cache=True, nogil=True)
+def _dot(ax, ay, bx, by):
+    """numpy's ``a @ b`` of two 2-vectors."""
+    return fused_multiply_add(ay, by, ax * bx)
+
+
+@njit(cache=True, nogil=True)
+def _row_dot(ax, ay, bx, by):
+    """A row of numpy's ``m @ b`` (m of two or more rows, b a 2-vector)."""
+    return fused_multiply_add(ax, bx, ay * by)
+
+
+@njit(cache=True, nogil=True)
+def _fit_away(sel, ox, oy):
+    """The least-squares line (cx, cy, ux, uy) of the points ``sel``
+    (n, 2), its direction pointing away from (ox, oy)."""
+    cx, cy, ux, uy, _, _, _ = _fit_points(sel)
+    if _dot(cx - ox, cy - oy, ux, uy) < 0:
+        ux, uy = -ux, -uy
+    return cx, cy, ux, uy
+
+
+@njit(cache=True, nogil=True)
+def _meet(c1x, c1y, u1x, u1y, c2x, c2y, u2x, u2y):
+    """Where the lines through c1 along u1 and through c2 along u2 meet: (ok, x, y), not ok
+    when they are nearly parallel (|sin| < 1e-3; np.linalg's determinant and solve of
+    [u1, -u2] t = c2 - c1)."""
+    a = np.empty((2, 2))
+    a[0, 0], a[0, 1], a[1, 0], a[1, 1] = u1x, -u2x, u1y, -u2y
+    if abs(np.linalg.det(a)) < 1e-3:  # nearly parallel (|sin| < 1e-3)
+        return False, np.nan, np.nan
+    b = np.empty(2)
+    b[0], b[1] = c2x - c1x, c2y - c1y
+    t = np.linalg.solve(a, b)
+    return True, c1x + t[0] * u1x, c1y + t[0] * u1y
+
+
+@njit(cache=True, nogil=True)
+def _place(kind, centre, flat, start, coords, skip, count, refine, white_px, lens, t_skip,
+           cell, step, reach, min_points, max_shift, arm_step, out):
+    """place_crossing compiled: the arms' lines, refined, their meeting point and the arms'
+    lengths of one candidate (``kind`` 0 L, 1 T, 2 X; chain c of its arms is ``flat[start[c]:
+    start[c + 1]]``). The crossing into out[0, :2], arm a's direction and length into
+    out[1 + a]; returns 0, or the index of its reason in PLACE_REASONS."""
+    n = len(start) - 1
+    ox, oy = centre[0], centre[1]
+    cs = np.empty((n, 2))
+    us = np.empty((n, 2))
+    sels = []
+    for a in range(n):
+        # the arm's finite nodes after the crossing's, from ``skip`` on
+        m = 0
+        pts = np.empty((max(start[a + 1] - start[a] - 1, 0), 2))
+        for i in range(start[a] + 1, start[a + 1]):
+            px, py = coords[flat[i], 0], coords[flat[i], 1]
+            if np.isfinite(px) and np.isfinite(py):
+                pts[m, 0], pts[m, 1] = px, py
+                m += 1
+        if m == 0:
+            return 1
+        lo, hi = (skip, min(skip + count, m)) if m >= skip + 2 else (0, min(count, m))
+        if hi - lo < 2:
+            sel = np.empty((hi - lo + 1, 2))
+            sel[0, 0], sel[0, 1] = ox, oy
+            sel[1:] = pts[lo:hi]
+        else:
+            sel = pts[lo:hi].copy()
+        cx, cy, ux, uy = _fit_away(sel, ox, oy)
+        if refine:
+            # refined over the nodes' extent from t_skip px off the crossing on
+            t0, t1 = np.inf, -np.inf
+            for i in range(sel.shape[0]):
+                t = _row_dot(sel[i, 0] - ox, sel[i, 1] - oy, ux, uy) if sel.shape[0] > 1 \
+                    else _dot(sel[i, 0] - ox, sel[i, 1] - oy, ux, uy)
+                t0, t1 = min(t0, t), max(t1, t)
+            t0 = max(t0, t_skip)
+            if not t1 - t0 < cell:
+                ends = np.empty((2, 2))
+                ends[0, 0], ends[0, 1] = ox + t0 * ux, oy + t0 * uy
+                ends[1, 0], ends[1, 1] = ox + t1 * ux, oy + t1 * uy
+                res = np.empty(12)
+                centres, _ = refine_kernel(ends, white_px, lens, step, reach, 0.0, min_points,
+                                           0.0, res)
+                if res[0] != 0:
+                    dx, dy = res[7], res[8]
+                    if not _dot(dx, dy, ux, uy) >= 0:
+                        dx, dy = -dx, -dy
+                    cx, cy, ux, uy = res[5], res[6], dx, dy
+                    sel = centres
+        cs[a, 0], cs[a, 1], us[a, 0], us[a, 1] = cx, cy, ux, uy
+        sels.append(sel)
+    # the lines' intersection
+    if kind == 0:
+        ok, x, y = _meet(cs[0, 0], cs[0, 1], us[0, 0], us[0, 1], cs[1, 0], cs[1, 1],
+                         us[1, 0], us[1, 1])
+    elif kind == 1:
+        # the bar: the pair of most nearly opposite arms (the first smallest cosine)
+        bi, bj, bs, best = 0, 1, 2, np.inf
+        for i, j, s in ((0, 1, 2), (0, 2, 1), (1, 2, 0)):
+            cos = _dot(us[i, 0], us[i, 1], us[j, 0], us[j, 1])
+            if cos < best:
+                bi, bj, bs, best = i, j, s, cos
+        bx, by, vx, vy = _fit_away(np.concatenate((sels[bi], sels[bj])), cs[bi, 0], cs[bi, 1])
+        ok, x, y = _meet(bx, by, vx, vy, cs[bs, 0], cs[bs, 1], us[bs, 0], us[bs, 1])
+    elif n != 4:
+        ok, x, y = False, np.nan, np.nan
+    else:
+        # X: arm 0 with its most opposite arm (np.argmin: the first smallest), the others
+        j, best = 1, np.inf
+        for k in range(1, 4):
+            cos = _dot(us[0, 0], us[0, 1], us[k, 0], us[k, 1])
+            if cos < best or k == 1:
+                j, best = k, cos
+        r0, r1 = (2, 3) if j == 1 else ((1, 3) if j == 2 else (1, 2))
+        ax, ay, vx, vy = _fit_away(np.concatenate((sels[0], sels[j])), cs[0, 0], cs[0, 1])
+        bx, by, wx, wy = _fit_away(np.concatenate((sels[r0], sels[r1])), cs[r0, 0],
+                                   cs[r0, 1])
+        ok, x, y = _meet(ax, ay, vx, vy, bx, by, wx, wy)
+    if not ok or np.hypot(x - ox, y - oy) > max_shift:
+        return 2
+    out[0, 0], out[0, 1] = x, y
+    for a in range(n):
+        sel = sels[a]
+        far = -np.inf
+        for i in range(sel.shape[0]):
+            t = _row_dot(sel[i, 0] - x, sel[i, 1] - y, us[a, 0], us[a, 1]) \
+                if sel.shape[0] > 1 else _dot(sel[i, 0] - x, sel[i, 1] - y, us[a, 0], us[a, 1])
+            if not (t <= far or np.isnan(far)):  # np.max: a NaN wins
+                far = t
+        out[1 + a, 0], out[1 + a, 1] = us[a, 0], us[a, 1]
+        out[1 + a, 2] = arm_step if arm_step > far else far
+    return 0
 
 
 def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera, to_floor, cc,
@@ -1160,24 +1268,3 @@ def _in_image(x: np.ndarray, dirs: np.ndarray, camera, margin: float) -> np.ndar
                 t = min(t, lo[k] / d[k])
         out.append(max(t, 0.0))
     return np.array(out)
-
-
-def _refined_arm(arm, centre: np.ndarray, white_px: np.ndarray, camera, cc: dict, cell: int,
-                 lens: np.ndarray | None = None):
-    """An arm's line (centroid, unit direction away from the crossing, points) refined on the
-    full-resolution white mask (line_fit.refine_segment) over its nodes' extent from
-    ``refine_skip`` cells off the crossing on; the coarse arm where that fails. ``lens``: the
-    camera's lens_parameters, if already built."""
-    c, u, sel = arm
-    t = (sel - centre) @ u
-    t0, t1 = max(float(t.min()), cc["refine_skip"] * cell), float(t.max())
-    if t1 - t0 < cell:
-        return arm
-    ref = refine_segment(np.stack([centre + t0 * u, centre + t1 * u]), white_px,
-                         lens_parameters(camera) if lens is None else lens, cc["refine_step"],
-                         cc["refine_reach"] * cell,
-                         0.0, cc["refine_min_points"])
-    if ref is None:
-        return arm
-    d = ref.fit.direction if float(ref.fit.direction @ u) >= 0 else -ref.fit.direction
-    return ref.fit.centroid, d, ref.centres

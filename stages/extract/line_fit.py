@@ -24,7 +24,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.extending import intrinsic
 
 from .line_structure import LineGraph, trace_chains
 
@@ -287,6 +289,27 @@ def median(values):
     """``np.median`` of a 1-D array, compiled (the same value: the middle order statistic, or
     the mean of the two middle ones; without numpy's call overhead on short arrays)."""
     return np.median(values)
+
+
+@intrinsic
+def fused_multiply_add(typingctx, a, b, c):
+    """a * b + c rounded once (LLVM's fma), for the compiled kernels: numpy's dot of two
+    2-vectors (``u @ v``, BLAS) is fused_multiply_add(u[1], v[1], u[0] * v[0]), and each row
+    of a matrix-vector product ``m @ v`` of two or more rows fused_multiply_add(m[k, 0],
+    v[0], m[k, 1] * v[1]); a sum of the products is not these to the bit."""
+    if not all(isinstance(t, types.Float) for t in (a, b, c)):
+        return None
+    sig = types.float64(types.float64, types.float64, types.float64)
+
+    def codegen(context, builder, signature, args):
+        f64 = ir.DoubleType()
+        args = [context.cast(builder, v, t, types.float64)
+                for v, t in zip(args, signature.args)]
+        fn = builder.module.declare_intrinsic("llvm.fma", [f64],
+                                              ir.FunctionType(f64, [f64] * 3))
+        return builder.call(fn, args)
+
+    return sig, codegen
 
 
 def lens_parameters(camera) -> np.ndarray:
