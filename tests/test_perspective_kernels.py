@@ -31,6 +31,9 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - crossings' ``_points_along`` (the candidates' arm points) against its former Python walk;
 - crossings' ``_place`` (place_crossing: a candidate's arm lines fitted, refined and cut)
   against the former arm_lines, _refined_arm and crossing_point;
+- crossings' ``_floor_checks`` and ``_image_checks`` (_verify_crossing, with the compiled
+  ``_alternative_in_view`` and its ``_remap_sample``) against the former Python and numpy
+  verification and cv2.remap;
 - line_structure's ``_skeleton_grid`` (the inside, low-pass, ranking keys and skeleton of
   white shares) against white_inside_boundary, cv2's low_pass and the ranking functions;
 - line_structure's ``_corner_cuts`` (every chain's corner_nodes at once) against corner_nodes;
@@ -1295,3 +1298,273 @@ def test_place_crossing_equals_the_arm_lines_refined_and_cut(seed):
             for a, b in zip(got, ref):
                 assert a.shape == b.shape and a.tobytes() == b.tobytes()
     assert min(placed.values()) >= 10 and len(rejected) == 2
+
+
+# the verification of a crossing as it was before ``crossings._floor_checks`` and
+# ``_image_checks`` (_verify_crossing, _continued_as_t, white_arm_lengths, _in_image and
+# _alternative_in_view of crossings.py, Python and numpy)
+from stages.common.geometry import polar  # noqa: E402
+from stages.extract import crossings as cr  # noqa: E402
+
+
+def _reference_verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera,
+                               to_floor, cc, cell, field_cells=None, lengths=None,
+                               white_px=None):
+    """A crossing of ``kind`` at ideal point ``x`` with arms along ``dirs`` (A, 2) reaching
+    ``reach`` (A,) px, its lines extending ``lengths`` (A,) px along them -> (row, image
+    position), or the reason it is rejected. The cheap floor checks come before the image
+    checks."""
+    step = cc["arm_step"] * cell
+    n = len(dirs)
+    # all floor points at once: the crossing, a step along each arm, the cell below, the ends
+    pts = np.empty((n + 2 + (0 if lengths is None else n), 2))
+    pts[0] = x
+    pts[1:n + 1] = x + step * dirs
+    pts[n + 1] = x[0] + 0.0, x[1] + float(cell)
+    if lengths is not None:
+        with np.errstate(invalid="ignore"):  # an arm out of the image is infinite
+            pts[n + 2:] = x[None] + np.asarray(lengths)[:, None] * dirs
+    on_floor = to_floor(pts)
+    floor = on_floor[:n + 1]
+    if not np.isfinite(floor).all():
+        return "above the horizon"
+    # every point's offset from the crossing on the floor and its length, at once
+    rel = on_floor - on_floor[0]
+    rel_m = np.hypot(rel[:, 0], rel[:, 1])
+    if lengths is not None:
+        arm_m = rel_m[n + 2:]  # NaN beyond the horizon: long enough
+        short = arm_m < cc["min_arm_length"]
+        if np.any(short) and white_px is not None:
+            # the fitted nodes or lines may end early (a far arm's few nodes, a line cut at a
+            # junction): the arm is as long as the white line goes on along it in the image
+            lengths = _reference_white_arm_lengths(x, dirs, lengths, short, white_px, camera,
+                                                   cc, cell)
+            with np.errstate(invalid="ignore"):  # an arm out of the image is infinite
+                ends = to_floor(x[None] + lengths[:, None] * dirs)
+            arm_m = np.hypot(*(ends - floor[0]).T)
+            reach = np.maximum(reach, np.minimum(cc["arm_reach"] * cell, lengths))
+        if np.any(arm_m < cc["min_arm_length"]):
+            return "arm too short"
+    d, bearing = polar(floor[:1])
+    span = rel_m[n + 1] if np.isfinite(rel_m[n + 1]) else np.inf  # the cell below
+    # beyond the grid's resolution the full-resolution white mask decides (_verify_fine), as
+    # far as its profiles (refine_step px apart) resolve the floor
+    fine = span > cc["max_cell_span"]
+    if fine and (white_px is None or not cc.get("fine", True)
+                 or span * cc["refine_step"] / cell > cc["max_cell_span"]):
+        return "too far"
+    arm_dirs = np.arctan2(rel[1:n + 1, 1], rel[1:n + 1, 0])
+    orient, misfit = cr.floor_arms(kind, arm_dirs)
+    if misfit > cc["max_misfit"]:
+        return f"floor angles misfit {math.degrees(misfit):.0f} deg"
+    if fine:
+        return cr._verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera, to_floor,
+                            cc, cell, d[0], bearing[0], orient, misfit, span)
+    # an arm leaving the image is verified on its part in view
+    reach = np.minimum(reach, _reference_in_image(x, dirs, camera, 0.5 * cell))
+    px = cr.distort_ideal(cr.lens_parameters(camera),
+                          np.vstack([x[None], x + reach[:, None] * dirs]))
+    if not np.isfinite(px).all():
+        return "outside the lens model"
+    grid = (px + 0.5) / cell - 0.5
+    col = min(max(round(grid[0, 0]), 0), len(top) - 1)
+    near_top = top[max(col - 2, 0): col + 3].max()  # the boundary within two columns
+    if grid[0, 1] - near_top < cc["edge_margin"]:
+        return "at the field boundary"  # a line meeting an object or the end of the view
+    row = min(max(round(grid[0, 1]), 0), other_mean.shape[0] - 1)
+    r = cc["object_radius"]
+    if other_mean[max(row - r, 0): row + r + 1, max(col - r, 0): col + r + 1].max() > 0.5:
+        return "next to an object"  # a robot's or a person's white foot on a line
+    # the arms that would make an L a T must be in view (a T's stem continued would make an
+    # X, which fields hold only where the centre circle crosses the halfway line)
+    # (a thin line leaves a cell mostly green: where the full-resolution mask shows an arm's
+    # line going on through the crossing, the L is no L)
+    if kind == "L" and (not _reference_alternative_in_view(x, dirs, camera, top, other_mean,
+                                                           green, cc, cell)
+                        or (white_px is not None and any(
+                            cr.arm_state(x, -u, white_px, green, other_mean, top, camera,
+                                      to_floor, cc, cell, dirs) == "white" for u in dirs))):
+        return _reference_continued_as_t(x, dirs, reach, white, green, other_mean, top, camera,
+                               to_floor, cc, cell, field_cells, lengths, white_px)
+    score = cr.verify_crossing(grid[0], grid[1:], white, green, cc, field_cells)
+    if score <= 0:
+        if white_px is not None and cc.get("fine", True):
+            # the grid's circles may take in a neighbouring line (a far goal area's lines
+            # lie two cells apart): the full-resolution check decides
+            return cr._verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera,
+                                to_floor, cc, cell, d[0], bearing[0], orient, misfit,
+                                max(span, cc["max_cell_span"]))
+        return "not verified in the image"
+    row = [cr.CROSSING_CODES[kind], d[0], bearing[0], orient,
+           score * (1.0 - misfit / math.radians(90.0))]
+    return row, px[0]
+
+
+def _reference_continued_as_t(x, dirs, reach, white, green, other_mean, top, camera, to_floor,
+                              cc, cell, field_cells, lengths, white_px=None):
+    """An L whose view opposite its arms is not carpet: where one arm's line goes on through
+    the crossing (the fit of a T's bar ended at the stem, or the bar's far half was fitted as
+    a line of its own that missed the pair), the crossing is that T. Each arm continued is
+    verified as a T, by the same floor and image checks (the circle then counts three
+    passages, and the continued arm needs its white path); the best verified one is returned,
+    else the L's rejection."""
+    best = "not green where a T's arm would be"
+    for k in range(len(dirs)):
+        arms = np.vstack([dirs, -dirs[k][None]])
+        ext = np.append(reach, reach[k])
+        lens = None if lengths is None else np.append(lengths, reach[k])
+        v = _reference_verify_crossing("T", x, arms, ext, white, green, other_mean, top,
+                                       camera, to_floor, cc, cell, field_cells, lens, white_px)
+        if not isinstance(v, str) and (isinstance(best, str) or v[0][4] > best[0][4]):
+            best = v
+    return best
+
+
+def _reference_white_arm_lengths(x: np.ndarray, dirs: np.ndarray, lengths: np.ndarray,
+                                 which: np.ndarray, white_px: np.ndarray, camera, cc: dict,
+                                 cell: int) -> np.ndarray:
+    """Arm lengths (A,) px from the crossing ``x`` (ideal px) along ``dirs``: for the arms
+    ``which`` (A,) bool, ``lengths`` grown while the full-resolution white mask still shows
+    a white run on the arm's line (line_fit's profile walk: a profile across the arm every
+    ``refine_step`` px, ``refine_reach`` cells to each side, its run's centre within
+    ``arm_tolerance`` px of the line; it stops after two profiles without), up to
+    ``arm_grow`` cells; the others as given."""
+    out = np.asarray(lengths, float).copy()
+    lens = cr.lens_parameters(camera)
+    for k in np.nonzero(which)[0]:
+        u = dirs[k]
+        e = x + out[k] * u
+        g = lf.grow_along(white_px, lens, e, u, cc["refine_step"], cc["refine_reach"] * cell,
+                       cc["arm_grow"] * cell, cc["arm_tolerance"])
+        out[k] = max(out[k], float((g - x) @ u))
+        if out[k] >= _reference_in_image(x, u[None], camera, cc["refine_step"])[0]:
+            out[k] = np.inf  # white up to the image's edge: longer than what is in view
+    return out
+
+
+def _reference_in_image(x: np.ndarray, dirs: np.ndarray, camera, margin: float) -> np.ndarray:
+    """Per direction (A, 2), the distance (ideal px) from ``x`` along it to ``margin`` px
+    inside the image's edge (in ideal pixels: the lens's distortion is small at the edges
+    of the views this is used for)."""
+    w, h = camera.image_size
+    x0, x1 = float(x[0]), float(x[1])
+    if not (math.isfinite(x0) and math.isfinite(x1)):  # NaN distances, as numpy gives them
+        lo_, hi_ = np.array([margin, margin]), np.array([w - 1 - margin, h - 1 - margin])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(dirs > 1e-12, (hi_ - x) / dirs,
+                         np.where(dirs < -1e-12, (lo_ - x) / dirs, np.inf))
+        return np.maximum(t.min(axis=1), 0.0)
+    hi = (float(w - 1 - margin) - x0, float(h - 1 - margin) - x1)
+    lo = (float(margin) - x0, float(margin) - x1)
+    out = []
+    for d in np.asarray(dirs, float).reshape(-1, 2).tolist():  # a few arms: scalar arithmetic
+        t = math.inf
+        for k in (0, 1):
+            if d[k] > 1e-12:
+                t = min(t, hi[k] / d[k])
+            elif d[k] < -1e-12:
+                t = min(t, lo[k] / d[k])
+        out.append(max(t, 0.0))
+    return np.array(out)
+
+
+def _reference_alternative_in_view(x, dirs, camera, top, other_mean, green, cc, cell) -> bool:
+    """Whether the image shows carpet opposite an L's arms (where the third arm of a T would
+    be), ``arm_reach`` cells from the crossing: inside the image and the field boundary, no
+    object there, and green (at least ``t_green``). A T seen with one half of its bar out of
+    view or hidden looks like an L; so do a far X's arms, flattened by the perspective."""
+    pts = cr.distort_ideal(cr.lens_parameters(camera), x[None] - cc["arm_reach"] * cell * dirs)
+    w, h = camera.image_size
+    grid = (pts + 0.5) / cell - 0.5
+    greens = cr.sample_cells(green, grid).tolist()  # all points at once (each sampled alone)
+    for p, g, green_here in zip(pts.tolist(), grid.tolist(), greens):
+        if not (math.isfinite(p[0]) and math.isfinite(p[1]) and 0 <= p[0] <= w - 1
+                and 0 <= p[1] <= h - 1):
+            return False
+        col = min(max(round(g[0]), 0), len(top) - 1)
+        row = min(max(round(g[1]), 0), other_mean.shape[0] - 1)
+        if g[1] - top[col] < cc["edge_margin"] or other_mean[row, col] > 0.5:
+            return False
+        if green_here < cc["t_green"]:
+            return False
+    return True
+
+
+def _recorded_verifications():
+    """The arguments of every crossings._verify_crossing call (the candidates', the line
+    pairs' and the continued Ls') of the rendered reference frames of both cameras."""
+    import test_extract_perspective_unchanged as unchanged
+
+    calls = []
+    real = cr._verify_crossing
+
+    def record(*args):
+        calls.append(args)
+        return real(*args)
+
+    conf = perspective.confs["default"]
+    cr._verify_crossing = record
+    try:
+        for preset, field_name in unchanged.RENDERS:
+            for _, img, cam, pitch, roll in unchanged.rendered_frames(preset, field_name):
+                perspective.extract_frame(img, cam, conf, pitch=pitch, roll=roll)
+    finally:
+        cr._verify_crossing = real
+    return calls
+
+
+def _same_verdict(got, ref):
+    if isinstance(ref, str) or isinstance(got, str):
+        return got == ref
+    return (np.array(got[0], np.float64).tobytes() == np.array(ref[0], np.float64).tobytes()
+            and np.asarray(got[1]).tobytes() == np.asarray(ref[1]).tobytes())
+
+
+def test_verify_crossing_equals_the_former_python():
+    """crossings._verify_crossing (``_floor_checks``, ``_image_checks``, the compiled
+    ``_alternative_in_view``) gives the verdict the former Python and numpy gave, to the bit:
+    on every verification of the rendered reference frames, and on each of them moved,
+    turned, with shortened arms (grown on the white mask), without the white mask, and
+    as an L of its first two arms."""
+    rng = np.random.default_rng(5)
+    calls = _recorded_verifications()
+    assert len(calls) >= 20
+    verdicts = set()
+    for args in calls:
+        (kind, x, dirs, reach, white, green, other_mean, top, camera, to_floor, cc, cell,
+         field_cells, lengths, white_px) = args[:15]
+        turn = rng.normal(0, 0.05)
+        c, s = math.cos(turn), math.sin(turn)
+        variants = [(kind, x, dirs, reach, lengths, white_px),
+                    (kind, x + rng.normal(0, 4, 2), dirs, reach, lengths, white_px),
+                    (kind, x, dirs @ np.array([[c, s], [-s, c]]), reach, lengths, white_px),
+                    (kind, x, dirs, reach, None if lengths is None else 0.3 * lengths,
+                     white_px),
+                    (kind, x, dirs, reach, lengths, None)]
+        if len(dirs) > 2:
+            variants.append(("L", x, dirs[:2], reach[:2],
+                             None if lengths is None else lengths[:2], white_px))
+        for k, xx, dd, rr, ll, wp in variants:
+            rest = (white, green, other_mean, top, camera, to_floor, cc, cell, field_cells)
+            ref = _reference_verify_crossing(k, xx, dd, np.array(rr, float), *rest,
+                                             None if ll is None else np.array(ll, float), wp)
+            got = cr._verify_crossing(k, xx, dd, np.array(rr, float), *rest,
+                                      None if ll is None else np.array(ll, float), wp)
+            assert _same_verdict(got, ref), (k, xx, dd, rr, ll, got, ref)
+            verdicts.add("verified" if not isinstance(ref, str) else ref.split(" misfit")[0])
+    assert len(verdicts) >= 6, verdicts
+
+
+def test_remap_sample_is_opencvs_remap():
+    """crossings._remap_sample (the compiled _alternative_in_view's green) samples as
+    sample_cells (cv2.remap, bilinear) does, to the bit, inside the image and across its
+    edges, for float32 images of any values, of shares in 64ths and of 0/1."""
+    rng = np.random.default_rng(6)
+    for image in (rng.random((60, 94)).astype(np.float32),
+                  (rng.integers(0, 65, (60, 94)) / np.float32(64)).astype(np.float32),
+                  (rng.random((60, 94)) > 0.5).astype(np.float32)):
+        pts = rng.uniform(-3, [97, 63], (20000, 2))
+        pts[:2000] = np.round(pts[:2000] * 2) / 2  # on pixels and halfway
+        ref = cr.sample_cells(image, pts)
+        got = np.array([cr._remap_sample(image, p, q) for p, q in pts], np.float32)
+        assert got.tobytes() == ref.tobytes()

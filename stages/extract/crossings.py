@@ -35,14 +35,13 @@ from numba import njit
 
 from stages.common.features_file import CROSSING_CODES
 from stages.common.field import crossing_orientation
-from stages.common.geometry import polar
 
 from .line_fit import (
     _fit_points,
     distort_ideal,
     distort_point,
     fused_multiply_add,
-    grow_along,
+    fused_multiply_add32,
     grow_kernel,
     lens_parameters,
     refine_kernel,
@@ -636,9 +635,11 @@ def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.nd
     field_cells = (rows_ >= np.asarray(top, np.float64)[None, :]).astype(np.float32)
     verdicts, found = [], []
     deg = ks.degree()
+    frame = VerifyFrame(white, green, other_mean, top, camera, to_floor, cc, cell, field_cells,
+                        white_px)
     for cand in cands:
         verdict = _crossing(cand, ks, ideal, white, green, other_mean, top, camera, to_floor,
-                            cc, cell, white_px, field_cells, deg)
+                            cc, cell, white_px, field_cells, deg, frame)
         verdicts.append(verdict)
         if not isinstance(verdict, str):
             found.append(verdict)
@@ -659,7 +660,7 @@ def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.nd
             verdict = _verify_crossing(lc.kind, lc.point, lc.arms,
                                        np.minimum(reach, lc.lengths), white, green, other_mean,
                                        top, camera, to_floor, cc, cell, field_cells, lc.lengths,
-                                       white_px)
+                                       white_px, frame)
             pair_verdicts.append(verdict)
             if not isinstance(verdict, str):
                 found.append(verdict)
@@ -680,9 +681,10 @@ def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.nd
 
 
 def _crossing(cand, ks, ideal, white, green, other_mean, top, camera, to_floor, cc, cell,
-              white_px=None, field_cells=None, deg=None):
+              white_px=None, field_cells=None, deg=None, frame=None):
     """One key-structure candidate -> (row, image position), or the reason it was rejected
-    (``deg``: the key structure's node degrees, if already computed)."""
+    (``deg``: the key structure's node degrees, ``frame`` the frame's VerifyFrame, if already
+    made)."""
     centre = ideal[ks.node[cand.key]]
     if not np.isfinite(centre).all():
         return "outside the lens model"
@@ -696,7 +698,7 @@ def _crossing(cand, ks, ideal, white, green, other_mean, top, camera, to_floor, 
     x, dirs, lengths = placed
     reach = np.minimum(cc["arm_reach"] * cell, lengths)
     return _verify_crossing(cand.kind, x, dirs, reach, white, green, other_mean, top, camera,
-                            to_floor, cc, cell, field_cells, lengths, white_px)
+                            to_floor, cc, cell, field_cells, lengths, white_px, frame)
 
 
 PLACE_REASONS = ("", "arm without nodes", "arms do not meet near the node")
@@ -876,93 +878,286 @@ def _place(kind, centre, flat, start, coords, skip, count, refine, white_px, len
 
 
 def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera, to_floor, cc,
-                     cell, field_cells=None, lengths=None, white_px=None):
+                     cell, field_cells=None, lengths=None, white_px=None, frame=None):
     """A crossing of ``kind`` at ideal point ``x`` with arms along ``dirs`` (A, 2) reaching
     ``reach`` (A,) px, its lines extending ``lengths`` (A,) px along them -> (row, image
     position), or the reason it is rejected. The cheap floor checks come before the image
-    checks."""
-    step = cc["arm_step"] * cell
+    checks. ``frame``: the frame's VerifyFrame (the kernels' arrays), if already made.
+
+    The floor checks run compiled (``_floor_checks``), the image checks too
+    (``_image_checks``); numpy's arctan2 gives the bearing and the arms' floor angles (the
+    kernels' atan2 is not numpy's to the bit), floor_arms the shape's fit."""
+    if frame is None:
+        frame = VerifyFrame(white, green, other_mean, top, camera, to_floor, cc, cell,
+                            field_cells, white_px)
     n = len(dirs)
-    # all floor points at once: the crossing, a step along each arm, the cell below, the ends
-    pts = np.empty((n + 2 + (0 if lengths is None else n), 2))
-    pts[0] = x
-    pts[1:n + 1] = x + step * dirs
-    pts[n + 1] = x[0] + 0.0, x[1] + float(cell)
-    if lengths is not None:
-        with np.errstate(invalid="ignore"):  # an arm out of the image is infinite
-            pts[n + 2:] = x[None] + np.asarray(lengths)[:, None] * dirs
-    on_floor = to_floor(pts)
-    floor = on_floor[:n + 1]
-    if not np.isfinite(floor).all():
-        return "above the horizon"
-    # every point's offset from the crossing on the floor and its length, at once
-    rel = on_floor - on_floor[0]
-    rel_m = np.hypot(rel[:, 0], rel[:, 1])
-    if lengths is not None:
-        arm_m = rel_m[n + 2:]  # NaN beyond the horizon: long enough
-        short = arm_m < cc["min_arm_length"]
-        if np.any(short) and white_px is not None:
-            # the fitted nodes or lines may end early (a far arm's few nodes, a line cut at a
-            # junction): the arm is as long as the white line goes on along it in the image
-            lengths = white_arm_lengths(x, dirs, lengths, short, white_px, camera, cc, cell)
-            with np.errstate(invalid="ignore"):  # an arm out of the image is infinite
-                ends = to_floor(x[None] + lengths[:, None] * dirs)
-            arm_m = np.hypot(*(ends - floor[0]).T)
-            reach = np.maximum(reach, np.minimum(cc["arm_reach"] * cell, lengths))
-        if np.any(arm_m < cc["min_arm_length"]):
-            return "arm too short"
-    d, bearing = polar(floor[:1])
-    span = rel_m[n + 1] if np.isfinite(rel_m[n + 1]) else np.inf  # the cell below
-    # beyond the grid's resolution the full-resolution white mask decides (_verify_fine), as
-    # far as its profiles (refine_step px apart) resolve the floor
-    fine = span > cc["max_cell_span"]
-    if fine and (white_px is None or not cc.get("fine", True)
-                 or span * cc["refine_step"] / cell > cc["max_cell_span"]):
-        return "too far"
-    arm_dirs = np.arctan2(rel[1:n + 1, 1], rel[1:n + 1, 0])
-    orient, misfit = floor_arms(kind, arm_dirs)
+    x = np.ascontiguousarray(x, np.float64)
+    dirs = np.ascontiguousarray(dirs, np.float64)
+    reach = np.array(reach, np.float64)
+    has_lengths = lengths is not None
+    lengths = np.array(lengths, np.float64) if has_lengths else np.zeros(n)
+    angles_at = np.empty((n + 1, 2))  # the crossing on the floor, each arm's offset there
+    scalars = np.empty(3)
+    code = _floor_checks(x, dirs, reach, lengths, has_lengths, frame.use_white, frame.white_px,
+                         frame.lens, to_floor.m, to_floor.height, frame.position,
+                         frame.shifted, frame.params, angles_at, scalars)
+    if code:
+        return FLOOR_REASONS[code]
+    angles = np.arctan2(angles_at[:, 1], angles_at[:, 0])
+    dist, bearing, span = scalars[0], angles[0], scalars[1]
+    orient, misfit = floor_arms(kind, angles[1:])
     if misfit > cc["max_misfit"]:
         return f"floor angles misfit {math.degrees(misfit):.0f} deg"
-    if fine:
+    if scalars[2]:  # beyond the grid's resolution
         return _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera, to_floor,
-                            cc, cell, d[0], bearing[0], orient, misfit, span)
-    # an arm leaving the image is verified on its part in view
-    reach = np.minimum(reach, _in_image(x, dirs, camera, 0.5 * cell))
-    px = distort_ideal(lens_parameters(camera), np.vstack([x[None], x + reach[:, None] * dirs]))
-    if not np.isfinite(px).all():
-        return "outside the lens model"
-    grid = (px + 0.5) / cell - 0.5
-    col = min(max(round(grid[0, 0]), 0), len(top) - 1)
-    near_top = top[max(col - 2, 0): col + 3].max()  # the boundary within two columns
-    if grid[0, 1] - near_top < cc["edge_margin"]:
-        return "at the field boundary"  # a line meeting an object or the end of the view
-    row = min(max(round(grid[0, 1]), 0), other_mean.shape[0] - 1)
-    r = cc["object_radius"]
-    if other_mean[max(row - r, 0): row + r + 1, max(col - r, 0): col + r + 1].max() > 0.5:
-        return "next to an object"  # a robot's or a person's white foot on a line
-    # the arms that would make an L a T must be in view (a T's stem continued would make an
-    # X, which fields hold only where the centre circle crosses the halfway line)
-    # (a thin line leaves a cell mostly green: where the full-resolution mask shows an arm's
-    # line going on through the crossing, the L is no L)
-    if kind == "L" and (not _alternative_in_view(x, dirs, camera, top, other_mean, green, cc,
-                                                 cell)
-                        or (white_px is not None and any(
-                            arm_state(x, -u, white_px, green, other_mean, top, camera,
-                                      to_floor, cc, cell, dirs) == "white" for u in dirs))):
+                            cc, cell, dist, bearing, orient, misfit, span)
+    out = np.empty(3)
+    code = _image_checks(KIND_INDEX[kind], x, dirs, reach, frame.white, frame.green,
+                         frame.other_mean, frame.top, frame.field, frame.use_white,
+                         frame.white_px, frame.lens, to_floor.m, to_floor.m_inv,
+                         to_floor.height, frame.position, frame.params, frame.radii, _RING, out)
+    if code == IMAGE_VERIFIED:
+        row = [CROSSING_CODES[kind], dist, bearing, orient,
+               out[0] * (1.0 - misfit / math.radians(90.0))]
+        return row, out[1:3].copy()
+    if code == IMAGE_AS_T:
         return _continued_as_t(x, dirs, reach, white, green, other_mean, top, camera,
-                               to_floor, cc, cell, field_cells, lengths, white_px)
-    score = verify_crossing(grid[0], grid[1:], white, green, cc, field_cells)
+                               to_floor, cc, cell, field_cells, lengths if has_lengths else None,
+                               white_px, frame)
+    if code == IMAGE_FINE:
+        # the grid's circles may take in a neighbouring line (a far goal area's lines lie two
+        # cells apart): the full-resolution check decides
+        return _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera, to_floor,
+                            cc, cell, dist, bearing, orient, misfit,
+                            max(span, cc["max_cell_span"]))
+    return IMAGE_REASONS[code]
+
+
+class VerifyFrame:
+    """What the compiled checks of _verify_crossing read of a frame, made once per frame:
+    the grid's images as the kernels take them, the lens, the conf's numbers (``params``,
+    indexed by the P_ names) and the circles' radii."""
+
+    def __init__(self, white, green, other_mean, top, camera, to_floor, cc, cell,
+                 field_cells=None, white_px=None):
+        self.white = np.asarray(white, np.float32)
+        self.green = np.asarray(green, np.float32)
+        self.other_mean = np.asarray(other_mean, np.float32)
+        self.top = np.ascontiguousarray(top, np.float64)
+        self.use_field = field_cells is not None
+        self.field = (np.asarray(field_cells, np.float32) if self.use_field
+                      else np.zeros((1, 1), np.float32))
+        self.use_white = white_px is not None
+        self.white_px = white_px if self.use_white else np.zeros((1, 1), np.uint8)
+        self.lens = lens_parameters(camera)
+        self.position = np.asarray(to_floor.position, np.float64)
+        self.shifted = bool(self.position.any())  # as FloorProjection adds it
+        self.radii = np.asarray(cc["circle_radii"], np.float64)
+        w, h = camera.image_size
+        p = np.empty(P_COUNT)
+        p[P_CELL], p[P_WIDTH], p[P_HEIGHT] = cell, w, h
+        p[P_FINE] = bool(cc.get("fine", True))
+        p[P_USE_FIELD] = self.use_field
+        p[P_WIDTH_LO], p[P_WIDTH_HI] = cc["width_ratio"]
+        for k, name in _P_CONF:
+            p[k] = cc[name]
+        self.params = p
+
+
+# the numbers of VerifyFrame.params: the grid's cell (px), the image's size (px), whether the
+# fine checks are on and the field region given, a painted line's width ratio, the conf's
+(P_CELL, P_WIDTH, P_HEIGHT, P_FINE, P_USE_FIELD, P_WIDTH_LO, P_WIDTH_HI, P_ARM_STEP,
+ P_MIN_ARM_LENGTH, P_ARM_REACH, P_REFINE_STEP, P_REFINE_REACH, P_ARM_GROW, P_ARM_TOLERANCE,
+ P_MAX_CELL_SPAN, P_EDGE_MARGIN, P_OBJECT_RADIUS, P_LINE_WIDTH, P_FINE_PX, P_T_GREEN,
+ P_T_WHITE, P_RELATIVE, P_ARM_GAP, P_MAX_RADIUS, P_MAX_OTHER, P_MIN_PATH_SHARE,
+ P_COUNT) = range(27)
+_P_CONF = ((P_ARM_STEP, "arm_step"), (P_MIN_ARM_LENGTH, "min_arm_length"),
+           (P_ARM_REACH, "arm_reach"), (P_REFINE_STEP, "refine_step"),
+           (P_REFINE_REACH, "refine_reach"), (P_ARM_GROW, "arm_grow"),
+           (P_ARM_TOLERANCE, "arm_tolerance"), (P_MAX_CELL_SPAN, "max_cell_span"),
+           (P_EDGE_MARGIN, "edge_margin"), (P_OBJECT_RADIUS, "object_radius"),
+           (P_LINE_WIDTH, "line_width"), (P_FINE_PX, "fine_px"), (P_T_GREEN, "t_green"),
+           (P_T_WHITE, "t_white"), (P_RELATIVE, "relative"), (P_ARM_GAP, "arm_gap"),
+           (P_MAX_RADIUS, "max_radius"), (P_MAX_OTHER, "max_other"),
+           (P_MIN_PATH_SHARE, "min_path_share"))
+
+FLOOR_REASONS = ("", "above the horizon", "arm too short", "too far")
+IMAGE_VERIFIED, IMAGE_AS_T, IMAGE_FINE = 0, 1, 2
+IMAGE_REASONS = ("", "", "", "outside the lens model", "at the field boundary",
+                 "next to an object", "not verified in the image")
+
+
+@njit(cache=True, nogil=True)
+def _floor_at(m, height, pos, shifted, x, y):
+    """perspective.FloorProjection at one ideal pixel (its _to_floor, operation by
+    operation)."""
+    rx = x * m[0, 0] + y * m[0, 1] + m[0, 2]
+    ry = x * m[1, 0] + y * m[1, 1] + m[1, 2]
+    down = x * m[2, 0] + y * m[2, 1] + m[2, 2]
+    t = height / -down if down < -1e-9 else np.nan
+    fx, fy = rx * t, ry * t
+    if shifted:
+        fx += pos[0]
+        fy += pos[1]
+    return fx, fy
+
+
+@njit(cache=True, nogil=True)
+def _to_edge(x0, x1, ux, uy, w, h, margin):
+    """_in_image of one direction: the distance (ideal px) from (x0, x1) along (ux, uy) to
+    ``margin`` px inside the image's edge, at least 0."""
+    t = np.inf
+    for d, lo, hi in ((ux, margin - x0, (w - 1 - margin) - x0),
+                      (uy, margin - x1, (h - 1 - margin) - x1)):
+        if d > 1e-12:
+            t = min(t, hi / d)
+        elif d < -1e-12:
+            t = min(t, lo / d)
+    return max(t, 0.0)
+
+
+@njit(cache=True, nogil=True)
+def _floor_checks(x, dirs, reach, lengths, has_lengths, use_white, white_px, lens, m, height,
+                  pos, shifted, p, angles_at, scalars):
+    """_verify_crossing's floor checks, compiled: the crossing, a step along each arm, the
+    cell below and the arms' ends on the floor; arms shorter than ``min_arm_length`` m grown
+    along the white line on the full-resolution mask (white_arm_lengths; ``lengths`` and
+    ``reach`` updated in place); the range. Returns 0 or the index of the reason in
+    FLOOR_REASONS; ``angles_at`` (A + 1, 2) gets the crossing's floor point and each arm's
+    offset from it (for arctan2), ``scalars`` the distance, the cell's span on the floor and
+    whether that is beyond the grid's resolution."""
+    n = dirs.shape[0]
+    cell = p[P_CELL]
+    step = p[P_ARM_STEP] * cell
+    x0, x1 = x[0], x[1]
+    f0x, f0y = _floor_at(m, height, pos, shifted, x0, x1)
+    if not (np.isfinite(f0x) and np.isfinite(f0y)):
+        return 1
+    angles_at[0, 0], angles_at[0, 1] = f0x, f0y
+    for k in range(n):
+        fx, fy = _floor_at(m, height, pos, shifted, x0 + step * dirs[k, 0],
+                           x1 + step * dirs[k, 1])
+        if not (np.isfinite(fx) and np.isfinite(fy)):
+            return 1
+        angles_at[1 + k, 0], angles_at[1 + k, 1] = fx - f0x, fy - f0y
+    bx, by = _floor_at(m, height, pos, shifted, x0 + 0.0, x1 + cell)
+    span = np.hypot(bx - f0x, by - f0y)  # the cell below
+    if not np.isfinite(span):
+        span = np.inf
+    if has_lengths:
+        min_length = p[P_MIN_ARM_LENGTH]
+        arm_m = np.empty(n)
+        short = False
+        for k in range(n):
+            ex, ey = _floor_at(m, height, pos, shifted, x0 + lengths[k] * dirs[k, 0],
+                               x1 + lengths[k] * dirs[k, 1])
+            arm_m[k] = np.hypot(ex - f0x, ey - f0y)  # NaN beyond the horizon: long enough
+            short = short or arm_m[k] < min_length
+        if short and use_white:
+            # the fitted nodes or lines may end early (a far arm's few nodes, a line cut at a
+            # junction): the arm is as long as the white line goes on along it in the image
+            w, h = p[P_WIDTH], p[P_HEIGHT]
+            far = p[P_ARM_REACH] * cell
+            for k in range(n):
+                ux, uy = dirs[k, 0], dirs[k, 1]
+                if arm_m[k] < min_length:
+                    gx, gy = grow_kernel(white_px, lens, x0 + lengths[k] * ux,
+                                         x1 + lengths[k] * uy, ux, uy, p[P_REFINE_STEP],
+                                         p[P_REFINE_REACH] * cell, p[P_ARM_GROW] * cell,
+                                         p[P_ARM_TOLERANCE])
+                    t = _dot(gx - x0, gy - x1, ux, uy)
+                    if t > lengths[k]:
+                        lengths[k] = t
+                    if lengths[k] >= _to_edge(x0, x1, ux, uy, w, h, p[P_REFINE_STEP]):
+                        lengths[k] = np.inf  # white up to the image's edge
+                ex, ey = _floor_at(m, height, pos, shifted, x0 + lengths[k] * ux,
+                                   x1 + lengths[k] * uy)
+                arm_m[k] = np.hypot(ex - f0x, ey - f0y)
+                r = min(far, lengths[k]) if not np.isnan(lengths[k]) else lengths[k]
+                if not reach[k] >= r and not np.isnan(reach[k]):  # np.maximum
+                    reach[k] = r
+        for k in range(n):
+            if arm_m[k] < min_length:
+                return 2
+    scalars[0], scalars[1] = np.hypot(f0x, f0y), span
+    # beyond the grid's resolution the full-resolution white mask decides (_verify_fine), as
+    # far as its profiles (refine_step px apart) resolve the floor
+    fine = span > p[P_MAX_CELL_SPAN]
+    if fine and (not use_white or not p[P_FINE]
+                 or span * p[P_REFINE_STEP] / cell > p[P_MAX_CELL_SPAN]):
+        return 3
+    scalars[2] = fine
+    return 0
+
+
+@njit(cache=True, nogil=True)
+def _image_checks(kind, x, dirs, reach, white, green, other_mean, top, field, use_white,
+                  white_px, lens, m, m_inv, height, pos, p, radii, ring, out):
+    """_verify_crossing's image checks, compiled: each arm's reach clipped to the image
+    (``reach`` updated in place), the crossing and the arms' ends in the image and on the
+    grid, the field boundary and objects near it; an L (``kind`` 0) whose alternative is not
+    in view (``_alternative_in_view``) or whose arms' line goes on through it (arm_state
+    white) is to be looked at as a T (IMAGE_AS_T); then the circle and white paths
+    (``_verify``). Returns IMAGE_VERIFIED with the score and the crossing's image position in
+    ``out`` (3,), IMAGE_FINE where the grid does not verify it and the full-resolution check
+    decides, or the index of the reason in IMAGE_REASONS."""
+    n = dirs.shape[0]
+    cell = p[P_CELL]
+    x0, x1 = x[0], x[1]
+    w, h = p[P_WIDTH], p[P_HEIGHT]
+    # an arm leaving the image is verified on its part in view
+    grid = np.empty((n + 1, 2))
+    for k in range(n + 1):
+        if k == 0:
+            qx, qy = x0, x1
+        else:
+            t = _to_edge(x0, x1, dirs[k - 1, 0], dirs[k - 1, 1], w, h, 0.5 * cell)
+            if not reach[k - 1] <= t and not np.isnan(reach[k - 1]):  # np.minimum
+                reach[k - 1] = t
+            qx, qy = x0 + reach[k - 1] * dirs[k - 1, 0], x1 + reach[k - 1] * dirs[k - 1, 1]
+        px, py = distort_point(lens, qx, qy)
+        if not (np.isfinite(px) and np.isfinite(py)):
+            return 3
+        if k == 0:
+            out[1], out[2] = px, py
+        grid[k, 0], grid[k, 1] = (px + 0.5) / cell - 0.5, (py + 0.5) / cell - 0.5
+    n_cols = top.shape[0]
+    col = min(max(int(np.rint(grid[0, 0])), 0), n_cols - 1)
+    near_top = -np.inf  # the boundary within two columns
+    for c in range(max(col - 2, 0), min(col + 3, n_cols)):
+        near_top = max(near_top, top[c])
+    if grid[0, 1] - near_top < p[P_EDGE_MARGIN]:
+        return 4  # a line meeting an object or the end of the view
+    rows, cols = other_mean.shape
+    row = min(max(int(np.rint(grid[0, 1])), 0), rows - 1)
+    r = int(p[P_OBJECT_RADIUS])
+    for i in range(max(row - r, 0), min(row + r + 1, rows)):
+        for j in range(max(col - r, 0), min(col + r + 1, cols)):
+            if other_mean[i, j] > 0.5:
+                return 5  # a robot's or a person's white foot on a line
+    # the arms that would make an L a T must be in view (a T's stem continued would make an
+    # X, which fields hold only where the centre circle crosses the halfway line); a thin
+    # line leaves a cell mostly green: where the full-resolution mask shows an arm's line
+    # going on through the crossing, the L is no L
+    if kind == 0:
+        if not _alternative_in_view(x0, x1, dirs, lens, top, other_mean, green, w, h, cell,
+                                    p[P_ARM_REACH] * cell, p[P_EDGE_MARGIN], p[P_T_GREEN]):
+            return IMAGE_AS_T
+        if use_white:
+            for k in range(n):
+                if _arm_state(x0, x1, -dirs[k, 0], -dirs[k, 1], dirs, white_px, green,
+                              other_mean, top, lens, m, m_inv, height, pos, w, h, cell,
+                              p[P_LINE_WIDTH], p[P_ARM_TOLERANCE], p[P_REFINE_REACH] * cell,
+                              p[P_FINE_PX], p[P_MIN_ARM_LENGTH], p[P_REFINE_STEP],
+                              p[P_WIDTH_LO], p[P_WIDTH_HI], p[P_T_GREEN]) == 1:
+                    return IMAGE_AS_T
+    score = _verify(grid[0], grid[1:], white, green, field, p[P_USE_FIELD] != 0, ring, radii,
+                    p[P_T_WHITE], p[P_RELATIVE], p[P_T_GREEN], p[P_ARM_GAP], p[P_MAX_RADIUS],
+                    p[P_MAX_OTHER], p[P_MIN_PATH_SHARE])
     if score <= 0:
-        if white_px is not None and cc.get("fine", True):
-            # the grid's circles may take in a neighbouring line (a far goal area's lines
-            # lie two cells apart): the full-resolution check decides
-            return _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera,
-                                to_floor, cc, cell, d[0], bearing[0], orient, misfit,
-                                max(span, cc["max_cell_span"]))
-        return "not verified in the image"
-    row = [CROSSING_CODES[kind], d[0], bearing[0], orient,
-           score * (1.0 - misfit / math.radians(90.0))]
-    return row, px[0]
+        return IMAGE_FINE if use_white and p[P_FINE] else 6
+    out[0] = score
+    return IMAGE_VERIFIED
 
 
 def _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera, to_floor, cc, cell,
@@ -1182,7 +1377,7 @@ def _clear_start_kernel(x0, x1, ux, uy, arms, scale, m, m_inv, height, pos, line
 
 
 def _continued_as_t(x, dirs, reach, white, green, other_mean, top, camera, to_floor, cc, cell,
-                    field_cells, lengths, white_px=None):
+                    field_cells, lengths, white_px=None, frame=None):
     """An L whose view opposite its arms is not carpet: where one arm's line goes on through
     the crossing (the fit of a T's bar ended at the stem, or the bar's far half was fitted as
     a line of its own that missed the pair), the crossing is that T. Each arm continued is
@@ -1195,76 +1390,53 @@ def _continued_as_t(x, dirs, reach, white, green, other_mean, top, camera, to_fl
         ext = np.append(reach, reach[k])
         lens = None if lengths is None else np.append(lengths, reach[k])
         v = _verify_crossing("T", x, arms, ext, white, green, other_mean, top, camera, to_floor,
-                             cc, cell, field_cells, lens, white_px)
+                             cc, cell, field_cells, lens, white_px, frame)
         if not isinstance(v, str) and (isinstance(best, str) or v[0][4] > best[0][4]):
             best = v
     return best
 
 
-def _alternative_in_view(x, dirs, camera, top, other_mean, green, cc, cell) -> bool:
+@njit(cache=True, nogil=True)
+def _alternative_in_view(x0, x1, dirs, lens, top, other_mean, green, w, h, cell, reach,
+                         edge_margin, t_green):
     """Whether the image shows carpet opposite an L's arms (where the third arm of a T would
-    be), ``arm_reach`` cells from the crossing: inside the image and the field boundary, no
-    object there, and green (at least ``t_green``). A T seen with one half of its bar out of
-    view or hidden looks like an L; so do a far X's arms, flattened by the perspective."""
-    pts = distort_ideal(lens_parameters(camera), x[None] - cc["arm_reach"] * cell * dirs)
-    w, h = camera.image_size
-    grid = (pts + 0.5) / cell - 0.5
-    greens = sample_cells(green, grid).tolist()  # all points at once (each sampled alone)
-    for p, g, green_here in zip(pts.tolist(), grid.tolist(), greens):
-        if not (math.isfinite(p[0]) and math.isfinite(p[1]) and 0 <= p[0] <= w - 1
-                and 0 <= p[1] <= h - 1):
+    be), ``reach`` px (``arm_reach`` cells) from the crossing (x0, x1): inside the image
+    (``w`` x ``h`` px) and the field boundary (``edge_margin`` cells below ``top``), no
+    object there, and green (at least ``t_green``, sampled as OpenCV's remap does:
+    ``_remap_sample``). A T seen with one half of its bar out of view or hidden looks like an
+    L; so do a far X's arms, flattened by the perspective."""
+    for k in range(dirs.shape[0]):
+        px, py = distort_point(lens, x0 - reach * dirs[k, 0], x1 - reach * dirs[k, 1])
+        if not (np.isfinite(px) and np.isfinite(py) and 0 <= px <= w - 1
+                and 0 <= py <= h - 1):
             return False
-        col = min(max(round(g[0]), 0), len(top) - 1)
-        row = min(max(round(g[1]), 0), other_mean.shape[0] - 1)
-        if g[1] - top[col] < cc["edge_margin"] or other_mean[row, col] > 0.5:
+        gx, gy = (px + 0.5) / cell - 0.5, (py + 0.5) / cell - 0.5
+        col = min(max(int(np.rint(gx)), 0), top.shape[0] - 1)
+        row = min(max(int(np.rint(gy)), 0), other_mean.shape[0] - 1)
+        if gy - top[col] < edge_margin or other_mean[row, col] > 0.5:
             return False
-        if green_here < cc["t_green"]:
+        if _remap_sample(green, gx, gy) < t_green:
             return False
     return True
 
 
-def white_arm_lengths(x: np.ndarray, dirs: np.ndarray, lengths: np.ndarray, which: np.ndarray,
-                      white_px: np.ndarray, camera, cc: dict, cell: int) -> np.ndarray:
-    """Arm lengths (A,) px from the crossing ``x`` (ideal px) along ``dirs``: for the arms
-    ``which`` (A,) bool, ``lengths`` grown while the full-resolution white mask still shows
-    a white run on the arm's line (line_fit's profile walk: a profile across the arm every
-    ``refine_step`` px, ``refine_reach`` cells to each side, its run's centre within
-    ``arm_tolerance`` px of the line; it stops after two profiles without), up to
-    ``arm_grow`` cells; the others as given."""
-    out = np.asarray(lengths, float).copy()
-    lens = lens_parameters(camera)
-    for k in np.nonzero(which)[0]:
-        u = dirs[k]
-        e = x + out[k] * u
-        g = grow_along(white_px, lens, e, u, cc["refine_step"], cc["refine_reach"] * cell,
-                       cc["arm_grow"] * cell, cc["arm_tolerance"])
-        out[k] = max(out[k], float((g - x) @ u))
-        if out[k] >= _in_image(x, u[None], camera, cc["refine_step"])[0]:
-            out[k] = np.inf  # white up to the image's edge: longer than what is in view
-    return out
-
-
-def _in_image(x: np.ndarray, dirs: np.ndarray, camera, margin: float) -> np.ndarray:
-    """Per direction (A, 2), the distance (ideal px) from ``x`` along it to ``margin`` px
-    inside the image's edge (in ideal pixels: the lens's distortion is small at the edges
-    of the views this is used for)."""
-    w, h = camera.image_size
-    x0, x1 = float(x[0]), float(x[1])
-    if not (math.isfinite(x0) and math.isfinite(x1)):  # NaN distances, as numpy gives them
-        lo_, hi_ = np.array([margin, margin]), np.array([w - 1 - margin, h - 1 - margin])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.where(dirs > 1e-12, (hi_ - x) / dirs,
-                         np.where(dirs < -1e-12, (lo_ - x) / dirs, np.inf))
-        return np.maximum(t.min(axis=1), 0.0)
-    hi = (float(w - 1 - margin) - x0, float(h - 1 - margin) - x1)
-    lo = (float(margin) - x0, float(margin) - x1)
-    out = []
-    for d in np.asarray(dirs, float).reshape(-1, 2).tolist():  # a few arms: scalar arithmetic
-        t = math.inf
-        for k in (0, 1):
-            if d[k] > 1e-12:
-                t = min(t, hi[k] / d[k])
-            elif d[k] < -1e-12:
-                t = min(t, lo[k] / d[k])
-        out.append(max(t, 0.0))
-    return np.array(out)
+@njit(cache=True, nogil=True)
+def _remap_sample(image, x64, y64):
+    """sample_cells at one point, to the bit: OpenCV's bilinear remap of a float32 image (the
+    point in float32, pixels outside the image 0) interpolates along the row, then across,
+    each step one fused multiply-add in float32."""
+    h, w = image.shape
+    zero = np.float32(0.0)
+    x, y = np.float32(x64), np.float32(y64)
+    fx, fy = np.floor(x), np.floor(y)
+    ix, iy = int(fx), int(fy)
+    ax, ay = x - fx, y - fy
+    in0, in1 = 0 <= iy < h, 0 <= iy + 1 < h
+    left, right = 0 <= ix < w, 0 <= ix + 1 < w
+    p00 = image[iy, ix] if in0 and left else zero
+    p01 = image[iy, ix + 1] if in0 and right else zero
+    p10 = image[iy + 1, ix] if in1 and left else zero
+    p11 = image[iy + 1, ix + 1] if in1 and right else zero
+    r0 = fused_multiply_add32(p01 - p00, ax, p00)
+    r1 = fused_multiply_add32(p11 - p10, ax, p10)
+    return fused_multiply_add32(r1 - r0, ay, r0)

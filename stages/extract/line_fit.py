@@ -292,6 +292,25 @@ def median(values):
 
 
 @intrinsic
+def fused_multiply_add32(typingctx, a, b, c):
+    """a * b + c in float32 rounded once (LLVM's fma): OpenCV's bilinear remap of float32
+    images interpolates with it (see crossings._remap_sample)."""
+    if not all(isinstance(t, types.Float) for t in (a, b, c)):
+        return None
+    sig = types.float32(types.float32, types.float32, types.float32)
+
+    def codegen(context, builder, signature, args):
+        f32 = ir.FloatType()
+        args = [context.cast(builder, v, t, types.float32)
+                for v, t in zip(args, signature.args)]
+        fn = builder.module.declare_intrinsic("llvm.fma", [f32],
+                                              ir.FunctionType(f32, [f32] * 3))
+        return builder.call(fn, args)
+
+    return sig, codegen
+
+
+@intrinsic
 def fused_multiply_add(typingctx, a, b, c):
     """a * b + c rounded once (LLVM's fma), for the compiled kernels: numpy's dot of two
     2-vectors (``u @ v``, BLAS) is fused_multiply_add(u[1], v[1], u[0] * v[0]), and each row

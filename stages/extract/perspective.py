@@ -163,7 +163,7 @@ confs = {
             "refine_reach": 2.0,
             "refine_min_points": 3,
             # an arm shorter than min_arm_length by its fitted nodes or line is grown along
-            # the white line on the full-resolution mask (crossings.white_arm_lengths): by
+            # the white line on the full-resolution mask (crossings._floor_checks): by
             # at most arm_grow cells, while the white run's centre stays within
             # arm_tolerance px of the arm's line
             "arm_grow": 12.0,
