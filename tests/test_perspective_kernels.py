@@ -31,6 +31,7 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - crossings' ``_points_along`` (the candidates' arm points) against its former Python walk;
 - crossings' ``_place`` (place_crossing: a candidate's arm lines fitted, refined and cut)
   against the former arm_lines, _refined_arm and crossing_point;
+- crossings' ``_pair_crossings`` (line_pair_crossings) against its former numpy and Python;
 - crossings' ``_floor_checks`` and ``_image_checks`` (_verify_crossing, with the compiled
   ``_alternative_in_view`` and its ``_remap_sample``) against the former Python and numpy
   verification and cv2.remap;
@@ -1568,3 +1569,148 @@ def test_remap_sample_is_opencvs_remap():
         ref = cr.sample_cells(image, pts)
         got = np.array([cr._remap_sample(image, p, q) for p, q in pts], np.float32)
         assert got.tobytes() == ref.tobytes()
+
+
+# the line pairs' crossings as they were before ``crossings._pair_crossings`` (Python and
+# numpy)
+def _reference_line_pair_crossings(ends: np.ndarray, widths: np.ndarray, floor_of,
+                                   tol: float, max_misfit: float, first_stem=None) -> list:
+    """Crossings of pairs of fitted lines (``ends`` (N, 2, 2) in ideal pixels, ``widths``
+    (N,) their white width across, px) that meet at about a right angle on the floor
+    (``floor_of``: ideal pixels (M, 2) -> floor points; within ``max_misfit`` rad of 90 deg):
+    each line either passes the intersection (by more than ``tol`` px: two arms) or ends on
+    the other line (its nearer end within ``tol`` px plus the other line's width of it: one
+    arm). Field lines cross at right angles; where a far corner's skeleton loses the junction
+    at the grid's resolution, the lines fitted at full resolution still meet. Lines from
+    ``first_stem`` on are stems (stem_lines): they are not paired with each other."""
+    n = len(ends)
+    if n < 2:
+        return []
+    floor = floor_of(ends.reshape(-1, 2)).reshape(n, 2, 2)
+    fdir = floor[:, 1] - floor[:, 0]
+    fang = np.arctan2(fdir[:, 1], fdir[:, 0])
+    d = ends[:, 1] - ends[:, 0]
+    length = np.hypot(d[:, 0], d[:, 1])
+    u = d / np.maximum(length, 1e-9)[:, None]
+    normal = np.stack([-u[:, 1], u[:, 0]], axis=1)
+    out = []
+    # the pairs at about a right angle on the floor, all at once
+    diff = np.remainder(fang[:, None] - fang[None, :], math.pi)
+    gap = np.abs(np.minimum(diff, math.pi - diff) - math.pi / 2)
+    ok = np.triu(gap <= max_misfit, 1)  # NaN (off the floor) compares False
+    if first_stem is not None:
+        ok[first_stem:, first_stem:] = False
+    pi, pj = np.nonzero(ok)
+    if len(pi) == 0:
+        return cr.merge_line_crossings(out, tol, floor_of=floor_of)
+    # each pair's 2 x 2 system [u_i, -u_j] s = e_j - e_i, all in one batched call (LAPACK per
+    # matrix, as one call per pair would be)
+    a_all = np.stack([u[pi], -u[pj]], axis=2)
+    det_all = np.abs(np.linalg.det(a_all))
+    meet = det_all >= 1e-3
+    s_all = np.zeros((len(pi), 2))
+    if meet.any():
+        s_all[meet] = np.linalg.solve(a_all[meet], (ends[pj, 0] - ends[pi, 0])[meet][..., None]
+                                      )[..., 0]
+    # of all pairs at once: the intersection, and each line's end nearer to it and that
+    # end's distance from the other line (the dot products by row_dots, as ``@`` gives them)
+    s0, s1 = s_all[:, 0], s_all[:, 1]
+    xs = ends[pi, 0] + s0[:, None] * u[pi]
+    e_i = np.where((s0 <= 0.5 * length[pi])[:, None], ends[pi, 0], ends[pi, 1])
+    gap_i = np.abs(lf.row_dots(e_i - ends[pj, 0], normal[pj])).tolist()
+    e_j = np.where((s1 <= 0.5 * length[pj])[:, None], ends[pj, 0], ends[pj, 1])
+    gap_j = np.abs(lf.row_dots(e_j - ends[pi, 0], normal[pi])).tolist()
+    lengths, line_widths = length.tolist(), np.asarray(widths, float).tolist()
+    for i, j, m, t_i, t_j, g_i, g_j, x in zip(pi.tolist(), pj.tolist(), meet.tolist(),
+                                              s0.tolist(), s1.tolist(), gap_i, gap_j, xs):
+        if not m:
+            continue
+        arms_i = _reference_meeting(t_i, lengths[i], u[i], g_i, tol + line_widths[j])
+        arms_j = _reference_meeting(t_j, lengths[j], u[j], g_j, tol + line_widths[i])
+        if arms_i is None or arms_j is None:
+            continue
+        arms = np.array(arms_i[0] + arms_j[0])
+        if len(arms) == 4:
+            continue  # two straight lines crossing: fields have none (their X is the centre
+            # circle on the halfway line), so it is no crossing of field lines
+        kind = {2: "L", 3: "T"}[len(arms)]
+        out.append(cr.LineCrossing(kind, x, arms, (i, j), np.array(arms_i[1] + arms_j[1])))
+    return cr.merge_line_crossings(out, tol, floor_of=floor_of)
+
+
+
+
+def _reference_meeting(t: float, length: float, u: np.ndarray, end_gap: float, tol: float
+             ) -> tuple[list[np.ndarray], list[float]] | None:
+    """Arms of a line (direction ``u``, ends at 0 and ``length`` along it) at the point ``t``
+    along it where another line crosses it, and the line's length along each: two when the
+    point is inside it by more than ``tol``, one when its nearer end lies within ``tol`` of
+    the other line (``end_gap``: that end's distance from the other line), else None."""
+    if tol < t < length - tol:
+        return [u, -u], [length - t, t]
+    if end_gap > tol:
+        return None
+    return ([u], [length - t]) if t <= 0.5 * length else ([-u], [t])
+
+
+def _floor_homography(rng):
+    """A random image -> floor homography (3 x 3) of a camera looking down at the floor,
+    its inverse, and the floor_of of it (NaN above the horizon)."""
+    h = np.array([[0.01, 0.0, -3.0], [0.0, -0.002, 1.5], [0.0, 0.004, -0.5]])
+    h = h + rng.normal(0, 2e-4, (3, 3))
+
+    def floor_of(p):
+        p = np.asarray(p, float).reshape(-1, 2)
+        q = np.concatenate([p, np.ones((len(p), 1))], axis=1) @ h.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(q[:, 2:] > 1e-9, q[:, :2] / q[:, 2:], np.nan)
+
+    return h, np.linalg.inv(h), floor_of
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_line_pair_crossings_equal_the_former_numpy(seed):
+    """crossings.line_pair_crossings (``_pair_crossings``) gives the crossings the former numpy
+    and Python gave, to the bit: of lines meeting as L, T and X on the floor, near misses,
+    parallel and random lines, with stems and without."""
+    rng = np.random.default_rng(seed)
+    _, h_inv, floor_of = _floor_homography(rng)
+
+    def to_image(f):
+        q = np.concatenate([f, np.ones((len(f), 1))], axis=1) @ h_inv.T
+        return q[:, :2] / q[:, 2:]
+
+    found = {"L": 0, "T": 0}
+    for trial in range(60):
+        segs = []
+        for _ in range(int(rng.integers(1, 5))):  # L, T, X shapes on the floor
+            c = rng.uniform([0.5, -2.0], [5.0, 2.0])
+            a = rng.uniform(0, math.pi)
+            u = np.array([math.cos(a), math.sin(a)])
+            v = np.array([-u[1], u[0]]) * (1 + rng.normal(0, 0.05))
+            lo, hi = rng.uniform(-1.0, 0.3, 2), rng.uniform(-0.3, 1.0, 2)
+            segs.append([c + lo[0] * u, c + hi[0] * u])
+            segs.append([c + lo[1] * v, c + hi[1] * v])
+        for _ in range(int(rng.integers(0, 4))):  # others
+            segs.append(rng.uniform([0.3, -3.0], [6.0, 3.0], (2, 2)))
+        floor_ends = np.array(segs)
+        ends = to_image(floor_ends.reshape(-1, 2)).reshape(-1, 2, 2)
+        ends = ends + rng.normal(0, 0.5, ends.shape)
+        if trial % 7 == 0:
+            ends[0, 1] = ends[0, 0]  # no length
+        if trial % 5 == 0 and len(ends) > 2:
+            ends[1] = ends[2] + 3.0  # parallel
+        widths = rng.uniform(0, 6, len(ends))
+        for first_stem in (None, max(1, len(ends) - 2)):
+            got = cr.line_pair_crossings(ends, widths, floor_of, 12.0, math.radians(30.0),
+                                         first_stem)
+            ref = _reference_line_pair_crossings(ends, widths, floor_of, 12.0,
+                                                 math.radians(30.0), first_stem)
+            assert len(got) == len(ref)
+            for g, r in zip(got, ref):
+                assert (g.kind, g.lines) == (r.kind, r.lines)
+                for a, b in ((g.point, r.point), (g.arms, r.arms), (g.lengths, r.lengths)):
+                    a, b = np.asarray(a, float), np.asarray(b, float)
+                    assert a.shape == b.shape and a.tobytes() == b.tobytes()
+                found[g.kind] += 1
+    assert min(found.values()) >= 10, found

@@ -45,7 +45,6 @@ from .line_fit import (
     grow_kernel,
     lens_parameters,
     refine_kernel,
-    row_dots,
 )
 from .line_structure import KeyStructure, LineGraph
 
@@ -400,19 +399,6 @@ class LineCrossing:
     lengths: np.ndarray | None = None  # (A,) px of line along each arm from the point
 
 
-def _meeting(t: float, length: float, u: np.ndarray, end_gap: float, tol: float
-             ) -> tuple[list[np.ndarray], list[float]] | None:
-    """Arms of a line (direction ``u``, ends at 0 and ``length`` along it) at the point ``t``
-    along it where another line crosses it, and the line's length along each: two when the
-    point is inside it by more than ``tol``, one when its nearer end lies within ``tol`` of
-    the other line (``end_gap``: that end's distance from the other line), else None."""
-    if tol < t < length - tol:
-        return [u, -u], [length - t, t]
-    if end_gap > tol:
-        return None
-    return ([u], [length - t]) if t <= 0.5 * length else ([-u], [t])
-
-
 def line_pair_crossings(ends: np.ndarray, widths: np.ndarray, floor_of, tol: float,
                         max_misfit: float, first_stem: int | None = None
                         ) -> list[LineCrossing]:
@@ -423,60 +409,121 @@ def line_pair_crossings(ends: np.ndarray, widths: np.ndarray, floor_of, tol: flo
     the other line (its nearer end within ``tol`` px plus the other line's width of it: one
     arm). Field lines cross at right angles; where a far corner's skeleton loses the junction
     at the grid's resolution, the lines fitted at full resolution still meet. Lines from
-    ``first_stem`` on are stems (stem_lines): they are not paired with each other."""
+    ``first_stem`` on are stems (stem_lines): they are not paired with each other.
+
+    The floor angles are numpy's arctan2; the pairs run compiled (``_pair_crossings``, the
+    dot products as numpy's BLAS forms them and np.linalg's 2 x 2 determinant and solve)."""
     n = len(ends)
     if n < 2:
         return []
+    ends = np.ascontiguousarray(ends, np.float64)
     floor = floor_of(ends.reshape(-1, 2)).reshape(n, 2, 2)
     fdir = floor[:, 1] - floor[:, 0]
     fang = np.arctan2(fdir[:, 1], fdir[:, 0])
-    d = ends[:, 1] - ends[:, 0]
-    length = np.hypot(d[:, 0], d[:, 1])
-    u = d / np.maximum(length, 1e-9)[:, None]
-    normal = np.stack([-u[:, 1], u[:, 0]], axis=1)
-    out = []
-    # the pairs at about a right angle on the floor, all at once
-    diff = np.remainder(fang[:, None] - fang[None, :], math.pi)
-    gap = np.abs(np.minimum(diff, math.pi - diff) - math.pi / 2)
-    ok = np.triu(gap <= max_misfit, 1)  # NaN (off the floor) compares False
-    if first_stem is not None:
-        ok[first_stem:, first_stem:] = False
-    pi, pj = np.nonzero(ok)
-    if len(pi) == 0:
-        return merge_line_crossings(out, tol, floor_of=floor_of)
-    # each pair's 2 x 2 system [u_i, -u_j] s = e_j - e_i, all in one batched call (LAPACK per
-    # matrix, as one call per pair would be)
-    a_all = np.stack([u[pi], -u[pj]], axis=2)
-    det_all = np.abs(np.linalg.det(a_all))
-    meet = det_all >= 1e-3
-    s_all = np.zeros((len(pi), 2))
-    if meet.any():
-        s_all[meet] = np.linalg.solve(a_all[meet], (ends[pj, 0] - ends[pi, 0])[meet][..., None]
-                                      )[..., 0]
-    # of all pairs at once: the intersection, and each line's end nearer to it and that
-    # end's distance from the other line (the dot products by row_dots, as ``@`` gives them)
-    s0, s1 = s_all[:, 0], s_all[:, 1]
-    xs = ends[pi, 0] + s0[:, None] * u[pi]
-    e_i = np.where((s0 <= 0.5 * length[pi])[:, None], ends[pi, 0], ends[pi, 1])
-    gap_i = np.abs(row_dots(e_i - ends[pj, 0], normal[pj])).tolist()
-    e_j = np.where((s1 <= 0.5 * length[pj])[:, None], ends[pj, 0], ends[pj, 1])
-    gap_j = np.abs(row_dots(e_j - ends[pi, 0], normal[pi])).tolist()
-    lengths, line_widths = length.tolist(), np.asarray(widths, float).tolist()
-    for i, j, m, t_i, t_j, g_i, g_j, x in zip(pi.tolist(), pj.tolist(), meet.tolist(),
-                                              s0.tolist(), s1.tolist(), gap_i, gap_j, xs):
-        if not m:
-            continue
-        arms_i = _meeting(t_i, lengths[i], u[i], g_i, tol + line_widths[j])
-        arms_j = _meeting(t_j, lengths[j], u[j], g_j, tol + line_widths[i])
-        if arms_i is None or arms_j is None:
-            continue
-        arms = np.array(arms_i[0] + arms_j[0])
-        if len(arms) == 4:
-            continue  # two straight lines crossing: fields have none (their X is the centre
-            # circle on the halfway line), so it is no crossing of field lines
-        kind = {2: "L", 3: "T"}[len(arms)]
-        out.append(LineCrossing(kind, x, arms, (i, j), np.array(arms_i[1] + arms_j[1])))
+    cap = n * (n - 1) // 2
+    kinds = np.empty(cap, np.int64)
+    lines = np.empty((cap, 2), np.int64)
+    points = np.empty((cap, 2))
+    arms = np.empty((cap, 3, 2))
+    lengths = np.empty((cap, 3))
+    m = _pair_crossings(ends, np.asarray(widths, np.float64), fang, float(tol),
+                        float(max_misfit), n if first_stem is None else int(first_stem),
+                        kinds, lines, points, arms, lengths)
+    out = [LineCrossing("LT"[kinds[k] - 2], points[k].copy(), arms[k, :kinds[k]].copy(),
+                        (int(lines[k, 0]), int(lines[k, 1])), lengths[k, :kinds[k]].copy())
+           for k in range(m)]
     return merge_line_crossings(out, tol, floor_of=floor_of)
+
+
+@njit(cache=True, nogil=True)
+def _remainder(a, b):
+    """np.remainder of two floats (numpy's divmod: fmod, moved to the sign of b)."""
+    mod = np.fmod(a, b)
+    if b == 0:
+        return mod
+    if mod != 0:
+        if (b < 0) != (mod < 0):
+            mod += b
+    else:
+        mod = math.copysign(0.0, b)
+    return mod
+
+
+@njit(cache=True, nogil=True)
+def _meeting_arms(t, length, ux, uy, end_gap, tol, arms, lengths, a):
+    """_meeting compiled: line arms (ux, uy) at ``t`` along a line of ``length`` into
+    arms[a:], their lengths into lengths[a:]; returns the new count, or -1 for none."""
+    if tol < t < length - tol:
+        arms[a, 0], arms[a, 1], lengths[a] = ux, uy, length - t
+        arms[a + 1, 0], arms[a + 1, 1], lengths[a + 1] = -ux, -uy, t
+        return a + 2
+    if end_gap > tol:
+        return -1
+    if t <= 0.5 * length:
+        arms[a, 0], arms[a, 1], lengths[a] = ux, uy, length - t
+    else:
+        arms[a, 0], arms[a, 1], lengths[a] = -ux, -uy, t
+    return a + 1
+
+
+@njit(cache=True, nogil=True)
+def _pair_crossings(ends, widths, fang, tol, max_misfit, first_stem, kinds, lines, points,
+                    arms, lengths):
+    """line_pair_crossings after the floor angles ``fang`` (N,), compiled: the crossings of
+    the line pairs i < j (row by row, as np.nonzero gives them) into the outputs (kind 2 L,
+    3 T, the two lines, the point, the arms and their lengths); returns their number."""
+    n = ends.shape[0]
+    length = np.empty(n)
+    u = np.empty((n, 2))
+    for i in range(n):
+        dx, dy = ends[i, 1, 0] - ends[i, 0, 0], ends[i, 1, 1] - ends[i, 0, 1]
+        length[i] = np.hypot(dx, dy)
+        den = length[i] if not length[i] < 1e-9 else 1e-9  # np.maximum (NaN stays)
+        u[i, 0], u[i, 1] = dx / den, dy / den
+    a = np.empty((2, 2))
+    b = np.empty(2)
+    arm = np.empty((4, 2))
+    arm_len = np.empty(4)
+    m = 0
+    half = math.pi / 2
+    for i in range(n):
+        for j in range(i + 1, n):
+            if i >= first_stem and j >= first_stem:
+                continue
+            diff = _remainder(fang[i] - fang[j], math.pi)
+            other = math.pi - diff
+            near = diff if (diff <= other or np.isnan(diff)) else other  # np.minimum
+            if not abs(near - half) <= max_misfit:  # NaN (off the floor) is no pair
+                continue
+            a[0, 0], a[0, 1], a[1, 0], a[1, 1] = u[i, 0], -u[j, 0], u[i, 1], -u[j, 1]
+            if not abs(np.linalg.det(a)) >= 1e-3:
+                continue
+            b[0], b[1] = ends[j, 0, 0] - ends[i, 0, 0], ends[j, 0, 1] - ends[i, 0, 1]
+            s = np.linalg.solve(a, b)
+            t_i, t_j = s[0], s[1]
+            xx, xy = ends[i, 0, 0] + t_i * u[i, 0], ends[i, 0, 1] + t_i * u[i, 1]
+            # each line's end nearer the intersection and its distance from the other line
+            k = 0 if t_i <= 0.5 * length[i] else 1
+            g_i = abs(_dot(ends[i, k, 0] - ends[j, 0, 0], ends[i, k, 1] - ends[j, 0, 1],
+                           -u[j, 1], u[j, 0]))
+            k = 0 if t_j <= 0.5 * length[j] else 1
+            g_j = abs(_dot(ends[j, k, 0] - ends[i, 0, 0], ends[j, k, 1] - ends[i, 0, 1],
+                           -u[i, 1], u[i, 0]))
+            c = _meeting_arms(t_i, length[i], u[i, 0], u[i, 1], g_i, tol + widths[j], arm,
+                              arm_len, 0)
+            if c < 0:
+                continue
+            c = _meeting_arms(t_j, length[j], u[j, 0], u[j, 1], g_j, tol + widths[i], arm,
+                              arm_len, c)
+            if c < 0 or c == 4:
+                continue  # two straight lines crossing: fields have none (their X is the
+                # centre circle on the halfway line), so it is no crossing of field lines
+            kinds[m], lines[m, 0], lines[m, 1] = c, i, j
+            points[m, 0], points[m, 1] = xx, xy
+            for q in range(c):
+                arms[m, q, 0], arms[m, q, 1], lengths[m, q] = arm[q, 0], arm[q, 1], arm_len[q]
+            m += 1
+    return m
 
 
 def stem_lines(lines: np.ndarray, white_px: np.ndarray, camera, to_floor, cc: dict,
