@@ -31,6 +31,7 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - crossings' ``_points_along`` (the candidates' arm points) against its former Python walk;
 - crossings' ``_place`` (place_crossing: a candidate's arm lines fitted, refined and cut)
   against the former arm_lines, _refined_arm and crossing_point;
+- perspective's ``_look_up`` (IdealPixels, line_fit.remap_at) against cv2.remap;
 - crossings' ``_pair_crossings`` (line_pair_crossings) against its former numpy and Python;
 - crossings' ``_floor_checks`` and ``_image_checks`` (_verify_crossing, with the compiled
   ``_alternative_in_view`` and its ``_remap_sample``) against the former Python and numpy
@@ -1714,3 +1715,38 @@ def test_line_pair_crossings_equal_the_former_numpy(seed):
                     assert a.shape == b.shape and a.tobytes() == b.tobytes()
                 found[g.kind] += 1
     assert min(found.values()) >= 10, found
+
+
+def test_ideal_pixels_read_the_tables_as_cv2_remap():
+    """perspective.IdealPixels (``_look_up``, line_fit.remap_at) reads its undistortion
+    tables as its former cv2.remap (INTER_LINEAR, NaN beyond the tables) did, to the bit:
+    inside the image, across its edges, on pixels and halfway, and at NaN and infinite
+    pixels (NaN where it gave NaN)."""
+    import cv2
+
+    class Camera:  # a wide-angle lens as the KidSize renderer's
+        image_size = (752, 480)
+        fx, fy, cx, cy = 330.0, 330.0, 375.5, 239.5
+        distortion = np.array([-0.25, 0.06, 0.001, -0.001, 0.0])
+        camera_matrix = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+        def undistort_points(self, p):
+            # a smooth stand-in for the Newton iterations (the tables are what is read)
+            c = np.array([self.cx, self.cy])
+            r2 = np.sum(((p - c) / self.fx) ** 2, axis=-1, keepdims=True)
+            return c + (p - c) * (1 + 0.2 * r2)
+
+    ideal = perspective.IdealPixels(Camera())
+    rng = np.random.default_rng(9)
+    uv = rng.uniform(-10, [762, 490], (30000, 2))
+    uv[200:3000] = np.round(uv[200:3000] * 2) / 2
+    uv[:100] = np.nan
+    uv[100:200, 0] = np.inf
+    p = np.asarray(uv, np.float32).reshape(-1, 1, 2) / np.float32(ideal.stride)
+    ref = np.stack([cv2.remap(m, p[..., 0], p[..., 1], cv2.INTER_LINEAR,
+                              borderMode=cv2.BORDER_CONSTANT, borderValue=float("nan")).ravel()
+                    for m in (ideal.map_u, ideal.map_v)], axis=1).astype(np.float64)
+    got = ideal(uv)
+    nan = np.isnan(ref)
+    assert got.dtype == ref.dtype and np.array_equal(np.isnan(got), nan) and nan.sum() > 200
+    assert got[~nan].tobytes() == ref[~nan].tobytes()  # (a NaN's sign bit aside)

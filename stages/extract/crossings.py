@@ -41,10 +41,10 @@ from .line_fit import (
     distort_ideal,
     distort_point,
     fused_multiply_add,
-    fused_multiply_add32,
     grow_kernel,
     lens_parameters,
     refine_kernel,
+    remap_at,
 )
 from .line_structure import KeyStructure, LineGraph
 
@@ -1468,22 +1468,7 @@ def _alternative_in_view(x0, x1, dirs, lens, top, other_mean, green, w, h, cell,
 
 
 @njit(cache=True, nogil=True)
-def _remap_sample(image, x64, y64):
-    """sample_cells at one point, to the bit: OpenCV's bilinear remap of a float32 image (the
-    point in float32, pixels outside the image 0) interpolates along the row, then across,
-    each step one fused multiply-add in float32."""
-    h, w = image.shape
-    zero = np.float32(0.0)
-    x, y = np.float32(x64), np.float32(y64)
-    fx, fy = np.floor(x), np.floor(y)
-    ix, iy = int(fx), int(fy)
-    ax, ay = x - fx, y - fy
-    in0, in1 = 0 <= iy < h, 0 <= iy + 1 < h
-    left, right = 0 <= ix < w, 0 <= ix + 1 < w
-    p00 = image[iy, ix] if in0 and left else zero
-    p01 = image[iy, ix + 1] if in0 and right else zero
-    p10 = image[iy + 1, ix] if in1 and left else zero
-    p11 = image[iy + 1, ix + 1] if in1 and right else zero
-    r0 = fused_multiply_add32(p01 - p00, ax, p00)
-    r1 = fused_multiply_add32(p11 - p10, ax, p10)
-    return fused_multiply_add32(r1 - r0, ay, r0)
+def _remap_sample(image, x, y):
+    """sample_cells at one point, to the bit (line_fit.remap_at: the point in float32,
+    pixels outside the image 0)."""
+    return remap_at(image, np.float32(x), np.float32(y), np.float32(0.0))

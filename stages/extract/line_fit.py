@@ -331,6 +331,26 @@ def fused_multiply_add(typingctx, a, b, c):
     return sig, codegen
 
 
+@njit(cache=True, nogil=True)
+def remap_at(image, x, y, border):
+    """cv2.remap of a float32 ``image`` at one point (x, y) in float32, INTER_LINEAR with
+    BORDER_CONSTANT ``border`` (float32), to the bit: OpenCV interpolates along the row, then
+    across, each step one fused multiply-add in float32."""
+    h, w = image.shape
+    fx, fy = np.floor(x), np.floor(y)
+    ix, iy = int(fx), int(fy)
+    ax, ay = x - fx, y - fy
+    in0, in1 = 0 <= iy < h, 0 <= iy + 1 < h
+    left, right = 0 <= ix < w, 0 <= ix + 1 < w
+    p00 = image[iy, ix] if in0 and left else border
+    p01 = image[iy, ix + 1] if in0 and right else border
+    p10 = image[iy + 1, ix] if in1 and left else border
+    p11 = image[iy + 1, ix + 1] if in1 and right else border
+    r0 = fused_multiply_add32(p01 - p00, ax, p00)
+    r1 = fused_multiply_add32(p11 - p10, ax, p10)
+    return fused_multiply_add32(r1 - r0, ay, r0)
+
+
 def lens_parameters(camera) -> np.ndarray:
     """(9,) fx, fy, cx, cy, k1, k2, p1, p2, k3 of a PerspectiveCamera, for the kernels."""
     return np.array([camera.fx, camera.fy, camera.cx, camera.cy, *camera.distortion],

@@ -43,6 +43,7 @@ from .line_fit import (
     line_components,
     median,
     refine_segments,
+    remap_at,
     split_and_merge,
 )
 from .line_structure import (
@@ -276,12 +277,24 @@ class IdealPixels:
         return hit
 
     def __call__(self, uv) -> np.ndarray:
-        """Distorted pixels (N, 2) -> ideal pixels (N, 2); NaN outside the lens model."""
-        p = (np.asarray(uv, np.float32).reshape(-1, 1, 2) / np.float32(self.stride))
-        out = [cv2.remap(m, p[..., 0], p[..., 1], cv2.INTER_LINEAR,
-                         borderMode=cv2.BORDER_CONSTANT, borderValue=float("nan"))
-               for m in (self.map_u, self.map_v)]
-        return np.stack([o.ravel() for o in out], axis=1).astype(np.float64)
+        """Distorted pixels (N, 2) -> ideal pixels (N, 2); NaN outside the lens model. The
+        tables are read as cv2.remap reads them (INTER_LINEAR, NaN beyond them), compiled
+        (``_look_up``)."""
+        p = np.ascontiguousarray(np.asarray(uv, np.float32).reshape(-1, 2))
+        out = np.empty(p.shape)
+        _look_up(p, np.float32(self.stride), self.map_u, self.map_v, out)
+        return out
+
+
+@njit(cache=True, nogil=True)
+def _look_up(p, stride, map_u, map_v, out):
+    """IdealPixels on distorted pixels p (N, 2, float32): each pixel over the tables' stride
+    (in float32), both tables read there (line_fit.remap_at, NaN beyond them)."""
+    nan = np.float32(np.nan)
+    for i in range(p.shape[0]):
+        x, y = p[i, 0] / stride, p[i, 1] / stride
+        out[i, 0] = remap_at(map_u, x, y, nan)
+        out[i, 1] = remap_at(map_v, x, y, nan)
 
 
 _IDEAL_CACHE: dict[tuple, IdealPixels] = {}
