@@ -31,6 +31,8 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - crossings' ``_points_along`` (the candidates' arm points) against its former Python walk;
 - crossings' ``_place`` (place_crossing: a candidate's arm lines fitted, refined and cut)
   against the former arm_lines, _refined_arm and crossing_point;
+- perspective's ``_width_ratios`` (width_ratios) against its former numpy (BLAS's product
+  of the inverse projection: fused multiply-adds, see line_fit.fused_multiply_add);
 - perspective's ``_look_up`` (IdealPixels, line_fit.remap_at) against cv2.remap;
 - crossings' ``_pair_crossings`` (line_pair_crossings) against its former numpy and Python;
 - crossings' ``_floor_checks`` and ``_image_checks`` (_verify_crossing, with the compiled
@@ -1750,3 +1752,68 @@ def test_ideal_pixels_read_the_tables_as_cv2_remap():
     nan = np.isnan(ref)
     assert got.dtype == ref.dtype and np.array_equal(np.isnan(got), nan) and nan.sum() > 200
     assert got[~nan].tobytes() == ref[~nan].tobytes()  # (a NaN's sign bit aside)
+
+
+# the lines' width ratios as they were before ``perspective._width_ratios`` (numpy)
+def _reference_width_ratios(refs, to_floor, line_width: float) -> dict[int, float]:
+    """Per refined line (by id): the median of its white runs' widths over the width a
+    painted line of ``line_width`` metres has in the image at each run's floor position (both
+    across the line, in ideal pixels); NaN where no run lies on the floor. All lines' points
+    are projected together."""
+    if not refs:
+        return {}
+    counts = np.array([len(r.centres) for r in refs])
+    floor = to_floor(np.concatenate([r.centres for r in refs]))
+    ends = to_floor(np.concatenate([r.ends for r in refs])).reshape(-1, 2, 2)
+    d = ends[:, 1] - ends[:, 0]
+    length = np.hypot(d[:, 0], d[:, 1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        nf = np.stack([-d[:, 1], d[:, 0]], axis=1) / length[:, None]
+    nf_pts = np.repeat(nf, counts, axis=0)
+    half = 0.5 * line_width
+    a = to_floor.to_ideal(floor - half * nf_pts)
+    b = to_floor.to_ideal(floor + half * nf_pts)
+    n_img = np.repeat(np.array([r.fit.normal for r in refs]), counts, axis=0)
+    expected = np.abs(((b - a) * n_img).sum(axis=1))
+    ratio = np.concatenate([r.widths for r in refs]) / np.maximum(expected, 1e-6)
+    ok = np.all(np.isfinite(floor), axis=1) & np.isfinite(ratio)
+    out, k = {}, 0
+    for r, n in zip(refs, counts):
+        sel = ok[k:k + n]
+        out[id(r)] = float(lf.median(ratio[k:k + n][sel])) if sel.any() else float("nan")
+        k += n
+    return out
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_width_ratios_equal_the_former_numpy(seed):
+    """perspective.width_ratios (``_width_ratios``) gives the ratios the former numpy gave, to
+    the bit: for lines on the floor, partly and wholly beyond the horizon, of one run and
+    many, with a lens over the floor's origin and beside it."""
+    rng = np.random.default_rng(seed)
+    for shifted in (False, True):
+        floor = object.__new__(perspective.FloorProjection)
+        pitch = 0.5 + rng.normal(0, 0.1)
+        c, s = math.cos(pitch), math.sin(pitch)
+        k_inv = np.linalg.inv(np.array([[330.0, 0, 375.5], [0, 330.0, 239.5], [0, 0, 1]]))
+        rot = np.array([[0.0, -s, c], [-1.0, 0.0, 0.0], [0.0, -c, -s]])
+        floor.m = rot @ k_inv + rng.normal(0, 1e-5, (3, 3))
+        floor.m_inv = np.linalg.inv(floor.m)
+        floor.height = 0.45
+        floor.position = np.array([0.03, -0.02]) if shifted else np.zeros(2)
+        floor._shifted = shifted
+        refs = []
+        for k in range(int(rng.integers(1, 12))):
+            n = 1 if k == 0 and seed == 1 else int(rng.integers(2, 30))
+            p = rng.uniform([0, 0], [752, 480], 2)
+            q = p + rng.normal(0, 80, 2)
+            t = np.sort(rng.uniform(0, 1, n))[:, None]
+            centres = p * (1 - t) + q * t + rng.normal(0, 0.5, (n, 2))
+            d = (q - p) / np.hypot(*(q - p))
+            fit = lf.LineFit(centres.mean(axis=0), d, np.array([-d[1], d[0]]), 0.1)
+            refs.append(lf.RefinedLine(np.array([p, q]), fit, centres,
+                                       rng.uniform(1, 9, n)))
+        got = perspective.width_ratios(refs, floor, 0.05)
+        ref = _reference_width_ratios(refs, floor, 0.05)
+        assert list(got) == list(ref)
+        assert np.array(list(got.values())).tobytes() == np.array(list(ref.values())).tobytes()
