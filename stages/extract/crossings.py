@@ -617,13 +617,19 @@ def merge_line_crossings(crossings: list[LineCrossing], tol: float,
     away the perspective flattens a right angle in the image): a T whose bar was fitted as
     two lines, one each side of the stem, gives two L's of the same point."""
     out, used = [], [False] * len(crossings)
+    if not crossings:
+        return out
     cos_same = math.cos(same_arm)
+    # the points' distances, all at once (np.hypot of each difference, as one at a time)
+    pts = np.array([c.point for c in crossings], np.float64)
+    near = (np.hypot(pts[None, :, 0] - pts[:, None, 0], pts[None, :, 1] - pts[:, None, 1])
+            <= tol).tolist()
     for a, c in enumerate(crossings):
         if used[a]:
             continue
         group = [c]
         for b in range(a + 1, len(crossings)):
-            if not used[b] and np.hypot(*(crossings[b].point - c.point)) <= tol:
+            if not used[b] and near[a][b]:
                 group.append(crossings[b])
                 used[b] = True
         if len(group) == 1:
