@@ -32,8 +32,8 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - crossings' ``_place`` (place_crossing: a candidate's arm lines fitted, refined and cut)
   against the former arm_lines, _refined_arm and crossing_point;
 - perspective's ``_width_ratios`` (width_ratios) against its former numpy (BLAS's product
-  of the inverse projection: fused multiply-adds, see line_fit.fused_multiply_add);
-- perspective's ``_look_up`` (IdealPixels, line_fit.remap_at) against cv2.remap;
+  of the inverse projection: fused multiply-adds, see exact_ops);
+- perspective's ``_look_up`` (IdealPixels, exact_ops.remap_at) against cv2.remap;
 - crossings' ``_pair_crossings`` (line_pair_crossings) against its former numpy and Python;
 - crossings' ``_floor_checks`` and ``_image_checks`` (_verify_crossing, with the compiled
   ``_alternative_in_view`` and its ``_remap_sample``) against the former Python and numpy
@@ -48,7 +48,8 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - line_structure's ``_triangle_cuts`` (remove_triangles) against its former Python loop;
 - line_structure's ``_gap_choice`` (fill_gaps' ratios, order and greedy choice) against
   the former Python;
-- line_structure's ``_gap_candidates`` (fill_gaps) against its former Python loop;
+- line_structure's ``_gap_candidates`` (fill_gaps) against its former Python loop, its
+  ``_gap_grey`` (the gaps' grey level) against cv2.remap;
 - line_structure's ``_farthest_pairs`` (split_isolated_nodes) against np.argmax of the
   regions' distance matrices.
 """
@@ -1720,7 +1721,7 @@ def test_line_pair_crossings_equal_the_former_numpy(seed):
 
 
 def test_ideal_pixels_read_the_tables_as_cv2_remap():
-    """perspective.IdealPixels (``_look_up``, line_fit.remap_at) reads its undistortion
+    """perspective.IdealPixels (``_look_up``, exact_ops.remap_at) reads its undistortion
     tables as its former cv2.remap (INTER_LINEAR, NaN beyond the tables) did, to the bit:
     inside the image, across its edges, on pixels and halfway, and at NaN and infinite
     pixels (NaN where it gave NaN)."""
@@ -1817,3 +1818,25 @@ def test_width_ratios_equal_the_former_numpy(seed):
         ref = _reference_width_ratios(refs, floor, 0.05)
         assert list(got) == list(ref)
         assert np.array(list(got.values())).tobytes() == np.array(list(ref.values())).tobytes()
+
+
+def test_gap_grey_equals_the_remap_minimum():
+    """line_structure's ``_gap_grey`` (fill_gaps' grey level along the candidate gaps) gives
+    the former cv2.remap of all gaps' points and their minimum, to the bit: gaps inside the
+    grid, across its edges and of no length."""
+    import cv2
+
+    rng = np.random.default_rng(10)
+    image = cv2.GaussianBlur(rng.random((60, 94)).astype(np.float32), (5, 5), 1.0)
+    pos = rng.uniform(-2, [95, 61], (300, 2))
+    pos[:20] = np.round(pos[:20])
+    ci, cj = rng.integers(0, 300, 2000), rng.integers(0, 300, 2000)
+    ci[:10] = cj[:10]
+    for samples in (2, 8):
+        t = ls._gap_steps(samples)
+        pts = (pos[ci][:, None, :] * (1 - t) + pos[cj][:, None, :] * t).astype(np.float32)
+        ref = cv2.remap(image, pts[..., 0], pts[..., 1], cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_CONSTANT, borderValue=0).min(axis=1)
+        got = np.empty(len(ci), np.float32)
+        ls._gap_grey(pos, ci, cj, t[0, :, 0], image, got)
+        assert got.tobytes() == ref.tobytes()

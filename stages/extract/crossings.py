@@ -36,15 +36,14 @@ from numba import njit
 from stages.common.features_file import CROSSING_CODES
 from stages.common.field import crossing_orientation
 
+from .exact_ops import fused_multiply_add, remap_at
 from .line_fit import (
     _fit_points,
     distort_ideal,
     distort_point,
-    fused_multiply_add,
     grow_kernel,
     lens_parameters,
     refine_kernel,
-    remap_at,
 )
 from .line_structure import KeyStructure, LineGraph
 
@@ -775,7 +774,7 @@ def place_crossing(kind: str, centre: np.ndarray, chains: list[list[int]], ideal
     coarse line where that fails). The lines meet as an L's two arms, a T's bar (its two most
     nearly opposite arms fitted together) with the stem, an X's two lines (opposite arms
     fitted together). It runs compiled (``_place``), with the dot products as numpy's BLAS
-    forms them (line_fit.fused_multiply_add) and np.linalg's 2 x 2 determinant and solve."""
+    forms them (exact_ops.fused_multiply_add) and np.linalg's 2 x 2 determinant and solve."""
     n = len(chains)
     lens_ = np.fromiter(map(len, chains), np.int64, n)
     start = np.zeros(n + 1, np.int64)
@@ -1475,6 +1474,6 @@ def _alternative_in_view(x0, x1, dirs, lens, top, other_mean, green, w, h, cell,
 
 @njit(cache=True, nogil=True)
 def _remap_sample(image, x, y):
-    """sample_cells at one point, to the bit (line_fit.remap_at: the point in float32,
+    """sample_cells at one point, to the bit (exact_ops.remap_at: the point in float32,
     pixels outside the image 0)."""
     return remap_at(image, np.float32(x), np.float32(y), np.float32(0.0))

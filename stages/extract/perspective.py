@@ -32,6 +32,7 @@ from ..common import colour
 from ..common.errors import DatasetError
 from ..common.geometry import polar
 from .crossings import find_crossings
+from .exact_ops import fused_multiply_add, remap_at
 from .field_boundary import DEFAULT_WEIGHTS, boundary_polyline, field_boundary
 from .goal_posts import goal_posts, is_post_bar
 from .line_fit import (
@@ -39,12 +40,10 @@ from .line_fit import (
     distort_ideal,
     floor_line_parameters,
     floor_lines_parameters,
-    fused_multiply_add,
     lens_parameters,
     line_components,
     median,
     refine_segments,
-    remap_at,
     split_and_merge,
 )
 from .line_structure import (
@@ -290,7 +289,7 @@ class IdealPixels:
 @njit(cache=True, nogil=True)
 def _look_up(p, stride, map_u, map_v, out):
     """IdealPixels on distorted pixels p (N, 2, float32): each pixel over the tables' stride
-    (in float32), both tables read there (line_fit.remap_at, NaN beyond them)."""
+    (in float32), both tables read there (exact_ops.remap_at, NaN beyond them)."""
     nan = np.float32(np.nan)
     for i in range(p.shape[0]):
         x, y = p[i, 0] / stride, p[i, 1] / stride
