@@ -28,7 +28,8 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - goal_posts' ``_opening`` (rise_above_surroundings) against cv2.morphologyEx;
 - goal_posts' ``stands_out`` and ``bar_width`` (slices, the compiled median) against their
   former fancy-indexed numpy;
-- crossings' ``_points_along`` (the candidates' arm points) against its former Python walk;
+- crossings' ``_points_along`` (the candidates' arm points) against its former Python walk,
+  its ``_corner_angles`` (the L candidates' angles) against the former _angle_between;
 - crossings' ``_place`` (place_crossing: a candidate's arm lines fitted, refined and cut)
   against the former arm_lines, _refined_arm and crossing_point;
 - perspective's ``_width_ratios`` (width_ratios) against its former numpy (BLAS's product
@@ -1840,3 +1841,36 @@ def test_gap_grey_equals_the_remap_minimum():
         got = np.empty(len(ci), np.float32)
         ls._gap_grey(pos, ci, cj, t[0, :, 0], image, got)
         assert got.tobytes() == ref.tobytes()
+
+
+# an L candidate's corner angle as it was before ``crossings._corner_angles``
+def _reference_angle_between(a: np.ndarray, b: np.ndarray) -> float:
+    na, nb = np.hypot(*a), np.hypot(*b)
+    if na == 0 or nb == 0:
+        return 0.0
+    return math.acos(max(-1.0, min(1.0, float(a @ b) / (na * nb))))
+
+
+def test_corner_angles_equal_the_former_angle_between():
+    """crossings' ``_corner_angles`` (the L candidates' angles) gives the former
+    _angle_between's, to the bit: in the grid, on the floor where all three points are on it,
+    and for arms of no length, straight and folded back."""
+    from stages.extract import crossings as cr
+
+    rng = np.random.default_rng(11)
+    corners = rng.normal(0, 5, (3000, 3, 2))
+    corners[:50, 1] = corners[:50, 0]  # an arm of no length
+    corners[50:100, 2] = corners[50:100, 0] + 2.0 * (corners[50:100, 1] - corners[50:100, 0])
+    corners[100:150, 2] = corners[100:150, 0] - (corners[100:150, 1] - corners[100:150, 0])
+    floor = rng.normal(0, 2, corners.shape)
+    floor[::7, rng.integers(0, 3)] = np.nan  # above the horizon
+    for use_floor in (False, True):
+        got = np.empty(len(corners))
+        cr._corner_angles(corners, floor, use_floor, got)
+        ref = []
+        for c, f in zip(corners, floor):
+            ang = _reference_angle_between(c[1] - c[0], c[2] - c[0])
+            if use_floor and np.isfinite(f).all():
+                ang = _reference_angle_between(f[1] - f[0], f[2] - f[0])
+            ref.append(ang)
+        assert got.tobytes() == np.array(ref).tobytes()

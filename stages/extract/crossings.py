@@ -100,13 +100,6 @@ def _points_along(pos, flat, start, reach, out):
         out[c, 1] = pos[p0, 1] + t * (pos[p1, 1] - pos[p0, 1])
 
 
-def _angle_between(a: np.ndarray, b: np.ndarray) -> float:
-    na, nb = np.hypot(*a), np.hypot(*b)
-    if na == 0 or nb == 0:
-        return 0.0
-    return math.acos(max(-1.0, min(1.0, float(a @ b) / (na * nb))))
-
-
 def crossing_candidates(ks: KeyStructure, graph: LineGraph, arm_reach: float,
                         l_angle_range: tuple[float, float], floor_of=None
                         ) -> list[CrossingCandidate]:
@@ -122,31 +115,65 @@ def crossing_candidates(ks: KeyStructure, graph: LineGraph, arm_reach: float,
     chains = [incidence[k] for k in keys]
     along = points_along(graph.pos, [ch for cs in chains for ch in cs], arm_reach)
     first = np.cumsum([0] + [len(cs) for cs in chains])
-    # the L candidates' centres and arm points on the floor, all at once
+    # the L candidates' corner angles, all at once (compiled: _corner_angles), of their
+    # centres and arm points in the grid and on the floor
     two = [n for n, k in enumerate(keys) if deg[k] == 2]
-    floor = {}
-    if floor_of is not None and two:
-        f = floor_of(np.concatenate([np.vstack([ks.pos[keys[n]][None],
-                                                along[first[n]:first[n + 1]]])
-                                     for n in two])).reshape(-1, 3, 2)
-        floor = dict(zip(two, f))
+    angles = {}
+    if two:
+        corners = np.empty((len(two), 3, 2))
+        for i, n in enumerate(two):
+            corners[i, 0] = ks.pos[keys[n]]
+            corners[i, 1:] = along[first[n]:first[n + 1]]
+        use_floor = floor_of is not None
+        on_floor = (floor_of(corners.reshape(-1, 2)).reshape(-1, 3, 2) if use_floor
+                    else corners)
+        ang = np.empty(len(two))
+        _corner_angles(corners, np.ascontiguousarray(on_floor, np.float64), use_floor, ang)
+        angles = dict(zip(two, ang.tolist()))
     out = []
     for n, k in enumerate(keys):
         centre = ks.pos[k]
         arms = along[first[n]:first[n + 1]].copy()
         if deg[k] == 2:
-            ang = _angle_between(arms[0] - centre, arms[1] - centre)
-            if n in floor:
-                f = floor[n]
-                if np.isfinite(f).all():
-                    ang = _angle_between(f[1] - f[0], f[2] - f[0])
-            if not (l_angle_range[0] <= ang <= l_angle_range[1]):
+            if not (l_angle_range[0] <= angles[n] <= l_angle_range[1]):
                 continue
             kind = "L"
         else:
             kind = "T" if deg[k] == 3 else "X"
         out.append(CrossingCandidate(kind, k, centre.copy(), arms))
     return out
+
+
+@njit(cache=True, nogil=True)
+def _angle_at(ax, ay, bx, by):
+    """The angle (radians, [0, pi]) between the vectors (ax, ay) and (bx, by); 0 when one is
+    zero (the dot product as numpy's: exact_ops)."""
+    na, nb = np.hypot(ax, ay), np.hypot(bx, by)
+    if na == 0 or nb == 0:
+        return 0.0
+    c = _dot(ax, ay, bx, by) / (na * nb)
+    c = c if c < 1.0 else 1.0  # as min(1.0, c), max(-1.0, c) (a NaN becomes 1)
+    c = c if c > -1.0 else -1.0
+    return math.acos(c)
+
+
+@njit(cache=True, nogil=True)
+def _corner_angles(corners, floor, use_floor, out):
+    """The L candidates' corner angles: corner i's centre and arm points ``corners[i]`` (3, 2)
+    in the grid, the angle between its arms there, or on the floor (``floor[i]`` (3, 2)) where
+    all three points are on it (``use_floor``)."""
+    for i in range(corners.shape[0]):
+        c = corners[i]
+        out[i] = _angle_at(c[1, 0] - c[0, 0], c[1, 1] - c[0, 1], c[2, 0] - c[0, 0],
+                           c[2, 1] - c[0, 1])
+        if use_floor:
+            finite = True
+            for j in range(3):
+                finite = finite and np.isfinite(floor[i, j, 0]) and np.isfinite(floor[i, j, 1])
+            if finite:
+                f = floor[i]
+                out[i] = _angle_at(f[1, 0] - f[0, 0], f[1, 1] - f[0, 1], f[2, 0] - f[0, 0],
+                                   f[2, 1] - f[0, 1])
 
 
 def sample_cells(image: np.ndarray, pts: np.ndarray) -> np.ndarray:
