@@ -28,7 +28,17 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - goal_posts' ``_opening`` (rise_above_surroundings) against cv2.morphologyEx;
 - goal_posts' ``stands_out`` and ``bar_width`` (slices, the compiled median) against their
   former fancy-indexed numpy;
-- crossings' ``_points_along`` (the candidates' arm points) against its former Python walk;
+- crossings' ``_points_along`` (the candidates' arm points) against its former Python walk,
+  its ``_corner_angles`` (the L candidates' angles) against the former _angle_between;
+- crossings' ``_place`` (place_crossing: a candidate's arm lines fitted, refined and cut)
+  against the former arm_lines, _refined_arm and crossing_point;
+- perspective's ``_width_ratios`` (width_ratios) against its former numpy (BLAS's product
+  of the inverse projection: fused multiply-adds, see exact_ops);
+- perspective's ``_look_up`` (IdealPixels, exact_ops.remap_at) against cv2.remap;
+- crossings' ``_pair_crossings`` (line_pair_crossings) against its former numpy and Python;
+- crossings' ``_floor_checks`` and ``_image_checks`` (_verify_crossing, with the compiled
+  ``_alternative_in_view`` and its ``_remap_sample``) against the former Python and numpy
+  verification and cv2.remap;
 - line_structure's ``_skeleton_grid`` (the inside, low-pass, ranking keys and skeleton of
   white shares) against white_inside_boundary, cv2's low_pass and the ranking functions;
 - line_structure's ``_corner_cuts`` (every chain's corner_nodes at once) against corner_nodes;
@@ -39,7 +49,8 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - line_structure's ``_triangle_cuts`` (remove_triangles) against its former Python loop;
 - line_structure's ``_gap_choice`` (fill_gaps' ratios, order and greedy choice) against
   the former Python;
-- line_structure's ``_gap_candidates`` (fill_gaps) against its former Python loop;
+- line_structure's ``_gap_candidates`` (fill_gaps) against its former Python loop, its
+  ``_gap_grey`` (the gaps' grey level) against cv2.remap;
 - line_structure's ``_farthest_pairs`` (split_isolated_nodes) against np.argmax of the
   regions' distance matrices.
 """
@@ -1124,3 +1135,742 @@ def test_split_isolated_nodes_as_before(seed):
         a, b = getattr(got, name), getattr(ref, name)
         assert a.dtype == b.dtype and a.tobytes() == b.tobytes(), name
     assert [list(a) for a in got.adj] == [list(a) for a in ref.adj]
+
+
+# the placement of a key-structure candidate as it was before ``crossings._place`` (arm_lines,
+# _refined_arm and crossing_point of crossings.py, Python and numpy)
+from stages.extract import line_fit as lf  # noqa: E402
+
+
+def _reference_fit_direction(points: np.ndarray, centre: np.ndarray):
+    """Least-squares line (centroid, unit direction pointing away from ``centre``)."""
+    fit = lf.fit_line(points)
+    c, u = fit.centroid, fit.direction
+    if float((c - centre) @ u) < 0:
+        u = -u
+    return c, u
+
+
+def _reference_arm_lines(centre: np.ndarray, chains: list[list[int]], coords: np.ndarray, skip: int,
+              count: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per arm, the line fitted to its nodes number ``skip`` + 1 .. ``skip`` + ``count`` from
+    the crossing (undistorted coordinates ``coords``; the nodes right next to a crossing bend
+    towards it): (centroid, unit direction away from the centre, the points used)."""
+    out = []
+    for ch in chains:
+        pts = coords[ch[1:]]
+        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        if len(pts) == 0:
+            return []
+        sel = pts[skip: skip + count] if len(pts) >= skip + 2 else pts[:count]
+        if len(sel) < 2:
+            sel = np.vstack([centre[None], sel])
+        c, u = _reference_fit_direction(sel, centre)
+        out.append((c, u, sel))
+    return out
+
+
+def _reference_intersect(c1, u1, c2, u2) -> np.ndarray | None:
+    a = np.array([u1, -u2]).T
+    if abs(np.linalg.det(a)) < 1e-3:  # nearly parallel (|sin| < 1e-3)
+        return None
+    t = np.linalg.solve(a, c2 - c1)
+    return c1 + t[0] * u1
+
+
+def _reference_crossing_point(kind: str, arms: list) -> np.ndarray | None:
+    """The crossing as the intersection of its lines: an L's two arms, a T's bar (its two most
+    nearly opposite arms fitted together) with the stem, an X's two lines (opposite arms fitted
+    together). None when the lines are parallel."""
+    if kind == "L":
+        (c1, u1, _), (c2, u2, _) = arms
+        return _reference_intersect(c1, u1, c2, u2)
+    n = len(arms)
+    dirs = np.array([u for _, u, _ in arms])
+    cos = dirs @ dirs.T
+    if kind == "T":
+        pairs = [(0, 1, 2), (0, 2, 1), (1, 2, 0)]
+        i, j, s = min(pairs, key=lambda p: cos[p[0], p[1]])
+        cb, ub = _reference_fit_direction(np.vstack([arms[i][2], arms[j][2]]), arms[i][0])
+        return _reference_intersect(cb, ub, arms[s][0], arms[s][1])
+    if n != 4:
+        return None
+    # X: pair arm 0 with its most opposite arm, the other two form the second line
+    j = int(np.argmin(cos[0, 1:])) + 1
+    rest = [k for k in range(1, 4) if k != j]
+    c1, u1 = _reference_fit_direction(np.vstack([arms[0][2], arms[j][2]]), arms[0][0])
+    c2, u2 = _reference_fit_direction(np.vstack([arms[rest[0]][2], arms[rest[1]][2]]),
+                                      arms[rest[0]][0])
+    return _reference_intersect(c1, u1, c2, u2)
+
+
+def _reference_refined_arm(arm, centre: np.ndarray, white_px: np.ndarray, camera, cc: dict,
+                           cell: int, lens: np.ndarray | None = None):
+    """An arm's line (centroid, unit direction away from the crossing, points) refined on the
+    full-resolution white mask (line_fit.refine_segment) over its nodes' extent from
+    ``refine_skip`` cells off the crossing on; the coarse arm where that fails. ``lens``: the
+    camera's lens_parameters, if already built."""
+    c, u, sel = arm
+    t = (sel - centre) @ u
+    t0, t1 = max(float(t.min()), cc["refine_skip"] * cell), float(t.max())
+    if t1 - t0 < cell:
+        return arm
+    ref = lf.refine_segment(np.stack([centre + t0 * u, centre + t1 * u]), white_px,
+                         lf.lens_parameters(camera) if lens is None else lens, cc["refine_step"],
+                         cc["refine_reach"] * cell,
+                         0.0, cc["refine_min_points"])
+    if ref is None:
+        return arm
+    d = ref.fit.direction if float(ref.fit.direction @ u) >= 0 else -ref.fit.direction
+    return ref.fit.centroid, d, ref.centres
+
+
+def _reference_place(kind, centre, chains, ideal, cc, cell, white_px, lens):
+    arms = _reference_arm_lines(centre, chains, ideal, cc["arm_skip"], cc["arm_nodes"])
+    if len(arms) != len(chains):
+        return "arm without nodes"
+    if white_px is not None:
+        arms = [_reference_refined_arm(arm, centre, white_px, None, cc, cell, lens)
+                for arm in arms]
+    x = _reference_crossing_point(kind, arms)
+    if x is None or np.hypot(*(x - centre)) > cc["max_shift"] * cell:
+        return "arms do not meet near the node"
+    dirs = np.array([u for _, u, _ in arms])
+    step = cc["arm_step"] * cell
+    lengths = np.array([max(float(np.max((sel - x) @ u)), step) for _, u, sel in arms])
+    return x, dirs, lengths
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_place_crossing_equals_the_arm_lines_refined_and_cut(seed):
+    """crossings.place_crossing (``_place``) gives what arm_lines, _refined_arm and
+    crossing_point gave, to the bit: on the full-resolution white mask and without it, for
+    L, T and X candidates with nodes along white arms, off them and out of the lens model."""
+    import cv2
+
+    from stages.extract import crossings, perspective
+
+    rng = np.random.default_rng(seed)
+    cell = 8
+    cc = {**perspective.confs["default"]["crossings"]}
+    lens = np.array([330.0, 330.0, 375.5, 239.5, -0.02, 0.004, 0.0, 0.0, 0.0])
+
+    class Camera:  # what lens_parameters reads
+        fx, fy, cx, cy = lens[:4]
+        distortion = lens[4:]
+
+    kinds = {"L": 2, "T": 3, "X": 4}
+    placed = {k: 0 for k in kinds}
+    rejected = set()
+    for trial in range(150):
+        kind = list(kinds)[trial % 3]
+        white = np.zeros((480, 752), np.uint8)
+        centre = rng.uniform([150, 100], [600, 380])
+        base = rng.uniform(0, 2 * math.pi)
+        step_ang = {"L": rng.uniform(0.4, 2.5), "T": math.pi / 2, "X": math.pi / 2}[kind]
+        if kind == "L":
+            angles = [base, base + step_ang]
+        elif kind == "T":
+            angles = [base, base + math.pi, base + math.pi / 2]
+        else:
+            angles = [base + k * step_ang for k in range(4)]
+        angles = [a + rng.normal(0, 0.05) for a in angles]
+        nodes = [centre]
+        chains = []
+        for a in angles:
+            u = np.array([math.cos(a), math.sin(a)])
+            far = centre + 120 * u
+            cv2.line(white, tuple(int(v) for v in centre), tuple(int(v) for v in far), 1,
+                     int(rng.integers(2, 7)))
+            n = int(rng.integers(1, 7)) if rng.random() > 0.03 else 0  # no nodes
+            chain = [0]
+            for k in range(n):
+                chain.append(len(nodes))
+                nodes.append(centre + (k + 1) * cell * u + rng.normal(0, 1.5, 2))
+            chains.append(chain)
+        ideal = np.array(nodes)
+        ideal[rng.random(len(ideal)) < 0.08] = np.nan  # out of the lens model
+        ideal[0] = centre + rng.normal(0, 3 if trial % 10 else 60, 2)  # some far off
+        for white_px in (white, None):
+            got = crossings.place_crossing(kind, ideal[0], chains, ideal, cc, cell, white_px,
+                                           Camera)
+            ref = _reference_place(kind, ideal[0], chains, ideal, cc, cell, white_px, lens)
+            assert type(got) is type(ref)
+            if isinstance(ref, str):
+                assert got == ref
+                rejected.add(ref)
+                continue
+            placed[kind] += 1
+            for a, b in zip(got, ref):
+                assert a.shape == b.shape and a.tobytes() == b.tobytes()
+    assert min(placed.values()) >= 10 and len(rejected) == 2
+
+
+# the verification of a crossing as it was before ``crossings._floor_checks`` and
+# ``_image_checks`` (_verify_crossing, _continued_as_t, white_arm_lengths, _in_image and
+# _alternative_in_view of crossings.py, Python and numpy)
+from stages.common.geometry import polar  # noqa: E402
+from stages.extract import crossings as cr  # noqa: E402
+
+
+def _reference_verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera,
+                               to_floor, cc, cell, field_cells=None, lengths=None,
+                               white_px=None):
+    """A crossing of ``kind`` at ideal point ``x`` with arms along ``dirs`` (A, 2) reaching
+    ``reach`` (A,) px, its lines extending ``lengths`` (A,) px along them -> (row, image
+    position), or the reason it is rejected. The cheap floor checks come before the image
+    checks."""
+    step = cc["arm_step"] * cell
+    n = len(dirs)
+    # all floor points at once: the crossing, a step along each arm, the cell below, the ends
+    pts = np.empty((n + 2 + (0 if lengths is None else n), 2))
+    pts[0] = x
+    pts[1:n + 1] = x + step * dirs
+    pts[n + 1] = x[0] + 0.0, x[1] + float(cell)
+    if lengths is not None:
+        with np.errstate(invalid="ignore"):  # an arm out of the image is infinite
+            pts[n + 2:] = x[None] + np.asarray(lengths)[:, None] * dirs
+    on_floor = to_floor(pts)
+    floor = on_floor[:n + 1]
+    if not np.isfinite(floor).all():
+        return "above the horizon"
+    # every point's offset from the crossing on the floor and its length, at once
+    rel = on_floor - on_floor[0]
+    rel_m = np.hypot(rel[:, 0], rel[:, 1])
+    if lengths is not None:
+        arm_m = rel_m[n + 2:]  # NaN beyond the horizon: long enough
+        short = arm_m < cc["min_arm_length"]
+        if np.any(short) and white_px is not None:
+            # the fitted nodes or lines may end early (a far arm's few nodes, a line cut at a
+            # junction): the arm is as long as the white line goes on along it in the image
+            lengths = _reference_white_arm_lengths(x, dirs, lengths, short, white_px, camera,
+                                                   cc, cell)
+            with np.errstate(invalid="ignore"):  # an arm out of the image is infinite
+                ends = to_floor(x[None] + lengths[:, None] * dirs)
+            arm_m = np.hypot(*(ends - floor[0]).T)
+            reach = np.maximum(reach, np.minimum(cc["arm_reach"] * cell, lengths))
+        if np.any(arm_m < cc["min_arm_length"]):
+            return "arm too short"
+    d, bearing = polar(floor[:1])
+    span = rel_m[n + 1] if np.isfinite(rel_m[n + 1]) else np.inf  # the cell below
+    # beyond the grid's resolution the full-resolution white mask decides (_verify_fine), as
+    # far as its profiles (refine_step px apart) resolve the floor
+    fine = span > cc["max_cell_span"]
+    if fine and (white_px is None or not cc.get("fine", True)
+                 or span * cc["refine_step"] / cell > cc["max_cell_span"]):
+        return "too far"
+    arm_dirs = np.arctan2(rel[1:n + 1, 1], rel[1:n + 1, 0])
+    orient, misfit = cr.floor_arms(kind, arm_dirs)
+    if misfit > cc["max_misfit"]:
+        return f"floor angles misfit {math.degrees(misfit):.0f} deg"
+    if fine:
+        return cr._verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera, to_floor,
+                            cc, cell, d[0], bearing[0], orient, misfit, span)
+    # an arm leaving the image is verified on its part in view
+    reach = np.minimum(reach, _reference_in_image(x, dirs, camera, 0.5 * cell))
+    px = cr.distort_ideal(cr.lens_parameters(camera),
+                          np.vstack([x[None], x + reach[:, None] * dirs]))
+    if not np.isfinite(px).all():
+        return "outside the lens model"
+    grid = (px + 0.5) / cell - 0.5
+    col = min(max(round(grid[0, 0]), 0), len(top) - 1)
+    near_top = top[max(col - 2, 0): col + 3].max()  # the boundary within two columns
+    if grid[0, 1] - near_top < cc["edge_margin"]:
+        return "at the field boundary"  # a line meeting an object or the end of the view
+    row = min(max(round(grid[0, 1]), 0), other_mean.shape[0] - 1)
+    r = cc["object_radius"]
+    if other_mean[max(row - r, 0): row + r + 1, max(col - r, 0): col + r + 1].max() > 0.5:
+        return "next to an object"  # a robot's or a person's white foot on a line
+    # the arms that would make an L a T must be in view (a T's stem continued would make an
+    # X, which fields hold only where the centre circle crosses the halfway line)
+    # (a thin line leaves a cell mostly green: where the full-resolution mask shows an arm's
+    # line going on through the crossing, the L is no L)
+    if kind == "L" and (not _reference_alternative_in_view(x, dirs, camera, top, other_mean,
+                                                           green, cc, cell)
+                        or (white_px is not None and any(
+                            cr.arm_state(x, -u, white_px, green, other_mean, top, camera,
+                                      to_floor, cc, cell, dirs) == "white" for u in dirs))):
+        return _reference_continued_as_t(x, dirs, reach, white, green, other_mean, top, camera,
+                               to_floor, cc, cell, field_cells, lengths, white_px)
+    score = cr.verify_crossing(grid[0], grid[1:], white, green, cc, field_cells)
+    if score <= 0:
+        if white_px is not None and cc.get("fine", True):
+            # the grid's circles may take in a neighbouring line (a far goal area's lines
+            # lie two cells apart): the full-resolution check decides
+            return cr._verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera,
+                                to_floor, cc, cell, d[0], bearing[0], orient, misfit,
+                                max(span, cc["max_cell_span"]))
+        return "not verified in the image"
+    row = [cr.CROSSING_CODES[kind], d[0], bearing[0], orient,
+           score * (1.0 - misfit / math.radians(90.0))]
+    return row, px[0]
+
+
+def _reference_continued_as_t(x, dirs, reach, white, green, other_mean, top, camera, to_floor,
+                              cc, cell, field_cells, lengths, white_px=None):
+    """An L whose view opposite its arms is not carpet: where one arm's line goes on through
+    the crossing (the fit of a T's bar ended at the stem, or the bar's far half was fitted as
+    a line of its own that missed the pair), the crossing is that T. Each arm continued is
+    verified as a T, by the same floor and image checks (the circle then counts three
+    passages, and the continued arm needs its white path); the best verified one is returned,
+    else the L's rejection."""
+    best = "not green where a T's arm would be"
+    for k in range(len(dirs)):
+        arms = np.vstack([dirs, -dirs[k][None]])
+        ext = np.append(reach, reach[k])
+        lens = None if lengths is None else np.append(lengths, reach[k])
+        v = _reference_verify_crossing("T", x, arms, ext, white, green, other_mean, top,
+                                       camera, to_floor, cc, cell, field_cells, lens, white_px)
+        if not isinstance(v, str) and (isinstance(best, str) or v[0][4] > best[0][4]):
+            best = v
+    return best
+
+
+def _reference_white_arm_lengths(x: np.ndarray, dirs: np.ndarray, lengths: np.ndarray,
+                                 which: np.ndarray, white_px: np.ndarray, camera, cc: dict,
+                                 cell: int) -> np.ndarray:
+    """Arm lengths (A,) px from the crossing ``x`` (ideal px) along ``dirs``: for the arms
+    ``which`` (A,) bool, ``lengths`` grown while the full-resolution white mask still shows
+    a white run on the arm's line (line_fit's profile walk: a profile across the arm every
+    ``refine_step`` px, ``refine_reach`` cells to each side, its run's centre within
+    ``arm_tolerance`` px of the line; it stops after two profiles without), up to
+    ``arm_grow`` cells; the others as given."""
+    out = np.asarray(lengths, float).copy()
+    lens = cr.lens_parameters(camera)
+    for k in np.nonzero(which)[0]:
+        u = dirs[k]
+        e = x + out[k] * u
+        g = lf.grow_along(white_px, lens, e, u, cc["refine_step"], cc["refine_reach"] * cell,
+                       cc["arm_grow"] * cell, cc["arm_tolerance"])
+        out[k] = max(out[k], float((g - x) @ u))
+        if out[k] >= _reference_in_image(x, u[None], camera, cc["refine_step"])[0]:
+            out[k] = np.inf  # white up to the image's edge: longer than what is in view
+    return out
+
+
+def _reference_in_image(x: np.ndarray, dirs: np.ndarray, camera, margin: float) -> np.ndarray:
+    """Per direction (A, 2), the distance (ideal px) from ``x`` along it to ``margin`` px
+    inside the image's edge (in ideal pixels: the lens's distortion is small at the edges
+    of the views this is used for)."""
+    w, h = camera.image_size
+    x0, x1 = float(x[0]), float(x[1])
+    if not (math.isfinite(x0) and math.isfinite(x1)):  # NaN distances, as numpy gives them
+        lo_, hi_ = np.array([margin, margin]), np.array([w - 1 - margin, h - 1 - margin])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(dirs > 1e-12, (hi_ - x) / dirs,
+                         np.where(dirs < -1e-12, (lo_ - x) / dirs, np.inf))
+        return np.maximum(t.min(axis=1), 0.0)
+    hi = (float(w - 1 - margin) - x0, float(h - 1 - margin) - x1)
+    lo = (float(margin) - x0, float(margin) - x1)
+    out = []
+    for d in np.asarray(dirs, float).reshape(-1, 2).tolist():  # a few arms: scalar arithmetic
+        t = math.inf
+        for k in (0, 1):
+            if d[k] > 1e-12:
+                t = min(t, hi[k] / d[k])
+            elif d[k] < -1e-12:
+                t = min(t, lo[k] / d[k])
+        out.append(max(t, 0.0))
+    return np.array(out)
+
+
+def _reference_alternative_in_view(x, dirs, camera, top, other_mean, green, cc, cell) -> bool:
+    """Whether the image shows carpet opposite an L's arms (where the third arm of a T would
+    be), ``arm_reach`` cells from the crossing: inside the image and the field boundary, no
+    object there, and green (at least ``t_green``). A T seen with one half of its bar out of
+    view or hidden looks like an L; so do a far X's arms, flattened by the perspective."""
+    pts = cr.distort_ideal(cr.lens_parameters(camera), x[None] - cc["arm_reach"] * cell * dirs)
+    w, h = camera.image_size
+    grid = (pts + 0.5) / cell - 0.5
+    greens = cr.sample_cells(green, grid).tolist()  # all points at once (each sampled alone)
+    for p, g, green_here in zip(pts.tolist(), grid.tolist(), greens):
+        if not (math.isfinite(p[0]) and math.isfinite(p[1]) and 0 <= p[0] <= w - 1
+                and 0 <= p[1] <= h - 1):
+            return False
+        col = min(max(round(g[0]), 0), len(top) - 1)
+        row = min(max(round(g[1]), 0), other_mean.shape[0] - 1)
+        if g[1] - top[col] < cc["edge_margin"] or other_mean[row, col] > 0.5:
+            return False
+        if green_here < cc["t_green"]:
+            return False
+    return True
+
+
+def _recorded_verifications():
+    """The arguments of every crossings._verify_crossing call (the candidates', the line
+    pairs' and the continued Ls') of the rendered reference frames of both cameras."""
+    import test_extract_perspective_unchanged as unchanged
+
+    calls = []
+    real = cr._verify_crossing
+
+    def record(*args):
+        calls.append(args)
+        return real(*args)
+
+    conf = perspective.confs["default"]
+    cr._verify_crossing = record
+    try:
+        for preset, field_name in unchanged.RENDERS:
+            for _, img, cam, pitch, roll in unchanged.rendered_frames(preset, field_name):
+                perspective.extract_frame(img, cam, conf, pitch=pitch, roll=roll)
+    finally:
+        cr._verify_crossing = real
+    return calls
+
+
+def _same_verdict(got, ref):
+    if isinstance(ref, str) or isinstance(got, str):
+        return got == ref
+    return (np.array(got[0], np.float64).tobytes() == np.array(ref[0], np.float64).tobytes()
+            and np.asarray(got[1]).tobytes() == np.asarray(ref[1]).tobytes())
+
+
+def test_verify_crossing_equals_the_former_python():
+    """crossings._verify_crossing (``_floor_checks``, ``_image_checks``, the compiled
+    ``_alternative_in_view``) gives the verdict the former Python and numpy gave, to the bit:
+    on every verification of the rendered reference frames, and on each of them moved,
+    turned, with shortened arms (grown on the white mask), without the white mask, and
+    as an L of its first two arms."""
+    rng = np.random.default_rng(5)
+    calls = _recorded_verifications()
+    assert len(calls) >= 20
+    verdicts = set()
+    for args in calls:
+        (kind, x, dirs, reach, white, green, other_mean, top, camera, to_floor, cc, cell,
+         field_cells, lengths, white_px) = args[:15]
+        turn = rng.normal(0, 0.05)
+        c, s = math.cos(turn), math.sin(turn)
+        variants = [(kind, x, dirs, reach, lengths, white_px),
+                    (kind, x + rng.normal(0, 4, 2), dirs, reach, lengths, white_px),
+                    (kind, x, dirs @ np.array([[c, s], [-s, c]]), reach, lengths, white_px),
+                    (kind, x, dirs, reach, None if lengths is None else 0.3 * lengths,
+                     white_px),
+                    (kind, x, dirs, reach, lengths, None)]
+        if len(dirs) > 2:
+            variants.append(("L", x, dirs[:2], reach[:2],
+                             None if lengths is None else lengths[:2], white_px))
+        for k, xx, dd, rr, ll, wp in variants:
+            rest = (white, green, other_mean, top, camera, to_floor, cc, cell, field_cells)
+            ref = _reference_verify_crossing(k, xx, dd, np.array(rr, float), *rest,
+                                             None if ll is None else np.array(ll, float), wp)
+            got = cr._verify_crossing(k, xx, dd, np.array(rr, float), *rest,
+                                      None if ll is None else np.array(ll, float), wp)
+            assert _same_verdict(got, ref), (k, xx, dd, rr, ll, got, ref)
+            verdicts.add("verified" if not isinstance(ref, str) else ref.split(" misfit")[0])
+    assert len(verdicts) >= 6, verdicts
+
+
+def test_remap_sample_is_opencvs_remap():
+    """crossings._remap_sample (the compiled _alternative_in_view's green) samples as
+    sample_cells (cv2.remap, bilinear) does, to the bit, inside the image and across its
+    edges, for float32 images of any values, of shares in 64ths and of 0/1."""
+    rng = np.random.default_rng(6)
+    for image in (rng.random((60, 94)).astype(np.float32),
+                  (rng.integers(0, 65, (60, 94)) / np.float32(64)).astype(np.float32),
+                  (rng.random((60, 94)) > 0.5).astype(np.float32)):
+        pts = rng.uniform(-3, [97, 63], (20000, 2))
+        pts[:2000] = np.round(pts[:2000] * 2) / 2  # on pixels and halfway
+        ref = cr.sample_cells(image, pts)
+        got = np.array([cr._remap_sample(image, p, q) for p, q in pts], np.float32)
+        assert got.tobytes() == ref.tobytes()
+
+
+# the line pairs' crossings as they were before ``crossings._pair_crossings`` (Python and
+# numpy)
+def _reference_line_pair_crossings(ends: np.ndarray, widths: np.ndarray, floor_of,
+                                   tol: float, max_misfit: float, first_stem=None) -> list:
+    """Crossings of pairs of fitted lines (``ends`` (N, 2, 2) in ideal pixels, ``widths``
+    (N,) their white width across, px) that meet at about a right angle on the floor
+    (``floor_of``: ideal pixels (M, 2) -> floor points; within ``max_misfit`` rad of 90 deg):
+    each line either passes the intersection (by more than ``tol`` px: two arms) or ends on
+    the other line (its nearer end within ``tol`` px plus the other line's width of it: one
+    arm). Field lines cross at right angles; where a far corner's skeleton loses the junction
+    at the grid's resolution, the lines fitted at full resolution still meet. Lines from
+    ``first_stem`` on are stems (stem_lines): they are not paired with each other."""
+    n = len(ends)
+    if n < 2:
+        return []
+    floor = floor_of(ends.reshape(-1, 2)).reshape(n, 2, 2)
+    fdir = floor[:, 1] - floor[:, 0]
+    fang = np.arctan2(fdir[:, 1], fdir[:, 0])
+    d = ends[:, 1] - ends[:, 0]
+    length = np.hypot(d[:, 0], d[:, 1])
+    u = d / np.maximum(length, 1e-9)[:, None]
+    normal = np.stack([-u[:, 1], u[:, 0]], axis=1)
+    out = []
+    # the pairs at about a right angle on the floor, all at once
+    diff = np.remainder(fang[:, None] - fang[None, :], math.pi)
+    gap = np.abs(np.minimum(diff, math.pi - diff) - math.pi / 2)
+    ok = np.triu(gap <= max_misfit, 1)  # NaN (off the floor) compares False
+    if first_stem is not None:
+        ok[first_stem:, first_stem:] = False
+    pi, pj = np.nonzero(ok)
+    if len(pi) == 0:
+        return cr.merge_line_crossings(out, tol, floor_of=floor_of)
+    # each pair's 2 x 2 system [u_i, -u_j] s = e_j - e_i, all in one batched call (LAPACK per
+    # matrix, as one call per pair would be)
+    a_all = np.stack([u[pi], -u[pj]], axis=2)
+    det_all = np.abs(np.linalg.det(a_all))
+    meet = det_all >= 1e-3
+    s_all = np.zeros((len(pi), 2))
+    if meet.any():
+        s_all[meet] = np.linalg.solve(a_all[meet], (ends[pj, 0] - ends[pi, 0])[meet][..., None]
+                                      )[..., 0]
+    # of all pairs at once: the intersection, and each line's end nearer to it and that
+    # end's distance from the other line (the dot products by row_dots, as ``@`` gives them)
+    s0, s1 = s_all[:, 0], s_all[:, 1]
+    xs = ends[pi, 0] + s0[:, None] * u[pi]
+    e_i = np.where((s0 <= 0.5 * length[pi])[:, None], ends[pi, 0], ends[pi, 1])
+    gap_i = np.abs(lf.row_dots(e_i - ends[pj, 0], normal[pj])).tolist()
+    e_j = np.where((s1 <= 0.5 * length[pj])[:, None], ends[pj, 0], ends[pj, 1])
+    gap_j = np.abs(lf.row_dots(e_j - ends[pi, 0], normal[pi])).tolist()
+    lengths, line_widths = length.tolist(), np.asarray(widths, float).tolist()
+    for i, j, m, t_i, t_j, g_i, g_j, x in zip(pi.tolist(), pj.tolist(), meet.tolist(),
+                                              s0.tolist(), s1.tolist(), gap_i, gap_j, xs):
+        if not m:
+            continue
+        arms_i = _reference_meeting(t_i, lengths[i], u[i], g_i, tol + line_widths[j])
+        arms_j = _reference_meeting(t_j, lengths[j], u[j], g_j, tol + line_widths[i])
+        if arms_i is None or arms_j is None:
+            continue
+        arms = np.array(arms_i[0] + arms_j[0])
+        if len(arms) == 4:
+            continue  # two straight lines crossing: fields have none (their X is the centre
+            # circle on the halfway line), so it is no crossing of field lines
+        kind = {2: "L", 3: "T"}[len(arms)]
+        out.append(cr.LineCrossing(kind, x, arms, (i, j), np.array(arms_i[1] + arms_j[1])))
+    return cr.merge_line_crossings(out, tol, floor_of=floor_of)
+
+
+
+
+def _reference_meeting(t: float, length: float, u: np.ndarray, end_gap: float, tol: float
+             ) -> tuple[list[np.ndarray], list[float]] | None:
+    """Arms of a line (direction ``u``, ends at 0 and ``length`` along it) at the point ``t``
+    along it where another line crosses it, and the line's length along each: two when the
+    point is inside it by more than ``tol``, one when its nearer end lies within ``tol`` of
+    the other line (``end_gap``: that end's distance from the other line), else None."""
+    if tol < t < length - tol:
+        return [u, -u], [length - t, t]
+    if end_gap > tol:
+        return None
+    return ([u], [length - t]) if t <= 0.5 * length else ([-u], [t])
+
+
+def _floor_homography(rng):
+    """A random image -> floor homography (3 x 3) of a camera looking down at the floor,
+    its inverse, and the floor_of of it (NaN above the horizon)."""
+    h = np.array([[0.01, 0.0, -3.0], [0.0, -0.002, 1.5], [0.0, 0.004, -0.5]])
+    h = h + rng.normal(0, 2e-4, (3, 3))
+
+    def floor_of(p):
+        p = np.asarray(p, float).reshape(-1, 2)
+        q = np.concatenate([p, np.ones((len(p), 1))], axis=1) @ h.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(q[:, 2:] > 1e-9, q[:, :2] / q[:, 2:], np.nan)
+
+    return h, np.linalg.inv(h), floor_of
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_line_pair_crossings_equal_the_former_numpy(seed):
+    """crossings.line_pair_crossings (``_pair_crossings``) gives the crossings the former numpy
+    and Python gave, to the bit: of lines meeting as L, T and X on the floor, near misses,
+    parallel and random lines, with stems and without."""
+    rng = np.random.default_rng(seed)
+    _, h_inv, floor_of = _floor_homography(rng)
+
+    def to_image(f):
+        q = np.concatenate([f, np.ones((len(f), 1))], axis=1) @ h_inv.T
+        return q[:, :2] / q[:, 2:]
+
+    found = {"L": 0, "T": 0}
+    for trial in range(60):
+        segs = []
+        for _ in range(int(rng.integers(1, 5))):  # L, T, X shapes on the floor
+            c = rng.uniform([0.5, -2.0], [5.0, 2.0])
+            a = rng.uniform(0, math.pi)
+            u = np.array([math.cos(a), math.sin(a)])
+            v = np.array([-u[1], u[0]]) * (1 + rng.normal(0, 0.05))
+            lo, hi = rng.uniform(-1.0, 0.3, 2), rng.uniform(-0.3, 1.0, 2)
+            segs.append([c + lo[0] * u, c + hi[0] * u])
+            segs.append([c + lo[1] * v, c + hi[1] * v])
+        for _ in range(int(rng.integers(0, 4))):  # others
+            segs.append(rng.uniform([0.3, -3.0], [6.0, 3.0], (2, 2)))
+        floor_ends = np.array(segs)
+        ends = to_image(floor_ends.reshape(-1, 2)).reshape(-1, 2, 2)
+        ends = ends + rng.normal(0, 0.5, ends.shape)
+        if trial % 7 == 0:
+            ends[0, 1] = ends[0, 0]  # no length
+        if trial % 5 == 0 and len(ends) > 2:
+            ends[1] = ends[2] + 3.0  # parallel
+        widths = rng.uniform(0, 6, len(ends))
+        for first_stem in (None, max(1, len(ends) - 2)):
+            got = cr.line_pair_crossings(ends, widths, floor_of, 12.0, math.radians(30.0),
+                                         first_stem)
+            ref = _reference_line_pair_crossings(ends, widths, floor_of, 12.0,
+                                                 math.radians(30.0), first_stem)
+            assert len(got) == len(ref)
+            for g, r in zip(got, ref):
+                assert (g.kind, g.lines) == (r.kind, r.lines)
+                for a, b in ((g.point, r.point), (g.arms, r.arms), (g.lengths, r.lengths)):
+                    a, b = np.asarray(a, float), np.asarray(b, float)
+                    assert a.shape == b.shape and a.tobytes() == b.tobytes()
+                found[g.kind] += 1
+    assert min(found.values()) >= 10, found
+
+
+def test_ideal_pixels_read_the_tables_as_cv2_remap():
+    """perspective.IdealPixels (``_look_up``, exact_ops.remap_at) reads its undistortion
+    tables as its former cv2.remap (INTER_LINEAR, NaN beyond the tables) did, to the bit:
+    inside the image, across its edges, on pixels and halfway, and at NaN and infinite
+    pixels (NaN where it gave NaN)."""
+    import cv2
+
+    class Camera:  # a wide-angle lens as the KidSize renderer's
+        image_size = (752, 480)
+        fx, fy, cx, cy = 330.0, 330.0, 375.5, 239.5
+        distortion = np.array([-0.25, 0.06, 0.001, -0.001, 0.0])
+        camera_matrix = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+        def undistort_points(self, p):
+            # a smooth stand-in for the Newton iterations (the tables are what is read)
+            c = np.array([self.cx, self.cy])
+            r2 = np.sum(((p - c) / self.fx) ** 2, axis=-1, keepdims=True)
+            return c + (p - c) * (1 + 0.2 * r2)
+
+    ideal = perspective.IdealPixels(Camera())
+    rng = np.random.default_rng(9)
+    uv = rng.uniform(-10, [762, 490], (30000, 2))
+    uv[200:3000] = np.round(uv[200:3000] * 2) / 2
+    uv[:100] = np.nan
+    uv[100:200, 0] = np.inf
+    p = np.asarray(uv, np.float32).reshape(-1, 1, 2) / np.float32(ideal.stride)
+    ref = np.stack([cv2.remap(m, p[..., 0], p[..., 1], cv2.INTER_LINEAR,
+                              borderMode=cv2.BORDER_CONSTANT, borderValue=float("nan")).ravel()
+                    for m in (ideal.map_u, ideal.map_v)], axis=1).astype(np.float64)
+    got = ideal(uv)
+    nan = np.isnan(ref)
+    assert got.dtype == ref.dtype and np.array_equal(np.isnan(got), nan) and nan.sum() > 200
+    assert got[~nan].tobytes() == ref[~nan].tobytes()  # (a NaN's sign bit aside)
+
+
+# the lines' width ratios as they were before ``perspective._width_ratios`` (numpy)
+def _reference_width_ratios(refs, to_floor, line_width: float) -> dict[int, float]:
+    """Per refined line (by id): the median of its white runs' widths over the width a
+    painted line of ``line_width`` metres has in the image at each run's floor position (both
+    across the line, in ideal pixels); NaN where no run lies on the floor. All lines' points
+    are projected together."""
+    if not refs:
+        return {}
+    counts = np.array([len(r.centres) for r in refs])
+    floor = to_floor(np.concatenate([r.centres for r in refs]))
+    ends = to_floor(np.concatenate([r.ends for r in refs])).reshape(-1, 2, 2)
+    d = ends[:, 1] - ends[:, 0]
+    length = np.hypot(d[:, 0], d[:, 1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        nf = np.stack([-d[:, 1], d[:, 0]], axis=1) / length[:, None]
+    nf_pts = np.repeat(nf, counts, axis=0)
+    half = 0.5 * line_width
+    a = to_floor.to_ideal(floor - half * nf_pts)
+    b = to_floor.to_ideal(floor + half * nf_pts)
+    n_img = np.repeat(np.array([r.fit.normal for r in refs]), counts, axis=0)
+    expected = np.abs(((b - a) * n_img).sum(axis=1))
+    ratio = np.concatenate([r.widths for r in refs]) / np.maximum(expected, 1e-6)
+    ok = np.all(np.isfinite(floor), axis=1) & np.isfinite(ratio)
+    out, k = {}, 0
+    for r, n in zip(refs, counts):
+        sel = ok[k:k + n]
+        out[id(r)] = float(lf.median(ratio[k:k + n][sel])) if sel.any() else float("nan")
+        k += n
+    return out
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_width_ratios_equal_the_former_numpy(seed):
+    """perspective.width_ratios (``_width_ratios``) gives the ratios the former numpy gave, to
+    the bit: for lines on the floor, partly and wholly beyond the horizon, of one run and
+    many, with a lens over the floor's origin and beside it."""
+    rng = np.random.default_rng(seed)
+    for shifted in (False, True):
+        floor = object.__new__(perspective.FloorProjection)
+        pitch = 0.5 + rng.normal(0, 0.1)
+        c, s = math.cos(pitch), math.sin(pitch)
+        k_inv = np.linalg.inv(np.array([[330.0, 0, 375.5], [0, 330.0, 239.5], [0, 0, 1]]))
+        rot = np.array([[0.0, -s, c], [-1.0, 0.0, 0.0], [0.0, -c, -s]])
+        floor.m = rot @ k_inv + rng.normal(0, 1e-5, (3, 3))
+        floor.m_inv = np.linalg.inv(floor.m)
+        floor.height = 0.45
+        floor.position = np.array([0.03, -0.02]) if shifted else np.zeros(2)
+        floor._shifted = shifted
+        refs = []
+        for k in range(int(rng.integers(1, 12))):
+            n = 1 if k == 0 and seed == 1 else int(rng.integers(2, 30))
+            p = rng.uniform([0, 0], [752, 480], 2)
+            q = p + rng.normal(0, 80, 2)
+            t = np.sort(rng.uniform(0, 1, n))[:, None]
+            centres = p * (1 - t) + q * t + rng.normal(0, 0.5, (n, 2))
+            d = (q - p) / np.hypot(*(q - p))
+            fit = lf.LineFit(centres.mean(axis=0), d, np.array([-d[1], d[0]]), 0.1)
+            refs.append(lf.RefinedLine(np.array([p, q]), fit, centres,
+                                       rng.uniform(1, 9, n)))
+        got = perspective.width_ratios(refs, floor, 0.05)
+        ref = _reference_width_ratios(refs, floor, 0.05)
+        assert list(got) == list(ref)
+        assert np.array(list(got.values())).tobytes() == np.array(list(ref.values())).tobytes()
+
+
+def test_gap_grey_equals_the_remap_minimum():
+    """line_structure's ``_gap_grey`` (fill_gaps' grey level along the candidate gaps) gives
+    the former cv2.remap of all gaps' points and their minimum, to the bit: gaps inside the
+    grid, across its edges and of no length."""
+    import cv2
+
+    rng = np.random.default_rng(10)
+    image = cv2.GaussianBlur(rng.random((60, 94)).astype(np.float32), (5, 5), 1.0)
+    pos = rng.uniform(-2, [95, 61], (300, 2))
+    pos[:20] = np.round(pos[:20])
+    ci, cj = rng.integers(0, 300, 2000), rng.integers(0, 300, 2000)
+    ci[:10] = cj[:10]
+    for samples in (2, 8):
+        t = ls._gap_steps(samples)
+        pts = (pos[ci][:, None, :] * (1 - t) + pos[cj][:, None, :] * t).astype(np.float32)
+        ref = cv2.remap(image, pts[..., 0], pts[..., 1], cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_CONSTANT, borderValue=0).min(axis=1)
+        got = np.empty(len(ci), np.float32)
+        ls._gap_grey(pos, ci, cj, t[0, :, 0], image, got)
+        assert got.tobytes() == ref.tobytes()
+
+
+# an L candidate's corner angle as it was before ``crossings._corner_angles``
+def _reference_angle_between(a: np.ndarray, b: np.ndarray) -> float:
+    na, nb = np.hypot(*a), np.hypot(*b)
+    if na == 0 or nb == 0:
+        return 0.0
+    return math.acos(max(-1.0, min(1.0, float(a @ b) / (na * nb))))
+
+
+def test_corner_angles_equal_the_former_angle_between():
+    """crossings' ``_corner_angles`` (the L candidates' angles) gives the former
+    _angle_between's, to the bit: in the grid, on the floor where all three points are on it,
+    and for arms of no length, straight and folded back."""
+    from stages.extract import crossings as cr
+
+    rng = np.random.default_rng(11)
+    corners = rng.normal(0, 5, (3000, 3, 2))
+    corners[:50, 1] = corners[:50, 0]  # an arm of no length
+    corners[50:100, 2] = corners[50:100, 0] + 2.0 * (corners[50:100, 1] - corners[50:100, 0])
+    corners[100:150, 2] = corners[100:150, 0] - (corners[100:150, 1] - corners[100:150, 0])
+    floor = rng.normal(0, 2, corners.shape)
+    floor[::7, rng.integers(0, 3)] = np.nan  # above the horizon
+    for use_floor in (False, True):
+        got = np.empty(len(corners))
+        cr._corner_angles(corners, floor, use_floor, got)
+        ref = []
+        for c, f in zip(corners, floor):
+            ang = _reference_angle_between(c[1] - c[0], c[2] - c[0])
+            if use_floor and np.isfinite(f).all():
+                ang = _reference_angle_between(f[1] - f[0], f[2] - f[0])
+            ref.append(ang)
+        assert got.tobytes() == np.array(ref).tobytes()

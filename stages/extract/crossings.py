@@ -2,8 +2,8 @@
 
 A degree-2 key node whose two edges meet at a corner angle is an L-crossing candidate, a
 degree-3 node a T and a degree-4 node an X (``crossing_candidates``). The crossing is placed
-where the lines fitted to its arms meet (``arm_lines``, ``crossing_point``; an L's skeleton
-cuts its corner). A candidate is verified in the subsampled colour images by two checks
+where the lines fitted to its arms meet (``place_crossing``; an L's skeleton cuts its
+corner). A candidate is verified in the subsampled colour images by two checks
 (``verify_crossing``):
 
 - ``circle_transitions``: a state machine walks a circle centred at the crossing and counts the
@@ -35,18 +35,15 @@ from numba import njit
 
 from stages.common.features_file import CROSSING_CODES
 from stages.common.field import crossing_orientation
-from stages.common.geometry import polar
 
+from .exact_ops import fused_multiply_add, remap_at
 from .line_fit import (
+    _fit_points,
     distort_ideal,
     distort_point,
-    fit_line,
-    grow_along,
     grow_kernel,
     lens_parameters,
     refine_kernel,
-    refine_segment,
-    row_dots,
 )
 from .line_structure import KeyStructure, LineGraph
 
@@ -103,13 +100,6 @@ def _points_along(pos, flat, start, reach, out):
         out[c, 1] = pos[p0, 1] + t * (pos[p1, 1] - pos[p0, 1])
 
 
-def _angle_between(a: np.ndarray, b: np.ndarray) -> float:
-    na, nb = np.hypot(*a), np.hypot(*b)
-    if na == 0 or nb == 0:
-        return 0.0
-    return math.acos(max(-1.0, min(1.0, float(a @ b) / (na * nb))))
-
-
 def crossing_candidates(ks: KeyStructure, graph: LineGraph, arm_reach: float,
                         l_angle_range: tuple[float, float], floor_of=None
                         ) -> list[CrossingCandidate]:
@@ -125,31 +115,65 @@ def crossing_candidates(ks: KeyStructure, graph: LineGraph, arm_reach: float,
     chains = [incidence[k] for k in keys]
     along = points_along(graph.pos, [ch for cs in chains for ch in cs], arm_reach)
     first = np.cumsum([0] + [len(cs) for cs in chains])
-    # the L candidates' centres and arm points on the floor, all at once
+    # the L candidates' corner angles, all at once (compiled: _corner_angles), of their
+    # centres and arm points in the grid and on the floor
     two = [n for n, k in enumerate(keys) if deg[k] == 2]
-    floor = {}
-    if floor_of is not None and two:
-        f = floor_of(np.concatenate([np.vstack([ks.pos[keys[n]][None],
-                                                along[first[n]:first[n + 1]]])
-                                     for n in two])).reshape(-1, 3, 2)
-        floor = dict(zip(two, f))
+    angles = {}
+    if two:
+        corners = np.empty((len(two), 3, 2))
+        for i, n in enumerate(two):
+            corners[i, 0] = ks.pos[keys[n]]
+            corners[i, 1:] = along[first[n]:first[n + 1]]
+        use_floor = floor_of is not None
+        on_floor = (floor_of(corners.reshape(-1, 2)).reshape(-1, 3, 2) if use_floor
+                    else corners)
+        ang = np.empty(len(two))
+        _corner_angles(corners, np.ascontiguousarray(on_floor, np.float64), use_floor, ang)
+        angles = dict(zip(two, ang.tolist()))
     out = []
     for n, k in enumerate(keys):
         centre = ks.pos[k]
         arms = along[first[n]:first[n + 1]].copy()
         if deg[k] == 2:
-            ang = _angle_between(arms[0] - centre, arms[1] - centre)
-            if n in floor:
-                f = floor[n]
-                if np.isfinite(f).all():
-                    ang = _angle_between(f[1] - f[0], f[2] - f[0])
-            if not (l_angle_range[0] <= ang <= l_angle_range[1]):
+            if not (l_angle_range[0] <= angles[n] <= l_angle_range[1]):
                 continue
             kind = "L"
         else:
             kind = "T" if deg[k] == 3 else "X"
         out.append(CrossingCandidate(kind, k, centre.copy(), arms))
     return out
+
+
+@njit(cache=True, nogil=True)
+def _angle_at(ax, ay, bx, by):
+    """The angle (radians, [0, pi]) between the vectors (ax, ay) and (bx, by); 0 when one is
+    zero (the dot product as numpy's: exact_ops)."""
+    na, nb = np.hypot(ax, ay), np.hypot(bx, by)
+    if na == 0 or nb == 0:
+        return 0.0
+    c = _dot(ax, ay, bx, by) / (na * nb)
+    c = c if c < 1.0 else 1.0  # as min(1.0, c), max(-1.0, c) (a NaN becomes 1)
+    c = c if c > -1.0 else -1.0
+    return math.acos(c)
+
+
+@njit(cache=True, nogil=True)
+def _corner_angles(corners, floor, use_floor, out):
+    """The L candidates' corner angles: corner i's centre and arm points ``corners[i]`` (3, 2)
+    in the grid, the angle between its arms there, or on the floor (``floor[i]`` (3, 2)) where
+    all three points are on it (``use_floor``)."""
+    for i in range(corners.shape[0]):
+        c = corners[i]
+        out[i] = _angle_at(c[1, 0] - c[0, 0], c[1, 1] - c[0, 1], c[2, 0] - c[0, 0],
+                           c[2, 1] - c[0, 1])
+        if use_floor:
+            finite = True
+            for j in range(3):
+                finite = finite and np.isfinite(floor[i, j, 0]) and np.isfinite(floor[i, j, 1])
+            if finite:
+                f = floor[i]
+                out[i] = _angle_at(f[1, 0] - f[0, 0], f[1, 1] - f[0, 1], f[2, 0] - f[0, 0],
+                                   f[2, 1] - f[0, 1])
 
 
 def sample_cells(image: np.ndarray, pts: np.ndarray) -> np.ndarray:
@@ -236,67 +260,6 @@ def floor_arms(kind: str, arms: np.ndarray) -> tuple[float, float]:
     orient = float(np.mod(np.angle(z) / 4.0, math.pi / 2))
     fold = np.abs(np.angle(np.exp(4j * (a - orient)))) / 4.0
     return orient, float(fold.max())
-
-
-def _fit_direction(points: np.ndarray, centre: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares line (centroid, unit direction pointing away from ``centre``)."""
-    fit = fit_line(points)
-    c, u = fit.centroid, fit.direction
-    if float((c - centre) @ u) < 0:
-        u = -u
-    return c, u
-
-
-def arm_lines(centre: np.ndarray, chains: list[list[int]], coords: np.ndarray, skip: int,
-              count: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Per arm, the line fitted to its nodes number ``skip`` + 1 .. ``skip`` + ``count`` from
-    the crossing (undistorted coordinates ``coords``; the nodes right next to a crossing bend
-    towards it): (centroid, unit direction away from the centre, the points used)."""
-    out = []
-    for ch in chains:
-        pts = coords[ch[1:]]
-        pts = pts[np.all(np.isfinite(pts), axis=1)]
-        if len(pts) == 0:
-            return []
-        sel = pts[skip: skip + count] if len(pts) >= skip + 2 else pts[:count]
-        if len(sel) < 2:
-            sel = np.vstack([centre[None], sel])
-        c, u = _fit_direction(sel, centre)
-        out.append((c, u, sel))
-    return out
-
-
-def _intersect(c1, u1, c2, u2) -> np.ndarray | None:
-    a = np.array([u1, -u2]).T
-    if abs(np.linalg.det(a)) < 1e-3:  # nearly parallel (|sin| < 1e-3)
-        return None
-    t = np.linalg.solve(a, c2 - c1)
-    return c1 + t[0] * u1
-
-
-def crossing_point(kind: str, arms: list) -> np.ndarray | None:
-    """The crossing as the intersection of its lines: an L's two arms, a T's bar (its two most
-    nearly opposite arms fitted together) with the stem, an X's two lines (opposite arms fitted
-    together). None when the lines are parallel."""
-    if kind == "L":
-        (c1, u1, _), (c2, u2, _) = arms
-        return _intersect(c1, u1, c2, u2)
-    n = len(arms)
-    dirs = np.array([u for _, u, _ in arms])
-    cos = dirs @ dirs.T
-    if kind == "T":
-        pairs = [(0, 1, 2), (0, 2, 1), (1, 2, 0)]
-        i, j, s = min(pairs, key=lambda p: cos[p[0], p[1]])
-        cb, ub = _fit_direction(np.vstack([arms[i][2], arms[j][2]]), arms[i][0])
-        return _intersect(cb, ub, arms[s][0], arms[s][1])
-    if n != 4:
-        return None
-    # X: pair arm 0 with its most opposite arm, the other two form the second line
-    j = int(np.argmin(cos[0, 1:])) + 1
-    rest = [k for k in range(1, 4) if k != j]
-    c1, u1 = _fit_direction(np.vstack([arms[0][2], arms[j][2]]), arms[0][0])
-    c2, u2 = _fit_direction(np.vstack([arms[rest[0]][2], arms[rest[1]][2]]), arms[rest[0]][0])
-    return _intersect(c1, u1, c2, u2)
 
 
 def verify_crossing(centre: np.ndarray, arm_points: np.ndarray, white: np.ndarray,
@@ -462,19 +425,6 @@ class LineCrossing:
     lengths: np.ndarray | None = None  # (A,) px of line along each arm from the point
 
 
-def _meeting(t: float, length: float, u: np.ndarray, end_gap: float, tol: float
-             ) -> tuple[list[np.ndarray], list[float]] | None:
-    """Arms of a line (direction ``u``, ends at 0 and ``length`` along it) at the point ``t``
-    along it where another line crosses it, and the line's length along each: two when the
-    point is inside it by more than ``tol``, one when its nearer end lies within ``tol`` of
-    the other line (``end_gap``: that end's distance from the other line), else None."""
-    if tol < t < length - tol:
-        return [u, -u], [length - t, t]
-    if end_gap > tol:
-        return None
-    return ([u], [length - t]) if t <= 0.5 * length else ([-u], [t])
-
-
 def line_pair_crossings(ends: np.ndarray, widths: np.ndarray, floor_of, tol: float,
                         max_misfit: float, first_stem: int | None = None
                         ) -> list[LineCrossing]:
@@ -485,60 +435,121 @@ def line_pair_crossings(ends: np.ndarray, widths: np.ndarray, floor_of, tol: flo
     the other line (its nearer end within ``tol`` px plus the other line's width of it: one
     arm). Field lines cross at right angles; where a far corner's skeleton loses the junction
     at the grid's resolution, the lines fitted at full resolution still meet. Lines from
-    ``first_stem`` on are stems (stem_lines): they are not paired with each other."""
+    ``first_stem`` on are stems (stem_lines): they are not paired with each other.
+
+    The floor angles are numpy's arctan2; the pairs run compiled (``_pair_crossings``, the
+    dot products as numpy's BLAS forms them and np.linalg's 2 x 2 determinant and solve)."""
     n = len(ends)
     if n < 2:
         return []
+    ends = np.ascontiguousarray(ends, np.float64)
     floor = floor_of(ends.reshape(-1, 2)).reshape(n, 2, 2)
     fdir = floor[:, 1] - floor[:, 0]
     fang = np.arctan2(fdir[:, 1], fdir[:, 0])
-    d = ends[:, 1] - ends[:, 0]
-    length = np.hypot(d[:, 0], d[:, 1])
-    u = d / np.maximum(length, 1e-9)[:, None]
-    normal = np.stack([-u[:, 1], u[:, 0]], axis=1)
-    out = []
-    # the pairs at about a right angle on the floor, all at once
-    diff = np.remainder(fang[:, None] - fang[None, :], math.pi)
-    gap = np.abs(np.minimum(diff, math.pi - diff) - math.pi / 2)
-    ok = np.triu(gap <= max_misfit, 1)  # NaN (off the floor) compares False
-    if first_stem is not None:
-        ok[first_stem:, first_stem:] = False
-    pi, pj = np.nonzero(ok)
-    if len(pi) == 0:
-        return merge_line_crossings(out, tol, floor_of=floor_of)
-    # each pair's 2 x 2 system [u_i, -u_j] s = e_j - e_i, all in one batched call (LAPACK per
-    # matrix, as one call per pair would be)
-    a_all = np.stack([u[pi], -u[pj]], axis=2)
-    det_all = np.abs(np.linalg.det(a_all))
-    meet = det_all >= 1e-3
-    s_all = np.zeros((len(pi), 2))
-    if meet.any():
-        s_all[meet] = np.linalg.solve(a_all[meet], (ends[pj, 0] - ends[pi, 0])[meet][..., None]
-                                      )[..., 0]
-    # of all pairs at once: the intersection, and each line's end nearer to it and that
-    # end's distance from the other line (the dot products by row_dots, as ``@`` gives them)
-    s0, s1 = s_all[:, 0], s_all[:, 1]
-    xs = ends[pi, 0] + s0[:, None] * u[pi]
-    e_i = np.where((s0 <= 0.5 * length[pi])[:, None], ends[pi, 0], ends[pi, 1])
-    gap_i = np.abs(row_dots(e_i - ends[pj, 0], normal[pj])).tolist()
-    e_j = np.where((s1 <= 0.5 * length[pj])[:, None], ends[pj, 0], ends[pj, 1])
-    gap_j = np.abs(row_dots(e_j - ends[pi, 0], normal[pi])).tolist()
-    lengths, line_widths = length.tolist(), np.asarray(widths, float).tolist()
-    for i, j, m, t_i, t_j, g_i, g_j, x in zip(pi.tolist(), pj.tolist(), meet.tolist(),
-                                              s0.tolist(), s1.tolist(), gap_i, gap_j, xs):
-        if not m:
-            continue
-        arms_i = _meeting(t_i, lengths[i], u[i], g_i, tol + line_widths[j])
-        arms_j = _meeting(t_j, lengths[j], u[j], g_j, tol + line_widths[i])
-        if arms_i is None or arms_j is None:
-            continue
-        arms = np.array(arms_i[0] + arms_j[0])
-        if len(arms) == 4:
-            continue  # two straight lines crossing: fields have none (their X is the centre
-            # circle on the halfway line), so it is no crossing of field lines
-        kind = {2: "L", 3: "T"}[len(arms)]
-        out.append(LineCrossing(kind, x, arms, (i, j), np.array(arms_i[1] + arms_j[1])))
+    cap = n * (n - 1) // 2
+    kinds = np.empty(cap, np.int64)
+    lines = np.empty((cap, 2), np.int64)
+    points = np.empty((cap, 2))
+    arms = np.empty((cap, 3, 2))
+    lengths = np.empty((cap, 3))
+    m = _pair_crossings(ends, np.asarray(widths, np.float64), fang, float(tol),
+                        float(max_misfit), n if first_stem is None else int(first_stem),
+                        kinds, lines, points, arms, lengths)
+    out = [LineCrossing("LT"[kinds[k] - 2], points[k].copy(), arms[k, :kinds[k]].copy(),
+                        (int(lines[k, 0]), int(lines[k, 1])), lengths[k, :kinds[k]].copy())
+           for k in range(m)]
     return merge_line_crossings(out, tol, floor_of=floor_of)
+
+
+@njit(cache=True, nogil=True)
+def _remainder(a, b):
+    """np.remainder of two floats (numpy's divmod: fmod, moved to the sign of b)."""
+    mod = np.fmod(a, b)
+    if b == 0:
+        return mod
+    if mod != 0:
+        if (b < 0) != (mod < 0):
+            mod += b
+    else:
+        mod = math.copysign(0.0, b)
+    return mod
+
+
+@njit(cache=True, nogil=True)
+def _meeting_arms(t, length, ux, uy, end_gap, tol, arms, lengths, a):
+    """_meeting compiled: line arms (ux, uy) at ``t`` along a line of ``length`` into
+    arms[a:], their lengths into lengths[a:]; returns the new count, or -1 for none."""
+    if tol < t < length - tol:
+        arms[a, 0], arms[a, 1], lengths[a] = ux, uy, length - t
+        arms[a + 1, 0], arms[a + 1, 1], lengths[a + 1] = -ux, -uy, t
+        return a + 2
+    if end_gap > tol:
+        return -1
+    if t <= 0.5 * length:
+        arms[a, 0], arms[a, 1], lengths[a] = ux, uy, length - t
+    else:
+        arms[a, 0], arms[a, 1], lengths[a] = -ux, -uy, t
+    return a + 1
+
+
+@njit(cache=True, nogil=True)
+def _pair_crossings(ends, widths, fang, tol, max_misfit, first_stem, kinds, lines, points,
+                    arms, lengths):
+    """line_pair_crossings after the floor angles ``fang`` (N,), compiled: the crossings of
+    the line pairs i < j (row by row, as np.nonzero gives them) into the outputs (kind 2 L,
+    3 T, the two lines, the point, the arms and their lengths); returns their number."""
+    n = ends.shape[0]
+    length = np.empty(n)
+    u = np.empty((n, 2))
+    for i in range(n):
+        dx, dy = ends[i, 1, 0] - ends[i, 0, 0], ends[i, 1, 1] - ends[i, 0, 1]
+        length[i] = np.hypot(dx, dy)
+        den = length[i] if not length[i] < 1e-9 else 1e-9  # np.maximum (NaN stays)
+        u[i, 0], u[i, 1] = dx / den, dy / den
+    a = np.empty((2, 2))
+    b = np.empty(2)
+    arm = np.empty((4, 2))
+    arm_len = np.empty(4)
+    m = 0
+    half = math.pi / 2
+    for i in range(n):
+        for j in range(i + 1, n):
+            if i >= first_stem and j >= first_stem:
+                continue
+            diff = _remainder(fang[i] - fang[j], math.pi)
+            other = math.pi - diff
+            near = diff if (diff <= other or np.isnan(diff)) else other  # np.minimum
+            if not abs(near - half) <= max_misfit:  # NaN (off the floor) is no pair
+                continue
+            a[0, 0], a[0, 1], a[1, 0], a[1, 1] = u[i, 0], -u[j, 0], u[i, 1], -u[j, 1]
+            if not abs(np.linalg.det(a)) >= 1e-3:
+                continue
+            b[0], b[1] = ends[j, 0, 0] - ends[i, 0, 0], ends[j, 0, 1] - ends[i, 0, 1]
+            s = np.linalg.solve(a, b)
+            t_i, t_j = s[0], s[1]
+            xx, xy = ends[i, 0, 0] + t_i * u[i, 0], ends[i, 0, 1] + t_i * u[i, 1]
+            # each line's end nearer the intersection and its distance from the other line
+            k = 0 if t_i <= 0.5 * length[i] else 1
+            g_i = abs(_dot(ends[i, k, 0] - ends[j, 0, 0], ends[i, k, 1] - ends[j, 0, 1],
+                           -u[j, 1], u[j, 0]))
+            k = 0 if t_j <= 0.5 * length[j] else 1
+            g_j = abs(_dot(ends[j, k, 0] - ends[i, 0, 0], ends[j, k, 1] - ends[i, 0, 1],
+                           -u[i, 1], u[i, 0]))
+            c = _meeting_arms(t_i, length[i], u[i, 0], u[i, 1], g_i, tol + widths[j], arm,
+                              arm_len, 0)
+            if c < 0:
+                continue
+            c = _meeting_arms(t_j, length[j], u[j, 0], u[j, 1], g_j, tol + widths[i], arm,
+                              arm_len, c)
+            if c < 0 or c == 4:
+                continue  # two straight lines crossing: fields have none (their X is the
+                # centre circle on the halfway line), so it is no crossing of field lines
+            kinds[m], lines[m, 0], lines[m, 1] = c, i, j
+            points[m, 0], points[m, 1] = xx, xy
+            for q in range(c):
+                arms[m, q, 0], arms[m, q, 1], lengths[m, q] = arm[q, 0], arm[q, 1], arm_len[q]
+            m += 1
+    return m
 
 
 def stem_lines(lines: np.ndarray, white_px: np.ndarray, camera, to_floor, cc: dict,
@@ -632,13 +643,19 @@ def merge_line_crossings(crossings: list[LineCrossing], tol: float,
     away the perspective flattens a right angle in the image): a T whose bar was fitted as
     two lines, one each side of the stem, gives two L's of the same point."""
     out, used = [], [False] * len(crossings)
+    if not crossings:
+        return out
     cos_same = math.cos(same_arm)
+    # the points' distances, all at once (np.hypot of each difference, as one at a time)
+    pts = np.array([c.point for c in crossings], np.float64)
+    near = (np.hypot(pts[None, :, 0] - pts[:, None, 0], pts[None, :, 1] - pts[:, None, 1])
+            <= tol).tolist()
     for a, c in enumerate(crossings):
         if used[a]:
             continue
         group = [c]
         for b in range(a + 1, len(crossings)):
-            if not used[b] and np.hypot(*(crossings[b].point - c.point)) <= tol:
+            if not used[b] and near[a][b]:
                 group.append(crossings[b])
                 used[b] = True
         if len(group) == 1:
@@ -697,9 +714,11 @@ def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.nd
     field_cells = (rows_ >= np.asarray(top, np.float64)[None, :]).astype(np.float32)
     verdicts, found = [], []
     deg = ks.degree()
+    frame = VerifyFrame(white, green, other_mean, top, camera, to_floor, cc, cell, field_cells,
+                        white_px)
     for cand in cands:
         verdict = _crossing(cand, ks, ideal, white, green, other_mean, top, camera, to_floor,
-                            cc, cell, white_px, field_cells, deg)
+                            cc, cell, white_px, field_cells, deg, frame)
         verdicts.append(verdict)
         if not isinstance(verdict, str):
             found.append(verdict)
@@ -720,7 +739,7 @@ def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.nd
             verdict = _verify_crossing(lc.kind, lc.point, lc.arms,
                                        np.minimum(reach, lc.lengths), white, green, other_mean,
                                        top, camera, to_floor, cc, cell, field_cells, lc.lengths,
-                                       white_px)
+                                       white_px, frame)
             pair_verdicts.append(verdict)
             if not isinstance(verdict, str):
                 found.append(verdict)
@@ -741,120 +760,483 @@ def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.nd
 
 
 def _crossing(cand, ks, ideal, white, green, other_mean, top, camera, to_floor, cc, cell,
-              white_px=None, field_cells=None, deg=None):
+              white_px=None, field_cells=None, deg=None, frame=None):
     """One key-structure candidate -> (row, image position), or the reason it was rejected
-    (``deg``: the key structure's node degrees, if already computed)."""
+    (``deg``: the key structure's node degrees, ``frame`` the frame's VerifyFrame, if already
+    made)."""
     centre = ideal[ks.node[cand.key]]
     if not np.isfinite(centre).all():
         return "outside the lens model"
     chains = ks.arms(cand.key, 1 + cc["arm_skip"] + cc["arm_nodes"], deg)
-    arms = arm_lines(centre, chains, ideal, cc["arm_skip"], cc["arm_nodes"])
-    if len(arms) != len(cand.arm_points):
+    if len(chains) != len(cand.arm_points):
         return "arm without nodes"
-    if white_px is not None and cc.get("refine", True):
-        lens = lens_parameters(camera)
-        arms = [_refined_arm(arm, centre, white_px, camera, cc, cell, lens) for arm in arms]
-    # an L's skeleton cuts its corner and a junction node may sit beside a thin line: the
-    # crossing is where the lines fitted to its arms meet
-    x = crossing_point(cand.kind, arms)
-    if x is None or np.hypot(*(x - centre)) > cc["max_shift"] * cell:
-        return "arms do not meet near the node"
-    dirs = np.array([u for _, u, _ in arms])
-    step = cc["arm_step"] * cell
-    lengths = np.array([max(float(np.max((sel - x) @ u)), step) for _, u, sel in arms])
+    placed = place_crossing(cand.kind, centre, chains, ideal, cc, cell,
+                            white_px if cc.get("refine", True) else None, camera)
+    if isinstance(placed, str):
+        return placed
+    x, dirs, lengths = placed
     reach = np.minimum(cc["arm_reach"] * cell, lengths)
     return _verify_crossing(cand.kind, x, dirs, reach, white, green, other_mean, top, camera,
-                            to_floor, cc, cell, field_cells, lengths, white_px)
+                            to_floor, cc, cell, field_cells, lengths, white_px, frame)
+
+
+PLACE_REASONS = ("", "arm without nodes", "arms do not meet near the node")
+KIND_INDEX = {"L": 0, "T": 1, "X": 2}
+
+
+def place_crossing(kind: str, centre: np.ndarray, chains: list[list[int]], ideal: np.ndarray,
+                   cc: dict, cell: int, white_px: np.ndarray | None, camera):
+    """A key-structure candidate placed where its arms' lines meet: each arm's line fitted to
+    its nodes (the chains' nodes from ``arm_skip`` + 1 on, undistorted ``ideal``), refined
+    on the full-resolution white mask ``white_px`` unless None, and cut with the others.
+    Returns (crossing (2,), the arms' unit directions (A, 2), the lines' lengths along them
+    from it (A,), at least ``arm_step`` cells) in ideal px, or the reason it is rejected (an
+    arm without nodes in the lens model, lines that do not meet within ``max_shift`` cells
+    of the node).
+
+    Per arm: the least-squares line of its nodes number ``arm_skip`` + 1 .. ``arm_skip`` +
+    ``arm_nodes`` from the crossing (the nodes right next to a crossing bend towards it; the
+    node itself joins an arm of one node), pointing away from it; refined over the nodes'
+    extent from ``refine_skip`` cells off the crossing on (line_fit.refine_kernel; the
+    coarse line where that fails). The lines meet as an L's two arms, a T's bar (its two most
+    nearly opposite arms fitted together) with the stem, an X's two lines (opposite arms
+    fitted together). It runs compiled (``_place``), with the dot products as numpy's BLAS
+    forms them (exact_ops.fused_multiply_add) and np.linalg's 2 x 2 determinant and solve."""
+    n = len(chains)
+    lens_ = np.fromiter(map(len, chains), np.int64, n)
+    start = np.zeros(n + 1, np.int64)
+    np.cumsum(lens_, out=start[1:])
+    flat = np.fromiter(itertools.chain.from_iterable(chains), np.int64, int(start[-1]))
+    refine = white_px is not None
+    out = np.empty((n + 1, 3))
+    code = _place(KIND_INDEX[kind], np.ascontiguousarray(centre, np.float64), flat, start,
+                  np.ascontiguousarray(ideal, np.float64), int(cc["arm_skip"]),
+                  int(cc["arm_nodes"]), refine,
+                  white_px if refine else np.zeros((1, 1), np.uint8),
+                  lens_parameters(camera) if refine else np.zeros(9),
+                  float(cc["refine_skip"] * cell), float(cell), float(cc["refine_step"]),
+                  float(cc["refine_reach"] * cell), int(cc["refine_min_points"]),
+                  float(cc["max_shift"] * cell), float(cc["arm_step"] * cell), out)
+    if code:
+        return PLACE_REASONS[code]
+    return out[0, :2].copy(), out[1:, :2].copy(), out[1:, 2].copy()
+
+
+@njit(cache=True, nogil=True)
+def _dot(ax, ay, bx, by):
+    """numpy's ``a @ b`` of two 2-vectors."""
+    return fused_multiply_add(ay, by, ax * bx)
+
+
+@njit(cache=True, nogil=True)
+def _row_dot(ax, ay, bx, by):
+    """A row of numpy's ``m @ b`` (m of two or more rows, b a 2-vector)."""
+    return fused_multiply_add(ax, bx, ay * by)
+
+
+@njit(cache=True, nogil=True)
+def _fit_away(sel, ox, oy):
+    """The least-squares line (cx, cy, ux, uy) of the points ``sel``
+    (n, 2), its direction pointing away from (ox, oy)."""
+    cx, cy, ux, uy, _, _, _ = _fit_points(sel)
+    if _dot(cx - ox, cy - oy, ux, uy) < 0:
+        ux, uy = -ux, -uy
+    return cx, cy, ux, uy
+
+
+@njit(cache=True, nogil=True)
+def _meet(c1x, c1y, u1x, u1y, c2x, c2y, u2x, u2y):
+    """Where the lines through c1 along u1 and through c2 along u2 meet: (ok, x, y), not ok
+    when they are nearly parallel (|sin| < 1e-3; np.linalg's determinant and solve of
+    [u1, -u2] t = c2 - c1)."""
+    a = np.empty((2, 2))
+    a[0, 0], a[0, 1], a[1, 0], a[1, 1] = u1x, -u2x, u1y, -u2y
+    if abs(np.linalg.det(a)) < 1e-3:  # nearly parallel (|sin| < 1e-3)
+        return False, np.nan, np.nan
+    b = np.empty(2)
+    b[0], b[1] = c2x - c1x, c2y - c1y
+    t = np.linalg.solve(a, b)
+    return True, c1x + t[0] * u1x, c1y + t[0] * u1y
+
+
+@njit(cache=True, nogil=True)
+def _place(kind, centre, flat, start, coords, skip, count, refine, white_px, lens, t_skip,
+           cell, step, reach, min_points, max_shift, arm_step, out):
+    """place_crossing compiled: the arms' lines, refined, their meeting point and the arms'
+    lengths of one candidate (``kind`` 0 L, 1 T, 2 X; chain c of its arms is ``flat[start[c]:
+    start[c + 1]]``). The crossing into out[0, :2], arm a's direction and length into
+    out[1 + a]; returns 0, or the index of its reason in PLACE_REASONS."""
+    n = len(start) - 1
+    ox, oy = centre[0], centre[1]
+    cs = np.empty((n, 2))
+    us = np.empty((n, 2))
+    sels = []
+    for a in range(n):
+        # the arm's finite nodes after the crossing's, from ``skip`` on
+        m = 0
+        pts = np.empty((max(start[a + 1] - start[a] - 1, 0), 2))
+        for i in range(start[a] + 1, start[a + 1]):
+            px, py = coords[flat[i], 0], coords[flat[i], 1]
+            if np.isfinite(px) and np.isfinite(py):
+                pts[m, 0], pts[m, 1] = px, py
+                m += 1
+        if m == 0:
+            return 1
+        lo, hi = (skip, min(skip + count, m)) if m >= skip + 2 else (0, min(count, m))
+        if hi - lo < 2:
+            sel = np.empty((hi - lo + 1, 2))
+            sel[0, 0], sel[0, 1] = ox, oy
+            sel[1:] = pts[lo:hi]
+        else:
+            sel = pts[lo:hi].copy()
+        cx, cy, ux, uy = _fit_away(sel, ox, oy)
+        if refine:
+            # refined over the nodes' extent from t_skip px off the crossing on
+            t0, t1 = np.inf, -np.inf
+            for i in range(sel.shape[0]):
+                t = _row_dot(sel[i, 0] - ox, sel[i, 1] - oy, ux, uy) if sel.shape[0] > 1 \
+                    else _dot(sel[i, 0] - ox, sel[i, 1] - oy, ux, uy)
+                t0, t1 = min(t0, t), max(t1, t)
+            t0 = max(t0, t_skip)
+            if not t1 - t0 < cell:
+                ends = np.empty((2, 2))
+                ends[0, 0], ends[0, 1] = ox + t0 * ux, oy + t0 * uy
+                ends[1, 0], ends[1, 1] = ox + t1 * ux, oy + t1 * uy
+                res = np.empty(12)
+                centres, _ = refine_kernel(ends, white_px, lens, step, reach, 0.0, min_points,
+                                           0.0, res)
+                if res[0] != 0:
+                    dx, dy = res[7], res[8]
+                    if not _dot(dx, dy, ux, uy) >= 0:
+                        dx, dy = -dx, -dy
+                    cx, cy, ux, uy = res[5], res[6], dx, dy
+                    sel = centres
+        cs[a, 0], cs[a, 1], us[a, 0], us[a, 1] = cx, cy, ux, uy
+        sels.append(sel)
+    # the lines' intersection
+    if kind == 0:
+        ok, x, y = _meet(cs[0, 0], cs[0, 1], us[0, 0], us[0, 1], cs[1, 0], cs[1, 1],
+                         us[1, 0], us[1, 1])
+    elif kind == 1:
+        # the bar: the pair of most nearly opposite arms (the first smallest cosine)
+        bi, bj, bs, best = 0, 1, 2, np.inf
+        for i, j, s in ((0, 1, 2), (0, 2, 1), (1, 2, 0)):
+            cos = _dot(us[i, 0], us[i, 1], us[j, 0], us[j, 1])
+            if cos < best:
+                bi, bj, bs, best = i, j, s, cos
+        bx, by, vx, vy = _fit_away(np.concatenate((sels[bi], sels[bj])), cs[bi, 0], cs[bi, 1])
+        ok, x, y = _meet(bx, by, vx, vy, cs[bs, 0], cs[bs, 1], us[bs, 0], us[bs, 1])
+    elif n != 4:
+        ok, x, y = False, np.nan, np.nan
+    else:
+        # X: arm 0 with its most opposite arm (np.argmin: the first smallest), the others
+        j, best = 1, np.inf
+        for k in range(1, 4):
+            cos = _dot(us[0, 0], us[0, 1], us[k, 0], us[k, 1])
+            if cos < best or k == 1:
+                j, best = k, cos
+        r0, r1 = (2, 3) if j == 1 else ((1, 3) if j == 2 else (1, 2))
+        ax, ay, vx, vy = _fit_away(np.concatenate((sels[0], sels[j])), cs[0, 0], cs[0, 1])
+        bx, by, wx, wy = _fit_away(np.concatenate((sels[r0], sels[r1])), cs[r0, 0],
+                                   cs[r0, 1])
+        ok, x, y = _meet(ax, ay, vx, vy, bx, by, wx, wy)
+    if not ok or np.hypot(x - ox, y - oy) > max_shift:
+        return 2
+    out[0, 0], out[0, 1] = x, y
+    for a in range(n):
+        sel = sels[a]
+        far = -np.inf
+        for i in range(sel.shape[0]):
+            t = _row_dot(sel[i, 0] - x, sel[i, 1] - y, us[a, 0], us[a, 1]) \
+                if sel.shape[0] > 1 else _dot(sel[i, 0] - x, sel[i, 1] - y, us[a, 0], us[a, 1])
+            if not (t <= far or np.isnan(far)):  # np.max: a NaN wins
+                far = t
+        out[1 + a, 0], out[1 + a, 1] = us[a, 0], us[a, 1]
+        out[1 + a, 2] = arm_step if arm_step > far else far
+    return 0
 
 
 def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera, to_floor, cc,
-                     cell, field_cells=None, lengths=None, white_px=None):
+                     cell, field_cells=None, lengths=None, white_px=None, frame=None):
     """A crossing of ``kind`` at ideal point ``x`` with arms along ``dirs`` (A, 2) reaching
     ``reach`` (A,) px, its lines extending ``lengths`` (A,) px along them -> (row, image
     position), or the reason it is rejected. The cheap floor checks come before the image
-    checks."""
-    step = cc["arm_step"] * cell
+    checks. ``frame``: the frame's VerifyFrame (the kernels' arrays), if already made.
+
+    The floor checks run compiled (``_floor_checks``), the image checks too
+    (``_image_checks``); numpy's arctan2 gives the bearing and the arms' floor angles (the
+    kernels' atan2 is not numpy's to the bit), floor_arms the shape's fit."""
+    if frame is None:
+        frame = VerifyFrame(white, green, other_mean, top, camera, to_floor, cc, cell,
+                            field_cells, white_px)
     n = len(dirs)
-    # all floor points at once: the crossing, a step along each arm, the cell below, the ends
-    pts = np.empty((n + 2 + (0 if lengths is None else n), 2))
-    pts[0] = x
-    pts[1:n + 1] = x + step * dirs
-    pts[n + 1] = x[0] + 0.0, x[1] + float(cell)
-    if lengths is not None:
-        with np.errstate(invalid="ignore"):  # an arm out of the image is infinite
-            pts[n + 2:] = x[None] + np.asarray(lengths)[:, None] * dirs
-    on_floor = to_floor(pts)
-    floor = on_floor[:n + 1]
-    if not np.isfinite(floor).all():
-        return "above the horizon"
-    # every point's offset from the crossing on the floor and its length, at once
-    rel = on_floor - on_floor[0]
-    rel_m = np.hypot(rel[:, 0], rel[:, 1])
-    if lengths is not None:
-        arm_m = rel_m[n + 2:]  # NaN beyond the horizon: long enough
-        short = arm_m < cc["min_arm_length"]
-        if np.any(short) and white_px is not None:
-            # the fitted nodes or lines may end early (a far arm's few nodes, a line cut at a
-            # junction): the arm is as long as the white line goes on along it in the image
-            lengths = white_arm_lengths(x, dirs, lengths, short, white_px, camera, cc, cell)
-            with np.errstate(invalid="ignore"):  # an arm out of the image is infinite
-                ends = to_floor(x[None] + lengths[:, None] * dirs)
-            arm_m = np.hypot(*(ends - floor[0]).T)
-            reach = np.maximum(reach, np.minimum(cc["arm_reach"] * cell, lengths))
-        if np.any(arm_m < cc["min_arm_length"]):
-            return "arm too short"
-    d, bearing = polar(floor[:1])
-    span = rel_m[n + 1] if np.isfinite(rel_m[n + 1]) else np.inf  # the cell below
-    # beyond the grid's resolution the full-resolution white mask decides (_verify_fine), as
-    # far as its profiles (refine_step px apart) resolve the floor
-    fine = span > cc["max_cell_span"]
-    if fine and (white_px is None or not cc.get("fine", True)
-                 or span * cc["refine_step"] / cell > cc["max_cell_span"]):
-        return "too far"
-    arm_dirs = np.arctan2(rel[1:n + 1, 1], rel[1:n + 1, 0])
-    orient, misfit = floor_arms(kind, arm_dirs)
+    x = np.ascontiguousarray(x, np.float64)
+    dirs = np.ascontiguousarray(dirs, np.float64)
+    reach = np.array(reach, np.float64)
+    has_lengths = lengths is not None
+    lengths = np.array(lengths, np.float64) if has_lengths else np.zeros(n)
+    angles_at = np.empty((n + 1, 2))  # the crossing on the floor, each arm's offset there
+    scalars = np.empty(3)
+    code = _floor_checks(x, dirs, reach, lengths, has_lengths, frame.use_white, frame.white_px,
+                         frame.lens, to_floor.m, to_floor.height, frame.position,
+                         frame.shifted, frame.params, angles_at, scalars)
+    if code:
+        return FLOOR_REASONS[code]
+    angles = np.arctan2(angles_at[:, 1], angles_at[:, 0])
+    dist, bearing, span = scalars[0], angles[0], scalars[1]
+    orient, misfit = floor_arms(kind, angles[1:])
     if misfit > cc["max_misfit"]:
         return f"floor angles misfit {math.degrees(misfit):.0f} deg"
-    if fine:
+    if scalars[2]:  # beyond the grid's resolution
         return _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera, to_floor,
-                            cc, cell, d[0], bearing[0], orient, misfit, span)
-    # an arm leaving the image is verified on its part in view
-    reach = np.minimum(reach, _in_image(x, dirs, camera, 0.5 * cell))
-    px = distort_ideal(lens_parameters(camera), np.vstack([x[None], x + reach[:, None] * dirs]))
-    if not np.isfinite(px).all():
-        return "outside the lens model"
-    grid = (px + 0.5) / cell - 0.5
-    col = min(max(round(grid[0, 0]), 0), len(top) - 1)
-    near_top = top[max(col - 2, 0): col + 3].max()  # the boundary within two columns
-    if grid[0, 1] - near_top < cc["edge_margin"]:
-        return "at the field boundary"  # a line meeting an object or the end of the view
-    row = min(max(round(grid[0, 1]), 0), other_mean.shape[0] - 1)
-    r = cc["object_radius"]
-    if other_mean[max(row - r, 0): row + r + 1, max(col - r, 0): col + r + 1].max() > 0.5:
-        return "next to an object"  # a robot's or a person's white foot on a line
-    # the arms that would make an L a T must be in view (a T's stem continued would make an
-    # X, which fields hold only where the centre circle crosses the halfway line)
-    # (a thin line leaves a cell mostly green: where the full-resolution mask shows an arm's
-    # line going on through the crossing, the L is no L)
-    if kind == "L" and (not _alternative_in_view(x, dirs, camera, top, other_mean, green, cc,
-                                                 cell)
-                        or (white_px is not None and any(
-                            arm_state(x, -u, white_px, green, other_mean, top, camera,
-                                      to_floor, cc, cell, dirs) == "white" for u in dirs))):
+                            cc, cell, dist, bearing, orient, misfit, span)
+    out = np.empty(3)
+    code = _image_checks(KIND_INDEX[kind], x, dirs, reach, frame.white, frame.green,
+                         frame.other_mean, frame.top, frame.field, frame.use_white,
+                         frame.white_px, frame.lens, to_floor.m, to_floor.m_inv,
+                         to_floor.height, frame.position, frame.params, frame.radii, _RING, out)
+    if code == IMAGE_VERIFIED:
+        row = [CROSSING_CODES[kind], dist, bearing, orient,
+               out[0] * (1.0 - misfit / math.radians(90.0))]
+        return row, out[1:3].copy()
+    if code == IMAGE_AS_T:
         return _continued_as_t(x, dirs, reach, white, green, other_mean, top, camera,
-                               to_floor, cc, cell, field_cells, lengths, white_px)
-    score = verify_crossing(grid[0], grid[1:], white, green, cc, field_cells)
+                               to_floor, cc, cell, field_cells, lengths if has_lengths else None,
+                               white_px, frame)
+    if code == IMAGE_FINE:
+        # the grid's circles may take in a neighbouring line (a far goal area's lines lie two
+        # cells apart): the full-resolution check decides
+        return _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera, to_floor,
+                            cc, cell, dist, bearing, orient, misfit,
+                            max(span, cc["max_cell_span"]))
+    return IMAGE_REASONS[code]
+
+
+class VerifyFrame:
+    """What the compiled checks of _verify_crossing read of a frame, made once per frame:
+    the grid's images as the kernels take them, the lens, the conf's numbers (``params``,
+    indexed by the P_ names) and the circles' radii."""
+
+    def __init__(self, white, green, other_mean, top, camera, to_floor, cc, cell,
+                 field_cells=None, white_px=None):
+        self.white = np.asarray(white, np.float32)
+        self.green = np.asarray(green, np.float32)
+        self.other_mean = np.asarray(other_mean, np.float32)
+        self.top = np.ascontiguousarray(top, np.float64)
+        self.use_field = field_cells is not None
+        self.field = (np.asarray(field_cells, np.float32) if self.use_field
+                      else np.zeros((1, 1), np.float32))
+        self.use_white = white_px is not None
+        self.white_px = white_px if self.use_white else np.zeros((1, 1), np.uint8)
+        self.lens = lens_parameters(camera)
+        self.position = np.asarray(to_floor.position, np.float64)
+        self.shifted = bool(self.position.any())  # as FloorProjection adds it
+        self.radii = np.asarray(cc["circle_radii"], np.float64)
+        w, h = camera.image_size
+        p = np.empty(P_COUNT)
+        p[P_CELL], p[P_WIDTH], p[P_HEIGHT] = cell, w, h
+        p[P_FINE] = bool(cc.get("fine", True))
+        p[P_USE_FIELD] = self.use_field
+        p[P_WIDTH_LO], p[P_WIDTH_HI] = cc["width_ratio"]
+        for k, name in _P_CONF:
+            p[k] = cc[name]
+        self.params = p
+
+
+# the numbers of VerifyFrame.params: the grid's cell (px), the image's size (px), whether the
+# fine checks are on and the field region given, a painted line's width ratio, the conf's
+(P_CELL, P_WIDTH, P_HEIGHT, P_FINE, P_USE_FIELD, P_WIDTH_LO, P_WIDTH_HI, P_ARM_STEP,
+ P_MIN_ARM_LENGTH, P_ARM_REACH, P_REFINE_STEP, P_REFINE_REACH, P_ARM_GROW, P_ARM_TOLERANCE,
+ P_MAX_CELL_SPAN, P_EDGE_MARGIN, P_OBJECT_RADIUS, P_LINE_WIDTH, P_FINE_PX, P_T_GREEN,
+ P_T_WHITE, P_RELATIVE, P_ARM_GAP, P_MAX_RADIUS, P_MAX_OTHER, P_MIN_PATH_SHARE,
+ P_COUNT) = range(27)
+_P_CONF = ((P_ARM_STEP, "arm_step"), (P_MIN_ARM_LENGTH, "min_arm_length"),
+           (P_ARM_REACH, "arm_reach"), (P_REFINE_STEP, "refine_step"),
+           (P_REFINE_REACH, "refine_reach"), (P_ARM_GROW, "arm_grow"),
+           (P_ARM_TOLERANCE, "arm_tolerance"), (P_MAX_CELL_SPAN, "max_cell_span"),
+           (P_EDGE_MARGIN, "edge_margin"), (P_OBJECT_RADIUS, "object_radius"),
+           (P_LINE_WIDTH, "line_width"), (P_FINE_PX, "fine_px"), (P_T_GREEN, "t_green"),
+           (P_T_WHITE, "t_white"), (P_RELATIVE, "relative"), (P_ARM_GAP, "arm_gap"),
+           (P_MAX_RADIUS, "max_radius"), (P_MAX_OTHER, "max_other"),
+           (P_MIN_PATH_SHARE, "min_path_share"))
+
+FLOOR_REASONS = ("", "above the horizon", "arm too short", "too far")
+IMAGE_VERIFIED, IMAGE_AS_T, IMAGE_FINE = 0, 1, 2
+IMAGE_REASONS = ("", "", "", "outside the lens model", "at the field boundary",
+                 "next to an object", "not verified in the image")
+
+
+@njit(cache=True, nogil=True)
+def _floor_at(m, height, pos, shifted, x, y):
+    """perspective.FloorProjection at one ideal pixel (its _to_floor, operation by
+    operation)."""
+    rx = x * m[0, 0] + y * m[0, 1] + m[0, 2]
+    ry = x * m[1, 0] + y * m[1, 1] + m[1, 2]
+    down = x * m[2, 0] + y * m[2, 1] + m[2, 2]
+    t = height / -down if down < -1e-9 else np.nan
+    fx, fy = rx * t, ry * t
+    if shifted:
+        fx += pos[0]
+        fy += pos[1]
+    return fx, fy
+
+
+@njit(cache=True, nogil=True)
+def _to_edge(x0, x1, ux, uy, w, h, margin):
+    """_in_image of one direction: the distance (ideal px) from (x0, x1) along (ux, uy) to
+    ``margin`` px inside the image's edge, at least 0."""
+    t = np.inf
+    for d, lo, hi in ((ux, margin - x0, (w - 1 - margin) - x0),
+                      (uy, margin - x1, (h - 1 - margin) - x1)):
+        if d > 1e-12:
+            t = min(t, hi / d)
+        elif d < -1e-12:
+            t = min(t, lo / d)
+    return max(t, 0.0)
+
+
+@njit(cache=True, nogil=True)
+def _floor_checks(x, dirs, reach, lengths, has_lengths, use_white, white_px, lens, m, height,
+                  pos, shifted, p, angles_at, scalars):
+    """_verify_crossing's floor checks, compiled: the crossing, a step along each arm, the
+    cell below and the arms' ends on the floor; arms shorter than ``min_arm_length`` m grown
+    along the white line on the full-resolution mask (white_arm_lengths; ``lengths`` and
+    ``reach`` updated in place); the range. Returns 0 or the index of the reason in
+    FLOOR_REASONS; ``angles_at`` (A + 1, 2) gets the crossing's floor point and each arm's
+    offset from it (for arctan2), ``scalars`` the distance, the cell's span on the floor and
+    whether that is beyond the grid's resolution."""
+    n = dirs.shape[0]
+    cell = p[P_CELL]
+    step = p[P_ARM_STEP] * cell
+    x0, x1 = x[0], x[1]
+    f0x, f0y = _floor_at(m, height, pos, shifted, x0, x1)
+    if not (np.isfinite(f0x) and np.isfinite(f0y)):
+        return 1
+    angles_at[0, 0], angles_at[0, 1] = f0x, f0y
+    for k in range(n):
+        fx, fy = _floor_at(m, height, pos, shifted, x0 + step * dirs[k, 0],
+                           x1 + step * dirs[k, 1])
+        if not (np.isfinite(fx) and np.isfinite(fy)):
+            return 1
+        angles_at[1 + k, 0], angles_at[1 + k, 1] = fx - f0x, fy - f0y
+    bx, by = _floor_at(m, height, pos, shifted, x0 + 0.0, x1 + cell)
+    span = np.hypot(bx - f0x, by - f0y)  # the cell below
+    if not np.isfinite(span):
+        span = np.inf
+    if has_lengths:
+        min_length = p[P_MIN_ARM_LENGTH]
+        arm_m = np.empty(n)
+        short = False
+        for k in range(n):
+            ex, ey = _floor_at(m, height, pos, shifted, x0 + lengths[k] * dirs[k, 0],
+                               x1 + lengths[k] * dirs[k, 1])
+            arm_m[k] = np.hypot(ex - f0x, ey - f0y)  # NaN beyond the horizon: long enough
+            short = short or arm_m[k] < min_length
+        if short and use_white:
+            # the fitted nodes or lines may end early (a far arm's few nodes, a line cut at a
+            # junction): the arm is as long as the white line goes on along it in the image
+            w, h = p[P_WIDTH], p[P_HEIGHT]
+            far = p[P_ARM_REACH] * cell
+            for k in range(n):
+                ux, uy = dirs[k, 0], dirs[k, 1]
+                if arm_m[k] < min_length:
+                    gx, gy = grow_kernel(white_px, lens, x0 + lengths[k] * ux,
+                                         x1 + lengths[k] * uy, ux, uy, p[P_REFINE_STEP],
+                                         p[P_REFINE_REACH] * cell, p[P_ARM_GROW] * cell,
+                                         p[P_ARM_TOLERANCE])
+                    t = _dot(gx - x0, gy - x1, ux, uy)
+                    if t > lengths[k]:
+                        lengths[k] = t
+                    if lengths[k] >= _to_edge(x0, x1, ux, uy, w, h, p[P_REFINE_STEP]):
+                        lengths[k] = np.inf  # white up to the image's edge
+                ex, ey = _floor_at(m, height, pos, shifted, x0 + lengths[k] * ux,
+                                   x1 + lengths[k] * uy)
+                arm_m[k] = np.hypot(ex - f0x, ey - f0y)
+                r = min(far, lengths[k]) if not np.isnan(lengths[k]) else lengths[k]
+                if not reach[k] >= r and not np.isnan(reach[k]):  # np.maximum
+                    reach[k] = r
+        for k in range(n):
+            if arm_m[k] < min_length:
+                return 2
+    scalars[0], scalars[1] = np.hypot(f0x, f0y), span
+    # beyond the grid's resolution the full-resolution white mask decides (_verify_fine), as
+    # far as its profiles (refine_step px apart) resolve the floor
+    fine = span > p[P_MAX_CELL_SPAN]
+    if fine and (not use_white or not p[P_FINE]
+                 or span * p[P_REFINE_STEP] / cell > p[P_MAX_CELL_SPAN]):
+        return 3
+    scalars[2] = fine
+    return 0
+
+
+@njit(cache=True, nogil=True)
+def _image_checks(kind, x, dirs, reach, white, green, other_mean, top, field, use_white,
+                  white_px, lens, m, m_inv, height, pos, p, radii, ring, out):
+    """_verify_crossing's image checks, compiled: each arm's reach clipped to the image
+    (``reach`` updated in place), the crossing and the arms' ends in the image and on the
+    grid, the field boundary and objects near it; an L (``kind`` 0) whose alternative is not
+    in view (``_alternative_in_view``) or whose arms' line goes on through it (arm_state
+    white) is to be looked at as a T (IMAGE_AS_T); then the circle and white paths
+    (``_verify``). Returns IMAGE_VERIFIED with the score and the crossing's image position in
+    ``out`` (3,), IMAGE_FINE where the grid does not verify it and the full-resolution check
+    decides, or the index of the reason in IMAGE_REASONS."""
+    n = dirs.shape[0]
+    cell = p[P_CELL]
+    x0, x1 = x[0], x[1]
+    w, h = p[P_WIDTH], p[P_HEIGHT]
+    # an arm leaving the image is verified on its part in view
+    grid = np.empty((n + 1, 2))
+    for k in range(n + 1):
+        if k == 0:
+            qx, qy = x0, x1
+        else:
+            t = _to_edge(x0, x1, dirs[k - 1, 0], dirs[k - 1, 1], w, h, 0.5 * cell)
+            if not reach[k - 1] <= t and not np.isnan(reach[k - 1]):  # np.minimum
+                reach[k - 1] = t
+            qx, qy = x0 + reach[k - 1] * dirs[k - 1, 0], x1 + reach[k - 1] * dirs[k - 1, 1]
+        px, py = distort_point(lens, qx, qy)
+        if not (np.isfinite(px) and np.isfinite(py)):
+            return 3
+        if k == 0:
+            out[1], out[2] = px, py
+        grid[k, 0], grid[k, 1] = (px + 0.5) / cell - 0.5, (py + 0.5) / cell - 0.5
+    n_cols = top.shape[0]
+    col = min(max(int(np.rint(grid[0, 0])), 0), n_cols - 1)
+    near_top = -np.inf  # the boundary within two columns
+    for c in range(max(col - 2, 0), min(col + 3, n_cols)):
+        near_top = max(near_top, top[c])
+    if grid[0, 1] - near_top < p[P_EDGE_MARGIN]:
+        return 4  # a line meeting an object or the end of the view
+    rows, cols = other_mean.shape
+    row = min(max(int(np.rint(grid[0, 1])), 0), rows - 1)
+    r = int(p[P_OBJECT_RADIUS])
+    for i in range(max(row - r, 0), min(row + r + 1, rows)):
+        for j in range(max(col - r, 0), min(col + r + 1, cols)):
+            if other_mean[i, j] > 0.5:
+                return 5  # a robot's or a person's white foot on a line
+    # the arms that would make an L a T must be in view (a T's stem continued would make an
+    # X, which fields hold only where the centre circle crosses the halfway line); a thin
+    # line leaves a cell mostly green: where the full-resolution mask shows an arm's line
+    # going on through the crossing, the L is no L
+    if kind == 0:
+        if not _alternative_in_view(x0, x1, dirs, lens, top, other_mean, green, w, h, cell,
+                                    p[P_ARM_REACH] * cell, p[P_EDGE_MARGIN], p[P_T_GREEN]):
+            return IMAGE_AS_T
+        if use_white:
+            for k in range(n):
+                if _arm_state(x0, x1, -dirs[k, 0], -dirs[k, 1], dirs, white_px, green,
+                              other_mean, top, lens, m, m_inv, height, pos, w, h, cell,
+                              p[P_LINE_WIDTH], p[P_ARM_TOLERANCE], p[P_REFINE_REACH] * cell,
+                              p[P_FINE_PX], p[P_MIN_ARM_LENGTH], p[P_REFINE_STEP],
+                              p[P_WIDTH_LO], p[P_WIDTH_HI], p[P_T_GREEN]) == 1:
+                    return IMAGE_AS_T
+    score = _verify(grid[0], grid[1:], white, green, field, p[P_USE_FIELD] != 0, ring, radii,
+                    p[P_T_WHITE], p[P_RELATIVE], p[P_T_GREEN], p[P_ARM_GAP], p[P_MAX_RADIUS],
+                    p[P_MAX_OTHER], p[P_MIN_PATH_SHARE])
     if score <= 0:
-        if white_px is not None and cc.get("fine", True):
-            # the grid's circles may take in a neighbouring line (a far goal area's lines
-            # lie two cells apart): the full-resolution check decides
-            return _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera,
-                                to_floor, cc, cell, d[0], bearing[0], orient, misfit,
-                                max(span, cc["max_cell_span"]))
-        return "not verified in the image"
-    row = [CROSSING_CODES[kind], d[0], bearing[0], orient,
-           score * (1.0 - misfit / math.radians(90.0))]
-    return row, px[0]
+        return IMAGE_FINE if use_white and p[P_FINE] else 6
+    out[0] = score
+    return IMAGE_VERIFIED
 
 
 def _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera, to_floor, cc, cell,
@@ -1074,7 +1456,7 @@ def _clear_start_kernel(x0, x1, ux, uy, arms, scale, m, m_inv, height, pos, line
 
 
 def _continued_as_t(x, dirs, reach, white, green, other_mean, top, camera, to_floor, cc, cell,
-                    field_cells, lengths, white_px=None):
+                    field_cells, lengths, white_px=None, frame=None):
     """An L whose view opposite its arms is not carpet: where one arm's line goes on through
     the crossing (the fit of a T's bar ended at the stem, or the bar's far half was fitted as
     a line of its own that missed the pair), the crossing is that T. Each arm continued is
@@ -1087,97 +1469,38 @@ def _continued_as_t(x, dirs, reach, white, green, other_mean, top, camera, to_fl
         ext = np.append(reach, reach[k])
         lens = None if lengths is None else np.append(lengths, reach[k])
         v = _verify_crossing("T", x, arms, ext, white, green, other_mean, top, camera, to_floor,
-                             cc, cell, field_cells, lens, white_px)
+                             cc, cell, field_cells, lens, white_px, frame)
         if not isinstance(v, str) and (isinstance(best, str) or v[0][4] > best[0][4]):
             best = v
     return best
 
 
-def _alternative_in_view(x, dirs, camera, top, other_mean, green, cc, cell) -> bool:
+@njit(cache=True, nogil=True)
+def _alternative_in_view(x0, x1, dirs, lens, top, other_mean, green, w, h, cell, reach,
+                         edge_margin, t_green):
     """Whether the image shows carpet opposite an L's arms (where the third arm of a T would
-    be), ``arm_reach`` cells from the crossing: inside the image and the field boundary, no
-    object there, and green (at least ``t_green``). A T seen with one half of its bar out of
-    view or hidden looks like an L; so do a far X's arms, flattened by the perspective."""
-    pts = distort_ideal(lens_parameters(camera), x[None] - cc["arm_reach"] * cell * dirs)
-    w, h = camera.image_size
-    grid = (pts + 0.5) / cell - 0.5
-    greens = sample_cells(green, grid).tolist()  # all points at once (each sampled alone)
-    for p, g, green_here in zip(pts.tolist(), grid.tolist(), greens):
-        if not (math.isfinite(p[0]) and math.isfinite(p[1]) and 0 <= p[0] <= w - 1
-                and 0 <= p[1] <= h - 1):
+    be), ``reach`` px (``arm_reach`` cells) from the crossing (x0, x1): inside the image
+    (``w`` x ``h`` px) and the field boundary (``edge_margin`` cells below ``top``), no
+    object there, and green (at least ``t_green``, sampled as OpenCV's remap does:
+    ``_remap_sample``). A T seen with one half of its bar out of view or hidden looks like an
+    L; so do a far X's arms, flattened by the perspective."""
+    for k in range(dirs.shape[0]):
+        px, py = distort_point(lens, x0 - reach * dirs[k, 0], x1 - reach * dirs[k, 1])
+        if not (np.isfinite(px) and np.isfinite(py) and 0 <= px <= w - 1
+                and 0 <= py <= h - 1):
             return False
-        col = min(max(round(g[0]), 0), len(top) - 1)
-        row = min(max(round(g[1]), 0), other_mean.shape[0] - 1)
-        if g[1] - top[col] < cc["edge_margin"] or other_mean[row, col] > 0.5:
+        gx, gy = (px + 0.5) / cell - 0.5, (py + 0.5) / cell - 0.5
+        col = min(max(int(np.rint(gx)), 0), top.shape[0] - 1)
+        row = min(max(int(np.rint(gy)), 0), other_mean.shape[0] - 1)
+        if gy - top[col] < edge_margin or other_mean[row, col] > 0.5:
             return False
-        if green_here < cc["t_green"]:
+        if _remap_sample(green, gx, gy) < t_green:
             return False
     return True
 
 
-def white_arm_lengths(x: np.ndarray, dirs: np.ndarray, lengths: np.ndarray, which: np.ndarray,
-                      white_px: np.ndarray, camera, cc: dict, cell: int) -> np.ndarray:
-    """Arm lengths (A,) px from the crossing ``x`` (ideal px) along ``dirs``: for the arms
-    ``which`` (A,) bool, ``lengths`` grown while the full-resolution white mask still shows
-    a white run on the arm's line (line_fit's profile walk: a profile across the arm every
-    ``refine_step`` px, ``refine_reach`` cells to each side, its run's centre within
-    ``arm_tolerance`` px of the line; it stops after two profiles without), up to
-    ``arm_grow`` cells; the others as given."""
-    out = np.asarray(lengths, float).copy()
-    lens = lens_parameters(camera)
-    for k in np.nonzero(which)[0]:
-        u = dirs[k]
-        e = x + out[k] * u
-        g = grow_along(white_px, lens, e, u, cc["refine_step"], cc["refine_reach"] * cell,
-                       cc["arm_grow"] * cell, cc["arm_tolerance"])
-        out[k] = max(out[k], float((g - x) @ u))
-        if out[k] >= _in_image(x, u[None], camera, cc["refine_step"])[0]:
-            out[k] = np.inf  # white up to the image's edge: longer than what is in view
-    return out
-
-
-def _in_image(x: np.ndarray, dirs: np.ndarray, camera, margin: float) -> np.ndarray:
-    """Per direction (A, 2), the distance (ideal px) from ``x`` along it to ``margin`` px
-    inside the image's edge (in ideal pixels: the lens's distortion is small at the edges
-    of the views this is used for)."""
-    w, h = camera.image_size
-    x0, x1 = float(x[0]), float(x[1])
-    if not (math.isfinite(x0) and math.isfinite(x1)):  # NaN distances, as numpy gives them
-        lo_, hi_ = np.array([margin, margin]), np.array([w - 1 - margin, h - 1 - margin])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.where(dirs > 1e-12, (hi_ - x) / dirs,
-                         np.where(dirs < -1e-12, (lo_ - x) / dirs, np.inf))
-        return np.maximum(t.min(axis=1), 0.0)
-    hi = (float(w - 1 - margin) - x0, float(h - 1 - margin) - x1)
-    lo = (float(margin) - x0, float(margin) - x1)
-    out = []
-    for d in np.asarray(dirs, float).reshape(-1, 2).tolist():  # a few arms: scalar arithmetic
-        t = math.inf
-        for k in (0, 1):
-            if d[k] > 1e-12:
-                t = min(t, hi[k] / d[k])
-            elif d[k] < -1e-12:
-                t = min(t, lo[k] / d[k])
-        out.append(max(t, 0.0))
-    return np.array(out)
-
-
-def _refined_arm(arm, centre: np.ndarray, white_px: np.ndarray, camera, cc: dict, cell: int,
-                 lens: np.ndarray | None = None):
-    """An arm's line (centroid, unit direction away from the crossing, points) refined on the
-    full-resolution white mask (line_fit.refine_segment) over its nodes' extent from
-    ``refine_skip`` cells off the crossing on; the coarse arm where that fails. ``lens``: the
-    camera's lens_parameters, if already built."""
-    c, u, sel = arm
-    t = (sel - centre) @ u
-    t0, t1 = max(float(t.min()), cc["refine_skip"] * cell), float(t.max())
-    if t1 - t0 < cell:
-        return arm
-    ref = refine_segment(np.stack([centre + t0 * u, centre + t1 * u]), white_px,
-                         lens_parameters(camera) if lens is None else lens, cc["refine_step"],
-                         cc["refine_reach"] * cell,
-                         0.0, cc["refine_min_points"])
-    if ref is None:
-        return arm
-    d = ref.fit.direction if float(ref.fit.direction @ u) >= 0 else -ref.fit.direction
-    return ref.fit.centroid, d, ref.centres
+@njit(cache=True, nogil=True)
+def _remap_sample(image, x, y):
+    """sample_cells at one point, to the bit (exact_ops.remap_at: the point in float32,
+    pixels outside the image 0)."""
+    return remap_at(image, np.float32(x), np.float32(y), np.float32(0.0))

@@ -34,6 +34,7 @@ from numba import njit
 
 # np.sum of a float64 array to the bit (numpy's pairwise order)
 from ..common.colour import pairwise_sum64 as block_sum
+from .exact_ops import remap_at
 
 # ---------------------------------------------------------------------------- 3.2 skeleton
 
@@ -584,11 +585,10 @@ def fill_gaps(graph: LineGraph, image: np.ndarray, max_gap: float, min_cos: floa
                                     float(close_gap))
     if len(score) == 0:
         return
-    # simplicity: grey level along all candidate gaps, sampled in one pass
-    t = _gap_steps(samples)
-    pts = (pos[ci][:, None, :] * (1 - t) + pos[cj][:, None, :] * t).astype(np.float32)
-    grey = cv2.remap(image, pts[..., 0], pts[..., 1], cv2.INTER_LINEAR,
-                     borderMode=cv2.BORDER_CONSTANT, borderValue=0).min(axis=1)
+    # simplicity: grey level along all candidate gaps, sampled in one compiled pass as
+    # cv2.remap samples (_gap_grey)
+    grey = np.empty(len(score), np.float32)
+    _gap_grey(pos, ci, cj, _gap_steps(samples)[0, :, 0], np.asarray(image, np.float32), grey)
     # the grey ratios, the scores' order and the greedy choice, compiled (_gap_choice)
     value = np.ascontiguousarray(graph.value)
     accepted = np.empty((len(score), 2), np.int64)
@@ -640,6 +640,24 @@ def _gap_choice(score, ci, cj, grey, value, eps, min_ratio, start, nbr, max_degr
         deg[i] += 1
         deg[j] += 1
     return n
+
+
+@njit(cache=True, nogil=True)
+def _gap_grey(pos, ci, cj, t, image, out):
+    """fill_gaps' grey level along each candidate gap ci[k] -> cj[k] (grid positions ``pos``):
+    the least of the image at the points (1 - t) p + t q (in float32), each sampled as
+    cv2.remap (INTER_LINEAR, 0 outside) samples it (exact_ops.remap_at)."""
+    zero = np.float32(0.0)
+    for k in range(ci.shape[0]):
+        a, b = ci[k], cj[k]
+        low = np.float32(np.inf)
+        for s in range(t.shape[0]):
+            x = np.float32(pos[a, 0] * (1 - t[s]) + pos[b, 0] * t[s])
+            y = np.float32(pos[a, 1] * (1 - t[s]) + pos[b, 1] * t[s])
+            v = remap_at(image, x, y, zero)
+            if v < low or s == 0:
+                low = v
+        out[k] = low
 
 
 @functools.lru_cache(maxsize=4)

@@ -32,6 +32,7 @@ from ..common import colour
 from ..common.errors import DatasetError
 from ..common.geometry import polar
 from .crossings import find_crossings
+from .exact_ops import fused_multiply_add, remap_at
 from .field_boundary import DEFAULT_WEIGHTS, boundary_polyline, field_boundary
 from .goal_posts import goal_posts, is_post_bar
 from .line_fit import (
@@ -163,7 +164,7 @@ confs = {
             "refine_reach": 2.0,
             "refine_min_points": 3,
             # an arm shorter than min_arm_length by its fitted nodes or line is grown along
-            # the white line on the full-resolution mask (crossings.white_arm_lengths): by
+            # the white line on the full-resolution mask (crossings._floor_checks): by
             # at most arm_grow cells, while the white run's centre stays within
             # arm_tolerance px of the arm's line
             "arm_grow": 12.0,
@@ -276,12 +277,24 @@ class IdealPixels:
         return hit
 
     def __call__(self, uv) -> np.ndarray:
-        """Distorted pixels (N, 2) -> ideal pixels (N, 2); NaN outside the lens model."""
-        p = (np.asarray(uv, np.float32).reshape(-1, 1, 2) / np.float32(self.stride))
-        out = [cv2.remap(m, p[..., 0], p[..., 1], cv2.INTER_LINEAR,
-                         borderMode=cv2.BORDER_CONSTANT, borderValue=float("nan"))
-               for m in (self.map_u, self.map_v)]
-        return np.stack([o.ravel() for o in out], axis=1).astype(np.float64)
+        """Distorted pixels (N, 2) -> ideal pixels (N, 2); NaN outside the lens model. The
+        tables are read as cv2.remap reads them (INTER_LINEAR, NaN beyond them), compiled
+        (``_look_up``)."""
+        p = np.ascontiguousarray(np.asarray(uv, np.float32).reshape(-1, 2))
+        out = np.empty(p.shape)
+        _look_up(p, np.float32(self.stride), self.map_u, self.map_v, out)
+        return out
+
+
+@njit(cache=True, nogil=True)
+def _look_up(p, stride, map_u, map_v, out):
+    """IdealPixels on distorted pixels p (N, 2, float32): each pixel over the tables' stride
+    (in float32), both tables read there (exact_ops.remap_at, NaN beyond them)."""
+    nan = np.float32(np.nan)
+    for i in range(p.shape[0]):
+        x, y = p[i, 0] / stride, p[i, 1] / stride
+        out[i, 0] = remap_at(map_u, x, y, nan)
+        out[i, 1] = remap_at(map_v, x, y, nan)
 
 
 _IDEAL_CACHE: dict[tuple, IdealPixels] = {}
@@ -628,31 +641,69 @@ def width_ratios(refs: list[RefinedLine], to_floor: FloorProjection, line_width:
                  ) -> dict[int, float]:
     """Per refined line (by id): the median of its white runs' widths over the width a
     painted line of ``line_width`` metres has in the image at each run's floor position (both
-    across the line, in ideal pixels); NaN where no run lies on the floor. All lines' points
-    are projected together."""
+    across the line, in ideal pixels); NaN where no run lies on the floor. All lines run in
+    one compiled pass (``_width_ratios``: the floor projection and its inverse operation by
+    operation as FloorProjection and its to_ideal's BLAS product form them)."""
     if not refs:
         return {}
-    counts = np.array([len(r.centres) for r in refs])
-    floor = to_floor(np.concatenate([r.centres for r in refs]))
-    ends = to_floor(np.concatenate([r.ends for r in refs])).reshape(-1, 2, 2)
-    d = ends[:, 1] - ends[:, 0]
-    length = np.hypot(d[:, 0], d[:, 1])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        nf = np.stack([-d[:, 1], d[:, 0]], axis=1) / length[:, None]
-    nf_pts = np.repeat(nf, counts, axis=0)
-    half = 0.5 * line_width
-    a = to_floor.to_ideal(floor - half * nf_pts)
-    b = to_floor.to_ideal(floor + half * nf_pts)
-    n_img = np.repeat(np.array([r.fit.normal for r in refs]), counts, axis=0)
-    expected = np.abs(((b - a) * n_img).sum(axis=1))
-    ratio = np.concatenate([r.widths for r in refs]) / np.maximum(expected, 1e-6)
-    ok = np.all(np.isfinite(floor), axis=1) & np.isfinite(ratio)
-    out, k = {}, 0
-    for r, n in zip(refs, counts):
-        sel = ok[k:k + n]
-        out[id(r)] = float(median(ratio[k:k + n][sel])) if sel.any() else float("nan")
-        k += n
-    return out
+    start = np.zeros(len(refs) + 1, np.int64)
+    np.cumsum([len(r.centres) for r in refs], out=start[1:])
+    out = np.empty(len(refs))
+    _width_ratios(np.concatenate([r.centres for r in refs]).astype(np.float64, copy=False),
+                  start, np.array([r.ends for r in refs], np.float64),
+                  np.array([r.fit.normal for r in refs], np.float64),
+                  np.concatenate([r.widths for r in refs]).astype(np.float64, copy=False),
+                  to_floor.m, to_floor.m_inv, to_floor.height, to_floor.position,
+                  to_floor._shifted, 0.5 * line_width, out)
+    return {id(r): float(v) for r, v in zip(refs, out.tolist())}
+
+
+@njit(cache=True, nogil=True)
+def _to_ideal_at(m_inv, height, pos, fx, fy, single):
+    """FloorProjection.to_ideal at one floor point: the homogeneous pixel as numpy's ``rel @
+    m_inv.T`` (BLAS) forms it, fused multiply-adds in the order of its rows (``single``: a
+    product of one row, ordered as a dot of three), NaN behind the camera."""
+    r0, r1, r2 = fx - pos[0], fy - pos[1], -height
+    h = np.empty(3)
+    for j in range(3):
+        if single:
+            h[j] = fused_multiply_add(r2, m_inv[j, 2],
+                                      fused_multiply_add(r0, m_inv[j, 0], r1 * m_inv[j, 1]))
+        else:
+            h[j] = fused_multiply_add(r2, m_inv[j, 2],
+                                      fused_multiply_add(r1, m_inv[j, 1], r0 * m_inv[j, 0]))
+    if h[2] > 1e-9:
+        return h[0] / h[2], h[1] / h[2]
+    return np.nan, np.nan
+
+
+@njit(cache=True, nogil=True)
+def _width_ratios(centres, start, ends, normals, widths, m, m_inv, height, pos, shifted, half,
+                  out):
+    """width_ratios compiled: line k's runs are centres[start[k]:start[k + 1]] (ideal px)
+    with their ``widths``; its median ratio into out[k]."""
+    n = centres.shape[0]
+    floor = np.empty((n, 2))
+    _to_floor(centres, m, height, pos, shifted, floor)
+    fe = np.empty((2, 2))
+    ratio = np.empty(n)
+    for k in range(ends.shape[0]):
+        _to_floor(ends[k], m, height, pos, shifted, fe)
+        dx, dy = fe[1, 0] - fe[0, 0], fe[1, 1] - fe[0, 1]
+        length = np.hypot(dx, dy)
+        nx, ny = -dy / length, dx / length
+        m_ok = 0
+        for i in range(start[k], start[k + 1]):
+            ax, ay = _to_ideal_at(m_inv, height, pos, floor[i, 0] - half * nx,
+                                  floor[i, 1] - half * ny, n == 1)
+            bx, by = _to_ideal_at(m_inv, height, pos, floor[i, 0] + half * nx,
+                                  floor[i, 1] + half * ny, n == 1)
+            expected = abs((bx - ax) * normals[k, 0] + (by - ay) * normals[k, 1])
+            r = widths[i] / (expected if not expected < 1e-6 else 1e-6)  # np.maximum
+            if np.isfinite(floor[i, 0]) and np.isfinite(floor[i, 1]) and np.isfinite(r):
+                ratio[m_ok] = r
+                m_ok += 1
+        out[k] = median(ratio[:m_ok]) if m_ok else np.nan
 
 
 # ---------------------------------------------------------------------------- debug images
