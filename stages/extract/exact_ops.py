@@ -22,23 +22,28 @@ from numba import njit, types
 from numba.extending import intrinsic
 
 
+def _fma_typing(numba_type, llvm_type, a, b, c):
+    """(signature, codegen) of LLVM's fma in one float type (``numba_type``, ``llvm_type``),
+    its arguments cast to it; None unless all three are floats."""
+    if not all(isinstance(t, types.Float) for t in (a, b, c)):
+        return None
+    sig = numba_type(numba_type, numba_type, numba_type)
+
+    def codegen(context, builder, signature, args):
+        args = [context.cast(builder, v, t, numba_type)
+                for v, t in zip(args, signature.args)]
+        fn = builder.module.declare_intrinsic("llvm.fma", [llvm_type],
+                                              ir.FunctionType(llvm_type, [llvm_type] * 3))
+        return builder.call(fn, args)
+
+    return sig, codegen
+
+
 @intrinsic
 def fused_multiply_add32(typingctx, a, b, c):
     """a * b + c in float32 rounded once (LLVM's fma): OpenCV's bilinear remap of float32
     images interpolates with it (see crossings._remap_sample)."""
-    if not all(isinstance(t, types.Float) for t in (a, b, c)):
-        return None
-    sig = types.float32(types.float32, types.float32, types.float32)
-
-    def codegen(context, builder, signature, args):
-        f32 = ir.FloatType()
-        args = [context.cast(builder, v, t, types.float32)
-                for v, t in zip(args, signature.args)]
-        fn = builder.module.declare_intrinsic("llvm.fma", [f32],
-                                              ir.FunctionType(f32, [f32] * 3))
-        return builder.call(fn, args)
-
-    return sig, codegen
+    return _fma_typing(types.float32, ir.FloatType(), a, b, c)
 
 
 @intrinsic
@@ -47,19 +52,7 @@ def fused_multiply_add(typingctx, a, b, c):
     2-vectors (``u @ v``, BLAS) is fused_multiply_add(u[1], v[1], u[0] * v[0]), and each row
     of a matrix-vector product ``m @ v`` of two or more rows fused_multiply_add(m[k, 0],
     v[0], m[k, 1] * v[1]); a sum of the products is not these to the bit."""
-    if not all(isinstance(t, types.Float) for t in (a, b, c)):
-        return None
-    sig = types.float64(types.float64, types.float64, types.float64)
-
-    def codegen(context, builder, signature, args):
-        f64 = ir.DoubleType()
-        args = [context.cast(builder, v, t, types.float64)
-                for v, t in zip(args, signature.args)]
-        fn = builder.module.declare_intrinsic("llvm.fma", [f64],
-                                              ir.FunctionType(f64, [f64] * 3))
-        return builder.call(fn, args)
-
-    return sig, codegen
+    return _fma_typing(types.float64, ir.DoubleType(), a, b, c)
 
 
 @njit(cache=True, nogil=True)
