@@ -621,8 +621,8 @@ def _stems(lines, floor, white_px, lens, m, m_inv, height, pos, cell, min_span, 
                 refine_kernel(seg, white_px, lens, step, reach, 0.0, min_points, refine_step, res)
                 if res[0] == 0:
                     continue
-                f0x, f0y = _floor_point(m, height, pos, res[1], res[2])
-                f1x, f1y = _floor_point(m, height, pos, res[3], res[4])
+                f0x, f0y = floor_at(m, height, pos, True, res[1], res[2])
+                f1x, f1y = floor_at(m, height, pos, True, res[3], res[4])
                 dx, dy = f1x - f0x, f1y - f0y
                 ls = math.hypot(dx, dy)
                 if not np.isfinite(ls) or ls < min_length or abs(dx * ax + dy * ay) / ls \
@@ -1067,9 +1067,10 @@ IMAGE_REASONS = ("", "", "", "outside the lens model", "at the field boundary",
 
 
 @njit(cache=True, nogil=True)
-def _floor_at(m, height, pos, shifted, x, y):
-    """perspective.FloorProjection at one ideal pixel (its _to_floor, operation by
-    operation)."""
+def floor_at(m, height, pos, shifted, x, y):
+    """perspective.FloorProjection at one ideal pixel (x, y): its ray m (x, y, 1) cut with the
+    floor ``height`` below the lens (NaN unless the ray points down), plus the lens's
+    position ``pos`` over the floor if ``shifted`` (perspective._to_floor per pixel)."""
     rx = x * m[0, 0] + y * m[0, 1] + m[0, 2]
     ry = x * m[1, 0] + y * m[1, 1] + m[1, 2]
     down = x * m[2, 0] + y * m[2, 1] + m[2, 2]
@@ -1083,8 +1084,9 @@ def _floor_at(m, height, pos, shifted, x, y):
 
 @njit(cache=True, nogil=True)
 def _to_edge(x0, x1, ux, uy, w, h, margin):
-    """_in_image of one direction: the distance (ideal px) from (x0, x1) along (ux, uy) to
-    ``margin`` px inside the image's edge, at least 0."""
+    """The distance (ideal px) from (x0, x1) along (ux, uy) to ``margin`` px inside the
+    image's edge, at least 0 (in ideal pixels: the lens's distortion is small at the edges of
+    the views this is used for)."""
     t = np.inf
     for d, lo, hi in ((ux, margin - x0, (w - 1 - margin) - x0),
                       (uy, margin - x1, (h - 1 - margin) - x1)):
@@ -1109,17 +1111,17 @@ def _floor_checks(x, dirs, reach, lengths, has_lengths, use_white, white_px, len
     cell = p[P_CELL]
     step = p[P_ARM_STEP] * cell
     x0, x1 = x[0], x[1]
-    f0x, f0y = _floor_at(m, height, pos, shifted, x0, x1)
+    f0x, f0y = floor_at(m, height, pos, shifted, x0, x1)
     if not (np.isfinite(f0x) and np.isfinite(f0y)):
         return 1
     angles_at[0, 0], angles_at[0, 1] = f0x, f0y
     for k in range(n):
-        fx, fy = _floor_at(m, height, pos, shifted, x0 + step * dirs[k, 0],
+        fx, fy = floor_at(m, height, pos, shifted, x0 + step * dirs[k, 0],
                            x1 + step * dirs[k, 1])
         if not (np.isfinite(fx) and np.isfinite(fy)):
             return 1
         angles_at[1 + k, 0], angles_at[1 + k, 1] = fx - f0x, fy - f0y
-    bx, by = _floor_at(m, height, pos, shifted, x0 + 0.0, x1 + cell)
+    bx, by = floor_at(m, height, pos, shifted, x0 + 0.0, x1 + cell)
     span = np.hypot(bx - f0x, by - f0y)  # the cell below
     if not np.isfinite(span):
         span = np.inf
@@ -1128,7 +1130,7 @@ def _floor_checks(x, dirs, reach, lengths, has_lengths, use_white, white_px, len
         arm_m = np.empty(n)
         short = False
         for k in range(n):
-            ex, ey = _floor_at(m, height, pos, shifted, x0 + lengths[k] * dirs[k, 0],
+            ex, ey = floor_at(m, height, pos, shifted, x0 + lengths[k] * dirs[k, 0],
                                x1 + lengths[k] * dirs[k, 1])
             arm_m[k] = np.hypot(ex - f0x, ey - f0y)  # NaN beyond the horizon: long enough
             short = short or arm_m[k] < min_length
@@ -1149,7 +1151,7 @@ def _floor_checks(x, dirs, reach, lengths, has_lengths, use_white, white_px, len
                         lengths[k] = t
                     if lengths[k] >= _to_edge(x0, x1, ux, uy, w, h, p[P_REFINE_STEP]):
                         lengths[k] = np.inf  # white up to the image's edge
-                ex, ey = _floor_at(m, height, pos, shifted, x0 + lengths[k] * ux,
+                ex, ey = floor_at(m, height, pos, shifted, x0 + lengths[k] * ux,
                                    x1 + lengths[k] * uy)
                 arm_m[k] = np.hypot(ex - f0x, ey - f0y)
                 r = min(far, lengths[k]) if not np.isnan(lengths[k]) else lengths[k]
@@ -1337,8 +1339,8 @@ def _arm_state(x0, x1, ux, uy, arms, white_px, green, other_mean, top, lens, m, 
                height, pos, w, h, cell, line_width, tolerance, max_reach, fine_px,
                min_length, refine_step, ratio_lo, ratio_hi, t_green):
     """arm_state, compiled: 0 unknown, 1 white, 2 green."""
-    f0x, f0y = _floor_point(m, height, pos, x0, x1)
-    f1x, f1y = _floor_point(m, height, pos, x0 + 4.0 * ux, x1 + 4.0 * uy)
+    f0x, f0y = floor_at(m, height, pos, True, x0, x1)
+    f1x, f1y = floor_at(m, height, pos, True, x0 + 4.0 * ux, x1 + 4.0 * uy)
     scale = math.hypot(f1x - f0x, f1y - f0y) / 4.0  # m of floor per px along u
     if not np.isfinite(scale) or scale <= 0:
         return 0
@@ -1346,14 +1348,7 @@ def _arm_state(x0, x1, ux, uy, arms, white_px, green, other_mean, top, lens, m, 
                                        line_width, tolerance, max_reach)
     need = start + max(fine_px, (min_length - line_width) / scale)
     step = min(max(line_width / scale, 1.0), refine_step)
-    # the distance to ``step`` px inside the image's edge (as _in_image)
-    edge = np.inf
-    for c, d, hi in ((x0, ux, w - 1 - step), (x1, uy, h - 1 - step)):
-        if d > 1e-12:
-            edge = min(edge, (hi - c) / d)
-        elif d < -1e-12:
-            edge = min(edge, (step - c) / d)
-    edge = max(edge, 0.0)
+    edge = _to_edge(x0, x1, ux, uy, w, h, step)  # to ``step`` px inside the image's edge
     sx, sy = x0 + start * ux, x1 + start * uy
     gx, gy = grow_kernel(white_px, lens, sx, sy, ux, uy, step, reach, need, tolerance)
     t = (gx - x0) * ux + (gy - x1) * uy
@@ -1399,18 +1394,6 @@ def _arm_state(x0, x1, ux, uy, arms, white_px, green, other_mean, top, lens, m, 
 
 
 @njit(cache=True, nogil=True)
-def _floor_point(m, height, pos, x, y):
-    """perspective.FloorProjection at one ideal pixel."""
-    rx = x * m[0, 0] + y * m[0, 1] + m[0, 2]
-    ry = x * m[1, 0] + y * m[1, 1] + m[1, 2]
-    down = x * m[2, 0] + y * m[2, 1] + m[2, 2]
-    if down >= -1e-9:
-        return np.nan, np.nan
-    t = height / -down
-    return rx * t + pos[0], ry * t + pos[1]
-
-
-@njit(cache=True, nogil=True)
 def _ideal_point(m_inv, height, pos, fx, fy):
     """perspective.FloorProjection.to_ideal at one floor point."""
     px, py, pz = fx - pos[0], fy - pos[1], -height
@@ -1424,8 +1407,8 @@ def _ideal_point(m_inv, height, pos, fx, fy):
 
 @njit(cache=True, nogil=True)
 def _px_width(m, m_inv, height, pos, px, py, ux, uy, line_width):
-    f0x, f0y = _floor_point(m, height, pos, px, py)
-    f1x, f1y = _floor_point(m, height, pos, px + ux, py + uy)
+    f0x, f0y = floor_at(m, height, pos, True, px, py)
+    f1x, f1y = floor_at(m, height, pos, True, px + ux, py + uy)
     ax, ay = f1x - f0x, f1y - f0y
     na = math.hypot(ax, ay)
     if not np.isfinite(na) or na <= 0:

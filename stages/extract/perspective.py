@@ -31,7 +31,7 @@ from numba import njit
 from ..common import colour
 from ..common.errors import DatasetError
 from ..common.geometry import polar
-from .crossings import find_crossings
+from .crossings import find_crossings, floor_at
 from .exact_ops import fused_multiply_add, remap_at
 from .field_boundary import DEFAULT_WEIGHTS, boundary_polyline, field_boundary
 from .goal_posts import goal_posts, is_post_bar
@@ -349,14 +349,7 @@ def _to_floor(p, m, height, position, shifted, out):
     cut with the floor ``height`` below the lens (NaN unless the ray points down), plus the
     lens's ``position`` over the floor if ``shifted``."""
     for i in range(p.shape[0]):
-        rx = p[i, 0] * m[0, 0] + p[i, 1] * m[0, 1] + m[0, 2]
-        ry = p[i, 0] * m[1, 0] + p[i, 1] * m[1, 1] + m[1, 2]
-        down = p[i, 0] * m[2, 0] + p[i, 1] * m[2, 1] + m[2, 2]
-        t = height / -down if down < -1e-9 else np.nan
-        out[i, 0], out[i, 1] = rx * t, ry * t
-        if shifted:
-            out[i, 0] += position[0]
-            out[i, 1] += position[1]
+        out[i, 0], out[i, 1] = floor_at(m, height, position, shifted, p[i, 0], p[i, 1])
 
 
 def ideal_to_floor(camera, ideal, pitch=None, roll=None) -> np.ndarray:
