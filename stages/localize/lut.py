@@ -673,9 +673,9 @@ class LutLocaliser:
             return min(bounds)
         return _median([search.tracked_score(*a, **kw) for a in args])
 
-    def _null_copy(self, obs) -> Observation:
-        """The next random-bearing copy of the observations (the permutations are drawn
-        once from the seeded generator and used in turn)."""
+    def _null_perm(self) -> np.ndarray:
+        """The next shuffle of the scan lines (3, n_angles) for a null copy (the permutations
+        are drawn once from the seeded generator and used in turn)."""
         n = self.search.n_angles
         if not hasattr(self, "_perms"):
             self._perms = np.stack([np.stack([self.rng.permutation(n) for _ in range(3)])
@@ -683,8 +683,11 @@ class LutLocaliser:
             self._next_perm = 0
         perm = self._perms[self._next_perm % len(self._perms)]
         self._next_perm += 1
-        self._null_perm = perm
-        return obs.random_bearings(perm)
+        return perm
+
+    def _null_copy(self, obs) -> Observation:
+        """The next random-bearing copy of the observations (_null_perm)."""
+        return obs.random_bearings(self._null_perm())
 
     def _global_null(self, obs, headings) -> float:
         """The null of a global search: evidence / T of the median over ``null_copies``
@@ -695,10 +698,11 @@ class LutLocaliser:
         unknown = max(2, conf["unknown_heading_candidates"] // 4)
         out = []
         for _ in range(int(conf["null_copies"])):
-            nobs = self._null_copy(obs)
+            perm = self._null_perm()
+            nobs = obs.random_bearings(perm)
             if by_points:  # searched and weighed as the frame's candidates are
                 pts = (nobs.points(search.scanlines) if self._line_points() is self._points
-                       else random_bearing_points(self._line_points(), self._null_perm[0],
+                       else random_bearing_points(self._line_points(), perm[0],
                                                   search.scanlines.angle_step))
                 out.append(min(self._point_evidence(f, nobs, pts,
                                                     heading_fixed=self._global_fixed)
