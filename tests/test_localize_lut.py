@@ -695,3 +695,20 @@ def test_rendered_frames_with_a_cable_near_the_robot_are_localised(msl2015_map, 
 
 def search_field(map_path):
     return MapFile(map_path).field
+
+
+def test_random_bearing_points_turn_with_their_scan_lines():
+    """A null copy's points move with their nearest radial line to where the shuffle sends
+    it, keeping their range and their offset from the line."""
+    from stages.localize.lut_search import random_bearing_points
+
+    step = 2 * math.pi / 72
+    perm = np.roll(np.arange(72), 5)  # line k goes to line k - 5 (mod 72)
+    bearings = np.array([0.0, 10 * step + 0.01, 71 * step - 0.02])
+    ranges = np.array([1.0, 2.5, 3.2])
+    pts = np.stack([ranges * np.cos(bearings), ranges * np.sin(bearings)], axis=1)
+    out = random_bearing_points(pts, perm, step)
+    assert np.allclose(np.hypot(out[:, 0], out[:, 1]), ranges)
+    lines = np.array([0, 10, 71])
+    expect = bearings + (perm[lines] - lines) * step
+    assert np.allclose(wrap_angle(np.arctan2(out[:, 1], out[:, 0]) - expect), 0.0, atol=1e-12)
