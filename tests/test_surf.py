@@ -53,6 +53,21 @@ def gaussian_blob(n: int, centre, sigma: float, contrast: float, background: flo
                                           / (2 * sigma ** 2))
 
 
+def strongest_dark_blob(sigma: float, conf: dict):
+    """(the strongest keypoint, the image) of a dark Gaussian blob of ``sigma`` at (150.4,
+    149.8) in a 301 px image, checked: found at its centre, its Laplacian positive (dark
+    blob), its det(H) as ``blob_det`` says, and described."""
+    centre = (150.4, 149.8)
+    img = gaussian_blob(301, centre, sigma, -0.4)
+    kp, desc = surf.detect_and_describe(img, None, conf)
+    assert len(kp) >= 1 and desc.shape == (len(kp), 64)
+    best = kp[0]
+    assert np.hypot(best[0] - centre[0], best[1] - centre[1]) < 0.1 * sigma + 0.2
+    assert best[surf.LAPLACIAN] == 1.0  # dark blob: positive trace
+    assert best[surf.RESPONSE] == pytest.approx(surf.blob_det(0.4), rel=0.15)
+    return best, img
+
+
 def test_box_responses_equal_a_direct_convolution():
     rng = np.random.default_rng(3)
     img = gaussian_blob(160, (71.3, 83.6), 6.0, -0.3) + 0.05 * rng.standard_normal((160, 160))
@@ -105,14 +120,7 @@ def test_a_blob_is_detected_at_its_matching_scale():
     assert -f.min() == pytest.approx(surf.BLOB_RESPONSE, rel=1e-3)
     ratios = []
     for sigma in (2.5, 3.2, 4.0, 5.0, 8.0, 10.0, 13.0):
-        centre = (150.4, 149.8)
-        img = gaussian_blob(301, centre, sigma, -0.4)
-        kp, desc = surf.detect_and_describe(img, None, BAY)
-        assert len(kp) >= 1 and desc.shape == (len(kp), 64)
-        best = kp[0]
-        assert np.hypot(best[0] - centre[0], best[1] - centre[1]) < 0.1 * sigma + 0.2
-        assert best[surf.LAPLACIAN] == 1.0  # dark blob: positive trace
-        assert best[surf.RESPONSE] == pytest.approx(surf.blob_det(0.4), rel=0.15)
+        best, _ = strongest_dark_blob(sigma, BAY)
         ratios.append(best[surf.SCALE] / sigma)
     ratios = np.array(ratios)
     assert np.all((ratios > 0.4 * u_best) & (ratios < 0.5 * u_best + 0.02))  # 0.67 .. 0.86
@@ -328,14 +336,7 @@ def test_geometric_layers_give_every_blob_the_same_scale_per_sigma():
     want = 1.2 * surf.BLOB_SIZE / 9
     ratios, linear = [], []
     for sigma in np.geomspace(3.0, 14.0, 15):
-        centre = (150.4, 149.8)
-        img = gaussian_blob(301, centre, sigma, -0.4)
-        kp, desc = surf.detect_and_describe(img, None, conf)
-        assert len(kp) >= 1 and desc.shape == (len(kp), 64)
-        best = kp[0]
-        assert np.hypot(best[0] - centre[0], best[1] - centre[1]) < 0.1 * sigma + 0.2
-        assert best[surf.RESPONSE] == pytest.approx(surf.blob_det(0.4), rel=0.15)
-        assert best[surf.LAPLACIAN] == 1.0
+        best, img = strongest_dark_blob(sigma, conf)
         ratios.append(best[surf.SCALE] / sigma)
         plain = surf.detect_and_describe(img, None, GAUSSIAN_BAY)[0]
         linear.append(plain[0, surf.SCALE] / sigma if len(plain) else np.nan)
