@@ -287,6 +287,20 @@ def test_float32_sums_and_medians_are_numpys(n):
             y8[near].astype(np.float32), 1.0)))
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_radix_median_is_numpys_with_ties(seed):
+    # colour statistics of 8-bit pixels take few distinct values: ties across the middle,
+    # even and odd counts, zeros, one value only, and values spanning many binades
+    rng = np.random.default_rng(seed)
+    for n in (1, 2, 3, 4, 10, 11, 257, 6000, 6001):
+        for a in ((rng.integers(0, 5, n) / 7.0).astype(np.float32),
+                  np.full(n, np.float32(0.3)),
+                  np.abs(rng.normal(size=n) * 10.0 ** rng.integers(-6, 6, n)).astype(np.float32),
+                  np.where(rng.random(n) < 0.5, 0.0, rng.random(n)).astype(np.float32)):
+            padded = np.concatenate([a, rng.random(3).astype(np.float32)])  # only a[:m] counts
+            assert colour._median32(padded, n) == float(np.median(a))
+
+
 def _reference_point_along(pos, chain, reach):
     """crossings.point_along as Python computed it (np.hypot steps, arcs summed in order,
     bisect)."""
