@@ -264,9 +264,10 @@ def test_goal_area_crossings_are_found_and_typed(figures):
 
 def test_few_false_lines(figures):
     """Extracted lines farther than 30 cm from every labelled line and every line of the SPL
-    field placed at the labelled goal area: a share the issue asks to report (0.10 of the
-    used lines; goal posts, robots and balls, the hall's own floor markings near the field
-    edge, and the labels' goal-area placement off by the camera matrices' few degrees)."""
+    field placed at the labelled goal area: a share the issue asks to report (0.08 of the
+    used lines, 0.10 before the field's edge against a bright hall floor was told from a
+    line; goal posts, robots and balls, the hall's own floor markings near the field edge,
+    and the labels' goal-area placement off by the camera matrices' few degrees)."""
     assert figures["used lines"] >= 400
     assert figures["false share (used lines)"] <= 0.15, figures
 

@@ -169,6 +169,42 @@ def test_goal_post_in_front_of_its_net_is_a_post_not_a_line():
     assert abs(bearing - math.atan2(foot[1], foot[0])) < 0.03
 
 
+@pytest.mark.parametrize("carpet_x", [2.2, 2.6])
+def test_the_carpets_edge_against_a_bright_floor_is_not_a_used_line(carpet_x):
+    """The carpet ends ``carpet_x`` m ahead at a light grey hall floor: its edge is white
+    against green as a line is, but no carpet lies beyond it (green_beyond), so only the
+    painted line at 1.5 m is used; without the check the edge is used as a line too."""
+    fl = _floor_of_pixels()
+    img = draw_scene([[[1.5, -2.0], [1.5, 2.0]]], carpet_x=carpet_x).astype(np.float32)
+    floor = np.isfinite(fl[..., 0]) & ((fl[..., 0] > carpet_x) | (np.abs(fl[..., 1]) > 4.0))
+    img[floor] = (200, 200, 205)
+    img = np.clip(img + np.random.default_rng(1).normal(0.0, 4.0, img.shape), 0, 255)
+    img = img.astype(np.uint8)
+    used = [ln[0] for ln, _ in _used_lines(perspective.extract_frame(img, CAM, CONF))]
+    assert len(used) == 1 and abs(used[0] - 1.5) < 0.05, used
+    unchecked = {**CONF, "lines": {**CONF["lines"], "min_green_beyond": 0.0}}
+    used = [ln[0] for ln, _ in _used_lines(perspective.extract_frame(img, CAM, unchecked))]
+    assert any(abs(d - carpet_x) < 0.2 for d in used), used
+
+
+def test_green_beyond_looks_across_the_line_away_from_the_robot():
+    """A grid green only nearer than 2 m (lens without distortion, no pitch): a segment at
+    1.5 m has green 0.15 m beyond it, one at 1.95 m does not, and one out of view gives NaN."""
+    cam = CAM
+    to_floor = perspective.FloorProjection(cam)
+    cell = int(CONF["cell"])
+    w, h = cam.image_size
+    vv, uu = np.mgrid[0:h // cell, 0:w // cell]
+    px = np.stack([(uu + 0.5) * cell - 0.5, (vv + 0.5) * cell - 0.5], -1).reshape(-1, 2)
+    fl = cam.pixel_to_floor(px).reshape(h // cell, w // cell, 2)
+    green = (np.isfinite(fl[..., 0]) & (fl[..., 0] < 2.0)).astype(np.float32)
+    segs = np.array([[[1.5, -0.3], [1.5, 0.3]], [[1.95, 0.3], [1.95, -0.3]],
+                     [[-1.0, -0.3], [-1.0, 0.3]]])
+    share = perspective.green_beyond(segs, to_floor, line_fit.lens_parameters(cam), green,
+                                     cell, 0.15)
+    assert share[0] == 1.0 and share[1] == 0.0 and np.isnan(share[2]), share
+
+
 def test_result_has_the_schema_datasets_and_overlay_draws_them():
     segments, *_ = DRAWN["T"]
     img = draw_scene(segments)
