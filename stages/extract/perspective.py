@@ -38,6 +38,7 @@ from .goal_posts import goal_posts, is_post_bar
 from .line_fit import (
     RefinedLine,
     distort_ideal,
+    distort_point,
     floor_line_parameters,
     floor_lines_parameters,
     lens_parameters,
@@ -634,28 +635,49 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
 def green_beyond(ends_floor: np.ndarray, to_floor: FloorProjection, lens: np.ndarray,
                  green: np.ndarray, cell: int, offset: float, samples: int = 9) -> np.ndarray:
     """Per floor segment (L, 2, 2 m, robot frame): the mean green share (0..1) of the cells
-    at ``samples`` points along it moved ``offset`` m across it, away from the robot, through
-    the lens (``lens_parameters``) onto the grid ``green`` (cells of ``cell`` px). NaN where
-    none of those points is in the image. A painted line has carpet beyond it; the field's
-    edge against a bright hall floor does not."""
-    e = np.asarray(ends_floor, float).reshape(-1, 2, 2)
-    if not len(e):
-        return np.zeros(0)
-    d = e[:, 1] - e[:, 0]
-    n = np.stack([-d[:, 1], d[:, 0]], axis=1) / np.maximum(np.hypot(d[:, 0], d[:, 1]),
-                                                           1e-9)[:, None]
-    n *= np.where(np.einsum("ij,ij->i", n, e.mean(axis=1)) < 0.0, -1.0, 1.0)[:, None]
-    t = np.linspace(0.05, 0.95, samples)[None, :, None]
-    pts = e[:, :1] * (1.0 - t) + e[:, 1:] * t + offset * n[:, None, :]
-    px = distort_ideal(lens, to_floor.to_ideal(pts.reshape(-1, 2)))
-    with np.errstate(invalid="ignore"):
-        r, c = np.floor(px[:, 1] / cell), np.floor(px[:, 0] / cell)
-        inside = (r >= 0) & (r < green.shape[0]) & (c >= 0) & (c < green.shape[1])
-    share = np.zeros(len(px))
-    share[inside] = green[r[inside].astype(np.int64), c[inside].astype(np.int64)]
-    counted = inside.reshape(-1, samples).sum(axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(counted > 0, share.reshape(-1, samples).sum(axis=1) / counted, np.nan)
+    at ``samples`` points along it (from 5 to 95 % of its length) moved ``offset`` m across
+    it, away from the robot, through the lens (``lens_parameters``) onto the grid ``green``
+    (cells of ``cell`` px); NaN where none of those points is in the image. A painted line
+    has carpet beyond it; the field's edge against a bright hall floor does not. One
+    compiled pass (``_green_beyond``)."""
+    e = np.ascontiguousarray(ends_floor, np.float64).reshape(-1, 2, 2)
+    out = np.empty(len(e))
+    _green_beyond(e, to_floor.m_inv, to_floor.height, to_floor.position, lens,
+                  np.ascontiguousarray(green, np.float32), int(cell), float(offset),
+                  int(samples), out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _green_beyond(ends, m_inv, height, position, lens, green, cell, offset, samples, out):
+    """green_beyond's kernel: per segment the sample points on the floor, each to ideal
+    pixels by ``m_inv`` (FloorProjection.to_ideal: behind the camera none), through the lens,
+    and the green share of the cell there averaged over the points inside the grid."""
+    hb, wb = green.shape
+    for k in range(ends.shape[0]):
+        x0, y0, x1, y1 = ends[k, 0, 0], ends[k, 0, 1], ends[k, 1, 0], ends[k, 1, 1]
+        dx, dy = x1 - x0, y1 - y0
+        norm = max(math.hypot(dx, dy), 1e-9)
+        nx, ny = -dy / norm, dx / norm
+        if nx * (x0 + x1) + ny * (y0 + y1) < 0.0:  # across, away from the robot
+            nx, ny = -nx, -ny
+        total, count = 0.0, 0
+        for s in range(samples):
+            t = 0.05 + 0.9 * s / max(samples - 1, 1)
+            px = x0 + t * dx + offset * nx - position[0]
+            py = y0 + t * dy + offset * ny - position[1]
+            hz = m_inv[2, 0] * px + m_inv[2, 1] * py - m_inv[2, 2] * height
+            if not hz > 1e-9:
+                continue
+            u, v = distort_point(lens, (m_inv[0, 0] * px + m_inv[0, 1] * py
+                                        - m_inv[0, 2] * height) / hz,
+                                 (m_inv[1, 0] * px + m_inv[1, 1] * py
+                                  - m_inv[1, 2] * height) / hz)
+            r, c = np.floor(v / cell), np.floor(u / cell)
+            if 0.0 <= r < hb and 0.0 <= c < wb:  # False for NaN
+                total += green[int(r), int(c)]
+                count += 1
+        out[k] = total / count if count else np.nan
 
 
 def _below_horizon_part(ends: np.ndarray, to_floor: FloorProjection, max_range: float,
