@@ -172,8 +172,9 @@ def test_goal_post_in_front_of_its_net_is_a_post_not_a_line():
 @pytest.mark.parametrize("carpet_x", [2.2, 2.6])
 def test_the_carpets_edge_against_a_bright_floor_is_not_a_used_line(carpet_x):
     """The carpet ends ``carpet_x`` m ahead at a light grey hall floor: its edge is white
-    against green as a line is, but no carpet lies beyond it (green_beyond), so only the
-    painted line at 1.5 m is used; without the check the edge is used as a line too."""
+    against green as a line is, but no carpet lies beyond it and the field boundary is at it
+    (field_edge), so only the painted line at 1.5 m is used; without the check the edge is
+    used as a line too."""
     fl = _floor_of_pixels()
     img = draw_scene([[[1.5, -2.0], [1.5, 2.0]]], carpet_x=carpet_x).astype(np.float32)
     floor = np.isfinite(fl[..., 0]) & ((fl[..., 0] > carpet_x) | (np.abs(fl[..., 1]) > 4.0))
@@ -182,14 +183,15 @@ def test_the_carpets_edge_against_a_bright_floor_is_not_a_used_line(carpet_x):
     img = img.astype(np.uint8)
     used = [ln[0] for ln, _ in _used_lines(perspective.extract_frame(img, CAM, CONF))]
     assert len(used) == 1 and abs(used[0] - 1.5) < 0.05, used
-    unchecked = {**CONF, "lines": {**CONF["lines"], "min_green_beyond": 0.0}}
+    unchecked = {**CONF, "lines": {**CONF["lines"], "min_green_beyond": 0.0}}  # no edge check
     used = [ln[0] for ln, _ in _used_lines(perspective.extract_frame(img, CAM, unchecked))]
     assert any(abs(d - carpet_x) < 0.2 for d in used), used
 
 
-def test_green_beyond_looks_across_the_line_away_from_the_robot():
-    """A grid green only nearer than 2 m (lens without distortion, no pitch): a segment at
-    1.5 m has green 0.15 m beyond it, one at 1.95 m does not, and one out of view gives NaN."""
+def test_field_edge_looks_across_the_line_away_from_the_robot():
+    """A grid green only nearer than 2 m (lens without distortion, no pitch) and the boundary
+    2 m away in every column: a segment at 1.5 m has green 0.15 m beyond it and the
+    boundary 0.5 m on, one at 1.95 m neither, and one behind the camera is out of view."""
     cam = CAM
     to_floor = perspective.FloorProjection(cam)
     cell = int(CONF["cell"])
@@ -200,9 +202,28 @@ def test_green_beyond_looks_across_the_line_away_from_the_robot():
     green = (np.isfinite(fl[..., 0]) & (fl[..., 0] < 2.0)).astype(np.float32)
     segs = np.array([[[1.5, -0.3], [1.5, 0.3]], [[1.95, 0.3], [1.95, -0.3]],
                      [[-1.0, -0.3], [-1.0, 0.3]]])
-    share = perspective.green_beyond(segs, to_floor, line_fit.lens_parameters(cam), green,
-                                     cell, 0.15)
+    boundary_range = np.full(w // cell, 2.0)
+    share, gap = perspective.field_edge(segs, to_floor, line_fit.lens_parameters(cam), green,
+                                        boundary_range, cell, 0.15)
     assert share[0] == 1.0 and share[1] == 0.0 and np.isnan(share[2]), share
+    # the gap is the boundary's range less the segment point's, along each column's ray
+    assert 0.45 < gap[0] < 0.5 and 0.0 < gap[1] < 0.05 and np.isnan(gap[2]), gap
+
+
+def test_a_line_in_a_sun_patch_with_field_beyond_stays_used():
+    """Carpet washed out to grey beyond a line (a sun patch from 1.55 to 2.5 m) fails the
+    green test there, but the field goes on past the patch: the line is no field edge."""
+    fl = _floor_of_pixels()
+    img = draw_scene([[[1.5, -2.0], [1.5, 2.0]]], carpet_x=4.0).astype(np.float32)
+    patch = np.isfinite(fl[..., 0]) & (fl[..., 0] > 1.55) & (fl[..., 0] < 2.5)
+    img[patch] = (110, 125, 110)  # grey-green: neither field green nor white
+    img = np.clip(img + np.random.default_rng(1).normal(0.0, 4.0, img.shape), 0, 255)
+    img = img.astype(np.uint8)
+    res = perspective.extract_frame(img, CAM, CONF)
+    assert any(abs(ln[0] - 1.5) < 0.05 for ln, _ in _used_lines(res)), res["lines"]
+    # by the green beyond it alone it would be the field's edge
+    green_only = {**CONF, "lines": {**CONF["lines"], "edge_gap_m": math.inf}}
+    assert not _used_lines(perspective.extract_frame(img, CAM, green_only))
 
 
 def test_result_has_the_schema_datasets_and_overlay_draws_them():

@@ -219,16 +219,19 @@ confs = {
             # floor positions: a seam or cable is thinner, a robot's leg or a post wider
             "line_width": 0.05,
             "width_ratio": [0.4, 2.5],
-            # a painted line lies on the carpet: the floor green_beyond_m beyond it (away
-            # from the robot) is field green. Where the cells there hold on average less
-            # green than min_green_beyond (the boundary's t_weak: never field), the line is
-            # the field's edge against a bright hall floor, and it is not used. On the HULKs
-            # frames that holds for 18 of the 60 false used lines and 6 of the 520 others;
-            # on rendered NAO frames for 89 of 167 and 8 of 410 (offsets 0.1-0.25 m alike).
-            # Carpet washed out to white by a sun patch fails it too: lines beyond which the
-            # carpet cannot be seen are not used (rendered NAO walks: median 2.9 -> 3.5 cm)
+            # the field's edge against a bright hall floor is white against green as a line
+            # is; it is no line where no carpet lies beyond it (the cells green_beyond_m
+            # across it, away from the robot, hold on average less green than
+            # min_green_beyond, the boundary's t_weak: never field) and the field boundary
+            # ends less than edge_gap_m beyond it (a line's carpet goes on beyond, the SPL's
+            # border strip 0.7 m past its outer lines; a sun patch washes the carpet beyond a
+            # line out of the green class, but the field goes on past the patch). On the
+            # HULKs frames this drops 14 of the 60 false used lines and 1 of the 520 others;
+            # green alone dropped 18 and 6, and on rendered NAO walks 59 of 264 true lines
+            # (7 with the boundary's gap)
             "green_beyond_m": 0.15,
             "min_green_beyond": 0.2,
+            "edge_gap_m": 1.0,
         },
     },
 }
@@ -488,9 +491,13 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
     node_px = grid_to_pixels(graph.pos, cell)
     ideal = undistort(node_px) if len(node_px) else node_px.reshape(-1, 2)
     other = counts["other"].astype(np.float32) / area
+    # the field boundary's floor range per column (inf where it is not on the floor)
+    with np.errstate(invalid="ignore"):
+        boundary_range = np.hypot(*to_floor(undistort(boundary)).T)
+    boundary_range[~np.isfinite(boundary_range)] = np.inf
     lines, line_ends, line_ends_px, bar_posts, bar_posts_px, lines_ideal, line_widths = \
         find_lines(graph, ideal, camera, to_floor, conf["lines"], top, white, cell, pc, trace,
-                   counts.get("white_px"), green)
+                   counts.get("white_px"), green, boundary_range)
     # 6b. goal post feet on the floor (before the crossings: a post's foot on a line is no
     # crossing)
     posts, posts_px = [], []
@@ -548,12 +555,12 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
 def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: dict,
                top: np.ndarray, white: np.ndarray, cell: int, pc: dict,
                trace: dict | None = None, white_px: np.ndarray | None = None,
-               green: np.ndarray | None = None):
+               green: np.ndarray | None = None, boundary_range: np.ndarray | None = None):
     """Section 4.2: split-and-merge lines on the undistorted node coordinates, end points
     projected on the fits, then onto the floor. A line is used for localisation (confidence
     > 0) when it is long enough, near enough, and (given the green share per cell,
-    ``green``) has carpet beyond it (``green_beyond``: the field's edge against a bright
-    floor is no line).
+    ``green``, and the floor range of the field boundary per column, ``boundary_range``) not
+    the field's edge (``field_edge``).
 
     A segment that is a vertical bar standing on the floor (``is_post_bar``) is no field line:
     it is returned as a goal post instead (the goal's net lets the field boundary climb behind
@@ -586,12 +593,14 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
     all_ranges = np.hypot(all_floor[..., 0], all_floor[..., 1])
     nearest = all_ranges.min(axis=1).tolist()
     on_floor = np.isfinite(all_floor).all(axis=(1, 2)).tolist()
-    beyond = (green_beyond(all_floor, to_floor, lens_parameters(camera), green, cell,
-                           lc["green_beyond_m"]) if green is not None
-              else np.full(len(segments), np.nan)).tolist()
+    beyond, gap = (field_edge(all_floor, to_floor, lens_parameters(camera), green,
+                              boundary_range, cell, lc["green_beyond_m"])
+                   if green is not None and boundary_range is not None
+                   else (np.full(len(segments), np.nan),) * 2)
+    edge = ((beyond < lc["min_green_beyond"]) & (gap < lc["edge_gap_m"])).tolist()  # NaN: no
     for seg, ref, e_px, e_floor, e_ideal, (dist, angle, length), ranges, near, finite, \
-            green_share in zip(segments, refined, all_px, all_floor, ends.reshape(-1, 2, 2),
-                               params, all_ranges, nearest, on_floor, beyond):
+            at_edge in zip(segments, refined, all_px, all_floor, ends.reshape(-1, 2, 2),
+                           params, all_ranges, nearest, on_floor, edge):
         if not finite:
             # reaching above the horizon: no field line, but maybe a post (its foot on the
             # floor, the part below the horizon runs away from the robot)
@@ -619,7 +628,7 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
         rms = seg.fit.rms if ref is None else ref.fit.rms
         used = length >= lc["min_length"] and dist <= lc["max_distance"] \
             and near <= lc["max_distance"] and len(seg.nodes) >= lc["min_used_nodes"] \
-            and not green_share < lc["min_green_beyond"]  # NaN (out of view): used
+            and not at_edge
         confidence = (min(1.0, len(seg.nodes) / lc["full_nodes"])
                       * max(0.0, 1.0 - rms / lc["split_distance"])) if used else 0.0
         lines.append([dist, angle, length, confidence])
@@ -632,28 +641,50 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
     return lines, ends_m, ends_px, posts, posts_px, ends_ideal, widths
 
 
-def green_beyond(ends_floor: np.ndarray, to_floor: FloorProjection, lens: np.ndarray,
-                 green: np.ndarray, cell: int, offset: float, samples: int = 9) -> np.ndarray:
-    """Per floor segment (L, 2, 2 m, robot frame): the mean green share (0..1) of the cells
-    at ``samples`` points along it (from 5 to 95 % of its length) moved ``offset`` m across
-    it, away from the robot, through the lens (``lens_parameters``) onto the grid ``green``
-    (cells of ``cell`` px); NaN where none of those points is in the image. A painted line
-    has carpet beyond it; the field's edge against a bright hall floor does not. One
-    compiled pass (``_green_beyond``)."""
+def field_edge(ends_floor: np.ndarray, to_floor: FloorProjection, lens: np.ndarray,
+               green: np.ndarray, boundary_range: np.ndarray, cell: int, offset: float,
+               samples: int = 9) -> tuple[np.ndarray, np.ndarray]:
+    """Per floor segment (L, 2, 2 m, robot frame), at ``samples`` points along it (from 5 to
+    95 % of its length) seen through the lens (``lens_parameters``) on the grid of cells of
+    ``cell`` px:
+
+    - the mean green share (``green``, per cell) at those points moved ``offset`` m across
+      it, away from the robot (NaN where none is in the image): a painted line has carpet
+      beyond it;
+    - the median gap (m) from the segment to the field boundary beyond it: the boundary's
+      floor range in each point's column (``boundary_range``, per column; inf where the
+      boundary is not on the floor) less the point's range (NaN where none is in the image).
+
+    The field's edge against a bright hall floor has neither carpet nor field beyond it. One
+    compiled pass (``_field_edge``)."""
     e = np.ascontiguousarray(ends_floor, np.float64).reshape(-1, 2, 2)
-    out = np.empty(len(e))
-    _green_beyond(e, to_floor.m_inv, to_floor.height, to_floor.position, lens,
-                  np.ascontiguousarray(green, np.float32), int(cell), float(offset),
-                  int(samples), out)
-    return out
+    share, gap = np.empty(len(e)), np.empty(len(e))
+    _field_edge(e, to_floor.m_inv, to_floor.height, to_floor.position, lens,
+                np.ascontiguousarray(green, np.float32),
+                np.ascontiguousarray(boundary_range, np.float64), int(cell), float(offset),
+                int(samples), share, gap)
+    return share, gap
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _cell_of(m_inv, height, position, lens, cell, x, y):
+    """The grid cell (row, column, as floats; NaN behind the camera) where the floor point
+    (x, y) m of the robot frame is seen: FloorProjection.to_ideal, then the lens."""
+    px, py = x - position[0], y - position[1]
+    hz = m_inv[2, 0] * px + m_inv[2, 1] * py - m_inv[2, 2] * height
+    if not hz > 1e-9:
+        return np.nan, np.nan
+    u, v = distort_point(lens, (m_inv[0, 0] * px + m_inv[0, 1] * py - m_inv[0, 2] * height) / hz,
+                         (m_inv[1, 0] * px + m_inv[1, 1] * py - m_inv[1, 2] * height) / hz)
+    return np.floor(v / cell), np.floor(u / cell)
 
 
 @njit(cache=True, nogil=True)
-def _green_beyond(ends, m_inv, height, position, lens, green, cell, offset, samples, out):
-    """green_beyond's kernel: per segment the sample points on the floor, each to ideal
-    pixels by ``m_inv`` (FloorProjection.to_ideal: behind the camera none), through the lens,
-    and the green share of the cell there averaged over the points inside the grid."""
+def _field_edge(ends, m_inv, height, position, lens, green, boundary_range, cell, offset,
+                samples, share, gap):
+    """field_edge's kernel (see there)."""
     hb, wb = green.shape
+    gaps = np.empty(samples)
     for k in range(ends.shape[0]):
         x0, y0, x1, y1 = ends[k, 0, 0], ends[k, 0, 1], ends[k, 1, 0], ends[k, 1, 1]
         dx, dy = x1 - x0, y1 - y0
@@ -661,23 +692,21 @@ def _green_beyond(ends, m_inv, height, position, lens, green, cell, offset, samp
         nx, ny = -dy / norm, dx / norm
         if nx * (x0 + x1) + ny * (y0 + y1) < 0.0:  # across, away from the robot
             nx, ny = -nx, -ny
-        total, count = 0.0, 0
+        total, count, n_gap = 0.0, 0, 0
         for s in range(samples):
             t = 0.05 + 0.9 * s / max(samples - 1, 1)
-            px = x0 + t * dx + offset * nx - position[0]
-            py = y0 + t * dy + offset * ny - position[1]
-            hz = m_inv[2, 0] * px + m_inv[2, 1] * py - m_inv[2, 2] * height
-            if not hz > 1e-9:
-                continue
-            u, v = distort_point(lens, (m_inv[0, 0] * px + m_inv[0, 1] * py
-                                        - m_inv[0, 2] * height) / hz,
-                                 (m_inv[1, 0] * px + m_inv[1, 1] * py
-                                  - m_inv[1, 2] * height) / hz)
-            r, c = np.floor(v / cell), np.floor(u / cell)
+            x, y = x0 + t * dx, y0 + t * dy
+            r, c = _cell_of(m_inv, height, position, lens, cell, x + offset * nx,
+                            y + offset * ny)
             if 0.0 <= r < hb and 0.0 <= c < wb:  # False for NaN
                 total += green[int(r), int(c)]
                 count += 1
-        out[k] = total / count if count else np.nan
+            r, c = _cell_of(m_inv, height, position, lens, cell, x, y)
+            if 0.0 <= r < hb and 0.0 <= c < boundary_range.shape[0]:
+                gaps[n_gap] = boundary_range[int(c)] - math.hypot(x, y)
+                n_gap += 1
+        share[k] = total / count if count else np.nan
+        gap[k] = np.median(gaps[:n_gap]) if n_gap else np.nan
 
 
 def _below_horizon_part(ends: np.ndarray, to_floor: FloorProjection, max_range: float,
