@@ -52,7 +52,9 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - line_structure's ``_gap_candidates`` (fill_gaps) against its former Python loop, its
   ``_gap_grey`` (the gaps' grey level) against cv2.remap;
 - line_structure's ``_farthest_pairs`` (split_isolated_nodes) against np.argmax of the
-  regions' distance matrices.
+  regions' distance matrices;
+- the flat neighbour lists line_structure's kernels leave with a graph (``_short_spurs``,
+  ``_linked_lists``) against the graph's sets.
 """
 
 from __future__ import annotations
@@ -1083,6 +1085,40 @@ def test_remove_short_lines_equals_the_python_walks(seed):
     got = ls.remove_short_lines(graph, 2.5)
     assert [list(a) for a in got.adj] == [list(a) for a in ref.adj]
     assert sum(map(len, ref.adj)) < sum(map(len, graph.adj))  # some were removed
+
+
+def _same_lists(lists, adj):
+    """Flat neighbour lists (start, nbr) hold each node's neighbours of ``adj``."""
+    start, nbr = lists
+    assert start.dtype == nbr.dtype == np.int64 and len(start) == len(adj) + 1
+    assert start[-1] == len(nbr)
+    assert [sorted(nbr[start[i]:start[i + 1]].tolist()) for i in range(len(adj))] == \
+        [sorted(a) for a in adj]
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_kept_flat_lists_equal_the_sets(seed):
+    """The flat neighbour lists the kernels leave with a graph (``_short_spurs``' connections
+    left, ``_linked_lists``' gaps filled, ``node_links``) hold the graph's sets, as
+    _neighbour_lists would make them anew."""
+    rng = np.random.default_rng(seed)
+    graph = _random_graph(rng, 80)
+    for _ in range(12):
+        j, a = int(rng.integers(0, 80)), int(rng.integers(0, 80))
+        if a != j and len(graph.adj[a]) == 0:
+            graph.connect(a, j)
+    pruned = ls.remove_short_lines(graph, 2.5)
+    assert pruned.lists is not None
+    _same_lists(pruned.lists, pruned.adj)
+    _same_lists(graph.lists, graph.adj)
+    before = sum(map(len, graph.adj))
+    ls.fill_gaps(graph, rng.uniform(0.2, 1.0, (30, 40)).astype(np.float32), 6.0,
+                 math.cos(math.radians(30.0)), 0.25, 4.0)
+    assert sum(map(len, graph.adj)) > before and graph.lists is not None  # gaps were filled
+    _same_lists(graph.lists, graph.adj)
+    regions = np.zeros((30, 40), np.int32)
+    regions[rng.integers(0, 30, 300), rng.integers(0, 40, 300)] = rng.integers(1, 50, 300)
+    _same_lists(ls.node_links(regions, 49), ls.connect_nodes(regions, 49))
 
 
 def _reference_connect_nodes(regions, n):

@@ -165,7 +165,11 @@ class LineGraph:
     pix: np.ndarray  # (N, 2) int
     pos: np.ndarray  # (N, 2) float
     value: np.ndarray  # (N,) float
+    # changed in place only where the flat lists are dropped (connect, disconnect, add_node)
     adj: list[set] = field(default_factory=list)
+    # the connections as the kernels read them (neighbour_lists), while they hold
+    lists: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False,
+                                                         compare=False)
 
     def __len__(self):
         return len(self.pix)
@@ -177,25 +181,36 @@ class LineGraph:
         e = [(i, j) for i, a in enumerate(self.adj) for j in a if i < j]
         return np.array(e, dtype=int).reshape(-1, 2)
 
+    def neighbour_lists(self) -> tuple[np.ndarray, np.ndarray]:
+        """The connections as flat arrays for the kernels (``_neighbour_lists``: node i's
+        neighbours are ``nbr[start[i]:start[i + 1]]``, in no particular order), made once
+        while the connections stay as they are (the kernels only read them)."""
+        if self.lists is None:
+            self.lists = _neighbour_lists(self.adj)
+        return self.lists
+
     def connect(self, i: int, j: int):
         if i != j:
             self.adj[i].add(j)
             self.adj[j].add(i)
+            self.lists = None
 
     def disconnect(self, i: int, j: int):
         self.adj[i].discard(j)
         self.adj[j].discard(i)
+        self.lists = None
 
     def add_node(self, pix, pos, value) -> int:
         self.pix = np.vstack([self.pix, np.asarray(pix, int)[None]])
         self.pos = np.vstack([self.pos, np.asarray(pos, float)[None]])
         self.value = np.append(self.value, value)
         self.adj.append(set())
+        self.lists = None
         return len(self.pix) - 1
 
     def copy(self) -> LineGraph:
         return LineGraph(self.pix.copy(), self.pos.copy(), self.value.copy(),
-                         [set(a) for a in self.adj])
+                         [set(a) for a in self.adj], self.lists)
 
 
 def place_nodes(image: np.ndarray, skeleton: np.ndarray, c: np.ndarray,
@@ -333,9 +348,19 @@ def connect_nodes(regions: np.ndarray, n: int) -> list[set]:
     nodes are connected when skeleton pixels of their regions are 8-neighbours. Each node's
     set is filled in ascending order of its neighbours (``_region_links``), the order in
     which adding the connections one by one, by (lower, higher) node, fills it."""
-    start, nbrs = _region_links(np.ascontiguousarray(regions, np.int32), int(n))
-    b, nb = start.tolist(), nbrs.tolist()
-    return [set(nb[b[k]:b[k + 1]]) for k in range(n)]
+    return _adjacency(*node_links(regions, n))
+
+
+def node_links(regions: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """connect_nodes' connections as the flat lists of LineGraph.neighbour_lists (each
+    node's neighbours ascending; compiled: ``_region_links``)."""
+    return _region_links(np.ascontiguousarray(regions, np.int32), int(n))
+
+
+def _adjacency(start: np.ndarray, nbr: np.ndarray) -> list[set]:
+    """Flat neighbour lists as LineGraph's sets, each filled in the lists' order."""
+    b, nb = start.tolist(), nbr.tolist()
+    return [set(nb[b[k]:b[k + 1]]) for k in range(len(b) - 1)]
 
 
 @njit("Tuple((int64[::1], int64[::1]))(int32[:, ::1], int64)", cache=True, nogil=True)
@@ -378,7 +403,7 @@ def remove_triangles(graph: LineGraph):
     n = len(graph)
     if n < 3:
         return
-    start, nbr = _neighbour_lists(graph.adj)
+    start, nbr = graph.neighbour_lists()
     cuts = _triangle_cuts(start, nbr, np.ascontiguousarray(graph.pos, np.float64))
     for a, b in cuts.tolist():
         graph.disconnect(a, b)
@@ -571,10 +596,10 @@ def fill_gaps(graph: LineGraph, image: np.ndarray, max_gap: float, min_cos: floa
     corner whose tip the skeleton misses), closure (short gaps first) and simplicity (the
     grey level along the gap is at least ``min_grey_ratio`` of the nodes'; no node above degree
     ``max_degree``; no connection to a node already three steps away). Accepted greedily by
-    score (in place)."""
+    score (in place; the graph's flat lists are extended by them, ``_linked_lists``)."""
     if len(graph) < 2:
         return
-    start, nbr = _neighbour_lists(graph.adj)
+    start, nbr = graph.neighbour_lists()
     deg = np.diff(start)
     loose = np.nonzero(deg <= 1)[0]
     if len(loose) == 0:
@@ -596,6 +621,38 @@ def fill_gaps(graph: LineGraph, image: np.ndarray, max_gap: float, min_cos: floa
                     float(min_grey_ratio), start, nbr, int(max_degree), accepted)
     for i, j in accepted[:n].tolist():
         graph.connect(i, j)
+    if n:
+        lists = np.empty_like(start), np.empty(len(nbr) + 2 * n, np.int64)
+        _linked_lists(start, nbr, accepted[:n], *lists)
+        graph.lists = lists
+
+
+@njit(cache=True, nogil=True)
+def _linked_lists(start, nbr, pairs, new_start, new_nbr):
+    """Flat neighbour lists (LineGraph.neighbour_lists' form) with the connections ``pairs``
+    (i, j) added both ways, into ``new_start``, ``new_nbr`` (each node's old neighbours,
+    then its new ones)."""
+    n = len(start) - 1
+    extra = np.zeros(n, np.int64)
+    for p in range(pairs.shape[0]):
+        extra[pairs[p, 0]] += 1
+        extra[pairs[p, 1]] += 1
+    new_start[0] = 0
+    for i in range(n):
+        new_start[i + 1] = new_start[i] + start[i + 1] - start[i] + extra[i]
+    fill = np.empty(n, np.int64)
+    for i in range(n):
+        k = new_start[i]
+        for q in range(start[i], start[i + 1]):
+            new_nbr[k] = nbr[q]
+            k += 1
+        fill[i] = k
+    for p in range(pairs.shape[0]):
+        i, j = pairs[p, 0], pairs[p, 1]
+        new_nbr[fill[i]] = j
+        fill[i] += 1
+        new_nbr[fill[j]] = i
+        fill[j] += 1
 
 
 @njit(cache=True, nogil=True)
@@ -804,9 +861,9 @@ def line_structure_graph(white_lp: np.ndarray, conf: dict, ranked=None
     else:
         key, skeleton, c = ranked
     pix, regions = place_nodes(white_lp, skeleton, c, key)
-    adj = connect_nodes(regions, len(pix))
+    links = node_links(regions, len(pix))
     graph = LineGraph(pix, pix.astype(np.float64), white_lp[pix[:, 1], pix[:, 0]]
-                      if len(pix) else np.zeros(0), adj)
+                      if len(pix) else np.zeros(0), _adjacency(*links), links)
     if len(pix) == 0:
         return graph, skeleton, regions
     graph.pos = subpixel_positions(white_lp, graph.pix)
@@ -894,25 +951,30 @@ def remove_short_lines(graph: LineGraph, min_length: float) -> LineGraph:
     >= 3 shorter than ``min_length`` cells is removed (returns a new graph). The end nodes
     are walked in order, each on the graph as the earlier removals left it (compiled:
     ``_short_spurs``); the removed connections are then taken out of the copy's sets in the
-    same order."""
+    same order; the copy keeps the connections left as its flat lists."""
     g = graph.copy()
     if len(g) == 0:
         return g
-    start, nbr = _neighbour_lists(g.adj)
-    cut = _short_spurs(start, nbr, np.ascontiguousarray(g.pos, np.float64), float(min_length))
+    start, nbr = graph.neighbour_lists()
+    kept_start = np.empty_like(start)
+    kept_nbr = np.empty_like(nbr)
+    cut = _short_spurs(start, nbr, np.ascontiguousarray(g.pos, np.float64), float(min_length),
+                       kept_start, kept_nbr)
     for a, b in cut.tolist():
         g.disconnect(a, b)
+    g.lists = (kept_start, kept_nbr[:kept_start[-1]])
     return g
 
 
-@njit("int64[:, ::1](int64[::1], int64[::1], float64[:, ::1], float64)", cache=True,
-      nogil=True)
-def _short_spurs(start, nbr, pos, min_length):
+@njit("int64[:, ::1](int64[::1], int64[::1], float64[:, ::1], float64, int64[::1], int64[::1])",
+      cache=True, nogil=True)
+def _short_spurs(start, nbr, pos, min_length, kept_start, kept_nbr):
     """remove_short_lines' walks: from each end node (degree 1 at the start, in index order)
     along nodes of degree 2 to the first node of another degree; where that is a junction
     (degree >= 3) and the path is shorter than ``min_length`` (its steps' lengths summed as
     numpy sums them, block_sum), the path's connections are removed (here and from the
-    degrees the later walks see). Returns the removed connections (a, b) in order."""
+    degrees the later walks see). Returns the removed connections (a, b) in order; the
+    connections left go into ``kept_start``, ``kept_nbr`` as flat lists of the same form."""
     n = len(start) - 1
     alive = np.ones(len(nbr), np.bool_)
     deg = np.empty(n, np.int64)
@@ -964,6 +1026,14 @@ def _short_spurs(start, nbr, pos, min_length):
                     deg[b] -= 1
             cut[m, 0], cut[m, 1] = a, b
             m += 1
+    k = 0
+    for i in range(n):
+        kept_start[i] = k
+        for q in range(start[i], start[i + 1]):
+            if alive[q]:
+                kept_nbr[k] = nbr[q]
+                k += 1
+    kept_start[n] = k
     return cut[:m].copy()
 
 
@@ -974,7 +1044,7 @@ def trace_chains(graph: LineGraph) -> list[list[int]]:
     n = len(graph.adj)
     if n == 0:
         return []
-    start, nbr = _neighbour_lists(graph.adj)
+    start, nbr = graph.neighbour_lists()
     flat = np.empty(3 * (len(nbr) + n) + 4, np.int64)
     bounds = np.empty(len(nbr) + n + 2, np.int64)
     m = _trace(start, nbr, flat, bounds)
@@ -1051,7 +1121,7 @@ def smooth_lines(graph: LineGraph, iterations: int = 2) -> np.ndarray:
     pos = np.array(graph.pos, np.float64)  # a copy
     if len(pos) == 0:
         return pos
-    start, nbr = _neighbour_lists(graph.adj)
+    start, nbr = graph.neighbour_lists()
     _smooth_chains(pos, start, nbr, int(iterations))
     return pos
 
