@@ -13,7 +13,8 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
   ``_hue_turned`` and ``_hue_spread`` (the hue model's offsets and medians) against the numpy
   expressions they replaced, and
   ``pairwise_sum32`` against numpy's float32 sum;
-- line_fit's ``floor_lines_parameters`` (all lines at once) against floor_line_parameters,
+- line_fit's ``floor_lines_parameters`` (all lines at once, compiled: ``_perpendicular_feet``)
+  against floor_line_parameters,
   its ``row_dots`` against numpy's 1-D ``@`` (a dot of two 2-vectors is not the sum of
   their products to the bit);
 - line_fit's ``refine_segments`` (all segments refined in one call) against refine_segment;
