@@ -54,6 +54,8 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
   ``_gap_grey`` (the gaps' grey level) against cv2.remap;
 - line_structure's ``_farthest_pairs`` (split_isolated_nodes) against np.argmax of the
   regions' distance matrices;
+- field_boundary's ``_fill_bounded_runs`` (fill_lines) and ``_window_middles``
+  (smooth_field_heights' median) against the former numpy;
 - the flat neighbour lists line_structure's kernels leave with a graph (``_short_spurs``,
   ``_linked_lists``) against the graph's sets.
 """
@@ -424,6 +426,49 @@ def test_field_heights_and_their_smoothing_equal_the_numpy_scan():
                                                                size)
             np.testing.assert_array_equal(fb.smooth_field_heights(heights, 0.0, size),
                                           np.sort(windows, axis=1)[:, r])
+
+
+def _reference_bounded_runs(cand, bound, max_run):
+    """The runs of ``cand`` along each row, at most ``max_run`` long, bounded on both sides."""
+    out = np.zeros(cand.shape, bool)
+    for r in range(cand.shape[0]):
+        row = np.concatenate([[False], cand[r], [False]]).astype(int)
+        starts = np.nonzero(np.diff(row) == 1)[0]
+        ends = np.nonzero(np.diff(row) == -1)[0]
+        for s, e in zip(starts, ends):
+            if e - s <= max_run and s > 0 and e < cand.shape[1] and bound[r, s - 1] \
+                    and bound[r, e]:
+                out[r, s:e] = True
+    return out
+
+
+def test_fill_lines_and_the_smoothing_equal_the_former_numpy():
+    """field_boundary.fill_lines (``_fill_bounded_runs``: rows and columns in one pass) adds
+    the bounded white runs the former numpy added; smooth_field_heights (its Gaussian made
+    once, ``_window_middles``) gives the former convolution and sorted windows."""
+    from stages.extract import field_boundary as fb
+
+    rng = np.random.default_rng(8)
+    for _ in range(300):
+        h, w = int(rng.integers(1, 40)), int(rng.integers(1, 60))
+        field = rng.random((h, w)) < rng.random()
+        white = (rng.integers(0, 65, (h, w)) / 64.0).astype(np.float32)
+        for t_white, max_run in ((0.3, 10), (0.5, 2)):
+            cand = (white >= t_white) & ~field
+            ref = field | _reference_bounded_runs(cand, field, max_run) \
+                | _reference_bounded_runs(cand.T, field.T, max_run).T
+            np.testing.assert_array_equal(fb.fill_lines(field, white, t_white, max_run), ref)
+        heights = rng.integers(0, h + 1, w).astype(float)
+        for sigma, size in ((0.7, 5), (1.3, 3), (0.7, 1)):
+            r = max(1, int(np.ceil(3 * sigma)))
+            k = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
+            ref = np.convolve(np.pad(heights, r, mode="edge"), k / k.sum(), mode="valid")
+            if size > 1:
+                windows = np.lib.stride_tricks.sliding_window_view(
+                    np.pad(ref, size // 2, mode="edge"), size)
+                ref = np.sort(windows, axis=1)[:, size // 2]
+            got = fb.smooth_field_heights(heights, sigma, size)
+            assert got.dtype == ref.dtype and got.tobytes() == ref.tobytes()
 
 
 def test_bar_runs_equal_the_numpy_start_rows_and_walks():
