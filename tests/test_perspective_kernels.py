@@ -27,6 +27,8 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
   against the former cumulative-sum scan and sliding_window_view;
 - goal_posts' ``_white_runs`` (bar_runs, with the columns' first field rows) against numpy;
 - goal_posts' ``_opening`` (rise_above_surroundings) against cv2.morphologyEx;
+- goal_posts' ``_standing_bars`` (standing_bars) against the former numpy runs and
+  per-group checks;
 - goal_posts' ``stands_out`` and ``bar_width`` (slices, the compiled median) against their
   former fancy-indexed numpy;
 - crossings' ``_points_along`` (the candidates' arm points) against its former Python walk,
@@ -534,6 +536,36 @@ def test_post_bar_checks_equal_the_fancy_indexed_numpy():
             width = float(np.median(white[np.ix_(rows, cols)].sum(axis=1)) * cell) \
                 if len(rows) else 0.0
             assert gp.bar_width(white, group, start, rise, cell) == width
+
+
+def test_standing_bars_equal_the_former_groups_and_checks():
+    """goal_posts.standing_bars (``_standing_bars``) gives the groups the former numpy runs
+    (post_columns) and per-group stands_out kept, and their lifts."""
+    from stages.extract import goal_posts as gp
+
+    rng = np.random.default_rng(12)
+    found = 0
+    for _ in range(500):
+        w = int(rng.integers(1, 94))
+        white = (rng.random((60, w)) ** 3).astype(np.float32)
+        excess = rng.integers(-2, 8, w) * (rng.random(w) < 0.4)
+        base = rng.integers(0, 4, w)
+        start = rng.integers(0, 61, w)
+        for min_rise, max_width in ((3, 4), (1, 2)):
+            rising = np.concatenate([[0], (excess >= min_rise).astype(int), [0]])
+            edges = np.diff(rising)
+            groups = [np.arange(a, b) for a, b in zip(np.nonzero(edges == 1)[0],
+                                                      np.nonzero(edges == -1)[0])
+                      if b - a <= max_width]
+            lift = [int(base[g].max()) for g in groups]
+            keep = [k for k, g in enumerate(groups)
+                    if gp.stands_out(white, g, int(start[g].min()) - lift[k], 3, 0.2)]
+            got_groups, got_lift = gp.standing_bars(excess, base, start, white, 0.2, min_rise,
+                                                    max_width, 3)
+            assert [g.tolist() for g in got_groups] == [groups[k].tolist() for k in keep]
+            assert got_lift == [lift[k] for k in keep]
+            found += len(keep)
+    assert found > 100
 
 
 def test_key_incidence_equals_incident_per_node():
