@@ -59,7 +59,7 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - field_boundary's ``_fill_bounded_runs`` (fill_lines) and ``_window_middles``
   (smooth_field_heights' median) against the former numpy;
 - the flat neighbour lists line_structure's kernels leave with a graph (``_short_spurs``,
-  ``_linked_lists``) against the graph's sets.
+  ``_triangle_cuts``, ``_linked_lists``) against the graph's sets.
 """
 
 from __future__ import annotations
@@ -1176,9 +1176,9 @@ def _same_lists(lists, adj):
 
 @pytest.mark.parametrize("seed", range(6))
 def test_kept_flat_lists_equal_the_sets(seed):
-    """The flat neighbour lists the kernels leave with a graph (``_short_spurs``' connections
-    left, ``_linked_lists``' gaps filled, ``node_links``) hold the graph's sets, as
-    _neighbour_lists would make them anew."""
+    """The flat neighbour lists the kernels leave with a graph (``_short_spurs``' and
+    ``_triangle_cuts``' connections left, ``_linked_lists``' gaps filled and nodes split,
+    ``node_links``) hold the graph's sets, as _neighbour_lists would make them anew."""
     rng = np.random.default_rng(seed)
     graph = _random_graph(rng, 80)
     for _ in range(12):
@@ -1197,6 +1197,21 @@ def test_kept_flat_lists_equal_the_sets(seed):
     regions = np.zeros((30, 40), np.int32)
     regions[rng.integers(0, 30, 300), rng.integers(0, 40, 300)] = rng.integers(1, 50, 300)
     _same_lists(ls.node_links(regions, 49), ls.connect_nodes(regions, 49))
+    # the whole graph (triangles cut: ``_triangle_cuts``; isolated nodes split and gaps
+    # filled: ``_linked_lists``) on a white image of strokes and specks
+    white = np.zeros((40, 60), np.float32)
+    for _ in range(8):
+        (x0, y0), (x1, y1) = rng.uniform(0, [60, 40], (2, 2))
+        t = np.linspace(0, 1, 80)
+        white[np.round(y0 + t * (y1 - y0)).astype(int) % 40,
+              np.round(x0 + t * (x1 - x0)).astype(int) % 60] = 1.0
+    white[rng.integers(0, 40, 30), rng.integers(0, 60, 30)] = 0.5
+    _, lp, ranked = ls.skeleton_grid(white, np.zeros(60), 0, 0.04, True)
+    conf = {"min_white": 0.04, "max_gap": 6.0, "gap_max_angle": math.radians(30.0),
+            "gap_min_grey_ratio": 0.25, "close_gap": 4.0}
+    graph, _, _ = ls.line_structure_graph(lp, conf, ranked)
+    assert graph.lists is not None
+    _same_lists(graph.lists, graph.adj)
 
 
 def _reference_connect_nodes(regions, n):

@@ -404,17 +404,21 @@ def remove_triangles(graph: LineGraph):
     if n < 3:
         return
     start, nbr = graph.neighbour_lists()
-    cuts = _triangle_cuts(start, nbr, np.ascontiguousarray(graph.pos, np.float64))
+    kept = np.empty_like(start), np.empty_like(nbr)
+    cuts = _triangle_cuts(start, nbr, np.ascontiguousarray(graph.pos, np.float64), *kept)
     for a, b in cuts.tolist():
         graph.disconnect(a, b)
+    graph.lists = kept[0], kept[1][:kept[0][-1]]
 
 
-@njit("int64[:, ::1](int64[::1], int64[::1], float64[:, ::1])", cache=True, nogil=True)
-def _triangle_cuts(start, nbr, pos):
+@njit("int64[:, ::1](int64[::1], int64[::1], float64[:, ::1], int64[::1], int64[::1])",
+      cache=True, nogil=True)
+def _triangle_cuts(start, nbr, pos, kept_start, kept_nbr):
     """remove_triangles' walk: for i in order (of degree >= 2 then), for each neighbour j > i
     (sorted, as connected when i's turn came), for each common neighbour k > j (sorted, as
     connected when j's turn came), the longest side of (i, j), (j, k), (i, k) (np.hypot,
-    the first of equal ones) is cut. Returns the cuts (a, b) in order."""
+    the first of equal ones) is cut. Returns the cuts (a, b) in order; the connections left
+    go into ``kept_start``, ``kept_nbr`` (LineGraph.neighbour_lists' form)."""
     n = len(start) - 1
     linked = np.zeros((n, n), np.bool_)
     deg = np.zeros(n, np.int64)
@@ -463,6 +467,14 @@ def _triangle_cuts(start, nbr, pos):
                     cuts = more
                 cuts[m, 0], cuts[m, 1] = p, q
                 m += 1
+    k = 0
+    for i in range(n):
+        kept_start[i] = k
+        for j in range(n):
+            if linked[i, j]:
+                kept_nbr[k] = j
+                k += 1
+    kept_start[n] = k
     return cuts[:m].copy()
 
 
@@ -479,13 +491,12 @@ def stretch_lines(graph: LineGraph, regions: np.ndarray):
     """Move each end node (degree 1) to the last pixel of the skeleton: the pixel of its
     region farthest from its neighbour (the first in row-major order of equally far ones; in
     place)."""
-    deg = graph.degree()
-    ends = np.nonzero(deg == 1)[0]
+    start, nbr = graph.neighbour_lists()
+    ends = np.nonzero(np.diff(start) == 1)[0]
     if len(ends) == 0:
         return
     other = np.full(len(graph), -1, np.int64)
-    for i in ends.tolist():
-        other[i] = next(iter(graph.adj[i]))
+    other[ends] = nbr[start[ends]]
     _farthest_region_pixels(np.ascontiguousarray(regions, np.int32), other,
                             np.ascontiguousarray(graph.pos, np.float64), graph.pix)
 
@@ -516,16 +527,16 @@ def _farthest_region_pixels(regions, other, pos, pix):
 def split_isolated_nodes(graph: LineGraph, regions: np.ndarray, image: np.ndarray):
     """Split each degree-0 node whose region holds at least two skeleton pixels into two
     connected nodes at the region's two farthest pixels, so that short isolated pieces can
-    bridge gaps (in place)."""
-    deg = graph.degree()
-    lonely = np.nonzero(deg == 0)[0]
+    bridge gaps (in place; the graph's flat lists are extended by them, ``_linked_lists``)."""
+    start, nbr = graph.neighbour_lists()
+    lonely = np.nonzero(np.diff(start) == 0)[0]
     if len(lonely) == 0:
         return
     # each region's pixels in row-major order, as a mask per region would pick them, and per
     # lonely node the region's two farthest pixels (compiled: _region_pixels, _farthest_pairs)
-    xs, ys, start = _region_pixels(np.ascontiguousarray(regions, np.int32),
-                                   max(len(graph), int(regions.max(initial=0))))
-    far = _farthest_pairs(xs, ys, start, lonely.astype(np.int64))
+    xs, ys, region_start = _region_pixels(np.ascontiguousarray(regions, np.int32),
+                                          max(len(graph), int(regions.max(initial=0))))
+    far = _farthest_pairs(xs, ys, region_start, lonely.astype(np.int64))
     split = far[:, 0] >= 0
     if not split.any():
         return
@@ -539,6 +550,10 @@ def split_isolated_nodes(graph: LineGraph, regions: np.ndarray, image: np.ndarra
     graph.adj.extend(set() for _ in range(len(new)))
     for k, i in enumerate(ids.tolist()):
         graph.connect(i, first + k)
+    pairs = np.stack([ids, np.arange(first, first + len(new))], axis=1).astype(np.int64)
+    lists = np.empty(len(graph) + 1, np.int64), np.empty(len(nbr) + 2 * len(new), np.int64)
+    _linked_lists(start, nbr, pairs, *lists)
+    graph.lists = lists
 
 
 @njit("Tuple((int64[::1], int64[::1], int64[::1]))(int32[:, ::1], int64)", cache=True,
@@ -631,21 +646,24 @@ def fill_gaps(graph: LineGraph, image: np.ndarray, max_gap: float, min_cos: floa
 def _linked_lists(start, nbr, pairs, new_start, new_nbr):
     """Flat neighbour lists (LineGraph.neighbour_lists' form) with the connections ``pairs``
     (i, j) added both ways, into ``new_start``, ``new_nbr`` (each node's old neighbours,
-    then its new ones)."""
-    n = len(start) - 1
+    then its new ones; nodes beyond the old lists, up to len(new_start) - 1, had none)."""
+    n_old = len(start) - 1
+    n = len(new_start) - 1
     extra = np.zeros(n, np.int64)
     for p in range(pairs.shape[0]):
         extra[pairs[p, 0]] += 1
         extra[pairs[p, 1]] += 1
     new_start[0] = 0
     for i in range(n):
-        new_start[i + 1] = new_start[i] + start[i + 1] - start[i] + extra[i]
+        old = start[i + 1] - start[i] if i < n_old else 0
+        new_start[i + 1] = new_start[i] + old + extra[i]
     fill = np.empty(n, np.int64)
     for i in range(n):
         k = new_start[i]
-        for q in range(start[i], start[i + 1]):
-            new_nbr[k] = nbr[q]
-            k += 1
+        if i < n_old:
+            for q in range(start[i], start[i + 1]):
+                new_nbr[k] = nbr[q]
+                k += 1
         fill[i] = k
     for p in range(pairs.shape[0]):
         i, j = pairs[p, 0], pairs[p, 1]
