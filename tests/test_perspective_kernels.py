@@ -38,7 +38,8 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - perspective's ``_width_ratios`` (width_ratios) against its former numpy (BLAS's product
   of the inverse projection: fused multiply-adds, see exact_ops);
 - perspective's ``_look_up`` (IdealPixels, exact_ops.remap_at) against cv2.remap;
-- crossings' ``_pair_crossings`` (line_pair_crossings) against its former numpy and Python;
+- crossings' ``_pair_crossings`` (line_pair_crossings) against its former numpy and Python,
+  its ``_distinct_arms`` (merge_line_crossings) against the former Python loop;
 - crossings' ``_floor_checks`` and ``_image_checks`` (_verify_crossing, with the compiled
   ``_alternative_in_view`` and its ``_remap_sample``) against the former Python and numpy
   verification and cv2.remap;
@@ -1814,6 +1815,33 @@ def _floor_homography(rng):
             return np.where(q[:, 2:] > 1e-9, q[:, :2] / q[:, 2:], np.nan)
 
     return h, np.linalg.inv(h), floor_of
+
+
+def test_distinct_arms_equal_the_former_python():
+    """crossings._distinct_arms (merge_line_crossings' arms of a group) keeps the arms and
+    lengths the former Python loop kept, its dots as numpy's ``@`` (arms about ``same_arm``
+    apart, where the test is decided by the last bit)."""
+    rng = np.random.default_rng(21)
+    cos_same = math.cos(math.radians(20.0))
+    for _ in range(3000):
+        n = int(rng.integers(1, 9))
+        ang = rng.choice([0.0, math.radians(20.0), math.pi / 2, math.pi], n) \
+            + rng.normal(0, 1e-9, n) * rng.integers(0, 2, n)
+        cmp = np.stack([np.cos(ang), np.sin(ang)], axis=1) * rng.uniform(0.5, 2, (n, 1))
+        lengths = rng.uniform(0, 50, n)
+        lengths[rng.random(n) < 0.1] = np.nan
+        arms, kept = [], []
+        for k, ln in enumerate(lengths):
+            same = [m for m, j in enumerate(arms) if float(cmp[k] @ cmp[j]) >= cos_same]
+            if same:
+                kept[same[0]] = max(kept[same[0]], float(ln))
+            else:
+                arms.append(k)
+                kept.append(float(ln))
+        got_arms, got_len = np.empty(n, np.int64), np.empty(n)
+        m = cr._distinct_arms(cmp, lengths, cos_same, got_arms, got_len)
+        assert got_arms[:m].tolist() == arms
+        assert got_len[:m].tobytes() == np.array(kept).tobytes()
 
 
 @pytest.mark.parametrize("seed", range(4))
