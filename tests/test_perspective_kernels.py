@@ -59,6 +59,7 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
   regions' distance matrices;
 - field_boundary's ``_fill_bounded_runs`` (fill_lines) and ``_window_middles``
   (smooth_field_heights' median) against the former numpy;
+- line_structure's ``_path_length`` (a chain's length) against numpy's sum of np.hypot steps;
 - the flat neighbour lists line_structure's kernels leave with a graph (``_short_spurs``,
   ``_triangle_cuts``, ``_linked_lists``) against the graph's sets.
 """
@@ -1164,6 +1165,18 @@ def test_remove_short_lines_equals_the_python_walks(seed):
     got = ls.remove_short_lines(graph, 2.5)
     assert [list(a) for a in got.adj] == [list(a) for a in ref.adj]
     assert sum(map(len, ref.adj)) < sum(map(len, graph.adj))  # some were removed
+
+
+def test_path_length_equals_the_numpy_sum():
+    """line_structure._path_length (_chain_length, _short_spurs) gives the former numpy
+    length of a chain: np.hypot of its steps, np.sum'd."""
+    rng = np.random.default_rng(9)
+    pos = rng.normal(0, 10, (200, 2))
+    for n in list(range(2, 40)) + [100, 300]:
+        chain = rng.integers(0, 200, n)
+        ref = float(np.hypot(*np.diff(pos[chain], axis=0).T).sum())
+        assert ls._chain_length(pos, chain.tolist()) == ref
+        assert ls._path_length(pos, chain) == ref
 
 
 def _same_lists(lists, adj):

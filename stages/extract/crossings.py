@@ -107,8 +107,8 @@ def crossing_candidates(ks: KeyStructure, graph: LineGraph, arm_reach: float,
     (degree 4) candidates of the key structure. The L's angle is measured in the image, or on
     the floor with ``floor_of`` (grid positions (N, 2) -> floor points, NaN above the
     horizon) where its points are on the floor."""
-    deg = ks.degree()
-    keys = [k for k in range(len(ks.node)) if deg[k] in (2, 3, 4)]
+    deg = ks.degree().tolist()
+    keys = [k for k, d in enumerate(deg) if d in (2, 3, 4)]
     if not keys:
         return []
     incidence = ks.incidence()

@@ -481,7 +481,8 @@ def _triangle_cuts(start, nbr, pos, kept_start, kept_nbr):
 def limit_degree(graph: LineGraph, max_degree: int = 4):
     """No crossing of degree above ``max_degree``: a node with more connections loses its
     longest ones (in place)."""
-    for i in range(len(graph)):
+    start, _ = graph.neighbour_lists()
+    for i in np.nonzero(np.diff(start) > max_degree)[0].tolist():  # (degrees only fall)
         while len(graph.adj[i]) > max_degree:
             far = max(graph.adj[i], key=lambda j: np.hypot(*(graph.pos[i] - graph.pos[j])))
             graph.disconnect(i, far)
@@ -908,11 +909,8 @@ class KeyStructure:
     edges: list[tuple[int, int, list[int]]]
 
     def degree(self) -> np.ndarray:
-        deg = np.zeros(len(self.node), int)
-        for a, b, _ in self.edges:
-            deg[a] += 1
-            deg[b] += 1
-        return deg
+        ends = [k for a, b, _ in self.edges for k in (a, b)]
+        return np.bincount(np.array(ends, np.int64), minlength=len(self.node))
 
     def incident(self, k: int) -> list[list[int]]:
         """The fine chains leaving key node k, each starting at k."""
@@ -960,8 +958,19 @@ class KeyStructure:
 
 
 def _chain_length(pos: np.ndarray, chain: list[int]) -> float:
-    p = pos[chain]
-    return float(np.hypot(*np.diff(p, axis=0).T).sum()) if len(chain) > 1 else 0.0
+    """The length of a fine chain (cells; compiled: ``_path_length``)."""
+    return _path_length(pos, np.array(chain, np.int64)) if len(chain) > 1 else 0.0
+
+
+@njit(cache=True, nogil=True)
+def _path_length(pos, path):
+    """The length of the path through the nodes ``path`` (at least two): its steps' np.hypot
+    lengths summed as numpy sums them (block_sum)."""
+    steps = np.empty(len(path) - 1)
+    for k in range(len(path) - 1):
+        steps[k] = math.hypot(pos[path[k + 1], 0] - pos[path[k], 0],
+                              pos[path[k + 1], 1] - pos[path[k], 1])
+    return block_sum(steps)
 
 
 def remove_short_lines(graph: LineGraph, min_length: float) -> LineGraph:
@@ -989,10 +998,10 @@ def remove_short_lines(graph: LineGraph, min_length: float) -> LineGraph:
 def _short_spurs(start, nbr, pos, min_length, kept_start, kept_nbr):
     """remove_short_lines' walks: from each end node (degree 1 at the start, in index order)
     along nodes of degree 2 to the first node of another degree; where that is a junction
-    (degree >= 3) and the path is shorter than ``min_length`` (its steps' lengths summed as
-    numpy sums them, block_sum), the path's connections are removed (here and from the
-    degrees the later walks see). Returns the removed connections (a, b) in order; the
-    connections left go into ``kept_start``, ``kept_nbr`` as flat lists of the same form."""
+    (degree >= 3) and the path is shorter than ``min_length`` (_path_length), the path's
+    connections are removed (here and from the degrees the later walks see). Returns the
+    removed connections (a, b) in order; the connections left go into ``kept_start``,
+    ``kept_nbr`` as flat lists of the same form."""
     n = len(start) - 1
     alive = np.ones(len(nbr), np.bool_)
     deg = np.empty(n, np.int64)
@@ -1000,7 +1009,6 @@ def _short_spurs(start, nbr, pos, min_length, kept_start, kept_nbr):
         deg[i] = start[i + 1] - start[i]
     ends = np.nonzero(deg == 1)[0]
     path = np.empty(n + 1, np.int64)
-    steps = np.empty(n + 1)
     cut = np.empty((len(nbr), 2), np.int64)
     m = 0
     for e in ends:
@@ -1024,12 +1032,7 @@ def _short_spurs(start, nbr, pos, min_length, kept_start, kept_nbr):
                 break
         if deg[cur] < 3:
             continue
-        length = 0.0
-        if np_ > 1:
-            for k in range(np_ - 1):
-                steps[k] = math.hypot(pos[path[k + 1], 0] - pos[path[k], 0],
-                                      pos[path[k + 1], 1] - pos[path[k], 1])
-            length = block_sum(steps[:np_ - 1])
+        length = _path_length(pos, path[:np_]) if np_ > 1 else 0.0
         if length >= min_length:
             continue
         for k in range(np_ - 1):
