@@ -187,6 +187,8 @@ def _flat(lists) -> tuple[np.ndarray, np.ndarray]:
     """Index lists (or arrays) as one int64 array and their starts (L + 1,)."""
     start = np.zeros(len(lists) + 1, np.int64)
     np.cumsum(np.fromiter(map(len, lists), np.int64, len(lists)), out=start[1:])
+    if lists and isinstance(lists[0], np.ndarray):  # (joined whole, not item by item)
+        return np.concatenate(lists, dtype=np.int64), start
     flat = np.fromiter(itertools.chain.from_iterable(lists), np.int64, int(start[-1]))
     return flat, start
 
@@ -202,7 +204,8 @@ def split_components(points: np.ndarray, components, max_distance: float, min_no
     out_start = np.zeros(len(flat) + 2, np.int64)
     m = _split_all(np.ascontiguousarray(points, np.float64), flat, start, float(max_distance),
                    int(min_nodes), out, out_start)
-    return [out[out_start[k]:out_start[k + 1]] for k in range(m)]
+    bounds = out_start[:m + 1].tolist()
+    return [out[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
 
 
 def part_fits(points: np.ndarray, parts) -> tuple[np.ndarray, np.ndarray]:
