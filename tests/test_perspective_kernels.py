@@ -28,7 +28,7 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - goal_posts' ``_white_runs`` (bar_runs, with the columns' first field rows) against numpy;
 - goal_posts' ``_opening`` (rise_above_surroundings) against cv2.morphologyEx;
 - goal_posts' ``_standing_bars`` (standing_bars) against the former numpy runs and
-  per-group checks;
+  per-group checks, its ``_bar_share`` (is_post_bar's width) against the former numpy;
 - goal_posts' ``stands_out`` and ``bar_width`` (slices, the compiled median) against their
   former fancy-indexed numpy;
 - crossings' ``_points_along`` (the candidates' arm points) against its former Python walk,
@@ -538,6 +538,33 @@ def test_post_bar_checks_equal_the_fancy_indexed_numpy():
             width = float(np.median(white[np.ix_(rows, cols)].sum(axis=1)) * cell) \
                 if len(rows) else 0.0
             assert gp.bar_width(white, group, start, rise, cell) == width
+
+
+def test_bar_share_equals_the_former_numpy():
+    """goal_posts._bar_share (is_post_bar's white across a bar) gives the former numpy's
+    median of the summed shares, at grid points rounded half to even and clipped."""
+    from stages.extract import goal_posts as gp
+
+    rng = np.random.default_rng(13)
+    for _ in range(3000):
+        h, w = int(rng.integers(1, 61)), int(rng.integers(1, 95))
+        cell = int(rng.choice([8, 6, 4]))
+        white = (rng.integers(0, cell * cell + 1, (h, w)) / (cell * cell)).astype(np.float32)
+        if rng.random() < 0.5:
+            white = (rng.random((h, w)) ** 3).astype(np.float32)
+        foot = rng.uniform(-20, [w * cell + 20, h * cell + 20])
+        up = foot + rng.normal(0, 40, 2)
+        if rng.random() < 0.3:  # on half-cell grid points: rounding half to even decides
+            foot, up = (np.round(foot / cell * 2) / 2) * cell, (np.round(up / cell * 2) / 2) * cell
+        t = np.linspace(0.5, 0.9, 5)[:, None]
+        grid = ((foot[None] * (1 - t) + up[None] * t) + 0.5) / cell - 0.5
+        rows = np.clip(np.round(grid[:, 1]).astype(int), 0, h - 1)
+        cols = np.clip(np.round(grid[:, 0]).astype(int)[:, None] + np.arange(-2, 3)[None], 0,
+                       w - 1)
+        ref = float(np.median(white[rows[:, None], cols].sum(axis=1))) * cell
+        got = float(gp._bar_share(white, foot[0], foot[1], up[0], up[1], cell,
+                                  gp._BAR_STEPS)) * cell
+        assert got == ref
 
 
 def test_standing_bars_equal_the_former_groups_and_checks():

@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ..common.colour import pairwise_sum32
 from .line_fit import median
 
 
@@ -235,7 +236,7 @@ def is_post_bar(dist: float, near: float, ends_px: np.ndarray, top: np.ndarray, 
     line seen along its length looks the same but thins out with distance, a post (all of it
     as far away as its foot) does not. The width is the white share summed across the bar
     (times the cell size) over its upper half, against ``post_diameter`` at the foot's
-    distance (at least ``bar_width_ratio`` of it)."""
+    distance (at least ``bar_width_ratio`` of it; compiled: ``_bar_share``)."""
     if dist > pc["bar_radial"] or near < pc["bar_min_distance"]:
         return False
     k = int(np.argmin(ends_px[:, 1]))
@@ -243,10 +244,33 @@ def is_post_bar(dist: float, near: float, ends_px: np.ndarray, top: np.ndarray, 
     col = int(np.clip((up[0] + 0.5) // cell, 0, len(top) - 1))
     if (up[1] + 0.5) / cell - top[col] > pc["bar_touch"]:
         return False
-    h, w = white.shape
-    t = np.linspace(0.5, 0.9, 5)[:, None]
-    grid = ((foot[None] * (1 - t) + up[None] * t) + 0.5) / cell - 0.5
-    rows = np.clip(np.round(grid[:, 1]).astype(int), 0, h - 1)
-    cols = np.clip(np.round(grid[:, 0]).astype(int)[:, None] + np.arange(-2, 3)[None], 0, w - 1)
-    width = float(np.median(white[rows[:, None], cols].sum(axis=1))) * cell
+    width = float(_bar_share(np.ascontiguousarray(white, np.float32), float(foot[0]),
+                             float(foot[1]), float(up[0]), float(up[1]), int(cell),
+                             _BAR_STEPS)) * cell
     return width >= pc["bar_width_ratio"] * fx * pc["post_diameter"] / near
+
+
+# where is_post_bar measures the bar: shares of the way from its foot to its upper end
+_BAR_STEPS = np.linspace(0.5, 0.9, 5)
+_BAR_STEPS.setflags(write=False)
+
+
+@njit(cache=True, nogil=True)
+def _bar_share(white, fx, fy, ux, uy, cell, steps):
+    """is_post_bar's white across a bar (float32 shares): at each point ``steps`` of the way
+    from its foot (fx, fy) to its upper end (ux, uy) (image px), in the grid cell there
+    (rounded half to even, clipped to the grid), the shares of that cell and two cells each
+    side (clipped) summed as numpy sums them (pairwise_sum32); their median."""
+    h, w = white.shape
+    sums = np.empty(len(steps), np.float32)
+    across = np.empty(5, np.float32)
+    for i in range(len(steps)):
+        t = steps[i]
+        gx = ((fx * (1 - t) + ux * t) + 0.5) / cell - 0.5
+        gy = ((fy * (1 - t) + uy * t) + 0.5) / cell - 0.5
+        r = min(max(int(np.rint(gy)), 0), h - 1)
+        c = int(np.rint(gx))
+        for k in range(5):
+            across[k] = white[r, min(max(c + k - 2, 0), w - 1)]
+        sums[i] = pairwise_sum32(across)
+    return median(sums)
