@@ -114,16 +114,17 @@ def crossing_candidates(ks: KeyStructure, graph: LineGraph, arm_reach: float,
     incidence = ks.incidence()
     chains = [incidence[k] for k in keys]
     along = points_along(graph.pos, [ch for cs in chains for ch in cs], arm_reach)
-    first = np.cumsum([0] + [len(cs) for cs in chains])
+    first = [0, *itertools.accumulate(len(cs) for cs in chains)]
     # the L candidates' corner angles, all at once (compiled: _corner_angles), of their
-    # centres and arm points in the grid and on the floor
+    # centres and arm points (two each) in the grid and on the floor
     two = [n for n, k in enumerate(keys) if deg[k] == 2]
     angles = {}
     if two:
         corners = np.empty((len(two), 3, 2))
-        for i, n in enumerate(two):
-            corners[i, 0] = ks.pos[keys[n]]
-            corners[i, 1:] = along[first[n]:first[n + 1]]
+        arm = np.array([first[n] for n in two])
+        corners[:, 0] = ks.pos[[keys[n] for n in two]]
+        corners[:, 1] = along[arm]
+        corners[:, 2] = along[arm + 1]
         use_floor = floor_of is not None
         on_floor = (floor_of(corners.reshape(-1, 2)).reshape(-1, 3, 2) if use_floor
                     else corners)
