@@ -81,7 +81,9 @@ def grey_field(counts: dict[str, np.ndarray], weights: dict[str, float], area: f
     if not names:  # no class weighs: the grey image is 0
         return binarize_field(merged_grey_image(counts, weights, area), t_pix, t_row, t_win,
                               t_weak)
-    classes = np.stack([np.asarray(counts[n]) for n in names]).astype(np.float32)
+    classes = np.empty((len(names),) + np.shape(counts[names[0]]), np.float32)
+    for k, n in enumerate(names):
+        classes[k] = counts[n]
     field = np.empty(classes.shape[1:], np.bool_)
     _grey_field(classes, np.array([weights[n] for n in names], np.float32),
                 np.float32(area), float(t_pix), float(t_row), float(t_win), float(t_weak),
@@ -308,4 +310,7 @@ def boundary_polyline(top: np.ndarray, cell: int) -> np.ndarray:
     """First field row per column -> (W, 2) polyline (u, v) in full-resolution pixels: the
     upper edge of the field region at each column's centre."""
     x = np.arange(len(top), dtype=np.float64)
-    return np.stack([(x + 0.5) * cell - 0.5, top * cell - 0.5], axis=1).astype(np.float32)
+    out = np.empty((len(top), 2), np.float32)
+    out[:, 0] = (x + 0.5) * cell - 0.5
+    out[:, 1] = top * cell - 0.5
+    return out

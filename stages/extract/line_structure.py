@@ -233,7 +233,9 @@ def place_nodes(image: np.ndarray, skeleton: np.ndarray, c: np.ndarray,
     ys, xs = _nodes_by_priority(np.ascontiguousarray(key, np.float64),
                                 np.ascontiguousarray(c, np.int8), skeleton)
     regions = _node_regions(skeleton, ys, xs)
-    return np.stack([xs, ys], axis=1).astype(int), regions
+    pix = np.empty((len(xs), 2), int)
+    pix[:, 0], pix[:, 1] = xs, ys
+    return pix, regions
 
 
 @njit(cache=True, nogil=True)
@@ -551,7 +553,8 @@ def split_isolated_nodes(graph: LineGraph, regions: np.ndarray, image: np.ndarra
     graph.adj.extend(set() for _ in range(len(new)))
     for k, i in enumerate(ids.tolist()):
         graph.connect(i, first + k)
-    pairs = np.stack([ids, np.arange(first, first + len(new))], axis=1).astype(np.int64)
+    pairs = np.empty((len(new), 2), np.int64)
+    pairs[:, 0], pairs[:, 1] = ids, np.arange(first, first + len(new))
     lists = np.empty(len(graph) + 1, np.int64), np.empty(len(nbr) + 2 * len(new), np.int64)
     _linked_lists(start, nbr, pairs, *lists)
     graph.lists = lists

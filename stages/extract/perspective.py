@@ -566,8 +566,8 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
     all_px = distort_ideal(lens, ends).reshape(-1, 2, 2)
     all_floor = to_floor(ends).reshape(-1, 2, 2)
     # every line's floor parameters and end ranges at once (used where both ends are on it)
-    params = np.stack(floor_lines_parameters(all_floor[:, 0], all_floor[:, 1]),
-                      axis=1).tolist()
+    params = zip(*(a.tolist() for a in floor_lines_parameters(all_floor[:, 0],
+                                                              all_floor[:, 1])))
     all_ranges = np.hypot(all_floor[..., 0], all_floor[..., 1])
     nearest = all_ranges.min(axis=1).tolist()
     on_floor = np.isfinite(all_floor).all(axis=(1, 2)).tolist()
