@@ -13,7 +13,8 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
   ``_hue_turned`` and ``_hue_spread`` (the hue model's offsets and medians) against the numpy
   expressions they replaced, and
   ``pairwise_sum32`` against numpy's float32 sum;
-- line_fit's ``floor_lines_parameters`` (all lines at once) against floor_line_parameters,
+- line_fit's ``floor_lines_parameters`` (all lines at once, compiled: ``_perpendicular_feet``)
+  against floor_line_parameters,
   its ``row_dots`` against numpy's 1-D ``@`` (a dot of two 2-vectors is not the sum of
   their products to the bit);
 - line_fit's ``refine_segments`` (all segments refined in one call) against refine_segment;
@@ -26,6 +27,8 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
   against the former cumulative-sum scan and sliding_window_view;
 - goal_posts' ``_white_runs`` (bar_runs, with the columns' first field rows) against numpy;
 - goal_posts' ``_opening`` (rise_above_surroundings) against cv2.morphologyEx;
+- goal_posts' ``_standing_bars`` (standing_bars) against the former numpy runs and
+  per-group checks, its ``_bar_share`` (is_post_bar's width) against the former numpy;
 - goal_posts' ``stands_out`` and ``bar_width`` (slices, the compiled median) against their
   former fancy-indexed numpy;
 - crossings' ``_points_along`` (the candidates' arm points) against its former Python walk,
@@ -35,7 +38,8 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - perspective's ``_width_ratios`` (width_ratios) against its former numpy (BLAS's product
   of the inverse projection: fused multiply-adds, see exact_ops);
 - perspective's ``_look_up`` (IdealPixels, exact_ops.remap_at) against cv2.remap;
-- crossings' ``_pair_crossings`` (line_pair_crossings) against its former numpy and Python;
+- crossings' ``_pair_crossings`` (line_pair_crossings) against its former numpy and Python,
+  its ``_distinct_arms`` (merge_line_crossings) against the former Python loop;
 - crossings' ``_floor_checks`` and ``_image_checks`` (_verify_crossing, with the compiled
   ``_alternative_in_view`` and its ``_remap_sample``) against the former Python and numpy
   verification and cv2.remap;
@@ -52,7 +56,12 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - line_structure's ``_gap_candidates`` (fill_gaps) against its former Python loop, its
   ``_gap_grey`` (the gaps' grey level) against cv2.remap;
 - line_structure's ``_farthest_pairs`` (split_isolated_nodes) against np.argmax of the
-  regions' distance matrices.
+  regions' distance matrices;
+- field_boundary's ``_fill_bounded_runs`` (fill_lines) and ``_window_middles``
+  (smooth_field_heights' median) against the former numpy;
+- line_structure's ``_path_length`` (a chain's length) against numpy's sum of np.hypot steps;
+- the flat neighbour lists line_structure's kernels leave with a graph (``_short_spurs``,
+  ``_triangle_cuts``, ``_linked_lists``) against the graph's sets.
 """
 
 from __future__ import annotations
@@ -423,6 +432,49 @@ def test_field_heights_and_their_smoothing_equal_the_numpy_scan():
                                           np.sort(windows, axis=1)[:, r])
 
 
+def _reference_bounded_runs(cand, bound, max_run):
+    """The runs of ``cand`` along each row, at most ``max_run`` long, bounded on both sides."""
+    out = np.zeros(cand.shape, bool)
+    for r in range(cand.shape[0]):
+        row = np.concatenate([[False], cand[r], [False]]).astype(int)
+        starts = np.nonzero(np.diff(row) == 1)[0]
+        ends = np.nonzero(np.diff(row) == -1)[0]
+        for s, e in zip(starts, ends):
+            if e - s <= max_run and s > 0 and e < cand.shape[1] and bound[r, s - 1] \
+                    and bound[r, e]:
+                out[r, s:e] = True
+    return out
+
+
+def test_fill_lines_and_the_smoothing_equal_the_former_numpy():
+    """field_boundary.fill_lines (``_fill_bounded_runs``: rows and columns in one pass) adds
+    the bounded white runs the former numpy added; smooth_field_heights (its Gaussian made
+    once, ``_window_middles``) gives the former convolution and sorted windows."""
+    from stages.extract import field_boundary as fb
+
+    rng = np.random.default_rng(8)
+    for _ in range(300):
+        h, w = int(rng.integers(1, 40)), int(rng.integers(1, 60))
+        field = rng.random((h, w)) < rng.random()
+        white = (rng.integers(0, 65, (h, w)) / 64.0).astype(np.float32)
+        for t_white, max_run in ((0.3, 10), (0.5, 2)):
+            cand = (white >= t_white) & ~field
+            ref = field | _reference_bounded_runs(cand, field, max_run) \
+                | _reference_bounded_runs(cand.T, field.T, max_run).T
+            np.testing.assert_array_equal(fb.fill_lines(field, white, t_white, max_run), ref)
+        heights = rng.integers(0, h + 1, w).astype(float)
+        for sigma, size in ((0.7, 5), (1.3, 3), (0.7, 1)):
+            r = max(1, int(np.ceil(3 * sigma)))
+            k = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
+            ref = np.convolve(np.pad(heights, r, mode="edge"), k / k.sum(), mode="valid")
+            if size > 1:
+                windows = np.lib.stride_tricks.sliding_window_view(
+                    np.pad(ref, size // 2, mode="edge"), size)
+                ref = np.sort(windows, axis=1)[:, size // 2]
+            got = fb.smooth_field_heights(heights, sigma, size)
+            assert got.dtype == ref.dtype and got.tobytes() == ref.tobytes()
+
+
 def test_bar_runs_equal_the_numpy_start_rows_and_walks():
     import warnings
 
@@ -486,6 +538,63 @@ def test_post_bar_checks_equal_the_fancy_indexed_numpy():
             width = float(np.median(white[np.ix_(rows, cols)].sum(axis=1)) * cell) \
                 if len(rows) else 0.0
             assert gp.bar_width(white, group, start, rise, cell) == width
+
+
+def test_bar_share_equals_the_former_numpy():
+    """goal_posts._bar_share (is_post_bar's white across a bar) gives the former numpy's
+    median of the summed shares, at grid points rounded half to even and clipped."""
+    from stages.extract import goal_posts as gp
+
+    rng = np.random.default_rng(13)
+    for _ in range(3000):
+        h, w = int(rng.integers(1, 61)), int(rng.integers(1, 95))
+        cell = int(rng.choice([8, 6, 4]))
+        white = (rng.integers(0, cell * cell + 1, (h, w)) / (cell * cell)).astype(np.float32)
+        if rng.random() < 0.5:
+            white = (rng.random((h, w)) ** 3).astype(np.float32)
+        foot = rng.uniform(-20, [w * cell + 20, h * cell + 20])
+        up = foot + rng.normal(0, 40, 2)
+        if rng.random() < 0.3:  # on half-cell grid points: rounding half to even decides
+            foot, up = (np.round(foot / cell * 2) / 2) * cell, (np.round(up / cell * 2) / 2) * cell
+        t = np.linspace(0.5, 0.9, 5)[:, None]
+        grid = ((foot[None] * (1 - t) + up[None] * t) + 0.5) / cell - 0.5
+        rows = np.clip(np.round(grid[:, 1]).astype(int), 0, h - 1)
+        cols = np.clip(np.round(grid[:, 0]).astype(int)[:, None] + np.arange(-2, 3)[None], 0,
+                       w - 1)
+        ref = float(np.median(white[rows[:, None], cols].sum(axis=1))) * cell
+        got = float(gp._bar_share(white, foot[0], foot[1], up[0], up[1], cell,
+                                  gp._BAR_STEPS)) * cell
+        assert got == ref
+
+
+def test_standing_bars_equal_the_former_groups_and_checks():
+    """goal_posts.standing_bars (``_standing_bars``) gives the groups the former numpy runs
+    (post_columns) and per-group stands_out kept, and their lifts."""
+    from stages.extract import goal_posts as gp
+
+    rng = np.random.default_rng(12)
+    found = 0
+    for _ in range(500):
+        w = int(rng.integers(1, 94))
+        white = (rng.random((60, w)) ** 3).astype(np.float32)
+        excess = rng.integers(-2, 8, w) * (rng.random(w) < 0.4)
+        base = rng.integers(0, 4, w)
+        start = rng.integers(0, 61, w)
+        for min_rise, max_width in ((3, 4), (1, 2)):
+            rising = np.concatenate([[0], (excess >= min_rise).astype(int), [0]])
+            edges = np.diff(rising)
+            groups = [np.arange(a, b) for a, b in zip(np.nonzero(edges == 1)[0],
+                                                      np.nonzero(edges == -1)[0])
+                      if b - a <= max_width]
+            lift = [int(base[g].max()) for g in groups]
+            keep = [k for k, g in enumerate(groups)
+                    if gp.stands_out(white, g, int(start[g].min()) - lift[k], 3, 0.2)]
+            got_groups, got_lift = gp.standing_bars(excess, base, start, white, 0.2, min_rise,
+                                                    max_width, 3)
+            assert [g.tolist() for g in got_groups] == [groups[k].tolist() for k in keep]
+            assert got_lift == [lift[k] for k in keep]
+            found += len(keep)
+    assert found > 100
 
 
 def test_key_incidence_equals_incident_per_node():
@@ -1083,6 +1192,67 @@ def test_remove_short_lines_equals_the_python_walks(seed):
     got = ls.remove_short_lines(graph, 2.5)
     assert [list(a) for a in got.adj] == [list(a) for a in ref.adj]
     assert sum(map(len, ref.adj)) < sum(map(len, graph.adj))  # some were removed
+
+
+def test_path_length_equals_the_numpy_sum():
+    """line_structure._path_length (_chain_length, _short_spurs) gives the former numpy
+    length of a chain: np.hypot of its steps, np.sum'd."""
+    rng = np.random.default_rng(9)
+    pos = rng.normal(0, 10, (200, 2))
+    for n in list(range(2, 40)) + [100, 300]:
+        chain = rng.integers(0, 200, n)
+        ref = float(np.hypot(*np.diff(pos[chain], axis=0).T).sum())
+        assert ls._chain_length(pos, chain.tolist()) == ref
+        assert ls._path_length(pos, chain) == ref
+
+
+def _same_lists(lists, adj):
+    """Flat neighbour lists (start, nbr) hold each node's neighbours of ``adj``."""
+    start, nbr = lists
+    assert start.dtype == nbr.dtype == np.int64 and len(start) == len(adj) + 1
+    assert start[-1] == len(nbr)
+    assert [sorted(nbr[start[i]:start[i + 1]].tolist()) for i in range(len(adj))] == \
+        [sorted(a) for a in adj]
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_kept_flat_lists_equal_the_sets(seed):
+    """The flat neighbour lists the kernels leave with a graph (``_short_spurs``' and
+    ``_triangle_cuts``' connections left, ``_linked_lists``' gaps filled and nodes split,
+    ``node_links``) hold the graph's sets, as _neighbour_lists would make them anew."""
+    rng = np.random.default_rng(seed)
+    graph = _random_graph(rng, 80)
+    for _ in range(12):
+        j, a = int(rng.integers(0, 80)), int(rng.integers(0, 80))
+        if a != j and len(graph.adj[a]) == 0:
+            graph.connect(a, j)
+    pruned = ls.remove_short_lines(graph, 2.5)
+    assert pruned.lists is not None
+    _same_lists(pruned.lists, pruned.adj)
+    _same_lists(graph.lists, graph.adj)
+    before = sum(map(len, graph.adj))
+    ls.fill_gaps(graph, rng.uniform(0.2, 1.0, (30, 40)).astype(np.float32), 6.0,
+                 math.cos(math.radians(30.0)), 0.25, 4.0)
+    assert sum(map(len, graph.adj)) > before and graph.lists is not None  # gaps were filled
+    _same_lists(graph.lists, graph.adj)
+    regions = np.zeros((30, 40), np.int32)
+    regions[rng.integers(0, 30, 300), rng.integers(0, 40, 300)] = rng.integers(1, 50, 300)
+    _same_lists(ls.node_links(regions, 49), ls.connect_nodes(regions, 49))
+    # the whole graph (triangles cut: ``_triangle_cuts``; isolated nodes split and gaps
+    # filled: ``_linked_lists``) on a white image of strokes and specks
+    white = np.zeros((40, 60), np.float32)
+    for _ in range(8):
+        (x0, y0), (x1, y1) = rng.uniform(0, [60, 40], (2, 2))
+        t = np.linspace(0, 1, 80)
+        white[np.round(y0 + t * (y1 - y0)).astype(int) % 40,
+              np.round(x0 + t * (x1 - x0)).astype(int) % 60] = 1.0
+    white[rng.integers(0, 40, 30), rng.integers(0, 60, 30)] = 0.5
+    _, lp, ranked = ls.skeleton_grid(white, np.zeros(60), 0, 0.04, True)
+    conf = {"min_white": 0.04, "max_gap": 6.0, "gap_max_angle": math.radians(30.0),
+            "gap_min_grey_ratio": 0.25, "close_gap": 4.0}
+    graph, _, _ = ls.line_structure_graph(lp, conf, ranked)
+    assert graph.lists is not None
+    _same_lists(graph.lists, graph.adj)
 
 
 def _reference_connect_nodes(regions, n):
@@ -1685,6 +1855,33 @@ def _floor_homography(rng):
             return np.where(q[:, 2:] > 1e-9, q[:, :2] / q[:, 2:], np.nan)
 
     return h, np.linalg.inv(h), floor_of
+
+
+def test_distinct_arms_equal_the_former_python():
+    """crossings._distinct_arms (merge_line_crossings' arms of a group) keeps the arms and
+    lengths the former Python loop kept, its dots as numpy's ``@`` (arms about ``same_arm``
+    apart, where the test is decided by the last bit)."""
+    rng = np.random.default_rng(21)
+    cos_same = math.cos(math.radians(20.0))
+    for _ in range(3000):
+        n = int(rng.integers(1, 9))
+        ang = rng.choice([0.0, math.radians(20.0), math.pi / 2, math.pi], n) \
+            + rng.normal(0, 1e-9, n) * rng.integers(0, 2, n)
+        cmp = np.stack([np.cos(ang), np.sin(ang)], axis=1) * rng.uniform(0.5, 2, (n, 1))
+        lengths = rng.uniform(0, 50, n)
+        lengths[rng.random(n) < 0.1] = np.nan
+        arms, kept = [], []
+        for k, ln in enumerate(lengths):
+            same = [m for m, j in enumerate(arms) if float(cmp[k] @ cmp[j]) >= cos_same]
+            if same:
+                kept[same[0]] = max(kept[same[0]], float(ln))
+            else:
+                arms.append(k)
+                kept.append(float(ln))
+        got_arms, got_len = np.empty(n, np.int64), np.empty(n)
+        m = cr._distinct_arms(cmp, lengths, cos_same, got_arms, got_len)
+        assert got_arms[:m].tolist() == arms
+        assert got_len[:m].tobytes() == np.array(kept).tobytes()
 
 
 @pytest.mark.parametrize("seed", range(4))

@@ -146,7 +146,7 @@ class BlockMask:
         rows, cols = key
         r = np.arange(self.shape[0])[rows] // self.cell
         c = np.arange(self.shape[1])[cols] // self.cell
-        return np.take(np.take(self.blocks, r, axis=0), c, axis=1)
+        return self.blocks.take(c, axis=1)[r]  # (the columns first: a few rows to copy)
 
     def full(self) -> np.ndarray:
         """The full-resolution mask (h, w)."""

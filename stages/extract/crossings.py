@@ -107,23 +107,24 @@ def crossing_candidates(ks: KeyStructure, graph: LineGraph, arm_reach: float,
     (degree 4) candidates of the key structure. The L's angle is measured in the image, or on
     the floor with ``floor_of`` (grid positions (N, 2) -> floor points, NaN above the
     horizon) where its points are on the floor."""
-    deg = ks.degree()
-    keys = [k for k in range(len(ks.node)) if deg[k] in (2, 3, 4)]
+    deg = ks.degree().tolist()
+    keys = [k for k, d in enumerate(deg) if d in (2, 3, 4)]
     if not keys:
         return []
     incidence = ks.incidence()
     chains = [incidence[k] for k in keys]
     along = points_along(graph.pos, [ch for cs in chains for ch in cs], arm_reach)
-    first = np.cumsum([0] + [len(cs) for cs in chains])
+    first = [0, *itertools.accumulate(len(cs) for cs in chains)]
     # the L candidates' corner angles, all at once (compiled: _corner_angles), of their
-    # centres and arm points in the grid and on the floor
+    # centres and arm points (two each) in the grid and on the floor
     two = [n for n, k in enumerate(keys) if deg[k] == 2]
     angles = {}
     if two:
         corners = np.empty((len(two), 3, 2))
-        for i, n in enumerate(two):
-            corners[i, 0] = ks.pos[keys[n]]
-            corners[i, 1:] = along[first[n]:first[n + 1]]
+        arm = np.array([first[n] for n in two])
+        corners[:, 0] = ks.pos[[keys[n] for n in two]]
+        corners[:, 1] = along[arm]
+        corners[:, 2] = along[arm + 1]
         use_floor = floor_of is not None
         on_floor = (floor_of(corners.reshape(-1, 2)).reshape(-1, 3, 2) if use_floor
                     else corners)
@@ -673,20 +674,38 @@ def merge_line_crossings(crossings: list[LineCrossing], tol: float,
             n = np.hypot(d[:, 0], d[:, 1])
             if np.isfinite(n).all() and np.all(n > 0):
                 cmp = d / n[:, None]
-        arms: list[int] = []
-        lengths: list[float] = []
-        for k, ln in enumerate(all_lengths):
-            same = [m for m, j in enumerate(arms) if float(cmp[k] @ cmp[j]) >= cos_same]
-            if same:
-                lengths[same[0]] = max(lengths[same[0]], float(ln))
-            else:
-                arms.append(k)
-                lengths.append(float(ln))
-        if len(arms) not in (2, 3):
+        arms = np.empty(len(all_lengths), np.int64)
+        lengths = np.empty(len(all_lengths))
+        m = _distinct_arms(np.ascontiguousarray(cmp, np.float64),
+                           np.ascontiguousarray(all_lengths, np.float64), cos_same, arms,
+                           lengths)
+        if m not in (2, 3):
             continue
-        out.append(LineCrossing({2: "L", 3: "T"}[len(arms)], point, all_arms[arms],
-                                group[0].lines, np.array(lengths)))
+        out.append(LineCrossing({2: "L", 3: "T"}[m], point, all_arms[arms[:m]],
+                                group[0].lines, lengths[:m]))
     return out
+
+
+@njit(cache=True, nogil=True)
+def _distinct_arms(cmp, lengths, cos_same, arms, kept_lengths):
+    """merge_line_crossings' arms of a group, in order: an arm whose direction ``cmp`` lies
+    within acos(cos_same) of a kept arm's (the first such; the dot as numpy's 1-D ``@``,
+    _dot) gives that one the larger length (Python's max), else it is kept. The kept arms'
+    indices go into ``arms``, their lengths into ``kept_lengths``; returns their number."""
+    m = 0
+    for k in range(cmp.shape[0]):
+        same = -1
+        for q in range(m):
+            j = arms[q]
+            if _dot(cmp[k, 0], cmp[k, 1], cmp[j, 0], cmp[j, 1]) >= cos_same:
+                same = q
+                break
+        if same < 0:
+            arms[m], kept_lengths[m] = k, lengths[k]
+            m += 1
+        elif lengths[k] > kept_lengths[same]:
+            kept_lengths[same] = lengths[k]
+    return m
 
 
 # ---------------------------------------------------------------------------- the chain

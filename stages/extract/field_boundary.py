@@ -20,6 +20,8 @@ into the first field row (from the top) per column, the form the later steps use
 
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numpy as np
 from numba import njit
@@ -79,7 +81,9 @@ def grey_field(counts: dict[str, np.ndarray], weights: dict[str, float], area: f
     if not names:  # no class weighs: the grey image is 0
         return binarize_field(merged_grey_image(counts, weights, area), t_pix, t_row, t_win,
                               t_weak)
-    classes = np.stack([np.asarray(counts[n]) for n in names]).astype(np.float32)
+    classes = np.empty((len(names),) + np.shape(counts[names[0]]), np.float32)
+    for k, n in enumerate(names):
+        classes[k] = counts[n]
     field = np.empty(classes.shape[1:], np.bool_)
     _grey_field(classes, np.array([weights[n] for n in names], np.float32),
                 np.float32(area), float(t_pix), float(t_row), float(t_win), float(t_weak),
@@ -124,16 +128,10 @@ def _grey_field(classes, weights, area, t_pix, t_row, t_win, t_weak, field):
             field[y, x] = strong or by_row or by_window
 
 
-def _bounded_runs(candidate: np.ndarray, bound: np.ndarray, max_run: int) -> np.ndarray:
-    """Runs of ``candidate`` cells along each row (H, W), at most ``max_run`` long, with a
-    ``bound`` cell right before and right after them (bool mask of those runs)."""
-    out = np.zeros(candidate.shape, np.bool_)
-    _mark_bounded_runs(candidate, bound, int(max_run), out)
-    return out
-
-
 @njit(cache=True, nogil=True)
 def _mark_bounded_runs(candidate, bound, max_run, out):
+    """Mark in ``out`` the runs of ``candidate`` cells along each row (H, W), at most
+    ``max_run`` long, with a ``bound`` cell right before and right after them."""
     h, w = candidate.shape
     for r in range(h):
         c = 0
@@ -156,11 +154,24 @@ def fill_lines(field: np.ndarray, white: np.ndarray, t_white: float, max_run: in
     ``t_white``) between two field cells of the same row or column, at most ``max_run`` cells
     long. A near line seen along its length (steep in the image) holds more white cells in a
     column than the height scan's gap allows; bounded by carpet, it is field."""
-    cand = (white >= t_white) & ~field
-    if not cand.any():
-        return field
-    return field | _bounded_runs(cand, field, max_run) | _bounded_runs(cand.T, field.T,
-                                                                        max_run).T
+    white = np.ascontiguousarray(white)
+    out = np.array(field, np.bool_)  # a copy
+    _fill_bounded_runs(white, white.dtype.type(t_white), int(max_run), out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _fill_bounded_runs(white, t_white, max_run, field):
+    """fill_lines in place, compiled: the candidates (white >= t_white, not field) taken from
+    ``field`` as it was, then their bounded runs along the rows and along the columns
+    (_mark_bounded_runs) added to it."""
+    cand = np.empty(field.shape, np.bool_)
+    for r in range(field.shape[0]):
+        for c in range(field.shape[1]):
+            cand[r, c] = white[r, c] >= t_white and not field[r, c]
+    bound = field.copy()
+    _mark_bounded_runs(cand, bound, max_run, field)
+    _mark_bounded_runs(cand.T, bound.T, max_run, field.T)
 
 
 def field_height_histogram(field: np.ndarray, max_gap: int = 4, from_lowest: bool = False
@@ -213,16 +224,42 @@ def smooth_field_heights(heights: np.ndarray, sigma: float, median: int) -> np.n
     """1D Gaussian filter (slightly uneven bins), then a median filter (small gaps and peaks)."""
     out = np.asarray(heights, np.float64)
     if sigma > 0:
-        r = max(1, int(np.ceil(3 * sigma)))
-        k = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
-        out = np.convolve(_edge_padded(out, r), k / k.sum(), mode="valid")
+        k = _gauss_weights(float(sigma))
+        out = np.convolve(_edge_padded(out, len(k) // 2), k, mode="valid")
     if median > 1:
         r = int(median) // 2
-        padded = _edge_padded(out, r)  # the windows: a few shifted copies (cheaper to make
-        # than sliding_window_view's)
-        windows = np.stack([padded[k:k + len(out)] for k in range(2 * r + 1)], axis=1)
-        out = np.sort(windows, axis=1)[:, r]  # the middle of an odd window: its median
+        padded = _edge_padded(out, r)
+        out = np.empty(len(padded) - 2 * r)
+        _window_middles(padded, 2 * r + 1, out)
     return out
+
+
+@functools.lru_cache(maxsize=8)
+def _gauss_weights(sigma: float) -> np.ndarray:
+    """smooth_field_heights' Gaussian of ``sigma`` bins over +-ceil(3 sigma) (at least one),
+    normalised (made once, read only)."""
+    r = max(1, int(np.ceil(3 * sigma)))
+    k = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
+    k = k / k.sum()
+    k.setflags(write=False)
+    return k
+
+
+@njit(cache=True, nogil=True)
+def _window_middles(values, size, out):
+    """The median of every window of odd ``size`` along ``values`` into ``out``: the middle of
+    the window sorted (by insertion, NaN last, as np.sort puts it)."""
+    window = np.empty(size)
+    for i in range(out.shape[0]):
+        for a in range(size):
+            v = values[i + a]
+            b = a
+            while b > 0 and (v < window[b - 1] or (np.isnan(window[b - 1])
+                                                   and not np.isnan(v))):
+                window[b] = window[b - 1]
+                b -= 1
+            window[b] = v
+        out[i] = window[size // 2]
 
 
 def local_convexity(heights: np.ndarray) -> np.ndarray:
@@ -273,4 +310,7 @@ def boundary_polyline(top: np.ndarray, cell: int) -> np.ndarray:
     """First field row per column -> (W, 2) polyline (u, v) in full-resolution pixels: the
     upper edge of the field region at each column's centre."""
     x = np.arange(len(top), dtype=np.float64)
-    return np.stack([(x + 0.5) * cell - 0.5, top * cell - 0.5], axis=1).astype(np.float32)
+    out = np.empty((len(top), 2), np.float32)
+    out[:, 0] = (x + 0.5) * cell - 0.5
+    out[:, 1] = top * cell - 0.5
+    return out

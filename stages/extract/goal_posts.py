@@ -6,8 +6,9 @@ On the subsampled white image, per column (vectorised over columns):
 - ``bar_runs``: the run of white cells going up from the field boundary (the part of the bar
   that rises above it) and the run going down from the boundary into the field (the part in
   front of the field, down to the post's foot);
-- ``post_columns``: columns whose upward run is at least ``min_rise`` cells, grouped into bars
-  of adjacent columns no wider than ``max_width`` cells (a white wall or banner is wider);
+- ``standing_bars``: columns whose upward run rises at least ``min_rise`` cells above their
+  surroundings', grouped into bars of adjacent columns no wider than ``max_width`` cells (a
+  white wall or banner is wider) that stand out (``stands_out``: not white beside them);
 - ``post_feet``: per bar, the foot point in full-resolution pixels: the white-weighted mean
   column and the bottom of the downward run with a subpixel fraction from the share of white
   in the lowest cell.
@@ -21,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ..common.colour import pairwise_sum32
 from .line_fit import median
 
 
@@ -56,30 +58,80 @@ def _white_runs(white, t_white, top, max_up, max_down, up, down, start):
         down[c] = n
 
 
-def post_columns(up_run: np.ndarray, min_rise: int, max_width: int) -> list[np.ndarray]:
-    """Groups of adjacent columns whose white run above the boundary is at least ``min_rise``
-    cells, at most ``max_width`` columns wide."""
-    rising = up_run >= min_rise
-    if not rising.any():
-        return []
-    edges = np.diff(np.concatenate([[0], rising.astype(int), [0]]))
-    starts, stops = np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]
-    return [np.arange(a, b) for a, b in zip(starts, stops) if b - a <= max_width]
+def standing_bars(excess: np.ndarray, base: np.ndarray, start: np.ndarray, white: np.ndarray,
+                  t_white: float, min_rise: int, max_width: int, near: int
+                  ) -> tuple[list[np.ndarray], list[int]]:
+    """The bars: groups of adjacent columns whose white run rises at least ``min_rise`` cells
+    above their surroundings' (``excess``), at most ``max_width`` columns wide, that stand out
+    (``stands_out`` in the ``near`` rows above the group's surroundings' white, ``base``, from
+    its highest boundary row ``start``), with that lift of each (its largest base). Found by
+    one compiled pass (``_standing_bars``)."""
+    white = np.ascontiguousarray(white)
+    bars = np.empty((len(excess), 3), np.int64)
+    m = _standing_bars(np.ascontiguousarray(excess, np.int64),
+                       np.ascontiguousarray(base, np.int64),
+                       np.ascontiguousarray(start, np.int64), white, white.dtype.type(t_white),
+                       int(min_rise), int(max_width), int(near), bars)
+    rows = bars[:m].tolist()
+    return [np.arange(a, b) for a, b, _ in rows], [lift for _, _, lift in rows]
+
+
+@njit(cache=True, nogil=True)
+def _standing_bars(excess, base, start, white, t_white, min_rise, max_width, near, bars):
+    """standing_bars' pass: the maximal runs of columns with excess >= min_rise, at most
+    max_width wide, each with its largest base (the lift) and lowest start, kept where they
+    stand out (_stands_out, margin 2): (first column, end column, lift) into ``bars``;
+    returns their number."""
+    n = len(excess)
+    m = 0
+    c = 0
+    while c < n:
+        if excess[c] < min_rise:
+            c += 1
+            continue
+        a = c
+        while c < n and excess[c] >= min_rise:
+            c += 1
+        if c - a > max_width:
+            continue
+        lift, low = base[a], start[a]
+        for k in range(a + 1, c):
+            lift, low = max(lift, base[k]), min(low, start[k])
+        if _stands_out(white, a, c - 1, low - lift, near, t_white, 2):
+            bars[m, 0], bars[m, 1], bars[m, 2] = a, c, lift
+            m += 1
+    return m
 
 
 def stands_out(white: np.ndarray, group: np.ndarray, start: int, rise: int, t_white: float,
                margin: int = 2) -> bool:
     """A bar stands out when, in the ``rise`` rows just above the boundary, the cells
     ``margin`` columns left and right of it are not white in most rows (a white wall or banner
-    is white beside it too; the image border counts as not white)."""
+    is white beside it too; the image border counts as not white; compiled:
+    ``_stands_out``)."""
+    white = np.ascontiguousarray(white)
+    return bool(_stands_out(white, int(group[0]), int(group[-1]), int(start), int(rise),
+                            white.dtype.type(t_white), int(margin)))
+
+
+@njit(cache=True, nogil=True)
+def _stands_out(white, first, last, start, rise, t_white, margin):
+    """stands_out of the group of columns first..last: the share of white (>= t_white) rows
+    beside it, ``margin`` columns left and right (as np.mean of the column's white test over
+    the rows start - rise .. start - 1 within the image), at most 1/3 on both sides."""
     h, w = white.shape
     r0, r1 = max(start - rise, 0), max(start, 0)
     if r1 <= r0:
         return False
-    sides = [c for c in (group[0] - margin, group[-1] + margin) if 0 <= c < w]
-    # the share of white rows beside it (as np.mean of the column's white test)
-    return all(np.count_nonzero(white[r0:r1, c] >= t_white) / (r1 - r0) <= 1 / 3
-               for c in sides)
+    for c in (first - margin, last + margin):
+        if 0 <= c < w:
+            count = 0
+            for r in range(r0, min(r1, h)):
+                if white[r, c] >= t_white:
+                    count += 1
+            if not count / (r1 - r0) <= 1 / 3:
+                return False
+    return True
 
 
 def bar_width(white: np.ndarray, group: np.ndarray, start: int, rise: int, cell: int) -> float:
@@ -162,12 +214,9 @@ def goal_posts(white: np.ndarray, top: np.ndarray, conf: dict, cell: int,
     max_width = int(conf["max_width"] if max_width is None else max_width)
     up, down, start = bar_runs(white, top, conf["t_white"], conf["max_rise"], conf["max_below"])
     excess, base = rise_above_surroundings(up, max_width + 2)
-    groups = post_columns(excess, conf["min_rise"], max_width)
     near = conf["min_rise"]  # rows above the surroundings' white where a post is told apart
-    lift = [int(base[g].max()) for g in groups]
-    keep = [k for k, g in enumerate(groups)
-            if stands_out(white, g, int(start[g].min()) - lift[k], near, conf["t_white"])]
-    groups, lift = [groups[k] for k in keep], [lift[k] for k in keep]
+    groups, lift = standing_bars(excess, base, start, white, conf["t_white"], conf["min_rise"],
+                                 max_width, near)
     # heights: the part of the bar rising above the surroundings' white, plus below the boundary
     feet, heights = post_feet(white, groups, excess, down, start, conf["t_white"], cell)
     widths = np.array([bar_width(white, g, int(start[g].min()) - lf, near, cell)
@@ -187,7 +236,7 @@ def is_post_bar(dist: float, near: float, ends_px: np.ndarray, top: np.ndarray, 
     line seen along its length looks the same but thins out with distance, a post (all of it
     as far away as its foot) does not. The width is the white share summed across the bar
     (times the cell size) over its upper half, against ``post_diameter`` at the foot's
-    distance (at least ``bar_width_ratio`` of it)."""
+    distance (at least ``bar_width_ratio`` of it; compiled: ``_bar_share``)."""
     if dist > pc["bar_radial"] or near < pc["bar_min_distance"]:
         return False
     k = int(np.argmin(ends_px[:, 1]))
@@ -195,10 +244,33 @@ def is_post_bar(dist: float, near: float, ends_px: np.ndarray, top: np.ndarray, 
     col = int(np.clip((up[0] + 0.5) // cell, 0, len(top) - 1))
     if (up[1] + 0.5) / cell - top[col] > pc["bar_touch"]:
         return False
-    h, w = white.shape
-    t = np.linspace(0.5, 0.9, 5)[:, None]
-    grid = ((foot[None] * (1 - t) + up[None] * t) + 0.5) / cell - 0.5
-    rows = np.clip(np.round(grid[:, 1]).astype(int), 0, h - 1)
-    cols = np.clip(np.round(grid[:, 0]).astype(int)[:, None] + np.arange(-2, 3)[None], 0, w - 1)
-    width = float(np.median(white[rows[:, None], cols].sum(axis=1))) * cell
+    width = float(_bar_share(np.ascontiguousarray(white, np.float32), float(foot[0]),
+                             float(foot[1]), float(up[0]), float(up[1]), int(cell),
+                             _BAR_STEPS)) * cell
     return width >= pc["bar_width_ratio"] * fx * pc["post_diameter"] / near
+
+
+# where is_post_bar measures the bar: shares of the way from its foot to its upper end
+_BAR_STEPS = np.linspace(0.5, 0.9, 5)
+_BAR_STEPS.setflags(write=False)
+
+
+@njit(cache=True, nogil=True)
+def _bar_share(white, fx, fy, ux, uy, cell, steps):
+    """is_post_bar's white across a bar (float32 shares): at each point ``steps`` of the way
+    from its foot (fx, fy) to its upper end (ux, uy) (image px), in the grid cell there
+    (rounded half to even, clipped to the grid), the shares of that cell and two cells each
+    side (clipped) summed as numpy sums them (pairwise_sum32); their median."""
+    h, w = white.shape
+    sums = np.empty(len(steps), np.float32)
+    across = np.empty(5, np.float32)
+    for i in range(len(steps)):
+        t = steps[i]
+        gx = ((fx * (1 - t) + ux * t) + 0.5) / cell - 0.5
+        gy = ((fy * (1 - t) + uy * t) + 0.5) / cell - 0.5
+        r = min(max(int(np.rint(gy)), 0), h - 1)
+        c = int(np.rint(gx))
+        for k in range(5):
+            across[k] = white[r, min(max(c + k - 2, 0), w - 1)]
+        sums[i] = pairwise_sum32(across)
+    return median(sums)

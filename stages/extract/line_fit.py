@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from .exact_ops import fused_multiply_add
 from .line_structure import LineGraph, trace_chains
 
 
@@ -177,16 +178,17 @@ def split_and_merge(points: np.ndarray, components: list[list[int]], conf: dict
                            conf["merge_offset"], conf["split_distance"])
     if not parts:
         return []
-    fits, ends = part_fits(points, parts)
-    return [LineSegment(np.asarray(p), LineFit(f[0:2].copy(), f[2:4].copy(), f[4:6].copy(),
-                                               float(f[6])), e.copy())
-            for p, f, e in zip(parts, fits, ends)]
+    fits, ends = part_fits(points, parts)  # (the lines' fields are views of these, read only)
+    return [LineSegment(np.asarray(p), LineFit(f[0:2], f[2:4], f[4:6], rms), e)
+            for p, f, e, rms in zip(parts, fits, ends, fits[:, 6].tolist())]
 
 
 def _flat(lists) -> tuple[np.ndarray, np.ndarray]:
     """Index lists (or arrays) as one int64 array and their starts (L + 1,)."""
     start = np.zeros(len(lists) + 1, np.int64)
     np.cumsum(np.fromiter(map(len, lists), np.int64, len(lists)), out=start[1:])
+    if lists and isinstance(lists[0], np.ndarray):  # (joined whole, not item by item)
+        return np.concatenate(lists, dtype=np.int64), start
     flat = np.fromiter(itertools.chain.from_iterable(lists), np.int64, int(start[-1]))
     return flat, start
 
@@ -202,7 +204,8 @@ def split_components(points: np.ndarray, components, max_distance: float, min_no
     out_start = np.zeros(len(flat) + 2, np.int64)
     m = _split_all(np.ascontiguousarray(points, np.float64), flat, start, float(max_distance),
                    int(min_nodes), out, out_start)
-    return [out[out_start[k]:out_start[k + 1]] for k in range(m)]
+    bounds = out_start[:m + 1].tolist()
+    return [out[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
 
 
 def part_fits(points: np.ndarray, parts) -> tuple[np.ndarray, np.ndarray]:
@@ -249,21 +252,42 @@ def row_dots(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def floor_lines_parameters(p0: np.ndarray, p1: np.ndarray
                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """floor_line_parameters of many lines at once (end points p0, p1 (N, 2)): (N,) each of
-    the perpendicular distances, their angles and the lengths, with the same arithmetic (the
-    dot products by row_dots, which computes them as ``p0 @ d`` does)."""
-    d = p1 - p0
-    length = np.hypot(d[:, 0], d[:, 1])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = -row_dots(p0, d) / (length * length)
-    foot = p0 + t[:, None] * d
-    dist = np.hypot(foot[:, 0], foot[:, 1])
-    angle = np.where(dist < 1e-9, np.arctan2(d[:, 1], d[:, 0]) + np.pi / 2,
-                     np.arctan2(foot[:, 1], foot[:, 0]))
-    zero = length == 0
-    if zero.any():
-        dist = np.where(zero, np.hypot(p0[:, 0], p0[:, 1]), dist)
-        angle = np.where(zero, np.arctan2(p0[:, 1], p0[:, 0]), angle)
+    the perpendicular distances, their angles and the lengths, with the same arithmetic: the
+    lengths, feet and distances compiled (``_perpendicular_feet``, the dot products as ``p0
+    @ d`` forms them), the angles numpy's arctan2 of what each line's angle is taken of."""
+    p0 = np.ascontiguousarray(p0, np.float64)
+    n = len(p0)
+    dist, length, at = np.empty(n), np.empty(n), np.empty((n, 2))
+    along = np.empty(n, np.bool_)
+    _perpendicular_feet(p0, np.ascontiguousarray(p1, np.float64), dist, length, at, along)
+    angle = np.arctan2(at[:, 0], at[:, 1])
+    angle[along] += np.pi / 2
     return dist, angle, length
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _perpendicular_feet(p0, p1, dist, length, at, along):
+    """floor_lines_parameters before the arctan2: per line its length, the distance to the
+    foot of the perpendicular from the origin (``t = -(p0 @ d) / length^2``, the dot as numpy's
+    1-D ``@``: exact_ops.fused_multiply_add) and in ``at`` the (y, x) whose angle is the
+    line's: the foot's, the line's direction where the line runs through the origin
+    (``along``: a quarter turn is added), p0's for a line of no length."""
+    for k in range(p0.shape[0]):
+        dx, dy = p1[k, 0] - p0[k, 0], p1[k, 1] - p0[k, 1]
+        length[k] = np.hypot(dx, dy)
+        along[k] = False
+        if length[k] == 0:
+            dist[k] = np.hypot(p0[k, 0], p0[k, 1])
+            at[k, 0], at[k, 1] = p0[k, 1], p0[k, 0]
+            continue
+        t = -fused_multiply_add(p0[k, 1], dy, p0[k, 0] * dx) / (length[k] * length[k])
+        fx, fy = p0[k, 0] + t * dx, p0[k, 1] + t * dy
+        dist[k] = np.hypot(fx, fy)
+        if dist[k] < 1e-9:
+            at[k, 0], at[k, 1] = dy, dx
+            along[k] = True
+        else:
+            at[k, 0], at[k, 1] = fy, fx
 
 
 # ---------------------------------------------------------------------------- refinement
@@ -355,14 +379,14 @@ def refine_segments(ends: np.ndarray, white: np.ndarray, lens: np.ndarray, step:
     _refine_all(ends, white, lens, float(step), float(reach), float(extend), int(min_points),
                 float(grow), res, pts, widths, start)
     out: list[RefinedLine | None] = []
-    for k in range(n):
-        if res[k, 0] == 0:
+    # (the lines' fields are views of the kernel's arrays, read only)
+    for r, ok, rms, a, b in zip(res, res[:, 0].tolist(), res[:, 11].tolist(), start[:-1].tolist(),
+                                start[1:].tolist()):
+        if ok == 0:
             out.append(None)
             continue
-        r = res[k]
-        fit = LineFit(r[5:7].copy(), r[7:9].copy(), r[9:11].copy(), float(r[11]))
-        out.append(RefinedLine(r[1:5].reshape(2, 2).copy(), fit, pts[start[k]:start[k + 1]],
-                               widths[start[k]:start[k + 1]]))
+        out.append(RefinedLine(r[1:5].reshape(2, 2), LineFit(r[5:7], r[7:9], r[9:11], rms),
+                               pts[a:b], widths[a:b]))
     return out
 
 

@@ -165,7 +165,11 @@ class LineGraph:
     pix: np.ndarray  # (N, 2) int
     pos: np.ndarray  # (N, 2) float
     value: np.ndarray  # (N,) float
+    # changed in place only where the flat lists are dropped (connect, disconnect, add_node)
     adj: list[set] = field(default_factory=list)
+    # the connections as the kernels read them (neighbour_lists), while they hold
+    lists: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False,
+                                                         compare=False)
 
     def __len__(self):
         return len(self.pix)
@@ -177,25 +181,36 @@ class LineGraph:
         e = [(i, j) for i, a in enumerate(self.adj) for j in a if i < j]
         return np.array(e, dtype=int).reshape(-1, 2)
 
+    def neighbour_lists(self) -> tuple[np.ndarray, np.ndarray]:
+        """The connections as flat arrays for the kernels (``_neighbour_lists``: node i's
+        neighbours are ``nbr[start[i]:start[i + 1]]``, in no particular order), made once
+        while the connections stay as they are (the kernels only read them)."""
+        if self.lists is None:
+            self.lists = _neighbour_lists(self.adj)
+        return self.lists
+
     def connect(self, i: int, j: int):
         if i != j:
             self.adj[i].add(j)
             self.adj[j].add(i)
+            self.lists = None
 
     def disconnect(self, i: int, j: int):
         self.adj[i].discard(j)
         self.adj[j].discard(i)
+        self.lists = None
 
     def add_node(self, pix, pos, value) -> int:
         self.pix = np.vstack([self.pix, np.asarray(pix, int)[None]])
         self.pos = np.vstack([self.pos, np.asarray(pos, float)[None]])
         self.value = np.append(self.value, value)
         self.adj.append(set())
+        self.lists = None
         return len(self.pix) - 1
 
     def copy(self) -> LineGraph:
         return LineGraph(self.pix.copy(), self.pos.copy(), self.value.copy(),
-                         [set(a) for a in self.adj])
+                         [set(a) for a in self.adj], self.lists)
 
 
 def place_nodes(image: np.ndarray, skeleton: np.ndarray, c: np.ndarray,
@@ -218,7 +233,9 @@ def place_nodes(image: np.ndarray, skeleton: np.ndarray, c: np.ndarray,
     ys, xs = _nodes_by_priority(np.ascontiguousarray(key, np.float64),
                                 np.ascontiguousarray(c, np.int8), skeleton)
     regions = _node_regions(skeleton, ys, xs)
-    return np.stack([xs, ys], axis=1).astype(int), regions
+    pix = np.empty((len(xs), 2), int)
+    pix[:, 0], pix[:, 1] = xs, ys
+    return pix, regions
 
 
 @njit(cache=True, nogil=True)
@@ -333,9 +350,19 @@ def connect_nodes(regions: np.ndarray, n: int) -> list[set]:
     nodes are connected when skeleton pixels of their regions are 8-neighbours. Each node's
     set is filled in ascending order of its neighbours (``_region_links``), the order in
     which adding the connections one by one, by (lower, higher) node, fills it."""
-    start, nbrs = _region_links(np.ascontiguousarray(regions, np.int32), int(n))
-    b, nb = start.tolist(), nbrs.tolist()
-    return [set(nb[b[k]:b[k + 1]]) for k in range(n)]
+    return _adjacency(*node_links(regions, n))
+
+
+def node_links(regions: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """connect_nodes' connections as the flat lists of LineGraph.neighbour_lists (each
+    node's neighbours ascending; compiled: ``_region_links``)."""
+    return _region_links(np.ascontiguousarray(regions, np.int32), int(n))
+
+
+def _adjacency(start: np.ndarray, nbr: np.ndarray) -> list[set]:
+    """Flat neighbour lists as LineGraph's sets, each filled in the lists' order."""
+    b, nb = start.tolist(), nbr.tolist()
+    return [set(nb[b[k]:b[k + 1]]) for k in range(len(b) - 1)]
 
 
 @njit("Tuple((int64[::1], int64[::1]))(int32[:, ::1], int64)", cache=True, nogil=True)
@@ -378,18 +405,22 @@ def remove_triangles(graph: LineGraph):
     n = len(graph)
     if n < 3:
         return
-    start, nbr = _neighbour_lists(graph.adj)
-    cuts = _triangle_cuts(start, nbr, np.ascontiguousarray(graph.pos, np.float64))
+    start, nbr = graph.neighbour_lists()
+    kept = np.empty_like(start), np.empty_like(nbr)
+    cuts = _triangle_cuts(start, nbr, np.ascontiguousarray(graph.pos, np.float64), *kept)
     for a, b in cuts.tolist():
         graph.disconnect(a, b)
+    graph.lists = kept[0], kept[1][:kept[0][-1]]
 
 
-@njit("int64[:, ::1](int64[::1], int64[::1], float64[:, ::1])", cache=True, nogil=True)
-def _triangle_cuts(start, nbr, pos):
+@njit("int64[:, ::1](int64[::1], int64[::1], float64[:, ::1], int64[::1], int64[::1])",
+      cache=True, nogil=True)
+def _triangle_cuts(start, nbr, pos, kept_start, kept_nbr):
     """remove_triangles' walk: for i in order (of degree >= 2 then), for each neighbour j > i
     (sorted, as connected when i's turn came), for each common neighbour k > j (sorted, as
     connected when j's turn came), the longest side of (i, j), (j, k), (i, k) (np.hypot,
-    the first of equal ones) is cut. Returns the cuts (a, b) in order."""
+    the first of equal ones) is cut. Returns the cuts (a, b) in order; the connections left
+    go into ``kept_start``, ``kept_nbr`` (LineGraph.neighbour_lists' form)."""
     n = len(start) - 1
     linked = np.zeros((n, n), np.bool_)
     deg = np.zeros(n, np.int64)
@@ -438,13 +469,22 @@ def _triangle_cuts(start, nbr, pos):
                     cuts = more
                 cuts[m, 0], cuts[m, 1] = p, q
                 m += 1
+    k = 0
+    for i in range(n):
+        kept_start[i] = k
+        for j in range(n):
+            if linked[i, j]:
+                kept_nbr[k] = j
+                k += 1
+    kept_start[n] = k
     return cuts[:m].copy()
 
 
 def limit_degree(graph: LineGraph, max_degree: int = 4):
     """No crossing of degree above ``max_degree``: a node with more connections loses its
     longest ones (in place)."""
-    for i in range(len(graph)):
+    start, _ = graph.neighbour_lists()
+    for i in np.nonzero(np.diff(start) > max_degree)[0].tolist():  # (degrees only fall)
         while len(graph.adj[i]) > max_degree:
             far = max(graph.adj[i], key=lambda j: np.hypot(*(graph.pos[i] - graph.pos[j])))
             graph.disconnect(i, far)
@@ -454,13 +494,12 @@ def stretch_lines(graph: LineGraph, regions: np.ndarray):
     """Move each end node (degree 1) to the last pixel of the skeleton: the pixel of its
     region farthest from its neighbour (the first in row-major order of equally far ones; in
     place)."""
-    deg = graph.degree()
-    ends = np.nonzero(deg == 1)[0]
+    start, nbr = graph.neighbour_lists()
+    ends = np.nonzero(np.diff(start) == 1)[0]
     if len(ends) == 0:
         return
     other = np.full(len(graph), -1, np.int64)
-    for i in ends.tolist():
-        other[i] = next(iter(graph.adj[i]))
+    other[ends] = nbr[start[ends]]
     _farthest_region_pixels(np.ascontiguousarray(regions, np.int32), other,
                             np.ascontiguousarray(graph.pos, np.float64), graph.pix)
 
@@ -491,16 +530,16 @@ def _farthest_region_pixels(regions, other, pos, pix):
 def split_isolated_nodes(graph: LineGraph, regions: np.ndarray, image: np.ndarray):
     """Split each degree-0 node whose region holds at least two skeleton pixels into two
     connected nodes at the region's two farthest pixels, so that short isolated pieces can
-    bridge gaps (in place)."""
-    deg = graph.degree()
-    lonely = np.nonzero(deg == 0)[0]
+    bridge gaps (in place; the graph's flat lists are extended by them, ``_linked_lists``)."""
+    start, nbr = graph.neighbour_lists()
+    lonely = np.nonzero(np.diff(start) == 0)[0]
     if len(lonely) == 0:
         return
     # each region's pixels in row-major order, as a mask per region would pick them, and per
     # lonely node the region's two farthest pixels (compiled: _region_pixels, _farthest_pairs)
-    xs, ys, start = _region_pixels(np.ascontiguousarray(regions, np.int32),
-                                   max(len(graph), int(regions.max(initial=0))))
-    far = _farthest_pairs(xs, ys, start, lonely.astype(np.int64))
+    xs, ys, region_start = _region_pixels(np.ascontiguousarray(regions, np.int32),
+                                          max(len(graph), int(regions.max(initial=0))))
+    far = _farthest_pairs(xs, ys, region_start, lonely.astype(np.int64))
     split = far[:, 0] >= 0
     if not split.any():
         return
@@ -514,6 +553,11 @@ def split_isolated_nodes(graph: LineGraph, regions: np.ndarray, image: np.ndarra
     graph.adj.extend(set() for _ in range(len(new)))
     for k, i in enumerate(ids.tolist()):
         graph.connect(i, first + k)
+    pairs = np.empty((len(new), 2), np.int64)
+    pairs[:, 0], pairs[:, 1] = ids, np.arange(first, first + len(new))
+    lists = np.empty(len(graph) + 1, np.int64), np.empty(len(nbr) + 2 * len(new), np.int64)
+    _linked_lists(start, nbr, pairs, *lists)
+    graph.lists = lists
 
 
 @njit("Tuple((int64[::1], int64[::1], int64[::1]))(int32[:, ::1], int64)", cache=True,
@@ -571,10 +615,10 @@ def fill_gaps(graph: LineGraph, image: np.ndarray, max_gap: float, min_cos: floa
     corner whose tip the skeleton misses), closure (short gaps first) and simplicity (the
     grey level along the gap is at least ``min_grey_ratio`` of the nodes'; no node above degree
     ``max_degree``; no connection to a node already three steps away). Accepted greedily by
-    score (in place)."""
+    score (in place; the graph's flat lists are extended by them, ``_linked_lists``)."""
     if len(graph) < 2:
         return
-    start, nbr = _neighbour_lists(graph.adj)
+    start, nbr = graph.neighbour_lists()
     deg = np.diff(start)
     loose = np.nonzero(deg <= 1)[0]
     if len(loose) == 0:
@@ -596,6 +640,41 @@ def fill_gaps(graph: LineGraph, image: np.ndarray, max_gap: float, min_cos: floa
                     float(min_grey_ratio), start, nbr, int(max_degree), accepted)
     for i, j in accepted[:n].tolist():
         graph.connect(i, j)
+    if n:
+        lists = np.empty_like(start), np.empty(len(nbr) + 2 * n, np.int64)
+        _linked_lists(start, nbr, accepted[:n], *lists)
+        graph.lists = lists
+
+
+@njit(cache=True, nogil=True)
+def _linked_lists(start, nbr, pairs, new_start, new_nbr):
+    """Flat neighbour lists (LineGraph.neighbour_lists' form) with the connections ``pairs``
+    (i, j) added both ways, into ``new_start``, ``new_nbr`` (each node's old neighbours,
+    then its new ones; nodes beyond the old lists, up to len(new_start) - 1, had none)."""
+    n_old = len(start) - 1
+    n = len(new_start) - 1
+    extra = np.zeros(n, np.int64)
+    for p in range(pairs.shape[0]):
+        extra[pairs[p, 0]] += 1
+        extra[pairs[p, 1]] += 1
+    new_start[0] = 0
+    for i in range(n):
+        old = start[i + 1] - start[i] if i < n_old else 0
+        new_start[i + 1] = new_start[i] + old + extra[i]
+    fill = np.empty(n, np.int64)
+    for i in range(n):
+        k = new_start[i]
+        if i < n_old:
+            for q in range(start[i], start[i + 1]):
+                new_nbr[k] = nbr[q]
+                k += 1
+        fill[i] = k
+    for p in range(pairs.shape[0]):
+        i, j = pairs[p, 0], pairs[p, 1]
+        new_nbr[fill[i]] = j
+        fill[i] += 1
+        new_nbr[fill[j]] = i
+        fill[j] += 1
 
 
 @njit(cache=True, nogil=True)
@@ -804,9 +883,9 @@ def line_structure_graph(white_lp: np.ndarray, conf: dict, ranked=None
     else:
         key, skeleton, c = ranked
     pix, regions = place_nodes(white_lp, skeleton, c, key)
-    adj = connect_nodes(regions, len(pix))
+    links = node_links(regions, len(pix))
     graph = LineGraph(pix, pix.astype(np.float64), white_lp[pix[:, 1], pix[:, 0]]
-                      if len(pix) else np.zeros(0), adj)
+                      if len(pix) else np.zeros(0), _adjacency(*links), links)
     if len(pix) == 0:
         return graph, skeleton, regions
     graph.pos = subpixel_positions(white_lp, graph.pix)
@@ -833,11 +912,8 @@ class KeyStructure:
     edges: list[tuple[int, int, list[int]]]
 
     def degree(self) -> np.ndarray:
-        deg = np.zeros(len(self.node), int)
-        for a, b, _ in self.edges:
-            deg[a] += 1
-            deg[b] += 1
-        return deg
+        ends = [k for a, b, _ in self.edges for k in (a, b)]
+        return np.bincount(np.array(ends, np.int64), minlength=len(self.node))
 
     def incident(self, k: int) -> list[list[int]]:
         """The fine chains leaving key node k, each starting at k."""
@@ -885,8 +961,19 @@ class KeyStructure:
 
 
 def _chain_length(pos: np.ndarray, chain: list[int]) -> float:
-    p = pos[chain]
-    return float(np.hypot(*np.diff(p, axis=0).T).sum()) if len(chain) > 1 else 0.0
+    """The length of a fine chain (cells; compiled: ``_path_length``)."""
+    return _path_length(pos, np.array(chain, np.int64)) if len(chain) > 1 else 0.0
+
+
+@njit(cache=True, nogil=True)
+def _path_length(pos, path):
+    """The length of the path through the nodes ``path`` (at least two): its steps' np.hypot
+    lengths summed as numpy sums them (block_sum)."""
+    steps = np.empty(len(path) - 1)
+    for k in range(len(path) - 1):
+        steps[k] = math.hypot(pos[path[k + 1], 0] - pos[path[k], 0],
+                              pos[path[k + 1], 1] - pos[path[k], 1])
+    return block_sum(steps)
 
 
 def remove_short_lines(graph: LineGraph, min_length: float) -> LineGraph:
@@ -894,25 +981,30 @@ def remove_short_lines(graph: LineGraph, min_length: float) -> LineGraph:
     >= 3 shorter than ``min_length`` cells is removed (returns a new graph). The end nodes
     are walked in order, each on the graph as the earlier removals left it (compiled:
     ``_short_spurs``); the removed connections are then taken out of the copy's sets in the
-    same order."""
+    same order; the copy keeps the connections left as its flat lists."""
     g = graph.copy()
     if len(g) == 0:
         return g
-    start, nbr = _neighbour_lists(g.adj)
-    cut = _short_spurs(start, nbr, np.ascontiguousarray(g.pos, np.float64), float(min_length))
+    start, nbr = graph.neighbour_lists()
+    kept_start = np.empty_like(start)
+    kept_nbr = np.empty_like(nbr)
+    cut = _short_spurs(start, nbr, np.ascontiguousarray(g.pos, np.float64), float(min_length),
+                       kept_start, kept_nbr)
     for a, b in cut.tolist():
         g.disconnect(a, b)
+    g.lists = (kept_start, kept_nbr[:kept_start[-1]])
     return g
 
 
-@njit("int64[:, ::1](int64[::1], int64[::1], float64[:, ::1], float64)", cache=True,
-      nogil=True)
-def _short_spurs(start, nbr, pos, min_length):
+@njit("int64[:, ::1](int64[::1], int64[::1], float64[:, ::1], float64, int64[::1], int64[::1])",
+      cache=True, nogil=True)
+def _short_spurs(start, nbr, pos, min_length, kept_start, kept_nbr):
     """remove_short_lines' walks: from each end node (degree 1 at the start, in index order)
     along nodes of degree 2 to the first node of another degree; where that is a junction
-    (degree >= 3) and the path is shorter than ``min_length`` (its steps' lengths summed as
-    numpy sums them, block_sum), the path's connections are removed (here and from the
-    degrees the later walks see). Returns the removed connections (a, b) in order."""
+    (degree >= 3) and the path is shorter than ``min_length`` (_path_length), the path's
+    connections are removed (here and from the degrees the later walks see). Returns the
+    removed connections (a, b) in order; the connections left go into ``kept_start``,
+    ``kept_nbr`` as flat lists of the same form."""
     n = len(start) - 1
     alive = np.ones(len(nbr), np.bool_)
     deg = np.empty(n, np.int64)
@@ -920,7 +1012,6 @@ def _short_spurs(start, nbr, pos, min_length):
         deg[i] = start[i + 1] - start[i]
     ends = np.nonzero(deg == 1)[0]
     path = np.empty(n + 1, np.int64)
-    steps = np.empty(n + 1)
     cut = np.empty((len(nbr), 2), np.int64)
     m = 0
     for e in ends:
@@ -944,12 +1035,7 @@ def _short_spurs(start, nbr, pos, min_length):
                 break
         if deg[cur] < 3:
             continue
-        length = 0.0
-        if np_ > 1:
-            for k in range(np_ - 1):
-                steps[k] = math.hypot(pos[path[k + 1], 0] - pos[path[k], 0],
-                                      pos[path[k + 1], 1] - pos[path[k], 1])
-            length = block_sum(steps[:np_ - 1])
+        length = _path_length(pos, path[:np_]) if np_ > 1 else 0.0
         if length >= min_length:
             continue
         for k in range(np_ - 1):
@@ -964,6 +1050,14 @@ def _short_spurs(start, nbr, pos, min_length):
                     deg[b] -= 1
             cut[m, 0], cut[m, 1] = a, b
             m += 1
+    k = 0
+    for i in range(n):
+        kept_start[i] = k
+        for q in range(start[i], start[i + 1]):
+            if alive[q]:
+                kept_nbr[k] = nbr[q]
+                k += 1
+    kept_start[n] = k
     return cut[:m].copy()
 
 
@@ -974,7 +1068,7 @@ def trace_chains(graph: LineGraph) -> list[list[int]]:
     n = len(graph.adj)
     if n == 0:
         return []
-    start, nbr = _neighbour_lists(graph.adj)
+    start, nbr = graph.neighbour_lists()
     flat = np.empty(3 * (len(nbr) + n) + 4, np.int64)
     bounds = np.empty(len(nbr) + n + 2, np.int64)
     m = _trace(start, nbr, flat, bounds)
@@ -1051,7 +1145,7 @@ def smooth_lines(graph: LineGraph, iterations: int = 2) -> np.ndarray:
     pos = np.array(graph.pos, np.float64)  # a copy
     if len(pos) == 0:
         return pos
-    start, nbr = _neighbour_lists(graph.adj)
+    start, nbr = graph.neighbour_lists()
     _smooth_chains(pos, start, nbr, int(iterations))
     return pos
 

@@ -530,7 +530,7 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
                                              to_floor, cc, cell, trace,
                                              counts.get("white_px"),
                                              floor_of if floor_angles else None,
-                                             np.asarray(lines_ideal).reshape(-1, 2, 2),
+                                             np.asarray(lines_ideal, float).reshape(-1, 2, 2),
                                              np.asarray(line_widths, float), posts_px)
 
     if trace is not None:
@@ -538,7 +538,7 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
                      skeleton=skeleton, graph=graph, key=ks, ideal=ideal, post_groups=groups)
 
     def arr(rows, n):
-        return np.asarray(rows, np.float32).reshape(-1, n) if rows else _empty(n)
+        return np.asarray(rows, np.float32).reshape(-1, n) if len(rows) else _empty(n)
 
     return {
         "boundary": boundary,
@@ -567,16 +567,16 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
     the posts, so they do not always rise above it).
 
     Returns line rows [perpendicular distance, its angle, length, confidence], floor end
-    points, image end points, post rows [distance, bearing, confidence] with their image
-    foot points, and per line its ideal end points (2, 2) and its white width across (px:
-    the refined runs' median, else one cell)."""
+    points (L, 4), image end points (L, 4), post rows [distance, bearing, confidence] with
+    their image foot points, and per line its ideal end points (L, 2, 2) and its white width
+    across (px: the refined runs' median, else one cell)."""
     segments = split_and_merge(ideal, line_components(graph), lc)
     lines, ends_m, ends_px, posts, posts_px, ends_ideal, widths = [], [], [], [], [], [], []
     if not segments:
         return lines, ends_m, ends_px, posts, posts_px, ends_ideal, widths
     refined = [None] * len(segments)
+    lens = lens_parameters(camera)
     if white_px is not None and lc.get("refine", True):
-        lens = lens_parameters(camera)
         refined = refine_segments(np.stack([seg.ends for seg in segments]), white_px, lens,
                                   lc["refine_step"], lc["refine_reach"] * cell,
                                   lc["refine_extend"] * cell, lc["refine_min_points"],
@@ -584,27 +584,28 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
     ratios = width_ratios([r for r in refined if r is not None], to_floor, lc["line_width"])
     ends = np.concatenate([seg.ends if r is None else r.ends for seg, r in
                            zip(segments, refined)])
-    all_px = distort_ideal(lens_parameters(camera), ends).reshape(-1, 2, 2)
+    all_px = distort_ideal(lens, ends).reshape(-1, 2, 2)
     all_floor = to_floor(ends).reshape(-1, 2, 2)
     # every line's floor parameters and end ranges at once (used where both ends are on it)
-    with np.errstate(invalid="ignore"):
-        params = np.stack(floor_lines_parameters(all_floor[:, 0], all_floor[:, 1]),
-                          axis=1).tolist()
+    params = zip(*(a.tolist() for a in floor_lines_parameters(all_floor[:, 0],
+                                                              all_floor[:, 1])))
     all_ranges = np.hypot(all_floor[..., 0], all_floor[..., 1])
     nearest = all_ranges.min(axis=1).tolist()
     on_floor = np.isfinite(all_floor).all(axis=(1, 2)).tolist()
-    beyond, gap = (field_edge(all_floor, to_floor, lens_parameters(camera), green,
-                              boundary_range, cell, lc["green_beyond_m"])
+    beyond, gap = (field_edge(all_floor, to_floor, lens, green, boundary_range, cell,
+                              lc["green_beyond_m"])
                    if green is not None and boundary_range is not None
                    else (np.full(len(segments), np.nan),) * 2)
     edge = ((beyond < lc["min_green_beyond"]) & (gap < lc["edge_gap_m"])).tolist()  # NaN: no
-    for seg, ref, e_px, e_floor, e_ideal, (dist, angle, length), ranges, near, finite, \
-            at_edge in zip(segments, refined, all_px, all_floor, ends.reshape(-1, 2, 2),
-                           params, all_ranges, nearest, on_floor, edge):
+    ends = ends.reshape(-1, 2, 2)
+    kept = []  # the lines' indices
+    for i, (seg, ref, (dist, angle, length), near, finite, at_edge) in enumerate(zip(
+            segments, refined, params, nearest, on_floor, edge)):
+        e_px = all_px[i]
         if not finite:
             # reaching above the horizon: no field line, but maybe a post (its foot on the
             # floor, the part below the horizon runs away from the robot)
-            clipped = _below_horizon_part(e_ideal, to_floor, lc["max_distance"])
+            clipped = _below_horizon_part(ends[i], to_floor, lc["max_distance"])
             if clipped is None:
                 continue
             e_floor = to_floor(clipped)
@@ -617,7 +618,8 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
                 posts_px.append(camera.distort_points(clipped[k:k + 1])[0])
             continue
         if is_post_bar(dist, near, e_px, top, white, camera.fx, cell, pc):
-            k = int(np.argmin(ranges))
+            k = int(np.argmin(all_ranges[i]))
+            e_floor = all_floor[i]
             posts.append([near, math.atan2(e_floor[k, 1], e_floor[k, 0]), pc["bar_confidence"]])
             posts_px.append(e_px[k])
             continue
@@ -632,13 +634,12 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
         confidence = (min(1.0, len(seg.nodes) / lc["full_nodes"])
                       * max(0.0, 1.0 - rms / lc["split_distance"])) if used else 0.0
         lines.append([dist, angle, length, confidence])
-        ends_m.append(e_floor.ravel())
-        ends_px.append(e_px.ravel())
-        ends_ideal.append(seg.ends if ref is None else ref.ends)
+        kept.append(i)
         widths.append(float(cell) if ref is None else float(median(ref.widths)))
     if trace is not None:
         trace.update(segments=segments, refined=refined)
-    return lines, ends_m, ends_px, posts, posts_px, ends_ideal, widths
+    return (lines, all_floor[kept].reshape(-1, 4), all_px[kept].reshape(-1, 4), posts, posts_px,
+            ends[kept], widths)
 
 
 def field_edge(ends_floor: np.ndarray, to_floor: FloorProjection, lens: np.ndarray,
