@@ -94,7 +94,8 @@ did not find the other place. Since a uniform start places its belief at the fir
 places, 6, each at a place the frame's observations fit better than the truth by 1.1-2.2 nats a
 frame, and the AUROCs are 0.92 and 0.90 on the rendered runs, 0.69 and 0.97 on the HULKs
 frames: the misses there are places the frames decide, held at the pair share the model
-gives them.)
+gives them. Since the extractor tells the carpet's edge from a line, 3 of the 120, AUROCs 0.94
+and 0.91, and 0.64 and 0.98 on the HULKs frames.)
 
 Symmetry: the field looks the same after a 180 deg turn about the centre spot (both goals
 white), so a pose and its mirror (FieldModel.mirror_pose) explain every image equally. With
