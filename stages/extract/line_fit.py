@@ -19,7 +19,6 @@ Coordinates here are undistorted ("ideal") pixels, where straight lines are stra
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass
 
@@ -27,7 +26,7 @@ import numpy as np
 from numba import njit
 
 from .exact_ops import fused_multiply_add
-from .line_structure import LineGraph, trace_chains
+from .line_structure import LineGraph, flat_lists, trace_chains
 
 
 @dataclass
@@ -183,23 +182,13 @@ def split_and_merge(points: np.ndarray, components: list[list[int]], conf: dict
             for p, f, e, rms in zip(parts, fits, ends, fits[:, 6].tolist())]
 
 
-def _flat(lists) -> tuple[np.ndarray, np.ndarray]:
-    """Index lists (or arrays) as one int64 array and their starts (L + 1,)."""
-    start = np.zeros(len(lists) + 1, np.int64)
-    np.cumsum(np.fromiter(map(len, lists), np.int64, len(lists)), out=start[1:])
-    if lists and isinstance(lists[0], np.ndarray):  # (joined whole, not item by item)
-        return np.concatenate(lists, dtype=np.int64), start
-    flat = np.fromiter(itertools.chain.from_iterable(lists), np.int64, int(start[-1]))
-    return flat, start
-
-
 def split_components(points: np.ndarray, components, max_distance: float, min_nodes: int = 3
                      ) -> list[np.ndarray]:
     """split_component of every component (its nodes with finite points, in order), all in
     one compiled pass (``_split_all``): the parts of all components, in order."""
     if not components:
         return []
-    flat, start = _flat(components)
+    flat, start = flat_lists(components)
     out = np.empty(2 * len(flat) + 2, np.int64)
     out_start = np.zeros(len(flat) + 2, np.int64)
     m = _split_all(np.ascontiguousarray(points, np.float64), flat, start, float(max_distance),
@@ -212,7 +201,7 @@ def part_fits(points: np.ndarray, parts) -> tuple[np.ndarray, np.ndarray]:
     """fit_line and the end points on the fit (_ends_on_line) of each part (indices into
     ``points``), at once: (P, 7) rows [centroid x, y, direction x, y, normal x, y, rms] and
     (P, 2, 2) end points."""
-    flat, start = _flat(parts)
+    flat, start = flat_lists(parts)
     fits = np.empty((len(parts), 7))
     ends = np.empty((len(parts), 2, 2))
     _fit_parts(np.ascontiguousarray(points, np.float64), flat, start, fits, ends)

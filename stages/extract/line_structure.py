@@ -1061,6 +1061,16 @@ def _short_spurs(start, nbr, pos, min_length, kept_start, kept_nbr):
     return cut[:m].copy()
 
 
+def flat_lists(lists) -> tuple[np.ndarray, np.ndarray]:
+    """Index lists (or arrays) as one int64 array and their starts (L + 1,)."""
+    start = np.zeros(len(lists) + 1, np.int64)
+    np.cumsum(np.fromiter(map(len, lists), np.int64, len(lists)), out=start[1:])
+    if lists and isinstance(lists[0], np.ndarray):  # (joined whole, not item by item)
+        return np.concatenate(lists, dtype=np.int64), start
+    flat = np.fromiter(itertools.chain.from_iterable(lists), np.int64, int(start[-1]))
+    return flat, start
+
+
 def trace_chains(graph: LineGraph) -> list[list[int]]:
     """Chains of degree-2 nodes between nodes of another degree (each chain includes its two
     end nodes); closed loops of degree-2 nodes start and end at their first node. Walked by
@@ -1188,8 +1198,8 @@ def turning_angles(chains: list[list[int]], pos: np.ndarray, reach: float,
     if not chains:
         return np.zeros(0), (None if floor is None else np.zeros(0)), np.zeros(0), \
             np.zeros(0, int)
-    lens = np.array([len(c) for c in chains], dtype=np.int64)
-    idx = np.concatenate(chains).astype(np.int64)
+    idx, first = flat_lists(chains)
+    lens = first[1:] - first[:-1]
     n = len(idx)
     cos_img = np.empty(n)
     cos_floor = np.empty(n)
@@ -1356,15 +1366,7 @@ def key_structure(graph: LineGraph, conf: dict, floor_of=None) -> KeyStructure:
     pruned = remove_short_lines(graph, conf["min_spur_length"])
     smooth = smooth_lines(pruned, conf["smooth_iterations"])
     chains = trace_chains(pruned)
-    key_of: dict[int, int] = {}
-    nodes: list[int] = []
-
-    def key(i: int) -> int:
-        if i not in key_of:
-            key_of[i] = len(nodes)
-            nodes.append(i)
-        return key_of[i]
-
+    key_of: dict[int, int] = {}  # the key nodes' indices by fine node, in order of finding
     edges = []
     min_turn, reach = conf["corner_min_turn"], conf["corner_reach"]
     on_floor = floor_of is not None and len(smooth)
@@ -1384,13 +1386,17 @@ def key_structure(graph: LineGraph, conf: dict, floor_of=None) -> KeyStructure:
     _corner_cuts(np.ascontiguousarray(turn, np.float64), np.ascontiguousarray(arc, np.float64),
                  offsets, float(reach), float(min_turn), cuts, cut_start, by_python)
     cut_list, cut_at = cuts.tolist(), cut_start.tolist()
-    for c, chain in enumerate(chains):
-        i0, i1 = offsets[c], offsets[c + 1]
-        cut = corner_nodes(turn[i0:i1], arc[i0:i1], reach, min_turn) if by_python[c] \
-            else cut_list[cut_at[c]:cut_at[c + 1]]
+    for c, (chain, python) in enumerate(zip(chains, by_python.tolist())):
+        if python:
+            i0, i1 = offsets[c], offsets[c + 1]
+            cut = corner_nodes(turn[i0:i1], arc[i0:i1], reach, min_turn)
+        else:
+            cut = cut_list[cut_at[c]:cut_at[c + 1]]
         bounds = [0] + cut + [len(chain) - 1]
         for a, b in zip(bounds[:-1], bounds[1:]):
-            edges.append((key(chain[a]), key(chain[b]), chain[a:b + 1]))
+            ka = key_of.setdefault(chain[a], len(key_of))
+            edges.append((ka, key_of.setdefault(chain[b], len(key_of)), chain[a:b + 1]))
+    nodes = list(key_of)
     # small rings hanging at a node (a hole in a wide crossing blob) are no lines
     edges = [e for e in edges if not (e[0] == e[1]
                                        and _chain_length(pruned.pos, e[2]) < conf["max_ring"])]
@@ -1404,7 +1410,7 @@ def merge_close_junctions(ks: KeyStructure, graph: LineGraph, max_length: float
     into one crossing, placed at the fine node of the two (on the skeleton) nearest to their
     mean position."""
     while True:
-        deg = ks.degree()
+        deg = ks.degree().tolist()
         best = None
         for e, (a, b, chain) in enumerate(ks.edges):
             if a != b and deg[a] >= 3 and deg[b] >= 3:
