@@ -751,7 +751,7 @@ def _neighbour_lists(adj: list[set]) -> tuple[np.ndarray, np.ndarray]:
     """The graph's connections as flat lists for the kernels: node i's neighbours are
     ``nbr[start[i]:start[i + 1]]`` (in no particular order)."""
     start = np.zeros(len(adj) + 1, np.int64)
-    np.cumsum(np.fromiter(map(len, adj), np.int64, len(adj)), out=start[1:])
+    np.add.accumulate(np.fromiter(map(len, adj), np.int64, len(adj)), out=start[1:])
     nbr = np.fromiter(itertools.chain.from_iterable(adj), np.int64, int(start[-1]))
     return start, nbr
 
@@ -1064,7 +1064,7 @@ def _short_spurs(start, nbr, pos, min_length, kept_start, kept_nbr):
 def flat_lists(lists) -> tuple[np.ndarray, np.ndarray]:
     """Index lists (or arrays) as one int64 array and their starts (L + 1,)."""
     start = np.zeros(len(lists) + 1, np.int64)
-    np.cumsum(np.fromiter(map(len, lists), np.int64, len(lists)), out=start[1:])
+    np.add.accumulate(np.fromiter(map(len, lists), np.int64, len(lists)), out=start[1:])
     if lists and isinstance(lists[0], np.ndarray):  # (joined whole, not item by item)
         return np.concatenate(lists, dtype=np.int64), start
     flat = np.fromiter(itertools.chain.from_iterable(lists), np.int64, int(start[-1]))
@@ -1379,7 +1379,7 @@ def key_structure(graph: LineGraph, conf: dict, floor_of=None) -> KeyStructure:
         min_turn = conf["corner_min_turn_floor"]
     # the corners of all chains at once (corner_nodes, compiled: _corner_cuts)
     offsets = np.zeros(len(chains) + 1, np.int64)
-    np.cumsum(np.fromiter(map(len, chains), np.int64, len(chains)), out=offsets[1:])
+    np.add.accumulate(np.fromiter(map(len, chains), np.int64, len(chains)), out=offsets[1:])
     cuts = np.empty(len(turn), np.int64)
     cut_start = np.empty(len(chains) + 1, np.int64)
     by_python = np.zeros(len(chains), np.bool_)

@@ -736,7 +736,7 @@ def width_ratios(refs: list[RefinedLine], to_floor: FloorProjection, line_width:
     if not refs:
         return {}
     start = np.zeros(len(refs) + 1, np.int64)
-    np.cumsum([len(r.centres) for r in refs], out=start[1:])
+    np.add.accumulate([len(r.centres) for r in refs], out=start[1:])
     out = np.empty(len(refs))
     _width_ratios(np.concatenate([r.centres for r in refs]).astype(np.float64, copy=False),
                   start, np.array([r.ends for r in refs], np.float64),
