@@ -666,7 +666,7 @@ def merge_line_crossings(crossings: list[LineCrossing], tol: float,
         all_lengths = np.concatenate([g.lengths for g in group])
         cmp = all_arms
         if floor_of is not None:
-            f = floor_of(np.vstack([point[None], point[None] + tol * all_arms]))
+            f = floor_of(np.concatenate([point[None], point[None] + tol * all_arms]))
             d = f[1:] - f[0]
             n = np.hypot(d[:, 0], d[:, 1])
             if np.isfinite(n).all() and np.all(n > 0):

@@ -157,9 +157,9 @@ def merge_segments(points: np.ndarray, parts: list[np.ndarray], max_angle: float
         alive[i] = alive[j] = False
         parts.append(merged)
         alive.append(True)
-        cen = np.vstack([cen, fit.centroid])
-        dirs = np.vstack([dirs, fit.direction])
-        nor = np.vstack([nor, fit.normal])
+        cen = np.concatenate([cen, fit.centroid[None]])
+        dirs = np.concatenate([dirs, fit.direction[None]])
+        nor = np.concatenate([nor, fit.normal[None]])
         ends = np.concatenate([ends, _ends_on_line(points, merged, fit)[None]])
         k = len(parts) - 1
         new = _similar_pairs(cen, dirs, nor, ends, np.array([k]), cos_max, max_offset,

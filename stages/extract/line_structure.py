@@ -484,7 +484,7 @@ def limit_degree(graph: LineGraph, max_degree: int = 4):
     """No crossing of degree above ``max_degree``: a node with more connections loses its
     longest ones (in place)."""
     start, _ = graph.neighbour_lists()
-    for i in np.nonzero(np.diff(start) > max_degree)[0].tolist():  # (degrees only fall)
+    for i in np.nonzero(start[1:] - start[:-1] > max_degree)[0].tolist():  # (degrees only fall)
         while len(graph.adj[i]) > max_degree:
             far = max(graph.adj[i], key=lambda j: np.hypot(*(graph.pos[i] - graph.pos[j])))
             graph.disconnect(i, far)
@@ -495,7 +495,7 @@ def stretch_lines(graph: LineGraph, regions: np.ndarray):
     region farthest from its neighbour (the first in row-major order of equally far ones; in
     place)."""
     start, nbr = graph.neighbour_lists()
-    ends = np.nonzero(np.diff(start) == 1)[0]
+    ends = np.nonzero(start[1:] - start[:-1] == 1)[0]
     if len(ends) == 0:
         return
     other = np.full(len(graph), -1, np.int64)
@@ -532,7 +532,7 @@ def split_isolated_nodes(graph: LineGraph, regions: np.ndarray, image: np.ndarra
     connected nodes at the region's two farthest pixels, so that short isolated pieces can
     bridge gaps (in place; the graph's flat lists are extended by them, ``_linked_lists``)."""
     start, nbr = graph.neighbour_lists()
-    lonely = np.nonzero(np.diff(start) == 0)[0]
+    lonely = np.nonzero(start[1:] - start[:-1] == 0)[0]
     if len(lonely) == 0:
         return
     # each region's pixels in row-major order, as a mask per region would pick them, and per
@@ -547,8 +547,8 @@ def split_isolated_nodes(graph: LineGraph, regions: np.ndarray, image: np.ndarra
     graph.pix[ids] = ends[:, 0:2]
     new = ends[:, 2:4].astype(graph.pix.dtype)
     first = len(graph)
-    graph.pix = np.vstack([graph.pix, new])
-    graph.pos = np.vstack([graph.pos, new.astype(float)])
+    graph.pix = np.concatenate([graph.pix, new])
+    graph.pos = np.concatenate([graph.pos, new.astype(float)])
     graph.value = np.append(graph.value, image[new[:, 1], new[:, 0]])
     graph.adj.extend(set() for _ in range(len(new)))
     for k, i in enumerate(ids.tolist()):
@@ -619,7 +619,7 @@ def fill_gaps(graph: LineGraph, image: np.ndarray, max_gap: float, min_cos: floa
     if len(graph) < 2:
         return
     start, nbr = graph.neighbour_lists()
-    deg = np.diff(start)
+    deg = start[1:] - start[:-1]
     loose = np.nonzero(deg <= 1)[0]
     if len(loose) == 0:
         return
