@@ -304,7 +304,7 @@ def median(values):
 
 def lens_parameters(camera) -> np.ndarray:
     """(9,) fx, fy, cx, cy, k1, k2, p1, p2, k3 of a PerspectiveCamera, for the kernels."""
-    return np.array([camera.fx, camera.fy, camera.cx, camera.cy, *camera.distortion],
+    return np.array([camera.fx, camera.fy, camera.cx, camera.cy, *camera.distortion.tolist()],
                     np.float64)
 
 
