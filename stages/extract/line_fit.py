@@ -361,7 +361,7 @@ def refine_segments(ends: np.ndarray, white: np.ndarray, lens: np.ndarray, step:
     res = np.empty((n, 12))
     # at most one point per profile: (length + 2 extend) / step + 1 per segment
     length = np.hypot(*(ends[:, 1] - ends[:, 0]).T)
-    cap = int(np.sum(np.floor((length + 2 * extend) / step) + 2)) if n else 0
+    cap = int(np.add.reduce(np.floor((length + 2 * extend) / step) + 2)) if n else 0
     pts = np.empty((cap, 2))
     widths = np.empty(cap)
     start = np.zeros(n + 1, np.int64)
