@@ -1057,7 +1057,7 @@ def _sample_pixels(yuv: np.ndarray, step: int, mask: np.ndarray | None) -> np.nd
     rows, cols = -(-yuv.shape[0] // step), -(-yuv.shape[1] // step)
     use = mask is not None
     m = np.ascontiguousarray(mask, dtype=bool) if use else np.zeros((0, 0), bool)
-    out = np.empty((int(m.sum()) if use else rows * cols, 3), np.uint8)
+    out = np.empty((np.count_nonzero(m) if use else rows * cols, 3), np.uint8)
     n = _sample_rows(np.ascontiguousarray(yuv), step, m, use, out)
     return out[:n]
 

@@ -45,7 +45,7 @@ from .line_fit import (
     lens_parameters,
     refine_kernel,
 )
-from .line_structure import KeyStructure, LineGraph
+from .line_structure import KeyStructure, LineGraph, flat_lists
 
 
 @dataclass
@@ -64,10 +64,7 @@ def point_along(pos: np.ndarray, chain: list[int], reach: float) -> np.ndarray:
 
 def points_along(pos: np.ndarray, chains: list[list[int]], reach: float) -> np.ndarray:
     """point_along of each chain (C, 2), in one compiled pass (``_points_along``)."""
-    lens = np.fromiter(map(len, chains), np.int64, len(chains))
-    start = np.zeros(len(chains) + 1, np.int64)
-    np.cumsum(lens, out=start[1:])
-    flat = np.fromiter(itertools.chain.from_iterable(chains), np.int64, int(start[-1]))
+    flat, start = flat_lists(chains)
     out = np.empty((len(chains), 2))
     _points_along(np.ascontiguousarray(pos, np.float64), flat, start, float(reach), out)
     return out
@@ -669,7 +666,7 @@ def merge_line_crossings(crossings: list[LineCrossing], tol: float,
         all_lengths = np.concatenate([g.lengths for g in group])
         cmp = all_arms
         if floor_of is not None:
-            f = floor_of(np.vstack([point[None], point[None] + tol * all_arms]))
+            f = floor_of(np.concatenate([point[None], point[None] + tol * all_arms]))
             d = f[1:] - f[0]
             n = np.hypot(d[:, 0], d[:, 1])
             if np.isfinite(n).all() and np.all(n > 0):
@@ -822,10 +819,7 @@ def place_crossing(kind: str, centre: np.ndarray, chains: list[list[int]], ideal
     fitted together). It runs compiled (``_place``), with the dot products as numpy's BLAS
     forms them (exact_ops.fused_multiply_add) and np.linalg's 2 x 2 determinant and solve."""
     n = len(chains)
-    lens_ = np.fromiter(map(len, chains), np.int64, n)
-    start = np.zeros(n + 1, np.int64)
-    np.cumsum(lens_, out=start[1:])
-    flat = np.fromiter(itertools.chain.from_iterable(chains), np.int64, int(start[-1]))
+    flat, start = flat_lists(chains)
     refine = white_px is not None
     out = np.empty((n + 1, 3))
     code = _place(KIND_INDEX[kind], np.ascontiguousarray(centre, np.float64), flat, start,

@@ -19,7 +19,6 @@ Coordinates here are undistorted ("ideal") pixels, where straight lines are stra
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass
 
@@ -27,7 +26,7 @@ import numpy as np
 from numba import njit
 
 from .exact_ops import fused_multiply_add
-from .line_structure import LineGraph, trace_chains
+from .line_structure import LineGraph, flat_lists, trace_chains
 
 
 @dataclass
@@ -158,9 +157,9 @@ def merge_segments(points: np.ndarray, parts: list[np.ndarray], max_angle: float
         alive[i] = alive[j] = False
         parts.append(merged)
         alive.append(True)
-        cen = np.vstack([cen, fit.centroid])
-        dirs = np.vstack([dirs, fit.direction])
-        nor = np.vstack([nor, fit.normal])
+        cen = np.concatenate([cen, fit.centroid[None]])
+        dirs = np.concatenate([dirs, fit.direction[None]])
+        nor = np.concatenate([nor, fit.normal[None]])
         ends = np.concatenate([ends, _ends_on_line(points, merged, fit)[None]])
         k = len(parts) - 1
         new = _similar_pairs(cen, dirs, nor, ends, np.array([k]), cos_max, max_offset,
@@ -183,23 +182,13 @@ def split_and_merge(points: np.ndarray, components: list[list[int]], conf: dict
             for p, f, e, rms in zip(parts, fits, ends, fits[:, 6].tolist())]
 
 
-def _flat(lists) -> tuple[np.ndarray, np.ndarray]:
-    """Index lists (or arrays) as one int64 array and their starts (L + 1,)."""
-    start = np.zeros(len(lists) + 1, np.int64)
-    np.cumsum(np.fromiter(map(len, lists), np.int64, len(lists)), out=start[1:])
-    if lists and isinstance(lists[0], np.ndarray):  # (joined whole, not item by item)
-        return np.concatenate(lists, dtype=np.int64), start
-    flat = np.fromiter(itertools.chain.from_iterable(lists), np.int64, int(start[-1]))
-    return flat, start
-
-
 def split_components(points: np.ndarray, components, max_distance: float, min_nodes: int = 3
                      ) -> list[np.ndarray]:
     """split_component of every component (its nodes with finite points, in order), all in
     one compiled pass (``_split_all``): the parts of all components, in order."""
     if not components:
         return []
-    flat, start = _flat(components)
+    flat, start = flat_lists(components)
     out = np.empty(2 * len(flat) + 2, np.int64)
     out_start = np.zeros(len(flat) + 2, np.int64)
     m = _split_all(np.ascontiguousarray(points, np.float64), flat, start, float(max_distance),
@@ -212,7 +201,7 @@ def part_fits(points: np.ndarray, parts) -> tuple[np.ndarray, np.ndarray]:
     """fit_line and the end points on the fit (_ends_on_line) of each part (indices into
     ``points``), at once: (P, 7) rows [centroid x, y, direction x, y, normal x, y, rms] and
     (P, 2, 2) end points."""
-    flat, start = _flat(parts)
+    flat, start = flat_lists(parts)
     fits = np.empty((len(parts), 7))
     ends = np.empty((len(parts), 2, 2))
     _fit_parts(np.ascontiguousarray(points, np.float64), flat, start, fits, ends)
@@ -315,7 +304,7 @@ def median(values):
 
 def lens_parameters(camera) -> np.ndarray:
     """(9,) fx, fy, cx, cy, k1, k2, p1, p2, k3 of a PerspectiveCamera, for the kernels."""
-    return np.array([camera.fx, camera.fy, camera.cx, camera.cy, *camera.distortion],
+    return np.array([camera.fx, camera.fy, camera.cx, camera.cy, *camera.distortion.tolist()],
                     np.float64)
 
 
@@ -372,7 +361,7 @@ def refine_segments(ends: np.ndarray, white: np.ndarray, lens: np.ndarray, step:
     res = np.empty((n, 12))
     # at most one point per profile: (length + 2 extend) / step + 1 per segment
     length = np.hypot(*(ends[:, 1] - ends[:, 0]).T)
-    cap = int(np.sum(np.floor((length + 2 * extend) / step) + 2)) if n else 0
+    cap = int(np.add.reduce(np.floor((length + 2 * extend) / step) + 2)) if n else 0
     pts = np.empty((cap, 2))
     widths = np.empty(cap)
     start = np.zeros(n + 1, np.int64)

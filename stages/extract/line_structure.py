@@ -484,7 +484,7 @@ def limit_degree(graph: LineGraph, max_degree: int = 4):
     """No crossing of degree above ``max_degree``: a node with more connections loses its
     longest ones (in place)."""
     start, _ = graph.neighbour_lists()
-    for i in np.nonzero(np.diff(start) > max_degree)[0].tolist():  # (degrees only fall)
+    for i in np.nonzero(start[1:] - start[:-1] > max_degree)[0].tolist():  # (degrees only fall)
         while len(graph.adj[i]) > max_degree:
             far = max(graph.adj[i], key=lambda j: np.hypot(*(graph.pos[i] - graph.pos[j])))
             graph.disconnect(i, far)
@@ -495,7 +495,7 @@ def stretch_lines(graph: LineGraph, regions: np.ndarray):
     region farthest from its neighbour (the first in row-major order of equally far ones; in
     place)."""
     start, nbr = graph.neighbour_lists()
-    ends = np.nonzero(np.diff(start) == 1)[0]
+    ends = np.nonzero(start[1:] - start[:-1] == 1)[0]
     if len(ends) == 0:
         return
     other = np.full(len(graph), -1, np.int64)
@@ -532,7 +532,7 @@ def split_isolated_nodes(graph: LineGraph, regions: np.ndarray, image: np.ndarra
     connected nodes at the region's two farthest pixels, so that short isolated pieces can
     bridge gaps (in place; the graph's flat lists are extended by them, ``_linked_lists``)."""
     start, nbr = graph.neighbour_lists()
-    lonely = np.nonzero(np.diff(start) == 0)[0]
+    lonely = np.nonzero(start[1:] - start[:-1] == 0)[0]
     if len(lonely) == 0:
         return
     # each region's pixels in row-major order, as a mask per region would pick them, and per
@@ -547,8 +547,8 @@ def split_isolated_nodes(graph: LineGraph, regions: np.ndarray, image: np.ndarra
     graph.pix[ids] = ends[:, 0:2]
     new = ends[:, 2:4].astype(graph.pix.dtype)
     first = len(graph)
-    graph.pix = np.vstack([graph.pix, new])
-    graph.pos = np.vstack([graph.pos, new.astype(float)])
+    graph.pix = np.concatenate([graph.pix, new])
+    graph.pos = np.concatenate([graph.pos, new.astype(float)])
     graph.value = np.append(graph.value, image[new[:, 1], new[:, 0]])
     graph.adj.extend(set() for _ in range(len(new)))
     for k, i in enumerate(ids.tolist()):
@@ -619,7 +619,7 @@ def fill_gaps(graph: LineGraph, image: np.ndarray, max_gap: float, min_cos: floa
     if len(graph) < 2:
         return
     start, nbr = graph.neighbour_lists()
-    deg = np.diff(start)
+    deg = start[1:] - start[:-1]
     loose = np.nonzero(deg <= 1)[0]
     if len(loose) == 0:
         return
@@ -751,7 +751,7 @@ def _neighbour_lists(adj: list[set]) -> tuple[np.ndarray, np.ndarray]:
     """The graph's connections as flat lists for the kernels: node i's neighbours are
     ``nbr[start[i]:start[i + 1]]`` (in no particular order)."""
     start = np.zeros(len(adj) + 1, np.int64)
-    np.cumsum(np.fromiter(map(len, adj), np.int64, len(adj)), out=start[1:])
+    np.add.accumulate(np.fromiter(map(len, adj), np.int64, len(adj)), out=start[1:])
     nbr = np.fromiter(itertools.chain.from_iterable(adj), np.int64, int(start[-1]))
     return start, nbr
 
@@ -1061,6 +1061,16 @@ def _short_spurs(start, nbr, pos, min_length, kept_start, kept_nbr):
     return cut[:m].copy()
 
 
+def flat_lists(lists) -> tuple[np.ndarray, np.ndarray]:
+    """Index lists (or arrays) as one int64 array and their starts (L + 1,)."""
+    start = np.zeros(len(lists) + 1, np.int64)
+    np.add.accumulate(np.fromiter(map(len, lists), np.int64, len(lists)), out=start[1:])
+    if lists and isinstance(lists[0], np.ndarray):  # (joined whole, not item by item)
+        return np.concatenate(lists, dtype=np.int64), start
+    flat = np.fromiter(itertools.chain.from_iterable(lists), np.int64, int(start[-1]))
+    return flat, start
+
+
 def trace_chains(graph: LineGraph) -> list[list[int]]:
     """Chains of degree-2 nodes between nodes of another degree (each chain includes its two
     end nodes); closed loops of degree-2 nodes start and end at their first node. Walked by
@@ -1188,8 +1198,8 @@ def turning_angles(chains: list[list[int]], pos: np.ndarray, reach: float,
     if not chains:
         return np.zeros(0), (None if floor is None else np.zeros(0)), np.zeros(0), \
             np.zeros(0, int)
-    lens = np.array([len(c) for c in chains], dtype=np.int64)
-    idx = np.concatenate(chains).astype(np.int64)
+    idx, first = flat_lists(chains)
+    lens = first[1:] - first[:-1]
     n = len(idx)
     cos_img = np.empty(n)
     cos_floor = np.empty(n)
@@ -1356,15 +1366,7 @@ def key_structure(graph: LineGraph, conf: dict, floor_of=None) -> KeyStructure:
     pruned = remove_short_lines(graph, conf["min_spur_length"])
     smooth = smooth_lines(pruned, conf["smooth_iterations"])
     chains = trace_chains(pruned)
-    key_of: dict[int, int] = {}
-    nodes: list[int] = []
-
-    def key(i: int) -> int:
-        if i not in key_of:
-            key_of[i] = len(nodes)
-            nodes.append(i)
-        return key_of[i]
-
+    key_of: dict[int, int] = {}  # the key nodes' indices by fine node, in order of finding
     edges = []
     min_turn, reach = conf["corner_min_turn"], conf["corner_reach"]
     on_floor = floor_of is not None and len(smooth)
@@ -1377,20 +1379,24 @@ def key_structure(graph: LineGraph, conf: dict, floor_of=None) -> KeyStructure:
         min_turn = conf["corner_min_turn_floor"]
     # the corners of all chains at once (corner_nodes, compiled: _corner_cuts)
     offsets = np.zeros(len(chains) + 1, np.int64)
-    np.cumsum(np.fromiter(map(len, chains), np.int64, len(chains)), out=offsets[1:])
+    np.add.accumulate(np.fromiter(map(len, chains), np.int64, len(chains)), out=offsets[1:])
     cuts = np.empty(len(turn), np.int64)
     cut_start = np.empty(len(chains) + 1, np.int64)
     by_python = np.zeros(len(chains), np.bool_)
     _corner_cuts(np.ascontiguousarray(turn, np.float64), np.ascontiguousarray(arc, np.float64),
                  offsets, float(reach), float(min_turn), cuts, cut_start, by_python)
     cut_list, cut_at = cuts.tolist(), cut_start.tolist()
-    for c, chain in enumerate(chains):
-        i0, i1 = offsets[c], offsets[c + 1]
-        cut = corner_nodes(turn[i0:i1], arc[i0:i1], reach, min_turn) if by_python[c] \
-            else cut_list[cut_at[c]:cut_at[c + 1]]
+    for c, (chain, python) in enumerate(zip(chains, by_python.tolist())):
+        if python:
+            i0, i1 = offsets[c], offsets[c + 1]
+            cut = corner_nodes(turn[i0:i1], arc[i0:i1], reach, min_turn)
+        else:
+            cut = cut_list[cut_at[c]:cut_at[c + 1]]
         bounds = [0] + cut + [len(chain) - 1]
         for a, b in zip(bounds[:-1], bounds[1:]):
-            edges.append((key(chain[a]), key(chain[b]), chain[a:b + 1]))
+            ka = key_of.setdefault(chain[a], len(key_of))
+            edges.append((ka, key_of.setdefault(chain[b], len(key_of)), chain[a:b + 1]))
+    nodes = list(key_of)
     # small rings hanging at a node (a hole in a wide crossing blob) are no lines
     edges = [e for e in edges if not (e[0] == e[1]
                                        and _chain_length(pruned.pos, e[2]) < conf["max_ring"])]
@@ -1404,7 +1410,7 @@ def merge_close_junctions(ks: KeyStructure, graph: LineGraph, max_length: float
     into one crossing, placed at the fine node of the two (on the skeleton) nearest to their
     mean position."""
     while True:
-        deg = ks.degree()
+        deg = ks.degree().tolist()
         best = None
         for e, (a, b, chain) in enumerate(ks.edges):
             if a != b and deg[a] >= 3 and deg[b] >= 3:

@@ -736,7 +736,7 @@ def width_ratios(refs: list[RefinedLine], to_floor: FloorProjection, line_width:
     if not refs:
         return {}
     start = np.zeros(len(refs) + 1, np.int64)
-    np.cumsum([len(r.centres) for r in refs], out=start[1:])
+    np.add.accumulate([len(r.centres) for r in refs], out=start[1:])
     out = np.empty(len(refs))
     _width_ratios(np.concatenate([r.centres for r in refs]).astype(np.float64, copy=False),
                   start, np.array([r.ends for r in refs], np.float64),
@@ -753,17 +753,23 @@ def _to_ideal_at(m_inv, height, pos, fx, fy, single):
     m_inv.T`` (BLAS) forms it, fused multiply-adds in the order of its rows (``single``: a
     product of one row, ordered as a dot of three), NaN behind the camera."""
     r0, r1, r2 = fx - pos[0], fy - pos[1], -height
-    h = np.empty(3)
-    for j in range(3):
-        if single:
-            h[j] = fused_multiply_add(r2, m_inv[j, 2],
-                                      fused_multiply_add(r0, m_inv[j, 0], r1 * m_inv[j, 1]))
-        else:
-            h[j] = fused_multiply_add(r2, m_inv[j, 2],
-                                      fused_multiply_add(r1, m_inv[j, 1], r0 * m_inv[j, 0]))
-    if h[2] > 1e-9:
-        return h[0] / h[2], h[1] / h[2]
+    # (the three rows in scalars: no array allocated per point)
+    h0 = _homogeneous_row(m_inv, 0, r0, r1, r2, single)
+    h1 = _homogeneous_row(m_inv, 1, r0, r1, r2, single)
+    h2 = _homogeneous_row(m_inv, 2, r0, r1, r2, single)
+    if h2 > 1e-9:
+        return h0 / h2, h1 / h2
     return np.nan, np.nan
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _homogeneous_row(m_inv, j, r0, r1, r2, single):
+    """Row j of _to_ideal_at's homogeneous pixel from the floor point's offset (r0, r1, r2)."""
+    if single:
+        return fused_multiply_add(r2, m_inv[j, 2],
+                                  fused_multiply_add(r0, m_inv[j, 0], r1 * m_inv[j, 1]))
+    return fused_multiply_add(r2, m_inv[j, 2],
+                              fused_multiply_add(r1, m_inv[j, 1], r0 * m_inv[j, 0]))
 
 
 @njit(cache=True, nogil=True)
