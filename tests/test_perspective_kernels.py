@@ -724,7 +724,7 @@ def _reference_fill_gaps(graph, image, max_gap, min_cos, min_grey_ratio, close_g
     if len(loose) == 0 or len(graph) < 2:
         return
     pos = graph.pos
-    start, nbr = ls._neighbour_lists(graph.adj)
+    nbr, start = ls.flat_lists(graph.adj)
     score, ci, cj = ls._gap_candidates(np.ascontiguousarray(pos, np.float64), start, nbr,
                                        deg.astype(np.int64), loose.astype(np.int64),
                                        float(max_gap), float(min_cos), float(close_gap))
@@ -827,7 +827,7 @@ def test_gap_candidates_equal_the_python_loop(seed):
     max_gap, min_cos, close_gap = sc["max_gap"], math.cos(sc["gap_max_angle"]), sc["close_gap"]
     deg = graph.degree()
     loose = np.nonzero(deg <= 1)[0]
-    start, nbr = ls._neighbour_lists(graph.adj)
+    nbr, start = ls.flat_lists(graph.adj)
     score, ci, cj = ls._gap_candidates(graph.pos, start, nbr, deg.astype(np.int64),
                                        loose.astype(np.int64), max_gap, min_cos, close_gap)
     ref = _reference_candidates(graph, max_gap, min_cos, close_gap)
@@ -1219,7 +1219,7 @@ def _same_lists(lists, adj):
 def test_kept_flat_lists_equal_the_sets(seed):
     """The flat neighbour lists the kernels leave with a graph (``_short_spurs``' and
     ``_triangle_cuts``' connections left, ``_linked_lists``' gaps filled and nodes split,
-    ``node_links``) hold the graph's sets, as _neighbour_lists would make them anew."""
+    ``node_links``) hold the graph's sets, as flat_lists of the sets would make them anew."""
     rng = np.random.default_rng(seed)
     graph = _random_graph(rng, 80)
     for _ in range(12):

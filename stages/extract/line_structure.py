@@ -182,11 +182,13 @@ class LineGraph:
         return np.array(e, dtype=int).reshape(-1, 2)
 
     def neighbour_lists(self) -> tuple[np.ndarray, np.ndarray]:
-        """The connections as flat arrays for the kernels (``_neighbour_lists``: node i's
-        neighbours are ``nbr[start[i]:start[i + 1]]``, in no particular order), made once
-        while the connections stay as they are (the kernels only read them)."""
+        """The connections as flat arrays for the kernels (``(start, nbr)``: node i's
+        neighbours are ``nbr[start[i]:start[i + 1]]``, in no particular order; ``flat_lists``
+        of the sets), made once while the connections stay as they are (the kernels only read
+        them)."""
         if self.lists is None:
-            self.lists = _neighbour_lists(self.adj)
+            nbr, start = flat_lists(self.adj)
+            self.lists = start, nbr
         return self.lists
 
     def connect(self, i: int, j: int):
@@ -745,15 +747,6 @@ def _gap_steps(samples: int) -> np.ndarray:
     t = np.linspace(0.0, 1.0, samples)[None, :, None]
     t.setflags(write=False)
     return t
-
-
-def _neighbour_lists(adj: list[set]) -> tuple[np.ndarray, np.ndarray]:
-    """The graph's connections as flat lists for the kernels: node i's neighbours are
-    ``nbr[start[i]:start[i + 1]]`` (in no particular order)."""
-    start = np.zeros(len(adj) + 1, np.int64)
-    np.add.accumulate(np.fromiter(map(len, adj), np.int64, len(adj)), out=start[1:])
-    nbr = np.fromiter(itertools.chain.from_iterable(adj), np.int64, int(start[-1]))
-    return start, nbr
 
 
 @njit("UniTuple(float64, 2)(float64[:, ::1], int64[::1], int64[::1], int64)",
