@@ -29,7 +29,7 @@ test_extract_perspective_unchanged.py), on random inputs beyond the reference fr
 - goal_posts' ``_opening`` (rise_above_surroundings) against cv2.morphologyEx;
 - goal_posts' ``_standing_bars`` (standing_bars) against the former numpy runs and
   per-group checks, its ``_bar_share`` (is_post_bar's width) against the former numpy;
-- goal_posts' ``stands_out`` and ``bar_width`` (slices, the compiled median) against their
+- goal_posts' ``_stands_out`` and ``bar_width`` (slices, the compiled median) against their
   former fancy-indexed numpy;
 - crossings' ``_points_along`` (the candidates' arm points) against its former Python walk,
   its ``_corner_angles`` (the L candidates' angles) against the former _angle_between;
@@ -533,7 +533,8 @@ def test_post_bar_checks_equal_the_fancy_indexed_numpy():
         cols = np.arange(max(group[0] - 1, 0), min(group[-1] + 2, 94))
         sides = [c for c in (group[0] - 2, group[-1] + 2) if 0 <= c < 94]
         stands = len(rows) > 0 and all(np.mean(white[rows, c] >= 0.2) <= 1 / 3 for c in sides)
-        assert gp.stands_out(white, group, start, rise, 0.2) == stands
+        assert gp._stands_out(white, int(group[0]), int(group[-1]), start, rise,
+                              np.float32(0.2), 2) == stands
         for cell in (8, 6):
             width = float(np.median(white[np.ix_(rows, cols)].sum(axis=1)) * cell) \
                 if len(rows) else 0.0
@@ -569,7 +570,7 @@ def test_bar_share_equals_the_former_numpy():
 
 def test_standing_bars_equal_the_former_groups_and_checks():
     """goal_posts.standing_bars (``_standing_bars``) gives the groups the former numpy runs
-    (post_columns) and per-group stands_out kept, and their lifts."""
+    (post_columns) and per-group _stands_out kept, and their lifts."""
     from stages.extract import goal_posts as gp
 
     rng = np.random.default_rng(12)
@@ -588,7 +589,8 @@ def test_standing_bars_equal_the_former_groups_and_checks():
                       if b - a <= max_width]
             lift = [int(base[g].max()) for g in groups]
             keep = [k for k, g in enumerate(groups)
-                    if gp.stands_out(white, g, int(start[g].min()) - lift[k], 3, 0.2)]
+                    if gp._stands_out(white, int(g[0]), int(g[-1]),
+                                      int(start[g].min()) - lift[k], 3, np.float32(0.2), 2)]
             got_groups, got_lift = gp.standing_bars(excess, base, start, white, 0.2, min_rise,
                                                     max_width, 3)
             assert [g.tolist() for g in got_groups] == [groups[k].tolist() for k in keep]

@@ -8,7 +8,7 @@ On the subsampled white image, per column (vectorised over columns):
   front of the field, down to the post's foot);
 - ``standing_bars``: columns whose upward run rises at least ``min_rise`` cells above their
   surroundings', grouped into bars of adjacent columns no wider than ``max_width`` cells (a
-  white wall or banner is wider) that stand out (``stands_out``: not white beside them);
+  white wall or banner is wider) that stand out (``_stands_out``: not white beside them);
 - ``post_feet``: per bar, the foot point in full-resolution pixels: the white-weighted mean
   column and the bottom of the downward run with a subpixel fraction from the share of white
   in the lowest cell.
@@ -63,7 +63,7 @@ def standing_bars(excess: np.ndarray, base: np.ndarray, start: np.ndarray, white
                   ) -> tuple[list[np.ndarray], list[int]]:
     """The bars: groups of adjacent columns whose white run rises at least ``min_rise`` cells
     above their surroundings' (``excess``), at most ``max_width`` columns wide, that stand out
-    (``stands_out`` in the ``near`` rows above the group's surroundings' white, ``base``, from
+    (``_stands_out`` in the ``near`` rows above the group's surroundings' white, ``base``, from
     its highest boundary row ``start``), with that lift of each (its largest base). Found by
     one compiled pass (``_standing_bars``)."""
     white = np.ascontiguousarray(white)
@@ -103,22 +103,14 @@ def _standing_bars(excess, base, start, white, t_white, min_rise, max_width, nea
     return m
 
 
-def stands_out(white: np.ndarray, group: np.ndarray, start: int, rise: int, t_white: float,
-               margin: int = 2) -> bool:
-    """A bar stands out when, in the ``rise`` rows just above the boundary, the cells
-    ``margin`` columns left and right of it are not white in most rows (a white wall or banner
-    is white beside it too; the image border counts as not white; compiled:
-    ``_stands_out``)."""
-    white = np.ascontiguousarray(white)
-    return bool(_stands_out(white, int(group[0]), int(group[-1]), int(start), int(rise),
-                            white.dtype.type(t_white), int(margin)))
-
-
 @njit(cache=True, nogil=True)
 def _stands_out(white, first, last, start, rise, t_white, margin):
-    """stands_out of the group of columns first..last: the share of white (>= t_white) rows
-    beside it, ``margin`` columns left and right (as np.mean of the column's white test over
-    the rows start - rise .. start - 1 within the image), at most 1/3 on both sides."""
+    """A bar (the columns first..last) stands out when, in the ``rise`` rows just above the
+    boundary row ``start``, the cells ``margin`` columns left and right of it are not white
+    (>= t_white) in most rows: the share of white rows beside it (as np.mean of the column's
+    white test over the rows start - rise .. start - 1 within the image) is at most 1/3 on
+    both sides (a white wall or banner is white beside it too; the image border counts as
+    not white)."""
     h, w = white.shape
     r0, r1 = max(start - rise, 0), max(start, 0)
     if r1 <= r0:
@@ -208,7 +200,7 @@ def goal_posts(white: np.ndarray, top: np.ndarray, conf: dict, cell: int,
     px, column groups, the row below each group's foot). Bars are columns whose white run
     rises at least ``min_rise`` cells above their surroundings' (``rise_above_surroundings``
     over ``max_width`` + 2 columns; ``max_width`` cells, default the conf's), told apart there
-    (``stands_out``) and measured there (``bar_width``). The caller removes the bars from the
+    (``_stands_out``) and measured there (``bar_width``). The caller removes the bars from the
     white image before the line structure is built, so a post's lower part is not taken for a
     line."""
     max_width = int(conf["max_width"] if max_width is None else max_width)
