@@ -496,8 +496,8 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
         boundary_range = np.hypot(*to_floor(undistort(boundary)).T)
     boundary_range[~np.isfinite(boundary_range)] = np.inf
     lines, line_ends, line_ends_px, bar_posts, bar_posts_px, lines_ideal, line_widths = \
-        find_lines(graph, ideal, camera, to_floor, conf["lines"], top, white, cell, pc, trace,
-                   counts.get("white_px"), green, boundary_range)
+        find_lines(graph, ideal, camera, to_floor, conf["lines"], top, white, green,
+                   boundary_range, cell, pc, trace, counts.get("white_px"))
     # 6b. goal post feet on the floor (before the crossings: a post's foot on a line is no
     # crossing)
     posts, posts_px = [], []
@@ -553,14 +553,14 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
 
 
 def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: dict,
-               top: np.ndarray, white: np.ndarray, cell: int, pc: dict,
-               trace: dict | None = None, white_px: np.ndarray | None = None,
-               green: np.ndarray | None = None, boundary_range: np.ndarray | None = None):
+               top: np.ndarray, white: np.ndarray, green: np.ndarray,
+               boundary_range: np.ndarray, cell: int, pc: dict, trace: dict | None = None,
+               white_px: np.ndarray | None = None):
     """Section 4.2: split-and-merge lines on the undistorted node coordinates, end points
     projected on the fits, then onto the floor. A line is used for localisation (confidence
-    > 0) when it is long enough, near enough, and (given the green share per cell,
-    ``green``, and the floor range of the field boundary per column, ``boundary_range``) not
-    the field's edge (``field_edge``).
+    > 0) when it is long enough, near enough, and not the field's edge (``field_edge``, from
+    the green share per cell, ``green``, and the floor range of the field boundary per
+    column, ``boundary_range``).
 
     A segment that is a vertical bar standing on the floor (``is_post_bar``) is no field line:
     it is returned as a goal post instead (the goal's net lets the field boundary climb behind
@@ -592,10 +592,8 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
     all_ranges = np.hypot(all_floor[..., 0], all_floor[..., 1])
     nearest = all_ranges.min(axis=1).tolist()
     on_floor = np.isfinite(all_floor).all(axis=(1, 2)).tolist()
-    beyond, gap = (field_edge(all_floor, to_floor, lens, green, boundary_range, cell,
-                              lc["green_beyond_m"])
-                   if green is not None and boundary_range is not None
-                   else (np.full(len(segments), np.nan),) * 2)
+    beyond, gap = field_edge(all_floor, to_floor, lens, green, boundary_range, cell,
+                             lc["green_beyond_m"])
     edge = ((beyond < lc["min_green_beyond"]) & (gap < lc["edge_gap_m"])).tolist()  # NaN: no
     ends = ends.reshape(-1, 2, 2)
     kept = []  # the lines' indices
@@ -670,13 +668,10 @@ def field_edge(ends_floor: np.ndarray, to_floor: FloorProjection, lens: np.ndarr
 @njit(cache=True, nogil=True, inline="always")
 def _cell_of(m_inv, height, position, lens, cell, x, y):
     """The grid cell (row, column, as floats; NaN behind the camera) where the floor point
-    (x, y) m of the robot frame is seen: FloorProjection.to_ideal, then the lens."""
-    px, py = x - position[0], y - position[1]
-    hz = m_inv[2, 0] * px + m_inv[2, 1] * py - m_inv[2, 2] * height
-    if not hz > 1e-9:
-        return np.nan, np.nan
-    u, v = distort_point(lens, (m_inv[0, 0] * px + m_inv[0, 1] * py - m_inv[0, 2] * height) / hz,
-                         (m_inv[1, 0] * px + m_inv[1, 1] * py - m_inv[1, 2] * height) / hz)
+    (x, y) m of the robot frame is seen: FloorProjection.to_ideal (_to_ideal_at), then the
+    lens."""
+    ix, iy = _to_ideal_at(m_inv, height, position, x, y, False)
+    u, v = distort_point(lens, ix, iy)
     return np.floor(v / cell), np.floor(u / cell)
 
 
