@@ -612,6 +612,7 @@ def _median32(a, m):
         return np.float64(v[0])
     return np.float64(np.float32(v[0] + v[1])) / 2.0
 
+
 @njit(cache=True, nogil=True)
 def _hue_spread(d, u8, v8, y8, max_dev):
     """_hue_model's statistics of the green candidates whose hue offset ``d`` (float32, rad)
