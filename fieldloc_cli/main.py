@@ -1,7 +1,8 @@
 """`fieldloc`: one click group; subcommands live in their own modules and are imported lazily,
-so `fieldloc inspect` does not pay for OpenCV. User errors (FieldlocError) and what the system
-refuses (OSError: permission, disk full; MemoryError) end in one line on stderr and exit code 1;
-`--debug` shows the traceback instead."""
+so `fieldloc inspect` does not pay for OpenCV, and are listed from the table below, so
+`fieldloc --help` imports none of them (nor, through them, a stage). User errors
+(FieldlocError) and what the system refuses (OSError: permission, disk full; MemoryError) end
+in one line on stderr and exit code 1; `--debug` shows the traceback instead."""
 
 from __future__ import annotations
 
