@@ -6,12 +6,11 @@ from pathlib import Path
 
 import click
 
-from stages.pipelines import bench as stage
-
 
 @click.command("bench")
 @click.option("--only", multiple=True, metavar="NAME",
-              help=f"Run rows whose name contains NAME (rows: {', '.join(stage.ROWS)}).")
+              help="Run rows whose name contains NAME (repeatable; --list names the rows).")
+@click.option("--list", "list_rows", is_flag=True, help="Print the rows' names and exit.")
 @click.option("--repeat", type=click.IntRange(min=1), default=5, show_default=True,
               help="Timed runs per row (medians are reported).")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False, path_type=Path),
@@ -22,8 +21,13 @@ from stages.pipelines import bench as stage
 @click.option("--from-json", "from_json", type=click.Path(dir_okay=False, path_type=Path),
               help="Print the table of a saved --json run instead of timing again.")
 @click.pass_context
-def bench(ctx, only, repeat, json_path, overwrite, fmt, from_json):
+def bench(ctx, only, list_rows, repeat, json_path, overwrite, fmt, from_json):
     """Time the stages on generated inputs and print a table."""
+    from stages.pipelines import bench as stage
+
+    if list_rows:
+        click.echo("\n".join(stage.ROWS))
+        return
     quiet = (ctx.find_root().obj or {}).get("quiet")
     show = stage.format_markdown if fmt == "markdown" else stage.format_table
     if from_json:

@@ -6,37 +6,37 @@ from pathlib import Path
 
 import click
 
-from stages import build_map as stage
-from stages.common.field import load_field
-
 from .common import FINITE, summary
-
-D = stage.confs["default"]
+from .stage_defaults import BUILD_MAP as D
 
 
 @click.command("build-map")
 @click.argument("field")
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path),
               help="Output map file [default: FIELD.map.h5].")
-@click.option("--resolution", type=FINITE, default=D["resolution"], show_default=True,
-              help="Table cell size (m).")
-@click.option("--border", type=FINITE, default=D["border"], show_default=True,
-              help="World margin around the field (m).")
-@click.option("--max-range", type=FINITE, default=D["max_range"], show_default=True,
-              help="Radial scan-line range (m).")
-@click.option("--robot-radius", type=FINITE, default=D["robot_radius"], show_default=True,
-              help="Scan lines start outside this radius (m).")
-@click.option("--spiral-end-radius", type=FINITE, default=D["spiral_end_radius"],
-              show_default=True, help="Spiral radius after one turn (m).")
+@click.option("--resolution", type=FINITE, default=None,
+              help=f"Table cell size (m) [default: {D['resolution']}].")
+@click.option("--border", type=FINITE, default=None,
+              help=f"World margin around the field (m) [default: {D['border']}].")
+@click.option("--max-range", type=FINITE, default=None,
+              help=f"Radial scan-line range (m) [default: {D['max_range']}].")
+@click.option("--robot-radius", type=FINITE, default=None,
+              help=f"Scan lines start outside this radius (m) [default: {D['robot_radius']}].")
+@click.option("--spiral-end-radius", type=FINITE, default=None,
+              help=f"Spiral radius after one turn (m) [default: {D['spiral_end_radius']}].")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
 @click.pass_context
 def build_map(ctx, field, output, resolution, border, max_range, robot_radius, spiral_end_radius,
               overwrite):
     """Build the map of FIELD: a preset (msl-2015, msl, spl, kidsize, adultsize) or a YAML."""
+    from stages import build_map as stage
+    from stages.common.field import load_field
+
     fm = load_field(field)
     output = output or Path(f"{fm.name}.map.h5")
-    conf = dict(resolution=resolution, border=border, max_range=max_range,
-                robot_radius=robot_radius, spiral_end_radius=spiral_end_radius)
+    given = dict(resolution=resolution, border=border, max_range=max_range,
+                 robot_radius=robot_radius, spiral_end_radius=spiral_end_radius)
+    conf = {k: v for k, v in given.items() if v is not None}  # the rest: the stage's preset
     path = stage.main(conf, field, output, overwrite=overwrite)  # the name: main checks it
     s = fm.summary()
     c = s["crossings"]

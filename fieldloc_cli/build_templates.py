@@ -6,19 +6,16 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
-import numpy as np
-
-from stages import build_templates as stage
-from stages.common.conf import resolve_conf
 
 from .common import conf_option, overrides_dict, progress_enabled, summary
+from .stage_defaults import BUILD_TEMPLATES_FEATURES
 
 
 @click.command("build-templates")
 @click.argument("dataset", type=click.Path(path_type=Path))
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Templates file [default: DATASET/templates.h5].")
-@click.option("--features", "features", type=click.Choice(list(stage.FEATURE_PRESETS)),
+@click.option("--features", "features", type=click.Choice(BUILD_TEMPLATES_FEATURES),
               default="surf", show_default=True,
               help="Local features: our SURF (upright, in the field's axes; surf-rotating:"
               " rotation-invariant, in the robot's), OpenCV's SIFT or ORB.")
@@ -28,6 +25,11 @@ from .common import conf_option, overrides_dict, progress_enabled, summary
 def build_templates(ctx, dataset, output, features, overrides, overwrite):
     """Templates of the omni frames of DATASET (a `simulate omni --grid` folder, or a real one
     with truth.csv): one per frame, its floor's local features and its pose."""
+    import numpy as np
+
+    from stages import build_templates as stage
+    from stages.common.conf import resolve_conf
+
     conf = resolve_conf(stage.confs, stage.FEATURE_PRESETS[features], overrides_dict(overrides))
     output = output or Path(dataset) / "templates.h5"
     path = stage.main(conf, dataset, output, overwrite=overwrite,

@@ -8,11 +8,10 @@ from pathlib import Path
 
 import click
 
-from stages.calibrate import confs
-from stages.common.conf import resolve_conf
 from stages.common.errors import FieldlocError
 
 from .common import FINITE, conf_option, overrides_dict, summary
+from .stage_defaults import CALIBRATE_PRESETS
 
 DEFAULT_PRESET = {"points": "default", "minho": "minho", "cnc": "cnc"}
 
@@ -55,7 +54,7 @@ def calibrate():
               help="Image angle of the robot's forward direction, counter-clockwise from +u"
                    " with v up; with POINTS (default 90). --from-minho reads TILT.")
 @click.option("--mirrored", is_flag=True, help="The image shows the floor mirrored (POINTS).")
-@click.option("--preset", default=None, type=click.Choice(sorted(confs)),
+@click.option("--preset", default=None, type=click.Choice(CALIBRATE_PRESETS),
               help="Named conf preset of the stage [default: 'default' (fifth-order polynomial)"
                    " for POINTS, 'minho' (monotone table) for --from-minho].")
 @click.option("--overwrite", is_flag=True, help="Replace OUTPUT if it exists.")
@@ -80,7 +79,8 @@ def calibrate_omni(ctx, points, output, minho_dir, cnc_conf, rings, calib_image,
       fieldloc calibrate omni --from-minho robot1/ --line-images robot1/images -o calib.yaml
       fieldloc calibrate omni --from-cnc etc/CarpetCalibrator.conf --rings detected -o calib.yaml
     """
-    from stages.calibrate import from_cnc, from_minho, main, report
+    from stages.calibrate import confs, from_cnc, from_minho, main, report
+    from stages.common.conf import resolve_conf
 
     given_sources = [v for v in (points, minho_dir, cnc_conf) if v is not None]
     if len(given_sources) != 1:
@@ -215,6 +215,7 @@ def calibrate_perspective(ctx, hulks_source, output, overwrite, overrides):
       fieldloc calibrate perspective --from-hulks measurements/ -o data/hulks
     """
     from stages.calibrate import hulks
+    from stages.common.conf import resolve_conf
 
     conf = resolve_conf(hulks.confs, "default", overrides_dict(overrides))
     out = hulks.main(conf, hulks_source, output, overwrite=overwrite)

@@ -9,8 +9,6 @@ import sys
 
 import click
 
-from stages.common.conf import parse_overrides
-
 
 def conf_option(f):
     """`-c key=value` overrides of a stage's preset (repeatable)."""
@@ -40,21 +38,6 @@ class FiniteFloat(click.ParamType):
 FINITE = FiniteFloat()
 
 
-class DeferredHelp(click.Option):
-    """An option whose help text names a stage's defaults: ``help`` is a callable, called only
-    when the help is shown, so parsing a command does not import every method's module (their
-    compiled kernels cost a process's start time)."""
-
-    def __init__(self, *args, help=None, **kwargs):  # noqa: A002 (click's name)
-        self._help_text = help if callable(help) else None
-        super().__init__(*args, help=None if callable(help) else help, **kwargs)
-
-    def get_help_record(self, ctx):
-        if self._help_text is not None and self.help is None:
-            self.help = self._help_text()
-        return super().get_help_record(ctx)
-
-
 def progress_enabled(ctx: click.Context) -> bool:
     """Progress bars only on a terminal and never with --quiet."""
     obj = ctx.find_root().obj or {}
@@ -68,4 +51,7 @@ def summary(ctx: click.Context, message: str) -> None:
 
 
 def overrides_dict(overrides) -> dict:
+    """The ``-c key=value`` options as a dict of overrides (stages.common.conf's parser)."""
+    from stages.common.conf import parse_overrides
+
     return parse_overrides(overrides)

@@ -11,20 +11,9 @@ import click
 from stages.common.errors import FieldlocError
 
 from .common import FINITE, conf_option, overrides_dict
+from .stage_defaults import EVALUATE_PRESETS, EVALUATE_STAMP_TOLERANCE
 
 log = logging.getLogger("fieldloc.evaluate")
-
-
-def _preset_names():
-    from stages.evaluate import confs
-
-    return sorted(confs)
-
-
-def _default_tolerance() -> float:
-    from stages.evaluate import confs
-
-    return confs["default"]["stamp_tolerance"]
 
 
 def report_dirs(poses: list[Path], output: Path | None) -> list[Path]:
@@ -62,11 +51,11 @@ def report_dirs(poses: list[Path], output: Path | None) -> list[Path]:
 @click.option("--table", "table_only", is_flag=True,
               help="INPUTS are report folders (or report.json files): tabulate them without"
               " recomputing.")
-@click.option("--preset", default="default", show_default=True, type=click.Choice(_preset_names()),
+@click.option("--preset", default="default", show_default=True, type=click.Choice(EVALUATE_PRESETS),
               help="Evaluation preset (stages.evaluate.confs).")
 @click.option("--stamp-tolerance", type=FINITE, default=None,
               help="Largest stamp difference (s) for a frame to match a truth row"
-              f" [default: the preset's; 'default' has {_default_tolerance():g}].")
+              f" [default: the preset's; 'default' has {EVALUATE_STAMP_TOLERANCE:g}].")
 @conf_option
 @click.option("--format", "fmt", type=click.Choice(["text", "markdown", "csv"]),
               default="text", show_default=True, help="Table format on stdout.")

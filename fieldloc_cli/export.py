@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import click
 
-from stages.evaluate.export import FORMATS
+from .stage_defaults import EXPORT_FORMATS
 
 
 @click.command()
 @click.argument("poses", type=click.Path(dir_okay=False))
-@click.option("--format", "fmt", required=True, type=click.Choice(sorted(FORMATS)),
+@click.option("--format", "fmt", required=True, type=click.Choice(EXPORT_FORMATS),
               help="csv: one row per frame; tum: accepted frames for evo; json: frames with"
                    " their ranked hypotheses.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False),

@@ -6,18 +6,17 @@ from pathlib import Path
 
 import click
 
-from stages import extract as stage
-
 from .common import conf_option, overrides_dict, progress_enabled, summary
+from .stage_defaults import EXTRACT_DEFAULT_PRESET, EXTRACT_OMNI_PRESETS
 
 
 @click.command()
 @click.argument("dataset", type=click.Path(path_type=Path))
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Features file [default: DATASET/features.h5].")
-@click.option("--preset", default=stage.DEFAULT_PRESET, show_default=True,
+@click.option("--preset", default=EXTRACT_DEFAULT_PRESET, show_default=True,
               help="Preset of the camera kind's extractor (omni: "
-              + ", ".join(sorted(stage.kind_confs("omni"))) + ").")
+              + ", ".join(EXTRACT_OMNI_PRESETS) + ").")
 @conf_option
 @click.option("--overwrite", is_flag=True,
               help="Extract every frame again (default: resume, skipping frames already done).")
@@ -28,6 +27,8 @@ from .common import conf_option, overrides_dict, progress_enabled, summary
 def extract(ctx, dataset, output, preset, overrides, overwrite, debug_images):
     """Per-frame features of the images in DATASET (omni: scan-line distances and line points;
     perspective: lines, crossings, boundary) into an HDF5 features file."""
+    from stages import extract as stage
+
     conf = stage.resolve_extract_conf(stage.camera_kind(dataset), preset,
                                       overrides_dict(overrides))
     path = stage.main(conf, dataset, output, overwrite=overwrite,

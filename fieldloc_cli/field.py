@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import click
 
-from stages.ingest.team_fields import FORMATS
+from .stage_defaults import FIELD_FORMATS
 
 
 @click.group()
@@ -15,7 +15,7 @@ def field():
 
 @field.command("import")
 @click.argument("path", type=click.Path(dir_okay=False))
-@click.option("--format", "fmt", required=True, type=click.Choice(FORMATS),
+@click.option("--format", "fmt", required=True, type=click.Choice(FIELD_FORMATS),
               help="bhuman: fieldDimensions.cfg (mm); bitbots: map generator config (cm) or"
                    " config.yaml (m); falcons: multiCam.yaml or an MSL letters list (m).")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),

@@ -5,10 +5,8 @@ from __future__ import annotations
 
 import click
 
-from stages.common.conf import resolve_conf
-from stages.ingest.rosbag import confs
-
 from .common import conf_option, overrides_dict, progress_enabled
+from .stage_defaults import ROSBAG_PRESETS
 
 
 @click.group("import")
@@ -28,7 +26,7 @@ def import_group():
               help="Keep every N-th image message.")
 @click.option("--calib", type=click.Path(dir_okay=False),
               help="calib.yaml to copy into the dataset folder.")
-@click.option("--preset", default="default", show_default=True, type=click.Choice(sorted(confs)),
+@click.option("--preset", default="default", show_default=True, type=click.Choice(ROSBAG_PRESETS),
               help="Conf preset ('fast': raw frames as uncompressed PNG).")
 @click.option("--overwrite", is_flag=True, help="Replace OUTPUT if it exists.")
 @conf_option
@@ -44,7 +42,8 @@ def import_rosbag(ctx, bag, output, image_topic, odom_topic, imu_topic, every, c
           --odom-topic /odom --imu-topic /imu
       fieldloc import rosbag rosbag2_2026_03_01/ -o run4 --image-topic /camera/image --every 3
     """
-    from stages.ingest.rosbag import describe, main
+    from stages.common.conf import resolve_conf
+    from stages.ingest.rosbag import confs, describe, main
 
     conf = resolve_conf(confs, preset, overrides_dict(overrides))
     out = main(conf, bag, output, image_topic=image_topic, odom_topic=odom_topic,

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import click
 
-from stages.common.describe import READS, describe_file
+from .stage_defaults import INSPECT_READS
 
 
-@click.command("inspect", help=f"Print what FILE holds. Reads {READS}.")
+@click.command("inspect", help=f"Print what FILE holds. Reads {INSPECT_READS}.")
 @click.argument("file", type=click.Path())
 def inspect(file):
+    from stages.common.describe import describe_file
+
     click.echo(describe_file(file))

@@ -10,16 +10,8 @@ from pathlib import Path
 
 import click
 
-from stages import localize as stage
-from stages.common.conf import resolve_conf
-
-from .common import DeferredHelp, conf_option, overrides_dict, progress_enabled, summary
-
-
-def _default(method: str, key: str):
-    """A key of a method's default preset, for help texts (DeferredHelp: read only when the
-    help is shown, so a run imports only its own method)."""
-    return stage.method_confs(method)["default"][key]
+from .common import conf_option, overrides_dict, progress_enabled, summary
+from .stage_defaults import LOCALIZE, LOCALIZE_DEFAULT_METHOD, LOCALIZE_METHODS
 
 TABLE_METHODS = ("lut", "fit")  # the omni methods: heading source, start half, independent
 
@@ -42,28 +34,24 @@ TABLE_METHODS = ("lut", "fit")  # the omni methods: heading source, start half, 
 @click.option("--points", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="CSV of your own line points instead of images: columns frame,x,y"
               " (robot frame, m).")
-@click.option("--method", type=click.Choice(list(stage.METHODS)), default=stage.DEFAULT_METHOD,
+@click.option("--method", type=click.Choice(LOCALIZE_METHODS), default=LOCALIZE_DEFAULT_METHOD,
               show_default=True, help="Localisation method.")
 @click.option("--heading", type=click.Choice(["imu", "histogram", "truth"]), default=None,
-              cls=DeferredHelp,
-              help=lambda: f"lut, fit: heading source [default: {_default('lut', 'heading')}].")
+              help=f"lut, fit: heading source [default: {LOCALIZE['lut', 'heading']}].")
 @click.option("--start-half", type=click.Choice(["own", "opponent", "any"]), default=None,
-              cls=DeferredHelp,
-              help=lambda: "lut, fit: where the first fix lies (own: x < 0), which resolves the"
+              help="lut, fit: where the first fix lies (own: x < 0), which resolves the"
               " field's 180 deg symmetry when no field-aligned IMU heading does"
-              f" [default: {_default('fit', 'start_half')}].")
+              f" [default: {LOCALIZE['fit', 'start_half']}].")
 @click.option("--init", type=click.Choice(["placement", "uniform"]), default=None,
-              cls=DeferredHelp,
-              help=lambda: "mcl: initial belief, the game's placement (own half, at the touch"
-              f" lines) or anywhere on the field [default: {_default('mcl', 'init')}].")
+              help="mcl: initial belief, the game's placement (own half, at the touch"
+              f" lines) or anywhere on the field [default: {LOCALIZE['mcl', 'init']}].")
 @click.option("--independent", is_flag=True, default=None,
               help="lut, fit, templates: localise every frame on its own, globally, with no"
               " prior and no odometry (snapshots at unknown poses).")
 @click.option("--min-confidence", type=click.FloatRange(0.0, 1.0), default=None,
-              cls=DeferredHelp,
-              help=lambda: "Accept a frame when the probability of its top hypothesis reaches"
-              f" this [default: the method's, lut {_default('lut', 'min_confidence')}, fit"
-              f" {_default('fit', 'min_confidence')}].")
+              help="Accept a frame when the probability of its top hypothesis reaches"
+              f" this [default: the method's, lut {LOCALIZE['lut', 'min_confidence']}, fit"
+              f" {LOCALIZE['fit', 'min_confidence']}].")
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Poses file, poses.tum is written beside it"
               " [default: DATASET/poses-METHOD.h5].")
@@ -78,6 +66,9 @@ def localize(ctx, dataset, map_path, templates, pose_solver, features, points, m
              start_half, init, independent, min_confidence, output, preset, overrides, overwrite,
              allow_field_mismatch):
     """Poses of the frames of DATASET on the field of MAP (poses.h5 + poses.tum)."""
+    from stages import localize as stage
+    from stages.common.conf import resolve_conf
+
     conf = overrides_dict(overrides)
     if "method" in conf:
         raise click.UsageError("the method is chosen with --method, not -c method=...")

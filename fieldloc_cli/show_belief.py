@@ -10,11 +10,8 @@ from pathlib import Path
 
 import click
 
-from stages.show import belief as stage
-
 from .common import FINITE, conf_option, overrides_dict, summary
-
-DEFAULTS = stage.confs["default"]
+from .stage_defaults import SHOW_BELIEF as D
 
 
 @click.command("belief")
@@ -26,11 +23,10 @@ DEFAULTS = stage.confs["default"]
 @click.option("--features", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Features file to read the frame from [default: DATASET/features.h5 if"
               " present, else extract the frame now].")
-@click.option("--resolution", type=FINITE, default=DEFAULTS["resolution"], show_default=True,
-              help="Grid spacing of positions (m).")
-@click.option("--heading-step-deg", type=FINITE,
-              default=round(math.degrees(DEFAULTS["heading_step"]), 6), show_default=True,
-              help="Grid spacing of headings (degrees).")
+@click.option("--resolution", type=FINITE, default=None,
+              help=f"Grid spacing of positions (m) [default: {D['resolution']}].")
+@click.option("--heading-step-deg", type=FINITE, default=None,
+              help=f"Grid spacing of headings (degrees) [default: {D['heading_step_deg']}].")
 @conf_option
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
@@ -40,9 +36,13 @@ def show_belief(ctx, dataset, frame, map_path, features, resolution, heading_ste
                 overwrite, output):
     """Draw the belief of one frame of DATASET on the field of MAP: the likelihood of its
     observations at every position (best heading per position), per kind of observation."""
-    conf = overrides_dict(overrides)
-    conf["resolution"] = resolution
-    conf["heading_step"] = math.radians(heading_step_deg)
+    from stages.show import belief as stage
+
+    conf = overrides_dict(overrides)  # options left out: the stage's preset
+    if resolution is not None:
+        conf["resolution"] = resolution
+    if heading_step_deg is not None:
+        conf["heading_step"] = math.radians(heading_step_deg)
     path = stage.main(conf, dataset, map_path, output, frame=frame, features=features,
                       overwrite=overwrite)
     summary(ctx, f"{path}: belief of frame {frame}")

@@ -7,11 +7,8 @@ from pathlib import Path
 
 import click
 
-from stages.show import error_surface as stage
-
 from .common import FINITE, summary
-
-D = stage.confs["default"]
+from .stage_defaults import SHOW_ERROR_SURFACE as D
 
 
 @click.command("error-surface")
@@ -19,14 +16,17 @@ D = stage.confs["default"]
 @click.argument("queries", type=click.Path(path_type=Path))
 @click.option("--template", type=click.IntRange(min=0), default=None,
               help="Template index [default: the one nearest the queries' centre].")
-@click.option("--half-size", type=FINITE, default=D["half_size"], show_default=True,
-              help="Surfaces (a), (b): +- this many metres of (dx, dy).")
-@click.option("--step", type=FINITE, default=D["step"], show_default=True,
-              help="Surfaces (a), (b): sampling (m).")
-@click.option("--dtheta-deg", type=FINITE, default=D["dtheta_deg"], show_default=True,
-              help="Surfaces (a), (b): +- this many degrees of dtheta.")
-@click.option("--e-none", type=FINITE, default=D["e_none"], show_default=True,
-              help="Eq. 1's penalty (m) of a white point with no table point at its angle.")
+@click.option("--half-size", type=FINITE, default=None,
+              help="Surfaces (a), (b): +- this many metres of (dx, dy)"
+              f" [default: {D['half_size']}].")
+@click.option("--step", type=FINITE, default=None,
+              help=f"Surfaces (a), (b): sampling (m) [default: {D['step']}].")
+@click.option("--dtheta-deg", type=FINITE, default=None,
+              help="Surfaces (a), (b): +- this many degrees of dtheta"
+              f" [default: {D['dtheta_deg']}].")
+@click.option("--e-none", type=FINITE, default=None,
+              help="Eq. 1's penalty (m) of a white point with no table point at its angle"
+              f" [default: {D['e_none']}].")
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="PNG file to write.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
@@ -37,8 +37,11 @@ def show_error_surface(ctx, templates, queries, template, half_size, step, dthet
     with truth.csv near it): (a) the white-point table's eq. 1, (b) the template pairs' eq. 4,
     over (dx, dy) and dtheta, and (c) every query's position and heading error against its
     distance from the template; print the local minima of (a) and (b) and (c) per ring."""
-    conf = {"template": template, "half_size": half_size, "step": step,
-            "dtheta_deg": dtheta_deg, "e_none": e_none}
+    from stages.show import error_surface as stage
+
+    given = {"template": template, "half_size": half_size, "step": step,
+             "dtheta_deg": dtheta_deg, "e_none": e_none}
+    conf = {k: v for k, v in given.items() if v is not None}  # the rest: the stage's preset
     path, m = stage.write_picture(conf, templates, queries, output, overwrite=overwrite)
     for line in stage.summary_lines(m):
         click.echo(line)

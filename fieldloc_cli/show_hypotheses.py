@@ -7,8 +7,6 @@ from pathlib import Path
 
 import click
 
-from stages.show import hypotheses as stage
-
 from .common import conf_option, overrides_dict
 
 
@@ -28,6 +26,8 @@ from .common import conf_option, overrides_dict
 def show_hypotheses(poses, frame, features, field, overrides, overwrite, output):
     """Draw the hypotheses of one frame of POSES (poses.h5) on the field: each as a robot with
     its probability, with the frame's line points placed at each."""
+    from stages.show import hypotheses as stage
+
     path = stage.main(overrides_dict(overrides), poses, output, frame=frame, features=features,
                       field=field, overwrite=overwrite)
     click.echo(f"{path}: hypotheses of frame {frame}")

@@ -8,9 +8,8 @@ from pathlib import Path
 
 import click
 
-from stages.extract import DEFAULT_PRESET
-
 from .common import FINITE, conf_option, overrides_dict, summary
+from .stage_defaults import EXTRACT_DEFAULT_PRESET
 
 
 def _field(map_or_field: str):
@@ -36,7 +35,7 @@ def _field(map_or_field: str):
 @click.option("--pose", nargs=3, type=FINITE, default=None, metavar="X Y THETA_DEG",
               help="Robot pose for the field drawing: metres, metres, degrees"
               " [default: truth.csv at the frame].")
-@click.option("--preset", default=DEFAULT_PRESET, show_default=True,
+@click.option("--preset", default=EXTRACT_DEFAULT_PRESET, show_default=True,
               help="Extraction preset when extracting now.")
 @conf_option
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,

@@ -1,9 +1,11 @@
 """`fieldloc simulate KIND ...`: render a dataset folder with ground truth.
 
-One subcommand per camera kind; each only maps its options onto the stage's conf (defaults read
-from ``stages.simulate.confs``) and calls ``stages.simulate.main``. A new camera kind adds a
-preset and a renderer in the stage, and a subcommand here: a function decorated with
-``@simulate.command`` and ``@simulate_options("<kind>-default")`` that calls ``run_simulation``.
+One subcommand per camera kind; each only maps its options onto the stage's conf (defaults from
+``stages.simulate.confs``, which the help shows through ``stage_defaults.SIMULATE``) and calls
+``stages.simulate.main``. A new camera kind adds a preset and a renderer in the stage, its preset
+names and shown defaults in ``stage_defaults``, and a subcommand here: a function decorated with
+``@simulate.command`` and ``@simulate_options("<kind>-default", "<kind>")`` that calls
+``run_simulation``.
 """
 
 from __future__ import annotations
@@ -12,16 +14,14 @@ import math
 
 import click
 
-from stages.common.conf import resolve_conf
-from stages.simulate import confs
-from stages.simulate.trajectory import PATH_KINDS
-
 from .common import FINITE, conf_option, overrides_dict, progress_enabled, summary
+from .stage_defaults import SIMULATE, SIMULATE_PATH_KINDS, SIMULATE_PRESETS
 
 
-def simulate_options(preset: str):
-    """The options every `simulate KIND` subcommand shares, with defaults from ``preset``."""
-    base = confs[preset]
+def simulate_options(preset: str, camera: str):
+    """The options every `simulate KIND` subcommand shares; the help names ``preset``'s
+    values, the presets offered are ``camera``'s."""
+    base = SIMULATE[preset]
 
     def decorate(f):
         options = [
@@ -33,20 +33,18 @@ def simulate_options(preset: str):
                          help=f"Number of frames [preset: {base['frames']}]."),
             click.option("--seed", type=int, default=None,
                          help=f"Seed of every random choice [preset: {base['seed']}]."),
-            click.option("--trajectory", "trajectory_kind", type=click.Choice(PATH_KINDS),
+            click.option("--trajectory", "trajectory_kind", type=click.Choice(SIMULATE_PATH_KINDS),
                          default=None,
                          help="Path of the robot: random waypoints or a loop of the field"
-                              f" [preset: {base['trajectory']['kind']}]."),
+                              f" [preset: {base['trajectory']}]."),
             click.option("--calib-error", nargs=3, type=FINITE, default=None,
                          metavar="DU DV SCALE",
                          help="Write calib.yaml off from the rendering camera: centre (principal"
                               " point) shifted by DU, DV px and the radial mapping scaled by"
                               " SCALE, and no other error (omni: no mirror-table error) [preset: "
-                              f"{' '.join(str(v) for v in base['calib_error']['centre_shift'])}"
-                              f" {base['calib_error']['scale']}]."),
+                              f"{' '.join(str(v) for v in base['calib_error'])}]."),
             click.option("--preset", default=preset, show_default=True,
-                         type=click.Choice(sorted(k for k, v in confs.items()
-                                                  if v["camera"] == base["camera"])),
+                         type=click.Choice(SIMULATE_PRESETS[camera]),
                          help="Named conf preset of the stage."),
             click.option("--overwrite", is_flag=True,
                          help="Replace the dataset folder if it exists and is not empty."),
@@ -61,7 +59,8 @@ def simulate_options(preset: str):
 
 def run_simulation(ctx, *, field, output, frames, seed, trajectory_kind, preset, overwrite,
                    overrides, calib_error=None):
-    from stages.simulate import main
+    from stages.common.conf import resolve_conf
+    from stages.simulate import confs, main
 
     conf = resolve_conf(confs, preset, overrides_dict(overrides))
     # options given on the command line win over the preset and -c overrides
@@ -90,14 +89,14 @@ def simulate():
 
 
 @simulate.command("omni")
-@simulate_options("omni-default")
+@simulate_options("omni-default", "omni")
 @click.option("--grid", "grid_spacing", type=FINITE, default=None, metavar="SPACING",
               help="Template captures (seed 004): the robot placed at the nodes of a grid of"
               " SPACING m over the field instead of a path (one frame per node and heading,"
               " no odometry.csv; --frames and --trajectory do not apply).")
 @click.option("--grid-headings", type=click.IntRange(min=1), default=None, metavar="N",
               help="With --grid: N headings per node, 360/N deg apart from 0"
-              f" [preset: {confs['omni-default']['trajectory']['grid_headings']}].")
+              f" [preset: {SIMULATE['omni-default']['grid_headings']}].")
 @click.option("--calib-seed", type=int, default=None,
               help="Seed of the calibration error calib.yaml states [default: --seed]: the"
               " same for two datasets makes them one robot's (a template grid and a run).")
@@ -136,13 +135,13 @@ def simulate_omni(ctx, field, output, frames, seed, trajectory_kind, calib_error
 
 
 @simulate.command("perspective")
-@simulate_options("perspective-default")
+@simulate_options("perspective-default", "perspective")
 @click.option("--camera-height", type=FINITE, default=None, metavar="M",
               help="Camera height above the floor (m) [preset: "
-                   f"{confs['perspective-default']['perspective']['height']}].")
+                   f"{SIMULATE['perspective-default']['height']}].")
 @click.option("--pitch-deg", type=FINITE, default=None,
               help="Nominal camera pitch (degrees, > 0 looks down) [preset: "
-                   f"{math.degrees(confs['perspective-default']['perspective']['pitch']):.1f}].")
+                   f"{SIMULATE['perspective-default']['pitch_deg']:.1f}].")
 @click.pass_context
 def simulate_perspective(ctx, field, output, frames, seed, trajectory_kind, calib_error, preset,
                          overwrite, overrides, camera_height, pitch_deg):
