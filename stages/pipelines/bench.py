@@ -804,6 +804,8 @@ ROWS: dict[str, Callable[[int], Row | list[Row]]] = {
     "batch-throughput": lambda n: _batch().bench_batch_throughput(n),
     "lut-first-frame": lambda n: _batch().bench_first_frame(n),
     "batch-worker-memory": lambda n: _batch().bench_worker_memory(n),
+    "first-run-after-install": lambda n: importlib.import_module(
+        ".warmup", __package__).bench_first_run(n),
 }
 
 
