@@ -3,8 +3,8 @@ PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 FL     := $(BIN)/fieldloc -q
-# the steps that can run for minutes (extract, localize, build-templates) keep their progress bar
-# (on a terminal) and their closing summary line
+# the steps that can run for minutes (bench, extract, localize, a template grid, build-templates)
+# keep their progress (bars on a terminal, bench's row names) and their closing summary line
 FLP    := $(BIN)/fieldloc
 STAMP  := $(VENV)/.installed
 
@@ -53,7 +53,7 @@ bench: $(STAMP)
 # README's performance table, from one bench run (its JSON is kept in $(OUT)/bench.json)
 bench-readme: $(STAMP)
 	@mkdir -p $(OUT)
-	$(FL) bench --json $(OUT)/bench.json --overwrite > /dev/null
+	$(FLP) bench --json $(OUT)/bench.json --overwrite > /dev/null
 	$(BIN)/fieldloc bench --from-json $(OUT)/bench.json --format markdown > $(OUT)/bench.md
 	$(BIN)/python -c "import pathlib, re; r = pathlib.Path('README.md'); \
 	b = pathlib.Path('$(OUT)/bench.md').read_text(); \
@@ -93,7 +93,7 @@ templates-demo: $(STAMP) $(TPL)/runs/templates/report/report.json
 
 $(TPL)/grid/truth.csv: | $(STAMP)
 	@mkdir -p $(TPL)
-	$(FL) simulate omni --field $(FIELD) --grid $(GRID) -o $(TPL)/grid --seed $(SEED) \
+	$(FLP) simulate omni --field $(FIELD) --grid $(GRID) -o $(TPL)/grid --seed $(SEED) \
 		--calib-seed $(SEED) --world-seed $(SEED) --overwrite
 
 $(TPL)/run/truth.csv: | $(STAMP)
