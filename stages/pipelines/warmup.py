@@ -10,10 +10,10 @@ so the warm-up runs the product's stage mains with their default confs on tiny i
 temporary folder, which the real commands then find compiled:
 
 - simulate: a few omni frames (``omni-default``), a few perspective frames of the KidSize
-  (``perspective-default``) and NAO (``perspective-nao``) presets, and a 2-node omni template
-  grid;
-- build-map of each field simulated (the map's kernels take the field as data, not as types:
-  one small field per camera is enough, and the cell size only sizes the tables);
+  (``perspective-default``) and NAO (``perspective-nao``) presets, and a coarse (4 m) omni
+  template grid;
+- build-map of each field simulated (kernels take a field's lines and tables as data, not as
+  types: one small field per camera is enough, and the cell size only sizes the tables);
 - extract of every dataset with its kind's default preset;
 - localize with every method: lut with the IMU heading and the histogram heading, fit, mcl on
   the perspective features (placed, and from a uniform start, which searches the whole field),
