@@ -3,6 +3,9 @@ PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 FL     := $(BIN)/fieldloc -q
+# the steps that can run for minutes (bench, extract, localize, a template grid, build-templates)
+# keep their progress (bars on a terminal, bench's row names) and their closing summary line
+FLP    := $(BIN)/fieldloc
 STAMP  := $(VENV)/.installed
 
 OUT     ?= build
@@ -18,16 +21,25 @@ FIELD_FILE := $(or $(wildcard maps/$(FIELD).yaml),$(wildcard $(FIELD)))
 HEADING_OPT := $(if $(filter lut,$(METHOD)),--heading $(HEADING))
 RUN     := $(DATA)/runs/$(METHOD)$(if $(filter lut,$(METHOD)),-$(HEADING))
 
-.PHONY: install test lint demo templates-demo bench bench-readme compare pipeline clean
+.PHONY: install warmup test lint demo templates-demo bench bench-readme compare pipeline clean
 
 install: $(STAMP)
 
+# pip relays setuptools' note that an editable install of a flat layout puts the project folder
+# on sys.path ("Editable installation ... folders with the same name as your package"): that is
+# this layout on purpose, so that one note is filtered; every other warning shows.
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	PYTHONWARNINGS="ignore:Editable installation" $(BIN)/python -m pip install --quiet -e '.[dev]'
 	$(BIN)/python -m compileall -q stages fieldloc_cli
+	$(BIN)/python -m stages.pipelines.warmup
 	touch $(STAMP)
+
+# numba's machine code of every kernel, in __pycache__ beside the sources (install runs it; run
+# it again after changing a kernel, or the first command after the change compiles it)
+warmup: $(STAMP)
+	$(BIN)/python -m stages.pipelines.warmup
 
 test: $(STAMP)
 	$(BIN)/python -m pytest
@@ -41,7 +53,7 @@ bench: $(STAMP)
 # README's performance table, from one bench run (its JSON is kept in $(OUT)/bench.json)
 bench-readme: $(STAMP)
 	@mkdir -p $(OUT)
-	$(FL) bench --json $(OUT)/bench.json --overwrite > /dev/null
+	$(FLP) bench --json $(OUT)/bench.json --overwrite > /dev/null
 	$(BIN)/fieldloc bench --from-json $(OUT)/bench.json --format markdown > $(OUT)/bench.md
 	$(BIN)/python -c "import pathlib, re; r = pathlib.Path('README.md'); \
 	b = pathlib.Path('$(OUT)/bench.md').read_text(); \
@@ -81,7 +93,7 @@ templates-demo: $(STAMP) $(TPL)/runs/templates/report/report.json
 
 $(TPL)/grid/truth.csv: | $(STAMP)
 	@mkdir -p $(TPL)
-	$(FL) simulate omni --field $(FIELD) --grid $(GRID) -o $(TPL)/grid --seed $(SEED) \
+	$(FLP) simulate omni --field $(FIELD) --grid $(GRID) -o $(TPL)/grid --seed $(SEED) \
 		--calib-seed $(SEED) --world-seed $(SEED) --overwrite
 
 $(TPL)/run/truth.csv: | $(STAMP)
@@ -90,11 +102,11 @@ $(TPL)/run/truth.csv: | $(STAMP)
 		--calib-seed $(SEED) --world-seed $(SEED) --overwrite
 
 $(TPL)/templates.h5: $(TPL)/grid/truth.csv
-	$(FL) build-templates $(TPL)/grid -o $@ --overwrite
+	$(FLP) build-templates $(TPL)/grid -o $@ --overwrite
 
 $(TPL)/runs/templates/poses.h5: $(TPL)/templates.h5 $(TPL)/run/truth.csv
 	@mkdir -p $(dir $@)
-	$(FL) localize $(TPL)/run --method templates --templates $< -o $@ --overwrite
+	$(FLP) localize $(TPL)/run --method templates --templates $< -o $@ --overwrite
 
 $(TPL)/runs/templates/report/report.json: $(TPL)/runs/templates/poses.h5
 	$(FL) evaluate $< --truth $(TPL)/run/truth.csv -o $(TPL)/runs/templates/report \
@@ -111,11 +123,11 @@ $(MAP): $(FIELD_FILE) | $(STAMP)
 	$(FL) build-map $(FIELD) -o $@ --overwrite
 
 $(DATA)/features.h5: $(DATA)/calib.yaml $(wildcard $(DATA)/images/*) | $(STAMP)
-	$(FL) extract $(DATA) -o $@
+	$(FLP) extract $(DATA) -o $@
 
 $(RUN)/poses.h5: $(DATA)/features.h5 $(MAP)
 	@mkdir -p $(dir $@)
-	$(FL) localize $(DATA) --map $(MAP) --features $< --method $(METHOD) $(HEADING_OPT) \
+	$(FLP) localize $(DATA) --map $(MAP) --features $< --method $(METHOD) $(HEADING_OPT) \
 		-o $@ --overwrite
 
 # the table is printed once, by `pipeline`

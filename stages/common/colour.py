@@ -43,7 +43,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numba import njit, types
+from numba import njit
 
 from .errors import FieldlocError
 
@@ -310,10 +310,7 @@ def estimate_field_colour(yuv: np.ndarray, conf: dict, valid: np.ndarray | None 
     return fc
 
 
-@njit(types.Tuple((types.uint8[::1], types.uint8[::1], types.uint8[::1], types.float32[::1],
-                   types.float32[::1], types.int64[::1]))(
-    types.uint8[:, ::1], types.Array(types.boolean, 1, "C", readonly=True), types.int64,
-    types.int64, types.boolean, types.float32), cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _green_candidates(sub, chroma_ok, y_lo, y_hi, use_sat, min_sat2):
     """estimate_field_colour's green candidates among the sampled pixels ``sub`` (n, 3 YUV):
     chroma ``chroma_ok[U << 8 | V]``, Y in [y_lo, y_hi] and (``use_sat``) (U-128)^2 + (V-128)^2
@@ -383,8 +380,7 @@ def _hue_model(fc: FieldColour, u8, v8, y8, conf: dict) -> None:
     fc.saturation = (lo_rel * sat, hi_rel * sat)
 
 
-@njit(["float32(float32[::1], float32)", "float64(float64[:], float64)"], cache=True,
-      nogil=True)
+@njit(cache=True, nogil=True)
 def _pairwise_sum(a, zero):
     """``np.sum`` of a float array in numpy's order and precision (its pairwise summation:
     one accumulator below 8 values; up to 128, eight combined pairwise, then the rest;
@@ -420,13 +416,13 @@ def _pairwise_sum(a, zero):
     return res
 
 
-@njit("float32(float32[::1])", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def pairwise_sum32(a):
     """``np.sum`` of a float32 array, to the bit (_pairwise_sum in float32)."""
     return _pairwise_sum(a, np.float32(-0.0))
 
 
-@njit("float64(float64[:])", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def pairwise_sum64(a):
     """``np.sum`` of a float64 array, to the bit (_pairwise_sum)."""
     return _pairwise_sum(a, -0.0)
@@ -943,8 +939,7 @@ def classify_cells(yuv: np.ndarray, fc: FieldColour, conf: dict, cell: int,
     return out
 
 
-@njit("void(float32[:, ::1], float32, float32, float32, float32, int16[:, :, ::1])",
-      cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _threshold_table(y_map, contrast, min_y, lo_ratio, hi_ratio, out):
     """luminance_thresholds of a local green map (finite), compiled: the same float32
     operations per block, as int16 (hb, wb, 3)."""
@@ -963,8 +958,7 @@ def _threshold_table(y_map, contrast, min_y, lo_ratio, hi_ratio, out):
                 out[r, c, GREEN_MAX_Y] = hi
 
 
-@njit("void(uint8[::1], float32[::1], float32[::1], float32[::1], float32, float32, float32,"
-      " float32, float32, float32, uint8[::1], uint8[::1], uint8[::1])", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _hue_row(px, t_white, t_lo, t_hi, sat2, hx, hy, c2, lo, hi, white, col_white, col_green):
     """One row of _hue_cells: ``px`` the row's interleaved YUV bytes (3 w), the luminance
     thresholds per column as float32 (integers, so the comparisons are those of the uint8 Y);
@@ -990,9 +984,7 @@ def _hue_row(px, t_white, t_lo, t_hi, sat2, hx, hy, c2, lo, hi, white, col_white
         col_green[c] += np.uint8(is_green & ~is_white)
 
 
-@njit("void(uint8[:, ::1], int16[:, :, ::1], int64, int64, float32, float32, float32,"
-      " float32, float32, float32, boolean, uint16[:, :, ::1], uint8[:, ::1])",
-      cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _hue_cells(yuv_rows, thr, cell, local, sat2, hx, hy, c2, lo, hi, keep_white, out, mask):
     """classify_cells' pass over the rows (h, 3 w) of a YUV image: each row by _hue_row
     (white wins over green), the column counts summed per cell every ``cell`` rows."""

@@ -327,8 +327,7 @@ def _integrals(img: np.ndarray, m: np.ndarray | None, unit: float):
 # ---------------------------------------------------------------------------- kernels
 
 
-@njit("float64(float64[:, ::1], int64, int64, int64, int64)", cache=True, nogil=True,
-      inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _box(ii, row, col, rows, cols):
     """Sum of the image over rows [row, row + rows) x cols [col, col + cols), which must lie
     inside the image."""
@@ -337,8 +336,7 @@ def _box(ii, row, col, rows, cols):
     return ii[r1, c1] - ii[row, c1] - ii[r1, col] + ii[row, col]
 
 
-@njit("boolean(float64[:, ::1], boolean, int64, int64, int64, int64, int64)", cache=True,
-      nogil=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _undefined(bad, masked, r, c, size, h, w):
     """Whether the box filter of ``size`` centred on pixel (r, c) of an h x w image leaves the
     image or (``masked``) covers invalid pixels (``bad``: their integral image)."""
@@ -347,8 +345,7 @@ def _undefined(bad, masked, r, c, size, h, w):
             or (masked and _box(bad, r - b, c - b, size, size) > 0.5))
 
 
-@njit("void(float64[:, ::1], float64[:, ::1], boolean, int64, int64, float64, float64,"
-      " float32[:, ::1], float32[:, ::1])", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _hessian_layer(ii, bad, masked, size, step, weight, unit, det, trace):
     """det(H) and the trace Dxx + Dyy of the box filters of ``size`` at the samples
     (row, col) = (i, j) * step, for image values times ``unit``; -inf where the filter leaves
@@ -385,8 +382,7 @@ _D1 = np.array([1.0, -8.0, 0.0, 8.0, -1.0]) / 12.0
 _D2 = np.array([-1.0, 16.0, -30.0, 16.0, -1.0]) / 12.0
 
 
-@njit("void(float32[:, ::1], int64, int64, int64, float64, float64[:, ::1], boolean, int64,"
-      " int64, float32[:, ::1], float32[:, ::1])", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _gaussian_layer(blurred, q, step, size, gain, bad, masked, h, w, det, trace):
     """det(H) and the trace of the Hessian of ``blurred`` (the image at 1 / f of its
     resolution, blurred to the layer's sigma) by central differences at its pixels (i, j) * q,
@@ -422,8 +418,7 @@ def _gaussian_layer(blurred, q, step, size, gain, bad, masked, h, w, det, trace)
             trace[i, j] = dxx + dyy
 
 
-@njit("boolean(float32[:, ::1], float32[:, ::1], float32[:, ::1], int64, int64)", cache=True,
-      nogil=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _is_maximum(below, mid, above, r, c):
     """Whether mid[r, c] is the maximum of its 3 x 3 x 3 neighbourhood, all of it defined:
     strictly above the neighbours that come before (layer below, then earlier in raster
@@ -445,8 +440,7 @@ def _is_maximum(below, mid, above, r, c):
     return is_max and finite
 
 
-@njit("Tuple((boolean, float64, float64, float64, float64))(float32[:, ::1], float32[:, ::1],"
-      " float32[:, ::1], int64, int64)", cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _quadratic_fit(below, mid, above, r, c):
     """The 3D quadratic fit at mid[r, c] (gradient g and Hessian H by central differences):
     (solved, offset x, y, scale = -H^-1 g in samples and layers, the value's rise 0.5 g . o)."""
@@ -479,8 +473,7 @@ def _quadratic_fit(below, mid, above, r, c):
     return True, ox, oy, os_, 0.5 * (gx * ox + gy * oy + gs * os_)
 
 
-@njit("int64(float32[:, ::1], float32[:, ::1], float32[:, ::1], float32[:, ::1], float64,"
-      " int64, float64, float64, float64[:, ::1], int64)", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _extrema(below, mid, above, trace, threshold, step, size, size_step, out, n):
     """Append to ``out`` (from row n) the refined 3x3x3 maxima of the middle layer ``mid``;
     return the new row count. Columns as the module's keypoint layout."""
@@ -507,8 +500,7 @@ def _extrema(below, mid, above, trace, threshold, step, size, size_step, out, n)
     return n
 
 
-@njit("int64(float32[:, :, ::1], float32[:, :, ::1], int64, float64, int64, float64[::1],"
-      " int64, float64[:, ::1], int64)", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _extrema_moving(dets, traces, layer, threshold, step, sizes, moves, out, n):
     """As _extrema for the maxima of dets[layer] (an octave's layers, ``sizes`` their filter
     sizes), but a fit whose offset exceeds half a sample or layer moves to the neighbouring
@@ -563,8 +555,7 @@ def _extrema_moving(dets, traces, layer, threshold, step, sizes, moves, out, n):
     return n
 
 
-@njit("UniTuple(float64, 2)(float64[:, ::1], int64, int64, int64)", cache=True, nogil=True,
-      inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _haar(ii, row, col, size):
     """Haar wavelet responses (dx: right half - left half, dy: lower half - upper half) of the
     size x size square (size even) whose centre is the corner between pixels (row - 1, col - 1)
@@ -602,7 +593,7 @@ def _haar(ii, row, col, size):
     return dx, dy
 
 
-@njit("float64(float64, float64)", cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _angle(y, x):
     """atan2(y, x) in [0, 2 pi) by a polynomial (error < 3e-4 rad), cheap enough to bin the
     orientation window's 109 responses by angle (np.arctan2 took 60 % of the kernel)."""
@@ -634,8 +625,7 @@ _ORI_J = np.ascontiguousarray(_ORI_J[_ORI_KEEP], dtype=np.int64)
 _ORI_W = np.exp(-(_ORI_I ** 2 + _ORI_J ** 2) / (2.0 * 2.0 ** 2))
 
 
-@njit("int64(float64[:, ::1], float64[:, ::1], int64[::1], int64[::1], float64[::1], boolean,"
-      " float64, int64, float64[::1], boolean[::1])", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _orientation_window(ii, kp, oi, oj, ow, assign, min_round, cap, roundness, keep):
     """From the Haar responses of each keypoint's orientation window, in the order given: the
     Foerstner roundness 4 det(M) / tr(M)^2 of their weighted second-moment matrix M into
@@ -722,8 +712,7 @@ _DESC_W = np.exp(-(_DESC_U[None, :] ** 2 + _DESC_U[:, None] ** 2) / (2.0 * 3.3 *
 _DESC_W = np.ascontiguousarray(_DESC_W)
 
 
-@njit("void(float64[:, ::1], float64[:, ::1], float64[::1], float64[:, ::1], float32[:, ::1])",
-      cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _descriptors(ii, kp, offsets, weights, out):
     """out[k] = the 64-value descriptor of keypoint k."""
     acc = np.zeros(64)

@@ -154,7 +154,7 @@ def candidate_correspondences(centres_a: np.ndarray, radii_a: np.ndarray,
     return i[keep].astype(np.int64), j[keep], err[keep]
 
 
-@njit("int64[:, ::1](int64[::1], int64[::1], int64, int64)", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _greedy(i, j, n_a, n_b):
     """One-to-one pairs taken in the given order when both ends are still free."""
     used_a = np.zeros(n_a, np.bool_)

@@ -72,7 +72,7 @@ def ranking_count(image: np.ndarray, key: np.ndarray | None = None) -> np.ndarra
     return c
 
 
-@njit("void(float64[:, ::1], int8[:, ::1])", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _rank_counts(key, c):
     """ranking_count compiled: per pixel, the 8-neighbours whose key is >= its own (outside
     the image a key of -1)."""
@@ -268,7 +268,7 @@ def _nodes_by_priority(key, c, skeleton):
     return oy[taken].copy(), ox[taken].copy()
 
 
-@njit("int32[:, ::1](boolean[:, ::1], int64[::1], int64[::1])", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _node_regions(skeleton, ys, xs):
     """place_nodes' region image: node k + 1 at its pixel (ys[k], xs[k]); every other
     skeleton pixel takes the largest node label among its 4-neighbours, else among its
@@ -319,8 +319,7 @@ def subpixel_positions(image: np.ndarray, pix: np.ndarray) -> np.ndarray:
     return _centroids(np.ascontiguousarray(image), np.ascontiguousarray(pix, np.int64))
 
 
-@njit(["float64[:, ::1](float32[:, ::1], int64[:, ::1])",
-       "float64[:, ::1](float64[:, ::1], int64[:, ::1])"], cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _centroids(image, pix):
     """subpixel_positions compiled: per node pixel, its 3 x 3 window's grey levels (0 outside
     the image) as weights, the weighted mean offset summed as numpy sums (block_sum)."""
@@ -367,7 +366,7 @@ def _adjacency(start: np.ndarray, nbr: np.ndarray) -> list[set]:
     return [set(nb[b[k]:b[k + 1]]) for k in range(len(b) - 1)]
 
 
-@njit("Tuple((int64[::1], int64[::1]))(int32[:, ::1], int64)", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _region_links(regions, n):
     """connect_nodes compiled: the pairs of different node labels (``regions`` = node + 1)
     on 8-neighbouring pixels, as each node's neighbours in ascending order (``nbrs[start[i]:
@@ -415,8 +414,7 @@ def remove_triangles(graph: LineGraph):
     graph.lists = kept[0], kept[1][:kept[0][-1]]
 
 
-@njit("int64[:, ::1](int64[::1], int64[::1], float64[:, ::1], int64[::1], int64[::1])",
-      cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _triangle_cuts(start, nbr, pos, kept_start, kept_nbr):
     """remove_triangles' walk: for i in order (of degree >= 2 then), for each neighbour j > i
     (sorted, as connected when i's turn came), for each common neighbour k > j (sorted, as
@@ -506,8 +504,7 @@ def stretch_lines(graph: LineGraph, regions: np.ndarray):
                             np.ascontiguousarray(graph.pos, np.float64), graph.pix)
 
 
-@njit("void(int32[:, ::1], int64[::1], float64[:, ::1], int64[:, ::1])", cache=True,
-      nogil=True)
+@njit(cache=True, nogil=True)
 def _farthest_region_pixels(regions, other, pos, pix):
     """stretch_lines compiled: for each node i with ``other[i]`` >= 0 (its neighbour), the
     pixel of its region (``regions`` = node index + 1) farthest from the neighbour's position
@@ -562,8 +559,7 @@ def split_isolated_nodes(graph: LineGraph, regions: np.ndarray, image: np.ndarra
     graph.lists = lists
 
 
-@njit("Tuple((int64[::1], int64[::1], int64[::1]))(int32[:, ::1], int64)", cache=True,
-      nogil=True)
+@njit(cache=True, nogil=True)
 def _region_pixels(regions, n):
     """The pixels (x, y) of each node's region (``regions`` = node + 1), node by node, each
     region's in row-major order: node i's are ``[start[i]:start[i + 1]]`` (a counting sort
@@ -588,7 +584,7 @@ def _region_pixels(regions, n):
     return xs, ys, start
 
 
-@njit("int64[:, ::1](int64[::1], int64[::1], int64[::1], int64[::1])", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _farthest_pairs(xs, ys, start, lonely):
     """For each lonely node i, the pixels (xa, ya, xb, yb) of its region (``xs``, ``ys``
     [start[i]:start[i + 1]], row-major) farthest apart (the first such pair in row-major order
@@ -749,8 +745,7 @@ def _gap_steps(samples: int) -> np.ndarray:
     return t
 
 
-@njit("UniTuple(float64, 2)(float64[:, ::1], int64[::1], int64[::1], int64)",
-      cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _outward(pos, start, nbr, i):
     """The unit direction (dx, dy) in which the line ends at end node i (from a node up to
     three steps back along its line towards i); (nan, nan) for a node without a single
@@ -775,8 +770,7 @@ def _outward(pos, start, nbr, i):
     return np.nan, np.nan
 
 
-@njit("Tuple((float64[::1], int64[::1], int64[::1]))(float64[:, ::1], int64[::1], int64[::1],"
-      " int64[::1], int64[::1], float64, float64, float64)", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _gap_candidates(pos, start, nbr, deg, loose, max_gap, min_cos, close_gap):
     """fill_gaps' candidate connections (score, i, j), in its order: loose node by loose node,
     the nodes within ``max_gap`` by index (math.hypot, numpy's np.hypot to the bit), those
@@ -989,8 +983,7 @@ def remove_short_lines(graph: LineGraph, min_length: float) -> LineGraph:
     return g
 
 
-@njit("int64[:, ::1](int64[::1], int64[::1], float64[:, ::1], float64, int64[::1], int64[::1])",
-      cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _short_spurs(start, nbr, pos, min_length, kept_start, kept_nbr):
     """remove_short_lines' walks: from each end node (degree 1 at the start, in index order)
     along nodes of degree 2 to the first node of another degree; where that is a junction
@@ -1096,7 +1089,7 @@ def _follow(start, nbr, used, flat, k, s, t):
     return k
 
 
-@njit("int64(int64[::1], int64[::1], int64[::1], int64[::1])", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _trace(start, nbr, flat, bounds):
     """trace_chains' walk: nodes of degree other than 2 (and not 0) in order, each one's
     neighbours in ascending order: a walk along the degree-2 nodes not yet used, or a direct

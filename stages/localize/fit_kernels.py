@@ -95,8 +95,7 @@ def line_distance(dist, grad, x0, y0, res, x, y):
     return d, gx, gy
 
 
-@njit("UniTuple(float64, 3)(float32[:, ::1], float32[:, :, ::1], float64, float64, float64,"
-      " float64, float64)", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def distance_at(dist, grad, x0, y0, res, x, y):
     """``line_distance`` callable from Python (tests, pictures)."""
     return line_distance(dist, grad, x0, y0, res, x, y)
@@ -125,17 +124,13 @@ def _cost_gradient(dist, grad, x0, y0, res, points, weights, px, py, pth, c2, ou
     return total
 
 
-@njit("float64(float32[:, ::1], float32[:, :, ::1], float64, float64, float64, float64[:, ::1],"
-      " float64[::1], float64, float64, float64, float64, float64[::1])", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def cost_gradient(dist, grad, x0, y0, res, points, weights, px, py, pth, c2, out_grad):
     """E at pose (px, py, pth) (module doc); dE / d(x, y, theta) into ``out_grad`` (3,)."""
     return _cost_gradient(dist, grad, x0, y0, res, points, weights, px, py, pth, c2, out_grad)
 
 
-@njit("float64(float32[:, ::1], float32[:, :, ::1], float64, float64, float64, float64[:, ::1],"
-      " float64[::1], float64, float64, float64, float64, int64, float64, float64, float64,"
-      " float64, float64, float64, float64, float64, float64, float64, float64, float64[::1])",
-      cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def rprop(dist, grad, x0, y0, res, points, weights, px, py, pth, c2, iterations, step_xy,
           step_theta, prior_theta, prior_weight, prior_x, prior_y, info_xx, info_xy, info_yy,
           min_step_xy, min_step_theta, out):
@@ -206,9 +201,7 @@ def rprop(dist, grad, x0, y0, res, points, weights, px, py, pth, c2, iterations,
     return best_e
 
 
-@njit("void(float32[:, ::1], float32[:, :, ::1], float64, float64, float64, float64[:, ::1],"
-      " float64[::1], float64, float64, float64, float64, float64[:, ::1], float64[::1])",
-      cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def normal_matrix(dist, grad, x0, y0, res, points, weights, px, py, pth, c2, out, out_d):
     """The Gauss-Newton matrix (3, 3) of E at the pose into ``out`` (module doc) and every
     point's distance d(q_i) into ``out_d``."""
@@ -233,9 +226,7 @@ def normal_matrix(dist, grad, x0, y0, res, points, weights, px, py, pth, c2, out
     out[2, 1] = out[1, 2]
 
 
-@njit("void(float32[:, ::1], float32[:, :, ::1], float64, float64, float64, float64[:, ::1],"
-      " float64[::1], float64[::1], float64[::1], float64[::1], float64, float64[:, :, ::1])",
-      cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def grid_costs(dist, grad, x0, y0, res, points, weights, xs, ys, headings, c2, out):
     """out[h, i, j] = E at (xs[j], ys[i], headings[h]) with scale c2 (module doc)."""
     n = points.shape[0]
@@ -256,8 +247,7 @@ def grid_costs(dist, grad, x0, y0, res, points, weights, xs, ys, headings, c2, o
                 out[h, i, j] = total
 
 
-@njit("void(float32[:, ::1], float32[:, :, ::1], float64, float64, float64, float64[:, ::1],"
-      " float64, float64, float64, float64, float64, float64[::1])", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def ray_ranges(dist, grad, x0, y0, res, points, px, py, pth, min_cosine, max_distance, out):
     """out[i]: the range along point i's own ray (from the robot) at which the ray meets the
     line nearest the point, to first order: r - d / (n . u) (n = grad d, u the ray's unit

@@ -31,8 +31,10 @@ import fcntl
 import hashlib
 import json
 import logging
+import math
 import os
 import shutil
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -47,6 +49,11 @@ log = logging.getLogger(__name__)
 CACHE_VERSION = 2  # raise when an array is computed differently: older files are not read
 # (2: the radial table in metres as (line, cell, crossing))
 SUFFIX = ".lookup"
+# builds of this size and more announce themselves on stderr (_announce); the rate is that of
+# msl-2015's error lookup built and written on a busy 2-core AMD EPYC, for the rough duration
+# the line states
+ANNOUNCE_BYTES = 64 << 20
+BUILD_BYTES_PER_S = 80e6
 
 
 def cache_folder(map_path: str | Path) -> Path:
@@ -94,6 +101,7 @@ def load_or_build(map_path: str | Path, what: str, params: dict, shapes: dict,
         found = _mapped(folder, key, shapes)  # written by another process while we waited
         if found is not None:
             return found, "mapped"
+        _announce(what, map_path, folder, shapes)
         arrays = build()
         try:
             _write(folder, key, arrays, map_path, what, params)
@@ -106,6 +114,19 @@ def load_or_build(map_path: str | Path, what: str, params: dict, shapes: dict,
         os.close(lock)
     found = _mapped(folder, key, shapes)
     return (found, "built") if found is not None else (arrays, "built, not cached")
+
+
+def _announce(what: str, map_path, folder: Path, shapes: dict) -> None:
+    """One line on stderr before a build that takes seconds to a minute, even under --quiet
+    (a command must not sit silent that long): what is built, why, how large, roughly how
+    long. Small builds say nothing."""
+    nbytes = sum(math.prod(s) * np.dtype(d).itemsize for s, d in shapes.values())
+    if nbytes < ANNOUNCE_BYTES:
+        return
+    seconds = nbytes / BUILD_BYTES_PER_S
+    print(f"fieldloc: building the {what} of {Path(map_path).name} ({nbytes / 1e6:.0f} MB,"
+          f" about {max(5, round(seconds / 5) * 5)} s): once per map, kept in {folder} so"
+          " that later runs map it in a second", file=sys.stderr, flush=True)
 
 
 def _mapped(folder: Path, key: str, shapes: dict) -> dict | None:

@@ -103,9 +103,7 @@ def observation_error(radial_flat, spiral_flat, ncell, n_angles, fam, ai, d, tol
                                       tol, c, m0, a32, b32, upper, interpolate) - d)
 
 
-@njit("void(float32[::1], float32[::1], int64, int64, int64[::1], int64[::1], float32[::1],"
-      " float32[::1], float32, float32, int64[::1], int64, float64, boolean, float64[::1])",
-      cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def exact_error_cells(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist,
                       weight, tol, c2, cells, m0, a, interpolate, out):
     """out[c] = sum_i weight[i] * rho(e_i) at flat cell cells[c] (``observation_error``; an
@@ -124,8 +122,7 @@ def exact_error_cells(radial_flat, spiral_flat, ncell, n_angles, family, angle_i
             out[ci] += w * (e2 / (c2 + e2))
 
 
-@njit("void(float32[::1], float32[::1], int64, int64, int64[::1], int64[::1], float32[::1],"
-      " float32, int64, int64, float64, boolean, float64[::1])", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def observation_errors_cell(radial_flat, spiral_flat, ncell, n_angles, family, angle_index,
                             dist, tol, cell, m0, a, interpolate, out):
     """out[i] = error (m) of observation i at flat cell ``cell`` (``observation_error``)."""
@@ -138,8 +135,7 @@ def observation_errors_cell(radial_flat, spiral_flat, ncell, n_angles, family, a
                                    interpolate)
 
 
-@njit("void(float32[::1], float32[::1], int64, int64, int64[::1], int64[::1], float32[::1],"
-      " float32, int64, int64, float64, boolean, float64[::1])", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def observation_predictions_cell(radial_flat, spiral_flat, ncell, n_angles, family,
                                  angle_index, dist, tol, cell, m0, a, interpolate, out):
     """out[i] = predicted crossing distance (m) of observation i at flat cell ``cell``."""
@@ -152,9 +148,7 @@ def observation_predictions_cell(radial_flat, spiral_flat, ncell, n_angles, fami
                                         upper, interpolate)
 
 
-@njit("int64(float32[::1], float32[::1], int64, int64, int64[::1], int64[::1], float32[::1],"
-      " float32[::1], float32, float32, int64, int64, int64, int64, int64, float64, boolean,"
-      " int64, float64[::1])", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def refine_moves(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist, weight,
                  tol, c2, i, j, ny, nx, m0, a, interpolate, max_moves, out):
     """The cell search of ``TableSearch.refine``: the exact error (``exact_error_cells``) on
@@ -214,8 +208,7 @@ def refine_moves(radial_flat, spiral_flat, ncell, n_angles, family, angle_index,
     return i * nx + j
 
 
-@njit("void(uint8[:, ::1], int64[::1], int64[::1], int64[::1], int64, int64, int64, int64,"
-      " int64, int64, int64, int64, int64, int64, uint16[:, ::1])", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def tiled_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
               spiral_row0, i0, i1, j0, j1, ntx, out):
     """out[i - i0, j - j0] = sum over the observations of their lookup rows' cell (i, j)
@@ -255,11 +248,7 @@ def tiled_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spir
             dst[j] = src[col[j]]
 
 
-@njit("Tuple((int64, float64))(uint8[:, ::1], int64[::1], int64[::1],"
-      " int64[::1], int64, int64,"
-      " int64, int64, int64, int64, int64, int64, int64, int64, int64, float64, float64,"
-      " float64, float64, float64, float64, float64, float64, float64, float64)", cache=True,
-      nogil=True)
+@njit(cache=True, nogil=True)
 def tracked_window(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
                    spiral_row0, i0, i1, j0, j1, nx, ntx, scale, x0, y0, res, px, py, ia, ib,
                    ic, cap):
@@ -388,10 +377,7 @@ def _posterior_score(fix, temperature, px, py, ia, ib, ic, cap):
     return fix[2] / temperature + min(0.5 * q, cap)
 
 
-@njit("float64(uint8[:, ::1], int64, int64, int64, int64, int64[::1], int64[::1], int64[::1],"
-      " int64, int64, int64, int64, int64, int64, int64, int64, int64, float64, float64,"
-      " float64, float64, float64, float64, float64, float64, float64, float64)", cache=True,
-      nogil=True)
+@njit(cache=True, nogil=True)
 def tracked_window_bound(coarse, step, cy, cx, ntx, family, angle_index, bins, m, n_angles,
                          nb_radial, nb_spiral, spiral_row0, i0, i1, j0, j1, scale, x0, y0,
                          res, px, py, ia, ib, ic, cap):
@@ -423,7 +409,7 @@ def tracked_window_bound(coarse, step, cy, cx, ntx, family, angle_index, bins, m
     return best
 
 
-@njit("UniTuple(float64, 6)(float64[::1], float64[:, ::1])", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def quadratic_fit(e, qpinv):
     """Sub-cell minimum of a 3 x 3 error patch ``e`` (9,, rows y, columns x) by the
     least-squares quadratic (``qpinv``: the pseudo-inverse (6, 9) of its design matrix):
@@ -451,7 +437,7 @@ def quadratic_fit(e, qpinv):
     val = a + bx * ox + by * oy + dxx * ox * ox + dxy * ox * oy + dyy * oy * oy
     return ox, oy, val, hxx, dxy, hyy
 
-@njit("float64[::1](float64[:, ::1], float64[::1], float64, float64)", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def structure_sizes(points, distance, link, link_per_m):
     """Per point, the number of points in its structure: points chained by gaps shorter than
     link + link_per_m * max(distance of the two) (union-find over the pairs found on a grid
@@ -513,8 +499,7 @@ def structure_sizes(points, distance, link, link_per_m):
 
 
 
-@njit("float64[::1](float64[:, ::1], float64[::1], float64[::1], float64, float64, float64)",
-      cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def evidence_weights(points, distance, base, link, link_per_m, per_structure):
     """The evidence weights of a frame's observations (``Observation.with_evidence``): the
     ``base`` weight times min(1, ``per_structure`` / the size of the point's structure
@@ -526,8 +511,7 @@ def evidence_weights(points, distance, base, link, link_per_m, per_structure):
     return out
 
 
-@njit("Tuple((int64[::1], int64[::1], float64[::1], float64[::1]))(float64[:, ::1],"
-      " float64[:, ::1], boolean, float64, float64, float64, float64)", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def flatten_scanlines(radial, spiral, use_spiral, robot_radius, max_range, spiral_end_radius,
                       range_scale):
     """(family, angle_index, distance, weight) of a frame's radial (n, 4) and spiral (2, n)
@@ -563,8 +547,7 @@ def flatten_scanlines(radial, spiral, use_spiral, robot_radius, max_range, spira
     return fam[:k].copy(), idx[:k].copy(), dist[:k].copy(), w
 
 
-@njit("float64[:, ::1](int64[::1], int64[::1], float64[::1], float64, float64, float64)",
-      cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def observation_points(family, angle_index, distance, angle_step, robot_radius,
                        spiral_end_radius):
     """Observations as points (N, 2) in the robot frame: radial crossings at their line's
@@ -584,8 +567,7 @@ def observation_points(family, angle_index, distance, angle_step, robot_radius,
     return out
 
 
-@njit("UniTuple(float64, 4)(float64[::1], float64[::1], float64, float64)", cache=True,
-      nogil=True)
+@njit(cache=True, nogil=True)
 def inlier_sums(errors, weight, inlier_error, c2):
     """(inliers, their weight, their weighted rho, their weighted squared error) of
     observations with ``errors`` (m)."""

@@ -127,8 +127,7 @@ def _solve3(a, b):
     return x
 
 
-@njit("float64(float32[:, ::1], float64, float64, float64, float64[:, ::1], float64[::1],"
-      " float64, float64, float64, float64)", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def fit_cost(table, x0, y0, res, points, weights, px, py, pth, c2):
     """C(pose) (module doc)."""
     cs, sn = math.cos(pth), math.sin(pth)
@@ -141,9 +140,7 @@ def fit_cost(table, x0, y0, res, points, weights, px, py, pth, c2):
     return total
 
 
-@njit("float64(float32[:, ::1], float64, float64, float64, float64[:, ::1], float64[::1],"
-      " float64, float64, float64, float64, int64, boolean, float64, float64, float64[::1],"
-      " float64[:, ::1])", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def fit_refine(table, x0, y0, res, points, weights, px, py, pth, c2, iterations,
                fixed_heading, max_shift, max_turn, out, normal):
     """Minimise C from (px, py, pth) (module doc) within max_shift (per axis) and max_turn of

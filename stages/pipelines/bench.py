@@ -805,6 +805,8 @@ ROWS: dict[str, Callable[[int], Row | list[Row]]] = {
     "lut-first-frame": lambda n: _batch().bench_first_frame(n),
     "batch-worker-memory": lambda n: _batch().bench_worker_memory(n),
     "cli-help": lambda n: importlib.import_module(".bench_cli", __package__).rows(n),
+    "first-run-after-install": lambda n: importlib.import_module(
+        ".warmup", __package__).bench_first_run(n),
 }
 
 
