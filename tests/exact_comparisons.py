@@ -18,8 +18,9 @@ What the scan flags, in every tests/**/*.py:
   the like, ``.astype`` to an integer or bool type, ``len``, index functions (argsort,
   flatnonzero, ...).
 
-An exact comparison is allowed when the call (any of its lines) carries a marker comment
-``# exact <kind>: <why>`` with one of the kinds below and a reason a reviewer can check:
+An exact comparison is allowed when the call (any of its lines, or a comment line directly
+above its statement) carries a marker comment ``# exact <kind>: <why>`` with one of the kinds
+below and a reason a reviewer can check:
 
 - ``integers``: the values are integers (counts, pixel coordinates, indices, uint8 images),
   whatever their dtype;
@@ -143,6 +144,28 @@ def _integral(node: ast.expr) -> bool:
     return False
 
 
+def _parents(tree: ast.AST) -> dict[ast.AST, list[ast.AST]]:
+    """Each node's chain of enclosing nodes, outermost first."""
+    parents: dict[ast.AST, list[ast.AST]] = {}
+    stack = [(tree, [])]
+    while stack:
+        node, chain = stack.pop()
+        parents[node] = chain
+        for child in ast.iter_child_nodes(node):
+            stack.append((child, chain + [node]))
+    return parents
+
+
+def marker_lines(call: ast.Call, chain: list[ast.AST], lines: list[str]) -> list[int]:
+    """The lines whose marker applies to ``call``: its own, and a comment line directly
+    above the statement that holds it."""
+    own = list(range(call.lineno, (call.end_lineno or call.lineno) + 1))
+    stmt = next((p for p in reversed(chain) if isinstance(p, ast.stmt)), None)
+    if stmt is not None and stmt.lineno >= 2 and lines[stmt.lineno - 2].lstrip().startswith("#"):
+        own.append(stmt.lineno - 1)
+    return own
+
+
 def _is_hash(name: str | None) -> bool:
     return bool(name) and (name == "hash" or name.startswith("hashlib."))
 
@@ -151,14 +174,14 @@ def scan(source: str, path: str = "<source>") -> list[Finding]:
     """The bit-for-bit comparisons of ``source`` that carry no valid marker, and markers that
     are malformed or mark no exact comparison."""
     tree = ast.parse(source, path)
+    source_lines = source.splitlines()
     names = _aliases(tree)
     marks = markers(source)
     used = set()
     findings = []
 
     def marked(node) -> bool:
-        lines = range(node.lineno, (node.end_lineno or node.lineno) + 1)
-        hit = [i for i in lines if i in marks]
+        hit = [i for i in marker_lines(node, parents[node], source_lines) if i in marks]
         used.update(hit)
         return any(marks[i][0] in KINDS and marks[i][1] for i in hit)
 
@@ -167,14 +190,7 @@ def scan(source: str, path: str = "<source>") -> list[Finding]:
                                             and _is_hash(_qualified(p.func, names)))
                    for p in parents.get(node, ()))
 
-    parents: dict[ast.AST, list[ast.AST]] = {}
-    stack = [(tree, [])]
-    while stack:
-        node, chain = stack.pop()
-        parents[node] = chain
-        for child in ast.iter_child_nodes(node):
-            stack.append((child, chain + [node]))
-
+    parents = _parents(tree)
     for node in ast.walk(tree):
         if not isinstance(node, ast.Call):
             continue
@@ -220,10 +236,12 @@ def _call_markers(path: str) -> tuple[tuple[int, int, str], ...]:
     except (OSError, SyntaxError, ValueError):
         return ()
     marks = markers(source)
+    parents = _parents(tree)
+    lines = source.splitlines()
     out = []
     for node in ast.walk(tree):
         if isinstance(node, ast.Call):
-            for i in range(node.lineno, (node.end_lineno or node.lineno) + 1):
+            for i in marker_lines(node, parents[node], lines):
                 if i in marks:
                     out.append((node.lineno, node.end_lineno or node.lineno, marks[i][0]))
     return tuple(out)
