@@ -341,8 +341,9 @@ def test_frame_without_observations_keeps_the_predicted_belief(kidsize, model):
     rng.bit_generator.state = state
     predicted = motion_model.sample_motion(before_p, (0.05, 0.0, 0.02), 0.1, rng,
                                            conf["motion"])
+    # exact same-run: the same motion model and generator state, here
     assert np.array_equal(pf.particles, predicted)
-    assert np.array_equal(pf.weights, before_w)
+    assert np.array_equal(pf.weights, before_w)  # exact same-run: left as they were
     assert "no-observations" in est.flags and est.mode == "predicted"
 
 
@@ -350,10 +351,10 @@ def test_same_seed_same_poses(kidsize, model):
     conf = copy.deepcopy(mcl.confs["default"])
     a, _, _ = _run_walk(kidsize, model, conf, n=30, seed=7)
     b, _, _ = _run_walk(kidsize, model, conf, n=30, seed=7)
-    assert np.array_equal(a, b)
+    assert np.array_equal(a, b)  # exact same-run: one seed twice
     conf["seed"] = 1
     c, _, _ = _run_walk(kidsize, model, conf, n=30, seed=7)
-    assert not np.array_equal(a, c)
+    assert not np.allclose(a, c, rtol=0, atol=1e-6)  # another seed: other poses
 
 
 def test_recovers_after_kidnapping(kidsize, model):
@@ -515,7 +516,9 @@ def test_map_without_crossing_tables_still_works(kidsize, tmp_path):
     tabs = crossing_association_tables(kidsize, grid)
     with MapFile(path) as mf:
         m = ObservationModel.from_map(mf)
+    # exact integers: crossing indices
     assert np.array_equal(m.lut[:4 * m._cells], tabs["crossing_lut_L"][0].ravel())
+    # exact integers: crossing indices
     assert np.array_equal(m.lut[4 * m._cells:], tabs["crossing_lut_T"][0].ravel())
 
 
