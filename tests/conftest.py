@@ -1,8 +1,23 @@
+import importlib
 from pathlib import Path
 
 import pytest
+from exact_comparisons import GUARDED, guarded
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
+
+
+@pytest.fixture(scope="session", autouse=True)
+def no_bit_for_bit_float_comparisons():
+    """numpy's exact comparisons (np.array_equal, np.array_equiv,
+    np.testing.assert_array_equal, np.testing.assert_equal), when a test module calls them,
+    fail on floating-point values that are not integers unless the call is marked
+    ``# exact same-run: ...`` (tests/exact_comparisons.py states the rule and why)."""
+    with pytest.MonkeyPatch.context() as mp:
+        for module, name in GUARDED:
+            mod = importlib.import_module(module)
+            mp.setattr(mod, name, guarded(getattr(mod, name), f"{module}.{name}"))
+        yield
 
 
 @pytest.fixture(scope="session")

@@ -205,8 +205,10 @@ def test_two_workers_give_the_serial_results_value_for_value(serial, tmp_path):
                 continue
             va, vb = np.asarray(a[col]), np.asarray(b[col])
             if va.dtype.kind == "f":
+                # exact same-run: serial and Dask runs on this machine
                 assert np.array_equal(va, vb, equal_nan=True), (r["key"], col)
             else:
+                # exact same-run: serial and Dask runs on this machine
                 assert np.array_equal(va, vb), (r["key"], col)
     ca = list(csv.DictReader((ser / "comparison.csv").open()))
     cb = list(csv.DictReader((par / "comparison.csv").open()))
@@ -220,6 +222,7 @@ def test_two_workers_give_the_serial_results_value_for_value(serial, tmp_path):
         assert (ser / "plots" / name).read_bytes() == (par / "plots" / name).read_bytes(), name
     # and the runs of the serial batch of the same datasets: the same poses
     first = runs[0]["dir"]
+    # exact same-run: two batches of this session
     assert np.array_equal(read_poses(out / first / "poses.h5")[0]["x"],
                           read_poses(par / first / "poses.h5")[0]["x"], equal_nan=True)
 
@@ -287,6 +290,7 @@ def test_a_dataset_rendered_again_is_extracted_anew(serial, tmp_path, monkeypatc
             assert fa.keys() == fb.keys()
             for k in fa:
                 va, vb = np.asarray(fa[k]), np.asarray(fb[k])
+                # exact same-run: the batch's extract and a fresh one, here
                 assert np.array_equal(va, vb, equal_nan=va.dtype.kind == "f"), (n, k)
 
 

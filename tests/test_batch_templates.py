@@ -151,6 +151,7 @@ def test_recording_with_a_templates_file(first, tmp_path):
     got, _ = read_poses(res / "runs" / "lab" / "templates-default" / "poses.h5")
     want, _ = read_poses(out / "runs" / "omni-a" / "templates-default" / "poses.h5")
     for k in ("x", "y", "theta", "failed"):
+        # exact same-run: two batches of this session
         np.testing.assert_array_equal(got[k], want[k])
 
 
@@ -201,4 +202,5 @@ def test_a_dask_batch_from_nothing_is_resumed(first, tmp_path):
     assert "2 runs: 2 finished before, 0 to do" in lines
     got, _ = read_poses(res / "runs" / "omni-a" / "lut-default" / "poses.h5")
     want, _ = read_poses(out / "runs" / "omni-a" / "lut-default" / "poses.h5")
+    # exact same-run: a resumed batch and the first, here
     np.testing.assert_array_equal(got["x"], want["x"])

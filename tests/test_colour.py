@@ -59,7 +59,9 @@ def test_chroma_tests_equal_the_formulas_on_every_yuv_value():
         y, u, v = (a.astype(np.uint8) for a in np.meshgrid(
             np.arange(y0, y0 + 32), np.arange(256), np.arange(256), indexing="ij"))
         green, white = colour._chroma_tests(y, u, v, fc, CONF)
+        # exact decisions: green or not
         assert np.array_equal(green, reference_green_chroma(y, u, v, fc)), y0
+        # exact decisions: white or not
         assert np.array_equal(white, reference_white_chroma(y, u, v)), y0
 
 
@@ -72,8 +74,9 @@ def test_chroma_tests_equal_the_formulas_for_other_colours(seed):
                             (float(rng.uniform(14, 60)), float(rng.uniform(14, 60))), True, 0.5)
     y, u, v = rng.integers(0, 256, (3, 1_000_000)).astype(np.uint8)
     green, white = colour._chroma_tests(y, u, v, fc, CONF)
+    # exact decisions: green or not
     assert np.array_equal(green, reference_green_chroma(y, u, v, fc))
-    assert np.array_equal(white, reference_white_chroma(y, u, v))
+    assert np.array_equal(white, reference_white_chroma(y, u, v))  # exact decisions: white or not
     assert green.sum() > 100  # the sample reaches into the ellipse
 
 
@@ -103,8 +106,11 @@ def test_classify_image_equals_the_reference_classifier():
     vv, uu = np.indices(img.shape[:2])
     ref = reference_classes(yuv, fc, fc.local_y(uu, vv))
     ref[~valid] = colour.OTHER
-    assert np.array_equal(labels, ref)
-    assert np.array_equal(fc.local_y_image(img.shape), fc.local_y(uu, vv))
+    assert np.array_equal(labels, ref)  # exact decisions: class labels
+    # the local green luminance as an image and per pixel: the same interpolation, in grey
+    # levels (0-255), equal to far below a level
+    np.testing.assert_allclose(fc.local_y_image(img.shape), fc.local_y(uu, vv), rtol=0,
+                               atol=1e-6)
     for c in (colour.GREEN, colour.WHITE, colour.OTHER):  # all classes occur
         assert (labels == c).mean() > 0.02
     # the same pixels through the other entry points
@@ -112,7 +118,8 @@ def test_classify_image_equals_the_reference_classifier():
     block = colour.FieldColour.block_index(uu.ravel()[flat], vv.ravel()[flat],
                                            fc.y_map.shape, fc.cell)
     assert np.array_equal(colour.classify_pixels(yuv, flat, block, fc, CONF),
-                          labels.ravel()[flat])
+                          labels.ravel()[flat])  # exact decisions: class labels
+    # exact decisions: class labels
     assert np.array_equal(colour.classify_yuv(yuv, fc, CONF, fc.local_y_image(yuv.shape)),
                           reference_classes(yuv, fc, fc.local_y(uu, vv)))
 
@@ -123,8 +130,10 @@ def test_classify_yuv_without_a_local_map_and_with_bright_local_green():
     fc = colour.FieldColour(90.0, 105.0, 95.0, (14.0, 14.0), True, 0.5)
     rng = np.random.default_rng(3)
     px = rng.integers(0, 256, (50_000, 3)).astype(np.uint8)
+    # exact decisions: class labels
     assert np.array_equal(colour.classify_yuv(px, fc, CONF), reference_classes(px, fc, fc.y))
     yg = rng.uniform(0.0, 400.0, len(px))
+    # exact decisions: class labels
     assert np.array_equal(colour.classify_yuv(px, fc, CONF, yg), reference_classes(px, fc, yg))
 
 
@@ -133,15 +142,15 @@ def test_grid_counts_are_the_counts_of_the_classes():
     labels, _ = colour.classify_image(img, CONF)
     counts, fc = colour.classify_grid(img, CONF)
     assert counts.shape == (20, 25, 3) and np.all(counts.sum(axis=2) == 64)
-    assert np.array_equal(counts, colour.class_counts(labels))
+    assert np.array_equal(counts, colour.class_counts(labels))  # exact integers: pixel counts
     # cells of 6 px (not a power of two) and 7 px (blocks of the local map straddle cells)
     for cell in (6, 7):
         assert np.array_equal(colour.classify_grid(img, CONF, cell=cell)[0],
-                              colour.class_counts(labels, cell))
+                              colour.class_counts(labels, cell))  # exact integers: pixel counts
     # step 2: the classes of every 2nd pixel of every 2nd row, counted 4 times
     counts2, _ = colour.classify_grid(img, CONF, step=2)
     sub = labels[::2, ::2]
-    assert np.array_equal(counts2, 4 * colour.class_counts(sub, 4))
+    assert np.array_equal(counts2, 4 * colour.class_counts(sub, 4))  # exact integers: pixel counts
     with pytest.raises(FieldlocError):
         colour.classify_grid(img, CONF, step=3)
 
@@ -153,6 +162,7 @@ def test_black_frame_and_a_frame_without_green():
     grey = np.full((64, 80, 3), 128, np.uint8)
     labels, fc = colour.classify_image(grey, CONF)
     assert not fc.found
+    # exact decisions: class labels
     assert np.array_equal(labels, reference_classes(colour.to_yuv(grey), fc, fc.y))
 
 
@@ -164,7 +174,7 @@ def test_green_search_candidates_are_the_hue_window():
     hue = np.degrees(np.arctan2(cv_, cu))
     h0, h1 = CONF["green_hue_deg"]
     ref = (hue >= h0) & (hue <= h1) & (np.hypot(cu, cv_) >= CONF["green_min_chroma"])
-    assert np.array_equal(ok, ref)
+    assert np.array_equal(ok, ref)  # exact decisions: in the hue window or not
     assert math.isclose(colour.hue_deg(100, 100), -135.0)
 
 

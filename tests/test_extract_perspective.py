@@ -237,7 +237,7 @@ def test_result_has_the_schema_datasets_and_overlay_draws_them():
         assert res[key].ndim == 2 and res[key].shape[1] == cols, key
     assert len(res["boundary"]) == CAM.image_size[0] // CONF["cell"]
     out = perspective.debug_overlay(img, res)
-    assert out.shape == img.shape and not np.array_equal(out, img)
+    assert out.shape == img.shape and not np.array_equal(out, img)  # exact integers: uint8 images
     # the crossing is marked in yellow at its image position
     u, v = np.round(res["crossings_px"][0]).astype(int)
     patch = out[v - 8:v + 9, u - 8:u + 9].reshape(-1, 3)
@@ -458,7 +458,7 @@ def _ref_robust_fit(points: np.ndarray, min_residual: float = 1.5, max_gap: int 
         new[hi:] = False
         if new.sum() < 2:
             break
-        if np.array_equal(new, keep):
+        if np.array_equal(new, keep):  # exact decisions: inlier masks
             break
         keep = new
         fit = fit_line(points[keep])

@@ -83,6 +83,7 @@ def snapshot(*folders) -> dict[str, str]:
     for folder in folders:
         for f in Path(folder).rglob("*"):
             if f.is_file() and not f.is_symlink():
+                # exact bytes: files on disk checked unchanged
                 out[str(f)] = hashlib.sha256(f.read_bytes()).hexdigest()
     return out
 

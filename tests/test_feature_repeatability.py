@@ -132,6 +132,7 @@ def test_only_regions_in_the_common_part_count():
 def test_hamming_distances_and_bad_input():
     a = np.array([[0b10110000, 0], [255, 255]], np.uint8)
     b = np.array([[0b10000000, 0], [0, 0]], np.uint8)
+    # exact integers: bit counts
     np.testing.assert_array_equal(fr.descriptor_distances(a, b, "hamming"), [[2, 3], [15, 16]])
     with pytest.raises(FieldlocError, match="metric"):
         fr.descriptor_distances(a, b, "cosine")

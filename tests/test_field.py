@@ -152,11 +152,13 @@ def test_a_field_built_again_gets_its_own_crossings():
     """derive_crossings works a geometry out once per process: a second model of the same
     field has equal crossings, in arrays of its own (changing one leaves the other)."""
     a, b = load_field("msl-2015"), load_field("msl-2015")
-    assert np.array_equal(a.crossings, b.crossings)
+    assert np.array_equal(a.crossings, b.crossings)  # exact same-run: one field loaded twice
     assert list(a.crossing_types) == list(b.crossing_types)
+    # exact same-run: one field loaded twice
     assert np.array_equal(a.crossing_arms, b.crossing_arms, equal_nan=True)
     a.crossings[0, 0] += 1.0
-    assert not np.array_equal(a.crossings, b.crossings)
+    assert not np.array_equal(a.crossings, b.crossings)  # exact same-run: a copy changed by 1 m
+    # exact same-run: one field loaded twice
     assert np.array_equal(b.crossings, load_field("msl-2015").crossings)
 
 

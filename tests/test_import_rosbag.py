@@ -51,7 +51,7 @@ def test_import_frames_stamps_odometry_imu(tmp_path, fmt):
     assert [p.name for p in ds.images] == [f"{i:06d}.png" for i in range(5)]
     np.testing.assert_allclose(ds.stamps, stamps, atol=1e-6)  # header stamps, not bag times
     for p, im in zip(ds.images, imgs):
-        assert np.array_equal(cv2.imread(str(p)), im)
+        assert np.array_equal(cv2.imread(str(p)), im)  # exact integers: uint8 images
     assert (out / "calib.yaml").read_text() == "kind: omni\n"
 
     odo_csv = read_csv(out / "odometry.csv", "odometry")
@@ -130,7 +130,7 @@ def test_rgb_yuv422_mono_and_padding():
     padded = np.zeros((rgb.shape[0], rgb.shape[1] * 3 + 6), np.uint8)  # rows padded by 6 bytes
     padded[:, :rgb.shape[1] * 3] = rgb.reshape(rgb.shape[0], -1)
     out = ros_images.raw_to_image(16, 16, "rgb8", padded.shape[1], padded)
-    assert np.array_equal(out, img)
+    assert np.array_equal(out, img)  # exact integers: uint8 images
     # UYVY of the image (BT.601 video range, what cameras and OpenCV's UYVY decoder use)
     b, g, r = (img[..., k].astype(float) for k in range(3))
     yuv = np.clip(np.rint(np.stack([0.257 * r + 0.504 * g + 0.098 * b + 16,
@@ -148,6 +148,7 @@ def test_rgb_yuv422_mono_and_padding():
     assert np.abs(out2.astype(int) - img.astype(int)).max() <= 6
     grey16 = (np.arange(16 * 16) * 200).astype(">u2").reshape(16, 16)
     out = ros_images.raw_to_image(16, 16, "mono16", 32, grey16.view(np.uint8), True)
+    # exact integers: uint16 images
     assert out.dtype == np.uint16 and np.array_equal(out, grey16.astype(np.uint16))
     with pytest.raises(ros_images.ImageMessageError, match="not supported"):
         ros_images.raw_to_image(16, 16, "32FC1", 64, np.zeros(1024, np.uint8))

@@ -115,6 +115,7 @@ class Run:
 def tree_hashes(path: Path) -> dict[str, str]:
     path = Path(path)
     files = [path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
+    # exact same-run: files left alone, or written by runs here
     return {str(p.relative_to(path.parent)): hashlib.sha256(p.read_bytes()).hexdigest()
             for p in files}
 
@@ -145,6 +146,7 @@ def assert_same_content(a: dict, b: dict):
     for k in a:
         x, y = np.asarray(a[k]), np.asarray(b[k])
         if x.dtype.kind in "fc":
+            # exact same-run: a resumed run and an uninterrupted one, here
             np.testing.assert_array_equal(x, y, err_msg=k)
         else:
             assert x.tolist() == y.tolist(), k

@@ -289,6 +289,7 @@ def test_tracked_fix_is_the_window_refined_supported_and_fitted(search, msl2015_
                 took_prior_basin += 1
         assert table_xy == (want.x, want.y)
         assert fix.cell == want.cell and fix.error == want.error
+        # exact same-run: the same compiled refine at one cell
         np.testing.assert_array_equal(fix.hessian, want.hessian)
         assert sup == search.support(obs, want, 0.125)
         if fit is None:
@@ -296,6 +297,7 @@ def test_tracked_fix_is_the_window_refined_supported_and_fitted(search, msl2015_
         else:
             fitted, _c, _n = pf.refine(pts, obs.weight, want.pose, fixed_heading=True,
                                        max_shift=res, max_turn=0.5 * search.step)
+            # exact same-run: the same compiled fit at one pose
             np.testing.assert_array_equal(fix.pose, fitted)
     assert took_prior_basin >= 1
 
@@ -460,6 +462,7 @@ def test_images_to_poses_reuses_the_datasets_features(omni_default_rendered, msl
     direct = localize.main(None, ds, msl2015_map, tmp_path / "direct.h5", features=features)
     a, b = read_poses(chained), read_poses(direct)
     assert a[1]["inputs"]["features"] == str(features)
+    # exact same-run: two runs of this session
     assert np.array_equal(a[0]["hypotheses"], b[0]["hypotheses"], equal_nan=True)
     assert not images_to_poses.default_features_path(tmp_path / "chained.h5").exists()
     with pytest.raises(FieldlocError, match="is an input"):  # onto the features it would use

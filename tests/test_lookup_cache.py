@@ -36,7 +36,9 @@ def test_the_lookup_is_mapped_from_disk_and_equals_a_fresh_build(small_map):
     assert again.lookup_source == "mapped"
     fresh = _search(small_map, cache=False)
     assert fresh.lookup_source == "built, not cached"
+    # exact same-run: built here, cached, read back
     assert np.array_equal(again.error_lookup, fresh.error_lookup)
+    # exact same-run: built here, cached, read back
     assert np.array_equal(again.coarse_lookup, fresh.coarse_lookup)
     assert again.error_lookup.flags.writeable  # the numba kernels take it as it is
     # other matching parameters are another key; those the lookup does not read are not
@@ -52,8 +54,10 @@ def test_a_changed_map_is_built_again_and_its_old_lookup_removed(small_map):
     build_map.main({"resolution": 0.2, "max_range": 3.0}, "kidsize", small_map, overwrite=True)
     new = _search(small_map)
     assert new.lookup_source == "built"
+    # exact same-run: two maps built here
     assert not np.array_equal(new.error_lookup, old.error_lookup)
     fresh = _search(small_map, cache=False)
+    # exact same-run: built here, cached, read back
     assert np.array_equal(new.error_lookup, fresh.error_lookup)
     now = {p.name for p in lookup_cache.cache_folder(small_map).iterdir()}
     assert not (now & old_files), "the lookup of the earlier map is left behind"
@@ -65,6 +69,7 @@ def test_a_damaged_cache_file_is_built_again(small_map):
     err.write_bytes(b"not an array")
     s = _search(small_map)
     assert s.lookup_source == "built"
+    # exact same-run: built here, cached, read back
     assert np.array_equal(s.error_lookup, _search(small_map, cache=False).error_lookup)
 
 
@@ -96,5 +101,6 @@ def test_the_point_fit_raster_is_cached_beside_the_map(small_map):
         a = PointFit(mf.field, map_path=small_map)
         b = PointFit(mf.field, map_path=small_map)
         c = PointFit(mf.field)
+    # exact same-run: built here, cached, read back
     assert np.array_equal(a.table, c.table) and np.array_equal(b.table, c.table)
     assert len(list(lookup_cache.cache_folder(small_map).glob("*.distance.npy"))) == 1

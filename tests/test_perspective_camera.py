@@ -105,7 +105,7 @@ def test_calib_yaml_round_trip(tmp_path):
     back = load_calib(path)
     assert isinstance(back, PerspectiveCamera)
     assert back == cam
-    assert np.array_equal(back.distortion, cam.distortion)
+    assert np.array_equal(back.distortion, cam.distortion)  # exact same-run: written and read back
 
 
 def _good() -> dict:
@@ -143,6 +143,7 @@ def test_position_and_pose_of_a_frame(tmp_path):
     with_pose gives the same lens at a frame's pose; calib.yaml keeps the position."""
     cam = PerspectiveCamera(distortion=np.zeros(5))
     moved = cam.with_pose(position=(0.08, -0.02), yaw=0.3, height=0.45)
+    # exact same-run: a copy
     assert moved.fx == cam.fx and np.array_equal(moved.distortion, cam.distortion)
     assert (moved.yaw, moved.height, cam.yaw, cam.height) == (0.3, 0.45, 0.0, 0.55)
     uv = np.array([[376.0, 400.0], [100.0, 450.0]])

@@ -111,7 +111,7 @@ def test_team_calibration_is_off_by_its_distance_error():
     ce = simulate.confs["omni-default"]["calib_error"]
     assert ce["distance_error"] > 0
     a, b, c = (perturbed_camera(cam, ce, rng=np.random.default_rng(s)) for s in (1, 1, 2))
-    assert np.array_equal(a.polynomial, b.polynomial)
+    assert np.array_equal(a.polynomial, b.polynomial)  # exact same-run: one seed twice
     assert not np.allclose(a.polynomial, c.polynomial)
     d = np.linspace(float(cam.distance_of_radius(cam.valid_radius[0])), ce["table_range"], 300)
     for w in (a, c):
@@ -126,7 +126,7 @@ def test_team_calibration_is_off_by_its_distance_error():
         assert w.centre == cam.centre and w.forward_angle == cam.forward_angle
     clean = perturbed_camera(cam, simulate.confs["omni-clean"]["calib_error"],
                              rng=np.random.default_rng(1))
-    assert np.array_equal(clean.polynomial, cam.polynomial)
+    assert np.array_equal(clean.polynomial, cam.polynomial)  # exact same-run: a copy
     assert clean.valid_radius == cam.valid_radius
     with pytest.raises(FieldlocError, match="distance_error"):
         perturbed_camera(cam, {**ce, "distance_error": 0.7}, rng=np.random.default_rng(1))
@@ -244,7 +244,7 @@ def test_collisions_disturb_odometry_and_set_the_flag(msl):
     none = {**sensors.IMU_DEFAULTS, "collision_rate_hz": 0.0}
     assert np.array_equal(
         sensors.collision_flags(800, 10.0, none, np.random.default_rng(3), contacts), contacts
-    )
+    )  # exact decisions: collision flags
 
 
 def test_dataset_csvs_agree_with_truth(tmp_path, spl):

@@ -96,12 +96,12 @@ def test_rendering_is_deterministic_for_a_seed(renderer, world):
     again = PerspectiveRenderer(confs["perspective-default"]["perspective"], world, seed=5)
     c = again.render_view(pose, 0.45, 0.03, frame=2, angular_rate=(0.3, 0.2, 0.0))
     assert a.shape == (480, 752, 3) and a.dtype == np.uint8
-    assert np.array_equal(a, b) and np.array_equal(a, c)
+    assert np.array_equal(a, b) and np.array_equal(a, c)  # exact integers: uint8 images
     # another frame has other sensor noise; another seed another camera noise bank
     d = renderer.render_view(pose, 0.45, 0.03, frame=3, angular_rate=(0.3, 0.2, 0.0))
     other = PerspectiveRenderer(confs["perspective-default"]["perspective"], world, seed=6)
     e = other.render_view(pose, 0.45, 0.03, frame=2, angular_rate=(0.3, 0.2, 0.0))
-    assert not np.array_equal(a, d) and not np.array_equal(a, e)
+    assert not np.array_equal(a, d) and not np.array_equal(a, e)  # exact integers: uint8 images
 
 
 def test_goal_posts_rise_above_the_field_boundary(renderer):

@@ -171,6 +171,7 @@ def test_rotating_the_image_by_90_deg_rotates_the_orientation_and_keeps_the_desc
     ku, du = surf.detect_and_describe(img, None, surf.confs["upright"])
     kru, dru = surf.detect_and_describe(rot, None, surf.confs["upright"])
     assert np.all(ku[:, surf.ORIENTATION] == 0)
+    # exact same-run: one detector, upright or not
     np.testing.assert_array_equal(ku[:, :3], kp[:, :3])
     du_pairs = np.linalg.norm(du[same] - dru[j[same]], axis=1)
     assert np.median(du_pairs) > 3 * np.median(dist)
@@ -350,8 +351,13 @@ def test_geometric_layers_give_every_blob_the_same_scale_per_sigma():
     (_, s0, d0, t0), (_, s1, d1, t1) = surf.hessian_pyramid(
         ii, bad, unit, surf.check_conf({**conf, "octaves": 2}), img)
     assert s1[:2] == s0[-2:]
-    np.testing.assert_array_equal(d1[:2], d0[-2:, ::2, ::2])
-    np.testing.assert_array_equal(t1[:2], t0[-2:, ::2, ::2])
+    # float32 box-filter responses of the same sizes at the same points: within a few ulp of
+    # the octave's largest response (-inf where undefined, at the same places)
+    for a, b in ((d1[:2], d0[-2:, ::2, ::2]), (t1[:2], t0[-2:, ::2, ::2])):
+        assert np.array_equal(np.isfinite(a), np.isfinite(b))
+        scale = np.abs(b[np.isfinite(b)]).max()
+        np.testing.assert_allclose(np.where(np.isfinite(a), a, 0), np.where(np.isfinite(b), b, 0),
+                                   rtol=1e-5, atol=1e-6 * scale)
 
 
 def test_refine_moves_follows_the_fit_to_the_sample_it_points_to():
@@ -425,7 +431,7 @@ def test_mask_edges_make_no_keypoints_and_max_keypoints_keeps_the_strongest():
     d = np.hypot(kp[:, None, 0] - inner[None, :, 0], kp[:, None, 1] - inner[None, :, 1])
     assert np.all(d.min(1) < 1e-6)
     few, _ = surf.detect_and_describe(img, None, {**surf.confs["default"], "max_keypoints": 5})
-    np.testing.assert_array_equal(few, full[:5])
+    np.testing.assert_array_equal(few, full[:5])  # exact same-run: one detection, truncated
     assert np.all(np.diff(full[:, surf.RESPONSE]) <= 0)
 
 
@@ -521,4 +527,5 @@ def test_a_template_database_takes_the_geometric_scales_by_conf():
     img = textured_image(257, 7)
     kp, _ = lf.detect_and_describe(img, None, features)
     plain, _ = lf.detect_and_describe(img, None, build_templates.confs["default"]["features"])
+    # exact same-run: two confs, here
     assert len(kp) >= 10 and not np.array_equal(kp[:, :3], plain[:len(kp), :3])

@@ -125,6 +125,7 @@ def test_build_templates_round_trip(grid_and_run, tmp_path):
                            heading=float(db.poses[k, 2]))
     t = db.template(k)
     assert len(t) == len(f) >= build_templates.confs["default"]["min_features"]
+    # exact same-run: the database built here
     assert np.allclose(t.points, f.points) and np.array_equal(t.descriptors, f.descriptors)
     assert np.max(np.abs(t.points)) < gf.reach(db.ground_conf)
     text = describe_file(path)
@@ -258,4 +259,4 @@ def test_feature_index_does_not_depend_on_earlier_random_draws():
     first = FeatureIndex(desc, lap, checks=8).knn(query, np.ones(400, np.int8))
     cv2.randu(np.zeros((100, 100), np.uint8), 0, 255)  # other OpenCV work draws numbers
     second = FeatureIndex(desc, lap, checks=8).knn(query, np.ones(400, np.int8))
-    np.testing.assert_array_equal(first[0], second[0])
+    np.testing.assert_array_equal(first[0], second[0])  # exact integers: neighbour indices

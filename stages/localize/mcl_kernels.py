@@ -1,8 +1,8 @@
 """The numba kernel of mcl's observation model (observation_model.py): one frame's
 log-likelihood at N poses in one pass, compiled once, cached on disk.
 
-The equations are observation_model's (its module doc); its numpy code stays the reference
-(``ObservationModel.reference_log_likelihood``, held against this kernel by tests/test_mcl.py).
+The equations are observation_model's (its module doc); tests/oracles/observation_model.py
+writes them out as array passes, and tests/test_mcl.py holds this kernel against it.
 Why a kernel: with ~1000 particles and ~8 observations numpy's time went to some 300 calls on
 small temporaries (the pose transform of every observation, the cell and table look-ups, each
 alternative of a crossing's type evaluated as its own array pass), not to arithmetic. Here
