@@ -76,6 +76,12 @@ _UNIT_OUTLINE = np.unique(np.array(
 _FAR = np.float32(1e9)
 
 
+def _times_matrix(v: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """v @ m for rows v (..., 3) and a 3 x 3 m, each entry v0 m0j + v1 m1j + v2 m2j in this
+    order: the rendered pixels do not depend on the BLAS kernel a processor selects."""
+    return v[..., 0, None] * m[0] + v[..., 1, None] * m[1] + v[..., 2, None] * m[2]
+
+
 def _merged(conf: dict | None) -> dict:
     c = copy.deepcopy(PERSPECTIVE_DEFAULTS)
     for key, value in (conf or {}).items():
@@ -230,7 +236,7 @@ class PerspectiveRenderer:
     def _field_rotation(self, pose, pitch, roll) -> np.ndarray:
         c, s = math.cos(pose[2]), math.sin(pose[2])
         rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        return rz @ head_rotation(self.camera.yaw, pitch, roll)
+        return _times_matrix(rz, head_rotation(self.camera.yaw, pitch, roll))
 
     def scene_image(self, pose, pitch, roll, frame, layers: bool = True):
         """BGR float32 scene (display levels, before the camera's imaging) and, with
@@ -407,7 +413,7 @@ class PerspectiveRenderer:
         rel = outlines - np.array([pose[0], pose[1], cam.height])
         robot = np.stack([c * rel[..., 0] + s * rel[..., 1], -s * rel[..., 0] + c * rel[..., 1],
                           rel[..., 2]], -1)
-        camc = robot @ cam.rotation(pitch, roll)
+        camc = _times_matrix(robot, cam.rotation(pitch, roll))
         near = 0.02
         front = camc[..., 2] > near
         uv = cam.camera_points_to_pixels(np.where(front[..., None], camc, 1.0), inside=False,
