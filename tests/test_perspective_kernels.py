@@ -1172,26 +1172,39 @@ def test_pair_crossings_decide_as_the_oracle(seed):
     assert min(found.values()) >= 10 and unclear <= pairs / 1000, (found, unclear)
 
 
-@settings(max_examples=40, deadline=None)
+@settings(max_examples=60, deadline=None)
 @given(st.integers(0, 2 ** 32 - 1), st.randoms(use_true_random=False))
 def test_permuting_the_lines_keeps_the_crossings(seed, shuffler):
-    """line_pair_crossings (the pairs' crossings, then merged) finds the same crossings,
-    kinds and points (within 1e-6 px), whatever the order of the lines."""
+    """The line pairs' crossings (``_pair_crossings``) are the same, of the same kinds and
+    points (within 1e-9 px), whatever the order of the lines; after merge_line_crossings
+    (crossings closer than ``tol`` px made one, greedily in order) each crossing found one
+    way lies within ``tol`` px of one found the other way."""
     rng = np.random.default_rng(seed)
     floor_of, to_image = _floor_homography(rng)
-    ends, widths, _ = _floor_shapes(rng, floor_of, to_image)
-    order = list(range(len(ends)))
+    ends, widths, fang = _floor_shapes(rng, floor_of, to_image)
+    n = len(ends)
+    order = list(range(n))
     shuffler.shuffle(order)
-    a = cr.line_pair_crossings(ends, widths, floor_of, 12.0, math.radians(30.0))
-    b = cr.line_pair_crossings(ends[order], widths[order], floor_of, 12.0, math.radians(30.0))
 
-    def found(crossings):
-        return sorted((c.kind, *np.round(c.point, 6)) for c in crossings)
+    def pairs(perm):
+        cap = n * (n - 1) // 2
+        kinds, lines = np.empty(cap, np.int64), np.empty((cap, 2), np.int64)
+        points, arms, lengths = np.empty((cap, 2)), np.empty((cap, 3, 2)), np.empty((cap, 3))
+        m = cr._pair_crossings(ends[perm], widths[perm], fang[perm], 12.0, math.radians(30.0),
+                               n, kinds, lines, points, arms, lengths)
+        return {frozenset((perm[i], perm[j])): (int(k), p)
+                for k, (i, j), p in zip(kinds[:m], lines[:m], points[:m])}
 
-    assert len(a) == len(b)
-    for p, q in zip(found(a), found(b)):
-        assert p[0] == q[0]
-        np.testing.assert_allclose(p[1:], q[1:], rtol=0, atol=1e-5)
+    a, b = pairs(list(range(n))), pairs(order)
+    assert a.keys() == b.keys()
+    for key, (kind, point) in a.items():
+        assert b[key][0] == kind
+        np.testing.assert_allclose(b[key][1], point, rtol=0, atol=1e-9)
+    merged = [cr.line_pair_crossings(e, w, floor_of, 12.0, math.radians(30.0))
+              for e, w in ((ends, widths), (ends[order], widths[order]))]
+    for one, other in (merged, merged[::-1]):
+        for c in one:
+            assert any(np.hypot(*(c.point - d.point)) <= 12.0 for d in other)
 
 
 def test_distinct_arms_decide_as_the_oracle():
