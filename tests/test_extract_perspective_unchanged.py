@@ -18,6 +18,11 @@ What must hold, per set of frames:
 - the field boundary within BOUNDARY_PX where both have it.
 A feature near a decision threshold (a crossing's verification, a line's merge) may flip on
 a last-bit change of its inputs; CHANGED_SHARE bounds how many may.
+
+The renderer's frames depend on OpenCV's major version (its remap of float maps rounds the
+offsets to 1/32 px in 4.x, not in 5.x: 0.2 to 6 % of the pixels move by more than 2 grey
+levels), so the rendered frames are compared only under the OpenCV major version the
+reference was written with (``opencv_major`` in it); the real frames under any.
 """
 
 from __future__ import annotations
@@ -143,6 +148,7 @@ def compare(got: dict, ref: dict, name: str) -> dict:
 def _check(got: dict, names: list[str]) -> int:
     ref = np.load(REFERENCE)
     total = changed = 0
+    assert names
     for name in names:
         sample = f"{name}/image_sample"
         if sample in ref.files:
@@ -163,8 +169,19 @@ def _check(got: dict, names: list[str]) -> int:
     return total
 
 
+def _same_opencv_major():
+    import cv2
+
+    major = int(cv2.__version__.split(".")[0])
+    written = int(np.load(REFERENCE)["opencv_major"])
+    if major != written:
+        pytest.skip(f"the reference frames were rendered with OpenCV {written}.x, this is "
+                    f"{cv2.__version__} (its remap rounds differently)")
+
+
 @pytest.mark.parametrize("preset,field_name", RENDERS)
 def test_rendered_frames_give_the_reference_features(preset, field_name):
+    _same_opencv_major()
     frames = rendered_frames(preset, field_name)
     got = features(frames)
     assert _check(got, [f[0] for f in frames]) >= 10
@@ -185,8 +202,11 @@ def write_reference():
     frames = [f for p, fn in RENDERS for f in rendered_frames(p, fn)]
     if HULKS.is_dir():
         frames += hulks_frames()
+    import cv2
+
     REFERENCE.parent.mkdir(exist_ok=True)
-    np.savez_compressed(REFERENCE, **features(frames))
+    np.savez_compressed(REFERENCE, opencv_major=np.array(int(cv2.__version__.split(".")[0])),
+                        **features(frames))
     print(f"wrote {REFERENCE} ({len(frames)} frames)")
 
 
