@@ -81,7 +81,9 @@ def test_classify_cells_equals_the_class_masks(seed, shape, local_map):
     counts = colour.classify_cells(yuv, fc, conf, cell, white_px)
     green, white = colour.classify_masks(yuv, fc, conf)
     hb = shape[0] // cell
+    # exact integers: per-cell pixel counts
     np.testing.assert_array_equal(counts, colour._counts(green, white, cell))
+    # exact decisions: the white mask
     np.testing.assert_array_equal(white_px[:hb * cell].view(bool), white[:hb * cell])
     assert not white_px[hb * cell:].any()  # rows below the last whole cell are not classified
     assert counts[..., 0].sum() > 100 and counts[..., 1].sum() > 100  # both classes occur
@@ -99,6 +101,7 @@ def test_threshold_table_equals_luminance_thresholds():
                                 np.float32(conf["white_min_y"]),
                                 np.float32(conf["green_min_ratio"]),
                                 np.float32(conf["green_max_ratio"]), out)
+        # exact integers: int16 thresholds
         np.testing.assert_array_equal(out, colour.luminance_thresholds(y_map, conf))
 
 
@@ -124,11 +127,15 @@ def test_green_samples_equal_the_numpy_masks(seed, shape):
     ref_g = green.reshape(hb, 2, wb, 2).sum(axis=(1, 3)).astype(np.float32)
     ref_y = (y * green).reshape(hb, 2, wb, 2).sum(axis=(1, 3)).astype(np.float32)
     # sums of counts and 8-bit levels: integers, exact in float32
+    # exact integers: sums of counts and 8-bit levels
     np.testing.assert_array_equal(_counts(gs), ref_g.astype(np.int64))
+    # exact integers: sums of counts and 8-bit levels
     np.testing.assert_array_equal(_counts(ys), ref_y.astype(np.int64))
     assert ref_g.sum() > 100
     mask = rng.random((-(-shape[0] // 6), -(-shape[1] // 6))) < 0.7
+    # exact integers: uint8 pixels
     np.testing.assert_array_equal(colour._sample_pixels(yuv, 6, mask), yuv[::6, ::6][mask])
+    # exact integers: uint8 pixels
     np.testing.assert_array_equal(colour._sample_pixels(yuv, 6, None),
                                   yuv[::6, ::6].reshape(-1, 3))
 
@@ -147,8 +154,11 @@ def test_green_candidates_equal_the_numpy_formulas(seed):
     du, dv = u8.astype(np.float32) - np.float32(128.0), v8.astype(np.float32) - np.float32(128.0)
     cand &= du * du + dv * dv >= np.float32(min_sat * min_sat) * (y8.astype(np.float32) ** 2)
     assert cand.sum() > 100
+    # exact integers: uint8 levels
     np.testing.assert_array_equal(y_c, y8[cand])
+    # exact integers: uint8 levels
     np.testing.assert_array_equal(u_c, u8[cand])
+    # exact integers: uint8 levels
     np.testing.assert_array_equal(v_c, v8[cand])
     scale = colour.Y_REF / np.maximum(y8[cand].astype(np.float32), 1.0)
     ref_u = (u8[cand].astype(np.float32) - 128.0) * scale
@@ -158,6 +168,7 @@ def test_green_candidates_equal_the_numpy_formulas(seed):
     np.testing.assert_array_max_ulp(vv, ref_v, maxulp=1)
     bins = (np.clip(ref_u + 128.0, 0, 255).astype(np.int32) >> 3) * 32 + (
         np.clip(ref_v + 128.0, 0, 255).astype(np.int32) >> 3)
+    # exact integers: histogram counts
     np.testing.assert_array_equal(hist, np.bincount(bins, minlength=1024))
 
 
@@ -261,6 +272,7 @@ def test_field_heights_and_their_smoothing_equal_the_numpy_scan():
         field = rng.random((h, w)) < rng.random()
         for max_gap in (0, 2, 4):
             for from_lowest in (False, True):
+                # exact integers: field heights in rows
                 np.testing.assert_array_equal(
                     _counts(fb.field_height_histogram(field, max_gap, from_lowest)),
                     boundary.field_heights(field, max_gap, from_lowest))
@@ -269,6 +281,7 @@ def test_field_heights_and_their_smoothing_equal_the_numpy_scan():
             r = size // 2
             windows = np.lib.stride_tricks.sliding_window_view(fb._edge_padded(heights, r),
                                                                size)
+            # exact integers: medians of row counts
             np.testing.assert_array_equal(_counts(fb.smooth_field_heights(heights, 0.0, size)),
                                           np.sort(windows, axis=1)[:, r].astype(np.int64))
 
@@ -288,6 +301,7 @@ def test_fill_lines_and_the_smoothing_equal_the_former_numpy():
             cand = (white >= t_white) & ~field
             ref = field | boundary.bounded_runs(cand, field, max_run) \
                 | boundary.bounded_runs(cand.T, field.T, max_run).T
+            # exact decisions: the field mask
             np.testing.assert_array_equal(fb.fill_lines(field, white, t_white, max_run), ref)
         heights = rng.integers(0, h + 1, w).astype(float)
         for sigma, size in ((0.7, 5), (1.3, 3), (0.7, 1)):
@@ -327,6 +341,7 @@ def test_bar_runs_equal_the_numpy_start_rows_and_walks():
                    and is_white[start[c] + down[c], c]):
                 down[c] += 1
         for got, ref in zip(gp.bar_runs(white, top, 0.2, 30, 30), (up, down, start)):
+            # exact integers: run lengths and rows
             np.testing.assert_array_equal(got, ref)
 
 
@@ -343,7 +358,9 @@ def test_surroundings_opening_equals_opencvs():
                                 np.ones((1, window), np.uint8),
                                 borderType=cv2.BORDER_REPLICATE)[0]
         excess, got = gp.rise_above_surroundings(up, window)
+        # exact integers: opened run lengths
         np.testing.assert_array_equal(got, np.round(base).astype(int))
+        # exact integers: run lengths
         np.testing.assert_array_equal(excess, up - got)
 
 
@@ -453,6 +470,7 @@ def test_split_components_and_part_fits_equal_the_per_part_functions(seed):
         ref += lf.split_component(points, idx, 7.0, 3)
     assert len(got) == len(ref) > 10
     for a, b in zip(got, ref):
+        # exact decisions: the split parts' point indices
         np.testing.assert_array_equal(a, b)
     fits, ends = lf.part_fits(points, got)
     for p, f, e in zip(got, fits, ends):
@@ -588,6 +606,7 @@ def test_skeleton_grid_equals_the_numpy_and_opencv_path(cell):
             if a.dtype.kind == "f":  # shares of 1/64: far coarser than the tolerance
                 np.testing.assert_allclose(a, b, rtol=0, atol=1e-6)
             else:
+                # exact integers: ranking keys, skeleton and counts
                 np.testing.assert_array_equal(a, b)
 
 
@@ -628,7 +647,9 @@ def test_place_nodes_equals_the_numpy_sort():
         taken = ls._greedy_nodes(sy[order], sx[order], *skeleton.shape)
         ys, xs = sy[order][taken], sx[order][taken]
         pix, regions = ls.place_nodes(lp, skeleton, c, key)
+        # exact integers: node pixels
         np.testing.assert_array_equal(pix, np.stack([xs, ys], axis=1))
+        # exact integers: region labels
         np.testing.assert_array_equal(regions, ls._node_regions(skeleton, ys.astype(np.int64),
                                                                 xs.astype(np.int64)))
 
@@ -838,6 +859,7 @@ def test_floor_projection_equals_the_oracle(position):
         down = np.isfinite(geometry.to_floor(*args, centres)).all(axis=1)
         height = (proj.m @ np.c_[centres, np.ones(len(centres))].T)[2]
         sure = np.abs(height) > 1e-9
+        # exact decisions: below the horizon or not
         np.testing.assert_array_equal(mask.blocks.ravel()[sure], down[sure])
 
 
@@ -857,6 +879,7 @@ def test_ideal_pixels_interpolate_the_tables():
                     for m in (ideal.map_u, ideal.map_v)], axis=1)
     nan = np.isnan(ref)
     assert nan.sum() > 200
+    # exact decisions: NaN where the tables end
     np.testing.assert_array_equal(np.isnan(got), nan)
     np.testing.assert_allclose(got[~nan], ref[~nan], rtol=0, atol=1e-9)
 

@@ -398,7 +398,7 @@ def _pairwise_sum(a, zero):
 def pairwise_sum32(a):
     """The sum of a float32 array, accumulated in float64, rounded to float32
     (_pairwise_sum)."""
-    return _pairwise_sum(a, np.float32(0.0))
+    return np.float32(_pairwise_sum(a, np.float32(0.0)))
 
 
 @njit("float64(float64[:])", cache=True, nogil=True)
