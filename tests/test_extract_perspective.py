@@ -15,7 +15,7 @@ from stages.common.features_file import FRAME_DATASETS
 from stages.common.field import distance_to_lines, load_field
 from stages.common.geometry import robot_to_field
 from stages.common.perspective_camera import PerspectiveCamera
-from stages.extract import crossings, line_fit, perspective
+from stages.extract import line_fit, perspective
 from stages.extract.field_boundary import (
     field_height_histogram,
     local_convex_filling,
@@ -537,15 +537,6 @@ def _reference_refine(ends, white, lens, step, reach, extend, min_points, grow=0
                                min_points, grow)
 
 
-def _reference_place_crossing(kind, centre, chains, ideal, cc, cell, white_px, camera):
-    """crossings.place_crossing by the Python it replaced (its arms refined by
-    line_fit.refine_segment, which the test below sets to the reference)."""
-    import test_perspective_kernels as kernels
-
-    return kernels._reference_place(kind, centre, chains, ideal, cc, cell, white_px,
-                                    line_fit.lens_parameters(camera))
-
-
 @pytest.mark.parametrize("preset,field", [("perspective-default", "kidsize"),
                                           ("perspective-nao", "spl")])
 def test_compiled_kernels_give_the_reference_features(preset, field, monkeypatch):
@@ -571,9 +562,8 @@ def test_compiled_kernels_give_the_reference_features(preset, field, monkeypatch
     fast = [perspective.extract_frame(img, cam, ext, pitch=p, roll=r) for img, p, r in frames]
     monkeypatch.setattr(perspective, "refine_segments",  # lines
                         lambda ends, *a, **k: [_reference_refine(e, *a, **k) for e in ends])
-    # crossings' arms: placed by the former Python (arm_lines, _refined_arm, crossing_point;
-    # test_perspective_kernels' references), refined by the reference
-    monkeypatch.setattr(crossings, "place_crossing", _reference_place_crossing)
+    # (the crossings' placement, crossings.place_crossing, is checked against where drawn
+    # lines meet in test_perspective_kernels)
     monkeypatch.setattr(line_fit, "refine_segment", _reference_refine)
     monkeypatch.setattr(colour, "classify_cells", lambda *a, **k: None)
     slow = [perspective.extract_frame(img, cam, ext, pitch=p, roll=r) for img, p, r in frames]

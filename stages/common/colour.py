@@ -382,50 +382,25 @@ def _hue_model(fc: FieldColour, u8, v8, y8, conf: dict) -> None:
 
 @njit(cache=True, nogil=True)
 def _pairwise_sum(a, zero):
-    """``np.sum`` of a float array in numpy's order and precision (its pairwise summation:
-    one accumulator below 8 values; up to 128, eight combined pairwise, then the rest;
-    beyond, the two halves (split at a multiple of 8) summed so and added), so that the sum
-    is numpy's to the bit. ``zero``: -0.0 of the array's type."""
-    n = a.shape[0]
-    if n < 8:
-        res = zero
-        for i in range(n):
-            res += a[i]
-        return res
-    if n > 128:
-        n2 = n // 2
-        n2 -= n2 % 8
-        return _pairwise_sum(a[:n2], zero) + _pairwise_sum(a[n2:], zero)
-    r0, r1, r2, r3 = a[0], a[1], a[2], a[3]
-    r4, r5, r6, r7 = a[4], a[5], a[6], a[7]
-    i = 8
-    while i < n - n % 8:
-        r0 += a[i]
-        r1 += a[i + 1]
-        r2 += a[i + 2]
-        r3 += a[i + 3]
-        r4 += a[i + 4]
-        r5 += a[i + 5]
-        r6 += a[i + 6]
-        r7 += a[i + 7]
-        i += 8
-    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    while i < n:
-        res += a[i]
-        i += 1
-    return res
+    """The sum of a float array: one loop accumulated in float64 (float32 data rounded once
+    to float32 at the end, not at every addition). ``zero``: 0 of the array's type."""
+    res = 0.0
+    for i in range(a.shape[0]):
+        res += np.float64(a[i])
+    return zero + res
 
 
 @njit(cache=True, nogil=True)
 def pairwise_sum32(a):
-    """``np.sum`` of a float32 array, to the bit (_pairwise_sum in float32)."""
-    return _pairwise_sum(a, np.float32(-0.0))
+    """The sum of a float32 array, accumulated in float64, rounded to float32
+    (_pairwise_sum)."""
+    return np.float32(_pairwise_sum(a, np.float32(0.0)))
 
 
 @njit(cache=True, nogil=True)
 def pairwise_sum64(a):
-    """``np.sum`` of a float64 array, to the bit (_pairwise_sum)."""
-    return _pairwise_sum(a, -0.0)
+    """The sum of a float64 array (_pairwise_sum)."""
+    return _pairwise_sum(a, 0.0)
 
 
 @njit(cache=True, nogil=True)
@@ -457,15 +432,15 @@ def _histogram_peak(counts):
 
 @njit(cache=True, nogil=True)
 def _mean32(a):
-    """``a.mean()`` of a float32 array as numpy computes it: the float32 pairwise sum over
+    """The mean of a float32 array: its sum (pairwise_sum32, accumulated in float64) over
     the count in float64, rounded to float32."""
     return np.float32(np.float64(pairwise_sum32(a)) / np.float64(a.shape[0]))
 
 
 @njit(cache=True, nogil=True)
 def _var32(a):
-    """``a.var()`` of a float32 array as numpy computes it (its mean as _mean32, the squared
-    deviations in float32, their mean likewise)."""
+    """The variance of a float32 array (ddof 0): its mean as _mean32, the squared deviations
+    in float32, their mean likewise."""
     m = _mean32(a)
     x = np.empty_like(a)
     for i in range(a.shape[0]):
@@ -493,10 +468,10 @@ def _near_cluster(uu, vv, nu, nv, rad2, bu, bv):
 def _green_cluster(uu, vv, ys, nu, nv, rad2, iterations):
     """estimate_field_colour's mean shift of the green candidates' rescaled chroma (uu, vv
     float32, their luminance ``ys`` uint8) from (nu, nv): ``iterations`` steps to the mean
-    of the candidates within sqrt(rad2) (float32 arithmetic and numpy's float32 means, as
-    the numpy expressions it replaces), then those candidates' number, median luminance
-    (np.median's, from their histogram) and chroma variances (numpy's float32 ``var``). Returns (nu,
-    nv, count, median Y, var U, var V); the last three are 0 without candidates near."""
+    of the candidates within sqrt(rad2) (float32 distances, the means by _mean32), then those
+    candidates' number, median luminance (np.median's, from their histogram) and chroma
+    variances (_var32). Returns (nu, nv, count, median Y, var U, var V); the last three are 0
+    without candidates near."""
     n = uu.shape[0]
     bu = np.empty(n, np.float32)
     bv = np.empty(n, np.float32)

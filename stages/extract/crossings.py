@@ -36,7 +36,6 @@ from numba import njit
 from stages.common.features_file import CROSSING_CODES
 from stages.common.field import crossing_orientation
 
-from .exact_ops import fused_multiply_add, remap_at
 from .line_fit import (
     _fit_points,
     distort_ideal,
@@ -45,7 +44,7 @@ from .line_fit import (
     lens_parameters,
     refine_kernel,
 )
-from .line_structure import KeyStructure, LineGraph, flat_lists
+from .line_structure import KeyStructure, LineGraph, bilinear_at, flat_lists
 
 
 @dataclass
@@ -145,7 +144,7 @@ def crossing_candidates(ks: KeyStructure, graph: LineGraph, arm_reach: float,
 @njit(cache=True, nogil=True)
 def _angle_at(ax, ay, bx, by):
     """The angle (radians, [0, pi]) between the vectors (ax, ay) and (bx, by); 0 when one is
-    zero (the dot product as numpy's: exact_ops)."""
+    zero."""
     na, nb = np.hypot(ax, ay), np.hypot(bx, by)
     if na == 0 or nb == 0:
         return 0.0
@@ -435,8 +434,8 @@ def line_pair_crossings(ends: np.ndarray, widths: np.ndarray, floor_of, tol: flo
     at the grid's resolution, the lines fitted at full resolution still meet. Lines from
     ``first_stem`` on are stems (stem_lines): they are not paired with each other.
 
-    The floor angles are numpy's arctan2; the pairs run compiled (``_pair_crossings``, the
-    dot products as numpy's BLAS forms them and np.linalg's 2 x 2 determinant and solve)."""
+    The floor angles are numpy's arctan2; the pairs run compiled (``_pair_crossings``; the
+    lines cut by _line_cut)."""
     n = len(ends)
     if n < 2:
         return []
@@ -504,8 +503,6 @@ def _pair_crossings(ends, widths, fang, tol, max_misfit, first_stem, kinds, line
         length[i] = np.hypot(dx, dy)
         den = length[i] if not length[i] < 1e-9 else 1e-9  # np.maximum (NaN stays)
         u[i, 0], u[i, 1] = dx / den, dy / den
-    a = np.empty((2, 2))
-    b = np.empty(2)
     arm = np.empty((4, 2))
     arm_len = np.empty(4)
     m = 0
@@ -519,12 +516,11 @@ def _pair_crossings(ends, widths, fang, tol, max_misfit, first_stem, kinds, line
             near = diff if (diff <= other or np.isnan(diff)) else other  # np.minimum
             if not abs(near - half) <= max_misfit:  # NaN (off the floor) is no pair
                 continue
-            a[0, 0], a[0, 1], a[1, 0], a[1, 1] = u[i, 0], -u[j, 0], u[i, 1], -u[j, 1]
-            if not abs(np.linalg.det(a)) >= 1e-3:
+            det, t_i, t_j = _line_cut(u[i, 0], u[i, 1], u[j, 0], u[j, 1],
+                                      ends[j, 0, 0] - ends[i, 0, 0],
+                                      ends[j, 0, 1] - ends[i, 0, 1])
+            if not abs(det) >= 1e-3:
                 continue
-            b[0], b[1] = ends[j, 0, 0] - ends[i, 0, 0], ends[j, 0, 1] - ends[i, 0, 1]
-            s = np.linalg.solve(a, b)
-            t_i, t_j = s[0], s[1]
             xx, xy = ends[i, 0, 0] + t_i * u[i, 0], ends[i, 0, 1] + t_i * u[i, 1]
             # each line's end nearer the intersection and its distance from the other line
             k = 0 if t_i <= 0.5 * length[i] else 1
@@ -686,9 +682,9 @@ def merge_line_crossings(crossings: list[LineCrossing], tol: float,
 @njit(cache=True, nogil=True)
 def _distinct_arms(cmp, lengths, cos_same, arms, kept_lengths):
     """merge_line_crossings' arms of a group, in order: an arm whose direction ``cmp`` lies
-    within acos(cos_same) of a kept arm's (the first such; the dot as numpy's 1-D ``@``,
-    _dot) gives that one the larger length (Python's max), else it is kept. The kept arms'
-    indices go into ``arms``, their lengths into ``kept_lengths``; returns their number."""
+    within acos(cos_same) of a kept arm's (the first such; _dot) gives that one the larger
+    length (Python's max), else it is kept. The kept arms' indices go into ``arms``, their
+    lengths into ``kept_lengths``; returns their number."""
     m = 0
     for k in range(cmp.shape[0]):
         same = -1
@@ -816,8 +812,7 @@ def place_crossing(kind: str, centre: np.ndarray, chains: list[list[int]], ideal
     extent from ``refine_skip`` cells off the crossing on (line_fit.refine_kernel; the
     coarse line where that fails). The lines meet as an L's two arms, a T's bar (its two most
     nearly opposite arms fitted together) with the stem, an X's two lines (opposite arms
-    fitted together). It runs compiled (``_place``), with the dot products as numpy's BLAS
-    forms them (exact_ops.fused_multiply_add) and np.linalg's 2 x 2 determinant and solve."""
+    fitted together). It runs compiled (``_place``)."""
     n = len(chains)
     flat, start = flat_lists(chains)
     refine = white_px is not None
@@ -837,14 +832,8 @@ def place_crossing(kind: str, centre: np.ndarray, chains: list[list[int]], ideal
 
 @njit(cache=True, nogil=True)
 def _dot(ax, ay, bx, by):
-    """numpy's ``a @ b`` of two 2-vectors."""
-    return fused_multiply_add(ay, by, ax * bx)
-
-
-@njit(cache=True, nogil=True)
-def _row_dot(ax, ay, bx, by):
-    """A row of numpy's ``m @ b`` (m of two or more rows, b a 2-vector)."""
-    return fused_multiply_add(ax, bx, ay * by)
+    """The dot product of the 2-vectors (ax, ay) and (bx, by)."""
+    return ax * bx + ay * by
 
 
 @njit(cache=True, nogil=True)
@@ -860,16 +849,22 @@ def _fit_away(sel, ox, oy):
 @njit(cache=True, nogil=True)
 def _meet(c1x, c1y, u1x, u1y, c2x, c2y, u2x, u2y):
     """Where the lines through c1 along u1 and through c2 along u2 meet: (ok, x, y), not ok
-    when they are nearly parallel (|sin| < 1e-3; np.linalg's determinant and solve of
-    [u1, -u2] t = c2 - c1)."""
-    a = np.empty((2, 2))
-    a[0, 0], a[0, 1], a[1, 0], a[1, 1] = u1x, -u2x, u1y, -u2y
-    if abs(np.linalg.det(a)) < 1e-3:  # nearly parallel (|sin| < 1e-3)
+    when they are nearly parallel (|sin| < 1e-3, _line_cut)."""
+    det, t, _ = _line_cut(u1x, u1y, u2x, u2y, c2x - c1x, c2y - c1y)
+    if abs(det) < 1e-3:  # nearly parallel (|sin| < 1e-3)
         return False, np.nan, np.nan
-    b = np.empty(2)
-    b[0], b[1] = c2x - c1x, c2y - c1y
-    t = np.linalg.solve(a, b)
-    return True, c1x + t[0] * u1x, c1y + t[0] * u1y
+    return True, c1x + t * u1x, c1y + t * u1y
+
+
+@njit(cache=True, nogil=True)
+def _line_cut(u1x, u1y, u2x, u2y, bx, by):
+    """(det, t, s) of the lines p + t u1 and p + b + s u2 meeting: the 2 x 2 system
+    [u1, -u2] (t, s) = b solved by Cramer's rule; det = u2 x u1 (the sine of the angle
+    between unit directions); t and s NaN when det is 0."""
+    det = u2x * u1y - u1x * u2y
+    if det == 0:
+        return det, np.nan, np.nan
+    return det, (u2x * by - u2y * bx) / det, (u1x * by - u1y * bx) / det
 
 
 @njit(cache=True, nogil=True)
@@ -907,8 +902,7 @@ def _place(kind, centre, flat, start, coords, skip, count, refine, white_px, len
             # refined over the nodes' extent from t_skip px off the crossing on
             t0, t1 = np.inf, -np.inf
             for i in range(sel.shape[0]):
-                t = _row_dot(sel[i, 0] - ox, sel[i, 1] - oy, ux, uy) if sel.shape[0] > 1 \
-                    else _dot(sel[i, 0] - ox, sel[i, 1] - oy, ux, uy)
+                t = _dot(sel[i, 0] - ox, sel[i, 1] - oy, ux, uy)
                 t0, t1 = min(t0, t), max(t1, t)
             t0 = max(t0, t_skip)
             if not t1 - t0 < cell:
@@ -960,8 +954,7 @@ def _place(kind, centre, flat, start, coords, skip, count, refine, white_px, len
         sel = sels[a]
         far = -np.inf
         for i in range(sel.shape[0]):
-            t = _row_dot(sel[i, 0] - x, sel[i, 1] - y, us[a, 0], us[a, 1]) \
-                if sel.shape[0] > 1 else _dot(sel[i, 0] - x, sel[i, 1] - y, us[a, 0], us[a, 1])
+            t = _dot(sel[i, 0] - x, sel[i, 1] - y, us[a, 0], us[a, 1])
             if not (t <= far or np.isnan(far)):  # np.max: a NaN wins
                 far = t
         out[1 + a, 0], out[1 + a, 1] = us[a, 0], us[a, 1]
@@ -1287,7 +1280,8 @@ def _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera, to_flo
         return "above the horizon"
     cos_same = math.cos(cc["max_misfit"])
     opposite = [k for k in range(len(dirs))
-                if not any(float(fd[k] @ fd[j]) <= -cos_same for j in range(len(dirs)))]
+                if not any(fd[k, 0] * fd[j, 0] + fd[k, 1] * fd[j, 1] <= -cos_same
+                           for j in range(len(dirs)))]
     if kind == "T":
         # the stem: the arm without an opposite arm
         if len(opposite) != 1:
@@ -1497,6 +1491,5 @@ def _alternative_in_view(x0, x1, dirs, lens, top, other_mean, green, w, h, cell,
 
 @njit(cache=True, nogil=True)
 def _remap_sample(image, x, y):
-    """sample_cells at one point, to the bit (exact_ops.remap_at: the point in float32,
-    pixels outside the image 0)."""
-    return remap_at(image, np.float32(x), np.float32(y), np.float32(0.0))
+    """sample_cells at one point (bilinear_at, pixels outside the image 0)."""
+    return bilinear_at(image, x, y, 0.0)

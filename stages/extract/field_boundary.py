@@ -74,9 +74,8 @@ def binarize_field(grey: np.ndarray, t_pix: float, t_row: float, t_win: float,
 def grey_field(counts: dict[str, np.ndarray], weights: dict[str, float], area: float,
                t_pix: float, t_row: float, t_win: float, t_weak: float) -> np.ndarray:
     """binarize_field(merged_grey_image(counts, weights, area), ...) by one compiled pass
-    (``_grey_field``): the same float32 grey levels, the rows' float32 pairwise sums
-    (colour.pairwise_sum32) and the 8 x 4 windows' sums exact in float64, rounded once, as
-    cv2.boxFilter gives them for float32 input."""
+    (``_grey_field``): the same float32 grey levels, the rows' sums (accumulated in float64,
+    colour.pairwise_sum32) and the 8 x 4 windows' sums in float64, rounded once to float32."""
     names = [n for n, w in weights.items() if w and n in counts]
     if not names:  # no class weighs: the grey image is 0
         return binarize_field(merged_grey_image(counts, weights, area), t_pix, t_row, t_win,

@@ -147,7 +147,7 @@ def post_feet(white: np.ndarray, groups: list[np.ndarray], up_run: np.ndarray,
     feet, heights = [], []
     for g in groups:
         wts = np.array([white[max(start[c] - 1, 0), c] for c in g]) + 1e-6
-        u = float(((g + 0.5) * cell - 0.5) @ wts / wts.sum())
+        u = float(np.sum(((g + 0.5) * cell - 0.5) * wts) / wts.sum())
         main = g[int(np.argmax(up_run[g] + down_run[g]))]
         bottom = start[main] + down_run[main]  # first non-white row below the bar
         frac = 0.0
@@ -252,7 +252,7 @@ def _bar_share(white, fx, fy, ux, uy, cell, steps):
     """is_post_bar's white across a bar (float32 shares): at each point ``steps`` of the way
     from its foot (fx, fy) to its upper end (ux, uy) (image px), in the grid cell there
     (rounded half to even, clipped to the grid), the shares of that cell and two cells each
-    side (clipped) summed as numpy sums them (pairwise_sum32); their median."""
+    side (clipped) summed (pairwise_sum32); their median."""
     h, w = white.shape
     sums = np.empty(len(steps), np.float32)
     across = np.empty(5, np.float32)

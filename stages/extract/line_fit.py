@@ -25,7 +25,6 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from .exact_ops import fused_multiply_add
 from .line_structure import LineGraph, flat_lists, trace_chains
 
 
@@ -58,7 +57,8 @@ def fit_line(points: np.ndarray) -> LineFit:
 
 
 def point_line_distance(points: np.ndarray, fit: LineFit) -> np.ndarray:
-    return np.abs((points - fit.centroid) @ fit.normal)
+    rel = points - fit.centroid
+    return np.abs(rel[:, 0] * fit.normal[0] + rel[:, 1] * fit.normal[1])
 
 
 def split_component(points: np.ndarray, idx: np.ndarray, max_distance: float,
@@ -93,7 +93,8 @@ def _similar_pairs(cen: np.ndarray, dirs: np.ndarray, nor: np.ndarray, ends: np.
     are similar: directions within acos(cos_max), end points of each within ``max_offset`` of
     the other's line. Arrays are per part: centroids, directions, normals (P, 2), end points
     (P, 2, 2)."""
-    cosine = np.abs(dirs[rows] @ dirs.T)  # (R, P)
+    dr = dirs[rows]
+    cosine = np.abs(dr[:, None, 0] * dirs[None, :, 0] + dr[:, None, 1] * dirs[None, :, 1])
     # the rest compiled (_similar_kernel): distance of part j's ends to part i's line, and of
     # part i's ends to part j's line, and the pairs within both limits
     off, pi, pj = _similar_kernel(np.ascontiguousarray(cosine), np.ascontiguousarray(cen),
@@ -221,7 +222,7 @@ def floor_line_parameters(p0: np.ndarray, p1: np.ndarray) -> tuple[float, float,
     length = float(np.hypot(*d))
     if length == 0:
         return float(np.hypot(*p0)), float(np.arctan2(p0[1], p0[0])), 0.0
-    t = -float(p0 @ d) / (length * length)
+    t = -float(p0[0] * d[0] + p0[1] * d[1]) / (length * length)
     foot = p0 + t * d
     dist = float(np.hypot(*foot))
     if dist < 1e-9:
@@ -231,19 +232,12 @@ def floor_line_parameters(p0: np.ndarray, p1: np.ndarray) -> tuple[float, float,
     return dist, angle, length
 
 
-def row_dots(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``a[k] @ b[k]`` of every row pair of a, b (N, 2), as numpy's 1-D ``@`` gives them (a
-    stacked matmul: the same products and fused addition as the single dot, which a sum of
-    products is not)."""
-    return np.matmul(a[:, None, :], b[:, :, None])[:, 0, 0]
-
-
 def floor_lines_parameters(p0: np.ndarray, p1: np.ndarray
                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """floor_line_parameters of many lines at once (end points p0, p1 (N, 2)): (N,) each of
-    the perpendicular distances, their angles and the lengths, with the same arithmetic: the
-    lengths, feet and distances compiled (``_perpendicular_feet``, the dot products as ``p0
-    @ d`` forms them), the angles numpy's arctan2 of what each line's angle is taken of."""
+    the perpendicular distances, their angles and the lengths: the lengths, feet and distances
+    compiled (``_perpendicular_feet``), the angles numpy's arctan2 of what each line's angle
+    is taken of."""
     p0 = np.ascontiguousarray(p0, np.float64)
     n = len(p0)
     dist, length, at = np.empty(n), np.empty(n), np.empty((n, 2))
@@ -257,10 +251,10 @@ def floor_lines_parameters(p0: np.ndarray, p1: np.ndarray
 @njit(cache=True, nogil=True, error_model="numpy")
 def _perpendicular_feet(p0, p1, dist, length, at, along):
     """floor_lines_parameters before the arctan2: per line its length, the distance to the
-    foot of the perpendicular from the origin (``t = -(p0 @ d) / length^2``, the dot as numpy's
-    1-D ``@``: exact_ops.fused_multiply_add) and in ``at`` the (y, x) whose angle is the
-    line's: the foot's, the line's direction where the line runs through the origin
-    (``along``: a quarter turn is added), p0's for a line of no length."""
+    foot of the perpendicular from the origin (``t = -(p0 . d) / length^2``) and in ``at``
+    the (y, x) whose angle is the line's: the foot's, the line's direction where the line
+    runs through the origin (``along``: a quarter turn is added), p0's for a line of no
+    length."""
     for k in range(p0.shape[0]):
         dx, dy = p1[k, 0] - p0[k, 0], p1[k, 1] - p0[k, 1]
         length[k] = np.hypot(dx, dy)
@@ -269,7 +263,7 @@ def _perpendicular_feet(p0, p1, dist, length, at, along):
             dist[k] = np.hypot(p0[k, 0], p0[k, 1])
             at[k, 0], at[k, 1] = p0[k, 1], p0[k, 0]
             continue
-        t = -fused_multiply_add(p0[k, 1], dy, p0[k, 0] * dx) / (length[k] * length[k])
+        t = -(p0[k, 0] * dx + p0[k, 1] * dy) / (length[k] * length[k])
         fx, fy = p0[k, 0] + t * dx, p0[k, 1] + t * dy
         dist[k] = np.hypot(fx, fy)
         if dist[k] < 1e-9:

@@ -32,9 +32,8 @@ import cv2
 import numpy as np
 from numba import njit
 
-# np.sum of a float64 array to the bit (numpy's pairwise order)
+# the sum of a float64 array, a plain loop (colour.pairwise_sum64)
 from ..common.colour import pairwise_sum64 as block_sum
-from .exact_ops import remap_at
 
 # ---------------------------------------------------------------------------- 3.2 skeleton
 
@@ -322,7 +321,7 @@ def subpixel_positions(image: np.ndarray, pix: np.ndarray) -> np.ndarray:
 @njit(cache=True, nogil=True)
 def _centroids(image, pix):
     """subpixel_positions compiled: per node pixel, its 3 x 3 window's grey levels (0 outside
-    the image) as weights, the weighted mean offset summed as numpy sums (block_sum)."""
+    the image) as weights, the weighted mean offset (sums: block_sum)."""
     h, w = image.shape
     out = np.empty((pix.shape[0], 2))
     wts = np.empty(9)
@@ -722,19 +721,39 @@ def _gap_choice(score, ci, cj, grey, value, eps, min_ratio, start, nbr, max_degr
 @njit(cache=True, nogil=True)
 def _gap_grey(pos, ci, cj, t, image, out):
     """fill_gaps' grey level along each candidate gap ci[k] -> cj[k] (grid positions ``pos``):
-    the least of the image at the points (1 - t) p + t q (in float32), each sampled as
-    cv2.remap (INTER_LINEAR, 0 outside) samples it (exact_ops.remap_at)."""
-    zero = np.float32(0.0)
+    the least of the image at the points (1 - t) p + t q, each sampled bilinearly, 0
+    outside the image (bilinear_at)."""
     for k in range(ci.shape[0]):
         a, b = ci[k], cj[k]
-        low = np.float32(np.inf)
+        low = np.inf
         for s in range(t.shape[0]):
-            x = np.float32(pos[a, 0] * (1 - t[s]) + pos[b, 0] * t[s])
-            y = np.float32(pos[a, 1] * (1 - t[s]) + pos[b, 1] * t[s])
-            v = remap_at(image, x, y, zero)
+            x = pos[a, 0] * (1 - t[s]) + pos[b, 0] * t[s]
+            y = pos[a, 1] * (1 - t[s]) + pos[b, 1] * t[s]
+            v = bilinear_at(image, x, y, 0.0)
             if v < low or s == 0:
                 low = v
         out[k] = low
+
+
+@njit(cache=True, nogil=True)
+def bilinear_at(image, x, y, border):
+    """A 2-D ``image`` at the point (x = column, y = row), interpolated bilinearly in float64
+    (along the row, then across), pixels outside the image ``border``: what cv2.remap with
+    INTER_LINEAR and BORDER_CONSTANT computes, in plain arithmetic at full precision (OpenCV
+    rounds the offsets to 1/32 px in 4.x, not in 5.x)."""
+    h, w = image.shape
+    fx, fy = math.floor(x), math.floor(y)
+    ix, iy = int(fx), int(fy)
+    ax, ay = x - fx, y - fy
+    in0, in1 = 0 <= iy < h, 0 <= iy + 1 < h
+    left, right = 0 <= ix < w, 0 <= ix + 1 < w
+    p00 = np.float64(image[iy, ix]) if in0 and left else border
+    p01 = np.float64(image[iy, ix + 1]) if in0 and right else border
+    p10 = np.float64(image[iy + 1, ix]) if in1 and left else border
+    p11 = np.float64(image[iy + 1, ix + 1]) if in1 and right else border
+    r0 = p00 + (p01 - p00) * ax
+    r1 = p10 + (p11 - p10) * ax
+    return r0 + (r1 - r0) * ay
 
 
 @functools.lru_cache(maxsize=4)
@@ -955,7 +974,7 @@ def _chain_length(pos: np.ndarray, chain: list[int]) -> float:
 @njit(cache=True, nogil=True)
 def _path_length(pos, path):
     """The length of the path through the nodes ``path`` (at least two): its steps' np.hypot
-    lengths summed as numpy sums them (block_sum)."""
+    lengths summed (block_sum)."""
     steps = np.empty(len(path) - 1)
     for k in range(len(path) - 1):
         steps[k] = math.hypot(pos[path[k + 1], 0] - pos[path[k], 0],

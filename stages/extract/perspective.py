@@ -32,7 +32,6 @@ from ..common import colour
 from ..common.errors import DatasetError
 from ..common.geometry import polar
 from .crossings import find_crossings, floor_at
-from .exact_ops import fused_multiply_add, remap_at
 from .field_boundary import DEFAULT_WEIGHTS, boundary_polyline, field_boundary
 from .goal_posts import goal_posts, is_post_bar
 from .line_fit import (
@@ -48,6 +47,7 @@ from .line_fit import (
     split_and_merge,
 )
 from .line_structure import (
+    bilinear_at,
     key_structure,
     line_structure_graph,
     skeleton_grid,
@@ -269,8 +269,13 @@ class IdealPixels:
         grid = np.stack(np.meshgrid(us, vs), axis=-1)
         ideal = camera.undistort_points(grid)
         self.stride = stride
-        # the inverse intrinsics, for the floor projections of every frame
-        self.k_inv = np.linalg.inv(camera.camera_matrix)
+        # the intrinsics and their inverse (written out: K is upper triangular), for the
+        # floor projections of every frame
+        self.k = camera.camera_matrix
+        self.k.setflags(write=False)
+        fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
+        self.k_inv = np.array([[1.0 / fx, 0.0, -cx / fx], [0.0, 1.0 / fy, -cy / fy],
+                               [0.0, 0.0, 1.0]])
         self.k_inv.setflags(write=False)
         self.map_u = ideal[..., 0].astype(np.float32)
         self.map_v = ideal[..., 1].astype(np.float32)
@@ -292,23 +297,21 @@ class IdealPixels:
 
     def __call__(self, uv) -> np.ndarray:
         """Distorted pixels (N, 2) -> ideal pixels (N, 2); NaN outside the lens model. The
-        tables are read as cv2.remap reads them (INTER_LINEAR, NaN beyond them), compiled
-        (``_look_up``)."""
-        p = np.ascontiguousarray(np.asarray(uv, np.float32).reshape(-1, 2))
+        tables are interpolated bilinearly (NaN beyond them), compiled (``_look_up``)."""
+        p = np.ascontiguousarray(np.asarray(uv, np.float64).reshape(-1, 2))
         out = np.empty(p.shape)
-        _look_up(p, np.float32(self.stride), self.map_u, self.map_v, out)
+        _look_up(p, float(self.stride), self.map_u, self.map_v, out)
         return out
 
 
 @njit(cache=True, nogil=True)
 def _look_up(p, stride, map_u, map_v, out):
-    """IdealPixels on distorted pixels p (N, 2, float32): each pixel over the tables' stride
-    (in float32), both tables read there (exact_ops.remap_at, NaN beyond them)."""
-    nan = np.float32(np.nan)
+    """IdealPixels on distorted pixels p (N, 2): each pixel over the tables' stride, both
+    tables read there (bilinear_at, NaN beyond them)."""
     for i in range(p.shape[0]):
         x, y = p[i, 0] / stride, p[i, 1] / stride
-        out[i, 0] = remap_at(map_u, x, y, nan)
-        out[i, 1] = remap_at(map_v, x, y, nan)
+        out[i, 0] = bilinear_at(map_u, x, y, np.nan)
+        out[i, 1] = bilinear_at(map_v, x, y, np.nan)
 
 
 _IDEAL_CACHE: dict[tuple, IdealPixels] = {}
@@ -331,12 +334,14 @@ class FloorProjection:
     """Ideal (undistorted) pixels -> floor points in the robot frame for one frame's head
     angles: each pixel's pinhole ray turned by the camera's rotation and cut with the floor
     ``camera.height`` below the lens (NaN on or above the horizon). The rotation is computed
-    once per frame."""
+    once per frame: m = R K^-1 takes an ideal pixel (u, v, 1) to its ray, m_inv = K R^T
+    back (R a rotation); both products written out element by element (matmul3)."""
 
     def __init__(self, camera, pitch=None, roll=None):
-        m = camera.rotation(pitch, roll) @ ideal_pixels(camera).k_inv
-        self.m = m
-        self.m_inv = np.linalg.inv(m)
+        undistort = ideal_pixels(camera)
+        rotation = camera.rotation(pitch, roll)
+        self.m = matmul3(rotation, undistort.k_inv)
+        self.m_inv = matmul3(undistort.k, rotation.T)
         self.height = float(camera.height)
         self.position = np.asarray(camera.position, float)
         self._shifted = bool(self.position.any())
@@ -351,10 +356,19 @@ class FloorProjection:
         """Floor points (N, 2) in the robot frame -> ideal pixels (N, 2) (NaN behind the
         camera)."""
         p = np.asarray(floor, float).reshape(-1, 2) - self.position
-        rel = np.concatenate([p, np.full((len(p), 1), -self.height)], axis=1)
-        h = rel @ self.m_inv.T  # homogeneous ideal pixels
+        mi, z = self.m_inv, -self.height
+        # homogeneous ideal pixels m_inv (x, y, -height), row by row
+        h = [mi[j, 0] * p[:, 0] + mi[j, 1] * p[:, 1] + mi[j, 2] * z for j in range(3)]
         with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(h[:, 2:] > 1e-9, h[:, :2] / h[:, 2:], np.nan)
+            return np.where((h[2] > 1e-9)[:, None], np.stack([h[0], h[1]], 1) / h[2][:, None],
+                            np.nan)
+
+
+def matmul3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The product of two 3 x 3 matrices, each entry a0 b0 + a1 b1 + a2 b2 in this order
+    (not BLAS, whose kernels round such sums differently on different processors)."""
+    return (a[:, 0, None] * b[None, 0, :] + a[:, 1, None] * b[None, 1, :]
+            + a[:, 2, None] * b[None, 2, :])
 
 
 @njit(cache=True, nogil=True)
@@ -390,9 +404,11 @@ def below_horizon(camera, shape, cell: int, pitch=None, roll=None,
     h, w = shape[:2]
     hb, wb = -(-h // cell), -(-w // cell)
     undistort = ideal_pixels(camera)
-    m = camera.rotation(pitch, roll) @ undistort.k_inv if to_floor is None else to_floor.m
+    m = (matmul3(camera.rotation(pitch, roll), undistort.k_inv) if to_floor is None
+         else to_floor.m)
     ideal = undistort.cell_centres(shape, cell)
-    down = (ideal @ m[2, :2] + m[2, 2]) < 0  # NaN (outside the lens model) compares False
+    # the ray's height; NaN (outside the lens model) compares False
+    down = (m[2, 0] * ideal[:, 0] + m[2, 1] * ideal[:, 1] + m[2, 2]) < 0
     return colour.BlockMask(down.reshape(hb, wb), cell, (h, w))
 
 
@@ -670,7 +686,7 @@ def _cell_of(m_inv, height, position, lens, cell, x, y):
     """The grid cell (row, column, as floats; NaN behind the camera) where the floor point
     (x, y) m of the robot frame is seen: FloorProjection.to_ideal (_to_ideal_at), then the
     lens."""
-    ix, iy = _to_ideal_at(m_inv, height, position, x, y, False)
+    ix, iy = _to_ideal_at(m_inv, height, position, x, y)
     u, v = distort_point(lens, ix, iy)
     return np.floor(v / cell), np.floor(u / cell)
 
@@ -726,8 +742,8 @@ def width_ratios(refs: list[RefinedLine], to_floor: FloorProjection, line_width:
     """Per refined line (by id): the median of its white runs' widths over the width a
     painted line of ``line_width`` metres has in the image at each run's floor position (both
     across the line, in ideal pixels); NaN where no run lies on the floor. All lines run in
-    one compiled pass (``_width_ratios``: the floor projection and its inverse operation by
-    operation as FloorProjection and its to_ideal's BLAS product form them)."""
+    one compiled pass (``_width_ratios``: the floor projection and its inverse as
+    FloorProjection and its to_ideal)."""
     if not refs:
         return {}
     start = np.zeros(len(refs) + 1, np.int64)
@@ -743,28 +759,16 @@ def width_ratios(refs: list[RefinedLine], to_floor: FloorProjection, line_width:
 
 
 @njit(cache=True, nogil=True)
-def _to_ideal_at(m_inv, height, pos, fx, fy, single):
-    """FloorProjection.to_ideal at one floor point: the homogeneous pixel as numpy's ``rel @
-    m_inv.T`` (BLAS) forms it, fused multiply-adds in the order of its rows (``single``: a
-    product of one row, ordered as a dot of three), NaN behind the camera."""
+def _to_ideal_at(m_inv, height, pos, fx, fy):
+    """FloorProjection.to_ideal at one floor point (fx, fy): the homogeneous pixel m_inv (fx -
+    pos_x, fy - pos_y, -height), NaN behind the camera."""
     r0, r1, r2 = fx - pos[0], fy - pos[1], -height
-    # (the three rows in scalars: no array allocated per point)
-    h0 = _homogeneous_row(m_inv, 0, r0, r1, r2, single)
-    h1 = _homogeneous_row(m_inv, 1, r0, r1, r2, single)
-    h2 = _homogeneous_row(m_inv, 2, r0, r1, r2, single)
+    h0 = m_inv[0, 0] * r0 + m_inv[0, 1] * r1 + m_inv[0, 2] * r2
+    h1 = m_inv[1, 0] * r0 + m_inv[1, 1] * r1 + m_inv[1, 2] * r2
+    h2 = m_inv[2, 0] * r0 + m_inv[2, 1] * r1 + m_inv[2, 2] * r2
     if h2 > 1e-9:
         return h0 / h2, h1 / h2
     return np.nan, np.nan
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _homogeneous_row(m_inv, j, r0, r1, r2, single):
-    """Row j of _to_ideal_at's homogeneous pixel from the floor point's offset (r0, r1, r2)."""
-    if single:
-        return fused_multiply_add(r2, m_inv[j, 2],
-                                  fused_multiply_add(r0, m_inv[j, 0], r1 * m_inv[j, 1]))
-    return fused_multiply_add(r2, m_inv[j, 2],
-                              fused_multiply_add(r1, m_inv[j, 1], r0 * m_inv[j, 0]))
 
 
 @njit(cache=True, nogil=True)
@@ -785,9 +789,9 @@ def _width_ratios(centres, start, ends, normals, widths, m, m_inv, height, pos, 
         m_ok = 0
         for i in range(start[k], start[k + 1]):
             ax, ay = _to_ideal_at(m_inv, height, pos, floor[i, 0] - half * nx,
-                                  floor[i, 1] - half * ny, n == 1)
+                                  floor[i, 1] - half * ny)
             bx, by = _to_ideal_at(m_inv, height, pos, floor[i, 0] + half * nx,
-                                  floor[i, 1] + half * ny, n == 1)
+                                  floor[i, 1] + half * ny)
             expected = abs((bx - ax) * normals[k, 0] + (by - ay) * normals[k, 1])
             r = widths[i] / (expected if not expected < 1e-6 else 1e-6)  # np.maximum
             if np.isfinite(floor[i, 0]) and np.isfinite(floor[i, 1]) and np.isfinite(r):

@@ -13,7 +13,8 @@ Rendering happens on a polar grid (rows: image radius in ``polar_step`` px; colu
 in ``polar_bearings`` steps). The camera is fixed to the robot, so each row's floor distance,
 depression angle and pixel footprint, and the polar-to-image map, are computed once. Per frame:
 the floor points of the grid move to the field frame (an outer product of row distances and
-column directions), the world textures are sampled with cv2.remap (carpet colour, then the line
+column directions), the world textures are sampled with cv2.remap on the 1/32-texel grid of
+stages.common.fixed_remap (carpet colour, then the line
 field), lines get the coverage of the pixel footprint across the line (so far lines fade
 instead of aliasing), shadows fall around the feet of things, walls, goals, robots, people and the
 ball are drawn where their ray heights say (with a depth buffer), the grid is remapped to the
@@ -32,6 +33,7 @@ import numpy as np
 
 from ..common.camera import OmniCamera, fit_polynomial
 from ..common.errors import FieldlocError
+from ..common.fixed_remap import fixed_maps, remap_linear
 from .imaging import add_sensor_noise, chroma_subsample, frame_light, jpeg_round_trip, noise_window
 from .scene import sample_texture
 
@@ -261,7 +263,7 @@ class OmniRenderer:
         ang = np.mod(np.arctan2(-dv, du), 2 * np.pi)
         mx = (ang / (2 * np.pi) * nb).astype(np.float32)
         my = ((rad - r0) / step).astype(np.float32)
-        self._to_image = cv2.convertMaps(mx, my, cv2.CV_16SC2)
+        self._to_image = fixed_maps(mx, my)
         self._radius_px = rad.astype(np.float32)
         colour, alpha = self._robot_overlay(rad, ang)
         vig = float(c["imaging"]["vignetting"])
@@ -371,13 +373,13 @@ class OmniRenderer:
         ar = sc.albedo_res
         mx = (gx - ax0) / ar - 0.5
         my = (gy - ay0) / ar - 0.5
-        floor = cv2.remap(sc.albedo, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        floor = remap_linear(sc.albedo, mx, my, cv2.BORDER_REPLICATE)
         floor = floor.astype(np.float32)
         # lines: coverage of the pixel footprint across the line
         lx0, ly0 = sc.line_origin
         lr = sc.line_res
-        lf = cv2.remap(sc.line_field, (gx - lx0) / lr, (gy - ly0) / lr, cv2.INTER_LINEAR,
-                       borderMode=cv2.BORDER_CONSTANT, borderValue=(50.0, 1.0, 0.0, 0.0))
+        lf = remap_linear(sc.line_field, (gx - lx0) / lr, (gy - ly0) / lr, cv2.BORDER_CONSTANT,
+                          (50.0, 1.0, 0.0, 0.0))
         dline, c2, s2, wear = lf[..., 0], lf[..., 1], lf[..., 2], lf[..., 3]
         img[:ng] = floor
         img[ng:] = 0.0
@@ -490,8 +492,7 @@ class OmniRenderer:
         wr = sc.wall_res
         mx = np.broadcast_to((s / wr).astype(np.float32)[None, :], zb.shape)
         my = (zb / wr).astype(np.float32)
-        tex = cv2.remap(sc.wall_texture, np.ascontiguousarray(mx), my, cv2.INTER_LINEAR,
-                        borderMode=cv2.BORDER_WRAP).astype(np.float32)
+        tex = remap_linear(sc.wall_texture, mx, my, cv2.BORDER_WRAP).astype(np.float32)
         hgt = sc.conf["wall_height"]
         ceiling = np.array([46, 44, 48], np.float32)
         tex = np.where((zb > hgt)[..., None], ceiling, tex)

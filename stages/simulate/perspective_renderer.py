@@ -7,7 +7,8 @@ It renders the camera-independent world of :mod:`.scene` (a :class:`FieldScene`)
 Geometry. Every pixel's viewing ray (fixed in the camera, undistorted once) is turned per frame
 by the head angles and the robot's pose and cast into the hall: the floor (z = 0) and the walls
 (ceiling above them). Floor pixels sample the scene's carpet colour and line field with
-``cv2.remap``; a line's coverage of a pixel is the exact overlap of the pixel's floor footprint
+``cv2.remap`` (on the 1/32-texel grid of stages.common.fixed_remap, the same under every
+OpenCV version); a line's coverage of a pixel is the exact overlap of the pixel's floor footprint
 measured across the line (from the per-pixel Jacobian of the floor point) with the rule line
 width, so far lines thin out and fade as through a real lens instead of aliasing, and far carpet
 is sampled from a prefiltered copy. Goal posts, robots, people and the ball are intersected per
@@ -34,6 +35,7 @@ import cv2
 import numpy as np
 
 from ..common.errors import DatasetError, FieldlocError
+from ..common.fixed_remap import fixed_maps, remap_linear
 from ..common.perspective_camera import PerspectiveCamera, head_rotation
 from . import walk
 from .imaging import add_sensor_noise, chroma_subsample, frame_light, jpeg_round_trip, noise_window
@@ -74,6 +76,12 @@ _UNIT_OUTLINE = np.unique(np.array(
      for a in (0.0, 1.0) for b_ in (0.0, 1.0) for c_ in (0.0, 1.0)
      for k, k2, k3 in [(0, 1, 2)]]), axis=0)
 _FAR = np.float32(1e9)
+
+
+def _times_matrix(v: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """v @ m for rows v (..., 3) and a 3 x 3 m, each entry v0 m0j + v1 m1j + v2 m2j in this
+    order: the rendered pixels do not depend on the BLAS kernel a processor selects."""
+    return v[..., 0, None] * m[0] + v[..., 1, None] * m[1] + v[..., 2, None] * m[2]
 
 
 def _merged(conf: dict | None) -> dict:
@@ -154,8 +162,8 @@ class PerspectiveRenderer:
         self.corner_weight = np.clip(rn**2.5, 0, 1).astype(np.float32)[..., None]
         ca = float(im["chromatic_aberration"]) / rc
         self.ca_maps = [
-            (np.float32(cam.cx) + du * np.float32(1 + s * ca),
-             np.float32(cam.cy) + dv * np.float32(1 + s * ca))
+            fixed_maps(np.float32(cam.cx) + du * np.float32(1 + s * ca),
+                       np.float32(cam.cy) + dv * np.float32(1 + s * ca))
             for s in (1.0, -1.0)  # red outwards, blue inwards
         ]
         # RGGB mosaic in one remap: the source is the B, G, R planes stacked vertically
@@ -167,8 +175,7 @@ class PerspectiveRenderer:
         scale = np.float32(1) + np.float32(ca) * (site - 1)
         mx = np.clip(np.float32(cam.cx) + du * scale, 0, w - 1)
         my = np.clip(np.float32(cam.cy) + dv * scale, 0, h - 1) + site * h
-        self.mosaic_maps = cv2.convertMaps(mx.astype(np.float32), my.astype(np.float32),
-                                           cv2.CV_16SC2)
+        self.mosaic_maps = fixed_maps(mx, my)
         self.noise_bank = np.random.default_rng([self.seed, 0x9E25]).standard_normal(
             (h + 64, w + 64), dtype=np.float32)
 
@@ -230,7 +237,7 @@ class PerspectiveRenderer:
     def _field_rotation(self, pose, pitch, roll) -> np.ndarray:
         c, s = math.cos(pose[2]), math.sin(pose[2])
         rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        return rz @ head_rotation(self.camera.yaw, pitch, roll)
+        return _times_matrix(rz, head_rotation(self.camera.yaw, pitch, roll))
 
     def scene_image(self, pose, pitch, roll, frame, layers: bool = True):
         """BGR float32 scene (display levels, before the camera's imaging) and, with
@@ -325,21 +332,18 @@ class PerspectiveRenderer:
         split = int(np.argmin(far_rows)) if not far_rows.all() else h
         img = np.empty((h, w, 3), np.float32)
         if split < h:
-            img[split:] = cv2.remap(sc.albedo, mx[split:], my[split:], cv2.INTER_LINEAR,
-                                    borderMode=cv2.BORDER_REPLICATE)
+            img[split:] = remap_linear(sc.albedo, mx[split:], my[split:], cv2.BORDER_REPLICATE)
         if split > 0:
             kx, ky = self.far_scale
-            img[:split] = cv2.remap(
+            img[:split] = remap_linear(
                 self.albedo_far, (mx[:split] + np.float32(0.5)) * kx - np.float32(0.5),
-                (my[:split] + np.float32(0.5)) * ky - np.float32(0.5), cv2.INTER_LINEAR,
-                borderMode=cv2.BORDER_REPLICATE)
+                (my[:split] + np.float32(0.5)) * ky - np.float32(0.5), cv2.BORDER_REPLICATE)
         # lines: coverage of the footprint across the line (normal from cos 2phi, sin 2phi)
         lx0, ly0 = sc.line_origin
         lr = np.float32(sc.line_res)
         lmx = (FX - np.float32(lx0)) / lr
         lmy = (FY - np.float32(ly0)) / lr
-        lf = cv2.remap(sc.line_field, lmx, lmy, cv2.INTER_LINEAR,
-                       borderMode=cv2.BORDER_CONSTANT, borderValue=(50.0, 1.0, 0.0, 0.0))
+        lf = remap_linear(sc.line_field, lmx, lmy, cv2.BORDER_CONSTANT, (50.0, 1.0, 0.0, 0.0))
         hw = np.float32(0.5 * sc.field.line_width)
         cand = (lf[..., 0] < hw + np.float32(0.5) * foot) & floor
         idx = np.nonzero(cand)
@@ -391,8 +395,7 @@ class PerspectiveRenderer:
         wr = np.float32(sc.wall_res)
         mx = np.clip(s / wr, -1.0, 1e6).astype(np.float32)
         my = np.clip(z / wr, -1.0, 1e6).astype(np.float32)
-        tex = cv2.remap(sc.wall_texture, mx, my, cv2.INTER_LINEAR,
-                        borderMode=cv2.BORDER_WRAP).astype(np.float32)
+        tex = remap_linear(sc.wall_texture, mx, my, cv2.BORDER_WRAP).astype(np.float32)
         hgt = float(sc.conf["wall_height"])
         tex *= (0.75 + 0.25 * np.clip(z / hgt, 0, 1)).astype(np.float32)[..., None]
         return np.where((z > hgt)[..., None], _CEILING, tex)
@@ -407,7 +410,7 @@ class PerspectiveRenderer:
         rel = outlines - np.array([pose[0], pose[1], cam.height])
         robot = np.stack([c * rel[..., 0] + s * rel[..., 1], -s * rel[..., 0] + c * rel[..., 1],
                           rel[..., 2]], -1)
-        camc = robot @ cam.rotation(pitch, roll)
+        camc = _times_matrix(robot, cam.rotation(pitch, roll))
         near = 0.02
         front = camc[..., 2] > near
         uv = cam.camera_points_to_pixels(np.where(front[..., None], camc, 1.0), inside=False,

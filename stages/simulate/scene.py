@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from ..common.fixed_remap import remap_linear
 from . import trajectory
 
 LINE_LIGHT_RES = 0.1  # m per texel of the paint brightness
@@ -630,12 +631,13 @@ def build(field, conf: dict | None, stamps, seed: int, robot_poses=None,
 
 def sample_texture(tex: np.ndarray, mx: np.ndarray, my: np.ndarray) -> np.ndarray:
     """Bilinear samples of a texture at scattered texel coordinates (1-D arrays), edges
-    replicated (cv2.remap, in rows of 1024 points: it takes at most 32767 rows)."""
+    replicated (cv2.remap on the 1/32-texel grid of stages.common.fixed_remap, in rows of
+    1024 points: it takes at most 32767 rows)."""
     n = len(mx)
     cols = 1024
     rows = -(-n // cols)
     pad = rows * cols - n
     gx = np.pad(mx.astype(np.float32), (0, pad)).reshape(rows, cols)
     gy = np.pad(my.astype(np.float32), (0, pad)).reshape(rows, cols)
-    out = cv2.remap(tex, gx, gy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    out = remap_linear(tex, gx, gy, cv2.BORDER_REPLICATE)
     return out.reshape(rows * cols, *tex.shape[2:])[:n]
