@@ -262,3 +262,38 @@ def test_nao_preset_renders_the_top_camera_on_an_spl_field(tmp_path):
     white = [c for c in movers if min(c.bgr) > 200]
     assert any(c.kind == "ball" for c in white)
     assert sum(c.kind == "body" and c.z0 > 0 and c.z1 < 0.4 for c in white) >= 2  # legs
+
+
+def test_texture_sampling_is_bilinear_on_the_32nd_texel_grid():
+    """fixed_remap samples where cv2.remap of OpenCV 4.x does (coordinates rounded to 1/32
+    texel), under any OpenCV: uint8 textures within one grey level of the bilinear oracle
+    (OpenCV's integer weights), float32 ones within float32 rounding; points outside the
+    texture take the border value. The maps are OpenCV's own fixed-point pair (integers)."""
+    import sys
+    from pathlib import Path
+
+    from stages.common.fixed_remap import fixed_maps, remap_linear
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from oracles.perspective_sampling import bilinear
+
+    rng = np.random.default_rng(3)
+    mx = rng.uniform(-3, 43, (40, 60)).astype(np.float32)
+    my = rng.uniform(-3, 33, (40, 60)).astype(np.float32)
+    xy, frac = fixed_maps(mx, my)
+    ref_xy, ref_frac = cv2.convertMaps(mx, my, cv2.CV_16SC2)
+    np.testing.assert_array_equal(xy, ref_xy)  # exact: integer texels
+    np.testing.assert_array_equal(frac, ref_frac)  # exact: integer table indices
+    qx, qy = np.rint(mx * 32.0) / 32.0, np.rint(my * 32.0) / 32.0
+    tex8 = rng.integers(0, 256, (30, 40, 3), dtype=np.uint8)
+    got = remap_linear(tex8, mx, my, cv2.BORDER_CONSTANT, (7, 7, 7)).astype(float)
+    want8 = np.stack([bilinear(tex8[..., c], qx, qy, 7.0) for c in range(3)], axis=-1)
+    np.testing.assert_allclose(got, want8, rtol=0, atol=1.0)
+    texf = rng.uniform(-1, 50, (30, 40, 4)).astype(np.float32)
+    got = remap_linear(texf, mx, my, cv2.BORDER_CONSTANT, (50.0, 1.0, 0.0, 0.0))
+    want = np.stack([bilinear(texf[..., c], qx, qy, b) for c, b in enumerate((50, 1, 0, 0))],
+                    axis=-1)
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
+    # the exact coordinates would be another sampling: the 1/32 rounding is visible
+    exact = np.stack([bilinear(tex8[..., c], mx, my, 7.0) for c in range(3)], axis=-1)
+    assert np.abs(exact - want8).max() > 2.0
