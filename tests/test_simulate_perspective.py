@@ -283,8 +283,8 @@ def test_texture_sampling_is_bilinear_on_the_32nd_texel_grid():
     my = rng.uniform(-3, 33, (40, 60)).astype(np.float32)
     xy, frac = fixed_maps(mx, my)
     ref_xy, ref_frac = cv2.convertMaps(mx, my, cv2.CV_16SC2)
-    np.testing.assert_array_equal(xy, ref_xy)  # exact: integer texels
-    np.testing.assert_array_equal(frac, ref_frac)  # exact: integer table indices
+    np.testing.assert_array_equal(xy, ref_xy)  # exact integers: int16 texels
+    np.testing.assert_array_equal(frac, ref_frac)  # exact integers: uint16 indices
     qx, qy = np.rint(mx * 32.0) / 32.0, np.rint(my * 32.0) / 32.0
     tex8 = rng.integers(0, 256, (30, 40, 3), dtype=np.uint8)
     got = remap_linear(tex8, mx, my, cv2.BORDER_CONSTANT, (7, 7, 7)).astype(float)
