@@ -141,20 +141,21 @@ def test_image_corners_are_darker_and_blurrier(renderer):
 def test_bayer_demosaicing_leaves_colour_fringes_at_sharp_edges(renderer):
     """On the carpet (only green and white in the scene) the demosaiced image holds orange or
     cyan pixels next to the lines' sharp edges (the artefacts seed 000 filters)."""
-    pose = (-1.0, 0.5, 0.3)
-    img, layers = renderer.render_view(pose, 0.45, 0.0, frame=0, return_layers=True)
-    carpet = cv2.erode(layers["floor"].astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
-
-    def fringes(im):
+    def fringes(im, carpet):
         b, g, r = (im[..., k].astype(float) for k in range(3))
         orange = (r > g + 20) & (r > b + 30)
         cyan = (b > r + 40) & (g > r + 40) & (b > 0.8 * g)
-        return ((orange | cyan) & carpet).sum()
+        return int(((orange | cyan) & carpet).sum())
 
     clean = PerspectiveRenderer(confs["perspective-clean"]["perspective"], renderer.scene, 5)
-    ref = clean.render_view(pose, 0.45, 0.0, frame=0)
-    assert fringes(img) > 30
-    assert fringes(ref) < fringes(img) / 4
+    mosaic = plain = 0
+    for pose in ((-1.0, 0.5, 0.3), (-2.0, -0.5, 0.0)):  # two views: about 30 and 250
+        img, layers = renderer.render_view(pose, 0.45, 0.0, frame=0, return_layers=True)
+        carpet = cv2.erode(layers["floor"].astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+        mosaic += fringes(img, carpet)
+        plain += fringes(clean.render_view(pose, 0.45, 0.0, frame=0), carpet)
+    assert mosaic > 100
+    assert plain < mosaic / 4
 
 
 def test_walk_enters_at_the_touch_line_and_walks_at_humanoid_speed():
@@ -262,3 +263,38 @@ def test_nao_preset_renders_the_top_camera_on_an_spl_field(tmp_path):
     white = [c for c in movers if min(c.bgr) > 200]
     assert any(c.kind == "ball" for c in white)
     assert sum(c.kind == "body" and c.z0 > 0 and c.z1 < 0.4 for c in white) >= 2  # legs
+
+
+def test_texture_sampling_is_bilinear_on_the_32nd_texel_grid():
+    """fixed_remap samples where cv2.remap of OpenCV 4.x does (coordinates rounded to 1/32
+    texel), under any OpenCV: uint8 textures within one grey level of the bilinear oracle
+    (OpenCV's integer weights), float32 ones within float32 rounding; points outside the
+    texture take the border value. The maps are OpenCV's own fixed-point pair (integers)."""
+    import sys
+    from pathlib import Path
+
+    from stages.common.fixed_remap import fixed_maps, remap_linear
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from oracles.perspective_sampling import bilinear
+
+    rng = np.random.default_rng(3)
+    mx = rng.uniform(-3, 43, (40, 60)).astype(np.float32)
+    my = rng.uniform(-3, 33, (40, 60)).astype(np.float32)
+    xy, frac = fixed_maps(mx, my)
+    ref_xy, ref_frac = cv2.convertMaps(mx, my, cv2.CV_16SC2)
+    np.testing.assert_array_equal(xy, ref_xy)  # exact integers: int16 texels
+    np.testing.assert_array_equal(frac, ref_frac)  # exact integers: uint16 indices
+    qx, qy = np.rint(mx * 32.0) / 32.0, np.rint(my * 32.0) / 32.0
+    tex8 = rng.integers(0, 256, (30, 40, 3), dtype=np.uint8)
+    got = remap_linear(tex8, mx, my, cv2.BORDER_CONSTANT, (7, 7, 7)).astype(float)
+    want8 = np.stack([bilinear(tex8[..., c], qx, qy, 7.0) for c in range(3)], axis=-1)
+    np.testing.assert_allclose(got, want8, rtol=0, atol=1.0)
+    texf = rng.uniform(-1, 50, (30, 40, 4)).astype(np.float32)
+    got = remap_linear(texf, mx, my, cv2.BORDER_CONSTANT, (50.0, 1.0, 0.0, 0.0))
+    want = np.stack([bilinear(texf[..., c], qx, qy, b) for c, b in enumerate((50, 1, 0, 0))],
+                    axis=-1)
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
+    # the exact coordinates would be another sampling: the 1/32 rounding is visible
+    exact = np.stack([bilinear(tex8[..., c], mx, my, 7.0) for c in range(3)], axis=-1)
+    assert np.abs(exact - want8).max() > 2.0
