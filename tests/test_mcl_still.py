@@ -85,7 +85,9 @@ def test_rivals_take_their_share_of_the_belief():
 def test_a_frame_that_decides_its_pose_is_found_from_a_uniform_start(camera):
     pose = random_poses(camera[1], RENDERED_POSES)[DECIDED[camera]]
     res = rendered_still(*camera, [pose])
-    assert all(r.informative and r.decided and r.truth_best for r in res)
+    # the property is that a frame which decides its place is found; whether the extractor
+    # also counts it informative (two non-parallel lines or a crossing) is not asked
+    assert all(r.decided and r.truth_best for r in res)
     assert all(r.hit for r in res), [(r.name, round(r.error_m, 2), round(r.pair, 2)) for r in res]
     assert min(r.pair for r in res) >= 0.9
 
