@@ -700,7 +700,7 @@ def test_gap_grey_is_the_least_bilinear_sample_along_each_gap():
 
 @pytest.mark.parametrize("n", [1, 2, 7, 8, 9, 129, 6121, 20000])
 def test_sums_means_and_variances_equal_the_exact_ones(n):
-    """colour's sums (pairwise_sum32/64: float64 accumulators), means and variances of
+    """colour's sums (sum32/64: float64 accumulators), means and variances of
     float32 arrays are the exactly rounded ones (math.fsum, np.var in float64) within the
     error bound of a float64 accumulation rounded once to the result's type
     (oracles.perspective_sampling.sum_tolerance); line_structure's block_sum and
@@ -709,7 +709,7 @@ def test_sums_means_and_variances_equal_the_exact_ones(n):
     for _ in range(20):
         a = (rng.normal(size=n) * 10.0 ** rng.integers(-3, 4)).astype(np.float32)
         exact = sampling.exact_sum(a)
-        assert abs(float(colour.pairwise_sum32(a)) - exact) <= sampling.sum_tolerance(
+        assert abs(float(colour.sum32(a)) - exact) <= sampling.sum_tolerance(
             a, np.float32)
         mean = exact / n
         np.testing.assert_allclose(colour._mean32(a), mean, rtol=2.0 ** -22,

@@ -381,7 +381,7 @@ def _hue_model(fc: FieldColour, u8, v8, y8, conf: dict) -> None:
 
 
 @njit(cache=True, nogil=True)
-def _pairwise_sum(a, zero):
+def _sum_in_float64(a, zero):
     """The sum of a float array: one loop accumulated in float64 (float32 data rounded once
     to float32 at the end, not at every addition). ``zero``: 0 of the array's type."""
     res = 0.0
@@ -391,16 +391,16 @@ def _pairwise_sum(a, zero):
 
 
 @njit(cache=True, nogil=True)
-def pairwise_sum32(a):
+def sum32(a):
     """The sum of a float32 array, accumulated in float64, rounded to float32
-    (_pairwise_sum)."""
-    return np.float32(_pairwise_sum(a, np.float32(0.0)))
+    (_sum_in_float64)."""
+    return np.float32(_sum_in_float64(a, np.float32(0.0)))
 
 
 @njit(cache=True, nogil=True)
-def pairwise_sum64(a):
-    """The sum of a float64 array (_pairwise_sum)."""
-    return _pairwise_sum(a, 0.0)
+def sum64(a):
+    """The sum of a float64 array (_sum_in_float64)."""
+    return _sum_in_float64(a, 0.0)
 
 
 @njit(cache=True, nogil=True)
@@ -432,9 +432,9 @@ def _histogram_peak(counts):
 
 @njit(cache=True, nogil=True)
 def _mean32(a):
-    """The mean of a float32 array: its sum (pairwise_sum32, accumulated in float64) over
+    """The mean of a float32 array: its sum (sum32, accumulated in float64) over
     the count in float64, rounded to float32."""
-    return np.float32(np.float64(pairwise_sum32(a)) / np.float64(a.shape[0]))
+    return np.float32(np.float64(sum32(a)) / np.float64(a.shape[0]))
 
 
 @njit(cache=True, nogil=True)

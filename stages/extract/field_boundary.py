@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 from numba import njit
 
-from ..common.colour import pairwise_sum32
+from ..common.colour import sum32
 
 # Weights of the colour classes in the merged grey image: green is field; white is a line on
 # it, but also a wall or banner behind it, so a cell of white alone stays below the weak
@@ -75,7 +75,7 @@ def grey_field(counts: dict[str, np.ndarray], weights: dict[str, float], area: f
                t_pix: float, t_row: float, t_win: float, t_weak: float) -> np.ndarray:
     """binarize_field(merged_grey_image(counts, weights, area), ...) by one compiled pass
     (``_grey_field``): the same float32 grey levels, the rows' sums (accumulated in float64,
-    colour.pairwise_sum32) and the 8 x 4 windows' sums in float64, rounded once to float32."""
+    colour.sum32) and the 8 x 4 windows' sums in float64, rounded once to float32."""
     names = [n for n, w in weights.items() if w and n in counts]
     if not names:  # no class weighs: the grey image is 0
         return binarize_field(merged_grey_image(counts, weights, area), t_pix, t_row, t_win,
@@ -107,7 +107,7 @@ def _grey_field(classes, weights, area, t_pix, t_row, t_win, t_weak, field):
             grey[y, x] = grey[y, x] / area
     rows = np.empty(h, np.float32)
     for y in range(h):
-        rows[y] = pairwise_sum32(grey[y])
+        rows[y] = sum32(grey[y])
     t_pix32, t_win32, t_weak32 = np.float32(t_pix), np.float32(t_win), np.float32(t_weak)
     for y in range(h):
         row_sum = np.float64(rows[y]) + (np.float64(rows[y - 1]) if y > 0 else 0.0)

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..common.colour import pairwise_sum32
+from ..common.colour import sum32
 from .line_fit import median
 
 
@@ -252,7 +252,7 @@ def _bar_share(white, fx, fy, ux, uy, cell, steps):
     """is_post_bar's white across a bar (float32 shares): at each point ``steps`` of the way
     from its foot (fx, fy) to its upper end (ux, uy) (image px), in the grid cell there
     (rounded half to even, clipped to the grid), the shares of that cell and two cells each
-    side (clipped) summed (pairwise_sum32); their median."""
+    side (clipped) summed (sum32); their median."""
     h, w = white.shape
     sums = np.empty(len(steps), np.float32)
     across = np.empty(5, np.float32)
@@ -264,5 +264,5 @@ def _bar_share(white, fx, fy, ux, uy, cell, steps):
         c = int(np.rint(gx))
         for k in range(5):
             across[k] = white[r, min(max(c + k - 2, 0), w - 1)]
-        sums[i] = pairwise_sum32(across)
+        sums[i] = sum32(across)
     return median(sums)
