@@ -1,8 +1,18 @@
 import importlib
 from pathlib import Path
 
+import os
+
 import pytest
 from exact_comparisons import GUARDED, guarded
+from hypothesis import settings
+
+# Property tests draw their examples from a fixed seed, so a run is reproducible on any machine
+# (every random choice takes a seed); FIELDLOC_HYPOTHESIS=explore draws fresh examples each run
+# to search for new counterexamples.
+settings.register_profile("reproducible", derandomize=True)
+settings.register_profile("explore", derandomize=False)
+settings.load_profile(os.environ.get("FIELDLOC_HYPOTHESIS", "reproducible"))
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 

@@ -635,15 +635,21 @@ def merge_line_crossings(crossings: list[LineCrossing], tol: float,
     arms (arms within ``same_arm`` rad of each other are one; on the floor with ``floor_of``,
     ideal pixels (M, 2) -> floor points, where the arms' first ``tol`` px are on it: far
     away the perspective flattens a right angle in the image): a T whose bar was fitted as
-    two lines, one each side of the stem, gives two L's of the same point."""
-    out, used = [], [False] * len(crossings)
+    two lines, one each side of the stem, gives two L's of the same point.
+
+    The crossings are read in the order of their points (rounded so that the same point
+    computed from a pair's two orders sorts alike), each gathering the later ones within
+    ``tol`` of it, so the result does not depend on the order of the lines."""
+    out = []
     if not crossings:
         return out
     cos_same = math.cos(same_arm)
-    # the points' distances, all at once (np.hypot of each difference, as one at a time)
+    key = np.round(np.array([c.point for c in crossings], np.float64), 6)
+    crossings = [crossings[i] for i in np.lexsort((key[:, 1], key[:, 0]))]
     pts = np.array([c.point for c in crossings], np.float64)
     near = (np.hypot(pts[None, :, 0] - pts[:, None, 0], pts[None, :, 1] - pts[:, None, 1])
             <= tol).tolist()
+    used = [False] * len(crossings)
     for a, c in enumerate(crossings):
         if used[a]:
             continue
