@@ -16,8 +16,9 @@ Goals (issue 7, item 4) and what this commit reaches (the README's results table
 - the top or second hypothesis at the brute-force best pose, or its mirror, for the images
   and for their points through --points: not met (3 and 2 of 10). On 7 of the 10 images the
   judge's best is one of a few: poses elsewhere explain within 0.03 of its share
-  (LineRaster.rivals), so no method can be held to it there; on the 3 where it is unique, the
-  top or second hypothesis holds it on every one.
+  (LineRaster.rivals), so no method can be held to it there; on the 3 where it is unique (2
+  under another CPU's rounding: one image sits at the 0.03 margin), the top or second
+  hypothesis holds it on every one.
 Where a goal is not met the test holds the level reached, so a regression fails it; every
 image's probability is low (below the acceptance threshold) wherever the pose is unsure, and
 the test checks that too: no image is accepted with a pose explaining less than its null."""
@@ -71,12 +72,14 @@ def test_an_unsure_minho_lab_image_is_not_accepted(lab):
 
 
 def test_minho_lab_hypotheses_hold_the_brute_force_pose(lab):
-    assert lab["top_or_second_at_best"] >= 3  # goal: every image (module doc)
+    # where the judge's best pose is what the points decide (no pose elsewhere within 0.03 of
+    # its share), the top or second hypothesis holds it on every one. Whether an image is
+    # such is a decision at the judge's margin: one image sits at 0.03, and is counted unique
+    # under one CPU's rounding (3 images) and not under another's (2)
+    assert lab["unique_best"] >= 2
+    assert lab["top_or_second_at_unique_best"] == lab["unique_best"], lab["rows"]
+    assert lab["top_or_second_at_best"] >= lab["unique_best"]  # goal: every image (module doc)
     assert lab["points_top_or_second_at_best"] >= 2
     # the top pose explains within 0.03 of the best share (one of the poses the judge cannot
-    # tell from its best) on 6 of 10
+    # tell from its best) on 6 of 10 (7 where the margin image is not unique)
     assert lab["top_as_good_as_best"] >= 6
-    # where the judge's best pose is what the points decide (no pose elsewhere within 0.03 of
-    # its share: 3 of the 10 images), the top or second hypothesis holds it on every one
-    assert lab["unique_best"] >= 3
-    assert lab["top_or_second_at_unique_best"] == lab["unique_best"], lab["rows"]
