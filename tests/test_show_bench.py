@@ -35,3 +35,16 @@ def test_bench_rows_interleave_and_format(tmp_path):
     path = bench.write_json(rows, tmp_path / "b.json")
     data = json.loads(path.read_text())
     assert data["rows"][1]["median_ms"] is None
+
+
+def test_bench_only_naming_no_row_is_refused():
+    """`--only` with a name no row contains ends in one line and exit code 1, not an empty
+    table with exit code 0 (a comma-separated list is one name)."""
+    from click.testing import CliRunner
+
+    from fieldloc_cli.main import cli
+
+    res = CliRunner().invoke(cli, ["bench", "--only", "lut-accuracy,fit"])
+    assert res.exit_code == 1
+    lines = res.output.strip().splitlines()
+    assert len(lines) == 1 and "no bench row matches 'lut-accuracy,fit'" in lines[0]

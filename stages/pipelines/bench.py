@@ -831,6 +831,15 @@ def _persp():
 
 
 def run(only: list[str] | None = None, repeat: int = 5, progress=None) -> list[Row]:
+    """The rows whose names contain one of ``only`` (all rows without it), timed ``repeat``
+    times each; a name in ``only`` that no row contains is an error (FieldlocError)."""
+    from ..common.errors import FieldlocError
+
+    for o in only or []:
+        if not any(o in n for n in ROWS):
+            shown = o if len(o) <= 40 else o[:37] + "..."
+            raise FieldlocError(f"no bench row matches {shown!r} (`fieldloc bench --list` names"
+                                " them; give --only once per name)")
     names = [n for n in ROWS if not only or any(o in n for o in only)]
     rows: list[Row] = []
     for name in names:
