@@ -287,6 +287,29 @@ def _setup_field(change):
     return setup
 
 
+# nine levels of nine aliases: 9^9 (387 million) strings once expanded ("billion laughs")
+ALIAS_BOMB = "[&a0 [lol, lol, lol, lol, lol, lol, lol, lol, lol]" + "".join(
+    f", &a{i} [" + ", ".join([f"*a{i - 1}"] * 9) + "]" for i in range(1, 9)) + "]"
+
+
+def _setup_field_text(append: str):
+    """The shared field YAML with ``append`` added as text (YAML that a dict cannot hold)."""
+    def setup(w, ws):
+        (ws / "f.yaml").write_text(Path(w["field_yaml"]).read_text() + append)
+        return {}
+    return setup
+
+
+def _setup_calib_text(append: str):
+    """The omni dataset copied, its calib.yaml with ``append`` added as text."""
+    def setup(w, ws):
+        ds = copy_dataset(w, "omni", ws)
+        with open(ds / "calib.yaml", "a") as f:
+            f.write(append)
+        return {"ds": str(ds)}
+    return setup
+
+
 LOCALIZE = ["localize", "{omni}", "--map", "{map}", "--features", "{features}"]
 W = "{ws}"
 
@@ -409,6 +432,18 @@ CASES = [
     Case("field length: 1e5 (simulate)", "traceback",
          ["simulate", "omni", "--field", W + "/f.yaml", "-o", W + "/sim", "--frames", "1"], 1,
          "would need about", setup=_setup_field({"length": 100000.0})),
+    Case("alias bomb in a field's notes (build-map)", "hang",
+         ["build-map", W + "/f.yaml", "-o", W + "/m.h5"], 1, "YAML aliases (*name) are not",
+         setup=_setup_field_text(f"\nnotes: {ALIAS_BOMB}\n")),
+    Case("alias bomb in calib.yaml (extract)", "hang",
+         ["extract", "{ds}", "-o", W + "/f.h5"], 1, "YAML aliases (*name) are not",
+         setup=_setup_calib_text(f"\nbomb: {ALIAS_BOMB}\n")),
+    Case("alias bomb as a -c value (localize)", "hang",
+         [*LOCALIZE, "-o", W + "/p.h5", "-c", f"temperature={ALIAS_BOMB}"], 1,
+         "must be a number, got '[&a0 [lol, lol"),
+    Case("a field key given twice (build-map)", "silent",
+         ["build-map", W + "/f.yaml", "-o", W + "/m.h5"], 1, "the key 'name' is given twice",
+         setup=_setup_field_text("\nname: twice\n")),
     Case("build-map --resolution 0.001", "traceback",
          ["build-map", "spl", "-o", W + "/m.h5", "--resolution", "0.001"], 1,
          "would need about"),
@@ -679,7 +714,7 @@ def test_make_pipeline_with_mcl_prints_the_table_once(world, tmp_path):
 # ---------------------------------------------------------------------------- the figures
 
 
-KIND_NAMES = {"data-lost": "data lost", "traceback": "tracebacks",
+KIND_NAMES = {"data-lost": "data lost", "traceback": "tracebacks", "hang": "hangs",
               "silent": "silent or misleading", "newcomer": "newcomer"}
 
 
