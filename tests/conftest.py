@@ -1,7 +1,6 @@
 import importlib
-from pathlib import Path
-
 import os
+from pathlib import Path
 
 import pytest
 from exact_comparisons import GUARDED, guarded
