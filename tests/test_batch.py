@@ -163,6 +163,24 @@ def test_a_failed_run_is_reported_and_the_others_go_on(serial, tmp_path):
     assert "failed runs (1):" in table and "- bad/lut-default: " in table
 
 
+def test_a_batch_whose_every_run_failed_exits_1(serial, tmp_path):
+    """Every run failed: the command ends with one line and exit code 1 (the index is
+    written, so `evaluate --table` still lists the failures)."""
+    spec, out, _ = serial
+    bad = tmp_path / "bad"
+    shutil.copytree(out / "datasets" / "omni-a", bad)
+    odo = (bad / "odometry.csv").read_text().splitlines()
+    odo[2] = ",".join(odo[2].split(",")[:1] + ["nan"] * 3)
+    (bad / "odometry.csv").write_text("\n".join(odo) + "\n")
+    s = {"map": str(next((out / "maps").glob("*.map.h5"))), "datasets": [{"path": str(bad)}],
+         "methods": ["lut"]}
+    res = CliRunner().invoke(cli, ["-q", "batch", str(_write_spec(tmp_path / "s", s)), "-o",
+                                   str(tmp_path / "res"), "--serial"])
+    assert res.exit_code == 1
+    assert res.stderr.strip().splitlines()[-1].startswith("fieldloc: error: every run failed")
+    assert load_batch(tmp_path / "res")["runs"][0]["status"] == "failed"
+
+
 @pytest.mark.parametrize("change, message", [
     ({"method": ["lut"]}, "unknown key 'method' (known: field, map,"),
     ({"datasets": [{"simulate": {"preset": "omni-clean", "field": "kidsize",

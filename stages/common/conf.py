@@ -44,23 +44,46 @@ class _StrictLoader(_BASE_LOADER):
         return super().construct_mapping(node, deep=deep)
 
 
-def _refuse_aliases(text: str | bytes) -> None:
-    """Aliases (``*name``) are refused: no fieldloc file needs them, and a few nested ones
-    expand to gigabytes ("billion laughs"), which would hang every reader. Only a text with a
-    '*' is parsed for them (the event stream, without building anything)."""
+# values a YAML document may hold once its aliases are expanded: fieldloc's files hold a few
+# hundred; a "billion laughs" document (a few nested aliases) holds hundreds of millions
+MAX_YAML_VALUES = 100_000
+
+
+def _refuse_alias_bombs(text: str | bytes) -> None:
+    """Refuse a document whose aliases (``*name``) expand to more than MAX_YAML_VALUES values,
+    which would hang every reader. Aliases themselves are fine (yaml.dump writes them for a
+    value used twice). Only a text with a '*' is scanned: libyaml's event stream, each
+    anchored node's expanded size summed as it closes, nothing built."""
     if ("*" if isinstance(text, str) else b"*") not in text:
         return
+    sizes: dict[str, int] = {}
+    open_nodes: list[list] = [[None, 0]]  # [anchor, values so far] of each open collection
     for event in yaml.parse(text, Loader=_BASE_LOADER):
-        if isinstance(event, yaml.AliasEvent):
+        if isinstance(event, yaml.CollectionStartEvent):
+            open_nodes.append([event.anchor, 1])
+            continue
+        if isinstance(event, yaml.CollectionEndEvent):
+            anchor, n = open_nodes.pop()
+        elif isinstance(event, yaml.ScalarEvent):
+            anchor, n = event.anchor, 1
+        elif isinstance(event, yaml.AliasEvent):
+            anchor, n = None, sizes.get(event.anchor, 1)
+        else:
+            continue
+        if anchor is not None:
+            sizes[anchor] = n
+        open_nodes[-1][1] += n
+        if open_nodes[-1][1] > MAX_YAML_VALUES:
             raise yaml.composer.ComposerError(
-                None, None, "YAML aliases (*name) are not accepted", event.start_mark)
+                None, None, f"YAML aliases expand to more than {MAX_YAML_VALUES} values",
+                event.start_mark)
 
 
 def load_yaml(text: str | bytes):
     """``yaml.safe_load`` with libyaml's parser where PyYAML has it (the same documents, read
-    10-20x faster: a batch reads every dataset's records several times), refusing aliases and
-    keys given twice (yaml.YAMLError, as for any malformed file)."""
-    _refuse_aliases(text)
+    10-20x faster: a batch reads every dataset's records several times), refusing alias bombs
+    and keys given twice (yaml.YAMLError, as for any malformed file)."""
+    _refuse_alias_bombs(text)
     return yaml.load(text, Loader=_StrictLoader)  # noqa: S506 (a safe loader)
 
 

@@ -36,6 +36,8 @@ def describe_file(path: str | Path) -> str:
         raise FieldlocError(f"file not found: {path}")
     if path.is_dir():
         return _folder(path)
+    if not path.is_file():  # a FIFO, socket or device: opening one may block forever
+        raise FieldlocError(f"{path}: not a regular file (a pipe, socket or device)")
     try:
         with open(path, "rb") as f:
             head = f.read(2048)

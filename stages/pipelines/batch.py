@@ -26,7 +26,8 @@ the template database and the truth by content hash, the dataset's simulate opti
 localize and evaluate confs) is not run again; an interrupted batch leaves every finished run
 as it is (every file is written atomically, run.json last), and the next one does only what is
 missing. A failed run is recorded with its error (run.json, the summary, the comparison) and
-the others go on; it is tried again by the next batch. ``overwrite``: every run again. A
+the others go on; it is tried again by the next batch. When every run failed, ``main`` raises
+FieldlocError after writing the index (the command exits 1). ``overwrite``: every run again. A
 template database built here is reused while it is what build-templates would make now
 (``reusable_templates``: its grid rendered from the same options, its captures' calib.yaml,
 truth.csv and mask by content hash, the same build conf), else built again (its grid rendered
@@ -138,6 +139,9 @@ def main(conf, spec, results, *, overwrite: bool = False, progress: bool = False
         f"{len(failed)} failed" + ("" if not failed else ":"))
     for r in failed:
         say(f"  {r['key']}: {r['error']}")
+    if index["runs"] and len(failed) == len(index["runs"]):
+        raise FieldlocError(f"every run failed ({len(failed)} of {len(failed)}; their errors are"
+                            f" in {results}/batch.json and each run's run.json)")
     return results
 
 
