@@ -138,14 +138,19 @@ def test_an_interrupted_batch_keeps_its_finished_runs(serial, tmp_path, monkeypa
     assert all(r["status"] == "ok" for r in load_batch(res)["runs"])
 
 
+def _nan_odometry_copy(dataset: Path, dst: Path) -> Path:
+    """A copy of ``dataset`` whose odometry holds a NaN row: localize refuses it at run time."""
+    shutil.copytree(dataset, dst)
+    odo = (dst / "odometry.csv").read_text().splitlines()
+    odo[2] = ",".join(odo[2].split(",")[:1] + ["nan"] * 3)
+    (dst / "odometry.csv").write_text("\n".join(odo) + "\n")
+    return dst
+
+
 def test_a_failed_run_is_reported_and_the_others_go_on(serial, tmp_path):
     """A recording whose odometry holds a NaN row: localize refuses it at run time."""
     spec, out, _ = serial
-    bad = tmp_path / "bad"
-    shutil.copytree(out / "datasets" / "omni-a", bad)
-    odo = (bad / "odometry.csv").read_text().splitlines()
-    odo[2] = ",".join(odo[2].split(",")[:1] + ["nan"] * 3)
-    (bad / "odometry.csv").write_text("\n".join(odo) + "\n")
+    bad = _nan_odometry_copy(out / "datasets" / "omni-a", tmp_path / "bad")
     good = tmp_path / "good"
     shutil.copytree(out / "datasets" / "omni-a", good)
     s = {"map": str(next((out / "maps").glob("*.map.h5"))), "datasets": [
@@ -167,11 +172,7 @@ def test_a_batch_whose_every_run_failed_exits_1(serial, tmp_path):
     """Every run failed: the command ends with one line and exit code 1 (the index is
     written, so `evaluate --table` still lists the failures)."""
     spec, out, _ = serial
-    bad = tmp_path / "bad"
-    shutil.copytree(out / "datasets" / "omni-a", bad)
-    odo = (bad / "odometry.csv").read_text().splitlines()
-    odo[2] = ",".join(odo[2].split(",")[:1] + ["nan"] * 3)
-    (bad / "odometry.csv").write_text("\n".join(odo) + "\n")
+    bad = _nan_odometry_copy(out / "datasets" / "omni-a", tmp_path / "bad")
     s = {"map": str(next((out / "maps").glob("*.map.h5"))), "datasets": [{"path": str(bad)}],
          "methods": ["lut"]}
     res = CliRunner().invoke(cli, ["-q", "batch", str(_write_spec(tmp_path / "s", s)), "-o",

@@ -10,6 +10,7 @@ import math
 import cv2
 import numpy as np
 import pytest
+from oracles.decisions import assert_decisions_agree, le_margin
 
 from stages.common import colour
 from stages.common.errors import FieldlocError
@@ -18,21 +19,23 @@ CONF = colour.confs["default"]
 
 
 def reference_green_chroma(y, u, v, fc):
-    """Green ellipse test, float32, chroma rescaled to the field's luminance (module doc)."""
+    """Green ellipse test, float32, chroma rescaled to the field's luminance (module doc):
+    (decision, relative margin)."""
     y = np.maximum(np.asarray(y, np.float32), np.float32(1.0))
     du = (np.asarray(u, np.float32) - np.float32(128.0)) * np.float32(fc.y) \
         - np.float32(fc.u - 128.0) * y
     dv = (np.asarray(v, np.float32) - np.float32(128.0)) * np.float32(fc.y) \
         - np.float32(fc.v - 128.0) * y
     a2, b2 = np.float32(fc.axes[0] ** 2), np.float32(fc.axes[1] ** 2)
-    return du * du * b2 + dv * dv * a2 <= y * y * (a2 * b2)
+    return le_margin(du * du * b2 + dv * dv * a2, y * y * (a2 * b2))
 
 
 def reference_white_chroma(y, u, v, conf=CONF):
+    """White chroma test (saturation against luminance): (decision, relative margin)."""
     y = np.asarray(y, np.float32)
     du, dv = np.asarray(u, np.float32) - 128.0, np.asarray(v, np.float32) - 128.0
     sat = np.float32(conf["white_max_saturation"])
-    return du * du + dv * dv <= (sat * sat) * (y * y)
+    return le_margin(du * du + dv * dv, (sat * sat) * (y * y))
 
 
 def reference_classes(yuv, fc, y_green, conf=CONF):
@@ -42,14 +45,17 @@ def reference_classes(yuv, fc, y_green, conf=CONF):
     yg = np.asarray(y_green, np.float32)
     white_y = np.maximum(yg + np.float32(conf["white_contrast"]) * (np.float32(255.0) - yg),
                          np.float32(conf["white_min_y"]))
-    white = (y >= white_y) & reference_white_chroma(y, u, v, conf)
-    green = ((y >= np.float32(conf["green_min_ratio"]) * yg)
-             & (y <= np.float32(conf["green_max_ratio"]) * yg)
-             & reference_green_chroma(y, u, v, fc))
+    tests = [le_margin(white_y, y), reference_white_chroma(y, u, v, conf),
+             le_margin(np.float32(conf["green_min_ratio"]) * yg, y),
+             le_margin(y, np.float32(conf["green_max_ratio"]) * yg),
+             reference_green_chroma(y, u, v, fc)]
+    (w_y, w_c, g_lo, g_hi, g_c), margins = zip(*tests)
+    white = w_y & w_c
+    green = g_lo & g_hi & g_c
     out = np.full(y.shape, colour.OTHER, np.uint8)
     out[green] = colour.GREEN
     out[white] = colour.WHITE
-    return out
+    return out, np.minimum.reduce(margins)
 
 
 def test_chroma_tests_equal_the_formulas_on_every_yuv_value():
@@ -59,10 +65,8 @@ def test_chroma_tests_equal_the_formulas_on_every_yuv_value():
         y, u, v = (a.astype(np.uint8) for a in np.meshgrid(
             np.arange(y0, y0 + 32), np.arange(256), np.arange(256), indexing="ij"))
         green, white = colour._chroma_tests(y, u, v, fc, CONF)
-        # exact decisions: green or not
-        assert np.array_equal(green, reference_green_chroma(y, u, v, fc)), y0
-        # exact decisions: white or not
-        assert np.array_equal(white, reference_white_chroma(y, u, v)), y0
+        assert_decisions_agree(green, *reference_green_chroma(y, u, v, fc), what=y0)
+        assert_decisions_agree(white, *reference_white_chroma(y, u, v), what=y0)
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -74,9 +78,8 @@ def test_chroma_tests_equal_the_formulas_for_other_colours(seed):
                             (float(rng.uniform(14, 60)), float(rng.uniform(14, 60))), True, 0.5)
     y, u, v = rng.integers(0, 256, (3, 1_000_000)).astype(np.uint8)
     green, white = colour._chroma_tests(y, u, v, fc, CONF)
-    # exact decisions: green or not
-    assert np.array_equal(green, reference_green_chroma(y, u, v, fc))
-    assert np.array_equal(white, reference_white_chroma(y, u, v))  # exact decisions: white or not
+    assert_decisions_agree(green, *reference_green_chroma(y, u, v, fc))
+    assert_decisions_agree(white, *reference_white_chroma(y, u, v))
     assert green.sum() > 100  # the sample reaches into the ellipse
 
 
@@ -104,9 +107,10 @@ def test_classify_image_equals_the_reference_classifier():
     yuv = colour.to_yuv(img)
     assert fc.found and fc.y_map is not None
     vv, uu = np.indices(img.shape[:2])
-    ref = reference_classes(yuv, fc, fc.local_y(uu, vv))
+    ref, margin = reference_classes(yuv, fc, fc.local_y(uu, vv))
     ref[~valid] = colour.OTHER
-    assert np.array_equal(labels, ref)  # exact decisions: class labels
+    margin[~valid] = np.inf
+    assert_decisions_agree(labels, ref, margin)
     # the local green luminance as an image and per pixel: the same interpolation, in grey
     # levels (0-255), equal to far below a level
     np.testing.assert_allclose(fc.local_y_image(img.shape), fc.local_y(uu, vv), rtol=0,
@@ -117,11 +121,10 @@ def test_classify_image_equals_the_reference_classifier():
     flat = np.flatnonzero(valid)
     block = colour.FieldColour.block_index(uu.ravel()[flat], vv.ravel()[flat],
                                            fc.y_map.shape, fc.cell)
-    assert np.array_equal(colour.classify_pixels(yuv, flat, block, fc, CONF),
-                          labels.ravel()[flat])  # exact decisions: class labels
-    # exact decisions: class labels
-    assert np.array_equal(colour.classify_yuv(yuv, fc, CONF, fc.local_y_image(yuv.shape)),
-                          reference_classes(yuv, fc, fc.local_y(uu, vv)))
+    assert_decisions_agree(colour.classify_pixels(yuv, flat, block, fc, CONF),
+                           labels.ravel()[flat], margin.ravel()[flat])
+    assert_decisions_agree(colour.classify_yuv(yuv, fc, CONF, fc.local_y_image(yuv.shape)),
+                           *reference_classes(yuv, fc, fc.local_y(uu, vv)))
 
 
 def test_classify_yuv_without_a_local_map_and_with_bright_local_green():
@@ -130,11 +133,10 @@ def test_classify_yuv_without_a_local_map_and_with_bright_local_green():
     fc = colour.FieldColour(90.0, 105.0, 95.0, (14.0, 14.0), True, 0.5)
     rng = np.random.default_rng(3)
     px = rng.integers(0, 256, (50_000, 3)).astype(np.uint8)
-    # exact decisions: class labels
-    assert np.array_equal(colour.classify_yuv(px, fc, CONF), reference_classes(px, fc, fc.y))
+    assert_decisions_agree(colour.classify_yuv(px, fc, CONF), *reference_classes(px, fc, fc.y))
     yg = rng.uniform(0.0, 400.0, len(px))
-    # exact decisions: class labels
-    assert np.array_equal(colour.classify_yuv(px, fc, CONF, yg), reference_classes(px, fc, yg))
+    assert_decisions_agree(colour.classify_yuv(px, fc, CONF, yg),
+                           *reference_classes(px, fc, yg))
 
 
 def test_grid_counts_are_the_counts_of_the_classes():
@@ -162,8 +164,7 @@ def test_black_frame_and_a_frame_without_green():
     grey = np.full((64, 80, 3), 128, np.uint8)
     labels, fc = colour.classify_image(grey, CONF)
     assert not fc.found
-    # exact decisions: class labels
-    assert np.array_equal(labels, reference_classes(colour.to_yuv(grey), fc, fc.y))
+    assert_decisions_agree(labels, *reference_classes(colour.to_yuv(grey), fc, fc.y))
 
 
 def test_green_search_candidates_are_the_hue_window():
@@ -173,8 +174,10 @@ def test_green_search_candidates_are_the_hue_window():
     cu, cv_ = np.meshgrid(np.arange(256) - 128, np.arange(256) - 128, indexing="ij")
     hue = np.degrees(np.arctan2(cv_, cu))
     h0, h1 = CONF["green_hue_deg"]
-    ref = (hue >= h0) & (hue <= h1) & (np.hypot(cu, cv_) >= CONF["green_min_chroma"])
-    assert np.array_equal(ok, ref)  # exact decisions: in the hue window or not
+    (lo, m_lo), (hi, m_hi), (far, m_far) = (
+        le_margin(h0, hue), le_margin(hue, h1),
+        le_margin(CONF["green_min_chroma"], np.hypot(cu, cv_)))
+    assert_decisions_agree(ok, lo & hi & far, np.minimum.reduce([m_lo, m_hi, m_far]))
     assert math.isclose(colour.hue_deg(100, 100), -135.0)
 
 
