@@ -56,12 +56,15 @@ def report_dirs(poses: list[Path], output: Path | None) -> list[Path]:
 @click.option("--stamp-tolerance", type=FINITE, default=None,
               help="Largest stamp difference (s) for a frame to match a truth row"
               f" [default: the preset's; 'default' has {EVALUATE_STAMP_TOLERANCE:g}].")
+@click.option("--up-to-mirror", is_flag=True,
+              help="Score the pose up to the field's 180 deg symmetry: against the truth or"
+              " its mirror, frames accepted up to the mirror counted as accepted.")
 @conf_option
 @click.option("--format", "fmt", type=click.Choice(["text", "markdown", "csv"]),
               default="text", show_default=True, help="Table format on stdout.")
 @click.option("--overwrite", is_flag=True, help="Replace reports made from other inputs.")
-def evaluate(inputs, truth, output, field, table_only, preset, stamp_tolerance, overrides, fmt,
-             overwrite):
+def evaluate(inputs, truth, output, field, table_only, preset, stamp_tolerance, up_to_mirror,
+             overrides, fmt, overwrite):
     """Position and heading errors of POSES files (poses.h5) against truth: report.json,
     errors.csv and plots per run, and a table of all runs on stdout.
 
@@ -71,14 +74,18 @@ def evaluate(inputs, truth, output, field, table_only, preset, stamp_tolerance, 
     from stages.pipelines import evaluation
 
     if table_only:
-        if truth or output or field or overwrite or stamp_tolerance is not None or overrides:
+        if (truth or output or field or overwrite or stamp_tolerance is not None or overrides
+                or up_to_mirror):
             raise FieldlocError("--table only reads existing reports; it takes no --truth, -o,"
-                                " --field, --stamp-tolerance, -c or --overwrite")
+                                " --field, --stamp-tolerance, --up-to-mirror, -c or"
+                                " --overwrite")
         click.echo(stage.tabulate(list(inputs), fmt=fmt))
         return
     over = overrides_dict(overrides)
     if stamp_tolerance is not None:
         over["stamp_tolerance"] = stamp_tolerance
+    if up_to_mirror:
+        over["up_to_mirror"] = True
     from stages.common.conf import resolve_conf
 
     conf = resolve_conf(stage.confs, preset, over)

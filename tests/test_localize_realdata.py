@@ -71,6 +71,16 @@ def test_an_unsure_minho_lab_image_is_not_accepted(lab):
             assert v["share"] >= v["null"] + 0.15, (n, v)
 
 
+def test_a_minho_lab_image_accepted_up_to_the_mirror_explains_its_points(lab):
+    """The same of the pose pair on the symmetric lab field (stages.localize.symmetry): an
+    image is accepted up to the mirror only where the pair explains clearly more than chance;
+    the pair's probability is at least the top's."""
+    for n, v in lab["rows"].items():
+        assert v["confidence_up_to_mirror"] >= v["confidence"] - 1e-6, (n, v)
+        if v["accepted_up_to_mirror"]:
+            assert v["share"] >= v["null"] + 0.15, (n, v)
+
+
 def test_minho_lab_hypotheses_hold_the_brute_force_pose(lab):
     # where the judge's best pose is what the points decide (no pose elsewhere within 0.03 of
     # its share), the top or second hypothesis holds it on every one. Whether an image is

@@ -12,6 +12,11 @@ estimated calibration error).
     /poses/accepted    (N,) bool   v2: not failed and confidence >= min_confidence
     /poses/error       (N,) f4     method's own error term (lut: weighted matching error)
     /poses/confidence  (N,) f4     0..1, the probability of the top hypothesis
+    /poses/confidence_up_to_mirror (N,) f4  v2, optional: the probability of the top hypothesis
+                                   or its mirror image under the field's 180 deg symmetry
+                                   (equal to ``confidence`` on a field without it)
+    /poses/accepted_up_to_mirror   (N,) bool  v2, optional: not failed and
+                                   confidence_up_to_mirror >= min_confidence
     /poses/mode        (N,) str    how the pose was found: global, local, tracking, ...
     /poses/runtime     (N,) f4     s, time the method spent on the frame
     /poses/covariance  (N, 3, 3) f4  optional, m^2 / rad^2
@@ -20,7 +25,8 @@ estimated calibration error).
                                    (x m, y m, theta rad, probability); NaN rows pad
 
 Version 1 files (no ``accepted``, no ``/hypotheses``) are read as if every frame that did not
-fail was accepted and had one hypothesis, its pose with its confidence.
+fail was accepted and had one hypothesis, its pose with its confidence. Files without the
+``*_up_to_mirror`` columns are read with them equal to ``confidence`` and ``accepted``.
 
 ``poses.tum`` beside it holds "stamp x y z qx qy qz qw" rows of the accepted frames (the top
 hypothesis), readable by evo.
@@ -52,6 +58,8 @@ COLUMNS = {
     "error": ("f4", ""),
     "confidence": ("f4", ""),
     "runtime": ("f4", "s"),
+    "confidence_up_to_mirror": ("f4", ""),
+    "accepted_up_to_mirror": ("bool", ""),
 }
 
 
@@ -68,6 +76,8 @@ class PoseTrack:
     accepted: list = field(default_factory=list)
     error: list = field(default_factory=list)
     confidence: list = field(default_factory=list)
+    confidence_up_to_mirror: list = field(default_factory=list)  # localize sets it (module doc)
+    accepted_up_to_mirror: list = field(default_factory=list)
     mode: list = field(default_factory=list)
     runtime: list = field(default_factory=list)
     covariance: list = field(default_factory=list)
@@ -92,6 +102,8 @@ class PoseTrack:
         self.accepted.append(bool(not failed if accepted is None else accepted and not failed))
         self.error.append(float(error))
         self.confidence.append(float(confidence))
+        self.confidence_up_to_mirror.append(float(confidence))
+        self.accepted_up_to_mirror.append(self.accepted[-1])
         self.mode.append(str(mode))
         self.runtime.append(float(runtime))
         self.covariance.append(
@@ -195,6 +207,10 @@ def _read_poses(path):
     failed = np.asarray(out["failed"], bool)
     if "accepted" not in out:
         out["accepted"] = ~failed
+    if "confidence_up_to_mirror" not in out and "confidence" in out:
+        out["confidence_up_to_mirror"] = out["confidence"]
+    if "accepted_up_to_mirror" not in out:
+        out["accepted_up_to_mirror"] = out["accepted"]
     if "hypotheses" not in out:
         h = np.full((len(failed), 1, 4), np.nan)
         h[:, 0, 0], h[:, 0, 1], h[:, 0, 2] = out["x"], out["y"], out["theta"]

@@ -62,6 +62,9 @@ confs = {
         "thresholds": [0.1, 0.2, 0.4],
         "plots": True,
         "dpi": 120,
+        # score what a frame decides on a point-symmetric field: the pose up to the field's
+        # 180 deg turn (metrics.frame_errors; stages.localize.symmetry)
+        "up_to_mirror": False,
     },
     # motion capture or truth logged at a lower rate than the camera
     "loose": {
@@ -69,6 +72,7 @@ confs = {
         "thresholds": [0.1, 0.2, 0.4],
         "plots": True,
         "dpi": 120,
+        "up_to_mirror": False,
     },
     # numbers only (batch comparisons of many runs)
     "numbers": {
@@ -76,6 +80,7 @@ confs = {
         "thresholds": [0.1, 0.2, 0.4],
         "plots": False,
         "dpi": 120,
+        "up_to_mirror": False,
     },
 }
 
@@ -93,6 +98,9 @@ CONVENTIONS = {
     " without an accepted pose (failed, or its confidence below the method's acceptance"
     " threshold) as a failure; hypotheses.* judge the top hypothesis (and the best of the"
     " top K) of every frame that has one",
+    "mirror": "with up_to_mirror, each frame is scored against the truth or its mirror image"
+    " under the field's 180 deg turn (whichever its pose is nearer), accepted and confident"
+    " by accepted_up_to_mirror and confidence_up_to_mirror",
     "calibration": "over matched frames with a hypothesis: correct = top hypothesis within"
     " calibration.threshold_m of the truth; reliability bins the confidence in tenths;"
     " auroc = P(confidence of a correct frame > that of a wrong one), ties half",
@@ -110,6 +118,9 @@ def _check_conf(conf: dict) -> dict:
             or any(isinstance(t, bool) or not isinstance(t, (int, float)) or not t > 0
                    for t in th)):
         raise FieldlocError(f"conf 'thresholds' must be a list of distances > 0 (m), got {th!r}")
+    if not isinstance(conf["up_to_mirror"], bool):
+        raise FieldlocError(f"conf 'up_to_mirror' must be true or false, got"
+                            f" {str(conf['up_to_mirror'])[:40]!r}")
     conf["thresholds"] = sorted(float(t) for t in th)
     conf["stamp_tolerance"] = float(tol)
     return conf
@@ -123,7 +134,8 @@ def evaluate_poses(columns: dict, truth: dict, conf=None) -> tuple[FrameErrors, 
     """Per-frame errors and the summary numbers of a pose track (columns as from
     ``read_poses``) against truth columns (stamp, x, y, theta), without touching the disk."""
     conf = _resolve(conf)
-    fe = frame_errors(columns, truth, conf["stamp_tolerance"])
+    fe = frame_errors(columns, truth, conf["stamp_tolerance"],
+                      up_to_mirror=conf["up_to_mirror"])
     return fe, summarize(fe, conf["thresholds"])
 
 
@@ -191,7 +203,8 @@ def main(conf: str | dict | None, poses, truth, output_dir, *, overwrite: bool =
 
     if field:
         load_field(field)  # the plots' field: a user's error is refused before writing
-    fe = frame_errors(columns, truth_cols, conf["stamp_tolerance"])
+    fe = frame_errors(columns, truth_cols, conf["stamp_tolerance"],
+                      up_to_mirror=conf["up_to_mirror"])
     summary = summarize(fe, conf["thresholds"])
     log.info("%s: %d of %d frames matched to truth within %g s, %d failed", poses,
              summary["matched"], summary["frames"], conf["stamp_tolerance"],

@@ -8,7 +8,10 @@ Formats (``fmt``):
 
 - ``csv``: one row per frame: name, stamp, x, y, theta, accepted, failed, confidence, error,
   mode, runtime, hypotheses (how many), the covariance's six distinct entries (cov_xx, cov_xy,
-  cov_xt, cov_yy, cov_yt, cov_tt; m^2, m rad, rad^2) and flags. Metres, radians, seconds; a
+  cov_xt, cov_yy, cov_yt, cov_tt; m^2, m rad, rad^2), flags, and what the frame decides up to
+  a point-symmetric field's 180 deg turn (stages.localize.symmetry): accepted_up_to_mirror,
+  confidence_up_to_mirror and, for a frame accepted only up to the mirror, the other pose of
+  the pair (mirror_x, mirror_y, mirror_theta; else missing). Metres, radians, seconds; a
   missing number (a failed frame's pose) is ``nan``; booleans are 0/1;
 - ``tum``: "stamp x y z qx qy qz qw" rows of the *accepted* frames only, as ``poses.tum``
   (stages.common.poses_file.write_tum): what evo and other trajectory tools read;
@@ -32,6 +35,7 @@ import numpy as np
 
 from ..common.artifacts import atomic_path
 from ..common.errors import FieldlocError
+from ..common.field import FieldModel
 from ..common.poses_file import read_poses, write_tum
 
 FORMATS = {"csv": ".csv", "tum": ".tum", "json": ".json"}
@@ -39,7 +43,8 @@ JSON_SCHEMA = "fieldloc.poses-export"
 JSON_VERSION = 1
 CSV_COLUMNS = ("name", "stamp", "x", "y", "theta", "accepted", "failed", "confidence", "error",
                "mode", "runtime", "hypotheses", "cov_xx", "cov_xy", "cov_xt", "cov_yy",
-               "cov_yt", "cov_tt", "flags")
+               "cov_yt", "cov_tt", "flags", "accepted_up_to_mirror", "confidence_up_to_mirror",
+               "mirror_x", "mirror_y", "mirror_theta")
 _COV = {"cov_xx": (0, 0), "cov_xy": (0, 1), "cov_xt": (0, 2), "cov_yy": (1, 1),
         "cov_yt": (1, 2), "cov_tt": (2, 2)}
 
@@ -60,6 +65,11 @@ def frames(columns: dict, decimals: int = 6) -> list[dict]:
     n = len(columns["stamp"])
     cov = columns.get("covariance")
     hyps = columns["hypotheses"]
+    acc_m = np.asarray(columns.get("accepted_up_to_mirror", columns["accepted"]), bool)
+    conf_m = columns.get("confidence_up_to_mirror", columns.get("confidence", np.full(n, np.nan)))
+    pair = acc_m & ~np.asarray(columns["accepted"], bool)  # the frame decides the pair only
+    mirror = FieldModel.mirror_pose(np.stack([columns["x"], columns["y"], columns["theta"]],
+                                             axis=-1))
     out = []
     for i in range(n):
         h = hyps[i]
@@ -81,6 +91,11 @@ def frames(columns: dict, decimals: int = 6) -> list[dict]:
             "covariance": (None if c is None or not np.all(np.isfinite(c))
                            else [[_num(v, 12) for v in row] for row in c]),
             "hypotheses": [[_num(v, decimals) for v in row] for row in h],
+            "accepted_up_to_mirror": bool(acc_m[i]),
+            "confidence_up_to_mirror": _num(conf_m[i], decimals),
+            "mirror_x": _num(mirror[i, 0], decimals) if pair[i] else None,
+            "mirror_y": _num(mirror[i, 1], decimals) if pair[i] else None,
+            "mirror_theta": _num(mirror[i, 2], decimals) if pair[i] else None,
         }
         out.append(rec)
     return out

@@ -106,9 +106,14 @@ def heading_error(theta, truth_theta) -> np.ndarray:
 
 
 def frame_errors(columns: dict, truth: dict, tolerance: float,
-                 mirror_threshold: float = 0.4) -> FrameErrors:
+                 mirror_threshold: float = 0.4, *, up_to_mirror: bool = False) -> FrameErrors:
     """Match a pose track (columns as read by ``read_poses``) with truth (``read_csv(...,
-    "truth")``) and compute per-frame errors. Raises FieldlocError when no frame matches."""
+    "truth")``) and compute per-frame errors. Raises FieldlocError when no frame matches.
+
+    ``up_to_mirror``: judge what a frame decides on a point-symmetric field (the pose up to
+    the field's 180 deg turn, stages.localize.symmetry): each frame is scored against the
+    truth or its mirror image (-x, -y, theta + pi), whichever its pose is nearer, and its
+    acceptance and confidence are ``accepted_up_to_mirror`` and ``confidence_up_to_mirror``."""
     stamp = np.asarray(columns["stamp"], dtype=float)
     n = len(stamp)
     if n == 0:
@@ -140,6 +145,10 @@ def frame_errors(columns: dict, truth: dict, tolerance: float,
     # A pose that is not finite was not localised, whatever the flag says.
     failed |= ~(np.isfinite(x) & np.isfinite(y) & np.isfinite(theta))
     tx, ty, tth = pick("x"), pick("y"), pick("theta")
+    if up_to_mirror:  # the truth's mirror image where the pose is nearer to it
+        flip = np.hypot(x + tx, y + ty) < np.hypot(x - tx, y - ty)
+        tx, ty = np.where(flip, -tx, tx), np.where(flip, -ty, ty)
+        tth = np.where(flip, wrap_angle(tth + math.pi), tth)
     pos = np.full(n, np.nan)
     head = np.full(n, np.nan)
     ok = matched & ~failed
@@ -147,7 +156,9 @@ def frame_errors(columns: dict, truth: dict, tolerance: float,
     head[ok] = heading_error(theta[ok], tth[ok])
     pos[matched & failed] = np.inf
     head[matched & failed] = np.inf
-    accepted = np.asarray(columns.get("accepted", ~failed), bool) & ~failed
+    accepted_col = "accepted_up_to_mirror" if up_to_mirror else "accepted"
+    accepted = np.asarray(columns.get(accepted_col, columns.get("accepted", ~failed)),
+                          bool) & ~failed
     top_error = pos.copy()
     # the statistics count frames without an accepted pose as failures
     pos[matched & ~accepted] = np.inf
@@ -158,12 +169,16 @@ def frame_errors(columns: dict, truth: dict, tolerance: float,
                         axis=1)[:, None, :]
     hyps = np.asarray(hyps, float)
     hd = np.hypot(hyps[..., 0] - tx[:, None], hyps[..., 1] - ty[:, None])
+    if up_to_mirror:
+        hd = np.minimum(hd, np.hypot(hyps[..., 0] + tx[:, None], hyps[..., 1] + ty[:, None]))
     hd[~np.isfinite(hd)] = np.inf
     best_error = np.where(matched, hd.min(axis=1), np.nan)
     best_error[matched & failed] = np.inf
     top_mirrored = ok & (np.hypot(-x - tx, -y - ty) <= mirror_threshold) & (
         top_error > mirror_threshold)
     conf_col = np.asarray(columns.get("confidence", np.where(failed, 0.0, 1.0)), float)
+    if up_to_mirror:
+        conf_col = np.asarray(columns.get("confidence_up_to_mirror", conf_col), float)
     mode = columns.get("mode")
     runtime = columns.get("runtime")
     names = columns.get("name")

@@ -65,9 +65,11 @@ from ..common.conf import KindPresets, registered_module, stage_conf
 from ..common.dataset import STAMP_SOURCES, csv_rows, open_dataset
 from ..common.errors import DatasetError, FieldlocError
 from ..common.features_file import FeaturesFile
+from ..common.field import load_field
 from ..common.map_file import MapFile
 from ..common.poses_file import SCHEMA, VERSION, PoseTrack, write_poses
 from ..common.scanlines import bin_points_to_scanlines
+from .symmetry import set_up_to_mirror
 
 log = logging.getLogger(__name__)
 
@@ -330,6 +332,8 @@ def _main_templates(conf, dataset_dir, map_path, output, templates, *, overwrite
         log.info("localize %s with %s: %d frames against %d templates", dataset_dir,
                  conf["method"], len(dataset.names), len(db))
         track = method_module(conf["method"]).run(conf, dataset, db, map_file, progress)
+        field = map_file.field if map_file is not None else load_field(db.field["name"])
+        set_up_to_mirror(track, field.is_point_symmetric(), conf["min_confidence"])
     finally:
         if map_file is not None:
             map_file.close()
@@ -395,6 +399,8 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path 
             track = (module.run(conf, dataset, feats, map_file, progress) if len(feats.names)
                      else PoseTrack())
             track = _with_missing_frames(track, dataset, feats, recorded["failures"])
+            set_up_to_mirror(track, map_file.field.is_point_symmetric(),
+                             conf["min_confidence"])
         finally:
             feats.close()
     finally:

@@ -118,6 +118,9 @@ def minho_lab(realdata: Path, work: Path, method: str = "lut") -> dict:
         rows[str(n)] = {
             "points": len(p), "failed": bool(cols["failed"][i]),
             "confidence": float(cols["confidence"][i]),
+            # what the image decides on the symmetric lab field (stages.localize.symmetry)
+            "confidence_up_to_mirror": float(cols["confidence_up_to_mirror"][i]),
+            "accepted_up_to_mirror": bool(cols["accepted_up_to_mirror"][i]),
             "share": share(top, p) if np.isfinite(top[0]) else math.nan,
             "null": raster.null_share(p, 3, NEAR, seed=i), "best_share": best_share,
             "best_pose": [float(v) for v in best], "top": [float(v) for v in top],
@@ -175,6 +178,7 @@ def minho_lab(realdata: Path, work: Path, method: str = "lut") -> dict:
         "top_or_second_at_best": sum(r["top_or_second_at_best"] for r in rows.values()),
         "points_top_or_second_at_best": sum(r["points_top_or_second_at_best"]
                                             for r in rows.values()),
+        "accepted_up_to_mirror": sum(r["accepted_up_to_mirror"] for r in rows.values()),
         "unique_best": sum(r["rivals"] == 0 for r in rows.values()),
         "top_or_second_at_unique_best": sum(r["top_or_second_at_best"] and r["rivals"] == 0
                                             for r in rows.values()),
