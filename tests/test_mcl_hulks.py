@@ -29,7 +29,7 @@ observation model's log-likelihood at the labels' pose against the found pose's)
   0.49-0.80; -024 and -089 are hits now.)
 No search failure among them. The confidence: a belief that cannot tell a pose from its mirror
 gives each at most 0.5, so no frame of this path is accepted (min_confidence 0.8); what tells
-hits from misses is the top pose and its mirror together (bench_mcl_hulks.pair_share, what
+hits from misses is the top pose and its mirror together (confidence_up_to_mirror, what
 lut's TrackBank.confident counts): AUROC 0.69 for a hit and 0.97 for within 1 m on all 107
 (0.84 and 0.98 before the places: the misses that decide another place now hold that place's
 1.0, as the model says; one of them, 1687086314, is 1.01 m off at 0.95; 0.81 and 0.99 before

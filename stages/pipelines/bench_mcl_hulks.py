@@ -23,6 +23,7 @@ import numpy as np
 from ..common.artifacts import atomic_path
 from ..common.geometry import wrap_scalar
 from ..localize.place_search import best_places, same_place
+from ..localize.symmetry import confidence_up_to_mirror
 from .bench import Row
 from .realdata import REALDATA
 
@@ -152,7 +153,7 @@ def localise_still(capture: Path, map_file: Path, work: Path, field, model,
         data / "calib.yaml").height))  # as localize's mcl takes it from calib.yaml
     is_decided, truth_best = decided(own, obs, field, truth, updates)
     return StillResult(capture.stem, informative(obs), bool(hit), float(h[0, 3]),
-                       pair_share(h, field), best, is_decided, truth_best,
+                       float(cols["confidence_up_to_mirror"][-1]), best, is_decided, truth_best,
                        listed(h, truth, field))
 
 
@@ -173,17 +174,6 @@ def listed(hypotheses, truth, field) -> bool:
     GOAL_M and GOAL_DEG of ``truth``."""
     return any(judged(r[:3], truth, field)[0] for r in np.asarray(hypotheses, float)
                if np.all(np.isfinite(r[:3])))
-
-
-def pair_share(hypotheses, field) -> float:
-    """The belief's share of the top hypothesis and its mirror image together (rows (k, 4) x,
-    y, theta, share, heaviest first): its confidence up to the field's symmetry, what lut's
-    TrackBank.confident counts. From a uniform start on a point-symmetric field mcl's
-    reported confidence is half of it (the pose and its mirror hold 0.5 each at most)."""
-    h = np.asarray(hypotheses, float)
-    mirror = field.mirror_pose(h[0, :3])
-    return float(h[0, 3]) + sum(float(r[3]) for r in h[1:] if np.all(np.isfinite(r))
-                                and math.hypot(r[0] - mirror[0], r[1] - mirror[1]) < 0.3)
 
 
 def informative(obs) -> bool:
@@ -262,7 +252,9 @@ def rendered_still(preset: str, field_name: str, poses, seeds=(0, 1),
             hit, best = judged(est.hypotheses[0, :3], pose, fm)
             out.append(StillResult(f"{preset}-{k}-seed{seed}", informative(usable),
                                    hit, float(est.hypotheses[0, 3]),
-                                   pair_share(est.hypotheses, fm), best, is_decided,
+                                   float(confidence_up_to_mirror(
+                                       est.hypotheses[None], fm.is_point_symmetric())[0]),
+                                   best, is_decided,
                                    truth_best, listed(est.hypotheses, pose, fm)))
     return out
 
@@ -280,9 +272,9 @@ def random_poses(field_name: str, n: int, seed: int = 11) -> np.ndarray:
 
 def summary(res: list[StillResult], min_confidence: float) -> dict:
     """The goal's figures over still-robot results: hits among the informative frames, the
-    pair share (pose and mirror: ``pair_share``) on hits, misses and uninformative frames, its
-    AUROC for a hit and for an error within 1 m, and the frames whose pair share reaches
-    ``min_confidence`` while more than 1 m off."""
+    pair share (pose and mirror: the confidence up to the mirror, stages.localize.symmetry)
+    on hits, misses and uninformative frames, its AUROC for a hit and for an error within
+    1 m, and the frames whose pair share reaches ``min_confidence`` while more than 1 m off."""
     from ..evaluate.metrics import auroc
 
     inf = [r for r in res if r.informative]
