@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from stages.build_map import tables
-from stages.common.geometry import wrap_angle
+from stages.common.geometry import between, wrap_angle
 from stages.common.map_file import Grid, MapFile
 from stages.localize import lut
 from stages.localize.lut_search import MatchingParams, Observation, _min_pooled
@@ -352,7 +352,7 @@ def test_run_tracks_and_records_a_blank_frame_as_failure(search, msl2015_map):
     poses, t = drive()
     frames = SyntheticFrames(search, poses, rng, blank=(5,))
     ds = Dataset(truth={"stamp": t, "x": poses[:, 0], "y": poses[:, 1], "theta": poses[:, 2]})
-    conf = lut.confs["default"] | {"heading": "truth"}
+    conf = lut.confs["tracks"] | {"heading": "truth"}
     track = lut.run(conf, ds, frames, MapFile(msl2015_map))
     cols = track.arrays()
     assert cols["failed"].tolist() == [i == 5 for i in range(len(poses))]
@@ -531,6 +531,27 @@ def superimposed(search, pose_a, pose_b, rng):
     return np.where(from_b[:, None], rb, ra), np.where(from_b[None, :], sb, sa)
 
 
+def test_grid_keeps_its_prediction_through_a_blank_frame(search, msl2015_map):
+    """The whole-field belief (``belief: grid``, the default with a field-aligned heading):
+    a frame without crossings is answered by the prediction (mode ``predicted``, flagged
+    too-few-observations), every other frame by the belief's most probable place."""
+    rng = np.random.default_rng(18)
+    poses, t = drive()
+    frames = SyntheticFrames(search, poses, rng, blank=(5,))
+    inc = np.array([between(poses[max(i - 1, 0)], poses[i]) for i in range(len(poses))])
+    ds = Dataset(truth={"stamp": t, "x": poses[:, 0], "y": poses[:, 1], "theta": poses[:, 2]},
+                 odometry={"stamp": t, "dx": inc[:, 0], "dy": inc[:, 1], "dtheta": inc[:, 2]})
+    conf = lut.confs["default"] | {"heading": "truth"}
+    cols = lut.run(conf, ds, frames, MapFile(msl2015_map)).arrays()
+    assert not cols["failed"].any()
+    assert cols["mode"][5] == "predicted" and "too-few-observations" in cols["flags"][5]
+    assert set(cols["mode"][np.arange(len(poses)) != 5]) == {"grid"}
+    err = np.hypot(cols["x"] - poses[:, 0], cols["y"] - poses[:, 1])
+    assert np.median(err) < 0.1 and err.max() < 0.25, np.round(err, 3)
+    # the belief gathers: the confidence grows over the clean frames
+    assert cols["confidence"][11] > cols["confidence"][0]
+
+
 def test_two_views_in_one_frame_give_the_view_that_explains_more(search, msl2015_map):
     """A frame holding two consistent views, every other scan line seeing what a robot sees
     at pose a and the others what it sees at b (clutter near the robot that fits some line as
@@ -551,7 +572,7 @@ def test_two_views_in_one_frame_give_the_view_that_explains_more(search, msl2015
             return {"radial": r, "spiral": s}
 
     ds = Dataset(truth={"stamp": np.zeros(1), "x": [a[0]], "y": [a[1]], "theta": [a[2]]})
-    conf = lut.confs["default"] | {"heading": "truth"}
+    conf = lut.confs["tracks"] | {"heading": "truth"}  # a frame alone (the grid: below)
     c = lut.run(conf, ds, OneFrame(), MapFile(msl2015_map)).arrays()
     h = c["hypotheses"][0]
     assert math.hypot(h[0, 0] - a[0], h[0, 1] - a[1]) < 0.15, np.round(h, 2)
@@ -574,7 +595,7 @@ def test_start_half_any_keeps_the_mirror_second_without_searching_every_frame(
     rng = np.random.default_rng(24)
     poses, t = drive(16)
     frames = SyntheticFrames(search, poses, rng)
-    from stages.common.geometry import between
+
 
     inc = np.array([between(poses[max(i - 1, 0)], poses[i]) for i in range(len(poses))])
     odometry = {"stamp": t, "dx": inc[:, 0], "dy": inc[:, 1], "dtheta": inc[:, 2]}

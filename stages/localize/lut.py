@@ -120,8 +120,9 @@ from ..common.errors import FieldlocError
 from ..common.geometry import wrap_angle
 from ..common.map_file import MapFile
 from ..common.poses_file import PoseTrack
+from . import grid_belief, tracking
 from . import heading as heading_mod
-from . import tracking
+from .grid_belief import DEFAULTS as GRID_DEFAULTS
 from .lut_search import (
     MatchingParams,
     Observation,
@@ -199,11 +200,18 @@ confs = {
         },
         # online estimate of the calibration's distance error (radial_correction.py)
         "radial_correction": dict(RADIAL_DEFAULTS),
+        # tracks: the Gaussian tracks of tracking.TrackBank (module doc); grid: a probability
+        # per table cell over the whole field (grid_belief.py; needs a field-aligned heading);
+        # auto: grid where the heading is field-aligned and the run tracked, else tracks
+        "belief": "auto",
+        "grid": dict(GRID_DEFAULTS),
     },
 }
 confs["no-fusion"] = {**confs["default"], "fusion": {**confs["default"]["fusion"],
                                                        "enabled": False}}
 confs["independent"] = {**confs["default"], "independent": True}
+confs["grid"] = {**confs["default"], "belief": "grid"}
+confs["tracks"] = {**confs["default"], "belief": "tracks"}
 
 
 _SEARCH_CACHE: dict = {}
@@ -272,6 +280,14 @@ def _check_conf(conf: dict, dataset):
     if conf["global_evidence"] not in ("auto", "points", "scanlines"):
         raise FieldlocError("global_evidence must be auto, points or scanlines, not"
                             f" {conf['global_evidence']!r}")
+    if conf["belief"] not in ("auto", "tracks", "grid"):
+        raise FieldlocError(f"belief must be auto, tracks or grid, not"
+                            f" {str(conf['belief'])[:40]!r}")
+    if conf["belief"] == "grid":
+        if conf["independent"]:
+            raise FieldlocError("belief grid carries the belief from frame to frame; it does"
+                                " not localise frames independently")
+        grid_belief.check_conf(conf)
 
 
 @dataclass(kw_only=True)
@@ -763,6 +779,13 @@ def run(conf: dict, dataset, features, map_file: MapFile, progress=False) -> Pos
         raise FieldlocError(f"{map_file.path}: no scan-line tables for method lut")
     search = table_search(map_file, MatchingParams.from_conf(conf["search"]))
     sensors = tracking.frame_sensors(conf, dataset, features.stamps)
+    if grid_belief.uses_grid(conf):
+        grid = grid_belief.GridLocaliser(conf, search, yaw=sensors.yaw,
+                                         collision=sensors.collision,
+                                         truth_heading=sensors.truth_heading)
+        grid.has_odometry = bool(np.any(sensors.has_odometry))
+        return tracking.localise_frames(grid, features, sensors, desc="localize lut (grid)",
+                                        progress=progress)
     loc = LutLocaliser(conf, search, point_fit(map_file, search.params), yaw=sensors.yaw,
                        collision=sensors.collision, truth_heading=sensors.truth_heading)
     loc.bank.has_odometry = bool(np.any(sensors.has_odometry))

@@ -249,6 +249,37 @@ def tiled_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spir
 
 
 @njit(cache=True, nogil=True)
+def weighted_surface(lookup, family, angle_index, bins, scale, m, n_angles, nb_radial,
+                     nb_spiral, spiral_row0, ny, nx, ntx, out):
+    """out[i, j] = sum over the observations of their lookup rows' cell (i, j) times the
+    observation's ``scale`` (float32): the whole field's quantised error surface with each
+    observation's lookup weight scaled (to its evidence weight: Observation.with_evidence),
+    in the lookup's units. Rows and tiling as ``tiled_sum``."""
+    t = TILE
+    tt = TILE * TILE
+    nty = (ny - 1) // t + 1
+    n = nty * ntx * tt
+    acc = np.zeros(n, dtype=np.float32)
+    for o in range(family.shape[0]):
+        f = scale[o]
+        if f <= 0.0:
+            continue
+        k = (angle_index[o] + m) % n_angles
+        if family[o] == 0:
+            r = k * nb_radial + min(bins[o], nb_radial - 1)
+        else:
+            r = spiral_row0 + ((family[o] - 1) * n_angles + k) * nb_spiral + min(bins[o],
+                                                                                nb_spiral - 1)
+        row = lookup[r]
+        for q in range(n):
+            acc[q] += f * row[q]
+    for i in range(ny):
+        base = (i // t) * ntx * tt + (i % t) * t
+        for j in range(nx):
+            out[i, j] = acc[base + (j // t) * tt + j % t]
+
+
+@njit(cache=True, nogil=True)
 def tracked_window(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
                    spiral_row0, i0, i1, j0, j1, nx, ntx, scale, x0, y0, res, px, py, ia, ib,
                    ic, cap):

@@ -74,6 +74,7 @@ from .lut_kernels import (
     tracked_fix,
     tracked_window,
     tracked_window_bound,
+    weighted_surface,
 )
 
 NONE_M = 1.0e3  # a "none" table entry in metres: far from any observation -> saturated error
@@ -570,6 +571,21 @@ class TableSearch:
             best.candidates.append((float(x), float(y), float(theta),
                                     float(exact[c, low[c]] / W)))
         return best
+
+    def surface(self, obs: Observation, theta: float) -> np.ndarray:
+        """The error term of every cell (ny, nx), in full-weight observations, at the table
+        heading nearest ``theta``, from the error lookup (quantised), each observation
+        weighed by ``obs.weight`` (its evidence weight where ``with_evidence`` set one: a
+        white structure near the robot, a cable, counts as one correlated measurement)."""
+        m = self.scanlines.heading_index(theta)
+        lw = obs.weight if obs.lookup_weight is None else obs.lookup_weight
+        scale = np.where(lw > 0, obs.weight / np.where(lw > 0, lw, 1.0), 0.0)
+        args = self._row_arrays(obs, m)
+        out = np.empty((self.ny, self.nx), dtype=np.float32)
+        weighted_surface(self.error_lookup, args[0], args[1], args[2],
+                         np.ascontiguousarray(scale, dtype=np.float32), *args[3:], self.ny,
+                         self.nx, self.ntx, out)
+        return out.astype(np.float64) / float(self.q_levels)
 
     def _surface(self, obs: Observation, m: int) -> np.ndarray:
         out = np.empty((self.ny, self.nx), dtype=np.uint16)
