@@ -10,7 +10,7 @@ from pathlib import Path
 
 import click
 
-from .common import conf_option, overrides_dict, progress_enabled, summary
+from .common import conf_option, count, overrides_dict, progress_enabled, summary
 from .stage_defaults import LOCALIZE, LOCALIZE_DEFAULT_METHOD, LOCALIZE_METHODS
 
 TABLE_METHODS = ("lut", "fit")  # the omni methods: heading source, start half, independent
@@ -129,8 +129,8 @@ def localize(ctx, dataset, map_path, templates, pose_solver, features, points, m
     low = int((~cols["failed"] & ~cols["accepted"]).sum())
     ok = ~cols["failed"]
     rt = float(cols["runtime"].mean()) * 1e3 if n else 0.0
-    msg = (f"{path}: {n} frames, {n - failed - low} accepted, {low} low-confidence, {failed}"
-           f" failed, mean runtime {rt:.2f} ms/frame")
+    msg = (f"{path}: {count(n, 'frame')}, {n - failed - low} accepted, {low} low-confidence,"
+           f" {failed} failed, mean runtime {rt:.2f} ms/frame")
     if ok.any():
         modes = {m: int((cols["mode"][ok] == m).sum()) for m in sorted(set(cols["mode"][ok]))}
         msg += " (" + ", ".join(f"{m} {c}" for m, c in modes.items()) + ")"

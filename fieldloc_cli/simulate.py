@@ -14,7 +14,7 @@ import math
 
 import click
 
-from .common import FINITE, conf_option, overrides_dict, progress_enabled, summary
+from .common import FINITE, conf_option, count, overrides_dict, progress_enabled, summary
 from .stage_defaults import SIMULATE, SIMULATE_PATH_KINDS, SIMULATE_PRESETS
 
 
@@ -78,7 +78,7 @@ def run_simulation(ctx, *, field, output, frames, seed, trajectory_kind, preset,
             ce["distance_error"] = 0.0
     out = main(conf, field, output, overwrite=overwrite, progress=progress_enabled(ctx))
     n = sum(1 for _ in (out / "images").glob("*.png"))  # a grid's count is the grid's
-    summary(ctx, f"wrote {n} frames to {out}")
+    summary(ctx, f"wrote {count(n, 'frame')} to {out}")
     return out
 
 
