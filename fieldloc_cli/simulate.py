@@ -31,7 +31,7 @@ def simulate_options(preset: str, camera: str):
                          type=click.Path(file_okay=False), help="Dataset folder to write."),
             click.option("--frames", type=click.IntRange(min=1), default=None,
                          help=f"Number of frames [preset: {base['frames']}]."),
-            click.option("--seed", type=int, default=None,
+            click.option("--seed", type=click.IntRange(min=0), default=None,
                          help=f"Seed of every random choice [preset: {base['seed']}]."),
             click.option("--trajectory", "trajectory_kind", type=click.Choice(SIMULATE_PATH_KINDS),
                          default=None,

@@ -178,6 +178,32 @@ def read_poses(path: str | Path) -> tuple[dict[str, np.ndarray], dict]:
         raise SchemaError(f"{path}: damaged poses file ({e})") from None
 
 
+REQUIRED = ("name", "stamp", "x", "y", "theta", "failed", "confidence")
+
+
+def _check_shapes(out: dict, path) -> None:
+    """Every column one value per frame, ``covariance`` (N, 3, 3) and ``/hypotheses``
+    (N, K, 4) numbers: a file edited or damaged elsewhere is refused in one line rather than
+    read with columns out of step."""
+    missing = [k for k in REQUIRED if k not in out]
+    if missing:
+        raise SchemaError(f"{path}: damaged poses file (no /poses/{missing[0]})")
+    n = len(out["name"]) if np.ndim(out["name"]) == 1 else -1
+    for k, v in out.items():
+        want = {"covariance": (n, 3, 3)}.get(k)
+        if k == "hypotheses":
+            if v.ndim != 3 or v.shape[0] != n or v.shape[2] != 4 or v.dtype.kind not in "fiu":
+                raise SchemaError(f"{path}: damaged poses file (/hypotheses has shape"
+                                  f" {v.shape} of {v.dtype}; expected ({n}, K, 4) numbers)")
+        elif want is not None:
+            if v.shape != want:
+                raise SchemaError(f"{path}: damaged poses file (/poses/{k} has shape {v.shape};"
+                                  f" expected {want})")
+        elif v.ndim != 1 or len(v) != n:
+            raise SchemaError(f"{path}: damaged poses file (/poses/{k} has shape {v.shape};"
+                              f" /poses/name has {n} frames)")
+
+
 def _read_poses(path):
     with open_artifact(path, SCHEMA, VERSION) as h5:
         g = h5["poses"]
@@ -192,6 +218,7 @@ def _read_poses(path):
         attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in h5.attrs.items()}
         attrs["conf"] = read_json_attr(h5, "conf")
         attrs["inputs"] = read_json_attr(h5, "inputs")
+    _check_shapes(out, path)
     failed = np.asarray(out["failed"], bool)
     if "accepted" not in out:
         out["accepted"] = ~failed

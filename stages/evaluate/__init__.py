@@ -84,7 +84,7 @@ CONVENTIONS = {
     " stamp_tolerance; unmatched frames are counted but take no part in the errors",
     "failures": "a failed frame has infinite position and heading error: it is never 'within',"
     " makes max and mean inf and raises median and p90 (inf when more than half failed);"
-    " 'localised' holds the same statistics over matched frames that did not fail",
+    " 'localised' holds the same statistics over matched frames with an accepted pose",
     "denominators": "position_error_m, heading_error_deg and within are over matched frames;"
     " failures and runtime_ms over all frames",
     "heading": "absolute difference wrapped to [0, 180] deg",

@@ -9,8 +9,8 @@ Conventions (also written into every report.json under ``conventions``):
 - A frame the method could not localise (``failed``) is a failure, never a pose: its position
   and heading errors are infinite. Failures therefore never count as "within" a threshold, they
   make ``max`` and ``mean`` infinite, and they push the median and p90 up (a median of inf means
-  more than half of the matched frames failed). The same statistics over the localised (not
-  failed) matched frames are given separately.
+  more than half of the matched frames failed). The same statistics over the localised
+  matched frames (those with an accepted pose, see below) are given separately.
 - Percentiles interpolate linearly between order statistics as numpy's default does; an
   interpolation that touches an infinite value gives inf.
 - Heading error is the absolute difference wrapped to [0, pi] (an error of 350 deg is 10 deg).
@@ -308,7 +308,7 @@ def summarize(fe: FrameErrors, thresholds) -> dict:
     """The numbers of a report: counts, error statistics (failures as inf, and over localised
     frames only), shares within thresholds, runtime, modes."""
     m = fe.matched
-    ok = m & ~fe.failed
+    ok = m & fe.accepted  # localised: an accepted pose (not failed, confidence reached)
     deg = 180.0 / math.pi
     rt = fe.runtime[np.isfinite(fe.runtime)] * 1000.0
     dt = np.abs(fe.stamp[m] - fe.truth_stamp[m])
