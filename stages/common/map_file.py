@@ -153,10 +153,30 @@ class MapFile:
             spec_text = self.h5["field/spec_yaml"][()]
             spec_text = spec_text.decode() if isinstance(spec_text, bytes) else spec_text
             self.field = field_from_spec(load_yaml(spec_text), str(self.path), spec_text)
+            self._check_field_lines()
         except (KeyError, ValueError, TypeError, OSError, yaml.YAMLError) as e:
             self.h5.close()
             raise SchemaError(f"{self.path}: damaged map file ({e})") from None
+        except SchemaError:
+            self.h5.close()
+            raise
         self._cache: dict[str, np.ndarray] = {}
+
+    def _check_field_lines(self) -> None:
+        """The lines stored in /field must be the field the stored spec describes (the tables
+        were built from them): finite, and equal to the spec's within 1 micrometre."""
+        for name in ("segments", "arcs"):
+            if name not in self.h5["field"]:
+                continue
+            stored = np.asarray(self.h5["field"][name][()], float)
+            model = np.asarray(getattr(self.field, name), float)
+            if not np.isfinite(stored).all():
+                raise SchemaError(f"{self.path}: damaged map file (/field/{name} holds values"
+                                  " that are not finite numbers)")
+            if stored.shape != model.shape or not np.allclose(stored, model, rtol=0,
+                                                              atol=1e-6):
+                raise SchemaError(f"{self.path}: damaged map file (/field/{name} differs from"
+                                  " the field spec the map stores)")
 
     @property
     def conf(self) -> dict:

@@ -334,6 +334,8 @@ def main(conf: str | dict | None, source, output, *, overwrite: bool = False,
          progress: bool = False) -> Path:
     """Write the HTML page of the report(s) in ``source`` to ``output``; returns it."""
     conf = stage_conf(confs, conf)
+    if int(conf["worst"]) < 0:
+        raise FieldlocError(f"worst must be 0 or more frames, got {conf['worst']}")
     output = Path(output)
     dirs = find_reports(source)
     check_output(output, report_inputs(dirs), overwrite=overwrite)
