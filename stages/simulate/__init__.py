@@ -344,6 +344,12 @@ def estimate_needs(conf: dict, field: FieldModel) -> tuple[dict, float]:
     return memory, n * float(w) * float(h) * 3 * PNG_RATIO
 
 
+def check_conf(conf: dict) -> None:
+    """The counts and seeds of a resolved simulate conf (frames, rate, seeds, calibration
+    shift), checked before anything is rendered; FieldlocError names the key."""
+    _check_conf(conf)
+
+
 def _check_conf(conf: dict):
     n = conf["frames"]
     if isinstance(n, bool) or not isinstance(n, int) or n < 1:
