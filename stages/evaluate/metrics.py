@@ -245,6 +245,28 @@ def mirrored_frames(fe: FrameErrors, threshold: float) -> int:
     return int(np.sum((fe.position_error[ok] > threshold) & (mirror_err <= threshold)))
 
 
+def mirrored_start_half(fe: FrameErrors, attrs: dict, threshold: float,
+                        min_frames: int = 5) -> str | None:
+    """One line when the poses' conf gave a ``start_half`` (own or opponent) and most of the
+    accepted matched frames are the mirror image of the truth (``mirrored_frames``' test):
+    the truth contradicts the half the first fix was placed on, which no frame of a
+    symmetric field can. None otherwise (fewer than ``min_frames`` accepted frames too)."""
+    half = (attrs.get("conf") or {}).get("start_half")
+    if half not in ("own", "opponent"):
+        return None
+    acc = fe.matched & fe.accepted
+    n = int(acc.sum())
+    if n < min_frames:
+        return None
+    mirror_err = np.hypot(-fe.x[acc] - fe.truth_x[acc], -fe.y[acc] - fe.truth_y[acc])
+    k = int(np.sum((fe.position_error[acc] > threshold) & (mirror_err <= threshold)))
+    if 2 * k <= n:
+        return None
+    return (f"{k} of {n} accepted frames are the mirror image of the truth: the run was"
+            f" given start_half {half}, but the robot started on the other half (localise"
+            " again with --start-half any or the other half)")
+
+
 def reliability(confidence, correct, bins: int = 10) -> list[dict]:
     """Reliability table: confidence in ``bins`` equal bins over [0, 1] (the last closed);
     per non-empty bin the frames, the mean confidence, the observed share of correct frames
