@@ -121,7 +121,10 @@ class LazyGroup(click.Group):
             if debug:
                 raise
             where = f"{e.filename}: " if e.filename else ""
-            click.echo(f"fieldloc: error: {where}{e.strerror or e}", err=True)
+            text = " ".join(str(e.strerror or e).split())  # HDF5's messages span lines
+            if "errno = 28," in text:
+                text = "No space left on device"
+            click.echo(f"fieldloc: error: {where}{text[:300]}", err=True)
             ctx.exit(1)
         except MemoryError:
             if debug:

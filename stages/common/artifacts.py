@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import datetime as _dt
+import errno
 import hashlib
 import json
 import logging
@@ -312,6 +313,39 @@ def _human_bytes(n: float) -> str:
 human_bytes = _human_bytes
 
 
+_FULL = (errno.ENOSPC, errno.EDQUOT)
+
+
+def disk_full(e: BaseException) -> bool:
+    """Whether ``e`` is the system refusing a write for lack of space (or quota), as an
+    OSError with its errno or as HDF5's message about one ("errno = 28")."""
+    if not isinstance(e, OSError):
+        return False
+    if e.errno in _FULL:
+        return True
+    text = str(e)
+    return ("No space left on device" in text or "Disk quota exceeded" in text
+            or any(f"errno = {n}," in text for n in _FULL))
+
+
+def full_disk_error(path: str | Path) -> FieldlocError:
+    """The one line for a write of ``path`` the disk had no room for."""
+    return FieldlocError(f"cannot write {path}: no space left on its disk (free some space or"
+                         " write elsewhere; finished files were kept)")
+
+
+@contextlib.contextmanager
+def writing(path: str | Path):
+    """Turn a full disk met while writing ``path`` into one line naming it (the system's
+    message names no file, HDF5's spans two lines); other errors pass unchanged."""
+    try:
+        yield
+    except OSError as e:
+        if disk_full(e):
+            raise full_disk_error(path) from None
+        raise
+
+
 def current_umask() -> int:
     """The process's umask (read without changing it where the system allows)."""
     try:
@@ -354,7 +388,8 @@ def atomic_path(path: str | Path, suffix: str | None = None):
     os.close(fd)
     tmp = Path(tmp)
     try:
-        yield tmp
+        with writing(path):
+            yield tmp
         if tmp.exists():
             give_default_mode(tmp)
         os.replace(tmp, path)
@@ -381,7 +416,8 @@ def atomic_dir(path: str | Path, *, overwrite: bool = False):
         raise FieldlocError(f"cannot write {path}: folder {parent} is not writable")
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".part", dir=parent))
     try:
-        yield tmp
+        with writing(path):
+            yield tmp
         give_default_mode(tmp)  # mkdtemp makes it 0700; a dataset folder is shared like any
         if path.exists():
             old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=parent))

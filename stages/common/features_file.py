@@ -34,7 +34,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from .artifacts import open_artifact, part_name, read_json_attr, write_artifact
+from .artifacts import open_artifact, part_name, read_json_attr, write_artifact, writing
 from .errors import FieldlocError, SchemaError
 
 log = logging.getLogger(__name__)
@@ -330,7 +330,7 @@ class FrameParts:
         prefix, suffix = part_name(path)
         fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=self.dir)
         try:
-            with os.fdopen(fd, "wb") as f:
+            with writing(self.target), os.fdopen(fd, "wb") as f:
                 write(f)
             os.replace(tmp, path)
         finally:
@@ -340,6 +340,17 @@ class FrameParts:
     @staticmethod
     def _write_json(path: Path, obj) -> None:
         path.write_text(json.dumps(obj, sort_keys=True))
+
+    def bytes_needed(self) -> int:
+        """About what merging the committed frames into a features file writes (their
+        arrays as stored, and HDF5's per-group overhead)."""
+        size = 0
+        for p in self._frames.values():
+            try:
+                size += p.stat().st_size + 4096
+            except OSError:
+                pass
+        return size + (256 << 10)
 
     def merge_into(self, writer: FeaturesWriter) -> int:
         """Add every committed frame and failure to ``writer``; returns the frames added."""

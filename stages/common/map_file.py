@@ -46,7 +46,10 @@ from .artifacts import open_artifact, read_json_attr, write_artifact
 from .conf import load_yaml
 from .errors import SchemaError
 from .field import FieldModel, field_from_spec
+from .resources import check_disk
 from .scanlines import ScanLines
+
+HDF5_OVERHEAD = 1 << 20  # bytes beyond the arrays: field, attributes, HDF5's own structures
 
 SCHEMA = "fieldloc.map"
 VERSION = 1
@@ -102,8 +105,12 @@ class Grid:
 
 def write_map(path: str | Path, fm: FieldModel, grid: Grid, scanlines: ScanLines,
               tables: dict[str, tuple[np.ndarray, dict]], attrs: dict) -> Path:
-    """Write the map atomically. ``tables``: name -> (array, attributes)."""
+    """Write the map atomically. ``tables``: name -> (array, attributes). A map that does not
+    fit on the disk is refused before it is written (HDF5 meeting a full disk mid-file
+    fails with messages of its own, and can crash the process)."""
     path = Path(path)
+    need = sum(np.asarray(arr).nbytes for arr, _ in tables.values()) + HDF5_OVERHEAD
+    check_disk(f"the map {path}", path.parent if str(path.parent) else Path("."), need)
     attrs = dict(attrs)
     attrs.update(
         field=fm.name,

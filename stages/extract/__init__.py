@@ -43,6 +43,7 @@ from ..common.conf import registered_module, resolve_conf, stage_conf
 from ..common.dataset import open_dataset, read_image, read_mask
 from ..common.errors import FieldlocError, SchemaError
 from ..common.features_file import SCHEMA, VERSION, FeaturesFile, FrameParts, write_features
+from ..common.resources import check_disk
 
 log = logging.getLogger(__name__)
 
@@ -267,6 +268,8 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
             raise FieldlocError(
                 f"no frame of {ds.root} could be extracted ({n_failed} of {len(ds.images)} failed"
                 + (f"; first: {first[0]}: {first[1]}" if first else "") + ")")
+        need = parts.bytes_needed() + (output.stat().st_size if resume else 0)
+        check_disk(f"extract into {output}", output.parent, need)  # before HDF5 meets it
         with write_features(output, attrs, resume=resume) as writer:
             parts.merge_into(writer)
         parts.remove()
