@@ -219,8 +219,10 @@ def read_spec(spec_path: str | Path, results: str | Path) -> Plan:
         data = load_yaml(spec_path.read_text())
     except (yaml.YAMLError, UnicodeDecodeError) as e:
         line = getattr(getattr(e, "problem_mark", None), "line", None)
-        where = f" (line {line + 1})" if line is not None else ""
-        raise FieldlocError(f"{spec_path}: not valid YAML{where}") from None
+        where = f" line {line + 1}" if line is not None else ""
+        first = str(e).splitlines()[0][:80] if str(e) else type(e).__name__
+        raise FieldlocError(f"{spec_path}: not valid YAML ({first}{';' if where else ''}"
+                            f"{where})") from None
     w = _Where(spec_path)
     base = spec_path.resolve().parent
     results = Path(results)
