@@ -117,6 +117,14 @@ class LazyGroup(click.Group):
                 raise
             click.echo(f"fieldloc: error: {e}", err=True)
             ctx.exit(1)
+        except BrokenPipeError:  # stdout closed by its reader (| head): nothing more to say
+            import os
+
+            try:  # so that the interpreter's own flush at exit finds no closed pipe either
+                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            except (OSError, ValueError):
+                pass
+            ctx.exit(1)
         except OSError as e:  # the system refused: permission, disk full, a path that vanished
             if debug:
                 raise

@@ -1126,9 +1126,10 @@ def test_start_half_warning_when_accepted_frames_sit_in_the_other_half():
     assert start_half_warning(few, {"conf": {"start_half": "own"}}) is None
 
 
-def test_evaluate_warns_when_accepted_frames_mirror_the_truth(tmp_path, caplog):
-    """Issue 25: 100 mirrored frames at 0.99 and no warning. Under a given start_half, the
-    truth shows the mirror image: evaluate says so (and leaves the numbers as they are)."""
+def test_evaluate_warns_when_the_truth_starts_on_the_other_half(tmp_path, caplog):
+    """Issue 25: 100 mirrored frames at 0.99 and no warning. When the truth starts on the
+    other half than the given start_half, evaluate says so (the numbers stay as they are);
+    not for the right half, nor for 'any'."""
     from stages.common.artifacts import root_attrs
     from stages.common.poses_file import PoseTrack, write_poses
 
@@ -1137,7 +1138,7 @@ def test_evaluate_warns_when_accepted_frames_mirror_the_truth(tmp_path, caplog):
     tx, ty, th = 2.0 + 0.1 * np.arange(n), np.full(n, 1.0), np.zeros(n)
     (tmp_path / "truth.csv").write_text("stamp,x,y,theta\n" + "".join(
         f"{a:.3f},{b:.3f},{c:.3f},{d:.3f}\n" for a, b, c, d in zip(t, tx, ty, th)))
-    for half, warned in (("own", True), ("any", False)):
+    for half, warned in (("own", True), ("opponent", False), ("any", False)):
         track = PoseTrack()
         for i in range(n):
             track.add(f"{i:06d}", t[i], (-tx[i], -ty[i], math.pi), confidence=0.99)
@@ -1150,7 +1151,9 @@ def test_evaluate_warns_when_accepted_frames_mirror_the_truth(tmp_path, caplog):
                                          str(tmp_path / "truth.csv"), "-o",
                                          str(tmp_path / f"rep-{half}")])
         assert r.exit_code == 0, r.output
-        said = "12 of 12 accepted frames are the mirror image of the truth" in caplog.text
+        said = ("given start_half own, but the truth starts at x = 2.00 m, in the opponent"
+                " half; 12 of 12 frames' top hypotheses are the truth's mirror image"
+                in caplog.text)
         assert said == warned, caplog.text
 
 

@@ -46,7 +46,7 @@ from stages.common.report_file import (
     write_report,
 )
 
-from .metrics import FrameErrors, frame_errors, mirrored_start_half, summarize
+from .metrics import FrameErrors, frame_errors, start_half_contradicted, summarize
 from .report import reliability_table, tabulate
 
 __all__ = ["confs", "main", "evaluate_poses", "tabulate", "reliability_table", "load_report",
@@ -199,7 +199,7 @@ def main(conf: str | dict | None, poses, truth, output_dir, *, overwrite: bool =
     if summary["unmatched"]:
         log.warning("%s: %d of %d frames have no truth stamp within %g s and are not scored",
                     poses, summary["unmatched"], summary["frames"], conf["stamp_tolerance"])
-    why = mirrored_start_half(fe, attrs, max(conf["thresholds"], default=0.4))
+    why = start_half_contradicted(fe, attrs, max(conf["thresholds"], default=0.4))
     if why:
         log.warning("%s: %s", poses, why)
 

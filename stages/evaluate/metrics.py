@@ -245,26 +245,24 @@ def mirrored_frames(fe: FrameErrors, threshold: float) -> int:
     return int(np.sum((fe.position_error[ok] > threshold) & (mirror_err <= threshold)))
 
 
-def mirrored_start_half(fe: FrameErrors, attrs: dict, threshold: float,
-                        min_frames: int = 5) -> str | None:
-    """One line when the poses' conf gave a ``start_half`` (own or opponent) and most of the
-    accepted matched frames are the mirror image of the truth (``mirrored_frames``' test):
-    the truth contradicts the half the first fix was placed on, which no frame of a
-    symmetric field can. None otherwise (fewer than ``min_frames`` accepted frames too)."""
+def start_half_contradicted(fe: FrameErrors, attrs: dict, margin: float) -> str | None:
+    """One line when the poses' conf gave a ``start_half`` (own: x < 0, opponent: x > 0) and
+    the truth starts on the other half, more than ``margin`` m from the halfway line (nearer,
+    the half is no claim a frame could contradict). No frame of a symmetric field can tell
+    a wrong start half from a right one; the truth can. None otherwise."""
     half = (attrs.get("conf") or {}).get("start_half")
-    if half not in ("own", "opponent"):
+    if half not in ("own", "opponent") or not fe.matched.any():
         return None
-    acc = fe.matched & fe.accepted
-    n = int(acc.sum())
-    if n < min_frames:
+    first = np.flatnonzero(fe.matched)[np.argmin(fe.stamp[fe.matched])]
+    x0 = float(fe.truth_x[first])
+    if not (x0 > margin if half == "own" else x0 < -margin):
         return None
-    mirror_err = np.hypot(-fe.x[acc] - fe.truth_x[acc], -fe.y[acc] - fe.truth_y[acc])
-    k = int(np.sum((fe.position_error[acc] > threshold) & (mirror_err <= threshold)))
-    if 2 * k <= n:
-        return None
-    return (f"{k} of {n} accepted frames are the mirror image of the truth: the run was"
-            f" given start_half {half}, but the robot started on the other half (localise"
-            " again with --start-half any or the other half)")
+    m = fe.matched & ~fe.failed
+    mirror = int(np.sum(fe.top_mirrored[m])) if fe.top_mirrored is not None else 0
+    return (f"the run was given start_half {half}, but the truth starts at x = {x0:.2f} m, in"
+            f" the {'opponent' if x0 > 0 else 'own'} half; {mirror} of {int(m.sum())} frames'"
+            " top hypotheses are the truth's mirror image (localise again with --start-half"
+            " any or the other half)")
 
 
 def reliability(confidence, correct, bins: int = 10) -> list[dict]:
