@@ -50,6 +50,11 @@ def summary(ctx: click.Context, message: str) -> None:
         click.echo(message, err=True)
 
 
+def count(n: int, noun: str, plural: str | None = None) -> str:
+    """``n`` and the noun in its number: "1 frame", "4 frames", "0 frames"."""
+    return f"{n} {noun if n == 1 else (plural or noun + 's')}"
+
+
 def overrides_dict(overrides) -> dict:
     """The ``-c key=value`` options as a dict of overrides (stages.common.conf's parser)."""
     from stages.common.conf import parse_overrides

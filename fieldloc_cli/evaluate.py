@@ -3,17 +3,14 @@
 
 from __future__ import annotations
 
-import logging
 from pathlib import Path
 
 import click
 
 from stages.common.errors import FieldlocError
 
-from .common import FINITE, conf_option, overrides_dict
+from .common import FINITE, conf_option, overrides_dict, summary
 from .stage_defaults import EVALUATE_PRESETS, EVALUATE_STAMP_TOLERANCE
-
-log = logging.getLogger("fieldloc.evaluate")
 
 
 def report_dirs(poses: list[Path], output: Path | None) -> list[Path]:
@@ -63,8 +60,9 @@ def report_dirs(poses: list[Path], output: Path | None) -> list[Path]:
 @click.option("--format", "fmt", type=click.Choice(["text", "markdown", "csv"]),
               default="text", show_default=True, help="Table format on stdout.")
 @click.option("--overwrite", is_flag=True, help="Replace reports made from other inputs.")
-def evaluate(inputs, truth, output, field, table_only, preset, stamp_tolerance, up_to_mirror,
-             overrides, fmt, overwrite):
+@click.pass_context
+def evaluate(ctx, inputs, truth, output, field, table_only, preset, stamp_tolerance,
+             up_to_mirror, overrides, fmt, overwrite):
     """Position and heading errors of POSES files (poses.h5) against truth: report.json,
     errors.csv and plots per run, and a table of all runs on stdout.
 
@@ -93,7 +91,10 @@ def evaluate(inputs, truth, output, field, table_only, preset, stamp_tolerance, 
     done = []
     for poses, out in zip(inputs, outs):
         done.append(evaluation.main(conf, poses, truth, out, overwrite=overwrite, field=field))
-        log.info("report written to %s", out)
+        # where the report went, above all when no -o chose it (beside the poses file, which
+        # may be inside the dataset folder)
+        summary(ctx, f"report of {poses} written to {out}"
+                + ("" if output is not None else " (beside the poses file; -o to choose)"))
     click.echo(stage.tabulate(done, fmt=fmt))
     if fmt == "text":
         for out in done:

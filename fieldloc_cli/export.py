@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import click
 
+from .common import summary
 from .stage_defaults import EXPORT_FORMATS
 
 
@@ -15,7 +16,8 @@ from .stage_defaults import EXPORT_FORMATS
 @click.option("-o", "--output", type=click.Path(dir_okay=False),
               help="File to write [default: beside POSES with the format's suffix].")
 @click.option("--overwrite", is_flag=True, help="Replace OUTPUT if it exists.")
-def export(poses, fmt, output, overwrite):
+@click.pass_context
+def export(ctx, poses, fmt, output, overwrite):
     """Write POSES (poses.h5 from `fieldloc localize`) as CSV, TUM or JSON.
 
     \b
@@ -26,4 +28,4 @@ def export(poses, fmt, output, overwrite):
     from stages.evaluate.export import main
 
     out = main(None, poses, output, fmt=fmt, overwrite=overwrite)
-    click.echo(str(out))
+    summary(ctx, f"wrote {out}")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from .common import conf_option, overrides_dict, progress_enabled, summary
+from .common import conf_option, count, overrides_dict, progress_enabled, summary
 from .stage_defaults import EXTRACT_DEFAULT_PRESET, EXTRACT_OMNI_PRESETS
 
 
@@ -37,7 +37,7 @@ def extract(ctx, dataset, output, preset, overrides, overwrite, debug_images):
 
     with FeaturesFile(path) as ff:
         n, failures, kind = len(ff), ff.failures, ff.camera_kind
-    msg = f"{path}: {n} frames ({kind} camera)"
+    msg = f"{path}: {count(n, 'frame')} ({kind} camera)"
     if failures:
         msg += f", {len(failures)} failed (first: {failures[0]})"
     summary(ctx, msg)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import click
 
+from .common import summary
 from .stage_defaults import FIELD_FORMATS
 
 
@@ -26,7 +27,8 @@ def field():
               help="Preset or field YAML giving the dimensions the team file lacks.")
 @click.option("--name", help="Field name [default: FORMAT-FILE or FORMAT-VENUE].")
 @click.option("--overwrite", is_flag=True, help="Replace OUTPUT if it exists.")
-def field_import(path, fmt, output, venue, base, name, overwrite):
+@click.pass_context
+def field_import(ctx, path, fmt, output, venue, base, name, overwrite):
     """Read a team's field file and write it as a fieldloc field YAML (metres, between line
     centre lines). Keys of the team file that describe no line and keys this importer does not
     know are kept in the YAML's `imported` record and listed here.
@@ -44,15 +46,15 @@ def field_import(path, fmt, output, venue, base, name, overwrite):
                overwrite=overwrite)
     fm = load_field(out)
     rec = fm.spec.get("imported", {})
-    click.echo(f"wrote {out}: {fm.name}, {fm.length:g} x {fm.width:g} m between line centres,"
+    summary(ctx, f"wrote {out}: {fm.name}, {fm.length:g} x {fm.width:g} m between line centres,"
                f" lines {fm.line_width:g} m, border {fm.border:g} m; {len(fm.segments)} lines,"
                f" {len(fm.arcs)} arcs")
     if rec.get("from_base"):
-        click.echo(f"from {rec['from_base']['field']}: {', '.join(rec['from_base']['keys'])}")
+        summary(ctx, f"from {rec['from_base']['field']}: {', '.join(rec['from_base']['keys'])}")
     for note in rec.get("notes", []):
-        click.echo(f"note: {note}")
+        click.echo(f"note: {note}", err=True)  # what the import could not carry over
     if rec.get("field_lines_check"):
-        click.echo(f"check: {rec['field_lines_check']}")
+        click.echo(f"check: {rec['field_lines_check']}", err=True)
     unknown = rec.get("unknown") or {}
     if unknown:
         click.echo(f"unknown keys ({len(unknown)}, kept under imported.unknown): "

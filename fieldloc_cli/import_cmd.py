@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import click
 
-from .common import conf_option, overrides_dict, progress_enabled
+from .common import conf_option, count, overrides_dict, progress_enabled, summary
 from .stage_defaults import ROSBAG_PRESETS
 
 
@@ -50,7 +50,7 @@ def import_rosbag(ctx, bag, output, image_topic, odom_topic, imu_topic, every, c
                imu_topic=imu_topic, every=every, calib=calib, overwrite=overwrite,
                progress=progress_enabled(ctx))
     rec = describe(out)
-    parts = [f"{rec['frames']} frames of {rec['image_messages']} image messages"]
+    parts = [f"{count(rec['frames'], 'frame')} of {count(rec['image_messages'], 'image message')}"]
     if "odometry_rows" in rec:
         parts.append(f"{rec['odometry_rows']} odometry increments from"
                      f" {rec['odometry_messages']} messages")
@@ -59,6 +59,7 @@ def import_rosbag(ctx, bag, output, image_topic, odom_topic, imu_topic, every, c
     if rec["skipped"]:
         parts.append(f"{len(rec['skipped'])} frame(s) skipped (see import.yaml)")
     enc = ", ".join(f"{k} x{v}" for k, v in rec["encodings"].items())
-    click.echo(f"wrote {out} ({rec['bag_format']}; {enc}): " + "; ".join(parts))
+    summary(ctx, f"wrote {out} ({rec['bag_format']}; {enc}): " + "; ".join(parts))
     if "calib" not in rec:
-        click.echo(f"next: put the camera's calib.yaml into {out} (fieldloc calibrate omni ...)")
+        summary(ctx, f"next: put the camera's calib.yaml into {out} (fieldloc calibrate omni"
+                " ...)")

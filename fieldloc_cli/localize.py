@@ -6,12 +6,15 @@ optional)] [--heading imu|histogram|truth] [--start-half own|opponent|any]
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import click
 
-from .common import conf_option, overrides_dict, progress_enabled, summary
+from .common import conf_option, count, overrides_dict, progress_enabled, summary
 from .stage_defaults import LOCALIZE, LOCALIZE_DEFAULT_METHOD, LOCALIZE_METHODS
+
+log = logging.getLogger("fieldloc.localize")
 
 TABLE_METHODS = ("lut", "fit")  # the omni methods: heading source, start half, independent
 
@@ -121,17 +124,27 @@ def localize(ctx, dataset, map_path, templates, pose_solver, features, points, m
         path = stage.main(conf, dataset, map_path, output, features=features, points=points,
                           overwrite=overwrite, progress=progress_enabled(ctx),
                           allow_field_mismatch=allow_field_mismatch)
-    from stages.common.poses_file import read_poses
+    from stages.common.poses_file import read_poses, start_half_warning
 
-    cols, _attrs = read_poses(path)
+    cols, attrs = read_poses(path)
     n = len(cols["name"])
     failed = int(cols["failed"].sum())
     low = int((~cols["failed"] & ~cols["accepted"]).sum())
     ok = ~cols["failed"]
     rt = float(cols["runtime"].mean()) * 1e3 if n else 0.0
-    msg = (f"{path}: {n} frames, {n - failed - low} accepted, {low} low-confidence, {failed}"
-           f" failed, mean runtime {rt:.2f} ms/frame")
+    msg = (f"{path}: {count(n, 'frame')}, {n - failed - low} accepted, {low} low-confidence,"
+           f" {failed} failed, mean runtime {rt:.2f} ms/frame")
     if ok.any():
         modes = {m: int((cols["mode"][ok] == m).sum()) for m in sorted(set(cols["mode"][ok]))}
         msg += " (" + ", ".join(f"{m} {c}" for m, c in modes.items()) + ")"
     summary(ctx, msg)
+    warn = start_half_warning(cols, attrs)
+    if warn:
+        log.warning(warn)
+    if points is not None:
+        from stages.common.dataset import open_dataset
+
+        total = len(open_dataset(dataset).names)
+        if n < total:
+            log.warning("%s holds %d of the %d frames of %s: the points file names no points"
+                        " for the others", path, n, total, dataset)

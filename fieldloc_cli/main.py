@@ -117,11 +117,22 @@ class LazyGroup(click.Group):
                 raise
             click.echo(f"fieldloc: error: {e}", err=True)
             ctx.exit(1)
+        except BrokenPipeError:  # stdout closed by its reader (| head): nothing more to say
+            import os
+
+            try:  # so that the interpreter's own flush at exit finds no closed pipe either
+                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            except (OSError, ValueError):
+                pass
+            ctx.exit(1)
         except OSError as e:  # the system refused: permission, disk full, a path that vanished
             if debug:
                 raise
             where = f"{e.filename}: " if e.filename else ""
-            click.echo(f"fieldloc: error: {where}{e.strerror or e}", err=True)
+            text = " ".join(str(e.strerror or e).split())  # HDF5's messages span lines
+            if "errno = 28," in text:
+                text = "No space left on device"
+            click.echo(f"fieldloc: error: {where}{text[:300]}", err=True)
             ctx.exit(1)
         except MemoryError:
             if debug:

@@ -4,18 +4,19 @@ from __future__ import annotations
 
 import click
 
-from .common import conf_option, overrides_dict
+from .common import conf_option, overrides_dict, summary
 
 
 @click.command()
 @click.argument("source", type=click.Path(exists=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="HTML file to write.")
-@click.option("--worst", type=int, default=None,
+@click.option("--worst", type=click.IntRange(min=0), default=None,
               help="How many of the worst frames to show with overlays [default: 4].")
 @click.option("--overwrite", is_flag=True, help="Replace OUTPUT if it exists.")
 @conf_option
-def report(source, output, worst, overwrite, overrides):
+@click.pass_context
+def report(ctx, source, output, worst, overwrite, overrides):
     """One HTML page of the evaluation report(s) in SOURCE (a report folder, or a folder of
     runs with reports below it): table, plots, reliability, worst frames with overlays. Every
     picture is embedded: the page can be sent on its own.
@@ -31,4 +32,4 @@ def report(source, output, worst, overwrite, overrides):
     if worst is not None:
         conf["worst"] = worst
     out = main(conf, source, output, overwrite=overwrite)
-    click.echo(str(out))
+    summary(ctx, f"wrote {out}")

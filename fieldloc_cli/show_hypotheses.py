@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from .common import conf_option, overrides_dict
+from .common import conf_option, overrides_dict, summary
 
 
 @click.command("hypotheses")
@@ -23,11 +23,12 @@ from .common import conf_option, overrides_dict
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="PNG file to write.")
-def show_hypotheses(poses, frame, features, field, overrides, overwrite, output):
+@click.pass_context
+def show_hypotheses(ctx, poses, frame, features, field, overrides, overwrite, output):
     """Draw the hypotheses of one frame of POSES (poses.h5) on the field: each as a robot with
     its probability, with the frame's line points placed at each."""
     from stages.show import hypotheses as stage
 
     path = stage.main(overrides_dict(overrides), poses, output, frame=frame, features=features,
                       field=field, overwrite=overwrite)
-    click.echo(f"{path}: hypotheses of frame {frame}")
+    summary(ctx, f"{path}: hypotheses of frame {frame}")

@@ -23,7 +23,7 @@ from .stage_defaults import SHOW_MAP_FAMILIES, SHOW_MAP_TABLES
               f" [default: {D['heading_deg']}].")
 @click.option("--family", type=click.Choice(SHOW_MAP_FAMILIES), default=None,
               help=f"Spirals: the counter-clockwise or clockwise family [default: {D['family']}].")
-@click.option("--spirals", type=int, default=None,
+@click.option("--spirals", type=click.IntRange(min=1), default=None,
               help="Spirals: how many of the family's 36 to draw (evenly spaced)"
               f" [default: {D['spirals']}].")
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,

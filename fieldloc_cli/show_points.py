@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from .common import FINITE, conf_option, overrides_dict, summary
+from .common import FINITE, conf_option, count, overrides_dict, summary
 from .stage_defaults import EXTRACT_DEFAULT_PRESET
 
 
@@ -60,7 +60,8 @@ def show_points(ctx, dataset, frame, features, map_or_field, pose, preset, overr
     path, s = stage.write_picture(conf, dataset, output, frame=frame, features=features,
                                   field=field, pose=pose_rad, overwrite=overwrite,
                                   field_file=field_file)
-    msg = f"{path}: frame {s['frame']}, {s['points']} line points"
+    msg = (f"{path}: frame {s['frame']}, " + (count(s["points"], "line point") if "points" in s
+                                              else count(s["lines"], "line")))
     if "share_near_lines" in s:
         x, y, th = s["pose"]
         msg += (f"; at pose ({x:.2f}, {y:.2f}, {math.degrees(th):.1f} deg)"

@@ -14,7 +14,7 @@ import math
 
 import click
 
-from .common import FINITE, conf_option, overrides_dict, progress_enabled, summary
+from .common import FINITE, conf_option, count, overrides_dict, progress_enabled, summary
 from .stage_defaults import SIMULATE, SIMULATE_PATH_KINDS, SIMULATE_PRESETS
 
 
@@ -31,7 +31,7 @@ def simulate_options(preset: str, camera: str):
                          type=click.Path(file_okay=False), help="Dataset folder to write."),
             click.option("--frames", type=click.IntRange(min=1), default=None,
                          help=f"Number of frames [preset: {base['frames']}]."),
-            click.option("--seed", type=int, default=None,
+            click.option("--seed", type=click.IntRange(min=0), default=None,
                          help=f"Seed of every random choice [preset: {base['seed']}]."),
             click.option("--trajectory", "trajectory_kind", type=click.Choice(SIMULATE_PATH_KINDS),
                          default=None,
@@ -78,7 +78,7 @@ def run_simulation(ctx, *, field, output, frames, seed, trajectory_kind, preset,
             ce["distance_error"] = 0.0
     out = main(conf, field, output, overwrite=overwrite, progress=progress_enabled(ctx))
     n = sum(1 for _ in (out / "images").glob("*.png"))  # a grid's count is the grid's
-    summary(ctx, f"wrote {n} frames to {out}")
+    summary(ctx, f"wrote {count(n, 'frame')} to {out}")
     return out
 
 

@@ -1,4 +1,4 @@
-"""Issue 8: bad input and faults, each as a case of the command line.
+"""Issues 8 and 25: bad input and faults, each as a case of the command line.
 
 A case is a command, the exit code it must end with, a fragment of its message (stderr or a
 warning), and what it must not do: no command ends in a traceback, none changes or removes a
@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import math
 import os
 import re
 import shutil
@@ -310,6 +311,152 @@ def _setup_calib_text(append: str):
     return setup
 
 
+
+# ------------------------------------------------------------------ issue 25's setups
+
+
+def _bag(ws: Path, rel: str = "x.bag", fmt: str = "ros1") -> Path:
+    """A 2-frame bag (ros1: a .bag file; ros2-sqlite3: a folder) written with rosbags."""
+    from stages.ingest.bag_writer import write_bag
+
+    path = ws / rel
+    path.parent.mkdir(parents=True, exist_ok=True)
+    img = np.zeros((48, 64, 3), np.uint8)
+    return write_bag(path, fmt, image_topic="/cam",
+                     frames=[(1.0 + 0.1 * i, (img, "bgr8")) for i in range(2)])
+
+
+def _setup_bags(w, ws):
+    """Damaged bags: empty, random bytes, truncated; ROS 2 folders whose metadata.yaml is not
+    YAML and whose .db3 is empty; a good bag inside a folder d; a user's folder thesis."""
+    good = _bag(ws)
+    (ws / "zero.bag").write_bytes(b"")
+    (ws / "random.bag").write_bytes(np.random.default_rng(5).bytes(5000))
+    (ws / "cut.bag").write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    r2 = _bag(ws, "r2", "ros2-sqlite3")
+    bad = ws / "r2-yaml"
+    bad.mkdir()
+    (bad / "metadata.yaml").write_text("rosbag2_bagfile_information: {{{: [\n")
+    for db in r2.glob("*.db3"):
+        shutil.copyfile(db, bad / db.name)
+    empty = ws / "r2-empty"
+    empty.mkdir()
+    shutil.copyfile(r2 / "metadata.yaml", empty / "metadata.yaml")
+    for db in r2.glob("*.db3"):
+        (empty / db.name).write_bytes(b"")
+    _bag(ws, "d/x.bag")
+    (ws / "thesis").mkdir()
+    (ws / "thesis" / "thesis.txt").write_text("two years of work")
+    return {}
+
+
+def _setup_report_copy(w, ws):
+    """The shared report copied to ws/runs/a, with a poses.h5 beside it; a user's page."""
+    shutil.copytree(w["omni"] / "runs" / "r", ws / "runs" / "a")
+    shutil.copyfile(w["poses"], ws / "runs" / "a" / "poses.h5")
+    (ws / "mine.html").write_text("<html>my own notes</html>")
+    return {}
+
+
+def _setup_bad_report(change):
+    def setup(w, ws):
+        import json
+
+        shutil.copytree(w["omni"] / "runs" / "r", ws / "r")
+        rep = json.loads((ws / "r" / "report.json").read_text())
+        change(rep)
+        (ws / "r" / "report.json").write_text(json.dumps(rep))
+        return {}
+    return setup
+
+
+def _setup_poses_edit(change):
+    def setup(w, ws):
+        shutil.copyfile(w["poses"], ws / "p.h5")
+        with h5py.File(ws / "p.h5", "a") as f:
+            change(f)
+        return {}
+    return setup
+
+
+def _shorten_x(f):
+    x = f["poses/x"][()]
+    del f["poses/x"]
+    f["poses/x"] = x[:2]
+
+
+def _flat_hypotheses(f):
+    del f["hypotheses"]
+    f["hypotheses"] = np.ones((1, 2))
+
+
+def _setup_features_edit(change):
+    def setup(w, ws):
+        shutil.copyfile(w["features"], ws / "f.h5")
+        with h5py.File(ws / "f.h5", "a") as f:
+            change(f, f["frames"][sorted(f["frames"])[1]])
+        return {}
+    return setup
+
+
+def _cut_radial(f, g):
+    r = g["radial"][()]
+    del g["radial"]
+    g["radial"] = r[:, :3]
+
+
+def _setup_nan_segments(w, ws):
+    shutil.copyfile(w["map"], ws / "nan.map.h5")
+    with h5py.File(ws / "nan.map.h5", "a") as f:
+        f["field/segments"][0, 0, 0] = np.nan
+    return {}
+
+
+def _setup_spec(text: str):
+    """A batch SPEC in ws (``text`` formatted with the shared map's path)."""
+    def setup(w, ws):
+        (ws / "spec.yaml").write_text(text.format(map=w["map"]))
+        return {}
+    return setup
+
+
+def _setup_field_name_bomb(w, ws):
+    text = Path(w["field_yaml"]).read_text()
+    assert text.count("name: spl") == 1
+    (ws / "f.yaml").write_text(text.replace("name: spl", f"name: {ALIAS_BOMB}"))
+    return {}
+
+
+def _setup_live_lock(w, ws):
+    """The lock of a run that is alive (a sleeping process stands for it)."""
+    p = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
+    (ws / ".f.h5.fieldloc-lock").write_text(f"{p.pid}\n")
+    return {"holder": p}
+
+
+def _check_lock_holder_untouched(paths, res):
+    p = paths["holder"]
+    assert p.poll() is None  # the refusing run did not touch the live run
+    p.kill()
+    p.wait()
+
+
+def _check_one_frame_of_four(paths, res):
+    assert len(_poses_columns(paths["ws"] / "p.h5")["name"]) == 1
+
+
+def _setup_custom_field_poses(w, ws):
+    """Poses of the omni frames made with the map of a custom field (its name no preset)."""
+    spec = yaml.safe_load(Path(w["field_yaml"]).read_text())
+    spec["name"] = "minho-lab"
+    (ws / "lab.yaml").write_text(yaml.safe_dump(spec))
+    m = build_map.main({"resolution": 0.5}, ws / "lab.yaml", ws / "lab.map.h5")
+    localize.main({"method": "lut"}, w["omni"], m, ws / "p.h5", features=w["features"],
+                  allow_field_mismatch=True)
+    (ws / "lab.yaml").unlink()  # the map carries the field
+    return {}
+
+
 LOCALIZE = ["localize", "{omni}", "--map", "{map}", "--features", "{features}"]
 W = "{ws}"
 
@@ -545,6 +692,120 @@ CASES = [
          "file not found"),
     Case("inspect a README", "newcomer", ["inspect", str(ROOT / "README.md")], 1,
          "not a file fieldloc reads (inspect reads HDF5"),
+    # ------------------------------------------------------------------ issue 25
+    Case("report r -o r/report.json --overwrite", "data-lost",
+         ["report", "{omni}/runs/r", "-o", "{omni}/runs/r/report.json", "--overwrite"], 1,
+         "is an input of this command (a file of the report)"),
+    Case("report r -o r/errors.csv --overwrite", "data-lost",
+         ["report", "{omni}/runs/r", "-o", "{omni}/runs/r/errors.csv", "--overwrite"], 1,
+         "is an input of this command (a file of the report)"),
+    Case("report runs -o runs/a/poses.h5 --overwrite", "data-lost",
+         ["report", W + "/runs", "-o", W + "/runs/a/poses.h5", "--overwrite"], 1,
+         "is an input of this command", setup=_setup_report_copy),
+    Case("report -o the poses file the report names --overwrite", "data-lost",
+         ["report", "{omni}/runs/r", "-o", "{poses}", "--overwrite"], 1,
+         "(the run's poses or features)"),
+    Case("report --overwrite onto a user's own page", "data-lost",
+         ["report", W + "/runs", "-o", W + "/mine.html", "--overwrite"], 1,
+         "is not a page written by fieldloc report", setup=_setup_report_copy),
+    Case("import rosbag d/x.bag -o d --overwrite", "data-lost",
+         ["import", "rosbag", W + "/d/x.bag", "-o", W + "/d", "--image-topic", "/cam",
+          "--overwrite"], 1, "holds an input of this command (bag", setup=_setup_bags),
+    Case("import rosbag -o a user's folder --overwrite", "data-lost",
+         ["import", "rosbag", W + "/x.bag", "-o", W + "/thesis", "--image-topic", "/cam",
+          "--overwrite"], 1, "not a dataset made by fieldloc import rosbag",
+         setup=_setup_bags),
+    Case("import rosbag -o inside the ROS 2 bag folder", "data-lost",
+         ["import", "rosbag", W + "/r2", "-o", W + "/r2/out", "--image-topic", "/cam"], 1,
+         "lies inside the bag folder", setup=_setup_bags),
+    Case("import rosbag of a zero-byte .bag", "traceback",
+         ["import", "rosbag", W + "/zero.bag", "-o", W + "/out", "--image-topic", "/cam"], 1,
+         "cannot read the bag, it is empty or damaged", setup=_setup_bags),
+    Case("import rosbag of random bytes", "traceback",
+         ["import", "rosbag", W + "/random.bag", "-o", W + "/out", "--image-topic", "/cam"],
+         1, "cannot read the bag, it is empty or damaged", setup=_setup_bags),
+    Case("import rosbag of a truncated bag", "traceback",
+         ["import", "rosbag", W + "/cut.bag", "-o", W + "/out", "--image-topic", "/cam"], 1,
+         "cannot read the bag, it is empty or damaged", setup=_setup_bags),
+    Case("import rosbag of a ROS 2 folder whose metadata.yaml is not YAML", "traceback",
+         ["import", "rosbag", W + "/r2-yaml", "-o", W + "/out", "--image-topic", "/cam"], 1,
+         "cannot read the bag, it is empty or damaged", setup=_setup_bags),
+    Case("import rosbag of a ROS 2 folder with an empty .db3", "traceback",
+         ["import", "rosbag", W + "/r2-empty", "-o", W + "/out", "--image-topic", "/cam"], 1,
+         "cannot read the bag, it is empty or damaged", setup=_setup_bags),
+    Case("evaluate a poses.h5 whose /poses/x is shorter", "traceback",
+         ["evaluate", W + "/p.h5", "--truth", "{omni}", "-o", W + "/rep"], 1,
+         "damaged poses file (/poses/x has shape (2,)", setup=_setup_poses_edit(_shorten_x)),
+    Case("export --format json of a malformed /hypotheses", "traceback",
+         ["export", W + "/p.h5", "--format", "json", "-o", W + "/p.json"], 1,
+         "damaged poses file (/hypotheses has shape (1, 2)",
+         setup=_setup_poses_edit(_flat_hypotheses)),
+    Case("report on a report.json whose position_error_m is a list", "traceback",
+         ["report", W + "/r", "-o", W + "/r.html"], 1,
+         "'position_error_m' must be a table (a JSON object), got [1, 2]",
+         setup=_setup_bad_report(lambda r: r.update(position_error_m=[1, 2]))),
+    Case("simulate omni --seed -1", "traceback",
+         ["simulate", "omni", "--field", "spl", "-o", W + "/sim", "--seed", "-1"], 2,
+         "-1 is not in the range x>=0"),
+    Case("simulate omni -c seed=-1", "traceback",
+         ["simulate", "omni", "--field", "spl", "-o", W + "/sim", "-c", "seed=-1"], 1,
+         "seed must be a whole number >= 0, got '-1'"),
+    Case("alias bomb in a batch method's conf", "hang",
+         ["batch", W + "/spec.yaml", "-o", W + "/res", "--serial"], 1,
+         "YAML aliases expand to more than",
+         setup=_setup_spec("map: {map}\ndatasets: [x]\nmethods:\n  - method: lut\n    conf: "
+                           + ALIAS_BOMB + "\n")),
+    Case("alias bomb in a field's name (build-map)", "hang",
+         ["build-map", W + "/f.yaml", "-o", W + "/m.h5"], 1, "YAML aliases expand to more than",
+         setup=_setup_field_name_bomb),
+    Case("a features frame without its radial dataset", "silent",
+         [*LOCALIZE[:5], W + "/f.h5", "-o", W + "/p.h5"], 1,
+         "damaged features file (frame 000001 has no 'radial' dataset)",
+         setup=_setup_features_edit(lambda f, g: g.__delitem__("radial"))),
+    Case("a features frame whose radial is (72, 3)", "silent",
+         [*LOCALIZE[:5], W + "/f.h5", "-o", W + "/p.h5"], 1,
+         "'radial' has shape (72, 3), expected (72, 4)", setup=_setup_features_edit(_cut_radial)),
+    Case("features of camera_kind fisheye", "silent",
+         [*LOCALIZE[:5], W + "/f.h5", "-o", W + "/p.h5"], 1,
+         "camera_kind 'fisheye' is not one of omni, perspective",
+         setup=_setup_features_edit(lambda f, g: f.attrs.__setitem__("camera_kind", "fisheye"))),
+    Case("show map of a map whose segments are NaN", "silent",
+         ["show", "map", W + "/nan.map.h5", "-o", W + "/m.png"], 1,
+         "/field/segments holds values that are not finite", setup=_setup_nan_segments),
+    Case("simulate --calib-error 1e6 0 1", "silent",
+         ["simulate", "omni", "--field", "spl", "-o", W + "/sim", "--frames", "1",
+          "--calib-error", "1e6", "0", "1"], 1,
+         "calib_error would write a calibration extract refuses"),
+    Case("show map --cell 1e9 1e9", "silent",
+         ["show", "map", "{map}", "--table", "radial", "--cell", "1e9", "1e9", "-o",
+          W + "/m.png"], 1, "lies outside the map's world"),
+    Case("show map --spirals -1", "silent",
+         ["show", "map", "{map}", "--table", "spiral", "--cell", "0", "0", "--spirals", "-1",
+          "-o", W + "/m.png"], 2, "-1 is not in the range x>=1"),
+    Case("report --worst -1", "silent",
+         ["report", "{omni}/runs/r", "-o", W + "/r.html", "--worst", "-1"], 2,
+         "-1 is not in the range x>=0"),
+    Case("report -c worst=-1", "silent",
+         ["report", "{omni}/runs/r", "-o", W + "/r.html", "-c", "worst=-1"], 1,
+         "worst must be 0 or more frames, got -1"),
+    Case("a batch dataset's frames: -1, refused before anything runs", "silent",
+         ["batch", W + "/spec.yaml", "-o", W + "/res", "--serial"], 1,
+         "datasets[0].simulate: frames must be a whole number >= 1, got -1",
+         setup=_setup_spec("field: spl\ndatasets:\n  - simulate: {{preset: omni-clean, field:"
+                           " spl, frames: -1}}\nmethods: [lut]\n")),
+    Case("--points naming frame 0 only: a 1-frame poses.h5, said", "silent",
+         ["localize", "{omni}", "--map", "{map}", "--points", W + "/pts.csv", "-o",
+          W + "/p.h5"], 0, "holds 1 of the 4 frames of",
+         setup=lambda w, ws: _points_csv(w, ws, ["000000"]), check=_check_one_frame_of_four),
+    Case("import rosbag --calib x.bag", "silent",
+         ["import", "rosbag", W + "/x.bag", "-o", W + "/out", "--image-topic", "/cam",
+          "--calib", W + "/x.bag"], 1, "--calib: ", setup=_setup_bags),
+    Case("extract while another run writes the same output", "silent",
+         ["extract", "{omni}", "-o", W + "/f.h5"], 1, "another fieldloc run (pid ",
+         setup=_setup_live_lock, check=_check_lock_holder_untouched),
+    Case("show hypotheses of poses made with a custom field's map", "silent",
+         ["show", "hypotheses", W + "/p.h5", "--frame", "1", "-o", W + "/h.png"], 0, "",
+         setup=_setup_custom_field_poses),
 ]
 
 
@@ -648,6 +909,312 @@ def test_conf_override_of_a_float_key_accepts_1e_minus_4():
                         parse_overrides(["inlier_error=1e-4", "min_observations=6.0"]))
     assert conf["inlier_error"] == pytest.approx(1e-4) and conf["min_observations"] == 6
     assert isinstance(conf["min_observations"], int)
+
+
+def _umask() -> int:
+    umask = os.umask(0o022)
+    os.umask(umask)
+    return umask
+
+
+def test_import_export_field_import_report_summaries_go_to_stderr_and_q_silences(world_report,
+                                                                                 tmp_path):
+    """Issue 25: import rosbag, field import, export (and report) printed their summaries on
+    stdout and -q did not silence them; as extract and localize: stderr, nothing with -q.
+    The imported folder has the umask's mode, not mkdtemp's 0700."""
+    world = world_report
+    bag = _bag(tmp_path)
+    r = CliRunner().invoke(cli, ["-q", "import", "rosbag", str(bag), "-o", str(tmp_path / "a"),
+                                 "--image-topic", "/cam"])
+    assert r.exit_code == 0 and r.stdout == "" and r.stderr == "", r.output
+    r = CliRunner().invoke(cli, ["import", "rosbag", str(bag), "-o", str(tmp_path / "b"),
+                                 "--image-topic", "/cam"])
+    assert r.exit_code == 0 and r.stdout == "", r.output
+    assert "2 frames of 2 image messages" in r.stderr
+    for folder in (tmp_path / "a", tmp_path / "b"):
+        assert stat.S_IMODE(folder.stat().st_mode) == 0o777 & ~_umask()
+    team = tmp_path / "fd.cfg"
+    team.write_text("".join(f"{k} = {v};\n" for k, v in {
+        "xPosOpponentFieldBorder": 5200, "xPosOpponentGoal": 5055, "xPosOpponentGoalLine": 4500,
+        "xPosOpponentGoalArea": 3900, "xPosOpponentPenaltyMark": 3200,
+        "xPosOpponentPenaltyArea": 2850, "yPosLeftFieldBorder": 3700, "yPosLeftTouchline": 3000,
+        "yPosLeftPenaltyArea": 2000, "yPosLeftGoalArea": 1100, "yPosLeftGoal": 800,
+        "fieldLinesWidth": 50, "centerCircleRadius": 750, "goalPostRadius": 50,
+        "penaltyMarkSize": 100}.items()))
+    commands = [
+        ["field", "import", str(team), "--format", "bhuman", "-o", str(tmp_path / "f.yaml")],
+        ["export", str(world["poses"]), "--format", "json", "-o", str(tmp_path / "p.json")],
+        ["report", str(world["omni"] / "runs" / "r"), "-o", str(tmp_path / "r.html"),
+         "--worst", "0"],
+    ]
+    for args in commands:
+        r = CliRunner().invoke(cli, ["-q", *args])
+        assert r.exit_code == 0 and r.stdout == "" and r.stderr == "", (args, r.output)
+        r = CliRunner().invoke(cli, [*args, "--overwrite"])
+        assert r.exit_code == 0 and r.stdout == "" and "wrote" in r.stderr, (args, r.output)
+
+
+def test_evaluate_without_o_says_where_the_report_went(world, tmp_path):
+    """Issue 25: evaluate without -o wrote into the dataset folder (beside its poses file)
+    without a word: the summary (stderr, -q silences it) names the folder."""
+    poses = tmp_path / "poses.h5"
+    shutil.copyfile(world["poses"], poses)
+    r = CliRunner().invoke(cli, ["evaluate", str(poses), "--truth", str(world["omni"])])
+    assert r.exit_code == 0, r.output
+    assert f"written to {tmp_path / 'poses-eval'} (beside the poses file" in r.stderr
+    assert (tmp_path / "poses-eval" / "report.json").is_file()
+
+
+def test_localised_frames_are_the_accepted_ones(world_report, tmp_path):
+    """Issue 25: the report counted not-accepted frames as 'localised' at infinite error.
+    localised.* are over the matched frames with an accepted pose: their errors are finite,
+    and the HTML page shows the same count."""
+    import json
+
+    rep = json.loads((world_report["omni"] / "runs" / "r" / "report.json").read_text())
+    cols = _poses_columns(world_report["poses"])
+    assert rep["localised"]["frames"] == rep["accepted"] == int(cols["accepted"].sum())
+    assert rep["not_accepted"] > 0  # the case the issue names is in this run
+    assert rep["localised"]["position_error_m"]["max"] not in ("inf", None)
+    out = tmp_path / "r.html"
+    r = CliRunner().invoke(cli, ["report", str(world_report["omni"] / "runs" / "r"), "-o",
+                                 str(out), "--worst", "0"])
+    assert r.exit_code == 0, r.output
+    cell = re.search(r'data-key="localised/frames" data-value="([^"]*)"', out.read_text())
+    assert cell and float(cell.group(1)) == rep["accepted"]
+
+
+def test_plot_titles_name_the_method_and_dataset(world_report):
+    """Issue 25: plot titles said 'lut on report' (the report folder's name)."""
+    from stages.common.report_file import load_report
+    from stages.show.report_plots import plot_title
+
+    report = load_report(world_report["omni"] / "runs" / "r", raw=True)
+    assert plot_title(report) == "lut on omni"
+    assert plot_title({"method": "mcl", "poses": "/a/b/poses-mcl.h5"}) == "mcl: poses-mcl.h5"
+
+
+def test_trajectory_legend_estimate_has_a_marker(world):
+    """Issue 25: the trajectory legend's 'estimate' (a colour-mapped scatter) had no marker."""
+    from stages.common.dataset import read_csv
+    from stages.evaluate.metrics import frame_errors
+    from stages.show.figure import new_figure
+    from stages.show.report_plots import plot_trajectories
+
+    fe = frame_errors(_poses_columns(world["poses"]), read_csv(world["omni"] / "truth.csv",
+                                                               "truth"), 0.02)
+    fig = new_figure(6, 4)
+    ax = fig.add_subplot()
+    plot_trajectories(ax, fe)
+    handles, labels = ax.get_legend_handles_labels()
+    est = [h for h, lab in zip(handles, labels) if lab.startswith("estimate")]
+    assert len(est) == 1
+    assert est[0].get_marker() not in ("", "None", None) and est[0].get_markersize() > 0
+
+
+def test_summary_picture_says_none_accepted():
+    """Issue 25: the batch summary picture showed '0% inf' where no frame was accepted."""
+    from stages.show.comparison import draw_summary
+    from stages.show.figure import new_figure
+
+    none = {"within": {"0.4": 0.0}, "position_error_m": {"median": math.inf}, "accepted": 0,
+            "matched": 4}
+    some = {"within": {"0.4": 0.5}, "position_error_m": {"median": 0.2}, "accepted": 2,
+            "matched": 4}
+    rows = [{"dataset": "d", "method": "a", "report": none},
+            {"dataset": "d", "method": "b", "report": some}]
+    fig = new_figure(4, 3)
+    ax = fig.add_subplot()
+    draw_summary(ax, rows)
+    texts = [t.get_text() for t in ax.texts]
+    assert texts == ["none\naccepted", "50%\n20.0 cm"], texts
+
+
+def test_show_points_on_a_perspective_frame_gives_no_nan_share(world, tmp_path):
+    """Issue 25: 'nan% within 15 cm' for a perspective frame (it has lines, not points)."""
+    r = CliRunner().invoke(cli, ["show", "points", str(world["kid"]), "--frame", "0",
+                                 "--features", str(world["kid_features"]), "--map",
+                                 str(world["kmap"]), "-o", str(tmp_path / "p.png")])
+    assert r.exit_code == 0, r.output
+    assert "nan" not in r.stderr and re.search(r"frame 000000, \d+ lines?\b", r.stderr)
+
+
+def test_one_frame_is_one_frame(tmp_path):
+    """Issue 25: 'wrote 1 frames'."""
+    r = CliRunner().invoke(cli, ["simulate", "omni", "--field", "spl", "-o",
+                                 str(tmp_path / "s"), "--frames", "1"])
+    assert r.exit_code == 0, r.output
+    assert f"wrote 1 frame to {tmp_path / 's'}" in r.stderr
+
+
+def test_show_hypotheses_title_without_truth(world, tmp_path, monkeypatch):
+    """Issue 25: the title said 'dashed white: truth' when the dataset has none (and was
+    one line too long for the picture)."""
+    from stages.show import hypotheses
+
+    ds = copy_dataset(world, "omni", tmp_path)
+    (ds / "truth.csv").unlink()
+    poses = tmp_path / "p.h5"
+    shutil.copyfile(world["poses"], poses)
+    with h5py.File(poses, "a") as f:
+        f.attrs["dataset"] = str(ds)
+    seen = {}
+    draw = hypotheses.draw_hypotheses
+
+    def spy(*args, **kwargs):
+        seen.update(kwargs)
+        return draw(*args, **kwargs)
+
+    monkeypatch.setattr(hypotheses, "draw_hypotheses", spy)
+    hypotheses.main(None, poses, tmp_path / "h.png", frame=1)
+    assert seen["truth"] is None and "truth" not in seen["title"].replace("no truth", "")
+    assert all(len(line) <= 90 for line in seen["title"].splitlines()), seen["title"]
+
+
+def test_dask_stop_message_of_our_own_cluster_is_not_shown():
+    """Issue 25: a normal batch printed the nanny's 'Worker process still alive after 4.0
+    seconds, killing' at the stop of its own cluster; the filter set there drops that line
+    (to the debug log) and nothing else."""
+    from stages.pipelines.batch import _quiet_stop
+
+    def record(msg):
+        return logging.LogRecord("distributed.nanny", logging.WARNING, __file__, 1, msg, None,
+                                 None)
+
+    assert not _quiet_stop(record("Worker process still alive after 4.0 seconds, killing"))
+    assert _quiet_stop(record("Worker process 123 was killed by signal 9"))
+
+
+def test_batch_results_inside_the_glob_rerun_resumes_without_a_cluster(world, tmp_path,
+                                                                        monkeypatch):
+    """Issue 25: a results folder inside the SPEC's own glob made every rerun refuse (it
+    matched as a dataset holding RESULTS); a batch with nothing left to do must not start a
+    Dask cluster."""
+    import distributed
+
+    (tmp_path / "rec").mkdir()
+    copy_dataset(world, "omni", tmp_path / "rec")
+    os.replace(tmp_path / "rec" / "omni", tmp_path / "rec" / "a")
+    (tmp_path / "spec.yaml").write_text(f"map: {world['map']}\ndatasets:\n  - glob: rec/*\n"
+                                        "methods: [lut]\n")
+    args = ["batch", str(tmp_path / "spec.yaml"), "-o", str(tmp_path / "rec" / "results")]
+    r = CliRunner().invoke(cli, [*args, "--serial"])
+    assert r.exit_code == 0, r.output
+
+    def no_cluster(*a, **k):
+        raise AssertionError("a cluster was started with nothing to do")
+
+    monkeypatch.setattr(distributed, "LocalCluster", no_cluster)
+    r = CliRunner().invoke(cli, args)
+    assert r.exit_code == 0, r.output
+    assert "1 runs: 1 finished before, 0 to do" in r.stderr
+
+
+def test_start_half_warning_when_accepted_frames_sit_in_the_other_half():
+    """Issue 25: a wrong --start-half gave a track on the other half without a word. Warned
+    when most accepted frames lie in the other half than the given one; not for 'any', not
+    for a run that stays in the given half, not on a handful of frames."""
+    from stages.common.poses_file import start_half_warning
+
+    x = np.array([-2.0, 0.5, 1.0, 2.0, 3.0, 3.5, -1.0, np.nan])
+    cols = {"x": x, "accepted": np.isfinite(x)}
+    msg = start_half_warning(cols, {"conf": {"start_half": "own"}})
+    assert msg and "5 of 7 accepted frames lie in the opponent half (x > 0)" in msg
+    assert start_half_warning(cols, {"conf": {"start_half": "opponent"}}) is None
+    assert start_half_warning(cols, {"conf": {"start_half": "any"}}) is None
+    few = {"x": x[:4], "accepted": np.ones(4, bool)}
+    assert start_half_warning(few, {"conf": {"start_half": "own"}}) is None
+
+
+def test_evaluate_warns_when_the_truth_starts_on_the_other_half(tmp_path, caplog):
+    """Issue 25: 100 mirrored frames at 0.99 and no warning. When the truth starts on the
+    other half than the given start_half, evaluate says so (the numbers stay as they are);
+    not for the right half, nor for 'any'."""
+    from stages.common.artifacts import root_attrs
+    from stages.common.poses_file import PoseTrack, write_poses
+
+    n = 12
+    t = np.arange(n) * 0.1
+    tx, ty, th = 2.0 + 0.1 * np.arange(n), np.full(n, 1.0), np.zeros(n)
+    (tmp_path / "truth.csv").write_text("stamp,x,y,theta\n" + "".join(
+        f"{a:.3f},{b:.3f},{c:.3f},{d:.3f}\n" for a, b, c, d in zip(t, tx, ty, th)))
+    for half, warned in (("own", True), ("opponent", False), ("any", False)):
+        track = PoseTrack()
+        for i in range(n):
+            track.add(f"{i:06d}", t[i], (-tx[i], -ty[i], math.pi), confidence=0.99)
+        attrs = root_attrs("fieldloc.poses", 2, {"method": "lut", "start_half": half}, {})
+        attrs.update(method="lut", field="spl", dataset=str(tmp_path))
+        poses = write_poses(tmp_path / f"p-{half}.h5", track, attrs)
+        caplog.clear()
+        with caplog.at_level(logging.WARNING):
+            r = CliRunner().invoke(cli, ["-q", "evaluate", str(poses), "--truth",
+                                         str(tmp_path / "truth.csv"), "-o",
+                                         str(tmp_path / f"rep-{half}")])
+        assert r.exit_code == 0, r.output
+        said = ("given start_half own, but the truth starts at x = 2.00 m, in the opponent"
+                " half; 12 of 12 frames' top hypotheses are the truth's mirror image"
+                in caplog.text)
+        assert said == warned, caplog.text
+
+
+def test_stale_extract_lock_is_taken_over(world, tmp_path, caplog):
+    """A lock left by a killed extract (its pid gone) is taken over with a warning; the run
+    finishes and leaves no lock."""
+    p = subprocess.Popen([sys.executable, "-c", "pass"])
+    p.wait()
+    (tmp_path / ".f.h5.fieldloc-lock").write_text(f"{p.pid}\n")
+    with caplog.at_level(logging.WARNING):
+        r = CliRunner().invoke(cli, ["-q", "extract", str(world["omni"]), "-o",
+                                     str(tmp_path / "f.h5")])
+    assert r.exit_code == 0, r.output
+    assert f"removed the lock of an interrupted run (pid {p.pid})" in caplog.text
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["f.h5"]
+
+
+def test_full_disk_ends_in_one_line_naming_the_file(world_report, tmp_path, monkeypatch):
+    """Issue 25: on a full disk build-map printed HDF5's raw two-line message, extract and
+    report 'No space left on device' without the file (and extract could crash in HDF5).
+    build-map and extract check the room first; a write that meets a full disk anyway (here
+    made to: the system's ENOSPC, and HDF5's message of one) ends in one line naming the
+    target, and nothing is left under its name."""
+    import errno
+    from collections import namedtuple
+
+    from stages.common import resources
+
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(resources.shutil, "disk_usage", lambda p: usage(10**6, 10**6, 20000))
+    for args, said in ((["build-map", "spl", "-o", str(tmp_path / "m.h5")],
+                        f"the map {tmp_path / 'm.h5'} would write about"),
+                       (["extract", str(world_report["omni"]), "-o", str(tmp_path / "f.h5")],
+                        f"extract into {tmp_path / 'f.h5'} would write about")):
+        r = CliRunner().invoke(cli, ["-q", *args])
+        assert r.exit_code == 1 and said in r.stderr, r.output
+        assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    monkeypatch.undo()
+
+    def full(*a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(Path, "write_text", full)
+    out = tmp_path / "r.html"
+    r = CliRunner().invoke(cli, ["-q", "report", str(world_report["omni"] / "runs" / "r"),
+                                 "-o", str(out), "--worst", "0"])
+    assert r.exit_code == 1 and f"cannot write {out}: no space left" in r.stderr, r.output
+    assert len(r.stderr.strip().splitlines()) == 1 and not out.exists()
+    monkeypatch.undo()
+
+    def hdf5_full(*a, **k):
+        raise OSError("Can't write data (file write failed: time = now\n, filename = 'x',"
+                      " file descriptor = 3, errno = 28, error message = 'No space left on"
+                      " device', buf = 0x0, total write size = 8)")
+
+    monkeypatch.setattr(h5py.Group, "create_dataset", hdf5_full)
+    target = tmp_path / "m2.h5"
+    r = CliRunner().invoke(cli, ["-q", "build-map", "spl", "--resolution", "0.5", "-o",
+                                 str(target)])
+    assert r.exit_code == 1 and f"cannot write {target}: no space left" in r.stderr, r.output
+    assert len(r.stderr.strip().splitlines()) == 1 and not target.exists()
 
 
 # ---------------------------------------------------------------------------- newcomer

@@ -17,6 +17,17 @@ from stages.ingest.bag_writer import write_bag
 pytest.importorskip("rosbags")
 
 
+# a calibration fieldloc reads (import rosbag --calib checks it before copying it)
+CALIB = """kind: omni
+image_size: [480, 480]
+centre: [244.0, 236.5]
+polynomial: [-2.12375, 0.150314, -0.00356398, 4.06874e-05, -2.15966e-07, 4.39107e-10]
+valid_radius: [40.0, 228.0]
+forward_angle: 1.5708
+mirrored: false
+"""
+
+
 def _frames(n=5, h=24, w=32, seed=0):
     rng = np.random.default_rng(seed)
     return [rng.integers(0, 256, (h, w, 3), dtype=np.uint8) for _ in range(n)]
@@ -44,7 +55,7 @@ def test_import_frames_stamps_odometry_imu(tmp_path, fmt):
                     frames=[(s, (im, "bgr8")) for s, im in zip(stamps, imgs)],
                     odometry=odo, imu=imu, receive_delay=0.02)
     calib = tmp_path / "calib.yaml"
-    calib.write_text("kind: omni\n")
+    calib.write_text(CALIB)
     out = rosbag.main(rosbag.confs["default"], bag, tmp_path / "ds", image_topic="/camera/image",
                       odom_topic="/odom", imu_topic="/imu", calib=calib)
     ds = open_dataset(out)
@@ -52,7 +63,7 @@ def test_import_frames_stamps_odometry_imu(tmp_path, fmt):
     np.testing.assert_allclose(ds.stamps, stamps, atol=1e-6)  # header stamps, not bag times
     for p, im in zip(ds.images, imgs):
         assert np.array_equal(cv2.imread(str(p)), im)  # exact integers: uint8 images
-    assert (out / "calib.yaml").read_text() == "kind: omni\n"
+    assert (out / "calib.yaml").read_text() == CALIB  # copied byte for byte
 
     odo_csv = read_csv(out / "odometry.csv", "odometry")
     # frame 0 is outside the odometry span and frame 1 needs frame 0: rows from frame 2 on

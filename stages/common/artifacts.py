@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import datetime as _dt
+import errno
 import hashlib
 import json
 import logging
@@ -191,6 +192,71 @@ def pid_alive(pid: int) -> bool:
     return True
 
 
+LOCK_SUFFIX = ".fieldloc-lock"  # .<target name>.fieldloc-lock: the pid of the run writing it
+
+
+def _lock_pid(lock: Path) -> int | None:
+    try:
+        return int(lock.read_text().strip())
+    except (OSError, ValueError):
+        return None
+
+
+def _create_lock(lock: Path, path: Path) -> None:
+    """Create ``lock`` holding our pid, atomically (a hard link of a finished part, so no
+    reader ever sees it empty); FileExistsError when it exists."""
+    prefix, suffix = part_name(path, ".lock")
+    fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=lock.parent)
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(f"{os.getpid()}\n")
+        try:
+            os.link(tmp, lock)
+        except FileExistsError:
+            raise
+        except OSError:  # a file system without hard links: exclusive creation instead
+            fd = os.open(lock, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+            with os.fdopen(fd, "w") as f:
+                f.write(f"{os.getpid()}\n")
+    finally:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+
+
+@contextlib.contextmanager
+def output_lock(path: str | Path):
+    """Hold ``.<name>.fieldloc-lock`` beside ``path`` while writing it, so a second run on the
+    same output refuses (FieldlocError naming the first run's pid) instead of taking the first
+    one's work in progress for an interrupted run's. The lock holds the writer's pid; a lock
+    whose process no longer runs (a run that was killed) is stale and taken over, with a
+    warning. Released (removed) when the block ends, however it ends."""
+    path = Path(path)
+    lock = (path.parent if str(path.parent) else Path(".")) / f".{path.name}{LOCK_SUFFIX}"
+    for _attempt in range(3):
+        try:
+            _create_lock(lock, path)
+            break
+        except FileExistsError:
+            pid = _lock_pid(lock)
+            if pid is not None and pid_alive(pid):
+                raise FieldlocError(
+                    f"another fieldloc run (pid {pid}) is writing {path}: wait for it to"
+                    f" finish or stop it (its lock: {lock.name})") from None
+            with contextlib.suppress(FileNotFoundError):
+                lock.unlink()
+            log.warning("removed the lock of an interrupted run (pid %s) writing %s", pid, path)
+        except OSError as e:
+            raise FieldlocError(f"cannot write {path}: {e.strerror or e}") from None
+    else:
+        raise FieldlocError(f"cannot take the lock {lock}: other runs keep taking it")
+    try:
+        yield lock
+    finally:
+        if _lock_pid(lock) == os.getpid():
+            with contextlib.suppress(OSError):
+                lock.unlink()
+
+
 def part_pattern(path: Path) -> re.Pattern:
     """Names of the temporary parts of target ``path`` (group 1: the writer's pid, if any)."""
     name = re.escape(path.name)
@@ -247,6 +313,39 @@ def _human_bytes(n: float) -> str:
 human_bytes = _human_bytes
 
 
+_FULL = (errno.ENOSPC, errno.EDQUOT)
+
+
+def disk_full(e: BaseException) -> bool:
+    """Whether ``e`` is the system refusing a write for lack of space (or quota), as an
+    OSError with its errno or as HDF5's message about one ("errno = 28")."""
+    if not isinstance(e, OSError):
+        return False
+    if e.errno in _FULL:
+        return True
+    text = str(e)
+    return ("No space left on device" in text or "Disk quota exceeded" in text
+            or any(f"errno = {n}," in text for n in _FULL))
+
+
+def full_disk_error(path: str | Path) -> FieldlocError:
+    """The one line for a write of ``path`` the disk had no room for."""
+    return FieldlocError(f"cannot write {path}: no space left on its disk (free some space or"
+                         " write elsewhere; finished files were kept)")
+
+
+@contextlib.contextmanager
+def writing(path: str | Path):
+    """Turn a full disk met while writing ``path`` into one line naming it (the system's
+    message names no file, HDF5's spans two lines); other errors pass unchanged."""
+    try:
+        yield
+    except OSError as e:
+        if disk_full(e):
+            raise full_disk_error(path) from None
+        raise
+
+
 def current_umask() -> int:
     """The process's umask (read without changing it where the system allows)."""
     try:
@@ -289,7 +388,8 @@ def atomic_path(path: str | Path, suffix: str | None = None):
     os.close(fd)
     tmp = Path(tmp)
     try:
-        yield tmp
+        with writing(path):
+            yield tmp
         if tmp.exists():
             give_default_mode(tmp)
         os.replace(tmp, path)
@@ -316,7 +416,9 @@ def atomic_dir(path: str | Path, *, overwrite: bool = False):
         raise FieldlocError(f"cannot write {path}: folder {parent} is not writable")
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".part", dir=parent))
     try:
-        yield tmp
+        with writing(path):
+            yield tmp
+        give_default_mode(tmp)  # mkdtemp makes it 0700; a dataset folder is shared like any
         if path.exists():
             old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=parent))
             os.replace(path, old / "previous")

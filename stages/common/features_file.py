@@ -34,7 +34,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from .artifacts import open_artifact, part_name, read_json_attr, write_artifact
+from .artifacts import open_artifact, part_name, read_json_attr, write_artifact, writing
 from .errors import FieldlocError, SchemaError
 
 log = logging.getLogger(__name__)
@@ -64,6 +64,17 @@ FRAME_DATASETS = {
     "posts": ("m, rad, 1", np.float32, "(P, 3) goal post foot: distance, bearing, confidence"),
     "posts_px": ("px", np.float32, "(P, 2) goal post foot points in the image (u, v)"),
 }
+
+
+CAMERA_KINDS = ("omni", "perspective")
+# what every frame of a camera kind holds (extract writes these; an absent one is damage, not
+# "nothing seen": an empty observation is stored as an empty array)
+REQUIRED = {"omni": ("radial", "spiral", "points"),
+            "perspective": ("lines", "crossings", "posts")}
+# the trailing shape of each dataset (None: any length); radial and spiral from the scan lines
+TRAILING = {"points": (2,), "points_px": (2,), "boundary": (2,), "line_ends": (4,),
+            "line_ends_px": (4,), "lines": (4,), "crossings": (5,), "crossings_px": (2,),
+            "posts": (3,), "posts_px": (2,)}
 
 
 class FeaturesWriter:
@@ -140,6 +151,21 @@ class FeaturesFile:
         order = np.argsort(self.stamps, kind="stable")
         self.names = [self.names[i] for i in order]
         self.stamps = self.stamps[order]
+        kind = self.camera_kind
+        if kind not in CAMERA_KINDS:
+            self.h5.close()
+            raise SchemaError(f"{self.path}: damaged features file (camera_kind"
+                              f" {str(kind)[:40]!r} is not one of {', '.join(CAMERA_KINDS)})")
+        self._shapes = dict(TRAILING)
+        if kind == "omni":
+            try:
+                sl = read_json_attr(self.h5, "scanlines") or {}
+                n, k = int(sl.get("n_angles", 72)), int(sl.get("max_crossings", 4))
+            except (ValueError, TypeError, AttributeError) as e:
+                self.h5.close()
+                raise SchemaError(f"{self.path}: damaged features file (scanlines: {e})"
+                                  ) from None
+            self._shapes.update(radial=(n, k), spiral=(2, n))
 
     @property
     def camera_kind(self) -> str:
@@ -158,8 +184,25 @@ class FeaturesFile:
         return [s.decode() if isinstance(s, bytes) else s for s in self.h5.get("failures", [])]
 
     def frame(self, name: str) -> dict[str, np.ndarray]:
+        """The datasets of frame ``name`` and its ``stamp``; a frame missing a dataset its
+        camera kind always has, or holding one of another shape, is refused (SchemaError)."""
         g = self.h5["frames"][name]
-        out = {k: g[k][()] for k in g.keys()}
+        out = {}
+        for k in g.keys():
+            v = g[k][()]
+            want = self._shapes.get(k)
+            if want is not None and (np.ndim(v) != 2 or v.dtype.kind not in "fiu" or (
+                    v.shape[-len(want):] != want if k in ("radial", "spiral")
+                    else v.shape[1:] != want)):
+                expect = (f"({', '.join(map(str, want))})" if k in ("radial", "spiral")
+                          else f"(N, {', '.join(map(str, want))})")
+                raise SchemaError(f"{self.path}: damaged features file (frame {name}: '{k}'"
+                                  f" has shape {np.shape(v)}, expected {expect})")
+            out[k] = v
+        missing = [k for k in REQUIRED[self.camera_kind] if k not in out]
+        if missing:
+            raise SchemaError(f"{self.path}: damaged features file (frame {name} has no"
+                              f" '{missing[0]}' dataset)")
         out["stamp"] = float(g.attrs["stamp"])
         return out
 
@@ -287,7 +330,7 @@ class FrameParts:
         prefix, suffix = part_name(path)
         fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=self.dir)
         try:
-            with os.fdopen(fd, "wb") as f:
+            with writing(self.target), os.fdopen(fd, "wb") as f:
                 write(f)
             os.replace(tmp, path)
         finally:
@@ -297,6 +340,17 @@ class FrameParts:
     @staticmethod
     def _write_json(path: Path, obj) -> None:
         path.write_text(json.dumps(obj, sort_keys=True))
+
+    def bytes_needed(self) -> int:
+        """About what merging the committed frames into a features file writes (their
+        arrays as stored, and HDF5's per-group overhead)."""
+        size = 0
+        for p in self._frames.values():
+            try:
+                size += p.stat().st_size + 4096
+            except OSError:
+                pass
+        return size + (256 << 10)
 
     def merge_into(self, writer: FeaturesWriter) -> int:
         """Add every committed frame and failure to ``writer``; returns the frames added."""

@@ -35,6 +35,7 @@ contiguous (C order, cells last), which is what the table search reads.
 from __future__ import annotations
 
 import json
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -46,7 +47,12 @@ from .artifacts import open_artifact, read_json_attr, write_artifact
 from .conf import load_yaml
 from .errors import SchemaError
 from .field import FieldModel, field_from_spec
+from .resources import check_disk
 from .scanlines import ScanLines
+
+log = logging.getLogger(__name__)
+
+HDF5_OVERHEAD = 1 << 20  # bytes beyond the arrays: field, attributes, HDF5's own structures
 
 SCHEMA = "fieldloc.map"
 VERSION = 1
@@ -102,8 +108,12 @@ class Grid:
 
 def write_map(path: str | Path, fm: FieldModel, grid: Grid, scanlines: ScanLines,
               tables: dict[str, tuple[np.ndarray, dict]], attrs: dict) -> Path:
-    """Write the map atomically. ``tables``: name -> (array, attributes)."""
+    """Write the map atomically. ``tables``: name -> (array, attributes). A map that does not
+    fit on the disk is refused before it is written (HDF5 meeting a full disk mid-file
+    fails with messages of its own, and can crash the process)."""
     path = Path(path)
+    need = sum(np.asarray(arr).nbytes for arr, _ in tables.values()) + HDF5_OVERHEAD
+    check_disk(f"the map {path}", path.parent if str(path.parent) else Path("."), need)
     attrs = dict(attrs)
     attrs.update(
         field=fm.name,
@@ -153,10 +163,32 @@ class MapFile:
             spec_text = self.h5["field/spec_yaml"][()]
             spec_text = spec_text.decode() if isinstance(spec_text, bytes) else spec_text
             self.field = field_from_spec(load_yaml(spec_text), str(self.path), spec_text)
+            self._check_field_lines()
         except (KeyError, ValueError, TypeError, OSError, yaml.YAMLError) as e:
             self.h5.close()
             raise SchemaError(f"{self.path}: damaged map file ({e})") from None
+        except SchemaError:
+            self.h5.close()
+            raise
         self._cache: dict[str, np.ndarray] = {}
+
+    def _check_field_lines(self) -> None:
+        """The lines stored in /field (what the tables were built from) must be finite; lines
+        that differ from what the stored spec gives today (a map built by a fieldloc that
+        read the spec otherwise) are reported: the pictures draw the spec's."""
+        for name in ("segments", "arcs"):
+            if name not in self.h5["field"]:
+                continue
+            stored = np.asarray(self.h5["field"][name][()], float)
+            model = np.asarray(getattr(self.field, name), float)
+            if not np.isfinite(stored).all():
+                raise SchemaError(f"{self.path}: damaged map file (/field/{name} holds values"
+                                  " that are not finite numbers)")
+            if stored.shape != model.shape or not np.allclose(stored, model, rtol=0,
+                                                              atol=1e-6):
+                log.warning("%s: /field/%s differs from the field its spec gives now (built"
+                            " by another fieldloc version?); build the map again",
+                            self.path, name)
 
     @property
     def conf(self) -> dict:

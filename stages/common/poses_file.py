@@ -190,6 +190,32 @@ def read_poses(path: str | Path) -> tuple[dict[str, np.ndarray], dict]:
         raise SchemaError(f"{path}: damaged poses file ({e})") from None
 
 
+REQUIRED = ("name", "stamp", "x", "y", "theta", "failed", "confidence")
+
+
+def _check_shapes(out: dict, path) -> None:
+    """Every column one value per frame, ``covariance`` (N, 3, 3) and ``/hypotheses``
+    (N, K, 4) numbers: a file edited or damaged elsewhere is refused in one line rather than
+    read with columns out of step."""
+    missing = [k for k in REQUIRED if k not in out]
+    if missing:
+        raise SchemaError(f"{path}: damaged poses file (no /poses/{missing[0]})")
+    n = len(out["name"]) if np.ndim(out["name"]) == 1 else -1
+    for k, v in out.items():
+        want = {"covariance": (n, 3, 3)}.get(k)
+        if k == "hypotheses":
+            if v.ndim != 3 or v.shape[0] != n or v.shape[2] != 4 or v.dtype.kind not in "fiu":
+                raise SchemaError(f"{path}: damaged poses file (/hypotheses has shape"
+                                  f" {v.shape} of {v.dtype}; expected ({n}, K, 4) numbers)")
+        elif want is not None:
+            if v.shape != want:
+                raise SchemaError(f"{path}: damaged poses file (/poses/{k} has shape {v.shape};"
+                                  f" expected {want})")
+        elif v.ndim != 1 or len(v) != n:
+            raise SchemaError(f"{path}: damaged poses file (/poses/{k} has shape {v.shape};"
+                              f" /poses/name has {n} frames)")
+
+
 def _read_poses(path):
     with open_artifact(path, SCHEMA, VERSION) as h5:
         g = h5["poses"]
@@ -204,6 +230,7 @@ def _read_poses(path):
         attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in h5.attrs.items()}
         attrs["conf"] = read_json_attr(h5, "conf")
         attrs["inputs"] = read_json_attr(h5, "inputs")
+    _check_shapes(out, path)
     failed = np.asarray(out["failed"], bool)
     if "accepted" not in out:
         out["accepted"] = ~failed
@@ -217,3 +244,30 @@ def _read_poses(path):
         h[:, 0, 3] = np.where(failed, np.nan, out["confidence"])
         out["hypotheses"] = h
     return out, attrs
+
+
+# ---------------------------------------------------------------------------- start half
+
+HALVES = {"own": "own half (x < 0)", "opponent": "opponent half (x > 0)"}
+MIN_HALF_FRAMES = 5  # accepted frames before the halves they lie in say anything
+
+
+def start_half_warning(columns: dict, attrs: dict) -> str | None:
+    """One line when the run's accepted frames mostly lie in the other half than the
+    ``start_half`` its conf gave (None otherwise, and for ``any``). start_half only places
+    the first fix; a run that then spends most of its accepted frames in the other half
+    either walked there or was started on the wrong half, whose mirrored track a symmetric
+    field cannot reveal: the user is the one who can tell which."""
+    half = (attrs.get("conf") or {}).get("start_half")
+    if half not in HALVES:
+        return None
+    x = np.asarray(columns["x"], float)
+    acc = np.asarray(columns["accepted"], bool) & np.isfinite(x)
+    n = int(acc.sum())
+    other = int(np.sum(x[acc] > 0) if half == "own" else np.sum(x[acc] < 0))
+    if n < MIN_HALF_FRAMES or 2 * other <= n:
+        return None
+    return (f"start_half {half}, yet {other} of {n} accepted frames lie in the"
+            f" {HALVES['opponent' if half == 'own' else 'own']}: if the robot did not start"
+            f" in its {HALVES[half]}, the whole track is the field's mirror image (run again"
+            " with --start-half any or the other half)")

@@ -120,7 +120,49 @@ def load_report(path: str | Path, *, raw: bool = False) -> dict:
             f"{p}: '{SCHEMA}' version {data.get('schema_version')} is not supported (this"
             f" fieldloc reads versions 1..{VERSION})"
         )
+    _check_figures(data, p)
     return data if raw else decode_numbers(data)
+
+
+# the figures of a report whose shape every reader relies on: counts are numbers, these
+# sections are tables whose leaves are numbers ("inf", "-inf" and null included)
+_COUNTS = ("frames", "matched", "unmatched", "failures", "matched_failures", "failure_rate",
+           "mirrored", "accepted", "not_accepted", "confidently_wrong")
+_TABLES = ("position_error_m", "heading_error_deg", "within", "runtime_ms",
+           "stamp_difference_ms", "modes", "localised/position_error_m",
+           "localised/heading_error_deg", "localised/within", "hypotheses/top_within",
+           "hypotheses/best_within")
+
+
+def _is_number(v) -> bool:
+    return (v is None or v in ("inf", "-inf")
+            or (isinstance(v, (int, float)) and not isinstance(v, bool)))
+
+
+def _short(v) -> str:
+    text = json.dumps(v)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _check_figures(data: dict, p: Path) -> None:
+    """A report.json edited or damaged by hand is refused in one line, naming the key."""
+    for key in _COUNTS:
+        if key in data and not _is_number(data[key]):
+            raise SchemaError(f"{p}: '{key}' must be a number, got {_short(data[key])}")
+    for path in ("localised", "hypotheses", "calibration", *_TABLES):
+        keys = path.split("/")
+        v = data
+        for k in keys:
+            v = v.get(k) if isinstance(v, dict) else None
+        if v is None:
+            continue
+        if not isinstance(v, dict):
+            raise SchemaError(f"{p}: '{path}' must be a table (a JSON object), got {_short(v)}")
+        if path in _TABLES:
+            bad = [k for k, x in v.items() if not _is_number(x)]
+            if bad:
+                raise SchemaError(f"{p}: '{path}/{bad[0]}' must be a number, got"
+                                  f" {_short(v[bad[0]])}")
 
 
 # ---------------------------------------------------------------------------- errors.csv

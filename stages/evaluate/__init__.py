@@ -46,7 +46,7 @@ from stages.common.report_file import (
     write_report,
 )
 
-from .metrics import FrameErrors, frame_errors, summarize
+from .metrics import FrameErrors, frame_errors, start_half_contradicted, summarize
 from .report import reliability_table, tabulate
 
 __all__ = ["confs", "main", "evaluate_poses", "tabulate", "reliability_table", "load_report",
@@ -89,7 +89,7 @@ CONVENTIONS = {
     " stamp_tolerance; unmatched frames are counted but take no part in the errors",
     "failures": "a failed frame has infinite position and heading error: it is never 'within',"
     " makes max and mean inf and raises median and p90 (inf when more than half failed);"
-    " 'localised' holds the same statistics over matched frames that did not fail",
+    " 'localised' holds the same statistics over matched frames with an accepted pose",
     "denominators": "position_error_m, heading_error_deg and within are over matched frames;"
     " failures and runtime_ms over all frames",
     "heading": "absolute difference wrapped to [0, 180] deg",
@@ -212,6 +212,9 @@ def main(conf: str | dict | None, poses, truth, output_dir, *, overwrite: bool =
     if summary["unmatched"]:
         log.warning("%s: %d of %d frames have no truth stamp within %g s and are not scored",
                     poses, summary["unmatched"], summary["frames"], conf["stamp_tolerance"])
+    why = start_half_contradicted(fe, attrs, max(conf["thresholds"], default=0.4))
+    if why:
+        log.warning("%s: %s", poses, why)
 
     out.mkdir(parents=True, exist_ok=True)
     write_errors_csv(out / ERRORS_NAME, fe)

@@ -9,8 +9,8 @@ Conventions (also written into every report.json under ``conventions``):
 - A frame the method could not localise (``failed``) is a failure, never a pose: its position
   and heading errors are infinite. Failures therefore never count as "within" a threshold, they
   make ``max`` and ``mean`` infinite, and they push the median and p90 up (a median of inf means
-  more than half of the matched frames failed). The same statistics over the localised (not
-  failed) matched frames are given separately.
+  more than half of the matched frames failed). The same statistics over the localised
+  matched frames (those with an accepted pose, see below) are given separately.
 - Percentiles interpolate linearly between order statistics as numpy's default does; an
   interpolation that touches an infinite value gives inf.
 - Heading error is the absolute difference wrapped to [0, pi] (an error of 350 deg is 10 deg).
@@ -260,6 +260,26 @@ def mirrored_frames(fe: FrameErrors, threshold: float) -> int:
     return int(np.sum((fe.position_error[ok] > threshold) & (mirror_err <= threshold)))
 
 
+def start_half_contradicted(fe: FrameErrors, attrs: dict, margin: float) -> str | None:
+    """One line when the poses' conf gave a ``start_half`` (own: x < 0, opponent: x > 0) and
+    the truth starts on the other half, more than ``margin`` m from the halfway line (nearer,
+    the half is no claim a frame could contradict). No frame of a symmetric field can tell
+    a wrong start half from a right one; the truth can. None otherwise."""
+    half = (attrs.get("conf") or {}).get("start_half")
+    if half not in ("own", "opponent") or not fe.matched.any():
+        return None
+    first = np.flatnonzero(fe.matched)[np.argmin(fe.stamp[fe.matched])]
+    x0 = float(fe.truth_x[first])
+    if not (x0 > margin if half == "own" else x0 < -margin):
+        return None
+    m = fe.matched & ~fe.failed
+    mirror = int(np.sum(fe.top_mirrored[m])) if fe.top_mirrored is not None else 0
+    return (f"the run was given start_half {half}, but the truth starts at x = {x0:.2f} m, in"
+            f" the {'opponent' if x0 > 0 else 'own'} half; {mirror} of {int(m.sum())} frames'"
+            " top hypotheses are the truth's mirror image (localise again with --start-half"
+            " any or the other half)")
+
+
 def reliability(confidence, correct, bins: int = 10) -> list[dict]:
     """Reliability table: confidence in ``bins`` equal bins over [0, 1] (the last closed);
     per non-empty bin the frames, the mean confidence, the observed share of correct frames
@@ -323,7 +343,7 @@ def summarize(fe: FrameErrors, thresholds) -> dict:
     """The numbers of a report: counts, error statistics (failures as inf, and over localised
     frames only), shares within thresholds, runtime, modes."""
     m = fe.matched
-    ok = m & ~fe.failed
+    ok = m & fe.accepted  # localised: an accepted pose (not failed, confidence reached)
     deg = 180.0 / math.pi
     rt = fe.runtime[np.isfinite(fe.runtime)] * 1000.0
     dt = np.abs(fe.stamp[m] - fe.truth_stamp[m])

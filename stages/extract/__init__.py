@@ -38,11 +38,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..common.artifacts import check_output, file_hash, root_attrs
+from ..common.artifacts import check_output, file_hash, output_lock, root_attrs
 from ..common.conf import registered_module, resolve_conf, stage_conf
 from ..common.dataset import open_dataset, read_image, read_mask
 from ..common.errors import FieldlocError, SchemaError
 from ..common.features_file import SCHEMA, VERSION, FeaturesFile, FrameParts, write_features
+from ..common.resources import check_disk
 
 log = logging.getLogger(__name__)
 
@@ -217,58 +218,64 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
                 check_output(debug_images / f"{name}.png", {"dataset image": img},
                              overwrite=None)
 
-    attrs, mask, head = _run_attrs(ds, camera, module, conf)
-    resume = output.exists() and not overwrite
-    in_output: set[str] = set()
-    if resume:
-        _check_resumable(output, attrs)
-        with FeaturesFile(output) as old:
-            in_output = set(old.names)
-    parts = FrameParts(output, attrs)
-    if overwrite:
-        parts.discard("--overwrite extracts every frame again")
-    resumed = parts.open()
-    todo = [(p, n, s) for p, n, s in zip(ds.images, ds.names, ds.stamps)
-            if n not in in_output and not parts.has(n)]
-    log.info("extract %s (%s camera, %d frames) -> %s; conf %s", ds.root, kind, len(ds.images),
-             output, json.dumps(conf, sort_keys=True))
-    if resume and not todo and not resumed:
-        parts.remove()
-        log.info("extract: all %d frames of %s are already in %s", len(in_output), ds.root,
-                 output)
-        return output
+    # one run at a time per output: a second run would take the first one's committed
+    # frames for an interrupted run's and resume them while they are being written
+    with output_lock(output):
+        attrs, mask, head = _run_attrs(ds, camera, module, conf)
+        resume = output.exists() and not overwrite
+        in_output: set[str] = set()
+        if resume:
+            _check_resumable(output, attrs)
+            with FeaturesFile(output) as old:
+                in_output = set(old.names)
+        parts = FrameParts(output, attrs)
+        if overwrite:
+            parts.discard("--overwrite extracts every frame again")
+        resumed = parts.open()
+        todo = [(p, n, s) for p, n, s in zip(ds.images, ds.names, ds.stamps)
+                if n not in in_output and not parts.has(n)]
+        log.info("extract %s (%s camera, %d frames) -> %s; conf %s", ds.root, kind,
+                 len(ds.images), output, json.dumps(conf, sort_keys=True))
+        if resume and not todo and not resumed:
+            parts.remove()
+            log.info("extract: all %d frames of %s are already in %s", len(in_output), ds.root,
+                     output)
+            return output
 
-    if debug_images is not None:
-        debug_images.mkdir(parents=True, exist_ok=True)
-    done = failed = 0
-    for path, name, stamp in tqdm(todo, desc="extract", unit="frame", disable=not progress):
-        try:
-            image = read_image(path)
-            arrays = module.extract_frame(image, camera, conf,
-                                          **_frame_info(kind, mask, head, float(stamp)))
-        except FieldlocError as e:
-            log.warning("frame %s skipped: %s", name, e)
-            parts.add_failure(name, str(e))
-            failed += 1
-            continue
-        parts.add_frame(name, float(stamp), arrays)
         if debug_images is not None:
-            _write_debug_image(debug_images / f"{name}.png", module.debug_overlay(image, arrays))
-        done += 1
-    good = len(in_output) + len(parts.frame_names)
-    if good == 0:
-        first = next(iter(sorted(parts.failures.items())), None)
-        n_failed = len(parts.failures)
+            debug_images.mkdir(parents=True, exist_ok=True)
+        done = failed = 0
+        for path, name, stamp in tqdm(todo, desc="extract", unit="frame", disable=not progress):
+            try:
+                image = read_image(path)
+                arrays = module.extract_frame(image, camera, conf,
+                                              **_frame_info(kind, mask, head, float(stamp)))
+            except FieldlocError as e:
+                log.warning("frame %s skipped: %s", name, e)
+                parts.add_failure(name, str(e))
+                failed += 1
+                continue
+            parts.add_frame(name, float(stamp), arrays)
+            if debug_images is not None:
+                _write_debug_image(debug_images / f"{name}.png",
+                                   module.debug_overlay(image, arrays))
+            done += 1
+        good = len(in_output) + len(parts.frame_names)
+        if good == 0:
+            first = next(iter(sorted(parts.failures.items())), None)
+            n_failed = len(parts.failures)
+            parts.remove()
+            raise FieldlocError(
+                f"no frame of {ds.root} could be extracted ({n_failed} of {len(ds.images)} failed"
+                + (f"; first: {first[0]}: {first[1]}" if first else "") + ")")
+        need = parts.bytes_needed() + (output.stat().st_size if resume else 0)
+        check_disk(f"extract into {output}", output.parent, need)  # before HDF5 meets it
+        with write_features(output, attrs, resume=resume) as writer:
+            parts.merge_into(writer)
         parts.remove()
-        raise FieldlocError(
-            f"no frame of {ds.root} could be extracted ({n_failed} of {len(ds.images)} failed"
-            + (f"; first: {first[0]}: {first[1]}" if first else "") + ")")
-    with write_features(output, attrs, resume=resume) as writer:
-        parts.merge_into(writer)
-    parts.remove()
-    log.info("extract: %d frames extracted, %d already done (%d of them by an interrupted run),"
-             " %d failed -> %s", done, len(in_output) + resumed, resumed, failed, output)
-    return output
+        log.info("extract: %d frames extracted, %d already done (%d of them by an interrupted run),"
+                 " %d failed -> %s", done, len(in_output) + resumed, resumed, failed, output)
+        return output
 
 
 def _write_debug_image(path: Path, image: np.ndarray) -> None:

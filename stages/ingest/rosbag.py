@@ -54,7 +54,8 @@ import numpy as np
 import yaml
 
 from .. import __version__
-from ..common.artifacts import atomic_dir, file_hash
+from ..common.artifacts import atomic_dir, check_output, file_hash
+from ..common.camera import load_calib
 from ..common.conf import load_yaml, stage_conf
 from ..common.dataset import write_csv
 from ..common.errors import FieldlocError
@@ -67,6 +68,7 @@ IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 ODOMETRY_TYPES = ("nav_msgs/msg/Odometry",)
 IMU_TYPES = ("sensor_msgs/msg/Imu",)
 STAMPS = ("header", "bag")
+GENERATOR = "fieldloc import rosbag"  # import.yaml's generator: the marker of our folders
 
 confs = {
     "default": {
@@ -122,15 +124,68 @@ def bag_paths(bag) -> list[Path]:
                    " metadata.yaml)")
 
 
-def open_reader(bag):
-    """An AnyReader on the bag, not yet opened; unreadable bags are a BagError."""
-    from rosbags.highlevel import AnyReader
+def _bag_problem(bag, e: BaseException) -> BagError:
+    """One line for what rosbags (or the YAML and SQLite readers below it) raised on a
+    foreign or damaged bag: the first line of its message, at most 120 characters."""
+    text = " ".join(str(e).split()) or type(e).__name__
+    if len(text) > 120:
+        text = text[:117] + "..."
+    return BagError(f"{bag}: cannot read the bag, it is empty or damaged ({text})")
 
-    paths = bag_paths(bag)
-    try:
-        return AnyReader(paths)
-    except Exception as e:  # rosbags raises its own errors for foreign or broken files
-        raise BagError(f"{bag}: cannot read the bag ({e})") from None
+
+class _Reader:
+    """rosbags' AnyReader with every failure of a foreign or damaged bag (empty, random
+    bytes, truncated, metadata.yaml that is not YAML, a .db3 without tables) turned into a
+    BagError, on opening and while its messages are read."""
+
+    def __init__(self, bag):
+        from rosbags.highlevel import AnyReader
+
+        self.bag = bag
+        try:
+            self._reader = AnyReader(bag_paths(bag))
+        except FieldlocError:
+            raise
+        except Exception as e:  # rosbags raises its own errors for foreign or broken files
+            raise _bag_problem(bag, e) from None
+
+    def __enter__(self):
+        try:
+            self._reader.open()
+        except Exception as e:  # AnyReaderError, UnicodeDecodeError, YAML and SQLite errors
+            raise _bag_problem(self.bag, e) from None
+        return self
+
+    def __exit__(self, *exc):
+        try:
+            self._reader.close()
+        except Exception:  # closing a half-opened damaged bag: nothing more to report
+            pass
+        return False
+
+    @property
+    def connections(self):
+        return self._reader.connections
+
+    def deserialize(self, raw, msgtype):
+        return self._reader.deserialize(raw, msgtype)
+
+    def messages(self, connections):
+        it = iter(self._reader.messages(connections=connections))
+        while True:
+            try:
+                item = next(it)
+            except StopIteration:
+                return
+            except Exception as e:  # a truncated chunk or a damaged database page
+                raise _bag_problem(self.bag, e) from None
+            yield item
+
+
+def open_reader(bag) -> _Reader:
+    """A reader on the bag, not yet opened (``with`` opens it); whatever a foreign or damaged
+    bag makes rosbags raise is a BagError."""
+    return _Reader(bag)
 
 
 def _connections(reader, topic: str, types: tuple, what: str, bag) -> list:
@@ -328,8 +383,12 @@ def main(conf: str | dict | None, bag, output, *, image_topic: str, odom_topic: 
     conf = stage_conf(confs, conf)
     _check_conf(conf, every)
     output = Path(output)
-    if calib is not None and not Path(calib).is_file():
-        raise FieldlocError(f"calibration not found: {calib}")
+    _check_target(output, bag, calib, overwrite)
+    if calib is not None:
+        try:
+            load_calib(calib)
+        except FieldlocError as e:
+            raise FieldlocError(f"--calib: {e}") from None
     reader = open_reader(bag)
     with reader:
         img_conns = _connections(reader, image_topic, IMAGE_TYPES, "images", bag)
@@ -391,7 +450,7 @@ def main(conf: str | dict | None, bag, output, *, image_topic: str, odom_topic: 
             if calib is not None:
                 shutil.copyfile(calib, tmp / "calib.yaml")
             record.update({
-                "generator": "fieldloc import rosbag",
+                "generator": GENERATOR,
                 "fieldloc_version": __version__,
                 "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
                 "bag": str(bag),
@@ -409,6 +468,38 @@ def main(conf: str | dict | None, bag, output, *, image_topic: str, odom_topic: 
             (tmp / "import.yaml").write_text(yaml.safe_dump(record, sort_keys=False))
     log.info("imported %d frames from %s into %s", len(names), bag, output)
     return output
+
+
+def is_imported_dataset(folder: Path) -> bool:
+    """Whether ``folder`` was written by this importer (its import.yaml says so)."""
+    rec = folder / "import.yaml"
+    if not rec.is_file():
+        return False
+    try:
+        d = load_yaml(rec.read_text())
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, FieldlocError):
+        return False
+    return isinstance(d, dict) and d.get("generator") == GENERATOR
+
+
+def _check_target(output: Path, bag, calib, overwrite: bool) -> None:
+    """The dataset folder may be none of the inputs, hold none, nor lie inside a ROS 2 bag
+    folder; ``overwrite`` replaces only a folder this importer wrote, never a user's own
+    folder (the whole folder is replaced, so anything else in it would be lost)."""
+    source = bag_paths(bag)[0]
+    inputs = {"bag": [Path(bag), source], "calibration": calib}
+    check_output(output, inputs, overwrite=None, kind="folder")
+    if source.is_dir() and output.resolve().is_relative_to(source.resolve()):
+        raise FieldlocError(f"{output} lies inside the bag folder {source}: choose an output"
+                            " outside it")
+    if output.is_dir() and any(output.iterdir()):
+        if not overwrite:
+            raise FieldlocError(f"folder {output} exists and is not empty (use --overwrite to"
+                                " replace a folder fieldloc import wrote)")
+        if not is_imported_dataset(output):
+            raise FieldlocError(
+                f"{output} is not a dataset made by fieldloc import rosbag (no import.yaml"
+                " naming it): --overwrite replaces only those; choose another output")
 
 
 def _deserialize(reader, raw, conn, bag):

@@ -626,6 +626,17 @@ def _failed_before(plan: Plan, run: RunSpec, e: BaseException) -> dict:
     return rec
 
 
+def _quiet_stop(record: logging.LogRecord) -> bool:
+    """A logging filter for the stop of our own LocalCluster, every run's files written:
+    the nanny's "Worker process still alive after 4.0 seconds, killing" (a worker slow to
+    exit on a loaded machine; nothing of ours is lost) goes to our debug log, not the
+    terminal."""
+    if record.getMessage().startswith("Worker process still alive after"):
+        log.debug("dask: %s", record.getMessage())
+        return False
+    return True
+
+
 def _execute_dask(plan: Plan, todo, conf, progress, say, records: dict, summarise) -> dict:
     """Run ``todo`` on Dask, adding their records to ``records`` (which holds the finished
     runs' before), then ``summarise`` them; returns its index. A dataset's CDF picture
@@ -651,10 +662,13 @@ def _execute_dask(plan: Plan, todo, conf, progress, say, records: dict, summaris
             where = f"the Dask cluster at {conf['scheduler']}"
         else:
             n = conf["workers"] or core_count()
+            nanny_log = logging.getLogger("distributed.nanny")
+            stack.callback(nanny_log.removeFilter, _quiet_stop)  # after the cluster stopped
             cluster = stack.enter_context(LocalCluster(
                 n_workers=n, threads_per_worker=1, processes=True,
                 dashboard_address=":0", silence_logs=logging.WARNING))
             client = stack.enter_context(Client(cluster))
+            stack.callback(nanny_log.addFilter, _quiet_stop)  # before it stops
             where = f"a local Dask cluster of {n} worker processes"
         nw = len(client.scheduler_info().get("workers", {}))
         say(f"running {len(todo)} runs on {where} ({nw} workers)")

@@ -8,7 +8,7 @@ the place (``methods[2].conf``), never a traceback.
     build_map: {resolution: 0.1}   # optional: build-map conf of the maps built
     datasets:
       - path: recordings/lab-1         # a dataset folder (named by its folder)
-      - glob: recordings/hall-*        # every folder matching, sorted
+      - glob: recordings/hall-*        # every folder matching, sorted (but RESULTS)
       - name: omni-clean               # rendered into RESULTS/datasets/, rebuilt from this
         simulate: {preset: omni-clean, field: msl-2015, frames: 60, seed: 1}
       - name: minho-lab                # a recording whose calibration is made elsewhere
@@ -72,6 +72,7 @@ import copy
 import fnmatch
 import glob as globmod
 import json
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -218,8 +219,10 @@ def read_spec(spec_path: str | Path, results: str | Path) -> Plan:
         data = load_yaml(spec_path.read_text())
     except (yaml.YAMLError, UnicodeDecodeError) as e:
         line = getattr(getattr(e, "problem_mark", None), "line", None)
-        where = f" (line {line + 1})" if line is not None else ""
-        raise FieldlocError(f"{spec_path}: not valid YAML{where}") from None
+        where = f" line {line + 1}" if line is not None else ""
+        first = str(e).splitlines()[0][:80] if str(e) else type(e).__name__
+        raise FieldlocError(f"{spec_path}: not valid YAML ({first}{';' if where else ''}"
+                            f"{where})") from None
     w = _Where(spec_path)
     base = spec_path.resolve().parent
     results = Path(results)
@@ -298,6 +301,10 @@ def _map_for(w: _Where, source, where: str, results: Path, build_conf: dict, map
     return path
 
 
+def _within(inner: Path, outer: Path) -> bool:
+    return Path(os.path.realpath(inner)).is_relative_to(os.path.realpath(outer))
+
+
 def _datasets(w, entries, base, results, default_map, build_conf, extract_default, maps,
               templates_default, templates):
     if not isinstance(entries, list) or not entries:
@@ -325,7 +332,10 @@ def _datasets(w, entries, base, results, default_map, build_conf, extract_defaul
                 own_map = ("field", found[0].sim_field)
         elif "glob" in d:
             pattern = str(_path(base, w.text(d["glob"], f"{where}.glob")))
-            folders = sorted(Path(p) for p in globmod.glob(pattern) if Path(p).is_dir())
+            # RESULTS is never one of its own datasets (a results folder beside the recordings
+            # the glob names would otherwise be a dataset holding RESULTS on every rerun)
+            folders = sorted(Path(p) for p in globmod.glob(pattern) if Path(p).is_dir()
+                             and not _within(Path(p), results))
             if not folders:
                 w.fail(f"{where}.glob", f"no folder matches {pattern}")
             found += [_folder(w, p, p.name, where, results, None) for p in folders]
@@ -406,6 +416,7 @@ def _simulated(w, d, where, results):
             over[k] = s[k]
     try:
         conf = resolve_conf(simulate.confs, preset, over)
+        simulate.check_conf(conf)  # frames, seeds: refused before anything runs
     except FieldlocError as e:
         w.fail(f"{where}.simulate", str(e))
     field_arg = w.text(s["field"], f"{where}.simulate.field")

@@ -48,7 +48,8 @@ def draw_error_cdfs(ax, curves, thresholds=()):
 def draw_summary(ax, rows, threshold: str = "0.4"):
     """Methods (rows) x datasets (columns): the colour is the share within 40 cm (failures
     counted), the text that share and the median error; a failed run is marked "failed", a run
-    without truth "no truth"."""
+    without truth "no truth", a run none of whose matched frames was accepted "none accepted"
+    (its share 0 and median infinite say nothing more)."""
     datasets = list(dict.fromkeys(r["dataset"] for r in rows))
     methods = list(dict.fromkeys(r["method"] for r in rows))
     grid = np.full((len(methods), len(datasets)), np.nan)
@@ -65,6 +66,9 @@ def draw_summary(ax, rows, threshold: str = "0.4"):
             text[i][j] = "no truth"
             continue
         grid[i, j] = float(within)
+        if rep.get("accepted") == 0 and rep.get("matched", 0):
+            text[i][j] = "none\naccepted"
+            continue
         med = "inf" if median is not None and math.isinf(median) else (
             "-" if median is None or math.isnan(median) else f"{median * 100:.1f} cm")
         text[i][j] = f"{float(within):.0%}\n{med}"

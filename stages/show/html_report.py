@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..common.artifacts import atomic_path
+from ..common.artifacts import atomic_path, check_output
 from ..common.conf import stage_conf
 from ..common.errors import FieldlocError
 from ..common.report_file import REPORT_NAME, load_report, read_errors_csv
@@ -74,6 +74,46 @@ td.num{text-align:right;font-variant-numeric:tabular-nums}th{background:#f3f3f3}
 img{max-width:100%;border:1px solid #ddd;margin:4px 0}.note{color:#666;font-size:0.9em}
 figure{margin:0.5em 0}figcaption{font-size:0.9em;color:#444}
 """
+
+
+# how every page starts: the generator names fieldloc, so --overwrite can tell its own pages
+PAGE_HEAD = ("<!DOCTYPE html><html><head><meta charset='utf-8'>"
+             "<meta name='generator' content='fieldloc report'>")
+_OLDER_PAGE_HEAD = "<!DOCTYPE html><html><head><meta charset='utf-8'><title>fieldloc report:"
+
+
+def is_report_page(path: Path) -> bool:
+    """Whether ``path`` is a page this module wrote (what --overwrite may replace)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(PAGE_HEAD) + len(_OLDER_PAGE_HEAD))
+    except OSError:
+        return False
+    return head.startswith(PAGE_HEAD.encode()) or head.startswith(_OLDER_PAGE_HEAD.encode())
+
+
+def report_inputs(dirs: list[Path]) -> dict[str, list[Path]]:
+    """What the page is made from, which its output may never be: every file of the report
+    folders (report.json, errors.csv, plots) and the poses and features files they name."""
+    from ..common.poses_file import read_poses
+
+    files, runs = [], []
+    for d in dirs:
+        files += [p for p in d.rglob("*") if p.is_file()]
+        try:
+            report = load_report(d, raw=True)
+        except FieldlocError:
+            continue
+        poses = report.get("poses")
+        if isinstance(poses, str) and Path(poses).is_file():
+            runs.append(Path(poses))
+            try:
+                f = ((read_poses(poses)[1].get("inputs") or {}).get("features"))
+            except FieldlocError:
+                f = None
+            if isinstance(f, str):
+                runs.append(Path(f))
+    return {"a file of the report": files, "the run's poses or features": runs}
 
 
 def find_reports(source) -> list[Path]:
@@ -294,17 +334,21 @@ def main(conf: str | dict | None, source, output, *, overwrite: bool = False,
          progress: bool = False) -> Path:
     """Write the HTML page of the report(s) in ``source`` to ``output``; returns it."""
     conf = stage_conf(confs, conf)
+    if int(conf["worst"]) < 0:
+        raise FieldlocError(f"worst must be 0 or more frames, got {conf['worst']}")
     output = Path(output)
-    if output.exists() and not overwrite:
-        raise FieldlocError(f"{output} exists (use --overwrite to replace it)")
     dirs = find_reports(source)
+    check_output(output, report_inputs(dirs), overwrite=overwrite)
+    if output.exists() and not is_report_page(output):
+        raise FieldlocError(f"{output} is not a page written by fieldloc report: --overwrite"
+                            " replaces only those; choose another output")
     header, rows = table_rows(dirs)
     runs = ("<table><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in header) + "</tr>"
             + "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>"
                       for r in rows) + "</table>")
     sections = [report_section(d, conf, i) for i, d in enumerate(dirs)]
     created = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-    page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>fieldloc report:"
+    page = (f"{PAGE_HEAD}<title>fieldloc report:"
             f" {html.escape(Path(source).name)}</title><style>{_CSS}</style></head><body>"
             f"<h1>fieldloc report: {html.escape(str(source))}</h1><p class='note'>{len(dirs)}"
             f" run(s); written {created} by fieldloc {__version__}. Distances between line"

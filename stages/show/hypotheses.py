@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..common.artifacts import check_output
 from ..common.conf import stage_conf
 from ..common.dataset import frame_index, readable_truth, truth_at
 from ..common.errors import FieldlocError
@@ -80,12 +81,11 @@ def main(conf: str | dict | None, poses: str | Path, output: str | Path, *,
 
     conf = stage_conf(confs, conf)
     output = Path(output)
-    if output.exists() and not overwrite:
-        raise FieldlocError(f"{output} exists (use --overwrite to replace it)")
+    check_output(output, {"poses": poses, "features": features}, overwrite=overwrite)
     cols, attrs = read_poses(poses)
     names = [str(n) for n in cols["name"]]
     i = frame_index(names, frame, str(poses))
-    fm = load_field(field or attrs.get("field") or "")
+    fm = poses_field(attrs, field)
     h = cols["hypotheses"][i]
     h = h[np.isfinite(h[:, 3]) & (h[:, 3] >= conf["min_probability"])][:conf["max_hypotheses"]]
     points = None
@@ -105,8 +105,31 @@ def main(conf: str | dict | None, poses: str | Path, output: str | Path, *,
     state = ("failed: " + str(cols["flags"][i]).split(",")[-1]) if cols["failed"][i] else (
         "accepted" if cols["accepted"][i] else "low confidence")
     draw_hypotheses(ax, fm, h, points, truth=truth, robot_radius=conf["robot_radius"],
-                    title=f"{Path(poses).name} frame {names[i]} ({state}): hypotheses with"
-                    " their probabilities, the frame's points at each; dashed white: truth")
+                    title=f"{Path(poses).name} frame {names[i]} ({state})\nhypotheses with"
+                    " their probabilities, the frame's points at each"
+                    + ("; dashed white: truth" if truth is not None else "; no truth"))
     return save_figure(fig, output)
+
+
+def poses_field(attrs: dict, field=None):
+    """The field to draw a poses file's frames on: ``field`` when given, else the field of
+    the map the poses were made with (a custom field's map carries its field; its name is no
+    preset), else the field the poses file names."""
+    if field:
+        return load_field(field)
+    map_path = (attrs.get("inputs") or {}).get("map")
+    if isinstance(map_path, str) and Path(map_path).is_file():
+        from ..common.map_file import MapFile
+
+        with MapFile(map_path) as m:
+            return m.field
+    name = attrs.get("field") or ""
+    if not name:
+        raise FieldlocError("the poses file names no field and no map: give --field")
+    try:
+        return load_field(name)
+    except FieldlocError as e:
+        raise FieldlocError(f"{e}; the map the poses were made with is not at hand"
+                            f" ({map_path or 'none named'}): give --field") from None
 
 

@@ -140,7 +140,17 @@ def main(conf: str | dict | None, map_path: str | Path, output: str | Path, *,
         raise FieldlocError(f"unknown table '{table}' (one of {', '.join(TABLES)})")
     if table != "distance" and cell is None:
         raise FieldlocError(f"--table {table} needs --cell X Y")
+    if spirals < 1:
+        raise FieldlocError(f"spirals must be at least 1, got {spirals}")
     with MapFile(map_path) as m:
+        if cell is not None and table != "distance":
+            g = m.grid
+            x0, y0 = g.origin[0] - g.resolution / 2, g.origin[1] - g.resolution / 2
+            x1, y1 = x0 + g.shape[1] * g.resolution, y0 + g.shape[0] * g.resolution
+            if not (x0 <= cell[0] <= x1 and y0 <= cell[1] <= y1):
+                raise FieldlocError(
+                    f"cell ({cell[0]:.6g}, {cell[1]:.6g}) lies outside the map's world"
+                    f" (x {x0:g}..{x1:g} m, y {y0:g}..{y1:g} m)")
         if table == "distance":
             fig = new_figure(11, 7.5)
             ax = fig.add_subplot(1, 1, 1)

@@ -124,9 +124,13 @@ def write_picture(conf, dataset_dir, output, *, frame: str | int = 0, features=N
     fig = points_figure(image, arrays, field_model=field, pose=pose,
                         title=f"{ds.root.name} frame {name}")
     path = save_figure(fig, output)
-    summary = {"frame": name, "points": int(len(arrays.get("points", ()))), "pose": pose}
-    if field is not None and pose is not None:
-        summary["share_near_lines"] = line_point_share(field, pose, arrays.get("points", ()))
+    summary = {"frame": name, "pose": pose}
+    if "points" in arrays:  # omni: line points; perspective: lines (no share over no points)
+        summary["points"] = int(len(arrays["points"]))
+        if field is not None and pose is not None and len(arrays["points"]):
+            summary["share_near_lines"] = line_point_share(field, pose, arrays["points"])
+    else:
+        summary["lines"] = int(len(arrays.get("lines", ())))
     return path, summary
 
 

@@ -107,8 +107,10 @@ def plot_trajectories(ax, fe: FrameErrors, field_model: FieldModel | None = None
     ax.plot(fe.x[ok], fe.y[ok], color="0.9", linewidth=0.5, alpha=0.8, zorder=2.5)
     mo = m & ok
     sc = ax.scatter(fe.x[mo], fe.y[mo], c=fe.position_error[mo], s=10, cmap="plasma",
-                    vmin=0.0, vmax=max_error, label="estimate" if np.any(mo) else None,
-                    zorder=3, edgecolors="none")
+                    vmin=0.0, vmax=max_error, zorder=3, edgecolors="none")
+    if np.any(mo):  # a colour-mapped scatter gives the legend no visible marker: a proxy does
+        ax.plot([], [], "o", color=sc.cmap(0.5), markersize=4, linestyle="none",
+                label="estimate (colour: error)")
     uo = ~m & ok
     if np.any(uo):
         ax.scatter(fe.x[uo], fe.y[uo], s=8, color="0.6", zorder=3, edgecolors="none",
@@ -274,14 +276,23 @@ def main(conf: str | dict | None, report_dir: str | Path, *, overwrite: bool = F
     truth = read_csv(report["truth"], "truth")
     tolerance = float(econf["stamp_tolerance"])
     fe = frame_errors(columns, truth, tolerance)
-    method = report.get("method") or "poses"
     write_report_plots(
-        fe, plots_dir, thresholds=econf["thresholds"], title=f"{method} on {report_dir.name}",
+        fe, plots_dir, thresholds=econf["thresholds"], title=plot_title(report),
         field_model=_field_model(report.get("field_override"), report.get("field") or ""),
         truth_path=truth_path_during(truth, fe, tolerance),
         dpi=int(conf["dpi"] if conf["dpi"] is not None else econf["dpi"]),
         calibration=decode_numbers(report["calibration"]))
     return plots_dir
+
+
+def plot_title(report: dict) -> str:
+    """What the plots are of: the method and the dataset it ran on (the folder's name), else
+    the poses file; not the report folder, whose name says nothing of the run."""
+    method = report.get("method") or "poses"
+    dataset = report.get("dataset")
+    if isinstance(dataset, str) and dataset.strip("/"):
+        return f"{method} on {Path(dataset).name}"
+    return f"{method}: {Path(str(report.get('poses') or '?')).name}"
 
 
 def _field_model(override, name: str):

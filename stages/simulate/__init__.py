@@ -344,19 +344,42 @@ def estimate_needs(conf: dict, field: FieldModel) -> tuple[dict, float]:
     return memory, n * float(w) * float(h) * 3 * PNG_RATIO
 
 
+def check_conf(conf: dict) -> None:
+    """The counts and seeds of a resolved simulate conf (frames, rate, seeds, calibration
+    shift), checked before anything is rendered; FieldlocError names the key."""
+    _check_conf(conf)
+
+
 def _check_conf(conf: dict):
     n = conf["frames"]
     if isinstance(n, bool) or not isinstance(n, int) or n < 1:
         raise FieldlocError(f"frames must be a whole number >= 1, got {n!r}")
     if not 0 < float(conf["rate_hz"]) < math.inf:
         raise FieldlocError(f"rate_hz must be > 0, got {conf['rate_hz']!r}")
+    s = conf["seed"]
+    if isinstance(s, bool) or not isinstance(s, int) or s < 0:
+        raise FieldlocError(f"seed must be a whole number >= 0, got {str(s)[:40]!r}")
     for key in ("calib_seed", "world_seed"):
         v = conf.get(key)
-        if v is not None and (isinstance(v, bool) or not isinstance(v, int)):
-            raise FieldlocError(f"{key} must be a whole number or null, got {v!r}")
+        if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 0):
+            raise FieldlocError(f"{key} must be a whole number >= 0 or null, got"
+                                f" {str(v)[:40]!r}")
     ce = conf["calib_error"]
     if len(ce.get("centre_shift", ())) != 2:
         raise FieldlocError("calib_error.centre_shift must be [du, dv] (px)")
+
+
+def _check_written_calib(camera) -> None:
+    """The calib.yaml that calib_error makes must be one extract reads: read back as extract
+    reads it (the model's own from_dict checks) before a frame is rendered."""
+    d = yaml.safe_load(yaml.safe_dump(camera.to_dict()))
+    try:
+        type(camera).from_dict(d, "calib.yaml")
+    except FieldlocError as e:
+        raise FieldlocError(f"calib_error would write a calibration extract refuses: {e}"
+                            ) from None
+    except (TypeError, ValueError, IndexError, AttributeError) as e:
+        raise FieldlocError(f"calib_error would write a malformed calibration ({e})") from None
 
 
 def main(conf: str | dict | None, field, output_dir, *, overwrite: bool = False,
@@ -408,6 +431,7 @@ def main(conf: str | dict | None, field, output_dir, *, overwrite: bool = False,
     extra_csv = renderer.prepare(path) if hasattr(renderer, "prepare") else {}
     calib_seed = seed if conf.get("calib_seed") is None else int(conf["calib_seed"])
     written = written_camera(module, renderer.camera, conf["calib_error"], calib_seed)
+    _check_written_calib(written)
 
     others = world.robot_positions()  # (K, N, 2)
     contact = float(conf["imu"].get("contact_distance", sensors.IMU_DEFAULTS["contact_distance"]))
