@@ -58,8 +58,10 @@ def world(tmp_path_factory):
     conf = dict(simulate.confs["omni-default"], frames=4, seed=3)
     p["omni"] = simulate.main(conf, "spl", root / "omni")
     p["features"] = extract.main(None, p["omni"], p["omni"] / "features.h5")
-    p["poses"] = localize.main({"method": "lut"}, p["omni"], p["map"], root / "poses.h5",
-                               features=p["features"])
+    # the tracks: four frames hold an accepted pose and a not-accepted one (the grid's
+    # belief gathers over more frames than that)
+    p["poses"] = localize.main({"method": "lut", "belief": "tracks"}, p["omni"], p["map"],
+                               root / "poses.h5", features=p["features"])
     kconf = dict(simulate.confs["perspective-default"], frames=2, seed=4)
     p["kid"] = simulate.main(kconf, "kidsize", root / "kid")
     p["kid_features"] = extract.main(None, p["kid"], root / "kid-features.h5")
