@@ -141,10 +141,3 @@ def localize(ctx, dataset, map_path, templates, pose_solver, features, points, m
     warn = start_half_warning(cols, attrs)
     if warn:
         log.warning(warn)
-    if points is not None:
-        from stages.common.dataset import open_dataset
-
-        total = len(open_dataset(dataset).names)
-        if n < total:
-            log.warning("%s holds %d of the %d frames of %s: the points file names no points"
-                        " for the others", path, n, total, dataset)

@@ -444,7 +444,12 @@ def _check_lock_holder_untouched(paths, res):
 
 
 def _check_one_frame_of_four(paths, res):
-    assert len(_poses_columns(paths["ws"] / "p.h5")["name"]) == 1
+    """Every dataset frame has a row: the three the points file names no point of failed."""
+    cols = _poses_columns(paths["ws"] / "p.h5")
+    assert len(cols["name"]) == 4
+    flags = [str(f) for f in cols["flags"]]
+    assert [("no-points" in f) for f in flags] == [False, True, True, True], flags
+    assert cols["failed"][1:].all()
 
 
 def _setup_custom_field_poses(w, ws):
@@ -616,6 +621,9 @@ CASES = [
          "conf 'temperature' must be a finite number"),
     Case("-c search=1 (a group of keys)", "traceback",
          [*LOCALIZE, "-o", W + "/p.h5", "-c", "search=1"], 1, "is a group of keys"),
+    Case("-c search.c=-1", "silent",
+         [*LOCALIZE, "-o", W + "/p.h5", "-c", "search.c=-1"], 1,
+         "conf 'search.c' must be a number > 0, got -1.0"),
     Case("-c a=1 -c a.b=2", "traceback",
          [*LOCALIZE, "-o", W + "/p.h5", "-c", "search=1", "-c", "search.c=2"], 1,
          "cannot also hold keys"),
@@ -795,9 +803,9 @@ CASES = [
          "datasets[0].simulate: frames must be a whole number >= 1, got -1",
          setup=_setup_spec("field: spl\ndatasets:\n  - simulate: {{preset: omni-clean, field:"
                            " spl, frames: -1}}\nmethods: [lut]\n")),
-    Case("--points naming frame 0 only: a 1-frame poses.h5, said", "silent",
+    Case("--points naming frame 0 only: the other frames failed, said", "silent",
          ["localize", "{omni}", "--map", "{map}", "--points", W + "/pts.csv", "-o",
-          W + "/p.h5"], 0, "holds 1 of the 4 frames of",
+          W + "/p.h5"], 0, "3 frames of",
          setup=lambda w, ws: _points_csv(w, ws, ["000000"]), check=_check_one_frame_of_four),
     Case("import rosbag --calib x.bag", "silent",
          ["import", "rosbag", W + "/x.bag", "-o", W + "/out", "--image-topic", "/cam",

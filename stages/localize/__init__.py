@@ -495,8 +495,8 @@ def _failure_reason(text: str) -> str:
 
 def _with_missing_frames(track: PoseTrack, dataset, feats, failures: list[str]) -> PoseTrack:
     """``track`` plus a failed row for every dataset frame the features lack: frames extract
-    could not read or process (their recorded reason) and frames not extracted at all; in
-    stamp order."""
+    could not read or process (their recorded reason), frames not extracted at all, and with
+    a points file the frames it names no point of ("no-points"); in stamp order."""
     have = set(track.name)
     stamp_of = dict(zip(dataset.names, (float(s) for s in dataset.stamps)))
     extra = []
@@ -517,6 +517,13 @@ def _with_missing_frames(track: PoseTrack, dataset, feats, failures: list[str]) 
             log.warning("%d frames of %s are not in %s (first: %s); recorded as failed"
                         " (not-extracted)", len(absent), dataset.root, feats.path, absent[0])
         extra += [(n, stamp_of[n], "not-extracted") for n in absent]
+    elif isinstance(feats, PointFrames) and dataset.names:
+        # a frame the points file names no point of: the team's detector saw no line there
+        absent = [n for n in dataset.names if n not in have]
+        if absent:
+            log.warning("%d frames of %s have no points in %s (first: %s); recorded as failed"
+                        " (no-points)", len(absent), dataset.root, feats.path, absent[0])
+        extra += [(n, stamp_of[n], "no-points") for n in absent]
     if not extra:
         return track
     rows = [(track.stamp[i], 0, i) for i in range(len(track))]

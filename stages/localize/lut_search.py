@@ -93,6 +93,18 @@ class MatchingParams:
 
     @classmethod
     def from_conf(cls, conf: dict) -> MatchingParams:
+        """From a method conf's ``search``, each value checked (FieldlocError)."""
+        from ..common.errors import FieldlocError
+
+        for key, low, inclusive in (("c", 0.0, False), ("range_scale", 0.0, False),
+                                    ("distance_bin", 0.0, False), ("coarse_step", 1, True),
+                                    ("pair_tolerance", 0.0, True)):
+            v = conf[key]
+            ok = (not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
+                  and (v >= low if inclusive else v > low))
+            if not ok:
+                raise FieldlocError(f"conf 'search.{key}' must be a number"
+                                    f" {'>=' if inclusive else '>'} {low:g}, got {str(v)[:40]}")
         return cls(c=float(conf["c"]), range_scale=float(conf["range_scale"]),
                    distance_bin=float(conf["distance_bin"]),
                    use_spiral=bool(conf["use_spiral"]),
