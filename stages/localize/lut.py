@@ -13,9 +13,17 @@ not independent and one full-weight observation is worth less than one nat; T is
 the probabilities are calibrated, see the README's reliability figures) combined with the prior
 the robot's motion gives, over a short list of hypotheses.
 
-The belief (tracks, the mass of elsewhere, the posterior, the mirror listing, acceptance) is
-tracking.TrackBank, which every pose-fixing method shares; this module is its engine for the
-scan-line tables: the fixes, their tempered likelihoods and the null.
+Two beliefs carry that likelihood from frame to frame (``belief``; docs/lut-belief.md):
+
+- ``grid``: a probability per table cell over the whole field at the frame's field-aligned
+  heading, moved by the odometry and multiplied by every cell's likelihood (Markov
+  localisation, Fox, Burgard and Thrun 1999; grid_belief.py). Nothing is born or pruned, so
+  a place the first frames misjudged is never lost. The default (``auto``) where the heading
+  is field-aligned (IMU aligned with the field, or the truth) on a tracked run;
+- ``tracks``: the rest of this doc. The belief (tracks, the mass of elsewhere, the posterior,
+  the mirror listing, acceptance) is tracking.TrackBank, which every pose-fixing method
+  shares; this module is its engine for the scan-line tables: the fixes, their tempered
+  likelihoods and the null.
 
 Hypotheses (tracks). The belief is a mixture of a few Gaussian tracks (at most ``max_tracks``),
 each a pose tracked by the decentralised Kalman filter of seed 002 (kalman.py) with a weight.

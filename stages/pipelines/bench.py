@@ -782,6 +782,7 @@ ROWS: dict[str, Callable[[int], Row | list[Row]]] = {
     "surf-quality": bench_feature_quality,
     "lut-tracked-frame": lambda n: _hyp().bench_lut_tracked_frame(n),
     "lut-calibration": lambda n: _hyp().bench_lut_calibration(n),
+    "fit-calibration": lambda n: _hyp().bench_fit_calibration(n),
     "mcl-calibration": lambda n: _hyp().bench_mcl_calibration(n),
     "lut-hidden-run": lambda n: _hyp().bench_lut_hidden(n),
     "real": lambda n: _hyp().bench_real(n),
