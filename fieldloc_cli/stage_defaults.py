@@ -33,7 +33,7 @@ EXTRACT_DEFAULT_PRESET = "default"
 EXTRACT_OMNI_PRESETS = ("default", "dense", "real")
 
 # stages.ingest.team_fields.FORMATS
-FIELD_FORMATS = ("bhuman", "bitbots", "falcons")
+FIELD_FORMATS = ("bhuman", "bitbots", "falcons", "minho", "carpenoctem", "cambada", "hulks")
 
 # sorted(stages.ingest.rosbag.confs)
 ROSBAG_PRESETS = ("default", "fast")
