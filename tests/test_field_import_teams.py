@@ -136,6 +136,22 @@ def test_carpenoctem_sections_round_trip(tmp_path, section):
     assert fm.name == f"carpenoctem-{section}"
 
 
+@pytest.mark.realdata
+def test_every_carpenoctem_section_imports(tmp_path):
+    """All five fields of the team's file; [ASML_VDL] lists MiddleCircleRadius twice with one
+    value (noted); without --base the missing mark size is named."""
+    from stages.ingest.team_fields import TeamFieldError, read_team_field
+
+    src = _need(DIMS / "cnc_msl" / "FootballField.conf")
+    for section in ("Lab", "Tournament", "Official", "Carpet", "ASML_VDL"):
+        imp = read_team_field(src, section=section, base="msl-2015")
+        assert imp.record["format"] == "carpenoctem" and imp.unknown == {}
+        assert any("given twice" in w for w in imp.warnings) == (section == "ASML_VDL")
+    assert read_team_field(src, base="msl-2015").record["section"] == "Official"  # CurrentField
+    with pytest.raises(TeamFieldError, match="penalty_mark.size; pass --base"):
+        read_team_field(src)
+
+
 def test_carpenoctem_section_choice_and_errors(tmp_path):
     """Without --section the file's CurrentField; a missing section, a key given twice with
     two values and an unclosed section are one-line errors."""
