@@ -481,7 +481,7 @@ def from_nubot(conf: dict | str | None, nubot_dir, output, *, image_size=None,
     """calib.yaml from the NuBot team's ``mirror_calib.xml`` and ``ROI.xml`` in ``nubot_dir``
     (stages.calibrate.nubot): the monotone table sampled from their a tan(b rho) model across
     the usable ring, with the table's error against the model recorded (``model_fit``).
-    ``image_size`` None: the ROI's extent, else the size of the folder's first pic_save*.bmp.
+    ``image_size`` None: the size of the folder's first pic_save*.bmp, else the ROI's extent.
     ``conf``: a preset name, None (``nubot``) or a dict of overrides on ``nubot``. Returns
     ``output``."""
     conf = stage_conf(confs, conf, default="nubot")
@@ -497,14 +497,14 @@ def from_nubot(conf: dict | str | None, nubot_dir, output, *, image_size=None,
     sources = {"nubot": str(folder), "mirror_calib_hash": file_hash(mirror.path)}
     if roi is not None:
         sources["roi_hash"] = file_hash(roi.path)
-    if image_size is None:  # the ROI's extent, else the team's saved frames (pic_save*)
+    if image_size is None:  # the team's saved pictures (pic_save*), else the ROI's extent
         images = sorted(folder.glob("pic_save*.bmp"))
-        if roi is not None:
-            image_size = (roi.start[0] + roi.size[0], roi.start[1] + roi.size[1])
-        elif images:
+        if images:
             image_size = _image_size_of_file(images[0])
+        elif roi is not None:
+            image_size = roi.size
         else:
-            raise CalibrationError(f"no {_nubot.ROI_XML} and no pic_save*.bmp in {folder} to"
+            raise CalibrationError(f"no pic_save*.bmp and no {_nubot.ROI_XML} in {folder} to"
                                    " take the image size from; give --image-size W H")
     vr = tuple(valid_radius) if valid_radius else _nubot.valid_ring(mirror, roi, nconf)
     r, d = _nubot.table_pairs(mirror, vr, nconf)

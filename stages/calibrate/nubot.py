@@ -18,20 +18,23 @@ has no such offset: they are recorded, not applied.
 
 The project's radial models (stages.common.camera) are a fifth-order polynomial and a monotone
 cubic table; a tan is neither, so the table is sampled from the model every ``sample_px``
-pixels across the usable ring, and the error of the monotone cubic between the samples is
-measured against the exact model on a fine grid (``model_fit``): the command states it.
+pixels and every ``sample_m`` metres of range (the finer of the two: near the horizon one
+pixel spans metres) across the usable ring, up to ``max_range_m``; the error of the monotone
+cubic between the samples is measured against the exact model on a fine grid (``model_fit``),
+and the command states it.
 
 ``ROI.xml``: the ring the team's vision uses, ``center_point_row`` / ``center_point_column``,
 ``small_radius`` (the robot's own body) and ``big_radius`` (the mirror's rim), in the
-coordinates of the region ``rows`` x ``cols`` that starts at ``start_row`` / ``start_column``
-of the saved image (added here to get image coordinates). Its centre is not the mirror
-model's centre (10 px apart in the team's 2020-07 files), and the project's valid radius is a
-ring about the model's centre: [small - d, big - d], d the distance of the two centres. The
-outer edge stays inside the team's ring (beyond the mirror's rim lie glare and the robot's
-frame); the inner edge is the generous one, so that a crescent up to 2 d px wide of the robot's
-own dark body is scanned: it holds no green-white-green run, while the ring inside the team's
-(small + d) would start at 0.75 m in the 2020-07 files and lose the centre circle (radius 0.63
-m, whose pixels the team's own detector lists) seen from the centre spot.
+coordinates of the saved pictures; ``start_row`` / ``start_column`` say where those pictures
+were cut from the camera's frame (in the 2019-08 files a 505 x 480 picture with
+``start_column`` 76 and ``cols`` 505), so they are not added. The ring's centre is not the
+mirror model's (9 px apart in the team's 2020-07 files, 28 px in 2019-08), and the project's
+valid radius is a ring about the model's centre: [small - d, big - d], d the distance of the
+two centres. The outer edge stays inside the team's ring (beyond the mirror's rim lie glare
+and the robot's frame); the inner edge is the generous one, so that a crescent up to 2 d px
+wide of the robot's own dark body is scanned: it holds no green-white-green run, while the ring
+inside the team's (small + d) would start at 0.71 m in the 2020-07 files and lose the centre
+circle (radius 0.63 m, whose pixels the team's own detector lists) seen from the centre spot.
 """
 
 from __future__ import annotations
@@ -50,7 +53,9 @@ ROI_XML = "ROI.xml"
 
 confs = {
     "default": {
-        "sample_px": 1.0,  # the table's pairs: one per this many pixels of radius
+        "sample_px": 1.0,  # the table's pairs: one per this many pixels of radius ...
+        "sample_m": 0.05,  # ... and one per this many metres of range
+        "max_range_m": 15.0,  # the valid radius ends where the model reaches this range
         "check_step_px": 0.05,  # the fine grid the table's error is measured on
         "horizon_margin_px": 2.0,  # the valid radius stays this far inside pi / (2 b)
     },
@@ -74,6 +79,10 @@ class NubotMirror:
         """The team's model: floor range (m) of pixel radius rho."""
         return self.a * np.tan(self.b * np.asarray(rho, float))
 
+    def radius_px(self, range_m) -> np.ndarray:
+        """The model's inverse: pixel radius of floor range (m)."""
+        return np.arctan(np.asarray(range_m, float) / self.a) / self.b
+
     @property
     def horizon_px(self) -> float:
         return math.pi / (2 * self.b)
@@ -85,7 +94,7 @@ class NubotRoi:
     small_radius: float
     big_radius: float
     size: tuple[int, int]  # (cols, rows) of the region
-    start: tuple[int, int]  # (start_column, start_row)
+    start: tuple[int, int]  # (start_column, start_row) in the camera's frame (not used)
     path: Path
 
 
@@ -141,8 +150,7 @@ def read_roi(path) -> NubotRoi:
         raise NubotCalibrationError(f"{path}: needs 0 <= small_radius < big_radius, got"
                                     f" {small:g}, {big:g}")
     return NubotRoi(
-        centre=(_number(v, "center_point_column", path) + start[0],
-                _number(v, "center_point_row", path) + start[1]),
+        centre=(_number(v, "center_point_column", path), _number(v, "center_point_row", path)),
         small_radius=small, big_radius=big,
         size=(int(_number(v, "cols", path, positive=True)),
               int(_number(v, "rows", path, positive=True))),
@@ -153,6 +161,7 @@ def valid_ring(mirror: NubotMirror, roi: NubotRoi | None, conf: dict) -> tuple[f
     """The valid radii about the mirror centre from the team's ring (module doc), inside the
     model's horizon."""
     horizon = min(mirror.horizon_px, mirror.max_radius) - float(conf["horizon_margin_px"])
+    horizon = min(horizon, mirror.radius_px(float(conf["max_range_m"])))
     if roi is None:
         return 0.0, horizon
     d = math.hypot(roi.centre[0] - mirror.centre[0], roi.centre[1] - mirror.centre[1])
@@ -167,14 +176,20 @@ def valid_ring(mirror: NubotMirror, roi: NubotRoi | None, conf: dict) -> tuple[f
 
 
 def table_pairs(mirror: NubotMirror, valid_radius, conf: dict) -> tuple[np.ndarray, np.ndarray]:
-    """(radius_px, distance_m): the model sampled at the multiples of ``sample_px`` inside the
-    valid radius and at both its ends."""
+    """(radius_px, distance_m): the model sampled at the multiples of ``sample_px`` and at the
+    radii of the multiples of ``sample_m`` inside the valid radius, and at both its ends."""
     rmin, rmax = valid_radius
-    step = float(conf["sample_px"])
-    if not step > 0:
-        raise NubotCalibrationError(f"sample_px must be > 0, got {step:g}")
-    inner = np.arange(math.floor(rmin / step) + 1, math.ceil(rmax / step)) * step
+    step, step_m = float(conf["sample_px"]), float(conf["sample_m"])
+    if not (step > 0 and step_m > 0):
+        raise NubotCalibrationError(f"sample_px and sample_m must be > 0, got {step:g},"
+                                    f" {step_m:g}")
+    by_px = np.arange(math.floor(rmin / step) + 1, math.ceil(rmax / step)) * step
+    d0, d1 = mirror.range_m([rmin, rmax])
+    by_m = mirror.radius_px(np.arange(math.floor(d0 / step_m) + 1, math.ceil(d1 / step_m))
+                            * step_m)
+    inner = np.concatenate([by_px, by_m])
     r = np.unique(np.concatenate([[rmin], inner[(inner > rmin) & (inner < rmax)], [rmax]]))
+    r = r[np.concatenate([[True], np.diff(r) > 1e-6])]
     d = mirror.range_m(r)
     keep = d > 0  # radius 0 is range 0: the table's distances must rise from > 0
     return r[keep], d[keep]
