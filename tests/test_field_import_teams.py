@@ -276,3 +276,14 @@ def test_format_told_by_file_or_refused(tmp_path):
                               str(tmp_path / "a.yaml")])
     assert res.exit_code == 1 and "needs TOTAL_WIDTH" in res.output
     assert "Traceback" not in res.output
+    # hostile files: one line each, nothing written
+    (tmp_path / "deep.json").write_text("[" * 100_000 + "]" * 100_000)
+    (tmp_path / "noise.view").write_bytes(bytes(range(256)) * 8)
+    (tmp_path / "inf.view").write_text("TOTAL_LENGTH=1e400\n")
+    for name, fmt, message in (("deep.json", "hulks", "nested too deep"),
+                               ("noise.view", None, "unreadable"),
+                               ("inf.view", None, "needs TOTAL_WIDTH")):
+        args = ["field", "import", str(tmp_path / name), "-o", str(tmp_path / "h.yaml")]
+        res = runner.invoke(cli, args + (["--format", fmt] if fmt else []))
+        assert res.exit_code == 1 and message in res.output, res.output
+        assert len(res.output.strip().splitlines()) == 1 and not (tmp_path / "h.yaml").exists()

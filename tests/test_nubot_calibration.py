@@ -110,6 +110,15 @@ def test_bad_team_files_are_one_line_errors(tmp_path):
     _write_team(team, b=0.05)  # horizon at 31.4 px: inside the robot's body ring
     res, _ = _calibrate(tmp_path, team)
     assert res.exit_code == 1 and "holds no ring" in res.output
+    team = _write_team(tmp_path / "t3")
+    (team / "mirror_calib.xml").write_text((team / "mirror_calib.xml").read_text().replace(
+        "<correction_x>-2.0", "<correction_x>abc"))
+    res, _ = _calibrate(tmp_path, team)
+    assert res.exit_code == 1 and "<correction_x> is not a number" in res.output
+    team = _write_team(tmp_path / "t4")
+    (team / "ROI.xml").write_text((team / "ROI.xml").read_text().replace(">464<", ">1e20<"))
+    res, _ = _calibrate(tmp_path, team)
+    assert res.exit_code == 1 and "is no camera picture" in res.output
     res, _ = _calibrate(tmp_path, tmp_path / "absent")
     assert res.exit_code == 1 and "not found" in res.output
     res, _ = _calibrate(tmp_path, _write_team(tmp_path / "t2"), "--centre", "1", "2")

@@ -49,6 +49,7 @@ import numpy as np
 from ..common.errors import FieldlocError
 
 MIRROR_XML = "mirror_calib.xml"
+MAX_IMAGE_SIDE = 65535  # px: PNG's and OpenCV's practical limit; beyond it a value is a typo
 ROI_XML = "ROI.xml"
 
 confs = {
@@ -132,8 +133,8 @@ def read_mirror(path) -> NubotMirror:
     mirror = NubotMirror(
         centre=(_number(v, "center_coloum", path), _number(v, "center_row", path)),
         a=_number(v, "para_a", path, positive=True), b=b,
-        correction_cm=(float(v.get("correction_x", 0) or 0),
-                       float(v.get("correction_y", 0) or 0)),
+        correction_cm=tuple(_number(v, k, path) if k in v else 0.0
+                            for k in ("correction_x", "correction_y")),
         max_radius=_number(v, "max_radius", path) if "max_radius" in v else math.pi / (2 * b),
         path=path)
     return mirror
@@ -142,18 +143,21 @@ def read_mirror(path) -> NubotMirror:
 def read_roi(path) -> NubotRoi:
     path = Path(path)
     v = _storage(path, ROI_XML)
-    start = (int(_number(v, "start_column", path)) if "start_column" in v else 0,
-             int(_number(v, "start_row", path)) if "start_row" in v else 0)
+    start = tuple(int(_number(v, k, path)) if k in v else 0
+                  for k in ("start_column", "start_row"))
     small = _number(v, "small_radius", path)
     big = _number(v, "big_radius", path, positive=True)
     if not 0 <= small < big:
         raise NubotCalibrationError(f"{path}: needs 0 <= small_radius < big_radius, got"
                                     f" {small:g}, {big:g}")
+    size = tuple(_number(v, k, path, positive=True) for k in ("cols", "rows"))
+    if max(size) > MAX_IMAGE_SIDE:
+        raise NubotCalibrationError(f"{path}: a region of {size[0]:g} x {size[1]:g} px is no"
+                                    f" camera picture (at most {MAX_IMAGE_SIDE} px a side)")
     return NubotRoi(
         centre=(_number(v, "center_point_column", path), _number(v, "center_point_row", path)),
         small_radius=small, big_radius=big,
-        size=(int(_number(v, "cols", path, positive=True)),
-              int(_number(v, "rows", path, positive=True))),
+        size=(int(size[0]), int(size[1])),
         start=start, path=path)
 
 

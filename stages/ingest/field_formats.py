@@ -135,7 +135,7 @@ def detect_format(path) -> str:
             return "falcons"
     raise FieldFormatError(
         f"{path}: cannot tell the field file's format from its name and content; pass"
-        f" --format ({'; '.join(f'{k}: {v}' for k, v in FORMAT_HINTS.items())})")
+        f" --format ({', '.join(FORMAT_HINTS)})")
 
 
 # ---------------------------------------------------------------------------- MINHO .view
@@ -386,6 +386,8 @@ def _json5(text: str, where: str):
     """JSON, or the JSON5 subset teams write: // and /* */ comments, trailing commas."""
     try:
         return json.loads(text)
+    except RecursionError:
+        raise FieldFormatError(f"{where}: JSON nested too deep") from None
     except json.JSONDecodeError:
         pass
     out, i, n, in_str = [], 0, len(text), False
@@ -416,6 +418,8 @@ def _json5(text: str, where: str):
     body = re.sub(r"([{,]\s*)([A-Za-z_][A-Za-z0-9_]*)(\s*:)", r'\1"\2"\3', body)
     try:
         return json.loads(body)
+    except RecursionError:
+        raise FieldFormatError(f"{where}: JSON nested too deep") from None
     except json.JSONDecodeError as e:
         raise FieldFormatError(f"{where}: not valid JSON or JSON5 ({e})") from None
 
