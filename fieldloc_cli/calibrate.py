@@ -1,5 +1,6 @@
-"""`fieldloc calibrate omni [POINTS.csv | --from-minho DIR] [--line-images DIR] -o calib.yaml`:
-the mirror's radial mapping from measured pairs, a team's files or images of a line."""
+"""`fieldloc calibrate omni [POINTS.csv | --from-minho DIR | --from-cnc FILE | --from-nubot DIR]
+[--line-images DIR] -o calib.yaml`: the mirror's radial mapping from measured pairs, a team's
+files or images of a line."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from stages.common.errors import FieldlocError
 from .common import FINITE, conf_option, overrides_dict, summary
 from .stage_defaults import CALIBRATE_PRESETS
 
-DEFAULT_PRESET = {"points": "default", "minho": "minho", "cnc": "cnc"}
+DEFAULT_PRESET = {"points": "default", "minho": "minho", "cnc": "cnc", "nubot": "nubot"}
 
 
 @click.group()
@@ -31,6 +32,10 @@ def calibrate():
 @click.option("--from-cnc", "cnc_conf", type=click.Path(dir_okay=False), metavar="FILE",
               help="The Carpe Noctem team's CarpetCalibrator.conf (ring distances) instead of"
                    " POINTS; ring radii by --rings.")
+@click.option("--from-nubot", "nubot_dir", type=click.Path(file_okay=False), metavar="DIR",
+              help="The NuBot team's DIR/mirror_calib.xml (range = 100 a tan(b rho) cm, the"
+                   " image centre) and DIR/ROI.xml (the usable ring) instead of POINTS; image"
+                   " size from the first image in DIR.")
 @click.option("--rings", metavar="SPEC",
               help="With --from-cnc: 'detected' (the rings of the calibration picture, in"
                    " order) or one radius in px per conf distance, '-' for a ring not seen.")
@@ -60,9 +65,9 @@ def calibrate():
 @click.option("--overwrite", is_flag=True, help="Replace OUTPUT if it exists.")
 @conf_option
 @click.pass_context
-def calibrate_omni(ctx, points, output, minho_dir, cnc_conf, rings, calib_image, line_images,
-                   mask, centre, image_size, valid_radius, forward_angle_deg, mirrored, preset,
-                   overwrite, overrides):
+def calibrate_omni(ctx, points, output, minho_dir, cnc_conf, nubot_dir, rings, calib_image,
+                   line_images, mask, centre, image_size, valid_radius, forward_angle_deg,
+                   mirrored, preset, overwrite, overrides):
     """Pixel radius -> floor distance of an omnidirectional camera, into calib.yaml.
 
     From POINTS (CSV header radius_px,distance_m: marks measured on the robot), by default the
@@ -78,18 +83,31 @@ def calibrate_omni(ctx, points, output, minho_dir, cnc_conf, rings, calib_image,
       fieldloc calibrate omni --from-minho robot1/ -o calib.yaml
       fieldloc calibrate omni --from-minho robot1/ --line-images robot1/images -o calib.yaml
       fieldloc calibrate omni --from-cnc etc/CarpetCalibrator.conf --rings detected -o calib.yaml
+      fieldloc calibrate omni --from-nubot calib_results/1 -o calib.yaml
     """
-    from stages.calibrate import confs, from_cnc, from_minho, main, report
+    from stages.calibrate import confs, from_cnc, from_minho, from_nubot, main, report
     from stages.common.conf import resolve_conf
 
-    given_sources = [v for v in (points, minho_dir, cnc_conf) if v is not None]
+    sources = {"points": points, "minho": minho_dir, "cnc": cnc_conf, "nubot": nubot_dir}
+    given_sources = [k for k, v in sources.items() if v is not None]
     if len(given_sources) != 1:
         raise FieldlocError("calibrate omni needs POINTS or --from-minho DIR or --from-cnc FILE"
-                            " (one of them)")
-    kind = "points" if points is not None else "minho" if minho_dir is not None else "cnc"
+                            " or --from-nubot DIR (one of them)")
+    kind = given_sources[0]
     if kind != "cnc" and (rings or calib_image):
         raise FieldlocError("--rings and --calib-image go with --from-cnc")
     conf = resolve_conf(confs, preset or DEFAULT_PRESET[kind], overrides_dict(overrides))
+    if kind == "nubot":
+        given = [name for name, v in (("--centre", centre), ("--mirrored", mirrored),
+                                      ("--forward-angle-deg", forward_angle_deg is not None),
+                                      ("--line-images", line_images), ("--mask", mask)) if v]
+        if given:
+            raise FieldlocError(f"{', '.join(given)}: not with --from-nubot (the centre and the"
+                                " axes come from mirror_calib.xml)")
+        out = from_nubot(conf, nubot_dir, output, image_size=image_size or None,
+                         valid_radius=valid_radius or None, overwrite=overwrite)
+        _echo_report(ctx, out, report(out))
+        return
     if kind == "cnc":
         if line_images or mask:
             raise FieldlocError("--line-images and --mask do not go with --from-cnc")
@@ -187,9 +205,19 @@ def _echo_report(ctx, out, rec: dict) -> None:
         rms = math.sqrt(sum(e * e for e in res) / len(res))
         fit_text = (f"residual RMS {rms * 100:.2f} cm, max"
                     f" {max(abs(e) for e in res) * 100:.2f} cm")
+    mf = rec.get("model_fit")
+    if mf:  # a team's closed-form model written as the table: how far the table is from it
+        fit_text = (f"monotone table sampled from the team's model; off it by at most"
+                    f" {mf['max_error_m'] * 1000:.2g} mm (relative {mf['max_relative_error']:.1e};"
+                    f" at {mf['at_radius_px']:g} px, {mf['at_range_m']:g} m)")
     summary(ctx,
             f"wrote {out}: {len(pairs)} pairs, {fit_text}; floor visible to"
-            f" {camera.max_distance:.2f} m at {camera.valid_radius[1]:g} px")
+            f" {camera.max_distance:.2f} m at {camera.valid_radius[1]:.1f} px")
+    nm = rec.get("nubot_model")
+    if nm and any(nm["correction_cm_not_applied"]):
+        cx, cy = nm["correction_cm_not_applied"]
+        summary(ctx, f"note: the mirror's offset from the robot centre ({cx:+.1f}, {cy:+.1f})"
+                     " cm is not applied (the omni model has no offset)")
 
 
 

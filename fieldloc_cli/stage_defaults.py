@@ -19,7 +19,7 @@ BUILD_MAP = {"resolution": 0.1, "border": 1.0, "max_range": 4.0, "robot_radius":
 BUILD_TEMPLATES_FEATURES = ("surf", "surf-rotating", "sift", "orb")
 
 # sorted(stages.calibrate.confs)
-CALIBRATE_PRESETS = ("cnc", "default", "minho")
+CALIBRATE_PRESETS = ("cnc", "default", "minho", "nubot")
 
 # sorted(stages.evaluate.confs); stages.evaluate.confs["default"]["stamp_tolerance"]
 EVALUATE_PRESETS = ("default", "loose", "numbers")
@@ -33,7 +33,7 @@ EXTRACT_DEFAULT_PRESET = "default"
 EXTRACT_OMNI_PRESETS = ("default", "dense", "real")
 
 # stages.ingest.team_fields.FORMATS
-FIELD_FORMATS = ("bhuman", "bitbots", "falcons")
+FIELD_FORMATS = ("bhuman", "bitbots", "falcons", "minho", "carpenoctem", "cambada", "hulks")
 
 # sorted(stages.ingest.rosbag.confs)
 ROSBAG_PRESETS = ("default", "fast")

@@ -28,6 +28,7 @@ from stages.common.features_file import FeaturesFile
 from stages.common.field import field_from_spec
 from stages.evaluate.line_share import LineRaster
 from stages.extract import read_mask
+from stages.pipelines.realdata import lab_field
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 pytestmark = pytest.mark.skipif(not REALDATA.exists(), reason="../shared/realdata is absent")
@@ -234,17 +235,6 @@ def test_minho_distance_mirror_table_is_off(distance_lines, tmp_path):
 
 # ---------------------------------------------------------------------------- minho-lab
 
-# Lar.view (mm): length 10200, width 7540, line 100, centre circle radius 1370, goal area
-# 700 x 3200, penalty area 1550 x 4420, penalty mark 1980, corner arc 400, goal 2000 x 500
-LAB_FIELD = {
-    "name": "minho-lab", "source": "minho-lab/Lar.view", "length": 10.2, "width": 7.54,
-    "line_width": 0.1, "border": 0.7, "centre_circle_diameter": 2.74, "corner_arc_radius": 0.4,
-    "penalty_area": {"length": 1.55, "width": 4.42}, "goal_area": {"length": 0.7, "width": 3.2},
-    "penalty_mark": {"distance": 1.98, "size": 0.1},
-    "goal": {"width": 2.0, "depth": 0.5, "post_diameter": 0.125},
-}
-
-
 @pytest.fixture(scope="module")
 def lab_points(tmp_path_factory):
     ds = make_dataset(REALDATA / "minho-lab", tmp_path_factory.mktemp("real") / "minho-lab")
@@ -307,7 +297,7 @@ def clutter(lab_points, rendered_points):
     from stages.common.field import load_field
     from stages.common.geometry import robot_to_field
 
-    lab = field_from_spec(LAB_FIELD)
+    lab = field_from_spec(lab_field())
     off, off_null, total = off_line_points(lab, list(lab_points.values()))
     msl = load_field("msl-2015")
     pts, poses = rendered_points

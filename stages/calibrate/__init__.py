@@ -8,6 +8,8 @@
     from_cnc(conf, carpet_conf, output, *, rings, calib_image=None, centre=None,
              image_size=None, valid_radius=None, forward_angle=pi/2, mirrored=False,
              overwrite=False) -> Path
+    from_nubot(conf, nubot_dir, output, *, image_size=None, valid_radius=None,
+               overwrite=False) -> Path
 
 Sources of pairs (radius_px, distance_m):
 - ``points_csv``: pairs measured on the robot (marks laid on the floor at known distances and
@@ -18,6 +20,9 @@ Sources of pairs (radius_px, distance_m):
 - ``from_cnc``: the Carpe Noctem team's ``CarpetCalibrator.conf`` ring distances with ring radii
   measured in their calibration picture or given by hand (stages.calibrate.cnc, where the
   pairing is discussed); the centre from ``centre`` or the picture;
+- ``from_nubot``: the NuBot team's ``mirror_calib.xml`` (range = 100 a tan(b rho) cm) and
+  ``ROI.xml`` (the usable ring): pairs sampled from their model, the table's error against it
+  recorded (stages.calibrate.nubot);
 - ``line_images``: a folder of images of a straight line at known distances, each named by its
   distance (stages.calibrate.line_images). Measured pairs replace the other source's pairs
   within the measured range of distances; outside it the other source's pairs are kept (those
@@ -72,6 +77,7 @@ from ..common.dataset import IMAGE_SUFFIXES, csv_rows, read_mask
 from ..common.errors import FieldlocError
 from . import cnc as _cnc
 from . import line_images as _line_images
+from . import nubot as _nubot
 from .minho import read_minho
 
 log = logging.getLogger(__name__)
@@ -96,6 +102,9 @@ confs["minho"] = {**copy.deepcopy(confs["default"]), "model": "table", "min_poin
 # the Carpe Noctem rings: as few as 2 pairs, through each of them
 confs["cnc"] = {**copy.deepcopy(confs["minho"]), "min_points": 2,
                 "rings": copy.deepcopy(_cnc.confs["default"])}
+# the NuBot mirror model a tan(b rho), sampled into the monotone table (stages.calibrate.nubot)
+confs["nubot"] = {**copy.deepcopy(confs["minho"]),
+                  "nubot": copy.deepcopy(_nubot.confs["default"])}
 
 
 class CalibrationError(FieldlocError):
@@ -465,6 +474,66 @@ def from_cnc(conf: dict | str | None, carpet_conf, output, *, rings, calib_image
                       forward_angle=forward_angle, mirrored=mirrored, line_images=None,
                       mask=None, overwrite=overwrite, where=str(carpet_conf),
                       extra_record=extra)
+
+
+def from_nubot(conf: dict | str | None, nubot_dir, output, *, image_size=None,
+               valid_radius=None, overwrite: bool = False, progress: bool = False) -> Path:
+    """calib.yaml from the NuBot team's ``mirror_calib.xml`` and ``ROI.xml`` in ``nubot_dir``
+    (stages.calibrate.nubot): the monotone table sampled from their a tan(b rho) model across
+    the usable ring, with the table's error against the model recorded (``model_fit``).
+    ``image_size`` None: the size of the folder's first pic_save*.bmp, else the ROI's extent.
+    ``conf``: a preset name, None (``nubot``) or a dict of overrides on ``nubot``. Returns
+    ``output``."""
+    conf = stage_conf(confs, conf, default="nubot")
+    folder = Path(nubot_dir)
+    if not folder.is_dir():
+        raise CalibrationError(f"NuBot calibration folder not found: {folder}")
+    check_output(output, {"the NuBot folder": _files_in(folder)}, overwrite=overwrite,
+                 error=CalibrationError)
+    nconf = conf["nubot"]
+    mirror = _nubot.read_mirror(folder / _nubot.MIRROR_XML)
+    roi = _nubot.read_roi(folder / _nubot.ROI_XML) if (folder / _nubot.ROI_XML).is_file() \
+        else None
+    sources = {"nubot": str(folder), "mirror_calib_hash": file_hash(mirror.path)}
+    if roi is not None:
+        sources["roi_hash"] = file_hash(roi.path)
+    if image_size is None:  # the team's saved pictures (pic_save*), else the ROI's extent
+        images = sorted(folder.glob("pic_save*.bmp"))
+        if images:
+            image_size = _image_size_of_file(images[0])
+        elif roi is not None:
+            image_size = roi.size
+        else:
+            raise CalibrationError(f"no pic_save*.bmp and no {_nubot.ROI_XML} in {folder} to"
+                                   " take the image size from; give --image-size W H")
+    vr = tuple(valid_radius) if valid_radius else _nubot.valid_ring(mirror, roi, nconf)
+    r, d = _nubot.table_pairs(mirror, vr, nconf)
+    extra = {"nubot_model": {
+        "range": "a tan(b rho) m (100 a tan(b rho) cm)", "a": mirror.a, "b": mirror.b,
+        "centre": [mirror.centre[0], mirror.centre[1]],
+        "horizon_px": round(mirror.horizon_px, 3), "max_radius_px": mirror.max_radius,
+        "correction_cm_not_applied": [mirror.correction_cm[0], mirror.correction_cm[1]]}}
+    if roi is not None:
+        extra["nubot_roi"] = {"centre": [roi.centre[0], roi.centre[1]],
+                              "small_radius": roi.small_radius, "big_radius": roi.big_radius}
+    rest = {k: v for k, v in conf.items() if k != "nubot"}
+    rest["nubot"] = nconf
+    fitted = fit(rest, r, d, centre=mirror.centre, image_size=image_size, valid_radius=vr,
+                 forward_angle=0.0, mirrored=True, where=str(mirror.path))
+    extra["model_fit"] = _nubot.model_fit(fitted.camera, mirror, nconf)
+    return _calibrate(rest, r, d, output, sources=sources, source_label=_nubot.MIRROR_XML,
+                      centre=mirror.centre, image_size=image_size, valid_radius=vr,
+                      forward_angle=0.0, mirrored=True, line_images=None, mask=None,
+                      overwrite=overwrite, where=str(mirror.path), extra_record=extra)
+
+
+def _image_size_of_file(path: Path) -> tuple[int, int]:
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise CalibrationError(f"unreadable image: {path}")
+    return int(img.shape[1]), int(img.shape[0])
 
 
 def _files_in(folder) -> list[Path]:

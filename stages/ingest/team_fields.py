@@ -1,10 +1,15 @@
 """Team field files into a fieldloc field YAML (stages.common.field's schema, metres, between
 line centre lines).
 
-    main(conf, path, output, *, fmt, venue=None, base=None, name=None, overwrite=False) -> Path
-    read_team_field(path, fmt, *, venue=None, base=None, name=None) -> ImportedField
+    main(conf, path, output, *, fmt=None, venue=None, section=None, base=None, name=None,
+         overwrite=False) -> Path
+    read_team_field(path, fmt=None, *, venue=None, section=None, base=None, name=None)
+        -> ImportedField
 
-Formats (``fmt``):
+Formats (``fmt``; None: told from the file's suffix and content by
+``field_formats.detect_format``). ``minho`` (.view), ``carpenoctem`` (FootballField.conf,
+``section``), ``cambada`` and ``hulks`` are read by ``stages.ingest.field_formats`` (see its
+doc); the first three here:
 
 - ``bhuman``: B-Human's ``fieldDimensions.cfg`` (mm, positions of line middles from the centre
   spot: ``xPosOpponentGoalLine``, ``yPosLeftPenaltyArea``, ...; a value may name another key,
@@ -57,8 +62,9 @@ from ..common.artifacts import atomic_path, file_hash
 from ..common.conf import load_yaml
 from ..common.errors import FieldlocError, FieldSpecError
 from ..common.field import MSL_LETTERS, field_from_spec, load_field, msl_letter_value
+from . import field_formats as _formats
 
-FORMATS = ("bhuman", "bitbots", "falcons")
+FORMATS = ("bhuman", "bitbots", "falcons", "minho", "carpenoctem", "cambada", "hulks")
 confs = {"default": {"decimals": 6, "check_tolerance_m": 0.001}}
 
 # the generic schema's dimensions, as (key path) -> what a team file must provide
@@ -477,22 +483,36 @@ def read_falcons(path: Path, venue: str | None):
 # ---------------------------------------------------------------------------- main
 
 
-def read_team_field(path, fmt: str, *, venue: str | None = None, base=None,
-                    name: str | None = None, conf: dict | None = None) -> ImportedField:
+def read_team_field(path, fmt: str | None = None, *, venue: str | None = None,
+                    section: str | None = None, base=None, name: str | None = None,
+                    conf: dict | None = None) -> ImportedField:
     """The generic field spec of a team file (see the module doc), checked by building the
-    field model."""
+    field model. ``fmt`` None: told from the file (stages.ingest.field_formats.detect_format).
+    """
     conf = conf or confs["default"]
     path = Path(path)
+    if fmt is None:
+        fmt = _formats.detect_format(path)
     if fmt not in FORMATS:
         raise TeamFieldError(f"unknown field format '{fmt}' ({', '.join(FORMATS)})")
     if venue is not None and fmt != "falcons":
-        raise TeamFieldError("--venue is for --format falcons (multiCam.yaml)")
+        raise TeamFieldError("--venue is for the falcons format (multiCam.yaml)")
+    if section is not None and fmt != "carpenoctem":
+        raise TeamFieldError("--section is for the carpenoctem format (FootballField.conf)")
     if fmt == "bhuman":
         spec, used, not_geom, warnings, extra = read_bhuman(path)
     elif fmt == "bitbots":
         spec, used, not_geom, warnings, extra = read_bitbots(path)
-    else:
+    elif fmt == "falcons":
         spec, used, not_geom, warnings, extra = read_falcons(path, venue)
+    elif fmt == "minho":
+        spec, used, not_geom, warnings, extra = _formats.read_minho(path)
+    elif fmt == "carpenoctem":
+        spec, used, not_geom, warnings, extra = _formats.read_carpenoctem(path, section)
+    elif fmt == "cambada":
+        spec, used, not_geom, warnings, extra = _formats.read_cambada(path)
+    else:
+        spec, used, not_geom, warnings, extra = _formats.read_hulks(path)
     base_model = load_field(base) if base is not None else None
     no_marks = fmt == "bitbots" and any("penalty_mark: false" in w for w in warnings)
     wanted = [k for k in DIMENSIONS + tuple(sorted(OPTIONAL))
@@ -509,7 +529,7 @@ def read_team_field(path, fmt: str, *, venue: str | None = None, base=None,
                              " FIELD (a preset or field YAML) to take them from it")
     dec = int(conf["decimals"])
     spec = _rounded(spec, dec)
-    stem = path.stem if fmt != "falcons" or "venue" not in extra else extra["venue"]
+    stem = extra.get("venue") or extra.get("section") or path.stem
     out = {"name": name or f"{fmt}-{stem}",
            "source": f"imported by fieldloc field import --format {fmt} from {path.name}"
                      f" ({extra.get('kind', fmt)})"}
@@ -527,6 +547,8 @@ def read_team_field(path, fmt: str, *, venue: str | None = None, base=None,
     }
     if "venue" in extra:
         record["venue"] = extra["venue"]
+    if "section" in extra:
+        record["section"] = extra["section"]
     if from_base:
         record["from_base"] = {"field": str(base), "keys": from_base}
     if warnings:
@@ -563,9 +585,9 @@ def _plain(v):
     return v
 
 
-def main(conf: str | dict | None, path, output, *, fmt: str, venue: str | None = None,
-         base=None, name: str | None = None, overwrite: bool = False,
-         progress: bool = False) -> Path:
+def main(conf: str | dict | None, path, output, *, fmt: str | None = None,
+         venue: str | None = None, section: str | None = None, base=None,
+         name: str | None = None, overwrite: bool = False, progress: bool = False) -> Path:
     """Write the field YAML of a team file to ``output``; returns ``output``."""
     from ..common.conf import stage_conf
 
@@ -573,7 +595,9 @@ def main(conf: str | dict | None, path, output, *, fmt: str, venue: str | None =
     output = Path(output)
     if output.exists() and not overwrite:
         raise TeamFieldError(f"{output} exists (use --overwrite to replace it)")
-    imp = read_team_field(path, fmt, venue=venue, base=base, name=name, conf=conf)
+    imp = read_team_field(path, fmt, venue=venue, section=section, base=base, name=name,
+                          conf=conf)
+    fmt = imp.record["format"]
     text = (f"# {imp.spec['name']}: imported from {Path(path).name} (--format {fmt}); metres,"
             " between line centre lines\n" + yaml.safe_dump(imp.spec, sort_keys=False))
     with atomic_path(output, suffix=".yaml") as tmp:

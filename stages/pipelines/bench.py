@@ -725,16 +725,16 @@ def bench_import_rosbag(repeat: int) -> list[Row]:
         bag = _import_bag(fmt, kind)
         out_root = _work_dir() / f"import-{fmt}-{kind}-{preset}"
         out_root.mkdir(exist_ok=True)
-        a, b, floor = [], [], []
+        a, b, floor, cpu_a, cpu_b, encode = [], [], [], [], [], []
         for k in range(n_rep + 1):  # the first round warms up (imports, page cache)
             out = out_root / f"run{k}"
-            t = time.perf_counter()
+            t, c = time.perf_counter(), time.process_time()
             rosbag.main(rosbag.confs[preset], bag, out, image_topic="/camera/image",
                         odom_topic="/odom", imu_topic="/imu")
-            t_import = time.perf_counter() - t
-            t = time.perf_counter()
+            t_import, c_import = time.perf_counter() - t, time.process_time() - c
+            t, c = time.perf_counter(), time.process_time()
             rosbag.read_messages(bag, topics)
-            t_read = time.perf_counter() - t
+            t_read, c_read = time.perf_counter() - t, time.process_time() - c
             # the disk's share: writing the same files again, nothing else
             files = [(p.name, p.read_bytes()) for p in sorted((out / "images").iterdir())]
             again = out_root / f"again{k}"
@@ -743,6 +743,7 @@ def bench_import_rosbag(repeat: int) -> list[Row]:
             for name, data in files:
                 (again / name).write_bytes(data)
             t_floor = time.perf_counter() - t
+            t_encode = _png_encode_time(out / "images", rosbag, preset) if kind == "raw" else 0
             # not timed: a folder full of earlier runs' files makes new ones slower to create
             shutil.rmtree(out, ignore_errors=True)
             shutil.rmtree(again, ignore_errors=True)
@@ -750,18 +751,39 @@ def bench_import_rosbag(repeat: int) -> list[Row]:
                 a.append(t_import)
                 b.append(t_read)
                 floor.append(t_floor)
+                cpu_a.append(c_import)
+                cpu_b.append(c_read)
+                encode.append(t_encode)
         shutil.rmtree(out_root, ignore_errors=True)
         ratio = _ms(a) / _ms(b)
         what = ("CompressedImage JPEG, copied" if kind == "jpeg"
-                else f"Image bgr8 480 x 480 -> PNG level {rosbag.confs[preset]['png_compression']}")
+                else "Image bgr8 480 x 480 -> PNG level {png_compression}, {png_strategy}"
+                     " strategy, {png_filter} filter".format(**rosbag.confs[preset]))
         rows.append(Row(
             name=f"import rosbag {fmt}, 1000 frames ({kind}, preset {preset})",
             median_ms=_ms(a), baseline="rosbags reading + deserialising the same messages",
             baseline_ms=_ms(b), ratio=ratio, goal="<= 1.5 x reading",
             meets_goal=ratio <= 1.5, repeats=len(a),
             note=f"{what}; + odometry and IMU at 100 Hz; writing the same image files alone"
-                 f" took {_ms(floor):.0f} ms"))
+                 f" took {_ms(floor):.0f} ms"
+                 + (f", encoding the same frames alone (one thread) {_ms(encode):.0f} ms"
+                    if kind == "raw" else "")
+                 + f"; CPU time {_ms(cpu_a):.0f} ms against {_ms(cpu_b):.0f} ms reading"
+                   f" ({_ms(cpu_a) / _ms(cpu_b):.2f} x)"))
     return rows
+
+
+def _png_encode_time(folder, rosbag, preset: str) -> float:
+    """Seconds to encode the frames of ``folder`` again with the preset's PNG parameters in
+    one thread, in memory: the encoder's share of a raw import."""
+    import cv2
+
+    params = rosbag.png_params(rosbag.confs[preset])
+    frames = [cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in sorted(folder.iterdir())]
+    t = time.perf_counter()
+    for im in frames:
+        cv2.imencode(".png", im, params)
+    return time.perf_counter() - t
 
 
 # ---------------------------------------------------------------------------- registry

@@ -127,15 +127,15 @@ def real_white_point_surfaces(realdata, work, e_nones=(1.0, 0.25)) -> list[dict]
     from .. import extract
     from ..build_map import white_points
     from ..common.features_file import FeaturesFile
-    from ..common.field import field_from_spec
+    from ..common.field import load_field
     from ..common.surfaces import count_minima
     from ..evaluate.line_share import LineRaster
-    from .realdata import LAB_FIELD, lab_dataset
+    from .realdata import lab_dataset
 
-    ds, _field = lab_dataset(realdata, work)
+    ds, field = lab_dataset(realdata, work)
     feats = extract.main(extract.resolve_extract_conf("omni", "real"), ds,
                          work / "lab-real.features.h5", overwrite=True)
-    fm = field_from_spec(LAB_FIELD)
+    fm = load_field(field)
     raster = LineRaster(fm)
     out = []
     with FeaturesFile(feats) as ff:

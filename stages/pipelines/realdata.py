@@ -3,7 +3,8 @@ defaults on ../shared/realdata (read its README), judged by the brute-force line
 (stages.evaluate.line_share), never by the method under test.
 
 ``minho_lab(realdata, work)``: the 10 minho-lab images as one dataset of independent frames:
-``calibrate.from_minho`` on the team's mirror.cfg / image.cfg, the lab field of Lar.view,
+``calibrate.from_minho`` on the team's mirror.cfg / image.cfg, the lab field imported from
+Lar.view (``field import``),
 ``build_map``, ``extract`` (preset real), ``localize`` (lut, histogram heading, independent);
 per image the share of its line points within 15 cm at the top hypothesis, the null baseline
 (random-bearing copies at their best pose), the brute-force best pose, whether the top or second
@@ -21,20 +22,21 @@ import shutil
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 # the real recordings beside the repository (../shared/realdata; read its README)
 REALDATA = Path(__file__).resolve().parents[3] / "shared" / "realdata"
 
-# Lar.view (mm): length 10200, width 7540, line 100, centre circle radius 1370, goal area
-# 700 x 3200, penalty area 1550 x 4420, penalty mark 1980, corner arc 400, goal 2000 x 500
-LAB_FIELD = {
-    "name": "minho-lab", "source": "minho-lab/Lar.view", "length": 10.2, "width": 7.54,
-    "line_width": 0.1, "border": 0.7, "centre_circle_diameter": 2.74, "corner_arc_radius": 0.4,
-    "penalty_area": {"length": 1.55, "width": 4.42}, "goal_area": {"length": 0.7, "width": 3.2},
-    "penalty_mark": {"distance": 1.98, "size": 0.1},
-    "goal": {"width": 2.0, "depth": 0.5, "post_diameter": 0.125},
-}
+LAB_FIELD_NAME = "minho-lab"
+
+
+def lab_field(realdata: Path = REALDATA) -> dict:
+    """The minho-lab field spec: the team's own ``Lar.view`` read by ``fieldloc field import``
+    (stages.ingest.team_fields, format minho)."""
+    from ..ingest.team_fields import read_team_field
+
+    return read_team_field(Path(realdata) / "minho-lab" / "Lar.view", "minho",
+                           name=LAB_FIELD_NAME).spec
+
 
 NEAR = 0.15  # m
 RANGES = (3.5, 4.0, 5.0)  # m, range limits of the stability check
@@ -45,6 +47,7 @@ def lab_dataset(realdata: Path, out: Path) -> tuple[Path, Path]:
     """(dataset folder, field YAML) of minho-lab: images, mask and a calib.yaml made by
     ``calibrate.from_minho`` with its defaults."""
     from .. import calibrate
+    from ..ingest import team_fields
 
     src = Path(realdata) / "minho-lab"
     ds = Path(out) / "minho-lab"
@@ -53,8 +56,8 @@ def lab_dataset(realdata: Path, out: Path) -> tuple[Path, Path]:
         shutil.copy(p, ds / "images" / p.name)
     shutil.copy(src / "mask.png", ds / "mask.png")
     calibrate.from_minho(None, src, ds / "calib.yaml", overwrite=True)
-    field = Path(out) / "minho-lab.yaml"
-    field.write_text(yaml.safe_dump(LAB_FIELD))
+    field = team_fields.main(None, src / "Lar.view", Path(out) / "minho-lab.yaml", fmt="minho",
+                             name=LAB_FIELD_NAME, overwrite=True)
     return ds, field
 
 
@@ -82,14 +85,14 @@ def _localise(ds: Path, field: Path, work: Path, max_range: float | None = None,
 def minho_lab(realdata: Path, work: Path, method: str = "lut") -> dict:
     """The minho-lab figures (module doc) of ``method`` (lut, fit)."""
     from ..common.features_file import FeaturesFile
-    from ..common.field import field_from_spec
+    from ..common.field import load_field
     from ..common.geometry import robot_to_field, wrap_angle
     from ..evaluate.line_share import LineRaster
 
     work = Path(work)
     work.mkdir(parents=True, exist_ok=True)
     ds, field = lab_dataset(realdata, work)
-    fm = field_from_spec(LAB_FIELD)
+    fm = load_field(field)
     raster = LineRaster(fm)
     cols, feats = _localise(ds, field, work, method=method)
     with FeaturesFile(feats) as ff:
