@@ -268,3 +268,8 @@ def test_global_localisation_finds_the_centre_spot(nubot_run, method):
     assert from_ref <= REFERENCE_TOLERANCE[0]
     assert abs(theta - REFERENCE[2]) <= REFERENCE_TOLERANCE[1]
     assert heading <= GOAL[1] and from_spot <= GOAL[0] + GOAL_SLACK_M
+    # the frame cannot tell the pose from its mirror (confidence at most 1/2), but it decides
+    # the pair: accepted up to the mirror, the export giving both poses
+    assert frame["confidence"] <= 0.5 + 1e-6 and not frame["accepted"]
+    assert frame["accepted_up_to_mirror"] and frame["confidence_up_to_mirror"] >= 0.8
+    assert math.isclose(frame["mirror_x"], -frame["x"], abs_tol=1e-6)

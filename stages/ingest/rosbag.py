@@ -182,6 +182,11 @@ class _Reader:
     def connections(self):
         return self._reader.connections
 
+    @property
+    def is2(self) -> bool:
+        """Whether the bag is ROS 2 (CDR messages) rather than ROS 1."""
+        return bool(self._reader.is2)
+
     def deserialize(self, raw, msgtype):
         return self._reader.deserialize(raw, msgtype)
 
