@@ -488,8 +488,10 @@ def test_cli_localize_points_csv(omni_default_rendered, msl2015_map, tmp_path):
     res = CliRunner().invoke(cli, ["localize", str(ds), "--map", str(msl2015_map),
                                    "--points", str(csv_path), "-o", str(out)])
     assert res.exit_code == 0, res.output
-    assert "15 frames" in res.output
+    # every dataset frame has a row; the 25 the points file names no point of failed
+    assert "40 frames" in res.output and "25 failed" in res.output
     pos, _head, p, attrs = errors_against_truth(out, ds)
+    assert all(("no-points" in str(f)) == (i >= 15) for i, f in enumerate(p["flags"]))
     assert attrs["inputs"]["points"] == str(csv_path)
     assert (~p["failed"]).sum() >= 10 and np.median(pos) <= 0.2
 

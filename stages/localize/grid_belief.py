@@ -11,15 +11,15 @@ its border), at the frame's IMU heading. Per frame:
    where the motion is unknown: a collision frame, no odometry), and mixed with the uniform
    belief at ``kidnap_probability`` (the rate at which the robot is put elsewhere);
 2. update: multiplied by the frame's tempered likelihood exp(-E(cell) / T) at the table
-   heading nearest the IMU's, E the seed's matching error over every cell (the global
-   search's surface, TableSearch.surface), and normalised;
-   A frame with fewer than ``min_observations`` crossings (the camera blocked, the robot
-   lifted) skips the update: its answer is the prediction (mode ``predicted``);
-3. conclude: the hypotheses are the belief's separated maxima (``ambiguity_distance`` apart),
-   each with the belief's mass within ``grid.reach`` of it; the top one's cell is refined to
-   sub-cell by the seed's refinement (TableSearch.refine) and its mass is the confidence: the
-   probability, under the belief, that the robot stands within ``reach`` of the pose. The
-   position covariance is the belief's own second moment around the pose within that reach.
+   heading nearest the IMU's, E the seed's matching error over every cell (the error
+   lookup's surface, each observation at its evidence weight: TableSearch.surface), and
+   normalised. A frame with fewer than ``min_observations`` crossings (the camera blocked,
+   the robot lifted) skips the update: its answer is the prediction (mode ``predicted``);
+3. conclude: the hypotheses are the belief's most probable cells, ``ambiguity_distance``
+   apart (the global search's places), each with the belief's mass within that distance of
+   it: the probability of that place. The top one's cell is refined to sub-cell by the
+   seed's refinement (TableSearch.refine), and its place's mass is the confidence. The
+   position covariance is the belief's own second moment about the pose over the place.
 
 Every place keeps its probability from frame to frame: nothing is born or pruned, so a place
 the first frames misjudged is not lost, and the belief moves to it as soon as the evidence the
@@ -45,8 +45,7 @@ DEFAULTS = {
     # evidence (full-weight observations of the surface) per nat: consecutive views overlap
     # and one white line crosses many scan lines, so one observation is worth much less than
     # a nat; fitted on rendered tuning seeds (results page), as lut's ``temperature``
-    "temperature": 8.0,
-    "reach": 0.4,  # m, the confidence is the belief's mass within this of the pose
+    "temperature": 4.0,
     # prior of a cell a robot cannot stand on (inside or behind a goal), relative to the field
     "unreachable_probability": 1e-3,
 }
@@ -87,10 +86,10 @@ def uses_grid(conf: dict) -> bool:
 def check_conf(conf: dict) -> None:
     """The grid keys of a lut conf, checked (FieldlocError)."""
     g = conf["grid"]
-    for key in ("temperature", "reach"):
-        v = g[key]
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (0 < v < math.inf):
-            raise FieldlocError(f"conf 'grid.{key}' must be a number > 0, got {str(v)[:40]!r}")
+    v = g["temperature"]
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (0 < v < math.inf):
+        raise FieldlocError(f"conf 'grid.temperature' must be a number > 0, got"
+                            f" {str(v)[:40]!r}")
     v = g["unreachable_probability"]
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v <= 1:
         raise FieldlocError(f"conf 'grid.unreachable_probability' must be in [0, 1], got"
@@ -305,9 +304,10 @@ class GridLocaliser:
             self.belief.update(search.surface(obs, theta), float(self.g["temperature"]))
         else:  # nothing to weigh: the belief's prediction is the frame's answer
             flags.append("too-few-observations")
-        reach = float(self.g["reach"])
-        modes = self.belief.modes(int(conf["hypotheses"]), float(conf["ambiguity_distance"]),
-                                  reach)
+        # a place: the cells within the global search's ambiguity distance of a pose (two
+        # places are at least that far apart); the confidence is the mass of the pose's place
+        reach = float(conf["ambiguity_distance"])
+        modes = self.belief.modes(int(conf["hypotheses"]), reach, reach)
         x, y, _ = modes[0]
         fix = GridFix(x, y, theta, math.nan, "grid" if seen else "predicted")
         if seen:  # sub-cell, by the seed's refinement in the mode's basin
