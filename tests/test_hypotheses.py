@@ -195,9 +195,8 @@ def test_radial_correction_learns_a_mirror_error_and_removes_it():
 def test_lut_learns_the_calibration_error_of_a_rendered_set(tmp_path, msl2015_map):
     """omni-default writes a team-like miscalibrated calib.yaml; tracking with the IMU learns
     the distance error of its crossings (summary in poses.h5's method_report). The tracks
-    teach it from the frames they hold at 0.99; the whole-field belief (the default with the
-    IMU) teaches from the same threshold of its own confidence, which its tempered
-    likelihood reaches on fewer frames (its report is there all the same)."""
+    teach it from the frames they hold at 0.99; the whole-field belief (``--preset grid``)
+    from the same threshold of its own confidence (its report is there too)."""
     import json
 
     import h5py as _h5
@@ -213,8 +212,8 @@ def test_lut_learns_the_calibration_error_of_a_rendered_set(tmp_path, msl2015_ma
         rep = json.loads(f.attrs["method_report"])["radial_correction"]
     assert rep["active"] and rep["points"] > 300
     assert max(abs(v) for v in rep["error_m"].values()) > 0.02  # it found an error
-    grid = localize.main({"method": "lut", "heading": "imu"}, ds, msl2015_map,
-                         tmp_path / "g.h5", features=feats)
+    grid = localize.main({"method": "lut", "heading": "imu", "belief": "grid"}, ds,
+                         msl2015_map, tmp_path / "g.h5", features=feats)
     with _h5.File(grid) as f:
         assert "radial_correction" in json.loads(f.attrs["method_report"])
 

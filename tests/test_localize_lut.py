@@ -534,7 +534,7 @@ def superimposed(search, pose_a, pose_b, rng):
 
 
 def test_grid_keeps_its_prediction_through_a_blank_frame(search, msl2015_map):
-    """The whole-field belief (``belief: grid``, the default with a field-aligned heading):
+    """The whole-field belief (``belief: grid``, with a field-aligned heading):
     a frame without crossings is answered by the prediction (mode ``predicted``, flagged
     too-few-observations), every other frame by the belief's most probable place."""
     rng = np.random.default_rng(18)
@@ -543,7 +543,7 @@ def test_grid_keeps_its_prediction_through_a_blank_frame(search, msl2015_map):
     inc = np.array([between(poses[max(i - 1, 0)], poses[i]) for i in range(len(poses))])
     ds = Dataset(truth={"stamp": t, "x": poses[:, 0], "y": poses[:, 1], "theta": poses[:, 2]},
                  odometry={"stamp": t, "dx": inc[:, 0], "dy": inc[:, 1], "dtheta": inc[:, 2]})
-    conf = lut.confs["default"] | {"heading": "truth"}
+    conf = lut.confs["grid"] | {"heading": "truth"}
     cols = lut.run(conf, ds, frames, MapFile(msl2015_map)).arrays()
     assert not cols["failed"].any()
     assert cols["mode"][5] == "predicted" and "too-few-observations" in cols["flags"][5]

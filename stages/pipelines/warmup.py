@@ -77,10 +77,9 @@ def _steps(root: Path):
                                             (nao, "spl"))]),
         ("extract", lambda: [extract.main(None, root / d, root / d / "features.h5")
                              for d in (omni, kid, nao)]),
-        ("localize lut (IMU heading: the whole-field belief)",
-         lambda: loc(omni, "lut", "lut-imu", heading="imu")),
-        ("localize lut (IMU heading, the tracks)",
-         lambda: loc(omni, "lut", "lut-imu-tracks", heading="imu", belief="tracks")),
+        ("localize lut (IMU heading)", lambda: loc(omni, "lut", "lut-imu", heading="imu")),
+        ("localize lut (IMU heading, the whole-field belief)",
+         lambda: loc(omni, "lut", "lut-imu-grid", heading="imu", belief="grid")),
         ("localize lut (histogram heading)",
          lambda: loc(omni, "lut", "lut-histogram", heading="histogram")),
         ("localize fit", lambda: loc(omni, "fit", "fit")),
