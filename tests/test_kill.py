@@ -203,10 +203,12 @@ def _frames_dataset(inputs, folder: Path, n: int) -> Path:
 def test_kill_extract_resumes(inputs, tmp_path, rng):
     """An earlier features file of the first 40 frames; extract of all N frames resumes it and
     is killed; the next run keeps the earlier file's frames and the killed run's, extracts the
-    rest, and ends with the features of an uninterrupted run. N is large enough that neither
-    run can finish inside its signal's window on a fast or a busy machine (with 120, a run
-    sometimes finished before the kill landed)."""
-    n = 300
+    rest, and ends with the features of an uninterrupted run. N is large enough, and the kill's
+    window short enough, that neither run can finish inside its signal's window on a fast or a
+    busy machine (with 120, a run sometimes finished before the kill landed; with 300 frames and
+    a kill within 0.2 s, an idle machine's first run extracted nearly all of them, leaving the
+    second run too little to be interrupted)."""
+    n = 400
     part = _frames_dataset(inputs, tmp_path / "first40", 40)
     ds = _frames_dataset(inputs, tmp_path / "ds", n)
     target = ds / "features.h5"
@@ -215,12 +217,12 @@ def test_kill_extract_resumes(inputs, tmp_path, rng):
     parts_dir = ds / ".features.h5.parts"
     run = Run(["-v", "extract", str(ds)], tmp_path)
     started = run.wait_for(path_glob=(parts_dir, "*.npz", 3))
-    delay = rng.uniform(0.0, 0.2)
+    delay = rng.uniform(0.0, 0.05)
     rc = run.kill_after(delay)
     assert started and rc == -signal.SIGKILL, (rc, delay, "".join(run.seen))
     assert tree_hashes(target) == earlier
     kept = len(list(parts_dir.glob("*.npz")))
-    assert 3 <= kept < n - 40, kept
+    assert 3 <= kept < n - 140, kept  # the next run has frames left to be interrupted in
     # a Ctrl-C of the next run keeps what it finished too, and says so
     run = Run(["extract", str(ds)], tmp_path)
     run.wait_for(path_glob=(parts_dir, "*.npz", kept + 2))
