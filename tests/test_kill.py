@@ -56,13 +56,20 @@ def inputs(tmp_path_factory):
 # ---------------------------------------------------------------------------- helpers
 
 
+def _default_sigint():
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 class Run:
     """A fieldloc subprocess whose stderr lines are collected as they come."""
 
     def __init__(self, args, cwd):
+        # SIGINT as a terminal's foreground process has it: a job started in the background
+        # of a non-interactive shell (a CI runner's) inherits it ignored, and Python keeps an
+        # ignored SIGINT ignored, so a Ctrl-C would never arrive
         self.proc = subprocess.Popen([*FIELDLOC, *args], cwd=cwd, stdout=subprocess.DEVNULL,
                                      stderr=subprocess.PIPE, text=True,
-                                     start_new_session=True)
+                                     start_new_session=True, preexec_fn=_default_sigint)
         self.lines: queue.Queue = queue.Queue()
         self.seen: list[str] = []
         self._reader = threading.Thread(target=self._read, daemon=True)
@@ -205,9 +212,7 @@ def test_kill_extract_resumes(inputs, tmp_path, rng):
     is killed; the next run keeps the earlier file's frames and the killed run's, extracts the
     rest, and ends with the features of an uninterrupted run. N is large enough, and the kill's
     window short enough, that neither run can finish inside its signal's window on a fast or a
-    busy machine (with 120, a run sometimes finished before the kill landed; with 300 frames and
-    a kill within 0.2 s, an idle machine's first run extracted nearly all of them, leaving the
-    second run too little to be interrupted)."""
+    busy machine (with 120, a run sometimes finished before the kill landed)."""
     n = 400
     part = _frames_dataset(inputs, tmp_path / "first40", 40)
     ds = _frames_dataset(inputs, tmp_path / "ds", n)
