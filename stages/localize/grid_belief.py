@@ -281,24 +281,14 @@ class GridLocaliser:
         self._predict(dt, odo, collision)
 
     def frame(self, i: int, fr: dict, dt: float, odo, flags: list):
-        from .lut_search import Observation
+        from .lut_search import frame_observations
 
         conf, search = self.conf, self.search
         col = bool(self.collision[i])
         self._predict(dt, odo, col)
         theta = self._heading(i)
         self.prev_heading = theta
-        sl = search.scanlines
-        obs = Observation.from_scanlines(fr.get("radial", np.zeros((0, 4))), fr.get("spiral"),
-                                         search.params, sl.max_range, sl.spiral_end_radius,
-                                         sl.robot_radius)
-        raw_distance = obs.distance
-        if self.radial is not None and self.radial.active:  # the calibration's error removed
-            d = self.radial.correct(raw_distance)
-            obs = Observation(family=obs.family, angle_index=obs.angle_index, distance=d,
-                              weight=search.params.weight(d), lookup_weight=obs.lookup_weight)
-        ev = conf["evidence"]
-        obs = obs.with_evidence(sl, ev["per_structure"], ev["link"], ev["link_per_m"])
+        obs, raw_distance = frame_observations(fr, search, self.radial, conf["evidence"])
         seen = len(obs) >= conf["min_observations"]
         if seen:
             self.belief.update(search.surface(obs, theta), float(self.g["temperature"]))

@@ -136,6 +136,7 @@ from .lut_search import (
     SearchResult,
     Support,
     TableSearch,
+    frame_observations,
     random_bearing_points,
 )
 from .point_fit import PointFit
@@ -372,18 +373,9 @@ class LutLocaliser:
         if conf["independent"]:
             bank.reset()
             dt, odo = 0.0, None
-        obs = Observation.from_scanlines(fr.get("radial", np.zeros((0, 4))), fr.get("spiral"),
-                                         search.params, sl.max_range, sl.spiral_end_radius,
-                                         sl.robot_radius)
+        obs, raw_distance = frame_observations(fr, search, self.radial, conf["evidence"])
         if len(obs) < conf["min_observations"]:
             raise FrameFailed("too-few-observations")
-        raw_distance = obs.distance
-        if self.radial is not None and self.radial.active:  # the calibration's error removed
-            d = self.radial.correct(raw_distance)
-            obs = Observation(family=obs.family, angle_index=obs.angle_index, distance=d,
-                              weight=search.params.weight(d), lookup_weight=obs.lookup_weight)
-        ev = conf["evidence"]
-        obs = obs.with_evidence(sl, ev["per_structure"], ev["link"], ev["link_per_m"])
         self._points = obs.points(sl)
         self._frame_points, self._all_points = fr.get("points"), None  # (_line_points)
         base_heading = self._frame_heading(i, col)  # None: from each track / unknown

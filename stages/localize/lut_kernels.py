@@ -208,6 +208,16 @@ def refine_moves(radial_flat, spiral_flat, ncell, n_angles, family, angle_index,
     return i * nx + j
 
 
+@njit(cache=True, nogil=True, inline="always")
+def lookup_row(fam, ai, b, m, n_angles, nb_radial, nb_spiral, spiral_row0):
+    """The error lookup's row of an observation (family ``fam``, scan line ``ai``, distance
+    bin ``b``) at table heading m: TableSearch.lookup_rows for one observation."""
+    k = (ai + m) % n_angles
+    if fam == 0:
+        return k * nb_radial + min(b, nb_radial - 1)
+    return spiral_row0 + ((fam - 1) * n_angles + k) * nb_spiral + min(b, nb_spiral - 1)
+
+
 @njit(cache=True, nogil=True)
 def tiled_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
               spiral_row0, i0, i1, j0, j1, ntx, out):
@@ -226,13 +236,8 @@ def tiled_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spir
     span = (tj1 - tj0) * tt
     acc = np.zeros((ti1 - ti0) * span, dtype=np.uint16)
     for o in range(family.shape[0]):
-        k = (angle_index[o] + m) % n_angles
-        if family[o] == 0:
-            r = k * nb_radial + min(bins[o], nb_radial - 1)
-        else:
-            r = spiral_row0 + ((family[o] - 1) * n_angles + k) * nb_spiral + min(bins[o],
-                                                                                nb_spiral - 1)
-        row = lookup[r]
+        row = lookup[lookup_row(family[o], angle_index[o], bins[o], m, n_angles, nb_radial,
+                                nb_spiral, spiral_row0)]
         for a in range(ti1 - ti0):
             src = row[((ti0 + a) * ntx + tj0) * tt:((ti0 + a) * ntx + tj0) * tt + span]
             dst = acc[a * span:(a + 1) * span]
@@ -264,13 +269,8 @@ def weighted_surface(lookup, family, angle_index, bins, scale, m, n_angles, nb_r
         f = scale[o]
         if f <= 0.0:
             continue
-        k = (angle_index[o] + m) % n_angles
-        if family[o] == 0:
-            r = k * nb_radial + min(bins[o], nb_radial - 1)
-        else:
-            r = spiral_row0 + ((family[o] - 1) * n_angles + k) * nb_spiral + min(bins[o],
-                                                                                nb_spiral - 1)
-        row = lookup[r]
+        row = lookup[lookup_row(family[o], angle_index[o], bins[o], m, n_angles, nb_radial,
+                                nb_spiral, spiral_row0)]
         for q in range(n):
             acc[q] += f * row[q]
     for i in range(ny):

@@ -228,6 +228,26 @@ class Observation:
         return self._points[1]
 
 
+def frame_observations(fr: dict, search: TableSearch, radial, evidence: dict
+                       ) -> tuple[Observation, np.ndarray]:
+    """A features frame's scan-line observations for the table search, and their distances
+    as observed: the calibration's error removed when ``radial`` (a RadialCorrection or None)
+    is active, then weighted as evidence (``evidence``: a method conf's per_structure, link,
+    link_per_m; Observation.with_evidence)."""
+    sl = search.scanlines
+    obs = Observation.from_scanlines(fr.get("radial", np.zeros((0, 4))), fr.get("spiral"),
+                                     search.params, sl.max_range, sl.spiral_end_radius,
+                                     sl.robot_radius)
+    raw_distance = obs.distance
+    if radial is not None and radial.active:
+        d = radial.correct(raw_distance)
+        obs = Observation(family=obs.family, angle_index=obs.angle_index, distance=d,
+                          weight=search.params.weight(d), lookup_weight=obs.lookup_weight)
+    obs = obs.with_evidence(sl, evidence["per_structure"], evidence["link"],
+                            evidence["link_per_m"])
+    return obs, raw_distance
+
+
 def random_bearing_points(points: np.ndarray, perm: np.ndarray, angle_step: float
                           ) -> np.ndarray:
     """The null copy of line points (N, 2, robot frame): each point turned with its nearest
