@@ -50,26 +50,26 @@ lint: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/fieldloc bench
 
-# README's performance table, from one bench run (its JSON is kept in $(OUT)/bench.json)
+# docs/results.md's performance table, from one bench run (its JSON is kept in $(OUT)/bench.json)
 bench-readme: $(STAMP)
 	@mkdir -p $(OUT)
 	$(FLP) bench --json $(OUT)/bench.json --overwrite > /dev/null
 	$(BIN)/fieldloc bench --from-json $(OUT)/bench.json --format markdown > $(OUT)/bench.md
-	$(BIN)/python -c "import pathlib, re; r = pathlib.Path('README.md'); \
+	$(BIN)/python -c "import pathlib, re; r = pathlib.Path('docs/results.md'); \
 	b = pathlib.Path('$(OUT)/bench.md').read_text(); \
 	r.write_text(re.sub(r'(<!-- bench:begin -->\n).*?(<!-- bench:end -->)', \
 	lambda m: m.group(1) + b + m.group(2), r.read_text(), flags=re.S))"
 
-# README's comparison of the methods (specs/compare.yaml: six rendered datasets, both cameras,
+# docs/manual.md's comparison of the methods (specs/compare.yaml: six rendered datasets, both cameras,
 # clean and hard), from one batch: its table and summary picture between the compare markers
 COMPARE := $(OUT)/compare
 compare: $(STAMP)
 	@mkdir -p $(OUT) docs
 	$(BIN)/fieldloc batch specs/compare.yaml -o $(COMPARE)
 	cp $(COMPARE)/plots/summary.png docs/compare-summary.png
-	$(BIN)/python -c "import pathlib, re; r = pathlib.Path('README.md'); \
+	$(BIN)/python -c "import pathlib, re; r = pathlib.Path('docs/manual.md'); \
 	b = pathlib.Path('$(COMPARE)/comparison.md').read_text() \
-	+ '\n![methods x datasets](docs/compare-summary.png)\n'; \
+	+ '\n![methods x datasets](compare-summary.png)\n'; \
 	r.write_text(re.sub(r'(<!-- compare:begin -->\n).*?(<!-- compare:end -->)', \
 	lambda m: m.group(1) + b + m.group(2), r.read_text(), flags=re.S))"
 

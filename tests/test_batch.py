@@ -248,23 +248,23 @@ def test_two_workers_give_the_serial_results_value_for_value(serial, tmp_path):
 
 def test_the_readme_comparison_is_a_batch_comparison(serial):
     """`make compare` writes comparison.md of specs/compare.yaml and its summary picture into
-    the README's compare block: the block is that table (same columns as the code makes now,
+    docs/manual.md's compare block: the block is that table (same columns as the code makes now,
     six datasets or more) and the picture it shows is in the repository."""
     import re
 
     from stages.evaluate.report import comparison_table
 
     root = Path(__file__).resolve().parents[1]
-    text = (root / "README.md").read_text()
+    text = (root / "docs" / "manual.md").read_text()
     m = re.search(r"<!-- compare:begin -->\n(.*?)<!-- compare:end -->", text, flags=re.S)
-    assert m, "README lacks the compare block"
+    assert m, "docs/manual.md lacks the compare block"
     lines = m.group(1).splitlines()
     header = comparison_table(serial[1], "markdown").splitlines()[0]
     assert [c.strip() for c in lines[0].split("|")] == [c.strip() for c in header.split("|")]
     rows = [ln for ln in lines[2:] if ln.startswith("|")]
     assert len({r.split("|")[1].strip() for r in rows}) >= 6
     images = re.findall(r"!\[[^]]*\]\(([^)]+)\)", m.group(1))
-    assert images and all((root / p).is_file() for p in images)
+    assert images and all((root / "docs" / p).is_file() for p in images)
     spec = yaml.safe_load((root / "specs" / "compare.yaml").read_text())
     assert read_spec(root / "specs" / "compare.yaml", root / "build" / "x").runs
     assert {d["simulate"]["preset"].split("-")[0] for d in spec["datasets"]} == {

@@ -1235,8 +1235,8 @@ def _yaml_blocks(text: str) -> list[str]:
 
 
 def test_readme_yaml_examples_parse(tmp_path):
-    """Every calib.yaml and field YAML example of the README reads as the code reads it."""
-    blocks = _yaml_blocks((ROOT / "README.md").read_text())
+    """Every calib.yaml and field YAML example of the manual reads as the code reads it."""
+    blocks = _yaml_blocks((ROOT / "docs" / "manual.md").read_text())
     kinds = []
     for i, block in enumerate(blocks):
         d = yaml.safe_load(block)
@@ -1253,7 +1253,7 @@ def test_readme_yaml_examples_parse(tmp_path):
 
 
 def test_bench_table_of_the_readme_comes_from_a_bench_json(tmp_path):
-    """The README's performance table is `bench --from-json --format markdown` of one run:
+    """docs/results.md's performance table is `bench --from-json --format markdown` of one run:
     rows survive the JSON round trip (NaN as null) and become one table line each."""
     from stages.pipelines import bench
 
@@ -1266,7 +1266,7 @@ def test_bench_table_of_the_readme_comes_from_a_bench_json(tmp_path):
     lines = r.stdout.splitlines()
     assert lines[2] == "| a row | 1.5 ms |  | the other: 3 ms | 0.5 |  | <= 2 ms | yes |"
     assert lines[3].startswith("| no numbers |") and "- a row: a note" in lines
-    text = (ROOT / "README.md").read_text()
+    text = (ROOT / "docs" / "results.md").read_text()
     assert "<!-- bench:begin -->\n| row | median | CPU |" in text
 
 
@@ -1298,7 +1298,7 @@ KIND_NAMES = {"data-lost": "data lost", "traceback": "tracebacks", "hang": "hang
 
 
 def figures_block() -> str:
-    """The README's figures, from what this suite holds."""
+    """docs/pipeline.md's figures, from what this suite holds."""
     import test_fuzz_readers
     import test_kill
 
@@ -1314,7 +1314,7 @@ def figures_block() -> str:
     return "\n".join([
         f"- {len(CASES)} command cases ({by_kind}), each checked for its exit code, its one-line"
         " message, the hashes of every input file afterwards, and that a refused command"
-        f" writes nothing; {len(checks)} more checks of the output rules and the README's"
+        f" writes nothing; {len(checks)} more checks of the output rules and the manual's"
         " examples;",
         f"- {len(test_kill.INTERRUPTIONS)} interruptions at seeded random moments (kill -9 of"
         f" {', '.join(stages)}; Ctrl-C of extract), each followed by a run that must clean up,"
@@ -1329,9 +1329,9 @@ def figures_block() -> str:
 
 
 def test_readme_states_the_figures():
-    text = (ROOT / "README.md").read_text()
+    text = (ROOT / "docs" / "pipeline.md").read_text()
     m = re.search(r"<!-- faults:begin -->\n(.*?)<!-- faults:end -->", text, flags=re.S)
-    assert m, "README lacks the faults figures block"
+    assert m, "docs/pipeline.md lacks the faults figures block"
     want = figures_block()
     got = " ".join(m.group(1).split())
-    assert got == " ".join(want.split()), f"update the README's figures to:\n{want}"
+    assert got == " ".join(want.split()), f"update docs/pipeline.md's figures to:\n{want}"
