@@ -24,7 +24,7 @@ from .common import progress_enabled, summary
 @click.option("--overwrite", is_flag=True, help="Run every run again, finished or not.")
 @click.pass_context
 def batch(ctx, spec, output, workers, scheduler, serial, overwrite):
-    """Run the datasets x methods of SPEC (YAML; see README "Batch runs") into RESULTS:
+    """Run the datasets x methods of SPEC (YAML; see docs/manual.md "Batch runs") into RESULTS:
     extract, localize and evaluate per run, finished runs kept, and the comparison of the
     methods on every dataset (`fieldloc evaluate --table RESULTS` prints it again)."""
     from stages.common.errors import FieldlocError

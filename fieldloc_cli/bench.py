@@ -17,7 +17,7 @@ import click
               help="Also write the rows as JSON.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing --json file.")
 @click.option("--format", "fmt", type=click.Choice(["text", "markdown"]), default="text",
-              show_default=True, help="Table format (markdown: the README's table).")
+              show_default=True, help="Table format (markdown: docs/results.md's table).")
 @click.option("--from-json", "from_json", type=click.Path(dir_okay=False, path_type=Path),
               help="Print the table of a saved --json run instead of timing again.")
 @click.pass_context

@@ -57,7 +57,8 @@ COMMANDS = {
                " of runs with reports below it): table, plots, reliability, worst frames with"
                " overlays."),
     "batch": ("fieldloc_cli.batch:batch",
-              "Run the datasets x methods of SPEC (YAML; see README \"Batch runs\") into RESULTS:"
+              "Run the datasets x methods of SPEC (YAML; see docs/manual.md \"Batch runs\") into"
+              " RESULTS:"
               " extract, localize and evaluate per run, finished runs kept, and the comparison"
               " of the methods on every dataset (`fieldloc evaluate --table RESULTS` prints it"
               " again)."),

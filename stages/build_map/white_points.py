@@ -22,7 +22,7 @@ line of a 2 m line spacing half-way).
 
 Computed on the fly for the region a query needs (``region_grid``: cells around a pose), not
 stored in the map: at 1 deg with all crossings the whole table is two orders of magnitude the
-map's radial table (README "The template method": its size for msl-2015), and the seed's
+map's radial table (docs/manual.md "The template method": its size for msl-2015), and the seed's
 comparison only ever reads it around one pose.
 """
 

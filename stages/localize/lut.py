@@ -10,7 +10,7 @@ belief. There is one quantity behind every decision: the tempered likelihood
 
 (``temperature`` T: neighbouring scan lines see the same white line, so the observations are
 not independent and one full-weight observation is worth less than one nat; T is fitted so that
-the probabilities are calibrated, see the README's reliability figures) combined with the prior
+the probabilities are calibrated, docs/lut-belief.md) combined with the prior
 the robot's motion gives, over a short list of hypotheses.
 
 Two beliefs carry that likelihood from frame to frame (``belief``; docs/lut-belief.md):
@@ -66,7 +66,7 @@ copies (the points turned with their scan lines' shuffled bearings:
 lut_search.random_bearing_points) are weighed the same way; the histogram headings of such a
 frame come from those points too. The scan-line error measures a miss along the ray, and a
 point beside a line its ray meets at a grazing angle misses far along it: on real images it
-chose poses that explain fewer points (README). A tracked run keeps the scan-line error for
+chose poses that explain fewer points (docs/manual.md). A tracked run keeps the scan-line error for
 its first and lost frames, as for its tracks: with the points there, the rendered omni-hard
 run of `make compare` locked onto the look-alike place for good (0 % within 40 cm against
 28 %).
@@ -148,8 +148,9 @@ log = logging.getLogger(__name__)
 
 camera_kinds = ("omni",)  # the features it reads
 confs = {
-    # the belief's keys (tracking.DEFAULTS; min_confidence 0.8 calibrated: 0.2 % of the
-    # rendered calibration frames accepted and more than 1 m off, README), then the search's
+    # the belief's keys (tracking.DEFAULTS; min_confidence 0.8: 0.2 % of the tuning sets'
+    # frames accepted and more than 1 m off, 10.9 % of the held-out ones:
+    # docs/lut-belief.md), then the search's
     "default": {
         **tracking.DEFAULTS,
         "heading": "imu",  # imu | histogram | truth
@@ -184,9 +185,9 @@ confs = {
         # of a global search on a frame with no track (and its null): the line points'
         # distance to the nearest line (PointFit) after refining each candidate in its basin,
         # or the seed's scan-line error (along each ray: prefers poses where lines are crossed
-        # at the right range to poses where the points lie on lines; README, real images);
+        # at the right range to poses where the points lie on lines; docs/manual.md, real images);
         # auto: points for independent frames, scan lines for a tracked run (whose tracks
-        # are weighed by the scan-line error: its first fix too, README)
+        # are weighed by the scan-line error: its first fix too, docs/manual.md)
         "global_reach": 0.5,  # m, how far the points' refinement moves such a candidate
         "global_candidates": 16,  # separated minima of a global search proposed as tracks
         "unknown_heading_candidates": 24,  # (heading, cell) candidates refined
@@ -197,7 +198,7 @@ confs = {
         # an inlier of the fix (c / 2: rho = 0.2); reported, and shapes the covariance
         "vision_sigma_xy": 0.01,  # m, smallest position sigma of a well-constrained fix
         "vision_rms_factor": 2.5,  # its sigma per m of its inliers' rms error
-        # (vision_covariance; fused poses consistent with their covariance, NEES, README)
+        # (vision_covariance; fused poses consistent with their covariance, NEES, docs/manual.md)
         "search": {
             "c": 0.25,  # m, scale of 1 - c^2 / (c^2 + e^2)
             "range_scale": 2.0,  # m, weight 1 / (1 + (d / range_scale)^2): nearer weigh more
@@ -542,8 +543,9 @@ class LutLocaliser:
         total evidence weight (range weights and the structures' caps, Observation.
         with_evidence). Weighed by those per point, a long line seen by many scan lines
         would count less than a small clutter structure of a few points, and far points
-        little: on the real minho-lab images that chose poses explaining fewer points (README:
-        7 of 10 images explained this way, 6 with the range weights, 5 with the caps too)."""
+        little: on the real minho-lab images that chose poses explaining fewer points
+        (docs/manual.md: 7 of 10 images explained this way, 6 with the range weights, 5 with
+        the caps too)."""
         reach = float(self.conf["global_reach"])
         pose, cost, _normal = self.fit.refine(
             points, np.ones(len(points)), fix.pose, fixed_heading=heading_fixed,

@@ -5,7 +5,7 @@ on Dask (dask.distributed), then one comparison.
     main(conf, spec, results, *, overwrite=False, progress=False) -> Path   # RESULTS
 
 A chain of stage mains (simulate, calibrate, build_map, extract, localize, evaluate) and of the
-comparison pictures (stages.show.comparison), so it lives here in pipelines (README
+comparison pictures (stages.show.comparison), so it lives here in pipelines (docs/manual.md
 "Architecture": a stage may import no other stage, and no stage draws). The SPEC is read by
 stages.pipelines.batch_spec; RESULTS holds:
 

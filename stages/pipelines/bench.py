@@ -900,7 +900,7 @@ def format_table(rows: list[Row]) -> str:
 
 
 def format_markdown(rows: list[Row]) -> str:
-    """The rows as the README's performance table (``make bench-readme``)."""
+    """The rows as docs/results.md's performance table (``make bench-readme``)."""
     def f(v, unit=""):
         if v is None or (isinstance(v, float) and not math.isfinite(v)):
             return ""
