@@ -124,7 +124,7 @@ def localize(ctx, dataset, map_path, templates, pose_solver, features, points, m
         path = stage.main(conf, dataset, map_path, output, features=features, points=points,
                           overwrite=overwrite, progress=progress_enabled(ctx),
                           allow_field_mismatch=allow_field_mismatch)
-    from stages.common.poses_file import read_poses, start_half_warning
+    from stages.common.poses_file import read_poses
 
     cols, attrs = read_poses(path)
     n = len(cols["name"])
@@ -138,6 +138,3 @@ def localize(ctx, dataset, map_path, templates, pose_solver, features, points, m
         modes = {m: int((cols["mode"][ok] == m).sum()) for m in sorted(set(cols["mode"][ok]))}
         msg += " (" + ", ".join(f"{m} {c}" for m, c in modes.items()) + ")"
     summary(ctx, msg)
-    warn = start_half_warning(cols, attrs)
-    if warn:
-        log.warning(warn)

@@ -1124,7 +1124,7 @@ def test_start_half_warning_when_accepted_frames_sit_in_the_other_half():
     """Issue 25: a wrong --start-half gave a track on the other half without a word. Warned
     when most accepted frames lie in the other half than the given one; not for 'any', not
     for a run that stays in the given half, not on a handful of frames."""
-    from stages.common.poses_file import start_half_warning
+    from stages.localize.symmetry import start_half_warning
 
     x = np.array([-2.0, 0.5, 1.0, 2.0, 3.0, 3.5, -1.0, np.nan])
     cols = {"x": x, "accepted": np.isfinite(x)}

@@ -245,29 +245,3 @@ def _read_poses(path):
         out["hypotheses"] = h
     return out, attrs
 
-
-# ---------------------------------------------------------------------------- start half
-
-HALVES = {"own": "own half (x < 0)", "opponent": "opponent half (x > 0)"}
-MIN_HALF_FRAMES = 5  # accepted frames before the halves they lie in say anything
-
-
-def start_half_warning(columns: dict, attrs: dict) -> str | None:
-    """One line when the run's accepted frames mostly lie in the other half than the
-    ``start_half`` its conf gave (None otherwise, and for ``any``). start_half only places
-    the first fix; a run that then spends most of its accepted frames in the other half
-    either walked there or was started on the wrong half, whose mirrored track a symmetric
-    field cannot reveal: the user is the one who can tell which."""
-    half = (attrs.get("conf") or {}).get("start_half")
-    if half not in HALVES:
-        return None
-    x = np.asarray(columns["x"], float)
-    acc = np.asarray(columns["accepted"], bool) & np.isfinite(x)
-    n = int(acc.sum())
-    other = int(np.sum(x[acc] > 0) if half == "own" else np.sum(x[acc] < 0))
-    if n < MIN_HALF_FRAMES or 2 * other <= n:
-        return None
-    return (f"start_half {half}, yet {other} of {n} accepted frames lie in the"
-            f" {HALVES['opponent' if half == 'own' else 'own']}: if the robot did not start"
-            f" in its {HALVES[half]}, the whole track is the field's mirror image (run again"
-            " with --start-half any or the other half)")

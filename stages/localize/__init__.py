@@ -69,7 +69,7 @@ from ..common.field import load_field
 from ..common.map_file import MapFile
 from ..common.poses_file import SCHEMA, VERSION, PoseTrack, write_poses
 from ..common.scanlines import bin_points_to_scanlines
-from .symmetry import set_up_to_mirror
+from .symmetry import set_up_to_mirror, start_half_warning
 
 log = logging.getLogger(__name__)
 
@@ -401,6 +401,9 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path 
             track = _with_missing_frames(track, dataset, feats, recorded["failures"])
             set_up_to_mirror(track, map_file.field.is_point_symmetric(),
                              conf["min_confidence"])
+            warn = start_half_warning(track.arrays(), {"conf": conf})
+            if warn:
+                log.warning(warn)
         finally:
             feats.close()
     finally:
