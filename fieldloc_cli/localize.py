@@ -1,8 +1,8 @@
 """`fieldloc localize DIR --map MAP [--features FILE | --points FILE.csv]
 [--method lut|mcl|fit|templates] [--templates templates.h5 (--method templates; --map then
 optional)] [--heading imu|histogram|truth] [--start-half own|opponent|any]
-[--init placement|uniform] [--independent] [--min-confidence P] [-o poses.h5] [--preset NAME]
-[-c key=value] [--overwrite]`."""
+[--init placement|uniform] [--independent] [--smooth] [--min-confidence P] [-o poses.h5]
+[--preset NAME] [-c key=value] [--overwrite]`."""
 
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ from .stage_defaults import LOCALIZE, LOCALIZE_DEFAULT_METHOD, LOCALIZE_METHODS
 log = logging.getLogger("fieldloc.localize")
 
 TABLE_METHODS = ("lut", "fit")  # the omni methods: heading source, start half, independent
+SMOOTH_METHODS = ("lut", "fit")  # methods with a smoother's scorer (stages.localize.smooth)
 
 
 @click.command()
@@ -51,6 +52,10 @@ TABLE_METHODS = ("lut", "fit")  # the omni methods: heading source, start half, 
 @click.option("--independent", is_flag=True, default=None,
               help="lut, fit, templates: localise every frame on its own, globally, with no"
               " prior and no odometry (snapshots at unknown poses).")
+@click.option("--smooth", is_flag=True, default=None,
+              help="lut, fit: decide every frame with the whole recording (offline: a"
+              " forward-backward pass over the method's candidates, then a pose graph;"
+              " docs/smoothing.md). Same as -c smooth=true.")
 @click.option("--min-confidence", type=click.FloatRange(0.0, 1.0), default=None,
               help="Accept a frame when the probability of its top hypothesis reaches"
               f" this [default: the method's, lut {LOCALIZE['lut', 'min_confidence']}, fit"
@@ -66,8 +71,8 @@ TABLE_METHODS = ("lut", "fit")  # the omni methods: heading source, start half, 
               " other scan lines than the map's.")
 @click.pass_context
 def localize(ctx, dataset, map_path, templates, pose_solver, features, points, method, heading,
-             start_half, init, independent, min_confidence, output, preset, overrides, overwrite,
-             allow_field_mismatch):
+             start_half, init, independent, smooth, min_confidence, output, preset, overrides,
+             overwrite, allow_field_mismatch):
     """Poses of the frames of DATASET on the field of MAP (poses.h5 + poses.tum)."""
     from stages import localize as stage
     from stages.common.conf import resolve_conf
@@ -107,6 +112,10 @@ def localize(ctx, dataset, map_path, templates, pose_solver, features, points, m
         if method not in TABLE_METHODS + ("templates",):
             raise click.UsageError("--independent applies to --method lut, fit and templates")
         conf["independent"] = True
+    if smooth:
+        if method not in SMOOTH_METHODS:
+            raise click.UsageError(f"--smooth applies to --method {', '.join(SMOOTH_METHODS)}")
+        conf["smooth"] = True
     if min_confidence is not None:
         conf["min_confidence"] = min_confidence
     conf = resolve_conf(stage.confs, stage.preset_name(method, preset), conf)

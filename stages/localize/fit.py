@@ -52,15 +52,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..common.errors import FieldlocError
+from ..common.field import FieldModel
 from ..common.geometry import wrap_angle
 from ..common.map_file import MapFile
 from ..common.poses_file import PoseTrack
 from . import fit_kernels as K
 from . import heading as heading_mod
-from . import tracking
+from . import smooth, tracking
 from .lut_kernels import inlier_sums, structure_sizes
 from .radial_correction import DEFAULTS as RADIAL_DEFAULTS
 from .radial_correction import RadialCorrection
+from .smooth import FrameCandidates
 from .tracking import Candidate, FrameFailed, TrackBank, near_pose
 
 log = logging.getLogger(__name__)
@@ -808,6 +810,93 @@ def fit_engine(map_file: MapFile, conf: dict) -> FitEngine:
     return _ENGINES[key]
 
 
+class FitScorer:
+    """Method fit's candidates for the smoother (smooth.Scorer) after a causal run, with what
+    that run learnt of the whole recording (the IMU's alignment, the radial correction): the
+    multi-start global search's fixes and the fits from given starts, as the tracks' are (at
+    the frame's heading with its prior), their nll the fit's error at the tracked
+    temperature (the module doc), their covariance ``FitEngine.vision_covariance``."""
+
+    def __init__(self, loc: FitLocaliser, features):
+        self.loc = loc
+        self.features = features
+        self.names = list(features.names)
+        self.frames = len(self.names)
+        self.mirrored = loc.symmetric and not (loc.field_heading
+                                              and loc.conf["heading"] != "histogram")
+        self._cache: dict = {}
+
+    def _obs(self, i: int):
+        if i not in self._cache:
+            loc = self.loc
+            try:
+                fr = self.features.frame(self.names[i])
+            except (KeyError, OSError):
+                self._cache[i] = None
+                return None
+            obs = observation_from_points(frame_points(fr, loc.scanlines), loc.conf, loc.radial)
+            self._cache[i] = obs
+        return self._cache[i]
+
+    def _heading(self, i: int):
+        """(heading, sigma) where the frame's source gives one (the IMU's as aligned at the
+        end of the run), else None."""
+        loc, conf = self.loc, self.loc.conf
+        if conf["heading"] == "truth":
+            th = loc.truth_heading[i]
+            return (float(th), conf["truth_sigma"]) if np.isfinite(th) else None
+        if conf["heading"] == "imu" and loc.alignment.known and np.isfinite(loc.yaw[i]):
+            sigma = math.sqrt(conf["imu_sigma"] ** 2 + loc.alignment.variance)
+            if loc.collision[i]:
+                sigma = max(sigma, conf["unsure_heading_sigma"])
+            return loc.alignment.heading(float(loc.yaw[i])), sigma
+        return None
+
+    def _temperature(self, obs) -> float:
+        return self.loc.T_track / max(obs.evidence, 1e-6)
+
+    def failed(self, i: int) -> str | None:
+        obs = self._obs(i)
+        if obs is None:
+            return "unreadable-features"
+        return "too-few-observations" if len(obs) < self.loc.conf["min_points"] else None
+
+    def _row(self, fix: Fix, T: float, sigma):
+        return (fix.pose, fix.error / T, self.loc.engine.vision_covariance(fix, T, sigma),
+                fix.error_norm)
+
+    def global_candidates(self, i: int) -> FrameCandidates:
+        loc, engine = self.loc, self.loc.engine
+        obs = self._obs(i)
+        T = self._temperature(obs)
+        base = self._heading(i)
+        headings = loc._global_headings(obs, base)
+        fixes = engine.global_search(obs, headings, temperature=T, mode="global",
+                                     separation=loc.conf["ambiguity_distance"])
+        sigma = None if headings is None else headings[0][1]
+        rows = [self._row(f, T, sigma) for f in fixes]
+        if self.mirrored:  # the mirror image explains the frame as well: fitted there too
+            for f in fixes:
+                m = FieldModel.mirror_pose(*f.pose)
+                g = engine.fit(obs, m, temperature=T, mode="global",
+                               heading=None if sigma is None else (m[2], sigma))
+                rows.append(self._row(g, T, sigma))
+        return FrameCandidates.from_rows(rows)
+
+    def local_candidates(self, i: int, starts: np.ndarray) -> FrameCandidates:
+        loc = self.loc
+        obs = self._obs(i)
+        T = self._temperature(obs)
+        base = self._heading(i)
+        rows = []
+        for p in starts:
+            th, sigma = loc._track_heading(p, obs, base, [])
+            fix = loc.engine.fit(obs, np.array([p[0], p[1], th]), heading=(th, sigma),
+                                 temperature=T, mode="local")
+            rows.append(self._row(fix, T, sigma))
+        return FrameCandidates.from_rows(rows)
+
+
 def run(conf: dict, dataset, features, map_file: MapFile, progress=False) -> PoseTrack:
     """Localise every frame of ``features`` (names, stamps, frame(name) with ``points``, or
     ``radial`` and ``spiral``) on ``map_file``'s distance table, with the odometry, IMU and
@@ -818,5 +907,13 @@ def run(conf: dict, dataset, features, map_file: MapFile, progress=False) -> Pos
     loc = FitLocaliser(conf, engine, map_file.field, map_file.scanlines, yaw=sensors.yaw,
                        collision=sensors.collision, truth_heading=sensors.truth_heading)
     loc.bank.has_odometry = bool(np.any(sensors.has_odometry))
-    return tracking.localise_frames(loc, features, sensors, desc="localize fit",
-                                    progress=progress)
+    track = tracking.localise_frames(loc, features, sensors, desc="localize fit",
+                                     progress=progress)
+    if not conf["smooth"]:
+        return track
+    scorer = FitScorer(loc, features)
+    motion = smooth.motion_of(sensors.increments, sensors.has_odometry, features.stamps,
+                              conf["fusion"], sensors.collision)
+    x0, x1, y0, y1 = engine.field.bounds
+    return smooth.smooth_track(scorer, track, motion, conf, area=(x1 - x0) * (y1 - y0),
+                               log_prior0=smooth.start_half_prior(conf, scorer.mirrored))

@@ -124,10 +124,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..common.errors import FieldlocError
+from ..common.field import FieldModel
 from ..common.geometry import wrap_angle
 from ..common.map_file import MapFile
 from ..common.poses_file import PoseTrack
-from . import grid_belief, tracking
+from . import grid_belief, smooth, tracking
 from . import heading as heading_mod
 from .grid_belief import DEFAULTS as GRID_DEFAULTS
 from .lut_search import (
@@ -142,6 +143,7 @@ from .lut_search import (
 from .point_fit import PointFit
 from .radial_correction import DEFAULTS as RADIAL_DEFAULTS
 from .radial_correction import RadialCorrection
+from .smooth import FrameCandidates
 from .tracking import Candidate, FrameFailed, Track, TrackBank, eig2
 
 log = logging.getLogger(__name__)
@@ -368,7 +370,6 @@ class LutLocaliser:
         """Localise frame i: returns (hypotheses (k, 4), the top candidate, pose, covariance,
         accepted) or raises FrameFailed."""
         conf, search = self.conf, self.search
-        sl = search.scanlines
         col = bool(self.collision[i])
         bank = self.bank
         if conf["independent"]:
@@ -377,8 +378,7 @@ class LutLocaliser:
         obs, raw_distance = frame_observations(fr, search, self.radial, conf["evidence"])
         if len(obs) < conf["min_observations"]:
             raise FrameFailed("too-few-observations")
-        self._points = obs.points(sl)
-        self._frame_points, self._all_points = fr.get("points"), None  # (_line_points)
+        self._set_frame(fr, obs)
         base_heading = self._frame_heading(i, col)  # None: from each track / unknown
         # evidence of a frame alone, or of one more frame of a tracked sequence
         self.T = self.T_track if bank.tracks else self.T_frame
@@ -430,6 +430,12 @@ class LutLocaliser:
         self.fixed_once = True
         self.last_confident = bank.confident()
         return hyps, top, pose, cov, accepted
+
+    def _set_frame(self, fr: dict, obs: Observation) -> None:
+        """The frame's points, which the fixes' points fit reads (_fit_points,
+        _line_points)."""
+        self._points = obs.points(self.search.scanlines)
+        self._frame_points, self._all_points = fr.get("points"), None  # (_line_points)
 
     # ------------------------------------------------------------------ heading
     def _frame_heading(self, i: int, col: bool):
@@ -773,6 +779,119 @@ class LutLocaliser:
             self.alignment.update(rh.theta, float(self.yaw[i]), _curvature_sigma(curv, obs) ** 2)
 
 
+class LutScorer:
+    """Method lut's candidates for the smoother (smooth.Scorer) after a causal run, with what
+    that run learnt of the whole recording (the IMU's alignment, the radial correction). A
+    frame's candidates are fixed as the tracks' are (the local search at the frame's heading,
+    moved by the line points' fit), the global ones by the global search; their nll is the
+    scan-line evidence at the tracked temperature (consecutive frames' views are one
+    measurement: the module doc), their covariance ``vision_covariance``."""
+
+    def __init__(self, loc: LutLocaliser, features, sensors):
+        self.loc = loc
+        self.features = features
+        self.names = list(features.names)
+        self.frames = len(self.names)
+        self.sensors = sensors
+        self.mirrored = loc.symmetric and not (loc.field_heading
+                                              and loc.conf["heading"] != "histogram")
+        self._cache: dict = {}
+
+    def _frame(self, i: int):
+        """(features frame, observations) of frame i, read once."""
+        if i not in self._cache:
+            try:
+                fr = self.features.frame(self.names[i])
+            except (KeyError, OSError):
+                self._cache[i] = (None, None)
+                return self._cache[i]
+            obs, _raw = frame_observations(fr, self.loc.search, self.loc.radial,
+                                           self.loc.conf["evidence"])
+            self._cache[i] = (fr, obs)
+        return self._cache[i]
+
+    def _heading(self, i: int):
+        """The frame's heading where its source gives one (the IMU's as aligned at the end
+        of the run), else None."""
+        loc = self.loc
+        source = loc.conf["heading"]
+        if source == "truth":
+            return float(loc.truth_heading[i]) if np.isfinite(loc.truth_heading[i]) else None
+        if source == "imu" and loc.alignment.known and np.isfinite(loc.yaw[i]):
+            return loc.alignment.heading(float(loc.yaw[i]))
+        return None
+
+    def failed(self, i: int) -> str | None:
+        fr, obs = self._frame(i)
+        if fr is None:
+            return "unreadable-features"
+        if len(obs) < self.loc.conf["min_observations"]:
+            return "too-few-observations"
+        return None
+
+    def _candidate(self, obs, fix, heading_sigma: float, *, heading_fixed: bool):
+        loc = self.loc
+        e = loc._fit_points(fix, obs, heading_fixed=heading_fixed)
+        sup = loc.search.support(obs, fix, loc.conf["inlier_error"])
+        return fix.pose, e / loc.T_track, vision_covariance(fix, sup, loc.conf, heading_sigma), \
+            fix.error_norm
+
+    def global_candidates(self, i: int) -> FrameCandidates:
+        loc = self.loc
+        fr, obs = self._frame(i)
+        loc._set_frame(fr, obs)
+        heading = self._heading(i)
+        headings = [heading] if heading is not None else loc._histogram_headings(obs)
+        fixes = loc._search_fixes(obs, headings, loc.conf["unknown_heading_candidates"])
+        sigma = loc.heading_sigma if heading is not None else loc.conf["histogram_sigma"]
+        rows = [self._candidate(obs, f, sigma, heading_fixed=headings is not None)
+                for f in fixes]
+        if self.mirrored:  # the mirror image explains the frame as well: fixed there too
+            rows += [self._candidate(obs, loc.search.refine(
+                obs, loc.search.grid.cell_of(*FieldModel.mirror_pose(*f.pose)[:2]),
+                FieldModel.mirror_pose(*f.pose)[2]), sigma, heading_fixed=headings is not None)
+                for f in fixes]
+        return FrameCandidates.from_rows(rows)
+
+    def local_candidates(self, i: int, starts: np.ndarray) -> FrameCandidates:
+        loc = self.loc
+        fr, obs = self._frame(i)
+        loc._set_frame(fr, obs)
+        heading = self._heading(i)
+        col = bool(loc.collision[i])
+        rows = []
+        for p in starts:
+            flags: list = []
+            theta, by_vision = loc._track_heading(None, p, obs, fr, heading, col, flags)
+            fix = loc.search.local_search(obs, theta, p[:2], half_width=LOCAL_REACH)
+            sigma = loc.heading_sigma
+            if by_vision:
+                rh, curv = loc.search.refine_heading(obs, fix.cell, fix.theta)
+                if rh.error <= fix.error:
+                    fix = rh
+                sigma = max(_curvature_sigma(curv, obs), loc.heading_sigma)
+            rows.append(self._candidate(obs, fix, sigma, heading_fixed=not by_vision))
+        return FrameCandidates.from_rows(rows)
+
+
+# m: how far from where the odometry moves a neighbour's candidate the smoother's local search
+# looks (the odometry's slip over a frame is centimetres; a window of a few table cells also
+# finds the basin's minimum when the candidate sat on its rim)
+LOCAL_REACH = 0.3
+
+
+def _smoothed(loc: LutLocaliser, features, sensors, causal: PoseTrack, conf: dict
+              ) -> PoseTrack:
+    """The causal run's track smoothed with the whole recording (smooth.py)."""
+    scorer = LutScorer(loc, features, sensors)
+    motion = smooth.motion_of(sensors.increments, sensors.has_odometry, features.stamps,
+                              conf["fusion"], sensors.collision)
+    ny, nx = loc.search.grid.shape
+    return smooth.smooth_track(scorer, causal, motion, conf,
+                               area=nx * ny * loc.search.grid.resolution ** 2,
+                               log_prior0=smooth.start_half_prior(conf, scorer.mirrored))
+
+
 def run(conf: dict, dataset, features, map_file: MapFile, progress=False) -> PoseTrack:
     """Localise every frame of ``features`` (names, stamps, frame(name) with ``radial``,
     ``spiral`` and ``points``) in ``map_file``'s tables, with the odometry, IMU and truth of
@@ -787,13 +906,21 @@ def run(conf: dict, dataset, features, map_file: MapFile, progress=False) -> Pos
                                          collision=sensors.collision,
                                          truth_heading=sensors.truth_heading)
         grid.has_odometry = bool(np.any(sensors.has_odometry))
-        return tracking.localise_frames(grid, features, sensors, desc="localize lut (grid)",
-                                        progress=progress)
+        track = tracking.localise_frames(grid, features, sensors, desc="localize lut (grid)",
+                                         progress=progress)
+        if not conf["smooth"]:
+            return track
+        # the smoother's fixes are the tracks' (LutScorer), with what the grid learnt
+        loc = LutLocaliser(conf, search, point_fit(map_file, search.params), yaw=sensors.yaw,
+                           collision=sensors.collision, truth_heading=sensors.truth_heading)
+        loc.radial = grid.radial
+        return _smoothed(loc, features, sensors, track, conf)
     loc = LutLocaliser(conf, search, point_fit(map_file, search.params), yaw=sensors.yaw,
                        collision=sensors.collision, truth_heading=sensors.truth_heading)
     loc.bank.has_odometry = bool(np.any(sensors.has_odometry))
-    return tracking.localise_frames(loc, features, sensors, desc="localize lut",
-                                    progress=progress)
+    track = tracking.localise_frames(loc, features, sensors, desc="localize lut",
+                                     progress=progress)
+    return _smoothed(loc, features, sensors, track, conf) if conf["smooth"] else track
 
 
 def _curvature_sigma(curvature: float, obs: Observation) -> float:

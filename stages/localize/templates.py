@@ -396,6 +396,8 @@ def run(conf: dict, dataset, templates, map_file=None, progress=False) -> PoseTr
     from .motion_model import accumulate_odometry
 
     check_conf(conf)
+    if conf["smooth"]:
+        raise FieldlocError("smooth: method templates has no smoother yet (lut and fit have)")
     db = templates
     if not len(db) or not len(db.points):
         raise FieldlocError(f"{db.path}: the template database holds no features")

@@ -51,6 +51,7 @@ log = logging.getLogger(__name__)
 
 DEFAULTS = {
     "independent": False,  # every frame globally, no tracks, no odometry
+    "smooth": False,  # decide every frame with the whole recording (smooth.py), offline
     "max_predicted_frames": 30,  # failed frames in a row over which tracks are kept
     "kidnap_probability": 1e-5,  # per frame: the robot is not where its tracks say
     "ambiguity_distance": 1.0,  # m, separation of the global search's minima
@@ -82,6 +83,11 @@ def check_conf(conf: dict) -> None:
                 "prior_outlier_probability"):
         if not 0.0 <= float(conf[key]) <= 1.0:
             raise FieldlocError(f"{key} must lie in [0, 1], not {conf[key]}")
+    if not isinstance(conf["smooth"], bool):
+        raise FieldlocError(f"smooth must be true or false, not {str(conf['smooth'])[:40]!r}")
+    if conf["smooth"] and conf["independent"]:
+        raise FieldlocError("smooth decides every frame with the whole recording; it does not"
+                            " localise frames independently")
     for key in ("max_tracks", "hypotheses"):
         if int(conf[key]) < 1:
             raise FieldlocError(f"{key} must be >= 1, not {conf[key]}")

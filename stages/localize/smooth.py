@@ -1,0 +1,474 @@
+"""Offline smoothing (``smooth: true``, ``fieldloc localize --smooth``): every frame decided with
+the whole recording, not only with the frames before it.
+
+A causal localiser decides frame t from frames 0..t, as a robot must; a wrong first fix can then
+hold for tens of frames although later frames and the odometry between them rule it out
+(docs/lut-belief.md: the evidence bound). An offline tool has the whole recording. This module
+runs two passes over a method's candidates (docs/smoothing.md):
+
+1. **Discrete pass** (a hidden Markov model over candidate poses; Rabiner 1989). Per frame a
+   short list of candidate poses, each with the frame's tempered negative log-likelihood
+   (``nll``, the method's own, in nats) and covariance: the method's global search on every
+   frame, and every candidate of the neighbouring frames moved by the odometry and fixed again
+   in its basin (forward and backward sweeps, so a place found once is followed through the
+   whole recording). Candidates in one basin (``SAME_BASIN_M``, ``SAME_BASIN_RAD``) are one.
+   Transitions: the odometry increment with its noise and both candidates' covariances (a
+   Gaussian), mixed with an outlier floor (``kidnap_probability`` of the method's conf: the
+   robot is anywhere on the world the tables cover, any heading: slips, kidnaps, placements).
+   Forward-backward gives each candidate's posterior from the whole recording; Viterbi the most
+   probable path. A frame's confidence is the posterior mass of the path's candidate (its
+   basin): on a point-symmetric field without a field-aligned heading a pose and its mirror
+   share it, as in the causal methods.
+2. **Continuous pass** (pose_graph.py): the path refined as a factor graph (GTSAM), with
+   marginal covariances; frames without a fix get their pose from the odometry between fixed
+   frames.
+
+The output is the poses schema with mode ``smoothed`` (frames with no vision of their own:
+flag ``odometry-only``), ranked hypotheses from the posteriors, so evaluate, export, report
+and batch read it unchanged.
+
+A method supports smoothing by a *scorer* (``Scorer``): its global candidates of a frame and
+its fixes from given start poses, both as ``FrameCandidates``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from ..common.geometry import compose, wrap_angle
+from ..common.poses_file import PoseTrack
+from .motion_model import moved
+from .tracking import SAME_BASIN_M, SAME_BASIN_RAD
+
+log = logging.getLogger(__name__)
+
+# candidates kept per frame, best nll first: the global search's separated minima, their mirror
+# images and what the neighbours' candidates lead to (a field has a few dozen look-alike basins
+# at most; more are poses no frame supports)
+MAX_CANDIDATES = 24
+# a frame's confidence: the posterior mass of candidates this close to the path's (the basin
+# of the pose: farther candidates are other places)
+CONFIDENCE_RADIUS_M = 0.5
+CONFIDENCE_RADIUS_RAD = 0.3
+# ... or within this squared Mahalanobis distance of the candidate's own position covariance
+# (chi-square, 2 degrees of freedom, 99 %)
+COVER_GATE = 9.21
+# A candidate stands for the state (the pose) in the transitions, up to how far a fix lies from
+# the pose it fixes: its covariance, but no wider than this (m, rad). Along a line a fix's own
+# covariance is metres wide (the frame says nothing there), and a chain of such candidates
+# would slide along the line at no cost; each frame's candidate is fixed within a few table
+# cells of where the odometry moves its neighbour (the scorers' local search), so the spread
+# between a candidate and the pose is of that order.
+STATE_SIGMA_M = 0.1
+STATE_SIGMA_RAD = 0.05
+
+
+@dataclass
+class FrameCandidates:
+    """Candidate poses of one frame: ``poses`` (K, 3) field frame, ``nll`` (K,) the frame's
+    tempered negative log-likelihood at each (nats), ``cov`` (K, 3, 3) each fix's covariance
+    (field frame), ``error`` (K,) the method's error term (recorded as poses' ``error``)."""
+
+    poses: np.ndarray
+    nll: np.ndarray
+    cov: np.ndarray
+    error: np.ndarray
+
+    def __len__(self):
+        return len(self.nll)
+
+    @classmethod
+    def empty(cls) -> FrameCandidates:
+        return cls(np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3, 3)), np.zeros(0))
+
+    @classmethod
+    def concat(cls, parts: list[FrameCandidates]) -> FrameCandidates:
+        parts = [p for p in parts if p is not None and len(p)]
+        if not parts:
+            return cls.empty()
+        return cls(*(np.concatenate([getattr(p, k) for p in parts])
+                     for k in ("poses", "nll", "cov", "error")))
+
+    @classmethod
+    def from_rows(cls, rows: list) -> FrameCandidates:
+        """From (pose, nll, cov, error) rows."""
+        if not rows:
+            return cls.empty()
+        poses, nll, cov, err = zip(*rows)
+        return cls(np.array(poses, float).reshape(-1, 3), np.array(nll, float),
+                   np.array(cov, float).reshape(-1, 3, 3), np.array(err, float))
+
+    def state_cov(self) -> np.ndarray:
+        """(K, 3, 3) the covariances with their position eigenvalues clipped to
+        STATE_SIGMA_M^2 and the heading variance to STATE_SIGMA_RAD^2 (the transitions')."""
+        out = np.array(self.cov, float, copy=True).reshape(-1, 3, 3)
+        if len(out):
+            w, v = np.linalg.eigh(0.5 * (out[:, :2, :2] + np.swapaxes(out[:, :2, :2], 1, 2)))
+            w = np.clip(w, 0.0, STATE_SIGMA_M ** 2)
+            out[:, :2, :2] = np.einsum("kij,kj,klj->kil", v, w, v)
+            out[:, 2, 2] = np.minimum(out[:, 2, 2], STATE_SIGMA_RAD ** 2)
+        return out
+
+    def take(self, idx) -> FrameCandidates:
+        return FrameCandidates(self.poses[idx], self.nll[idx], self.cov[idx], self.error[idx])
+
+    def distinct(self, limit: int = MAX_CANDIDATES) -> FrameCandidates:
+        """One candidate per basin (the lowest nll of those within SAME_BASIN_M and
+        SAME_BASIN_RAD of each other), at most ``limit``, best first."""
+        order = np.argsort(self.nll, kind="stable")
+        keep: list[int] = []
+        for k in order:
+            if not np.isfinite(self.nll[k]):
+                continue
+            p = self.poses[k]
+            if any(_same_basin(p, self.poses[j]) for j in keep):
+                continue
+            keep.append(int(k))
+            if len(keep) >= limit:
+                break
+        return self.take(np.array(keep, dtype=int))
+
+
+class Scorer(Protocol):
+    """What a method gives the smoother (module doc). ``frames``: how many; ``failed(i)``: the
+    frame has too little to be fixed (its reason) or None; ``global_candidates(i)`` and
+    ``local_candidates(i, starts)``: FrameCandidates; ``mirrored``: whether a pose's mirror
+    image explains a frame as well (a point-symmetric field without a field-aligned
+    heading)."""
+
+    frames: int
+    mirrored: bool
+
+    def failed(self, i: int) -> str | None: ...
+
+    def global_candidates(self, i: int) -> FrameCandidates: ...
+
+    def local_candidates(self, i: int, starts: np.ndarray) -> FrameCandidates: ...
+
+
+@dataclass(frozen=True)
+class Motion:
+    """The odometry of a run: per frame the increment since the previous frame (robot frame)
+    and its covariance (the method's fusion noise; large where no odometry was recorded)."""
+
+    increments: np.ndarray  # (N, 3)
+    cov: np.ndarray  # (N, 3, 3) robot frame
+
+    def between(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
+        """The increment from frame i to frame j > i (composed) and its covariance (robot
+        frame of frame i; the steps' covariances rotated into it and summed)."""
+        pose = np.zeros(3)
+        cov = np.zeros((3, 3))
+        for k in range(i + 1, j + 1):
+            c, s = math.cos(pose[2]), math.sin(pose[2])
+            rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+            cov = cov + rot @ self.cov[k] @ rot.T
+            pose = compose(pose, self.increments[k])
+        return pose, cov
+
+
+def motion_of(increments: np.ndarray, has_odometry: np.ndarray, stamps: np.ndarray,
+              fusion: dict, collision: np.ndarray) -> Motion:
+    """The run's Motion from the sensors and a method's ``fusion`` noise (kalman.FusionParams:
+    slip proportional to the increment, never zero; where a frame has no odometry row, or the
+    IMU flags a collision, a random walk of up to ``max_speed`` / ``max_turn_rate`` over the
+    frame interval)."""
+    n = len(increments)
+    inc = np.where(has_odometry[:, None], np.asarray(increments, float), 0.0)
+    dt = np.diff(np.asarray(stamps, float), prepend=float(stamps[0]) if n else 0.0)
+    dist = np.hypot(inc[:, 0], inc[:, 1])
+    sxy = np.maximum(fusion["odometry_min_xy"], fusion["odometry_xy"] * dist)
+    sth = np.maximum(fusion["odometry_min_theta"], fusion["odometry_theta"] * np.abs(inc[:, 2]))
+    free = ~np.asarray(has_odometry, bool) | np.asarray(collision, bool)
+    sxy = np.where(free, np.maximum(sxy, fusion["max_speed"] * dt), sxy)
+    sth = np.where(free, np.maximum(sth, fusion["max_turn_rate"] * dt), sth)
+    cov = np.zeros((n, 3, 3))
+    cov[:, 0, 0] = cov[:, 1, 1] = sxy**2
+    cov[:, 2, 2] = sth**2
+    return Motion(inc, cov)
+
+
+@dataclass(frozen=True)
+class Transition:
+    """The transition model's constants: ``log_outlier``, the log density of a jump anywhere
+    (kidnap probability over the world's area and a full turn), ``log_keep`` = log(1 -
+    kidnap probability)."""
+
+    log_outlier: float
+    log_keep: float
+
+    @classmethod
+    def of(cls, kidnap_probability: float, area: float) -> Transition:
+        p = min(max(float(kidnap_probability), 1e-12), 0.5)
+        return cls(math.log(p) - math.log(area * 2 * math.pi), math.log1p(-p))
+
+
+def transition_log(a: FrameCandidates, b: FrameCandidates, step: tuple, model: Transition
+                   ) -> np.ndarray:
+    """log p(b_j | a_i) (len(a), len(b)): b_j against a_i moved by the step's increment, a
+    Gaussian in x, y, theta with the step's covariance (rotated into the field frame at a_i)
+    plus both candidates' state covariances (FrameCandidates.state_cov), mixed with the
+    outlier floor."""
+    inc, q = step
+    pred = moved(a.poses, inc[0], inc[1], inc[2])  # (A, 3)
+    th = a.poses[:, 2]
+    c, s = np.cos(th), np.sin(th)
+    # the step's xy covariance in the field frame at each a_i
+    qxx = c * c * q[0, 0] - 2 * c * s * q[0, 1] + s * s * q[1, 1]
+    qyy = s * s * q[0, 0] + 2 * c * s * q[0, 1] + c * c * q[1, 1]
+    qxy = c * s * (q[0, 0] - q[1, 1]) + (c * c - s * s) * q[0, 1]
+    ra, rb = a.state_cov(), b.state_cov()
+    sxx = qxx[:, None] + ra[:, 0, 0][:, None] + rb[:, 0, 0][None, :]
+    syy = qyy[:, None] + ra[:, 1, 1][:, None] + rb[:, 1, 1][None, :]
+    sxy = qxy[:, None] + ra[:, 0, 1][:, None] + rb[:, 0, 1][None, :]
+    stt = q[2, 2] + ra[:, 2, 2][:, None] + rb[:, 2, 2][None, :]
+    dx = b.poses[None, :, 0] - pred[:, None, 0]
+    dy = b.poses[None, :, 1] - pred[:, None, 1]
+    dt = wrap_angle(b.poses[None, :, 2] - pred[:, None, 2])
+    det = np.maximum(sxx * syy - sxy * sxy, 1e-12)
+    m2 = (syy * dx * dx - 2 * sxy * dx * dy + sxx * dy * dy) / det + dt * dt / stt
+    log_gauss = -0.5 * m2 - 0.5 * np.log(det) - 0.5 * np.log(stt) - 1.5 * math.log(2 * math.pi)
+    return np.logaddexp(model.log_keep + log_gauss, model.log_outlier)
+
+
+@dataclass
+class Passes:
+    """What the discrete pass gives: per frame with candidates its FrameCandidates, their
+    posterior (K,) and the path's candidate index."""
+
+    frames: list  # index of each frame with candidates
+    candidates: list  # FrameCandidates per such frame
+    posterior: list  # (K,) per such frame
+    path: np.ndarray  # (len(frames),) candidate index per such frame
+
+
+def candidate_sets(scorer: Scorer, motion: Motion, model: Transition, log_prior0=None
+                   ) -> tuple[list[int], list[FrameCandidates]]:
+    """Every frame's candidates (module doc): the global search's, and two beams that follow
+    them through the recording. The forward beam fixes the previous frame's beam again where
+    the odometry moves it and keeps the ``MAX_CANDIDATES`` best by the filtered posterior
+    (the forward message); the backward beam does the same from the next frame, ranked by
+    the backward message. A place the first frames misjudge drops out of the forward beam
+    and is carried back by the backward one. Each frame's set is the union, distinct."""
+    frames = [i for i in range(scorer.frames) if scorer.failed(i) is None]
+    n = len(frames)
+    glob = [scorer.global_candidates(i).distinct(limit=4 * MAX_CANDIDATES) for i in frames]
+    forward: list = [None] * n
+    backward: list = [None] * n
+    for direction in (1, -1):
+        beam, message = forward if direction == 1 else backward, None
+        order = range(n) if direction == 1 else range(n - 1, -1, -1)
+        for k in order:
+            c = glob[k]
+            j = k - direction
+            if 0 <= j < n and len(beam[j]):
+                starts = _moved_between(beam[j].poses, motion, frames[j], frames[k])
+                more = scorer.local_candidates(frames[k], starts)
+                c = FrameCandidates.concat([c, more]).distinct(limit=4 * MAX_CANDIDATES)
+            if not len(c):
+                beam[k], message = c, None
+                continue
+            if message is None:
+                m = (np.zeros(len(c)) if direction == -1 or log_prior0 is None
+                     or k != 0 else log_prior0(c))
+            elif direction == 1:
+                t = transition_log(beam[j], c, motion.between(frames[j], frames[k]), model)
+                m = _logsumexp(message[:, None] + t, axis=0)
+            else:
+                t = transition_log(c, beam[j], motion.between(frames[k], frames[j]), model)
+                m = _logsumexp(t + message[None, :], axis=1)
+            score = m - c.nll
+            keep = np.argsort(-score, kind="stable")[:MAX_CANDIDATES]
+            beam[k] = c.take(keep)
+            message = score[keep] - _logsumexp(score[keep])
+    sets = [FrameCandidates.concat([forward[k], backward[k]]).distinct(limit=2 * MAX_CANDIDATES)
+            for k in range(n)]
+    return frames, sets
+
+
+def _moved_between(poses: np.ndarray, motion: Motion, i: int, j: int) -> np.ndarray:
+    """Poses at frame i moved to frame j by the odometry (backwards when j < i)."""
+    if j > i:
+        inc, _ = motion.between(i, j)
+    else:
+        fwd, _ = motion.between(j, i)
+        c, s = math.cos(fwd[2]), math.sin(fwd[2])
+        inc = np.array([-(c * fwd[0] + s * fwd[1]), -(-s * fwd[0] + c * fwd[1]), -fwd[2]])
+    return moved(poses, inc[0], inc[1], inc[2])
+
+
+def discrete_pass(frames: list[int], sets: list[FrameCandidates], motion: Motion,
+                  model: Transition, log_prior0: np.ndarray | None = None) -> Passes:
+    """Forward-backward and Viterbi over the candidate sets (module doc). ``log_prior0``: a
+    log prior over the first set's candidates (default: uniform)."""
+    n = len(frames)
+    if n == 0:
+        return Passes([], [], [], np.zeros(0, dtype=int))
+    trans = [transition_log(sets[k - 1], sets[k], motion.between(frames[k - 1], frames[k]),
+                            model) for k in range(1, n)]
+    emit = [-np.asarray(s.nll, float) for s in sets]
+    prior0 = np.zeros(len(sets[0])) if log_prior0 is None else np.asarray(log_prior0, float)
+    alpha = [prior0 + emit[0]]
+    delta = [alpha[0].copy()]
+    back = []
+    for k in range(1, n):
+        t = trans[k - 1]
+        a = alpha[-1] - _logsumexp(alpha[-1])  # normalised, so the sums stay finite
+        alpha.append(_logsumexp(a[:, None] + t, axis=0) + emit[k])
+        d = delta[-1] - delta[-1].max()
+        scores = d[:, None] + t
+        back.append(np.argmax(scores, axis=0))
+        delta.append(scores.max(axis=0) + emit[k])
+    beta = [np.zeros(len(sets[-1]))]
+    for k in range(n - 1, 0, -1):
+        t = trans[k - 1]
+        b = beta[0] + emit[k]
+        b = b - b.max()
+        beta.insert(0, _logsumexp(t + b[None, :], axis=1))
+    posterior = []
+    for k in range(n):
+        g = alpha[k] + beta[k]
+        g = np.exp(g - g.max())
+        posterior.append(g / g.sum())
+    path = np.zeros(n, dtype=int)
+    path[-1] = int(np.argmax(delta[-1]))
+    for k in range(n - 1, 0, -1):
+        path[k - 1] = int(back[k - 1][path[k]])
+    return Passes(frames, sets, posterior, path)
+
+
+def _logsumexp(a: np.ndarray, axis=None):
+    m = np.max(a, axis=axis, keepdims=True)
+    m = np.where(np.isfinite(m), m, 0.0)
+    out = np.log(np.sum(np.exp(a - m), axis=axis, keepdims=True)) + m
+    return out.squeeze() if axis is None else np.squeeze(out, axis=axis)
+
+
+def _same_basin(p, q, distance: float = SAME_BASIN_M, angle: float = SAME_BASIN_RAD) -> bool:
+    return (math.hypot(p[0] - q[0], p[1] - q[1]) < distance
+            and abs(math.remainder(p[2] - q[2], 2 * math.pi)) < angle)
+
+
+def basin_mass(cands: FrameCandidates, posterior: np.ndarray, pose) -> float:
+    """The posterior mass of the candidates whose fix covers ``pose``: within
+    CONFIDENCE_RADIUS_M of it, or within the ``COVER_GATE`` of the fix's own position
+    covariance (a fix that sees parallel lines only is uncertain along them, and its
+    candidates lie along the lines: one place), and within CONFIDENCE_RADIUS_RAD in heading."""
+    return float(np.clip(posterior[_covers(cands, pose)].sum(), 0.0, 1.0))
+
+
+def _covers(cands: FrameCandidates, pose) -> np.ndarray:
+    dx = cands.poses[:, 0] - pose[0]
+    dy = cands.poses[:, 1] - pose[1]
+    a = np.abs(wrap_angle(cands.poses[:, 2] - pose[2]))
+    sxx, syy, sxy = cands.cov[:, 0, 0], cands.cov[:, 1, 1], cands.cov[:, 0, 1]
+    det = np.maximum(sxx * syy - sxy * sxy, 1e-12)
+    m2 = (syy * dx * dx - 2 * sxy * dx * dy + sxx * dy * dy) / det
+    near = (np.hypot(dx, dy) <= CONFIDENCE_RADIUS_M) | (m2 <= COVER_GATE)
+    return near & (a <= CONFIDENCE_RADIUS_RAD)
+
+
+def ranked_hypotheses(cands: FrameCandidates, posterior: np.ndarray, top_pose, count: int
+                      ) -> np.ndarray:
+    """(k, 4) hypotheses: the smoothed pose with its basin's mass first, then the other
+    candidates' basins ranked by posterior (each candidate's mass gathered onto the best
+    candidate of its basin), at most ``count``."""
+    out = [(*top_pose, basin_mass(cands, posterior, top_pose))]
+    taken = [np.asarray(top_pose, float)]
+    for k in np.argsort(-posterior, kind="stable"):
+        if len(out) >= count:
+            break
+        p = cands.poses[k]
+        if any(_covers(cands.take([k]), q)[0] for q in taken):
+            continue
+        out.append((*p, basin_mass(cands, posterior, p)))
+        taken.append(p)
+    return np.array(out, float)
+
+
+def smooth_track(scorer: Scorer, causal: PoseTrack, motion: Motion, conf: dict, *,
+                 area: float, log_prior0=None) -> PoseTrack:
+    """The smoothed PoseTrack of a run (module doc) from a method's ``scorer``, the causal
+    run's track (frame names, stamps and the failure reasons of frames with no candidates)
+    and the run's Motion. ``conf``: the method's (kidnap_probability, min_confidence,
+    hypotheses); ``area``: m^2 of the world a kidnap may put the robot on; ``log_prior0``:
+    callable (FrameCandidates) -> log prior over the first frame's candidates, or None."""
+    from .pose_graph import refine_path
+
+    t0 = time.process_time()
+    model = Transition.of(conf["kidnap_probability"], area)
+    frames, sets = candidate_sets(scorer, motion, model, log_prior0)
+    t1 = time.process_time()
+    prior0 = log_prior0(sets[0]) if (log_prior0 is not None and sets) else None
+    passes = discrete_pass(frames, sets, motion, model, prior0)
+    n = scorer.frames
+    chosen = np.full((n, 3), np.nan)
+    chosen_cov = np.full((n, 3, 3), np.nan)
+    for k, i in enumerate(frames):
+        c = passes.candidates[k]
+        chosen[i] = c.poses[passes.path[k]]
+        chosen_cov[i] = c.cov[passes.path[k]]
+    poses, covs = refine_path(chosen, chosen_cov, motion)
+    t2 = time.process_time()
+    log.info("smoothed %d frames: candidates %.2f s, passes %.2f s CPU", n, t1 - t0, t2 - t1)
+    out = PoseTrack(meta=dict(causal.meta))
+    out.meta["smoothing"] = {"candidates_s": round(t1 - t0, 3), "passes_s": round(t2 - t1, 3),
+                             "mean_candidates": float(np.mean([len(s) for s in sets]))
+                             if sets else 0.0}
+    index = {i: k for k, i in enumerate(frames)}
+    conf_of = np.full(n, np.nan)
+    for i, k in index.items():
+        conf_of[i] = basin_mass(passes.candidates[k], passes.posterior[k], poses[i])
+    runtime = (t2 - t0) / max(n, 1)
+    min_conf = float(conf["min_confidence"])
+    for i in range(n):
+        name, stamp = causal.name[i], causal.stamp[i]
+        if not np.all(np.isfinite(poses[i])):
+            out.add(name, stamp, None, mode="failed", runtime=runtime,
+                    flags=causal.flags[i] or "no-fix")
+            continue
+        if i in index:
+            k = index[i]
+            cands, post = passes.candidates[k], passes.posterior[k]
+            hyps = ranked_hypotheses(cands, post, poses[i], int(conf["hypotheses"]))
+            confidence = float(hyps[0, 3])
+            error = float(cands.error[passes.path[k]])
+            flags = ""
+        else:  # no fix of its own: the neighbours' confidence, the lower of the two
+            confidence = _neighbour_confidence(conf_of, i)
+            hyps = np.array([[*poses[i], confidence]])
+            error, flags = math.nan, "odometry-only"
+        out.add(name, stamp, poses[i], error=error, confidence=confidence, mode="smoothed",
+                runtime=runtime, covariance=covs[i], flags=flags, hypotheses=hyps,
+                accepted=confidence >= min_conf)
+    return out
+
+
+def start_half_prior(conf: dict, mirrored: bool):
+    """The log prior over the first frame's candidates that ``start_half`` states (own: x <
+    0, opponent: x > 0; a candidate on the other half has prior ``start_half_error``), or None
+    where the conf has no such key or says ``any``."""
+    half = conf.get("start_half", "any")
+    if half == "any":
+        return None
+    wrong = math.log(max(float(conf["start_half_error"]), 1e-300))
+
+    def prior(cands: FrameCandidates) -> np.ndarray:
+        x = cands.poses[:, 0]
+        other = x > 0 if half == "own" else x < 0
+        return np.where(other, wrong, 0.0)
+
+    return prior
+
+
+def _neighbour_confidence(conf_of: np.ndarray, i: int) -> float:
+    before = conf_of[:i][np.isfinite(conf_of[:i])]
+    after = conf_of[i + 1:][np.isfinite(conf_of[i + 1:])]
+    vals = ([before[-1]] if len(before) else []) + ([after[0]] if len(after) else [])
+    return float(min(vals)) if vals else 0.0
