@@ -61,7 +61,7 @@ from . import heading as heading_mod
 from . import smooth, tracking
 from .lut_kernels import inlier_sums, structure_sizes
 from .radial_correction import DEFAULTS as RADIAL_DEFAULTS
-from .radial_correction import RadialCorrection
+from .radial_correction import RadialCorrection, fitted
 from .smooth import FrameCandidates
 from .tracking import Candidate, FrameFailed, TrackBank, near_pose
 
@@ -825,18 +825,56 @@ class FitScorer:
         self.mirrored = loc.symmetric and not (loc.field_heading
                                               and loc.conf["heading"] != "histogram")
         self._cache: dict = {}
+        self._raw: dict = {}
+        # the distance correction: the causal run's, until one learnt from the smoothed path
+        # explains the path better (smooth.py)
+        self.radial = loc.radial
 
-    def _obs(self, i: int):
-        if i not in self._cache:
-            loc = self.loc
+    def _raw_points(self, i: int):
+        if i not in self._raw:
             try:
                 fr = self.features.frame(self.names[i])
             except (KeyError, OSError):
-                self._cache[i] = None
-                return None
-            obs = observation_from_points(frame_points(fr, loc.scanlines), loc.conf, loc.radial)
-            self._cache[i] = obs
+                fr = None
+            self._raw[i] = None if fr is None else frame_points(fr, self.loc.scanlines)
+        return self._raw[i]
+
+    def _obs(self, i: int):
+        if i not in self._cache:
+            raw = self._raw_points(i)
+            self._cache[i] = (None if raw is None
+                              else observation_from_points(raw, self.loc.conf, self.radial))
         return self._cache[i]
+
+    @property
+    def calibration(self):
+        """The distance correction the frames are fixed with (a RadialCorrection or None)."""
+        return self.radial
+
+    @calibration.setter
+    def calibration(self, rc) -> None:
+        self.radial = rc
+        self._cache.clear()
+
+    def learn_calibration(self, path: dict, sure: dict):
+        """Learn the camera's distance error from the frames of ``path`` (frame -> pose)
+        whose ``sure`` (frame -> confidence) holds the radial correction's min_confidence
+        (radial_correction.fitted: each line point's range against where its ray meets the
+        lines at the pose), or None when too few crossings are in."""
+        loc = self.loc
+        rc_conf = loc.conf["radial_correction"]
+        if not rc_conf["enabled"]:
+            return None
+        crossings = []
+        for i, pose in path.items():
+            if sure.get(i, 0.0) < rc_conf["min_confidence"] or loc.collision[i]:
+                continue
+            obs = observation_from_points(self._raw_points(i), loc.conf)
+            pred = loc.engine.ray_ranges(obs, pose, rc_conf["max_residual"])
+            ok = np.isfinite(pred)
+            crossings.append((obs.distance[ok], pred[ok]))
+        rc = fitted(rc_conf, loc.scanlines.robot_radius, crossings)
+        return rc if rc.active else None
 
     def _heading(self, i: int):
         """(heading, sigma) where the frame's source gives one (the IMU's as aligned at the
@@ -915,5 +953,8 @@ def run(conf: dict, dataset, features, map_file: MapFile, progress=False) -> Pos
     motion = smooth.motion_of(sensors.increments, sensors.has_odometry, features.stamps,
                               conf["fusion"], sensors.collision)
     x0, x1, y0, y1 = engine.field.bounds
-    return smooth.smooth_track(scorer, track, motion, conf, area=(x1 - x0) * (y1 - y0),
-                               log_prior0=smooth.start_half_prior(conf, scorer.mirrored))
+    track = smooth.smooth_track(scorer, track, motion, conf, area=(x1 - x0) * (y1 - y0),
+                                log_prior0=smooth.start_half_prior(conf, scorer.mirrored))
+    if scorer.radial is not None:
+        track.meta["radial_correction"] = scorer.radial.summary()
+    return track

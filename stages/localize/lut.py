@@ -142,7 +142,7 @@ from .lut_search import (
 )
 from .point_fit import PointFit
 from .radial_correction import DEFAULTS as RADIAL_DEFAULTS
-from .radial_correction import RadialCorrection
+from .radial_correction import RadialCorrection, fitted
 from .smooth import FrameCandidates
 from .tracking import Candidate, FrameFailed, Track, TrackBank, eig2
 
@@ -796,6 +796,39 @@ class LutScorer:
         self.mirrored = loc.symmetric and not (loc.field_heading
                                               and loc.conf["heading"] != "histogram")
         self._cache: dict = {}
+        # the distance correction: the causal run's, until one learnt from the smoothed path
+        # explains the path better (smooth.py)
+        self.radial = loc.radial
+
+    @property
+    def calibration(self):
+        """The distance correction the frames are fixed with (a RadialCorrection or None)."""
+        return self.radial
+
+    @calibration.setter
+    def calibration(self, rc) -> None:
+        self.radial = rc
+        self._cache.clear()
+
+    def learn_calibration(self, path: dict, sure: dict):
+        """Learn the camera's distance error from the frames of ``path`` (frame -> pose)
+        whose ``sure`` (frame -> confidence) holds the radial correction's min_confidence
+        (radial_correction.fitted), or None when too few crossings are in."""
+        loc = self.loc
+        rc_conf = loc.conf["radial_correction"]
+        if not rc_conf["enabled"]:
+            return None
+        crossings = []
+        for i, pose in path.items():
+            if sure.get(i, 0.0) < rc_conf["min_confidence"] or loc.collision[i]:
+                continue
+            fr, _obs = self._frame(i)
+            raw, _d = frame_observations(fr, loc.search, None, loc.conf["evidence"])
+            cell = loc.search._cell_of(float(pose[0]), float(pose[1]))
+            crossings.append((raw.distance,
+                              loc.search.observation_predictions(raw, cell, float(pose[2]))))
+        rc = fitted(rc_conf, loc.search.scanlines.robot_radius, crossings)
+        return rc if rc.active else None
 
     def _frame(self, i: int):
         """(features frame, observations) of frame i, read once."""
@@ -805,7 +838,7 @@ class LutScorer:
             except (KeyError, OSError):
                 self._cache[i] = (None, None)
                 return self._cache[i]
-            obs, _raw = frame_observations(fr, self.loc.search, self.loc.radial,
+            obs, _raw = frame_observations(fr, self.loc.search, self.radial,
                                            self.loc.conf["evidence"])
             self._cache[i] = (fr, obs)
         return self._cache[i]
@@ -887,9 +920,12 @@ def _smoothed(loc: LutLocaliser, features, sensors, causal: PoseTrack, conf: dic
     motion = smooth.motion_of(sensors.increments, sensors.has_odometry, features.stamps,
                               conf["fusion"], sensors.collision)
     ny, nx = loc.search.grid.shape
-    return smooth.smooth_track(scorer, causal, motion, conf,
-                               area=nx * ny * loc.search.grid.resolution ** 2,
-                               log_prior0=smooth.start_half_prior(conf, scorer.mirrored))
+    track = smooth.smooth_track(scorer, causal, motion, conf,
+                                area=nx * ny * loc.search.grid.resolution ** 2,
+                                log_prior0=smooth.start_half_prior(conf, scorer.mirrored))
+    if scorer.radial is not None:
+        track.meta["radial_correction"] = scorer.radial.summary()
+    return track
 
 
 def run(conf: dict, dataset, features, map_file: MapFile, progress=False) -> PoseTrack:

@@ -147,3 +147,29 @@ def residual_sigma(correction: RadialCorrection) -> float:
     d = np.linspace(correction.robot_radius, 4.0, 16)
     A = correction._basis(d)
     return float(math.sqrt(max(np.max(np.einsum("ij,jk,ik->i", A, cov, A)), 0.0)))
+
+
+def fitted(conf: dict, robot_radius: float, crossings: list[tuple[np.ndarray, np.ndarray]],
+           rounds: int = 3) -> RadialCorrection:
+    """e(d) from a whole recording at once (the smoother's, smooth.py): ``crossings``, per frame
+    at its smoothed pose the observed distances and the distances their scan lines predict
+    there. Least squares over every crossing with the same prior and noise as the online
+    estimate but no forgetting, gated about the previous round's estimate (the first round
+    about zero: the gate ``max_residual`` admits the calibration's error and rejects other
+    lines and clutter), ``rounds`` times."""
+    rc = RadialCorrection.from_conf({**conf, "forgetting": 1.0}, robot_radius)
+    d = np.concatenate([np.asarray(o, float) for o, _p in crossings]) if crossings else np.zeros(0)
+    r = d - (np.concatenate([np.asarray(p, float) for _o, p in crossings]) if crossings
+             else np.zeros(0))
+    ok = np.isfinite(r)
+    d, r = d[ok], r[ok]
+    prior = np.eye(len(rc.coef)) / rc.prior_sigma**2
+    A_all = rc._basis(d)
+    for _ in range(max(1, int(rounds))):
+        keep = np.abs(r - A_all @ rc.coef) <= rc.max_residual
+        A = A_all[keep]
+        rc.info = prior + A.T @ A / rc.noise**2
+        rc.vec = A.T @ r[keep] / rc.noise**2
+        rc.points = float(keep.sum())
+        rc.coef = np.linalg.solve(rc.info, rc.vec)
+    return rc

@@ -66,6 +66,10 @@ COVER_GATE = 9.21
 # cells of where the odometry moves its neighbour (the scorers' local search), so the spread
 # between a candidate and the pose is of that order.
 STATE_SIGMA_M = 0.1
+# rounds of learning the distance error from the path and fixing the path with it
+# (_recalibrated): the estimate settles within three on the tuning renders
+CALIBRATION_ROUNDS = 3
+RECALIBRATE = True  # learn the distance error from the path (scorers that can)
 STATE_SIGMA_RAD = 0.05
 
 
@@ -403,10 +407,13 @@ def smooth_track(scorer: Scorer, causal: PoseTrack, motion: Motion, conf: dict, 
 
     t0 = time.process_time()
     model = Transition.of(conf["kidnap_probability"], area)
-    frames, sets = candidate_sets(scorer, motion, model, log_prior0)
+    frames, sets, passes = _discrete(scorer, motion, model, log_prior0)
+    rounds = 1
+    if RECALIBRATE and getattr(scorer, "learn_calibration", None) is not None and frames:
+        if _recalibrated(scorer, frames, passes):
+            frames, sets, passes = _discrete(scorer, motion, model, log_prior0)
+            rounds = 2
     t1 = time.process_time()
-    prior0 = log_prior0(sets[0]) if (log_prior0 is not None and sets) else None
-    passes = discrete_pass(frames, sets, motion, model, prior0)
     n = scorer.frames
     chosen = np.full((n, 3), np.nan)
     chosen_cov = np.full((n, 3, 3), np.nan)
@@ -419,6 +426,7 @@ def smooth_track(scorer: Scorer, causal: PoseTrack, motion: Motion, conf: dict, 
     log.info("smoothed %d frames: candidates %.2f s, passes %.2f s CPU", n, t1 - t0, t2 - t1)
     out = PoseTrack(meta=dict(causal.meta))
     out.meta["smoothing"] = {"candidates_s": round(t1 - t0, 3), "passes_s": round(t2 - t1, 3),
+                             "rounds": rounds,
                              "mean_candidates": float(np.mean([len(s) for s in sets]))
                              if sets else 0.0}
     index = {i: k for k, i in enumerate(frames)}
@@ -448,6 +456,46 @@ def smooth_track(scorer: Scorer, causal: PoseTrack, motion: Motion, conf: dict, 
                 runtime=runtime, covariance=covs[i], flags=flags, hypotheses=hyps,
                 accepted=confidence >= min_conf)
     return out
+
+
+def _recalibrated(scorer: Scorer, frames: list[int], passes: Passes) -> bool:
+    """The camera's distance error learnt from the whole path (module doc): the scorer's
+    ``learn_calibration(path, sure)`` (frame -> pose, frame -> confidence) from the path's
+    poses, the path's frames fixed again with it (their local fix), ``CALIBRATION_ROUNDS``
+    times (a fix absorbs part of the error it is fixed with, so one round learns too little).
+    The learnt calibration is kept (the scorer's ``calibration``) when the path's frames are
+    likelier with it than with the scorer's first one (the summed nll of the same frames'
+    local fixes, a likelihood ratio between two calibrations); returns whether it was."""
+    path = {i: passes.candidates[k].poses[passes.path[k]] for k, i in enumerate(frames)}
+    sure = {i: basin_mass(passes.candidates[k], passes.posterior[k], path[i])
+            for k, i in enumerate(frames)}
+
+    def refit(poses: dict) -> tuple[dict, float]:
+        fixed = {i: scorer.local_candidates(i, np.asarray(p, float)[None]) for i, p in
+                 poses.items()}
+        return ({i: f.poses[0] for i, f in fixed.items()},
+                float(sum(f.nll[0] for f in fixed.values())))
+
+    first = scorer.calibration
+    _poses, nll_first = refit(path)
+    nll = math.inf
+    for _ in range(CALIBRATION_ROUNDS):
+        learnt = scorer.learn_calibration(path, sure)
+        if learnt is None:
+            break
+        scorer.calibration = learnt
+        path, nll = refit(path)
+    if nll < nll_first:
+        return True
+    scorer.calibration = first
+    return False
+
+
+def _discrete(scorer: Scorer, motion: Motion, model: Transition, log_prior0):
+    """Candidate sets and the discrete pass over them."""
+    frames, sets = candidate_sets(scorer, motion, model, log_prior0)
+    prior0 = log_prior0(sets[0]) if (log_prior0 is not None and sets) else None
+    return frames, sets, discrete_pass(frames, sets, motion, model, prior0)
 
 
 def start_half_prior(conf: dict, mirrored: bool):

@@ -25,6 +25,7 @@ the place (``methods[2].conf``), never a traceback.
       - {method: mcl, conf: ["init=uniform"]}     # -c overrides as on the command line
       - templates                      # reads a template database in place of features
       - fit                            # a method not registered (yet): skipped, with a line
+      - lut+smooth                     # a method smoothed offline (conf smooth: true)
     runs:                              # default: all, every method on every dataset whose
       - lut, fit x omni-*              # camera it takes; else "METHODS x DATASETS" lines of
       - mcl x persp-*                  # comma-separated name patterns (fnmatch)
@@ -580,10 +581,18 @@ def _methods(w, entries, skipped) -> list[MethodSpec]:
     return out
 
 
+SMOOTHED = "+smooth"  # a method's name with this suffix: the method with conf smooth: true
+
+
 def _method_of_name(w, text: str, where: str) -> dict:
     """'lut' -> lut's default preset; 'lut-no-fusion' -> that preset of lut (a registered
-    method's preset it lacks is an error); any other name is a method (maybe not registered)."""
+    method's preset it lacks is an error); 'lut+smooth' -> lut with ``smooth: true`` (the
+    whole-recording smoother, stages.localize.smooth); any other name is a method (maybe not
+    registered)."""
     text = w.text(text, where)
+    if text.endswith(SMOOTHED):  # lut+smooth, lut-grid+smooth: the run smoothed offline
+        m = _method_of_name(w, text[:-len(SMOOTHED)], where)
+        return {**m, "conf": {"smooth": True}, "name": text}
     for method in localize.available_methods():
         if text.startswith(f"{method}-"):
             return {"method": method, "preset": text[len(method) + 1:], "name": text}

@@ -807,6 +807,10 @@ ROWS: dict[str, Callable[[int], Row | list[Row]]] = {
     "fit-calibration": lambda n: _hyp().bench_fit_calibration(n),
     "mcl-calibration": lambda n: _hyp().bench_mcl_calibration(n),
     "lut-hidden-run": lambda n: _hyp().bench_lut_hidden(n),
+    "smooth-passes": lambda n: importlib.import_module(
+        ".bench_smooth", __package__).bench_smooth_passes(n),
+    "smooth-accuracy": lambda n: importlib.import_module(
+        ".bench_smooth", __package__).bench_smooth_accuracy(n),
     "real": lambda n: _hyp().bench_real(n),
     "import-rosbag": bench_import_rosbag,
     "templates": lambda n: _templates(n),

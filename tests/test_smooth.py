@@ -1,0 +1,197 @@
+"""The whole-recording smoother (stages/localize/smooth.py, pose_graph.py): the discrete pass
+against an enumeration of every path, the transition model's properties, the pose graph on
+chains whose answer is known, and `fieldloc localize --smooth` on a rendered run."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from fieldloc_cli.main import cli
+from stages.common.geometry import compose
+from stages.common.poses_file import read_poses
+from stages.localize import smooth
+from stages.localize.pose_graph import refine_path
+from tests.oracles.hmm_paths import enumerate_paths
+
+MODEL = smooth.Transition.of(1e-3, 100.0)
+
+
+def _cands(poses, nll, sigma=0.05):
+    poses = np.asarray(poses, float).reshape(-1, 3)
+    cov = np.tile(np.diag([sigma**2, sigma**2, 0.01**2]), (len(poses), 1, 1))
+    return smooth.FrameCandidates(poses, np.asarray(nll, float), cov, np.zeros(len(poses)))
+
+
+def _motion(n, step=(0.1, 0.0, 0.0), sigma=0.01):
+    inc = np.tile(np.asarray(step, float), (n, 1))
+    inc[0] = 0.0
+    cov = np.tile(np.diag([sigma**2, sigma**2, 0.005**2]), (n, 1, 1))
+    return smooth.Motion(inc, cov)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(2, 4), st.data())
+def test_discrete_pass_matches_the_enumeration_of_every_path(n, data):
+    """Forward-backward's marginals equal those of every path enumerated (within 1e-9), and
+    Viterbi's path is the most probable one wherever it beats the runner-up by 1e-6 nats."""
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**16)))
+    sets = []
+    for _t in range(n):
+        k = data.draw(st.integers(1, 3))
+        poses = np.column_stack([rng.uniform(-1, 1, k), rng.uniform(-1, 1, k),
+                                 rng.uniform(-0.2, 0.2, k)])
+        sets.append(_cands(poses, rng.uniform(0, 3, k), sigma=rng.uniform(0.02, 0.3)))
+    motion = _motion(n, step=(0.05, 0.0, 0.0), sigma=0.2)
+    frames = list(range(n))
+    p = smooth.discrete_pass(frames, sets, motion, MODEL)
+    trans = [smooth.transition_log(sets[t - 1], sets[t], motion.between(t - 1, t), MODEL)
+             for t in range(1, n)]
+    marg, best, lp_best, lp_second = enumerate_paths([-s.nll for s in sets], trans)
+    for t in range(n):
+        np.testing.assert_allclose(p.posterior[t], marg[t], atol=1e-9)
+    if lp_best - lp_second > 1e-6:
+        assert tuple(p.path) == tuple(best)
+
+
+def test_transition_prefers_the_odometry_and_never_falls_below_the_floor():
+    """A candidate where the odometry moves the previous one is likelier than one 0.5 m off,
+    which is likelier than one 5 m off; none is below the outlier floor (a kidnap anywhere)."""
+    a = _cands([[0.0, 0.0, 0.0]], [0.0])
+    b = _cands([[0.1, 0.0, 0.0], [0.1, 0.5, 0.0], [5.1, 0.0, 0.0]], [0.0, 0.0, 0.0])
+    motion = _motion(2)
+    t = smooth.transition_log(a, b, motion.between(0, 1), MODEL)[0]
+    assert t[0] > t[1] > t[2]
+    assert np.all(t >= MODEL.log_outlier - 1e-9)
+    assert t[2] == pytest.approx(np.logaddexp(MODEL.log_outlier, -np.inf), abs=1e-3)
+
+
+def test_a_run_of_evidence_overturns_a_better_first_frame():
+    """Two places along a run: the first frame favours the wrong one by 3 nats, the next ten
+    favour the right one by 1 nat each. The smoother puts the first frame at the right place
+    too (the causal answer at frame 0 is the wrong one)."""
+    n = 11
+    motion = _motion(n)
+    sets = []
+    for t in range(n):
+        right = [0.1 * t, 0.0, 0.0]
+        wrong = [0.1 * t, 3.0, 0.0]
+        nll = [3.0, 0.0] if t == 0 else [0.0, 1.0]
+        sets.append(_cands([right, wrong], nll))
+    p = smooth.discrete_pass(list(range(n)), sets, motion, MODEL)
+    assert p.path[0] == 0 and np.all(p.path == 0)
+    assert p.posterior[0][0] > 0.99
+
+
+def test_pose_graph_follows_exact_fixes_and_bridges_gaps_by_odometry():
+    """Fixes on a straight run with the odometry that joins them: the graph keeps them (1 mm);
+    frames without a fix get the odometry's pose from their neighbours (1 mm) and a larger
+    covariance than fixed frames."""
+    n = 12
+    motion = _motion(n, step=(0.1, 0.02, 0.03))
+    truth = [np.zeros(3)]
+    for i in range(1, n):
+        truth.append(compose(truth[-1], motion.increments[i]))
+    truth = np.array(truth) + np.array([1.0, -2.0, 0.0])
+    fixes = truth.copy()
+    fixes[4:7] = np.nan
+    cov = np.tile(np.diag([0.03**2, 0.03**2, 0.01**2]), (n, 1, 1))
+    poses, covs = refine_path(fixes, cov, motion)
+    np.testing.assert_allclose(poses[:, :2], truth[:, :2], atol=1e-3)
+    assert np.trace(covs[5, :2, :2]) > np.trace(covs[1, :2, :2])
+
+
+def test_pose_graph_is_robust_to_one_wild_fix():
+    """One fix 2 m off in a run of good ones moves that frame's pose by less than 0.3 m
+    (a Gaussian prior would move it by about 1 m; Huber bounds its pull)."""
+    n = 15
+    motion = _motion(n)
+    truth = np.array([[0.1 * i, 0.0, 0.0] for i in range(n)])
+    fixes = truth.copy()
+    fixes[7, 1] += 2.0
+    cov = np.tile(np.diag([0.05**2, 0.05**2, 0.01**2]), (n, 1, 1))
+    poses, _covs = refine_path(fixes, cov, motion)
+    assert abs(poses[7, 1]) < 0.3
+    assert np.max(np.abs(poses[[0, 14], 1])) < 0.05
+
+
+def _errors(path, truth_csv):
+    cols, _attrs = read_poses(path)
+    t = np.loadtxt(truth_csv, delimiter=",", skiprows=1)
+    idx = np.clip(np.searchsorted(t[:, 0], cols["stamp"] - 0.01), 0, len(t) - 1)
+    return np.hypot(cols["x"] - t[idx, 1], cols["y"] - t[idx, 2]), cols
+
+
+@pytest.fixture(scope="module")
+def wrong_first_fix(tmp_path_factory):
+    """30 rendered omni-default frames of msl-2015, seed 1 (a tuning seed): the causal lut
+    and fit put the first frames at a look-alike place (lut 77 %, fit 63 % within 40 cm,
+    fit 10 frames accepted and more than 1 m off)."""
+    import copy
+
+    from stages import extract, simulate
+
+    conf = copy.deepcopy(simulate.confs["omni-default"])
+    conf.update(frames=30, seed=1)
+    ds = simulate.main(conf, "msl-2015", tmp_path_factory.mktemp("sim") / "omni")
+    return ds, extract.main(None, ds, ds / "features.h5")
+
+
+@pytest.mark.parametrize("method", ["lut", "fit"])
+def test_localize_smooth_through_the_cli(wrong_first_fix, msl2015_map, tmp_path, method):
+    """`fieldloc localize --smooth` on a run whose causal first fix is wrong: every frame
+    smoothed, confidences in [0, 1], the smoothing's costs in the method report; at least 95 %
+    of the frames within 40 cm where the causal run has fewer than 90 %, and no accepted frame
+    more than 1 m off."""
+    ds, feats = wrong_first_fix
+    runner = CliRunner()
+    out = {}
+    for tag, extra in (("causal", []), ("smoothed", ["--smooth"])):
+        out[tag] = tmp_path / f"{tag}.h5"
+        r = runner.invoke(cli, ["-q", "localize", str(ds), "--map", str(msl2015_map),
+                                "--features", str(feats), "--method", method,
+                                "-o", str(out[tag]), *extra])
+        assert r.exit_code == 0, r.output
+    e_c, _c = _errors(out["causal"], ds / "truth.csv")
+    e_s, cols = _errors(out["smoothed"], ds / "truth.csv")
+    assert np.mean(e_c <= 0.4) < 0.9  # the case: the causal run is wrong for a while
+    assert not cols["failed"].any()
+    assert set(cols["mode"]) == {"smoothed"}
+    assert np.all((cols["confidence"] >= 0) & (cols["confidence"] <= 1))
+    assert np.mean(e_s <= 0.4) >= 0.95
+    assert not np.any(cols["accepted"] & (e_s > 1.0))
+    _cols, attrs = read_poses(out["smoothed"])
+    assert "smoothing" in attrs["method_report"]
+
+
+def test_smooth_is_refused_where_it_does_not_apply(omni_default_rendered, msl2015_map, tmp_path):
+    """--smooth with a method that has no smoother, and a smooth value that is not a bool,
+    are one line each and a non-zero exit."""
+    ds, feats = omni_default_rendered
+    runner = CliRunner()
+    r = runner.invoke(cli, ["localize", str(ds), "--map", str(msl2015_map), "--method", "mcl",
+                            "--smooth", "-o", str(tmp_path / "p.h5")])
+    assert r.exit_code != 0 and "--smooth applies to" in r.output
+    r = runner.invoke(cli, ["localize", str(ds), "--map", str(msl2015_map), "--features",
+                            str(feats), "-c", "smooth=maybe", "-o", str(tmp_path / "q.h5")])
+    assert r.exit_code != 0 and "'smooth' must be true or false" in r.output
+    assert "Traceback" not in r.output
+
+
+def test_batch_reads_a_smoothed_method_name(tmp_path):
+    """A SPEC's method 'lut+smooth' is lut with smooth: true, named as written."""
+    from stages.pipelines.batch_spec import read_spec
+
+    spec = tmp_path / "spec.yaml"
+    spec.write_text("field: msl-2015\ndatasets:\n  - name: a\n    simulate: {preset: omni-clean,"
+                    " field: msl-2015, frames: 5, seed: 1}\nmethods:\n  - lut\n  - lut+smooth\n")
+    s = read_spec(spec, tmp_path / "results")
+    by_name = {m.name: m for m in s.methods}
+    assert by_name["lut+smooth"].conf["smooth"] is True
+    assert by_name["lut"].conf["smooth"] is False
+    assert math.isfinite(len(by_name))
