@@ -1114,15 +1114,15 @@ def _check_conf(conf: dict):
 # poses that are other places, place_search.separate)
 POOL_PLACES = 4
 # the local fit (``local_fit``): the stencil's step in x, y (m) and theta (rad), and its
-# iterations
+# schedule (scale of the step, iterations)
 FIT_STEP = (0.04, 0.04, math.radians(2.0))
-FIT_ITERATIONS = 3
+FIT_SCHEDULE = ((1.0, 2), (0.5, 2), (0.25, 1))
 # ... and its anchor at the start (m, m, rad): of the order of the smoother's state sigmas
 # (smooth.STATE_SIGMA_M, STATE_SIGMA_RAD)
 FIT_ANCHOR = (0.1, 0.1, 0.05)
 # a fix's covariance: a weak prior (sigma 1 m, 0.5 rad) where the frame says nothing, and a
 # floor (1 cm, 0.5 deg: the fit's resolution) where it says much
-COV_PRIOR = (1.0, 1.0, 0.5)
+COV_PRIOR = (3.0, 3.0, 1.0)
 COV_FLOOR = (0.01, 0.01, math.radians(0.5))
 # m: the soft edge of a placement's own half in the smoother's start prior (the causal
 # placement draws x <= 0 only; a candidate fitted a few centimetres past the centre line is
@@ -1158,62 +1158,67 @@ def _quadratic(ll: np.ndarray):
 
 
 def local_fit(model: ObservationModel, prep, starts: np.ndarray, step=FIT_STEP,
-              iterations: int = FIT_ITERATIONS, anchor=FIT_ANCHOR):
-    """The frame's best poses near ``starts`` (M, 3): ``iterations`` damped Newton steps
-    (Levenberg 1944, Marquardt 1963) on the observation model's log-likelihood less a
-    Gaussian anchor at the start (``anchor``: its sigmas in x, y, theta), the gradient and
-    Hessian from a full quadratic fitted on a 3 x 3 x 3 stencil of ``step`` around the pose
-    (the likelihood is a minimum over associations, so its derivatives exist piecewise only;
-    a quadratic over the stencil is a smoothed one). The anchor keeps a fix where the frame
-    says nothing (along the only line it sees) at the start, where the odometry put it,
-    instead of wherever the plateau's noise leads. A step is taken only where it finds a
+              schedule=FIT_SCHEDULE, anchor=FIT_ANCHOR):
+    """The frame's best poses near ``starts`` (M, 3): damped Newton steps (Levenberg 1944,
+    Marquardt 1963) on the observation model's log-likelihood less a Gaussian anchor at the
+    start (``anchor``: its sigmas in x, y, theta), the gradient and Hessian from a full
+    quadratic fitted on a 3 x 3 x 3 stencil around the pose (the likelihood is a minimum over
+    associations, so its derivatives exist piecewise only, and it is rough at the scale of a
+    centimetre: a quadratic over the stencil is a smoothed one). ``schedule``: (scale of
+    ``step``, iterations) from coarse to fine. A Newton step is taken only where it finds a
     higher objective than the stencil's best pose, which is taken otherwise, so the objective
-    never falls. Returns the poses (M, 3), their log-likelihoods (M,, without the anchor) and
-    the log-likelihood's Hessian (M, 3, 3) in field units at each."""
+    never falls. The anchor keeps a fix where the frame says nothing (along the only line it
+    sees) at the start, where the odometry put it, instead of wherever the plateau's noise
+    leads. Returns the poses (M, 3), their log-likelihoods (M,, without the anchor) and the
+    log-likelihood's Hessian (M, 3, 3, field units) on the stencil of ``step`` at each."""
     offsets = _STENCIL[0]
-    h = np.asarray(step, float)
     start = np.array(starts, float, copy=True).reshape(-1, 3)
-    p = start.copy()
-    m = len(p)
+    m = len(start)
     if not m:
-        return p, np.zeros(0), np.zeros((0, 3, 3))
-    a = h / np.asarray(anchor, float)  # the anchor's 1 / sigma in stencil steps
-    pull = np.diag(a * a)  # the anchor's information in stencil steps
+        return start, np.zeros(0), np.zeros((0, 3, 3))
+    sig = np.asarray(anchor, float)
+    rows = np.arange(m)
 
-    def penalty(q):  # (M, K, 3) poses -> the anchor's -log density (M, K)
+    def penalty(q):  # poses (M, K, 3) -> the anchor's -log density (M, K)
         d = q - start[:, None, :]
         d[..., 2] = wrap_angle(d[..., 2])
-        return 0.5 * np.sum((d / np.asarray(anchor, float)) ** 2, axis=-1)
+        return 0.5 * np.sum((d / sig) ** 2, axis=-1)
 
-    for it in range(iterations + 1):
+    def stencil(p, h):  # the objective and log-likelihood on the stencil (M, 27)
         q = p[:, None, :] + offsets[None, :, :] * h
         ll = model.log_likelihood(q[..., 0].ravel(), q[..., 1].ravel(), q[..., 2].ravel(),
                                   prep).reshape(m, -1)
-        obj = ll - penalty(q)
-        g, hs = _quadratic(obj)
-        best = np.argmax(obj, axis=1)
-        rows = np.arange(m)
-        top, top_ll = obj[rows, best], ll[rows, best]
-        moved = q[rows, best]
-        if it == iterations:
-            break
-        # Newton on the objective where its quadratic is concave, at most 1.5 steps in each
-        # axis
-        w = np.linalg.eigvalsh(hs)
-        concave = w.max(axis=1) < 0
-        s = np.zeros((m, 3))
-        if concave.any():
+        return q, ll - penalty(q), ll
+
+    p = start.copy()
+    top_ll = model.log_likelihood(p[:, 0], p[:, 1], p[:, 2], prep)
+    top = top_ll.copy()
+    for scale, iterations in schedule:
+        h = np.asarray(step, float) * scale
+        for _ in range(int(iterations)):
+            q, obj, ll = stencil(p, h)
+            g, hs = _quadratic(obj)
+            best = np.argmax(obj, axis=1)
+            top, top_ll, p = obj[rows, best], ll[rows, best], q[rows, best]
+            # Newton on the objective where its quadratic is concave, at most 1.5 steps in
+            # each axis (from the stencil's centre)
+            concave = np.linalg.eigvalsh(hs).max(axis=1) < 0
+            if not concave.any():
+                continue
+            s = np.zeros((m, 3))
             s[concave] = -np.linalg.solve(hs[concave], g[concave][:, :, None])[:, :, 0]
-        s = np.clip(s, -1.5, 1.5)
-        newton = p + s * h
-        ll_n = model.log_likelihood(newton[:, 0], newton[:, 1], newton[:, 2], prep)
-        obj_n = np.where(concave, ll_n - penalty(newton[:, None, :])[:, 0], -np.inf)
-        better = obj_n > top
-        p = np.where(better[:, None], newton, moved)
-        p[:, 2] = wrap_angle(p[:, 2])
-    hess = (hs + pull) / (h[:, None] * h[None, :])
-    moved[:, 2] = wrap_angle(moved[:, 2])
-    return moved, top_ll, hess
+            newton = q[:, _CENTRE] + np.clip(s, -1.5, 1.5) * h
+            ll_n = model.log_likelihood(newton[:, 0], newton[:, 1], newton[:, 2], prep)
+            obj_n = np.where(concave, ll_n - penalty(newton[:, None, :])[:, 0], -np.inf)
+            better = obj_n > top
+            top = np.where(better, obj_n, top)
+            top_ll = np.where(better, ll_n, top_ll)
+            p = np.where(better[:, None], newton, p)
+    p[:, 2] = wrap_angle(p[:, 2])
+    h = np.asarray(step, float)
+    _, _, ll = stencil(p, h)
+    _, hs = _quadratic(ll)
+    return p, top_ll, hs / (h[:, None] * h[None, :])
 
 
 def fix_covariance(hessian: np.ndarray, temperature: float) -> np.ndarray:
