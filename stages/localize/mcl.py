@@ -1105,7 +1105,7 @@ def _check_conf(conf: dict):
         raise FieldlocError(f"smooth must be true or false, not {str(conf['smooth'])[:40]!r}")
     t = conf["smooth_temperature"]
     if isinstance(t, bool) or not isinstance(t, (int, float)) or not t > 0:
-        raise FieldlocError(f"smooth_temperature must be a number > 0, not {str(t)[:40]!r}")
+        raise FieldlocError(f"smooth_temperature must be a number > 0, not {str(t)[:40]}")
 
 
 # ---------------------------------------------------------------------------- the smoother
