@@ -213,3 +213,28 @@ def test_the_causal_run_is_the_same_with_smoothing_on(nao_walk, monkeypatch, tmp
     for k in ("x", "y", "theta", "confidence"):
         np.testing.assert_allclose(cols[k], causal[k], rtol=0, atol=1e-12, err_msg=k)
     assert list(cols["mode"]) == list(causal["mode"])
+
+
+def test_a_recording_without_observations_is_failed_not_guessed(kidsize, tmp_path):
+    """No frame sees anything: the smoother has no fix to start from, and every frame is
+    recorded as failed (the poses file's way of saying so), not as a pose the odometry
+    carried from nowhere."""
+    from stages import localize
+    from stages.common.artifacts import root_attrs
+    from stages.common.crossing_tables import crossing_association_tables
+    from stages.common.map_file import SCHEMA, VERSION, Grid, write_map
+    from stages.common.poses_file import read_poses
+    from stages.common.scanlines import ScanLines
+    from stages.simulate.synthetic_observations import write_synthetic_run
+
+    grid = Grid.around(kidsize, kidsize.border, 0.1)
+    map_path = write_map(tmp_path / "kidsize.map.h5", kidsize, grid, ScanLines(),
+                         crossing_association_tables(kidsize, grid),
+                         root_attrs(SCHEMA, VERSION))
+    blind = dict(NOISELESS, p_miss_line=1.0, p_miss_crossing=1.0, p_miss_post=1.0)
+    features = write_synthetic_run(kidsize, tmp_path / "walk", 12, seed=3,
+                                   observation_conf=blind)
+    path = localize.main({"method": "mcl", "smooth": True}, tmp_path / "walk", map_path,
+                         tmp_path / "poses.h5", features=features)
+    cols, _ = read_poses(path)
+    assert cols["failed"].all() and not cols["accepted"].any()
