@@ -1116,7 +1116,7 @@ POOL_PLACES = 4
 # the local fit (``local_fit``): the stencil's step in x, y (m) and theta (rad), and its
 # schedule (scale of the step, iterations)
 FIT_STEP = (0.04, 0.04, math.radians(2.0))
-FIT_SCHEDULE = ((1.0, 2), (0.5, 2), (0.25, 1))
+FIT_SCHEDULE = ((1.0, 1), (0.5, 1), (0.25, 1))
 # ... and its anchor at the start (m, m, rad): of the order of the smoother's state sigmas
 # (smooth.STATE_SIGMA_M, STATE_SIGMA_RAD)
 FIT_ANCHOR = (0.1, 0.1, 0.05)
