@@ -108,6 +108,14 @@ posterior stays exactly symmetric; the filter then holds one particle per mirror
 half at the start), with confidence at most 0.5, and flags every frame "mirror-ambiguous".
 ``init: pose`` starts around ``init_pose`` with ``init_spread``.
 
+Smoothing (``smooth: true``, offline; smooth.py, docs/smoothing.md): the causal run keeps per
+frame its prepared observations and the poses its particle set held, and ``MclScorer`` gives
+the smoother those poses, their mirror images and the smoother's own starts fitted to the frame
+(``local_fit``), each with the observation model's negative log-likelihood over
+``smooth_temperature`` (consecutive frames repeat their errors: a wrong place that fits each
+frame a little better would otherwise win over a few frames) and the inverse of its tempered
+curvature as covariance. The causal run itself is the same with or without it.
+
 Every random draw comes from one ``np.random.default_rng(seed)``: the same inputs and seed give
 the same poses.
 """
@@ -1120,8 +1128,9 @@ FIT_SCHEDULE = ((1.0, 1), (0.5, 1), (0.25, 1))
 # ... and its anchor at the start (m, m, rad): of the order of the smoother's state sigmas
 # (smooth.STATE_SIGMA_M, STATE_SIGMA_RAD)
 FIT_ANCHOR = (0.1, 0.1, 0.05)
-# a fix's covariance: a weak prior (sigma 1 m, 0.5 rad) where the frame says nothing, and a
-# floor (1 cm, 0.5 deg: the fit's resolution) where it says much
+# a fix's covariance: a weak prior (sigma 3 m, 3 m, 1 rad) where the frame says nothing (so
+# that such fixes, which only follow the odometry, do not pull the pose graph), and a floor
+# (1 cm, 0.5 deg: the fit's resolution) where it says much
 COV_PRIOR = (3.0, 3.0, 1.0)
 COV_FLOOR = (0.01, 0.01, math.radians(0.5))
 # m: the soft edge of a placement's own half in the smoother's start prior (the causal
