@@ -17,7 +17,7 @@ from .stage_defaults import LOCALIZE, LOCALIZE_DEFAULT_METHOD, LOCALIZE_METHODS
 log = logging.getLogger("fieldloc.localize")
 
 TABLE_METHODS = ("lut", "fit")  # the omni methods: heading source, start half, independent
-SMOOTH_METHODS = ("lut", "fit")  # methods with a smoother's scorer (stages.localize.smooth)
+SMOOTH_METHODS = ("lut", "fit", "mcl")  # methods with a smoother's scorer (stages.localize.smooth)
 
 
 @click.command()
@@ -53,7 +53,7 @@ SMOOTH_METHODS = ("lut", "fit")  # methods with a smoother's scorer (stages.loca
               help="lut, fit, templates: localise every frame on its own, globally, with no"
               " prior and no odometry (snapshots at unknown poses).")
 @click.option("--smooth", is_flag=True, default=None,
-              help="lut, fit: decide every frame with the whole recording (offline: a"
+              help="lut, fit, mcl: decide every frame with the whole recording (offline: a"
               " forward-backward pass over the method's candidates, then a pose graph;"
               " docs/smoothing.md). Same as -c smooth=true.")
 @click.option("--min-confidence", type=click.FloatRange(0.0, 1.0), default=None,

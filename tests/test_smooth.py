@@ -170,13 +170,14 @@ def test_localize_smooth_through_the_cli(wrong_first_fix, msl2015_map, tmp_path,
 
 
 def test_smooth_is_refused_where_it_does_not_apply(omni_default_rendered, msl2015_map, tmp_path):
-    """--smooth with a method that has no smoother, and a smooth value that is not a bool,
-    are one line each and a non-zero exit."""
+    """--smooth with --independent (frames on their own), and a smooth value that is not a
+    bool, are one line each and a non-zero exit."""
     ds, feats = omni_default_rendered
     runner = CliRunner()
-    r = runner.invoke(cli, ["localize", str(ds), "--map", str(msl2015_map), "--method", "mcl",
-                            "--smooth", "-o", str(tmp_path / "p.h5")])
-    assert r.exit_code != 0 and "--smooth applies to" in r.output
+    r = runner.invoke(cli, ["localize", str(ds), "--map", str(msl2015_map), "--features",
+                            str(feats), "--smooth", "--independent", "-o", str(tmp_path / "p.h5")])
+    assert r.exit_code != 0 and "does not localise frames independently" in r.output
+    assert len(r.output.strip().splitlines()) == 1
     r = runner.invoke(cli, ["localize", str(ds), "--map", str(msl2015_map), "--features",
                             str(feats), "-c", "smooth=maybe", "-o", str(tmp_path / "q.h5")])
     assert r.exit_code != 0 and "'smooth' must be true or false" in r.output

@@ -126,17 +126,19 @@ class FrameCandidates:
         """One candidate per basin (the lowest nll of those within SAME_BASIN_M and
         SAME_BASIN_RAD of each other), at most ``limit``, best first."""
         order = np.argsort(self.nll, kind="stable")
+        order = order[np.isfinite(self.nll[order])]
+        p = self.poses[order]
+        same = ((np.hypot(p[:, None, 0] - p[None, :, 0], p[:, None, 1] - p[None, :, 1])
+                 < SAME_BASIN_M)
+                & (np.abs(wrap_angle(p[:, None, 2] - p[None, :, 2])) < SAME_BASIN_RAD))
         keep: list[int] = []
-        for k in order:
-            if not np.isfinite(self.nll[k]):
+        for k in range(len(order)):
+            if keep and same[k, keep].any():
                 continue
-            p = self.poses[k]
-            if any(_same_basin(p, self.poses[j]) for j in keep):
-                continue
-            keep.append(int(k))
+            keep.append(k)
             if len(keep) >= limit:
                 break
-        return self.take(np.array(keep, dtype=int))
+        return self.take(order[np.array(keep, dtype=int)])
 
 
 class Scorer(Protocol):
@@ -354,11 +356,6 @@ def _logsumexp(a: np.ndarray, axis=None):
     return out.squeeze() if axis is None else np.squeeze(out, axis=axis)
 
 
-def _same_basin(p, q, distance: float = SAME_BASIN_M, angle: float = SAME_BASIN_RAD) -> bool:
-    return (math.hypot(p[0] - q[0], p[1] - q[1]) < distance
-            and abs(math.remainder(p[2] - q[2], 2 * math.pi)) < angle)
-
-
 def basin_mass(cands: FrameCandidates, posterior: np.ndarray, pose) -> float:
     """The posterior mass of the candidates whose fix covers ``pose``: within
     CONFIDENCE_RADIUS_M of it, or within the ``COVER_GATE`` of the fix's own position
@@ -449,7 +446,7 @@ def smooth_track(scorer: Scorer, causal: PoseTrack, motion: Motion, conf: dict, 
             error = float(cands.error[passes.path[k]])
             flags = ""
         else:  # no fix of its own: the neighbours' confidence, the lower of the two
-            confidence = _neighbour_confidence(conf_of, i)
+            confidence = _neighbour_confidence(conf_of, i, covs[i])
             hyps = np.array([[*poses[i], confidence]])
             error, flags = math.nan, "odometry-only"
         out.add(name, stamp, poses[i], error=error, confidence=confidence, mode="smoothed",
@@ -515,8 +512,16 @@ def start_half_prior(conf: dict, mirrored: bool):
     return prior
 
 
-def _neighbour_confidence(conf_of: np.ndarray, i: int) -> float:
+def _neighbour_confidence(conf_of: np.ndarray, i: int, cov: np.ndarray) -> float:
+    """A frame with no fix of its own: the lower of its fixed neighbours' confidences (the
+    place), times the probability that its pose, reached by the odometry, lies within
+    CONFIDENCE_RADIUS_M of where it is given (its marginal covariance's largest variance as an
+    isotropic Gaussian: conservative), which falls as a gap grows."""
     before = conf_of[:i][np.isfinite(conf_of[:i])]
     after = conf_of[i + 1:][np.isfinite(conf_of[i + 1:])]
     vals = ([before[-1]] if len(before) else []) + ([after[0]] if len(after) else [])
-    return float(min(vals)) if vals else 0.0
+    if not vals:
+        return 0.0
+    var = float(np.max(np.linalg.eigvalsh(0.5 * (cov[:2, :2] + cov[:2, :2].T))))
+    inside = 1.0 - math.exp(-CONFIDENCE_RADIUS_M**2 / (2 * max(var, 1e-12)))
+    return float(min(vals) * inside)
