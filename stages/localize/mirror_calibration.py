@@ -4,44 +4,56 @@ A catadioptric camera's calib.yaml maps image radius r to floor distance f(r); a
 mirror table read by hand puts a line at true distance D at an observed d = D + e(d), with e
 smooth in d (minho-distance: 4-16 cm from 1 to 2 m). radial_correction.py learns e(d) online
 from the frames a robot is confident of, as a robot must; an offline tool has the whole
-recording, and can do better: every frame whose pose is accepted with confidence
-``min_confidence`` contributes each of its scan-line crossings (radial and spiral), the
-observed distance d against the distance p its scan line predicts at the frame's pose in the
-map's scan-line tables (the nearest table crossing, TableSearch.observation_predictions),
+recording and estimates it once from all of it: every frame whose pose is accepted with
+confidence >= ``min_confidence`` contributes each of its scan-line crossings, the observed
+distance d against the distance p its scan line predicts at the frame's pose in the map's
+scan-line tables (the nearest table crossing, TableSearch.observation_predictions),
 bilinearly interpolated between the four table cells around the pose so that the 10 cm grid
-does not add its own error, and e(d) = d - p is fitted to all of them at once.
+adds no error of its own (``predicted_distances``).
 
-Model. e(d) is a piecewise-linear table over d: values at knots every ``knot_step`` m from
-the robot's radius to the scan lines' reach, linear between them, held constant beyond the
-crossings seen. A team's calibration error is a fifth-order polynomial fitted to table marks
-read off with an error correlated over about 20 px of image radius, which at 1-3 m is a
-bump or a wave over 1-2 m of distance: a low-order polynomial in d (radial_correction's
-cubic) leaves several centimetres of it where a knot table follows it. The table's roughness
-is penalised (squared second differences, ``smoothness``, a discrete smoothing spline:
-Eilers and Marx 1996), and a weak ridge (``prior_sigma``) keeps knots without crossings near
-zero.
+Model. e(d) is a piecewise-linear table over the observed distance: values at knots every
+``knot_step`` m from the robot's radius to the scan lines' reach, linear between them and held
+constant beyond the distances the crossings cover. A team's calibration error is a
+fifth-order f(r) fitted to table marks read off with an error correlated over about 20 px of
+image radius: near the robot, where a metre spans many pixels, e(d) can swing by 20 cm within
+25 cm of distance, and farther out it is a bump or a wave over 1-2 m, which a low-order
+polynomial in d (radial_correction's cubic) cannot follow and a knot table can. Its roughness
+is penalised as a discrete smoothing spline (Eilers and Marx 1996): each knot's second
+difference is a zero-mean observation of spread ``curvature_sigma``, each value one of spread
+``prior_sigma`` (felt only where no crossing is).
 
-Fit. Batch robust least squares by iteratively reweighted least squares (Holland and Welsch
-1977) with the Cauchy loss: a crossing with residual r from the current e(d) weighs
-1 / (1 + (r / s)^2), s = max(``min_scale``, 1.4826 * the median absolute residual of the
-gated crossings); crossings farther than ``max_residual`` from the current e(d) (another line,
-clutter, a wrong association) weigh nothing. A frame's crossings of one white line are
-correlated (they share the pose's error), which the weights ignore: the figures it reports
-are fit residuals, not standard errors.
+What a crossing shows of e(d). On a radial scan line the residual d - p is e(d). A spiral
+scan line reports the radius at which it meets a line; a floor point seen e too far along
+its ray moves that meeting point along the spiral, mostly sideways, and its radius by only
+e * g, g = -J_xy . u (``error_gain``; J_xy: the prediction's derivative by the robot's
+position, u: the crossing's bearing in the field frame; for a radial line g = 1), which the
+fit models; counted as radial, spiral crossings pulled e(d) towards zero.
 
-Alternation (``rounds``). The poses were fixed with the miscalibrated distances and carry part
-of their error. With e(d) known, each frame's pose is fixed again from its corrected crossings
-(the exact sub-cell refinement of the table search at the frame's heading, started at its
-pose, TableSearch.refine; a re-fix that moves more than ``max_refix_move`` keeps the frame's
-pose) and e(d) is estimated again from the raw crossings against the new poses: alternating
-minimisation of the same cost over the poses and the error (block coordinate descent).
+Fit, jointly with the poses. The poses were fixed with the miscalibrated distances and carry
+part of the error (on the tuning seeds, with the poses held, e(d) came out 3-14 cm off; see
+docs/recording-calibration.md). So e(d) and a correction of every frame's pose are
+estimated together: Gauss-Newton on the crossings' residuals d - g e(d) - p(pose), linearised
+in the pose (J: the interpolation's derivatives by x and y, a central difference by the
+heading), with a Gaussian prior holding each pose near the track's (``pose_sigma_xy``,
+``pose_sigma_theta_deg``); each frame's three pose unknowns are eliminated by their Schur
+complement, so one step solves a knots-sized system. Each step re-associates the crossings
+(with e(d) removed) and reweighs them (iteratively reweighted least squares, Holland and
+Welsch 1977) with the Cauchy loss: weight 1 / (1 + (r / s)^2), s = max(``min_scale``,
+1.4826 * the median absolute residual of the gated crossings); crossings farther than
+``max_residual`` from the model (another line, clutter, a wrong association), on a grazing
+ray (|J_xy| > ``max_slope``), or whose four table cells predict different crossings
+(``interpolation_span``) weigh nothing. A frame's crossings of one white line share the
+pose's error, which the weights ignore: the figures reported are fit residuals, not
+standard errors. Poses that are wrong by more than the gate (a look-alike place held
+confidently) cannot be told from a calibration error and bend e(d): the estimate is as good
+as the poses it is given.
 
 ``corrected_calibration`` writes the result into a calib.yaml mapping: the corrected mapping
-f'(r) = f(r) - e(f(r)), so that a crossing extracted with it lies where the table expects
-it, refitted in the input's own model (the fifth-order polynomial, when it follows f'
-within ``POLYNOMIAL_TOLERANCE``; else the monotone table of calib.yaml version 2), with a
+f'(r) = f(r) - e(f(r)), so that a crossing extracted with it lies where the table expects it,
+in the input's own model (the fifth-order polynomial when a refit follows f' within
+``POLYNOMIAL_TOLERANCE``; else the monotone table of calib.yaml version 2), with a
 ``calibration`` record of how it was made (method ``recording``). ``write_corrected_calib``
-writes it atomically and never over the dataset's own calib.yaml.
+writes it atomically and never over the recording's own calib.yaml.
 """
 
 from __future__ import annotations
@@ -62,7 +74,7 @@ from .lut_search import Observation, TableSearch
 
 DEFAULTS = {
     "min_confidence": 0.95,  # frames whose pose is less sure are not used
-    "knot_step": 0.25,  # m between the knots of the e(d) table
+    "knot_step": 0.125,  # m between the knots of the e(d) table
     "curvature_sigma": 0.01,  # m, spread of a knot's second difference (the roughness allowed)
     "prior_sigma": 0.3,  # m, ridge on each knot value (only felt where there are no crossings)
     "max_residual": 0.3,  # m, crossings farther from the current e(d) are not used
@@ -90,8 +102,9 @@ class DistanceError:
     crossings_per_knot: np.ndarray = field(default=None)  # summed hat weights per knot
     residual_rms: float = math.nan  # m, rms of the used crossings about e(d)
     scale: float = math.nan  # m, the Cauchy scale of the last iteration
-    rounds: list = field(default_factory=list)  # per round: frames, crossings, rms, moved
+    fit: dict = field(default_factory=dict)  # iterations, how far the poses moved
     conf: dict = field(default_factory=dict)
+    inputs: dict = field(default_factory=dict)  # the features file and what it was made from
 
     def __call__(self, d) -> np.ndarray:
         """e(d) (m) at observed distances d (m); constant beyond the distances seen."""
@@ -259,7 +272,8 @@ def _joint_fit(search: TableSearch, frames: list[_Frame], knots: np.ndarray, c: 
         f.fixed = f.pose.copy()
     iterations = 0
     lin = []
-    for iterations in range(1, int(c["iterations"]) + 1):
+    for _ in range(int(c["iterations"])):
+        iterations += 1
         lin = []
         for f in frames:
             raw = np.asarray(f.obs.distance, dtype=float)
@@ -306,12 +320,12 @@ def _joint_fit(search: TableSearch, frames: list[_Frame], knots: np.ndarray, c: 
             step = max(step, float(np.hypot(delta[0], delta[1])))
         change = float(np.max(np.abs(new - values)))
         values = new
-        if change < 1e-4 and step < 1e-3:
+        if change < 1e-4 and step < 1e-3:  # e(d) and every pose settled
             break
     counts = np.zeros(K)
     used = 0
     sq = 0.0
-    for B, J, y, r in lin:
+    for B, _J, _y, r in lin:
         keep = np.abs(r) <= max_res
         counts += B[keep].sum(axis=0)
         used += int(keep.sum())
@@ -352,10 +366,28 @@ def estimate_distance_error(search: TableSearch, features, track, radial_conf=No
     return DistanceError(
         knots=knots, values=values, support=support, frames=len(frames), crossings=used,
         crossings_per_knot=counts, residual_rms=rms, scale=scale,
-        rounds=[{"iterations": iterations,
-                 "pose_shift_median_m": round(float(np.median(moves)), 4),
-                 "pose_shift_max_m": round(float(np.max(moves)), 4)}],
-        conf=c)
+        fit={"iterations": iterations,
+             "pose_shift_median_m": round(float(np.median(moves)), 4),
+             "pose_shift_max_m": round(float(np.max(moves)), 4)},
+        conf=c, inputs=_features_inputs(features))
+
+
+def _features_inputs(features) -> dict:
+    """The features file and the dataset, calib.yaml (and its hash) it was extracted from, as
+    its attributes record them."""
+    out = {}
+    path = getattr(features, "path", None)
+    if path is not None:
+        out["features"] = str(path)
+    try:
+        rec = features.attr_json("inputs") or {}
+    except (AttributeError, KeyError, ValueError, TypeError):
+        rec = {}
+    if isinstance(rec, dict):
+        for k in ("dataset", "calib", "calib_hash"):
+            if isinstance(rec.get(k), str) and rec[k]:
+                out[k] = rec[k]
+    return out
 
 
 # ---------------------------------------------------------------------------- calib.yaml
@@ -364,7 +396,8 @@ def estimate_distance_error(search: TableSearch, features, track, radial_conf=No
 def corrected_camera(camera: OmniCamera, error: DistanceError) -> tuple[OmniCamera, float]:
     """The camera with f'(r) = f(r) - e(f(r)), in the camera's own model: a polynomial
     refitted to f' when it follows f' within POLYNOMIAL_TOLERANCE over the valid radius (and
-    increases), else the monotone table through f' sampled every 2 px. Returns the camera and
+    increases), else the monotone table through f' sampled at every even pixel radius (and
+    the valid radius' ends). Returns the camera and
     the largest departure (m) of its mapping from f' over the valid radius."""
     r0, r1 = camera.valid_radius
     rr = np.linspace(r0, r1, 512)
@@ -382,10 +415,10 @@ def corrected_camera(camera: OmniCamera, error: DistanceError) -> tuple[OmniCame
         if (np.max(np.abs(res)) <= POLYNOMIAL_TOLERANCE
                 and np.all(np.diff(out.distance_of_radius(rr)) > 0)):
             return out, float(np.max(np.abs(res)))
-    n = max(8, int(math.ceil((r1 - r0) / 2.0)) + 1)
-    radius = np.linspace(r0, r1, n)
+    inner = np.arange(math.floor(r0 / 2.0) + 1, math.ceil(r1 / 2.0)) * 2.0  # even px
+    radius = np.round(np.r_[r0, inner[(inner > r0 + 0.5) & (inner < r1 - 0.5)], r1], 3)
     dist = camera.distance_of_radius(radius)
-    dist = dist - error(dist)
+    dist = np.round(dist - error(dist), 5)
     out = OmniCamera(polynomial=None, radial_table=np.stack([radius, dist], axis=1), **common)
     return out, float(np.max(np.abs(out.distance_of_radius(rr) - target)))
 
@@ -393,29 +426,31 @@ def corrected_camera(camera: OmniCamera, error: DistanceError) -> tuple[OmniCame
 def corrected_calibration(calib: dict, error: DistanceError, *, source: str,
                           sources: dict | None = None) -> dict:
     """calib.yaml's content (``calib``, an omni mapping) with its distance mapping corrected
-    so that ``error`` is removed, and a ``calibration`` record of how it was made (method
-    ``recording``; ``source``: the recording it came from, e.g. the poses file or dataset;
-    ``sources``: more provenance, e.g. file names and content hashes). The calibration
-    record the input held, if any, is kept under ``previous``."""
+    so that ``error`` is removed (``corrected_camera``), and a ``calibration`` record of how it
+    was made, as stages.calibrate records its own: method ``recording``, ``source`` (the
+    recording it came from: the poses file or the dataset), ``sources`` (the features file and
+    the dataset and calib.yaml it was extracted from, with the calib's hash, as the features
+    record them; updated with ``sources``), the estimator's conf, the frames and crossings
+    used, e(d) at a few distances and as its table, the residual rms. The calibration record
+    the input held, if any, is kept under ``previous``."""
     if not isinstance(calib, dict) or calib.get("kind") != "omni":
         raise FieldlocError("a calibration from a recording corrects an omni calib.yaml only")
     camera = OmniCamera.from_dict(calib, "calib.yaml")
     new, departure = corrected_camera(camera, error)
     out = new.to_dict()
-    c = error.conf
     record = {
         "fieldloc_version": __version__,
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "method": "recording",
         "source": str(source),
-        "sources": dict(sources or {}),
-        "conf": {k: (float(v) if isinstance(v, float) else v) for k, v in c.items()},
+        "sources": {**error.inputs, **{str(k): str(v) for k, v in (sources or {}).items()}},
+        "conf": {k: _plain(v) for k, v in error.conf.items()},
         "model": new.radial_model,
         "model_departure_m": round(departure, 5),
         **error.summary(),
         "error_table": {"distance_m": [round(float(v), 4) for v in error.knots],
                         "error_m": [round(float(v), 5) for v in error.values]},
-        "rounds": list(error.rounds),
+        "fit": {k: _plain(v) for k, v in error.fit.items()},
     }
     if isinstance(calib.get("calibration"), dict):
         record["previous"] = calib["calibration"]
@@ -423,20 +458,45 @@ def corrected_calibration(calib: dict, error: DistanceError, *, source: str,
     return out
 
 
+def _plain(v):
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    if isinstance(v, (int, np.integer)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        return float(v)
+    return v
+
+
+def own_calibs(calib_dict: dict, dataset_calib=None) -> list[Path]:
+    """The calib.yaml files a corrected calibration must never be written over: the one the
+    recording's features were extracted with (``sources.calib``), the dataset's own
+    (``sources.dataset``/calib.yaml, ``source``/calib.yaml when the source is a dataset
+    folder) and ``dataset_calib``."""
+    rec = calib_dict.get("calibration") if isinstance(calib_dict, dict) else None
+    rec = rec if isinstance(rec, dict) else {}
+    src = rec.get("sources") if isinstance(rec.get("sources"), dict) else {}
+    out = []
+    if dataset_calib is not None:
+        out.append(Path(dataset_calib))
+    if src.get("calib"):
+        out.append(Path(src["calib"]))
+    for folder in (src.get("dataset"), rec.get("source")):
+        if folder and Path(folder).is_dir():
+            out.append(Path(folder) / "calib.yaml")
+    return out
+
+
 def write_corrected_calib(path, calib_dict: dict, *, dataset_calib=None) -> Path:
     """Write ``calib_dict`` (``corrected_calibration``'s) as a calib.yaml at ``path``,
-    atomically. Refused (FieldlocError): a path that is the dataset's own calib.yaml (the
-    record's ``sources.calib``, or ``dataset_calib``), or a file named calib.yaml beside an
-    images/ folder (a dataset's calibration)."""
+    atomically (a temporary file beside it, renamed at the end). Refused (FieldlocError):
+    ``path`` is the recording's own calib.yaml (``own_calibs``), or the mapping is not a
+    valid omni calibration."""
     path = Path(path)
-    own = [dataset_calib, (calib_dict.get("calibration") or {}).get("sources", {}).get("calib")]
-    for p in own:
-        if p is not None and _same_file(path, Path(p)):
+    for own in own_calibs(calib_dict, dataset_calib):
+        if _same_file(path, own):
             raise FieldlocError(f"{path} is the recording's own calib.yaml; it is never written"
                                 " over: choose another output")
-    if path.name == "calib.yaml" and (path.parent / "images").is_dir():
-        raise FieldlocError(f"{path} is a dataset's calib.yaml; it is never written over:"
-                            " choose another output")
     OmniCamera.from_dict(calib_dict, str(path))  # what is written reads back
     with atomic_path(path, suffix=".yaml") as tmp:
         tmp.write_text(yaml.safe_dump(calib_dict, sort_keys=False, default_flow_style=None))
