@@ -193,3 +193,26 @@ def test_too_few_confident_frames_are_refused(search):
         mc.estimate_distance_error(search, frames, track)
     with pytest.raises(FieldlocError, match="unknown conf key"):
         mc.estimate_distance_error(search, frames, frames.track(), {"knot_stepp": 0.1})
+
+
+def test_frames_sure_of_the_pose_up_to_the_mirror_count_on_a_symmetric_field(search):
+    """On msl-2015 (point-symmetric) a pose and its mirror image predict the same crossings:
+    frames whose top hypothesis holds half the probability but whose pair holds all of it are
+    used, whichever of the two the track chose."""
+    assert search.field.is_point_symmetric()
+    frames = _TableFrames(search, lambda d: 0.04 + 0.0 * d, seed=5)
+    track = frames.track()
+    n = len(track["names"])
+    flip = np.arange(n) % 2 == 1
+    mirrored = search.field.mirror_pose(np.stack([track["x"], track["y"], track["theta"]], 1))
+    for k, key in enumerate(("x", "y", "theta")):
+        track[key] = np.where(flip, mirrored[:, k], track[key])
+    track["confidence"] = np.full(n, 0.5)
+    track["accepted"] = np.zeros(n, dtype=bool)
+    with pytest.raises(FieldlocError, match="too few"):
+        mc.estimate_distance_error(search, frames, track)
+    track["confidence_up_to_mirror"] = np.ones(n)
+    track["accepted_up_to_mirror"] = np.ones(n, dtype=bool)
+    err = mc.estimate_distance_error(search, frames, track)
+    assert err.frames == n
+    np.testing.assert_allclose(err(JUDGED), 0.04, atol=0.01)

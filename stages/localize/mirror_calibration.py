@@ -128,9 +128,15 @@ class DistanceError:
 # ---------------------------------------------------------------------------- inputs
 
 
-def _track_arrays(track) -> dict:
-    """names, x, y, theta, confidence, accepted of a PoseTrack or of its arrays."""
+def _track_arrays(track, symmetric: bool = False) -> dict:
+    """names, x, y, theta, confidence, accepted of a PoseTrack or of its arrays. On a
+    point-symmetric field (``symmetric``) a pose and its mirror image predict the same
+    crossings, so a frame's confidence and acceptance up to the mirror are used when the track
+    has them (stages.localize.symmetry)."""
     arr = track.arrays() if hasattr(track, "arrays") else track
+    if symmetric and "confidence_up_to_mirror" in arr and "accepted_up_to_mirror" in arr:
+        arr = {**arr, "confidence": arr["confidence_up_to_mirror"],
+               "accepted": arr["accepted_up_to_mirror"]}
     names = arr.get("names", arr.get("name"))
     if names is None:
         raise FieldlocError("the poses have no frame names")
@@ -339,7 +345,8 @@ def estimate_distance_error(search: TableSearch, features, track, radial_conf=No
     with confidence >= ``min_confidence`` (module doc). ``search``: the map's TableSearch;
     ``features``: the recording's FeaturesFile (omni: ``radial``, ``spiral``); ``track``: a
     PoseTrack or its arrays (names, x, y, theta, confidence, accepted); ``radial_conf``:
-    overrides of DEFAULTS (None: the defaults). Raises FieldlocError when too few frames or
+    overrides of DEFAULTS (None: the defaults). On a point-symmetric field the frames accepted
+    up to the mirror count (``_track_arrays``). Raises FieldlocError when too few frames or
     crossings are usable."""
     c = dict(DEFAULTS, **(radial_conf or {}))
     c["min_confidence"] = float(min_confidence)
@@ -348,7 +355,7 @@ def estimate_distance_error(search: TableSearch, features, track, radial_conf=No
         raise FieldlocError(f"mirror calibration: unknown conf key '{sorted(unknown)[0]}'")
     if getattr(features, "camera_kind", "omni") != "omni":
         raise FieldlocError("a calibration from a recording needs an omni recording's features")
-    arr = _track_arrays(track)
+    arr = _track_arrays(track, search.field.is_point_symmetric())
     frames = _frames(search, features, arr, float(min_confidence))
     if len(frames) < 5:
         raise FieldlocError(
