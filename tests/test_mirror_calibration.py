@@ -97,6 +97,7 @@ def test_the_corrected_calib_yaml_places_the_floor_where_it_is(omni_default_rend
     assert rec["frames"] == 40 and rec["crossings"] == rendered_estimate.crossings
     assert set(rec["error_m"]) >= {"1", "2", "3"} and rec["residual_rms_m"] > 0
     assert rec["sources"]["calib"] == str(ds / "calib.yaml")
+    assert rec["replaced"]["polynomial"] == calib["polynomial"]  # a copy of the input
     assert yaml.safe_load(path.read_text())["calibration"]["method"] == "recording"
 
 

@@ -438,8 +438,9 @@ def corrected_calibration(calib: dict, error: DistanceError, *, source: str,
     recording it came from: the poses file or the dataset), ``sources`` (the features file and
     the dataset and calib.yaml it was extracted from, with the calib's hash, as the features
     record them; updated with ``sources``), the estimator's conf, the frames and crossings
-    used, e(d) at a few distances and as its table, the residual rms. The calibration record
-    the input held, if any, is kept under ``previous``."""
+    used, e(d) at a few distances and as its table, the residual rms, the input's mapping it
+    replaces (``replaced``). The calibration record the input held, if any, is kept under
+    ``previous``."""
     if not isinstance(calib, dict) or calib.get("kind") != "omni":
         raise FieldlocError("a calibration from a recording corrects an omni calib.yaml only")
     camera = OmniCamera.from_dict(calib, "calib.yaml")
@@ -459,6 +460,8 @@ def corrected_calibration(calib: dict, error: DistanceError, *, source: str,
                         "error_m": [round(float(v), 5) for v in error.values]},
         "fit": {k: _plain(v) for k, v in error.fit.items()},
     }
+    record["replaced"] = {k: calib[k] for k in ("version", "radial_model", "polynomial",
+                                                "radial_table") if k in calib}
     if isinstance(calib.get("calibration"), dict):
         record["previous"] = calib["calibration"]
     out["calibration"] = record
