@@ -27,26 +27,25 @@ scan line reports the radius at which it meets a line; a floor point seen e too 
 its ray moves that meeting point along the spiral, mostly sideways, and its radius by only
 e * g, g = -J_xy . u (``error_gain``; J_xy: the prediction's derivative by the robot's
 position, u: the crossing's bearing in the field frame; for a radial line g = 1), which the
-fit models; counted as radial, spiral crossings pulled e(d) towards zero.
+fit models; counted as radial, spiral crossings would pull e(d) towards zero.
 
 Fit, jointly with the poses. The poses were fixed with the miscalibrated distances and carry
-part of the error (on the tuning seeds, with the poses held, e(d) came out 3-14 cm off; see
-docs/recording-calibration.md). So e(d) and a correction of every frame's pose are
-estimated together: Gauss-Newton on the crossings' residuals d - g e(d) - p(pose), linearised
-in the pose (J: the interpolation's derivatives by x and y, a central difference by the
-heading), with a Gaussian prior holding each pose near the track's (``pose_sigma_xy``,
-``pose_sigma_theta_deg``); each frame's three pose unknowns are eliminated by their Schur
-complement, so one step solves a knots-sized system. Each step re-associates the crossings
-(with e(d) removed) and reweighs them (iteratively reweighted least squares, Holland and
-Welsch 1977) with the Cauchy loss: weight 1 / (1 + (r / s)^2), s = max(``min_scale``,
-1.4826 * the median absolute residual of the gated crossings); crossings farther than
-``max_residual`` from the model (another line, clutter, a wrong association), on a grazing
-ray (|J_xy| > ``max_slope``), or whose four table cells predict different crossings
-(``interpolation_span``) weigh nothing. A frame's crossings of one white line share the
-pose's error, which the weights ignore: the figures reported are fit residuals, not
-standard errors. Poses that are wrong by more than the gate (a look-alike place held
-confidently) cannot be told from a calibration error and bend e(d): the estimate is as good
-as the poses it is given.
+part of the error, which a fit holding them leaves in e(d) (docs/recording-calibration.md).
+So e(d) and a correction of every frame's pose are estimated together: Gauss-Newton on the
+crossings' residuals d - g e(d) - p(pose), linearised in the pose (J: the interpolation's
+derivatives by x and y, a central difference by the heading), with a Gaussian prior holding
+each pose near the track's (``pose_sigma_xy``, ``pose_sigma_theta_deg``); each frame's three
+pose unknowns are eliminated by their Schur complement, so one step solves a knots-sized
+system. Each step re-associates the crossings (with e(d) removed) and reweighs them
+(iteratively reweighted least squares, Holland and Welsch 1977) with the Cauchy loss: weight
+1 / (1 + (r / s)^2), s = max(``min_scale``, 1.4826 * the median absolute residual of the
+gated crossings); crossings farther than ``max_residual`` from the model (another line,
+clutter, a wrong association), on a grazing ray (|J_xy| > ``max_slope``), or whose four
+table cells predict different crossings (``interpolation_span``) weigh nothing. A frame's
+crossings of one white line share the pose's error, which the weights ignore: the figures
+reported are fit residuals, not standard errors. Poses that are wrong by more than the gate
+(a look-alike place held confidently) cannot be told from a calibration error and bend e(d):
+the estimate is as good as the poses it is given.
 
 ``corrected_calibration`` writes the result into a calib.yaml mapping: the corrected mapping
 f'(r) = f(r) - e(f(r)), so that a crossing extracted with it lies where the table expects it,
