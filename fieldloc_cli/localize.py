@@ -1,7 +1,8 @@
 """`fieldloc localize DIR --map MAP [--features FILE | --points FILE.csv]
 [--method lut|mcl|fit|templates] [--templates templates.h5 (--method templates; --map then
 optional)] [--heading imu|histogram|truth] [--start-half own|opponent|any]
-[--init placement|uniform] [--independent] [--smooth] [--min-confidence P] [-o poses.h5]
+[--init placement|uniform] [--independent] [--smooth] [--write-calib calib.yaml]
+[--min-confidence P] [-o poses.h5]
 [--preset NAME] [-c key=value] [--overwrite]`."""
 
 from __future__ import annotations
@@ -56,6 +57,10 @@ SMOOTH_METHODS = ("lut", "fit", "mcl")  # methods with a smoother's scorer (stag
               help="lut, fit, mcl: decide every frame with the whole recording (offline: a"
               " forward-backward pass over the method's candidates, then a pose graph;"
               " docs/smoothing.md). Same as -c smooth=true.")
+@click.option("--write-calib", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="lut, fit: also write the dataset's calib.yaml corrected by the mirror's"
+              " distance error learnt from the run's poses (with --smooth: from the smoothed"
+              " ones; docs/recording-calibration.md), to this file.")
 @click.option("--min-confidence", type=click.FloatRange(0.0, 1.0), default=None,
               help="Accept a frame when the probability of its top hypothesis reaches"
               f" this [default: the method's, lut {LOCALIZE['lut', 'min_confidence']}, fit"
@@ -71,8 +76,8 @@ SMOOTH_METHODS = ("lut", "fit", "mcl")  # methods with a smoother's scorer (stag
               " other scan lines than the map's.")
 @click.pass_context
 def localize(ctx, dataset, map_path, templates, pose_solver, features, points, method, heading,
-             start_half, init, independent, smooth, min_confidence, output, preset, overrides,
-             overwrite, allow_field_mismatch):
+             start_half, init, independent, smooth, write_calib, min_confidence, output, preset,
+             overrides, overwrite, allow_field_mismatch):
     """Poses of the frames of DATASET on the field of MAP (poses.h5 + poses.tum)."""
     from stages import localize as stage
     from stages.common.conf import resolve_conf
@@ -128,11 +133,12 @@ def localize(ctx, dataset, map_path, templates, pose_solver, features, points, m
 
         path = images_to_poses.main(conf, dataset, map_path, output, overwrite=overwrite,
                                     progress=progress_enabled(ctx),
-                                    allow_field_mismatch=allow_field_mismatch)
+                                    allow_field_mismatch=allow_field_mismatch,
+                                    write_calib=write_calib)
     else:
         path = stage.main(conf, dataset, map_path, output, features=features, points=points,
                           overwrite=overwrite, progress=progress_enabled(ctx),
-                          allow_field_mismatch=allow_field_mismatch)
+                          allow_field_mismatch=allow_field_mismatch, write_calib=write_calib)
     from stages.common.poses_file import read_poses
 
     cols, attrs = read_poses(path)
@@ -146,4 +152,6 @@ def localize(ctx, dataset, map_path, templates, pose_solver, features, points, m
     if ok.any():
         modes = {m: int((cols["mode"][ok] == m).sum()) for m in sorted(set(cols["mode"][ok]))}
         msg += " (" + ", ".join(f"{m} {c}" for m, c in modes.items()) + ")"
+    if write_calib is not None:
+        msg += f"; calib.yaml corrected from the recording -> {write_calib}"
     summary(ctx, msg)

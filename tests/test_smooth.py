@@ -196,3 +196,37 @@ def test_batch_reads_a_smoothed_method_name(tmp_path):
     assert by_name["lut+smooth"].conf["smooth"] is True
     assert by_name["lut"].conf["smooth"] is False
     assert math.isfinite(len(by_name))
+
+
+def test_write_calib_through_the_cli(wrong_first_fix, msl2015_map, tmp_path):
+    """`localize --smooth --write-calib F`: F is an omni calib.yaml that reads back, records
+    how it was made (method recording, the poses it came from) and differs from the
+    dataset's; the dataset's own calib.yaml is refused as the output, unchanged."""
+    import hashlib
+
+    import yaml
+
+    from stages.common.camera import OmniCamera
+
+    ds, feats = wrong_first_fix
+    own = ds / "calib.yaml"
+    before = hashlib.sha256(own.read_bytes()).hexdigest()
+    runner = CliRunner()
+    out = tmp_path / "calib-recording.yaml"
+    r = runner.invoke(cli, ["-q", "localize", str(ds), "--map", str(msl2015_map), "--features",
+                            str(feats), "--smooth", "--write-calib", str(out),
+                            "-o", str(tmp_path / "p.h5")])
+    assert r.exit_code == 0, r.output
+    new = yaml.safe_load(out.read_text())
+    assert new["calibration"]["method"] == "recording"
+    assert new["calibration"]["source"].endswith("p.h5")
+    cam_new, cam_old = (OmniCamera.from_dict(c, "x") for c in
+                        (new, yaml.safe_load(own.read_text())))
+    r_px = np.linspace(60.0, 150.0, 10)
+    assert np.max(np.abs(cam_new.distance_of_radius(r_px) - cam_old.distance_of_radius(r_px))
+                  ) > 0.005
+    r = runner.invoke(cli, ["localize", str(ds), "--map", str(msl2015_map), "--features",
+                            str(feats), "--write-calib", str(own), "--overwrite",
+                            "-o", str(tmp_path / "q.h5")])
+    assert r.exit_code != 0 and "never written over" in r.output
+    assert hashlib.sha256(own.read_bytes()).hexdigest() == before

@@ -351,12 +351,15 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path 
          output: str | Path, *, features: str | Path | None = None,
          points: str | Path | None = None, overwrite: bool = False,
          progress: bool = False, allow_field_mismatch: bool = False,
-         templates: str | Path | None = None) -> Path:
+         templates: str | Path | None = None, write_calib: str | Path | None = None) -> Path:
     """Localise the frames of ``dataset_dir`` on ``map_path`` into ``output`` (poses.h5 and
     poses.tum beside it) from ``features`` (a features file) or ``points`` (a points CSV), and
     return its path. ``allow_field_mismatch``: localise even when the features were recorded
     on another field or with other scan lines than the map's. ``templates``: the template
-    database of method templates (module doc; ``map_path`` may then be None)."""
+    database of method templates (module doc; ``map_path`` may then be None).
+    ``write_calib``: also write the dataset's omni calib.yaml corrected by the mirror's
+    distance error learnt from the run's poses (mirror_calibration.py; best with ``smooth``)
+    to this path (never the dataset's own calib.yaml; an existing file needs ``overwrite``)."""
     resolved = resolve_localize_conf(conf)
     if uses_templates(resolved["method"]):
         return _main_templates(resolved, dataset_dir, map_path, output, templates,
@@ -368,10 +371,12 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path 
         raise FieldlocError(
             "localize needs the features of the frames (features=, from extract) or line"
             " points (points=); stages.pipelines.images_to_poses extracts them first")
-    conf, dataset, series, _given = check_run(conf, dataset_dir, map_path, output,
-                                              features=features, points=points,
-                                              overwrite=overwrite)
+    conf, dataset, series, given = check_run(conf, dataset_dir, map_path, output,
+                                             features=features, points=points,
+                                             overwrite=overwrite)
     output, dataset_dir = Path(output), Path(dataset_dir)
+    if write_calib is not None:
+        check_write_calib(write_calib, conf, dataset, points, output, given, overwrite)
     module = method_module(conf["method"])
     map_file = MapFile(map_path)
     inputs = {"dataset": _abs(dataset_dir), "map": _abs(map_path),
@@ -404,6 +409,8 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path 
             warn = start_half_warning(track.arrays(), {"conf": conf})
             if warn:
                 log.warning(warn)
+            if write_calib is not None:
+                _write_calib(write_calib, conf, dataset, feats, track, map_file, output)
         finally:
             feats.close()
     finally:
@@ -416,6 +423,46 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path 
     log.info("localize %s: %d frames, %d failed -> %s", conf["method"], len(track), n_failed,
              path)
     return path
+
+
+def check_write_calib(path, conf, dataset, points, output, given: dict, overwrite: bool):
+    """``write_calib`` refused before any frame is localised (or extracted): a method of the
+    scan-line tables (lut, fit) on omni features (not a points file), an output that is none
+    of the inputs nor the dataset's own calib.yaml nor the poses file."""
+    if conf["method"] not in ("lut", "fit") or points is not None:
+        raise FieldlocError("--write-calib learns the omni mirror's distance error: it needs"
+                            " --method lut or fit on a features file (not --points)")
+    if dataset.camera().kind != "omni":
+        raise FieldlocError(f"{dataset.root}: --write-calib corrects an omni calib.yaml, this"
+                            f" dataset's camera is '{dataset.camera().kind}'")
+    path = Path(path)
+    own = dataset.root / "calib.yaml"
+    if path.exists() and own.exists() and path.resolve() == own.resolve():
+        raise FieldlocError(f"{path} is the dataset's own calib.yaml; it is never written over:"
+                            " choose another output")
+    check_output(path, {**given, "poses": output, "calib": own}, overwrite=overwrite)
+
+
+def _write_calib(path, conf, dataset, feats, track, map_file, output) -> None:
+    """The dataset's calib.yaml corrected by the distance error learnt from ``track``
+    (mirror_calibration.py), written to ``path``."""
+    import yaml
+
+    from . import mirror_calibration as mc
+    from .lut import table_search
+    from .lut_search import MatchingParams
+
+    search_conf = conf["search"] if conf["method"] == "lut" else method_confs("lut")[
+        "default"]["search"]
+    search = table_search(map_file, MatchingParams.from_conf(search_conf))
+    error = mc.estimate_distance_error(search, feats, track)
+    own = dataset.root / "calib.yaml"
+    calib = yaml.safe_load(own.read_text())
+    new = mc.corrected_calibration(calib, error, source=str(_abs(output)),
+                                   sources={"dataset": _abs(dataset.root)})
+    mc.write_corrected_calib(path, new, dataset_calib=own)
+    log.info("calibration from the recording -> %s (e(d) at 1/2/3 m: %s)", path,
+             ", ".join(f"{float(error(d)):+.3f}" for d in (1.0, 2.0, 3.0)))
 
 
 def _json_attr(feats, key: str):

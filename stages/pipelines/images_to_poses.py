@@ -2,7 +2,7 @@
 the features of the dataset, then stages.localize.
 
     main(conf, dataset_dir, map_path, output, *, overwrite=False, progress=False,
-         allow_field_mismatch=False) -> Path
+         allow_field_mismatch=False, write_calib=None) -> Path
 
 The features are the dataset's own ``DIR/features.h5`` when it was extracted from the same
 calibration, mask and default conf and holds every frame (stages.extract.reusable_features),
@@ -50,12 +50,14 @@ def features_for(dataset_dir: str | Path, output: str | Path, inputs: dict,
 
 def main(conf, dataset_dir: str | Path, map_path: str | Path, output: str | Path, *,
          overwrite: bool = False, progress: bool = False,
-         allow_field_mismatch: bool = False) -> Path:
+         allow_field_mismatch: bool = False, write_calib: str | Path | None = None) -> Path:
     """Localise the images of ``dataset_dir`` on ``map_path`` into ``output`` (localize's
     conf and options), extracting their features first when the dataset has none to reuse."""
     _conf, _ds, _series, inputs = localize.check_run(conf, dataset_dir, map_path, output,
                                                      overwrite=overwrite)
+    if write_calib is not None:
+        localize.check_write_calib(write_calib, _conf, _ds, None, output, inputs, overwrite)
     features = features_for(dataset_dir, output, inputs, progress)
     return localize.main(conf, dataset_dir, map_path, output, features=features,
                          overwrite=overwrite, progress=progress,
-                         allow_field_mismatch=allow_field_mismatch)
+                         allow_field_mismatch=allow_field_mismatch, write_calib=write_calib)
