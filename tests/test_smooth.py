@@ -210,6 +210,7 @@ def test_write_calib_through_the_cli(wrong_first_fix, msl2015_map, tmp_path):
 
     ds, feats = wrong_first_fix
     own = ds / "calib.yaml"
+    # exact bytes: the user's calib.yaml checked unchanged
     before = hashlib.sha256(own.read_bytes()).hexdigest()
     runner = CliRunner()
     out = tmp_path / "calib-recording.yaml"
@@ -229,4 +230,5 @@ def test_write_calib_through_the_cli(wrong_first_fix, msl2015_map, tmp_path):
                             str(feats), "--write-calib", str(own), "--overwrite",
                             "-o", str(tmp_path / "q.h5")])
     assert r.exit_code != 0 and "never written over" in r.output
+    # exact bytes: the user's calib.yaml checked unchanged
     assert hashlib.sha256(own.read_bytes()).hexdigest() == before
