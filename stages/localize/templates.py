@@ -64,8 +64,9 @@ from ..common.errors import DatasetError, FieldlocError
 from ..common.geometry import wrap_angle
 from ..common.poses_file import PoseTrack
 from . import heading as heading_mod
+from . import smooth, tracking
 from . import template_matching as tm
-from . import tracking
+from .smooth import FrameCandidates
 from .tracking import Candidate, TrackBank
 
 log = logging.getLogger(__name__)
@@ -299,14 +300,16 @@ class TemplateLocaliser:
                 best = f
         return best
 
-    def frame(self, i: int, image, dt: float, odo, flags: list, yaw: float = math.nan):
+    def frame(self, i: int, image, dt: float, odo, flags: list, yaw: float = math.nan,
+              cache: dict | None = None):
         """Localise one frame (``yaw``: the IMU's, NaN if none): (hypotheses, top candidate,
-        pose, covariance, accepted), or FrameFailed."""
+        pose, covariance, accepted), or FrameFailed. ``cache``: the frame's query features
+        by heading (``_query``), filled here (the smoother reuses them)."""
         conf, bank, m = self.conf, self.bank, self.m
         if conf["independent"]:
             bank.reset()
             dt, odo = 0.0, None
-        cache: dict = {}
+        cache = {} if cache is None else cache
         use_imu = conf["heading"] == "imu" and math.isfinite(yaw)
         other_prior = bank.other_prior()
         tracked: list[Candidate] = []
@@ -387,6 +390,118 @@ class TemplateLocaliser:
         return hyps, top, pose, cov, accepted
 
 
+class TemplateScorer:
+    """Method templates' candidates for the smoother (smooth.Scorer) after a causal run. A
+    frame's global candidates are the vote's: the ``global_templates`` templates with most
+    votes fitted, as when the causal run is lost, and the templates near the causal run's pose
+    fitted (so the smoother always sees what the causal run fixed); its candidates from given
+    starts are fitted as the tracks' are: the ``tracked_templates`` templates nearest the
+    start within ``reach`` of it, the one of most evidence. A candidate's nll is the fit's
+    evidence at the method's temperature (-L / T), its covariance
+    ``TemplateMatcher.covariance``, its error the rms inlier pair distance. The query features
+    are the causal run's (``queries``: per frame, by heading), computed again only at a
+    heading the causal run did not describe the frame at; fits are computed once per frame,
+    template and heading. The frames the causal run could not fix, and those where no
+    template fits, have no candidates (``failed``). The floor's texture is not symmetric: a
+    pose's mirror image is a candidate only where a template near it fits (``mirrored``
+    False)."""
+
+    mirrored = False
+
+    def __init__(self, loc: TemplateLocaliser, image_paths, yaw: np.ndarray, causal: PoseTrack,
+                 queries: dict):
+        self.loc = loc
+        self.m = loc.m
+        self.conf = loc.conf
+        self.paths = list(image_paths)
+        self.frames = len(self.paths)
+        self.yaw = np.asarray(yaw, float)
+        self.use_imu = self.conf["heading"] == "imu"
+        self.causal_pose = np.column_stack([causal.x, causal.y, causal.theta]).astype(float)
+        self.causal_flags = list(causal.flags)
+        self.causal_failed = list(causal.failed)
+        self.queries = queries
+        self._image = (None, None)  # (frame, image): the last frame read again
+        self._fits: dict = {}
+        self._global: dict = {}
+        self.T = float(self.conf["temperature"])
+
+    def _heading(self, i: int, start=None) -> float | None:
+        """The heading frame i's query is described at: the IMU's, else the start's (None
+        without a start)."""
+        if self.use_imu and math.isfinite(self.yaw[i]):
+            return float(self.yaw[i])
+        return None if start is None else float(start[2])
+
+    def _query(self, i: int, heading: float) -> gf.GroundFeatures:
+        cache = self.queries.setdefault(i, {})
+        key = round(float(heading), 6) if self.loc.field_axes else None
+        if key not in cache:
+            if self._image[0] != i:
+                self._image = (i, read_image(self.paths[i]))
+            self.loc._query(self._image[1], heading, cache)
+        return cache[key]
+
+    def _fit(self, i: int, k: int, heading: float) -> TemplateFix | None:
+        key = (i, k, round(float(heading), 6) if self.loc.field_axes else None)
+        if key not in self._fits:
+            query = self._query(i, heading)
+            self._fits[key] = (self.m.fit(query, k, heading)
+                               if len(query) >= int(self.conf["min_pairs"]) else None)
+        return self._fits[key]
+
+    def _row(self, fix: TemplateFix):
+        return fix.pose, -fix.evidence / self.T, self.m.covariance(fix), fix.rms
+
+    def failed(self, i: int) -> str | None:
+        if self.causal_failed[i]:
+            return self.causal_flags[i].split(",")[-1] or "no-fix"
+        return None if len(self.global_candidates(i)) else "no-match"
+
+    def global_candidates(self, i: int) -> FrameCandidates:
+        if i in self._global:
+            return self._global[i]
+        h = self._heading(i)
+        if h is not None:
+            headings = [h]
+        elif self.loc.field_axes:  # no heading known: try them (as the causal run when lost)
+            n = int(self.conf["lost_headings"])
+            headings = [2 * math.pi * j / n - math.pi for j in range(n)]
+        else:  # rotation-invariant features: the fit finds the heading
+            headings = [0.0]
+        fixes = []
+        for h in headings:
+            query = self._query(i, h)
+            if len(query) < int(self.conf["min_pairs"]):
+                continue
+            fixes += [self._fit(i, k, h) for k in self.m.vote(query, int(
+                self.conf["global_templates"]))]
+        rows = [self._row(f) for f in fixes if f is not None]
+        out = FrameCandidates.from_rows(rows)
+        if np.all(np.isfinite(self.causal_pose[i])):
+            out = FrameCandidates.concat([out, self.local_candidates(i, self.causal_pose[i:i + 1])])
+        self._global[i] = out
+        return out
+
+    def local_candidates(self, i: int, starts: np.ndarray) -> FrameCandidates:
+        c = self.conf
+        poses = self.m.db.poses
+        rows = []
+        for p in np.asarray(starts, float).reshape(-1, 3):
+            h = self._heading(i, p)
+            d = np.hypot(poses[:, 0] - p[0], poses[:, 1] - p[1])
+            near = [int(k) for k in np.argsort(d, kind="stable")[:int(c["tracked_templates"])]
+                    if d[k] <= c["reach"]]
+            best = None
+            for k in near:
+                f = self._fit(i, k, h)
+                if f is not None and (best is None or f.evidence > best.evidence):
+                    best = f
+            if best is not None:
+                rows.append(self._row(best))
+        return FrameCandidates.from_rows(rows)
+
+
 def run(conf: dict, dataset, templates, map_file=None, progress=False) -> PoseTrack:
     """Localise every image of ``dataset`` against ``templates`` (a TemplateDatabase), with the
     dataset's odometry; ``map_file`` (optional) gives the field, else the database's record."""
@@ -396,8 +511,6 @@ def run(conf: dict, dataset, templates, map_file=None, progress=False) -> PoseTr
     from .motion_model import accumulate_odometry
 
     check_conf(conf)
-    if conf["smooth"]:
-        raise FieldlocError("smooth: method templates has no smoother yet (lut and fit have)")
     db = templates
     if not len(db) or not len(db.points):
         raise FieldlocError(f"{db.path}: the template database holds no features")
@@ -427,9 +540,10 @@ def run(conf: dict, dataset, templates, map_file=None, progress=False) -> PoseTr
     if conf["heading"] == "imu" and imu is None:
         raise FieldlocError(f"heading imu needs imu.csv in {dataset.root}; use -c heading=track")
     if imu is not None:
-        yaw, _col = heading_mod.imu_per_frame(imu, stamps, float(conf["stamp_tolerance"]))
+        yaw, collision = heading_mod.imu_per_frame(imu, stamps, float(conf["stamp_tolerance"]))
     else:
-        yaw = np.full(len(stamps), np.nan)
+        yaw, collision = np.full(len(stamps), np.nan), np.zeros(len(stamps), bool)
+    queries: dict = {}  # per frame its query features by heading, kept for the smoother
     track = PoseTrack()
     feature_s, match_s = [], []
     prev = None
@@ -449,7 +563,9 @@ def run(conf: dict, dataset, templates, map_file=None, progress=False) -> PoseTr
         t0 = time.perf_counter()
         f0 = loc.feature_s
         try:
-            hyps, top, pose, cov, accepted = loc.frame(i, image, dt, odo, flags, float(yaw[i]))
+            hyps, top, pose, cov, accepted = loc.frame(
+                i, image, dt, odo, flags, float(yaw[i]),
+                cache=queries.setdefault(i, {}) if conf["smooth"] else None)
         except FrameFailed as e:
             loc.failed(dt, odo)
             track.add(name, stamp, None, error=math.nan, confidence=0.0, mode="failed",
@@ -468,4 +584,10 @@ def run(conf: dict, dataset, templates, map_file=None, progress=False) -> PoseTr
         descent_rounds_per_fit=(matcher.rounds / matcher.fits if matcher.fits else 0.0),
         ground_features_ms=1e3 * float(np.median(feature_s)) if feature_s else math.nan,
         matching_ms=1e3 * float(np.median(match_s)) if match_s else math.nan)
-    return track
+    if not conf["smooth"]:
+        return track
+    scorer = TemplateScorer(loc, dataset.images, yaw, track, queries)
+    motion = smooth.motion_of(increments, has_odo, stamps, conf["fusion"], collision)
+    x0, x1, y0, y1 = field.world_bounds()
+    return smooth.smooth_track(scorer, track, motion, conf, area=(x1 - x0) * (y1 - y0),
+                               log_prior0=smooth.start_half_prior(conf, scorer.mirrored))
