@@ -47,6 +47,10 @@ the top track was born this frame; local), runtime (the method's: ground feature
 pose; not reading the image), hypotheses, flags (global-check, relocalised, mirror-ambiguous,
 low-confidence; failures too-few-features, no-match, uninformative, unreadable-image).
 ``PoseTrack.meta``: the pose solver, descent rounds, ground-feature and matching times.
+
+With ``smooth`` (docs/smoothing.md) the causal run is followed by smooth.smooth_track over
+``TemplateScorer``'s candidates (the vote's fixes, the fits near given starts, the frame's
+null), reusing the causal run's query features; the output is the smoothed track.
 """
 
 from __future__ import annotations
@@ -391,20 +395,27 @@ class TemplateLocaliser:
 
 
 class TemplateScorer:
-    """Method templates' candidates for the smoother (smooth.Scorer) after a causal run. A
-    frame's global candidates are the vote's: the ``global_templates`` templates with most
-    votes fitted, as when the causal run is lost, and the templates near the causal run's pose
-    fitted (so the smoother always sees what the causal run fixed); its candidates from given
-    starts are fitted as the tracks' are: the ``tracked_templates`` templates nearest the
-    start within ``reach`` of it, the one of most evidence. A candidate's nll is the fit's
-    evidence at the method's temperature (-L / T), its covariance
+    """Method templates' candidates for the smoother (smooth.Scorer) after a causal run.
+
+    - Global candidates of a frame: the vote's, the ``global_templates`` templates with most
+      votes fitted (as when the causal run is lost), and the templates near the causal run's
+      pose fitted, so that the smoother sees at least what the causal run fixed.
+    - Candidates from given starts: as the tracks', the ``tracked_templates`` templates nearest
+      the start within ``reach`` of it fitted, every fit a candidate. Where none lies within
+      ``tracking.SAME_BASIN_M`` of the start, the start itself is one more candidate, the frame
+      explained by chance (as a causal track whose templates did not match): nll the frame's
+      null (-null / T, ``TemplateMatcher.null_evidence`` of its best fix), covariance the
+      identity (it pulls the continuous pass no more than a causal track's miss pulls the
+      fusion). A frame with no fix near the place its neighbours say then passes as
+      uninformative instead of forcing the path through a wrong fit or a jump.
+
+    A fit's nll is its evidence at the method's temperature (-L / T), its covariance
     ``TemplateMatcher.covariance``, its error the rms inlier pair distance. The query features
-    are the causal run's (``queries``: per frame, by heading), computed again only at a
-    heading the causal run did not describe the frame at; fits are computed once per frame,
-    template and heading. The frames the causal run could not fix, and those where no
-    template fits, have no candidates (``failed``). The floor's texture is not symmetric: a
-    pose's mirror image is a candidate only where a template near it fits (``mirrored``
-    False)."""
+    are the causal run's (``queries``: per frame, by heading), described again only at a
+    heading the causal run did not use; fits are computed once per frame, template and
+    heading. The frames the causal run could not fix, and those where no template fits, have
+    no candidates (``failed``). The floor's texture is not symmetric: a pose's mirror image is
+    a candidate only where a template near it fits (``mirrored`` False)."""
 
     mirrored = False
 
@@ -424,6 +435,7 @@ class TemplateScorer:
         self._image = (None, None)  # (frame, image): the last frame read again
         self._fits: dict = {}
         self._global: dict = {}
+        self._null: dict = {}
         self.T = float(self.conf["temperature"])
 
     def _heading(self, i: int, start=None) -> float | None:
@@ -476,29 +488,35 @@ class TemplateScorer:
                 continue
             fixes += [self._fit(i, k, h) for k in self.m.vote(query, int(
                 self.conf["global_templates"]))]
-        rows = [self._row(f) for f in fixes if f is not None]
-        out = FrameCandidates.from_rows(rows)
+        fixes = [f for f in fixes if f is not None]
         if np.all(np.isfinite(self.causal_pose[i])):
-            out = FrameCandidates.concat([out, self.local_candidates(i, self.causal_pose[i:i + 1])])
-        self._global[i] = out
-        return out
+            fixes += self._near_fits(i, self.causal_pose[i])
+        self._global[i] = FrameCandidates.from_rows([self._row(f) for f in fixes])
+        if fixes:  # what chance explains, from the best fix's pairs (seeded by the frame)
+            best = max(fixes, key=lambda f: f.evidence)
+            self._null[i] = self.m.null_evidence(best, np.random.default_rng(i))
+        return self._global[i]
 
-    def local_candidates(self, i: int, starts: np.ndarray) -> FrameCandidates:
+    def _near_fits(self, i: int, start) -> list[TemplateFix]:
+        """The fits of the ``tracked_templates`` templates nearest ``start``, within reach."""
         c = self.conf
         poses = self.m.db.poses
+        h = self._heading(i, start)
+        d = np.hypot(poses[:, 0] - start[0], poses[:, 1] - start[1])
+        near = [int(k) for k in np.argsort(d, kind="stable")[:int(c["tracked_templates"])]
+                if d[k] <= c["reach"]]
+        return [f for f in (self._fit(i, k, h) for k in near) if f is not None]
+
+    def local_candidates(self, i: int, starts: np.ndarray) -> FrameCandidates:
         rows = []
+        null = self._null.get(i)
         for p in np.asarray(starts, float).reshape(-1, 3):
-            h = self._heading(i, p)
-            d = np.hypot(poses[:, 0] - p[0], poses[:, 1] - p[1])
-            near = [int(k) for k in np.argsort(d, kind="stable")[:int(c["tracked_templates"])]
-                    if d[k] <= c["reach"]]
-            best = None
-            for k in near:
-                f = self._fit(i, k, h)
-                if f is not None and (best is None or f.evidence > best.evidence):
-                    best = f
-            if best is not None:
-                rows.append(self._row(best))
+            fits = self._near_fits(i, p)
+            rows += [self._row(f) for f in fits]
+            if null is not None and not any(
+                    math.hypot(f.pose[0] - p[0], f.pose[1] - p[1]) < tracking.SAME_BASIN_M
+                    for f in fits):  # no fit near the start: it is kept, the frame explained
+                rows.append((p, -null / self.T, np.eye(3), math.nan))  # by chance
         return FrameCandidates.from_rows(rows)
 
 
