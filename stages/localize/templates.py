@@ -394,6 +394,13 @@ class TemplateLocaliser:
         return hyps, top, pose, cov, accepted
 
 
+# rad: a frame's query described at a heading this close to the one a start asks for is used
+# for it (upright descriptors change little over a few degrees; the fit finds the rest: 3 deg
+# is 10 cm at the 2 m the ground image reaches, half the consensus radius), so that starts
+# with nearly equal headings do not each describe the frame again (heading: track)
+QUERY_HEADING_TOLERANCE = math.radians(3.0)
+
+
 class TemplateScorer:
     """Method templates' candidates for the smoother (smooth.Scorer) after a causal run.
 
@@ -445,20 +452,30 @@ class TemplateScorer:
             return float(self.yaw[i])
         return None if start is None else float(start[2])
 
-    def _query(self, i: int, heading: float) -> gf.GroundFeatures:
+    def _query(self, i: int, heading: float) -> tuple[gf.GroundFeatures, float]:
+        """Frame i's query features and the heading they are described at: a description of
+        the frame within ``QUERY_HEADING_TOLERANCE`` of ``heading`` if there is one (the
+        causal run's or an earlier start's), else described at ``heading`` (the image read
+        again)."""
         cache = self.queries.setdefault(i, {})
-        key = round(float(heading), 6) if self.loc.field_axes else None
+        if not self.loc.field_axes:
+            key = None
+        else:
+            near = [k for k in cache if k is not None and abs(math.remainder(
+                k - heading, 2 * math.pi)) <= QUERY_HEADING_TOLERANCE]
+            key = (min(near, key=lambda k: abs(math.remainder(k - heading, 2 * math.pi)))
+                   if near else round(float(heading), 6))
         if key not in cache:
             if self._image[0] != i:
                 self._image = (i, read_image(self.paths[i]))
             self.loc._query(self._image[1], heading, cache)
-        return cache[key]
+        return cache[key], (heading if key is None else float(key))
 
     def _fit(self, i: int, k: int, heading: float) -> TemplateFix | None:
-        key = (i, k, round(float(heading), 6) if self.loc.field_axes else None)
+        query, h = self._query(i, heading)
+        key = (i, k, h if self.loc.field_axes else None)
         if key not in self._fits:
-            query = self._query(i, heading)
-            self._fits[key] = (self.m.fit(query, k, heading)
+            self._fits[key] = (self.m.fit(query, k, h)
                                if len(query) >= int(self.conf["min_pairs"]) else None)
         return self._fits[key]
 
@@ -474,6 +491,8 @@ class TemplateScorer:
         if i in self._global:
             return self._global[i]
         h = self._heading(i)
+        if h is None and np.all(np.isfinite(self.causal_pose[i])):
+            h = float(self.causal_pose[i, 2])  # the causal run's heading (no IMU)
         if h is not None:
             headings = [h]
         elif self.loc.field_axes:  # no heading known: try them (as the causal run when lost)
@@ -483,7 +502,7 @@ class TemplateScorer:
             headings = [0.0]
         fixes = []
         for h in headings:
-            query = self._query(i, h)
+            query, _h = self._query(i, h)
             if len(query) < int(self.conf["min_pairs"]):
                 continue
             fixes += [self._fit(i, k, h) for k in self.m.vote(query, int(
