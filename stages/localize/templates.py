@@ -395,10 +395,10 @@ class TemplateLocaliser:
 
 
 # rad: a frame's query described at a heading this close to the one a start asks for is used
-# for it (upright descriptors change little over a few degrees; the fit finds the rest: 3 deg
-# is 10 cm at the 2 m the ground image reaches, half the consensus radius), so that starts
-# with nearly equal headings do not each describe the frame again (heading: track)
-QUERY_HEADING_TOLERANCE = math.radians(3.0)
+# for it, so that starts with nearly equal headings do not each describe the frame again
+# (heading: track; upright descriptors change little over a degree, and the fit finds the
+# rest: 1 deg is 3.5 cm at the 2 m the ground image reaches)
+QUERY_HEADING_TOLERANCE = math.radians(1.0)
 
 
 class TemplateScorer:
