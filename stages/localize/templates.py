@@ -49,8 +49,8 @@ low-confidence; failures too-few-features, no-match, uninformative, unreadable-i
 ``PoseTrack.meta``: the pose solver, descent rounds, ground-feature and matching times.
 
 With ``smooth`` (docs/smoothing.md) the causal run is followed by smooth.smooth_track over
-``TemplateScorer``'s candidates (the vote's fixes and the fits near given starts), reusing
-the causal run's query features; the output is the smoothed track.
+``TemplateScorer``'s candidates (the vote's fixes, the fits near given starts, the frame's
+null), reusing the causal run's query features; the output is the smoothed track.
 """
 
 from __future__ import annotations
@@ -408,8 +408,13 @@ class TemplateScorer:
       votes fitted (as when the causal run is lost), and the templates near the causal run's
       pose fitted, so that the smoother sees at least what the causal run fixed.
     - Candidates from given starts: as the tracks', the ``tracked_templates`` templates nearest
-      the start within ``reach`` of it fitted, every fit a candidate (not only the one of most
-      evidence, as a track takes: the smoother weighs them with the neighbours).
+      the start within ``reach`` of it fitted, every fit a candidate. Where none lies within
+      ``tracking.SAME_BASIN_M`` of the start, the start itself is one more candidate, the frame
+      explained by chance (as a causal track whose templates did not match): nll the frame's
+      null (-null / T, ``TemplateMatcher.null_evidence`` of its best fix), covariance the
+      identity (it pulls the continuous pass no more than a causal track's miss pulls the
+      fusion). A frame with no fix near the place its neighbours say then passes as
+      uninformative instead of forcing the path through a wrong fit or a jump.
 
     A fit's nll is its evidence at the method's temperature (-L / T), its covariance
     ``TemplateMatcher.covariance``, its error the rms inlier pair distance. The query features
@@ -437,6 +442,7 @@ class TemplateScorer:
         self._image = (None, None)  # (frame, image): the last frame read again
         self._fits: dict = {}
         self._global: dict = {}
+        self._null: dict = {}
         self.T = float(self.conf["temperature"])
 
     def _heading(self, i: int, start=None) -> float | None:
@@ -505,6 +511,9 @@ class TemplateScorer:
         if np.all(np.isfinite(self.causal_pose[i])):
             fixes += self._near_fits(i, self.causal_pose[i])
         self._global[i] = FrameCandidates.from_rows([self._row(f) for f in fixes])
+        if fixes:  # what chance explains, from the best fix's pairs (seeded by the frame)
+            best = max(fixes, key=lambda f: f.evidence)
+            self._null[i] = self.m.null_evidence(best, np.random.default_rng(i))
         return self._global[i]
 
     def _near_fits(self, i: int, start) -> list[TemplateFix]:
@@ -518,8 +527,16 @@ class TemplateScorer:
         return [f for f in (self._fit(i, k, h) for k in near) if f is not None]
 
     def local_candidates(self, i: int, starts: np.ndarray) -> FrameCandidates:
-        return FrameCandidates.from_rows([self._row(f) for p in np.asarray(
-            starts, float).reshape(-1, 3) for f in self._near_fits(i, p)])
+        rows = []
+        null = self._null.get(i)
+        for p in np.asarray(starts, float).reshape(-1, 3):
+            fits = self._near_fits(i, p)
+            rows += [self._row(f) for f in fits]
+            if null is not None and not any(
+                    math.hypot(f.pose[0] - p[0], f.pose[1] - p[1]) < tracking.SAME_BASIN_M
+                    for f in fits):  # no fit near the start: it is kept, the frame explained
+                rows.append((p, -null / self.T, np.eye(3), math.nan))  # by chance
+        return FrameCandidates.from_rows(rows)
 
 
 def run(conf: dict, dataset, templates, map_file=None, progress=False) -> PoseTrack:
