@@ -47,6 +47,10 @@ the top track was born this frame; local), runtime (the method's: ground feature
 pose; not reading the image), hypotheses, flags (global-check, relocalised, mirror-ambiguous,
 low-confidence; failures too-few-features, no-match, uninformative, unreadable-image).
 ``PoseTrack.meta``: the pose solver, descent rounds, ground-feature and matching times.
+
+With ``smooth`` (docs/smoothing.md) the causal run is followed by smooth.smooth_track over
+``TemplateScorer``'s candidates (the vote's fixes, the fits near given starts, the frame's
+null), reusing the causal run's query features; the output is the smoothed track.
 """
 
 from __future__ import annotations
@@ -64,8 +68,9 @@ from ..common.errors import DatasetError, FieldlocError
 from ..common.geometry import wrap_angle
 from ..common.poses_file import PoseTrack
 from . import heading as heading_mod
+from . import smooth, tracking
 from . import template_matching as tm
-from . import tracking
+from .smooth import FrameCandidates
 from .tracking import Candidate, TrackBank
 
 log = logging.getLogger(__name__)
@@ -299,14 +304,16 @@ class TemplateLocaliser:
                 best = f
         return best
 
-    def frame(self, i: int, image, dt: float, odo, flags: list, yaw: float = math.nan):
+    def frame(self, i: int, image, dt: float, odo, flags: list, yaw: float = math.nan,
+              cache: dict | None = None):
         """Localise one frame (``yaw``: the IMU's, NaN if none): (hypotheses, top candidate,
-        pose, covariance, accepted), or FrameFailed."""
+        pose, covariance, accepted), or FrameFailed. ``cache``: the frame's query features
+        by heading (``_query``), filled here (the smoother reuses them)."""
         conf, bank, m = self.conf, self.bank, self.m
         if conf["independent"]:
             bank.reset()
             dt, odo = 0.0, None
-        cache: dict = {}
+        cache = {} if cache is None else cache
         use_imu = conf["heading"] == "imu" and math.isfinite(yaw)
         other_prior = bank.other_prior()
         tracked: list[Candidate] = []
@@ -387,6 +394,151 @@ class TemplateLocaliser:
         return hyps, top, pose, cov, accepted
 
 
+# rad: a frame's query described at a heading this close to the one a start asks for is used
+# for it, so that starts with nearly equal headings do not each describe the frame again
+# (heading: track; upright descriptors change little over a degree, and the fit finds the
+# rest: 1 deg is 3.5 cm at the 2 m the ground image reaches)
+QUERY_HEADING_TOLERANCE = math.radians(1.0)
+
+
+class TemplateScorer:
+    """Method templates' candidates for the smoother (smooth.Scorer) after a causal run.
+
+    - Global candidates of a frame: the vote's, the ``global_templates`` templates with most
+      votes fitted (as when the causal run is lost), and the templates near the causal run's
+      pose fitted, so that the smoother sees at least what the causal run fixed.
+    - Candidates from given starts: as the tracks', the ``tracked_templates`` templates nearest
+      the start within ``reach`` of it fitted, every fit a candidate. Where none lies within
+      ``tracking.SAME_BASIN_M`` of the start, the start itself is one more candidate, the frame
+      explained by chance (as a causal track whose templates did not match): nll the frame's
+      null (-null / T, ``TemplateMatcher.null_evidence`` of its best fix), covariance the
+      identity (it pulls the continuous pass no more than a causal track's miss pulls the
+      fusion). A frame with no fix near the place its neighbours say then passes as
+      uninformative instead of forcing the path through a wrong fit or a jump.
+
+    A fit's nll is its evidence at the method's temperature (-L / T), its covariance
+    ``TemplateMatcher.covariance``, its error the rms inlier pair distance. The query features
+    are the causal run's (``queries``: per frame, by heading), described again only at a
+    heading the causal run did not use; fits are computed once per frame, template and
+    heading. The frames the causal run could not fix, and those where no template fits, have
+    no candidates (``failed``). The floor's texture is not symmetric: a pose's mirror image is
+    a candidate only where a template near it fits (``mirrored`` False)."""
+
+    mirrored = False
+
+    def __init__(self, loc: TemplateLocaliser, image_paths, yaw: np.ndarray, causal: PoseTrack,
+                 queries: dict):
+        self.loc = loc
+        self.m = loc.m
+        self.conf = loc.conf
+        self.paths = list(image_paths)
+        self.frames = len(self.paths)
+        self.yaw = np.asarray(yaw, float)
+        self.use_imu = self.conf["heading"] == "imu"
+        self.causal_pose = np.column_stack([causal.x, causal.y, causal.theta]).astype(float)
+        self.causal_flags = list(causal.flags)
+        self.causal_failed = list(causal.failed)
+        self.queries = queries
+        self._image = (None, None)  # (frame, image): the last frame read again
+        self._fits: dict = {}
+        self._global: dict = {}
+        self._null: dict = {}
+        self.T = float(self.conf["temperature"])
+
+    def _heading(self, i: int, start=None) -> float | None:
+        """The heading frame i's query is described at: the IMU's, else the start's (None
+        without a start)."""
+        if self.use_imu and math.isfinite(self.yaw[i]):
+            return float(self.yaw[i])
+        return None if start is None else float(start[2])
+
+    def _query(self, i: int, heading: float) -> tuple[gf.GroundFeatures, float]:
+        """Frame i's query features and the heading they are described at: a description of
+        the frame within ``QUERY_HEADING_TOLERANCE`` of ``heading`` if there is one (the
+        causal run's or an earlier start's), else described at ``heading`` (the image read
+        again)."""
+        cache = self.queries.setdefault(i, {})
+        if not self.loc.field_axes:
+            key = None
+        else:
+            near = [k for k in cache if k is not None and abs(math.remainder(
+                k - heading, 2 * math.pi)) <= QUERY_HEADING_TOLERANCE]
+            key = (min(near, key=lambda k: abs(math.remainder(k - heading, 2 * math.pi)))
+                   if near else round(float(heading), 6))
+        if key not in cache:
+            if self._image[0] != i:
+                self._image = (i, read_image(self.paths[i]))
+            self.loc._query(self._image[1], heading, cache)
+        return cache[key], (heading if key is None else float(key))
+
+    def _fit(self, i: int, k: int, heading: float) -> TemplateFix | None:
+        query, h = self._query(i, heading)
+        key = (i, k, h if self.loc.field_axes else None)
+        if key not in self._fits:
+            self._fits[key] = (self.m.fit(query, k, h)
+                               if len(query) >= int(self.conf["min_pairs"]) else None)
+        return self._fits[key]
+
+    def _row(self, fix: TemplateFix):
+        return fix.pose, -fix.evidence / self.T, self.m.covariance(fix), fix.rms
+
+    def failed(self, i: int) -> str | None:
+        if self.causal_failed[i]:
+            return self.causal_flags[i].split(",")[-1] or "no-fix"
+        return None if len(self.global_candidates(i)) else "no-match"
+
+    def global_candidates(self, i: int) -> FrameCandidates:
+        if i in self._global:
+            return self._global[i]
+        h = self._heading(i)
+        if h is None and np.all(np.isfinite(self.causal_pose[i])):
+            h = float(self.causal_pose[i, 2])  # the causal run's heading (no IMU)
+        if h is not None:
+            headings = [h]
+        elif self.loc.field_axes:  # no heading known: try them (as the causal run when lost)
+            n = int(self.conf["lost_headings"])
+            headings = [2 * math.pi * j / n - math.pi for j in range(n)]
+        else:  # rotation-invariant features: the fit finds the heading
+            headings = [0.0]
+        fixes = []
+        for h in headings:
+            query, _h = self._query(i, h)
+            if len(query) < int(self.conf["min_pairs"]):
+                continue
+            fixes += [self._fit(i, k, h) for k in self.m.vote(query, int(
+                self.conf["global_templates"]))]
+        fixes = [f for f in fixes if f is not None]
+        if np.all(np.isfinite(self.causal_pose[i])):
+            fixes += self._near_fits(i, self.causal_pose[i])
+        self._global[i] = FrameCandidates.from_rows([self._row(f) for f in fixes])
+        if fixes:  # what chance explains, from the best fix's pairs (seeded by the frame)
+            best = max(fixes, key=lambda f: f.evidence)
+            self._null[i] = self.m.null_evidence(best, np.random.default_rng(i))
+        return self._global[i]
+
+    def _near_fits(self, i: int, start) -> list[TemplateFix]:
+        """The fits of the ``tracked_templates`` templates nearest ``start``, within reach."""
+        c = self.conf
+        poses = self.m.db.poses
+        h = self._heading(i, start)
+        d = np.hypot(poses[:, 0] - start[0], poses[:, 1] - start[1])
+        near = [int(k) for k in np.argsort(d, kind="stable")[:int(c["tracked_templates"])]
+                if d[k] <= c["reach"]]
+        return [f for f in (self._fit(i, k, h) for k in near) if f is not None]
+
+    def local_candidates(self, i: int, starts: np.ndarray) -> FrameCandidates:
+        rows = []
+        null = self._null.get(i)
+        for p in np.asarray(starts, float).reshape(-1, 3):
+            fits = self._near_fits(i, p)
+            rows += [self._row(f) for f in fits]
+            if null is not None and not any(
+                    math.hypot(f.pose[0] - p[0], f.pose[1] - p[1]) < tracking.SAME_BASIN_M
+                    for f in fits):  # no fit near the start: it is kept, the frame explained
+                rows.append((p, -null / self.T, np.eye(3), math.nan))  # by chance
+        return FrameCandidates.from_rows(rows)
+
+
 def run(conf: dict, dataset, templates, map_file=None, progress=False) -> PoseTrack:
     """Localise every image of ``dataset`` against ``templates`` (a TemplateDatabase), with the
     dataset's odometry; ``map_file`` (optional) gives the field, else the database's record."""
@@ -396,8 +548,6 @@ def run(conf: dict, dataset, templates, map_file=None, progress=False) -> PoseTr
     from .motion_model import accumulate_odometry
 
     check_conf(conf)
-    if conf["smooth"]:
-        raise FieldlocError("smooth: method templates has no smoother yet (lut and fit have)")
     db = templates
     if not len(db) or not len(db.points):
         raise FieldlocError(f"{db.path}: the template database holds no features")
@@ -427,9 +577,10 @@ def run(conf: dict, dataset, templates, map_file=None, progress=False) -> PoseTr
     if conf["heading"] == "imu" and imu is None:
         raise FieldlocError(f"heading imu needs imu.csv in {dataset.root}; use -c heading=track")
     if imu is not None:
-        yaw, _col = heading_mod.imu_per_frame(imu, stamps, float(conf["stamp_tolerance"]))
+        yaw, collision = heading_mod.imu_per_frame(imu, stamps, float(conf["stamp_tolerance"]))
     else:
-        yaw = np.full(len(stamps), np.nan)
+        yaw, collision = np.full(len(stamps), np.nan), np.zeros(len(stamps), bool)
+    queries: dict = {}  # per frame its query features by heading, kept for the smoother
     track = PoseTrack()
     feature_s, match_s = [], []
     prev = None
@@ -449,7 +600,9 @@ def run(conf: dict, dataset, templates, map_file=None, progress=False) -> PoseTr
         t0 = time.perf_counter()
         f0 = loc.feature_s
         try:
-            hyps, top, pose, cov, accepted = loc.frame(i, image, dt, odo, flags, float(yaw[i]))
+            hyps, top, pose, cov, accepted = loc.frame(
+                i, image, dt, odo, flags, float(yaw[i]),
+                cache=queries.setdefault(i, {}) if conf["smooth"] else None)
         except FrameFailed as e:
             loc.failed(dt, odo)
             track.add(name, stamp, None, error=math.nan, confidence=0.0, mode="failed",
@@ -468,4 +621,10 @@ def run(conf: dict, dataset, templates, map_file=None, progress=False) -> PoseTr
         descent_rounds_per_fit=(matcher.rounds / matcher.fits if matcher.fits else 0.0),
         ground_features_ms=1e3 * float(np.median(feature_s)) if feature_s else math.nan,
         matching_ms=1e3 * float(np.median(match_s)) if match_s else math.nan)
-    return track
+    if not conf["smooth"]:
+        return track
+    scorer = TemplateScorer(loc, dataset.images, yaw, track, queries)
+    motion = smooth.motion_of(increments, has_odo, stamps, conf["fusion"], collision)
+    x0, x1, y0, y1 = field.world_bounds()
+    return smooth.smooth_track(scorer, track, motion, conf, area=(x1 - x0) * (y1 - y0),
+                               log_prior0=smooth.start_half_prior(conf, scorer.mirrored))
