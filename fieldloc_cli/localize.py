@@ -18,7 +18,8 @@ from .stage_defaults import LOCALIZE, LOCALIZE_DEFAULT_METHOD, LOCALIZE_METHODS
 log = logging.getLogger("fieldloc.localize")
 
 TABLE_METHODS = ("lut", "fit")  # the omni methods: heading source, start half, independent
-SMOOTH_METHODS = ("lut", "fit", "mcl")  # methods with a smoother's scorer (stages.localize.smooth)
+# the methods with a smoother's scorer (stages.localize.smooth)
+SMOOTH_METHODS = ("lut", "fit", "mcl", "templates")
 
 
 @click.command()
@@ -54,7 +55,7 @@ SMOOTH_METHODS = ("lut", "fit", "mcl")  # methods with a smoother's scorer (stag
               help="lut, fit, templates: localise every frame on its own, globally, with no"
               " prior and no odometry (snapshots at unknown poses).")
 @click.option("--smooth", is_flag=True, default=None,
-              help="lut, fit, mcl: decide every frame with the whole recording (offline: a"
+              help="decide every frame with the whole recording (offline: a"
               " forward-backward pass over the method's candidates, then a pose graph;"
               " docs/smoothing.md). Same as -c smooth=true.")
 @click.option("--write-calib", type=click.Path(dir_okay=False, path_type=Path), default=None,

@@ -295,7 +295,9 @@ def candidate_sets(scorer: Scorer, motion: Motion, model: Transition, log_prior0
             message = score[keep] - _logsumexp(score[keep])
     sets = [FrameCandidates.concat([forward[k], backward[k]]).distinct(limit=2 * MAX_CANDIDATES)
             for k in range(n)]
-    return frames, sets
+    # a frame left with no candidate at all has no fix: the passes go over it by the odometry
+    kept = [k for k in range(n) if len(sets[k])]
+    return [frames[k] for k in kept], [sets[k] for k in kept]
 
 
 def _moved_between(poses: np.ndarray, motion: Motion, i: int, j: int) -> np.ndarray:
