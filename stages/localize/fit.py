@@ -61,7 +61,7 @@ from . import heading as heading_mod
 from . import smooth, tracking
 from .lut_kernels import inlier_sums, structure_sizes
 from .radial_correction import DEFAULTS as RADIAL_DEFAULTS
-from .radial_correction import RadialCorrection, fitted
+from .radial_correction import PathCalibration, RadialCorrection
 from .smooth import FrameCandidates
 from .tracking import Candidate, FrameFailed, TrackBank, near_pose
 
@@ -810,7 +810,7 @@ def fit_engine(map_file: MapFile, conf: dict) -> FitEngine:
     return _ENGINES[key]
 
 
-class FitScorer:
+class FitScorer(PathCalibration):
     """Method fit's candidates for the smoother (smooth.Scorer) after a causal run, with what
     that run learnt of the whole recording (the IMU's alignment, the radial correction): the
     multi-start global search's fixes and the fits from given starts, as the tracks' are (at
@@ -829,6 +829,7 @@ class FitScorer:
         # the distance correction: the causal run's, until one learnt from the smoothed path
         # explains the path better (smooth.py)
         self.radial = loc.radial
+        self.robot_radius = loc.scanlines.robot_radius
 
     def _raw_points(self, i: int):
         if i not in self._raw:
@@ -846,35 +847,14 @@ class FitScorer:
                               else observation_from_points(raw, self.loc.conf, self.radial))
         return self._cache[i]
 
-    @property
-    def calibration(self):
-        """The distance correction the frames are fixed with (a RadialCorrection or None)."""
-        return self.radial
-
-    @calibration.setter
-    def calibration(self, rc) -> None:
-        self.radial = rc
-        self._cache.clear()
-
-    def learn_calibration(self, path: dict, sure: dict):
-        """Learn the camera's distance error from the frames of ``path`` (frame -> pose)
-        whose ``sure`` (frame -> confidence) holds the radial correction's min_confidence
-        (radial_correction.fitted: each line point's range against where its ray meets the
-        lines at the pose), or None when too few crossings are in."""
+    def _crossings(self, i: int, pose):
+        """Frame i's line points' ranges as observed and where their rays meet the lines at
+        ``pose``."""
         loc = self.loc
-        rc_conf = loc.conf["radial_correction"]
-        if not rc_conf["enabled"]:
-            return None
-        crossings = []
-        for i, pose in path.items():
-            if sure.get(i, 0.0) < rc_conf["min_confidence"] or loc.collision[i]:
-                continue
-            obs = observation_from_points(self._raw_points(i), loc.conf)
-            pred = loc.engine.ray_ranges(obs, pose, rc_conf["max_residual"])
-            ok = np.isfinite(pred)
-            crossings.append((obs.distance[ok], pred[ok]))
-        rc = fitted(rc_conf, loc.scanlines.robot_radius, crossings)
-        return rc if rc.active else None
+        obs = observation_from_points(self._raw_points(i), loc.conf)
+        pred = loc.engine.ray_ranges(obs, pose, loc.conf["radial_correction"]["max_residual"])
+        ok = np.isfinite(pred)
+        return obs.distance[ok], pred[ok]
 
     def _heading(self, i: int):
         """(heading, sigma) where the frame's source gives one (the IMU's as aligned at the

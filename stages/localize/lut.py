@@ -142,7 +142,7 @@ from .lut_search import (
 )
 from .point_fit import PointFit
 from .radial_correction import DEFAULTS as RADIAL_DEFAULTS
-from .radial_correction import RadialCorrection, fitted
+from .radial_correction import PathCalibration, RadialCorrection
 from .smooth import FrameCandidates
 from .tracking import Candidate, FrameFailed, Track, TrackBank, eig2
 
@@ -779,7 +779,7 @@ class LutLocaliser:
             self.alignment.update(rh.theta, float(self.yaw[i]), _curvature_sigma(curv, obs) ** 2)
 
 
-class LutScorer:
+class LutScorer(PathCalibration):
     """Method lut's candidates for the smoother (smooth.Scorer) after a causal run, with what
     that run learnt of the whole recording (the IMU's alignment, the radial correction). A
     frame's candidates are fixed as the tracks' are (the local search at the frame's heading,
@@ -799,36 +799,15 @@ class LutScorer:
         # the distance correction: the causal run's, until one learnt from the smoothed path
         # explains the path better (smooth.py)
         self.radial = loc.radial
+        self.robot_radius = loc.search.scanlines.robot_radius
 
-    @property
-    def calibration(self):
-        """The distance correction the frames are fixed with (a RadialCorrection or None)."""
-        return self.radial
-
-    @calibration.setter
-    def calibration(self, rc) -> None:
-        self.radial = rc
-        self._cache.clear()
-
-    def learn_calibration(self, path: dict, sure: dict):
-        """Learn the camera's distance error from the frames of ``path`` (frame -> pose)
-        whose ``sure`` (frame -> confidence) holds the radial correction's min_confidence
-        (radial_correction.fitted), or None when too few crossings are in."""
+    def _crossings(self, i: int, pose):
+        """Frame i's crossings as observed and as the tables predict them at ``pose``."""
         loc = self.loc
-        rc_conf = loc.conf["radial_correction"]
-        if not rc_conf["enabled"]:
-            return None
-        crossings = []
-        for i, pose in path.items():
-            if sure.get(i, 0.0) < rc_conf["min_confidence"] or loc.collision[i]:
-                continue
-            fr, _obs = self._frame(i)
-            raw, _d = frame_observations(fr, loc.search, None, loc.conf["evidence"])
-            cell = loc.search._cell_of(float(pose[0]), float(pose[1]))
-            crossings.append((raw.distance,
-                              loc.search.observation_predictions(raw, cell, float(pose[2]))))
-        rc = fitted(rc_conf, loc.search.scanlines.robot_radius, crossings)
-        return rc if rc.active else None
+        fr, _obs = self._frame(i)
+        raw, _d = frame_observations(fr, loc.search, None, loc.conf["evidence"])
+        cell = loc.search._cell_of(float(pose[0]), float(pose[1]))
+        return raw.distance, loc.search.observation_predictions(raw, cell, float(pose[2]))
 
     def _frame(self, i: int):
         """(features frame, observations) of frame i, read once."""

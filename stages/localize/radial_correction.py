@@ -173,3 +173,37 @@ def fitted(conf: dict, robot_radius: float, crossings: list[tuple[np.ndarray, np
         rc.points = float(keep.sum())
         rc.coef = np.linalg.solve(rc.info, rc.vec)
     return rc
+
+
+class PathCalibration:
+    """The distance correction of a smoother's scorer (the omni methods'): ``calibration``,
+    the RadialCorrection its frames are fixed with (setting it drops the frames it cached),
+    and ``learn_calibration`` from a smoothed path (smooth.py). A scorer gives ``loc`` (its
+    causal localiser: conf, collision flags), ``_cache`` and ``_crossings(i, pose)``: frame
+    i's observed distances and the distances the map predicts for them at ``pose``."""
+
+    radial = None
+    robot_radius = 0.0
+
+    @property
+    def calibration(self):
+        """The distance correction the frames are fixed with (a RadialCorrection or None)."""
+        return self.radial
+
+    @calibration.setter
+    def calibration(self, rc) -> None:
+        self.radial = rc
+        self._cache.clear()
+
+    def learn_calibration(self, path: dict, sure: dict):
+        """The camera's distance error learnt from the frames of ``path`` (frame -> pose)
+        whose ``sure`` (frame -> confidence) holds the radial correction's min_confidence and
+        that flag no collision (``fitted``), or None when too few crossings are in."""
+        rc_conf = self.loc.conf["radial_correction"]
+        if not rc_conf["enabled"]:
+            return None
+        crossings = [self._crossings(i, pose) for i, pose in path.items()
+                     if sure.get(i, 0.0) >= rc_conf["min_confidence"]
+                     and not self.loc.collision[i]]
+        rc = fitted(rc_conf, self.robot_radius, crossings)
+        return rc if rc.active else None
