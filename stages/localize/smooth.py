@@ -24,7 +24,8 @@ runs two passes over a method's candidates (docs/smoothing.md):
    frames.
 
 The output is the poses schema with mode ``smoothed`` (frames with no vision of their own:
-flag ``odometry-only``), ranked hypotheses from the posteriors, so evaluate, export, report
+flag ``odometry-only``; frames the pose graph moved out of their path candidate's place:
+``moved-by-graph``), ranked hypotheses from the posteriors, so evaluate, export, report
 and batch read it unchanged.
 
 A method supports smoothing by a *scorer* (``Scorer``): its global candidates of a frame and
@@ -446,7 +447,11 @@ def smooth_track(scorer: Scorer, causal: PoseTrack, motion: Motion, conf: dict, 
             hyps = ranked_hypotheses(cands, post, poses[i], int(conf["hypotheses"]))
             confidence = float(hyps[0, 3])
             error = float(cands.error[passes.path[k]])
-            flags = ""
+            # the pose graph moved the frame out of the place its path candidate stands for
+            # (the odometry and the other frames overrule this frame's fix): the two passes
+            # disagree, and the confidence (at the graph's pose) says how much
+            moved = not _covers(cands.take([passes.path[k]]), poses[i])[0]
+            flags = "moved-by-graph" if moved else ""
         else:  # no fix of its own: the neighbours' confidence, the lower of the two
             confidence = _neighbour_confidence(conf_of, i, covs[i])
             hyps = np.array([[*poses[i], confidence]])
