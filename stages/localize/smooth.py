@@ -9,16 +9,20 @@ runs two passes over a method's candidates (docs/smoothing.md):
 1. **Discrete pass** (a hidden Markov model over candidate poses; Rabiner 1989). Per frame a
    short list of candidate poses, each with the frame's tempered negative log-likelihood
    (``nll``, the method's own, in nats) and covariance: the method's global search on every
-   frame, and every candidate of the neighbouring frames moved by the odometry and fixed again
-   in its basin (forward and backward sweeps, so a place found once is followed through the
-   whole recording). Candidates in one basin (``SAME_BASIN_M``, ``SAME_BASIN_RAD``) are one.
-   Transitions: the odometry increment with its noise and both candidates' covariances (a
-   Gaussian), mixed with an outlier floor (``kidnap_probability`` of the method's conf: the
-   robot is anywhere on the world the tables cover, any heading: slips, kidnaps, placements).
-   Forward-backward gives each candidate's posterior from the whole recording; Viterbi the most
-   probable path. A frame's confidence is the posterior mass of the path's candidate (its
-   basin): on a point-symmetric field without a field-aligned heading a pose and its mirror
-   share it, as in the causal methods.
+   frame, and two beams (``candidate_sets``): every candidate of the previous frame moved by the
+   odometry and fixed again in its basin, the ``MAX_CANDIDATES`` best kept by the forward
+   message, and the same from the next frame by the backward message, so a place found once is
+   followed through the whole recording and one the first frames misjudge is carried back.
+   Candidates in one basin (``SAME_BASIN_M``, ``SAME_BASIN_RAD``) are one. Transitions: the
+   odometry increment with its noise plus both candidates' spreads (``state_cov``: their
+   covariances, capped), a Gaussian, mixed with an outlier floor (``kidnap_probability`` of the
+   method's conf: the robot is anywhere on the world the tables cover, any heading: slips,
+   kidnaps, placements). Forward-backward gives each candidate's posterior from the whole
+   recording; Viterbi the most probable path. Where the scorer can, the camera's distance error
+   is then learnt again from the path and the pass run again with it (``_recalibrated``).
+   A frame's confidence is the posterior mass of the candidates whose fix covers its smoothed
+   pose (``basin_mass``): on a point-symmetric field without a field-aligned heading a pose and
+   its mirror share it, as in the causal methods.
 2. **Continuous pass** (pose_graph.py): the path refined as a factor graph (GTSAM), with
    marginal covariances; frames without a fix get their pose from the odometry between fixed
    frames.
