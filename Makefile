@@ -21,7 +21,7 @@ FIELD_FILE := $(or $(wildcard maps/$(FIELD).yaml),$(wildcard $(FIELD)))
 HEADING_OPT := $(if $(filter lut,$(METHOD)),--heading $(HEADING))
 RUN     := $(DATA)/runs/$(METHOD)$(if $(filter lut,$(METHOD)),-$(HEADING))
 
-.PHONY: install warmup test lint demo templates-demo bench bench-readme compare pipeline clean
+.PHONY: install warmup test lint docs demo templates-demo bench bench-readme compare pipeline clean
 
 install: $(STAMP)
 
@@ -31,7 +31,7 @@ install: $(STAMP)
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	PYTHONWARNINGS="ignore:Editable installation" $(BIN)/python -m pip install --quiet -e '.[dev]'
+	PYTHONWARNINGS="ignore:Editable installation" $(BIN)/python -m pip install --quiet -e '.[dev,docs]'
 	$(BIN)/python -m compileall -q stages fieldloc_cli
 	$(BIN)/python -m stages.pipelines.warmup
 	touch $(STAMP)
@@ -46,6 +46,11 @@ test: $(STAMP)
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
+
+# the documentation site (mkdocs.yml over docs/, the CLI reference from the click commands),
+# built strictly: a broken link or anchor fails the build
+docs: $(STAMP)
+	$(BIN)/mkdocs build --strict --site-dir $(OUT)/site
 
 bench: $(STAMP)
 	$(BIN)/fieldloc bench
