@@ -88,7 +88,8 @@ $(DEMO)/truth.csv: | $(STAMP)
 	@mkdir -p $(OUT)
 	$(FL) simulate omni --field $(FIELD) -o $(DEMO) --frames $(FRAMES) --seed $(SEED) --overwrite
 
-# Seed 004's template method: template captures on a GRID m grid of the whole field and a run
+# The template method of the SURF template paper (docs/references.md): template captures on
+# a GRID m grid of the whole field and a run
 # in the same venue by the same robot (calib and world seeds shared), templates.h5 from the
 # grid, the run localised against it, evaluated.
 GRID     ?= 1
