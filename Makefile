@@ -50,7 +50,7 @@ lint: $(STAMP)
 # the documentation site (mkdocs.yml over docs/, the CLI reference from the click commands),
 # built strictly: a broken link or anchor fails the build
 docs: $(STAMP)
-	$(BIN)/mkdocs build --strict --site-dir $(OUT)/site
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir $(OUT)/site
 
 bench: $(STAMP)
 	$(BIN)/fieldloc bench
