@@ -21,7 +21,7 @@ FIELD_FILE := $(or $(wildcard maps/$(FIELD).yaml),$(wildcard $(FIELD)))
 HEADING_OPT := $(if $(filter lut,$(METHOD)),--heading $(HEADING))
 RUN     := $(DATA)/runs/$(METHOD)$(if $(filter lut,$(METHOD)),-$(HEADING))
 
-.PHONY: install warmup test lint demo templates-demo bench bench-readme compare pipeline clean
+.PHONY: install warmup test lint docs demo templates-demo bench bench-readme compare pipeline clean
 
 install: $(STAMP)
 
@@ -31,7 +31,7 @@ install: $(STAMP)
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	PYTHONWARNINGS="ignore:Editable installation" $(BIN)/python -m pip install --quiet -e '.[dev]'
+	PYTHONWARNINGS="ignore:Editable installation" $(BIN)/python -m pip install --quiet -e '.[dev,docs]'
 	$(BIN)/python -m compileall -q stages fieldloc_cli
 	$(BIN)/python -m stages.pipelines.warmup
 	touch $(STAMP)
@@ -46,6 +46,11 @@ test: $(STAMP)
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
+
+# the documentation site (mkdocs.yml over docs/, the CLI reference from the click commands),
+# built strictly: a broken link or anchor fails the build
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir $(OUT)/site
 
 bench: $(STAMP)
 	$(BIN)/fieldloc bench
@@ -83,7 +88,8 @@ $(DEMO)/truth.csv: | $(STAMP)
 	@mkdir -p $(OUT)
 	$(FL) simulate omni --field $(FIELD) -o $(DEMO) --frames $(FRAMES) --seed $(SEED) --overwrite
 
-# Seed 004's template method: template captures on a GRID m grid of the whole field and a run
+# The template method of the SURF template paper (docs/references.md): template captures on
+# a GRID m grid of the whole field and a run
 # in the same venue by the same robot (calib and world seeds shared), templates.h5 from the
 # grid, the run localised against it, evaluated.
 GRID     ?= 1

@@ -1,5 +1,6 @@
 """`fieldloc build-templates DIR -o templates.h5 [--features surf|surf-rotating|sift|orb]
-[-c key=value] [--overwrite]`: seed 004's template database from captures at known poses."""
+[-c key=value] [--overwrite]`: the SURF template paper's template database from captures at known
+poses."""
 
 from __future__ import annotations
 

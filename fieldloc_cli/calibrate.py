@@ -71,7 +71,7 @@ def calibrate_omni(ctx, points, output, minho_dir, cnc_conf, nubot_dir, rings, c
     """Pixel radius -> floor distance of an omnidirectional camera, into calib.yaml.
 
     From POINTS (CSV header radius_px,distance_m: marks measured on the robot), by default the
-    least-squares fifth-order f(r) of seed 004 eq. 2; or from a team's mirror table
+    least-squares fifth-order f(r) of the SURF template paper's eq. 2; or from a team's mirror table
     (--from-minho), by default the monotone cubic through its pairs. --line-images measures
     pairs in images of a line at known distances and puts them in place of the other source's
     pairs where they overlap; the report then shows how far the other source was off there.

@@ -31,8 +31,8 @@ SMOOTH_METHODS = ("lut", "fit", "mcl", "templates")
               type=click.Path(dir_okay=False, path_type=Path),
               help="Template database from `fieldloc build-templates` (--method templates).")
 @click.option("--pose-solver", type=click.Choice(["descent", "closed-form"]), default=None,
-              help="templates: the pose of seed 004 eq. 4 by its coordinate descent or in closed"
-              " form (2D Kabsch) [default: descent].")
+              help="templates: the pose of the SURF template paper's eq. 4 by its coordinate"
+              " descent or in closed form (2D Kabsch) [default: descent].")
 @click.option("--features", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Features file from `fieldloc extract` [default: DATASET/features.h5 if it"
               " matches the calibration, mask and default conf and holds every frame, else"

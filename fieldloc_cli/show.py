@@ -22,8 +22,8 @@ SHOW_COMMANDS = {
                    "Draw the hypotheses of one frame of POSES (poses.h5) on the field: each as a"
                    " robot with its probability, with the frame's line points placed at each."),
     "error-surface": ("fieldloc_cli.show_error_surface:show_error_surface",
-                      "Draw seed 004's error surfaces of one template of TEMPLATES against"
-                      " QUERIES (omni frames with truth.csv near it): (a) the white-point"
+                      "Draw the SURF template paper's error surfaces of one template of TEMPLATES"
+                      " against QUERIES (omni frames with truth.csv near it): (a) the white-point"
                       " table's eq."),
 }
 

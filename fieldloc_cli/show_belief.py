@@ -1,7 +1,7 @@
 """`fieldloc show belief DIR --frame N --map MAP [--features F] [--resolution M]
 [--heading-step-deg D] [-c key=value] [--overwrite] -o FILE.png`: the particle filter's
 belief from one frame's observations on a grid of poses, in four panels (lines only, crossings
-only, goal posts only, all), like seed 000's fig. 3."""
+only, goal posts only, all), like fig. 3 of Schulz et al. (2011)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
-"""`fieldloc show error-surface TEMPLATES QUERIES -o FILE.png`: seed 004's comparison of the
-white-point table and the template method (figures 3-5), drawn and counted."""
+"""`fieldloc show error-surface TEMPLATES QUERIES -o FILE.png`: the SURF template paper's comparison
+of the white-point table and the template method (figures 3-5), drawn and counted."""
 
 from __future__ import annotations
 
@@ -33,9 +33,9 @@ from .stage_defaults import SHOW_ERROR_SURFACE as D
 @click.pass_context
 def show_error_surface(ctx, templates, queries, template, half_size, step, dtheta_deg, e_none,
                        output, overwrite):
-    """Draw seed 004's error surfaces of one template of TEMPLATES against QUERIES (omni frames
-    with truth.csv near it): (a) the white-point table's eq. 1, (b) the template pairs' eq. 4,
-    over (dx, dy) and dtheta, and (c) every query's position and heading error against its
+    """Draw the SURF template paper's error surfaces of one template of TEMPLATES against QUERIES
+    (omni frames with truth.csv near it): (a) the white-point table's eq. 1, (b) the template pairs'
+    eq. 4, over (dx, dy) and dtheta, and (c) every query's position and heading error against its
     distance from the template; print the local minima of (a) and (b) and (c) per ring."""
     from stages.show import error_surface as stage
 

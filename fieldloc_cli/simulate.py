@@ -91,9 +91,9 @@ def simulate():
 @simulate.command("omni")
 @simulate_options("omni-default", "omni")
 @click.option("--grid", "grid_spacing", type=FINITE, default=None, metavar="SPACING",
-              help="Template captures (seed 004): the robot placed at the nodes of a grid of"
-              " SPACING m over the field instead of a path (one frame per node and heading,"
-              " no odometry.csv; --frames and --trajectory do not apply).")
+              help="Template captures (the SURF template paper): the robot placed at the nodes of"
+              " a grid of SPACING m over the field instead of a path (one frame per node and"
+              " heading, no odometry.csv; --frames and --trajectory do not apply).")
 @click.option("--grid-headings", type=click.IntRange(min=1), default=None, metavar="N",
               help="With --grid: N headings per node, 360/N deg apart from 0"
               f" [preset: {SIMULATE['omni-default']['grid_headings']}].")
@@ -145,9 +145,9 @@ def simulate_omni(ctx, field, output, frames, seed, trajectory_kind, calib_error
 @click.pass_context
 def simulate_perspective(ctx, field, output, frames, seed, trajectory_kind, calib_error, preset,
                          overwrite, overrides, camera_height, pitch_deg):
-    """A wide-angle head camera on a walking KidSize humanoid (seed 000): 752 x 480 frames,
-    head pitch and roll wobbling with the walk (head.csv), starting at a touch line of the own
-    half. With --calib-error the principal point is shifted and the focal lengths scaled.
+    """A wide-angle head camera on a walking KidSize humanoid (Schulz et al. 2011): 752 x 480
+    frames, head pitch and roll wobbling with the walk (head.csv), starting at a touch line of the
+    own half. With --calib-error the principal point is shifted and the focal lengths scaled.
 
     \b
     Example:

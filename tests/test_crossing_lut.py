@@ -1,4 +1,4 @@
-"""Crossing association tables (seed 000, section 5.1): stages.common.crossing_tables."""
+"""Crossing association tables (Schulz et al. 2011, section 5.1): stages.common.crossing_tables."""
 
 from __future__ import annotations
 

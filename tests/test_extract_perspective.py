@@ -1,5 +1,5 @@
-"""Perspective feature extraction (seed 000 sections 3-4): each step on small generated data
-with known answers, then the whole chain on drawn scenes and on frames of the perspective
+"""Perspective feature extraction (Schulz et al. 2011, sections 3-4): each step on small generated
+data with known answers, then the whole chain on drawn scenes and on frames of the perspective
 renderer compared with the field model at the true pose."""
 
 from __future__ import annotations

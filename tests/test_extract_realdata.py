@@ -1,4 +1,4 @@
-"""Omni extraction on real catadioptric images of the seed-002 team (../shared/realdata, read
+"""Omni extraction on real catadioptric images of the MINHO team (../shared/realdata, read
 its README): distances to a line at known distances (minho-distance), and the share of
 extracted points that are not on field lines (minho-lab) against rendered frames.
 

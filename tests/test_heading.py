@@ -1,5 +1,5 @@
-"""Heading for the table search: line-point histograms (seed 002 V-B), IMU alignment, and the
-per-frame lookup of imu.csv / truth.csv rows."""
+"""Heading for the table search: line-point histograms (Ribeiro et al. 2015, V-B), IMU alignment,
+and the per-frame lookup of imu.csv / truth.csv rows."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
-"""Kalman filters of seed 002 IV-C: the vision and odometry nodes and their decentralised fusion
-in information form (equations 6-9)."""
+"""Kalman filters of Ribeiro et al. (2015), IV-C: the vision and odometry nodes and their
+decentralised fusion in information form (equations 6-9)."""
 
 from __future__ import annotations
 

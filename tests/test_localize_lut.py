@@ -1,6 +1,6 @@
-"""Table search and method lut (seed 002): synthetic observations made with the table builder's
-own ray casting at continuous true poses (noise growing with distance, dropped scan lines, false
-hits), and a small rendered dataset end to end."""
+"""Table search and method lut (Ribeiro et al. 2015): synthetic observations made with the table
+builder's own ray casting at continuous true poses (noise growing with distance, dropped scan lines,
+false hits), and a small rendered dataset end to end."""
 
 from __future__ import annotations
 
@@ -426,7 +426,7 @@ def errors_against_truth(poses_path, ds):
 
 
 def test_rendered_dataset_with_imu_heading(omni_default_rendered, msl2015_map, tmp_path):
-    """Seed 002's pipeline on rendered images: median position error <= 13 cm, heading error
+    """Ribeiro et al.'s pipeline on rendered images: median position error <= 13 cm, heading error
     <= 2 deg with the IMU heading, failures recorded as failures."""
     from stages import localize
 

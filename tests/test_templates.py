@@ -1,5 +1,5 @@
-"""Seed 004's template method: template captures on a grid (simulate), the template database
-(build-templates, schema fieldloc.templates), localisation against it (localize --method
+"""The SURF template paper's template method: template captures on a grid (simulate), the template
+database (build-templates, schema fieldloc.templates), localisation against it (localize --method
 templates) and its pose solvers."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Stage build-map: a field model plus the lookup tables of seed 002 in one HDF5 map.
+"""Stage build-map: a field model plus the lookup tables of Ribeiro et al. (2015) in one HDF5 map.
 
     from stages import build_map
     build_map.main(build_map.confs["default"], "msl-2015", "msl-2015.map.h5")
@@ -25,8 +25,8 @@ log = logging.getLogger(__name__)
 
 confs = {
     "default": {
-        "resolution": 0.1,  # m, table cell size (seed 002: 10 cm)
-        "border": 1.0,  # m of world around the field (seed 002: 20 x 14 m for 18 x 12)
+        "resolution": 0.1,  # m, table cell size (Ribeiro et al. 2015: 10 cm)
+        "border": 1.0,  # m of world around the field (Ribeiro et al. 2015: 20 x 14 m for 18 x 12)
         "max_range": 4.0,  # m, radial scan-line search limit
         "robot_radius": 0.25,  # m, where every scan line starts
         "spiral_end_radius": 2.0,  # m, spiral radius after one full turn

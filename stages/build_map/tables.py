@@ -1,4 +1,4 @@
-"""The lookup tables of seed 002, computed analytically over the world grid.
+"""The lookup tables of Ribeiro et al. (2015), computed analytically over the world grid.
 
 - radial: where each radial scan line crosses line centre lines (ray-segment and ray-circle
   intersections, closed form, all cells at once per scan line);

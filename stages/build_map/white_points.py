@@ -1,11 +1,11 @@
-"""Seed 004's white-point table Dm(x, y, theta) and its matching error (eq. 1).
+"""The SURF template paper's white-point table Dm(x, y, theta) and its matching error (eq. 1).
 
 Dm(x, y, theta) is the set of polar white-line points (r_m, phi_m) a robot at (x, y) with
 heading theta sees: where each ray from the robot, at robot angle phi, crosses a line's centre
 line, every crossing up to ``max_range`` (not only the first few the radial scan lines of the
-map keep). It is the radial table of seed 002 (tables.radial_table: ray-segment and ray-circle
-intersections, crossings closer than the line width merged into one as a camera sees one white
-run) at a finer angle step (``angle_step_deg``, default 1 deg against the map's 5) and with
+map keep). It is the radial table of Ribeiro et al. (2015) (tables.radial_table: ray-segment and
+ray-circle intersections, crossings closer than the line width merged into one as a camera sees one
+white run) at a finer angle step (``angle_step_deg``, default 1 deg against the map's 5) and with
 room for every crossing. Headings are index rotations of it: the table built at heading
 theta0 holds the points of heading theta0 + h x step in its angle bins shifted by h.
 
@@ -17,12 +17,12 @@ its polar frame) against Dm(x, y, theta):
 
 "phi_q = phi_m" is read on the table's angle bins: a query point falls in the bin of its angle
 rounded to the step. ``e_none`` (m) is the penalty of a query point whose bin holds no table
-point; the seed gives no value, 1 m is ours (about the error of a point matched to the wrong
+point; the paper gives no value, 1 m is ours (about the error of a point matched to the wrong
 line of a 2 m line spacing half-way).
 
 Computed on the fly for the region a query needs (``region_grid``: cells around a pose), not
 stored in the map: at 1 deg with all crossings the whole table is two orders of magnitude the
-map's radial table (docs/manual.md "The template method": its size for msl-2015), and the seed's
+map's radial table (docs/manual.md "The template method": its size for msl-2015), and the paper's
 comparison only ever reads it around one pose.
 """
 
@@ -101,8 +101,8 @@ def error_surface(fm: FieldModel, pose, points_robot: np.ndarray, *, half_size: 
                   step: float = 0.1, dtheta_deg: float = 30.0, angle_step_deg: float = 1.0,
                   e_none: float = E_NONE, robot_radius: float = 0.25,
                   max_range: float = 4.0) -> dict:
-    """Seed 004's figure 3: eq. 1 of the white points ``points_robot`` (robot frame) against
-    Dm around ``pose`` (x, y, theta): ``xy`` (ny, nx) over the cells (dx, dy) at the pose's
+    """Figure 3 of the SURF template paper: eq. 1 of the white points ``points_robot`` (robot frame)
+    against Dm around ``pose`` (x, y, theta): ``xy`` (ny, nx) over the cells (dx, dy) at the pose's
     heading, ``theta`` (H,) over heading offsets at the pose's position, ``xyt`` (H, ny, nx)
     over all three, with their axes ``dx``, ``dy`` (m) and ``dtheta`` (rad)."""
     x, y, th = (float(v) for v in pose)

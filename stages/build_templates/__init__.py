@@ -1,10 +1,10 @@
-"""Stage build_templates: seed 004's template database from captures at known poses.
+"""Stage build_templates: the SURF template paper's template database from captures at known poses.
 
     from stages import build_templates
     build_templates.main(None, "data/grid", "templates.h5")
 
 The captures are a dataset folder of omni frames with a truth.csv of their poses: ``fieldloc
-simulate omni --grid SPACING`` renders one at every node of a grid (the seed's 1 m), or a real
+simulate omni --grid SPACING`` renders one at every node of a grid (the paper's 1 m), or a real
 folder whose robot was placed at measured poses. Every frame becomes one template: its floor's
 local features (stages.common.ground_features: unwarped with calib.yaml's f(r), the field's
 green and lines only, keypoints in metres in the robot frame, descriptors, sign of the
@@ -101,7 +101,7 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path, *
     camera = ds.camera()
     if camera.kind != "omni":
         raise FieldlocError(f"{ds.root}: a '{camera.kind}' camera; templates are made from"
-                            " omni frames (seed 004)")
+                            " omni frames (the SURF template paper)")
     truth = ds.optional("truth")
     if truth is None:
         raise DatasetError(f"{ds.root}: no truth.csv: templates need the pose of every capture"

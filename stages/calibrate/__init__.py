@@ -29,8 +29,8 @@ Sources of pairs (radius_px, distance_m):
   that would make the mapping fall are dropped, and reported).
 
 Models (conf ``model``):
-- ``polynomial``: the fifth-order f(r) of seed 004 eq. 2, a least-squares fit (preset
-  ``default``, for measured pairs); refused if it is not increasing over the valid radius;
+- ``polynomial``: the fifth-order f(r) of the SURF template paper's eq. 2, a least-squares fit
+  (preset ``default``, for measured pairs); refused if it is not increasing over the valid radius;
 - ``table``: the monotone cubic through the pairs (stages.common.camera.MonotoneTable; preset
   ``minho``). A team's table is used as the team measured it: their robot interpolates it
   linearly, and a fifth-order polynomial bends away from the MINHO tables by up to 6 cm between
@@ -88,7 +88,7 @@ MASK_NAME = "mask.png"
 
 confs = {
     "default": {
-        "model": "polynomial",  # seed 004 eq. 2
+        "model": "polynomial",  # the SURF template paper's eq. 2
         "degree": 5,
         "min_points": 8,
         "min_distinct_radii": 7,  # degree + 2: at least one pair checks the fit

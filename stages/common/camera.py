@@ -4,7 +4,8 @@ Omnidirectional (catadioptric) camera: the ground distance of a pixel is a funct
 radius r (pixels) from the image centre; its bearing is its image angle relative to the robot's
 forward direction in the image. Two radial models:
 
-- ``polynomial`` (seed 004 eq. 2): f(r) = a0 + a1 r + ... + a5 r^5, fitted to measured pairs;
+- ``polynomial`` (the SURF template paper, eq. 2): f(r) = a0 + a1 r + ... + a5 r^5, fitted to
+  measured pairs;
 - ``table``: the monotone cubic (PCHIP, Fritsch-Carlson) through measured pairs (r_i, d_i),
   extended linearly beyond the first and last pair. It passes through every pair and cannot
   oscillate between them, so a team's own mirror table is used as the team measured it (the
@@ -53,7 +54,7 @@ from .errors import DatasetError
 
 CALIB_VERSION = 2  # newest calib.yaml version this code reads (1: polynomial only)
 RADIAL_MODELS = ("polynomial", "table")
-POLYNOMIAL_COEFFICIENTS = 6  # a0..a5, seed 004 eq. 2
+POLYNOMIAL_COEFFICIENTS = 6  # a0..a5, the SURF template paper's eq. 2
 # top-level keys of calib.yaml per camera kind
 CALIB_KEYS = {
     "omni": ("kind", "version", "image_size", "centre", "polynomial", "radial_model",
@@ -363,9 +364,9 @@ class MonotoneTable:
 
 
 def fit_polynomial(radius_px, distance_m, degree: int = 5) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares fit of f(r) = sum a_i r^i (seed 004 eq. 2) to measured pairs. Returns the
-    coefficients a0..a_degree and the residuals (m). The fit runs on r scaled to [0, 1] for
-    conditioning, then the coefficients are converted back to pixels."""
+    """Least-squares fit of f(r) = sum a_i r^i (the SURF template paper, eq. 2) to measured pairs.
+    Returns the coefficients a0..a_degree and the residuals (m). The fit runs on r scaled to [0, 1]
+    for conditioning, then the coefficients are converted back to pixels."""
     r = np.asarray(radius_px, dtype=float)
     d = np.asarray(distance_m, dtype=float)
     scale = float(np.max(np.abs(r))) or 1.0

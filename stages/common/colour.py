@@ -1,5 +1,5 @@
-"""Colour classes green / white / other, in the style of seed 000 (luminance thresholds and an
-ellipse in the UV plane), adapted to each frame so that lighting changes do not need a new
+"""Colour classes green / white / other, in the style of Schulz et al. (2011) (luminance thresholds
+and an ellipse in the UV plane), adapted to each frame so that lighting changes do not need a new
 colour table.
 
 Per frame (``estimate_field_colour``):
@@ -31,8 +31,8 @@ Lookup tables were measured as well: a per-frame (Y, U) -> V-interval table of b
 tests gives the same classes but is not faster here (0.9 ms to build per frame, and a gather
 per pixel costs about as much as the float32 arithmetic).
 
-The perspective extractor reuses the same functions; ``classify_grid`` gives the seed-000 grid
-of class counts per 8 x 8 block.
+The perspective extractor reuses the same functions; ``classify_grid`` gives the grid of
+class counts per 8 x 8 block of Schulz et al. (2011).
 """
 
 from __future__ import annotations
@@ -825,7 +825,7 @@ def block_counts(mask: np.ndarray, cell: int = 8) -> np.ndarray:
 
 
 def class_counts(labels: np.ndarray, cell: int = 8) -> np.ndarray:
-    """Seed 000's subsampled colour-class images: (h // cell, w // cell, 3) counts of
+    """Schulz et al.'s subsampled colour-class images: (h // cell, w // cell, 3) counts of
     GREEN, WHITE, OTHER per cell x cell block (partial blocks at the border are dropped)."""
     return _counts(labels == GREEN, labels == WHITE, cell)
 

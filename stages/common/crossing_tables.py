@@ -1,7 +1,7 @@
-"""Crossing association tables (seed 000, section 5.1).
+"""Crossing association tables (Schulz et al. 2011, section 5.1).
 
 A crossing observation is not unique: a particle must decide which field crossing it saw.
-Instead of searching all crossings of a type per particle, the seed splits the L crossings by
+Instead of searching all crossings of a type per particle, the paper splits the L crossings by
 their global orientation into four sets (45, 135, 225 and 315 deg) and looks up, for the field
 position where the particle places the observation, the closest L crossing of the set nearest
 to the observation's global orientation. T crossings are far enough apart that the closest T
@@ -28,7 +28,7 @@ import numpy as np
 from .field import FieldModel
 from .map_file import Grid
 
-# The four global L orientations of the seed (bisector of the arms), in radians.
+# The four global L orientations of the paper (bisector of the arms), in radians.
 L_ORIENTATIONS = np.array([0.25, 0.75, 1.25, 1.75]) * math.pi
 NO_CROSSING = -1
 
@@ -78,7 +78,7 @@ def crossing_association_tables(field_model: FieldModel, grid: Grid) -> dict:
         "units": "index",
         "index_into": "/field/crossings",
         "none": NO_CROSSING,
-        "source": "seed 000 section 5.1",
+        "source": "Schulz et al. (2011), section 5.1",
     }
     return {
         "crossing_lut_L": (

@@ -47,12 +47,12 @@ CROSSING_CODES = {"L": 0, "T": 1, "X": 2}
 
 # name -> (units, dtype, description). Shapes are per frame.
 FRAME_DATASETS = {
-    # omnidirectional (seed 002)
+    # omnidirectional (Ribeiro et al. 2015)
     "radial": ("m", np.float32, "(72, 4) white-line crossings per radial scan line, NaN = none"),
     "spiral": ("m", np.float32, "(2, 72) first crossing radius per spiral (ccw, cw), NaN = none"),
     "points": ("m", np.float32, "(N, 2) line points in the robot frame (x forward, y left)"),
     "points_px": ("px", np.float32, "(N, 2) the same line points in the image (u, v)"),
-    # perspective (seed 000); robot frame on the floor, bearings counter-clockwise from +x
+    # perspective (Schulz et al. 2011); robot frame on the floor, bearings counter-clockwise from +x
     "boundary": ("px", np.float32, "(K, 2) field boundary polyline in the image (u, v)"),
     "line_ends": ("m", np.float32, "(L, 4) line end points on the floor x0, y0, x1, y1"),
     "line_ends_px": ("px", np.float32, "(L, 4) line end points in the image u0, v0, u1, v1"),

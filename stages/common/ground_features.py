@@ -1,5 +1,5 @@
-"""Local features of the floor around the robot (seed 004, steps 3-5 of its method): an omni
-frame unwarped to the robot-centred ground image (stages.common.unwarp), local features
+"""Local features of the floor around the robot (the SURF template paper, steps 3-5 of its method):
+an omni frame unwarped to the robot-centred ground image (stages.common.unwarp), local features
 detected there (stages.common.local_features: our SURF, OpenCV's SIFT or ORB) on the field
 only, and returned in the robot frame (metres, radians). build_templates makes its templates
 with this and localize's template method its queries, with the same conf (the templates file
@@ -7,9 +7,9 @@ stores it), so that both see the floor alike.
 
     feats = ground_features(image_bgr, camera, conf, mask)
 
-The field (seed 004: "we assume that the green region is the ground"). The colour classes of
-the frame (stages.common.colour, its field green estimated per frame) are computed in the omni
-image and carried to the ground image (nearest pixel); the field is
+The field (the SURF template paper: "we assume that the green region is the ground"). The colour
+classes of the frame (stages.common.colour, its field green estimated per frame) are computed in the
+omni image and carried to the ground image (nearest pixel); the field is
 
     valid  &  (green | white | (close(green | white, field.close_m) & not dark))
 

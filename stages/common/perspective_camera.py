@@ -1,5 +1,5 @@
-"""Perspective camera of a humanoid robot's head (seed 000 §3: a 752 x 480 colour camera behind a
-wide-angle lens), with its pose above the floor.
+"""Perspective camera of a humanoid robot's head (Schulz et al. 2011, §3: a 752 x 480 colour camera
+behind a wide-angle lens), with its pose above the floor.
 
 Model: OpenCV's pinhole camera with radial-tangential distortion (k1, k2, p1, p2, k3) in
 normalised coordinates, mounted ``height`` metres above the floor over the point ``position``

@@ -1,4 +1,5 @@
-"""The scan lines of seed 002, defined once for the table builder and the image extractor.
+"""The scan lines of Ribeiro et al. (2015), defined once for the table builder and the
+image extractor.
 
 In the robot frame (x forward, y left), from the robot's own radius outwards:
 - 72 radial scan lines, ray k at angle 5k deg counter-clockwise from +x, up to ``max_range``;
@@ -7,7 +8,7 @@ In the robot frame (x forward, y left), from the robot's own radius outwards:
   start at the robot radius r0 and reach ``spiral_end_radius`` after one full turn; start angles
   every 5 deg (72), turning counter-clockwise (direction 0) or clockwise (direction 1); each
   reports the radius of its first white-line crossing. A robot uses every other start angle
-  (36 each way, 10 deg apart, as in the seed); all 72 are kept so that any heading that is a
+  (36 each way, 10 deg apart, as in the paper); all 72 are kept so that any heading that is a
   multiple of 5 deg is an index rotation.
 
 Heading as index rotation: what a robot with heading m * 5 deg sees on its radial line k is
@@ -94,8 +95,8 @@ def bin_points_to_scanlines(points_robot, scanlines: ScanLines | None = None,
     projection on the ray; points of one radial line closer than ``merge`` (m) to the previous
     one are taken as the same white line and averaged. A spiral's crossing is the ground radius
     of its nearest qualifying point. Points from detectors that sample lines sparsely leave
-    most scan lines empty, which the table matching ignores (seed 002: scan lines without a
-    crossing are skipped)."""
+    most scan lines empty, which the table matching ignores (Ribeiro et al. 2015: scan lines without
+    a crossing are skipped)."""
     sl = scanlines or ScanLines()
     p = np.asarray(points_robot, dtype=float).reshape(-1, 2)
     p = p[np.isfinite(p).all(axis=1)]

@@ -1,5 +1,5 @@
-"""Local minima of a sampled error surface (seed 004's figures 3 and 4: "many local minima"
-against "one minimum", counted rather than drawn).
+"""Local minima of a sampled error surface (figures 3 and 4 of the SURF template paper: "many local
+minima" against "one minimum", counted rather than drawn).
 
 A local minimum is a sample strictly below every neighbour it has on the sampled grid: the 8
 neighbours in 2D (the 2 in 1D, the 26 in 3D), and not on the grid's border (a border sample's

@@ -1,6 +1,6 @@
-"""The template database (schema ``fieldloc.templates``, version 1): seed 004's sets of local
-features of the floor, one per capture at a known pose, from ``build-templates``; localize's
-template method matches queries against it.
+"""The template database (schema ``fieldloc.templates``, version 1): the SURF template paper's sets
+of local features of the floor, one per capture at a known pose, from ``build-templates``;
+localize's template method matches queries against it.
 
 Root attributes: the common ones (artifacts.root_attrs: schema, version, conf, inputs) plus
 

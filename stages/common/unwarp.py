@@ -1,4 +1,4 @@
-"""The robot-centred ground image of an omnidirectional frame (seed 004, fig. 1b).
+"""The robot-centred ground image of an omnidirectional frame (the SURF template paper, fig. 1b).
 
 A ``GroundGrid`` is a square top view of the floor around the robot: ``size`` x ``size`` pixels
 of ``metres_per_pixel``, covering +-``extent`` metres from the robot centre (any two of the three
@@ -7,8 +7,8 @@ pixels when size is even), its forward direction (+x) points up the image (decre
 its left (+y) to the left (decreasing column): the floor seen from above, not mirrored.
 
 Every ground pixel is a floor point in the robot frame; the calibration
-(stages.common.camera.OmniCamera, seed 004 eq. 2) places it in the omni image at the radius
-where the fitted f(r) reaches its distance (f inverted by ``OmniCamera.radius_of_distance``)
+(stages.common.camera.OmniCamera, the SURF template paper, eq. 2) places it in the omni image at the
+radius where the fitted f(r) reaches its distance (f inverted by ``OmniCamera.radius_of_distance``)
 and at its bearing. ``unwarp_map`` computes that pixel map once per calibration, grid and
 dataset mask (cached); ``unwarp`` resamples a frame through it (bilinear) and returns the
 ground image with its mask of valid pixels: floor the camera sees (between the robot body and

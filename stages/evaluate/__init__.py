@@ -58,7 +58,7 @@ confs = {
     "default": {
         # a frame matches the truth row nearest in stamp if it is this close (s)
         "stamp_tolerance": 0.02,
-        # position error thresholds (m) for the "within" shares (seed 000 fig. 4)
+        # position error thresholds (m) for the "within" shares (Schulz et al. 2011, fig. 4)
         "thresholds": [0.1, 0.2, 0.4],
         "plots": True,
         "dpi": 120,

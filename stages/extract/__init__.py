@@ -10,9 +10,9 @@ presets of every kind as ``<kind>-<preset>`` (``omni-dense``); ``main``'s conf i
 name of the dataset's kind (``dense`` or ``omni-dense``), None (the kind's ``default``), or a
 dict of overrides on the kind's default preset (``resolve_extract_conf``):
 
-- ``omni`` (stages.extract.omni, seed 002): scan-line distances and line points;
+- ``omni`` (stages.extract.omni, Ribeiro et al. 2015): scan-line distances and line points;
   frame_info ``mask`` (the dataset's mask.png, see ``read_mask``);
-- ``perspective`` (stages.extract.perspective, seed 000, imported only when used): field
+- ``perspective`` (stages.extract.perspective, Schulz et al. 2011, imported only when used): field
   boundary, lines, crossings, goal posts; frame_info ``pitch``/``roll`` (and ``yaw``,
   ``height``, ``x``, ``y`` where recorded) from DIR/head.csv (nearest stamp within
   ``HEAD_STAMP_TOLERANCE``) when that file exists.
@@ -199,7 +199,7 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
     return its path. ``conf``: a preset name of the dataset's camera kind, None, or a dict of
     overrides on the kind's default preset (``resolve_extract_conf``).
     ``debug_images``: a folder that receives one overlay PNG per extracted frame (the kind's
-    ``debug_overlay``: for perspective frames the seed's fig. 1)."""
+    ``debug_overlay``: for perspective frames the paper's fig. 1)."""
     from tqdm import tqdm
 
     ds = open_dataset(dataset_dir)

@@ -1,4 +1,4 @@
-"""Line crossing detection on the key node structure (seed 000 section 4.1).
+"""Line crossing detection on the key node structure (Schulz et al. 2011, section 4.1).
 
 A degree-2 key node whose two edges meet at a corner angle is an L-crossing candidate, a
 degree-3 node a T and a degree-4 node an X (``crossing_candidates``). The crossing is placed

@@ -1,4 +1,5 @@
-"""Field boundary extraction on the subsampled colour-class images (seed 000 section 3.1).
+"""Field boundary extraction on the subsampled colour-class images (Schulz et al. 2011,
+section 3.1).
 
 Three steps, each its own function:
 
@@ -48,7 +49,7 @@ def merged_grey_image(counts: dict[str, np.ndarray], weights: dict[str, float],
 
 def binarize_field(grey: np.ndarray, t_pix: float, t_row: float, t_win: float,
                    t_weak: float) -> np.ndarray:
-    """Field pixels (H, W) bool by the three thresholds of the seed.
+    """Field pixels (H, W) bool by the three thresholds of the paper.
 
     A pixel with ``grey >= t_pix`` is field (the obvious case). A weaker pixel (but at least
     ``t_weak``, so empty background never becomes field) is field if the row sum over its row

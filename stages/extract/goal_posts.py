@@ -1,5 +1,5 @@
-"""Goal posts: white vertical bars rising above the field boundary (seed 000 treats poles as
-point landmarks; a post's foot point on the floor is one).
+"""Goal posts: white vertical bars rising above the field boundary (Schulz et al. 2011 treat poles
+as point landmarks; a post's foot point on the floor is one).
 
 On the subsampled white image, per column (vectorised over columns):
 

@@ -1,4 +1,4 @@
-"""Field line extraction by split-and-merge (seed 000 section 4.2).
+"""Field line extraction by split-and-merge (Schulz et al. 2011, section 4.2).
 
 A field line is a connected set of degree-2 nodes of the fine line structure graph plus the
 nodes of another degree connected directly to it (``line_components``). Its nodes'

@@ -1,4 +1,4 @@
-"""The line structure graph (seed 000 sections 3.2, 3.3 and the key structure of 4.1).
+"""The line structure graph (Schulz et al. 2011, sections 3.2, 3.3 and the key structure of 4.1).
 
 All of it works on the subsampled white image (one cell per 8 x 8 pixels, values are the
 share of white pixels in the cell), in grid coordinates (x = column, y = row, float for

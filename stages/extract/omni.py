@@ -1,4 +1,5 @@
-"""Line points of an omnidirectional (catadioptric) image along the scan lines of seed 002.
+"""Line points of an omnidirectional (catadioptric) image along the scan lines of
+Ribeiro et al. (2015).
 
 The scan lines are the ones of the tables (stages.common.scanlines.ScanLines): 72 radial lines
 (line k at 5k deg counter-clockwise from the robot's forward direction) and 72 + 72 spirals
@@ -27,7 +28,7 @@ through the calibration (stages.common.camera.OmniCamera):
   the reported spirals within 5 cm of the table instead of 72 %).
 
 Only every ``spiral_start_step``-th spiral start angle is walked (2: 36 spirals each way, 10 deg
-apart, as in the seed); the others stay NaN. Radial crossings closer together than the
+apart, as in the paper); the others stay NaN. Radial crossings closer together than the
 extraction can separate merge into one white run (rejected if deeper than ``max_white_m``).
 
 Per frame (the features schema, stages.common.features_file):

@@ -1,4 +1,5 @@
-"""Feature extraction for a perspective (humanoid head) camera: seed 000 sections 3 and 4.
+"""Feature extraction for a perspective (humanoid head) camera: Schulz et al. (2011),
+sections 3 and 4.
 
 ``extract_frame`` runs the chain on one frame, each step in its own module:
 
@@ -15,7 +16,7 @@
 
 It returns the per-frame datasets of the features schema (stages.common.features_file):
 boundary, line_ends, line_ends_px, lines, crossings, crossings_px, posts, posts_px.
-``debug_overlay`` draws them on the frame like the seed's fig. 1.
+``debug_overlay`` draws them on the frame like the paper's fig. 1.
 """
 
 from __future__ import annotations
@@ -55,7 +56,7 @@ from .line_structure import (
 
 confs = {
     "default": {
-        "cell": 8,  # px per subsampled cell (the seed's 94 x 60 grid for 752 x 480)
+        "cell": 8,  # px per subsampled cell (the paper's 94 x 60 grid for 752 x 480)
         "colour": {**copy.deepcopy(colour.confs["default"]),
                    # green candidates need chroma >= this share of their luminance: lit white
                    # walls and grey hall floors hold only a faint tint (saturation < 0.05 on
@@ -69,7 +70,7 @@ confs = {
                    "green_hue_k": 3.0,
                    "green_saturation": [0.4, 2.5]},
         # classify every colour_step-th pixel of every colour_step-th row (1: all 64 pixels of
-        # a cell, as the seed; 2: 16 per cell, counts scaled, see colour.classify_grid)
+        # a cell, as the paper; 2: 16 per cell, counts scaled, see colour.classify_grid)
         "colour_step": 1,
         # unreliable corners of the wide-angle lens: cells farther from the image centre than
         # this share of the half diagonal lose their white (the boundary scan keeps them)
@@ -445,9 +446,9 @@ def extract_frame(image_bgr: np.ndarray, camera, conf: dict, pitch: float | None
                   roll: float | None = None, yaw: float | None = None,
                   height: float | None = None, x: float | None = None, y: float | None = None,
                   **frame_info) -> dict[str, np.ndarray]:
-    """The seed-000 chain on one BGR frame; ``camera`` is a PerspectiveCamera, ``pitch`` and
-    ``roll`` the frame's head angles, ``yaw``, ``height`` and ``x``, ``y`` (the optical
-    centre over the floor) the rest of its pose where the dataset records them (head.csv;
+    """The chain of Schulz et al. (2011) on one BGR frame; ``camera`` is a PerspectiveCamera,
+    ``pitch`` and ``roll`` the frame's head angles, ``yaw``, ``height`` and ``x``, ``y`` (the
+    optical centre over the floor) the rest of its pose where the dataset records them (head.csv;
     default: the calibration's nominal values). A frame of another size than the
     calibration's is a DatasetError (the caller skips the frame)."""
     h, w = image_bgr.shape[:2]
@@ -807,7 +808,7 @@ _PURPLE, _RED, _GREEN, _YELLOW, _CYAN = (200, 0, 200), (0, 0, 255), (0, 200, 0),
 
 
 def debug_overlay(image: np.ndarray, result: dict[str, np.ndarray]) -> np.ndarray:
-    """A copy of the BGR frame with the extraction drawn like the seed's fig. 1: the field
+    """A copy of the BGR frame with the extraction drawn like the paper's fig. 1: the field
     boundary in purple, field lines used for localisation in red and not used in green,
     crossings marked L, T or X (yellow), goal post feet (cyan)."""
     out = image.copy()

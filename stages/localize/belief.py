@@ -1,4 +1,4 @@
-"""The belief of one frame's observations on a grid of poses (seed 000's fig. 3, drawn by
+"""The belief of one frame's observations on a grid of poses (fig. 3 of Schulz et al. 2011, drawn by
 stages.show.belief): the observation model of the particle filter
 (stages.localize.observation_model) evaluated at every pose of a regular grid, positions every
 ``resolution`` metres over the field and its surroundings, headings every ``heading_step``

@@ -1,7 +1,7 @@
-"""Seed 004's template side of its comparison (section III): the matching-error surface of one
-template against a query displaced from it (figure 4), and the estimated pose's error against
-the query's distance from its template (figure 5), with method templates' own matching and fit
-(templates.TemplateMatcher: ratio test, equal Laplacian sign, consensus, the ``pose_solver``).
+"""The SURF template paper's template side of its comparison (section III): the matching-error
+surface of one template against a query displaced from it (figure 4), and the estimated pose's error
+against the query's distance from its template (figure 5), with method templates' own matching and
+fit (templates.TemplateMatcher: ratio test, equal Laplacian sign, consensus, the ``pose_solver``).
 
 Figure 4. The pairs of one query matched to the template (both turned to the field's axes, as
 the method turns them) are held, and eq. 4, E = sum_i ||t_i - A(dx, dy, dtheta) q_i||^2 over

@@ -1,5 +1,5 @@
-"""Method ``fit``: line points fitted to the map's distance table (seed 002's reference [1],
-Lauer, Lange, Riedmiller, the Tribots method most MSL teams run).
+"""Method ``fit``: line points fitted to the map's distance table (Lauer, Lange and
+Riedmiller 2006, the Tribots method most MSL teams run).
 
 The error of a pose (x, y, theta) of a frame's robot-frame line points p_i (within
 ``max_range``, weights w_i, 1 unless ``range_scale`` is set) is
@@ -81,7 +81,7 @@ confs = {
         "histogram_step": math.radians(0.5),  # rad
         "histogram_bin": 0.05,  # m
         "histogram_sigma": 0.02,  # rad, histogram heading noise
-        "histogram_score": "peak",  # peak (seed 002) | energy
+        "histogram_score": "peak",  # peak (Ribeiro et al. 2015) | energy
         "histogram_min_sharpness": 1.7,  # best score / mean score; below: no histogram heading
         "histogram_gate": 0.15,  # rad, largest accepted deviation from the predicted heading
         "truth_sigma": 0.001,  # rad

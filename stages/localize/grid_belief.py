@@ -11,7 +11,7 @@ its border), at the frame's IMU heading. Per frame:
    where the motion is unknown: a collision frame, no odometry), and mixed with the uniform
    belief at ``kidnap_probability`` (the rate at which the robot is put elsewhere);
 2. update: multiplied by the frame's tempered likelihood exp(-E(cell) / T) at the table
-   heading nearest the IMU's, E the seed's matching error over every cell (the error
+   heading nearest the IMU's, E the paper's matching error over every cell (the error
    lookup's surface, each observation at its evidence weight: TableSearch.surface), and
    normalised. A frame with fewer than ``min_observations`` crossings (the camera blocked,
    the robot lifted) skips the update: its answer is the prediction (mode ``predicted``);
@@ -300,7 +300,7 @@ class GridLocaliser:
         modes = self.belief.modes(int(conf["hypotheses"]), reach, reach)
         x, y, _ = modes[0]
         fix = GridFix(x, y, theta, math.nan, "grid" if seen else "predicted")
-        if seen:  # sub-cell, by the seed's refinement in the mode's basin
+        if seen:  # sub-cell, by the paper's refinement in the mode's basin
             r = search.refine(obs, search.grid.cell_of(x, y), theta)
             if math.hypot(r.x - x, r.y - y) <= reach:
                 fix.x, fix.y = r.x, r.y

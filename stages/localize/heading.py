@@ -1,4 +1,4 @@
-"""The robot's heading for the table search (seed 002 section V): from the IMU, from the
+"""The robot's heading for the table search (Ribeiro et al. 2015, section V): from the IMU, from the
 histograms of the line points, or from the ground truth (for ablations).
 
 IMU (``imu.csv``: stamp, yaw, collision). A real IMU reports yaw in its own frame: zero where it
@@ -16,8 +16,8 @@ and in both cases tracked by ``ImuAlignment``, a one-state Kalman filter on the 
 steps (TableSearch.refine_heading), so a slowly drifting bias does not turn into a position
 error. Collision frames (flag set) are not used to update the offset (the yaw jolts).
 
-Histograms (seed 002 V-B). Field lines are parallel to the field's x or y axis, so when the line
-points (robot frame) are rotated by the right heading, their x coordinates pile up on the
+Histograms (Ribeiro et al. 2015, V-B). Field lines are parallel to the field's x or y axis, so when
+the line points (robot frame) are rotated by the right heading, their x coordinates pile up on the
 vertical lines and their y coordinates on the horizontal ones. ``histogram_heading`` rotates the
 points by every angle within +-40 deg (the largest turn between frames) of the last heading in
 small steps, builds the x and y histograms (linear binning into bins of ``bin`` m), and scores
@@ -150,7 +150,7 @@ def histogram_scores(points: np.ndarray, angles: np.ndarray, *, bin: float = 0.0
                      extent: float = 8.0, weights: np.ndarray | None = None,
                      score: str = "peak") -> np.ndarray:
     """Score per candidate heading of the x and y histograms of the points (robot frame)
-    rotated into the field frame by that heading: ``peak`` (seed 002) the sum of the two
+    rotated into the field frame by that heading: ``peak`` (Ribeiro et al. 2015) the sum of the two
     histograms' peak values, ``energy`` the sum of their squared bin counts (every line
     counts, not only the longest). Linear binning (each point split between its two nearest
     bins) keeps the score smooth in the angle."""

@@ -1,8 +1,8 @@
-"""Kalman filtering of seed 002 section IV-C: a filter for vision, one for odometry, and their
-decentralised fusion in information form (the seed's equations 6-9).
+"""Kalman filtering of Ribeiro et al. (2015), section IV-C: a filter for vision, one for odometry,
+and their decentralised fusion in information form (the paper's equations 6-9).
 
 State: the pose (x, y, theta) in the field frame. All three filters share one process model:
-the robot keeps the motion (robot frame) it made over the previous frame (the seed predicts
+the robot keeps the motion (robot frame) it made over the previous frame (the paper predicts
 from the commands sent to the motors; a recorded dataset has no commands, so the last fused
 motion stands in for them), with process noise Q that grows with the frame interval and the
 speed. Each node is a standard Kalman filter started from that common prediction:
@@ -23,7 +23,7 @@ x(k|k-1), P(k|k-1) and each node's posterior x_i(k), P_i(k):
 Headings are handled in a frame local to the prediction (each node's state as an offset from
 x(k|k-1) with the angle wrapped), which keeps equations 6-9 linear across +-pi. A node that has
 nothing this frame (no vision fix, or odometry on an IMU collision frame) sends no information
-(e_i = 0, E_i = 0): on collision frames the fusion uses vision alone, as the seed prescribes.
+(e_i = 0, E_i = 0): on collision frames the fusion uses vision alone, as the paper prescribes.
 """
 
 from __future__ import annotations

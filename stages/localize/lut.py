@@ -1,7 +1,7 @@
-"""Method ``lut``: localisation in the scan-line tables of seed 002, as ranked hypotheses with a
-probability each.
+"""Method ``lut``: localisation in the scan-line tables of Ribeiro et al. (2015), as ranked
+hypotheses with a probability each.
 
-The matching is the seed's (lut_search.py): per observed crossing distance the error to the
+The matching is the paper's (lut_search.py): per observed crossing distance the error to the
 table entry of its scan line, weighted by rho(e) = 1 - c^2 / (c^2 + e^2), nearer points weighing
 more; E(pose) is the sum, in units of full-weight observations. This module turns E into a
 belief. There is one quantity behind every decision: the tempered likelihood
@@ -25,16 +25,16 @@ Two beliefs carry that likelihood from frame to frame (``belief``; docs/lut-beli
   fixes, their tempered likelihoods and the null.
 
 Hypotheses (tracks). The belief is a mixture of a few Gaussian tracks (at most ``max_tracks``),
-each a pose tracked by the decentralised Kalman filter of seed 002 (kalman.py) with a weight.
-Per frame, for each track:
+each a pose tracked by the decentralised Kalman filter of Ribeiro et al. (2015) (kalman.py) with a
+weight. Per frame, for each track:
 
 1. its prior: the previous fused pose moved by the odometry (by the last fused motion on IMU
    collision frames), with the fusion's predicted covariance;
-2. heading: ``imu`` (imu.csv yaw aligned to the field, heading.py), ``histogram`` (the seed's
+2. heading: ``imu`` (imu.csv yaw aligned to the field, heading.py), ``histogram`` (the paper's
    line-point histograms within +-40 deg of the track's predicted heading), ``truth`` (for
    ablations); where that heading cannot be used (IMU yaw on a collision frame, a histogram
    without straight lines) the search refines the heading itself;
-3. the seed's local search in a ``window`` x ``window`` m square around the prior, ranked by
+3. the paper's local search in a ``window`` x ``window`` m square around the prior, ranked by
    the posterior E(cell) / T + Mahalanobis^2 / 2 (so a minimum far from where the odometry says
    the robot is needs that much more evidence), refined to sub-cell in its basin (and in the
    prior's, kept when its exact score is lower), then moved by the line points' fit: the fix
@@ -165,7 +165,7 @@ confs = {
         "histogram_step": math.radians(0.5),  # rad
         "histogram_bin": 0.05,  # m
         "histogram_sigma": 0.02,  # rad, histogram heading noise for the fusion
-        "histogram_score": "peak",  # peak (seed 002) | energy (sum of squared bin counts)
+        "histogram_score": "peak",  # peak (Ribeiro et al. 2015) | energy (sum of squared counts)
         "histogram_min_sharpness": 1.7,  # best score / mean score; below: heading by vision
         "histogram_gate": 0.15,  # rad, largest accepted deviation from the predicted heading
         "truth_sigma": 0.001,  # rad
@@ -173,7 +173,7 @@ confs = {
         # this is not used (collision frames, histogram without straight lines)
         "unsure_heading_sigma": 0.1,  # rad, heading noise for the fusion on such frames
         "stamp_tolerance": 0.02,  # s, imu/truth row to frame matching
-        "window": 2.0,  # m, side of the local search square (seed 002: 4 m^2)
+        "window": 2.0,  # m, side of the local search square (Ribeiro et al. 2015: 4 m^2)
         "min_observations": 8,  # fewer crossings: the frame fails
         "temperature": 0.5,  # evidence (full-weight observations) per nat (calibrated)
         "track_correlation": 4.0,  # consecutive frames whose views are one measurement:
@@ -186,7 +186,7 @@ confs = {
         "global_evidence": "auto",  # points | scanlines | auto: what weighs the candidates
         # of a global search on a frame with no track (and its null): the line points'
         # distance to the nearest line (PointFit) after refining each candidate in its basin,
-        # or the seed's scan-line error (along each ray: prefers poses where lines are crossed
+        # or the paper's scan-line error (along each ray: prefers poses where lines are crossed
         # at the right range to poses where the points lie on lines; docs/manual.md, real images);
         # auto: points for independent frames, scan lines for a tracked run (whose tracks
         # are weighed by the scan-line error: its first fix too, docs/manual.md)
@@ -634,8 +634,8 @@ class LutLocaliser:
 
     def _histogram_headings(self, obs):
         """With no heading known: the four headings (90 deg apart) at which the line points'
-        histograms peak (seed 002 V-B over a full quarter turn), or None when the points show
-        no straight lines (the unknown-heading search then tries all 72 table headings)."""
+        histograms peak (Ribeiro et al. 2015, V-B over a full quarter turn), or None when the points
+        show no straight lines (the unknown-heading search then tries all 72 table headings)."""
         conf = self.conf
         if conf["heading"] != "histogram":
             return None
@@ -941,7 +941,7 @@ def run(conf: dict, dataset, features, map_file: MapFile, progress=False) -> Pos
 def _curvature_sigma(curvature: float, obs: Observation) -> float:
     """Heading standard deviation of a vision heading from the curvature of the error term
     over the heading (a least-squares reading of e_norm * total weight as a log-likelihood with
-    the seed's c as the error scale), at least 0.5 deg and at most 10 deg."""
+    the paper's c as the error scale), at least 0.5 deg and at most 10 deg."""
     if curvature <= 0:
         return math.radians(10.0)
     sigma = math.sqrt(1.0 / (curvature * max(obs.total_weight, 1.0)))

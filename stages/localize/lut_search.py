@@ -1,4 +1,4 @@
-"""Pose search in the scan-line tables of seed 002 (section IV-B).
+"""Pose search in the scan-line tables of Ribeiro et al. (2015), section IV-B.
 
 Matching. A frame's observations are the white-line crossing distances the robot found on its
 scan lines: up to 4 per radial line (``radial`` (72, 4), NaN = none) and one per spiral
@@ -9,7 +9,7 @@ e = |d - t_nearest| enters the error term as
 
     w(d) * rho(e),   rho(e) = 1 - c^2 / (c^2 + e^2) = e^2 / (c^2 + e^2)
 
-the seed's eq. 5: quadratic for e << c, saturating at 1 for e >> c, so a false hit or a missed
+the paper's eq. 5: quadratic for e << c, saturating at 1 for e >> c, so a false hit or a missed
 line costs at most one unit. A table entry of "none" where an observation exists costs the
 saturated error (rho = 1). Scan lines without an observation are ignored. Nearer points weigh
 more:  w(d) = 1 / (1 + (d / range_scale)^2)  (default range_scale 2 m: w = 0.94 at 0.5 m, 0.5 at
@@ -149,7 +149,7 @@ class Observation:
         line seen by many scan lines, a cable near the robot) are one correlated measurement,
         so together they carry at most ``per_structure`` observations' worth: weight *
         min(1, per_structure / structure size). The exact error terms (refinement, support)
-        use these weights; the error lookup keeps the seed's (``lookup_weight``)."""
+        use these weights; the error lookup keeps the paper's (``lookup_weight``)."""
         p = self.points(scanlines)
         base = self.weight if self.lookup_weight is None else self.lookup_weight
         weight = evidence_weights(p, np.ascontiguousarray(self.distance, dtype=np.float64),
@@ -170,7 +170,7 @@ class Observation:
 
     @property
     def lookup_total_weight(self) -> float:
-        """Total weight in the units of the error lookup (the seed's weights)."""
+        """Total weight in the units of the error lookup (the paper's weights)."""
         return self._weight_sums()[1]
 
     @property
@@ -682,7 +682,7 @@ class TableSearch:
     def tracked_fix(self, obs: Observation, theta: float, prior_xy, prior_information,
                     temperature: float, fix_temperature: float, inlier_error: float, *,
                     half_width: float = 1.0, prior_cap: float = math.inf, fit=None):
-        """The seed's local search around a tracked prior, ranked by the posterior, in one
+        """The paper's local search around a tracked prior, ranked by the posterior, in one
         compiled call (``lut_kernels.tracked_fix``): in the window (2 half_width square)
         around ``prior_xy`` the cell minimising E(cell) / temperature + min(0.5 d^T
         ``prior_information`` d, ``prior_cap``) (d = cell - prior, the prior's inverse

@@ -1,6 +1,6 @@
-"""Motion model of the particle filter (seed 000, eq. 1: p(x_t | x_t-1, u_t-1)): each particle
-moves by the odometry increment (dx, dy, dtheta in the robot frame since the previous frame)
-with noise drawn per particle.
+"""Motion model of the particle filter (Schulz et al. 2011, eq. 1: p(x_t | x_t-1, u_t-1)): each
+particle moves by the odometry increment (dx, dy, dtheta in the robot frame since the previous
+frame) with noise drawn per particle.
 
 Noise (standard deviations, per update of ``dt`` seconds)::
 

@@ -1,5 +1,5 @@
-"""Observation model of the particle filter (seed 000, section 5): how likely one frame's lines,
-crossings and goal posts are at many poses at once.
+"""Observation model of the particle filter (Schulz et al. 2011, section 5): how likely one frame's
+lines, crossings and goal posts are at many poses at once.
 
 Observations are egocentric, in the robot frame on the floor (x forward, y left), as
 ``extract`` writes them for a perspective camera: lines, optional line ends, crossings and goal
@@ -13,7 +13,7 @@ bearing (d_e, phi_e) of the associated landmark::
 The range uncertainty grows with the distance (the camera's unknown pitch and roll). The
 squared bearing error is computed as 2 (1 - cos(phi_e - phi_o)) (equal near zero, no atan2).
 L, T and X crossings also carry an orientation term (1 - cos of the orientation error, X
-modulo 90 deg) with ``sigma_crossing_orientation``; 0 drops it, as in the seed.
+modulo 90 deg) with ``sigma_crossing_orientation``; 0 drops it, as in the paper.
 
 Line model (eqs. 4-5), with the dropped perpendiculars l_e (expected) and l_o (observed) as
 vectors in the robot frame, d_o the distance to the closest observed point of the line::
@@ -23,10 +23,10 @@ vectors in the robot frame, d_o the distance to the closest observed point of th
 
 psi is the line's direction (modulo pi; sin^2 of the difference stands for its square). A line
 behind the robot has its perpendicular pointing the other way and is rejected by eq. 5. The
-tolerance ``oriented_tolerance`` (0 is the seed's rule) keeps a line the robot stands on (both
+tolerance ``oriented_tolerance`` (0 is the paper's rule) keeps a line the robot stands on (both
 perpendiculars ~0) from being rejected by noise. Lines shorter than ``min_line_length`` or
-farther than ``max_line_distance`` are ignored (the seed ignores short, far lines). Two
-additions to the seed, both in the same cost units: the observed segment must lie within the
+farther than ``max_line_distance`` are ignored (the paper ignores short, far lines). Two
+additions to the paper, both in the same cost units: the observed segment must lie within the
 model segment's extent (the part sticking out beyond its ends, less ``extent_margin``, is a
 distance error with sigma ``sigma_extent`` + lambda_l d_o; without line_ends it is skipped),
 and the centre circle and arcs are candidate lines too (the tangent at the arc point nearest
@@ -78,9 +78,9 @@ DEFAULTS = {
     # camera's pitch and the pixel's error): the range sigma grows as (h^2 + d^2) / h
     "post_elevation_sigma": 0.03,  # rad, the same for a goal post's foot (less sharp)
     "sigma_bearing": 0.06,  # rad, sigma_phi of eq. 3
-    "sigma_crossing_orientation": 0.3,  # rad, L/T/X orientation term; 0 = off (the seed)
+    "sigma_crossing_orientation": 0.3,  # rad, L/T/X orientation term; 0 = off (the paper)
     "crossing_type_confusion": 0.2,  # probability that a crossing shows fewer arms than it
-    # has (an L of a T or X, a T of an X: an arm unseen); 0 = types as observed (the seed)
+    # has (an L of a T or X, a T of an X: an arm unseen); 0 = types as observed (the paper)
     "sigma_line": 0.03,  # m, sigma_l of eq. 4 at distance 0 (grows as the range sigma)
     "sigma_line_angle": 0.08,  # rad, sigma_psi of eq. 4
     "oriented_tolerance": 0.15,  # m, eq. 5 accepts <l_e, l_o> > -tol^2

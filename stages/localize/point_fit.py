@@ -1,5 +1,5 @@
 """Line points fitted to the field's lines by their distance to the nearest line (the error of
-Lauer, Lange and Riedmiller, seed 002's reference [1], as MSL teams use it).
+Lauer, Lange and Riedmiller 2006, as MSL teams use it).
 
 A robot-frame line point p seen from pose (x, y, theta) lies at q = (x, y) + R(theta) p in the
 field; its error is d(q), the distance from q to the nearest line centre line. The cost of a

@@ -1,16 +1,17 @@
-"""The matching and pose of seed 004 (section II-B), between a query's ground features and one
-template's: FLANN matching with a ratio test and equal Laplacian sign, the pose of equation 4 by
-the seed's coordinate descent or in closed form, outlier removal against the spread of the pair
-distances, and the likelihood of the pairs (the template method's confidence rests on it).
+"""The matching and pose of the SURF template paper (section II-B), between a query's ground
+features and one template's: FLANN matching with a ratio test and equal Laplacian sign, the pose of
+equation 4 by the paper's coordinate descent or in closed form, outlier removal against the spread
+of the pair distances, and the likelihood of the pairs (the template method's confidence rests on
+it).
 
 Pose. A template and a query each hold keypoints in their robot frame (metres). The pose sought
-is A(dx, dy, dtheta) of seed 004 eq. 3, which carries a query point q into the template's frame:
-t ~ R(dtheta) q + (dx, dy); it is the query robot's pose in the template robot's frame, so the
-query's field pose is the template's pose composed with it. Equation 4:
+is A(dx, dy, dtheta) of the SURF template paper's eq. 3, which carries a query point q into the
+template's frame: t ~ R(dtheta) q + (dx, dy); it is the query robot's pose in the template robot's
+frame, so the query's field pose is the template's pose composed with it. Equation 4:
 
     E(dx, dy, dtheta) = sum_i || t_i - A(dx, dy, dtheta) q_i ||^2
 
-``descent`` is the seed's search "similar to Gibbs sampling": from (0, 0, 0), the best dtheta
+``descent`` is the paper's search "similar to Gibbs sampling": from (0, 0, 0), the best dtheta
 with (dx, dy) fixed, then the best dy, then the best dx, until none changes (by more than
 ``tol``); each step is exact: dtheta = atan2(sum q x (t - d), sum q . (t - d)), dy and dx the
 mean residual along their axis. ``closed_form`` is the least-squares rigid fit of 2D
@@ -19,14 +20,14 @@ cross-covariance. Both minimise the same convex-in-translation, single-minimum-i
 they agree (a test holds them to it); the descent needs more steps the farther the pairs lie
 from the robot (the angle and the translation are coupled through the centroid).
 
-Outliers (the seed: "variance of distance of matching pairs is calculated and eliminate wrong
+Outliers (the paper: "variance of distance of matching pairs is calculated and eliminate wrong
 matching pairs based on the variance"): after a fit the pair distances r_i = ||t_i - A q_i||
 are compared with their spread, robustly: a pair is removed when r_i exceeds
 median(r) + ``outlier_sigmas`` x 1.4826 MAD(r) (the MAD scaled to a standard deviation, so that
 one wrong match cannot inflate the spread it is judged by as it would inflate the variance),
 and never when r_i <= ``min_outlier_m`` (pairs this close fit within the features' own
 precision); the pose is estimated again from the rest, and this is repeated ``outlier_passes``
-times or until no pair is removed (the seed does one pass).
+times or until no pair is removed (the paper does one pass).
 
 Consensus (``consensus_fit``, what localize's template method uses). On the weakly textured
 floor the correct matches are often fewer than half of the pairs, and a fit from all pairs,
@@ -200,14 +201,14 @@ def transform(pose, q: np.ndarray) -> np.ndarray:
 
 
 def matching_error(pose, t: np.ndarray, q: np.ndarray) -> float:
-    """Seed 004 eq. 4: sum of squared pair distances (m^2)."""
+    """The SURF template paper's eq. 4: sum of squared pair distances (m^2)."""
     r = np.asarray(t, float) - transform(pose, q)
     return float(np.sum(r * r))
 
 
 def descent(t: np.ndarray, q: np.ndarray, start=(0.0, 0.0, 0.0), *, tol: float = 1e-9,
             max_steps: int = 10000) -> tuple[np.ndarray, int]:
-    """(pose (dx, dy, dtheta), rounds) minimising eq. 4 by the seed's coordinate descent (module
+    """(pose (dx, dy, dtheta), rounds) minimising eq. 4 by the paper's coordinate descent (module
     doc), from ``start``, until no coordinate changes by more than ``tol`` (m, rad) in a round.
     The sums it needs are computed once: each step is O(1) (compiled, ``_descent_rounds``)."""
     t = np.asarray(t, float)

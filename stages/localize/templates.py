@@ -1,6 +1,6 @@
-"""Method ``templates``: seed 004's localisation by local features of the floor matched against
-a template database (stages.common.templates, from build-templates), as ranked hypotheses with
-a probability each.
+"""Method ``templates``: the SURF template paper's localisation by local features of the floor
+matched against a template database (stages.common.templates, from build-templates), as ranked
+hypotheses with a probability each.
 
 Per frame the query is the frame's ground features (stages.common.ground_features, with the
 conf the database was built with). Candidate templates:
@@ -15,11 +15,11 @@ conf the database was built with). Candidate templates:
   votes are fitted.
 
 A template is fitted by template_matching: its own index (built on first use), matches with
-the ratio test and equal Laplacian sign, the pose of seed 004 eq. 4 by ``pose_solver``
-(``descent``: the seed's coordinate descent over (dtheta, dy, dx) from (0, 0, 0) until no
-change; ``closed-form``: 2D Kabsch), pairs farther than median + ``outlier_sigmas`` x 1.4826
-MAD of the pair distances (never below ``min_outlier_m``) removed and the pose estimated again;
-the field pose is the template's pose composed with the fit. A fit needs ``min_pairs`` inlier
+the ratio test and equal Laplacian sign, the pose of the SURF template paper's eq. 4 by
+``pose_solver`` (``descent``: the paper's coordinate descent over (dtheta, dy, dx) from (0, 0, 0)
+until no change; ``closed-form``: 2D Kabsch), pairs farther than median + ``outlier_sigmas`` x
+1.4826 MAD of the pair distances (never below ``min_outlier_m``) removed and the pose estimated
+again; the field pose is the template's pose composed with the fit. A fit needs ``min_pairs`` inlier
 pairs.
 
 The likelihood. The fit's evidence L (nats, template_matching.evidence: every pair a correct
@@ -86,7 +86,7 @@ confs = {
         "heading": "imu",  # imu (imu.csv yaw, field-aligned) | track (the tracks' own)
         "lost_headings": 12,  # headings tried when lost with no heading (track, no tracks)
         "consensus_m": 0.2,  # m, pairs agreeing on one translation (template_matching)
-        "pose_solver": "descent",  # descent (seed 004) | closed-form (2D Kabsch)
+        "pose_solver": "descent",  # descent (the SURF template paper) | closed-form (2D Kabsch)
         # Lowe's ratio test, loose: the floor repeats itself (paint, carpet), a correct match's
         # runner-up is often close, and the consensus removes what the test lets through
         "ratio": 0.95,

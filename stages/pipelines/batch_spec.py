@@ -38,9 +38,9 @@ simulated on, else the SPEC's ``map`` or ``field``. Methods come from the regist
 list methods that land later. Which camera kinds a method reads is its module's
 ``camera_kinds`` (every kind when it does not say).
 
-Method templates (a module with ``INPUT = "templates"``) reads a template database (seed
-004; stages.build_templates) in place of features, from the dataset's ``templates`` (else the
-SPEC's ``templates``, for omni datasets; ``templates: null`` on a dataset declines it):
+Method templates (a module with ``INPUT = "templates"``) reads a template database (the
+SURF template paper; stages.build_templates) in place of features, from the dataset's ``templates``
+(else the SPEC's ``templates``, for omni datasets; ``templates: null`` on a dataset declines it):
 
     templates: path/to/templates.h5    # a database of the user's, read as it is
     templates: {captures: lab/grid, build: default}   # a folder of captures at measured poses
@@ -450,7 +450,7 @@ def _templates(w, entry, ds: DatasetSpec, where: str, base: Path, results: Path,
         return None  # none for this dataset (a venue's default declined)
     if ds.camera != "omni":
         w.fail(where, f"dataset {ds.name} has a {ds.camera} camera; templates are made from"
-               " omni frames (seed 004)")
+               " omni frames (the SURF template paper)")
     if isinstance(entry, str):
         p = _path(base, w.text(entry, where))
         if not p.is_file():

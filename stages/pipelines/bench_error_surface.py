@@ -1,8 +1,8 @@
-"""``fieldloc bench`` row of issue 11's comparison (seed 004 figures 3-5, stages.show
-.error_surface) on rendered msl-2015 (omni-default): one template captured at TEMPLATE_POSE,
-queries of the same robot in the same venue (another session: clutter, lighting, noise) on a
-0.2 m grid of +-2 m around it at the template's heading, and at the 9 nodes of +-0.2 m around
-it at headings every 10 deg. Printed: the local minima of the white-point table's surface (a)
+"""``fieldloc bench`` row of issue 11's comparison (the SURF template paper, figures 3-5,
+stages.show .error_surface) on rendered msl-2015 (omni-default): one template captured at
+TEMPLATE_POSE, queries of the same robot in the same venue (another session: clutter, lighting,
+noise) on a 0.2 m grid of +-2 m around it at the template's heading, and at the 9 nodes of +-0.2 m
+around it at headings every 10 deg. Printed: the local minima of the white-point table's surface (a)
 and the template pairs' surface (b), and the position and heading error of the queries per
 ring of distance from the template (c)."""
 
@@ -15,7 +15,7 @@ from .bench import Row, _work_dir
 TEMPLATE_POSE = (2.0, 1.0)  # m on msl-2015: the centre circle, the halfway line within 2 m
 CALIB_SEED, WORLD_SEED = 61, 61  # one robot, one venue (as bench_templates)
 TEMPLATE_SEED, GRID_SEED, HEADING_SEED = 71, 72, 73
-QUERY_SPACING, QUERY_HALF = 0.2, 2.0  # m, the seed's query grid
+QUERY_SPACING, QUERY_HALF = 0.2, 2.0  # m, the paper's query grid
 HEADINGS = 36  # every 10 deg
 
 
@@ -55,7 +55,8 @@ def rows(repeat: int) -> list[Row]:
     h = es.measure(None, inp["templates"], inp["headings"])
     a, b = m["a"], m["b"]
     rows = [Row(
-        name="error surfaces (seed 004 figs 3, 4): local minima, +-1.5 m at 10 cm, +-30 deg",
+        name="error surfaces (the SURF template paper, figs 3, 4): local minima, +-1.5 m at 10 cm,"
+             " +-30 deg",
         goal="(a) many minima, (b) one (over dx, dy, dtheta)",
         meets_goal=a["minima_xyt"] > 1 and b["minima_xyt"] == 1,
         repeats=1,
@@ -77,7 +78,8 @@ def rows(repeat: int) -> list[Row]:
     n = sum(r["queries"] for r in hd)
     far = m["rings"][-1]
     rows.append(Row(
-        name="error against distance from the template (seed 004 fig 5), 0.2 m grid +-2 m",
+        name="error against distance from the template (the SURF template paper, fig 5), 0.2 m"
+             " grid +-2 m",
         goal="error grows beyond 1.5 m; |heading error| <= 15 deg at every heading",
         meets_goal=bool(far["median_m"] > max(r["median_m"] for r in m["rings"][:-1])
                         and worst <= math.radians(15)),

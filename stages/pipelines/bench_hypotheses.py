@@ -37,7 +37,7 @@ def _errors(poses_path: Path, data: Path):
 def bench_lut_tracked_frame(repeat: int) -> list[Row]:
     """Issue 7: a tracked frame, all of it (observations, heading, search, support,
     hypotheses, fusion) <= 0.3 ms median; frames with a periodic global check are reported
-    apart. Baseline: the seed's local search alone on the same frames."""
+    apart. Baseline: Ribeiro et al.'s local search alone on the same frames."""
     from ..common.dataset import open_dataset
     from ..common.features_file import FeaturesFile
     from ..common.map_file import MapFile
@@ -87,7 +87,7 @@ def bench_lut_tracked_frame(repeat: int) -> list[Row]:
     med = _ms(tracked)
     rows = [Row(name="lut tracked frame, all of it (msl-2015, omni-default, IMU)",
                 median_ms=med, goal="<= 0.3 ms", meets_goal=med <= 0.3,
-                baseline="the seed's local search alone", baseline_ms=_ms(loc),
+                baseline="Ribeiro et al.'s local search alone", baseline_ms=_ms(loc),
                 ratio=med / _ms(loc), repeats=repeat,
                 note=f"{len(tracked)} tracked frames; {len(checked)} frames with a global"
                      f" check beside the tracks: median {_ms(checked):.2f} ms")]

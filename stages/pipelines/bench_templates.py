@@ -1,15 +1,15 @@
-"""``fieldloc bench`` rows of issue 11: seed 004's template method on rendered msl-2015
-(omni-default): a 1 m template grid and a hidden trajectory (a seed and length no test uses)
-recorded by the same robot (``calib_seed``) in the same venue (``world_seed``), each session
+"""``fieldloc bench`` rows of issue 11: the SURF template paper's template method on rendered
+msl-2015 (omni-default): a 1 m template grid and a hidden trajectory (a seed and length no test
+uses) recorded by the same robot (``calib_seed``) in the same venue (``world_seed``), each session
 with its own clutter, movers, lighting and noise; localised through the stage mains with the
-CLI's defaults (IMU heading), once with the seed's coordinate descent and once with the closed
+CLI's defaults (IMU heading), once with the paper's coordinate descent and once with the closed
 form on the same frames.
 
 Goals: median <= 5 cm and <= 1 deg, >= 95 % of the frames within 40 cm counting failures, a
 frame <= 20 ms (the method's time: ground features, matching, pose, belief; judged on the
 process CPU time, which the machine's load does not inflate; the wall time is beside it), also
 for the speed alternative, a coarser ground image (COARSE_GROUND);
-templates.h5 against the map (the seed's "compact database"), in MB.
+templates.h5 against the map (the paper's "compact database"), in MB.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import numpy as np
 
 from .bench import Row, _work_dir, rendered_inputs
 
-GRID_SPACING = 1.0  # m, the seed's
+GRID_SPACING = 1.0  # m, the paper's
 CALIB_SEED, WORLD_SEED = 61, 61  # one robot, one venue
 GRID_SEED = 62
 # preset, field, frames, seed; the defaults (ratio, min_pairs, consensus_m) were chosen on

@@ -7,8 +7,8 @@ are the caller's): one module per picture with ``confs`` and a ``main(conf, inpu
   the field; :mod:`.belief` the particle filter's belief of one frame; :mod:`.hypotheses` a
   frame's ranked hypotheses; :mod:`.report_plots` the plots of an evaluation report;
   :mod:`.comparison` a batch's error CDFs per dataset and its summary of every method on
-  every dataset; :mod:`.error_surface` seed 004's error surfaces of the white-point table and of
-  a template, and the queries' errors against their distance from it;
+  every dataset; :mod:`.error_surface` the SURF template paper's error surfaces of the white-point
+  table and of a template, and the queries' errors against their distance from it;
   :mod:`.html_report` one self-contained page of reports and their pictures.
 
 Pictures read the stages' artifacts and may call a stage (show.points extracts a frame on

@@ -1,10 +1,11 @@
-"""The belief of one frame's observations on a grid of poses, drawn like seed 000's fig. 3.
+"""The belief of one frame's observations on a grid of poses, drawn like fig. 3 of Schulz et al.
+(2011).
 
 The likelihood of the frame's observations under the particle filter's observation model
 (stages.localize.belief.belief_grid) in four panels: lines only, crossings only, goal posts
 only, all together. Each shows the likelihood (relative to the panel's best pose; one colour
 bar for all four) as an image, with arrows of the best heading every ``arrow_spacing`` metres
-where the likelihood is at least ``arrow_min`` of the best, sized by it, as the seed draws its
+where the likelihood is at least ``arrow_min`` of the best, sized by it, as the paper draws its
 particles. A panel with no observations (or a flat likelihood) says so instead of marking a
 "best pose".
 

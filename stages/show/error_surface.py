@@ -1,4 +1,4 @@
-"""Seed 004's comparison of its two methods, as pictures and numbers (``fieldloc show
+"""The SURF template paper's comparison of its two methods, as pictures and numbers (``fieldloc show
 error-surface``): one template of a templates file and a query dataset with truth (omni
 frames near the template, e.g. ``simulate omni --grid 0.2`` around it).
 
@@ -41,7 +41,7 @@ confs = {
     "default": {
         "template": None,  # index into the templates file; None: nearest the queries' centre
         "half_size": 1.5,  # m, (dx, dy) of the surfaces (a) and (b)
-        "step": 0.1,  # m, their sampling (the seed's table interval)
+        "step": 0.1,  # m, their sampling (the paper's table interval)
         "dtheta_deg": 30.0,  # deg, dtheta of the surfaces
         "angle_step_deg": 1.0,  # deg, Dm's angle bins and the dtheta sampling
         "e_none": 1.0,  # m, eq. 1's penalty of a point with no table point at its angle
