@@ -6,7 +6,8 @@ import math
 
 import pytest
 
-from stages.pipelines import bench, bench_throughput as bt
+from stages.pipelines import bench
+from stages.pipelines import bench_throughput as bt
 
 
 @pytest.fixture(scope="module")

@@ -28,11 +28,12 @@ from __future__ import annotations
 import math
 import statistics
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
-from .bench import Row, _INPUTS, _work_dir
+from .bench import _INPUTS, Row, _work_dir
 
 THROUGHPUT_FRAMES = 400
 LINEAR_FRAMES = (100, 400, 1600)
@@ -163,7 +164,7 @@ def throughput_rows(repeat: int, frames: int = THROUGHPUT_FRAMES,
             templates = template_inputs()["templates"]
         mp = None if method == "templates" else field_map(field)
         out = _out_dir("pipelines")
-        r = timed_runs(lambda: images_to_poses(method, data, mp, out, templates),
+        r = timed_runs(partial(images_to_poses, method, data, mp, out, templates),
                        max(1, repeat // 5))
         fps, wall_fps = frames / r["cpu_s"], frames / r["wall_s"]
         steps = ("localize on the images (ground features, matching, pose)"
@@ -239,7 +240,7 @@ def frames_row(repeat: int, sizes=LINEAR_FRAMES, method: str = "lut") -> Row:
     per = {}
     for n in sizes:
         data = rendered_run("omni", "msl-2015", n)
-        r = timed_runs(lambda: images_to_poses(method, data, mp, out), max(1, repeat // 5))
+        r = timed_runs(partial(images_to_poses, method, data, mp, out), max(1, repeat // 5))
         per[n] = {**r, "cpu_ms_per_frame": 1e3 * r["cpu_s"] / n,
                   "wall_ms_per_frame": 1e3 * r["wall_s"] / n}
     lo, hi = per[min(sizes)], per[max(sizes)]
@@ -254,6 +255,8 @@ def frames_row(repeat: int, sizes=LINEAR_FRAMES, method: str = "lut") -> Row:
         note=f"extract + localize {method} CPU per frame: " + " / ".join(
             f"{per[n]['cpu_ms_per_frame']:.2f}" for n in sizes) + " ms (localize alone "
              + " / ".join(f"{1e3 * per[n]['localize_cpu_s'] / n:.2f}" for n in sizes)
+             + ", extract alone "
+             + " / ".join(f"{1e3 * per[n]['extract_cpu_s'] / n:.2f}" for n in sizes)
              + f" ms); median and cpu: the {max(sizes)}-frame set; one process, warm; {SHARED}",
         extra={str(n): v for n, v in per.items()})
 
@@ -293,7 +296,7 @@ def area_rows(repeat: int, fields=AREA_FIELDS, frames: int = AREA_FRAMES,
         out = _out_dir(f"area-{field}")
         feats = extract.main(None, data, out / "features.h5", overwrite=True)
 
-        def run():
+        def run(data=data, mp=mp, out=out, feats=feats):
             c = time.process_time()
             t = time.perf_counter()
             localize.main(conf, data, mp, out / "poses.h5", features=feats, overwrite=True)
@@ -326,7 +329,7 @@ def area_rows(repeat: int, fields=AREA_FIELDS, frames: int = AREA_FRAMES,
             f"CPU per frame and peak RSS <= {LINEAR_GOAL:g} x the area ratio",
             meets_goal=None if is_first else
             (cpu_ratio <= LINEAR_GOAL * area and rss_ratio <= LINEAR_GOAL * area),
-            note=f"{p['cells'] / 1e6:.2f} M table cells ({area:.2f} x {fields[0]}'s);"
+            note=f"{p['cells']:,} table cells ({area:.2f} x {fields[0]}'s);"
                  f" peak RSS {rss_ratio:.2f} x; the localize process (fieldloc -q localize"
                  f" --features, warm lookup cache, VmHWM) {p['process_cpu_s']:.2f} s CPU;"
                  f" median and cpu: localize alone per frame, one process, warm; {SHARED}",
