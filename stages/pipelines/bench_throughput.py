@@ -7,7 +7,9 @@ whether that cost grows linearly with the frames and with the field.
   stages.localize.main alone) over one 400-frame dataset, in this process, warm: the map's
   tables, the lookup cache and numba's kernels loaded by one untimed run of the same work
   first. Process CPU time (all threads) is the measure, as the machine is shared and its wall
-  time holds the other processes' load; the wall time is reported beside it.
+  time holds the other processes' load; the wall time is reported beside it. The baseline is
+  the CPU of reading and decoding the same image files alone, the floor of any pipeline that
+  starts from them.
 - Start-up (``startup_row``): ``fieldloc -q localize`` of a one-frame dataset (extracting
   its features) as its own process, wall and CPU time and peak resident set, against an
   interpreter that does nothing (``python -c pass``) in the same run.
@@ -141,6 +143,18 @@ def timed_runs(run, runs: int) -> dict:
             "cpu_s": ext + loc, "runs": len(rs)}
 
 
+def decode_cpu_s(data: Path) -> float:
+    """CPU seconds to read and decode every image of ``data`` (the floor of any pipeline
+    that starts from the image files)."""
+    from ..common.dataset import open_dataset, read_image
+
+    paths = open_dataset(data).images
+    c = time.process_time()
+    for p in paths:
+        read_image(p)
+    return time.process_time() - c
+
+
 def _out_dir(name: str) -> Path:
     d = _work_dir() / "throughput" / name
     d.mkdir(parents=True, exist_ok=True)
@@ -167,6 +181,7 @@ def throughput_rows(repeat: int, frames: int = THROUGHPUT_FRAMES,
         r = timed_runs(partial(images_to_poses, method, data, mp, out, templates),
                        max(1, repeat // 5))
         fps, wall_fps = frames / r["cpu_s"], frames / r["wall_s"]
+        decode_ms = 1e3 * decode_cpu_s(data) / frames
         steps = ("localize on the images (ground features, matching, pose)"
                  if method == "templates" else
                  f"extract {1e3 * r['extract_cpu_s'] / frames:.2f} + localize"
@@ -176,10 +191,12 @@ def throughput_rows(repeat: int, frames: int = THROUGHPUT_FRAMES,
             median_ms=1e3 * r["wall_s"] / frames, cpu_ms=1e3 * r["cpu_s"] / frames,
             goal=f">= {goal:g} frames/s per core (CPU time)" if goal else "",
             meets_goal=(fps >= goal) if goal else None, repeats=r["runs"],
+            baseline="decoding its images alone, CPU", baseline_ms=decode_ms,
+            ratio=1e3 * r["cpu_s"] / frames / decode_ms,
             note=f"{fps:.0f} frames/s of CPU, {wall_fps:.0f} frames/s wall; {steps};"
                  f" stage mains with the CLI defaults, one process, warm (one untimed run"
                  f" first), start-up excluded; median and cpu per frame; {SHARED}",
-            extra={**r, "frames": frames, "frames_per_cpu_s": fps,
+            extra={**r, "frames": frames, "frames_per_cpu_s": fps, "decode_cpu_ms": decode_ms,
                    "frames_per_wall_s": wall_fps}))
     return rows
 
