@@ -824,6 +824,14 @@ ROWS: dict[str, Callable[[int], Row | list[Row]]] = {
     "cli-help": lambda n: importlib.import_module(".bench_cli", __package__).rows(n),
     "first-run-after-install": lambda n: importlib.import_module(
         ".warmup", __package__).bench_first_run(n),
+    "images-to-poses-per-core": lambda n: importlib.import_module(
+        ".bench_throughput", __package__).throughput_rows(n),
+    "images-to-poses-startup": lambda n: importlib.import_module(
+        ".bench_throughput", __package__).startup_row(n),
+    "images-to-poses-frames": lambda n: importlib.import_module(
+        ".bench_throughput", __package__).frames_row(n),
+    "images-to-poses-area": lambda n: importlib.import_module(
+        ".bench_throughput", __package__).area_rows(n),
 }
 
 
