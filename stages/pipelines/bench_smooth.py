@@ -18,7 +18,7 @@ from .bench_hypotheses import _errors, _work_dir, calibration_rows
 # (omni-hard), a range no default was tuned on (the smoother's constants were chosen on seeds
 # 0-19 of both presets; docs/smoothing.md)
 SMOOTH_SEEDS = {"omni-default": tuple(range(1200, 1220)), "omni-hard": tuple(range(1200, 1210))}
-# the issue's goals per preset: pooled within 40 cm, every seed, pooled median (m)
+# the smoother's goals per preset: pooled accepted within 40 cm, every seed, pooled median (m)
 GOALS = {"omni-default": (0.995, 0.97, 0.03), "omni-hard": (0.98, None, None)}
 
 
@@ -82,7 +82,7 @@ def accuracy_rows(method: str, preset: str) -> list[Row]:
               f" median {100 * a['median']:.1f} cm, {100 * a['wrong']:.2f} % off,"
               f" {1e3 * t_c / a['frames']:.1f} ms per frame (CPU: median run, tables built)"))]
     cal = calibration_rows(f"{method} --smooth", smoothed, label, t_s)
-    for r in cal:  # the smoother's goals (issue 24): AUROC >= 0.97, <= 0.2 % confidently wrong
+    for r in cal:  # the smoother's goals: AUROC >= 0.97, <= 0.2 % confidently wrong
         if "calibration" in r.name:
             r.goal = "AUROC >= 0.97"
             r.meets_goal = bool(r.extra["auroc"] >= 0.97)

@@ -1,4 +1,4 @@
-"""``fieldloc bench`` rows of issue 27's "images to poses, per core": what one core spends to
+"""``fieldloc bench`` rows "images to poses, per core": what one core spends to
 take a rendered dataset's images to poses, through the stage mains a user's command calls, and
 whether that cost grows linearly with the frames and with the field.
 
@@ -42,7 +42,7 @@ LINEAR_FRAMES = (100, 400, 1600)
 AREA_FRAMES = 200
 AREA_FIELDS = ("msl-2015", "msl", "msl-double")
 SEED = 71
-# (camera kind, method, field, goal in frames per second of CPU: issue 27's, where it set one)
+# (camera kind, method, field, goal in frames per second of CPU, where one is set)
 PIPELINES = (("omni", "lut", "msl-2015", 200.0), ("omni", "fit", "msl-2015", None),
              ("omni", "templates", "msl-2015", None), ("perspective", "mcl", "kidsize", 150.0))
 LINEAR_GOAL = 1.3  # largest / smallest set's CPU per frame (frames); over the area ratio (area)
