@@ -242,7 +242,7 @@ def test_from_minho_converts_the_team_files(tmp_path):
     rec = calibrate.report(out)
     assert rec["model"] == "table" and len(rec["pairs"]) == len(r)
     assert rec["sources"]["mirror_cfg_hash"].startswith("sha256:")
-    # the fit range and the seed's polynomial are a conf away
+    # the fit range and the paper's polynomial are a conf away
     conf = {**calibrate.confs["minho"], "max_distance_m": 3.0}
     cam3 = load_calib(calibrate.from_minho(conf, team, tmp_path / "c3.yaml"))
     assert len(cam3.radial_table) == 12 and cam3.max_distance == pytest.approx(3.0)

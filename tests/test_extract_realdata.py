@@ -33,7 +33,7 @@ from stages.pipelines.realdata import lab_field
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 pytestmark = pytest.mark.skipif(not REALDATA.exists(), reason="../shared/realdata is absent")
 
-LAB_RANGE = 4.0  # m, the seed's sensor range (beyond ~3.5 m one pixel spans 0.1-0.25 m)
+LAB_RANGE = 4.0  # m, the paper's sensor range (beyond ~3.5 m one pixel spans 0.1-0.25 m)
 # the preset a user takes for real images, with the 360 extra radial lines of "dense" so that a
 # line 2 m away gives enough points to fit
 REAL_DENSE = {"points_radial_lines": 360}

@@ -1,5 +1,5 @@
-"""Particle filter of seed 000 (stages.localize.mcl with its observation and motion models) and
-the belief picture, on synthetic observations generated from the field model."""
+"""Particle filter of Schulz et al. (2011) (stages.localize.mcl with its observation and motion
+models) and the belief picture, on synthetic observations generated from the field model."""
 
 from __future__ import annotations
 
@@ -489,7 +489,7 @@ def test_rendered_walk_from_the_initial_placement(rendered_walk):
 
 
 def test_rendered_walk_without_lines(rendered_walk):
-    """The seed's ablation (crossings and goal posts only): lines make the poses better."""
+    """The paper's ablation (crossings and goal posts only): lines make the poses better."""
     err, _, cols = rendered_walk["no-lines"]
     with_lines, _, _ = rendered_walk["default"]
     assert not cols["failed"].any() and np.all(np.isfinite(err))

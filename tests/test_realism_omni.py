@@ -186,7 +186,7 @@ def minho_distance():
     and a renderer with that camera and omni-default's imaging, drawing a bare field."""
     folder = REALDATA / "minho-distance"
     radii, dist, centre = mirror_table(folder)
-    # the seed's fifth-order model cannot follow this mirror's table beyond ~3 m (it is
+    # the paper's fifth-order model cannot follow this mirror's table beyond ~3 m (it is
     # almost flat there): calibrate on the pairs up to 3 m, as a team would
     keep = dist <= 3.0
     fit = calibrate.fit(calibrate.confs["default"], radii[keep], dist[keep], centre=centre,

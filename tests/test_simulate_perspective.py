@@ -125,7 +125,8 @@ def test_goal_posts_rise_above_the_field_boundary(renderer):
 
 
 def test_image_corners_are_darker_and_blurrier(renderer):
-    """The wide-angle lens' corners are the unreliable part of the image (seed 000 §3)."""
+    """The wide-angle lens' corners are the unreliable part of the image (Schulz et al. 2011,
+    §3)."""
     pose = (-1.0, 0.0, 0.0)
     img = renderer.render_view(pose, 0.6, 0.0, frame=0).astype(float)
     clean = renderer.scene_image(pose, 0.6, 0.0, 0)[0]
@@ -140,7 +141,7 @@ def test_image_corners_are_darker_and_blurrier(renderer):
 
 def test_bayer_demosaicing_leaves_colour_fringes_at_sharp_edges(renderer):
     """On the carpet (only green and white in the scene) the demosaiced image holds orange or
-    cyan pixels next to the lines' sharp edges (the artefacts seed 000 filters)."""
+    cyan pixels next to the lines' sharp edges (the artefacts Schulz et al. (2011) filters)."""
     def fringes(im, carpet):
         b, g, r = (im[..., k].astype(float) for k in range(3))
         orange = (r > g + 20) & (r > b + 30)

@@ -193,7 +193,7 @@ def test_a_corrupt_templates_file_is_one_clear_line(grid_and_run, tmp_path):
 
 
 def test_descent_and_closed_form_agree_on_the_same_pairs(grid_and_run):
-    """The seed's coordinate descent from (0, 0, 0) reaches the closed-form (2D Kabsch)
+    """The paper's coordinate descent from (0, 0, 0) reaches the closed-form (2D Kabsch)
     minimum of eq. 4, on synthetic pairs far from the robot and on matched pairs of a run
     frame against its nearest template."""
     from stages.common import ground_features as gf

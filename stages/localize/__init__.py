@@ -14,10 +14,11 @@ every method as ``<method>-<preset>`` (``mcl-uniform``), each with its ``method`
 "init": "uniform"}``; the method "lut" when it names none); unknown keys are errors, and the
 resolved conf is stored in poses.h5.
 
-Method ``templates`` (seed 004) reads no features: it matches the dataset's own images against
-a template database (``templates``, from build-templates; stages.common.templates), and the map
-is optional (it gives the field; without it, the field the templates record). Its module says
-so with ``INPUT = "templates"``, and its ``run`` takes the database in place of the features.
+Method ``templates`` (the SURF template paper) reads no features: it matches the dataset's own
+images against a template database (``templates``, from build-templates;
+stages.common.templates), and the map is optional (it gives the field; without it, the field
+the templates record). Its module says so with ``INPUT = "templates"``, and its ``run`` takes
+the database in place of the features.
 
 Features come from a features file (``features``) or from line points of a team's own
 detector (``points``: CSV with columns frame, x, y in the robot frame, binned into the scan

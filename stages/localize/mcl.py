@@ -1,5 +1,5 @@
-"""Monte-Carlo localisation (seed 000, section 5): a sampling-importance-resampling particle
-filter over (x, y, theta) on lines, crossings and goal posts from a perspective camera.
+"""Monte-Carlo localisation (Schulz et al. (2011), section 5): a sampling-importance-resampling
+particle filter over (x, y, theta) on lines, crossings and goal posts from a perspective camera.
 
 Per frame: (1) predict, every particle moved by the odometry increment with noise
 (stages.localize.motion_model); (2) weight, each particle's weight multiplied by the
@@ -220,7 +220,7 @@ def _preset(**changes) -> dict:
 camera_kinds = ("perspective",)  # the features it reads
 confs = {
     "default": _preset(),
-    # the seed's ablation: crossings and goal posts only
+    # the paper's ablation: crossings and goal posts only
     "no-lines": _preset(observation={"use_lines": False}),
     # global localisation from anywhere on the field (up to the field's symmetry)
     "uniform": _preset(init="uniform"),

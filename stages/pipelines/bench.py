@@ -455,7 +455,7 @@ def bench_mcl_update(repeat: int) -> Row:
 
 def bench_mcl_accuracy(repeat: int) -> list[Row]:
     """Issue 4's accuracy goal on a rendered KidSize walk: median <= 10 cm and >= 95 % within
-    40 cm, with the seed's ablation (lines disabled) beside it."""
+    40 cm, with the paper's ablation (lines disabled) beside it."""
     from .. import localize
     from ..common.dataset import read_csv
     from ..common.poses_file import read_poses
@@ -480,8 +480,8 @@ def bench_mcl_accuracy(repeat: int) -> list[Row]:
             repeats=1,
             note=f"median {100 * med:.1f} cm, within 10/20/40 cm {_pct(s, '0.1')}/"
                  f"{_pct(s, '0.2')}/{_pct(s, '0.4')} %, heading median "
-                 f"{s['heading_error_deg']['median']:.1f} deg (seed 000: 17 cm, 89 % with "
-                 "lines; 26 cm, 66 % without)",
+                 f"{s['heading_error_deg']['median']:.1f} deg (Schulz et al. (2011): 17 cm,"
+                 " 89 % with lines; 26 cm, 66 % without)",
             extra={"report": s}))
     return rows
 

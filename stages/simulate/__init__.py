@@ -10,9 +10,10 @@ target and renamed at the end, so an interrupted run leaves nothing under the re
 next run onto the same target removes what a killed run left there (``.<name>.fieldloc-<pid>-*
 .part``), with a warning.
 
-Template captures (seed 004): with trajectory kind ``grid`` the robot is placed at the nodes of
-a grid (``trajectory.grid_poses``; ``frames`` is then the number of placements), one frame per
-node and heading, and the dataset has no odometry.csv (the robot was carried from node to node).
+Template captures (the SURF template paper): with trajectory kind ``grid`` the robot is placed
+at the nodes of a grid (``trajectory.grid_poses``; ``frames`` is then the number of
+placements), one frame per node and heading, and the dataset has no odometry.csv (the robot was
+carried from node to node).
 ``calib_seed`` (None: ``seed``) draws the calibration error calib.yaml states: two datasets of
 the same ``calib_seed`` and different seeds are one robot recorded twice (another scene, path,
 sensor noise), as a template grid and a run localised against it are; ``world_seed`` (None:
@@ -110,7 +111,8 @@ _OMNI_BASE = {
 }
 
 
-# what real catadioptric frames of the seed-002 team show (../shared/realdata, measured by
+# what real catadioptric frames of the MINHO team (Ribeiro et al. 2015) show (../shared/realdata,
+# measured by
 # tests/test_realism_omni.py and tests/test_extract_realdata.py): the team's mirror (its
 # mirror.cfg, smoothed), a calibration off by 0.15 m rms over 0.3-4 m (minho-distance: the
 # team's table places a line at a known distance 4-16 cm too far from 1 to 2 m, growing with
@@ -168,7 +170,7 @@ confs = {
 }
 confs["default"] = copy.deepcopy(confs["omni-default"])
 
-# issue 4 (seed 000): a KidSize humanoid walking at about 0.2 m/s with a wide-angle head camera;
+# Schulz et al. (2011): a KidSize humanoid walking at about 0.2 m/s with a wide-angle head camera;
 # it enters the field at a touch line of its own half ("start": "touchline", see walk.py)
 _PERSPECTIVE_BASE = {
     "camera": "perspective",

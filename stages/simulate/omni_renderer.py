@@ -1,8 +1,8 @@
 """Omnidirectional (catadioptric) camera renderer: what a MSL robot's mirror camera shows.
 
-Geometry. The mirror model is an :class:`OmniCamera` (seed 004 eq. 2): a floor point at distance
-d from the robot appears at image radius r with d = f(r), a fifth-order polynomial, around an
-image centre offset from the middle of the 480 x 480 image, at image angle
+Geometry. The mirror model is an :class:`OmniCamera` (the SURF template paper, eq. 2): a floor
+point at distance d from the robot appears at image radius r with d = f(r), a fifth-order
+polynomial, around an image centre offset from the middle of the 480 x 480 image, at image angle
 ``forward_angle + bearing``. Beyond the valid radius the depression angle of the viewing ray keeps
 falling at ``outer_elevation_rate`` rad/px, so the outer ring shows the far floor, the walls, the
 audience and the horizon, up to the mirror's rim. The effective viewpoint sits
@@ -20,7 +20,7 @@ instead of aliasing), shadows fall around the feet of things, walls, goals, robo
 ball are drawn where their ray heights say (with a depth buffer), the grid is remapped to the
 image, and the robot's own body, the struts of the mirror mount, reflections and the dark
 surroundings of the mirror are laid over it. Imaging: vignetting, light level and white balance
-of the frame, lens blur, chroma subsampling (the seed's camera delivers YUV 4:1:1), shot and read
+of the frame, lens blur, chroma subsampling (the paper's camera delivers YUV 4:1:1), shot and read
 noise, optional JPEG artefacts.
 """
 
@@ -40,7 +40,8 @@ from .scene import sample_texture
 # A mirror of our own design: about 40 px at 0.28 m (the body edge), 120 px at 1 m, 180 px at
 # 3 m, 200 px at 5.8 m, increasing over the whole image (max floor distance ~16 m at 228 px).
 DEFAULT_POLYNOMIAL = [-2.12375, 0.150314, -0.00356398, 4.06874e-05, -2.15966e-07, 4.39107e-10]
-# A mirror with the resolution of the seed-002 team's own (minho-lab mirror.cfg, smoothed: a
+# A mirror with the resolution of the MINHO team's own (Ribeiro et al. 2015; minho-lab
+# mirror.cfg, smoothed: a
 # fifth-order f(r) fitted to the table's 26 marks with pixel-space weights): 0.3 m at 40 px,
 # 1 m at 94 px (41 px/m), 2 m at 123 px (24 px/m), 3 m at 145 px (20 px/m), 4 m at 164 px
 # (17 px/m), 6.5 m at 193 px. Far lines keep 2-3 px of width, where DEFAULT_POLYNOMIAL's

@@ -1,5 +1,5 @@
-"""Perspective camera renderer: what a humanoid robot's head camera shows (seed 000 §3: a 752 x 480
-colour camera behind a wide-angle lens).
+"""Perspective camera renderer: what a humanoid robot's head camera shows (Schulz et al. (2011)
+§3: a 752 x 480 colour camera behind a wide-angle lens).
 
 It renders the camera-independent world of :mod:`.scene` (a :class:`FieldScene`) through a
 :class:`PerspectiveCamera` whose pitch and roll follow the walk (:mod:`.walk`).
@@ -19,7 +19,7 @@ Imaging (all in the scene's display-referred BGR levels, like the omni renderer)
 chromatic aberration and lens blur that grow towards the corners of the wide-angle image,
 head-motion blur during the exposure, vignetting, the frame's light level and white balance, an
 RGGB Bayer mosaic with shot and read noise demosaiced bilinearly (the orange and cyan fringes
-next to sharp contrasts that seed 000 filters), and YUV 4:2:2 chroma subsampling.
+next to sharp contrasts that Schulz et al. (2011) filter), and YUV 4:2:2 chroma subsampling.
 
 Renderer interface (see :mod:`stages.simulate`): ``PerspectiveRenderer(conf, scene, seed)``,
 ``.camera``, ``.prepare(path)`` (head motion over the walk; returns the head CSVs to write),
@@ -42,7 +42,7 @@ from .imaging import add_sensor_noise, chroma_subsample, frame_light, jpeg_round
 from .scene import sample_texture
 
 PERSPECTIVE_DEFAULTS = {
-    "image_size": [752, 480],  # width, height (px): the seed's WXGA camera
+    "image_size": [752, 480],  # width, height (px): the paper's WXGA camera
     "intrinsics": {"fx": 330.0, "fy": 330.0, "cx": 375.5, "cy": 239.5},  # px
     "distortion": [-0.25, 0.05, 0.0, 0.0, 0.0],  # k1, k2, p1, p2, k3 (wide-angle, barrel)
     "height": 0.55,  # m: camera above the floor (head of a KidSize robot)

@@ -13,8 +13,8 @@ MSL robot (0.2-2 m/s) or a slow humanoid (e.g. 0.05-0.3 m/s, ``heading: along``)
 
 Kinds: ``random`` (random waypoints inside the field), ``loop`` (the same controller around a fixed
 ring of waypoints, a repeatable tour of the field), ``grid`` (no path: the robot placed at the
-nodes of a square grid, each at ``grid_headings`` headings, as template captures of seed 004 are
-taken; ``grid_poses``).
+nodes of a square grid, each at ``grid_headings`` headings, as the SURF template paper takes
+its template captures; ``grid_poses``).
 """
 
 from __future__ import annotations

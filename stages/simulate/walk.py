@@ -1,5 +1,5 @@
-"""A walking humanoid (seed 000's KidSize robot): where it enters the field and how its head
-moves while it walks.
+"""A walking humanoid (the KidSize robot of Schulz et al. 2011): where it enters the field and
+how its head moves while it walks.
 
 - ``touchline_start``: robots enter the field at a touch line of their own half (x < 0),
   facing into the field; the entry point along the touch line and the side are seeded.

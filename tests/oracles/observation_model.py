@@ -1,5 +1,5 @@
 """Oracle of the particle filter's observation model (stages.localize.observation_model, whose
-module doc states the equations; seed 000, section 5): the log-likelihood of a frame's
+module doc states the equations; Schulz et al. (2011), section 5): the log-likelihood of a frame's
 observations at N poses, written as the equations, in float64, one observation at a time with
 the poses on the last axis and every landmark it may be associated with on the first.
 
