@@ -45,8 +45,9 @@ SMOOTH_METHODS = ("lut", "fit", "mcl", "templates")
 @click.option("--heading", type=click.Choice(["imu", "histogram", "truth"]), default=None,
               help=f"lut, fit: heading source [default: {LOCALIZE['lut', 'heading']}].")
 @click.option("--start-half", type=click.Choice(["own", "opponent", "any"]), default=None,
-              help="lut, fit: where the first fix lies (own: x < 0), which resolves the"
-              " field's 180 deg symmetry when no field-aligned IMU heading does"
+              help="lut, fit, mcl: where the robot's first pose lies (own: x < 0), which"
+              " resolves the field's 180 deg symmetry when no field-aligned IMU heading does"
+              " (mcl: the half its uniform start or placement is drawn on)"
               f" [default: {LOCALIZE['fit', 'start_half']}].")
 @click.option("--init", type=click.Choice(["placement", "uniform"]), default=None,
               help="mcl: initial belief, the game's placement (own half, at the touch"
@@ -91,8 +92,8 @@ def localize(ctx, dataset, map_path, templates, pose_solver, features, points, m
             raise click.UsageError("--heading applies to --method lut and fit")
         conf["heading"] = heading
     if start_half is not None:
-        if method not in TABLE_METHODS:
-            raise click.UsageError("--start-half applies to --method lut and fit")
+        if method not in (*TABLE_METHODS, "mcl"):
+            raise click.UsageError("--start-half applies to --method lut, fit and mcl")
         conf["start_half"] = start_half
     if init is not None:
         if method != "mcl":

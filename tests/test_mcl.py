@@ -475,6 +475,7 @@ def rendered_walk(tmp_path_factory, map_path):
         err = np.hypot(cols["x"] - tx, cols["y"] - ty)
         mirrored = np.hypot(cols["x"] + tx, cols["y"] + ty)
         out[preset] = (err, mirrored, cols)
+    out["paths"] = (data, features)
     return out
 
 
@@ -503,6 +504,93 @@ def test_rendered_walk_from_a_uniform_start(rendered_walk):
     assert np.median(folded) <= 0.15
     assert np.mean(folded <= 0.40) >= 0.9
     assert all("mirror-ambiguous" in f for f in cols["flags"][10:])
+
+
+def test_cli_start_half_breaks_the_symmetry_of_a_uniform_start(rendered_walk, map_path,
+                                                               tmp_path):
+    """``fieldloc localize --method mcl --init uniform --start-half H``: the belief is drawn on
+    the named half, so the pose itself (not only up to the mirror) is decided and accepted.
+    The walk starts on the own half: ``own`` gives the truth, accepted on >= 90 % of the
+    frames from frame 10 on (every frame on this walk today); ``opponent`` (wrong) gives the
+    mirrored track (which no frame can contradict: ``evaluate`` with the truth says so);
+    without it no frame is accepted, every one up to the mirror."""
+    from click.testing import CliRunner
+
+    from fieldloc_cli.main import cli
+    from stages.common.dataset import read_csv
+    from stages.common.poses_file import read_poses
+
+    data, features = rendered_walk["paths"]
+    truth = read_csv(data / "truth.csv", "truth")
+    assert truth["x"][0] < 0  # the walk enters on the own half
+    runs = {}
+    for half in ("own", "opponent"):
+        out = tmp_path / f"{half}.h5"
+        res = CliRunner().invoke(cli, ["localize", str(data), "--map", str(map_path),
+                                       "--features", str(features), "--method", "mcl",
+                                       "--init", "uniform", "--start-half", half, "-o",
+                                       str(out)])
+        assert res.exit_code == 0, res.output
+        cols, attrs = read_poses(out)
+        assert attrs["conf"]["start_half"] == half
+        i = np.searchsorted(truth["stamp"], cols["stamp"] - 1e-6)
+        err = np.hypot(cols["x"] - truth["x"][i], cols["y"] - truth["y"][i])
+        mirrored = np.hypot(cols["x"] + truth["x"][i], cols["y"] + truth["y"][i])
+        runs[half] = (cols, err, mirrored)
+    cols, err, _ = runs["own"]
+    assert np.mean(cols["accepted"][10:] & (err[10:] <= 0.4)) >= 0.9
+    assert not np.any(cols["accepted"] & (err > 1.0))
+    cols, err, mirrored = runs["opponent"]
+    assert np.mean(cols["accepted"][10:] & (mirrored[10:] <= 0.4)) >= 0.9
+    _, _, cols = rendered_walk["uniform"]
+    assert not cols["accepted"].any() and np.mean(cols["accepted_up_to_mirror"][10:]) >= 0.9
+
+
+def test_cli_refuses_a_bad_start_half_in_one_line(kidsize, map_path, tmp_path):
+    from click.testing import CliRunner
+
+    from fieldloc_cli.main import cli
+
+    data = tmp_path / "walk"
+    features = write_synthetic_run(kidsize, data, 5, seed=4)
+    for bad in ("start_half=sideways", "start_half_error=2"):
+        res = CliRunner().invoke(cli, ["localize", str(data), "--map", str(map_path),
+                                       "--features", str(features), "--method", "mcl", "-c",
+                                       bad, "-o", str(tmp_path / "p.h5")])
+        assert res.exit_code != 0
+        assert bad.split("=")[0] in res.output and "Traceback" not in res.output
+        assert not (tmp_path / "p.h5").exists()
+
+
+def test_a_new_rival_is_scored_on_the_frames_before(kidsize, model):
+    """A rival found now holds the sums it would have had if followed since the frames the
+    belief weighed before (moved back by the odometry), not this frame's ratio alone: on a
+    robot walking straight ahead along a frame sequence, a place found at the last frame
+    whose moved-back poses explain the earlier frames as the belief's reference did holds
+    odds of about 0 from them; one whose earlier poses fit worse holds negative odds."""
+    conf = copy.deepcopy(mcl.confs["uniform"])
+    pf = mcl.ParticleFilter(model, conf)
+    pf.initialise()
+    truth = np.array([-2.0, -1.0, 0.3])
+    step = np.array([0.1, 0.0, 0.0])
+    poses = [truth]
+    for _ in range(5):
+        poses.append(motion_model.moved(poses[-1][None], *step)[0])
+    rng = np.random.default_rng(3)
+    for k, pose in enumerate(poses[:-1]):
+        prep = model.prepare(synthetic_observations(kidsize, pose, rng))
+        ll = float(model.log_likelihood(*pose[:, None], prep)[0])
+        pf._since_recent = step.copy() if k else np.zeros(3)
+        pf._recent.append((prep, ll, ll, pf._since_recent))
+        pf._since_recent = np.zeros(3)
+    pf._since_recent = step.copy()
+    far = np.array([3.0, 2.0, -2.0])
+    evidence, odds = pf._retro_odds(np.array([poses[-1], far]), 1.0)
+    assert abs(odds[0]) < 1e-6 and abs(evidence[0]) < 1e-6
+    assert odds[1] < -10.0 and evidence[1] < -10.0
+    # forgetting weighs each earlier frame by keep_share per frame back
+    _, halved = pf._retro_odds(np.array([far]), 0.5)
+    assert odds[1] < halved[0] < 0.0
 
 
 def test_map_without_crossing_tables_still_works(kidsize, tmp_path):

@@ -37,7 +37,12 @@ New particles at resampling:
   moved by the odometry, each summing its log-likelihood ratio against the belief's
   predictive likelihood, forgetting with ``rival_memory`` frames (a sequential test); the best
   rival stands for "elsewhere" when its sum beats the frame's best candidate, and the placed
-  poses then lie around it. Rivals inside the belief's best cluster or its mirror, or
+  poses then lie around it. A rival found now starts with the sums it would have had since
+  the frames the belief weighed before it (``_retro_odds``: moved back by the odometry, scored
+  in each of those frames, up to ``RIVAL_LOOKBACK`` memories back), not with this frame's
+  ratio counted as if every earlier frame had said the same: one frame that happens to fit a
+  place better is not the many frames a rival must win. Rivals inside the belief's best
+  cluster or its mirror, or
   ``rival_floor`` below the belief, are dropped; a wide belief holds none. (The uniform start
   on the KidSize walk of seed 41 settled on a pose 2.5 m along the touch line from the truth
   and stayed there for 90 frames; with the rivals it holds the truth from frame 40 on);
@@ -82,10 +87,10 @@ neighbouring bins) gives the heaviest region; three mean-shift steps with radius
 mean is the pose, its weighted covariance the covariance, its weight share the confidence; the
 poses file's ``error`` is sqrt(var x + var y) of that cluster (m). Where a uniform start keeps
 rivals, each rival outside the listed clusters is a hypothesis too, holding the odds its summed
-log-likelihood ratio against the belief's heaviest particle gives (``_with_rivals``; a rival
-found now counts its first ratio as often as the belief has weighed frames): the belief's
-shares, the confidence among them, are what is left. A particle set cannot hold two places that
-explain a still robot's frames alike (which keeps the mass is the luck of the first frames).
+log-likelihood ratio against the belief's heaviest particle gives (``_with_rivals``): the
+belief's shares, the confidence among them, are what is left. A particle set cannot hold two
+places that explain a still robot's frames alike (which keeps the mass is the luck of the first
+frames).
 On still robots (``fieldloc bench --only mcl-hulks``) the AUROC of the top pose and mirror's
 share for a hit goes from 0.88 to 0.94 on 120 rendered NAO and KidSize runs and from 0.81 to
 0.84 on the 107 HULKs frames (for within 1 m: 0.86 to 0.93; 0.994 to 0.984); the poses stay
@@ -100,13 +105,18 @@ and 0.91, and 0.64 and 0.98 on the HULKs frames.)
 Symmetry: the field looks the same after a 180 deg turn about the centre spot (both goals
 white), so a pose and its mirror (FieldModel.mirror_pose) explain every image equally. With
 the default ``init: placement`` (own half, x < 0, at either touch line, facing into the field,
-as robots enter in a game) the prior breaks the symmetry and the filter keeps its side; a frame
+as robots enter in a game; the opponent half for ``start_half: opponent``) the prior breaks
+the symmetry and the filter keeps its side; a frame
 is flagged "mirror-ambiguous" when the particles around the mirrored pose weigh at least
 ``mirror_ratio`` of the best cluster. With ``init: uniform`` on a point-symmetric field the
 posterior stays exactly symmetric; the filter then holds one particle per mirrored pair
 (``symmetric_pairs``), reports the member of the pair that continues the previous estimate (own
-half at the start), with confidence at most 0.5, and flags every frame "mirror-ambiguous".
-``init: pose`` starts around ``init_pose`` with ``init_spread``.
+half at the start), with confidence at most 0.5, and flags every frame "mirror-ambiguous";
+what it decides is the pose up to the mirror (``confidence_up_to_mirror``). ``start_half``
+(own or opponent) says on which half the robot's first pose lies: a uniform start then draws
+its belief, and searches its places, on that half (``start_half_error`` of it on the other),
+the prior is no longer symmetric, and the pose itself is decided. ``init: pose`` starts
+around ``init_pose`` with ``init_spread``.
 
 Smoothing (``smooth: true``, offline; smooth.py, docs/smoothing.md): the causal run keeps per
 frame its prepared observations and the poses its particle set held, and ``MclScorer`` gives
@@ -122,6 +132,7 @@ the same poses.
 
 from __future__ import annotations
 
+import collections
 import copy
 import logging
 import math
@@ -131,23 +142,33 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from stages.common.errors import FieldlocError
-from stages.common.geometry import wrap_angle
+from stages.common.geometry import compose, wrap_angle
 from stages.common.observations import Observations
 from stages.common.poses_file import PoseTrack
 
 from . import motion_model, place_search, smooth
+from .heading import START_HALVES
 from .observation_model import DEFAULTS as OBSERVATION_DEFAULTS
 from .observation_model import ObservationModel
 from .smooth import FrameCandidates
 
 log = logging.getLogger(__name__)
 
+# a new rival's odds are summed over the frames of this many of the rivals' memory
+# (``rival_memory``) back: a frame that far back weighs exp(-3) ~ 5 % of this one
+RIVAL_LOOKBACK = 3.0
 _NO_SUPPORT = -30.0  # log belief density below which a pose counts as unsupported
 
 _DEFAULT = {
     "seed": 0,
     "init": "placement",  # placement | uniform | pose
     "init_pose": None,  # [x, y, theta] for init = pose
+    # where the robot's first pose lies (own: x < 0, opponent: x > 0, any): a uniform start
+    # then draws its belief on that half, which breaks the field's 180 deg symmetry where no
+    # observation can; a placement is on that half's touch lines (the own half for any)
+    "start_half": "any",
+    "start_half_error": 1e-3,  # probability that start_half is wrong (that share of a
+    # uniform start's particles lies on the other half)
     "init_spread": [0.3, 0.3, 0.2],  # m, m, rad: sigma around init_pose; placement uses the
     # first as the spread across the touch line and the last for the heading
     "particles_min": 250,
@@ -274,7 +295,12 @@ class ParticleFilter:
         self._rival_evidence = np.zeros(0)
         # ... and its log odds against the belief: the same sum with the frame that found it
         self._rival_odds = np.zeros(0)
-        self._frames_weighed = 0.0  # frames weighed while tracking, forgetting as the rivals
+        # while tracking, the frames a new rival's odds are summed over (_retro_odds): per
+        # frame with observations its prepared observations, the belief's reference
+        # log-likelihood and the odometry since the frame before; and the odometry since the
+        # last of them
+        self._recent: collections.deque = collections.deque(maxlen=1)
+        self._since_recent = np.zeros(3)
         self._rival_placed: np.ndarray | None = None  # the rival this frame places, if any
         self._n_rivals = 0  # rivals kept, by the initial belief (conf "rivals")
         self._start_search = False  # a uniform start: the first observations place the belief
@@ -293,7 +319,7 @@ class ParticleFilter:
         c = self.conf
         mode = mode or c["init"]
         self.paired = (mode == "uniform" and bool(c["symmetric_pairs"])
-                       and self.field.is_point_symmetric())
+                       and self.field.is_point_symmetric() and c["start_half"] == "any")
         n = self._base_count(int(c["init_particles"].get(mode, c["particles_max"])))
         self._last_pose = None
         self._last_estimate = None
@@ -302,7 +328,7 @@ class ParticleFilter:
         self._n_rivals = int(c["rivals"].get(mode, 0))
         self._start_search = mode == "uniform" and int(c["start_places"]) > 0
         if mode == "uniform":
-            p = self._uniform(n)
+            p = self._uniform(n, start=True)
         elif mode == "placement":
             p = self._placement(n)
         elif mode == "pose":
@@ -322,18 +348,38 @@ class ParticleFilter:
         """Particles held for a belief of ``n``: half when each stands for a mirrored pair."""
         return max(n // 2, 1) if self.paired else n
 
-    def _uniform(self, n: int) -> np.ndarray:
+    def _uniform(self, n: int, *, start: bool = False) -> np.ndarray:
+        """``n`` poses drawn uniformly over the world; with ``start``, over the start's
+        half where ``start_half`` names one (``start_half_error`` of them on the other)."""
         x0, x1, y0, y1 = self._bounds
         u = self.rng.random((n, 3))
-        return np.stack([x0 + (x1 - x0) * u[:, 0], y0 + (y1 - y0) * u[:, 1],
-                         -math.pi + 2 * math.pi * u[:, 2]], axis=1)
+        p = np.stack([x0 + (x1 - x0) * u[:, 0], y0 + (y1 - y0) * u[:, 1],
+                      -math.pi + 2 * math.pi * u[:, 2]], axis=1)
+        if start and self.conf["start_half"] != "any":
+            sign = -1.0 if self.conf["start_half"] == "own" else 1.0
+            wrong = self.rng.random(n) < float(self.conf["start_half_error"])
+            # folded onto the half (the world is symmetric about x = 0), or off it
+            p[:, 0] = np.where(wrong, -sign, sign) * np.abs(p[:, 0])
+        return p
+
+    def _start_bounds(self) -> tuple:
+        """Where a uniform start's places are searched: the half ``start_half`` names, the
+        half x <= 0 while particles stand for mirrored pairs, else the world."""
+        x0, x1, y0, y1 = self._bounds
+        half = self.conf["start_half"]
+        if half == "own" or self.paired:
+            return (x0, 0.0, y0, y1)
+        if half == "opponent":
+            return (0.0, x1, y0, y1)
+        return self._bounds
 
     def _placement(self, n: int) -> np.ndarray:
-        """Own half (x < 0), at either touch line, facing into the field."""
+        """The start's half (``start_half``; own, x < 0, for any), at either touch line,
+        facing into the field."""
         fm = self.field
         s_across, s_heading = float(self.conf["init_spread"][0]), float(self.conf["init_spread"][2])
         side = np.where(self.rng.random(n) < 0.5, 1.0, -1.0)
-        x = self.rng.uniform(-fm.length / 2, 0.0, n)
+        x = -_placement_sign(self.conf) * self.rng.uniform(-fm.length / 2, 0.0, n)
         across = self.rng.standard_normal(n) * s_across  # beyond the line is outwards
         turn = self.rng.standard_normal(n) * s_heading
         p = fm.touchline_pose(x, side, inset=-across)
@@ -349,6 +395,8 @@ class ParticleFilter:
         if len(self._rivals):  # the rivals move by the odometry, without noise (each is one
             # pose: a random walk would carry it off the place whose evidence it sums)
             self._rivals = motion_model.moved(self._rivals, *(float(v) for v in odometry))
+        if self._n_rivals > 0:
+            self._since_recent = compose(self._since_recent, np.asarray(odometry, float))
 
     def fold(self):
         """Paired mode: hold each particle as whichever of itself and its mirrored pose lies
@@ -406,6 +454,9 @@ class ParticleFilter:
             # the belief's own place, a pose as a rival is: its heaviest particle
             ll_belief = float(ll[int(np.argmax(lw))])
             self._update_rivals(pool, ll_pool, ll_rivals, log_tracked, ll_belief)
+            if self._n_rivals > 0:
+                self._recent.append((prep, ll_belief, log_tracked, self._since_recent))
+                self._since_recent = np.zeros(3)
             if n_pool:
                 self._kidnap = self._kidnap_share(log_tracked, ll_pool)
         # augmented MCL: the mean per-observation likelihood under the predicted belief
@@ -432,8 +483,7 @@ class ParticleFilter:
         ``start_uniform_share`` when given)."""
         c = self.conf
         n = len(self.particles)
-        x0, x1, y0, y1 = self._bounds
-        bounds = (x0, 0.0, y0, y1) if self.paired else self._bounds
+        bounds = self._start_bounds()
         step, turn = (float(v) for v in c["start_grid"])
         places, elsewhere = place_search.search(
             self.model, prep, bounds, step, turn, int(c["start_places"]),
@@ -445,11 +495,12 @@ class ParticleFilter:
         n_uni = int(round(n * min(max(elsewhere, 0.0), 1.0)))
         counts = np.full(len(places), (n - n_uni) // len(places))
         counts[:(n - n_uni) - int(counts.sum())] += 1
-        drawn = [self._uniform(n_uni)]
+        drawn = [self._uniform(n_uni, start=True)]
         for (pose, _ll), m in zip(places, counts):
             mean, cov = place_search.local_posterior(self.model, prep, pose)
             q = mean + self.rng.standard_normal((int(m), 3)) @ np.linalg.cholesky(cov).T
-            if self.symmetric and not self.paired:  # the place or its mirror image, alike
+            if self.symmetric and not self.paired and c["start_half"] == "any":
+                # the place or its mirror image, alike
                 flip = self.rng.random(len(q)) < 0.5
                 q[flip] = self.field.mirror_pose(q[flip])
             drawn.append(q)
@@ -479,7 +530,9 @@ class ParticleFilter:
         self._rivals = np.zeros((0, 3))
         self._rival_evidence = np.zeros(0)
         self._rival_odds = np.zeros(0)
-        self._frames_weighed = 0.0
+        memory = max(float(self.conf["rival_memory"]), 1.0)
+        self._recent = collections.deque(maxlen=int(math.ceil(RIVAL_LOOKBACK * memory)))
+        self._since_recent = np.zeros(3)
 
     def _update_rivals(self, pool, ll_pool, ll_rivals, log_tracked: float,
                        ll_belief: float | None = None):
@@ -502,17 +555,10 @@ class ParticleFilter:
         # rival as good as its best pose)
         ll_b = log_tracked if ll_belief is None else ll_belief
         odds = self._rival_odds * keep_share + (ll_rivals - ll_b)
-        self._frames_weighed = self._frames_weighed * keep_share + 1.0
         if len(pool):
             top = (np.argpartition(-ll_pool, k_max - 1)[:k_max] if len(pool) > k_max
                    else np.arange(len(pool)))
             q, ll_q = pool[top], ll_pool[top]
-            # a new rival's evidence starts at 0: its first frame chose it (the best of the
-            # pool) and already counts in the single frame's test
-            e_q = np.zeros(len(q))
-            # ... over as many frames as the belief has weighed (forgetting as the rivals do):
-            # a place found now would have explained the frames before as it does this one
-            o_q = (ll_q - ll_b) * self._frames_weighed
             new = np.ones(len(q), bool)
             if len(poses):  # a candidate within a cluster of a rival moves it
                 near = (((q[:, None, 0] - poses[None, :, 0]) ** 2
@@ -526,9 +572,13 @@ class ParticleFilter:
                     i = int(np.argmax(near[j]))
                     if ll_q[j] > held[i]:
                         poses[i], held[i] = q[j], ll_q[j]
+            # a new rival's sums start with the frames before this one (_retro_odds); this
+            # frame chose it (the best of the pool) and counts in the single frame's test,
+            # so its evidence leaves this frame out
+            e_q, o_q = self._retro_odds(q[new], keep_share)
             poses = np.concatenate([poses, q[new]])
-            evidence = np.concatenate([evidence, e_q[new]])
-            odds = np.concatenate([odds, o_q[new]])
+            evidence = np.concatenate([evidence, e_q])
+            odds = np.concatenate([odds, o_q + (ll_q[new] - ll_b)])
         keep = evidence > -float(c["rival_floor"])
         last = self._last_estimate
         if last is not None and len(poses):
@@ -540,6 +590,29 @@ class ParticleFilter:
         order = np.argsort(-evidence, kind="stable")[:k_max]
         self._rivals, self._rival_evidence = poses[order], evidence[order]
         self._rival_odds = odds[order]
+
+    def _retro_odds(self, q: np.ndarray, keep_share: float) -> tuple[np.ndarray, np.ndarray]:
+        """The sums new rivals ``q`` (R, 3) would hold had each been followed through the
+        frames the belief has weighed while tracking (``_recent``), before this one: each
+        rival moved back there by the odometry, its log-likelihood there against the
+        belief's predictive likelihood then (the evidence) and against the belief's heaviest
+        particle then (the odds), forgetting as the rivals' sums do. A place found now is
+        scored on what the frames before said of it, not on this frame alone: one frame that
+        happens to fit it is not the many frames a rival must win, and a place that fitted
+        every frame so far has won them already."""
+        evidence, odds = np.zeros(len(q)), np.zeros(len(q))
+        if not len(q) or not self._recent:
+            return evidence, odds
+        p = np.asarray(q, float)
+        inc, weight = self._since_recent, 1.0
+        for prep, ll_ref, log_tracked, inc_before in reversed(self._recent):
+            p = motion_model.moved(p, *_inverse(inc))
+            weight *= keep_share
+            ll = self.model.log_likelihood(p[:, 0], p[:, 1], p[:, 2], prep)
+            evidence += weight * (ll - float(log_tracked))
+            odds += weight * (ll - float(ll_ref))
+            inc = inc_before
+        return evidence, odds
 
     def _elsewhere(self) -> float:
         """The prior probability that the robot is not where the belief says: the larger of
@@ -900,9 +973,9 @@ class ParticleFilter:
         start's places kept over frames, ``_update_rivals``), and the share of the belief in
         the whole. Each rival not inside a listed cluster (or its mirror image) holds, against
         the belief, the odds its log-likelihood ratio against the belief's heaviest particle,
-        summed over the frames, gives (with the rivals' forgetting; a rival found now counts
-        its first ratio as often as the belief has weighed frames while tracking; a place and
-        the belief have the same prior after a uniform start):
+        summed over the frames, gives (with the rivals' forgetting; a rival found now is
+        scored on the frames before it, ``_retro_odds``; a place and the belief have the same
+        prior after a uniform start):
         the belief's rows are scaled by 1 / (1 + sum of the odds), a rival's row holds its
         odds over the same sum (half of it, and half its mirror image, while particles stand
         for mirrored pairs). The belief's best cluster stays first (it is the frame's pose),
@@ -1014,6 +1087,13 @@ class ParticleFilter:
 # ---------------------------------------------------------------------------- the stage
 
 
+def _inverse(inc) -> tuple[float, float, float]:
+    """The increment that undoes ``inc`` (dx, dy, dtheta, in the robot's frame)."""
+    dx, dy, dt = (float(v) for v in inc)
+    c, s = math.cos(dt), math.sin(dt)
+    return -(c * dx + s * dy), -(-s * dx + c * dy), -dt
+
+
 def _iterate(items, progress):
     if callable(progress):
         return progress(items)
@@ -1114,6 +1194,12 @@ def _check_conf(conf: dict):
     t = conf["smooth_temperature"]
     if isinstance(t, bool) or not isinstance(t, (int, float)) or not t > 0:
         raise FieldlocError(f"smooth_temperature must be a number > 0, not {str(t)[:40]}")
+    if conf["start_half"] not in START_HALVES:
+        raise FieldlocError(f"start_half must be one of {', '.join(START_HALVES)}, not"
+                            f" {str(conf['start_half'])[:40]!r}")
+    e = conf["start_half_error"]
+    if isinstance(e, bool) or not isinstance(e, (int, float)) or not 0.0 <= e <= 1.0:
+        raise FieldlocError(f"start_half_error must lie in [0, 1], not {str(e)[:40]}")
 
 
 # ---------------------------------------------------------------------------- the smoother
@@ -1322,12 +1408,20 @@ def motion_of(motion_conf: dict, increments: np.ndarray, stamps: np.ndarray,
     return smooth.Motion(np.asarray(increments, float), cov)
 
 
+def _placement_sign(conf: dict) -> float:
+    """The sign of x on the half a placement stands on: the opponent half when
+    ``start_half`` says so, else the own half."""
+    return 1.0 if conf["start_half"] == "opponent" else -1.0
+
+
 def start_prior(conf: dict, field_model):
     """The log prior over the smoother's first candidates that the causal run's initial
-    belief states (``ParticleFilter.initialise``), or None (a uniform start): ``placement``,
-    on the own half (x <= 0; beyond it by d, -d^2 / (2 ``PLACEMENT_EDGE``^2)), at either
-    touch line facing into the field, with the placement's spread across the line and in
-    heading (``init_spread``); ``pose``, a Gaussian of ``init_spread`` around ``init_pose``."""
+    belief states (``ParticleFilter.initialise``), or None: ``placement``, on its half (the
+    own half, x <= 0, or the opponent half for ``start_half`` opponent; beyond it by d, -d^2 /
+    (2 ``PLACEMENT_EDGE``^2)), at either touch line facing into the field, with the
+    placement's spread across the line and in heading (``init_spread``); ``pose``, a Gaussian
+    of ``init_spread`` around ``init_pose``; ``uniform``, the half ``start_half`` names (none
+    for any)."""
     init = conf["init"]
     spread = np.asarray(conf["init_spread"], float)
     if init == "placement":
@@ -1339,7 +1433,8 @@ def start_prior(conf: dict, field_model):
                 across = (p[:, 1] - at[:, 1]) / spread[0]
                 turn = wrap_angle(p[:, 2] - at[:, 2]) / spread[2]
                 best = np.maximum(best, -0.5 * (across ** 2 + turn ** 2))
-            return best - 0.5 * (np.maximum(p[:, 0], 0.0) / PLACEMENT_EDGE) ** 2
+            beyond = np.maximum(-_placement_sign(conf) * p[:, 0], 0.0)
+            return best - 0.5 * (beyond / PLACEMENT_EDGE) ** 2
         return prior
     if init == "pose" and conf["init_pose"] is not None:
         centre = np.asarray(conf["init_pose"], float)
@@ -1349,4 +1444,6 @@ def start_prior(conf: dict, field_model):
             d[:, 2] = wrap_angle(d[:, 2])
             return -0.5 * np.sum((d / spread) ** 2, axis=1)
         return prior
+    if init == "uniform":
+        return smooth.start_half_prior(conf, True)
     return None
