@@ -800,6 +800,7 @@ ROWS: dict[str, Callable[[int], Row | list[Row]]] = {
     "mcl-accuracy": bench_mcl_accuracy,
     "mcl-nao-accuracy": lambda n: _mcl_nao().bench_mcl_nao_accuracy(n),
     "mcl-hulks": lambda n: importlib.import_module(".bench_mcl_hulks", __package__).rows(n),
+    "mcl-walks": lambda n: importlib.import_module(".bench_mcl_walks", __package__).rows(n),
     "surf-speed": bench_surf_speed,
     "surf-quality": bench_feature_quality,
     "lut-tracked-frame": lambda n: _hyp().bench_lut_tracked_frame(n),
