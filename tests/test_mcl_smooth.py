@@ -238,3 +238,25 @@ def test_a_recording_without_observations_is_failed_not_guessed(kidsize, tmp_pat
                          tmp_path / "poses.h5", features=features)
     cols, _ = read_poses(path)
     assert cols["failed"].all() and not cols["accepted"].any()
+
+
+@pytest.mark.parametrize("half", ["any", "own", "opponent"])
+def test_the_placement_prior_is_the_touch_line_from_centre_to_goal_line(kidsize, half):
+    """The smoother's start prior for a placement is where the causal run places its belief:
+    either touch line of the start's half (the own half for any), between the centre line and
+    the goal line, facing into the field; a pose past either end (a touch line's extension
+    beyond the goal line took a NAO walk's smoothed start 1 m off the field) or on the other
+    half is improbable."""
+    from stages.localize.smooth import FrameCandidates
+
+    conf = dict(copy.deepcopy(mcl.confs["default"]), start_half=half)
+    prior = mcl.start_prior(conf, kidsize)
+    sign = 1.0 if half == "opponent" else -1.0
+    half_length = 0.5 * kidsize.length
+    xs = sign * np.array([0.5 * half_length, half_length - 0.05, half_length + 0.6, -0.6])
+    poses = kidsize.touchline_pose(xs, np.ones(len(xs)))
+    cands = FrameCandidates(poses, np.zeros(len(xs)), np.tile(np.eye(3), (len(xs), 1, 1)),
+                            np.zeros(len(xs)))
+    lp = prior(cands)
+    assert lp[0] > -1e-9 and lp[1] > -1e-9  # on the stretch: no penalty
+    assert lp[2] < -10.0 and lp[3] < -10.0  # beyond the goal line, or on the other half

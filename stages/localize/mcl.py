@@ -1416,9 +1416,10 @@ def _placement_sign(conf: dict) -> float:
 
 def start_prior(conf: dict, field_model):
     """The log prior over the smoother's first candidates that the causal run's initial
-    belief states (``ParticleFilter.initialise``), or None: ``placement``, on its half (the
-    own half, x <= 0, or the opponent half for ``start_half`` opponent; beyond it by d, -d^2 /
-    (2 ``PLACEMENT_EDGE``^2)), at either touch line facing into the field, with the
+    belief states (``ParticleFilter.initialise``), or None: ``placement``, on its half's
+    stretch of the touch lines (the own half, from the centre line to the goal line at x =
+    -length / 2, or the opponent half for ``start_half`` opponent; beyond it by d, -d^2 / (2
+    ``PLACEMENT_EDGE``^2)), at either touch line facing into the field, with the
     placement's spread across the line and in heading (``init_spread``); ``pose``, a Gaussian
     of ``init_spread`` around ``init_pose``; ``uniform``, the half ``start_half`` names (none
     for any)."""
@@ -1433,7 +1434,9 @@ def start_prior(conf: dict, field_model):
                 across = (p[:, 1] - at[:, 1]) / spread[0]
                 turn = wrap_angle(p[:, 2] - at[:, 2]) / spread[2]
                 best = np.maximum(best, -0.5 * (across ** 2 + turn ** 2))
-            beyond = np.maximum(-_placement_sign(conf) * p[:, 0], 0.0)
+            # the placement's stretch of the touch line: the centre line to the goal line
+            along = _placement_sign(conf) * p[:, 0]
+            beyond = np.maximum(-along, 0.0) + np.maximum(along - 0.5 * field_model.length, 0.0)
             return best - 0.5 * (beyond / PLACEMENT_EDGE) ** 2
         return prior
     if init == "pose" and conf["init_pose"] is not None:
