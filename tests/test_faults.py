@@ -464,6 +464,19 @@ def _setup_custom_field_poses(w, ws):
     return {}
 
 
+def _setup_team_file(w, ws):
+    """A B-Human fieldDimensions.cfg (mm) and a field YAML to give as --base."""
+    dims = {"xPosOpponentFieldBorder": 5200, "xPosOpponentGoal": 5055,
+            "xPosOpponentGoalLine": 4500, "xPosOpponentGoalArea": 3900,
+            "xPosOpponentPenaltyMark": 3200, "xPosOpponentPenaltyArea": 2850,
+            "yPosLeftFieldBorder": 3700, "yPosLeftTouchline": 3000, "yPosLeftPenaltyArea": 2000,
+            "yPosLeftGoalArea": 1100, "yPosLeftGoal": 800, "fieldLinesWidth": 50,
+            "centerCircleRadius": 750, "goalPostRadius": 50, "penaltyMarkSize": 100}
+    (ws / "fd.cfg").write_text("".join(f"{k} = {v};\n" for k, v in dims.items()))
+    shutil.copyfile(w["field_yaml"], ws / "base.yaml")
+    return {}
+
+
 LOCALIZE = ["localize", "{omni}", "--map", "{map}", "--features", "{features}"]
 W = "{ws}"
 
@@ -816,6 +829,30 @@ CASES = [
     Case("show hypotheses of poses made with a custom field's map", "silent",
          ["show", "hypotheses", W + "/p.h5", "--frame", "1", "-o", W + "/h.png"], 0, "",
          setup=_setup_custom_field_poses),
+    # ------------------------------------------------------------------ found in issue 25's rerun
+    Case("field import fd.cfg -o fd.cfg --overwrite", "data-lost",
+         ["field", "import", W + "/fd.cfg", "--format", "bhuman", "-o", W + "/fd.cfg",
+          "--overwrite"], 1, "is an input of this command (the team file)",
+         setup=_setup_team_file),
+    Case("field import --base b.yaml -o b.yaml --overwrite", "data-lost",
+         ["field", "import", W + "/fd.cfg", "--format", "bhuman", "--base", W + "/base.yaml",
+          "-o", W + "/base.yaml", "--overwrite"], 1, "is an input of this command (base)",
+         setup=_setup_team_file),
+    Case("export -o the dataset's truth.csv --overwrite", "data-lost",
+         ["export", "{poses}", "--format", "csv", "-o", "{omni}/truth.csv", "--overwrite"], 1,
+         "(the run's dataset: truth.csv)"),
+    Case("export -o the run's map --overwrite", "data-lost",
+         ["export", "{poses}", "--format", "json", "-o", "{map}", "--overwrite"], 1,
+         "(the run's map)"),
+    Case("export -o the run's features --overwrite", "data-lost",
+         ["export", "{poses}", "--format", "tum", "-o", "{features}", "--overwrite"], 1,
+         "(the run's features)"),
+    Case("show hypotheses -o the dataset's truth.csv --overwrite", "data-lost",
+         ["show", "hypotheses", "{poses}", "--frame", "1", "-o", "{omni}/truth.csv",
+          "--overwrite"], 1, "(the run's dataset: truth.csv)"),
+    Case("show hypotheses -o the run's map (which it reads) --overwrite", "data-lost",
+         ["show", "hypotheses", "{poses}", "--frame", "1", "-o", "{map}", "--overwrite"], 1,
+         "(the run's map)"),
 ]
 
 
