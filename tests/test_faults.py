@@ -12,12 +12,14 @@ three are stated in the README and checked against the suite at the end of this 
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import logging
 import math
 import os
 import re
 import shutil
+import signal
 import stat
 import subprocess
 import sys
@@ -477,6 +479,21 @@ def _setup_team_file(w, ws):
     return {}
 
 
+def _setup_fifo_image(w, ws):
+    """The omni dataset copied, its third image a FIFO (reading it would block forever)."""
+    ds = copy_dataset(w, "omni", ws)
+    (ds / "images" / "000002.png").unlink()
+    os.mkfifo(ds / "images" / "000002.png")
+    return {"ds": ds}
+
+
+def _check_fifo_frame_failed(paths, res):
+    from stages.common.features_file import FeaturesFile
+
+    with FeaturesFile(paths["ws"] / "f.h5") as ff:
+        assert "000002" not in ff.names and len(ff.names) == 3
+
+
 LOCALIZE = ["localize", "{omni}", "--map", "{map}", "--features", "{features}"]
 W = "{ws}"
 
@@ -853,6 +870,18 @@ CASES = [
     Case("show hypotheses -o the run's map (which it reads) --overwrite", "data-lost",
          ["show", "hypotheses", "{poses}", "--frame", "1", "-o", "{map}", "--overwrite"], 1,
          "(the run's map)"),
+    Case("localize --map a FIFO", "hang",
+         [*LOCALIZE[:3], W + "/pipe.h5", *LOCALIZE[4:], "-o", W + "/p.h5"], 1,
+         "not a regular file (a pipe, socket or device)",
+         setup=lambda w, ws: os.mkfifo(ws / "pipe.h5") or {}),
+    Case("evaluate a FIFO as the poses", "hang",
+         ["evaluate", W + "/pipe.h5", "--truth", "{omni}", "-o", W + "/rep"], 1,
+         "not a regular file (a pipe, socket or device)",
+         setup=lambda w, ws: os.mkfifo(ws / "pipe.h5") or {}),
+    Case("extract a dataset whose image is a FIFO", "hang",
+         ["extract", "{ds}", "-o", W + "/f.h5"], 0,
+         "frame 000002 skipped: unreadable image", setup=_setup_fifo_image,
+         check=_check_fifo_frame_failed),
 ]
 
 
@@ -865,6 +894,26 @@ def world_report(world):
     return world
 
 
+@contextlib.contextmanager
+def _deadline(seconds):
+    """A hang case fails after ``seconds`` instead of blocking the suite (SIGALRM interrupts
+    the blocked open or read)."""
+    if seconds is None or not hasattr(signal, "SIGALRM"):
+        yield
+        return
+
+    def hung(signum, frame):
+        raise TimeoutError(f"the command still ran after {seconds} s (a hang)")
+
+    old = signal.signal(signal.SIGALRM, hung)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+
+
 @pytest.mark.parametrize("case", CASES, ids=[c.id for c in CASES])
 def test_fault(case, world_report, tmp_path, caplog):
     world = world_report
@@ -874,7 +923,7 @@ def test_fault(case, world_report, tmp_path, caplog):
         paths.update(case.setup(world, tmp_path) or {})
     args = [str(a).format(**paths) for a in case.args]
     before = snapshot(world["root"], tmp_path)
-    with caplog.at_level(logging.WARNING):
+    with caplog.at_level(logging.WARNING), _deadline(30 if case.kind == "hang" else None):
         res = CliRunner().invoke(cli, args)
     text = res.output + caplog.text
     assert res.exception is None or isinstance(res.exception, SystemExit), (
