@@ -494,6 +494,13 @@ def _check_fifo_frame_failed(paths, res):
         assert "000002" not in ff.names and len(ff.names) == 3
 
 
+LONG = "x" * 300_000  # a bad value of 300 kB: the message quotes a few dozen characters of it
+
+
+def _check_short_message(paths, res):
+    assert "x" * 61 not in res.stderr and len(res.stderr) < 2000, len(res.stderr)
+
+
 LOCALIZE = ["localize", "{omni}", "--map", "{map}", "--features", "{features}"]
 W = "{ws}"
 
@@ -882,6 +889,16 @@ CASES = [
          ["extract", "{ds}", "-o", W + "/f.h5"], 0,
          "frame 000002 skipped: unreadable image", setup=_setup_fifo_image,
          check=_check_fifo_frame_failed),
+    Case("a field key whose value is 300 kB of text", "silent",
+         ["build-map", W + "/f.yaml", "-o", W + "/m.h5"], 1,
+         "key 'length' must be a number, got 'xxxxxxxx", setup=_setup_field({"length": LONG}),
+         check=_check_short_message),
+    Case("a field key named with 300 kB of text", "silent",
+         ["build-map", W + "/f.yaml", "-o", W + "/m.h5"], 1, "unknown key 'xxxxxxxx",
+         setup=_setup_field({LONG: 1.0}), check=_check_short_message),
+    Case("-c with a key of 300 kB", "silent",
+         [*LOCALIZE, "-o", W + "/p.h5", "-c", LONG + "=1"], 1, "unknown conf key 'xxxxxxxx",
+         check=_check_short_message),
 ]
 
 
