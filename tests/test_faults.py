@@ -12,12 +12,14 @@ three are stated in the README and checked against the suite at the end of this 
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import logging
 import math
 import os
 import re
 import shutil
+import signal
 import stat
 import subprocess
 import sys
@@ -464,6 +466,41 @@ def _setup_custom_field_poses(w, ws):
     return {}
 
 
+def _setup_team_file(w, ws):
+    """A B-Human fieldDimensions.cfg (mm) and a field YAML to give as --base."""
+    dims = {"xPosOpponentFieldBorder": 5200, "xPosOpponentGoal": 5055,
+            "xPosOpponentGoalLine": 4500, "xPosOpponentGoalArea": 3900,
+            "xPosOpponentPenaltyMark": 3200, "xPosOpponentPenaltyArea": 2850,
+            "yPosLeftFieldBorder": 3700, "yPosLeftTouchline": 3000, "yPosLeftPenaltyArea": 2000,
+            "yPosLeftGoalArea": 1100, "yPosLeftGoal": 800, "fieldLinesWidth": 50,
+            "centerCircleRadius": 750, "goalPostRadius": 50, "penaltyMarkSize": 100}
+    (ws / "fd.cfg").write_text("".join(f"{k} = {v};\n" for k, v in dims.items()))
+    shutil.copyfile(w["field_yaml"], ws / "base.yaml")
+    return {}
+
+
+def _setup_fifo_image(w, ws):
+    """The omni dataset copied, its third image a FIFO (reading it would block forever)."""
+    ds = copy_dataset(w, "omni", ws)
+    (ds / "images" / "000002.png").unlink()
+    os.mkfifo(ds / "images" / "000002.png")
+    return {"ds": ds}
+
+
+def _check_fifo_frame_failed(paths, res):
+    from stages.common.features_file import FeaturesFile
+
+    with FeaturesFile(paths["ws"] / "f.h5") as ff:
+        assert "000002" not in ff.names and len(ff.names) == 3
+
+
+LONG = "x" * 300_000  # a bad value of 300 kB: the message quotes a few dozen characters of it
+
+
+def _check_short_message(paths, res):
+    assert "x" * 61 not in res.stderr and len(res.stderr) < 2000, len(res.stderr)
+
+
 LOCALIZE = ["localize", "{omni}", "--map", "{map}", "--features", "{features}"]
 W = "{ws}"
 
@@ -816,6 +853,52 @@ CASES = [
     Case("show hypotheses of poses made with a custom field's map", "silent",
          ["show", "hypotheses", W + "/p.h5", "--frame", "1", "-o", W + "/h.png"], 0, "",
          setup=_setup_custom_field_poses),
+    # ------------------------------------------------------------------ found in issue 25's rerun
+    Case("field import fd.cfg -o fd.cfg --overwrite", "data-lost",
+         ["field", "import", W + "/fd.cfg", "--format", "bhuman", "-o", W + "/fd.cfg",
+          "--overwrite"], 1, "is an input of this command (the team file)",
+         setup=_setup_team_file),
+    Case("field import --base b.yaml -o b.yaml --overwrite", "data-lost",
+         ["field", "import", W + "/fd.cfg", "--format", "bhuman", "--base", W + "/base.yaml",
+          "-o", W + "/base.yaml", "--overwrite"], 1, "is an input of this command (base)",
+         setup=_setup_team_file),
+    Case("export -o the dataset's truth.csv --overwrite", "data-lost",
+         ["export", "{poses}", "--format", "csv", "-o", "{omni}/truth.csv", "--overwrite"], 1,
+         "(the run's dataset: truth.csv)"),
+    Case("export -o the run's map --overwrite", "data-lost",
+         ["export", "{poses}", "--format", "json", "-o", "{map}", "--overwrite"], 1,
+         "(the run's map)"),
+    Case("export -o the run's features --overwrite", "data-lost",
+         ["export", "{poses}", "--format", "tum", "-o", "{features}", "--overwrite"], 1,
+         "(the run's features)"),
+    Case("show hypotheses -o the dataset's truth.csv --overwrite", "data-lost",
+         ["show", "hypotheses", "{poses}", "--frame", "1", "-o", "{omni}/truth.csv",
+          "--overwrite"], 1, "(the run's dataset: truth.csv)"),
+    Case("show hypotheses -o the run's map (which it reads) --overwrite", "data-lost",
+         ["show", "hypotheses", "{poses}", "--frame", "1", "-o", "{map}", "--overwrite"], 1,
+         "(the run's map)"),
+    Case("localize --map a FIFO", "hang",
+         [*LOCALIZE[:3], W + "/pipe.h5", *LOCALIZE[4:], "-o", W + "/p.h5"], 1,
+         "not a regular file (a pipe, socket or device)",
+         setup=lambda w, ws: os.mkfifo(ws / "pipe.h5") or {}),
+    Case("evaluate a FIFO as the poses", "hang",
+         ["evaluate", W + "/pipe.h5", "--truth", "{omni}", "-o", W + "/rep"], 1,
+         "not a regular file (a pipe, socket or device)",
+         setup=lambda w, ws: os.mkfifo(ws / "pipe.h5") or {}),
+    Case("extract a dataset whose image is a FIFO", "hang",
+         ["extract", "{ds}", "-o", W + "/f.h5"], 0,
+         "frame 000002 skipped: unreadable image", setup=_setup_fifo_image,
+         check=_check_fifo_frame_failed),
+    Case("a field key whose value is 300 kB of text", "silent",
+         ["build-map", W + "/f.yaml", "-o", W + "/m.h5"], 1,
+         "key 'length' must be a number, got 'xxxxxxxx", setup=_setup_field({"length": LONG}),
+         check=_check_short_message),
+    Case("a field key named with 300 kB of text", "silent",
+         ["build-map", W + "/f.yaml", "-o", W + "/m.h5"], 1, "unknown key 'xxxxxxxx",
+         setup=_setup_field({LONG: 1.0}), check=_check_short_message),
+    Case("-c with a key of 300 kB", "silent",
+         [*LOCALIZE, "-o", W + "/p.h5", "-c", LONG + "=1"], 1, "unknown conf key 'xxxxxxxx",
+         check=_check_short_message),
 ]
 
 
@@ -828,6 +911,26 @@ def world_report(world):
     return world
 
 
+@contextlib.contextmanager
+def _deadline(seconds):
+    """A hang case fails after ``seconds`` instead of blocking the suite (SIGALRM interrupts
+    the blocked open or read)."""
+    if seconds is None or not hasattr(signal, "SIGALRM"):
+        yield
+        return
+
+    def hung(signum, frame):
+        raise TimeoutError(f"the command still ran after {seconds} s (a hang)")
+
+    old = signal.signal(signal.SIGALRM, hung)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+
+
 @pytest.mark.parametrize("case", CASES, ids=[c.id for c in CASES])
 def test_fault(case, world_report, tmp_path, caplog):
     world = world_report
@@ -837,7 +940,7 @@ def test_fault(case, world_report, tmp_path, caplog):
         paths.update(case.setup(world, tmp_path) or {})
     args = [str(a).format(**paths) for a in case.args]
     before = snapshot(world["root"], tmp_path)
-    with caplog.at_level(logging.WARNING):
+    with caplog.at_level(logging.WARNING), _deadline(30 if case.kind == "hang" else None):
         res = CliRunner().invoke(cli, args)
     text = res.output + caplog.text
     assert res.exception is None or isinstance(res.exception, SystemExit), (

@@ -458,6 +458,8 @@ def _open_hdf5(path: Path) -> h5py.File:
     """Open an HDF5 file for reading, or fail with one clear line."""
     if not path.exists():
         raise FieldlocError(f"file not found: {path}")
+    if not path.is_file() and not path.is_dir():  # a FIFO would block the open forever
+        raise FieldlocError(f"{path}: not a regular file (a pipe, socket or device)")
     try:
         return h5py.File(path, "r")
     except OSError:

@@ -19,7 +19,7 @@ from collections.abc import Callable, Iterator, Mapping
 import numpy as np
 import yaml
 
-from .errors import FieldlocError
+from .errors import FieldlocError, shown
 
 _BASE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
@@ -154,17 +154,12 @@ def _merge(base: dict, key, value, path):
         raise FieldlocError(f"conf '{path}': its parent is not a group of keys")
     if key not in base:
         known = ", ".join(sorted(map(str, base)))
-        raise FieldlocError(f"unknown conf key '{path}' (known: {known})")
+        raise FieldlocError(f"unknown conf key {shown(path)} (known: {known})")
     if isinstance(base[key], dict) and isinstance(value, dict):
         for k, v in value.items():
             _merge(base[key], k, v, f"{path}.{k}")
     else:
         base[key] = checked_value(base[key], value, path)
-
-
-def _show(v) -> str:
-    s = repr(v)
-    return s if len(s) <= 60 else s[:57] + "..."
 
 
 def _number(value, path: str, whole: bool):
@@ -175,14 +170,14 @@ def _number(value, path: str, whole: bool):
         try:
             v = float(v.strip())
         except ValueError:
-            raise FieldlocError(f"conf '{path}' must be {want}, got {_show(value)}") from None
+            raise FieldlocError(f"conf '{path}' must be {want}, got {shown(value)}") from None
     if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real):
-        raise FieldlocError(f"conf '{path}' must be {want}, got {_show(value)}")
+        raise FieldlocError(f"conf '{path}' must be {want}, got {shown(value)}")
     if not math.isfinite(float(v)):
-        raise FieldlocError(f"conf '{path}' must be a finite number, got {_show(value)}")
+        raise FieldlocError(f"conf '{path}' must be a finite number, got {shown(value)}")
     if whole:
         if float(v) != int(v):
-            raise FieldlocError(f"conf '{path}' must be a whole number, got {_show(value)}")
+            raise FieldlocError(f"conf '{path}' must be a whole number, got {shown(value)}")
         return int(v)
     return float(v)
 
@@ -196,11 +191,11 @@ def checked_value(old, value, path: str):
         keys = ", ".join(f"{path}.{k}" for k in list(old)[:4])
         raise FieldlocError(
             f"conf '{path}' is a group of keys; set them one by one ({keys}, ...), got"
-            f" {_show(value)}")
+            f" {shown(value)}")
     if isinstance(old, (bool, np.bool_)):
         if isinstance(value, (bool, np.bool_)):
             return bool(value)
-        raise FieldlocError(f"conf '{path}' must be true or false, got {_show(value)}")
+        raise FieldlocError(f"conf '{path}' must be true or false, got {shown(value)}")
     if isinstance(old, numbers.Integral):
         return _number(value, path, whole=True)
     if isinstance(old, numbers.Real):
@@ -210,7 +205,7 @@ def checked_value(old, value, path: str):
             return value
         if isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)):
             return str(value)
-        raise FieldlocError(f"conf '{path}' must be a text, got {_show(value)}")
+        raise FieldlocError(f"conf '{path}' must be a text, got {shown(value)}")
     if isinstance(old, (list, tuple, np.ndarray)):
         if isinstance(value, np.ndarray):
             value = value.tolist()
@@ -218,7 +213,7 @@ def checked_value(old, value, path: str):
             value = list(value)
         if not isinstance(value, list):
             if isinstance(value, (dict, type(None))):
-                raise FieldlocError(f"conf '{path}' must be a list, got {_show(value)}")
+                raise FieldlocError(f"conf '{path}' must be a list, got {shown(value)}")
             value = [value]
         template = list(old)
         if template and all(_is_number(t) for t in template):

@@ -333,6 +333,8 @@ def read_image(path: Path) -> np.ndarray:
     """Read an image as BGR uint8; raises DatasetError if unreadable (callers skip the frame)."""
     import cv2
 
+    if not Path(path).is_file():  # a FIFO would block the read forever
+        raise DatasetError(f"unreadable image: {path} (not a regular file)")
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if img is None:
         raise DatasetError(f"unreadable image: {path}")

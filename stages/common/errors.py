@@ -15,3 +15,10 @@ class SchemaError(FieldlocError):
 
 class DatasetError(FieldlocError):
     """A dataset folder is missing something or holds unreadable content."""
+
+
+def shown(value, limit: int = 60) -> str:
+    """``repr(value)`` cut to ``limit`` characters: a message quotes at most a few dozen
+    characters of a bad value (a value of megabytes would make a "one-line" error as long)."""
+    s = repr(value)
+    return s if len(s) <= limit else s[:limit - 3] + "..."

@@ -20,7 +20,7 @@ import numpy as np
 import yaml
 
 from .conf import load_yaml
-from .errors import FieldSpecError
+from .errors import FieldSpecError, shown
 from .geometry import wrap_angle
 
 MAPS_DIR = Path(__file__).resolve().parents[2] / "maps"
@@ -267,7 +267,7 @@ def _check(spec: dict, schema: dict, where: str, prefix: str = ""):
     for key in spec:
         if key not in schema:
             raise FieldSpecError(
-                f"{where}: unknown key '{prefix}{key}' (allowed: {', '.join(schema)})"
+                f"{where}: unknown key {shown(f'{prefix}{key}')} (allowed: {', '.join(schema)})"
             )
     for key, (typ, required, sub) in schema.items():
         if key not in spec:
@@ -277,7 +277,7 @@ def _check(spec: dict, schema: dict, where: str, prefix: str = ""):
         v = spec[key]
         if isinstance(v, bool) or not isinstance(v, typ):
             want = "a number" if typ is _NUM else typ.__name__
-            raise FieldSpecError(f"{where}: key '{prefix}{key}' must be {want}, got {v!r}")
+            raise FieldSpecError(f"{where}: key '{prefix}{key}' must be {want}, got {shown(v)}")
         if typ is _NUM and (not math.isfinite(v) or v < 0):
             raise FieldSpecError(f"{where}: key '{prefix}{key}' must be >= 0, got {v}")
         if typ is _NUM and 0 < v < MIN_DIMENSION:
@@ -301,9 +301,11 @@ def _apply_letters(spec: dict, where: str) -> dict:
     out = {k: (dict(v) if isinstance(v, dict) else v) for k, v in spec.items()}
     for letter, value in letters.items():
         if letter not in MSL_LETTERS and letter not in MSL_UNUSED_LETTERS:
-            raise FieldSpecError(f"{where}: unknown key 'letters.{letter}' (MSL letters A..Q)")
+            raise FieldSpecError(
+                f"{where}: unknown key {shown(f'letters.{letter}')} (MSL letters A..Q)")
         if isinstance(value, bool) or not isinstance(value, _NUM):
-            raise FieldSpecError(f"{where}: key 'letters.{letter}' must be a number, got {value!r}")
+            raise FieldSpecError(
+                f"{where}: key 'letters.{letter}' must be a number, got {shown(value)}")
     line_width = letters.get("K", spec.get("line_width"))
     if not isinstance(line_width, _NUM) or isinstance(line_width, bool):
         raise FieldSpecError(f"{where}: 'letters' needs K (the line width): the rulebook's"

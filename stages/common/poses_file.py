@@ -42,7 +42,7 @@ import h5py
 import numpy as np
 
 from .artifacts import atomic_path, open_artifact, read_json_attr, write_artifact
-from .errors import SchemaError
+from .errors import FieldlocError, SchemaError
 
 SCHEMA = "fieldloc.poses"
 VERSION = 2
@@ -188,6 +188,27 @@ def read_poses(path: str | Path) -> tuple[dict[str, np.ndarray], dict]:
         return _read_poses(path)
     except (KeyError, ValueError, TypeError, OSError) as e:
         raise SchemaError(f"{path}: damaged poses file ({e})") from None
+
+
+def run_inputs(attrs: dict) -> dict[str, list[Path]]:
+    """The files the poses were made from (the dataset's own files, the map, features and
+    points the poses file names): a command reading the poses (export, show hypotheses)
+    never writes over them, --overwrite or not."""
+    from .dataset import open_dataset
+
+    out: dict[str, list[Path]] = {}
+    root = attrs.get("dataset")
+    if isinstance(root, str) and root and Path(root).is_dir():
+        try:
+            out = {f"the run's dataset: {k}": v
+                   for k, v in open_dataset(root, need_images=False).files().items()}
+        except FieldlocError:
+            out = {}
+    for role in ("map", "features", "points"):
+        path = (attrs.get("inputs") or {}).get(role)
+        if isinstance(path, str) and path:
+            out[f"the run's {role}"] = [Path(path)]
+    return out
 
 
 REQUIRED = ("name", "stamp", "x", "y", "theta", "failed", "confidence")

@@ -21,7 +21,8 @@ Formats (``fmt``):
   probability] (poses v2; a version 1 file gives the pose with its confidence). NaN is null.
 
 ``output`` None: beside the poses file with the format's suffix (poses.csv, poses.tum,
-poses.json). An existing file is replaced only with ``overwrite``.
+poses.json). An existing file is replaced only with ``overwrite``; never the poses file nor
+a file the poses were made from (``run_inputs``).
 """
 
 from __future__ import annotations
@@ -33,10 +34,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..common.artifacts import atomic_path
+from ..common.artifacts import atomic_path, check_output
 from ..common.errors import FieldlocError
 from ..common.field import FieldModel
-from ..common.poses_file import read_poses, write_tum
+from ..common.poses_file import read_poses, run_inputs, write_tum
 
 FORMATS = {"csv": ".csv", "tum": ".tum", "json": ".json"}
 JSON_SCHEMA = "fieldloc.poses-export"
@@ -121,9 +122,8 @@ def main(conf: str | dict | None, poses, output=None, *, fmt: str, overwrite: bo
     output = Path(output) if output is not None else default_output(poses, fmt)
     if output.resolve() == poses.resolve():
         raise FieldlocError(f"{output}: the export would replace the poses file itself")
-    if output.exists() and not overwrite:
-        raise FieldlocError(f"{output} exists (use --overwrite to replace it)")
     columns, attrs = read_poses(poses)
+    check_output(output, run_inputs(attrs), overwrite=overwrite)
     decimals = int(conf["decimals"])
     if fmt == "tum":
         return write_tum(output, columns)

@@ -58,7 +58,7 @@ import numpy as np
 import yaml
 
 from .. import __version__
-from ..common.artifacts import atomic_path, file_hash
+from ..common.artifacts import atomic_path, check_output, file_hash
 from ..common.conf import load_yaml
 from ..common.errors import FieldlocError, FieldSpecError
 from ..common.field import MSL_LETTERS, field_from_spec, load_field, msl_letter_value
@@ -592,9 +592,9 @@ def main(conf: str | dict | None, path, output, *, fmt: str | None = None,
     from ..common.conf import stage_conf
 
     conf = stage_conf(confs, conf)
-    output = Path(output)
-    if output.exists() and not overwrite:
-        raise TeamFieldError(f"{output} exists (use --overwrite to replace it)")
+    base_file = Path(base) if base is not None and Path(base).is_file() else None
+    output = check_output(output, {"the team file": path, "base": base_file},
+                          overwrite=overwrite, error=TeamFieldError)
     imp = read_team_field(path, fmt, venue=venue, section=section, base=base, name=name,
                           conf=conf)
     fmt = imp.record["format"]

@@ -76,13 +76,14 @@ def main(conf: str | dict | None, poses: str | Path, output: str | Path, *,
     Points from ``features`` (default: the features file the poses were made from), the field
     from ``field`` (default: the poses file's)."""
     from ..common.features_file import FeaturesFile
-    from ..common.poses_file import read_poses
+    from ..common.poses_file import read_poses, run_inputs
     from .figure import new_figure, save_figure
 
     conf = stage_conf(confs, conf)
     output = Path(output)
-    check_output(output, {"poses": poses, "features": features}, overwrite=overwrite)
     cols, attrs = read_poses(poses)
+    check_output(output, {"poses": poses, "features": features, "field": _field_file(field),
+                          **run_inputs(attrs)}, overwrite=overwrite)
     names = [str(n) for n in cols["name"]]
     i = frame_index(names, frame, str(poses))
     fm = poses_field(attrs, field)
@@ -109,6 +110,10 @@ def main(conf: str | dict | None, poses: str | Path, output: str | Path, *,
                     " their probabilities, the frame's points at each"
                     + ("; dashed white: truth" if truth is not None else "; no truth"))
     return save_figure(fig, output)
+
+
+def _field_file(field) -> Path | None:
+    return Path(field) if field and Path(field).is_file() else None
 
 
 def poses_field(attrs: dict, field=None):
