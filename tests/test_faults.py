@@ -1438,3 +1438,18 @@ def test_readme_states_the_figures():
     want = figures_block()
     got = " ".join(m.group(1).split())
     assert got == " ".join(want.split()), f"update docs/pipeline.md's figures to:\n{want}"
+
+
+def test_evaluate_draws_a_custom_fields_poses_on_the_maps_field(world_report, tmp_path, caplog):
+    """Poses made with a custom field's map (its name no preset, its YAML gone): evaluate and
+    report draw them on the field the map carries, with no warning about the name."""
+    _setup_custom_field_poses(world_report, tmp_path)
+    with caplog.at_level(logging.WARNING):
+        res = CliRunner().invoke(cli, ["evaluate", str(tmp_path / "p.h5"), "-o",
+                                       str(tmp_path / "r")])
+        page = CliRunner().invoke(cli, ["report", str(tmp_path / "r"), "-o",
+                                        str(tmp_path / "r.html")])
+    text = res.output + page.output + caplog.text
+    assert res.exit_code == 0 and page.exit_code == 0, text
+    assert "unknown field preset" not in text and "without field lines" not in text, text
+    assert (tmp_path / "r" / "plots").is_dir() and (tmp_path / "r.html").is_file()

@@ -253,6 +253,25 @@ def _frame_sources(report: dict):
     return dataset, features
 
 
+def _report_field(report: dict):
+    """The field a report's frames are drawn on: the one evaluate was given, else the field
+    of the map the poses were made with (a custom field's map carries it), else the field
+    the poses name; None when none of these can be read (the frames are drawn without
+    field lines)."""
+    from ..common.field import load_field
+    from ..common.poses_file import read_poses
+    from .hypotheses import poses_field
+
+    try:
+        if report.get("field_override"):
+            return load_field(report["field_override"])
+        poses = report.get("poses")
+        attrs = read_poses(poses)[1] if poses and Path(poses).is_file() else {}
+        return poses_field(attrs or {"field": report.get("field") or ""})
+    except FieldlocError:
+        return None
+
+
 def overlay_png(dataset, features, frame: dict, field_model, dpi: int) -> tuple[bytes | None,
                                                                                str]:
     """The overlay of one worst frame, or (None, why not)."""
@@ -293,8 +312,6 @@ def overlay_png(dataset, features, frame: dict, field_model, dpi: int) -> tuple[
 
 
 def report_section(report_dir: Path, conf: dict, index: int) -> str:
-    from ..common.field import load_field
-
     report = load_report(report_dir, raw=True)
     title = html.escape(str(report.get("run") or report_dir.name))
     parts = [f'<section id="report-{index}"><h2>{title}</h2>',
@@ -314,10 +331,7 @@ def report_section(report_dir: Path, conf: dict, index: int) -> str:
     if worst:
         parts.append(f"<h3>The {len(worst)} worst frames</h3>")
         dataset, features = _frame_sources(report)
-        try:
-            fm = load_field(report["field"]) if report.get("field") else None
-        except FieldlocError:
-            fm = None
+        fm = _report_field(report)
         for fr in worst:
             err = ("failed (infinite error)" if fr["failed"] else
                    "not accepted (counted as infinite error)" if math.isinf(fr["error_m"])

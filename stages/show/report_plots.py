@@ -272,13 +272,13 @@ def main(conf: str | dict | None, report_dir: str | Path, *, overwrite: bool = F
     plots_dir.mkdir(exist_ok=True)
     for name in PLOT_NAMES:
         check_output(plots_dir / name, inputs, overwrite=overwrite)
-    columns, _attrs = read_poses(report["poses"])
+    columns, attrs = read_poses(report["poses"])
     truth = read_csv(report["truth"], "truth")
     tolerance = float(econf["stamp_tolerance"])
     fe = frame_errors(columns, truth, tolerance)
     write_report_plots(
         fe, plots_dir, thresholds=econf["thresholds"], title=plot_title(report),
-        field_model=_field_model(report.get("field_override"), report.get("field") or ""),
+        field_model=_field_model(report.get("field_override"), attrs),
         truth_path=truth_path_during(truth, fe, tolerance),
         dpi=int(conf["dpi"] if conf["dpi"] is not None else econf["dpi"]),
         calibration=decode_numbers(report["calibration"]))
@@ -295,20 +295,19 @@ def plot_title(report: dict) -> str:
     return f"{method}: {Path(str(report.get('poses') or '?')).name}"
 
 
-def _field_model(override, name: str):
+def _field_model(override, attrs: dict):
     """The field to draw on: the one evaluate was given (errors are the user's), else the
-    poses' own (a failure there is logged and the plot drawn without field lines)."""
+    poses' own: the field of the map they were made with (a custom field's map carries it),
+    else the field they name (a failure there is logged and the plot drawn without field
+    lines)."""
     if override:
         return load_field(override)
-    if not name:
-        log.warning("poses file names no field; trajectories drawn without field lines"
-                    " (pass --field)")
-        return None
+    from .hypotheses import poses_field
+
     try:
-        return load_field(name)
+        return poses_field(attrs)
     except FieldlocError as e:
-        log.warning("field '%s' of the poses file could not be loaded (%s); trajectories drawn"
-                    " without field lines (pass --field)", name, e)
+        log.warning("%s; trajectories drawn without field lines", e)
         return None
 
 
