@@ -8,12 +8,25 @@ from __future__ import annotations
 
 import importlib.util
 import logging
+import re
 import sys
 
 import click
 
 from stages import __version__
 from stages.common.errors import FieldlocError
+
+# a run of this many characters without a space in an error line is a value the user gave (a
+# path or a name of kilobytes), not the message: it is quoted by its first few dozen
+LONG_RUN = 200
+QUOTED = 57
+
+
+def _short(text: str) -> str:
+    """An error on one line, each run of more than LONG_RUN characters without a space cut
+    to its first QUOTED (a 100 kB argument made a 100 kB "one-line" error)."""
+    text = " ".join(str(text).split())
+    return re.sub(rf"\S{{{LONG_RUN + 1},}}", lambda m: m.group(0)[:QUOTED] + "...", text)
 
 # command name -> ("module:attribute", its short help as the listing shows it). Each module only
 # parses options and calls a stage, which it imports inside its callback; the short help is here
@@ -116,7 +129,7 @@ class LazyGroup(click.Group):
         except FieldlocError as e:
             if debug:
                 raise
-            click.echo(f"fieldloc: error: {e}", err=True)
+            click.echo(f"fieldloc: error: {_short(e)}", err=True)
             ctx.exit(1)
         except BrokenPipeError:  # stdout closed by its reader (| head): nothing more to say
             import os
@@ -133,7 +146,7 @@ class LazyGroup(click.Group):
             text = " ".join(str(e.strerror or e).split())  # HDF5's messages span lines
             if "errno = 28," in text:
                 text = "No space left on device"
-            click.echo(f"fieldloc: error: {where}{text[:300]}", err=True)
+            click.echo(f"fieldloc: error: {_short(where + text[:300])}", err=True)
             ctx.exit(1)
         except MemoryError:
             if debug:

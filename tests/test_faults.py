@@ -899,6 +899,12 @@ CASES = [
     Case("-c with a key of 300 kB", "silent",
          [*LOCALIZE, "-o", W + "/p.h5", "-c", LONG + "=1"], 1, "unknown conf key 'xxxxxxxx",
          check=_check_short_message),
+    Case("build-map of a field path of 300 kB", "silent",
+         ["build-map", LONG, "-o", W + "/m.h5"], 1, "fieldloc: error: xxxxxxxx",
+         check=_check_short_message),
+    Case("localize with a map path of 300 kB", "silent",
+         ["localize", "{omni}", "--map", W + "/" + LONG, "-o", W + "/p.h5"], 1,
+         "fieldloc: error: ", check=_check_short_message),
 ]
 
 
