@@ -126,6 +126,9 @@ class LazyGroup(click.Group):
         debug = ctx.params.get("debug") or "--debug" in sys.argv
         try:
             return super().invoke(ctx)
+        except click.ClickException as e:  # a usage error: click says it, the value cut short
+            e.message = _short(e.message)
+            raise
         except FieldlocError as e:
             if debug:
                 raise
