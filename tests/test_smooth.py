@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fieldloc_cli.main import cli
-from stages.common.geometry import compose
+from stages.common.geometry import compose, inverse
 from stages.common.poses_file import read_poses
 from stages.localize import smooth
 from stages.localize.pose_graph import refine_path
@@ -232,3 +232,15 @@ def test_write_calib_through_the_cli(wrong_first_fix, msl2015_map, tmp_path):
     assert r.exit_code != 0 and "never written over" in r.output
     # exact bytes: the user's calib.yaml checked unchanged
     assert hashlib.sha256(own.read_bytes()).hexdigest() == before
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.tuples(*[st.floats(-5, 5)] * 2, st.floats(-3.1, 3.1)),
+       st.tuples(*[st.floats(-1, 1)] * 2, st.floats(-3.1, 3.1)))
+def test_an_increment_and_its_inverse_cancel(pose, inc):
+    """Moving a pose by an odometry increment and then by its inverse (how the smoother's
+    backward beam, the pose graph's first poses and mcl's rivals go back in time) returns it,
+    within 1e-9 m and rad."""
+    back = compose(compose(np.array(pose), np.array(inc)), inverse(inc))
+    np.testing.assert_allclose(back[:2], pose[:2], atol=1e-9)
+    assert abs(float(np.angle(np.exp(1j * (back[2] - pose[2]))))) < 1e-9

@@ -57,6 +57,14 @@ def compose(a, b):
     return np.array([ax + c * bx - s * by, ay + s * bx + c * by, float(wrap_angle(at + bt))])
 
 
+def inverse(inc):
+    """The motion (dx, dy, dtheta) that undoes ``inc``: in the frame ``inc`` ends in, back to
+    the frame it started in (compose(compose(p, inc), inverse(inc)) == p)."""
+    dx, dy, dt = (float(v) for v in inc)
+    c, s = math.cos(dt), math.sin(dt)
+    return np.array([-(c * dx + s * dy), -(-s * dx + c * dy), -dt])
+
+
 def between(a, b):
     """The motion (dx, dy, dtheta) in a's frame that takes pose a to pose b."""
     ax, ay, at = a

@@ -142,7 +142,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from stages.common.errors import FieldlocError
-from stages.common.geometry import compose, wrap_angle
+from stages.common.geometry import compose, inverse, wrap_angle
 from stages.common.observations import Observations
 from stages.common.poses_file import PoseTrack
 
@@ -606,7 +606,7 @@ class ParticleFilter:
         p = np.asarray(q, float)
         inc, weight = self._since_recent, 1.0
         for prep, ll_ref, log_tracked, inc_before in reversed(self._recent):
-            p = motion_model.moved(p, *_inverse(inc))
+            p = motion_model.moved(p, *inverse(inc))
             weight *= keep_share
             ll = self.model.log_likelihood(p[:, 0], p[:, 1], p[:, 2], prep)
             evidence += weight * (ll - float(log_tracked))
@@ -1085,13 +1085,6 @@ class ParticleFilter:
 
 
 # ---------------------------------------------------------------------------- the stage
-
-
-def _inverse(inc) -> tuple[float, float, float]:
-    """The increment that undoes ``inc`` (dx, dy, dtheta, in the robot's frame)."""
-    dx, dy, dt = (float(v) for v in inc)
-    c, s = math.cos(dt), math.sin(dt)
-    return -(c * dx + s * dy), -(-s * dx + c * dy), -dt
 
 
 def _iterate(items, progress):

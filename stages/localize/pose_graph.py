@@ -85,16 +85,13 @@ def refine_path(fixes: np.ndarray, fix_cov: np.ndarray, motion: Motion
 def _initial_path(fixes: np.ndarray, has: np.ndarray, motion: Motion, first: int) -> np.ndarray:
     """Each frame's starting pose: its fix, or the last fixed pose (the first fix, for frames
     before it) moved by the odometry."""
-    from ..common.geometry import compose
+    from ..common.geometry import compose, inverse
 
     n = len(fixes)
     guess = np.zeros((n, 3))
     guess[first] = fixes[first]
     for i in range(first - 1, -1, -1):  # backwards from the first fix
-        inc = motion.increments[i + 1]
-        c, s = math.cos(inc[2]), math.sin(inc[2])
-        back = np.array([-(c * inc[0] + s * inc[1]), -(-s * inc[0] + c * inc[1]), -inc[2]])
-        guess[i] = compose(guess[i + 1], back)
+        guess[i] = compose(guess[i + 1], inverse(motion.increments[i + 1]))
     for i in range(first + 1, n):
         guess[i] = fixes[i] if has[i] else compose(guess[i - 1], motion.increments[i])
     return guess

@@ -46,7 +46,7 @@ from typing import Protocol
 
 import numpy as np
 
-from ..common.geometry import compose, wrap_angle
+from ..common.geometry import compose, inverse, wrap_angle
 from ..common.poses_file import PoseTrack
 from .motion_model import moved
 from .tracking import SAME_BASIN_M, SAME_BASIN_RAD
@@ -310,9 +310,7 @@ def _moved_between(poses: np.ndarray, motion: Motion, i: int, j: int) -> np.ndar
     if j > i:
         inc, _ = motion.between(i, j)
     else:
-        fwd, _ = motion.between(j, i)
-        c, s = math.cos(fwd[2]), math.sin(fwd[2])
-        inc = np.array([-(c * fwd[0] + s * fwd[1]), -(-s * fwd[0] + c * fwd[1]), -fwd[2]])
+        inc = inverse(motion.between(j, i)[0])
     return moved(poses, inc[0], inc[1], inc[2])
 
 
