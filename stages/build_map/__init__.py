@@ -15,7 +15,7 @@ from ..common.artifacts import check_output, root_attrs, text_hash
 from ..common.conf import stage_conf
 from ..common.crossing_tables import crossing_association_tables
 from ..common.errors import FieldlocError
-from ..common.field import FieldModel, load_field
+from ..common.field import FieldModel, field_file, load_field
 from ..common.map_file import SCHEMA, VERSION, Grid, write_map
 from ..common.resources import check_memory
 from ..common.scanlines import ScanLines
@@ -94,17 +94,11 @@ def main(conf: str | dict | None, field: str | Path | FieldModel, output: str | 
     """Build the map of ``field`` (preset name, YAML path or FieldModel) into ``output``.
     ``conf``: a preset name, None, or a dict of values replacing the default preset's."""
     conf = stage_conf(confs, conf)
-    field_file = None if isinstance(field, FieldModel) else _field_file(field)
-    output = check_output(output, {"field": field_file}, overwrite=overwrite)
+    yaml_file = None if isinstance(field, FieldModel) else field_file(field)
+    output = check_output(output, {"field": yaml_file}, overwrite=overwrite)
     fm = field if isinstance(field, FieldModel) else load_field(field)
     grid, sl, tabs = build_tables(fm, conf)
     attrs = root_attrs(SCHEMA, VERSION, conf=conf,
                        inputs={"field": fm.name, "field_yaml": text_hash(fm.spec_text)})
     attrs["border"] = float(conf["border"])
     return write_map(output, fm, grid, sl, tabs, attrs)
-
-
-def _field_file(field) -> Path | None:
-    """The YAML file a field argument names (None for a preset name)."""
-    p = Path(field)
-    return p if p.suffix.lower() in (".yaml", ".yml") or p.exists() else None

@@ -233,6 +233,15 @@ def preset_names() -> list[str]:
     return sorted(p.stem for p in MAPS_DIR.glob("*.yaml"))
 
 
+def field_file(field) -> Path | None:
+    """The YAML file a field argument names: None for a preset name or no argument (a
+    command that reads the file never writes over it)."""
+    if not field:
+        return None
+    p = Path(field)
+    return p if p.suffix.lower() in (".yaml", ".yml") or p.exists() else None
+
+
 def load_field(name_or_path: str | Path) -> FieldModel:
     """Load a preset by name (``msl-2015``, ``msl``, ``spl``, ``kidsize``, ``adultsize``) or a
     path to a field YAML. Raises FieldSpecError with the file and key on any problem."""

@@ -33,7 +33,7 @@ from stages.common.artifacts import check_output, file_hash, refuse_inputs
 from stages.common.conf import stage_conf
 from stages.common.dataset import read_csv
 from stages.common.errors import FieldlocError
-from stages.common.field import load_field
+from stages.common.field import field_file, load_field
 from stages.common.poses_file import read_poses
 from stages.common.report_file import (
     ERRORS_NAME,
@@ -153,13 +153,6 @@ def _truth_path(truth, attrs: dict, poses: Path) -> Path:
     return truth
 
 
-def _field_file(field) -> Path | None:
-    if not field:
-        return None
-    p = Path(field)
-    return p if p.suffix.lower() in (".yaml", ".yml") or p.exists() else None
-
-
 def main(conf: str | dict | None, poses, truth, output_dir, *, overwrite: bool = False,
          field=None, progress: bool = False) -> Path:
     """Evaluate ``poses`` (poses.h5) against ``truth`` (truth.csv, or a dataset folder holding
@@ -178,7 +171,7 @@ def main(conf: str | dict | None, poses, truth, output_dir, *, overwrite: bool =
         raise FieldlocError(f"{poses}: poses file lacks column(s) {', '.join(missing)}")
     truth = _truth_path(truth, attrs, poses)
     out = Path(output_dir)
-    given = {"poses": poses, "truth": truth, "field": _field_file(field),
+    given = {"poses": poses, "truth": truth, "field": field_file(field),
              "poses.tum": poses.with_suffix(".tum")}
     refuse_inputs(out, given)  # files are written into it; it is not replaced as a whole
     check_output(out, None, overwrite=None, kind="folder")

@@ -34,11 +34,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..common.errors import FieldlocError
+from ..common.errors import FieldlocError, shown
 from ..common.geometry import wrap_angle, wrap_scalar
 
 SOURCES = ("imu", "histogram", "truth")  # where a frame's heading comes from
 START_HALVES = ("own", "opponent", "any")  # where the first fix lies (the field's symmetry)
+
+
+def check_start_half(conf: dict) -> None:
+    """``start_half`` (own, opponent or any) and ``start_half_error`` (a probability) of a
+    method's conf checked (FieldlocError)."""
+    if conf["start_half"] not in START_HALVES:
+        raise FieldlocError(f"start_half must be one of {', '.join(START_HALVES)}, not"
+                            f" {shown(conf['start_half'])}")
+    e = conf["start_half_error"]
+    if isinstance(e, bool) or not isinstance(e, (int, float)) or not 0.0 <= e <= 1.0:
+        raise FieldlocError(f"start_half_error must lie in [0, 1], not {shown(e)}")
 
 
 def check_conf(conf: dict, dataset) -> None:
@@ -50,11 +61,7 @@ def check_conf(conf: dict, dataset) -> None:
             f"unknown heading source '{conf['heading']}' (use {', '.join(SOURCES)})")
     if conf["imu_alignment"] not in ("field", "vision"):
         raise FieldlocError("imu_alignment must be 'field' or 'vision'")
-    if conf["start_half"] not in START_HALVES:
-        raise FieldlocError(
-            f"start_half must be one of {', '.join(START_HALVES)}, not '{conf['start_half']}'")
-    if not 0.0 <= float(conf["start_half_error"]) <= 1.0:
-        raise FieldlocError(f"start_half_error must lie in [0, 1], not {conf['start_half_error']}")
+    check_start_half(conf)
     need = {"imu": "imu", "truth": "truth"}.get(conf["heading"])
     if need and (dataset is None or dataset.optional(need) is None):
         where = dataset.root if dataset is not None else "the dataset"

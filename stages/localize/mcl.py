@@ -147,7 +147,7 @@ from stages.common.observations import Observations
 from stages.common.poses_file import PoseTrack
 
 from . import motion_model, place_search, smooth
-from .heading import START_HALVES
+from .heading import check_start_half
 from .observation_model import DEFAULTS as OBSERVATION_DEFAULTS
 from .observation_model import ObservationModel
 from .smooth import FrameCandidates
@@ -1187,12 +1187,7 @@ def _check_conf(conf: dict):
     t = conf["smooth_temperature"]
     if isinstance(t, bool) or not isinstance(t, (int, float)) or not t > 0:
         raise FieldlocError(f"smooth_temperature must be a number > 0, not {str(t)[:40]}")
-    if conf["start_half"] not in START_HALVES:
-        raise FieldlocError(f"start_half must be one of {', '.join(START_HALVES)}, not"
-                            f" {str(conf['start_half'])[:40]!r}")
-    e = conf["start_half_error"]
-    if isinstance(e, bool) or not isinstance(e, (int, float)) or not 0.0 <= e <= 1.0:
-        raise FieldlocError(f"start_half_error must lie in [0, 1], not {str(e)[:40]}")
+    check_start_half(conf)
 
 
 # ---------------------------------------------------------------------------- the smoother

@@ -232,44 +232,30 @@ def worst_frames(report_dir: Path, n: int) -> list[dict]:
                        float(e["truth_theta"][i]))} for i in order]
 
 
-def _frame_sources(report: dict):
-    """(dataset folder, features file or None) of a report's run, or (None, None)."""
+def _poses_attrs(report: dict) -> dict:
+    """The attributes of a report's poses file, or {} where it cannot be read."""
     from ..common.poses_file import read_poses
 
-    dataset = Path(report["dataset"]) if report.get("dataset") else None
-    features = None
     poses = report.get("poses")
     if poses and Path(poses).is_file():
         try:
-            _, attrs = read_poses(poses)
-            f = (attrs.get("inputs") or {}).get("features")
-            features = Path(f) if f and Path(f).is_file() else None
-            if dataset is None and attrs.get("dataset"):
-                dataset = Path(attrs["dataset"])
+            return read_poses(poses)[1]
         except FieldlocError:
             pass
+    return {}
+
+
+def _frame_sources(report: dict, attrs: dict):
+    """(dataset folder, features file or None) of a report's run from the report and its
+    poses file's ``attrs``, or (None, None)."""
+    dataset = Path(report["dataset"]) if report.get("dataset") else None
+    f = (attrs.get("inputs") or {}).get("features")
+    features = Path(f) if f and Path(f).is_file() else None
+    if dataset is None and attrs.get("dataset"):
+        dataset = Path(attrs["dataset"])
     if features is None and dataset is not None and (dataset / "features.h5").is_file():
         features = dataset / "features.h5"
     return dataset, features
-
-
-def _report_field(report: dict):
-    """The field a report's frames are drawn on: the one evaluate was given, else the field
-    of the map the poses were made with (a custom field's map carries it), else the field
-    the poses name; None when none of these can be read (the frames are drawn without
-    field lines)."""
-    from ..common.field import load_field
-    from ..common.poses_file import read_poses
-    from .hypotheses import poses_field
-
-    try:
-        if report.get("field_override"):
-            return load_field(report["field_override"])
-        poses = report.get("poses")
-        attrs = read_poses(poses)[1] if poses and Path(poses).is_file() else {}
-        return poses_field(attrs or {"field": report.get("field") or ""})
-    except FieldlocError:
-        return None
 
 
 def overlay_png(dataset, features, frame: dict, field_model, dpi: int) -> tuple[bytes | None,
@@ -330,8 +316,15 @@ def report_section(report_dir: Path, conf: dict, index: int) -> str:
     worst = worst_frames(report_dir, int(conf["worst"]))
     if worst:
         parts.append(f"<h3>The {len(worst)} worst frames</h3>")
-        dataset, features = _frame_sources(report)
-        fm = _report_field(report)
+        from .hypotheses import poses_field
+
+        attrs = _poses_attrs(report)
+        dataset, features = _frame_sources(report, attrs)
+        try:  # the field evaluate was given, else the poses' own (their map's, their name's)
+            fm = poses_field(attrs or {"field": report.get("field") or ""},
+                             report.get("field_override"))
+        except FieldlocError:
+            fm = None  # the frames are drawn without field lines
         for fr in worst:
             err = ("failed (infinite error)" if fr["failed"] else
                    "not accepted (counted as infinite error)" if math.isinf(fr["error_m"])

@@ -17,7 +17,7 @@ from ..common.artifacts import check_output
 from ..common.conf import stage_conf
 from ..common.dataset import frame_index, readable_truth, truth_at
 from ..common.errors import FieldlocError
-from ..common.field import load_field
+from ..common.field import field_file, load_field
 from ..common.geometry import robot_to_field
 
 confs = {"default": {"max_hypotheses": 5, "min_probability": 0.0, "robot_radius": 0.25}}
@@ -82,7 +82,7 @@ def main(conf: str | dict | None, poses: str | Path, output: str | Path, *,
     conf = stage_conf(confs, conf)
     output = Path(output)
     cols, attrs = read_poses(poses)
-    check_output(output, {"poses": poses, "features": features, "field": _field_file(field),
+    check_output(output, {"poses": poses, "features": features, "field": field_file(field),
                           **run_inputs(attrs)}, overwrite=overwrite)
     names = [str(n) for n in cols["name"]]
     i = frame_index(names, frame, str(poses))
@@ -110,10 +110,6 @@ def main(conf: str | dict | None, poses: str | Path, output: str | Path, *,
                     " their probabilities, the frame's points at each"
                     + ("; dashed white: truth" if truth is not None else "; no truth"))
     return save_figure(fig, output)
-
-
-def _field_file(field) -> Path | None:
-    return Path(field) if field and Path(field).is_file() else None
 
 
 def poses_field(attrs: dict, field=None):
