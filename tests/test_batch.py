@@ -190,6 +190,13 @@ def test_a_batch_whose_every_run_failed_exits_1(serial, tmp_path):
      "methods[0]: unknown conf key 'headng'"),
     ({"runs": ["lut x omni-*", "mcl persp-a"]}, "runs[1]: 'mcl persp-a' is not of the form"),
     ({"runs": ["lutt x *"]}, "runs[0]: 'lutt' names no method"),
+    # a value of hundreds of kB is quoted by its first few dozen characters
+    ({"methods": [{"method": "lut", "name": "x" * 300_000}]},
+     "methods: method name 'xxxx"),
+    ({"methods": [{"method": list(range(100_000))}]},
+     "methods[0].method: expected a text, got [0, 1, 2,"),
+    ({"runs": ["x" * 300_000]}, "runs[0]: 'xxxx"),
+    ({"runs": ["lut x " + "y" * 300_000]}, "runs[0]: 'yyyy"),
 ])
 def test_a_wrong_spec_is_one_clear_line(change, message, tmp_path):
     spec = _write_spec(tmp_path, {**SPEC, **change})
@@ -200,6 +207,22 @@ def test_a_wrong_spec_is_one_clear_line(change, message, tmp_path):
     assert r.exit_code == 1
     assert r.stderr.count("\n") == 1 and r.stderr.startswith("fieldloc: error: ")
     assert message in r.stderr and "Traceback" not in r.stderr
+    assert len(r.stderr) < 1200 and "x" * 61 not in r.stderr and "y" * 61 not in r.stderr
+    assert not (tmp_path / "res").exists()
+
+
+def test_a_spec_that_plans_no_run_is_refused_before_anything_is_made(tmp_path):
+    """Every method unregistered (or none reading a dataset's camera kind): nothing would run,
+    so the batch fails in one line saying why, and no results folder is made."""
+    spec = _write_spec(tmp_path, {**SPEC, "methods": ["no-such-method"]})
+    r = CliRunner().invoke(cli, ["-q", "batch", str(spec), "-o", str(tmp_path / "res"),
+                                 "--serial"])
+    assert r.exit_code == 1 and r.stderr.count("\n") == 1
+    assert "nothing to run: method 'no-such-method' (methods[0]): not registered" in r.stderr
+    omni_only = {**SPEC, "datasets": SPEC["datasets"][:1], "methods": ["mcl"]}
+    r = CliRunner().invoke(cli, ["-q", "batch", str(_write_spec(tmp_path / "b", omni_only)),
+                                 "-o", str(tmp_path / "res"), "--serial"])
+    assert r.exit_code == 1 and "nothing to run: 1 runs whose method does not read" in r.stderr
     assert not (tmp_path / "res").exists()
 
 

@@ -103,6 +103,9 @@ def main(conf, spec, results, *, overwrite: bool = False, progress: bool = False
     conf = _check_conf(stage_conf(confs, conf))
     say = report or log.info
     plan = read_spec(spec, results)
+    if not plan.runs:  # refused before anything is made: a batch of no run is a SPEC's mistake
+        why = "; ".join(plan.skipped) or "its 'runs' pair no method with a dataset"
+        raise FieldlocError(f"{plan.spec}: nothing to run: {why}")
     results = _check_results(plan)
     for line in plan.skipped:
         say(f"skipped: {line}")

@@ -83,7 +83,7 @@ import yaml
 from .. import evaluate, extract, localize, simulate
 from ..common.artifacts import file_hash, text_hash
 from ..common.conf import load_yaml, parse_overrides, resolve_conf, stage_conf
-from ..common.errors import FieldlocError
+from ..common.errors import FieldlocError, shown
 
 TOP_KEYS = ("field", "map", "build_map", "datasets", "extract", "evaluate", "templates",
             "methods", "runs")
@@ -94,7 +94,10 @@ TEMPLATES_KEYS = ("grid", "headings", "centre", "half_size", "seed", "conf", "ca
 GRID_OWN_KEYS = ("camera", "frames", "seed", "calib_seed", "world_seed", "trajectory")
 SIMULATE_KEYS = ("preset", "field", "frames", "seed", "conf")
 METHOD_KEYS = ("name", "method", "preset", "conf")
+# a dataset's or method's name: a folder name and a column of the comparison tables, so plain
+# and short enough to read there (NAME_MAX characters)
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]*$")
+NAME_MAX = 64
 
 
 @dataclass
@@ -184,10 +187,10 @@ class _Where:
 
     def keys(self, d, where: str, allowed, required=()) -> dict:
         if not isinstance(d, dict):
-            self.fail(where, f"expected a mapping of {', '.join(allowed)}, got {d!r}"[:160])
+            self.fail(where, f"expected a mapping of {', '.join(allowed)}, got {shown(d)}")
         unknown = [k for k in d if k not in allowed]
         if unknown:
-            self.fail(where, f"unknown key '{unknown[0]}' (known: {', '.join(allowed)})")
+            self.fail(where, f"unknown key {shown(unknown[0])} (known: {', '.join(allowed)})")
         for k in required:
             if k not in d:
                 self.fail(where, f"missing key '{k}'")
@@ -195,7 +198,7 @@ class _Where:
 
     def text(self, v, where: str) -> str:
         if not isinstance(v, str) or not v.strip():
-            self.fail(where, f"expected a text, got {v!r}")
+            self.fail(where, f"expected a text, got {shown(v)}")
         return v.strip()
 
     def overrides(self, v, where: str) -> dict:
@@ -365,14 +368,18 @@ def _datasets(w, entries, base, results, default_map, build_conf, extract_defaul
                 ds.templates = _templates(w, templates_default, ds, "templates", base, results,
                                           templates)
             out.append(ds)
-    names = [ds.name for ds in out]
-    for n in names:
-        if not NAME_RE.match(n):
-            w.fail("datasets", f"dataset name '{n}' is not a plain name (letters, digits,"
-                   " . _ + -): give it a 'name'")
-        if names.count(n) > 1:
-            w.fail("datasets", f"two datasets are named '{n}': give one a 'name'")
+    _check_names(w, "datasets", "dataset", [ds.name for ds in out], ": give it a 'name'")
     return out
+
+
+def _check_names(w, where: str, what: str, names: list[str], remedy: str = "") -> None:
+    """Dataset or method names: plain (NAME_RE), at most NAME_MAX characters, no two alike."""
+    for n in names:
+        if not NAME_RE.match(n) or len(n) > NAME_MAX:
+            w.fail(where, f"{what} name {shown(n)} is not a plain name (letters, digits,"
+                   f" . _ + -, at most {NAME_MAX} characters){remedy}")
+        if names.count(n) > 1:
+            w.fail(where, f"two {what}s are named {shown(n)}: give one a 'name'")
 
 
 def _folder(w, path: Path, name: str, where: str, results: Path, calib, base=None):
@@ -560,7 +567,7 @@ def _methods(w, entries, skipped) -> list[MethodSpec]:
         name = w.text(m.get("name", key), f"{where}.name")
         spec = MethodSpec(name=name, method=method, preset=preset, overrides=over, key=key)
         if method not in localize.available_methods():
-            skipped.append(f"method '{method}' ({where}): not registered in"
+            skipped.append(f"method {shown(method)} ({where}): not registered in"
                            f" stages.localize.METHODS (known: {', '.join(localize.METHODS)})")
         else:
             try:
@@ -571,13 +578,7 @@ def _methods(w, entries, skipped) -> list[MethodSpec]:
             spec.cameras = localize.method_camera_kinds(method)
             spec.templates = localize.uses_templates(method)
         out.append(spec)
-    names = [m.name for m in out]
-    for n in names:
-        if names.count(n) > 1:
-            w.fail("methods", f"two methods are named '{n}': give one a 'name'")
-        if not NAME_RE.match(n):
-            w.fail("methods", f"method name '{n}' is not a plain name (letters, digits, . _ +"
-                   " -)")
+    _check_names(w, "methods", "method", [m.name for m in out])
     return out
 
 
@@ -614,7 +615,7 @@ def _runs(w, runs, datasets, methods, skipped) -> list[RunSpec]:
         where = f"runs[{i}]" if runs not in ("all", None) else "runs"
         parts = re.split(r"\s+x\s+", line.strip())
         if len(parts) != 2:
-            w.fail(where, f"'{line}' is not of the form 'METHODS x DATASETS'")
+            w.fail(where, f"{shown(line)} is not of the form 'METHODS x DATASETS'")
         mp, dp = ([p.strip() for p in part.split(",") if p.strip()] for part in parts)
         ms = _matching(w, mp, [m.name for m in methods], where, "method")
         ds = _matching(w, dp, [d.name for d in datasets], where, "dataset")
@@ -652,6 +653,8 @@ def _matching(w, patterns, names, where, what) -> set[str]:
     for p in patterns:
         hit = [n for n in names if fnmatch.fnmatchcase(n, p)]
         if not hit:
-            w.fail(where, f"'{p}' names no {what} of the SPEC ({what}s: {', '.join(names)})")
+            more = ", ..." if len(names) > 8 else ""
+            w.fail(where, f"{shown(p)} names no {what} of the SPEC ({what}s:"
+                   f" {', '.join(names[:8])}{more})")
         out.update(hit)
     return out
