@@ -487,6 +487,26 @@ def _setup_fifo_image(w, ws):
     return {"ds": ds}
 
 
+def _setup_fifo_file(name):
+    """The omni dataset copied, its file ``name`` a FIFO: reading it would block forever, and
+    taking it as absent would run on without what it holds."""
+    def setup(w, ws):
+        ds = copy_dataset(w, "omni", ws)
+        (ds / name).unlink()
+        os.mkfifo(ds / name)
+        return {"ds": ds}
+    return setup
+
+
+def _setup_minho_fifo_image(w, ws):
+    """A MINHO calibration folder whose first image (where the image size is read) is a FIFO."""
+    minho = ws / "minho"
+    shutil.copytree(w["minho"], minho)
+    (minho / "images").mkdir()
+    os.mkfifo(minho / "images" / "0001.png")
+    return {"m": minho}
+
+
 def _check_fifo_frame_failed(paths, res):
     from stages.common.features_file import FeaturesFile
 
@@ -889,6 +909,21 @@ CASES = [
          ["extract", "{ds}", "-o", W + "/f.h5"], 0,
          "frame 000002 skipped: unreadable image", setup=_setup_fifo_image,
          check=_check_fifo_frame_failed),
+    Case("localize a dataset whose odometry.csv is a FIFO", "hang",
+         ["localize", "{ds}", "--map", "{map}", "--features", "{features}", "-o", W + "/p.h5"],
+         1, "odometry.csv: not a regular file", setup=_setup_fifo_file("odometry.csv")),
+    Case("extract a dataset whose frames.csv is a FIFO", "hang",
+         ["extract", "{ds}", "-o", W + "/f.h5"], 1, "frames.csv: not a regular file",
+         setup=_setup_fifo_file("frames.csv")),
+    Case("extract a dataset whose calib.yaml is a FIFO", "hang",
+         ["extract", "{ds}", "-o", W + "/f.h5"], 1, "calib.yaml: not a regular file",
+         setup=_setup_fifo_file("calib.yaml")),
+    Case("evaluate against a truth.csv that is a FIFO", "hang",
+         ["evaluate", "{poses}", "--truth", "{ds}", "-o", W + "/rep"], 1,
+         "truth.csv: not a regular file", setup=_setup_fifo_file("truth.csv")),
+    Case("calibrate --from-minho whose first image is a FIFO", "hang",
+         ["calibrate", "omni", "--from-minho", "{m}", "-o", W + "/c.yaml"], 1,
+         "0001.png (not a regular file)", setup=_setup_minho_fifo_image),
     Case("a field key whose value is 300 kB of text", "silent",
          ["build-map", W + "/f.yaml", "-o", W + "/m.h5"], 1,
          "key 'length' must be a number, got 'xxxxxxxx", setup=_setup_field({"length": LONG}),

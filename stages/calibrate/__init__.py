@@ -73,8 +73,8 @@ from ..common.camera import (
     save_calib,
 )
 from ..common.conf import stage_conf
-from ..common.dataset import IMAGE_SUFFIXES, csv_rows, read_mask
-from ..common.errors import FieldlocError
+from ..common.dataset import IMAGE_SUFFIXES, csv_rows, read_image, read_mask
+from ..common.errors import FieldlocError, present
 from . import cnc as _cnc
 from . import line_images as _line_images
 from . import nubot as _nubot
@@ -287,10 +287,8 @@ def merge_line_marks(radius_px, distance_m, marks, source: str):
 def _measure_line_images(conf, folder, *, centre, forward_angle, mirrored, valid_radius,
                          image_size, mask):
     first = _line_images.distance_images(folder)[0][0]
-    import cv2
-
-    img = cv2.imread(str(first), cv2.IMREAD_COLOR)
-    if img is not None and (img.shape[1], img.shape[0]) != tuple(image_size):
+    img = read_image(first)
+    if (img.shape[1], img.shape[0]) != tuple(image_size):
         raise CalibrationError(
             f"{first}: line image is {img.shape[1]} x {img.shape[0]} px, the calibration"
             f" {image_size[0]} x {image_size[1]}")
@@ -432,8 +430,6 @@ def from_cnc(conf: dict | str | None, carpet_conf, output, *, rings, calib_image
     and image size unless given. The rings' detection is recorded beside the pairs.
     ``conf``: a preset name, None (``cnc``) or a dict of overrides on ``cnc``. Returns
     ``output``."""
-    import cv2
-
     conf = stage_conf(confs, conf, default="cnc")
     carpet_conf = Path(carpet_conf)
     distances = _cnc.read_distances(carpet_conf)
@@ -443,9 +439,7 @@ def from_cnc(conf: dict | str | None, carpet_conf, output, *, rings, calib_image
     detected = None
     extra = {"ring_distances_m": [float(v) for v in distances]}
     if calib_image is not None:
-        img = cv2.imread(str(calib_image), cv2.IMREAD_COLOR)
-        if img is None:
-            raise CalibrationError(f"unreadable calibration image: {calib_image}")
+        img = read_image(calib_image)
         detected = _cnc.detect_rings(img, centre=centre, conf=conf.get("rings"))
         sources["calib_image"] = str(calib_image)
         sources["calib_image_hash"] = file_hash(calib_image)
@@ -528,11 +522,7 @@ def from_nubot(conf: dict | str | None, nubot_dir, output, *, image_size=None,
 
 
 def _image_size_of_file(path: Path) -> tuple[int, int]:
-    import cv2
-
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise CalibrationError(f"unreadable image: {path}")
+    img = read_image(path)  # refuses a FIFO, which would block the read forever
     return int(img.shape[1]), int(img.shape[0])
 
 
@@ -548,23 +538,18 @@ def _read_mask(mask, image_size, sources):
         return None
     sources["mask"] = str(mask)
     sources["mask_hash"] = file_hash(mask) if Path(mask).is_file() else ""
-    if not Path(mask).is_file():
+    if not present(Path(mask)):
         raise CalibrationError(f"mask not found: {mask}")
     return read_mask(mask, tuple(image_size))
 
 
 def _image_size_of(folder: Path) -> tuple[int, int]:
-    import cv2
-
     images = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES) \
         if folder.is_dir() else []
     if not images:
         raise CalibrationError(
             f"no image in {folder} to take the image size from; give --image-size W H")
-    img = cv2.imread(str(images[0]), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise CalibrationError(f"unreadable image: {images[0]}")
-    return int(img.shape[1]), int(img.shape[0])
+    return _image_size_of_file(images[0])
 
 
 def residual_report(camera: OmniCamera, points_csv) -> CalibrationFit:

@@ -50,7 +50,7 @@ import numpy as np
 import yaml
 
 from .conf import load_yaml
-from .errors import DatasetError
+from .errors import DatasetError, present
 
 CALIB_VERSION = 2  # newest calib.yaml version this code reads (1: polynomial only)
 RADIAL_MODELS = ("polynomial", "table")
@@ -267,7 +267,7 @@ def image_size_of(d: dict, where: str) -> tuple[int, int]:
 def load_calib(path: str | Path):
     """Read a calib.yaml and return the camera model of its kind."""
     path = Path(path)
-    if not path.is_file():
+    if not present(path):
         raise DatasetError(f"calibration not found: {path}")
     try:
         d = load_yaml(path.read_bytes().decode("utf-8-sig"))

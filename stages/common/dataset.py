@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from .conf import load_yaml
-from .errors import DatasetError
+from .errors import DatasetError, present
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 SIMULATION_RECORD = "simulation.yaml"  # written by fieldloc simulate: how the dataset was made
@@ -65,7 +65,7 @@ def read_csv(path: str | Path, kind: str) -> dict[str, np.ndarray]:
     column -> array. Every problem is a DatasetError naming the file and line."""
     path = Path(path)
     cols = CSV_COLUMNS[kind]
-    if not path.is_file():
+    if not present(path):
         raise DatasetError(f"file not found: {path}")
     lines = csv_rows(path)
     if not lines:
@@ -209,7 +209,7 @@ class Dataset:
 
     def optional(self, kind: str) -> dict[str, np.ndarray] | None:
         p = self.root / f"{kind}.csv"
-        return read_csv(p, kind) if p.is_file() else None
+        return read_csv(p, kind) if present(p) else None
 
     def field_record(self) -> dict:
         """The field the dataset was recorded on, where the dataset says so: the ``field``
@@ -267,7 +267,7 @@ def open_dataset(root: str | Path, *, need_images: bool = True) -> Dataset:
                 f" '{p.stem}'; rename or remove one")
         by_stem[p.stem] = p
     frames = root / "frames.csv"
-    if frames.is_file():
+    if present(frames):
         tab = read_csv(frames, "frames")
         by_name = dict(zip(tab["name"], tab["stamp"]))
         missing = [p.name for p in images if p.name not in by_name and p.stem not in by_name]

@@ -22,3 +22,15 @@ def shown(value, limit: int = 60) -> str:
     characters of a bad value (a value of megabytes would make a "one-line" error as long)."""
     s = repr(value)
     return s if len(s) <= limit else s[:limit - 3] + "..."
+
+
+def present(path) -> bool:
+    """Whether a dataset file is there (``path``: a pathlib.Path): True for a regular file,
+    False when nothing is at ``path``; anything else (a FIFO, a socket, a device, a folder) is
+    a DatasetError, not an absent file (a FIFO would block its read forever; taking it as
+    absent would run on silently without the odometry, the IMU or the stamps it names)."""
+    if path.is_file():
+        return True
+    if not path.exists():  # nothing there, or a link to nothing
+        return False
+    raise DatasetError(f"{path}: not a regular file (a pipe, socket, device or folder)")
