@@ -507,6 +507,27 @@ def _setup_minho_fifo_image(w, ws):
     return {"m": minho}
 
 
+def _setup_special(name, kind="fifo"):
+    """A FIFO (or, as root, a character device like /dev/null) named ``name`` in the case's
+    folder: an output that an atomic write would replace with a file."""
+    def setup(w, ws):
+        if kind == "fifo":
+            os.mkfifo(ws / name)
+        else:
+            if os.geteuid() != 0:
+                pytest.skip("making a device node needs root")
+            os.mknod(ws / name, 0o666 | stat.S_IFCHR, os.makedev(1, 3))
+        return {}
+    return setup
+
+
+def _check_still_special(name):
+    def check(paths, res):
+        mode = os.lstat(paths["ws"] / name).st_mode
+        assert stat.S_ISFIFO(mode) or stat.S_ISCHR(mode), "the node was replaced"
+    return check
+
+
 def _check_fifo_frame_failed(paths, res):
     from stages.common.features_file import FeaturesFile
 
@@ -924,6 +945,14 @@ CASES = [
     Case("calibrate --from-minho whose first image is a FIFO", "hang",
          ["calibrate", "omni", "--from-minho", "{m}", "-o", W + "/c.yaml"], 1,
          "0001.png (not a regular file)", setup=_setup_minho_fifo_image),
+    Case("export -o a FIFO --overwrite", "data-lost",
+         ["export", "{poses}", "--format", "csv", "-o", W + "/pipe.csv", "--overwrite"], 1,
+         "not a regular file (a device, pipe or socket)", setup=_setup_special("pipe.csv"),
+         check=_check_still_special("pipe.csv")),
+    Case("localize -o a device node --overwrite (as root: /dev/full was replaced)",
+         "data-lost", [*LOCALIZE, "-o", W + "/full", "--overwrite"], 1,
+         "not a regular file (a device, pipe or socket)", setup=_setup_special("full", "chr"),
+         check=_check_still_special("full")),
     Case("a field key whose value is 300 kB of text", "silent",
          ["build-map", W + "/f.yaml", "-o", W + "/m.h5"], 1,
          "key 'length' must be a number, got 'xxxxxxxx", setup=_setup_field({"length": LONG}),

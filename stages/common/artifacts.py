@@ -111,6 +111,11 @@ def _check_writable(path: Path, kind: str = "file"):
         raise FieldlocError(f"cannot write {path}: folder {parent} is not writable")
     if kind == "file" and path.is_dir():
         raise FieldlocError(f"cannot write {path}: it is a folder")
+    if path.exists() and not path.is_file() and not path.is_dir():
+        # a device, a FIFO or a socket: an atomic write would rename a file over it (as root,
+        # /dev/full became a CSV), and writing into it is no artifact
+        raise FieldlocError(f"cannot write {path}: not a regular file (a device, pipe or"
+                            " socket), which fieldloc never replaces")
     if kind == "folder" and path.exists() and not path.is_dir():
         raise FieldlocError(f"cannot write the folder {path}: it is a file")
     if kind == "folder" and path.is_dir() and not os.access(path, os.W_OK | os.X_OK):
