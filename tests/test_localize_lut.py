@@ -445,6 +445,10 @@ def test_rendered_dataset_with_imu_heading(omni_default_rendered, msl2015_map, t
     tum = np.loadtxt(out.with_suffix(".tum"))
     assert tum.shape == (p["accepted"].sum(), 8)  # the accepted frames' top hypotheses
     assert p["hypotheses"].shape[0] == 40 and p["hypotheses"].shape[2] == 4
+    # a frame's flags are a set of notes: one raised by each of its tracks is said once
+    for f in p["flags"]:
+        notes = [n for n in str(f).split(",") if n]
+        assert len(notes) == len(set(notes)), f
 
 
 def test_images_to_poses_reuses_the_datasets_features(omni_default_rendered, msl2015_map, tmp_path):

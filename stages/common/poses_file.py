@@ -109,7 +109,9 @@ class PoseTrack:
         self.covariance.append(
             np.full((3, 3), np.nan) if covariance is None else np.asarray(covariance, float)
         )
-        self.flags.append(str(flags))
+        # a frame's flags are a set of notes (each once, in the order first given): a note
+        # raised by each of a frame's tracks is said once
+        self.flags.append(",".join(dict.fromkeys(f for f in str(flags).split(",") if f)))
         if failed:
             h = np.zeros((0, 4))
         elif hypotheses is None:
