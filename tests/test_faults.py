@@ -528,6 +528,16 @@ def _check_still_special(name):
     return check
 
 
+def _setup_deep_json(name):
+    """A folder ``deep`` holding ``name``: a JSON array nested 100,000 deep (json.loads
+    recurses once per level)."""
+    def setup(w, ws):
+        (ws / "deep").mkdir()
+        (ws / "deep" / name).write_text("[" * 100_000 + "]" * 100_000)
+        return {}
+    return setup
+
+
 def _check_fifo_frame_failed(paths, res):
     from stages.common.features_file import FeaturesFile
 
@@ -953,6 +963,12 @@ CASES = [
          "data-lost", [*LOCALIZE, "-o", W + "/full", "--overwrite"], 1,
          "not a regular file (a device, pipe or socket)", setup=_setup_special("full", "chr"),
          check=_check_still_special("full")),
+    Case("report on a report.json nested 100,000 deep", "traceback",
+         ["report", W + "/deep", "-o", W + "/r.html"], 1, "report.json: not valid JSON",
+         setup=_setup_deep_json("report.json")),
+    Case("evaluate --table on a batch.json nested 100,000 deep", "traceback",
+         ["evaluate", "--table", W + "/deep"], 1, "batch.json: not a readable JSON file",
+         setup=_setup_deep_json("batch.json")),
     Case("a field key whose value is 300 kB of text", "silent",
          ["build-map", W + "/f.yaml", "-o", W + "/m.h5"], 1,
          "key 'length' must be a number, got 'xxxxxxxx", setup=_setup_field({"length": LONG}),

@@ -169,7 +169,7 @@ def read_frame(path, conf: dict | None = None) -> HulksFrame:
         raise HulksImportError(f"HULKs camera file not found: {path}")
     try:
         d = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
         raise HulksImportError(f"{path}: not a readable JSON file ({e})") from None
     if not isinstance(d, dict) or "camera_matrix" not in d:
         raise HulksImportError(f"{path}: no 'camera_matrix' (not a HULKs capture file)")

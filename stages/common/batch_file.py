@@ -51,7 +51,7 @@ def read_json(path: str | Path, *, raw: bool = False) -> dict:
     path = Path(path)
     try:
         data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
         raise SchemaError(f"{path}: not a readable JSON file ({e})") from None
     if not isinstance(data, dict):
         raise SchemaError(f"{path}: expected a JSON object")

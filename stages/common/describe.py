@@ -91,7 +91,7 @@ def _image(path: Path) -> str:
 def _json(path: Path, text: str) -> str:
     try:
         d = json.loads(text)
-    except ValueError as e:
+    except (ValueError, RecursionError) as e:  # RecursionError: nested too deep
         raise FieldlocError(f"{path}: not valid JSON ({e})") from None
     lines = [f"{path}"]
     if isinstance(d, dict):

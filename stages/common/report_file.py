@@ -107,7 +107,7 @@ def load_report(path: str | Path, *, raw: bool = False) -> dict:
         raise FieldlocError(f"report not found: {where}")
     try:
         data = json.loads(p.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as e:  # nested deep
         raise SchemaError(f"{p}: not valid JSON ({e})") from None
     if not isinstance(data, dict) or data.get("schema") != SCHEMA:
         got = data.get("schema") if isinstance(data, dict) else None

@@ -943,7 +943,7 @@ def read_json(path: str | Path) -> list[Row]:
         return [Row(**{k: (math.nan if v is None and k.endswith(("_ms", "_mb", "ratio"))
                            else v) for k, v in r.items() if k in names})
                 for r in data["rows"]]
-    except (OSError, ValueError, KeyError, TypeError) as e:
+    except (OSError, ValueError, KeyError, TypeError, RecursionError) as e:
         raise FieldlocError(f"{path}: not a bench --json file ({e})") from None
 
 
