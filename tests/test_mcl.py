@@ -546,6 +546,43 @@ def test_cli_start_half_breaks_the_symmetry_of_a_uniform_start(rendered_walk, ma
     assert not cols["accepted"].any() and np.mean(cols["accepted_up_to_mirror"][10:]) >= 0.9
 
 
+def test_cli_imu_heading_decides_a_uniform_start(rendered_walk, map_path, tmp_path):
+    """``-c imu_heading_sigma=0.2``: the IMU's yaw (field-aligned, as lut's default takes it)
+    weights the particles, and a pose and its mirror have headings pi apart, so a uniform
+    start without ``start_half`` decides the pose itself: accepted within 40 cm on >= 90 % of
+    the frames from frame 10 on, none accepted more than 1 m off. The same walk with the
+    IMU's yaw turned by pi decides the mirrored track: the IMU decides, not the chain's luck.
+    """
+    import shutil
+
+    from click.testing import CliRunner
+
+    from fieldloc_cli.main import cli
+    from stages.common.dataset import read_csv, write_csv
+    from stages.common.geometry import wrap_angle
+    from stages.common.poses_file import read_poses
+
+    data, features = rendered_walk["paths"]
+    turned = tmp_path / "turned"
+    shutil.copytree(data, turned)
+    imu = read_csv(data / "imu.csv", "imu")
+    write_csv(turned / "imu.csv", "imu", {**imu, "yaw": wrap_angle(imu["yaw"] + math.pi)})
+    truth = read_csv(data / "truth.csv", "truth")
+    for folder, sign in ((data, 1.0), (turned, -1.0)):
+        out = tmp_path / f"{folder.name}.h5"
+        res = CliRunner().invoke(cli, ["localize", str(folder), "--map", str(map_path),
+                                       "--features", str(features), "--method", "mcl",
+                                       "--init", "uniform", "-c", "imu_heading_sigma=0.2",
+                                       "-o", str(out)])
+        assert res.exit_code == 0, res.output
+        cols, attrs = read_poses(out)
+        assert attrs["conf"]["imu_heading_sigma"] == 0.2
+        i = np.searchsorted(truth["stamp"], cols["stamp"] - 1e-6)
+        err = np.hypot(cols["x"] - sign * truth["x"][i], cols["y"] - sign * truth["y"][i])
+        assert np.mean(cols["accepted"][10:] & (err[10:] <= 0.4)) >= 0.9, folder.name
+        assert not np.any(cols["accepted"] & (err > 1.0)), folder.name
+
+
 def test_cli_refuses_a_bad_start_half_in_one_line(kidsize, map_path, tmp_path):
     from click.testing import CliRunner
 
@@ -553,7 +590,8 @@ def test_cli_refuses_a_bad_start_half_in_one_line(kidsize, map_path, tmp_path):
 
     data = tmp_path / "walk"
     features = write_synthetic_run(kidsize, data, 5, seed=4)
-    for bad in ("start_half=sideways", "start_half_error=2"):
+    for bad in ("start_half=sideways", "start_half_error=2", "imu_heading_sigma=0",
+                "imu_heading_sigma=true", "imu_heading_sigma=-1"):
         res = CliRunner().invoke(cli, ["localize", str(data), "--map", str(map_path),
                                        "--features", str(features), "--method", "mcl", "-c",
                                        bad, "-o", str(tmp_path / "p.h5")])

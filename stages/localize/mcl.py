@@ -5,8 +5,9 @@ Per frame: (1) predict, every particle moved by the odometry increment with nois
 (stages.localize.motion_model); (2) weight, each particle's weight multiplied by the
 likelihood of the frame's observations (stages.localize.observation_model: eq. 3 for crossings
 and posts, eqs. 4-5 for lines, association by the crossing tables for L and T and per particle
-for X, posts and lines, uniform floor by confidence, product over observations); a frame with
-no usable observation keeps the predicted belief (no weighting, no resampling); (3) estimate;
+for X, posts and lines, uniform floor by confidence, product over observations), and, with
+``imu_heading_sigma``, by the IMU's yaw as a field heading (``heading_log_likelihood``); a frame
+with no usable observation keeps the predicted belief (no weighting, no resampling); (3) estimate;
 (4) resample (low-variance) when the effective sample size falls below ``resample_threshold``
 of the particles, when particles are to be injected, or when the particle count changes.
 
@@ -146,6 +147,7 @@ from stages.common.geometry import compose, inverse, wrap_angle
 from stages.common.observations import Observations
 from stages.common.poses_file import PoseTrack
 
+from . import heading as heading_mod
 from . import motion_model, place_search, smooth
 from .heading import check_start_half
 from .observation_model import DEFAULTS as OBSERVATION_DEFAULTS
@@ -158,6 +160,7 @@ log = logging.getLogger(__name__)
 # (``rival_memory``) back: a frame that far back weighs exp(-3) ~ 5 % of this one
 RIVAL_LOOKBACK = 3.0
 _NO_SUPPORT = -30.0  # log belief density below which a pose counts as unsupported
+IMU_STAMP_TOLERANCE = 0.05  # s: an imu.csv row this near a frame gives the frame's heading
 
 _DEFAULT = {
     "seed": 0,
@@ -219,6 +222,11 @@ _DEFAULT = {
     "min_confidence": 0.8,  # a frame is accepted when its best cluster holds this share (a
     # belief split evenly between a pose and its mirror holds 0.5 each)
     "hypotheses": 5,  # clusters of the belief listed per frame
+    # the IMU's yaw (imu.csv) taken as the field heading plus a small bias, as lut's
+    # ``imu_alignment: field``, with this sigma (rad): each frame's particles are weighted by
+    # it besides the observations (not on collision frames, where the yaw jolts), which also
+    # tells a pose from its mirror; None: the yaw's changes are used on collisions only
+    "imu_heading_sigma": None,
     "smooth": False,  # decide every frame with the whole recording (smooth.py, MclScorer):
     # offline; the causal run's poses are then replaced by the smoothed ones
     "smooth_temperature": 2.0,  # the smoother's frame likelihood is the model's to the
@@ -268,7 +276,8 @@ class Estimate:
 class ParticleFilter:
     """The particle set and its update; ``step`` runs one frame."""
 
-    def __init__(self, model: ObservationModel, conf: dict | None = None, seed: int | None = None):
+    def __init__(self, model: ObservationModel, conf: dict | None = None, seed: int | None = None,
+                 *, imu_heading: bool = False):
         self.conf = copy.deepcopy(_DEFAULT) if conf is None else conf
         self.model = model
         self.field = model.field
@@ -278,6 +287,10 @@ class ParticleFilter:
         self.w_slow: float | None = None
         self.w_fast: float | None = None
         self._last_obs: Observations | None = None
+        # the frames bring the IMU's field heading (``imu_heading_sigma`` and an imu.csv):
+        # it tells a pose from its mirror (headings pi apart), so particles are never paired
+        self.imu_heading = bool(imu_heading)
+        self._heading = None  # this frame's IMU field heading (yaw, sigma), or None
         self.paired = False  # particles stand for themselves and their mirrored poses
         self.symmetric = self.field.is_point_symmetric()
         self._last_pose: np.ndarray | None = None
@@ -319,7 +332,8 @@ class ParticleFilter:
         c = self.conf
         mode = mode or c["init"]
         self.paired = (mode == "uniform" and bool(c["symmetric_pairs"])
-                       and self.field.is_point_symmetric() and c["start_half"] == "any")
+                       and self.field.is_point_symmetric() and c["start_half"] == "any"
+                       and not self.imu_heading)
         n = self._base_count(int(c["init_particles"].get(mode, c["particles_max"])))
         self._last_pose = None
         self._last_estimate = None
@@ -442,6 +456,8 @@ class ParticleFilter:
         if len(pool) or len(rivals):
             p = np.concatenate([p, pool, rivals])
         ll = self.model.log_likelihood(p[:, 0], p[:, 1], p[:, 2], prep)
+        if self._heading is not None:
+            ll = ll + heading_log_likelihood(p[:, 2], self._heading)
         n, n_pool = len(self.particles), len(pool)
         ll_pool, ll_rivals = ll[n:n + n_pool], ll[n + n_pool:]
         if n_pool:
@@ -1054,12 +1070,15 @@ class ParticleFilter:
 
     # ------------------------------------------------------------------ one frame
     def step(self, odometry, dt: float, obs: Observations, *, has_odometry: bool = True,
-             first: bool = False, collision: bool = False, imu_yaw: bool = False) -> Estimate:
+             first: bool = False, collision: bool = False, imu_yaw: bool = False,
+             heading=None) -> Estimate:
         """Predict (unless ``first``), weight, estimate, resample. Returns the estimate.
         ``collision``: the IMU flags a collision since the last frame (``imu_yaw``: the
-        odometry's dtheta was replaced by the IMU's yaw change)."""
+        odometry's dtheta was replaced by the IMU's yaw change); ``heading``: the IMU's field
+        heading this frame, (yaw, sigma) rad, or None."""
         if not first:
             self.predict(odometry, dt, has_odometry, collision, imu_yaw)
+        self._heading = heading
         self.fold()
         self._last_obs = None
         self._pool = None
@@ -1129,8 +1148,6 @@ def run(conf: dict, dataset, features, map_file, progress=None) -> PoseTrack:
     if obs_conf["camera_height"] is None:
         obs_conf["camera_height"] = _camera_height(dataset)
     model = ObservationModel.from_map(map_file, obs_conf)
-    pf = ParticleFilter(model, conf)
-    pf.initialise()
     odometry = dataset.optional("odometry") if dataset is not None else None
     stamps = np.asarray(features.stamps, float)
     increments, _has = motion_model.accumulate_odometry(odometry, stamps)
@@ -1138,6 +1155,9 @@ def run(conf: dict, dataset, features, map_file, progress=None) -> PoseTrack:
     collision, dyaw = motion_model.imu_per_frame(imu, stamps)
     imu_yaw = collision & np.isfinite(dyaw)
     increments[imu_yaw, 2] = dyaw[imu_yaw]  # a pushed robot's odometry does not know its turn
+    headings = frame_headings(imu, stamps, collision, conf["imu_heading_sigma"])
+    pf = ParticleFilter(model, conf, imu_heading=any(h is not None for h in headings))
+    pf.initialise()
     keep = SmoothingInputs() if conf["smooth"] else None
     track = PoseTrack()
     prev_stamp = None
@@ -1155,7 +1175,7 @@ def run(conf: dict, dataset, features, map_file, progress=None) -> PoseTrack:
         dt = 0.0 if prev_stamp is None else max(stamp - prev_stamp, 0.0)
         est = pf.step(increments[i], dt, obs, has_odometry=odometry is not None,
                       first=prev_stamp is None, collision=bool(collision[i]),
-                      imu_yaw=bool(imu_yaw[i]))
+                      imu_yaw=bool(imu_yaw[i]), heading=headings[i])
         if keep is not None:
             keep.add(pf, est, reason)
         if collision[i]:
@@ -1187,6 +1207,11 @@ def _check_conf(conf: dict):
     t = conf["smooth_temperature"]
     if isinstance(t, bool) or not isinstance(t, (int, float)) or not t > 0:
         raise FieldlocError(f"smooth_temperature must be a number > 0, not {str(t)[:40]}")
+    s = conf["imu_heading_sigma"]
+    if s is not None and (isinstance(s, bool) or not isinstance(s, (int, float))
+                          or not 0 < s < math.inf):
+        raise FieldlocError(f"imu_heading_sigma must be a number > 0 (rad) or null, not"
+                            f" {str(s)[:40]}")
     check_start_half(conf)
 
 
@@ -1316,6 +1341,25 @@ def fix_covariance(hessian: np.ndarray, temperature: float) -> np.ndarray:
     return np.linalg.inv(info) + np.diag(np.square(COV_FLOOR))
 
 
+def frame_headings(imu: dict | None, stamps: np.ndarray, collision: np.ndarray,
+                   sigma: float | None) -> list:
+    """Per frame the IMU's field heading (yaw, ``sigma``) rad, or None: without
+    ``imu_heading_sigma``, without an imu.csv row within IMU_STAMP_TOLERANCE of the frame,
+    and on collision frames (the yaw jolts)."""
+    if sigma is None or imu is None:
+        return [None] * len(stamps)
+    yaw, _col = heading_mod.imu_per_frame(imu, stamps, IMU_STAMP_TOLERANCE)
+    return [(float(y), float(sigma)) if np.isfinite(y) and not c else None
+            for y, c in zip(yaw, collision)]
+
+
+def heading_log_likelihood(theta: np.ndarray, heading: tuple[float, float]) -> np.ndarray:
+    """log N(theta; yaw, sigma^2) of poses' headings under the IMU's field heading (yaw, sigma),
+    up to a constant: the term a frame's IMU heading adds to its particles' weights."""
+    yaw, sigma = heading
+    return -0.5 * (wrap_angle(np.asarray(theta, float) - yaw) / sigma) ** 2
+
+
 class SmoothingInputs:
     """What the causal run keeps per frame for the smoother: the frame's prepared
     observations (None without usable ones) and why, and the poses the particle set held (its
@@ -1325,6 +1369,7 @@ class SmoothingInputs:
         self.prepared: list = []
         self.reasons: list = []
         self.modes: list = []
+        self.headings: list = []  # the IMU's field heading (yaw, sigma) per frame, or None
 
     def add(self, pf: ParticleFilter, est: Estimate, reason: str | None = None):
         prep = pf._prep
@@ -1332,6 +1377,7 @@ class SmoothingInputs:
             reason = "no-observations"
         self.prepared.append(prep)
         self.reasons.append(reason)
+        self.headings.append(pf._heading)
         modes = [np.asarray(est.hypotheses, float).reshape(-1, 4)[:, :3]]
         if pf._pool is not None and len(pf._pool[0]):
             pool, ll = pf._pool
@@ -1366,6 +1412,8 @@ class MclScorer:
         if prep is None or not len(starts):
             return FrameCandidates.empty()
         poses, ll, hess = local_fit(self.model, prep, starts)
+        if self.inputs.headings[i] is not None:  # the IMU's heading, as the causal run's
+            ll = ll + heading_log_likelihood(poses[:, 2], self.inputs.headings[i])
         cov = fix_covariance(hess, self.temperature)
         error = np.sqrt(np.maximum(cov[:, 0, 0] + cov[:, 1, 1], 0.0))
         return FrameCandidates(poses, -ll / self.temperature, cov, error)

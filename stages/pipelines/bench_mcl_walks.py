@@ -1,6 +1,8 @@
 """``fieldloc bench`` rows of mcl on held-out rendered walks: NAO (``perspective-nao``, the SPL
 field) and KidSize (``perspective-default``), 20 walks of 200 frames each from seeds no default
-was tuned on, localised with the CLI's defaults three ways:
+was tuned on, localised with the CLI's defaults three ways, and two more with the IMU's yaw
+taken as the field heading (``-c imu_heading_sigma=0.2``: from the placement, and from a
+uniform start without ``start_half``, which the IMU's heading decides):
 
 - from the game's placement (the default);
 - from a uniform start with ``start_half`` given (the half of the truth's first pose, as a team
@@ -32,6 +34,7 @@ LATE = 20  # frames a uniform start has to gather its belief before it is judged
 # the goals: pooled accepted within 40 cm, every walk, median (m), confidently wrong, AUROC
 GOAL_WITHIN, GOAL_WORST, GOAL_MEDIAN, GOAL_WRONG, GOAL_AUROC = 0.97, 0.90, 0.05, 0.005, 0.95
 GOAL_MIRROR = 0.95  # without the start half: accepted up to the mirror and the pair right
+IMU_SIGMA = 0.2  # rad: imu_heading_sigma of the rows with the IMU heading (docs/manual.md)
 
 
 def _run(preset: str, field: str, seed: int, conf: dict, tag: str):
@@ -91,10 +94,17 @@ def rows(repeat: int) -> list[Row]:
     for robot, preset, field in ROBOTS:
         label = (f"held-out rendered {robot} walks ({len(WALK_SEEDS)} x {WALK_FRAMES} frames,"
                  f" seeds {WALK_SEEDS[0]}-{WALK_SEEDS[-1]})")
-        for how, conf, first in (("from the placement", {}, 0),
-                                 ("uniform start, start_half given, frame 20 on",
-                                  {"init": "uniform", "start_half": "given"}, LATE)):
-            tag = "placement" if not conf else "half"
+        for how, tag, conf, first in (
+                ("from the placement", "placement", {}, 0),
+                ("uniform start, start_half given, frame 20 on", "half",
+                 {"init": "uniform", "start_half": "given"}, LATE),
+                # the IMU's yaw as the field heading (opt-in): it also tells the pose from
+                # its mirror, so a uniform start needs no start half
+                (f"from the placement, IMU heading (sigma {IMU_SIGMA:g})", "placement-imu",
+                 {"imu_heading_sigma": IMU_SIGMA}, 0),
+                (f"uniform start, IMU heading (sigma {IMU_SIGMA:g}), no start half, frame 20"
+                 " on", "uniform-imu", {"init": "uniform", "imu_heading_sigma": IMU_SIGMA},
+                 LATE)):
             p = _pooled([_run(preset, field, s, conf, tag) for s in WALK_SEEDS], first, False)
             met = (p["within"] >= GOAL_WITHIN and p["worst"] >= GOAL_WORST
                    and p["median"] <= GOAL_MEDIAN and p["wrong"] <= GOAL_WRONG
