@@ -616,6 +616,13 @@ CASES = [
     Case("calib valid_radius [300, 100]", "traceback",
          ["extract", W + "/omni", "-o", W + "/f.h5"], 1, "'valid_radius' needs 0 <= RMIN < RMAX",
          setup=_with_ds("omni", lambda ds: edit_calib(ds, valid_radius=[300, 100]))),
+    Case("calib valid_radius a ring narrower than a pixel", "traceback",
+         ["extract", W + "/omni", "-o", W + "/f.h5"], 1, "is a ring narrower than 1 px",
+         setup=_with_ds("omni", lambda ds: edit_calib(ds, valid_radius=[40, 40.0000001]))),
+    Case("calibrate --valid-radius narrower than a pixel writes nothing", "silent",
+         ["calibrate", "omni", "{marks}", "-o", W + "/c.yaml", "--centre", "240", "240",
+          "--image-size", "480", "480", "--valid-radius", "40", "40.5"], 1,
+         "is a ring narrower than 1 px"),
     Case("calib decreasing polynomial", "traceback",
          ["extract", W + "/omni", "-o", W + "/f.h5"], 1, "is not increasing over 'valid_radius'",
          setup=_with_ds("omni", lambda ds: edit_calib(

@@ -226,6 +226,10 @@ class OmniCamera:
             raise DatasetError(
                 f"{where}: 'valid_radius' needs 0 <= RMIN < RMAX (px), got [{valid[0]:g},"
                 f" {valid[1]:g}]")
+        if valid[1] - valid[0] < MIN_RING_PX:
+            raise DatasetError(
+                f"{where}: 'valid_radius' [{valid[0]:g}, {valid[1]:g}] is a ring narrower than"
+                f" {MIN_RING_PX:g} px: no scan line has a pixel on the floor")
         if poly is not None:
             samples = np.linspace(valid[0], valid[1], 512)
             slope = np.diff(np.polynomial.polynomial.polyval(samples, poly))
@@ -262,6 +266,11 @@ def image_size_of(d: dict, where: str) -> tuple[int, int]:
         raise DatasetError(
             f"{where}: 'image_size' must be [width, height] in whole pixels > 0, got {v!r}")
     return int(v[0]), int(v[1])
+
+
+# the narrowest floor ring (px) an omni calibration may give: a scan line is sampled at whole
+# pixels, so a narrower ring can hold none of its samples
+MIN_RING_PX = 1.0
 
 
 def load_calib(path: str | Path):
@@ -309,6 +318,8 @@ def save_calib(camera, path: str | Path, calibration: dict | None = None) -> Pat
     d = camera.to_dict()
     if calibration:
         d["calibration"] = calibration
+    type(camera).from_dict(d, str(path))  # refused here what load_calib would refuse: nothing
+    # fieldloc writes is a calibration it cannot read back
     with atomic_path(path, suffix=".yaml") as tmp:
         tmp.write_text(yaml.safe_dump(d, sort_keys=False, default_flow_style=None))
     return path
