@@ -42,6 +42,9 @@ from .errors import DatasetError
 _CAMERA_AXES = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 # largest ideal radius (normalised, tan of the off-axis angle) the model is used up to
 _RADIUS_CAP = 6.0
+# the highest camera a calib.yaml may give (m): a robot's camera, a few metres at most; a
+# height in millimetres or centimetres is refused rather than read as a flying camera
+MAX_HEIGHT_M = 10.0
 
 
 def head_rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
@@ -342,14 +345,19 @@ class PerspectiveCamera:
             raise DatasetError(f"{where}: 'image_size' must be positive, got {list(size)}")
         if cam.fx <= 0 or cam.fy <= 0:
             raise DatasetError(f"{where}: focal lengths fx, fy must be > 0")
-        if cam.height <= 0:
-            raise DatasetError(f"{where}: 'height' must be > 0 (camera above the floor), "
-                               f"got {cam.height}")
+        if not 0 < cam.height <= MAX_HEIGHT_M:
+            raise DatasetError(f"{where}: 'height' must be > 0 and <= {MAX_HEIGHT_M:g} m (camera"
+                               f" above the floor), got {cam.height:g}")
+        for name in ("pitch", "roll", "yaw"):
+            angle = getattr(cam, name)
+            if abs(angle) > math.pi:  # radians: a value beyond pi is most likely degrees
+                raise DatasetError(f"{where}: '{name}' must be an angle in radians within"
+                                   f" [-pi, pi], got {angle:g} (degrees?)")
         w, h = cam.image_size
         corners = cam._to_normalized(np.array([[0, 0], [w - 1, 0], [0, h - 1], [w - 1, h - 1]]))
         if np.isnan(cam.undistort_normalized(corners)).any():
             raise DatasetError(
-                f"{where}: the distortion {list(np.round(cam.distortion, 4))} folds back inside"
-                " the image (no one-to-one lens model at its corners)"
+                f"{where}: the distortion [{', '.join(f'{v:g}' for v in cam.distortion)}] folds"
+                " back inside the image (no one-to-one lens model at its corners)"
             )
         return cam

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 from pathlib import Path
 
@@ -41,8 +42,9 @@ import numpy as np
 from ..common.artifacts import check_output, file_hash, output_lock, root_attrs
 from ..common.conf import registered_module, resolve_conf, stage_conf
 from ..common.dataset import open_dataset, read_image, read_mask
-from ..common.errors import FieldlocError, SchemaError
+from ..common.errors import DatasetError, FieldlocError, SchemaError
 from ..common.features_file import SCHEMA, VERSION, FeaturesFile, FrameParts, write_features
+from ..common.perspective_camera import MAX_HEIGHT_M
 from ..common.resources import check_disk
 
 log = logging.getLogger(__name__)
@@ -86,12 +88,25 @@ def camera_kind(dataset_dir: str | Path) -> str:
     return open_dataset(dataset_dir).camera().kind
 
 
+# head.csv's columns as they may be (low, high, unit): angles in radians, heights in metres
+# above the floor (the calibration's own bounds, perspective_camera); a value outside is most
+# likely in degrees or millimetres, and would silently place every line point wrong
+HEAD_LIMITS = {"pitch": (-math.pi, math.pi, "rad"), "roll": (-math.pi, math.pi, "rad"),
+               "yaw": (-math.pi, math.pi, "rad"), "height": (1e-3, MAX_HEIGHT_M, "m")}
+
+
 def _head_angles(ds) -> tuple[np.ndarray, dict[str, np.ndarray]] | None:
     """head.csv sorted by stamp: (stamps, {column: values}) of the pose columns it holds
     (pitch, roll and the optional yaw, height, x, y)."""
     head = ds.optional("head")
     if head is None or len(head["stamp"]) == 0:
         return None
+    for name, (low, high, unit) in HEAD_LIMITS.items():
+        v = head.get(name)
+        bad = np.flatnonzero(~((v >= low) & (v <= high))) if v is not None else []
+        if len(bad):  # degrees or millimetres given where radians or metres are read
+            raise DatasetError(f"{ds.root / 'head.csv'}: line {int(bad[0]) + 2}: {name}"
+                               f" {float(v[bad[0]]):g} is not within [{low:g}, {high:g}] {unit}")
     order = np.argsort(head["stamp"])
     return head["stamp"][order], {k: v[order] for k, v in head.items() if k != "stamp"}
 
