@@ -538,6 +538,25 @@ def _setup_deep_json(name):
     return setup
 
 
+def _setup_team_files(w, ws):
+    """Copies of a Carpe Noctem CarpetCalibrator.conf (with its picture) and of HULKs captures
+    (two JSON + image pairs) from ../shared/realdata, and a user's own folder."""
+    real = ROOT.parent / "shared" / "realdata"
+    if not (real / "cnc-calibration").is_dir() or not (real / "hulks-goalbox-labels").is_dir():
+        pytest.skip(f"{real} lacks the CNC or HULKs files")
+    shutil.copytree(real / "cnc-calibration", ws / "cnc")
+    os.chmod(ws / "cnc", 0o755)
+    (ws / "hulks").mkdir()
+    for stem in sorted(p.stem for p in (real / "hulks-goalbox-labels" / "measurements")
+                       .glob("*.json"))[:2]:
+        for suffix in (".json", ".jpg"):
+            shutil.copy(real / "hulks-goalbox-labels" / "measurements" / (stem + suffix),
+                        ws / "hulks")
+    (ws / "thesis").mkdir()
+    (ws / "thesis" / "thesis.txt").write_text("two years of work")
+    return {"capture": str(sorted((ws / "hulks").glob("*.json"))[0])}
+
+
 def _check_fifo_frame_failed(paths, res):
     from stages.common.features_file import FeaturesFile
 
@@ -634,6 +653,10 @@ CASES = [
          ["extract", W + "/kid", "-o", W + "/f.h5"], 1,
          "head.csv: line 3: pitch 25 is not within [-3.14159, 3.14159] rad",
          setup=_with_ds("kid", lambda ds: edit_csv(ds / "head.csv", 3, "0.1,25,0"))),
+    Case("omni calib forward_angle in degrees", "silent",
+         ["extract", W + "/omni", "-o", W + "/f.h5"], 1,
+         "'forward_angle' must be an angle in radians within [-2 pi, 2 pi], got 90 (degrees?)",
+         setup=_with_ds("omni", lambda ds: edit_calib(ds, forward_angle=90.0))),
     Case("calib decreasing polynomial", "traceback",
          ["extract", W + "/omni", "-o", W + "/f.h5"], 1, "is not increasing over 'valid_radius'",
          setup=_with_ds("omni", lambda ds: edit_calib(
@@ -987,6 +1010,24 @@ CASES = [
     Case("evaluate --table on a batch.json nested 100,000 deep", "traceback",
          ["evaluate", "--table", W + "/deep"], 1, "batch.json: not a readable JSON file",
          setup=_setup_deep_json("batch.json")),
+    Case("calibrate --from-cnc -o the CarpetCalibrator.conf --overwrite", "data-lost",
+         ["calibrate", "omni", "--from-cnc", W + "/cnc/CarpetCalibrator.conf", "--rings",
+          "detected", "-o", W + "/cnc/CarpetCalibrator.conf", "--overwrite"], 1,
+         "is an input of this command (the CNC calibration file)", setup=_setup_team_files),
+    Case("calibrate --from-hulks X.json -o X.json --overwrite", "data-lost",
+         ["calibrate", "perspective", "--from-hulks", "{capture}", "-o", "{capture}",
+          "--overwrite"], 1, "is an input of this command (the HULKs capture)",
+         setup=_setup_team_files),
+    Case("calibrate --from-hulks FOLDER -o a user's folder --overwrite", "data-lost",
+         ["calibrate", "perspective", "--from-hulks", W + "/hulks", "-o", W + "/thesis",
+          "--overwrite"], 1, "is not a dataset made by fieldloc calibrate perspective",
+         setup=_setup_team_files),
+    Case("export -o another dataset's truth.csv --overwrite", "data-lost",
+         ["export", "{poses}", "--format", "csv", "-o", "{kid}/truth.csv", "--overwrite"], 1,
+         "is a file of the dataset"),
+    Case("show map -o another dataset's image --overwrite", "data-lost",
+         ["show", "map", "{map}", "-o", "{kid}/images/000000.png", "--overwrite"], 1,
+         "is an image of the dataset"),
     Case("a field key whose value is 300 kB of text", "silent",
          ["build-map", W + "/f.yaml", "-o", W + "/m.h5"], 1,
          "key 'length' must be a number, got 'xxxxxxxx", setup=_setup_field({"length": LONG}),

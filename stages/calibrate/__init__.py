@@ -381,7 +381,7 @@ def main(conf: str | dict | None, points_csv, output, *, centre, image_size, val
     conf = stage_conf(confs, conf)
     check_output(output, {"points": points_csv, "mask": mask,
                           "line images": _files_in(line_images)}, overwrite=overwrite,
-                 error=CalibrationError)
+                 kind="calibration", error=CalibrationError)
     r, d = read_points(points_csv)
     sources = {"points": str(points_csv), "points_hash": file_hash(points_csv)}
     mask_arr = _read_mask(mask, image_size, sources)
@@ -404,7 +404,7 @@ def from_minho(conf: dict | str | None, minho_dir, output, *, image_size=None, v
     check_output(output, {"the MINHO folder": _files_in(folder),
                           "its images": _files_in(folder / "images"), "mask": mask,
                           "line images": _files_in(line_images)}, overwrite=overwrite,
-                 error=CalibrationError)
+                 kind="calibration", error=CalibrationError)
     team = read_minho(folder)
     if image_size is None:
         image_size = _image_size_of(folder / "images")
@@ -436,6 +436,10 @@ def from_cnc(conf: dict | str | None, carpet_conf, output, *, rings, calib_image
     sources = {"cnc": str(carpet_conf), "carpet_conf_hash": file_hash(carpet_conf)}
     if calib_image is None and (carpet_conf.parent / _cnc.IMAGE_NAME).is_file():
         calib_image = carpet_conf.parent / _cnc.IMAGE_NAME
+    check_output(output, {"the CNC calibration file": carpet_conf,
+                          "the calibration picture": calib_image,
+                          "its folder": _files_in(carpet_conf.parent)}, overwrite=overwrite,
+                 kind="calibration", error=CalibrationError)
     detected = None
     extra = {"ring_distances_m": [float(v) for v in distances]}
     if calib_image is not None:
@@ -483,7 +487,7 @@ def from_nubot(conf: dict | str | None, nubot_dir, output, *, image_size=None,
     if not folder.is_dir():
         raise CalibrationError(f"NuBot calibration folder not found: {folder}")
     check_output(output, {"the NuBot folder": _files_in(folder)}, overwrite=overwrite,
-                 error=CalibrationError)
+                 kind="calibration", error=CalibrationError)
     nconf = conf["nubot"]
     mirror = _nubot.read_mirror(folder / _nubot.MIRROR_XML)
     roi = _nubot.read_roi(folder / _nubot.ROI_XML) if (folder / _nubot.ROI_XML).is_file() \

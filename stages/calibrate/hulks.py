@@ -50,14 +50,15 @@ import json
 import logging
 import math
 import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import yaml
 
+from ..common.artifacts import atomic_dir, check_output
 from ..common.camera import save_calib
-from ..common.conf import stage_conf
+from ..common.conf import load_yaml, stage_conf
 from ..common.dataset import write_csv
 from ..common.errors import FieldlocError
 from ..common.perspective_camera import PerspectiveCamera
@@ -72,6 +73,10 @@ confs = {
     },
 }
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
+# the record a folder import writes into its dataset: what made it (the marker that lets
+# --overwrite replace it) and from where
+IMPORT_RECORD = "import.yaml"
+GENERATOR = "fieldloc calibrate perspective --from-hulks"
 
 
 class HulksImportError(FieldlocError):
@@ -207,6 +212,27 @@ def _frames_of_folder(folder: Path, conf: dict) -> list[tuple[HulksFrame, Path]]
     return out
 
 
+def _check_dataset_target(output: Path, source: Path, overwrite: bool) -> None:
+    """The dataset folder is none of the captures and holds none; ``overwrite`` replaces only a
+    folder this importer wrote (its IMPORT_RECORD names GENERATOR), never a user's own folder
+    (the whole folder is replaced, so anything else in it would be lost)."""
+    check_output(output, {"the HULKs captures": [p for p in source.iterdir() if p.is_file()]},
+                 overwrite=None, kind="folder", error=HulksImportError)
+    if output.is_dir() and any(output.iterdir()):
+        if not overwrite:
+            raise HulksImportError(f"{output} exists (use --overwrite to replace a folder"
+                                   " this import wrote)")
+        rec = output / IMPORT_RECORD
+        try:
+            made = rec.is_file() and load_yaml(rec.read_text()).get("generator") == GENERATOR
+        except (OSError, UnicodeDecodeError, yaml.YAMLError, FieldlocError, AttributeError):
+            made = False
+        if not made:
+            raise HulksImportError(f"{output} is not a dataset made by {GENERATOR} (no"
+                                   f" {IMPORT_RECORD} naming it): --overwrite replaces only"
+                                   " those; choose another output")
+
+
 def main(conf: str | dict | None, source, output, *, overwrite: bool = False,
          progress: bool = False) -> Path:
     """Import ``source`` (a HULKs capture JSON, or a folder of them with their images) and
@@ -215,8 +241,8 @@ def main(conf: str | dict | None, source, output, *, overwrite: bool = False,
     conf = stage_conf(confs, conf)
     source, output = Path(source), Path(output)
     if source.is_file():
-        if output.exists() and not overwrite:
-            raise HulksImportError(f"{output} exists (use --overwrite to replace it)")
+        check_output(output, {"the HULKs capture": source}, overwrite=overwrite,
+                     kind="calibration", error=HulksImportError)
         fr = read_frame(source, conf)
         save_calib(fr.camera, output)
         log.info("imported %s (%s camera): height %.3f m, pitch %.1f deg, roll %.1f deg, "
@@ -226,19 +252,14 @@ def main(conf: str | dict | None, source, output, *, overwrite: bool = False,
         return output
     if not source.is_dir():
         raise HulksImportError(f"HULKs camera file or folder not found: {source}")
-    if output.exists() and (not output.is_dir() or any(output.iterdir())) and not overwrite:
-        raise HulksImportError(f"{output} exists (use --overwrite to replace it)")
+    _check_dataset_target(output, source, overwrite)
     frames = _frames_of_folder(source, conf)
     cams = [fr.camera for fr, _ in frames]
     nominal = cams[0].with_pose(
         pitch=float(np.median([c.pitch for c in cams])),
         roll=float(np.median([c.roll for c in cams])), yaw=0.0,
         height=float(np.median([c.height for c in cams])), position=(0.0, 0.0))
-    parent = output.parent
-    if not parent.is_dir():
-        raise HulksImportError(f"cannot write {output}: folder {parent} does not exist")
-    tmp = Path(tempfile.mkdtemp(prefix=f".{output.name}.", suffix=".part", dir=parent))
-    try:
+    with atomic_dir(output, overwrite=overwrite) as tmp:
         (tmp / "images").mkdir()
         for _, image in frames:
             shutil.copy2(image, tmp / "images" / image.name)
@@ -248,11 +269,8 @@ def main(conf: str | dict | None, source, output, *, overwrite: bool = False,
             "pitch": [c.pitch for c in cams], "roll": [c.roll for c in cams],
             "yaw": [c.yaw for c in cams], "height": [c.height for c in cams],
             "x": [c.position[0] for c in cams], "y": [c.position[1] for c in cams]})
-        if output.exists():
-            shutil.rmtree(output) if output.is_dir() else output.unlink()
-        tmp.rename(output)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
+        (tmp / IMPORT_RECORD).write_text(yaml.safe_dump(
+            {"generator": GENERATOR, "source": str(source.resolve()), "frames": len(frames)},
+            sort_keys=False))
     log.info("imported %d HULKs frames from %s into %s", len(frames), source, output)
     return output

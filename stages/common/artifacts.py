@@ -144,11 +144,16 @@ def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *
       entries are ignored), with ``overwrite`` or without; for ``kind="folder"`` (a folder the
       command replaces as a whole) no input may lie inside it either;
     - an existing output needs ``overwrite`` (``overwrite=None``: the caller decides itself);
+    - never a recording's own file (an image, odometry.csv, truth.csv, ... of any dataset
+      folder; its calib.yaml only for ``kind="calibration"``, which is a file otherwise);
     - the folder it goes into must exist and be writable; a file output must not be a folder
       and a folder output not a file.
     """
     path = Path(path)
     refuse_inputs(path, inputs, kind=kind, error=error)
+    _refuse_dataset_files(path, kind, error)
+    if kind == "calibration":
+        kind = "file"
     try:
         _check_writable(path, kind)
     except FieldlocError as e:
@@ -157,6 +162,28 @@ def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *
         if kind == "file" or any(path.iterdir()):
             raise error(f"{path} exists (use --overwrite to replace it)")
     return path
+
+
+def _refuse_dataset_files(path: Path, kind: str, error: type[FieldlocError]) -> None:
+    """No output is a recording's own file: an image of a dataset folder's images/, or its
+    odometry, IMU, truth, frames, head or mask files (and calib.yaml, but for a calibration:
+    ``kind="calibration"``), whichever command writes and whatever dataset it read. A
+    dataset folder is one holding images/ and calib.yaml."""
+    from .dataset import CSV_COLUMNS, SIMULATION_RECORD
+
+    real = Path(os.path.realpath(path))
+    for folder, inside_images in ((real.parent, False), (real.parent.parent, True)):
+        if not ((folder / "images").is_dir() and (folder / "calib.yaml").is_file()):
+            continue
+        if inside_images and real.parent.name == "images":
+            raise error(f"{path} is an image of the dataset {folder}: a recording's files are"
+                        " never written over, --overwrite or not: choose another output")
+        own = {"mask.png", SIMULATION_RECORD, *(f"{k}.csv" for k in CSV_COLUMNS)}
+        if kind != "calibration":
+            own.add("calib.yaml")
+        if not inside_images and (real.name in own or real.name == "images"):
+            raise error(f"{path} is a file of the dataset {folder}: a recording's files are"
+                        " never written over, --overwrite or not: choose another output")
 
 
 def refuse_inputs(path: str | Path, inputs: Mapping[str, object] | None, *, kind: str = "file",

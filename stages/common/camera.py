@@ -215,8 +215,9 @@ class OmniCamera:
             raise DatasetError(f"{where}: omni calibration has a malformed value ({e})") from None
         if not isinstance(mirrored, bool):
             raise DatasetError(f"{where}: 'mirrored' must be true or false, got {mirrored!r}")
-        if not math.isfinite(forward):
-            raise DatasetError(f"{where}: 'forward_angle' must be a finite angle (rad)")
+        if not math.isfinite(forward) or abs(forward) > 2 * math.pi:
+            raise DatasetError(f"{where}: 'forward_angle' must be an angle in radians within"
+                               f" [-2 pi, 2 pi], got {forward:g} (degrees?)")
         w, h = size
         if not (0 <= centre[0] <= w and 0 <= centre[1] <= h):
             raise DatasetError(

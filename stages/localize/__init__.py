@@ -441,7 +441,8 @@ def check_write_calib(path, conf, dataset, points, output, given: dict, overwrit
     if path.exists() and own.exists() and path.resolve() == own.resolve():
         raise FieldlocError(f"{path} is the dataset's own calib.yaml; it is never written over:"
                             " choose another output")
-    check_output(path, {**given, "poses": output, "calib": own}, overwrite=overwrite)
+    check_output(path, {**given, "poses": output, "calib": own}, overwrite=overwrite,
+                 kind="calibration")
 
 
 def _write_calib(path, conf, dataset, feats, track, map_file, output) -> None:
