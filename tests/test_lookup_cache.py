@@ -1,4 +1,5 @@
-"""The table search's error lookup (and the point fit's distance raster) cached beside the map
+"""The table search's tables and min-pooled error lookup (and the point fit's distance raster)
+cached beside the map
 (stages.localize.lookup_cache): mapped when present, identical to a fresh build, built again
 when the map changes, and never a reason to fail."""
 
@@ -30,17 +31,18 @@ def test_the_lookup_is_mapped_from_disk_and_equals_a_fresh_build(small_map):
     first = _search(small_map)
     assert first.lookup_source == "built"
     files = sorted(p.name for p in lookup_cache.cache_folder(small_map).iterdir())
-    assert any(n.endswith(".error.npy") for n in files)
+    assert any(n.endswith(".radial.npy") for n in files)
     assert any(n.endswith(".coarse.npy") for n in files)
+    assert not any(n.endswith(".error.npy") for n in files)  # the fine lookup is not stored
     again = _search(small_map)
     assert again.lookup_source == "mapped"
     fresh = _search(small_map, cache=False)
     assert fresh.lookup_source == "built, not cached"
-    # exact same-run: built here, cached, read back
-    assert np.array_equal(again.error_lookup, fresh.error_lookup)
-    # exact same-run: built here, cached, read back
+    # exact integers: uint16 millimetres, read back
+    assert np.array_equal(again.radial_table, fresh.radial_table)
+    # exact integers: uint8 quantised errors, read back
     assert np.array_equal(again.coarse_lookup, fresh.coarse_lookup)
-    assert again.error_lookup.flags.writeable  # the numba kernels take it as it is
+    assert again.coarse_lookup.flags.writeable  # the numba kernels take it as it is
     # other matching parameters are another key; those the lookup does not read are not
     with MapFile(small_map) as mf:
         assert TableSearch(mf, MatchingParams(c=0.3)).lookup_source == "built"
@@ -54,23 +56,23 @@ def test_a_changed_map_is_built_again_and_its_old_lookup_removed(small_map):
     build_map.main({"resolution": 0.2, "max_range": 3.0}, "kidsize", small_map, overwrite=True)
     new = _search(small_map)
     assert new.lookup_source == "built"
-    # exact same-run: two maps built here
-    assert not np.array_equal(new.error_lookup, old.error_lookup)
+    # exact integers: uint8 quantised errors of two maps
+    assert not np.array_equal(new.coarse_lookup, old.coarse_lookup)
     fresh = _search(small_map, cache=False)
-    # exact same-run: built here, cached, read back
-    assert np.array_equal(new.error_lookup, fresh.error_lookup)
+    # exact integers: uint8 quantised errors, read back
+    assert np.array_equal(new.coarse_lookup, fresh.coarse_lookup)
     now = {p.name for p in lookup_cache.cache_folder(small_map).iterdir()}
     assert not (now & old_files), "the lookup of the earlier map is left behind"
 
 
 def test_a_damaged_cache_file_is_built_again(small_map):
     _search(small_map)
-    err = next(lookup_cache.cache_folder(small_map).glob("*.error.npy"))
+    err = next(lookup_cache.cache_folder(small_map).glob("*.coarse.npy"))
     err.write_bytes(b"not an array")
     s = _search(small_map)
     assert s.lookup_source == "built"
-    # exact same-run: built here, cached, read back
-    assert np.array_equal(s.error_lookup, _search(small_map, cache=False).error_lookup)
+    # exact integers: uint8 quantised errors, read back
+    assert np.array_equal(s.coarse_lookup, _search(small_map, cache=False).coarse_lookup)
 
 
 @pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")

@@ -19,6 +19,7 @@ from stages.common.camera import OmniCamera, load_calib
 from stages.common.errors import FieldlocError
 from stages.common.features_file import FeaturesFile
 from stages.common.map_file import MapFile
+from stages.common.scanlines import NO_HIT_MM
 from stages.localize import lut
 from stages.localize import mirror_calibration as mc
 from stages.localize.lut_search import MatchingParams
@@ -133,7 +134,8 @@ class _TableFrames:
     def __init__(self, search, error, *, frames=40, noise=0.01, seed=0):
         rng = np.random.default_rng(seed)
         n, sl = search.n_angles, search.scanlines
-        table = search.radial_m.reshape(n, search.ny, search.nx, -1)
+        mm = search.radial_table.reshape(n, search.ny, search.nx, -1)
+        table = np.where(mm == NO_HIT_MM, 1e3, mm * 1e-3)
         self.names, self._frames, poses = [], {}, []
         while len(self.names) < frames:
             i, j = int(rng.integers(10, search.ny - 10)), int(rng.integers(10, search.nx - 10))

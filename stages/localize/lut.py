@@ -249,8 +249,8 @@ def _cached(map_file: MapFile, params: MatchingParams):
         t = time.perf_counter()
         search = TableSearch(map_file, params)
         _SEARCH_CACHE[key] = (search, PointFit(map_file.field, c=params.c, map_path=p))
-        log.info("table search for %s ready in %.1f s (error lookup %.0f MB, %s)", p.name,
-                 time.perf_counter() - t, search.error_lookup.nbytes / 1e6, search.lookup_source)
+        log.info("table search for %s ready in %.1f s (tables and lookup %.0f MB, %s)", p.name,
+                 time.perf_counter() - t, search.lookup_nbytes / 1e6, search.lookup_source)
     return _SEARCH_CACHE[key]
 
 

@@ -1,12 +1,21 @@
 """The numba kernels of the table search (lut_search.py): compiled once, cached on disk.
 
 They follow the definitions of lut_search.py's module doc exactly: the same float32 arithmetic
-per observation, sums over observations accumulated in float64.
+per observation, sums over observations accumulated in float64. The tables are the map's
+(uint16 millimetres; ``metres`` gives an entry in metres as the float32 tables had it). The
+kernels take the search's arrays in a few named bundles: ``Quantised`` (the tables and the
+quantised errors), ``MinPooled`` (the min-pooled lookup), ``ObservedRows`` (a frame's
+observations).
 
-- ``tiled_sum``: the quantised error surface of a frame on a window of cells, one lookup row
-  per observation (the error lookup and its min-pooled copy, both tiled);
-- ``tracked_window``: that surface on a tracked search's window ranked by the posterior (error
-  term over the temperature plus the prior's capped Mahalanobis term), its best cells;
+- ``cells_sum``, ``window_sum``, ``weighted_cells``: the quantised error surface of a frame
+  on a list of cells, a window, or every cell weighted per observation, computed from the
+  tables (``Quantised``; ``prepare`` the observations' offsets); ``tiled_sum`` (``pooled_sum``)
+  the min-pooled lookup's surface; ``separated_minima`` the separated minima of the whole
+  field's surface, computed only where the min-pooled lookup's lower bound does not rule a
+  cell out (branch and bound);
+- ``tracked_window``: the surface on a tracked search's window ranked by the posterior (error
+  term over the temperature plus the prior's capped Mahalanobis term), its best cell, by
+  branch and bound;
   ``tracked_window_bound`` a lower bound of its best score from the min-pooled lookup;
   ``tracked_fix`` a track's whole fix in one call (window, sub-cell refinement in the chosen
   basin and in the prior's, support);
@@ -23,6 +32,7 @@ per observation, sums over observations accumulated in float64.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -30,7 +40,73 @@ from numba import njit
 from .point_fit import fit_refine
 
 MAX_CROSSINGS = 4
-TILE = 8  # cells per side of a block of the tiled error lookup (64 cells: one cache line)
+TILE = 8  # cells per side of a block of the tiled min-pooled lookup (64 cells: a cache line)
+NONE_M = 1.0e3  # a "none" table entry in metres: far from any observation -> saturated error
+TOP = 65535  # a quantised surface's "no value" (above any sum: 432 observations x 151 levels)
+# unsigned offsets of a cell's crossings (unsigned + signed would be a float in numba)
+U1, U2, U3, U4 = np.uint64(1), np.uint64(2), np.uint64(3), np.uint64(MAX_CROSSINGS)
+
+
+class Quantised(NamedTuple):
+    """The error lookup of lut_search.py's module doc, computed on the fly: the map's tables
+    (uint16 mm, scan-line-major: ``radial`` flat (line, cell, crossing), ``spiral`` flat
+    (line, cell)) and per distance bin the quantised error of every table value
+    (``values``, uint8, rows of ``width`` = NO_HIT_MM + 1: the radial bins, then the spiral
+    bins; column mm for a table value mm, column NO_HIT_MM for "none": indexed by the table
+    values as they are; ``width`` fixed, ``nb_radial`` and ``nb_spiral`` the rows of the
+    two families). The lookup's entry of (line, bin, cell) is the least of its
+    crossings' values (``cells_sum``): the value is monotone in the error, so the least
+    value is the nearest crossing's."""
+
+    radial: np.ndarray
+    spiral: np.ndarray
+    ncell: int
+    n_angles: int
+    values: np.ndarray
+    width: int
+    nb_radial: int
+    nb_spiral: int
+
+
+class MinPooled(NamedTuple):
+    """The min-pooled error lookup (uint8, tiled: ``tiled_sum``): every ``step``-th cell of
+    the error lookup (cy x cx of them, ``ntx`` blocks wide), each the least entry of the
+    fine cells within step // 2 of it, with the layout of its rows (``lookup_row``)."""
+
+    lookup: np.ndarray
+    step: int
+    cy: int
+    cx: int
+    ntx: int
+    n_angles: int
+    nb_radial: int
+    nb_spiral: int
+    spiral_row0: int
+
+
+class ObservedRows(NamedTuple):
+    """A frame's observations as the quantised surfaces read them: family (0 radial, 1, 2
+    spiral), scan line and distance bin (rounded), int64 each."""
+
+    family: np.ndarray
+    angle_index: np.ndarray
+    bins: np.ndarray
+
+
+# every table distance (uint16 mm, below MAX_MM) in metres as float32, "none" (any larger
+# entry: NO_HIT_MM) as NONE_M: the float32 product mm * 0.001 the search has always used,
+# read where the exact error needs it (one load where converting would cost a few operations
+# per crossing; 64 kB, frozen into the compiled kernels)
+MAX_MM = 16383  # tables of scan lines reaching farther are refused (TableSearch)
+METRES = np.arange(MAX_MM + 1).astype(np.float32) * np.float32(1e-3)
+METRES[MAX_MM] = NONE_M
+
+
+@njit(cache=True, nogil=True, inline="always")
+def metres(mm):
+    """A table entry (uint16 mm) in metres (``METRES``)."""
+    return METRES[min(mm, MAX_MM)]
+
 
 @njit(cache=True, nogil=True, inline="always")
 def line_offsets(fam, ai, m0, n_angles, ncell):
@@ -56,30 +132,30 @@ def line_prediction(radial_flat, spiral_flat, ncell, fam, r0, r1, d, tol, c, a32
     (``TableSearch.exact_error_at_heading``)."""
     if fam == 0:
         c0 = r0 + c * MAX_CROSSINGS
-        n0 = radial_flat[c0]
+        n0 = metres(radial_flat[c0])
         e0 = abs(n0 - d)
         for h in range(1, MAX_CROSSINGS):
-            t = radial_flat[c0 + h]
+            t = metres(radial_flat[c0 + h])
             if abs(t - d) < e0:
                 n0 = t
                 e0 = abs(t - d)
         if not interpolate:
             return n0
         c1 = r1 + c * MAX_CROSSINGS
-        n1 = radial_flat[c1]
+        n1 = metres(radial_flat[c1])
         e1 = abs(n1 - d)
         for h in range(1, MAX_CROSSINGS):
-            t = radial_flat[c1 + h]
+            t = metres(radial_flat[c1 + h])
             if abs(t - d) < e1:
                 n1 = t
                 e1 = abs(t - d)
         if abs(n0 - n1) < tol:
             return b32 * n0 + a32 * n1
         return n1 if upper else n0
-    t0 = spiral_flat[r0 + c]
+    t0 = metres(spiral_flat[r0 + c])
     if not interpolate:
         return t0
-    t1 = spiral_flat[r1 + c]
+    t1 = metres(spiral_flat[r1 + c])
     if abs(t0 - t1) < tol:
         return b32 * t0 + a32 * t1
     return t1 if upper else t0
@@ -254,57 +330,263 @@ def tiled_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spir
 
 
 @njit(cache=True, nogil=True)
-def weighted_surface(lookup, family, angle_index, bins, scale, m, n_angles, nb_radial,
-                     nb_spiral, spiral_row0, ny, nx, ntx, out):
-    """out[i, j] = sum over the observations of their lookup rows' cell (i, j) times the
-    observation's ``scale`` (float32): the whole field's quantised error surface with each
-    observation's lookup weight scaled (to its evidence weight: Observation.with_evidence),
-    in the lookup's units. Rows and tiling as ``tiled_sum``."""
-    t = TILE
-    tt = TILE * TILE
-    nty = (ny - 1) // t + 1
-    n = nty * ntx * tt
-    acc = np.zeros(n, dtype=np.float32)
-    for o in range(family.shape[0]):
-        f = scale[o]
-        if f <= 0.0:
-            continue
-        row = lookup[lookup_row(family[o], angle_index[o], bins[o], m, n_angles, nb_radial,
-                                nb_spiral, spiral_row0)]
-        for q in range(n):
-            acc[q] += f * row[q]
-    for i in range(ny):
-        base = (i // t) * ntx * tt + (i % t) * t
-        for j in range(nx):
-            out[i, j] = acc[base + (j // t) * tt + j % t]
+def prepare(q, rows, m):
+    """Per observation (``rows``: ObservedRows) at table heading m, (3, n): its family,
+    where its table line starts (``line_offsets``) and where its distance bin's quantised
+    errors start in ``q.values`` (the last bin for farther distances, as ``lookup_row``)."""
+    n = rows.family.shape[0]
+    out = np.empty((3, n), np.int64)
+    for o in range(n):
+        f = rows.family[o]
+        out[0, o] = f
+        out[1, o] = line_offsets(f, rows.angle_index[o], m, q.n_angles, q.ncell)[0]
+        b = rows.bins[o]
+        if f == 0:
+            out[2, o] = min(b, q.nb_radial - 1) * q.width
+        else:
+            out[2, o] = (q.nb_radial + min(b, q.nb_spiral - 1)) * q.width
+    return out
 
 
 @njit(cache=True, nogil=True)
-def tracked_window(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
-                   spiral_row0, i0, i1, j0, j1, nx, ntx, scale, x0, y0, res, px, py, ia, ib,
-                   ic, cap):
-    """On the window [i0, i1) x [j0, j1) of a grid nx cells wide: the quantised error
-    surface (``tiled_sum`` of the tiled lookup, ``ntx`` blocks wide) and
-    the flat index of the cell minimising surface * ``scale`` + min(0.5 d^T [[ia, ib],
-    [ib, ic]] d, ``cap``) (d = cell centre - (px, py), cell centres at (x0, y0) + (j, i) *
-    res), and that cell's score."""
+def cells_sum(q, prep, cells, n, out):
+    """out[t] = the quantised error surface at table heading m at flat cell cells[t], t < n
+    (``prep``: ``prepare``): the sum over the observations of their lookup entries, each the
+    least quantised error (``Quantised``) of its table line's crossings at the cell.
+    Observation by observation: each reads its line's stretch of those cells and its
+    bin's errors, where a cell at a time would read as many lines as there are
+    observations."""
+    values, radial, spiral = q.values, q.radial, q.spiral
+    out[:n] = 0
+    for o in range(prep.shape[1]):
+        # unsigned offsets: an index that cannot be negative is not checked for wrapping
+        r0, vbase = np.uint64(prep[1, o]), np.uint64(prep[2, o])
+        if prep[0, o] == 0:
+            for t in range(n):
+                b = r0 + np.uint64(cells[t]) * U4
+                out[t] += min(min(values[vbase + radial[b]], values[vbase + radial[b + U1]]),
+                              min(values[vbase + radial[b + U2]], values[vbase + radial[b + U3]]))
+        else:
+            for t in range(n):
+                out[t] += values[vbase + spiral[r0 + np.uint64(cells[t])]]
+
+
+@njit(cache=True, nogil=True)
+def window_sum(q, rows, m, i0, i1, j0, j1, nx, out):
+    """out[i - i0, j - j0] = the quantised error surface at table heading m on the window
+    [i0, i1) x [j0, j1) of a grid nx cells wide (uint16): the sum over the observations
+    (``rows``: ObservedRows) of their lookup entries (``cells_sum``)."""
+    w = j1 - j0
+    cells = np.empty((i1 - i0) * w, dtype=np.int64)
+    for i in range(i0, i1):
+        for j in range(j0, j1):
+            cells[(i - i0) * w + j - j0] = i * nx + j
+    sums = np.empty(cells.shape[0], dtype=np.int64)
+    cells_sum(q, prepare(q, rows, m), cells, cells.shape[0], sums)
+    for t in range(cells.shape[0]):
+        out[t // w, t % w] = sums[t]
+
+
+@njit(cache=True, nogil=True)
+def weighted_cells(q, rows, m, scale, out):
+    """out[c] = the sum over the observations of their lookup entry at flat cell c times the
+    observation's ``scale`` (float32), for every cell (``out`` (ncell,) float32): the whole
+    field's quantised error surface with each observation's lookup weight scaled (to its
+    evidence weight: Observation.with_evidence), in the lookup's units."""
+    prep = prepare(q, rows, m)
+    values, radial, spiral = q.values, q.radial, q.spiral
+    out[:] = 0.0
+    for o in range(prep.shape[1]):
+        f = scale[o]
+        if f <= 0.0:
+            continue
+        r0, vbase = np.uint64(prep[1, o]), np.uint64(prep[2, o])  # unsigned (cells_sum)
+        if prep[0, o] == 0:
+            for c in range(q.ncell):
+                b = r0 + np.uint64(c) * U4
+                out[c] += f * min(min(values[vbase + radial[b]], values[vbase + radial[b + U1]]),
+                                  min(values[vbase + radial[b + U2]],
+                                      values[vbase + radial[b + U3]]))
+        else:
+            for c in range(q.ncell):
+                out[c] += f * values[vbase + spiral[r0 + np.uint64(c)]]
+
+
+@njit(cache=True, nogil=True)
+def pooled_sum(p, rows, m, c0, c1, d0, d1, out):
+    """The min-pooled lookup's surface (``tiled_sum`` of ``p``: MinPooled) on the coarse
+    window [c0, c1) x [d0, d1)."""
+    tiled_sum(p.lookup, rows.family, rows.angle_index, rows.bins, m, p.n_angles, p.nb_radial,
+              p.nb_spiral, p.spiral_row0, c0, c1, d0, d1, p.ntx, out)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def coarse_cell(p, i):
+    """The coarse row (or column) whose min-pooled entries bound fine row (column) i, or -1
+    past the last one (those fine cells lie within step // 2 of no coarse cell)."""
+    a = (i + p.step // 2) // p.step
+    return a if a < p.cy else -1
+
+
+@njit(cache=True, nogil=True)
+def counting_order(keys, top):
+    """The indices of ``keys`` (integers in [0, top]) by key, equal keys by index."""
+    count = np.zeros(top + 2, dtype=np.int64)
+    for t in range(keys.shape[0]):
+        count[keys[t] + 1] += 1
+    for v in range(1, top + 2):
+        count[v] += count[v - 1]
+    out = np.empty(keys.shape[0], dtype=np.int64)
+    for t in range(keys.shape[0]):
+        out[count[keys[t]]] = t
+        count[keys[t]] += 1
+    return out
+
+
+@njit(cache=True, nogil=True)
+def separated_minima(q, p, rows, m, ny, nx, k, r, out):
+    """The flat cells of up to ``k`` lowest cells of the whole field's quantised surface at
+    table heading m, each more than ``r`` cells (in x or y) from the ones before: the picks
+    of the greedy non-maximum suppression (lowest value, then lowest index) on the whole
+    surface, into ``out`` (k,); returns how many. Branch and bound: the min-pooled surface
+    (``p``) bounds every fine cell it covers from below (the cells past its last row or column
+    by 0); coarse cells are opened in the order of their bound, a growing batch at a time
+    (their fine cells computed together, ``cells_sum``), and a computed cell is passed to the
+    greedy once its value lies below the bound of every coarse cell not opened: no cell left
+    out can come before it, so the greedy sees the cells in the order of the whole surface
+    and stops at the same k picks."""
+    cy, cx, step, half = p.cy, p.cx, p.step, p.step // 2
+    coarse = np.empty((cy, cx), dtype=np.uint16)
+    pooled_sum(p, rows, m, 0, cy, 0, cx, coarse)
+    flat = coarse.ravel()
+    ncoarse = cy * cx
+    order = counting_order(flat, TOP)
+    prep = prepare(q, rows, m)
+    ncell = ny * nx
+    cells = np.empty(ncell, dtype=np.int64)
+    sums = np.empty(ncell, dtype=np.int64)
+    pending = np.empty(ncell, dtype=np.int64)  # computed, not yet passed: value * ncell + cell
+    taken = np.empty(ncell, dtype=np.int64)
+    n = 0
+    i_edge, j_edge = cy * step - half, cx * step - half  # first fine row, column not covered
+    for i in range(ny):
+        for j in range(j_edge if i < i_edge else 0, nx):
+            cells[n] = i * nx + j
+            n += 1
+    opened = 0
+    n_pending = 0
+    n_picks = 0
+    while True:
+        cells_sum(q, prep, cells, n, sums)
+        for t in range(n):
+            pending[n_pending] = sums[t] * ncell + cells[t]
+            n_pending += 1
+        # the computed cells below every bound not opened, in order, to the greedy
+        limit = np.int64(flat[order[opened]]) * ncell if opened < ncoarse else TOP * ncell
+        n_taken = 0
+        kept = 0
+        for t in range(n_pending):
+            if pending[t] < limit:
+                taken[n_taken] = pending[t]
+                n_taken += 1
+            else:
+                pending[kept] = pending[t]
+                kept += 1
+        n_pending = kept
+        passed = np.sort(taken[:n_taken])
+        for t in range(n_taken):
+            c = passed[t] % ncell
+            ci, cj = c // nx, c % nx
+            free = True
+            for s in range(n_picks):
+                if abs(out[s] // nx - ci) <= r and abs(out[s] % nx - cj) <= r:
+                    free = False
+                    break
+            if free:
+                out[n_picks] = c
+                n_picks += 1
+                if n_picks == k:
+                    return n_picks
+        if opened == ncoarse:
+            return n_picks
+        # open the next coarse cells: a third as many as are open, at least 8
+        n = 0
+        for _ in range(min(ncoarse - opened, max(8, opened // 3))):
+            a, b = order[opened] // cx, order[opened] % cx
+            opened += 1
+            for i in range(max(a * step - half, 0), min(a * step - half + step, ny)):
+                for j in range(max(b * step - half, 0), min(b * step - half + step, nx)):
+                    cells[n] = i * nx + j
+                    n += 1
+
+
+@njit(cache=True, nogil=True)
+def tracked_window(q, p, rows, m, i0, i1, j0, j1, nx, scale, x0, y0, res, px, py, ia, ib, ic,
+                   cap):
+    """On the window [i0, i1) x [j0, j1) of a grid nx cells wide: the flat index of the cell
+    minimising its quantised error surface (``cells_sum``) * ``scale`` + min(0.5 d^T
+    [[ia, ib], [ib, ic]] d, ``cap``) (d = cell centre - (px, py), cell centres at (x0, y0) +
+    (j, i) * res; the first in row-major order of equal ones), and that cell's score. Branch
+    and bound: a cell's score is bounded below by the min-pooled surface's (``p``; 0 past its
+    last row or column) in place of its own. The cells of the coarse cell holding the least
+    bound are computed first; then, together, every other cell whose bound is not above the
+    best score they found: no cell left out can score lower or as low."""
+    step, half = p.step, p.step // 2
     h, w = i1 - i0, j1 - j0
-    surf = np.empty((h, w), dtype=np.uint16)
-    tiled_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
-              spiral_row0, i0, i1, j0, j1, ntx, surf)
-    best = 0
-    best_score = np.inf
+    row = np.empty(h, dtype=np.int64)  # coarse row of each window row (-1: past the last)
+    col = np.empty(w, dtype=np.int64)
+    for i in range(h):
+        row[i] = coarse_cell(p, i0 + i)
+    for j in range(w):
+        col[j] = coarse_cell(p, j0 + j)
+    c0, d0 = (i0 + half) // step, (j0 + half) // step
+    c1 = max(min((i1 - 1 + half) // step + 1, p.cy), c0)
+    d1 = max(min((j1 - 1 + half) // step + 1, p.cx), d0)
+    sums = np.zeros((c1 - c0 + 1, d1 - d0 + 1), dtype=np.uint16)  # last row, column: 0
+    if c1 > c0 and d1 > d0:
+        pooled_sum(p, rows, m, c0, c1, d0, d1, sums[:c1 - c0, :d1 - d0])
+    for i in range(h):
+        row[i] = row[i] - c0 if row[i] >= 0 else c1 - c0
+    for j in range(w):
+        col[j] = col[j] - d0 if col[j] >= 0 else d1 - d0
+    lower = np.empty(h * w)
+    prior = np.empty(h * w)
+    start = 0
     for i in range(h):
         dy = y0 + (i0 + i) * res - py
         for j in range(w):
             dx = x0 + (j0 + j) * res - px
-            v = int(surf[i, j])
-            q = 0.5 * (ia * dx * dx + 2.0 * ib * dx * dy + ic * dy * dy)
-            score = v * scale + min(q, cap)
-            if score < best_score:
+            q2 = 0.5 * (ia * dx * dx + 2.0 * ib * dx * dy + ic * dy * dy)
+            t = i * w + j
+            prior[t] = min(q2, cap)
+            a = row[i]
+            v = int(sums[a, col[j]]) if a < c1 - c0 and col[j] < d1 - d0 else 0
+            lower[t] = v * scale + prior[t]
+            if lower[t] < lower[start]:
+                start = t
+    prep = prepare(q, rows, m)
+    todo = np.empty(h * w, dtype=np.int64)
+    cells = np.empty(h * w, dtype=np.int64)
+    values = np.empty(h * w, dtype=np.int64)
+    best = 0
+    best_score = np.inf
+    a, b = row[start // w], col[start % w]
+    for second in (False, True):
+        n = 0
+        for t in range(h * w):
+            same = row[t // w] == a and col[t % w] == b
+            if (same != second) and lower[t] <= best_score:
+                todo[n] = t
+                cells[n] = (i0 + t // w) * nx + j0 + t % w
+                n += 1
+        cells_sum(q, prep, cells, n, values)
+        for x in range(n):
+            t = todo[x]
+            score = values[x] * scale + prior[t]
+            if score < best_score or (score == best_score and t < best):
                 best_score = score
-                best = (i0 + i) * nx + j0 + j
-    return best, best_score
+                best = t
+    return (i0 + best // w) * nx + j0 + best % w, best_score
 
 
 @njit(cache=True, nogil=True)
@@ -336,12 +618,10 @@ def refine_cell(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, 
 
 
 @njit(cache=True, nogil=True)
-def tracked_fix(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
-                spiral_row0, i0, i1, j0, j1, ny, nx, ntx, scale, x0, y0, res, px, py, ia, ib, ic,
-                cap, radial_flat, spiral_flat, ncell, dist, weight, tol, c2, m0, a,
-                interpolate, total_weight, temperature, qpinv, weight64, inlier_error, c2_64,
-                theta, fit_points, fit_table, fit_x0, fit_y0, fit_res, points, fit_c2,
-                max_shift, max_turn, out):
+def tracked_fix(q, p, rows, m, i0, i1, j0, j1, ny, nx, scale, x0, y0, res, px, py, ia, ib, ic,
+                cap, dist, weight, tol, c2, m0, a, interpolate, total_weight, temperature,
+                qpinv, weight64, inlier_error, c2_64, theta, fit_points, fit_table, fit_x0,
+                fit_y0, fit_res, points, fit_c2, max_shift, max_turn, out):
     """A track's fix in one call (``TableSearch.tracked_fix``): the window's best cell by
     the posterior score (``tracked_window``), refined to sub-cell in its basin
     (``refine_cell``, the heading m0 / a); when that lies more than two cells from the prior
@@ -355,9 +635,11 @@ def tracked_fix(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_sp
     window's best posterior score, the prior's basin taken (0 / 1), the support's inliers,
     inlier weight, weighted rho, weighted squared error, then the fitted pose (x, y, theta;
     NaN without ``fit_points``)."""
-    best, window_fit = tracked_window(
-        lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral, spiral_row0,
-        i0, i1, j0, j1, nx, ntx, scale, x0, y0, res, px, py, ia, ib, ic, cap)
+    best, window_fit = tracked_window(q, p, rows, m, i0, i1, j0, j1, nx, scale, x0, y0, res,
+                                      px, py, ia, ib, ic, cap)
+    # the exact error's arguments (exact_error_cells)
+    radial_flat, spiral_flat, ncell, n_angles = q.radial, q.spiral, q.ncell, q.n_angles
+    family, angle_index = rows.family, rows.angle_index
     i, j = best // nx, best % nx
     edge = ((i == i0 and i0 > 0) or (i == i1 - 1 and i1 < ny)
             or (j == j0 and j0 > 0) or (j == j1 - 1 and j1 < nx))

@@ -17,23 +17,35 @@ more:  w(d) = 1 / (1 + (d / range_scale)^2)  (default range_scale 2 m: w = 0.94 
 of a far crossing is much less certain than that of a near one. The error term of a pose is the
 sum over observations; its normalised value e_norm = sum / sum(w) lies in [0, 1).
 
-Speed. The search never evaluates rho inside the loop over cells. At load time an *error
-lookup* is precomputed from the tables: for every scan line (72 radial, 144 spiral), every
-observed distance quantised to ``distance_bin`` (5 cm) and every cell, the value w(d) * rho(e)
-quantised to 0..Q (Q = 151, so that the sum over the at most 432 observations of a frame fits a
-uint16; built once per map and parameters and then mapped from its cache beside the map,
-stages.localize.lookup_cache). It is stored scan-line-major ((line, bin) rows of all cells,
-contiguous), so the error surface of a frame over the whole world is the sum of one contiguous
-row per observation: one gather and one reduction (``global_search``), or the same restricted
-to a window (``local_search``), both in one numba kernel (``tiled_sum``; the exact error and
-the refinement's cell moves are numba kernels too). Within a row the cells lie in 8 x 8
-blocks (``lut_kernels.TILE``; block-row-major, a block's cells row-major, the grid padded to
-whole blocks), so the window of a tracked frame reads a few contiguous 64-byte blocks per
-observation where rows of cells would cost one cache line per row of the window. A track's
-fix (``tracked_fix``: the window ranked by the posterior, the refinement of its basin and of
-the prior's, the support, the line points' fit) is one compiled call. The quantised surface
-only picks cells; the pose is then refined with the exact error (float32 tables in metres,
-no quantisation):
+Speed. The search never evaluates rho inside the loop over cells. Its *error lookup* holds,
+for every scan line (72 radial, 144 spiral), every observed distance quantised to
+``distance_bin`` (5 cm) and every cell, the value w(d) * rho(e) quantised to 0..Q (Q = 151, so
+that the sum over the at most 432 observations of a frame fits a uint16), and the error
+surface of a frame is the sum of one lookup row per observation. Stored whole, that lookup
+is 352 MB on msl-2015 (11736 rows of 28341 cells), so it is not stored: an entry is computed
+when a search reads it, from the map's uint16 tables (millimetres, a cell's crossings side by
+side) and, per distance bin, the quantised error of every table value (``Quantised``, 0.5 MB:
+the entry is the least of its crossings' values, the nearest crossing's, as the value grows
+with the error). The same float32 operations as the stored lookup's build, so the same
+entries to the bit (tests/test_lut_layout.py holds them to that build in numpy). What is
+stored, and mapped from the cache beside the map (stages.localize.lookup_cache), is the
+tables (25 MB) and the lookup min-pooled on every ``coarse_step``-th cell (41 MB with lut's
+coarse_step 3; tiled in 8 x 8 blocks, ``lut_kernels.TILE``): each coarse entry the least of
+the fine entries within coarse_step // 2 of it, so a coarse sum bounds the fine sums of the
+cells it covers from below.
+
+The searches compute the fine surface only where that bound does not rule a cell out (branch
+and bound, numba kernels in lut_kernels.py): the global search's separated minima
+(``separated_minima``: the coarse cells opened in the order of their bound, a computed cell
+passed to the greedy once it lies below every bound not opened: about 5 % of the field for
+16 minima) and the best cell of a window (``tracked_window``, which the local search and a
+track's fix use: the cells of the least bound first, then every cell whose bound is not above
+the best score they found). Both pick the same cells as the whole surface would. A whole
+surface (``surface``, the grid belief's; ``local_surface``) is computed cell by cell. A
+track's fix (``tracked_fix``: the window ranked by the posterior, the refinement of its basin
+and of the prior's, the support, the line points' fit) is one compiled call. The quantised
+surface only picks cells; the pose is then refined with the exact error (the tables in
+metres as float32, no quantisation):
 
 - sub-cell position: exact error on the 3 x 3 cells around the best cell (moving to a lower
   neighbour until the centre is the minimum), then a least-squares quadratic fit of the 9 values;
@@ -43,14 +55,15 @@ no quantisation):
   fraction of the step); ``refine_heading`` fits a parabola through the error at theta - 5 deg,
   theta, theta + 5 deg for a vision estimate of the heading.
 
-``unknown_heading_search`` evaluates all 72 headings on every other cell in x and y (the error
-lookup subsampled once at load), keeps the best few (heading, cell) candidates and refines each
+``unknown_heading_search`` evaluates all 72 headings on every ``coarse_step``-th cell in x
+and y (the min-pooled lookup), keeps the best few (heading, cell) candidates and refines each
 in full resolution with a local search, the exact refinement, and heading refinement.
 """
 
 from __future__ import annotations
 
 import math
+import mmap
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -61,7 +74,12 @@ from ..common.scanlines import NO_HIT_MM
 from . import lookup_cache
 from .lut_kernels import (
     MAX_CROSSINGS,
+    MAX_MM,
+    NONE_M,
     TILE,
+    MinPooled,
+    ObservedRows,
+    Quantised,
     evidence_weights,
     exact_error_cells,
     flatten_scanlines,
@@ -70,14 +88,14 @@ from .lut_kernels import (
     observation_points,
     observation_predictions_cell,
     refine_cell,
+    separated_minima,
     tiled_sum,
     tracked_fix,
     tracked_window,
     tracked_window_bound,
-    weighted_surface,
+    weighted_cells,
+    window_sum,
 )
-
-NONE_M = 1.0e3  # a "none" table entry in metres: far from any observation -> saturated error
 
 
 @dataclass(frozen=True)
@@ -311,11 +329,12 @@ class Support:
 
 
 class TableSearch:
-    """The per-map data of the table search (float tables in metres, the error lookup) and the
-    searches. Build once per map and matching parameters; reuse over frames. The error lookup
-    is mapped from its cache beside the map (lookup_cache) when it was built before, and
-    written there otherwise; ``cache=False`` builds it in memory only (``lookup_source`` says
-    which happened)."""
+    """The per-map data of the table search (the tables in millimetres, the quantised errors,
+    the min-pooled error lookup) and the searches. Build once per map and matching
+    parameters; reuse over frames. The tables and the min-pooled lookup are mapped from their
+    cache beside the map (lookup_cache) when they were built before, and written there
+    otherwise; ``cache=False`` builds them in memory only (``lookup_source`` says which
+    happened to the min-pooled lookup)."""
 
     def __init__(self, map_file: MapFile, params: MatchingParams | None = None, *,
                  cache: bool = True):
@@ -333,39 +352,46 @@ class TableSearch:
         self.n_angles = n
         self.step = self.scanlines.angle_step
         self._map_file = map_file
-        # exact tables in metres, scan-line-major; "none" -> NONE_M (saturated error): derived
-        # from the map's millimetre tables, mapped from the cache beside the map like the
-        # error lookup (converting them costs a process 0.15-0.3 s). The radial table holds a
-        # cell's crossings side by side ((line, cell, crossing)): the exact error of a few
-        # neighbouring cells (refinement, support) reads one or two cache lines per scan line
-        # and row of cells, where crossing-major rows cost one per crossing
-        shapes_m = {"radial": ((n, self.ncell, MAX_CROSSINGS), np.float32),
-                    "spiral": ((2 * n, self.ncell), np.float32)}
+        # the map's tables (uint16 mm), scan-line-major, mapped from the cache beside the map
+        # like the min-pooled lookup (reading them out of the map's HDF5 file costs a process
+        # 0.1-0.2 s and their memory). The radial table holds a cell's crossings side by side
+        # ((line, cell, crossing)): the errors of a few neighbouring cells (refinement,
+        # support, a window) read one or two cache lines per scan line and row of cells,
+        # where crossing-major rows cost one per crossing. ``max_mm``: the largest distance
+        # in them, the width of the quantised errors (Quantised)
+        shapes_mm = {"radial": ((n, self.ncell, MAX_CROSSINGS), np.uint16),
+                     "spiral": ((2 * n, self.ncell), np.uint16),
+                     "max_mm": ((1,), np.uint16)}
         if cache:
-            metres, _ = lookup_cache.load_or_build(map_file.path, "tables in metres", {},
-                                                   shapes_m, self._tables_in_metres)
+            mm, _ = lookup_cache.load_or_build(map_file.path, "tables in millimetres", {},
+                                               shapes_mm, self._tables_in_millimetres)
         else:
-            metres = self._tables_in_metres()
-        self.radial_m, self.spiral_m = metres["radial"], metres["spiral"]
+            mm = self._tables_in_millimetres()
+        self.radial_table, self.spiral_table = mm["radial"], mm["spiral"]
         self._tol32 = np.float32(self.params.pair_tolerance)
         self._c2_32 = np.float32(self.params.c * self.params.c)
-        self._radial_flat = self.radial_m.reshape(-1)
-        self._spiral_flat = self.spiral_m.reshape(-1)
+        self._radial_flat = self.radial_table.reshape(-1)
+        self._spiral_flat = self.spiral_table.reshape(-1)
         self._lookup_layout()
+        values = self._quantised_errors(int(mm["max_mm"][0]))
+        self.quantised = Quantised(self._radial_flat, self._spiral_flat, self.ncell, n,
+                                   values.reshape(-1), values.shape[1], self.nb_radial,
+                                   self.nb_spiral)
         p = self.params
         step = max(1, p.coarse_step)
-        shapes = {"error": ((self.lookup_rows_total, self.nty * self.ntx * TILE * TILE),
-                            np.uint8),
-                  "coarse": ((self.lookup_rows_total,
+        shapes = {"coarse": ((self.lookup_rows_total,
                               self.coarse_nty * self.coarse_ntx * TILE * TILE), np.uint8)}
         if cache:  # mapped from beside the map when it was built before (lookup_cache)
             arrays, self.lookup_source = lookup_cache.load_or_build(
-                map_file.path, "error lookup",
+                map_file.path, "min-pooled error lookup",
                 {"c": p.c, "range_scale": p.range_scale, "distance_bin": p.distance_bin,
-                 "coarse_step": step}, shapes, self._build_error_lookup)
+                 "coarse_step": step}, shapes, self._build_coarse_lookup)
         else:
-            arrays, self.lookup_source = self._build_error_lookup(), "built, not cached"
-        self._set_error_lookup(arrays)
+            arrays, self.lookup_source = self._build_coarse_lookup(), "built, not cached"
+        self.coarse_lookup = arrays["coarse"]  # tiled (module doc; with coarse_step 1 a copy)
+        self.min_pooled = MinPooled(self.coarse_lookup, step, *self.coarse_shape,
+                                    self.coarse_ntx, n, self.nb_radial, self.nb_spiral,
+                                    self.spiral_row0)
 
     @property
     def radial_mm(self) -> np.ndarray:
@@ -389,9 +415,25 @@ class TableSearch:
                               f" the grid {self.grid.shape} and {n} scan lines")
         return t
 
-    def _tables_in_metres(self) -> dict:
-        return {"radial": _to_metres(self.radial_mm.transpose(0, 2, 1)),
-                "spiral": _to_metres(self.spiral_mm)}
+    def _tables_in_millimetres(self) -> dict:
+        """The map's tables as the search reads them (the radial table (line, cell,
+        crossing)) and the largest distance in them (``max_mm``, the columns of the quantised
+        errors that are read)."""
+        radial = np.ascontiguousarray(self.radial_mm.transpose(0, 2, 1))
+        spiral = np.ascontiguousarray(self.spiral_mm)
+        top = max(int(np.max(line, where=line != NO_HIT_MM, initial=0))
+                  for table in (radial, spiral) for line in table)
+        if top >= MAX_MM:
+            from ..common.errors import SchemaError
+
+            raise SchemaError(f"{self._map_file.path}: a scan-line crossing at {top} mm; the"
+                              f" table search reads tables up to {MAX_MM - 1} mm")
+        return {"radial": radial, "spiral": spiral, "max_mm": np.array([top], np.uint16)}
+
+    @property
+    def lookup_nbytes(self) -> int:
+        """Bytes of the arrays the search maps: the tables and the min-pooled lookup."""
+        return self.radial_table.nbytes + self.spiral_table.nbytes + self.coarse_lookup.nbytes
 
     # ------------------------------------------------------------------ error lookup
     def _lookup_layout(self):
@@ -404,51 +446,53 @@ class TableSearch:
         self.q_levels = int(np.iinfo(np.uint16).max // max_obs)
         self.spiral_row0 = n * self.nb_radial
         self.lookup_rows_total = n * self.nb_radial + 2 * n * self.nb_spiral
-        # the tiled rows: blocks of TILE x TILE cells, nty x ntx of them
-        self.nty, self.ntx = -(-self.ny // TILE), -(-self.nx // TILE)
-        step = max(1, self.params.coarse_step)  # the min-pooled lookup, tiled the same way
+        step = max(1, self.params.coarse_step)  # the min-pooled lookup, tiled (module doc)
         self.coarse_shape = ((self.ny + step - 1) // step, (self.nx + step - 1) // step)
         self.coarse_nty = -(-self.coarse_shape[0] // TILE)
         self.coarse_ntx = -(-self.coarse_shape[1] // TILE)
 
-    def _set_error_lookup(self, arrays: dict):
-        self.error_lookup = arrays["error"]  # tiled (module doc)
-        self.coarse_lookup = arrays["coarse"]  # tiled too (with coarse_step 1 a copy)
-
-    def _build_error_lookup(self) -> dict:
-        """The error lookup (tiled) and its min-pooled copy (``error``, ``coarse``), computed
-        from the tables (module doc), one scan line's rows at a time."""
+    def _quantised_errors(self, max_mm: int) -> np.ndarray:
+        """The quantised error of every table value per distance bin (``Quantised``): for bin
+        b (distance d = b * distance_bin) and table value t (mm, 0..max_mm, then "none"),
+        rint(q_levels * w(d) * rho(|t - d|)) in float32 as the search has always computed
+        it; the radial bins' rows, then the spiral bins' (uint8)."""
         p = self.params
-        n = self.n_angles
-        b = p.distance_bin
-        q = float(self.q_levels)
-        rows = self.lookup_rows_total
-        step = max(1, p.coarse_step)
-        cy, cx = (self.ny + step - 1) // step, (self.nx + step - 1) // step
-        lut = np.empty((rows, self.nty * self.ntx * TILE * TILE), dtype=np.uint8)
-        coarse = np.empty((rows, self.coarse_nty * self.coarse_ntx * TILE * TILE),
+        t = np.append(np.arange(max_mm + 1).astype(np.float32) * np.float32(1e-3),
+                      np.float32(NONE_M))
+        d = np.concatenate([np.arange(self.nb_radial), np.arange(self.nb_spiral)]) * p.distance_bin
+        scale = (float(self.q_levels) * p.weight(d)).astype(np.float32)[:, None]
+        e = np.abs(t[None, :] - d[:, None].astype(np.float32))
+        values = np.rint(scale * _rho32(e, p.c)).astype(np.uint8)
+        # indexed by the table values as they are; the columns between the largest distance
+        # and "none" are never read: zero pages of an anonymous mapping, they take no memory
+        # (8 MB where a heap allocation would be written whole)
+        out = np.frombuffer(mmap.mmap(-1, len(d) * (NO_HIT_MM + 1)), dtype=np.uint8).reshape(
+            len(d), NO_HIT_MM + 1)
+        out[:, :max_mm + 1] = values[:, :-1]
+        out[:, NO_HIT_MM] = values[:, -1]
+        return out
+
+    def _build_coarse_lookup(self) -> dict:
+        """The min-pooled error lookup (tiled, ``coarse``; module doc): the error lookup's
+        rows, one scan line at a time, each cell the least quantised error of its crossings
+        (``Quantised``), min-pooled."""
+        q = self.quantised
+        values = q.values.reshape(-1, q.width)
+        values_radial, values_spiral = values[:self.nb_radial], values[self.nb_radial:]
+        step = max(1, self.params.coarse_step)
+        cy, cx = self.coarse_shape
+        coarse = np.empty((self.lookup_rows_total, self.coarse_nty * self.coarse_ntx * TILE * TILE),
                           dtype=np.uint8)
-
-        def put(r0, block):  # rows r0.. of cells into the tiled and the min-pooled lookups
-            block = block.reshape(-1, self.ny, self.nx)
-            lut[r0:r0 + len(block)] = _tiled(block)
-            coarse[r0:r0 + len(block)] = _tiled(_min_pooled(block, step)[0].reshape(-1, cy, cx))
-
-        d_r = np.arange(self.nb_radial) * b
-        scale_r = (q * p.weight(d_r)).astype(np.float32)[:, None]
-        for k in range(n):
-            t = self.radial_m[k].T  # (4, ncell)
-            e = np.abs(t[0][None, :] - d_r[:, None].astype(np.float32))
-            for h in range(1, MAX_CROSSINGS):
-                np.minimum(e, np.abs(t[h][None, :] - d_r[:, None].astype(np.float32)), out=e)
-            put(k * self.nb_radial, np.rint(scale_r * _rho32(e, p.c)).astype(np.uint8))
-        d_s = np.arange(self.nb_spiral) * b
-        scale_s = (q * p.weight(d_s)).astype(np.float32)[:, None]
-        for s in range(2 * n):
-            e = np.abs(self.spiral_m[s][None, :] - d_s[:, None].astype(np.float32))
-            put(self.spiral_row0 + s * self.nb_spiral,
-                np.rint(scale_s * _rho32(e, p.c)).astype(np.uint8))
-        return {"error": lut, "coarse": coarse}
+        radial, spiral = self.radial_table, self.spiral_table
+        for line in range(3 * self.n_angles):  # one scan line's rows at a time
+            if line < self.n_angles:
+                r0, block = line * self.nb_radial, values_radial[:, radial[line]].min(axis=2)
+            else:
+                s = line - self.n_angles
+                r0, block = self.spiral_row0 + s * self.nb_spiral, values_spiral[:, spiral[s]]
+            pooled = _min_pooled(block.reshape(-1, self.ny, self.nx), step)[0]
+            coarse[r0:r0 + len(block)] = _tiled(pooled.reshape(-1, cy, cx))
+        return {"coarse": coarse}
 
     def lookup_rows(self, obs: Observation, m: int) -> np.ndarray:
         """Rows of the error lookup for the observations at table heading index ``m``."""
@@ -581,9 +625,7 @@ class TableSearch:
         if len(obs) == 0:
             return None
         m = self.scanlines.heading_index(theta)
-        surface = self._surface(obs, m)
-        starts = np.array(_best_separated(surface, self.grid.shape, candidates,
-                                          separation / self.grid.resolution))
+        starts = self.separated_minima(obs, m, candidates, separation / self.grid.resolution)
         # exact error (nearest table heading) on each candidate's 3 x 3 neighbourhood
         ci, cj = np.divmod(starts, self.nx)
         off = np.arange(-1, 2)
@@ -612,18 +654,27 @@ class TableSearch:
         m = self.scanlines.heading_index(theta)
         lw = obs.weight if obs.lookup_weight is None else obs.lookup_weight
         scale = np.where(lw > 0, obs.weight / np.where(lw > 0, lw, 1.0), 0.0)
-        args = self._row_arrays(obs, m)
-        out = np.empty((self.ny, self.nx), dtype=np.float32)
-        weighted_surface(self.error_lookup, args[0], args[1], args[2],
-                         np.ascontiguousarray(scale, dtype=np.float32), *args[3:], self.ny,
-                         self.nx, self.ntx, out)
-        return out.astype(np.float64) / float(self.q_levels)
+        out = np.empty(self.ncell, dtype=np.float32)
+        weighted_cells(self.quantised, self._observed_rows(obs), m,
+                       np.ascontiguousarray(scale, dtype=np.float32), out)
+        return out.reshape(self.ny, self.nx).astype(np.float64) / float(self.q_levels)
 
     def _surface(self, obs: Observation, m: int) -> np.ndarray:
-        out = np.empty((self.ny, self.nx), dtype=np.uint16)
-        tiled_sum(self.error_lookup, *self._row_arrays(obs, m), 0, self.ny, 0, self.nx,
-                  self.ntx, out)
-        return out.reshape(-1)
+        """The quantised error surface of every cell (flat, uint16) at table heading m."""
+        return self.local_surface(obs, m, 0, self.ny, 0, self.nx).reshape(-1)
+
+    def separated_minima(self, obs: Observation, m: int, k: int, min_cells: float
+                         ) -> np.ndarray:
+        """Flat indices of up to k lowest cells of the quantised error surface at table
+        heading m (lowest value, then lowest index), each outside the square of half-width
+        ``min_cells`` around the ones before (non-maximum suppression, greedy), by branch and
+        bound on the min-pooled lookup (lut_kernels.separated_minima): the same cells as the
+        greedy on the whole surface (``_surface``), which is computed only where the bound
+        does not rule a cell out, about 5 % of msl-2015's cells for 16 minima."""
+        out = np.empty(max(k, 0), dtype=np.int64)
+        n = separated_minima(self.quantised, self.min_pooled, self._observed_rows(obs), int(m),
+                             self.ny, self.nx, int(k), max(1, int(math.ceil(min_cells))), out)
+        return out[:n]
 
     def _row_arrays(self, obs: Observation, m: int) -> tuple:
         """The arguments of ``tiled_sum`` that select the rows
@@ -636,9 +687,17 @@ class TableSearch:
         return (*obs._rows[1:], int(m), self.n_angles, self.nb_radial, self.nb_spiral,
                 self.spiral_row0)
 
+    def _observed_rows(self, obs: Observation) -> ObservedRows:
+        """The observations as the quantised surfaces read them (``_row_arrays``' first
+        three)."""
+        return ObservedRows(*self._row_arrays(obs, 0)[:3])
+
     def local_surface(self, obs: Observation, m: int, i0: int, i1: int, j0: int, j1: int):
+        """The quantised error surface (uint16) at table heading m on the window
+        [i0, i1) x [j0, j1)."""
         out = np.empty((i1 - i0, j1 - j0), dtype=np.uint16)
-        tiled_sum(self.error_lookup, *self._row_arrays(obs, m), i0, i1, j0, j1, self.ntx, out)
+        window_sum(self.quantised, self._observed_rows(obs), int(m), i0, i1, j0, j1, self.nx,
+                   out)
         return out
 
     def local_window(self, x: float, y: float, half_width: float):
@@ -662,16 +721,17 @@ class TableSearch:
             return None
         m = self.scanlines.heading_index(theta)
         i0, i1, j0, j1 = self.local_window(prior_xy[0], prior_xy[1], half_width)
-        s = self.local_surface(obs, m, i0, i1, j0, j1)
-        bi, bj = divmod(int(np.argmin(s)), s.shape[1])
-        i, j = i0 + int(bi), j0 + int(bj)
+        best, value = tracked_window(self.quantised, self.min_pooled, self._observed_rows(obs),
+                                     m, i0, i1, j0, j1, self.nx, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0,
+                                     0.0, 0.0, 0.0, 0.0)  # the least surface, no prior
+        i, j = divmod(int(best), self.nx)
         edge = ((i == i0 and i0 > 0) or (i == i1 - 1 and i1 < self.ny)
                 or (j == j0 and j0 > 0) or (j == j1 - 1 and j1 < self.nx))
         if refine:
             r = self.refine(obs, (i, j), theta)
         else:  # the best cell only, with its quantised error
             x, y = self.grid.centre_of(i, j)
-            e = float(s[bi, bj]) / self.q_levels
+            e = float(value) / self.q_levels
             r = SearchResult(x=float(x), y=float(y), theta=float(theta), error=e,
                              error_norm=e / max(obs.total_weight, 1e-12), cell=(i, j),
                              n_observations=len(obs))
@@ -700,15 +760,15 @@ class TableSearch:
         i0, i1, j0, j1 = self.local_window(prior_xy[0], prior_xy[1], half_width)
         m0, a, interpolate = self._heading_args(theta)
         W = max(obs.total_weight, 1e-12)
-        radial, spiral, ncell, _n, _f, _a, dist, weight, tol, c2 = self._kernel_arrays(obs)
+        *_tables, dist, weight, tol, c2 = self._kernel_arrays(obs)
         pf, points, max_shift, max_turn = fit if fit is not None else (None, _NO_POINTS, 0, 0)
         table, fx0, fy0, fres, fc2 = ((pf.table, *pf.origin, pf.resolution, pf.c * pf.c)
                                       if pf is not None else (_NO_RASTER, 0.0, 0.0, 1.0, 1.0))
         out = np.empty(19)
-        tracked_fix(self.error_lookup, *self._row_arrays(obs, m), i0, i1, j0, j1, self.ny,
-                    self.nx, self.ntx, *self._prior_args(prior_xy, prior_information,
-                                                         temperature, prior_cap),
-                    radial, spiral, ncell,
+        tracked_fix(self.quantised, self.min_pooled, self._observed_rows(obs), m, i0, i1, j0,
+                    j1, self.ny,
+                    self.nx, *self._prior_args(prior_xy, prior_information, temperature,
+                                               prior_cap),
                     dist, weight, tol, c2, m0, a, interpolate, W, float(fix_temperature),
                     _QPINV, obs.weight64, float(inlier_error), self.params.c * self.params.c,
                     float(theta), pf is not None, table, fx0, fy0, fres, points, fc2,
@@ -749,7 +809,7 @@ class TableSearch:
         m = self.scanlines.heading_index(theta)
         i0, i1, j0, j1 = self.local_window(prior_xy[0], prior_xy[1], half_width)
         return tracked_window(
-            self.error_lookup, *self._row_arrays(obs, m), i0, i1, j0, j1, self.nx, self.ntx,
+            self.quantised, self.min_pooled, self._observed_rows(obs), m, i0, i1, j0, j1, self.nx,
             *self._prior_args(prior_xy, info, temperature, cap))
 
     def _prior_args(self, prior_xy, info, temperature: float, cap: float) -> tuple:
@@ -871,12 +931,6 @@ class TableSearch:
 # ---------------------------------------------------------------------------- helpers
 
 
-def _to_metres(mm: np.ndarray) -> np.ndarray:
-    out = mm.astype(np.float32) * np.float32(1e-3)
-    out[mm == NO_HIT_MM] = NONE_M
-    return np.ascontiguousarray(out)
-
-
 def _rho32(e: np.ndarray, c: float) -> np.ndarray:
     e2 = e * e
     return e2 / (np.float32(c * c) + e2)
@@ -927,23 +981,6 @@ def _min_pooled(lookup_3d: np.ndarray, step: int):
                             cj0 * step + dj:(cj1 - 1) * step + dj + 1:step]
             np.minimum(out[:, ci0:ci1, cj0:cj1], src, out=out[:, ci0:ci1, cj0:cj1])
     return out.reshape(rows, -1), (cy, cx)
-
-
-def _best_separated(surface: np.ndarray, shape, k: int, min_cells: float) -> list[int]:
-    """Flat indices of up to k lowest cells of a surface (modified in place), each outside the
-    square of half-width ``min_cells`` around the ones before (non-maximum suppression)."""
-    s = surface.reshape(shape)
-    r = max(1, int(math.ceil(min_cells)))
-    top = np.iinfo(s.dtype).max if s.dtype.kind in "ui" else np.inf
-    out: list[int] = []
-    for _ in range(k):
-        c = int(np.argmin(surface))
-        if out and surface[c] == top:
-            break
-        out.append(c)
-        i, j = divmod(c, shape[1])
-        s[max(0, i - r):i + r + 1, max(0, j - r):j + r + 1] = top
-    return out
 
 
 _NO_POINTS = np.zeros((0, 2))
