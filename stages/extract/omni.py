@@ -118,8 +118,8 @@ class ScanLinePixels:
 
     The pixels the samples lie on, each once (``pixels``, flat indices v * w + u; a pixel that
     several lines cross is a sample of each, ``sample_pixel``), are what a frame reads and
-    classifies (stages.common.colour's pixel samples): grouped by block of the local green map
-    (``blocks``), with their floor flag from the dataset mask.
+    classifies (stages.common.colour's pixel samples), in raster order, with their blocks of
+    the local green map and their floor flags from the dataset mask (``blocks``).
 
     The field green and the local green map are estimated from the pixels that
     stages.common.colour.estimate_field_colour takes of the floor annulus (the annulus of the
