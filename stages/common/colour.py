@@ -32,7 +32,10 @@ tests gives the same classes but is not faster here (0.9 ms to build per frame, 
 per pixel costs about as much as the float32 arithmetic).
 
 The perspective extractor reuses the same functions; ``classify_grid`` gives the grid of
-class counts per 8 x 8 block of Schulz et al. (2011).
+class counts per 8 x 8 block of Schulz et al. (2011). An extractor that looks at a fixed set
+of pixels (the omni scan lines) classifies only those (``yuv_at``, ``classify_blocks``), with
+the field green and the local green map estimated from the pixels the whole-frame functions
+take (``yuv_rows_at``, ``field_colour_of_samples``, ``local_green_map``): the same estimates.
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -263,6 +267,16 @@ def estimate_field_colour(yuv: np.ndarray, conf: dict, valid: np.ndarray | None 
     ``valid``: bool mask (h, w) of the floor pixels to look at (or a BlockMask); ``step``:
     subsampling."""
     sub = _sample_pixels(yuv, step, None if valid is None else valid[::step, ::step])
+    fc = field_colour_of_samples(sub, conf)
+    if fc.found:
+        fc.y_map = _local_green_luminance(yuv, fc, conf, valid)
+    return fc
+
+
+def field_colour_of_samples(sub: np.ndarray, conf: dict) -> FieldColour:
+    """The field green (without a local green map) of floor pixels ``sub`` (n, 3) YUV uint8:
+    ``estimate_field_colour`` of pixels someone else sampled (the omni extractor samples one
+    per 6 x 6 px cell along its scan lines)."""
     n_valid = max(len(sub), 1)
     y8 = sub[:, 0]
     y0, y1 = conf["green_search_y"]
@@ -305,8 +319,6 @@ def estimate_field_colour(yuv: np.ndarray, conf: dict, valid: np.ndarray | None 
     if conf.get("green_model", "ellipse") == "hue":
         _hue_model(fc, u_c8, v_c8, y_c, conf)
     fc.cell = int(conf["local_cell"])
-    if found:
-        fc.y_map = _local_green_luminance(yuv, fc, conf, valid)
     return fc
 
 
@@ -632,8 +644,7 @@ def _local_green_luminance(yuv, fc: FieldColour, conf: dict, valid) -> np.ndarra
     # green by chroma (luminance band relative to the frame's green), 2 samples per block side
     step = max(cell // 2, 1)
     k = cell // step
-    # the luminance band, as float32 bounds (the formula's) rounded inwards for integer Y
-    lo, hi = np.ceil(np.float32(fc.y * 0.3)), np.floor(np.float32(fc.y * 2.2))
+    y_lo, y_hi = _local_green_band(fc)
     mask = None if valid is None else valid[:hb * cell:step, :wb * cell:step]
     if fc.hue_dir is not None:  # the hue model: one compiled pass (_hue_block_sums)
         gs = np.zeros((hb, wb), np.float32)
@@ -642,16 +653,12 @@ def _local_green_luminance(yuv, fc: FieldColour, conf: dict, valid) -> np.ndarra
         _hue_block_sums(yuv, step, k, hb, wb, np.zeros((0, 0), bool) if mask is None else
                         np.ascontiguousarray(mask), mask is not None,
                         np.float32(fc.hue_dir[0]), np.float32(fc.hue_dir[1]),
-                        np.float32(np.float32(fc.hue_cos) ** 2), lo_s, hi_s,
-                        int(min(lo, 256.0)) if lo > 0 else 0,
-                        int(max(hi, -1.0)) if hi < 255 else 255, gs, ys)
+                        np.float32(np.float32(fc.hue_cos) ** 2), lo_s, hi_s, y_lo, y_hi, gs, ys)
         return _fill_green_luminance(gs, ys, k, fc, conf)
     y, u, v = cv2.split(np.ascontiguousarray(yuv[:hb * cell:step, :wb * cell:step]))
     green, _ = _chroma_tests(y, u, v, fc, conf, white=False)
-    if lo > 0:
-        green &= y >= min(lo, 256.0)
-    if hi < 255:
-        green &= y <= max(hi, -1.0)
+    green &= y >= y_lo
+    green &= y <= y_hi
     if mask is not None:
         green &= mask
     if k == 1:
@@ -665,6 +672,20 @@ def _local_green_luminance(yuv, fc: FieldColour, conf: dict, valid) -> np.ndarra
     return _fill_green_luminance(gs.astype(np.float32), ys.astype(np.float32), k, fc, conf)
 
 
+# the luminance band of the pixels the local green map averages, relative to the frame's green
+# luminance: wide (green in deep shade or under a spot still counts), the colour classes'
+# narrower band (green_min_ratio, green_max_ratio) then applies relative to the local green
+LOCAL_GREEN_BAND = (0.3, 2.2)
+
+
+def _local_green_band(fc: FieldColour) -> tuple[int, int]:
+    """LOCAL_GREEN_BAND around the frame's green luminance as integer bounds [lo, hi] on a
+    uint8 Y (the float32 bounds rounded inwards, clipped to 0..255; lo > hi: none)."""
+    lo = np.ceil(np.float32(fc.y * LOCAL_GREEN_BAND[0]))
+    hi = np.floor(np.float32(fc.y * LOCAL_GREEN_BAND[1]))
+    return int(min(max(lo, 0.0), 256.0)), int(max(min(hi, 255.0), -1.0))
+
+
 def _fill_green_luminance(gs: np.ndarray, ys: np.ndarray, k: int, fc: FieldColour, conf: dict
                           ) -> np.ndarray:
     """The local green luminance map from the per-block count of green samples ``gs`` and sum
@@ -672,13 +693,15 @@ def _fill_green_luminance(gs: np.ndarray, ys: np.ndarray, k: int, fc: FieldColou
     samples are green, else the mean over the ``local_fill`` window, else the frame's."""
     out = np.empty(gs.shape, np.float32)
     _fill_blocks(np.ascontiguousarray(gs, np.float32), np.ascontiguousarray(ys, np.float32),
-                 int(conf["local_fill"]) | 1, np.float32(0.25 * k * k), np.float32(fc.y), out)
+                 int(conf["local_fill"]) | 1, np.full(gs.shape, np.float32(0.25 * k * k)),
+                 np.float32(fc.y), out)
     return out
 
 
 @njit(cache=True, nogil=True)
 def _fill_blocks(gs, ys, fill, own_min, y_frame, out):
-    """_fill_green_luminance, compiled: per block ys / gs where gs >= own_min, else the sums
+    """_fill_green_luminance, compiled: per block ys / gs where gs >= own_min (per block),
+    else the sums
     over the fill x fill window around it (blocks beyond the map count 0) divided alike, else
     y_frame; float32 as the numpy expressions (the divisors at least float32(1e-6)). The
     sums are of counts and integer luminances, exact in any order (as cv2.boxFilter's)."""
@@ -695,7 +718,7 @@ def _fill_blocks(gs, ys, fill, own_min, y_frame, out):
     for i in range(h):
         i0, i1 = max(i - r, 0), min(i + r + 1, h)
         for j in range(w):
-            if gs[i, j] >= own_min:
+            if gs[i, j] >= own_min[i, j]:
                 out[i, j] = ys[i, j] / max(gs[i, j], eps)
                 continue
             j0, j1 = max(j - r, 0), min(j + r + 1, w)
@@ -757,6 +780,238 @@ def _gather_planes(values: np.ndarray, index: np.ndarray) -> list[np.ndarray]:
     rows = np.take(values.view(np.uint32).reshape(-1), index)
     planes = cv2.split(rows.view(np.uint8).reshape(1, -1, 4))
     return [p.reshape(np.shape(index)) for p in planes]
+
+
+# ---------------------------------------------------------------------------- pixel samples
+# Extractors that look at a fixed set of pixels every frame (the omni scan lines: ~40,000 of
+# the 230,400 pixels of a 480 x 480 frame) classify only those: their YUV values, the field
+# green and the local green map from pixels they read, and their classes, by compiled passes.
+# The pixels are kept as planes (one array per channel), so that the arithmetic runs on
+# vectors; what cannot (the gather from the image, the sums into the blocks, the thresholds
+# looked up per block) runs once per pixel without branches, in the order that suits it (the
+# image read in raster order; for the map's sums, consecutive pixels in different blocks).
+
+def yuv_rows_at(image_bgr: np.ndarray, flat: np.ndarray) -> np.ndarray:
+    """YUV (n, 3) uint8 of the pixels ``flat`` (flat indices v * w + u) of a BGR image: one
+    compiled gather (fastest for pixels in raster order: the image is read as it lies in
+    memory), then OpenCV's conversion of just those pixels, so the values are
+    ``to_yuv(image)``'s at the same pixels."""
+    rows = np.empty((1, len(flat), 3), np.uint8)
+    _gather_rows(np.ascontiguousarray(image_bgr).reshape(-1, 3), flat, rows[0])
+    return cv2.cvtColor(rows, cv2.COLOR_BGR2YUV)[0]
+
+
+def yuv_at(image_bgr: np.ndarray, flat: np.ndarray) -> np.ndarray:
+    """``yuv_rows_at`` as planes (3, n) uint8 (one array per channel: the compiled passes
+    over pixels run on vectors)."""
+    return planes_of(yuv_rows_at(image_bgr, flat))
+
+
+def planes_of(rows: np.ndarray) -> np.ndarray:
+    """Pixel rows (n, 3) as planes (3, n), by OpenCV's transpose (faster than numpy's
+    copy)."""
+    return cv2.transpose(np.ascontiguousarray(rows))
+
+
+@njit(cache=True, nogil=True)
+def _gather_rows(pixels, flat, out):
+    """out[i] = pixels[flat[i]] for (n, 3) uint8 rows (numpy's fancy indexing of 3-byte rows
+    takes ~10x longer)."""
+    for i in range(flat.shape[0]):
+        k = flat[i]
+        out[i, 0], out[i, 1], out[i, 2] = pixels[k, 0], pixels[k, 1], pixels[k, 2]
+
+
+class ChromaTest(NamedTuple):
+    """The constants of ``_chroma_tests`` (float32) for compiled code (``_chroma_bits``):
+    ellipse (field luminance, centre offsets from neutral, squared semi-axes) or, with
+    ``hue``, the hue model (direction, squared cosine of the tolerance, squared saturation
+    band); the white saturation limit squared."""
+
+    field_y: np.float32
+    du_g: np.float32
+    dv_g: np.float32
+    a2: np.float32
+    b2: np.float32
+    ab2: np.float32
+    sat2: np.float32
+    hue: bool
+    hx: np.float32
+    hy: np.float32
+    c2: np.float32
+    s_lo2: np.float32
+    s_hi2: np.float32
+
+    @classmethod
+    def of(cls, fc: FieldColour, conf: dict) -> ChromaTest:
+        f = np.float32
+        a2, b2 = f(fc.axes[0] ** 2), f(fc.axes[1] ** 2)
+        sat = f(conf["white_max_saturation"])
+        hue = fc.hue_dir is not None
+        hx, hy = fc.hue_dir if hue else (0.0, 0.0)
+        lo, hi = (f(v) ** 2 for v in fc.saturation)
+        return cls(f(fc.y), f(fc.u - 128.0), f(fc.v - 128.0), a2, b2, a2 * b2, sat * sat, hue,
+                   f(hx), f(hy), f(fc.hue_cos) ** 2, lo, hi)
+
+
+@njit(cache=True, nogil=True)
+def _chroma_bits(y, u, v, t):
+    """(green, white) chroma tests of one YUV pixel: ``_chroma_tests``' float32 operations
+    with the constants ``t`` (ChromaTest)."""
+    yf = np.float32(y)
+    du = np.float32(u) - np.float32(128.0)
+    dv = np.float32(v) - np.float32(128.0)
+    s = du * du + dv * dv
+    white = s <= t.sat2 * (yf * yf)
+    if t.hue:
+        dot = du * t.hx + dv * t.hy
+        y2 = yf * yf
+        green = (dot >= np.float32(0.0)) & (dot * dot >= t.c2 * s) & (s >= t.s_lo2 * y2) \
+            & (s <= t.s_hi2 * y2)
+        return green, white
+    ym = max(yf, np.float32(1.0))
+    eu = du * t.field_y - t.du_g * ym
+    ev = dv * t.field_y - t.dv_g * ym
+    return (eu * eu) * t.b2 + (ev * ev) * t.a2 <= (ym * ym) * t.ab2, white
+
+
+class PixelBlocks(NamedTuple):
+    """The block of a local green map (of ``map_shape`` blocks) of each of a set of distinct
+    pixels (``block``, flat index), whether the pixel shows the floor (``floor``; the others
+    are OTHER and left out of the map), and the number of floor pixels per block
+    (``floor_count``, flat). For local_green_map consecutive pixels should lie in different
+    blocks: its sums add one pixel at a time, and an addition to the block just added to waits
+    for that one (ScanLinePixels orders the map's pixels so)."""
+
+    block: np.ndarray
+    floor: np.ndarray
+    floor_count: np.ndarray
+    map_shape: tuple[int, int]
+
+    @classmethod
+    def of(cls, block: np.ndarray, floor: np.ndarray, map_shape) -> PixelBlocks:
+        count = np.bincount(block[floor], minlength=map_shape[0] * map_shape[1])
+        return cls(block, floor, count.astype(np.float32), tuple(map_shape))
+
+
+class LuminanceRules(NamedTuple):
+    """The luminance side of the classes, for compiled code: ``luminance_thresholds``'
+    constants (float32), the band of Y that the local green map averages (integer bounds,
+    LOCAL_GREEN_BAND), its fill window (blocks) and the frame's green luminance."""
+
+    white_contrast: np.float32
+    white_min_y: np.float32
+    green_min_ratio: np.float32
+    green_max_ratio: np.float32
+    band_lo: int
+    band_hi: int
+    fill: int
+    field_y: np.float32
+
+    @classmethod
+    def of(cls, fc: FieldColour, conf: dict) -> LuminanceRules:
+        f = np.float32
+        return cls(f(conf["white_contrast"]), f(conf["white_min_y"]), f(conf["green_min_ratio"]),
+                   f(conf["green_max_ratio"]), *_local_green_band(fc),
+                   int(conf["local_fill"]) | 1, f(fc.y))
+
+
+def local_green_map(yuv: np.ndarray, px: PixelBlocks, fc: FieldColour, conf: dict) -> None:
+    """The local green map of a frame from pixels of it given as YUV planes ``yuv`` (3, n)
+    uint8 with their blocks (``px``), by one compiled pass (_green_map): per block the mean
+    Y of its floor pixels that are green by chroma with Y in LOCAL_GREEN_BAND times the
+    field's, where they are at least a quarter of its floor pixels (and one), else of its
+    ``local_fill`` neighbourhood, else the field's. Given the pixels ``estimate_field_colour``
+    takes (4 per block), the same map; stored in ``fc.y_map`` (None when not ``fc.found``:
+    the frame's green luminance is used everywhere)."""
+    fc.y_map = None
+    if fc.found:
+        y_map = np.empty(px.map_shape, np.float32)
+        _green_map(yuv, px, ChromaTest.of(fc, conf), LuminanceRules.of(fc, conf), y_map)
+        fc.y_map = y_map
+
+
+@njit(cache=True, nogil=True)
+def _green_map(yuv, px, chroma, lum, y_map):
+    """local_green_map, compiled: the green test of every pixel (on vectors), per block the
+    number of its green floor pixels in the band and their Y sum (one packed addition a
+    pixel), then the map from them (_fill_blocks) into ``y_map``."""
+    y8, u8, v8 = yuv[0], yuv[1], yuv[2]
+    n = y8.shape[0]
+    green_y = np.empty(n, np.uint16)  # green in the band: 2^15 + Y, else 0
+    for i in range(n):
+        green = _chroma_bits(y8[i], u8[i], v8[i], chroma)[0]
+        y = np.uint16(y8[i])
+        take = np.uint16(px.floor[i]) & np.uint16(green) & np.uint16(y >= lum.band_lo) \
+            & np.uint16(y <= lum.band_hi)
+        green_y[i] = (np.uint16(0) - take) & (np.uint16(32768) | y)
+    hb, wb = y_map.shape
+    sums = np.zeros(hb * wb, np.int64)  # per block: green pixels << 32 | their Y sum
+    for i in range(n):
+        g = np.int64(green_y[i])
+        sums[px.block[i]] += ((g >> 15) << 32) | (g & 0xFF)
+    gs = np.empty((hb, wb), np.float32)
+    ys = np.empty((hb, wb), np.float32)
+    quarter = np.empty((hb, wb), np.float32)  # a quarter of the block's floor pixels, >= 1
+    for r in range(hb):
+        for c in range(wb):
+            b = r * wb + c
+            quarter[r, c] = max(np.float32(0.25) * px.floor_count[b], np.float32(1.0))
+            gs[r, c] = np.float32(sums[b] >> 32)
+            ys[r, c] = np.float32(sums[b] & 0xFFFFFFFF)
+    _fill_blocks(gs, ys, lum.fill, quarter, lum.field_y, y_map)
+
+
+def classify_blocks(yuv: np.ndarray, px: PixelBlocks, fc: FieldColour, conf: dict
+                    ) -> np.ndarray:
+    """Classes (uint8) of distinct pixels given as YUV planes ``yuv`` (3, n) uint8, with their
+    blocks of the local green map (``px``), by one compiled pass (_classify_pixels): the
+    formulas of the module doc with the local green luminance of ``fc.y_map``
+    (local_green_map; the frame's where None); pixels off the floor are OTHER."""
+    y_map = fc.y_map
+    if y_map is None:
+        y_map = np.full(px.map_shape, np.float32(fc.y), np.float32)
+    labels = np.empty(yuv.shape[1], np.uint8)
+    _classify_pixels(yuv, px, ChromaTest.of(fc, conf), LuminanceRules.of(fc, conf),
+                     np.ascontiguousarray(y_map, np.float32), labels)
+    return labels
+
+
+@njit(cache=True, nogil=True)
+def _classify_pixels(yuv, px, chroma, lum, y_map, out):
+    """classify_blocks, compiled: the chroma tests of every pixel (on vectors); the luminance
+    thresholds of the local green map (_block_thresholds) looked up per pixel; the classes
+    (on vectors): white wins, pixels off the floor are OTHER."""
+    y8, u8, v8 = yuv[0], yuv[1], yuv[2]
+    n = y8.shape[0]
+    bits = np.empty(n, np.uint8)  # 1 green, 2 white by chroma
+    for i in range(n):
+        green, white = _chroma_bits(y8[i], u8[i], v8[i], chroma)
+        bits[i] = np.uint8(green) | (np.uint8(white) << np.uint8(1))
+    hb, wb = y_map.shape
+    # the luminance thresholds (each in 0..256) of the blocks with floor pixels, packed 9
+    # bits each, then per pixel
+    packed = np.zeros(hb * wb, np.uint32)
+    for r in range(hb):
+        for c in range(wb):
+            b = r * wb + c
+            if px.floor_count[b] > 0:
+                t_white, t_lo, t_hi = _block_thresholds(
+                    y_map[r, c], lum.white_contrast, lum.white_min_y, lum.green_min_ratio,
+                    lum.green_max_ratio)
+                packed[b] = (np.uint32(t_white) | (np.uint32(t_lo) << 9)
+                             | (np.uint32(t_hi) << 18))
+    at = np.empty(n, np.uint32)
+    for i in range(n):
+        at[i] = packed[px.block[i]]
+    nine = np.uint32(511)
+    for i in range(n):
+        y = np.uint32(y8[i])
+        f = np.uint32(px.floor[i])
+        white = f & np.uint32(bits[i] >> 1) & np.uint32(y >= (at[i] & nine))
+        green = (f & np.uint32(bits[i] & 1) & np.uint32(y >= ((at[i] >> 9) & nine))
+                 & np.uint32(y <= (at[i] >> 18)) & (np.uint32(1) - white))
+        out[i] = np.uint8(OTHER - white - (green << 1))
 
 
 STRIP_ROWS = 64  # rows of pixels classified together (their temporaries stay in cache)
@@ -917,20 +1172,25 @@ def classify_cells(yuv: np.ndarray, fc: FieldColour, conf: dict, cell: int,
 @njit(cache=True, nogil=True)
 def _threshold_table(y_map, contrast, min_y, lo_ratio, hi_ratio, out):
     """luminance_thresholds of a local green map (finite), compiled: the same float32
-    operations per block, as int16 (hb, wb, 3)."""
-    c255 = np.float32(255.0)
+    operations per block (_block_thresholds), as int16 (hb, wb, 3)."""
     for r in range(y_map.shape[0]):
         for c in range(y_map.shape[1]):
-            yg = y_map[r, c]
-            white_y = max(yg + contrast * (c255 - yg), min_y)
-            out[r, c, WHITE_MIN_Y] = min(max(np.ceil(white_y), np.float32(0.0)), np.float32(256.0))
-            lo = min(max(np.ceil(lo_ratio * yg), np.float32(0.0)), np.float32(256.0))
-            hi = min(max(np.floor(hi_ratio * yg), np.float32(-1.0)), c255)
-            if lo > hi:
-                out[r, c, GREEN_MIN_Y], out[r, c, GREEN_MAX_Y] = 255, 254
-            else:
-                out[r, c, GREEN_MIN_Y] = min(lo, c255)
-                out[r, c, GREEN_MAX_Y] = hi
+            out[r, c, WHITE_MIN_Y], out[r, c, GREEN_MIN_Y], out[r, c, GREEN_MAX_Y] = \
+                _block_thresholds(y_map[r, c], contrast, min_y, lo_ratio, hi_ratio)
+
+
+@njit(cache=True, nogil=True)
+def _block_thresholds(yg, contrast, min_y, lo_ratio, hi_ratio):
+    """luminance_thresholds of one local green luminance ``yg`` (float32, finite): (white
+    min, green min, green max) as integers in 0..256 (an empty green band: 255, 254)."""
+    c255 = np.float32(255.0)
+    white_y = max(yg + contrast * (c255 - yg), min_y)
+    white = min(max(np.ceil(white_y), np.float32(0.0)), np.float32(256.0))
+    lo = min(max(np.ceil(lo_ratio * yg), np.float32(0.0)), np.float32(256.0))
+    hi = min(max(np.floor(hi_ratio * yg), np.float32(-1.0)), c255)
+    if lo > hi:
+        return np.int16(white), np.int16(255), np.int16(254)
+    return np.int16(white), np.int16(min(lo, c255)), np.int16(hi)
 
 
 @njit(cache=True, nogil=True)

@@ -11,9 +11,13 @@ through the calibration (stages.common.camera.OmniCamera):
   polyline resampled to the same pixel spacing), rounded to pixels, consecutive duplicates
   removed; each pixel keeps the ground position of the samples it holds (robot frame, metres),
   its ground distance from the robot centre and the ground arc length along its scan line;
-- per frame (``extract_frame``): one gather of the scan-line pixels, their colour classes
-  (stages.common.colour, field green estimated per frame), and run detection on the
-  concatenated class sequence. Short holes are closed first (up to ``white_hole_px`` non-white
+  the distinct pixels (~40,000 of a 480 x 480 frame) are listed once with their blocks of the
+  local green map;
+- per frame (``extract_frame``): only those pixels are read and classified (issue 27), and
+  the few that the field green and the local green map are estimated from, the whole-frame
+  estimates' (stages.common.colour's pixel samples: compiled, no whole-frame pass); then run
+  detection on the concatenated class sequence (one compiled pass,
+  ``_white_runs``). Short holes are closed first (up to ``white_hole_px`` non-white
   pixels between white ones, up to ``max_gap_px`` unclassified pixels between green ones),
   then a crossing is a white run with a green run (>= ``min_green_px`` pixels and >=
   ``min_green_m``) before and after it, allowing up to ``max_gap_px`` unclassified pixels
@@ -49,10 +53,11 @@ from __future__ import annotations
 import copy
 import dataclasses
 import hashlib
-import json
 import math
+from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from ..common import colour
 from ..common.scanlines import ScanLines
@@ -106,10 +111,27 @@ def scanlines_of(conf: dict) -> ScanLines:
 class ScanLinePixels:
     """Every scan line of one calibration as image pixels, concatenated line after line.
 
-    Per pixel sample: ``u``, ``v`` (int), ``line`` (index into the lines), ``s`` (ground arc
-    length along the line, m), ``dist`` (ground distance from the robot centre, m), ``xy`` (ground
-    point in the robot frame, m), ``uv`` (sub-pixel image position). Lines: radial 0..71, spirals
-    72..215 (72 + 72 * direction + start index), then the extra radial lines.
+    Per sample: ``u``, ``v`` (int), ``line`` (index into the lines), ``s`` (ground arc length
+    along the line, m), ``dist`` (ground distance from the robot centre, m), ``xy`` (ground
+    point in the robot frame, m), ``uv`` (sub-pixel image position). Lines: radial 0..71,
+    spirals 72..215 (72 + 72 * direction + start index), then the extra radial lines.
+
+    The pixels the samples lie on, each once (``pixels``, flat indices v * w + u; a pixel that
+    several lines cross is a sample of each, ``sample_pixel``), are what a frame reads and
+    classifies (stages.common.colour's pixel samples), in raster order, with their blocks of
+    the local green map and their floor flags from the dataset mask (``blocks``).
+
+    The field green and the local green map are estimated from the pixels that
+    stages.common.colour.estimate_field_colour takes of the floor annulus (the annulus of the
+    radial lines, ``radius_px``, and the mask), read alone: ``colour_flat``, one pixel in
+    FIELD_COLOUR_STEP x FIELD_COLOUR_STEP (~2,000), and ``map_flat``, 2 x 2 per block of the
+    local green map (~5,000), so that both are the whole-frame estimates. Not from the
+    scan-line pixels: the scan lines run across and along the field lines, and in a block a
+    line passes through the green pixels they cross are mostly its bright blurred edge (in a
+    dark frame of omni-default, seed 3, such blocks came out 5-24 grey levels above their
+    carpet and the frame lost half its crossings); the field green from one scan-line pixel
+    per 6 x 6 px cell was 1.6 grey levels off on average, which moved real minho-lab frames'
+    points enough to change their localisation.
     """
 
     scanlines: ScanLines
@@ -124,25 +146,49 @@ class ScanLinePixels:
     n_radial: int
     n_extra: int
     extra_angles: np.ndarray
-    valid: np.ndarray  # (h, w) floor pixels used to estimate the field colour
+    radius_px: tuple[float, float]  # image radii of the radial lines' first and last pixel
     image_size: tuple[int, int]  # (w, h)
     cell: int  # block size of the local green luminance map
-    key: np.ndarray = None  # monotone sort key: s + line * LINE_SPAN
-    flat: np.ndarray = None  # v * w + u
-    block: np.ndarray = None  # flat index into the local green luminance map
+    colour_flat: np.ndarray  # the field green's pixels (above), v * w + u
+    map_flat: np.ndarray  # the local green map's pixels (above), v * w + u
+    pixels: np.ndarray = None  # (m,) the samples' pixels, each once, in raster order
+    sample_pixel: np.ndarray = None  # (n,) each sample's index into pixels
+    blocks: colour.PixelBlocks = None  # pixels' blocks of the local green map, floor flags
+    map_blocks: colour.PixelBlocks = None  # the blocks of map_flat (reordered as pixels)
+    read_flat: np.ndarray = None  # what a frame reads: pixels, map_flat, colour_flat
     line_start_s: np.ndarray = None  # (n_lines,) arc length of each line's first pixel
+    geometry: ScanGeometry = None  # the per-sample arrays the run detection reads
 
-    LINE_SPAN = 1000.0  # m, larger than any scan line
+    FIELD_COLOUR_STEP = 6  # px, estimate_field_colour's default subsampling step
 
     def __post_init__(self):
         w, h = self.image_size
-        self.key = self.s + self.line * self.LINE_SPAN
-        self.flat = self.v * w + self.u
         first = np.flatnonzero(np.r_[True, self.line[1:] != self.line[:-1]])
-        self.line_start_s = np.full(int(self.line.max()) + 1 if len(self.line) else 0, np.inf)
+        self.line_start_s = np.full(self.n_lines, np.inf)
         self.line_start_s[self.line[first]] = self.s[first]
-        self.block = colour.FieldColour.block_index(self.u, self.v, (h // self.cell,
-                                                                     w // self.cell), self.cell)
+        # the pixels, each once, in raster order (the image is read so)
+        shape = (max(h // self.cell, 1), max(w // self.cell, 1))
+        flat, index, inverse = np.unique(self.v * w + self.u, return_index=True,
+                                         return_inverse=True)
+        self.pixels = flat.astype(np.int32)  # (int32: less to read per frame)
+        self.sample_pixel = inverse.astype(np.int32)
+        floor = ~self.masked[index]
+        self.blocks = colour.PixelBlocks.of(colour.FieldColour.block_index(
+            flat % w, flat // w, shape, self.cell).astype(np.int32), floor, shape)
+        # the map's pixels in the order PixelBlocks asks for: the first (top left) of every
+        # block, then the second, ...
+        map_block = colour.FieldColour.block_index(self.map_flat % w, self.map_flat // w,
+                                                   shape, self.cell)
+        step = max(self.cell // 2, 1)  # (the grid's: 2 x 2 pixels per block)
+        map_rank = (self.map_flat // w // step) % 2 * 2 + (self.map_flat % w // step) % 2
+        order = np.lexsort((map_block, map_rank))
+        self.map_flat = self.map_flat[order].astype(np.int32)
+        self.map_blocks = colour.PixelBlocks.of(map_block[order].astype(np.int32),
+                                                np.ones(len(order), bool), shape)
+        self.read_flat = np.concatenate([self.pixels, self.map_flat, self.colour_flat]).astype(
+            np.int32)
+        self.geometry = ScanGeometry(self.sample_pixel, self.line, self.s, self.dist, self.xy,
+                                     self.uv, self.line_start_s)
 
     @property
     def n_lines(self) -> int:
@@ -238,39 +284,72 @@ def build_scanline_pixels(camera, conf: dict, mask: np.ndarray | None = None) ->
         ui, vi, line_o, s[order], dist[order],
         np.stack([gx[order], gy[order]], 1), np.stack([fu[order], fv[order]], 1))
     masked = np.zeros(len(ui), bool) if mask is None else ~mask[vi, ui]
-    # floor pixels for the field-colour estimate: the annulus of the scan lines, mask applied
-    vv_, uu_ = np.indices((h, w))
-    rad_img = np.hypot(uu_ - cu, vv_ - cv_)
-    valid = (rad_img >= r0) & (rad_img <= r1)
-    if mask is not None:
-        valid &= mask
-    return ScanLinePixels(scanlines=sl, u=ui, v=vi, line=line_o.astype(np.int64), s=s_m,
+    # the field green's and the local green map's pixels, as estimate_field_colour takes them
+    # of the floor annulus: every FIELD_COLOUR_STEP-th of every FIELD_COLOUR_STEP-th row, and
+    # 2 x 2 per block
+    cell = int(conf["colour"]["local_cell"])
+
+    def floor_grid(step, stop_v, stop_u):
+        gv, gu = np.mgrid[0:stop_v:step, 0:stop_u:step]
+        rr = np.hypot(gu - cu, gv - cv_)
+        on_floor = (rr >= r0) & (rr <= r1)
+        if mask is not None:
+            on_floor &= mask[gv, gu]
+        return (gv * w + gu)[on_floor]
+
+    colour_step = ScanLinePixels.FIELD_COLOUR_STEP
+    return ScanLinePixels(scanlines=sl, u=ui, v=vi, line=line_o.astype(np.int32), s=s_m,
                           dist=d_m, xy=xy_m, uv=uv_m, masked=masked, n_radial=sl.n_angles,
-                          n_extra=n_extra, extra_angles=extra_angles, valid=valid,
-                          image_size=(w, h), cell=int(conf["colour"]["local_cell"]))
+                          n_extra=n_extra, extra_angles=extra_angles, radius_px=(r0, r1),
+                          image_size=(w, h), cell=cell,
+                          colour_flat=floor_grid(colour_step, h, w),
+                          map_flat=floor_grid(max(cell // 2, 1), (h // cell) * cell,
+                                              (w // cell) * cell))
 
 
-_CACHE: dict[str, ScanLinePixels] = {}
+_CACHE: dict[tuple, ScanLinePixels] = {}
 
 
-def _cache_key(camera, conf, mask) -> str:
-    h = hashlib.sha256()
-    h.update(json.dumps(camera.to_dict(), sort_keys=True).encode())
-    keys = ("scanlines", "sample_step_px", "spiral_start_step", "points_radial_lines")
-    h.update(json.dumps({k: conf[k] for k in keys}, sort_keys=True).encode())
-    h.update(str(conf["colour"]["local_cell"]).encode())
-    if mask is not None:
-        h.update(np.packbits(mask).tobytes())
-    return h.hexdigest()
+def _frozen(value):
+    """A hashable copy of a mapping of lists, numbers and strings (a part of a cache key)."""
+    if isinstance(value, dict):
+        return tuple(sorted((k, _frozen(v)) for k, v in value.items()))
+    if isinstance(value, (list, tuple)):
+        return tuple(_frozen(v) for v in value)
+    return value
+
+
+def _cache_key(camera, conf, mask) -> tuple:
+    """What ScanLinePixels depends on: the calibration, the scan-line conf, the local green
+    cell and the mask (a digest). Built every frame, so without serialising anything."""
+    return (_frozen(camera.to_dict()), _frozen({k: conf[k] for k in _SCANLINE_KEYS}),
+            conf["colour"]["local_cell"],
+            None if mask is None else hashlib.sha256(np.packbits(mask)).hexdigest())
+
+
+_SCANLINE_KEYS = ("scanlines", "sample_step_px", "spiral_start_step", "points_radial_lines")
+# the last call's camera, mask, calibration, scan-line values and result: the frames of a
+# dataset come with the same objects
+_LAST: dict = {}
 
 
 def scanline_pixels(camera, conf: dict, mask: np.ndarray | None = None) -> ScanLinePixels:
-    """``build_scanline_pixels`` cached per calibration, scan-line conf and mask."""
+    """``build_scanline_pixels`` cached per calibration, scan-line conf and mask. The same
+    camera and mask objects as in the last call, the camera's calibration and the conf's
+    scan-line values unchanged, take the last result without building the key (a mask array
+    is recognised as the same object: one changed in place is not noticed)."""
+    calib = camera.to_dict()
+    values = [conf[k] for k in _SCANLINE_KEYS] + [conf["colour"]["local_cell"]]
+    last = _LAST.get("call")
+    if (last is not None and last[0] is camera and last[1] is mask and last[2] == calib
+            and last[3] == values):
+        return last[4]
     key = _cache_key(camera, conf, mask)
     if key not in _CACHE:
         if len(_CACHE) >= 8:
             _CACHE.pop(next(iter(_CACHE)))
         _CACHE[key] = build_scanline_pixels(camera, conf, mask)
+    _LAST["call"] = (camera, mask, calib, values, _CACHE[key])
     return _CACHE[key]
 
 
@@ -278,23 +357,50 @@ def scanline_pixels(camera, conf: dict, mask: np.ndarray | None = None) -> ScanL
 
 
 def classify_scanlines(image_bgr: np.ndarray, pix: ScanLinePixels, conf: dict):
-    """Colour classes of every scan-line pixel of a frame, and the frame's field colour."""
+    """Colour classes of the scan-line pixels ``pix.pixels`` of a frame, and the frame's field
+    colour, without a whole-frame pass (stages.common.colour's pixel samples): the field green
+    from ``pix.colour_flat``, the local green map from ``pix.map_flat``, then the YUV values
+    and classes of the scan-line pixels."""
     ccfg = conf["colour"]
-    yuv = colour.to_yuv(image_bgr)
-    fc = colour.estimate_field_colour(yuv, ccfg, pix.valid)
-    labels = colour.classify_pixels(yuv, pix.flat, pix.block, fc, ccfg)
-    labels[pix.masked] = colour.OTHER
-    return labels, fc
+    m, n_map = len(pix.pixels), len(pix.map_flat)
+    rows = colour.yuv_rows_at(image_bgr, pix.read_flat)  # (one gather, one conversion)
+    fc = colour.field_colour_of_samples(rows[m + n_map:], ccfg)
+    colour.local_green_map(colour.planes_of(rows[m:m + n_map]), pix.map_blocks, fc, ccfg)
+    return colour.classify_blocks(colour.planes_of(rows[:m]), pix.blocks, fc, ccfg), fc
 
 
-def _runs(labels, line):
-    """Runs of equal class on the concatenated lines: start, end (inclusive), class, line."""
-    n = len(labels)
-    change = np.ones(n, bool)
-    change[1:] = (labels[1:] != labels[:-1]) | (line[1:] != line[:-1])
-    start = np.flatnonzero(change)
-    end = np.concatenate([start[1:], [n]]) - 1
-    return start, end, labels[start], line[start]
+class ScanGeometry(NamedTuple):
+    """ScanLinePixels' per-sample arrays that the run detection reads (a bundle for compiled
+    code): pixel (index into ScanLinePixels.pixels), line index, arc length s (m), ground
+    distance (m), ground point xy (n, 2, m), image position uv (n, 2, px), and per line the
+    arc length of its first pixel."""
+
+    pixel: np.ndarray
+    line: np.ndarray
+    s: np.ndarray
+    dist: np.ndarray
+    xy: np.ndarray
+    uv: np.ndarray
+    line_start_s: np.ndarray
+
+
+class RunRules(NamedTuple):
+    """The conf's thresholds of a crossing (module doc), for compiled code."""
+
+    min_green_px: int
+    min_green_m: float
+    max_gap_px: int
+    white_hole_px: int
+    start_margin_m: float
+    min_white_px: int
+    min_white_m: float
+    max_white_m: float
+    far_white_px: int
+
+    @classmethod
+    def of(cls, conf: dict) -> RunRules:
+        return cls(**{k: int(conf[k]) if k.endswith("_px") else float(conf[k])
+                      for k in cls._fields})
 
 
 @dataclasses.dataclass
@@ -305,83 +411,156 @@ class WhiteRuns:
     mid_s: np.ndarray  # arc length (m) of the middle of the run along its line
     width: np.ndarray  # ground width (m) between the mid-points of its edges
     length: np.ndarray  # pixels
-    blocked: np.ndarray  # lines where white that is not a crossing comes first (see below)
+    blocked: np.ndarray  # (n_lines,) bool: white that is no crossing comes first (see below)
+    dist: np.ndarray  # ground distance (m) of the middle from the robot centre
+    xy: np.ndarray  # (N, 2) the middle in the robot frame (m)
+    uv: np.ndarray  # (N, 2) the middle in the image (px)
 
 
 def find_white_runs(labels: np.ndarray, pix: ScanLinePixels, conf: dict) -> WhiteRuns:
-    """Green -> white -> green runs on the concatenated scan lines (see module doc)."""
-    n = len(labels)
-    if n == 0:
-        z = np.zeros(0)
-        return WhiteRuns(z.astype(np.int64), z, z, z.astype(np.int64), z.astype(np.int64))
-    start, end, cls, line = _runs(labels, pix.line)
-    # close holes: where a path runs obliquely along a line's edge, the rounded pixels step out
-    # of the line and back in, and mixed edge pixels fall between the classes. Non-white runs
-    # of up to white_hole_px pixels between two white runs become white; unclassified runs of
-    # up to max_gap_px between two green runs become green. A lone white pixel between green is
-    # kept (far lines are one pixel wide); its ground width decides.
-    nr = len(start)
-    if nr >= 3:
-        length = end - start + 1
-        inner = np.zeros(nr, bool)
-        inner[1:-1] = (cls[:-2] == cls[2:]) & (line[:-2] == line[1:-1]) & (line[1:-1] == line[2:])
-        nb = np.empty_like(cls)
-        nb[1:-1] = cls[:-2]
-        fill = inner & (((nb == colour.WHITE) & (cls != colour.WHITE)
-                         & (length <= conf["white_hole_px"]))
-                        | ((nb == colour.GREEN) & (cls == colour.OTHER)
-                           & (length <= conf["max_gap_px"])))
-        if fill.any():
-            cls = np.where(fill, nb, cls)
-            labels = np.repeat(cls, length)
-            start, end, cls, line = _runs(labels, pix.line)
-    length = end - start + 1
-    s = pix.s
-    green_m = s[end] - s[start]  # ground extent of a run (between its first and last pixel)
-    nr = len(start)
+    """Green -> white -> green runs on the concatenated scan lines (see module doc), by one
+    compiled pass (_white_runs). ``labels``: the classes of ``pix.pixels``
+    (classify_scanlines)."""
+    line, mid_s, width, length, blocked, dist, xy, uv = _white_runs(
+        np.ascontiguousarray(labels, np.uint8), pix.geometry, RunRules.of(conf))
+    return WhiteRuns(line, mid_s, width, length, blocked, dist, xy, uv)
 
-    def neighbour(direction):
-        """Index of the run beside each run, skipping one short unclassified gap."""
-        idx = np.arange(nr) + direction
-        inside = (idx >= 0) & (idx < nr)
-        idx = np.clip(idx, 0, nr - 1)
-        gap = inside & (cls[idx] == colour.OTHER) & (length[idx] <= conf["max_gap_px"]) & (
-            line[idx] == line)
-        idx2 = np.clip(idx + direction * gap, 0, nr - 1)
-        inside2 = inside & (idx + direction * gap >= 0) & (idx + direction * gap < nr)
-        return idx2, inside2
 
-    prev, prev_ok = neighbour(-1)
-    nxt, nxt_ok = neighbour(+1)
-    is_green = (cls == colour.GREEN) & (length >= conf["min_green_px"]) & (
-        green_m >= conf["min_green_m"])
-    cand = ((cls == colour.WHITE) & prev_ok & nxt_ok & (line[prev] == line) & (line[nxt] == line)
-            & is_green[prev] & is_green[nxt])
-    j = np.flatnonzero(cand)
-    # edges half-way between the last green pixel and the first white one (mid-gap)
-    left = 0.5 * (s[end[prev[j]]] + s[start[j]])
-    right = 0.5 * (s[end[j]] + s[start[nxt[j]]])
-    width = right - left
-    # how far the run reaches away from the robot: on a radial line its width; on a spiral that
-    # grazes a line (runs along it) much less than the path length inside the white
-    dist = pix.dist
-    depth = np.abs(0.5 * (dist[end[j]] + dist[start[nxt[j]]])
-                   - 0.5 * (dist[end[prev[j]]] + dist[start[j]]))
-    ok = ((length[j] >= conf["min_white_px"]) & (width >= conf["min_white_m"])
-          & ((depth <= conf["max_white_m"]) | (length[j] <= conf["far_white_px"])))
-    accepted = np.zeros(nr, bool)
-    accepted[j[ok]] = True
+@njit(cache=True, nogil=True)
+def _class_runs(labels, pixel, line, start, cls):
+    """Runs of equal class on the concatenated lines (sample i has the class of its pixel,
+    ``labels[pixel[i]]``) into ``start`` (first sample) and ``cls``, both of at least n + 1
+    entries; returns their number. Without branches (where a run ends is unpredictable):
+    every sample is written as the start of the next run, which only a change keeps."""
+    nr = 0
+    last_class, last_line = -1, -1
+    for i in range(pixel.shape[0]):
+        c = np.int64(labels[pixel[i]])
+        start[nr] = i
+        cls[nr] = c
+        nr += (c != last_class) | (line[i] != last_line)
+        last_class, last_line = c, line[i]
+    return nr
+
+
+@njit(cache=True, nogil=True)
+def _close_holes(start, cls, nr, line, r, out_start, out_cls):
+    """The runs after closing short holes (module doc): where a path runs obliquely along a
+    line's edge, the rounded pixels step out of the line and back in, and mixed edge pixels
+    fall between the classes. Non-white runs of up to ``white_hole_px`` samples between two
+    white runs become white, unclassified runs of up to ``max_gap_px`` between two green runs
+    green (decided on the runs as found, all at once), then equal neighbours on a line merge.
+    A lone white pixel between green is kept (far lines are one pixel wide); its ground width
+    decides. Returns the number of runs."""
+    m = 0
+    for k in range(nr):
+        c = cls[k]
+        if 0 < k < nr - 1 and cls[k - 1] == cls[k + 1] and line[start[k - 1]] == line[start[k]] \
+                and line[start[k]] == line[start[k + 1]]:
+            length = start[k + 1] - start[k]
+            nb = cls[k - 1]
+            if (nb == colour.WHITE and c != colour.WHITE and length <= r.white_hole_px) or (
+                    nb == colour.GREEN and c == colour.OTHER and length <= r.max_gap_px):
+                c = nb
+        if m == 0 or c != out_cls[m - 1] or line[start[k]] != line[out_start[m - 1]]:
+            out_start[m] = start[k]
+            out_cls[m] = c
+            m += 1
+    return m
+
+
+@njit(cache=True, nogil=True)
+def _white_runs(labels, g, r):
+    """find_white_runs, compiled: the runs of the class sequence with its holes closed, the
+    white runs with a long enough green run on both sides (gaps allowed) that are wide and
+    shallow enough, the lines they block, and each accepted run's middle interpolated along
+    its line. Returns (line, mid_s, width, length, blocked (n_lines,) bool, dist, xy, uv)."""
+    line, s = g.line, g.s
+    n = line.shape[0]
+    start0 = np.empty(n + 1, np.int32)
+    cls0 = np.empty(n + 1, np.uint8)
+    nr = _class_runs(labels, g.pixel, line, start0, cls0)
+    start0[nr] = n
+    start = np.empty(nr + 1, np.int64)
+    cls = np.empty(nr, np.uint8)
+    nr = _close_holes(start0, cls0, nr, line, r, start, cls)
+    start[nr] = n
+    end = start[1:] - 1
+    rline = np.empty(nr, np.int64)
+    green = np.zeros(nr, np.bool_)
+    for k in range(nr):
+        rline[k] = line[start[k]]
+        green[k] = (cls[k] == colour.GREEN and end[k] - start[k] + 1 >= r.min_green_px
+                    and s[end[k]] - s[start[k]] >= r.min_green_m)
+    n_lines = g.line_start_s.shape[0]
+    first_acc = np.full(n_lines, nr)
+    accepted = np.zeros(nr, np.bool_)
+    left = np.empty(nr)
+    right = np.empty(nr)
+    prev = np.empty(nr, np.int64)
+    nxt = np.empty(nr, np.int64)
+    n_acc = 0
+    for k in range(nr):
+        if cls[k] != colour.WHITE:
+            continue
+        # the runs before and after it, each across one short unclassified gap
+        p, q = k - 1, k + 1
+        if p > 0 and cls[p] == colour.OTHER and end[p] - start[p] < r.max_gap_px:
+            p -= 1
+        if q < nr - 1 and cls[q] == colour.OTHER and end[q] - start[q] < r.max_gap_px:
+            q += 1
+        if p < 0 or q >= nr or rline[p] != rline[k] or rline[q] != rline[k] or not (
+                green[p] and green[q]):
+            continue
+        # edges half-way between the last green pixel and the first white one (mid-gap);
+        # depth: how far the run reaches away from the robot (on a spiral grazing a line
+        # much less than its path inside the white)
+        left[k] = 0.5 * (s[end[p]] + s[start[k]])
+        right[k] = 0.5 * (s[end[k]] + s[start[q]])
+        depth = abs(0.5 * (g.dist[end[k]] + g.dist[start[q]])
+                    - 0.5 * (g.dist[end[p]] + g.dist[start[k]]))
+        length = end[k] - start[k] + 1
+        if length >= r.min_white_px and right[k] - left[k] >= r.min_white_m and (
+                depth <= r.max_white_m or length <= r.far_white_px):
+            accepted[k] = True
+            prev[k], nxt[k] = p, q
+            first_acc[rline[k]] = min(first_acc[rline[k]], k)
+            n_acc += 1
     # a spiral reports its first crossing only: if white that is not a crossing comes first (a
     # graze along a line, a corner, white blurred into the surroundings, the robot standing on
-    # a line at the spiral's start), its first crossing is unseen and the spiral is "blocked"
-    first_acc = np.full(pix.n_lines, nr)
-    acc = np.flatnonzero(accepted)
-    np.minimum.at(first_acc, line[acc], acc)
-    before = (np.arange(nr) < first_acc[line]) & (s[end] - s[start] >= conf["min_white_m"])
-    near_start = s[start] - pix.line_start_s[line] <= conf["start_margin_m"]
-    blocked = np.unique(line[(cls == colour.WHITE) & ~accepted & (before | near_start)])
-    j = j[ok]
-    return WhiteRuns(line[j], 0.5 * (left + right)[ok], width[ok], length[j], blocked)
+    # a line at the spiral's start: at least min_white_m long, or near the line's start), its
+    # first crossing is unseen and the line is "blocked"
+    blocked = np.zeros(n_lines, np.bool_)
+    for k in range(nr):
+        if cls[k] == colour.WHITE and not accepted[k]:
+            before = k < first_acc[rline[k]] and s[end[k]] - s[start[k]] >= r.min_white_m
+            if before or s[start[k]] - g.line_start_s[rline[k]] <= r.start_margin_m:
+                blocked[rline[k]] = True
+    out_line = np.empty(n_acc, np.int64)
+    mid_s = np.empty(n_acc)
+    width = np.empty(n_acc)
+    out_len = np.empty(n_acc, np.int64)
+    dist = np.empty(n_acc)
+    xy = np.empty((n_acc, 2))
+    uv = np.empty((n_acc, 2))
+    j = 0
+    for k in range(nr):
+        if not accepted[k]:
+            continue
+        mid = 0.5 * (left[k] + right[k])
+        out_line[j], mid_s[j], width[j] = rline[k], mid, right[k] - left[k]
+        out_len[j] = end[k] - start[k] + 1
+        # the samples around the middle (between the green runs' inner ends), linearly
+        i = end[prev[k]]
+        while i < start[nxt[k]] - 1 and s[i + 1] <= mid:
+            i += 1
+        t = (mid - s[i]) / (s[i + 1] - s[i]) if s[i + 1] > s[i] else 0.0
+        dist[j] = g.dist[i] + t * (g.dist[i + 1] - g.dist[i])
+        for c in range(2):
+            xy[j, c] = g.xy[i, c] + t * (g.xy[i + 1, c] - g.xy[i, c])
+            uv[j, c] = g.uv[i, c] + t * (g.uv[i + 1, c] - g.uv[i, c])
+        j += 1
+    return out_line, mid_s, width, out_len, blocked, dist, xy, uv
 
 
 def extract_frame(image_bgr: np.ndarray, camera, conf: dict, *, mask: np.ndarray | None = None,
@@ -400,37 +579,32 @@ def extract_frame(image_bgr: np.ndarray, camera, conf: dict, *, mask: np.ndarray
 
 
 def frame_features(pix: ScanLinePixels, runs: WhiteRuns) -> dict[str, np.ndarray]:
-    """The per-frame arrays from the accepted white runs. A spiral reports only its first
-    crossing, so a blocked spiral (see find_white_runs) reports none."""
-    line, mid_s = runs.line, runs.mid_s
+    """The per-frame arrays from the accepted white runs (compiled: _scanline_distances). A
+    spiral reports only its first crossing, so a blocked spiral (see find_white_runs) reports
+    none."""
     sl = pix.scanlines
-    n = sl.n_angles
-    key = mid_s + line * pix.LINE_SPAN
-    dist = np.interp(key, pix.key, pix.dist)
-    x = np.interp(key, pix.key, pix.xy[:, 0])
-    y = np.interp(key, pix.key, pix.xy[:, 1])
-    pu = np.interp(key, pix.key, pix.uv[:, 0])
-    pv = np.interp(key, pix.key, pix.uv[:, 1])
+    radial = np.full((sl.n_angles, sl.max_crossings), np.nan, np.float32)
+    spiral = np.full((2, sl.n_angles), np.nan, np.float32)
+    _scanline_distances(runs.line, runs.dist, runs.blocked, radial, spiral.reshape(-1))
+    return {"radial": radial, "spiral": spiral, "points": runs.xy.astype(np.float32),
+            "points_px": runs.uv.astype(np.float32)}
 
-    radial = np.full((n, sl.max_crossings), np.nan, np.float32)
-    is_rad = line < n
-    rl = line[is_rad]  # runs come in order along each line: nearest first
-    if len(rl):
-        first = np.searchsorted(rl, rl, side="left")
-        rank = np.arange(len(rl)) - first
-        keep = rank < sl.max_crossings
-        radial[rl[keep], rank[keep]] = dist[is_rad][keep]
-    spiral = np.full((2, n), np.nan, np.float32)
-    is_sp = (line >= n) & (line < 3 * n)
-    sp = line[is_sp] - n
-    if len(sp):
-        uniq, idx = np.unique(sp, return_index=True)
-        spiral.reshape(-1)[uniq] = dist[is_sp][idx]
-    blocked = runs.blocked[(runs.blocked >= n) & (runs.blocked < 3 * n)] - n
-    spiral.reshape(-1)[blocked] = np.nan
-    points = np.stack([x, y], axis=1).astype(np.float32)
-    points_px = np.stack([pu, pv], axis=1).astype(np.float32)
-    return {"radial": radial, "spiral": spiral, "points": points, "points_px": points_px}
+
+@njit(cache=True, nogil=True)
+def _scanline_distances(line, dist, blocked, radial, spiral):
+    """Into ``radial`` (n, max crossings) the first crossings of each radial line 0..n-1 (runs
+    come in order along each line: nearest first), into ``spiral`` (2 n) the first crossing
+    of each spiral n..3n-1 that is not ``blocked`` (bool per line)."""
+    n, most = radial.shape
+    count = np.zeros(n, np.int64)
+    for j in range(line.shape[0]):
+        k = line[j]
+        if k < n:
+            if count[k] < most:
+                radial[k, count[k]] = dist[j]
+            count[k] += 1
+        elif k < 3 * n and not blocked[k] and np.isnan(spiral[k - n]):
+            spiral[k - n] = dist[j]
 
 
 # ---------------------------------------------------------------------------- own line points
