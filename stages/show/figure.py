@@ -1,6 +1,6 @@
 """Figures of the pictures: built with ``matplotlib.figure.Figure`` on the Agg canvas, never
 pyplot, so no global backend or figure state is touched and nothing opens a window; written
-atomically as PNG."""
+atomically in the format their file's suffix names (PNG without one)."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from ..common.artifacts import atomic_path
+from ..common.errors import FieldlocError
 
 
 def new_figure(width: float = 8.0, height: float = 5.0, dpi: int = 120) -> Figure:
@@ -19,9 +20,26 @@ def new_figure(width: float = 8.0, height: float = 5.0, dpi: int = 120) -> Figur
     return fig
 
 
+# picture formats by file suffix (matplotlib's Agg canvas writes each); no suffix: PNG
+FORMATS = {".png": "png", ".pdf": "pdf", ".svg": "svg", ".jpg": "jpg", ".jpeg": "jpg",
+           ".eps": "eps", ".tif": "tiff", ".tiff": "tiff", "": "png"}
+
+
+def picture_format(path: str | Path) -> str:
+    """The format a picture at ``path`` is written in, by its suffix (FORMATS); another suffix
+    is a FieldlocError (a picture named .xyz or .html would hold a PNG)."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in FORMATS:
+        known = ", ".join(s for s in FORMATS if s)
+        raise FieldlocError(f"{path}: a picture is written as {known} (by its suffix), not"
+                            f" {suffix[:20]}")
+    return FORMATS[suffix]
+
+
 def save_figure(fig: Figure, path: str | Path, dpi: int | None = None) -> Path:
-    """Write ``fig`` as PNG to ``path`` atomically."""
+    """Write ``fig`` to ``path`` atomically, in the format its suffix names (FORMATS)."""
     path = Path(path)
-    with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, format="png", dpi=dpi or fig.dpi, bbox_inches="tight")
+    fmt = picture_format(path)
+    with atomic_path(path, suffix=path.suffix or ".png") as tmp:
+        fig.savefig(tmp, format=fmt, dpi=dpi or fig.dpi, bbox_inches="tight")
     return path
