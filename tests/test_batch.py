@@ -211,6 +211,17 @@ def test_a_wrong_spec_is_one_clear_line(change, message, tmp_path):
     assert not (tmp_path / "res").exists()
 
 
+def test_workers_beyond_four_per_core_are_refused(tmp_path):
+    """--workers 100000 would start as many worker processes (each holding a map): refused
+    in one line before anything is made."""
+    spec = _write_spec(tmp_path, SPEC)
+    r = CliRunner().invoke(cli, ["-q", "batch", str(spec), "-o", str(tmp_path / "res"),
+                                 "--workers", "100000"])
+    assert r.exit_code == 1 and r.stderr.count("\n") == 1
+    assert "--workers 100000 on" in r.stderr and "at most 4 per core" in r.stderr
+    assert not (tmp_path / "res").exists()
+
+
 def test_a_spec_that_plans_no_run_is_refused_before_anything_is_made(tmp_path):
     """Every method unregistered (or none reading a dataset's camera kind): nothing would run,
     so the batch fails in one line saying why, and no results folder is made."""

@@ -71,12 +71,19 @@ confs = {
 }
 
 REPORT_DIR = "report"
+MAX_WORKERS_PER_CORE = 4  # --workers beyond this many per core is refused (_check_conf)
 
 
 def _check_conf(conf: dict) -> dict:
     if conf["workers"] < 0:
         raise FieldlocError(f"conf 'workers' must be >= 0 (0: one per core), got"
                             f" {conf['workers']}")
+    most = MAX_WORKERS_PER_CORE * core_count()
+    if conf["workers"] > most:
+        # each worker process holds a map and its caches (hundreds of MB): a thousand of
+        # them would exhaust the memory, and runs that use the CPU gain nothing from them
+        raise FieldlocError(f"--workers {conf['workers']} on {core_count()} cores: at most"
+                            f" {MAX_WORKERS_PER_CORE} per core ({most})")
     if conf["serial"] and (conf["scheduler"] or conf["workers"]):
         raise FieldlocError("a serial batch takes no scheduler and no workers")
     if conf["scheduler"] and conf["workers"]:
@@ -664,7 +671,7 @@ def _execute_dask(plan: Plan, todo, conf, progress, say, records: dict, summaris
                                     f" ({one_line(e)})") from None
             where = f"the Dask cluster at {conf['scheduler']}"
         else:
-            n = conf["workers"] or core_count()
+            n = min(conf["workers"] or core_count(), len(todo))  # no idle workers
             nanny_log = logging.getLogger("distributed.nanny")
             stack.callback(nanny_log.removeFilter, _quiet_stop)  # after the cluster stopped
             cluster = stack.enter_context(LocalCluster(
