@@ -583,7 +583,7 @@ def test_cli_imu_heading_decides_a_uniform_start(rendered_walk, map_path, tmp_pa
         assert not np.any(cols["accepted"] & (err > 1.0)), folder.name
 
 
-def test_cli_refuses_a_bad_start_half_in_one_line(kidsize, map_path, tmp_path):
+def test_cli_refuses_bad_mcl_conf_values_in_one_line(kidsize, map_path, tmp_path):
     from click.testing import CliRunner
 
     from fieldloc_cli.main import cli
@@ -591,7 +591,11 @@ def test_cli_refuses_a_bad_start_half_in_one_line(kidsize, map_path, tmp_path):
     data = tmp_path / "walk"
     features = write_synthetic_run(kidsize, data, 5, seed=4)
     for bad in ("start_half=sideways", "start_half_error=2", "imu_heading_sigma=0",
-                "imu_heading_sigma=true", "imu_heading_sigma=-1"):
+                "imu_heading_sigma=true", "imu_heading_sigma=-1",
+                # no particles (a division by zero at the first resampling), a hundred million
+                # (hours a run), fewer allowed than required
+                "particles_max=0", "particles_max=100000000", "particles_min=2000",
+                "init_particles.placement=0"):
         res = CliRunner().invoke(cli, ["localize", str(data), "--map", str(map_path),
                                        "--features", str(features), "--method", "mcl", "-c",
                                        bad, "-o", str(tmp_path / "p.h5")])

@@ -160,6 +160,9 @@ log = logging.getLogger(__name__)
 # (``rival_memory``) back: a frame that far back weighs exp(-3) ~ 5 % of this one
 RIVAL_LOOKBACK = 3.0
 _NO_SUPPORT = -30.0  # log belief density below which a pose counts as unsupported
+# the most particles a belief may hold (a million: 24 MB a pose array, seconds a frame); more
+# would only make a run of a few hundred frames take hours
+MAX_PARTICLES = 1_000_000
 IMU_STAMP_TOLERANCE = 0.05  # s: an imu.csv row this near a frame gives the frame's heading
 
 _DEFAULT = {
@@ -1202,6 +1205,15 @@ def run(conf: dict, dataset, features, map_file, progress=None) -> PoseTrack:
 
 
 def _check_conf(conf: dict):
+    counts = {"particles_min": conf["particles_min"], "particles_max": conf["particles_max"],
+              **{f"init_particles.{k}": v for k, v in conf["init_particles"].items()}}
+    for key, v in counts.items():
+        if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= MAX_PARTICLES:
+            raise FieldlocError(f"{key} must be a whole number in 1..{MAX_PARTICLES}, not"
+                                f" {str(v)[:40]}")
+    if conf["particles_min"] > conf["particles_max"]:
+        raise FieldlocError(f"particles_min ({conf['particles_min']}) must not exceed"
+                            f" particles_max ({conf['particles_max']})")
     if not isinstance(conf["smooth"], bool):
         raise FieldlocError(f"smooth must be true or false, not {str(conf['smooth'])[:40]!r}")
     t = conf["smooth_temperature"]
