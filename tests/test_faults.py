@@ -1033,6 +1033,22 @@ CASES = [
          "a picture is written as .png, .pdf, .svg"),
     Case("report -o r.pdf (an HTML page named PDF)", "silent",
          ["report", "{omni}/runs/r", "-o", W + "/r.pdf"], 1, "the report is an HTML page"),
+    # conf values outside the range a method runs in (each a traceback, a segfault or a run
+    # of hours before): one line naming the key and its range
+    *[Case(f"localize -c {kv}", "traceback", [*LOCALIZE, "-o", W + "/p.h5", "-c", kv], 1,
+           msg) for kv, msg in (
+        ("global_candidates=-1", "conf 'global_candidates' must be >= 1 and <= 1000"),
+        ("null_copies=1e12", "conf 'null_copies' must be >= 1 and <= 1000"),
+        ("search.coarse_step=1e12", "conf 'search.coarse_step' must be >= 1 and <= 64"),
+        ("radial_correction.degree=0", "conf 'radial_correction.degree' must be >= 1"),
+        ("prune_probability=0", "prune_probability must lie in (0, 1]"),
+        ("unsure_heading_sigma=0", "conf 'unsure_heading_sigma' must be > 0"))],
+    *[Case(f"localize --method mcl -c {kv}", "traceback",
+           ["localize", "{kid}", "--map", "{kmap}", "--features", "{kid_features}",
+            "--method", "mcl", "-o", W + "/p.h5", "-c", kv], 1, msg) for kv, msg in (
+        ("cluster_radius=0", "conf 'cluster_radius' must be > 0"),
+        ("observation.uniform_floor=-1", "conf 'observation.uniform_floor' must be > 0 and < 1"),
+        ("seed=-1", "conf 'seed' must be >= 0"))],
     Case("a field key whose value is 300 kB of text", "silent",
          ["build-map", W + "/f.yaml", "-o", W + "/m.h5"], 1,
          "key 'length' must be a number, got 'xxxxxxxx", setup=_setup_field({"length": LONG}),

@@ -277,3 +277,39 @@ class KindPresets(Mapping):
 
     def __len__(self) -> int:
         return sum(1 for _ in self)
+
+
+def check_bounds(conf: dict, bounds: Mapping[str, tuple]) -> None:
+    """Each ``bounds`` entry, ``"key.path": (low, high)``, holds the conf value at that path to
+    low <= value <= high; a bound written as a one-element tuple ``(x,)`` is strict (the value
+    must not equal x), None is no bound. One FieldlocError line for the first value outside.
+    The types are checked where the conf is resolved (checked_value); these are the ranges a
+    value must lie in for the method to run at all (a zero count divides by zero, a count of
+    1e12 runs for hours)."""
+    for path, (low, high) in bounds.items():
+        v = conf
+        for part in path.split("."):
+            v = v[part]
+        if v is None:
+            continue
+        if _beyond(v, low, 1) or _beyond(v, high, -1):
+            parts = [_bound_text(low, ">"), _bound_text(high, "<")]
+            raise FieldlocError(f"conf '{path}' must be {' and '.join(p for p in parts if p)},"
+                                f" got {shown(v, 40)}")
+
+
+def _beyond(v, bound, side: int) -> bool:
+    """Whether ``v`` lies beyond ``bound`` (side 1: below a low bound, -1: above a high one)."""
+    if bound is None:
+        return False
+    if isinstance(bound, tuple):
+        return (v - bound[0]) * side <= 0
+    return (v - bound) * side < 0
+
+
+def _bound_text(bound, sign: str) -> str:
+    if bound is None:
+        return ""
+    if isinstance(bound, tuple):
+        return f"{sign} {bound[0]:g}"
+    return f"{sign}= {bound:g}"

@@ -51,6 +51,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..common.conf import check_bounds
 from ..common.errors import FieldlocError
 from ..common.field import FieldModel
 from ..common.geometry import wrap_angle
@@ -60,6 +61,7 @@ from . import fit_kernels as K
 from . import heading as heading_mod
 from . import smooth, tracking
 from .lut_kernels import inlier_sums, structure_sizes
+from .radial_correction import BOUNDS as RADIAL_BOUNDS
 from .radial_correction import DEFAULTS as RADIAL_DEFAULTS
 from .radial_correction import PathCalibration, RadialCorrection
 from .smooth import FrameCandidates
@@ -466,7 +468,14 @@ class FitEngine:
 # ---------------------------------------------------------------------------- the method
 
 
+# the ranges fit's numeric keys must lie in to run at all (common.conf.check_bounds): 1e12
+# null copies ran for hours; the radial correction's as lut's
+BOUNDS = {"null_copies": (1, 1000),
+          **{f"radial_correction.{k}": b for k, b in RADIAL_BOUNDS.items()}}
+
+
 def _check_conf(conf: dict, dataset):
+    check_bounds(conf, BOUNDS)
     heading_mod.check_conf(conf, dataset)
     tracking.check_conf(conf)
     for key, value in [(k, conf[k]) for k in ("temperature", "track_correlation", "c",

@@ -123,6 +123,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..common.conf import check_bounds
 from ..common.errors import FieldlocError
 from ..common.field import FieldModel
 from ..common.geometry import wrap_angle
@@ -141,6 +142,7 @@ from .lut_search import (
     random_bearing_points,
 )
 from .point_fit import PointFit
+from .radial_correction import BOUNDS as RADIAL_BOUNDS
 from .radial_correction import DEFAULTS as RADIAL_DEFAULTS
 from .radial_correction import PathCalibration, RadialCorrection
 from .smooth import FrameCandidates
@@ -281,7 +283,18 @@ def vision_covariance(result: SearchResult, support: Support, conf: dict,
     return cov
 
 
+# the ranges lut's numeric keys must lie in to run at all (common.conf.check_bounds): counts of
+# at least one (none divides by zero or finds nothing) and at most what a frame can spend
+# (1e12 null copies or a coarse step of 1e12 cells ran for hours), sigmas and sizes above zero
+BOUNDS = {"unsure_heading_sigma": ((0,), None), "window": ((0,), 50.0),
+          "global_candidates": (1, 1000), "unknown_heading_candidates": (1, 1000),
+          "null_copies": (1, 1000), "tracked_null_copies": (1, 1000),
+          "search.coarse_step": (1, 64), "min_observations": (0, None),
+          **{f"radial_correction.{k}": b for k, b in RADIAL_BOUNDS.items()}}
+
+
 def _check_conf(conf: dict, dataset):
+    check_bounds(conf, BOUNDS)
     heading_mod.check_conf(conf, dataset)
     for key in ("temperature", "track_correlation"):
         if not float(conf[key]) > 0:

@@ -142,6 +142,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from stages.common.conf import check_bounds
 from stages.common.errors import FieldlocError
 from stages.common.geometry import compose, inverse, wrap_angle
 from stages.common.observations import Observations
@@ -1204,7 +1205,22 @@ def run(conf: dict, dataset, features, map_file, progress=None) -> PoseTrack:
                                log_prior0=start_prior(conf, model.field))
 
 
+# the ranges mcl's numeric keys must lie in to run at all (common.conf.check_bounds; the
+# particle counts below): a zero cluster radius or sigma divides by zero, a floor outside
+# ]0, 1[ gives no likelihood, a world margin of 1e12 m no field
+BOUNDS = {"seed": (0, None), "world_margin": (0, 100.0), "cluster_radius": ((0,), None),
+          "cluster_heading": ((0,), None), "spread_low": (0, None), "spread_high": ((0,), None),
+          "hypotheses": (1, 1000), "reset_pool": (1, 100_000), "start_places": (0, 1000),
+          "sensor_reset_every": (1, None), "rival_memory": ((0,), None),
+          "observation.sigma_range": ((0,), None), "observation.sigma_bearing": ((0,), None),
+          "observation.sigma_line": ((0,), None), "observation.sigma_line_angle": ((0,), None),
+          "observation.sigma_extent": ((0,), None),
+          "observation.uniform_floor": ((0,), (1,)),
+          "observation.post_uniform_floor": ((0,), (1,))}
+
+
 def _check_conf(conf: dict):
+    check_bounds(conf, BOUNDS)
     counts = {"particles_min": conf["particles_min"], "particles_max": conf["particles_max"],
               **{f"init_particles.{k}": v for k, v in conf["init_particles"].items()}}
     for key, v in counts.items():

@@ -40,6 +40,11 @@ DEFAULTS = {
     "min_confidence": 0.99,  # frames whose top hypothesis is less sure are not used
     "every": 4,  # frames between updates (consecutive frames see nearly the same crossings)
 }
+# the ranges the keys above must lie in (common.conf.check_bounds, under "radial_correction."):
+# a polynomial of degree 0 has nothing to fit, one of degree 12 on a few metres is noise
+BOUNDS = {"degree": (1, 8), "scale": ((0,), None), "prior_sigma": ((0,), None),
+          "forgetting": ((0,), 1), "min_points": (0, None), "max_residual": ((0,), None),
+          "noise": ((0,), None), "min_confidence": (0, 1), "every": (1, None)}
 
 
 @dataclass

@@ -79,10 +79,12 @@ def check_conf(conf: dict) -> None:
     """The bank's keys of a method's conf, checked (FieldlocError)."""
     from ..common.errors import FieldlocError
 
-    for key in ("kidnap_probability", "prune_probability", "min_confidence",
-                "prior_outlier_probability"):
+    for key in ("kidnap_probability", "min_confidence", "prior_outlier_probability"):
         if not 0.0 <= float(conf[key]) <= 1.0:
             raise FieldlocError(f"{key} must lie in [0, 1], not {conf[key]}")
+    if not 0.0 < float(conf["prune_probability"]) <= 1.0:  # its log bounds the tracks' weights
+        raise FieldlocError(f"prune_probability must lie in (0, 1], not"
+                            f" {conf['prune_probability']}")
     if not isinstance(conf["smooth"], bool):
         raise FieldlocError(f"smooth must be true or false, not {str(conf['smooth'])[:40]!r}")
     if conf["smooth"] and conf["independent"]:
