@@ -1049,6 +1049,11 @@ CASES = [
         ("cluster_radius=0", "conf 'cluster_radius' must be > 0"),
         ("observation.uniform_floor=-1", "conf 'observation.uniform_floor' must be > 0 and < 1"),
         ("seed=-1", "conf 'seed' must be >= 0"))],
+    *[Case(f"extract -c {kv}", "traceback", ["extract", "{omni}", "-o", W + "/f.h5", "-c", kv],
+           1, msg) for kv, msg in (
+        ("sample_step_px=0", "conf 'sample_step_px' must be > 0 and <= 10"),
+        ("colour.local_cell=0", "conf 'colour.local_cell' must be >= 1 and <= 64"),
+        ("spiral_start_step=0", "conf 'spiral_start_step' must be >= 1 and <= 72"))],
     Case("a field key whose value is 300 kB of text", "silent",
          ["build-map", W + "/f.yaml", "-o", W + "/m.h5"], 1,
          "key 'length' must be a number, got 'xxxxxxxx", setup=_setup_field({"length": LONG}),

@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common.artifacts import check_output, file_hash, output_lock, root_attrs
-from ..common.conf import registered_module, resolve_conf, stage_conf
+from ..common.conf import check_bounds, registered_module, resolve_conf, stage_conf
 from ..common.dataset import open_dataset, read_image, read_mask
 from ..common.errors import DatasetError, FieldlocError, SchemaError
 from ..common.features_file import SCHEMA, VERSION, FeaturesFile, FrameParts, write_features
@@ -80,7 +80,9 @@ def resolve_extract_conf(kind: str, conf: str | dict | None = None,
             raise FieldlocError(f"preset '{conf}' is one of {conf.split('-')[0]} cameras; the"
                                 f" dataset's camera is {kind}")
         conf = conf[len(kind) + 1:]
-    return resolve_conf(presets, stage_conf(presets, conf, DEFAULT_PRESET), overrides)
+    resolved = resolve_conf(presets, stage_conf(presets, conf, DEFAULT_PRESET), overrides)
+    check_bounds(resolved, getattr(kind_module(kind), "BOUNDS", {}))
+    return resolved
 
 
 def camera_kind(dataset_dir: str | Path) -> str:
