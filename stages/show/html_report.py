@@ -345,9 +345,9 @@ def main(conf: str | dict | None, source, output, *, overwrite: bool = False,
         raise FieldlocError(f"worst must be 0 or more frames, got {conf['worst']}")
     output = Path(output)
     dirs = find_reports(source)
+    check_output(output, report_inputs(dirs), overwrite=overwrite)
     if output.suffix.lower() not in (".html", ".htm"):  # r.pdf would hold HTML
         raise FieldlocError(f"{output}: the report is an HTML page; name it .html")
-    check_output(output, report_inputs(dirs), overwrite=overwrite)
     if output.exists() and not is_report_page(output):
         raise FieldlocError(f"{output} is not a page written by fieldloc report: --overwrite"
                             " replaces only those; choose another output")
