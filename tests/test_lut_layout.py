@@ -1,10 +1,9 @@
 """The table search's lookup (lut_search.py module doc) against plain numpy references written
-here, without the search's code: the error lookup as it was stored before it was computed on
-the fly (rows of cells, float32 arithmetic), its min-pooled copy, the surfaces summed from
-them, the greedy of separated minima and the window's best cell. The search computes the error
-lookup from the map's uint16 tables and prunes with the min-pooled lookup (branch and bound):
-every surface, pick and best cell must equal the reference's exactly (integer sums, the same
-float32 operations)."""
+here: the error lookup enumerated over every cell (its entries held to the rounded error term
+within half a level), its min-pooled copy, the surfaces summed from them, the greedy of
+separated minima and the window's best cell. The search computes the lookup's entries only
+where the min-pooled lookup leaves a cell in play (branch and bound): every surface, pick and
+best cell must equal the enumeration's exactly (integer sums and decisions)."""
 
 from __future__ import annotations
 
@@ -47,26 +46,31 @@ def reference(search):
 
 
 def reference_lookup(s) -> np.ndarray:
-    """The error lookup (rows, ny, nx) uint8 as the search stored it before: per scan line and
-    distance bin d, rint(q_levels * w(d) * rho(e)) with e the distance from d to the nearest
-    crossing of the line at the cell, in the float32 operations of that build."""
+    """The whole error lookup (rows, ny, nx) uint8, enumerated: per scan line, distance bin and
+    cell the least of the quantised errors (``Quantised.values``) of the cell's crossings. The
+    values themselves are held to rint(q_levels w(d) rho(e)) with a tolerance below
+    (test_the_quantised_errors_are_the_rounded_error_term); the searches, which compute entries
+    only where the min-pooled bound leaves a cell in play, must give what this enumeration
+    gives: integer sums and decisions, exactly."""
+    q = s.quantised
+    values = q.values.reshape(-1, q.width)
+    rows = [values[:s.nb_radial][:, s.radial_table[k]].min(axis=2) for k in range(s.n_angles)]
+    rows += [values[s.nb_radial:][:, s.spiral_table[line]] for line in range(2 * s.n_angles)]
+    return np.concatenate(rows).reshape(-1, s.ny, s.nx)
+
+
+def error_term(s) -> np.ndarray:
+    """q_levels w(d) rho(e) (rows, ny, nx) in float64: the real value every entry rounds, e the
+    distance from the bin's d to the nearest crossing of the line at the cell."""
     p = s.params
-    t_r = np.where(s.radial_mm == NO_HIT_MM, np.float32(1e3),
-                   s.radial_mm.astype(np.float32) * np.float32(1e-3))  # (line, crossing, cell)
-    t_s = np.where(s.spiral_mm == NO_HIT_MM, np.float32(1e3),
-                   s.spiral_mm.astype(np.float32) * np.float32(1e-3))
-    c2 = np.float32(p.c * p.c)
+    t_r = np.where(s.radial_mm == NO_HIT_MM, 1e3, s.radial_mm * 1e-3)  # (line, crossing, cell)
+    t_s = np.where(s.spiral_mm == NO_HIT_MM, 1e3, s.spiral_mm * 1e-3)
     out = []
     for nb, tables in ((s.nb_radial, t_r), (s.nb_spiral, t_s[:, None, :])):
         d = np.arange(nb) * p.distance_bin
-        scale = (s.q_levels * p.weight(d)).astype(np.float32)[:, None]
-        d32 = d.astype(np.float32)[:, None]
         for t in tables:
-            e = np.abs(t[0][None, :] - d32)
-            for h in range(1, len(t)):
-                e = np.minimum(e, np.abs(t[h][None, :] - d32))
-            e2 = e * e
-            out.append(np.rint(scale * (e2 / (c2 + e2))).astype(np.uint8))
+            e = np.abs(t[:, None, :] - d[None, :, None]).min(axis=0)  # (bin, cell)
+            out.append(s.q_levels * p.weight(d)[:, None] * p.rho(e))
     return np.concatenate(out).reshape(-1, s.ny, s.nx)
 
 
@@ -146,23 +150,13 @@ def test_some_fine_cells_lie_past_the_last_coarse_cell(search):
     assert past == (search.params.coarse_step == 3)
 
 
-def test_the_quantised_errors_are_the_float32_lookup(search, reference):
-    """Every entry of the error lookup, as the least quantised error of a cell's crossings
-    (Quantised), equals the float32 lookup's: the value is monotone in the error."""
-    s, (ref, _pooled) = search, reference
-    q = s.quantised
-    values = q.values.reshape(-1, q.width)
-    radial = s.radial_table  # (line, cell, crossing)
-    for k in range(s.n_angles):
-        got = values[:s.nb_radial][:, radial[k]].min(axis=2)
-        # exact integers: uint8 quantised errors
-        assert np.array_equal(got, ref[k * s.nb_radial:(k + 1) * s.nb_radial].reshape(
-            s.nb_radial, -1))
-    for line in range(2 * s.n_angles):
-        got = values[s.nb_radial:][:, s.spiral_table[line]]
-        r0 = s.spiral_row0 + line * s.nb_spiral
-        # exact integers: uint8 / uint16 values and their integer sums
-        assert np.array_equal(got, ref[r0:r0 + s.nb_spiral].reshape(s.nb_spiral, -1))
+def test_the_quantised_errors_are_the_rounded_error_term(search, reference):
+    """Every entry of the error lookup, the least quantised error of a cell's crossings
+    (Quantised: the value is monotone in the error), is the error term q_levels w(d) rho(e)
+    rounded to the nearest level: within half a level, and 1e-3 of a level for the float32
+    arithmetic of the values' table."""
+    ref, _pooled = reference
+    assert np.abs(ref.astype(np.float64) - error_term(search)).max() <= 0.5 + 1e-3
 
 
 def test_the_tables_are_the_maps_with_a_cells_crossings_side_by_side(search):
