@@ -56,9 +56,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ..common.artifacts import atomic_dir, check_output
+from ..common.artifacts import atomic_dir, check_importer_target, check_output
 from ..common.camera import save_calib
-from ..common.conf import load_yaml, stage_conf
+from ..common.conf import stage_conf
 from ..common.dataset import write_csv
 from ..common.errors import FieldlocError
 from ..common.perspective_camera import PerspectiveCamera
@@ -212,27 +212,6 @@ def _frames_of_folder(folder: Path, conf: dict) -> list[tuple[HulksFrame, Path]]
     return out
 
 
-def _check_dataset_target(output: Path, source: Path, overwrite: bool) -> None:
-    """The dataset folder is none of the captures and holds none; ``overwrite`` replaces only a
-    folder this importer wrote (its IMPORT_RECORD names GENERATOR), never a user's own folder
-    (the whole folder is replaced, so anything else in it would be lost)."""
-    check_output(output, {"the HULKs captures": [p for p in source.iterdir() if p.is_file()]},
-                 overwrite=None, kind="folder", error=HulksImportError)
-    if output.is_dir() and any(output.iterdir()):
-        if not overwrite:
-            raise HulksImportError(f"{output} exists (use --overwrite to replace a folder"
-                                   " this import wrote)")
-        rec = output / IMPORT_RECORD
-        try:
-            made = rec.is_file() and load_yaml(rec.read_text()).get("generator") == GENERATOR
-        except (OSError, UnicodeDecodeError, yaml.YAMLError, FieldlocError, AttributeError):
-            made = False
-        if not made:
-            raise HulksImportError(f"{output} is not a dataset made by {GENERATOR} (no"
-                                   f" {IMPORT_RECORD} naming it): --overwrite replaces only"
-                                   " those; choose another output")
-
-
 def main(conf: str | dict | None, source, output, *, overwrite: bool = False,
          progress: bool = False) -> Path:
     """Import ``source`` (a HULKs capture JSON, or a folder of them with their images) and
@@ -252,7 +231,10 @@ def main(conf: str | dict | None, source, output, *, overwrite: bool = False,
         return output
     if not source.is_dir():
         raise HulksImportError(f"HULKs camera file or folder not found: {source}")
-    _check_dataset_target(output, source, overwrite)
+    check_importer_target(output, {"the HULKs captures": [p for p in source.iterdir()
+                                                          if p.is_file()]},
+                          overwrite, record=IMPORT_RECORD, generator=GENERATOR,
+                          error=HulksImportError)
     frames = _frames_of_folder(source, conf)
     cams = [fr.camera for fr, _ in frames]
     nominal = cams[0].with_pose(

@@ -186,6 +186,40 @@ def _refuse_dataset_files(path: Path, kind: str, error: type[FieldlocError]) -> 
                         " never written over, --overwrite or not: choose another output")
 
 
+def check_importer_target(output: Path, inputs: Mapping[str, object], overwrite: bool, *,
+                          record: str, generator: str,
+                          error: type[FieldlocError] = FieldlocError) -> None:
+    """The dataset folder an importer writes whole: none of its ``inputs`` nor holding one,
+    and, where it exists and is not empty, replaced only with ``overwrite`` and only when the
+    importer wrote it (its ``record`` YAML names ``generator``): never a user's own folder,
+    whose other files the replacement would delete."""
+    check_output(output, inputs, overwrite=None, kind="folder", error=error)
+    if not (output.is_dir() and any(output.iterdir())):
+        return
+    if not overwrite:
+        raise error(f"folder {output} exists and is not empty (use --overwrite to replace a"
+                    f" folder {generator} wrote)")
+    if not written_by(output, record, generator):
+        raise error(f"{output} is not a dataset made by {generator} (no {record} naming it):"
+                    " --overwrite replaces only those; choose another output")
+
+
+def written_by(folder: Path, record: str, generator: str) -> bool:
+    """Whether ``folder``'s ``record`` YAML says ``generator`` wrote it."""
+    import yaml
+
+    from .conf import load_yaml
+
+    rec = Path(folder) / record
+    if not rec.is_file():
+        return False
+    try:
+        d = load_yaml(rec.read_text())
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, FieldlocError):
+        return False
+    return isinstance(d, dict) and d.get("generator") == generator
+
+
 def refuse_inputs(path: str | Path, inputs: Mapping[str, object] | None, *, kind: str = "file",
                   error: type[FieldlocError] = FieldlocError) -> None:
     """The part of ``check_output`` about inputs: ``path`` is none of them (and, for a folder

@@ -59,7 +59,13 @@ import numpy as np
 import yaml
 
 from .. import __version__
-from ..common.artifacts import atomic_dir, check_output, file_hash
+from ..common.artifacts import (
+    atomic_dir,
+    check_importer_target,
+    check_output,
+    file_hash,
+    written_by,
+)
 from ..common.camera import load_calib
 from ..common.conf import load_yaml, stage_conf
 from ..common.dataset import write_csv
@@ -514,14 +520,7 @@ def main(conf: str | dict | None, bag, output, *, image_topic: str, odom_topic: 
 
 def is_imported_dataset(folder: Path) -> bool:
     """Whether ``folder`` was written by this importer (its import.yaml says so)."""
-    rec = folder / "import.yaml"
-    if not rec.is_file():
-        return False
-    try:
-        d = load_yaml(rec.read_text())
-    except (OSError, UnicodeDecodeError, yaml.YAMLError, FieldlocError):
-        return False
-    return isinstance(d, dict) and d.get("generator") == GENERATOR
+    return written_by(folder, "import.yaml", GENERATOR)
 
 
 def _check_target(output: Path, bag, calib, overwrite: bool) -> None:
@@ -529,19 +528,12 @@ def _check_target(output: Path, bag, calib, overwrite: bool) -> None:
     folder; ``overwrite`` replaces only a folder this importer wrote, never a user's own
     folder (the whole folder is replaced, so anything else in it would be lost)."""
     source = bag_paths(bag)[0]
-    inputs = {"bag": [Path(bag), source], "calibration": calib}
-    check_output(output, inputs, overwrite=None, kind="folder")
+    check_output(output, {"bag": [Path(bag), source], "calibration": calib}, overwrite=None,
+                 kind="folder")
     if source.is_dir() and output.resolve().is_relative_to(source.resolve()):
         raise FieldlocError(f"{output} lies inside the bag folder {source}: choose an output"
                             " outside it")
-    if output.is_dir() and any(output.iterdir()):
-        if not overwrite:
-            raise FieldlocError(f"folder {output} exists and is not empty (use --overwrite to"
-                                " replace a folder fieldloc import wrote)")
-        if not is_imported_dataset(output):
-            raise FieldlocError(
-                f"{output} is not a dataset made by fieldloc import rosbag (no import.yaml"
-                " naming it): --overwrite replaces only those; choose another output")
+    check_importer_target(output, {}, overwrite, record="import.yaml", generator=GENERATOR)
 
 
 def _deserialize(reader, raw, conn, bag):

@@ -289,7 +289,7 @@ def vision_covariance(result: SearchResult, support: Support, conf: dict,
 BOUNDS = {"unsure_heading_sigma": ((0,), None), "window": ((0,), 50.0),
           "global_candidates": (1, 1000), "unknown_heading_candidates": (1, 1000),
           "null_copies": (1, 1000), "tracked_null_copies": (1, 1000),
-          "search.coarse_step": (1, 64), "min_observations": (0, None),
+          "search.coarse_step": (1, 64), "min_observations": (0, None), "global_every": (1, None),
           **{f"radial_correction.{k}": b for k, b in RADIAL_BOUNDS.items()}}
 
 
@@ -300,9 +300,6 @@ def _check_conf(conf: dict, dataset):
         if not float(conf[key]) > 0:
             raise FieldlocError(f"{key} must be > 0, not {conf[key]}")
     tracking.check_conf(conf)
-    for key in ("null_copies", "tracked_null_copies", "global_every"):
-        if int(conf[key]) < 1:
-            raise FieldlocError(f"{key} must be >= 1, not {conf[key]}")
     if conf["global_evidence"] not in ("auto", "points", "scanlines"):
         raise FieldlocError("global_evidence must be auto, points or scanlines, not"
                             f" {conf['global_evidence']!r}")
