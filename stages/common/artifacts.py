@@ -35,6 +35,7 @@ import h5py
 import numpy as np
 
 from .. import __version__
+from .dataset_layout import OWN_FILES
 from .errors import FieldlocError, SchemaError
 
 log = logging.getLogger(__name__)
@@ -169,8 +170,6 @@ def _refuse_dataset_files(path: Path, kind: str, error: type[FieldlocError]) -> 
     odometry, IMU, truth, frames, head or mask files (and calib.yaml, but for a calibration:
     ``kind="calibration"``), whichever command writes and whatever dataset it read. A
     dataset folder is one holding images/ and calib.yaml."""
-    from .dataset import CSV_COLUMNS, SIMULATION_RECORD
-
     real = Path(os.path.realpath(path))
     for folder, inside_images in ((real.parent, False), (real.parent.parent, True)):
         if not ((folder / "images").is_dir() and (folder / "calib.yaml").is_file()):
@@ -178,9 +177,7 @@ def _refuse_dataset_files(path: Path, kind: str, error: type[FieldlocError]) -> 
         if inside_images and real.parent.name == "images":
             raise error(f"{path} is an image of the dataset {folder}: a recording's files are"
                         " never written over, --overwrite or not: choose another output")
-        own = {"mask.png", SIMULATION_RECORD, *(f"{k}.csv" for k in CSV_COLUMNS)}
-        if kind != "calibration":
-            own.add("calib.yaml")
+        own = set(OWN_FILES) - ({"calib.yaml"} if kind == "calibration" else set())
         if not inside_images and (real.name in own or real.name == "images"):
             raise error(f"{path} is a file of the dataset {folder}: a recording's files are"
                         " never written over, --overwrite or not: choose another output")

@@ -34,23 +34,11 @@ from pathlib import Path
 import numpy as np
 
 from .conf import load_yaml
+from .dataset_layout import CSV_COLUMNS, CSV_OPTIONAL_COLUMNS, OWN_FILES, SIMULATION_RECORD
 from .errors import DatasetError, present
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
-SIMULATION_RECORD = "simulation.yaml"  # written by fieldloc simulate: how the dataset was made
 DEFAULT_RATE_HZ = 30.0
-
-CSV_COLUMNS = {
-    "frames": ("name", "stamp"),
-    "odometry": ("stamp", "dx", "dy", "dtheta"),
-    "imu": ("stamp", "yaw", "collision"),
-    "truth": ("stamp", "x", "y", "theta"),
-    "head": ("stamp", "pitch", "roll"),  # perspective cameras: head angles per frame
-}
-# columns a file may add after the required ones (any of them, in this order)
-CSV_OPTIONAL_COLUMNS = {
-    "head": ("yaw", "height", "x", "y"),
-}
 
 
 TIME_SERIES = ("odometry", "imu", "truth", "head")  # rows in time order, one per stamp
@@ -236,8 +224,7 @@ class Dataset:
     def files(self) -> dict[str, list[Path]]:
         """The dataset's own files that exist (role -> paths): what no command may write over."""
         out = {"images": list(self.images)}
-        for name in ("calib.yaml", "mask.png", SIMULATION_RECORD,
-                     *(f"{k}.csv" for k in CSV_COLUMNS)):
+        for name in OWN_FILES:
             if (self.root / name).exists():
                 out[name] = [self.root / name]
         return out
