@@ -9,8 +9,9 @@ per position suffices. X crossings (and lines) are associated per particle (see
 stages.localize.observation_model).
 
 Computed from the field model by build-map, which stores them in the map under /tables (cells
-as in stages.common.map_file.Grid); localize reads them through MapFile.crossing_tables, or
-computes them here when it has a field and no map:
+as in stages.common.map_file.Grid); localize takes them from a map with ``of_map`` (which
+computes them on the map's grid for a map that does not hold them), or computes them here when
+it has a field and no map:
 
     crossing_lut_L   (4, ny, nx) i2   index into /field/crossings of the closest L crossing
                                       whose orientation is nearest to 45, 135, 225, 315 deg
@@ -26,7 +27,7 @@ import math
 import numpy as np
 
 from .field import FieldModel
-from .map_file import Grid
+from .map_file import Grid, MapFile
 
 # The four global L orientations of the paper (bisector of the arms), in radians.
 L_ORIENTATIONS = np.array([0.25, 0.75, 1.25, 1.75]) * math.pi
@@ -101,3 +102,13 @@ def crossing_association_tables(field_model: FieldModel, grid: Grid) -> dict:
             ),
         ),
     }
+
+
+def of_map(map_file: MapFile) -> tuple[np.ndarray, np.ndarray]:
+    """The crossing association tables of a map: ``crossing_lut_L`` (4, ny, nx) and
+    ``crossing_lut_T`` (ny, nx), as the map holds them, or computed on the map's grid for a map
+    that does not hold them."""
+    if map_file.has_table("crossing_lut_L") and map_file.has_table("crossing_lut_T"):
+        return map_file.table("crossing_lut_L"), map_file.table("crossing_lut_T")
+    tabs = crossing_association_tables(map_file.field, map_file.grid)
+    return tabs["crossing_lut_L"][0], tabs["crossing_lut_T"][0]

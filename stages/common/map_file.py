@@ -208,17 +208,6 @@ class MapFile:
                 raise SchemaError(f"{self.path}: damaged table '{name}' ({e})") from None
         return self._cache[name]
 
-    def crossing_tables(self) -> tuple[np.ndarray, np.ndarray]:
-        """The crossing association tables (stages.common.crossing_tables): ``crossing_lut_L``
-        (4, ny, nx) and ``crossing_lut_T`` (ny, nx); computed on the map's grid for a map that
-        does not hold them."""
-        if self.has_table("crossing_lut_L") and self.has_table("crossing_lut_T"):
-            return self.table("crossing_lut_L"), self.table("crossing_lut_T")
-        from .crossing_tables import crossing_association_tables
-
-        tabs = crossing_association_tables(self.field, self.grid)
-        return tabs["crossing_lut_L"][0], tabs["crossing_lut_T"][0]
-
     def table_attrs(self, name: str) -> dict:
         return dict(self.h5["tables"][name].attrs)
 

@@ -60,6 +60,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stages.common import crossing_tables
 from stages.common.crossing_tables import crossing_association_tables
 from stages.common.field import FieldModel
 from stages.common.map_file import Grid
@@ -241,7 +242,7 @@ class ObservationModel:
     @classmethod
     def from_map(cls, map_file, conf: dict | None = None) -> ObservationModel:
         """A model on a map (stages.common.map_file.MapFile) and its crossing tables."""
-        lut_l, lut_t = map_file.crossing_tables()
+        lut_l, lut_t = crossing_tables.of_map(map_file)
         return cls(map_file.field, map_file.grid, lut_l, lut_t, conf)
 
     # ------------------------------------------------------------------ observations in use
