@@ -22,8 +22,11 @@ change comes from the IMU's yaw when it is known, and the noise grows by ``colli
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
+
+from ..common.geometry import compose
 
 DEFAULTS = {
     "trans_per_trans": 0.15,  # m of noise per m travelled
@@ -141,3 +144,24 @@ def imu_per_frame(imu: dict | None, frame_stamps: np.ndarray):
     dyaw[1:] = np.where(inside[1:] & inside[:-1], np.diff(at), np.nan)
     dyaw[0] = 0.0
     return collision, dyaw
+
+
+@dataclass(frozen=True)
+class Motion:
+    """The odometry of a run: per frame the increment since the previous frame (robot frame)
+    and its covariance (the method's fusion noise; large where no odometry was recorded)."""
+
+    increments: np.ndarray  # (N, 3)
+    cov: np.ndarray  # (N, 3, 3) robot frame
+
+    def between(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
+        """The increment from frame i to frame j > i (composed) and its covariance (robot
+        frame of frame i; the steps' covariances rotated into it and summed)."""
+        pose = np.zeros(3)
+        cov = np.zeros((3, 3))
+        for k in range(i + 1, j + 1):
+            c, s = math.cos(pose[2]), math.sin(pose[2])
+            rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+            cov = cov + rot @ self.cov[k] @ rot.T
+            pose = compose(pose, self.increments[k])
+        return pose, cov

@@ -4,7 +4,7 @@ A factor graph over one Pose2 per frame (Dellaert and Kaess 2017, "Factor graphs
 perception"), solved with GTSAM's Levenberg-Marquardt and its marginals:
 
 - between consecutive frames a BetweenFactorPose2: the odometry increment with its covariance
-  (smooth.Motion: slip proportional to the motion; a random walk where none was recorded);
+  (motion_model.Motion: slip proportional to the motion; a random walk where none was recorded);
 - per frame with a fix a PriorFactorPose2 at the fix with its covariance, under a Huber
   M-estimator (``HUBER_K`` standard deviations): a fix the odometry contradicts by many sigmas
   pulls with a constant force instead of a quadratic one, so one bad fix bends the path little.
@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from .smooth import Motion
+from .motion_model import Motion
 
 # Huber's threshold in standard deviations of a fix (the usual 95 % efficiency constant under
 # Gaussian noise: Huber 1964)

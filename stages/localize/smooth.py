@@ -46,9 +46,9 @@ from typing import Protocol
 
 import numpy as np
 
-from ..common.geometry import compose, inverse, wrap_angle
+from ..common.geometry import inverse, wrap_angle
 from ..common.poses_file import PoseTrack
-from .motion_model import moved
+from .motion_model import Motion, moved
 from .tracking import SAME_BASIN_M, SAME_BASIN_RAD
 
 log = logging.getLogger(__name__)
@@ -161,27 +161,6 @@ class Scorer(Protocol):
     def global_candidates(self, i: int) -> FrameCandidates: ...
 
     def local_candidates(self, i: int, starts: np.ndarray) -> FrameCandidates: ...
-
-
-@dataclass(frozen=True)
-class Motion:
-    """The odometry of a run: per frame the increment since the previous frame (robot frame)
-    and its covariance (the method's fusion noise; large where no odometry was recorded)."""
-
-    increments: np.ndarray  # (N, 3)
-    cov: np.ndarray  # (N, 3, 3) robot frame
-
-    def between(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
-        """The increment from frame i to frame j > i (composed) and its covariance (robot
-        frame of frame i; the steps' covariances rotated into it and summed)."""
-        pose = np.zeros(3)
-        cov = np.zeros((3, 3))
-        for k in range(i + 1, j + 1):
-            c, s = math.cos(pose[2]), math.sin(pose[2])
-            rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-            cov = cov + rot @ self.cov[k] @ rot.T
-            pose = compose(pose, self.increments[k])
-        return pose, cov
 
 
 def motion_of(increments: np.ndarray, has_odometry: np.ndarray, stamps: np.ndarray,
