@@ -24,14 +24,15 @@ import click
 def bench(ctx, only, list_rows, repeat, json_path, overwrite, fmt, from_json):
     """Time the stages on generated inputs and print a table."""
     from stages.pipelines import bench as stage
+    from stages.pipelines.bench import harness
 
     if list_rows:
         click.echo("\n".join(stage.ROWS))
         return
     quiet = (ctx.find_root().obj or {}).get("quiet")
-    show = stage.format_markdown if fmt == "markdown" else stage.format_table
+    show = harness.format_markdown if fmt == "markdown" else harness.format_table
     if from_json:
-        click.echo(show(stage.read_json(from_json)), nl=fmt != "markdown")
+        click.echo(show(harness.read_json(from_json)), nl=fmt != "markdown")
         return
     if json_path:
         from stages.common.artifacts import check_output
@@ -45,4 +46,4 @@ def bench(ctx, only, list_rows, repeat, json_path, overwrite, fmt, from_json):
     rows = stage.run(list(only) or None, repeat=repeat, progress=progress)
     click.echo(show(rows), nl=fmt != "markdown")
     if json_path:
-        stage.write_json(rows, json_path)
+        harness.write_json(rows, json_path)

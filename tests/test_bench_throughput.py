@@ -1,4 +1,4 @@
-"""The "images to poses, per core" bench rows (stages.pipelines.bench_throughput) built on tiny
+"""The "images to poses, per core" bench rows (stages.pipelines.bench.throughput) built on tiny
 rendered sets: every figure a row reports is finite and positive, and the rows the issue sets
 a goal for say it and judge it."""
 
@@ -6,8 +6,8 @@ import math
 
 import pytest
 
-from stages.pipelines import bench
-from stages.pipelines import bench_throughput as bt
+from stages.pipelines.bench import inputs
+from stages.pipelines.bench import throughput as bt
 
 
 @pytest.fixture(scope="module")
@@ -15,8 +15,8 @@ def tiny_rows():
     """The rows of one bench run on 1- to 5-frame sets (fit and mcl pipelines, start-up,
     frames, area on msl-2015 and kidsize; fit rather than lut, whose lookup takes seconds to
     build), with the bench's shared inputs set aside."""
-    saved = dict(bench._INPUTS)
-    bench._INPUTS.clear()
+    saved = dict(inputs.INPUTS)
+    inputs.INPUTS.clear()
     try:
         pipelines = [(k, m, f, g or 1.0) for k, m, f, g in bt.PIPELINES if m in ("fit", "mcl")]
         rows = {"throughput": bt.throughput_rows(1, frames=5, pipelines=pipelines),
@@ -26,10 +26,10 @@ def tiny_rows():
                                      method="fit")}
         yield rows
     finally:
-        if "tmp" in bench._INPUTS:
-            bench._INPUTS["tmp"].cleanup()
-        bench._INPUTS.clear()
-        bench._INPUTS.update(saved)
+        if "tmp" in inputs.INPUTS:
+            inputs.INPUTS["tmp"].cleanup()
+        inputs.INPUTS.clear()
+        inputs.INPUTS.update(saved)
 
 
 def _positive(*values):
@@ -74,8 +74,8 @@ def test_frames_and_area_rows(tiny_rows):
 def test_double_msl_field_has_twice_the_area(tmp_path, monkeypatch):
     from stages.common.field import load_field
 
-    monkeypatch.setattr(bench, "_INPUTS", {"dir": tmp_path})
-    monkeypatch.setattr(bt, "_INPUTS", bench._INPUTS)
+    monkeypatch.setattr(inputs, "INPUTS", {"dir": tmp_path})
+    monkeypatch.setattr(bt, "INPUTS", inputs.INPUTS)
     big, msl = load_field(bt.double_msl_field()), load_field("msl")
     (x0, x1, y0, y1), (a0, a1, b0, b1) = big.world_bounds(0.0), msl.world_bounds(0.0)
     assert (x1 - x0) * (y1 - y0) == pytest.approx(2 * (a1 - a0) * (b1 - b0), rel=0.02)

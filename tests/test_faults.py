@@ -1532,12 +1532,12 @@ def test_readme_yaml_examples_parse(tmp_path):
 def test_bench_table_of_the_readme_comes_from_a_bench_json(tmp_path):
     """docs/results.md's performance table is `bench --from-json --format markdown` of one run:
     rows survive the JSON round trip (NaN as null) and become one table line each."""
-    from stages.pipelines import bench
+    from stages.pipelines.bench import harness
 
-    rows = [bench.Row("a row", median_ms=1.5, goal="<= 2 ms", meets_goal=True,
+    rows = [harness.Row("a row", median_ms=1.5, goal="<= 2 ms", meets_goal=True,
                       baseline="the other", baseline_ms=3.0, ratio=0.5, note="a note"),
-            bench.Row("no numbers")]
-    path = bench.write_json(rows, tmp_path / "b.json")
+            harness.Row("no numbers")]
+    path = harness.write_json(rows, tmp_path / "b.json")
     r = CliRunner().invoke(cli, ["bench", "--from-json", str(path), "--format", "markdown"])
     assert r.exit_code == 0, r.output
     lines = r.stdout.splitlines()

@@ -2,7 +2,7 @@
 (../shared/realdata/hulks-goalbox-labels) becomes a dataset folder of a robot standing still
 (the image 15 times, zero odometry, calib.yaml from the capture's own camera matrix, so the
 observation model gets that frame's camera height), extracted and localised by the stage mains
-with the CLI's defaults (stages.pipelines.bench_mcl_hulks; ``fieldloc bench --only mcl-hulks``
+with the CLI's defaults (stages.pipelines.bench.mcl_hulks; ``fieldloc bench --only mcl-hulks``
 runs every capture). The labels' pose is the truth; the field is 180 deg symmetric, so the top
 hypothesis or its mirror counts.
 
@@ -13,7 +13,7 @@ full-resolution checks found more crossings); on the third of them this test run
 capture, to keep it near 25 s), 32 of 34 (94 %) before those checks. Since a uniform start
 places its belief at the first frame's best places (mcl's ``start_places``) the count is the
 same, with other misses; every frame whose 15 still frames decide the labels' pose (by the
-brute force over the field, bench_mcl_hulks.decided: 96 of the 105) is found, as before. Why
+brute force over the field, bench.mcl_hulks.decided: 96 of the 105) is found, as before. Why
 the seven informative misses miss (each capture's observations, the belief's end and the
 observation model's log-likelihood at the labels' pose against the found pose's):
 - five (1687084008, -029, 1687086314, -437, 1687089095; 0.55-1.01 m off) are frames that
@@ -43,7 +43,7 @@ import math
 import numpy as np
 import pytest
 
-from stages.pipelines.bench_mcl_hulks import HULKS, STILL_UPDATES, still_dataset, still_robot
+from stages.pipelines.bench.mcl_hulks import HULKS, STILL_UPDATES, still_dataset, still_robot
 
 pytestmark = [
     pytest.mark.realdata,

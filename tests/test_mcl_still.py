@@ -1,6 +1,6 @@
 """mcl from a uniform start on a rendered still robot (issue 9): the confidence says how much the
 frame tells. One rendered frame, extracted by the perspective chain with its defaults and given
-to the particle filter 15 times with zero odometry (stages.pipelines.bench_mcl_hulks
+to the particle filter 15 times with zero odometry (stages.pipelines.bench.mcl_hulks
 rendered_still, which ``fieldloc bench --only mcl-hulks`` runs on 60 random poses). The belief's
 pair share (the top pose and its mirror image, its confidence up to the field's symmetry; the
 reported confidence is half of it) must be low on a frame with a single line in view and on one
@@ -17,7 +17,7 @@ import pytest
 
 from stages.common.field import load_field
 from stages.localize import mcl
-from stages.pipelines.bench_mcl_hulks import RENDERED_POSES, random_poses, rendered_still
+from stages.pipelines.bench.mcl_hulks import RENDERED_POSES, random_poses, rendered_still
 
 ONE_LINE = {("perspective-nao", "spl"): [-1.5, 2.3, math.pi / 2],  # the touch line ahead
             ("perspective-default", "kidsize"): [1.2, -2.3, -math.pi / 2]}

@@ -6,7 +6,7 @@ import math
 from click.testing import CliRunner
 
 from fieldloc_cli.main import cli
-from stages.pipelines import bench
+from stages.pipelines.bench import harness
 
 
 def test_show_map_pictures(msl2015_map, tmp_path):
@@ -24,15 +24,15 @@ def test_show_map_pictures(msl2015_map, tmp_path):
 
 def test_bench_rows_interleave_and_format(tmp_path):
     calls = []
-    a, b = bench.time_interleaved(lambda: calls.append("a"), lambda: calls.append("b"),
+    a, b = harness.time_interleaved(lambda: calls.append("a"), lambda: calls.append("b"),
                                   repeat=3, warmup=1)
     assert calls == ["a", "b"] * 4 and len(a) == len(b) == 3
-    rows = [bench.Row(name="x", median_ms=2.0, baseline="y", baseline_ms=4.0, ratio=0.5,
+    rows = [harness.Row(name="x", median_ms=2.0, baseline="y", baseline_ms=4.0, ratio=0.5,
                       goal="<= 3 ms", meets_goal=True),
-            bench.Row(name="z", median_ms=math.nan)]
-    table = bench.format_table(rows)
+            harness.Row(name="z", median_ms=math.nan)]
+    table = harness.format_table(rows)
     assert "x" in table and "0.5" in table and "yes" in table
-    path = bench.write_json(rows, tmp_path / "b.json")
+    path = harness.write_json(rows, tmp_path / "b.json")
     data = json.loads(path.read_text())
     assert data["rows"][1]["median_ms"] is None
 

@@ -5,7 +5,7 @@ a pose's mirror image under the field's 180 deg symmetry counted with it), each 
 finer local grids (to 1 cm x 0.25 deg after a 0.1 m x 3 deg grid).
 
 Two readers: ``fieldloc bench --only mcl-hulks`` decides with it what each still frame says
-(stages.pipelines.bench_mcl_hulks.decided: 0.1 m x 3 deg over the field), and mcl's uniform
+(stages.pipelines.bench.mcl_hulks.decided: 0.1 m x 3 deg over the field), and mcl's uniform
 start places its first particles at the places a coarser grid finds (mcl.ParticleFilter:
 0.2 m x 6 deg over the world, each grid pose scored as a pose anywhere in its cell,
 ``cell_model``).

@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .bench import Row, _pct, _work_dir, rendered_inputs
+from .harness import Row, pct_within
+from .inputs import rendered_inputs, work_dir
 
 # rendered NAO walks: (frames, seed); seeds no test uses
 NAO_WALKS = [(300, 0), (300, 1), (300, 2)]
@@ -23,10 +24,10 @@ def _walks():
 
 
 def bench_mcl_nao_accuracy(repeat: int) -> list[Row]:
-    from .. import localize
-    from ..common.dataset import read_csv
-    from ..common.poses_file import read_poses
-    from ..evaluate import evaluate_poses
+    from ... import localize
+    from ...common.dataset import read_csv
+    from ...common.poses_file import read_poses
+    from ...evaluate import evaluate_poses
 
     walks = _walks()
     label = f"rendered NAO walks (SPL, {len(walks)} x {NAO_WALKS[0][0]} frames)"
@@ -34,7 +35,7 @@ def bench_mcl_nao_accuracy(repeat: int) -> list[Row]:
     # from the placement: every walk evaluated, the figures pooled over their frames
     errors, runtimes, per_walk = [], [], []
     for (_n, seed), inp in zip(NAO_WALKS, walks):
-        out = _work_dir() / f"nao-mcl-default-{seed}.poses.h5"
+        out = work_dir() / f"nao-mcl-default-{seed}.poses.h5"
         localize.main("mcl-default", inp["data"], inp["map"], out, features=inp["features"],
                       overwrite=True)
         cols, _ = read_poses(out)
@@ -43,7 +44,7 @@ def bench_mcl_nao_accuracy(repeat: int) -> list[Row]:
         errors.append(fe.position_error)  # inf where no pose was accepted
         runtimes.append(s["runtime_ms"]["median"])
         per_walk.append(f"seed {seed}: {100 * s['position_error_m']['median']:.1f} cm, "
-                        f"{_pct(s, '0.4')} %")
+                        f"{pct_within(s, '0.4')} %")
     e = np.concatenate(errors)
     med, w40 = float(np.median(e)), float(np.mean(e <= 0.4))
     rows.append(Row(
@@ -56,7 +57,7 @@ def bench_mcl_nao_accuracy(repeat: int) -> list[Row]:
     # from a uniform start: judged by the pair
     folded, high = [], 0
     for (_n, seed), inp in zip(NAO_WALKS, walks):
-        out = _work_dir() / f"nao-mcl-uniform-{seed}.poses.h5"
+        out = work_dir() / f"nao-mcl-uniform-{seed}.poses.h5"
         localize.main("mcl-uniform", inp["data"], inp["map"], out, features=inp["features"],
                       overwrite=True)
         cols, _ = read_poses(out)

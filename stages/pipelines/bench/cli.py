@@ -13,48 +13,12 @@ imports click and exits.
 
 from __future__ import annotations
 
-import math
-import os
 import statistics
-import subprocess
-import sys
-import time
 
-from .bench import Row
+from .harness import BASELINE, CLI, Row, run_child
 
 GOAL_CPU_S, GOAL_RSS_MB = 0.5, 100.0
 COMMANDS = (("fieldloc --help", ["--help"]), ("fieldloc localize --help", ["localize", "--help"]))
-
-# run as `python -c`: report the process's peak resident set (VmHWM) on stderr at exit, then run
-# {code} with the command line's arguments
-_REPORTING = """\
-import atexit, sys
-def _hwm():
-    with open("/proc/self/status") as f:
-        sys.stderr.write(next((l for l in f if l.startswith("VmHWM:")), "VmHWM: nan kB") + "\\n")
-atexit.register(_hwm)
-{code}
-"""
-CLI = _REPORTING.format(code="from fieldloc_cli.main import cli\nsys.exit(cli())")
-BASELINE = _REPORTING.format(code="import click")
-
-
-def run_child(code: str, args: list[str]) -> tuple[float, float, float]:
-    """(wall s, user + sys CPU s, peak resident MB) of one process running ``code`` (one of
-    the above) with ``args``; its stdout is discarded, a non-zero exit is an error."""
-    t = time.perf_counter()
-    p = subprocess.Popen([sys.executable, "-c", code, *args], stdout=subprocess.DEVNULL,
-                         stderr=subprocess.PIPE, text=True)
-    err = p.stderr.read()  # help texts are short: the child never blocks on a full pipe
-    _pid, status, usage = os.wait4(p.pid, 0)
-    wall = time.perf_counter() - t
-    p.returncode = os.waitstatus_to_exitcode(status)  # reaped here: Popen must not wait again
-    p.stderr.close()
-    if p.returncode != 0:
-        raise RuntimeError(f"fieldloc {' '.join(args)} exited with {p.returncode}: {err}")
-    hwm = [line.split()[1] for line in err.splitlines() if line.startswith("VmHWM:")]
-    return wall, usage.ru_utime + usage.ru_stime, float(hwm[-1]) / 1024 if hwm else math.nan
-
 
 def rows(repeat: int) -> list[Row]:
     """One row per command: median wall time and CPU, largest resident set (module doc)."""

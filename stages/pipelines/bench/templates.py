@@ -19,14 +19,17 @@ from pathlib import Path
 
 import numpy as np
 
-from .bench import Row, _work_dir, rendered_inputs
+from .harness import Row, calibration_rows
+from .inputs import (
+    CALIB_SEED,
+    HIDDEN_TEMPLATE_RUN,
+    WORLD_SEED,
+    rendered_inputs,
+    template_inputs,
+    work_dir,
+)
 
-GRID_SPACING = 1.0  # m, the paper's
-CALIB_SEED, WORLD_SEED = 61, 61  # one robot, one venue
-GRID_SEED = 62
-# preset, field, frames, seed; the defaults (ratio, min_pairs, consensus_m) were chosen on
-# the development run of seed 89 (DEVELOPMENT_RUN), never on this one
-HIDDEN_TEMPLATE_RUN = ("omni-default", "msl-2015", 149, 93)
+# the development run the defaults were chosen on (inputs.HIDDEN_TEMPLATE_RUN: the hidden one)
 DEVELOPMENT_RUN = ("omni-default", "msl-2015", 151, 89)
 
 
@@ -35,40 +38,11 @@ CALIBRATION_RUNS = [HIDDEN_TEMPLATE_RUN, ("omni-hard", "msl-2015", 120, 94),
                     ("omni-hard", "msl-2015", 120, 95)]
 
 
-# the speed alternative: a coarser ground image (400 px of 2 cm, +-4 m: 0.56 x the pixels)
-COARSE_GROUND = {"ground": {"size": 400, "metres_per_pixel": 0.02}}
-
-
-def template_inputs(spacing: float = GRID_SPACING) -> dict:
-    """The grid captures, their templates.h5 and the hidden run (built once per bench run)."""
-    from .. import build_templates, simulate
-
-    d = _work_dir() / "templates"
-    d.mkdir(exist_ok=True)
-    preset, field, n, seed = HIDDEN_TEMPLATE_RUN
-    base = {"calib_seed": CALIB_SEED, "world_seed": WORLD_SEED}
-    grid = d / f"grid-{spacing:g}"
-    if not grid.exists():
-        conf = dict(simulate.confs[preset], seed=GRID_SEED, **base)
-        conf["trajectory"] = {**conf["trajectory"], "kind": "grid", "grid_spacing": spacing}
-        simulate.main(conf, field, grid)
-    db = d / f"templates-{spacing:g}.h5"
-    if not db.exists():
-        build_templates.main(None, grid, db)
-    coarse = d / f"templates-{spacing:g}-coarse.h5"
-    if not coarse.exists():
-        build_templates.main(COARSE_GROUND, grid, coarse)
-    run = d / f"run-{seed}"
-    if not run.exists():
-        simulate.main(dict(simulate.confs[preset], frames=n, seed=seed, **base), field, run)
-    return {"grid": grid, "templates": db, "coarse": coarse, "run": run}
-
-
 def calibration_run(preset: str, field: str, frames: int, seed: int) -> Path:
     """A rendered run of the templates' robot and venue (built once per bench run)."""
-    from .. import simulate
+    from ... import simulate
 
-    run = _work_dir() / "templates" / f"run-{preset}-{seed}"
+    run = work_dir() / "templates" / f"run-{preset}-{seed}"
     if not run.exists():
         simulate.main(dict(simulate.confs[preset], frames=frames, seed=seed,
                            calib_seed=CALIB_SEED, world_seed=WORLD_SEED), field, run)
@@ -77,11 +51,10 @@ def calibration_run(preset: str, field: str, frames: int, seed: int) -> Path:
 
 def bench_templates_calibration(repeat: int) -> list[Row]:
     """The templates method's confidence against its errors (as lut's and mcl's,
-    bench_hypotheses.calibration_rows): the hidden run and two omni-hard runs."""
+    harness.calibration_rows): the hidden run and two omni-hard runs."""
     import time
 
-    from .. import localize
-    from .bench_hypotheses import calibration_rows
+    from ... import localize
 
     inp = template_inputs()
     runs = []
@@ -89,7 +62,7 @@ def bench_templates_calibration(repeat: int) -> list[Row]:
     for preset, field, n, seed in CALIBRATION_RUNS:
         run = inp["run"] if (preset, field, n, seed) == HIDDEN_TEMPLATE_RUN else \
             calibration_run(preset, field, n, seed)
-        out = _work_dir() / "templates" / f"cal-{preset}-{seed}.poses.h5"
+        out = work_dir() / "templates" / f"cal-{preset}-{seed}.poses.h5"
         localize.main({"method": "templates"}, run, None, out, templates=inp["templates"],
                       overwrite=True)
         runs.append((out, run))
@@ -104,12 +77,12 @@ def frame_times(templates: Path, run: Path, frames: int = 60) -> tuple[float, fl
     so it is what the frame costs whatever else the machine runs."""
     import time
 
-    from ..common.dataset import open_dataset, read_image
-    from ..common.field import load_field
-    from ..common.templates import read_templates
-    from ..localize import heading as heading_mod
-    from ..localize import templates as method
-    from ..localize.motion_model import accumulate_odometry
+    from ...common.dataset import open_dataset, read_image
+    from ...common.field import load_field
+    from ...common.templates import read_templates
+    from ...localize import heading as heading_mod
+    from ...localize import templates as method
+    from ...localize.motion_model import accumulate_odometry
 
     db = read_templates(templates)
     ds = open_dataset(run)
@@ -135,9 +108,9 @@ def frame_times(templates: Path, run: Path, frames: int = 60) -> tuple[float, fl
 
 
 def _figures(poses: Path, run: Path) -> dict:
-    from ..common.dataset import read_csv
-    from ..common.poses_file import read_poses
-    from ..evaluate.metrics import frame_errors
+    from ...common.dataset import read_csv
+    from ...common.poses_file import read_poses
+    from ...evaluate.metrics import frame_errors
 
     cols, attrs = read_poses(poses)
     fe = frame_errors(cols, read_csv(run / "truth.csv", "truth"), 0.02)
@@ -146,7 +119,7 @@ def _figures(poses: Path, run: Path) -> dict:
 
     meta = attrs.get("method_report", "{}")
     meta = json.loads(meta.decode() if isinstance(meta, bytes) else meta)
-    from ..common.geometry import wrap_angle
+    from ...common.geometry import wrap_angle
 
     dth = np.abs(wrap_angle(np.asarray(fe.theta, float) - np.asarray(fe.truth_theta, float)))
     return {  # the pose of every frame with one, accepted or not
@@ -168,13 +141,13 @@ def _figures(poses: Path, run: Path) -> dict:
 
 def bench_templates(repeat: int) -> list[Row]:
     """Issue 11's accuracy, speed and size rows (module doc)."""
-    from .. import localize
+    from ... import localize
 
     inp = template_inputs()
     preset, field, n, seed = HIDDEN_TEMPLATE_RUN
     out = {}
     for solver in ("descent", "closed-form"):
-        p = _work_dir() / "templates" / f"poses-{solver}.h5"
+        p = work_dir() / "templates" / f"poses-{solver}.h5"
         localize.main({"method": "templates", "pose_solver": solver}, inp["run"], None, p,
                       templates=inp["templates"], overwrite=True)
         out[solver] = _figures(p, inp["run"])
@@ -184,11 +157,11 @@ def bench_templates(repeat: int) -> list[Row]:
              if both.any() else math.nan)
     map_mb = rendered_inputs("omni", field, 20, 3)["map"].stat().st_size / 1e6
     db_mb = Path(inp["templates"]).stat().st_size / 1e6
-    from ..common.templates import read_templates
+    from ...common.templates import read_templates
 
     db = read_templates(inp["templates"])
     wall, cpu = frame_times(inp["templates"], inp["run"])
-    pc = _work_dir() / "templates" / "poses-coarse.h5"
+    pc = work_dir() / "templates" / "poses-coarse.h5"
     localize.main({"method": "templates"}, inp["run"], None, pc, templates=inp["coarse"],
                   overwrite=True)
     co = _figures(pc, inp["run"])

@@ -25,7 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .bench import Row, _ms, _work_dir, rendered_inputs
+from .harness import Row, msec
+from .inputs import rendered_inputs, work_dir
 
 SETS = [("omni-default", "msl-2015", 100, s) for s in (41, 42, 43, 44)]
 HEADINGS = ("imu", "histogram")
@@ -35,16 +36,16 @@ def _run(method: str, heading: str, inp: dict, tag: str):
     """(position errors of the matched frames, failed inf; failed flags; runtimes s; modes;
     flags) of one localize run. Without the IMU the field's symmetry is resolved as a team
     does, by the half the robot starts in (``start_half`` from the truth's first frame)."""
-    from .. import localize
-    from ..common.dataset import read_csv
-    from ..common.poses_file import read_poses
-    from ..evaluate.metrics import frame_errors
+    from ... import localize
+    from ...common.dataset import read_csv
+    from ...common.poses_file import read_poses
+    from ...evaluate.metrics import frame_errors
 
     truth = read_csv(Path(inp["data"]) / "truth.csv", "truth")
     conf = {"method": method, "heading": heading}
     if heading == "histogram":
         conf["start_half"] = "own" if truth["x"][0] < 0 else "opponent"
-    out = _work_dir() / f"fit-bench-{method}-{heading}-{tag}.poses.h5"
+    out = work_dir() / f"fit-bench-{method}-{heading}-{tag}.poses.h5"
     localize.main(conf, inp["data"], inp["map"], out, features=inp["features"],
                   overwrite=True)
     cols, _ = read_poses(out)
@@ -103,12 +104,12 @@ def bench_fit_accuracy(repeat: int) -> list[Row]:
 
 
 def bench_fit_tracked(repeat: int) -> Row:
-    from ..common.dataset import read_csv
-    from ..common.features_file import FeaturesFile
-    from ..common.map_file import MapFile
-    from ..localize import fit as fit_mod
-    from ..localize import lut
-    from ..localize.lut_search import MatchingParams, Observation
+    from ...common.dataset import read_csv
+    from ...common.features_file import FeaturesFile
+    from ...common.map_file import MapFile
+    from ...localize import fit as fit_mod
+    from ...localize import lut
+    from ...localize.lut_search import MatchingParams, Observation
 
     preset, field, n, seed = SETS[0]
     inp = rendered_inputs("omni", field, n, seed, preset)
@@ -146,16 +147,16 @@ def bench_fit_tracked(repeat: int) -> Row:
             a.append(statistics.median(ta))
             b.append(statistics.median(tb))
             pts.append(len(obs))
-    med = _ms(a)
+    med = msec(a)
     return Row(name="fit tracked fit, RPROP from the prior (msl-2015, omni-default, IMU)",
                median_ms=med, goal="<= 0.25 ms", meets_goal=med <= 0.25,
-               baseline="lut's local search from the same prior", baseline_ms=_ms(b),
-               ratio=med / _ms(b), repeats=repeat,
+               baseline="lut's local search from the same prior", baseline_ms=msec(b),
+               ratio=med / msec(b), repeats=repeat,
                note=f"{len(a)} frames, median {statistics.median(pts):.0f} line points; the"
                     f" whole tracked frame of fit (fit, null, fusion, hypotheses): median"
                     f" {statistics.median(whole):.2f} ms over {len(whole)} frames")
 
 
 def rows(repeat: int) -> list[Row]:
-    """The rows of method fit, in order (``ROWS["fit"]`` of bench.py)."""
+    """The rows of method fit, in order (``ROWS["fit"]`` of stages.pipelines.bench)."""
     return bench_fit_accuracy(repeat) + [bench_fit_tracked(repeat)]

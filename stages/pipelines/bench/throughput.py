@@ -20,9 +20,9 @@ whether that cost grows linearly with the frames and with the field.
   (its length and width times sqrt 2, written as a field YAML), against the ratio of their
   table cells (the 10 cm grid around each field).
 
-The omni datasets are rendered by one robot in one venue (bench_templates' calib and world
-seeds), so the template database of bench_templates serves them; each size is rendered once
-per bench run.
+The omni datasets are rendered by one robot in one venue (the template robot's calib and world
+seeds, bench.inputs), so the template database of bench.templates serves them; each size is
+rendered once per bench run.
 """
 
 from __future__ import annotations
@@ -35,7 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .bench import _INPUTS, Row, _work_dir
+from .harness import Row
+from .inputs import INPUTS, work_dir
 
 THROUGHPUT_FRAMES = 400
 LINEAR_FRAMES = (100, 400, 1600)
@@ -57,9 +58,9 @@ def double_msl_field() -> Path:
     areas, circle, goals and line width as msl's), written once per bench run."""
     import yaml
 
-    from ..common.field import MAPS_DIR
+    from ...common.field import MAPS_DIR
 
-    path = _work_dir() / "msl-double.yaml"
+    path = work_dir() / "msl-double.yaml"
     if not path.exists():
         spec = yaml.safe_load((MAPS_DIR / "msl.yaml").read_text())
         spec["name"] = "msl-double"
@@ -76,35 +77,35 @@ def _field_arg(field: str) -> str:
 
 def field_map(field: str) -> Path:
     """The map of ``field`` (a preset name or "msl-double"), built once per bench run, at the
-    path bench.rendered_inputs uses for presets (so the rows share it)."""
-    from .. import build_map
+    path inputs.rendered_inputs uses for presets (so the rows share it)."""
+    from ... import build_map
 
-    mp = _work_dir() / f"{field}.map.h5"
+    mp = work_dir() / f"{field}.map.h5"
     if not mp.exists():
         build_map.main(None, _field_arg(field), mp)
     return mp
 
 
 def rendered_run(kind: str, field: str, frames: int, seed: int = SEED) -> Path:
-    """A rendered dataset of ``kind`` (omni: bench_templates' robot and venue) without a
+    """A rendered dataset of ``kind`` (omni: the template robot and venue) without a
     features file, built once per bench run."""
     key = ("throughput", kind, field, frames, seed)
-    if key not in _INPUTS:
-        from .. import simulate
-        from .bench_templates import CALIB_SEED, WORLD_SEED
+    if key not in INPUTS:
+        from ... import simulate
+        from .inputs import CALIB_SEED, WORLD_SEED
 
         conf = dict(simulate.confs[f"{kind}-default"], frames=frames, seed=seed)
         if kind == "omni":
             conf.update(calib_seed=CALIB_SEED, world_seed=WORLD_SEED)
-        _INPUTS[key] = simulate.main(conf, _field_arg(field),
-                                     _work_dir() / f"throughput-{kind}-{field}-{frames}-{seed}")
-    return _INPUTS[key]
+        INPUTS[key] = simulate.main(conf, _field_arg(field),
+                                     work_dir() / f"throughput-{kind}-{field}-{frames}-{seed}")
+    return INPUTS[key]
 
 
 def cli_conf(method: str) -> dict:
     """The conf `fieldloc localize --method METHOD` runs with no other option."""
-    from .. import localize
-    from ..common.conf import resolve_conf
+    from ... import localize
+    from ...common.conf import resolve_conf
 
     return resolve_conf(localize.confs, localize.preset_name(method, "default"), {})
 
@@ -117,7 +118,7 @@ def images_to_poses(method: str, data: Path, map_path: Path | None, out_dir: Pat
     """(wall s, extract CPU s, localize CPU s) of one run of ``data`` to poses with
     ``method``'s CLI defaults: stages.extract.main into a fresh features file, then
     stages.localize.main on it (templates: stages.localize.main on the images)."""
-    from .. import extract, localize
+    from ... import extract, localize
 
     conf = cli_conf(method)
     out = out_dir / f"{data.name}-{method}.poses.h5"
@@ -146,7 +147,7 @@ def timed_runs(run, runs: int) -> dict:
 def decode_cpu_s(data: Path) -> float:
     """CPU seconds to read and decode every image of ``data`` (the floor of any pipeline
     that starts from the image files)."""
-    from ..common.dataset import open_dataset, read_image
+    from ...common.dataset import open_dataset, read_image
 
     paths = open_dataset(data).images
     c = time.process_time()
@@ -156,7 +157,7 @@ def decode_cpu_s(data: Path) -> float:
 
 
 def _out_dir(name: str) -> Path:
-    d = _work_dir() / "throughput" / name
+    d = work_dir() / "throughput" / name
     d.mkdir(parents=True, exist_ok=True)
     return d
 
@@ -173,7 +174,7 @@ def throughput_rows(repeat: int, frames: int = THROUGHPUT_FRAMES,
         data = rendered_run(kind, field, frames)
         templates = None
         if method == "templates":
-            from .bench_templates import template_inputs
+            from .inputs import template_inputs
 
             templates = template_inputs()["templates"]
         mp = None if method == "templates" else field_map(field)
@@ -210,22 +211,21 @@ def startup_row(repeat: int, method: str = "lut") -> Row:
     """``fieldloc -q localize DIR --map MAP --method METHOD`` of a one-frame dataset (extract
     + ``method``) in its own process, warm (bytecode compiled, numba and lookup caches written
     by a first run), against ``python -c pass``, interleaved."""
-    from ..common.poses_file import read_poses
-    from .bench_batch import _warm_bytecode
-    from .bench_cli import _REPORTING, CLI, run_child
+    from ...common.poses_file import read_poses
+    from .harness import CLI, REPORTING, run_child, warm_bytecode
 
     data, mp = _one_frame_dataset(), field_map("msl-2015")
     out = _out_dir("startup") / "poses.h5"
     args = ["-q", "localize", str(data), "--map", str(mp), "--method", method, "-o", str(out),
             "--overwrite"]
-    nothing = _REPORTING.format(code="pass")
+    nothing = REPORTING.format(code="pass")
 
     def localize_once():
         # extracted again each run: the command resumes a features file it finds
         (out.with_name(out.stem + ".features.h5")).unlink(missing_ok=True)
         return run_child(CLI, args)
 
-    _warm_bytecode()
+    warm_bytecode()
     localize_once()
     run_child(nothing, [])
     runs, base, frame = [], [], []
@@ -280,8 +280,8 @@ def frames_row(repeat: int, sizes=LINEAR_FRAMES, method: str = "lut") -> Row:
 
 def table_cells(field: str) -> int:
     """Cells of the 10 cm grid around ``field`` (1 m margin): what lut's tables hold."""
-    from ..common.field import load_field
-    from ..common.map_file import Grid
+    from ...common.field import load_field
+    from ...common.map_file import Grid
 
     return int(np.prod(Grid.around(load_field(_field_arg(field)), 1.0, 0.1).shape))
 
@@ -289,7 +289,7 @@ def table_cells(field: str) -> int:
 def _localize_rss(data: Path, features: Path, mp: Path, out: Path,
                   method: str) -> tuple[float, float]:
     """(CPU s, peak resident MB) of one ``fieldloc -q localize --features`` process."""
-    from .bench_cli import CLI, run_child
+    from .harness import CLI, run_child
 
     _wall, cpu, rss = run_child(CLI, ["-q", "localize", str(data), "--map", str(mp),
                                       "--features", str(features), "--method", method,
@@ -303,7 +303,7 @@ def area_rows(repeat: int, fields=AREA_FIELDS, frames: int = AREA_FRAMES,
     """Per field of ``fields``: ``method``'s localize CPU per frame (in this process, warm) and the
     peak resident set of a localize process on the same features (warm lookup cache), each
     against the first field's as a ratio beside the ratio of their table cells."""
-    from .. import extract, localize
+    from ... import extract, localize
 
     conf = cli_conf(method)
     per = {}

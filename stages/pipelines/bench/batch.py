@@ -1,5 +1,5 @@
 """Bench rows of the batch runner (stages.pipelines.batch) and of the table search's lookup
-cache (stages.localize.lookup_cache), registered in bench.ROWS:
+cache (stages.localize.lookup_cache), registered in stages.pipelines.bench.ROWS:
 
 - ``bench_batch_throughput``: one grid of 8 lut runs (4 rendered msl-2015 datasets x lut on
   independent frames with two heading sources; features and map made beforehand) run by the
@@ -34,7 +34,8 @@ from pathlib import Path
 
 import yaml
 
-from .bench import Row, _work_dir, rendered_inputs
+from .harness import Row, warm_bytecode
+from .inputs import rendered_inputs, work_dir
 
 
 def _spec(folder: Path, datasets: list[Path], map_path: Path, methods) -> Path:
@@ -48,9 +49,9 @@ def _spec(folder: Path, datasets: list[Path], map_path: Path, methods) -> Path:
 
 def _warm(map_path: Path) -> None:
     """The map's lookup cache written (as a first run would)."""
-    from ..common.map_file import MapFile
-    from ..localize import lut
-    from ..localize.lut_search import MatchingParams
+    from ...common.map_file import MapFile
+    from ...localize import lut
+    from ...localize.lut_search import MatchingParams
 
     with MapFile(map_path) as mf:
         lut.table_search(mf, MatchingParams.from_conf(lut.confs["default"]["search"]))
@@ -59,13 +60,13 @@ def _warm(map_path: Path) -> None:
 def bench_batch_throughput(repeat: int) -> Row:
     from dask.distributed import LocalCluster
 
-    from . import batch
+    from .. import batch
 
     frames = 120
     inputs = [rendered_inputs("omni", "msl-2015", frames, 21 + k) for k in range(4)]
     map_path = inputs[0]["map"]
     _warm(map_path)
-    work = _work_dir() / "batch-throughput"
+    work = work_dir() / "batch-throughput"
     methods = ["lut-independent", {"name": "lut-independent-histogram", "method": "lut",
                                    "conf": {"independent": True, "heading": "histogram"}}]
     spec = _spec(work, [Path(i["data"]) for i in inputs], map_path, methods)
@@ -100,8 +101,8 @@ def bench_batch_throughput(repeat: int) -> Row:
     gain = one_s / two_s
     # the datasets' CDF pictures, which the workers draw beside the runs: timed here on the
     # same results with the same function
-    from ..common.batch_file import load_batch
-    from ..show import comparison
+    from ...common.batch_file import load_batch
+    from ...show import comparison
 
     res = work / "results-1"
     index = load_batch(res)
@@ -129,18 +130,6 @@ def bench_batch_throughput(repeat: int) -> Row:
              f" {os.cpu_count()} cores shared with other work")
 
 
-def _warm_bytecode() -> None:
-    """Python's bytecode of fieldloc's own modules, compiled as an import would write it. A
-    process started with PYTHONDONTWRITEBYTECODE (as on this machine) never writes it, so
-    every start would compile fieldloc's sources again (about 0.1 s of a lut run's start);
-    ``make install`` compiles them once, and so does this row, for a warm start."""
-    import compileall
-
-    root = Path(__file__).resolve().parents[2]
-    for package in ("stages", "fieldloc_cli"):
-        compileall.compile_dir(str(root / package), quiet=1)
-
-
 def _one_frame_dataset() -> dict:
     """A one-frame omni dataset on msl-2015 with its features and the map (bench inputs)."""
     return rendered_inputs("omni", "msl-2015", 1, 31)
@@ -149,7 +138,7 @@ def _one_frame_dataset() -> dict:
 def _cli_localize(inp: dict, out: Path) -> tuple[float, float, float]:
     """(wall s, CPU s of the process, the frame's recorded runtime s) of one
     ``fieldloc -q localize`` process."""
-    from ..common.poses_file import read_poses
+    from ...common.poses_file import read_poses
 
     exe = Path(sys.executable).with_name("fieldloc")
     cmd = [str(exe), "-q", "localize", str(inp["data"]), "--map", str(inp["map"]),
@@ -165,11 +154,11 @@ def _cli_localize(inp: dict, out: Path) -> tuple[float, float, float]:
 
 
 def bench_first_frame(repeat: int) -> Row:
-    from ..localize.lookup_cache import cache_folder
+    from ...localize.lookup_cache import cache_folder
 
     inp = _one_frame_dataset()
-    out = _work_dir() / "first-frame.poses.h5"
-    _warm_bytecode()
+    out = work_dir() / "first-frame.poses.h5"
+    warm_bytecode()
     _cli_localize(inp, out)  # the numba caches and the lookup cache warm
     warm, warm_cpu, cold = [], [], []
     for _ in range(max(1, repeat)):
@@ -201,16 +190,16 @@ def _worker_peak_mb() -> float:
 def bench_worker_memory(repeat: int) -> Row:
     from dask.distributed import Client, LocalCluster
 
-    from . import batch
-    from .batch_spec import read_spec
+    from .. import batch
+    from ..batch_spec import read_spec
 
     inputs = [rendered_inputs("omni", "msl", 20, 41 + k) for k in range(2)]
     map_path = inputs[0]["map"]
     _warm(map_path)
-    from ..localize.lookup_cache import cache_folder
+    from ...localize.lookup_cache import cache_folder
 
     lookup_mb = sum(p.stat().st_size for p in cache_folder(map_path).glob("*.npy")) / 2**20
-    work = _work_dir() / "batch-memory"
+    work = work_dir() / "batch-memory"
     spec = _spec(work, [Path(i["data"]) for i in inputs], map_path, ["lut", "lut-no-fusion"])
     plan = read_spec(spec, work / "results")
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,

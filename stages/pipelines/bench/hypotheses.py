@@ -12,8 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .bench import Row, _ms, _work_dir, rendered_inputs
-from .realdata import REALDATA
+from ..realdata import REALDATA
+from .harness import Row, calibration_rows, msec, run_errors
+from .inputs import rendered_inputs, work_dir
 
 # rendered calibration sets: (simulate preset, field, frames, seed, lut conf), 20 of each
 # omni preset with the IMU heading, from seeds 1100-1119: a range no default was tuned on
@@ -25,24 +26,15 @@ CALIBRATION_SETS = [
 HIDDEN_RUN = ("omni-default", "msl-2015", 137, 97)
 
 
-def _errors(poses_path: Path, data: Path):
-    from ..common.dataset import read_csv
-    from ..common.poses_file import read_poses
-    from ..evaluate.metrics import frame_errors
-
-    cols, _ = read_poses(poses_path)
-    return frame_errors(cols, read_csv(data / "truth.csv", "truth"), 0.02), cols
-
-
 def bench_lut_tracked_frame(repeat: int) -> list[Row]:
     """Issue 7: a tracked frame, all of it (observations, heading, search, support,
     hypotheses, fusion) <= 0.3 ms median; frames with a periodic global check are reported
     apart. Baseline: Ribeiro et al.'s local search alone on the same frames."""
-    from ..common.dataset import open_dataset
-    from ..common.features_file import FeaturesFile
-    from ..common.map_file import MapFile
-    from ..localize import lut
-    from ..localize.lut_search import MatchingParams, Observation
+    from ...common.dataset import open_dataset
+    from ...common.features_file import FeaturesFile
+    from ...common.map_file import MapFile
+    from ...localize import lut
+    from ...localize.lut_search import MatchingParams, Observation
 
     inp = rendered_inputs("omni", "msl-2015", 100, 1)
     conf = dict(lut.confs["tracks"], heading="imu")
@@ -84,19 +76,19 @@ def bench_lut_tracked_frame(repeat: int) -> list[Row]:
             search.local_search(obs, th, (x + 0.1, y - 0.1), half_width=0.5 * conf["window"])
             ts.append(time.perf_counter() - t)
         loc.append(statistics.median(ts))
-    med = _ms(tracked)
+    med = msec(tracked)
     rows = [Row(name="lut tracked frame, all of it (msl-2015, omni-default, IMU)",
                 median_ms=med, goal="<= 0.3 ms", meets_goal=med <= 0.3,
-                baseline="Ribeiro et al.'s local search alone", baseline_ms=_ms(loc),
-                ratio=med / _ms(loc), repeats=repeat,
+                baseline="Ribeiro et al.'s local search alone", baseline_ms=msec(loc),
+                ratio=med / msec(loc), repeats=repeat,
                 note=f"{len(tracked)} tracked frames; {len(checked)} frames with a global"
-                     f" check beside the tracks: median {_ms(checked):.2f} ms")]
+                     f" check beside the tracks: median {msec(checked):.2f} ms")]
     # the whole-field belief (--preset grid) on the same frames
     grid_conf = dict(lut.confs["grid"], heading="imu")
     lut.run(grid_conf, ds, InMemory(), mf)
     grid = [lut.run(grid_conf, ds, InMemory(), mf) for _ in range(max(1, repeat))]
     per = [statistics.median(g.runtime[i] for g in grid) for i in range(len(names))]
-    gmed, all_tracks = _ms(per), _ms(tracked + checked)
+    gmed, all_tracks = msec(per), msec(tracked + checked)
     rows.append(Row(name="lut frame, whole-field belief (msl-2015, omni-default, IMU, grid)",
                     median_ms=gmed, goal="<= 2x a tracks frame", meets_goal=gmed <= 2 * all_tracks,
                     baseline="the tracks' frames (with and without a global check)",
@@ -106,58 +98,17 @@ def bench_lut_tracked_frame(repeat: int) -> list[Row]:
 
 
 def _calibration_rows(method: str, sets, label: str) -> list[Row]:
-    from .. import localize
+    from ... import localize
 
     runs = []
     t0 = time.perf_counter()
     for preset, field, n, seed, conf in sets:
         inp = rendered_inputs(preset.split("-")[0], field, n, seed, preset)
-        out = _work_dir() / f"cal-{method}-{preset}-{seed}-{conf.get('init', '')}.poses.h5"
+        out = work_dir() / f"cal-{method}-{preset}-{seed}-{conf.get('init', '')}.poses.h5"
         localize.main({"method": method, **conf}, inp["data"], inp["map"], out,
                       features=inp["features"], overwrite=True)
         runs.append((out, Path(inp["data"])))
     return calibration_rows(method, runs, label, time.perf_counter() - t0)
-
-
-def calibration_rows(method: str, runs, label: str, seconds: float) -> list[Row]:
-    """The reliability of a method's confidence over localised rendered runs ``runs`` ((poses
-    file, dataset folder) pairs): AUROC and reliability table of "top hypothesis within 40 cm"
-    (a failed frame has confidence 0), and the frames accepted while more than 1 m off."""
-    from ..evaluate.metrics import auroc, reliability
-
-    conf_all, ok_all, rows, frames = [], [], [], 0
-    wrong = not_acc = within = 0
-    for out, data in runs:
-        fe, _cols = _errors(out, data)
-        sel = fe.matched & ~fe.failed
-        conf_all.append(np.where(sel, fe.confidence, 0.0)[fe.matched])
-        ok_all.append((fe.top_error <= 0.4)[fe.matched])
-        frames += int(fe.matched.sum())
-        wrong += int(np.sum(fe.matched & fe.accepted & (fe.top_error > 1.0)))
-        not_acc += int(np.sum(fe.matched & ~fe.accepted))
-        within += int(np.sum(fe.matched & (fe.position_error <= 0.4)))
-    c, ok = np.concatenate(conf_all), np.concatenate(ok_all)
-    table = reliability(c, ok)
-    big = [r for r in table if r["frames"] >= 20]
-    gap = max((abs(r["observed"] - r["confidence"]) for r in big), default=math.nan)
-    a = auroc(c, ok)
-    rel = "; ".join(f"{r['bin'][0]:.1f}-{r['bin'][1]:.1f}: {r['frames']} frames,"
-                    f" {r['confidence']:.2f} -> {r['observed']:.2f}" for r in table)
-    rows.append(Row(
-        name=f"{method} confidence calibration, {label}", median_ms=math.nan,
-        goal="AUROC >= 0.95; per bin |observed - confidence| <= 0.1",
-        meets_goal=bool(a >= 0.95 and gap <= 0.1), repeats=1,
-        note=f"{len(runs)} sets, {frames} frames, {seconds:.0f} s; AUROC"
-             f" {a:.3f}; largest gap {gap:.2f} over bins of >= 20 frames; {rel}",
-        extra={"reliability": table, "auroc": a}))
-    share = wrong / max(frames, 1)
-    rows.append(Row(
-        name=f"{method} frames confidently wrong, {label}", median_ms=math.nan,
-        goal="<= 1 % accepted and > 1 m off", meets_goal=share <= 0.01, repeats=1,
-        note=f"{wrong} of {frames} frames ({100 * share:.2f} %); not accepted"
-             f" {100 * not_acc / max(frames, 1):.1f} %; within 40 cm counting those"
-             f" {100 * within / max(frames, 1):.1f} %"))
-    return rows
 
 
 def bench_lut_calibration(repeat: int) -> list[Row]:
@@ -179,8 +130,8 @@ def _mirror_rows(sets) -> list[Row]:
     """Without an IMU (histogram heading): with start_half given (from the truth's first
     frame), frames on the mirror pose; with start_half any, the mirror as the second
     hypothesis and flips of the track between the two."""
-    from .. import localize
-    from ..common.dataset import read_csv
+    from ... import localize
+    from ...common.dataset import read_csv
 
     on_mirror = second = flips = frames = 0
     for preset, field, n, seed, conf in sets:
@@ -189,10 +140,10 @@ def _mirror_rows(sets) -> list[Row]:
         for half in ("given", "any"):
             c = dict(conf, start_half=("own" if t["x"][0] < 0 else "opponent")
                      if half == "given" else "any")
-            out = _work_dir() / f"mirror-{preset}-{seed}-{half}.poses.h5"
+            out = work_dir() / f"mirror-{preset}-{seed}-{half}.poses.h5"
             localize.main({"method": "lut", **c}, inp["data"], inp["map"], out,
                           features=inp["features"], overwrite=True)
-            fe, cols = _errors(out, Path(inp["data"]))
+            fe, cols = run_errors(out, Path(inp["data"]))
             if half == "given":
                 on_mirror += int(np.sum(fe.top_mirrored))
                 frames += len(fe)
@@ -216,17 +167,17 @@ def bench_mcl_calibration(repeat: int) -> list[Row]:
     """mcl's confidence from the game's placement, and from a uniform start: there the belief
     holds a pose and its mirror image at 0.5 each (which of the two is listed first is the
     filter's choice, the same for the whole walk), so it is judged by the pair."""
-    from .. import localize
+    from ... import localize
 
     sets = [("perspective-default", "kidsize", 150, s, {"init": "placement"}) for s in (41, 42)]
     rows = _calibration_rows("mcl", sets, "rendered KidSize walks from the placement")
     pair = frames = high = 0
     for _p, field, n, seed, _c in sets:
         inp = rendered_inputs("perspective", field, n, seed, "perspective-default")
-        out = _work_dir() / f"cal-mcl-uniform-{seed}.poses.h5"
+        out = work_dir() / f"cal-mcl-uniform-{seed}.poses.h5"
         localize.main({"method": "mcl", "init": "uniform"}, inp["data"], inp["map"], out,
                       features=inp["features"], overwrite=True)
-        fe, _cols = _errors(out, Path(inp["data"]))
+        fe, _cols = run_errors(out, Path(inp["data"]))
         late = np.arange(len(fe)) >= 20  # after the belief has gathered
         pair += int(np.sum(late & (fe.best_error <= 0.4)))
         high += int(np.sum(late & fe.accepted & (fe.top_error > 1.0)))
@@ -242,14 +193,14 @@ def bench_mcl_calibration(repeat: int) -> list[Row]:
 def bench_lut_hidden(repeat: int) -> Row:
     """Issue 7: a rendered run of a seed and length no test uses (omni-default, IMU heading):
     <= 3 % of frames without an accepted pose, >= 97 % within 40 cm counting them."""
-    from .. import localize
+    from ... import localize
 
     preset, field, n, seed = HIDDEN_RUN
     inp = rendered_inputs("omni", field, n, seed, preset)
-    out = _work_dir() / "hidden.poses.h5"
+    out = work_dir() / "hidden.poses.h5"
     localize.main({"method": "lut", "heading": "imu"}, inp["data"], inp["map"], out,
                   features=inp["features"], overwrite=True)
-    fe, _ = _errors(out, Path(inp["data"]))
+    fe, _ = run_errors(out, Path(inp["data"]))
     no = float(np.mean(~fe.accepted))
     w40 = float(np.mean(fe.position_error <= 0.4))
     med = float(np.median(fe.top_error[~fe.failed])) if (~fe.failed).any() else math.nan
@@ -265,9 +216,9 @@ def bench_real(repeat: int) -> list[Row]:
     (stages.pipelines.realdata), when ../shared/realdata is present."""
     if not REALDATA.exists():
         return [Row(name="real data (minho-lab)", note=f"skipped: {REALDATA} is absent")]
-    from .realdata import minho_lab
+    from ..realdata import minho_lab
 
-    r = minho_lab(REALDATA, _work_dir() / "realdata")
+    r = minho_lab(REALDATA, work_dir() / "realdata")
     per = ", ".join(f"{n} {v['share']:.2f}/{v['null']:.2f}" for n, v in r["rows"].items())
     return [
         Row(name="minho-lab images with a pose (independent, histogram heading)",

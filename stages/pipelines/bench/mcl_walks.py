@@ -24,7 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .bench import Row, _work_dir, rendered_inputs
+from .harness import Row
+from .inputs import rendered_inputs, work_dir
 
 # held-out walks: seeds 1300-1319 of each preset (the defaults were chosen on seeds 0-999)
 WALK_SEEDS = tuple(range(1300, 1320))
@@ -39,17 +40,17 @@ IMU_SIGMA = 0.2  # rad: imu_heading_sigma of the rows with the IMU heading (docs
 
 def _run(preset: str, field: str, seed: int, conf: dict, tag: str):
     """(frame errors, frame errors up to the mirror, CPU s) of mcl on one held-out walk."""
-    from .. import localize
-    from ..common.dataset import read_csv
-    from ..common.poses_file import read_poses
-    from ..evaluate.metrics import frame_errors
+    from ... import localize
+    from ...common.dataset import read_csv
+    from ...common.poses_file import read_poses
+    from ...evaluate.metrics import frame_errors
 
     inp = rendered_inputs("perspective", field, WALK_FRAMES, seed, preset)
     truth = read_csv(Path(inp["data"]) / "truth.csv", "truth")
     conf = dict(conf, method="mcl")
     if conf.get("start_half") == "given":
         conf["start_half"] = "own" if truth["x"][0] < 0 else "opponent"
-    out = _work_dir() / f"walk-mcl-{preset}-{seed}-{tag}.poses.h5"
+    out = work_dir() / f"walk-mcl-{preset}-{seed}-{tag}.poses.h5"
     t0 = time.process_time()
     localize.main(conf, inp["data"], inp["map"], out, features=inp["features"],
                   overwrite=True)
@@ -60,7 +61,7 @@ def _run(preset: str, field: str, seed: int, conf: dict, tag: str):
 
 
 def _pooled(runs, first: int, mirror: bool) -> dict:
-    from ..evaluate.metrics import auroc
+    from ...evaluate.metrics import auroc
 
     ok, per_walk, err, wrong, conf, right = [], [], [], [], [], []
     for fe, fm, _cpu in runs:

@@ -20,12 +20,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..common.artifacts import atomic_path
-from ..common.geometry import wrap_scalar
-from ..localize.place_search import best_places, same_place
-from ..localize.symmetry import confidence_up_to_mirror
-from .bench import Row
-from .realdata import REALDATA
+from ...common.artifacts import atomic_path
+from ...common.geometry import wrap_scalar
+from ...localize.place_search import best_places, same_place
+from ...localize.symmetry import confidence_up_to_mirror
+from ..realdata import REALDATA
+from .harness import Row
 
 HULKS = REALDATA / "hulks-goalbox-labels" / "measurements"
 # captures whose goal-area front and side labels are swapped (the folder's SOURCE.txt)
@@ -60,8 +60,8 @@ def label_pose(capture: Path, field) -> np.ndarray | None:
     (evaluate.hulks_labels.field_pose_from_labels, the labels projected to the floor with the
     capture's camera). None where a label point lies above the horizon or the lines do not
     meet."""
-    from ..calibrate import hulks
-    from ..evaluate.hulks_labels import field_pose_from_labels, read_labels
+    from ...calibrate import hulks
+    from ...evaluate.hulks_labels import field_pose_from_labels, read_labels
 
     camera = hulks.read_frame(capture).camera
     floor = {k: np.asarray(camera.pixel_to_floor(px), float)
@@ -76,7 +76,7 @@ def still_dataset(capture: Path, out: Path, updates: int = STILL_UPDATES) -> Pat
     (images/, frames.csv STILL_DT apart), odometry.csv of zero increments and calib.yaml from
     the capture's camera matrix (calibrate's HULKs import with its defaults, as ``fieldloc
     calibrate perspective --from-hulks FILE.json -o DIR/calib.yaml``)."""
-    from ..calibrate import hulks
+    from ...calibrate import hulks
 
     capture = Path(capture)
     image = next(capture.with_suffix(s) for s in hulks.IMAGE_SUFFIXES
@@ -131,11 +131,11 @@ def localise_still(capture: Path, map_file: Path, work: Path, field, model,
     the CLI's defaults, mcl from a uniform start), judged against its labels' pose; None when
     the labels give no pose. ``model``: an mcl observation model (its ``usable`` says which
     observations count for the goal's condition)."""
-    from .. import extract, localize
-    from ..common.camera import load_calib
-    from ..common.features_file import FeaturesFile
-    from ..common.observations import Observations
-    from ..common.poses_file import read_poses
+    from ... import extract, localize
+    from ...common.camera import load_calib
+    from ...common.features_file import FeaturesFile
+    from ...common.observations import Observations
+    from ...common.poses_file import read_poses
 
     truth = label_pose(capture, field)
     if truth is None:
@@ -187,11 +187,11 @@ def informative(obs) -> bool:
 def still_robot(work: Path, captures=None, updates: int = STILL_UPDATES) -> list[StillResult]:
     """Every HULKs capture (or ``captures``) localised standing still (localise_still) on the
     SPL map (built by build_map's main with its defaults into ``work``)."""
-    from .. import build_map
-    from ..common.field import load_field
-    from ..common.map_file import MapFile
-    from ..localize import confs
-    from ..localize.observation_model import ObservationModel
+    from ... import build_map
+    from ...common.field import load_field
+    from ...common.map_file import MapFile
+    from ...localize import confs
+    from ...localize.observation_model import ObservationModel
 
     work.mkdir(parents=True, exist_ok=True)
     map_file = work / "spl.map.h5"
@@ -220,14 +220,14 @@ def rendered_still(preset: str, field_name: str, poses, seeds=(0, 1),
     renderer's camera height, as calib.yaml gives it) updated ``updates`` times on it, once per
     seed (``conf``: changes to mcl's uniform preset). The truth is the pose; judged as the
     HULKs frames are."""
-    from .. import simulate
-    from ..common.field import load_field
-    from ..common.observations import Observations
-    from ..extract import perspective
-    from ..localize import mcl
-    from ..localize.observation_model import ObservationModel
-    from ..simulate import scene
-    from ..simulate.perspective_renderer import PerspectiveRenderer
+    from ... import simulate
+    from ...common.field import load_field
+    from ...common.observations import Observations
+    from ...extract import perspective
+    from ...localize import mcl
+    from ...localize.observation_model import ObservationModel
+    from ...simulate import scene
+    from ...simulate.perspective_renderer import PerspectiveRenderer
 
     fm = load_field(field_name)
     sim = simulate.confs[preset]
@@ -261,7 +261,7 @@ def rendered_still(preset: str, field_name: str, poses, seeds=(0, 1),
 
 def random_poses(field_name: str, n: int, seed: int = 11) -> np.ndarray:
     """``n`` poses uniform over the field (x, y inside the lines, any heading)."""
-    from ..common.field import load_field
+    from ...common.field import load_field
 
     fm = load_field(field_name)
     rng = np.random.default_rng(seed)
@@ -275,7 +275,7 @@ def summary(res: list[StillResult], min_confidence: float) -> dict:
     pair share (pose and mirror: the confidence up to the mirror, stages.localize.symmetry)
     on hits, misses and uninformative frames, its AUROC for a hit and for an error within
     1 m, and the frames whose pair share reaches ``min_confidence`` while more than 1 m off."""
-    from ..evaluate.metrics import auroc
+    from ...evaluate.metrics import auroc
 
     inf = [r for r in res if r.informative]
     pair = np.array([r.pair for r in res])
@@ -333,8 +333,8 @@ def rows(repeat: int) -> list[Row]:
     deg of the truth after STILL_UPDATES still frames, and how the belief's pair share (top and
     mirror, its confidence up to the symmetry) tells hits from misses: on the HULKs captures
     (their labels' pose), and on rendered NAO and KidSize frames at random poses."""
-    from ..localize import mcl
-    from .bench import _work_dir
+    from ...localize import mcl
+    from .inputs import work_dir
 
     min_conf = float(mcl.confs["uniform"]["min_confidence"])
     goal = "top or mirror within 50 cm / 15 deg on every informative frame"
@@ -343,7 +343,7 @@ def rows(repeat: int) -> list[Row]:
         out.append(Row(name="mcl still robot on the HULKs frames", note=f"skipped: no {HULKS}"))
     else:
         t0 = time.perf_counter()
-        res = still_robot(_work_dir() / "hulks-still")
+        res = still_robot(work_dir() / "hulks-still")
         s = summary(res, min_conf)
         out.append(Row(
             name="mcl still robot from a uniform start, real HULKs frames (fieldloc extract +"

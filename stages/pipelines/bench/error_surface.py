@@ -1,5 +1,5 @@
 """``fieldloc bench`` row of issue 11's comparison (the SURF template paper, figures 3-5,
-stages.show .error_surface) on rendered msl-2015 (omni-default): one template captured at
+stages.show.error_surface) on rendered msl-2015 (omni-default): one template captured at
 TEMPLATE_POSE, queries of the same robot in the same venue (another session: clutter, lighting,
 noise) on a 0.2 m grid of +-2 m around it at the template's heading, and at the 9 nodes of +-0.2 m
 around it at headings every 10 deg. Printed: the local minima of the white-point table's surface (a)
@@ -10,10 +10,11 @@ from __future__ import annotations
 
 import math
 
-from .bench import Row, _work_dir
+from .harness import Row
+from .inputs import work_dir
 
 TEMPLATE_POSE = (2.0, 1.0)  # m on msl-2015: the centre circle, the halfway line within 2 m
-CALIB_SEED, WORLD_SEED = 61, 61  # one robot, one venue (as bench_templates)
+CALIB_SEED, WORLD_SEED = 61, 61  # one robot, one venue (as inputs' template robot)
 TEMPLATE_SEED, GRID_SEED, HEADING_SEED = 71, 72, 73
 QUERY_SPACING, QUERY_HALF = 0.2, 2.0  # m, the paper's query grid
 HEADINGS = 36  # every 10 deg
@@ -21,9 +22,9 @@ HEADINGS = 36  # every 10 deg
 
 def error_surface_inputs() -> dict:
     """The template capture and its templates.h5, the two query sets (built once)."""
-    from .. import build_templates, simulate
+    from ... import build_templates, simulate
 
-    d = _work_dir() / "error-surface"
+    d = work_dir() / "error-surface"
     d.mkdir(exist_ok=True)
     base = {"calib_seed": CALIB_SEED, "world_seed": WORLD_SEED}
 
@@ -48,7 +49,7 @@ def error_surface_inputs() -> dict:
 
 def rows(repeat: int) -> list[Row]:
     """The minima counts of (a) and (b), the (c) summary (module doc)."""
-    from ..show import error_surface as es
+    from ...show import error_surface as es
 
     inp = error_surface_inputs()
     m = es.measure(None, inp["templates"], inp["positions"])
@@ -96,12 +97,12 @@ def _real_row() -> Row:
     ../shared/realdata is present."""
     import numpy as np
 
-    from .realdata import REALDATA
+    from ..realdata import REALDATA
 
     name = "error surface (a) on real minho-lab images, at the line-share best pose"
     if not (REALDATA / "minho-lab").exists():
         return Row(name=name, note=f"skipped: {REALDATA} is absent")
-    work = _work_dir() / "error-surface-real"
+    work = work_dir() / "error-surface-real"
     work.mkdir(exist_ok=True)
     r = real_white_point_surfaces(REALDATA, work)
     parts = []
@@ -126,13 +127,13 @@ def real_white_point_surfaces(realdata, work, e_nones=(1.0, 0.25)) -> list[dict]
     where the lowest sample of (dx, dy) lies from that pose (m)."""
     import numpy as np
 
-    from .. import extract
-    from ..build_map import white_points
-    from ..common.features_file import FeaturesFile
-    from ..common.field import load_field
-    from ..common.surfaces import count_minima
-    from ..evaluate.line_share import LineRaster
-    from .realdata import lab_dataset
+    from ... import extract
+    from ...build_map import white_points
+    from ...common.features_file import FeaturesFile
+    from ...common.field import load_field
+    from ...common.surfaces import count_minima
+    from ...evaluate.line_share import LineRaster
+    from ..realdata import lab_dataset
 
     ds, field = lab_dataset(realdata, work)
     feats = extract.main(extract.resolve_extract_conf("omni", "real"), ds,

@@ -8,7 +8,8 @@ import statistics
 import time
 from pathlib import Path
 
-from .bench import Row, _ms, rendered_inputs, time_interleaved
+from .harness import Row, msec, time_interleaved
+from .inputs import rendered_inputs
 
 
 def bench_extract_perspective(repeat: int) -> list[Row]:
@@ -19,10 +20,10 @@ def bench_extract_perspective(repeat: int) -> list[Row]:
     time) and their ratio are reported beside."""
     import cv2
 
-    from ..common.camera import load_calib
-    from ..common.dataset import open_dataset, read_csv, read_image
-    from ..extract import kind_confs
-    from ..extract import perspective as persp
+    from ...common.camera import load_calib
+    from ...common.dataset import open_dataset, read_csv, read_image
+    from ...extract import kind_confs
+    from ...extract import perspective as persp
 
     conf = kind_confs("perspective")["default"]
     lsd = cv2.createLineSegmentDetector()
@@ -56,15 +57,15 @@ def bench_extract_perspective(repeat: int) -> list[Row]:
             b.append(statistics.median(y))
             cpu.append(statistics.median(own))
             cpu_lsd.append(statistics.median(own_lsd))
-        ratio = _ms(a) / _ms(b)
+        ratio = msec(a) / msec(b)
         rows.append(Row(
-            name=f"perspective extraction per frame ({label})", median_ms=_ms(a),
-            cpu_ms=_ms(cpu), goal="<= 5 ms, <= 0.3 x LSD",
-            meets_goal=_ms(a) <= 5.0 and ratio <= 0.3,
-            baseline="OpenCV line segment detector on the same frame", baseline_ms=_ms(b),
+            name=f"perspective extraction per frame ({label})", median_ms=msec(a),
+            cpu_ms=msec(cpu), goal="<= 5 ms, <= 0.3 x LSD",
+            meets_goal=msec(a) <= 5.0 and ratio <= 0.3,
+            baseline="OpenCV line segment detector on the same frame", baseline_ms=msec(b),
             ratio=ratio, repeats=repeat,
             note="colour counts, boundary, skeleton graph, crossings, lines, posts; CPU time"
-                 f" {_ms(cpu):.2f} ms against LSD's {_ms(cpu_lsd):.2f} ms (ratio"
-                 f" {_ms(cpu) / _ms(cpu_lsd):.2f})",
-            extra={"cpu_lsd_ms": _ms(cpu_lsd), "cpu_ratio": _ms(cpu) / _ms(cpu_lsd)}))
+                 f" {msec(cpu):.2f} ms against LSD's {msec(cpu_lsd):.2f} ms (ratio"
+                 f" {msec(cpu) / msec(cpu_lsd):.2f})",
+            extra={"cpu_lsd_ms": msec(cpu_lsd), "cpu_ratio": msec(cpu) / msec(cpu_lsd)}))
     return rows

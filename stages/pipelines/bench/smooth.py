@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .bench import Row, rendered_inputs
-from .bench_hypotheses import _errors, _work_dir, calibration_rows
+from .harness import Row, calibration_rows, run_errors
+from .inputs import rendered_inputs, work_dir
 
 # held-out rendered sets of the smoother: seeds 1200-1219 (omni-default) and 1200-1209
 # (omni-hard), a range no default was tuned on (the smoother's constants were chosen on seeds
@@ -26,13 +26,13 @@ def _runs(method: str, preset: str, smooth: bool) -> tuple[list, float]:
     """The runs of ``method`` on the held-out sets of ``preset`` ((poses, dataset) pairs) and
     the median CPU time of a run (each set's localize, after one untimed run that builds the
     map's search tables)."""
-    from .. import localize
+    from ... import localize
 
     runs, cpu = [], []
     for k, seed in enumerate(SMOOTH_SEEDS[preset]):
         inp = rendered_inputs("omni", "msl-2015", 100, seed, preset)
         tag = "smoothed" if smooth else "causal"
-        out = _work_dir() / f"smooth-{method}-{preset}-{seed}-{tag}.poses.h5"
+        out = work_dir() / f"smooth-{method}-{preset}-{seed}-{tag}.poses.h5"
         for _warm in range(2 if k == 0 else 1):
             t0 = time.process_time()
             localize.main({"method": method, "heading": "imu", "smooth": smooth}, inp["data"],
@@ -45,7 +45,7 @@ def _runs(method: str, preset: str, smooth: bool) -> tuple[list, float]:
 def _accuracy(runs) -> dict:
     within, per_seed, errors, wrong, frames = 0, [], [], 0, 0
     for out, data in runs:
-        fe, _cols = _errors(out, data)
+        fe, _cols = run_errors(out, data)
         m = fe.matched
         ok = m & (fe.position_error <= 0.4)
         within += int(ok.sum())
@@ -104,7 +104,7 @@ def synthetic_run(frames: int, candidates: int = 30, seed: int = 0):
     """A run of ``frames`` frames for timing the passes: a path with odometry, and per frame
     ``candidates`` candidates (the true pose's, look-alikes elsewhere) with nll and
     covariances of the sizes lut's candidates have."""
-    from ..localize import smooth
+    from ...localize import smooth
 
     rng = np.random.default_rng(seed)
     step = np.array([0.08, 0.0, 0.02])
@@ -128,8 +128,8 @@ def synthetic_run(frames: int, candidates: int = 30, seed: int = 0):
 
 
 def _passes(motion, sets):
-    from ..localize import smooth
-    from ..localize.pose_graph import refine_path
+    from ...localize import smooth
+    from ...localize.pose_graph import refine_path
 
     model = smooth.Transition.of(1e-5, 400.0)
     frames = list(range(len(sets)))
@@ -143,7 +143,7 @@ def bench_smooth_passes(repeat: int) -> list[Row]:
     """The discrete and continuous passes over 1000 frames of 30 candidates (CPU time, median
     of ``repeat``), against the causal lut run of 100 rendered frames scaled to 1000 in the
     same bench run; peak memory (tracemalloc) at 1000 and 4000 frames."""
-    from .. import localize
+    from ... import localize
 
     runs = {n: synthetic_run(n) for n in (1000, 4000)}
     times = []
@@ -156,7 +156,7 @@ def bench_smooth_passes(repeat: int) -> list[Row]:
     for _warm in range(2):  # the second run: the map's search tables built
         t = time.process_time()
         localize.main({"method": "lut"}, inp["data"], inp["map"],
-                      _work_dir() / "causal.poses.h5", features=inp["features"], overwrite=True)
+                      work_dir() / "causal.poses.h5", features=inp["features"], overwrite=True)
     causal_1000 = 10 * (time.process_time() - t)
     peaks = {}
     for n, run in runs.items():
