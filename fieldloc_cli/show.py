@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import click
 
-from .main import LazyGroup
+from .lazy_group import LazyGroup
 
 # name -> ("module:attribute", short help: the first sentence of the command's help)
 SHOW_COMMANDS = {
