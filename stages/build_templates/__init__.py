@@ -36,6 +36,7 @@ import numpy as np
 from ..common import ground_features as gf
 from ..common import local_features
 from ..common.artifacts import check_output, file_hash, root_attrs
+from ..common.camera import camera_can
 from ..common.conf import stage_conf
 from ..common.dataset import open_dataset, read_image, read_mask, truth_at
 from ..common.errors import DatasetError, FieldlocError
@@ -99,7 +100,7 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path, *
     output = Path(output)
     check_output(output, ds.files(), overwrite=overwrite)
     camera = ds.camera()
-    if camera.kind != "omni":
+    if not camera_can(camera.kind, "ground_image"):
         raise FieldlocError(f"{ds.root}: a '{camera.kind}' camera; templates are made from"
                             " omni frames (the SURF template paper)")
     truth = ds.optional("truth")

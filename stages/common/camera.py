@@ -62,6 +62,21 @@ CALIB_KEYS = {
     "perspective": ("kind", "version", "image_size", "intrinsics", "distortion", "height",
                     "pitch", "roll", "yaw", "position", "calibration"),
 }
+# what the frames of each camera kind allow, asked by the stages instead of the kind's name:
+# ``ground_image``: the floor all round the robot, unwarped through the mirror's radial model
+# (stages.common.unwarp: template databases, template matching, the error surfaces);
+# ``robot_mask``: the dataset's mask.png hides the robot's own body in every frame;
+# ``head_angles``: head.csv gives the camera's pitch and roll (and more) per frame
+CAMERA_CAPABILITIES = {
+    "omni": frozenset({"ground_image", "robot_mask"}),
+    "perspective": frozenset({"head_angles"}),
+}
+
+
+def camera_can(kind: str | None, capability: str) -> bool:
+    """Whether frames of the camera kind ``kind`` allow ``capability`` (a name of
+    CAMERA_CAPABILITIES' sets; an unknown kind allows none)."""
+    return capability in CAMERA_CAPABILITIES.get(kind, ())
 
 
 @dataclass

@@ -17,6 +17,7 @@ import numpy as np
 
 from .artifacts import describe as describe_hdf5
 from .artifacts import human_bytes
+from .camera import CALIB_KEYS
 from .conf import load_yaml
 from .dataset import CSV_COLUMNS, IMAGE_SUFFIXES, SIMULATION_RECORD, csv_rows
 from .errors import FieldlocError
@@ -153,7 +154,7 @@ def _yaml(path: Path, text: str) -> str | None:
     if not isinstance(d, dict):
         return None
     keys = ", ".join(map(str, d))
-    if "kind" in d and d.get("kind") in ("omni", "perspective"):
+    if "kind" in d and d.get("kind") in CALIB_KEYS:
         what = f"calibration, {d['kind']} camera (version {d.get('version', 1)})"
     elif d.get("generator") == "fieldloc simulate":
         what = (f"simulation record: {d.get('frames')} frames on {d.get('field')}, camera"

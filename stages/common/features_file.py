@@ -157,7 +157,7 @@ class FeaturesFile:
             raise SchemaError(f"{self.path}: damaged features file (camera_kind"
                               f" {str(kind)[:40]!r} is not one of {', '.join(CAMERA_KINDS)})")
         self._shapes = dict(TRAILING)
-        if kind == "omni":
+        if "radial" in REQUIRED[kind]:  # read along scan lines: their layout shapes them
             try:
                 sl = read_json_attr(self.h5, "scanlines") or {}
                 n, k = int(sl.get("n_angles", 72)), int(sl.get("max_crossings", 4))

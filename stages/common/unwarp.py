@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from .camera import camera_can
 from .errors import FieldlocError
 
 confs = {
@@ -127,7 +128,7 @@ class UnwarpMap:
 def build_unwarp_map(camera, grid: GroundGrid, mask: np.ndarray | None = None) -> UnwarpMap:
     """The pixel map of ``grid`` through ``camera`` (an OmniCamera). ``mask``: the dataset's
     bool (h, w) mask of usable image pixels (stages.common.dataset.read_mask), or None."""
-    if getattr(camera, "kind", None) != "omni":
+    if not camera_can(getattr(camera, "kind", None), "ground_image"):
         raise FieldlocError("a ground image needs an omnidirectional camera (calib kind omni)")
     idx = np.arange(grid.size, dtype=float)
     col, row = np.meshgrid(idx, idx)

@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common.artifacts import check_output, file_hash, output_lock, root_attrs
+from ..common.camera import camera_can
 from ..common.conf import check_bounds, registered_module, resolve_conf, stage_conf
 from ..common.dataset import open_dataset, read_image, read_mask
 from ..common.errors import DatasetError, FieldlocError, SchemaError
@@ -115,7 +116,7 @@ def _head_angles(ds) -> tuple[np.ndarray, dict[str, np.ndarray]] | None:
 
 def _frame_info(kind: str, mask, head, stamp: float) -> dict:
     """The frame_info of one frame for its kind's ``extract_frame`` (module doc)."""
-    return {"mask": mask} if kind == "omni" else _frame_info_head(head, stamp)
+    return {"mask": mask} if camera_can(kind, "robot_mask") else _frame_info_head(head, stamp)
 
 
 def _frame_info_head(head, stamp: float) -> dict:
@@ -156,10 +157,10 @@ def _run_attrs(ds, camera, module, conf: dict):
     mask = None
     mask_hash = ""
     mask_path = ds.root / MASK_NAME
-    if kind == "omni" and mask_path.is_file():
+    if camera_can(kind, "robot_mask") and mask_path.is_file():
         mask = read_mask(mask_path, camera.image_size)
         mask_hash = file_hash(mask_path)
-    head = _head_angles(ds) if kind == "perspective" else None
+    head = _head_angles(ds) if camera_can(kind, "head_angles") else None
     calib_hash = file_hash(ds.calib_path)
     root = os.path.abspath(ds.root)
     inputs = {"dataset": root, "calib": os.path.abspath(ds.calib_path),
@@ -169,7 +170,7 @@ def _run_attrs(ds, camera, module, conf: dict):
     attrs = root_attrs(SCHEMA, VERSION, conf, inputs)
     attrs.update(camera_kind=kind, dataset=root, calib_hash=calib_hash,
                  mask_hash=mask_hash, field=json.dumps(ds.field_record()))
-    if kind == "omni":
+    if hasattr(module, "scanlines_of"):  # an extractor along scan lines records their layout
         attrs["scanlines"] = json.dumps(module.scanlines_of(conf).as_dict())
     return attrs, mask, head
 

@@ -1143,7 +1143,7 @@ def run(conf: dict, dataset, features, map_file, progress=None) -> PoseTrack:
     if features is None or map_file is None:
         raise FieldlocError("mcl needs a features file and a map")
     kind = features.camera_kind
-    if kind and kind != "perspective":
+    if kind and kind not in camera_kinds:
         raise FieldlocError(
             f"{features.path}: features of a '{kind}' camera; --method mcl needs perspective"
             " features (lines, crossings, goal posts)")

@@ -63,6 +63,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..common import ground_features as gf
+from ..common.camera import camera_can
 from ..common.dataset import read_image, read_mask
 from ..common.errors import DatasetError, FieldlocError
 from ..common.geometry import wrap_angle
@@ -559,7 +560,7 @@ def run(conf: dict, dataset, templates, map_file=None, progress=False) -> PoseTr
         raise FieldlocError(f"{db.path}: the templates do not name their field; give --map")
     gf.check_conf(db.ground_conf)  # the database's ground-image conf, checked
     camera = dataset.camera()
-    if camera.kind != "omni":
+    if not camera_can(camera.kind, "ground_image"):
         raise FieldlocError(f"{dataset.root}: a '{camera.kind}' camera; method templates needs"
                             " omni frames")
     mask_path = dataset.root / "mask.png"

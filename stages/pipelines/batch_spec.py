@@ -82,6 +82,7 @@ import yaml
 
 from .. import evaluate, extract, localize, simulate
 from ..common.artifacts import file_hash, text_hash
+from ..common.camera import camera_can
 from ..common.conf import load_yaml, parse_overrides, resolve_conf, stage_conf
 from ..common.errors import FieldlocError, shown
 
@@ -363,7 +364,7 @@ def _datasets(w, entries, base, results, default_map, build_conf, extract_defaul
             if "templates" in d:
                 ds.templates = _templates(w, d["templates"], ds, f"{where}.templates", base,
                                           results, templates)
-            elif templates_default is not None and ds.camera == "omni" \
+            elif templates_default is not None and camera_can(ds.camera, "ground_image") \
                     and (ds.kind == "simulate" or not _is_grid(templates_default)):
                 ds.templates = _templates(w, templates_default, ds, "templates", base, results,
                                           templates)
@@ -455,7 +456,7 @@ def _templates(w, entry, ds: DatasetSpec, where: str, base: Path, results: Path,
     planned alike are one (``planned``: path -> TemplatesSpec)."""
     if entry is None:
         return None  # none for this dataset (a venue's default declined)
-    if ds.camera != "omni":
+    if not camera_can(ds.camera, "ground_image"):
         w.fail(where, f"dataset {ds.name} has a {ds.camera} camera; templates are made from"
                " omni frames (the SURF template paper)")
     if isinstance(entry, str):

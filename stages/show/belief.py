@@ -25,7 +25,7 @@ from ..common.artifacts import check_output
 from ..common.conf import stage_conf
 from ..common.dataset import frame_index, open_dataset, readable_truth, truth_at
 from ..common.errors import DatasetError, FieldlocError
-from ..common.features_file import FeaturesFile
+from ..common.features_file import REQUIRED, FeaturesFile
 from ..common.map_file import MapFile
 from ..common.observations import Observations
 from ..localize.belief import belief_grid
@@ -131,7 +131,7 @@ def frame_observations(dataset_dir: Path, frame: str | int, features: Path | Non
     ds = open_dataset(dataset_dir)
     i = frame_index(ds.names, frame, str(dataset_dir))
     camera = ds.camera()
-    if camera.kind != "perspective":
+    if not {"lines", "crossings", "posts"} <= set(REQUIRED.get(camera.kind, ())):
         raise FieldlocError(
             f"{dataset_dir}: a '{camera.kind}' camera; the belief needs perspective features"
             " (lines, crossings, goal posts)")
