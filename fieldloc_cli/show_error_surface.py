@@ -37,12 +37,13 @@ def show_error_surface(ctx, templates, queries, template, half_size, step, dthet
     (omni frames with truth.csv near it): (a) the white-point table's eq. 1, (b) the template pairs'
     eq. 4, over (dx, dy) and dtheta, and (c) every query's position and heading error against its
     distance from the template; print the local minima of (a) and (b) and (c) per ring."""
-    from stages.show import error_surface as stage
+    from stages.pipelines import error_surface as stage
+    from stages.show.error_surface import summary_lines
 
     given = {"template": template, "half_size": half_size, "step": step,
              "dtheta_deg": dtheta_deg, "e_none": e_none}
     conf = {k: v for k, v in given.items() if v is not None}  # the rest: the stage's preset
     path, m = stage.write_picture(conf, templates, queries, output, overwrite=overwrite)
-    for line in stage.summary_lines(m):
+    for line in summary_lines(m):
         click.echo(line)
     summary(ctx, f"wrote {path}")

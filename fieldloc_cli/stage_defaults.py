@@ -55,7 +55,7 @@ LOCALIZE = {("lut", "heading"): "imu", ("fit", "start_half"): "any",
 # stages.show.belief.confs["default"]: resolution (m), heading_step in degrees
 SHOW_BELIEF = {"resolution": 0.1, "heading_step_deg": 5.0}
 
-# stages.show.error_surface.confs["default"]
+# stages.pipelines.error_surface.confs["default"]
 SHOW_ERROR_SURFACE = {"half_size": 1.5, "step": 0.1, "dtheta_deg": 30.0, "e_none": 1.0}
 
 # stages.show.map.confs["default"] (heading in degrees); stages.show.map.TABLES;

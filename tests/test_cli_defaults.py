@@ -22,8 +22,8 @@ from stages.calibrate import hulks
 from stages.common.conf import stage_conf
 from stages.evaluate import export
 from stages.ingest import rosbag, team_fields
-from stages.pipelines import batch
-from stages.show import belief, error_surface, html_report, hypotheses
+from stages.pipelines import batch, error_surface
+from stages.show import belief, html_report, hypotheses
 from stages.show import map as show_map
 
 
@@ -88,7 +88,7 @@ CASES = [
      "stages.show.hypotheses:main", lambda c: stage_conf(hypotheses.confs, c),
      hypotheses.confs["default"], (), None),
     ("show error-surface", ["show", "error-surface", "t.h5", "queries", "-o", "x.png"],
-     "stages.show.error_surface:write_picture", lambda c: stage_conf(error_surface.confs, c),
+     "stages.pipelines.error_surface:write_picture", lambda c: stage_conf(error_surface.confs, c),
      error_surface.confs["default"], (), None),
     ("calibrate omni points", ["calibrate", "omni", "pairs.csv", "-o", "c.yaml", "--centre",
                                "240", "240", "--image-size", "480", "480", "--valid-radius",

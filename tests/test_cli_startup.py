@@ -113,7 +113,8 @@ def test_the_shown_defaults_are_the_stages():
     from stages.common.describe import READS
     from stages.evaluate import export
     from stages.ingest import rosbag, team_fields
-    from stages.show import belief, error_surface
+    from stages.pipelines import error_surface
+    from stages.show import belief
     from stages.show import map as show_map
     from stages.simulate.trajectory import PATH_KINDS
 

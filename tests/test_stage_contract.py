@@ -19,11 +19,10 @@ from stages.common.conf import stage_conf
 from stages.common.errors import FieldlocError
 from stages.evaluate import export
 from stages.ingest import rosbag, team_fields
-from stages.pipelines import batch, evaluation, images_to_poses
+from stages.pipelines import batch, error_surface, evaluation, images_to_poses
 from stages.show import (
     belief,
     comparison,
-    error_surface,
     html_report,
     hypotheses,
     points,
@@ -74,7 +73,7 @@ def _mains(ds, tmp):
         ("show.report_plots", lambda c: report_plots.main(c, tmp)),
         ("show.html_report", lambda c: html_report.main(c, tmp, out)),
         ("show.comparison", lambda c: comparison.main(c, tmp / "results")),
-        ("show.error_surface", lambda c: error_surface.main(c, tmp / "t.h5", tmp / "q", out)),
+        ("pipelines.error_surface", lambda c: error_surface.main(c, tmp / "t.h5", tmp / "q", out)),
         ("pipelines.evaluation", lambda c: evaluation.main(c, tmp / "p.h5", None, out)),
         ("pipelines.images_to_poses", lambda c: images_to_poses.main(c, ds, tmp / "m.h5", out)),
         ("pipelines.batch", lambda c: batch.main(c, tmp / "spec.yaml", out)),
@@ -126,7 +125,7 @@ def _resolvers():
         ("show.html_report", html_report.confs, lambda c, n: stage_conf(html_report.confs, c)),
         ("pipelines.batch", batch.confs, lambda c, n: stage_conf(batch.confs, c)),
         ("show.comparison", comparison.confs, lambda c, n: stage_conf(comparison.confs, c)),
-        ("show.error_surface", error_surface.confs,
+        ("pipelines.error_surface", error_surface.confs,
          lambda c, n: stage_conf(error_surface.confs, c)),
     ]
 

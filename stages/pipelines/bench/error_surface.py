@@ -1,5 +1,5 @@
 """``fieldloc bench`` row of issue 11's comparison (the SURF template paper, figures 3-5,
-stages.show.error_surface) on rendered msl-2015 (omni-default): one template captured at
+stages.pipelines.error_surface) on rendered msl-2015 (omni-default): one template captured at
 TEMPLATE_POSE, queries of the same robot in the same venue (another session: clutter, lighting,
 noise) on a 0.2 m grid of +-2 m around it at the template's heading, and at the 9 nodes of +-0.2 m
 around it at headings every 10 deg. Printed: the local minima of the white-point table's surface (a)
@@ -49,7 +49,7 @@ def error_surface_inputs() -> dict:
 
 def rows(repeat: int) -> list[Row]:
     """The minima counts of (a) and (b), the (c) summary (module doc)."""
-    from ...show import error_surface as es
+    from .. import error_surface as es
 
     inp = error_surface_inputs()
     m = es.measure(None, inp["templates"], inp["positions"])
