@@ -103,3 +103,81 @@ def test_imports_point_down_the_layers(path):
             wrong.append(f"line {line}: stage {me} imports stage {other} ({module}), which the"
                          " README's list of stage-to-stage imports does not name")
     assert not wrong, f"{path.relative_to(ROOT)}: " + "; ".join(wrong)
+
+
+def import_graph() -> dict[str, dict[str, list[int]]]:
+    """module -> {module of ours it imports: [lines]} over stages/ and fieldloc_cli/, imports
+    at module level and inside functions alike (a circle closed by an import inside a function
+    is one at run time all the same)."""
+    names = {_module_name(p): p for p in MODULES}
+    graph: dict[str, dict[str, list[int]]] = {}
+    for name, path in names.items():
+        out = graph.setdefault(name, {})
+        for module, line in imports_of(path):
+            parts = module.split(".")
+            target = next((".".join(parts[:k]) for k in range(len(parts), 0, -1)
+                           if ".".join(parts[:k]) in names), None)
+            if target is not None and target != name:
+                out.setdefault(target, []).append(line)
+    return graph
+
+
+def circles(graph: dict[str, dict]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan), each sorted."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found = []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                found.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_the_circle_finder_finds_circles():
+    graph = {"a": {"b": [1]}, "b": {"c": [2]}, "c": {"a": [3], "d": [4]}, "d": {}}
+    assert circles(graph) == [["a", "b", "c"]]
+    assert circles({"a": {"b": [1]}, "b": {}}) == []
+
+
+def test_no_import_circles():
+    """Issue 26: no two modules of stages/ and fieldloc_cli/ import each other, directly or
+    through others (imports inside functions included): the bench is a package whose rows
+    import its harness and inputs, the map reader computes no tables, a picture runs no stage."""
+    graph = import_graph()
+    assert "stages.pipelines.bench.harness" in graph["stages.pipelines.bench.omni"]
+    found = circles(graph)
+    shown = []
+    for comp in found:
+        arrows = [f"{a} -> {b} (line {', '.join(map(str, graph[a][b]))})"
+                  for a in comp for b in sorted(graph[a]) if b in comp]
+        shown.append("; ".join(arrows))
+    assert not found, "import circles: " + " | ".join(shown)
+    # the bench's registry imports its rows by name (importlib), which the graph does not see:
+    # no module of the package imports the registry back
+    back = [m for m in graph if m.startswith("stages.pipelines.bench.")
+            and "stages.pipelines.bench" in graph[m]]
+    assert not back, f"modules of the bench import its registry: {back}"
