@@ -1,14 +1,17 @@
 """Pictures a person checks, each drawing into an ``ax`` it is given (the figure and the PNG
 are the caller's): one module per picture with ``confs`` and a ``main(conf, inputs..., output,
-*, overwrite=False, progress=False) -> Path`` that writes it.
+*, overwrite=False, progress=False) -> Path`` that writes it, or, where what it draws must
+first be computed by stages, the drawing of a chain's result (the error surfaces: the chain
+stages.pipelines.error_surface computes them and writes the picture).
 
 - :mod:`.field` the field as every picture draws it; :mod:`.figure` Agg figures, atomic PNGs;
 - :mod:`.map` a map's tables; :mod:`.points` a frame's extracted features, on the image and on
   the field; :mod:`.belief` the particle filter's belief of one frame; :mod:`.hypotheses` a
   frame's ranked hypotheses; :mod:`.report_plots` the plots of an evaluation report;
   :mod:`.comparison` a batch's error CDFs per dataset and its summary of every method on
-  every dataset; :mod:`.error_surface` the SURF template paper's error surfaces of the white-point
-  table and of a template, and the queries' errors against their distance from it;
+  every dataset; :mod:`.error_surface` the drawing of the SURF template paper's error surfaces
+  of the white-point table and of a template, and of the queries' errors against their
+  distance from it;
   :mod:`.html_report` one self-contained page of reports and their pictures.
 
 Pictures read the stages' artifacts and may call a stage (show.points extracts a frame on
