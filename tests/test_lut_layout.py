@@ -218,7 +218,7 @@ def test_window_sums_are_the_sums_of_the_observations_rows(search, reference):
         # the min-pooled lookup's sums (tiled_sum) are its rows' sums too
         cy, cx = s.coarse_shape
         out = np.empty((cy, cx), np.uint16)
-        tiled_sum(s.coarse_lookup, *s._row_arrays(obs, m), 0, cy, 0, cx, s.coarse_ntx, out)
+        tiled_sum(s.min_pooled, s._observed(obs), m, (0, cy, 0, cx), out)
         # exact integers: uint8 / uint16 values and their integer sums
         assert np.array_equal(out, pooled[s.lookup_rows(obs, m)].astype(np.int64).sum(axis=0))
 

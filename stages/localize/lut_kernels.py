@@ -3,14 +3,19 @@
 They follow the definitions of lut_search.py's module doc exactly: the same float32 arithmetic
 per observation, sums over observations accumulated in float64. The tables are the map's
 (uint16 millimetres; ``metres`` gives an entry in metres as the float32 tables had it). The
-kernels take the search's arrays in a few named bundles: ``Quantised`` (the tables and the
-quantised errors), ``MinPooled`` (the min-pooled lookup), ``ObservedRows`` (a frame's
-observations).
+kernels take a few named bundles: ``Quantised`` (the tables, the quantised errors and the
+exact error's constants), ``MinPooled`` (the min-pooled lookup), ``Observed`` (a frame's
+observations), ``At`` (the table headings a frame is scored at), ``Grid`` (the search grid),
+``Posterior`` (a tracked search's ranking), ``FixRule`` and ``LineFit`` (what a tracked fix
+is judged and moved by); a window of cells is (i0, i1, j0, j1). The bundles of scalars (At,
+Grid, Posterior, FixRule, a window) are passed as plain tuples in their classes' order and
+unpacked by the kernels: numba types a tuple of scalars on its compiled fast path, a
+NamedTuple in Python (about 0.7 us a call, a few per tracked frame).
 
 - ``cells_sum``, ``window_sum``, ``weighted_cells``: the quantised error surface of a frame
   on a list of cells, a window, or every cell weighted per observation, computed from the
-  tables (``Quantised``; ``prepare`` the observations' offsets); ``tiled_sum`` (``pooled_sum``)
-  the min-pooled lookup's surface; ``separated_minima`` the separated minima of the whole
+  tables (``Quantised``; ``prepare`` the observations' offsets); ``tiled_sum`` the min-pooled
+  lookup's surface; ``separated_minima`` the separated minima of the whole
   field's surface, computed only where the min-pooled lookup's lower bound does not rule a
   cell out (branch and bound);
 - ``tracked_window``: the surface on a tracked search's window ranked by the posterior (error
@@ -19,8 +24,8 @@ observations).
   ``tracked_window_bound`` a lower bound of its best score from the min-pooled lookup;
   ``tracked_fix`` a track's whole fix in one call (window, sub-cell refinement in the chosen
   basin and in the prior's, support);
-- ``observation_error``: one observation's error at one cell (nearest table crossing at a table
-  heading, the angle-interpolated prediction between two), the base of
+- ``observation_prediction``: one observation's predicted crossing at one cell (nearest table
+  crossing at a table heading, the angle-interpolated prediction between two), the base of
   ``exact_error_cells`` (the weighted error term on a few cells), ``observation_errors_cell``
   (every observation's error at one cell) and ``refine_moves`` (the cell moves of the sub-cell
   refinement);
@@ -56,7 +61,9 @@ class Quantised(NamedTuple):
     values as they are; ``width`` fixed, ``nb_radial`` and ``nb_spiral`` the rows of the
     two families). The lookup's entry of (line, bin, cell) is the least of its
     crossings' values (``cells_sum``): the value is monotone in the error, so the least
-    value is the nearest crossing's."""
+    value is the nearest crossing's. The exact error reads the same tables with the
+    search's pair tolerance (m) and Cauchy scale squared (m^2), ``pair_tol`` and ``c2``,
+    both float32 (the exact error's arithmetic)."""
 
     radial: np.ndarray
     spiral: np.ndarray
@@ -66,6 +73,8 @@ class Quantised(NamedTuple):
     width: int
     nb_radial: int
     nb_spiral: int
+    pair_tol: np.float32
+    c2: np.float32
 
 
 class MinPooled(NamedTuple):
@@ -84,13 +93,83 @@ class MinPooled(NamedTuple):
     spiral_row0: int
 
 
-class ObservedRows(NamedTuple):
-    """A frame's observations as the quantised surfaces read them: family (0 radial, 1, 2
-    spiral), scan line and distance bin (rounded), int64 each."""
+class Observed(NamedTuple):
+    """A frame's observations as the kernels read them: family (0 radial, 1, 2 spiral), scan
+    line and distance bin (rounded; the quantised surfaces' rows), int64 each; the distance
+    (m) and weight as float32 (the exact error's arithmetic) and the weight as float64 (the
+    support's sums)."""
 
     family: np.ndarray
     angle_index: np.ndarray
     bins: np.ndarray
+    dist: np.ndarray
+    weight: np.ndarray
+    weight64: np.ndarray
+
+
+class At(NamedTuple):
+    """Where on the table headings a frame is scored: ``m`` the nearest table heading (the
+    quantised surfaces'), and for the exact error the table heading ``m0`` below the
+    heading with the fraction ``a`` of the step to it, the predictions interpolated
+    between m0 and m0 + 1 when ``interpolate`` (lut_search ``exact_error_at_heading``)."""
+
+    m: int
+    m0: int
+    a: float
+    interpolate: bool
+
+
+class Grid(NamedTuple):
+    """The search grid: ny x nx cells, cell (i, j)'s centre at (x0 + j res, y0 + i res)."""
+
+    ny: int
+    nx: int
+    x0: float
+    y0: float
+    res: float
+
+
+class Posterior(NamedTuple):
+    """How a tracked search ranks a cell: its quantised error surface times ``scale`` plus
+    min(0.5 d^T [[ia, ib], [ib, ic]] d, ``cap``), d = the cell's centre - (px, py) (the
+    prior's position and information, capped: a prior that may be wrong)."""
+
+    scale: float
+    px: float
+    py: float
+    ia: float
+    ib: float
+    ic: float
+    cap: float
+
+
+class FixRule(NamedTuple):
+    """What a tracked fix is judged by besides the window: the observations' total weight
+    (the error's norm), the temperature of the exact error when the prior's basin competes
+    with the window's, and the support's inlier error (m) and Cauchy scale squared."""
+
+    total_weight: float
+    temperature: float
+    inlier_error: float
+    c2: float
+
+
+class LineFit(NamedTuple):
+    """The line points' fit a tracked fix may be moved by (``point_fit.fit_refine``):
+    ``enabled``, the distance raster ``table`` with its origin (x0, y0) and resolution, the
+    frame's ``points`` (robot frame), the fit's Cauchy scale squared ``c2``, the heading
+    ``theta`` it keeps and the largest shift (m, per axis) and turn (rad) it may make."""
+
+    enabled: bool
+    table: np.ndarray
+    x0: float
+    y0: float
+    res: float
+    points: np.ndarray
+    c2: float
+    theta: float
+    max_shift: float
+    max_turn: float
 
 
 # every table distance (uint16 mm, below MAX_MM) in metres as float32, "none" (any larger
@@ -100,6 +179,13 @@ class ObservedRows(NamedTuple):
 MAX_MM = 16383  # tables of scan lines reaching farther are refused (TableSearch)
 METRES = np.arange(MAX_MM + 1).astype(np.float32) * np.float32(1e-3)
 METRES[MAX_MM] = NONE_M
+
+# the least-squares quadratic f = a + b x + c y + d x^2 + e x y + f y^2 on the 3 x 3 offsets
+# (-1, 0, 1)^2: the pseudo-inverse (6, 9) of its design matrix (``quadratic_fit``)
+_QY, _QX = np.mgrid[-1:2, -1:2]
+QPINV = np.ascontiguousarray(np.linalg.pinv(np.stack(
+    [np.ones(9), _QX.ravel(), _QY.ravel(), _QX.ravel() ** 2, (_QX * _QY).ravel(),
+     _QY.ravel() ** 2], axis=1)))
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -123,14 +209,25 @@ def line_offsets(fam, ai, m0, n_angles, ncell):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def line_prediction(radial_flat, spiral_flat, ncell, fam, r0, r1, d, tol, c, a32, b32, upper,
-                    interpolate):
+def bracket(at):
+    """(a32, b32 = 1 - a32, upper, interpolate) of ``at``: the interpolation's weights in the
+    exact error's float32 arithmetic, and which table heading is the nearer."""
+    _m, _m0, a, interpolate = at
+    a32 = np.float32(a)
+    return a32, np.float32(1.0) - a32, a > 0.5, interpolate
+
+
+@njit(cache=True, nogil=True, inline="always")
+def line_prediction(q, fam, r0, r1, d, c, br):
     """The crossing distance (m) predicted for an observation at distance ``d`` whose table
     lines start at r0, r1 (``line_offsets``) at flat cell ``c``: at table heading m0 the
-    nearest crossing of its scan line (``interpolate`` False); between m0 and m0 + 1
-    (fraction a32 = 1 - b32) the angle-interpolated prediction
+    nearest crossing of its scan line (not interpolating); between m0 and m0 + 1 (``br``:
+    ``bracket``, fraction a32 = 1 - b32) the angle-interpolated prediction
     (``TableSearch.exact_error_at_heading``)."""
+    a32, b32, upper, interpolate = br
+    tol = q.pair_tol
     if fam == 0:
+        radial_flat = q.radial
         c0 = r0 + c * MAX_CROSSINGS
         n0 = metres(radial_flat[c0])
         e0 = abs(n0 - d)
@@ -152,94 +249,72 @@ def line_prediction(radial_flat, spiral_flat, ncell, fam, r0, r1, d, tol, c, a32
         if abs(n0 - n1) < tol:
             return b32 * n0 + a32 * n1
         return n1 if upper else n0
-    t0 = metres(spiral_flat[r0 + c])
+    t0 = metres(q.spiral[r0 + c])
     if not interpolate:
         return t0
-    t1 = metres(spiral_flat[r1 + c])
+    t1 = metres(q.spiral[r1 + c])
     if abs(t0 - t1) < tol:
         return b32 * t0 + a32 * t1
     return t1 if upper else t0
 
 
 @njit(cache=True, nogil=True, inline="always")
-def observation_prediction(radial_flat, spiral_flat, ncell, n_angles, fam, ai, d, tol, c, m0,
-                           a32, b32, upper, interpolate):
-    """The crossing distance (m) predicted for one observation (family ``fam``, scan line
-    ``ai``, distance ``d``) at flat cell ``c`` (``line_offsets``, ``line_prediction``)."""
-    r0, r1 = line_offsets(fam, ai, m0, n_angles, ncell)
-    return line_prediction(radial_flat, spiral_flat, ncell, fam, r0, r1, d, tol, c, a32, b32,
-                           upper, interpolate)
-
-
-@njit(cache=True, nogil=True, inline="always")
-def observation_error(radial_flat, spiral_flat, ncell, n_angles, fam, ai, d, tol, c, m0, a32,
-                      b32, upper, interpolate):
-    """Error (m) of one observation at flat cell ``c``: |d - observation_prediction|."""
-    return abs(observation_prediction(radial_flat, spiral_flat, ncell, n_angles, fam, ai, d,
-                                      tol, c, m0, a32, b32, upper, interpolate) - d)
+def observation_prediction(q, obs, o, c, m0, br):
+    """The crossing distance (m) predicted for observation ``o`` of ``obs`` at flat cell
+    ``c`` and table heading m0 (``line_offsets``, ``line_prediction``)."""
+    fam = obs.family[o]
+    r0, r1 = line_offsets(fam, obs.angle_index[o], m0, q.n_angles, q.ncell)
+    return line_prediction(q, fam, r0, r1, obs.dist[o], c, br)
 
 
 @njit(cache=True, nogil=True)
-def exact_error_cells(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist,
-                      weight, tol, c2, cells, m0, a, interpolate, out):
-    """out[c] = sum_i weight[i] * rho(e_i) at flat cell cells[c] (``observation_error``; an
-    observation's table lines found once for all the cells)."""
-    a32 = np.float32(a)
-    b32 = np.float32(1.0) - a32
-    upper = a > 0.5
+def exact_error_cells(q, obs, at, cells, out):
+    """out[c] = sum_i weight[i] * rho(e_i) at flat cell cells[c] (e_i = |d_i - the
+    prediction|, ``line_prediction``; an observation's table lines found once for all the
+    cells)."""
+    br = bracket(at)
+    c2 = q.c2
     out[:] = 0.0
-    for o in range(dist.shape[0]):
-        w, d, fam = weight[o], dist[o], family[o]
-        r0, r1 = line_offsets(fam, angle_index[o], m0, n_angles, ncell)
+    for o in range(obs.dist.shape[0]):
+        w, d, fam = obs.weight[o], obs.dist[o], obs.family[o]
+        r0, r1 = line_offsets(fam, obs.angle_index[o], at[1], q.n_angles, q.ncell)
         for ci in range(cells.shape[0]):
-            e = abs(line_prediction(radial_flat, spiral_flat, ncell, fam, r0, r1, d, tol,
-                                    cells[ci], a32, b32, upper, interpolate) - d)
+            e = abs(line_prediction(q, fam, r0, r1, d, cells[ci], br) - d)
             e2 = e * e
             out[ci] += w * (e2 / (c2 + e2))
 
 
 @njit(cache=True, nogil=True)
-def observation_errors_cell(radial_flat, spiral_flat, ncell, n_angles, family, angle_index,
-                            dist, tol, cell, m0, a, interpolate, out):
-    """out[i] = error (m) of observation i at flat cell ``cell`` (``observation_error``)."""
-    a32 = np.float32(a)
-    b32 = np.float32(1.0) - a32
-    upper = a > 0.5
-    for o in range(dist.shape[0]):
-        out[o] = observation_error(radial_flat, spiral_flat, ncell, n_angles, family[o],
-                                   angle_index[o], dist[o], tol, cell, m0, a32, b32, upper,
-                                   interpolate)
+def observation_errors_cell(q, obs, at, cell, out):
+    """out[i] = error (m) of observation i at flat cell ``cell``: |d_i - the prediction|."""
+    br = bracket(at)
+    for o in range(obs.dist.shape[0]):
+        out[o] = abs(observation_prediction(q, obs, o, cell, at[1], br) - obs.dist[o])
 
 
 @njit(cache=True, nogil=True)
-def observation_predictions_cell(radial_flat, spiral_flat, ncell, n_angles, family,
-                                 angle_index, dist, tol, cell, m0, a, interpolate, out):
+def observation_predictions_cell(q, obs, at, cell, out):
     """out[i] = predicted crossing distance (m) of observation i at flat cell ``cell``."""
-    a32 = np.float32(a)
-    b32 = np.float32(1.0) - a32
-    upper = a > 0.5
-    for o in range(dist.shape[0]):
-        out[o] = observation_prediction(radial_flat, spiral_flat, ncell, n_angles, family[o],
-                                        angle_index[o], dist[o], tol, cell, m0, a32, b32,
-                                        upper, interpolate)
+    br = bracket(at)
+    for o in range(obs.dist.shape[0]):
+        out[o] = observation_prediction(q, obs, o, cell, at[1], br)
 
 
 @njit(cache=True, nogil=True)
-def refine_moves(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist, weight,
-                 tol, c2, i, j, ny, nx, m0, a, interpolate, max_moves, out):
+def refine_moves(q, obs, at, grid, i, j, max_moves, out):
     """The cell search of ``TableSearch.refine``: the exact error (``exact_error_cells``) on
     the 3 x 3 cells around (i, j) (clipped to the grid, row-major, into ``out`` (9,)), moving
     to the lowest while it is not the centre, at most ``max_moves`` times; after a move only
     the cells new to the patch are evaluated. Returns the final cell as the flat index
     i * nx + j; ``out`` holds the last patch."""
+    ny, nx = grid[0], grid[1]
     cells = np.empty(9, dtype=np.int64)
     for di in range(3):
         ii = min(max(i - 1 + di, 0), ny - 1)
         for dj in range(3):
             jj = min(max(j - 1 + dj, 0), nx - 1)
             cells[3 * di + dj] = ii * nx + jj
-    exact_error_cells(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist,
-                      weight, tol, c2, cells, m0, a, interpolate, out)
+    exact_error_cells(q, obs, at, cells, out)
     new_cells = np.empty(9, dtype=np.int64)
     new_out = np.empty(9)
     todo = np.empty(9, dtype=np.int64)
@@ -274,8 +349,7 @@ def refine_moves(radial_flat, spiral_flat, ncell, n_angles, family, angle_index,
             sub = np.empty(n_todo, dtype=np.int64)
             for k in range(n_todo):
                 sub[k] = new_cells[todo[k]]
-            exact_error_cells(radial_flat, spiral_flat, ncell, n_angles, family, angle_index,
-                              dist, weight, tol, c2, sub, m0, a, interpolate, vals[:n_todo])
+            exact_error_cells(q, obs, at, sub, vals[:n_todo])
             for k in range(n_todo):
                 new_out[todo[k]] = vals[k]
         cells[:] = new_cells
@@ -285,35 +359,36 @@ def refine_moves(radial_flat, spiral_flat, ncell, n_angles, family, angle_index,
 
 
 @njit(cache=True, nogil=True, inline="always")
-def lookup_row(fam, ai, b, m, n_angles, nb_radial, nb_spiral, spiral_row0):
+def lookup_row(p, fam, ai, b, m):
     """The error lookup's row of an observation (family ``fam``, scan line ``ai``, distance
-    bin ``b``) at table heading m: TableSearch.lookup_rows for one observation."""
-    k = (ai + m) % n_angles
+    bin ``b``) at table heading m in the layout of ``p`` (MinPooled): TableSearch.lookup_rows
+    for one observation."""
+    k = (ai + m) % p.n_angles
     if fam == 0:
-        return k * nb_radial + min(b, nb_radial - 1)
-    return spiral_row0 + ((fam - 1) * n_angles + k) * nb_spiral + min(b, nb_spiral - 1)
+        return k * p.nb_radial + min(b, p.nb_radial - 1)
+    return p.spiral_row0 + ((fam - 1) * p.n_angles + k) * p.nb_spiral + min(b, p.nb_spiral - 1)
 
 
 @njit(cache=True, nogil=True)
-def tiled_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
-              spiral_row0, i0, i1, j0, j1, ntx, out):
-    """out[i - i0, j - j0] = sum over the observations of their lookup rows' cell (i, j)
-    (uint16), the quantised error surface on the window [i0, i1) x [j0, j1); the rows are
-    ``TableSearch.lookup_rows`` at heading index m (``bins``: the observed distances in
-    distance bins, rounded), tiled (``TableSearch``: each row holds the cells in TILE x TILE
-    blocks, ``ntx`` blocks per block row, block-row-major, a block's cells row-major). The
-    blocks that cover the window are summed whole, one contiguous stretch per block row and
-    observation (a few cache lines, where rows of cells cost one per row of the window), and
-    the window is taken from them once."""
+def tiled_sum(p, rows, m, win, out):
+    """out[i - i0, j - j0] = sum over the observations (``rows``: their family, scan line and
+    distance bin) of their min-pooled lookup rows' cell (i, j) (uint16), the min-pooled
+    surface at table heading m on the coarse window ``win`` [i0, i1) x [j0, j1). The lookup
+    (``p``: MinPooled) is tiled: each row holds the cells in TILE x TILE blocks, ``p.ntx``
+    blocks per block row, block-row-major, a block's cells row-major. The blocks that cover
+    the window are summed whole, one contiguous stretch per block row and observation (a few
+    cache lines, where rows of cells cost one per row of the window), and the window is
+    taken from them once."""
+    i0, i1, j0, j1 = win
+    lookup, ntx = p.lookup, p.ntx
     t = TILE
     tt = TILE * TILE
     ti0, ti1 = i0 // t, (i1 - 1) // t + 1
     tj0, tj1 = j0 // t, (j1 - 1) // t + 1
     span = (tj1 - tj0) * tt
     acc = np.zeros((ti1 - ti0) * span, dtype=np.uint16)
-    for o in range(family.shape[0]):
-        row = lookup[lookup_row(family[o], angle_index[o], bins[o], m, n_angles, nb_radial,
-                                nb_spiral, spiral_row0)]
+    for o in range(rows.family.shape[0]):
+        row = lookup[lookup_row(p, rows.family[o], rows.angle_index[o], rows.bins[o], m)]
         for a in range(ti1 - ti0):
             src = row[((ti0 + a) * ntx + tj0) * tt:((ti0 + a) * ntx + tj0) * tt + span]
             dst = acc[a * span:(a + 1) * span]
@@ -331,7 +406,7 @@ def tiled_sum(lookup, family, angle_index, bins, m, n_angles, nb_radial, nb_spir
 
 @njit(cache=True, nogil=True)
 def prepare(q, rows, m):
-    """Per observation (``rows``: ObservedRows) at table heading m, (3, n): its family,
+    """Per observation (``rows``: Observed) at table heading m, (3, n): its family,
     where its table line starts (``line_offsets``) and where its distance bin's quantised
     errors start in ``q.values`` (the last bin for farther distances, as ``lookup_row``)."""
     n = rows.family.shape[0]
@@ -375,7 +450,7 @@ def cells_sum(q, prep, cells, n, out):
 def window_sum(q, rows, m, i0, i1, j0, j1, nx, out):
     """out[i - i0, j - j0] = the quantised error surface at table heading m on the window
     [i0, i1) x [j0, j1) of a grid nx cells wide (uint16): the sum over the observations
-    (``rows``: ObservedRows) of their lookup entries (``cells_sum``)."""
+    (``rows``: Observed) of their lookup entries (``cells_sum``)."""
     w = j1 - j0
     cells = np.empty((i1 - i0) * w, dtype=np.int64)
     for i in range(i0, i1):
@@ -412,14 +487,6 @@ def weighted_cells(q, rows, m, scale, out):
                 out[c] += f * values[vbase + spiral[r0 + np.uint64(c)]]
 
 
-@njit(cache=True, nogil=True)
-def pooled_sum(p, rows, m, c0, c1, d0, d1, out):
-    """The min-pooled lookup's surface (``tiled_sum`` of ``p``: MinPooled) on the coarse
-    window [c0, c1) x [d0, d1)."""
-    tiled_sum(p.lookup, rows.family, rows.angle_index, rows.bins, m, p.n_angles, p.nb_radial,
-              p.nb_spiral, p.spiral_row0, c0, c1, d0, d1, p.ntx, out)
-
-
 @njit(cache=True, nogil=True, inline="always")
 def coarse_cell(p, i):
     """The coarse row (or column) whose min-pooled entries bound fine row (column) i, or -1
@@ -444,7 +511,7 @@ def counting_order(keys, top):
 
 
 @njit(cache=True, nogil=True)
-def separated_minima(q, p, rows, m, ny, nx, k, r, out):
+def separated_minima(q, p, rows, m, grid, k, r, out):
     """The flat cells of up to ``k`` lowest cells of the whole field's quantised surface at
     table heading m, each more than ``r`` cells (in x or y) from the ones before: the picks
     of the greedy non-maximum suppression (lowest value, then lowest index) on the whole
@@ -455,9 +522,10 @@ def separated_minima(q, p, rows, m, ny, nx, k, r, out):
     greedy once its value lies below the bound of every coarse cell not opened: no cell left
     out can come before it, so the greedy sees the cells in the order of the whole surface
     and stops at the same k picks."""
+    ny, nx = grid[0], grid[1]
     cy, cx, step, half = p.cy, p.cx, p.step, p.step // 2
     coarse = np.empty((cy, cx), dtype=np.uint16)
-    pooled_sum(p, rows, m, 0, cy, 0, cx, coarse)
+    tiled_sum(p, rows, m, (0, cy, 0, cx), coarse)
     flat = coarse.ravel()
     ncoarse = cy * cx
     order = counting_order(flat, TOP)
@@ -521,16 +589,18 @@ def separated_minima(q, p, rows, m, ny, nx, k, r, out):
 
 
 @njit(cache=True, nogil=True)
-def tracked_window(q, p, rows, m, i0, i1, j0, j1, nx, scale, x0, y0, res, px, py, ia, ib, ic,
-                   cap):
-    """On the window [i0, i1) x [j0, j1) of a grid nx cells wide: the flat index of the cell
-    minimising its quantised error surface (``cells_sum``) * ``scale`` + min(0.5 d^T
-    [[ia, ib], [ib, ic]] d, ``cap``) (d = cell centre - (px, py), cell centres at (x0, y0) +
-    (j, i) * res; the first in row-major order of equal ones), and that cell's score. Branch
-    and bound: a cell's score is bounded below by the min-pooled surface's (``p``; 0 past its
-    last row or column) in place of its own. The cells of the coarse cell holding the least
-    bound are computed first; then, together, every other cell whose bound is not above the
-    best score they found: no cell left out can score lower or as low."""
+def tracked_window(q, p, rows, m, win, grid, post):
+    """On the window ``win`` (i0, i1, j0, j1) of ``grid``: the flat index of the cell
+    minimising its quantised error surface (``cells_sum``) ranked by ``post`` (Posterior:
+    surface * scale + the prior's capped Mahalanobis term; the first in row-major order of
+    equal ones), and that cell's score. Branch and bound: a cell's score is bounded below by
+    the min-pooled surface's (``p``; 0 past its last row or column) in place of its own. The
+    cells of the coarse cell holding the least bound are computed first; then, together,
+    every other cell whose bound is not above the best score they found: no cell left out
+    can score lower or as low."""
+    i0, i1, j0, j1 = win
+    _ny, nx, x0, y0, res = grid
+    scale, px, py, ia, ib, ic, cap = post
     step, half = p.step, p.step // 2
     h, w = i1 - i0, j1 - j0
     row = np.empty(h, dtype=np.int64)  # coarse row of each window row (-1: past the last)
@@ -544,7 +614,7 @@ def tracked_window(q, p, rows, m, i0, i1, j0, j1, nx, scale, x0, y0, res, px, py
     d1 = max(min((j1 - 1 + half) // step + 1, p.cx), d0)
     sums = np.zeros((c1 - c0 + 1, d1 - d0 + 1), dtype=np.uint16)  # last row, column: 0
     if c1 > c0 and d1 > d0:
-        pooled_sum(p, rows, m, c0, c1, d0, d1, sums[:c1 - c0, :d1 - d0])
+        tiled_sum(p, rows, m, (c0, c1, d0, d1), sums[:c1 - c0, :d1 - d0])
     for i in range(h):
         row[i] = row[i] - c0 if row[i] >= 0 else c1 - c0
     for j in range(w):
@@ -590,20 +660,18 @@ def tracked_window(q, p, rows, m, i0, i1, j0, j1, nx, scale, x0, y0, res, px, py
 
 
 @njit(cache=True, nogil=True)
-def refine_cell(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist, weight,
-                tol, c2, i, j, ny, nx, m0, a, interpolate, max_moves, total_weight, x0, y0,
-                res, qpinv, out):
+def refine_cell(q, obs, at, grid, i, j, max_moves, total_weight, out):
     """``TableSearch.refine`` from cell (i, j): at most ``max_moves`` cell moves
     (``refine_moves``), then the quadratic fit of the last 3 x 3 patch, into ``out`` (9,): x,
     y, error, error_norm, cell i, cell j, and the Hessian of error_norm hxx, hxy, hyy
     (m^-2)."""
+    _ny, nx, x0, y0, res = grid
     e = np.empty(9)
-    flat = refine_moves(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist,
-                        weight, tol, c2, i, j, ny, nx, m0, a, interpolate, max_moves, e)
+    flat = refine_moves(q, obs, at, grid, i, j, max_moves, e)
     fi, fj = flat // nx, flat % nx
     for k in range(9):
         e[k] /= total_weight
-    dx, dy, fmin, hxx, hxy, hyy = quadratic_fit(e, qpinv)
+    dx, dy, fmin, hxx, hxy, hyy = quadratic_fit(e)
     e_norm = min(max(fmin, 0.0), e[4])
     r2 = res * res
     out[0] = (x0 + fj * res) + dx * res
@@ -618,34 +686,29 @@ def refine_cell(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, 
 
 
 @njit(cache=True, nogil=True)
-def tracked_fix(q, p, rows, m, i0, i1, j0, j1, ny, nx, scale, x0, y0, res, px, py, ia, ib, ic,
-                cap, dist, weight, tol, c2, m0, a, interpolate, total_weight, temperature,
-                qpinv, weight64, inlier_error, c2_64, theta, fit_points, fit_table, fit_x0,
-                fit_y0, fit_res, points, fit_c2, max_shift, max_turn, out):
+def tracked_fix(q, p, obs, at, win, grid, post, rule, fit, out):
     """A track's fix in one call (``TableSearch.tracked_fix``): the window's best cell by
-    the posterior score (``tracked_window``), refined to sub-cell in its basin
-    (``refine_cell``, the heading m0 / a); when that lies more than two cells from the prior
-    (px, py), the basin the prior lies in refined too and kept when its exact score
-    error / ``temperature`` + min(0.5 d^T [[ia, ib], [ib, ic]] d, ``cap``) is lower; then
-    the fix's support (``observation_errors_cell`` at the cell nearest it, ``inlier_sums``
-    with the float64 weights ``weight64``); with ``fit_points``, the fix at heading ``theta``
-    moved by the line points' fit (``point_fit.fit_refine`` of ``points`` on the distance
-    raster ``fit_table``, the heading kept, within ``max_shift`` / ``max_turn``). ``out``
-    (19,): the refined fix (``refine_cell``'s 9 values), at window edge (0 / 1), the
+    the posterior score (``tracked_window`` at table heading m), refined to sub-cell in its
+    basin (``refine_cell`` at the heading m0 / a); when that lies more than two cells from
+    the prior (px, py), the basin the prior lies in refined too and kept when its exact
+    score error / ``temperature`` + the prior's capped term is lower;
+    then the fix's support (``observation_errors_cell`` at the cell nearest it,
+    ``inlier_sums`` with the float64 weights and ``rule``'s inlier error); with
+    ``fit.enabled``, the fix at heading ``fit.theta`` moved by the line points' fit
+    (``point_fit.fit_refine``, the heading kept, within fit.max_shift / fit.max_turn).
+    ``out`` (19,): the refined fix (``refine_cell``'s 9 values), at window edge (0 / 1), the
     window's best posterior score, the prior's basin taken (0 / 1), the support's inliers,
     inlier weight, weighted rho, weighted squared error, then the fitted pose (x, y, theta;
-    NaN without ``fit_points``)."""
-    best, window_fit = tracked_window(q, p, rows, m, i0, i1, j0, j1, nx, scale, x0, y0, res,
-                                      px, py, ia, ib, ic, cap)
-    # the exact error's arguments (exact_error_cells)
-    radial_flat, spiral_flat, ncell, n_angles = q.radial, q.spiral, q.ncell, q.n_angles
-    family, angle_index = rows.family, rows.angle_index
+    NaN without the fit)."""
+    i0, i1, j0, j1 = win
+    ny, nx, x0, y0, res = grid
+    _scale, px, py = post[:3]
+    total_weight, temperature, inlier_error, c2 = rule
+    best, window_fit = tracked_window(q, p, obs, at[0], win, grid, post)
     i, j = best // nx, best % nx
     edge = ((i == i0 and i0 > 0) or (i == i1 - 1 and i1 < ny)
             or (j == j0 and j0 > 0) or (j == j1 - 1 and j1 < nx))
-    refine_cell(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist, weight,
-                tol, c2, i, j, ny, nx, m0, a, interpolate, 4, total_weight, x0, y0, res, qpinv,
-                out[:9])
+    refine_cell(q, obs, at, grid, i, j, 4, total_weight, out[:9])
     out[9] = 1.0 if edge else 0.0
     out[10] = window_fit
     out[11] = 0.0
@@ -655,59 +718,57 @@ def tracked_fix(q, p, rows, m, i0, i1, j0, j1, ny, nx, scale, x0, y0, res, px, p
         own = np.empty(9)
         ci = min(max(int(np.rint((py - y0) / res)), 0), ny - 1)
         cj = min(max(int(np.rint((px - x0) / res)), 0), nx - 1)
-        refine_cell(radial_flat, spiral_flat, ncell, n_angles, family, angle_index, dist,
-                    weight, tol, c2, ci, cj, ny, nx, m0, a, interpolate, 4, total_weight, x0,
-                    y0, res, qpinv, own)
-        if _posterior_score(own, temperature, px, py, ia, ib, ic, cap) < _posterior_score(
-                out, temperature, px, py, ia, ib, ic, cap):
+        refine_cell(q, obs, at, grid, ci, cj, 4, total_weight, own)
+        if _posterior_score(own, temperature, post) < _posterior_score(out, temperature, post):
             out[:9] = own
             out[9] = 0.0
             out[11] = 1.0
     # the support at the cell nearest the fix (TableSearch.support)
     ci = min(max(int(np.rint((out[1] - y0) / res)), 0), ny - 1)
     cj = min(max(int(np.rint((out[0] - x0) / res)), 0), nx - 1)
-    errors = np.empty(dist.shape[0])
-    observation_errors_cell(radial_flat, spiral_flat, ncell, n_angles, family, angle_index,
-                            dist, tol, ci * nx + cj, m0, a, interpolate, errors)
-    n_in, w_in, rho, sq = inlier_sums(errors, weight64, inlier_error, c2_64)
+    errors = np.empty(obs.dist.shape[0])
+    observation_errors_cell(q, obs, at, ci * nx + cj, errors)
+    n_in, w_in, rho, sq = inlier_sums(errors, obs.weight64, inlier_error, c2)
     out[12] = n_in
     out[13] = w_in
     out[14] = rho
     out[15] = sq
     out[16:19] = np.nan
-    if fit_points:
+    if fit.enabled:
         normal = np.empty((3, 3))
-        fit_refine(fit_table, fit_x0, fit_y0, fit_res, points, weight64, out[0], out[1], theta,
-                   fit_c2, 8, True, max_shift, max_turn, out[16:19], normal)
+        fit_refine(fit.table, fit.x0, fit.y0, fit.res, fit.points, obs.weight64, out[0],
+                   out[1], fit.theta, fit.c2, 8, True, fit.max_shift, fit.max_turn,
+                   out[16:19], normal)
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _posterior_score(fix, temperature, px, py, ia, ib, ic, cap):
+def _posterior_score(fix, temperature, post):
     """error / temperature + min(0.5 d^T info d, cap) of a refined fix (``refine_cell``'s
     layout), d its offset from the prior (TrackBank.prior_term)."""
+    _scale, px, py, ia, ib, ic, cap = post
     dx, dy = fix[0] - px, fix[1] - py
     q = (dx * ia + dy * ib) * dx + (dx * ib + dy * ic) * dy
     return fix[2] / temperature + min(0.5 * q, cap)
 
 
 @njit(cache=True, nogil=True)
-def tracked_window_bound(coarse, step, cy, cx, ntx, family, angle_index, bins, m, n_angles,
-                         nb_radial, nb_spiral, spiral_row0, i0, i1, j0, j1, scale, x0, y0,
-                         res, px, py, ia, ib, ic, cap):
-    """A lower bound of ``tracked_window``'s best score on the window [i0, i1) x [j0, j1),
-    from the min-pooled error lookup ``coarse`` (every ``step``-th cell, cy x cx, tiled as the
-    error lookup, ``ntx`` blocks wide; each the minimum over the fine cells within step // 2
-    of it): fine cell (i, j) lies in coarse cell ((i + step // 2) // step,
-    (j + step // 2) // step), whose sum over the observations is at most the fine cell's, so
-    surface * scale + the capped Mahalanobis term of each fine cell is bounded from below;
-    the least such bound over the window. About step^2 times fewer lookups than the window
-    itself."""
+def tracked_window_bound(p, rows, m, win, grid, post):
+    """A lower bound of ``tracked_window``'s best score on the window ``win`` (i0, i1, j0,
+    j1), from the min-pooled error lookup ``p`` (every ``step``-th cell, cy x cx; each the
+    minimum over the fine cells within step // 2 of it): fine cell (i, j) lies in coarse
+    cell ((i + step // 2) // step, (j + step // 2) // step), whose sum over the observations
+    is at most the fine cell's, so surface * scale + the capped Mahalanobis term of each fine
+    cell is bounded from below; the least such bound over the window. About step^2 times
+    fewer lookups than the window itself."""
+    i0, i1, j0, j1 = win
+    _ny, _nx, x0, y0, res = grid
+    scale, px, py, ia, ib, ic, cap = post
+    step, cy, cx = p.step, p.cy, p.cx
     r = step // 2
     c0, c1 = (i0 + r) // step, min((i1 - 1 + r) // step + 1, cy)
     d0, d1 = (j0 + r) // step, min((j1 - 1 + r) // step + 1, cx)
     sums = np.empty((c1 - c0, d1 - d0), dtype=np.uint16)
-    tiled_sum(coarse, family, angle_index, bins, m, n_angles, nb_radial, nb_spiral,
-              spiral_row0, c0, c1, d0, d1, ntx, sums)
+    tiled_sum(p, rows, m, (c0, c1, d0, d1), sums)
     best = np.inf
     for i in range(i0, i1):
         dy = y0 + i * res - py
@@ -723,16 +784,16 @@ def tracked_window_bound(coarse, step, cy, cx, ntx, family, angle_index, bins, m
 
 
 @njit(cache=True, nogil=True)
-def quadratic_fit(e, qpinv):
+def quadratic_fit(e):
     """Sub-cell minimum of a 3 x 3 error patch ``e`` (9,, rows y, columns x) by the
-    least-squares quadratic (``qpinv``: the pseudo-inverse (6, 9) of its design matrix):
-    (dx, dy, value, hxx, hxy, hyy) in cell units. Falls back to per-axis parabolas where the
-    fit is not a bowl; offsets are clipped to one cell."""
+    least-squares quadratic (``QPINV``): (dx, dy, value, hxx, hxy, hyy) in cell units. Falls
+    back to per-axis parabolas where the fit is not a bowl; offsets are clipped to one
+    cell."""
     coef = np.zeros(6)
     for r in range(6):
         acc = 0.0
         for k in range(9):
-            acc += qpinv[r, k] * e[k]
+            acc += QPINV[r, k] * e[k]
         coef[r] = acc
     a, bx, by, dxx, dxy, dyy = coef[0], coef[1], coef[2], coef[3], coef[4], coef[5]
     hxx, hyy = 2 * dxx, 2 * dyy
@@ -749,6 +810,7 @@ def quadratic_fit(e, qpinv):
     oy = min(max(oy, -1.0), 1.0)
     val = a + bx * ox + by * oy + dxx * ox * ox + dxy * ox * oy + dyy * oy * oy
     return ox, oy, val, hxx, dxy, hyy
+
 
 @njit(cache=True, nogil=True)
 def structure_sizes(points, distance, link, link_per_m):

@@ -77,8 +77,11 @@ from .lut_kernels import (
     MAX_MM,
     NONE_M,
     TILE,
+    Grid,
+    LineFit,
     MinPooled,
-    ObservedRows,
+    Observed,
+    Posterior,
     Quantised,
     evidence_weights,
     exact_error_cells,
@@ -150,10 +153,10 @@ class Observation:
     # the weights of the error lookup, when ``weight`` holds evidence weights
     # (``with_evidence``); None: ``weight`` is the lookup's
     lookup_weight: np.ndarray | None = None
-    # the arrays the kernels take, converted once (TableSearch._kernel_arrays, _row_arrays;
-    # an Observation is not changed after it is made: its derived copies are new ones)
-    _kernel: tuple | None = field(default=None, init=False, repr=False, compare=False)
-    _rows: tuple | None = field(default=None, init=False, repr=False, compare=False)
+    # the kernels' bundle (distance bin, lut_kernels.Observed), converted once
+    # (TableSearch._observed; an Observation is not changed after it is made: its derived
+    # copies are new ones)
+    _observed: tuple | None = field(default=None, init=False, repr=False, compare=False)
     _points: tuple | None = field(default=None, init=False, repr=False, compare=False)
     _sums: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
@@ -229,9 +232,10 @@ class Observation:
                           distance=self.distance, weight=self.weight,
                           lookup_weight=self.lookup_weight)
         out._sums = self._sums  # the same weights
-        if self._rows is not None:  # and distance bins
-            b, family, _angle, bins = self._rows
-            out._rows = (b, family, np.ascontiguousarray(out.angle_index, dtype=np.int64), bins)
+        if self._observed is not None:  # and distance bins
+            b, kern = self._observed
+            out._observed = (b, kern._replace(
+                angle_index=np.ascontiguousarray(out.angle_index, dtype=np.int64)))
         return out
 
     def points(self, scanlines) -> np.ndarray:
@@ -348,6 +352,8 @@ class TableSearch:
         self.field = map_file.field
         ny, nx = self.grid.shape
         self.ny, self.nx, self.ncell = ny, nx, ny * nx
+        # the kernels' bundles of scalars are plain tuples (lut_kernels' module doc)
+        self._grid = tuple(Grid(ny, nx, self._x0, self._y0, self._res))
         n = self.scanlines.n_angles
         self.n_angles = n
         self.step = self.scanlines.angle_step
@@ -368,15 +374,14 @@ class TableSearch:
         else:
             mm = self._tables_in_millimetres()
         self.radial_table, self.spiral_table = mm["radial"], mm["spiral"]
-        self._tol32 = np.float32(self.params.pair_tolerance)
-        self._c2_32 = np.float32(self.params.c * self.params.c)
-        self._radial_flat = self.radial_table.reshape(-1)
-        self._spiral_flat = self.spiral_table.reshape(-1)
         self._lookup_layout()
         values = self._quantised_errors(int(mm["max_mm"][0]))
-        self.quantised = Quantised(self._radial_flat, self._spiral_flat, self.ncell, n,
-                                   values.reshape(-1), values.shape[1], self.nb_radial,
-                                   self.nb_spiral)
+        # the exact error's constants in its float32 arithmetic (lut_kernels.Quantised)
+        self.quantised = Quantised(self.radial_table.reshape(-1), self.spiral_table.reshape(-1),
+                                   self.ncell, n, values.reshape(-1), values.shape[1],
+                                   self.nb_radial, self.nb_spiral,
+                                   np.float32(self.params.pair_tolerance),
+                                   np.float32(self.params.c * self.params.c))
         p = self.params
         step = max(1, p.coarse_step)
         shapes = {"coarse": ((self.lookup_rows_total,
@@ -512,9 +517,10 @@ class TableSearch:
         cells = np.ascontiguousarray(np.asarray(cells, dtype=np.int64).ravel())
         ms = np.atleast_1d(np.asarray(ms, dtype=np.int64))
         total = np.zeros((len(ms), len(cells)))
-        arrays = self._kernel_arrays(obs)
+        kern = self._observed(obs)
         for h, m in enumerate(ms):
-            exact_error_cells(*arrays, cells, int(m) % self.n_angles, 0.0, False, total[h])
+            m = int(m) % self.n_angles
+            exact_error_cells(self.quantised, kern, (m, m, 0.0, False), cells, total[h])
         return total
 
     def exact_error(self, obs: Observation, cells, m: int) -> np.ndarray:
@@ -540,50 +546,51 @@ class TableSearch:
             return self.exact_error(obs, cells, (m0 + (1 if a > 0.5 else 0)) % self.n_angles)
         flat = np.ascontiguousarray(cells.ravel())
         total = np.zeros(len(flat))
-        exact_error_cells(*self._kernel_arrays(obs), flat, m0, float(a), True, total)
+        exact_error_cells(self.quantised, self._observed(obs),
+                          (self.scanlines.heading_index(theta), m0, float(a), True), flat,
+                          total)
         return total.reshape(cells.shape)
 
-    def _kernel_arrays(self, obs: Observation) -> tuple:
-        """The leading arguments of ``exact_error_cells`` for the observations."""
-        if obs._kernel is None:
-            obs._kernel = (np.ascontiguousarray(obs.family, dtype=np.int64),
-                           np.ascontiguousarray(obs.angle_index, dtype=np.int64),
-                           np.ascontiguousarray(obs.distance, dtype=np.float32),
-                           np.ascontiguousarray(obs.weight, dtype=np.float32))
-        return (self._radial_flat, self._spiral_flat, self.ncell, self.n_angles,
-                *obs._kernel, self._tol32, self._c2_32)
+    def _observed(self, obs: Observation) -> Observed:
+        """The observations as the kernels read them (lut_kernels.Observed), converted once
+        per Observation and distance bin."""
+        b = self.params.distance_bin
+        if obs._observed is None or obs._observed[0] != b:
+            obs._observed = (b, Observed(
+                np.ascontiguousarray(obs.family, dtype=np.int64),
+                np.ascontiguousarray(obs.angle_index, dtype=np.int64),
+                np.rint(obs.distance / b).astype(np.int64),
+                np.ascontiguousarray(obs.distance, dtype=np.float32),
+                np.ascontiguousarray(obs.weight, dtype=np.float32), obs.weight64))
+        return obs._observed[1]
 
     def observation_errors(self, obs: Observation, cell, theta: float) -> np.ndarray:
         """Per observation, the error e = |d - predicted crossing| (m) at one cell (i, j) and
         a continuous heading: the same prediction as ``exact_error_at_heading`` (the nearest
         table crossing at a table heading, angle-interpolated crossings between them); a
         "none" table entry gives an error of about NONE_M."""
-        m0, a, interpolate = self._heading_args(theta)
         out = np.empty(len(obs))
-        arrays = self._kernel_arrays(obs)
-        observation_errors_cell(*arrays[:7], arrays[8], int(cell[0]) * self.nx + int(cell[1]),
-                                m0, a, interpolate, out)
+        observation_errors_cell(self.quantised, self._observed(obs), self._at(theta),
+                                int(cell[0]) * self.nx + int(cell[1]), out)
         return out
 
     def observation_predictions(self, obs: Observation, cell, theta: float) -> np.ndarray:
         """Per observation, the crossing distance (m) its scan line predicts at one cell and a
         continuous heading (the prediction ``observation_errors`` measures against)."""
-        m0, a, interpolate = self._heading_args(theta)
         out = np.empty(len(obs))
-        arrays = self._kernel_arrays(obs)
-        observation_predictions_cell(*arrays[:7], arrays[8],
-                                     int(cell[0]) * self.nx + int(cell[1]), m0, a,
-                                     interpolate, out)
+        observation_predictions_cell(self.quantised, self._observed(obs), self._at(theta),
+                                     int(cell[0]) * self.nx + int(cell[1]), out)
         return out
 
-    def _heading_args(self, theta: float) -> tuple[int, float, bool]:
-        """(m0, a, interpolate) of the kernels for a continuous heading: the table heading
-        below it and the fraction of the step, or the nearest table heading when the heading
-        is on one."""
+    def _at(self, theta: float) -> tuple:
+        """Where the kernels score a continuous heading (lut_kernels.At, as a plain tuple):
+        the nearest table heading, and the table heading below it with the fraction of the
+        step, or the nearest table heading when the heading is on one."""
+        m = self.scanlines.heading_index(theta)
         m0, a = self._heading_bracket(theta)
         if a < 1e-6 or a > 1 - 1e-6:
-            return (m0 + (1 if a > 0.5 else 0)) % self.n_angles, 0.0, False
-        return m0, float(a), True
+            return m, (m0 + (1 if a > 0.5 else 0)) % self.n_angles, 0.0, False
+        return m, m0, float(a), True
 
     def inliers(self, obs: Observation, x: float, y: float, theta: float,
                 inlier_error: float) -> tuple[np.ndarray, np.ndarray]:
@@ -655,7 +662,7 @@ class TableSearch:
         lw = obs.weight if obs.lookup_weight is None else obs.lookup_weight
         scale = np.where(lw > 0, obs.weight / np.where(lw > 0, lw, 1.0), 0.0)
         out = np.empty(self.ncell, dtype=np.float32)
-        weighted_cells(self.quantised, self._observed_rows(obs), m,
+        weighted_cells(self.quantised, self._observed(obs), m,
                        np.ascontiguousarray(scale, dtype=np.float32), out)
         return out.reshape(self.ny, self.nx).astype(np.float64) / float(self.q_levels)
 
@@ -672,32 +679,15 @@ class TableSearch:
         greedy on the whole surface (``_surface``), which is computed only where the bound
         does not rule a cell out, about 5 % of msl-2015's cells for 16 minima."""
         out = np.empty(max(k, 0), dtype=np.int64)
-        n = separated_minima(self.quantised, self.min_pooled, self._observed_rows(obs), int(m),
-                             self.ny, self.nx, int(k), max(1, int(math.ceil(min_cells))), out)
+        n = separated_minima(self.quantised, self.min_pooled, self._observed(obs), int(m),
+                             self._grid, int(k), max(1, int(math.ceil(min_cells))), out)
         return out[:n]
-
-    def _row_arrays(self, obs: Observation, m: int) -> tuple:
-        """The arguments of ``tiled_sum`` that select the rows
-        ``lookup_rows(obs, m)``."""
-        b = self.params.distance_bin
-        if obs._rows is None or obs._rows[0] != b:
-            obs._rows = (b, np.ascontiguousarray(obs.family, dtype=np.int64),
-                         np.ascontiguousarray(obs.angle_index, dtype=np.int64),
-                         np.rint(obs.distance / b).astype(np.int64))
-        return (*obs._rows[1:], int(m), self.n_angles, self.nb_radial, self.nb_spiral,
-                self.spiral_row0)
-
-    def _observed_rows(self, obs: Observation) -> ObservedRows:
-        """The observations as the quantised surfaces read them (``_row_arrays``' first
-        three)."""
-        return ObservedRows(*self._row_arrays(obs, 0)[:3])
 
     def local_surface(self, obs: Observation, m: int, i0: int, i1: int, j0: int, j1: int):
         """The quantised error surface (uint16) at table heading m on the window
         [i0, i1) x [j0, j1)."""
         out = np.empty((i1 - i0, j1 - j0), dtype=np.uint16)
-        window_sum(self.quantised, self._observed_rows(obs), int(m), i0, i1, j0, j1, self.nx,
-                   out)
+        window_sum(self.quantised, self._observed(obs), int(m), i0, i1, j0, j1, self.nx, out)
         return out
 
     def local_window(self, x: float, y: float, half_width: float):
@@ -721,9 +711,9 @@ class TableSearch:
             return None
         m = self.scanlines.heading_index(theta)
         i0, i1, j0, j1 = self.local_window(prior_xy[0], prior_xy[1], half_width)
-        best, value = tracked_window(self.quantised, self.min_pooled, self._observed_rows(obs),
-                                     m, i0, i1, j0, j1, self.nx, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0,
-                                     0.0, 0.0, 0.0, 0.0)  # the least surface, no prior
+        best, value = tracked_window(self.quantised, self.min_pooled, self._observed(obs), m,
+                                     (i0, i1, j0, j1), self._grid,
+                                     _LEAST_SURFACE)  # no prior
         i, j = divmod(int(best), self.nx)
         edge = ((i == i0 and i0 > 0) or (i == i1 - 1 and i1 < self.ny)
                 or (j == j0 and j0 > 0) or (j == j1 - 1 and j1 < self.nx))
@@ -756,23 +746,19 @@ class TableSearch:
         is counted (its ``cell``, ``error`` and Hessian stay the table's). Returns (fix, its
         ``support`` with ``inlier_error``, the posterior score of the window's best cell,
         the fix's position (x, y) before the points' fit)."""
-        m = self.scanlines.heading_index(theta)
-        i0, i1, j0, j1 = self.local_window(prior_xy[0], prior_xy[1], half_width)
-        m0, a, interpolate = self._heading_args(theta)
-        W = max(obs.total_weight, 1e-12)
-        *_tables, dist, weight, tol, c2 = self._kernel_arrays(obs)
         pf, points, max_shift, max_turn = fit if fit is not None else (None, _NO_POINTS, 0, 0)
-        table, fx0, fy0, fres, fc2 = ((pf.table, *pf.origin, pf.resolution, pf.c * pf.c)
-                                      if pf is not None else (_NO_RASTER, 0.0, 0.0, 1.0, 1.0))
+        line_fit = LineFit(
+            pf is not None, *((pf.table, *pf.origin, pf.resolution) if pf is not None
+                              else (_NO_RASTER, 0.0, 0.0, 1.0)),
+            points, pf.c * pf.c if pf is not None else 1.0, float(theta),
+            float(min(max_shift, 1e9)), float(min(max_turn, 1e9)))
+        rule = (max(obs.total_weight, 1e-12), float(fix_temperature), float(inlier_error),
+                self.params.c * self.params.c)  # lut_kernels.FixRule
         out = np.empty(19)
-        tracked_fix(self.quantised, self.min_pooled, self._observed_rows(obs), m, i0, i1, j0,
-                    j1, self.ny,
-                    self.nx, *self._prior_args(prior_xy, prior_information, temperature,
-                                               prior_cap),
-                    dist, weight, tol, c2, m0, a, interpolate, W, float(fix_temperature),
-                    _QPINV, obs.weight64, float(inlier_error), self.params.c * self.params.c,
-                    float(theta), pf is not None, table, fx0, fy0, fres, points, fc2,
-                    float(min(max_shift, 1e9)), float(min(max_turn, 1e9)), out)
+        tracked_fix(self.quantised, self.min_pooled, self._observed(obs), self._at(theta),
+                    self.local_window(prior_xy[0], prior_xy[1], half_width), self._grid,
+                    self._posterior(prior_xy, prior_information, temperature, prior_cap),
+                    rule, line_fit, out)
         x, y, e, e_norm, ci, cj, hxx, hxy, hyy, edge, window_fit, own = out[:12].tolist()
         fix = SearchResult(x=x, y=y, theta=float(theta), error=e, error_norm=e_norm,
                            cell=(int(ci), int(cj)), n_observations=len(obs),
@@ -797,39 +783,35 @@ class TableSearch:
         """A lower bound of ``tracked_score`` from the min-pooled error lookup (the
         unknown-heading search's; ``tracked_window_bound``): never above it, about
         ``coarse_step``^2 times cheaper, so a score below the bound is below the score."""
-        m = self.scanlines.heading_index(theta)
-        i0, i1, j0, j1 = self.local_window(prior_xy[0], prior_xy[1], half_width)
-        cy, cx = self.coarse_shape
         return tracked_window_bound(
-            self.coarse_lookup, max(1, self.params.coarse_step), cy, cx, self.coarse_ntx,
-            *self._row_arrays(obs, m), i0, i1, j0, j1,
-            *self._prior_args(prior_xy, prior_information, temperature, prior_cap))
+            self.min_pooled, self._observed(obs), self.scanlines.heading_index(theta),
+            self.local_window(prior_xy[0], prior_xy[1], half_width), self._grid,
+            self._posterior(prior_xy, prior_information, temperature, prior_cap))
 
     def _tracked_window(self, obs, theta, prior_xy, info, temperature, half_width, cap):
-        m = self.scanlines.heading_index(theta)
-        i0, i1, j0, j1 = self.local_window(prior_xy[0], prior_xy[1], half_width)
         return tracked_window(
-            self.quantised, self.min_pooled, self._observed_rows(obs), m, i0, i1, j0, j1, self.nx,
-            *self._prior_args(prior_xy, info, temperature, cap))
+            self.quantised, self.min_pooled, self._observed(obs),
+            self.scanlines.heading_index(theta),
+            self.local_window(prior_xy[0], prior_xy[1], half_width), self._grid,
+            self._posterior(prior_xy, info, temperature, cap))
 
-    def _prior_args(self, prior_xy, info, temperature: float, cap: float) -> tuple:
-        """The tracked kernels' prior arguments: the error term's scale (1 / (q_levels
-        temperature)), the grid's origin and resolution, the prior's position, its
-        information (xx, xy, yy) and the Mahalanobis term's cap."""
-        return (1.0 / (self.q_levels * temperature), self._x0, self._y0, self._res,
-                float(prior_xy[0]), float(prior_xy[1]), float(info[0, 0]), float(info[0, 1]),
-                float(info[1, 1]), float(min(cap, 1e300)))
+    def _posterior(self, prior_xy, info, temperature: float, cap: float) -> tuple:
+        """The tracked kernels' ranking (lut_kernels.Posterior, as a plain tuple): the error
+        term's scale (1 / (q_levels temperature)), the prior's position, its information
+        (xx, xy, yy) and the Mahalanobis term's cap."""
+        return (1.0 / (self.q_levels * temperature), float(prior_xy[0]), float(prior_xy[1]),
+                float(info[0, 0]), float(info[0, 1]), float(info[1, 1]),
+                float(min(cap, 1e300)))
 
     def refine(self, obs: Observation, cell, theta: float, *, max_moves: int = 4) -> SearchResult:
         """Exact sub-cell refinement around ``cell``: the exact error at the continuous heading
         theta on the 3 x 3 cells around it (moving to the lowest while it is not the centre,
         at most ``max_moves`` times), then a least-squares quadratic fit of those 9 values (the
         compiled ``refine_cell``, which tracked_fix runs too)."""
-        m0, a, interpolate = self._heading_args(theta)
         out = np.empty(9)
-        refine_cell(*self._kernel_arrays(obs), int(cell[0]), int(cell[1]), self.ny, self.nx,
-                    m0, a, interpolate, int(max_moves), max(obs.total_weight, 1e-12), self._x0,
-                    self._y0, self._res, _QPINV, out)
+        refine_cell(self.quantised, self._observed(obs), self._at(theta), self._grid,
+                    int(cell[0]), int(cell[1]), int(max_moves), max(obs.total_weight, 1e-12),
+                    out)
         x, y, e, e_norm, ci, cj, hxx, hxy, hyy = out.tolist()
         return SearchResult(
             x=x, y=y, theta=float(theta), error=e, error_norm=e_norm, cell=(int(ci), int(cj)),
@@ -888,10 +870,9 @@ class TableSearch:
         cy, cx = self.coarse_shape
         ncoarse = cy * cx
         surfaces = np.empty((n, ncoarse), dtype=np.uint16)
-        row_arrays = self._row_arrays(obs, 0)
+        kern = self._observed(obs)
         for m in range(n):
-            tiled_sum(self.coarse_lookup, *row_arrays[:3], m, *row_arrays[4:], 0, cy, 0, cx,
-                      self.coarse_ntx, surfaces[m].reshape(cy, cx))
+            tiled_sum(self.min_pooled, kern, m, (0, cy, 0, cx), surfaces[m].reshape(cy, cx))
         flat = surfaces.ravel()
         pool = min(flat.size, 64 * candidates)
         cand = np.argpartition(flat, pool - 1)[:pool]
@@ -985,10 +966,5 @@ def _min_pooled(lookup_3d: np.ndarray, step: int):
 
 _NO_POINTS = np.zeros((0, 2))
 _NO_RASTER = np.zeros((2, 2), dtype=np.float32)
-
-# least-squares quadratic on the 3 x 3 offsets (-1, 0, 1)^2:
-# f = a + b x + c y + d x^2 + e x y + f y^2
-_QY, _QX = np.mgrid[-1:2, -1:2]
-_QA = np.stack([np.ones(9), _QX.ravel(), _QY.ravel(), _QX.ravel() ** 2,
-                (_QX * _QY).ravel(), _QY.ravel() ** 2], axis=1)
-_QPINV = np.ascontiguousarray(np.linalg.pinv(_QA))
+# a tracked window ranked by its quantised surface alone (local_search: no prior)
+_LEAST_SURFACE = tuple(Posterior(1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
