@@ -28,6 +28,7 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -563,19 +564,23 @@ def stem_lines(lines: np.ndarray, white_px: np.ndarray, camera, to_floor, cc: di
     lines = np.ascontiguousarray(lines, np.float64)
     floor = to_floor(lines.reshape(-1, 2)).reshape(-1, 2, 2)
     out = np.empty((4 * len(lines), 2, 2))
-    n = _stems(lines, floor, white_px, lens_parameters(camera), to_floor.m, to_floor.m_inv,
-               to_floor.height, np.asarray(to_floor.position, np.float64), float(cell),
-               float(cc["stem_min_span"]), float(cc["line_width"]), float(cc["refine_step"]),
-               float(cc["refine_reach"] * cell), float(cc["arm_grow"] * cell),
-               float(cc["arm_tolerance"]), float(cc["min_arm_length"]),
-               int(cc["refine_min_points"]), math.sin(cc["max_misfit"]), out)
+    rule = (float(cell), float(cc["stem_min_span"]), float(cc["line_width"]),
+            float(cc["refine_step"]), float(cc["refine_reach"] * cell),
+            float(cc["arm_grow"] * cell), float(cc["arm_tolerance"]),
+            float(cc["min_arm_length"]), int(cc["refine_min_points"]),
+            math.sin(cc["max_misfit"]))
+    n = _stems(lines, floor, white_px, lens_parameters(camera), floor_of(to_floor), rule, out)
     return out[:n]
 
 
 @njit(cache=True, nogil=True)
-def _stems(lines, floor, white_px, lens, m, m_inv, height, pos, cell, min_span, line_width,
-           refine_step, max_reach, grow, tolerance, min_length, min_points, sin_misfit, out):
-    """stem_lines, compiled: the stems into ``out`` (4 N, 2, 2); returns their number."""
+def _stems(lines, floor, white_px, lens, fl, rule, out):
+    """stem_lines, compiled: the stems into ``out`` (4 N, 2, 2); returns their number.
+    ``floor``: the lines' ends on the floor, ``fl``: Floor, ``rule``: (cell, min_span,
+    line_width, refine_step, max_reach, grow, tolerance, min_length, min_points,
+    sin_misfit) as stem_lines makes it."""
+    (cell, min_span, line_width, refine_step, max_reach, grow, tolerance, min_length,
+     min_points, sin_misfit) = rule
     n = 0
     res = np.empty(12)
     seg = np.empty((2, 2))
@@ -592,7 +597,7 @@ def _stems(lines, floor, white_px, lens, m, m_inv, height, pos, cell, min_span, 
             nb = max(math.hypot(bx, by), 1e-9)
             back[0, 0], back[0, 1] = bx / nb, by / nb
             for sign in (1.0, -1.0):
-                qx, qy = _ideal_point(m_inv, height, pos, floor[i, k, 0] - sign * 0.05 * ay,
+                qx, qy = _ideal_point(fl, floor[i, k, 0] - sign * 0.05 * ay,
                                       floor[i, k, 1] + sign * 0.05 * ax)
                 vx, vy = qx - ex, qy - ey
                 nv = math.hypot(vx, vy)
@@ -602,9 +607,8 @@ def _stems(lines, floor, white_px, lens, m, m_inv, height, pos, cell, min_span, 
                 scale = 0.05 / nv  # m of floor per px along v
                 if scale * cell <= min_span:
                     continue
-                start, reach = _clear_start_kernel(ex, ey, vx, vy, back, scale, m, m_inv,
-                                                   height, pos, line_width, tolerance,
-                                                   max_reach)
+                start, reach = _clear_start_kernel(ex, ey, vx, vy, back, scale, fl, line_width,
+                                                   tolerance, max_reach)
                 step = min(max(line_width / scale, 1.0), refine_step)
                 sx, sy = ex + start * vx, ey + start * vy
                 gx, gy = grow_kernel(white_px, lens, sx, sy, vx, vy, step, reach, grow, tolerance)
@@ -615,8 +619,8 @@ def _stems(lines, floor, white_px, lens, m, m_inv, height, pos, cell, min_span, 
                 refine_kernel(seg, white_px, lens, step, reach, 0.0, min_points, refine_step, res)
                 if res[0] == 0:
                     continue
-                f0x, f0y = floor_at(m, height, pos, True, res[1], res[2])
-                f1x, f1y = floor_at(m, height, pos, True, res[3], res[4])
+                f0x, f0y = floor_at(fl.m, fl.height, fl.pos, True, res[1], res[2])
+                f1x, f1y = floor_at(fl.m, fl.height, fl.pos, True, res[3], res[4])
                 dx, dy = f1x - f0x, f1y - f0y
                 ls = math.hypot(dx, dy)
                 if not np.isfinite(ls) or ls < min_length or abs(dx * ax + dy * ay) / ls \
@@ -989,9 +993,8 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
     lengths = np.array(lengths, np.float64) if has_lengths else np.zeros(n)
     angles_at = np.empty((n + 1, 2))  # the crossing on the floor, each arm's offset there
     scalars = np.empty(3)
-    code = _floor_checks(x, dirs, reach, lengths, has_lengths, frame.use_white, frame.white_px,
-                         frame.lens, to_floor.m, to_floor.height, frame.position,
-                         frame.shifted, frame.params, angles_at, scalars)
+    code = _floor_checks(x, dirs, reach, lengths, has_lengths, frame.sight, frame.floor,
+                         frame.params, angles_at, scalars)
     if code:
         return FLOOR_REASONS[code]
     angles = np.arctan2(angles_at[:, 1], angles_at[:, 0])
@@ -1003,10 +1006,8 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
         return _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera, to_floor,
                             cc, cell, dist, bearing, orient, misfit, span)
     out = np.empty(3)
-    code = _image_checks(KIND_INDEX[kind], x, dirs, reach, frame.white, frame.green,
-                         frame.other_mean, frame.top, frame.field, frame.use_white,
-                         frame.white_px, frame.lens, to_floor.m, to_floor.m_inv,
-                         to_floor.height, frame.position, frame.params, frame.radii, _RING, out)
+    code = _image_checks(KIND_INDEX[kind], x, dirs, reach, frame.sight, frame.floor,
+                         frame.params, frame.radii, out)
     if code == IMAGE_VERIFIED:
         row = [CROSSING_CODES[kind], dist, bearing, orient,
                out[0] * (1.0 - misfit / math.radians(90.0))]
@@ -1024,10 +1025,47 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
     return IMAGE_REASONS[code]
 
 
+class Floor(NamedTuple):
+    """A frame's floor projection as the kernels read it (perspective.FloorProjection): ``m``
+    takes an ideal pixel (u, v, 1) to its ray, ``m_inv`` a floor point back to its
+    homogeneous ideal pixel, ``height`` (m) the lens above the floor, ``pos`` (2,) the lens's
+    position over the floor in the robot frame, ``shifted`` whether that is not (0, 0)."""
+
+    m: np.ndarray
+    m_inv: np.ndarray
+    height: float
+    pos: np.ndarray
+    shifted: bool
+
+
+def floor_of(to_floor) -> Floor:
+    """The kernels' Floor of a perspective.FloorProjection."""
+    pos = np.asarray(to_floor.position, np.float64)
+    return Floor(to_floor.m, to_floor.m_inv, to_floor.height, pos, bool(pos.any()))
+
+
+class Sight(NamedTuple):
+    """What the verification kernels see of a frame: the grid's ``white``, ``green`` and
+    ``other_mean`` shares (float32, cells), its field boundary ``top`` (float64, a row per
+    column), the ``field`` cells (float32; (1, 1) when not given), the full-resolution white
+    mask ``white_px`` (uint8; (1, 1) when not given, ``use_white`` False) and the ``lens``
+    (line_fit.lens_parameters)."""
+
+    white: np.ndarray
+    green: np.ndarray
+    other_mean: np.ndarray
+    top: np.ndarray
+    field: np.ndarray
+    white_px: np.ndarray
+    use_white: bool
+    lens: np.ndarray
+
+
 class VerifyFrame:
     """What the compiled checks of _verify_crossing read of a frame, made once per frame:
-    the grid's images as the kernels take them, the lens, the conf's numbers (``params``,
-    indexed by the P_ names) and the circles' radii."""
+    the grid's images and the lens as the kernels take them (``sight``), the floor
+    projection (``floor``), the conf's numbers (``params``, indexed by the P_ names) and the
+    circles' radii."""
 
     def __init__(self, white, green, other_mean, top, camera, to_floor, cc, cell,
                  field_cells=None, white_px=None):
@@ -1044,15 +1082,24 @@ class VerifyFrame:
         self.position = np.asarray(to_floor.position, np.float64)
         self.shifted = bool(self.position.any())  # as FloorProjection adds it
         self.radii = np.asarray(cc["circle_radii"], np.float64)
-        w, h = camera.image_size
-        p = np.empty(P_COUNT)
-        p[P_CELL], p[P_WIDTH], p[P_HEIGHT] = cell, w, h
-        p[P_FINE] = bool(cc.get("fine", True))
-        p[P_USE_FIELD] = self.use_field
-        p[P_WIDTH_LO], p[P_WIDTH_HI] = cc["width_ratio"]
-        for k, name in _P_CONF:
-            p[k] = cc[name]
-        self.params = p
+        self.params = verify_params(camera, cc, cell, self.use_field)
+        self.sight = Sight(self.white, self.green, self.other_mean, self.top, self.field,
+                           self.white_px, self.use_white, self.lens)
+        self.floor = Floor(to_floor.m, to_floor.m_inv, to_floor.height, self.position,
+                           self.shifted)
+
+
+def verify_params(camera, cc: dict, cell: int, use_field: bool = False) -> np.ndarray:
+    """The numbers the verification kernels read (P_COUNT,), indexed by the P_ names."""
+    w, h = camera.image_size
+    p = np.empty(P_COUNT)
+    p[P_CELL], p[P_WIDTH], p[P_HEIGHT] = cell, w, h
+    p[P_FINE] = bool(cc.get("fine", True))
+    p[P_USE_FIELD] = use_field
+    p[P_WIDTH_LO], p[P_WIDTH_HI] = cc["width_ratio"]
+    for k, name in _P_CONF:
+        p[k] = cc[name]
+    return p
 
 
 # the numbers of VerifyFrame.params: the grid's cell (px), the image's size (px), whether the
@@ -1110,15 +1157,17 @@ def _to_edge(x0, x1, ux, uy, w, h, margin):
 
 
 @njit(cache=True, nogil=True)
-def _floor_checks(x, dirs, reach, lengths, has_lengths, use_white, white_px, lens, m, height,
-                  pos, shifted, p, angles_at, scalars):
+def _floor_checks(x, dirs, reach, lengths, has_lengths, sight, fl, p, angles_at, scalars):
     """_verify_crossing's floor checks, compiled: the crossing, a step along each arm, the
     cell below and the arms' ends on the floor; arms shorter than ``min_arm_length`` m grown
     along the white line on the full-resolution mask (white_arm_lengths; ``lengths`` and
     ``reach`` updated in place); the range. Returns 0 or the index of the reason in
     FLOOR_REASONS; ``angles_at`` (A + 1, 2) gets the crossing's floor point and each arm's
     offset from it (for arctan2), ``scalars`` the distance, the cell's span on the floor and
-    whether that is beyond the grid's resolution."""
+    whether that is beyond the grid's resolution (``sight``: Sight, ``fl``: Floor, ``p``:
+    verify_params)."""
+    use_white, white_px, lens = sight.use_white, sight.white_px, sight.lens
+    m, height, pos, shifted = fl.m, fl.height, fl.pos, fl.shifted
     n = dirs.shape[0]
     cell = p[P_CELL]
     step = p[P_ARM_STEP] * cell
@@ -1184,8 +1233,7 @@ def _floor_checks(x, dirs, reach, lengths, has_lengths, use_white, white_px, len
 
 
 @njit(cache=True, nogil=True)
-def _image_checks(kind, x, dirs, reach, white, green, other_mean, top, field, use_white,
-                  white_px, lens, m, m_inv, height, pos, p, radii, ring, out):
+def _image_checks(kind, x, dirs, reach, sight, fl, p, radii, out):
     """_verify_crossing's image checks, compiled: each arm's reach clipped to the image
     (``reach`` updated in place), the crossing and the arms' ends in the image and on the
     grid, the field boundary and objects near it; an L (``kind`` 0) whose alternative is not
@@ -1193,7 +1241,11 @@ def _image_checks(kind, x, dirs, reach, white, green, other_mean, top, field, us
     white) is to be looked at as a T (IMAGE_AS_T); then the circle and white paths
     (``_verify``). Returns IMAGE_VERIFIED with the score and the crossing's image position in
     ``out`` (3,), IMAGE_FINE where the grid does not verify it and the full-resolution check
-    decides, or the index of the reason in IMAGE_REASONS."""
+    decides, or the index of the reason in IMAGE_REASONS (``sight``: Sight, ``fl``: Floor,
+    ``p``: verify_params, ``radii``: the circles')."""
+    white, green, other_mean, top, field = (sight.white, sight.green, sight.other_mean,
+                                            sight.top, sight.field)
+    use_white, lens = sight.use_white, sight.lens
     n = dirs.shape[0]
     cell = p[P_CELL]
     x0, x1 = x[0], x[1]
@@ -1233,18 +1285,13 @@ def _image_checks(kind, x, dirs, reach, white, green, other_mean, top, field, us
     # line leaves a cell mostly green: where the full-resolution mask shows an arm's line
     # going on through the crossing, the L is no L
     if kind == 0:
-        if not _alternative_in_view(x0, x1, dirs, lens, top, other_mean, green, w, h, cell,
-                                    p[P_ARM_REACH] * cell, p[P_EDGE_MARGIN], p[P_T_GREEN]):
+        if not _alternative_in_view(x0, x1, dirs, sight, p):
             return IMAGE_AS_T
         if use_white:
             for k in range(n):
-                if _arm_state(x0, x1, -dirs[k, 0], -dirs[k, 1], dirs, white_px, green,
-                              other_mean, top, lens, m, m_inv, height, pos, w, h, cell,
-                              p[P_LINE_WIDTH], p[P_ARM_TOLERANCE], p[P_REFINE_REACH] * cell,
-                              p[P_FINE_PX], p[P_MIN_ARM_LENGTH], p[P_REFINE_STEP],
-                              p[P_WIDTH_LO], p[P_WIDTH_HI], p[P_T_GREEN]) == 1:
+                if _arm_state(x0, x1, -dirs[k, 0], -dirs[k, 1], dirs, sight, fl, p) == 1:
                     return IMAGE_AS_T
-    score = _verify(grid[0], grid[1:], white, green, field, p[P_USE_FIELD] != 0, ring, radii,
+    score = _verify(grid[0], grid[1:], white, green, field, p[P_USE_FIELD] != 0, _RING, radii,
                     p[P_T_WHITE], p[P_RELATIVE], p[P_T_GREEN], p[P_ARM_GAP], p[P_MAX_RADIUS],
                     p[P_MAX_OTHER], p[P_MIN_PATH_SHARE])
     if score <= 0:
@@ -1332,33 +1379,36 @@ def arm_state(x: np.ndarray, u: np.ndarray, white_px: np.ndarray, green: np.ndar
     white goes on, the line would be wide enough in the image to show (``fine_px`` / 2) and
     the cells along it are field (inside the boundary, no object, green at least
     ``t_green``); else "unknown" (out of view, hidden, not resolved, white of no line)."""
-    w, h = camera.image_size
     a = np.zeros((0, 2)) if arms is None else np.ascontiguousarray(arms, np.float64)
-    code = _arm_state(float(x[0]), float(x[1]), float(u[0]), float(u[1]), a, white_px,
-                      np.asarray(green, np.float32), np.asarray(other_mean, np.float32),
-                      np.asarray(top, np.float64), lens_parameters(camera), to_floor.m,
-                      to_floor.m_inv, to_floor.height,
-                      np.asarray(to_floor.position, np.float64), float(w), float(h),
-                      float(cell), float(cc["line_width"]), float(cc["arm_tolerance"]),
-                      float(cc["refine_reach"] * cell), float(cc["fine_px"]),
-                      float(cc["min_arm_length"]), float(cc["refine_step"]),
-                      float(cc["width_ratio"][0]), float(cc["width_ratio"][1]),
-                      float(cc["t_green"]))
+    sight = Sight(_NO_CELLS, np.asarray(green, np.float32), np.asarray(other_mean, np.float32),
+                  np.asarray(top, np.float64), _NO_CELLS, white_px, True,
+                  lens_parameters(camera))
+    code = _arm_state(float(x[0]), float(x[1]), float(u[0]), float(u[1]), a, sight,
+                      floor_of(to_floor), verify_params(camera, cc, cell))
     return ("unknown", "white", "green")[code]
 
 
+_NO_CELLS = np.zeros((1, 1), np.float32)  # a Sight's grid image that a kernel does not read
+
+
 @njit(cache=True, nogil=True)
-def _arm_state(x0, x1, ux, uy, arms, white_px, green, other_mean, top, lens, m, m_inv,
-               height, pos, w, h, cell, line_width, tolerance, max_reach, fine_px,
-               min_length, refine_step, ratio_lo, ratio_hi, t_green):
-    """arm_state, compiled: 0 unknown, 1 white, 2 green."""
-    f0x, f0y = floor_at(m, height, pos, True, x0, x1)
-    f1x, f1y = floor_at(m, height, pos, True, x0 + 4.0 * ux, x1 + 4.0 * uy)
+def _arm_state(x0, x1, ux, uy, arms, sight, fl, p):
+    """arm_state, compiled (``sight``: Sight, ``fl``: Floor, ``p``: verify_params): 0
+    unknown, 1 white, 2 green."""
+    white_px, green, other_mean, top, lens = (sight.white_px, sight.green, sight.other_mean,
+                                              sight.top, sight.lens)
+    w, h, cell = p[P_WIDTH], p[P_HEIGHT], p[P_CELL]
+    line_width, tolerance = p[P_LINE_WIDTH], p[P_ARM_TOLERANCE]
+    max_reach = p[P_REFINE_REACH] * cell
+    fine_px, min_length, refine_step = p[P_FINE_PX], p[P_MIN_ARM_LENGTH], p[P_REFINE_STEP]
+    ratio_lo, ratio_hi, t_green = p[P_WIDTH_LO], p[P_WIDTH_HI], p[P_T_GREEN]
+    f0x, f0y = floor_at(fl.m, fl.height, fl.pos, True, x0, x1)
+    f1x, f1y = floor_at(fl.m, fl.height, fl.pos, True, x0 + 4.0 * ux, x1 + 4.0 * uy)
     scale = math.hypot(f1x - f0x, f1y - f0y) / 4.0  # m of floor per px along u
     if not np.isfinite(scale) or scale <= 0:
         return 0
-    start, reach = _clear_start_kernel(x0, x1, ux, uy, arms, scale, m, m_inv, height, pos,
-                                       line_width, tolerance, max_reach)
+    start, reach = _clear_start_kernel(x0, x1, ux, uy, arms, scale, fl, line_width, tolerance,
+                                       max_reach)
     need = start + max(fine_px, (min_length - line_width) / scale)
     step = min(max(line_width / scale, 1.0), refine_step)
     edge = _to_edge(x0, x1, ux, uy, w, h, step)  # to ``step`` px inside the image's edge
@@ -1381,8 +1431,7 @@ def _arm_state(x0, x1, ux, uy, arms, white_px, green, other_mean, top, lens, m, 
             if abs((res[k] - x0) * nx + (res[k + 1] - x1) * ny) > 2 * tolerance:
                 return 0
         mid = 0.5 * (start + stop)
-        expected = _px_width(m, m_inv, height, pos, x0 + mid * ux, x1 + mid * uy, ux, uy,
-                             line_width)
+        expected = _px_width(fl, x0 + mid * ux, x1 + mid * uy, ux, uy, line_width)
         ratio = np.median(widths) / max(expected, 1e-6)
         return 1 if ratio_lo <= ratio <= ratio_hi else 0
     if need > edge:
@@ -1390,8 +1439,7 @@ def _arm_state(x0, x1, ux, uy, arms, white_px, green, other_mean, top, lens, m, 
     # a line thinner in the image than half the judged length (fine_px) may break up in the
     # white mask: no white there is no evidence of no line
     mid = 0.5 * (start + need)
-    if not _px_width(m, m_inv, height, pos, x0 + mid * ux, x1 + mid * uy, ux, uy,
-                     line_width) >= 0.5 * fine_px:
+    if not _px_width(fl, x0 + mid * ux, x1 + mid * uy, ux, uy, line_width) >= 0.5 * fine_px:
         return 0
     for k in range(3):
         tk = start + 0.5 * k * (need - start)
@@ -1407,9 +1455,10 @@ def _arm_state(x0, x1, ux, uy, arms, white_px, green, other_mean, top, lens, m, 
 
 
 @njit(cache=True, nogil=True)
-def _ideal_point(m_inv, height, pos, fx, fy):
-    """perspective.FloorProjection.to_ideal at one floor point."""
-    px, py, pz = fx - pos[0], fy - pos[1], -height
+def _ideal_point(fl, fx, fy):
+    """perspective.FloorProjection.to_ideal at one floor point (``fl``: Floor)."""
+    m_inv = fl.m_inv
+    px, py, pz = fx - fl.pos[0], fy - fl.pos[1], -fl.height
     h0 = m_inv[0, 0] * px + m_inv[0, 1] * py + m_inv[0, 2] * pz
     h1 = m_inv[1, 0] * px + m_inv[1, 1] * py + m_inv[1, 2] * pz
     h2 = m_inv[2, 0] * px + m_inv[2, 1] * py + m_inv[2, 2] * pz
@@ -1419,24 +1468,28 @@ def _ideal_point(m_inv, height, pos, fx, fy):
 
 
 @njit(cache=True, nogil=True)
-def _px_width(m, m_inv, height, pos, px, py, ux, uy, line_width):
-    f0x, f0y = floor_at(m, height, pos, True, px, py)
-    f1x, f1y = floor_at(m, height, pos, True, px + ux, py + uy)
+def _px_width(fl, px, py, ux, uy, line_width):
+    """The width (ideal px, across (ux, uy)) of a line ``line_width`` m wide on the floor
+    along the direction (ux, uy) takes at ideal pixel (px, py) (``fl``: Floor)."""
+    f0x, f0y = floor_at(fl.m, fl.height, fl.pos, True, px, py)
+    f1x, f1y = floor_at(fl.m, fl.height, fl.pos, True, px + ux, py + uy)
     ax, ay = f1x - f0x, f1y - f0y
     na = math.hypot(ax, ay)
     if not np.isfinite(na) or na <= 0:
         return np.nan
     nx, ny = -ay / na * (0.5 * line_width), ax / na * (0.5 * line_width)
-    a0, a1 = _ideal_point(m_inv, height, pos, f0x - nx, f0y - ny)
-    b0, b1 = _ideal_point(m_inv, height, pos, f0x + nx, f0y + ny)
+    a0, a1 = _ideal_point(fl, f0x - nx, f0y - ny)
+    b0, b1 = _ideal_point(fl, f0x + nx, f0y + ny)
     return abs((b0 - a0) * -uy + (b1 - a1) * ux)
 
 
 @njit(cache=True, nogil=True)
-def _clear_start_kernel(x0, x1, ux, uy, arms, scale, m, m_inv, height, pos, line_width,
-                        tolerance, max_reach):
+def _clear_start_kernel(x0, x1, ux, uy, arms, scale, fl, line_width, tolerance, max_reach):
+    """Where the half-line from (x0, x1) along (ux, uy) stands clear of the crossing's lines
+    (arm_state's start, ideal px; ``scale``: m of floor per px along it) and the reach of
+    its profiles (px)."""
     start = max(1.0, line_width / scale)
-    w_u = _px_width(m, m_inv, height, pos, x0, x1, ux, uy, line_width)
+    w_u = _px_width(fl, x0, x1, ux, uy, line_width)
     if not np.isfinite(w_u):
         w_u = 1.0
     for k in range(arms.shape[0]):
@@ -1444,7 +1497,7 @@ def _clear_start_kernel(x0, x1, ux, uy, arms, scale, m, m_inv, height, pos, line
         sin = abs(ux * vy - uy * vx)
         dot = ux * vx + uy * vy
         if 0.0 < dot < 0.999:  # ahead of the line, and not the line itself
-            w_v = _px_width(m, m_inv, height, pos, x0, x1, vx, vy, line_width)
+            w_v = _px_width(fl, x0, x1, vx, vy, line_width)
             if np.isfinite(w_v):
                 start = max(start, (0.5 * (w_u + w_v) + tolerance) / max(sin, 1e-3))
     reach = min(max(1.5 * w_u + 2 * tolerance, 2 * tolerance), max_reach)
@@ -1472,14 +1525,16 @@ def _continued_as_t(x, dirs, reach, white, green, other_mean, top, camera, to_fl
 
 
 @njit(cache=True, nogil=True)
-def _alternative_in_view(x0, x1, dirs, lens, top, other_mean, green, w, h, cell, reach,
-                         edge_margin, t_green):
+def _alternative_in_view(x0, x1, dirs, sight, p):
     """Whether the image shows carpet opposite an L's arms (where the third arm of a T would
-    be), ``reach`` px (``arm_reach`` cells) from the crossing (x0, x1): inside the image
-    (``w`` x ``h`` px) and the field boundary (``edge_margin`` cells below ``top``), no
-    object there, and green (at least ``t_green``, sampled as OpenCV's remap does:
-    ``_remap_sample``). A T seen with one half of its bar out of view or hidden looks like an
-    L; so do a far X's arms, flattened by the perspective."""
+    be), ``arm_reach`` cells from the crossing (x0, x1): inside the image and the field
+    boundary (``edge_margin`` cells below ``sight.top``), no object there, and green (at least
+    ``t_green``, sampled as OpenCV's remap does: ``_remap_sample``). A T seen with one half of
+    its bar out of view or hidden looks like an L; so do a far X's arms, flattened by the
+    perspective (``p``: verify_params)."""
+    lens, top, other_mean, green = sight.lens, sight.top, sight.other_mean, sight.green
+    w, h, cell = p[P_WIDTH], p[P_HEIGHT], p[P_CELL]
+    reach, edge_margin, t_green = p[P_ARM_REACH] * cell, p[P_EDGE_MARGIN], p[P_T_GREEN]
     for k in range(dirs.shape[0]):
         px, py = distort_point(lens, x0 - reach * dirs[k, 0], x1 - reach * dirs[k, 1])
         if not (np.isfinite(px) and np.isfinite(py) and 0 <= px <= w - 1
