@@ -167,7 +167,8 @@ class DistanceField:
                        self.origin[1], self.origin[1] + (ny - 1) * self.resolution)
 
     def args(self) -> tuple:
-        return self.dist, self.grad, self.origin[0], self.origin[1], self.resolution
+        """The kernels' first arguments: the tables and the grid (x0, y0, resolution)."""
+        return self.dist, self.grad, (self.origin[0], self.origin[1], self.resolution)
 
     def distance(self, x: float, y: float) -> tuple[float, float, float]:
         """(d, dd/dx, dd/dy) at a field point (fit_kernels.line_distance)."""
@@ -362,17 +363,19 @@ class FitEngine:
             ixx, ixy, iyy = (float(temperature) * float(v)
                              for v in (info[0][0], info[0][1], info[1][1]))
         st = self.step_theta if step_theta is None else float(step_theta)
-        K.rprop(*self.field.args(), obs.points, obs.weight, float(start[0]), float(start[1]),
-                float(start[2]), self.c * self.c, self.iterations, self.step_xy, st, pth, pw,
-                float(px), float(py), ixx, ixy, iyy, self.min_step[0], self.min_step[1], out)
+        K.rprop(*self.field.args(), obs.points, obs.weight,
+                (float(start[0]), float(start[1]), float(start[2])), self.c * self.c,
+                (self.iterations, self.step_xy, st, self.min_step[0], self.min_step[1]),
+                (pth, pw, float(px), float(py), ixx, ixy, iyy), out)
         return self.fix_at(obs, out, mode=mode)
 
     def fix_at(self, obs: FitObservation, pose, *, mode: str = "") -> Fix:
         """The Fix of the points at ``pose`` (no fitting)."""
         normal = np.empty((3, 3))
         dists = np.empty(len(obs))
-        K.normal_matrix(*self.field.args(), obs.points, obs.weight, float(pose[0]),
-                        float(pose[1]), float(pose[2]), self.c * self.c, normal, dists)
+        K.normal_matrix(*self.field.args(), obs.points, obs.weight,
+                        (float(pose[0]), float(pose[1]), float(pose[2])), self.c * self.c,
+                        normal, dists)
         c2 = self.c * self.c
         e = float(np.sum(obs.weight * dists * dists / (c2 + dists * dists)))
         n_in, w_in, _rho, sq = inlier_sums(dists, obs.weight, self.inlier_error, c2)
@@ -460,8 +463,9 @@ class FitEngine:
         """Per point the range at which its ray meets its nearest line at ``pose``
         (fit_kernels.ray_ranges), NaN where that is not well defined."""
         out = np.empty(len(obs))
-        K.ray_ranges(*self.field.args(), obs.points, float(pose[0]), float(pose[1]),
-                     float(pose[2]), 0.3, float(max_distance), out)
+        K.ray_ranges(*self.field.args(), obs.points,
+                     (float(pose[0]), float(pose[1]), float(pose[2])), 0.3, float(max_distance),
+                     out)
         return out
 
 

@@ -44,8 +44,9 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True, inline="always")
-def line_distance(dist, grad, x0, y0, res, x, y):
+def line_distance(dist, grad, grid, x, y):
     """(d, dd/dx, dd/dy) at field point (x, y) (module doc)."""
+    x0, y0, res = grid
     ny, nx = dist.shape
     u = (x - x0) / res
     v = (y - y0) / res
@@ -96,13 +97,14 @@ def line_distance(dist, grad, x0, y0, res, x, y):
 
 
 @njit(cache=True, nogil=True)
-def distance_at(dist, grad, x0, y0, res, x, y):
+def distance_at(dist, grad, grid, x, y):
     """``line_distance`` callable from Python (tests, pictures)."""
-    return line_distance(dist, grad, x0, y0, res, x, y)
+    return line_distance(dist, grad, grid, x, y)
 
 
 @njit(cache=True, nogil=True)
-def _cost_gradient(dist, grad, x0, y0, res, points, weights, px, py, pth, c2, out_grad):
+def _cost_gradient(dist, grad, grid, points, weights, pose, c2, out_grad):
+    px, py, pth = pose
     cs, sn = math.cos(pth), math.sin(pth)
     total = 0.0
     g0 = 0.0
@@ -111,7 +113,7 @@ def _cost_gradient(dist, grad, x0, y0, res, points, weights, px, py, pth, c2, ou
     for k in range(points.shape[0]):
         rx = cs * points[k, 0] - sn * points[k, 1]
         ry = sn * points[k, 0] + cs * points[k, 1]
-        d, dx, dy = line_distance(dist, grad, x0, y0, res, px + rx, py + ry)
+        d, dx, dy = line_distance(dist, grad, grid, px + rx, py + ry)
         den = c2 + d * d
         total += weights[k] * d * d / den
         f = weights[k] * 2.0 * c2 * d / (den * den)  # w rho'(d)
@@ -125,24 +127,27 @@ def _cost_gradient(dist, grad, x0, y0, res, points, weights, px, py, pth, c2, ou
 
 
 @njit(cache=True, nogil=True)
-def cost_gradient(dist, grad, x0, y0, res, points, weights, px, py, pth, c2, out_grad):
-    """E at pose (px, py, pth) (module doc); dE / d(x, y, theta) into ``out_grad`` (3,)."""
-    return _cost_gradient(dist, grad, x0, y0, res, points, weights, px, py, pth, c2, out_grad)
+def cost_gradient(dist, grad, grid, points, weights, pose, c2, out_grad):
+    """E at ``pose`` (px, py, pth) (module doc); dE / d(x, y, theta) into ``out_grad``
+    (3,)."""
+    return _cost_gradient(dist, grad, grid, points, weights, pose, c2, out_grad)
 
 
 @njit(cache=True, nogil=True)
-def rprop(dist, grad, x0, y0, res, points, weights, px, py, pth, c2, iterations, step_xy,
-          step_theta, prior_theta, prior_weight, prior_x, prior_y, info_xx, info_xy, info_yy,
-          min_step_xy, min_step_theta, out):
-    """E minimised by RPROP from (px, py, pth) (module doc): at most ``iterations`` gradient
-    evaluations, first steps ``step_xy`` (m) and ``step_theta`` (rad), stopping when every step
-    is below ``min_step_xy`` / ``min_step_theta``. ``prior_weight`` > 0 adds
+def rprop(dist, grad, grid, points, weights, start, c2, steps, prior, out):
+    """E minimised by RPROP from ``start`` (px, py, pth) (module doc). ``steps``:
+    (iterations, step_xy, step_theta, min_step_xy, min_step_theta): at most ``iterations``
+    gradient evaluations, first steps ``step_xy`` (m) and ``step_theta`` (rad), stopping when
+    every step is below ``min_step_xy`` / ``min_step_theta``. ``prior``: (prior_theta,
+    prior_weight, prior_x, prior_y, info_xx, info_xy, info_yy): ``prior_weight`` > 0 adds
     prior_weight * wrap(theta - prior_theta)^2 / 2 (a heading measured beside the points, in
     the units of E); an information (info_xx, info_xy, info_yy) other than 0 adds the position
     prior (p - prior)^T info (p - prior) / 2 likewise. The pose into ``out`` (3,); returns E at
     it (without the prior terms), and the best pose met is kept (RPROP does not test its
     steps)."""
-    pose = np.array([px, py, pth])
+    iterations, step_xy, step_theta, min_step_xy, min_step_theta = steps
+    prior_theta, prior_weight, prior_x, prior_y, info_xx, info_xy, info_yy = prior
+    pose = np.array([start[0], start[1], start[2]])
     step = np.array([step_xy, step_xy, step_theta])
     last = np.zeros(3)
     g = np.zeros(3)
@@ -150,8 +155,8 @@ def rprop(dist, grad, x0, y0, res, points, weights, px, py, pth, c2, iterations,
     best_total = np.inf
     best_e = np.inf
     for _ in range(iterations):
-        e = _cost_gradient(dist, grad, x0, y0, res, points, weights, pose[0], pose[1],
-                           pose[2], c2, g)
+        e = _cost_gradient(dist, grad, grid, points, weights, (pose[0], pose[1], pose[2]),
+                           c2, g)
         total = e
         if prior_weight > 0.0:
             dth = (pose[2] - prior_theta + math.pi) % (2.0 * math.pi) - math.pi
@@ -184,8 +189,7 @@ def rprop(dist, grad, x0, y0, res, points, weights, px, py, pth, c2, iterations,
                 small = False
         if small:
             break
-    e = _cost_gradient(dist, grad, x0, y0, res, points, weights, pose[0], pose[1], pose[2],
-                       c2, g)
+    e = _cost_gradient(dist, grad, grid, points, weights, (pose[0], pose[1], pose[2]), c2, g)
     total = e
     if prior_weight > 0.0:
         dth = (pose[2] - prior_theta + math.pi) % (2.0 * math.pi) - math.pi
@@ -202,15 +206,16 @@ def rprop(dist, grad, x0, y0, res, points, weights, px, py, pth, c2, iterations,
 
 
 @njit(cache=True, nogil=True)
-def normal_matrix(dist, grad, x0, y0, res, points, weights, px, py, pth, c2, out, out_d):
-    """The Gauss-Newton matrix (3, 3) of E at the pose into ``out`` (module doc) and every
-    point's distance d(q_i) into ``out_d``."""
+def normal_matrix(dist, grad, grid, points, weights, pose, c2, out, out_d):
+    """The Gauss-Newton matrix (3, 3) of E at ``pose`` (px, py, pth) into ``out`` (module
+    doc) and every point's distance d(q_i) into ``out_d``."""
+    px, py, pth = pose
     cs, sn = math.cos(pth), math.sin(pth)
     out[:, :] = 0.0
     for k in range(points.shape[0]):
         rx = cs * points[k, 0] - sn * points[k, 1]
         ry = sn * points[k, 0] + cs * points[k, 1]
-        d, dx, dy = line_distance(dist, grad, x0, y0, res, px + rx, py + ry)
+        d, dx, dy = line_distance(dist, grad, grid, px + rx, py + ry)
         out_d[k] = d
         den = c2 + d * d
         om = weights[k] * 2.0 * c2 / (den * den)
@@ -227,7 +232,7 @@ def normal_matrix(dist, grad, x0, y0, res, points, weights, px, py, pth, c2, out
 
 
 @njit(cache=True, nogil=True)
-def grid_costs(dist, grad, x0, y0, res, points, weights, xs, ys, headings, c2, out):
+def grid_costs(dist, grad, grid, points, weights, xs, ys, headings, c2, out):
     """out[h, i, j] = E at (xs[j], ys[i], headings[h]) with scale c2 (module doc)."""
     n = points.shape[0]
     rx = np.empty(n)
@@ -241,19 +246,20 @@ def grid_costs(dist, grad, x0, y0, res, points, weights, xs, ys, headings, c2, o
             for j in range(xs.shape[0]):
                 total = 0.0
                 for k in range(n):
-                    d, _dx, _dy = line_distance(dist, grad, x0, y0, res, xs[j] + rx[k],
+                    d, _dx, _dy = line_distance(dist, grad, grid, xs[j] + rx[k],
                                                 ys[i] + ry[k])
                     total += weights[k] * d * d / (c2 + d * d)
                 out[h, i, j] = total
 
 
 @njit(cache=True, nogil=True)
-def ray_ranges(dist, grad, x0, y0, res, points, px, py, pth, min_cosine, max_distance, out):
+def ray_ranges(dist, grad, grid, points, pose, min_cosine, max_distance, out):
     """out[i]: the range along point i's own ray (from the robot) at which the ray meets the
     line nearest the point, to first order: r - d / (n . u) (n = grad d, u the ray's unit
     direction); NaN where the point lies farther than ``max_distance`` from a line or the ray
     meets it at a grazing angle (|n . u| < ``min_cosine``). At the true pose r - out[i] is the
-    calibration's distance error at r."""
+    calibration's distance error at r (``pose``: px, py, pth)."""
+    px, py, pth = pose
     cs, sn = math.cos(pth), math.sin(pth)
     for k in range(points.shape[0]):
         rx = cs * points[k, 0] - sn * points[k, 1]
@@ -262,7 +268,7 @@ def ray_ranges(dist, grad, x0, y0, res, points, px, py, pth, min_cosine, max_dis
         out[k] = np.nan
         if r <= 0.0:
             continue
-        d, dx, dy = line_distance(dist, grad, x0, y0, res, px + rx, py + ry)
+        d, dx, dy = line_distance(dist, grad, grid, px + rx, py + ry)
         nu = (dx * rx + dy * ry) / r
         if d <= max_distance and abs(nu) >= min_cosine:
             out[k] = r - d / nu
