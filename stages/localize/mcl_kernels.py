@@ -24,11 +24,15 @@ sign), with ``penalty`` when the row is also in a table (the confusion's cost), 
 Lines are rows of ``lines`` (L, 12)::
 
     r, cos a, sin a, w_d, a_uni, mx, my, hm, ratio, h2, w_e, has_extent
+
+The kernels take the poses (``Poses``), the field as the observations are scored against it
+(``FieldPoints``, ``FieldLines``) and the model's weights as a tuple of scalars.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -42,6 +46,40 @@ P_D, P_CB, P_SB, P_CO, P_SO, P_WD, P_FLOOR, P_TABLE, P_AS_T, P_PEN, P_C0, P_C1 =
 N_POINT_COLS = 12
 L_R, L_CA, L_SA, L_WD, L_FLOOR, L_MX, L_MY, L_HM, L_RATIO, L_H2, L_WE, L_EXT = range(12)
 N_LINE_COLS = 12
+
+
+class Poses(NamedTuple):
+    """N poses: positions ``x``, ``y`` and the cosine and sine of the heading, (N,) each."""
+
+    x: np.ndarray
+    y: np.ndarray
+    cth: np.ndarray
+    sth: np.ndarray
+
+
+class FieldPoints(NamedTuple):
+    """The field's point landmarks as the point observations are scored against them:
+    ``cand`` (M, 6) the candidates (module doc), ``lut`` the crossing tables (flat, per cell
+    the crossing's row in ``cross`` or -1), ``cross`` (C, 4) crossing x, y, cos and sin of
+    its orientation, ``grid`` the tables' grid: origin x, y, 1 / resolution, nx, ny."""
+
+    cand: np.ndarray
+    lut: np.ndarray
+    cross: np.ndarray
+    grid: np.ndarray
+
+
+class FieldLines(NamedTuple):
+    """The field's lines as the line observations are scored against them: the straight
+    lines by direction, ``normals`` and ``tangents`` (G, 2), ``seg`` (S, 3) offset, first and
+    last position along the direction, group g's rows ``group_start[g]:group_start[g + 1]``;
+    ``arcs`` (A, 5) cx, cy, r, a0, sweep."""
+
+    normals: np.ndarray
+    tangents: np.ndarray
+    seg: np.ndarray
+    group_start: np.ndarray
+    arcs: np.ndarray
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -64,10 +102,15 @@ def _point(vx, vy, ux, uy, d_o, w_d, w_b):
 
 
 @njit(cache=True, nogil=True)
-def _table(lut, idx, cross, x, y, ux, uy, gx, gy, d_o, w_d, w_b, w_o, l_at_t):
+def _table(fp, idx, at, d_o, w_d, weights, l_at_t):
     """Eq. 3 and the orientation term at the crossing the table holds at ``idx`` (the cap
-    when it holds none); ``l_at_t``: an L at a T, its bisector 45 deg from the stem."""
-    k = lut[idx]
+    when it holds none): ``at`` (x, y, ux, uy, gx, gy) the particle's position, the
+    observation's bearing and its orientation in the field frame, ``weights`` (w_b, w_o);
+    ``l_at_t``: an L at a T, its bisector 45 deg from the stem."""
+    x, y, ux, uy, gx, gy = at
+    w_b, w_o = weights
+    cross = fp.cross
+    k = fp.lut[idx]
     if k < 0:
         return COST_CAP
     cost = _point(cross[k, 0] - x, cross[k, 1] - y, ux, uy, d_o, w_d, w_b)
@@ -81,10 +124,13 @@ def _table(lut, idx, cross, x, y, ux, uy, gx, gy, d_o, w_d, w_b, w_o, l_at_t):
 
 
 @njit(cache=True, nogil=True)
-def point_log_likelihood(out, x, y, cth, sth, pts, part, cand, lut, cross, grid, w_b, w_o):
-    """Add each point observation's log-likelihood at every pose to ``out`` (3, N) (row
-    ``part[k]``). ``cross`` (C, 4): crossing x, y, cos and sin of its orientation; ``grid``:
-    origin x, y, 1 / resolution, nx, ny; ``w_o``: 1 / sigma_o^2 (0: no orientation term)."""
+def point_log_likelihood(out, poses, pts, part, fp, weights):
+    """Add each point observation's log-likelihood at every pose (``poses``: Poses) to
+    ``out`` (3, N) (row ``part[k]``), against ``fp`` (FieldPoints); ``weights``: (w_b, w_o),
+    1 / sigma_b^2 and 1 / sigma_o^2 (0: no orientation term)."""
+    x, y, cth, sth = poses
+    cand, grid = fp.cand, fp.grid
+    w_b = weights[0]
     n = x.shape[0]
     ox, oy, inv_res = grid[0], grid[1], grid[2]
     nx, ny = int(grid[3]), int(grid[4])
@@ -115,13 +161,13 @@ def point_log_likelihood(out, x, y, cth, sth, pts, part, cand, lut, cross, grid,
                     if table == TABLE_L:  # L: the quadrant of its global orientation picks the set
                         below = gy < 0.0
                         off = (2 * int(below) + int(below != (gx < 0.0))) * cells
-                    cost = _table(lut, off + cell, cross, px, py, ux, uy, gx, gy, d_o, w_d,
-                                  w_b, w_o, False)
+                    cost = _table(fp, off + cell, (px, py, ux, uy, gx, gy), d_o, w_d,
+                                  weights, False)
                 # an alternative costs at least its penalty: none can do better than a type
                 # that costs less
                 if as_t >= 0 and cost > pen:
-                    alt = _table(lut, as_t + cell, cross, px, py, ux, uy, gx, gy, d_o, w_d,
-                                 w_b, w_o, True) + pen
+                    alt = _table(fp, as_t + cell, (px, py, ux, uy, gx, gy), d_o, w_d,
+                                 weights, True) + pen
                     cost = min(cost, alt)
             if c1 > c0 and cost > cand_pen:
                 c4 = s4 = 0.0
@@ -144,12 +190,13 @@ def point_log_likelihood(out, x, y, cth, sth, pts, part, cand, lut, cross, grid,
 
 
 @njit(cache=True, nogil=True)
-def line_log_likelihood(out, x, y, cth, sth, lines, normals, tangents, seg, group_start,
-                        arcs, tol2, w_a, margin):
-    """Add each line observation's log-likelihood at every pose to ``out`` (3, N) (row 0).
-    The field's straight lines by direction: ``normals``, ``tangents`` (G, 2), ``seg`` (S, 3)
-    offset, first and last position along the direction, group g's rows
-    ``group_start[g]:group_start[g + 1]``; ``arcs`` (A, 5) cx, cy, r, a0, sweep."""
+def line_log_likelihood(out, poses, lines, fl, rule):
+    """Add each line observation's log-likelihood at every pose (``poses``: Poses) to ``out``
+    (3, N) (row 0), against ``fl`` (FieldLines); ``rule``: (tol2, w_a, margin), the squared
+    tolerance of eq. 5, the angle's weight and the arcs' extent margin."""
+    x, y, cth, sth = poses
+    normals, tangents, seg, group_start, arcs = fl
+    tol2, w_a, margin = rule
     n = x.shape[0]
     n_g = normals.shape[0]
     two_pi = 2.0 * math.pi

@@ -215,13 +215,13 @@ class ObservationModel:
         # candidate ranges: the X crossings as an L's (sign -1: its bisector lies halfway
         # between two arms), as a T's or X's (sign 1), the goal posts
         self._cand_ranges = ((0, n_x), (n_x, 2 * n_x), (2 * n_x, 2 * n_x + n_p))
-        self._k_normals = np.array([gr[0] for gr in groups], float).reshape(-1, 2)
-        self._k_tangents = np.array([gr[1] for gr in groups], float).reshape(-1, 2)
-        self._k_seg = (np.concatenate([gr[2] for gr in groups]).reshape(-1, 3) if groups
-                       else np.zeros((0, 3)))
-        self._k_group_start = np.cumsum([0] + [len(gr[2]) for gr in groups]).astype(np.int64)
-        self._k_arcs = (np.ascontiguousarray(self.arcs) if c["arc_lines"]
-                        else np.zeros((0, 5)))
+        self._k_lines = K.FieldLines(
+            np.array([gr[0] for gr in groups], float).reshape(-1, 2),
+            np.array([gr[1] for gr in groups], float).reshape(-1, 2),
+            (np.concatenate([gr[2] for gr in groups]).reshape(-1, 3) if groups
+             else np.zeros((0, 3))),
+            np.cumsum([0] + [len(gr[2]) for gr in groups]).astype(np.int64),
+            np.ascontiguousarray(self.arcs) if c["arc_lines"] else np.zeros((0, 5)))
 
     def with_conf(self, conf: dict | None) -> ObservationModel:
         """The same field and tables with another conf."""
@@ -394,16 +394,17 @@ class ObservationModel:
         cth, sth = np.cos(th), np.sin(th)
         out = np.zeros((3, len(x)))
         c = self.conf
+        poses = K.Poses(x, y, cth, sth)
         if len(prep.lines):
-            K.line_log_likelihood(out, x, y, cth, sth, prep.lines, self._k_normals,
-                                  self._k_tangents, self._k_seg, self._k_group_start,
-                                  self._k_arcs, float(c["oriented_tolerance"]) ** 2,
-                                  1.0 / (2.0 * float(c["sigma_line_angle"]) ** 2),
-                                  float(c["extent_margin"]))
+            K.line_log_likelihood(out, poses, prep.lines, self._k_lines,
+                                  (float(c["oriented_tolerance"]) ** 2,
+                                   1.0 / (2.0 * float(c["sigma_line_angle"]) ** 2),
+                                   float(c["extent_margin"])))
         if len(prep.points):
-            K.point_log_likelihood(out, x, y, cth, sth, prep.points, prep.part, self._k_cand,
-                                   self.lut, self._k_cross, self._k_grid,
-                                   1.0 / float(c["sigma_bearing"]) ** 2, self._k_w_o)
+            K.point_log_likelihood(out, poses, prep.points, prep.part,
+                                   K.FieldPoints(self._k_cand, self.lut, self._k_cross,
+                                                 self._k_grid),
+                                   (1.0 / float(c["sigma_bearing"]) ** 2, self._k_w_o))
         if parts:
             return dict(zip(PARTS, out))
         return out.sum(axis=0)
