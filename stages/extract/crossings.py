@@ -569,7 +569,7 @@ def stem_lines(lines: np.ndarray, white_px: np.ndarray, camera, to_floor, cc: di
             float(cc["arm_grow"] * cell), float(cc["arm_tolerance"]),
             float(cc["min_arm_length"]), int(cc["refine_min_points"]),
             math.sin(cc["max_misfit"]))
-    n = _stems(lines, floor, white_px, lens_parameters(camera), floor_of(to_floor), rule, out)
+    n = _stems(lines, floor, white_px, lens_parameters(camera), floor_bundle(to_floor), rule, out)
     return out[:n]
 
 
@@ -739,8 +739,7 @@ def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.nd
     frame = VerifyFrame(white, green, other_mean, top, camera, to_floor, cc, cell, field_cells,
                         white_px)
     for cand in cands:
-        verdict = _crossing(cand, ks, ideal, white, green, other_mean, top, camera, to_floor,
-                            cc, cell, white_px, field_cells, deg, frame)
+        verdict = _crossing(cand, ks, ideal, frame, deg)
         verdicts.append(verdict)
         if not isinstance(verdict, str):
             found.append(verdict)
@@ -759,9 +758,7 @@ def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.nd
         reach = cc["arm_reach"] * cell
         for lc in pairs:
             verdict = _verify_crossing(lc.kind, lc.point, lc.arms,
-                                       np.minimum(reach, lc.lengths), white, green, other_mean,
-                                       top, camera, to_floor, cc, cell, field_cells, lc.lengths,
-                                       white_px, frame)
+                                       np.minimum(reach, lc.lengths), frame, lc.lengths)
             pair_verdicts.append(verdict)
             if not isinstance(verdict, str):
                 found.append(verdict)
@@ -781,11 +778,10 @@ def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.nd
     return rows, pxs
 
 
-def _crossing(cand, ks, ideal, white, green, other_mean, top, camera, to_floor, cc, cell,
-              white_px=None, field_cells=None, deg=None, frame=None):
+def _crossing(cand, ks, ideal, frame, deg=None):
     """One key-structure candidate -> (row, image position), or the reason it was rejected
-    (``deg``: the key structure's node degrees, ``frame`` the frame's VerifyFrame, if already
-    made)."""
+    (``frame``: the frame's VerifyFrame, ``deg``: the key structure's node degrees)."""
+    cc, cell, white_px = frame.cc, frame.cell, frame.white_px if frame.use_white else None
     centre = ideal[ks.node[cand.key]]
     if not np.isfinite(centre).all():
         return "outside the lens model"
@@ -793,13 +789,12 @@ def _crossing(cand, ks, ideal, white, green, other_mean, top, camera, to_floor, 
     if len(chains) != len(cand.arm_points):
         return "arm without nodes"
     placed = place_crossing(cand.kind, centre, chains, ideal, cc, cell,
-                            white_px if cc.get("refine", True) else None, camera)
+                            white_px if cc.get("refine", True) else None, frame.camera)
     if isinstance(placed, str):
         return placed
     x, dirs, lengths = placed
     reach = np.minimum(cc["arm_reach"] * cell, lengths)
-    return _verify_crossing(cand.kind, x, dirs, reach, white, green, other_mean, top, camera,
-                            to_floor, cc, cell, field_cells, lengths, white_px, frame)
+    return _verify_crossing(cand.kind, x, dirs, reach, frame, lengths)
 
 
 PLACE_REASONS = ("", "arm without nodes", "arms do not meet near the node")
@@ -972,19 +967,16 @@ def _place(kind, centre, flat, start, coords, skip, count, refine, white_px, len
     return 0
 
 
-def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera, to_floor, cc,
-                     cell, field_cells=None, lengths=None, white_px=None, frame=None):
+def _verify_crossing(kind, x, dirs, reach, frame, lengths=None):
     """A crossing of ``kind`` at ideal point ``x`` with arms along ``dirs`` (A, 2) reaching
     ``reach`` (A,) px, its lines extending ``lengths`` (A,) px along them -> (row, image
     position), or the reason it is rejected. The cheap floor checks come before the image
-    checks. ``frame``: the frame's VerifyFrame (the kernels' arrays), if already made.
+    checks. ``frame``: the frame's VerifyFrame.
 
     The floor checks run compiled (``_floor_checks``), the image checks too
     (``_image_checks``); numpy's arctan2 gives the bearing and the arms' floor angles (the
     kernels' atan2 is not numpy's to the bit), floor_arms the shape's fit."""
-    if frame is None:
-        frame = VerifyFrame(white, green, other_mean, top, camera, to_floor, cc, cell,
-                            field_cells, white_px)
+    cc = frame.cc
     n = len(dirs)
     x = np.ascontiguousarray(x, np.float64)
     dirs = np.ascontiguousarray(dirs, np.float64)
@@ -1003,8 +995,7 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
     if misfit > cc["max_misfit"]:
         return f"floor angles misfit {math.degrees(misfit):.0f} deg"
     if scalars[2]:  # beyond the grid's resolution
-        return _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera, to_floor,
-                            cc, cell, dist, bearing, orient, misfit, span)
+        return _verify_fine(kind, x, dirs, frame, (dist, bearing, orient, misfit, span))
     out = np.empty(3)
     code = _image_checks(KIND_INDEX[kind], x, dirs, reach, frame.sight, frame.floor,
                          frame.params, frame.radii, out)
@@ -1013,15 +1004,12 @@ def _verify_crossing(kind, x, dirs, reach, white, green, other_mean, top, camera
                out[0] * (1.0 - misfit / math.radians(90.0))]
         return row, out[1:3].copy()
     if code == IMAGE_AS_T:
-        return _continued_as_t(x, dirs, reach, white, green, other_mean, top, camera,
-                               to_floor, cc, cell, field_cells, lengths if has_lengths else None,
-                               white_px, frame)
+        return _continued_as_t(x, dirs, reach, frame, lengths if has_lengths else None)
     if code == IMAGE_FINE:
         # the grid's circles may take in a neighbouring line (a far goal area's lines lie two
         # cells apart): the full-resolution check decides
-        return _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera, to_floor,
-                            cc, cell, dist, bearing, orient, misfit,
-                            max(span, cc["max_cell_span"]))
+        return _verify_fine(kind, x, dirs, frame,
+                            (dist, bearing, orient, misfit, max(span, cc["max_cell_span"])))
     return IMAGE_REASONS[code]
 
 
@@ -1038,7 +1026,7 @@ class Floor(NamedTuple):
     shifted: bool
 
 
-def floor_of(to_floor) -> Floor:
+def floor_bundle(to_floor) -> Floor:
     """The kernels' Floor of a perspective.FloorProjection."""
     pos = np.asarray(to_floor.position, np.float64)
     return Floor(to_floor.m, to_floor.m_inv, to_floor.height, pos, bool(pos.any()))
@@ -1062,13 +1050,15 @@ class Sight(NamedTuple):
 
 
 class VerifyFrame:
-    """What the compiled checks of _verify_crossing read of a frame, made once per frame:
-    the grid's images and the lens as the kernels take them (``sight``), the floor
-    projection (``floor``), the conf's numbers (``params``, indexed by the P_ names) and the
-    circles' radii."""
+    """What the checks of _verify_crossing read of a frame, made once per frame: the frame's
+    camera, floor projection ``to_floor``, crossings conf ``cc`` and grid ``cell`` (px); the
+    grid's images and the lens as the kernels take them (``sight``), the floor projection
+    as they take it (``floor``), the conf's numbers (``params``, indexed by the P_ names)
+    and the circles' radii."""
 
     def __init__(self, white, green, other_mean, top, camera, to_floor, cc, cell,
                  field_cells=None, white_px=None):
+        self.camera, self.to_floor, self.cc, self.cell = camera, to_floor, cc, cell
         self.white = np.asarray(white, np.float32)
         self.green = np.asarray(green, np.float32)
         self.other_mean = np.asarray(other_mean, np.float32)
@@ -1300,17 +1290,19 @@ def _image_checks(kind, x, dirs, reach, sight, fl, p, radii, out):
     return IMAGE_VERIFIED
 
 
-def _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera, to_floor, cc, cell,
-                 dist, bearing, orient, misfit, span):
+def _verify_fine(kind, x, dirs, frame, placed):
     """A crossing beyond the grid's resolution (one cell spans more than ``max_cell_span`` m
-    of floor there), verified on the full-resolution white mask: every arm's opposite
+    of floor there; ``placed``: its distance, bearing, orientation and misfit on the floor
+    and the cell's span there), verified on the full-resolution white mask: every arm's opposite
     direction is looked at (``arm_state``). An L needs both opposites green (one white makes
     it the T of that arm, neither known leaves it untold), a T its stem's opposite not white
     (an X). Its confidence is the grid's resolving power there (max_cell_span over the cell's
     span), times the shape's fit as on the grid. Returns (row, image position) or the reason
     it is rejected."""
-    lens = lens_parameters(camera)
-    px = distort_ideal(lens, x[None])[0]
+    dist, bearing, orient, misfit, span = placed
+    cc, cell, to_floor = frame.cc, frame.cell, frame.to_floor
+    top, other_mean = frame.top, frame.other_mean
+    px = distort_ideal(frame.lens, x[None])[0]
     g = (px + 0.5) / cell - 0.5
     col = min(max(round(g[0]), 0), len(top) - 1)
     if not np.isfinite(g[1]) or g[1] < top[col]:
@@ -1320,8 +1312,7 @@ def _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera, to_flo
     if other_mean[max(row - r, 0): row + r + 1, max(col - r, 0): col + r + 1].max() > 0.5:
         return "next to an object"
     for u in dirs:
-        st = arm_state(x, u, white_px, green, other_mean, top, camera, to_floor, cc, cell,
-                       dirs)
+        st = arm_state(x, u, frame, dirs)
         if st != "white":
             return f"an arm {st}, not white"  # an arm without its white line
     # the arms without an opposite arm, by their directions on the floor (far away the
@@ -1339,12 +1330,10 @@ def _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera, to_flo
         # the stem: the arm without an opposite arm
         if len(opposite) != 1:
             return "floor angles misfit"
-        if arm_state(x, -dirs[opposite[0]], white_px, green, other_mean, top, camera,
-                     to_floor, cc, cell, dirs) == "white":
+        if arm_state(x, -dirs[opposite[0]], frame, dirs) == "white":
             return "white beyond the stem"  # white on through the bar: two lines crossing
     elif kind == "L":
-        states = [arm_state(x, -dirs[k], white_px, green, other_mean, top, camera, to_floor,
-                            cc, cell, dirs) for k in opposite]
+        states = [arm_state(x, -dirs[k], frame, dirs) for k in opposite]
         white_k = [k for k, st in zip(opposite, states) if st == "white"]
         if len(white_k) == 1:
             k = white_k[0]
@@ -1365,9 +1354,8 @@ def _verify_fine(kind, x, dirs, white_px, green, other_mean, top, camera, to_flo
     return [CROSSING_CODES[kind], dist, bearing, orient, score], px
 
 
-def arm_state(x: np.ndarray, u: np.ndarray, white_px: np.ndarray, green: np.ndarray,
-              other_mean: np.ndarray, top: np.ndarray, camera, to_floor, cc: dict,
-              cell: int, arms: np.ndarray | None = None) -> str:
+def arm_state(x: np.ndarray, u: np.ndarray, frame: VerifyFrame,
+              arms: np.ndarray | None = None) -> str:
     """What the image shows along the half-line from a crossing ``x`` (ideal px) along the
     unit ``u``, over ``min_arm_length`` m less a line width, from where it stands clear of
     the crossing's lines (one ``line_width`` m on the floor past the crossing line's edge,
@@ -1378,17 +1366,12 @@ def arm_state(x: np.ndarray, u: np.ndarray, white_px: np.ndarray, green: np.ndar
     of a painted line's width, ``width_ratio``), or up to the image's edge; "green" where no
     white goes on, the line would be wide enough in the image to show (``fine_px`` / 2) and
     the cells along it are field (inside the boundary, no object, green at least
-    ``t_green``); else "unknown" (out of view, hidden, not resolved, white of no line)."""
+    ``t_green``); else "unknown" (out of view, hidden, not resolved, white of no line).
+    ``frame``: the frame's VerifyFrame, made with the white mask."""
     a = np.zeros((0, 2)) if arms is None else np.ascontiguousarray(arms, np.float64)
-    sight = Sight(_NO_CELLS, np.asarray(green, np.float32), np.asarray(other_mean, np.float32),
-                  np.asarray(top, np.float64), _NO_CELLS, white_px, True,
-                  lens_parameters(camera))
-    code = _arm_state(float(x[0]), float(x[1]), float(u[0]), float(u[1]), a, sight,
-                      floor_of(to_floor), verify_params(camera, cc, cell))
+    code = _arm_state(float(x[0]), float(x[1]), float(u[0]), float(u[1]), a, frame.sight,
+                      frame.floor, frame.params)
     return ("unknown", "white", "green")[code]
-
-
-_NO_CELLS = np.zeros((1, 1), np.float32)  # a Sight's grid image that a kernel does not read
 
 
 @njit(cache=True, nogil=True)
@@ -1504,8 +1487,7 @@ def _clear_start_kernel(x0, x1, ux, uy, arms, scale, fl, line_width, tolerance, 
     return start, reach
 
 
-def _continued_as_t(x, dirs, reach, white, green, other_mean, top, camera, to_floor, cc, cell,
-                    field_cells, lengths, white_px=None, frame=None):
+def _continued_as_t(x, dirs, reach, frame, lengths):
     """An L whose view opposite its arms is not carpet: where one arm's line goes on through
     the crossing (the fit of a T's bar ended at the stem, or the bar's far half was fitted as
     a line of its own that missed the pair), the crossing is that T. Each arm continued is
@@ -1517,8 +1499,7 @@ def _continued_as_t(x, dirs, reach, white, green, other_mean, top, camera, to_fl
         arms = np.vstack([dirs, -dirs[k][None]])
         ext = np.append(reach, reach[k])
         lens = None if lengths is None else np.append(lengths, reach[k])
-        v = _verify_crossing("T", x, arms, ext, white, green, other_mean, top, camera, to_floor,
-                             cc, cell, field_cells, lens, white_px, frame)
+        v = _verify_crossing("T", x, arms, ext, frame, lens)
         if not isinstance(v, str) and (isinstance(best, str) or v[0][4] > best[0][4]):
             best = v
     return best
