@@ -276,15 +276,14 @@ def verify_crossing(centre: np.ndarray, arm_points: np.ndarray, white: np.ndarra
     It runs compiled (``_verify``): circle_transitions and white_path_share with the cells
     sampled bilinearly as sample_cells does (to float32 rounding)."""
     use_field = field is not None
+    rule = tuple(float(conf[k]) for k in ("t_white", "relative", "t_green", "arm_gap",
+                                          "max_radius", "max_other", "min_path_share"))
     return float(_verify(np.ascontiguousarray(centre, np.float64),
                          np.ascontiguousarray(arm_points, np.float64).reshape(-1, 2),
                          np.asarray(white, np.float32), np.asarray(green, np.float32),
                          np.asarray(field, np.float32) if use_field
-                         else np.zeros((1, 1), np.float32), use_field, _RING,
-                         np.asarray(conf["circle_radii"], np.float64), float(conf["t_white"]),
-                         float(conf["relative"]), float(conf["t_green"]),
-                         float(conf["arm_gap"]), float(conf["max_radius"]),
-                         float(conf["max_other"]), float(conf["min_path_share"])))
+                         else np.zeros((1, 1), np.float32), use_field,
+                         np.asarray(conf["circle_radii"], np.float64), rule))
 
 
 CIRCLE_SAMPLES = 48  # samples on each circle of circle_transitions
@@ -371,8 +370,11 @@ def _path_share(white, px, py, qx, qy, t, step):
 
 
 @njit(cache=True, nogil=True)
-def _verify(centre, arms, white, green, field, use_field, ring, radii, t_white, relative,
-            t_green, arm_gap, max_radius, max_other, min_path_share):
+def _verify(centre, arms, white, green, field, use_field, radii, rule):
+    """verify_crossing, compiled (``rule``: t_white, relative, t_green, arm_gap, max_radius,
+    max_other, min_path_share)."""
+    t_white, relative, t_green, arm_gap, max_radius, max_other, min_path_share = rule
+    ring = _RING
     n_arms = arms.shape[0]
     cx, cy = centre[0], centre[1]
     levels = np.empty(n_arms, np.float32)
@@ -822,14 +824,14 @@ def place_crossing(kind: str, centre: np.ndarray, chains: list[list[int]], ideal
     flat, start = flat_lists(chains)
     refine = white_px is not None
     out = np.empty((n + 1, 3))
+    rule = (int(cc["arm_skip"]), int(cc["arm_nodes"]), float(cc["refine_skip"] * cell),
+            float(cell), float(cc["refine_step"]), float(cc["refine_reach"] * cell),
+            int(cc["refine_min_points"]), float(cc["max_shift"] * cell),
+            float(cc["arm_step"] * cell))
     code = _place(KIND_INDEX[kind], np.ascontiguousarray(centre, np.float64), flat, start,
-                  np.ascontiguousarray(ideal, np.float64), int(cc["arm_skip"]),
-                  int(cc["arm_nodes"]), refine,
+                  np.ascontiguousarray(ideal, np.float64), refine,
                   white_px if refine else np.zeros((1, 1), np.uint8),
-                  lens_parameters(camera) if refine else np.zeros(9),
-                  float(cc["refine_skip"] * cell), float(cell), float(cc["refine_step"]),
-                  float(cc["refine_reach"] * cell), int(cc["refine_min_points"]),
-                  float(cc["max_shift"] * cell), float(cc["arm_step"] * cell), out)
+                  lens_parameters(camera) if refine else np.zeros(9), rule, out)
     if code:
         return PLACE_REASONS[code]
     return out[0, :2].copy(), out[1:, :2].copy(), out[1:, 2].copy()
@@ -873,12 +875,14 @@ def _line_cut(u1x, u1y, u2x, u2y, bx, by):
 
 
 @njit(cache=True, nogil=True)
-def _place(kind, centre, flat, start, coords, skip, count, refine, white_px, lens, t_skip,
-           cell, step, reach, min_points, max_shift, arm_step, out):
+def _place(kind, centre, flat, start, coords, refine, white_px, lens, rule, out):
     """place_crossing compiled: the arms' lines, refined, their meeting point and the arms'
     lengths of one candidate (``kind`` 0 L, 1 T, 2 X; chain c of its arms is ``flat[start[c]:
-    start[c + 1]]``). The crossing into out[0, :2], arm a's direction and length into
-    out[1 + a]; returns 0, or the index of its reason in PLACE_REASONS."""
+    start[c + 1]]``; ``rule``: (skip, count, t_skip, cell, step, reach, min_points,
+    max_shift, arm_step) as place_crossing makes it). The crossing into out[0, :2], arm a's
+    direction and length into out[1 + a]; returns 0, or the index of its reason in
+    PLACE_REASONS."""
+    skip, count, t_skip, cell, step, reach, min_points, max_shift, arm_step = rule
     n = len(start) - 1
     ox, oy = centre[0], centre[1]
     cs = np.empty((n, 2))
@@ -1281,9 +1285,9 @@ def _image_checks(kind, x, dirs, reach, sight, fl, p, radii, out):
             for k in range(n):
                 if _arm_state(x0, x1, -dirs[k, 0], -dirs[k, 1], dirs, sight, fl, p) == 1:
                     return IMAGE_AS_T
-    score = _verify(grid[0], grid[1:], white, green, field, p[P_USE_FIELD] != 0, _RING, radii,
-                    p[P_T_WHITE], p[P_RELATIVE], p[P_T_GREEN], p[P_ARM_GAP], p[P_MAX_RADIUS],
-                    p[P_MAX_OTHER], p[P_MIN_PATH_SHARE])
+    score = _verify(grid[0], grid[1:], white, green, field, p[P_USE_FIELD] != 0, radii,
+                    (p[P_T_WHITE], p[P_RELATIVE], p[P_T_GREEN], p[P_ARM_GAP], p[P_MAX_RADIUS],
+                     p[P_MAX_OTHER], p[P_MIN_PATH_SHARE]))
     if score <= 0:
         return IMAGE_FINE if use_white and p[P_FINE] else 6
     out[0] = score
