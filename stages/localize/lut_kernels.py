@@ -736,8 +736,8 @@ def tracked_fix(q, p, obs, at, win, grid, post, rule, fit, out):
     out[16:19] = np.nan
     if fit.enabled:
         normal = np.empty((3, 3))
-        fit_refine(fit.table, fit.x0, fit.y0, fit.res, fit.points, obs.weight64, out[0],
-                   out[1], fit.theta, fit.c2, 8, True, fit.max_shift, fit.max_turn,
+        fit_refine(fit.table, (fit.x0, fit.y0, fit.res), fit.points, obs.weight64,
+                   (out[0], out[1], fit.theta), fit.c2, (8, True, fit.max_shift, fit.max_turn),
                    out[16:19], normal)
 
 

@@ -55,13 +55,14 @@ class PointFit:
                 {"distance": ((len(ys), len(xs)), np.float32)}, build)[0]["distance"]
         self.origin = (float(xmin), float(ymin))
         self.resolution = float(resolution)
+        self.grid = (*self.origin, self.resolution)  # the kernels' (x0, y0, resolution)
         self.c = float(c)
 
     def cost(self, points: np.ndarray, weights: np.ndarray, pose) -> float:
         """C(pose) of robot-frame points (N, 2) with weights (N,)."""
-        return float(fit_cost(self.table, self.origin[0], self.origin[1], self.resolution,
-                              _points(points), _weights(weights), float(pose[0]),
-                              float(pose[1]), float(pose[2]), self.c * self.c))
+        return float(fit_cost(self.table, self.grid, _points(points), _weights(weights),
+                              (float(pose[0]), float(pose[1]), float(pose[2])),
+                              self.c * self.c))
 
     def refine(self, points: np.ndarray, weights: np.ndarray, pose, *, iterations: int = 8,
                fixed_heading: bool = False, max_shift: float = math.inf,
@@ -71,10 +72,10 @@ class PointFit:
         (m, per axis) and ``max_turn`` (rad) of it."""
         out = np.empty(3)
         normal = np.empty((3, 3))
-        cost = fit_refine(self.table, self.origin[0], self.origin[1], self.resolution,
-                          _points(points), _weights(weights), float(pose[0]), float(pose[1]),
-                          float(pose[2]), self.c * self.c, int(iterations), bool(fixed_heading),
-                          float(min(max_shift, 1e9)), float(min(max_turn, 1e9)), out, normal)
+        cost = fit_refine(self.table, self.grid, _points(points), _weights(weights),
+                          (float(pose[0]), float(pose[1]), float(pose[2])), self.c * self.c,
+                          (int(iterations), bool(fixed_heading), float(min(max_shift, 1e9)),
+                           float(min(max_turn, 1e9))), out, normal)
         return out, float(cost), normal
 
 
@@ -87,9 +88,10 @@ def _weights(w) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _distance(table, x0, y0, res, x, y):
+def _distance(table, grid, x, y):
     """Bilinear distance and its gradient (d, dd/dx, dd/dy) at field point (x, y), clamped to
-    the raster."""
+    the raster (``grid``: its origin x0, y0 and resolution)."""
+    x0, y0, res = grid
     ny, nx = table.shape
     u = (x - x0) / res
     v = (y - y0) / res
@@ -128,30 +130,35 @@ def _solve3(a, b):
 
 
 @njit(cache=True, nogil=True)
-def fit_cost(table, x0, y0, res, points, weights, px, py, pth, c2):
-    """C(pose) (module doc)."""
+def fit_cost(table, grid, points, weights, pose, c2):
+    """C(pose) (module doc) of ``pose`` (px, py, pth) on the raster ``table`` (``grid``: its
+    origin x0, y0 and resolution)."""
+    px, py, pth = pose
     cs, sn = math.cos(pth), math.sin(pth)
     total = 0.0
     for i in range(points.shape[0]):
         qx = px + cs * points[i, 0] - sn * points[i, 1]
         qy = py + sn * points[i, 0] + cs * points[i, 1]
-        d, _gx, _gy = _distance(table, x0, y0, res, qx, qy)
+        d, _gx, _gy = _distance(table, grid, qx, qy)
         total += weights[i] * d * d / (c2 + d * d)
     return total
 
 
 @njit(cache=True, nogil=True)
-def fit_refine(table, x0, y0, res, points, weights, px, py, pth, c2, iterations,
-               fixed_heading, max_shift, max_turn, out, normal):
-    """Minimise C from (px, py, pth) (module doc) within max_shift (per axis) and max_turn of
-    it; the pose into ``out`` (3,), the Gauss-Newton normal matrix at it into ``normal``
+def fit_refine(table, grid, points, weights, start, c2, rule, out, normal):
+    """Minimise C from ``start`` (px, py, pth) (module doc); ``rule``: (iterations,
+    fixed_heading, max_shift, max_turn), at most ``iterations`` Gauss-Newton steps, the
+    heading kept when ``fixed_heading``, within max_shift (per axis) and max_turn of the
+    start. The pose into ``out`` (3,), the Gauss-Newton normal matrix at it into ``normal``
     (3, 3); returns its cost."""
+    px, py, pth = start
+    iterations, fixed_heading, max_shift, max_turn = rule
     n = points.shape[0]
     pose = np.array([px, py, pth])
     lam = 1e-3
     H = np.zeros((3, 3))
     g = np.zeros(3)
-    cost = fit_cost(table, x0, y0, res, points, weights, pose[0], pose[1], pose[2], c2)
+    cost = fit_cost(table, grid, points, weights, (pose[0], pose[1], pose[2]), c2)
     step = np.zeros(3)
     for _ in range(iterations + 1):
         cs, sn = math.cos(pose[2]), math.sin(pose[2])
@@ -160,7 +167,7 @@ def fit_refine(table, x0, y0, res, points, weights, px, py, pth, c2, iterations,
         for i in range(n):
             rx = cs * points[i, 0] - sn * points[i, 1]
             ry = sn * points[i, 0] + cs * points[i, 1]
-            d, gx, gy = _distance(table, x0, y0, res, pose[0] + rx, pose[1] + ry)
+            d, gx, gy = _distance(table, grid, pose[0] + rx, pose[1] + ry)
             den = c2 + d * d
             om = weights[i] * 2.0 * c2 / (den * den)  # IRLS weight of rho
             j0, j1, j2 = gx, gy, gx * -ry + gy * rx  # dd/d(x, y, theta)
@@ -195,8 +202,7 @@ def fit_refine(table, x0, y0, res, points, weights, px, py, pth, c2, iterations,
             cand[1] = min(max(cand[1], py - max_shift), py + max_shift)
             cand[2] = min(max(cand[2], pth - max_turn), pth + max_turn)
             step = cand - pose
-            c_new = fit_cost(table, x0, y0, res, points, weights, cand[0], cand[1], cand[2],
-                             c2)
+            c_new = fit_cost(table, grid, points, weights, (cand[0], cand[1], cand[2]), c2)
             if c_new < cost:
                 pose = cand
                 cost = c_new
