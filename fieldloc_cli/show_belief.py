@@ -36,7 +36,7 @@ def show_belief(ctx, dataset, frame, map_path, features, resolution, heading_ste
                 overwrite, output):
     """Draw the belief of one frame of DATASET on the field of MAP: the likelihood of its
     observations at every position (best heading per position), per kind of observation."""
-    from stages.show import belief as stage
+    from stages.pipelines import frame_belief as stage
 
     conf = overrides_dict(overrides)  # options left out: the stage's preset
     if resolution is not None:

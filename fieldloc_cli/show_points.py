@@ -46,7 +46,7 @@ def show_points(ctx, dataset, frame, features, map_or_field, pose, preset, overr
                 overwrite):
     """Draw the extracted line points of one frame of DATASET over its image, and over the
     field at a pose (given with --pose, or truth.csv's) when --map is given."""
-    from stages.show import points as stage
+    from stages.pipelines import frame_points as stage
 
     field = _field(map_or_field) if map_or_field else None
     pose_rad = None if not pose else (pose[0], pose[1], math.radians(pose[2]))

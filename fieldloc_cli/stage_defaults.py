@@ -52,7 +52,7 @@ LOCALIZE = {("lut", "heading"): "imu", ("fit", "start_half"): "any",
             ("mcl", "init"): "placement", ("lut", "min_confidence"): 0.8,
             ("fit", "min_confidence"): 0.8}
 
-# stages.show.belief.confs["default"]: resolution (m), heading_step in degrees
+# stages.pipelines.frame_belief.confs["default"]: resolution (m), heading_step in degrees
 SHOW_BELIEF = {"resolution": 0.1, "heading_step_deg": 5.0}
 
 # stages.pipelines.error_surface.confs["default"]

@@ -22,8 +22,8 @@ from stages.calibrate import hulks
 from stages.common.conf import stage_conf
 from stages.evaluate import export
 from stages.ingest import rosbag, team_fields
-from stages.pipelines import batch, error_surface
-from stages.show import belief, html_report, hypotheses
+from stages.pipelines import batch, error_surface, frame_belief
+from stages.show import html_report, hypotheses
 from stages.show import map as show_map
 
 
@@ -79,11 +79,11 @@ CASES = [
     ("show map", ["show", "map", "m.h5", "-o", "x.png"], "stages.show.map:main",
      lambda c: stage_conf(show_map.confs, c), show_map.confs["default"], (), None),
     ("show points", ["show", "points", "ds", "--frame", "0", "-o", "x.png"],
-     "stages.show.points:write_picture", _points_conf, extract.confs["omni-default"],
+     "stages.pipelines.frame_points:write_picture", _points_conf, extract.confs["omni-default"],
      ("frame",), None),
     ("show belief", ["show", "belief", "ds", "--frame", "0", "--map", "m.h5", "-o", "x.png"],
-     "stages.show.belief:main", lambda c: stage_conf(belief.confs, c),
-     belief.confs["default"], ("frame",), None),
+     "stages.pipelines.frame_belief:main", lambda c: stage_conf(frame_belief.confs, c),
+     frame_belief.confs["default"], ("frame",), None),
     ("show hypotheses", ["show", "hypotheses", "p.h5", "-o", "x.png"],
      "stages.show.hypotheses:main", lambda c: stage_conf(hypotheses.confs, c),
      hypotheses.confs["default"], (), None),

@@ -114,7 +114,7 @@ def test_the_shown_defaults_are_the_stages():
     from stages.evaluate import export
     from stages.ingest import rosbag, team_fields
     from stages.pipelines import error_surface
-    from stages.show import belief
+    from stages.pipelines import frame_belief as belief
     from stages.show import map as show_map
     from stages.simulate.trajectory import PATH_KINDS
 

@@ -295,7 +295,7 @@ def test_minho_cfg_reader(mirror, image):
 def _all_presets() -> dict[str, dict]:
     from stages import build_map, calibrate, evaluate, localize, simulate
     from stages.extract import kind_confs
-    from stages.show import belief
+    from stages.pipelines import frame_belief as belief
 
     out = {}
     for stage, confs in (("build-map", build_map.confs), ("simulate", simulate.confs),

@@ -78,10 +78,11 @@ MODULES = sorted(p for d in ("stages", "fieldloc_cli") for p in (ROOT / d).rglob
 
 def test_the_layering_test_sees_imports_inside_functions():
     """The arrows issue 10 found ran through imports inside functions: they are read, and
-    relative ones resolved (`from .. import extract` inside show.points.write_picture)."""
-    src = (ROOT / "stages" / "show" / "points.py").read_text()
-    line = next(i for i, t in enumerate(src.splitlines(), 1) if t == "    from .. import extract")
-    assert ("stages.extract", line) in imports_of(ROOT / "stages" / "show" / "points.py")
+    relative ones resolved (`from .. import extract` inside a function)."""
+    path = ROOT / "stages" / "pipelines" / "frame_points.py"
+    line = next(i for i, t in enumerate(path.read_text().splitlines(), 1)
+                if t == "    from .. import extract")
+    assert ("stages.extract", line) in imports_of(path)
     assert unit("stages.localize.lut") == "localize" and layer("localize") == 1
     assert layer("show") > layer("localize") > layer("common") and unit("stages") is None
 

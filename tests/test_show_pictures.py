@@ -100,7 +100,7 @@ def test_show_points_extracts_a_perspective_frame_with_its_head_angles(tmp_path,
 
     from stages import extract
     from stages.common.dataset import write_csv
-    from stages.show import points
+    from stages.pipelines import frame_points
 
     root = tmp_path / "persp"
     (root / "images").mkdir(parents=True)
@@ -122,5 +122,5 @@ def test_show_points_extracts_a_perspective_frame_with_its_head_angles(tmp_path,
                 "points": np.zeros((0, 2))}
 
     monkeypatch.setattr(extract.kind_module("perspective"), "extract_frame", record)
-    points.write_picture(None, root, tmp_path / "p.png", frame=1)
+    frame_points.write_picture(None, root, tmp_path / "p.png", frame=1)
     assert seen == [(0.35, -0.02)]

@@ -19,15 +19,15 @@ from stages.common.conf import stage_conf
 from stages.common.errors import FieldlocError
 from stages.evaluate import export
 from stages.ingest import rosbag, team_fields
-from stages.pipelines import batch, error_surface, evaluation, images_to_poses
-from stages.show import (
-    belief,
-    comparison,
-    html_report,
-    hypotheses,
-    points,
-    report_plots,
+from stages.pipelines import (
+    batch,
+    error_surface,
+    evaluation,
+    frame_belief,
+    frame_points,
+    images_to_poses,
 )
+from stages.show import comparison, html_report, hypotheses, report_plots
 from stages.show import map as show_map
 from stages.simulate.omni_renderer import OMNI_DEFAULTS, camera_from_conf
 
@@ -67,8 +67,8 @@ def _mains(ds, tmp):
         ("team_fields", lambda c: team_fields.main(c, tmp / "f.cfg", out, fmt="bhuman")),
         ("export", lambda c: export.main(c, tmp / "p.h5", out, fmt="csv")),
         ("show.map", lambda c: show_map.main(c, tmp / "m.h5", out)),
-        ("show.points", lambda c: points.main(c, ds, out)),
-        ("show.belief", lambda c: belief.main(c, ds, tmp / "m.h5", out)),
+        ("pipelines.frame_points", lambda c: frame_points.main(c, ds, out)),
+        ("pipelines.frame_belief", lambda c: frame_belief.main(c, ds, tmp / "m.h5", out)),
         ("show.hypotheses", lambda c: hypotheses.main(c, tmp / "p.h5", out)),
         ("show.report_plots", lambda c: report_plots.main(c, tmp)),
         ("show.html_report", lambda c: html_report.main(c, tmp, out)),
@@ -118,7 +118,8 @@ def _resolvers():
         ("team_fields", team_fields.confs, lambda c, n: stage_conf(team_fields.confs, c)),
         ("export", export.confs, lambda c, n: stage_conf(export.confs, c)),
         ("show.map", show_map.confs, lambda c, n: stage_conf(show_map.confs, c)),
-        ("show.belief", belief.confs, lambda c, n: stage_conf(belief.confs, c)),
+        ("pipelines.frame_belief", frame_belief.confs,
+         lambda c, n: stage_conf(frame_belief.confs, c)),
         ("show.hypotheses", hypotheses.confs, lambda c, n: stage_conf(hypotheses.confs, c)),
         ("show.report_plots", report_plots.confs,
          lambda c, n: stage_conf(report_plots.confs, c)),

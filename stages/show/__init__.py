@@ -2,7 +2,8 @@
 are the caller's): one module per picture with ``confs`` and a ``main(conf, inputs..., output,
 *, overwrite=False, progress=False) -> Path`` that writes it, or, where what it draws must
 first be computed by stages, the drawing of a chain's result (the error surfaces: the chain
-stages.pipelines.error_surface computes them and writes the picture).
+stages.pipelines.error_surface computes them and writes the picture; a frame's features,
+stages.pipelines.frame_points; its belief, stages.pipelines.frame_belief).
 
 - :mod:`.field` the field as every picture draws it; :mod:`.figure` Agg figures, atomic PNGs;
 - :mod:`.map` a map's tables; :mod:`.points` a frame's extracted features, on the image and on
@@ -14,5 +15,5 @@ stages.pipelines.error_surface computes them and writes the picture).
   distance from it;
   :mod:`.html_report` one self-contained page of reports and their pictures.
 
-Pictures read the stages' artifacts and may call a stage (show.points extracts a frame on
-the spot); no stage imports them."""
+Pictures read the stages' artifacts or draw what a chain computed; none runs a stage, and no
+stage imports them."""

@@ -4,30 +4,19 @@
 line points ``points_px``; perspective: line segments, crossings and the field boundary in the
 image); ``draw_points_on_field`` draws the line points moved into the field frame at a pose
 over the field, with the share of points within ``near`` metres of a field line.
-``points_figure`` puts the two side by side; ``main`` loads a dataset frame (features from a
-file, or extracted on the spot) and writes the PNG.
-
-    main(conf, dataset_dir, output, *, frame=0, features=None, field=None, pose=None,
-         overwrite=False) -> Path
+``points_figure`` puts the two side by side (stages.pipelines.frame_points reads or extracts
+the frame's features and writes the picture: ``fieldloc show points``).
 """
 
 from __future__ import annotations
 
-import logging
 import math
-from pathlib import Path
 
 import numpy as np
 
-from ..common.artifacts import check_output
-from ..common.dataset import frame_index, open_dataset, read_image, truth_at
-from ..common.errors import FieldlocError
-from ..common.features_file import FeaturesFile
 from ..common.geometry import robot_to_field
 from .field import draw_field
-from .figure import new_figure, save_figure
-
-log = logging.getLogger(__name__)
+from .figure import new_figure
 
 POINT_COLOUR = "#ff2a7f"
 NEAR = 0.15  # m: a line point this close to a field line counts as on it
@@ -93,54 +82,3 @@ def points_figure(image_bgr, arrays: dict, *, field_model=None, pose=None, title
         draw_points_on_field(fig.add_subplot(1, 2, 2), field_model, pose,
                              arrays.get("points", np.zeros((0, 2))), near=near)
     return fig
-
-
-def write_picture(conf, dataset_dir, output, *, frame: str | int = 0, features=None,
-                  field=None, pose=None, overwrite: bool = False,
-                  field_file=None) -> tuple[Path, dict]:
-    """``main``, returning the path and a summary of the frame drawn: its name, its number of
-    line points, the pose used and the share of points near a line at that pose."""
-    from .. import extract
-
-    ds = open_dataset(dataset_dir)
-    check_output(output, {**ds.files(), "features": features, "map or field": field_file},
-                 overwrite=overwrite)
-    i = frame_index(ds.names, frame, str(ds.root))
-    name, stamp = ds.names[i], float(ds.stamps[i])
-    image = read_image(ds.images[i])
-    if features is not None:
-        with FeaturesFile(features) as ff:
-            if name not in ff.names:
-                raise FieldlocError(f"{features}: no frame '{name}' (extract it first)")
-            arrays = ff.frame(name)
-    else:
-        # as extract.main does it: the omni mask, the perspective head angles of head.csv
-        c = extract.resolve_extract_conf(ds.camera().kind, conf)
-        arrays = extract.extract_dataset_frame(ds, i, c)
-    if pose is None and field is not None:
-        pose = truth_at(ds.optional("truth"), stamp)
-        if pose is None:
-            log.warning("no --pose and no truth at frame %s: drawing the image only", name)
-    fig = points_figure(image, arrays, field_model=field, pose=pose,
-                        title=f"{ds.root.name} frame {name}")
-    path = save_figure(fig, output)
-    summary = {"frame": name, "pose": pose}
-    if "points" in arrays:  # omni: line points; perspective: lines (no share over no points)
-        summary["points"] = int(len(arrays["points"]))
-        if field is not None and pose is not None and len(arrays["points"]):
-            summary["share_near_lines"] = line_point_share(field, pose, arrays["points"])
-    else:
-        summary["lines"] = int(len(arrays.get("lines", ())))
-    return path, summary
-
-
-def main(conf, dataset_dir, output, *, frame: str | int = 0, features=None, field=None,
-         pose=None, overwrite: bool = False, field_file=None, progress: bool = False) -> Path:
-    """Write the picture of one frame (name or position) of ``dataset_dir`` to ``output``
-    (PNG). ``features``: a features file to read the frame from (default: extract it now with
-    ``conf``, an extract preset name or dict, see stages.extract); ``field``: a FieldModel to
-    place the points on; ``pose``: (x, y, theta) in metres and radians (default: truth.csv's
-    pose at the frame, if any); ``field_file``: the map or field YAML the field came from.
-    ``output`` is never an input, and an existing one is replaced only with ``overwrite``."""
-    return write_picture(conf, dataset_dir, output, frame=frame, features=features,
-                         field=field, pose=pose, overwrite=overwrite, field_file=field_file)[0]
