@@ -77,7 +77,7 @@ MODULES = sorted(p for d in ("stages", "fieldloc_cli") for p in (ROOT / d).rglob
 
 
 def test_the_layering_test_sees_imports_inside_functions():
-    """The arrows issue 10 found ran through imports inside functions: they are read, and
+    """Arrows against the layers can run through imports inside functions: they are read, and
     relative ones resolved (`from .. import extract` inside show.points.write_picture)."""
     src = (ROOT / "stages" / "show" / "points.py").read_text()
     line = next(i for i, t in enumerate(src.splitlines(), 1) if t == "    from .. import extract")
@@ -164,7 +164,7 @@ def test_the_circle_finder_finds_circles():
 
 
 def test_no_import_circles():
-    """Issue 26: no two modules of stages/ and fieldloc_cli/ import each other, directly or
+    """No two modules of stages/ and fieldloc_cli/ import each other, directly or
     through others (imports inside functions included): the bench is a package whose rows
     import its harness and inputs, the map reader computes no tables, a picture runs no stage."""
     graph = import_graph()
