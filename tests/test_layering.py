@@ -77,7 +77,7 @@ MODULES = sorted(p for d in ("stages", "fieldloc_cli") for p in (ROOT / d).rglob
 
 
 def test_the_layering_test_sees_imports_inside_functions():
-    """Arrows against the layers can run through imports inside functions: they are read, and
+    """The arrows issue 10 found ran through imports inside functions: they are read, and
     relative ones resolved (`from .. import extract` inside show.points.write_picture)."""
     src = (ROOT / "stages" / "show" / "points.py").read_text()
     line = next(i for i, t in enumerate(src.splitlines(), 1) if t == "    from .. import extract")

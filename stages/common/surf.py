@@ -1,9 +1,7 @@
-"""SURF, Speeded-Up Robust Features (Bay et al. (2008)), our own implementation.
-
-OpenCV's pip wheels leave SURF out (patented, ``OPENCV_ENABLE_NONFREE``). The numbers follow
-the paper, with the OpenCV contrib and OpenSURF sources where it leaves a choice. The options
-marked "ours" are additions, mostly from SIFT (Lowe (2004)); the figures behind them:
-docs/results.md.
+"""SURF, Speeded-Up Robust Features (Bay et al. (2008)), our own: OpenCV's pip wheels leave it
+out (patented, ``OPENCV_ENABLE_NONFREE``). The numbers follow the paper, with the OpenCV contrib
+and OpenSURF sources where it leaves a choice; options marked "ours" are additions, mostly from
+SIFT (Lowe (2004)), and the figures behind them are in docs/results.md.
 
 Detector (Fast-Hessian), on the integral image of the grey image scaled to [0, 1]:
 - box filters approximating the second Gaussian derivatives; filter size L (odd), lobe l = L/3.

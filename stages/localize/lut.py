@@ -11,24 +11,23 @@ belief through the tempered likelihood, combined with the motion's prior:
 (``temperature`` T: neighbouring scan lines see the same white line, so one full-weight
 observation is worth less than one nat; T is fitted for calibrated probabilities).
 
-Two beliefs carry it from frame to frame (``belief``; docs/lut-belief.md): ``grid`` (``--preset
-grid``), a probability per table cell at the frame's field-aligned heading, moved by the
-odometry and multiplied by every cell's likelihood (Markov localisation, Fox, Burgard and
-Thrun 1999; grid_belief.py), where nothing is born or pruned, so a place the first frames
-misjudged is never lost; and ``tracks`` (default), at most ``max_tracks`` weighted Gaussian
-tracks, each a pose in the paper's decentralised Kalman filter (kalman.py), kept by
-tracking.TrackBank (shared by every pose-fixing method); this module gives it the fixes, their
-tempered likelihoods and the null.
+Two beliefs carry it (``belief``; docs/lut-belief.md): ``grid`` (``--preset grid``), a
+probability per table cell at the frame's field-aligned heading, moved by the odometry and
+multiplied by every cell's likelihood (Markov localisation, Fox, Burgard and Thrun 1999;
+grid_belief.py): nothing is born or pruned, so a place the first frames misjudged is never lost;
+``tracks`` (default), at most ``max_tracks`` weighted Gaussian tracks, each a pose in the paper's
+decentralised Kalman filter (kalman.py), kept by tracking.TrackBank (shared by every pose-fixing
+method), to which this module gives the fixes, their tempered likelihoods and the null.
 
-A track, per frame: its prior is the last fused pose moved by the odometry (by the last fused
+A track, per frame: its prior is the last fused pose moved by the odometry (the last fused
 motion on IMU collision frames); its heading ``imu`` (field-aligned yaw, heading.py),
 ``histogram`` (the paper's line-point histograms within +-40 deg of the prediction) or
-``truth``, else refined by the search; the paper's local search in a ``window``-metre square,
-ranked by E / T + Mahalanobis^2 / 2 (a minimum far from where the odometry puts the robot needs
-that much more evidence), refined to sub-cell and by the line points' fit, gives the fix (one
-compiled call, TableSearch.tracked_fix); the weight is multiplied by exp(-E / T), by the
-odometry's agreement exp(-m^2 / 2) (m the Kalman innovation, floored by ``min_gate`` /
-``gate_sigmas``) and by 1 - ``kidnap_probability``; the fix is fused when it beats the null.
+``truth``, else refined by the search; the paper's local search in a ``window`` x ``window`` m
+square, ranked by E / T + Mahalanobis^2 / 2 (a minimum far from where the odometry puts the
+robot needs that much more evidence) and refined (sub-cell, line points), gives the fix
+(TableSearch.tracked_fix); the weight is multiplied by exp(-E / T), the odometry's agreement
+exp(-m^2 / 2) (m the Kalman innovation, floored by ``min_gate`` / ``gate_sigmas``) and 1 -
+``kidnap_probability``; the fix is fused when it beats the null.
 
 Global searches propose tracks on the first frame, when no track is left, every
 ``global_every`` frames (a wrong track cannot persist unchallenged), and after a frame not
@@ -46,29 +45,27 @@ keep the scan-line error for first and lost frames: with the points, a rendered 
 look-alike place (omni-hard) locked onto it for good.
 
 The null: the same observations at random bearings (scan lines shuffled,
-``Observation.random_bearings``), searched the same way, show what chance alone explains:
-E_null, the median of ``null_copies``. A frame *fails* when no hypothesis beats it
-(``uninformative``) or it has fewer than ``min_observations`` crossings; then the tracks only
-predict. A tracked frame's null is first bounded from below (TableSearch.tracked_score_bound).
-In a global frame the null is one more hypothesis ("none of these"), so a pose that barely
-beats chance gets a low probability.
+``Observation.random_bearings``), searched the same way, show what chance alone explains
+(E_null, the median of ``null_copies``; a tracked frame's first bounded from below,
+TableSearch.tracked_score_bound). A frame with no hypothesis beating it (``uninformative``) or
+fewer than ``min_observations`` crossings fails: the tracks only predict. In a global frame the
+null is one more hypothesis ("none of these"): a pose barely beating chance gets little.
 
 Symmetry: on a point-symmetric field a track carries its mirror image's share of its weight
 (``mirror``: about 1/2 when the unknown-heading search finds both, never changed by the lines;
 0 with a field-aligned IMU heading); ``start_half`` (own: x < 0, opponent, any) multiplies the
 other half's share at the first fix by ``start_half_error``. Each frame lists its top's mirror.
 
-Per frame: the hypotheses (at most ``hypotheses``) with their probabilities; the pose is the
-top one, its probability the ``confidence``; *accepted* when confidence >= ``min_confidence``
-(``independent: true``: every frame global, with no track, prior or odometry).
-Recorded: pose, ``error`` = e_norm = E / total weight of the fix, confidence, ``mode`` (global;
-global-heading: the top track born this frame; local; failed), runtime, fused covariance,
-hypotheses, flags: collision, heading-vision and heading-unsure (heading from the search, and
-not pinned down), window-edge, global-check (a global search beside the tracks), relocalised
-(top is a track born by a global search while an older one existed), mirror-ambiguous (mirror
->= half the top's probability), start-half (first fix mirrored onto start_half),
-low-confidence, failure reasons (too-few-observations, uninformative, no-imu-row,
-no-truth-heading).
+Per frame: the hypotheses (at most ``hypotheses``) with probabilities; the pose is the top one,
+its probability the ``confidence``, *accepted* at >= ``min_confidence`` (``independent: true``:
+every frame global, with no track, prior or odometry). Recorded: pose, ``error`` = e_norm = E /
+total weight of the fix, confidence, ``mode`` (global; global-heading: the top track born this
+frame; local; failed), runtime, fused covariance, hypotheses, flags: collision; heading-vision,
+heading-unsure (the heading from the search; not pinned down); window-edge; global-check (a
+global search beside the tracks); relocalised (the top a track born by a global search while an
+older one existed); mirror-ambiguous (mirror >= half the top); start-half (first fix mirrored
+onto start_half); low-confidence; too-few-observations, uninformative, no-imu-row,
+no-truth-heading.
 
 Vision covariance: the quadratic fit of the error surface at the fix gives its Hessian H (of
 e_norm, m^-2); the position covariance is ``vision_sigma_xy``^2 (1/c^2) H^-1, H's eigenvalues
@@ -115,9 +112,9 @@ log = logging.getLogger(__name__)
 
 camera_kinds = ("omni",)  # the features it reads
 confs = {
-    # the belief's keys (tracking.DEFAULTS; min_confidence 0.8: 0.2 % of the tuning sets'
-    # frames accepted and more than 1 m off, 10.9 % of the held-out ones:
-    # docs/lut-belief.md), then the search's
+    # the belief's keys (tracking.DEFAULTS; min_confidence 0.8, chosen on the tuning sets'
+    # confidently wrong frames, which are more on held-out sets: docs/manual.md,
+    # docs/results.md), then the search's
     "default": {
         **tracking.DEFAULTS,
         "heading": "imu",  # imu | histogram | truth

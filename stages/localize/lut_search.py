@@ -677,7 +677,7 @@ class TableSearch:
         ``min_cells`` around the ones before (non-maximum suppression, greedy), by branch and
         bound on the min-pooled lookup (lut_kernels.separated_minima): the same cells as the
         greedy on the whole surface (``_surface``), which is computed only where the bound
-        does not rule a cell out, about 5 % of msl-2015's cells for 16 minima."""
+        does not rule a cell out (a small part of the field: docs/results.md)."""
         out = np.empty(max(k, 0), dtype=np.int64)
         n = separated_minima(self.quantised, self.min_pooled, self._observed(obs), int(m),
                              self._grid, int(k), max(1, int(math.ceil(min_cells))), out)

@@ -1,13 +1,11 @@
 """Monte-Carlo localisation (Schulz et al. (2011), section 5): a sampling-importance-resampling
 particle filter over (x, y, theta) on lines, crossings and goal posts from a perspective camera.
 
-Per frame: (1) predict, every particle moved by the odometry increment with noise
-(stages.localize.motion_model); (2) weight, each particle's weight multiplied by the
-likelihood of the frame's observations (stages.localize.observation_model) and, with
-``imu_heading_sigma``, by the IMU's yaw as a field heading (``heading_log_likelihood``); a frame
-with no usable observation keeps the predicted belief; (3) estimate; (4) resample (low-variance)
-when the effective sample size falls below ``resample_threshold``, on injection, or when the
-particle count changes.
+Per frame: (1) predict: each particle moved by the odometry with noise (motion_model); (2)
+weight: by the likelihood of the frame's observations (observation_model) and, with
+``imu_heading_sigma``, of the IMU's yaw as a field heading; a frame with no usable observation
+keeps the predicted belief; (3) estimate; (4) resample (low-variance) when the effective sample
+size falls below ``resample_threshold``, on injection, or when the particle count changes.
 
 New particles at resampling:
 - augmented MCL (Thrun, Burgard and Fox 2005): from slow and fast averages of the mean
@@ -22,14 +20,14 @@ New particles at resampling:
   places the posterior share of "elsewhere": prior max(``kidnap_probability``, augmented MCL's
   share) over the hypothesis regions, the best candidate against the belief's predictive
   likelihood sum(w_i L_i). A tracked robot places (almost) nothing, a kidnapped one most;
-- rivals (after a uniform start; one frame rarely beats the kidnap prior, and without them a
-  start that settled metres off along a touch line stays there): the pool's best poses, moved
-  by the odometry, each summing its log-likelihood ratio against the belief's predictive
-  likelihood, forgetting over ``rival_memory`` frames (a sequential test); the best stands for
-  "elsewhere" once its sum beats the frame's best candidate. A new rival's sum starts from the
-  frames before it (``_retro_odds``, up to ``RIVAL_LOOKBACK``), not from its first ratio
-  counted once per earlier frame. Rivals in the best cluster or its mirror, or ``rival_floor``
-  below the belief, are dropped;
+- ``rivals`` (a uniform start's: one frame rarely beats the kidnap prior, and a start settled
+  metres off along a touch line would stay there): the pool's best poses, moved by the
+  odometry, each summing its log-likelihood ratio against the belief's predictive likelihood,
+  forgetting over ``rival_memory`` frames (a sequential test); the best stands for "elsewhere"
+  once its sum beats the frame's best candidate. A new rival's sum starts from the frames
+  before it (``_retro_odds``, up to ``RIVAL_LOOKBACK``), not from its first ratio counted once
+  per earlier frame. Rivals in the best cluster or its mirror, or ``rival_floor`` below the
+  belief, are dropped;
 - ``random_fraction``: a constant share of uniform particles (0 by default).
 Unless the prior was symmetric, each new pose is taken as whichever of itself and its mirror
 the belief supports more (kernel density on 256 particles drawn by weight), else the one nearer
@@ -40,22 +38,21 @@ grid (``start_grid``, each pose as anywhere in its cell: place_search.cell_model
 ``start_places`` best distinct places (1 m or 30 deg apart, up to the mirror), refined on two
 local grids (place_search.search), each get an *equal* share of the particles, drawn from the
 frame's posterior around it; the grid's likelihood outside them is drawn uniformly (or
-``start_uniform_share``). Drawn uniformly,
-the particles of a sharp peak are few and off it, and drawn by the first frame's likelihood a
-broad plateau outweighs a sharp peak: either way chance picks among places the first frames
-explain alike. Equal shares keep each place alive until the frames decide.
+``start_uniform_share``). Drawn uniformly, the particles of a sharp peak are few and off it;
+drawn by the first frame's likelihood, a broad plateau outweighs a sharp peak: either way
+chance picks among places the first frames explain alike. Equal shares keep each place alive
+until the frames decide.
 
 Particle count (a stand-in for KLD sampling, Fox 2003): ``init_particles`` at the start,
 then ``particles_min`` at spread s = sqrt(var x + var y) <= ``spread_low``, ``particles_max``
 at s >= ``spread_high`` or while augmented MCL injects, linear between.
 
 Estimate: a weighted histogram (1 m x 1 m x 45 deg bins, summed over 2 x 2 x 2 neighbours)
-finds the heaviest region, three mean-shift steps (``cluster_radius``, ``cluster_heading``) the
-best cluster: its weighted mean is the pose, its covariance the covariance, its weight share
-the confidence, sqrt(var x + var y) the poses file's ``error``. After a uniform start each
-rival outside the clusters is a hypothesis too, with the odds its summed ratio gives
-(``_with_rivals``): a particle set alone cannot hold two places that explain a still robot's
-frames alike, and its confidence would overstate the one it kept.
+and three mean-shift steps (``cluster_radius``, ``cluster_heading``) find the best cluster: its
+weighted mean is the pose, its covariance the covariance, its weight share the confidence,
+sqrt(var x + var y) the ``error``. Rivals outside the clusters are hypotheses too, at the odds
+their sums give (``_with_rivals``): a particle set alone cannot hold two places that explain a
+still robot's frames alike, and would overstate the one it kept.
 
 Symmetry: with both goals white a pose and its mirror (FieldModel.mirror_pose) explain every
 image equally. The default ``init: placement`` (own half at either touch line facing into the
@@ -66,10 +63,10 @@ is "mirror-ambiguous" when the mirrored pose weighs ``mirror_ratio`` of the best
 flags every frame and decides ``confidence_up_to_mirror``, unless ``start_half`` names the
 first pose's half (``start_half_error``). ``init: pose``: around ``init_pose``, ``init_spread``.
 
-Smoothing (``smooth: true``, offline; smooth.py): ``MclScorer`` scores for the smoother the
-poses the particles held, their mirrors and local fits (``local_fit``) by the negative
-log-likelihood over ``smooth_temperature`` (consecutive frames repeat their errors), with the
-inverse tempered curvature as covariance. The causal run is the same with or without it.
+Smoothing (``smooth: true``, offline; smooth.py): ``MclScorer`` scores the particles' poses,
+their mirrors and local fits (``local_fit``) by the negative log-likelihood over
+``smooth_temperature`` (consecutive frames repeat their errors), with the tempered curvature's
+inverse as covariance; the causal run is unchanged.
 
 All draws come from one ``np.random.default_rng(seed)``: same inputs and seed, same poses. The
 figures behind these choices: docs/results.md, "Why the defaults are what they are".
