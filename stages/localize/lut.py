@@ -520,8 +520,7 @@ class LutLocaliser:
         with_evidence). Weighed by those per point, a long line seen by many scan lines
         would count less than a small clutter structure of a few points, and far points
         little: on the real minho-lab images that chose poses explaining fewer points
-        (docs/manual.md: 7 of 10 images explained this way, 6 with the range weights, 5 with
-        the caps too)."""
+        (docs/results.md)."""
         reach = float(self.conf["global_reach"])
         pose, cost, _normal = self.fit.refine(
             points, np.ones(len(points)), fix.pose, fixed_heading=heading_fixed,
