@@ -1,6 +1,6 @@
-"""`fieldloc --help`, `fieldloc --version` and the help of every command and subcommand import
-no stage and none of the heavy libraries (issue 22: a help page must not cost seconds of CPU and
-hundreds of MB, nor compile kernels on a fresh install). Each help runs in its own interpreter,
+"""`fieldloc --help`, `fieldloc --version` and the help of every command and subcommand import no
+stage and none of the heavy libraries (the start-up goal: a help page must not cost seconds of CPU
+and hundreds of MB, nor compile kernels on a fresh install). Each help runs in its own interpreter,
 which then lists the modules it imported. The commands come from the command tables, so a new
 command is checked without being named here.
 

@@ -1,4 +1,4 @@
-"""No test compares floating-point results bit for bit (issue 22): the tests' sources are
+"""No test compares floating-point results bit for bit: the tests' sources are
 scanned (tests/exact_comparisons.py states the rule, its markers and why), and numpy's exact
 comparisons are guarded at run time (tests/conftest.py). The scan and the guard are tested on
 small synthetic sources and values here."""

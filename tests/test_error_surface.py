@@ -1,4 +1,4 @@
-"""The SURF template paper's comparison (issue 11): the white-point table Dm with eq. 1
+"""The SURF template paper's comparison: the white-point table Dm with eq. 1
 (stages.build_map.white_points), the template pairs' eq. 4 surface and the query errors
 (stages.localize.error_surface), the local minima (stages.common.surfaces) and `fieldloc show
 error-surface`."""

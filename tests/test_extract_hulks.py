@@ -1,7 +1,7 @@
-"""The perspective chain on real NAO frames (issue 9): ../shared/realdata/hulks-goalbox-labels,
-107 frames (50 top, 57 bottom camera) of SPL halls, each with the robot's camera matrix and six
-hand-clicked points on the goal line, the goal-area front line and the goal-area side line
-(read its README and SOURCE.txt).
+"""The perspective chain on real NAO frames (the NAO goals):
+../shared/realdata/hulks-goalbox-labels, 107 frames (50 top, 57 bottom camera) of SPL halls, each
+with the robot's camera matrix and six hand-clicked points on the goal line, the goal-area front
+line and the goal-area side line (read its README and SOURCE.txt).
 
 The product path only: the folder becomes a dataset with ``fieldloc calibrate perspective
 --from-hulks`` (stages.calibrate.hulks: images, calib.yaml, head.csv with each frame's own
@@ -244,13 +244,13 @@ def figures(extracted):
 
 
 def test_labelled_lines_are_extracted(figures):
-    """Issue 9's goal: >= 85 % of the labelled lines (met: 0.90)."""
+    """The NAO goal: >= 85 % of the labelled lines (met: 0.90)."""
     assert figures["labelled lines"] >= 250
     assert figures["line recall"] >= 0.85, figures
 
 
 def test_goal_area_crossings_are_found_and_typed(figures):
-    """Issue 9's goals: the L and T found and typed right on >= 75 %, wrong types <= 5 %. Both
+    """The NAO goals: the L and T found and typed right on >= 75 %, wrong types <= 5 %. Both
     are met: 0.75 right (L 0.78, T 0.73; 0.53 before the crossings were checked on the
     full-resolution white mask where the grid does not resolve them, with short stems at line
     ends for the far goal area's side line), 0.01 wrong. The misses left: a side line too

@@ -357,7 +357,7 @@ def test_show_points_png(tmp_path):
     assert "0% within 15 cm" in r.output
     r = CliRunner().invoke(cli, ["show", "points", str(ds), "--frame", "0", "--map", "msl-2015",
                                  "--pose", "-0.7", "0.0", "0", "-o", str(out),
-                                 "--overwrite"])  # issue 8: show replaces only with it
+                                 "--overwrite"])  # show replaces only with it
     assert "100% within 15 cm" in r.output  # ... and from (-0.7, 0) it is the halfway line
 
 

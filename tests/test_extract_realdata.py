@@ -168,7 +168,7 @@ def test_minho_distance_line_ahead(distance_lines):
 
 
 def test_minho_distance_within_5cm_up_to_2m(distance_lines):
-    """Issue 7: the line ahead within 5 cm of its distance at every distance up to 2 m."""
+    """Real-data goal: the line ahead within 5 cm of its distance at every distance up to 2 m."""
     err = distance_lines["measured"] - distance_lines["named"]
     assert np.all(np.abs(err) <= 0.05), errors_cm(distance_lines)
 
@@ -318,7 +318,7 @@ def test_minho_lab_points_are_mostly_on_lines(clutter):
 
 
 def test_rendered_clutter_is_of_the_same_order_as_real(clutter):
-    """GUIDE section 7 and issue 7: rendered omni-default frames are as hard as the real
+    """GUIDE section 7 and the real-data goals: rendered omni-default frames are as hard as the real
     minho-lab ones: 15-25 % of the extracted points lie off the lines at the true pose (real:
     ~20 % at the best-fitting pose), from a team's calibration misplacing real lines, soft far
     lines and false white, as in the real frames."""

@@ -1,10 +1,10 @@
-"""Issues 8 and 25: bad input and faults, each as a case of the command line.
+"""Bad input and faults (the hostile-input reviews), each as a case of the command line.
 
 A case is a command, the exit code it must end with, a fragment of its message (stderr or a
 warning), and what it must not do: no command ends in a traceback, none changes or removes a
 file it was given (every file of the shared inputs and of the case's folder is hashed before
 and after), and a refused command writes nothing at all (not even a temporary part). Some cases
-also check what a successful command wrote. The classes follow the issue: data lost,
+also check what a successful command wrote. The classes follow the reviews': data lost,
 tracebacks, silent or misleading results, what a newcomer hit. Interruptions are in
 tests/test_kill.py, the readers' fuzzing in tests/test_fuzz_readers.py; the figures of all
 three are stated in the README and checked against the suite at the end of this file.
@@ -316,7 +316,7 @@ def _setup_calib_text(append: str):
 
 
 
-# ------------------------------------------------------------------ issue 25's setups
+# ------------------------------------------------------------------ the later review's setups
 
 
 def _bag(ws: Path, rel: str = "x.bag", fmt: str = "ros1") -> Path:
@@ -831,7 +831,7 @@ CASES = [
          "file not found"),
     Case("inspect a README", "newcomer", ["inspect", str(ROOT / "README.md")], 1,
          "not a file fieldloc reads (inspect reads HDF5"),
-    # ------------------------------------------------------------------ issue 25
+    # ------------------------------------------------------------------ the later review
     Case("report r -o r/report.json --overwrite", "data-lost",
          ["report", "{omni}/runs/r", "-o", "{omni}/runs/r/report.json", "--overwrite"], 1,
          "is an input of this command (a file of the report)"),
@@ -945,7 +945,7 @@ CASES = [
     Case("show hypotheses of poses made with a custom field's map", "silent",
          ["show", "hypotheses", W + "/p.h5", "--frame", "1", "-o", W + "/h.png"], 0, "",
          setup=_setup_custom_field_poses),
-    # ------------------------------------------------------------------ found in issue 25's rerun
+    # ------------------------------------------------------------------ found in its rerun
     Case("field import fd.cfg -o fd.cfg --overwrite", "data-lost",
          ["field", "import", W + "/fd.cfg", "--format", "bhuman", "-o", W + "/fd.cfg",
           "--overwrite"], 1, "is an input of this command (the team file)",
@@ -1206,7 +1206,7 @@ def _umask() -> int:
 
 def test_import_export_field_import_report_summaries_go_to_stderr_and_q_silences(world_report,
                                                                                  tmp_path):
-    """Issue 25: import rosbag, field import, export (and report) printed their summaries on
+    """import rosbag, field import, export (and report) printed their summaries on
     stdout and -q did not silence them; as extract and localize: stderr, nothing with -q.
     The imported folder has the umask's mode, not mkdtemp's 0700."""
     world = world_report
@@ -1242,7 +1242,7 @@ def test_import_export_field_import_report_summaries_go_to_stderr_and_q_silences
 
 
 def test_evaluate_without_o_says_where_the_report_went(world, tmp_path):
-    """Issue 25: evaluate without -o wrote into the dataset folder (beside its poses file)
+    """evaluate without -o wrote into the dataset folder (beside its poses file)
     without a word: the summary (stderr, -q silences it) names the folder."""
     poses = tmp_path / "poses.h5"
     shutil.copyfile(world["poses"], poses)
@@ -1253,7 +1253,7 @@ def test_evaluate_without_o_says_where_the_report_went(world, tmp_path):
 
 
 def test_localised_frames_are_the_accepted_ones(world_report, tmp_path):
-    """Issue 25: the report counted not-accepted frames as 'localised' at infinite error.
+    """The report counted not-accepted frames as 'localised' at infinite error.
     localised.* are over the matched frames with an accepted pose: their errors are finite,
     and the HTML page shows the same count."""
     import json
@@ -1272,7 +1272,7 @@ def test_localised_frames_are_the_accepted_ones(world_report, tmp_path):
 
 
 def test_plot_titles_name_the_method_and_dataset(world_report):
-    """Issue 25: plot titles said 'lut on report' (the report folder's name)."""
+    """Plot titles said 'lut on report' (the report folder's name)."""
     from stages.common.report_file import load_report
     from stages.show.report_plots import plot_title
 
@@ -1282,7 +1282,7 @@ def test_plot_titles_name_the_method_and_dataset(world_report):
 
 
 def test_trajectory_legend_estimate_has_a_marker(world):
-    """Issue 25: the trajectory legend's 'estimate' (a colour-mapped scatter) had no marker."""
+    """The trajectory legend's 'estimate' (a colour-mapped scatter) had no marker."""
     from stages.common.dataset import read_csv
     from stages.evaluate.metrics import frame_errors
     from stages.show.figure import new_figure
@@ -1300,7 +1300,7 @@ def test_trajectory_legend_estimate_has_a_marker(world):
 
 
 def test_summary_picture_says_none_accepted():
-    """Issue 25: the batch summary picture showed '0% inf' where no frame was accepted."""
+    """The batch summary picture showed '0% inf' where no frame was accepted."""
     from stages.show.comparison import draw_summary
     from stages.show.figure import new_figure
 
@@ -1318,7 +1318,7 @@ def test_summary_picture_says_none_accepted():
 
 
 def test_show_points_on_a_perspective_frame_gives_no_nan_share(world, tmp_path):
-    """Issue 25: 'nan% within 15 cm' for a perspective frame (it has lines, not points)."""
+    """'nan% within 15 cm' for a perspective frame (it has lines, not points)."""
     r = CliRunner().invoke(cli, ["show", "points", str(world["kid"]), "--frame", "0",
                                  "--features", str(world["kid_features"]), "--map",
                                  str(world["kmap"]), "-o", str(tmp_path / "p.png")])
@@ -1327,7 +1327,7 @@ def test_show_points_on_a_perspective_frame_gives_no_nan_share(world, tmp_path):
 
 
 def test_one_frame_is_one_frame(tmp_path):
-    """Issue 25: 'wrote 1 frames'."""
+    """simulate said 'wrote 1 frames'."""
     r = CliRunner().invoke(cli, ["simulate", "omni", "--field", "spl", "-o",
                                  str(tmp_path / "s"), "--frames", "1"])
     assert r.exit_code == 0, r.output
@@ -1335,7 +1335,7 @@ def test_one_frame_is_one_frame(tmp_path):
 
 
 def test_show_hypotheses_title_without_truth(world, tmp_path, monkeypatch):
-    """Issue 25: the title said 'dashed white: truth' when the dataset has none (and was
+    """The title said 'dashed white: truth' when the dataset has none (and was
     one line too long for the picture)."""
     from stages.show import hypotheses
 
@@ -1359,7 +1359,7 @@ def test_show_hypotheses_title_without_truth(world, tmp_path, monkeypatch):
 
 
 def test_dask_stop_message_of_our_own_cluster_is_not_shown():
-    """Issue 25: a normal batch printed the nanny's 'Worker process still alive after 4.0
+    """A normal batch printed the nanny's 'Worker process still alive after 4.0
     seconds, killing' at the stop of its own cluster; the filter set there drops that line
     (to the debug log) and nothing else."""
     from stages.pipelines.batch import _quiet_stop
@@ -1374,7 +1374,7 @@ def test_dask_stop_message_of_our_own_cluster_is_not_shown():
 
 def test_batch_results_inside_the_glob_rerun_resumes_without_a_cluster(world, tmp_path,
                                                                         monkeypatch):
-    """Issue 25: a results folder inside the SPEC's own glob made every rerun refuse (it
+    """A results folder inside the SPEC's own glob made every rerun refuse (it
     matched as a dataset holding RESULTS); a batch with nothing left to do must not start a
     Dask cluster."""
     import distributed
@@ -1398,7 +1398,7 @@ def test_batch_results_inside_the_glob_rerun_resumes_without_a_cluster(world, tm
 
 
 def test_start_half_warning_when_accepted_frames_sit_in_the_other_half():
-    """Issue 25: a wrong --start-half gave a track on the other half without a word. Warned
+    """A wrong --start-half gave a track on the other half without a word. Warned
     when most accepted frames lie in the other half than the given one; not for 'any', not
     for a run that stays in the given half, not on a handful of frames."""
     from stages.localize.symmetry import start_half_warning
@@ -1414,7 +1414,7 @@ def test_start_half_warning_when_accepted_frames_sit_in_the_other_half():
 
 
 def test_evaluate_warns_when_the_truth_starts_on_the_other_half(tmp_path, caplog):
-    """Issue 25: 100 mirrored frames at 0.99 and no warning. When the truth starts on the
+    """100 mirrored frames at 0.99 and no warning. When the truth starts on the
     other half than the given start_half, evaluate says so (the numbers stay as they are);
     not for the right half, nor for 'any'."""
     from stages.common.artifacts import root_attrs
@@ -1459,7 +1459,7 @@ def test_stale_extract_lock_is_taken_over(world, tmp_path, caplog):
 
 
 def test_full_disk_ends_in_one_line_naming_the_file(world_report, tmp_path, monkeypatch):
-    """Issue 25: on a full disk build-map printed HDF5's raw two-line message, extract and
+    """On a full disk build-map printed HDF5's raw two-line message, extract and
     report 'No space left on device' without the file (and extract could crash in HDF5).
     build-map and extract check the room first; a write that meets a full disk anyway (here
     made to: the system's ENOSPC, and HDF5's message of one) ends in one line naming the

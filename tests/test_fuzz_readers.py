@@ -1,4 +1,4 @@
-"""Issue 8: property-based fuzzing of every reader of user input.
+"""Hostile inputs: property-based fuzzing of every reader of user input.
 
 Field YAML, calib.yaml (omni and perspective), the dataset CSVs, the points and calibration
 pair CSVs, the MINHO team's .cfg files and ``-c key=value`` overrides of every stage's presets,

@@ -1,4 +1,4 @@
-"""Issue 7: ranked hypotheses with probabilities (poses schema v2), the calibration figures of
+"""Ranked hypotheses with probabilities (poses schema v2), the calibration figures of
 evaluate, lut's null and independent frames, the online radial correction and the point fit."""
 
 from __future__ import annotations

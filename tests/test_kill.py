@@ -1,4 +1,4 @@
-"""Issue 8: kill -9 of every long stage at a random moment, in a subprocess.
+"""Interruptions: kill -9 of every long stage at a random moment, in a subprocess.
 
 For simulate, extract, build-map and localize: a finished artifact of an earlier run is at the
 target, the stage is started over it (``--overwrite``, or extract resuming it) and killed with

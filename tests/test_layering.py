@@ -165,7 +165,7 @@ def test_the_circle_finder_finds_circles():
 
 
 def test_no_import_circles():
-    """Issue 26: no two modules of stages/ and fieldloc_cli/ import each other, directly or
+    """No two modules of stages/ and fieldloc_cli/ import each other, directly or
     through others (imports inside functions included): the bench is a package whose rows
     import its harness and inputs, the map reader computes no tables, a picture runs no stage."""
     graph = import_graph()

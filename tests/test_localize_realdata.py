@@ -1,9 +1,9 @@
-"""Issue 7's real-data checks, run as a user runs them (stages.pipelines.realdata: the stage
-mains with the CLI's defaults; calibrate --from-minho, build-map, extract --preset real,
-localize --heading histogram --independent), judged by the brute-force line share of
-stages.evaluate.line_share. Skipped when ../shared/realdata is absent.
+"""The real-data checks of lut's ranked hypotheses, run as a user runs them
+(stages.pipelines.realdata: the stage mains with the CLI's defaults; calibrate --from-minho,
+build-map, extract --preset real, localize --heading histogram --independent), judged by the
+brute-force line share of stages.evaluate.line_share. Skipped when ../shared/realdata is absent.
 
-Goals (issue 7, item 4) and what this commit reaches (the README's results table):
+Goals and what this commit reaches (the README's results table):
 - a pose on >= 9 of 10 minho-lab images: met (10 of 10);
 - >= 70 % of the points within 15 cm and >= the image's null baseline + 0.15 on >= 8 of 10:
   met (8 of 10 since a global frame's candidates are weighed by all the frame's line points,

@@ -675,7 +675,7 @@ def test_localize_cli_init_uniform(kidsize, map_path, tmp_path):
 
 
 def test_rendered_nao_walk_with_the_cli_defaults(tmp_path):
-    """Issue 9: a short rendered NAO walk (``perspective-nao``: 640 x 480, the SPL field, hall
+    """The NAO goals: a short rendered NAO walk (``perspective-nao``: 640 x 480, the SPL field, hall
     lighting, other robots, people and balls) localised by ``fieldloc localize --method mcl``
     with its defaults, from the game's placement. The camera height comes from the dataset's
     calib.yaml (0.45 m, not the model's 0.5). Stated error, 40 frames: from frame 10 on

@@ -1,4 +1,4 @@
-"""mcl on real NAO frames standing still (issue 9), through the product path: each HULKs capture
+"""mcl on real NAO frames standing still, through the product path: each HULKs capture
 (../shared/realdata/hulks-goalbox-labels) becomes a dataset folder of a robot standing still
 (the image 15 times, zero odometry, calib.yaml from the capture's own camera matrix, so the
 observation model gets that frame's camera height), extracted and localised by the stage mains
@@ -6,7 +6,7 @@ with the CLI's defaults (stages.pipelines.bench.mcl_hulks; ``fieldloc bench --on
 runs every capture). The labels' pose is the truth; the field is 180 deg symmetric, so the top
 hypothesis or its mirror counts.
 
-Issue 9's goal: within 50 cm (here also 15 deg) on every frame that shows at least two
+The goal: within 50 cm (here also 15 deg) on every frame that shows at least two
 non-parallel lines or a crossing. Not met: on all 107 captures with labels (the four with
 swapped labels corrected), 98 of the 105 informative ones (93 %; 94 of 104 before the crossings'
 full-resolution checks found more crossings); on the third of them this test runs (every third

@@ -1,4 +1,4 @@
-"""mcl from a uniform start on a rendered still robot (issue 9): the confidence says how much the
+"""mcl from a uniform start on a rendered still robot: the confidence says how much the
 frame tells. One rendered frame, extracted by the perspective chain with its defaults and given
 to the particle filter 15 times with zero odometry (stages.pipelines.bench.mcl_hulks
 rendered_still, which ``fieldloc bench --only mcl-hulks`` runs on 60 random poses). The belief's

@@ -24,7 +24,7 @@ from stages.localize import lut
 from stages.localize import mirror_calibration as mc
 from stages.localize.lut_search import MatchingParams
 
-# the goal of a calibration from a recording (issue 24): e(d) within 2 cm over 1-3 m
+# the goal of a calibration from a recording: e(d) within 2 cm over 1-3 m
 GOAL_M = 0.02
 JUDGED = np.linspace(1.0, 3.0, 21)
 

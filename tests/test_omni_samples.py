@@ -1,4 +1,4 @@
-"""Issue 27: the omni extractor reads and classifies only the pixels its scan lines cross, and
+"""The omni extractor reads and classifies only the pixels its scan lines cross, and
 the few that the field green and the local green map are estimated from.
 
 - the YUV values of the gathered pixels are OpenCV's conversion of the frame there;

@@ -1,9 +1,10 @@
-"""Issue 9 changed shared code (stages/common/colour.py, stages/simulate/scene.py) for the
-perspective camera only: the omni renderer's frames, the omni extractor's features and the
-colour classes of the omni conf must stay as they were. tests/data/omni_unchanged_reference.npz
-holds them as the omni code produced them (summaries of two rendered frames of msl-2015 as
-16 x 16 px block means, the extractor's output, the colour grid's class counts); a deliberate
-change of the omni renderer or extractor regenerates it (the commit says how it moved).
+"""Shared code (stages/common/colour.py, stages/simulate/scene.py) serves the perspective camera
+too, and its perspective-only parts must not touch the omni camera: the omni renderer's frames, the
+omni extractor's features and the colour classes of the omni conf must stay as they were.
+tests/data/omni_unchanged_reference.npz holds them as the omni code produced them (summaries of two
+rendered frames of msl-2015 as 16 x 16 px block means, the extractor's output, the colour grid's
+class counts); a deliberate change of the omni renderer or extractor regenerates it (the commit says
+how it moved).
 
 Compared with tolerances, not bits: another CPU's rounding may move a pixel across a colour
 threshold or a scan-line crossing by a fraction of a pixel, which is no change of the product;

@@ -76,7 +76,7 @@ def test_refuses_non_empty_folder_unless_overwrite(tmp_path, spl):
     with pytest.raises(FieldlocError, match="not empty"):
         simulate.main(small_conf(frames=1), spl, out)
     assert (out / "keep.txt").exists()
-    # issue 8: --overwrite replaces only a dataset simulate made, never a user's folder
+    # --overwrite replaces only a dataset simulate made, never a user's folder
     with pytest.raises(FieldlocError, match="not a dataset made by fieldloc simulate"):
         simulate.main(small_conf(frames=1), spl, out, overwrite=True)
     assert (out / "keep.txt").read_text() == "mine"

@@ -33,8 +33,8 @@ Models (conf ``model``):
   (preset ``default``, for measured pairs); refused if it is not increasing over the valid radius;
 - ``table``: the monotone cubic through the pairs (stages.common.camera.MonotoneTable; preset
   ``minho``). A team's table is used as the team measured it: their robot interpolates it
-  linearly, and a fifth-order polynomial bends away from the MINHO tables by up to 6 cm between
-  the pairs (minho-distance, pairs up to 3 m) or cannot be increasing at all (all 16 pairs). The
+  linearly, and a fifth-order polynomial bends away from the MINHO tables between the pairs,
+  or over all of a table's pairs cannot be increasing at all (docs/results.md). The
   residuals of an interpolation are zero; the report gives leave-one-out residuals instead
   (each inner pair predicted from the others): large ones point at an inconsistent pair.
 

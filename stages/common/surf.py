@@ -1,133 +1,81 @@
-"""SURF, Speeded-Up Robust Features (Bay, Ess, Tuytelaars, Van Gool, CVIU 2008), our own.
-
-OpenCV's pip wheels leave SURF out (patented, ``OPENCV_ENABLE_NONFREE``), so fieldloc
-implements it; the numbers follow the paper, with the OpenCV contrib and OpenSURF sources as
-references where the paper leaves a choice.
+"""SURF, Speeded-Up Robust Features (Bay et al. (2008)), our own: OpenCV's pip wheels leave it
+out (patented, ``OPENCV_ENABLE_NONFREE``). The numbers follow the paper, with the OpenCV contrib
+and OpenSURF sources where it leaves a choice; options marked "ours" are additions, mostly from
+SIFT (Lowe (2004)), and the figures behind them are in docs/results.md.
 
 Detector (Fast-Hessian), on the integral image of the grey image scaled to [0, 1]:
 - box filters approximating the second Gaussian derivatives; filter size L (odd), lobe l = L/3.
   Dxx: an L x (2l - 1) box minus 3 times its middle l x (2l - 1) box (weights +1 -2 +1), Dyy
   its transpose, Dxy four l x l boxes around the centre (- + + -: top left, top right, bottom
   left, bottom right). Each response is divided by the filter area L^2, so that the sizes
-  compare like scale-normalised derivatives (on a quadratic image Dxx = 1.16 s^2 L_xx at L = 9,
-  1.39 s^2 L_xx for large L, with s = 1.2 L / 9);
+  compare like scale-normalised derivatives;
 - det(H) = Dxx Dyy - (0.9 Dxy)^2, and the sign of the trace Dxx + Dyy (the Laplacian: +1 for a
   dark blob on a bright ground, -1 for a bright one) is kept for matching;
-- octave o (0-based) holds the filter sizes 3 (2^(o+1) (i + 1) + 1), i = 0..3: 9, 15, 21, 27;
-  15, 27, 39, 51; 27, 51, 75, 99; 51, 99, 147, 195, sampled every ``initial_step`` 2^o pixels
-  (the steps double from octave to octave); octave o + 1 reuses layers 1 and 3 of octave o at
-  every second sample;
-- ``threshold`` is on det(H) of these area-normalised responses for intensities in [0, 1]: its
-  unit is (intensity)^2. The boxes' lobes are wider than the Gaussian sigma = 1.2 L / 9 they
-  stand for: a Gaussian blob of width sigma_b gives its largest det(H) with L ~ 5 sigma_b, so it
-  is detected at s ~ 0.7 sigma_b, where Dxx = Dyy ~ 0.18 c for a peak contrast c (``blob_det``,
-  from the boxes' geometry). The default 4e-4 (OpenSURF's) keeps blobs from c ~ 0.11 (28 grey
-  levels of 255) up;
-- a response is computed only where its whole filter lies inside the image and on valid
-  pixels (the mask); elsewhere the layer holds -inf and no extremum uses it;
+- octave o (0-based) holds the filter sizes 3 (2^(o+1) (i + 1) + 1), i = 0..3 (9, 15, 21, 27;
+  15, 27, 39, 51; ...), sampled every ``initial_step`` 2^o pixels; octave o + 1 reuses layers
+  1 and 3 of octave o at every second sample;
+- ``threshold`` is on det(H) of these area-normalised responses, in (intensity)^2. A Gaussian
+  blob of width sigma_b gives its largest det(H) with L ~ 5 sigma_b, detected at s ~ 0.7
+  sigma_b where Dxx = Dyy ~ 0.18 c for a peak contrast c (``blob_det``); the default 4e-4
+  (OpenSURF's) keeps blobs from c ~ 0.11 (28 grey levels of 255) up;
+- a response is computed only where its whole filter lies on valid pixels (the mask);
 - maxima over their 3 x 3 x 3 neighbourhood in the two middle layers of each octave, above
-  ``threshold`` (of two equal neighbouring maxima the first in (layer, row, column) order
-  counts, so that a blob centred between two samples is kept once), are refined by a 3D
-  quadratic fit (gradient and Hessian by central differences): offsets larger than 0.5 of a
-  sample in x, y or scale are rejected (6 % of the maxima on rendered ground images).
-  Position (x, y) = (column, row) + offset times the octave's step; scale
-  s = 1.2 / 9 (L + offset * the octave's filter increment), the sigma of the Gaussian the
-  filter stands for (SURF's convention; see ``threshold`` for the blob it matches).
+  ``threshold`` (of two equal neighbours the first in (layer, row, column) order), are refined
+  by a 3D quadratic fit (central differences); offsets beyond half a sample in x, y or scale
+  are rejected. Position = sample + offset times the octave's step; scale s = 1.2 / 9 (L +
+  offset * the octave's filter increment), the sigma of the Gaussian the filter stands for.
 
-Gaussian derivatives (``hessian: gaussian``, our option; the default is Bay's boxes). The
-boxes are not isotropic (see the edge test below): turned by 30 deg, a rendered ground image's
-keypoints move by a median 0.75 of their scale where SIFT's move by 0.09, and the repeatability
-drops from 0.85 at 90 deg (where the boxes turn onto themselves) to 0.65 (bench row
-surf-quality). This option computes each layer from the Gaussian the box of size L stands
-for, sigma = L / ``BLOB_SIZE`` (the blob a box responds to most, ``blob_det``), and keeps the
-rest of the detector as it is: the octaves, sizes, samples, masks, threshold, extrema and
-interpolation, and the reported scale s = 1.2 L / 9. The blur: a pyramid of cv2.pyrDown
-halvings (a binomial blur of variance 1 px^2, then every second pixel, so that pixel k of
-level n lies on pixel k 2^n of the image), and a Gaussian at the coarsest level whose pixels
-are no farther apart than the layer's samples and where the blur left to do is at least one
-of its pixels. The derivatives: fourth-order central differences at the samples (Dxx from
-(-1, 16, -30, 16, -1) / 12, Dxy from the product of (1, -8, 0, 8, -1) / 12 in x and y); det(H)
-= Dxx Dyy - Dxy^2 times (4 BLOB_RESPONSE)^2 sigma^4, which gives a blob the det(H) the boxes
-give it, so that ``threshold`` keeps its meaning. On a straight line at 30 deg the largest
-det(H) is 1/24 of the boxes'.
+Gaussian derivatives (``hessian: gaussian``, ours; default Bay's boxes, which are not isotropic:
+turned images move their keypoints except at multiples of 90 deg). Each layer from the Gaussian
+sigma = L / ``BLOB_SIZE`` the box stands for (a cv2.pyrDown pyramid, then a Gaussian at the
+coarsest level fine enough for the samples), fourth-order central differences (Dxx (-1, 16,
+-30, 16, -1) / 12, Dxy (1, -8, 0, 8, -1) / 12 in x and y), det(H) = Dxx Dyy - Dxy^2 times
+(4 BLOB_RESPONSE)^2 sigma^4 (a blob gets the boxes' det(H): ``threshold`` keeps its meaning);
+octaves, sizes, samples, masks, extrema, interpolation and reported scale as above.
 
-Geometric scales (``geometric_layers`` n > 0, our option, with ``hessian: gaussian``; preset
-``geometric``: n = 3 and ``refine_moves`` 5, below). Bay's sizes grow by linear steps within
-an octave (9, 15, 21, 27; 15, 27, 39, 51; ...), so the sizes around a searched one lie up to
-1.8x apart, unevenly, and the quadratic fit over them places a blob's scale only roughly:
-over sigma 3-14 a Gaussian blob gets s = 0.68-0.80 sigma, and none at all at some sizes
-between the octaves. On the
-bench's rendered ground images turned to scale 0.7, of the Gaussian variant's keypoints that
-found no correspondence, half had a keypoint at their place in the other image, at a scale
-0.75-0.9 of the one expected: the overlap error (< 0.4 needs scales within 1 / 0.775 of each
-other) rejects them. The smallest searched size (L = 15, s = 2) costs less: one keypoint in
-twenty lies below s = 2 / 0.7, which the scaled image cannot reach, and one unmatched one in
-ten; an octave below (sizes 6-15 at step 1) gained nothing there (0.745 against 0.746), the
-doubled image (below) 0.02. With the option each octave o searches n sizes spaced by
-2^(1 / n), 15 2^(o + k / n) for k = 0..n-1, with 15 2^(o - 1 / n) and 15 2^(o + 1) as
-neighbours (SIFT's layout of scales: Lowe's s = n intervals per octave), sampled every
-``initial_step`` 2^o as before; the last two sizes of an octave are the first two of the next,
-whose layers are reused at every second sample. The interpolation's size increment is the
-mean of the two gaps around the searched size (less than 1 % from the geometric one within
-half a layer). ``layers`` does not apply. A blob then gets s = 0.672 sigma (1.2 BLOB_SIZE / 9,
-the Gaussians' own ratio) within 3 % at every size, and the repeatability at scale 0.7 rises
-from 0.75 to 0.80 (SIFT 0.76), at 30 deg from 0.74 to 0.81 (bench row surf-quality).
+Geometric scales (``geometric_layers`` n > 0, ours, with ``hessian: gaussian``; preset
+``geometric``: n = 3, ``refine_moves`` 5). Bay's sizes, linear within an octave and up to 1.8x
+apart, place a blob's scale only roughly (and miss some sizes between octaves), so a
+repeatability test's overlap error rejects keypoints found at the right place. Here octave o
+searches 15 2^(o + k / n), k = 0..n-1, neighbours 15 2^(o - 1 / n) and 15 2^(o + 1) (the
+layout of SIFT, Lowe (2004)), sampled every ``initial_step`` 2^o, the last two sizes the next
+octave's first two, the size increment the mean of the two gaps (``layers`` does not apply): a
+blob gets s = 0.672 sigma (1.2 BLOB_SIZE / 9) within a few % at every size.
 
-Moving refinement (``refine_moves`` n > 0, our option). Bay's refinement (and OpenSURF's)
-rejects a maximum whose fitted offset exceeds half a sample in x, y or scale: about one in
-ten of the maxima on the rendered ground images, with geometric scales mostly in scale, where
-the peak lies between two layers. As Lowe's SIFT does, the fit instead moves to the
-neighbouring sample (and layer) its offset points to and fits again there, at most n times
-(SIFT: 5); it is rejected when that would leave the octave's searched layers or the defined
-samples, or when n moves do not settle it. A maximum whose first fit settles is kept as Bay's
-refinement keeps it; two maxima that move to the same sample give one keypoint. With
-geometric scales it raises the repeatability by 0.02-0.04 on rendered pairs and 0.04-0.07 on
-the real ones (bench surf-quality, "no moves" against the preset); with Bay's linear sizes it
-changed nothing beyond the sample's noise.
+Moving refinement (``refine_moves`` n > 0, ours). Instead of rejecting a maximum whose offset
+exceeds half a sample (often in scale, between two layers), the fit moves to the sample and
+layer the offset points to and fits again, at most n times (SIFT: 5); rejected when it would
+leave the octave's searched layers or the defined samples, or does not settle. It pays with
+geometric scales; with Bay's linear sizes it changes nothing measurable.
 
-Doubled image (``double_image``, our option, either hessian): as Lowe's SIFT does, the
-detector and the descriptor run on the image doubled by linear interpolation (pixel k of the
-doubled image lies at k / 2 - 1 / 4 of the image: cv2.resize's alignment of pixel areas; the
-mask doubled by its nearest pixel), and the keypoints come back to the image's pixels: x / 2 -
-1 / 4, y / 2 - 1 / 4, scale / 2. Every size then sits at half its scale and is sampled every
-half pixel-step: the smallest searched scale is s = 1 and octave 0 samples every pixel
-(``octaves`` 5 keeps the largest scales). A narrow blob loses up to a fifth of its det(H) to
-the interpolation. The detector then sees four times the pixels: with the ``geometric``
-preset on the bench's 512 x 512 ground image it took 0.47x SIFT's time at the preset's
-threshold and 0.70x at 1000 keypoints, against 0.12x and 0.15-0.18x without (a loaded
-machine). It adds a little (bench surf-quality, rendered: 0.85 / 0.95 / 0.86 against 0.83 /
-0.92 / 0.84 at 30 deg / 90 deg / scale 0.7), so no preset holds it. Without geometric scales
-it does not keep SIFT's repeatability at scale 0.7 on ground images of other headings (0.74
-against SIFT's 0.76): finer samples are not what the Gaussian variant lacked.
+Doubled image (``double_image``, ours, either hessian): as SIFT, the detector and descriptor
+run on the image doubled by linear interpolation (cv2.resize's pixel-area alignment, the mask
+by nearest pixel), and keypoints come back as x / 2 - 1 / 4, y / 2 - 1 / 4, scale / 2: the
+smallest scale becomes s = 1 (``octaves`` 5 keeps the largest). It costs four times the pixels
+for a small gain, so no preset holds it.
 
-Orientation: Haar wavelet responses of size 4s at the points of a grid of step s inside a
-radius of 6s (109 points), weighted by a Gaussian of sigma 2s; the responses, binned by their
-angle in 1 deg bins, are summed over a pi/3 window sliding in 1 deg steps; the longest sum
-vector gives the orientation. ``upright`` (U-SURF) skips this: orientation 0.
+Orientation: Haar wavelet responses of size 4s on a grid of step s within radius 6s (109
+points), weighted by a Gaussian of sigma 2s, binned by angle in 1 deg bins and summed over a
+pi/3 window sliding in 1 deg steps; the longest sum vector gives the orientation. ``upright``
+(U-SURF) skips this: orientation 0.
 
-Edge test (``edge_ratio``, our addition; 0 turns it off and leaves Bay et al.'s detector).
-The box filters are not isotropic: on a straight line at 20-70 deg to the image axes,
-Dxx Dyy - (0.9 Dxy)^2 stays positive where the true det(H) of a ridge is 0 (up to 6x the
-default threshold on a 12 px line of contrast 0.4; exactly 0 on axis-aligned lines). Such
-responses line up along every oblique line, vanish when the image turns the line onto an axis,
-and look alike, so they cost repeatability under rotation and confuse matching. They are
-recognised by the second-moment matrix M of the orientation window's Haar responses (the same
-109 weighted samples): along a line they all point across it and M is nearly of rank one. A
-keypoint is rejected when M's eigenvalue ratio exceeds ``edge_ratio`` (10, as SIFT's edge
-threshold on its Hessian), i.e. when its Foerstner roundness 4 det M / tr(M)^2 is below
-4 r / (1 + r)^2 = 0.33. ``max_keypoints`` then keeps the strongest of the survivors.
+Edge test (``edge_ratio``, ours; 0 leaves Bay et al.'s detector). On a line oblique to the
+image axes the boxes' det(H) stays positive where a true ridge's is 0; such responses line up
+along every oblique line, vanish when it turns onto an axis and look alike, costing
+repeatability and confusing matching. Along a line the orientation window's Haar responses
+all point across it, their second-moment matrix M nearly of rank one: a keypoint is rejected
+when M's eigenvalue ratio exceeds ``edge_ratio`` (10, SIFT's), i.e. its Foerstner roundness
+4 det M / tr(M)^2 < 4 r / (1 + r)^2. ``max_keypoints`` then keeps the strongest survivors.
 
-Descriptor: a square window of 20s side aligned with the orientation, 4 x 4 subregions of 5 x
-5 sample points (step s); at each, Haar responses of size 2s (axis-aligned, then rotated into
-the window's frame), weighted by a Gaussian of sigma 3.3s centred on the keypoint; each
-subregion gives (sum dx, sum dy, sum |dx|, sum |dy|): 64 values, scaled to unit length.
+Descriptor: a 20s square aligned with the orientation, 4 x 4 subregions of 5 x 5 samples (step
+s); Haar responses of size 2s rotated into the window's frame, weighted by a Gaussian of sigma
+3.3s; each subregion gives (sum dx, sum dy, sum |dx|, sum |dy|): 64 values, unit length.
 
-Orientations are angles in pixel axes (x = column, y = row, pointing down): from +x towards +y.
-Haar boxes (even sizes 2 round(2s) and 2 round(s)) are centred on the pixel corner nearest each
-sample point and clipped to the image, as OpenSURF rounds its samples to pixels.
-
-The four loops that cost (box-filter layers, extrema with interpolation, orientation,
-descriptor) are numba kernels, compiled once and cached on disk.
+Orientations are angles in pixel axes (x = column, y = row, pointing down), from +x towards +y.
+Haar boxes (even sizes 2 round(2s), 2 round(s)) are centred on the pixel corner nearest each
+sample and clipped to the image, as OpenSURF rounds its samples. The four costly loops
+(box-filter layers, extrema with interpolation, orientation, descriptor) are numba kernels,
+compiled once and cached on disk.
 """
 
 from __future__ import annotations
@@ -596,7 +544,7 @@ def _haar(ii, row, col, size):
 @njit(cache=True, nogil=True, inline="always")
 def _angle(y, x):
     """atan2(y, x) in [0, 2 pi) by a polynomial (error < 3e-4 rad), cheap enough to bin the
-    orientation window's 109 responses by angle (np.arctan2 took 60 % of the kernel)."""
+    orientation window's 109 responses by angle (np.arctan2 dominated the kernel)."""
     ax = abs(x)
     ay = abs(y)
     big = max(ax, ay)

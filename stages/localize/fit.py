@@ -29,8 +29,8 @@ the frame's heading when it is known (IMU, truth; the histogram's four peaks oth
 every ``global.heading_step`` = 10 deg (36 headings). Every start is ranked by E with a wider
 c (``global.c`` = 0.5 m, a blurred floor: wider basins) on 32 of the points; the 16 best
 starts more than ``ambiguity_distance`` apart are fitted by RPROP, and one fix per basin is
-kept. Cost on a 2-core shared machine (bench row fit-accuracy): about 5 ms per global search
-with a known heading, about 100 ms with an unknown one, against about 0.1 ms for a tracked fit.
+kept. A global search costs far more than a tracked fit (many times more again with an unknown
+heading), hence tracking between them; docs/results.md has the times.
 
 Null and confidence as lut's: the same points with their bearing sectors shuffled
 (``NULL_SECTORS`` sectors of 5 deg, seeded) are fitted the same way (from the strongest track's

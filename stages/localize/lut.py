@@ -4,114 +4,74 @@ hypotheses with a probability each.
 The matching is the paper's (lut_search.py): per observed crossing distance the error to the
 table entry of its scan line, weighted by rho(e) = 1 - c^2 / (c^2 + e^2), nearer points weighing
 more; E(pose) is the sum, in units of full-weight observations. This module turns E into a
-belief. There is one quantity behind every decision: the tempered likelihood
+belief through the tempered likelihood, combined with the motion's prior:
 
     p(frame | pose)  ~  exp(-E(pose) / T)
 
-(``temperature`` T: neighbouring scan lines see the same white line, so the observations are
-not independent and one full-weight observation is worth less than one nat; T is fitted so that
-the probabilities are calibrated, docs/lut-belief.md) combined with the prior
-the robot's motion gives, over a short list of hypotheses.
+(``temperature`` T: neighbouring scan lines see the same white line, so one full-weight
+observation is worth less than one nat; T is fitted for calibrated probabilities).
 
-Two beliefs carry that likelihood from frame to frame (``belief``; docs/lut-belief.md):
+Two beliefs carry it (``belief``; docs/lut-belief.md): ``grid`` (``--preset grid``), a
+probability per table cell at the frame's field-aligned heading, moved by the odometry and
+multiplied by every cell's likelihood (Markov localisation, Fox, Burgard and Thrun 1999;
+grid_belief.py): nothing is born or pruned, so a place the first frames misjudged is never lost;
+``tracks`` (default), at most ``max_tracks`` weighted Gaussian tracks, each a pose in the paper's
+decentralised Kalman filter (kalman.py), kept by tracking.TrackBank (shared by every pose-fixing
+method), to which this module gives the fixes, their tempered likelihoods and the null.
 
-- ``grid`` (``--preset grid``): a probability per table cell over the whole field at the
-  frame's field-aligned heading, moved by the odometry and multiplied by every cell's
-  likelihood (Markov localisation, Fox, Burgard and Thrun 1999; grid_belief.py). Nothing is
-  born or pruned, so a place the first frames misjudged is never lost;
-- ``tracks`` (the default): the rest of this doc. The belief (tracks, the mass of
-  elsewhere, the posterior, the mirror listing, acceptance) is tracking.TrackBank, which
-  every pose-fixing method shares; this module is its engine for the scan-line tables: the
-  fixes, their tempered likelihoods and the null.
+A track, per frame: its prior is the last fused pose moved by the odometry (the last fused
+motion on IMU collision frames); its heading ``imu`` (field-aligned yaw, heading.py),
+``histogram`` (the paper's line-point histograms within +-40 deg of the prediction) or
+``truth``, else refined by the search; the paper's local search in a ``window`` x ``window`` m
+square, ranked by E / T + Mahalanobis^2 / 2 (a minimum far from where the odometry puts the
+robot needs that much more evidence) and refined (sub-cell, line points), gives the fix
+(TableSearch.tracked_fix); the weight is multiplied by exp(-E / T), the odometry's agreement
+exp(-m^2 / 2) (m the Kalman innovation, floored by ``min_gate`` / ``gate_sigmas``) and 1 -
+``kidnap_probability``; the fix is fused when it beats the null.
 
-Hypotheses (tracks). The belief is a mixture of a few Gaussian tracks (at most ``max_tracks``),
-each a pose tracked by the decentralised Kalman filter of Ribeiro et al. (2015) (kalman.py) with a
-weight. Per frame, for each track:
+Global searches propose tracks on the first frame, when no track is left, every
+``global_every`` frames (a wrong track cannot persist unchallenged), and after a frame not
+confident up to the mirror (TrackBank.confident). Each separated minimum (``global_candidates``,
+``ambiguity_distance`` apart) that is not a track or its mirror is a candidate of prior mass
+``kidnap_probability`` / N, N the number of ``ambiguity_distance`` squares in the world (a
+uniform prior over where the robot could have been put); weights are normalised, tracks below
+``prune_probability`` dropped, tracks that meet merged. Without a known heading the
+unknown-heading search (72 headings) proposes poses and headings. In ``independent`` runs
+(``global_evidence: auto``; ``points``: every frame without a track) candidates and the null's
+copies are weighed by the line points' distance to the nearest line (PointFit): the scan-line
+error measures a miss along the ray, far for a point beside a line its ray meets at a grazing
+angle, and on real images chose poses explaining fewer points (docs/manual.md). Tracked runs
+keep the scan-line error for first and lost frames: with the points, a rendered run with a
+look-alike place (omni-hard) locked onto it for good.
 
-1. its prior: the previous fused pose moved by the odometry (by the last fused motion on IMU
-   collision frames), with the fusion's predicted covariance;
-2. heading: ``imu`` (imu.csv yaw aligned to the field, heading.py), ``histogram`` (the paper's
-   line-point histograms within +-40 deg of the track's predicted heading), ``truth`` (for
-   ablations); where that heading cannot be used (IMU yaw on a collision frame, a histogram
-   without straight lines) the search refines the heading itself;
-3. the paper's local search in a ``window`` x ``window`` m square around the prior, ranked by
-   the posterior E(cell) / T + Mahalanobis^2 / 2 (so a minimum far from where the odometry says
-   the robot is needs that much more evidence), refined to sub-cell in its basin (and in the
-   prior's, kept when its exact score is lower), then moved by the line points' fit: the fix
-   (one compiled call, TableSearch.tracked_fix, unless the heading is refined by vision);
-4. its weight is multiplied by the fix's likelihood exp(-E / T) and by the odometry's agreement
-   exp(-m^2 / 2) (m: the Kalman innovation of the fix, with a floor of ``min_gate`` /
-   ``gate_sigmas`` against overconfidence), and by 1 - ``kidnap_probability``;
-5. the fix is fused (when it beats the null, below).
+The null: the same observations at random bearings (scan lines shuffled,
+``Observation.random_bearings``), searched the same way, show what chance alone explains
+(E_null, the median of ``null_copies``; a tracked frame's first bounded from below,
+TableSearch.tracked_score_bound). A frame with no hypothesis beating it (``uninformative``) or
+fewer than ``min_observations`` crossings fails: the tracks only predict. In a global frame the
+null is one more hypothesis ("none of these"): a pose barely beating chance gets little.
 
-Global searches propose new tracks: on the first frame, when no track is left, every
-``global_every`` frames while tracking (a wrong track cannot persist unchallenged), and when
-the last frame's belief was not confident up to the mirror (no track, a pose with its mirror
-image, holding ``min_confidence``: TrackBank.confident; on a point-symmetric field without a
-field-aligned heading the top hypothesis alone never reaches it, and a global search cannot
-tell the two apart either). Each separated minimum of the search (``global_candidates``,
-``ambiguity_distance`` apart) that is not an existing track (or its mirror) is a candidate of
-prior mass ``kidnap_probability`` / N, N the number of ``ambiguity_distance`` squares in the
-world (a uniform prior over where the robot could have been put; without tracks the uniform
-prior alone; a candidate's mirror image carries its own mass unless the heading is
-field-aligned). The weights are normalised, tracks below ``prune_probability`` dropped, tracks
-that meet merged. With no heading known (histogram on the first frame, IMU with
-``imu_alignment: vision`` before its first fix) the unknown-heading search (all 72 headings)
-proposes poses and headings. In ``independent`` runs (``global_evidence: auto``; ``points``
-for every frame with no track) the candidates are weighed by the frame's line points (all of
-them: the features' ``points``, every white run the scan lines crossed, or a points file's)
-rather than by the scan-line error: each is refined in its basin by the points' distance to
-the nearest line (PointFit) and that cost, in the same units, is its evidence, and the null's
-copies (the points turned with their scan lines' shuffled bearings:
-lut_search.random_bearing_points) are weighed the same way; the histogram headings of such a
-frame come from those points too. The scan-line error measures a miss along the ray, and a
-point beside a line its ray meets at a grazing angle misses far along it: on real images it
-chose poses that explain fewer points (docs/manual.md). A tracked run keeps the scan-line error for
-its first and lost frames, as for its tracks: with the points there, the rendered omni-hard
-run of `make compare` locked onto the look-alike place for good (0 % within 40 cm against
-28 %).
+Symmetry: on a point-symmetric field a track carries its mirror image's share of its weight
+(``mirror``: about 1/2 when the unknown-heading search finds both, never changed by the lines;
+0 with a field-aligned IMU heading); ``start_half`` (own: x < 0, opponent, any) multiplies the
+other half's share at the first fix by ``start_half_error``. Each frame lists its top's mirror.
 
-The null. The same observations at random bearings (each scan line keeps its crossings, the
-lines are shuffled: ``Observation.random_bearings``), searched the same way (the global search
-for a global frame, the window around the strongest track otherwise), show what chance alone
-explains: E_null, the median over ``null_copies`` copies. A frame *fails* when no hypothesis
-beats the null (E >= E_null: ``uninformative``) or when it has fewer than ``min_observations``
-crossings (``too-few-observations``); then the tracks only predict. A tracked frame's null is
-first bounded from below on the min-pooled error lookup (TableSearch.tracked_score_bound,
-a few times cheaper than the window): when every fix beats the bound it beats the null, and
-the window itself is searched only otherwise. In a global frame the null
-also enters the normalisation as one more hypothesis ("the pose is none of these"), so a frame
-whose best pose barely beats chance gets a low probability.
-
-The 180 deg symmetry. On a point-symmetric field (FieldModel.is_point_symmetric) a pose and its
-mirror explain every frame equally: a track carries the share of its weight that belongs to
-its mirror image (``mirror``), set when the unknown-heading search finds both (about 1/2) and
-never changed by the lines. A field-aligned IMU heading rules the mirror out (share 0).
-``start_half`` (own: x < 0, opponent: x > 0, any) is a prior on the first fix: the share on
-the other half is multiplied by ``start_half_error`` (the chance that the user is wrong). On
-such a field every frame lists the mirror of its top hypothesis with its own probability.
-
-Per frame: the hypotheses (tracks and mirrors, ranked, at most ``hypotheses``) with their
-probabilities; the pose is the top one, its probability the ``confidence``; the frame is
-*accepted* when confidence >= ``min_confidence``. ``--independent`` (``independent: true``)
-localises every frame globally, with no track, prior or odometry (snapshots at unknown poses).
-
-Recorded: pose, ``error`` = e_norm = E / total weight of the fix, ``confidence``, ``mode``
-(global, global-heading: the top track was born this frame; local; failed), runtime, fused
-covariance, hypotheses, flags: collision; heading-vision and heading-unsure (the heading came
-from the search, and was not pinned down); window-edge; global-check (a global search ran
-beside the tracks); relocalised (the top hypothesis is a
-track born by a global search while an older track existed); mirror-ambiguous (the mirror has at
-least half the top's probability); start-half (the first fix was mirrored onto start_half);
-low-confidence; failure reasons too-few-observations, uninformative, no-imu-row,
+Per frame: the hypotheses (at most ``hypotheses``) with probabilities; the pose is the top one,
+its probability the ``confidence``, *accepted* at >= ``min_confidence`` (``independent: true``:
+every frame global, with no track, prior or odometry). Recorded: pose, ``error`` = e_norm = E /
+total weight of the fix, confidence, ``mode`` (global; global-heading: the top track born this
+frame; local; failed), runtime, fused covariance, hypotheses, flags: collision; heading-vision,
+heading-unsure (the heading from the search; not pinned down); window-edge; global-check (a
+global search beside the tracks); relocalised (the top a track born by a global search while an
+older one existed); mirror-ambiguous (mirror >= half the top); start-half (first fix mirrored
+onto start_half); low-confidence; too-few-observations, uninformative, no-imu-row,
 no-truth-heading.
 
-Vision covariance for the fusion: the quadratic fit of the error surface at the fix gives its
-Hessian H (of e_norm, m^-2); the position covariance is ``vision_sigma_xy``^2 * (1/c^2) * H^-1
-with H's eigenvalues clipped from below at 0.2 % of 1/c^2 (a fix seeing only parallel lines is
-uncertain along them), scaled by (1 + inlier_rho / 0.05) and capped at 1 m. The heading variance
-is that of the heading source or, for a heading refined by the search, from the curvature of the
-error term over the heading.
+Vision covariance: the quadratic fit of the error surface at the fix gives its Hessian H (of
+e_norm, m^-2); the position covariance is ``vision_sigma_xy``^2 (1/c^2) H^-1, H's eigenvalues
+clipped from below at 0.2 % of 1/c^2 (a fix seeing only parallel lines is uncertain along
+them), scaled by (1 + inlier_rho / 0.05), capped at 1 m. The heading variance is the heading
+source's, or from the error's curvature over the heading when the search refined it.
 """
 
 from __future__ import annotations
@@ -152,9 +112,9 @@ log = logging.getLogger(__name__)
 
 camera_kinds = ("omni",)  # the features it reads
 confs = {
-    # the belief's keys (tracking.DEFAULTS; min_confidence 0.8: 0.2 % of the tuning sets'
-    # frames accepted and more than 1 m off, 10.9 % of the held-out ones:
-    # docs/lut-belief.md), then the search's
+    # the belief's keys (tracking.DEFAULTS; min_confidence 0.8, chosen on the tuning sets'
+    # confidently wrong frames, which are more on held-out sets: docs/manual.md,
+    # docs/results.md), then the search's
     "default": {
         **tracking.DEFAULTS,
         "heading": "imu",  # imu | histogram | truth
@@ -560,8 +520,7 @@ class LutLocaliser:
         with_evidence). Weighed by those per point, a long line seen by many scan lines
         would count less than a small clutter structure of a few points, and far points
         little: on the real minho-lab images that chose poses explaining fewer points
-        (docs/manual.md: 7 of 10 images explained this way, 6 with the range weights, 5 with
-        the caps too)."""
+        (docs/results.md)."""
         reach = float(self.conf["global_reach"])
         pose, cost, _normal = self.fit.refine(
             points, np.ones(len(points)), fix.pose, fixed_heading=heading_fixed,

@@ -22,7 +22,7 @@ for every scan line (72 radial, 144 spiral), every observed distance quantised t
 ``distance_bin`` (5 cm) and every cell, the value w(d) * rho(e) quantised to 0..Q (Q = 151, so
 that the sum over the at most 432 observations of a frame fits a uint16), and the error
 surface of a frame is the sum of one lookup row per observation. Stored whole, that lookup
-is 352 MB on msl-2015 (11736 rows of 28341 cells), so it is not stored: an entry is computed
+would take hundreds of MB per field (docs/results.md), so it is not stored: an entry is computed
 when a search reads it, from the map's uint16 tables (millimetres, a cell's crossings side by
 side) and, per distance bin, the quantised error of every table value (``Quantised``, 0.5 MB:
 the entry is the least of its crossings' values, the nearest crossing's, as the value grows
@@ -37,9 +37,9 @@ cells it covers from below.
 The searches compute the fine surface only where that bound does not rule a cell out (branch
 and bound, numba kernels in lut_kernels.py): the global search's separated minima
 (``separated_minima``: the coarse cells opened in the order of their bound, a computed cell
-passed to the greedy once it lies below every bound not opened: about 5 % of the field for
-16 minima) and the best cell of a window (``tracked_window``, which the local search and a
-track's fix use: the cells of the least bound first, then every cell whose bound is not above
+passed to the greedy once it lies below every bound not opened: a small part of the field)
+and the best cell of a window (``tracked_window``, which the local search and a track's fix
+use: the cells of the least bound first, then every cell whose bound is not above
 the best score they found). Both pick the same cells as the whole surface would. A whole
 surface (``surface``, the grid belief's; ``local_surface``) is computed cell by cell. A
 track's fix (``tracked_fix``: the window ranked by the posterior, the refinement of its basin
@@ -677,7 +677,7 @@ class TableSearch:
         ``min_cells`` around the ones before (non-maximum suppression, greedy), by branch and
         bound on the min-pooled lookup (lut_kernels.separated_minima): the same cells as the
         greedy on the whole surface (``_surface``), which is computed only where the bound
-        does not rule a cell out, about 5 % of msl-2015's cells for 16 minima."""
+        does not rule a cell out (a small part of the field: docs/results.md)."""
         out = np.empty(max(k, 0), dtype=np.int64)
         n = separated_minima(self.quantised, self.min_pooled, self._observed(obs), int(m),
                              self._grid, int(k), max(1, int(math.ceil(min_cells))), out)

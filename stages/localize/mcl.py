@@ -1,134 +1,75 @@
 """Monte-Carlo localisation (Schulz et al. (2011), section 5): a sampling-importance-resampling
 particle filter over (x, y, theta) on lines, crossings and goal posts from a perspective camera.
 
-Per frame: (1) predict, every particle moved by the odometry increment with noise
-(stages.localize.motion_model); (2) weight, each particle's weight multiplied by the
-likelihood of the frame's observations (stages.localize.observation_model: eq. 3 for crossings
-and posts, eqs. 4-5 for lines, association by the crossing tables for L and T and per particle
-for X, posts and lines, uniform floor by confidence, product over observations), and, with
-``imu_heading_sigma``, by the IMU's yaw as a field heading (``heading_log_likelihood``); a frame
-with no usable observation keeps the predicted belief (no weighting, no resampling); (3) estimate;
-(4) resample (low-variance) when the effective sample size falls below ``resample_threshold``
-of the particles, when particles are to be injected, or when the particle count changes.
+Per frame: (1) predict: each particle moved by the odometry with noise (motion_model); (2)
+weight: by the likelihood of the frame's observations (observation_model) and, with
+``imu_heading_sigma``, of the IMU's yaw as a field heading; a frame with no usable observation
+keeps the predicted belief; (3) estimate; (4) resample (low-variance) when the effective sample
+size falls below ``resample_threshold``, on injection, or when the particle count changes.
 
 New particles at resampling:
-- augmented MCL (Thrun et al.): the mean per-observation likelihood of the predicted belief is
-  followed by a slow and a fast exponential average (``alpha_slow``, ``alpha_fast``); a share
-  ``max(0, 1 - w_fast / w_slow)`` (at most ``max_inject``) of the particles is replaced while
-  the belief is wide (while tracking, the share raises the kidnap prior, below), half
-  of them (``inject_from_observations``) by poses placed by this frame's observations (below),
-  the rest uniformly; the frame's mode is then "recovering" and its flags hold "injected=N";
-- sensor resetting: poses at which one observation of the frame is explained by a random field
-  feature of its kind (a crossing by a crossing of a type it may be, a post by a post, a line
-  by a straight field line, either side of it, anywhere along it where the observed segment
-  fits), ``reset_pool`` candidates per resetting frame, weighted in the same call as the
-  particles; the placed poses are drawn from them in proportion to their likelihood under all
-  of the frame's observations. While the belief is wide (spread at or above ``spread_high``:
-  global localisation) every frame with observations places ``sensor_reset_fraction``. While
-  tracking, every ``sensor_reset_every``-th frame (every frame while augmented MCL's averages
-  say the likelihood dropped) places the posterior share of "the
-  robot is elsewhere": its prior, the larger of ``kidnap_probability`` and augmented MCL's
-  share, spread over the world's hypothesis regions (a cluster's radius and heading window),
-  the best candidate standing for the place it would be, against the predicted belief's
-  likelihood sum(w_i L_i). A tracked robot whose observations fit places (almost) nothing; a
-  kidnapped one, whose observations fit a candidate far better than the belief, gets most of
-  its particles placed there. After a uniform start (``rivals`` by the initial belief) the
-  candidates are also kept over frames, since one frame rarely says that much (a rival place
-  beats the belief by 1-5 nats a frame where the prior asks ~13): the pool's best poses,
-  moved by the odometry, each summing its log-likelihood ratio against the belief's
-  predictive likelihood, forgetting with ``rival_memory`` frames (a sequential test); the best
-  rival stands for "elsewhere" when its sum beats the frame's best candidate, and the placed
-  poses then lie around it. A rival found now starts with the sums it would have had since
-  the frames the belief weighed before it (``_retro_odds``: moved back by the odometry, scored
-  in each of those frames, up to ``RIVAL_LOOKBACK`` memories back), not with this frame's
-  ratio counted as if every earlier frame had said the same: one frame that happens to fit a
-  place better is not the many frames a rival must win. Rivals inside the belief's best
-  cluster or its mirror, or
-  ``rival_floor`` below the belief, are dropped; a wide belief holds none. (The uniform start
-  on the KidSize walk of seed 41 settled on a pose 2.5 m along the touch line from the truth
-  and stayed there for 90 frames; with the rivals it holds the truth from frame 40 on);
+- augmented MCL (Thrun, Burgard and Fox 2005): from slow and fast averages of the mean
+  per-observation likelihood (``alpha_slow``, ``alpha_fast``), a share max(0, 1 - w_fast /
+  w_slow) (<= ``max_inject``) is replaced while the belief is wide, half by poses the frame's
+  observations place (``inject_from_observations``), half uniformly (mode "recovering", flag
+  "injected=N"); while tracking, the share raises the kidnap prior;
+- sensor resetting (Lenser and Veloso 2000): ``reset_pool`` poses at which one observation is
+  explained by a field feature of its kind, drawn by their likelihood under the whole frame. A
+  wide belief (spread >= ``spread_high``) places ``sensor_reset_fraction`` every frame; a
+  tracking one, every ``sensor_reset_every``-th frame (every frame while the likelihood drops),
+  places the posterior share of "elsewhere": prior max(``kidnap_probability``, augmented MCL's
+  share) over the hypothesis regions, the best candidate against the belief's predictive
+  likelihood sum(w_i L_i). A tracked robot places (almost) nothing, a kidnapped one most;
+- ``rivals`` (a uniform start's: one frame rarely beats the kidnap prior, and a start settled
+  metres off along a touch line would stay there): the pool's best poses, moved by the
+  odometry, each summing its log-likelihood ratio against the belief's predictive likelihood,
+  forgetting over ``rival_memory`` frames (a sequential test); the best stands for "elsewhere"
+  once its sum beats the frame's best candidate. A new rival's sum starts from the frames
+  before it (``_retro_odds``, up to ``RIVAL_LOOKBACK``), not from its first ratio counted once
+  per earlier frame. Rivals in the best cluster or its mirror, or ``rival_floor`` below the
+  belief, are dropped;
 - ``random_fraction``: a constant share of uniform particles (0 by default).
-Unless the prior was symmetric (below), each new pose is taken as whichever of itself and its
-mirror image the belief supports more (its density there: Gaussian kernels of the cluster's
-radius and heading window on 256 particles drawn by weight), the one nearer the last estimate
-where it supports neither: no observation can tell the two apart, and the other would only let
-the track flip to the mirrored side. (The side nearer a wide belief's estimate is not the
-belief's side: on a placement start, the estimate of the first frames can sit at the other
-touch line, nearer the true pose's mirror than the true pose.)
+Unless the prior was symmetric, each new pose is taken as whichever of itself and its mirror
+the belief supports more (kernel density on 256 particles drawn by weight), else the one nearer
+the last estimate: no observation tells them apart, and the other only lets the track flip.
 
-A uniform start (``init: uniform``) places its belief at the first frame with observations:
-the observation model on a coarse grid over the world (``start_grid``, 0.2 m x 6 deg; its half
-x <= 0 while particles stand for mirrored pairs; each grid pose scored as a pose anywhere in
-its cell, place_search.cell_model), the ``start_places`` best grid poses that are other places
-(1 m or 30 deg apart, up to the mirror), each refined on two local grids (place_search.search,
-the search the still-robot bench's brute force runs at 0.1 m x 3 deg); each place gets an
-equal share of the particles, drawn from a Gaussian of the frame's posterior around it
-(place_search.local_posterior), and the grid's share of the likelihood outside the places is
-drawn uniformly (``start_uniform_share`` sets it instead). The particles then weigh that frame
-and the ones after as any others. Drawn uniformly, the particles of a frame's sharp peaks are
-few and off their peak; the first frames settled by chance on one of the places that explain
-them alike (whose particles were nearest its peak) and resampling took the others' particles
-before the frames could tell them apart: on bench mcl-hulks' rendered still frames, 9 of the
-70 runs whose frames decide the truth (by the brute force) settled 0.8-3.8 m off; with the
-places, none (the equal shares matter: drawn in proportion to the first frame's likelihood,
-by importance weights, a broad plateau outweighs a sharp peak and 1-2 of them still did). The
-search costs about 40 ms of CPU once (median over the rendered still frames; 80-90 ms on frames
-of 11-13 lines), not per frame.
+Uniform start (``init: uniform``): the first frame with observations is scored on a coarse
+grid (``start_grid``, each pose as anywhere in its cell: place_search.cell_model), and the
+``start_places`` best distinct places (1 m or 30 deg apart, up to the mirror), refined on two
+local grids (place_search.search), each get an *equal* share of the particles, drawn from the
+frame's posterior around it; the grid's likelihood outside them is drawn uniformly (or
+``start_uniform_share``). Drawn uniformly, the particles of a sharp peak are few and off it;
+drawn by the first frame's likelihood, a broad plateau outweighs a sharp peak: either way
+chance picks among places the first frames explain alike. Equal shares keep each place alive
+until the frames decide.
 
-Particle count (250-1000, ``particles_min`` / ``particles_max``): at resampling the number
-follows the belief's spread s = sqrt(var x + var y): ``particles_min`` when s <= ``spread_low``,
-``particles_max`` when s >= ``spread_high``, linear between, and the maximum whenever augmented
-MCL injects. A simple stand-in for KLD sampling: a tight belief needs few particles, a wide or
-multi-modal one many. The initial belief has ``init_particles`` (4000 for a uniform start),
-kept while the spread stays at or above ``spread_high`` (global localisation).
+Particle count (a stand-in for KLD sampling, Fox 2003): ``init_particles`` at the start,
+then ``particles_min`` at spread s = sqrt(var x + var y) <= ``spread_low``, ``particles_max``
+at s >= ``spread_high`` or while augmented MCL injects, linear between.
 
-Estimate: a weighted histogram of the particles (1 m x 1 m x 45 deg bins, summed over 2 x 2 x 2
-neighbouring bins) gives the heaviest region; three mean-shift steps with radius
-``cluster_radius`` and heading window ``cluster_heading`` give the best cluster; its weighted
-mean is the pose, its weighted covariance the covariance, its weight share the confidence; the
-poses file's ``error`` is sqrt(var x + var y) of that cluster (m). Where a uniform start keeps
-rivals, each rival outside the listed clusters is a hypothesis too, holding the odds its summed
-log-likelihood ratio against the belief's heaviest particle gives (``_with_rivals``): the
-belief's shares, the confidence among them, are what is left. A particle set cannot hold two
-places that explain a still robot's frames alike (which keeps the mass is the luck of the first
-frames).
-On still robots (``fieldloc bench --only mcl-hulks``) the AUROC of the top pose and mirror's
-share for a hit goes from 0.88 to 0.94 on 120 rendered NAO and KidSize runs and from 0.81 to
-0.84 on the 107 HULKs frames (for within 1 m: 0.86 to 0.93; 0.994 to 0.984); the poses stay
-as they were. (Still 18 of the 120 rendered runs held >= 0.8 on a place > 1 m off: the rivals
-did not find the other place. Since a uniform start places its belief at the first frame's
-places, 6, each at a place the frame's observations fit better than the truth by 1.1-2.2 nats a
-frame, and the AUROCs are 0.92 and 0.90 on the rendered runs, 0.69 and 0.97 on the HULKs
-frames: the misses there are places the frames decide, held at the pair share the model
-gives them. Since the extractor tells the carpet's edge from a line, 3 of the 120, AUROCs 0.94
-and 0.91, and 0.64 and 0.98 on the HULKs frames.)
+Estimate: a weighted histogram (1 m x 1 m x 45 deg bins, summed over 2 x 2 x 2 neighbours)
+and three mean-shift steps (``cluster_radius``, ``cluster_heading``) find the best cluster: its
+weighted mean is the pose, its covariance the covariance, its weight share the confidence,
+sqrt(var x + var y) the ``error``. Rivals outside the clusters are hypotheses too, at the odds
+their sums give (``_with_rivals``): a particle set alone cannot hold two places that explain a
+still robot's frames alike, and would overstate the one it kept.
 
-Symmetry: the field looks the same after a 180 deg turn about the centre spot (both goals
-white), so a pose and its mirror (FieldModel.mirror_pose) explain every image equally. With
-the default ``init: placement`` (own half, x < 0, at either touch line, facing into the field,
-as robots enter in a game; the opponent half for ``start_half: opponent``) the prior breaks
-the symmetry and the filter keeps its side; a frame
-is flagged "mirror-ambiguous" when the particles around the mirrored pose weigh at least
-``mirror_ratio`` of the best cluster. With ``init: uniform`` on a point-symmetric field the
-posterior stays exactly symmetric; the filter then holds one particle per mirrored pair
-(``symmetric_pairs``), reports the member of the pair that continues the previous estimate (own
-half at the start), with confidence at most 0.5, and flags every frame "mirror-ambiguous";
-what it decides is the pose up to the mirror (``confidence_up_to_mirror``). ``start_half``
-(own or opponent) says on which half the robot's first pose lies: a uniform start then draws
-its belief, and searches its places, on that half (``start_half_error`` of it on the other),
-the prior is no longer symmetric, and the pose itself is decided. ``init: pose`` starts
-around ``init_pose`` with ``init_spread``.
+Symmetry: with both goals white a pose and its mirror (FieldModel.mirror_pose) explain every
+image equally. The default ``init: placement`` (own half at either touch line facing into the
+field, as robots enter a game; the opponent's with ``start_half: opponent``) breaks it; a frame
+is "mirror-ambiguous" when the mirrored pose weighs ``mirror_ratio`` of the best cluster.
+``init: uniform`` on a point-symmetric field keeps one particle per mirrored pair
+(``symmetric_pairs``), reports the member continuing the last estimate at confidence <= 0.5,
+flags every frame and decides ``confidence_up_to_mirror``, unless ``start_half`` names the
+first pose's half (``start_half_error``). ``init: pose``: around ``init_pose``, ``init_spread``.
 
-Smoothing (``smooth: true``, offline; smooth.py, docs/smoothing.md): the causal run keeps per
-frame its prepared observations and the poses its particle set held, and ``MclScorer`` gives
-the smoother those poses, their mirror images and the smoother's own starts fitted to the frame
-(``local_fit``), each with the observation model's negative log-likelihood over
-``smooth_temperature`` (consecutive frames repeat their errors: a wrong place that fits each
-frame a little better would otherwise win over a few frames) and the inverse of its tempered
-curvature as covariance. The causal run itself is the same with or without it.
+Smoothing (``smooth: true``, offline; smooth.py): ``MclScorer`` scores the particles' poses,
+their mirrors and local fits (``local_fit``) by the negative log-likelihood over
+``smooth_temperature`` (consecutive frames repeat their errors), with the tempered curvature's
+inverse as covariance; the causal run is unchanged.
 
-Every random draw comes from one ``np.random.default_rng(seed)``: the same inputs and seed give
-the same poses.
+All draws come from one ``np.random.default_rng(seed)``: same inputs and seed, same poses. The
+figures behind these choices: docs/results.md, "Why the defaults are what they are".
 """
 
 from __future__ import annotations
@@ -199,8 +140,8 @@ _DEFAULT = {
     # accumulating its evidence against it (a sequential test of "elsewhere"), by the initial
     # belief: a uniform start's first frames settle on one of several places that explain
     # them alike, and the rivals find the right one later; from the placement (or a given
-    # pose) the prior has chosen, and rivals there took rendered NAO walks off the truth
-    # (96.8 -> 94.4 % within 40 cm) where people's legs and other robots pass for posts
+    # pose) the prior has chosen, and rivals there take rendered NAO walks off the truth
+    # where people's legs and other robots pass for posts
     "rivals": {"placement": 0, "uniform": 8, "pose": 0},
     # a uniform start's first frame with observations places the particles at the places
     # where that frame fits best (place_search: the observation model on a coarse grid over
@@ -209,7 +150,7 @@ _DEFAULT = {
     # holds particles at its best pose, and the frames that follow decide between them,
     # where particles drawn uniformly or placed by one observation reached one of them first
     # and held it (module doc)
-    "start_places": 16,  # places searched for (0: a uniform belief, as before)
+    "start_places": 16,  # places searched for (0: a uniform belief)
     "start_grid": [0.2, 6.0],  # m, deg: the coarse grid's step and turn
     "start_uniform_share": None,  # share of the first particles drawn uniformly; None: the
     # grid's share of the likelihood outside the places found

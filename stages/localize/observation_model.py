@@ -89,12 +89,12 @@ DEFAULTS = {
     "sigma_extent": 0.15,  # m, at distance 0 (grows as the range sigma of the farther end)
     "extent_margin": 0.1,  # m of overhang that is free
     "arc_lines": True,  # the centre circle (and arcs) as candidate lines, by their tangent
-    "min_line_length": 0.3,  # m, shorter lines are ignored (seed: short and far lines)
+    "min_line_length": 0.3,  # m, shorter lines are ignored (Schulz et al.: short, far lines)
     "max_line_distance": 6.0,  # m, lines whose closest point is farther are ignored
     "uniform_floor": 0.1,  # a_base of section 5.3, in ]0, 1[
     "post_uniform_floor": 0.6,  # a_base for goal posts: most detected posts are no goal
-    # post (robots' and people's legs; measured on rendered NAO walks: 61-88 % of them lie at
-    # no post at the true pose, 19 % on the KidSize walk); None = uniform_floor
+    # post (robots' and people's legs: on rendered NAO walks most detections lie at no post
+    # at the true pose; docs/results.md); None = uniform_floor
     "use_lines": True,
     "use_crossings": True,
     "use_posts": True,

@@ -14,11 +14,12 @@ frame, so the query's field pose is the template's pose composed with it. Equati
 ``descent`` is the paper's search "similar to Gibbs sampling": from (0, 0, 0), the best dtheta
 with (dx, dy) fixed, then the best dy, then the best dx, until none changes (by more than
 ``tol``); each step is exact: dtheta = atan2(sum q x (t - d), sum q . (t - d)), dy and dx the
-mean residual along their axis. ``closed_form`` is the least-squares rigid fit of 2D
-Kabsch/Umeyama (no scale): the same minimum in one step, from the pairs' centroids and their
-cross-covariance. Both minimise the same convex-in-translation, single-minimum-in-angle E, so
-they agree (a test holds them to it); the descent needs more steps the farther the pairs lie
-from the robot (the angle and the translation are coupled through the centroid).
+mean residual along their axis. ``closed_form`` is the least-squares rigid fit of Kabsch (1976)
+and Umeyama (1991) in 2D (no scale): the same minimum in one step, from the pairs' centroids
+and their cross-covariance. Both minimise the same convex-in-translation,
+single-minimum-in-angle E, so they agree (a test holds them to it); the descent needs more
+steps the farther the pairs lie from the robot (the angle and the translation are coupled
+through the centroid).
 
 Outliers (the paper: "variance of distance of matching pairs is calculated and eliminate wrong
 matching pairs based on the variance"): after a fit the pair distances r_i = ||t_i - A q_i||

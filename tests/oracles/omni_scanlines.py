@@ -1,5 +1,5 @@
 """Readable oracles of the omni extractor's per-frame steps (numpy), as the extractor computed
-them before issue 27 made it classify only the scan-line pixels:
+them when it classified the whole frame (it now classifies only the scan-line pixels):
 
 - ``whole_image_classes``: the whole frame converted to YUV, the field green estimated from
   one pixel in 6 x 6 of the floor annulus and the local green map from 4 pixels of every

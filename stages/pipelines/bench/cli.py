@@ -1,4 +1,4 @@
-"""``fieldloc bench`` row of issue 22's start-up goal: `fieldloc --help` and
+"""``fieldloc bench`` row of the start-up goal: `fieldloc --help` and
 `fieldloc localize --help` each cost <= 0.5 s of CPU and <= 100 MB of resident memory, warm (the
 interpreter's bytecode caches written by a first, untimed run).
 

@@ -1,4 +1,4 @@
-"""``fieldloc bench`` row of issue 11's comparison (the SURF template paper, figures 3-5,
+"""``fieldloc bench`` row of the SURF template paper's comparison (its figures 3-5,
 stages.pipelines.error_surface) on rendered msl-2015 (omni-default): one template captured at
 TEMPLATE_POSE, queries of the same robot in the same venue (another session: clutter, lighting,
 noise) on a 0.2 m grid of +-2 m around it at the template's heading, and at the 9 nodes of +-0.2 m

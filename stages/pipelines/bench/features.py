@@ -1,5 +1,5 @@
-"""``fieldloc bench`` rows of the local features (issue 11): SURF's speed against SIFT, and its
-quality (repeatability, matching score) on rendered and real ground images."""
+"""``fieldloc bench`` rows of the local features (the SURF template method's goals): SURF's speed
+against SIFT, and its quality (repeatability, matching score) on rendered and real ground images."""
 
 from __future__ import annotations
 
@@ -110,8 +110,8 @@ def pair_scores(conf, H: np.ndarray, images: list) -> dict:
 
 
 def bench_surf_speed(repeat: int) -> list[Row]:
-    """Issue 11: SURF detection + description of a 512 x 512 ground image with about 1000
-    keypoints <= 0.3 x OpenCV SIFT's time, interleaved on the same image."""
+    """The template method's speed goal: SURF detection + description of a 512 x 512 ground image
+    with about 1000 keypoints <= 0.3 x OpenCV SIFT's time, interleaved on the same image."""
     from ...common import local_features
 
     grey, valid = ground_images()[0]
@@ -145,9 +145,9 @@ def bench_surf_speed(repeat: int) -> list[Row]:
 
 
 def bench_feature_quality(repeat: int) -> list[Row]:
-    """Issue 11: SURF against SIFT (and ORB, U-SURF, SURF without the edge test) on synthetic
-    pairs of rendered ground images, Mikolajczyk-Schmid protocol (overlap error < 0.4,
-    one-to-one matching): repeatability >= SIFT's, matching score >= 0.5 at 30 deg. Each of
+    """The template method's quality goal: SURF against SIFT (and ORB, U-SURF, SURF without the edge
+    test) on synthetic pairs of rendered ground images, Mikolajczyk-Schmid protocol (overlap error <
+    0.4, one-to-one matching): repeatability >= SIFT's, matching score >= 0.5 at 30 deg. Each of
     QUALITY_VARIANTS is held to the goal in its own row: Bay et al.'s box filters (the
     default), the Gaussian derivatives they stand for (``hessian: gaussian``), at the
     default sampling step and at step 1, and those at SIFT's layout of scales (3 per octave,

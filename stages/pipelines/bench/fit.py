@@ -1,5 +1,5 @@
-"""``fieldloc bench`` rows of method fit (issue 12): accuracy beside lut on the same rendered
-msl-2015 sets in the same run, and the time of a tracked fit.
+"""``fieldloc bench`` rows of method fit (Lauer, Lange and Riedmiller 2006): accuracy beside lut on
+the same rendered msl-2015 sets in the same run, and the time of a tracked fit.
 
 ``bench_fit_accuracy``: the four omni-default sets of 100 frames (seeds 41-44, tracking with
 odometry), each localised by lut and by fit with the IMU heading and with the histogram

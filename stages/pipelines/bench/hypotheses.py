@@ -1,6 +1,6 @@
-"""``fieldloc bench`` rows of issue 7: the cost of a tracked lut frame, the calibration of the
-hypotheses' probabilities on rendered sets (reliability, AUROC, frames confidently wrong), a
-rendered run of a seed and length no test uses, and the real-data checks (when
+"""``fieldloc bench`` rows of lut's ranked hypotheses: the cost of a tracked lut frame, the
+calibration of the hypotheses' probabilities on rendered sets (reliability, AUROC, frames
+confidently wrong), a rendered run of a seed and length no test uses, and the real-data checks (when
 ../shared/realdata is present)."""
 
 from __future__ import annotations
@@ -27,8 +27,8 @@ HIDDEN_RUN = ("omni-default", "msl-2015", 137, 97)
 
 
 def bench_lut_tracked_frame(repeat: int) -> list[Row]:
-    """Issue 7: a tracked frame, all of it (observations, heading, search, support,
-    hypotheses, fusion) <= 0.3 ms median; frames with a periodic global check are reported
+    """The hypotheses' speed goal: a tracked frame, all of it (observations, heading, search,
+    support, hypotheses, fusion) <= 0.3 ms median; frames with a periodic global check are reported
     apart. Baseline: Ribeiro et al.'s local search alone on the same frames."""
     from ...common.dataset import open_dataset
     from ...common.features_file import FeaturesFile
@@ -191,8 +191,9 @@ def bench_mcl_calibration(repeat: int) -> list[Row]:
 
 
 def bench_lut_hidden(repeat: int) -> Row:
-    """Issue 7: a rendered run of a seed and length no test uses (omni-default, IMU heading):
-    <= 3 % of frames without an accepted pose, >= 97 % within 40 cm counting them."""
+    """The hypotheses' held-out goal: a rendered run of a seed and length no test uses
+    (omni-default, IMU heading): <= 3 % of frames without an accepted pose, >= 97 % within 40 cm
+    counting them."""
     from ... import localize
 
     preset, field, n, seed = HIDDEN_RUN
@@ -212,7 +213,7 @@ def bench_lut_hidden(repeat: int) -> Row:
 
 
 def bench_real(repeat: int) -> list[Row]:
-    """Issue 7's real-data figures through the stage mains with the CLI's defaults
+    """The real-data figures through the stage mains with the CLI's defaults
     (stages.pipelines.realdata), when ../shared/realdata is present."""
     if not REALDATA.exists():
         return [Row(name="real data (minho-lab)", note=f"skipped: {REALDATA} is absent")]

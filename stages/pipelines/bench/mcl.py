@@ -1,5 +1,5 @@
-"""``fieldloc bench`` rows of the particle filter (issue 4): the time of one update, and its
-accuracy on a rendered KidSize walk with the paper's ablation."""
+"""``fieldloc bench`` rows of the particle filter (Schulz et al. (2011)): the time of one update,
+and its accuracy on a rendered KidSize walk with the paper's ablation."""
 
 from __future__ import annotations
 
@@ -105,8 +105,8 @@ def bench_mcl_update(repeat: int) -> Row:
 
 
 def bench_mcl_accuracy(repeat: int) -> list[Row]:
-    """Issue 4's accuracy goal on a rendered KidSize walk: median <= 10 cm and >= 95 % within
-    40 cm, with the paper's ablation (lines disabled) beside it."""
+    """The particle filter's accuracy goal on a rendered KidSize walk: median <= 10 cm and >= 95 %
+    within 40 cm, with the paper's ablation (lines disabled) beside it."""
     from ... import localize
     from ...common.dataset import read_csv
     from ...common.poses_file import read_poses

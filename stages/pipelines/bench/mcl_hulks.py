@@ -1,4 +1,4 @@
-"""``fieldloc bench`` row of issue 9's still-robot goal on real NAO frames, through the product
+"""``fieldloc bench`` row of mcl's still-robot goal on real NAO frames, through the product
 path: for each HULKs capture (../shared/realdata/hulks-goalbox-labels) a dataset folder of a
 robot standing still (the capture's image repeated, zero odometry, calib.yaml from the
 capture's own camera matrix by calibrate's HULKs import: its height, pitch and roll), extracted
@@ -8,7 +8,7 @@ localize DIR --method mcl --init uniform``).
 The truth is the pose the capture's labels give (the goal area's labelled lines, projected to
 the floor with the frame's camera, placed on the SPL field); the field is 180 deg symmetric and
 a uniform start cannot tell a pose from its mirror, so the top hypothesis or its mirror counts.
-Issue 9's goal: within 50 cm (here also 15 deg) once the frame shows at least two non-parallel
+The goal: within 50 cm (here also 15 deg) once the frame shows at least two non-parallel
 lines or a crossing; the confidence low when it does not."""
 
 from __future__ import annotations

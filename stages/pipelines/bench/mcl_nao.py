@@ -1,4 +1,4 @@
-"""``fieldloc bench`` rows of issue 9's mcl goals on rendered NAO walks (``simulate perspective
+"""``fieldloc bench`` rows of mcl's goals on rendered NAO walks (``simulate perspective
 --preset perspective-nao``: 640 x 480, the SPL field, hall lighting, other robots, people and
 balls): from the game's placement, median <= 10 cm and >= 95 % within 40 cm (evaluate's
 figures: a frame without an accepted pose counts as a miss); from a uniform start the belief

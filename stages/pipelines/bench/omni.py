@@ -1,5 +1,5 @@
 """``fieldloc bench`` rows of the omni chain: lut's table searches, the omni extraction against
-Canny, and lut's accuracy on a rendered set (issue 3)."""
+Canny, and lut's accuracy on a rendered set (the omni chain's goals)."""
 
 from __future__ import annotations
 
@@ -133,7 +133,7 @@ def bench_extract_omni(repeat: int) -> Row:
 
 
 def bench_lut_accuracy(repeat: int) -> Row:
-    """Issue 3's accuracy goal on a rendered set: median position error <= 10 cm and heading
+    """The omni chain's accuracy goal on a rendered set: median position error <= 10 cm and heading
     error <= 2 deg with the IMU heading."""
     from ... import localize
     from ...common.dataset import read_csv

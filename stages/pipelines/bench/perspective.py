@@ -1,6 +1,6 @@
-"""``fieldloc bench`` rows of issue 9's perspective chain: one frame of the KidSize head camera
-(752 x 480, wide-angle) and of the NAO's (640 x 480) against OpenCV's line segment detector on
-the same frame, in the same run."""
+"""``fieldloc bench`` rows of the perspective chain (Schulz et al. (2011)): one frame of the KidSize
+head camera (752 x 480, wide-angle) and of the NAO's (640 x 480) against OpenCV's line segment
+detector on the same frame, in the same run."""
 
 from __future__ import annotations
 
@@ -13,9 +13,9 @@ from .inputs import rendered_inputs
 
 
 def bench_extract_perspective(repeat: int) -> list[Row]:
-    """Issue 9: a perspective frame in <= 5 ms and <= 0.3 x OpenCV's line segment detector on
-    the same frame, for the KidSize camera and the NAO's, on rendered frames, each frame timed
-    interleaved with LSD (medians over frames). The CPU times of both (each call's own thread
+    """The perspective chain's speed goal: a frame in <= 5 ms and <= 0.3 x OpenCV's line segment
+    detector on the same frame, for the KidSize camera and the NAO's, on rendered frames, each frame
+    timed interleaved with LSD (medians over frames). The CPU times of both (each call's own thread
     time, which the other processes of a shared machine inflate much less than the wall
     time) and their ratio are reported beside."""
     import cv2

@@ -1,4 +1,4 @@
-"""``fieldloc bench`` rows of issue 11: the SURF template paper's template method on rendered
+"""``fieldloc bench`` rows of the SURF template paper's template method on rendered
 msl-2015 (omni-default): a 1 m template grid and a hidden trajectory (a seed and length no test
 uses) recorded by the same robot (``calib_seed``) in the same venue (``world_seed``), each session
 with its own clutter, movers, lighting and noise; localised through the stage mains with the
@@ -140,7 +140,7 @@ def _figures(poses: Path, run: Path) -> dict:
 
 
 def bench_templates(repeat: int) -> list[Row]:
-    """Issue 11's accuracy, speed and size rows (module doc)."""
+    """The template method's accuracy, speed and size rows (module doc)."""
     from ... import localize
 
     inp = template_inputs()
