@@ -243,6 +243,27 @@ def test_tracked_score_bound_lies_below_the_windows_score(search):
     assert np.median(ratios) > 0.6, np.round(ratios, 2)
 
 
+def test_tracked_score_bound_holds_on_the_grids_last_row_and_column(search):
+    """On msl-2015 (141 x 201 cells, coarse step 3) no coarse cell covers the grid's last row
+    and column: the bound takes 0 there, never the neighbouring coarse cell's entry, so it
+    stays below the exact score of windows that reach them, also where the surface is lowest
+    on that row (observations seen from the corner cell)."""
+    assert search.ny % search.params.coarse_step == 0  # the case: an uncovered last row
+    rng = np.random.default_rng(5)
+    (x0, y0), res = search.grid.origin, search.grid.resolution
+    corner = (x0 + (search.nx - 1) * res, y0 + (search.ny - 1) * res)
+    info = np.array([[50.0, 0.0], [0.0, 50.0]])
+    for k in range(40):
+        # seen from the corner cell itself (its surface lowest there) or from the field
+        theta = rng.uniform(-np.pi, np.pi)
+        pose = (*corner, theta) if k % 2 == 0 else random_pose(rng, search.field)
+        obs = obs_at(search, pose, rng)
+        kw = {"half_width": 1.0, "prior_cap": 9.0}
+        exact = search.tracked_score(obs, theta, corner, info, 0.7, **kw)
+        bound = search.tracked_score_bound(obs, theta, corner, info, 0.7, **kw)
+        assert bound <= exact + 1e-9, (bound, exact)
+
+
 def test_tracked_fix_is_the_window_refined_supported_and_fitted(search, msl2015_map):
     """TableSearch.tracked_fix (one compiled call) against its definition in the search's
     own pieces: the window's cell of least posterior score (lookup surface / T + capped

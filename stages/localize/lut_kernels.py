@@ -488,11 +488,12 @@ def weighted_cells(q, rows, m, scale, out):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def coarse_cell(p, i):
-    """The coarse row (or column) whose min-pooled entries bound fine row (column) i, or -1
-    past the last one (those fine cells lie within step // 2 of no coarse cell)."""
+def coarse_cell(p, i, n):
+    """The coarse row (column) whose min-pooled entries bound fine row (column) i, or -1 past
+    the last one (``n``: the coarse rows p.cy or columns p.cx; those fine cells lie within
+    step // 2 of no coarse cell)."""
     a = (i + p.step // 2) // p.step
-    return a if a < p.cy else -1
+    return a if a < n else -1
 
 
 @njit(cache=True, nogil=True)
@@ -606,9 +607,9 @@ def tracked_window(q, p, rows, m, win, grid, post):
     row = np.empty(h, dtype=np.int64)  # coarse row of each window row (-1: past the last)
     col = np.empty(w, dtype=np.int64)
     for i in range(h):
-        row[i] = coarse_cell(p, i0 + i)
+        row[i] = coarse_cell(p, i0 + i, p.cy)
     for j in range(w):
-        col[j] = coarse_cell(p, j0 + j)
+        col[j] = coarse_cell(p, j0 + j, p.cx)
     c0, d0 = (i0 + half) // step, (j0 + half) // step
     c1 = max(min((i1 - 1 + half) // step + 1, p.cy), c0)
     d1 = max(min((j1 - 1 + half) // step + 1, p.cx), d0)
@@ -758,25 +759,30 @@ def tracked_window_bound(p, rows, m, win, grid, post):
     minimum over the fine cells within step // 2 of it): fine cell (i, j) lies in coarse
     cell ((i + step // 2) // step, (j + step // 2) // step), whose sum over the observations
     is at most the fine cell's, so surface * scale + the capped Mahalanobis term of each fine
-    cell is bounded from below; the least such bound over the window. About step^2 times
+    cell is bounded from below (a fine cell past the last coarse row or column, which no
+    coarse cell covers, by 0); the least such bound over the window. About step^2 times
     fewer lookups than the window itself."""
     i0, i1, j0, j1 = win
     _ny, _nx, x0, y0, res = grid
     scale, px, py, ia, ib, ic, cap = post
     step, cy, cx = p.step, p.cy, p.cx
     r = step // 2
-    c0, c1 = (i0 + r) // step, min((i1 - 1 + r) // step + 1, cy)
-    d0, d1 = (j0 + r) // step, min((j1 - 1 + r) // step + 1, cx)
-    sums = np.empty((c1 - c0, d1 - d0), dtype=np.uint16)
-    tiled_sum(p, rows, m, (c0, c1, d0, d1), sums)
+    c0, d0 = (i0 + r) // step, (j0 + r) // step
+    c1 = max(min((i1 - 1 + r) // step + 1, cy), c0)
+    d1 = max(min((j1 - 1 + r) // step + 1, cx), d0)
+    sums = np.zeros((c1 - c0 + 1, d1 - d0 + 1), dtype=np.uint16)  # last row, column: 0
+    if c1 > c0 and d1 > d0:
+        tiled_sum(p, rows, m, (c0, c1, d0, d1), sums[:c1 - c0, :d1 - d0])
     best = np.inf
     for i in range(i0, i1):
         dy = y0 + i * res - py
-        a = min((i + r) // step, cy - 1) - c0
+        a = coarse_cell(p, i, cy)  # past the last coarse row no entry bounds it: 0
+        a = a - c0 if a >= 0 else c1 - c0
         for j in range(j0, j1):
             dx = x0 + j * res - px
             q = 0.5 * (ia * dx * dx + 2.0 * ib * dx * dy + ic * dy * dy)
-            b = min((j + r) // step, cx - 1) - d0
+            b = coarse_cell(p, j, cx)
+            b = b - d0 if b >= 0 else d1 - d0
             score = int(sums[a, b]) * scale + min(q, cap)
             if score < best:
                 best = score
