@@ -77,8 +77,8 @@ MODULES = sorted(p for d in ("stages", "fieldloc_cli") for p in (ROOT / d).rglob
 
 
 def test_the_layering_test_sees_imports_inside_functions():
-    """The arrows issue 10 found ran through imports inside functions: they are read, and
-    relative ones resolved (`from .. import extract` inside a function)."""
+    """The layering faults found in review ran through imports inside functions: they are
+    read, and relative ones resolved (`from .. import extract` inside a function)."""
     path = ROOT / "stages" / "pipelines" / "frame_points.py"
     line = next(i for i, t in enumerate(path.read_text().splitlines(), 1)
                 if t == "    from .. import extract")
