@@ -92,6 +92,8 @@ from stages.common.poses_file import PoseTrack
 from . import heading as heading_mod
 from . import motion_model, place_search, smooth
 from .heading import check_start_half
+from .mcl_clusters import Clustering
+from .mcl_placement import PosePlacer
 from .observation_model import DEFAULTS as OBSERVATION_DEFAULTS
 from .observation_model import ObservationModel
 from .smooth import FrameCandidates
@@ -240,8 +242,6 @@ class ParticleFilter:
         self.symmetric = self.field.is_point_symmetric()
         self._last_pose: np.ndarray | None = None
         self._last_estimate: Estimate | None = None
-        self._landmarks = None
-        self._segments = None
         self._pool: tuple | None = None
         self._prep = None  # this frame's prepared observations (after correct)
         self._since_reset = 0  # frames with landmarks since the last sensor reset
@@ -265,6 +265,9 @@ class ParticleFilter:
         hx, hy = self.field.length / 2, self.field.width / 2
         m = float(self.conf["world_margin"])
         self._bounds = (-hx - m, hx + m, -hy - m, hy + m)
+        self._placer = PosePlacer(model, self._bounds)  # poses placed by observations
+        self._clusters = Clustering(self._bounds, float(self.conf["cluster_radius"]),
+                                    float(self.conf["cluster_heading"]))
 
     @classmethod
     def from_field(cls, field_model, conf: dict | None = None) -> ParticleFilter:
@@ -546,7 +549,7 @@ class ParticleFilter:
             x, y, th = poses[:, 0], poses[:, 1], poses[:, 2]
             cos_t, sin_t = np.cos(th), np.sin(th)
             for centre in (last.pose, self.field.mirror_pose(last.pose)):
-                keep &= ~self._members(centre, x, y, cos_t, sin_t)
+                keep &= ~self._clusters.members(centre, x, y, cos_t, sin_t)
         poses, evidence, odds = poses[keep], evidence[keep], odds[keep]
         order = np.argsort(-evidence, kind="stable")[:k_max]
         self._rivals, self._rival_evidence = poses[order], evidence[order]
@@ -752,128 +755,11 @@ class ParticleFilter:
         idx = np.searchsorted(cum, (self.rng.random() + np.arange(n)) / n, side="left")
         return pool[idx]
 
-    def _landmark_table(self):
-        """Field landmarks by observation kind (0 L, 1 T, 2 X, 3 goal post): positions (M, 2),
-        orientations (M,), and where each kind starts."""
-        if self._landmarks is None:
-            fm = self.field
-            types = np.asarray(fm.crossing_types)
-            pos, orient, start, count = [], [], [], []
-            n = 0
-            for kind in ("L", "T", "X"):
-                sel = np.flatnonzero(types == kind)
-                pos.append(np.asarray(fm.crossings, float).reshape(-1, 2)[sel])
-                orient.append(np.asarray(fm.crossing_orientation, float)[sel])
-                start.append(n)
-                count.append(len(sel))
-                n += len(sel)
-            posts = np.asarray(fm.goal_posts, float).reshape(-1, 2)
-            pos.append(posts)
-            orient.append(np.zeros(len(posts)))
-            start.append(n)
-            count.append(len(posts))
-            self._landmarks = (np.concatenate(pos), np.concatenate(orient), np.array(start),
-                               np.array(count))
-        return self._landmarks
-
-    def _segment_table(self):
-        """The field's straight lines: unit normal (S, 2), offset (S,) with n . p = offset,
-        unit direction (S, 2), first and last position along it (S,)."""
-        if self._segments is None:
-            seg = np.asarray(self.field.segments, float).reshape(-1, 2, 2)
-            d = seg[:, 1] - seg[:, 0]
-            t = d / np.maximum(np.linalg.norm(d, axis=1), 1e-12)[:, None]
-            nrm = np.stack([-t[:, 1], t[:, 0]], axis=1)
-            along = np.stack([np.einsum("ij,ij->i", t, seg[:, 0]),
-                              np.einsum("ij,ij->i", t, seg[:, 1])], axis=1)
-            self._segments = (nrm, np.einsum("ij,ij->i", nrm, seg[:, 0]), t,
-                              along.min(axis=1), along.max(axis=1))
-        return self._segments
-
     def _poses_from_observations(self, n: int, obs: Observations) -> np.ndarray:
-        """Poses at which one observation is explained by a random field feature of its kind
-        (sensor resetting): half by a crossing or goal post, half by a line (all by one kind
-        when the frame has no other); poses off the world are dropped."""
+        """Poses at which one observation of the frame is explained by a random field feature
+        of its kind (sensor resetting, mcl_placement.PosePlacer)."""
         usable = obs if self._prep is not None and obs is self._prep.obs else self.model.usable(obs)
-        points = len(usable.crossings) + len(usable.posts)
-        lines = len(usable.lines) if len(self.field.segments) else 0
-        if n <= 0 or not (points or lines):
-            return np.zeros((0, 3))
-        n_lines = (n - n // 2 if points else n) if lines else 0
-        p = np.concatenate([self._poses_from_points(n - n_lines, usable),
-                            self._poses_from_lines(n_lines, usable)])
-        x0, x1, y0, y1 = self._bounds
-        ok = (p[:, 0] >= x0) & (p[:, 0] <= x1) & (p[:, 1] >= y0) & (p[:, 1] <= y1)
-        return p[ok]
-
-    def _poses_from_points(self, n: int, obs: Observations) -> np.ndarray:
-        """Poses at which one observed crossing or goal post is explained by a random field
-        landmark of a kind it may be (the model's type confusions)."""
-        rng = self.rng
-        pos, orient, start, count = self._landmark_table()
-        cr, po = obs.crossings, obs.posts
-        kind = np.concatenate([cr[:, 0].astype(np.int64), np.full(len(po), 3)])
-        d = np.concatenate([cr[:, 1], po[:, 0]])
-        b = np.concatenate([cr[:, 2], po[:, 1]])
-        o = np.concatenate([cr[:, 3], np.zeros(len(po))])
-        ok = (kind >= 0) & (kind <= 3)
-        ok[ok] &= count[kind[ok]] > 0
-        if not ok.any() or n <= 0:
-            return np.zeros((0, 3))
-        kind, d, b, o = kind[ok], d[ok], b[ok], o[ok]
-        u = rng.random((4, n))  # observation, landmark, quarter turn (X), post circle
-        noise = rng.standard_normal((3, n))
-        r = (u[0] * len(kind)).astype(np.int64)
-        r_kind = kind[r]
-        k = start[r_kind] + (u[1] * count[r_kind]).astype(np.int64)
-        mc = self.model.conf
-        elevation = np.where(r_kind == 3, mc["post_elevation_sigma"], mc["elevation_sigma"])
-        dd = d[r] + noise[0] * self.model.range_sigma(d[r], mc["sigma_range"], elevation)
-        bb = b[r] + noise[1] * mc["sigma_bearing"]
-        post = r_kind == 3
-        # a crossing fixes the heading by its orientation (X: up to quarter turns); a post
-        # leaves it free, on a circle around the post
-        turns = np.floor(u[2] * 4.0) * (r_kind == 2) * (math.pi / 2)
-        th = orient[k] + turns - o[r] + noise[2] * 0.1
-        psi = np.where(post, (2.0 * u[3] - 1.0) * math.pi, th + bb)
-        th = np.where(post, psi - bb, th)
-        return np.stack([pos[k, 0] - dd * np.cos(psi), pos[k, 1] - dd * np.sin(psi),
-                         wrap_angle(th)], axis=1)
-
-    def _poses_from_lines(self, n: int, obs: Observations) -> np.ndarray:
-        """Poses at which one observed line lies on a random straight field line: the heading
-        turns the observed perpendicular onto the field line's normal (either side of it), the
-        distance puts the line at its offset, and the observed segment's middle lies at a
-        random place along the field segment where the whole segment fits."""
-        if n <= 0 or not len(obs.lines):
-            return np.zeros((0, 3))
-        rng = self.rng
-        nrm, off, tng, lo, hi = self._segment_table()
-        ln = obs.lines
-        r_obs = np.abs(ln[:, 0])
-        a_obs = ln[:, 1] + np.where(ln[:, 0] < 0, math.pi, 0.0)
-        if obs.line_ends is not None:
-            mid = 0.5 * (obs.line_ends[:, 0:2] + obs.line_ends[:, 2:4])
-        else:
-            mid = r_obs[:, None] * np.stack([np.cos(a_obs), np.sin(a_obs)], axis=1)
-        half = 0.5 * ln[:, 2]
-        u = rng.random((3, n))
-        noise = rng.standard_normal((2, n))
-        i = (u[0] * len(ln)).astype(np.int64)
-        j = (u[1] * len(off)).astype(np.int64)
-        side = np.where(rng.random(n) < 0.5, 1.0, -1.0)
-        mc = self.model.conf
-        th = (np.arctan2(side * nrm[j, 1], side * nrm[j, 0]) - a_obs[i]
-              + noise[0] * mc["sigma_line_angle"])
-        c, s_ = np.cos(th), np.sin(th)
-        mx, my = c * mid[i, 0] - s_ * mid[i, 1], s_ * mid[i, 0] + c * mid[i, 1]
-        room = np.maximum(hi[j] - lo[j] - 2.0 * half[i], 0.0)
-        t = lo[j] + 0.5 * (hi[j] - lo[j] - room) + u[2] * room  # where the middle lies
-        normal = off[j] - side * (r_obs[i] + noise[1] * self.model.range_sigma(
-            r_obs[i], mc["sigma_line"]))
-        along = t - (mx * tng[j, 0] + my * tng[j, 1])
-        return np.stack([normal * nrm[j, 0] + along * tng[j, 0],
-                         normal * nrm[j, 1] + along * tng[j, 1], wrap_angle(th)], axis=1)
+        return self._placer.poses(n, usable, self.rng)
 
     # ------------------------------------------------------------------ the estimate
     def estimate(self) -> Estimate:
@@ -886,11 +772,11 @@ class ParticleFilter:
         p, w = self.particles, self.weights
         x, y, th = (np.ascontiguousarray(p[:, k]) for k in range(3))
         cos_t, sin_t = np.cos(th), np.sin(th)
-        centre = self._cluster(w, x, y, th, cos_t, sin_t)
-        wm = w * self._members(centre, x, y, cos_t, sin_t)
+        centre = self._clusters.heaviest(w, x, y, th, cos_t, sin_t)
+        wm = w * self._clusters.members(centre, x, y, cos_t, sin_t)
         conf_share = float(wm.sum())
         mirror = self.field.mirror_pose(centre)
-        in_mirror = self._members(mirror, x, y, cos_t, sin_t)
+        in_mirror = self._clusters.members(mirror, x, y, cos_t, sin_t)
         mirror_share = float(w @ in_mirror)
         cov = np.full((3, 3), np.nan)
         if conf_share > 0:
@@ -909,11 +795,11 @@ class ParticleFilter:
         rows = [(*centre, conf_share)]
         if self.symmetric:
             rows.append((*mirror, mirror_share))
-        rest = w * ~(self._members(centre, x, y, cos_t, sin_t) | in_mirror)
+        rest = w * ~(self._clusters.members(centre, x, y, cos_t, sin_t) | in_mirror)
         scale = 0.5 if self.paired else 1.0  # a held particle stands for two poses
         while len(rows) < int(c["hypotheses"]) and rest.sum() > 1e-3:
-            other = self._cluster(rest, x, y, th, cos_t, sin_t)
-            members = self._members(other, x, y, cos_t, sin_t)
+            other = self._clusters.heaviest(rest, x, y, th, cos_t, sin_t)
+            members = self._clusters.members(other, x, y, cos_t, sin_t)
             share = float(rest @ members)
             if share <= 0:
                 break
@@ -947,7 +833,7 @@ class ParticleFilter:
         if not len(self._rivals) or not rows:
             return rows, 1.0
         def near(a, b) -> bool:  # b a member of a's cluster (the clusters' own rule)
-            return bool(self._members(a, b[0], b[1], math.cos(b[2]), math.sin(b[2])))
+            return bool(self._clusters.members(a, b[0], b[1], math.cos(b[2]), math.sin(b[2])))
 
         held = [np.asarray(r[:3], float) for r in rows]
         found = []
@@ -970,48 +856,6 @@ class ParticleFilter:
                 out.append((*pose, o / total))
         pinned = 2 if self.symmetric and len(rows) > 1 else 1  # the pose and its mirror
         return out[:pinned] + sorted(out[pinned:], key=lambda r: -r[3]), 1.0 / total
-
-    def _cluster(self, w, x, y, th, cos_t, sin_t) -> np.ndarray:
-        """The centre of the belief's heaviest cluster under weights ``w``: the heaviest
-        2 x 2 x 2 window of a 1 m x 1 m x 45 deg histogram (heading wraps around), then three
-        mean-shift steps with the cluster radius."""
-        x0, x1, y0, y1 = self._bounds
-        nbx, nby, nbt = max(int(math.ceil(x1 - x0)), 1), max(int(math.ceil(y1 - y0)), 1), 8
-        bx = np.minimum(np.maximum((x - x0).astype(np.int64), 0), nbx - 1)
-        by = np.minimum(np.maximum((y - y0).astype(np.int64), 0), nby - 1)
-        bt = ((th + math.pi) * (nbt / (2 * math.pi))).astype(np.int64) % nbt
-        h = np.bincount((bx * nby + by) * nbt + bt, weights=w,
-                        minlength=nbx * nby * nbt).reshape(nbx, nby, nbt)
-        hp = np.zeros((nbx + 1, nby + 1, nbt))
-        hp[:nbx, :nby] = h
-        win = hp[:-1, :-1] + hp[1:, :-1] + hp[:-1, 1:] + hp[1:, 1:]
-        win += np.roll(win, -1, axis=2)
-        i, j, k = np.unravel_index(int(np.argmax(win)), win.shape)
-        inwin = (((bx - i) & ~1) == 0) & (((by - j) & ~1) == 0) & (
-            ((bt - k) % nbt) <= 1)
-        centre = self._weighted_mean(w * inwin, x, y, cos_t, sin_t)
-        for _ in range(3):
-            wm = w * self._members(centre, x, y, cos_t, sin_t)
-            if wm.sum() <= 0:
-                break
-            centre = self._weighted_mean(wm, x, y, cos_t, sin_t)
-        return centre
-
-    def _members(self, centre, x, y, cos_t, sin_t) -> np.ndarray:
-        """Particles within the cluster radius and heading of ``centre``."""
-        c = self.conf
-        dx, dy = x - centre[0], y - centre[1]
-        near = dx * dx + dy * dy <= c["cluster_radius"] ** 2
-        cos_d = cos_t * math.cos(centre[2]) + sin_t * math.sin(centre[2])
-        return near & (cos_d >= math.cos(c["cluster_heading"]))
-
-    @staticmethod
-    def _weighted_mean(w, x, y, cos_t, sin_t) -> np.ndarray:
-        s = float(w.sum())
-        if s <= 0:
-            w, s = np.ones(len(x)), float(len(x))
-        return np.array([float(w @ x) / s, float(w @ y) / s,
-                         math.atan2(float(w @ sin_t), float(w @ cos_t))])
 
     # ------------------------------------------------------------------ one frame
     def step(self, odometry, dt: float, obs: Observations, *, has_odometry: bool = True,
