@@ -227,11 +227,11 @@ class DecentralisedFusion:
             return self.state.copy()
         use_odo = odometry is not None and not collision
         mean, cov, motion = _frame_kernel(
-            self.state.mean, self.state.cov, self.last_motion, self.motion_known, float(dt),
-            _vec3(odometry if use_odo else None), use_odo, _vec3(None if vision is None
-                                                                 else vision[0]),
-            _mat3(None if vision is None else vision[1]), vision is not None, self._params(),
-            False)
+            (self.state.mean, self.state.cov, self.last_motion, self.motion_known), float(dt),
+            (_vec3(odometry if use_odo else None), use_odo),
+            (_vec3(None if vision is None else vision[0]),
+             _mat3(None if vision is None else vision[1]), vision is not None),
+            self._params(), False)
         self.last_motion = motion
         self.motion_known = True
         self.state = Gaussian(mean, cov)
@@ -243,8 +243,8 @@ class DecentralisedFusion:
         frames, no odometry) by the last fused motion with the model's."""
         use_odo = odometry is not None and not collision
         mean, cov, _m = _frame_kernel(
-            self.state.mean, self.state.cov, self.last_motion, self.motion_known, float(dt),
-            _vec3(odometry if use_odo else None), use_odo, _ZERO3, _ZERO33, False,
+            (self.state.mean, self.state.cov, self.last_motion, self.motion_known), float(dt),
+            (_vec3(odometry if use_odo else None), use_odo), (_ZERO3, _ZERO33, False),
             self._params(), True)
         return mean, cov
 
@@ -334,12 +334,16 @@ def _move(mean, cov, motion, motion_cov):
 
 
 @njit(cache=True, nogil=True)
-def _frame_kernel(mean, cov, last_motion, motion_known, dt, odo, use_odo, z, R, use_vision,
-                  p, prior_only):
+def _frame_kernel(state, dt, odometry, vision, p, prior_only):
     """One frame of DecentralisedFusion.step (prior_only False: returns the fused mean,
     covariance and motion) or the search prior of ``predicted`` (prior_only True: the odometry
-    node's posterior, or the model prediction without odometry; motion unused). ``p``: the
-    FusionParams as an array in their field order."""
+    node's posterior, or the model prediction without odometry; motion unused). ``state``:
+    (mean, cov, last motion, whether it is known); ``odometry``: (increment, whether it is
+    used); ``vision``: (pose, covariance, whether there is one); ``p``: the FusionParams as
+    an array in their field order."""
+    mean, cov, last_motion, motion_known = state
+    odo, use_odo = odometry
+    z, R, use_vision = vision
     # model noise Q (robot frame) over dt
     if motion_known:
         speed = math.hypot(last_motion[0], last_motion[1]) / max(dt, 1e-3)
