@@ -25,7 +25,7 @@ from oracles import perspective_crossings as crossing_oracle
 from oracles import perspective_geometry as geometry
 from oracles import perspective_sampling as sampling
 
-from stages.common import colour
+from stages.common import colour, numeric
 from stages.extract import crossings as cr
 from stages.extract import line_structure as ls
 from stages.extract import perspective
@@ -212,7 +212,7 @@ def test_histogram_peak_equals_the_blurred_argmax():
             counts[rng.integers(0, 32), rng.integers(0, 32)] = rng.integers(0, 9000)
         blurred = cv2.GaussianBlur(counts.astype(np.float32), (3, 3), 0)
         peak = np.unravel_index(int(np.argmax(blurred)), blurred.shape)
-        assert colour._histogram_peak(counts.astype(np.int64)) == tuple(int(v) for v in peak)
+        assert numeric.histogram_peak(counts.astype(np.int64)) == tuple(int(v) for v in peak)
 
 
 @pytest.mark.parametrize("seed", range(6))
@@ -227,7 +227,7 @@ def test_radix_median_is_numpys_with_ties(seed):
                   np.where(rng.random(n) < 0.5, 0.0, rng.random(n)).astype(np.float32)):
             padded = np.concatenate([a, rng.random(3).astype(np.float32)])  # only a[:m] counts
             # a middle value, or the mean of two: within an ulp of float32
-            np.testing.assert_allclose(colour._median32(padded, n), np.median(a), rtol=2.0 ** -23)
+            np.testing.assert_allclose(numeric.median32(padded, n), np.median(a), rtol=2.0 ** -23)
 
 
 # ------------------------------------------------------------------ field boundary, goal posts
@@ -709,14 +709,14 @@ def test_sums_means_and_variances_equal_the_exact_ones(n):
     for _ in range(20):
         a = (rng.normal(size=n) * 10.0 ** rng.integers(-3, 4)).astype(np.float32)
         exact = sampling.exact_sum(a)
-        assert abs(float(colour.sum32(a)) - exact) <= sampling.sum_tolerance(
+        assert abs(float(numeric.sum32(a)) - exact) <= sampling.sum_tolerance(
             a, np.float32)
         mean = exact / n
-        np.testing.assert_allclose(colour._mean32(a), mean, rtol=2.0 ** -22,
+        np.testing.assert_allclose(numeric.mean32(a), mean, rtol=2.0 ** -22,
                                    atol=sampling.sum_tolerance(a, np.float32) / n)
         # the squared deviations are float32 (a relative error of 2^-23 each and of the mean)
         var = float(np.var(a.astype(np.float64)))
-        np.testing.assert_allclose(colour._var32(a), var, rtol=1e-5,
+        np.testing.assert_allclose(numeric.var32(a), var, rtol=1e-5,
                                    atol=4 * 2.0 ** -23 * abs(mean) * np.abs(a).max())
         b = rng.normal(size=n) * 10.0 ** rng.integers(-3, 4, n)
         assert abs(ls.block_sum(b) - sampling.exact_sum(b)) <= sampling.sum_tolerance(

@@ -50,6 +50,7 @@ import numpy as np
 from numba import njit
 
 from .errors import FieldlocError
+from .numeric import histogram_peak, mean32, median32, var32
 
 GREEN, WHITE, OTHER = 0, 1, 2
 Y_REF = 100.0  # luminance the field green search rescales chroma to
@@ -297,7 +298,7 @@ def field_colour_of_samples(sub: np.ndarray, conf: dict) -> FieldColour:
     if share >= conf["green_min_share"]:
         # chroma rescaled to one luminance (Y_REF): under a brightness gradient the field's
         # chroma grows with its light, its chromaticity does not
-        pi, pj = _histogram_peak(counts.reshape(32, 32))
+        pi, pj = histogram_peak(counts.reshape(32, 32))
         nu, nv = 8.0 * pi + 4.0 - 128.0, 8.0 * pj + 4.0 - 128.0
         # mean shift towards the cluster centre (3 steps), then the cluster's pixels: their
         # count, median Y and chroma variances (compiled: _green_cluster)
@@ -393,75 +394,6 @@ def _hue_model(fc: FieldColour, u8, v8, y8, conf: dict) -> None:
 
 
 @njit(cache=True, nogil=True)
-def _sum_in_float64(a, zero):
-    """The sum of a float array: one loop accumulated in float64 (float32 data rounded once
-    to float32 at the end, not at every addition). ``zero``: 0 of the array's type."""
-    res = 0.0
-    for i in range(a.shape[0]):
-        res += np.float64(a[i])
-    return zero + res
-
-
-@njit(cache=True, nogil=True)
-def sum32(a):
-    """The sum of a float32 array, accumulated in float64, rounded to float32
-    (_sum_in_float64)."""
-    return np.float32(_sum_in_float64(a, np.float32(0.0)))
-
-
-@njit(cache=True, nogil=True)
-def sum64(a):
-    """The sum of a float64 array (_sum_in_float64)."""
-    return _sum_in_float64(a, 0.0)
-
-
-@njit(cache=True, nogil=True)
-def _histogram_peak(counts):
-    """The bin (row, column) of the highest value of the chroma histogram ``counts`` (32,
-    32) after a 3 x 3 Gaussian blur, as cv2.GaussianBlur(counts as float32, (3, 3), 0) and
-    np.argmax found it: weights 1/4, 1/2, 1/4 along rows, then columns, mirrored borders
-    (BORDER_REFLECT_101); on bin counts these sums are exact in float32 in any order, so the
-    blurred values and the first highest are the same."""
-    h, w = counts.shape
-    quarter, half = np.float32(0.25), np.float32(0.5)
-    rows = np.empty((h, w), np.float32)
-    for r in range(h):
-        for c in range(w):
-            left = c - 1 if c > 0 else 1
-            right = c + 1 if c < w - 1 else w - 2
-            rows[r, c] = (quarter * np.float32(counts[r, left]) + half * np.float32(counts[r, c])
-                          + quarter * np.float32(counts[r, right]))
-    best, bi, bj = np.float32(-1.0), 0, 0
-    for r in range(h):
-        up = r - 1 if r > 0 else 1
-        down = r + 1 if r < h - 1 else h - 2
-        for c in range(w):
-            v = quarter * rows[up, c] + half * rows[r, c] + quarter * rows[down, c]
-            if v > best:
-                best, bi, bj = v, r, c
-    return bi, bj
-
-
-@njit(cache=True, nogil=True)
-def _mean32(a):
-    """The mean of a float32 array: its sum (sum32, accumulated in float64) over
-    the count in float64, rounded to float32."""
-    return np.float32(np.float64(sum32(a)) / np.float64(a.shape[0]))
-
-
-@njit(cache=True, nogil=True)
-def _var32(a):
-    """The variance of a float32 array (ddof 0): its mean as _mean32, the squared deviations
-    in float32, their mean likewise."""
-    m = _mean32(a)
-    x = np.empty_like(a)
-    for i in range(a.shape[0]):
-        x[i] = a[i] - m
-        x[i] = x[i] * x[i]
-    return _mean32(x)
-
-
-@njit(cache=True, nogil=True)
 def _near_cluster(uu, vv, nu, nv, rad2, bu, bv):
     """The samples with (uu - nu)^2 + (vv - nv)^2 <= rad2 (float32, as numpy evaluates it)
     copied in order into bu, bv; returns their number."""
@@ -480,9 +412,9 @@ def _near_cluster(uu, vv, nu, nv, rad2, bu, bv):
 def _green_cluster(uu, vv, ys, nu, nv, rad2, iterations):
     """estimate_field_colour's mean shift of the green candidates' rescaled chroma (uu, vv
     float32, their luminance ``ys`` uint8) from (nu, nv): ``iterations`` steps to the mean
-    of the candidates within sqrt(rad2) (float32 distances, the means by _mean32), then those
+    of the candidates within sqrt(rad2) (float32 distances, the means by mean32), then those
     candidates' number, median luminance (np.median's, from their histogram) and chroma
-    variances (_var32). Returns (nu, nv, count, median Y, var U, var V); the last three are 0
+    variances (var32). Returns (nu, nv, count, median Y, var U, var V); the last three are 0
     without candidates near."""
     n = uu.shape[0]
     bu = np.empty(n, np.float32)
@@ -492,7 +424,7 @@ def _green_cluster(uu, vv, ys, nu, nv, rad2, iterations):
         m = _near_cluster(uu, vv, np.float32(nu), np.float32(nv), r2, bu, bv)
         if m == 0:
             break
-        nu, nv = np.float64(_mean32(bu[:m])), np.float64(_mean32(bv[:m]))
+        nu, nv = np.float64(mean32(bu[:m])), np.float64(mean32(bv[:m]))
     fu, fv = np.float32(nu), np.float32(nv)
     hist = np.zeros(256, np.int64)
     m = 0
@@ -514,7 +446,7 @@ def _green_cluster(uu, vv, ys, nu, nv, rad2, iterations):
             lo = v
         if hi < 0 and cum >= m // 2 + 1:
             hi = v
-    return nu, nv, m, 0.5 * (float(lo) + float(hi)), _var32(bu[:m]), _var32(bv[:m])
+    return nu, nv, m, 0.5 * (float(lo) + float(hi)), var32(bu[:m]), var32(bv[:m])
 
 
 @njit(cache=True, nogil=True)
@@ -535,74 +467,12 @@ def _hue_turned(u8, v8, hx, hy):
 
 
 @njit(cache=True, nogil=True)
-def _rank_bin(bits, n, shift, mask, k, hist):
-    """_median32's radix step: the bin ``(bits >> shift) & mask`` of ``bits[:n]`` that holds
-    their k-th smallest (0-based), k's rank within that bin, and the bin's count."""
-    hist[:] = 0
-    for i in range(n):
-        hist[(bits[i] >> shift) & mask] += 1
-    below = 0
-    for b in range(mask + 1):
-        if below + hist[b] > k:
-            return b, k - below, hist[b]
-        below += hist[b]
-    return mask, 0, 0
-
-
-@njit(cache=True, nogil=True)
-def _keep_bin(src, n, shift, mask, b, out):
-    """The values of ``src[:n]`` in bin b (as _rank_bin) copied in order to ``out`` (which
-    may be ``src``); returns their number."""
-    n2 = 0
-    for i in range(n):
-        if (src[i] >> shift) & mask == b:
-            out[n2] = src[i]
-            n2 += 1
-    return n2
-
-
-@njit(cache=True, nogil=True)
-def _median32(a, m):
-    """numba's np.median of ``a[:m]``, float32 values >= 0 (+0.0, no NaN), m >= 1: the middle
-    value, or float32(a + b) / 2 of the two middle ones, as float64. By radix selection on
-    the float bits (for such floats their order as unsigned integers is the floats'): two
-    histogram passes of 11 bits and one of 10 over ever fewer values, then, when the count
-    is even and the upper middle value is not a tie, one pass for the next larger value.
-    Exact with any number of ties, where numba's quickselect slows on the few distinct
-    values that colour statistics of 8-bit pixels take (about 4x on a frame's green)."""
-    bits = a.view(np.uint32)
-    hist = np.empty(2048, np.int64)
-    work = np.empty(m, np.uint32)
-    k = (m - 1) // 2
-    b, k, count = _rank_bin(bits, m, 21, 2047, k, hist)
-    prefix = np.uint32(b) << np.uint32(21)
-    n = _keep_bin(bits, m, 21, 2047, b, work)
-    b, k, count = _rank_bin(work, n, 10, 2047, k, hist)
-    prefix |= np.uint32(b) << np.uint32(10)
-    n = _keep_bin(work, n, 10, 2047, b, work)
-    b, k, count = _rank_bin(work, n, 0, 1023, k, hist)
-    pair = np.empty(2, np.uint32)
-    pair[0] = prefix | np.uint32(b)
-    pair[1] = pair[0]
-    if m % 2 == 0 and k + 1 >= count:  # the next value is the smallest above it
-        nxt = np.uint32(0xFFFFFFFF)
-        for i in range(m):
-            if bits[i] > pair[0] and bits[i] < nxt:
-                nxt = bits[i]
-        pair[1] = nxt
-    v = pair.view(np.float32)
-    if m % 2 == 1:
-        return np.float64(v[0])
-    return np.float64(np.float32(v[0] + v[1])) / 2.0
-
-
-@njit(cache=True, nogil=True)
 def _hue_spread(d, u8, v8, y8, max_dev):
     """_hue_model's statistics of the green candidates whose hue offset ``d`` (float32, rad)
     from the field's is at most ``max_dev`` (float32): their number, the median |d| and the
     median saturation |(U - 128, V - 128)| / max(Y, 1) (np.hypot in float32), in float32 as
     the numpy expressions it replaces (np.median: the middle value, or the mean of the two
-    middle ones; _median32)."""
+    middle ones; median32)."""
     n = d.shape[0]
     ad = np.empty(n, np.float32)
     sat = np.empty(n, np.float32)
@@ -617,7 +487,7 @@ def _hue_spread(d, u8, v8, y8, max_dev):
             m += 1
     if m == 0:
         return 0, np.nan, np.nan
-    return m, _median32(ad, m), _median32(sat, m)
+    return m, median32(ad, m), median32(sat, m)
 
 
 @functools.lru_cache(maxsize=8)

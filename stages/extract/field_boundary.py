@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 from numba import njit
 
-from ..common.colour import sum32
+from ..common.numeric import sum32
 
 # Weights of the colour classes in the merged grey image: green is field; white is a line on
 # it, but also a wall or banner behind it, so a cell of white alone stays below the weak
@@ -76,7 +76,7 @@ def grey_field(counts: dict[str, np.ndarray], weights: dict[str, float], area: f
                t_pix: float, t_row: float, t_win: float, t_weak: float) -> np.ndarray:
     """binarize_field(merged_grey_image(counts, weights, area), ...) by one compiled pass
     (``_grey_field``): the same float32 grey levels, the rows' sums (accumulated in float64,
-    colour.sum32) and the 8 x 4 windows' sums in float64, rounded once to float32."""
+    numeric.sum32) and the 8 x 4 windows' sums in float64, rounded once to float32."""
     names = [n for n, w in weights.items() if w and n in counts]
     if not names:  # no class weighs: the grey image is 0
         return binarize_field(merged_grey_image(counts, weights, area), t_pix, t_row, t_win,

@@ -32,8 +32,8 @@ import cv2
 import numpy as np
 from numba import njit
 
-# the sum of a float64 array, a plain loop (colour.sum64)
-from ..common.colour import sum64 as block_sum
+# the sum of a float64 array, a plain loop (numeric.sum64)
+from ..common.numeric import sum64 as block_sum
 
 # ---------------------------------------------------------------------------- 3.2 skeleton
 
