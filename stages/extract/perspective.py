@@ -292,7 +292,8 @@ BOUNDS = {
     "lines.merge_offset": (0, MAX_PX), "lines.min_length": (0, MAX_M),
     "lines.max_distance": (0, MAX_M), "lines.full_nodes": (1, MAX_COUNT),
     "lines.refine_step": (0.5, MAX_PX), "lines.refine_reach": (0, MAX_CELLS),
-    "lines.refine_extend": (0, MAX_CELLS), "lines.refine_min_points": (1, MAX_COUNT),
+    # a refined line is fitted to its profiles' points: two at least
+    "lines.refine_extend": (0, MAX_CELLS), "lines.refine_min_points": (2, MAX_COUNT),
     "lines.refine_grow": (0, MAX_CELLS), "lines.line_width": ((0,), 1.0),
     "lines.width_ratio": (0, None, 2), "lines.green_beyond_m": (0, MAX_M),
     "lines.min_green_beyond": SHARE, "lines.edge_gap_m": (0, MAX_M),
