@@ -1054,6 +1054,24 @@ CASES = [
         ("sample_step_px=0", "conf 'sample_step_px' must be > 0 and <= 10"),
         ("colour.local_cell=0", "conf 'colour.local_cell' must be >= 1 and <= 64"),
         ("spiral_start_step=0", "conf 'spiral_start_step' must be >= 1 and <= 72"))],
+    # the perspective extractor, the templates method and build-templates (issue 25): refused
+    # when the conf is resolved, before any input is read (the templates file is not there)
+    *[Case(f"extract perspective -c {kv}", kind, ["extract", "{kid}", "-o", W + "/f.h5", "-c",
+                                                   kv], 1, msg) for kv, kind, msg in (
+        ("cell=0", "traceback", "conf 'cell' must be >= 1 and <= 64"),
+        ("lines.width_ratio=0", "traceback", "conf 'lines.width_ratio' must be a list of 2"),
+        ("posts.min_distance=1e-12", "hang", "conf 'posts.min_distance' must be >= 0.05"))],
+    Case("localize --method templates -c null_copies=1e12", "hang",
+         ["localize", "{omni}", "--method", "templates", "--templates", W + "/t.h5", "-o",
+          W + "/p.h5", "-c", "null_copies=1e12"], 1,
+         "conf 'null_copies' must be >= 1 and <= 1000"),
+    *[Case(f"build-templates {' '.join(args)}", kind, ["build-templates", "{omni}", "-o",
+                                                       W + "/t.h5", *args], 1, msg)
+      for args, kind, msg in (
+        (["-c", "field.colour.green_axes=0"], "traceback",
+         "conf 'field.colour.green_axes' must be a list of 2 numbers"),
+        (["--features", "sift", "-c", "features.octave_layers=0"], "hang",
+         "conf 'features.octave_layers' must be >= 1 and <= 10"))],
     Case("a field key whose value is 300 kB of text", "silent",
          ["build-map", W + "/f.yaml", "-o", W + "/m.h5"], 1,
          "key 'length' must be a number, got 'xxxxxxxx", setup=_setup_field({"length": LONG}),

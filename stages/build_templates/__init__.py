@@ -37,7 +37,7 @@ from ..common import ground_features as gf
 from ..common import local_features
 from ..common.artifacts import check_output, file_hash, root_attrs
 from ..common.camera import camera_can
-from ..common.conf import stage_conf
+from ..common.conf import check_bounds, stage_conf
 from ..common.dataset import open_dataset, read_image, read_mask, truth_at
 from ..common.errors import DatasetError, FieldlocError
 from ..common.templates import SCHEMA, VERSION, TemplateDatabase, write_templates
@@ -72,15 +72,24 @@ confs = {"default": _preset("surf-upright", True), "surf": _preset("surf", False
 FEATURE_PRESETS = {"surf": "default", "surf-rotating": "surf", "sift": "sift", "orb": "orb"}
 
 
+# the ranges of the keys besides the ground features' (gf.BOUNDS; common.conf.check_bounds):
+# a frame with fewer than min_features features is left out
+BOUNDS = {"min_features": (0, None), "truth_tolerance": (0, None)}
+
+
 def resolve_build_conf(conf: str | dict | None) -> dict:
     """The stage contract's conf: a dict of overrides goes on the default preset of its
-    feature kind (``{"features": {"features": "sift"}}`` on ``sift``)."""
+    feature kind (``{"features": {"features": "sift"}}`` on ``sift``); its values are checked
+    (gf.check_conf, BOUNDS) before any frame is read."""
     default = "default"
     if isinstance(conf, dict) and isinstance(conf.get("features"), dict):
         kind = conf["features"].get("features")
         if kind in ("sift", "orb"):
             default = kind
-    return stage_conf(confs, conf, default=default)
+    resolved = stage_conf(confs, conf, default=default)
+    check_bounds(resolved, BOUNDS)
+    gf.check_conf(ground_conf(resolved))
+    return resolved
 
 
 def ground_conf(conf: dict) -> dict:

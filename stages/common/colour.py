@@ -78,6 +78,25 @@ confs = {
     },
 }
 
+# the ranges the keys above must lie in (common.conf.check_bounds; an extractor adds them under
+# its "colour." key): luminance and chroma are bytes (0-255: an ellipse or a radius beyond 255
+# UV units holds every chroma, and its square overflows float32 at 1e12), shares lie in
+# [0, 1]; the pairs must be pairs (a single number, which ``-c key=V`` makes a one-element
+# list, unpacks into nothing); a local cell of 0 px divides by zero, one of 1e12 px maps nothing
+BYTE = (0, 255)
+MAX_SPREAD_K = 100.0  # cluster spreads (std) in an ellipse semi-axis: beyond, every chroma
+BOUNDS = {"green_hue_deg": (-360.0, 360.0, 2), "green_min_chroma": BYTE,
+          "green_search_y": (*BYTE, 2), "green_nominal_uv": (*BYTE, 2),
+          "green_min_share": (0, 1), "green_cluster_radius": BYTE,
+          "green_axes": (*BYTE, 2), "green_spread_k": (0, MAX_SPREAD_K),
+          "green_min_ratio": (0, None),
+          "green_max_ratio": (0, None), "white_contrast": (0, 1), "white_min_y": BYTE,
+          "white_max_saturation": (0, None), "local_cell": (1, 64), "local_fill": (1, None)}
+# the same for the keys only some confs hold (the perspective extractor's: a chroma floor of
+# green candidates and the hue model, green_model "hue")
+OPTIONAL_BOUNDS = {"green_min_saturation": (0, None), "green_hue_tolerance_deg": (0, 180.0),
+                   "green_hue_k": (0, None), "green_saturation": (0, None, 2)}
+
 # luminance_thresholds channels: white if Y >= WHITE_MIN_Y; green if GREEN_MIN_Y <= Y <= ...MAX
 WHITE_MIN_Y, GREEN_MIN_Y, GREEN_MAX_Y = 0, 1, 2
 

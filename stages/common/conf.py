@@ -282,20 +282,48 @@ class KindPresets(Mapping):
 def check_bounds(conf: dict, bounds: Mapping[str, tuple]) -> None:
     """Each ``bounds`` entry, ``"key.path": (low, high)``, holds the conf value at that path to
     low <= value <= high; a bound written as a one-element tuple ``(x,)`` is strict (the value
-    must not equal x), None is no bound. One FieldlocError line for the first value outside.
+    must not equal x), None is no bound. A list value is held element by element, and an entry
+    ``(low, high, count)`` holds its length too: ``count`` elements, or between the two of a
+    ``(fewest, most)`` pair (a pair of thresholds given one number unpacks into nothing). One
+    FieldlocError line for the first value outside.
     The types are checked where the conf is resolved (checked_value); these are the ranges a
     value must lie in for the method to run at all (a zero count divides by zero, a count of
     1e12 runs for hours)."""
-    for path, (low, high) in bounds.items():
+    for path, (low, high, *count) in bounds.items():
         v = conf
         for part in path.split("."):
             v = v[part]
         if v is None:
             continue
-        if _beyond(v, low, 1) or _beyond(v, high, -1):
-            parts = [_bound_text(low, ">"), _bound_text(high, "<")]
-            raise FieldlocError(f"conf '{path}' must be {' and '.join(p for p in parts if p)},"
-                                f" got {shown(v, 40)}")
+        if isinstance(v, (list, tuple)):
+            if count and not _count_ok(len(v), count[0]):
+                raise FieldlocError(f"conf '{path}' must be a list of {_count_text(count[0])},"
+                                    f" got {shown(v, 40)}")
+            items = [(f"{path}[{i}]", x) for i, x in enumerate(v)]
+        else:
+            items = [(path, v)]
+        for name, x in items:
+            if not _is_number(x):  # a type the conf's own checks refuse (e.g. a stored conf)
+                continue
+            if _beyond(x, low, 1) or _beyond(x, high, -1):
+                parts = [_bound_text(low, ">"), _bound_text(high, "<")]
+                raise FieldlocError(f"conf '{name}' must be"
+                                    f" {' and '.join(p for p in parts if p)}, got {shown(x, 40)}")
+
+
+def _count_ok(n: int, count) -> bool:
+    if isinstance(count, tuple):
+        return count[0] <= n and (count[1] is None or n <= count[1])
+    return n == count
+
+
+def _count_text(count) -> str:
+    """'2 numbers', 'at least 1 number', '1 to 8 numbers'."""
+    if not isinstance(count, tuple):
+        return f"{count} number{'s' if count != 1 else ''}"
+    if count[1] is None:
+        return f"at least {count[0]} number{'s' if count[0] != 1 else ''}"
+    return f"{count[0]} to {count[1]} numbers"
 
 
 def _beyond(v, bound, side: int) -> bool:

@@ -38,6 +38,7 @@ import cv2
 import numpy as np
 
 from . import colour, local_features, unwarp
+from .conf import check_bounds
 from .errors import FieldlocError
 
 confs = {
@@ -53,6 +54,18 @@ confs = {
         },
     },
 }
+
+# the ranges the keys above must lie in (common.conf.check_bounds, in check_conf: build-templates
+# checks them when its conf is resolved, localize checks a database's): a ground image of 1e12
+# px runs out of memory; the closing disc is close_m / metres_per_pixel px across, and its cost
+# grows with its area (MAX_CLOSE_PX: a disc of 64 px takes 0.05 s on the 534 px image)
+MAX_GROUND_PX = 4096  # px, ground image side (534 px: +-4 m at 1.5 cm)
+MAX_CLOSE_PX = 64  # px, closing disc
+# m per ground pixel: no omni camera resolves the floor finer than 1 mm; 1 m pixels hold nothing
+GROUND_PIXEL_M = (0.001, 1.0)
+BOUNDS = {"ground.size": (8, MAX_GROUND_PX), "ground.metres_per_pixel": GROUND_PIXEL_M,
+          "field.close_m": (0, 1.0), "field.dark_ratio": (0, 1),
+          **{f"field.colour.{k}": b for k, b in colour.BOUNDS.items()}}
 
 
 @dataclass
@@ -83,7 +96,11 @@ def check_conf(conf: dict) -> dict:
     missing = set(confs["default"]) - set(conf)
     if missing:
         raise FieldlocError(f"ground feature conf misses {', '.join(sorted(missing))}")
-    unwarp.grid_of_conf(conf["ground"])
+    kind = conf["features"].get("features") if isinstance(conf["features"], dict) else None
+    bounds = {**BOUNDS, **{f"features.{k}": b  # named as the user gives them (features.KEY)
+                           for k, b in local_features.BOUNDS.get(kind, {}).items()}}
+    check_bounds(conf, {k: b for k, b in bounds.items() if _has(conf, k)})
+    grid = unwarp.grid_of_conf(conf["ground"])
     local_features.resolve_feature_conf(conf["features"])
     f = conf["field"]
     try:
@@ -92,7 +109,21 @@ def check_conf(conf: dict) -> dict:
     except (KeyError, TypeError, ValueError):
         raise FieldlocError("ground feature conf: field needs close_m >= 0 (m) and dark_ratio"
                             " in [0, 1]") from None
+    if float(f["close_m"]) / grid.metres_per_pixel > MAX_CLOSE_PX:
+        raise FieldlocError(f"conf 'field.close_m' must be <= {MAX_CLOSE_PX} px of the ground"
+                            f" image ({MAX_CLOSE_PX * grid.metres_per_pixel:g} m), got"
+                            f" {float(f['close_m']):g}")
     return conf
+
+
+def _has(conf: dict, path: str) -> bool:
+    """Whether the dotted key is in ``conf`` (a database's stored ground conf may hold the
+    ground grid as another two of size, metres_per_pixel and extent)."""
+    for part in path.split("."):
+        if not isinstance(conf, dict) or part not in conf:
+            return False
+        conf = conf[part]
+    return True
 
 
 def feature_kind(conf: dict) -> str:

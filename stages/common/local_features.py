@@ -31,7 +31,7 @@ import math
 import numpy as np
 
 from . import surf
-from .conf import resolve_conf
+from .conf import check_bounds, resolve_conf
 from .errors import FieldlocError
 
 KEYPOINT_COLUMNS = ("x", "y", "scale", "orientation", "response", "laplacian")
@@ -59,6 +59,23 @@ confs = {
             "edge_threshold": 31, "patch_size": 31, "fast_threshold": 20},
 }
 
+# the ranges of OpenCV's detectors' keys (common.conf.check_bounds, in resolve_feature_conf; our
+# SURF checks its own, surf.check_conf): OpenCV takes C ints and crashes, hangs or answers with
+# a page of its source for values outside (SIFT with 0 layers per octave ran for hours, ORB's
+# pyramid with a scale factor of 1e12 asserted in resize)
+MAX_KEYPOINTS = 1_000_000
+BOUNDS = {
+    "sift": {"max_keypoints": (0, MAX_KEYPOINTS), "octave_layers": (1, 10),
+             "contrast_threshold": (0, 1), "edge_threshold": ((0,), None),
+             # px, the blur of octave 0: an image is blurred by half a pixel already; 10 px
+             # blurs the ground image's line crossings away
+             "sigma": (0.5, 10.0)},
+    # a pyramid that shrinks (scale factor > 1) by at most half per level; widths in px and
+    # FAST's threshold in grey levels of a uint8 image
+    "orb": {"max_keypoints": (1, MAX_KEYPOINTS), "scale_factor": ((1,), 2.0), "levels": (1, 16),
+            "edge_threshold": (0, 255), "patch_size": (2, 255), "fast_threshold": (0, 255)},
+}
+
 
 def resolve_feature_conf(conf: str | dict | None = None, overrides: dict | None = None) -> dict:
     """The conf of a preset name (default ``DEFAULT_PRESET``) or a conf dict (complete, or a few
@@ -69,8 +86,11 @@ def resolve_feature_conf(conf: str | dict | None = None, overrides: dict | None 
         if kind not in FEATURES:
             raise FieldlocError(f"unknown features '{kind}' (known: {', '.join(FEATURES)})")
         base = resolve_conf(confs, kind, {k: v for k, v in conf.items() if k != "features"})
-        return resolve_conf(confs, base, overrides)
-    return resolve_conf(confs, conf or DEFAULT_PRESET, overrides)
+        resolved = resolve_conf(confs, base, overrides)
+    else:
+        resolved = resolve_conf(confs, conf or DEFAULT_PRESET, overrides)
+    check_bounds(resolved, BOUNDS.get(resolved["features"], {}))
+    return resolved
 
 
 def descriptor_metric(conf: str | dict | None) -> str:

@@ -125,6 +125,9 @@ confs["gaussian"] = {**confs["default"], "hessian": "gaussian"}
 # rotation and scale (bench row surf-quality)
 confs["geometric"] = {**confs["gaussian"], "geometric_layers": 3, "refine_moves": 5}
 
+# px between samples in the first octave at most: a longer step strides over the first octave's
+# smallest searched filter (15 px) and its blobs (1e12: no sample, no keypoint)
+MAX_INITIAL_STEP = 16
 HESSIAN_WEIGHT = 0.9  # Dxy weight in det(H) (Bay et al.: 0.9)
 
 
@@ -188,11 +191,16 @@ def check_conf(conf: dict) -> dict:
         raise FieldlocError(f"surf conf misses key {e}") from None
     except (TypeError, ValueError) as e:
         raise FieldlocError(f"surf conf has a malformed value ({e})") from None
-    if not (1 <= c["octaves"] <= 6 and 3 <= c["layers"] <= 8 and c["initial_step"] >= 1
-            and c["threshold"] >= 0 and c["max_keypoints"] >= 0
-            and (c["edge_ratio"] == 0 or c["edge_ratio"] >= 1)):
-        raise FieldlocError("surf conf: needs 1..6 octaves, 3..8 layers, initial_step >= 1,"
-                            " threshold >= 0, max_keypoints >= 0 and edge_ratio 0 or >= 1")
+    for key, ok, want in (
+            ("octaves", 1 <= c["octaves"] <= 6, "1..6"),
+            ("layers", 3 <= c["layers"] <= 8, "3..8"),
+            ("initial_step", 1 <= c["initial_step"] <= MAX_INITIAL_STEP,
+             f"1..{MAX_INITIAL_STEP} px"),
+            ("threshold", c["threshold"] >= 0, ">= 0"),
+            ("max_keypoints", c["max_keypoints"] >= 0, ">= 0 (0: all)"),
+            ("edge_ratio", c["edge_ratio"] == 0 or c["edge_ratio"] >= 1, "0 (off) or >= 1")):
+        if not ok:
+            raise FieldlocError(f"surf conf: {key} must be {want}, got {c[key]:g}")
     if c["hessian"] not in HESSIANS:
         raise FieldlocError(f"surf conf: hessian must be one of {', '.join(HESSIANS)},"
                             f" not {c['hessian']!r}")

@@ -82,7 +82,10 @@ def resolve_extract_conf(kind: str, conf: str | dict | None = None,
                                 f" dataset's camera is {kind}")
         conf = conf[len(kind) + 1:]
     resolved = resolve_conf(presets, stage_conf(presets, conf, DEFAULT_PRESET), overrides)
-    check_bounds(resolved, getattr(kind_module(kind), "BOUNDS", {}))
+    module = kind_module(kind)
+    check_bounds(resolved, getattr(module, "BOUNDS", {}))
+    if hasattr(module, "check_conf"):  # what ranges alone do not say (keys that must agree)
+        module.check_conf(resolved)
     return resolved
 
 

@@ -99,9 +99,11 @@ confs["real"] = {**copy.deepcopy(confs["default"]), "max_white_m": 0.6}
 
 # the ranges the extractor's numeric keys must lie in to run at all (common.conf.check_bounds,
 # checked when the conf is resolved): a zero sample step or spiral step or block size divides
-# by zero, a range of 0 m leaves no scan line, a block of 1e12 px compiles nothing
+# by zero, a range of 0 m leaves no scan line, a block of 1e12 px compiles nothing (the colour
+# keys' ranges are colour.BOUNDS: a pair given one number unpacks into nothing)
 BOUNDS = {"sample_step_px": ((0,), 10.0), "spiral_start_step": (1, 72),
-          "colour.local_cell": (1, 64), "scanlines.robot_radius": (0, None),
+          **{f"colour.{k}": b for k, b in colour.BOUNDS.items()},
+          "scanlines.robot_radius": (0, None),
           "scanlines.max_range": ((0,), 50.0), "scanlines.spiral_end_radius": ((0,), 50.0),
           "points_radial_lines": (0, 3600)}
 

@@ -30,7 +30,7 @@ import numpy as np
 from numba import njit
 
 from ..common import colour
-from ..common.errors import DatasetError
+from ..common.errors import DatasetError, FieldlocError
 from ..common.geometry import polar
 from .crossings import find_crossings, floor_at
 from .field_boundary import DEFAULT_WEIGHTS, boundary_polyline, field_boundary
@@ -236,6 +236,76 @@ confs = {
         },
     },
 }
+
+# the ranges the extractor's numeric keys must lie in (common.conf.check_bounds, checked when
+# the conf is resolved, before any frame). Found by fuzzing every key with 0, -1, 1e12 and
+# 1e-12 (issue 25): a cell or step of 0 divides by zero, -1 gives negative array sizes, a
+# pair given one number unpacks into nothing, and counts, sizes or distances of 1e12 (or a
+# profile step of 1e-12 px) ran out of memory or for hours. The upper bounds lie far beyond
+# anything a frame can use (any value above them means "everything" already):
+SHARE = (0, 1)  # shares of a cell's pixels, grey levels, confidences
+ANGLE = (0, math.pi)  # rad, angles between directions
+MAX_CELLS = 1000.0  # cells, distances and runs on the grid (94 x 60 cells at 752 x 480, 8 px)
+MAX_PX = 1000.0  # px, full-resolution profile steps and widths
+MAX_M = 100.0  # m on the floor: farther than any field and its surroundings
+MAX_COUNT = 1000  # nodes, points, iterations per line or crossing
+BOUNDS = {
+    "cell": (1, 64), "colour_step": (1, 64), "corner_radius": (0, None),
+    **{f"colour.{k}": b for k, b in {**colour.BOUNDS, **colour.OPTIONAL_BOUNDS}.items()},
+    **{f"boundary.weights.{k}": (-1.0, 1.0) for k in DEFAULT_WEIGHTS},
+    **{f"boundary.{k}": SHARE for k in ("t_pix", "t_row", "t_win", "t_weak", "line_white")},
+    "boundary.max_gap": (0, MAX_CELLS), "boundary.line_run": (0, MAX_CELLS),
+    "boundary.gauss_sigma": (0, MAX_CELLS), "boundary.median_size": (0, MAX_CELLS),
+    "posts.t_white": SHARE, "posts.min_rise": (0, MAX_CELLS), "posts.max_rise": (0, MAX_CELLS),
+    "posts.max_below": (0, MAX_CELLS), "posts.max_width": (1, MAX_CELLS),
+    # the widest post sought, fx * post_diameter / min_distance px, is the window of the post
+    # search: a post nearer than 5 cm would stand inside the robot, posts are thinner than 1 m
+    "posts.min_distance": (0.05, MAX_M), "posts.post_diameter": ((0,), 1.0),
+    "posts.full_height": ((0,), MAX_CELLS), "posts.min_height": (0, MAX_M),
+    "posts.width_ratio": (0, None, 2), "posts.max_distance": (0, MAX_M),
+    "posts.bar_radial": (0, MAX_M), "posts.bar_min_distance": (0, MAX_M),
+    "posts.bar_touch": (0, MAX_CELLS), "posts.bar_width_ratio": (0, None),
+    "posts.bar_confidence": SHARE,
+    "skeleton.boundary_margin": (0, MAX_CELLS), "skeleton.min_white": SHARE,
+    "skeleton.max_gap": (0, MAX_CELLS), "skeleton.gap_max_angle": ANGLE,
+    "skeleton.gap_min_grey_ratio": (0, None), "skeleton.close_gap": (0, MAX_CELLS),
+    "key.min_spur_length": (0, MAX_CELLS), "key.smooth_iterations": (0, MAX_COUNT),
+    "key.corner_reach": ((0,), MAX_CELLS), "key.corner_min_turn": ANGLE,
+    "key.corner_min_turn_floor": ANGLE, "key.corner_min_turn_image": ANGLE,
+    "key.merge_distance": (0, MAX_CELLS), "key.max_ring": (0, MAX_CELLS),
+    **{f"crossings.{k}": (0, MAX_CELLS) for k in (
+        "arm_reach", "arm_step", "max_shift", "arm_gap", "max_radius", "object_radius",
+        "edge_margin", "refine_skip", "refine_reach", "arm_grow", "pair_gap", "merge_distance",
+        "post_radius")},
+    "crossings.arm_skip": (0, MAX_COUNT), "crossings.arm_nodes": (1, MAX_COUNT),
+    "crossings.l_angle": (*ANGLE, 2), "crossings.l_angle_floor": (*ANGLE, 2),
+    "crossings.circle_radii": ((0,), MAX_CELLS, (1, None)),
+    **{f"crossings.{k}": SHARE for k in ("t_white", "t_green", "max_other", "min_path_share")},
+    "crossings.relative": (0, None), "crossings.max_misfit": ANGLE,
+    # profiles across a line every refine_step px: below half a pixel they repeat samples
+    "crossings.refine_step": (0.5, MAX_PX), "crossings.refine_min_points": (1, MAX_COUNT),
+    "crossings.arm_tolerance": (0, MAX_PX), "crossings.min_arm_length": (0, MAX_M),
+    "crossings.max_cell_span": ((0,), MAX_M), "crossings.fine_px": (0, MAX_PX),
+    "crossings.stem_min_span": (0, MAX_M),
+    "lines.split_distance": ((0,), MAX_PX), "lines.min_nodes": (1, MAX_COUNT),
+    "lines.min_used_nodes": (0, MAX_COUNT), "lines.merge_angle": ANGLE,
+    "lines.merge_offset": (0, MAX_PX), "lines.min_length": (0, MAX_M),
+    "lines.max_distance": (0, MAX_M), "lines.full_nodes": (1, MAX_COUNT),
+    "lines.refine_step": (0.5, MAX_PX), "lines.refine_reach": (0, MAX_CELLS),
+    # a refined line is fitted to its profiles' points: two at least
+    "lines.refine_extend": (0, MAX_CELLS), "lines.refine_min_points": (2, MAX_COUNT),
+    "lines.refine_grow": (0, MAX_CELLS), "lines.line_width": ((0,), 1.0),
+    "lines.width_ratio": (0, None, 2), "lines.green_beyond_m": (0, MAX_M),
+    "lines.min_green_beyond": SHARE, "lines.edge_gap_m": (0, MAX_M),
+}
+
+
+def check_conf(conf: dict) -> None:
+    """What BOUNDS does not say (FieldlocError): the colour step subsamples whole cells."""
+    step, cell, local = conf["colour_step"], conf["cell"], conf["colour"]["local_cell"]
+    if step > 1 and (cell % step or local % step):
+        raise FieldlocError(f"conf 'colour_step' must divide the cell ({cell} px) and the local"
+                            f" green cell (colour.local_cell, {local} px), got {step}")
 
 
 def delete_unreliable_corners(counts: np.ndarray, radius_share: float) -> np.ndarray:

@@ -62,7 +62,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common.artifacts import check_output, file_hash, root_attrs
-from ..common.conf import KindPresets, registered_module, stage_conf
+from ..common.conf import KindPresets, check_bounds, registered_module, stage_conf
 from ..common.dataset import STAMP_SOURCES, csv_rows, open_dataset
 from ..common.errors import DatasetError, FieldlocError
 from ..common.features_file import FeaturesFile
@@ -287,6 +287,8 @@ def check_run(conf: dict | str | None, dataset_dir: str | Path, map_path: str | 
     dataset, its series, the inputs the outputs must not be), so that a chain that makes the
     features first (stages.pipelines.images_to_poses) refuses a run before extracting."""
     conf = resolve_localize_conf(conf)
+    # the method's ranges (its BOUNDS; its run checks them too): refused before any input is read
+    check_bounds(conf, getattr(method_module(conf["method"]), "BOUNDS", {}))
     output = Path(output)
     if features is not None and points is not None:
         raise FieldlocError("give either a features file or a points file, not both")

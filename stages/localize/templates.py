@@ -64,6 +64,7 @@ import numpy as np
 
 from ..common import ground_features as gf
 from ..common.camera import camera_can
+from ..common.conf import check_bounds
 from ..common.dataset import read_image, read_mask
 from ..common.errors import DatasetError, FieldlocError
 from ..common.geometry import wrap_angle
@@ -114,6 +115,24 @@ confs["no-fusion"] = {**confs["default"], "fusion": {**confs["default"]["fusion"
                                                       "enabled": False}}
 confs["independent"] = {**confs["default"], "independent": True}
 
+# the ranges the keys above must lie in (common.conf.check_bounds, checked when a run is checked,
+# before any input is read; tracking.BOUNDS for the bank's keys): counts of at least one and at
+# most what a frame can spend (1e12 null copies or outlier passes run for hours), sigmas and
+# distances above zero; a rigid pose needs two pairs
+MAX_TEMPLATES = 1000  # templates fitted per frame, null copies
+MAX_HEADINGS = 360  # headings tried when lost: 1 deg apart
+MAX_PASSES = 100  # outlier passes (each removes pairs; a few settle it)
+MAX_FLANN_CHECKS = 1_000_000  # leaves FLANN visits per query (beyond: exhaustive anyway)
+BOUNDS = {**tracking.BOUNDS, "lost_headings": (1, MAX_HEADINGS), "consensus_m": ((0,), None),
+          "ratio": ((0,), 1), "outlier_sigmas": ((0,), None), "min_outlier_m": (0, None),
+          "outlier_passes": (0, MAX_PASSES), "min_pairs": (2, None),
+          "pair_sigma_m": ((0,), None), "inlier_prior": ((0,), (1,)),
+          "temperature": ((0,), None), "reach": ((0,), None),
+          "tracked_templates": (1, MAX_TEMPLATES), "global_templates": (1, MAX_TEMPLATES),
+          "global_every": (1, None), "null_copies": (1, MAX_TEMPLATES),
+          "vision_sigma_xy": ((0,), None), "vision_sigma_theta": ((0,), None),
+          "stamp_tolerance": (0, None), "flann_checks": (1, MAX_FLANN_CHECKS)}
+
 
 class FrameFailed(Exception):
     """A frame that cannot be localised; the message is the reason recorded in its flags."""
@@ -137,6 +156,7 @@ class TemplateFix:
 
 def check_conf(conf: dict) -> None:
     """The method's keys (FieldlocError)."""
+    check_bounds(conf, BOUNDS)
     tracking.check_conf(conf)
     if conf["pose_solver"] not in tm.SOLVERS:
         raise FieldlocError(f"pose_solver must be one of {', '.join(tm.SOLVERS)}, not"

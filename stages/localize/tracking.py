@@ -69,6 +69,18 @@ DEFAULTS = {
     },
 }
 
+# the ranges the keys above must lie in (common.conf.check_bounds; a method adds them to its
+# BOUNDS): probabilities, counts of at least one and at most what a frame can carry, sigmas,
+# distances and the fusion's noise above zero (a zero process or odometry noise makes the
+# fusion's covariance singular: "near zero, but never zero")
+MAX_TRACKS = 1000
+BOUNDS = {"max_predicted_frames": (0, None), "kidnap_probability": (0, (1,)),
+          "ambiguity_distance": ((0,), None), "max_tracks": (1, MAX_TRACKS),
+          "prune_probability": ((0,), 1), "hypotheses": (1, MAX_TRACKS),
+          "min_confidence": (0, 1), "prior_outlier_probability": (0, 1),
+          "gate_sigmas": ((0,), None), "min_gate": (0, None),
+          **{f"fusion.{k}": ((0,), None) for k in FusionParams.__dataclass_fields__}}
+
 # two poses this close are one hypothesis (one basin of a likelihood surface)
 SAME_BASIN_M = 0.3
 SAME_BASIN_RAD = 0.2
@@ -79,9 +91,12 @@ def check_conf(conf: dict) -> None:
     """The bank's keys of a method's conf, checked (FieldlocError)."""
     from ..common.errors import FieldlocError
 
-    for key in ("kidnap_probability", "min_confidence", "prior_outlier_probability"):
+    for key in ("min_confidence", "prior_outlier_probability"):
         if not 0.0 <= float(conf[key]) <= 1.0:
             raise FieldlocError(f"{key} must lie in [0, 1], not {conf[key]}")
+    if not 0.0 <= float(conf["kidnap_probability"]) < 1.0:  # log(1 - p) weighs the tracks
+        raise FieldlocError(f"kidnap_probability must lie in [0, 1), not"
+                            f" {conf['kidnap_probability']}")
     if not 0.0 < float(conf["prune_probability"]) <= 1.0:  # its log bounds the tracks' weights
         raise FieldlocError(f"prune_probability must lie in (0, 1], not"
                             f" {conf['prune_probability']}")
