@@ -15,13 +15,14 @@ from stages.common.features_file import FRAME_DATASETS
 from stages.common.field import distance_to_lines, load_field
 from stages.common.geometry import robot_to_field
 from stages.common.perspective_camera import PerspectiveCamera
-from stages.extract import line_fit, perspective
-from stages.extract.field_boundary import (
+from stages.extract import perspective
+from stages.extract.perspective import line_fit
+from stages.extract.perspective.field_boundary import (
     field_height_histogram,
     local_convex_filling,
     local_convexity,
 )
-from stages.extract.line_fit import (
+from stages.extract.perspective.line_fit import (
     LineFit,
     RefinedLine,
     fit_line,
@@ -29,7 +30,7 @@ from stages.extract.line_fit import (
     merge_segments,
     split_component,
 )
-from stages.extract.line_structure import low_pass, place_nodes, ranking_skeleton
+from stages.extract.perspective.line_structure import low_pass, place_nodes, ranking_skeleton
 from stages.simulate import scene
 from stages.simulate.perspective_renderer import PerspectiveRenderer
 

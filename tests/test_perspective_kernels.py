@@ -26,9 +26,9 @@ from oracles import perspective_geometry as geometry
 from oracles import perspective_sampling as sampling
 
 from stages.common import colour, numeric
-from stages.extract import crossings as cr
-from stages.extract import line_structure as ls
 from stages.extract import perspective
+from stages.extract.perspective import crossings as cr
+from stages.extract.perspective import line_structure as ls
 
 
 def _counts(a: np.ndarray) -> np.ndarray:
@@ -234,7 +234,7 @@ def test_radix_median_is_numpys_with_ties(seed):
 
 
 def test_grey_field_equals_the_numpy_and_opencv_binarisation():
-    from stages.extract import field_boundary as fb
+    from stages.extract.perspective import field_boundary as fb
 
     conf = perspective.confs["default"]["boundary"]
     rng = np.random.default_rng(18)
@@ -264,7 +264,7 @@ def test_grey_field_equals_the_numpy_and_opencv_binarisation():
 
 
 def test_field_heights_and_their_smoothing_equal_the_numpy_scan():
-    from stages.extract import field_boundary as fb
+    from stages.extract.perspective import field_boundary as fb
 
     rng = np.random.default_rng(5)
     for _ in range(500):
@@ -290,7 +290,7 @@ def test_fill_lines_and_the_smoothing_equal_the_former_numpy():
     """field_boundary.fill_lines (``_fill_bounded_runs``: rows and columns in one pass) adds
     the bounded white runs (the oracle's); smooth_field_heights (its Gaussian made once,
     ``_window_middles``) is np.convolve's and the sorted windows' median, within 1e-12."""
-    from stages.extract import field_boundary as fb
+    from stages.extract.perspective import field_boundary as fb
 
     rng = np.random.default_rng(8)
     for _ in range(300):
@@ -319,7 +319,7 @@ def test_fill_lines_and_the_smoothing_equal_the_former_numpy():
 def test_bar_runs_equal_the_numpy_start_rows_and_walks():
     import warnings
 
-    from stages.extract import goal_posts as gp
+    from stages.extract.perspective import goal_posts as gp
 
     rng = np.random.default_rng(19)
     for _ in range(1000):
@@ -348,7 +348,7 @@ def test_bar_runs_equal_the_numpy_start_rows_and_walks():
 def test_surroundings_opening_equals_opencvs():
     import cv2
 
-    from stages.extract import goal_posts as gp
+    from stages.extract.perspective import goal_posts as gp
 
     rng = np.random.default_rng(17)
     for _ in range(5000):
@@ -365,7 +365,7 @@ def test_surroundings_opening_equals_opencvs():
 
 
 def test_post_bar_checks_equal_the_fancy_indexed_numpy():
-    from stages.extract import goal_posts as gp
+    from stages.extract.perspective import goal_posts as gp
 
     rng = np.random.default_rng(11)
     for _ in range(2000):
@@ -389,7 +389,7 @@ def test_post_bar_checks_equal_the_fancy_indexed_numpy():
 def test_bar_share_equals_the_former_numpy():
     """goal_posts._bar_share (is_post_bar's white across a bar) is numpy's median of the
     summed shares, at grid points rounded half to even and clipped."""
-    from stages.extract import goal_posts as gp
+    from stages.extract.perspective import goal_posts as gp
 
     rng = np.random.default_rng(13)
     for _ in range(3000):
@@ -417,7 +417,7 @@ def test_bar_share_equals_the_former_numpy():
 def test_standing_bars_equal_the_former_groups_and_checks():
     """goal_posts.standing_bars (``_standing_bars``) gives the groups the former numpy runs
     (post_columns) and per-group _stands_out kept, and their lifts."""
-    from stages.extract import goal_posts as gp
+    from stages.extract.perspective import goal_posts as gp
 
     rng = np.random.default_rng(12)
     found = 0
@@ -450,7 +450,7 @@ def test_standing_bars_equal_the_former_groups_and_checks():
 
 @pytest.mark.parametrize("seed", range(4))
 def test_split_components_and_part_fits_equal_the_per_part_functions(seed):
-    from stages.extract import line_fit as lf
+    from stages.extract.perspective import line_fit as lf
 
     rng = np.random.default_rng(seed)
     # polylines with corners and noise, some points outside the lens model (NaN)
@@ -484,7 +484,7 @@ def test_split_components_and_part_fits_equal_the_per_part_functions(seed):
 def test_refine_segments_equal_refine_segment_per_segment():
     import cv2
 
-    from stages.extract import line_fit as lf
+    from stages.extract.perspective import line_fit as lf
 
     rng = np.random.default_rng(8)
     white = np.zeros((480, 640), np.uint8)
@@ -890,7 +890,7 @@ def test_width_ratios_equal_the_oracle(seed):
     for lines on the floor, partly and wholly beyond the horizon, of one run and many, with
     a lens over the floor's origin and beside it; within 1e-9 relative (a median picks the
     same run unless two runs' ratios lie within that of each other)."""
-    from stages.extract import line_fit as lf
+    from stages.extract.perspective import line_fit as lf
 
     rng = np.random.default_rng(seed)
     for position in ((0.0, 0.0), (0.03, -0.02)):
@@ -913,7 +913,7 @@ def test_width_ratios_equal_the_oracle(seed):
 
 
 def test_floor_lines_parameters_equal_the_oracle():
-    from stages.extract import line_fit as lf
+    from stages.extract.perspective import line_fit as lf
 
     rng = np.random.default_rng(2)
     p0, p1 = rng.normal(0, 3, (5000, 2)), rng.normal(0, 3, (5000, 2))
@@ -938,7 +938,7 @@ def test_floor_lines_parameters_equal_the_oracle():
 def test_rotating_the_robot_frame_rotates_the_floor_lines(turn, x0, y0, x1, y1):
     """The floor lines seen from a robot turned by ``turn`` keep their distance and length,
     and their perpendicular's bearing turns by -turn."""
-    from stages.extract import line_fit as lf
+    from stages.extract.perspective import line_fit as lf
 
     p0, p1 = np.array([[x0, y0]]), np.array([[x1, y1]])
     assume(np.hypot(x1 - x0, y1 - y0) > 1e-3)
@@ -959,7 +959,7 @@ def test_line_fits_equal_the_major_axis():
     centroid within 1e-12 of the points' scale, direction (up to its sign) within 1e-9, rms
     residual within 1e-6 relative or 2e-8 of the points' spread; point_line_distance is the
     points' distance from it."""
-    from stages.extract import line_fit as lf
+    from stages.extract.perspective import line_fit as lf
 
     rng = np.random.default_rng(3)
     for _ in range(300):
@@ -984,7 +984,7 @@ def test_similar_pairs_decide_as_the_oracle():
     """line_fit's merge test (``_similar_pairs``): parts within acos(cos_max) of each other's
     direction and with each one's ends within ``max_offset`` of the other's line, decided as
     the oracle (np.einsum) where both margins exceed 1e-9; the offsets within 1e-9 px."""
-    from stages.extract import line_fit as lf
+    from stages.extract.perspective import line_fit as lf
 
     def oracle(cen, dirs, nor, ends, rows, cos_max, max_offset, upper):
         cosine = np.abs(dirs[rows] @ dirs.T)

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..common.numeric import sum32
+from ...common.numeric import sum32
 from .line_fit import median
 
 

@@ -29,12 +29,14 @@ import cv2
 import numpy as np
 from numba import njit
 
-from ..common import colour
-from ..common.errors import DatasetError, FieldlocError
-from ..common.geometry import polar
+from ...common import colour
+from ...common.errors import DatasetError, FieldlocError
+from ...common.geometry import polar
 from .crossings import find_crossings, floor_at
-from .field_boundary import DEFAULT_WEIGHTS, boundary_polyline, field_boundary
-from .goal_posts import goal_posts, is_post_bar
+from .field_boundary import DEFAULT_WEIGHTS, boundary_polyline
+from .field_boundary import field_boundary as find_boundary
+from .goal_posts import goal_posts as find_posts
+from .goal_posts import is_post_bar
 from .line_fit import (
     RefinedLine,
     distort_ideal,
@@ -548,14 +550,14 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
     green = counts["green"].astype(np.float32) / area
 
     # 2. field boundary
-    top, field = field_boundary(counts, conf["boundary"], area)
+    top, field = find_boundary(counts, conf["boundary"], area)
     boundary = boundary_polyline(top, cell)
 
     # 3. goal posts rising above the boundary
     pc = conf["posts"]
     # a post's width in cells at the nearest distance it is looked for
     max_width = int(math.ceil(camera.fx * pc["post_diameter"] / pc["min_distance"] / cell)) + 1
-    feet_px, heights, widths, groups, foot_rows = goal_posts(white, top, pc, cell, max_width)
+    feet_px, heights, widths, groups, foot_rows = find_posts(white, top, pc, cell, max_width)
 
     # 4. line structure graph (a post's lower part becomes a segment there: is_post_bar tells
     # it from a line, and crossings at a post's foot are not taken)

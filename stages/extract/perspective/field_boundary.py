@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 from numba import njit
 
-from ..common.numeric import sum32
+from ...common.numeric import sum32
 
 # Weights of the colour classes in the merged grey image: green is field; white is a line on
 # it, but also a wall or banner behind it, so a cell of white alone stays below the weak

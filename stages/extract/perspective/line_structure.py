@@ -33,7 +33,7 @@ import numpy as np
 from numba import njit
 
 # the sum of a float64 array, a plain loop (numeric.sum64)
-from ..common.numeric import sum64 as block_sum
+from ...common.numeric import sum64 as block_sum
 
 # ---------------------------------------------------------------------------- 3.2 skeleton
 
