@@ -180,3 +180,7 @@ def cli(ctx, verbose, quiet, debug):
         level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr
     )
     ctx.obj = {"verbose": verbose, "quiet": quiet, "debug": debug}
+
+
+if __name__ == "__main__":  # python -m fieldloc_cli.main, as the fieldloc command
+    cli()
