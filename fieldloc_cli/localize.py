@@ -102,6 +102,9 @@ def localize(ctx, dataset, map_path, templates, pose_solver, features, points, m
             raise click.UsageError("--init applies to --method mcl")
         conf["init"] = init
     if method == "templates":
+        if write_calib is not None:
+            raise click.UsageError("--write-calib applies to --method lut, fit (omni) and mcl"
+                                   " (perspective)")
         if templates is None:
             raise click.UsageError("--method templates needs --templates FILE (from"
                                    " fieldloc build-templates)")

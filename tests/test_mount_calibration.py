@@ -287,3 +287,31 @@ def test_write_calib_refuses_the_datasets_own_calib_yaml(nao_walk, tmp_path):
     assert not (tmp_path / "c.yaml").exists()
     # exact bytes: the user's calib.yaml checked unchanged
     assert hashlib.sha256(own.read_bytes()).hexdigest() == before
+
+
+def test_write_calib_refuses_templates_in_one_line(nao_walk, tmp_path):
+    ds, spl_map, *_ = nao_walk
+    r = CliRunner().invoke(cli, ["localize", str(ds), "--method", "templates", "--templates",
+                                 str(spl_map), "--write-calib", str(tmp_path / "c.yaml"),
+                                 "-o", str(tmp_path / "t.h5")])
+    assert r.exit_code != 0 and "--write-calib applies to" in r.output
+    assert "Traceback" not in r.output and not (tmp_path / "c.yaml").exists()
+
+
+@pytest.mark.parametrize("kind, method, message", [
+    ("omni", "mcl", "needs --method lut or fit"),
+    ("perspective", "lut", "needs --method mcl"),
+    ("perspective", "fit", "needs --method mcl"),
+])
+def test_write_calib_needs_the_method_of_the_camera(tmp_path, kind, method, message):
+    from stages.localize import check_write_calib
+
+    class _Dataset:
+        root = tmp_path
+
+        def camera(self):
+            return type("Camera", (), {"kind": kind})()
+
+    with pytest.raises(FieldlocError, match=message):
+        check_write_calib(tmp_path / "c.yaml", {"method": method}, _Dataset(), None,
+                          tmp_path / "p.h5", {}, False)

@@ -358,10 +358,15 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path 
     return its path. ``allow_field_mismatch``: localise even when the features were recorded
     on another field or with other scan lines than the map's. ``templates``: the template
     database of method templates (module doc; ``map_path`` may then be None).
-    ``write_calib``: also write the dataset's omni calib.yaml corrected by the mirror's
-    distance error learnt from the run's poses (mirror_calibration.py; best with ``smooth``)
-    to this path (never the dataset's own calib.yaml; an existing file needs ``overwrite``)."""
+    ``write_calib``: also write the dataset's calib.yaml corrected by what the run's poses
+    show of its error (best with ``smooth``): an omni camera's mirror distance error
+    (mirror_calibration.py, methods lut and fit), a perspective camera's mount and height
+    (mount_calibration.py, method mcl), to this path (never the dataset's own calib.yaml; an
+    existing file needs ``overwrite``)."""
     resolved = resolve_localize_conf(conf)
+    if uses_templates(resolved["method"]) and write_calib is not None:
+        raise FieldlocError("--write-calib learns a calibration from line features: it needs"
+                            " --method lut or fit (omni) or mcl (perspective), not templates")
     if uses_templates(resolved["method"]):
         return _main_templates(resolved, dataset_dir, map_path, output, templates,
                                overwrite=overwrite, progress=progress)
