@@ -448,6 +448,9 @@ def _joint_fit(field, project: _Projector, s: _Samples, c: dict, start, iteratio
             dm[k] += _STEP[k]
             Pk = _place(project(dm, head), poses, frame)
             B[inside, k] = np.sum(nrm * (Pk - P), axis=1)[inside] / _STEP[k]
+        inside &= np.all(np.isfinite(B), axis=1)  # a step put the sample over the horizon
+        B[~inside] = 0.0
+        w[~inside] = 0.0
         rot = P - poses[frame, :2]
         J = np.stack([nrm[:, 0], nrm[:, 1], nrm[:, 1] * rot[:, 0] - nrm[:, 0] * rot[:, 1],
                       B[:, 0], B[:, 1]], 1)
@@ -467,8 +470,14 @@ def _joint_fit(field, project: _Projector, s: _Samples, c: dict, start, iteratio
         grad = np.zeros(n)
         np.add.at(grad, cols[idx], row[idx] * (w[idx] * rw[idx])[:, None])
         rhs = -grad - prior @ state * s2
-        solver = splu(sparse.csc_matrix(N))
-        delta = solver.solve(rhs)
+        try:
+            solver = splu(sparse.csc_matrix(N))
+            delta = solver.solve(rhs)
+        except RuntimeError as e:  # no unknown can be singular under the priors but by NaN
+            raise FieldlocError(f"the mount fit's normal equations are singular ({e})"
+                                ) from None
+        if not np.all(np.isfinite(delta)):
+            raise FieldlocError("the mount fit diverged (a step is not finite)")
         m = m + delta[:3]
         d = delta[3:].reshape(F, 5)
         poses += d[:, :3]
