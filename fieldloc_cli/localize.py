@@ -60,9 +60,11 @@ SMOOTH_METHODS = ("lut", "fit", "mcl", "templates")
               " forward-backward pass over the method's candidates, then a pose graph;"
               " docs/smoothing.md). Same as -c smooth=true.")
 @click.option("--write-calib", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="lut, fit: also write the dataset's calib.yaml corrected by the mirror's"
-              " distance error learnt from the run's poses (with --smooth: from the smoothed"
-              " ones; docs/recording-calibration.md), to this file.")
+              help="lut, fit (omni): also write the dataset's calib.yaml corrected by the"
+              " mirror's distance error learnt from the run's poses; mcl (perspective): by the"
+              " camera's mount (pitch and roll offsets, height) learnt from them (with"
+              " --smooth: from the smoothed ones; docs/recording-calibration.md), to this"
+              " file.")
 @click.option("--min-confidence", type=click.FloatRange(0.0, 1.0), default=None,
               help="Accept a frame when the probability of its top hypothesis reaches"
               f" this [default: the method's, lut {LOCALIZE['lut', 'min_confidence']}, fit"
@@ -100,6 +102,9 @@ def localize(ctx, dataset, map_path, templates, pose_solver, features, points, m
             raise click.UsageError("--init applies to --method mcl")
         conf["init"] = init
     if method == "templates":
+        if write_calib is not None:
+            raise click.UsageError("--write-calib applies to --method lut, fit (omni) and mcl"
+                                   " (perspective)")
         if templates is None:
             raise click.UsageError("--method templates needs --templates FILE (from"
                                    " fieldloc build-templates)")

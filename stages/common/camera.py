@@ -60,7 +60,8 @@ CALIB_KEYS = {
     "omni": ("kind", "version", "image_size", "centre", "polynomial", "radial_model",
              "radial_table", "valid_radius", "forward_angle", "mirrored", "calibration"),
     "perspective": ("kind", "version", "image_size", "intrinsics", "distortion", "height",
-                    "pitch", "roll", "yaw", "position", "calibration"),
+                    "pitch", "roll", "yaw", "position", "pitch_offset", "roll_offset",
+                    "calibration"),
 }
 # what the frames of each camera kind allow, asked by the stages instead of the kind's name:
 # ``ground_image``: the floor all round the robot, unwarped through the mirror's radial model

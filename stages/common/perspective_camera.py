@@ -24,9 +24,19 @@ calib.yaml for kind perspective::
     roll: 0.0                         # rad, nominal; about the optical axis
     yaw: 0.0                          # rad, camera heading relative to the robot's x axis
     position: [0.0, 0.0]              # m, optional: optical centre over the floor (robot x, y)
+    pitch_offset: 0.0                 # rad, optional: the camera's mount, added to every pitch
+    roll_offset: 0.0                  # rad, optional: the camera's mount, added to every roll
 
 Per frame the head moves: ``with_pose`` gives the same camera at a frame's pitch, roll, yaw,
 height and position (what DIR/head.csv holds, see stages.common.dataset).
+
+Mount offsets. head.csv holds the angles the robot measures (joint encoders, IMU); the camera
+sits in the head at a small angle of its own that no encoder sees. ``pitch_offset`` and
+``roll_offset`` are that angle: every rotation the camera is used at (the nominal pitch and
+roll, and each frame's head.csv angles) is turned by them, ``rotation(pitch, roll)`` =
+head_rotation(yaw, pitch + pitch_offset, roll + roll_offset). Both default to 0, and a
+calib.yaml without them is written back without them. ``fieldloc localize --method mcl
+--write-calib`` learns them (and ``height``) from a recording (localize.mount_calibration).
 """
 
 from __future__ import annotations
@@ -45,6 +55,10 @@ _RADIUS_CAP = 6.0
 # the highest camera a calib.yaml may give (m): a robot's camera, a few metres at most; a
 # height in millimetres or centimetres is refused rather than read as a flying camera
 MAX_HEIGHT_M = 10.0
+# the largest mount offset a calib.yaml may give (rad, about 17 deg): a camera screwed into a
+# head sits within a few degrees of its drawing; a larger value is a misread unit or a sign of
+# another convention, not a mount
+MAX_MOUNT_OFFSET = 0.3
 
 
 def head_rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
@@ -80,6 +94,8 @@ class PerspectiveCamera:
     roll: float = 0.0
     yaw: float = 0.0
     position: tuple[float, float] = (0.0, 0.0)  # m: optical centre over the floor (robot x, y)
+    pitch_offset: float = 0.0  # rad: the mount's pitch, added to every pitch (module doc)
+    roll_offset: float = 0.0  # rad: the mount's roll, added to every roll
     _max_radius: float | None = field(default=None, repr=False, compare=False)
 
     kind = "perspective"
@@ -195,11 +211,14 @@ class PerspectiveCamera:
 
     # ------------------------------------------------------------------ pose of the camera
     def _angles(self, pitch, roll):
-        return (self.pitch if pitch is None else float(pitch),
-                self.roll if roll is None else float(roll))
+        """The camera's pitch and roll at head angles ``pitch``, ``roll`` (None: nominal):
+        the head's plus the mount offsets."""
+        return ((self.pitch if pitch is None else float(pitch)) + self.pitch_offset,
+                (self.roll if roll is None else float(roll)) + self.roll_offset)
 
     def rotation(self, pitch: float | None = None, roll: float | None = None) -> np.ndarray:
-        """Camera-to-robot rotation (3, 3) at the given head angles (default: nominal)."""
+        """Camera-to-robot rotation (3, 3) at the given head angles (default: nominal), the
+        mount offsets added."""
         p, r = self._angles(pitch, roll)
         return head_rotation(self.yaw, p, r)
 
@@ -304,6 +323,8 @@ class PerspectiveCamera:
             "roll": float(self.roll),
             "yaw": float(self.yaw),
             **({"position": [float(v) for v in self.position]} if any(self.position) else {}),
+            **({"pitch_offset": float(self.pitch_offset)} if self.pitch_offset else {}),
+            **({"roll_offset": float(self.roll_offset)} if self.roll_offset else {}),
         }
 
     @classmethod
@@ -326,6 +347,8 @@ class PerspectiveCamera:
                 roll=float(d.get("roll", 0.0)),
                 yaw=float(d.get("yaw", 0.0)),
                 position=_pair(d.get("position", (0.0, 0.0)), where),
+                pitch_offset=float(d.get("pitch_offset", 0.0)),
+                roll_offset=float(d.get("roll_offset", 0.0)),
             )
             if len(size) != 2:
                 raise DatasetError(f"{where}: 'image_size' must be [width, height]")
@@ -338,7 +361,7 @@ class PerspectiveCamera:
         if dist.size not in (4, 5):
             raise DatasetError(f"{where}: 'distortion' needs 4 or 5 values [k1, k2, p1, p2, k3]")
         values = [cam.fx, cam.fy, cam.cx, cam.cy, cam.height, cam.pitch, cam.roll, cam.yaw,
-                  *cam.position, *cam.distortion]
+                  *cam.position, *cam.distortion, cam.pitch_offset, cam.roll_offset]
         if not all(math.isfinite(v) for v in values):
             raise DatasetError(f"{where}: perspective calibration holds a non-finite number")
         if cam.image_size[0] <= 0 or cam.image_size[1] <= 0:
@@ -353,6 +376,11 @@ class PerspectiveCamera:
             if abs(angle) > math.pi:  # radians: a value beyond pi is most likely degrees
                 raise DatasetError(f"{where}: '{name}' must be an angle in radians within"
                                    f" [-pi, pi], got {angle:g} (degrees?)")
+        for name in ("pitch_offset", "roll_offset"):
+            angle = getattr(cam, name)
+            if abs(angle) > MAX_MOUNT_OFFSET:
+                raise DatasetError(f"{where}: '{name}' must be a mount angle in radians within"
+                                   f" +-{MAX_MOUNT_OFFSET:g}, got {angle:g} (degrees?)")
         w, h = cam.image_size
         corners = cam._to_normalized(np.array([[0, 0], [w - 1, 0], [0, h - 1], [w - 1, h - 1]]))
         if np.isnan(cam.undistort_normalized(corners)).any():

@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import os
 from pathlib import Path
 
@@ -43,16 +42,15 @@ from ..common.artifacts import check_output, file_hash, output_lock, root_attrs
 from ..common.camera import camera_can
 from ..common.conf import check_bounds, registered_module, resolve_conf, stage_conf
 from ..common.dataset import open_dataset, read_image, read_mask
-from ..common.errors import DatasetError, FieldlocError, SchemaError
+from ..common.errors import FieldlocError, SchemaError
 from ..common.features_file import SCHEMA, VERSION, FeaturesFile, FrameParts, write_features
-from ..common.perspective_camera import MAX_HEIGHT_M
+from ..common.head_angles import HEAD_STAMP_TOLERANCE, head_at, head_table  # noqa: F401
 from ..common.resources import check_disk
 
 log = logging.getLogger(__name__)
 
 KINDS = {"omni": "stages.extract.omni", "perspective": "stages.extract.perspective"}
 DEFAULT_PRESET = "default"
-HEAD_STAMP_TOLERANCE = 0.05  # s, head.csv row to frame matching
 MASK_NAME = "mask.png"
 
 
@@ -94,44 +92,12 @@ def camera_kind(dataset_dir: str | Path) -> str:
     return open_dataset(dataset_dir).camera().kind
 
 
-# head.csv's columns as they may be (low, high, unit): angles in radians, heights in metres
-# above the floor (the calibration's own bounds, perspective_camera); a value outside is most
-# likely in degrees or millimetres, and would silently place every line point wrong
-HEAD_LIMITS = {"pitch": (-math.pi, math.pi, "rad"), "roll": (-math.pi, math.pi, "rad"),
-               "yaw": (-math.pi, math.pi, "rad"), "height": (1e-3, MAX_HEIGHT_M, "m")}
-
-
-def _head_angles(ds) -> tuple[np.ndarray, dict[str, np.ndarray]] | None:
-    """head.csv sorted by stamp: (stamps, {column: values}) of the pose columns it holds
-    (pitch, roll and the optional yaw, height, x, y)."""
-    head = ds.optional("head")
-    if head is None or len(head["stamp"]) == 0:
-        return None
-    for name, (low, high, unit) in HEAD_LIMITS.items():
-        v = head.get(name)
-        bad = np.flatnonzero(~((v >= low) & (v <= high))) if v is not None else []
-        if len(bad):  # degrees or millimetres given where radians or metres are read
-            raise DatasetError(f"{ds.root / 'head.csv'}: line {int(bad[0]) + 2}: {name}"
-                               f" {float(v[bad[0]]):g} is not within [{low:g}, {high:g}] {unit}")
-    order = np.argsort(head["stamp"])
-    return head["stamp"][order], {k: v[order] for k, v in head.items() if k != "stamp"}
+_head_angles = head_table  # head.csv sorted by stamp (stages.common.head_angles)
 
 
 def _frame_info(kind: str, mask, head, stamp: float) -> dict:
     """The frame_info of one frame for its kind's ``extract_frame`` (module doc)."""
-    return {"mask": mask} if camera_can(kind, "robot_mask") else _frame_info_head(head, stamp)
-
-
-def _frame_info_head(head, stamp: float) -> dict:
-    if head is None:
-        return {}
-    stamps, columns = head
-    i = int(np.clip(np.searchsorted(stamps, stamp), 1, len(stamps) - 1)) if len(stamps) > 1 else 0
-    if len(stamps) > 1 and abs(stamps[i - 1] - stamp) <= abs(stamps[i] - stamp):
-        i -= 1
-    if abs(stamps[i] - stamp) > HEAD_STAMP_TOLERANCE:
-        return {}
-    return {k: float(v[i]) for k, v in columns.items()}
+    return {"mask": mask} if camera_can(kind, "robot_mask") else head_at(head, stamp)
 
 
 def _check_resumable(output: Path, attrs: dict):

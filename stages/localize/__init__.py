@@ -360,10 +360,15 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path 
     return its path. ``allow_field_mismatch``: localise even when the features were recorded
     on another field or with other scan lines than the map's. ``templates``: the template
     database of method templates (module doc; ``map_path`` may then be None).
-    ``write_calib``: also write the dataset's omni calib.yaml corrected by the mirror's
-    distance error learnt from the run's poses (mirror_calibration.py; best with ``smooth``)
-    to this path (never the dataset's own calib.yaml; an existing file needs ``overwrite``)."""
+    ``write_calib``: also write the dataset's calib.yaml corrected by what the run's poses
+    show of its error (best with ``smooth``): an omni camera's mirror distance error
+    (mirror_calibration.py, methods lut and fit), a perspective camera's mount and height
+    (mount_calibration.py, method mcl), to this path (never the dataset's own calib.yaml; an
+    existing file needs ``overwrite``)."""
     resolved = resolve_localize_conf(conf)
+    if uses_templates(resolved["method"]) and write_calib is not None:
+        raise FieldlocError("--write-calib learns a calibration from line features: it needs"
+                            " --method lut or fit (omni) or mcl (perspective), not templates")
     if uses_templates(resolved["method"]):
         return _main_templates(resolved, dataset_dir, map_path, output, templates,
                                overwrite=overwrite, progress=progress)
@@ -429,15 +434,23 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path 
 
 
 def check_write_calib(path, conf, dataset, points, output, given: dict, overwrite: bool):
-    """``write_calib`` refused before any frame is localised (or extracted): a method of the
-    scan-line tables (lut, fit) on omni features (not a points file), an output that is none
-    of the inputs nor the dataset's own calib.yaml nor the poses file."""
-    if conf["method"] not in ("lut", "fit") or points is not None:
+    """``write_calib`` refused before any frame is localised (or extracted): on an omni
+    dataset a method of the scan-line tables (lut, fit), on a perspective one mcl, either on
+    a features file (not a points file); an output that is none of the inputs nor the
+    dataset's own calib.yaml nor the poses file."""
+    kind = dataset.camera().kind
+    if points is not None:
+        raise FieldlocError("--write-calib learns the camera's calibration from the frames'"
+                            " features: it needs a features file, not --points")
+    if kind == "omni" and conf["method"] not in ("lut", "fit"):
         raise FieldlocError("--write-calib learns the omni mirror's distance error: it needs"
                             " --method lut or fit on a features file (not --points)")
-    if dataset.camera().kind != "omni":
-        raise FieldlocError(f"{dataset.root}: --write-calib corrects an omni calib.yaml, this"
-                            f" dataset's camera is '{dataset.camera().kind}'")
+    if kind == "perspective" and conf["method"] != "mcl":
+        raise FieldlocError("--write-calib learns a perspective camera's mount (pitch and roll"
+                            " offsets, height): it needs --method mcl")
+    if kind not in ("omni", "perspective"):
+        raise FieldlocError(f"{dataset.root}: --write-calib corrects an omni or perspective"
+                            f" calib.yaml, this dataset's camera is '{kind}'")
     path = Path(path)
     own = dataset.root / "calib.yaml"
     if path.exists() and own.exists() and path.resolve() == own.resolve():
@@ -448,10 +461,27 @@ def check_write_calib(path, conf, dataset, points, output, given: dict, overwrit
 
 
 def _write_calib(path, conf, dataset, feats, track, map_file, output) -> None:
-    """The dataset's calib.yaml corrected by the distance error learnt from ``track``
-    (mirror_calibration.py), written to ``path``."""
+    """The dataset's calib.yaml corrected by what ``track`` shows of its error, written to
+    ``path``: the omni mirror's distance error (mirror_calibration.py) or the perspective
+    camera's mount (mount_calibration.py)."""
     import yaml
 
+    own = dataset.root / "calib.yaml"
+    calib = yaml.safe_load(own.read_text())
+    camera = dataset.camera()
+    if camera.kind == "perspective":
+        from ..common.head_angles import head_table
+        from . import mount_calibration as mount
+
+        estimate = mount.estimate_mount(map_file.field, camera, feats, track,
+                                        head_table(dataset))
+        new = mount.corrected_calibration(calib, estimate, source=str(_abs(output)),
+                                          sources={"dataset": _abs(dataset.root)})
+        mount.write_corrected_calib(path, new, dataset_calib=own)
+        log.info("calibration from the recording -> %s (pitch_offset %+.4f, roll_offset %+.4f"
+                 " rad, height %.4f m)", path, estimate.pitch_offset, estimate.roll_offset,
+                 estimate.height)
+        return
     from . import mirror_calibration as mc
     from .lut import table_search
     from .lut_search import MatchingParams
@@ -460,8 +490,6 @@ def _write_calib(path, conf, dataset, feats, track, map_file, output) -> None:
         "default"]["search"]
     search = table_search(map_file, MatchingParams.from_conf(search_conf))
     error = mc.estimate_distance_error(search, feats, track)
-    own = dataset.root / "calib.yaml"
-    calib = yaml.safe_load(own.read_text())
     new = mc.corrected_calibration(calib, error, source=str(_abs(output)),
                                    sources={"dataset": _abs(dataset.root)})
     mc.write_corrected_calib(path, new, dataset_calib=own)

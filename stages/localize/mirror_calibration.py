@@ -57,18 +57,23 @@ writes it atomically and never over the recording's own calib.yaml.
 
 from __future__ import annotations
 
-import datetime as _dt
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import yaml
 
-from .. import __version__
-from ..common.artifacts import atomic_path
 from ..common.camera import OmniCamera, fit_polynomial
 from ..common.errors import FieldlocError
+from .calibration_record import (  # noqa: F401 (own_calibs: part of this module's interface)
+    features_inputs,
+    own_calibs,
+    plain,
+    record_header,
+    track_arrays,
+    usable_rows,
+    write_calib_file,
+)
 from .lut_search import Observation, TableSearch
 
 DEFAULTS = {
@@ -127,26 +132,7 @@ class DistanceError:
 # ---------------------------------------------------------------------------- inputs
 
 
-def _track_arrays(track, symmetric: bool = False) -> dict:
-    """names, x, y, theta, confidence, accepted of a PoseTrack or of its arrays. On a
-    point-symmetric field (``symmetric``) a pose and its mirror image predict the same
-    crossings, so a frame's confidence and acceptance up to the mirror are used when the track
-    has them (stages.localize.symmetry)."""
-    arr = track.arrays() if hasattr(track, "arrays") else track
-    if symmetric and "confidence_up_to_mirror" in arr and "accepted_up_to_mirror" in arr:
-        arr = {**arr, "confidence": arr["confidence_up_to_mirror"],
-               "accepted": arr["accepted_up_to_mirror"]}
-    names = arr.get("names", arr.get("name"))
-    if names is None:
-        raise FieldlocError("the poses have no frame names")
-    out = {"names": [n.decode() if isinstance(n, bytes) else str(n) for n in names]}
-    for k in ("x", "y", "theta", "confidence", "accepted"):
-        if k not in arr:
-            raise FieldlocError(f"the poses have no '{k}'")
-        out[k] = np.asarray(arr[k], dtype=bool if k == "accepted" else float)
-    if any(len(out[k]) != len(out["names"]) for k in ("x", "y", "theta", "confidence")):
-        raise FieldlocError("the poses' arrays differ in length")
-    return out
+_track_arrays = track_arrays
 
 
 @dataclass
@@ -159,10 +145,8 @@ class _Frame:
 def _frames(search: TableSearch, features, arr: dict, min_confidence: float) -> list[_Frame]:
     sl = search.scanlines
     have = set(features.names)
-    use = (arr["accepted"] & (arr["confidence"] >= min_confidence)
-           & np.isfinite(arr["x"]) & np.isfinite(arr["y"]) & np.isfinite(arr["theta"]))
     out = []
-    for i in np.flatnonzero(use):
+    for i in usable_rows(arr, min_confidence):
         name = arr["names"][i]
         if name not in have:
             continue
@@ -378,22 +362,7 @@ def estimate_distance_error(search: TableSearch, features, track, radial_conf=No
         conf=c, inputs=_features_inputs(features))
 
 
-def _features_inputs(features) -> dict:
-    """The features file and the dataset, calib.yaml (and its hash) it was extracted from, as
-    its attributes record them."""
-    out = {}
-    path = getattr(features, "path", None)
-    if path is not None:
-        out["features"] = str(path)
-    try:
-        rec = features.attr_json("inputs") or {}
-    except (AttributeError, KeyError, ValueError, TypeError):
-        rec = {}
-    if isinstance(rec, dict):
-        for k in ("dataset", "calib", "calib_hash"):
-            if isinstance(rec.get(k), str) and rec[k]:
-                out[k] = rec[k]
-    return out
+_features_inputs = features_inputs
 
 
 # ---------------------------------------------------------------------------- calib.yaml
@@ -446,18 +415,13 @@ def corrected_calibration(calib: dict, error: DistanceError, *, source: str,
     new, departure = corrected_camera(camera, error)
     out = new.to_dict()
     record = {
-        "fieldloc_version": __version__,
-        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-        "method": "recording",
-        "source": str(source),
-        "sources": {**error.inputs, **{str(k): str(v) for k, v in (sources or {}).items()}},
-        "conf": {k: _plain(v) for k, v in error.conf.items()},
+        **record_header(source=source, inputs=error.inputs, sources=sources, conf=error.conf),
         "model": new.radial_model,
         "model_departure_m": round(departure, 5),
         **error.summary(),
         "error_table": {"distance_m": [round(float(v), 4) for v in error.knots],
                         "error_m": [round(float(v), 5) for v in error.values]},
-        "fit": {k: _plain(v) for k, v in error.fit.items()},
+        "fit": {k: plain(v) for k, v in error.fit.items()},
     }
     record["replaced"] = {k: calib[k] for k in ("version", "radial_model", "polynomial",
                                                 "radial_table") if k in calib}
@@ -467,55 +431,9 @@ def corrected_calibration(calib: dict, error: DistanceError, *, source: str,
     return out
 
 
-def _plain(v):
-    if isinstance(v, (bool, np.bool_)):
-        return bool(v)
-    if isinstance(v, (int, np.integer)):
-        return int(v)
-    if isinstance(v, (float, np.floating)):
-        return float(v)
-    return v
-
-
-def own_calibs(calib_dict: dict, dataset_calib=None) -> list[Path]:
-    """The calib.yaml files a corrected calibration must never be written over: the one the
-    recording's features were extracted with (``sources.calib``), the dataset's own
-    (``sources.dataset``/calib.yaml, ``source``/calib.yaml when the source is a dataset
-    folder) and ``dataset_calib``."""
-    rec = calib_dict.get("calibration") if isinstance(calib_dict, dict) else None
-    rec = rec if isinstance(rec, dict) else {}
-    src = rec.get("sources") if isinstance(rec.get("sources"), dict) else {}
-    out = []
-    if dataset_calib is not None:
-        out.append(Path(dataset_calib))
-    if src.get("calib"):
-        out.append(Path(src["calib"]))
-    for folder in (src.get("dataset"), rec.get("source")):
-        if folder and Path(folder).is_dir():
-            out.append(Path(folder) / "calib.yaml")
-    return out
-
-
 def write_corrected_calib(path, calib_dict: dict, *, dataset_calib=None) -> Path:
     """Write ``calib_dict`` (``corrected_calibration``'s) as a calib.yaml at ``path``,
-    atomically (a temporary file beside it, renamed at the end). Refused (FieldlocError):
-    ``path`` is the recording's own calib.yaml (``own_calibs``), or the mapping is not a
-    valid omni calibration."""
-    path = Path(path)
-    for own in own_calibs(calib_dict, dataset_calib):
-        if _same_file(path, own):
-            raise FieldlocError(f"{path} is the recording's own calib.yaml; it is never written"
-                                " over: choose another output")
-    OmniCamera.from_dict(calib_dict, str(path))  # what is written reads back
-    with atomic_path(path, suffix=".yaml") as tmp:
-        tmp.write_text(yaml.safe_dump(calib_dict, sort_keys=False, default_flow_style=None))
-    return path
-
-
-def _same_file(a: Path, b: Path) -> bool:
-    try:
-        if a.exists() and b.exists():
-            return a.samefile(b)
-    except OSError:
-        pass
-    return a.resolve() == b.resolve()
+    atomically (calibration_record.write_calib_file). Refused (FieldlocError): ``path`` is the
+    recording's own calib.yaml (``own_calibs``), or the mapping is not a valid omni
+    calibration."""
+    return write_calib_file(path, calib_dict, OmniCamera.from_dict, dataset_calib=dataset_calib)

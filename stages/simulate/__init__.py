@@ -192,8 +192,10 @@ _PERSPECTIVE_BASE = {
               "robot_height": 0.6, "robot_speed": [0.1, 0.3], "goal_height": 1.2},
     "perspective": copy.deepcopy(PERSPECTIVE_DEFAULTS),
     # what calib.yaml says relative to the rendering camera: principal point shift (px),
-    # focal length scale
-    "calib_error": {"centre_shift": [0.0, 0.0], "scale": 1.0},
+    # focal length scale, the mount's pitch and roll offsets (rad) recorded while the rendering
+    # camera has none, and the height off by height_offset (m)
+    "calib_error": {"centre_shift": [0.0, 0.0], "scale": 1.0, "pitch_offset": 0.0,
+                    "roll_offset": 0.0, "height_offset": 0.0},
 }
 confs["perspective-default"] = _preset(_PERSPECTIVE_BASE)
 # without movers, clutter, lighting changes or imaging defects: for checking geometry
@@ -369,6 +371,9 @@ def _check_conf(conf: dict):
     ce = conf["calib_error"]
     if len(ce.get("centre_shift", ())) != 2:
         raise FieldlocError("calib_error.centre_shift must be [du, dv] (px)")
+    check = getattr(renderer_class(conf["camera"])[0], "check_calib_error", None)
+    if check is not None:
+        check(ce)
 
 
 def _check_written_calib(camera) -> None:

@@ -106,17 +106,44 @@ def camera_from_conf(c: dict) -> PerspectiveCamera:
         raise FieldlocError(str(e)) from None
 
 
+# calib_error's mount keys and the largest magnitude each may take: a camera screwed in a few
+# degrees off its drawing and a height measured a few centimetres wrong; larger values are a
+# misread unit (degrees, millimetres), not a miscalibration to simulate
+MOUNT_ERROR_LIMITS = {"pitch_offset": (0.15, "rad"), "roll_offset": (0.15, "rad"),
+                      "height_offset": (0.2, "m")}
+
+
+def check_calib_error(calib_error: dict) -> None:
+    """calib_error's mount keys within MOUNT_ERROR_LIMITS (FieldlocError, one line)."""
+    for key, (limit, unit) in MOUNT_ERROR_LIMITS.items():
+        value = calib_error.get(key, 0.0)
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            raise FieldlocError(f"calib_error.{key} must be a number ({unit}), got"
+                                f" {str(value)[:40]!r}") from None
+        if not abs(v) <= limit:
+            raise FieldlocError(f"calib_error.{key} must be within +-{limit:g} {unit}, got"
+                                f" {v:g}")
+
+
 def perturbed_camera(cam: PerspectiveCamera, calib_error: dict) -> PerspectiveCamera:
     """The camera as a miscalibration would record it: principal point shifted by
-    ``centre_shift`` px and the focal lengths scaled by ``scale``."""
+    ``centre_shift`` px and the focal lengths scaled by ``scale``; the mount recorded as
+    ``pitch_offset`` and ``roll_offset`` (rad) when the rendering camera has none, and the
+    height as the true one plus ``height_offset`` (m)."""
     du, dv = (float(v) for v in calib_error.get("centre_shift", (0.0, 0.0)))
     scale = float(calib_error.get("scale", 1.0))
     if scale <= 0:
         raise FieldlocError(f"calibration error scale must be > 0, got {scale}")
+    check_calib_error(calib_error)
     return PerspectiveCamera(
         image_size=cam.image_size, fx=cam.fx * scale, fy=cam.fy * scale, cx=cam.cx + du,
-        cy=cam.cy + dv, distortion=cam.distortion.copy(), height=cam.height, pitch=cam.pitch,
+        cy=cam.cy + dv, distortion=cam.distortion.copy(),
+        height=cam.height + float(calib_error.get("height_offset", 0.0)), pitch=cam.pitch,
         roll=cam.roll, yaw=cam.yaw,
+        pitch_offset=cam.pitch_offset + float(calib_error.get("pitch_offset", 0.0)),
+        roll_offset=cam.roll_offset + float(calib_error.get("roll_offset", 0.0)),
     )
 
 

@@ -1,0 +1,55 @@
+"""A perspective camera's per-frame head pose from DIR/head.csv (stages.common.dataset): the
+rows sorted by stamp and the row of a frame's stamp, as extract uses them to project a frame's
+pixels to the floor and as anything that projects those pixels again (the mount calibration
+of stages.localize) must.
+
+head.csv holds pitch and roll (rad) and optionally yaw (rad), height (m) and x, y (m, the
+optical centre over the floor); a frame takes the row nearest its stamp within
+``HEAD_STAMP_TOLERANCE``, or none (the calibration's nominal pose).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .errors import DatasetError
+from .perspective_camera import MAX_HEIGHT_M
+
+HEAD_STAMP_TOLERANCE = 0.05  # s, head.csv row to frame matching
+# head.csv's columns as they may be (low, high, unit): angles in radians, heights in metres
+# above the floor (the calibration's own bounds, perspective_camera); a value outside is most
+# likely in degrees or millimetres, and would silently place every line point wrong
+HEAD_LIMITS = {"pitch": (-math.pi, math.pi, "rad"), "roll": (-math.pi, math.pi, "rad"),
+               "yaw": (-math.pi, math.pi, "rad"), "height": (1e-3, MAX_HEIGHT_M, "m")}
+
+
+def head_table(ds) -> tuple[np.ndarray, dict[str, np.ndarray]] | None:
+    """head.csv of the dataset ``ds`` sorted by stamp: (stamps, {column: values}) of the pose
+    columns it holds (pitch, roll and the optional yaw, height, x, y); None without one."""
+    head = ds.optional("head")
+    if head is None or len(head["stamp"]) == 0:
+        return None
+    for name, (low, high, unit) in HEAD_LIMITS.items():
+        v = head.get(name)
+        bad = np.flatnonzero(~((v >= low) & (v <= high))) if v is not None else []
+        if len(bad):  # degrees or millimetres given where radians or metres are read
+            raise DatasetError(f"{ds.root / 'head.csv'}: line {int(bad[0]) + 2}: {name}"
+                               f" {float(v[bad[0]]):g} is not within [{low:g}, {high:g}] {unit}")
+    order = np.argsort(head["stamp"])
+    return head["stamp"][order], {k: v[order] for k, v in head.items() if k != "stamp"}
+
+
+def head_at(head, stamp: float) -> dict:
+    """The head pose of the frame at ``stamp`` ({column: value}) from ``head_table``'s
+    result: the nearest row within HEAD_STAMP_TOLERANCE, else {} (nominal pose)."""
+    if head is None:
+        return {}
+    stamps, columns = head
+    i = int(np.clip(np.searchsorted(stamps, stamp), 1, len(stamps) - 1)) if len(stamps) > 1 else 0
+    if len(stamps) > 1 and abs(stamps[i - 1] - stamp) <= abs(stamps[i] - stamp):
+        i -= 1
+    if abs(stamps[i] - stamp) > HEAD_STAMP_TOLERANCE:
+        return {}
+    return {k: float(v[i]) for k, v in columns.items()}
