@@ -1,4 +1,4 @@
-"""Hostile conf values (issue 25): every numeric key of the perspective extractor's preset, of the
+"""Hostile conf values: every numeric key of the perspective extractor's preset, of the
 templates method's and of build-templates' (nested keys dotted, a list of numbers given one
 number as ``-c key=V`` makes it), set to 0, -1, 1e12 (and 1e-12 for a real number), is either
 refused where the conf is resolved, in one line naming the key (the method's or kind's BOUNDS,

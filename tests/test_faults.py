@@ -1054,7 +1054,7 @@ CASES = [
         ("sample_step_px=0", "conf 'sample_step_px' must be > 0 and <= 10"),
         ("colour.local_cell=0", "conf 'colour.local_cell' must be >= 1 and <= 64"),
         ("spiral_start_step=0", "conf 'spiral_start_step' must be >= 1 and <= 72"))],
-    # the perspective extractor, the templates method and build-templates (issue 25): refused
+    # the perspective extractor, the templates method and build-templates: refused
     # when the conf is resolved, before any input is read (the templates file is not there)
     *[Case(f"extract perspective -c {kv}", kind, ["extract", "{kid}", "-o", W + "/f.h5", "-c",
                                                    kv], 1, msg) for kv, kind, msg in (

@@ -28,10 +28,11 @@ from stages.localize import mount_calibration as mount
 NAO = PerspectiveCamera(image_size=(640, 480), fx=608.0, fy=609.6, cx=319.5, cy=239.5,
                         distortion=np.zeros(5), height=0.45, pitch=0.19, roll=0.0)
 SPL = load_field("spl")
-# the rendered mount error of issue 24's figures: about 2 deg, -1.5 deg, 3 cm
+# the rendered mount error of the held-out figures (docs/recording-calibration.md): about
+# 2 deg, -1.5 deg, 3 cm
 ERROR = {"pitch_offset": 0.035, "roll_offset": -0.026, "height_offset": 0.03}
 # what a calibration from a short rendered walk must reach: offsets within 0.3 deg and the
-# height within 1 cm of the rendering camera's (issue 24's goal on 200-frame walks)
+# height within 1 cm of the rendering camera's (the goal on 200-frame walks)
 ANGLE_TOL = math.radians(0.3)
 HEIGHT_TOL = 0.01
 STEP_S = 10.0  # s between the synthetic frames: independent places

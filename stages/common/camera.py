@@ -318,7 +318,7 @@ def load_calib(path: str | Path):
         image_size_of(d, str(path))
     if kind == "omni":
         return OmniCamera.from_dict(d, str(path))
-    from .perspective_camera import PerspectiveCamera  # issue 4
+    from .perspective_camera import PerspectiveCamera
 
     try:
         return PerspectiveCamera.from_dict(d, str(path))

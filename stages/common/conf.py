@@ -241,7 +241,7 @@ class KindPresets(Mapping):
     """The presets of every kind of a stage (its methods, its cameras) as one read-only
     mapping, ``"<kind>-<preset>"`` -> conf, whose kinds' modules are imported only when one of
     their presets is asked for: ``fieldloc localize --method lut`` then loads lut's compiled
-    kernels and not mcl's or the template matcher's (a process's start time, issue 12).
+    kernels and not mcl's or the template matcher's (a process's start time).
     ``presets_of(kind)`` gives a kind's presets; ``entry(kind, conf)`` the stored entry (e.g.
     with the kind's name added); ``aliases`` maps further names to ``(kind, preset)``
     ("default"). Listing the keys imports every kind."""

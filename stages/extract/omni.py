@@ -13,7 +13,7 @@ through the calibration (stages.common.camera.OmniCamera):
   its ground distance from the robot centre and the ground arc length along its scan line;
   the distinct pixels (~40,000 of a 480 x 480 frame) are listed once with their blocks of the
   local green map;
-- per frame (``extract_frame``): only those pixels are read and classified (issue 27), and
+- per frame (``extract_frame``): only those pixels are read and classified, and
   the few that the field green and the local green map are estimated from, the whole-frame
   estimates' (stages.common.colour's pixel samples: compiled, no whole-frame pass); then run
   detection on the concatenated class sequence (one compiled pass,

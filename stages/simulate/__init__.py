@@ -214,7 +214,7 @@ confs["perspective-clean"] = _preset(
 )
 
 
-# issue 9: a NAO v6 (SPL) with its top camera (640 x 480, no wide-angle lens, HULKs' intrinsics
+# a NAO v6 (SPL) with its top camera (640 x 480, no wide-angle lens, HULKs' intrinsics
 # fx 608, fy 609.6 px; the camera about 0.45 m high, looking 11 deg down as HULKs' top frames
 # do in the median) on an SPL field in a hall: sun patches and shadows across the lines, the
 # carpet's sheen, over-exposed white, white balls, other NAOs' white legs, lines of uneven
@@ -424,7 +424,7 @@ def main(conf: str | dict | None, field, output_dir, *, overwrite: bool = False,
     rng_traj, rng_odo, rng_imu, rng_coll = (np.random.default_rng(s) for s in ss.spawn(4))
 
     traj_conf = conf["trajectory"]
-    if traj_conf.get("start") == "touchline":  # issue 4: enter at a touch line, own half
+    if traj_conf.get("start") == "touchline":  # enter at a touch line, own half
         traj_conf = {**traj_conf, "start": walk.touchline_start(
             field, float(traj_conf.get("margin", trajectory.DEFAULTS["margin"])),
             np.random.default_rng([seed, 0x57A27]))}

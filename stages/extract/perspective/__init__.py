@@ -241,7 +241,7 @@ confs = {
 
 # the ranges the extractor's numeric keys must lie in (common.conf.check_bounds, checked when
 # the conf is resolved, before any frame). Found by fuzzing every key with 0, -1, 1e12 and
-# 1e-12 (issue 25): a cell or step of 0 divides by zero, -1 gives negative array sizes, a
+# 1e-12: a cell or step of 0 divides by zero, -1 gives negative array sizes, a
 # pair given one number unpacks into nothing, and counts, sizes or distances of 1e12 (or a
 # profile step of 1e-12 px) ran out of memory or for hours. The upper bounds lie far beyond
 # anything a frame can use (any value above them means "everything" already):
