@@ -65,15 +65,22 @@ def sweep(cases: list[str], resolve, run) -> tuple[list[str], int]:
             if f"'{key}" not in msg or "\n" in msg or len(msg) > MAX_MESSAGE:
                 wrong.append(f"{kv}: refused as {msg[:MAX_MESSAGE]!r}")
             continue
-        t0 = time.perf_counter()
-        try:
-            run(conf)
-        except FieldlocError:  # a frame or input refused in one line is no crash
-            pass
-        except Exception as e:  # noqa: BLE001 (what the test is for)
-            wrong.append(f"{kv}: {type(e).__name__}: {str(e)[:80]}")
-        if time.perf_counter() - t0 > RUN_BUDGET_S:
-            wrong.append(f"{kv}: ran {time.perf_counter() - t0:.0f} s")
+        for attempt in range(2):
+            t0 = time.perf_counter()
+            try:
+                run(conf)
+            except FieldlocError:  # a frame or input refused in one line is no crash
+                pass
+            except Exception as e:  # noqa: BLE001 (what the test is for)
+                wrong.append(f"{kv}: {type(e).__name__}: {str(e)[:80]}")
+                break
+            took = time.perf_counter() - t0
+            # a value of another type than the preset's (an int where a float stood) may have
+            # numba compile a kernel once, seconds on a busy machine: the second run is judged
+            if took <= RUN_BUDGET_S:
+                break
+            if attempt:
+                wrong.append(f"{kv}: ran {took:.0f} s twice")
     return wrong, refused
 
 

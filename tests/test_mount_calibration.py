@@ -272,6 +272,7 @@ def test_a_rendered_mount_error_is_recovered_from_a_short_walk(nao_walk):
 def test_write_calib_refuses_the_datasets_own_calib_yaml(nao_walk, tmp_path):
     ds, spl_map, *_ = nao_walk
     own = ds / "calib.yaml"
+    # exact bytes: the user's calib.yaml, to check it unchanged
     before = hashlib.sha256(own.read_bytes()).hexdigest()
     feats = ds.parent / "poses.features.h5"
     assert feats.is_file()
