@@ -117,10 +117,8 @@ def test_green_samples_equal_the_numpy_masks(seed, shape):
     valid = rng.random((hb * 2, wb * 2)) < 0.8
     gs = np.zeros((hb, wb), np.float32)
     ys = np.zeros((hb, wb), np.float32)
-    lo_s, hi_s = (np.float32(v_) ** 2 for v_ in fc.saturation)
-    colour._hue_block_sums(yuv, step, 2, hb, wb, valid, True, np.float32(fc.hue_dir[0]),
-                           np.float32(fc.hue_dir[1]), np.float32(np.float32(fc.hue_cos) ** 2),
-                           lo_s, hi_s, 30, 220, gs, ys)
+    colour._hue_block_sums(yuv, (step, 2, hb, wb), valid, True, colour._hue_test(fc),
+                           (30, 220), gs, ys)
     y, u, v = (np.ascontiguousarray(yuv[:hb * cell:step, :wb * cell:step, c]) for c in range(3))
     green, _ = colour._chroma_tests(y, u, v, fc, conf, white=False)
     green &= (y >= 30) & (y <= 220) & valid

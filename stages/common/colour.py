@@ -538,11 +538,9 @@ def _local_green_luminance(yuv, fc: FieldColour, conf: dict, valid) -> np.ndarra
     if fc.hue_dir is not None:  # the hue model: one compiled pass (_hue_block_sums)
         gs = np.zeros((hb, wb), np.float32)
         ys = np.zeros((hb, wb), np.float32)
-        lo_s, hi_s = (np.float32(v_) ** 2 for v_ in fc.saturation)
-        _hue_block_sums(yuv, step, k, hb, wb, np.zeros((0, 0), bool) if mask is None else
-                        np.ascontiguousarray(mask), mask is not None,
-                        np.float32(fc.hue_dir[0]), np.float32(fc.hue_dir[1]),
-                        np.float32(np.float32(fc.hue_cos) ** 2), lo_s, hi_s, y_lo, y_hi, gs, ys)
+        _hue_block_sums(yuv, (step, k, hb, wb), np.zeros((0, 0), bool) if mask is None else
+                        np.ascontiguousarray(mask), mask is not None, _hue_test(fc),
+                        (y_lo, y_hi), gs, ys)
         return _fill_green_luminance(gs, ys, k, fc, conf)
     y, u, v = cv2.split(np.ascontiguousarray(yuv[:hb * cell:step, :wb * cell:step]))
     green, _ = _chroma_tests(y, u, v, fc, conf, white=False)
@@ -1050,12 +1048,17 @@ def classify_cells(yuv: np.ndarray, fc: FieldColour, conf: dict, cell: int,
     out = np.zeros((h // cell, w // cell, 3), np.uint16)
     mask = np.zeros((1, 1), np.uint8) if white_out is None else white_out
     sat = np.float32(conf["white_max_saturation"])
-    lo, hi = (np.float32(v) ** 2 for v in fc.saturation)
-    _hue_cells(np.ascontiguousarray(yuv).reshape(h, 3 * w), thr, int(cell), int(local),
-               np.float32(sat * sat), np.float32(fc.hue_dir[0]), np.float32(fc.hue_dir[1]),
-               np.float32(np.float32(fc.hue_cos) ** 2), lo, hi, white_out is not None, out,
-               mask)
+    _hue_cells(np.ascontiguousarray(yuv).reshape(h, 3 * w), thr, (int(cell), int(local)),
+               np.float32(sat * sat), _hue_test(fc), white_out is not None, out, mask)
     return out
+
+
+def _hue_test(fc) -> tuple:
+    """The hue model's green test as the kernels take it, float32 each: the hue direction
+    (hx, hy), its cone's cos^2, and the saturation band's squared bounds (lo, hi)."""
+    lo, hi = (np.float32(v) ** 2 for v in fc.saturation)
+    return (np.float32(fc.hue_dir[0]), np.float32(fc.hue_dir[1]),
+            np.float32(np.float32(fc.hue_cos) ** 2), lo, hi)
 
 
 @njit(cache=True, nogil=True)
@@ -1083,11 +1086,15 @@ def _block_thresholds(yg, contrast, min_y, lo_ratio, hi_ratio):
 
 
 @njit(cache=True, nogil=True)
-def _hue_row(px, t_white, t_lo, t_hi, sat2, hx, hy, c2, lo, hi, white, col_white, col_green):
-    """One row of _hue_cells: ``px`` the row's interleaved YUV bytes (3 w), the luminance
-    thresholds per column as float32 (integers, so the comparisons are those of the uint8 Y);
-    the white mask (0 / 1) into ``white`` and the white and green pixels added to the column
-    counts. Branch-free, so that it runs on vectors."""
+def _hue_row(px, thresholds, sat2, hue, white, counts):
+    """One row of _hue_cells: ``px`` the row's interleaved YUV bytes (3 w), ``thresholds``
+    the luminance thresholds per column (white, green low, green high) as float32 (integers,
+    so the comparisons are those of the uint8 Y), ``hue`` the green test (_hue_test); the
+    white mask (0 / 1) into ``white`` and the white and green pixels added to the column
+    ``counts`` (white, green). Branch-free, so that it runs on vectors."""
+    t_white, t_lo, t_hi = thresholds
+    hx, hy, c2, lo, hi = hue
+    col_white, col_green = counts
     c128 = np.float32(128.0)
     zero = np.float32(0.0)
     for c in range(px.shape[0] // 3):
@@ -1109,9 +1116,11 @@ def _hue_row(px, t_white, t_lo, t_hi, sat2, hx, hy, c2, lo, hi, white, col_white
 
 
 @njit(cache=True, nogil=True)
-def _hue_cells(yuv_rows, thr, cell, local, sat2, hx, hy, c2, lo, hi, keep_white, out, mask):
+def _hue_cells(yuv_rows, thr, cells, sat2, hue, keep_white, out, mask):
     """classify_cells' pass over the rows (h, 3 w) of a YUV image: each row by _hue_row
-    (white wins over green), the column counts summed per cell every ``cell`` rows."""
+    (white wins over green), the column counts summed per cell every ``cell`` rows
+    (``cells``: the cell and the local threshold block, px)."""
+    cell, local = cells
     w = yuv_rows.shape[1] // 3
     hb, wb = out.shape[0], out.shape[1]
     th, tw = thr.shape[0], thr.shape[1]
@@ -1137,8 +1146,8 @@ def _hue_cells(yuv_rows, thr, cell, local, sat2, hx, hy, c2, lo, hi, keep_white,
         row_white = scratch
         if keep_white:
             row_white = mask[r]
-        _hue_row(yuv_rows[r], t_white, t_lo, t_hi, sat2, hx, hy, c2, lo, hi, row_white,
-                 col_white, col_green)
+        _hue_row(yuv_rows[r], (t_white, t_lo, t_hi), sat2, hue, row_white,
+                 (col_white, col_green))
         if r % cell == cell - 1:
             cr = r // cell
             for j in range(wb):
@@ -1180,12 +1189,15 @@ def _sample_pixels(yuv: np.ndarray, step: int, mask: np.ndarray | None) -> np.nd
 
 
 @njit(cache=True, nogil=True)
-def _hue_block_sums(yuv, step, k, hb, wb, mask, use_mask, hx, hy, c2, lo, hi, y_lo, y_hi,
-                    gs, ys):
+def _hue_block_sums(yuv, blocks, mask, use_mask, hue, band, gs, ys):
     """_local_green_luminance's per-block sums for the hue model: over the samples every
-    ``step`` px of the hb x wb blocks (k x k per block), the count of green ones (the hue
-    test of _chroma_tests in float32, Y in [y_lo, y_hi], in ``mask`` if used) into ``gs``
-    and their summed Y into ``ys``."""
+    ``step`` px of the hb x wb blocks (k x k per block; ``blocks``: (step, k, hb, wb)), the
+    count of green ones (the hue test of _chroma_tests in float32, ``hue``: _hue_test; Y in
+    ``band`` (y_lo, y_hi); in ``mask`` if used) into ``gs`` and their summed Y into
+    ``ys``."""
+    step, k, hb, wb = blocks
+    hx, hy, c2, lo, hi = hue
+    y_lo, y_hi = band
     c128 = np.float32(128.0)
     zero = np.float32(0.0)
     # blocks and samples within them counted apart (no integer division per sample)
