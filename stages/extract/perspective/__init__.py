@@ -32,7 +32,7 @@ from numba import njit
 from ...common import colour
 from ...common.errors import DatasetError, FieldlocError
 from ...common.geometry import polar
-from .crossings import find_crossings, floor_at
+from .crossings import find_crossings, floor_at, floor_bundle
 from .field_boundary import DEFAULT_WEIGHTS, boundary_polyline
 from .field_boundary import field_boundary as find_boundary
 from .goal_posts import goal_posts as find_posts
@@ -747,27 +747,27 @@ def field_edge(ends_floor: np.ndarray, to_floor: FloorProjection, lens: np.ndarr
     compiled pass (``_field_edge``)."""
     e = np.ascontiguousarray(ends_floor, np.float64).reshape(-1, 2, 2)
     share, gap = np.empty(len(e)), np.empty(len(e))
-    _field_edge(e, to_floor.m_inv, to_floor.height, to_floor.position, lens,
-                np.ascontiguousarray(green, np.float32),
-                np.ascontiguousarray(boundary_range, np.float64), int(cell), float(offset),
-                int(samples), share, gap)
+    _field_edge(e, floor_bundle(to_floor), lens, np.ascontiguousarray(green, np.float32),
+                np.ascontiguousarray(boundary_range, np.float64), int(cell),
+                (float(offset), int(samples)), share, gap)
     return share, gap
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _cell_of(m_inv, height, position, lens, cell, x, y):
+def _cell_of(fl, lens, cell, x, y):
     """The grid cell (row, column, as floats; NaN behind the camera) where the floor point
-    (x, y) m of the robot frame is seen: FloorProjection.to_ideal (_to_ideal_at), then the
-    lens."""
-    ix, iy = _to_ideal_at(m_inv, height, position, x, y)
+    (x, y) m of the robot frame is seen: FloorProjection.to_ideal (_to_ideal_at; ``fl`` the
+    frame's crossings.Floor), then the lens."""
+    ix, iy = _to_ideal_at(fl, x, y)
     u, v = distort_point(lens, ix, iy)
     return np.floor(v / cell), np.floor(u / cell)
 
 
 @njit(cache=True, nogil=True)
-def _field_edge(ends, m_inv, height, position, lens, green, boundary_range, cell, offset,
-                samples, share, gap):
-    """field_edge's kernel (see there)."""
+def _field_edge(ends, fl, lens, green, boundary_range, cell, rule, share, gap):
+    """field_edge's kernel (see there; ``fl``: the frame's crossings.Floor, ``rule``: the
+    offset (m) of the carpet samples beyond the line and the samples per line)."""
+    offset, samples = rule
     hb, wb = green.shape
     gaps = np.empty(samples)
     for k in range(ends.shape[0]):
@@ -781,12 +781,11 @@ def _field_edge(ends, m_inv, height, position, lens, green, boundary_range, cell
         for s in range(samples):
             t = 0.05 + 0.9 * s / max(samples - 1, 1)
             x, y = x0 + t * dx, y0 + t * dy
-            r, c = _cell_of(m_inv, height, position, lens, cell, x + offset * nx,
-                            y + offset * ny)
+            r, c = _cell_of(fl, lens, cell, x + offset * nx, y + offset * ny)
             if 0.0 <= r < hb and 0.0 <= c < wb:  # False for NaN
                 total += green[int(r), int(c)]
                 count += 1
-            r, c = _cell_of(m_inv, height, position, lens, cell, x, y)
+            r, c = _cell_of(fl, lens, cell, x, y)
             if 0.0 <= r < hb and 0.0 <= c < boundary_range.shape[0]:
                 gaps[n_gap] = boundary_range[int(c)] - math.hypot(x, y)
                 n_gap += 1
@@ -826,16 +825,16 @@ def width_ratios(refs: list[RefinedLine], to_floor: FloorProjection, line_width:
                   start, np.array([r.ends for r in refs], np.float64),
                   np.array([r.fit.normal for r in refs], np.float64),
                   np.concatenate([r.widths for r in refs]).astype(np.float64, copy=False),
-                  to_floor.m, to_floor.m_inv, to_floor.height, to_floor.position,
-                  to_floor._shifted, 0.5 * line_width, out)
+                  floor_bundle(to_floor), 0.5 * line_width, out)
     return {id(r): float(v) for r, v in zip(refs, out.tolist())}
 
 
 @njit(cache=True, nogil=True)
-def _to_ideal_at(m_inv, height, pos, fx, fy):
-    """FloorProjection.to_ideal at one floor point (fx, fy): the homogeneous pixel m_inv (fx -
-    pos_x, fy - pos_y, -height), NaN behind the camera."""
-    r0, r1, r2 = fx - pos[0], fy - pos[1], -height
+def _to_ideal_at(fl, fx, fy):
+    """FloorProjection.to_ideal at one floor point (fx, fy) (``fl``: crossings.Floor): the
+    homogeneous pixel m_inv (fx - pos_x, fy - pos_y, -height), NaN behind the camera."""
+    m_inv, pos = fl.m_inv, fl.pos
+    r0, r1, r2 = fx - pos[0], fy - pos[1], -fl.height
     h0 = m_inv[0, 0] * r0 + m_inv[0, 1] * r1 + m_inv[0, 2] * r2
     h1 = m_inv[1, 0] * r0 + m_inv[1, 1] * r1 + m_inv[1, 2] * r2
     h2 = m_inv[2, 0] * r0 + m_inv[2, 1] * r1 + m_inv[2, 2] * r2
@@ -845,10 +844,11 @@ def _to_ideal_at(m_inv, height, pos, fx, fy):
 
 
 @njit(cache=True, nogil=True)
-def _width_ratios(centres, start, ends, normals, widths, m, m_inv, height, pos, shifted, half,
-                  out):
+def _width_ratios(centres, start, ends, normals, widths, fl, half, out):
     """width_ratios compiled: line k's runs are centres[start[k]:start[k + 1]] (ideal px)
-    with their ``widths``; its median ratio into out[k]."""
+    with their ``widths``; its median ratio into out[k] (``fl``: the frame's
+    crossings.Floor)."""
+    m, height, pos, shifted = fl.m, fl.height, fl.pos, fl.shifted
     n = centres.shape[0]
     floor = np.empty((n, 2))
     _to_floor(centres, m, height, pos, shifted, floor)
@@ -861,10 +861,8 @@ def _width_ratios(centres, start, ends, normals, widths, m, m_inv, height, pos, 
         nx, ny = -dy / length, dx / length
         m_ok = 0
         for i in range(start[k], start[k + 1]):
-            ax, ay = _to_ideal_at(m_inv, height, pos, floor[i, 0] - half * nx,
-                                  floor[i, 1] - half * ny)
-            bx, by = _to_ideal_at(m_inv, height, pos, floor[i, 0] + half * nx,
-                                  floor[i, 1] + half * ny)
+            ax, ay = _to_ideal_at(fl, floor[i, 0] - half * nx, floor[i, 1] - half * ny)
+            bx, by = _to_ideal_at(fl, floor[i, 0] + half * nx, floor[i, 1] + half * ny)
             expected = abs((bx - ax) * normals[k, 0] + (by - ay) * normals[k, 1])
             r = widths[i] / (expected if not expected < 1e-6 else 1e-6)  # np.maximum
             if np.isfinite(floor[i, 0]) and np.isfinite(floor[i, 1]) and np.isfinite(r):
