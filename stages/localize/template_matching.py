@@ -223,15 +223,18 @@ def descent(t: np.ndarray, q: np.ndarray, start=(0.0, 0.0, 0.0), *, tol: float =
     a = float(np.sum(q[:, 0] * t[:, 0] + q[:, 1] * t[:, 1]))
     b = float(np.sum(q[:, 0] * t[:, 1] - q[:, 1] * t[:, 0]))
     dx, dy, th = (float(v) for v in start)
-    dx, dy, th, k = _descent_rounds(float(sq[0]), float(sq[1]), float(st[0]), float(st[1]), a,
-                                    b, float(n), dx, dy, th, float(tol), int(max_steps))
+    dx, dy, th, k = _descent_rounds((float(sq[0]), float(sq[1]), float(st[0]), float(st[1]), a,
+                                     b, float(n)), (dx, dy, th), float(tol), int(max_steps))
     return np.array([dx, dy, th]), int(k)
 
 
 @njit(cache=True)
-def _descent_rounds(sq0, sq1, st0, st1, a, b, n, dx, dy, th, tol, max_steps):
+def _descent_rounds(sums, start, tol, max_steps):
     """The rounds of ``descent`` on the pairs' sums (compiled: a fit takes 100-200 rounds when
-    the pairs lie metres from the robot)."""
+    the pairs lie metres from the robot). ``sums``: (sum q_x, sum q_y, sum t_x, sum t_y,
+    sum q.t, sum q x t, n); ``start``: (dx, dy, dtheta)."""
+    sq0, sq1, st0, st1, a, b, n = sums
+    dx, dy, th = start
     for k in range(1, max_steps + 1):
         # best dtheta with (dx, dy) fixed
         dot = a - (dx * sq0 + dy * sq1)
