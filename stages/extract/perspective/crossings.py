@@ -783,7 +783,8 @@ def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.nd
 def _crossing(cand, ks, ideal, frame, deg=None):
     """One key-structure candidate -> (row, image position), or the reason it was rejected
     (``frame``: the frame's VerifyFrame, ``deg``: the key structure's node degrees)."""
-    cc, cell, white_px = frame.cc, frame.cell, frame.white_px if frame.use_white else None
+    cc, cell, sight = frame.cc, frame.cell, frame.sight
+    white_px = sight.white_px if sight.use_white else None
     centre = ideal[ks.node[cand.key]]
     if not np.isfinite(centre).all():
         return "outside the lens model"
@@ -1056,32 +1057,27 @@ class Sight(NamedTuple):
 class VerifyFrame:
     """What the checks of _verify_crossing read of a frame, made once per frame: the frame's
     camera, floor projection ``to_floor``, crossings conf ``cc`` and grid ``cell`` (px); the
-    grid's images and the lens as the kernels take them (``sight``), the floor projection
-    as they take it (``floor``), the conf's numbers (``params``, indexed by the P_ names)
-    and the circles' radii."""
+    grid's images, the white mask and the lens as the kernels take them (``sight``), the
+    floor projection as they take it (``floor``), the conf's numbers (``params``, indexed by
+    the P_ names) and the circles' radii."""
 
     def __init__(self, white, green, other_mean, top, camera, to_floor, cc, cell,
                  field_cells=None, white_px=None):
         self.camera, self.to_floor, self.cc, self.cell = camera, to_floor, cc, cell
-        self.white = np.asarray(white, np.float32)
-        self.green = np.asarray(green, np.float32)
-        self.other_mean = np.asarray(other_mean, np.float32)
-        self.top = np.ascontiguousarray(top, np.float64)
-        self.use_field = field_cells is not None
-        self.field = (np.asarray(field_cells, np.float32) if self.use_field
-                      else np.zeros((1, 1), np.float32))
-        self.use_white = white_px is not None
-        self.white_px = white_px if self.use_white else np.zeros((1, 1), np.uint8)
-        self.lens = lens_parameters(camera)
-        self.position = np.asarray(to_floor.position, np.float64)
-        self.shifted = bool(self.position.any())  # as FloorProjection adds it
+        use_field, use_white = field_cells is not None, white_px is not None
+        self.sight = Sight(np.asarray(white, np.float32), np.asarray(green, np.float32),
+                           np.asarray(other_mean, np.float32),
+                           np.ascontiguousarray(top, np.float64),
+                           np.asarray(field_cells, np.float32) if use_field else _NO_CELLS,
+                           white_px if use_white else _NO_WHITE, use_white,
+                           lens_parameters(camera))
+        self.floor = floor_bundle(to_floor)
         self.radii = np.asarray(cc["circle_radii"], np.float64)
-        self.params = verify_params(camera, cc, cell, self.use_field)
-        self.sight = Sight(self.white, self.green, self.other_mean, self.top, self.field,
-                           self.white_px, self.use_white, self.lens)
-        self.floor = Floor(to_floor.m, to_floor.m_inv, to_floor.height, self.position,
-                           self.shifted)
+        self.params = verify_params(camera, cc, cell, use_field)
 
+
+_NO_CELLS = np.zeros((1, 1), np.float32)  # a Sight without the field cells
+_NO_WHITE = np.zeros((1, 1), np.uint8)  # ... without the full-resolution white mask
 
 def verify_params(camera, cc: dict, cell: int, use_field: bool = False) -> np.ndarray:
     """The numbers the verification kernels read (P_COUNT,), indexed by the P_ names."""
@@ -1305,8 +1301,8 @@ def _verify_fine(kind, x, dirs, frame, placed):
     it is rejected."""
     dist, bearing, orient, misfit, span = placed
     cc, cell, to_floor = frame.cc, frame.cell, frame.to_floor
-    top, other_mean = frame.top, frame.other_mean
-    px = distort_ideal(frame.lens, x[None])[0]
+    top, other_mean = frame.sight.top, frame.sight.other_mean
+    px = distort_ideal(frame.sight.lens, x[None])[0]
     g = (px + 0.5) / cell - 0.5
     col = min(max(round(g[0]), 0), len(top) - 1)
     if not np.isfinite(g[1]) or g[1] < top[col]:
