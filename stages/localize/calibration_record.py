@@ -16,6 +16,22 @@ from .. import __version__
 from ..common.artifacts import atomic_path
 from ..common.errors import FieldlocError
 
+# the median absolute deviation times this is a normal distribution's standard deviation
+MAD_TO_SIGMA = 1.4826
+
+
+def cauchy_scale(residuals: np.ndarray, inside: np.ndarray, min_scale: float) -> float:
+    """The Cauchy loss's scale of a calibration's reweighting round: the residuals ``inside``
+    the gate's median absolute value as a standard deviation, at least ``min_scale``."""
+    return max(float(min_scale),
+               MAD_TO_SIGMA * float(np.median(np.abs(residuals[inside]))))
+
+
+def cauchy_weights(residuals: np.ndarray, scale: float, inside: np.ndarray) -> np.ndarray:
+    """Iteratively reweighted least squares with the Cauchy loss (Holland and Welsch 1977):
+    1 / (1 + (r / scale)^2) inside the gate, 0 outside."""
+    return np.where(inside, 1.0 / (1.0 + (residuals / scale) ** 2), 0.0)
+
 
 def track_arrays(track, symmetric: bool = False) -> dict:
     """names, x, y, theta, confidence, accepted of a PoseTrack or of its arrays. On a

@@ -66,6 +66,8 @@ import numpy as np
 from ..common.camera import OmniCamera, fit_polynomial
 from ..common.errors import FieldlocError
 from .calibration_record import (  # noqa: F401 (own_calibs: part of this module's interface)
+    cauchy_scale,
+    cauchy_weights,
     features_inputs,
     own_calibs,
     plain,
@@ -281,13 +283,13 @@ def _joint_fit(search: TableSearch, frames: list[_Frame], knots: np.ndarray, c: 
             raise FieldlocError(
                 f"only {int(inside.sum())} crossings lie within {max_res:g} m of their"
                 " predictions: the poses or the calibration are too far off")
-        scale = max(float(c["min_scale"]), 1.4826 * float(np.median(np.abs(res[inside]))))
+        scale = cauchy_scale(res, inside, c["min_scale"])
         s2 = scale * scale
         A = prior_v * s2
         b = np.zeros(K)
         pose_terms = []
         for f, (B, J, y, r) in zip(frames, lin):
-            w = np.where(np.abs(r) <= max_res, 1.0 / (1.0 + (r / scale) ** 2), 0.0)
+            w = cauchy_weights(r, scale, np.abs(r) <= max_res)
             BW = B.T * w
             JW = J.T * w
             A += BW @ B

@@ -75,6 +75,8 @@ from ..common.errors import FieldlocError
 from ..common.head_angles import head_at
 from ..common.perspective_camera import MAX_MOUNT_OFFSET, PerspectiveCamera, head_rotation
 from .calibration_record import (
+    cauchy_scale,
+    cauchy_weights,
     features_inputs,
     plain,
     record_header,
@@ -437,9 +439,9 @@ def _joint_fit(field, project: _Projector, s: _Samples, c: dict, start, iteratio
             raise FieldlocError(
                 f"only {int(inside.sum())} line samples lie within {gate:g} m of a field line:"
                 " the poses or the calibration are too far off")
-        scale = max(float(c["min_scale"]), 1.4826 * float(np.median(np.abs(r[inside]))))
+        scale = cauchy_scale(r, inside, c["min_scale"])
         s2 = scale * scale
-        w = np.where(inside, 1.0 / (1.0 + (r / scale) ** 2), 0.0)
+        w = cauchy_weights(r, scale, inside)
         # Jacobians: by the mount (forward differences of the projection; by a frame's head
         # angles the same as by the mount's), by the pose
         B = np.zeros((len(r), 3))
