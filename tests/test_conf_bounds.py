@@ -108,7 +108,7 @@ def grid(tmp_path_factory):
 
 def test_every_perspective_key_set_hostile_runs_or_is_refused_in_one_line(kid):
     cases = hostile(extract.kind_confs("perspective")["default"])
-    assert len(cases) > 400  # 113 keys
+    assert len(cases) >= 18  # 5 keys (the tuned numbers are named constants: issue 26)
 
     def run(conf):  # the frame with three crossings
         extract.extract_dataset_frame(kid, 1, conf)
@@ -116,7 +116,7 @@ def test_every_perspective_key_set_hostile_runs_or_is_refused_in_one_line(kid):
     wrong, refused = sweep(cases, lambda o: extract.resolve_extract_conf("perspective", None, o),
                            run)
     assert not wrong, wrong
-    assert refused >= 200  # of 419: zero steps, negative sizes, pairs given one number, 1e12 runs
+    assert refused >= 12  # of 18: zero steps, negative sizes, 1e12 runs
 
 
 def test_every_templates_key_set_hostile_runs_or_is_refused_in_one_line(grid):

@@ -171,7 +171,7 @@ def test_goal_post_in_front_of_its_net_is_a_post_not_a_line():
 
 
 @pytest.mark.parametrize("carpet_x", [2.2, 2.6])
-def test_the_carpets_edge_against_a_bright_floor_is_not_a_used_line(carpet_x):
+def test_the_carpets_edge_against_a_bright_floor_is_not_a_used_line(carpet_x, monkeypatch):
     """The carpet ends ``carpet_x`` m ahead at a light grey hall floor: its edge is white
     against green as a line is, but no carpet lies beyond it and the field boundary is at it
     (field_edge), so only the painted line at 1.5 m is used; without the check the edge is
@@ -184,8 +184,9 @@ def test_the_carpets_edge_against_a_bright_floor_is_not_a_used_line(carpet_x):
     img = img.astype(np.uint8)
     used = [ln[0] for ln, _ in _used_lines(perspective.extract_frame(img, CAM, CONF))]
     assert len(used) == 1 and abs(used[0] - 1.5) < 0.05, used
-    unchecked = {**CONF, "lines": {**CONF["lines"], "min_green_beyond": 0.0}}  # no edge check
-    used = [ln[0] for ln, _ in _used_lines(perspective.extract_frame(img, CAM, unchecked))]
+    # no edge check (the extractor reads its tuned constants, line_fit.LINES, on each call)
+    monkeypatch.setattr(perspective, "LINES", perspective.LINES._replace(min_green_beyond=0.0))
+    used = [ln[0] for ln, _ in _used_lines(perspective.extract_frame(img, CAM, CONF))]
     assert any(abs(d - carpet_x) < 0.2 for d in used), used
 
 
@@ -211,7 +212,7 @@ def test_field_edge_looks_across_the_line_away_from_the_robot():
     assert 0.45 < gap[0] < 0.5 and 0.0 < gap[1] < 0.05 and np.isnan(gap[2]), gap
 
 
-def test_a_line_in_a_sun_patch_with_field_beyond_stays_used():
+def test_a_line_in_a_sun_patch_with_field_beyond_stays_used(monkeypatch):
     """Carpet washed out to grey beyond a line (a sun patch from 1.55 to 2.5 m) fails the
     green test there, but the field goes on past the patch: the line is no field edge."""
     fl = _floor_of_pixels()
@@ -223,8 +224,22 @@ def test_a_line_in_a_sun_patch_with_field_beyond_stays_used():
     res = perspective.extract_frame(img, CAM, CONF)
     assert any(abs(ln[0] - 1.5) < 0.05 for ln, _ in _used_lines(res)), res["lines"]
     # by the green beyond it alone it would be the field's edge
-    green_only = {**CONF, "lines": {**CONF["lines"], "edge_gap_m": math.inf}}
-    assert not _used_lines(perspective.extract_frame(img, CAM, green_only))
+    monkeypatch.setattr(perspective, "LINES", perspective.LINES._replace(edge_gap_m=math.inf))
+    assert not _used_lines(perspective.extract_frame(img, CAM, CONF))
+
+
+def test_a_features_file_of_the_former_full_preset_can_be_resumed():
+    """A features file written when the preset held every tuned number (now named constants,
+    issue 26) stored them in its conf: resuming it ignores those keys, not the user's."""
+    from stages import extract
+
+    conf = extract.resolve_extract_conf("perspective")
+    stored = {**conf, "boundary": {"t_pix": 0.45}, "colour": {"green_model": "hue"},
+              "posts": {**conf["posts"], "min_distance": 0.7}}
+    assert extract._still_user_keys(stored, conf) == conf
+    assert extract._still_user_keys({**stored, "cell": 4}, conf) != conf
+    assert extract._still_user_keys({k: v for k, v in stored.items() if k != "cell"},
+                                    conf) != conf
 
 
 def test_result_has_the_schema_datasets_and_overlay_draws_them():

@@ -1059,8 +1059,8 @@ CASES = [
     *[Case(f"extract perspective -c {kv}", kind, ["extract", "{kid}", "-o", W + "/f.h5", "-c",
                                                    kv], 1, msg) for kv, kind, msg in (
         ("cell=0", "traceback", "conf 'cell' must be >= 1 and <= 64"),
-        ("lines.width_ratio=0", "traceback", "conf 'lines.width_ratio' must be a list of 2"),
-        ("posts.min_distance=1e-12", "hang", "conf 'posts.min_distance' must be >= 0.05"))],
+        ("colour_step=0", "traceback", "conf 'colour_step' must be >= 1 and <= 64"),
+        ("posts.post_diameter=1e12", "hang", "conf 'posts.post_diameter' must be > 0"))],
     Case("localize --method templates -c null_copies=1e12", "hang",
          ["localize", "{omni}", "--method", "templates", "--templates", W + "/t.h5", "-o",
           W + "/p.h5", "-c", "null_copies=1e12"], 1,

@@ -69,7 +69,7 @@ def _random_frame(rng, h, w):
 def test_classify_cells_equals_the_class_masks(seed, shape, local_map):
     rng = np.random.default_rng(seed)
     yuv = _random_frame(rng, *shape)
-    conf = perspective.confs["default"]["colour"]
+    conf = perspective.COLOUR
     fc = colour.estimate_field_colour(yuv, conf)
     assert fc.hue_dir is not None
     fc.hue_cos = math.cos(rng.uniform(0.2, 0.6))  # a few tolerances, bands and thresholds
@@ -91,7 +91,7 @@ def test_classify_cells_equals_the_class_masks(seed, shape, local_map):
 
 
 def test_threshold_table_equals_luminance_thresholds():
-    conf = perspective.confs["default"]["colour"]
+    conf = perspective.COLOUR
     rng = np.random.default_rng(7)
     for _ in range(50):
         y_map = rng.uniform(-5, 300, (60, 94)).astype(np.float32)
@@ -109,7 +109,7 @@ def test_threshold_table_equals_luminance_thresholds():
 def test_green_samples_equal_the_numpy_masks(seed, shape):
     rng = np.random.default_rng(seed)
     yuv = _random_frame(rng, *shape)
-    conf = perspective.confs["default"]["colour"]
+    conf = perspective.COLOUR
     fc = colour.estimate_field_colour(yuv, conf)
     assert fc.hue_dir is not None
     cell, step = fc.cell, fc.cell // 2
@@ -234,7 +234,7 @@ def test_radix_median_is_numpys_with_ties(seed):
 def test_grey_field_equals_the_numpy_and_opencv_binarisation():
     from stages.extract.perspective import field_boundary as fb
 
-    conf = perspective.confs["default"]["boundary"]
+    conf = fb.BOUNDARY
     rng = np.random.default_rng(18)
     by_window = differ = cells = 0
     for _ in range(1500):
@@ -247,16 +247,16 @@ def test_grey_field_equals_the_numpy_and_opencv_binarisation():
         wh = np.minimum(64 - g, rng.integers(0, 65, (h, w)) * (rng.random((h, w)) < 0.3))
         counts = {"green": g.astype(np.uint16), "white": wh.astype(np.uint16),
                   "other": (64 - g - wh).astype(np.uint16)}
-        grey = fb.merged_grey_image(counts, conf["weights"], 64.0)
-        ref = fb.binarize_field(grey, conf["t_pix"], conf["t_row"], conf["t_win"],
-                                conf["t_weak"])
-        got = fb.grey_field(counts, conf["weights"], 64.0, conf["t_pix"], conf["t_row"],
-                            conf["t_win"], conf["t_weak"])
+        grey = fb.merged_grey_image(counts, conf.weights, 64.0)
+        ref = fb.binarize_field(grey, conf.t_pix, conf.t_row, conf.t_win,
+                                conf.t_weak)
+        got = fb.grey_field(counts, conf.weights, 64.0, conf.t_pix, conf.t_row,
+                            conf.t_win, conf.t_weak)
         # the rows' sums (float64 accumulation here, numpy's float32 pairwise sum there)
         # may decide a row whose mean lies within float32 rounding of t_row either way
         differ += int((got != ref).sum())
         cells += got.size
-        by_window += int((ref & (grey < conf["t_pix"])).sum())
+        by_window += int((ref & (grey < conf.t_pix)).sum())
     assert by_window > 1000  # weak cells taken by their row or window
     assert differ <= 1e-4 * cells
 
@@ -579,9 +579,7 @@ def test_kept_flat_lists_equal_the_sets(seed):
               np.round(x0 + t * (x1 - x0)).astype(int) % 60] = 1.0
     white[rng.integers(0, 40, 30), rng.integers(0, 60, 30)] = 0.5
     _, lp, ranked = ls.skeleton_grid(white, np.zeros(60), 0, 0.04, True)
-    conf = {"min_white": 0.04, "max_gap": 6.0, "gap_max_angle": math.radians(30.0),
-            "gap_min_grey_ratio": 0.25, "close_gap": 4.0}
-    graph, _, _ = ls.line_structure_graph(lp, conf, ranked)
+    graph, _, _ = ls.line_structure_graph(lp, ls.SKELETON, ranked)
     assert graph.lists is not None
     _same_lists(graph.lists, graph.adj)
 
@@ -1080,7 +1078,7 @@ def test_placed_crossings_lie_where_the_white_lines_meet(seed):
 
     rng = np.random.default_rng(seed)
     cell = 8
-    cc = {**perspective.confs["default"]["crossings"]}
+    cc = cr.CROSSINGS
 
     class Camera:  # what lens_parameters reads: no distortion, ideal = image pixels
         fx, fy, cx, cy = 330.0, 330.0, 375.5, 239.5
@@ -1117,7 +1115,7 @@ def test_placed_crossings_lie_where_the_white_lines_meet(seed):
             if white_px is not None:
                 want = np.array([[math.cos(a), math.sin(a)] for a in angles])
                 assert np.all(np.sum(dirs * want, axis=1) >= math.cos(math.radians(6)))
-            assert np.all(lengths >= cc["arm_step"] * cell)
+            assert np.all(lengths >= cc.arm_step * cell)
     assert placed >= 110 and rejected == {"arm without nodes"}
 
 

@@ -115,9 +115,19 @@ def _check_resumable(output: Path, attrs: dict):
             raise FieldlocError(
                 f"{output} was extracted with another {k.replace('_', ' ')} ({v});"
                 " use --overwrite to extract again")
-    if old_conf != json.loads(attrs["conf"]):
+    conf = json.loads(attrs["conf"])
+    if _still_user_keys(old_conf, conf) != conf:
         raise FieldlocError(
             f"{output} was extracted with another conf; use --overwrite to extract again")
+
+
+def _still_user_keys(stored, conf):
+    """The part of a ``stored`` conf whose keys ``conf`` still holds, group by group: a file
+    written before some keys became tuned constants of their extractor (issue 26) stored
+    those too, at the values the constants now have unless the user had changed them."""
+    if not isinstance(stored, dict) or not isinstance(conf, dict):
+        return stored
+    return {k: _still_user_keys(v, conf[k]) for k, v in stored.items() if k in conf}
 
 
 def _run_attrs(ds, camera, module, conf: dict):

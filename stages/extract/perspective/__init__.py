@@ -24,6 +24,7 @@ from __future__ import annotations
 import copy
 import functools
 import math
+from types import MappingProxyType
 
 import cv2
 import numpy as np
@@ -32,12 +33,14 @@ from numba import njit
 from ...common import colour
 from ...common.errors import DatasetError, FieldlocError
 from ...common.geometry import polar
-from .crossings import find_crossings, floor_at, floor_bundle
-from .field_boundary import DEFAULT_WEIGHTS, boundary_polyline
+from .crossings import CROSSINGS, find_crossings, floor_at, floor_bundle
+from .field_boundary import BOUNDARY, boundary_polyline
 from .field_boundary import field_boundary as find_boundary
+from .goal_posts import POSTS, is_post_bar
 from .goal_posts import goal_posts as find_posts
-from .goal_posts import is_post_bar
 from .line_fit import (
+    LINES,
+    LinesTuning,
     RefinedLine,
     distort_ideal,
     distort_point,
@@ -50,264 +53,73 @@ from .line_fit import (
     split_and_merge,
 )
 from .line_structure import (
+    KEY,
+    SKELETON,
     bilinear_at,
     key_structure,
     line_structure_graph,
     skeleton_grid,
 )
 
+# the colour classes (stages.common.colour, whose defaults the omni extractor shares) with
+# what the perspective cameras' frames need (tuned on the HULKs NAO frames, docs/manual.md
+# "Perspective extraction on real frames"); read only, the colour functions take it as a conf
+COLOUR = MappingProxyType({
+    **copy.deepcopy(colour.confs["default"]),
+    # green candidates need chroma >= this share of their luminance: lit white walls and grey
+    # hall floors hold only a faint tint (saturation < 0.05 on the HULKs frames), carpet green
+    # 0.2-0.6
+    "green_min_saturation": 0.15,
+    # green by hue and saturation around the frame's field green (colour.py): real carpet seen
+    # near and far keeps its hue (+-8..15 deg on the HULKs frames) but its saturation spans a
+    # factor 2.2..2.6 (p5..p95)
+    "green_model": "hue",
+    "green_hue_tolerance_deg": 15.0,
+    "green_hue_k": 3.0,
+    "green_saturation": [0.4, 2.5]})
+
+# What the user chooses; the steps' tuned numbers are named constants beside their code:
+# COLOUR here, field_boundary.BOUNDARY, goal_posts.POSTS, line_structure.SKELETON and KEY,
+# crossings.CROSSINGS, line_fit.LINES.
 confs = {
     "default": {
-        "cell": 8,  # px per subsampled cell (the paper's 94 x 60 grid for 752 x 480)
-        "colour": {**copy.deepcopy(colour.confs["default"]),
-                   # green candidates need chroma >= this share of their luminance: lit white
-                   # walls and grey hall floors hold only a faint tint (saturation < 0.05 on
-                   # the HULKs frames), carpet green 0.2-0.6
-                   "green_min_saturation": 0.15,
-                   # green by hue and saturation around the frame's field green (colour.py):
-                   # real carpet seen near and far keeps its hue (+-8..15 deg on the HULKs
-                   # frames) but its saturation spans a factor 2.2..2.6 (p5..p95)
-                   "green_model": "hue",
-                   "green_hue_tolerance_deg": 15.0,
-                   "green_hue_k": 3.0,
-                   "green_saturation": [0.4, 2.5]},
+        # px per subsampled cell (the paper's 94 x 60 grid for 752 x 480): finer is slower
+        "cell": 8,
         # classify every colour_step-th pixel of every colour_step-th row (1: all 64 pixels of
-        # a cell, as the paper; 2: 16 per cell, counts scaled, see colour.classify_grid)
+        # a cell, as the paper; 2: 16 per cell, counts scaled, see colour.classify_grid):
+        # faster, coarser colour counts
         "colour_step": 1,
         # unreliable corners of the wide-angle lens: cells farther from the image centre than
-        # this share of the half diagonal lose their white (the boundary scan keeps them)
+        # this share of the half diagonal lose their white (the boundary scan keeps them);
+        # 1 or more: a lens whose corners are sharp keeps them
         "corner_radius": 0.95,
-        "boundary": {
-            "weights": dict(DEFAULT_WEIGHTS),
-            "t_pix": 0.45,  # a cell this green (grey level, 1 = all green) is field
-            "t_row": 0.6,  # mean grey of the row and the row above for weak cells
-            "t_win": 0.75,  # mean grey of the 8 x 4 window below for weak cells
-            "t_weak": 0.2,  # weak cells below this are never field
-            "max_gap": 4,  # scan stops after more than this many non-field cells
-            # the scan starts at each column's lowest field cell (the robot's own body and
-            # feet cover the bottom of a NAO's lower camera)
-            "from_lowest": True,
-            # white runs between field cells of a row or column, up to line_run cells, are
-            # lines on the field (a near line along the view is many cells tall)
-            "line_white": 0.3,
-            "line_run": 10,
-            "gauss_sigma": 0.7,  # bins
-            "median_size": 5,  # bins
-        },
+        # the field's goal posts
         "posts": {
-            "t_white": 0.2,  # white share of a cell of a post
-            "min_rise": 3,  # cells of white above the boundary
-            "max_rise": 30,
-            "max_below": 30,
-            "max_width": 4,  # cells (goal_posts' default; the extractor uses min_distance)
-            "min_distance": 0.7,  # m: posts nearer than this (wider in the image) are not sought
-            "full_height": 12,  # cells of bar at which the confidence is 1
-            "post_diameter": 0.1,  # m (KidSize goal posts)
-            "min_height": 0.4,  # m of white bar at least (of a post about 1.2 m high)
-            "width_ratio": [0.4, 2.5],  # measured / expected width in the image
-            "max_distance": 7.0,  # m
-            # a white segment inside the boundary is a post's bar, not a line, when it runs
-            # straight away from the robot on the floor (perpendicular distance below
-            # bar_radial m), starts at least bar_min_distance m away, reaches the boundary
-            # (within bar_touch cells) and keeps bar_width_ratio of a post's width (see
-            # is_post_bar)
-            "bar_radial": 0.15,
-            "bar_min_distance": 0.8,
-            "bar_touch": 3.5,
-            "bar_width_ratio": 0.6,
-            "bar_confidence": 0.5,
-        },
-        "skeleton": {
-            "boundary_margin": 1,  # cells below the boundary left out
-            "min_white": 0.04,  # low-passed white share below which a cell is background
-            "max_gap": 6.0,  # cells, gap filling
-            "gap_max_angle": math.radians(30.0),  # rad between a line's direction and the gap
-            "gap_min_grey_ratio": 0.25,  # grey along the gap relative to the nodes'
-            "close_gap": 4.0,  # cells: two line ends this close join whatever their direction
-        },
-        "key": {
-            "min_spur_length": 2.5,  # cells: shorter lines ending in a junction are removed
-            "smooth_iterations": 2,
-            "corner_reach": 3.0,  # cells: arm length for the turning angle
-            "corner_min_turn": math.radians(25.0),  # rad: lower turning is low curvature
-            # the same on the floor (used where the nodes project to the floor): an L turns by
-            # 90 deg there, the centre circle by about 40 deg over 3 cells at 2 m
-            "corner_min_turn_floor": math.radians(45.0),
-            "corner_min_turn_image": math.radians(10.0),  # ... where the image turns this
-            "floor_angles": True,  # corners and L angles measured on the floor
-            "merge_distance": 3.0,  # cells: connected junctions closer than this merge
-            "max_ring": 10.0,  # cells: shorter rings hanging at a node are removed
-        },
-        "crossings": {
-            "arm_reach": 4.0,  # cells along each arm checked for a white path
-            "arm_skip": 1,  # nodes next to the crossing not fitted to its arm (they bend)
-            "arm_nodes": 4,  # nodes fitted per arm
-            "arm_step": 2.0,  # cells: arm points projected to the floor for the arm angles
-            "max_shift": 8.0,  # cells from the key node to the arms' intersection
-            "l_angle": [math.radians(25.0), math.radians(155.0)],  # rad, image angle of L arms
-            "l_angle_floor": [math.radians(45.0), math.radians(135.0)],  # rad, on the floor
-            "circle_radii": [2.5, 3.5, 5.0, 7.0],  # cells (wide near lines need the larger)
-            "arm_gap": 3.0,  # cells between neighbouring arms on an extra, larger circle
-            "max_radius": 8.0,  # cells, of that circle
-            "t_white": 0.02,  # white share on the circle and the paths, at least
-            "relative": 0.35,  # ... and this share of the arms' median white level
-            "t_green": 0.3,
-            "max_other": 0.2,  # share of the circle neither white nor green (an object)
-            # cells: no object this near: a 3 x 3-cell window mostly (> 0.5) of other colours
-            # (a line's blurred edge makes up to half of a cell "other", not a whole window)
-            "object_radius": 2,
-            "edge_margin": 1.5,  # cells: crossings closer to the field boundary (within two
-            # columns) are rejected
-            "min_path_share": 0.7,
-            "max_misfit": math.radians(30.0),  # rad: floor angle misfit from the L/T/X shape
-            # arms refined on the full-resolution white mask from refine_skip cells off the
-            # crossing (see lines.refine_*)
-            "refine": True,
-            "refine_skip": 1.0,
-            "refine_step": 3.0,
-            "refine_reach": 2.0,
-            "refine_min_points": 3,
-            # an arm shorter than min_arm_length by its fitted nodes or line is grown along
-            # the white line on the full-resolution mask (crossings._floor_checks): by
-            # at most arm_grow cells, while the white run's centre stays within
-            # arm_tolerance px of the arm's line
-            "arm_grow": 12.0,
-            "arm_tolerance": 3.0,
-            # crossings of pairs of fitted lines (crossings.line_pair_crossings): lines meeting
-            # at most pair_gap cells (plus the other line's width) beyond an end
-            "line_pairs": True,
-            "pair_gap": 1.5,
-            "merge_distance": 2.0,  # cells: of verified crossings closer, the best one stays
-            # m of line along each arm at least (a penalty mark next to a line is no corner)
-            "min_arm_length": 0.12,
-            "post_radius": 2.0,  # cells around a goal post's foot without crossings
-            # m of floor range one grid cell spans at the crossing, at most: about 0.2 m at
-            # 2 m for the KidSize camera (0.55 m high, 330 px focal length), at 2.7 m for the
-            # NAO's (0.47 m, 608 px); on rendered walks farther crossings were mostly
-            # misplaced or of the wrong type
-            "max_cell_span": 0.25,
-            # ... and farther, where one profile step (refine_step px) spans no more, checked
-            # on the full-resolution white mask (crossings._verify_fine: the arms' opposites
-            # white, green or unknown from one line width to min_arm_length m beyond the
-            # crossing); False: rejected as too far
-            "fine": True,
-            "fine_px": 3.0,  # px of white (or green) at least on which an arm is judged
-            # (white along an arm is a line's when its runs' median width over a painted
-            # line's lies in lines.width_ratio, lines.line_width m wide: the lines' own test)
-            # short lines leaving a fitted line's end at a right angle, found on the
-            # full-resolution white mask (crossings.stem_lines) where a cell spans more than
-            # stem_min_span m of floor along them
-            "stems": True,
-            "stem_min_span": 0.0,
-        },
-        "lines": {
-            "split_distance": 7.0,  # undistorted px
-            "min_nodes": 3,  # smaller parts are discarded
-            "min_used_nodes": 4,  # shorter lines (a ball, a robot's white part) are not used
-            "merge_angle": math.radians(4.0),  # rad
-            "merge_offset": 7.0,  # undistorted px
-            "min_length": 0.3,  # m, shorter lines are not used
-            "max_distance": 6.0,  # m, lines whose perpendicular is longer are not used
-            "full_nodes": 8,  # nodes at which a line's confidence is 1
-            # refinement on the full-resolution white mask (line_fit.refine_segment):
-            # profiles across the segment every refine_step px, refine_reach cells to each
-            # side, from refine_extend cells before to after its ends
-            "refine": True,
-            "refine_step": 4.0,
-            "refine_reach": 2.0,
-            "refine_extend": 0.5,
-            "refine_min_points": 4,
-            "refine_grow": 4.0,  # cells the ends may grow along the refined line
-            # the white runs' median width over a painted line's (line_width m) at their
-            # floor positions: a seam or cable is thinner, a robot's leg or a post wider
-            "line_width": 0.05,
-            "width_ratio": [0.4, 2.5],
-            # the field's edge against a bright hall floor is white against green as a line
-            # is; it is no line where no carpet lies beyond it (the cells green_beyond_m
-            # across it, away from the robot, hold on average less green than
-            # min_green_beyond, the boundary's t_weak: never field) and the field boundary
-            # ends less than edge_gap_m beyond it (a line's carpet goes on beyond, the SPL's
-            # border strip 0.7 m past its outer lines; a sun patch washes the carpet beyond a
-            # line out of the green class, but the field goes on past the patch). On the
-            # HULKs frames this drops 14 of the 60 false used lines and 1 of the 520 others;
-            # green alone dropped 18 and 6, and on rendered NAO walks 59 of 264 true lines
-            # (7 with the boundary's gap)
-            "green_beyond_m": 0.15,
-            "min_green_beyond": 0.2,
-            "edge_gap_m": 1.0,
+            "post_diameter": 0.1,  # m (KidSize goal posts; the MSL's are 0.125 m)
+            "max_distance": 7.0,  # m: farther posts are not reported
         },
     },
 }
 
 # the ranges the extractor's numeric keys must lie in (common.conf.check_bounds, checked when
 # the conf is resolved, before any frame). Found by fuzzing every key with 0, -1, 1e12 and
-# 1e-12: a cell or step of 0 divides by zero, -1 gives negative array sizes, a
-# pair given one number unpacks into nothing, and counts, sizes or distances of 1e12 (or a
-# profile step of 1e-12 px) ran out of memory or for hours. The upper bounds lie far beyond
-# anything a frame can use (any value above them means "everything" already):
-SHARE = (0, 1)  # shares of a cell's pixels, grey levels, confidences
-ANGLE = (0, math.pi)  # rad, angles between directions
-MAX_CELLS = 1000.0  # cells, distances and runs on the grid (94 x 60 cells at 752 x 480, 8 px)
-MAX_PX = 1000.0  # px, full-resolution profile steps and widths
+# 1e-12: a cell or step of 0 divides by zero, sizes or distances of 1e12 ran out of memory or
+# for hours (the widest post sought, fx * post_diameter / POSTS.min_distance px, is the
+# window of the post search). The upper bounds lie far beyond anything a frame can use:
 MAX_M = 100.0  # m on the floor: farther than any field and its surroundings
-MAX_COUNT = 1000  # nodes, points, iterations per line or crossing
 BOUNDS = {
     "cell": (1, 64), "colour_step": (1, 64), "corner_radius": (0, None),
-    **{f"colour.{k}": b for k, b in {**colour.BOUNDS, **colour.OPTIONAL_BOUNDS}.items()},
-    **{f"boundary.weights.{k}": (-1.0, 1.0) for k in DEFAULT_WEIGHTS},
-    **{f"boundary.{k}": SHARE for k in ("t_pix", "t_row", "t_win", "t_weak", "line_white")},
-    "boundary.max_gap": (0, MAX_CELLS), "boundary.line_run": (0, MAX_CELLS),
-    "boundary.gauss_sigma": (0, MAX_CELLS), "boundary.median_size": (0, MAX_CELLS),
-    "posts.t_white": SHARE, "posts.min_rise": (0, MAX_CELLS), "posts.max_rise": (0, MAX_CELLS),
-    "posts.max_below": (0, MAX_CELLS), "posts.max_width": (1, MAX_CELLS),
-    # the widest post sought, fx * post_diameter / min_distance px, is the window of the post
-    # search: a post nearer than 5 cm would stand inside the robot, posts are thinner than 1 m
-    "posts.min_distance": (0.05, MAX_M), "posts.post_diameter": ((0,), 1.0),
-    "posts.full_height": ((0,), MAX_CELLS), "posts.min_height": (0, MAX_M),
-    "posts.width_ratio": (0, None, 2), "posts.max_distance": (0, MAX_M),
-    "posts.bar_radial": (0, MAX_M), "posts.bar_min_distance": (0, MAX_M),
-    "posts.bar_touch": (0, MAX_CELLS), "posts.bar_width_ratio": (0, None),
-    "posts.bar_confidence": SHARE,
-    "skeleton.boundary_margin": (0, MAX_CELLS), "skeleton.min_white": SHARE,
-    "skeleton.max_gap": (0, MAX_CELLS), "skeleton.gap_max_angle": ANGLE,
-    "skeleton.gap_min_grey_ratio": (0, None), "skeleton.close_gap": (0, MAX_CELLS),
-    "key.min_spur_length": (0, MAX_CELLS), "key.smooth_iterations": (0, MAX_COUNT),
-    "key.corner_reach": ((0,), MAX_CELLS), "key.corner_min_turn": ANGLE,
-    "key.corner_min_turn_floor": ANGLE, "key.corner_min_turn_image": ANGLE,
-    "key.merge_distance": (0, MAX_CELLS), "key.max_ring": (0, MAX_CELLS),
-    **{f"crossings.{k}": (0, MAX_CELLS) for k in (
-        "arm_reach", "arm_step", "max_shift", "arm_gap", "max_radius", "object_radius",
-        "edge_margin", "refine_skip", "refine_reach", "arm_grow", "pair_gap", "merge_distance",
-        "post_radius")},
-    "crossings.arm_skip": (0, MAX_COUNT), "crossings.arm_nodes": (1, MAX_COUNT),
-    "crossings.l_angle": (*ANGLE, 2), "crossings.l_angle_floor": (*ANGLE, 2),
-    "crossings.circle_radii": ((0,), MAX_CELLS, (1, None)),
-    **{f"crossings.{k}": SHARE for k in ("t_white", "t_green", "max_other", "min_path_share")},
-    "crossings.relative": (0, None), "crossings.max_misfit": ANGLE,
-    # profiles across a line every refine_step px: below half a pixel they repeat samples
-    "crossings.refine_step": (0.5, MAX_PX), "crossings.refine_min_points": (1, MAX_COUNT),
-    "crossings.arm_tolerance": (0, MAX_PX), "crossings.min_arm_length": (0, MAX_M),
-    "crossings.max_cell_span": ((0,), MAX_M), "crossings.fine_px": (0, MAX_PX),
-    "crossings.stem_min_span": (0, MAX_M),
-    "lines.split_distance": ((0,), MAX_PX), "lines.min_nodes": (1, MAX_COUNT),
-    "lines.min_used_nodes": (0, MAX_COUNT), "lines.merge_angle": ANGLE,
-    "lines.merge_offset": (0, MAX_PX), "lines.min_length": (0, MAX_M),
-    "lines.max_distance": (0, MAX_M), "lines.full_nodes": (1, MAX_COUNT),
-    "lines.refine_step": (0.5, MAX_PX), "lines.refine_reach": (0, MAX_CELLS),
-    # a refined line is fitted to its profiles' points: two at least
-    "lines.refine_extend": (0, MAX_CELLS), "lines.refine_min_points": (2, MAX_COUNT),
-    "lines.refine_grow": (0, MAX_CELLS), "lines.line_width": ((0,), 1.0),
-    "lines.width_ratio": (0, None, 2), "lines.green_beyond_m": (0, MAX_M),
-    "lines.min_green_beyond": SHARE, "lines.edge_gap_m": (0, MAX_M),
+    # posts are thinner than 1 m
+    "posts.post_diameter": ((0,), 1.0), "posts.max_distance": (0, MAX_M),
 }
 
 
 def check_conf(conf: dict) -> None:
     """What BOUNDS does not say (FieldlocError): the colour step subsamples whole cells."""
-    step, cell, local = conf["colour_step"], conf["cell"], conf["colour"]["local_cell"]
+    step, cell, local = conf["colour_step"], conf["cell"], COLOUR["local_cell"]
     if step > 1 and (cell % step or local % step):
         raise FieldlocError(f"conf 'colour_step' must divide the cell ({cell} px) and the local"
-                            f" green cell (colour.local_cell, {local} px), got {step}")
+                            f" green cell (COLOUR's local_cell, {local} px), got {step}")
 
 
 def delete_unreliable_corners(counts: np.ndarray, radius_share: float) -> np.ndarray:
@@ -502,11 +314,11 @@ def colour_shares(image_bgr: np.ndarray, conf: dict, camera=None, pitch=None, ro
         white_px[image_bgr.shape[0] // cell * cell:] = 0
     if step == 1:  # the compiled pass (the hue model of the green test)
         yuv = colour.to_yuv(image_bgr)
-        fc = colour.estimate_field_colour(yuv, conf["colour"], floor)
-        counts = colour.classify_cells(yuv, fc, conf["colour"], cell, white_px)
+        fc = colour.estimate_field_colour(yuv, COLOUR, floor)
+        counts = colour.classify_cells(yuv, fc, COLOUR, cell, white_px)
     if counts is None:
         white_bool = None if white_px is None else white_px.view(bool)
-        counts, _ = colour.classify_grid(image_bgr, conf["colour"], None, cell, step,
+        counts, _ = colour.classify_grid(image_bgr, COLOUR, None, cell, step,
                                          green_from=floor, white_out=white_bool)
     out = {name: counts[..., i] for i, name in enumerate(colour.CLASS_NAMES)}
     if white_px is not None:
@@ -550,21 +362,21 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
     green = counts["green"].astype(np.float32) / area
 
     # 2. field boundary
-    top, field = find_boundary(counts, conf["boundary"], area)
+    top, field = find_boundary(counts, BOUNDARY, area)
     boundary = boundary_polyline(top, cell)
 
     # 3. goal posts rising above the boundary
-    pc = conf["posts"]
+    pc, diameter = POSTS, conf["posts"]["post_diameter"]
     # a post's width in cells at the nearest distance it is looked for
-    max_width = int(math.ceil(camera.fx * pc["post_diameter"] / pc["min_distance"] / cell)) + 1
+    max_width = int(math.ceil(camera.fx * diameter / pc.min_distance / cell)) + 1
     feet_px, heights, widths, groups, foot_rows = find_posts(white, top, pc, cell, max_width)
 
     # 4. line structure graph (a post's lower part becomes a segment there: is_post_bar tells
     # it from a line, and crossings at a post's foot are not taken)
-    sc = conf["skeleton"]
+    sc = SKELETON
     # (the white shares are counts over the cell's area: exact binary fractions when the
     # cell is a power of two, and the compiled low-pass is then OpenCV's to the bit)
-    inside, lp, ranked = skeleton_grid(white, top, sc["boundary_margin"], sc["min_white"],
+    inside, lp, ranked = skeleton_grid(white, top, sc.boundary_margin, sc.min_white,
                                        cell & (cell - 1) == 0 and cell <= 8)
     graph, skeleton, _ = line_structure_graph(lp, sc, ranked)
 
@@ -575,8 +387,8 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
     def floor_of(grid_pos):
         return to_floor(undistort(grid_to_pixels(grid_pos, cell)))
 
-    floor_angles = conf["key"]["floor_angles"]
-    ks = key_structure(graph, conf["key"], floor_of if floor_angles else None)
+    floor_angles = KEY.floor_angles
+    ks = key_structure(graph, KEY, floor_of if floor_angles else None)
     node_px = grid_to_pixels(graph.pos, cell)
     ideal = undistort(node_px) if len(node_px) else node_px.reshape(-1, 2)
     other = counts["other"].astype(np.float32) / area
@@ -585,8 +397,8 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
         boundary_range = np.hypot(*to_floor(undistort(boundary)).T)
     boundary_range[~np.isfinite(boundary_range)] = np.inf
     lines, line_ends, line_ends_px, bar_posts, bar_posts_px, lines_ideal, line_widths = \
-        find_lines(graph, ideal, camera, to_floor, conf["lines"], top, white, green,
-                   boundary_range, cell, pc, trace, counts.get("white_px"))
+        find_lines(graph, ideal, camera, to_floor, LINES, top, white, green,
+                   boundary_range, cell, diameter, trace, counts.get("white_px"))
     # 6b. goal post feet on the floor (before the crossings: a post's foot on a line is no
     # crossing)
     posts, posts_px = [], []
@@ -598,13 +410,13 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
             d, b = polar(f[None])
             # the bar's width must fit a post of the conf's diameter at that distance, and it
             # must be as tall as a post's visible part at least (white socks are not)
-            expected = camera.fx * pc["post_diameter"] / max(d[0], 1e-6)
-            if d[0] > pc["max_distance"] or not (
-                    pc["width_ratio"][0] <= wid / expected <= pc["width_ratio"][1]):
+            expected = camera.fx * diameter / max(d[0], 1e-6)
+            if d[0] > conf["posts"]["max_distance"] or not (
+                    pc.width_ratio[0] <= wid / expected <= pc.width_ratio[1]):
                 continue
-            if hgt * cell < camera.fx * pc["min_height"] / d[0]:
+            if hgt * cell < camera.fx * pc.min_height / d[0]:
                 continue
-            posts.append([d[0], b[0], min(1.0, hgt / pc["full_height"])])
+            posts.append([d[0], b[0], min(1.0, hgt / pc.full_height)])
             posts_px.append(px)
     # bars standing on the field inside the boundary, unless already found above it
     for row, px in zip(bar_posts, bar_posts_px):
@@ -612,11 +424,8 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
             posts.append(row)
             posts_px.append(px)
 
-    # the crossings' arms are white as lines are: the lines' painted width and width test
-    lc = conf["lines"]
-    cc = {**conf["crossings"], "line_width": lc["line_width"], "width_ratio": lc["width_ratio"]}
     crossings, crossings_px = find_crossings(ks, graph, ideal, inside, green, other, top, camera,
-                                             to_floor, cc, cell, trace,
+                                             to_floor, CROSSINGS, cell, trace,
                                              counts.get("white_px"),
                                              floor_of if floor_angles else None,
                                              np.asarray(lines_ideal, float).reshape(-1, 2, 2),
@@ -641,10 +450,10 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
     }
 
 
-def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: dict,
+def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: LinesTuning,
                top: np.ndarray, white: np.ndarray, green: np.ndarray,
-               boundary_range: np.ndarray, cell: int, pc: dict, trace: dict | None = None,
-               white_px: np.ndarray | None = None):
+               boundary_range: np.ndarray, cell: int, post_diameter: float,
+               trace: dict | None = None, white_px: np.ndarray | None = None):
     """Section 4.2: split-and-merge lines on the undistorted node coordinates, end points
     projected on the fits, then onto the floor. A line is used for localisation (confidence
     > 0) when it is long enough, near enough, and not the field's edge (``field_edge``, from
@@ -653,7 +462,7 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
 
     A segment that is a vertical bar standing on the floor (``is_post_bar``) is no field line:
     it is returned as a goal post instead (the goal's net lets the field boundary climb behind
-    the posts, so they do not always rise above it).
+    the posts, so they do not always rise above it; ``post_diameter`` m wide).
 
     Returns line rows [perpendicular distance, its angle, length, confidence], floor end
     points (L, 4), image end points (L, 4), post rows [distance, bearing, confidence] with
@@ -665,12 +474,12 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
         return lines, ends_m, ends_px, posts, posts_px, ends_ideal, widths
     refined = [None] * len(segments)
     lens = lens_parameters(camera)
-    if white_px is not None and lc.get("refine", True):
+    if white_px is not None and lc.refine:
         refined = refine_segments(np.stack([seg.ends for seg in segments]), white_px, lens,
-                                  lc["refine_step"], lc["refine_reach"] * cell,
-                                  lc["refine_extend"] * cell, lc["refine_min_points"],
-                                  lc["refine_grow"] * cell)
-    ratios = width_ratios([r for r in refined if r is not None], to_floor, lc["line_width"])
+                                  lc.refine_step, lc.refine_reach * cell,
+                                  lc.refine_extend * cell, lc.refine_min_points,
+                                  lc.refine_grow * cell)
+    ratios = width_ratios([r for r in refined if r is not None], to_floor, lc.line_width)
     ends = np.concatenate([seg.ends if r is None else r.ends for seg, r in
                            zip(segments, refined)])
     all_px = distort_ideal(lens, ends).reshape(-1, 2, 2)
@@ -682,8 +491,8 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
     nearest = all_ranges.min(axis=1).tolist()
     on_floor = np.isfinite(all_floor).all(axis=(1, 2)).tolist()
     beyond, gap = field_edge(all_floor, to_floor, lens, green, boundary_range, cell,
-                             lc["green_beyond_m"])
-    edge = ((beyond < lc["min_green_beyond"]) & (gap < lc["edge_gap_m"])).tolist()  # NaN: no
+                             lc.green_beyond_m)
+    edge = ((beyond < lc.min_green_beyond) & (gap < lc.edge_gap_m)).tolist()  # NaN: no
     ends = ends.reshape(-1, 2, 2)
     kept = []  # the lines' indices
     for i, (seg, ref, (dist, angle, length), near, finite, at_edge) in enumerate(zip(
@@ -692,34 +501,35 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
         if not finite:
             # reaching above the horizon: no field line, but maybe a post (its foot on the
             # floor, the part below the horizon runs away from the robot)
-            clipped = _below_horizon_part(ends[i], to_floor, lc["max_distance"])
+            clipped = _below_horizon_part(ends[i], to_floor, lc.max_distance)
             if clipped is None:
                 continue
             e_floor = to_floor(clipped)
             dist, _, _ = floor_line_parameters(e_floor[0], e_floor[1])
             ranges = np.hypot(*e_floor.T)
-            if is_post_bar(dist, float(ranges.min()), e_px, top, white, camera.fx, cell, pc):
+            if is_post_bar(dist, float(ranges.min()), e_px, top, white, camera.fx, cell, POSTS,
+                           post_diameter):
                 k = int(np.argmin(ranges))
                 posts.append([float(ranges[k]), math.atan2(e_floor[k, 1], e_floor[k, 0]),
-                              pc["bar_confidence"]])
+                              POSTS.bar_confidence])
                 posts_px.append(camera.distort_points(clipped[k:k + 1])[0])
             continue
-        if is_post_bar(dist, near, e_px, top, white, camera.fx, cell, pc):
+        if is_post_bar(dist, near, e_px, top, white, camera.fx, cell, POSTS, post_diameter):
             k = int(np.argmin(all_ranges[i]))
             e_floor = all_floor[i]
-            posts.append([near, math.atan2(e_floor[k, 1], e_floor[k, 0]), pc["bar_confidence"]])
+            posts.append([near, math.atan2(e_floor[k, 1], e_floor[k, 0]), POSTS.bar_confidence])
             posts_px.append(e_px[k])
             continue
         if ref is not None:
             ratio = ratios[id(ref)]
-            if not (lc["width_ratio"][0] <= ratio <= lc["width_ratio"][1]):
+            if not (lc.width_ratio[0] <= ratio <= lc.width_ratio[1]):
                 continue  # a seam, a cable, a robot's leg: not of a field line's width
         rms = seg.fit.rms if ref is None else ref.fit.rms
-        used = length >= lc["min_length"] and dist <= lc["max_distance"] \
-            and near <= lc["max_distance"] and len(seg.nodes) >= lc["min_used_nodes"] \
+        used = length >= lc.min_length and dist <= lc.max_distance \
+            and near <= lc.max_distance and len(seg.nodes) >= lc.min_used_nodes \
             and not at_edge
-        confidence = (min(1.0, len(seg.nodes) / lc["full_nodes"])
-                      * max(0.0, 1.0 - rms / lc["split_distance"])) if used else 0.0
+        confidence = (min(1.0, len(seg.nodes) / lc.full_nodes)
+                      * max(0.0, 1.0 - rms / lc.split_distance)) if used else 0.0
         lines.append([dist, angle, length, confidence])
         kept.append(i)
         widths.append(float(cell) if ref is None else float(median(ref.widths)))

@@ -38,6 +38,7 @@ from stages.common.features_file import CROSSING_CODES
 from stages.common.field import crossing_orientation
 
 from .line_fit import (
+    LINES,
     _fit_points,
     distort_ideal,
     distort_point,
@@ -46,6 +47,86 @@ from .line_fit import (
     refine_kernel,
 )
 from .line_structure import KeyStructure, LineGraph, bilinear_at, flat_lists
+
+
+class CrossingsTuning(NamedTuple):
+    """The numbers of the crossings (``find_crossings`` and the checks it runs), in grid cells
+    unless said otherwise; tuned on the rendered KidSize and NAO frames and the HULKs NAO
+    frames (docs/manual.md "Perspective extraction on real frames")."""
+
+    arm_reach: float  # cells along each arm checked for a white path
+    arm_skip: int  # nodes next to the crossing not fitted to its arm (they bend)
+    arm_nodes: int  # nodes fitted per arm
+    arm_step: float  # cells: arm points projected to the floor for the arm angles
+    max_shift: float  # cells from the key node to the arms' intersection
+    l_angle: tuple[float, float]  # rad, image angle of L arms
+    l_angle_floor: tuple[float, float]  # rad, on the floor
+    circle_radii: tuple[float, ...]  # cells (wide near lines need the larger)
+    arm_gap: float  # cells between neighbouring arms on an extra, larger circle
+    max_radius: float  # cells, of that circle
+    t_white: float  # white share on the circle and the paths, at least
+    relative: float  # ... and this share of the arms' median white level
+    t_green: float
+    max_other: float  # share of the circle neither white nor green (an object)
+    # cells: no object this near: a 3 x 3-cell window mostly (> 0.5) of other colours (a
+    # line's blurred edge makes up to half of a cell "other", not a whole window)
+    object_radius: int
+    # cells: crossings closer to the field boundary (within two columns) are rejected
+    edge_margin: float
+    min_path_share: float
+    max_misfit: float  # rad: floor angle misfit from the L/T/X shape
+    # arms refined on the full-resolution white mask from refine_skip cells off the crossing
+    # (see LINES.refine_*)
+    refine: bool
+    refine_skip: float
+    refine_step: float
+    refine_reach: float
+    refine_min_points: int
+    # an arm shorter than min_arm_length by its fitted nodes or line is grown along the white
+    # line on the full-resolution mask (crossings._floor_checks): by at most arm_grow cells,
+    # while the white run's centre stays within arm_tolerance px of the arm's line
+    arm_grow: float
+    arm_tolerance: float
+    # crossings of pairs of fitted lines (crossings.line_pair_crossings): lines meeting at
+    # most pair_gap cells (plus the other line's width) beyond an end
+    line_pairs: bool
+    pair_gap: float
+    merge_distance: float  # cells: of verified crossings closer, the best one stays
+    # m of line along each arm at least (a penalty mark next to a line is no corner)
+    min_arm_length: float
+    post_radius: float  # cells around a goal post's foot without crossings
+    # m of floor range one grid cell spans at the crossing, at most: about 0.2 m at 2 m for
+    # the KidSize camera (0.55 m high, 330 px focal length), at 2.7 m for the NAO's (0.47 m,
+    # 608 px); on rendered walks farther crossings were mostly misplaced or of the wrong type
+    max_cell_span: float
+    # ... and farther, where one profile step (refine_step px) spans no more, checked on the
+    # full-resolution white mask (crossings._verify_fine: the arms' opposites white, green or
+    # unknown from one line width to min_arm_length m beyond the crossing); False: rejected
+    # as too far
+    fine: bool
+    fine_px: float  # px of white (or green) at least on which an arm is judged
+    # short lines leaving a fitted line's end at a right angle, found on the full-resolution
+    # white mask (crossings.stem_lines) where a cell spans more than stem_min_span m of floor
+    # along them
+    stems: bool
+    stem_min_span: float
+    # white along an arm is a line's when its runs' median width over a painted line's lies
+    # in width_ratio, line_width m wide: the lines' own test (line_fit.LINES)
+    line_width: float
+    width_ratio: tuple[float, float]
+
+
+CROSSINGS = CrossingsTuning(
+    arm_reach=4.0, arm_skip=1, arm_nodes=4, arm_step=2.0, max_shift=8.0,
+    l_angle=(math.radians(25.0), math.radians(155.0)),
+    l_angle_floor=(math.radians(45.0), math.radians(135.0)),
+    circle_radii=(2.5, 3.5, 5.0, 7.0), arm_gap=3.0, max_radius=8.0, t_white=0.02,
+    relative=0.35, t_green=0.3, max_other=0.2, object_radius=2, edge_margin=1.5,
+    min_path_share=0.7, max_misfit=math.radians(30.0), refine=True, refine_skip=1.0,
+    refine_step=3.0, refine_reach=2.0, refine_min_points=3, arm_grow=12.0, arm_tolerance=3.0,
+    line_pairs=True, pair_gap=1.5, merge_distance=2.0, min_arm_length=0.12, post_radius=2.0,
+    max_cell_span=0.25, fine=True, fine_px=3.0, stems=True, stem_min_span=0.0,
+    line_width=LINES.line_width, width_ratio=LINES.width_ratio)
 
 
 @dataclass
@@ -261,7 +342,8 @@ def floor_arms(kind: str, arms: np.ndarray) -> tuple[float, float]:
 
 
 def verify_crossing(centre: np.ndarray, arm_points: np.ndarray, white: np.ndarray,
-                    green: np.ndarray, conf: dict, field: np.ndarray | None = None) -> float:
+                    green: np.ndarray, tuning: CrossingsTuning = CROSSINGS,
+                    field: np.ndarray | None = None) -> float:
     """Image checks of section 4.1 at a crossing ``centre`` (grid coordinates): the circle's
     transition count equals the number of arms (at any of the radii tried), and a white path
     leads from the crossing along each arm (to ``arm_points``, the next node or the arm's
@@ -276,14 +358,15 @@ def verify_crossing(centre: np.ndarray, arm_points: np.ndarray, white: np.ndarra
     It runs compiled (``_verify``): circle_transitions and white_path_share with the cells
     sampled bilinearly as sample_cells does (to float32 rounding)."""
     use_field = field is not None
-    rule = tuple(float(conf[k]) for k in ("t_white", "relative", "t_green", "arm_gap",
-                                          "max_radius", "max_other", "min_path_share"))
+    t = tuning
+    rule = (float(t.t_white), float(t.relative), float(t.t_green), float(t.arm_gap),
+            float(t.max_radius), float(t.max_other), float(t.min_path_share))
     return float(_verify(np.ascontiguousarray(centre, np.float64),
                          np.ascontiguousarray(arm_points, np.float64).reshape(-1, 2),
                          np.asarray(white, np.float32), np.asarray(green, np.float32),
                          np.asarray(field, np.float32) if use_field
                          else np.zeros((1, 1), np.float32), use_field,
-                         np.asarray(conf["circle_radii"], np.float64), rule))
+                         np.asarray(t.circle_radii, np.float64), rule))
 
 
 CIRCLE_SAMPLES = 48  # samples on each circle of circle_transitions
@@ -549,8 +632,8 @@ def _pair_crossings(ends, widths, fang, tol, max_misfit, first_stem, kinds, line
     return m
 
 
-def stem_lines(lines: np.ndarray, white_px: np.ndarray, camera, to_floor, cc: dict,
-               cell: int) -> np.ndarray:
+def stem_lines(lines: np.ndarray, white_px: np.ndarray, camera, to_floor,
+               cc: CrossingsTuning, cell: int) -> np.ndarray:
     """Short lines leaving the ends of fitted lines (``lines`` (N, 2, 2) ideal px) at a right
     angle on the floor, found on the full-resolution white mask where the grid has too few
     cells of them for a line of its own (a far goal area's side line between its front line
@@ -566,11 +649,11 @@ def stem_lines(lines: np.ndarray, white_px: np.ndarray, camera, to_floor, cc: di
     lines = np.ascontiguousarray(lines, np.float64)
     floor = to_floor(lines.reshape(-1, 2)).reshape(-1, 2, 2)
     out = np.empty((4 * len(lines), 2, 2))
-    rule = (float(cell), float(cc["stem_min_span"]), float(cc["line_width"]),
-            float(cc["refine_step"]), float(cc["refine_reach"] * cell),
-            float(cc["arm_grow"] * cell), float(cc["arm_tolerance"]),
-            float(cc["min_arm_length"]), int(cc["refine_min_points"]),
-            math.sin(cc["max_misfit"]))
+    rule = (float(cell), float(cc.stem_min_span), float(cc.line_width),
+            float(cc.refine_step), float(cc.refine_reach * cell),
+            float(cc.arm_grow * cell), float(cc.arm_tolerance),
+            float(cc.min_arm_length), int(cc.refine_min_points),
+            math.sin(cc.max_misfit))
     n = _stems(lines, floor, white_px, lens_parameters(camera), floor_bundle(to_floor), rule, out)
     return out[:n]
 
@@ -718,7 +801,7 @@ def _distinct_arms(cmp, lengths, cos_same, arms, kept_lengths):
 
 def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.ndarray,
                    other: np.ndarray, top: np.ndarray, camera, to_floor,
-                   cc: dict, cell: int, trace: dict | None = None,
+                   cc: CrossingsTuning, cell: int, trace: dict | None = None,
                    white_px: np.ndarray | None = None, floor_of=None,
                    lines_ideal: np.ndarray | None = None,
                    line_widths: np.ndarray | None = None, posts_px=()):
@@ -731,8 +814,8 @@ def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.nd
     one stays; none within ``post_radius`` cells of a goal post's foot (``posts_px``). Returns
     rows [type, distance, bearing, orientation, confidence] and the crossings' image
     positions."""
-    lo, hi = cc["l_angle"] if floor_of is None else cc["l_angle_floor"]
-    cands = crossing_candidates(ks, graph, cc["arm_reach"], (lo, hi), floor_of)
+    lo, hi = cc.l_angle if floor_of is None else cc.l_angle_floor
+    cands = crossing_candidates(ks, graph, cc.arm_reach, (lo, hi), floor_of)
     other_mean = cv2.blur(other, (3, 3), borderType=cv2.BORDER_REPLICATE)
     rows_ = np.arange(white.shape[0], dtype=np.float64)[:, None]
     field_cells = (rows_ >= np.asarray(top, np.float64)[None, :]).astype(np.float32)
@@ -746,18 +829,18 @@ def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.nd
         if not isinstance(verdict, str):
             found.append(verdict)
     pairs, pair_verdicts = [], []
-    if lines_ideal is not None and len(lines_ideal) > 1 and cc.get("line_pairs", True):
+    if lines_ideal is not None and len(lines_ideal) > 1 and cc.line_pairs:
         lines_all, widths_all = lines_ideal, line_widths
         first_stem = None
-        if white_px is not None and cc.get("stems", True):
+        if white_px is not None and cc.stems:
             stems = stem_lines(lines_ideal, white_px, camera, to_floor, cc, cell)
             if len(stems):
                 first_stem = len(lines_ideal)
                 lines_all = np.concatenate([lines_ideal, stems])
                 widths_all = np.concatenate([line_widths, np.full(len(stems), 0.0)])
-        pairs = line_pair_crossings(lines_all, widths_all, to_floor, cc["pair_gap"] * cell,
-                                    cc["max_misfit"], first_stem)
-        reach = cc["arm_reach"] * cell
+        pairs = line_pair_crossings(lines_all, widths_all, to_floor, cc.pair_gap * cell,
+                                    cc.max_misfit, first_stem)
+        reach = cc.arm_reach * cell
         for lc in pairs:
             verdict = _verify_crossing(lc.kind, lc.point, lc.arms,
                                        np.minimum(reach, lc.lengths), frame, lc.lengths)
@@ -767,11 +850,11 @@ def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.nd
     found.sort(key=lambda v: -v[0][4])
     rows, pxs = [], []
     # a goal post standing on a line makes a junction in the image, not a crossing
-    near_post = cc["post_radius"] * cell
+    near_post = cc.post_radius * cell
     found = [(row, px) for row, px in found
              if all(np.hypot(*(px - q)) > near_post for q in posts_px)]
     for row, px in found:
-        if all(np.hypot(*(px - q)) > cc["merge_distance"] * cell for q in pxs):
+        if all(np.hypot(*(px - q)) > cc.merge_distance * cell for q in pxs):
             rows.append(row)
             pxs.append(px)
     if trace is not None:
@@ -788,15 +871,15 @@ def _crossing(cand, ks, ideal, frame, deg=None):
     centre = ideal[ks.node[cand.key]]
     if not np.isfinite(centre).all():
         return "outside the lens model"
-    chains = ks.arms(cand.key, 1 + cc["arm_skip"] + cc["arm_nodes"], deg)
+    chains = ks.arms(cand.key, 1 + cc.arm_skip + cc.arm_nodes, deg)
     if len(chains) != len(cand.arm_points):
         return "arm without nodes"
     placed = place_crossing(cand.kind, centre, chains, ideal, cc, cell,
-                            white_px if cc.get("refine", True) else None, frame.camera)
+                            white_px if cc.refine else None, frame.camera)
     if isinstance(placed, str):
         return placed
     x, dirs, lengths = placed
-    reach = np.minimum(cc["arm_reach"] * cell, lengths)
+    reach = np.minimum(cc.arm_reach * cell, lengths)
     return _verify_crossing(cand.kind, x, dirs, reach, frame, lengths)
 
 
@@ -805,7 +888,7 @@ KIND_INDEX = {"L": 0, "T": 1, "X": 2}
 
 
 def place_crossing(kind: str, centre: np.ndarray, chains: list[list[int]], ideal: np.ndarray,
-                   cc: dict, cell: int, white_px: np.ndarray | None, camera):
+                   cc: CrossingsTuning, cell: int, white_px: np.ndarray | None, camera):
     """A key-structure candidate placed where its arms' lines meet: each arm's line fitted to
     its nodes (the chains' nodes from ``arm_skip`` + 1 on, undistorted ``ideal``), refined
     on the full-resolution white mask ``white_px`` unless None, and cut with the others.
@@ -825,10 +908,10 @@ def place_crossing(kind: str, centre: np.ndarray, chains: list[list[int]], ideal
     flat, start = flat_lists(chains)
     refine = white_px is not None
     out = np.empty((n + 1, 3))
-    rule = (int(cc["arm_skip"]), int(cc["arm_nodes"]), float(cc["refine_skip"] * cell),
-            float(cell), float(cc["refine_step"]), float(cc["refine_reach"] * cell),
-            int(cc["refine_min_points"]), float(cc["max_shift"] * cell),
-            float(cc["arm_step"] * cell))
+    rule = (int(cc.arm_skip), int(cc.arm_nodes), float(cc.refine_skip * cell),
+            float(cell), float(cc.refine_step), float(cc.refine_reach * cell),
+            int(cc.refine_min_points), float(cc.max_shift * cell),
+            float(cc.arm_step * cell))
     code = _place(KIND_INDEX[kind], np.ascontiguousarray(centre, np.float64), flat, start,
                   np.ascontiguousarray(ideal, np.float64), refine,
                   white_px if refine else np.zeros((1, 1), np.uint8),
@@ -997,7 +1080,7 @@ def _verify_crossing(kind, x, dirs, reach, frame, lengths=None):
     angles = np.arctan2(angles_at[:, 1], angles_at[:, 0])
     dist, bearing, span = scalars[0], angles[0], scalars[1]
     orient, misfit = floor_arms(kind, angles[1:])
-    if misfit > cc["max_misfit"]:
+    if misfit > cc.max_misfit:
         return f"floor angles misfit {math.degrees(misfit):.0f} deg"
     if scalars[2]:  # beyond the grid's resolution
         return _verify_fine(kind, x, dirs, frame, (dist, bearing, orient, misfit, span))
@@ -1014,7 +1097,7 @@ def _verify_crossing(kind, x, dirs, reach, frame, lengths=None):
         # the grid's circles may take in a neighbouring line (a far goal area's lines lie two
         # cells apart): the full-resolution check decides
         return _verify_fine(kind, x, dirs, frame,
-                            (dist, bearing, orient, misfit, max(span, cc["max_cell_span"])))
+                            (dist, bearing, orient, misfit, max(span, cc.max_cell_span)))
     return IMAGE_REASONS[code]
 
 
@@ -1056,10 +1139,10 @@ class Sight(NamedTuple):
 
 class VerifyFrame:
     """What the checks of _verify_crossing read of a frame, made once per frame: the frame's
-    camera, floor projection ``to_floor``, crossings conf ``cc`` and grid ``cell`` (px); the
-    grid's images, the white mask and the lens as the kernels take them (``sight``), the
-    floor projection as they take it (``floor``), the conf's numbers (``params``, indexed by
-    the P_ names) and the circles' radii."""
+    camera, floor projection ``to_floor``, crossings tuning ``cc`` (CROSSINGS) and grid
+    ``cell`` (px); the grid's images, the white mask and the lens as the kernels take them
+    (``sight``), the floor projection as they take it (``floor``), the tuning's numbers
+    (``params``, indexed by the P_ names) and the circles' radii."""
 
     def __init__(self, white, green, other_mean, top, camera, to_floor, cc, cell,
                  field_cells=None, white_px=None):
@@ -1072,28 +1155,29 @@ class VerifyFrame:
                            white_px if use_white else _NO_WHITE, use_white,
                            lens_parameters(camera))
         self.floor = floor_bundle(to_floor)
-        self.radii = np.asarray(cc["circle_radii"], np.float64)
+        self.radii = np.asarray(cc.circle_radii, np.float64)
         self.params = verify_params(camera, cc, cell, use_field)
 
 
 _NO_CELLS = np.zeros((1, 1), np.float32)  # a Sight without the field cells
 _NO_WHITE = np.zeros((1, 1), np.uint8)  # ... without the full-resolution white mask
 
-def verify_params(camera, cc: dict, cell: int, use_field: bool = False) -> np.ndarray:
+def verify_params(camera, cc: CrossingsTuning, cell: int, use_field: bool = False
+                  ) -> np.ndarray:
     """The numbers the verification kernels read (P_COUNT,), indexed by the P_ names."""
     w, h = camera.image_size
     p = np.empty(P_COUNT)
     p[P_CELL], p[P_WIDTH], p[P_HEIGHT] = cell, w, h
-    p[P_FINE] = bool(cc.get("fine", True))
+    p[P_FINE] = bool(cc.fine)
     p[P_USE_FIELD] = use_field
-    p[P_WIDTH_LO], p[P_WIDTH_HI] = cc["width_ratio"]
+    p[P_WIDTH_LO], p[P_WIDTH_HI] = cc.width_ratio
     for k, name in _P_CONF:
-        p[k] = cc[name]
+        p[k] = getattr(cc, name)
     return p
 
 
 # the numbers of VerifyFrame.params: the grid's cell (px), the image's size (px), whether the
-# fine checks are on and the field region given, a painted line's width ratio, the conf's
+# fine checks are on and the field region given, a painted line's width ratio, the tuning's
 (P_CELL, P_WIDTH, P_HEIGHT, P_FINE, P_USE_FIELD, P_WIDTH_LO, P_WIDTH_HI, P_ARM_STEP,
  P_MIN_ARM_LENGTH, P_ARM_REACH, P_REFINE_STEP, P_REFINE_REACH, P_ARM_GROW, P_ARM_TOLERANCE,
  P_MAX_CELL_SPAN, P_EDGE_MARGIN, P_OBJECT_RADIUS, P_LINE_WIDTH, P_FINE_PX, P_T_GREEN,
@@ -1308,7 +1392,7 @@ def _verify_fine(kind, x, dirs, frame, placed):
     if not np.isfinite(g[1]) or g[1] < top[col]:
         return "at the field boundary"
     row = min(max(round(g[1]), 0), other_mean.shape[0] - 1)
-    r = cc["object_radius"]
+    r = cc.object_radius
     if other_mean[max(row - r, 0): row + r + 1, max(col - r, 0): col + r + 1].max() > 0.5:
         return "next to an object"
     for u in dirs:
@@ -1317,12 +1401,12 @@ def _verify_fine(kind, x, dirs, frame, placed):
             return f"an arm {st}, not white"  # an arm without its white line
     # the arms without an opposite arm, by their directions on the floor (far away the
     # perspective folds a right angle in the image)
-    f = to_floor(np.vstack([x[None], x[None] + cc["arm_step"] * cell * dirs]))
+    f = to_floor(np.vstack([x[None], x[None] + cc.arm_step * cell * dirs]))
     fd = f[1:] - f[0]
     fd = fd / np.hypot(fd[:, 0], fd[:, 1])[:, None]
     if not np.isfinite(fd).all():
         return "above the horizon"
-    cos_same = math.cos(cc["max_misfit"])
+    cos_same = math.cos(cc.max_misfit)
     opposite = [k for k in range(len(dirs))
                 if not any(fd[k, 0] * fd[j, 0] + fd[k, 1] * fd[j, 1] <= -cos_same
                            for j in range(len(dirs)))]
@@ -1338,10 +1422,10 @@ def _verify_fine(kind, x, dirs, frame, placed):
         if len(white_k) == 1:
             k = white_k[0]
             arms = np.vstack([dirs, -dirs[k][None]])
-            f = to_floor(np.vstack([x[None], x + cc["arm_step"] * cell * arms]))
+            f = to_floor(np.vstack([x[None], x + cc.arm_step * cell * arms]))
             t_orient, t_misfit = floor_arms("T", np.arctan2(f[1:, 1] - f[0, 1],
                                                             f[1:, 0] - f[0, 0]))
-            if t_misfit > cc["max_misfit"]:
+            if t_misfit > cc.max_misfit:
                 return f"floor angles misfit {math.degrees(t_misfit):.0f} deg"
             kind, orient, misfit = "T", t_orient, t_misfit
         elif white_k:
@@ -1350,7 +1434,7 @@ def _verify_fine(kind, x, dirs, frame, placed):
             return "not green where a T's arm would be"
     else:
         return "too far"
-    score = min(1.0, cc["max_cell_span"] / span) * (1.0 - misfit / math.radians(90.0))
+    score = min(1.0, cc.max_cell_span / span) * (1.0 - misfit / math.radians(90.0))
     return [CROSSING_CODES[kind], dist, bearing, orient, score], px
 
 

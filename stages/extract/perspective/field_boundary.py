@@ -22,6 +22,9 @@ into the first field row (from the top) per column, the form the later steps use
 from __future__ import annotations
 
 import functools
+from collections.abc import Mapping
+from types import MappingProxyType
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -32,7 +35,34 @@ from ...common.numeric import sum32
 # Weights of the colour classes in the merged grey image: green is field; white is a line on
 # it, but also a wall or banner behind it, so a cell of white alone stays below the weak
 # threshold (t_weak) and counts only mixed with green; other colours (robots, people) occlude.
-DEFAULT_WEIGHTS = {"green": 1.0, "white": 0.3, "other": 0.0}
+DEFAULT_WEIGHTS = MappingProxyType({"green": 1.0, "white": 0.3, "other": 0.0})
+
+
+class BoundaryTuning(NamedTuple):
+    """The numbers of ``field_boundary`` (section 3.1), grid cells and grey levels (1 = a cell
+    all green). Tuned on the rendered KidSize and NAO frames and the HULKs NAO frames (docs/
+    manual.md "Perspective extraction on real frames")."""
+
+    weights: Mapping[str, float]  # the colour classes' weights (DEFAULT_WEIGHTS)
+    t_pix: float  # a cell this green (grey level, 1 = all green) is field
+    t_row: float  # mean grey of the row and the row above for weak cells
+    t_win: float  # mean grey of the 8 x 4 window below for weak cells
+    t_weak: float  # weak cells below this are never field
+    max_gap: int  # scan stops after more than this many non-field cells
+    # the scan starts at each column's lowest field cell (the robot's own body and feet cover
+    # the bottom of a NAO's lower camera)
+    from_lowest: bool
+    # white runs between field cells of a row or column, up to line_run cells, are lines on
+    # the field (a near line along the view is many cells tall)
+    line_white: float
+    line_run: int
+    gauss_sigma: float  # bins
+    median_size: int  # bins
+
+
+BOUNDARY = BoundaryTuning(weights=DEFAULT_WEIGHTS, t_pix=0.45, t_row=0.6, t_win=0.75,
+                          t_weak=0.2, max_gap=4, from_lowest=True, line_white=0.3, line_run=10,
+                          gauss_sigma=0.7, median_size=5)
 
 
 def merged_grey_image(counts: dict[str, np.ndarray], weights: dict[str, float],
@@ -291,17 +321,17 @@ def boundary_rows(heights: np.ndarray, grid_rows: int) -> np.ndarray:
     return grid_rows - np.asarray(heights, np.float64)
 
 
-def field_boundary(counts: dict[str, np.ndarray], conf: dict, area: float = 64.0
-                   ) -> tuple[np.ndarray, np.ndarray]:
+def field_boundary(counts: dict[str, np.ndarray], tuning: BoundaryTuning = BOUNDARY,
+                   area: float = 64.0) -> tuple[np.ndarray, np.ndarray]:
     """The whole section 3.1: colour counts (cells of ``area`` pixels) -> (first field row per
     column (W,) float, binary field image (H, W))."""
-    field = grey_field(counts, conf["weights"], area, conf["t_pix"], conf["t_row"],
-                       conf["t_win"], conf["t_weak"])
-    if conf.get("line_run", 0) > 0:
+    t = tuning
+    field = grey_field(counts, t.weights, area, t.t_pix, t.t_row, t.t_win, t.t_weak)
+    if t.line_run > 0:
         white = counts["white"].astype(np.float32) / np.float32(area)
-        field = fill_lines(field, white, conf["line_white"], int(conf["line_run"]))
-    heights = field_height_histogram(field, conf["max_gap"], bool(conf.get("from_lowest")))
-    heights = smooth_field_heights(heights, conf["gauss_sigma"], conf["median_size"])
+        field = fill_lines(field, white, t.line_white, int(t.line_run))
+    heights = field_height_histogram(field, t.max_gap, bool(t.from_lowest))
+    heights = smooth_field_heights(heights, t.gauss_sigma, t.median_size)
     heights = local_convex_filling(heights)
     return boundary_rows(heights, field.shape[0]), field
 

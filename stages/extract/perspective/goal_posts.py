@@ -19,11 +19,46 @@ field line seen along its length.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
 from ...common.numeric import sum32
 from .line_fit import median
+
+
+class PostsTuning(NamedTuple):
+    """The numbers of the goal post steps (``goal_posts``, ``is_post_bar`` and the extractor's
+    checks on the floor), tuned on the rendered KidSize and NAO frames and the HULKs and
+    Falcons frames (docs/manual.md "Perspective extraction on real frames"). The posts'
+    diameter and range are the user's (the extractor's conf, posts.post_diameter and
+    posts.max_distance)."""
+
+    t_white: float  # white share of a cell of a post
+    min_rise: int  # cells of white above the boundary
+    max_rise: int  # cells
+    max_below: int  # cells
+    max_width: int  # cells (goal_posts' default; the extractor uses min_distance)
+    min_distance: float  # m: posts nearer than this (wider in the image) are not sought
+    full_height: int  # cells of bar at which the confidence is 1
+    min_height: float  # m of white bar at least (of a post about 1.2 m high)
+    width_ratio: tuple[float, float]  # measured / expected width in the image
+    # a white segment inside the boundary is a post's bar, not a line, when it runs straight
+    # away from the robot on the floor (perpendicular distance below bar_radial m), starts at
+    # least bar_min_distance m away, reaches the boundary (within bar_touch cells) and keeps
+    # bar_width_ratio of a post's width (see is_post_bar)
+    bar_radial: float
+    bar_min_distance: float
+    bar_touch: float
+    bar_width_ratio: float
+    bar_confidence: float
+
+
+POSTS = PostsTuning(t_white=0.2, min_rise=3, max_rise=30, max_below=30, max_width=4,
+                    min_distance=0.7, full_height=12, min_height=0.4, width_ratio=(0.4, 2.5),
+                    bar_radial=0.15, bar_min_distance=0.8, bar_touch=3.5, bar_width_ratio=0.6,
+                    bar_confidence=0.5)
 
 
 def bar_runs(white: np.ndarray, top: np.ndarray, t_white: float, max_up: int, max_down: int
@@ -194,23 +229,24 @@ def _window_extreme(row, window, largest):
     return out
 
 
-def goal_posts(white: np.ndarray, top: np.ndarray, conf: dict, cell: int,
+def goal_posts(white: np.ndarray, top: np.ndarray, tuning: PostsTuning, cell: int,
                max_width: int | None = None):
     """The whole step: (foot points (P, 2) px, bar heights (P,) cells, measured bar widths (P,)
     px, column groups, the row below each group's foot). Bars are columns whose white run
     rises at least ``min_rise`` cells above their surroundings' (``rise_above_surroundings``
-    over ``max_width`` + 2 columns; ``max_width`` cells, default the conf's), told apart there
+    over ``max_width`` + 2 columns; ``max_width`` cells, default the tuning's), told apart there
     (``_stands_out``) and measured there (``bar_width``). The caller removes the bars from the
     white image before the line structure is built, so a post's lower part is not taken for a
     line."""
-    max_width = int(conf["max_width"] if max_width is None else max_width)
-    up, down, start = bar_runs(white, top, conf["t_white"], conf["max_rise"], conf["max_below"])
+    t = tuning
+    max_width = int(t.max_width if max_width is None else max_width)
+    up, down, start = bar_runs(white, top, t.t_white, t.max_rise, t.max_below)
     excess, base = rise_above_surroundings(up, max_width + 2)
-    near = conf["min_rise"]  # rows above the surroundings' white where a post is told apart
-    groups, lift = standing_bars(excess, base, start, white, conf["t_white"], conf["min_rise"],
+    near = t.min_rise  # rows above the surroundings' white where a post is told apart
+    groups, lift = standing_bars(excess, base, start, white, t.t_white, t.min_rise,
                                  max_width, near)
     # heights: the part of the bar rising above the surroundings' white, plus below the boundary
-    feet, heights = post_feet(white, groups, excess, down, start, conf["t_white"], cell)
+    feet, heights = post_feet(white, groups, excess, down, start, t.t_white, cell)
     widths = np.array([bar_width(white, g, int(start[g].min()) - lf, near, cell)
                        for g, lf in zip(groups, lift)], float)
     foot_rows = np.array([int(start[g].max() + down[g].max()) for g in groups], int)
@@ -218,7 +254,7 @@ def goal_posts(white: np.ndarray, top: np.ndarray, conf: dict, cell: int,
 
 
 def is_post_bar(dist: float, near: float, ends_px: np.ndarray, top: np.ndarray, white: np.ndarray,
-                fx: float, cell: int, pc: dict) -> bool:
+                fx: float, cell: int, pc: PostsTuning, diameter: float) -> bool:
     """A white segment that is a vertical bar on the floor rather than a field line: its floor
     projection runs straight away from the robot (a vertical line lies in a vertical plane
     through the camera, which meets the floor in a line through the robot: perpendicular
@@ -227,19 +263,19 @@ def is_post_bar(dist: float, near: float, ends_px: np.ndarray, top: np.ndarray, 
     boundary (within ``bar_touch`` cells), and it keeps a post's width up to there: a field
     line seen along its length looks the same but thins out with distance, a post (all of it
     as far away as its foot) does not. The width is the white share summed across the bar
-    (times the cell size) over its upper half, against ``post_diameter`` at the foot's
-    distance (at least ``bar_width_ratio`` of it; compiled: ``_bar_share``)."""
-    if dist > pc["bar_radial"] or near < pc["bar_min_distance"]:
+    (times the cell size) over its upper half, against a post's ``diameter`` (m) at the
+    foot's distance (at least ``bar_width_ratio`` of it; compiled: ``_bar_share``)."""
+    if dist > pc.bar_radial or near < pc.bar_min_distance:
         return False
     k = int(np.argmin(ends_px[:, 1]))
     up, foot = ends_px[k], ends_px[1 - k]
     col = int(np.clip((up[0] + 0.5) // cell, 0, len(top) - 1))
-    if (up[1] + 0.5) / cell - top[col] > pc["bar_touch"]:
+    if (up[1] + 0.5) / cell - top[col] > pc.bar_touch:
         return False
     width = float(_bar_share(np.ascontiguousarray(white, np.float32), float(foot[0]),
                              float(foot[1]), float(up[0]), float(up[1]), int(cell),
                              _BAR_STEPS)) * cell
-    return width >= pc["bar_width_ratio"] * fx * pc["post_diameter"] / near
+    return width >= pc.bar_width_ratio * fx * diameter / near
 
 
 # where is_post_bar measures the bar: shares of the way from its foot to its upper end

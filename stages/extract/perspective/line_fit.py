@@ -21,11 +21,61 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
 from .line_structure import LineGraph, flat_lists, trace_chains
+
+
+class LinesTuning(NamedTuple):
+    """The numbers of the field lines: split-and-merge here, the refinement, width and field
+    edge checks of the extractor's ``find_lines``. Tuned on the rendered KidSize and NAO
+    frames and the HULKs NAO frames (docs/manual.md "Perspective extraction on real
+    frames")."""
+
+    split_distance: float  # undistorted px
+    min_nodes: int  # smaller parts are discarded
+    min_used_nodes: int  # shorter lines (a ball, a robot's white part) are not used
+    merge_angle: float  # rad
+    merge_offset: float  # undistorted px
+    min_length: float  # m, shorter lines are not used
+    max_distance: float  # m, lines whose perpendicular is longer are not used
+    full_nodes: int  # nodes at which a line's confidence is 1
+    # refinement on the full-resolution white mask (line_fit.refine_segment): profiles across
+    # the segment every refine_step px, refine_reach cells to each side, from refine_extend
+    # cells before to after its ends
+    refine: bool
+    refine_step: float
+    refine_reach: float
+    refine_extend: float
+    refine_min_points: int
+    refine_grow: float  # cells the ends may grow along the refined line
+    # the white runs' median width over a painted line's (line_width m) at their floor
+    # positions: a seam or cable is thinner, a robot's leg or a post wider
+    line_width: float
+    width_ratio: tuple[float, float]
+    # the field's edge against a bright hall floor is white against green as a line is; it is
+    # no line where no carpet lies beyond it (the cells green_beyond_m across it, away from
+    # the robot, hold on average less green than min_green_beyond, the boundary's t_weak:
+    # never field) and the field boundary ends less than edge_gap_m beyond it (a line's
+    # carpet goes on beyond, the SPL's border strip 0.7 m past its outer lines; a sun patch
+    # washes the carpet beyond a line out of the green class, but the field goes on past the
+    # patch). On the HULKs frames this drops 14 of the 60 false used lines and 1 of the 520
+    # others; green alone dropped 18 and 6, and on rendered NAO walks 59 of 264 true lines
+    # (7 with the boundary's gap)
+    green_beyond_m: float
+    min_green_beyond: float
+    edge_gap_m: float
+
+
+LINES = LinesTuning(split_distance=7.0, min_nodes=3, min_used_nodes=4,
+                    merge_angle=math.radians(4.0), merge_offset=7.0, min_length=0.3,
+                    max_distance=6.0, full_nodes=8, refine=True, refine_step=4.0,
+                    refine_reach=2.0, refine_extend=0.5, refine_min_points=4, refine_grow=4.0,
+                    line_width=0.05, width_ratio=(0.4, 2.5), green_beyond_m=0.15,
+                    min_green_beyond=0.2, edge_gap_m=1.0)
 
 
 @dataclass
@@ -169,13 +219,13 @@ def merge_segments(points: np.ndarray, parts: list[np.ndarray], max_angle: float
     return [p for p, a in zip(parts, alive) if a]
 
 
-def split_and_merge(points: np.ndarray, components: list[list[int]], conf: dict
-                    ) -> list[LineSegment]:
+def split_and_merge(points: np.ndarray, components: list[list[int]],
+                    tuning: LinesTuning = LINES) -> list[LineSegment]:
     """Split every component, merge similar parts, and give each final line its fit and its
     end points projected onto the fit."""
-    parts = split_components(points, components, conf["split_distance"], conf["min_nodes"])
-    parts = merge_segments(points, parts, conf["merge_angle"],
-                           conf["merge_offset"], conf["split_distance"])
+    t = tuning
+    parts = split_components(points, components, t.split_distance, t.min_nodes)
+    parts = merge_segments(points, parts, t.merge_angle, t.merge_offset, t.split_distance)
     if not parts:
         return []
     fits, ends = part_fits(points, parts)  # (the lines' fields are views of these, read only)

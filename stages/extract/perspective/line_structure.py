@@ -27,6 +27,7 @@ import functools
 import itertools
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -34,6 +35,47 @@ from numba import njit
 
 # the sum of a float64 array, a plain loop (numeric.sum64)
 from ...common.numeric import sum64 as block_sum
+
+
+class SkeletonTuning(NamedTuple):
+    """The numbers of the skeleton and the fine graph (sections 3.2-3.3: ``skeleton_grid``,
+    ``line_structure_graph``), in grid cells; tuned on the rendered KidSize and NAO frames and
+    the HULKs NAO frames."""
+
+    boundary_margin: int  # cells below the boundary left out
+    min_white: float  # low-passed white share below which a cell is background
+    max_gap: float  # cells, gap filling
+    gap_max_angle: float  # rad between a line's direction and the gap
+    gap_min_grey_ratio: float  # grey along the gap relative to the nodes'
+    close_gap: float  # cells: two line ends this close join whatever their direction
+
+
+SKELETON = SkeletonTuning(boundary_margin=1, min_white=0.04, max_gap=6.0,
+                          gap_max_angle=math.radians(30.0), gap_min_grey_ratio=0.25,
+                          close_gap=4.0)
+
+
+class KeyTuning(NamedTuple):
+    """The numbers of the key structure (section 4.1: ``key_structure``), in grid cells and
+    radians; tuned on the rendered KidSize and NAO frames and the HULKs NAO frames."""
+
+    min_spur_length: float  # cells: shorter lines ending in a junction are removed
+    smooth_iterations: int
+    corner_reach: float  # cells: arm length for the turning angle
+    corner_min_turn: float  # rad: lower turning is low curvature
+    # the same on the floor (used where the nodes project to the floor): an L turns by 90 deg
+    # there, the centre circle by about 40 deg over 3 cells at 2 m
+    corner_min_turn_floor: float
+    corner_min_turn_image: float  # ... where the image turns this
+    floor_angles: bool  # corners and L angles measured on the floor
+    merge_distance: float  # cells: connected junctions closer than this merge
+    max_ring: float  # cells: shorter rings hanging at a node are removed
+
+
+KEY = KeyTuning(min_spur_length=2.5, smooth_iterations=2, corner_reach=3.0,
+                corner_min_turn=math.radians(25.0), corner_min_turn_floor=math.radians(45.0),
+                corner_min_turn_image=math.radians(10.0), floor_angles=True, merge_distance=3.0,
+                max_ring=10.0)
 
 # ---------------------------------------------------------------------------- 3.2 skeleton
 
@@ -877,7 +919,7 @@ def _gap_candidates(pos, start, nbr, deg, loose, max_gap, min_cos, close_gap):
     return score[:m].copy(), ci[:m].copy(), cj[:m].copy()
 
 
-def line_structure_graph(white_lp: np.ndarray, conf: dict, ranked=None
+def line_structure_graph(white_lp: np.ndarray, tuning: SkeletonTuning = SKELETON, ranked=None
                          ) -> tuple[LineGraph, np.ndarray, np.ndarray]:
     """Section 3.2-3.3 on the low-passed white image: skeleton, nodes, connections, stretching,
     splitting of isolated nodes and gap filling. ``ranked``: the image's (ranking keys,
@@ -885,7 +927,7 @@ def line_structure_graph(white_lp: np.ndarray, conf: dict, ranked=None
     regions)."""
     if ranked is None:
         key = ranking_keys(white_lp)
-        skeleton, c = ranking_skeleton(white_lp, conf["min_white"], key)
+        skeleton, c = ranking_skeleton(white_lp, tuning.min_white, key)
     else:
         key, skeleton, c = ranked
     pix, regions = place_nodes(white_lp, skeleton, c, key)
@@ -900,8 +942,8 @@ def line_structure_graph(white_lp: np.ndarray, conf: dict, ranked=None
     stretch_lines(graph, regions)
     split_isolated_nodes(graph, regions, white_lp)
     graph.pos = subpixel_positions(white_lp, graph.pix)
-    fill_gaps(graph, white_lp, conf["max_gap"], math.cos(conf["gap_max_angle"]),
-              conf["gap_min_grey_ratio"], conf["close_gap"])
+    fill_gaps(graph, white_lp, tuning.max_gap, math.cos(tuning.gap_max_angle),
+              tuning.gap_min_grey_ratio, tuning.close_gap)
     return graph, skeleton, regions
 
 
@@ -1363,25 +1405,26 @@ def _corner_cuts(turn, arc, offsets, reach, min_turn, cuts, cut_start, by_python
     cut_start[len(offsets) - 1] = m
 
 
-def key_structure(graph: LineGraph, conf: dict, floor_of=None) -> KeyStructure:
+def key_structure(graph: LineGraph, tuning: KeyTuning = KEY, floor_of=None) -> KeyStructure:
     """Section 4.1: from the fine graph to the key node structure. ``floor_of``: a function
     of grid positions (N, 2) -> floor points (N, 2) (NaN above the horizon); with it the
     corners are found by their turning angle on the floor (``corner_min_turn_floor``) among
     the nodes turning at least ``corner_min_turn_image`` in the image."""
-    pruned = remove_short_lines(graph, conf["min_spur_length"])
-    smooth = smooth_lines(pruned, conf["smooth_iterations"])
+    t = tuning
+    pruned = remove_short_lines(graph, t.min_spur_length)
+    smooth = smooth_lines(pruned, t.smooth_iterations)
     chains = trace_chains(pruned)
     key_of: dict[int, int] = {}  # the key nodes' indices by fine node, in order of finding
     edges = []
-    min_turn, reach = conf["corner_min_turn"], conf["corner_reach"]
+    min_turn, reach = t.corner_min_turn, t.corner_reach
     on_floor = floor_of is not None and len(smooth)
     turn, floor_turn, arc, start = turning_angles(
         chains, smooth, reach, floor_of(smooth) if on_floor else None)
     if on_floor:
         # on the floor, where the image turns at least a little: far from the camera a pixel
         # of noise is a large floor angle
-        turn = np.where(turn >= conf["corner_min_turn_image"], floor_turn, 0.0)
-        min_turn = conf["corner_min_turn_floor"]
+        turn = np.where(turn >= t.corner_min_turn_image, floor_turn, 0.0)
+        min_turn = t.corner_min_turn_floor
     # the corners of all chains at once (corner_nodes, compiled: _corner_cuts)
     offsets = np.zeros(len(chains) + 1, np.int64)
     np.add.accumulate(np.fromiter(map(len, chains), np.int64, len(chains)), out=offsets[1:])
@@ -1404,9 +1447,9 @@ def key_structure(graph: LineGraph, conf: dict, floor_of=None) -> KeyStructure:
     nodes = list(key_of)
     # small rings hanging at a node (a hole in a wide crossing blob) are no lines
     edges = [e for e in edges if not (e[0] == e[1]
-                                       and _chain_length(pruned.pos, e[2]) < conf["max_ring"])]
+                                       and _chain_length(pruned.pos, e[2]) < t.max_ring)]
     ks = KeyStructure(nodes, pruned.pos[nodes] if nodes else np.zeros((0, 2)), edges)
-    return merge_close_junctions(ks, pruned, conf["merge_distance"])
+    return merge_close_junctions(ks, pruned, t.merge_distance)
 
 
 def merge_close_junctions(ks: KeyStructure, graph: LineGraph, max_length: float
