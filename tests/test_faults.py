@@ -1046,8 +1046,7 @@ CASES = [
     *[Case(f"localize --method mcl -c {kv}", "traceback",
            ["localize", "{kid}", "--map", "{kmap}", "--features", "{kid_features}",
             "--method", "mcl", "-o", W + "/p.h5", "-c", kv], 1, msg) for kv, msg in (
-        ("cluster_radius=0", "conf 'cluster_radius' must be > 0"),
-        ("observation.uniform_floor=-1", "conf 'observation.uniform_floor' must be > 0 and < 1"),
+        ("hypotheses=0", "conf 'hypotheses' must be >= 1 and <= 1000"),
         ("seed=-1", "conf 'seed' must be >= 0"))],
     *[Case(f"extract -c {kv}", "traceback", ["extract", "{omni}", "-o", W + "/f.h5", "-c", kv],
            1, msg) for kv, msg in (

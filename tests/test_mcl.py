@@ -19,7 +19,7 @@ from stages.common.map_file import Grid, write_map
 from stages.common.observations import Observations
 from stages.common.scanlines import ScanLines
 from stages.localize import mcl, motion_model
-from stages.localize.observation_model import ObservationModel
+from stages.localize.observation_model import TUNING, ObservationModel
 from stages.simulate.synthetic_observations import (
     synthetic_observations,
     synthetic_walk,
@@ -89,7 +89,7 @@ def test_kernel_matches_the_oracle(field_name, change):
     operations and in the kernel's pruning of alternatives worth < exp(-39): 1e-9 absolute
     on sums of ~10 terms of order 1 (rounding gives ~1e-14)."""
     fm = load_field(field_name)
-    m = ObservationModel.from_field(fm, change)
+    m = ObservationModel.from_field(fm, tuning=TUNING._replace(**change))
     rng = np.random.default_rng(7)
     for _ in range(6):
         pose = np.array([rng.uniform(-4, 4), rng.uniform(-3, 3), rng.uniform(-3, 3)])
@@ -208,18 +208,18 @@ def test_oriented_line_distance_tells_front_from_behind(kidsize, model):
                          np.zeros((0, 5)), np.zeros((0, 3)))
     front = model.log_likelihood([0.5], [-2.0], [-math.pi / 2], ahead)[0]
     behind = model.log_likelihood([0.5], [-4.0], [-math.pi / 2], ahead)[0]
-    floor = math.log(model.conf["uniform_floor"])
+    floor = math.log(model.tuning.uniform_floor)
     assert front > -0.5
     assert behind == pytest.approx(floor, abs=0.05)
     # eq. 5 proper: near the line the perpendiculars are short, and opposite ones are excluded
     near = Observations(np.array([[0.2, 0.0, 2.0, 1.0]]), None, np.zeros((0, 5)),
                         np.zeros((0, 3)))
-    conf = dict(model.conf, oriented_tolerance=0.0)
-    strict = model.with_conf(conf)
+    tuning = model.tuning._replace(oriented_tolerance=0.0)
+    strict = model.with_conf(model.conf, tuning)
     assert strict.log_likelihood([-0.2], [2.0], [0.0], near)[0] > -0.5
     # robot 0.05 m past the halfway line: |l_e - l_o| is only 0.25 m, but the line is behind
     assert strict.log_likelihood([0.05], [2.0], [0.0], near)[0] == pytest.approx(
-        math.log(conf["uniform_floor"]), abs=1e-4)
+        math.log(tuning.uniform_floor), abs=1e-4)
 
 
 def test_crossing_association_uses_orientation(kidsize, model):
@@ -339,8 +339,7 @@ def test_frame_without_observations_keeps_the_predicted_belief(kidsize, model):
     est = pf.step((0.05, 0.0, 0.02), 0.1, Observations.empty())
     rng = np.random.default_rng()
     rng.bit_generator.state = state
-    predicted = motion_model.sample_motion(before_p, (0.05, 0.0, 0.02), 0.1, rng,
-                                           conf["motion"])
+    predicted = motion_model.sample_motion(before_p, (0.05, 0.0, 0.02), 0.1, rng)
     # exact same-run: the same motion model and generator state, here
     assert np.array_equal(pf.particles, predicted)
     assert np.array_equal(pf.weights, before_w)  # exact same-run: left as they were
@@ -595,7 +594,9 @@ def test_cli_refuses_bad_mcl_conf_values_in_one_line(kidsize, map_path, tmp_path
                 # no particles (a division by zero at the first resampling), a hundred million
                 # (hours a run), fewer allowed than required
                 "particles_max=0", "particles_max=100000000", "particles_min=2000",
-                "init_particles.placement=0"):
+                # tuned constants of the filter and its models are no conf keys
+                "init_particles=500", "cluster_radius=0.5",
+                "observation.sigma_range=0.05", "motion=1"):
         res = CliRunner().invoke(cli, ["localize", str(data), "--map", str(map_path),
                                        "--features", str(features), "--method", "mcl", "-c",
                                        bad, "-o", str(tmp_path / "p.h5")])
@@ -729,8 +730,8 @@ def test_rivals_sum_their_evidence_over_frames(kidsize, model):
         shares.append(pf._kidnap_share(0.0, np.array([2.0])))
     assert shares[0] < 1e-3 < 0.5 < shares[-1]
     np.testing.assert_allclose(pf._rival_placed, rival[0])
-    # forgetting: the evidence of a constant 2 nats a frame stays below 2 * rival_memory
-    assert pf._rival_evidence[0] < 2.0 * conf["rival_memory"]
+    # forgetting: the evidence of a constant 2 nats a frame stays below 2 * RIVAL_MEMORY
+    assert pf._rival_evidence[0] < 2.0 * mcl.RIVAL_MEMORY
     placed = mcl.ParticleFilter(model, copy.deepcopy(mcl.confs["default"]))
     placed.initialise()
     placed._update_rivals(rival, np.array([-1.0]), np.zeros(0), 0.0)

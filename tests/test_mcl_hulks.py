@@ -11,7 +11,7 @@ non-parallel lines or a crossing. Not met: on all 107 captures with labels (the 
 swapped labels corrected), 98 of the 105 informative ones (93 %; 94 of 104 before the crossings'
 full-resolution checks found more crossings); on the third of them this test runs (every third
 capture, to keep it near 25 s), 32 of 34 (94 %) before those checks. Since a uniform start
-places its belief at the first frame's best places (mcl's ``start_places``) the count is the
+places its belief at the first frame's best places (mcl's ``START_PLACES``) the count is the
 same, with other misses; every frame whose 15 still frames decide the labels' pose (by the
 brute force over the field, bench.mcl_hulks.decided: 96 of the 105) is found, as before. Why
 the seven informative misses miss (each capture's observations, the belief's end and the

@@ -131,9 +131,7 @@ def test_placement_prior_prefers_the_own_half(kidsize):
     assert mcl.start_prior(dict(conf, init="uniform"), kidsize) is None
 
 
-@pytest.mark.parametrize("key,value", [("smooth", "yes"), ("smooth", 1),
-                                       ("smooth_temperature", 0.0),
-                                       ("smooth_temperature", "2")])
+@pytest.mark.parametrize("key,value", [("smooth", "yes"), ("smooth", 1)])
 def test_smooth_keys_are_checked(key, value):
     conf = copy.deepcopy(mcl.confs["default"])
     conf[key] = value

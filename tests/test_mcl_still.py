@@ -6,7 +6,7 @@ pair share (the top pose and its mirror image, its confidence up to the field's 
 reported confidence is half of it) must be low on a frame with a single line in view and on one
 with nothing, and high, at the truth, on a frame with lines and crossings. A frame that decides
 its pose (by the brute force over the field) is found: the uniform start places its belief at
-the frame's best places (mcl's ``start_places``)."""
+the frame's best places (mcl's ``START_PLACES``)."""
 
 from __future__ import annotations
 
@@ -92,10 +92,12 @@ def test_a_frame_that_decides_its_pose_is_found_from_a_uniform_start(camera):
     assert min(r.pair for r in res) >= 0.9
 
 
-def test_a_uniform_start_without_the_places_misses_one_of_them():
-    """The same frame with the belief drawn uniformly (``start_places`` 0, as before): the
-    particles settle on another place on both seeds, with a high pair share."""
+def test_a_uniform_start_without_the_places_misses_one_of_them(monkeypatch):
+    """The same frame with the belief drawn uniformly (``mcl.START_PLACES`` 0, as before the
+    start's search): the particles settle on another place on both seeds, with a high pair
+    share."""
     camera = ("perspective-default", "kidsize")
     pose = random_poses(camera[1], RENDERED_POSES)[DECIDED[camera]]
-    res = rendered_still(*camera, [pose], conf={"start_places": 0})
+    monkeypatch.setattr(mcl, "START_PLACES", 0)
+    res = rendered_still(*camera, [pose])
     assert not any(r.hit for r in res)

@@ -5,50 +5,50 @@ Per frame: (1) predict: each particle moved by the odometry with noise (motion_m
 weight: by the likelihood of the frame's observations (observation_model) and, with
 ``imu_heading_sigma``, of the IMU's yaw as a field heading; a frame with no usable observation
 keeps the predicted belief; (3) estimate; (4) resample (low-variance) when the effective sample
-size falls below ``resample_threshold``, on injection, or when the particle count changes.
+size falls below ``RESAMPLE_THRESHOLD``, on injection, or when the particle count changes.
 
 New particles at resampling:
 - augmented MCL (Thrun, Burgard and Fox 2005): from slow and fast averages of the mean
-  per-observation likelihood (``alpha_slow``, ``alpha_fast``), a share max(0, 1 - w_fast /
-  w_slow) (<= ``max_inject``) is replaced while the belief is wide, half by poses the frame's
-  observations place (``inject_from_observations``), half uniformly (mode "recovering", flag
+  per-observation likelihood (``ALPHA_SLOW``, ``ALPHA_FAST``), a share max(0, 1 - w_fast /
+  w_slow) (<= ``MAX_INJECT``) is replaced while the belief is wide, half by poses the frame's
+  observations place (``INJECT_FROM_OBSERVATIONS``), half uniformly (mode "recovering", flag
   "injected=N"); while tracking, the share raises the kidnap prior;
-- sensor resetting (Lenser and Veloso 2000): ``reset_pool`` poses at which one observation is
+- sensor resetting (Lenser and Veloso 2000): ``RESET_POOL`` poses at which one observation is
   explained by a field feature of its kind, drawn by their likelihood under the whole frame. A
-  wide belief (spread >= ``spread_high``) places ``sensor_reset_fraction`` every frame; a
-  tracking one, every ``sensor_reset_every``-th frame (every frame while the likelihood drops),
-  places the posterior share of "elsewhere": prior max(``kidnap_probability``, augmented MCL's
+  wide belief (spread >= ``SPREAD_HIGH``) places ``SENSOR_RESET_FRACTION`` every frame; a
+  tracking one, every ``SENSOR_RESET_EVERY``-th frame (every frame while the likelihood drops),
+  places the posterior share of "elsewhere": prior max(``KIDNAP_PROBABILITY``, augmented MCL's
   share) over the hypothesis regions, the best candidate against the belief's predictive
   likelihood sum(w_i L_i). A tracked robot places (almost) nothing, a kidnapped one most;
-- ``rivals`` (a uniform start's: one frame rarely beats the kidnap prior, and a start settled
+- ``RIVALS`` (a uniform start's: one frame rarely beats the kidnap prior, and a start settled
   metres off along a touch line would stay there): the pool's best poses, moved by the
   odometry, each summing its log-likelihood ratio against the belief's predictive likelihood,
-  forgetting over ``rival_memory`` frames (a sequential test); the best stands for "elsewhere"
+  forgetting over ``RIVAL_MEMORY`` frames (a sequential test); the best stands for "elsewhere"
   once its sum beats the frame's best candidate. A new rival's sum starts from the frames
   before it (``_retro_odds``, up to ``RIVAL_LOOKBACK``), not from its first ratio counted once
-  per earlier frame. Rivals in the best cluster or its mirror, or ``rival_floor`` below the
+  per earlier frame. Rivals in the best cluster or its mirror, or ``RIVAL_FLOOR`` below the
   belief, are dropped;
-- ``random_fraction``: a constant share of uniform particles (0 by default).
+- ``RANDOM_FRACTION``: a constant share of uniform particles (0 by default).
 Unless the prior was symmetric, each new pose is taken as whichever of itself and its mirror
 the belief supports more (kernel density on 256 particles drawn by weight), else the one nearer
 the last estimate: no observation tells them apart, and the other only lets the track flip.
 
 Uniform start (``init: uniform``): the first frame with observations is scored on a coarse
-grid (``start_grid``, each pose as anywhere in its cell: place_search.cell_model), and the
-``start_places`` best distinct places (1 m or 30 deg apart, up to the mirror), refined on two
+grid (``START_GRID``, each pose as anywhere in its cell: place_search.cell_model), and the
+``START_PLACES`` best distinct places (1 m or 30 deg apart, up to the mirror), refined on two
 local grids (place_search.search), each get an *equal* share of the particles, drawn from the
 frame's posterior around it; the grid's likelihood outside them is drawn uniformly (or
-``start_uniform_share``). Drawn uniformly, the particles of a sharp peak are few and off it;
+``START_UNIFORM_SHARE``). Drawn uniformly, the particles of a sharp peak are few and off it;
 drawn by the first frame's likelihood, a broad plateau outweighs a sharp peak: either way
 chance picks among places the first frames explain alike. Equal shares keep each place alive
 until the frames decide.
 
-Particle count (a stand-in for KLD sampling, Fox 2003): ``init_particles`` at the start,
-then ``particles_min`` at spread s = sqrt(var x + var y) <= ``spread_low``, ``particles_max``
-at s >= ``spread_high`` or while augmented MCL injects, linear between.
+Particle count (a stand-in for KLD sampling, Fox 2003): ``INIT_PARTICLES`` at the start,
+then ``particles_min`` at spread s = sqrt(var x + var y) <= ``SPREAD_LOW``, ``particles_max``
+at s >= ``SPREAD_HIGH`` or while augmented MCL injects, linear between.
 
 Estimate: a weighted histogram (1 m x 1 m x 45 deg bins, summed over 2 x 2 x 2 neighbours)
-and three mean-shift steps (``cluster_radius``, ``cluster_heading``) find the best cluster: its
+and three mean-shift steps (``CLUSTER_RADIUS``, ``CLUSTER_HEADING``) find the best cluster: its
 weighted mean is the pose, its covariance the covariance, its weight share the confidence,
 sqrt(var x + var y) the ``error``. Rivals outside the clusters are hypotheses too, at the odds
 their sums give (``_with_rivals``): a particle set alone cannot hold two places that explain a
@@ -57,19 +57,21 @@ still robot's frames alike, and would overstate the one it kept.
 Symmetry: with both goals white a pose and its mirror (FieldModel.mirror_pose) explain every
 image equally. The default ``init: placement`` (own half at either touch line facing into the
 field, as robots enter a game; the opponent's with ``start_half: opponent``) breaks it; a frame
-is "mirror-ambiguous" when the mirrored pose weighs ``mirror_ratio`` of the best cluster.
+is "mirror-ambiguous" when the mirrored pose weighs ``MIRROR_RATIO`` of the best cluster.
 ``init: uniform`` on a point-symmetric field keeps one particle per mirrored pair
-(``symmetric_pairs``), reports the member continuing the last estimate at confidence <= 0.5,
+(``SYMMETRIC_PAIRS``), reports the member continuing the last estimate at confidence <= 0.5,
 flags every frame and decides ``confidence_up_to_mirror``, unless ``start_half`` names the
 first pose's half (``start_half_error``). ``init: pose``: around ``init_pose``, ``init_spread``.
 
 Smoothing (``smooth: true``, offline; smooth.py): ``MclScorer`` scores the particles' poses,
 their mirrors and local fits (``local_fit``) by the negative log-likelihood over
-``smooth_temperature`` (consecutive frames repeat their errors), with the tempered curvature's
+``SMOOTH_TEMPERATURE`` (consecutive frames repeat their errors), with the tempered curvature's
 inverse as covariance; the causal run is unchanged.
 
 All draws come from one ``np.random.default_rng(seed)``: same inputs and seed, same poses. The
 figures behind these choices: docs/results.md, "Why the defaults are what they are".
+Lower-case names in double backquotes are conf keys (what a user chooses), upper-case ones
+the module's tuned constants.
 """
 
 from __future__ import annotations
@@ -80,6 +82,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field
+from types import MappingProxyType
 
 import numpy as np
 
@@ -101,7 +104,7 @@ from .smooth import FrameCandidates
 log = logging.getLogger(__name__)
 
 # a new rival's odds are summed over the frames of this many of the rivals' memory
-# (``rival_memory``) back: a frame that far back weighs exp(-3) ~ 5 % of this one
+# (``RIVAL_MEMORY``) back: a frame that far back weighs exp(-3) ~ 5 % of this one
 RIVAL_LOOKBACK = 3.0
 _NO_SUPPORT = -30.0  # log belief density below which a pose counts as unsupported
 # the most particles a belief may hold (a million: 24 MB a pose array, seconds a frame); more
@@ -109,6 +112,60 @@ _NO_SUPPORT = -30.0  # log belief density below which a pose counts as unsupport
 MAX_PARTICLES = 1_000_000
 IMU_STAMP_TOLERANCE = 0.05  # s: an imu.csv row this near a frame gives the frame's heading
 
+# ---------------------------------------------------------------------------- tuned constants
+# (the figures behind them: docs/results.md, "Why the defaults are what they are")
+
+# particles of the initial belief by the start (``init``), kept until its spread falls below
+# SPREAD_HIGH
+INIT_PARTICLES = MappingProxyType({"placement": 1000, "uniform": 4000, "pose": 1000})
+SPREAD_LOW = 0.15  # m: belief spread at or below which particles_min are used
+SPREAD_HIGH = 0.8  # m: spread at or above which particles_max are used
+RESAMPLE_THRESHOLD = 0.5  # resample when the effective sample size < this * N
+ALPHA_SLOW = 0.01  # augmented MCL: slow average of the observation likelihood
+ALPHA_FAST = 0.1  # ... and the fast one
+MAX_INJECT = 0.25  # at most this share of particles injected per frame
+RANDOM_FRACTION = 0.0  # constant share of uniform random particles per resampling
+SENSOR_RESET_FRACTION = 0.02  # share placed by the landmarks per frame while the belief is
+# wide (global localisation)
+KIDNAP_PROBABILITY = 1e-3  # per frame, that the robot is not where the belief says: while
+# tracking, the landmarks place the posterior share of "elsewhere" (module doc); also the
+# smoother's outlier floor (smooth.Transition)
+SENSOR_RESET_EVERY = 3  # ... placed at every this many frames with landmarks, at once
+RESET_POOL = 100  # candidate poses per frame for the placed shares (by likelihood)
+# while tracking, the pool's best poses kept over frames as rivals of the belief, each
+# accumulating its evidence against it (a sequential test of "elsewhere"), by the initial
+# belief: a uniform start's first frames settle on one of several places that explain
+# them alike, and the rivals find the right one later; from the placement (or a given
+# pose) the prior has chosen, and rivals there take rendered NAO walks off the truth
+# where people's legs and other robots pass for posts
+RIVALS = MappingProxyType({"placement": 0, "uniform": 8, "pose": 0})
+# a uniform start's first frame with observations places the particles at the places
+# where that frame fits best (place_search: the observation model on a coarse grid over
+# the world, the best poses that are other places, each refined), an equal share each,
+# the grid's likelihood share outside them uniform: every place that explains the frame
+# holds particles at its best pose, and the frames that follow decide between them,
+# where particles drawn uniformly or placed by one observation reached one of them first
+# and held it (module doc)
+START_PLACES = 16  # places searched for (0: a uniform belief)
+START_GRID = (0.2, 6.0)  # m, deg: the coarse grid's step and turn
+START_UNIFORM_SHARE = None  # share of the first particles drawn uniformly; None: the
+# grid's share of the likelihood outside the places found
+RIVAL_FLOOR = 10.0  # nats: a rival whose evidence falls this far below the belief's is
+# dropped
+RIVAL_MEMORY = 20.0  # frames: a rival's evidence forgets with this time constant, so that
+# one as good as the belief (a random walk) seldom drifts past the kidnap prior
+INJECT_FROM_OBSERVATIONS = 0.5  # share of injected poses placed by observed landmarks
+WORLD_MARGIN = 0.5  # m around the field where uniform particles may lie
+CLUSTER_RADIUS = 0.6  # m
+CLUSTER_HEADING = 0.6  # rad
+MIRROR_RATIO = 0.5  # mirrored cluster weight / best cluster weight to flag ambiguity
+SYMMETRIC_PAIRS = True  # a symmetric prior on a symmetric field keeps its symmetry
+SMOOTH_TEMPERATURE = 2.0  # the smoother's frame likelihood is the model's to the power
+# 1 / this (consecutive frames' errors are not independent; docs/smoothing.md)
+
+# ---------------------------------------------------------------------------- the presets
+# what a user chooses: the start they know, the particle count (speed against accuracy), the
+# acceptance threshold, the seed, the IMU's heading, smoothing and the observations used
 _DEFAULT = {
     "seed": 0,
     "init": "placement",  # placement | uniform | pose
@@ -123,49 +180,6 @@ _DEFAULT = {
     # first as the spread across the touch line and the last for the heading
     "particles_min": 250,
     "particles_max": 1000,
-    # particles of the initial belief, kept until its spread falls below spread_high
-    "init_particles": {"placement": 1000, "uniform": 4000, "pose": 1000},
-    "spread_low": 0.15,  # m: belief spread at or below which particles_min are used
-    "spread_high": 0.8,  # m: spread at or above which particles_max are used
-    "resample_threshold": 0.5,  # resample when the effective sample size < this * N
-    "alpha_slow": 0.01,  # augmented MCL: slow average of the observation likelihood
-    "alpha_fast": 0.1,  # ... and the fast one
-    "max_inject": 0.25,  # at most this share of particles injected per frame
-    "random_fraction": 0.0,  # constant share of uniform random particles per resampling
-    "sensor_reset_fraction": 0.02,  # share placed by the landmarks per frame while the
-    # belief is wide (global localisation)
-    "kidnap_probability": 1e-3,  # per frame, that the robot is not where the belief says:
-    # while tracking, the landmarks place the posterior share of "elsewhere" (module doc)
-    "sensor_reset_every": 3,  # ... placed at every this many frames with landmarks, at once
-    "reset_pool": 100,  # candidate poses per frame for the placed shares (by likelihood)
-    # while tracking, the pool's best poses kept over frames as rivals of the belief, each
-    # accumulating its evidence against it (a sequential test of "elsewhere"), by the initial
-    # belief: a uniform start's first frames settle on one of several places that explain
-    # them alike, and the rivals find the right one later; from the placement (or a given
-    # pose) the prior has chosen, and rivals there take rendered NAO walks off the truth
-    # where people's legs and other robots pass for posts
-    "rivals": {"placement": 0, "uniform": 8, "pose": 0},
-    # a uniform start's first frame with observations places the particles at the places
-    # where that frame fits best (place_search: the observation model on a coarse grid over
-    # the world, the best poses that are other places, each refined), an equal share each,
-    # the grid's likelihood share outside them uniform: every place that explains the frame
-    # holds particles at its best pose, and the frames that follow decide between them,
-    # where particles drawn uniformly or placed by one observation reached one of them first
-    # and held it (module doc)
-    "start_places": 16,  # places searched for (0: a uniform belief)
-    "start_grid": [0.2, 6.0],  # m, deg: the coarse grid's step and turn
-    "start_uniform_share": None,  # share of the first particles drawn uniformly; None: the
-    # grid's share of the likelihood outside the places found
-    "rival_floor": 10.0,  # nats: a rival whose evidence falls this far below the belief's
-    # is dropped
-    "rival_memory": 20.0,  # frames: a rival's evidence forgets with this time constant, so
-    # that one as good as the belief (a random walk) seldom drifts past the kidnap prior
-    "inject_from_observations": 0.5,  # share of injected poses placed by observed landmarks
-    "world_margin": 0.5,  # m around the field where uniform particles may lie
-    "cluster_radius": 0.6,  # m
-    "cluster_heading": 0.6,  # rad
-    "mirror_ratio": 0.5,  # mirrored cluster weight / best cluster weight to flag ambiguity
-    "symmetric_pairs": True,  # a symmetric prior on a symmetric field keeps its symmetry
     "min_confidence": 0.8,  # a frame is accepted when its best cluster holds this share (a
     # belief split evenly between a pose and its mirror holds 0.5 each)
     "hypotheses": 5,  # clusters of the belief listed per frame
@@ -176,10 +190,7 @@ _DEFAULT = {
     "imu_heading_sigma": None,
     "smooth": False,  # decide every frame with the whole recording (smooth.py, MclScorer):
     # offline; the causal run's poses are then replaced by the smoothed ones
-    "smooth_temperature": 2.0,  # the smoother's frame likelihood is the model's to the
-    # power 1 / this (consecutive frames' errors are not independent)
-    "observation": dict(OBSERVATION_DEFAULTS),
-    "motion": dict(motion_model.DEFAULTS),
+    "observation": dict(OBSERVATION_DEFAULTS),  # camera height, kinds of observation used
 }
 
 
@@ -260,14 +271,14 @@ class ParticleFilter:
         self._recent: collections.deque = collections.deque(maxlen=1)
         self._since_recent = np.zeros(3)
         self._rival_placed: np.ndarray | None = None  # the rival this frame places, if any
-        self._n_rivals = 0  # rivals kept, by the initial belief (conf "rivals")
+        self._n_rivals = 0  # rivals kept, by the initial belief (RIVALS)
         self._start_search = False  # a uniform start: the first observations place the belief
         hx, hy = self.field.length / 2, self.field.width / 2
-        m = float(self.conf["world_margin"])
+        m = float(WORLD_MARGIN)
         self._bounds = (-hx - m, hx + m, -hy - m, hy + m)
         self._placer = PosePlacer(model, self._bounds)  # poses placed by observations
-        self._clusters = Clustering(self._bounds, float(self.conf["cluster_radius"]),
-                                    float(self.conf["cluster_heading"]))
+        self._clusters = Clustering(self._bounds, float(CLUSTER_RADIUS),
+                                    float(CLUSTER_HEADING))
 
     @classmethod
     def from_field(cls, field_model, conf: dict | None = None) -> ParticleFilter:
@@ -276,19 +287,22 @@ class ParticleFilter:
         return cls(ObservationModel.from_field(field_model, conf["observation"]), conf)
 
     # ------------------------------------------------------------------ initial belief
-    def initialise(self, mode: str | None = None, pose=None):
+    def initialise(self, mode: str | None = None, pose=None, n: int | None = None):
+        """The initial belief of ``mode`` (the conf's ``init`` by default): ``n`` particles
+        (by default INIT_PARTICLES of the mode; half while each stands for a mirrored pair)."""
         c = self.conf
         mode = mode or c["init"]
-        self.paired = (mode == "uniform" and bool(c["symmetric_pairs"])
+        self.paired = (mode == "uniform" and bool(SYMMETRIC_PAIRS)
                        and self.field.is_point_symmetric() and c["start_half"] == "any"
                        and not self.imu_heading)
-        n = self._base_count(int(c["init_particles"].get(mode, c["particles_max"])))
+        n = self._base_count(int(INIT_PARTICLES.get(mode, c["particles_max"]) if n is None
+                                 else n))
         self._last_pose = None
         self._last_estimate = None
         self._since_reset = 0
         self._clear_rivals()
-        self._n_rivals = int(c["rivals"].get(mode, 0))
-        self._start_search = mode == "uniform" and int(c["start_places"]) > 0
+        self._n_rivals = int(RIVALS.get(mode, 0))
+        self._start_search = mode == "uniform" and int(START_PLACES) > 0
         if mode == "uniform":
             p = self._uniform(n, start=True)
         elif mode == "placement":
@@ -352,7 +366,7 @@ class ParticleFilter:
     def predict(self, odometry, dt: float, has_odometry: bool = True, collision: bool = False,
                 imu_yaw: bool = False):
         self.particles = motion_model.sample_motion(
-            self.particles, odometry, dt, self.rng, self.conf["motion"], has_odometry=has_odometry,
+            self.particles, odometry, dt, self.rng, has_odometry=has_odometry,
             collision=collision, imu_yaw=imu_yaw)
         if len(self._rivals):  # the rivals move by the odometry, without noise (each is one
             # pose: a random walk would carry it off the place whose evidence it sums)
@@ -399,7 +413,7 @@ class ParticleFilter:
             self._clear_rivals()
         pool = np.zeros((0, 3))
         if self._reset_now:
-            pool = self._poses_from_observations(int(self.conf["reset_pool"]), prep.obs)
+            pool = self._poses_from_observations(int(RESET_POOL), prep.obs)
         rivals = self._rivals
         if len(pool) or len(rivals):
             p = np.concatenate([p, pool, rivals])
@@ -428,8 +442,8 @@ class ParticleFilter:
         if self.w_slow is None:
             self.w_slow = self.w_fast = w_avg
         else:
-            self.w_slow += self.conf["alpha_slow"] * (w_avg - self.w_slow)
-            self.w_fast += self.conf["alpha_fast"] * (w_avg - self.w_fast)
+            self.w_slow += ALPHA_SLOW * (w_avg - self.w_slow)
+            self.w_fast += ALPHA_FAST * (w_avg - self.w_fast)
         lw = np.log(np.maximum(self.weights, 1e-300)) + ll
         lw -= lw.max()
         w = np.exp(lw)
@@ -439,23 +453,23 @@ class ParticleFilter:
 
     def _place_start(self, prep):
         """A uniform start's first frame with observations: the belief placed at the places
-        where the frame fits best (place_search.search: ``start_places`` of them on the coarse
-        grid ``start_grid`` over the world, or its half x <= 0 while particles stand for
+        where the frame fits best (place_search.search: ``START_PLACES`` of them on the coarse
+        grid ``START_GRID`` over the world, or its half x <= 0 while particles stand for
         mirrored pairs, each refined), an equal share of the particles around each (a
         Gaussian of the frame's posterior near it, place_search.local_posterior), and the
         grid's share of the likelihood outside them uniform over the world (or
-        ``start_uniform_share`` when given)."""
+        ``START_UNIFORM_SHARE`` when given)."""
         c = self.conf
         n = len(self.particles)
         bounds = self._start_bounds()
-        step, turn = (float(v) for v in c["start_grid"])
+        step, turn = (float(v) for v in START_GRID)
         places, elsewhere = place_search.search(
-            self.model, prep, bounds, step, turn, int(c["start_places"]),
+            self.model, prep, bounds, step, turn, int(START_PLACES),
             mirror=self.symmetric, cells=True)
         if not places:
             return
-        if c["start_uniform_share"] is not None:
-            elsewhere = float(c["start_uniform_share"])
+        if START_UNIFORM_SHARE is not None:
+            elsewhere = float(START_UNIFORM_SHARE)
         n_uni = int(round(n * min(max(elsewhere, 0.0), 1.0)))
         counts = np.full(len(places), (n - n_uni) // len(places))
         counts[:(n - n_uni) - int(counts.sum())] += 1
@@ -475,7 +489,7 @@ class ParticleFilter:
 
     def _kidnap_share(self, log_tracked: float, ll_pool: np.ndarray) -> float:
         """The posterior share of "the robot is elsewhere": its prior (the larger of
-        ``kidnap_probability`` and augmented MCL's share, ``inject_share``) spread over the
+        ``KIDNAP_PROBABILITY`` and augmented MCL's share, ``inject_share``) spread over the
         world's hypothesis regions (a cluster's radius and heading window), against the
         predicted belief's likelihood sum(w_i L_i) (``log_tracked``, its log). The place it
         would be is the best of this frame's placed poses (its likelihood in this frame) or
@@ -494,7 +508,7 @@ class ParticleFilter:
         self._rivals = np.zeros((0, 3))
         self._rival_evidence = np.zeros(0)
         self._rival_odds = np.zeros(0)
-        memory = max(float(self.conf["rival_memory"]), 1.0)
+        memory = max(float(RIVAL_MEMORY), 1.0)
         self._recent = collections.deque(maxlen=int(math.ceil(RIVAL_LOOKBACK * memory)))
         self._since_recent = np.zeros(3)
 
@@ -506,13 +520,12 @@ class ParticleFilter:
         (one frame's ratio must beat the kidnap prior on its own). The pool's best poses join
         as new rivals, or move a rival they lie within a cluster of to the better of the two
         poses; rivals inside the belief's best cluster (or its mirror), or below the belief by
-        ``rival_floor``, are dropped; the ``rivals`` strongest are kept."""
-        c = self.conf
+        ``RIVAL_FLOOR``, are dropped; the ``RIVALS`` strongest are kept."""
         k_max = self._n_rivals
         if k_max <= 0:
             return
         poses = self._rivals.copy()
-        keep_share = 1.0 - 1.0 / max(float(c["rival_memory"]), 1.0)
+        keep_share = 1.0 - 1.0 / max(float(RIVAL_MEMORY), 1.0)
         evidence = self._rival_evidence * keep_share + (ll_rivals - log_tracked)
         # the odds compare poses with poses: each rival with the belief's heaviest particle
         # (against the belief's predictive likelihood, a spread belief would lose to any
@@ -527,9 +540,9 @@ class ParticleFilter:
             if len(poses):  # a candidate within a cluster of a rival moves it
                 near = (((q[:, None, 0] - poses[None, :, 0]) ** 2
                          + (q[:, None, 1] - poses[None, :, 1]) ** 2
-                         <= float(c["cluster_radius"]) ** 2)
+                         <= float(CLUSTER_RADIUS) ** 2)
                         & (np.cos(q[:, None, 2] - poses[None, :, 2])
-                           >= math.cos(float(c["cluster_heading"]))))
+                           >= math.cos(float(CLUSTER_HEADING))))
                 new = ~near.any(axis=1)
                 held = np.array(ll_rivals, float)
                 for j in np.flatnonzero(~new):
@@ -543,7 +556,7 @@ class ParticleFilter:
             poses = np.concatenate([poses, q[new]])
             evidence = np.concatenate([evidence, e_q])
             odds = np.concatenate([odds, o_q + (ll_q[new] - ll_b)])
-        keep = evidence > -float(c["rival_floor"])
+        keep = evidence > -float(RIVAL_FLOOR)
         last = self._last_estimate
         if last is not None and len(poses):
             x, y, th = poses[:, 0], poses[:, 1], poses[:, 2]
@@ -580,32 +593,29 @@ class ParticleFilter:
 
     def _elsewhere(self) -> float:
         """The prior probability that the robot is not where the belief says: the larger of
-        ``kidnap_probability`` and augmented MCL's share (``inject_share``)."""
-        return max(float(self.conf["kidnap_probability"]), self.inject_share(), 1e-300)
+        ``KIDNAP_PROBABILITY`` and augmented MCL's share (``inject_share``)."""
+        return max(float(KIDNAP_PROBABILITY), self.inject_share(), 1e-300)
 
     def _regions(self) -> float:
         """How many hypothesis regions (a cluster's radius and heading window) the world holds:
         a uniform belief's density in the units of ``_log_support`` is about 1 / this."""
-        c = self.conf
         x0, x1, y0, y1 = self._bounds
-        return max((x1 - x0) * (y1 - y0) / (math.pi * c["cluster_radius"] ** 2)
-                   * math.pi / max(c["cluster_heading"], 1e-6), 1.0)
+        return max((x1 - x0) * (y1 - y0) / (math.pi * CLUSTER_RADIUS ** 2)
+                   * math.pi / max(CLUSTER_HEADING, 1e-6), 1.0)
 
     def inject_share(self) -> float:
         """Augmented MCL: the share of random particles, max(0, 1 - w_fast / w_slow)."""
-        c = self.conf
-        share = float(c["random_fraction"])
+        share = float(RANDOM_FRACTION)
         if self.w_slow and self.w_fast is not None and self.w_slow > 0:
             share += max(0.0, 1.0 - self.w_fast / self.w_slow)
-        return min(share, float(c["max_inject"]))
+        return min(share, float(MAX_INJECT))
 
     def resample(self, obs: Observations | None = None, spread: float | None = None):
         """Low-variance resampling when needed, with new particles; returns how many were
         injected by augmented MCL and how many placed by this frame's observations. While the
         belief is wide (global localisation) augmented MCL injects its share and the
-        observations place ``sensor_reset_fraction`` per frame; while tracking, the placed
+        observations place ``SENSOR_RESET_FRACTION`` per frame; while tracking, the placed
         poses are the posterior share of "elsewhere" (``_kidnap_share``)."""
-        c = self.conf
         n = len(self.weights)
         ess = 1.0 / float(np.dot(self.weights, self.weights))
         wide = self._wide()
@@ -616,7 +626,7 @@ class ParticleFilter:
         if obs is not None and self._places(obs):
             now = self._resetting(obs) if self._reset_now is None else self._reset_now
             if now and wide:  # the share of the frames since the last reset
-                reset = min(float(c["sensor_reset_fraction"]) * (self._since_reset + 1), 1.0)
+                reset = min(float(SENSOR_RESET_FRACTION) * (self._since_reset + 1), 1.0)
             elif now:
                 reset = self._kidnap or 0.0
             self._since_reset = 0 if now else self._since_reset + 1
@@ -625,7 +635,7 @@ class ParticleFilter:
         placed = (self._mirror_guard(self._placed_poses(n_reset, obs)) if n_reset
                   else np.zeros((0, 3)))
         new = np.concatenate([aug, placed])[: n_target - 1]
-        needed = ess < c["resample_threshold"] * n or len(new) > 0 or abs(n_target - n) > 0.25 * n
+        needed = ess < RESAMPLE_THRESHOLD * n or len(new) > 0 or abs(n_target - n) > 0.25 * n
         if not needed:
             return 0, 0
         keep = n_target - len(new)
@@ -639,22 +649,22 @@ class ParticleFilter:
         return n_aug, len(new) - n_aug
 
     def _wide(self) -> bool:
-        """Whether the belief was wide at the last estimate (spread at or above spread_high:
+        """Whether the belief was wide at the last estimate (spread at or above SPREAD_HIGH:
         global localisation)."""
         last = self._last_estimate
-        return last is None or not last.spread < self.conf["spread_high"]
+        return last is None or not last.spread < SPREAD_HIGH
 
     def _resetting(self, obs: Observations) -> bool:
         """Whether this frame places poses by its observations (sensor resetting): it has
         observations that place one (``_places``), and the belief is wide (the last spread at
-        or above ``spread_high``: every frame), augmented MCL's averages say the likelihood
-        dropped (every frame), or ``sensor_reset_every`` - 1 such frames have passed since the
+        or above ``SPREAD_HIGH``: every frame), augmented MCL's averages say the likelihood
+        dropped (every frame), or ``SENSOR_RESET_EVERY`` - 1 such frames have passed since the
         last."""
         if not self._places(obs):
             return False
         if self._wide() or self.inject_share() > 0:
             return True
-        return self._since_reset + 1 >= max(int(self.conf["sensor_reset_every"]), 1)
+        return self._since_reset + 1 >= max(int(SENSOR_RESET_EVERY), 1)
 
     @staticmethod
     def _places(obs: Observations) -> bool:
@@ -689,10 +699,9 @@ class ParticleFilter:
 
     def _log_support(self, poses: np.ndarray, held: int = 256) -> np.ndarray:
         """log of the belief's density at ``poses`` (M, 3), up to a constant: the weighted sum
-        of Gaussian kernels (``cluster_radius``, ``cluster_heading``) on ``held`` particles
+        of Gaussian kernels (``CLUSTER_RADIUS``, ``CLUSTER_HEADING``) on ``held`` particles
         drawn from the belief by their weight (evenly spaced on the weights' cumulative sum,
         no random draw)."""
-        c = self.conf
         w = self.weights
         cum = np.cumsum(w)
         k = min(held, len(w))
@@ -700,22 +709,22 @@ class ParticleFilter:
         q = self.particles[idx]
         dx = poses[:, 0:1] - q[None, :, 0]
         dy = poses[:, 1:2] - q[None, :, 1]
-        e = (dx * dx + dy * dy) / (2.0 * c["cluster_radius"] ** 2)
-        e += (1.0 - np.cos(poses[:, 2:3] - q[None, :, 2])) / max(c["cluster_heading"], 1e-6) ** 2
+        e = (dx * dx + dy * dy) / (2.0 * CLUSTER_RADIUS ** 2)
+        e += (1.0 - np.cos(poses[:, 2:3] - q[None, :, 2])) / max(CLUSTER_HEADING, 1e-6) ** 2
         top = (-e).max(axis=1)
         return top + np.log(np.exp(-e - top[:, None]).sum(axis=1)) - math.log(len(q))
 
     def _particle_count(self, spread: float | None, share: float) -> int:
         """Particles (held) after resampling: by the belief's spread between particles_min and
-        particles_max; a larger initial set (init_particles) is kept until the belief has
-        narrowed below spread_high."""
+        particles_max; a larger initial set (INIT_PARTICLES) is kept until the belief has
+        narrowed below SPREAD_HIGH."""
         c = self.conf
         lo, hi = int(c["particles_min"]), int(c["particles_max"])
-        if spread is not None and spread >= c["spread_high"]:
+        if spread is not None and spread >= SPREAD_HIGH:
             return max(self._base_count(hi), len(self.weights))
         if share > 0 or spread is None:
             return self._base_count(hi)
-        f = (spread - c["spread_low"]) / max(c["spread_high"] - c["spread_low"], 1e-9)
+        f = (spread - SPREAD_LOW) / max(SPREAD_HIGH - SPREAD_LOW, 1e-9)
         return self._base_count(int(round(lo + (hi - lo) * min(max(f, 0.0), 1.0))))
 
     def _injected_poses(self, n: int, obs: Observations | None) -> np.ndarray:
@@ -723,7 +732,7 @@ class ParticleFilter:
         n_placed = 0
         out = []
         if obs is not None and self._places(obs):
-            n_placed = int(round(n * float(self.conf["inject_from_observations"])))
+            n_placed = int(round(n * float(INJECT_FROM_OBSERVATIONS)))
         if n_placed:
             out.append(self._placed_poses(n_placed, obs))
         out.append(self._uniform(n - sum(len(q) for q in out)))
@@ -736,13 +745,12 @@ class ParticleFilter:
         if n <= 0:
             return np.zeros((0, 3))
         if self._rival_placed is not None:  # a rival won the sequential test: around it
-            c = self.conf
-            spread = np.array([c["cluster_radius"], c["cluster_radius"], c["cluster_heading"]])
+            spread = np.array([CLUSTER_RADIUS, CLUSTER_RADIUS, CLUSTER_HEADING])
             p = self._rival_placed + self.rng.standard_normal((n, 3)) * (spread / 6.0)
             p[:, 2] = wrap_angle(p[:, 2])
             return p
         if self._pool is None and self._prep is not None:  # not weighted with the particles
-            pool = self._poses_from_observations(int(self.conf["reset_pool"]), self._prep.obs)
+            pool = self._poses_from_observations(int(RESET_POOL), self._prep.obs)
             ll = (self.model.log_likelihood(pool[:, 0], pool[:, 1], pool[:, 2], self._prep)
                   if len(pool) else None)
             self._pool = (pool, ll)
@@ -790,7 +798,7 @@ class ParticleFilter:
         if self.paired:  # the belief is half the held set, half its mirror image
             conf_share = mirror_share = 0.5 * (conf_share + mirror_share)
             n_particles *= 2
-        if conf_share > 0 and mirror_share >= c["mirror_ratio"] * conf_share:
+        if conf_share > 0 and mirror_share >= MIRROR_RATIO * conf_share:
             flags.append("mirror-ambiguous")
         rows = [(*centre, conf_share)]
         if self.symmetric:
@@ -982,32 +990,24 @@ def run(conf: dict, dataset, features, map_file, progress=None) -> PoseTrack:
     if keep is None:
         return track
     scorer = MclScorer(model, keep, mirrored=pf.symmetric,
-                       temperature=float(conf["smooth_temperature"]))
-    motion = motion_of(conf["motion"], increments, stamps, odometry is not None, collision,
-                       imu_yaw)
+                       temperature=float(SMOOTH_TEMPERATURE))
+    motion = motion_of(increments, stamps, odometry is not None, collision, imu_yaw)
     x0, x1, y0, y1 = pf._bounds
-    return smooth.smooth_track(scorer, track, motion, conf, area=(x1 - x0) * (y1 - y0),
+    # the smoother reads its outlier floor from the method's conf: the filter's kidnap prior
+    return smooth.smooth_track(scorer, track, motion,
+                               dict(conf, kidnap_probability=KIDNAP_PROBABILITY),
+                               area=(x1 - x0) * (y1 - y0),
                                log_prior0=start_prior(conf, model.field))
 
 
 # the ranges mcl's numeric keys must lie in to run at all (common.conf.check_bounds; the
-# particle counts below): a zero cluster radius or sigma divides by zero, a floor outside
-# ]0, 1[ gives no likelihood, a world margin of 1e12 m no field
-BOUNDS = {"seed": (0, None), "world_margin": (0, 100.0), "cluster_radius": ((0,), None),
-          "cluster_heading": ((0,), None), "spread_low": (0, None), "spread_high": ((0,), None),
-          "hypotheses": (1, 1000), "reset_pool": (1, 100_000), "start_places": (0, 1000),
-          "sensor_reset_every": (1, None), "rival_memory": ((0,), None),
-          "observation.sigma_range": ((0,), None), "observation.sigma_bearing": ((0,), None),
-          "observation.sigma_line": ((0,), None), "observation.sigma_line_angle": ((0,), None),
-          "observation.sigma_extent": ((0,), None),
-          "observation.uniform_floor": ((0,), (1,)),
-          "observation.post_uniform_floor": ((0,), (1,))}
+# particle counts below)
+BOUNDS = {"seed": (0, None), "hypotheses": (1, 1000)}
 
 
 def _check_conf(conf: dict):
     check_bounds(conf, BOUNDS)
-    counts = {"particles_min": conf["particles_min"], "particles_max": conf["particles_max"],
-              **{f"init_particles.{k}": v for k, v in conf["init_particles"].items()}}
+    counts = {"particles_min": conf["particles_min"], "particles_max": conf["particles_max"]}
     for key, v in counts.items():
         if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= MAX_PARTICLES:
             raise FieldlocError(f"{key} must be a whole number in 1..{MAX_PARTICLES}, not"
@@ -1017,9 +1017,6 @@ def _check_conf(conf: dict):
                             f" particles_max ({conf['particles_max']})")
     if not isinstance(conf["smooth"], bool):
         raise FieldlocError(f"smooth must be true or false, not {str(conf['smooth'])[:40]!r}")
-    t = conf["smooth_temperature"]
-    if isinstance(t, bool) or not isinstance(t, (int, float)) or not t > 0:
-        raise FieldlocError(f"smooth_temperature must be a number > 0, not {str(t)[:40]}")
     s = conf["imu_heading_sigma"]
     if s is not None and (isinstance(s, bool) or not isinstance(s, (int, float))
                           or not 0 < s < math.inf):
@@ -1241,15 +1238,15 @@ class MclScorer:
         return self._fixes(i, starts)
 
 
-def motion_of(motion_conf: dict, increments: np.ndarray, stamps: np.ndarray,
-              has_odometry: bool, collision: np.ndarray, imu_yaw: np.ndarray) -> smooth.Motion:
+def motion_of(increments: np.ndarray, stamps: np.ndarray, has_odometry: bool,
+              collision: np.ndarray, imu_yaw: np.ndarray) -> smooth.Motion:
     """The run's smooth.Motion: per frame the odometry increment and the motion model's
     noise of that update (motion_model.motion_sigmas) as its covariance."""
     n = len(increments)
     cov = np.zeros((n, 3, 3))
     for i in range(n):
         dt = float(stamps[i] - stamps[i - 1]) if i else 0.0
-        s_t, s_r = motion_model.motion_sigmas(increments[i], max(dt, 0.0), motion_conf,
+        s_t, s_r = motion_model.motion_sigmas(increments[i], max(dt, 0.0),
                                               has_odometry=has_odometry,
                                               collision=bool(collision[i]),
                                               imu_yaw=bool(imu_yaw[i]))

@@ -62,10 +62,10 @@ class PosePlacer:
         r = (u[0] * len(kind)).astype(np.int64)
         r_kind = kind[r]
         k = start[r_kind] + (u[1] * count[r_kind]).astype(np.int64)
-        mc = self.model.conf
-        elevation = np.where(r_kind == 3, mc["post_elevation_sigma"], mc["elevation_sigma"])
-        dd = d[r] + noise[0] * self.model.range_sigma(d[r], mc["sigma_range"], elevation)
-        bb = b[r] + noise[1] * mc["sigma_bearing"]
+        mc = self.model.tuning
+        elevation = np.where(r_kind == 3, mc.post_elevation_sigma, mc.elevation_sigma)
+        dd = d[r] + noise[0] * self.model.range_sigma(d[r], mc.sigma_range, elevation)
+        bb = b[r] + noise[1] * mc.sigma_bearing
         post = r_kind == 3
         # a crossing fixes the heading by its orientation (X: up to quarter turns); a post
         # leaves it free, on a circle around the post
@@ -97,15 +97,15 @@ class PosePlacer:
         i = (u[0] * len(ln)).astype(np.int64)
         j = (u[1] * len(off)).astype(np.int64)
         side = np.where(rng.random(n) < 0.5, 1.0, -1.0)
-        mc = self.model.conf
+        mc = self.model.tuning
         th = (np.arctan2(side * nrm[j, 1], side * nrm[j, 0]) - a_obs[i]
-              + noise[0] * mc["sigma_line_angle"])
+              + noise[0] * mc.sigma_line_angle)
         c, s_ = np.cos(th), np.sin(th)
         mx, my = c * mid[i, 0] - s_ * mid[i, 1], s_ * mid[i, 0] + c * mid[i, 1]
         room = np.maximum(hi[j] - lo[j] - 2.0 * half[i], 0.0)
         t = lo[j] + 0.5 * (hi[j] - lo[j] - room) + u[2] * room  # where the middle lies
         normal = off[j] - side * (r_obs[i] + noise[1] * self.model.range_sigma(
-            r_obs[i], mc["sigma_line"]))
+            r_obs[i], mc.sigma_line))
         along = t - (mx * tng[j, 0] + my * tng[j, 1])
         return np.stack([normal * nrm[j, 0] + along * tng[j, 0],
                          normal * nrm[j, 1] + along * tng[j, 1], wrap_angle(th)], axis=1)

@@ -8,10 +8,11 @@ Noise (standard deviations, per update of ``dt`` seconds)::
     rotation:                     rot_per_rot * |dtheta| + rot_per_trans * |d|
                                   + rot_per_sqrt_s * sqrt(dt)
 
-with |d| = hypot(dx, dy). The proportional terms are the odometry's scale errors; the sqrt(dt)
-terms are the walking robot's jitter (a random walk, so the filter behaves the same at any frame
-rate). Without odometry the increment is zero and ``no_odometry_speed`` (m/s) and
-``no_odometry_turn`` (rad/s) bound how far the robot may have gone in ``dt``.
+with |d| = hypot(dx, dy) (the terms are the fields of ``NOISE``, a ``MotionNoise``). The
+proportional terms are the odometry's scale errors; the sqrt(dt) terms are the walking robot's
+jitter (a random walk, so the filter behaves the same at any frame rate). Without odometry the
+increment is zero and ``no_odometry_speed`` (m/s) and ``no_odometry_turn`` (rad/s) bound how far
+the robot may have gone in ``dt``.
 
 Collisions (the IMU's collision flag, DIR/imu.csv): a pushed or stumbling robot's odometry is
 unreliable (GUIDE: the flag stops odometry from being fused). For such frames the heading
@@ -23,52 +24,72 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from ..common.geometry import compose
 
-DEFAULTS = {
-    "trans_per_trans": 0.15,  # m of noise per m travelled
-    "trans_per_sqrt_s": 0.03,  # m / sqrt(s)
-    "rot_per_rot": 0.15,  # rad of noise per rad turned
-    "rot_per_trans": 0.3,  # rad of noise per m travelled
-    "rot_per_sqrt_s": 0.05,  # rad / sqrt(s)
-    "no_odometry_speed": 0.3,  # m/s, spread per second when there is no odometry
-    "no_odometry_turn": 0.6,  # rad/s
-    "collision_trans": 0.06,  # m of extra noise per update while the IMU flags a collision
-    "collision_rot": 0.03,  # rad of extra noise then, with the IMU's yaw change
-    "collision_rot_without_imu": 0.3,  # rad, when the IMU's yaw is not known
-}
+
+class MotionNoise(NamedTuple):
+    """The motion model's noise terms (module doc): standard deviations per update."""
+
+    trans_per_trans: float
+    trans_per_sqrt_s: float
+    rot_per_rot: float
+    rot_per_trans: float
+    rot_per_sqrt_s: float
+    no_odometry_speed: float
+    no_odometry_turn: float
+    collision_trans: float
+    collision_rot: float
+    collision_rot_without_imu: float
 
 
-def motion_sigmas(odometry, dt: float, conf: dict | None = None, *, has_odometry=True,
+# the particle filter's motion noise (mcl.py; the smoother's transitions take the same,
+# mcl.motion_of): the values the filter has run with since it was written (docs/results.md
+# records no measurement of their own)
+NOISE = MotionNoise(
+    trans_per_trans=0.15,  # m of noise per m travelled
+    trans_per_sqrt_s=0.03,  # m / sqrt(s)
+    rot_per_rot=0.15,  # rad of noise per rad turned
+    rot_per_trans=0.3,  # rad of noise per m travelled
+    rot_per_sqrt_s=0.05,  # rad / sqrt(s)
+    no_odometry_speed=0.3,  # m/s, spread per second when there is no odometry
+    no_odometry_turn=0.6,  # rad/s
+    collision_trans=0.06,  # m of extra noise per update while the IMU flags a collision
+    collision_rot=0.03,  # rad of extra noise then, with the IMU's yaw change
+    collision_rot_without_imu=0.3,  # rad, when the IMU's yaw is not known
+)
+
+
+def motion_sigmas(odometry, dt: float, noise: MotionNoise = NOISE, *, has_odometry=True,
                   collision: bool = False, imu_yaw: bool = False):
-    """(sigma_translation, sigma_rotation) of one update."""
-    c = dict(DEFAULTS, **(conf or {}))
+    """(sigma_translation, sigma_rotation) of one update with the terms of ``noise``."""
+    c = noise
     dx, dy, dth = (float(v) for v in odometry)
     d = math.hypot(dx, dy)
     rt = math.sqrt(max(dt, 0.0))
-    s_t = c["trans_per_trans"] * d + c["trans_per_sqrt_s"] * rt
-    s_r = c["rot_per_rot"] * abs(dth) + c["rot_per_trans"] * d + c["rot_per_sqrt_s"] * rt
+    s_t = c.trans_per_trans * d + c.trans_per_sqrt_s * rt
+    s_r = c.rot_per_rot * abs(dth) + c.rot_per_trans * d + c.rot_per_sqrt_s * rt
     if not has_odometry:
-        s_t += c["no_odometry_speed"] * max(dt, 0.0)
-        s_r += c["no_odometry_turn"] * max(dt, 0.0)
+        s_t += c.no_odometry_speed * max(dt, 0.0)
+        s_r += c.no_odometry_turn * max(dt, 0.0)
     if collision:
-        s_t += c["collision_trans"]
-        s_r += c["collision_rot"] if imu_yaw else c["collision_rot_without_imu"]
+        s_t += c.collision_trans
+        s_r += c.collision_rot if imu_yaw else c.collision_rot_without_imu
     return s_t, s_r
 
 
 def sample_motion(particles: np.ndarray, odometry, dt: float, rng: np.random.Generator,
-                  conf: dict | None = None, *, has_odometry: bool = True,
+                  noise: MotionNoise = NOISE, *, has_odometry: bool = True,
                   collision: bool = False, imu_yaw: bool = False) -> np.ndarray:
     """Particles (N, 3) moved by ``odometry`` (dx, dy, dtheta) with noise; returns a new
     array (the input is not changed). ``collision``: the IMU flags a collision in this update
     (``imu_yaw``: dtheta is the IMU's yaw change)."""
     p = np.asarray(particles, dtype=float)
     n = len(p)
-    s_t, s_r = motion_sigmas(odometry, dt, conf, has_odometry=has_odometry,
+    s_t, s_r = motion_sigmas(odometry, dt, noise, has_odometry=has_odometry,
                              collision=collision, imu_yaw=imu_yaw)
     dx, dy, dth = (float(v) for v in odometry)
     noise = rng.standard_normal((3, n))

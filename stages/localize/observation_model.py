@@ -46,6 +46,10 @@ Combination (section 5.3): each observation's likelihood is
 are other robots' or people's legs), the uniform density taken relative to the peak of the
 normal model; the frame's likelihood is the product over observations (a sum of logarithms).
 
+The names in double backquotes above are fields of ``TUNING`` (an ``ObservationTuning``);
+which kinds of observation are used and the camera's height are the user's choice
+(``DEFAULTS``, mcl's ``observation`` conf group).
+
 Speed: ``log_likelihood`` runs the numba kernel of stages.localize.mcl_kernels (one pass per
 observation over the poses, the alternatives of a crossing's type evaluated in registers, and
 only where the observed type costs more than the confusion's penalty). Costs are capped at 60
@@ -57,6 +61,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -71,34 +76,64 @@ from . import mcl_kernels as K
 PARTS = ("lines", "crossings", "posts")
 DEFAULT_CAMERA_HEIGHT = 0.5  # m, when neither the conf nor a calibration gives one
 
+# what a user chooses (mcl's ``observation`` conf group): the camera's height and which kinds
+# of observation to use (the no-lines preset is the paper's ablation: crossings and posts only)
 DEFAULTS = {
     "camera_height": None,  # m, the camera above the floor; None: the dataset's calib.yaml
     # (mcl.run), 0.5 without one
-    "sigma_range": 0.03,  # m, range sigma of eq. 3 at distance 0
-    "elevation_sigma": 0.01,  # rad, sigma of a floor point's angle below the horizon (the
-    # camera's pitch and the pixel's error): the range sigma grows as (h^2 + d^2) / h
-    "post_elevation_sigma": 0.03,  # rad, the same for a goal post's foot (less sharp)
-    "sigma_bearing": 0.06,  # rad, sigma_phi of eq. 3
-    "sigma_crossing_orientation": 0.3,  # rad, L/T/X orientation term; 0 = off (the paper)
-    "crossing_type_confusion": 0.2,  # probability that a crossing shows fewer arms than it
-    # has (an L of a T or X, a T of an X: an arm unseen); 0 = types as observed (the paper)
-    "sigma_line": 0.03,  # m, sigma_l of eq. 4 at distance 0 (grows as the range sigma)
-    "sigma_line_angle": 0.08,  # rad, sigma_psi of eq. 4
-    "oriented_tolerance": 0.15,  # m, eq. 5 accepts <l_e, l_o> > -tol^2
-    "line_extent": True,  # charge the part of a segment beyond the model segment's ends
-    "sigma_extent": 0.15,  # m, at distance 0 (grows as the range sigma of the farther end)
-    "extent_margin": 0.1,  # m of overhang that is free
-    "arc_lines": True,  # the centre circle (and arcs) as candidate lines, by their tangent
-    "min_line_length": 0.3,  # m, shorter lines are ignored (Schulz et al.: short, far lines)
-    "max_line_distance": 6.0,  # m, lines whose closest point is farther are ignored
-    "uniform_floor": 0.1,  # a_base of section 5.3, in ]0, 1[
-    "post_uniform_floor": 0.6,  # a_base for goal posts: most detected posts are no goal
-    # post (robots' and people's legs: on rendered NAO walks most detections lie at no post
-    # at the true pose; docs/results.md); None = uniform_floor
     "use_lines": True,
     "use_crossings": True,
     "use_posts": True,
 }
+
+
+class ObservationTuning(NamedTuple):
+    """The observation model's sigmas, floors and switches of its equations (module doc)."""
+
+    sigma_range: float
+    elevation_sigma: float
+    post_elevation_sigma: float
+    sigma_bearing: float
+    sigma_crossing_orientation: float
+    crossing_type_confusion: float
+    sigma_line: float
+    sigma_line_angle: float
+    oriented_tolerance: float
+    line_extent: bool
+    sigma_extent: float
+    extent_margin: float
+    arc_lines: bool
+    min_line_length: float
+    max_line_distance: float
+    uniform_floor: float
+    post_uniform_floor: float | None
+
+
+# the model's constants: the paper's equations with the values the filter was tuned with on
+# rendered KidSize and NAO walks (the posts' floor: docs/results.md, "mcl's observation model")
+TUNING = ObservationTuning(
+    sigma_range=0.03,  # m, range sigma of eq. 3 at distance 0
+    elevation_sigma=0.01,  # rad, sigma of a floor point's angle below the horizon (the
+    # camera's pitch and the pixel's error): the range sigma grows as (h^2 + d^2) / h
+    post_elevation_sigma=0.03,  # rad, the same for a goal post's foot (less sharp)
+    sigma_bearing=0.06,  # rad, sigma_phi of eq. 3
+    sigma_crossing_orientation=0.3,  # rad, L/T/X orientation term; 0 = off (the paper)
+    crossing_type_confusion=0.2,  # probability that a crossing shows fewer arms than it
+    # has (an L of a T or X, a T of an X: an arm unseen); 0 = types as observed (the paper)
+    sigma_line=0.03,  # m, sigma_l of eq. 4 at distance 0 (grows as the range sigma)
+    sigma_line_angle=0.08,  # rad, sigma_psi of eq. 4
+    oriented_tolerance=0.15,  # m, eq. 5 accepts <l_e, l_o> > -tol^2
+    line_extent=True,  # charge the part of a segment beyond the model segment's ends
+    sigma_extent=0.15,  # m, at distance 0 (grows as the range sigma of the farther end)
+    extent_margin=0.1,  # m of overhang that is free
+    arc_lines=True,  # the centre circle (and arcs) as candidate lines, by their tangent
+    min_line_length=0.3,  # m, shorter lines are ignored (Schulz et al.: short, far lines)
+    max_line_distance=6.0,  # m, lines whose closest point is farther are ignored
+    uniform_floor=0.1,  # a_base of section 5.3, in ]0, 1[
+    post_uniform_floor=0.6,  # a_base for goal posts: most detected posts are no goal
+    # post (robots' and people's legs: on rendered NAO walks most detections lie at no post
+    # at the true pose; docs/results.md); None = uniform_floor
+)
 
 
 _NO_LINES = np.zeros((0, 4))
@@ -141,14 +176,17 @@ class ObservationModel:
 
     ``lut_l`` (4, ny, nx) and ``lut_t`` (ny, nx) are the crossing association tables on
     ``grid`` (stages.common.crossing_tables); ``from_field`` builds them when no map is at
-    hand, ``from_map`` reads them from a map.
+    hand, ``from_map`` reads them from a map. ``conf``: what the user chose (``DEFAULTS``'
+    keys); ``tuning``: the equations' sigmas and floors (``TUNING``).
     """
 
     def __init__(self, field_model: FieldModel, grid: Grid, lut_l: np.ndarray,
-                 lut_t: np.ndarray, conf: dict | None = None):
+                 lut_t: np.ndarray, conf: dict | None = None,
+                 tuning: ObservationTuning = TUNING):
         self.field = field_model
         self.grid = grid
         self.conf = dict(DEFAULTS, **(conf or {}))
+        self.tuning = tuning
         unknown = set(self.conf) - set(DEFAULTS)
         if unknown:
             raise KeyError(f"unknown observation-model keys: {sorted(unknown)}")
@@ -192,14 +230,14 @@ class ObservationModel:
 
     def _kernel_constants(self, groups):
         """The field and conf as the kernel's arrays (mcl_kernels)."""
-        c = self.conf
+        t = self.tuning
         g = self.grid
         self._t_table = bool(self.lut[4 * self._cells:].max() >= 0)
         self._k_grid = np.array([g.origin[0], g.origin[1], 1.0 / g.resolution, g.shape[1],
                                  g.shape[0]], float)
         self._k_cross = np.ascontiguousarray(np.stack(
             [self.cross_x, self.cross_y, self.cross_c, self.cross_s], axis=1).reshape(-1, 4))
-        so = float(c["sigma_crossing_orientation"])
+        so = float(t.sigma_crossing_orientation)
         w_x = 1.0 / (16.0 * so * so) if so > 0 else 0.0
         self._k_w_o = 1.0 / (so * so) if so > 0 else 0.0
         x = self.x_idx
@@ -221,23 +259,26 @@ class ObservationModel:
             (np.concatenate([gr[2] for gr in groups]).reshape(-1, 3) if groups
              else np.zeros((0, 3))),
             np.cumsum([0] + [len(gr[2]) for gr in groups]).astype(np.int64),
-            np.ascontiguousarray(self.arcs) if c["arc_lines"] else np.zeros((0, 5)))
+            np.ascontiguousarray(self.arcs) if t.arc_lines else np.zeros((0, 5)))
 
-    def with_conf(self, conf: dict | None) -> ObservationModel:
-        """The same field and tables with another conf."""
+    def with_conf(self, conf: dict | None,
+                  tuning: ObservationTuning | None = None) -> ObservationModel:
+        """The same field and tables with another conf (and tuning: by default this one's)."""
         ny, nx = self.grid.shape
         lut_l = self.lut[:4 * self._cells].reshape(4, ny, nx)
         return ObservationModel(self.field, self.grid, lut_l,
-                                self.lut[4 * self._cells:].reshape(ny, nx), conf)
+                                self.lut[4 * self._cells:].reshape(ny, nx), conf,
+                                self.tuning if tuning is None else tuning)
 
     @classmethod
     def from_field(cls, field_model: FieldModel, conf: dict | None = None,
-                   resolution: float = 0.1) -> ObservationModel:
+                   resolution: float = 0.1, tuning: ObservationTuning = TUNING
+                   ) -> ObservationModel:
         """A model with crossing tables computed on the fly (no map file needed)."""
         grid = Grid.around(field_model, field_model.border, resolution)
         tabs = crossing_association_tables(field_model, grid)
         return cls(field_model, grid, tabs["crossing_lut_L"][0], tabs["crossing_lut_T"][0],
-                   conf)
+                   conf, tuning)
 
     @classmethod
     def from_map(cls, map_file, conf: dict | None = None) -> ObservationModel:
@@ -253,7 +294,7 @@ class ObservationModel:
 
     def _usable(self, obs: Observations):
         """``usable`` and the closest distance (L, 1) of each line kept."""
-        c = self.conf
+        c, t = self.conf, self.tuning
         lines, ends = obs.lines, obs.line_ends
         d_o = _NO_DISTANCES
         if not c["use_lines"] or not len(lines):
@@ -263,7 +304,7 @@ class ObservationModel:
             if ends is not None:
                 ok &= np.isfinite(ends).all(axis=1)
             d_all = line_closest_distance(Observations(lines, ends, _NO_CROSSINGS, _NO_POSTS))
-            ok &= (lines[:, 2] >= c["min_line_length"]) & (d_all <= c["max_line_distance"])
+            ok &= (lines[:, 2] >= t.min_line_length) & (d_all <= t.max_line_distance)
             if not ok.all():
                 lines, ends, d_all = lines[ok], None if ends is None else ends[ok], d_all[ok]
             d_o = d_all[:, None]
@@ -286,15 +327,15 @@ class ObservationModel:
         """Range sigma (m) of a floor point at distance ``d``: ``base`` in quadrature with the
         error that an elevation-angle sigma (``elevation_sigma``) makes there, d(range) /
         d(angle) = (h^2 + d^2) / h for a camera at height h."""
-        c = self.conf
+        c, t = self.conf, self.tuning
         h = DEFAULT_CAMERA_HEIGHT if c["camera_height"] is None else float(c["camera_height"])
-        e = c["elevation_sigma"] if elevation is None else elevation
+        e = t.elevation_sigma if elevation is None else elevation
         grow = e * (h * h + np.asarray(d, float) ** 2) / h
         return np.sqrt(base * base + grow * grow)
 
     def _floor(self, confidence, base=None):
         """a_uni (K, 1) of section 5.3 for observations of the given confidence."""
-        base = float(self.conf["uniform_floor"] if base is None else base)
+        base = float(self.tuning.uniform_floor if base is None else base)
         conf01 = np.minimum(np.maximum(confidence, 0.0), 1.0)
         return (base + (1.0 - base) * (1.0 - conf01))[:, None]
 
@@ -313,21 +354,21 @@ class ObservationModel:
         rows = np.zeros((len(raw), K.N_LINE_COLS))
         if not len(raw):
             return rows
-        c = self.conf
+        t = self.tuning
         a = raw[:, 1] + np.where(raw[:, 0] < 0, math.pi, 0.0)
-        w_d = 1.0 / (2.0 * self.range_sigma(d_o[:, 0], c["sigma_line"]) ** 2)
+        w_d = 1.0 / (2.0 * self.range_sigma(d_o[:, 0], t.sigma_line) ** 2)
         rows[:, K.L_R] = np.abs(raw[:, 0])
         rows[:, K.L_CA], rows[:, K.L_SA] = np.cos(a), np.sin(a)
         rows[:, K.L_WD] = w_d
         rows[:, K.L_FLOOR] = self._floor(raw[:, 3])[:, 0]
-        if c["line_extent"] and obs.line_ends is not None:
+        if t.line_extent and obs.line_ends is not None:
             ends = obs.line_ends
             half = 0.5 * np.hypot(ends[:, 2] - ends[:, 0], ends[:, 3] - ends[:, 1])
             far = np.maximum(np.hypot(ends[:, 0], ends[:, 1]), np.hypot(ends[:, 2], ends[:, 3]))
-            w_e = 1.0 / (2.0 * self.range_sigma(far, c["sigma_extent"]) ** 2)
+            w_e = 1.0 / (2.0 * self.range_sigma(far, t.sigma_extent) ** 2)
             rows[:, K.L_MX] = 0.5 * (ends[:, 0] + ends[:, 2])
             rows[:, K.L_MY] = 0.5 * (ends[:, 1] + ends[:, 3])
-            rows[:, K.L_HM] = half - c["extent_margin"]
+            rows[:, K.L_HM] = half - t.extent_margin
             rows[:, K.L_RATIO] = w_e / w_d
             rows[:, K.L_H2] = half * half / 2.0
             rows[:, K.L_WE] = w_e
@@ -338,7 +379,7 @@ class ObservationModel:
         """The kernel's rows (mcl_kernels.P_*) of the usable crossings and posts, and the sum
         each adds to (1 crossings, 2 posts). X crossings on a field without X, and posts on a
         field without posts, are left out (nothing to associate them with)."""
-        c = self.conf
+        t = self.tuning
         cr, po = obs.crossings, obs.posts
         if not len(self.x_idx):
             cr = cr[cr[:, 0] != 2]
@@ -353,14 +394,14 @@ class ObservationModel:
         d = np.concatenate([cr[:, 1], po[:, 0]])
         b = np.concatenate([cr[:, 2], po[:, 1]])
         o = np.concatenate([cr[:, 3], np.zeros(k_p)])
-        elevation = np.concatenate([np.full(k_c, c["elevation_sigma"]),
-                                    np.full(k_p, c["post_elevation_sigma"])])
+        elevation = np.concatenate([np.full(k_c, t.elevation_sigma),
+                                    np.full(k_p, t.post_elevation_sigma)])
         rows[:, K.P_D] = d
         rows[:, K.P_CB], rows[:, K.P_SB] = np.cos(b), np.sin(b)
         rows[:, K.P_CO], rows[:, K.P_SO] = np.cos(o), np.sin(o)
-        rows[:, K.P_WD] = 1.0 / (2.0 * self.range_sigma(d, c["sigma_range"], elevation) ** 2)
+        rows[:, K.P_WD] = 1.0 / (2.0 * self.range_sigma(d, t.sigma_range, elevation) ** 2)
         rows[:k_c, K.P_FLOOR] = self._floor(cr[:, 4])[:, 0]
-        post_base = c.get("post_uniform_floor")
+        post_base = t.post_uniform_floor
         rows[k_c:, K.P_FLOOR] = self._floor(po[:, 2], post_base)[:, 0]
         is_l, is_t, is_x = kind == 0, kind == 1, kind == 2
         rows[:, K.P_TABLE] = -1.0
@@ -368,7 +409,7 @@ class ObservationModel:
         rows[:k_c, K.P_TABLE][is_t] = 4 * self._cells
         rows[:, K.P_AS_T] = -1.0
         x_l, x_t, posts = self._cand_ranges
-        p_conf = float(c["crossing_type_confusion"])
+        p_conf = float(t.crossing_type_confusion)
         if p_conf > 0:
             rows[:k_c, K.P_PEN] = -math.log(min(p_conf, 1.0))
             if self._t_table:  # an L of a T
@@ -393,18 +434,18 @@ class ObservationModel:
         th = np.ascontiguousarray(theta, dtype=float).ravel()
         cth, sth = np.cos(th), np.sin(th)
         out = np.zeros((3, len(x)))
-        c = self.conf
+        t = self.tuning
         poses = K.Poses(x, y, cth, sth)
         if len(prep.lines):
             K.line_log_likelihood(out, poses, prep.lines, self._k_lines,
-                                  (float(c["oriented_tolerance"]) ** 2,
-                                   1.0 / (2.0 * float(c["sigma_line_angle"]) ** 2),
-                                   float(c["extent_margin"])))
+                                  (float(t.oriented_tolerance) ** 2,
+                                   1.0 / (2.0 * float(t.sigma_line_angle) ** 2),
+                                   float(t.extent_margin)))
         if len(prep.points):
             K.point_log_likelihood(out, poses, prep.points, prep.part,
                                    K.FieldPoints(self._k_cand, self.lut, self._k_cross,
                                                  self._k_grid),
-                                   (1.0 / float(c["sigma_bearing"]) ** 2, self._k_w_o))
+                                   (1.0 / float(t.sigma_bearing) ** 2, self._k_w_o))
         if parts:
             return dict(zip(PARTS, out))
         return out.sum(axis=0)

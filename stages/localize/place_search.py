@@ -131,13 +131,13 @@ def cell_model(model, step: float, turn_deg: float):
     grid pose: each sigma of a distance widened in quadrature by half the step, each sigma of
     an angle by half the turn (a coarse grid at the frame's sharp peaks would otherwise miss
     a place whose peak falls between its poses)."""
-    c = dict(model.conf)
+    t = model.tuning
     half, turn = 0.5 * step, 0.5 * math.radians(turn_deg)
-    for key, add in (("sigma_range", half), ("sigma_line", half), ("sigma_extent", half),
-                     ("sigma_bearing", turn), ("sigma_line_angle", turn),
-                     ("sigma_crossing_orientation", turn)):
-        c[key] = math.hypot(float(c[key]), add)
-    return model.with_conf(c)
+    wide = {key: math.hypot(float(getattr(t, key)), add) for key, add in (
+        ("sigma_range", half), ("sigma_line", half), ("sigma_extent", half),
+        ("sigma_bearing", turn), ("sigma_line_angle", turn),
+        ("sigma_crossing_orientation", turn))}
+    return model.with_conf(model.conf, t._replace(**wide))
 
 
 def best_places(model, prep, bounds, step: float, turn_deg: float, count: int,

@@ -63,7 +63,7 @@ def line_cost(nx, ny, offset, x, y, ux, uy, r, w_d, w_a, tol2):
 def log_likelihood(model, x, y, theta, obs) -> dict:
     """Log-likelihood parts ("lines", "crossings", "posts"), each (N,), of ``obs`` at the
     poses (x, y, theta) by ``model``'s (an ObservationModel) field, tables and conf."""
-    c = model.conf
+    c = {**model.conf, **model.tuning._asdict()}
     fm = model.field
     x, y, theta = (np.asarray(v, float).ravel() for v in (x, y, theta))
     cth, sth = np.cos(theta), np.sin(theta)

@@ -19,7 +19,7 @@ def time_mcl_update(field_model=None, *, n_particles: int = 1000, repeats: int =
     ``n_particles`` particles on a synthetic frame of 8 observations (4 lines, 2 crossings,
     2 goal posts, seeded); also of the observation model alone and of the estimate. The
     particles are spread around the true pose as in tracking (so the sensor-reset share is
-    placed every ``sensor_reset_every`` updates: ``update_mean_s`` is the mean over all
+    placed every ``mcl.SENSOR_RESET_EVERY`` updates: ``update_mean_s`` is the mean over all
     updates, these included). No baseline runs beside it: the row's measure is the CPU time
     against its goal, and the observation model's time per particle."""
     import copy
@@ -32,7 +32,6 @@ def time_mcl_update(field_model=None, *, n_particles: int = 1000, repeats: int =
     fm = load_field("kidsize") if field_model is None else field_model
     conf = copy.deepcopy(confs["default"] if conf is None else conf)
     conf["particles_min"] = conf["particles_max"] = int(n_particles)
-    conf["init_particles"] = {k: int(n_particles) for k in conf["init_particles"]}
     rng = np.random.default_rng(seed)
     quiet = {"false_lines": 0.0, "false_crossings": 0.0, "false_posts": 0.0}
     obs, pose = None, None
@@ -45,7 +44,7 @@ def time_mcl_update(field_model=None, *, n_particles: int = 1000, repeats: int =
     if obs is None:
         raise FieldlocError(f"no pose on {fm.name} shows 4 lines, 2 crossings and 2 posts")
     pf = ParticleFilter.from_field(fm, conf)
-    pf.initialise("pose", pose)
+    pf.initialise("pose", pose, n=int(n_particles))
     pf._last_estimate = pf.estimate()  # tracking: sensor resets every few frames
     start = pf.particles.copy()
     model = pf.model
@@ -80,7 +79,7 @@ def time_mcl_update(field_model=None, *, n_particles: int = 1000, repeats: int =
     return {
         "update_cpu_s": float(np.median(cpu)),
         "update_s": float(np.median(update_times)),
-        # the mean includes the frames that place the sensor-reset share (sensor_reset_every)
+        # the mean includes the frames that place the sensor-reset share (SENSOR_RESET_EVERY)
         "update_mean_s": float(np.mean(update_times)),
         "observation_model_s": median_time(lambda: model.log_likelihood(x, y, th, prep)),
         "estimate_s": median_time(pf.estimate),
