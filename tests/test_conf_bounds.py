@@ -108,7 +108,7 @@ def grid(tmp_path_factory):
 
 def test_every_perspective_key_set_hostile_runs_or_is_refused_in_one_line(kid):
     cases = hostile(extract.kind_confs("perspective")["default"])
-    assert len(cases) >= 18  # 5 keys (the tuned numbers are named constants: issue 26)
+    assert len(cases) >= 18  # 5 keys (the tuned numbers are named constants)
 
     def run(conf):  # the frame with three crossings
         extract.extract_dataset_frame(kid, 1, conf)

@@ -229,8 +229,8 @@ def test_a_line_in_a_sun_patch_with_field_beyond_stays_used(monkeypatch):
 
 
 def test_a_features_file_of_the_former_full_preset_can_be_resumed():
-    """A features file written when the preset held every tuned number (now named constants,
-    issue 26) stored them in its conf: resuming it ignores those keys, not the user's."""
+    """A features file written when the preset held every tuned number (now named constants)
+    stored them in its conf: resuming it ignores those keys, not the user's."""
     from stages import extract
 
     conf = extract.resolve_extract_conf("perspective")

@@ -123,8 +123,8 @@ def _check_resumable(output: Path, attrs: dict):
 
 def _still_user_keys(stored, conf):
     """The part of a ``stored`` conf whose keys ``conf`` still holds, group by group: a file
-    written before some keys became tuned constants of their extractor (issue 26) stored
-    those too, at the values the constants now have unless the user had changed them."""
+    written before some keys became tuned constants of their extractor stored those too, at
+    the values the constants now have unless the user had changed them."""
     if not isinstance(stored, dict) or not isinstance(conf, dict):
         return stored
     return {k: _still_user_keys(v, conf[k]) for k, v in stored.items() if k in conf}
