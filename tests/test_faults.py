@@ -722,7 +722,7 @@ CASES = [
          ["extract", "{ds}", "-o", W + "/f.h5"], 1, "YAML aliases expand to more than",
          setup=_setup_calib_text(f"\nbomb: {ALIAS_BOMB}\n")),
     Case("alias bomb as a -c value (localize)", "hang",
-         [*LOCALIZE, "-o", W + "/p.h5", "-c", f"temperature={ALIAS_BOMB}"], 1,
+         [*LOCALIZE, "-o", W + "/p.h5", "-c", f"min_confidence={ALIAS_BOMB}"], 1,
          "must be a number, got '[&a0 [lol, lol"),
     Case("a field key given twice (build-map)", "silent",
          ["build-map", W + "/f.yaml", "-o", W + "/m.h5"], 1, "the key 'name' is given twice",
@@ -742,20 +742,20 @@ CASES = [
     Case("build-map --resolution inf", "traceback",
          ["build-map", "spl", "-o", W + "/m.h5", "--resolution", "inf"], 2,
          "is not a finite number"),
-    Case("-c min_observations=abc", "traceback",
-         [*LOCALIZE, "-o", W + "/p.h5", "-c", "min_observations=abc"], 1,
-         "conf 'min_observations' must be a whole number"),
-    Case("-c temperature=nan", "traceback",
-         [*LOCALIZE, "-o", W + "/p.h5", "-c", "temperature=.nan"], 1,
-         "conf 'temperature' must be a finite number"),
-    Case("-c search=1 (a group of keys)", "traceback",
-         [*LOCALIZE, "-o", W + "/p.h5", "-c", "search=1"], 1, "is a group of keys"),
-    Case("-c search.c=-1", "silent",
-         [*LOCALIZE, "-o", W + "/p.h5", "-c", "search.c=-1"], 1,
-         "conf 'search.c' must be a number > 0, got -1.0"),
+    Case("-c hypotheses=abc", "traceback",
+         [*LOCALIZE, "-o", W + "/p.h5", "-c", "hypotheses=abc"], 1,
+         "conf 'hypotheses' must be a whole number"),
+    Case("-c min_confidence=nan", "traceback",
+         [*LOCALIZE, "-o", W + "/p.h5", "-c", "min_confidence=.nan"], 1,
+         "conf 'min_confidence' must be a finite number"),
+    Case("-c radial_correction=1 (a group of keys)", "traceback",
+         [*LOCALIZE, "-o", W + "/p.h5", "-c", "radial_correction=1"], 1, "is a group of keys"),
+    Case("-c radial_correction.enabled=maybe", "silent",
+         [*LOCALIZE, "-o", W + "/p.h5", "-c", "radial_correction.enabled=maybe"], 1,
+         "conf 'radial_correction.enabled' must be true or false, got 'maybe'"),
     Case("-c a=1 -c a.b=2", "traceback",
-         [*LOCALIZE, "-o", W + "/p.h5", "-c", "search=1", "-c", "search.c=2"], 1,
-         "cannot also hold keys"),
+         [*LOCALIZE, "-o", W + "/p.h5", "-c", "radial_correction=1", "-c",
+          "radial_correction.enabled=true"], 1, "cannot also hold keys"),
     Case("a truncated map file", "traceback",
          [*LOCALIZE[:3], W + "/cut.map.h5", *LOCALIZE[4:], "-o", W + "/p.h5"], 1,
          "not an HDF5 file", setup=_setup_corrupt_map),
@@ -1037,12 +1037,12 @@ CASES = [
     # of hours before): one line naming the key and its range
     *[Case(f"localize -c {kv}", "traceback", [*LOCALIZE, "-o", W + "/p.h5", "-c", kv], 1,
            msg) for kv, msg in (
-        ("global_candidates=-1", "conf 'global_candidates' must be >= 1 and <= 1000"),
-        ("null_copies=1e12", "conf 'null_copies' must be >= 1 and <= 1000"),
-        ("search.coarse_step=1e12", "conf 'search.coarse_step' must be >= 1 and <= 64"),
-        ("radial_correction.degree=0", "conf 'radial_correction.degree' must be >= 1"),
-        ("prune_probability=0", "prune_probability must lie in (0, 1]"),
-        ("unsure_heading_sigma=0", "conf 'unsure_heading_sigma' must be > 0"))],
+        ("hypotheses=-1", "conf 'hypotheses' must be >= 1 and <= 1000"),
+        ("hypotheses=1e12", "conf 'hypotheses' must be >= 1 and <= 1000"),
+        ("min_confidence=2", "conf 'min_confidence' must be >= 0 and <= 1"),
+        ("min_confidence=-0.5", "conf 'min_confidence' must be >= 0 and <= 1"),
+        ("start_half_error=2", "start_half_error must lie in [0, 1]"),
+        ("stamp_tolerance=-1", "conf 'stamp_tolerance' must be >= 0"))],
     *[Case(f"localize --method mcl -c {kv}", "traceback",
            ["localize", "{kid}", "--map", "{kmap}", "--features", "{kid_features}",
             "--method", "mcl", "-o", W + "/p.h5", "-c", kv], 1, msg) for kv, msg in (
@@ -1060,10 +1060,10 @@ CASES = [
         ("cell=0", "traceback", "conf 'cell' must be >= 1 and <= 64"),
         ("colour_step=0", "traceback", "conf 'colour_step' must be >= 1 and <= 64"),
         ("posts.post_diameter=1e12", "hang", "conf 'posts.post_diameter' must be > 0"))],
-    Case("localize --method templates -c null_copies=1e12", "hang",
+    Case("localize --method templates -c hypotheses=1e12", "hang",
          ["localize", "{omni}", "--method", "templates", "--templates", W + "/t.h5", "-o",
-          W + "/p.h5", "-c", "null_copies=1e12"], 1,
-         "conf 'null_copies' must be >= 1 and <= 1000"),
+          W + "/p.h5", "-c", "hypotheses=1e12"], 1,
+         "conf 'hypotheses' must be >= 1 and <= 1000"),
     *[Case(f"build-templates {' '.join(args)}", kind, ["build-templates", "{omni}", "-o",
                                                        W + "/t.h5", *args], 1, msg)
       for args, kind, msg in (
@@ -1210,9 +1210,9 @@ def test_conf_override_of_a_float_key_accepts_1e_minus_4():
     from stages.common.conf import parse_overrides, resolve_conf
 
     conf = resolve_conf(localize.method_confs("lut"), "default",
-                        parse_overrides(["inlier_error=1e-4", "min_observations=6.0"]))
-    assert conf["inlier_error"] == pytest.approx(1e-4) and conf["min_observations"] == 6
-    assert isinstance(conf["min_observations"], int)
+                        parse_overrides(["min_confidence=1e-4", "hypotheses=6.0"]))
+    assert conf["min_confidence"] == pytest.approx(1e-4) and conf["hypotheses"] == 6
+    assert isinstance(conf["hypotheses"], int)
 
 
 def _umask() -> int:

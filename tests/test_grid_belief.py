@@ -127,7 +127,7 @@ def test_grid_belief_through_the_cli(omni_default_rendered, msl2015_map, tmp_pat
 @pytest.mark.parametrize("args, message", [
     (["--heading", "histogram"], "field-aligned heading"),
     (["--independent"], "does not localise frames independently"),
-    (["-c", "grid.temperature=0"], "grid.temperature"),
+    (["-c", "belief=cells"], "belief must be auto, tracks or grid"),
 ])
 def test_grid_belief_refuses_what_it_cannot_do(omni_default_rendered, msl2015_map, tmp_path,
                                                args, message):

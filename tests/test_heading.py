@@ -10,6 +10,7 @@ import numpy as np
 from stages.common.field import load_field
 from stages.common.geometry import field_to_robot, wrap_angle
 from stages.localize.heading import (
+    HISTOGRAM_MIN_SHARPNESS,
     ImuAlignment,
     histogram_heading,
     imu_per_frame,
@@ -17,7 +18,7 @@ from stages.localize.heading import (
     truth_heading,
 )
 
-MIN_SHARPNESS = 1.7  # lut's default histogram_min_sharpness
+MIN_SHARPNESS = HISTOGRAM_MIN_SHARPNESS  # lut's and fit's (1.7)
 
 
 def line_points(fm, pose, rng, *, spacing=0.05, noise=0.02, clutter=0.15, max_range=4.0):

@@ -15,7 +15,6 @@ from stages.common.map_file import MapFile
 from stages.common.poses_file import PoseTrack, read_poses, write_poses
 from stages.evaluate.metrics import auroc, reliability
 from stages.localize import lut
-from stages.localize.lut_search import MatchingParams
 from stages.localize.point_fit import PointFit
 from stages.localize.radial_correction import RadialCorrection
 
@@ -23,7 +22,7 @@ from stages.localize.radial_correction import RadialCorrection
 @pytest.fixture(scope="module")
 def search(msl2015_map):
     return lut.table_search(MapFile(msl2015_map),
-                            MatchingParams.from_conf(lut.confs["default"]["search"]))
+                            lut.SEARCH)
 
 
 # ---------------------------------------------------------------------------- poses schema

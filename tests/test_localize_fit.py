@@ -37,7 +37,7 @@ def line_points(fm, pose, rng, n=60, max_range=3.5):
 @pytest.fixture(scope="module")
 def engine(msl2015_map):
     m = MapFile(msl2015_map)
-    return m, fit.FitEngine(m, fit.confs["default"])
+    return m, fit.FitEngine(m)
 
 
 def test_fit_converges_to_the_pose_of_points_on_the_lines(engine):
@@ -47,7 +47,7 @@ def test_fit_converges_to_the_pose_of_points_on_the_lines(engine):
     fm = m.field
     rng = np.random.default_rng(5)
     truth = np.array([-1.6, 1.4, 0.7])  # in the own half: halfway line, centre circle
-    obs = fit.observation_from_points(line_points(fm, truth, rng), fit.confs["default"])
+    obs = fit.observation_from_points(line_points(fm, truth, rng))
     assert len(obs) >= 40
     for dx, dy, dth in [(0.2, -0.15, 0.05), (-0.25, 0.1, -0.05), (0.0, 0.3, 0.0)]:
         f = eng.fit(obs, truth + [dx, dy, dth])
@@ -69,7 +69,7 @@ def test_global_search_finds_the_pose_or_its_mirror(engine):
     fm = m.field
     rng = np.random.default_rng(6)
     truth = np.array([3.2, -1.1, -2.0])
-    obs = fit.observation_from_points(line_points(fm, truth, rng), fit.confs["default"])
+    obs = fit.observation_from_points(line_points(fm, truth, rng))
     fixes = eng.global_search(obs, [(truth[2], 0.01)], temperature=0.5, separation=1.0,
                               mode="global")
     best = fixes[0].pose
@@ -139,9 +139,8 @@ def test_cli_points_path(omni_default_rendered, msl2015_map, tmp_path):
 
 
 @pytest.mark.parametrize("args, words", [
-    (["-c", "c=-1"], "c must be > 0"),
-    (["-c", "rprop.iterations=0"], "rprop.iterations must be >= 1"),
-    (["-c", "global.margin=-2"], "global.margin must be >= 0"),
+    (["-c", "c=0.3"], "unknown conf key 'c'"),  # a tuned constant (fit.C_M), no user key
+    (["-c", "min_confidence=2"], "conf 'min_confidence' must be >= 0 and <= 1"),
     (["--init", "uniform"], "--init applies to --method mcl"),
     (["-c", "nope=1"], "nope"),
 ])

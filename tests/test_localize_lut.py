@@ -13,7 +13,7 @@ from stages.build_map import tables
 from stages.common.geometry import between, wrap_angle
 from stages.common.map_file import Grid, MapFile
 from stages.localize import lut
-from stages.localize.lut_search import MatchingParams, Observation, _min_pooled
+from stages.localize.lut_search import Observation, _min_pooled
 
 
 def spiral_crossings(fm, sl, pose, every: int = 1) -> np.ndarray:
@@ -78,7 +78,7 @@ def observe(fm, sl, pose, rng, *, noise=0.02, drop=0.15, false_hits=3):
 @pytest.fixture(scope="module")
 def search(msl2015_map):
     mf = MapFile(msl2015_map)
-    params = MatchingParams.from_conf(lut.confs["default"]["search"])
+    params = lut.SEARCH
     return lut.table_search(mf, params)
 
 
@@ -633,7 +633,7 @@ def test_start_half_any_keeps_the_mirror_second_without_searching_every_frame(
     assert np.allclose(h[:, 1, :2], -h[:, 0, :2]) and np.allclose(h[:, 1, 3], h[:, 0, 3])
     assert (h[:, 0, 3] <= 0.5 + 1e-9).all() and (h[4:, 0, 3] + h[4:, 1, 3] > 0.9).all()
     checks = sum("global-check" in f for f in c["flags"][4:])  # once the belief gathered
-    assert checks <= math.ceil((len(poses) - 4) / conf["global_every"]), c["flags"]
+    assert checks <= math.ceil((len(poses) - 4) / lut.GLOBAL_EVERY), c["flags"]
     assert np.hypot(np.diff(c["x"]), np.diff(c["y"])).max() < 0.5
     sign = 1.0 if math.hypot(c["x"][0] - poses[0, 0], c["y"][0] - poses[0, 1]) < 0.3 else -1.0
     err = np.hypot(c["x"] - sign * poses[:, 0], c["y"] - sign * poses[:, 1])

@@ -22,7 +22,6 @@ from stages.common.map_file import MapFile
 from stages.common.scanlines import NO_HIT_MM
 from stages.localize import lut
 from stages.localize import mirror_calibration as mc
-from stages.localize.lut_search import MatchingParams
 
 # the goal of a calibration from a recording: e(d) within 2 cm over 1-3 m
 GOAL_M = 0.02
@@ -32,7 +31,7 @@ JUDGED = np.linspace(1.0, 3.0, 21)
 @pytest.fixture(scope="module")
 def search(msl2015_map):
     return lut.table_search(MapFile(msl2015_map),
-                            MatchingParams.from_conf(lut.confs["default"]["search"]))
+                            lut.SEARCH)
 
 
 def _truth_track(ds, names, *, xy_sigma=0.0, heading_sigma=0.0, seed=0):

@@ -94,7 +94,7 @@ def test_a_mirror_pair_is_confident_as_one_belief():
 
 
 def test_a_tracked_fix_that_does_not_beat_the_null_is_not_fused():
-    bank = _bank(symmetric=False, fusion={**tracking.DEFAULTS["fusion"], "enabled": False})
+    bank = _bank(symmetric=False, fusion={"enabled": False})
     lp = bank.global_log_prior(0.0)
     c = _cand(0, 0, 0, 1.0, lp)
     bank.update(0, [c], bank.posterior([], [c], 0.0, 40.0), 0.1, None, False)
@@ -117,7 +117,8 @@ def test_a_tracked_fix_that_does_not_beat_the_null_is_not_fused():
 
 
 def test_failed_frames_predict_then_drop_the_tracks():
-    bank = _bank(symmetric=False, max_predicted_frames=2)
+    bank = _bank(symmetric=False)
+    bank.max_predicted_frames = 2  # (tracking.MAX_PREDICTED_FRAMES: 30)
     lp = bank.global_log_prior(0.0)
     c = _cand(0, 0, 0, 1.0, lp)
     bank.update(0, [c], bank.posterior([], [c], 0.0, 40.0), 0.1, None, False)
@@ -160,5 +161,5 @@ def test_fold_adds_duplicates_and_mirrors_to_a_better_candidate():
 def test_bad_bank_keys_are_one_clear_error():
     with pytest.raises(FieldlocError, match="min_confidence"):
         tracking.check_conf({**tracking.DEFAULTS, "min_confidence": 1.5})
-    with pytest.raises(FieldlocError, match="max_tracks"):
-        tracking.check_conf({**tracking.DEFAULTS, "max_tracks": 0})
+    with pytest.raises(FieldlocError, match="hypotheses"):
+        tracking.check_conf({**tracking.DEFAULTS, "hypotheses": 0})

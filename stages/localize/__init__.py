@@ -483,12 +483,9 @@ def _write_calib(path, conf, dataset, feats, track, map_file, output) -> None:
                  estimate.height)
         return
     from . import mirror_calibration as mc
-    from .lut import table_search
-    from .lut_search import MatchingParams
+    from .lut import SEARCH, table_search
 
-    search_conf = conf["search"] if conf["method"] == "lut" else method_confs("lut")[
-        "default"]["search"]
-    search = table_search(map_file, MatchingParams.from_conf(search_conf))
+    search = table_search(map_file, SEARCH)
     error = mc.estimate_distance_error(search, feats, track)
     new = mc.corrected_calibration(calib, error, source=str(_abs(output)),
                                    sources={"dataset": _abs(dataset.root)})

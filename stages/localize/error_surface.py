@@ -30,7 +30,7 @@ from ..common.errors import FieldlocError
 from ..common.geometry import wrap_angle
 from . import heading as heading_mod
 from . import template_matching as tm
-from .templates import TemplateMatcher, confs
+from .templates import MIN_PAIRS, TemplateMatcher, confs
 
 
 def template_surface(pairs_t: np.ndarray, pairs_q: np.ndarray, pose0, *, half_size: float = 1.5,
@@ -88,7 +88,7 @@ def fit_queries(db, k: int, dataset, truth: np.ndarray, conf: dict | None = None
         h = float(yaw[i]) if math.isfinite(yaw[i]) else float(pose[2])
         q = gf.ground_features(read_image(dataset.images[i]), camera, db.ground_conf, mask,
                                heading=h if db.field_axes else None)
-        fix = matcher.fit(q, k, h) if len(q) >= int(conf["min_pairs"]) else None
+        fix = matcher.fit(q, k, h) if len(q) >= MIN_PAIRS else None
         out["frames"].append(int(i))
         out["distance"].append(float(np.hypot(pose[0] - tp[0], pose[1] - tp[1])))
         out["dheading"].append(float(wrap_angle(pose[2] - tp[2])))

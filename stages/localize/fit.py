@@ -2,41 +2,41 @@
 Riedmiller 2006, the Tribots method most MSL teams run).
 
 The error of a pose (x, y, theta) of a frame's robot-frame line points p_i (within
-``max_range``, weights w_i, 1 unless ``range_scale`` is set) is
+``MAX_RANGE_M``, weights w_i, 1 unless ``RANGE_SCALE_M`` is set) is
 
     E = sum_i w_i rho(d(q_i)),   q_i = (x, y) + R(theta) p_i,
-    rho(d) = 1 - c^2 / (c^2 + d^2) = d^2 / (c^2 + d^2),   c = 0.25 m (``c``, Lauer et al.'s),
+    rho(d) = 1 - c^2 / (c^2 + d^2) = d^2 / (c^2 + d^2),   c = 0.25 m (``C_M``, Lauer et al.'s),
 
 d the distance to the nearest line, read from the map's ``/tables/distance`` and
 ``/tables/distance_gradient`` (exact on straight lines between the 10 cm nodes;
 fit_kernels.py). E is minimised by RPROP (Riedmiller's resilient propagation, as in the
-paper: first steps 4 cm and 0.05 rad, at most ``rprop.iterations`` = 20 gradient evaluations)
+paper: first steps 4 cm and 0.05 rad, at most ``RPROP.iterations`` = 20 gradient evaluations)
 over x, y and the heading, with the measured heading (IMU, histogram or truth) as a Gaussian
 prior on theta. Tracking: each track of the belief (tracking.TrackBank, as lut's) is fitted
 from its prior (last pose moved by odometry), its fix weighed with the Gauss-Newton covariance
-of E (tempered: ``temperature`` points per nat, a tracked frame's evidence divided by
-``track_correlation``, and the points of one white structure worth at most
-``evidence.per_structure`` = 6 independent points, as lut's observations) and fused by the
-bank's Kalman filter. With ``tracked_prior`` the fit minimises E / T plus the prior's
+of E (tempered: ``TEMPERATURE`` points per nat, a tracked frame's evidence divided by
+``TRACK_CORRELATION``, and the points of one white structure worth at most
+``EVIDENCE.per_structure`` = 6 independent points, as lut's observations) and fused by the
+bank's Kalman filter. With ``TRACKED_PRIOR`` the fit minimises E / T plus the prior's
 Mahalanobis^2 / 2 (the posterior's mode m, so a frame of few or stray points cannot pull the
 track into another basin), and the filter gets the measurement z the points alone make,
 z = m + R info (m - prior), so the prior is not counted twice.
 
-Global mode (no track, lost, or every ``global_every`` frames as a check): a multi-start search
-from a grid of starts, not random restarts (reproducible): positions every ``global.step`` =
-0.25 m over the field and ``global.margin`` = 0.5 m around it (77 x 53 = 4081 on msl-2015), at
+Global mode (no track, lost, or every ``GLOBAL_EVERY`` frames as a check): a multi-start search
+from a grid of starts, not random restarts (reproducible): positions every ``GLOBAL.step`` =
+0.25 m over the field and ``GLOBAL.margin`` = 0.5 m around it (77 x 53 = 4081 on msl-2015), at
 the frame's heading when it is known (IMU, truth; the histogram's four peaks otherwise), else
-every ``global.heading_step`` = 10 deg (36 headings). Every start is ranked by E with a wider
-c (``global.c`` = 0.5 m, a blurred floor: wider basins) on 32 of the points; the 16 best
-starts more than ``ambiguity_distance`` apart are fitted by RPROP, and one fix per basin is
-kept. A global search costs far more than a tracked fit (many times more again with an unknown
-heading), hence tracking between them; docs/results.md has the times.
+every ``GLOBAL.heading_step`` = 10 deg (36 headings). Every start is ranked by E with a wider
+c (``GLOBAL.c`` = 0.5 m, a blurred floor: wider basins) on 32 of the points; the 16 best
+starts more than ``tracking.AMBIGUITY_DISTANCE_M`` apart are fitted by RPROP, and one fix per
+basin is kept. A global search costs far more than a tracked fit (many times more again with an
+unknown heading), hence tracking between them; docs/results.md has the times.
 
 Null and confidence as lut's: the same points with their bearing sectors shuffled
 (``NULL_SECTORS`` sectors of 5 deg, seeded) are fitted the same way (from the strongest track's
 prior, or by the same global search); the bank's posterior over tracks, new fixes, the mirror
 pose and the null gives ranked hypotheses and the top one's probability, the confidence
-(poses schema of stages.common.poses_file). A frame with fewer than ``min_points`` points, or
+(poses schema of stages.common.poses_file). A frame with fewer than ``MIN_POINTS`` points, or
 whose every fix explains no more than the null, is recorded as failed. The radial correction
 (radial_correction.py) learns the calibration's range error from confident tracked frames, as
 lut's.
@@ -48,6 +48,7 @@ import dataclasses
 import logging
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -57,11 +58,11 @@ from ..common.field import FieldModel
 from ..common.geometry import wrap_angle
 from ..common.map_file import MapFile
 from ..common.poses_file import PoseTrack
+from . import bank_smoothing, radial_correction, tracking
 from . import fit_kernels as K
 from . import heading as heading_mod
-from . import smooth, tracking
 from .lut_kernels import inlier_sums, structure_sizes
-from .radial_correction import BOUNDS as RADIAL_BOUNDS
+from .lut_search import EVIDENCE
 from .radial_correction import DEFAULTS as RADIAL_DEFAULTS
 from .radial_correction import PathCalibration, RadialCorrection
 from .smooth import FrameCandidates
@@ -72,60 +73,15 @@ log = logging.getLogger(__name__)
 camera_kinds = ("omni",)  # the features it reads (line points of the scan lines, or --points)
 
 confs = {
+    # what a user chooses: the heading source, what is known of the start, the recording's
+    # clock tolerance, the radial correction switch and the belief's keys (tracking.DEFAULTS);
+    # the fit's tuned constants are named below (C_M, TEMPERATURE, RPROP, GLOBAL, ...)
     "default": {
         "heading": "imu",  # imu | histogram | truth: the heading prior of the fit
         "imu_alignment": "field",  # field: imu yaw is field-aligned (+ small bias) | vision
         "start_half": "any",  # own (x < 0) | opponent (x > 0) | any: where the first fix is
         "start_half_error": 1e-3,  # probability that start_half is wrong
-        "imu_sigma": 0.01,  # rad, IMU heading noise
-        "imu_offset_every": 5,  # frames between vision updates of the IMU offset (0: never)
-        "histogram_window": math.radians(40.0),  # rad, +- around the last heading
-        "histogram_step": math.radians(0.5),  # rad
-        "histogram_bin": 0.05,  # m
-        "histogram_sigma": 0.02,  # rad, histogram heading noise
-        "histogram_score": "peak",  # peak (Ribeiro et al. 2015) | energy
-        "histogram_min_sharpness": 1.7,  # best score / mean score; below: no histogram heading
-        "histogram_gate": 0.15,  # rad, largest accepted deviation from the predicted heading
-        "truth_sigma": 0.001,  # rad
-        "unsure_heading_sigma": 0.1,  # rad, heading prior where the source gives none
-        # (IMU on a collision frame, a histogram without straight lines)
-        "stamp_tolerance": 0.02,  # s, imu/truth row to frame matching
-        "min_points": 4,  # fewer line points: the frame fails (the null judges the rest)
-        "max_range": 4.0,  # m, line points farther from the robot are not used
-        "c": 0.25,  # m, rho(d) = d^2 / (c^2 + d^2) (Lauer et al.: 250 mm)
-        "range_scale": None,  # m: weight 1 / (1 + (r / range_scale)^2), nearer points
-        # weigh more; None: every point weighs 1 (Lauer et al.'s default)
-        "inlier_error": 0.125,  # m, a point this close to a line is an inlier (rho = 0.2)
-        "temperature": 0.5,  # evidence (full-weight points) per nat
-        "track_correlation": 4.0,  # a tracked frame's evidence counts 1 / track_correlation
-        "evidence": {  # points of one white structure as one correlated measurement:
-            "per_structure": 6.0,  # points' worth a structure carries at most (None: no cap),
-            # lut's: the evidence only, the fit weighs every point alike
-            "link": 0.2,
-            "link_per_m": 0.1,
-        },
-        "rprop": {
-            "iterations": 20,  # gradient evaluations per fit (Lauer et al.: 10-20)
-            "step_xy": 0.04,  # m, first step (Lauer et al.: 40 mm)
-            "step_theta": 0.05,  # rad, first heading step
-            "min_step_xy": 1e-4,  # m: stop when every step is below these
-            "min_step_theta": 1e-5,  # rad
-        },
-        "reach": 0.5,  # m, how far from a prior the fit finds the robot (its basin)
-        "tracked_prior": True,  # the tracked fit minimises E / T plus the track's position
-        # prior (its Mahalanobis^2 / 2): the posterior's mode; False: E alone from the prior
-        "global": {  # the multi-start global search
-            "step": 0.25,  # m, grid of starts over the field and its margin
-            "margin": 0.5,  # m, how far beyond the outer lines a start may lie
-            "heading_step": math.radians(10.0),  # rad, start headings when none is known
-            "c": 0.5,  # m, scale of rho ranking the starts (a blurred floor: wider basins)
-            "max_points": 32,  # line points ranking the starts (evenly subsampled)
-            "starts": 16,  # best separated starts fitted
-        },
-        "global_every": 5,  # frames between global searches while tracking
-        "null_copies": 1,  # random-bearing copies of the points (median)
-        "vision_sigma_xy": 0.01,  # m, floor of a fix's position sigma
-        "vision_inflation": 1.0,  # the Laplace covariance times this (calibrated)
+        "stamp_tolerance": 0.02,  # s, imu/truth row to frame matching (the recording's clocks)
         "radial_correction": dict(RADIAL_DEFAULTS),
         **{k: (dict(v) if isinstance(v, dict) else v) for k, v in tracking.DEFAULTS.items()},
     },
@@ -135,6 +91,58 @@ confs["no-fusion"] = {**confs["default"], "fusion": {**confs["default"]["fusion"
 confs["independent"] = {**confs["default"], "independent": True}
 
 NULL_SECTORS = 72  # bearing sectors of the null copies (the scan lines' 5 deg)
+
+
+# The fit's tuned constants (module doc; the values the default preset held: Lauer et al.'s
+# where marked, the rest chosen and calibrated on the rendered tuning sets, docs/results.md).
+# The heading sources' are heading.py's, the belief's tracking.py's, the evidence weighting
+# lut_search.EVIDENCE (as lut's observations).
+MIN_POINTS = 4  # fewer line points: the frame fails (the null judges the rest)
+MAX_RANGE_M = 4.0  # m, line points farther from the robot are not used
+C_M = 0.25  # m, rho(d) = d^2 / (c^2 + d^2) (Lauer et al.: 250 mm)
+# m: weight 1 / (1 + (r / RANGE_SCALE_M)^2), nearer points weigh more; None: every point
+# weighs 1 (Lauer et al.'s default)
+RANGE_SCALE_M = None
+INLIER_ERROR_M = 0.125  # m, a point this close to a line is an inlier (rho = 0.2)
+TEMPERATURE = 0.5  # evidence (full-weight points) per nat
+TRACK_CORRELATION = 4.0  # a tracked frame's evidence counts 1 / TRACK_CORRELATION
+REACH_M = 0.5  # m, how far from a prior the fit finds the robot (its basin)
+# the tracked fit minimises E / T plus the track's position prior (its Mahalanobis^2 / 2): the
+# posterior's mode; False: E alone from the prior
+TRACKED_PRIOR = True
+GLOBAL_EVERY = 5  # frames between global searches while tracking
+NULL_COPIES = 1  # random-bearing copies of the points (median)
+VISION_SIGMA_XY_M = 0.01  # m, floor of a fix's position sigma
+VISION_INFLATION = 1.0  # the Laplace covariance times this (calibrated)
+
+
+class RpropTuning(NamedTuple):
+    """The RPROP minimisation of E (module doc)."""
+
+    iterations: int  # gradient evaluations per fit (Lauer et al.: 10-20)
+    step_xy: float  # m, first step (Lauer et al.: 40 mm)
+    step_theta: float  # rad, first heading step
+    min_step_xy: float  # m: stop when every step is below these
+    min_step_theta: float  # rad
+
+
+RPROP = RpropTuning(iterations=20, step_xy=0.04, step_theta=0.05, min_step_xy=1e-4,
+                    min_step_theta=1e-5)
+
+
+class GlobalTuning(NamedTuple):
+    """The multi-start global search (module doc)."""
+
+    step: float  # m, grid of starts over the field and its margin
+    margin: float  # m, how far beyond the outer lines a start may lie
+    heading_step: float  # rad, start headings when none is known
+    c: float  # m, scale of rho ranking the starts (a blurred floor: wider basins)
+    max_points: int  # line points ranking the starts (evenly subsampled)
+    starts: int  # best separated starts fitted
+
+
+GLOBAL = GlobalTuning(step=0.25, margin=0.5, heading_step=math.radians(10.0), c=0.5,
+                      max_points=32, starts=16)
 
 
 # ---------------------------------------------------------------------------- the distance
@@ -208,7 +216,7 @@ class FitObservation:
     range, their weights in the fit (the range weight 1 / (1 + (r / range_scale)^2), 1 by
     default) and ``evidence``, the share of the weighted points that count as independent
     evidence: the points of one white structure are one correlated measurement, worth at most
-    ``evidence.per_structure`` points (the frame's temperature is divided by it, the fit's
+    ``EVIDENCE.per_structure`` points (the frame's temperature is divided by it, the fit's
     optimum is Lauer et al.'s)."""
 
     points: np.ndarray
@@ -253,27 +261,27 @@ class FitObservation:
                               distance=self.distance[idx], weight=np.ascontiguousarray(w))
 
 
-def observation_from_points(points, conf: dict, radial: RadialCorrection | None = None
+def observation_from_points(points, radial: RadialCorrection | None = None
                             ) -> FitObservation:
-    """A frame's line points (N, 2, robot frame) as a FitObservation (conf: ``max_range``,
-    ``range_scale``, ``evidence``); with an active ``radial`` correction each point's range r
-    is moved to r - e(r) along its ray."""
+    """A frame's line points (N, 2, robot frame) as a FitObservation (within ``MAX_RANGE_M``,
+    weighted by ``RANGE_SCALE_M`` and lut_search.EVIDENCE); with an active ``radial``
+    correction each point's range r is moved to r - e(r) along its ray."""
     p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     r = np.hypot(p[:, 0], p[:, 1])
-    keep = np.isfinite(r) & (r > 0) & (r <= float(conf["max_range"]))
+    keep = np.isfinite(r) & (r > 0) & (r <= MAX_RANGE_M)
     p, r = p[keep], r[keep]
     if radial is not None and radial.active and len(r):
         rc = np.maximum(radial.correct(r), 1e-3)
         p, r = p * (rc / r)[:, None], rc
     p = np.ascontiguousarray(p)
     r = np.ascontiguousarray(r)
-    rs = conf["range_scale"]
+    rs = RANGE_SCALE_M
     w = np.ones(len(r)) if rs is None else 1.0 / (1.0 + (r / float(rs)) ** 2)
-    ev = conf["evidence"]
+    ev = EVIDENCE
     share = 1.0
-    if len(p) and ev["per_structure"] is not None:
-        size = structure_sizes(p, r, float(ev["link"]), float(ev["link_per_m"]))
-        cap = np.minimum(1.0, float(ev["per_structure"]) / size)
+    if len(p) and ev.per_structure is not None:
+        size = structure_sizes(p, r, float(ev.link), float(ev.link_per_m))
+        cap = np.minimum(1.0, float(ev.per_structure) / size)
         share = float(np.sum(w * cap) / max(float(np.sum(w)), 1e-12))
     return FitObservation(points=p, distance=r, weight=np.ascontiguousarray(w),
                           evidence=share)
@@ -299,7 +307,7 @@ def frame_points(fr: dict, scanlines) -> np.ndarray:
 @dataclass
 class Fix:
     """A pose the fit converged to: E (the weighted error term) and E / total weight, the
-    Gauss-Newton matrix of E there, its inliers (points within ``inlier_error`` of a line)
+    Gauss-Newton matrix of E there, its inliers (points within ``INLIER_ERROR_M`` of a line)
     and their weighted rms distance."""
 
     x: float
@@ -324,23 +332,23 @@ class Fix:
 
 class FitEngine:
     """The fits of one map: ``fit`` (RPROP from a start), ``global_search`` (multi-start),
-    ``vision_covariance``, ``ray_ranges``. ``conf``: the method's conf."""
+    ``vision_covariance``, ``ray_ranges`` (the module's constants C_M, INLIER_ERROR_M, RPROP,
+    GLOBAL, VISION_*)."""
 
-    def __init__(self, map_file: MapFile, conf: dict):
+    def __init__(self, map_file: MapFile):
         self.field = DistanceField(map_file)
-        self.conf = conf
-        self.c = float(conf["c"])
-        self.inlier_error = float(conf["inlier_error"])
-        rp = conf["rprop"]
-        self.iterations = int(rp["iterations"])
-        self.step_xy, self.step_theta = float(rp["step_xy"]), float(rp["step_theta"])
-        self.min_step = (float(rp["min_step_xy"]), float(rp["min_step_theta"]))
-        g = conf["global"]
-        self.global_step = float(g["step"])
-        # the starts: where a robot can stand, the field and ``global.margin`` around it
+        self.c = C_M
+        self.inlier_error = INLIER_ERROR_M
+        rp = RPROP
+        self.iterations = rp.iterations
+        self.step_xy, self.step_theta = rp.step_xy, rp.step_theta
+        self.min_step = (rp.min_step_xy, rp.min_step_theta)
+        g = GLOBAL
+        self.global_step = g.step
+        # the starts: where a robot can stand, the field and ``GLOBAL.margin`` around it
         fm = map_file.field
-        hx = min(fm.length / 2 + float(g["margin"]), self.field.bounds[1])
-        hy = min(fm.width / 2 + float(g["margin"]), self.field.bounds[3])
+        hx = min(fm.length / 2 + g.margin, self.field.bounds[1])
+        hy = min(fm.width / 2 + g.margin, self.field.bounds[3])
         self.grid_xs = np.arange(-hx, hx + 1e-9, self.global_step)
         self.grid_ys = np.arange(-hy, hy + 1e-9, self.global_step)
 
@@ -386,24 +394,24 @@ class FitEngine:
 
     def starts(self, obs: FitObservation, headings: np.ndarray, k: int,
                separation: float) -> list[tuple[float, float, float]]:
-        """The ``k`` best starts of the grid (``global.step`` over the map's world) at the
-        ``headings``, ranked by E with the wider scale ``global.c`` on at most
-        ``global.max_points`` points, each more than ``separation`` m or 1.5 heading steps
+        """The ``k`` best starts of the grid (``GLOBAL.step`` over the map's world) at the
+        ``headings``, ranked by E with the wider scale ``GLOBAL.c`` on at most
+        ``GLOBAL.max_points`` points, each more than ``separation`` m or 1.5 heading steps
         from the ones before."""
-        g = self.conf["global"]
-        sub = obs.subsample(int(g["max_points"]))
+        g = GLOBAL
+        sub = obs.subsample(g.max_points)
         hs = np.ascontiguousarray(headings, dtype=np.float64)
         costs = np.empty((len(hs), len(self.grid_ys), len(self.grid_xs)))
         K.grid_costs(*self.field.args(), sub.points, sub.weight,
                      np.ascontiguousarray(self.grid_xs), np.ascontiguousarray(self.grid_ys),
-                     hs, float(g["c"]) ** 2, costs)
+                     hs, g.c ** 2, costs)
         flat = costs.ravel()
         pool = min(flat.size, 32 * k)
         cand = np.argpartition(flat, pool - 1)[:pool]
         cand = cand[np.argsort(flat[cand], kind="stable")]
         hi, rest = np.divmod(cand, costs.shape[1] * costs.shape[2])
         yi, xi = np.divmod(rest, costs.shape[2])
-        heading_gap = 1.5 * float(g["heading_step"]) if len(hs) > 1 else math.inf
+        heading_gap = 1.5 * g.heading_step if len(hs) > 1 else math.inf
         chosen: list[tuple[float, float, float]] = []
         for h, i, j in zip(hi, yi, xi):
             x, y, th = float(self.grid_xs[j]), float(self.grid_ys[i]), float(hs[h])
@@ -418,20 +426,20 @@ class FitEngine:
                       separation: float, mode: str) -> list[Fix]:
         """Fixes from the multi-start global search, best first, one per basin: ``headings``
         a list of (theta, sigma) (each the start heading and its prior), or None (start
-        headings every ``global.heading_step``, no prior)."""
-        g = self.conf["global"]
+        headings every ``GLOBAL.heading_step``, no prior)."""
+        g = GLOBAL
         if headings is None:
-            hs = np.arange(0.0, 2 * math.pi - 1e-9, float(g["heading_step"]))
+            hs = np.arange(0.0, 2 * math.pi - 1e-9, g.heading_step)
             sigma = {}
         else:
             hs = np.array([h for h, _s in headings])
             sigma = {float(h): s for h, s in headings}
         out: list[Fix] = []
-        for x, y, th in self.starts(obs, hs, int(g["starts"]), separation):
+        for x, y, th in self.starts(obs, hs, g.starts, separation):
             s = sigma.get(th)
             f = self.fit(obs, (x, y, th), heading=None if s is None else (th, s),
                          temperature=temperature, mode=mode,
-                         step_theta=None if s is not None else 0.5 * float(g["heading_step"]))
+                         step_theta=None if s is not None else 0.5 * g.heading_step)
             out.append(f)
         out.sort(key=lambda f: f.error)
         kept: list[Fix] = []
@@ -445,16 +453,15 @@ class FitEngine:
                           ) -> np.ndarray:
         """Covariance (3, 3) of a fix for the fusion: the inverse of the tempered likelihood's
         Hessian (Gauss-Newton matrix / temperature) with the heading prior's information
-        (1 / sigma^2), times ``vision_inflation``; the position's eigenvalues between
-        ``vision_sigma_xy``^2 and 1 m^2."""
-        conf = self.conf
+        (1 / sigma^2), times ``VISION_INFLATION``; the position's eigenvalues between
+        ``VISION_SIGMA_XY_M``^2 and 1 m^2."""
         info = fix.normal / float(temperature)
         if heading_sigma is not None:
             info = info + np.diag([0.0, 0.0, 1.0 / float(heading_sigma) ** 2])
         info = 0.5 * (info + info.T) + np.diag([1e-6, 1e-6, 1e-6])
-        cov = np.linalg.inv(info) * float(conf["vision_inflation"])
+        cov = np.linalg.inv(info) * VISION_INFLATION
         w, v = np.linalg.eigh(cov[:2, :2])
-        w = np.clip(w, float(conf["vision_sigma_xy"]) ** 2, 1.0)
+        w = np.clip(w, VISION_SIGMA_XY_M ** 2, 1.0)
         cov[:2, :2] = (v * w) @ v.T
         cov[2, 2] = min(max(cov[2, 2], 1e-8), math.pi ** 2)
         return 0.5 * (cov + cov.T)
@@ -472,41 +479,16 @@ class FitEngine:
 # ---------------------------------------------------------------------------- the method
 
 
-# the ranges fit's numeric keys must lie in to run at all (common.conf.check_bounds): 1e12
-# null copies ran for hours; the radial correction's as lut's
-BOUNDS = {"null_copies": (1, 1000),
-          **{f"radial_correction.{k}": b for k, b in RADIAL_BOUNDS.items()}}
+# the ranges fit's numeric keys must lie in to run at all (common.conf.check_bounds): the
+# belief's (its count of hypotheses and its acceptance threshold), a clock tolerance of at
+# least 0
+BOUNDS = {**tracking.BOUNDS, "stamp_tolerance": (0, None)}
 
 
 def _check_conf(conf: dict, dataset):
     check_bounds(conf, BOUNDS)
     heading_mod.check_conf(conf, dataset)
     tracking.check_conf(conf)
-    for key, value in [(k, conf[k]) for k in ("temperature", "track_correlation", "c",
-                                               "max_range", "reach", "vision_inflation")] + [
-            ("range_scale", conf["range_scale"]),
-            ("evidence.per_structure", conf["evidence"]["per_structure"])]:
-        if value is not None and not _positive(value):
-            raise FieldlocError(f"{key} must be > 0, not {value}")
-    if not float(conf["global"]["margin"]) >= 0:
-        raise FieldlocError(f"global.margin must be >= 0, not {conf['global']['margin']}")
-    for key in ("step", "heading_step", "c"):
-        if not float(conf["global"][key]) > 0:
-            raise FieldlocError(f"global.{key} must be > 0, not {conf['global'][key]}")
-    for key, value in (("rprop.iterations", conf["rprop"]["iterations"]),
-                       ("global.starts", conf["global"]["starts"]),
-                       ("global.max_points", conf["global"]["max_points"]),
-                       ("null_copies", conf["null_copies"]),
-                       ("global_every", conf["global_every"]), ("min_points", conf["min_points"])):
-        if int(value) < 1:
-            raise FieldlocError(f"{key} must be >= 1, not {value}")
-
-
-def _positive(v) -> bool:
-    try:
-        return float(v) > 0
-    except (TypeError, ValueError):
-        return False
 
 
 @dataclass(kw_only=True)
@@ -531,15 +513,14 @@ class FitLocaliser:
         self.scanlines = scanlines
         self.yaw, self.collision, self.truth_heading = yaw, collision, truth_heading
         self.alignment = heading_mod.ImuAlignment(
-            variance=(conf["imu_sigma"] ** 2 + math.radians(2.0) ** 2),
+            variance=(heading_mod.IMU_SIGMA_RAD ** 2 + math.radians(2.0) ** 2),
             known=conf["imu_alignment"] == "field")
-        self.heading_sigma = {"imu": conf["imu_sigma"], "histogram": conf["histogram_sigma"],
-                              "truth": conf["truth_sigma"]}[conf["heading"]]
-        self.T_frame = float(conf["temperature"])
-        self.T_track = self.T_frame * float(conf["track_correlation"])
+        self.heading_sigma = heading_mod.SOURCE_SIGMA_RAD[conf["heading"]]
+        self.T_frame = TEMPERATURE
+        self.T_track = self.T_frame * TRACK_CORRELATION
         self.T = self.T_frame
         x0, x1, y0, y1 = engine.field.bounds
-        reach = float(conf["reach"])
+        reach = REACH_M
         res = engine.field.resolution
         self.bank = TrackBank(conf, area=(x1 - x0) * (y1 - y0), reach=reach,
                               reach_cells=int((2 * round(reach / res) + 1) ** 2),
@@ -554,28 +535,28 @@ class FitLocaliser:
         self.fixed_once = False
         self._offset_updates = 0
         rc = conf["radial_correction"]
-        self.radial = (RadialCorrection.from_conf(rc, scanlines.robot_radius)
+        self.radial = (RadialCorrection(robot_radius=float(scanlines.robot_radius))
                        if rc["enabled"] and not conf["independent"] else None)
 
     # ------------------------------------------------------------------ heading
     def _frame_heading(self, i: int, col: bool):
         """(heading, sigma) of every hypothesis this frame when the source gives one (imu,
-        truth; the IMU yaw on a collision frame with ``unsure_heading_sigma``), None when each
-        track has its own (histogram) or it is unknown."""
+        truth; the IMU yaw on a collision frame with ``heading.UNSURE_HEADING_SIGMA_RAD``), None
+        when each track has its own (histogram) or it is unknown."""
         conf = self.conf
         if conf["heading"] == "truth":
             if not np.isfinite(self.truth_heading[i]):
                 raise FrameFailed("no-truth-heading")
-            return float(self.truth_heading[i]), conf["truth_sigma"]
+            return float(self.truth_heading[i]), heading_mod.TRUTH_SIGMA_RAD
         if conf["heading"] == "imu":
             if not np.isfinite(self.yaw[i]):
                 raise FrameFailed("no-imu-row")
             self.alignment.predict()
             if not self.alignment.known:
                 return None
-            sigma = math.sqrt(conf["imu_sigma"] ** 2 + self.alignment.variance)
+            sigma = math.sqrt(heading_mod.IMU_SIGMA_RAD ** 2 + self.alignment.variance)
             if col:  # the IMU yaw jolts on collisions
-                sigma = max(sigma, conf["unsure_heading_sigma"])
+                sigma = max(sigma, heading_mod.UNSURE_HEADING_SIGMA_RAD)
             return self.alignment.heading(float(self.yaw[i])), sigma
         return None
 
@@ -586,30 +567,31 @@ class FitLocaliser:
             return base
         if conf["heading"] == "histogram":
             th, sharp = heading_mod.histogram_heading(
-                obs.points, float(prior_pose[2]), window=conf["histogram_window"],
-                step=conf["histogram_step"], bin=conf["histogram_bin"],
-                max_distance=float(conf["max_range"]), score=conf["histogram_score"])
+                obs.points, float(prior_pose[2]), window=heading_mod.HISTOGRAM_WINDOW_RAD,
+                step=heading_mod.HISTOGRAM_STEP_RAD, bin=heading_mod.HISTOGRAM_BIN_M,
+                max_distance=MAX_RANGE_M, score=heading_mod.HISTOGRAM_SCORE)
             jump = abs(float(wrap_angle(th - prior_pose[2]))) if np.isfinite(th) else np.inf
-            if sharp >= conf["histogram_min_sharpness"] and jump <= conf["histogram_gate"]:
-                return th, conf["histogram_sigma"]
+            if (sharp >= heading_mod.HISTOGRAM_MIN_SHARPNESS
+                    and jump <= heading_mod.HISTOGRAM_GATE_RAD):
+                return th, heading_mod.HISTOGRAM_SIGMA_RAD
         flags.append("heading-vision")  # the fit's own heading, from the track's
-        return float(prior_pose[2]), conf["unsure_heading_sigma"]
+        return float(prior_pose[2]), heading_mod.UNSURE_HEADING_SIGMA_RAD
 
     def _global_headings(self, obs: FitObservation, base):
         """The headings a global search starts from: the frame's (imu, truth), the four
-        histogram peaks (histogram), or None (every ``global.heading_step``)."""
+        histogram peaks (histogram), or None (every ``GLOBAL.heading_step``)."""
         conf = self.conf
         if base is not None:
             return [base]
         if conf["heading"] != "histogram":
             return None
         th, sharp = heading_mod.histogram_heading(
-            obs.points, 0.0, window=math.pi / 4, step=conf["histogram_step"],
-            bin=conf["histogram_bin"], max_distance=float(conf["max_range"]),
-            score=conf["histogram_score"])
-        if not np.isfinite(th) or sharp < conf["histogram_min_sharpness"]:
+            obs.points, 0.0, window=math.pi / 4, step=heading_mod.HISTOGRAM_STEP_RAD,
+            bin=heading_mod.HISTOGRAM_BIN_M, max_distance=MAX_RANGE_M,
+            score=heading_mod.HISTOGRAM_SCORE)
+        if not np.isfinite(th) or sharp < heading_mod.HISTOGRAM_MIN_SHARPNESS:
             return None
-        return [(float(wrap_angle(th + k * math.pi / 2)), conf["histogram_sigma"])
+        return [(float(wrap_angle(th + k * math.pi / 2)), heading_mod.HISTOGRAM_SIGMA_RAD)
                 for k in range(4)]
 
     # ------------------------------------------------------------------ candidates
@@ -624,7 +606,7 @@ class FitLocaliser:
         nll = fix.error / self.T
         d = fix.pose[:2] - np.asarray(prior_pose[:2], float)
         score = nll + self.bank.prior_term(d, info)
-        if self.conf["tracked_prior"]:
+        if TRACKED_PRIOR:
             # the fix is the posterior's mode m; what the points alone say is the measurement
             # z with m = the Kalman update of the prior by z (covariance R): z = m + R info
             # (m - prior), so the filter does not count the prior twice
@@ -638,7 +620,7 @@ class FitLocaliser:
     def _position_prior(self, prior_pose, info):
         """The track's prior on the position for the tracked fit (``tracked_prior``), or None
         (the fit sees the points alone, the Kalman filter the prior)."""
-        if not self.conf["tracked_prior"]:
+        if not TRACKED_PRIOR:
             return None
         return (float(prior_pose[0]), float(prior_pose[1])), info
 
@@ -654,7 +636,7 @@ class FitLocaliser:
         prior_pose, prior_cov = top.prior
         info = self.bank.innovation_information(prior_cov)
         out = []
-        for _ in range(int(self.conf["null_copies"])):
+        for _ in range(NULL_COPIES):
             nobs = self._null_copy(obs)
             th = top.fix.theta if base is None else base[0]
             f = self.engine.fit(nobs, np.array([prior_pose[0], prior_pose[1], th]),
@@ -668,10 +650,10 @@ class FitLocaliser:
         """The nll of the null in a global frame: the best fix of the global search on
         random-bearing copies (median over ``null_copies``)."""
         out = []
-        for _ in range(int(self.conf["null_copies"])):
+        for _ in range(NULL_COPIES):
             fixes = self.engine.global_search(self._null_copy(obs), headings,
                                               temperature=self.T, mode="null",
-                                              separation=self.conf["ambiguity_distance"])
+                                              separation=tracking.AMBIGUITY_DISTANCE_M)
             out.append(fixes[0].error / self.T if fixes else math.inf)
         return float(np.median(out))
 
@@ -683,7 +665,7 @@ class FitLocaliser:
         conf = self.conf
         mode = "global" if headings is not None and len(headings) == 1 else "global-heading"
         fixes = self.engine.global_search(obs, headings, temperature=self.T,
-                                          separation=conf["ambiguity_distance"], mode=mode)
+                                          separation=tracking.AMBIGUITY_DISTANCE_M, mode=mode)
         out: list[FitCandidate] = []
         sigmas = {} if headings is None else {round(h, 9): s for h, s in headings}
         for f in fixes:
@@ -720,8 +702,8 @@ class FitLocaliser:
             bank.reset()
             dt, odo = 0.0, None
         raw = frame_points(fr, self.scanlines)
-        obs = observation_from_points(raw, conf, self.radial)
-        if len(obs) < conf["min_points"]:
+        obs = observation_from_points(raw, self.radial)
+        if len(obs) < MIN_POINTS:
             raise FrameFailed("too-few-observations")
         base = self._frame_heading(i, col)
         # correlated points count as the independent evidence they carry (FitObservation)
@@ -736,12 +718,12 @@ class FitLocaliser:
         new: list[FitCandidate] = []
         headings = None
         if (not tracked or not self.last_confident or lost
-                or i - self.last_global >= conf["global_every"]):
+                or i - self.last_global >= GLOBAL_EVERY):
             headings = self._global_headings(obs, base)
             if (headings is None and tracked and self.last_confident
                     and conf["heading"] != "imu"):
                 top = max(tracked, key=lambda c: c.log_prior - c.nll)
-                headings = [(top.fix.theta, conf["unsure_heading_sigma"])]
+                headings = [(top.fix.theta, heading_mod.UNSURE_HEADING_SIGMA_RAD)]
             new = self._global(obs, headings, flags, bank.global_log_prior(other_prior),
                                field_heading=base is not None and self.field_heading)
             self.last_global = i
@@ -780,7 +762,7 @@ class FitLocaliser:
         pose = None if rc is None else rc.teaching_pose(self.bank, top, hyps, col)
         if pose is None:
             return
-        obs = observation_from_points(raw_points, self.conf)
+        obs = observation_from_points(raw_points)
         pred = self.engine.ray_ranges(obs, pose, rc.max_residual)
         ok = np.isfinite(pred)
         if ok.any():
@@ -794,11 +776,11 @@ class FitLocaliser:
         if conf["heading"] != "imu" or not np.isfinite(self.yaw[i]):
             return
         if not self.alignment.known:
-            var = max(math.radians(1.5) ** 2, conf["imu_sigma"] ** 2)
+            var = max(math.radians(1.5) ** 2, heading_mod.IMU_SIGMA_RAD ** 2)
             theta = self.bank.tracks[0].pose[2] if self.bank.tracks else top.fix.theta
             self.alignment.initialise(float(theta), float(self.yaw[i]), var)
             return
-        every = int(conf["imu_offset_every"])
+        every = heading_mod.IMU_OFFSET_EVERY
         if every <= 0 or col or top.track is None or top.fix.inlier_share < 0.5:
             return
         self._offset_updates += 1
@@ -813,13 +795,13 @@ class FitLocaliser:
 _ENGINES: dict = {}
 
 
-def fit_engine(map_file: MapFile, conf: dict) -> FitEngine:
-    """The FitEngine of a map and conf (the last one is kept)."""
+def fit_engine(map_file: MapFile) -> FitEngine:
+    """The FitEngine of a map (the last one is kept)."""
     p = map_file.path.resolve()
-    key = (str(p), p.stat().st_mtime_ns, repr(sorted((k, repr(v)) for k, v in conf.items())))
+    key = (str(p), p.stat().st_mtime_ns)
     if key not in _ENGINES:
         _ENGINES.clear()
-        _ENGINES[key] = FitEngine(map_file, conf)
+        _ENGINES[key] = FitEngine(map_file)
     return _ENGINES[key]
 
 
@@ -857,15 +839,15 @@ class FitScorer(PathCalibration):
         if i not in self._cache:
             raw = self._raw_points(i)
             self._cache[i] = (None if raw is None
-                              else observation_from_points(raw, self.loc.conf, self.radial))
+                              else observation_from_points(raw, self.radial))
         return self._cache[i]
 
     def _crossings(self, i: int, pose):
         """Frame i's line points' ranges as observed and where their rays meet the lines at
         ``pose``."""
         loc = self.loc
-        obs = observation_from_points(self._raw_points(i), loc.conf)
-        pred = loc.engine.ray_ranges(obs, pose, loc.conf["radial_correction"]["max_residual"])
+        obs = observation_from_points(self._raw_points(i))
+        pred = loc.engine.ray_ranges(obs, pose, radial_correction.MAX_RESIDUAL_M)
         ok = np.isfinite(pred)
         return obs.distance[ok], pred[ok]
 
@@ -875,11 +857,11 @@ class FitScorer(PathCalibration):
         loc, conf = self.loc, self.loc.conf
         if conf["heading"] == "truth":
             th = loc.truth_heading[i]
-            return (float(th), conf["truth_sigma"]) if np.isfinite(th) else None
+            return (float(th), heading_mod.TRUTH_SIGMA_RAD) if np.isfinite(th) else None
         if conf["heading"] == "imu" and loc.alignment.known and np.isfinite(loc.yaw[i]):
-            sigma = math.sqrt(conf["imu_sigma"] ** 2 + loc.alignment.variance)
+            sigma = math.sqrt(heading_mod.IMU_SIGMA_RAD ** 2 + loc.alignment.variance)
             if loc.collision[i]:
-                sigma = max(sigma, conf["unsure_heading_sigma"])
+                sigma = max(sigma, heading_mod.UNSURE_HEADING_SIGMA_RAD)
             return loc.alignment.heading(float(loc.yaw[i])), sigma
         return None
 
@@ -890,7 +872,7 @@ class FitScorer(PathCalibration):
         obs = self._obs(i)
         if obs is None:
             return "unreadable-features"
-        return "too-few-observations" if len(obs) < self.loc.conf["min_points"] else None
+        return "too-few-observations" if len(obs) < MIN_POINTS else None
 
     def _row(self, fix: Fix, T: float, sigma):
         return (fix.pose, fix.error / T, self.loc.engine.vision_covariance(fix, T, sigma),
@@ -903,7 +885,7 @@ class FitScorer(PathCalibration):
         base = self._heading(i)
         headings = loc._global_headings(obs, base)
         fixes = engine.global_search(obs, headings, temperature=T, mode="global",
-                                     separation=loc.conf["ambiguity_distance"])
+                                     separation=tracking.AMBIGUITY_DISTANCE_M)
         sigma = None if headings is None else headings[0][1]
         rows = [self._row(f, T, sigma) for f in fixes]
         if self.mirrored:  # the mirror image explains the frame as well: fitted there too
@@ -933,7 +915,7 @@ def run(conf: dict, dataset, features, map_file: MapFile, progress=False) -> Pos
     ``radial`` and ``spiral``) on ``map_file``'s distance table, with the odometry, IMU and
     truth of ``dataset`` (stages.common.dataset.Dataset or None). ``progress``: tqdm."""
     _check_conf(conf, dataset)
-    engine = fit_engine(map_file, conf)
+    engine = fit_engine(map_file)
     sensors = tracking.frame_sensors(conf, dataset, features.stamps)
     loc = FitLocaliser(conf, engine, map_file.field, map_file.scanlines, yaw=sensors.yaw,
                        collision=sensors.collision, truth_heading=sensors.truth_heading)
@@ -943,11 +925,10 @@ def run(conf: dict, dataset, features, map_file: MapFile, progress=False) -> Pos
     if not conf["smooth"]:
         return track
     scorer = FitScorer(loc, features)
-    motion = smooth.motion_of(sensors.increments, sensors.has_odometry, features.stamps,
-                              conf["fusion"], sensors.collision)
     x0, x1, y0, y1 = engine.field.bounds
-    track = smooth.smooth_track(scorer, track, motion, conf, area=(x1 - x0) * (y1 - y0),
-                                log_prior0=smooth.start_half_prior(conf, scorer.mirrored))
+    track = bank_smoothing.smoothed(scorer, track, conf, increments=sensors.increments,
+                                    has_odometry=sensors.has_odometry, stamps=features.stamps,
+                                    collision=sensors.collision, area=(x1 - x0) * (y1 - y0))
     if scorer.radial is not None:
         track.meta["radial_correction"] = scorer.radial.summary()
     return track

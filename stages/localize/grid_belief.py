@@ -9,13 +9,13 @@ its border), at the frame's IMU heading. Per frame:
    previous heading (bilinear shift), blurred by the odometry's noise (the fusion's
    ``odometry_xy`` per metre travelled plus ``odometry_min_xy``; the fusion's model noise
    where the motion is unknown: a collision frame, no odometry), and mixed with the uniform
-   belief at ``kidnap_probability`` (the rate at which the robot is put elsewhere);
+   belief at ``KIDNAP_PROBABILITY`` (tracking.py; the rate at which the robot is put elsewhere);
 2. update: multiplied by the frame's tempered likelihood exp(-E(cell) / T) at the table
    heading nearest the IMU's, E the paper's matching error over every cell (the error
    lookup's surface, each observation at its evidence weight: TableSearch.surface), and
-   normalised. A frame with fewer than ``min_observations`` crossings (the camera blocked,
+   normalised. A frame with fewer than lut's ``MIN_OBSERVATIONS`` crossings (the camera blocked,
    the robot lifted) skips the update: its answer is the prediction (mode ``predicted``);
-3. conclude: the hypotheses are the belief's most probable cells, ``ambiguity_distance``
+3. conclude: the hypotheses are the belief's most probable cells, ``AMBIGUITY_DISTANCE_M``
    apart (the global search's places), each with the belief's mass within that distance of
    it: the probability of that place. The top one's cell is refined to sub-cell by the
    seed's refinement (TableSearch.refine), and its place's mass is the confidence. The
@@ -25,7 +25,7 @@ Every place keeps its probability from frame to frame: nothing is born or pruned
 the first frames misjudged is not lost, and the belief moves to it as soon as the evidence the
 odometry links over frames says so (the tracks of tracking.TrackBank must first find such a
 place with a global search and give it the prior of a kidnap). A prior over where a robot can
-stand (``unreachable_probability`` inside and behind the goals) enters once, at the start, and
+stand (``UNREACHABLE_PROBABILITY`` inside and behind the goals) enters once, at the start, and
 in every kidnap's uniform mass.
 """
 
@@ -37,18 +37,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..common.errors import FieldlocError
-from .kalman import FusionParams
+from .heading import IMU_SIGMA_RAD
 from .radial_correction import RadialCorrection
-from .tracking import FrameFailed
+from .tracking import AMBIGUITY_DISTANCE_M, FUSION, KIDNAP_PROBABILITY, FrameFailed
 
-DEFAULTS = {
-    # evidence (full-weight observations of the surface) per nat: consecutive views overlap
-    # and one white line crosses many scan lines, so one observation is worth much less than
-    # a nat; fitted on rendered tuning seeds (results page), as lut's ``temperature``
-    "temperature": 4.0,
-    # prior of a cell a robot cannot stand on (inside or behind a goal), relative to the field
-    "unreachable_probability": 1e-3,
-}
+# evidence (full-weight observations of the surface) per nat: consecutive views overlap and one
+# white line crosses many scan lines, so one observation is worth much less than a nat; fitted
+# on rendered tuning seeds (docs/lut-belief.md), as lut's TEMPERATURE
+TEMPERATURE = 4.0
+# prior of a cell a robot cannot stand on (inside or behind a goal), relative to the field
+UNREACHABLE_PROBABILITY = 1e-3
 # a goal's mouth widened by the robot's radius: a robot centre closer to the goal line than
 # this inside the posts' span is inside the goal (msl robots are about 0.5 m across)
 GOAL_SLACK_M = 0.25
@@ -84,16 +82,7 @@ def uses_grid(conf: dict) -> bool:
 
 
 def check_conf(conf: dict) -> None:
-    """The grid keys of a lut conf, checked (FieldlocError)."""
-    g = conf["grid"]
-    v = g["temperature"]
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (0 < v < math.inf):
-        raise FieldlocError(f"conf 'grid.temperature' must be a number > 0, got"
-                            f" {str(v)[:40]!r}")
-    v = g["unreachable_probability"]
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v <= 1:
-        raise FieldlocError(f"conf 'grid.unreachable_probability' must be in [0, 1], got"
-                            f" {str(v)[:40]!r}")
+    """What the grid needs of a lut conf: a field-aligned heading (FieldlocError)."""
     if not (conf["heading"] == "truth"
             or (conf["heading"] == "imu" and conf["imu_alignment"] == "field")):
         raise FieldlocError("belief grid needs a field-aligned heading (heading imu with"
@@ -220,23 +209,23 @@ class GridLocaliser:
     """The per-frame loop of ``belief: grid`` (module doc), as tracking.localise_frames runs
     it."""
 
-    def __init__(self, conf: dict, search, *, yaw, collision, truth_heading):
+    def __init__(self, conf: dict, search, *, yaw, collision, truth_heading, min_observations):
         check_conf(conf)
         self.conf, self.search = conf, search
-        self.g = conf["grid"]
-        self.fusion = FusionParams.from_conf(conf["fusion"])
+        self.min_observations = min_observations  # fewer crossings: the update is skipped
+        self.fusion = FUSION
         self.yaw, self.collision, self.truth_heading = yaw, collision, truth_heading
         ny, nx = search.grid.shape
         res = float(search.grid.resolution)
         xs = float(search.grid.origin[0]) + res * np.arange(nx)
         ys = float(search.grid.origin[1]) + res * np.arange(ny)
         self.belief = GridBelief(xs, ys, reachable_prior(
-            search.field, xs, ys, float(self.g["unreachable_probability"])),
-            float(conf["kidnap_probability"]))
+            search.field, xs, ys, UNREACHABLE_PROBABILITY),
+            KIDNAP_PROBABILITY)
         self.prev_heading = None
         self.has_odometry = True
         rc = conf["radial_correction"]  # the calibration's distance error, learnt online
-        self.radial = (RadialCorrection.from_conf(rc, search.scanlines.robot_radius)
+        self.radial = (RadialCorrection(robot_radius=float(search.scanlines.robot_radius))
                        if rc["enabled"] else None)
 
     def _heading(self, i: int) -> float:
@@ -281,22 +270,22 @@ class GridLocaliser:
         self._predict(dt, odo, collision)
 
     def frame(self, i: int, fr: dict, dt: float, odo, flags: list):
-        from .lut_search import frame_observations
+        from .lut_search import EVIDENCE, frame_observations
 
         conf, search = self.conf, self.search
         col = bool(self.collision[i])
         self._predict(dt, odo, col)
         theta = self._heading(i)
         self.prev_heading = theta
-        obs, raw_distance = frame_observations(fr, search, self.radial, conf["evidence"])
-        seen = len(obs) >= conf["min_observations"]
+        obs, raw_distance = frame_observations(fr, search, self.radial, EVIDENCE)
+        seen = len(obs) >= self.min_observations
         if seen:
-            self.belief.update(search.surface(obs, theta), float(self.g["temperature"]))
+            self.belief.update(search.surface(obs, theta), TEMPERATURE)
         else:  # nothing to weigh: the belief's prediction is the frame's answer
             flags.append("too-few-observations")
         # a place: the cells within the global search's ambiguity distance of a pose (two
         # places are at least that far apart); the confidence is the mass of the pose's place
-        reach = float(conf["ambiguity_distance"])
+        reach = AMBIGUITY_DISTANCE_M
         modes = self.belief.modes(int(conf["hypotheses"]), reach, reach)
         x, y, _ = modes[0]
         fix = GridFix(x, y, theta, math.nan, "grid" if seen else "predicted")
@@ -310,7 +299,7 @@ class GridLocaliser:
                         + [[mx, my, theta, m] for mx, my, m in modes[1:]], float)
         cov = np.zeros((3, 3))
         cov[:2, :2] = self.belief.covariance_near(fix.x, fix.y, reach)
-        cov[2, 2] = float(conf["imu_sigma"]) ** 2
+        cov[2, 2] = IMU_SIGMA_RAD ** 2
         if seen and not col:
             self._learn_radial(obs, raw_distance, fix, confidence)
         accepted = confidence >= conf["min_confidence"]

@@ -40,6 +40,26 @@ from ..common.geometry import wrap_angle, wrap_scalar
 SOURCES = ("imu", "histogram", "truth")  # where a frame's heading comes from
 START_HALVES = ("own", "opponent", "any")  # where the first fix lies (the field's symmetry)
 
+# The heading sources' tuned constants, the same for lut and fit (the values their confs
+# held; chosen on the rendered tuning sets, docs/results.md): each source's heading noise for
+# the fusion, and how the histograms search and when they are believed.
+IMU_SIGMA_RAD = 0.01  # rad, IMU heading noise for the fusion
+IMU_OFFSET_EVERY = 5  # frames between vision updates of the IMU offset (0: never)
+HISTOGRAM_WINDOW_RAD = math.radians(40.0)  # rad, +- around the last heading
+HISTOGRAM_STEP_RAD = math.radians(0.5)  # rad
+HISTOGRAM_BIN_M = 0.05  # m
+HISTOGRAM_SIGMA_RAD = 0.02  # rad, histogram heading noise for the fusion
+HISTOGRAM_SCORE = "peak"  # peak (Ribeiro et al. 2015) | energy (sum of squared counts)
+HISTOGRAM_MIN_SHARPNESS = 1.7  # best score / mean score; below: heading by vision
+HISTOGRAM_GATE_RAD = 0.15  # rad, largest accepted deviation from the predicted heading
+TRUTH_SIGMA_RAD = 0.001  # rad, the truth's heading noise for the fusion
+# rad, heading noise for the fusion where the source gives none or vision is unsure (the IMU
+# on a collision frame, a histogram without straight lines)
+UNSURE_HEADING_SIGMA_RAD = 0.1
+# the heading noise of each source for the fusion
+SOURCE_SIGMA_RAD = {"imu": IMU_SIGMA_RAD, "histogram": HISTOGRAM_SIGMA_RAD,
+                    "truth": TRUTH_SIGMA_RAD}
+
 
 def check_start_half(conf: dict) -> None:
     """``start_half`` (own, opponent or any) and ``start_half_error`` (a probability) of a

@@ -8,34 +8,37 @@ belief through the tempered likelihood, combined with the motion's prior:
 
     p(frame | pose)  ~  exp(-E(pose) / T)
 
-(``temperature`` T: neighbouring scan lines see the same white line, so one full-weight
+(``TEMPERATURE`` T: neighbouring scan lines see the same white line, so one full-weight
 observation is worth less than one nat; T is fitted for calibrated probabilities).
 
 Two beliefs carry it (``belief``; docs/lut-belief.md): ``grid`` (``--preset grid``), a
 probability per table cell at the frame's field-aligned heading, moved by the odometry and
 multiplied by every cell's likelihood (Markov localisation, Fox, Burgard and Thrun 1999;
 grid_belief.py): nothing is born or pruned, so a place the first frames misjudged is never lost;
-``tracks`` (default), at most ``max_tracks`` weighted Gaussian tracks, each a pose in the paper's
-decentralised Kalman filter (kalman.py), kept by tracking.TrackBank (shared by every pose-fixing
-method), to which this module gives the fixes, their tempered likelihoods and the null.
+``tracks`` (default), at most ``tracking.MAX_TRACKS`` weighted Gaussian tracks, each a pose in
+the paper's decentralised Kalman filter (kalman.py), kept by tracking.TrackBank (shared by every
+pose-fixing method), to which this module gives the fixes, their tempered likelihoods and the
+null.
 
 A track, per frame: its prior is the last fused pose moved by the odometry (the last fused
 motion on IMU collision frames); its heading ``imu`` (field-aligned yaw, heading.py),
 ``histogram`` (the paper's line-point histograms within +-40 deg of the prediction) or
-``truth``, else refined by the search; the paper's local search in a ``window`` x ``window`` m
-square, ranked by E / T + Mahalanobis^2 / 2 (a minimum far from where the odometry puts the
-robot needs that much more evidence) and refined (sub-cell, line points), gives the fix
-(TableSearch.tracked_fix); the weight is multiplied by exp(-E / T), the odometry's agreement
-exp(-m^2 / 2) (m the Kalman innovation, floored by ``min_gate`` / ``gate_sigmas``) and 1 -
-``kidnap_probability``; the fix is fused when it beats the null.
+``truth``, else refined by the search; the paper's local search in a ``WINDOW_M`` x
+``WINDOW_M`` m square, ranked by E / T + Mahalanobis^2 / 2 (a minimum far from where the
+odometry puts the robot needs that much more evidence) and refined (sub-cell, line points),
+gives the fix (TableSearch.tracked_fix); the weight is multiplied by exp(-E / T), the
+odometry's agreement exp(-m^2 / 2) (m the Kalman innovation, floored by ``tracking.MIN_GATE_M``
+/ ``tracking.GATE_SIGMAS``) and 1 - ``tracking.KIDNAP_PROBABILITY``; the fix is fused when it
+beats the null.
 
 Global searches propose tracks on the first frame, when no track is left, every
-``global_every`` frames (a wrong track cannot persist unchallenged), and after a frame not
-confident up to the mirror (TrackBank.confident). Each separated minimum (``global_candidates``,
-``ambiguity_distance`` apart) that is not a track or its mirror is a candidate of prior mass
-``kidnap_probability`` / N, N the number of ``ambiguity_distance`` squares in the world (a
-uniform prior over where the robot could have been put); weights are normalised, tracks below
-``prune_probability`` dropped, tracks that meet merged. Without a known heading the
+``GLOBAL_EVERY`` frames (a wrong track cannot persist unchallenged), and after a frame not
+confident up to the mirror (TrackBank.confident). Each separated minimum
+(``GLOBAL_CANDIDATES``, ``tracking.AMBIGUITY_DISTANCE_M`` apart) that is not a track or its
+mirror is a candidate of prior mass ``tracking.KIDNAP_PROBABILITY`` / N, N the number of
+``tracking.AMBIGUITY_DISTANCE_M`` squares in the world (a uniform prior over where the robot
+could have been put); weights are normalised, tracks below
+``tracking.PRUNE_PROBABILITY`` dropped, tracks that meet merged. Without a known heading the
 unknown-heading search (72 headings) proposes poses and headings. In ``independent`` runs
 (``global_evidence: auto``; ``points``: every frame without a track) candidates and the null's
 copies are weighed by the line points' distance to the nearest line (PointFit): the scan-line
@@ -46,9 +49,9 @@ look-alike place (omni-hard) locked onto it for good.
 
 The null: the same observations at random bearings (scan lines shuffled,
 ``Observation.random_bearings``), searched the same way, show what chance alone explains
-(E_null, the median of ``null_copies``; a tracked frame's first bounded from below,
+(E_null, the median of ``NULL_COPIES``; a tracked frame's first bounded from below,
 TableSearch.tracked_score_bound). A frame with no hypothesis beating it (``uninformative``) or
-fewer than ``min_observations`` crossings fails: the tracks only predict. In a global frame the
+fewer than ``MIN_OBSERVATIONS`` crossings fails: the tracks only predict. In a global frame the
 null is one more hypothesis ("none of these"): a pose barely beating chance gets little.
 
 Symmetry: on a point-symmetric field a track carries its mirror image's share of its weight
@@ -68,7 +71,7 @@ onto start_half); low-confidence; too-few-observations, uninformative, no-imu-ro
 no-truth-heading.
 
 Vision covariance: the quadratic fit of the error surface at the fix gives its Hessian H (of
-e_norm, m^-2); the position covariance is ``vision_sigma_xy``^2 (1/c^2) H^-1, H's eigenvalues
+e_norm, m^-2); the position covariance is ``VISION_SIGMA_XY_M``^2 (1/c^2) H^-1, H's eigenvalues
 clipped from below at 0.2 % of 1/c^2 (a fix seeing only parallel lines is uncertain along
 them), scaled by (1 + inlier_rho / 0.05), capped at 1 m. The heading variance is the heading
 source's, or from the error's curvature over the heading when the search refined it.
@@ -89,10 +92,10 @@ from ..common.field import FieldModel
 from ..common.geometry import wrap_angle
 from ..common.map_file import MapFile
 from ..common.poses_file import PoseTrack
-from . import grid_belief, smooth, tracking
+from . import bank_smoothing, grid_belief, tracking
 from . import heading as heading_mod
-from .grid_belief import DEFAULTS as GRID_DEFAULTS
 from .lut_search import (
+    EVIDENCE,
     MatchingParams,
     Observation,
     SearchResult,
@@ -102,7 +105,6 @@ from .lut_search import (
     random_bearing_points,
 )
 from .point_fit import PointFit
-from .radial_correction import BOUNDS as RADIAL_BOUNDS
 from .radial_correction import DEFAULTS as RADIAL_DEFAULTS
 from .radial_correction import PathCalibration, RadialCorrection
 from .smooth import FrameCandidates
@@ -112,39 +114,17 @@ log = logging.getLogger(__name__)
 
 camera_kinds = ("omni",)  # the features it reads
 confs = {
-    # the belief's keys (tracking.DEFAULTS; min_confidence 0.8, chosen on the tuning sets'
-    # confidently wrong frames, which are more on held-out sets: docs/manual.md,
-    # docs/results.md), then the search's
+    # what a user chooses: the belief's keys (tracking.DEFAULTS; min_confidence 0.8, chosen on
+    # the tuning sets' confidently wrong frames, which are more on held-out sets:
+    # docs/manual.md, docs/results.md), the heading source and what is known of the start;
+    # the search's tuned constants are named below (WINDOW_M, TEMPERATURE, SEARCH, ...)
     "default": {
         **tracking.DEFAULTS,
         "heading": "imu",  # imu | histogram | truth
         "imu_alignment": "field",  # field: imu yaw is field-aligned (+ small bias) | vision
         "start_half": "any",  # own (x < 0) | opponent (x > 0) | any: where the first fix is
         "start_half_error": 1e-3,  # probability that start_half is wrong
-        "imu_sigma": 0.01,  # rad, IMU heading noise for the fusion
-        "imu_offset_every": 5,  # frames between vision updates of the IMU offset (0: never)
-        "histogram_window": math.radians(40.0),  # rad, +- around the last heading
-        "histogram_step": math.radians(0.5),  # rad
-        "histogram_bin": 0.05,  # m
-        "histogram_sigma": 0.02,  # rad, histogram heading noise for the fusion
-        "histogram_score": "peak",  # peak (Ribeiro et al. 2015) | energy (sum of squared counts)
-        "histogram_min_sharpness": 1.7,  # best score / mean score; below: heading by vision
-        "histogram_gate": 0.15,  # rad, largest accepted deviation from the predicted heading
-        "truth_sigma": 0.001,  # rad
-        "vision_heading_max_sigma": math.radians(2.4),  # rad, a vision heading less sure than
-        # this is not used (collision frames, histogram without straight lines)
-        "unsure_heading_sigma": 0.1,  # rad, heading noise for the fusion on such frames
-        "stamp_tolerance": 0.02,  # s, imu/truth row to frame matching
-        "window": 2.0,  # m, side of the local search square (Ribeiro et al. 2015: 4 m^2)
-        "min_observations": 8,  # fewer crossings: the frame fails
-        "temperature": 0.5,  # evidence (full-weight observations) per nat (calibrated)
-        "track_correlation": 4.0,  # consecutive frames whose views are one measurement:
-        # a tracked frame's evidence counts 1 / track_correlation (calibrated)
-        "evidence": {  # observations of one white structure are one correlated measurement
-            "per_structure": 6.0,  # observations' worth of evidence a structure carries
-            "link": 0.2,  # m, largest gap within a structure, plus
-            "link_per_m": 0.1,  # m per m of range (scan lines spread with distance)
-        },
+        "stamp_tolerance": 0.02,  # s, imu/truth row to frame matching (the recording's clocks)
         "global_evidence": "auto",  # points | scanlines | auto: what weighs the candidates
         # of a global search on a frame with no track (and its null): the line points'
         # distance to the nearest line (PointFit) after refining each candidate in its basin,
@@ -152,25 +132,6 @@ confs = {
         # at the right range to poses where the points lie on lines; docs/manual.md, real images);
         # auto: points for independent frames, scan lines for a tracked run (whose tracks
         # are weighed by the scan-line error: its first fix too, docs/manual.md)
-        "global_reach": 0.5,  # m, how far the points' refinement moves such a candidate
-        "global_candidates": 16,  # separated minima of a global search proposed as tracks
-        "unknown_heading_candidates": 24,  # (heading, cell) candidates refined
-        "global_every": 5,  # frames between global searches while tracking
-        "null_copies": 2,  # random-bearing copies of the observations (median), global
-        "tracked_null_copies": 1,  # ... tracked frames (their window is small)
-        "inlier_error": 0.125,  # m, an observation within this of its predicted crossing is
-        # an inlier of the fix (c / 2: rho = 0.2); reported, and shapes the covariance
-        "vision_sigma_xy": 0.01,  # m, smallest position sigma of a well-constrained fix
-        "vision_rms_factor": 2.5,  # its sigma per m of its inliers' rms error
-        # (vision_covariance; fused poses consistent with their covariance, NEES, docs/manual.md)
-        "search": {
-            "c": 0.25,  # m, scale of 1 - c^2 / (c^2 + e^2)
-            "range_scale": 2.0,  # m, weight 1 / (1 + (d / range_scale)^2): nearer weigh more
-            "distance_bin": 0.05,  # m, observed-distance quantisation of the error lookup
-            "use_spiral": True,
-            "coarse_step": 3,  # cells, subsampling of the unknown-heading pass
-            "pair_tolerance": 0.6,  # m, same white line on neighbouring scan lines
-        },
         # online estimate of the calibration's distance error (radial_correction.py)
         "radial_correction": dict(RADIAL_DEFAULTS),
         # tracks: the Gaussian tracks of tracking.TrackBank (module doc); grid: a probability
@@ -179,7 +140,6 @@ confs = {
         # tracks by default: on held-out renders the grid accepted fewer right frames
         # (docs/lut-belief.md)
         "belief": "tracks",
-        "grid": dict(GRID_DEFAULTS),
     },
 }
 confs["no-fusion"] = {**confs["default"], "fusion": {**confs["default"]["fusion"],
@@ -187,6 +147,42 @@ confs["no-fusion"] = {**confs["default"], "fusion": {**confs["default"]["fusion"
 confs["independent"] = {**confs["default"], "independent": True}
 confs["grid"] = {**confs["default"], "belief": "grid"}
 confs["tracks"] = {**confs["default"], "belief": "tracks"}
+
+
+# The search's tuned constants (module doc; the values the default preset held, chosen on the
+# rendered tuning sets and calibrated there: docs/results.md, docs/manual.md). The heading
+# sources' are heading.py's, the belief's tracking.py's.
+WINDOW_M = 2.0  # m, side of the local search square (Ribeiro et al. 2015: 4 m^2)
+MIN_OBSERVATIONS = 8  # fewer crossings: the frame fails
+TEMPERATURE = 0.5  # evidence (full-weight observations) per nat (calibrated)
+# consecutive frames whose views are one measurement: a tracked frame's evidence counts
+# 1 / TRACK_CORRELATION (calibrated)
+TRACK_CORRELATION = 4.0
+# rad, a vision heading less sure than this is not used (collision frames, histogram without
+# straight lines)
+VISION_HEADING_MAX_SIGMA_RAD = math.radians(2.4)
+GLOBAL_REACH_M = 0.5  # m, how far the points' refinement moves a global candidate
+GLOBAL_CANDIDATES = 16  # separated minima of a global search proposed as tracks
+UNKNOWN_HEADING_CANDIDATES = 24  # (heading, cell) candidates refined
+GLOBAL_EVERY = 5  # frames between global searches while tracking
+NULL_COPIES = 2  # random-bearing copies of the observations (median), global
+TRACKED_NULL_COPIES = 1  # ... tracked frames (their window is small)
+# m, an observation within this of its predicted crossing is an inlier of the fix (c / 2:
+# rho = 0.2); reported, and shapes the covariance
+INLIER_ERROR_M = 0.125
+VISION_SIGMA_XY_M = 0.01  # m, smallest position sigma of a well-constrained fix
+# its sigma per m of its inliers' rms error (vision_covariance; fused poses consistent with
+# their covariance, NEES, docs/manual.md)
+VISION_RMS_FACTOR = 2.5
+# the table search's matching (lut_search.py)
+SEARCH = MatchingParams(
+    c=0.25,  # m, scale of 1 - c^2 / (c^2 + e^2)
+    range_scale=2.0,  # m, weight 1 / (1 + (d / range_scale)^2): nearer weigh more
+    distance_bin=0.05,  # m, observed-distance quantisation of the error lookup
+    use_spiral=True,
+    coarse_step=3,  # cells, subsampling of the unknown-heading pass
+    pair_tolerance=0.6,  # m, same white line on neighbouring scan lines
+)
 
 
 _SEARCH_CACHE: dict = {}
@@ -216,18 +212,17 @@ def _cached(map_file: MapFile, params: MatchingParams):
     return _SEARCH_CACHE[key]
 
 
-def vision_covariance(result: SearchResult, support: Support, conf: dict,
-                      heading_sigma: float) -> np.ndarray:
+def vision_covariance(result: SearchResult, support: Support, heading_sigma: float) -> np.ndarray:
     """Covariance (3, 3) of a fix for the fusion (see the module doc)."""
-    c = float(conf["search"]["c"])
+    c = SEARCH.c
     ref = 1.0 / (c * c)
     h = result.hessian
     cov = np.zeros((3, 3))
-    # the fix is as good as its inliers fit: their rms error times vision_rms_factor (not
+    # the fix is as good as its inliers fit: their rms error times VISION_RMS_FACTOR (not
     # divided by their number: a biased mirror calibration moves them together, and the fit
-    # absorbs part of the bias), at least vision_sigma_xy
+    # absorbs part of the bias), at least VISION_SIGMA_XY_M
     rms = support.inlier_rms if math.isfinite(support.inlier_rms) else c
-    s = ref * max(conf["vision_rms_factor"] * rms, conf["vision_sigma_xy"]) ** 2
+    s = ref * max(VISION_RMS_FACTOR * rms, VISION_SIGMA_XY_M) ** 2
     hxx, hxy, hyy = float(h[0, 0]), float(0.5 * (h[0, 1] + h[1, 0])), float(h[1, 1])
     if math.isfinite(hxx) and math.isfinite(hxy) and math.isfinite(hyy):
         # the Hessian's eigenvalues clipped from below, inverted, scaled
@@ -243,22 +238,15 @@ def vision_covariance(result: SearchResult, support: Support, conf: dict,
     return cov
 
 
-# the ranges lut's numeric keys must lie in to run at all (common.conf.check_bounds): counts of
-# at least one (none divides by zero or finds nothing) and at most what a frame can spend
-# (1e12 null copies or a coarse step of 1e12 cells ran for hours), sigmas and sizes above zero
-BOUNDS = {"unsure_heading_sigma": ((0,), None), "window": ((0,), 50.0),
-          "global_candidates": (1, 1000), "unknown_heading_candidates": (1, 1000),
-          "null_copies": (1, 1000), "tracked_null_copies": (1, 1000),
-          "search.coarse_step": (1, 64), "min_observations": (0, None), "global_every": (1, None),
-          **{f"radial_correction.{k}": b for k, b in RADIAL_BOUNDS.items()}}
+# the ranges lut's numeric keys must lie in to run at all (common.conf.check_bounds): the
+# belief's (its count of hypotheses and its acceptance threshold), a clock tolerance of at
+# least 0
+BOUNDS = {**tracking.BOUNDS, "stamp_tolerance": (0, None)}
 
 
 def _check_conf(conf: dict, dataset):
     check_bounds(conf, BOUNDS)
     heading_mod.check_conf(conf, dataset)
-    for key in ("temperature", "track_correlation"):
-        if not float(conf[key]) > 0:
-            raise FieldlocError(f"{key} must be > 0, not {conf[key]}")
     tracking.check_conf(conf)
     if conf["global_evidence"] not in ("auto", "points", "scanlines"):
         raise FieldlocError("global_evidence must be auto, points or scanlines, not"
@@ -299,16 +287,15 @@ class LutLocaliser:
         self.fit = fit
         self.yaw, self.collision, self.truth_heading = yaw, collision, truth_heading
         self.alignment = heading_mod.ImuAlignment(
-            variance=(conf["imu_sigma"] ** 2 + math.radians(2.0) ** 2),
+            variance=(heading_mod.IMU_SIGMA_RAD ** 2 + math.radians(2.0) ** 2),
             known=conf["imu_alignment"] == "field")
-        self.heading_sigma = {"imu": conf["imu_sigma"], "histogram": conf["histogram_sigma"],
-                              "truth": conf["truth_sigma"]}[conf["heading"]]
-        self.half = 0.5 * float(conf["window"])
+        self.heading_sigma = heading_mod.SOURCE_SIGMA_RAD[conf["heading"]]
+        self.half = 0.5 * WINDOW_M
         # a points' fit moves a fix within the search's own resolution: one table cell, half
         # a table heading step (_fit_points)
         self._fit_reach = (search.grid.resolution, 0.5 * search.step)
-        self.T_frame = float(conf["temperature"])
-        self.T_track = self.T_frame * float(conf["track_correlation"])
+        self.T_frame = TEMPERATURE
+        self.T_track = self.T_frame * TRACK_CORRELATION
         self.T = self.T_frame
         ny, nx = search.grid.shape
         self.symmetric = search.field.is_point_symmetric()
@@ -326,7 +313,7 @@ class LutLocaliser:
         self.field_heading = heading_mod.field_aligned(conf)  # rules the mirror out
         self.rng = np.random.default_rng(seed)
         rc = conf["radial_correction"]
-        self.radial = (RadialCorrection.from_conf(rc, search.scanlines.robot_radius)
+        self.radial = (RadialCorrection(robot_radius=float(search.scanlines.robot_radius))
                        if rc["enabled"] and not conf["independent"] else None)
 
     # ------------------------------------------------------------------ book-keeping
@@ -345,8 +332,8 @@ class LutLocaliser:
         if conf["independent"]:
             bank.reset()
             dt, odo = 0.0, None
-        obs, raw_distance = frame_observations(fr, search, self.radial, conf["evidence"])
-        if len(obs) < conf["min_observations"]:
+        obs, raw_distance = frame_observations(fr, search, self.radial, EVIDENCE)
+        if len(obs) < MIN_OBSERVATIONS:
             raise FrameFailed("too-few-observations")
         self._set_frame(fr, obs)
         base_heading = self._frame_heading(i, col)  # None: from each track / unknown
@@ -362,7 +349,7 @@ class LutLocaliser:
                                                  flags))
         new: list[LutCandidate] = []
         if (not tracked or not self.last_confident or lost
-                or i - self.last_global >= conf["global_every"]):
+                or i - self.last_global >= GLOBAL_EVERY):
             heading = base_heading
             if heading is None and tracked and self.last_confident:
                 # a confident track's heading (histogram, or IMU before its alignment);
@@ -439,11 +426,11 @@ class LutLocaliser:
         if pts is None:
             pts = obs.points(self.search.scanlines)
         th, sharp = heading_mod.histogram_heading(
-            pts, float(prior_pose[2]), window=conf["histogram_window"],
-            step=conf["histogram_step"], bin=conf["histogram_bin"],
-            max_distance=self.search.scanlines.max_range, score=conf["histogram_score"])
+            pts, float(prior_pose[2]), window=heading_mod.HISTOGRAM_WINDOW_RAD,
+            step=heading_mod.HISTOGRAM_STEP_RAD, bin=heading_mod.HISTOGRAM_BIN_M,
+            max_distance=self.search.scanlines.max_range, score=heading_mod.HISTOGRAM_SCORE)
         jump = abs(float(wrap_angle(th - prior_pose[2]))) if np.isfinite(th) else np.inf
-        if sharp >= conf["histogram_min_sharpness"] and jump <= conf["histogram_gate"]:
+        if sharp >= heading_mod.HISTOGRAM_MIN_SHARPNESS and jump <= heading_mod.HISTOGRAM_GATE_RAD:
             return th, False
         flags.append("heading-vision")  # no straight lines seen (e.g. only the centre circle)
         return float(prior_pose[2]), True
@@ -452,7 +439,7 @@ class LutLocaliser:
     def _track_candidate(self, i, t: Track, prior, obs, fr, base_heading, col, flags):
         """The fix of a track this frame (step 3 of the module doc) as a Candidate, and a
         second Candidate for a clearly better minimum elsewhere in the window."""
-        conf, search = self.conf, self.search
+        search = self.search
         prior_pose, prior_cov = prior
         theta, by_vision = self._track_heading(t, prior_pose, obs, fr, base_heading, col,
                                                flags)
@@ -463,26 +450,26 @@ class LutLocaliser:
         # a heading refined by vision below is fitted by the points after it; else in the call
         fit = None if by_vision else (self.fit, self._points, *self._fit_reach)
         fix, sup, window_fit, table_xy = search.tracked_fix(
-            obs, theta, prior_pose[:2], info, self.T / scale, self.T, conf["inlier_error"],
+            obs, theta, prior_pose[:2], info, self.T / scale, self.T, INLIER_ERROR_M,
             half_width=self.half, prior_cap=bank.prior_cap, fit=fit)
         heading_sigma = self.heading_sigma
         if by_vision:
             rh, curv = search.refine_heading(obs, fix.cell, fix.theta)
             sigma = _curvature_sigma(curv, obs)
-            if rh.error <= fix.error and sigma <= conf["vision_heading_max_sigma"]:
+            if rh.error <= fix.error and sigma <= VISION_HEADING_MAX_SIGMA_RAD:
                 rh.mode, rh.at_window_edge = fix.mode, fix.at_window_edge
                 fix = rh
-                sup = search.support(obs, fix, conf["inlier_error"])
+                sup = search.support(obs, fix, INLIER_ERROR_M)
                 heading_sigma = sigma
             else:  # keep the predicted or jolted heading, trusted little
-                heading_sigma = conf["unsure_heading_sigma"]
+                heading_sigma = heading_mod.UNSURE_HEADING_SIGMA_RAD
                 flags.append("heading-unsure")
             table_xy = (fix.x, fix.y)
         d = np.array([table_xy[0] - prior_pose[0], table_xy[1] - prior_pose[1]])
         evidence = fix.error
         nll = evidence / self.T
         fit = nll + bank.prior_term(d, info)
-        R = vision_covariance(fix, sup, conf, heading_sigma)
+        R = vision_covariance(fix, sup, heading_sigma)
         if by_vision:
             self._fit_points(fix, obs)
         if heading_sigma > self.heading_sigma:  # a heading this unsure moves the fix too:
@@ -512,7 +499,7 @@ class LutLocaliser:
     def _point_evidence(self, fix: SearchResult, obs: Observation, points, *,
                         heading_fixed: bool = True) -> float:
         """Move a global candidate to the minimum of its line points' cost (PointFit) in its
-        basin (``global_reach``; its heading too unless ``heading_fixed``) and return that
+        basin (``GLOBAL_REACH_M``; its heading too unless ``heading_fixed``) and return that
         cost as evidence, in the units of the scan-line error (the same observations and
         rho), but measured across the lines, not along the rays. As in method fit (Lauer et
         al.), every point weighs alike in the fit and the mean cost is scaled by the frame's
@@ -521,7 +508,7 @@ class LutLocaliser:
         would count less than a small clutter structure of a few points, and far points
         little: on the real minho-lab images that chose poses explaining fewer points
         (docs/results.md)."""
-        reach = float(self.conf["global_reach"])
+        reach = GLOBAL_REACH_M
         pose, cost, _normal = self.fit.refine(
             points, np.ones(len(points)), fix.pose, fixed_heading=heading_fixed,
             max_shift=reach, max_turn=self.search.step)
@@ -558,12 +545,12 @@ class LutLocaliser:
         image explains the frame as well (TrackBank.finish_global)."""
         conf, search = self.conf, self.search
         headings = [heading] if heading is not None else self._histogram_headings(obs)
-        fixes = self._search_fixes(obs, headings, conf["unknown_heading_candidates"])
+        fixes = self._search_fixes(obs, headings, UNKNOWN_HEADING_CANDIDATES)
         if headings is not None:
             for f in fixes:
                 f.mode = "global" if heading is not None else "global-heading"
         self._global_heading = headings
-        sigma = conf["histogram_sigma"] if heading is None else self.heading_sigma
+        sigma = heading_mod.HISTOGRAM_SIGMA_RAD if heading is None else self.heading_sigma
         out: list[LutCandidate] = []
         fixed = self._global_fixed = heading is not None
         if self._by_points():
@@ -576,10 +563,10 @@ class LutLocaliser:
             # the same basin as a track (or its mirror), or as a better candidate
             if self.bank.near_track(f.pose) or self.bank.fold(out, f.pose, e / self.T):
                 continue
-            sup = search.support(obs, f, conf["inlier_error"])
+            sup = search.support(obs, f, INLIER_ERROR_M)
             out.append(LutCandidate(fix=f, support=sup, log_prior=log_prior, evidence=e,
                                     nll=e / self.T, fit=e / self.T,
-                                    R=vision_covariance(f, sup, conf, sigma)))
+                                    R=vision_covariance(f, sup, sigma)))
         self.bank.finish_global(out, field_heading)
         if not self.fixed_once and conf["start_half"] != "any":
             for c in out:
@@ -590,14 +577,14 @@ class LutLocaliser:
         """The fixes of a global search: at each of ``headings`` its best pose and its
         separated runners-up, or with no heading (None) the unknown-heading search's best and
         its ``unknown_candidates`` runners-up, each runner-up refined in full resolution."""
-        conf, search = self.conf, self.search
+        search = self.search
         if headings is None:
             r = search.unknown_heading_search(obs, candidates=unknown_candidates)
             return [r] + [self._refined(obs, c) for c in r.candidates]
         fixes = []
         for th in headings:
-            g = search.global_search(obs, th, candidates=conf["global_candidates"],
-                                     separation=conf["ambiguity_distance"])
+            g = search.global_search(obs, th, candidates=GLOBAL_CANDIDATES,
+                                     separation=tracking.AMBIGUITY_DISTANCE_M)
             fixes += [g] + [self._refined(obs, c) for c in g.candidates]
         return fixes
 
@@ -611,9 +598,9 @@ class LutLocaliser:
         th, sharp = heading_mod.histogram_heading(
             self._line_points() if self._by_points() else obs.points(self.search.scanlines),
             0.0, window=math.pi / 4,
-            step=conf["histogram_step"], bin=conf["histogram_bin"],
-            max_distance=self.search.scanlines.max_range, score=conf["histogram_score"])
-        if not np.isfinite(th) or sharp < conf["histogram_min_sharpness"]:
+            step=heading_mod.HISTOGRAM_STEP_RAD, bin=heading_mod.HISTOGRAM_BIN_M,
+            max_distance=self.search.scanlines.max_range, score=heading_mod.HISTOGRAM_SCORE)
+        if not np.isfinite(th) or sharp < heading_mod.HISTOGRAM_MIN_SHARPNESS:
             return None
         return [float(wrap_angle(th + k * math.pi / 2)) for k in range(4)]
 
@@ -633,7 +620,7 @@ class LutLocaliser:
             m = self.search.refine(obs, self.search.grid.cell_of(mx, my), mth)
             m.mode = c.fix.mode
             c.fix = m
-            c.support = self.search.support(obs, m, conf["inlier_error"])
+            c.support = self.search.support(obs, m, INLIER_ERROR_M)
             c.evidence = (self._point_evidence(m, obs, self._line_points(), heading_fixed=False)
                           if self._by_points()
                           else self._fit_points(m, obs, heading_fixed=False))
@@ -645,7 +632,7 @@ class LutLocaliser:
 
     # ------------------------------------------------------------------ the null
     def _tracked_null(self, obs, tracked: list[LutCandidate]) -> float:
-        """The null of a tracked frame: the median over ``tracked_null_copies``
+        """The null of a tracked frame: the median over ``TRACKED_NULL_COPIES``
         random-bearing copies of the observations of the best posterior score of the
         strongest track's window (its quantised error term, as Candidate.window_fit;
         module doc). The null only decides which fixes beat it; when a lower bound of every
@@ -657,7 +644,7 @@ class LutLocaliser:
         pose, info, _cov = top.prior
         worst = max(c.window_fit for c in tracked)
         args = []
-        for _ in range(int(self.conf["tracked_null_copies"])):
+        for _ in range(TRACKED_NULL_COPIES):
             nobs = self._null_copy(obs)
             scale = nobs.total_weight / max(nobs.lookup_total_weight, 1e-12)
             args.append((nobs, top.fix.theta, pose[:2], info, self.T / scale))
@@ -687,11 +674,11 @@ class LutLocaliser:
         """The null of a global search: evidence / T of the median over ``null_copies``
         random-bearing copies searched globally (at the ``headings`` the search used, or over
         all headings)."""
-        conf, search = self.conf, self.search
+        search = self.search
         by_points = self._by_points()
-        unknown = max(2, conf["unknown_heading_candidates"] // 4)
+        unknown = max(2, UNKNOWN_HEADING_CANDIDATES // 4)
         out = []
-        for _ in range(int(conf["null_copies"])):
+        for _ in range(NULL_COPIES):
             perm = self._null_perm()
             nobs = obs.random_bearings(perm)
             if by_points:  # searched and weighed as the frame's candidates are
@@ -731,12 +718,12 @@ class LutLocaliser:
         if conf["heading"] != "imu" or not np.isfinite(self.yaw[i]):
             return
         if not self.alignment.known:
-            var = max(math.radians(1.5) ** 2, conf["imu_sigma"] ** 2)
+            var = max(math.radians(1.5) ** 2, heading_mod.IMU_SIGMA_RAD ** 2)
             tracks = self.bank.tracks
             theta = tracks[0].pose[2] if tracks else top.fix.theta
             self.alignment.initialise(float(theta), float(self.yaw[i]), var)
             return
-        every = int(conf["imu_offset_every"])
+        every = heading_mod.IMU_OFFSET_EVERY
         if every <= 0 or col or top.track is None or top.support.inlier_share < 0.5:
             return
         self._offset_updates += 1
@@ -774,7 +761,7 @@ class LutScorer(PathCalibration):
         """Frame i's crossings as observed and as the tables predict them at ``pose``."""
         loc = self.loc
         fr, _obs = self._frame(i)
-        raw, _d = frame_observations(fr, loc.search, None, loc.conf["evidence"])
+        raw, _d = frame_observations(fr, loc.search, None, EVIDENCE)
         cell = loc.search._cell_of(float(pose[0]), float(pose[1]))
         return raw.distance, loc.search.observation_predictions(raw, cell, float(pose[2]))
 
@@ -787,7 +774,7 @@ class LutScorer(PathCalibration):
                 self._cache[i] = (None, None)
                 return self._cache[i]
             obs, _raw = frame_observations(fr, self.loc.search, self.radial,
-                                           self.loc.conf["evidence"])
+                                           EVIDENCE)
             self._cache[i] = (fr, obs)
         return self._cache[i]
 
@@ -806,15 +793,15 @@ class LutScorer(PathCalibration):
         fr, obs = self._frame(i)
         if fr is None:
             return "unreadable-features"
-        if len(obs) < self.loc.conf["min_observations"]:
+        if len(obs) < MIN_OBSERVATIONS:
             return "too-few-observations"
         return None
 
     def _candidate(self, obs, fix, heading_sigma: float, *, heading_fixed: bool):
         loc = self.loc
         e = loc._fit_points(fix, obs, heading_fixed=heading_fixed)
-        sup = loc.search.support(obs, fix, loc.conf["inlier_error"])
-        return fix.pose, e / loc.T_track, vision_covariance(fix, sup, loc.conf, heading_sigma), \
+        sup = loc.search.support(obs, fix, INLIER_ERROR_M)
+        return fix.pose, e / loc.T_track, vision_covariance(fix, sup, heading_sigma), \
             fix.error_norm
 
     def global_candidates(self, i: int) -> FrameCandidates:
@@ -823,8 +810,8 @@ class LutScorer(PathCalibration):
         loc._set_frame(fr, obs)
         heading = self._heading(i)
         headings = [heading] if heading is not None else loc._histogram_headings(obs)
-        fixes = loc._search_fixes(obs, headings, loc.conf["unknown_heading_candidates"])
-        sigma = loc.heading_sigma if heading is not None else loc.conf["histogram_sigma"]
+        fixes = loc._search_fixes(obs, headings, UNKNOWN_HEADING_CANDIDATES)
+        sigma = loc.heading_sigma if heading is not None else heading_mod.HISTOGRAM_SIGMA_RAD
         rows = [self._candidate(obs, f, sigma, heading_fixed=headings is not None)
                 for f in fixes]
         if self.mirrored:  # the mirror image explains the frame as well: fixed there too
@@ -865,12 +852,11 @@ def _smoothed(loc: LutLocaliser, features, sensors, causal: PoseTrack, conf: dic
               ) -> PoseTrack:
     """The causal run's track smoothed with the whole recording (smooth.py)."""
     scorer = LutScorer(loc, features, sensors)
-    motion = smooth.motion_of(sensors.increments, sensors.has_odometry, features.stamps,
-                              conf["fusion"], sensors.collision)
     ny, nx = loc.search.grid.shape
-    track = smooth.smooth_track(scorer, causal, motion, conf,
-                                area=nx * ny * loc.search.grid.resolution ** 2,
-                                log_prior0=smooth.start_half_prior(conf, scorer.mirrored))
+    track = bank_smoothing.smoothed(scorer, causal, conf, increments=sensors.increments,
+                                    has_odometry=sensors.has_odometry, stamps=features.stamps,
+                                    collision=sensors.collision,
+                                    area=nx * ny * loc.search.grid.resolution ** 2)
     if scorer.radial is not None:
         track.meta["radial_correction"] = scorer.radial.summary()
     return track
@@ -883,12 +869,13 @@ def run(conf: dict, dataset, features, map_file: MapFile, progress=False) -> Pos
     _check_conf(conf, dataset)
     if not map_file.has_table("radial") or not map_file.has_table("spiral"):
         raise FieldlocError(f"{map_file.path}: no scan-line tables for method lut")
-    search = table_search(map_file, MatchingParams.from_conf(conf["search"]))
+    search = table_search(map_file, SEARCH)
     sensors = tracking.frame_sensors(conf, dataset, features.stamps)
     if grid_belief.uses_grid(conf):
         grid = grid_belief.GridLocaliser(conf, search, yaw=sensors.yaw,
                                          collision=sensors.collision,
-                                         truth_heading=sensors.truth_heading)
+                                         truth_heading=sensors.truth_heading,
+                                         min_observations=MIN_OBSERVATIONS)
         grid.has_odometry = bool(np.any(sensors.has_odometry))
         track = tracking.localise_frames(grid, features, sensors, desc="localize lut (grid)",
                                          progress=progress)

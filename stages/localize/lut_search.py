@@ -65,6 +65,7 @@ from __future__ import annotations
 import math
 import mmap
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -111,26 +112,6 @@ class MatchingParams:
     use_spiral: bool = True  # match spiral observations too
     coarse_step: int = 2  # cells, subsampling of the unknown-heading pass
     pair_tolerance: float = 0.6  # m, crossings of neighbouring scan lines taken as one line
-
-    @classmethod
-    def from_conf(cls, conf: dict) -> MatchingParams:
-        """From a method conf's ``search``, each value checked (FieldlocError)."""
-        from ..common.errors import FieldlocError
-
-        for key, low, inclusive in (("c", 0.0, False), ("range_scale", 0.0, False),
-                                    ("distance_bin", 0.0, False), ("coarse_step", 1, True),
-                                    ("pair_tolerance", 0.0, True)):
-            v = conf[key]
-            ok = (not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
-                  and (v >= low if inclusive else v > low))
-            if not ok:
-                raise FieldlocError(f"conf 'search.{key}' must be a number"
-                                    f" {'>=' if inclusive else '>'} {low:g}, got {str(v)[:40]}")
-        return cls(c=float(conf["c"]), range_scale=float(conf["range_scale"]),
-                   distance_bin=float(conf["distance_bin"]),
-                   use_spiral=bool(conf["use_spiral"]),
-                   coarse_step=int(conf["coarse_step"]),
-                   pair_tolerance=float(conf["pair_tolerance"]))
 
     def weight(self, d):
         return 1.0 / (1.0 + (np.asarray(d, dtype=np.float64) / self.range_scale) ** 2)
@@ -250,12 +231,27 @@ class Observation:
         return self._points[1]
 
 
-def frame_observations(fr: dict, search: TableSearch, radial, evidence: dict
+class EvidenceTuning(NamedTuple):
+    """How observations of one white structure count as one correlated measurement
+    (Observation.with_evidence): ``per_structure`` observations' worth a structure carries at
+    most, structures chained by gaps under ``link`` m plus ``link_per_m`` m per m of range
+    (scan lines spread with distance)."""
+
+    per_structure: float
+    link: float
+    link_per_m: float
+
+
+# lut's and fit's (docs/manual.md: a structure counts as at most 6 independent points)
+EVIDENCE = EvidenceTuning(per_structure=6.0, link=0.2, link_per_m=0.1)
+
+
+def frame_observations(fr: dict, search: TableSearch, radial, evidence: EvidenceTuning
                        ) -> tuple[Observation, np.ndarray]:
     """A features frame's scan-line observations for the table search, and their distances
     as observed: the calibration's error removed when ``radial`` (a RadialCorrection or None)
-    is active, then weighted as evidence (``evidence``: a method conf's per_structure, link,
-    link_per_m; Observation.with_evidence)."""
+    is active, then weighted as evidence (``evidence``: EvidenceTuning;
+    Observation.with_evidence)."""
     sl = search.scanlines
     obs = Observation.from_scanlines(fr.get("radial", np.zeros((0, 4))), fr.get("spiral"),
                                      search.params, sl.max_range, sl.spiral_end_radius,
@@ -265,8 +261,7 @@ def frame_observations(fr: dict, search: TableSearch, radial, evidence: dict
         d = radial.correct(raw_distance)
         obs = Observation(family=obs.family, angle_index=obs.angle_index, distance=d,
                           weight=search.params.weight(d), lookup_weight=obs.lookup_weight)
-    obs = obs.with_evidence(sl, evidence["per_structure"], evidence["link"],
-                            evidence["link_per_m"])
+    obs = obs.with_evidence(sl, evidence.per_structure, evidence.link, evidence.link_per_m)
     return obs, raw_distance
 
 

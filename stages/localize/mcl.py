@@ -993,9 +993,9 @@ def run(conf: dict, dataset, features, map_file, progress=None) -> PoseTrack:
                        temperature=float(SMOOTH_TEMPERATURE))
     motion = motion_of(increments, stamps, odometry is not None, collision, imu_yaw)
     x0, x1, y0, y1 = pf._bounds
-    # the smoother reads its outlier floor from the method's conf: the filter's kidnap prior
-    return smooth.smooth_track(scorer, track, motion,
-                               dict(conf, kidnap_probability=KIDNAP_PROBABILITY),
+    # the smoother's outlier floor: the filter's kidnap prior
+    return smooth.smooth_track(scorer, track, motion, conf,
+                               kidnap_probability=KIDNAP_PROBABILITY,
                                area=(x1 - x0) * (y1 - y0),
                                log_prior0=start_prior(conf, model.field))
 

@@ -28,23 +28,21 @@ import numpy as np
 
 from .tracking import near_pose
 
-DEFAULTS = {
-    "enabled": True,
-    "degree": 3,
-    "scale": 2.0,  # m, the unit of the polynomial's variable
-    "prior_sigma": 0.1,  # m, prior spread of each coefficient (the error at `scale` m)
-    "forgetting": 0.998,  # per frame used (the calibration drifts slowly, if at all)
-    "min_points": 300,  # crossings in before the correction is applied
-    "max_residual": 0.25,  # m, crossings farther from their prediction are not used
-    "noise": 0.05,  # m, spread of one crossing's residual about e(d)
-    "min_confidence": 0.99,  # frames whose top hypothesis is less sure are not used
-    "every": 4,  # frames between updates (consecutive frames see nearly the same crossings)
-}
-# the ranges the keys above must lie in (common.conf.check_bounds, under "radial_correction."):
-# a polynomial of degree 0 has nothing to fit, one of degree 12 on a few metres is noise
-BOUNDS = {"degree": (1, 8), "scale": ((0,), None), "prior_sigma": ((0,), None),
-          "forgetting": ((0,), 1), "min_points": (0, None), "max_residual": ((0,), None),
-          "noise": ((0,), None), "min_confidence": (0, 1), "every": (1, None)}
+# what a user chooses: whether the correction runs (docs/recording-calibration.md: switched
+# off with -c radial_correction.enabled=false)
+DEFAULTS = {"enabled": True}
+
+# The estimate's tuned constants (module doc; the defaults of RadialCorrection), chosen on
+# renders with a team's mirror-table error (minho-distance, docs/recording-calibration.md)
+DEGREE = 3
+SCALE_M = 2.0  # m, the unit of the polynomial's variable
+PRIOR_SIGMA_M = 0.1  # m, prior spread of each coefficient (the error at SCALE_M m)
+FORGETTING = 0.998  # per frame used (the calibration drifts slowly, if at all)
+MIN_POINTS = 300  # crossings in before the correction is applied
+MAX_RESIDUAL_M = 0.25  # m, crossings farther from their prediction are not used
+NOISE_M = 0.05  # m, spread of one crossing's residual about e(d)
+MIN_CONFIDENCE = 0.99  # frames whose top hypothesis is less sure are not used
+EVERY = 4  # frames between updates (consecutive frames see nearly the same crossings)
 
 
 @dataclass
@@ -52,15 +50,15 @@ class RadialCorrection:
     """e(d) by recursive least squares (module doc)."""
 
     robot_radius: float
-    degree: int = 3
-    scale: float = 2.0
-    prior_sigma: float = 0.1
-    forgetting: float = 0.998
-    min_points: int = 300
-    max_residual: float = 0.25
-    noise: float = 0.05
-    min_confidence: float = 0.99
-    every: int = 4
+    degree: int = DEGREE
+    scale: float = SCALE_M
+    prior_sigma: float = PRIOR_SIGMA_M
+    forgetting: float = FORGETTING
+    min_points: int = MIN_POINTS
+    max_residual: float = MAX_RESIDUAL_M
+    noise: float = NOISE_M
+    min_confidence: float = MIN_CONFIDENCE
+    every: int = EVERY
     points: float = 0.0  # crossings used (decayed with the forgetting)
     frames: int = 0  # confident tracked frames seen (teaching_pose)
     coef: np.ndarray = field(default=None)  # a_1 .. a_degree (m)
@@ -72,15 +70,6 @@ class RadialCorrection:
         self.coef = np.zeros(n)
         self.info = np.eye(n) / self.prior_sigma**2
         self.vec = np.zeros(n)
-
-    @classmethod
-    def from_conf(cls, conf: dict, robot_radius: float) -> RadialCorrection:
-        c = dict(DEFAULTS, **conf)
-        return cls(robot_radius=float(robot_radius), degree=int(c["degree"]),
-                   scale=float(c["scale"]), prior_sigma=float(c["prior_sigma"]),
-                   forgetting=float(c["forgetting"]), min_points=int(c["min_points"]),
-                   max_residual=float(c["max_residual"]), noise=float(c["noise"]),
-                   min_confidence=float(c["min_confidence"]), every=int(c["every"]))
 
     def teaching_pose(self, bank, top, hyps, collision: bool):
         """The pose at which a frame's observations may teach e(d), or None: the leading
@@ -154,7 +143,7 @@ def residual_sigma(correction: RadialCorrection) -> float:
     return float(math.sqrt(max(np.max(np.einsum("ij,jk,ik->i", A, cov, A)), 0.0)))
 
 
-def fitted(conf: dict, robot_radius: float, crossings: list[tuple[np.ndarray, np.ndarray]],
+def fitted(robot_radius: float, crossings: list[tuple[np.ndarray, np.ndarray]],
            rounds: int = 3) -> RadialCorrection:
     """e(d) from a whole recording at once (the smoother's, smooth.py): ``crossings``, per frame
     at its smoothed pose the observed distances and the distances their scan lines predict
@@ -162,7 +151,7 @@ def fitted(conf: dict, robot_radius: float, crossings: list[tuple[np.ndarray, np
     estimate but no forgetting, gated about the previous round's estimate (the first round
     about zero: the gate ``max_residual`` admits the calibration's error and rejects other
     lines and clutter), ``rounds`` times."""
-    rc = RadialCorrection.from_conf({**conf, "forgetting": 1.0}, robot_radius)
+    rc = RadialCorrection(robot_radius=float(robot_radius), forgetting=1.0)
     d = np.concatenate([np.asarray(o, float) for o, _p in crossings]) if crossings else np.zeros(0)
     r = d - (np.concatenate([np.asarray(p, float) for _o, p in crossings]) if crossings
              else np.zeros(0))
@@ -204,11 +193,9 @@ class PathCalibration:
         """The camera's distance error learnt from the frames of ``path`` (frame -> pose)
         whose ``sure`` (frame -> confidence) holds the radial correction's min_confidence and
         that flag no collision (``fitted``), or None when too few crossings are in."""
-        rc_conf = self.loc.conf["radial_correction"]
-        if not rc_conf["enabled"]:
+        if not self.loc.conf["radial_correction"]["enabled"]:
             return None
         crossings = [self._crossings(i, pose) for i, pose in path.items()
-                     if sure.get(i, 0.0) >= rc_conf["min_confidence"]
-                     and not self.loc.collision[i]]
-        rc = fitted(rc_conf, self.robot_radius, crossings)
+                     if sure.get(i, 0.0) >= MIN_CONFIDENCE and not self.loc.collision[i]]
+        rc = fitted(self.robot_radius, crossings)
         return rc if rc.active else None

@@ -15,8 +15,8 @@ runs two passes over a method's candidates (docs/smoothing.md):
    followed through the whole recording and one the first frames misjudge is carried back.
    Candidates in one basin (``SAME_BASIN_M``, ``SAME_BASIN_RAD``) are one. Transitions: the
    odometry increment with its noise plus both candidates' spreads (``state_cov``: their
-   covariances, capped), a Gaussian, mixed with an outlier floor (``kidnap_probability`` of the
-   method's conf: the robot is anywhere on the world the tables cover, any heading: slips,
+   covariances, capped), a Gaussian, mixed with an outlier floor (the method's kidnap
+   probability: the robot is anywhere on the world the tables cover, any heading: slips,
    kidnaps, placements). Forward-backward gives each candidate's posterior from the whole
    recording; Viterbi the most probable path. Where the scorer can, the camera's distance error
    is then learnt again from the path and the pass run again with it (``_recalibrated``).
@@ -378,16 +378,17 @@ def ranked_hypotheses(cands: FrameCandidates, posterior: np.ndarray, top_pose, c
 
 
 def smooth_track(scorer: Scorer, causal: PoseTrack, motion: Motion, conf: dict, *,
-                 area: float, log_prior0=None) -> PoseTrack:
+                 kidnap_probability: float, area: float, log_prior0=None) -> PoseTrack:
     """The smoothed PoseTrack of a run (module doc) from a method's ``scorer``, the causal
     run's track (frame names, stamps and the failure reasons of frames with no candidates)
-    and the run's Motion. ``conf``: the method's (kidnap_probability, min_confidence,
-    hypotheses); ``area``: m^2 of the world a kidnap may put the robot on; ``log_prior0``:
+    and the run's Motion. ``conf``: the method's (min_confidence, hypotheses);
+    ``kidnap_probability``: the method's per frame (the jump model's outlier floor);
+    ``area``: m^2 of the world a kidnap may put the robot on; ``log_prior0``:
     callable (FrameCandidates) -> log prior over the first frame's candidates, or None."""
     from .pose_graph import refine_path
 
     t0 = time.process_time()
-    model = Transition.of(conf["kidnap_probability"], area)
+    model = Transition.of(kidnap_probability, area)
     frames, sets, passes = _discrete(scorer, motion, model, log_prior0)
     rounds = 1
     if RECALIBRATE and getattr(scorer, "learn_calibration", None) is not None and frames:

@@ -5,28 +5,28 @@ hypotheses with a probability each.
 Per frame the query is the frame's ground features (stages.common.ground_features, with the
 conf the database was built with). Candidate templates:
 
-- tracking: for every track (tracking.TrackBank), the ``tracked_templates`` templates nearest
-  to its odometry-propagated prior, within ``reach`` m of it;
+- tracking: for every track (tracking.TrackBank), the ``TRACKED_TEMPLATES`` templates nearest
+  to its odometry-propagated prior, within ``REACH_M`` m of it;
 - lost (no track, a track whose prior outgrew the reach, the last frame not accepted, every
-  ``global_every`` frames): a vote over the whole database. One descriptor index over all
+  ``GLOBAL_EVERY`` frames): a vote over the whole database. One descriptor index over all
   templates' features (template_matching.FeatureIndex: FLANN kd-trees per Laplacian sign, LSH
   for ORB), built once per database; every query feature's nearest neighbour that passes the
-  ratio test votes for the template it belongs to; the ``global_templates`` templates with most
+  ratio test votes for the template it belongs to; the ``GLOBAL_TEMPLATES`` templates with most
   votes are fitted.
 
 A template is fitted by template_matching: its own index (built on first use), matches with
 the ratio test and equal Laplacian sign, the pose of the SURF template paper's eq. 4 by
 ``pose_solver`` (``descent``: the paper's coordinate descent over (dtheta, dy, dx) from (0, 0, 0)
-until no change; ``closed-form``: 2D Kabsch), pairs farther than median + ``outlier_sigmas`` x
-1.4826 MAD of the pair distances (never below ``min_outlier_m``) removed and the pose estimated
-again; the field pose is the template's pose composed with the fit. A fit needs ``min_pairs`` inlier
+until no change; ``closed-form``: 2D Kabsch), pairs farther than median + ``OUTLIER_SIGMAS`` x
+1.4826 MAD of the pair distances (never below ``MIN_OUTLIER_M``) removed and the pose estimated
+again; the field pose is the template's pose composed with the fit. A fit needs ``MIN_PAIRS`` inlier
 pairs.
 
 The likelihood. The fit's evidence L (nats, template_matching.evidence: every pair a correct
-match within ``pair_sigma_m`` or a wrong one anywhere on the ground image) tempered by
-``temperature`` is the frame's log-likelihood ratio against "no template explains the frame":
+match within ``PAIR_SIGMA_M`` or a wrong one anywhere on the ground image) tempered by
+``TEMPERATURE`` is the frame's log-likelihood ratio against "no template explains the frame":
 nll = -L / T. The null, what chance explains: the same fit on the same pairs with the query
-points shuffled among them (``null_copies`` copies, the median evidence); a fix that does not
+points shuffled among them (``NULL_COPIES`` copies, the median evidence); a fix that does not
 beat it is not fused, a frame where none does fails (``uninformative``). In a frame with a
 global search, elsewhere (the mass of tracking.TrackBank's "other") explains what the null
 explains, also when the vote found nothing but the tracks (then the search has looked
@@ -34,9 +34,9 @@ elsewhere and found nothing better: the mass a poor tracked frame gave elsewhere
 the tracks); in a frame without one it keeps its share, as for lut.
 
 The fix's covariance for the fusion: position sigma the inliers' rms pair distance (at least
-``vision_sigma_xy``; not divided by their number: one calibration error moves them together),
+``VISION_SIGMA_XY_M``; not divided by their number: one calibration error moves them together),
 heading sigma that rms over the inliers' rms distance from their centroid (at least
-``vision_sigma_theta``).
+``VISION_SIGMA_THETA_RAD``).
 
 Belief, Kalman fusion with odometry, hypotheses and confidence are tracking.TrackBank's, as for
 lut. The mirror image of a pose on a point-symmetric field is only a hypothesis where a template
@@ -69,8 +69,8 @@ from ..common.dataset import read_image, read_mask
 from ..common.errors import DatasetError, FieldlocError
 from ..common.geometry import wrap_angle
 from ..common.poses_file import PoseTrack
+from . import bank_smoothing, tracking
 from . import heading as heading_mod
-from . import smooth, tracking
 from . import template_matching as tm
 from .smooth import FrameCandidates
 from .tracking import Candidate, TrackBank
@@ -83,31 +83,14 @@ INPUT = "templates"
 camera_kinds = ("omni",)  # localize.method_camera_kinds
 
 confs = {
+    # what a user chooses: the heading source, the pose solver (--pose-solver), the
+    # recording's clock tolerance and the belief's keys (tracking.DEFAULTS); the matching's
+    # tuned constants are named below (RATIO, MIN_PAIRS, TEMPERATURE, ...)
     "default": {
         **tracking.DEFAULTS,
         "heading": "imu",  # imu (imu.csv yaw, field-aligned) | track (the tracks' own)
-        "lost_headings": 12,  # headings tried when lost with no heading (track, no tracks)
-        "consensus_m": 0.2,  # m, pairs agreeing on one translation (template_matching)
         "pose_solver": "descent",  # descent (the SURF template paper) | closed-form (2D Kabsch)
-        # Lowe's ratio test, loose: the floor repeats itself (paint, carpet), a correct match's
-        # runner-up is often close, and the consensus removes what the test lets through
-        "ratio": 0.95,
-        "outlier_sigmas": 3.0,  # pair distances beyond median + this x robust sigma removed
-        "min_outlier_m": 0.05,  # m, never removed below this
-        "outlier_passes": 3,
-        "min_pairs": 5,  # inlier pairs of a fix
-        "pair_sigma_m": 0.03,  # m per axis, a correct pair's distance after the fit
-        "inlier_prior": 0.3,  # share of the pairs that are correct matches
-        "temperature": 3.0,  # nats of evidence per nat of likelihood
-        "reach": 1.5,  # m, templates considered around a track's prior
-        "tracked_templates": 3,  # templates fitted per track
-        "global_templates": 5,  # templates fitted by the vote when lost
-        "global_every": 10,  # frames between global checks while tracking
-        "null_copies": 3,
-        "vision_sigma_xy": 0.02,  # m
-        "vision_sigma_theta": math.radians(0.5),
-        "stamp_tolerance": 0.02,  # s
-        "flann_checks": 32,
+        "stamp_tolerance": 0.02,  # s, imu row to frame matching (the recording's clocks)
     },
 }
 confs["closed-form"] = {**confs["default"], "pose_solver": "closed-form"}
@@ -116,22 +99,32 @@ confs["no-fusion"] = {**confs["default"], "fusion": {**confs["default"]["fusion"
 confs["independent"] = {**confs["default"], "independent": True}
 
 # the ranges the keys above must lie in (common.conf.check_bounds, checked when a run is checked,
-# before any input is read; tracking.BOUNDS for the bank's keys): counts of at least one and at
-# most what a frame can spend (1e12 null copies or outlier passes run for hours), sigmas and
-# distances above zero; a rigid pose needs two pairs
-MAX_TEMPLATES = 1000  # templates fitted per frame, null copies
-MAX_HEADINGS = 360  # headings tried when lost: 1 deg apart
-MAX_PASSES = 100  # outlier passes (each removes pairs; a few settle it)
-MAX_FLANN_CHECKS = 1_000_000  # leaves FLANN visits per query (beyond: exhaustive anyway)
-BOUNDS = {**tracking.BOUNDS, "lost_headings": (1, MAX_HEADINGS), "consensus_m": ((0,), None),
-          "ratio": ((0,), 1), "outlier_sigmas": ((0,), None), "min_outlier_m": (0, None),
-          "outlier_passes": (0, MAX_PASSES), "min_pairs": (2, None),
-          "pair_sigma_m": ((0,), None), "inlier_prior": ((0,), (1,)),
-          "temperature": ((0,), None), "reach": ((0,), None),
-          "tracked_templates": (1, MAX_TEMPLATES), "global_templates": (1, MAX_TEMPLATES),
-          "global_every": (1, None), "null_copies": (1, MAX_TEMPLATES),
-          "vision_sigma_xy": ((0,), None), "vision_sigma_theta": ((0,), None),
-          "stamp_tolerance": (0, None), "flann_checks": (1, MAX_FLANN_CHECKS)}
+# before any input is read): the bank's (tracking.BOUNDS) and a clock tolerance of at least 0
+BOUNDS = {**tracking.BOUNDS, "stamp_tolerance": (0, None)}
+
+# The matching's tuned constants (module doc). ratio, min_pairs and consensus_m were chosen on
+# a capture session of the same venue by the same robot (docs/manual.md, bench inputs); the
+# rest are the values the default preset held.
+LOST_HEADINGS = 12  # headings tried when lost with no heading (track, no tracks)
+CONSENSUS_M = 0.2  # m, pairs agreeing on one translation (template_matching)
+# Lowe's ratio test, loose: the floor repeats itself (paint, carpet), a correct match's
+# runner-up is often close, and the consensus removes what the test lets through
+RATIO = 0.95
+OUTLIER_SIGMAS = 3.0  # pair distances beyond median + this x robust sigma removed
+MIN_OUTLIER_M = 0.05  # m, never removed below this
+OUTLIER_PASSES = 3
+MIN_PAIRS = 5  # inlier pairs of a fix
+PAIR_SIGMA_M = 0.03  # m per axis, a correct pair's distance after the fit
+INLIER_PRIOR = 0.3  # share of the pairs that are correct matches
+TEMPERATURE = 3.0  # nats of evidence per nat of likelihood
+REACH_M = 1.5  # m, templates considered around a track's prior
+TRACKED_TEMPLATES = 3  # templates fitted per track
+GLOBAL_TEMPLATES = 5  # templates fitted by the vote when lost
+GLOBAL_EVERY = 10  # frames between global checks while tracking
+NULL_COPIES = 3  # query-shuffled copies of a fix's pairs (median evidence)
+VISION_SIGMA_XY_M = 0.02  # m, floor of a fix's position sigma
+VISION_SIGMA_THETA_RAD = math.radians(0.5)  # rad, floor of a fix's heading sigma
+FLANN_CHECKS = 32  # leaves FLANN visits per query
 
 
 class FrameFailed(Exception):
@@ -161,23 +154,8 @@ def check_conf(conf: dict) -> None:
     if conf["pose_solver"] not in tm.SOLVERS:
         raise FieldlocError(f"pose_solver must be one of {', '.join(tm.SOLVERS)}, not"
                             f" '{conf['pose_solver']}'")
-    if not 0 < float(conf["ratio"]) <= 1:
-        raise FieldlocError(f"ratio must lie in (0, 1], not {conf['ratio']}")
-    if not 0 < float(conf["inlier_prior"]) < 1:
-        raise FieldlocError(f"inlier_prior must lie in (0, 1), not {conf['inlier_prior']}")
-    for key in ("pair_sigma_m", "temperature", "reach", "outlier_sigmas"):
-        if not float(conf[key]) > 0:
-            raise FieldlocError(f"{key} must be > 0, not {conf[key]}")
-    for key in ("min_pairs", "tracked_templates", "global_templates", "global_every",
-                "null_copies", "flann_checks"):
-        if int(conf[key]) < 1:
-            raise FieldlocError(f"{key} must be >= 1, not {conf[key]}")
     if conf["heading"] not in ("imu", "track"):
         raise FieldlocError(f"heading must be imu or track, not '{conf['heading']}'")
-    if int(conf["lost_headings"]) < 1 or not float(conf["consensus_m"]) > 0:
-        raise FieldlocError("lost_headings must be >= 1 and consensus_m > 0")
-    if int(conf["min_pairs"]) < 2:
-        raise FieldlocError("min_pairs must be >= 2 (a rigid pose needs two points)")
 
 
 class TemplateMatcher:
@@ -189,7 +167,7 @@ class TemplateMatcher:
         self.conf = conf
         self.metric = "hamming" if db.feature_kind == "orb" else "l2"
         self.owner = db.owner
-        self.checks = int(conf["flann_checks"])
+        self.checks = FLANN_CHECKS
         self.index = tm.FeatureIndex(db.descriptors, db.laplacian, self.metric,
                                      checks=self.checks)
         self._template_index: dict[int, tm.FeatureIndex] = {}
@@ -209,7 +187,7 @@ class TemplateMatcher:
         """The ``n`` templates most query features' nearest neighbours (ratio test, same
         Laplacian sign) belong to, most votes first (templates without a vote left out)."""
         idx, dist = self.index.knn(query.descriptors, query.laplacian, 2)
-        _q, rows, _d = tm.ratio_matches(idx, dist, float(self.conf["ratio"]))
+        _q, rows, _d = tm.ratio_matches(idx, dist, RATIO)
         if not len(rows):
             return []
         votes = np.bincount(self.owner[rows], minlength=len(self.db))
@@ -224,23 +202,23 @@ class TemplateMatcher:
         field pose is the template's position plus the fit's translation, ``heading`` plus its
         rotation."""
         c = self.conf
-        qi, ti, _d = tm.match(query, self.template_index(k), float(c["ratio"]))
-        if len(qi) < int(c["min_pairs"]):
+        qi, ti, _d = tm.match(query, self.template_index(k), RATIO)
+        if len(qi) < MIN_PAIRS:
             return None
         tp = self.db.poses[k]
         t = _turn(self.db.template(k).points[ti], float(tp[2]))
         q = _turn(query.points[qi], heading)
-        f = tm.consensus_fit(t, q, radius=float(c["consensus_m"]), solver=c["pose_solver"],
-                             outlier_sigmas=float(c["outlier_sigmas"]),
-                             min_outlier_m=float(c["min_outlier_m"]),
-                             outlier_passes=int(c["outlier_passes"]),
-                             min_pairs=int(c["min_pairs"]))
+        f = tm.consensus_fit(t, q, radius=CONSENSUS_M, solver=c["pose_solver"],
+                             outlier_sigmas=OUTLIER_SIGMAS,
+                             min_outlier_m=MIN_OUTLIER_M,
+                             outlier_passes=OUTLIER_PASSES,
+                             min_pairs=MIN_PAIRS)
         if f is None:
             return None
         self.rounds += f.rounds
         self.fits += 1
-        ev = tm.evidence(f.residuals, float(c["pair_sigma_m"]), self.area,
-                         float(c["inlier_prior"]))
+        ev = tm.evidence(f.residuals, PAIR_SIGMA_M, self.area,
+                         INLIER_PRIOR)
         rms = float(np.sqrt(np.mean(f.residuals[f.inliers] ** 2)))
         pose = np.array([tp[0] + f.pose[0], tp[1] + f.pose[1],
                          float(wrap_angle(heading + f.pose[2]))])
@@ -250,25 +228,23 @@ class TemplateMatcher:
     def null_evidence(self, fix: TemplateFix, rng) -> float:
         """What chance explains (module doc): the median evidence of the fit on the fix's
         pairs with the query points shuffled."""
-        c = self.conf
         out = []
-        for _ in range(int(c["null_copies"])):
+        for _ in range(NULL_COPIES):
             q = fix.pairs_q[rng.permutation(len(fix.pairs_q))]
-            f = tm.consensus_fit(fix.pairs_t, q, radius=float(c["consensus_m"]),
-                                 solver="closed-form", outlier_sigmas=float(c["outlier_sigmas"]),
-                                 min_outlier_m=float(c["min_outlier_m"]),
-                                 outlier_passes=int(c["outlier_passes"]), min_pairs=2)
+            f = tm.consensus_fit(fix.pairs_t, q, radius=CONSENSUS_M,
+                                 solver="closed-form", outlier_sigmas=OUTLIER_SIGMAS,
+                                 min_outlier_m=MIN_OUTLIER_M,
+                                 outlier_passes=OUTLIER_PASSES, min_pairs=2)
             out.append(0.0 if f is None else tm.evidence(
-                f.residuals, float(c["pair_sigma_m"]), self.area, float(c["inlier_prior"])))
+                f.residuals, PAIR_SIGMA_M, self.area, INLIER_PRIOR))
         return float(np.median(out))
 
     def covariance(self, fix: TemplateFix) -> np.ndarray:
         """The fix's covariance (3, 3) for the fusion (module doc)."""
-        c = self.conf
         q = fix.pairs_q[fix.fit.inliers]
         spread = float(np.sqrt(np.mean(np.sum((q - q.mean(0)) ** 2, axis=1)))) if len(q) else 0
-        sxy = max(fix.rms, float(c["vision_sigma_xy"]))
-        sth = max(fix.rms / max(spread, 1e-3), float(c["vision_sigma_theta"]))
+        sxy = max(fix.rms, VISION_SIGMA_XY_M)
+        sth = max(fix.rms / max(spread, 1e-3), VISION_SIGMA_THETA_RAD)
         return np.diag([sxy * sxy, sxy * sxy, min(sth, math.pi) ** 2])
 
 
@@ -290,11 +266,11 @@ class TemplateLocaliser:
         self.gconf = matcher.db.ground_conf
         self.field_axes = bool(matcher.db.field_axes)
         x0, x1, y0, y1 = field.world_bounds()
-        reach = float(conf["reach"])
+        reach = REACH_M
         self.bank = TrackBank(conf, area=(x1 - x0) * (y1 - y0), reach=reach,
                               reach_cells=max(int((2 * reach / 0.05) ** 2), 1),
                               symmetric=field.is_point_symmetric())
-        self.T = float(conf["temperature"])
+        self.T = TEMPERATURE
         self.rng = np.random.default_rng(seed)
         self.last_global = -10**9
         self.last_accepted = True
@@ -346,9 +322,9 @@ class TemplateLocaliser:
             heading = yaw if use_imu else float(prior_pose[2])
             query = self._query(image, heading, cache)
             d = np.hypot(m.db.poses[:, 0] - prior_pose[0], m.db.poses[:, 1] - prior_pose[1])
-            near = [int(k) for k in np.argsort(d, kind="stable")[:int(conf["tracked_templates"])]
-                    if d[k] <= conf["reach"]]
-            fix = self._best(query, near, heading) if len(query) >= conf["min_pairs"] else None
+            near = [int(k) for k in np.argsort(d, kind="stable")[:TRACKED_TEMPLATES]
+                    if d[k] <= REACH_M]
+            fix = self._best(query, near, heading) if len(query) >= MIN_PAIRS else None
             if fix is None:  # nothing matched: the track explains the frame as chance does
                 fix = TemplateFix(pose=np.asarray(prior_pose, float), template=-1, fit=None,
                                   evidence=0.0, pairs=0, rms=math.nan, heading=heading)
@@ -365,7 +341,7 @@ class TemplateLocaliser:
             tracked.append(c)
         new: list[Candidate] = []
         searched = (not tracked or not self.last_accepted or lost
-                    or i - self.last_global >= int(conf["global_every"]))
+                    or i - self.last_global >= GLOBAL_EVERY)
         if searched:
             self.last_global = i
             if tracked:
@@ -375,7 +351,7 @@ class TemplateLocaliser:
             elif tracked and self.last_accepted:
                 headings = [float(bank.tracks[0].pose[2])]
             elif self.field_axes:  # no heading known: try them
-                n = int(conf["lost_headings"])
+                n = LOST_HEADINGS
                 headings = [2 * math.pi * j / n - math.pi for j in range(n)]
             else:  # rotation-invariant features: the fit finds the heading
                 headings = [0.0]
@@ -383,10 +359,10 @@ class TemplateLocaliser:
             fixes = []
             for h in headings:
                 query = self._query(image, h, cache)
-                if len(query) < conf["min_pairs"]:
+                if len(query) < MIN_PAIRS:
                     continue
                 fixes += [f for f in (m.fit(query, k, h) for k in
-                                      m.vote(query, int(conf["global_templates"])))
+                                      m.vote(query, GLOBAL_TEMPLATES))
                           if f is not None]
             fixes.sort(key=lambda f: -f.evidence)
             for f in fixes:
@@ -399,7 +375,7 @@ class TemplateLocaliser:
             fixes_seen += fixes
         if not fixes_seen:
             n_feat = max((len(q) for q in cache.values()), default=0)
-            raise FrameFailed("too-few-features" if n_feat < conf["min_pairs"] else "no-match")
+            raise FrameFailed("too-few-features" if n_feat < MIN_PAIRS else "no-match")
         null_ev = m.null_evidence(max(fixes_seen, key=lambda f: f.evidence), self.rng)
         for c in tracked:
             c.beats_null = c.beats_null and c.fix.evidence > null_ev
@@ -464,7 +440,7 @@ class TemplateScorer:
         self._fits: dict = {}
         self._global: dict = {}
         self._null: dict = {}
-        self.T = float(self.conf["temperature"])
+        self.T = TEMPERATURE
 
     def _heading(self, i: int, start=None) -> float | None:
         """The heading frame i's query is described at: the IMU's, else the start's (None
@@ -497,7 +473,7 @@ class TemplateScorer:
         key = (i, k, h if self.loc.field_axes else None)
         if key not in self._fits:
             self._fits[key] = (self.m.fit(query, k, h)
-                               if len(query) >= int(self.conf["min_pairs"]) else None)
+                               if len(query) >= MIN_PAIRS else None)
         return self._fits[key]
 
     def _row(self, fix: TemplateFix):
@@ -517,17 +493,17 @@ class TemplateScorer:
         if h is not None:
             headings = [h]
         elif self.loc.field_axes:  # no heading known: try them (as the causal run when lost)
-            n = int(self.conf["lost_headings"])
+            n = LOST_HEADINGS
             headings = [2 * math.pi * j / n - math.pi for j in range(n)]
         else:  # rotation-invariant features: the fit finds the heading
             headings = [0.0]
         fixes = []
         for h in headings:
             query, _h = self._query(i, h)
-            if len(query) < int(self.conf["min_pairs"]):
+            if len(query) < MIN_PAIRS:
                 continue
             fixes += [self._fit(i, k, h) for k in self.m.vote(query, int(
-                self.conf["global_templates"]))]
+                GLOBAL_TEMPLATES))]
         fixes = [f for f in fixes if f is not None]
         if np.all(np.isfinite(self.causal_pose[i])):
             fixes += self._near_fits(i, self.causal_pose[i])
@@ -539,12 +515,11 @@ class TemplateScorer:
 
     def _near_fits(self, i: int, start) -> list[TemplateFix]:
         """The fits of the ``tracked_templates`` templates nearest ``start``, within reach."""
-        c = self.conf
         poses = self.m.db.poses
         h = self._heading(i, start)
         d = np.hypot(poses[:, 0] - start[0], poses[:, 1] - start[1])
-        near = [int(k) for k in np.argsort(d, kind="stable")[:int(c["tracked_templates"])]
-                if d[k] <= c["reach"]]
+        near = [int(k) for k in np.argsort(d, kind="stable")[:TRACKED_TEMPLATES]
+                if d[k] <= REACH_M]
         return [f for f in (self._fit(i, k, h) for k in near) if f is not None]
 
     def local_candidates(self, i: int, starts: np.ndarray) -> FrameCandidates:
@@ -645,7 +620,7 @@ def run(conf: dict, dataset, templates, map_file=None, progress=False) -> PoseTr
     if not conf["smooth"]:
         return track
     scorer = TemplateScorer(loc, dataset.images, yaw, track, queries)
-    motion = smooth.motion_of(increments, has_odo, stamps, conf["fusion"], collision)
     x0, x1, y0, y1 = field.world_bounds()
-    return smooth.smooth_track(scorer, track, motion, conf, area=(x1 - x0) * (y1 - y0),
-                               log_prior0=smooth.start_half_prior(conf, scorer.mirrored))
+    return bank_smoothing.smoothed(scorer, track, conf, increments=increments,
+                                   has_odometry=has_odo, stamps=stamps, collision=collision,
+                                   area=(x1 - x0) * (y1 - y0))

@@ -7,11 +7,11 @@ proposals into a belief. Per frame the engine gives
 - for every track (``TrackBank.tracks``) one ``Candidate``: the fix it finds from the track's
   prior (``TrackBank.prior``: the last fused pose moved by the odometry, with the fusion's
   predicted covariance), with ``log_prior`` from ``TrackBank.tracked_log_prior`` (the track's
-  weight, times 1 - ``kidnap_probability``, times the odometry's agreement exp(-m^2 / 2), m the
+  weight, times 1 - ``KIDNAP_PROBABILITY``, times the odometry's agreement exp(-m^2 / 2), m the
   Kalman innovation of the fix against prior and fix covariance);
 - when it searches globally (no track, a lost track, every few frames), new Candidates with
   ``log_prior`` = ``TrackBank.global_log_prior``: the mass of elsewhere spread uniformly over
-  the world's ``ambiguity_distance`` squares (``TrackBank.log_basins`` of them), those near a
+  the world's ``AMBIGUITY_DISTANCE_M`` squares (``TrackBank.log_basins`` of them), those near a
   track left out (``TrackBank.near_track``), duplicates folded (``TrackBank.fold``);
 - ``nll``: the frame's negative log-likelihood at each candidate, in nats and *tempered* (the
   engine states its temperature: observations of one frame are not independent), and the same
@@ -20,17 +20,18 @@ proposals into a belief. Per frame the engine gives
 ``TrackBank.posterior`` normalises log_prior - nll over the candidates and elsewhere (in a
 global frame elsewhere explains what the null explains, as one basin; in a tracked frame
 elsewhere keeps its share, scaled by how well the tracks explain the frame);
-``TrackBank.update`` keeps the candidates as tracks (pruned below ``prune_probability``, merged
-when in one basin, at most ``max_tracks``), fusing each tracked fix that beats the null
+``TrackBank.update`` keeps the candidates as tracks (pruned below ``PRUNE_PROBABILITY``, merged
+when in one basin, at most ``MAX_TRACKS``), fusing each tracked fix that beats the null
 (``Candidate.beats_null``) into its track's decentralised Kalman filter (kalman.py);
 ``TrackBank.hypotheses`` lists tracks and, on a point-symmetric field, their mirror images
 (each track carries the share of its weight that belongs to its mirror image, ``mirror``),
 ranked, with the top's mirror always listed; ``TrackBank.conclude`` gives the frame's pose,
 covariance, confidence (the top hypothesis's probability) and whether it is accepted
 (confidence >= ``min_confidence``). A failed frame (``TrackBank.failed``) only predicts; after
-``max_predicted_frames`` of them in a row the tracks are dropped.
+``MAX_PREDICTED_FRAMES`` of them in a row the tracks are dropped.
 
-The conf keys the bank reads are ``DEFAULTS`` (a method's confs start from them).
+The conf keys the bank reads are ``DEFAULTS`` (a method's confs start from them); its tuned
+constants (``KIDNAP_PROBABILITY``, ``MAX_TRACKS``, ...) are named below them.
 """
 
 from __future__ import annotations
@@ -49,37 +50,33 @@ from .kalman import DecentralisedFusion, FusionParams
 
 log = logging.getLogger(__name__)
 
+# what a user chooses (a method's confs start from them; the rest are the constants below)
 DEFAULTS = {
     "independent": False,  # every frame globally, no tracks, no odometry
     "smooth": False,  # decide every frame with the whole recording (smooth.py), offline
-    "max_predicted_frames": 30,  # failed frames in a row over which tracks are kept
-    "kidnap_probability": 1e-5,  # per frame: the robot is not where its tracks say
-    "ambiguity_distance": 1.0,  # m, separation of the global search's minima
-    "max_tracks": 8,  # hypotheses tracked at once
-    "prune_probability": 1e-4,  # tracks below this probability are dropped
     "hypotheses": 5,  # hypotheses listed per frame
     "min_confidence": 0.8,  # a frame is accepted at this confidence
-    "prior_outlier_probability": 0.01,  # a track's prior is wrong beyond its covariance
-    # (a Gaussian with a uniform floor over the engine's reach: caps the Mahalanobis term)
-    "gate_sigmas": 3.0,  # the engine's reach in sigmas of the prior (see lost)
-    "min_gate": 0.3,  # m, floor of the innovation's sigma times gate_sigmas
-    "fusion": {
-        "enabled": True,
-        **{k: getattr(FusionParams, k) for k in FusionParams.__dataclass_fields__},
-    },
+    "fusion": {"enabled": True},  # false: no Kalman fusion with the odometry (--preset no-fusion)
 }
 
 # the ranges the keys above must lie in (common.conf.check_bounds; a method adds them to its
-# BOUNDS): probabilities, counts of at least one and at most what a frame can carry, sigmas,
-# distances and the fusion's noise above zero (a zero process or odometry noise makes the
-# fusion's covariance singular: "near zero, but never zero")
-MAX_TRACKS = 1000
-BOUNDS = {"max_predicted_frames": (0, None), "kidnap_probability": (0, (1,)),
-          "ambiguity_distance": ((0,), None), "max_tracks": (1, MAX_TRACKS),
-          "prune_probability": ((0,), 1), "hypotheses": (1, MAX_TRACKS),
-          "min_confidence": (0, 1), "prior_outlier_probability": (0, 1),
-          "gate_sigmas": ((0,), None), "min_gate": (0, None),
-          **{f"fusion.{k}": ((0,), None) for k in FusionParams.__dataclass_fields__}}
+# BOUNDS): a count of at least one and at most what a frame can carry, a probability
+MAX_HYPOTHESES = 1000
+BOUNDS = {"hypotheses": (1, MAX_HYPOTHESES), "min_confidence": (0, 1)}
+
+# The bank's tuned constants (module doc). The values were chosen on the rendered tuning sets'
+# calibration (docs/manual.md, docs/results.md) and hold for lut, fit and templates alike.
+MAX_PREDICTED_FRAMES = 30  # failed frames in a row over which tracks are kept
+KIDNAP_PROBABILITY = 1e-5  # per frame: the robot is not where its tracks say
+AMBIGUITY_DISTANCE_M = 1.0  # m, separation of the global search's minima
+MAX_TRACKS = 8  # hypotheses tracked at once
+PRUNE_PROBABILITY = 1e-4  # tracks below this probability are dropped
+PRIOR_OUTLIER_PROBABILITY = 0.01  # a track's prior is wrong beyond its covariance
+# (a Gaussian with a uniform floor over the engine's reach: caps the Mahalanobis term)
+GATE_SIGMAS = 3.0  # the engine's reach in sigmas of the prior (see lost)
+MIN_GATE_M = 0.3  # m, floor of the innovation's sigma times GATE_SIGMAS
+# the fusion's noise (kalman.FusionParams' defaults), also the smoother's motion noise
+FUSION = FusionParams()
 
 # two poses this close are one hypothesis (one basin of a likelihood surface)
 SAME_BASIN_M = 0.3
@@ -91,26 +88,15 @@ def check_conf(conf: dict) -> None:
     """The bank's keys of a method's conf, checked (FieldlocError)."""
     from ..common.errors import FieldlocError
 
-    for key in ("min_confidence", "prior_outlier_probability"):
-        if not 0.0 <= float(conf[key]) <= 1.0:
-            raise FieldlocError(f"{key} must lie in [0, 1], not {conf[key]}")
-    if not 0.0 <= float(conf["kidnap_probability"]) < 1.0:  # log(1 - p) weighs the tracks
-        raise FieldlocError(f"kidnap_probability must lie in [0, 1), not"
-                            f" {conf['kidnap_probability']}")
-    if not 0.0 < float(conf["prune_probability"]) <= 1.0:  # its log bounds the tracks' weights
-        raise FieldlocError(f"prune_probability must lie in (0, 1], not"
-                            f" {conf['prune_probability']}")
+    if not 0.0 <= float(conf["min_confidence"]) <= 1.0:
+        raise FieldlocError(f"min_confidence must lie in [0, 1], not {conf['min_confidence']}")
     if not isinstance(conf["smooth"], bool):
         raise FieldlocError(f"smooth must be true or false, not {str(conf['smooth'])[:40]!r}")
     if conf["smooth"] and conf["independent"]:
         raise FieldlocError("smooth decides every frame with the whole recording; it does not"
                             " localise frames independently")
-    for key in ("max_tracks", "hypotheses"):
-        if int(conf[key]) < 1:
-            raise FieldlocError(f"{key} must be >= 1, not {conf[key]}")
-    for key in ("ambiguity_distance", "gate_sigmas"):
-        if not float(conf[key]) > 0:
-            raise FieldlocError(f"{key} must be > 0, not {conf[key]}")
+    if int(conf["hypotheses"]) < 1:
+        raise FieldlocError(f"hypotheses must be >= 1, not {conf['hypotheses']}")
 
 
 @dataclass
@@ -163,19 +149,20 @@ class TrackBank:
     def __init__(self, conf: dict, *, area: float, reach: float, reach_cells: int,
                  symmetric: bool):
         self.conf = conf
-        self.fusion_params = FusionParams.from_conf(conf["fusion"])
+        self.fusion_params = FUSION
         self.use_fusion = bool(conf["fusion"]["enabled"])
         self.reach = float(reach)
-        self.log_basins = math.log(max(area / conf["ambiguity_distance"] ** 2, 1.0))
-        # the Mahalanobis term of a prior that is wrong with prior_outlier_probability: a
+        self.log_basins = math.log(max(area / AMBIGUITY_DISTANCE_M ** 2, 1.0))
+        # the Mahalanobis term of a prior that is wrong with PRIOR_OUTLIER_PROBABILITY: a
         # Gaussian over a uniform floor on the reach's cells, -log of the floor
-        self.prior_cap = -math.log(max(conf["prior_outlier_probability"], 1e-300)
+        self.prior_cap = -math.log(max(PRIOR_OUTLIER_PROBABILITY, 1e-300)
                                    / max(int(reach_cells), 1))
         self.symmetric = bool(symmetric)
         self.tracks: list[Track] = []
         self.other = 1.0  # probability that the robot is at none of the tracks
         self.has_odometry = True  # whether the dataset measures the robot's motion
         self.failures_in_row = 0
+        self.max_predicted_frames = MAX_PREDICTED_FRAMES
         self._next_ident = 0
 
     # ------------------------------------------------------------------ before the frame
@@ -188,7 +175,7 @@ class TrackBank:
         before the first fix), plus the kidnap probability of the tracks."""
         if not self.tracks:
             return 0.0
-        eps = float(self.conf["kidnap_probability"])
+        eps = float(KIDNAP_PROBABILITY)
         return math.log(max(self.other + eps * (1 - self.other), eps))
 
     def global_log_prior(self, other_prior: float) -> float:
@@ -200,7 +187,7 @@ class TrackBank:
         """(prior pose, its position covariance (2, 2)) of a track: the previous pose moved by
         the odometry (by the last fused motion on collision frames; a random walk of up to the
         fusion's max_speed when the dataset has no odometry), the covariance from the fusion's
-        prediction (without fusion: ``min_gate`` / ``gate_sigmas`` growing with the
+        prediction (without fusion: ``MIN_GATE_M`` / ``GATE_SIGMAS`` growing with the
         misses)."""
         f = t.fusion
         if self.use_fusion and f.state is not None:
@@ -211,20 +198,20 @@ class TrackBank:
             pose, cov = f.predicted(dt, odo, col)
             return pose, cov[:2, :2]
         pose = compose(t.pose, odo) if odo is not None and not col else t.pose
-        s = self.conf["min_gate"] / self.conf["gate_sigmas"] * math.sqrt(1 + t.misses)
+        s = MIN_GATE_M / GATE_SIGMAS * math.sqrt(1 + t.misses)
         return np.asarray(pose, float).copy(), np.eye(2) * s * s
 
     def lost(self, prior_cov) -> bool:
         """Whether the engine's reach no longer covers where the robot may be
-        (``gate_sigmas`` of the prior's largest sigma exceed it)."""
+        (``GATE_SIGMAS`` of the prior's largest sigma exceed it)."""
         (largest, _), _u = eig2(float(prior_cov[0, 0]), float(prior_cov[0, 1]),
                                 float(prior_cov[1, 1]))
-        return math.sqrt(max(largest, 0.0)) * self.conf["gate_sigmas"] > self.reach
+        return math.sqrt(max(largest, 0.0)) * GATE_SIGMAS > self.reach
 
     def innovation_information(self, prior_cov, R=None) -> np.ndarray:
         """Inverse of the innovation covariance (2, 2): the prior's, the fix's (if given) and a
-        floor of (``min_gate`` / ``gate_sigmas``)^2 against overconfidence."""
-        floor = (self.conf["min_gate"] / self.conf["gate_sigmas"]) ** 2
+        floor of (``MIN_GATE_M`` / ``GATE_SIGMAS``)^2 against overconfidence."""
+        floor = (MIN_GATE_M / GATE_SIGMAS) ** 2
         a, b, d = float(prior_cov[0, 0]) + floor, float(prior_cov[0, 1]), \
             float(prior_cov[1, 1]) + floor
         if R is not None:
@@ -242,7 +229,7 @@ class TrackBank:
         weight, 1 - kidnap, and the odometry's agreement (the innovation against prior and
         fix covariance, capped by the uniform floor)."""
         m2 = min(float(d @ self.innovation_information(prior_cov, R) @ d), 2 * self.prior_cap)
-        return t.log_weight + math.log1p(-self.conf["kidnap_probability"]) - 0.5 * m2
+        return t.log_weight + math.log1p(-KIDNAP_PROBABILITY) - 0.5 * m2
 
     # ------------------------------------------------------------------ global candidates
     def near_track(self, pose) -> bool:
@@ -332,20 +319,20 @@ class TrackBank:
     def update(self, i: int, cands: list[Candidate], other: float, dt: float, odo,
                col: bool) -> Candidate:
         """The tracks after this frame from the candidates' normalised log weights (and the
-        log weight ``other`` of elsewhere): pruned below ``prune_probability`` (their mass
-        goes elsewhere), merged when in one basin, at most ``max_tracks``; each track's
+        log weight ``other`` of elsewhere): pruned below ``PRUNE_PROBABILITY`` (their mass
+        goes elsewhere), merged when in one basin, at most ``MAX_TRACKS``; each track's
         fusion corrected with its fix when the fix beats the null (else predicted only).
         Returns the candidate of the strongest track."""
         conf = self.conf
         order = sorted(range(len(cands)), key=lambda k: -cands[k].log_post)
         kept: list[Track] = []
         lead = cands[order[0]]
-        cap = int(conf["max_tracks"])
+        cap = MAX_TRACKS
         if conf["independent"]:
             cap = max(cap, int(conf["hypotheses"]))
         for k in order:
             c = cands[k]
-            if c.log_post < math.log(conf["prune_probability"]) and kept:
+            if c.log_post < math.log(PRUNE_PROBABILITY) and kept:
                 continue
             same = [t for t in kept if near_pose(t.pose, c.pose, SAME_BASIN_M,
                                                  SAME_BASIN_RAD)]
@@ -382,10 +369,10 @@ class TrackBank:
                      ident=self._next_ident, pose=c.pose.copy(), cov=c.R.copy())
 
     def failed(self, dt: float, odo, col: bool):
-        """A failed frame: the tracks only predict; after ``max_predicted_frames`` failed
+        """A failed frame: the tracks only predict; after ``MAX_PREDICTED_FRAMES`` failed
         frames in a row they are dropped (lost: global search only)."""
         self.failures_in_row += 1
-        if self.failures_in_row > self.conf["max_predicted_frames"] or self.conf["independent"]:
+        if self.failures_in_row > self.max_predicted_frames or self.conf["independent"]:
             self.reset()
             return
         for t in self.tracks:

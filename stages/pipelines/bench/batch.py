@@ -51,10 +51,9 @@ def _warm(map_path: Path) -> None:
     """The map's lookup cache written (as a first run would)."""
     from ...common.map_file import MapFile
     from ...localize import lut
-    from ...localize.lut_search import MatchingParams
 
     with MapFile(map_path) as mf:
-        lut.table_search(mf, MatchingParams.from_conf(lut.confs["default"]["search"]))
+        lut.table_search(mf, lut.SEARCH)
 
 
 def bench_batch_throughput(repeat: int) -> Row:

@@ -108,41 +108,41 @@ def bench_fit_tracked(repeat: int) -> Row:
     from ...common.features_file import FeaturesFile
     from ...common.map_file import MapFile
     from ...localize import fit as fit_mod
+    from ...localize import heading as heading_mod
     from ...localize import lut
-    from ...localize.lut_search import MatchingParams, Observation
+    from ...localize.lut_search import Observation
 
     preset, field, n, seed = SETS[0]
     inp = rendered_inputs("omni", field, n, seed, preset)
     run = _run("fit", "imu", inp, f"{preset}-{seed}")
     whole = [1000 * t for t, m, f in zip(run["runtime"], run["mode"], run["flags"])
              if m == "local" and "global-check" not in f]
-    conf = fit_mod.confs["default"]
     mf = MapFile(inp["map"])
-    engine = fit_mod.fit_engine(mf, conf)
-    search = lut.table_search(mf, MatchingParams.from_conf(lut.confs["default"]["search"]))
+    engine = fit_mod.fit_engine(mf)
+    search = lut.table_search(mf, lut.SEARCH)
     sl = search.scanlines
     truth = read_csv(Path(inp["data"]) / "truth.csv", "truth")
     a, b, pts = [], [], []
     with FeaturesFile(inp["features"]) as ff:
         for i, name in enumerate(ff.names):
             fr = ff.frame(name)
-            obs = fit_mod.observation_from_points(fit_mod.frame_points(fr, sl), conf)
+            obs = fit_mod.observation_from_points(fit_mod.frame_points(fr, sl))
             lobs = Observation.from_scanlines(fr["radial"], fr.get("spiral"), search.params,
                                               sl.max_range, sl.spiral_end_radius,
                                               sl.robot_radius)
-            if len(obs) < conf["min_points"] or len(lobs) < 20:
+            if len(obs) < fit_mod.MIN_POINTS or len(lobs) < 20:
                 continue
             x, y, th = truth["x"][i], truth["y"][i], truth["theta"][i]
             start = np.array([x + 0.1, y - 0.1, th + math.radians(1.0)])
             ta, tb = [], []
             for _ in range(max(1, repeat)):
                 t = time.perf_counter()
-                engine.fit(obs, start, heading=(th, conf["imu_sigma"]),
-                           temperature=conf["temperature"] * conf["track_correlation"])
+                engine.fit(obs, start, heading=(th, heading_mod.IMU_SIGMA_RAD),
+                           temperature=fit_mod.TEMPERATURE * fit_mod.TRACK_CORRELATION)
                 ta.append(time.perf_counter() - t)
                 t = time.perf_counter()
                 search.local_search(lobs, th, (x + 0.1, y - 0.1),
-                                    half_width=0.5 * lut.confs["default"]["window"])
+                                    half_width=0.5 * lut.WINDOW_M)
                 tb.append(time.perf_counter() - t)
             a.append(statistics.median(ta))
             b.append(statistics.median(tb))

@@ -34,7 +34,7 @@ def bench_lut_tracked_frame(repeat: int) -> list[Row]:
     from ...common.features_file import FeaturesFile
     from ...common.map_file import MapFile
     from ...localize import lut
-    from ...localize.lut_search import MatchingParams, Observation
+    from ...localize.lut_search import Observation
 
     inp = rendered_inputs("omni", "msl-2015", 100, 1)
     conf = dict(lut.confs["tracks"], heading="imu")
@@ -59,7 +59,7 @@ def bench_lut_tracked_frame(repeat: int) -> list[Row]:
         mode, flags = runs[0].mode[i], runs[0].flags[i]
         if mode == "local":
             (checked if "global-check" in flags else tracked).append(statistics.median(rt))
-    search = lut.table_search(mf, MatchingParams.from_conf(conf["search"]))
+    search = lut.table_search(mf, lut.SEARCH)
     sl = search.scanlines
     loc = []
     for n, r in zip(names, runs[0].arrays()["x"]):
@@ -73,7 +73,7 @@ def bench_lut_tracked_frame(repeat: int) -> list[Row]:
         ts = []
         for _ in range(max(1, repeat)):
             t = time.perf_counter()
-            search.local_search(obs, th, (x + 0.1, y - 0.1), half_width=0.5 * conf["window"])
+            search.local_search(obs, th, (x + 0.1, y - 0.1), half_width=0.5 * lut.WINDOW_M)
             ts.append(time.perf_counter() - t)
         loc.append(statistics.median(ts))
     med = msec(tracked)

@@ -53,7 +53,7 @@ def perspective_inputs(frames: int, seed: int) -> dict:
 GRID_SPACING = 1.0  # m, the paper's
 CALIB_SEED, WORLD_SEED = 61, 61  # one robot, one venue
 GRID_SEED = 62
-# preset, field, frames, seed; the defaults (ratio, min_pairs, consensus_m) were chosen on
+# preset, field, frames, seed; the constants (RATIO, MIN_PAIRS, CONSENSUS_M) were chosen on
 # the development run of seed 89 (templates.DEVELOPMENT_RUN), never on this one
 HIDDEN_TEMPLATE_RUN = ("omni-default", "msl-2015", 149, 93)
 # the speed alternative: a coarser ground image (400 px of 2 cm, +-4 m: 0.56 x the pixels)

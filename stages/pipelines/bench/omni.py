@@ -19,18 +19,17 @@ def _lut_frames(inp: dict):
     from ...common.features_file import FeaturesFile
     from ...common.map_file import MapFile
     from ...localize import lut
-    from ...localize.lut_search import MatchingParams, Observation
+    from ...localize.lut_search import Observation
 
     m = MapFile(inp["map"])
-    params = MatchingParams.from_conf(lut.confs["default"]["search"])
-    search = lut.table_search(m, params)
+    search = lut.table_search(m, lut.SEARCH)
     truth = read_csv(Path(inp["data"]) / "truth.csv", "truth")
     sl = search.scanlines
     out = []
     with FeaturesFile(inp["features"]) as ff:
         for i, name in enumerate(ff.names):
             fr = ff.frame(name)
-            obs = Observation.from_scanlines(fr["radial"], fr.get("spiral"), params,
+            obs = Observation.from_scanlines(fr["radial"], fr.get("spiral"), search.params,
                                              sl.max_range, sl.spiral_end_radius, sl.robot_radius)
             if len(obs) >= 20:
                 out.append((obs, (truth["x"][i], truth["y"][i], truth["theta"][i])))
