@@ -1047,7 +1047,9 @@ CASES = [
            ["localize", "{kid}", "--map", "{kmap}", "--features", "{kid_features}",
             "--method", "mcl", "-o", W + "/p.h5", "-c", kv], 1, msg) for kv, msg in (
         ("hypotheses=0", "conf 'hypotheses' must be >= 1 and <= 1000"),
-        ("seed=-1", "conf 'seed' must be >= 0"))],
+        ("seed=-1", "conf 'seed' must be >= 0"),
+        ("init_spread=-1", "conf 'init_spread' must be a list of 3 numbers"),
+        ("init_spread=[0.3,-0.3,0.2]", "conf 'init_spread[1]' must be >= 0"))],
     *[Case(f"extract -c {kv}", "traceback", ["extract", "{omni}", "-o", W + "/f.h5", "-c", kv],
            1, msg) for kv, msg in (
         ("sample_step_px=0", "conf 'sample_step_px' must be > 0 and <= 10"),

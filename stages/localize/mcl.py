@@ -1002,7 +1002,8 @@ def run(conf: dict, dataset, features, map_file, progress=None) -> PoseTrack:
 
 # the ranges mcl's numeric keys must lie in to run at all (common.conf.check_bounds; the
 # particle counts below)
-BOUNDS = {"seed": (0, None), "hypotheses": (1, 1000)}
+BOUNDS = {"seed": (0, None), "hypotheses": (1, 1000), "init_spread": (0, None, 3),
+          "init_pose": (None, None, 3), "observation.camera_height": ((0,), 10.0)}
 
 
 def _check_conf(conf: dict):
