@@ -210,6 +210,27 @@ def test_too_few_confident_frames_are_refused():
         mount.estimate_mount(SPL, NAO, feats, track, feats.head)
 
 
+def test_fewer_confident_frames_than_both_halves_need_are_refused():
+    feats = _LineFeatures(NAO, frames=30, seed=3)
+    track = feats.track()
+    track["confidence"][15:] = 0.2  # 15 frames: enough for one fit, not for two halves
+    with pytest.raises(FieldlocError, match="too few to check the mount on both halves"):
+        mount.estimate_mount(SPL, NAO, feats, track, feats.head)
+
+
+def test_a_camera_knocked_halfway_through_the_recording_is_refused():
+    """Halfway through the recording the camera is knocked 2 deg down (head.csv's pitch
+    reads 2 deg off the camera's from then on): each half alone fits its own mount, 2 deg
+    apart, more than mount_calibration.REPRODUCIBLE's 1 deg, and no mount is estimated (a
+    mount fitted to both would be right for neither)."""
+    feats = _LineFeatures(NAO, frames=SYNTHETIC_FRAMES, seed=11)
+    knocked = len(feats.head[0]) // 2
+    feats.head[1]["pitch"][knocked:] += math.radians(2.0)
+    with pytest.raises(FieldlocError, match="two halves of the recording give mounts"):
+        mount.estimate_mount(SPL, _miscalibrated(NAO, 0.035, -0.026, 0.03), feats,
+                             feats.track(seed=12), feats.head)
+
+
 # ---------------------------------------------------------------------------- a rendered walk
 
 
