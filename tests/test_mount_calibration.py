@@ -312,6 +312,29 @@ def test_write_calib_refuses_the_datasets_own_calib_yaml(nao_walk, tmp_path):
     assert hashlib.sha256(own.read_bytes()).hexdigest() == before
 
 
+def test_a_refused_calibration_still_writes_the_poses(nao_walk, tmp_path):
+    """On a 12-frame stretch of the walk too few frames can give a mount (both halves need 10):
+    the calibration is refused in one line that names the poses file, which is written and
+    reads back with every frame; no calib.yaml is written."""
+    from stages.common.poses_file import read_poses
+
+    ds, spl_map, *_ = nao_walk
+    r = CliRunner().invoke(cli, ["-q", "simulate", "perspective", "--field", "spl", "--preset",
+                                 "perspective-nao", "--frames", "12", "--seed", "5", "-o",
+                                 str(tmp_path / "short")])
+    assert r.exit_code == 0, r.output
+    out = tmp_path / "short.poses.h5"
+    r = CliRunner().invoke(cli, ["-q", "localize", str(tmp_path / "short"), "--map",
+                                 str(spl_map), "--method", "mcl", "--write-calib",
+                                 str(tmp_path / "c.yaml"), "-o", str(out)])
+    lines = [ln for ln in r.output.splitlines() if ln.strip()]
+    assert r.exit_code != 0 and len(lines) == 1, r.output
+    assert "too few" in lines[0] and f"the poses are written: {out}" in lines[0]
+    assert "Traceback" not in r.output and not (tmp_path / "c.yaml").exists()
+    cols, _attrs = read_poses(out)
+    assert len(cols["x"]) == 12
+
+
 def test_write_calib_refuses_templates_in_one_line(nao_walk, tmp_path):
     ds, spl_map, *_ = nao_walk
     r = CliRunner().invoke(cli, ["localize", str(ds), "--method", "templates", "--templates",
