@@ -210,6 +210,27 @@ def test_too_few_confident_frames_are_refused():
         mount.estimate_mount(SPL, NAO, feats, track, feats.head)
 
 
+def test_fewer_confident_frames_than_both_halves_need_are_refused():
+    feats = _LineFeatures(NAO, frames=30, seed=3)
+    track = feats.track()
+    track["confidence"][15:] = 0.2  # 15 frames: enough for one fit, not for two halves
+    with pytest.raises(FieldlocError, match="too few to check the mount on both halves"):
+        mount.estimate_mount(SPL, NAO, feats, track, feats.head)
+
+
+def test_a_camera_knocked_halfway_through_the_recording_is_refused():
+    """Halfway through the recording the camera is knocked 2 deg down (head.csv's pitch
+    reads 2 deg off the camera's from then on): each half alone fits its own mount, 2 deg
+    apart, more than mount_calibration.REPRODUCIBLE's 1 deg, and no mount is estimated (a
+    mount fitted to both would be right for neither)."""
+    feats = _LineFeatures(NAO, frames=SYNTHETIC_FRAMES, seed=11)
+    knocked = len(feats.head[0]) // 2
+    feats.head[1]["pitch"][knocked:] += math.radians(2.0)
+    with pytest.raises(FieldlocError, match="two halves of the recording give mounts"):
+        mount.estimate_mount(SPL, _miscalibrated(NAO, 0.035, -0.026, 0.03), feats,
+                             feats.track(seed=12), feats.head)
+
+
 # ---------------------------------------------------------------------------- a rendered walk
 
 
@@ -289,6 +310,29 @@ def test_write_calib_refuses_the_datasets_own_calib_yaml(nao_walk, tmp_path):
     assert not (tmp_path / "c.yaml").exists()
     # exact bytes: the user's calib.yaml checked unchanged
     assert hashlib.sha256(own.read_bytes()).hexdigest() == before
+
+
+def test_a_refused_calibration_still_writes_the_poses(nao_walk, tmp_path):
+    """On a 12-frame stretch of the walk too few frames can give a mount (both halves need 10):
+    the calibration is refused in one line that names the poses file, which is written and
+    reads back with every frame; no calib.yaml is written."""
+    from stages.common.poses_file import read_poses
+
+    ds, spl_map, *_ = nao_walk
+    r = CliRunner().invoke(cli, ["-q", "simulate", "perspective", "--field", "spl", "--preset",
+                                 "perspective-nao", "--frames", "12", "--seed", "5", "-o",
+                                 str(tmp_path / "short")])
+    assert r.exit_code == 0, r.output
+    out = tmp_path / "short.poses.h5"
+    r = CliRunner().invoke(cli, ["-q", "localize", str(tmp_path / "short"), "--map",
+                                 str(spl_map), "--method", "mcl", "--write-calib",
+                                 str(tmp_path / "c.yaml"), "-o", str(out)])
+    lines = [ln for ln in r.output.splitlines() if ln.strip()]
+    assert r.exit_code != 0 and len(lines) == 1, r.output
+    assert "too few" in lines[0] and f"the poses are written: {out}" in lines[0]
+    assert "Traceback" not in r.output and not (tmp_path / "c.yaml").exists()
+    cols, _attrs = read_poses(out)
+    assert len(cols["x"]) == 12
 
 
 def test_write_calib_refuses_templates_in_one_line(nao_walk, tmp_path):

@@ -364,7 +364,9 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path 
     show of its error (best with ``smooth``): an omni camera's mirror distance error
     (mirror_calibration.py, methods lut and fit), a perspective camera's mount and height
     (mount_calibration.py, method mcl), to this path (never the dataset's own calib.yaml; an
-    existing file needs ``overwrite``)."""
+    existing file needs ``overwrite``). A calibration the run's poses cannot give (too few
+    sure frames, a fit its halves do not reproduce) raises FieldlocError after the poses are
+    written."""
     resolved = resolve_localize_conf(conf)
     if uses_templates(resolved["method"]) and write_calib is not None:
         raise FieldlocError("--write-calib learns a calibration from line features: it needs"
@@ -417,8 +419,12 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path 
             warn = start_half_warning(track.arrays(), {"conf": conf})
             if warn:
                 log.warning(warn)
+            calib_refused = None
             if write_calib is not None:
-                _write_calib(write_calib, conf, dataset, feats, track, map_file, output)
+                try:
+                    _write_calib(write_calib, conf, dataset, feats, track, map_file, output)
+                except FieldlocError as e:  # the poses stand; said once they are written
+                    calib_refused = e
         finally:
             feats.close()
     finally:
@@ -430,6 +436,8 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path 
     n_failed = int(np.sum(track.failed))
     log.info("localize %s: %d frames, %d failed -> %s", conf["method"], len(track), n_failed,
              path)
+    if calib_refused is not None:
+        raise FieldlocError(f"{calib_refused}; the poses are written: {path}")
     return path
 
 

@@ -56,6 +56,14 @@ are the sandwich (cluster-robust) covariance with frames as clusters (Liang and 
 N^-1 (sum_f g_f g_f^T) N^-1 restricted to the mount, N the normal matrix, g_f frame f's
 gradient (its samples' and its own priors').
 
+Reproduced, or not written. The standard errors say how well the samples pin the mount if the
+track is right; they cannot say whether it is. A track that held a look-alike place for a
+stretch fits a mount that absorbs the error, at standard errors of a few hundredths of a
+degree. So the usable frames' first and second halves (in time) are fitted again, each on its
+own from every start, and the mount is refused unless they agree within ``REPRODUCIBLE``
+(``_halves_agreement``; a camera knocked during the recording fails it too). The check costs
+two more fits.
+
 ``corrected_calibration`` writes the result into a calib.yaml mapping (pitch_offset,
 roll_offset and height replaced; every other key as the input's) with a ``calibration`` record
 (calibration_record.py); ``write_corrected_calib`` writes it atomically and never over the
@@ -116,6 +124,13 @@ _STEP = np.array([1e-4, 1e-4, 1e-4])
 MIN_HEIGHT_SHARE = 0.5
 # the shortest time between frames the random walk of the pose corrections assumes (s)
 MIN_STEP_S = 1e-3
+# a mount is written only when the two halves of the recording, fitted each on its own, agree
+# within these (rad, m: _halves_agreement). A mount 1 deg or 3 cm off puts lines 3 m away
+# 5-7 cm off, more than the miscalibration it corrects leaves after a good fit. On the
+# tuning walks (seeds 200-223, docs/recording-calibration.md) good fits' halves differed by
+# up to 0.64 deg and 2.8 cm (NAO; KidSize 0.2 deg, 0.4 cm), a fit to a track wrong in part
+# by 15.8 deg and 140 cm
+REPRODUCIBLE = (math.radians(1.0), 0.03)
 
 
 @dataclass
@@ -508,6 +523,74 @@ def _joint_fit(field, project: _Projector, s: _Samples, c: dict, start, iteratio
             iterations)
 
 
+def _fit(field, camera: PerspectiveCamera, s: _Samples, c: dict):
+    """The joint fit (``_joint_fit``'s results) from the start of the lowest robust cost
+    after ``screen_iterations`` steps from each of ``_starts`` (module doc)."""
+    project = _Projector(camera, s)
+    screened = []
+    for start in _starts(c):
+        try:
+            m, poses, head_fix, *_rest = _joint_fit(field, project, s, c, start,
+                                                    int(c["screen_iterations"]))
+        except FieldlocError:  # a start too far off for any line to be associated
+            continue
+        if not _plausible(camera, m):
+            continue
+        screened.append((_cost(field, project, s, m, poses, head_fix, c), m, poses, head_fix))
+    if not screened:
+        raise FieldlocError("no start of the mount fit associates enough line samples: the"
+                            " poses or the calibration are too far off")
+    _cost_best, m, poses, head_fix = min(screened, key=lambda t: t[0])
+    return _joint_fit(field, project, s, c, m, int(c["iterations"]), poses, head_fix)
+
+
+def _subset(s: _Samples, frames: np.ndarray) -> _Samples:
+    """The samples of the usable frames ``frames`` (indices, in order), renumbered."""
+    keep = np.isin(s.frame, frames)
+    new_frame = np.full(len(s.poses), -1)
+    new_frame[frames] = np.arange(len(frames))
+    _u, line = np.unique(s.line[keep], return_inverse=True)
+    return _Samples(s.xy[keep], new_frame[s.frame[keep]], line.reshape(-1), s.head[frames],
+                    s.poses[frames], [s.names[i] for i in frames], s.stamps[frames])
+
+
+def _halves_agreement(field, camera: PerspectiveCamera, s: _Samples, c: dict) -> dict:
+    """The mount fitted on the first and on the second half of the usable frames (in time),
+    each on its own from every start: a recording whose track is right where it is used
+    gives both halves the mount of the whole; one whose track is wrong in part (a look-alike
+    place held for a stretch) fits a mount that absorbs the error, which the other half does
+    not share; so does a camera knocked during the recording. Raises FieldlocError when they
+    differ by more than REPRODUCIBLE, when a half cannot be fitted, or when a half has fewer
+    than ``min_frames`` frames. Returns both halves' corrections and their largest differences
+    (deg, deg, m)."""
+    F = len(s.poses)
+    n_min = int(c["min_frames"])
+    if F < 2 * n_min:
+        raise FieldlocError(
+            f"only {F} frames hold lines and a pose with confidence >="
+            f" {float(c['min_confidence']):g}: too few to check the mount on both halves of"
+            f" the recording (at least {2 * n_min})")
+    fits = []
+    for frames in (np.arange(F // 2), np.arange(F // 2, F)):
+        try:
+            fits.append(_fit(field, camera, _subset(s, frames), c)[0])
+        except FieldlocError as e:
+            raise FieldlocError(f"the mount could not be fitted on one half of the recording"
+                                f" alone ({e})") from None
+    diff = np.abs(fits[0] - fits[1])
+    shown = (f"pitch {math.degrees(diff[0]):.2f} deg, roll {math.degrees(diff[1]):.2f} deg,"
+             f" height {100 * diff[2]:.1f} cm")
+    if not (diff[0] <= REPRODUCIBLE[0] and diff[1] <= REPRODUCIBLE[0]
+            and diff[2] <= REPRODUCIBLE[1]):
+        raise FieldlocError(
+            f"the two halves of the recording give mounts {shown} apart: the track is likely"
+            " wrong in part (a calibration fitted to it would be too); not written")
+    return {"halves": [[round(float(v), 5) for v in f] for f in fits],
+            "halves_difference": [round(math.degrees(float(diff[0])), 4),
+                                  round(math.degrees(float(diff[1])), 4),
+                                  round(float(diff[2]), 4)]}
+
+
 def estimate_mount(field, camera: PerspectiveCamera, features, track, head=None,
                    conf: dict | None = None) -> MountEstimate:
     """The mount's correction (module doc) from every frame of a recording whose pose is
@@ -536,23 +619,7 @@ def estimate_mount(field, camera: PerspectiveCamera, features, track, head=None,
             f"only {len(s.poses)} frames hold lines and a pose with confidence >="
             f" {float(c['min_confidence']):g}: too few to calibrate the mount from (at least"
             f" {n_min})")
-    project = _Projector(camera, s)
-    screened = []
-    for start in _starts(c):
-        try:
-            m, poses, head_fix, *_rest = _joint_fit(field, project, s, c, start,
-                                                    int(c["screen_iterations"]))
-        except FieldlocError:  # a start too far off for any line to be associated
-            continue
-        if not _plausible(camera, m):
-            continue
-        screened.append((_cost(field, project, s, m, poses, head_fix, c), m, poses, head_fix))
-    if not screened:
-        raise FieldlocError("no start of the mount fit associates enough line samples: the"
-                            " poses or the calibration are too far off")
-    _cost_best, m, poses, head_fix = min(screened, key=lambda t: t[0])
-    m, poses, head_fix, se, used, rms, scale, iterations = _joint_fit(
-        field, project, s, c, m, int(c["iterations"]), poses, head_fix)
+    m, poses, head_fix, se, used, rms, scale, iterations = _fit(field, camera, s, c)
     moves = np.hypot(*(poses[:, :2] - s.poses[:, :2]).T)
     pitch_offset = camera.pitch_offset + float(m[0])
     roll_offset = camera.roll_offset + float(m[1])
@@ -562,6 +629,7 @@ def estimate_mount(field, camera: PerspectiveCamera, features, track, head=None,
             f"the estimated mount (pitch_offset {pitch_offset:+.3f}, roll_offset"
             f" {roll_offset:+.3f} rad, height {height:.3f} m) is beyond a camera's mount:"
             " refusing to write a calibration from it")
+    halves = _halves_agreement(field, camera, s, c)
     return MountEstimate(
         correction=m, standard_error=se, pitch_offset=pitch_offset, roll_offset=roll_offset,
         height=height, frames=len(s.poses), lines=int(len(np.unique(s.line))),
@@ -570,7 +638,8 @@ def estimate_mount(field, camera: PerspectiveCamera, features, track, head=None,
              "pose_shift_median_m": round(float(np.median(moves)), 4),
              "pose_shift_max_m": round(float(np.max(moves)), 4),
              "head_correction_rms_deg": [round(math.degrees(float(v)), 4) for v in
-                                         np.sqrt(np.mean(head_fix**2, axis=0))]},
+                                         np.sqrt(np.mean(head_fix**2, axis=0))],
+             **halves},
         conf=c, inputs=features_inputs(features))
 
 

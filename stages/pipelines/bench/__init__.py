@@ -40,6 +40,7 @@ _TABLE: dict[str, tuple[str, str, tuple]] = {
     "lut-hidden-run": ("hypotheses", "bench_lut_hidden", ()),
     "smooth-passes": ("smooth", "bench_smooth_passes", ()),
     "smooth-accuracy": ("smooth", "bench_smooth_accuracy", ()),
+    "mount-calibration": ("recording_calibration", "rows", ()),
     "real": ("hypotheses", "bench_real", ()),
     "import-rosbag": ("import_rosbag", "bench_import_rosbag", ()),
     "templates": ("templates", "bench_templates", ()),
