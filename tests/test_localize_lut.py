@@ -13,7 +13,9 @@ from stages.build_map import tables
 from stages.common.geometry import between, wrap_angle
 from stages.common.map_file import Grid, MapFile
 from stages.localize import lut
-from stages.localize.lut_search import Observation, _min_pooled
+from stages.localize.lut_global import full_surface
+from stages.localize.lut_search import Observation
+from stages.localize.lut_tables import _min_pooled
 
 
 def spiral_crossings(fm, sl, pose, every: int = 1) -> np.ndarray:
@@ -179,7 +181,7 @@ def test_error_lookup_agrees_with_exact_error(search):
     pose = (1.3, -2.2, 0.0)  # a table heading: no angle interpolation involved
     obs = obs_at(search, pose, rng)
     cells = rng.integers(0, search.ncell, 200)
-    fast = search._surface(obs, 0)[cells] / search.q_levels
+    fast = full_surface(search.tables, obs, 0)[cells] / search.q_levels
     exact = search.exact_error(obs, cells, 0)
     W = obs.total_weight
     diff = np.abs(fast - exact) / W
@@ -299,7 +301,7 @@ def test_tracked_fix_is_the_window_refined_supported_and_fitted(search, msl2015_
         assert window_fit == pytest.approx(score[bi, bj], rel=1e-12, abs=1e-12)
         want = search.refine(obs, (i0 + bi, j0 + bj), th)
         if math.hypot(want.x - prior[0], want.y - prior[1]) > 2 * res:
-            own = search.refine(obs, search._cell_of(prior[0], prior[1]), th)
+            own = search.refine(obs, search.cell_of(prior[0], prior[1]), th)
 
             def post(f, prior=prior, fix_T=fix_T, info=info, cap=cap):
                 d = np.array([f.x - prior[0], f.y - prior[1]])

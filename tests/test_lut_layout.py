@@ -1,4 +1,4 @@
-"""The table search's lookup (lut_search.py module doc) against plain numpy references written
+"""The table search's lookup (lut_tables.py module doc) against plain numpy references written
 here: the error lookup enumerated over every cell (its entries held to the rounded error term
 within half a level), its min-pooled copy, the surfaces summed from them, the greedy of
 separated minima and the window's best cell. The search computes the lookup's entries only
@@ -15,6 +15,7 @@ import pytest
 from stages import build_map
 from stages.common.map_file import MapFile
 from stages.common.scanlines import NO_HIT_MM
+from stages.localize.lut_global import full_surface
 from stages.localize.lut_kernels import (
     MAX_CROSSINGS,
     TILE,
@@ -24,6 +25,7 @@ from stages.localize.lut_kernels import (
     tiled_sum,
 )
 from stages.localize.lut_search import MatchingParams, Observation, TableSearch
+from stages.localize.lut_tracked import window_best
 
 
 @pytest.fixture(scope="module")
@@ -205,7 +207,7 @@ def test_window_sums_are_the_sums_of_the_observations_rows(search, reference):
         m = int(rng.integers(s.n_angles))
         full = reference_surface(s, ref, obs, m)
         # exact integers: sums of uint8 quantised errors
-        assert np.array_equal(s._surface(obs, m), full.ravel())
+        assert np.array_equal(full_surface(s.tables, obs, m), full.ravel())
         windows = [(1, 2, 3, 4), (s.ny - 3, s.ny, s.nx - 9, s.nx)]
         for _ in range(5):
             i0, j0 = rng.integers(0, s.ny - 1), rng.integers(0, s.nx - 1)
@@ -218,7 +220,7 @@ def test_window_sums_are_the_sums_of_the_observations_rows(search, reference):
         # the min-pooled lookup's sums (tiled_sum) are its rows' sums too
         cy, cx = s.coarse_shape
         out = np.empty((cy, cx), np.uint16)
-        tiled_sum(s.min_pooled, s._observed(obs), m, (0, cy, 0, cx), out)
+        tiled_sum(s.min_pooled, s.tables.observed(obs), m, (0, cy, 0, cx), out)
         # exact integers: uint8 / uint16 values and their integer sums
         assert np.array_equal(out, pooled[s.lookup_rows(obs, m)].astype(np.int64).sum(axis=0))
 
@@ -282,7 +284,7 @@ def test_the_windows_best_cell_is_the_least_posterior_score(search, reference):
         score = full[i0:i1, j0:j1] * (1.0 / (s.q_levels * T)) + np.minimum(q2, cap)
         got = s.tracked_score(obs, theta, prior, info, T, half_width=1.0, prior_cap=cap)
         assert got == pytest.approx(score.min(), rel=1e-12, abs=1e-12)
-        best, _ = s._tracked_window(obs, theta, prior, info, T, 1.0, cap)
+        best, _ = window_best(s.tables, obs, theta, prior, info, T, 1.0, cap)
         assert best == (i0 + np.argmin(score) // (j1 - j0)) * s.nx + j0 + np.argmin(score) % (
             j1 - j0)
         local = s.local_search(obs, theta, prior, half_width=1.0, refine=False)

@@ -262,7 +262,7 @@ class GridLocaliser:
         rc.frames += 1
         if rc.frames % max(1, rc.every):
             return
-        cell = self.search._cell_of(fix.x, fix.y)
+        cell = self.search.cell_of(fix.x, fix.y)
         rc.update(raw_distance, self.search.observation_predictions(obs, cell, fix.theta))
 
     def failed(self, dt: float, odo, collision: bool) -> None:

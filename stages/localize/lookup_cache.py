@@ -1,6 +1,6 @@
 """Arrays the table search derives from a map, on disk beside the map, so that a process maps
 them in milliseconds instead of computing them again: the scan-line tables in millimetres and
-the min-pooled error lookup of stages.localize.lut_search (25 + 41 MB and about 1 s on
+the min-pooled error lookup of stages.localize.lut_tables (25 + 41 MB and about 1 s on
 msl-2015, in every process of every run; the full error lookup, 352 MB, is computed from the
 tables where a search reads it and not stored), and the 2 cm line-distance raster of
 stages.localize.point_fit (3.5 MB, 0.2-0.5 s).

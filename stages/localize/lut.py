@@ -1,7 +1,7 @@
 """Method ``lut``: localisation in the scan-line tables of Ribeiro et al. (2015), as ranked
 hypotheses with a probability each.
 
-The matching is the paper's (lut_search.py): per observed crossing distance the error to the
+The matching is the paper's (lut_matching.py): per observed crossing distance the error to the
 table entry of its scan line, weighted by rho(e) = 1 - c^2 / (c^2 + e^2), nearer points weighing
 more; E(pose) is the sum, in units of full-weight observations. This module turns E into a
 belief through the tempered likelihood, combined with the motion's prior:
@@ -174,7 +174,7 @@ VISION_SIGMA_XY_M = 0.01  # m, smallest position sigma of a well-constrained fix
 # its sigma per m of its inliers' rms error (vision_covariance; fused poses consistent with
 # their covariance, NEES, docs/manual.md)
 VISION_RMS_FACTOR = 2.5
-# the table search's matching (lut_search.py)
+# the table search's matching (lut_matching.py)
 SEARCH = MatchingParams(
     c=0.25,  # m, scale of 1 - c^2 / (c^2 + e^2)
     range_scale=2.0,  # m, weight 1 / (1 + (d / range_scale)^2): nearer weigh more
@@ -705,7 +705,7 @@ class LutLocaliser:
         if pose is None:
             return
         pred = self.search.observation_predictions(
-            obs, self.search._cell_of(float(pose[0]), float(pose[1])), float(pose[2]))
+            obs, self.search.cell_of(float(pose[0]), float(pose[1])), float(pose[2]))
         self.radial.update(raw_distance, pred)
 
     def _track_imu_offset(self, i, obs, top: LutCandidate, col):
@@ -762,7 +762,7 @@ class LutScorer(PathCalibration):
         loc = self.loc
         fr, _obs = self._frame(i)
         raw, _d = frame_observations(fr, loc.search, None, EVIDENCE)
-        cell = loc.search._cell_of(float(pose[0]), float(pose[1]))
+        cell = loc.search.cell_of(float(pose[0]), float(pose[1]))
         return raw.distance, loc.search.observation_predictions(raw, cell, float(pose[2]))
 
     def _frame(self, i: int):

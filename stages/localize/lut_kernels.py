@@ -1,6 +1,6 @@
 """The numba kernels of the table search (lut_search.py): compiled once, cached on disk.
 
-They follow the definitions of lut_search.py's module doc exactly: the same float32 arithmetic
+They follow lut_matching.py's and lut_tables.py's definitions exactly: the same float32 arithmetic
 per observation, sums over observations accumulated in float64. The tables are the map's
 (uint16 millimetres; ``metres`` gives an entry in metres as the float32 tables had it). The
 kernels take a few named bundles: ``Quantised`` (the tables, the quantised errors and the
@@ -53,7 +53,7 @@ U1, U2, U3, U4 = np.uint64(1), np.uint64(2), np.uint64(3), np.uint64(MAX_CROSSIN
 
 
 class Quantised(NamedTuple):
-    """The error lookup of lut_search.py's module doc, computed on the fly: the map's tables
+    """The error lookup of lut_tables.py's module doc, computed on the fly: the map's tables
     (uint16 mm, scan-line-major: ``radial`` flat (line, cell, crossing), ``spiral`` flat
     (line, cell)) and per distance bin the quantised error of every table value
     (``values``, uint8, rows of ``width`` = NO_HIT_MM + 1: the radial bins, then the spiral
@@ -111,7 +111,7 @@ class At(NamedTuple):
     """Where on the table headings a frame is scored: ``m`` the nearest table heading (the
     quantised surfaces'), and for the exact error the table heading ``m0`` below the
     heading with the fraction ``a`` of the step to it, the predictions interpolated
-    between m0 and m0 + 1 when ``interpolate`` (lut_search ``exact_error_at_heading``)."""
+    between m0 and m0 + 1 when ``interpolate`` (LutTables ``exact_error_at_heading``)."""
 
     m: int
     m0: int
@@ -176,7 +176,7 @@ class LineFit(NamedTuple):
 # entry: NO_HIT_MM) as NONE_M: the float32 product mm * 0.001 the search has always used,
 # read where the exact error needs it (one load where converting would cost a few operations
 # per crossing; 64 kB, frozen into the compiled kernels)
-MAX_MM = 16383  # tables of scan lines reaching farther are refused (TableSearch)
+MAX_MM = 16383  # tables of scan lines reaching farther are refused (LutTables)
 METRES = np.arange(MAX_MM + 1).astype(np.float32) * np.float32(1e-3)
 METRES[MAX_MM] = NONE_M
 
@@ -223,7 +223,7 @@ def line_prediction(q, fam, r0, r1, d, c, br):
     lines start at r0, r1 (``line_offsets``) at flat cell ``c``: at table heading m0 the
     nearest crossing of its scan line (not interpolating); between m0 and m0 + 1 (``br``:
     ``bracket``, fraction a32 = 1 - b32) the angle-interpolated prediction
-    (``TableSearch.exact_error_at_heading``)."""
+    (``LutTables.exact_error_at_heading``)."""
     a32, b32, upper, interpolate = br
     tol = q.pair_tol
     if fam == 0:
@@ -302,7 +302,7 @@ def observation_predictions_cell(q, obs, at, cell, out):
 
 @njit(cache=True, nogil=True)
 def refine_moves(q, obs, at, grid, i, j, max_moves, out):
-    """The cell search of ``TableSearch.refine``: the exact error (``exact_error_cells``) on
+    """The cell search of ``lut_local.refine``: the exact error (``exact_error_cells``) on
     the 3 x 3 cells around (i, j) (clipped to the grid, row-major, into ``out`` (9,)), moving
     to the lowest while it is not the centre, at most ``max_moves`` times; after a move only
     the cells new to the patch are evaluated. Returns the final cell as the flat index
@@ -361,7 +361,7 @@ def refine_moves(q, obs, at, grid, i, j, max_moves, out):
 @njit(cache=True, nogil=True, inline="always")
 def lookup_row(p, fam, ai, b, m):
     """The error lookup's row of an observation (family ``fam``, scan line ``ai``, distance
-    bin ``b``) at table heading m in the layout of ``p`` (MinPooled): TableSearch.lookup_rows
+    bin ``b``) at table heading m in the layout of ``p`` (MinPooled): LutTables.lookup_rows
     for one observation."""
     k = (ai + m) % p.n_angles
     if fam == 0:
@@ -662,7 +662,7 @@ def tracked_window(q, p, rows, m, win, grid, post):
 
 @njit(cache=True, nogil=True)
 def refine_cell(q, obs, at, grid, i, j, max_moves, total_weight, out):
-    """``TableSearch.refine`` from cell (i, j): at most ``max_moves`` cell moves
+    """``lut_local.refine`` from cell (i, j): at most ``max_moves`` cell moves
     (``refine_moves``), then the quadratic fit of the last 3 x 3 patch, into ``out`` (9,): x,
     y, error, error_norm, cell i, cell j, and the Hessian of error_norm hxx, hxy, hyy
     (m^-2)."""
@@ -688,7 +688,7 @@ def refine_cell(q, obs, at, grid, i, j, max_moves, total_weight, out):
 
 @njit(cache=True, nogil=True)
 def tracked_fix(q, p, obs, at, win, grid, post, rule, fit, out):
-    """A track's fix in one call (``TableSearch.tracked_fix``): the window's best cell by
+    """A track's fix in one call (``lut_tracked.tracked_fix``): the window's best cell by
     the posterior score (``tracked_window`` at table heading m), refined to sub-cell in its
     basin (``refine_cell`` at the heading m0 / a); when that lies more than two cells from
     the prior (px, py), the basin the prior lies in refined too and kept when its exact
@@ -724,7 +724,7 @@ def tracked_fix(q, p, obs, at, win, grid, post, rule, fit, out):
             out[:9] = own
             out[9] = 0.0
             out[11] = 1.0
-    # the support at the cell nearest the fix (TableSearch.support)
+    # the support at the cell nearest the fix (LutTables.support)
     ci = min(max(int(np.rint((out[1] - y0) / res)), 0), ny - 1)
     cj = min(max(int(np.rint((out[0] - x0) / res)), 0), nx - 1)
     errors = np.empty(obs.dist.shape[0])

@@ -178,8 +178,9 @@ def predicted_distances(search: TableSearch, obs: Observation, pose, span: float
     crossing) or "none" (no crossing) is not valid. Returns (p (n,), J (n, 3), valid (n,))."""
     x, y, theta = (float(v) for v in pose)
     res = search.grid.resolution
-    fy = (y - search._y0) / res
-    fx = (x - search._x0) / res
+    x0, y0 = (float(v) for v in search.grid.origin)
+    fy = (y - y0) / res
+    fx = (x - x0) / res
     i0 = min(max(math.floor(fy), 0), search.ny - 2)
     j0 = min(max(math.floor(fx), 0), search.nx - 2)
     ty = min(max(fy - i0, 0.0), 1.0)
