@@ -120,7 +120,7 @@ def test_heading_conventions_radial_and_spiral():
     assert np.all(np.abs(f["points"][:, 1] - d) <= 0.06)
     checked = 0
     for direction in (0, 1):
-        for k in range(0, 72, CONF["spiral_start_step"]):
+        for k in range(0, 72, omni.SPIRAL_START_STEP):
             expect = first_spiral_crossing(direction, k, math.pi / 2, d, min_angle_deg=20)
             got = f["spiral"][direction, k]
             if expect is None:
@@ -143,10 +143,11 @@ def test_up_to_four_crossings_nearest_first():
 
 
 def test_runs_narrower_than_the_minimum_are_ignored():
+    """Narrower than RUNS.min_white_m (3 cm): ignored; a line twice as wide is found."""
     img = draw(line_band(0.0, 0.6, width=0.02))  # a 2 cm stripe: ~2-3 px here
     assert np.isnan(omni.extract_frame(img, CAMERA, CONF)["radial"][0, 0])
-    loose = {**CONF, "min_white_m": 0.005}
-    assert abs(omni.extract_frame(img, CAMERA, loose)["radial"][0, 0] - 0.6) <= 0.02
+    img = draw(line_band(0.0, 0.6, width=0.04))
+    assert abs(omni.extract_frame(img, CAMERA, CONF)["radial"][0, 0] - 0.6) <= 0.02
 
 
 def test_white_without_green_on_both_sides_or_too_wide_is_ignored():
@@ -266,7 +267,7 @@ def test_main_writes_features_records_bad_frame_and_resumes(tmp_path, caplog):
         assert ff.failures == []
     # another conf cannot be mixed into the same file
     with pytest.raises(FieldlocError, match="another conf"):
-        extract.main({"min_white_m": 0.05}, ds, out)
+        extract.main({"max_white_m": 0.5}, ds, out)
 
 
 def test_failed_frame_is_retried_on_resume(tmp_path):

@@ -1052,9 +1052,10 @@ CASES = [
         ("init_spread=[0.3,-0.3,0.2]", "conf 'init_spread[1]' must be >= 0"))],
     *[Case(f"extract -c {kv}", "traceback", ["extract", "{omni}", "-o", W + "/f.h5", "-c", kv],
            1, msg) for kv, msg in (
-        ("sample_step_px=0", "conf 'sample_step_px' must be > 0 and <= 10"),
-        ("colour.local_cell=0", "conf 'colour.local_cell' must be >= 1 and <= 64"),
-        ("spiral_start_step=0", "conf 'spiral_start_step' must be >= 1 and <= 72"))],
+        ("scanlines.max_range=0", "conf 'scanlines.max_range' must be > 0 and <= 50"),
+        ("colour.green_axes=0", "conf 'colour.green_axes' must be a list of 2 numbers"),
+        ("scanlines.spiral_end_radius=0",
+         "conf 'scanlines.spiral_end_radius' must be > 0 and <= 50"))],
     # the perspective extractor, the templates method and build-templates: refused
     # when the conf is resolved, before any input is read (the templates file is not there)
     *[Case(f"extract perspective -c {kv}", kind, ["extract", "{kid}", "-o", W + "/f.h5", "-c",

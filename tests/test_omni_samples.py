@@ -29,7 +29,7 @@ from stages.common.dataset import open_dataset, read_image
 from stages.extract import omni
 
 CONF = omni.confs["default"]
-CCONF = CONF["colour"]
+CCONF = omni.colour_conf(CONF)  # the full colour conf the extractor passes on
 
 
 def test_yuv_of_the_pixels_is_opencvs():
@@ -174,8 +174,8 @@ def test_scanline_pixels_are_cached_per_calibration_and_conf():
     a = omni.scanline_pixels(CAMERA, CONF)
     assert omni.scanline_pixels(CAMERA, CONF) is a
     assert omni.scanline_pixels(copy.deepcopy(CAMERA), copy.deepcopy(CONF)) is a
-    other = omni.scanline_pixels(CAMERA, {**CONF, "sample_step_px": 1.0})
-    assert other is not a and other.size < a.size
+    other = omni.scanline_pixels(CAMERA, {**CONF, "points_radial_lines": 36})
+    assert other is not a and other.size > a.size
     assert omni.scanline_pixels(CAMERA, CONF) is a
 
 

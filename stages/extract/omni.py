@@ -7,7 +7,7 @@ The scan lines are the ones of the tables (stages.common.scanlines.ScanLines): 7
 through the calibration (stages.common.camera.OmniCamera):
 
 - once per calibration (``ScanLinePixels``, cached): every scan line is sampled densely in the
-  image (radial lines along their image ray at ``sample_step_px``, spirals from their ground
+  image (radial lines along their image ray at ``SAMPLE_STEP_PX``, spirals from their ground
   polyline resampled to the same pixel spacing), rounded to pixels, consecutive duplicates
   removed; each pixel keeps the ground position of the samples it holds (robot frame, metres),
   its ground distance from the robot centre and the ground arc length along its scan line;
@@ -17,7 +17,8 @@ through the calibration (stages.common.camera.OmniCamera):
   the few that the field green and the local green map are estimated from, the whole-frame
   estimates' (stages.common.colour's pixel samples: compiled, no whole-frame pass); then run
   detection on the concatenated class sequence (one compiled pass,
-  ``_white_runs``). Short holes are closed first (up to ``white_hole_px`` non-white
+  ``_white_runs``; its thresholds are ``RUNS``, tuned constants, and the preset's
+  ``max_white_m``). Short holes are closed first (up to ``white_hole_px`` non-white
   pixels between white ones, up to ``max_gap_px`` unclassified pixels between green ones),
   then a crossing is a white run with a green run (>= ``min_green_px`` pixels and >=
   ``min_green_m``) before and after it, allowing up to ``max_gap_px`` unclassified pixels
@@ -31,7 +32,7 @@ through the calibration (stages.common.camera.OmniCamera):
   first crossing is unseen and the spiral reports none (on rendered frames this keeps 97 % of
   the reported spirals within 5 cm of the table instead of 72 %).
 
-Only every ``spiral_start_step``-th spiral start angle is walked (2: 36 spirals each way, 10 deg
+Only every ``SPIRAL_START_STEP``-th spiral start angle is walked (2: 36 spirals each way, 10 deg
 apart, as in the paper); the others stay NaN. Radial crossings closer together than the
 extraction can separate merge into one white run (rejected if deeper than ``max_white_m``).
 
@@ -54,6 +55,7 @@ import copy
 import dataclasses
 import hashlib
 import math
+from types import MappingProxyType
 from typing import NamedTuple
 
 import numpy as np
@@ -64,27 +66,37 @@ from ..common.scanlines import ScanLines
 
 _SL = ScanLines()
 
+# the colour classes (stages.common.colour, whose defaults the perspective extractor's COLOUR
+# shares): its defaults, read only; the preset's "colour" group holds the keys a user sets for
+# a venue (USER_COLOUR_KEYS), laid over these by colour_conf
+COLOUR = MappingProxyType(copy.deepcopy(colour.confs["default"]))
+# the minimum green ellipse: a camera whose chroma noise speckles the carpet needs a wider one
+# (docs/team-formats.md, the NuBot frame: -c colour.green_axes=[24,24])
+USER_COLOUR_KEYS = ("green_axes",)
+
+# px, the sampling of a scan line in the image before rounding to pixels: half a pixel, so that
+# consecutive samples fall on the same or a neighbouring pixel (duplicates are merged)
+SAMPLE_STEP_PX = 0.5
+# walk every 2nd spiral start angle: 36 spirals each way, 10 deg apart, as in Ribeiro et al.
+# (2015); the others stay NaN
+SPIRAL_START_STEP = 2
+
+# What the user chooses; the tuned numbers are named constants beside their code: COLOUR,
+# SAMPLE_STEP_PX, SPIRAL_START_STEP and RUNS (the run detection's thresholds).
 confs = {
     "default": {
-        "colour": copy.deepcopy(colour.confs["default"]),
+        # the venue's colour keys (USER_COLOUR_KEYS; the others are COLOUR's)
+        "colour": {k: copy.deepcopy(COLOUR[k]) for k in USER_COLOUR_KEYS},
         # the scan lines; must equal the map's (stages.build_map conf)
         "scanlines": {
             "robot_radius": _SL.robot_radius,
             "max_range": _SL.max_range,
             "spiral_end_radius": _SL.spiral_end_radius,
         },
-        "sample_step_px": 0.5,  # sampling of a scan line in the image before rounding
-        "min_green_px": 2,  # green run before and after a white run: pixels ...
-        "min_green_m": 0.04,  # ... and ground metres along the line
-        "max_gap_px": 3,  # unclassified pixels allowed between green and white (blurred edges)
-        "white_hole_px": 2,  # non-white pixels inside a white run that are closed
-        "start_margin_m": 0.15,  # white this near a spiral's start that is no crossing blocks
-        # the spiral (the robot stands on or next to a line: its first crossing is unseen)
-        "min_white_px": 1,  # white run: at least this many pixels ...
-        "min_white_m": 0.03,  # ... and this wide on the ground (m) ...
-        "max_white_m": 0.4,  # ... and at most this wide (m) ...
-        "far_white_px": 2,  # ... unless it is at most this many pixels long
-        "spiral_start_step": 2,  # walk every 2nd spiral start angle (seed: 36 each way, 10 deg)
+        # m, the deepest white run that is a crossing (how far it reaches away from the robot;
+        # runs of up to RUNS.far_white_px pixels always pass): deeper white is wider than any
+        # line (a white patch, a graze along a line)
+        "max_white_m": 0.4,
         "points_radial_lines": 0,  # extra radial lines (evenly spaced) for `points`; 0 = none
     },
 }
@@ -98,14 +110,17 @@ confs["real"] = {**copy.deepcopy(confs["default"]), "max_white_m": 0.6}
 
 
 # the ranges the extractor's numeric keys must lie in to run at all (common.conf.check_bounds,
-# checked when the conf is resolved): a zero sample step or spiral step or block size divides
-# by zero, a range of 0 m leaves no scan line, a block of 1e12 px compiles nothing (the colour
-# keys' ranges are colour.BOUNDS: a pair given one number unpacks into nothing)
-BOUNDS = {"sample_step_px": ((0,), 10.0), "spiral_start_step": (1, 72),
-          **{f"colour.{k}": b for k, b in colour.BOUNDS.items()},
+# checked when the conf is resolved): a range of 0 m leaves no scan line (the colour keys'
+# ranges are colour.BOUNDS: a pair given one number unpacks into nothing)
+BOUNDS = {**{f"colour.{k}": colour.BOUNDS[k] for k in USER_COLOUR_KEYS},
           "scanlines.robot_radius": (0, None),
           "scanlines.max_range": ((0,), 50.0), "scanlines.spiral_end_radius": ((0,), 50.0),
           "points_radial_lines": (0, 3600)}
+
+
+def colour_conf(conf: dict) -> dict:
+    """The full colour conf the colour functions take: COLOUR with the conf's venue keys."""
+    return {**COLOUR, **conf["colour"]}
 
 
 def scanlines_of(conf: dict) -> ScanLines:
@@ -233,7 +248,7 @@ def build_scanline_pixels(camera, conf: dict, mask: np.ndarray | None = None) ->
     """Sample every scan line of ``conf`` in the image of ``camera`` (see module doc).
     ``mask``: optional bool (h, w), True where the image shows usable floor."""
     sl = scanlines_of(conf)
-    step = float(conf["sample_step_px"])
+    step = float(SAMPLE_STEP_PX)
     w, h = camera.image_size
     cu, cv_ = camera.centre
     d_max = min(sl.max_range, camera.max_distance)
@@ -270,7 +285,7 @@ def build_scanline_pixels(camera, conf: dict, mask: np.ndarray | None = None) ->
     n_turn = int(math.ceil(2 * math.pi * max(r_end_px, 1.0) / step)) + 1
     dense = dataclasses.replace(sl, spiral_samples_per_turn=max(n_turn, sl.spiral_samples_per_turn))
     for direction in (0, 1):
-        for k in range(0, sl.n_angles, int(conf["spiral_start_step"])):
+        for k in range(0, sl.n_angles, SPIRAL_START_STEP):
             pts = dense.spiral_points(direction, k)
             rad = np.hypot(pts[:, 0], pts[:, 1])
             keep = rad <= d_max
@@ -298,7 +313,7 @@ def build_scanline_pixels(camera, conf: dict, mask: np.ndarray | None = None) ->
     # the field green's and the local green map's pixels, as estimate_field_colour takes them
     # of the floor annulus: every FIELD_COLOUR_STEP-th of every FIELD_COLOUR_STEP-th row, and
     # 2 x 2 per block
-    cell = int(conf["colour"]["local_cell"])
+    cell = int(COLOUR["local_cell"])
 
     def floor_grid(step, stop_v, stop_u):
         gv, gu = np.mgrid[0:stop_v:step, 0:stop_u:step]
@@ -331,14 +346,13 @@ def _frozen(value):
 
 
 def _cache_key(camera, conf, mask) -> tuple:
-    """What ScanLinePixels depends on: the calibration, the scan-line conf, the local green
-    cell and the mask (a digest). Built every frame, so without serialising anything."""
+    """What ScanLinePixels depends on: the calibration, the scan-line conf and the mask (a
+    digest). Built every frame, so without serialising anything."""
     return (_frozen(camera.to_dict()), _frozen({k: conf[k] for k in _SCANLINE_KEYS}),
-            conf["colour"]["local_cell"],
             None if mask is None else hashlib.sha256(np.packbits(mask)).hexdigest())
 
 
-_SCANLINE_KEYS = ("scanlines", "sample_step_px", "spiral_start_step", "points_radial_lines")
+_SCANLINE_KEYS = ("scanlines", "points_radial_lines")
 # the last call's camera, mask, calibration, scan-line values and result: the frames of a
 # dataset come with the same objects
 _LAST: dict = {}
@@ -350,7 +364,7 @@ def scanline_pixels(camera, conf: dict, mask: np.ndarray | None = None) -> ScanL
     scan-line values unchanged, take the last result without building the key (a mask array
     is recognised as the same object: one changed in place is not noticed)."""
     calib = camera.to_dict()
-    values = [conf[k] for k in _SCANLINE_KEYS] + [conf["colour"]["local_cell"]]
+    values = [conf[k] for k in _SCANLINE_KEYS]
     last = _LAST.get("call")
     if (last is not None and last[0] is camera and last[1] is mask and last[2] == calib
             and last[3] == values):
@@ -372,7 +386,7 @@ def classify_scanlines(image_bgr: np.ndarray, pix: ScanLinePixels, conf: dict):
     colour, without a whole-frame pass (stages.common.colour's pixel samples): the field green
     from ``pix.colour_flat``, the local green map from ``pix.map_flat``, then the YUV values
     and classes of the scan-line pixels."""
-    ccfg = conf["colour"]
+    ccfg = colour_conf(conf)
     m, n_map = len(pix.pixels), len(pix.map_flat)
     rows = colour.yuv_rows_at(image_bgr, pix.read_flat)  # (one gather, one conversion)
     fc = colour.field_colour_of_samples(rows[m + n_map:], ccfg)
@@ -395,8 +409,31 @@ class ScanGeometry(NamedTuple):
     line_start_s: np.ndarray
 
 
+class RunTuning(NamedTuple):
+    """The tuned thresholds of a crossing (module doc), all but the preset's max_white_m. Set
+    with the extractor and held since by the drawn-geometry tests (tests/test_extract_omni.py:
+    line widths, grey edges, lighting) and the table agreement on rendered frames
+    (tests/test_extract_omni.py, docs/results.md)."""
+
+    min_green_px: int  # green run before and after a white run: pixels ...
+    min_green_m: float  # ... and ground metres along the line
+    max_gap_px: int  # unclassified pixels allowed between green and white (blurred edges)
+    white_hole_px: int  # non-white pixels inside a white run that are closed
+    # m: white this near a spiral's start that is no crossing blocks the spiral (the robot
+    # stands on or next to a line: its first crossing is unseen)
+    start_margin_m: float
+    min_white_px: int  # white run: at least this many pixels ...
+    min_white_m: float  # ... and this wide on the ground (m) ...
+    far_white_px: int  # ... and at most max_white_m deep unless at most this many pixels long
+
+
+RUNS = RunTuning(min_green_px=2, min_green_m=0.04, max_gap_px=3, white_hole_px=2,
+                 start_margin_m=0.15, min_white_px=1, min_white_m=0.03, far_white_px=2)
+
+
 class RunRules(NamedTuple):
-    """The conf's thresholds of a crossing (module doc), for compiled code."""
+    """The thresholds of a crossing (module doc) for compiled code: RUNS and the conf's
+    max_white_m."""
 
     min_green_px: int
     min_green_m: float
@@ -410,8 +447,7 @@ class RunRules(NamedTuple):
 
     @classmethod
     def of(cls, conf: dict) -> RunRules:
-        return cls(**{k: int(conf[k]) if k.endswith("_px") else float(conf[k])
-                      for k in cls._fields})
+        return cls(max_white_m=float(conf["max_white_m"]), **RUNS._asdict())
 
 
 @dataclasses.dataclass

@@ -19,6 +19,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from stages.common import colour
+from stages.extract import omni
 
 
 def floor_annulus(camera, pix, mask=None) -> np.ndarray:
@@ -34,7 +35,7 @@ def floor_annulus(camera, pix, mask=None) -> np.ndarray:
 def whole_image_classes(image_bgr, camera, pix, conf, mask=None):
     """(classes of the scan-line samples (one per sample, in line order), field colour)
     with the field green and the local green map of the whole frame."""
-    ccfg = conf["colour"]
+    ccfg = omni.colour_conf(conf)
     yuv = colour.to_yuv(image_bgr)
     fc = colour.estimate_field_colour(yuv, ccfg, floor_annulus(camera, pix, mask))
     labels = colour.classify_pixels(yuv, pix.pixels[pix.sample_pixel],
@@ -56,6 +57,7 @@ def _runs(labels, line):
 def white_runs(labels, pix, conf):
     """Accepted white runs: SimpleNamespace(line, mid_s, width, length, blocked (bool per
     line)), in order along the concatenated lines."""
+    rules = omni.RunRules.of(conf)._asdict()  # the thresholds: RUNS and the conf's max_white_m
     start, end, cls, line = _runs(labels, pix.line)
     nr = len(start)
     if nr >= 3:  # close holes, decided on the runs as found
@@ -65,9 +67,9 @@ def white_runs(labels, pix, conf):
         nb = np.empty_like(cls)
         nb[1:-1] = cls[:-2]
         fill = inner & (((nb == colour.WHITE) & (cls != colour.WHITE)
-                         & (length <= conf["white_hole_px"]))
+                         & (length <= rules["white_hole_px"]))
                         | ((nb == colour.GREEN) & (cls == colour.OTHER)
-                           & (length <= conf["max_gap_px"])))
+                           & (length <= rules["max_gap_px"])))
         if fill.any():
             cls = np.where(fill, nb, cls)
             start, end, cls, line = _runs(np.repeat(cls, length), pix.line)
@@ -80,7 +82,7 @@ def white_runs(labels, pix, conf):
         idx = np.arange(nr) + direction
         inside = (idx >= 0) & (idx < nr)
         idx = np.clip(idx, 0, nr - 1)
-        gap = inside & (cls[idx] == colour.OTHER) & (length[idx] <= conf["max_gap_px"]) & (
+        gap = inside & (cls[idx] == colour.OTHER) & (length[idx] <= rules["max_gap_px"]) & (
             line[idx] == line)
         idx2 = np.clip(idx + direction * gap, 0, nr - 1)
         inside2 = inside & (idx + direction * gap >= 0) & (idx + direction * gap < nr)
@@ -88,8 +90,8 @@ def white_runs(labels, pix, conf):
 
     prev, prev_ok = neighbour(-1)
     nxt, nxt_ok = neighbour(+1)
-    is_green = (cls == colour.GREEN) & (length >= conf["min_green_px"]) & (
-        s[end] - s[start] >= conf["min_green_m"])
+    is_green = (cls == colour.GREEN) & (length >= rules["min_green_px"]) & (
+        s[end] - s[start] >= rules["min_green_m"])
     cand = ((cls == colour.WHITE) & prev_ok & nxt_ok & (line[prev] == line) & (line[nxt] == line)
             & is_green[prev] & is_green[nxt])
     j = np.flatnonzero(cand)
@@ -99,15 +101,15 @@ def white_runs(labels, pix, conf):
     dist = pix.dist
     depth = np.abs(0.5 * (dist[end[j]] + dist[start[nxt[j]]])
                    - 0.5 * (dist[end[prev[j]]] + dist[start[j]]))
-    ok = ((length[j] >= conf["min_white_px"]) & (width >= conf["min_white_m"])
-          & ((depth <= conf["max_white_m"]) | (length[j] <= conf["far_white_px"])))
+    ok = ((length[j] >= rules["min_white_px"]) & (width >= rules["min_white_m"])
+          & ((depth <= rules["max_white_m"]) | (length[j] <= rules["far_white_px"])))
     accepted = np.zeros(nr, bool)
     accepted[j[ok]] = True
     first_acc = np.full(pix.n_lines, nr)
     acc = np.flatnonzero(accepted)
     np.minimum.at(first_acc, line[acc], acc)
-    before = (np.arange(nr) < first_acc[line]) & (s[end] - s[start] >= conf["min_white_m"])
-    near_start = s[start] - pix.line_start_s[line] <= conf["start_margin_m"]
+    before = (np.arange(nr) < first_acc[line]) & (s[end] - s[start] >= rules["min_white_m"])
+    near_start = s[start] - pix.line_start_s[line] <= rules["start_margin_m"]
     blocked = np.zeros(pix.n_lines, bool)
     blocked[line[(cls == colour.WHITE) & ~accepted & (before | near_start)]] = True
     j = j[ok]
