@@ -57,7 +57,9 @@ import json
 import logging
 import math
 import os
+from collections.abc import Callable
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -450,15 +452,13 @@ def check_write_calib(path, conf, dataset, points, output, given: dict, overwrit
     if points is not None:
         raise FieldlocError("--write-calib learns the camera's calibration from the frames'"
                             " features: it needs a features file, not --points")
-    if kind == "omni" and conf["method"] not in ("lut", "fit"):
-        raise FieldlocError("--write-calib learns the omni mirror's distance error: it needs"
-                            " --method lut or fit on a features file (not --points)")
-    if kind == "perspective" and conf["method"] != "mcl":
-        raise FieldlocError("--write-calib learns a perspective camera's mount (pitch and roll"
-                            " offsets, height): it needs --method mcl")
-    if kind not in ("omni", "perspective"):
+    learnt = RECORDING_CALIBRATIONS.get(kind)
+    if learnt is None:
         raise FieldlocError(f"{dataset.root}: --write-calib corrects an omni or perspective"
                             f" calib.yaml, this dataset's camera is '{kind}'")
+    if conf["method"] not in learnt.methods:
+        raise FieldlocError(f"--write-calib learns {learnt.what}: it needs --method"
+                            f" {' or '.join(learnt.methods)}")
     path = Path(path)
     own = dataset.root / "calib.yaml"
     if path.exists() and own.exists() and path.resolve() == own.resolve():
@@ -470,36 +470,74 @@ def check_write_calib(path, conf, dataset, points, output, given: dict, overwrit
 
 def _write_calib(path, conf, dataset, feats, track, map_file, output) -> None:
     """The dataset's calib.yaml corrected by what ``track`` shows of its error, written to
-    ``path``: the omni mirror's distance error (mirror_calibration.py) or the perspective
-    camera's mount (mount_calibration.py)."""
+    ``path`` by the camera kind's RECORDING_CALIBRATIONS entry."""
     import yaml
 
     own = dataset.root / "calib.yaml"
     calib = yaml.safe_load(own.read_text())
     camera = dataset.camera()
-    if camera.kind == "perspective":
-        from ..common.head_angles import head_table
-        from . import mount_calibration as mount
+    RECORDING_CALIBRATIONS[camera.kind].write(
+        path, calib, _CalibrationRun(dataset, camera, feats, track, map_file,
+                                     {"source": str(_abs(output)),
+                                      "sources": {"dataset": _abs(dataset.root)}}))
 
-        estimate = mount.estimate_mount(map_file.field, camera, feats, track,
-                                        head_table(dataset))
-        new = mount.corrected_calibration(calib, estimate, source=str(_abs(output)),
-                                          sources={"dataset": _abs(dataset.root)})
-        mount.write_corrected_calib(path, new, dataset_calib=own)
-        log.info("calibration from the recording -> %s (pitch_offset %+.4f, roll_offset %+.4f"
-                 " rad, height %.4f m)", path, estimate.pitch_offset, estimate.roll_offset,
-                 estimate.height)
-        return
+
+class _CalibrationRun(NamedTuple):
+    """What a calibration from a run learns from: the dataset and its camera, the features,
+    the run's track, the map, and where the written calibration says it came from."""
+
+    dataset: object
+    camera: object
+    feats: object
+    track: object
+    map_file: MapFile
+    record: dict  # corrected_calibration's source and sources
+
+
+def _write_mount(path, calib: dict, run: _CalibrationRun) -> None:
+    """A perspective camera's mount and height (mount_calibration.py)."""
+    from ..common.head_angles import head_table
+    from . import mount_calibration as mount
+
+    estimate = mount.estimate_mount(run.map_file.field, run.camera, run.feats, run.track,
+                                    head_table(run.dataset))
+    new = mount.corrected_calibration(calib, estimate, **run.record)
+    mount.write_corrected_calib(path, new, dataset_calib=run.dataset.root / "calib.yaml")
+    log.info("calibration from the recording -> %s (pitch_offset %+.4f, roll_offset %+.4f"
+             " rad, height %.4f m)", path, estimate.pitch_offset, estimate.roll_offset,
+             estimate.height)
+
+
+def _write_mirror(path, calib: dict, run: _CalibrationRun) -> None:
+    """An omni mirror's distance error (mirror_calibration.py)."""
     from . import mirror_calibration as mc
     from .lut import SEARCH, table_search
 
-    search = table_search(map_file, SEARCH)
-    error = mc.estimate_distance_error(search, feats, track)
-    new = mc.corrected_calibration(calib, error, source=str(_abs(output)),
-                                   sources={"dataset": _abs(dataset.root)})
-    mc.write_corrected_calib(path, new, dataset_calib=own)
+    error = mc.estimate_distance_error(table_search(run.map_file, SEARCH), run.feats,
+                                       run.track)
+    new = mc.corrected_calibration(calib, error, **run.record)
+    mc.write_corrected_calib(path, new, dataset_calib=run.dataset.root / "calib.yaml")
     log.info("calibration from the recording -> %s (e(d) at 1/2/3 m: %s)", path,
              ", ".join(f"{float(error(d)):+.3f}" for d in (1.0, 2.0, 3.0)))
+
+
+class RecordingCalibration(NamedTuple):
+    """A calibration ``--write-calib`` learns from a run's poses: what it learns (said in
+    refusals), the methods whose poses and features it learns from, and its writer."""
+
+    what: str
+    methods: tuple[str, ...]
+    write: Callable
+
+
+# by camera kind (docs/recording-calibration.md)
+RECORDING_CALIBRATIONS = {
+    "omni": RecordingCalibration("the omni mirror's distance error", ("lut", "fit"),
+                                 _write_mirror),
+    "perspective": RecordingCalibration(
+        "a perspective camera's mount (pitch and roll offsets, height)", ("mcl",),
+        _write_mount),
+}
 
 
 def _json_attr(feats, key: str):
@@ -510,12 +548,16 @@ def _json_attr(feats, key: str):
 
 
 def _check_camera_kind(method: str, feats, features) -> None:
+    """Features of a camera kind the method does not read (its ``camera_kinds``) refused in
+    one line, naming the methods that read them."""
     kind = getattr(feats, "camera_kind", "")
-    if method in ("lut", "fit") and kind == "perspective":
-        need = "scan-line distances" if method == "lut" else "the omni scan lines' line points"
+    kinds = method_camera_kinds(method)
+    if kind and kinds is not None and kind not in kinds:
+        others = [m for m in available_methods() if kind in (method_camera_kinds(m) or ())]
         raise FieldlocError(
-            f"{features}: features of a 'perspective' camera; --method {method} needs omni"
-            f" features ({need}): use --method mcl")
+            f"{features}: features of a '{kind}' camera; --method {method} needs"
+            f" {' or '.join(kinds)} features" + (f": use --method {' or '.join(others)}"
+                                                 if others else ""))
 
 
 def _check_same_field(recorded: dict, map_file, source) -> None:
