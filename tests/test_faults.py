@@ -1050,6 +1050,10 @@ CASES = [
         ("seed=-1", "conf 'seed' must be >= 0"),
         ("init_spread=-1", "conf 'init_spread' must be a list of 3 numbers"),
         ("init_spread=[0.3,-0.3,0.2]", "conf 'init_spread[1]' must be >= 0"))],
+    Case("localize --method mcl -c init=pose -c init_pose=[1e12,0,0]", "silent",
+         ["localize", "{kid}", "--map", "{kmap}", "--features", "{kid_features}", "--method",
+          "mcl", "-o", W + "/p.h5", "-c", "init=pose", "-c", "init_pose=[1e12,0,0]"], 1,
+         "init_pose (1e+12, 0) m lies off the field"),
     *[Case(f"extract -c {kv}", "traceback", ["extract", "{omni}", "-o", W + "/f.h5", "-c", kv],
            1, msg) for kv, msg in (
         ("scanlines.max_range=0", "conf 'scanlines.max_range' must be > 0 and <= 50"),

@@ -311,6 +311,11 @@ class ParticleFilter:
             pose = c["init_pose"] if pose is None else pose
             if pose is None or len(pose) != 3:
                 raise FieldlocError("init=pose needs init_pose=[x, y, theta]")
+            x0, x1, y0, y1 = self._bounds
+            if not (x0 <= float(pose[0]) <= x1 and y0 <= float(pose[1]) <= y1):
+                raise FieldlocError(
+                    f"init_pose ({float(pose[0]):.4g}, {float(pose[1]):.4g}) m lies off the"
+                    f" field and its margin (x within {x0:g}..{x1:g}, y within {y0:g}..{y1:g})")
             s = np.asarray(c["init_spread"], float)
             p = np.asarray(pose, float) + self.rng.standard_normal((n, 3)) * s
             p[:, 2] = wrap_angle(p[:, 2])
