@@ -146,6 +146,7 @@ def mount_row(robot: str, seeds=MOUNT_SEEDS) -> Row:
               f" worse with the written calib: {worse}"),
         extra={"within": within, "seeds": n, "refused": refused, "ratio": ratio,
                "far": far, "worse": worse,
+               "refusals": {r["seed"]: r["refused"] for r in runs if r["refused"]},
                "errors": {r["seed"]: (None if r["error"] is None else
                                       [round(float(v), 5) for v in r["error"]])
                           for r in runs}})
