@@ -228,20 +228,6 @@ def test_a_line_in_a_sun_patch_with_field_beyond_stays_used(monkeypatch):
     assert not _used_lines(perspective.extract_frame(img, CAM, CONF))
 
 
-def test_a_features_file_of_the_former_full_preset_can_be_resumed():
-    """A features file written when the preset held every tuned number (now named constants)
-    stored them in its conf: resuming it ignores those keys, not the user's."""
-    from stages import extract
-
-    conf = extract.resolve_extract_conf("perspective")
-    stored = {**conf, "boundary": {"t_pix": 0.45}, "colour": {"green_model": "hue"},
-              "posts": {**conf["posts"], "min_distance": 0.7}}
-    assert extract._still_user_keys(stored, conf) == conf
-    assert extract._still_user_keys({**stored, "cell": 4}, conf) != conf
-    assert extract._still_user_keys({k: v for k, v in stored.items() if k != "cell"},
-                                    conf) != conf
-
-
 def test_result_has_the_schema_datasets_and_overlay_draws_them():
     segments, *_ = DRAWN["T"]
     img = draw_scene(segments)

@@ -87,7 +87,15 @@ def root_attrs(schema: str, version: int, conf: dict | None = None, inputs: dict
     }
 
 
+def as_stored(value):
+    """``value`` as an artifact's JSON attributes store it and read it back (tuples become
+    lists, mappings dicts, numpy scalars numbers): what a stored conf is compared with."""
+    return json.loads(json.dumps(value, default=_json_default))
+
+
 def _json_default(o):
+    if isinstance(o, Mapping):  # a read-only mapping of constants (types.MappingProxyType)
+        return dict(o)
     if isinstance(o, (np.integer,)):
         return int(o)
     if isinstance(o, (np.floating,)):

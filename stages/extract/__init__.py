@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..common.artifacts import check_output, file_hash, output_lock, root_attrs
+from ..common.artifacts import as_stored, check_output, file_hash, output_lock, root_attrs
 from ..common.camera import camera_can
 from ..common.conf import check_bounds, registered_module, resolve_conf, stage_conf
 from ..common.dataset import open_dataset, read_image, read_mask
@@ -116,18 +116,30 @@ def _check_resumable(output: Path, attrs: dict):
                 f"{output} was extracted with another {k.replace('_', ' ')} ({v});"
                 " use --overwrite to extract again")
     conf = json.loads(attrs["conf"])
-    if _still_user_keys(old_conf, conf) != conf:
+    former = getattr(kind_module(attrs["camera_kind"]), "former_layout", dict)()
+    if not _same_conf(old_conf, conf, as_stored(former)):
         raise FieldlocError(
             f"{output} was extracted with another conf; use --overwrite to extract again")
 
 
-def _still_user_keys(stored, conf):
-    """The part of a ``stored`` conf whose keys ``conf`` still holds, group by group: a file
-    written before some keys became tuned constants of their extractor stored those too, at
-    the values the constants now have unless the user had changed them."""
-    if not isinstance(stored, dict) or not isinstance(conf, dict):
-        return stored
-    return {k: _still_user_keys(v, conf[k]) for k, v in stored.items() if k in conf}
+_ABSENT = object()
+
+
+def _same_conf(stored, conf, former) -> bool:
+    """Whether a features file's ``stored`` conf is what extracting with the resolved ``conf``
+    would store now, group by group. A file written before some keys became tuned constants
+    of their extractor stored those keys too: each must equal the constant's value now
+    (``former``: the extractor's ``former_layout``), or the file was made with another conf
+    (a user's override, or a constant since changed)."""
+    if isinstance(stored, dict) and (isinstance(conf, dict) or isinstance(former, dict)):
+        conf = conf if isinstance(conf, dict) else {}
+        former = former if isinstance(former, dict) else {}
+        return set(conf) <= set(stored) and all(
+            _same_conf(v, conf.get(k, _ABSENT), former.get(k, _ABSENT))
+            for k, v in stored.items())
+    if conf is not _ABSENT:
+        return stored == conf
+    return former is not _ABSENT and stored == former
 
 
 def _run_attrs(ds, camera, module, conf: dict):

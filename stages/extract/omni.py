@@ -109,6 +109,15 @@ confs["dense"] = {**copy.deepcopy(confs["default"]), "points_radial_lines": 360}
 confs["real"] = {**copy.deepcopy(confs["default"]), "max_white_m": 0.6}
 
 
+def former_layout() -> dict:
+    """The tuned constants at the conf keys they held before they left the preset. A features
+    file written then stored them in its conf; extract compares them with these values to
+    tell whether the file can be resumed or reused (stages.extract)."""
+    return {"colour": {k: v for k, v in COLOUR.items() if k not in USER_COLOUR_KEYS},
+            "sample_step_px": SAMPLE_STEP_PX, "spiral_start_step": SPIRAL_START_STEP,
+            **RUNS._asdict()}
+
+
 # the ranges the extractor's numeric keys must lie in to run at all (common.conf.check_bounds,
 # checked when the conf is resolved): a range of 0 m leaves no scan line (the colour keys'
 # ranges are colour.BOUNDS: a pair given one number unpacks into nothing)

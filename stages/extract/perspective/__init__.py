@@ -101,6 +101,15 @@ confs = {
     },
 }
 
+def former_layout() -> dict:
+    """The tuned constants at the conf keys they held before they left the preset. A features
+    file written then stored them in its conf; extract compares them with these values to
+    tell whether the file can be resumed or reused (stages.extract)."""
+    return {"colour": dict(COLOUR), "boundary": BOUNDARY._asdict(), "posts": POSTS._asdict(),
+            "skeleton": SKELETON._asdict(), "key": KEY._asdict(),
+            "crossings": CROSSINGS._asdict(), "lines": LINES._asdict()}
+
+
 # the ranges the extractor's numeric keys must lie in (common.conf.check_bounds, checked when
 # the conf is resolved, before any frame). Found by fuzzing every key with 0, -1, 1e12 and
 # 1e-12: a cell or step of 0 divides by zero, sizes or distances of 1e12 ran out of memory or
