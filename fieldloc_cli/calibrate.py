@@ -85,7 +85,15 @@ def calibrate_omni(ctx, points, output, minho_dir, cnc_conf, nubot_dir, rings, c
       fieldloc calibrate omni --from-cnc etc/CarpetCalibrator.conf --rings detected -o calib.yaml
       fieldloc calibrate omni --from-nubot calib_results/1 -o calib.yaml
     """
-    from stages.calibrate import confs, from_cnc, from_minho, from_nubot, main, report
+    from stages.calibrate import (
+        MirrorGeometry,
+        confs,
+        from_cnc,
+        from_minho,
+        from_nubot,
+        main,
+        report,
+    )
     from stages.common.conf import resolve_conf
 
     sources = {"points": points, "minho": minho_dir, "cnc": cnc_conf, "nubot": nubot_dir}
@@ -114,10 +122,10 @@ def calibrate_omni(ctx, points, output, minho_dir, cnc_conf, nubot_dir, rings, c
         if not rings:
             raise FieldlocError(_rings_needed(cnc_conf, calib_image, centre, conf))
         forward = math.radians(90.0 if forward_angle_deg is None else forward_angle_deg)
+        geometry = MirrorGeometry(centre or None, image_size or None, valid_radius or None,
+                                  forward, mirrored)
         out = from_cnc(conf, cnc_conf, output, rings=rings, calib_image=calib_image,
-                       centre=centre or None, image_size=image_size or None,
-                       valid_radius=valid_radius or None, forward_angle=forward,
-                       mirrored=mirrored, overwrite=overwrite)
+                       geometry=geometry, overwrite=overwrite)
         _echo_report(ctx, out, report(out))
         return
     if kind == "points":
@@ -126,9 +134,9 @@ def calibrate_omni(ctx, points, output, minho_dir, cnc_conf, nubot_dir, rings, c
         if missing:
             raise FieldlocError(f"calibrate omni POINTS needs {', '.join(missing)}")
         forward = math.radians(90.0 if forward_angle_deg is None else forward_angle_deg)
-        out = main(conf, points, output, centre=centre, image_size=image_size,
-                   valid_radius=valid_radius, forward_angle=forward, mirrored=mirrored,
-                   line_images=line_images, mask=mask, overwrite=overwrite)
+        geometry = MirrorGeometry(centre, image_size, valid_radius, forward, mirrored)
+        out = main(conf, points, output, geometry=geometry, line_images=line_images,
+                   mask=mask, overwrite=overwrite)
     else:
         given = [name for name, v in (("--centre", centre), ("--mirrored", mirrored),
                                       ("--forward-angle-deg", forward_angle_deg is not None))

@@ -35,8 +35,8 @@ def true_distance(r):
 def test_recovers_a_known_polynomial_exactly(tmp_path):
     r = np.linspace(42, 226, 15)
     pts = write_points(tmp_path / "p.csv", r, true_distance(r))
-    out = calibrate.main(CONF, pts, tmp_path / "calib.yaml", forward_angle=1.0, mirrored=True,
-                         **KW)
+    geometry = calibrate.MirrorGeometry(**KW, forward_angle=1.0, mirrored=True)
+    out = calibrate.main(CONF, pts, tmp_path / "calib.yaml", geometry=geometry)
     cam = load_calib(out)
     assert cam.kind == "omni"
     assert np.allclose(cam.polynomial, DEFAULT_POLYNOMIAL, rtol=1e-5, atol=1e-9)
@@ -74,7 +74,8 @@ def test_rejections(tmp_path, r, d, vr, message):
         d = 1.0 + 0.5 * np.sin(np.asarray(r) / 25.0)
     pts = write_points(tmp_path / "p.csv", r, d)
     with pytest.raises(CalibrationError, match=message):
-        calibrate.main(CONF, pts, tmp_path / "c.yaml", **{**KW, "valid_radius": vr})
+        calibrate.main(CONF, pts, tmp_path / "c.yaml",
+                       geometry=calibrate.MirrorGeometry(**{**KW, "valid_radius": vr}))
     assert not (tmp_path / "c.yaml").exists()
 
 
@@ -96,7 +97,7 @@ def test_rejects_bad_files(tmp_path):
     out = tmp_path / "exists.yaml"
     out.write_text("x")
     with pytest.raises(CalibrationError, match="--overwrite"):
-        calibrate.main(CONF, pts, out, **KW)
+        calibrate.main(CONF, pts, out, geometry=calibrate.MirrorGeometry(**KW))
 
 
 def test_cli_round_trip(tmp_path):

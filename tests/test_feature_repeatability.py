@@ -98,7 +98,8 @@ def hand_case(rng_seed: int = 0):
 
 def test_repeatability_and_matching_score_by_hand():
     a, da, b, db, H = hand_case()
-    s = fr.evaluate_pair(a, da, b, db, H, (101, 101), (101, 101))
+    s = fr.evaluate_pair(fr.ImageFeatures(a, da, (101, 101)), fr.ImageFeatures(b, db, (101, 101)),
+                         H)
     assert (s.n_a, s.n_b) == (4, 4)
     assert s.correspondences == 2 and s.repeatability == pytest.approx(2 / 4)
     # descriptor matches: (a2, b2) 0, (a0, b0) 0.1, (a1, b3) 0.1 (before (a1, b1) 0.5), so only
@@ -107,9 +108,10 @@ def test_repeatability_and_matching_score_by_hand():
     # with opposite Laplacian signs a0 and b0 may not match
     b2 = b.copy()
     b2[0, 5] = -1
-    s2 = fr.evaluate_pair(a, da, b2, db, H, (101, 101), (101, 101))
+    image_a, image_b2 = fr.ImageFeatures(a, da, (101, 101)), fr.ImageFeatures(b2, db, (101, 101))
+    s2 = fr.evaluate_pair(image_a, image_b2, H)
     assert s2.correct_matches == 0 and s2.repeatability == pytest.approx(2 / 4)
-    s3 = fr.evaluate_pair(a, da, b2, db, H, (101, 101), (101, 101), use_laplacian=False)
+    s3 = fr.evaluate_pair(image_a, image_b2, H, use_laplacian=False)
     assert s3.correct_matches == 1
 
 
@@ -118,7 +120,8 @@ def test_only_regions_in_the_common_part_count():
     valid_b = np.ones((101, 101), bool)
     # invalidate where a1 (60, 35) lands in B: H maps it to (65, 60)
     valid_b[55:66, 58:72] = False
-    s = fr.evaluate_pair(a, da, b, db, H, (101, 101), (101, 101), None, valid_b)
+    s = fr.evaluate_pair(fr.ImageFeatures(a, da, (101, 101)),
+                         fr.ImageFeatures(b, db, (101, 101), valid_b), H)
     # a1 (and b1, on the invalid pixels themselves) leave: 1 correspondence of 3 and 3
     assert (s.n_a, s.n_b) == (3, 3)
     assert s.correspondences == 1 and s.repeatability == pytest.approx(1 / 3)
@@ -137,10 +140,10 @@ def test_hamming_distances_and_bad_input():
     with pytest.raises(FieldlocError, match="metric"):
         fr.descriptor_distances(a, b, "cosine")
     with pytest.raises(FieldlocError, match="homography"):
-        fr.evaluate_pair(np.zeros((1, 3)), np.zeros((1, 2)), np.zeros((1, 3)), np.zeros((1, 2)),
-                         np.zeros((3, 3)), (10, 10), (10, 10))
-    s = fr.evaluate_pair(np.zeros((0, 6)), np.zeros((0, 64)), np.zeros((0, 6)),
-                         np.zeros((0, 64)), np.eye(3), (10, 10), (10, 10))
+        one = fr.ImageFeatures(np.zeros((1, 3)), np.zeros((1, 2)), (10, 10))
+        fr.evaluate_pair(one, one, np.zeros((3, 3)))
+    none = fr.ImageFeatures(np.zeros((0, 6)), np.zeros((0, 64)), (10, 10))
+    s = fr.evaluate_pair(none, none, np.eye(3))
     assert s.repeatability == 0.0 and s.n_a == 0
 
 

@@ -57,8 +57,9 @@ def _mains(ds, tmp):
         ("extract", lambda c: extract.main(c, ds, out)),
         ("localize", lambda c: localize.main(c, ds, tmp / "m.h5", out, features=tmp / "f.h5")),
         ("evaluate", lambda c: evaluate.main(c, tmp / "p.h5", None, out)),
-        ("calibrate", lambda c: calibrate.main(c, tmp / "pairs.csv", out, centre=(240, 240),
-                                               image_size=(480, 480), valid_radius=(40, 220))),
+        ("calibrate", lambda c: calibrate.main(c, tmp / "pairs.csv", out,
+                                               geometry=calibrate.MirrorGeometry(
+                                                   (240, 240), (480, 480), (40, 220)))),
         ("calibrate.from_minho", lambda c: calibrate.from_minho(c, tmp, out)),
         ("calibrate.from_cnc", lambda c: calibrate.from_cnc(c, tmp / "c.conf", out,
                                                             rings="detected")),

@@ -1,15 +1,16 @@
 """Calibrate: the omnidirectional mirror's radial mapping f(r) (pixel radius -> floor distance).
 
-    main(conf, points_csv, output, *, centre, image_size, valid_radius,
-         forward_angle=pi/2, mirrored=False, line_images=None, mask=None,
+    main(conf, points_csv, output, *, geometry, line_images=None, mask=None,
          overwrite=False) -> Path
     from_minho(conf, minho_dir, output, *, image_size=None, valid_radius=None,
                line_images=None, mask=None, overwrite=False) -> Path
-    from_cnc(conf, carpet_conf, output, *, rings, calib_image=None, centre=None,
-             image_size=None, valid_radius=None, forward_angle=pi/2, mirrored=False,
-             overwrite=False) -> Path
+    from_cnc(conf, carpet_conf, output, *, rings, calib_image=None,
+             geometry=MirrorGeometry(), overwrite=False) -> Path
     from_nubot(conf, nubot_dir, output, *, image_size=None, valid_radius=None,
                overwrite=False) -> Path
+
+``geometry`` is a MirrorGeometry: the mirror's centre in the image, the image size, the valid
+radius, the robot's forward direction and whether the image is mirrored, as one value.
 
 Sources of pairs (radius_px, distance_m):
 - ``points_csv``: pairs measured on the robot (marks laid on the floor at known distances and
@@ -59,6 +60,7 @@ import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -128,6 +130,36 @@ class CalibrationFit:
     @property
     def max_abs(self) -> float:
         return float(np.max(np.abs(self.residuals_m)))
+
+
+class MirrorGeometry(NamedTuple):
+    """How the mirror's picture of the floor lies in the image, the camera's fields besides
+    f(r): ``centre`` (u, v) px, ``image_size`` (w, h) px, ``valid_radius`` (rmin, rmax) px
+    (None: the radii of the first and last pair used), ``forward_angle`` the image angle of
+    the robot's forward direction (rad, counter-clockwise from +u with v up) and whether the
+    image shows the floor ``mirrored``. One value because every source hands these five on
+    together (to ``fit`` and to the line images' measurement); ``from_cnc`` takes a centre and
+    image size left None from its calibration picture."""
+
+    centre: tuple[float, float] | None = None
+    image_size: tuple[int, int] | None = None
+    valid_radius: tuple[float, float] | None = None
+    forward_angle: float = math.pi / 2
+    mirrored: bool = False
+
+
+class PairSource(NamedTuple):
+    """The pairs one source gives and what calib.yaml records of it: ``radius_px`` and
+    ``distance_m`` (arrays), ``label`` (each pair's source in the record), ``where`` (named in
+    messages), ``sources`` (the record's input files and hashes; the line images add theirs)
+    and ``extra`` (further record entries of the source, or None)."""
+
+    radius_px: np.ndarray
+    distance_m: np.ndarray
+    label: str
+    where: str
+    sources: dict
+    extra: dict | None = None
 
 
 def read_points(path) -> tuple[np.ndarray, np.ndarray]:
@@ -316,30 +348,33 @@ def _mark_records(marks, radius_px, distance_m) -> list[dict]:
 # ---------------------------------------------------------------------------- stage mains
 
 
-def _calibrate(conf, r, d, output, *, sources, source_label, centre, image_size, valid_radius,
-               forward_angle, mirrored, line_images, mask, overwrite, where, extra_record=None):
+def _calibrate(conf, pairs: PairSource, output, geometry: MirrorGeometry, *, line_images=None,
+               mask=None):
+    """Fit the pairs of one source (merged with the line images' pairs, if given; ``mask`` the
+    mask array for those) and write ``output`` with its calibration record."""
     output = Path(output)
-    order = np.argsort(d, kind="stable")
-    r, d = r[order], d[order]
+    sources, source_label = pairs.sources, pairs.label
+    order = np.argsort(pairs.distance_m, kind="stable")
+    r, d = pairs.radius_px[order], pairs.distance_m[order]
     marks, dropped, labels = [], [], [source_label] * len(r)
     if line_images is not None:
-        vr = valid_radius or (float(r.min()), float(r.max()))
-        marks = _measure_line_images(conf, line_images, centre=centre,
-                                     forward_angle=forward_angle, mirrored=mirrored,
-                                     valid_radius=vr, image_size=image_size, mask=mask)
+        vr = geometry.valid_radius or (float(r.min()), float(r.max()))
+        marks = _measure_line_images(conf, line_images, centre=geometry.centre,
+                                     forward_angle=geometry.forward_angle,
+                                     mirrored=geometry.mirrored, valid_radius=vr,
+                                     image_size=geometry.image_size, mask=mask)
         sources["line_images"] = str(line_images)
         sources["line_image_hashes"] = {
             p.name: file_hash(p) for p, _ in _line_images.distance_images(line_images)}
         marks_rec = _mark_records(marks, r, d)
         r, d, labels, dropped = merge_line_marks(r, d, marks, source_label)
-    result = fit(conf, r, d, centre=centre, image_size=image_size, valid_radius=valid_radius,
-                 forward_angle=forward_angle, mirrored=mirrored, where=where, source=labels)
+    result = fit(conf, r, d, **geometry._asdict(), where=pairs.where, source=labels)
     record = {
         "fieldloc_version": __version__,
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "sources": sources,
         "conf": {k: v for k, v in conf.items() if k != "line_images" or line_images is not None},
-        **(extra_record or {}),
+        **(pairs.extra or {}),
         "model": result.model,
         "pairs": _pair_records(result),
     }
@@ -371,24 +406,22 @@ def _pair_records(result: CalibrationFit) -> list[dict]:
     return out
 
 
-def main(conf: str | dict | None, points_csv, output, *, centre, image_size, valid_radius,
-         forward_angle: float = math.pi / 2, mirrored: bool = False, line_images=None,
-         mask=None, overwrite: bool = False, progress: bool = False) -> Path:
+def main(conf: str | dict | None, points_csv, output, *, geometry: MirrorGeometry,
+         line_images=None, mask=None, overwrite: bool = False, progress: bool = False) -> Path:
     """Fit the mirror calibration to the pairs in ``points_csv`` (and the line images, if
     given) and write ``output`` (calib.yaml, kind omni). ``conf``: a preset name, None
-    (``default``) or a dict of overrides on ``default``. ``mask``: a mask image file for the
-    line images. Returns ``output``."""
+    (``default``) or a dict of overrides on ``default``. ``geometry``: the MirrorGeometry
+    (centre, image size and valid radius required). ``mask``: a mask image file for the line
+    images. Returns ``output``."""
     conf = stage_conf(confs, conf)
     check_output(output, {"points": points_csv, "mask": mask,
                           "line images": _files_in(line_images)}, overwrite=overwrite,
                  kind="calibration", error=CalibrationError)
     r, d = read_points(points_csv)
     sources = {"points": str(points_csv), "points_hash": file_hash(points_csv)}
-    mask_arr = _read_mask(mask, image_size, sources)
-    return _calibrate(conf, r, d, output, sources=sources, source_label="points",
-                      centre=centre, image_size=image_size, valid_radius=valid_radius,
-                      forward_angle=forward_angle, mirrored=mirrored, line_images=line_images,
-                      mask=mask_arr, overwrite=overwrite, where=str(points_csv))
+    mask_arr = _read_mask(mask, geometry.image_size, sources)
+    return _calibrate(conf, PairSource(r, d, "points", str(points_csv), sources), output,
+                      geometry, line_images=line_images, mask=mask_arr)
 
 
 def from_minho(conf: dict | str | None, minho_dir, output, *, image_size=None, valid_radius=None,
@@ -413,23 +446,22 @@ def from_minho(conf: dict | str | None, minho_dir, output, *, image_size=None, v
     if mask is None and (folder / MASK_NAME).is_file():
         mask = folder / MASK_NAME
     mask_arr = _read_mask(mask, image_size, sources)
-    return _calibrate(conf, team.radius_px, team.distance_m, output, sources=sources,
-                      source_label="mirror.cfg", centre=team.centre, image_size=image_size,
-                      valid_radius=valid_radius, forward_angle=team.forward_angle,
-                      mirrored=False, line_images=line_images, mask=mask_arr,
-                      overwrite=overwrite, where=str(team.mirror_cfg))
+    pairs = PairSource(team.radius_px, team.distance_m, "mirror.cfg", str(team.mirror_cfg),
+                       sources)
+    geometry = MirrorGeometry(team.centre, image_size, valid_radius, team.forward_angle, False)
+    return _calibrate(conf, pairs, output, geometry, line_images=line_images, mask=mask_arr)
 
 
 def from_cnc(conf: dict | str | None, carpet_conf, output, *, rings, calib_image=None,
-             centre=None, image_size=None, valid_radius=None, forward_angle: float = math.pi / 2,
-             mirrored: bool = False, overwrite: bool = False, progress: bool = False) -> Path:
+             geometry: MirrorGeometry = MirrorGeometry(), overwrite: bool = False,
+             progress: bool = False) -> Path:
     """calib.yaml from the Carpe Noctem ``CarpetCalibrator.conf`` (ring distances) and ring
     radii: ``rings`` is the user's pairing (stages.calibrate.cnc: 'detected', or radii with
     '-' / None for a distance whose ring is not seen). ``calib_image`` (default
     CarpetCalibImage.png beside the conf, if there): where rings are detected, and the centre
-    and image size unless given. The rings' detection is recorded beside the pairs.
-    ``conf``: a preset name, None (``cnc``) or a dict of overrides on ``cnc``. Returns
-    ``output``."""
+    and image size unless ``geometry`` (a MirrorGeometry) gives them. The rings' detection is
+    recorded beside the pairs. ``conf``: a preset name, None (``cnc``) or a dict of overrides
+    on ``cnc``. Returns ``output``."""
     conf = stage_conf(confs, conf, default="cnc")
     carpet_conf = Path(carpet_conf)
     distances = _cnc.read_distances(carpet_conf)
@@ -440,6 +472,7 @@ def from_cnc(conf: dict | str | None, carpet_conf, output, *, rings, calib_image
                           "the calibration picture": calib_image,
                           "its folder": _files_in(carpet_conf.parent)}, overwrite=overwrite,
                  kind="calibration", error=CalibrationError)
+    centre, image_size = geometry.centre, geometry.image_size
     detected = None
     extra = {"ring_distances_m": [float(v) for v in distances]}
     if calib_image is not None:
@@ -467,11 +500,9 @@ def from_cnc(conf: dict | str | None, carpet_conf, output, *, rings, calib_image
                     " rings and distances", ", ".join(
                         f"{d[i + 1]:g}-{d[i + 2]:g}" for i in np.flatnonzero(np.diff(slope) > 0)))
     rest = {k: v for k, v in conf.items() if k != "rings"}
-    return _calibrate(rest, r, d, output, sources=sources, source_label=_cnc.CONF_NAME,
-                      centre=centre, image_size=image_size, valid_radius=valid_radius,
-                      forward_angle=forward_angle, mirrored=mirrored, line_images=None,
-                      mask=None, overwrite=overwrite, where=str(carpet_conf),
-                      extra_record=extra)
+    pairs = PairSource(r, d, _cnc.CONF_NAME, str(carpet_conf), sources, extra)
+    return _calibrate(rest, pairs, output,
+                      geometry._replace(centre=centre, image_size=image_size))
 
 
 def from_nubot(conf: dict | str | None, nubot_dir, output, *, image_size=None,
@@ -516,13 +547,11 @@ def from_nubot(conf: dict | str | None, nubot_dir, output, *, image_size=None,
                               "small_radius": roi.small_radius, "big_radius": roi.big_radius}
     rest = {k: v for k, v in conf.items() if k != "nubot"}
     rest["nubot"] = nconf
-    fitted = fit(rest, r, d, centre=mirror.centre, image_size=image_size, valid_radius=vr,
-                 forward_angle=0.0, mirrored=True, where=str(mirror.path))
+    geometry = MirrorGeometry(mirror.centre, image_size, vr, 0.0, True)
+    fitted = fit(rest, r, d, **geometry._asdict(), where=str(mirror.path))
     extra["model_fit"] = _nubot.model_fit(fitted.camera, mirror, nconf)
-    return _calibrate(rest, r, d, output, sources=sources, source_label=_nubot.MIRROR_XML,
-                      centre=mirror.centre, image_size=image_size, valid_radius=vr,
-                      forward_angle=0.0, mirrored=True, line_images=None, mask=None,
-                      overwrite=overwrite, where=str(mirror.path), extra_record=extra)
+    pairs = PairSource(r, d, _nubot.MIRROR_XML, str(mirror.path), sources, extra)
+    return _calibrate(rest, pairs, output, geometry)
 
 
 def _image_size_of_file(path: Path) -> tuple[int, int]:

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -42,6 +43,18 @@ from ..common.errors import FieldlocError
 REGION_SCALES = 3.0  # region radius in units of the keypoint's scale
 NORMALISED_RADIUS = 30.0  # px, the reference region's radius for the overlap error
 MAX_OVERLAP_ERROR = 0.4
+
+
+class ImageFeatures(NamedTuple):
+    """One image's side of a pair: its ``keypoints`` (N, >= 3: x, y, scale, ...; column 5 the
+    Laplacian sign if present), their ``descriptors`` (N, D), the image's ``shape`` (h, w) and
+    its ``valid`` pixels (bool (h, w); None: all). What the protocol reads of an image, kept
+    together so the two images of a pair cannot be mixed up argument by argument."""
+
+    keypoints: np.ndarray
+    descriptors: np.ndarray
+    shape: tuple[int, int]
+    valid: np.ndarray | None = None
 
 
 @dataclass
@@ -246,16 +259,16 @@ def _keypoints(kp) -> np.ndarray:
     return kp
 
 
-def evaluate_pair(kp_a: np.ndarray, desc_a: np.ndarray, kp_b: np.ndarray, desc_b: np.ndarray,
-                  H: np.ndarray, shape_a, shape_b, valid_a: np.ndarray | None = None,
-                  valid_b: np.ndarray | None = None, *, metric: str = "l2",
-                  max_error: float = MAX_OVERLAP_ERROR, region_scales: float = REGION_SCALES,
+def evaluate_pair(image_a: ImageFeatures, image_b: ImageFeatures, H: np.ndarray, *,
+                  metric: str = "l2", max_error: float = MAX_OVERLAP_ERROR,
+                  region_scales: float = REGION_SCALES,
                   normalised_radius: float | None = NORMALISED_RADIUS,
                   use_laplacian: bool = True) -> PairScores:
-    """Repeatability and matching score of keypoints (N, >= 3: x, y, scale, ...; column 5 the
-    Laplacian sign if present) and descriptors of images A and B (shapes (h, w), valid masks),
-    with H the homography A -> B. See the module docstring."""
-    kp_a, kp_b = _keypoints(kp_a), _keypoints(kp_b)
+    """Repeatability and matching score of the keypoints and descriptors of images A and B
+    (ImageFeatures each), with H the homography A -> B. See the module docstring."""
+    desc_a, shape_a, valid_a = image_a.descriptors, image_a.shape, image_a.valid
+    desc_b, shape_b, valid_b = image_b.descriptors, image_b.shape, image_b.valid
+    kp_a, kp_b = _keypoints(image_a.keypoints), _keypoints(image_b.keypoints)
     H = np.asarray(H, dtype=float)
     if H.shape != (3, 3) or not np.isfinite(H).all() or abs(np.linalg.det(H)) < 1e-12:
         raise FieldlocError("the homography must be an invertible 3 x 3 matrix")

@@ -33,7 +33,7 @@ from numba import njit
 from ...common import colour
 from ...common.errors import DatasetError, FieldlocError
 from ...common.geometry import polar
-from .crossings import CROSSINGS, find_crossings, floor_at, floor_bundle
+from .crossings import CROSSINGS, Finds, FrameGrid, find_crossings, floor_at, floor_bundle
 from .field_boundary import BOUNDARY, boundary_polyline
 from .field_boundary import field_boundary as find_boundary
 from .goal_posts import POSTS, is_post_bar
@@ -401,13 +401,14 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
     node_px = grid_to_pixels(graph.pos, cell)
     ideal = undistort(node_px) if len(node_px) else node_px.reshape(-1, 2)
     other = counts["other"].astype(np.float32) / area
+    frame = FrameGrid(camera, to_floor, cell, top, white, inside, green, other,
+                      counts.get("white_px"))
     # the field boundary's floor range per column (inf where it is not on the floor)
     with np.errstate(invalid="ignore"):
         boundary_range = np.hypot(*to_floor(undistort(boundary)).T)
     boundary_range[~np.isfinite(boundary_range)] = np.inf
     lines, line_ends, line_ends_px, bar_posts, bar_posts_px, lines_ideal, line_widths = \
-        find_lines(graph, ideal, camera, to_floor, LINES, top, white, green,
-                   boundary_range, cell, diameter, trace, counts.get("white_px"))
+        find_lines(graph, ideal, frame, LINES, boundary_range, diameter, trace)
     # 6b. goal post feet on the floor (before the crossings: a post's foot on a line is no
     # crossing)
     posts, posts_px = [], []
@@ -433,12 +434,10 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
             posts.append(row)
             posts_px.append(px)
 
-    crossings, crossings_px = find_crossings(ks, graph, ideal, inside, green, other, top, camera,
-                                             to_floor, CROSSINGS, cell, trace,
-                                             counts.get("white_px"),
-                                             floor_of if floor_angles else None,
-                                             np.asarray(lines_ideal, float).reshape(-1, 2, 2),
-                                             np.asarray(line_widths, float), posts_px)
+    finds = Finds(np.asarray(lines_ideal, float).reshape(-1, 2, 2),
+                  np.asarray(line_widths, float), posts_px)
+    crossings, crossings_px = find_crossings(ks, graph, ideal, frame, CROSSINGS, trace,
+                                             floor_of if floor_angles else None, finds)
 
     if trace is not None:
         trace.update(top=top, field=field, white=white, green=green, inside=inside, lp=lp,
@@ -459,15 +458,13 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
     }
 
 
-def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: LinesTuning,
-               top: np.ndarray, white: np.ndarray, green: np.ndarray,
-               boundary_range: np.ndarray, cell: int, post_diameter: float,
-               trace: dict | None = None, white_px: np.ndarray | None = None):
+def find_lines(graph, ideal: np.ndarray, frame: FrameGrid, lc: LinesTuning,
+               boundary_range: np.ndarray, post_diameter: float, trace: dict | None = None):
     """Section 4.2: split-and-merge lines on the undistorted node coordinates, end points
-    projected on the fits, then onto the floor. A line is used for localisation (confidence
-    > 0) when it is long enough, near enough, and not the field's edge (``field_edge``, from
-    the green share per cell, ``green``, and the floor range of the field boundary per
-    column, ``boundary_range``).
+    projected on the fits (refined on the ``frame``'s full-resolution white mask), then onto
+    the floor. A line is used for localisation (confidence > 0) when it is long enough, near
+    enough, and not the field's edge (``field_edge``, from the frame's green share per cell
+    and the floor range of the field boundary per column, ``boundary_range``).
 
     A segment that is a vertical bar standing on the floor (``is_post_bar``) is no field line:
     it is returned as a goal post instead (the goal's net lets the field boundary climb behind
@@ -477,6 +474,8 @@ def find_lines(graph, ideal: np.ndarray, camera, to_floor: FloorProjection, lc: 
     points (L, 4), image end points (L, 4), post rows [distance, bearing, confidence] with
     their image foot points, and per line its ideal end points (L, 2, 2) and its white width
     across (px: the refined runs' median, else one cell)."""
+    camera, to_floor, cell, top = frame.camera, frame.to_floor, frame.cell, frame.top
+    white, green, white_px = frame.white, frame.green, frame.white_px
     segments = split_and_merge(ideal, line_components(graph), lc)
     lines, ends_m, ends_px, posts, posts_px, ends_ideal, widths = [], [], [], [], [], [], []
     if not segments:

@@ -799,21 +799,49 @@ def _distinct_arms(cmp, lengths, cos_same, arms, kept_lengths):
 # ---------------------------------------------------------------------------- the chain
 
 
-def find_crossings(ks, graph, ideal: np.ndarray, white: np.ndarray, green: np.ndarray,
-                   other: np.ndarray, top: np.ndarray, camera, to_floor,
-                   cc: CrossingsTuning, cell: int, trace: dict | None = None,
-                   white_px: np.ndarray | None = None, floor_of=None,
-                   lines_ideal: np.ndarray | None = None,
-                   line_widths: np.ndarray | None = None, posts_px=()):
+class FrameGrid(NamedTuple):
+    """One frame as the steps after the skeleton read it: its ``camera`` (at the frame's pose)
+    and floor projection ``to_floor`` (perspective.FloorProjection), the grid's ``cell`` (px),
+    the field boundary ``top`` (a row per column), the grid's white shares ``white`` and those
+    inside the boundary ``inside`` (skeleton_grid), its ``green`` and ``other`` shares (all
+    per cell, 0..1) and the full-resolution white mask ``white_px`` (uint8, None if not
+    made). One value because the line and crossing steps take the same frame."""
+
+    camera: object
+    to_floor: object
+    cell: int
+    top: np.ndarray
+    white: np.ndarray
+    inside: np.ndarray
+    green: np.ndarray
+    other: np.ndarray
+    white_px: np.ndarray | None = None
+
+
+class Finds(NamedTuple):
+    """What the steps before the crossings found that they consult: the fitted field lines
+    ``lines_ideal`` (N, 2, 2) ideal px and their white widths ``line_widths`` (N,) px (None:
+    no crossings of line pairs), and the goal posts' image feet ``posts_px``."""
+
+    lines_ideal: np.ndarray | None = None
+    line_widths: np.ndarray | None = None
+    posts_px: object = ()
+
+
+def find_crossings(ks, graph, ideal: np.ndarray, frame: FrameGrid, cc: CrossingsTuning,
+                   trace: dict | None = None, floor_of=None, finds: Finds | None = None):
     """Section 4.1: L/T/X candidates of the key structure, each placed at the intersection of
     its arms' lines (fitted to the undistorted nodes, refined on the full-resolution white
-    mask), and the crossings of pairs of fitted field lines (``lines_ideal`` (N, 2, 2) ideal
-    px, ``line_widths`` (N,) px; ``crossings.line_pair_crossings``), all verified the same
-    way (``_verify_crossing``: floor shape, range, boundary, objects, circle transitions and
-    white paths). Of verified crossings closer than ``merge_distance`` cells the best scored
-    one stays; none within ``post_radius`` cells of a goal post's foot (``posts_px``). Returns
-    rows [type, distance, bearing, orientation, confidence] and the crossings' image
-    positions."""
+    mask), and the crossings of pairs of fitted field lines (``finds.lines_ideal`` (N, 2, 2)
+    ideal px, ``finds.line_widths`` (N,) px; ``crossings.line_pair_crossings``), all verified
+    the same way (``_verify_crossing``: floor shape, range, boundary, objects, circle
+    transitions and white paths; on the ``frame``'s shares inside the boundary). Of verified
+    crossings closer than ``merge_distance`` cells the best scored one stays; none within
+    ``post_radius`` cells of a goal post's foot (``finds.posts_px``). Returns rows [type,
+    distance, bearing, orientation, confidence] and the crossings' image positions."""
+    white, green, other, top = frame.inside, frame.green, frame.other, frame.top
+    camera, to_floor, cell, white_px = frame.camera, frame.to_floor, frame.cell, frame.white_px
+    lines_ideal, line_widths, posts_px = Finds() if finds is None else finds
     lo, hi = cc.l_angle if floor_of is None else cc.l_angle_floor
     cands = crossing_candidates(ks, graph, cc.arm_reach, (lo, hi), floor_of)
     other_mean = cv2.blur(other, (3, 3), borderType=cv2.BORDER_REPLICATE)

@@ -409,8 +409,8 @@ def refine_segments(ends: np.ndarray, white: np.ndarray, lens: np.ndarray, step:
     pts = np.empty((cap, 2))
     widths = np.empty(cap)
     start = np.zeros(n + 1, np.int64)
-    _refine_all(ends, white, lens, float(step), float(reach), float(extend), int(min_points),
-                float(grow), res, pts, widths, start)
+    rule = (float(step), float(reach), float(extend), int(min_points), float(grow))
+    _refine_all(ends, white, lens, rule, res, pts, widths, start)
     out: list[RefinedLine | None] = []
     # (the lines' fields are views of the kernel's arrays, read only)
     for r, ok, rms, a, b in zip(res, res[:, 0].tolist(), res[:, 11].tolist(), start[:-1].tolist(),
@@ -849,10 +849,12 @@ def refine_kernel(ends, image, lens, step, reach, extend, min_points, grow, res)
 
 
 @njit(cache=True, nogil=True)
-def _refine_all(ends, image, lens, step, reach, extend, min_points, grow, res, pts, widths,
-                start):
+def _refine_all(ends, image, lens, rule, res, pts, widths, start):
     """refine_segments, compiled: refine_kernel of each segment into ``res[k]``, its points
-    and widths into ``pts`` and ``widths`` from ``start[k]`` on."""
+    and widths into ``pts`` and ``widths`` from ``start[k]`` on. ``rule``: refine_kernel's
+    (step, reach, extend, min_points, grow), one tuple of scalars as refine_segments makes
+    it."""
+    step, reach, extend, min_points, grow = rule
     for k in range(ends.shape[0]):
         p, w = refine_kernel(ends[k], image, lens, step, reach, extend, min_points, grow,
                              res[k])

@@ -98,7 +98,8 @@ def pair_scores(conf, H: np.ndarray, images: list) -> dict:
         warped, valid_b = fr.warp_pair(grey, valid, H)
         ka, da = local_features.detect_and_describe(grey, valid, conf)
         kb, db = local_features.detect_and_describe(warped, valid_b, conf)
-        s = fr.evaluate_pair(ka, da, kb, db, H, grey.shape, warped.shape, valid, valid_b,
+        s = fr.evaluate_pair(fr.ImageFeatures(ka, da, grey.shape, valid),
+                             fr.ImageFeatures(kb, db, warped.shape, valid_b), H,
                              metric=local_features.descriptor_metric(conf))
         corr += s.correspondences
         correct += s.correct_matches
