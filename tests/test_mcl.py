@@ -18,7 +18,7 @@ from stages.common.field import load_field
 from stages.common.map_file import Grid, write_map
 from stages.common.observations import Observations
 from stages.common.scanlines import ScanLines
-from stages.localize import mcl, motion_model
+from stages.localize import mcl, mcl_rivals, motion_model
 from stages.localize.observation_model import TUNING, ObservationModel
 from stages.simulate.synthetic_observations import (
     synthetic_observations,
@@ -69,7 +69,7 @@ def _run_walk(fm, model, conf, n=150, seed=3, obs_conf=None, start=None):
     poses, flags = [], []
     for i in range(n):
         obs = synthetic_observations(fm, truth[i], rng, obs_conf)
-        est = pf.step(odom[i], 0.1, obs, first=i == 0)
+        est, _frame = pf.step(odom[i], 0.1, obs, first=i == 0)
         poses.append(est.pose)
         flags.append(est.flags)
     return np.array(poses), truth, flags
@@ -336,7 +336,7 @@ def test_frame_without_observations_keeps_the_predicted_belief(kidsize, model):
     pf.weights /= pf.weights.sum()
     before_p, before_w = pf.particles.copy(), pf.weights.copy()
     state = copy.deepcopy(pf.rng.bit_generator.state)
-    est = pf.step((0.05, 0.0, 0.02), 0.1, Observations.empty())
+    est, _frame = pf.step((0.05, 0.0, 0.02), 0.1, Observations.empty())
     rng = np.random.default_rng()
     rng.bit_generator.state = state
     predicted = motion_model.sample_motion(before_p, (0.05, 0.0, 0.02), 0.1, rng)
@@ -614,6 +614,7 @@ def test_a_new_rival_is_scored_on_the_frames_before(kidsize, model):
     conf = copy.deepcopy(mcl.confs["uniform"])
     pf = mcl.ParticleFilter(model, conf)
     pf.initialise()
+    rivals = pf.rivals
     truth = np.array([-2.0, -1.0, 0.3])
     step = np.array([0.1, 0.0, 0.0])
     poses = [truth]
@@ -623,16 +624,16 @@ def test_a_new_rival_is_scored_on_the_frames_before(kidsize, model):
     for k, pose in enumerate(poses[:-1]):
         prep = model.prepare(synthetic_observations(kidsize, pose, rng))
         ll = float(model.log_likelihood(*pose[:, None], prep)[0])
-        pf._since_recent = step.copy() if k else np.zeros(3)
-        pf._recent.append((prep, ll, ll, pf._since_recent))
-        pf._since_recent = np.zeros(3)
-    pf._since_recent = step.copy()
+        rivals.since_recent = step.copy() if k else np.zeros(3)
+        rivals.recent.append((prep, ll, ll, rivals.since_recent))
+        rivals.since_recent = np.zeros(3)
+    rivals.since_recent = step.copy()
     far = np.array([3.0, 2.0, -2.0])
-    evidence, odds = pf._retro_odds(np.array([poses[-1], far]), 1.0)
+    evidence, odds = rivals.retro_odds(np.array([poses[-1], far]), 1.0)
     assert abs(odds[0]) < 1e-6 and abs(evidence[0]) < 1e-6
     assert odds[1] < -10.0 and evidence[1] < -10.0
     # forgetting weighs each earlier frame by keep_share per frame back
-    _, halved = pf._retro_odds(np.array([far]), 0.5)
+    _, halved = rivals.retro_odds(np.array([far]), 0.5)
     assert odds[1] < halved[0] < 0.0
 
 
@@ -719,23 +720,26 @@ def test_rivals_sum_their_evidence_over_frames(kidsize, model):
     conf = copy.deepcopy(mcl.confs["uniform"])
     pf = mcl.ParticleFilter(model, conf)
     pf.initialise()
-    pf._last_estimate = dataclasses.replace(pf.estimate(), pose=np.array([2.0, 1.0, 0.0]))
+    last = np.array([2.0, 1.0, 0.0])  # the belief's pose
+    rivals = pf.rivals
     rival = np.array([[-3.0, -1.5, 1.0]])
     inside = np.array([[2.1, 1.0, 0.05]])
-    pf._update_rivals(np.concatenate([rival, inside]), np.array([-1.0, -1.0]), np.zeros(0), 0.0)
-    assert len(pf._rivals) == 1 and pf._rival_evidence[0] == 0.0
+    rivals.update(np.concatenate([rival, inside]), np.array([-1.0, -1.0]), np.zeros(0), 0.0,
+                  last_pose=last)
+    assert len(rivals.poses) == 1 and rivals.evidence[0] == 0.0
     shares = []
     for _ in range(12):
-        pf._update_rivals(np.zeros((0, 3)), np.zeros(0), np.array([2.0]), 0.0)
-        shares.append(pf._kidnap_share(0.0, np.array([2.0])))
+        rivals.update(np.zeros((0, 3)), np.zeros(0), np.array([2.0]), 0.0, last_pose=last)
+        share, placed_at = rivals.kidnap_share(pf.averages.share(), 0.0, np.array([2.0]))
+        shares.append(share)
     assert shares[0] < 1e-3 < 0.5 < shares[-1]
-    np.testing.assert_allclose(pf._rival_placed, rival[0])
+    np.testing.assert_allclose(placed_at, rival[0])
     # forgetting: the evidence of a constant 2 nats a frame stays below 2 * RIVAL_MEMORY
-    assert pf._rival_evidence[0] < 2.0 * mcl.RIVAL_MEMORY
+    assert rivals.evidence[0] < 2.0 * mcl_rivals.RIVAL_MEMORY
     placed = mcl.ParticleFilter(model, copy.deepcopy(mcl.confs["default"]))
     placed.initialise()
-    placed._update_rivals(rival, np.array([-1.0]), np.zeros(0), 0.0)
-    assert len(placed._rivals) == 0
+    placed.rivals.update(rival, np.array([-1.0]), np.zeros(0), 0.0)
+    assert len(placed.rivals.poses) == 0
 
 
 def test_place_search_separates_places_as_the_scalar_rule():

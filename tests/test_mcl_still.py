@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from stages.common.field import load_field
-from stages.localize import mcl
+from stages.localize import mcl, mcl_start
 from stages.pipelines.bench.mcl_hulks import RENDERED_POSES, random_poses, rendered_still
 
 ONE_LINE = {("perspective-nao", "spl"): [-1.5, 2.3, math.pi / 2],  # the touch line ahead
@@ -68,9 +68,9 @@ def test_rivals_take_their_share_of_the_belief():
     pf.particles = np.array([1.0, 1.0, 0.0]) + rng.normal(0, 0.05, (500, 3))
     pf.weights = np.full(500, 1 / 500)
     alone = pf.estimate()
-    pf._rivals = np.array([[-2.0, 2.0, 1.0], [1.05, 1.0, 0.0]])  # the second: in the belief
-    pf._rival_evidence = np.zeros(2)
-    pf._rival_odds = np.array([0.0, 3.0])
+    pf.rivals.poses = np.array([[-2.0, 2.0, 1.0], [1.05, 1.0, 0.0]])  # the second: in the belief
+    pf.rivals.evidence = np.zeros(2)
+    pf.rivals.odds = np.array([0.0, 3.0])
     est = pf.estimate()
     assert math.isclose(est.confidence, 0.5 * alone.confidence)  # odds 1: half
     h = est.hypotheses
@@ -93,11 +93,11 @@ def test_a_frame_that_decides_its_pose_is_found_from_a_uniform_start(camera):
 
 
 def test_a_uniform_start_without_the_places_misses_one_of_them(monkeypatch):
-    """The same frame with the belief drawn uniformly (``mcl.START_PLACES`` 0, as before the
+    """The same frame with the belief drawn uniformly (``mcl_start.START_PLACES`` 0, as before the
     start's search): the particles settle on another place on both seeds, with a high pair
     share."""
     camera = ("perspective-default", "kidsize")
     pose = random_poses(camera[1], RENDERED_POSES)[DECIDED[camera]]
-    monkeypatch.setattr(mcl, "START_PLACES", 0)
+    monkeypatch.setattr(mcl_start, "START_PLACES", 0)
     res = rendered_still(*camera, [pose])
     assert not any(r.hit for r in res)

@@ -25,6 +25,11 @@ each angle by the sum of the two histograms' peak values; the best angle, refine
 through its neighbours, is the heading. A rotation by 90 deg swaps the histograms, so the score
 repeats every 90 deg; the +-40 deg window around the tracked heading resolves the 90/180 deg
 ambiguity.
+
+The particle filter (mcl.py, with ``imu_heading_sigma``) takes the IMU's yaw as the field
+heading, as ``imu_alignment: field`` does: ``frame_headings`` gives each frame's (yaw, sigma),
+none on collision frames, and ``heading_log_likelihood`` the Gaussian term it adds to a pose's
+log-likelihood, in the filter's weights and the smoother's candidates alike.
 """
 
 from __future__ import annotations
@@ -229,3 +234,27 @@ def histogram_heading(points: np.ndarray, last_heading: float, *, window: float 
             off += float(np.clip(0.5 * (lo - hi) / den, -0.5, 0.5)) * step
     sharp = float(scores[best] / max(scores.mean(), 1e-12))
     return float(wrap_angle(last_heading + off)), sharp
+
+
+# s: an imu.csv row this near a frame gives the frame's heading (the particle filter's,
+# ``frame_headings``)
+IMU_STAMP_TOLERANCE = 0.05
+
+
+def frame_headings(imu: dict | None, stamps: np.ndarray, collision: np.ndarray,
+                   sigma: float | None) -> list:
+    """Per frame the IMU's field heading (yaw, ``sigma``) rad, or None: without
+    ``imu_heading_sigma``, without an imu.csv row within IMU_STAMP_TOLERANCE of the frame,
+    and on collision frames (the yaw jolts)."""
+    if sigma is None or imu is None:
+        return [None] * len(stamps)
+    yaw, _col = imu_per_frame(imu, stamps, IMU_STAMP_TOLERANCE)
+    return [(float(y), float(sigma)) if np.isfinite(y) and not c else None
+            for y, c in zip(yaw, collision)]
+
+
+def heading_log_likelihood(theta: np.ndarray, heading: tuple[float, float]) -> np.ndarray:
+    """log N(theta; yaw, sigma^2) of poses' headings under the IMU's field heading (yaw, sigma),
+    up to a constant: the term a frame's IMU heading adds to its particles' weights."""
+    yaw, sigma = heading
+    return -0.5 * (wrap_angle(np.asarray(theta, float) - yaw) / sigma) ** 2

@@ -47,7 +47,7 @@ class MotionNoise(NamedTuple):
 
 
 # the particle filter's motion noise (mcl.py; the smoother's transitions take the same,
-# mcl.motion_of): the values the filter has run with since it was written (docs/results.md
+# mcl_smoothing.motion_of): the values the filter has run with since it was written (docs/results.md
 # records no measurement of their own)
 NOISE = MotionNoise(
     trans_per_trans=0.15,  # m of noise per m travelled

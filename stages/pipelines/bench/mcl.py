@@ -19,9 +19,9 @@ def time_mcl_update(field_model=None, *, n_particles: int = 1000, repeats: int =
     ``n_particles`` particles on a synthetic frame of 8 observations (4 lines, 2 crossings,
     2 goal posts, seeded); also of the observation model alone and of the estimate. The
     particles are spread around the true pose as in tracking (so the sensor-reset share is
-    placed every ``mcl.SENSOR_RESET_EVERY`` updates: ``update_mean_s`` is the mean over all
-    updates, these included). No baseline runs beside it: the row's measure is the CPU time
-    against its goal, and the observation model's time per particle."""
+    placed every ``mcl_resampling.SENSOR_RESET_EVERY`` updates: ``update_mean_s`` is the mean
+    over all updates, these included). No baseline runs beside it: the row's measure is the CPU
+    time against its goal, and the observation model's time per particle."""
     import copy
 
     from ...common.errors import FieldlocError
@@ -45,7 +45,7 @@ def time_mcl_update(field_model=None, *, n_particles: int = 1000, repeats: int =
         raise FieldlocError(f"no pose on {fm.name} shows 4 lines, 2 crossings and 2 posts")
     pf = ParticleFilter.from_field(fm, conf)
     pf.initialise("pose", pose, n=int(n_particles))
-    pf._last_estimate = pf.estimate()  # tracking: sensor resets every few frames
+    pf.last = pf.estimate()  # tracking: sensor resets every few frames
     start = pf.particles.copy()
     model = pf.model
     prep = model.prepare(obs)
@@ -54,10 +54,9 @@ def time_mcl_update(field_model=None, *, n_particles: int = 1000, repeats: int =
         def run():
             f.particles = start.copy()  # the same belief each time, rivals included
             f.weights = np.full(len(start), 1.0 / len(start))
-            f._rivals, f._rival_evidence = rivals.copy(), evidence.copy()
+            f.rivals.poses, f.rivals.evidence = rivals.copy(), evidence.copy()
             f.predict((0.02, 0.0, 0.01), 0.1)
-            f.correct(obs)
-            f.resample(obs, 0.5)
+            f.resample(f.correct(obs), 0.5)
         return run
 
     def median_time(fn) -> float:
@@ -66,9 +65,8 @@ def time_mcl_update(field_model=None, *, n_particles: int = 1000, repeats: int =
     # the rivals of "elsewhere" that a tracked belief holds: those of a few tracked updates
     for _ in range(6):
         pf.predict((0.02, 0.0, 0.01), 0.1)
-        pf.correct(obs)
-        pf.resample(obs, 0.5)
-    rivals, evidence = pf._rivals.copy(), pf._rival_evidence.copy()
+        pf.resample(pf.correct(obs), 0.5)
+    rivals, evidence = pf.rivals.poses.copy(), pf.rivals.evidence.copy()
     x, y, th = start[:, 0].copy(), start[:, 1].copy(), start[:, 2].copy()
     update_times = time_interleaved(update(pf), repeat=repeats, warmup=5)[0]
     cpu, run = [], update(pf)  # what one core spends on an update, load or not

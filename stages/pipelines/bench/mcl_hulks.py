@@ -248,7 +248,7 @@ def rendered_still(preset: str, field_name: str, poses, seeds=(0, 1),
             pf = mcl.ParticleFilter(model, dict(conf, observation=obs_conf, seed=seed))
             pf.initialise()
             for i in range(updates):
-                est = pf.step(np.zeros(3), STILL_DT, obs, first=i == 0)
+                est, _frame = pf.step(np.zeros(3), STILL_DT, obs, first=i == 0)
             hit, best = judged(est.hypotheses[0, :3], pose, fm)
             out.append(StillResult(f"{preset}-{k}-seed{seed}", informative(usable),
                                    hit, float(est.hypotheses[0, 3]),

@@ -1,0 +1,185 @@
+"""The particle filter's initial belief (mcl.py): where the particles lie before the first frame,
+and where a uniform start's first frame with observations places them.
+
+Three starts (the conf's ``init``):
+
+- ``placement`` (the default): as robots enter a game, on the own half (the opponent's with
+  ``start_half: opponent``) at either touch line, facing into the field, with the spread
+  ``init_spread`` across the line and in heading. It breaks the field's 180 deg symmetry,
+  which no observation can;
+- ``pose``: a Gaussian of ``init_spread`` around ``init_pose``;
+- ``uniform``: anywhere in the world (the field and its margin), or on the half ``start_half``
+  names (``start_half_error`` of the particles on the other). On a point-symmetric field with
+  no start half and no IMU heading each particle stands for itself and its mirrored pose
+  (``SYMMETRIC_PAIRS``; "paired"), so the filter holds half as many.
+
+A uniform start's first frame with observations is scored on a coarse grid (``START_GRID``,
+each pose as anywhere in its cell: place_search.cell_model), and the ``START_PLACES`` best
+distinct places (1 m or 30 deg apart, up to the mirror), refined on two local grids
+(place_search.search), each get an *equal* share of the particles, drawn from the frame's
+posterior around it; the grid's likelihood outside them is drawn uniformly (or
+``START_UNIFORM_SHARE``). Drawn uniformly, the particles of a sharp peak are few and off it;
+drawn by the first frame's likelihood, a broad plateau outweighs a sharp peak: either way
+chance picks among places the first frames explain alike. Equal shares keep each place alive
+until the frames decide.
+
+The particle count of the initial belief (``INIT_PARTICLES``) is larger than the tracking
+one: a wide belief needs more particles (a stand-in for KLD sampling, Fox (2003); the
+resampling narrows it to ``particles_min`` .. ``particles_max``, mcl_resampling.py).
+"""
+
+from __future__ import annotations
+
+import math
+from types import MappingProxyType
+
+import numpy as np
+
+from ..common.errors import FieldlocError
+from ..common.geometry import wrap_angle
+from . import place_search
+
+# particles of the initial belief by the start (``init``), kept until its spread falls below
+# mcl_resampling.SPREAD_HIGH
+INIT_PARTICLES = MappingProxyType({"placement": 1000, "uniform": 4000, "pose": 1000})
+SYMMETRIC_PAIRS = True  # a symmetric prior on a symmetric field keeps its symmetry
+# a uniform start's first frame with observations places the particles at the places
+# where that frame fits best (place_search: the observation model on a coarse grid over
+# the world, the best poses that are other places, each refined), an equal share each,
+# the grid's likelihood share outside them uniform: every place that explains the frame
+# holds particles at its best pose, and the frames that follow decide between them,
+# where particles drawn uniformly or placed by one observation reached one of them first
+# and held it (module doc)
+START_PLACES = 16  # places searched for (0: a uniform belief)
+START_GRID = (0.2, 6.0)  # m, deg: the coarse grid's step and turn
+START_UNIFORM_SHARE = None  # share of the first particles drawn uniformly; None: the
+# grid's share of the likelihood outside the places found
+
+
+def is_paired(mode: str, conf: dict, symmetric: bool, imu_heading: bool) -> bool:
+    """Whether the particles of the start ``mode`` stand for themselves and their mirrored
+    poses: a uniform start on a point-symmetric field that no start half and no IMU heading
+    tell from its mirror (``SYMMETRIC_PAIRS``)."""
+    return (mode == "uniform" and bool(SYMMETRIC_PAIRS) and symmetric
+            and conf["start_half"] == "any" and not imu_heading)
+
+
+def held_count(n: int, paired: bool) -> int:
+    """Particles held for a belief of ``n``: half when each stands for a mirrored pair."""
+    return max(n // 2, 1) if paired else n
+
+
+def initial_count(mode: str, conf: dict) -> int:
+    """The particles of the start ``mode``'s belief (``INIT_PARTICLES``; ``particles_max``
+    for a mode it does not list)."""
+    return int(INIT_PARTICLES.get(mode, conf["particles_max"]))
+
+
+def searches_places(mode: str) -> bool:
+    """Whether the start ``mode`` places its belief at the first frame's best places."""
+    return mode == "uniform" and int(START_PLACES) > 0
+
+
+def initial_poses(mode: str, n: int, rng, field, bounds: tuple, conf: dict,
+                  pose=None) -> np.ndarray:
+    """The ``n`` poses (n, 3) of the initial belief of ``mode`` in the world ``bounds`` (x0,
+    x1, y0, y1); ``pose``: the centre of a ``pose`` start (the conf's ``init_pose`` by
+    default)."""
+    if mode == "uniform":
+        return uniform_poses(n, rng, bounds, conf["start_half"], conf["start_half_error"])
+    if mode == "placement":
+        return placement_poses(n, rng, field, conf)
+    if mode == "pose":
+        pose = conf["init_pose"] if pose is None else pose
+        if pose is None or len(pose) != 3:
+            raise FieldlocError("init=pose needs init_pose=[x, y, theta]")
+        x0, x1, y0, y1 = bounds
+        if not (x0 <= float(pose[0]) <= x1 and y0 <= float(pose[1]) <= y1):
+            raise FieldlocError(
+                f"init_pose ({float(pose[0]):.4g}, {float(pose[1]):.4g}) m lies off the"
+                f" field and its margin (x within {x0:g}..{x1:g}, y within {y0:g}..{y1:g})")
+        s = np.asarray(conf["init_spread"], float)
+        p = np.asarray(pose, float) + rng.standard_normal((n, 3)) * s
+        p[:, 2] = wrap_angle(p[:, 2])
+        return p
+    raise FieldlocError(f"unknown init '{mode}' (placement, uniform or pose)")
+
+
+def uniform_poses(n: int, rng, bounds: tuple, half: str = "any",
+                  half_error: float = 0.0) -> np.ndarray:
+    """``n`` poses drawn uniformly over the world ``bounds``; over the half ``half`` names
+    (own: x < 0, opponent: x > 0) where it names one, ``half_error`` of them on the other."""
+    x0, x1, y0, y1 = bounds
+    u = rng.random((n, 3))
+    p = np.stack([x0 + (x1 - x0) * u[:, 0], y0 + (y1 - y0) * u[:, 1],
+                  -math.pi + 2 * math.pi * u[:, 2]], axis=1)
+    if half != "any":
+        sign = -1.0 if half == "own" else 1.0
+        wrong = rng.random(n) < float(half_error)
+        # folded onto the half (the world is symmetric about x = 0), or off it
+        p[:, 0] = np.where(wrong, -sign, sign) * np.abs(p[:, 0])
+    return p
+
+
+def placement_sign(conf: dict) -> float:
+    """The sign of x on the half a placement stands on: the opponent half when
+    ``start_half`` says so, else the own half."""
+    return 1.0 if conf["start_half"] == "opponent" else -1.0
+
+
+def placement_poses(n: int, rng, field, conf: dict) -> np.ndarray:
+    """``n`` poses on the start's half (``start_half``; own, x < 0, for any), at either touch
+    line, facing into the field."""
+    s_across, s_heading = float(conf["init_spread"][0]), float(conf["init_spread"][2])
+    side = np.where(rng.random(n) < 0.5, 1.0, -1.0)
+    x = -placement_sign(conf) * rng.uniform(-field.length / 2, 0.0, n)
+    across = rng.standard_normal(n) * s_across  # beyond the line is outwards
+    turn = rng.standard_normal(n) * s_heading
+    p = field.touchline_pose(x, side, inset=-across)
+    p[:, 2] = wrap_angle(p[:, 2] + turn)
+    return p
+
+
+def search_bounds(bounds: tuple, half: str, paired: bool) -> tuple:
+    """Where a uniform start's places are searched: the half ``half`` names, the half x <= 0
+    while particles stand for mirrored pairs, else the world ``bounds``."""
+    x0, x1, y0, y1 = bounds
+    if half == "own" or paired:
+        return (x0, 0.0, y0, y1)
+    if half == "opponent":
+        return (0.0, x1, y0, y1)
+    return bounds
+
+
+def placed_start(model, prep, n: int, rng, bounds: tuple, conf: dict, *, symmetric: bool,
+                 paired: bool) -> np.ndarray | None:
+    """A uniform start's belief of ``n`` particles from its first frame with observations
+    ``prep`` (the observation model's prepared observations): the places where the frame fits
+    best (place_search.search: ``START_PLACES`` of them on the coarse grid ``START_GRID``
+    over ``search_bounds``, each refined), an equal share of the particles around each (a
+    Gaussian of the frame's posterior near it, place_search.local_posterior), and the grid's
+    share of the likelihood outside them uniform over the world (or ``START_UNIFORM_SHARE``
+    when given). None where the search finds no place (the belief stays)."""
+    step, turn = (float(v) for v in START_GRID)
+    places, elsewhere = place_search.search(
+        model, prep, search_bounds(bounds, conf["start_half"], paired), step, turn,
+        int(START_PLACES), mirror=symmetric, cells=True)
+    if not places:
+        return None
+    if START_UNIFORM_SHARE is not None:
+        elsewhere = float(START_UNIFORM_SHARE)
+    n_uni = int(round(n * min(max(elsewhere, 0.0), 1.0)))
+    counts = np.full(len(places), (n - n_uni) // len(places))
+    counts[:(n - n_uni) - int(counts.sum())] += 1
+    drawn = [uniform_poses(n_uni, rng, bounds, conf["start_half"], conf["start_half_error"])]
+    for (pose, _ll), m in zip(places, counts):
+        mean, cov = place_search.local_posterior(model, prep, pose)
+        q = mean + rng.standard_normal((int(m), 3)) @ np.linalg.cholesky(cov).T
+        if symmetric and not paired and conf["start_half"] == "any":
+            # the place or its mirror image, alike
+            flip = rng.random(len(q)) < 0.5
+            q[flip] = model.field.mirror_pose(q[flip])
+        drawn.append(q)
+    p = np.concatenate(drawn)
+    p[:, 2] = wrap_angle(p[:, 2])
+    return p
