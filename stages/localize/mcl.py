@@ -82,7 +82,6 @@ from .mcl_resampling import (
 )
 from .mcl_rivals import KIDNAP_PROBABILITY, Rivals
 from .mcl_smoothing import SMOOTH_TEMPERATURE, MclScorer, SmoothingInputs, motion_of, start_prior
-from .mcl_smoothing import local_fit as local_fit  # tests/test_mcl_smooth.py's property test
 from .observation_model import DEFAULTS as OBSERVATION_DEFAULTS
 from .observation_model import ObservationModel
 
