@@ -135,17 +135,14 @@ def localize(ctx, dataset, map_path, templates, pose_solver, features, points, m
     if method == "templates":
         path = stage.main(conf, dataset, map_path, output, templates=templates,
                           overwrite=overwrite, progress=progress_enabled(ctx))
-    elif features is None and points is None:  # from the images: extract first, or reuse
+    else:  # the features given, or extracted first (or reused); two rounds with --smooth
         from stages.pipelines import images_to_poses
 
-        path = images_to_poses.main(conf, dataset, map_path, output, overwrite=overwrite,
+        path = images_to_poses.main(conf, dataset, map_path, output, features=features,
+                                    points=points, overwrite=overwrite,
                                     progress=progress_enabled(ctx),
                                     allow_field_mismatch=allow_field_mismatch,
                                     write_calib=write_calib)
-    else:
-        path = stage.main(conf, dataset, map_path, output, features=features, points=points,
-                          overwrite=overwrite, progress=progress_enabled(ctx),
-                          allow_field_mismatch=allow_field_mismatch, write_calib=write_calib)
     from stages.common.poses_file import read_poses
 
     cols, attrs = read_poses(path)

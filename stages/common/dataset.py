@@ -181,6 +181,9 @@ class Dataset:
     images: list[Path]
     stamps: np.ndarray
     stamp_source: str = "frames.csv"  # a key of STAMP_SOURCES: where the frame stamps come from
+    # the camera's calib.yaml when it is not the folder's own (one learnt from a recording,
+    # stages.pipelines.images_to_poses); None: root/calib.yaml
+    calib: Path | None = None
 
     @property
     def names(self) -> list[str]:
@@ -188,7 +191,7 @@ class Dataset:
 
     @property
     def calib_path(self) -> Path:
-        return self.root / "calib.yaml"
+        return self.calib if self.calib is not None else self.root / "calib.yaml"
 
     def camera(self):
         from .camera import load_calib

@@ -177,6 +177,21 @@ def extract_dataset_frame(ds, index: int, conf: dict) -> dict:
     return module.extract_frame(read_image(ds.images[index]), camera, conf, **info)
 
 
+def conf_of(features: str | Path) -> dict:
+    """The user's keys of the conf a features file was extracted with (a stored key the
+    kind's preset no longer holds is a tuned constant's: ``_same_conf``), to extract the same
+    recording again the same way."""
+    with FeaturesFile(features) as ff:
+        stored, kind = ff.conf, ff.camera_kind
+
+    def held(stored, preset):
+        if not isinstance(stored, dict) or not isinstance(preset, dict):
+            return stored
+        return {k: held(v, preset[k]) for k, v in stored.items() if k in preset}
+
+    return held(stored, kind_confs(kind)[DEFAULT_PRESET])
+
+
 def reusable_features(path: str | Path, dataset_dir: str | Path, conf=None) -> str | None:
     """Why the features file ``path`` cannot stand for extracting ``dataset_dir`` now with
     ``conf`` (None: it can): it must exist, be made from the same calibration, mask and conf,
@@ -203,21 +218,28 @@ def reusable_features(path: str | Path, dataset_dir: str | Path, conf=None) -> s
 
 def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | None = None, *,
          overwrite: bool = False, progress: bool = False,
-         debug_images: str | Path | None = None) -> Path:
+         debug_images: str | Path | None = None, calib: str | Path | None = None) -> Path:
     """Extract every frame of ``dataset_dir`` into ``output`` (default DIR/features.h5) and
     return its path. ``conf``: a preset name of the dataset's camera kind, None, or a dict of
     overrides on the kind's default preset (``resolve_extract_conf``).
     ``debug_images``: a folder that receives one overlay PNG per extracted frame (the kind's
-    ``debug_overlay``: for perspective frames the paper's fig. 1)."""
+    ``debug_overlay``: for perspective frames the paper's fig. 1). ``calib``: a calib.yaml of
+    the same camera kind to extract with instead of the dataset's own (a calibration learnt
+    from a recording); the features record it as their calibration."""
     from tqdm import tqdm
 
     ds = open_dataset(dataset_dir)
+    if calib is not None:
+        ds.calib = Path(calib)
+        if camera_kind(dataset_dir) != ds.camera().kind:
+            raise FieldlocError(f"{calib}: a calibration of another camera kind than"
+                                f" {ds.root}'s")
     camera = ds.camera()
     kind = camera.kind
     module = kind_module(kind)
     conf = resolve_extract_conf(kind, conf)
     output = Path(output) if output is not None else ds.root / "features.h5"
-    check_output(output, ds.files(), overwrite=None)
+    check_output(output, {**ds.files(), "calibration": ds.calib_path}, overwrite=None)
     if debug_images is not None:
         debug_images = Path(debug_images)
         if debug_images.exists() and not debug_images.is_dir():

@@ -424,7 +424,8 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path 
             calib_refused = None
             if write_calib is not None:
                 try:
-                    _write_calib(write_calib, conf, dataset, feats, track, map_file, output)
+                    _write_calib(write_calib, conf, dataset, feats, track, map_file,
+                                 _abs(output))
                 except FieldlocError as e:  # the poses stand; said once they are written
                     calib_refused = e
         finally:
@@ -478,8 +479,31 @@ def _write_calib(path, conf, dataset, feats, track, map_file, output) -> None:
     camera = dataset.camera()
     RECORDING_CALIBRATIONS[camera.kind].write(
         path, calib, _CalibrationRun(dataset, camera, feats, track, map_file,
-                                     {"source": str(_abs(output)),
+                                     {"source": str(output),
                                       "sources": {"dataset": _abs(dataset.root)}}))
+
+
+def recording_calibration(kind: str, method: str) -> RecordingCalibration | None:
+    """The calibration a run of ``method`` on a ``kind`` camera can learn (None: none)."""
+    learnt = RECORDING_CALIBRATIONS.get(kind)
+    return learnt if learnt is not None and method in learnt.methods else None
+
+
+def calibrate_from_poses(path, dataset_dir, features, poses, map_path, *,
+                         source: str | None = None) -> Path:
+    """Write to ``path`` the dataset's own calib.yaml corrected by what the poses file
+    ``poses`` (a run of a method of RECORDING_CALIBRATIONS on ``features``) shows of its error,
+    as ``main``'s ``write_calib`` does with its run's poses; ``source``: the recording the
+    written record names (default: ``poses``). Refused (FieldlocError) as ``write_calib`` is:
+    too few sure frames, a fit its halves do not reproduce."""
+    from ..common.poses_file import read_poses
+
+    dataset = open_dataset(dataset_dir, need_images=False)
+    cols, _attrs = read_poses(poses)
+    with MapFile(map_path) as map_file, FeaturesFile(features) as feats:
+        _write_calib(path, None, dataset, feats, cols, map_file,
+                     source if source is not None else _abs(poses))
+    return Path(path)
 
 
 class _CalibrationRun(NamedTuple):

@@ -83,6 +83,9 @@ confs = {
         "start_half_error": 1e-3,  # probability that start_half is wrong
         "stamp_tolerance": 0.02,  # s, imu/truth row to frame matching (the recording's clocks)
         "radial_correction": dict(RADIAL_DEFAULTS),
+        # with smooth: learn the camera's calibration from the smoothed poses, extract the
+        # frames again with it and smooth again (stages.pipelines.images_to_poses, two rounds)
+        "recalibrate": True,
         **{k: (dict(v) if isinstance(v, dict) else v) for k, v in tracking.DEFAULTS.items()},
     },
 }

@@ -134,6 +134,9 @@ confs = {
         # are weighed by the scan-line error: its first fix too, docs/manual.md)
         # online estimate of the calibration's distance error (radial_correction.py)
         "radial_correction": dict(RADIAL_DEFAULTS),
+        # with smooth: learn the camera's calibration from the smoothed poses, extract the
+        # frames again with it and smooth again (stages.pipelines.images_to_poses, two rounds)
+        "recalibrate": True,
         # tracks: the Gaussian tracks of tracking.TrackBank (module doc); grid: a probability
         # per table cell over the whole field (grid_belief.py; needs a field-aligned heading);
         # auto: grid where the heading is field-aligned and the run tracked, else tracks.

@@ -92,6 +92,9 @@ def check_conf(conf: dict) -> None:
         raise FieldlocError(f"min_confidence must lie in [0, 1], not {conf['min_confidence']}")
     if not isinstance(conf["smooth"], bool):
         raise FieldlocError(f"smooth must be true or false, not {str(conf['smooth'])[:40]!r}")
+    if not isinstance(conf.get("recalibrate", False), bool):
+        raise FieldlocError(f"recalibrate must be true or false, not"
+                            f" {str(conf['recalibrate'])[:40]!r}")
     if conf["smooth"] and conf["independent"]:
         raise FieldlocError("smooth decides every frame with the whole recording; it does not"
                             " localise frames independently")

@@ -482,6 +482,7 @@ def do_run(run: RunSpec, results: str, evaluate_conf: dict, inputs_plan: dict,
     counts and runtimes), then run.json. Never raises: a failure is the record's."""
     from .. import evaluate, localize
     from ..common.poses_file import read_poses
+    from . import images_to_poses
 
     out = Path(results) / run.dir
     t0 = time.perf_counter()
@@ -496,8 +497,12 @@ def do_run(run: RunSpec, results: str, evaluate_conf: dict, inputs_plan: dict,
             (out / RUN_NAME).unlink(missing_ok=True)
             given = ({"templates": source} if run.method.templates
                      else {"features": source})
-            poses = localize.main(run.method.conf, dataset_dir, map_path, out / "poses.h5",
-                                  overwrite=True, **given)
+            if run.method.templates:
+                poses = localize.main(run.method.conf, dataset_dir, map_path, out / "poses.h5",
+                                      overwrite=True, **given)
+            else:  # as `fieldloc localize --features`: with smooth, two rounds
+                poses = images_to_poses.main(run.method.conf, dataset_dir, map_path,
+                                             out / "poses.h5", overwrite=True, **given)
             if run.dataset.truth:
                 evaluate.main(evaluate_conf, poses, Path(dataset_dir) / "truth.csv",
                               out / REPORT_DIR, overwrite=True)

@@ -1,23 +1,44 @@
-"""From a dataset's images to poses, as ``fieldloc localize DIR`` runs without ``--features``:
-the features of the dataset, then stages.localize.
+"""From a dataset's images to poses, as ``fieldloc localize DIR`` runs: the features of the
+dataset, then stages.localize, and with ``smooth`` a second round on features extracted with
+the camera calibration the first round's poses show.
 
-    main(conf, dataset_dir, map_path, output, *, overwrite=False, progress=False,
-         allow_field_mismatch=False, write_calib=None) -> Path
+    main(conf, dataset_dir, map_path, output, *, features=None, points=None, overwrite=False,
+         progress=False, allow_field_mismatch=False, write_calib=None) -> Path
 
-The features are the dataset's own ``DIR/features.h5`` when it was extracted from the same
-calibration, mask and default conf and holds every frame (stages.extract.reusable_features),
-and otherwise extracted now (stages.extract, default conf) into ``<output stem>.features.h5``
-beside the output, resumed if present. Everything localize would refuse (its outputs, the
-dataset's time series, the method, the map) is refused before a frame is extracted.
+**The features.** Those given (``features``, or a team's line ``points``), else the dataset's
+own ``DIR/features.h5`` when it was extracted from the same calibration, mask and default conf
+and holds every frame (stages.extract.reusable_features), and otherwise extracted now
+(stages.extract, default conf) into ``<output stem>.features.h5`` beside the output, resumed if
+present. Everything localize would refuse (its outputs, the dataset's time series, the method,
+the map) is refused before a frame is extracted.
+
+**Two rounds** (``smooth`` and ``recalibrate``, on a camera whose calibration the method's
+poses can correct: stages.localize.RECORDING_CALIBRATIONS). A team's calibration is rarely
+exact (an omni mirror's distance mapping off by centimetres, a camera's mount by a degree),
+and every fix of the first round is pulled by the mismatch. An offline run has the whole
+recording, so it does what bundle adjustment does with a camera (Triggs et al. 2000): it
+estimates the calibration jointly with the smoothed poses of every frame
+(docs/recording-calibration.md), extracts the frames again with it, and smooths again.
+
+- The calibration the second round used is kept beside the output as
+  ``<output stem>.recalibrated.yaml``, and its features as
+  ``<output stem>.recalibrated.features.h5``; the poses name them as their inputs.
+- A calibration the first round's poses cannot give (too few sure frames, a fit whose halves
+  disagree) is not used: the first round's poses are the run's, and a warning says why.
+- ``write_calib`` writes the calibration estimated again from the second round's poses, on the
+  features of the dataset's own calib.yaml (the same estimate with better poses).
 """
 
 from __future__ import annotations
 
 import logging
+import os
+import tempfile
 from pathlib import Path
 
 from .. import extract, localize
 from ..common.artifacts import check_output
+from ..common.errors import FieldlocError
 
 log = logging.getLogger(__name__)
 
@@ -26,6 +47,14 @@ def default_features_path(output: str | Path) -> Path:
     """Where the features extracted for ``output`` go: ``<output stem>.features.h5``."""
     output = Path(output)
     return output.with_name(output.stem + ".features.h5")
+
+
+def recalibrated_paths(output: str | Path) -> tuple[Path, Path]:
+    """(calib.yaml, features) of the second round of ``output``: ``<output
+    stem>.recalibrated.yaml`` and ``<output stem>.recalibrated.features.h5``."""
+    output = Path(output)
+    return (output.with_name(output.stem + ".recalibrated.yaml"),
+            output.with_name(output.stem + ".recalibrated.features.h5"))
 
 
 def features_for(dataset_dir: str | Path, output: str | Path, inputs: dict,
@@ -49,15 +78,63 @@ def features_for(dataset_dir: str | Path, output: str | Path, inputs: dict,
 
 
 def main(conf, dataset_dir: str | Path, map_path: str | Path, output: str | Path, *,
+         features: str | Path | None = None, points: str | Path | None = None,
          overwrite: bool = False, progress: bool = False,
          allow_field_mismatch: bool = False, write_calib: str | Path | None = None) -> Path:
-    """Localise the images of ``dataset_dir`` on ``map_path`` into ``output`` (localize's
-    conf and options), extracting their features first when the dataset has none to reuse."""
-    _conf, _ds, _series, inputs = localize.check_run(conf, dataset_dir, map_path, output,
-                                                     overwrite=overwrite)
+    """Localise the frames of ``dataset_dir`` on ``map_path`` into ``output`` (localize's
+    conf and options) from ``features`` or ``points``, or from the dataset's features,
+    extracted first when it has none to reuse; in two rounds with ``smooth`` and
+    ``recalibrate`` (module doc)."""
+    resolved, ds, _series, inputs = localize.check_run(
+        conf, dataset_dir, map_path, output, features=features, points=points,
+        overwrite=overwrite)
     if write_calib is not None:
-        localize.check_write_calib(write_calib, _conf, _ds, None, output, inputs, overwrite)
-    features = features_for(dataset_dir, output, inputs, progress)
-    return localize.main(conf, dataset_dir, map_path, output, features=features,
-                         overwrite=overwrite, progress=progress,
-                         allow_field_mismatch=allow_field_mismatch, write_calib=write_calib)
+        localize.check_write_calib(write_calib, resolved, ds, points, output, inputs, overwrite)
+    rounds = (points is None and resolved.get("smooth") and resolved.get("recalibrate")
+              and localize.recording_calibration(ds.camera().kind, resolved["method"]))
+    if rounds:
+        for path in recalibrated_paths(output):
+            check_output(path, {**inputs, "poses": output, "calib": write_calib},
+                         overwrite=overwrite, kind="calibration")
+    if features is None and points is None:
+        features = features_for(dataset_dir, output, inputs, progress)
+    kw = {"progress": progress, "allow_field_mismatch": allow_field_mismatch}
+    if not rounds:
+        return localize.main(conf, dataset_dir, map_path, output, features=features,
+                             points=points, overwrite=overwrite, write_calib=write_calib, **kw)
+    return _two_rounds(conf, Path(dataset_dir), map_path, Path(output), Path(features),
+                       overwrite=overwrite, write_calib=write_calib, **kw)
+
+
+def _two_rounds(conf, dataset_dir: Path, map_path, output: Path, features: Path, *,
+                overwrite: bool, write_calib, progress: bool, allow_field_mismatch: bool) -> Path:
+    """The first round into a temporary folder beside ``output``, the calibration its poses
+    show, the features extracted with it, the second round into ``output`` (module doc)."""
+    calib, features2 = recalibrated_paths(output)
+    kw = {"progress": progress, "allow_field_mismatch": allow_field_mismatch}
+    with tempfile.TemporaryDirectory(dir=output.parent, prefix=".fieldloc-round-") as tmp:
+        first = Path(tmp) / output.name
+        localize.main(conf, dataset_dir, map_path, first, features=features, **kw)
+        learnt = Path(tmp) / "calib.yaml"
+        try:
+            localize.calibrate_from_poses(learnt, dataset_dir, features, first, map_path,
+                                          source=f"{os.path.abspath(output)} (its first round)")
+        except FieldlocError as e:
+            log.warning("no second round: the first round's poses give no calibration (%s)", e)
+            for src in (first, first.with_suffix(".tum")):  # the first round is the run
+                os.replace(src, output.with_suffix(src.suffix))
+            if write_calib is not None:
+                raise FieldlocError(f"{e}; the poses are written: {output}") from None
+            return output
+        os.replace(learnt, calib)
+    log.info("second round: extracting %s with %s into %s", dataset_dir, calib, features2)
+    extract.main(extract.conf_of(features), dataset_dir, features2, overwrite=overwrite,
+                 progress=progress, calib=calib)
+    path = localize.main(conf, dataset_dir, map_path, output, features=features2,
+                         overwrite=True, **kw)
+    if write_calib is not None:
+        try:
+            localize.calibrate_from_poses(write_calib, dataset_dir, features, path, map_path)
+        except FieldlocError as e:
+            raise FieldlocError(f"{e}; the poses are written: {path}") from None
+    return path

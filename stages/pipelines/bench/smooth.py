@@ -24,9 +24,10 @@ GOALS = {"omni-default": (0.995, 0.97, 0.03), "omni-hard": (0.98, None, None)}
 
 def _runs(method: str, preset: str, smooth: bool) -> tuple[list, float]:
     """The runs of ``method`` on the held-out sets of ``preset`` ((poses, dataset) pairs) and
-    the median CPU time of a run (each set's localize, after one untimed run that builds the
-    map's search tables)."""
-    from ... import localize
+    the median CPU time of a run (each set's localize as ``fieldloc localize --features`` runs
+    it: with smooth, both rounds; after one untimed run that builds the map's search
+    tables)."""
+    from .. import images_to_poses
 
     runs, cpu = [], []
     for k, seed in enumerate(SMOOTH_SEEDS[preset]):
@@ -35,8 +36,9 @@ def _runs(method: str, preset: str, smooth: bool) -> tuple[list, float]:
         out = work_dir() / f"smooth-{method}-{preset}-{seed}-{tag}.poses.h5"
         for _warm in range(2 if k == 0 else 1):
             t0 = time.process_time()
-            localize.main({"method": method, "heading": "imu", "smooth": smooth}, inp["data"],
-                          inp["map"], out, features=inp["features"], overwrite=True)
+            images_to_poses.main({"method": method, "heading": "imu", "smooth": smooth},
+                                 inp["data"], inp["map"], out, features=inp["features"],
+                                 overwrite=True)
         cpu.append(time.process_time() - t0)
         runs.append((out, Path(inp["data"])))
     return runs, float(np.median(cpu)) * len(cpu)
