@@ -139,3 +139,20 @@ def test_the_second_recording_is_the_same_robot_elsewhere(tmp_path):
     assert sim[0]["conf"]["calib_error"] == simulate.confs["omni-default"]["calib_error"]
     assert sim[0]["true_camera"] == sim[1]["true_camera"]
     assert (first / "truth.csv").read_text() != (second / "truth.csv").read_text()
+
+
+def test_the_mount_row_shares_the_figures(monkeypatch):
+    """The mount row on seed runs with a known answer: within 0.3 deg and 1 cm, far off
+    (> 1 deg), refused."""
+    deg = math.radians(1.0)
+    runs = {1: _run(1, np.array([0.1 * deg, 0.0, 0.002]), [0.1] * 4, [0.02] * 4),
+            2: _run(2, np.array([1.5 * deg, 0.0, 0.0]), [0.1] * 4, [0.3] * 4),
+            3: _run(3, None, [0.1] * 4, [0.1] * 4, refused=REFUSAL)}
+    monkeypatch.setattr(rc, "_mount_seed_run", lambda robot, seed: runs[seed])
+    row = rc.mount_row("NAO", seeds=(1, 2, 3))
+    x = row.extra
+    assert (x["within"], x["refused"], x["far"], x["worse"]) == (1, 1, [2], [2])
+    assert x["refusals"] == {3: REFUSAL} and x["halved"] == 1
+    assert x["errors"][3] is None  # rounded to 10 microradians and micrometres
+    assert x["errors"][1] == pytest.approx([0.1 * deg, 0, 0.002], abs=1e-5)
+    assert row.meets_goal is False and row.name.startswith("mount (NAO) from a recording")
