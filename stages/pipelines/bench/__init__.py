@@ -42,6 +42,7 @@ _TABLE: dict[str, tuple[str, str, tuple]] = {
     "smooth-passes": ("smooth", "bench_smooth_passes", ()),
     "smooth-accuracy": ("smooth", "bench_smooth_accuracy", ()),
     "mount-calibration": ("recording_calibration", "rows", ()),
+    "mirror-calibration": ("recording_calibration", "mirror_row", ()),
     "real": ("hypotheses", "bench_real", ()),
     "import-rosbag": ("import_rosbag", "bench_import_rosbag", ()),
     "templates": ("templates", "bench_templates", ()),
