@@ -84,10 +84,13 @@ def _field_map(field: str) -> Path:
 
 
 def _localise(data: Path, map_path: Path, out: Path, conf: dict, **kw) -> Path:
-    from ... import extract, localize
+    """``fieldloc extract`` then ``fieldloc localize --features`` (its chain: with ``smooth``
+    and a method that learns the camera's calibration, two rounds)."""
+    from ... import extract
+    from .. import images_to_poses
 
     feats = extract.main(None, data, data / "features.h5")
-    return localize.main(conf, data, map_path, out, features=feats, **kw)
+    return images_to_poses.main(conf, data, map_path, out, features=feats, **kw)
 
 
 def _with_calib(data: Path, calib: Path, out: Path) -> Path:
