@@ -573,6 +573,20 @@ def _check_short_message(paths, res):
 
 LOCALIZE = ["localize", "{omni}", "--map", "{map}", "--features", "{features}"]
 W = "{ws}"
+SIM_OMNI = ["simulate", "omni", "--field", "spl", "--frames", "2", "-o", W + "/sim"]
+SIM_NAO = ["simulate", "perspective", "--field", "kidsize", "--frames", "2", "-o", W + "/sim",
+           "--preset", "perspective-nao"]
+
+
+def _spec_with(conf: str = "", evaluate: str = "", templates: str = "", methods: str = "[lut]",
+               preset: str = "omni-clean") -> str:
+    """A batch SPEC (a _setup_spec text: braces doubled) of one simulated 2-frame dataset on
+    spl and the shared map, with a simulate ``conf``, an ``evaluate``, ``templates``."""
+    text = ("map: {map}\ndatasets:\n  - name: d\n    simulate: {{preset: " + preset
+            + ", field: spl, frames: 2, seed: 1" + (f", conf: {conf}" if conf else "") + "}}\n")
+    text += f"evaluate: {evaluate}\n" if evaluate else ""
+    text += f"templates: {templates}\n" if templates else ""
+    return text + f"methods: {methods}\n"
 
 CASES = [
     # ------------------------------------------------------------------ data lost
@@ -1078,6 +1092,102 @@ CASES = [
          "conf 'field.colour.green_axes' must be a list of 2 numbers"),
         (["--features", "sift", "-c", "features.octave_layers=0"], "hang",
          "conf 'features.octave_layers' must be >= 1 and <= 10"))],
+    # list-valued conf keys given a list of the wrong length or content, a reversed range or
+    # a value outside what a list element can be: refused when the conf is resolved, one line
+    # naming the key (the key's BOUNDS, common.conf.check_bounds), before anything is rendered
+    # or read (a traceback, a run on a wrong value, or a message blaming something else before)
+    *[Case(f"simulate omni -c {kv}", kind, [*SIM_OMNI, "-c", kv], 1, msg) for kv, kind, msg in (
+        ("scene.carpet_bgr=[]", "traceback", "conf 'scene.carpet_bgr' must be a list of 3"),
+        ("scene.floor_bgr=[1e12,0,0]", "silent", "conf 'scene.floor_bgr[0]' must be >= 0 and"),
+        ("scene.line_bgr=[244,242,250,250]", "traceback", "conf 'scene.line_bgr' must be a list"),
+        ("scene.ball_bgr=[-30,110,235]", "silent", "conf 'scene.ball_bgr[0]' must be >= 0"),
+        ("scene.line_brightness=[1.0,0.8]", "silent",
+         "conf 'scene.line_brightness' must be a range [low, high] with low <= high"),
+        ("scene.robot_speed=[0.2]", "traceback",
+         "conf 'scene.robot_speed' must be a list of 2 numbers [low, high], got [0.2]"),
+        ("scene.person_speed=[0.2,1e12]", "silent",
+         "conf 'scene.person_speed[1]' must be > 0 and <= 10"),
+        ("scene.handler_distance=[2.5,0.8]", "silent",
+         "conf 'scene.handler_distance' must be a range [low, high]"),
+        ("scene.lighting.gain=[0,1]", "traceback",
+         "conf 'scene.lighting.gain[0]' must be > 0 and <= 10"),
+        ("scene.lighting.periods=[25,3]", "traceback",
+         "conf 'scene.lighting.periods' must be a range [low, high]"),
+        ("trajectory.heading_hold=[6,2]", "traceback",
+         "conf 'trajectory.heading_hold' must be a range [low, high]"),
+        ("trajectory.start=[a,b,c]", "traceback",
+         "conf 'trajectory.start[0]' must be a number, got 'a'"),
+        ("trajectory.start=7", "traceback",
+         "conf 'trajectory.start' must be [x, y, theta] or touchline, got 7"),
+        ("trajectory.start=[.nan,0,0]", "traceback",
+         "conf 'trajectory.start[0]' must be a finite number, got nan"),
+        ("imu.collision_frames=[5,2]", "traceback",
+         "conf 'imu.collision_frames' must be a range [low, high]"),
+        ("omni.image_size=[0,0]", "traceback", "conf 'omni.image_size[0]' must be >= 1 and"),
+        ("omni.centre=[1e12,1e12]", "traceback",
+         "conf 'omni': 'centre' (1e+12, 1e+12) lies outside the 480 x 480 image"),
+        ("omni.polynomial=[]", "traceback", "conf 'omni.polynomial' must be a list of 6"),
+        ("omni.polynomial=[1e12,1e12,1e12,1e12,1e12,1e12]", "traceback",
+         "conf 'omni.polynomial' places the floor at the body edge"),
+        ("omni.valid_radius=[40,193,193]", "silent",
+         "conf 'omni.valid_radius' must be a list of 2 numbers [low, high]"),
+        ("omni.struts_deg=[1e12]", "silent",
+         "conf 'omni.struts_deg[0]' must be >= -360 and <= 360"))],
+    *[Case(f"simulate perspective-nao -c {kv}", kind, [*SIM_NAO, "-c", kv], 1, msg)
+      for kv, kind, msg in (
+        ("perspective.image_size=[640]", "traceback",
+         "conf 'perspective.image_size' must be a list of 2 numbers"),
+        ("perspective.head.tilt_periods=[12,4]", "traceback",
+         "conf 'perspective.head.tilt_periods' must be a range [low, high]"),
+        ("perspective.sheen_bgr=[196,204,204,204]", "traceback",
+         "conf 'perspective.sheen_bgr' must be a list of 3"),
+        ("calib_error.centre_shift=[1e12,1e12]", "silent",
+         "conf 'calib_error.centre_shift[0]' must be >= -100 and <= 100"),
+        ("scene.sun_strength=[1.2,0.5]", "traceback",
+         "conf 'scene.sun_strength' must be a range [low, high]"),
+        ("scene.shadow_strength=[0.25,2]", "silent",
+         "conf 'scene.shadow_strength[1]' must be >= 0 and <= 1"))],
+    *[Case(f"build-templates -c {kv}", "silent", ["build-templates", "{omni}", "-o",
+                                                  W + "/t.h5", "-c", kv], 1, msg)
+      for kv, msg in (
+        ("field.colour.green_hue_deg=[-75,-170]",
+         "conf 'field.colour.green_hue_deg' must be a range [low, high]"),
+        ("field.colour.green_search_y=[240,15]",
+         "conf 'field.colour.green_search_y' must be a range [low, high]"))],
+    Case("evaluate -c thresholds=[1e12]", "silent",
+         ["evaluate", "{poses}", "--truth", "{omni}", "-o", W + "/rep", "-c",
+          "thresholds=[1e12]"], 1, "conf 'thresholds[0]' must be > 0 and <= 100"),
+    *[Case(f"localize --method mcl -c {' -c '.join(kvs)}", kind,
+           ["localize", "{kid}", "--map", "{kmap}", "--features", "{kid_features}",
+            "--method", "mcl", "-o", W + "/p.h5", *[a for kv in kvs for a in ("-c", kv)]], 1,
+           msg) for kvs, kind, msg in (
+        (["init_spread=[1e12,1e12,1e12]"], "silent",
+         "conf 'init_spread[0]' must be >= 0 and <= 100"),
+        (["init=pose", "init_pose=[a,b,c]"], "traceback",
+         "conf 'init_pose[0]' must be a number, got 'a'"),
+        (["init=pose", "init_pose=7"], "traceback",
+         "conf 'init_pose' must be a list of 3 numbers, got 7"))],
+    *[Case(f"calibrate perspective --from-hulks -c {kv}", kind,
+           ["calibrate", "perspective", "--from-hulks", "{capture}", "-o", W + "/calib.yaml",
+            "-c", kv], 1, msg, setup=_setup_team_files) for kv, kind, msg in (
+        ("image_size=[640]", "traceback", "conf 'image_size' must be a list of 2 numbers"),
+        ("image_size=[1e12,1e12]", "silent", "conf 'image_size[0]' must be >= 1 and <= 8192"))],
+    *[Case(f"a batch SPEC's {what}, refused before anything runs", "silent",
+           ["batch", W + "/spec.yaml", "-o", W + "/res", "--serial"], 1, msg,
+           setup=_setup_spec(text)) for what, text, msg in (
+        ("simulate conf with a reversed robot_speed",
+         _spec_with("{{scene: {{robot_speed: [1.5, 0.2], robots: 1}}}}"),
+         "datasets[0].simulate: conf 'scene.robot_speed' must be a range [low, high]"),
+        ("template grid conf with four floor_bgr numbers",
+         _spec_with(templates="{{grid: 1.0, seed: 7, conf: {{scene: {{floor_bgr: [1, 2, 3,"
+                              " 4]}}}}}}"),
+         "templates: conf 'scene.floor_bgr' must be a list of 3 numbers"),
+        ("evaluate thresholds: []", _spec_with(evaluate="{{thresholds: []}}"),
+         "evaluate: conf 'thresholds' must be a list of 1 to 20 numbers"),
+        ("mcl conf init_spread=[1e12,1,1]",
+         _spec_with(methods='[{{method: mcl, conf: ["init_spread=[1e12,1,1]"]}}]',
+                    preset="perspective-clean"),
+         "methods[0]: conf 'init_spread[0]' must be >= 0 and <= 100"))],
     Case("a field key whose value is 300 kB of text", "silent",
          ["build-map", W + "/f.yaml", "-o", W + "/m.h5"], 1,
          "key 'length' must be a number, got 'xxxxxxxx", setup=_setup_field({"length": LONG}),
@@ -1158,6 +1268,70 @@ def test_fault(case, world_report, tmp_path, caplog):
         assert set(after) == set(before), f"a refused command wrote {set(after) - set(before)}"
     if case.check is not None:
         case.check(paths, res)
+
+
+def _list_keys(conf: dict, prefix: str = "") -> list[tuple[str, list]]:
+    """(dotted key, preset value) of every list-valued key of a nested conf."""
+    out = []
+    for k, v in conf.items():
+        if isinstance(v, dict):
+            out += _list_keys(v, f"{prefix}{k}.")
+        elif isinstance(v, list):
+            out.append((f"{prefix}{k}", v))
+    return out
+
+
+# list keys whose length may vary: (fewest, most) elements
+LIST_LENGTHS = {"omni.struts_deg": (0, 16), "perspective.distortion": (4, 5)}
+SIMULATE_LIST_KEYS = sorted({(simulate.confs[p]["camera"], p, k, len(v))
+                             for p in ("omni-default", "perspective-nao")
+                             for k, v in _list_keys(simulate.confs[p])})
+
+
+def _wrong_shapes(key: str, n: int) -> list[str]:
+    """Values of a list key of ``n`` numbers that no run can take: one element fewer or more
+    (unless its length may vary so), lists in it, texts, NaN."""
+    fewest, most = LIST_LENGTHS.get(key, (n, n))
+    out = ["[" + ", ".join(["1"] * m) + "]" for m in (fewest - 1, most + 1) if m >= 0]
+    return out + ["[[1, 2], [3, 4]]", "[" + ", ".join(["a"] * n) + "]",
+                  "[" + ", ".join([".nan"] * n) + "]"]
+
+
+@pytest.mark.parametrize("kind,preset,key,n", SIMULATE_LIST_KEYS,
+                         ids=[f"{p}:{k}" for _, p, k, _ in SIMULATE_LIST_KEYS])
+def test_simulate_list_keys_of_a_wrong_shape_are_refused_in_one_line(kind, preset, key, n,
+                                                                       tmp_path):
+    """Every list-valued key of simulate's presets (walked from the presets, so a new one is
+    swept too) given a list of the wrong length or content through the command line: one line
+    naming the key, exit 1, nothing written, before anything is rendered."""
+    field = "spl" if kind == "omni" else "kidsize"
+    for value in _wrong_shapes(key, n):
+        r = CliRunner().invoke(cli, ["simulate", kind, "--preset", preset, "--field", field,
+                                     "--frames", "1", "-o", str(tmp_path / "sim"), "-c",
+                                     f"{key}={value}"])
+        said = f"{key}={value}: {r.output}"
+        assert r.exception is None or isinstance(r.exception, SystemExit), said
+        assert r.exit_code == 1 and len(r.stderr.strip().splitlines()) == 1, said
+        assert f"'{key}" in r.stderr, said
+        assert not any(tmp_path.iterdir()), said
+
+
+def test_list_keys_of_another_legal_size_keep_working(world, tmp_path):
+    """Values the list checks must not refuse: frames of another size (with a centre and
+    ring inside them; the clean preset: no team's mirror table to read off the smaller ring),
+    no struts, four distortion coefficients, one threshold, a start pose."""
+    for args in ([*SIM_OMNI[:-1], str(tmp_path / "a"), "--preset", "omni-clean", "-c",
+                  "omni.image_size=[320, 240]",
+                  "-c", "omni.centre=[160, 120]", "-c", "omni.valid_radius=[30, 110]",
+                  "-c", "omni.struts_deg=[]", "-c", "trajectory.start=[1, 0.5, 0.2]"],
+                 [*SIM_NAO[:-3], str(tmp_path / "b"), "-c", "perspective.image_size=[640, 480]",
+                  "-c", "perspective.distortion=[-0.2, 0.04, 0, 0]"],
+                 ["evaluate", str(world["poses"]), "--truth", str(world["omni"]), "-o",
+                  str(tmp_path / "rep"), "-c", "thresholds=0.5"]):
+        r = CliRunner().invoke(cli, ["-q", *[a.replace("{ws}", str(tmp_path)) for a in args]])
+        assert r.exit_code == 0, f"{args}: {r.output}"
+    assert cv2.imread(str(tmp_path / "a" / "images" / "000000.png")).shape == (240, 320, 3)
+    assert cv2.imread(str(tmp_path / "b" / "images" / "000000.png")).shape == (480, 640, 3)
 
 
 # ---------------------------------------------------------------------------- output rules

@@ -57,8 +57,8 @@ import numpy as np
 import yaml
 
 from ..common.artifacts import atomic_dir, check_importer_target, check_output
-from ..common.camera import save_calib
-from ..common.conf import stage_conf
+from ..common.camera import MAX_IMAGE_PX, save_calib
+from ..common.conf import check_bounds, stage_conf
 from ..common.dataset import write_csv
 from ..common.errors import FieldlocError
 from ..common.perspective_camera import PerspectiveCamera
@@ -72,6 +72,8 @@ confs = {
         "unit_tolerance": 1e-3,  # |q| may differ from 1 by this much (float32 in the files)
     },
 }
+# the ranges of the conf's keys (common.conf.check_bounds), held where the conf is resolved
+BOUNDS = {"image_size": (1, MAX_IMAGE_PX, 2)}
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
 # the record a folder import writes into its dataset: what made it (the marker that lets
 # --overwrite replace it) and from where
@@ -218,6 +220,7 @@ def main(conf: str | dict | None, source, output, *, overwrite: bool = False,
     write ``output`` (calib.yaml, or a dataset folder for a folder). ``conf``: a preset name,
     None or a dict of overrides on ``default``. Returns ``output``."""
     conf = stage_conf(confs, conf)
+    check_bounds(conf, BOUNDS)
     source, output = Path(source), Path(output)
     if source.is_file():
         check_output(output, {"the HULKs capture": source}, overwrite=overwrite,

@@ -272,6 +272,11 @@ def _finite_pair(d: dict, key: str, where: str) -> tuple[float, float]:
     return a, b
 
 
+# px: the longest image side a conf may give (robot cameras give up to about 2000 px; a side of
+# 1e12 px is a typo, and a renderer's buffers for it would not fit in memory)
+MAX_IMAGE_PX = 8192
+
+
 def image_size_of(d: dict, where: str) -> tuple[int, int]:
     """calib.yaml's ``image_size``: [width, height], whole numbers > 0."""
     v = d["image_size"]

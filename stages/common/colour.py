@@ -49,6 +49,7 @@ import cv2
 import numpy as np
 from numba import njit
 
+from .conf import PAIR
 from .errors import FieldlocError
 from .numeric import histogram_peak, mean32, median32, var32
 
@@ -82,11 +83,13 @@ confs = {
 # its "colour." key): luminance and chroma are bytes (0-255: an ellipse or a radius beyond 255
 # UV units holds every chroma, and its square overflows float32 at 1e12), shares lie in
 # [0, 1]; the pairs must be pairs (a single number, which ``-c key=V`` makes a one-element
-# list, unpacks into nothing); a local cell of 0 px divides by zero, one of 1e12 px maps nothing
+# list, unpacks into nothing), and a window [low, high] (hue, luminance) reversed holds no
+# pixel: the search silently falls back to the nominal green; a local cell of 0 px divides by
+# zero, one of 1e12 px maps nothing
 BYTE = (0, 255)
 MAX_SPREAD_K = 100.0  # cluster spreads (std) in an ellipse semi-axis: beyond, every chroma
-BOUNDS = {"green_hue_deg": (-360.0, 360.0, 2), "green_min_chroma": BYTE,
-          "green_search_y": (*BYTE, 2), "green_nominal_uv": (*BYTE, 2),
+BOUNDS = {"green_hue_deg": (-360.0, 360.0, PAIR), "green_min_chroma": BYTE,
+          "green_search_y": (*BYTE, PAIR), "green_nominal_uv": (*BYTE, 2),
           "green_min_share": (0, 1), "green_cluster_radius": BYTE,
           "green_axes": (*BYTE, 2), "green_spread_k": (0, MAX_SPREAD_K),
           "green_min_ratio": (0, None),

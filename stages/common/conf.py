@@ -14,6 +14,7 @@ import copy
 import importlib
 import math
 import numbers
+import re
 from collections.abc import Callable, Iterator, Mapping
 
 import numpy as np
@@ -105,6 +106,8 @@ def parse_overrides(items) -> dict:
         if isinstance(parsed, (dict, list)) and not isinstance(parsed, list):
             raise FieldlocError(
                 f"conf override '{item}': give the keys of a group one by one (key.sub=value)")
+        if isinstance(parsed, list):
+            parsed = [_exponent_number(v) for v in parsed]
         d = out
         for i, p in enumerate(parts[:-1]):
             d = d.setdefault(p, {})
@@ -118,6 +121,18 @@ def parse_overrides(items) -> dict:
                 " also hold a value")
         d[parts[-1]] = parsed
     return out
+
+
+# a number in exponent notation without a point (1e12, -2E-3), which YAML 1.1 reads as text
+_EXPONENT_NUMBER = re.compile(r"[-+]?[0-9]+[eE][-+]?[0-9]+")
+
+
+def _exponent_number(v):
+    """A list element of an override: ``1e12`` as the number the user typed (a key whose preset
+    is None, e.g. a pose, keeps what YAML read; a text would be refused as not a number)."""
+    if isinstance(v, str) and _EXPONENT_NUMBER.fullmatch(v.strip()):
+        return float(v)
+    return v
 
 
 def resolve_conf(confs: dict, preset: str | dict | None, overrides: dict | None = None,
@@ -279,46 +294,78 @@ class KindPresets(Mapping):
         return sum(1 for _ in self)
 
 
-def check_bounds(conf: dict, bounds: Mapping[str, tuple]) -> None:
+# a count of a check_bounds entry: two numbers [low, high] with low <= high (the range a
+# value is drawn from: reversed, every draw falls outside it or the draw is refused deep inside)
+PAIR = "pair"
+_ABSENT = object()  # check_bounds: a key an optional entry names that the conf does not hold
+
+
+def check_bounds(conf: dict, bounds: Mapping[str, tuple], prefix: str = "",
+                 optional: bool = False) -> None:
     """Each ``bounds`` entry, ``"key.path": (low, high)``, holds the conf value at that path to
     low <= value <= high; a bound written as a one-element tuple ``(x,)`` is strict (the value
     must not equal x), None is no bound. A list value is held element by element, and an entry
     ``(low, high, count)`` holds its length too: ``count`` elements, or between the two of a
-    ``(fewest, most)`` pair (a pair of thresholds given one number unpacks into nothing). One
-    FieldlocError line for the first value outside.
-    The types are checked where the conf is resolved (checked_value); these are the ranges a
-    value must lie in for the method to run at all (a zero count divides by zero, a count of
-    1e12 runs for hours)."""
-    for path, (low, high, *count) in bounds.items():
+    ``(fewest, most)`` pair (a pair of thresholds given one number unpacks into nothing), or
+    ``PAIR``: a range [low, high] whose first number is not above its second; a value that is
+    not a list is refused there (a key whose preset is None takes any value when resolved).
+    Every value held is a finite number. One FieldlocError line for the first value outside,
+    naming the key as ``prefix`` + its path (the group a part of a conf was taken from).
+    With ``optional``, a key the conf does not hold is passed over (a conf of another kind, or
+    a stored one, holds only some of them).
+    The types of keys with a preset value are checked where the conf is resolved
+    (checked_value); these are the ranges a value must lie in for the method to run at all (a
+    zero count divides by zero, a count of 1e12 runs for hours)."""
+    for key, (low, high, *count) in bounds.items():
         v = conf
-        for part in path.split("."):
+        for part in key.split("."):
+            if optional and (not isinstance(v, dict) or part not in v):
+                v = _ABSENT
+                break
             v = v[part]
+        if v is _ABSENT:
+            continue
+        path = prefix + key
         if v is None:
             continue
+        if isinstance(v, np.ndarray):
+            v = v.tolist()
         if isinstance(v, (list, tuple)):
             if count and not _count_ok(len(v), count[0]):
                 raise FieldlocError(f"conf '{path}' must be a list of {_count_text(count[0])},"
                                     f" got {shown(v, 40)}")
             items = [(f"{path}[{i}]", x) for i, x in enumerate(v)]
+        elif count:
+            raise FieldlocError(f"conf '{path}' must be a list of {_count_text(count[0])}, got"
+                                f" {shown(v, 40)}")
         else:
             items = [(path, v)]
         for name, x in items:
-            if not _is_number(x):  # a type the conf's own checks refuse (e.g. a stored conf)
-                continue
+            if not _is_number(x):
+                raise FieldlocError(f"conf '{name}' must be a number, got {shown(x, 40)}")
+            if not math.isfinite(float(x)):
+                raise FieldlocError(f"conf '{name}' must be a finite number, got {shown(x, 40)}")
             if _beyond(x, low, 1) or _beyond(x, high, -1):
                 parts = [_bound_text(low, ">"), _bound_text(high, "<")]
                 raise FieldlocError(f"conf '{name}' must be"
                                     f" {' and '.join(p for p in parts if p)}, got {shown(x, 40)}")
+        if count and count[0] == PAIR and v[0] > v[1]:
+            raise FieldlocError(f"conf '{path}' must be a range [low, high] with low <= high,"
+                                f" got {shown(v, 40)}")
 
 
 def _count_ok(n: int, count) -> bool:
+    if count == PAIR:
+        return n == 2
     if isinstance(count, tuple):
         return count[0] <= n and (count[1] is None or n <= count[1])
     return n == count
 
 
 def _count_text(count) -> str:
-    """'2 numbers', 'at least 1 number', '1 to 8 numbers'."""
+    """'2 numbers', 'at least 1 number', '1 to 8 numbers', '2 numbers [low, high]'."""
+    if count == PAIR:
+        return "2 numbers [low, high]"
     if not isinstance(count, tuple):
         return f"{count} number{'s' if count != 1 else ''}"
     if count[1] is None:

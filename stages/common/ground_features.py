@@ -99,7 +99,9 @@ def check_conf(conf: dict) -> dict:
     kind = conf["features"].get("features") if isinstance(conf["features"], dict) else None
     bounds = {**BOUNDS, **{f"features.{k}": b  # named as the user gives them (features.KEY)
                            for k, b in local_features.BOUNDS.get(kind, {}).items()}}
-    check_bounds(conf, {k: b for k, b in bounds.items() if _has(conf, k)})
+    # a database's stored ground conf may hold the ground grid as another two of size,
+    # metres_per_pixel and extent
+    check_bounds(conf, bounds, optional=True)
     grid = unwarp.grid_of_conf(conf["ground"])
     local_features.resolve_feature_conf(conf["features"])
     f = conf["field"]
@@ -114,16 +116,6 @@ def check_conf(conf: dict) -> dict:
                             f" image ({MAX_CLOSE_PX * grid.metres_per_pixel:g} m), got"
                             f" {float(f['close_m']):g}")
     return conf
-
-
-def _has(conf: dict, path: str) -> bool:
-    """Whether the dotted key is in ``conf`` (a database's stored ground conf may hold the
-    ground grid as another two of size, metres_per_pixel and extent)."""
-    for part in path.split("."):
-        if not isinstance(conf, dict) or part not in conf:
-            return False
-        conf = conf[part]
-    return True
 
 
 def feature_kind(conf: dict) -> str:

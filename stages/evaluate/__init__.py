@@ -30,7 +30,7 @@ import os
 from pathlib import Path
 
 from stages.common.artifacts import check_output, file_hash, refuse_inputs
-from stages.common.conf import stage_conf
+from stages.common.conf import check_bounds, stage_conf
 from stages.common.dataset import read_csv
 from stages.common.errors import FieldlocError
 from stages.common.field import field_file, load_field
@@ -107,17 +107,23 @@ CONVENTIONS = {
 }
 
 
-def _check_conf(conf: dict) -> dict:
+# the ranges of the list-valued keys (common.conf.check_bounds): a share "within" is one
+# column of the tables; a threshold beyond the diagonal of any field holds every frame
+MAX_THRESHOLDS = 20
+MAX_THRESHOLD_M = 100.0
+BOUNDS = {"thresholds": ((0,), MAX_THRESHOLD_M, (1, MAX_THRESHOLDS))}
+
+
+def check_conf(conf: dict) -> dict:
+    """A resolved evaluate conf, checked (FieldlocError, one line naming the key), with its
+    thresholds sorted: also what a batch SPEC's ``evaluate`` is held to before anything runs."""
     tol = conf["stamp_tolerance"]
     if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not tol >= 0:
         raise FieldlocError(f"conf 'stamp_tolerance' must be a number >= 0 (s), got {tol!r}")
     th = conf["thresholds"]
     if isinstance(th, (int, float)) and not isinstance(th, bool):
-        th = [th]
-    if (not isinstance(th, (list, tuple)) or not th
-            or any(isinstance(t, bool) or not isinstance(t, (int, float)) or not t > 0
-                   for t in th)):
-        raise FieldlocError(f"conf 'thresholds' must be a list of distances > 0 (m), got {th!r}")
+        conf["thresholds"] = th = [th]
+    check_bounds(conf, BOUNDS)
     if not isinstance(conf["up_to_mirror"], bool):
         raise FieldlocError(f"conf 'up_to_mirror' must be true or false, got"
                             f" {str(conf['up_to_mirror'])[:40]!r}")
@@ -127,7 +133,7 @@ def _check_conf(conf: dict) -> dict:
 
 
 def _resolve(conf) -> dict:
-    return _check_conf(stage_conf(confs, conf))
+    return check_conf(stage_conf(confs, conf))
 
 
 def evaluate_poses(columns: dict, truth: dict, conf=None) -> tuple[FrameErrors, dict]:

@@ -532,8 +532,10 @@ def run(conf: dict, dataset, features, map_file, progress=None) -> PoseTrack:
 
 
 # the ranges mcl's numeric keys must lie in to run at all (common.conf.check_bounds; the
-# particle counts below)
-BOUNDS = {"seed": (0, None), "hypotheses": (1, 1000), "init_spread": (0, None, 3),
+# particle counts below); an init_spread beyond MAX_INIT_SPREAD (m, rad) puts the particles
+# off any field (the largest is 22 m long) and spreads the heading uniformly many times over
+MAX_INIT_SPREAD = 100.0
+BOUNDS = {"seed": (0, None), "hypotheses": (1, 1000), "init_spread": (0, MAX_INIT_SPREAD, 3),
           "init_pose": (None, None, 3), "observation.camera_height": ((0,), 10.0)}
 
 

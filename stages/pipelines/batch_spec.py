@@ -83,7 +83,7 @@ import yaml
 from .. import evaluate, extract, localize, simulate
 from ..common.artifacts import file_hash, text_hash
 from ..common.camera import camera_can
-from ..common.conf import load_yaml, parse_overrides, resolve_conf, stage_conf
+from ..common.conf import check_bounds, load_yaml, parse_overrides, resolve_conf, stage_conf
 from ..common.errors import FieldlocError, shown
 
 TOP_KEYS = ("field", "map", "build_map", "datasets", "extract", "evaluate", "templates",
@@ -245,7 +245,8 @@ def read_spec(spec_path: str | Path, results: str | Path) -> Plan:
     extract_default = data.get("extract") or {}
     w.keys(extract_default, "extract", tuple(extract.KINDS))
     try:
-        evaluate_conf = stage_conf(evaluate.confs, data.get("evaluate"), default="numbers")
+        evaluate_conf = evaluate.check_conf(stage_conf(evaluate.confs, data.get("evaluate"),
+                                                       default="numbers"))
     except FieldlocError as e:
         w.fail("evaluate", str(e))
     maps: dict = {}
@@ -539,6 +540,7 @@ def _grid_conf(w, entry: dict, ds: DatasetSpec, where: str) -> tuple[dict, str]:
             traj[name] = entry[key]
     fm = load_field(ds.sim_field)
     try:
+        simulate.check_conf(conf)  # the overrides and the grid's centre: before anything runs
         conf["frames"] = len(trajectory.grid_poses(fm, traj))  # as simulate counts them
     except FieldlocError as e:
         w.fail(where, str(e))
@@ -574,6 +576,8 @@ def _methods(w, entries, skipped) -> list[MethodSpec]:
             try:
                 spec.conf = resolve_conf(localize.confs, localize.preset_name(method, preset),
                                          over)
+                # the method's ranges (its BOUNDS), refused before anything runs
+                check_bounds(spec.conf, getattr(localize.method_module(method), "BOUNDS", {}))
             except FieldlocError as e:
                 w.fail(where, str(e))
             spec.cameras = localize.method_camera_kinds(method)

@@ -76,9 +76,9 @@ from ..common.artifacts import (
     text_hash,
 )
 from ..common.camera import save_calib
-from ..common.conf import load_yaml, stage_conf
+from ..common.conf import check_bounds, load_yaml, stage_conf
 from ..common.dataset import SIMULATION_RECORD, write_csv
-from ..common.errors import FieldlocError
+from ..common.errors import FieldlocError, shown
 from ..common.field import FieldModel, load_field
 from ..common.resources import check_disk, check_memory
 from . import scene as scene_mod
@@ -349,8 +349,10 @@ def estimate_needs(conf: dict, field: FieldModel) -> tuple[dict, float]:
 
 
 def check_conf(conf: dict) -> None:
-    """The counts and seeds of a resolved simulate conf (frames, rate, seeds, calibration
-    shift), checked before anything is rendered; FieldlocError names the key."""
+    """The counts and seeds of a resolved simulate conf (frames, rate, seeds), the shapes and
+    ranges of its list-valued keys (``bounds``: colours, ranges drawn from, the camera's
+    sizes) and the camera the renderer would build, checked before anything is rendered;
+    FieldlocError names the key."""
     _check_conf(conf)
 
 
@@ -368,12 +370,40 @@ def _check_conf(conf: dict):
         if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 0):
             raise FieldlocError(f"{key} must be a whole number >= 0 or null, got"
                                 f" {str(v)[:40]!r}")
-    ce = conf["calib_error"]
-    if len(ce.get("centre_shift", ())) != 2:
-        raise FieldlocError("calib_error.centre_shift must be [du, dv] (px)")
-    check = getattr(renderer_class(conf["camera"])[0], "check_calib_error", None)
+    module = renderer_class(conf["camera"])[0]
+    check_bounds(conf, bounds(conf["camera"], module), optional=True)
+    _check_start(conf)
+    if hasattr(module, "check_conf"):
+        module.check_conf(conf.get(conf["camera"]))
+    check = getattr(module, "check_calib_error", None)
     if check is not None:
-        check(ce)
+        check(conf["calib_error"])
+
+
+def bounds(kind: str, module) -> dict:
+    """The ranges of a conf's list-valued keys (common.conf.check_bounds): the scene's, the
+    trajectory's, the IMU's, the calibration error's and the renderer's of camera ``kind``
+    (its module's BOUNDS, under the kind's name)."""
+    return {**{f"scene.{k}": b for k, b in scene_mod.BOUNDS.items()},
+            **{f"trajectory.{k}": b for k, b in trajectory.BOUNDS.items()},
+            **{f"imu.{k}": b for k, b in sensors.IMU_BOUNDS.items()},
+            "calib_error.centre_shift": (None, None, 2),  # px [du, dv]
+            **{f"{kind}.{k}": b for k, b in getattr(module, "BOUNDS", {}).items()}}
+
+
+def _check_start(conf: dict) -> None:
+    """trajectory.start: None (random), "touchline" (walk.touchline_start) or [x, y, theta];
+    trajectory.grid_centre: None or [x, y] (a start or centre off the field is refused where
+    the field is known: trajectory.generate, grid_poses)."""
+    start = conf["trajectory"].get("start")
+    if isinstance(start, str) and start == "touchline":
+        start = None
+    elif start is not None and not isinstance(start, list):
+        raise FieldlocError(f"conf 'trajectory.start' must be [x, y, theta] or touchline, got"
+                            f" {shown(start, 40)}")
+    held = {"trajectory.grid_centre": (None, None, 2),
+            **({"trajectory.start": (None, None, 3)} if start is not None else {})}
+    check_bounds(conf, held, optional=True)
 
 
 def _check_written_calib(camera) -> None:
@@ -404,7 +434,8 @@ def main(conf: str | dict | None, field, output_dir, *, overwrite: bool = False,
         field_file = p if p.suffix.lower() in (".yaml", ".yml") or p.exists() else None
         field = load_field(field)
     grid = conf["trajectory"].get("kind") == "grid"
-    if grid:  # one frame per placement
+    if grid:  # one frame per placement (its centre checked first)
+        _check_start(conf)
         conf["frames"] = len(trajectory.grid_poses(field, conf["trajectory"]))
     _check_conf(conf)
     _restore_interrupted_replacement(output_dir)

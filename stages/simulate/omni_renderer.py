@@ -31,8 +31,9 @@ import math
 import cv2
 import numpy as np
 
-from ..common.camera import OmniCamera, fit_polynomial
-from ..common.errors import FieldlocError
+from ..common.camera import MAX_IMAGE_PX, POLYNOMIAL_COEFFICIENTS, OmniCamera, fit_polynomial
+from ..common.conf import PAIR
+from ..common.errors import DatasetError, FieldlocError
 from ..common.fixed_remap import fixed_maps, remap_linear
 from .imaging import add_sensor_noise, chroma_subsample, frame_light, jpeg_round_trip, noise_window
 from .scene import sample_texture
@@ -80,26 +81,42 @@ OMNI_DEFAULTS = {
 }
 
 
+# the ranges of the list-valued keys (common.conf.check_bounds, held where simulate's conf is
+# resolved); the camera's own checks (centre inside the image, an increasing f(r) over a
+# valid ring) are calib.yaml's, in camera_from_conf
+MAX_STRUTS = 16  # a mirror mount has a few struts; 0: none
+# m: the farthest floor distance f(r) may give at the body edge (the inner valid radius): the
+# diagonal of the largest field with its border is about 25 m; beyond, no floor is in view
+MAX_FLOOR_RANGE_M = 100.0
+BOUNDS = {"image_size": (1, MAX_IMAGE_PX, 2), "centre": (None, None, 2),
+          "polynomial": (None, None, POLYNOMIAL_COEFFICIENTS),
+          "valid_radius": (0, None, PAIR), "struts_deg": (-360.0, 360.0, (0, MAX_STRUTS))}
+
+
 def camera_from_conf(c: dict) -> OmniCamera:
-    """The OmniCamera the renderer draws with (the truth, before any calibration error)."""
+    """The OmniCamera the renderer draws with (the truth, before any calibration error), read
+    as extract reads calib.yaml (its checks: six coefficients, the centre inside the image, an
+    f(r) increasing over the valid ring)."""
+    d = {k: c[k] for k in ("image_size", "centre", "polynomial", "valid_radius",
+                           "forward_angle", "mirrored") if k in c}
+    d.update(kind="omni", version=1)
     try:
-        cam = OmniCamera(
-            image_size=(int(c["image_size"][0]), int(c["image_size"][1])),
-            centre=(float(c["centre"][0]), float(c["centre"][1])),
-            polynomial=np.asarray(c["polynomial"], dtype=float),
-            valid_radius=(float(c["valid_radius"][0]), float(c["valid_radius"][1])),
-            forward_angle=float(c["forward_angle"]),
-            mirrored=bool(c["mirrored"]),
-        )
-    except (TypeError, ValueError, IndexError, KeyError) as e:
-        raise FieldlocError(f"omni camera conf is malformed ({e})") from None
-    r = np.linspace(cam.valid_radius[0], cam.valid_radius[1], 512)
-    if not np.all(np.diff(cam.distance_of_radius(r)) > 0):
+        cam = OmniCamera.from_dict(d, "conf 'omni'")
+    except DatasetError as e:
+        raise FieldlocError(str(e)) from None
+    inner = float(cam.distance_of_radius(cam.valid_radius[0]))
+    if not inner <= MAX_FLOOR_RANGE_M:
         raise FieldlocError(
-            "omni camera polynomial is not increasing over the valid radius"
-            f" {cam.valid_radius[0]:g}..{cam.valid_radius[1]:g} px"
-        )
+            f"conf 'omni.polynomial' places the floor at the body edge {inner:.3g} m away (f(r)"
+            f" at valid_radius {cam.valid_radius[0]:g} px); a mirror sees floor nearer than"
+            f" {MAX_FLOOR_RANGE_M:g} m")
     return cam
+
+
+def check_conf(section: dict | None) -> None:
+    """The renderer's conf section (merged with the defaults) makes a camera (FieldlocError,
+    one line): checked before anything is rendered."""
+    camera_from_conf(_merged(section))
 
 
 CALIB_ERROR_DEFAULTS = {

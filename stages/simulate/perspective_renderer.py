@@ -34,12 +34,14 @@ import math
 import cv2
 import numpy as np
 
+from ..common.camera import MAX_IMAGE_PX
+from ..common.conf import check_bounds
 from ..common.errors import DatasetError, FieldlocError
 from ..common.fixed_remap import fixed_maps, remap_linear
 from ..common.perspective_camera import PerspectiveCamera, head_rotation
 from . import walk
 from .imaging import add_sensor_noise, chroma_subsample, frame_light, jpeg_round_trip, noise_window
-from .scene import sample_texture
+from .scene import BGR, sample_texture
 
 PERSPECTIVE_DEFAULTS = {
     "image_size": [752, 480],  # width, height (px): the paper's WXGA camera
@@ -101,9 +103,22 @@ def camera_from_conf(c: dict) -> PerspectiveCamera:
          if k in c}
     d["kind"] = "perspective"
     try:
-        return PerspectiveCamera.from_dict(d, "perspective camera conf")
+        return PerspectiveCamera.from_dict(d, "conf 'perspective'")
     except DatasetError as e:
         raise FieldlocError(str(e)) from None
+
+
+# the ranges of the list-valued keys (common.conf.check_bounds, held where simulate's conf is
+# resolved); the camera's own checks (a distortion that does not fold the image, the
+# intrinsics) are calib.yaml's, in camera_from_conf
+BOUNDS = {"image_size": (1, MAX_IMAGE_PX, 2), "distortion": (None, None, (4, 5)),
+          "sheen_bgr": BGR, **{f"head.{k}": b for k, b in walk.HEAD_BOUNDS.items()}}
+
+
+def check_conf(section: dict | None) -> None:
+    """The renderer's conf section (merged with the defaults) makes a camera (FieldlocError,
+    one line): checked before anything is rendered."""
+    camera_from_conf(_merged(section))
 
 
 # calib_error's mount keys and the largest magnitude each may take: a camera screwed in a few
@@ -113,8 +128,17 @@ MOUNT_ERROR_LIMITS = {"pitch_offset": (0.15, "rad"), "roll_offset": (0.15, "rad"
                       "height_offset": (0.2, "m")}
 
 
+# px: the largest principal point shift calib_error may give (a principal point read off by a
+# tenth of the image is a gross miscalibration; beyond, the written camera is another camera
+# whose lens model extract refuses)
+MAX_CENTRE_SHIFT_PX = 100.0
+
+
 def check_calib_error(calib_error: dict) -> None:
-    """calib_error's mount keys within MOUNT_ERROR_LIMITS (FieldlocError, one line)."""
+    """calib_error's mount keys within MOUNT_ERROR_LIMITS and its centre shift within
+    MAX_CENTRE_SHIFT_PX (FieldlocError, one line)."""
+    check_bounds(calib_error, {"centre_shift": (-MAX_CENTRE_SHIFT_PX, MAX_CENTRE_SHIFT_PX, 2)},
+                 prefix="calib_error.")
     for key, (limit, unit) in MOUNT_ERROR_LIMITS.items():
         value = calib_error.get(key, 0.0)
         try:

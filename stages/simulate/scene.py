@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from ..common.conf import PAIR
 from ..common.fixed_remap import remap_linear
 from . import trajectory
 
@@ -83,6 +84,31 @@ SCENE_DEFAULTS = {
         "colour_temperature": 0.18,  # +-relative blue/red swing
         "tint": 0.12,  # +-relative green/magenta swing
     },
+}
+
+
+# the ranges of the list-valued keys (common.conf.check_bounds, held where simulate's conf is
+# resolved): colours are 8-bit BGR triplets; a range drawn from is an ordered pair [low, high]
+BGR = (0, 255, 3)
+# relative paint brightness: 0 paints black lines; at 2 any paint colour is clipped white
+MAX_LINE_BRIGHTNESS = 2.0
+# m/s: faster than any robot or person on a field (MSL robots reach about 4 m/s); a mover at
+# 1e12 m/s leaves the field between two frames
+MAX_MOVER_SPEED = 10.0
+# m: a handler walks along within a few metres; at 10 m they would stand outside a hall's field
+MAX_HANDLER_DISTANCE = 10.0
+# relative light: a sun patch 10 times the hall's light, or a gain of 10, saturates every pixel
+MAX_RELATIVE_LIGHT = 10.0
+BOUNDS = {
+    "carpet_bgr": BGR, "floor_bgr": BGR, "line_bgr": BGR, "ball_bgr": BGR,
+    "line_brightness": ((0,), MAX_LINE_BRIGHTNESS, PAIR),
+    "robot_speed": ((0,), MAX_MOVER_SPEED, PAIR),
+    "person_speed": ((0,), MAX_MOVER_SPEED, PAIR),
+    "handler_distance": ((0,), MAX_HANDLER_DISTANCE, PAIR),
+    "sun_strength": (0, MAX_RELATIVE_LIGHT, PAIR),
+    "shadow_strength": (0, 1, PAIR),  # the share of the light a band takes
+    "lighting.gain": ((0,), MAX_RELATIVE_LIGHT, PAIR),  # its logarithm is drawn from
+    "lighting.periods": ((0,), None, PAIR),  # s
 }
 
 

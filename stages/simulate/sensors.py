@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..common.conf import PAIR
 from ..common.geometry import between, wrap_angle
 
 ODOMETRY_DEFAULTS = {
@@ -47,6 +48,10 @@ IMU_DEFAULTS = {
     "collision_frames": [2, 5],  # frames per event (inclusive range)
     "contact_distance": 0.55,  # m: another robot's centre this close is a collision
 }
+
+# the ranges of the list-valued keys (common.conf.check_bounds): a collision lasts a whole
+# number of frames, at least one, drawn from [low, high]
+IMU_BOUNDS = {"collision_frames": (1, None, PAIR)}
 
 
 def true_motion(poses) -> np.ndarray:

@@ -24,7 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..common.errors import FieldlocError
+from ..common.conf import PAIR
+from ..common.errors import FieldlocError, shown
 from ..common.geometry import wrap_angle
 
 PATH_KINDS = ("random", "loop")  # a path driven by the controller
@@ -56,6 +57,10 @@ DEFAULTS = {
     "grid_centre": None,
     "grid_half_size": None,
 }
+
+# the ranges of the list-valued keys (common.conf.check_bounds): ``start`` (None, "touchline"
+# or [x, y, theta]) and ``grid_centre`` are held by simulate's check_conf
+BOUNDS = {"heading_hold": ((0,), None, PAIR)}  # s, a range drawn from
 
 
 @dataclass
@@ -92,7 +97,7 @@ def _check(conf: dict, box: tuple[float, float]):
     if c["start"] is not None:
         s = c["start"]
         if len(s) != 3:
-            raise FieldlocError(f"trajectory start must be [x, y, theta], got {s!r}")
+            raise FieldlocError(f"trajectory start must be [x, y, theta], got {shown(s, 40)}")
         if abs(s[0]) > box[0] or abs(s[1]) > box[1]:
             raise FieldlocError(
                 f"trajectory start ({s[0]}, {s[1]}) is not on the field (|x| <= {box[0]:.2f},"

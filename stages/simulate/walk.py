@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..common.conf import PAIR
 from ..common.errors import FieldlocError
 
 HEAD_DEFAULTS = {
@@ -28,6 +29,8 @@ HEAD_DEFAULTS = {
     "turn_speed": 0.4,  # rad/s turning on the spot that counts as full walking
     "measurement_noise": 0.005,  # rad: error of the angles the robot records (head.csv)
 }
+# the ranges of the list-valued keys (common.conf.check_bounds)
+HEAD_BOUNDS = {"tilt_periods": ((0,), None, PAIR)}  # s, a range drawn from
 
 
 def touchline_start(field, margin: float, rng: np.random.Generator) -> list[float]:
