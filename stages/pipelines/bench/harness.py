@@ -153,7 +153,7 @@ def calibration_rows(method: str, runs, label: str, seconds: float) -> list[Row]
         meets_goal=bool(a >= 0.95 and gap <= 0.1), repeats=1,
         note=f"{len(runs)} sets, {frames} frames, {seconds:.0f} s; AUROC"
              f" {a:.3f}; largest gap {gap:.2f} over bins of >= 20 frames; {rel}",
-        extra={"reliability": table, "auroc": a}))
+        extra={"reliability": table, "auroc": a, "top_wrong": int(np.sum(~ok))}))
     share = wrong / max(frames, 1)
     rows.append(Row(
         name=f"{method} frames confidently wrong, {label}", median_ms=math.nan,
