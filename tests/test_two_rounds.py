@@ -1,6 +1,6 @@
 """`fieldloc localize --smooth` on an omni recording runs two rounds: the smoothed poses show
 the mirror calibration's error, the frames are extracted again with the corrected calib.yaml
-and smoothed again (stages.pipelines.images_to_poses)."""
+and smoothed again, against the first round's poses (stages.pipelines.images_to_poses)."""
 
 import copy
 import hashlib
@@ -45,10 +45,17 @@ def test_the_second_round_extracts_with_the_learnt_calibration(omni_default_rend
     assert not (tmp_path / "one.recalibrated.yaml").exists()
     calib = yaml.safe_load((tmp_path / "two.recalibrated.yaml").read_text())
     assert calib["calibration"]["method"] == "recording"
-    assert calib["calibration"]["source"].endswith("two.h5 (its first round)")
+    assert calib["calibration"]["source"].endswith("two.first-round.h5")
     e1, _c1, _a1 = _errors(out["one"], ds / "truth.csv")
     e2, cols, attrs = _errors(out["two"], ds / "truth.csv")
     assert attrs["inputs"]["features"].endswith("two.recalibrated.features.h5")
+    assert attrs["inputs"]["reference"].endswith("two.first-round.h5")
+    # a frame the rounds place apart holds at most half, not accepted; the others agree
+    first, _a = read_poses(tmp_path / "two.first-round.h5")
+    apart = np.array(["rounds-disagree" in f for f in cols["flags"]])
+    assert np.all(cols["confidence"][apart] <= 0.5) and not cols["accepted"][apart].any()
+    gap = np.hypot(cols["x"] - first["x"], cols["y"] - first["y"])
+    assert np.all(gap[~apart & ~cols["failed"]] <= 0.5 + 1e-9)
     assert set(cols["mode"]) == {"smoothed"}
     assert np.all(e2 <= 0.4), np.round(e2, 2)
     # the tuning seeds' medians fell 1.5-3 times; here at least it must not rise (1 mm slack)

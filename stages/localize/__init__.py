@@ -356,7 +356,8 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path 
          output: str | Path, *, features: str | Path | None = None,
          points: str | Path | None = None, overwrite: bool = False,
          progress: bool = False, allow_field_mismatch: bool = False,
-         templates: str | Path | None = None, write_calib: str | Path | None = None) -> Path:
+         templates: str | Path | None = None, write_calib: str | Path | None = None,
+         reference: str | Path | None = None) -> Path:
     """Localise the frames of ``dataset_dir`` on ``map_path`` into ``output`` (poses.h5 and
     poses.tum beside it) from ``features`` (a features file) or ``points`` (a points CSV), and
     return its path. ``allow_field_mismatch``: localise even when the features were recorded
@@ -368,7 +369,9 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path 
     (mount_calibration.py, method mcl), to this path (never the dataset's own calib.yaml; an
     existing file needs ``overwrite``). A calibration the run's poses cannot give (too few
     sure frames, a fit its halves do not reproduce) raises FieldlocError after the poses are
-    written."""
+    written. ``reference``: a poses file of another run of the same recording (the first
+    round of stages.pipelines.images_to_poses); a frame this run places elsewhere than it
+    holds at most half the probability (``against_reference``)."""
     resolved = resolve_localize_conf(conf)
     if uses_templates(resolved["method"]) and write_calib is not None:
         raise FieldlocError("--write-calib learns a calibration from line features: it needs"
@@ -390,9 +393,12 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path 
     if write_calib is not None:
         check_write_calib(write_calib, conf, dataset, points, output, given, overwrite)
     module = method_module(conf["method"])
-    map_file = MapFile(map_path)
     inputs = {"dataset": _abs(dataset_dir), "map": _abs(map_path),
               "map_hash": file_hash(map_path)}
+    if reference is not None:
+        check_output(output, {"reference": reference}, overwrite=None)
+        inputs.update(reference=_abs(reference), reference_hash=file_hash(reference))
+    map_file = MapFile(map_path)
     try:
         if points is not None:
             feats = PointFrames(points, dataset, map_file.scanlines)
@@ -416,6 +422,8 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path 
             track = (module.run(conf, dataset, feats, map_file, progress) if len(feats.names)
                      else PoseTrack())
             track = _with_missing_frames(track, dataset, feats, recorded["failures"])
+            if reference is not None:
+                against_reference(track, reference, conf["min_confidence"])
             set_up_to_mirror(track, map_file.field.is_point_symmetric(),
                              conf["min_confidence"])
             warn = start_half_warning(track.arrays(), {"conf": conf})
@@ -644,6 +652,38 @@ def _warn_stamps(dataset, stamps, series: dict, conf: dict) -> None:
 
 def _failure_reason(text: str) -> str:
     return "unreadable-image" if "unreadable image" in text else "extract-failed"
+
+
+def against_reference(track: PoseTrack, reference, min_confidence: float) -> None:
+    """Frames of ``track`` whose pose lies in another place than the poses file
+    ``reference`` holds for them (another run of the same recording, with another camera
+    calibration: the first round of stages.pipelines.images_to_poses). Which place the frame
+    is at then turns on a few centimetres of calibration, so neither run is sure of it: as a
+    pose and its mirror do, the two places hold at most half the probability each (the
+    reference's pose is listed as the next hypothesis), the frame is accepted only if that
+    reaches ``min_confidence``, and it is flagged ``rounds-disagree``. One place: within the
+    smoother's CONFIDENCE_RADIUS_M and CONFIDENCE_RADIUS_RAD (stages.localize.smooth)."""
+    from ..common.geometry import wrap_scalar
+    from ..common.poses_file import read_poses
+    from .smooth import CONFIDENCE_RADIUS_M, CONFIDENCE_RADIUS_RAD
+
+    cols, _attrs = read_poses(reference)
+    row = {str(n): j for j, n in enumerate(cols["name"])}
+    for i, name in enumerate(track.name):
+        j = row.get(name)
+        if track.failed[i] or j is None or cols["failed"][j]:
+            continue
+        ref = np.array([cols["x"][j], cols["y"][j], cols["theta"][j]], float)
+        if (math.hypot(track.x[i] - ref[0], track.y[i] - ref[1]) <= CONFIDENCE_RADIUS_M
+                and abs(wrap_scalar(track.theta[i] - ref[2])) <= CONFIDENCE_RADIUS_RAD):
+            continue
+        share = min(track.confidence[i], 0.5)
+        hyps = np.array(track.hypotheses[i], float).reshape(-1, 4)
+        hyps[0, 3] = share
+        track.hypotheses[i] = np.vstack([hyps[:1], [[*ref, share]], hyps[1:]])
+        track.confidence[i] = share
+        track.accepted[i] = bool(track.accepted[i] and share >= float(min_confidence))
+        track.flags[i] = ",".join(f for f in (track.flags[i], "rounds-disagree") if f)
 
 
 def _with_missing_frames(track: PoseTrack, dataset, feats, failures: list[str]) -> PoseTrack:

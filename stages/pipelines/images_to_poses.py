@@ -20,9 +20,12 @@ recording, so it does what bundle adjustment does with a camera (Triggs et al. 2
 estimates the calibration jointly with the smoothed poses of every frame
 (docs/recording-calibration.md), extracts the frames again with it, and smooths again.
 
-- The calibration the second round used is kept beside the output as
-  ``<output stem>.recalibrated.yaml``, and its features as
-  ``<output stem>.recalibrated.features.h5``; the poses name them as their inputs.
+- The first round's poses are kept beside the output as ``<output stem>.first-round.h5``, the
+  calibration the second round used as ``<output stem>.recalibrated.yaml``, and its features
+  as ``<output stem>.recalibrated.features.h5``; the poses name them as their inputs.
+- A frame the second round places elsewhere than the first turns on a few centimetres of
+  calibration: the two places hold at most half each, and it is flagged ``rounds-disagree``
+  (stages.localize.against_reference).
 - A calibration the first round's poses cannot give (too few sure frames, a fit whose halves
   disagree) is not used: the first round's poses are the run's, and a warning says why.
 - ``write_calib`` writes the calibration estimated again from the second round's poses, on the
@@ -49,12 +52,14 @@ def default_features_path(output: str | Path) -> Path:
     return output.with_name(output.stem + ".features.h5")
 
 
-def recalibrated_paths(output: str | Path) -> tuple[Path, Path]:
-    """(calib.yaml, features) of the second round of ``output``: ``<output
-    stem>.recalibrated.yaml`` and ``<output stem>.recalibrated.features.h5``."""
+def recalibrated_paths(output: str | Path) -> tuple[Path, Path, Path]:
+    """(calib.yaml, features, first round's poses) of the two rounds of ``output``: ``<output
+    stem>.recalibrated.yaml``, ``<output stem>.recalibrated.features.h5`` and ``<output
+    stem>.first-round.h5`` (its poses.tum beside it)."""
     output = Path(output)
     return (output.with_name(output.stem + ".recalibrated.yaml"),
-            output.with_name(output.stem + ".recalibrated.features.h5"))
+            output.with_name(output.stem + ".recalibrated.features.h5"),
+            output.with_name(output.stem + ".first-round.h5"))
 
 
 def features_for(dataset_dir: str | Path, output: str | Path, inputs: dict,
@@ -93,7 +98,8 @@ def main(conf, dataset_dir: str | Path, map_path: str | Path, output: str | Path
     rounds = (points is None and resolved.get("smooth") and resolved.get("recalibrate")
               and localize.recording_calibration(ds.camera().kind, resolved["method"]))
     if rounds:
-        for path in recalibrated_paths(output):
+        calib, features2, first = recalibrated_paths(output)
+        for path in (calib, features2, first, first.with_suffix(".tum")):
             check_output(path, {**inputs, "poses": output, "calib": write_calib},
                          overwrite=overwrite, kind="calibration")
     if features is None and points is None:
@@ -108,17 +114,17 @@ def main(conf, dataset_dir: str | Path, map_path: str | Path, output: str | Path
 
 def _two_rounds(conf, dataset_dir: Path, map_path, output: Path, features: Path, *,
                 overwrite: bool, write_calib, progress: bool, allow_field_mismatch: bool) -> Path:
-    """The first round into a temporary folder beside ``output``, the calibration its poses
-    show, the features extracted with it, the second round into ``output`` (module doc)."""
-    calib, features2 = recalibrated_paths(output)
+    """The first round, the calibration its poses show, the features extracted with it, the
+    second round into ``output`` against the first (module doc)."""
+    calib, features2, first = recalibrated_paths(output)
     kw = {"progress": progress, "allow_field_mismatch": allow_field_mismatch}
+    localize.main(conf, dataset_dir, map_path, first, features=features, overwrite=overwrite,
+                  **kw)
     with tempfile.TemporaryDirectory(dir=output.parent, prefix=".fieldloc-round-") as tmp:
-        first = Path(tmp) / output.name
-        localize.main(conf, dataset_dir, map_path, first, features=features, **kw)
         learnt = Path(tmp) / "calib.yaml"
         try:
             localize.calibrate_from_poses(learnt, dataset_dir, features, first, map_path,
-                                          source=f"{os.path.abspath(output)} (its first round)")
+                                          source=os.path.abspath(first))
         except FieldlocError as e:
             log.warning("no second round: the first round's poses give no calibration (%s)", e)
             for src in (first, first.with_suffix(".tum")):  # the first round is the run
@@ -131,7 +137,7 @@ def _two_rounds(conf, dataset_dir: Path, map_path, output: Path, features: Path,
     extract.main(extract.conf_of(features), dataset_dir, features2, overwrite=overwrite,
                  progress=progress, calib=calib)
     path = localize.main(conf, dataset_dir, map_path, output, features=features2,
-                         overwrite=True, **kw)
+                         overwrite=True, reference=first, **kw)
     if write_calib is not None:
         try:
             localize.calibrate_from_poses(write_calib, dataset_dir, features, path, map_path)
