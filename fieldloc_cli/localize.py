@@ -1,8 +1,8 @@
 """`fieldloc localize DIR --map MAP [--features FILE | --points FILE.csv]
 [--method lut|mcl|fit|templates] [--templates templates.h5 (--method templates; --map then
 optional)] [--heading imu|histogram|truth] [--start-half own|opponent|any]
-[--init placement|uniform] [--independent] [--smooth] [--write-calib calib.yaml]
-[--min-confidence P] [-o poses.h5]
+[--start-side left|right|any] [--init placement|uniform] [--independent] [--smooth]
+[--write-calib calib.yaml] [--min-confidence P] [-o poses.h5]
 [--preset NAME] [-c key=value] [--overwrite]`."""
 
 from __future__ import annotations
@@ -49,6 +49,10 @@ SMOOTH_METHODS = ("lut", "fit", "mcl", "templates")
               " resolves the field's 180 deg symmetry when no field-aligned IMU heading does"
               " (mcl: the half its uniform start or placement is drawn on)"
               f" [default: {LOCALIZE['fit', 'start_half']}].")
+@click.option("--start-side", type=click.Choice(["left", "right", "any"]), default=None,
+              help="mcl: the touch line the placement stands on (left: y > 0, on the left"
+              " looking from the own goal to the opponent's)"
+              f" [default: {LOCALIZE['mcl', 'start_side']}].")
 @click.option("--init", type=click.Choice(["placement", "uniform"]), default=None,
               help="mcl: initial belief, the game's placement (own half, at the touch"
               f" lines) or anywhere on the field [default: {LOCALIZE['mcl', 'init']}].")
@@ -80,8 +84,8 @@ SMOOTH_METHODS = ("lut", "fit", "mcl", "templates")
               " other scan lines than the map's.")
 @click.pass_context
 def localize(ctx, dataset, map_path, templates, pose_solver, features, points, method, heading,
-             start_half, init, independent, smooth, write_calib, min_confidence, output, preset,
-             overrides, overwrite, allow_field_mismatch):
+             start_half, start_side, init, independent, smooth, write_calib, min_confidence,
+             output, preset, overrides, overwrite, allow_field_mismatch):
     """Poses of the frames of DATASET on the field of MAP (poses.h5 + poses.tum)."""
     from stages import localize as stage
     from stages.common.conf import resolve_conf
@@ -97,6 +101,10 @@ def localize(ctx, dataset, map_path, templates, pose_solver, features, points, m
         if method not in (*TABLE_METHODS, "mcl"):
             raise click.UsageError("--start-half applies to --method lut, fit and mcl")
         conf["start_half"] = start_half
+    if start_side is not None:
+        if method != "mcl":
+            raise click.UsageError("--start-side applies to --method mcl")
+        conf["start_side"] = start_side
     if init is not None:
         if method != "mcl":
             raise click.UsageError("--init applies to --method mcl")

@@ -49,7 +49,8 @@ LOCALIZE_METHODS = ("lut", "mcl", "templates", "fit")
 LOCALIZE_DEFAULT_METHOD = "lut"
 # (method, key) -> stages.localize.method_confs(method)["default"][key]
 LOCALIZE = {("lut", "heading"): "imu", ("fit", "start_half"): "any",
-            ("mcl", "init"): "placement", ("lut", "min_confidence"): 0.8,
+            ("mcl", "init"): "placement", ("mcl", "start_side"): "any",
+            ("lut", "min_confidence"): 0.8,
             ("fit", "min_confidence"): 0.8}
 
 # stages.pipelines.frame_belief.confs["default"]: resolution (m), heading_step in degrees

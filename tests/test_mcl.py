@@ -545,6 +545,37 @@ def test_cli_start_half_breaks_the_symmetry_of_a_uniform_start(rendered_walk, ma
     assert not cols["accepted"].any() and np.mean(cols["accepted_up_to_mirror"][10:]) >= 0.9
 
 
+def test_cli_start_side_holds_the_placement_to_its_touch_line(rendered_walk, map_path,
+                                                               tmp_path):
+    """``fieldloc localize --method mcl --start-side S``: the placement stands on the touch
+    line S names, so the first frame's top pose lies on that side of the field whichever the
+    frame favours (a wrong side named holds it there); named right, no accepted frame is more
+    than 1 m off."""
+    from click.testing import CliRunner
+
+    from fieldloc_cli.main import cli
+    from stages.common.dataset import read_csv
+    from stages.common.poses_file import read_poses
+
+    data, features = rendered_walk["paths"]
+    truth = read_csv(data / "truth.csv", "truth")
+    own = "left" if truth["y"][0] > 0 else "right"
+    runs = {}
+    for side in ("left", "right"):
+        out = tmp_path / f"{side}.h5"
+        res = CliRunner().invoke(cli, ["-q", "localize", str(data), "--map", str(map_path),
+                                       "--features", str(features), "--method", "mcl",
+                                       "--start-side", side, "-o", str(out)])
+        assert res.exit_code == 0, res.output
+        cols, attrs = read_poses(out)
+        assert attrs["conf"]["start_side"] == side
+        assert np.sign(cols["y"][0]) == (1.0 if side == "left" else -1.0)
+        i = np.searchsorted(truth["stamp"], cols["stamp"] - 1e-6)
+        runs[side] = (cols, np.hypot(cols["x"] - truth["x"][i], cols["y"] - truth["y"][i]))
+    cols, err = runs[own]
+    assert not np.any(cols["accepted"] & (err > 1.0))
+
+
 def test_cli_imu_heading_decides_a_uniform_start(rendered_walk, map_path, tmp_path):
     """``-c imu_heading_sigma=0.2``: the IMU's yaw (field-aligned, as lut's default takes it)
     weights the particles, and a pose and its mirror have headings pi apart, so a uniform
@@ -589,7 +620,8 @@ def test_cli_refuses_bad_mcl_conf_values_in_one_line(kidsize, map_path, tmp_path
 
     data = tmp_path / "walk"
     features = write_synthetic_run(kidsize, data, 5, seed=4)
-    for bad in ("start_half=sideways", "start_half_error=2", "imu_heading_sigma=0",
+    for bad in ("start_half=sideways", "start_side=middle", "start_half_error=2",
+                "imu_heading_sigma=0",
                 "imu_heading_sigma=true", "imu_heading_sigma=-1",
                 # no particles (a division by zero at the first resampling), a hundred million
                 # (hours a run), fewer allowed than required

@@ -112,6 +112,11 @@ _DEFAULT = {
     "start_half": "any",
     "start_half_error": 1e-3,  # probability that start_half is wrong (that share of a
     # uniform start's particles lies on the other half)
+    # the touch line a placement stands on (left: y > 0, on the left looking from the own
+    # goal to the opponent's; right: y < 0; any): at a touch line, the penalty area's side
+    # line and the centre line seen from one side look alike from the other side's mirror
+    # place, so a team that knows the side its robot enters from says so
+    "start_side": "any",
     "init_spread": [0.3, 0.3, 0.2],  # m, m, rad: sigma around init_pose; placement uses the
     # first as the spread across the touch line and the last for the heading
     "particles_min": 250,
@@ -557,4 +562,7 @@ def _check_conf(conf: dict):
         raise FieldlocError(f"imu_heading_sigma must be a number > 0 (rad) or null, not"
                             f" {str(s)[:40]}")
     check_start_half(conf)
+    if conf["start_side"] not in mcl_start.START_SIDES:
+        raise FieldlocError(f"start_side must be one of {', '.join(mcl_start.START_SIDES)}, not"
+                            f" {str(conf['start_side'])[:40]!r}")
 

@@ -25,7 +25,7 @@ import numpy as np
 from ..common.geometry import wrap_angle
 from . import motion_model, place_search, smooth
 from .heading import heading_log_likelihood
-from .mcl_start import placement_sign
+from .mcl_start import START_SIDE_ERROR, START_SIDES, placement_sign
 from .observation_model import ObservationModel
 from .smooth import FrameCandidates
 
@@ -247,7 +247,8 @@ def start_prior(conf: dict, field_model):
     belief states (mcl_start.initial_poses), or None: ``placement``, on its half's
     stretch of the touch lines (the own half, from the centre line to the goal line at x =
     -length / 2, or the opponent half for ``start_half`` opponent; beyond it by d, -d^2 / (2
-    ``PLACEMENT_EDGE``^2)), at either touch line facing into the field, with the
+    ``PLACEMENT_EDGE``^2)), at either touch line (``start_side``'s, the other at
+    ``START_SIDE_ERROR``) facing into the field, with the
     placement's spread across the line and in heading (``init_spread``); ``pose``, a Gaussian
     of ``init_spread`` around ``init_pose``; ``uniform``, the half ``start_half`` names (none
     for any)."""
@@ -257,11 +258,14 @@ def start_prior(conf: dict, field_model):
         def prior(cands: FrameCandidates) -> np.ndarray:
             p = cands.poses
             best = np.full(len(p), -np.inf)
+            named = START_SIDES[conf.get("start_side", "any")]
             for side in (1.0, -1.0):
                 at = field_model.touchline_pose(p[:, 0], side)
                 across = (p[:, 1] - at[:, 1]) / spread[0]
                 turn = wrap_angle(p[:, 2] - at[:, 2]) / spread[2]
-                best = np.maximum(best, -0.5 * (across ** 2 + turn ** 2))
+                # the touch line start_side names, the other at START_SIDE_ERROR
+                odds = 0.0 if named in (0.0, side) else math.log(START_SIDE_ERROR)
+                best = np.maximum(best, odds - 0.5 * (across ** 2 + turn ** 2))
             # the placement's stretch of the touch line: the centre line to the goal line
             along = placement_sign(conf) * p[:, 0]
             beyond = np.maximum(-along, 0.0) + np.maximum(along - 0.5 * field_model.length, 0.0)

@@ -4,7 +4,8 @@ and where a uniform start's first frame with observations places them.
 Three starts (the conf's ``init``):
 
 - ``placement`` (the default): as robots enter a game, on the own half (the opponent's with
-  ``start_half: opponent``) at either touch line, facing into the field, with the spread
+  ``start_half: opponent``) at either touch line (the one ``start_side`` names), facing into
+  the field, with the spread
   ``init_spread`` across the line and in heading. It breaks the field's 180 deg symmetry,
   which no observation can;
 - ``pose``: a Gaussian of ``init_spread`` around ``init_pose``;
@@ -54,6 +55,12 @@ START_PLACES = 16  # places searched for (0: a uniform belief)
 START_GRID = (0.2, 6.0)  # m, deg: the coarse grid's step and turn
 START_UNIFORM_SHARE = None  # share of the first particles drawn uniformly; None: the
 # grid's share of the likelihood outside the places found
+# the conf's start_side: the touch line of a placement (FieldModel.touchline_pose's side)
+START_SIDES = MappingProxyType({"any": 0.0, "left": 1.0, "right": -1.0})
+# probability that a start_side given is wrong: that share of a placement's particles stands
+# at the other touch line (as start_half_error's default: a slip of the user's, not a prior
+# that decides against the frames)
+START_SIDE_ERROR = 1e-3
 
 
 def is_paired(mode: str, conf: dict, symmetric: bool, imu_heading: bool) -> bool:
@@ -127,11 +134,20 @@ def placement_sign(conf: dict) -> float:
     return 1.0 if conf["start_half"] == "opponent" else -1.0
 
 
+def placement_sides(n: int, rng, conf: dict) -> np.ndarray:
+    """The touch line (+1: y > 0, -1: y < 0) of each of ``n`` placement poses: the one
+    ``start_side`` names (START_SIDE_ERROR of them at the other), else either alike."""
+    named = START_SIDES[conf.get("start_side", "any")]
+    if named == 0.0:
+        return np.where(rng.random(n) < 0.5, 1.0, -1.0)
+    return np.where(rng.random(n) < START_SIDE_ERROR, -named, named)
+
+
 def placement_poses(n: int, rng, field, conf: dict) -> np.ndarray:
-    """``n`` poses on the start's half (``start_half``; own, x < 0, for any), at either touch
-    line, facing into the field."""
+    """``n`` poses on the start's half (``start_half``; own, x < 0, for any), at the touch line
+    ``start_side`` names (either for any), facing into the field."""
     s_across, s_heading = float(conf["init_spread"][0]), float(conf["init_spread"][2])
-    side = np.where(rng.random(n) < 0.5, 1.0, -1.0)
+    side = placement_sides(n, rng, conf)
     x = -placement_sign(conf) * rng.uniform(-field.length / 2, 0.0, n)
     across = rng.standard_normal(n) * s_across  # beyond the line is outwards
     turn = rng.standard_normal(n) * s_heading

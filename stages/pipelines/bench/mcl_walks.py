@@ -51,6 +51,8 @@ def _run(preset: str, field: str, seed: int, conf: dict, tag: str, frames: int =
     conf = dict(conf, method="mcl")
     if conf.get("start_half") == "given":
         conf["start_half"] = "own" if truth["x"][0] < 0 else "opponent"
+    if conf.get("start_side") == "given":  # the touch line the walk enters from
+        conf["start_side"] = "left" if truth["y"][0] > 0 else "right"
     out = work_dir() / f"walk-mcl-{preset}-{seed}-{frames}-{tag}.poses.h5"
     t0 = time.process_time()
     localize.main(conf, inp["data"], inp["map"], out, features=inp["features"],
@@ -170,4 +172,31 @@ def smooth_rows(repeat: int) -> list[Row]:
                 cpu_ms=1e3 * p["cpu"], goal=goal if tag == "smoothed" else "",
                 meets_goal=bool(met) if tag == "smoothed" else None, repeats=1,
                 note=_note(p), extra={k: v for k, v in p.items() if k != "per_walk"}))
+    return out
+
+
+def side_rows(repeat: int) -> list[Row]:
+    """From the placement with ``start_side`` given (the touch line the walk enters from, as
+    a team knows it), on the held-out walks of ``rows``; the note adds the same walks without
+    it, from the same run."""
+    out = []
+    for robot, preset, field in ROBOTS:
+        p = _pooled([_run(preset, field, s, {"start_side": "given"}, "side")
+                     for s in WALK_SEEDS], 0, False)
+        without = _pooled([_run(preset, field, s, {}, "placement") for s in WALK_SEEDS], 0,
+                          False)
+        met = (p["within"] >= GOAL_WITHIN and p["worst"] >= GOAL_WORST
+               and p["median"] <= GOAL_MEDIAN and p["wrong"] <= GOAL_WRONG
+               and p["auroc"] >= GOAL_AUROC)
+        out.append(Row(
+            name=f"mcl from the placement, start_side given, held-out rendered {robot} walks"
+                 f" ({len(WALK_SEEDS)} x {WALK_FRAMES} frames, seeds {WALK_SEEDS[0]}-"
+                 f"{WALK_SEEDS[-1]})", median_ms=math.nan, cpu_ms=1e3 * p["cpu"],
+            goal=f">= {100 * GOAL_WITHIN:g} % accepted within 40 cm pooled, every walk >="
+                 f" {100 * GOAL_WORST:g} %, median <= {100 * GOAL_MEDIAN:g} cm, confidently"
+                 f" wrong <= {100 * GOAL_WRONG:g} %, AUROC >= {GOAL_AUROC:g}",
+            meets_goal=bool(met), repeats=1,
+            note=f"{_note(p)}; without start_side: {_note(without)}",
+            extra={**{k: v for k, v in p.items() if k != "per_walk"},
+                   "without": {k: v for k, v in without.items() if k != "per_walk"}}))
     return out
