@@ -27,6 +27,7 @@ from oracles import perspective_sampling as sampling
 
 from stages.common import colour, numeric
 from stages.extract import perspective
+from stages.extract.perspective import crossing_kernels as ck
 from stages.extract.perspective import crossings as cr
 from stages.extract.perspective import line_structure as ls
 
@@ -1029,7 +1030,7 @@ def test_similar_pairs_decide_as_the_oracle():
 
 
 def test_corner_angles_equal_the_oracle():
-    """crossings' ``_corner_angles`` (acos of the clipped cosine) against the oracle's atan2
+    """crossing_kernels' ``_corner_angles`` (acos of the clipped cosine) against the oracle's atan2
     of cross and dot: within 1e-7 rad (acos near 0 and pi loses half the digits: sqrt(2^-52)
     is 1.5e-8), in the grid and on the floor where all three points are on it, for arms of
     no length, straight and folded back."""
@@ -1042,7 +1043,7 @@ def test_corner_angles_equal_the_oracle():
     floor[::7, rng.integers(0, 3)] = np.nan  # above the horizon
     for use_floor in (False, True):
         got = np.empty(len(corners))
-        cr._corner_angles(corners, floor, use_floor, got)
+        ck._corner_angles(corners, floor, use_floor, got)
         ref = [geometry.angle_between(*((f if use_floor and np.isfinite(f).all() else c)[1:]
                                         - (f if use_floor and np.isfinite(f).all() else c)[0]))
                for c, f in zip(corners, floor)]
@@ -1170,7 +1171,7 @@ def test_pair_crossings_decide_as_the_oracle(seed):
         cap = n * (n - 1) // 2
         kinds, lines = np.empty(cap, np.int64), np.empty((cap, 2), np.int64)
         points, arms, lengths = np.empty((cap, 2)), np.empty((cap, 3, 2)), np.empty((cap, 3))
-        m = cr._pair_crossings(ends, widths, fang, 12.0, math.radians(30.0), n, kinds, lines,
+        m = ck._pair_crossings(ends, widths, fang, 12.0, math.radians(30.0), n, kinds, lines,
                                points, arms, lengths)
         got = {(int(i), int(j)): (int(k), p) for k, (i, j), p in zip(kinds[:m], lines[:m],
                                                                      points[:m])}
@@ -1208,7 +1209,7 @@ def test_permuting_the_lines_keeps_the_crossings(seed, shuffler):
         cap = n * (n - 1) // 2
         kinds, lines = np.empty(cap, np.int64), np.empty((cap, 2), np.int64)
         points, arms, lengths = np.empty((cap, 2)), np.empty((cap, 3, 2)), np.empty((cap, 3))
-        m = cr._pair_crossings(ends[perm], widths[perm], fang[perm], 12.0, math.radians(30.0),
+        m = ck._pair_crossings(ends[perm], widths[perm], fang[perm], 12.0, math.radians(30.0),
                                n, kinds, lines, points, arms, lengths)
         return {frozenset((perm[i], perm[j])): (int(k), p)
                 for k, (i, j), p in zip(kinds[:m], lines[:m], points[:m])}
@@ -1227,7 +1228,7 @@ def test_permuting_the_lines_keeps_the_crossings(seed, shuffler):
 
 
 def test_distinct_arms_decide_as_the_oracle():
-    """crossings._distinct_arms (merge_line_crossings' arms of a group): an arm within
+    """crossing_kernels._distinct_arms (merge_line_crossings' arms of a group): an arm within
     acos(cos_same) of a kept arm joins the first such (its length the larger), else it is
     kept; as a Python loop decides, where the cosines are further than 1e-12 from cos_same
     (arms drawn about ``same_arm`` apart); such close calls are counted, not failed."""
@@ -1254,7 +1255,7 @@ def test_distinct_arms_decide_as_the_oracle():
                 arms.append(k)
                 kept.append(float(ln))
         got_arms, got_len = np.empty(n, np.int64), np.empty(n)
-        m = cr._distinct_arms(cmp, lengths, cos_same, got_arms, got_len)
+        m = ck._distinct_arms(cmp, lengths, cos_same, got_arms, got_len)
         assert got_arms[:m].tolist() == arms
         np.testing.assert_allclose(got_len[:m], kept, rtol=0, atol=0)  # lengths chosen
     assert close <= 30

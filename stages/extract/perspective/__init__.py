@@ -33,7 +33,8 @@ from numba import njit
 from ...common import colour
 from ...common.errors import DatasetError, FieldlocError
 from ...common.geometry import polar
-from .crossings import CROSSINGS, Finds, FrameGrid, find_crossings, floor_at, floor_bundle
+from .crossing_kernels import floor_at
+from .crossings import CROSSINGS, Finds, FrameGrid, find_crossings, floor_bundle
 from .field_boundary import BOUNDARY, boundary_polyline
 from .field_boundary import field_boundary as find_boundary
 from .goal_posts import POSTS, is_post_bar
