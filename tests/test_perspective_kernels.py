@@ -30,6 +30,7 @@ from stages.extract import perspective
 from stages.extract.perspective import crossing_kernels as ck
 from stages.extract.perspective import crossings as cr
 from stages.extract.perspective import line_structure as ls
+from stages.extract.perspective import line_structure_kernels as lsk
 
 
 def _counts(a: np.ndarray) -> np.ndarray:
@@ -620,7 +621,7 @@ def test_corner_cuts_equal_corner_nodes_per_chain():
         offsets = np.concatenate([[0], np.cumsum(lens)]).astype(np.int64)
         cuts, cut_start = np.empty(n, np.int64), np.empty(len(lens) + 1, np.int64)
         by_python = np.zeros(len(lens), np.bool_)
-        ls._corner_cuts(turn, arc, offsets, 3.0, 0.8, cuts, cut_start, by_python)
+        lsk._corner_cuts(turn, arc, offsets, 3.0, 0.8, cuts, cut_start, by_python)
         assert not by_python.any()
         for c in range(len(lens)):
             a, b = offsets[c], offsets[c + 1]
@@ -641,13 +642,13 @@ def test_place_nodes_equals_the_numpy_sort():
         priority = np.where(skeleton, key + np.where(c == 0, 2.0 ** 45, 0.0), -1.0)
         sy, sx = np.nonzero(skeleton)
         order = np.argsort(-priority[sy, sx], kind="stable")
-        taken = ls._greedy_nodes(sy[order], sx[order], *skeleton.shape)
+        taken = lsk._greedy_nodes(sy[order], sx[order], *skeleton.shape)
         ys, xs = sy[order][taken], sx[order][taken]
         pix, regions = ls.place_nodes(lp, skeleton, c, key)
         # exact integers: node pixels
         np.testing.assert_array_equal(pix, np.stack([xs, ys], axis=1))
         # exact integers: region labels
-        np.testing.assert_array_equal(regions, ls._node_regions(skeleton, ys.astype(np.int64),
+        np.testing.assert_array_equal(regions, lsk._node_regions(skeleton, ys.astype(np.int64),
                                                                 xs.astype(np.int64)))
 
 
@@ -655,7 +656,7 @@ def test_place_nodes_equals_the_numpy_sort():
 
 
 def test_bilinear_samples_equal_the_oracle_and_opencv():
-    """line_structure.bilinear_at (and its callers: the gaps' grey level, the crossings'
+    """line_structure_kernels.bilinear_at (and its callers: the gaps' grey level, the crossings'
     green samples, the undistortion tables) interpolates as the oracle: inside, across the
     edges (border value), on pixels and halfway. Both are float64 of float32 pixels: 1e-12
     of the image's range. cv2.remap agrees within its offset quantisation (OpenCV 4.x rounds
@@ -667,10 +668,10 @@ def test_bilinear_samples_equal_the_oracle_and_opencv():
     x, y = rng.uniform(-2, 96, 20000), rng.uniform(-2, 62, 20000)
     x[:500], y[:500] = np.round(x[:500] * 2) / 2, np.round(y[:500] * 2) / 2
     for border in (0.0, 0.5):
-        got = np.array([ls.bilinear_at(image, a, b, border) for a, b in zip(x, y)])
+        got = np.array([lsk.bilinear_at(image, a, b, border) for a, b in zip(x, y)])
         np.testing.assert_allclose(got, sampling.bilinear(image, x, y, border), rtol=0,
                                    atol=1e-12)
-    got = np.array([ls.bilinear_at(image, a, b, 0.0) for a, b in zip(x, y)])
+    got = np.array([lsk.bilinear_at(image, a, b, 0.0) for a, b in zip(x, y)])
     p = np.stack([x, y], 1).astype(np.float32).reshape(-1, 1, 2)
     ref = cv2.remap(image, p[..., 0], p[..., 1], cv2.INTER_LINEAR,
                     borderMode=cv2.BORDER_CONSTANT, borderValue=0).ravel()
@@ -690,7 +691,7 @@ def test_gap_grey_is_the_least_bilinear_sample_along_each_gap():
         px = pos[ci][:, None, :] * (1 - t)[None, :, None] + pos[cj][:, None, :] * t[None, :, None]
         ref = sampling.bilinear(image, px[..., 0], px[..., 1], 0.0).min(axis=1)
         got = np.empty(len(ci), np.float32)
-        ls._gap_grey(pos, ci, cj, t, image, got)
+        lsk._gap_grey(pos, ci, cj, t, image, got)
         # float32 out: half an ulp of the float32 result
         np.testing.assert_allclose(got, ref, rtol=2.0 ** -24, atol=1e-30)
 
@@ -716,12 +717,12 @@ def test_sums_means_and_variances_equal_the_exact_ones(n):
         np.testing.assert_allclose(numeric.var32(a), var, rtol=1e-5,
                                    atol=4 * 2.0 ** -23 * abs(mean) * np.abs(a).max())
         b = rng.normal(size=n) * 10.0 ** rng.integers(-3, 4, n)
-        assert abs(ls.block_sum(b) - sampling.exact_sum(b)) <= sampling.sum_tolerance(
+        assert abs(lsk.block_sum(b) - sampling.exact_sum(b)) <= sampling.sum_tolerance(
             b, np.float64)
     pos = rng.normal(0, 10, (200, 2))
     chain = rng.integers(0, 200, n + 1)
     steps = np.hypot(*np.diff(pos[chain], axis=0).T)
-    np.testing.assert_allclose(ls._path_length(pos, chain), sampling.exact_sum(steps),
+    np.testing.assert_allclose(lsk._path_length(pos, chain), sampling.exact_sum(steps),
                                rtol=n * 2.0 ** -52 + 2.0 ** -52)
 
 
@@ -1432,7 +1433,7 @@ def test_farthest_pairs_are_as_far_apart_as_any():
     xs = rng.integers(0, 4, start[-1]).astype(np.int64)
     ys = rng.integers(0, 4, start[-1]).astype(np.int64)
     lonely = np.sort(rng.choice(30, 20, replace=False)).astype(np.int64)
-    got = ls._farthest_pairs(xs, ys, start, lonely)
+    got = lsk._farthest_pairs(xs, ys, start, lonely)
     for k, i in enumerate(lonely):
         px = np.stack([xs[start[i]:start[i + 1]], ys[start[i]:start[i + 1]]], axis=1)
         if len(px) < 2:

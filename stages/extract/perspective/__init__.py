@@ -53,14 +53,8 @@ from .line_fit import (
     refine_segments,
     split_and_merge,
 )
-from .line_structure import (
-    KEY,
-    SKELETON,
-    bilinear_at,
-    key_structure,
-    line_structure_graph,
-    skeleton_grid,
-)
+from .line_structure import KEY, SKELETON, key_structure, line_structure_graph, skeleton_grid
+from .line_structure_kernels import bilinear_at
 
 # the colour classes (stages.common.colour, whose defaults the omni extractor shares) with
 # what the perspective cameras' frames need (tuned on the HULKs NAO frames, docs/manual.md

@@ -16,7 +16,7 @@ import numpy as np
 from numba import njit
 
 from .line_fit import _fit_points, distort_point, grow_kernel, refine_kernel
-from .line_structure import bilinear_at
+from .line_structure_kernels import bilinear_at
 
 # the numbers of crossings.VerifyFrame.params: the grid's cell (px), the image's size (px),
 # whether the fine checks are on and the field region given, a painted line's width ratio,
