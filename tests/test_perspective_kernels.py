@@ -27,8 +27,10 @@ from oracles import perspective_sampling as sampling
 
 from stages.common import colour, numeric
 from stages.extract import perspective
+from stages.extract.perspective import crossing_kernels as ck
 from stages.extract.perspective import crossings as cr
 from stages.extract.perspective import line_structure as ls
+from stages.extract.perspective import line_structure_kernels as lsk
 
 
 def _counts(a: np.ndarray) -> np.ndarray:
@@ -619,7 +621,7 @@ def test_corner_cuts_equal_corner_nodes_per_chain():
         offsets = np.concatenate([[0], np.cumsum(lens)]).astype(np.int64)
         cuts, cut_start = np.empty(n, np.int64), np.empty(len(lens) + 1, np.int64)
         by_python = np.zeros(len(lens), np.bool_)
-        ls._corner_cuts(turn, arc, offsets, 3.0, 0.8, cuts, cut_start, by_python)
+        lsk._corner_cuts(turn, arc, offsets, 3.0, 0.8, cuts, cut_start, by_python)
         assert not by_python.any()
         for c in range(len(lens)):
             a, b = offsets[c], offsets[c + 1]
@@ -640,13 +642,13 @@ def test_place_nodes_equals_the_numpy_sort():
         priority = np.where(skeleton, key + np.where(c == 0, 2.0 ** 45, 0.0), -1.0)
         sy, sx = np.nonzero(skeleton)
         order = np.argsort(-priority[sy, sx], kind="stable")
-        taken = ls._greedy_nodes(sy[order], sx[order], *skeleton.shape)
+        taken = lsk._greedy_nodes(sy[order], sx[order], *skeleton.shape)
         ys, xs = sy[order][taken], sx[order][taken]
         pix, regions = ls.place_nodes(lp, skeleton, c, key)
         # exact integers: node pixels
         np.testing.assert_array_equal(pix, np.stack([xs, ys], axis=1))
         # exact integers: region labels
-        np.testing.assert_array_equal(regions, ls._node_regions(skeleton, ys.astype(np.int64),
+        np.testing.assert_array_equal(regions, lsk._node_regions(skeleton, ys.astype(np.int64),
                                                                 xs.astype(np.int64)))
 
 
@@ -654,7 +656,7 @@ def test_place_nodes_equals_the_numpy_sort():
 
 
 def test_bilinear_samples_equal_the_oracle_and_opencv():
-    """line_structure.bilinear_at (and its callers: the gaps' grey level, the crossings'
+    """line_structure_kernels.bilinear_at (and its callers: the gaps' grey level, the crossings'
     green samples, the undistortion tables) interpolates as the oracle: inside, across the
     edges (border value), on pixels and halfway. Both are float64 of float32 pixels: 1e-12
     of the image's range. cv2.remap agrees within its offset quantisation (OpenCV 4.x rounds
@@ -666,10 +668,10 @@ def test_bilinear_samples_equal_the_oracle_and_opencv():
     x, y = rng.uniform(-2, 96, 20000), rng.uniform(-2, 62, 20000)
     x[:500], y[:500] = np.round(x[:500] * 2) / 2, np.round(y[:500] * 2) / 2
     for border in (0.0, 0.5):
-        got = np.array([ls.bilinear_at(image, a, b, border) for a, b in zip(x, y)])
+        got = np.array([lsk.bilinear_at(image, a, b, border) for a, b in zip(x, y)])
         np.testing.assert_allclose(got, sampling.bilinear(image, x, y, border), rtol=0,
                                    atol=1e-12)
-    got = np.array([ls.bilinear_at(image, a, b, 0.0) for a, b in zip(x, y)])
+    got = np.array([lsk.bilinear_at(image, a, b, 0.0) for a, b in zip(x, y)])
     p = np.stack([x, y], 1).astype(np.float32).reshape(-1, 1, 2)
     ref = cv2.remap(image, p[..., 0], p[..., 1], cv2.INTER_LINEAR,
                     borderMode=cv2.BORDER_CONSTANT, borderValue=0).ravel()
@@ -689,7 +691,7 @@ def test_gap_grey_is_the_least_bilinear_sample_along_each_gap():
         px = pos[ci][:, None, :] * (1 - t)[None, :, None] + pos[cj][:, None, :] * t[None, :, None]
         ref = sampling.bilinear(image, px[..., 0], px[..., 1], 0.0).min(axis=1)
         got = np.empty(len(ci), np.float32)
-        ls._gap_grey(pos, ci, cj, t, image, got)
+        lsk._gap_grey(pos, ci, cj, t, image, got)
         # float32 out: half an ulp of the float32 result
         np.testing.assert_allclose(got, ref, rtol=2.0 ** -24, atol=1e-30)
 
@@ -715,12 +717,12 @@ def test_sums_means_and_variances_equal_the_exact_ones(n):
         np.testing.assert_allclose(numeric.var32(a), var, rtol=1e-5,
                                    atol=4 * 2.0 ** -23 * abs(mean) * np.abs(a).max())
         b = rng.normal(size=n) * 10.0 ** rng.integers(-3, 4, n)
-        assert abs(ls.block_sum(b) - sampling.exact_sum(b)) <= sampling.sum_tolerance(
+        assert abs(lsk.block_sum(b) - sampling.exact_sum(b)) <= sampling.sum_tolerance(
             b, np.float64)
     pos = rng.normal(0, 10, (200, 2))
     chain = rng.integers(0, 200, n + 1)
     steps = np.hypot(*np.diff(pos[chain], axis=0).T)
-    np.testing.assert_allclose(ls._path_length(pos, chain), sampling.exact_sum(steps),
+    np.testing.assert_allclose(lsk._path_length(pos, chain), sampling.exact_sum(steps),
                                rtol=n * 2.0 ** -52 + 2.0 ** -52)
 
 
@@ -1029,7 +1031,7 @@ def test_similar_pairs_decide_as_the_oracle():
 
 
 def test_corner_angles_equal_the_oracle():
-    """crossings' ``_corner_angles`` (acos of the clipped cosine) against the oracle's atan2
+    """crossing_kernels' ``_corner_angles`` (acos of the clipped cosine) against the oracle's atan2
     of cross and dot: within 1e-7 rad (acos near 0 and pi loses half the digits: sqrt(2^-52)
     is 1.5e-8), in the grid and on the floor where all three points are on it, for arms of
     no length, straight and folded back."""
@@ -1042,7 +1044,7 @@ def test_corner_angles_equal_the_oracle():
     floor[::7, rng.integers(0, 3)] = np.nan  # above the horizon
     for use_floor in (False, True):
         got = np.empty(len(corners))
-        cr._corner_angles(corners, floor, use_floor, got)
+        ck._corner_angles(corners, floor, use_floor, got)
         ref = [geometry.angle_between(*((f if use_floor and np.isfinite(f).all() else c)[1:]
                                         - (f if use_floor and np.isfinite(f).all() else c)[0]))
                for c, f in zip(corners, floor)]
@@ -1170,7 +1172,7 @@ def test_pair_crossings_decide_as_the_oracle(seed):
         cap = n * (n - 1) // 2
         kinds, lines = np.empty(cap, np.int64), np.empty((cap, 2), np.int64)
         points, arms, lengths = np.empty((cap, 2)), np.empty((cap, 3, 2)), np.empty((cap, 3))
-        m = cr._pair_crossings(ends, widths, fang, 12.0, math.radians(30.0), n, kinds, lines,
+        m = ck._pair_crossings(ends, widths, fang, 12.0, math.radians(30.0), n, kinds, lines,
                                points, arms, lengths)
         got = {(int(i), int(j)): (int(k), p) for k, (i, j), p in zip(kinds[:m], lines[:m],
                                                                      points[:m])}
@@ -1208,7 +1210,7 @@ def test_permuting_the_lines_keeps_the_crossings(seed, shuffler):
         cap = n * (n - 1) // 2
         kinds, lines = np.empty(cap, np.int64), np.empty((cap, 2), np.int64)
         points, arms, lengths = np.empty((cap, 2)), np.empty((cap, 3, 2)), np.empty((cap, 3))
-        m = cr._pair_crossings(ends[perm], widths[perm], fang[perm], 12.0, math.radians(30.0),
+        m = ck._pair_crossings(ends[perm], widths[perm], fang[perm], 12.0, math.radians(30.0),
                                n, kinds, lines, points, arms, lengths)
         return {frozenset((perm[i], perm[j])): (int(k), p)
                 for k, (i, j), p in zip(kinds[:m], lines[:m], points[:m])}
@@ -1227,7 +1229,7 @@ def test_permuting_the_lines_keeps_the_crossings(seed, shuffler):
 
 
 def test_distinct_arms_decide_as_the_oracle():
-    """crossings._distinct_arms (merge_line_crossings' arms of a group): an arm within
+    """crossing_kernels._distinct_arms (merge_line_crossings' arms of a group): an arm within
     acos(cos_same) of a kept arm joins the first such (its length the larger), else it is
     kept; as a Python loop decides, where the cosines are further than 1e-12 from cos_same
     (arms drawn about ``same_arm`` apart); such close calls are counted, not failed."""
@@ -1254,7 +1256,7 @@ def test_distinct_arms_decide_as_the_oracle():
                 arms.append(k)
                 kept.append(float(ln))
         got_arms, got_len = np.empty(n, np.int64), np.empty(n)
-        m = cr._distinct_arms(cmp, lengths, cos_same, got_arms, got_len)
+        m = ck._distinct_arms(cmp, lengths, cos_same, got_arms, got_len)
         assert got_arms[:m].tolist() == arms
         np.testing.assert_allclose(got_len[:m], kept, rtol=0, atol=0)  # lengths chosen
     assert close <= 30
@@ -1431,7 +1433,7 @@ def test_farthest_pairs_are_as_far_apart_as_any():
     xs = rng.integers(0, 4, start[-1]).astype(np.int64)
     ys = rng.integers(0, 4, start[-1]).astype(np.int64)
     lonely = np.sort(rng.choice(30, 20, replace=False)).astype(np.int64)
-    got = ls._farthest_pairs(xs, ys, start, lonely)
+    got = lsk._farthest_pairs(xs, ys, start, lonely)
     for k, i in enumerate(lonely):
         px = np.stack([xs[start[i]:start[i + 1]], ys[start[i]:start[i + 1]]], axis=1)
         if len(px) < 2:

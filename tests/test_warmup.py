@@ -38,7 +38,8 @@ def test_importing_every_stage_module_compiles_no_kernel(tmp_path):
     modules = {k.rsplit(".", 1)[0] for k in report["kernels"]}
     for module in ("stages.common.colour", "stages.common.surf",
                    "stages.extract.perspective.line_fit",
-                   "stages.extract.perspective.line_structure", "stages.localize.lut_kernels",
+                   "stages.extract.perspective.line_structure_kernels",
+                   "stages.extract.perspective.crossing_kernels", "stages.localize.lut_kernels",
                    "stages.localize.fit_kernels", "stages.localize.mcl_kernels"):
         assert module in modules
     assert report["compiled"] == {}

@@ -1,4 +1,4 @@
-"""A readable oracle of where two fitted field lines cross (crossings._pair_crossings):
+"""A readable oracle of where two fitted field lines cross (crossing_kernels._pair_crossings):
 whether they meet at about a right angle on the floor, where, and as which shape, with the
 margin of every threshold the decision passed, so that a test compares decisions only where
 they are clear.

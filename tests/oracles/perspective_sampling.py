@@ -1,6 +1,6 @@
 """Readable oracles of the perspective chain's sampling and sums (numpy, float64).
 
-The compiled kernels (line_structure.bilinear_at and its callers, colour.sum32/64,
+The compiled kernels (line_structure_kernels.bilinear_at and its callers, colour.sum32/64,
 _mean32, _var32) are checked against these within stated tolerances; these say what is
 computed, not in which order a library rounds.
 """

@@ -33,7 +33,8 @@ from numba import njit
 from ...common import colour
 from ...common.errors import DatasetError, FieldlocError
 from ...common.geometry import polar
-from .crossings import CROSSINGS, Finds, FrameGrid, find_crossings, floor_at, floor_bundle
+from .crossing_kernels import floor_at
+from .crossings import CROSSINGS, Finds, FrameGrid, find_crossings, floor_bundle
 from .field_boundary import BOUNDARY, boundary_polyline
 from .field_boundary import field_boundary as find_boundary
 from .goal_posts import POSTS, is_post_bar
@@ -52,14 +53,8 @@ from .line_fit import (
     refine_segments,
     split_and_merge,
 )
-from .line_structure import (
-    KEY,
-    SKELETON,
-    bilinear_at,
-    key_structure,
-    line_structure_graph,
-    skeleton_grid,
-)
+from .line_structure import KEY, SKELETON, key_structure, line_structure_graph, skeleton_grid
+from .line_structure_kernels import bilinear_at
 
 # the colour classes (stages.common.colour, whose defaults the omni extractor shares) with
 # what the perspective cameras' frames need (tuned on the HULKs NAO frames, docs/manual.md
