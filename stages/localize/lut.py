@@ -83,6 +83,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -279,9 +280,37 @@ class LutCandidate(Candidate):
     prior: tuple | None = None
 
 
+@dataclass(frozen=True)
+class LutFrame:
+    """One frame as its searches read it, made at the frame's start and passed to every method
+    that reads it, so that no search reads another frame's: the observations (``obs``), their
+    points (robot frame: what the fixes' points fit moves a fix to, ``points``), the features
+    file's points (``frame_points``: every white run its scan lines crossed, or a team's
+    detector's; None when the file has none) and the temperature of the frame's evidence
+    (``T``: a frame alone, or one more frame of a tracked sequence)."""
+
+    obs: Observation
+    points: np.ndarray
+    frame_points: np.ndarray | None
+    T: float
+
+    @cached_property
+    def line_points(self) -> np.ndarray:
+        """The frame's line points (what the line share of a pose counts), which weigh a
+        global candidate whose evidence is the points (LutLocaliser._by_points): the features
+        file's finite ones, the observations' own where the file has none. Made when first
+        asked for (a tracked frame never asks)."""
+        fp = self.frame_points
+        fp = None if fp is None else np.asarray(fp, np.float64).reshape(-1, 2)
+        return (self.points if fp is None or not len(fp)
+                else fp[np.isfinite(fp).all(axis=1)])
+
+
 class LutLocaliser:
-    """The per-frame loop of method lut (see the module doc), the tracks kept between
-    frames."""
+    """The per-frame loop of method lut (see the module doc) and what it keeps between
+    frames: the tracks, the IMU's alignment, the radial correction, when the last global
+    search ran, the null copies' shuffles. What one frame's searches read is a LutFrame,
+    passed to them."""
 
     def __init__(self, conf: dict, search: TableSearch, fit: PointFit, *, yaw, collision,
                  truth_heading, seed: int = 0):
@@ -299,7 +328,6 @@ class LutLocaliser:
         self._fit_reach = (search.grid.resolution, 0.5 * search.step)
         self.T_frame = TEMPERATURE
         self.T_track = self.T_frame * TRACK_CORRELATION
-        self.T = self.T_frame
         ny, nx = search.grid.shape
         self.symmetric = search.field.is_point_symmetric()
         # the belief: over the world the tables cover; a tracked fix is searched in the window
@@ -307,14 +335,16 @@ class LutLocaliser:
                               reach=self.half,
                               reach_cells=(2 * round(self.half / search.grid.resolution) + 1) ** 2,
                               symmetric=self.symmetric)
-        self._global_heading = None
-        self._global_fixed = True  # the last global search's heading was given (not refined)
         self._offset_updates = 0
         self.fixed_once = False  # start_half applies to the first fix only
         self.last_global = -10**9
         self.last_confident = True  # the last frame's belief, up to the mirror (TrackBank)
         self.field_heading = heading_mod.field_aligned(conf)  # rules the mirror out
         self.rng = np.random.default_rng(seed)
+        # the null copies' shuffles of the scan lines, drawn from rng when first needed and
+        # used in turn across frames (_null_perm)
+        self._perms: np.ndarray | None = None
+        self._next_perm = 0
         rc = conf["radial_correction"]
         self.radial = (RadialCorrection(robot_radius=float(search.scanlines.robot_radius))
                        if rc["enabled"] and not conf["independent"] else None)
@@ -338,19 +368,18 @@ class LutLocaliser:
         obs, raw_distance = frame_observations(fr, search, self.radial, EVIDENCE)
         if len(obs) < MIN_OBSERVATIONS:
             raise FrameFailed("too-few-observations")
-        self._set_frame(fr, obs)
-        base_heading = self._frame_heading(i, col)  # None: from each track / unknown
         # evidence of a frame alone, or of one more frame of a tracked sequence
-        self.T = self.T_track if bank.tracks else self.T_frame
+        f = self.frame_input(fr, obs, self.T_track if bank.tracks else self.T_frame)
+        base_heading = self._frame_heading(i, col)  # None: from each track / unknown
         other_prior = bank.other_prior()  # the mass of "elsewhere"
         tracked: list[LutCandidate] = []
         lost = False
         for t in bank.tracks:
             prior = bank.prior(t, dt, odo, col)
             lost |= bank.lost(prior[1])
-            tracked.append(self._track_candidate(i, t, prior, obs, fr, base_heading, col,
-                                                 flags))
+            tracked.append(self._track_candidate(t, prior, f, base_heading, col, flags))
         new: list[LutCandidate] = []
+        searched = None  # the global search's (headings, heading given?)
         if (not tracked or not self.last_confident or lost
                 or i - self.last_global >= GLOBAL_EVERY):
             heading = base_heading
@@ -358,23 +387,23 @@ class LutLocaliser:
                 # a confident track's heading (histogram, or IMU before its alignment);
                 # after a frame not confident (up to the mirror) the heading is searched too
                 heading = float(max(tracked, key=lambda c: c.log_prior - c.fit).fix.theta)
-            new = self._global_candidates(i, obs, heading, flags,
-                                          bank.global_log_prior(other_prior),
-                                          field_heading=base_heading is not None
-                                          and self.field_heading)
+            new, searched = self._global_candidates(f, heading, flags,
+                                                    bank.global_log_prior(other_prior),
+                                                    field_heading=base_heading is not None
+                                                    and self.field_heading)
             self.last_global = i
             if tracked:
                 flags.append("global-check")
         # the null: what chance explains, searched the same way
         if tracked:
-            null_fit = self._tracked_null(obs, tracked)
+            null_fit = self._tracked_null(f, tracked)
             if min(c.window_fit for c in tracked) >= null_fit:
                 raise FrameFailed("uninformative")
             for c in tracked:  # a fix is fused into its track only where it beats the null
                 c.beats_null = c.window_fit < null_fit
-        if new or not tracked:
-            null_evidence = self._global_null(obs, self._global_heading)
-            if not tracked and (not new or min(c.evidence for c in new) / self.T
+        if new or not tracked:  # a global search ran this frame
+            null_evidence = self._global_null(f, *searched)
+            if not tracked and (not new or min(c.evidence for c in new) / f.T
                                 >= null_evidence):
                 raise FrameFailed("uninformative")
         # elsewhere, where a global search found nothing better, explains what chance
@@ -391,11 +420,11 @@ class LutLocaliser:
         self.last_confident = bank.confident()
         return hyps, top, pose, cov, accepted
 
-    def _set_frame(self, fr: dict, obs: Observation) -> None:
-        """The frame's points, which the fixes' points fit reads (_fit_points,
-        _line_points)."""
-        self._points = obs.points(self.search.scanlines)
-        self._frame_points, self._all_points = fr.get("points"), None  # (_line_points)
+    def frame_input(self, fr: dict, obs: Observation, T: float) -> LutFrame:
+        """What the searches of the frame ``fr`` (features frame) with observations ``obs``
+        read, its evidence at temperature ``T``."""
+        return LutFrame(obs=obs, points=obs.points(self.search.scanlines),
+                        frame_points=fr.get("points"), T=T)
 
     # ------------------------------------------------------------------ heading
     def _frame_heading(self, i: int, col: bool):
@@ -415,7 +444,7 @@ class LutLocaliser:
             return self.alignment.heading(float(self.yaw[i]))
         return None
 
-    def _track_heading(self, t: Track, prior_pose, obs, fr, base_heading, col, flags):
+    def _track_heading(self, prior_pose, f: LutFrame, base_heading, col, flags):
         """(heading, refine by vision?) of a track this frame."""
         conf = self.conf
         if base_heading is not None:
@@ -425,9 +454,7 @@ class LutLocaliser:
             return base_heading, False
         if conf["heading"] == "imu":  # alignment unknown yet: the track's own heading
             return float(prior_pose[2]), True
-        pts = fr.get("points")
-        if pts is None:
-            pts = obs.points(self.search.scanlines)
+        pts = f.points if f.frame_points is None else f.frame_points
         th, sharp = heading_mod.histogram_heading(
             pts, float(prior_pose[2]), window=heading_mod.HISTOGRAM_WINDOW_RAD,
             step=heading_mod.HISTOGRAM_STEP_RAD, bin=heading_mod.HISTOGRAM_BIN_M,
@@ -439,21 +466,20 @@ class LutLocaliser:
         return float(prior_pose[2]), True
 
     # ------------------------------------------------------------------ tracks
-    def _track_candidate(self, i, t: Track, prior, obs, fr, base_heading, col, flags):
+    def _track_candidate(self, t: Track, prior, f: LutFrame, base_heading, col, flags):
         """The fix of a track this frame (step 3 of the module doc) as a Candidate, and a
         second Candidate for a clearly better minimum elsewhere in the window."""
-        search = self.search
+        search, obs, T = self.search, f.obs, f.T
         prior_pose, prior_cov = prior
-        theta, by_vision = self._track_heading(t, prior_pose, obs, fr, base_heading, col,
-                                               flags)
+        theta, by_vision = self._track_heading(prior_pose, f, base_heading, col, flags)
         bank = self.bank
         info = bank.innovation_information(prior_cov)
         # the window's error term in evidence units: scaled by the frame's evidence share
         scale = obs.total_weight / max(obs.lookup_total_weight, 1e-12)
         # a heading refined by vision below is fitted by the points after it; else in the call
-        fit = None if by_vision else (self.fit, self._points, *self._fit_reach)
+        fit = None if by_vision else (self.fit, f.points, *self._fit_reach)
         fix, sup, window_fit, table_xy = search.tracked_fix(
-            obs, theta, prior_pose[:2], info, self.T / scale, self.T, INLIER_ERROR_M,
+            obs, theta, prior_pose[:2], info, T / scale, T, INLIER_ERROR_M,
             half_width=self.half, prior_cap=bank.prior_cap, fit=fit)
         heading_sigma = self.heading_sigma
         if by_vision:
@@ -470,11 +496,11 @@ class LutLocaliser:
             table_xy = (fix.x, fix.y)
         d = np.array([table_xy[0] - prior_pose[0], table_xy[1] - prior_pose[1]])
         evidence = fix.error
-        nll = evidence / self.T
+        nll = evidence / T
         fit = nll + bank.prior_term(d, info)
         R = vision_covariance(fix, sup, heading_sigma)
         if by_vision:
-            self._fit_points(fix, obs)
+            self._fit_points(fix, f)
         if heading_sigma > self.heading_sigma:  # a heading this unsure moves the fix too:
             # by the heading error times the observations' mean range
             spread = heading_sigma * float(np.average(obs.distance, weights=obs.weight))
@@ -484,7 +510,7 @@ class LutLocaliser:
                             prior=(prior_pose, info, prior_cov),
                             log_prior=bank.tracked_log_prior(t, d, prior_cov, R))
 
-    def _fit_points(self, fix: SearchResult, obs: Observation, *,
+    def _fit_points(self, fix: SearchResult, f: LutFrame, *,
                     heading_fixed: bool = True) -> float:
         """Move a fix to where its observations' line points fit the field's lines best
         (PointFit, the distance to the nearest line: more precise than the scan-line table's
@@ -494,7 +520,7 @@ class LutLocaliser:
         error term before the move)."""
         max_shift, max_turn = self._fit_reach
         pose, _cost, _normal = self.fit.refine(
-            self._points, obs.weight, fix.pose, fixed_heading=heading_fixed,
+            f.points, f.obs.weight, fix.pose, fixed_heading=heading_fixed,
             max_shift=max_shift, max_turn=max_turn)
         fix.x, fix.y, fix.theta = float(pose[0]), float(pose[1]), float(pose[2])
         return fix.error
@@ -518,18 +544,6 @@ class LutLocaliser:
         fix.x, fix.y, fix.theta = float(pose[0]), float(pose[1]), float(pose[2])
         return cost * obs.total_weight / max(float(len(points)), 1e-12)
 
-    def _line_points(self) -> np.ndarray:
-        """The frame's line points (every white run its scan lines crossed, or a team's
-        detector's points: what the line share of a pose counts), which weigh a global
-        candidate whose evidence is the points (_by_points); the observations' own where the
-        frame has none. Made when first asked for (a tracked frame never asks)."""
-        if self._all_points is None:
-            fp = self._frame_points
-            fp = None if fp is None else np.asarray(fp, np.float64).reshape(-1, 2)
-            self._all_points = (self._points if fp is None or not len(fp)
-                                else fp[np.isfinite(fp).all(axis=1)])
-        return self._all_points
-
     def _by_points(self) -> bool:
         """Whether this frame's global candidates are weighed by their points: the conf
         says so (``auto``: for independent frames) and no track competes (a track's fix is
@@ -540,41 +554,42 @@ class LutLocaliser:
         return ev == "points" and not self.bank.tracks
 
     # ------------------------------------------------------------------ global search
-    def _global_candidates(self, i, obs, heading, flags, log_prior: float, *,
-                           field_heading: bool = False) -> list[LutCandidate]:
+    def _global_candidates(self, f: LutFrame, heading, flags, log_prior: float, *,
+                           field_heading: bool = False) -> tuple[list[LutCandidate], tuple]:
         """New-track candidates from a global search (known heading) or the unknown-heading
-        search, those near an existing track (or its mirror) left out. ``field_heading``:
-        the heading is field-aligned (rules the mirror out); otherwise a candidate's mirror
-        image explains the frame as well (TrackBank.finish_global)."""
-        conf, search = self.conf, self.search
-        headings = [heading] if heading is not None else self._histogram_headings(obs)
+        search, those near an existing track (or its mirror) left out, and what the frame's
+        null searches the same way: (the headings searched, None for all; the heading given,
+        not refined?). ``field_heading``: the heading is field-aligned (rules the mirror
+        out); otherwise a candidate's mirror image explains the frame as well
+        (TrackBank.finish_global)."""
+        conf, search, obs, T = self.conf, self.search, f.obs, f.T
+        headings = [heading] if heading is not None else self._histogram_headings(f)
         fixes = self._search_fixes(obs, headings, UNKNOWN_HEADING_CANDIDATES)
         if headings is not None:
-            for f in fixes:
-                f.mode = "global" if heading is not None else "global-heading"
-        self._global_heading = headings
+            for r in fixes:
+                r.mode = "global" if heading is not None else "global-heading"
         sigma = heading_mod.HISTOGRAM_SIGMA_RAD if heading is None else self.heading_sigma
         out: list[LutCandidate] = []
-        fixed = self._global_fixed = heading is not None
+        fixed = heading is not None
         if self._by_points():
-            scored = [(self._point_evidence(f, obs, self._line_points(), heading_fixed=fixed), f)
-                      for f in fixes]
+            scored = [(self._point_evidence(r, obs, f.line_points, heading_fixed=fixed), r)
+                      for r in fixes]
         else:
-            scored = [(self._fit_points(f, obs, heading_fixed=fixed), f) for f in fixes]
+            scored = [(self._fit_points(r, f, heading_fixed=fixed), r) for r in fixes]
         scored.sort(key=lambda e: e[0])
-        for e, f in scored:
+        for e, r in scored:
             # the same basin as a track (or its mirror), or as a better candidate
-            if self.bank.near_track(f.pose) or self.bank.fold(out, f.pose, e / self.T):
+            if self.bank.near_track(r.pose) or self.bank.fold(out, r.pose, e / T):
                 continue
-            sup = search.support(obs, f, INLIER_ERROR_M)
-            out.append(LutCandidate(fix=f, support=sup, log_prior=log_prior, evidence=e,
-                                    nll=e / self.T, fit=e / self.T,
-                                    R=vision_covariance(f, sup, sigma)))
+            sup = search.support(obs, r, INLIER_ERROR_M)
+            out.append(LutCandidate(fix=r, support=sup, log_prior=log_prior, evidence=e,
+                                    nll=e / T, fit=e / T,
+                                    R=vision_covariance(r, sup, sigma)))
         self.bank.finish_global(out, field_heading)
         if not self.fixed_once and conf["start_half"] != "any":
             for c in out:
-                self._on_start_half(obs, c, flags)
-        return out
+                self._on_start_half(f, c, flags)
+        return out, (headings, fixed)
 
     def _search_fixes(self, obs, headings, unknown_candidates: int) -> list[SearchResult]:
         """The fixes of a global search: at each of ``headings`` its best pose and its
@@ -591,7 +606,7 @@ class LutLocaliser:
             fixes += [g] + [self._refined(obs, c) for c in g.candidates]
         return fixes
 
-    def _histogram_headings(self, obs):
+    def _histogram_headings(self, f: LutFrame):
         """With no heading known: the four headings (90 deg apart) at which the line points'
         histograms peak (Ribeiro et al. 2015, V-B over a full quarter turn), or None when the points
         show no straight lines (the unknown-heading search then tries all 72 table headings)."""
@@ -599,7 +614,7 @@ class LutLocaliser:
         if conf["heading"] != "histogram":
             return None
         th, sharp = heading_mod.histogram_heading(
-            self._line_points() if self._by_points() else obs.points(self.search.scanlines),
+            f.line_points if self._by_points() else f.obs.points(self.search.scanlines),
             0.0, window=math.pi / 4,
             step=heading_mod.HISTOGRAM_STEP_RAD, bin=heading_mod.HISTOGRAM_BIN_M,
             max_distance=self.search.scanlines.max_range, score=heading_mod.HISTOGRAM_SCORE)
@@ -613,10 +628,10 @@ class LutLocaliser:
         r.mode = "global-heading"
         return r
 
-    def _on_start_half(self, obs, c: LutCandidate, flags):
+    def _on_start_half(self, f: LutFrame, c: LutCandidate, flags):
         """The start_half prior on a first-fix candidate (TrackBank.start_half); a candidate
         moved to its mirror image is refitted there."""
-        conf = self.conf
+        conf, obs = self.conf, f.obs
 
         def mirrored(c, pose):
             mx, my, mth = pose
@@ -624,17 +639,17 @@ class LutLocaliser:
             m.mode = c.fix.mode
             c.fix = m
             c.support = self.search.support(obs, m, INLIER_ERROR_M)
-            c.evidence = (self._point_evidence(m, obs, self._line_points(), heading_fixed=False)
+            c.evidence = (self._point_evidence(m, obs, f.line_points, heading_fixed=False)
                           if self._by_points()
-                          else self._fit_points(m, obs, heading_fixed=False))
-            c.fit = c.nll = c.evidence / self.T
+                          else self._fit_points(m, f, heading_fixed=False))
+            c.fit = c.nll = c.evidence / f.T
 
         if self.bank.start_half(c, conf["start_half"], float(conf["start_half_error"]),
                                 mirrored):
             flags.append("start-half")
 
     # ------------------------------------------------------------------ the null
-    def _tracked_null(self, obs, tracked: list[LutCandidate]) -> float:
+    def _tracked_null(self, f: LutFrame, tracked: list[LutCandidate]) -> float:
         """The null of a tracked frame: the median over ``TRACKED_NULL_COPIES``
         random-bearing copies of the observations of the best posterior score of the
         strongest track's window (its quantised error term, as Candidate.window_fit;
@@ -648,9 +663,9 @@ class LutLocaliser:
         worst = max(c.window_fit for c in tracked)
         args = []
         for _ in range(TRACKED_NULL_COPIES):
-            nobs = self._null_copy(obs)
+            nobs = self._null_copy(f.obs)
             scale = nobs.total_weight / max(nobs.lookup_total_weight, 1e-12)
-            args.append((nobs, top.fix.theta, pose[:2], info, self.T / scale))
+            args.append((nobs, top.fix.theta, pose[:2], info, f.T / scale))
         kw = {"half_width": self.half, "prior_cap": self.bank.prior_cap}
         bounds = [search.tracked_score_bound(*a, **kw) for a in args]
         if min(bounds) > worst:
@@ -661,10 +676,9 @@ class LutLocaliser:
         """The next shuffle of the scan lines (3, n_angles) for a null copy (the permutations
         are drawn once from the seeded generator and used in turn)."""
         n = self.search.n_angles
-        if not hasattr(self, "_perms"):
+        if self._perms is None:
             self._perms = np.stack([np.stack([self.rng.permutation(n) for _ in range(3)])
                                     for _ in range(64)])
-            self._next_perm = 0
         perm = self._perms[self._next_perm % len(self._perms)]
         self._next_perm += 1
         return perm
@@ -673,11 +687,12 @@ class LutLocaliser:
         """The next random-bearing copy of the observations (_null_perm)."""
         return obs.random_bearings(self._null_perm())
 
-    def _global_null(self, obs, headings) -> float:
+    def _global_null(self, f: LutFrame, headings, heading_fixed: bool) -> float:
         """The null of a global search: evidence / T of the median over ``null_copies``
         random-bearing copies searched globally (at the ``headings`` the search used, or over
-        all headings)."""
-        search = self.search
+        all headings; weighed by their points, with the heading refined unless
+        ``heading_fixed``, as the frame's candidates were: _global_candidates)."""
+        search, obs, T = self.search, f.obs, f.T
         by_points = self._by_points()
         unknown = max(2, UNKNOWN_HEADING_CANDIDATES // 4)
         out = []
@@ -685,18 +700,17 @@ class LutLocaliser:
             perm = self._null_perm()
             nobs = obs.random_bearings(perm)
             if by_points:  # searched and weighed as the frame's candidates are
-                pts = (nobs.points(search.scanlines) if self._line_points() is self._points
-                       else random_bearing_points(self._line_points(), perm[0],
+                pts = (nobs.points(search.scanlines) if f.line_points is f.points
+                       else random_bearing_points(f.line_points, perm[0],
                                                   search.scanlines.angle_step))
-                out.append(min(self._point_evidence(f, nobs, pts,
-                                                    heading_fixed=self._global_fixed)
-                               for f in self._search_fixes(nobs, headings, unknown)) / self.T)
+                out.append(min(self._point_evidence(r, nobs, pts, heading_fixed=heading_fixed)
+                               for r in self._search_fixes(nobs, headings, unknown)) / T)
             elif headings is None:
                 r = search.unknown_heading_search(nobs, candidates=unknown)
-                out.append(r.error / self.T)
+                out.append(r.error / T)
             else:
                 out.append(min(search.global_search(nobs, th, candidates=1).error
-                               for th in headings) / self.T)
+                               for th in headings) / T)
         return _median(out)
 
     # ------------------------------------------------------------------ learning
@@ -800,40 +814,46 @@ class LutScorer(PathCalibration):
             return "too-few-observations"
         return None
 
-    def _candidate(self, obs, fix, heading_sigma: float, *, heading_fixed: bool):
+    def _input(self, i: int) -> LutFrame:
+        """Frame i as the localiser's searches read it (its evidence at the tracked
+        temperature, as the candidates' nll)."""
+        fr, obs = self._frame(i)
+        return self.loc.frame_input(fr, obs, self.loc.T_track)
+
+    def _candidate(self, f: LutFrame, fix, heading_sigma: float, *, heading_fixed: bool):
         loc = self.loc
-        e = loc._fit_points(fix, obs, heading_fixed=heading_fixed)
-        sup = loc.search.support(obs, fix, INLIER_ERROR_M)
+        e = loc._fit_points(fix, f, heading_fixed=heading_fixed)
+        sup = loc.search.support(f.obs, fix, INLIER_ERROR_M)
         return fix.pose, e / loc.T_track, vision_covariance(fix, sup, heading_sigma), \
             fix.error_norm
 
     def global_candidates(self, i: int) -> FrameCandidates:
         loc = self.loc
-        fr, obs = self._frame(i)
-        loc._set_frame(fr, obs)
+        f = self._input(i)
+        obs = f.obs
         heading = self._heading(i)
-        headings = [heading] if heading is not None else loc._histogram_headings(obs)
+        headings = [heading] if heading is not None else loc._histogram_headings(f)
         fixes = loc._search_fixes(obs, headings, UNKNOWN_HEADING_CANDIDATES)
         sigma = loc.heading_sigma if heading is not None else heading_mod.HISTOGRAM_SIGMA_RAD
-        rows = [self._candidate(obs, f, sigma, heading_fixed=headings is not None)
-                for f in fixes]
+        rows = [self._candidate(f, r, sigma, heading_fixed=headings is not None)
+                for r in fixes]
         if self.mirrored:  # the mirror image explains the frame as well: fixed there too
-            rows += [self._candidate(obs, loc.search.refine(
-                obs, loc.search.grid.cell_of(*FieldModel.mirror_pose(*f.pose)[:2]),
-                FieldModel.mirror_pose(*f.pose)[2]), sigma, heading_fixed=headings is not None)
-                for f in fixes]
+            rows += [self._candidate(f, loc.search.refine(
+                obs, loc.search.grid.cell_of(*FieldModel.mirror_pose(*r.pose)[:2]),
+                FieldModel.mirror_pose(*r.pose)[2]), sigma, heading_fixed=headings is not None)
+                for r in fixes]
         return FrameCandidates.from_rows(rows)
 
     def local_candidates(self, i: int, starts: np.ndarray) -> FrameCandidates:
         loc = self.loc
-        fr, obs = self._frame(i)
-        loc._set_frame(fr, obs)
+        f = self._input(i)
+        obs = f.obs
         heading = self._heading(i)
         col = bool(loc.collision[i])
         rows = []
         for p in starts:
             flags: list = []
-            theta, by_vision = loc._track_heading(None, p, obs, fr, heading, col, flags)
+            theta, by_vision = loc._track_heading(p, f, heading, col, flags)
             fix = loc.search.local_search(obs, theta, p[:2], half_width=LOCAL_REACH)
             sigma = loc.heading_sigma
             if by_vision:
@@ -841,7 +861,7 @@ class LutScorer(PathCalibration):
                 if rh.error <= fix.error:
                     fix = rh
                 sigma = max(_curvature_sigma(curv, obs), loc.heading_sigma)
-            rows.append(self._candidate(obs, fix, sigma, heading_fixed=not by_vision))
+            rows.append(self._candidate(f, fix, sigma, heading_fixed=not by_vision))
         return FrameCandidates.from_rows(rows)
 
 
