@@ -893,7 +893,7 @@ class FitScorer(PathCalibration):
         rows = [self._row(f, T, sigma) for f in fixes]
         if self.mirrored:  # the mirror image explains the frame as well: fitted there too
             for f in fixes:
-                m = FieldModel.mirror_pose(*f.pose)
+                m = FieldModel.mirror_pose(f.pose)
                 g = engine.fit(obs, m, temperature=T, mode="global",
                                heading=None if sigma is None else (m[2], sigma))
                 rows.append(self._row(g, T, sigma))

@@ -838,10 +838,10 @@ class LutScorer(PathCalibration):
         rows = [self._candidate(f, r, sigma, heading_fixed=headings is not None)
                 for r in fixes]
         if self.mirrored:  # the mirror image explains the frame as well: fixed there too
+            mirrors = [FieldModel.mirror_pose(r.pose) for r in fixes]
             rows += [self._candidate(f, loc.search.refine(
-                obs, loc.search.grid.cell_of(*FieldModel.mirror_pose(*r.pose)[:2]),
-                FieldModel.mirror_pose(*r.pose)[2]), sigma, heading_fixed=headings is not None)
-                for r in fixes]
+                obs, loc.search.grid.cell_of(*m[:2]), m[2]), sigma,
+                heading_fixed=headings is not None) for m in mirrors]
         return FrameCandidates.from_rows(rows)
 
     def local_candidates(self, i: int, starts: np.ndarray) -> FrameCandidates:
