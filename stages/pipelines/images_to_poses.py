@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import logging
 import os
-import tempfile
 from pathlib import Path
 
 from .. import extract, localize
@@ -120,19 +119,16 @@ def _two_rounds(conf, dataset_dir: Path, map_path, output: Path, features: Path,
     kw = {"progress": progress, "allow_field_mismatch": allow_field_mismatch}
     localize.main(conf, dataset_dir, map_path, first, features=features, overwrite=overwrite,
                   **kw)
-    with tempfile.TemporaryDirectory(dir=output.parent, prefix=".fieldloc-round-") as tmp:
-        learnt = Path(tmp) / "calib.yaml"
-        try:
-            localize.calibrate_from_poses(learnt, dataset_dir, features, first, map_path,
-                                          source=os.path.abspath(first))
-        except FieldlocError as e:
-            log.warning("no second round: the first round's poses give no calibration (%s)", e)
-            for src in (first, first.with_suffix(".tum")):  # the first round is the run
-                os.replace(src, output.with_suffix(src.suffix))
-            if write_calib is not None:
-                raise FieldlocError(f"{e}; the poses are written: {output}") from None
-            return output
-        os.replace(learnt, calib)
+    try:  # written atomically, or refused before anything is written
+        localize.calibrate_from_poses(calib, dataset_dir, features, first, map_path,
+                                      source=os.path.abspath(first))
+    except FieldlocError as e:
+        log.warning("no second round: the first round's poses give no calibration (%s)", e)
+        for src in (first, first.with_suffix(".tum")):  # the first round is the run
+            os.replace(src, output.with_suffix(src.suffix))
+        if write_calib is not None:
+            raise FieldlocError(f"{e}; the poses are written: {output}") from None
+        return output
     log.info("second round: extracting %s with %s into %s", dataset_dir, calib, features2)
     extract.main(extract.conf_of(features), dataset_dir, features2, overwrite=overwrite,
                  progress=progress, calib=calib)
