@@ -5,31 +5,17 @@ the distances of ``CarpetCalibrator.conf`` and a picture of them (``CarpetCalibI
 distances from the robot's centre in millimetres; ``dist0 = 0`` is the robot's centre, not a
 ring. The file holds no radii: where each ring lies in the image is measured in the picture
 (``detect_rings``) or given by hand, and pairing rings with distances is the user's choice
-(``pair_rings``), because the picture alone does not always decide it:
-
-In the team's picture (460 x 460, 2016-01-20) nine bright rings are seen in all eight 45 deg
-sectors, at 103.7, 130.0, 146.8, 158.1, 166.2, 177.2, 184.4, 189.0 and 192.2 px from (231.0,
-231.25), and the conf lists nine distances (1, 1.5, 2, 2.5, 3, 4, 5, 6, 7 m). Paired in order,
-the image radius grows by 52.6, 33.6, 22.5, 16.3, 10.9, 7.2, 4.6 and 3.3 px per metre: a slope
-that falls steadily, as a convex mirror's does, and the monotone table through the pairs
-predicts each inner pair from the others within 6.2 cm (leave-one-out RMS 3.3 cm). The team's
-later per-pixel table (``DistanceLookup.txt``, 2016-03-30, made after the calibration picture
-was replaced) reads these rings as 0.996, 1.495, 1.978, 2.474, 2.989, 4.295, 5.145, 5.741 and
-6.091 m: within 1.1 % of the conf to 3 m, 3-7 % off at 4 and 5 m, and the outermost ring as
-6 m rather than 7 m. Read that way the 189 px ring is none of the conf's, 7 m lies beyond the
-mirror's rim, and the slope would rise again between 5 and 6 m (leave-one-out RMS 7.7 cm, 13.5
-cm at 5 m). Which camera set-up that table belongs to is not recorded, so neither reading can
-be proved: the pairs to 5 m are common to both, the outer two are the user's choice.
-
-The picture is a 460 x 460 view (``ImageArea = 460`` in the team's Vision.conf) centred on the
-mirror; for their full 640 x 480 frames Vision.conf's ``CameraMX = 235``, ``CameraMY = 322`` are
-the centre's row and column (u, v = 322, 235), with no check that the mirror was unchanged
-between those frames (2015-09-02) and the picture.
+(``pair_rings``), because the team's own files do not decide it. Paired in order, their
+picture's rings give a radius that gains less per metre outwards, as a convex mirror's does;
+their later per-pixel table reads the outer rings as other distances. Both readings share the
+pairs to 5 m; the figures of each are in docs/manual.md (``--from-cnc``). The picture is a
+view centred on the mirror, smaller than the team's full frames: for those, the centre comes
+from their Vision.conf (docs/manual.md gives the numbers).
 
 ``rings``: the radii (px) to pair in order with the conf's distances, ``None`` for a distance
-whose ring is not in the image (the second reading above is ``--rings
+whose ring is not in the image (the per-pixel table's reading is ``--rings
 103.7,130,146.8,158.1,166.2,177.2,184.4,192.2,-``), or the string ``detected``: the rings found
-in the picture, in order, which needs as many rings as distances (the first reading).
+in the picture, in order, which needs as many rings as distances (the reading in order).
 """
 
 from __future__ import annotations
