@@ -123,6 +123,12 @@ def run_errors(poses_path: Path, data: Path):
     return frame_errors(cols, read_csv(data / "truth.csv", "truth"), 0.02), cols
 
 
+def ranks_well(auroc: float, top_wrong: int, goal: float) -> bool:
+    """Whether a confidence meets an AUROC goal: its AUROC reaches ``goal``, or no frame's top
+    pose is off (``top_wrong`` 0), when the AUROC is undefined and nothing is left to rank."""
+    return bool(auroc >= goal or top_wrong == 0)
+
+
 def calibration_rows(method: str, runs, label: str, seconds: float) -> list[Row]:
     """The reliability of a method's confidence over localised rendered runs ``runs`` ((poses
     file, dataset folder) pairs): AUROC and reliability table of "top hypothesis within 40 cm"

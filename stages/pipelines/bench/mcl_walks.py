@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .harness import Row
+from .harness import Row, ranks_well
 from .inputs import rendered_inputs, work_dir
 
 # held-out walks: seeds 1300-1319 of each preset (the defaults were chosen on seeds 0-999)
@@ -94,6 +94,22 @@ def _note(p: dict) -> str:
             f" {p['auroc']:.3f}; per walk (%): {walks}; median CPU per walk {p['cpu']:.2f} s")
 
 
+# the walks' goals (GOAL_*), as a row states them
+WALK_GOAL = (f">= {100 * GOAL_WITHIN:g} % accepted within 40 cm pooled, every walk >="
+             f" {100 * GOAL_WORST:g} %, median <= {100 * GOAL_MEDIAN:g} cm, confidently wrong <="
+             f" {100 * GOAL_WRONG:g} %, AUROC >= {GOAL_AUROC:g}")
+
+
+def _walk_row(name: str, p: dict, note: str | None = None, extra: dict | None = None) -> Row:
+    """The row of pooled walk figures ``p`` (``_pooled``) held to WALK_GOAL."""
+    met = (p["within"] >= GOAL_WITHIN and p["worst"] >= GOAL_WORST
+           and p["median"] <= GOAL_MEDIAN and p["wrong"] <= GOAL_WRONG
+           and ranks_well(p["auroc"], p["top_wrong"], GOAL_AUROC))
+    return Row(name=name, median_ms=math.nan, cpu_ms=1e3 * p["cpu"], goal=WALK_GOAL,
+               meets_goal=bool(met), repeats=1, note=note or _note(p),
+               extra={**{k: v for k, v in p.items() if k != "per_walk"}, **(extra or {})})
+
+
 def rows(repeat: int) -> list[Row]:
     out = []
     for robot, preset, field in ROBOTS:
@@ -111,16 +127,7 @@ def rows(repeat: int) -> list[Row]:
                  " on", "uniform-imu", {"init": "uniform", "imu_heading_sigma": IMU_SIGMA},
                  LATE)):
             p = _pooled([_run(preset, field, s, conf, tag) for s in WALK_SEEDS], first, False)
-            met = (p["within"] >= GOAL_WITHIN and p["worst"] >= GOAL_WORST
-                   and p["median"] <= GOAL_MEDIAN and p["wrong"] <= GOAL_WRONG
-                   and p["auroc"] >= GOAL_AUROC)
-            out.append(Row(
-                name=f"mcl {how}, {label}", median_ms=math.nan, cpu_ms=1e3 * p["cpu"],
-                goal=f">= {100 * GOAL_WITHIN:g} % accepted within 40 cm pooled, every walk >="
-                     f" {100 * GOAL_WORST:g} %, median <= {100 * GOAL_MEDIAN:g} cm, confidently"
-                     f" wrong <= {100 * GOAL_WRONG:g} %, AUROC >= {GOAL_AUROC:g}",
-                meets_goal=bool(met), repeats=1, note=_note(p),
-                extra={k: v for k, v in p.items() if k != "per_walk"}))
+            out.append(_walk_row(f"mcl {how}, {label}", p))
         conf = {"init": "uniform"}
         p = _pooled([_run(preset, field, s, conf, "uniform") for s in WALK_SEEDS], LATE, True)
         out.append(Row(
@@ -163,9 +170,8 @@ def smooth_rows(repeat: int) -> list[Row]:
             met = smoothed["median"] <= causal["median"]
         goal += (f"; smoothed AUROC >= {GOAL_SMOOTH_AUROC:g}, confidently wrong <="
                  f" {100 * GOAL_SMOOTH_WRONG:g} %")
-        # no frame whose top pose is off leaves nothing for the confidence to rank
-        ranks = smoothed["auroc"] >= GOAL_SMOOTH_AUROC or smoothed["top_wrong"] == 0
-        met = met and ranks and smoothed["wrong"] <= GOAL_SMOOTH_WRONG
+        met = (met and ranks_well(smoothed["auroc"], smoothed["top_wrong"], GOAL_SMOOTH_AUROC)
+               and smoothed["wrong"] <= GOAL_SMOOTH_WRONG)
         for tag, p in pooled.items():
             out.append(Row(
                 name=f"mcl {tag} from the placement, {label}", median_ms=math.nan,
@@ -185,18 +191,9 @@ def side_rows(repeat: int) -> list[Row]:
                      for s in WALK_SEEDS], 0, False)
         without = _pooled([_run(preset, field, s, {}, "placement") for s in WALK_SEEDS], 0,
                           False)
-        met = (p["within"] >= GOAL_WITHIN and p["worst"] >= GOAL_WORST
-               and p["median"] <= GOAL_MEDIAN and p["wrong"] <= GOAL_WRONG
-               and p["auroc"] >= GOAL_AUROC)
-        out.append(Row(
-            name=f"mcl from the placement, start_side given, held-out rendered {robot} walks"
-                 f" ({len(WALK_SEEDS)} x {WALK_FRAMES} frames, seeds {WALK_SEEDS[0]}-"
-                 f"{WALK_SEEDS[-1]})", median_ms=math.nan, cpu_ms=1e3 * p["cpu"],
-            goal=f">= {100 * GOAL_WITHIN:g} % accepted within 40 cm pooled, every walk >="
-                 f" {100 * GOAL_WORST:g} %, median <= {100 * GOAL_MEDIAN:g} cm, confidently"
-                 f" wrong <= {100 * GOAL_WRONG:g} %, AUROC >= {GOAL_AUROC:g}",
-            meets_goal=bool(met), repeats=1,
-            note=f"{_note(p)}; without start_side: {_note(without)}",
-            extra={**{k: v for k, v in p.items() if k != "per_walk"},
-                   "without": {k: v for k, v in without.items() if k != "per_walk"}}))
+        out.append(_walk_row(
+            f"mcl from the placement, start_side given, held-out rendered {robot} walks"
+            f" ({len(WALK_SEEDS)} x {WALK_FRAMES} frames, seeds {WALK_SEEDS[0]}-"
+            f"{WALK_SEEDS[-1]})", p, note=f"{_note(p)}; without start_side: {_note(without)}",
+            extra={"without": {k: v for k, v in without.items() if k != "per_walk"}}))
     return out
