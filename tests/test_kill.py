@@ -5,13 +5,17 @@ target, the stage is started over it (``--overwrite``, or extract resuming it) a
 SIGKILL at a random moment of its work (seeded, so a failure can be replayed with
 FIELDLOC_KILL_SEED). Afterwards the earlier artifact is byte-identical; the next run removes the
 killed run's temporary parts (no stray part is left) and, for extract, resumes the frames the
-killed run had finished; and its result equals an uninterrupted run's. The inputs are tiny (a
-few frames, spl at coarse cells) but run the same code as large ones.
+killed run had finished; and its result equals an uninterrupted run's. For the two rounds of
+``localize --smooth`` (a chain writing seven artifacts one after the other), the kill lands in a
+phase of the chain the seed picks, and each earlier artifact is byte-identical or replaced
+whole (test_kill_two_rounds). The inputs are tiny (a few frames, spl at coarse cells) but run
+the same code as large ones.
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import queue
 import random
@@ -34,7 +38,8 @@ from stages.common.dataset import write_csv
 SEED = int(os.environ.get("FIELDLOC_KILL_SEED", "8"))
 # the interruptions below (stage, signal): the README states their number
 INTERRUPTIONS = [("simulate", "SIGKILL"), ("extract", "SIGKILL"), ("extract", "SIGINT"),
-                 ("build-map", "SIGKILL"), ("localize", "SIGKILL")]
+                 ("build-map", "SIGKILL"), ("localize", "SIGKILL"),
+                 ("localize --smooth", "SIGKILL")]
 FIELDLOC = [sys.executable, "-c", "from fieldloc_cli.main import cli; cli()"]
 
 
@@ -72,6 +77,7 @@ class Run:
                                      start_new_session=True, preexec_fn=_default_sigint)
         self.lines: queue.Queue = queue.Queue()
         self.seen: list[str] = []
+        self.stamped: list[tuple[float, str]] = []  # (time.monotonic() when read, line)
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
 
@@ -84,6 +90,7 @@ class Run:
 
     def _read(self):
         for line in self.proc.stderr:
+            self.stamped.append((time.monotonic(), line))
             self.lines.put(line)
 
     def wait_for(self, pattern: str = None, path_glob: tuple | None = None, timeout=60.0):
@@ -296,3 +303,143 @@ def test_kill_localize(inputs, tmp_path, rng):
                               tmp_path / "reference.h5", features=inputs["features"])
     assert_same_content(h5_content(target), h5_content(reference))
     assert target.with_suffix(".tum").read_bytes() == reference.with_suffix(".tum").read_bytes()
+
+
+# ---------------------------------------------------------------------------- the two rounds
+
+# The phases of `localize --smooth` with lut on an omni dataset (stages.pipelines.
+# images_to_poses), in the order the chain runs them: the -v line that opens each, and the
+# artifacts (what follows the output's stem) it renames into place before the next one opens.
+# The round-1 features are resumed and found finished: that phase writes no artifact, only
+# extract's lock and parts folder, which it removes again.
+TWO_ROUNDS_PHASES = [
+    ("round-1 features", r"no features given: extracting", ()),
+    ("first round", r"localize \S+ with lut: \d+ frames on", (".first-round.h5",
+                                                              ".first-round.tum")),
+    ("calibration", r"-> \S*/poses\.first-round\.h5$", (".recalibrated.yaml",)),
+    ("re-extraction", r"second round: extracting", (".recalibrated.features.h5",)),
+    ("second round", r"-> \S*/poses\.recalibrated\.features\.h5$", (".h5", ".tum")),
+]
+TWO_ROUNDS_END = r"localize lut: .* -> \S*/poses\.h5$"  # the last artifact is in place
+TWO_ROUNDS_ARTIFACTS = (".features.h5", ".first-round.h5", ".first-round.tum",
+                        ".recalibrated.yaml", ".recalibrated.features.h5", ".h5", ".tum")
+
+
+def _without_seconds(report):
+    """A method report (JSON) without the seconds its steps took (keys ending in ``_s``)."""
+    if isinstance(report, dict):
+        return {k: _without_seconds(v) for k, v in report.items() if not k.endswith("_s")}
+    return report
+
+
+def _artifact_content(path: Path):
+    """What two runs of the same command on the same inputs write alike: an HDF5 artifact's
+    datasets and attributes but those a run stamps (its creation time, the seconds its steps
+    took, and its inputs' paths and content hashes, which change with the creation time of the
+    first round's poses and of the learnt calib.yaml); a calib.yaml's mapping but its creation
+    time; a .tum's text."""
+    if path.suffix == ".h5":
+        out = h5_content(path, skip_attrs=("created", "inputs", "dataset", "calib_hash"))
+        if "@method_report" in out:
+            out["@method_report"] = _without_seconds(json.loads(out["@method_report"]))
+        return out
+    if path.suffix == ".yaml":
+        import yaml
+
+        calib = yaml.safe_load(path.read_text())
+        calib["calibration"].pop("created")
+        return calib
+    return path.read_text()
+
+
+def _assert_same_artifact(got, want, name: str):
+    if name.endswith(".h5"):
+        assert_same_content(got, want)
+    else:  # the same run's numbers printed as text by the same code: equal as written
+        assert got == want, name
+
+
+def _phase_window(stamped: list[tuple[float, str]], index: int) -> float:
+    """How long phase ``index`` of TWO_ROUNDS_PHASES lasted in a run's stamped stderr: from
+    its opening line to the next phase's (the last phase: to TWO_ROUNDS_END)."""
+    opens = [p for _name, p, _written in TWO_ROUNDS_PHASES] + [TWO_ROUNDS_END]
+    start = next(t for t, line in stamped if re.search(opens[index], line))
+    end = next(t for t, line in stamped if t >= start and re.search(opens[index + 1], line))
+    return end - start
+
+
+def test_kill_two_rounds(inputs, tmp_path):
+    """`localize --smooth` from the images (lut, so two rounds: the first round, the
+    calibration learnt from its poses, the frames extracted again with it, the second round)
+    over the artifacts of an earlier finished run of the same command, started with
+    --overwrite and killed (SIGKILL) in the phase SEED picks (round robin over
+    TWO_ROUNDS_PHASES, so any five consecutive seeds aim at every phase), at a moment drawn
+    uniformly over that phase's length in the earlier run (a run a little faster or slower
+    than the earlier one may be killed in the next phase: the test prints the phase the kill
+    landed in, read from the killed run's log).
+
+    What holds after the kill, and why. The chain writes its artifacts one after the other,
+    each to a part beside it that is renamed into place when whole; so each artifact of the
+    earlier run is either byte-identical, or was replaced whole by the killed run: readable,
+    and with the earlier run's content but for what a run stamps (_artifact_content: the same
+    command on the same inputs). Only an artifact of a phase the killed run had opened (its -v
+    line printed) can have been replaced; those of later phases are byte-identical, and so is
+    the round-1 features file, which the run resumes, finds finished and leaves alone. No
+    other file lies under an artifact's name: what the killed run left (its parts, extract's
+    parts folder and lock) starts with ``.<artifact name>.``. The dataset, its calib.yaml
+    included, is byte-identical. The next run (--overwrite) leaves no part beside any
+    artifact, and its poses and companions are the earlier, uninterrupted run's."""
+    from click.testing import CliRunner
+
+    from fieldloc_cli.main import cli
+
+    ds = inputs["ds"]
+    out = tmp_path / "poses.h5"
+    arts = {s: out.with_name("poses" + s) for s in TWO_ROUNDS_ARTIFACTS}
+    dataset_before = tree_hashes(ds)
+    # the round-1 features as extract makes them from the images, put in place before the
+    # earlier run (which resumes them) so that its phases last as long as the killed run's
+    shutil.copyfile(inputs["features"], arts[".features.h5"])
+    args = ["localize", str(ds), "--map", str(inputs["map"]), "--method", "lut", "--smooth",
+            "-o", str(out)]
+    first = Run(["-v", *args], tmp_path)
+    assert first.proc.wait(timeout=120) == 0, first.stderr()
+    assert "second round: extracting" in first.stderr()  # the chain runs both rounds here
+    earlier = {s: tree_hashes(p) for s, p in arts.items()}
+    content = {s: _artifact_content(p) for s, p in arts.items()}
+
+    rng = random.Random(f"two-rounds-{SEED}")
+    index = SEED % len(TWO_ROUNDS_PHASES)
+    phase, opens, _written = TWO_ROUNDS_PHASES[index]
+    delay = rng.uniform(0.0, _phase_window(first.stamped, index))
+    run = Run(["-v", *args, "--overwrite"], tmp_path)
+    started = run.wait_for(pattern=opens)
+    rc = run.kill_after(delay)
+    log = run.stderr()
+    assert started and rc == -signal.SIGKILL, (rc, phase, delay, log)
+    reached = max(i for i, (_n, p, _w) in enumerate(TWO_ROUNDS_PHASES) if re.search(p, log, re.M))
+    print(f"\ntwo rounds, seed {SEED}: killed {delay:.3f} s into the {phase} phase; the run had"
+          f" reached the {TWO_ROUNDS_PHASES[reached][0]} phase"
+          + (" and written every artifact" if re.search(TWO_ROUNDS_END, log, re.M) else ""))
+    may_change = {s for _n, _p, written in TWO_ROUNDS_PHASES[:reached + 1] for s in written}
+    replaced = []
+    for s, path in arts.items():
+        if tree_hashes(path) == earlier[s]:
+            continue
+        assert s in may_change, f"{path.name} replaced before its phase opened:\n{log}"
+        _assert_same_artifact(_artifact_content(path), content[s], path.name)
+        replaced.append(path.name)
+    print(f"replaced whole: {replaced}; parts left:"
+          f" {[x for p in arts.values() for x in parts_beside(p)]}")
+    names = sorted(p.name for p in tmp_path.iterdir())
+    left = sorted(x for p in arts.values() for x in parts_beside(p))
+    assert names == sorted([*left, *(p.name for p in arts.values())]), names
+    assert tree_hashes(ds) == dataset_before  # calib.yaml and every file of the recording
+
+    res = CliRunner().invoke(cli, [*args, "--overwrite"])
+    assert res.exit_code == 0, res.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in arts.values())
+    assert tree_hashes(arts[".features.h5"]) == earlier[".features.h5"]
+    for s, path in arts.items():
+        _assert_same_artifact(_artifact_content(path), content[s], path.name)
+    assert tree_hashes(ds) == dataset_before
