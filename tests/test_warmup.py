@@ -37,7 +37,7 @@ def test_importing_every_stage_module_compiles_no_kernel(tmp_path):
     # the walk reached the kernels of every compiled stage (not an import that found none)
     modules = {k.rsplit(".", 1)[0] for k in report["kernels"]}
     for module in ("stages.common.colour", "stages.common.surf",
-                   "stages.extract.perspective.line_fit",
+                   "stages.extract.perspective.line_fit_kernels",
                    "stages.extract.perspective.line_structure_kernels",
                    "stages.extract.perspective.crossing_kernels", "stages.localize.lut_kernels",
                    "stages.localize.fit_kernels", "stages.localize.mcl_kernels"):

@@ -15,7 +15,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .line_fit import _fit_points, distort_point, grow_kernel, refine_kernel
+from .line_fit_kernels import _fit_points, distort_point, grow_kernel, refine_kernel
 from .line_structure_kernels import bilinear_at
 
 # the numbers of crossings.VerifyFrame.params: the grid's cell (px), the image's size (px),

@@ -546,7 +546,7 @@ def place_crossing(kind: str, centre: np.ndarray, chains: list[list[int]], ideal
     Per arm: the least-squares line of its nodes number ``arm_skip`` + 1 .. ``arm_skip`` +
     ``arm_nodes`` from the crossing (the nodes right next to a crossing bend towards it; the
     node itself joins an arm of one node), pointing away from it; refined over the nodes'
-    extent from ``refine_skip`` cells off the crossing on (line_fit.refine_kernel; the
+    extent from ``refine_skip`` cells off the crossing on (line_fit_kernels.refine_kernel; the
     coarse line where that fails). The lines meet as an L's two arms, a T's bar (its two most
     nearly opposite arms fitted together) with the stem, an X's two lines (opposite arms
     fitted together). It runs compiled (``_place``)."""
