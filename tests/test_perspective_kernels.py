@@ -25,7 +25,7 @@ from oracles import perspective_crossings as crossing_oracle
 from oracles import perspective_geometry as geometry
 from oracles import perspective_sampling as sampling
 
-from stages.common import colour, numeric
+from stages.common import colour, colour_kernels, numeric
 from stages.extract import perspective
 from stages.extract.perspective import crossing_kernels as ck
 from stages.extract.perspective import crossings as cr
@@ -99,10 +99,10 @@ def test_threshold_table_equals_luminance_thresholds():
         y_map = rng.uniform(-5, 300, (60, 94)).astype(np.float32)
         y_map[0, :6] = [0.0, 255.0, 256.0, 1e-3, 200.5, 100.0 / 0.35]
         out = np.empty(y_map.shape + (3,), np.int16)
-        colour._threshold_table(y_map, np.float32(conf["white_contrast"]),
-                                np.float32(conf["white_min_y"]),
-                                np.float32(conf["green_min_ratio"]),
-                                np.float32(conf["green_max_ratio"]), out)
+        colour_kernels._threshold_table(y_map, np.float32(conf["white_contrast"]),
+                                        np.float32(conf["white_min_y"]),
+                                        np.float32(conf["green_min_ratio"]),
+                                        np.float32(conf["green_max_ratio"]), out)
         # exact integers: int16 thresholds
         np.testing.assert_array_equal(out, colour.luminance_thresholds(y_map, conf))
 
@@ -119,8 +119,8 @@ def test_green_samples_equal_the_numpy_masks(seed, shape):
     valid = rng.random((hb * 2, wb * 2)) < 0.8
     gs = np.zeros((hb, wb), np.float32)
     ys = np.zeros((hb, wb), np.float32)
-    colour._hue_block_sums(yuv, (step, 2, hb, wb), valid, True, colour._hue_test(fc),
-                           (30, 220), gs, ys)
+    colour_kernels._hue_block_sums(yuv, (step, 2, hb, wb), valid, True, colour._hue_test(fc),
+                                   (30, 220), gs, ys)
     y, u, v = (np.ascontiguousarray(yuv[:hb * cell:step, :wb * cell:step, c]) for c in range(3))
     green, _ = colour._chroma_tests(y, u, v, fc, conf, white=False)
     green &= (y >= 30) & (y <= 220) & valid
@@ -147,8 +147,8 @@ def test_green_candidates_equal_the_numpy_formulas(seed):
     sub[:2000, 1:] = np.clip(rng.normal(110, 10, (2000, 2)), 0, 255)
     chroma = colour._green_candidate_chroma((-170.0, -75.0), 6.0)
     y_lo, y_hi, min_sat = int(rng.integers(0, 40)), int(rng.integers(200, 256)), 0.15
-    y_c, u_c, v_c, uu, vv, hist = colour._green_candidates(sub, chroma, y_lo, y_hi, True,
-                                                           np.float32(min_sat * min_sat))
+    y_c, u_c, v_c, uu, vv, hist = colour_kernels._green_candidates(
+        sub, chroma, y_lo, y_hi, True, np.float32(min_sat * min_sat))
     y8, u8, v8 = sub[:, 0], sub[:, 1], sub[:, 2]
     cand = chroma[(u8.astype(np.int64) << 8) | v8] & (y8 >= y_lo) & (y8 <= y_hi)
     du, dv = u8.astype(np.float32) - np.float32(128.0), v8.astype(np.float32) - np.float32(128.0)
@@ -727,7 +727,7 @@ def test_sums_means_and_variances_equal_the_exact_ones(n):
 
 
 def test_hue_model_statistics_equal_numpys():
-    """colour's ``_hue_turned`` (the chroma turned onto the field's hue, float32, element by
+    """colour_kernels' ``_hue_turned`` (the chroma turned onto the field's hue, float32, element by
     element: at most one ulp apart from numpy's float32) and ``_hue_spread`` (the count
     within 45 deg of it, a decision clear of the bound, and the medians)."""
     rng = np.random.default_rng(4)
@@ -736,11 +736,12 @@ def test_hue_model_statistics_equal_numpys():
     angle = rng.uniform(-math.pi, math.pi)
     hx, hy = math.cos(angle), math.sin(angle)
     du, dv = u8.astype(np.float32) - 128.0, v8.astype(np.float32) - 128.0
-    num, den = colour._hue_turned(u8, v8, np.float32(hx), np.float32(hy))
+    num, den = colour_kernels._hue_turned(u8, v8, np.float32(hx), np.float32(hy))
     np.testing.assert_array_max_ulp(num, dv * np.float32(hx) - du * np.float32(hy), maxulp=1)
     np.testing.assert_array_max_ulp(den, du * np.float32(hx) + dv * np.float32(hy), maxulp=1)
     d = np.arctan2(num, den)
-    m, med_d, med_sat = colour._hue_spread(d, u8, v8, y8, np.float32(math.radians(45.0)))
+    m, med_d, med_sat = colour_kernels._hue_spread(d, u8, v8, y8,
+                                                   np.float32(math.radians(45.0)))
     near = np.abs(d) <= math.radians(45.0)
     assert m == near.sum() > 1000
     np.testing.assert_allclose(med_d, np.median(np.abs(d[near])), rtol=2.0 ** -22)
@@ -750,7 +751,7 @@ def test_hue_model_statistics_equal_numpys():
 
 @pytest.mark.parametrize("seed", range(4))
 def test_green_cluster_is_the_mean_shift_of_the_candidates(seed):
-    """colour's ``_green_cluster`` (the field green search's mean shift, its cluster's count,
+    """colour_kernels' ``_green_cluster`` (the field green search's mean shift, its cluster's count,
     median luminance and chroma variances) against the same mean shift in numpy float64:
     the centres within 1e-4 (float32 chroma, float32 means), the count, median and spread
     where no candidate lies within 2e-5 of the search circle's squared radius (float32
@@ -775,8 +776,8 @@ def test_green_cluster_is_the_mean_shift_of_the_candidates(seed):
             if _ == 3 or not near.any():
                 break
             nu, nv = float(u64[near].mean()), float(v64[near].mean())
-        got = colour._green_cluster(uu, vv, y_c, float(np.round(start[0] / 8) * 8 + 4),
-                                    float(np.round(start[1] / 8) * 8 + 4), 196.0, 3)
+        got = colour_kernels._green_cluster(uu, vv, y_c, float(np.round(start[0] / 8) * 8 + 4),
+                                            float(np.round(start[1] / 8) * 8 + 4), 196.0, 3)
         if not clear:
             unclear += 1
             continue

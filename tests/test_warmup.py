@@ -36,8 +36,8 @@ def test_importing_every_stage_module_compiles_no_kernel(tmp_path):
     report = json.loads(run.stdout.strip().splitlines()[-1])
     # the walk reached the kernels of every compiled stage (not an import that found none)
     modules = {k.rsplit(".", 1)[0] for k in report["kernels"]}
-    for module in ("stages.common.colour", "stages.common.surf",
-                   "stages.extract.perspective.line_fit",
+    for module in ("stages.common.colour_kernels", "stages.common.surf",
+                   "stages.extract.perspective.line_fit_kernels",
                    "stages.extract.perspective.line_structure_kernels",
                    "stages.extract.perspective.crossing_kernels", "stages.localize.lut_kernels",
                    "stages.localize.fit_kernels", "stages.localize.mcl_kernels"):

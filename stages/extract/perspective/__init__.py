@@ -44,15 +44,14 @@ from .line_fit import (
     LinesTuning,
     RefinedLine,
     distort_ideal,
-    distort_point,
     floor_line_parameters,
     floor_lines_parameters,
     lens_parameters,
     line_components,
-    median,
     refine_segments,
     split_and_merge,
 )
+from .line_fit_kernels import distort_point, median
 from .line_structure import KEY, SKELETON, key_structure, line_structure_graph, skeleton_grid
 from .line_structure_kernels import bilinear_at
 

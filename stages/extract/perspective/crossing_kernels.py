@@ -15,7 +15,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .line_fit import _fit_points, distort_point, grow_kernel, refine_kernel
+from .line_fit_kernels import _fit_points, distort_point, grow_kernel, refine_kernel
 from .line_structure_kernels import bilinear_at
 
 # the numbers of crossings.VerifyFrame.params: the grid's cell (px), the image's size (px),
@@ -182,8 +182,19 @@ def _path_share(white, px, py, qx, qy, t, step):
 
 @njit(cache=True, nogil=True)
 def _verify(centre, arms, white, green, field, use_field, radii, rule):
-    """verify_crossing, compiled (``rule``: t_white, relative, t_green, arm_gap, max_radius,
-    max_other, min_path_share)."""
+    """Image checks of section 4.1 at a crossing ``centre`` (grid coordinates): the circle's
+    transition count equals the number of arms (at any of the ``radii`` tried), and a white
+    path leads from the crossing along each arm (to ``arms``, the arms' points in grid
+    coordinates). ``white`` is the white share per cell inside the field boundary; white means
+    at least ``t_white`` and at least ``relative`` times the median white level at the arm
+    points (far lines are thin and faint). Arms at a small image angle need a larger circle to
+    be told apart: one on which neighbouring arms are ``arm_gap`` cells apart (up to
+    ``max_radius``) is tried too. ``field`` (with ``use_field``): the field region per cell (1
+    inside the boundary): only the circle's samples inside it count towards the share of
+    neither white nor green (at most ``max_other``). Returns a score in [0, 1] (0 =
+    rejected): the smallest white-path share, rejected below ``min_path_share``. ``rule``:
+    the tuning's (t_white, relative, t_green, arm_gap, max_radius, max_other,
+    min_path_share); the cells are sampled bilinearly in float32."""
     t_white, relative, t_green, arm_gap, max_radius, max_other, min_path_share = rule
     ring = _RING
     n_arms = arms.shape[0]

@@ -8,7 +8,7 @@ A degree-2 key node whose two edges meet at a corner angle is an L-crossing cand
 degree-3 node a T and a degree-4 node an X (``crossing_candidates``). The crossing is placed
 where the lines fitted to its arms meet (``place_crossing``; an L's skeleton cuts its
 corner). A candidate is verified in the subsampled colour images by two checks
-(``verify_crossing``):
+(``_verify_crossing``'s image checks, compiled in ``crossing_kernels._verify``):
 
 - on a circle centred at the crossing a state machine counts the green -> white -> green
   passages (one per arm leaving the crossing); the count must equal the candidate's number
@@ -79,7 +79,6 @@ from .crossing_kernels import (
     _place,
     _points_along,
     _stems,
-    _verify,
 )
 from .line_fit import LINES, distort_ideal, lens_parameters
 from .line_structure import KeyStructure, LineGraph, flat_lists
@@ -251,34 +250,6 @@ def floor_arms(kind: str, arms: np.ndarray) -> tuple[float, float]:
     orient = float(np.mod(np.angle(z) / 4.0, math.pi / 2))
     fold = np.abs(np.angle(np.exp(4j * (a - orient)))) / 4.0
     return orient, float(fold.max())
-
-
-def verify_crossing(centre: np.ndarray, arm_points: np.ndarray, white: np.ndarray,
-                    green: np.ndarray, tuning: CrossingsTuning = CROSSINGS,
-                    field: np.ndarray | None = None) -> float:
-    """Image checks of section 4.1 at a crossing ``centre`` (grid coordinates): the circle's
-    transition count equals the number of arms (at any of the radii tried), and a white path
-    leads from the crossing along each arm (to ``arm_points``, the next node or the arm's
-    reach). ``white`` is the white share per cell inside the field boundary; white means at
-    least ``t_white`` and at least ``relative`` times the median white level at the arm points
-    (far lines are thin and faint). Arms at a small image angle need a larger circle to be
-    told apart: one on which neighbouring arms are ``arm_gap`` cells apart (up to
-    ``max_radius``) is tried too. ``field``: the field region per cell (1 inside the
-    boundary): only the circle's samples inside it count towards the share of neither white
-    nor green. Returns a score in [0, 1] (0 = rejected): the smallest white-path share.
-
-    It runs compiled (``crossing_kernels._verify``), the cells sampled bilinearly in
-    float32."""
-    use_field = field is not None
-    t = tuning
-    rule = (float(t.t_white), float(t.relative), float(t.t_green), float(t.arm_gap),
-            float(t.max_radius), float(t.max_other), float(t.min_path_share))
-    return float(_verify(np.ascontiguousarray(centre, np.float64),
-                         np.ascontiguousarray(arm_points, np.float64).reshape(-1, 2),
-                         np.asarray(white, np.float32), np.asarray(green, np.float32),
-                         np.asarray(field, np.float32) if use_field
-                         else np.zeros((1, 1), np.float32), use_field,
-                         np.asarray(t.circle_radii, np.float64), rule))
 
 
 @dataclass
@@ -546,7 +517,7 @@ def place_crossing(kind: str, centre: np.ndarray, chains: list[list[int]], ideal
     Per arm: the least-squares line of its nodes number ``arm_skip`` + 1 .. ``arm_skip`` +
     ``arm_nodes`` from the crossing (the nodes right next to a crossing bend towards it; the
     node itself joins an arm of one node), pointing away from it; refined over the nodes'
-    extent from ``refine_skip`` cells off the crossing on (line_fit.refine_kernel; the
+    extent from ``refine_skip`` cells off the crossing on (line_fit_kernels.refine_kernel; the
     coarse line where that fails). The lines meet as an L's two arms, a T's bar (its two most
     nearly opposite arms fitted together) with the stem, an X's two lines (opposite arms
     fitted together). It runs compiled (``_place``)."""

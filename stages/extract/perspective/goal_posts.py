@@ -25,7 +25,7 @@ import numpy as np
 from numba import njit
 
 from ...common.numeric import sum32
-from .line_fit import median
+from .line_fit_kernels import median
 
 
 class PostsTuning(NamedTuple):
