@@ -40,7 +40,7 @@ import numpy as np
 
 from ..common.artifacts import as_stored, check_output, file_hash, output_lock, root_attrs
 from ..common.camera import camera_can
-from ..common.conf import check_bounds, registered_module, resolve_conf, stage_conf
+from ..common.conf import KindPresets, check_bounds, registered_module, resolve_conf, stage_conf
 from ..common.dataset import open_dataset, read_image, read_mask
 from ..common.errors import FieldlocError, SchemaError
 from ..common.features_file import SCHEMA, VERSION, FeaturesFile, FrameParts, write_features
@@ -64,8 +64,9 @@ def kind_confs(kind: str) -> dict:
     return kind_module(kind).confs
 
 
-# the presets of every kind: "<kind>-<preset>" -> conf
-confs = {f"{kind}-{name}": c for kind in KINDS for name, c in kind_confs(kind).items()}
+# the presets of every kind: "<kind>-<preset>" -> conf, a kind's extractor imported only when
+# one of its presets is asked for (localising from stored features imports none)
+confs = KindPresets(KINDS, kind_confs)
 
 
 def resolve_extract_conf(kind: str, conf: str | dict | None = None,
