@@ -101,3 +101,31 @@ def test_without_a_calibration_the_first_round_is_the_run(four_frames, msl2015_m
     assert "too few to calibrate from" in r.output and "the poses are written" in r.output
     assert len(read_poses(q)[0]["name"]) == 4
     assert not (tmp_path / "c.yaml").exists()
+
+
+def test_a_run_without_a_second_round_removes_an_earlier_ones_files(four_frames, msl2015_map,
+                                                                     tmp_path):
+    """Over an earlier run's output (--overwrite), a run whose first round gives no calibration
+    removes the second-round files that run left (a learnt calib.yaml, a features file), so
+    nothing beside the poses claims a calibration this run did not learn; a file of the user's
+    at such a name (not a second round's) is left as it is."""
+    runner = CliRunner()
+    out = tmp_path / "p.h5"
+    args = ["localize", str(four_frames), "--map", str(msl2015_map), "--smooth", "-o",
+            str(out)]
+    assert runner.invoke(cli, args).exit_code == 0
+    learnt = yaml.safe_load((four_frames / "calib.yaml").read_text())
+    learnt["calibration"] = {"method": "recording", "source": "an earlier run"}
+    (tmp_path / "p.recalibrated.yaml").write_text(yaml.safe_dump(learnt))
+    (tmp_path / "p.recalibrated.features.h5").write_bytes((tmp_path / "p.features.h5")
+                                                          .read_bytes())
+    r = runner.invoke(cli, [*args, "--overwrite"])
+    assert r.exit_code == 0, r.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.features.h5", "p.h5", "p.tum"]
+    mine = tmp_path / "p.recalibrated.yaml"
+    mine.write_text("notes: the user's own file\n")
+    before = _sha(mine)
+    r = runner.invoke(cli, [*args, "--overwrite"])
+    assert r.exit_code == 0, r.output
+    assert _sha(mine) == before  # exact bytes: a file the user made is never touched
+

@@ -38,6 +38,8 @@ import logging
 import os
 from pathlib import Path
 
+import yaml
+
 from .. import extract, localize
 from ..common.artifacts import check_output
 from ..common.errors import FieldlocError
@@ -126,6 +128,7 @@ def _two_rounds(conf, dataset_dir: Path, map_path, output: Path, features: Path,
         log.warning("no second round: the first round's poses give no calibration (%s)", e)
         for src in (first, first.with_suffix(".tum")):  # the first round is the run
             os.replace(src, output.with_suffix(src.suffix))
+        _remove_earlier_second_round(calib, features2)
         if write_calib is not None:
             raise FieldlocError(f"{e}; the poses are written: {output}") from None
         return output
@@ -140,3 +143,49 @@ def _two_rounds(conf, dataset_dir: Path, map_path, output: Path, features: Path,
         except FieldlocError as e:
             raise FieldlocError(f"{e}; the poses are written: {path}") from None
     return path
+
+
+def _remove_earlier_second_round(calib: Path, features2: Path) -> None:
+    """After a run with no second round, the second-round files an earlier run of the same
+    output left (the run's own outputs, which --overwrite let it replace: check_output) are
+    removed, so that nothing beside the poses claims a calibration this run did not learn. A
+    file is removed only when it is what a second round writes (a calib.yaml whose
+    ``calibration`` mapping says ``method: recording``, a features file of fieldloc's schema);
+    anything else at those names is left, with a warning."""
+    for path, ours in ((calib, _learnt_calibration), (features2, _features_artifact)):
+        if not path.exists():
+            continue
+        if ours(path):
+            os.remove(path)
+            log.info("removed %s: an earlier run's second round, which this run has not", path)
+        else:
+            log.warning("%s is not a second round's file: left as it is; these poses do not"
+                        " use it", path)
+
+
+def _learnt_calibration(path: Path) -> bool:
+    """Whether ``path`` is a calib.yaml a recording's calibration wrote."""
+    from ..common.conf import load_yaml
+
+    try:
+        with open(path, "rb") as f:
+            doc = load_yaml(f.read(1 << 20))
+    except (OSError, ValueError, yaml.YAMLError):
+        return False
+    record = doc.get("calibration") if isinstance(doc, dict) else None
+    return isinstance(record, dict) and record.get("method") == "recording"
+
+
+def _features_artifact(path: Path) -> bool:
+    """Whether ``path`` is a features file of fieldloc's schema."""
+    import h5py
+
+    from ..common.features_file import SCHEMA
+
+    try:
+        with h5py.File(path, "r") as f:
+            got = f.attrs.get("schema")
+    except (OSError, ValueError):
+        return False
+    return (got.decode(errors="replace") if isinstance(got, bytes) else got) == SCHEMA
+
