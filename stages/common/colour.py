@@ -27,9 +27,9 @@ How it is computed (the classes are exactly those of the formulas, evaluated in 
 - the chroma tests are evaluated per pixel in float32, operation by operation as the formulas
   (``_chroma_tests``), on strips of rows (``STRIP_ROWS``) so that the temporaries stay small
   and in cache; the 8 x 8 counts are summed from the class masks of each strip.
-Lookup tables were measured as well: a per-frame (Y, U) -> V-interval table of both chroma
-tests gives the same classes but is not faster here (0.9 ms to build per frame, and a gather
-per pixel costs about as much as the float32 arithmetic).
+A per-frame (Y, U) -> V-interval table of both chroma tests would give the same classes, but
+its build and a gather per pixel cost about what the float32 arithmetic does, so the tests are
+computed (docs/results.md, "Colour classes").
 
 The perspective extractor reuses the same functions; ``classify_grid`` gives the grid of
 class counts per 8 x 8 block of Schulz et al. (2011). An extractor that looks at a fixed set

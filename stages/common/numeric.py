@@ -1,6 +1,7 @@
 """Numeric kernels the extractors share (compiled, cached on disk): sums of float arrays
 accumulated in float64 (``sum32``, ``sum64``; ``mean32``, ``var32`` from them), the median of
-non-negative float32 values by radix selection (``median32``), and the peak of a small
+non-negative float32 values by radix selection (``median32``), ``np.median`` compiled
+(``median``), and the peak of a small
 histogram after OpenCV's 3 x 3 Gaussian blur (``histogram_peak``). Each states the arithmetic
 it does, so a test can hold it to a reference within the rounding it names.
 """
@@ -140,3 +141,11 @@ def median32(a, m):
     if m % 2 == 1:
         return np.float64(v[0])
     return np.float64(np.float32(v[0] + v[1])) / 2.0
+
+
+@njit(cache=True, nogil=True)
+def median(values):
+    """``np.median`` of a 1-D array, compiled (the same value: the middle order statistic, or
+    the mean of the two middle ones; without numpy's call overhead on short arrays)."""
+    return np.median(values)
+

@@ -33,6 +33,7 @@ from numba import njit
 from ...common import colour
 from ...common.errors import DatasetError, FieldlocError
 from ...common.geometry import polar
+from ...common.numeric import median
 from .crossing_kernels import floor_at
 from .crossings import CROSSINGS, Finds, FrameGrid, find_crossings, floor_bundle
 from .field_boundary import BOUNDARY, boundary_polyline
@@ -51,7 +52,7 @@ from .line_fit import (
     refine_segments,
     split_and_merge,
 )
-from .line_fit_kernels import distort_point, median
+from .line_fit_kernels import distort_point
 from .line_structure import KEY, SKELETON, key_structure, line_structure_graph, skeleton_grid
 from .line_structure_kernels import bilinear_at
 

@@ -24,8 +24,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ...common.numeric import sum32
-from .line_fit_kernels import median
+from ...common.numeric import median, sum32
 
 
 class PostsTuning(NamedTuple):

@@ -199,13 +199,6 @@ def _perpendicular_feet(p0, p1, dist, length, at, along):
             at[k, 0], at[k, 1] = fy, fx
 
 
-@njit(cache=True, nogil=True)
-def median(values):
-    """``np.median`` of a 1-D array, compiled (the same value: the middle order statistic, or
-    the mean of the two middle ones; without numpy's call overhead on short arrays)."""
-    return np.median(values)
-
-
 @njit(cache=True, nogil=True, inline="always")
 def distort_point(lens, x, y):
     """An ideal pixel (x, y) -> the distorted image pixel (the lens of ``lens_parameters``);
