@@ -127,5 +127,5 @@ def test_a_run_without_a_second_round_removes_an_earlier_ones_files(four_frames,
     before = _sha(mine)
     r = runner.invoke(cli, [*args, "--overwrite"])
     assert r.exit_code == 0, r.output
-    assert _sha(mine) == before  # exact bytes: a file the user made is never touched
+    assert _sha(mine) == before  # a file the user made is never touched
 
