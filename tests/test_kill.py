@@ -307,20 +307,20 @@ def test_kill_localize(inputs, tmp_path, rng):
 
 # ---------------------------------------------------------------------------- the two rounds
 
-# The phases of `localize --smooth` with lut on an omni dataset (stages.pipelines.
+# The phases of `localize --smooth` with lut or fit on an omni dataset (stages.pipelines.
 # images_to_poses), in the order the chain runs them: the -v line that opens each, and the
 # artifacts (what follows the output's stem) it renames into place before the next one opens.
 # The round-1 features are resumed and found finished: that phase writes no artifact, only
 # extract's lock and parts folder, which it removes again.
 TWO_ROUNDS_PHASES = [
     ("round-1 features", r"no features given: extracting", ()),
-    ("first round", r"localize \S+ with lut: \d+ frames on", (".first-round.h5",
+    ("first round", r"localize \S+ with (?:lut|fit): \d+ frames on", (".first-round.h5",
                                                               ".first-round.tum")),
     ("calibration", r"-> \S*/poses\.first-round\.h5$", (".recalibrated.yaml",)),
     ("re-extraction", r"second round: extracting", (".recalibrated.features.h5",)),
     ("second round", r"-> \S*/poses\.recalibrated\.features\.h5$", (".h5", ".tum")),
 ]
-TWO_ROUNDS_END = r"localize lut: .* -> \S*/poses\.h5$"  # the last artifact is in place
+TWO_ROUNDS_END = r"localize (?:lut|fit): .* -> \S*/poses\.h5$"  # the last artifact is in place
 TWO_ROUNDS_ARTIFACTS = (".features.h5", ".first-round.h5", ".first-round.tum",
                         ".recalibrated.yaml", ".recalibrated.features.h5", ".h5", ".tum")
 
@@ -368,8 +368,9 @@ def _phase_window(stamped: list[tuple[float, str]], index: int) -> float:
     return end - start
 
 
-def test_kill_two_rounds(inputs, tmp_path):
-    """`localize --smooth` from the images (lut, so two rounds: the first round, the
+@pytest.mark.parametrize("method", ["lut", "fit"])
+def test_kill_two_rounds(inputs, tmp_path, method):
+    """`localize --smooth` from the images (lut and fit, so two rounds: the first round, the
     calibration learnt from its poses, the frames extracted again with it, the second round)
     over the artifacts of an earlier finished run of the same command, started with
     --overwrite and killed (SIGKILL) in the phase SEED picks (round robin over
@@ -400,7 +401,7 @@ def test_kill_two_rounds(inputs, tmp_path):
     # the round-1 features as extract makes them from the images, put in place before the
     # earlier run (which resumes them) so that its phases last as long as the killed run's
     shutil.copyfile(inputs["features"], arts[".features.h5"])
-    args = ["localize", str(ds), "--map", str(inputs["map"]), "--method", "lut", "--smooth",
+    args = ["localize", str(ds), "--map", str(inputs["map"]), "--method", method, "--smooth",
             "-o", str(out)]
     first = Run(["-v", *args], tmp_path)
     assert first.proc.wait(timeout=120) == 0, first.stderr()
@@ -408,8 +409,9 @@ def test_kill_two_rounds(inputs, tmp_path):
     earlier = {s: tree_hashes(p) for s, p in arts.items()}
     content = {s: _artifact_content(p) for s, p in arts.items()}
 
-    rng = random.Random(f"two-rounds-{SEED}")
-    index = SEED % len(TWO_ROUNDS_PHASES)
+    rng = random.Random(f"two-rounds-{method}-{SEED}")
+    # fit one phase on from lut, so that one seed kills the two methods in different phases
+    index = (SEED + (method == "fit")) % len(TWO_ROUNDS_PHASES)
     phase, opens, _written = TWO_ROUNDS_PHASES[index]
     delay = rng.uniform(0.0, _phase_window(first.stamped, index))
     run = Run(["-v", *args, "--overwrite"], tmp_path)
