@@ -14,7 +14,6 @@ the same code as large ones.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import queue
@@ -31,6 +30,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from unchanged_files import tree_hashes
 
 from stages import build_map, extract, localize, simulate
 from stages.common.dataset import write_csv
@@ -124,14 +124,6 @@ class Run:
         if self.proc.poll() is None:
             self.proc.send_signal(sig)
         return self.proc.wait(timeout=60)
-
-
-def tree_hashes(path: Path) -> dict[str, str]:
-    path = Path(path)
-    files = [path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
-    # exact same-run: files left alone, or written by runs here
-    return {str(p.relative_to(path.parent)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in files}
 
 
 def parts_beside(target: Path) -> list[str]:

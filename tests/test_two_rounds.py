@@ -3,12 +3,12 @@ the mirror calibration's error, the frames are extracted again with the correcte
 and smoothed again, against the first round's poses (stages.pipelines.images_to_poses)."""
 
 import copy
-import hashlib
 
 import numpy as np
 import pytest
 import yaml
 from click.testing import CliRunner
+from unchanged_files import tree_hashes
 
 from fieldloc_cli.main import cli
 from stages.common.poses_file import read_poses
@@ -21,9 +21,6 @@ def _errors(path, truth_csv):
     return np.hypot(cols["x"] - t[idx, 1], cols["y"] - t[idx, 2]), cols, attrs
 
 
-def _sha(path):
-    # exact bytes: the user's calib.yaml checked unchanged
-    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def test_the_second_round_extracts_with_the_learnt_calibration(omni_default_rendered,
@@ -33,7 +30,7 @@ def test_the_second_round_extracts_with_the_learnt_calibration(omni_default_rend
     them; the user's calib.yaml is unchanged; the median error is no worse than one round's
     (-c recalibrate=false) and every frame is within 40 cm."""
     ds, feats = omni_default_rendered
-    before = _sha(ds / "calib.yaml")
+    before = tree_hashes(ds / "calib.yaml")
     runner = CliRunner()
     out = {}
     for tag, extra in (("one", ["-c", "recalibrate=false"]), ("two", [])):
@@ -60,7 +57,7 @@ def test_the_second_round_extracts_with_the_learnt_calibration(omni_default_rend
     assert np.all(e2 <= 0.4), np.round(e2, 2)
     # the tuning seeds' medians fell 1.5-3 times; here at least it must not rise (1 mm slack)
     assert np.median(e2) <= np.median(e1) + 0.001, (np.median(e1), np.median(e2))
-    assert _sha(ds / "calib.yaml") == before
+    assert tree_hashes(ds / "calib.yaml") == before
     # the same outputs again need --overwrite, the learnt calibration's included
     r = runner.invoke(cli, ["localize", str(ds), "--map", str(msl2015_map), "--features",
                             str(feats), "--smooth", "-o", str(out["two"])])
@@ -124,8 +121,8 @@ def test_a_run_without_a_second_round_removes_an_earlier_ones_files(four_frames,
     assert sorted(p.name for p in tmp_path.iterdir()) == ["p.features.h5", "p.h5", "p.tum"]
     mine = tmp_path / "p.recalibrated.yaml"
     mine.write_text("notes: the user's own file\n")
-    before = _sha(mine)
+    before = tree_hashes(mine)
     r = runner.invoke(cli, [*args, "--overwrite"])
     assert r.exit_code == 0, r.output
-    assert _sha(mine) == before  # a file the user made is never touched
+    assert tree_hashes(mine) == before  # a file the user made is never touched
 

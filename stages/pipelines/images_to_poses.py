@@ -165,27 +165,21 @@ def _remove_earlier_second_round(calib: Path, features2: Path) -> None:
 
 def _learnt_calibration(path: Path) -> bool:
     """Whether ``path`` is a calib.yaml a recording's calibration wrote."""
-    from ..common.conf import load_yaml
+    from ..common.camera import read_calibration_record
 
     try:
-        with open(path, "rb") as f:
-            doc = load_yaml(f.read(1 << 20))
-    except (OSError, ValueError, yaml.YAMLError):
+        return read_calibration_record(path).get("method") == "recording"
+    except (OSError, ValueError, yaml.YAMLError):  # not text, not YAML: not ours
         return False
-    record = doc.get("calibration") if isinstance(doc, dict) else None
-    return isinstance(record, dict) and record.get("method") == "recording"
 
 
 def _features_artifact(path: Path) -> bool:
     """Whether ``path`` is a features file of fieldloc's schema."""
-    import h5py
-
-    from ..common.features_file import SCHEMA
+    from ..common.artifacts import open_artifact
+    from ..common.features_file import SCHEMA, VERSION
 
     try:
-        with h5py.File(path, "r") as f:
-            got = f.attrs.get("schema")
-    except (OSError, ValueError):
+        open_artifact(path, SCHEMA, VERSION).close()
+    except FieldlocError:
         return False
-    return (got.decode(errors="replace") if isinstance(got, bytes) else got) == SCHEMA
-
+    return True
