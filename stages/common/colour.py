@@ -773,12 +773,6 @@ def hue_deg(u, v) -> np.ndarray:
     return np.degrees(np.arctan2(np.asarray(v, float) - 128.0, np.asarray(u, float) - 128.0))
 
 
-def uv_ellipse(fc: FieldColour, n: int = 64) -> np.ndarray:
-    """(n, 2) points of the green ellipse in the UV plane at the field's luminance (plots)."""
-    t = np.linspace(0, 2 * math.pi, n)
-    return np.stack([fc.u + fc.axes[0] * np.cos(t), fc.v + fc.axes[1] * np.sin(t)], axis=1)
-
-
 # ---------------------------------------------------------------------------- compiled path
 
 def classify_cells(yuv: np.ndarray, fc: FieldColour, conf: dict, cell: int,

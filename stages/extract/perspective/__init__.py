@@ -269,11 +269,6 @@ def _to_floor(p, m, height, position, shifted, out):
         out[i, 0], out[i, 1] = floor_at(m, height, position, shifted, p[i, 0], p[i, 1])
 
 
-def ideal_to_floor(camera, ideal, pitch=None, roll=None) -> np.ndarray:
-    """Ideal pixels (N, 2) -> floor points (N, 2) in the robot frame (see FloorProjection)."""
-    return FloorProjection(camera, pitch, roll)(ideal)
-
-
 def grid_to_pixels(pos, cell: int) -> np.ndarray:
     """Grid coordinates (x = column, y = row; cell centres at integers) -> full-resolution
     pixels (u, v) (pixel centres at integers)."""
