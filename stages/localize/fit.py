@@ -62,6 +62,7 @@ from . import bank_smoothing, radial_correction, tracking
 from . import fit_kernels as K
 from . import heading as heading_mod
 from .lut_kernels import inlier_sums, structure_sizes
+from .lut_matching import MatchingParams, Observation, RadialTable
 from .lut_search import EVIDENCE
 from .radial_correction import DEFAULTS as RADIAL_DEFAULTS
 from .radial_correction import PathCalibration, RadialCorrection
@@ -290,18 +291,27 @@ def observation_from_points(points, radial: RadialCorrection | None = None
                           evidence=share)
 
 
+# the scan-line matching of lut (Ribeiro et al. 2015) where fit reads scan lines: a frame
+# without line points, and the radial crossings a fix should have seen (FitScorer)
+MATCHING = MatchingParams()
+
+
+def scanline_observation(fr: dict, scanlines, spiral: bool = False) -> Observation:
+    """A features frame's scan-line crossings (radial, and spiral when ``spiral``) as lut's
+    observations."""
+    return Observation.from_scanlines(fr.get("radial", np.zeros((0, 4))),
+                                      fr.get("spiral") if spiral else None, MATCHING,
+                                      scanlines.max_range, scanlines.spiral_end_radius,
+                                      scanlines.robot_radius)
+
+
 def frame_points(fr: dict, scanlines) -> np.ndarray:
     """The line points of a frame: ``points`` (every crossing of the scan lines, or a team's
     own points), else the scan-line crossings as points."""
     pts = fr.get("points")
     if pts is not None:
         return np.asarray(pts, dtype=np.float64).reshape(-1, 2)
-    from .lut_search import MatchingParams, Observation
-
-    obs = Observation.from_scanlines(fr.get("radial", np.zeros((0, 4))), fr.get("spiral"),
-                                     MatchingParams(), scanlines.max_range,
-                                     scanlines.spiral_end_radius, scanlines.robot_radius)
-    return obs.points(scanlines)
+    return scanline_observation(fr, scanlines, spiral=True).points(scanlines)
 
 
 # ---------------------------------------------------------------------------- the engine
@@ -812,14 +822,20 @@ class FitScorer(PathCalibration):
     """Method fit's candidates for the smoother (smooth.Scorer) after a causal run, with what
     that run learnt of the whole recording (the IMU's alignment, the radial correction): the
     multi-start global search's fixes and the fits from given starts, as the tracks' are (at
-    the frame's heading with its prior), their nll the fit's error at the tracked
+    the frame's heading with its prior), their nll the fit's error with the map crossings
+    the radial lines should have seen and did not (lut_matching.unseen_error) at the tracked
     temperature (the module doc), their covariance ``FitEngine.vision_covariance``."""
 
-    def __init__(self, loc: FitLocaliser, features):
+    def __init__(self, loc: FitLocaliser, features, radial_table: RadialTable):
         self.loc = loc
         self.features = features
         self.names = list(features.names)
         self.frames = len(self.names)
+        # the map's radial crossings, for the ones a fix's radial lines should have seen
+        # (lut_matching.unseen_error)
+        self.radial_table = radial_table
+        self._scanline_obs: dict = {}
+        self._corrected: dict = {}  # frame -> (the correction, its corrected observations)
         self.mirrored = loc.symmetric and not (loc.field_heading
                                               and loc.conf["heading"] != "histogram")
         self._cache: dict = {}
@@ -836,7 +852,25 @@ class FitScorer(PathCalibration):
             except (KeyError, OSError):
                 fr = None
             self._raw[i] = None if fr is None else frame_points(fr, self.loc.scanlines)
+            self._scanline_obs[i] = (None if fr is None or "radial" not in fr
+                                     else scanline_observation(fr, self.loc.scanlines))
         return self._raw[i]
+
+    def _unseen(self, i: int, pose) -> float:
+        """The map crossings frame i's radial lines should have seen at ``pose`` and did not
+        (lut_matching.unseen_error; the distances corrected as the points are), 0 for a frame
+        of a team's own points without scan lines."""
+        self._raw_points(i)
+        obs = self._scanline_obs.get(i)
+        if obs is None or not len(obs):
+            return 0.0
+        if self.radial is not None and self.radial.active:
+            kept = self._corrected.get(i)
+            if kept is None or kept[0] is not self.radial:  # corrected once per calibration
+                kept = self._corrected[i] = (self.radial, dataclasses.replace(
+                    obs, distance=self.radial.correct(obs.distance)))
+            obs = kept[1]
+        return self.radial_table.unseen_error(obs, pose, MATCHING)
 
     def _obs(self, i: int):
         if i not in self._cache:
@@ -877,8 +911,11 @@ class FitScorer(PathCalibration):
             return "unreadable-features"
         return "too-few-observations" if len(obs) < MIN_POINTS else None
 
-    def _row(self, fix: Fix, T: float, sigma):
-        return (fix.pose, fix.error / T, self.loc.engine.vision_covariance(fix, T, sigma),
+    def _row(self, i: int, fix: Fix, T: float, sigma):
+        """(pose, nll, covariance, e_norm) of a fix: its nll the fit's error and the map
+        crossings its radial lines should have seen and did not, at the frame's temperature."""
+        nll = (fix.error + self._unseen(i, fix.pose)) / T
+        return (fix.pose, nll, self.loc.engine.vision_covariance(fix, T, sigma),
                 fix.error_norm)
 
     def global_candidates(self, i: int) -> FrameCandidates:
@@ -890,13 +927,13 @@ class FitScorer(PathCalibration):
         fixes = engine.global_search(obs, headings, temperature=T, mode="global",
                                      separation=tracking.AMBIGUITY_DISTANCE_M)
         sigma = None if headings is None else headings[0][1]
-        rows = [self._row(f, T, sigma) for f in fixes]
+        rows = [self._row(i, f, T, sigma) for f in fixes]
         if self.mirrored:  # the mirror image explains the frame as well: fitted there too
             for f in fixes:
                 m = FieldModel.mirror_pose(f.pose)
                 g = engine.fit(obs, m, temperature=T, mode="global",
                                heading=None if sigma is None else (m[2], sigma))
-                rows.append(self._row(g, T, sigma))
+                rows.append(self._row(i, g, T, sigma))
         return FrameCandidates.from_rows(rows)
 
     def local_candidates(self, i: int, starts: np.ndarray) -> FrameCandidates:
@@ -909,7 +946,7 @@ class FitScorer(PathCalibration):
             th, sigma = loc._track_heading(p, obs, base, [])
             fix = loc.engine.fit(obs, np.array([p[0], p[1], th]), heading=(th, sigma),
                                  temperature=T, mode="local")
-            rows.append(self._row(fix, T, sigma))
+            rows.append(self._row(i, fix, T, sigma))
         return FrameCandidates.from_rows(rows)
 
 
@@ -927,7 +964,7 @@ def run(conf: dict, dataset, features, map_file: MapFile, progress=False) -> Pos
                                      progress=progress)
     if not conf["smooth"]:
         return track
-    scorer = FitScorer(loc, features)
+    scorer = FitScorer(loc, features, RadialTable.of_map(map_file))
     x0, x1, y0, y1 = engine.field.bounds
     track = bank_smoothing.smoothed(scorer, track, conf, increments=sensors.increments,
                                     has_odometry=sensors.has_odometry, stamps=features.stamps,

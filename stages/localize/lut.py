@@ -757,8 +757,10 @@ class LutScorer(PathCalibration):
     that run learnt of the whole recording (the IMU's alignment, the radial correction). A
     frame's candidates are fixed as the tracks' are (the local search at the frame's heading,
     moved by the line points' fit), the global ones by the global search; their nll is the
-    scan-line evidence at the tracked temperature (consecutive frames' views are one
-    measurement: the module doc), their covariance ``vision_covariance``."""
+    line points' evidence with the map crossings the radial lines should have seen and did
+    not (lut_matching.unseen_error: a look-alike place predicts lines the image does not
+    show) at the tracked temperature (consecutive frames' views are one measurement: the
+    module doc), their covariance ``vision_covariance``."""
 
     def __init__(self, loc: LutLocaliser, features, sensors):
         self.loc = loc
@@ -821,8 +823,13 @@ class LutScorer(PathCalibration):
         return self.loc.frame_input(fr, obs, self.loc.T_track)
 
     def _candidate(self, f: LutFrame, fix, heading_sigma: float, *, heading_fixed: bool):
+        """(pose, nll, covariance, e_norm) of a fix: its nll the line points' error and the
+        map crossings its radial lines should have seen and did not (lut_matching.
+        unseen_error), both at the tracked temperature."""
         loc = self.loc
         e = loc._fit_points(fix, f, heading_fixed=heading_fixed)
+        tables = loc.search.tables
+        e += tables.radial.unseen_error(f.obs, fix.pose, tables.params)
         sup = loc.search.support(f.obs, fix, INLIER_ERROR_M)
         return fix.pose, e / loc.T_track, vision_covariance(fix, sup, heading_sigma), \
             fix.error_norm

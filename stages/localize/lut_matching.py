@@ -31,6 +31,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..common.scanlines import NO_HIT_MM
 from .lut_kernels import MAX_CROSSINGS, evidence_weights, flatten_scanlines, observation_points
 
 
@@ -72,6 +73,7 @@ class Observation:
     _observed: tuple | None = field(default=None, init=False, repr=False, compare=False)
     _points: tuple | None = field(default=None, init=False, repr=False, compare=False)
     _sums: tuple | None = field(default=None, init=False, repr=False, compare=False)
+    _radial_rows: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
     def __len__(self):
         return len(self.distance)
@@ -192,3 +194,97 @@ def random_bearing_points(points: np.ndarray, perm: np.ndarray, angle_step: floa
     rho = np.hypot(p[:, 0], p[:, 1])
     return np.stack([rho * np.cos(turned), rho * np.sin(turned)], axis=1)
 
+
+
+# ---------------------------------------------------------------------------- unseen crossings
+
+# m: a table crossing counts as seen when an observed crossing of its radial line lies within
+# this distance of it (half the matching's ``pair_tolerance``: the same line seen from a pose
+# a cell or a 5 deg table heading away, through a mirror calibration off by a decimetre)
+UNSEEN_TOLERANCE_M = 0.3
+# m: how much nearer than the farthest crossing its line observed a table crossing must be to
+# count as one the line should have seen (beyond the farthest observation the line may have
+# been blocked, or its crossings too thin to find; within the tolerance above it is the same)
+UNSEEN_REACH_MARGIN_M = 0.3
+
+
+@dataclass(frozen=True)
+class RadialTable:
+    """The map's radial scan-line table as the unseen-crossing term reads it: ``table``
+    (n_angles, ncell, MAX_CROSSINGS) uint16 mm (``NO_HIT_MM`` none; the layout
+    lut_tables.LutTables maps), on ``grid`` (common.map_file.Grid) with ``scanlines``."""
+
+    table: np.ndarray
+    grid: object
+    scanlines: object
+
+    @classmethod
+    def of_map(cls, map_file) -> RadialTable:
+        """From a map file's radial table ((n_angles, MAX_CROSSINGS, ny, nx), read whole)."""
+        t = map_file.table("radial")
+        n = t.shape[0]
+        return cls(np.ascontiguousarray(t.reshape(n, MAX_CROSSINGS, -1).transpose(0, 2, 1)),
+                   map_file.grid, map_file.scanlines)
+
+    def rows(self, pose) -> np.ndarray:
+        """The crossings (uint16 mm) a robot at ``pose`` (x, y, theta) sees on its own radial
+        lines, row k its line k: the table at the pose's cell and nearest table heading
+        (stages.common.scanlines.rotate_to_heading)."""
+        g = self.grid
+        (ny, nx), r = g.shape, g.resolution
+        i = min(max(round((float(pose[1]) - g.origin[1]) / r), 0), ny - 1)
+        j = min(max(round((float(pose[0]) - g.origin[0]) / r), 0), nx - 1)
+        n = self.table.shape[0]
+        m = self.scanlines.heading_index(float(pose[2]))
+        return self.table[(np.arange(n) + m) % n, i * nx + j, :]
+
+    def unseen_error(self, obs: Observation, pose, params: MatchingParams) -> float:
+        """``unseen_error`` of ``obs`` at ``pose``."""
+        return unseen_error(self.rows(pose), obs, params)
+
+
+def _radial_rows(obs: Observation, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(observed (n, MAX_CROSSINGS), within (n,)) of ``obs``'s radial lines: per line its
+    observed crossings (m; 1e9 none, farther than any table crossing) and how far a table
+    crossing may lie to count as one the line should have seen (its farthest crossing less
+    ``UNSEEN_REACH_MARGIN_M``; -inf for a line that saw nothing). Computed once per
+    observation set: every candidate pose of a frame reads them."""
+    if obs._radial_rows is None or obs._radial_rows[0].shape[0] != n:
+        rad = obs.family == 0
+        line, d = obs.angle_index[rad], obs.distance[rad]
+        within = np.full(n, -np.inf)
+        np.maximum.at(within, line, d - UNSEEN_REACH_MARGIN_M)
+        observed = np.full((n, MAX_CROSSINGS), 1e9)
+        order = np.argsort(line, kind="stable")
+        line, d = line[order], d[order]
+        slot = np.arange(len(line)) - np.searchsorted(line, line)  # place among its line's
+        keep = slot < MAX_CROSSINGS
+        observed[line[keep], slot[keep]] = d[keep]
+        obs._radial_rows = (observed, within)
+    return obs._radial_rows
+
+
+def unseen_error(rows_mm: np.ndarray, obs: Observation, params: MatchingParams) -> float:
+    """The paper's error term the other way round, for the map's crossings a pose predicts
+    and the robot did not see (E, Ribeiro et al. 2015, charges what was seen and the map does
+    not have). E alone has no cost for a map line the scan lines should have crossed: a look-
+    alike place (the penalty area's front line and the halfway line, 6.75 m apart on an MSL
+    field, explain the same few crossings) scores as well as the truth although it predicts
+    lines (the centre circle) that nothing in the image shows.
+
+    Per radial line k: every table crossing t (``rows_mm`` (n, MAX_CROSSINGS), the robot's
+    own lines, RadialTable.rows) nearer than the farthest crossing observed on line k by more than
+    ``UNSEEN_REACH_MARGIN_M`` (the line saw floor that far, so it would have crossed the line
+    at t) and with no observed crossing of line k within ``UNSEEN_TOLERANCE_M`` costs w(t) *
+    1, the saturated error, as an observed crossing the map does not have costs in E (the
+    same units, so E + this is the error term of both kinds of miss). Lines without an
+    observation tell nothing (blocked, or only far floor): they cost nothing, as in E. Spirals
+    report one crossing only and are left out. ``obs``: the frame's observations (their
+    radial family, distances as corrected)."""
+    observed, within = _radial_rows(obs, rows_mm.shape[0])
+    # m; NO_HIT_MM (65.5 m) lies beyond every line's reach, so "none" is never unseen
+    t = rows_mm * 0.001
+    # the nearest observed crossing of the same line to each table crossing
+    near = np.min(np.abs(t[:, :, None] - observed[:, None, :]), axis=2)
+    unseen = (t < within[:, None]) & (near > UNSEEN_TOLERANCE_M)
+    return float(np.sum(params.weight(t[unseen])))

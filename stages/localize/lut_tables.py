@@ -52,7 +52,7 @@ from .lut_kernels import (
     observation_errors_cell,
     observation_predictions_cell,
 )
-from .lut_matching import MatchingParams, Observation
+from .lut_matching import MatchingParams, Observation, RadialTable
 
 
 @dataclass(frozen=True)
@@ -127,6 +127,8 @@ class LutTables:
         else:
             mm = self._tables_in_millimetres()
         self.radial_table, self.spiral_table = mm["radial"], mm["spiral"]
+        # the radial table as the unseen-crossing term reads it (lut_matching.unseen_error)
+        self.radial = RadialTable(self.radial_table, self.grid, self.scanlines)
         self._lookup_layout()
         values = self._quantised_errors(int(mm["max_mm"][0]))
         # the exact error's constants in its float32 arithmetic (lut_kernels.Quantised)
