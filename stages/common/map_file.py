@@ -101,6 +101,13 @@ class Grid:
                     self.shape[0] - 1).astype(int)
         return i, j
 
+    def cell_of_point(self, x: float, y: float) -> tuple[int, int]:
+        """``cell_of`` for one point, in Python's scalar float arithmetic (no numpy scalars:
+        the searches call it several times a frame)."""
+        r = float(self.resolution)
+        return (min(max(round((float(y) - float(self.origin[1])) / r), 0), self.shape[0] - 1),
+                min(max(round((float(x) - float(self.origin[0])) / r), 0), self.shape[1] - 1))
+
     def centre_of(self, i, j):
         return (self.origin[0] + np.asarray(j) * self.resolution,
                 self.origin[1] + np.asarray(i) * self.resolution)

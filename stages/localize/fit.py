@@ -64,6 +64,7 @@ from . import heading as heading_mod
 from .lut_kernels import inlier_sums, structure_sizes
 from .lut_matching import MatchingParams, Observation, RadialTable
 from .lut_search import EVIDENCE
+from .lut_tables import radial_table
 from .radial_correction import DEFAULTS as RADIAL_DEFAULTS
 from .radial_correction import PathCalibration, RadialCorrection
 from .smooth import FrameCandidates
@@ -834,8 +835,6 @@ class FitScorer(PathCalibration):
         # the map's radial crossings, for the ones a fix's radial lines should have seen
         # (lut_matching.unseen_error)
         self.radial_table = radial_table
-        self._scanline_obs: dict = {}
-        self._corrected: dict = {}  # frame -> (the correction, its corrected observations)
         self.mirrored = loc.symmetric and not (loc.field_heading
                                               and loc.conf["heading"] != "histogram")
         self._cache: dict = {}
@@ -846,38 +845,48 @@ class FitScorer(PathCalibration):
         self.robot_radius = loc.scanlines.robot_radius
 
     def _raw_points(self, i: int):
+        """Frame i's line points, as read (None when the frame cannot be read)."""
+        return self._read(i)[0]
+
+    def _read(self, i: int):
+        """(line points, radial scan-line observations or None) of frame i as read, before any
+        distance correction; read once."""
         if i not in self._raw:
             try:
                 fr = self.features.frame(self.names[i])
             except (KeyError, OSError):
                 fr = None
-            self._raw[i] = None if fr is None else frame_points(fr, self.loc.scanlines)
-            self._scanline_obs[i] = (None if fr is None or "radial" not in fr
-                                     else scanline_observation(fr, self.loc.scanlines))
+            self._raw[i] = ((None, None) if fr is None else
+                            (frame_points(fr, self.loc.scanlines),
+                             scanline_observation(fr, self.loc.scanlines)
+                             if "radial" in fr else None))
         return self._raw[i]
+
+    def _corrected(self, i: int):
+        """(FitObservation of the line points, radial observations or None) of frame i with
+        the calibration's distance correction; cached until the calibration changes
+        (PathCalibration drops ``_cache``)."""
+        if i not in self._cache:
+            points, scan = self._read(i)
+            if points is None:
+                self._cache[i] = (None, None)
+            else:
+                if scan is not None and self.radial is not None and self.radial.active:
+                    scan = dataclasses.replace(scan, distance=self.radial.correct(scan.distance))
+                self._cache[i] = (observation_from_points(points, self.radial), scan)
+        return self._cache[i]
+
+    def _obs(self, i: int):
+        return self._corrected(i)[0]
 
     def _unseen(self, i: int, pose) -> float:
         """The map crossings frame i's radial lines should have seen at ``pose`` and did not
         (lut_matching.unseen_error; the distances corrected as the points are), 0 for a frame
         of a team's own points without scan lines."""
-        self._raw_points(i)
-        obs = self._scanline_obs.get(i)
-        if obs is None or not len(obs):
+        scan = self._corrected(i)[1]
+        if scan is None or not len(scan):
             return 0.0
-        if self.radial is not None and self.radial.active:
-            kept = self._corrected.get(i)
-            if kept is None or kept[0] is not self.radial:  # corrected once per calibration
-                kept = self._corrected[i] = (self.radial, dataclasses.replace(
-                    obs, distance=self.radial.correct(obs.distance)))
-            obs = kept[1]
-        return self.radial_table.unseen_error(obs, pose, MATCHING)
-
-    def _obs(self, i: int):
-        if i not in self._cache:
-            raw = self._raw_points(i)
-            self._cache[i] = (None if raw is None
-                              else observation_from_points(raw, self.radial))
-        return self._cache[i]
+        return self.radial_table.unseen_error(scan, pose, MATCHING)
 
     def _crossings(self, i: int, pose):
         """Frame i's line points' ranges as observed and where their rays meet the lines at
@@ -964,7 +973,7 @@ def run(conf: dict, dataset, features, map_file: MapFile, progress=False) -> Pos
                                      progress=progress)
     if not conf["smooth"]:
         return track
-    scorer = FitScorer(loc, features, RadialTable.of_map(map_file))
+    scorer = FitScorer(loc, features, radial_table(map_file))
     x0, x1, y0, y1 = engine.field.bounds
     track = bank_smoothing.smoothed(scorer, track, conf, increments=sensors.increments,
                                     has_odometry=sensors.has_odometry, stamps=features.stamps,

@@ -31,7 +31,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..common.scanlines import NO_HIT_MM
+from ..common.map_file import Grid
+from ..common.scanlines import ScanLines, rotate_to_heading
 from .lut_kernels import MAX_CROSSINGS, evidence_weights, flatten_scanlines, observation_points
 
 
@@ -195,7 +196,6 @@ def random_bearing_points(points: np.ndarray, perm: np.ndarray, angle_step: floa
     return np.stack([rho * np.cos(turned), rho * np.sin(turned)], axis=1)
 
 
-
 # ---------------------------------------------------------------------------- unseen crossings
 
 # m: a table crossing counts as seen when an observed crossing of its radial line lies within
@@ -211,32 +211,20 @@ UNSEEN_REACH_MARGIN_M = 0.3
 @dataclass(frozen=True)
 class RadialTable:
     """The map's radial scan-line table as the unseen-crossing term reads it: ``table``
-    (n_angles, ncell, MAX_CROSSINGS) uint16 mm (``NO_HIT_MM`` none; the layout
-    lut_tables.LutTables maps), on ``grid`` (common.map_file.Grid) with ``scanlines``."""
+    (n_angles, ncell, MAX_CROSSINGS) uint16 mm (65535 none; lut_tables.tables_in_millimetres),
+    on ``grid`` (common.map_file.Grid) with ``scanlines``."""
 
     table: np.ndarray
-    grid: object
-    scanlines: object
-
-    @classmethod
-    def of_map(cls, map_file) -> RadialTable:
-        """From a map file's radial table ((n_angles, MAX_CROSSINGS, ny, nx), read whole)."""
-        t = map_file.table("radial")
-        n = t.shape[0]
-        return cls(np.ascontiguousarray(t.reshape(n, MAX_CROSSINGS, -1).transpose(0, 2, 1)),
-                   map_file.grid, map_file.scanlines)
+    grid: Grid
+    scanlines: ScanLines
 
     def rows(self, pose) -> np.ndarray:
         """The crossings (uint16 mm) a robot at ``pose`` (x, y, theta) sees on its own radial
         lines, row k its line k: the table at the pose's cell and nearest table heading
         (stages.common.scanlines.rotate_to_heading)."""
-        g = self.grid
-        (ny, nx), r = g.shape, g.resolution
-        i = min(max(round((float(pose[1]) - g.origin[1]) / r), 0), ny - 1)
-        j = min(max(round((float(pose[0]) - g.origin[0]) / r), 0), nx - 1)
-        n = self.table.shape[0]
-        m = self.scanlines.heading_index(float(pose[2]))
-        return self.table[(np.arange(n) + m) % n, i * nx + j, :]
+        i, j = self.grid.cell_of_point(pose[0], pose[1])
+        cell = self.table[:, i * self.grid.shape[1] + j, :]
+        return rotate_to_heading(cell, self.scanlines.heading_index(float(pose[2])), axis=0)
 
     def unseen_error(self, obs: Observation, pose, params: MatchingParams) -> float:
         """``unseen_error`` of ``obs`` at ``pose``."""
@@ -282,7 +270,7 @@ def unseen_error(rows_mm: np.ndarray, obs: Observation, params: MatchingParams) 
     report one crossing only and are left out. ``obs``: the frame's observations (their
     radial family, distances as corrected)."""
     observed, within = _radial_rows(obs, rows_mm.shape[0])
-    # m; NO_HIT_MM (65.5 m) lies beyond every line's reach, so "none" is never unseen
+    # m; "none" (65535 mm) lies beyond every line's reach, so it is never unseen
     t = rows_mm * 0.001
     # the nearest observed crossing of the same line to each table crossing
     near = np.min(np.abs(t[:, :, None] - observed[:, None, :]), axis=2)

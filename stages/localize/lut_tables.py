@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..common.errors import SchemaError
 from ..common.map_file import MapFile
 from ..common.scanlines import NO_HIT_MM
 from . import lookup_cache
@@ -111,21 +112,7 @@ class LutTables:
         self.n_angles = n
         self.step = self.scanlines.angle_step
         self._map_file = map_file
-        # the map's tables (uint16 mm), scan-line-major, mapped from the cache beside the map
-        # like the min-pooled lookup (reading them out of the map's HDF5 file costs a process
-        # 0.1-0.2 s and their memory). The radial table holds a cell's crossings side by side
-        # ((line, cell, crossing)): the errors of a few neighbouring cells (refinement,
-        # support, a window) read one or two cache lines per scan line and row of cells,
-        # where crossing-major rows cost one per crossing. ``max_mm``: the largest distance
-        # in them, the width of the quantised errors (Quantised)
-        shapes_mm = {"radial": ((n, self.ncell, MAX_CROSSINGS), np.uint16),
-                     "spiral": ((2 * n, self.ncell), np.uint16),
-                     "max_mm": ((1,), np.uint16)}
-        if cache:
-            mm, _ = lookup_cache.load_or_build(map_file.path, "tables in millimetres", {},
-                                               shapes_mm, self._tables_in_millimetres)
-        else:
-            mm = self._tables_in_millimetres()
+        mm = tables_in_millimetres(map_file, cache=cache)
         self.radial_table, self.spiral_table = mm["radial"], mm["spiral"]
         # the radial table as the unseen-crossing term reads it (lut_matching.unseen_error)
         self.radial = RadialTable(self.radial_table, self.grid, self.scanlines)
@@ -156,39 +143,13 @@ class LutTables:
     @property
     def radial_mm(self) -> np.ndarray:
         """The map's radial table (uint16 mm), (n_angles, MAX_CROSSINGS, ncell)."""
-        return self._map_table("radial").reshape(
+        return _map_table(self._map_file, "radial").reshape(
             self.n_angles, MAX_CROSSINGS, self.ncell)
 
     @property
     def spiral_mm(self) -> np.ndarray:
         """The map's spiral table (uint16 mm), (2 n_angles, ncell)."""
-        return self._map_table("spiral").reshape(2 * self.n_angles, self.ncell)
-
-    def _map_table(self, name: str) -> np.ndarray:
-        n, (ny, nx) = self.n_angles, self.grid.shape
-        t = self._map_file.table(name)
-        want = (n, MAX_CROSSINGS, ny, nx) if name == "radial" else (2, n, ny, nx)
-        if t.shape != want:
-            from ..common.errors import SchemaError
-
-            raise SchemaError(f"{self._map_file.path}: table {name} {t.shape} does not match"
-                              f" the grid {self.grid.shape} and {n} scan lines")
-        return t
-
-    def _tables_in_millimetres(self) -> dict:
-        """The map's tables as the search reads them (the radial table (line, cell,
-        crossing)) and the largest distance in them (``max_mm``, the columns of the quantised
-        errors that are read)."""
-        radial = np.ascontiguousarray(self.radial_mm.transpose(0, 2, 1))
-        spiral = np.ascontiguousarray(self.spiral_mm)
-        top = max(int(np.max(line, where=line != NO_HIT_MM, initial=0))
-                  for table in (radial, spiral) for line in table)
-        if top >= MAX_MM:
-            from ..common.errors import SchemaError
-
-            raise SchemaError(f"{self._map_file.path}: a scan-line crossing at {top} mm; the"
-                              f" table search reads tables up to {MAX_MM - 1} mm")
-        return {"radial": radial, "spiral": spiral, "max_mm": np.array([top], np.uint16)}
+        return _map_table(self._map_file, "spiral").reshape(2 * self.n_angles, self.ncell)
 
     @property
     def lookup_nbytes(self) -> int:
@@ -363,9 +324,8 @@ class LutTables:
                                                    self.params.c * self.params.c))
 
     def cell_of(self, x: float, y: float) -> tuple[int, int]:
-        """Grid.cell_of for one point, in scalar arithmetic."""
-        return (min(max(round((y - self.y0) / self.resolution), 0), self.ny - 1),
-                min(max(round((x - self.x0) / self.resolution), 0), self.nx - 1))
+        """Grid.cell_of for one point, in scalar arithmetic (Grid.cell_of_point)."""
+        return self.grid.cell_of_point(x, y)
 
     def heading_bracket(self, theta: float) -> tuple[int, float]:
         """The table heading index at or below ``theta`` and the fraction of the step above
@@ -373,6 +333,54 @@ class LutTables:
         u = float(theta) / self.step
         m0 = math.floor(u)
         return m0 % self.n_angles, u - m0
+
+
+def tables_in_millimetres(map_file: MapFile, *, cache: bool = True) -> dict:
+    """The map's tables as the searches read them: ``radial`` (n_angles, ncell,
+    MAX_CROSSINGS) and ``spiral`` (2 n_angles, ncell), uint16 mm, and ``max_mm``, the largest
+    distance in them (the columns of the quantised errors that are read), mapped from the
+    cache beside the map (reading them out of the map's HDF5 file costs a process 0.1-0.2 s
+    and their memory). The radial table holds a cell's crossings side by side: the errors of
+    a few neighbouring cells (refinement, support, a window) read one or two cache lines per
+    scan line and row of cells, where crossing-major rows cost one per crossing."""
+    n, ncell = map_file.scanlines.n_angles, map_file.grid.shape[0] * map_file.grid.shape[1]
+    shapes = {"radial": ((n, ncell, MAX_CROSSINGS), np.uint16),
+              "spiral": ((2 * n, ncell), np.uint16), "max_mm": ((1,), np.uint16)}
+
+    def build() -> dict:
+        radial = np.ascontiguousarray(
+            _map_table(map_file, "radial").reshape(n, MAX_CROSSINGS, ncell).transpose(0, 2, 1))
+        spiral = np.ascontiguousarray(_map_table(map_file, "spiral").reshape(2 * n, ncell))
+        top = max(int(np.max(line, where=line != NO_HIT_MM, initial=0))
+                  for table in (radial, spiral) for line in table)
+        if top >= MAX_MM:
+            raise SchemaError(f"{map_file.path}: a scan-line crossing at {top} mm; the"
+                              f" table search reads tables up to {MAX_MM - 1} mm")
+        return {"radial": radial, "spiral": spiral, "max_mm": np.array([top], np.uint16)}
+
+    if not cache:
+        return build()
+    return lookup_cache.load_or_build(map_file.path, "tables in millimetres", {}, shapes,
+                                      build)[0]
+
+
+def radial_table(map_file: MapFile) -> RadialTable:
+    """The map's radial table as the unseen-crossing term reads it (lut_matching.
+    unseen_error), from the same cache as the searches' (tables_in_millimetres)."""
+    return RadialTable(tables_in_millimetres(map_file)["radial"], map_file.grid,
+                       map_file.scanlines)
+
+
+def _map_table(map_file: MapFile, name: str) -> np.ndarray:
+    """The map's table ``name`` (radial or spiral) as stored, its shape checked against the
+    grid and the scan lines."""
+    n, (ny, nx) = map_file.scanlines.n_angles, map_file.grid.shape
+    t = map_file.table(name)
+    want = (n, MAX_CROSSINGS, ny, nx) if name == "radial" else (2, n, ny, nx)
+    if t.shape != want:
+        raise SchemaError(f"{map_file.path}: table {name} {t.shape} does not match"
+                          f" the grid {map_file.grid.shape} and {n} scan lines")
+    return t
 
 
 def _rho32(e: np.ndarray, c: float) -> np.ndarray:
