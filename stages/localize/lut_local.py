@@ -66,9 +66,8 @@ def local_window(tables: LutTables, x: float, y: float, half_width: float):
     """Cell bounds [i0, i1) x [j0, j1) of the window around (x, y), clipped to the grid."""
     x, y = float(x), float(y)
     res = tables.resolution
-    if math.isfinite(x) and math.isfinite(y):  # Grid.cell_of in scalar arithmetic (cell_of)
-        ci = min(max(round((y - tables.y0) / res), 0), tables.ny - 1)
-        cj = min(max(round((x - tables.x0) / res), 0), tables.nx - 1)
+    if math.isfinite(x) and math.isfinite(y):  # Grid.cell_of in scalar arithmetic
+        ci, cj = tables.grid.cell_of_point(x, y)
     else:
         ci, cj = tables.grid.cell_of(x, y)
     h = int(round(half_width / res))

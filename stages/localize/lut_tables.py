@@ -98,8 +98,8 @@ class LutTables:
                  cache: bool = True):
         self.params = params or MatchingParams()
         self.grid = map_file.grid
-        # the grid's origin and resolution as Python floats, for the scalar cell arithmetic
-        # (cell_of, lut_local.local_window: the same float64 operations without numpy scalars)
+        # the grid's origin and resolution as Python floats (the kernels' Grid bundle; cells
+        # of single points: Grid.cell_of_point)
         self.x0, self.y0 = float(self.grid.origin[0]), float(self.grid.origin[1])
         self.resolution = float(self.grid.resolution)
         self.scanlines = map_file.scanlines
