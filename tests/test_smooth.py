@@ -266,3 +266,22 @@ def test_an_increment_and_its_inverse_cancel(pose, inc):
     back = compose(compose(np.array(pose), np.array(inc)), inverse(inc))
     np.testing.assert_allclose(back[:2], pose[:2], atol=1e-9)
     assert abs(float(np.angle(np.exp(1j * (back[2] - pose[2]))))) < 1e-9
+
+
+def test_a_fix_along_a_line_stays_where_the_odometry_moved_its_start():
+    """A fix metres uncertain along x and sure across (a frame that sees one line along x),
+    0.8 m along and 0.05 m across its start: the candidate keeps the fix across the line
+    (within 1 cm) and takes the start's place along it (within 5 cm); a fix sure to 2 cm in
+    both directions moves less than 5 % of the way to its start (the start's spread is 10 cm:
+    the gain 0.02^2 / (0.02^2 + 0.1^2) is 4 %)."""
+    start = np.array([[1.0, 2.0, 0.3]])
+    line = smooth.FrameCandidates(np.array([[1.8, 2.05, 0.3]]), np.zeros(1),
+                                  np.diag([3.0**2, 0.02**2, 0.01**2])[None], np.zeros(1))
+    step = (np.zeros(3), np.diag([0.01**2, 0.01**2, 0.005**2]))
+    fused = smooth._fused(line, start, step)
+    assert abs(fused.poses[0, 1] - 2.05) < 0.01
+    assert abs(fused.poses[0, 0] - 1.0) < 0.05
+    sure = smooth.FrameCandidates(line.poses.copy(), np.zeros(1),
+                                  np.diag([0.02**2, 0.02**2, 0.01**2])[None], np.zeros(1))
+    moved = smooth._fused(sure, start, step).poses[0, :2] - sure.poses[0, :2]
+    assert np.hypot(*moved) < 0.05 * np.hypot(*(start[0, :2] - sure.poses[0, :2]))

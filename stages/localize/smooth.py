@@ -10,9 +10,11 @@ runs two passes over a method's candidates (docs/smoothing.md):
    short list of candidate poses, each with the frame's tempered negative log-likelihood
    (``nll``, the method's own, in nats) and covariance: the method's global search on every
    frame, and two beams (``candidate_sets``): every candidate of the previous frame moved by the
-   odometry and fixed again in its basin, the ``MAX_CANDIDATES`` best kept by the forward
-   message, and the same from the next frame by the backward message, so a place found once is
-   followed through the whole recording and one the first frames misjudge is carried back.
+   odometry and fixed again in its basin (the fix combined with where the odometry moved it,
+   ``_fused``: along the only lines a frame sees, a fix says nothing), the
+   ``MAX_CANDIDATES`` best kept by the forward message, and the same from the next frame by
+   the backward message, so a place found once is followed through the whole recording and
+   one the first frames misjudge is carried back.
    Candidates in one basin (``SAME_BASIN_M``, ``SAME_BASIN_RAD``) are one. Transitions: the
    odometry increment with its noise plus both candidates' spreads (``state_cov``: their
    covariances, capped), a Gaussian, mixed with an outlier floor (the method's kidnap
@@ -260,6 +262,7 @@ def candidate_sets(scorer: Scorer, motion: Motion, model: Transition, log_prior0
             if 0 <= j < n and len(beam[j]):
                 starts = _moved_between(beam[j].poses, motion, frames[j], frames[k])
                 more = scorer.local_candidates(frames[k], starts)
+                more = _fused(more, starts, motion.between(*sorted((frames[j], frames[k]))))
                 c = FrameCandidates.concat([c, more]).distinct(limit=4 * MAX_CANDIDATES)
             if not len(c):
                 beam[k], message = c, None
@@ -282,6 +285,30 @@ def candidate_sets(scorer: Scorer, motion: Motion, model: Transition, log_prior0
     # a frame left with no candidate at all has no fix: the passes go over it by the odometry
     kept = [k for k in range(n) if len(sets[k])]
     return [frames[k] for k in kept], [sets[k] for k in kept]
+
+
+def _fused(more: FrameCandidates, starts: np.ndarray, step: tuple) -> FrameCandidates:
+    """Local fixes combined with the poses they were started from, a Kalman update of each
+    fix's position by the start nearest it (the start's spread: the step's odometry noise and
+    STATE_SIGMA_M). Where a fix says little (a frame that sees only lines along one
+    direction: its covariance is metres wide along them) the candidate stays where the
+    odometry moved its neighbour, so a chain of candidates at one place follows the odometry
+    instead of wandering along the line, which the transitions (no wider than STATE_SIGMA_M)
+    would charge as if the robot had moved. Across the lines, and wherever the fix is sure,
+    the fix stands. nll, covariance and error stay the fix's: the frame's evidence."""
+    if not len(more) or not len(starts):
+        return more
+    q = np.asarray(step[1], float)
+    spread = float(np.max(np.linalg.eigvalsh(0.5 * (q[:2, :2] + q[:2, :2].T)))) \
+        + STATE_SIGMA_M ** 2
+    starts = np.asarray(starts, float).reshape(-1, 3)
+    near = np.argmin(np.hypot(more.poses[:, None, 0] - starts[None, :, 0],
+                              more.poses[:, None, 1] - starts[None, :, 1]), axis=1)
+    c = 0.5 * (more.cov[:, :2, :2] + np.swapaxes(more.cov[:, :2, :2], 1, 2))
+    gain = c @ np.linalg.inv(c + spread * np.eye(2)[None])
+    poses = np.array(more.poses, float, copy=True)
+    poses[:, :2] += np.einsum("kij,kj->ki", gain, starts[near, :2] - poses[:, :2])
+    return FrameCandidates(poses, more.nll, more.cov, more.error)
 
 
 def _moved_between(poses: np.ndarray, motion: Motion, i: int, j: int) -> np.ndarray:
