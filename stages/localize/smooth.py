@@ -260,9 +260,12 @@ def candidate_sets(scorer: Scorer, motion: Motion, model: Transition, log_prior0
             c = glob[k]
             j = k - direction
             if 0 <= j < n and len(beam[j]):
-                starts = _moved_between(beam[j].poses, motion, frames[j], frames[k])
-                more = scorer.local_candidates(frames[k], starts)
-                more = _fused(more, starts, motion.between(*sorted((frames[j], frames[k]))))
+                # the odometry between the two frames, earlier to later (read once: the
+                # starts, their spread and the transitions below)
+                step = motion.between(*sorted((frames[j], frames[k])))
+                inc = step[0] if direction == 1 else inverse(step[0])
+                starts = moved(beam[j].poses, inc[0], inc[1], inc[2])
+                more = _fused(scorer.local_candidates(frames[k], starts), starts, step)
                 c = FrameCandidates.concat([c, more]).distinct(limit=4 * MAX_CANDIDATES)
             if not len(c):
                 beam[k], message = c, None
@@ -271,10 +274,10 @@ def candidate_sets(scorer: Scorer, motion: Motion, model: Transition, log_prior0
                 m = (np.zeros(len(c)) if direction == -1 or log_prior0 is None
                      or k != 0 else log_prior0(c))
             elif direction == 1:
-                t = transition_log(beam[j], c, motion.between(frames[j], frames[k]), model)
+                t = transition_log(beam[j], c, step, model)
                 m = _logsumexp(message[:, None] + t, axis=0)
             else:
-                t = transition_log(c, beam[j], motion.between(frames[k], frames[j]), model)
+                t = transition_log(c, beam[j], step, model)
                 m = _logsumexp(t + message[None, :], axis=1)
             score = m - c.nll
             keep = np.argsort(-score, kind="stable")[:MAX_CANDIDATES]
@@ -309,15 +312,6 @@ def _fused(more: FrameCandidates, starts: np.ndarray, step: tuple) -> FrameCandi
     poses = np.array(more.poses, float, copy=True)
     poses[:, :2] += np.einsum("kij,kj->ki", gain, starts[near, :2] - poses[:, :2])
     return FrameCandidates(poses, more.nll, more.cov, more.error)
-
-
-def _moved_between(poses: np.ndarray, motion: Motion, i: int, j: int) -> np.ndarray:
-    """Poses at frame i moved to frame j by the odometry (backwards when j < i)."""
-    if j > i:
-        inc, _ = motion.between(i, j)
-    else:
-        inc = inverse(motion.between(j, i)[0])
-    return moved(poses, inc[0], inc[1], inc[2])
 
 
 def discrete_pass(frames: list[int], sets: list[FrameCandidates], motion: Motion,
