@@ -956,7 +956,7 @@ class FitScorer(PathCalibration):
             fix = loc.engine.fit(obs, np.array([p[0], p[1], th]), heading=(th, sigma),
                                  temperature=T, mode="local")
             rows.append(self._row(i, fix, T, sigma))
-        return FrameCandidates.from_rows(rows)
+        return FrameCandidates.from_rows(rows, start=range(len(rows)))
 
 
 def run(conf: dict, dataset, features, map_file: MapFile, progress=False) -> PoseTrack:

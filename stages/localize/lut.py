@@ -869,7 +869,7 @@ class LutScorer(PathCalibration):
                     fix = rh
                 sigma = max(_curvature_sigma(curv, obs), loc.heading_sigma)
             rows.append(self._candidate(f, fix, sigma, heading_fixed=not by_vision))
-        return FrameCandidates.from_rows(rows)
+        return FrameCandidates.from_rows(rows, start=range(len(rows)))
 
 
 # m: how far from where the odometry moves a neighbour's candidate the smoother's local search

@@ -223,7 +223,9 @@ class MclScorer:
         return self._fixes(i, starts)
 
     def local_candidates(self, i: int, starts: np.ndarray) -> FrameCandidates:
-        return self._fixes(i, starts)
+        fixes = self._fixes(i, starts)  # one per start, in order
+        fixes.start = np.arange(len(fixes))
+        return fixes
 
 
 def motion_of(increments: np.ndarray, stamps: np.ndarray, has_odometry: bool,

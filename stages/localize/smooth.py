@@ -84,12 +84,15 @@ STATE_SIGMA_RAD = 0.05
 class FrameCandidates:
     """Candidate poses of one frame: ``poses`` (K, 3) field frame, ``nll`` (K,) the frame's
     tempered negative log-likelihood at each (nats), ``cov`` (K, 3, 3) each fix's covariance
-    (field frame), ``error`` (K,) the method's error term (recorded as poses' ``error``)."""
+    (field frame), ``error`` (K,) the method's error term (recorded as poses' ``error``).
+    ``start`` (K,) int, local fixes only (Scorer.local_candidates): the index of the start
+    each fix was started from, or -1 for a row that stands for no start; None otherwise."""
 
     poses: np.ndarray
     nll: np.ndarray
     cov: np.ndarray
     error: np.ndarray
+    start: np.ndarray | None = None
 
     def __len__(self):
         return len(self.nll)
@@ -107,13 +110,15 @@ class FrameCandidates:
                      for k in ("poses", "nll", "cov", "error")))
 
     @classmethod
-    def from_rows(cls, rows: list) -> FrameCandidates:
-        """From (pose, nll, cov, error) rows."""
+    def from_rows(cls, rows: list, start=None) -> FrameCandidates:
+        """From (pose, nll, cov, error) rows; ``start``: each row's start index (local
+        fixes), or None."""
         if not rows:
             return cls.empty()
         poses, nll, cov, err = zip(*rows)
         return cls(np.array(poses, float).reshape(-1, 3), np.array(nll, float),
-                   np.array(cov, float).reshape(-1, 3, 3), np.array(err, float))
+                   np.array(cov, float).reshape(-1, 3, 3), np.array(err, float),
+                   None if start is None else np.asarray(start, dtype=np.int64))
 
     def state_cov(self) -> np.ndarray:
         """(K, 3, 3) the covariances with their position eigenvalues clipped to
@@ -127,7 +132,8 @@ class FrameCandidates:
         return out
 
     def take(self, idx) -> FrameCandidates:
-        return FrameCandidates(self.poses[idx], self.nll[idx], self.cov[idx], self.error[idx])
+        return FrameCandidates(self.poses[idx], self.nll[idx], self.cov[idx], self.error[idx],
+                               None if self.start is None else self.start[idx])
 
     def distinct(self, limit: int = MAX_CANDIDATES) -> FrameCandidates:
         """One candidate per basin (the lowest nll of those within SAME_BASIN_M and
@@ -151,7 +157,8 @@ class FrameCandidates:
 class Scorer(Protocol):
     """What a method gives the smoother (module doc). ``frames``: how many; ``failed(i)``: the
     frame has too little to be fixed (its reason) or None; ``global_candidates(i)`` and
-    ``local_candidates(i, starts)``: FrameCandidates; ``mirrored``: whether a pose's mirror
+    ``local_candidates(i, starts)``: FrameCandidates, the local ones with ``start`` naming
+    each row's start (any number of rows per start); ``mirrored``: whether a pose's mirror
     image explains a frame as well (a point-symmetric field without a field-aligned
     heading)."""
 
@@ -291,27 +298,30 @@ def candidate_sets(scorer: Scorer, motion: Motion, model: Transition, log_prior0
 
 
 def _fused(more: FrameCandidates, starts: np.ndarray, step: tuple) -> FrameCandidates:
-    """Local fixes combined with the poses they were started from, a Kalman update of each
-    fix's position by the start nearest it (the start's spread: the step's odometry noise and
-    STATE_SIGMA_M). Where a fix says little (a frame that sees only lines along one
+    """Local fixes combined with the poses they were started from (``more.start``), a Kalman
+    update of each fix's position by its start (the start's spread: the step's odometry noise
+    and STATE_SIGMA_M). Where a fix says little (a frame that sees only lines along one
     direction: its covariance is metres wide along them) the candidate stays where the
     odometry moved its neighbour, so a chain of candidates at one place follows the odometry
     instead of wandering along the line, which the transitions (no wider than STATE_SIGMA_M)
     would charge as if the robot had moved. Across the lines, and wherever the fix is sure,
-    the fix stands. nll, covariance and error stay the fix's: the frame's evidence."""
+    the fix stands. A row with no start (-1) stands as it is. nll, covariance and error stay
+    the fix's: the frame's evidence."""
     if not len(more) or not len(starts):
         return more
+    if more.start is None or len(more.start) != len(more):
+        raise ValueError("local candidates must name each row's start (FrameCandidates.start)")
     q = np.asarray(step[1], float)
     spread = float(np.max(np.linalg.eigvalsh(0.5 * (q[:2, :2] + q[:2, :2].T)))) \
         + STATE_SIGMA_M ** 2
     starts = np.asarray(starts, float).reshape(-1, 3)
-    near = np.argmin(np.hypot(more.poses[:, None, 0] - starts[None, :, 0],
-                              more.poses[:, None, 1] - starts[None, :, 1]), axis=1)
-    c = 0.5 * (more.cov[:, :2, :2] + np.swapaxes(more.cov[:, :2, :2], 1, 2))
+    own = more.start >= 0
+    c = 0.5 * (more.cov[own, :2, :2] + np.swapaxes(more.cov[own, :2, :2], 1, 2))
     gain = c @ np.linalg.inv(c + spread * np.eye(2)[None])
     poses = np.array(more.poses, float, copy=True)
-    poses[:, :2] += np.einsum("kij,kj->ki", gain, starts[near, :2] - poses[:, :2])
-    return FrameCandidates(poses, more.nll, more.cov, more.error)
+    poses[own, :2] += np.einsum("kij,kj->ki", gain, starts[more.start[own], :2]
+                                - poses[own, :2])
+    return FrameCandidates(poses, more.nll, more.cov, more.error, more.start)
 
 
 def discrete_pass(frames: list[int], sets: list[FrameCandidates], motion: Motion,

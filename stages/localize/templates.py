@@ -523,16 +523,17 @@ class TemplateScorer:
         return [f for f in (self._fit(i, k, h) for k in near) if f is not None]
 
     def local_candidates(self, i: int, starts: np.ndarray) -> FrameCandidates:
-        rows = []
+        rows, start = [], []
         null = self._null.get(i)
-        for p in np.asarray(starts, float).reshape(-1, 3):
+        for k, p in enumerate(np.asarray(starts, float).reshape(-1, 3)):
             fits = self._near_fits(i, p)
             rows += [self._row(f) for f in fits]
             if null is not None and not any(
                     math.hypot(f.pose[0] - p[0], f.pose[1] - p[1]) < tracking.SAME_BASIN_M
                     for f in fits):  # no fit near the start: it is kept, the frame explained
                 rows.append((p, -null / self.T, np.eye(3), math.nan))  # by chance
-        return FrameCandidates.from_rows(rows)
+            start += [k] * (len(rows) - len(start))
+        return FrameCandidates.from_rows(rows, start=start)
 
 
 def run(conf: dict, dataset, templates, map_file=None, progress=False) -> PoseTrack:
