@@ -67,7 +67,7 @@ from .lut_search import EVIDENCE
 from .lut_tables import radial_table
 from .radial_correction import DEFAULTS as RADIAL_DEFAULTS
 from .radial_correction import PathCalibration, RadialCorrection
-from .smooth import FrameCandidates
+from .smooth import LOCAL_REACH_M, FrameCandidates
 from .tracking import Candidate, FrameFailed, TrackBank, near_pose
 
 log = logging.getLogger(__name__)
@@ -954,6 +954,7 @@ class FitScorer(PathCalibration):
         for p in starts:
             th, sigma = loc._track_heading(p, obs, base, [])
             fix = loc.engine.fit(obs, np.array([p[0], p[1], th]), heading=(th, sigma),
+                                 position=((p[0], p[1]), np.eye(2) / LOCAL_REACH_M ** 2),
                                  temperature=T, mode="local")
             rows.append(self._row(i, fix, T, sigma))
         return FrameCandidates.from_rows(rows, start=range(len(rows)))

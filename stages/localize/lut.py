@@ -108,7 +108,7 @@ from .lut_search import (
 from .point_fit import PointFit
 from .radial_correction import DEFAULTS as RADIAL_DEFAULTS
 from .radial_correction import PathCalibration, RadialCorrection
-from .smooth import FrameCandidates
+from .smooth import LOCAL_REACH_M, FrameCandidates
 from .tracking import Candidate, FrameFailed, Track, TrackBank, eig2
 
 log = logging.getLogger(__name__)
@@ -861,7 +861,7 @@ class LutScorer(PathCalibration):
         for p in starts:
             flags: list = []
             theta, by_vision = loc._track_heading(p, f, heading, col, flags)
-            fix = loc.search.local_search(obs, theta, p[:2], half_width=LOCAL_REACH)
+            fix = loc.search.local_search(obs, theta, p[:2], half_width=LOCAL_REACH_M)
             sigma = loc.heading_sigma
             if by_vision:
                 rh, curv = loc.search.refine_heading(obs, fix.cell, fix.theta)
@@ -870,12 +870,6 @@ class LutScorer(PathCalibration):
                 sigma = max(_curvature_sigma(curv, obs), loc.heading_sigma)
             rows.append(self._candidate(f, fix, sigma, heading_fixed=not by_vision))
         return FrameCandidates.from_rows(rows, start=range(len(rows)))
-
-
-# m: how far from where the odometry moves a neighbour's candidate the smoother's local search
-# looks (the odometry's slip over a frame is centimetres; a window of a few table cells also
-# finds the basin's minimum when the candidate sat on its rim)
-LOCAL_REACH = 0.3
 
 
 def _smoothed(loc: LutLocaliser, features, sensors, causal: PoseTrack, conf: dict

@@ -78,6 +78,13 @@ STATE_SIGMA_M = 0.1
 CALIBRATION_ROUNDS = 3
 RECALIBRATE = True  # learn the distance error from the path (scorers that can)
 STATE_SIGMA_RAD = 0.05
+# m: how far from where the odometry moves a neighbour's candidate a scorer's local fix looks
+# (lut: the half-width of the table search's window; fit: the spread of a Gaussian prior on
+# the position, as its tracks' fits have). The odometry's slip over a frame is centimetres; a
+# few table cells also find the basin's minimum when the candidate sat on its rim. Unbounded,
+# a fit in a frame that sees a few points slid up to 2 m along the lines (tuning seed 21 of
+# omni-hard, frames 51-64) and the chain of candidates at the truth broke.
+LOCAL_REACH_M = 0.3
 
 
 @dataclass
