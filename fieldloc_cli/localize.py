@@ -122,6 +122,8 @@ def localize(ctx, dataset, map_path, templates, pose_solver, features, points, m
     else:
         if templates is not None:
             raise click.UsageError("--templates applies to --method templates")
+        if features is not None and points is not None:
+            raise click.UsageError("give either --features or --points, not both")
         if map_path is None:
             raise click.UsageError("Missing option '--map'.")
     if pose_solver is not None:
@@ -146,8 +148,9 @@ def localize(ctx, dataset, map_path, templates, pose_solver, features, points, m
     else:  # the features given, or extracted first (or reused); two rounds with --smooth
         from stages.pipelines import images_to_poses
 
-        path = images_to_poses.main(conf, dataset, map_path, output, features=features,
-                                    points=points, overwrite=overwrite,
+        given = stage.LinePoints(points) if points is not None else features
+        path = images_to_poses.main(conf, dataset, map_path, output, features=given,
+                                    overwrite=overwrite,
                                     progress=progress_enabled(ctx),
                                     allow_field_mismatch=allow_field_mismatch,
                                     write_calib=write_calib)

@@ -21,10 +21,10 @@ the templates record). Its module says so with ``INPUT = "templates"``, and its 
 the database in place of the features.
 
 Features come from a features file (``features``) or from line points of a team's own
-detector (``points``: CSV with columns frame, x, y in the robot frame, binned into the scan
-lines by stages.common.scanlines.bin_points_to_scanlines). From a dataset's images without a
-features file, stages.pipelines.images_to_poses reuses ``DIR/features.h5`` or runs extract
-first (``fieldloc localize DIR`` without ``--features``).
+detector (``features=LinePoints(csv)``: columns frame, x, y in the robot frame, binned into
+the scan lines by stages.common.scanlines.bin_points_to_scanlines). From a dataset's images
+without a features file, stages.pipelines.images_to_poses reuses ``DIR/features.h5`` or runs
+extract first (``fieldloc localize DIR`` without ``--features``).
 
 Checked before any frame is localised (each a one-line error, or a warning where the run can
 still mean something):
@@ -133,6 +133,23 @@ def resolve_localize_conf(conf: dict | str | None) -> dict:
 
 
 # ---------------------------------------------------------------------------- points input
+
+
+class LinePoints(NamedTuple):
+    """A team's own line points given in place of a features file (``features=``): ``path``,
+    a CSV of frame, x, y in the robot frame (m), read by PointFrames."""
+
+    path: str | Path
+
+
+def split_features(features) -> tuple[Path | None, Path | None]:
+    """(features file, points CSV) of a ``features`` argument: a features file's path, a
+    LinePoints, or None."""
+    if features is None:
+        return None, None
+    if isinstance(features, LinePoints):
+        return None, Path(features.path)
+    return Path(features), None
 
 
 class PointFrames:
@@ -281,9 +298,8 @@ def uses_templates(method: str) -> bool:
 
 
 def check_run(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path | None,
-              output: str | Path, *, features: str | Path | None = None,
-              points: str | Path | None = None, overwrite: bool = False,
-              templates: str | Path | None = None):
+              output: str | Path, *, features: str | Path | LinePoints | None = None,
+              overwrite: bool = False, templates: str | Path | None = None):
     """What ``main`` refuses before it reads a frame (module doc): the output and poses.tum
     beside it, the dataset's time series, the method, the map. Returns (resolved conf, the
     dataset, its series, the inputs the outputs must not be), so that a chain that makes the
@@ -292,8 +308,7 @@ def check_run(conf: dict | str | None, dataset_dir: str | Path, map_path: str | 
     # the method's ranges (its BOUNDS; its run checks them too): refused before any input is read
     check_bounds(conf, getattr(method_module(conf["method"]), "BOUNDS", {}))
     output = Path(output)
-    if features is not None and points is not None:
-        raise FieldlocError("give either a features file or a points file, not both")
+    features, points = split_features(features)
     dataset_dir = Path(dataset_dir)
     if not dataset_dir.is_dir():
         raise DatasetError(f"dataset folder not found: {dataset_dir}")
@@ -353,13 +368,12 @@ def _main_templates(conf, dataset_dir, map_path, output, templates, *, overwrite
 
 
 def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path | None,
-         output: str | Path, *, features: str | Path | None = None,
-         points: str | Path | None = None, overwrite: bool = False,
-         progress: bool = False, allow_field_mismatch: bool = False,
+         output: str | Path, *, features: str | Path | LinePoints | None = None,
+         overwrite: bool = False, progress: bool = False, allow_field_mismatch: bool = False,
          templates: str | Path | None = None, write_calib: str | Path | None = None,
          reference: str | Path | None = None) -> Path:
     """Localise the frames of ``dataset_dir`` on ``map_path`` into ``output`` (poses.h5 and
-    poses.tum beside it) from ``features`` (a features file) or ``points`` (a points CSV), and
+    poses.tum beside it) from ``features`` (a features file, or a team's LinePoints), and
     return its path. ``allow_field_mismatch``: localise even when the features were recorded
     on another field or with other scan lines than the map's. ``templates``: the template
     database of method templates (module doc; ``map_path`` may then be None).
@@ -382,13 +396,14 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path 
     if templates is not None:
         raise FieldlocError(f"a template database is for --method templates, not"
                             f" {resolved['method']}")
-    if features is None and points is None:
+    if features is None:
         raise FieldlocError(
             "localize needs the features of the frames (features=, from extract) or line"
-            " points (points=); stages.pipelines.images_to_poses extracts them first")
+            " points (features=LinePoints(csv)); stages.pipelines.images_to_poses extracts"
+            " them first")
     conf, dataset, series, given = check_run(conf, dataset_dir, map_path, output,
-                                             features=features, points=points,
-                                             overwrite=overwrite)
+                                             features=features, overwrite=overwrite)
+    features, points = split_features(features)
     output, dataset_dir = Path(output), Path(dataset_dir)
     if write_calib is not None:
         check_write_calib(write_calib, conf, dataset, points, output, given, overwrite)

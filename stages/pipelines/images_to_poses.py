@@ -2,10 +2,11 @@
 dataset, then stages.localize, and with ``smooth`` a second round on features extracted with
 the camera calibration the first round's poses show.
 
-    main(conf, dataset_dir, map_path, output, *, features=None, points=None, overwrite=False,
+    main(conf, dataset_dir, map_path, output, *, features=None, overwrite=False,
          progress=False, allow_field_mismatch=False, write_calib=None) -> Path
 
-**The features.** Those given (``features``, or a team's line ``points``), else the dataset's
+**The features.** Those given (``features``: a features file, or a team's line points as
+stages.localize.LinePoints), else the dataset's
 own ``DIR/features.h5`` when it was extracted from the same calibration, mask and default conf
 and holds every frame (stages.extract.reusable_features), and otherwise extracted now
 (stages.extract, default conf) into ``<output stem>.features.h5`` beside the output, resumed if
@@ -84,16 +85,16 @@ def features_for(dataset_dir: str | Path, output: str | Path, inputs: dict,
 
 
 def main(conf, dataset_dir: str | Path, map_path: str | Path, output: str | Path, *,
-         features: str | Path | None = None, points: str | Path | None = None,
+         features: str | Path | localize.LinePoints | None = None,
          overwrite: bool = False, progress: bool = False,
          allow_field_mismatch: bool = False, write_calib: str | Path | None = None) -> Path:
     """Localise the frames of ``dataset_dir`` on ``map_path`` into ``output`` (localize's
-    conf and options) from ``features`` or ``points``, or from the dataset's features,
-    extracted first when it has none to reuse; in two rounds with ``smooth`` and
-    ``recalibrate`` (module doc)."""
+    conf and options) from ``features`` (a features file or LinePoints), or from the
+    dataset's features, extracted first when it has none to reuse; in two rounds with
+    ``smooth`` and ``recalibrate`` (module doc)."""
     resolved, ds, _series, inputs = localize.check_run(
-        conf, dataset_dir, map_path, output, features=features, points=points,
-        overwrite=overwrite)
+        conf, dataset_dir, map_path, output, features=features, overwrite=overwrite)
+    points = localize.split_features(features)[1]
     if write_calib is not None:
         localize.check_write_calib(write_calib, resolved, ds, points, output, inputs, overwrite)
     rounds = (points is None and resolved.get("smooth") and resolved.get("recalibrate")
@@ -103,12 +104,12 @@ def main(conf, dataset_dir: str | Path, map_path: str | Path, output: str | Path
         for path in (calib, features2, first, first.with_suffix(".tum")):
             check_output(path, {**inputs, "poses": output, "calib": write_calib},
                          overwrite=overwrite, kind="calibration")
-    if features is None and points is None:
+    if features is None:
         features = features_for(dataset_dir, output, inputs, progress)
     kw = {"progress": progress, "allow_field_mismatch": allow_field_mismatch}
     if not rounds:
         return localize.main(conf, dataset_dir, map_path, output, features=features,
-                             points=points, overwrite=overwrite, write_calib=write_calib, **kw)
+                             overwrite=overwrite, write_calib=write_calib, **kw)
     return _two_rounds(conf, Path(dataset_dir), map_path, Path(output), Path(features),
                        overwrite=overwrite, write_calib=write_calib, **kw)
 

@@ -77,7 +77,7 @@ def _localise(ds: Path, field: Path, work: Path, max_range: float | None = None,
     feats = extract.main(econf, ds, work / f"lab-{tag}.features.h5", overwrite=True)
     conf = {"method": method, "heading": "histogram", "independent": True}
     out = work / f"lab-{method}-{tag}{'-points' if points else ''}.poses.h5"
-    localize.main(conf, ds, mp, out, features=None if points else feats, points=points,
+    localize.main(conf, ds, mp, out, features=localize.LinePoints(points) if points else feats,
                   overwrite=True)
     return read_poses(out)[0], feats
 
