@@ -18,6 +18,7 @@ method.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -224,8 +225,7 @@ class MclScorer:
 
     def local_candidates(self, i: int, starts: np.ndarray) -> FrameCandidates:
         fixes = self._fixes(i, starts)  # one per start, in order
-        fixes.start = np.arange(len(fixes))
-        return fixes
+        return dataclasses.replace(fixes, start=np.arange(len(fixes)))
 
 
 def motion_of(increments: np.ndarray, stamps: np.ndarray, has_odometry: bool,

@@ -93,7 +93,7 @@ class FrameCandidates:
     tempered negative log-likelihood at each (nats), ``cov`` (K, 3, 3) each fix's covariance
     (field frame), ``error`` (K,) the method's error term (recorded as poses' ``error``).
     ``start`` (K,) int, local fixes only (Scorer.local_candidates): the index of the start
-    each fix was started from, or -1 for a row that stands for no start; None otherwise."""
+    each fix was started from; None otherwise."""
 
     poses: np.ndarray
     nll: np.ndarray
@@ -312,8 +312,7 @@ def _fused(more: FrameCandidates, starts: np.ndarray, step: tuple) -> FrameCandi
     odometry moved its neighbour, so a chain of candidates at one place follows the odometry
     instead of wandering along the line, which the transitions (no wider than STATE_SIGMA_M)
     would charge as if the robot had moved. Across the lines, and wherever the fix is sure,
-    the fix stands. A row with no start (-1) stands as it is. nll, covariance and error stay
-    the fix's: the frame's evidence."""
+    the fix stands. nll, covariance and error stay the fix's: the frame's evidence."""
     if not len(more) or not len(starts):
         return more
     if more.start is None or len(more.start) != len(more):
@@ -322,12 +321,10 @@ def _fused(more: FrameCandidates, starts: np.ndarray, step: tuple) -> FrameCandi
     spread = float(np.max(np.linalg.eigvalsh(0.5 * (q[:2, :2] + q[:2, :2].T)))) \
         + STATE_SIGMA_M ** 2
     starts = np.asarray(starts, float).reshape(-1, 3)
-    own = more.start >= 0
-    c = 0.5 * (more.cov[own, :2, :2] + np.swapaxes(more.cov[own, :2, :2], 1, 2))
+    c = 0.5 * (more.cov[:, :2, :2] + np.swapaxes(more.cov[:, :2, :2], 1, 2))
     gain = c @ np.linalg.inv(c + spread * np.eye(2)[None])
     poses = np.array(more.poses, float, copy=True)
-    poses[own, :2] += np.einsum("kij,kj->ki", gain, starts[more.start[own], :2]
-                                - poses[own, :2])
+    poses[:, :2] += np.einsum("kij,kj->ki", gain, starts[more.start, :2] - poses[:, :2])
     return FrameCandidates(poses, more.nll, more.cov, more.error, more.start)
 
 
