@@ -83,19 +83,14 @@ class PoseTrack:
     covariance: list = field(default_factory=list)
     flags: list = field(default_factory=list)
     hypotheses: list = field(default_factory=list)  # per frame (k, 4) x, y, theta, probability
-    # per frame: the frame's own fix as (pose (3,), covariance (3, 3)), the smoother's path
-    # candidate (its covariance metres wide along a line the frame sees alone), or None; in
-    # memory only, for telling one place from another (stages.localize.against_reference)
-    fix: list = field(default_factory=list)
     meta: dict = field(default_factory=dict)  # what the method learnt over the run (JSON)
 
     def add(self, name, stamp, pose=None, *, error=math.nan, confidence=0.0, mode="",
-            runtime=0.0, covariance=None, flags="", hypotheses=None, accepted=None,
-            fix=None):
+            runtime=0.0, covariance=None, flags="", hypotheses=None, accepted=None):
         """Record one frame; ``pose=None`` records a failure (NaN pose, failed=True, no
         hypotheses). ``hypotheses`` (k, 4): ranked (x, y, theta, probability), the first
         being ``pose``; by default the pose alone with ``confidence``. ``accepted``: by
-        default every frame that did not fail. ``fix``: the class doc."""
+        default every frame that did not fail."""
         failed = pose is None
         x, y, th = (math.nan, math.nan, math.nan) if failed else (float(v) for v in pose)
         self.name.append(str(name))
@@ -114,8 +109,6 @@ class PoseTrack:
         self.covariance.append(
             np.full((3, 3), np.nan) if covariance is None else np.asarray(covariance, float)
         )
-        self.fix.append(None if fix is None else
-                        (np.asarray(fix[0], float), np.asarray(fix[1], float)))
         # a frame's flags are a set of notes (each once, in the order first given): a note
         # raised by each of a frame's tracks is said once
         self.flags.append(",".join(dict.fromkeys(f for f in str(flags).split(",") if f)))

@@ -676,14 +676,11 @@ def against_reference(track: PoseTrack, reference, min_confidence: float) -> Non
     is at then turns on a few centimetres of calibration, so neither run is sure of it: as a
     pose and its mirror do, the two places hold at most half the probability each (the
     reference's pose is listed as the next hypothesis), the frame is accepted only if that
-    reaches ``min_confidence``, and it is flagged ``rounds-disagree``. One place, as the
-    smoother tells a candidate's place (stages.localize.smooth.covers): the reference's pose
-    within CONFIDENCE_RADIUS_M and CONFIDENCE_RADIUS_RAD of the frame's pose, or the frame's
-    own fix (``track.fix``) covering both (a frame that sees one line is unsure along it, and
-    a calibration moves its fix along the line; a frame the pose graph moved out of its fix's
-    place has the radius alone)."""
+    reaches ``min_confidence``, and it is flagged ``rounds-disagree``. One place: within the
+    smoother's CONFIDENCE_RADIUS_M and CONFIDENCE_RADIUS_RAD (stages.localize.smooth)."""
+    from ..common.geometry import wrap_scalar
     from ..common.poses_file import read_poses
-    from .smooth import covers
+    from .smooth import CONFIDENCE_RADIUS_M, CONFIDENCE_RADIUS_RAD
 
     cols, _attrs = read_poses(reference)
     row = {str(n): j for j, n in enumerate(cols["name"])}
@@ -692,10 +689,8 @@ def against_reference(track: PoseTrack, reference, min_confidence: float) -> Non
         if track.failed[i] or j is None or cols["failed"][j]:
             continue
         ref = np.array([cols["x"][j], cols["y"][j], cols["theta"][j]], float)
-        pose = (track.x[i], track.y[i], track.theta[i])
-        fix = track.fix[i]
-        if (covers(pose, np.full((3, 3), np.nan), ref)[0] or fix is not None
-                and covers(fix[0], fix[1], ref)[0] and covers(fix[0], fix[1], pose)[0]):
+        if (math.hypot(track.x[i] - ref[0], track.y[i] - ref[1]) <= CONFIDENCE_RADIUS_M
+                and abs(wrap_scalar(track.theta[i] - ref[2])) <= CONFIDENCE_RADIUS_RAD):
             continue
         share = min(track.confidence[i], 0.5)
         hyps = np.array(track.hypotheses[i], float).reshape(-1, 4)

@@ -384,23 +384,13 @@ def basin_mass(cands: FrameCandidates, posterior: np.ndarray, pose) -> float:
 
 
 def _covers(cands: FrameCandidates, pose) -> np.ndarray:
-    return covers(cands.poses, cands.cov, pose)
-
-
-def covers(poses: np.ndarray, cov: np.ndarray, pose) -> np.ndarray:
-    """(n,) whether each fix (``poses`` (n, 3) with position covariances ``cov`` (n, 3, 3))
-    stands for the same place as ``pose``: within CONFIDENCE_RADIUS_M of it or within the
-    COVER_GATE of the fix's covariance (a NaN covariance: the radius alone), and within
-    CONFIDENCE_RADIUS_RAD in heading."""
-    poses = np.asarray(poses, float).reshape(-1, 3)
-    cov = np.asarray(cov, float).reshape(-1, 3, 3)
-    dx = poses[:, 0] - pose[0]
-    dy = poses[:, 1] - pose[1]
-    a = np.abs(wrap_angle(poses[:, 2] - pose[2]))
-    sxx, syy, sxy = cov[:, 0, 0], cov[:, 1, 1], cov[:, 0, 1]
+    dx = cands.poses[:, 0] - pose[0]
+    dy = cands.poses[:, 1] - pose[1]
+    a = np.abs(wrap_angle(cands.poses[:, 2] - pose[2]))
+    sxx, syy, sxy = cands.cov[:, 0, 0], cands.cov[:, 1, 1], cands.cov[:, 0, 1]
     det = np.maximum(sxx * syy - sxy * sxy, 1e-12)
     m2 = (syy * dx * dx - 2 * sxy * dx * dy + sxx * dy * dy) / det
-    near = (np.hypot(dx, dy) <= CONFIDENCE_RADIUS_M) | (m2 <= COVER_GATE)  # NaN: False
+    near = (np.hypot(dx, dy) <= CONFIDENCE_RADIUS_M) | (m2 <= COVER_GATE)
     return near & (a <= CONFIDENCE_RADIUS_RAD)
 
 
@@ -485,8 +475,7 @@ def smooth_track(scorer: Scorer, causal: PoseTrack, motion: Motion, conf: dict, 
             error, flags = math.nan, "odometry-only"
         out.add(name, stamp, poses[i], error=error, confidence=confidence, mode="smoothed",
                 runtime=runtime, covariance=covs[i], flags=flags, hypotheses=hyps,
-                accepted=confidence >= min_conf,
-                fix=(chosen[i], chosen_cov[i]) if i in index else None)
+                accepted=confidence >= min_conf)
     return out
 
 

@@ -16,9 +16,9 @@ from .inputs import rendered_inputs, work_dir
 
 # held-out rendered sets of the smoother: seeds 1980-1999 of omni-default and of omni-hard, a
 # range no choice looked at (the smoother's constants, its two rounds, the unseen-crossing term,
-# the fused local fixes and the rounds' one-place rule were chosen on seeds 0-49 of both
-# presets; 1200-1219, 1840-1859, 1900-1919 and 1920-1939, the sets of earlier rows, were looked
-# at per seed, 1940-1979 pooled; docs/smoothing.md)
+# and the fused local fixes were chosen on seeds 0-49 of both presets; 1200-1219, 1840-1859,
+# 1900-1919 and 1920-1939, the sets of earlier rows, were looked at per seed, 1940-1979
+# pooled; docs/smoothing.md)
 SMOOTH_SEEDS = {"omni-default": tuple(range(1980, 2000)), "omni-hard": tuple(range(1980, 2000))}
 # the smoother's goals per preset: pooled accepted within 40 cm, every seed, pooled median (m)
 GOALS = {"omni-default": (0.995, 0.97, 0.03), "omni-hard": (0.98, None, None)}
