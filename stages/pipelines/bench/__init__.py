@@ -42,6 +42,7 @@ _TABLE: dict[str, tuple[str, str, tuple]] = {
     "lut-hidden-run": ("hypotheses", "bench_lut_hidden", ()),
     "smooth-passes": ("smooth", "bench_smooth_passes", ()),
     "smooth-accuracy": ("smooth", "bench_smooth_accuracy", ()),
+    "smooth-templates": ("smooth", "bench_smooth_templates", ()),
     "mount-calibration": ("recording_calibration", "rows", ()),
     "mirror-calibration": ("recording_calibration", "mirror_row", ()),
     "real": ("hypotheses", "bench_real", ()),
