@@ -22,8 +22,9 @@ One group per frame, named by the image's file stem. Frames already in the outpu
 the file's ``failures`` and skipped. If no frame at all can be extracted (images of another
 size than calib.yaml says, every image unreadable), that is an error and nothing is written.
 
-Every finished frame is committed at once (stages.common.features_file.FrameParts), so a run
-that is killed keeps its frames and the next run resumes there; the features file itself appears
+Finished frames are committed as they come, a chunk every half second
+(stages.common.features_file.FrameParts), so a run that is killed keeps its frames and the
+next run resumes there; the features file itself appears
 atomically when the run completes, and a run with nothing left to do (every frame extracted;
 frames recorded as failed are tried again) leaves it untouched. The
 output is never one of the dataset's own files (calib.yaml, images, CSVs), --overwrite or not.
@@ -277,21 +278,25 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
         if debug_images is not None:
             debug_images.mkdir(parents=True, exist_ok=True)
         done = failed = 0
-        for path, name, stamp in tqdm(todo, desc="extract", unit="frame", disable=not progress):
-            try:
-                image = read_image(path)
-                arrays = module.extract_frame(image, camera, conf,
-                                              **_frame_info(kind, mask, head, float(stamp)))
-            except FieldlocError as e:
-                log.warning("frame %s skipped: %s", name, e)
-                parts.add_failure(name, str(e))
-                failed += 1
-                continue
-            parts.add_frame(name, float(stamp), arrays)
-            if debug_images is not None:
-                _write_debug_image(debug_images / f"{name}.png",
-                                   module.debug_overlay(image, arrays))
-            done += 1
+        try:
+            for path, name, stamp in tqdm(todo, desc="extract", unit="frame",
+                                          disable=not progress):
+                try:
+                    image = read_image(path)
+                    arrays = module.extract_frame(image, camera, conf,
+                                                  **_frame_info(kind, mask, head, float(stamp)))
+                except FieldlocError as e:
+                    log.warning("frame %s skipped: %s", name, e)
+                    parts.add_failure(name, str(e))
+                    failed += 1
+                    continue
+                parts.add_frame(name, float(stamp), arrays)
+                if debug_images is not None:
+                    _write_debug_image(debug_images / f"{name}.png",
+                                       module.debug_overlay(image, arrays))
+                done += 1
+        finally:  # Ctrl-C or an error: the finished frames are kept for the next run
+            parts.flush()
         good = len(in_output) + len(parts.frame_names)
         if good == 0:
             first = next(iter(sorted(parts.failures.items())), None)
