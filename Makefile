@@ -14,14 +14,18 @@ FRAMES  ?= 100
 SEED    ?= 1
 METHOD  ?= lut
 HEADING ?= imu
+SMOOTH  ?=
 DATA    ?= $(OUT)/demo-omni
 MAP     := $(OUT)/maps/$(notdir $(basename $(FIELD))).map.h5
 FIELD_FILE := $(or $(wildcard maps/$(FIELD).yaml),$(wildcard $(FIELD)))
 # --heading is an option of lut only
 HEADING_OPT := $(if $(filter lut,$(METHOD)),--heading $(HEADING))
-RUN     := $(DATA)/runs/$(METHOD)$(if $(filter lut,$(METHOD)),-$(HEADING))
+# SMOOTH=1: `localize --smooth`, decided with the whole recording (docs/smoothing.md)
+SMOOTH_OPT := $(if $(SMOOTH),--smooth)
+RUN     := $(DATA)/runs/$(METHOD)$(if $(filter lut,$(METHOD)),-$(HEADING))$(if $(SMOOTH),-smooth)
 
-.PHONY: install warmup test lint docs demo templates-demo bench bench-readme compare pipeline clean
+.PHONY: install warmup test lint docs demo templates-demo bench bench-readme compare pipeline \
+	run-report clean
 
 install: $(STAMP)
 
@@ -79,10 +83,14 @@ compare: $(STAMP)
 	lambda m: m.group(1) + b + m.group(2), r.read_text(), flags=re.S))"
 
 # The demo: simulate a small omnidirectional MSL dataset, build the map, localise with the
-# lookup tables, evaluate against the truth and print the table.
+# lookup tables frame by frame (as the robot would) and with the whole recording (--smooth),
+# evaluate both against the truth and print the table.
 DEMO := $(OUT)/demo-omni
 demo: $(STAMP) $(DEMO)/truth.csv
-	$(MAKE) --no-print-directory pipeline DATA=$(DEMO) FIELD=$(FIELD)
+	$(MAKE) --no-print-directory run-report DATA=$(DEMO) FIELD=$(FIELD)
+	$(MAKE) --no-print-directory run-report DATA=$(DEMO) FIELD=$(FIELD) SMOOTH=1
+	$(BIN)/fieldloc evaluate --table $(DEMO)/runs/lut-$(HEADING)/report \
+		$(DEMO)/runs/lut-$(HEADING)-smooth/report
 
 $(DEMO)/truth.csv: | $(STAMP)
 	@mkdir -p $(OUT)
@@ -120,9 +128,13 @@ $(TPL)/runs/templates/report/report.json: $(TPL)/runs/templates/poses.h5
 
 # File-based pipeline over any dataset folder: only stale steps run again.
 #   make pipeline DATA=path/to/dataset FIELD=msl-2015 [METHOD=lut HEADING=imu|histogram|truth]
+#                 [SMOOTH=1]
 #   make pipeline DATA=path/to/kidsize-dataset FIELD=kidsize METHOD=mcl
 pipeline: $(STAMP) $(RUN)/report/report.json
 	$(BIN)/fieldloc evaluate --table $(RUN)/report
+
+# the same steps without the table (the demo prints one table of its two runs)
+run-report: $(STAMP) $(RUN)/report/report.json
 
 $(MAP): $(FIELD_FILE) | $(STAMP)
 	@mkdir -p $(dir $@)
@@ -134,7 +146,7 @@ $(DATA)/features.h5: $(DATA)/calib.yaml $(wildcard $(DATA)/images/*) | $(STAMP)
 $(RUN)/poses.h5: $(DATA)/features.h5 $(MAP)
 	@mkdir -p $(dir $@)
 	$(FLP) localize $(DATA) --map $(MAP) --features $< --method $(METHOD) $(HEADING_OPT) \
-		-o $@ --overwrite
+		$(SMOOTH_OPT) -o $@ --overwrite
 
 # the table is printed once, by `pipeline`
 $(RUN)/report/report.json: $(RUN)/poses.h5 $(DATA)/truth.csv
