@@ -22,7 +22,9 @@ FIELD_FILE := $(or $(wildcard maps/$(FIELD).yaml),$(wildcard $(FIELD)))
 HEADING_OPT := $(if $(filter lut,$(METHOD)),--heading $(HEADING))
 # SMOOTH=1: `localize --smooth`, decided with the whole recording (docs/smoothing.md)
 SMOOTH_OPT := $(if $(SMOOTH),--smooth)
-RUN     := $(DATA)/runs/$(METHOD)$(if $(filter lut,$(METHOD)),-$(HEADING))$(if $(SMOOTH),-smooth)
+# a run's folder: $(call run_dir,DATA,SMOOTH) (the demo names both of its runs by it)
+run_dir = $(1)/runs/$(METHOD)$(if $(filter lut,$(METHOD)),-$(HEADING))$(if $(2),-smooth)
+RUN     := $(call run_dir,$(DATA),$(SMOOTH))
 
 .PHONY: install warmup test lint docs demo templates-demo bench bench-readme compare pipeline \
 	run-report clean
@@ -89,8 +91,8 @@ DEMO := $(OUT)/demo-omni
 demo: $(STAMP) $(DEMO)/truth.csv
 	$(MAKE) --no-print-directory run-report DATA=$(DEMO) FIELD=$(FIELD)
 	$(MAKE) --no-print-directory run-report DATA=$(DEMO) FIELD=$(FIELD) SMOOTH=1
-	$(BIN)/fieldloc evaluate --table $(DEMO)/runs/lut-$(HEADING)/report \
-		$(DEMO)/runs/lut-$(HEADING)-smooth/report
+	$(BIN)/fieldloc evaluate --table $(call run_dir,$(DEMO))/report \
+		$(call run_dir,$(DEMO),1)/report
 
 $(DEMO)/truth.csv: | $(STAMP)
 	@mkdir -p $(OUT)
