@@ -62,6 +62,16 @@ def _accuracy(runs) -> dict:
             "median": float(np.median(e)), "wrong": wrong / max(frames, 1), "frames": frames}
 
 
+def _compared(b: dict, ms_b: float, a: dict, ms_a: float) -> str:
+    """A row's note: the smoothed runs' figures ``b`` (_accuracy) against the causal runs'
+    ``a``, with their CPU per frame (ms)."""
+    return (f"smoothed: {100 * b['within']:.2f} % accepted and within 40 cm (worst seed"
+            f" {100 * b['worst']:.0f} %), median {100 * b['median']:.1f} cm, accepted and"
+            f" > 1 m off {100 * b['wrong']:.2f} %, {ms_b:.1f} ms CPU per frame; causal:"
+            f" {100 * a['within']:.2f} % (worst {100 * a['worst']:.0f} %), median"
+            f" {100 * a['median']:.1f} cm, {100 * a['wrong']:.2f} % off, {ms_a:.1f} ms per frame")
+
+
 def accuracy_rows(method: str, preset: str) -> list[Row]:
     """Causal and smoothed accuracy of ``method`` on the held-out sets of ``preset``, and the
     smoothed runs' calibration (calibration_rows)."""
@@ -79,12 +89,8 @@ def accuracy_rows(method: str, preset: str) -> list[Row]:
         name=f"{method} --smooth accuracy, {label}", median_ms=math.nan, goal=goal,
         meets_goal=bool(meets), repeats=1, cpu_ms=1e3 * t_s / max(b["frames"], 1),
         baseline=f"{method} causal, same sets", baseline_ms=math.nan,
-        note=(f"smoothed: {100 * b['within']:.2f} % accepted and within 40 cm (worst seed"
-              f" {100 * b['worst']:.0f} %), median {100 * b['median']:.1f} cm, accepted and"
-              f" > 1 m off {100 * b['wrong']:.2f} %, {1e3 * t_s / b['frames']:.1f} ms CPU per"
-              f" frame; causal: {100 * a['within']:.2f} % (worst {100 * a['worst']:.0f} %),"
-              f" median {100 * a['median']:.1f} cm, {100 * a['wrong']:.2f} % off,"
-              f" {1e3 * t_c / a['frames']:.1f} ms per frame (CPU: median run, tables built)"))]
+        note=_compared(b, 1e3 * t_s / b["frames"], a, 1e3 * t_c / a["frames"])
+        + " (CPU: median run, tables built)")]
     cal = calibration_rows(f"{method} --smooth", smoothed, label, t_s)
     for r in cal:  # the smoother's goals: AUROC >= 0.97, <= 0.2 % confidently wrong
         if "calibration" in r.name:
@@ -138,12 +144,7 @@ def bench_smooth_templates(repeat: int) -> list[Row]:
         " median, accepted > 1 m off)", meets_goal=bool(meets), repeats=1,
         cpu_ms=per_frame[True], baseline="templates causal, same runs",
         baseline_ms=math.nan,
-        note=(f"smoothed: {100 * b['within']:.2f} % accepted and within 40 cm (worst seed"
-              f" {100 * b['worst']:.0f} %), median {100 * b['median']:.1f} cm, accepted and"
-              f" > 1 m off {100 * b['wrong']:.2f} %, {per_frame[True]:.1f} ms CPU per frame;"
-              f" causal: {100 * a['within']:.2f} % (worst {100 * a['worst']:.0f} %), median"
-              f" {100 * a['median']:.1f} cm, {100 * a['wrong']:.2f} % off,"
-              f" {per_frame[False]:.1f} ms per frame"))]
+        note=_compared(b, per_frame[True], a, per_frame[False]))]
 
 
 def bench_smooth_accuracy(repeat: int) -> list[Row]:
