@@ -129,15 +129,23 @@ def test_boundary_stops_at_a_robot_on_the_field_edge():
     assert np.all(np.abs(b[away, 1] - v_edge) <= 10), b[away, 1] - v_edge
 
 
+def _bar(img, foot, z0, z1, radius, colour):
+    """Draw a vertical cylinder of ``radius`` m standing at floor point ``foot`` (robot frame)
+    from height ``z0`` to ``z1`` m into ``img`` (its outline as a quadrilateral); returns the
+    image points of its axis at z0 and z1."""
+    base = CAM.project(np.array([[foot[0], foot[1], z0]]), inside=False)[0]
+    top = CAM.project(np.array([[foot[0], foot[1], z1]]), inside=False)[0]
+    half = CAM.fx * radius / np.hypot(*foot)
+    poly = np.array([[base[0] - half, base[1]], [base[0] + half, base[1]],
+                     [top[0] + half, top[1]], [top[0] - half, top[1]]])
+    cv2.fillConvexPoly(img, np.round(poly).astype(np.int32), colour)
+    return base, top
+
+
 def test_goal_post_rising_above_the_boundary_is_a_point_landmark():
     foot = np.array([2.0, 0.4])
     img = draw_scene([], carpet_x=3.0)
-    base = CAM.project(np.array([[foot[0], foot[1], 0.0]]), inside=False)[0]
-    top = CAM.project(np.array([[foot[0], foot[1], 1.2]]), inside=False)[0]
-    half = CAM.fx * 0.05 / np.hypot(*foot)
-    poly = np.array([[base[0] - half, base[1]], [base[0] + half, base[1]],
-                     [top[0] + half, top[1]], [top[0] - half, top[1]]])
-    cv2.fillConvexPoly(img, np.round(poly).astype(np.int32), WHITE)
+    _bar(img, foot, 0.0, 1.2, 0.05, WHITE)
     res = perspective.extract_frame(img, CAM, CONF)
     assert len(res["posts"]) == 1, res["posts"]
     d, bearing, confidence = res["posts"][0]
@@ -156,10 +164,7 @@ def test_goal_post_in_front_of_its_net_is_a_post_not_a_line():
     top = CAM.project(np.array([[foot[0], foot[1], 0.6]]), inside=False)[0]
     u0 = int(base[0])
     cv2.rectangle(img, (u0 - 90, int(top[1])), (u0 + 30, int(base[1])), GREEN, -1)  # the net
-    half = CAM.fx * 0.05 / np.hypot(*foot)
-    poly = np.array([[base[0] - half, base[1]], [base[0] + half, base[1]],
-                     [top[0] + half, top[1]], [top[0] - half, top[1]]])
-    cv2.fillConvexPoly(img, np.round(poly).astype(np.int32), WHITE)
+    _bar(img, foot, 0.0, 0.6, 0.05, WHITE)
     res = perspective.extract_frame(img, CAM, CONF)
     b = res["boundary"]
     assert b[np.argmin(np.abs(b[:, 0] - u0)), 1] < base[1] - 40  # the boundary climbed
@@ -168,6 +173,32 @@ def test_goal_post_in_front_of_its_net_is_a_post_not_a_line():
     d, bearing, _ = res["posts"][0]
     assert abs(d - np.hypot(*foot)) < 0.2
     assert abs(bearing - math.atan2(foot[1], foot[0])) < 0.03
+
+
+@pytest.mark.parametrize("foot", [(1.2, 0.2), (1.0, -0.3), (1.5, 0.4), (1.3, -0.5), (1.1, 0.45)])
+def test_a_robots_white_leg_is_no_field_line(foot):
+    """A NAO's white leg stands on the floor below its grey body, short of the field
+    boundary: its floor projection runs straight away from the robot like a field line seen
+    along its length, but starts inside the image, which such a line could only do if the
+    robot stood on its extension. It is no used line; a field line across the view and one
+    the robot stands on (running out of the image's lower edge) stay used."""
+    field_lines = [[[1.0, 1.2], [1.0, -1.2]], [[0.0, -0.05], [3.5, -0.05]]]
+    img = draw_scene(field_lines, carpet_x=4.0)
+    foot = np.array(foot)
+    _bar(img, foot, 0.0, 0.27, 0.022, WHITE)  # a leg of the renderer's NAO (scene.nao_robot)
+    _bar(img, foot, 0.27, 0.45, 0.05, (90, 90, 95))  # its grey hip and body above it
+    res = perspective.extract_frame(img, CAM, CONF)
+    used = _used_lines(res)
+    ends = [e.reshape(2, 2) for _, e in used]
+    # no used line lies on the leg's floor projection (the ray from the robot through its foot)
+    ray = foot / np.hypot(*foot)
+    on_leg = [e for e in ends if np.all(np.abs(e @ np.array([-ray[1], ray[0]])) < 0.1)
+              and np.min(e @ ray) > 0.8 * np.hypot(*foot)]
+    assert not on_leg, on_leg
+    # both field lines are found and used
+    for (a, b) in np.asarray(field_lines):
+        d = [np.max(distance_to_lines(e, np.array([[a, b]]), np.zeros((0, 5)))) for e in ends]
+        assert min(d) < 0.1, (a, b, ends)
 
 
 @pytest.mark.parametrize("carpet_x", [2.2, 2.6])

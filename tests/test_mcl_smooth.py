@@ -147,7 +147,7 @@ def test_smooth_keys_are_checked(key, value):
 
 @pytest.fixture(scope="module")
 def nao_walk(tmp_path_factory):
-    """A rendered NAO walk of 40 frames (seed 101 of the tuning range) whose causal run
+    """A rendered NAO walk of 40 frames (seed 111 of the tuning range) whose causal run
     settles on a place metres off from the game's placement, localised by mcl causally and
     smoothed."""
     from stages import build_map, extract, localize, simulate
@@ -156,7 +156,7 @@ def nao_walk(tmp_path_factory):
 
     root = tmp_path_factory.mktemp("nao-smooth")
     conf = copy.deepcopy(simulate.confs["perspective-nao"])
-    conf.update(frames=40, seed=101)
+    conf.update(frames=40, seed=111)
     data = simulate.main(conf, "spl", root / "nao")
     features = extract.main(None, data, root / "features.h5")
     map_path = build_map.main(None, "spl", root / "spl.map.h5")
@@ -175,7 +175,7 @@ def nao_walk(tmp_path_factory):
 def test_smoothing_corrects_a_wrong_start(nao_walk):
     """The causal run holds a place > 1 m off for most of the 40 frames (the walk starts at
     the touch line looking into an empty half); the smoother, with the frames after, puts
-    >= 90 % of the frames within 40 cm, median <= 10 cm (today: 100 %, 4.4 cm), and accepts
+    >= 90 % of the frames within 40 cm, median <= 10 cm (today: 100 %, 4.9 cm), and accepts
     no frame more than 1 m off."""
     err_c, _, _ = nao_walk["causal"]
     err_s, cols, attrs = nao_walk["smoothed"]

@@ -492,6 +492,7 @@ def find_lines(graph, ideal: np.ndarray, frame: FrameGrid, lc: LinesTuning,
                              lc.green_beyond_m)
     edge = ((beyond < lc.min_green_beyond) & (gap < lc.edge_gap_m)).tolist()  # NaN: no
     ends = ends.reshape(-1, 2, 2)
+    bottom = white.shape[0] * cell  # px: the image's lower edge
     kept = []  # the lines' indices
     for i, (seg, ref, (dist, angle, length), near, finite, at_edge) in enumerate(zip(
             segments, refined, params, nearest, on_floor, edge)):
@@ -518,6 +519,8 @@ def find_lines(graph, ideal: np.ndarray, frame: FrameGrid, lc: LinesTuning,
             posts.append([near, math.atan2(e_floor[k, 1], e_floor[k, 0]), POSTS.bar_confidence])
             posts_px.append(e_px[k])
             continue
+        if _is_leg(dist, near, all_ranges[i], e_px, bottom, cell):
+            continue  # a robot's or a person's leg: a vertical bar short of the boundary
         if ref is not None:
             ratio = ratios[id(ref)]
             if not (lc.width_ratio[0] <= ratio <= lc.width_ratio[1]):
@@ -535,6 +538,23 @@ def find_lines(graph, ideal: np.ndarray, frame: FrameGrid, lc: LinesTuning,
         trace.update(segments=segments, refined=refined)
     return (lines, all_floor[kept].reshape(-1, 4), all_px[kept].reshape(-1, 4), posts, posts_px,
             ends[kept], widths)
+
+
+def _is_leg(dist: float, near: float, ranges: np.ndarray, ends_px: np.ndarray, bottom: float,
+            cell: int) -> bool:
+    """A white segment that is a vertical bar standing on the floor but short of the field
+    boundary (a robot's or a person's leg; ``is_post_bar`` takes those that reach it): its
+    floor projection runs straight away from the robot (perpendicular distance ``dist`` below
+    the posts' ``bar_radial``: a vertical line lies in a vertical plane through the camera),
+    and its near end (``ranges`` of its ends, m; ``ends_px``, image px) lies at least
+    ``bar_min_distance`` away and inside the image (``bar_touch`` cells above its lower edge
+    ``bottom``, px). A field line the robot stands on, seen along its length, runs out of the
+    image's lower edge; one that starts ahead of the robot on the line through its feet is
+    rare and is lost."""
+    if dist > POSTS.bar_radial or near < POSTS.bar_min_distance:
+        return False
+    foot = ends_px[int(np.argmin(ranges))]
+    return bool(foot[1] < bottom - POSTS.bar_touch * cell)
 
 
 def field_edge(ends_floor: np.ndarray, to_floor: FloorProjection, lens: np.ndarray,
