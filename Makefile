@@ -71,18 +71,19 @@ bench-readme: $(STAMP)
 	r.write_text(re.sub(r'(<!-- bench:begin -->\n).*?(<!-- bench:end -->)', \
 	lambda m: m.group(1) + b + m.group(2), r.read_text(), flags=re.S))"
 
-# docs/manual.md's comparison of the methods (specs/compare.yaml: six rendered datasets, both cameras,
-# clean and hard), from one batch: its table and summary picture between the compare markers
+# The comparison of the methods in README.md and docs/manual.md (specs/compare.yaml: six rendered
+# datasets, both cameras, clean and hard), from one batch: its table and summary picture between
+# the compare markers of both files
 COMPARE := $(OUT)/compare
 compare: $(STAMP)
 	@mkdir -p $(OUT) docs
 	$(BIN)/fieldloc batch specs/compare.yaml -o $(COMPARE)
 	cp $(COMPARE)/plots/summary.png docs/compare-summary.png
-	$(BIN)/python -c "import pathlib, re; r = pathlib.Path('docs/manual.md'); \
-	b = pathlib.Path('$(COMPARE)/comparison.md').read_text() \
-	+ '\n![methods x datasets](compare-summary.png)\n'; \
-	r.write_text(re.sub(r'(<!-- compare:begin -->\n).*?(<!-- compare:end -->)', \
-	lambda m: m.group(1) + b + m.group(2), r.read_text(), flags=re.S))"
+	$(BIN)/python -c "import pathlib, re; t = pathlib.Path('$(COMPARE)/comparison.md').read_text(); \
+	[r.write_text(re.sub(r'(<!-- compare:begin -->\n).*?(<!-- compare:end -->)', \
+	lambda m: m.group(1) + t + f'\n![methods x datasets]({png})\n' + m.group(2), \
+	r.read_text(), flags=re.S)) for r, png in ((pathlib.Path('docs/manual.md'), \
+	'compare-summary.png'), (pathlib.Path('README.md'), 'docs/compare-summary.png'))]"
 
 # The demo: simulate a small omnidirectional MSL dataset, build the map, localise with the
 # lookup tables frame by frame (as the robot would) and with the whole recording (--smooth),
