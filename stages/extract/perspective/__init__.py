@@ -38,7 +38,7 @@ from .crossing_kernels import floor_at
 from .crossings import CROSSINGS, Finds, FrameGrid, find_crossings, floor_bundle
 from .field_boundary import BOUNDARY, boundary_polyline
 from .field_boundary import field_boundary as find_boundary
-from .goal_posts import POSTS, is_post_bar
+from .goal_posts import POSTS, is_leg_bar, is_post_bar
 from .goal_posts import goal_posts as find_posts
 from .line_fit import (
     LINES,
@@ -519,7 +519,7 @@ def find_lines(graph, ideal: np.ndarray, frame: FrameGrid, lc: LinesTuning,
             posts.append([near, math.atan2(e_floor[k, 1], e_floor[k, 0]), POSTS.bar_confidence])
             posts_px.append(e_px[k])
             continue
-        if _is_leg(dist, near, all_ranges[i], e_px, bottom, cell):
+        if is_leg_bar(dist, near, e_px[int(np.argmin(all_ranges[i])), 1], bottom, cell, POSTS):
             continue  # a robot's or a person's leg: a vertical bar short of the boundary
         if ref is not None:
             ratio = ratios[id(ref)]
@@ -538,23 +538,6 @@ def find_lines(graph, ideal: np.ndarray, frame: FrameGrid, lc: LinesTuning,
         trace.update(segments=segments, refined=refined)
     return (lines, all_floor[kept].reshape(-1, 4), all_px[kept].reshape(-1, 4), posts, posts_px,
             ends[kept], widths)
-
-
-def _is_leg(dist: float, near: float, ranges: np.ndarray, ends_px: np.ndarray, bottom: float,
-            cell: int) -> bool:
-    """A white segment that is a vertical bar standing on the floor but short of the field
-    boundary (a robot's or a person's leg; ``is_post_bar`` takes those that reach it): its
-    floor projection runs straight away from the robot (perpendicular distance ``dist`` below
-    the posts' ``bar_radial``: a vertical line lies in a vertical plane through the camera),
-    and its near end (``ranges`` of its ends, m; ``ends_px``, image px) lies at least
-    ``bar_min_distance`` away and inside the image (``bar_touch`` cells above its lower edge
-    ``bottom``, px). A field line the robot stands on, seen along its length, runs out of the
-    image's lower edge; one that starts ahead of the robot on the line through its feet is
-    rare and is lost."""
-    if dist > POSTS.bar_radial or near < POSTS.bar_min_distance:
-        return False
-    foot = ends_px[int(np.argmin(ranges))]
-    return bool(foot[1] < bottom - POSTS.bar_touch * cell)
 
 
 def field_edge(ends_floor: np.ndarray, to_floor: FloorProjection, lens: np.ndarray,

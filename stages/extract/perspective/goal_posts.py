@@ -252,19 +252,37 @@ def goal_posts(white: np.ndarray, top: np.ndarray, tuning: PostsTuning, cell: in
     return feet, heights, widths, groups, foot_rows
 
 
+def runs_away(dist: float, near: float, pc: PostsTuning) -> bool:
+    """Whether a white segment's floor projection (perpendicular distance ``dist`` from the
+    robot, nearest end ``near``, m) could be a vertical bar standing on the floor: it runs
+    straight away from the robot (a vertical line lies in a vertical plane through the camera,
+    which meets the floor in a line through the robot: ``dist`` below ``bar_radial``) and
+    starts at least ``bar_min_distance`` away (a field line seen along its length would reach
+    the robot's feet)."""
+    return not (dist > pc.bar_radial or near < pc.bar_min_distance)
+
+
+def is_leg_bar(dist: float, near: float, foot_row: float, bottom: float, cell: int,
+               pc: PostsTuning) -> bool:
+    """A white segment that is a vertical bar standing on the floor but short of the field
+    boundary (a robot's or a person's leg; ``is_post_bar`` takes the bars that reach it): it
+    ``runs_away`` and its near end's image row ``foot_row`` lies inside the image, at least
+    ``bar_touch`` cells above its lower edge ``bottom`` (px). A field line the robot stands on,
+    seen along its length, runs out of the image's lower edge; one that starts ahead of the
+    robot on the line through its feet is rare and is lost."""
+    return runs_away(dist, near, pc) and bool(foot_row < bottom - pc.bar_touch * cell)
+
+
 def is_post_bar(dist: float, near: float, ends_px: np.ndarray, top: np.ndarray, white: np.ndarray,
                 fx: float, cell: int, pc: PostsTuning, diameter: float) -> bool:
-    """A white segment that is a vertical bar on the floor rather than a field line: its floor
-    projection runs straight away from the robot (a vertical line lies in a vertical plane
-    through the camera, which meets the floor in a line through the robot: perpendicular
-    distance below ``bar_radial``), it starts at least ``bar_min_distance`` away (a field line
-    seen along its length would reach the robot's feet), its upper end reaches the field
-    boundary (within ``bar_touch`` cells), and it keeps a post's width up to there: a field
-    line seen along its length looks the same but thins out with distance, a post (all of it
-    as far away as its foot) does not. The width is the white share summed across the bar
-    (times the cell size) over its upper half, against a post's ``diameter`` (m) at the
-    foot's distance (at least ``bar_width_ratio`` of it; compiled: ``_bar_share``)."""
-    if dist > pc.bar_radial or near < pc.bar_min_distance:
+    """A white segment that is a vertical bar on the floor rather than a field line: it
+    ``runs_away`` from the robot, its upper end reaches the field boundary (within
+    ``bar_touch`` cells), and it keeps a post's width up to there: a field line seen along its
+    length looks the same but thins out with distance, a post (all of it as far away as its
+    foot) does not. The width is the white share summed across the bar (times the cell size)
+    over its upper half, against a post's ``diameter`` (m) at the foot's distance (at least
+    ``bar_width_ratio`` of it; compiled: ``_bar_share``)."""
+    if not runs_away(dist, near, pc):
         return False
     k = int(np.argmin(ends_px[:, 1]))
     up, foot = ends_px[k], ends_px[1 - k]
