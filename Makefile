@@ -61,15 +61,19 @@ docs: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/fieldloc bench
 
+# $(call put_block,NAME,FILE,SOURCE,SUFFIX): the text between FILE's <!-- NAME:begin --> and
+# <!-- NAME:end --> markers becomes SOURCE's text followed by SUFFIX (\n for a line break)
+put_block = $(BIN)/python -c "import pathlib, re; r = pathlib.Path('$(2)'); \
+	b = pathlib.Path('$(3)').read_text() + '$(4)'; \
+	r.write_text(re.sub(r'(<!-- $(1):begin -->\n).*?(<!-- $(1):end -->)', \
+	lambda m: m.group(1) + b + m.group(2), r.read_text(), flags=re.S))"
+
 # docs/results.md's performance table, from one bench run (its JSON is kept in $(OUT)/bench.json)
 bench-readme: $(STAMP)
 	@mkdir -p $(OUT)
 	$(FLP) bench --json $(OUT)/bench.json --overwrite > /dev/null
 	$(BIN)/fieldloc bench --from-json $(OUT)/bench.json --format markdown > $(OUT)/bench.md
-	$(BIN)/python -c "import pathlib, re; r = pathlib.Path('docs/results.md'); \
-	b = pathlib.Path('$(OUT)/bench.md').read_text(); \
-	r.write_text(re.sub(r'(<!-- bench:begin -->\n).*?(<!-- bench:end -->)', \
-	lambda m: m.group(1) + b + m.group(2), r.read_text(), flags=re.S))"
+	$(call put_block,bench,docs/results.md,$(OUT)/bench.md,)
 
 # The comparison of the methods in README.md and docs/manual.md (specs/compare.yaml: six rendered
 # datasets, both cameras, clean and hard), from one batch: its table and summary picture between
@@ -79,11 +83,8 @@ compare: $(STAMP)
 	@mkdir -p $(OUT) docs
 	$(BIN)/fieldloc batch specs/compare.yaml -o $(COMPARE)
 	cp $(COMPARE)/plots/summary.png docs/compare-summary.png
-	$(BIN)/python -c "import pathlib, re; t = pathlib.Path('$(COMPARE)/comparison.md').read_text(); \
-	[r.write_text(re.sub(r'(<!-- compare:begin -->\n).*?(<!-- compare:end -->)', \
-	lambda m: m.group(1) + t + f'\n![methods x datasets]({png})\n' + m.group(2), \
-	r.read_text(), flags=re.S)) for r, png in ((pathlib.Path('docs/manual.md'), \
-	'compare-summary.png'), (pathlib.Path('README.md'), 'docs/compare-summary.png'))]"
+	$(call put_block,compare,docs/manual.md,$(COMPARE)/comparison.md,\n![methods x datasets](compare-summary.png)\n)
+	$(call put_block,compare,README.md,$(COMPARE)/comparison.md,\n![methods x datasets](docs/compare-summary.png)\n)
 
 # The demo: simulate a small omnidirectional MSL dataset, build the map, localise with the
 # lookup tables frame by frame (as the robot would) and with the whole recording (--smooth),
