@@ -45,16 +45,21 @@ CAM = PerspectiveCamera(distortion=np.zeros(5))
 
 @functools.lru_cache(maxsize=1)
 def _floor_of_pixels() -> np.ndarray:
-    w, h = CAM.image_size
+    return _floor_of(CAM)
+
+
+def _floor_of(cam) -> np.ndarray:
+    w, h = cam.image_size
     vv, uu = np.mgrid[0:h, 0:w]
     uv = np.stack([uu, vv], -1).reshape(-1, 2).astype(float)
-    return CAM.pixel_to_floor(uv).reshape(h, w, 2)
+    return cam.pixel_to_floor(uv).reshape(h, w, 2)
 
 
-def draw_scene(segments, *, line_width=0.06, carpet_x=5.0, seed=0) -> np.ndarray:
+def draw_scene(segments, *, line_width=0.06, carpet_x=5.0, seed=0, cam=None) -> np.ndarray:
     """BGR frame of a green carpet reaching ``carpet_x`` m ahead of the robot with white lines
-    (robot-frame segments (S, 2, 2)), a grey wall beyond, and a little noise."""
-    fl = _floor_of_pixels()
+    (robot-frame segments (S, 2, 2)), a grey wall beyond, and a little noise, as ``cam`` (the
+    drawn scenes' camera ``CAM`` by default) sees it."""
+    fl = _floor_of_pixels() if cam is None else _floor_of(cam)
     h, w = fl.shape[:2]
     img = np.empty((h, w, 3), np.float32)
     img[:] = WALL
@@ -129,13 +134,13 @@ def test_boundary_stops_at_a_robot_on_the_field_edge():
     assert np.all(np.abs(b[away, 1] - v_edge) <= 10), b[away, 1] - v_edge
 
 
-def _bar(img, foot, z0, z1, radius, colour):
+def _bar(img, foot, z0, z1, radius, colour, cam=CAM):
     """Draw a vertical cylinder of ``radius`` m standing at floor point ``foot`` (robot frame)
-    from height ``z0`` to ``z1`` m into ``img`` (its outline as a quadrilateral); returns the
-    image points of its axis at z0 and z1."""
-    base = CAM.project(np.array([[foot[0], foot[1], z0]]), inside=False)[0]
-    top = CAM.project(np.array([[foot[0], foot[1], z1]]), inside=False)[0]
-    half = CAM.fx * radius / np.hypot(*foot)
+    from height ``z0`` to ``z1`` m into ``img`` as ``cam`` sees it (its outline as a
+    quadrilateral); returns the image points of its axis at z0 and z1."""
+    base = cam.project(np.array([[foot[0], foot[1], z0]]), inside=False)[0]
+    top = cam.project(np.array([[foot[0], foot[1], z1]]), inside=False)[0]
+    half = cam.fx * radius / np.hypot(*foot)
     poly = np.array([[base[0] - half, base[1]], [base[0] + half, base[1]],
                      [top[0] + half, top[1]], [top[0] - half, top[1]]])
     cv2.fillConvexPoly(img, np.round(poly).astype(np.int32), colour)
@@ -199,6 +204,60 @@ def test_a_robots_white_leg_is_no_field_line(foot):
     for (a, b) in np.asarray(field_lines):
         d = [np.max(distance_to_lines(e, np.array([[a, b]]), np.zeros((0, 5)))) for e in ends]
         assert min(d) < 0.1, (a, b, ends)
+
+
+# a NAO's top camera as the renderer's perspective-nao preset has it (HULKs' intrinsics)
+NAO_CAM = PerspectiveCamera(image_size=(640, 480), fx=608.0, fy=609.6, cx=319.5, cy=239.5,
+                            distortion=np.zeros(5), height=0.45, pitch=0.19)
+
+
+def _nao(img, cam, centre, grey=(120, 122, 126), jersey=(200, 60, 200)):
+    """Draw the renderer's NAO (scene.nao_robot: 0.57 m high, radius 0.1 m) standing at floor
+    point ``centre`` (robot frame), facing the camera: its legs, its torso and jersey, and its
+    white arms beside the torso; returns the image points (bottom, top) of its arms' axes."""
+    centre = np.asarray(centre, float)
+    side = np.array([-centre[1], centre[0]]) / np.hypot(*centre)
+    for s in (-1.0, 1.0):
+        _bar(img, centre + s * 0.045 * side, 0.017, 0.274, 0.022, WHITE, cam)
+    _bar(img, centre, 0.274, 0.479, 0.08, grey, cam)
+    _bar(img, centre, 0.342, 0.445, 0.082, jersey, cam)
+    return [_bar(img, centre + s * 0.105 * side, 0.285, 0.456, 0.012, WHITE, cam)
+            for s in (-1.0, 1.0)]
+
+
+@pytest.mark.parametrize("centre", [(1.3, 0.3), (1.6, -0.2), (2.0, 0.5)])
+def test_a_robots_white_arm_is_no_goal_post(centre):
+    """A NAO's white arm hangs beside its torso and crosses the field boundary like a post;
+    taken for one, its lower end (0.29 m above the floor) puts its foot far beyond the robot,
+    where the bar's few pixels measure under half a metre: no goal post shows so little of
+    itself unless it runs out of the image. A real goal post beside it is still found."""
+    img = draw_scene([], carpet_x=6.0, cam=NAO_CAM)
+    arms = _nao(img, NAO_CAM, centre)
+    post = np.array([3.0, -1.2 if centre[1] > 0 else 1.2])
+    _bar(img, post, 0.0, 0.8, 0.05, WHITE, NAO_CAM)
+    res = perspective.extract_frame(img, NAO_CAM, CONF)
+    px = res["posts_px"]
+    for bottom, _ in arms:
+        assert not any(abs(p[0] - bottom[0]) < 12 for p in px), (px, bottom)
+    assert len(res["posts"]) == 1, res["posts"]
+    assert abs(res["posts"][0][0] - np.hypot(*post)) < 0.3
+
+
+@pytest.mark.parametrize("distance", [0.9, 1.2, 1.6])
+def test_a_near_post_cut_by_the_images_top_edge_is_found(distance):
+    """A camera looking down shows a near post's lower part only, less than a post's
+    smallest visible height; where its bar runs out of the image its height is unknown, not
+    small, and it is a post."""
+    cam = NAO_CAM.with_pose(pitch=0.45)
+    foot = np.array([distance, 0.25])
+    img = draw_scene([], carpet_x=distance + 0.8, cam=cam)
+    _, top = _bar(img, foot, 0.0, 0.8, 0.05, WHITE, cam)
+    assert top[1] < 0  # the post's top is out of sight
+    res = perspective.extract_frame(img, cam, CONF)
+    d, bearing = np.hypot(*foot), math.atan2(foot[1], foot[0])
+    found = [p for p in res["posts"] if p[2] == 1.0]  # found rising above the boundary
+    assert len(found) == 1, res["posts"]
+    assert abs(found[0][0] - d) < 0.1 and abs(found[0][1] - bearing) < 0.05, (found, d, bearing)
 
 
 @pytest.mark.parametrize("carpet_x", [2.2, 2.6])

@@ -368,7 +368,7 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
     pc, diameter = POSTS, conf["posts"]["post_diameter"]
     # a post's width in cells at the nearest distance it is looked for
     max_width = int(math.ceil(camera.fx * diameter / pc.min_distance / cell)) + 1
-    feet_px, heights, widths, groups, foot_rows = find_posts(white, top, pc, cell, max_width)
+    feet_px, heights, widths, groups, foot_rows, cut = find_posts(white, top, pc, cell, max_width)
 
     # 4. line structure graph (a post's lower part becomes a segment there: is_post_bar tells
     # it from a line, and crossings at a post's foot are not taken)
@@ -404,17 +404,18 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
     posts, posts_px = [], []
     if len(feet_px):
         floor = to_floor(undistort(feet_px))
-        for f, px, hgt, wid in zip(floor, feet_px, heights, widths):
+        for f, px, hgt, wid, out_of_sight in zip(floor, feet_px, heights, widths, cut):
             if not np.isfinite(f).all():
                 continue
             d, b = polar(f[None])
             # the bar's width must fit a post of the conf's diameter at that distance, and it
-            # must be as tall as a post's visible part at least (white socks are not)
+            # must be as tall as a post's visible part at least where it ends in sight (white
+            # socks and a robot's arms are not)
             expected = camera.fx * diameter / max(d[0], 1e-6)
             if d[0] > conf["posts"]["max_distance"] or not (
                     pc.width_ratio[0] <= wid / expected <= pc.width_ratio[1]):
                 continue
-            if hgt * cell < camera.fx * pc.min_height / d[0]:
+            if not out_of_sight and hgt * cell < camera.fx * pc.min_height / d[0]:
                 continue
             posts.append([d[0], b[0], min(1.0, hgt / pc.full_height)])
             posts_px.append(px)

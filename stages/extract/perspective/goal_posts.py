@@ -41,7 +41,12 @@ class PostsTuning(NamedTuple):
     max_width: int  # cells (goal_posts' default; the extractor uses min_distance)
     min_distance: float  # m: posts nearer than this (wider in the image) are not sought
     full_height: int  # cells of bar at which the confidence is 1
-    min_height: float  # m of white bar at least (of a post about 1.2 m high)
+    # m of white bar at least, unless it runs out of the image (a post rises to its crossbar,
+    # 0.8 m in the SPL, 1.2 m in the Humanoid league; a robot's white arm beside its torso,
+    # projected from its lower end as if that stood on the floor, measures about 0.5 m: on
+    # rendered NAO walks of the tuning range, 95 % of the true posts measured 0.70 m or more,
+    # half of the bars that were no post 0.52 m or less)
+    min_height: float
     width_ratio: tuple[float, float]  # measured / expected width in the image
     # a white segment inside the boundary is a post's bar, not a line, when it runs straight
     # away from the robot on the floor (perpendicular distance below bar_radial m), starts at
@@ -55,7 +60,7 @@ class PostsTuning(NamedTuple):
 
 
 POSTS = PostsTuning(t_white=0.2, min_rise=3, max_rise=30, max_below=30, max_width=4,
-                    min_distance=0.7, full_height=12, min_height=0.4, width_ratio=(0.4, 2.5),
+                    min_distance=0.7, full_height=12, min_height=0.6, width_ratio=(0.4, 2.5),
                     bar_radial=0.15, bar_min_distance=0.8, bar_touch=3.5, bar_width_ratio=0.6,
                     bar_confidence=0.5)
 
@@ -231,7 +236,9 @@ def _window_extreme(row, window, largest):
 def goal_posts(white: np.ndarray, top: np.ndarray, tuning: PostsTuning, cell: int,
                max_width: int | None = None):
     """The whole step: (foot points (P, 2) px, bar heights (P,) cells, measured bar widths (P,)
-    px, column groups, the row below each group's foot). Bars are columns whose white run
+    px, column groups, the row below each group's foot, whether each bar runs out of sight
+    upwards (its white run reaches the image's top row or ``max_rise``: its height is a lower
+    bound)). Bars are columns whose white run
     rises at least ``min_rise`` cells above their surroundings' (``rise_above_surroundings``
     over ``max_width`` + 2 columns; ``max_width`` cells, default the tuning's), told apart there
     (``_stands_out``) and measured there (``bar_width``). The caller removes the bars from the
@@ -249,7 +256,9 @@ def goal_posts(white: np.ndarray, top: np.ndarray, tuning: PostsTuning, cell: in
     widths = np.array([bar_width(white, g, int(start[g].min()) - lf, near, cell)
                        for g, lf in zip(groups, lift)], float)
     foot_rows = np.array([int(start[g].max() + down[g].max()) for g in groups], int)
-    return feet, heights, widths, groups, foot_rows
+    cut = np.array([bool(np.any((up[g] >= t.max_rise) | (start[g] - up[g] <= 0)))
+                    for g in groups], bool)
+    return feet, heights, widths, groups, foot_rows, cut
 
 
 def runs_away(dist: float, near: float, pc: PostsTuning) -> bool:
