@@ -18,7 +18,7 @@ from stages.common.field import load_field
 from stages.common.map_file import Grid, write_map
 from stages.common.observations import Observations
 from stages.common.scanlines import ScanLines
-from stages.localize import mcl, mcl_rivals, motion_model
+from stages.localize import mcl, mcl_rivals, mcl_start, motion_model
 from stages.localize.observation_model import TUNING, ObservationModel
 from stages.simulate.synthetic_observations import (
     synthetic_observations,
@@ -319,6 +319,45 @@ def test_placement_start_is_not_mirror_ambiguous(kidsize, model):
     conf = copy.deepcopy(mcl.confs["default"])
     _poses, _truth, flags = _run_walk(kidsize, model, conf, n=60, seed=5)
     assert sum("mirror-ambiguous" in f for f in flags[20:]) <= 2
+
+
+def test_a_known_start_is_drawn_densely_for_its_first_observations(kidsize, model):
+    """A placement's prior is long and thin: the frames before its first observations carry
+    ``START_DENSITY`` times its particles, the first frame with observations weighs them all
+    and keeps the start's count."""
+    conf = copy.deepcopy(mcl.confs["default"])
+    truth, odom, _ = synthetic_walk(kidsize, 2, seed=3)
+    pf = mcl.ParticleFilter(model, conf)
+    pf.initialise()
+    n = mcl_start.initial_count("placement", conf)
+    assert mcl_start.density("placement") > 1
+    assert len(pf.particles) == n * mcl_start.density("placement")
+    pf.step(odom[0], 0.1, Observations.empty(), first=True)
+    assert len(pf.particles) == n * mcl_start.density("placement")
+    obs = synthetic_observations(kidsize, truth[1], np.random.default_rng(0), NOISELESS)
+    pf.step(odom[1], 0.1, obs)
+    assert len(pf.particles) <= n
+
+
+@pytest.mark.parametrize("init", ["placement", "uniform"])
+def test_new_particles_of_a_wide_known_start_weigh_its_error(kidsize, model, init,
+                                                             monkeypatch):
+    """While a placement's belief is wide, the poses augmented MCL and sensor resetting add
+    stand for "the start was wrong" and weigh together ``START_ERROR``; after a uniform start
+    they are the belief and weigh their share of the particles."""
+    conf = copy.deepcopy(mcl.confs["default"])
+    truth, _, _ = synthetic_walk(kidsize, 1, seed=3)
+    pf = mcl.ParticleFilter(model, conf)
+    pf.initialise(init)
+    obs = synthetic_observations(kidsize, truth[0], np.random.default_rng(0), NOISELESS)
+    frame = pf.correct(obs)
+    monkeypatch.setattr(pf.averages, "share", lambda: 0.2)  # augmented MCL injects
+    k = sum(pf.resample(frame, spread=3.0))
+    n = len(pf.weights)
+    assert k > 0.1 * n
+    assert math.isclose(float(pf.weights.sum()), 1.0, rel_tol=1e-9)
+    expected = mcl_start.START_ERROR if init == "placement" else k / n
+    assert math.isclose(float(pf.weights[-k:].sum()), expected, rel_tol=1e-6)
 
 
 def test_without_lines_still_localises(kidsize, model):

@@ -195,6 +195,8 @@ class ParticleFilter:
         self.averages = LikelihoodAverages()
         self._since_reset = 0  # frames with landmarks since the last sensor reset
         self._start_search = False  # a uniform start: the first observations place the belief
+        self._start_keep = 0  # a dense start: the particles its first observations keep
+        self._known_start = False  # a placement or pose start whose belief is still wide
         hx, hy = self.field.length / 2, self.field.width / 2
         m = float(WORLD_MARGIN)
         self.bounds = (-hx - m, hx + m, -hy - m, hy + m)
@@ -222,9 +224,12 @@ class ParticleFilter:
         self._since_reset = 0
         self.rivals.start(mode)
         self._start_search = mcl_start.searches_places(mode)
-        self.particles = mcl_start.initial_poses(mode, n, self.rng, self.field, self.bounds, c,
-                                                 pose)
-        self.weights = np.full(n, 1.0 / n)
+        self._known_start = mcl_start.is_known(mode)
+        dense = mcl_start.density(mode)
+        self._start_keep = n if dense > 1 else 0
+        self.particles = mcl_start.initial_poses(mode, n * dense, self.rng, self.field,
+                                                 self.bounds, c, pose)
+        self.weights = np.full(len(self.particles), 1.0 / len(self.particles))
         self.averages = LikelihoodAverages()
 
     # ------------------------------------------------------------------ the update
@@ -306,6 +311,11 @@ class ParticleFilter:
         lw -= lw.max()
         w = np.exp(lw)
         self.weights = w / w.sum()
+        if self._start_keep:  # a dense start's first observations: keep the tracking count
+            idx = low_variance(self.weights, self._start_keep, self.rng)
+            self.particles = self.particles[idx]
+            self.weights = np.full(len(idx), 1.0 / len(idx))
+            self._start_keep = 0
         return frame
 
     def resample(self, frame: Frame | None = None, spread: float | None = None):
@@ -313,10 +323,13 @@ class ParticleFilter:
         how many were injected by augmented MCL and how many placed by the observations of
         ``frame`` (what ``correct`` found). While the belief is wide (global localisation)
         augmented MCL injects its share and the observations place SENSOR_RESET_FRACTION per
-        frame; while tracking, the placed poses are the posterior share of "elsewhere"."""
+        frame (together weighted as mcl_start.START_ERROR while a placement or pose start's
+        belief has not yet narrowed); while tracking, the placed poses are the posterior share
+        of "elsewhere"."""
         n = len(self.weights)
         ess = 1.0 / float(np.dot(self.weights, self.weights))
         wide = self._wide()
+        self._known_start = self._known_start and wide  # until the belief first narrows
         share = self.averages.share() if wide else 0.0
         n_target = particle_count(spread, share, self.conf, n, self.paired)
         n_aug = int(self.rng.binomial(n_target, share)) if share > 0 else 0
@@ -335,6 +348,12 @@ class ParticleFilter:
         idx = low_variance(self.weights, n_target - len(new), self.rng)
         self.particles = np.concatenate([self.particles[idx], new])
         self.weights = np.full(n_target, 1.0 / n_target)
+        if self._known_start and len(new):
+            # while a known start's belief is wide, the new poses stand for "the start was
+            # wrong" (mcl_start.START_ERROR), not for their share of the particles
+            share = min(float(mcl_start.START_ERROR), len(new) / n_target)
+            self.weights[:len(idx)] = (1.0 - share) / len(idx)
+            self.weights[len(idx):] = share / len(new)
         n_aug = min(len(aug), len(new))
         return n_aug, len(new) - n_aug
 

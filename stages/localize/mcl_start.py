@@ -27,6 +27,13 @@ until the frames decide.
 The particle count of the initial belief (``INIT_PARTICLES``) is larger than the tracking
 one: a wide belief needs more particles (a stand-in for KLD sampling, Fox (2003); the
 resampling narrows it to ``particles_min`` .. ``particles_max``, mcl_resampling.py).
+
+A placement or pose start says where the robot stands, up to its spread: its first frame with
+observations weights ``START_DENSITY`` times the particles drawn from it and keeps the
+particle count by resampling (the start's prior sampled as finely as that frame's likelihood
+needs), and until its belief first narrows the poses the filter adds (augmented MCL's, the
+sensor resets') weigh as much as the chance that the start was wrong (``START_ERROR``): they
+are a defensive proposal (Hesterberg 1995), not the belief.
 """
 
 from __future__ import annotations
@@ -43,6 +50,20 @@ from . import place_search
 # particles of the initial belief by the start (``init``), kept until its spread falls below
 # mcl_resampling.SPREAD_HIGH
 INIT_PARTICLES = MappingProxyType({"placement": 1000, "uniform": 4000, "pose": 1000})
+# a placement or pose start draws this many times its particles; its first frame with
+# observations weights them all and resampling keeps INIT_PARTICLES. The start's belief is
+# long and thin where the first frame's likelihood is narrow (heading, distance to the lines
+# seen): drawn at the tracking count, few particles lie where that frame fits, and the belief
+# reached the place the frames had already decided some ten frames late on NAO tuning walks
+# (docs/results.md, "A known start: dense first frame, light new particles")
+START_DENSITY = MappingProxyType({"placement": 16, "uniform": 1, "pose": 16})
+# probability that a placement or pose start is not where the robot stood: the weight share
+# of the poses the filter adds while that start's belief is still wide (augmented MCL's and
+# the sensor resets', mcl_resampling). They are a defensive proposal (Hesterberg 1995): drawn
+# to find the robot where the start is wrong, weighted by how likely that is. Weighted as the
+# belief's own particles, they said "elsewhere" with their share (up to a quarter of the
+# particles a frame) and held the confidence of a right belief below the acceptance threshold
+START_ERROR = 1e-3
 SYMMETRIC_PAIRS = True  # a symmetric prior on a symmetric field keeps its symmetry
 # a uniform start's first frame with observations places the particles at the places
 # where that frame fits best (place_search: the observation model on a coarse grid over
@@ -80,6 +101,18 @@ def initial_count(mode: str, conf: dict) -> int:
     """The particles of the start ``mode``'s belief (``INIT_PARTICLES``; ``particles_max``
     for a mode it does not list)."""
     return int(INIT_PARTICLES.get(mode, conf["particles_max"]))
+
+
+def is_known(mode: str) -> bool:
+    """Whether the start ``mode`` says where the robot stands (placement or pose), so that
+    the poses added while its belief is wide carry START_ERROR."""
+    return mode in ("placement", "pose")
+
+
+def density(mode: str) -> int:
+    """How many times its particles the start ``mode`` draws for its first frame with
+    observations (``START_DENSITY``; 1 for a mode it does not list)."""
+    return max(int(START_DENSITY.get(mode, 1)), 1)
 
 
 def searches_places(mode: str) -> bool:
