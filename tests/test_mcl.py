@@ -324,7 +324,7 @@ def test_placement_start_is_not_mirror_ambiguous(kidsize, model):
 def test_a_known_start_is_drawn_densely_for_its_first_observations(kidsize, model):
     """A placement's prior is long and thin: the frames before its first observations carry
     ``START_DENSITY`` times its particles, the first frame with observations weighs them all
-    and keeps the start's count."""
+    and keeps the start's count (a count the caller gives is held from the start)."""
     conf = copy.deepcopy(mcl.confs["default"])
     truth, odom, _ = synthetic_walk(kidsize, 2, seed=3)
     pf = mcl.ParticleFilter(model, conf)
@@ -337,6 +337,8 @@ def test_a_known_start_is_drawn_densely_for_its_first_observations(kidsize, mode
     obs = synthetic_observations(kidsize, truth[1], np.random.default_rng(0), NOISELESS)
     pf.step(odom[1], 0.1, obs)
     assert len(pf.particles) <= n
+    pf.initialise("placement", n=500)  # a count given is held as given
+    assert len(pf.particles) == 500
 
 
 @pytest.mark.parametrize("init", ["placement", "uniform"])

@@ -213,11 +213,12 @@ class ParticleFilter:
 
     def initialise(self, mode: str | None = None, pose=None, n: int | None = None):
         """The initial belief of ``mode`` (the conf's ``init`` by default; mcl_start): ``n``
-        particles (by default INIT_PARTICLES of the mode; half while each stands for a
-        mirrored pair)."""
+        particles (by default INIT_PARTICLES of the mode, drawn START_DENSITY times over until
+        the first frame with observations; half while each stands for a mirrored pair)."""
         c = self.conf
         mode = mode or c["init"]
         self.paired = mcl_start.is_paired(mode, c, self.symmetric, self.imu_heading)
+        dense = mcl_start.density(mode) if n is None else 1  # a count given is held as given
         n = mcl_start.held_count(mcl_start.initial_count(mode, c) if n is None else int(n),
                                  self.paired)
         self.last = None
@@ -225,7 +226,6 @@ class ParticleFilter:
         self.rivals.start(mode)
         self._start_search = mcl_start.searches_places(mode)
         self._known_start = mcl_start.is_known(mode)
-        dense = mcl_start.density(mode)
         self._start_keep = n if dense > 1 else 0
         self.particles = mcl_start.initial_poses(mode, n * dense, self.rng, self.field,
                                                  self.bounds, c, pose)
