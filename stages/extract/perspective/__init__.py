@@ -368,7 +368,7 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
     pc, diameter = POSTS, conf["posts"]["post_diameter"]
     # a post's width in cells at the nearest distance it is looked for
     max_width = int(math.ceil(camera.fx * diameter / pc.min_distance / cell)) + 1
-    feet_px, heights, widths, groups, foot_rows, cut = find_posts(white, top, pc, cell, max_width)
+    feet_px, heights, widths, groups, cut = find_posts(white, top, pc, cell, max_width)
 
     # 4. line structure graph (a post's lower part becomes a segment there: is_post_bar tells
     # it from a line, and crossings at a post's foot are not taken)

@@ -236,14 +236,13 @@ def _window_extreme(row, window, largest):
 def goal_posts(white: np.ndarray, top: np.ndarray, tuning: PostsTuning, cell: int,
                max_width: int | None = None):
     """The whole step: (foot points (P, 2) px, bar heights (P,) cells, measured bar widths (P,)
-    px, column groups, the row below each group's foot, whether each bar runs out of sight
-    upwards (its white run reaches the image's top row or ``max_rise``: its height is a lower
-    bound)). Bars are columns whose white run
-    rises at least ``min_rise`` cells above their surroundings' (``rise_above_surroundings``
-    over ``max_width`` + 2 columns; ``max_width`` cells, default the tuning's), told apart there
-    (``_stands_out``) and measured there (``bar_width``). The caller removes the bars from the
-    white image before the line structure is built, so a post's lower part is not taken for a
-    line."""
+    px, column groups, whether each bar runs out of sight upwards (its white run reaches the
+    image's top row or ``max_rise``: its height is a lower bound)). Bars are columns whose
+    white run rises at least ``min_rise`` cells above their surroundings'
+    (``rise_above_surroundings`` over ``max_width`` + 2 columns; ``max_width`` cells, default
+    the tuning's), told apart there (``_stands_out``) and measured there (``bar_width``). The
+    caller removes the bars from the white image before the line structure is built, so a
+    post's lower part is not taken for a line."""
     t = tuning
     max_width = int(t.max_width if max_width is None else max_width)
     up, down, start = bar_runs(white, top, t.t_white, t.max_rise, t.max_below)
@@ -255,10 +254,9 @@ def goal_posts(white: np.ndarray, top: np.ndarray, tuning: PostsTuning, cell: in
     feet, heights = post_feet(white, groups, excess, down, start, t.t_white, cell)
     widths = np.array([bar_width(white, g, int(start[g].min()) - lf, near, cell)
                        for g, lf in zip(groups, lift)], float)
-    foot_rows = np.array([int(start[g].max() + down[g].max()) for g in groups], int)
     cut = np.array([bool(np.any((up[g] >= t.max_rise) | (start[g] - up[g] <= 0)))
                     for g in groups], bool)
-    return feet, heights, widths, groups, foot_rows, cut
+    return feet, heights, widths, groups, cut
 
 
 def runs_away(dist: float, near: float, pc: PostsTuning) -> bool:
