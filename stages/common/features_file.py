@@ -145,7 +145,7 @@ class FeaturesFile:
         self.path = Path(path)
         self.h5 = open_artifact(self.path, SCHEMA, VERSION)
         try:
-            frames = self.h5.get("frames")
+            frames = self._frames = self.h5.get("frames")
             self.names = sorted(frames.keys()) if frames is not None else []
             self.stamps = np.array([frames[n].attrs["stamp"] for n in self.names], dtype=float)
         except (KeyError, ValueError, TypeError, OSError, AttributeError) as e:
@@ -189,10 +189,8 @@ class FeaturesFile:
     def frame(self, name: str) -> dict[str, np.ndarray]:
         """The datasets of frame ``name`` and its ``stamp``; a frame missing a dataset its
         camera kind always has, or holding one of another shape, is refused (SchemaError)."""
-        g = self.h5["frames"][name]
-        out = {}
-        for k in g.keys():
-            v = g[k][()]
+        out, stamp = self._read_frame(name)
+        for k, v in out.items():
             want = self._shapes.get(k)
             if want is not None and (np.ndim(v) != 2 or v.dtype.kind not in "fiu" or (
                     v.shape[-len(want):] != want if k in ("radial", "spiral")
@@ -206,8 +204,32 @@ class FeaturesFile:
         if missing:
             raise SchemaError(f"{self.path}: damaged features file (frame {name} has no"
                               f" '{missing[0]}' dataset)")
-        out["stamp"] = float(g.attrs["stamp"])
+        out["stamp"] = stamp
         return out
+
+    def _read_frame(self, name: str) -> tuple[dict[str, np.ndarray], float]:
+        """Every dataset of frame ``name`` read whole, and its stamp. Numeric datasets are read
+        through h5py's low-level calls, in a third of the time of its high-level objects
+        (about 0.2 against 0.5 ms a frame, a tenth of localising an omni frame); any other
+        as the high level reads it. A missing frame or stamp raises KeyError."""
+        frames = self._frames
+        if frames is None:
+            raise KeyError(f"no frame {name!r}: the file has no frames")
+        group = h5py.h5g.open(frames.id, name.encode())
+        out = {}
+        for key in group:
+            d = h5py.h5d.open(group, key)
+            k = key.decode()
+            if d.dtype.kind not in "fiu":
+                out[k] = frames[name][k][()]
+                continue
+            out[k] = np.empty(d.shape, d.dtype)
+            if out[k].size:
+                d.read(h5py.h5s.ALL, h5py.h5s.ALL, out[k])
+        attr = h5py.h5a.open(group, b"stamp")
+        stamp = np.empty(attr.shape, attr.dtype)
+        attr.read(stamp)
+        return out, float(stamp)
 
     def __len__(self):
         return len(self.names)
