@@ -201,6 +201,24 @@ def test_smoothed_frames_are_marked_and_bounded(nao_walk):
     assert json.loads(attrs["method_report"])["smoothing"]["mean_candidates"] > 1
 
 
+def test_a_smoothed_confidence_is_never_surer_than_its_covariance(nao_walk):
+    """A smoothed frame's confidence is its place's posterior times the chance, under the
+    marginal covariance it is written with, that the pose lies within the place's radius: it
+    never exceeds 1 - exp(-r^2 / 2 sigma^2) of its own covariance's widest axis, and it is the
+    top hypothesis's probability (so the confidence up to the mirror is scaled alike)."""
+    from stages.localize.smooth import CONFIDENCE_RADIUS_M
+
+    _, cols, _ = nao_walk["smoothed"]
+    ok = ~cols["failed"]
+    cov = cols["covariance"][ok].astype(float)[:, :2, :2]
+    widest = np.linalg.eigvalsh(0.5 * (cov + np.swapaxes(cov, 1, 2)))[:, -1]
+    bound = 1.0 - np.exp(-CONFIDENCE_RADIUS_M**2 / (2 * widest))
+    conf = cols["confidence"][ok].astype(float)
+    assert np.all(conf <= bound + 1e-6)
+    np.testing.assert_allclose(conf, cols["hypotheses"][ok][:, 0, 3], rtol=1e-6, atol=1e-7)
+    assert np.all(cols["confidence_up_to_mirror"][ok] <= 1.0 + 1e-6)
+
+
 def test_the_causal_run_is_the_same_with_smoothing_on(nao_walk, monkeypatch, tmp_path):
     """The causal run under a smoothed one is the causal run: keeping the smoother's inputs
     draws no random number and moves no particle (same seed, same poses, same process)."""

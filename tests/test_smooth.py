@@ -120,6 +120,60 @@ def test_pose_graph_is_robust_to_one_wild_fix():
     assert np.max(np.abs(poses[[0, 14], 1])) < 0.05
 
 
+class _LineScorer:
+    """A straight run along x whose frames each fix one pose at the truth: tight (3 cm) on
+    frames outside ``thin``, and on those only across the run (2 m along x, as a frame that
+    sees a single line along the run)."""
+
+    mirrored = False
+
+    def __init__(self, truth, thin):
+        self.truth, self.thin, self.frames = truth, thin, len(truth)
+
+    def failed(self, i):
+        return None
+
+    def _fix(self, i):
+        sx = 2.0 if i in self.thin else 0.03
+        return _cands([self.truth[i]], [0.0]), sx
+
+    def global_candidates(self, i):
+        c, sx = self._fix(i)
+        c.cov[0, 0, 0] = sx**2
+        return c
+
+    def local_candidates(self, i, starts):
+        c = self.global_candidates(i)
+        k = len(starts)
+        return smooth.FrameCandidates(np.repeat(c.poses, k, 0), np.repeat(c.nll, k),
+                                      np.repeat(c.cov, k, 0), np.zeros(k), np.arange(k))
+
+
+def test_a_pose_the_frames_pin_loosely_is_not_confident():
+    """Ten frames in the middle of a run fix the pose only across it and the odometry slips
+    0.2 m a frame: the one place is certain (posterior 1), the pose along the run is not. Their
+    confidence falls below the frames pinned on both axes and never exceeds what the frame's
+    marginal covariance allows within CONFIDENCE_RADIUS_M; the pinned frames stay sure."""
+    from stages.common.poses_file import PoseTrack
+
+    n = 30
+    truth = np.array([[0.1 * i - 1.5, 0.5, 0.0] for i in range(n)])
+    scorer = _LineScorer(truth, thin=set(range(10, 20)))
+    causal = PoseTrack()
+    for i in range(n):
+        causal.add(f"{i:04d}", 0.1 * i, truth[i])
+    out = smooth.smooth_track(scorer, causal, _motion(n, sigma=0.2),
+                              {"min_confidence": 0.8, "hypotheses": 3},
+                              kidnap_probability=1e-3, area=100.0)
+    a = out.arrays()
+    conf, cov = a["confidence"].astype(float), a["covariance"][:, :2, :2].astype(float)
+    widest = np.linalg.eigvalsh(cov)[:, -1]  # float32 columns: compared to 1e-6
+    assert np.all(conf <= 1.0 - np.exp(-smooth.CONFIDENCE_RADIUS_M**2 / (2 * widest)) + 1e-6)
+    assert np.all(conf[[0, 1, 2, n - 3, n - 2, n - 1]] > 0.99)
+    assert np.max(conf[13:17]) < 0.9 < np.min(conf[:5])
+    np.testing.assert_allclose(a["hypotheses"][:, 0, 3], conf, rtol=1e-6)
+
+
 def _errors(path, truth_csv):
     cols, _attrs = read_poses(path)
     t = np.loadtxt(truth_csv, delimiter=",", skiprows=1)

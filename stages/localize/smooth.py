@@ -22,12 +22,18 @@ runs two passes over a method's candidates (docs/smoothing.md):
    kidnaps, placements). Forward-backward gives each candidate's posterior from the whole
    recording; Viterbi the most probable path. Where the scorer can, the camera's distance error
    is then learnt again from the path and the pass run again with it (``_recalibrated``).
-   A frame's confidence is the posterior mass of the candidates whose fix covers its smoothed
+   A frame's place is the posterior mass of the candidates whose fix covers its smoothed
    pose (``basin_mass``): on a point-symmetric field without a field-aligned heading a pose and
    its mirror share it, as in the causal methods.
 2. **Continuous pass** (pose_graph.py): the path refined as a factor graph (GTSAM), with
    marginal covariances; frames without a fix get their pose from the odometry between fixed
    frames.
+
+A frame's confidence is the probability that the robot stood within ``CONFIDENCE_RADIUS_M``
+of its smoothed pose: its place's posterior mass times the probability, under its marginal
+covariance, that the pose lies that near (``_inside``). A path the recording's frames favour
+but pin loosely (frames of one to three observations, along a single line) is then the right
+place at a wide pose, not a sure one.
 
 The output is the poses schema with mode ``smoothed`` (frames with no vision of their own:
 flag ``odometry-only``; frames the pose graph moved out of their path candidate's place:
@@ -462,6 +468,11 @@ def smooth_track(scorer: Scorer, causal: PoseTrack, motion: Motion, conf: dict, 
             k = index[i]
             cands, post = passes.candidates[k], passes.posterior[k]
             hyps = ranked_hypotheses(cands, post, poses[i], int(conf["hypotheses"]))
+            # each place's posterior, times the chance that the pose lies within the place's
+            # radius of where the graph puts it (the frame's marginal covariance; the mirror's
+            # is the same): a path held by frames that say little is the right place with a
+            # wide pose
+            hyps[:, 3] *= _inside(covs[i])
             confidence = float(hyps[0, 3])
             error = float(cands.error[passes.path[k]])
             # the pose graph moved the frame out of the place its path candidate stands for
@@ -546,6 +557,14 @@ def _neighbour_confidence(conf_of: np.ndarray, i: int, cov: np.ndarray) -> float
     vals = ([before[-1]] if len(before) else []) + ([after[0]] if len(after) else [])
     if not vals:
         return 0.0
+    return float(min(vals) * _inside(cov))
+
+
+def _inside(cov: np.ndarray) -> float:
+    """The probability that a pose with covariance ``cov`` (3, 3; field frame) lies within
+    CONFIDENCE_RADIUS_M of where it is given: its position's largest variance taken as an
+    isotropic Gaussian (conservative: a Rayleigh distance), 1 - exp(-r^2 / (2 var))."""
+    if not np.all(np.isfinite(cov[:2, :2])):
+        return 0.0
     var = float(np.max(np.linalg.eigvalsh(0.5 * (cov[:2, :2] + cov[:2, :2].T))))
-    inside = 1.0 - math.exp(-CONFIDENCE_RADIUS_M**2 / (2 * max(var, 1e-12)))
-    return float(min(vals) * inside)
+    return 1.0 - math.exp(-CONFIDENCE_RADIUS_M**2 / (2 * max(var, 1e-12)))
