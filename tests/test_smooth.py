@@ -133,13 +133,10 @@ class _LineScorer:
     def failed(self, i):
         return None
 
-    def _fix(self, i):
-        sx = 2.0 if i in self.thin else 0.03
-        return _cands([self.truth[i]], [0.0]), sx
-
     def global_candidates(self, i):
-        c, sx = self._fix(i)
-        c.cov[0, 0, 0] = sx**2
+        c = _cands([self.truth[i]], [0.0], sigma=0.03)
+        if i in self.thin:
+            c.cov[0, 0, 0] = 2.0**2
         return c
 
     def local_candidates(self, i, starts):

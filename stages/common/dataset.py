@@ -327,16 +327,19 @@ def read_image(path: Path) -> np.ndarray:
 
     from .png import decode_png
 
-    if not Path(path).is_file():  # a FIFO would block the read forever
+    path = Path(path)
+    if not path.is_file():  # a FIFO would block the read forever
         raise DatasetError(f"unreadable image: {path} (not a regular file)")
-    if Path(path).suffix.lower() == ".png":
+    if path.suffix.lower() == ".png":
         try:
-            img = decode_png(Path(path).read_bytes())
+            data = path.read_bytes()
         except OSError as e:
             raise DatasetError(f"unreadable image: {path} ({e.strerror or e})") from None
-        if img is not None:
-            return img
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        img = decode_png(data)
+        if img is None:  # a kind the fast path declines: OpenCV, from the bytes read
+            img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    else:
+        img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if img is None:
         raise DatasetError(f"unreadable image: {path}")
     return img

@@ -23,6 +23,7 @@ from __future__ import annotations
 import struct
 
 import numpy as np
+from isal import isal_zlib
 from numba import njit
 
 SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -32,22 +33,12 @@ CHANNELS = {0: 1, 2: 3}
 # huge image cannot make this decoder reserve memory for it (a 16k x 16k RGB frame is 768 MB)
 MAX_RAW_BYTES = 1 << 28
 
-try:  # ISA-L's inflate; without it OpenCV is as fast as this decoder would be
-    from isal import isal_zlib as _inflater
-except ImportError:  # pragma: no cover - isal is a dependency; a broken install falls back
-    _inflater = None
-
-
-def available() -> bool:
-    """Whether the fast decoder can run here (the ``isal`` package imports)."""
-    return _inflater is not None
-
 
 def decode_png(data: bytes) -> np.ndarray | None:
     """The BGR uint8 image (h, w, 3) of the PNG file ``data``, as OpenCV's IMREAD_COLOR reads
     it, or None if it is not an 8-bit grey or RGB, non-interlaced PNG that decodes without
     error (module doc: the caller then reads it with OpenCV)."""
-    if _inflater is None or not data.startswith(SIGNATURE):
+    if not data.startswith(SIGNATURE):
         return None
     chunks = _chunks(data)
     if chunks is None:
@@ -63,7 +54,7 @@ def decode_png(data: bytes) -> np.ndarray | None:
     if expected > MAX_RAW_BYTES:
         return None
     try:
-        raw = _inflater.decompress(idat, 15, expected)
+        raw = isal_zlib.decompress(idat, 15, expected)
     except Exception:  # isal's own error class: a damaged stream, left to OpenCV to report
         return None
     if len(raw) != expected:
@@ -89,7 +80,7 @@ def _chunks(data: bytes):
         if end > n:
             return None
         critical = not kind[0] & 0x20  # bit 5 of the first letter: 0 for critical chunks
-        if critical and _inflater.crc32(view[pos + 4:pos + 8 + length]) != \
+        if critical and isal_zlib.crc32(view[pos + 4:pos + 8 + length]) != \
                 struct.unpack_from(">I", data, end - 4)[0]:
             return None
         body = view[pos + 8:pos + 8 + length]
