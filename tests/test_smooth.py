@@ -171,6 +171,62 @@ def test_a_pose_the_frames_pin_loosely_is_not_confident():
     np.testing.assert_allclose(a["hypotheses"][:, 0, 3], conf, rtol=1e-6)
 
 
+class _LookAlikeScorer:
+    """A straight run along x at y = 0 and a look-alike 3 m away (y = 3): frames 0-39 favour
+    the look-alike by 1.5 nats each (a slight, repeated misfit, as a camera's calibration error
+    gives), frames 40-59 see what only the truth explains (the look-alike 10 nats worse).
+    The odometry joins each place to itself only."""
+
+    mirrored = False
+    frames = 60
+
+    def failed(self, i):
+        return None
+
+    def global_candidates(self, i):
+        x = 0.1 * i
+        return _cands([[x, 0.0, 0.0], [x, 3.0, 0.0]], [1.5, 0.0] if i < 40 else [0.0, 10.0])
+
+    def local_candidates(self, i, starts):
+        g = self.global_candidates(i)
+        k = np.argmin(np.abs(g.poses[None, :, 1] - np.asarray(starts)[:, None, 1]), axis=1)
+        return smooth.FrameCandidates(g.poses[k], g.nll[k], g.cov[k], g.error[k],
+                                      np.arange(len(starts)))
+
+
+def _look_alike_path(temperature):
+    scorer = _LookAlikeScorer()
+    model = smooth.Transition.of(1e-5, 100.0)
+    motion = _motion(scorer.frames)
+    frames, sets = smooth.candidate_sets(scorer, motion, model, temperature=temperature)
+    p = smooth.discrete_pass(frames, sets, motion, model)
+    return np.array([sets[k].poses[p.path[k], 1] for k in range(len(frames))])
+
+
+def test_correlated_frames_do_not_outvote_the_odometry():
+    """Forty frames that each favour a look-alike by 1.5 nats (60 nats in all) against a
+    jump of about 24 nats: counted as independent they hold the look-alike until the truth's
+    frames make the path jump; counted as one frame in eight (evidence_temperature), the path
+    stays at the truth, which the odometry joins to the frames that decide."""
+    assert np.all(_look_alike_path(1.0)[:40] == 3.0)
+    assert np.all(_look_alike_path(8.0) == 0.0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(0.01, 1.0), st.floats(0.0, 3.0), st.floats(0.1, 10.0),
+       st.integers(2, 50))
+def test_evidence_temperature_counts_frames_of_the_correlation_time(dt, corr, scale, n):
+    """T is at least 1, grows with the correlation time, and depends on time only through
+    the ratio of the correlation time to the frame interval (the same recording at another
+    time unit: stamps and correlation time scaled alike)."""
+    stamps = dt * np.arange(n)
+    t = smooth.evidence_temperature(stamps, corr)
+    assert t >= 1.0
+    assert smooth.evidence_temperature(stamps, corr + 0.5) >= t
+    assert smooth.evidence_temperature(scale * stamps, scale * corr) == pytest.approx(t)
+    assert smooth.evidence_temperature(stamps, 0.0) == 1.0
+
+
 def _errors(path, truth_csv):
     cols, _attrs = read_poses(path)
     t = np.loadtxt(truth_csv, delimiter=",", skiprows=1)

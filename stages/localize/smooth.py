@@ -22,6 +22,16 @@ runs two passes over a method's candidates (docs/smoothing.md):
    kidnaps, placements). Forward-backward gives each candidate's posterior from the whole
    recording; Viterbi the most probable path. Where the scorer can, the camera's distance error
    is then learnt again from the path and the pass run again with it (``_recalibrated``).
+   **Correlated frames.** Consecutive frames see the same lines from nearly the same place
+   through the same calibration error, so the log-likelihood ratio between two places
+   changes slowly from frame to frame. Summed as if independent, n frames count as n pieces
+   of evidence where they hold about n / tau (tau the ratio's integrated autocorrelation
+   time; Sokal 1997), and a look-alike that every frame favours by a nat or two outweighs the
+   jump model within a few seconds. Each frame's nll is divided by T
+   (``evidence_temperature``: a method's correlation time over the frame interval), the
+   magnitude adjustment of a composite likelihood (Varin, Reid and Firth 2011). The
+   odometry's errors are correlated too and its transitions are not divided, so T is set
+   below tau where the full time hands the path to the odometry (lut.SMOOTH_CORRELATION_S).
    A frame's place is the posterior mass of the candidates whose fix covers its smoothed
    pose (``basin_mass``): on a point-symmetric field without a field-aligned heading a pose and
    its mirror share it, as in the causal methods.
@@ -206,6 +216,26 @@ def motion_of(increments: np.ndarray, has_odometry: np.ndarray, stamps: np.ndarr
     return Motion(inc, cov)
 
 
+def evidence_temperature(stamps: np.ndarray, correlation_s: float) -> float:
+    """T, the power 1/T to which the smoother raises each frame's likelihood (its nll divided
+    by T): the frames over which a frame's evidence is correlated, ``correlation_s`` over the
+    recording's median frame interval, at least 1 (module doc, "Correlated frames")."""
+    s = np.asarray(stamps, float)
+    dt = np.diff(s[np.isfinite(s)])
+    dt = dt[dt > 0]
+    if correlation_s <= 0 or not len(dt):
+        return 1.0
+    return max(1.0, float(correlation_s) / float(np.median(dt)))
+
+
+def _tempered(cands: FrameCandidates, temperature: float) -> FrameCandidates:
+    """``cands`` with their nll divided by ``temperature`` (evidence_temperature)."""
+    if temperature == 1.0 or not len(cands):
+        return cands
+    return FrameCandidates(cands.poses, cands.nll / temperature, cands.cov, cands.error,
+                           cands.start)
+
+
 @dataclass(frozen=True)
 class Transition:
     """The transition model's constants: ``log_outlier``, the log density of a jump anywhere
@@ -260,17 +290,19 @@ class Passes:
     path: np.ndarray  # (len(frames),) candidate index per such frame
 
 
-def candidate_sets(scorer: Scorer, motion: Motion, model: Transition, log_prior0=None
-                   ) -> tuple[list[int], list[FrameCandidates]]:
+def candidate_sets(scorer: Scorer, motion: Motion, model: Transition, log_prior0=None,
+                   temperature: float = 1.0) -> tuple[list[int], list[FrameCandidates]]:
     """Every frame's candidates (module doc): the global search's, and two beams that follow
     them through the recording. The forward beam fixes the previous frame's beam again where
     the odometry moves it and keeps the ``MAX_CANDIDATES`` best by the filtered posterior
     (the forward message); the backward beam does the same from the next frame, ranked by
     the backward message. A place the first frames misjudge drops out of the forward beam
-    and is carried back by the backward one. Each frame's set is the union, distinct."""
+    and is carried back by the backward one. Each frame's set is the union, distinct. Every
+    candidate's nll is divided by ``temperature`` (evidence_temperature)."""
     frames = [i for i in range(scorer.frames) if scorer.failed(i) is None]
     n = len(frames)
-    glob = [scorer.global_candidates(i).distinct(limit=4 * MAX_CANDIDATES) for i in frames]
+    glob = [_tempered(scorer.global_candidates(i), temperature)
+            .distinct(limit=4 * MAX_CANDIDATES) for i in frames]
     forward: list = [None] * n
     backward: list = [None] * n
     for direction in (1, -1):
@@ -285,7 +317,8 @@ def candidate_sets(scorer: Scorer, motion: Motion, model: Transition, log_prior0
                 step = motion.between(*sorted((frames[j], frames[k])))
                 inc = step[0] if direction == 1 else inverse(step[0])
                 starts = moved(beam[j].poses, inc[0], inc[1], inc[2])
-                more = _fused(scorer.local_candidates(frames[k], starts), starts, step)
+                more = _fused(_tempered(scorer.local_candidates(frames[k], starts),
+                                        temperature), starts, step)
                 c = FrameCandidates.concat([c, more]).distinct(limit=4 * MAX_CANDIDATES)
             if not len(c):
                 beam[k], message = c, None
@@ -419,22 +452,24 @@ def ranked_hypotheses(cands: FrameCandidates, posterior: np.ndarray, top_pose, c
 
 
 def smooth_track(scorer: Scorer, causal: PoseTrack, motion: Motion, conf: dict, *,
-                 kidnap_probability: float, area: float, log_prior0=None) -> PoseTrack:
+                 kidnap_probability: float, area: float, log_prior0=None,
+                 temperature: float = 1.0) -> PoseTrack:
     """The smoothed PoseTrack of a run (module doc) from a method's ``scorer``, the causal
     run's track (frame names, stamps and the failure reasons of frames with no candidates)
     and the run's Motion. ``conf``: the method's (min_confidence, hypotheses);
     ``kidnap_probability``: the method's per frame (the jump model's outlier floor);
     ``area``: m^2 of the world a kidnap may put the robot on; ``log_prior0``:
-    callable (FrameCandidates) -> log prior over the first frame's candidates, or None."""
+    callable (FrameCandidates) -> log prior over the first frame's candidates, or None;
+    ``temperature``: what each frame's nll is divided by (evidence_temperature)."""
     from .pose_graph import refine_path
 
     t0 = time.process_time()
     model = Transition.of(kidnap_probability, area)
-    frames, sets, passes = _discrete(scorer, motion, model, log_prior0)
+    frames, sets, passes = _discrete(scorer, motion, model, log_prior0, temperature)
     rounds = 1
     if RECALIBRATE and getattr(scorer, "learn_calibration", None) is not None and frames:
         if _recalibrated(scorer, frames, passes):
-            frames, sets, passes = _discrete(scorer, motion, model, log_prior0)
+            frames, sets, passes = _discrete(scorer, motion, model, log_prior0, temperature)
             rounds = 2
     t1 = time.process_time()
     n = scorer.frames
@@ -449,7 +484,7 @@ def smooth_track(scorer: Scorer, causal: PoseTrack, motion: Motion, conf: dict, 
     log.info("smoothed %d frames: candidates %.2f s, passes %.2f s CPU", n, t1 - t0, t2 - t1)
     out = PoseTrack(meta=dict(causal.meta))
     out.meta["smoothing"] = {"candidates_s": round(t1 - t0, 3), "passes_s": round(t2 - t1, 3),
-                             "rounds": rounds,
+                             "rounds": rounds, "temperature": round(float(temperature), 3),
                              "mean_candidates": float(np.mean([len(s) for s in sets]))
                              if sets else 0.0}
     index = {i: k for k, i in enumerate(frames)}
@@ -523,9 +558,10 @@ def _recalibrated(scorer: Scorer, frames: list[int], passes: Passes) -> bool:
     return False
 
 
-def _discrete(scorer: Scorer, motion: Motion, model: Transition, log_prior0):
-    """Candidate sets and the discrete pass over them."""
-    frames, sets = candidate_sets(scorer, motion, model, log_prior0)
+def _discrete(scorer: Scorer, motion: Motion, model: Transition, log_prior0,
+              temperature: float):
+    """Candidate sets (their nll divided by ``temperature``) and the discrete pass over them."""
+    frames, sets = candidate_sets(scorer, motion, model, log_prior0, temperature)
     prior0 = log_prior0(sets[0]) if (log_prior0 is not None and sets) else None
     return frames, sets, discrete_pass(frames, sets, motion, model, prior0)
 
