@@ -30,8 +30,8 @@ runs two passes over a method's candidates (docs/smoothing.md):
    jump model within a few seconds. Each frame's nll is divided by T
    (``evidence_temperature``: a method's correlation time over the frame interval), the
    magnitude adjustment of a composite likelihood (Varin, Reid and Firth 2011). The
-   odometry's errors are correlated too and its transitions are not divided, so T is set
-   below tau where the full time hands the path to the odometry (lut.SMOOTH_CORRELATION_S).
+   transitions are not divided, so T is set below tau where the full time let them lead the
+   path astray (lut.SMOOTH_CORRELATION_S).
    A frame's place is the posterior mass of the candidates whose fix covers its smoothed
    pose (``basin_mass``): on a point-symmetric field without a field-aligned heading a pose and
    its mirror share it, as in the causal methods.
