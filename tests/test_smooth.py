@@ -208,8 +208,8 @@ def test_correlated_frames_do_not_outvote_the_odometry():
     jump of about 24 nats: counted as independent they hold the look-alike until the truth's
     frames make the path jump; counted as one frame in eight (evidence_temperature), the path
     stays at the truth, which the odometry joins to the frames that decide."""
-    assert np.all(_look_alike_path(1.0)[:40] == 3.0)
-    assert np.all(_look_alike_path(8.0) == 0.0)
+    assert np.all(np.abs(_look_alike_path(1.0)[:40] - 3.0) < 0.5)  # the look-alike
+    assert np.all(np.abs(_look_alike_path(8.0)) < 0.5)  # the truth, on every frame
 
 
 @settings(max_examples=60, deadline=None)
@@ -224,7 +224,7 @@ def test_evidence_temperature_counts_frames_of_the_correlation_time(dt, corr, sc
     assert t >= 1.0
     assert smooth.evidence_temperature(stamps, corr + 0.5) >= t
     assert smooth.evidence_temperature(scale * stamps, scale * corr) == pytest.approx(t)
-    assert smooth.evidence_temperature(stamps, 0.0) == 1.0
+    assert smooth.evidence_temperature(stamps, 0.0) == pytest.approx(1.0)
 
 
 def _errors(path, truth_csv):
