@@ -881,7 +881,8 @@ class LutScorer(PathCalibration):
 # round on omni-hard seed 21 followed a place 0.9 m off. (Not the odometry's own correlation:
 # its per-frame errors on these renders are white, integrated autocorrelation time 0.9-1.5
 # frames; but its heading error, 0.037-0.047 rad per frame, is several times the transition
-# model's floor, tracking.FUSION's 0.005 rad; not checked as the cause.)
+# model's floor, tracking.FUSION's 0.005 rad: with the smoother's floor at the measured 0.02 m
+# and 0.04 rad, seed 21 stays right at T = 3, not tuned further.)
 # At T = 2, within 40 cm over tuning seeds 20-59: omni-default 97.75 -> 98.18 %, omni-hard
 # 98.80 -> 99.80 %, none accepted more than 1 m off (docs/smoothing.md, "Correlated frames";
 # fit, whose ratio is correlated over 7.3 frames, keeps every frame's full say: there T = 2 cost
