@@ -874,19 +874,11 @@ class LutScorer(PathCalibration):
 
 # s: how long a frame's evidence counts as correlated with its neighbours' in the smoother
 # (smooth.evidence_temperature: each frame's nll divided by this over the frame interval; T = 2
-# at 10 frames/s). On the tuning renders (omni-default and omni-hard seeds 20-39, 10 frames/s)
-# the log-likelihood ratio between the true place and the best other one has an integrated
-# autocorrelation time of 5.5 frames. The transitions are not divided, and with the frames'
-# say divided by more than 2 the transitions led the path astray: from T = 3 on, lut's first
-# round on omni-hard seed 21 followed a place 0.9 m off. (Not the odometry's own correlation:
-# its per-frame errors on these renders are white, integrated autocorrelation time 0.9-1.5
-# frames; but its heading error, 0.037-0.047 rad per frame, is several times the transition
-# model's floor, tracking.FUSION's 0.005 rad: with the smoother's floor at the measured 0.02 m
-# and 0.04 rad, seed 21 stays right at T = 3, not tuned further.)
-# At T = 2, within 40 cm over tuning seeds 20-59: omni-default 97.75 -> 98.18 %, omni-hard
-# 98.80 -> 99.80 %, none accepted more than 1 m off (docs/smoothing.md, "Correlated frames";
-# fit, whose ratio is correlated over 7.3 frames, keeps every frame's full say: there T = 2 cost
-# the omni-hard confidence its goal, T = 7 put the histogram heading's path on a look-alike)
+# at 10 frames/s). Measured on the tuning renders (omni seeds 20-39), the log-likelihood ratio
+# between the true place and the best other one stays correlated over 5.5 frames; the value is
+# below that because the transitions are not divided, and from T = 3 on they led lut's first
+# round to a look-alike (omni-hard seed 21). Chosen on tuning seeds 20-59; the figures and
+# the fit and mcl tries are in docs/smoothing.md, "Correlated frames"
 SMOOTH_CORRELATION_S = 0.2
 
 
