@@ -18,6 +18,13 @@ LONG_RUN = 200
 QUOTED = 57
 
 
+def _interrupted(ctx) -> None:
+    """Say that the user interrupted the command, and exit 130 (128 + SIGINT, as a shell)."""
+    click.echo("fieldloc: interrupted (finished files were kept; extract resumes where it"
+               " stopped)", err=True)
+    ctx.exit(130)
+
+
 def _short(text: str) -> str:
     """An error on one line, each run of more than LONG_RUN characters without a space cut
     to its first QUOTED (a 100 kB argument made a 100 kB "one-line" error)."""
@@ -112,6 +119,11 @@ class LazyGroup(click.Group):
         except KeyboardInterrupt:
             if debug:
                 raise
-            click.echo("fieldloc: interrupted (finished files were kept; extract resumes"
-                       " where it stopped)", err=True)
-            ctx.exit(130)
+            _interrupted(ctx)
+        except SystemError as e:
+            # Ctrl-C as a numba kernel returns: its dispatcher reports the KeyboardInterrupt
+            # raised then as a SystemError caused by it ("returned a result with an exception
+            # set"); that is an interrupt all the same
+            if debug or not isinstance(e.__cause__ or e.__context__, KeyboardInterrupt):
+                raise
+            _interrupted(ctx)

@@ -166,3 +166,28 @@ def test_errors_still_end_in_one_line():
                          cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert res.returncode == 1
     assert res.stderr.startswith("fieldloc: error: ") and res.stderr.count("\n") == 1, res.stderr
+
+
+@pytest.mark.parametrize("cause, code", [(KeyboardInterrupt(), 130), (ValueError("x"), None)])
+def test_an_interrupt_inside_a_kernel_is_an_interrupt(cause, code):
+    """Ctrl-C as a numba kernel returns reaches Python as a SystemError caused by the
+    KeyboardInterrupt: the group says "interrupted" and exits 130, as for any Ctrl-C; a
+    SystemError with another cause is no interrupt and is not turned into one."""
+    from click.testing import CliRunner
+
+    group = LazyGroup("g")
+
+    @group.command("work")
+    def work():
+        try:
+            raise cause
+        except BaseException as e:
+            raise SystemError("returned a result with an exception set") from e
+
+    res = CliRunner().invoke(group, ["work"])
+    if code is None:
+        assert isinstance(res.exception, SystemError)
+    else:
+        assert res.exit_code == code
+        # output: stderr mixed in (click 8.1's default; 8.2 always has it there)
+        assert res.output.startswith("fieldloc: interrupted") and res.output.count("\n") == 1
