@@ -25,6 +25,7 @@ from stages.localize.lut_kernels import (
     tiled_sum,
 )
 from stages.localize.lut_search import MatchingParams, Observation, TableSearch
+from stages.localize.lut_tables import COARSE_BIN_POOL
 from stages.localize.lut_tracked import window_best
 
 
@@ -77,8 +78,9 @@ def error_term(s) -> np.ndarray:
 
 
 def reference_pooled(s) -> np.ndarray:
-    """The min-pooled lookup (rows, cy, cx): coarse cell (a, b) the least entry of the fine
-    cells within coarse_step // 2 of fine cell (a, b) * coarse_step."""
+    """The min-pooled lookup (rows, cy, cx): coarse cell (a, b) of a row the least entry of
+    the fine cells within coarse_step // 2 of fine cell (a, b) * coarse_step, over the
+    COARSE_BIN_POOL distance bins of the row (a scan line's bins in groups from its first)."""
     step, (cy, cx) = s.params.coarse_step, s.coarse_shape
     ref, half = reference_lookup(s), step // 2
     out = np.empty((len(ref), cy, cx), np.uint8)
@@ -87,7 +89,21 @@ def reference_pooled(s) -> np.ndarray:
             i, j = a * step, b * step
             out[:, a, b] = ref[:, max(i - half, 0):i + half + 1,
                                max(j - half, 0):j + half + 1].min(axis=(1, 2))
-    return out
+    row_of = pooled_row_of(s)
+    pooled = np.full((row_of[-1] + 1, cy, cx), 255, np.uint8)
+    for r, g in enumerate(row_of):
+        pooled[g] = np.minimum(pooled[g], out[r])
+    return pooled
+
+
+def pooled_row_of(s) -> np.ndarray:
+    """The min-pooled lookup's row of every row of the error lookup: each scan line's
+    distance bins in groups of COARSE_BIN_POOL from its first."""
+    out, base = [], 0
+    for nb in [s.nb_radial] * s.n_angles + [s.nb_spiral] * (2 * s.n_angles):
+        out.append(base + np.arange(nb) // COARSE_BIN_POOL)
+        base += -(-nb // COARSE_BIN_POOL)
+    return np.concatenate(out)
 
 
 def _rows_of_cells(tiled: np.ndarray, ny: int, nx: int) -> np.ndarray:
@@ -179,7 +195,7 @@ def test_the_min_pooled_lookup_bounds_every_cell_it_covers(search, reference):
     a = (np.arange(s.ny) + half) // step
     b = (np.arange(s.nx) + half) // step
     ok_i, ok_j = a < cy, b < cx
-    bound = coarse[:, a[ok_i]][:, :, b[ok_j]]
+    bound = coarse[pooled_row_of(s)][:, a[ok_i]][:, :, b[ok_j]]
     assert np.all(bound <= ref[:, ok_i][:, :, ok_j])
 
 
@@ -221,8 +237,9 @@ def test_window_sums_are_the_sums_of_the_observations_rows(search, reference):
         cy, cx = s.coarse_shape
         out = np.empty((cy, cx), np.uint16)
         tiled_sum(s.min_pooled, s.tables.observed(obs), m, (0, cy, 0, cx), out)
+        rows = s.lookup_rows(obs, m, COARSE_BIN_POOL)
         # exact integers: uint8 / uint16 values and their integer sums
-        assert np.array_equal(out, pooled[s.lookup_rows(obs, m)].astype(np.int64).sum(axis=0))
+        assert np.array_equal(out, pooled[rows].astype(np.int64).sum(axis=0))
 
 
 def test_the_weighted_surface_is_the_weighted_sum_of_the_rows(search, reference):

@@ -1,6 +1,6 @@
 """Arrays the table search derives from a map, on disk beside the map, so that a process maps
 them in milliseconds instead of computing them again: the scan-line tables in millimetres and
-the min-pooled error lookup of stages.localize.lut_tables (25 + 41 MB and about 1 s on
+the min-pooled error lookup of stages.localize.lut_tables (25 + 20 MB and about 1 s on
 msl-2015, in every process of every run; the full error lookup, 352 MB, is computed from the
 tables where a search reads it and not stored), and the 2 cm line-distance raster of
 stages.localize.point_fit (3.5 MB, 0.2-0.5 s).
@@ -10,11 +10,11 @@ stages.localize.point_fit (3.5 MB, 0.2-0.5 s).
 
 ``<key>`` is ``<map hash>-<parameters hash>``: the map file's content hash (sha256, as every
 artifact records its inputs) and a hash of what the arrays are (``what``), the parameters they
-depend on (the min-pooled lookup: ``c``, ``range_scale``, ``distance_bin``, ``coarse_step``; not
-``use_spiral`` or ``pair_tolerance``, which only the searches read), their shapes and dtypes,
-and ``CACHE_VERSION``. A map rebuilt in place has another hash, so its arrays are computed
-again, and the files of that map's earlier hashes are removed then (a process that still maps
-them keeps its pages: unlinking a mapped file is safe).
+depend on (the min-pooled lookup: ``c``, ``range_scale``, ``distance_bin``, ``coarse_step``,
+the distance bins it pools; not ``use_spiral`` or ``pair_tolerance``, which only the searches
+read), their shapes and dtypes, and ``CACHE_VERSION``. A map rebuilt in place has another
+hash, so its arrays are computed again, and the files of that map's earlier hashes are removed
+then (a process that still maps them keeps its pages: unlinking a mapped file is safe).
 
 Written atomically (each file to a part beside it, renamed: stages.common.artifacts), and read
 with ``np.load(mmap_mode="c")``: pages come from the disk, or from the page cache that every
@@ -54,7 +54,7 @@ CACHE_VERSION = 3  # raise when an array is computed differently: older files ar
 SUFFIX = ".lookup"
 # builds of this size and more announce themselves on stderr (_announce); the rate is that of
 # msl-2015's former full error lookup built and written on a busy 2-core AMD EPYC, for the
-# rough duration the line states (the min-pooled lookup, 41 MB on msl-2015, builds in about
+# rough duration the line states (the min-pooled lookup, 20 MB on msl-2015, builds in about
 # 1 s, unannounced)
 ANNOUNCE_BYTES = 64 << 20
 BUILD_BYTES_PER_S = 80e6

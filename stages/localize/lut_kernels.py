@@ -80,7 +80,9 @@ class Quantised(NamedTuple):
 class MinPooled(NamedTuple):
     """The min-pooled error lookup (uint8, tiled: ``tiled_sum``): every ``step``-th cell of
     the error lookup (cy x cx of them, ``ntx`` blocks wide), each the least entry of the
-    fine cells within step // 2 of it, with the layout of its rows (``lookup_row``)."""
+    fine cells within step // 2 of it and of ``bin_pool`` consecutive distance bins, with the
+    layout of its rows (``lookup_row``: ``rows_radial`` and ``rows_spiral`` per scan line;
+    ``nb_radial`` and ``nb_spiral`` the fine bins, where an observed bin is clipped)."""
 
     lookup: np.ndarray
     step: int
@@ -91,6 +93,9 @@ class MinPooled(NamedTuple):
     nb_radial: int
     nb_spiral: int
     spiral_row0: int
+    bin_pool: int
+    rows_radial: int
+    rows_spiral: int
 
 
 class Observed(NamedTuple):
@@ -360,13 +365,14 @@ def refine_moves(q, obs, at, grid, i, j, max_moves, out):
 
 @njit(cache=True, nogil=True, inline="always")
 def lookup_row(p, fam, ai, b, m):
-    """The error lookup's row of an observation (family ``fam``, scan line ``ai``, distance
-    bin ``b``) at table heading m in the layout of ``p`` (MinPooled): LutTables.lookup_rows
-    for one observation."""
+    """The min-pooled lookup's row of an observation (family ``fam``, scan line ``ai``,
+    distance bin ``b``) at table heading m in the layout of ``p`` (MinPooled):
+    LutTables.coarse_rows for one observation."""
     k = (ai + m) % p.n_angles
     if fam == 0:
-        return k * p.nb_radial + min(b, p.nb_radial - 1)
-    return p.spiral_row0 + ((fam - 1) * p.n_angles + k) * p.nb_spiral + min(b, p.nb_spiral - 1)
+        return k * p.rows_radial + min(b, p.nb_radial - 1) // p.bin_pool
+    return (p.spiral_row0 + ((fam - 1) * p.n_angles + k) * p.rows_spiral
+            + min(b, p.nb_spiral - 1) // p.bin_pool)
 
 
 @njit(cache=True, nogil=True)

@@ -15,9 +15,10 @@ the entry is the least of its crossings' values, the nearest crossing's, as the 
 with the error). The same float32 operations as the stored lookup's build, so the same
 entries to the bit (tests/test_lut_layout.py holds them to that build in numpy). What is
 stored, and mapped from the cache beside the map (stages.localize.lookup_cache), is the
-tables (25 MB) and the lookup min-pooled on every ``coarse_step``-th cell (41 MB with lut's
-coarse_step 3; tiled in 8 x 8 blocks, ``lut_kernels.TILE``): each coarse entry the least of
-the fine entries within coarse_step // 2 of it, so a coarse sum bounds the fine sums of the
+tables (25 MB) and the lookup min-pooled on every ``coarse_step``-th cell and over pairs of
+distance bins (20 MB with lut's coarse_step 3; tiled in 8 x 8 blocks, ``lut_kernels.TILE``):
+each coarse entry the least of the fine entries within coarse_step // 2 of it and of the
+``COARSE_BIN_POOL`` distance bins of its row, so a coarse sum bounds the fine sums of the
 cells it covers from below (the searches' branch and bound).
 
 The exact error. The quantised lookup only picks cells; poses are refined with the exact error
@@ -54,6 +55,14 @@ from .lut_kernels import (
     observation_predictions_cell,
 )
 from .lut_matching import MatchingParams, Observation, RadialTable
+
+# distance bins (of distance_bin, 5 cm) per row of the min-pooled lookup: a bound needs no
+# finer observed distance than the 10 cm of the cells it pools, and two bins per row halve the
+# lookup a process maps (41 -> 20 MB on msl-2015, its peak resident set 265 -> 246 MB). The
+# looser bound leaves a few more cells in play: a global search with 16 minima about 10 %
+# slower (docs/results.md, the table search's lookup); the picks of the branch and bound are
+# the same, the unknown-heading search (which ranks by this lookup) may swap ties
+COARSE_BIN_POOL = 2
 
 
 @dataclass(frozen=True)
@@ -126,19 +135,21 @@ class LutTables:
                                    np.float32(self.params.c * self.params.c))
         p = self.params
         step = max(1, p.coarse_step)
-        shapes = {"coarse": ((self.lookup_rows_total,
+        shapes = {"coarse": ((self.coarse_rows_total,
                               self.coarse_nty * self.coarse_ntx * TILE * TILE), np.uint8)}
         if cache:  # mapped from beside the map when it was built before (lookup_cache)
             arrays, self.lookup_source = lookup_cache.load_or_build(
                 map_file.path, "min-pooled error lookup",
                 {"c": p.c, "range_scale": p.range_scale, "distance_bin": p.distance_bin,
-                 "coarse_step": step}, shapes, self._build_coarse_lookup)
+                 "coarse_step": step, "bin_pool": COARSE_BIN_POOL}, shapes,
+                self._build_coarse_lookup)
         else:
             arrays, self.lookup_source = self._build_coarse_lookup(), "built, not cached"
         self.coarse_lookup = arrays["coarse"]  # tiled (module doc; with coarse_step 1 a copy)
         self.min_pooled = MinPooled(self.coarse_lookup, step, *self.coarse_shape,
                                     self.coarse_ntx, n, self.nb_radial, self.nb_spiral,
-                                    self.spiral_row0)
+                                    self.coarse_spiral_row0, COARSE_BIN_POOL,
+                                    self.coarse_rows_radial, self.coarse_rows_spiral)
 
     @property
     def radial_mm(self) -> np.ndarray:
@@ -165,8 +176,11 @@ class LutTables:
         self.nb_spiral = int(math.ceil(self.scanlines.spiral_end_radius / b)) + 1
         max_obs = n * MAX_CROSSINGS + 2 * n
         self.q_levels = int(np.iinfo(np.uint16).max // max_obs)
-        self.spiral_row0 = n * self.nb_radial
-        self.lookup_rows_total = n * self.nb_radial + 2 * n * self.nb_spiral
+        # the min-pooled lookup's rows: per scan line its bins, COARSE_BIN_POOL to a row
+        self.coarse_rows_radial = -(-self.nb_radial // COARSE_BIN_POOL)
+        self.coarse_rows_spiral = -(-self.nb_spiral // COARSE_BIN_POOL)
+        self.coarse_spiral_row0 = n * self.coarse_rows_radial
+        self.coarse_rows_total = n * self.coarse_rows_radial + 2 * n * self.coarse_rows_spiral
         step = max(1, self.params.coarse_step)  # the min-pooled lookup, tiled (module doc)
         self.coarse_shape = ((self.ny + step - 1) // step, (self.nx + step - 1) // step)
         self.coarse_nty = -(-self.coarse_shape[0] // TILE)
@@ -202,29 +216,34 @@ class LutTables:
         values_radial, values_spiral = values[:self.nb_radial], values[self.nb_radial:]
         step = max(1, self.params.coarse_step)
         cy, cx = self.coarse_shape
-        coarse = np.empty((self.lookup_rows_total, self.coarse_nty * self.coarse_ntx * TILE * TILE),
+        coarse = np.empty((self.coarse_rows_total, self.coarse_nty * self.coarse_ntx * TILE * TILE),
                           dtype=np.uint8)
         radial, spiral = self.radial_table, self.spiral_table
         for line in range(3 * self.n_angles):  # one scan line's rows at a time
             if line < self.n_angles:
-                r0, block = line * self.nb_radial, values_radial[:, radial[line]].min(axis=2)
+                r0 = line * self.coarse_rows_radial
+                block = values_radial[:, radial[line]].min(axis=2)
             else:
                 s = line - self.n_angles
-                r0, block = self.spiral_row0 + s * self.nb_spiral, values_spiral[:, spiral[s]]
+                r0 = self.coarse_spiral_row0 + s * self.coarse_rows_spiral
+                block = values_spiral[:, spiral[s]]
+            block = _bins_pooled(block, COARSE_BIN_POOL)
             pooled = _min_pooled(block.reshape(-1, self.ny, self.nx), step)[0]
             coarse[r0:r0 + len(block)] = _tiled(pooled.reshape(-1, cy, cx))
         return {"coarse": coarse}
 
-    def lookup_rows(self, obs: Observation, m: int) -> np.ndarray:
-        """Rows of the error lookup for the observations at table heading index ``m``."""
+    def lookup_rows(self, obs: Observation, m: int, pool: int = 1) -> np.ndarray:
+        """Rows of the error lookup for the observations at table heading index ``m`` (with
+        ``pool`` COARSE_BIN_POOL: of the min-pooled lookup, as ``lut_kernels.lookup_row``)."""
         k = (obs.angle_index + m) % self.n_angles
         b = self.params.distance_bin
         rad = obs.family == 0
-        bins_r = np.minimum(np.rint(obs.distance / b).astype(np.int64), self.nb_radial - 1)
-        bins_s = np.minimum(np.rint(obs.distance / b).astype(np.int64), self.nb_spiral - 1)
+        bins_r = np.minimum(np.rint(obs.distance / b).astype(np.int64), self.nb_radial - 1) // pool
+        bins_s = np.minimum(np.rint(obs.distance / b).astype(np.int64), self.nb_spiral - 1) // pool
+        rows_r, rows_s = -(-self.nb_radial // pool), -(-self.nb_spiral // pool)
         spiral_line = (obs.family - 1) * self.n_angles + k
-        return np.where(rad, k * self.nb_radial + bins_r,
-                        self.spiral_row0 + spiral_line * self.nb_spiral + bins_s)
+        return np.where(rad, k * rows_r + bins_r, self.n_angles * rows_r + spiral_line * rows_s
+                        + bins_s)
 
     # ------------------------------------------------------------------ exact error
     def exact_errors(self, obs: Observation, cells, ms) -> np.ndarray:
@@ -397,6 +416,15 @@ def _tiled(block: np.ndarray) -> np.ndarray:
     padded = np.zeros((rows, nty * TILE, ntx * TILE), dtype=block.dtype)
     padded[:, :ny, :nx] = block
     return padded.reshape(rows, nty, TILE, ntx, TILE).transpose(0, 1, 3, 2, 4).reshape(rows, -1)
+
+
+def _bins_pooled(block: np.ndarray, pool: int) -> np.ndarray:
+    """A scan line's lookup rows (distance bins, cells) with every ``pool`` consecutive bins
+    reduced to their least entry per cell (the last group holds the bins left)."""
+    n = -(-block.shape[0] // pool)
+    padded = np.full((n * pool,) + block.shape[1:], np.iinfo(block.dtype).max, block.dtype)
+    padded[:block.shape[0]] = block
+    return padded.reshape((n, pool) + block.shape[1:]).min(axis=1)
 
 
 def _min_pooled(lookup_3d: np.ndarray, step: int):
