@@ -18,6 +18,17 @@ LONG_RUN = 200
 QUOTED = 57
 
 
+def _caused_by_interrupt(e: BaseException | None) -> bool:
+    """Whether a KeyboardInterrupt is in the chain of causes of ``e``."""
+    seen = set()
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
+
+
 def _interrupted(ctx) -> None:
     """Say that the user interrupted the command, and exit 130 (128 + SIGINT, as a shell)."""
     click.echo("fieldloc: interrupted (finished files were kept; extract resumes where it"
@@ -121,9 +132,10 @@ class LazyGroup(click.Group):
                 raise
             _interrupted(ctx)
         except SystemError as e:
-            # Ctrl-C as a numba kernel returns: its dispatcher reports the KeyboardInterrupt
-            # raised then as a SystemError caused by it ("returned a result with an exception
-            # set"); that is an interrupt all the same
-            if debug or not isinstance(e.__cause__ or e.__context__, KeyboardInterrupt):
+            # Ctrl-C as a numba kernel returns or unpickles its constants: CPython reports the
+            # KeyboardInterrupt raised then as a SystemError caused by it ("returned a result
+            # with an exception set"), through as many such SystemErrors as calls return;
+            # that is an interrupt all the same
+            if debug or not _caused_by_interrupt(e):
                 raise
             _interrupted(ctx)
