@@ -170,6 +170,7 @@ class FeaturesFile:
     def __init__(self, path: str | Path):
         self.path = Path(path)
         self.h5 = open_artifact(self.path, SCHEMA, VERSION)
+        _small_metadata_cache(self.h5)
         try:
             frames = self._frames = self.h5.get("frames")
             self.names = sorted(frames.keys()) if frames is not None else []
@@ -268,6 +269,23 @@ class FeaturesFile:
 
     def __exit__(self, *exc):
         self.close()
+
+
+# HDF5's metadata cache of a features file being read (bytes). A reader visits each frame's
+# group and datasets about once, in order, so a cache of a few frames' object headers serves it
+# as well as HDF5's default of 2 MB (about 10,000 entries, which take 30-45 MB of memory once
+# a long recording's frames have passed through it: a lut process's resident set grew by 20 kB
+# a frame). Reading is no slower with it (0.55-0.69 against 0.60-0.71 ms a frame).
+READ_CACHE_BYTES = 256 << 10
+
+
+def _small_metadata_cache(h5: h5py.File) -> None:
+    """Hold the metadata cache of the open file ``h5`` to READ_CACHE_BYTES."""
+    cfg = h5.id.get_mdc_config()
+    cfg.set_initial_size = True
+    cfg.initial_size = cfg.max_size = READ_CACHE_BYTES
+    cfg.min_size = READ_CACHE_BYTES // 2
+    h5.id.set_mdc_config(cfg)
 
 
 # ---------------------------------------------------------------------------- resume parts
