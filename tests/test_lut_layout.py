@@ -237,7 +237,7 @@ def test_window_sums_are_the_sums_of_the_observations_rows(search, reference):
         cy, cx = s.coarse_shape
         out = np.empty((cy, cx), np.uint16)
         tiled_sum(s.min_pooled, s.tables.observed(obs), m, (0, cy, 0, cx), out)
-        rows = s.lookup_rows(obs, m, COARSE_BIN_POOL)
+        rows = s.lookup_rows(obs, m, coarse=True)
         # exact integers: uint8 / uint16 values and their integer sums
         assert np.array_equal(out, pooled[rows].astype(np.int64).sum(axis=0))
 

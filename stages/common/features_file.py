@@ -86,6 +86,13 @@ _DCPL = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
 _DCPL.set_obj_track_times(False)
 
 
+def _check_datasets(arrays: dict) -> None:
+    """A KeyError naming the first of ``arrays``' keys that is no dataset of the schema."""
+    for key in arrays:
+        if key not in FRAME_DATASETS:
+            raise KeyError(f"features schema has no dataset '{key}'")
+
+
 def _scalar_attr(obj_id, name: bytes, value: np.ndarray) -> None:
     """A scalar attribute ``name`` of the HDF5 object ``obj_id`` holding ``value`` (0-d), of
     the type h5py's ``attrs[name] = value`` gives it (a str: variable-length UTF-8)."""
@@ -112,9 +119,7 @@ class FeaturesWriter:
         written through h5py's low-level calls (what its high-level objects write, with the
         same types and properties, in about half the time: 0.5 of 1 ms a frame, as much as
         extracting an omni frame)."""
-        for key in arrays:
-            if key not in FRAME_DATASETS:
-                raise KeyError(f"features schema has no dataset '{key}'")
+        _check_datasets(arrays)
         if name in self.frames:
             del self.frames[name]
         g = self.frames.create_group(name)
@@ -403,9 +408,7 @@ class FrameParts:
     def add_frame(self, name: str, stamp: float, arrays: dict[str, np.ndarray]) -> None:
         """Take one finished frame; it is committed with the others of its chunk
         (CHUNK_SECONDS, CHUNK_FRAMES), or by flush()."""
-        for key in arrays:
-            if key not in FRAME_DATASETS:
-                raise KeyError(f"features schema has no dataset '{key}'")
+        _check_datasets(arrays)
         if not self._pending:
             self._since = time.monotonic()
         self._pending.append((name, float(stamp), arrays))

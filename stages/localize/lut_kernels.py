@@ -367,7 +367,7 @@ def refine_moves(q, obs, at, grid, i, j, max_moves, out):
 def lookup_row(p, fam, ai, b, m):
     """The min-pooled lookup's row of an observation (family ``fam``, scan line ``ai``,
     distance bin ``b``) at table heading m in the layout of ``p`` (MinPooled):
-    LutTables.coarse_rows for one observation."""
+    LutTables.lookup_rows(..., coarse=True) for one observation."""
     k = (ai + m) % p.n_angles
     if fam == 0:
         return k * p.rows_radial + min(b, p.nb_radial - 1) // p.bin_pool

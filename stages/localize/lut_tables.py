@@ -232,18 +232,19 @@ class LutTables:
             coarse[r0:r0 + len(block)] = _tiled(pooled.reshape(-1, cy, cx))
         return {"coarse": coarse}
 
-    def lookup_rows(self, obs: Observation, m: int, pool: int = 1) -> np.ndarray:
+    def lookup_rows(self, obs: Observation, m: int, *, coarse: bool = False) -> np.ndarray:
         """Rows of the error lookup for the observations at table heading index ``m`` (with
-        ``pool`` COARSE_BIN_POOL: of the min-pooled lookup, as ``lut_kernels.lookup_row``)."""
+        ``coarse``: of the min-pooled lookup, as ``lut_kernels.lookup_row`` reads it)."""
+        pool = COARSE_BIN_POOL if coarse else 1
+        rows_r, rows_s = ((self.coarse_rows_radial, self.coarse_rows_spiral) if coarse
+                          else (self.nb_radial, self.nb_spiral))
         k = (obs.angle_index + m) % self.n_angles
-        b = self.params.distance_bin
-        rad = obs.family == 0
-        bins_r = np.minimum(np.rint(obs.distance / b).astype(np.int64), self.nb_radial - 1) // pool
-        bins_s = np.minimum(np.rint(obs.distance / b).astype(np.int64), self.nb_spiral - 1) // pool
-        rows_r, rows_s = -(-self.nb_radial // pool), -(-self.nb_spiral // pool)
+        bins = np.rint(obs.distance / self.params.distance_bin).astype(np.int64)
+        bins_r = np.minimum(bins, self.nb_radial - 1) // pool
+        bins_s = np.minimum(bins, self.nb_spiral - 1) // pool
         spiral_line = (obs.family - 1) * self.n_angles + k
-        return np.where(rad, k * rows_r + bins_r, self.n_angles * rows_r + spiral_line * rows_s
-                        + bins_s)
+        return np.where(obs.family == 0, k * rows_r + bins_r,
+                        self.n_angles * rows_r + spiral_line * rows_s + bins_s)
 
     # ------------------------------------------------------------------ exact error
     def exact_errors(self, obs: Observation, cells, ms) -> np.ndarray:
