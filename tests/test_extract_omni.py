@@ -364,14 +364,15 @@ def test_show_points_png(tmp_path):
     assert "100% within 15 cm" in r.output  # ... and from (-0.7, 0) it is the halfway line
 
 
-def test_features_h5_is_hdf5_with_frames_groups(tmp_path):
-    ds = make_dataset(tmp_path / "ds", n=1)
+def test_features_h5_holds_the_frames_as_columns_with_units(tmp_path):
+    ds = make_dataset(tmp_path / "ds", n=2)
     out = extract.main(None, ds, tmp_path / "f.h5")
     with h5py.File(out, "r") as h:
-        g = h["frames/000"]
-        assert g["radial"].attrs["units"] == "m"
-        assert g["points_px"].attrs["units"] == "px"
-        assert "stamp" in g.attrs
+        assert [n.decode() for n in h["index/name"][()]] == ["000", "001"]
+        assert h["index/stamp"].shape == (2,)
+        assert list(h["rows/radial"][()]) == [72, 72] and h["data/radial"].shape == (144, 4)
+        assert h["data/radial"].attrs["units"] == "m"
+        assert h["data/points_px"].attrs["units"] == "px"
 
 
 # ---------------------------------------------------------------------------- rendered frames

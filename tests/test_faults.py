@@ -395,18 +395,35 @@ def _flat_hypotheses(f):
 
 
 def _setup_features_edit(change):
+    """The shared features file with ``change(f, i)`` made to it: ``f`` the open file, ``i``
+    the stored position of its second frame by name."""
     def setup(w, ws):
         shutil.copyfile(w["features"], ws / "f.h5")
         with h5py.File(ws / "f.h5", "a") as f:
-            change(f, f["frames"][sorted(f["frames"])[1]])
+            names = [n.decode() for n in f["index/name"][()]]
+            change(f, names.index(sorted(names)[1]))
         return {}
     return setup
 
 
-def _cut_radial(f, g):
-    r = g["radial"][()]
-    del g["radial"]
-    g["radial"] = r[:, :3]
+def _set_column(f, key, data, rows):
+    for part, value in ((f"data/{key}", data), (f"rows/{key}", rows)):
+        del f[part]
+        f[part] = value
+
+
+def _drop_radial(f, i):
+    """Frame ``i`` without its radial dataset (its rows gone, its count -1)."""
+    rows = f["rows/radial"][()]
+    start = np.concatenate([[0], np.cumsum(np.maximum(rows, 0))])
+    data = np.delete(f["data/radial"][()], np.s_[start[i]:start[i + 1]], axis=0)
+    rows[i] = -1
+    _set_column(f, "radial", data, rows)
+
+
+def _cut_radial(f, i):
+    """Every frame's radial (72, 3): the last crossing of each scan line gone."""
+    _set_column(f, "radial", f["data/radial"][:, :3], f["rows/radial"][()])
 
 
 def _setup_nan_segments(w, ws):
@@ -914,14 +931,14 @@ CASES = [
     Case("a features frame without its radial dataset", "silent",
          [*LOCALIZE[:5], W + "/f.h5", "-o", W + "/p.h5"], 1,
          "damaged features file (frame 000001 has no 'radial' dataset)",
-         setup=_setup_features_edit(lambda f, g: g.__delitem__("radial"))),
+         setup=_setup_features_edit(_drop_radial)),
     Case("a features frame whose radial is (72, 3)", "silent",
          [*LOCALIZE[:5], W + "/f.h5", "-o", W + "/p.h5"], 1,
          "'radial' has shape (72, 3), expected (72, 4)", setup=_setup_features_edit(_cut_radial)),
     Case("features of camera_kind fisheye", "silent",
          [*LOCALIZE[:5], W + "/f.h5", "-o", W + "/p.h5"], 1,
          "camera_kind 'fisheye' is not one of omni, perspective",
-         setup=_setup_features_edit(lambda f, g: f.attrs.__setitem__("camera_kind", "fisheye"))),
+         setup=_setup_features_edit(lambda f, i: f.attrs.__setitem__("camera_kind", "fisheye"))),
     Case("show map of a map whose segments are NaN", "silent",
          ["show", "map", W + "/nan.map.h5", "-o", W + "/m.png"], 1,
          "/field/segments holds values that are not finite", setup=_setup_nan_segments),

@@ -17,7 +17,7 @@ dict of overrides on the kind's default preset (``resolve_extract_conf``):
   ``height``, ``x``, ``y`` where recorded) from DIR/head.csv (nearest stamp within
   ``HEAD_STAMP_TOLERANCE``) when that file exists.
 
-One group per frame, named by the image's file stem. Frames already in the output are skipped
+One frame per image, named by the image's file stem. Frames already in the output are skipped
 (resume) unless ``overwrite``; a frame that cannot be read or processed is logged, recorded in
 the file's ``failures`` and skipped. If no frame at all can be extracted (images of another
 size than calib.yaml says, every image unreadable), that is an error and nothing is written.
