@@ -315,6 +315,25 @@ def test_converges_from_uniform_up_to_symmetry(kidsize, model):
     assert all("mirror-ambiguous" in f for f in flags[40:])
 
 
+@settings(max_examples=10, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.sampled_from(["any", "left", "right"]))
+def test_a_placement_stands_on_its_touch_line_or_inside_it(kidsize, seed, side):
+    """A placed robot stands on the line or inside the field, never beyond the line: its
+    distance inside is half-normal with init_spread[0]'s scale (mean sqrt(2 / pi) of it;
+    4000 draws hold the mean within 4 standard errors), facing into the field."""
+    conf = dict(copy.deepcopy(mcl.confs["default"]), start_side=side)
+    p = mcl_start.placement_poses(4000, np.random.default_rng(seed), kidsize, conf)
+    inset = 0.5 * kidsize.width - np.abs(p[:, 1])
+    assert inset.min() >= 0.0 and np.all(p[:, 0] <= 0.0)
+    scale = conf["init_spread"][0]
+    assert abs(inset.mean() - scale * math.sqrt(2 / math.pi)) < 4 * scale * 0.6 / math.sqrt(4000)
+    if side != "any":  # the named line (y > 0 is left) holds all but START_SIDE_ERROR of them
+        sign = 1.0 if side == "left" else -1.0
+        assert np.mean(np.sign(p[:, 1]) == sign) > 0.99
+        facing = -sign * math.pi / 2
+        assert np.median(np.abs(np.angle(np.exp(1j * (p[:, 2] - facing))))) < 0.2
+
+
 def test_placement_start_is_not_mirror_ambiguous(kidsize, model):
     conf = copy.deepcopy(mcl.confs["default"])
     _poses, _truth, flags = _run_walk(kidsize, model, conf, n=60, seed=5)

@@ -134,6 +134,20 @@ def test_placement_prior_prefers_the_own_half(kidsize):
     assert mcl_smoothing.start_prior(dict(conf, init="uniform"), kidsize) is None
 
 
+def test_placement_prior_is_on_the_line_or_inside_it(kidsize):
+    """As the causal start draws it: inside the touch line by d costs d^2 / (2 spread^2);
+    beyond it, as beyond the stretch's ends (PLACEMENT_EDGE), on either touch line."""
+    conf = copy.deepcopy(mcl.confs["default"])
+    prior = mcl_smoothing.start_prior(conf, kidsize)
+    d, scale, edge = 0.2, conf["init_spread"][0], mcl_smoothing.PLACEMENT_EDGE
+    poses = np.stack([kidsize.touchline_pose(-1.5, side, inset=inset)
+                      for side in (1.0, -1.0) for inset in (0.0, d, -d)])
+    cands = FrameCandidates(poses, np.zeros(6), np.tile(np.eye(3), (6, 1, 1)), np.zeros(6))
+    lp = prior(cands)
+    want = [0.0, -0.5 * (d / scale) ** 2, -0.5 * (d / edge) ** 2]
+    np.testing.assert_allclose(lp, want * 2, rtol=1e-9, atol=1e-12)
+
+
 @pytest.mark.parametrize("key,value", [("smooth", "yes"), ("smooth", 1)])
 def test_smooth_keys_are_checked(key, value):
     conf = copy.deepcopy(mcl.confs["default"])

@@ -118,7 +118,8 @@ _DEFAULT = {
     # place, so a team that knows the side its robot enters from says so
     "start_side": "any",
     "init_spread": [0.3, 0.3, 0.2],  # m, m, rad: sigma around init_pose; placement uses the
-    # first as the spread across the touch line and the last for the heading
+    # first as the scale of how far inside the touch line the robot stands (half-normal: on
+    # the line or inside it, never beyond) and the last for the heading
     "particles_min": 250,
     "particles_max": 1000,
     "min_confidence": 0.8,  # a frame is accepted when its best cluster holds this share (a

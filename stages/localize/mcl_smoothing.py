@@ -250,8 +250,9 @@ def start_prior(conf: dict, field_model):
     stretch of the touch lines (the own half, from the centre line to the goal line at x =
     -length / 2, or the opponent half for ``start_half`` opponent; beyond it by d, -d^2 / (2
     ``PLACEMENT_EDGE``^2)), at either touch line (``start_side``'s, the other at
-    ``START_SIDE_ERROR``) facing into the field, with the
-    placement's spread across the line and in heading (``init_spread``); ``pose``, a Gaussian
+    ``START_SIDE_ERROR``) facing into the field, inside the line by the placement's
+    half-normal spread (``init_spread``; outside it as beyond the stretch's ends) and turned
+    by its spread in heading; ``pose``, a Gaussian
     of ``init_spread`` around ``init_pose``; ``uniform``, the half ``start_half`` names (none
     for any)."""
     init = conf["init"]
@@ -263,7 +264,8 @@ def start_prior(conf: dict, field_model):
             named = START_SIDES[conf.get("start_side", "any")]
             for side in (1.0, -1.0):
                 at = field_model.touchline_pose(p[:, 0], side)
-                across = (p[:, 1] - at[:, 1]) / spread[0]
+                inset = side * (at[:, 1] - p[:, 1])  # inside the line: > 0
+                across = np.where(inset >= 0.0, inset / spread[0], inset / PLACEMENT_EDGE)
                 turn = wrap_angle(p[:, 2] - at[:, 2]) / spread[2]
                 # the touch line start_side names, the other at START_SIDE_ERROR
                 odds = 0.0 if named in (0.0, side) else math.log(START_SIDE_ERROR)

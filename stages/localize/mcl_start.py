@@ -178,13 +178,15 @@ def placement_sides(n: int, rng, conf: dict) -> np.ndarray:
 
 def placement_poses(n: int, rng, field, conf: dict) -> np.ndarray:
     """``n`` poses on the start's half (``start_half``; own, x < 0, for any), at the touch line
-    ``start_side`` names (either for any), facing into the field."""
+    ``start_side`` names (either for any), facing into the field: a placed robot stands on
+    the line or inside it, never beyond it, so its centre lies inside the line by a
+    half-normal distance of ``init_spread[0]``'s scale (mean 0.8 of it)."""
     s_across, s_heading = float(conf["init_spread"][0]), float(conf["init_spread"][2])
     side = placement_sides(n, rng, conf)
     x = -placement_sign(conf) * rng.uniform(-field.length / 2, 0.0, n)
-    across = rng.standard_normal(n) * s_across  # beyond the line is outwards
+    inset = np.abs(rng.standard_normal(n)) * s_across
     turn = rng.standard_normal(n) * s_heading
-    p = field.touchline_pose(x, side, inset=-across)
+    p = field.touchline_pose(x, side, inset=inset)
     p[:, 2] = wrap_angle(p[:, 2] + turn)
     return p
 
