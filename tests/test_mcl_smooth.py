@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from stages.common.errors import FieldlocError
 from stages.common.field import load_field
 from stages.common.observations import Observations
-from stages.localize import mcl, mcl_smoothing
+from stages.localize import mcl, mcl_smoothing, mcl_start
 from stages.localize.observation_model import ObservationModel
 from stages.localize.smooth import FrameCandidates
 from stages.simulate.synthetic_observations import synthetic_observations
@@ -139,7 +139,7 @@ def test_placement_prior_is_on_the_line_or_inside_it(kidsize):
     beyond it, as beyond the stretch's ends (PLACEMENT_EDGE), on either touch line."""
     conf = copy.deepcopy(mcl.confs["default"])
     prior = mcl_smoothing.start_prior(conf, kidsize)
-    d, scale, edge = 0.2, conf["init_spread"][0], mcl_smoothing.PLACEMENT_EDGE
+    d, scale, edge = 0.2, conf["init_spread"][0], mcl_start.PLACEMENT_EDGE
     poses = np.stack([kidsize.touchline_pose(-1.5, side, inset=inset)
                       for side in (1.0, -1.0) for inset in (0.0, d, -d)])
     cands = FrameCandidates(poses, np.zeros(6), np.tile(np.eye(3), (6, 1, 1)), np.zeros(6))

@@ -26,7 +26,7 @@ import numpy as np
 from ..common.geometry import wrap_angle
 from . import motion_model, place_search, smooth
 from .heading import heading_log_likelihood
-from .mcl_start import START_SIDE_ERROR, START_SIDES, placement_sign
+from .mcl_start import placement_log_density
 from .observation_model import ObservationModel
 from .smooth import FrameCandidates
 
@@ -48,10 +48,6 @@ FIT_ANCHOR = (0.1, 0.1, 0.05)
 # (1 cm, 0.5 deg: the fit's resolution) where it says much
 COV_PRIOR = (3.0, 3.0, 1.0)
 COV_FLOOR = (0.01, 0.01, math.radians(0.5))
-# m: the soft edge of a placement's own half in the smoother's start prior (the causal
-# placement draws x <= 0 only; a candidate fitted a few centimetres past the centre line is
-# still one of its poses)
-PLACEMENT_EDGE = 0.1
 
 
 def _stencil():
@@ -246,35 +242,13 @@ def motion_of(increments: np.ndarray, stamps: np.ndarray, has_odometry: bool,
 
 def start_prior(conf: dict, field_model):
     """The log prior over the smoother's first candidates that the causal run's initial
-    belief states (mcl_start.initial_poses), or None: ``placement``, on its half's
-    stretch of the touch lines (the own half, from the centre line to the goal line at x =
-    -length / 2, or the opponent half for ``start_half`` opponent; beyond it by d, -d^2 / (2
-    ``PLACEMENT_EDGE``^2)), at either touch line (``start_side``'s, the other at
-    ``START_SIDE_ERROR``) facing into the field, inside the line by the placement's
-    half-normal spread (``init_spread``; outside it as beyond the stretch's ends) and turned
-    by its spread in heading; ``pose``, a Gaussian
-    of ``init_spread`` around ``init_pose``; ``uniform``, the half ``start_half`` names (none
-    for any)."""
+    belief states (mcl_start.initial_poses), or None: ``placement``, the placement's density
+    (mcl_start.placement_log_density); ``pose``, a Gaussian of ``init_spread`` around
+    ``init_pose``; ``uniform``, the half ``start_half`` names (none for any)."""
     init = conf["init"]
     spread = np.asarray(conf["init_spread"], float)
     if init == "placement":
-        def prior(cands: FrameCandidates) -> np.ndarray:
-            p = cands.poses
-            best = np.full(len(p), -np.inf)
-            named = START_SIDES[conf.get("start_side", "any")]
-            for side in (1.0, -1.0):
-                at = field_model.touchline_pose(p[:, 0], side)
-                inset = side * (at[:, 1] - p[:, 1])  # inside the line: > 0
-                across = np.where(inset >= 0.0, inset / spread[0], inset / PLACEMENT_EDGE)
-                turn = wrap_angle(p[:, 2] - at[:, 2]) / spread[2]
-                # the touch line start_side names, the other at START_SIDE_ERROR
-                odds = 0.0 if named in (0.0, side) else math.log(START_SIDE_ERROR)
-                best = np.maximum(best, odds - 0.5 * (across ** 2 + turn ** 2))
-            # the placement's stretch of the touch line: the centre line to the goal line
-            along = placement_sign(conf) * p[:, 0]
-            beyond = np.maximum(-along, 0.0) + np.maximum(along - 0.5 * field_model.length, 0.0)
-            return best - 0.5 * (beyond / PLACEMENT_EDGE) ** 2
-        return prior
+        return lambda cands: placement_log_density(cands.poses, field_model, conf)
     if init == "pose" and conf["init_pose"] is not None:
         centre = np.asarray(conf["init_pose"], float)
 

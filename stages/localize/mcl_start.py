@@ -5,9 +5,9 @@ Three starts (the conf's ``init``):
 
 - ``placement`` (the default): as robots enter a game, on the own half (the opponent's with
   ``start_half: opponent``) at either touch line (the one ``start_side`` names), facing into
-  the field, with the spread
-  ``init_spread`` across the line and in heading. It breaks the field's 180 deg symmetry,
-  which no observation can;
+  the field, on the line or inside it by a half-normal of ``init_spread``'s first value and
+  turned by its last (``placement_poses`` draws it, ``placement_log_density`` is its density
+  for the smoother). It breaks the field's 180 deg symmetry, which no observation can;
 - ``pose``: a Gaussian of ``init_spread`` around ``init_pose``;
 - ``uniform``: anywhere in the world (the field and its margin), or on the half ``start_half``
   names (``start_half_error`` of the particles on the other). On a point-symmetric field with
@@ -82,6 +82,10 @@ START_SIDES = MappingProxyType({"any": 0.0, "left": 1.0, "right": -1.0})
 # at the other touch line (as start_half_error's default: a slip of the user's, not a prior
 # that decides against the frames)
 START_SIDE_ERROR = 1e-3
+# m: the soft edges of a placement in its density (placement_log_density): past the ends of
+# its half's stretch of the touch line, or beyond the line. The draw puts no pose there, but a
+# pose fitted a few centimetres past an edge is still one of the placement's
+PLACEMENT_EDGE = 0.1
 
 
 def is_paired(mode: str, conf: dict, symmetric: bool, imu_heading: bool) -> bool:
@@ -189,6 +193,28 @@ def placement_poses(n: int, rng, field, conf: dict) -> np.ndarray:
     p = field.touchline_pose(x, side, inset=inset)
     p[:, 2] = wrap_angle(p[:, 2] + turn)
     return p
+
+
+def placement_log_density(p: np.ndarray, field, conf: dict) -> np.ndarray:
+    """The log density (up to a constant) of the poses ``p`` (N, 3) under the placement that
+    placement_poses draws: on its half's stretch of the touch lines (the centre line to the
+    goal line; beyond either end by d, -d^2 / (2 ``PLACEMENT_EDGE``^2)), at either touch line
+    (``start_side``'s, the other at ``START_SIDE_ERROR``) facing into the field, inside the
+    line by the half-normal of ``init_spread[0]`` (beyond it as beyond the stretch's ends) and
+    turned by ``init_spread[2]``."""
+    spread = np.asarray(conf["init_spread"], float)
+    best = np.full(len(p), -np.inf)
+    named = START_SIDES[conf.get("start_side", "any")]
+    for side in (1.0, -1.0):
+        at = field.touchline_pose(p[:, 0], side)
+        inset = side * (at[:, 1] - p[:, 1])  # inside the line: > 0
+        across = np.where(inset >= 0.0, inset / spread[0], inset / PLACEMENT_EDGE)
+        turn = wrap_angle(p[:, 2] - at[:, 2]) / spread[2]
+        odds = 0.0 if named in (0.0, side) else math.log(START_SIDE_ERROR)
+        best = np.maximum(best, odds - 0.5 * (across ** 2 + turn ** 2))
+    along = placement_sign(conf) * p[:, 0]
+    beyond = np.maximum(-along, 0.0) + np.maximum(along - 0.5 * field.length, 0.0)
+    return best - 0.5 * (beyond / PLACEMENT_EDGE) ** 2
 
 
 def search_bounds(bounds: tuple, half: str, paired: bool) -> tuple:
