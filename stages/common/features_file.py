@@ -107,6 +107,12 @@ def _check_datasets(arrays: dict) -> None:
             raise KeyError(f"features schema has no dataset '{key}'")
 
 
+def _frame_rows(arrays: dict) -> dict[str, np.ndarray]:
+    """A frame's ``arrays`` checked against the schema (_check_datasets) and as rows."""
+    _check_datasets(arrays)
+    return {k: _as_rows(k, v) for k, v in arrays.items()}
+
+
 def _as_rows(key: str, value) -> np.ndarray:
     """``value`` as rows of column ``key``: 2-D, contiguous, in the schema's dtype (an empty
     array of any shape is no rows)."""
@@ -117,6 +123,23 @@ def _as_rows(key: str, value) -> np.ndarray:
     if data.size == 0 and key in TRAILING:
         return np.zeros((0, *TRAILING[key]), dtype)
     raise ValueError(f"features dataset '{key}' of a frame must be 2-D, got shape {data.shape}")
+
+
+def _columns(frames: list[dict[str, np.ndarray]], keys) -> dict[str, tuple]:
+    """Per key of ``keys``, the frames' rows (``_as_rows``) as one column: (their rows one
+    after the other, or None where no frame has the key; each frame's row count, -1 where it
+    has none). The layout of the file's columns and of FrameParts' chunks."""
+    out = {}
+    for key in keys:
+        rows = np.array([len(a[key]) if key in a else -1 for a in frames], np.int64)
+        parts = [a[key] for a in frames if key in a]
+        out[key] = (np.concatenate(parts) if parts else None, rows)
+    return out
+
+
+def _starts(rows: np.ndarray) -> np.ndarray:
+    """Where each frame's rows start in its column, and (last) the column's length."""
+    return np.concatenate([[0], np.cumsum(np.maximum(rows, 0), dtype=np.int64)])
 
 
 def _append(h5: h5py.File, path: str, data: np.ndarray, units: str | None = None) -> None:
@@ -167,8 +190,7 @@ class FeaturesWriter:
         """Frame ``name``: its ``stamp`` and each of ``arrays`` (the schema's datasets, 2-D)
         as its rows of that column; written with the next block. A name added again replaces
         the frame (its last rows are the ones read)."""
-        _check_datasets(arrays)
-        self._pending.append((name, float(stamp), {k: _as_rows(k, v) for k, v in arrays.items()}))
+        self._pending.append((name, float(stamp), _frame_rows(arrays)))
         self._names.add(name)
         if len(self._pending) >= BLOCK_FRAMES:
             self._flush()
@@ -182,15 +204,14 @@ class FeaturesWriter:
                                                 dtype=h5py.string_dtype()))
         _append(self.h5, "index/stamp", np.array([s for _n, s, _a in pending], np.float64))
         keys = set(self.h5["rows"]) if "rows" in self.h5 else set()
-        for key in sorted(keys | {k for _n, _s, a in pending for k in a}):
-            rows = np.array([len(a[key]) if key in a else -1 for _n, _s, a in pending], np.int64)
+        columns = _columns([a for _n, _s, a in pending],
+                           sorted(keys | {k for _n, _s, a in pending for k in a}))
+        for key, (data, rows) in columns.items():
             if key not in keys:  # the first frames that hold it: the stored ones do not
                 rows = np.concatenate([np.full(stored, -1, np.int64), rows])
             _append(self.h5, f"rows/{key}", rows)
-            parts = [a[key] for _n, _s, a in pending if key in a]
-            if parts:
-                _append(self.h5, f"data/{key}", np.concatenate(parts),
-                        units=FRAME_DATASETS[key][0])
+            if data is not None:
+                _append(self.h5, f"data/{key}", data, units=FRAME_DATASETS[key][0])
 
     def add_failure(self, name: str, reason: str):
         self._failures = [f for f in self._failures if not f.startswith(f"{name}:")]
@@ -242,7 +263,7 @@ class _Columns:
             rows = np.asarray(rows_g[key][()])
             if rows.shape != (n,) or rows.dtype.kind not in "iu" or (rows < -1).any():
                 raise ValueError(f"rows/{key} does not give one row count per frame")
-            start = np.concatenate([[0], np.cumsum(np.maximum(rows, 0), dtype=np.int64)])
+            start = _starts(rows)
             data = h5["data"][key]
             if data.ndim < 1 or data.shape[0] != start[-1]:
                 raise ValueError(f"data/{key} holds {data.shape[0] if data.ndim else 0} rows,"
@@ -415,9 +436,9 @@ def _small_metadata_cache(h5: h5py.File) -> None:
 
 RUN_KEYS = ("camera_kind", "calib_hash", "mask_hash", "conf", "scanlines")  # what frames depend on
 # The parts' layout, in run.json beside RUN_KEYS: a folder of another layout (one file per
-# frame, format 1; one entry per frame and dataset, format 2) is discarded like one of other
-# inputs.
-PARTS_FORMAT = 3
+# frame, format 1; one entry per frame and dataset, format 2; each frame's shape, format 3) is
+# discarded like one of other inputs.
+PARTS_FORMAT = 4
 # Finished frames are committed together at most this often (s): a commit (a temporary file,
 # written and renamed) costs about 1-1.7 ms, as much as extracting an omni frame, so committing
 # every frame spent a fifth of extract's time on it; a run killed by kill -9 loses at most this
@@ -429,11 +450,11 @@ CHUNK_FRAMES = 256
 class FrameParts:
     """Frames of an unfinished extraction, committed in chunks of at most CHUNK_SECONDS (see the
     module doc): ``<first frame>+<count>.npz`` holds the chunk's ``names``, ``stamps`` and, per
-    dataset, its frames' arrays in the schema's dtype one after the other, flat
-    (``<dataset>:data``), with each frame's shape (``<dataset>:shape``, a row per frame: the
-    number of dimensions, -1 where the frame has no such dataset, then the sizes); a failed
-    frame is ``<name>.failed``. A few entries per chunk, not one per frame and dataset: zip
-    entries cost about 0.1 ms each to write and read, as much as an omni frame's features.
+    dataset, its frames as the file's columns hold them (``_columns``: ``<dataset>:data`` the
+    rows one after the other, ``<dataset>:rows`` each frame's row count, -1 where it has no
+    such dataset); a failed frame is ``<name>.failed``. A few entries per chunk, not one per
+    frame and dataset: zip entries cost about 0.1 ms each to write and read, as much as an omni
+    frame's features.
 
     ``attrs``: the run's root attributes; frames in an existing parts folder are taken over only
     if its ``run.json`` has the same values under RUN_KEYS and PARTS_FORMAT."""
@@ -526,10 +547,10 @@ class FrameParts:
     def add_frame(self, name: str, stamp: float, arrays: dict[str, np.ndarray]) -> None:
         """Take one finished frame; it is committed with the others of its chunk
         (CHUNK_SECONDS, CHUNK_FRAMES), or by flush()."""
-        _check_datasets(arrays)
+        rows = _frame_rows(arrays)
         if not self._pending:
             self._since = time.monotonic()
-        self._pending.append((name, float(stamp), arrays))
+        self._pending.append((name, float(stamp), rows))
         if (len(self._pending) >= CHUNK_FRAMES
                 or time.monotonic() - self._since >= CHUNK_SECONDS):
             self.flush()
@@ -611,20 +632,10 @@ class FrameParts:
 
 
 def _packed(frames: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
-    """The arrays of ``frames`` as FrameParts stores a chunk: per dataset its frames' arrays
-    in the schema's dtype, flat, one after the other, and their shapes."""
+    """The arrays of ``frames`` (their rows, ``_as_rows``) as FrameParts stores a chunk."""
     out = {}
-    for key in sorted({k for arrays in frames for k in arrays}):
-        values = [None if key not in a else np.asarray(a[key], FRAME_DATASETS[key][1])
-                  for a in frames]
-        ndim = max(v.ndim for v in values if v is not None)
-        shape = np.zeros((len(values), 1 + ndim), np.int64)
-        shape[:, 0] = [-1 if v is None else v.ndim for v in values]
-        for i, v in enumerate(values):
-            if v is not None:
-                shape[i, 1:1 + v.ndim] = v.shape
-        out[f"{key}:data"] = np.concatenate([v.ravel() for v in values if v is not None])
-        out[f"{key}:shape"] = shape
+    for key, (data, rows) in _columns(frames, sorted({k for a in frames for k in a})).items():
+        out[f"{key}:data"], out[f"{key}:rows"] = data, rows
     return out
 
 
@@ -635,14 +646,10 @@ def _unpacked(z, n: int) -> list[dict[str, np.ndarray]]:
         key, _sep, part = entry.partition(":")
         if part != "data":
             continue
-        data, shape, start = z[entry], z[f"{key}:shape"], 0
-        for i, row in enumerate(shape):
-            if row[0] < 0:
-                continue
-            dims = tuple(int(d) for d in row[1:1 + row[0]])
-            size = int(np.prod(dims, dtype=np.int64))
-            frames[i][key] = data[start:start + size].reshape(dims)
-            start += size
+        data, rows = z[entry], z[f"{key}:rows"]
+        for i, start in enumerate(_starts(rows)[:-1]):
+            if rows[i] >= 0:
+                frames[i][key] = data[start:start + rows[i]]
     return frames
 
 
