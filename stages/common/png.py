@@ -118,20 +118,25 @@ def unfilter_rows(raw, channels, out):
     stride = w * channels
     prev = np.zeros(stride, np.uint8)  # the row above, unfiltered, in the file's order
     cur = np.zeros(stride, np.uint8)
+    above_in_out = False  # the row above was written to ``out`` only (not to ``prev``)
     for y in range(h):
         row = raw[y * (stride + 1) + 1:(y + 1) * (stride + 1)]
         kind = raw[y * (stride + 1)]
+        if above_in_out and kind >= 2:  # this filter reads the row above: back to file order
+            for j in range(w):
+                prev[3 * j], prev[3 * j + 1], prev[3 * j + 2] = \
+                    out[y - 1, j, 2], out[y - 1, j, 1], out[y - 1, j, 0]
+        above_in_out = False
         if kind == 0:
             cur[:] = row
-        elif kind == 1 and channels == 3:  # the renders' filter: left sums kept in registers
-            r = g = b = np.uint8(0)
+        elif kind == 1 and channels == 3:  # the renders' filter: left sums kept in registers,
+            r = g = b = np.uint8(0)        # the row written to ``out`` alone
             for j in range(w):
                 r += row[3 * j]  # uint8 arithmetic wraps modulo 256
                 g += row[3 * j + 1]
                 b += row[3 * j + 2]
-                cur[3 * j], cur[3 * j + 1], cur[3 * j + 2] = r, g, b
                 out[y, j, 0], out[y, j, 1], out[y, j, 2] = b, g, r
-            prev, cur = cur, prev
+            above_in_out = True
             continue
         elif kind == 1:
             cur[:channels] = row[:channels]
