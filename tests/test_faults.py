@@ -152,6 +152,15 @@ def _simulated_folder_with(extra: str):
     return setup
 
 
+def _link_to(name: str, symbolic: bool):
+    """A case's ws/link.h5: a symbolic or hard link to the shared input ``name`` (another
+    name for an input is still that input)."""
+    def setup(w, ws):
+        (os.symlink if symbolic else os.link)(w[name], ws / "link.h5")
+        return {}
+    return setup
+
+
 def _poses_columns(path):
     cols, _ = read_poses(path)
     return cols
@@ -609,6 +618,12 @@ CASES = [
     # ------------------------------------------------------------------ data lost
     Case("localize -o the map --overwrite", "data-lost",
          [*LOCALIZE, "-o", "{map}", "--overwrite"], 1, "is an input of this command (map)"),
+    Case("localize -o a symlink to the map --overwrite", "data-lost",
+         [*LOCALIZE, "-o", W + "/link.h5", "--overwrite"], 1,
+         "is an input of this command (map)", setup=_link_to("map", symbolic=True)),
+    Case("localize -o a hard link to the features --overwrite", "data-lost",
+         [*LOCALIZE, "-o", W + "/link.h5", "--overwrite"], 1,
+         "is an input of this command (features)", setup=_link_to("features", symbolic=False)),
     Case("localize -o the features --overwrite", "data-lost",
          [*LOCALIZE, "-o", "{features}", "--overwrite"], 1, "input of this command (features)"),
     Case("localize -o a dataset CSV --overwrite", "data-lost",

@@ -131,12 +131,21 @@ def _check_writable(path: Path, kind: str = "file"):
         raise FieldlocError(f"cannot write into {path}: the folder is not writable")
 
 
-def _same_path(a: Path, b: Path) -> bool:
+def _stat(path: Path) -> os.stat_result | None:
+    """The file ``path`` names (symlinks followed), or None where there is none."""
     try:
-        if a.exists() and b.exists():
-            return os.path.samefile(a, b)
-    except OSError:
-        pass
+        return os.stat(path)
+    except (OSError, ValueError):
+        return None
+
+
+def _same_path(a: Path, b: Path, a_stat: os.stat_result | None) -> bool:
+    """Whether ``a`` (``a_stat``: its ``_stat``) and ``b`` name one file: the same file where
+    both exist, the same real path where either does not. One stat of ``b``: a dataset's
+    inputs are its images, thousands of them."""
+    b_stat = _stat(b) if a_stat is not None else None
+    if a_stat is not None and b_stat is not None:
+        return os.path.samestat(a_stat, b_stat)
     return os.path.realpath(a) == os.path.realpath(b)
 
 
@@ -230,6 +239,7 @@ def refuse_inputs(path: str | Path, inputs: Mapping[str, object] | None, *, kind
     """The part of ``check_output`` about inputs: ``path`` is none of them (and, for a folder
     replaced as a whole, holds none of them)."""
     path = Path(path)
+    path_stat = _stat(path)
     for role, given in (inputs or {}).items():
         if given is None:
             continue
@@ -238,7 +248,7 @@ def refuse_inputs(path: str | Path, inputs: Mapping[str, object] | None, *, kind
             if item is None:
                 continue
             item = Path(item)
-            if _same_path(path, item):
+            if _same_path(path, item, path_stat):
                 raise error(
                     f"{path} is an input of this command ({role}); it is never written over,"
                     " --overwrite or not: choose another output")
