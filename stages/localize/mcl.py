@@ -383,7 +383,8 @@ class ParticleFilter:
         x, y, th = (np.ascontiguousarray(p[:, k]) for k in range(3))
         cos_t, sin_t = np.cos(th), np.sin(th)
         centre = self.clusters.heaviest(w, x, y, th, cos_t, sin_t)
-        wm = w * self.clusters.members(centre, x, y, cos_t, sin_t)
+        in_centre = self.clusters.members(centre, x, y, cos_t, sin_t)
+        wm = w * in_centre
         conf_share = float(wm.sum())
         mirror = self.field.mirror_pose(centre)
         in_mirror = self.clusters.members(mirror, x, y, cos_t, sin_t)
@@ -405,7 +406,7 @@ class ParticleFilter:
         rows = [(*centre, conf_share)]
         if self.symmetric:
             rows.append((*mirror, mirror_share))
-        rest = w * ~(self.clusters.members(centre, x, y, cos_t, sin_t) | in_mirror)
+        rest = w * ~(in_centre | in_mirror)
         scale = 0.5 if self.paired else 1.0  # a held particle stands for two poses
         while len(rows) < int(c["hypotheses"]) and rest.sum() > 1e-3:
             other = self.clusters.heaviest(rest, x, y, th, cos_t, sin_t)
