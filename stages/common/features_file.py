@@ -349,7 +349,9 @@ class FeaturesFile:
         order = np.lexsort((np.array(names, dtype=str), stamps)) if names else []
         self.names = [names[i] for i in order]
         self.stamps = stamps[order]
-        kind = self.camera_kind
+        # the camera kind, read once (a FeaturesFile only reads: each frame's check asks it)
+        v = self.h5.attrs.get("camera_kind", "")
+        kind = self._kind = v.decode() if isinstance(v, bytes) else v
         if kind not in CAMERA_KINDS:
             self.h5.close()
             raise SchemaError(f"{self.path}: damaged features file (camera_kind"
@@ -367,8 +369,7 @@ class FeaturesFile:
 
     @property
     def camera_kind(self) -> str:
-        v = self.h5.attrs.get("camera_kind", "")
-        return v.decode() if isinstance(v, bytes) else v
+        return self._kind
 
     @property
     def conf(self) -> dict:
@@ -394,7 +395,7 @@ class FeaturesFile:
                           else f"(N, {', '.join(map(str, want))})")
                 raise SchemaError(f"{self.path}: damaged features file (frame {name}: '{k}'"
                                   f" has shape {np.shape(v)}, expected {expect})")
-        missing = [k for k in REQUIRED[self.camera_kind] if k not in out]
+        missing = [k for k in REQUIRED[self._kind] if k not in out]
         if missing:
             raise SchemaError(f"{self.path}: damaged features file (frame {name} has no"
                               f" '{missing[0]}' dataset)")

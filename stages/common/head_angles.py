@@ -47,8 +47,9 @@ def head_at(head, stamp: float) -> dict:
     if head is None:
         return {}
     stamps, columns = head
-    i = int(np.clip(np.searchsorted(stamps, stamp), 1, len(stamps) - 1)) if len(stamps) > 1 else 0
-    if len(stamps) > 1 and abs(stamps[i - 1] - stamp) <= abs(stamps[i] - stamp):
+    n = len(stamps)
+    i = min(max(int(stamps.searchsorted(stamp)), 1), n - 1) if n > 1 else 0
+    if n > 1 and abs(stamps[i - 1] - stamp) <= abs(stamps[i] - stamp):
         i -= 1
     if abs(stamps[i] - stamp) > HEAD_STAMP_TOLERANCE:
         return {}
