@@ -46,7 +46,7 @@ from ..common.dataset import open_dataset, read_image, read_mask
 from ..common.errors import FieldlocError, SchemaError
 from ..common.features_file import SCHEMA, VERSION, FeaturesFile, FrameParts, write_features
 from ..common.head_angles import HEAD_STAMP_TOLERANCE, head_at, head_table  # noqa: F401
-from ..common.resources import check_disk
+from ..common.resources import check_disk, opencv_single_threaded
 
 log = logging.getLogger(__name__)
 
@@ -278,25 +278,26 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
         if debug_images is not None:
             debug_images.mkdir(parents=True, exist_ok=True)
         done = failed = 0
-        try:
-            for path, name, stamp in tqdm(todo, desc="extract", unit="frame",
-                                          disable=not progress):
-                try:
-                    image = read_image(path)
-                    arrays = module.extract_frame(image, camera, conf,
-                                                  **_frame_info(kind, mask, head, float(stamp)))
-                except FieldlocError as e:
-                    log.warning("frame %s skipped: %s", name, e)
-                    parts.add_failure(name, str(e))
-                    failed += 1
-                    continue
-                parts.add_frame(name, float(stamp), arrays)
-                if debug_images is not None:
-                    _write_debug_image(debug_images / f"{name}.png",
-                                       module.debug_overlay(image, arrays))
-                done += 1
-        finally:  # Ctrl-C or an error: the finished frames are kept for the next run
-            parts.flush()
+        with opencv_single_threaded():  # small calls: resources' doc
+            try:
+                for path, name, stamp in tqdm(todo, desc="extract", unit="frame",
+                                              disable=not progress):
+                    try:
+                        image = read_image(path)
+                        arrays = module.extract_frame(image, camera, conf,
+                                                      **_frame_info(kind, mask, head, float(stamp)))
+                    except FieldlocError as e:
+                        log.warning("frame %s skipped: %s", name, e)
+                        parts.add_failure(name, str(e))
+                        failed += 1
+                        continue
+                    parts.add_frame(name, float(stamp), arrays)
+                    if debug_images is not None:
+                        _write_debug_image(debug_images / f"{name}.png",
+                                           module.debug_overlay(image, arrays))
+                    done += 1
+            finally:  # Ctrl-C or an error: the finished frames are kept for the next run
+                parts.flush()
         good = len(in_output) + len(parts.frame_names)
         if good == 0:
             first = next(iter(sorted(parts.failures.items())), None)
