@@ -129,8 +129,10 @@ def unfilter_rows(raw, channels, out):
         above_in_out = False
         if kind == 0:
             cur[:] = row
-        elif kind == 1 and channels == 3:  # the renders' filter: left sums kept in registers,
-            r = g = b = np.uint8(0)        # the row written to ``out`` alone
+        elif kind == 1 and channels == 3:
+            # the renders' filter: the left sums kept in registers, the row written to ``out``
+            # alone (the next row's filter may read it back from there)
+            r = g = b = np.uint8(0)
             for j in range(w):
                 r += row[3 * j]  # uint8 arithmetic wraps modulo 256
                 g += row[3 * j + 1]

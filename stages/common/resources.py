@@ -73,9 +73,8 @@ def opencv_single_threaded():
     """OpenCV without its thread pool inside the block (restored when the last such block of
     the process ends). A frame's OpenCV calls are small (a colour conversion of a 752 x 480
     image, a 3 x 3 blur on 94 x 60 cells): handing each to a pool of threads costs more CPU
-    than the call itself. Measured on 400 KidSize frames on 2 cores, extract with the default
-    pool of 2 threads took 0.4 ms more CPU a frame than without it (6.03 against 5.63 ms) and
-    0.12-0.16 ms more wall time; a batch already runs one stream of frames per core."""
+    than the call itself and saves no wall time (docs/results.md, images to poses), and a
+    batch already runs one stream of frames per core."""
     import cv2
 
     global _opencv_blocks, _opencv_threads

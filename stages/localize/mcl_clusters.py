@@ -3,8 +3,8 @@ weighted 1 m x 1 m x 45 deg histogram of the particles (the heaviest 2 x 2 x 2 w
 wrapping around) and refined by three mean-shift steps; a cluster's members are the particles
 within ``radius`` metres and ``heading`` radians of its centre.
 
-The search is one compiled pass (``_heaviest``): as array passes it took some 40 numpy calls
-on a few hundred particles, a tenth of a millisecond a frame spent on temporaries.
+The search is one compiled pass (``_heaviest``), as a frame's few hundred particles make
+array passes spend their time on temporaries (docs/results.md, images to poses).
 tests/oracles/mcl_clusters.py writes it out as array passes, and tests/test_mcl_clusters.py
 holds the kernel against it.
 """
@@ -38,7 +38,6 @@ class Clustering:
     (m) and heading window (rad)."""
 
     def __init__(self, bounds: tuple, radius: float, heading: float):
-        self._bounds = bounds
         self.radius = radius
         self.heading = heading
         x0, x1, y0, y1 = bounds
