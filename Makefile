@@ -68,11 +68,15 @@ put_block = $(BIN)/python -c "import pathlib, re; r = pathlib.Path('$(2)'); \
 	r.write_text(re.sub(r'(<!-- $(1):begin -->\n).*?(<!-- $(1):end -->)', \
 	lambda m: m.group(1) + b + m.group(2), r.read_text(), flags=re.S))"
 
-# docs/results.md's performance table, from one bench run (its JSON is kept in $(OUT)/bench.json)
+# docs/results.md's performance table, from a bench run (its JSON is kept in $(OUT)/bench.json);
+# BENCH_RUNS="FULL.json AGAIN.json": no timing, the table of saved runs merged by row name (a
+# later run's row replaces the earlier's: rows timed again alone after a loaded full run)
+BENCH_RUNS ?=
 bench-readme: $(STAMP)
 	@mkdir -p $(OUT)
-	$(FLP) bench --json $(OUT)/bench.json --overwrite > /dev/null
-	$(BIN)/fieldloc bench --from-json $(OUT)/bench.json --format markdown > $(OUT)/bench.md
+	$(if $(BENCH_RUNS),,$(FLP) bench --json $(OUT)/bench.json --overwrite > /dev/null)
+	$(BIN)/fieldloc bench $(foreach f,$(or $(BENCH_RUNS),$(OUT)/bench.json),--from-json $(f)) \
+		--format markdown > $(OUT)/bench.md
 	$(call put_block,bench,docs/results.md,$(OUT)/bench.md,)
 
 # The comparison of the methods in README.md and docs/manual.md (specs/compare.yaml: six rendered

@@ -18,8 +18,11 @@ import click
 @click.option("--overwrite", is_flag=True, help="Replace an existing --json file.")
 @click.option("--format", "fmt", type=click.Choice(["text", "markdown"]), default="text",
               show_default=True, help="Table format (markdown: docs/results.md's table).")
-@click.option("--from-json", "from_json", type=click.Path(dir_okay=False, path_type=Path),
-              help="Print the table of a saved --json run instead of timing again.")
+@click.option("--from-json", "from_json", multiple=True,
+              type=click.Path(dir_okay=False, path_type=Path),
+              help="Print the table of a saved --json run instead of timing again (repeatable: "
+                   "a later run's rows replace the earlier's of the same name; with --json, "
+                   "the merged rows are written).")
 @click.pass_context
 def bench(ctx, only, list_rows, repeat, json_path, overwrite, fmt, from_json):
     """Time the stages on generated inputs and print a table."""
@@ -31,13 +34,17 @@ def bench(ctx, only, list_rows, repeat, json_path, overwrite, fmt, from_json):
         return
     quiet = (ctx.find_root().obj or {}).get("quiet")
     show = harness.format_markdown if fmt == "markdown" else harness.format_table
-    if from_json:
-        click.echo(show(harness.read_json(from_json)), nl=fmt != "markdown")
-        return
     if json_path:
         from stages.common.artifacts import check_output
 
-        check_output(json_path, {}, overwrite=overwrite)  # before minutes of timing
+        check_output(json_path, {"--from-json": from_json},  # before minutes of timing
+                     overwrite=overwrite)
+    if from_json:
+        rows = harness.merge_runs([harness.read_json(p) for p in from_json])
+        click.echo(show(rows), nl=fmt != "markdown")
+        if json_path:
+            harness.write_json(rows, json_path)
+        return
 
     def progress(name):
         if not quiet:

@@ -48,3 +48,29 @@ def test_bench_only_naming_no_row_is_refused():
     assert res.exit_code == 1
     lines = res.output.strip().splitlines()
     assert len(lines) == 1 and "no bench row matches 'lut-accuracy,fit'" in lines[0]
+
+
+def test_bench_tables_of_several_runs_merge_by_row_name(tmp_path):
+    """`bench --from-json FULL --from-json AGAIN`: the full run's rows in their order, each
+    replaced by the later run's row of the same name, then the rows only the later run has;
+    with --json the merged rows are written, and never over one of the runs read."""
+    full = harness.write_json([harness.Row("a", median_ms=1.0), harness.Row("b", median_ms=2.0),
+                               harness.Row("c", median_ms=3.0)], tmp_path / "full.json")
+    again = harness.write_json([harness.Row("b", median_ms=5.0, goal="<= 6 ms",
+                                            meets_goal=True),
+                                harness.Row("d", median_ms=4.0)], tmp_path / "again.json")
+    before = full.read_bytes()
+    runner = CliRunner()
+    merged = tmp_path / "merged.json"
+    r = runner.invoke(cli, ["bench", "--from-json", str(full), "--from-json", str(again),
+                            "--json", str(merged)])
+    assert r.exit_code == 0, r.output
+    rows = harness.read_json(merged)
+    assert [x.name for x in rows] == ["a", "b", "c", "d"]
+    assert rows[1].median_ms == 5.0 and rows[1].meets_goal is True  # exact: read back as written
+    lines = r.stdout.splitlines()
+    assert [ln.split()[0] for ln in lines[2:6]] == ["a", "b", "c", "d"]
+    r = runner.invoke(cli, ["bench", "--from-json", str(full), "--from-json", str(again),
+                            "--json", str(full), "--overwrite"])
+    assert r.exit_code != 0 and "is an input of this command" in r.output
+    assert full.read_bytes() == before

@@ -290,6 +290,19 @@ def read_json(path: str | Path) -> list[Row]:
         raise FieldlocError(f"{path}: not a bench --json file ({e})") from None
 
 
+def merge_runs(runs: list[list[Row]]) -> list[Row]:
+    """One table from several runs' rows: the first run's rows in their order, each replaced by
+    the row of the same name from the latest run that has one, then the rows only later runs
+    have, in their order. A full bench run takes hours; the rows a shared machine's load
+    distorts are timed again alone, and ``fieldloc bench --from-json FULL --from-json AGAIN``
+    makes the table of both."""
+    merged: dict[str, Row] = {}
+    for rows in runs:
+        for row in rows:
+            merged[row.name] = row  # a dict keeps the first insertion's place
+    return list(merged.values())
+
+
 def write_json(rows: list[Row], path: str | Path) -> Path:
     def clean(v):
         if isinstance(v, float) and not math.isfinite(v):
