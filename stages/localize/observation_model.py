@@ -110,7 +110,8 @@ class ObservationTuning(NamedTuple):
 
 
 # the model's constants: the paper's equations with the values the filter was tuned with on
-# rendered KidSize and NAO walks (the posts' floor: docs/results.md, "mcl's observation model")
+# rendered KidSize and NAO walks (the posts' floor: docs/results.md, "mcl", "Goal posts' own
+# uniform floor")
 TUNING = ObservationTuning(
     sigma_range=0.03,  # m, range sigma of eq. 3 at distance 0
     elevation_sigma=0.01,  # rad, sigma of a floor point's angle below the horizon (the
