@@ -1627,20 +1627,58 @@ def test_batch_results_inside_the_glob_rerun_resumes_without_a_cluster(world, tm
     assert "1 runs: 1 finished before, 0 to do" in r.stderr
 
 
-def test_start_half_warning_when_accepted_frames_sit_in_the_other_half():
-    """A wrong --start-half gave a track on the other half without a word. Warned
-    when most accepted frames lie in the other half than the given one; not for 'any', not
-    for a run that stays in the given half, not on a handful of frames."""
-    from stages.localize.symmetry import start_half_warning
+def test_start_half_warning_when_the_track_starts_in_the_other_half():
+    """A wrong --start-half gave a track on the other half without a word. Warned when the
+    track's first accepted poses lie on the other half beyond the margin of the halfway line;
+    not for 'any', not for a track that starts in the given half and then walks across the
+    halfway line (as a robot plays), not for a start at the centre, not on a handful of
+    frames; frames not accepted do not count."""
+    from stages.localize.symmetry import CENTRE_MARGIN_M, start_half_warning
 
-    x = np.array([-2.0, 0.5, 1.0, 2.0, 3.0, 3.5, -1.0, np.nan])
-    cols = {"x": x, "accepted": np.isfinite(x)}
-    msg = start_half_warning(cols, {"conf": {"start_half": "own"}})
-    assert msg and "5 of 7 accepted frames lie in the opponent half (x > 0)" in msg
-    assert start_half_warning(cols, {"conf": {"start_half": "opponent"}}) is None
-    assert start_half_warning(cols, {"conf": {"start_half": "any"}}) is None
-    few = {"x": x[:4], "accepted": np.ones(4, bool)}
-    assert start_half_warning(few, {"conf": {"start_half": "own"}}) is None
+    def warn(x, half="own", accepted=None):
+        x = np.asarray(x, float)
+        acc = np.isfinite(x) if accepted is None else np.asarray(accepted)
+        return start_half_warning({"x": x, "accepted": acc}, {"conf": {"start_half": half}})
+
+    starts_over = [np.nan, 2.0, 2.1, -1.0, 2.3, 2.4, -3.0, -3.5, -4.0]
+    msg = warn(starts_over)
+    assert msg and "4 of the run's first 5 accepted poses lie in the opponent half" in msg
+    assert warn(starts_over, "opponent") is None and warn(starts_over, "any") is None
+    mirrored = -np.asarray(starts_over)
+    assert "in the own half (x < 0)" in warn(mirrored, "opponent")
+    walks_across = [-2.0, -1.5, -1.0, -0.6, -0.3] + [0.5 + 0.3 * i for i in range(30)]
+    assert warn(walks_across) is None
+    at_centre = [0.9 * CENTRE_MARGIN_M] * 5 + [3.0] * 10  # a kick-off, then upfield
+    assert warn(at_centre) is None
+    assert warn([2.0, 2.1, 2.2, 2.3]) is None  # too few to say
+    x = [-2.0, 2.0, 2.1, 2.2, -1.8, -1.7, -1.6, 3.0, 3.0]
+    assert warn(x) is not None
+    assert warn(x, accepted=[True, False, False, False, True, True, True, True, True]) is None
+
+
+def test_localize_warns_when_the_heading_overrules_the_start_half(msl2015_map, tmp_path,
+                                                                 caplog):
+    """On the product path: a rendered recording that starts in the opponent half, lut with
+    its default field-aligned IMU heading. Told `--start-half own`, the heading overrules it
+    (the poses are the truth's, not its mirror's) and localize says so; told the right half,
+    nothing."""
+    conf = dict(simulate.confs["omni-default"], frames=12, seed=4)
+    data = simulate.main(conf, "msl-2015", tmp_path / "omni")
+    truth = np.loadtxt(data / "truth.csv", delimiter=",", skiprows=1)
+    assert truth[0, 1] > 2.0  # the walk starts well inside the opponent half
+    feats = extract.main(None, data, tmp_path / "f.h5")
+    for half, warned in (("own", True), ("opponent", False)):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING):
+            r = CliRunner().invoke(cli, ["-q", "localize", str(data), "--map", str(msl2015_map),
+                                         "--features", str(feats), "--method", "lut",
+                                         "--start-half", half, "-o",
+                                         str(tmp_path / f"p-{half}.h5")])
+        assert r.exit_code == 0, r.output
+        assert ("overruled the given half" in caplog.text) == warned, caplog.text
+        cols, _ = read_poses(tmp_path / f"p-{half}.h5")
+        acc = np.asarray(cols["accepted"], bool)
+        assert acc.sum() >= 8 and np.all(np.asarray(cols["x"])[acc] > 0)  # the truth's half
 
 
 def test_evaluate_warns_when_the_truth_starts_on_the_other_half(tmp_path, caplog):

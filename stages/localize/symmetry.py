@@ -17,9 +17,8 @@ once, from the listing (``localize.main`` fills the poses file's ``confidence_up
 and ``accepted_up_to_mirror`` columns). ``evaluate --up-to-mirror`` scores such frames against
 the truth or its mirror, and ``export`` writes the mirror pose beside the pose.
 
-``start_half_warning``: a run given a start half whose accepted frames mostly lie in the other
-half (a wrong start half gives the field's mirror image of the whole track, which no frame can
-reveal); localize.main logs it.
+``start_half_warning``: a run given a start half whose track starts on the other half (its
+frames, through a field-aligned heading, overruled the given half); localize.main logs it.
 """
 
 from __future__ import annotations
@@ -73,25 +72,37 @@ def set_up_to_mirror(track: PoseTrack, symmetric: bool, min_confidence: float) -
 
 
 HALVES = {"own": "own half (x < 0)", "opponent": "opponent half (x > 0)"}
-MIN_HALF_FRAMES = 5  # accepted frames before the halves they lie in say anything
+MIN_HALF_FRAMES = 5  # the first accepted frames that say where the track started
+# m: a pose this near the halfway line may lie on either side of it (a kick-off stands at the
+# centre circle), so it says nothing about the half
+CENTRE_MARGIN_M = 0.5
 
 
 def start_half_warning(columns: dict, attrs: dict) -> str | None:
-    """One line when the run's accepted frames mostly lie in the other half than the
-    ``start_half`` its conf gave (None otherwise, and for ``any``). start_half only places
-    the first fix; a run that then spends most of its accepted frames in the other half
-    either walked there or was started on the wrong half, whose mirrored track a symmetric
-    field cannot reveal: the user is the one who can tell which."""
+    """One line when the run's first MIN_HALF_FRAMES accepted poses mostly lie in the other
+    half than the ``start_half`` its conf gave, beyond CENTRE_MARGIN_M of the halfway line
+    (None otherwise, and for ``any``).
+
+    start_half chooses between a pose and its mirror where the frames cannot; where they can
+    (a field-aligned IMU heading tells the two apart), they overrule it, and the track starts
+    on the other half: the given half, or the heading's alignment, is wrong, and only the user
+    can tell which. Only the start is judged: a robot walks across the halfway line as it
+    plays, and a track held on the given half says nothing either way (with no heading to
+    tell, a wrong start half gives the mirror image of the whole track, which no frame can
+    reveal; evaluate warns of it where a truth is given)."""
     half = (attrs.get("conf") or {}).get("start_half")
     if half not in HALVES:
         return None
     x = np.asarray(columns["x"], float)
     acc = np.asarray(columns["accepted"], bool) & np.isfinite(x)
-    n = int(acc.sum())
-    other = int(np.sum(x[acc] > 0) if half == "own" else np.sum(x[acc] < 0))
-    if n < MIN_HALF_FRAMES or 2 * other <= n:
+    first = x[acc][:MIN_HALF_FRAMES]
+    if len(first) < MIN_HALF_FRAMES:
         return None
-    return (f"start_half {half}, yet {other} of {n} accepted frames lie in the"
-            f" {HALVES['opponent' if half == 'own' else 'own']}: if the robot did not start"
-            f" in its {HALVES[half]}, the whole track is the field's mirror image (run again"
-            " with --start-half any or the other half)")
+    other = int(np.sum(first > CENTRE_MARGIN_M) if half == "own"
+                else np.sum(first < -CENTRE_MARGIN_M))
+    if 2 * other <= len(first):
+        return None
+    return (f"start_half {half}, yet {other} of the run's first {len(first)} accepted poses lie"
+            f" in the {HALVES['opponent' if half == 'own' else 'own']}: the frames (a"
+            " field-aligned heading) overruled the given half; check it, or the heading's"
+            " alignment (--start-half any lets the frames decide)")
