@@ -64,20 +64,12 @@ class Clustering:
         return near & (cos_d >= math.cos(self.heading))
 
 
-def weighted_mean(w, x, y, cos_t, sin_t) -> np.ndarray:
-    """The weighted mean pose (the heading by its mean direction; uniform weights where
-    they sum to 0)."""
-    s = float(w.sum())
-    if s <= 0:
-        w, s = np.ones(len(x)), float(len(x))
-    return np.array([float(w @ x) / s, float(w @ y) / s,
-                     math.atan2(float(w @ sin_t), float(w @ cos_t))])
-
 
 @njit(cache=True, nogil=True)
 def _mean_of(p, keep, out):
-    """``weighted_mean`` of the particles ``p`` (Particles) with weights w * keep (keep:
-    (N,) bool, or an empty array: all) into ``out``; uniform weights where they sum to 0."""
+    """The weighted mean pose of the particles ``p`` (Particles) with weights w * keep (keep:
+    (N,) bool, or an empty array: all) into ``out``: the heading by its mean direction,
+    uniform weights where they sum to 0."""
     n = len(p.w)
     every = len(keep) == 0
     s = sx = sy = ss = sc = 0.0

@@ -7,7 +7,15 @@ import math
 
 import numpy as np
 
-from stages.localize.mcl_clusters import weighted_mean
+
+def weighted_mean(w, x, y, cos_t, sin_t) -> np.ndarray:
+    """The weighted mean pose (the heading by its mean direction; uniform weights where
+    they sum to 0)."""
+    s = float(w.sum())
+    if s <= 0:
+        w, s = np.ones(len(x)), float(len(x))
+    return np.array([float(w @ x) / s, float(w @ y) / s,
+                     math.atan2(float(w @ sin_t), float(w @ cos_t))])
 
 
 def heaviest(bounds, radius, heading, w, x, y, th):
