@@ -139,14 +139,17 @@ def _stat(path: Path) -> os.stat_result | None:
         return None
 
 
-def _same_path(a: Path, b: Path, a_stat: os.stat_result | None) -> bool:
-    """Whether ``a`` (``a_stat``: its ``_stat``) and ``b`` name one file: the same file where
-    both exist, the same real path where either does not. One stat of ``b``: a dataset's
-    inputs are its images, thousands of them."""
-    b_stat = _stat(b) if a_stat is not None else None
+def _same_path(a_stat: os.stat_result | None, a_real: str, b: Path) -> bool:
+    """Whether a path (``a_stat``: its ``_stat``; ``a_real``: its real path) and ``b`` name
+    one file: the same file where both exist, none where only one does, the same real path
+    where neither does. One stat of ``b`` (a dataset's inputs are its images, thousands of
+    them), and its real path only where neither exists."""
+    b_stat = _stat(b)
     if a_stat is not None and b_stat is not None:
         return os.path.samestat(a_stat, b_stat)
-    return os.path.realpath(a) == os.path.realpath(b)
+    if (a_stat is None) != (b_stat is None):
+        return False
+    return a_real == os.path.realpath(b)
 
 
 def _inside(inner: Path, outer: Path) -> bool:
@@ -239,7 +242,7 @@ def refuse_inputs(path: str | Path, inputs: Mapping[str, object] | None, *, kind
     """The part of ``check_output`` about inputs: ``path`` is none of them (and, for a folder
     replaced as a whole, holds none of them)."""
     path = Path(path)
-    path_stat = _stat(path)
+    path_stat, path_real = _stat(path), os.path.realpath(path)
     for role, given in (inputs or {}).items():
         if given is None:
             continue
@@ -248,7 +251,7 @@ def refuse_inputs(path: str | Path, inputs: Mapping[str, object] | None, *, kind
             if item is None:
                 continue
             item = Path(item)
-            if _same_path(path, item, path_stat):
+            if _same_path(path_stat, path_real, item):
                 raise error(
                     f"{path} is an input of this command ({role}); it is never written over,"
                     " --overwrite or not: choose another output")
