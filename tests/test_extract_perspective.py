@@ -264,9 +264,8 @@ def test_a_near_post_cut_by_the_images_top_edge_is_found(distance):
 def test_the_carpets_edge_against_a_bright_floor_is_not_a_used_line(carpet_x, monkeypatch):
     """The carpet ends ``carpet_x`` m ahead at a light grey hall floor: its edge is white
     against green as a line is, but no carpet lies beyond it and the field boundary is at it
-    (field_edge), so only the painted line at 1.5 m is used; without the check, and without
-    the refinement (whose profiles across the edge find the bright floor's white running on,
-    no line's width), the edge is used as a line too."""
+    (field_edge), so only the painted line at 1.5 m is used; without the check the edge is
+    used as a line too."""
     fl = _floor_of_pixels()
     img = draw_scene([[[1.5, -2.0], [1.5, 2.0]]], carpet_x=carpet_x).astype(np.float32)
     floor = np.isfinite(fl[..., 0]) & ((fl[..., 0] > carpet_x) | (np.abs(fl[..., 1]) > 4.0))
@@ -276,8 +275,7 @@ def test_the_carpets_edge_against_a_bright_floor_is_not_a_used_line(carpet_x, mo
     used = [ln[0] for ln, _ in _used_lines(perspective.extract_frame(img, CAM, CONF))]
     assert len(used) == 1 and abs(used[0] - 1.5) < 0.05, used
     # no edge check (the extractor reads its tuned constants, line_fit.LINES, on each call)
-    monkeypatch.setattr(perspective, "LINES",
-                        perspective.LINES._replace(min_green_beyond=0.0, refine=False))
+    monkeypatch.setattr(perspective, "LINES", perspective.LINES._replace(min_green_beyond=0.0))
     used = [ln[0] for ln, _ in _used_lines(perspective.extract_frame(img, CAM, CONF))]
     assert any(abs(d - carpet_x) < 0.2 for d in used), used
 
@@ -318,48 +316,6 @@ def test_a_line_in_a_sun_patch_with_field_beyond_stays_used(monkeypatch):
     # by the green beyond it alone it would be the field's edge
     monkeypatch.setattr(perspective, "LINES", perspective.LINES._replace(edge_gap_m=math.inf))
     assert not _used_lines(perspective.extract_frame(img, CAM, CONF))
-
-
-@pytest.mark.parametrize("patch_x", [0.8, 1.0])
-def test_a_bright_patch_at_the_images_lower_edge_is_no_used_line(patch_x, monkeypatch):
-    """Glare washes the carpet nearer than ``patch_x`` m out to near white: the patch meets
-    the image's lower edge, where its skeleton runs along the edge as a "line". Its profiles
-    find no white run of bounded width, so its refinement fails, and a segment whose width
-    cannot be measured is not used; only the painted line at 2 m is. Without the
-    refinement (nothing measured) the patch's edge is used as a line."""
-    cam = NAO_CAM.with_pose(pitch=0.5)
-    fl = _floor_of(cam)
-    img = draw_scene([[[2.0, -2.0], [2.0, 2.0]]], cam=cam).astype(np.float32)
-    img[np.isfinite(fl[..., 0]) & (fl[..., 0] < patch_x) & (fl[..., 1] > -0.3)] = (200, 235, 235)
-    img = np.clip(img + np.random.default_rng(1).normal(0.0, 4.0, img.shape), 0, 255)
-    img = img.astype(np.uint8)
-    used = [ln[0] for ln, _ in _used_lines(perspective.extract_frame(img, cam, CONF))]
-    assert len(used) == 1 and abs(used[0] - 2.0) < 0.05, used
-    monkeypatch.setattr(perspective, "LINES", perspective.LINES._replace(refine=False))
-    used = [ln[0] for ln, _ in _used_lines(perspective.extract_frame(img, cam, CONF))]
-    assert any(d < patch_x - 0.2 for d in used), used
-
-
-@pytest.mark.parametrize("pitch", [0.5, 0.7])
-def test_a_painted_line_at_the_robots_feet_is_measured_and_used(pitch, monkeypatch):
-    """A 5 cm line 6 cm beyond the nearest floor in view is some 20-40 px wide in the image:
-    the refinement's profiles reach far enough to measure it there (refine_reach_max), so it
-    is used; with the far lines' reach (refine_reach) its runs touch the profiles' ends, the
-    refinement fails and the line is not used."""
-    cam = NAO_CAM.with_pose(pitch=pitch)
-    x = float(np.nanmin(_floor_of(cam)[..., 0])) + 0.06
-    img = draw_scene([[[x, -2.0], [x, 2.0]], [[2.0, -2.0], [2.0, 2.0]]], cam=cam,
-                     line_width=0.05)
-
-    def near_used():
-        res = perspective.extract_frame(img, cam, CONF)
-        return [ln[0] for ln, _ in _used_lines(res) if abs(ln[0] - x) < 0.05]
-
-    assert len(near_used()) == 1
-    lines = perspective.LINES
-    monkeypatch.setattr(perspective, "LINES",
-                        lines._replace(refine_reach_max=lines.refine_reach))
-    assert near_used() == []
 
 
 def test_result_has_the_schema_datasets_and_overlay_draws_them():
@@ -673,13 +629,6 @@ def _reference_refine(ends, white, lens, step, reach, extend, min_points, grow=0
                                min_points, grow)
 
 
-def _reference_refine_each(ends, white, lens, step, reach, *a, **k):
-    """refine_segments by the reference, segment by segment (``reach``: one or one each)."""
-    reaches = np.broadcast_to(np.asarray(reach, float), (len(ends),))
-    return [_reference_refine(e, white, lens, step, float(r), *a, **k)
-            for e, r in zip(ends, reaches)]
-
-
 @pytest.mark.parametrize("preset,field", [("perspective-default", "kidsize"),
                                           ("perspective-nao", "spl")])
 def test_compiled_kernels_give_the_reference_features(preset, field, monkeypatch):
@@ -703,7 +652,8 @@ def test_compiled_kernels_give_the_reference_features(preset, field, monkeypatch
         frames.append((renderer.render_view(pose, pitch, roll, frame=k), pitch, roll))
     ext = perspective.confs["default"]
     fast = [perspective.extract_frame(img, cam, ext, pitch=p, roll=r) for img, p, r in frames]
-    monkeypatch.setattr(perspective, "refine_segments", _reference_refine_each)  # lines
+    monkeypatch.setattr(perspective, "refine_segments",  # lines
+                        lambda ends, *a, **k: [_reference_refine(e, *a, **k) for e in ends])
     # (the crossings' placement, crossings.place_crossing, is checked against where drawn
     # lines meet in test_perspective_kernels)
     monkeypatch.setattr(line_fit, "refine_segment", _reference_refine)

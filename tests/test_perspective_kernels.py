@@ -495,11 +495,10 @@ def test_refine_segments_equal_refine_segment_per_segment():
     lens = np.array([500.0, 500.0, 320.0, 240.0, -0.2, 0.04, 0.0, 0.0, 0.0])
     ends = rng.uniform(0, [640, 480], (40, 2, 2))
     ends[:3, 1] = ends[:3, 0]  # no length
-    reach = rng.choice([8.0, 16.0, 40.0], len(ends))  # one each, as find_lines gives them
-    got = lf.refine_segments(ends, white, lens, 4.0, reach, 4.0, 4, 32.0)
+    got = lf.refine_segments(ends, white, lens, 4.0, 16.0, 4.0, 4, 32.0)
     kept = 0
-    for e, g, r_k in zip(ends, got, reach):
-        r = lf.refine_segment(e, white, lens, 4.0, r_k, 4.0, 4, 32.0)
+    for e, g in zip(ends, got):
+        r = lf.refine_segment(e, white, lens, 4.0, 16.0, 4.0, 4, 32.0)
         assert (g is None) == (r is None)
         if r is not None:
             kept += 1

@@ -473,17 +473,9 @@ def find_lines(graph, ideal: np.ndarray, frame: FrameGrid, lc: LinesTuning,
         return lines, ends_m, ends_px, posts, posts_px, ends_ideal, widths
     refined = [None] * len(segments)
     lens = lens_parameters(camera)
-    measured = white_px is not None and lc.refine  # each line's width across is measured
-    if measured:
-        coarse = np.stack([seg.ends for seg in segments])
-        # each segment's profiles reach far enough to hold the widest run the width check
-        # accepts (width_ratio[1] x a painted line's width where it is widest), so that a
-        # failed refinement says "no line" near the robot too
-        painted = painted_widths_px(to_floor(coarse).reshape(-1, 2, 2), to_floor,
-                                    lc.line_width)
-        reach = np.clip(np.nan_to_num(lc.width_ratio[1] * painted, nan=0.0),
-                        lc.refine_reach * cell, lc.refine_reach_max * cell)
-        refined = refine_segments(coarse, white_px, lens, lc.refine_step, reach,
+    if white_px is not None and lc.refine:
+        refined = refine_segments(np.stack([seg.ends for seg in segments]), white_px, lens,
+                                  lc.refine_step, lc.refine_reach * cell,
                                   lc.refine_extend * cell, lc.refine_min_points,
                                   lc.refine_grow * cell)
     ratios = width_ratios([r for r in refined if r is not None], to_floor, lc.line_width)
@@ -538,11 +530,6 @@ def find_lines(graph, ideal: np.ndarray, frame: FrameGrid, lc: LinesTuning,
         used = length >= lc.min_length and dist <= lc.max_distance \
             and near <= lc.max_distance and len(seg.nodes) >= lc.min_used_nodes \
             and not at_edge
-        if measured and ref is None:
-            # the refinement found no white run of bounded width on enough profiles: the
-            # segment is the skeleton or edge of a white area (a glare patch, a bright floor
-            # cut by the image's lower edge), no painted line
-            used = False
         confidence = (min(1.0, len(seg.nodes) / lc.full_nodes)
                       * max(0.0, 1.0 - rms / lc.split_distance)) if used else 0.0
         lines.append([dist, angle, length, confidence])
@@ -552,21 +539,6 @@ def find_lines(graph, ideal: np.ndarray, frame: FrameGrid, lc: LinesTuning,
         trace.update(segments=segments, refined=refined)
     return (lines, all_floor[kept].reshape(-1, 4), all_px[kept].reshape(-1, 4), posts, posts_px,
             ends[kept], widths)
-
-
-def painted_widths_px(ends_floor: np.ndarray, to_floor: FloorProjection,
-                      line_width: float) -> np.ndarray:
-    """Per floor segment (L, 2, 2 m, robot frame): the width across (ideal px) of a painted
-    line of ``line_width`` metres lying along it, at its end nearer the robot, where the line
-    is widest in the image; NaN where that end is not on the floor."""
-    e = np.asarray(ends_floor, float).reshape(-1, 2, 2)
-    d = e[:, 1] - e[:, 0]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        half = 0.5 * line_width / np.hypot(d[:, 0], d[:, 1])
-        near = e[np.arange(len(e)), np.argmin(np.hypot(e[..., 0], e[..., 1]), axis=1)]
-        n = np.stack([-d[:, 1], d[:, 0]], axis=1) * half[:, None]
-        a, b = to_floor.to_ideal(near - n), to_floor.to_ideal(near + n)
-        return np.hypot(*(b - a).T)
 
 
 def field_edge(ends_floor: np.ndarray, to_floor: FloorProjection, lens: np.ndarray,

@@ -58,15 +58,11 @@ class LinesTuning(NamedTuple):
     max_distance: float  # m, lines whose perpendicular is longer are not used
     full_nodes: int  # nodes at which a line's confidence is 1
     # refinement on the full-resolution white mask (line_fit.refine_segment): profiles across
-    # the segment every refine_step px, refine_reach cells to each side (more near the
-    # robot, where a painted line is wider: up to refine_reach_max, 64 px, which holds a
-    # run twice as wide as a 5 cm line at the nearest floor the NAO's and the KidSize
-    # camera see, 31-61 px at head pitches 0.3-0.7 rad), from refine_extend cells before to
-    # after its ends
+    # the segment every refine_step px, refine_reach cells to each side, from refine_extend
+    # cells before to after its ends
     refine: bool
     refine_step: float
     refine_reach: float
-    refine_reach_max: float
     refine_extend: float
     refine_min_points: int
     refine_grow: float  # cells the ends may grow along the refined line
@@ -91,8 +87,7 @@ class LinesTuning(NamedTuple):
 LINES = LinesTuning(split_distance=7.0, min_nodes=3, min_used_nodes=4,
                     merge_angle=math.radians(4.0), merge_offset=7.0, min_length=0.3,
                     max_distance=6.0, full_nodes=8, refine=True, refine_step=4.0,
-                    refine_reach=2.0, refine_reach_max=8.0,
-                    refine_extend=0.5, refine_min_points=4, refine_grow=4.0,
+                    refine_reach=2.0, refine_extend=0.5, refine_min_points=4, refine_grow=4.0,
                     line_width=0.05, width_ratio=(0.4, 2.5), green_beyond_m=0.15,
                     min_green_beyond=0.2, edge_gap_m=1.0)
 
@@ -352,14 +347,13 @@ def refine_segment(ends: np.ndarray, white: np.ndarray, lens: np.ndarray, step: 
 
 
 def refine_segments(ends: np.ndarray, white: np.ndarray, lens: np.ndarray, step: float,
-                    reach, extend: float, min_points: int, grow: float = 0.0
+                    reach: float, extend: float, min_points: int, grow: float = 0.0
                     ) -> list[RefinedLine | None]:
     """refine_segment of every segment (ends (N, 2, 2) ideal px), in one compiled call
     (``_refine_all``: refine_kernel per segment, the points and widths of all of them one
-    after another); ``reach``: one for all, or (N,) one per segment."""
+    after another)."""
     ends = np.ascontiguousarray(ends, np.float64).reshape(-1, 2, 2)
     n = len(ends)
-    reaches = np.ascontiguousarray(np.broadcast_to(np.asarray(reach, np.float64), (n,)))
     res = np.empty((n, 12))
     # at most one point per profile: (length + 2 extend) / step + 1 per segment
     length = np.hypot(*(ends[:, 1] - ends[:, 0]).T)
@@ -367,8 +361,8 @@ def refine_segments(ends: np.ndarray, white: np.ndarray, lens: np.ndarray, step:
     pts = np.empty((cap, 2))
     widths = np.empty(cap)
     start = np.zeros(n + 1, np.int64)
-    rule = (float(step), float(extend), int(min_points), float(grow))
-    _refine_all(ends, reaches, white, lens, rule, res, pts, widths, start)
+    rule = (float(step), float(reach), float(extend), int(min_points), float(grow))
+    _refine_all(ends, white, lens, rule, res, pts, widths, start)
     out: list[RefinedLine | None] = []
     # (the lines' fields are views of the kernel's arrays, read only)
     for r, ok, rms, a, b in zip(res, res[:, 0].tolist(), res[:, 11].tolist(), start[:-1].tolist(),

@@ -486,14 +486,14 @@ def refine_kernel(ends, image, lens, step, reach, extend, min_points, grow, res)
 
 
 @njit(cache=True, nogil=True)
-def _refine_all(ends, reaches, image, lens, rule, res, pts, widths, start):
-    """refine_segments, compiled: refine_kernel of each segment (``reaches[k]`` its reach)
-    into ``res[k]``, its points and widths into ``pts`` and ``widths`` from ``start[k]`` on.
-    ``rule``: refine_kernel's (step, extend, min_points, grow), one tuple of scalars as
-    refine_segments makes it."""
-    step, extend, min_points, grow = rule
+def _refine_all(ends, image, lens, rule, res, pts, widths, start):
+    """refine_segments, compiled: refine_kernel of each segment into ``res[k]``, its points
+    and widths into ``pts`` and ``widths`` from ``start[k]`` on. ``rule``: refine_kernel's
+    (step, reach, extend, min_points, grow), one tuple of scalars as refine_segments makes
+    it."""
+    step, reach, extend, min_points, grow = rule
     for k in range(ends.shape[0]):
-        p, w = refine_kernel(ends[k], image, lens, step, reaches[k], extend, min_points, grow,
+        p, w = refine_kernel(ends[k], image, lens, step, reach, extend, min_points, grow,
                              res[k])
         a = start[k]
         if a + p.shape[0] > pts.shape[0]:
