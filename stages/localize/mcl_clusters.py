@@ -64,7 +64,6 @@ class Clustering:
         return near & (cos_d >= math.cos(self.heading))
 
 
-
 @njit(cache=True, nogil=True)
 def _mean_of(p, keep, out):
     """The weighted mean pose of the particles ``p`` (Particles) with weights w * keep (keep:
