@@ -666,3 +666,43 @@ def test_compiled_kernels_give_the_reference_features(preset, field, monkeypatch
             np.testing.assert_allclose(a[key], b[key], atol=1e-6, err_msg=key)
         found += len(a["lines"])
     assert found >= 6  # the frames hold lines to compare
+
+
+def test_the_view_is_the_floor_below_the_boundary_within_its_range():
+    """The view polygon (the unseen term's "where a line should have been found") holds the
+    floor points whose pixels lie in the image below the field boundary and within
+    VIEW_RANGE, and no others, except within a few cm of its edge (its samples are 16 px
+    apart and the lens bends the image's edges): a drawn scene with the carpet's far edge
+    2.5 m ahead (the boundary), at two head pitches."""
+    from matplotlib.path import Path as Polygon
+
+    for pitch in (CAM.pitch, CAM.pitch + 0.15):
+        cam = CAM.with_pose(pitch=pitch)
+        img = draw_scene(np.zeros((0, 2, 2)), carpet_x=2.5, cam=cam)
+        res = perspective.extract_frame(img, cam, CONF, pitch=pitch, roll=0.0)
+        view = res["view"].astype(float)
+        assert view.shape[0] >= 3 and np.isfinite(view).all()
+        assert np.hypot(*view.T).max() <= perspective.VIEW_RANGE + 1e-3
+        rng = np.random.default_rng(0)
+        pts = np.column_stack([rng.uniform(0.0, 4.0, 4000), rng.uniform(-3.0, 3.0, 4000)])
+        uv = cam.floor_to_pixel(pts, pitch, 0.0)
+        w, h = cam.image_size
+        in_image = np.isfinite(uv).all(axis=1)
+        in_image[in_image] &= ((uv[in_image] >= 0) & (uv[in_image] <= [w - 1, h - 1])).all(1)
+        # on the carpet (the boundary lies at its far edge), with a margin for the boundary's
+        # cells (8 px)
+        expected = in_image & (pts[:, 0] < 2.4)
+        outside = in_image & (pts[:, 0] > 2.7) | ~in_image
+        inside = Polygon(view).contains_points(pts)
+        edge = np.array([Polygon(view).contains_point(p, radius=0.1)
+                         != Polygon(view).contains_point(p, radius=-0.1) for p in pts])
+        assert np.all(inside[expected & ~edge])
+        assert not np.any(inside[outside & ~edge])
+        assert expected.sum() > 500
+
+
+def test_a_frame_without_floor_in_range_has_an_empty_view():
+    """Looking at the sky (the horizon below the image), no floor is in range."""
+    img = np.full((CAM.image_size[1], CAM.image_size[0], 3), WALL, np.uint8)
+    res = perspective.extract_frame(img, CAM, CONF, pitch=-0.6, roll=0.0)
+    assert res["view"].shape == (0, 2)

@@ -74,6 +74,9 @@ FRAME_DATASETS = {
     "crossings_px": ("px", np.float32, "(C, 2) crossing positions in the image (u, v)"),
     "posts": ("m, rad, 1", np.float32, "(P, 3) goal post foot: distance, bearing, confidence"),
     "posts_px": ("px", np.float32, "(P, 2) goal post foot points in the image (u, v)"),
+    "view": ("m", np.float32,
+             "(V, 2) the floor the image sees below the field boundary, a polygon in the "
+             "robot frame"),
 }
 
 
@@ -85,7 +88,7 @@ REQUIRED = {"omni": ("radial", "spiral", "points"),
 # the trailing shape of each dataset (None: any length); radial and spiral from the scan lines
 TRAILING = {"points": (2,), "points_px": (2,), "boundary": (2,), "line_ends": (4,),
             "line_ends_px": (4,), "lines": (4,), "crossings": (5,), "crossings_px": (2,),
-            "posts": (3,), "posts_px": (2,)}
+            "posts": (3,), "posts_px": (2,), "view": (2,)}
 
 
 # Frames are written and read in blocks of this many, in the order they were stored: one

@@ -9,6 +9,9 @@ synthetic observations of simulate read them. Columns:
     crossings  (C, 5)  type (CROSSING_CODES: 0 L, 1 T, 2 X), distance (m), bearing (rad),
                        orientation (rad: L bisector, T stem, X first arm mod 90 deg), confidence
     posts      (P, 3)  goal-post foot distance (m), bearing (rad), confidence
+    view       (V, 2)  optional: the floor the image sees below the field boundary, a polygon
+                       (m); where a line should have been seen (the observation model's
+                       "unseen" term)
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ class Observations:
     line_ends: np.ndarray | None
     crossings: np.ndarray
     posts: np.ndarray
+    view: np.ndarray | None = None
 
     @classmethod
     def empty(cls) -> Observations:
@@ -50,7 +54,9 @@ class Observations:
         ends = None if ends is None else np.asarray(ends, dtype=float).reshape(-1, 4)
         if ends is not None and len(ends) != len(lines):
             ends = None
-        return cls(lines, ends, arr("crossings", 5), arr("posts", 3))
+        view = frame.get("view")
+        view = None if view is None else np.asarray(view, dtype=float).reshape(-1, 2)
+        return cls(lines, ends, arr("crossings", 5), arr("posts", 3), view)
 
     def __len__(self) -> int:
         return len(self.lines) + len(self.crossings) + len(self.posts)
@@ -61,6 +67,8 @@ class Observations:
                "posts": self.posts.reshape(-1, 3)}
         if self.line_ends is not None:
             out["line_ends"] = self.line_ends.reshape(-1, 4)
+        if self.view is not None:
+            out["view"] = self.view.reshape(-1, 2)
         return out
 
     def select(self, lines: bool = True, crossings: bool = True, posts: bool = True):
@@ -71,6 +79,7 @@ class Observations:
             self.line_ends if lines else None,
             self.crossings if crossings else e.crossings,
             self.posts if posts else e.posts,
+            self.view,
         )
 
     def finite(self) -> Observations:
@@ -84,4 +93,5 @@ class Observations:
             self.lines[ok_l], ends,
             self.crossings[np.all(np.isfinite(self.crossings), axis=1)],
             self.posts[np.all(np.isfinite(self.posts), axis=1)],
+            self.view,
         )

@@ -15,8 +15,10 @@ sections 3 and 4.
 7. everything projected to the floor with the camera model at the frame's head angles.
 
 It returns the per-frame datasets of the features schema (stages.common.features_file):
-boundary, line_ends, line_ends_px, lines, crossings, crossings_px, posts, posts_px.
-``debug_overlay`` draws them on the frame like the paper's fig. 1.
+boundary, line_ends, line_ends_px, lines, crossings, crossings_px, posts, posts_px, and the
+view: the floor the image sees below the field boundary (``view_polygon``), where a line
+that is there should have been found. ``debug_overlay`` draws them on the frame like the
+paper's fig. 1.
 """
 
 from __future__ import annotations
@@ -430,6 +432,8 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
     crossings, crossings_px = find_crossings(ks, graph, ideal, frame, CROSSINGS, trace,
                                              floor_of if floor_angles else None, finds)
 
+    view = view_polygon(to_floor, undistort, boundary, camera.image_size)
+
     if trace is not None:
         trace.update(top=top, field=field, white=white, green=green, inside=inside, lp=lp,
                      skeleton=skeleton, graph=graph, key=ks, ideal=ideal, post_groups=groups)
@@ -446,7 +450,86 @@ def extract_from_counts(counts: dict[str, np.ndarray], camera, conf: dict,
         "crossings_px": arr(crossings_px, 2),
         "posts": arr(posts, 3),
         "posts_px": arr(posts_px, 2),
+        "view": view,
     }
+
+
+# the view polygon: how far it reaches (the observation model ignores lines farther away:
+# its max_line_distance) and its samples' spacing along the image's edges (the lens bends
+# the edges on the floor; 16 px keeps the polygon within a few cm of them near the robot)
+VIEW_RANGE = 6.0  # m
+VIEW_STEP = 16  # px
+
+
+def view_polygon(to_floor: FloorProjection, undistort, boundary: np.ndarray,
+                 image_size: tuple[int, int]) -> np.ndarray:
+    """The floor the image sees below the field boundary and within ``VIEW_RANGE``, as a
+    polygon (V, 2) in the robot frame (m): the image's lower edge, its sides and, on top, per
+    boundary column the lower of the boundary and the row whose floor point is VIEW_RANGE
+    away (the rows above the horizon count as infinitely far). A line of the field
+    inside it is one the extractor had the chance to find (the observation model's "unseen"
+    term). Empty when the frame shows no floor within VIEW_RANGE. ``image_size``: (w, h)."""
+    w, h = image_size
+    every = max(1, int(round(VIEW_STEP / max(float(boundary[1, 0] - boundary[0, 0]), 1.0)))
+                ) if len(boundary) > 1 else 1
+    top = boundary[::every].astype(float)
+    if not len(top):
+        top = np.array([[0.0, 0.0], [w - 1.0, 0.0]])
+    u = np.concatenate([[0.0], top[:, 0], [w - 1.0]])
+    lo = np.clip(np.concatenate([top[:1, 1], top[:, 1], top[-1:, 1]]), 0.0, h - 1.0)
+    v = np.empty(len(u))
+    _view_top(u, lo, (float(h - 1), float(VIEW_STEP), VIEW_RANGE),
+              (float(undistort.stride), undistort.map_u, undistort.map_v),
+              (to_floor.m, to_floor.height, to_floor.position, to_floor._shifted), v)
+    if np.all(v >= h - 1.0):
+        return _empty(2)
+
+    def edge(v0, v1):
+        return np.linspace(v0, v1, max(2, int(abs(v1 - v0) // VIEW_STEP) + 2))[1:-1]
+
+    right = edge(v[-1], h - 1.0)
+    along = np.linspace(w - 1.0, 0.0, max(2, int((w - 1) // VIEW_STEP) + 2))
+    left = edge(h - 1.0, v[0])
+    px = np.concatenate([
+        np.stack([u, v], axis=1),
+        np.stack([np.full(len(right), w - 1.0), right], axis=1),
+        np.stack([along, np.full(len(along), h - 1.0)], axis=1),
+        np.stack([np.zeros(len(left)), left], axis=1)])
+    floor = to_floor(undistort(px))
+    floor = floor[np.isfinite(floor).all(axis=1)]
+    return floor.astype(np.float32) if len(floor) >= 3 else _empty(2)
+
+
+@njit(cache=True, nogil=True)
+def _view_top(u, lo, rows, lens, floor, out):
+    """The view polygon's upper edge: per column u[i], the lower of row lo[i] and the first
+    row whose floor point lies within ``max_range`` (the range falls monotonically down a
+    column below the horizon): rows ``step`` apart, then linearly in 1 / range between the
+    last row beyond and the first within; the bottom row where no row is within. ``rows``:
+    (bottom row, step, max_range); ``lens``: IdealPixels' (stride, map_u, map_v);
+    ``floor``: FloorProjection's (m, height, position, shifted)."""
+    bottom, step, max_range = rows
+    stride, map_u, map_v = lens
+    m, height, position, shifted = floor
+    limit = 1.0 / max_range
+    for i in range(u.shape[0]):
+        out[i] = bottom
+        prev_v, prev_inv = 0.0, 0.0
+        v = 0.0
+        while True:
+            x, y = u[i] / stride, v / stride
+            fx, fy = floor_at(m, height, position, shifted, bilinear_at(map_u, x, y, np.nan),
+                              bilinear_at(map_v, x, y, np.nan))
+            d = math.sqrt(fx * fx + fy * fy)
+            inv = 1.0 / d if d > 0.0 else 0.0  # NaN (above the horizon) compares False
+            if inv >= limit:
+                t = 0.0 if v == 0.0 else (limit - prev_inv) / max(inv - prev_inv, 1e-12)
+                out[i] = max(lo[i], prev_v + min(max(t, 0.0), 1.0) * (v - prev_v))
+                break
+            if v >= bottom:
+                break
+            prev_v, prev_inv = v, (inv if inv == inv else 0.0)
+            v = min(v + step, bottom)
 
 
 def find_lines(graph, ideal: np.ndarray, frame: FrameGrid, lc: LinesTuning,
