@@ -27,6 +27,10 @@ Lines are rows of ``lines`` (L, 12)::
 
 The kernels take the poses (``Poses``), the field as the observations are scored against it
 (``FieldPoints``, ``FieldLines``) and the model's weights as a tuple of scalars.
+
+``unseen_log_likelihood`` is the "unseen" term (observation_model's module doc): per pose, the
+length of field line inside the frame's view (``View``) within its range, from the field's
+line samples, and the beta-binomial log-probability of the line pieces seen among them.
 """
 
 from __future__ import annotations
@@ -82,6 +86,131 @@ class FieldLines(NamedTuple):
     arcs: np.ndarray
 
 
+class View(NamedTuple):
+    """One frame's view for the unseen term (observation_model's module doc): ``mask``
+    (n, n) uint8, 1 where the image saw the floor, on square cells of 1 / ``inv_cell`` m
+    about the robot covering [-r, r]^2 (row: y, column: x); the pieces of line ``seen`` and
+    a piece's length (1 / ``inv_piece``); log(1 - q) of the detection probability q; the
+    binomial's ``peak`` log-probability and the term's ``floor``; the poses' bins
+    (``bin_xy`` m, ``bin_heading`` rad)."""
+
+    mask: np.ndarray
+    r: float
+    inv_cell: float
+    seen: float
+    inv_piece: float
+    log_miss: float
+    peak: float
+    floor: float
+    bin_xy: float
+    bin_heading: float
+
+
+# columns of LineSamples.groups: bounding box, first piece and count, straight (1) or arc
+# (0), a straight line's start and unit direction, the pieces' length
+G_X0, G_Y0, G_X1, G_Y1, G_START, G_COUNT, G_STRAIGHT, G_AX, G_AY, G_UX, G_UY, G_PIECE = range(12)
+N_SAMPLE_GROUP_COLS = 12
+
+
+class LineSamples(NamedTuple):
+    """The field's lines cut into short pieces for the unseen term: ``points`` (M, 3) each
+    piece's middle x, y and its length; ``groups`` (G, 12) per line or arc (G_* columns)."""
+
+    points: np.ndarray
+    groups: np.ndarray
+
+
+@njit(cache=True, nogil=True)
+def _line_in_view(px, py, c, s, samples, mask, r, inv_cell):
+    """Length (m) of the field's lines inside the view ``mask`` within ``r`` of the pose
+    (px, py, heading cos c, sin s), from the pieces' middles. A line's pieces within r are
+    found by cutting it with the circle, an arc's by testing each."""
+    pts, groups = samples
+    cells = mask.shape[0]
+    r2 = r * r
+    length = 0.0
+    for g in range(groups.shape[0]):
+        row = groups[g]
+        if (row[G_X0] > px + r or row[G_X1] < px - r or row[G_Y0] > py + r
+                or row[G_Y1] < py - r):
+            continue
+        k0 = int(row[G_START])
+        k1 = k0 + int(row[G_COUNT])
+        piece = row[G_PIECE]
+        if row[G_STRAIGHT] > 0.0:  # the pieces whose middle lies within r, stepped
+            wx, wy = row[G_AX] - px, row[G_AY] - py
+            ux, uy = row[G_UX], row[G_UY]
+            wu = wx * ux + wy * uy
+            disc = wu * wu - (wx * wx + wy * wy - r2)
+            if disc <= 0.0:
+                continue
+            root = math.sqrt(disc)
+            j0 = max(0, int(math.ceil((-wu - root) / piece - 0.5)))
+            j1 = min(k1 - k0, int(math.floor((-wu + root) / piece - 0.5)) + 1)
+            # the first piece's middle and the step between pieces, in the robot frame
+            t = (j0 + 0.5) * piece
+            qx, qy = wx + t * ux, wy + t * uy
+            u, v = c * qx + s * qy, c * qy - s * qx
+            du, dv = (c * ux + s * uy) * piece, (c * uy - s * ux) * piece
+            for _ in range(j0, j1):
+                ix, iy = int((u + r) * inv_cell), int((v + r) * inv_cell)
+                if 0 <= ix < cells and 0 <= iy < cells and mask[iy, ix]:
+                    length += piece
+                u += du
+                v += dv
+            continue
+        for k in range(k0, k1):
+            dx, dy = pts[k, 0] - px, pts[k, 1] - py
+            u = c * dx + s * dy
+            v = c * dy - s * dx
+            if u * u + v * v > r2:
+                continue
+            ix, iy = int((u + r) * inv_cell), int((v + r) * inv_cell)
+            if 0 <= ix < cells and 0 <= iy < cells and mask[iy, ix]:
+                length += piece
+    return length
+
+
+@njit(cache=True, nogil=True)
+def unseen_log_likelihood(out, poses, samples, view):
+    """Add the unseen term at every pose (``poses``: Poses) to ``out`` (4, N) (row 3):
+    ``samples``: LineSamples; ``view``: View. The pieces a pose should see, n = max(length
+    in view / piece, seen), score the binomial's log C(n, seen) + (n - seen) log(1 - q) (less
+    what does not depend on n); the term is log(floor + (1 - floor) exp(that - its peak)).
+
+    The term is evaluated at the centre of each pose's bin (``view.bin_xy``,
+    ``view.bin_heading``), once per bin the poses occupy: it changes in steps of a piece
+    anyway, and a tracked belief's particles share a few hundred bins."""
+    x, y, cth, sth = poses
+    mask, r, inv_cell, seen = view.mask, view.r, view.inv_cell, view.seen
+    bin_xy, bin_th = view.bin_xy, view.bin_heading
+    n_poses = x.shape[0]
+    keys = np.empty(n_poses, np.int64)
+    turns = int(math.ceil(2.0 * math.pi / bin_th))
+    for i in range(n_poses):
+        jx = int(math.floor(x[i] / bin_xy)) + (1 << 20)
+        jy = int(math.floor(y[i] / bin_xy)) + (1 << 20)
+        jt = int(math.floor((math.atan2(sth[i], cth[i]) + math.pi) / bin_th)) % turns
+        keys[i] = (jx * (1 << 21) + jy) * 1024 + jt
+    order = np.argsort(keys)
+    acc = out[3]
+    k = 0
+    while k < n_poses:
+        key = keys[order[k]]
+        jt = key % 1024
+        jy = (key // 1024) % (1 << 21) - (1 << 20)
+        jx = key // 1024 // (1 << 21) - (1 << 20)
+        th = (jt + 0.5) * bin_th - math.pi
+        length = _line_in_view((jx + 0.5) * bin_xy, (jy + 0.5) * bin_xy, math.cos(th),
+                               math.sin(th), samples, mask, r, inv_cell)
+        n = max(length * view.inv_piece, seen)
+        ll = math.lgamma(n + 1.0) - math.lgamma(n - seen + 1.0) + (n - seen) * view.log_miss
+        term = math.log(view.floor + (1.0 - view.floor) * math.exp(min(ll - view.peak, 0.0)))
+        while k < n_poses and keys[order[k]] == key:
+            acc[order[k]] += term
+            k += 1
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _mixture(cost, a_uni, log_floor):
     """log(a_uni + (1 - a_uni) exp(-cost)), ``log_floor`` (log(a_uni)) where the cost is
@@ -126,7 +255,7 @@ def _table(fp, idx, at, d_o, w_d, weights, l_at_t):
 @njit(cache=True, nogil=True)
 def point_log_likelihood(out, poses, pts, part, fp, weights):
     """Add each point observation's log-likelihood at every pose (``poses``: Poses) to
-    ``out`` (3, N) (row ``part[k]``), against ``fp`` (FieldPoints); ``weights``: (w_b, w_o),
+    ``out`` (4, N) (row ``part[k]``), against ``fp`` (FieldPoints); ``weights``: (w_b, w_o),
     1 / sigma_b^2 and 1 / sigma_o^2 (0: no orientation term)."""
     x, y, cth, sth = poses
     cand, grid = fp.cand, fp.grid
@@ -192,7 +321,7 @@ def point_log_likelihood(out, poses, pts, part, fp, weights):
 @njit(cache=True, nogil=True)
 def line_log_likelihood(out, poses, lines, fl, rule):
     """Add each line observation's log-likelihood at every pose (``poses``: Poses) to ``out``
-    (3, N) (row 0), against ``fl`` (FieldLines); ``rule``: (tol2, w_a, margin), the squared
+    (4, N) (row 0), against ``fl`` (FieldLines); ``rule``: (tol2, w_a, margin), the squared
     tolerance of eq. 5, the angle's weight and the arcs' extent margin."""
     x, y, cth, sth = poses
     normals, tangents, seg, group_start, arcs = fl

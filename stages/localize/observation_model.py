@@ -46,6 +46,22 @@ Combination (section 5.3): each observation's likelihood is
 are other robots' or people's legs), the uniform density taken relative to the peak of the
 normal model; the frame's likelihood is the product over observations (a sum of logarithms).
 
+Unseen lines (negative information: Hoffmann, Spranger, Göhring and Jüngel 2005): a pose
+that should have shown more field line near the robot than the frame holds is less likely.
+On rendered NAO walks the look-alike places the filter held (1.65 m along the touch line, the
+penalty area turned about its front line) would show 1-2 m of line near the robot that the
+frames do not hold. Where the features give the frame's view (the floor the image sees below
+the field boundary, ``extract``'s ``view``), shrunk by ``unseen_margin`` (a line at its edge is
+often cut short), the field's lines inside it within ``unseen_range`` of a pose make n =
+length / ``unseen_piece`` pieces, and the frame's usable lines cover ``seen`` pieces of it.
+Each piece is found with probability q (``unseen_detection``): log P(seen | n) = log C(n, seen)
++ seen log q + (n - seen) log(1 - q), with n = max(n, seen) (a false line adds pieces no pose
+can explain). The frame's term is log(floor + (1 - floor) P / P_peak), P_peak the largest
+P(seen | n) over n (``unseen_floor``, the same construction as an observation's uniform floor):
+the pieces missed together in one frame (a robot in front of the camera, a blurred frame) are
+not independent, and without the floor a frame that missed the line at the robot's feet
+ruled the truth out. A pose showing no more line than was seen costs nothing.
+
 The names in double backquotes above are fields of ``TUNING`` (an ``ObservationTuning``);
 which kinds of observation are used and the camera's height are the user's choice
 (``DEFAULTS``, mcl's ``observation`` conf group).
@@ -63,7 +79,9 @@ import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
+import cv2
 import numpy as np
+from scipy.special import gammaln
 
 from stages.common import crossing_tables
 from stages.common.crossing_tables import crossing_association_tables
@@ -73,7 +91,7 @@ from stages.common.observations import Observations
 
 from . import mcl_kernels as K
 
-PARTS = ("lines", "crossings", "posts")
+PARTS = ("lines", "crossings", "posts", "unseen")
 DEFAULT_CAMERA_HEIGHT = 0.5  # m, when neither the conf nor a calibration gives one
 
 # what a user chooses (mcl's ``observation`` conf group): the camera's height and which kinds
@@ -107,6 +125,11 @@ class ObservationTuning(NamedTuple):
     max_line_distance: float
     uniform_floor: float
     post_uniform_floor: float | None
+    unseen_range: float
+    unseen_piece: float
+    unseen_margin: float
+    unseen_detection: float
+    unseen_floor: float
 
 
 # the model's constants: the paper's equations with the values the filter was tuned with on
@@ -134,13 +157,78 @@ TUNING = ObservationTuning(
     post_uniform_floor=0.6,  # a_base for goal posts: most detected posts are no goal
     # post (robots' and people's legs: on rendered NAO walks most detections lie at no post
     # at the true pose; docs/results.md); None = uniform_floor
+    unseen_range=2.0,  # m: the unseen term counts the lines this near (0: no term); farther
+    # ones are missed too often to tell (on rendered NAO walks 460-489 at the true poses, a
+    # 0.5 m piece 1.5-2.5 m away was found 80 % of the time, 2.5-3.5 m away 70 %, with a
+    # frame-to-frame spread that made the evidence far weaker)
+    unseen_piece=0.5,  # m of line that is one piece
+    unseen_margin=0.2,  # m: the view is shrunk by this much (a line at the image's edge or
+    # just below the field boundary is often cut short or missed)
+    unseen_detection=0.76,  # q: the probability that a piece in view is found (maximum
+    # likelihood at the true poses of rendered NAO walks 460-489; a beta-distributed q fitted
+    # there came out this binomial: no spread from frame to frame)
+    unseen_floor=0.7,  # a frame's term is log(floor + (1 - floor) P / P_peak): a frame's
+    # misses cost a pose at most log(0.7) = -0.36 nats (NAO tuning walks 460-519: floors
+    # 0.5-0.8 did alike, 0.1 and 0.3 left more frames confidently wrong; docs/results.md)
 )
+UNSEEN_CELL = 0.05  # m, the view mask's cells
+UNSEEN_SPACING = 0.1  # m between the field lines' samples (a fifth of a piece)
+# the term is evaluated once per bin of poses (mcl_kernels.unseen_log_likelihood): a tracked
+# belief's 1000 particles (10 cm and 3 deg apart) share about 130 bins; at 2 m, 3 deg moves a
+# line 10 cm, a fifth of a piece
+UNSEEN_BIN_XY = 0.1  # m
+UNSEEN_BIN_HEADING = math.radians(3.0)
 
 
 _NO_LINES = np.zeros((0, 4))
 _NO_CROSSINGS = np.zeros((0, 5))
 _NO_POSTS = np.zeros((0, 3))
 _NO_DISTANCES = np.zeros((0, 1))
+
+
+def _length_in_view(ends: np.ndarray, mask: np.ndarray, r: float) -> float:
+    """Length of the segments (``ends`` (L, 4)) inside the view ``mask`` (cells of
+    UNSEEN_CELL over [-r, r]^2) within ``r`` of the origin, from samples UNSEEN_CELL apart."""
+    total = 0.0
+    cells = mask.shape[0]
+    for x0, y0, x1, y1 in ends:
+        length = math.hypot(x1 - x0, y1 - y0)
+        n = max(1, int(math.ceil(length / UNSEEN_CELL)))
+        t = (np.arange(n) + 0.5) / n
+        x, y = x0 + t * (x1 - x0), y0 + t * (y1 - y0)
+        ix = np.floor((x + r) / UNSEEN_CELL).astype(int)
+        iy = np.floor((y + r) / UNSEEN_CELL).astype(int)
+        ok = (x * x + y * y <= r * r) & (ix >= 0) & (ix < cells) & (iy >= 0) & (iy < cells)
+        total += length / n * float(mask[iy[ok], ix[ok]].sum())
+    return total
+
+
+def line_samples(field_model: FieldModel, spacing: float) -> K.LineSamples:
+    """The field's lines and arcs cut into equal pieces at most ``spacing`` long, as the
+    unseen term's kernel reads them (mcl_kernels.LineSamples): each piece's middle and
+    length, and per line or arc its bounding box, its pieces and (a straight line) its start
+    and unit direction."""
+    points, groups = [], []
+
+    def add(pts, piece, box, line):
+        groups.append([*box, sum(len(q) for q in points), len(pts), *line, piece])
+        points.append(np.column_stack([pts, np.full(len(pts), piece)]))
+
+    for a, b in np.asarray(field_model.segments, float).reshape(-1, 2, 2):
+        length = float(np.hypot(*(b - a)))
+        n = max(1, int(math.ceil(length / spacing)))
+        t = (np.arange(n) + 0.5)[:, None] / n
+        add(a + t * (b - a), length / n, [*np.minimum(a, b), *np.maximum(a, b)],
+            [1.0, a[0], a[1], (b[0] - a[0]) / length, (b[1] - a[1]) / length])
+    for cx, cy, rad, a0, sweep in np.asarray(field_model.arcs, float).reshape(-1, 5):
+        n = max(1, int(math.ceil(abs(sweep) * rad / spacing)))
+        ang = a0 + sweep * (np.arange(n) + 0.5) / n
+        add(np.column_stack([cx + rad * np.cos(ang), cy + rad * np.sin(ang)]),
+            abs(sweep) * rad / n, [cx - rad, cy - rad, cx + rad, cy + rad],
+            [0.0, 0.0, 0.0, 0.0, 0.0])
+    return K.LineSamples(
+        np.concatenate(points) if points else np.zeros((0, 3)),
+        np.array(groups, float).reshape(-1, K.N_SAMPLE_GROUP_COLS))
 
 
 def line_closest_distance(obs: Observations) -> np.ndarray:
@@ -167,6 +255,7 @@ class PreparedObservations:
     lines: np.ndarray
     points: np.ndarray
     part: np.ndarray
+    view: K.View | None = None  # the unseen term's view (None: no term)
 
     def __len__(self) -> int:
         return len(self.obs)
@@ -227,6 +316,7 @@ class ObservationModel:
             groups.append((n[k][0], t[k][0], np.stack(
                 [offset[k], along[k].min(axis=1), along[k].max(axis=1)], axis=1)))
         self.arcs = np.asarray(fm.arcs, float).reshape(-1, 5)
+        self._samples = line_samples(fm, UNSEEN_SPACING)  # the unseen term's field lines
         self._kernel_constants(groups)
 
     def _kernel_constants(self, groups):
@@ -322,7 +412,7 @@ class ObservationModel:
         else:
             ok = np.isfinite(posts).all(axis=1)
             posts = posts if ok.all() else posts[ok]
-        return Observations(lines, ends, crossings, posts), d_o
+        return Observations(lines, ends, crossings, posts, obs.view), d_o
 
     def range_sigma(self, d, base: float, elevation: float | np.ndarray | None = None):
         """Range sigma (m) of a floor point at distance ``d``: ``base`` in quadrature with the
@@ -347,7 +437,41 @@ class ObservationModel:
             d_o = line_closest_distance(obs)[:, None] if len(obs.lines) else _NO_DISTANCES
         else:
             obs, d_o = self._usable(obs)
-        return PreparedObservations(obs, self._line_rows(obs, d_o), *self._point_rows_kernel(obs))
+        return PreparedObservations(obs, self._line_rows(obs, d_o), *self._point_rows_kernel(obs),
+                                    self._view(obs))
+
+    def _view(self, obs: Observations) -> K.View | None:
+        """The unseen term's View of the frame (None without a view, line ends or the term)."""
+        t = self.tuning
+        r = float(t.unseen_range)
+        view = obs.view
+        if (r <= 0 or t.unseen_floor >= 1.0 or view is None or len(view) < 3
+                or not self.conf["use_lines"] or (len(obs.lines) and obs.line_ends is None)
+                or not len(self._samples.points)):
+            return None
+        view = np.asarray(view, float)
+        if not np.isfinite(view).all():
+            return None
+        cells = int(math.ceil(2.0 * r / UNSEEN_CELL))
+        mask = np.zeros((cells, cells), np.uint8)
+        shift = 4  # fillPoly's fixed point: 1/16 of a cell; its pixel centres lie at whole
+        # coordinates, the kernel's cell i spans [i, i + 1)
+        poly = np.round(((view + r) / UNSEEN_CELL - 0.5) * (1 << shift)).astype(np.int32)
+        cv2.fillPoly(mask, [poly], 1, lineType=cv2.LINE_8, shift=shift)
+        k = int(round(t.unseen_margin / UNSEEN_CELL))
+        if k > 0:
+            mask = cv2.erode(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE,
+                                                             (2 * k + 1, 2 * k + 1)))
+        seen = 0.0
+        if len(obs.lines):  # the lines' length inside the (shrunk) view within r
+            seen = _length_in_view(obs.line_ends, mask, r) / t.unseen_piece
+        q = float(t.unseen_detection)
+        # the binomial's peak over the pieces a pose may show (n >= seen), for the floor
+        n = seen + np.arange(0.0, 40.0, 0.05)
+        peak = float(np.max(gammaln(n + 1.0) - gammaln(n - seen + 1.0)
+                            + (n - seen) * math.log1p(-q)))
+        return K.View(mask, r, 1.0 / UNSEEN_CELL, seen, 1.0 / t.unseen_piece, math.log1p(-q),
+                      peak, float(t.unseen_floor), UNSEEN_BIN_XY, UNSEEN_BIN_HEADING)
 
     def _line_rows(self, obs: Observations, d_o) -> np.ndarray:
         """The kernel's rows of the usable lines (mcl_kernels.L_*)."""
@@ -434,7 +558,7 @@ class ObservationModel:
         y = np.ascontiguousarray(y, dtype=float).ravel()
         th = np.ascontiguousarray(theta, dtype=float).ravel()
         cth, sth = np.cos(th), np.sin(th)
-        out = np.zeros((3, len(x)))
+        out = np.zeros((len(PARTS), len(x)))
         t = self.tuning
         poses = K.Poses(x, y, cth, sth)
         if len(prep.lines):
@@ -447,6 +571,8 @@ class ObservationModel:
                                    K.FieldPoints(self._k_cand, self.lut, self._k_cross,
                                                  self._k_grid),
                                    (1.0 / float(t.sigma_bearing) ** 2, self._k_w_o))
+        if prep.view is not None and len(prep):
+            K.unseen_log_likelihood(out, poses, self._samples, prep.view)
         if parts:
             return dict(zip(PARTS, out))
         return out.sum(axis=0)

@@ -191,6 +191,18 @@ def synthetic_observations(field_model: FieldModel, pose, rng: np.random.Generat
     )
 
 
+def sector_view(conf: dict | None = None, arc_points: int = 13) -> np.ndarray:
+    """The floor the synthetic camera sees (the sector ``fov`` wide from ``min_range`` to
+    ``max_range``), as the polygon (V, 2) extract writes as a frame's ``view``. Not attached
+    to the synthetic observations: the filter's tests on them run without the unseen term;
+    the bench's update times it with this view."""
+    c = dict(DEFAULTS, **(conf or {}))
+    a = np.linspace(-c["fov"] / 2, c["fov"] / 2, arc_points)
+    near = np.column_stack([c["min_range"] * np.cos(a), c["min_range"] * np.sin(a)])
+    far = np.column_stack([c["max_range"] * np.cos(a[::-1]), c["max_range"] * np.sin(a[::-1])])
+    return np.concatenate([near, far])
+
+
 def initial_placement_pose(field_model: FieldModel, rng: np.random.Generator) -> np.ndarray:
     """A pose where robots enter the field: own half (x < 0), on a touch line, facing in."""
     fm = field_model
