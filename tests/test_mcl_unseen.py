@@ -58,7 +58,7 @@ def test_the_length_in_view_is_the_pieces_in_view(model, x, y, theta, seed):
     r = TUNING.unseen_range
     cells = int(math.ceil(2 * r / om.UNSEEN_CELL))
     mask = (rng.random((cells, cells)) < rng.uniform(0.2, 0.9)).astype(np.uint8)
-    fast = K._line_in_view(x, y, math.cos(theta), math.sin(theta), model._samples, mask, r,
+    fast = K.line_in_view(x, y, math.cos(theta), math.sin(theta), model._samples, mask, r,
                            1.0 / om.UNSEEN_CELL)
     args = ((x, y, theta), model._samples.points, mask, r, om.UNSEEN_CELL)
     ref = oracle.line_in_view(*args)

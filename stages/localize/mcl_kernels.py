@@ -121,7 +121,7 @@ class LineSamples(NamedTuple):
 
 
 @njit(cache=True, nogil=True)
-def _line_in_view(px, py, c, s, samples, mask, r, inv_cell):
+def line_in_view(px, py, c, s, samples, mask, r, inv_cell):
     """Length (m) of the field's lines inside the view ``mask`` within ``r`` of the pose
     (px, py, heading cos c, sin s), from the pieces' middles. A line's pieces within r are
     found by cutting it with the circle, an arc's by testing each."""
@@ -201,7 +201,7 @@ def unseen_log_likelihood(out, poses, samples, view):
         jy = (key // 1024) % (1 << 21) - (1 << 20)
         jx = key // 1024 // (1 << 21) - (1 << 20)
         th = (jt + 0.5) * bin_th - math.pi
-        length = _line_in_view((jx + 0.5) * bin_xy, (jy + 0.5) * bin_xy, math.cos(th),
+        length = line_in_view((jx + 0.5) * bin_xy, (jy + 0.5) * bin_xy, math.cos(th),
                                math.sin(th), samples, mask, r, inv_cell)
         n = max(length * view.inv_piece, seen)
         ll = math.lgamma(n + 1.0) - math.lgamma(n - seen + 1.0) + (n - seen) * view.log_miss

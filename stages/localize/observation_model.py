@@ -186,41 +186,26 @@ _NO_POSTS = np.zeros((0, 3))
 _NO_DISTANCES = np.zeros((0, 1))
 
 
-def _length_in_view(ends: np.ndarray, mask: np.ndarray, r: float) -> float:
-    """Length of the segments (``ends`` (L, 4)) inside the view ``mask`` (cells of
-    UNSEEN_CELL over [-r, r]^2) within ``r`` of the origin, from samples UNSEEN_CELL apart."""
-    total = 0.0
-    cells = mask.shape[0]
-    for x0, y0, x1, y1 in ends:
-        length = math.hypot(x1 - x0, y1 - y0)
-        n = max(1, int(math.ceil(length / UNSEEN_CELL)))
-        t = (np.arange(n) + 0.5) / n
-        x, y = x0 + t * (x1 - x0), y0 + t * (y1 - y0)
-        ix = np.floor((x + r) / UNSEEN_CELL).astype(int)
-        iy = np.floor((y + r) / UNSEEN_CELL).astype(int)
-        ok = (x * x + y * y <= r * r) & (ix >= 0) & (ix < cells) & (iy >= 0) & (iy < cells)
-        total += length / n * float(mask[iy[ok], ix[ok]].sum())
-    return total
-
-
-def line_samples(field_model: FieldModel, spacing: float) -> K.LineSamples:
-    """The field's lines and arcs cut into equal pieces at most ``spacing`` long, as the
-    unseen term's kernel reads them (mcl_kernels.LineSamples): each piece's middle and
-    length, and per line or arc its bounding box, its pieces and (a straight line) its start
-    and unit direction."""
+def line_samples(segments, arcs, spacing: float) -> K.LineSamples:
+    """Lines (``segments`` (S, 2, 2)) and arcs (``arcs`` (A, 5): cx, cy, r, a0, sweep) cut
+    into equal pieces at most ``spacing`` long, as the unseen term's kernel reads them
+    (mcl_kernels.LineSamples): each piece's middle and length, and per line or arc its
+    bounding box, its pieces and (a straight line) its start and unit direction. The field's
+    lines, and a frame's observed segments in the robot frame."""
     points, groups = [], []
 
     def add(pts, piece, box, line):
         groups.append([*box, sum(len(q) for q in points), len(pts), *line, piece])
         points.append(np.column_stack([pts, np.full(len(pts), piece)]))
 
-    for a, b in np.asarray(field_model.segments, float).reshape(-1, 2, 2):
+    for a, b in np.asarray(segments, float).reshape(-1, 2, 2):
         length = float(np.hypot(*(b - a)))
         n = max(1, int(math.ceil(length / spacing)))
         t = (np.arange(n) + 0.5)[:, None] / n
+        d = (b - a) / max(length, 1e-12)
         add(a + t * (b - a), length / n, [*np.minimum(a, b), *np.maximum(a, b)],
-            [1.0, a[0], a[1], (b[0] - a[0]) / length, (b[1] - a[1]) / length])
-    for cx, cy, rad, a0, sweep in np.asarray(field_model.arcs, float).reshape(-1, 5):
+            [1.0, a[0], a[1], d[0], d[1]])
+    for cx, cy, rad, a0, sweep in np.asarray(arcs, float).reshape(-1, 5):
         n = max(1, int(math.ceil(abs(sweep) * rad / spacing)))
         ang = a0 + sweep * (np.arange(n) + 0.5) / n
         add(np.column_stack([cx + rad * np.cos(ang), cy + rad * np.sin(ang)]),
@@ -316,7 +301,8 @@ class ObservationModel:
             groups.append((n[k][0], t[k][0], np.stack(
                 [offset[k], along[k].min(axis=1), along[k].max(axis=1)], axis=1)))
         self.arcs = np.asarray(fm.arcs, float).reshape(-1, 5)
-        self._samples = line_samples(fm, UNSEEN_SPACING)  # the unseen term's field lines
+        # the unseen term's field lines
+        self._samples = line_samples(fm.segments, fm.arcs, UNSEEN_SPACING)
         self._kernel_constants(groups)
 
     def _kernel_constants(self, groups):
@@ -464,7 +450,9 @@ class ObservationModel:
                                                              (2 * k + 1, 2 * k + 1)))
         seen = 0.0
         if len(obs.lines):  # the lines' length inside the (shrunk) view within r
-            seen = _length_in_view(obs.line_ends, mask, r) / t.unseen_piece
+            ends = line_samples(obs.line_ends.reshape(-1, 2, 2), (), UNSEEN_CELL)
+            seen = K.line_in_view(0.0, 0.0, 1.0, 0.0, ends, mask, r,
+                                  1.0 / UNSEEN_CELL) / t.unseen_piece
         q = float(t.unseen_detection)
         # the binomial's peak over the pieces a pose may show (n >= seen), for the floor
         n = seen + np.arange(0.0, 40.0, 0.05)

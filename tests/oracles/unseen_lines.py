@@ -1,4 +1,4 @@
-"""Reference of the unseen term's visible length (stages.localize.mcl_kernels._line_in_view):
+"""Reference of the unseen term's visible length (stages.localize.mcl_kernels.line_in_view):
 every piece's middle tested at once as array passes, no circle cut, no stepping."""
 
 from __future__ import annotations

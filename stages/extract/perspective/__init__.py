@@ -528,7 +528,7 @@ def _view_top(u, lo, rows, lens, floor, out):
                 break
             if v >= bottom:
                 break
-            prev_v, prev_inv = v, (inv if inv == inv else 0.0)
+            prev_v, prev_inv = v, inv
             v = min(v + step, bottom)
 
 
