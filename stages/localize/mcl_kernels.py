@@ -30,7 +30,9 @@ The kernels take the poses (``Poses``), the field as the observations are scored
 
 ``unseen_log_likelihood`` is the "unseen" term (observation_model's module doc): per pose, the
 length of field line inside the frame's view (``View``) within its range, from the field's
-line samples, and the beta-binomial log-probability of the line pieces seen among them.
+line samples, and the binomial log-probability of the line pieces seen among them. A line is
+stepped only where it crosses the view's convex hull (``ViewArea.planes``): a camera sees
+some sixty degrees around the robot, and the pieces outside cannot be in view.
 """
 
 from __future__ import annotations
@@ -86,17 +88,27 @@ class FieldLines(NamedTuple):
     arcs: np.ndarray
 
 
-class View(NamedTuple):
-    """One frame's view for the unseen term (observation_model's module doc): ``mask``
-    (n, n) uint8, 1 where the image saw the floor, on square cells of 1 / ``inv_cell`` m
-    about the robot covering [-r, r]^2 (row: y, column: x); the pieces of line ``seen`` and
-    a piece's length (1 / ``inv_piece``); log(1 - q) of the detection probability q; the
-    binomial's ``peak`` log-probability and the term's ``floor``; the poses' bins
-    (``bin_xy`` m, ``bin_heading`` rad)."""
+class ViewArea(NamedTuple):
+    """Where one frame saw the floor, about the robot: ``mask`` (n, n) uint8, 1 where the
+    image saw the floor, on square cells of 1 / ``inv_cell`` m covering [-r, r]^2 (row: y,
+    column: x); ``planes`` (H, 3) half-planes nx u + ny v <= d (m, robot frame) whose
+    intersection holds every set cell (the mask's convex hull, grown; H = 0: no bound). The
+    kernel steps a line only where it crosses them: a camera sees some sixty degrees of the
+    circle, and stepping the rest found nothing."""
 
     mask: np.ndarray
     r: float
     inv_cell: float
+    planes: np.ndarray
+
+
+class View(NamedTuple):
+    """One frame's view for the unseen term (observation_model's module doc): its ``area``
+    (ViewArea); the pieces of line ``seen`` and a piece's length (1 / ``inv_piece``); log(1 -
+    q) of the detection probability q; the binomial's ``peak`` log-probability and the term's
+    ``floor``; the poses' bins (``bin_xy`` m, ``bin_heading`` rad)."""
+
+    area: ViewArea
     seen: float
     inv_piece: float
     log_miss: float
@@ -120,12 +132,156 @@ class LineSamples(NamedTuple):
     groups: np.ndarray
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _clip(qx, qy, du, dv, planes, lo, hi):
+    """The part [lo, hi] of the line (qx, qy) + t (du, dv) (robot frame) inside ``planes``
+    (ViewArea); lo > hi when it misses them."""
+    for h in range(planes.shape[0]):
+        a = planes[h, 0] * qx + planes[h, 1] * qy - planes[h, 2]
+        b = planes[h, 0] * du + planes[h, 1] * dv
+        if b > 1e-12:
+            hi = min(hi, -a / b)
+        elif b < -1e-12:
+            lo = max(lo, -a / b)
+        elif a > 0.0:
+            return 1.0, 0.0
+    return lo, hi
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _straight_in_view(line, c, s, area):
+    """Length (m) of a straight line's pieces whose middle lies in ``area`` (ViewArea)
+    within its r of the robot: ``line`` (wx, wy, ux, uy, piece, count) its start from the
+    robot and unit direction (field frame), its pieces' length and count; c, s the robot's
+    heading. The pieces within r and the area's planes are found by cutting the line with
+    the circle and the planes, and stepped."""
+    wx, wy, ux, uy, piece, count = line
+    mask, r, inv_cell, planes = area
+    cells = mask.shape[0]
+    wu = wx * ux + wy * uy
+    disc = wu * wu - (wx * wx + wy * wy - r * r)
+    if disc <= 0.0:
+        return 0.0
+    root = math.sqrt(disc)
+    # the line's start and direction in the robot frame, cut with the planes
+    qx, qy = c * wx + s * wy, c * wy - s * wx
+    eu, ev = c * ux + s * uy, c * uy - s * ux
+    lo, hi = _clip(qx, qy, eu, ev, planes, -wu - root, -wu + root)
+    if lo > hi:
+        return 0.0
+    j0 = max(0, int(math.ceil(lo / piece - 0.5 - 1e-9)))
+    j1 = min(count, int(math.floor(hi / piece - 0.5 + 1e-9)) + 1)
+    # the first piece's middle and the step between pieces, in the robot frame
+    t = (j0 + 0.5) * piece
+    u, v = qx + t * eu, qy + t * ev
+    du, dv = eu * piece, ev * piece
+    length = 0.0
+    for _ in range(j0, j1):
+        ix, iy = int((u + r) * inv_cell), int((v + r) * inv_cell)
+        if 0 <= ix < cells and 0 <= iy < cells and mask[iy, ix]:
+            length += piece
+        u += du
+        v += dv
+    return length
+
+
 @njit(cache=True, nogil=True)
-def line_in_view(px, py, c, s, samples, mask, r, inv_cell):
-    """Length (m) of the field's lines inside the view ``mask`` within ``r`` of the pose
-    (px, py, heading cos c, sin s), from the pieces' middles. A line's pieces within r are
-    found by cutting it with the circle, an arc's by testing each."""
+def segments_in_view(ends, spacing, area):
+    """Length (m) of the segments ``ends`` (L, 4: x0, y0, x1, y1, robot frame) inside the
+    view ``area`` (ViewArea) within its r of the robot, each cut into equal pieces at most
+    ``spacing`` long (a frame's lines, as line_in_view counts the field's)."""
+    length = 0.0
+    for k in range(ends.shape[0]):
+        dx, dy = ends[k, 2] - ends[k, 0], ends[k, 3] - ends[k, 1]
+        size = math.sqrt(dx * dx + dy * dy)
+        count = max(1, int(math.ceil(size / spacing)))
+        inv = 1.0 / max(size, 1e-12)
+        length += _straight_in_view((ends[k, 0], ends[k, 1], dx * inv, dy * inv,
+                                     size / count, count), 1.0, 0.0, area)
+    return length
+
+
+@njit(cache=True, nogil=True)
+def view_planes(mask, r, cell, grow):
+    """The half-planes (H, 3) nx u + ny v <= d of ``mask``'s set cells' convex hull (cells
+    of ``cell`` m over [-r, r]^2, row y, column x), grown by ``grow`` m: the hull of each
+    row's first and last set cell's middle (Andrew's monotone chain; the rows come sorted).
+    One plane nothing lies in when no cell is set; a point's or a line's box when the hull
+    has no area."""
+    n = mask.shape[0]
+    pts = np.empty((2 * n, 2))
+    m = 0
+    for iy in range(n):
+        first = -1
+        last = -1
+        for ix in range(mask.shape[1]):
+            if mask[iy, ix]:
+                if first < 0:
+                    first = ix
+                last = ix
+        if first >= 0:
+            pts[m, 0], pts[m, 1] = (first + 0.5) * cell - r, (iy + 0.5) * cell - r
+            m += 1
+            if last > first:
+                pts[m, 0], pts[m, 1] = (last + 0.5) * cell - r, (iy + 0.5) * cell - r
+                m += 1
+    if m == 0:
+        out = np.zeros((1, 3))
+        out[0, 2] = -1e9
+        return out
+    # the points are sorted by (y, x): the two chains of the hull
+    hull = np.empty((2 * m + 1, 2))
+    h = 0
+    for k in range(m):
+        while h >= 2 and _turn(hull[h - 2], hull[h - 1], pts[k]) <= 0.0:
+            h -= 1
+        hull[h] = pts[k]
+        h += 1
+    low = h + 1
+    for k in range(m - 2, -1, -1):
+        while h >= low and _turn(hull[h - 2], hull[h - 1], pts[k]) <= 0.0:
+            h -= 1
+        hull[h] = pts[k]
+        h += 1
+    h -= 1  # the last point is the first
+    if h < 3:  # no area: the box of the points
+        out = np.empty((4, 3))
+        x0, x1 = pts[:m, 0].min(), pts[:m, 0].max()
+        y0, y1 = pts[:m, 1].min(), pts[:m, 1].max()
+        out[0, 0], out[0, 1], out[0, 2] = 1.0, 0.0, x1 + grow
+        out[1, 0], out[1, 1], out[1, 2] = -1.0, 0.0, -x0 + grow
+        out[2, 0], out[2, 1], out[2, 2] = 0.0, 1.0, y1 + grow
+        out[3, 0], out[3, 1], out[3, 2] = 0.0, -1.0, -y0 + grow
+        return out
+    area = 0.0
+    for k in range(h):
+        area += hull[k, 0] * hull[k + 1, 1] - hull[k + 1, 0] * hull[k, 1]
+    turn = 1.0 if area > 0.0 else -1.0  # counter-clockwise: the edge turned right
+    out = np.empty((h, 3))
+    for k in range(h):  # the outward normals
+        ex, ey = hull[k + 1, 0] - hull[k, 0], hull[k + 1, 1] - hull[k, 1]
+        size = math.sqrt(ex * ex + ey * ey)
+        nx, ny = turn * ey / size, -turn * ex / size
+        out[k, 0], out[k, 1] = nx, ny
+        out[k, 2] = nx * hull[k, 0] + ny * hull[k, 1] + grow
+    return out
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _turn(a, b, p):
+    """> 0 when a -> b -> p turns left (counter-clockwise)."""
+    return (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0])
+
+
+@njit(cache=True, nogil=True)
+def line_in_view(pose, samples, area):
+    """Length (m) of the field's lines (``samples``: LineSamples) inside the view ``area``
+    (ViewArea) within its r of the pose (x, y, heading cos c, sin s), from the pieces'
+    middles. A line's pieces within r and the area's planes are found by cutting it with the
+    circle and the planes, an arc's by testing each (an arc outside a plane is skipped)."""
+    px, py, c, s = pose
     pts, groups = samples
+    mask, r, inv_cell, planes = area
     cells = mask.shape[0]
     r2 = r * r
     length = 0.0
@@ -137,27 +293,21 @@ def line_in_view(px, py, c, s, samples, mask, r, inv_cell):
         k0 = int(row[G_START])
         k1 = k0 + int(row[G_COUNT])
         piece = row[G_PIECE]
-        if row[G_STRAIGHT] > 0.0:  # the pieces whose middle lies within r, stepped
-            wx, wy = row[G_AX] - px, row[G_AY] - py
-            ux, uy = row[G_UX], row[G_UY]
-            wu = wx * ux + wy * uy
-            disc = wu * wu - (wx * wx + wy * wy - r2)
-            if disc <= 0.0:
-                continue
-            root = math.sqrt(disc)
-            j0 = max(0, int(math.ceil((-wu - root) / piece - 0.5)))
-            j1 = min(k1 - k0, int(math.floor((-wu + root) / piece - 0.5)) + 1)
-            # the first piece's middle and the step between pieces, in the robot frame
-            t = (j0 + 0.5) * piece
-            qx, qy = wx + t * ux, wy + t * uy
-            u, v = c * qx + s * qy, c * qy - s * qx
-            du, dv = (c * ux + s * uy) * piece, (c * uy - s * ux) * piece
-            for _ in range(j0, j1):
-                ix, iy = int((u + r) * inv_cell), int((v + r) * inv_cell)
-                if 0 <= ix < cells and 0 <= iy < cells and mask[iy, ix]:
-                    length += piece
-                u += du
-                v += dv
+        if row[G_STRAIGHT] > 0.0:
+            length += _straight_in_view(
+                (row[G_AX] - px, row[G_AY] - py, row[G_UX], row[G_UY], piece, k1 - k0),
+                c, s, area)
+            continue
+        # an arc: (x, y) centre, its radius is half the box's width
+        ax, ay = 0.5 * (row[G_X0] + row[G_X1]) - px, 0.5 * (row[G_Y0] + row[G_Y1]) - py
+        au, av = c * ax + s * ay, c * ay - s * ax
+        rad = 0.5 * (row[G_X1] - row[G_X0])
+        outside = False
+        for h in range(planes.shape[0]):
+            if planes[h, 0] * au + planes[h, 1] * av - planes[h, 2] > rad:
+                outside = True
+                break
+        if outside:
             continue
         for k in range(k0, k1):
             dx, dy = pts[k, 0] - px, pts[k, 1] - py
@@ -172,6 +322,25 @@ def line_in_view(px, py, c, s, samples, mask, r, inv_cell):
 
 
 @njit(cache=True, nogil=True)
+def binomial_peak(seen, log_miss, step, count):
+    """The largest log C(n, seen) + (n - seen) log(1 - q) (``log_miss``) over n = seen +
+    k ``step``, k < ``count``. It is concave in n (the digamma's slope falls), so the first
+    k where it stops rising is found by bisection."""
+    lo, hi = 0, count - 1
+    while lo < hi:
+        k = (lo + hi) // 2
+        n = seen + k * step
+        rise = (math.lgamma(n + step + 1.0) - math.lgamma(n + step - seen + 1.0)
+                - math.lgamma(n + 1.0) + math.lgamma(n - seen + 1.0) + step * log_miss)
+        if rise > 0.0:
+            lo = k + 1
+        else:
+            hi = k
+    n = seen + lo * step
+    return math.lgamma(n + 1.0) - math.lgamma(n - seen + 1.0) + (n - seen) * log_miss
+
+
+@njit(cache=True, nogil=True)
 def unseen_log_likelihood(out, poses, samples, view):
     """Add the unseen term at every pose (``poses``: Poses) to ``out`` (4, N) (row 3):
     ``samples``: LineSamples; ``view``: View. The pieces a pose should see, n = max(length
@@ -182,7 +351,7 @@ def unseen_log_likelihood(out, poses, samples, view):
     ``view.bin_heading``), once per bin the poses occupy: it changes in steps of a piece
     anyway, and a tracked belief's particles share a few hundred bins."""
     x, y, cth, sth = poses
-    mask, r, inv_cell, seen = view.mask, view.r, view.inv_cell, view.seen
+    seen = view.seen
     bin_xy, bin_th = view.bin_xy, view.bin_heading
     n_poses = x.shape[0]
     keys = np.empty(n_poses, np.int64)
@@ -201,8 +370,8 @@ def unseen_log_likelihood(out, poses, samples, view):
         jy = (key // 1024) % (1 << 21) - (1 << 20)
         jx = key // 1024 // (1 << 21) - (1 << 20)
         th = (jt + 0.5) * bin_th - math.pi
-        length = line_in_view((jx + 0.5) * bin_xy, (jy + 0.5) * bin_xy, math.cos(th),
-                               math.sin(th), samples, mask, r, inv_cell)
+        length = line_in_view(((jx + 0.5) * bin_xy, (jy + 0.5) * bin_xy, math.cos(th),
+                               math.sin(th)), samples, view.area)
         n = max(length * view.inv_piece, seen)
         ll = math.lgamma(n + 1.0) - math.lgamma(n - seen + 1.0) + (n - seen) * view.log_miss
         term = math.log(view.floor + (1.0 - view.floor) * math.exp(min(ll - view.peak, 0.0)))

@@ -36,6 +36,7 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from ..common.geometry import wrap_angle
 from ..common.observations import Observations
@@ -173,12 +174,39 @@ def log_support(belief: Belief, poses: np.ndarray, clusters,
     k = min(held, len(w))
     idx = np.minimum(np.searchsorted(cum, (np.arange(k) + 0.5) / k * cum[-1]), len(w) - 1)
     q = belief.particles[idx]
-    dx = poses[:, 0:1] - q[None, :, 0]
-    dy = poses[:, 1:2] - q[None, :, 1]
-    e = (dx * dx + dy * dy) / (2.0 * clusters.radius ** 2)
-    e += (1.0 - np.cos(poses[:, 2:3] - q[None, :, 2])) / max(clusters.heading, 1e-6) ** 2
-    top = (-e).max(axis=1)
-    return top + np.log(np.exp(-e - top[:, None]).sum(axis=1)) - math.log(len(q))
+    out = np.empty(len(poses))
+    _log_kernel_density(np.ascontiguousarray(poses, float), np.ascontiguousarray(q, float),
+                        (1.0 / (2.0 * clusters.radius ** 2),
+                         1.0 / max(clusters.heading, 1e-6) ** 2), out)
+    return out
+
+
+# a kernel this far (in log) below the pose's nearest adds less than e^-40 of it: not summed
+_KERNEL_REACH = 40.0
+
+
+@njit(cache=True, nogil=True)
+def _log_kernel_density(poses, support, scales, out):
+    """``out`` (M,) = log mean_k exp(-e_mk) with e = |d xy|^2 w_xy + (1 - cos d theta) w_th
+    between pose m and support particle k (``scales``: w_xy, w_th): log_support's sum, one
+    pass per pose, the terms below the nearest's by ``_KERNEL_REACH`` left out."""
+    w_xy, w_th = scales
+    n = support.shape[0]
+    cs, sn = np.cos(support[:, 2]), np.sin(support[:, 2])
+    e = np.empty(n)
+    for m in range(poses.shape[0]):
+        x, y = poses[m, 0], poses[m, 1]
+        c, s = math.cos(poses[m, 2]), math.sin(poses[m, 2])
+        low = np.inf
+        for k in range(n):
+            dx, dy = x - support[k, 0], y - support[k, 1]
+            e[k] = (dx * dx + dy * dy) * w_xy + (1.0 - (c * cs[k] + s * sn[k])) * w_th
+            low = min(low, e[k])
+        total = 0.0
+        for k in range(n):
+            if e[k] - low < _KERNEL_REACH:
+                total += math.exp(low - e[k])
+        out[m] = -low + math.log(total) - math.log(n)
 
 
 def mirror_guard(poses: np.ndarray, belief: Belief, clusters, last_pose) -> np.ndarray:

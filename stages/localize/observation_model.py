@@ -81,7 +81,6 @@ from typing import NamedTuple
 
 import cv2
 import numpy as np
-from scipy.special import gammaln
 
 from stages.common import crossing_tables
 from stages.common.crossing_tables import crossing_association_tables
@@ -178,6 +177,8 @@ UNSEEN_SPACING = 0.1  # m between the field lines' samples (a fifth of a piece)
 # line 10 cm, a fifth of a piece
 UNSEEN_BIN_XY = 0.1  # m
 UNSEEN_BIN_HEADING = math.radians(3.0)
+# the binomial's peak is sought over n = seen + k 0.05, k < 800 (40 pieces more than seen)
+_PEAK_STEP, _PEAK_COUNT = 0.05, 800
 
 
 _NO_LINES = np.zeros((0, 4))
@@ -190,8 +191,7 @@ def line_samples(segments, arcs, spacing: float) -> K.LineSamples:
     """Lines (``segments`` (S, 2, 2)) and arcs (``arcs`` (A, 5): cx, cy, r, a0, sweep) cut
     into equal pieces at most ``spacing`` long, as the unseen term's kernel reads them
     (mcl_kernels.LineSamples): each piece's middle and length, and per line or arc its
-    bounding box, its pieces and (a straight line) its start and unit direction. The field's
-    lines, and a frame's observed segments in the robot frame."""
+    bounding box, its pieces and (a straight line) its start and unit direction."""
     points, groups = [], []
 
     def add(pts, piece, box, line):
@@ -214,6 +214,19 @@ def line_samples(segments, arcs, spacing: float) -> K.LineSamples:
     return K.LineSamples(
         np.concatenate(points) if points else np.zeros((0, 3)),
         np.array(groups, float).reshape(-1, K.N_SAMPLE_GROUP_COLS))
+
+
+# a point of a set cell lies within sqrt(2) / 2 of a cell of the cell's centre: the hull of
+# the centres, grown by this many cells, holds every set cell
+_HULL_GROWTH = 0.75
+
+
+def view_area(mask: np.ndarray, r: float, cell: float) -> K.ViewArea:
+    """The ViewArea of a view ``mask`` (cells of ``cell`` m over [-r, r]^2 about the robot,
+    row y, column x): the mask and the half-planes of its set cells' convex hull, grown by
+    ``_HULL_GROWTH`` cells (mcl_kernels.view_planes)."""
+    return K.ViewArea(mask, float(r), 1.0 / cell,
+                      K.view_planes(mask, float(r), float(cell), _HULL_GROWTH * cell))
 
 
 def line_closest_distance(obs: Observations) -> np.ndarray:
@@ -448,18 +461,16 @@ class ObservationModel:
         if k > 0:
             mask = cv2.erode(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE,
                                                              (2 * k + 1, 2 * k + 1)))
+        area = view_area(mask, r, UNSEEN_CELL)
         seen = 0.0
         if len(obs.lines):  # the lines' length inside the (shrunk) view within r
-            ends = line_samples(obs.line_ends.reshape(-1, 2, 2), (), UNSEEN_CELL)
-            seen = K.line_in_view(0.0, 0.0, 1.0, 0.0, ends, mask, r,
-                                  1.0 / UNSEEN_CELL) / t.unseen_piece
-        q = float(t.unseen_detection)
+            ends = np.ascontiguousarray(obs.line_ends, float).reshape(-1, 4)
+            seen = K.segments_in_view(ends, UNSEEN_CELL, area) / t.unseen_piece
+        log_miss = math.log1p(-float(t.unseen_detection))
         # the binomial's peak over the pieces a pose may show (n >= seen), for the floor
-        n = seen + np.arange(0.0, 40.0, 0.05)
-        peak = float(np.max(gammaln(n + 1.0) - gammaln(n - seen + 1.0)
-                            + (n - seen) * math.log1p(-q)))
-        return K.View(mask, r, 1.0 / UNSEEN_CELL, seen, 1.0 / t.unseen_piece, math.log1p(-q),
-                      peak, float(t.unseen_floor), UNSEEN_BIN_XY, UNSEEN_BIN_HEADING)
+        peak = K.binomial_peak(seen, log_miss, _PEAK_STEP, _PEAK_COUNT)
+        return K.View(area, seen, 1.0 / t.unseen_piece, log_miss, peak,
+                      float(t.unseen_floor), UNSEEN_BIN_XY, UNSEEN_BIN_HEADING)
 
     def _line_rows(self, obs: Observations, d_o) -> np.ndarray:
         """The kernel's rows of the usable lines (mcl_kernels.L_*)."""
