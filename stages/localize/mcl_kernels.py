@@ -202,12 +202,13 @@ def segments_in_view(ends, spacing, area):
 
 
 @njit(cache=True, nogil=True)
-def view_planes(mask, r, cell, grow):
+def view_planes(mask, r, cell, grow, most):
     """The half-planes (H, 3) nx u + ny v <= d of ``mask``'s set cells' convex hull (cells
     of ``cell`` m over [-r, r]^2, row y, column x), grown by ``grow`` m: the hull of each
-    row's first and last set cell's middle (Andrew's monotone chain; the rows come sorted).
-    One plane nothing lies in when no cell is set; a point's or a line's box when the hull
-    has no area."""
+    row's first and last set cell's middle (Andrew's monotone chain; the rows come sorted),
+    its ``most`` longest edges' (fewer planes bound the cells too, and cutting a line with
+    each costs more than the few pieces more it steps). One plane nothing lies in when no
+    cell is set; a point's or a line's box when the hull has no area."""
     n = mask.shape[0]
     pts = np.empty((2 * n, 2))
     m = 0
@@ -258,13 +259,15 @@ def view_planes(mask, r, cell, grow):
         area += hull[k, 0] * hull[k + 1, 1] - hull[k + 1, 0] * hull[k, 1]
     turn = 1.0 if area > 0.0 else -1.0  # counter-clockwise: the edge turned right
     out = np.empty((h, 3))
+    sizes = np.empty(h)
     for k in range(h):  # the outward normals
         ex, ey = hull[k + 1, 0] - hull[k, 0], hull[k + 1, 1] - hull[k, 1]
         size = math.sqrt(ex * ex + ey * ey)
         nx, ny = turn * ey / size, -turn * ex / size
         out[k, 0], out[k, 1] = nx, ny
         out[k, 2] = nx * hull[k, 0] + ny * hull[k, 1] + grow
-    return out
+        sizes[k] = size
+    return out[np.argsort(-sizes)[:most]]
 
 
 @njit(cache=True, nogil=True, inline="always")
