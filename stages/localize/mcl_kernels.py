@@ -92,9 +92,9 @@ class ViewArea(NamedTuple):
     """Where one frame saw the floor, about the robot: ``mask`` (n, n) uint8, 1 where the
     image saw the floor, on square cells of 1 / ``inv_cell`` m covering [-r, r]^2 (row: y,
     column: x); ``planes`` (H, 3) half-planes nx u + ny v <= d (m, robot frame) whose
-    intersection holds every set cell (the mask's convex hull, grown; H = 0: no bound). The
-    kernel steps a line only where it crosses them: a camera sees some sixty degrees of the
-    circle, and stepping the rest found nothing."""
+    intersection holds every set cell (edges of the set cells' convex hull, grown:
+    view_planes; H = 0: no bound). The kernel steps a line only where it crosses them: a
+    camera sees some sixty degrees of the circle, and stepping the rest found nothing."""
 
     mask: np.ndarray
     r: float
@@ -149,6 +149,14 @@ def _clip(qx, qy, du, dv, planes, lo, hi):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _in_view(u, v, area):
+    """Whether the point (u, v) (m, robot frame) lies in a set cell of ``area``'s mask."""
+    mask, r, inv_cell, _ = area
+    ix, iy = int((u + r) * inv_cell), int((v + r) * inv_cell)
+    return 0 <= ix < mask.shape[1] and 0 <= iy < mask.shape[0] and mask[iy, ix] != 0
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _straight_in_view(line, c, s, area):
     """Length (m) of a straight line's pieces whose middle lies in ``area`` (ViewArea)
     within its r of the robot: ``line`` (wx, wy, ux, uy, piece, count) its start from the
@@ -156,8 +164,7 @@ def _straight_in_view(line, c, s, area):
     heading. The pieces within r and the area's planes are found by cutting the line with
     the circle and the planes, and stepped."""
     wx, wy, ux, uy, piece, count = line
-    mask, r, inv_cell, planes = area
-    cells = mask.shape[0]
+    r, planes = area.r, area.planes
     wu = wx * ux + wy * uy
     disc = wu * wu - (wx * wx + wy * wy - r * r)
     if disc <= 0.0:
@@ -177,8 +184,7 @@ def _straight_in_view(line, c, s, area):
     du, dv = eu * piece, ev * piece
     length = 0.0
     for _ in range(j0, j1):
-        ix, iy = int((u + r) * inv_cell), int((v + r) * inv_cell)
-        if 0 <= ix < cells and 0 <= iy < cells and mask[iy, ix]:
+        if _in_view(u, v, area):
             length += piece
         u += du
         v += dv
@@ -284,8 +290,7 @@ def line_in_view(pose, samples, area):
     circle and the planes, an arc's by testing each (an arc outside a plane is skipped)."""
     px, py, c, s = pose
     pts, groups = samples
-    mask, r, inv_cell, planes = area
-    cells = mask.shape[0]
+    r, planes = area.r, area.planes
     r2 = r * r
     length = 0.0
     for g in range(groups.shape[0]):
@@ -316,10 +321,7 @@ def line_in_view(pose, samples, area):
             dx, dy = pts[k, 0] - px, pts[k, 1] - py
             u = c * dx + s * dy
             v = c * dy - s * dx
-            if u * u + v * v > r2:
-                continue
-            ix, iy = int((u + r) * inv_cell), int((v + r) * inv_cell)
-            if 0 <= ix < cells and 0 <= iy < cells and mask[iy, ix]:
+            if u * u + v * v <= r2 and _in_view(u, v, area):
                 length += piece
     return length
 

@@ -480,7 +480,7 @@ def view_polygon(to_floor: FloorProjection, undistort, boundary: np.ndarray,
     v = np.empty(len(u))
     _view_top(u, lo, (float(h - 1), float(VIEW_STEP), VIEW_RANGE),
               (float(undistort.stride), undistort.map_u, undistort.map_v),
-              (to_floor.m, to_floor.height, to_floor.position, to_floor._shifted), v)
+              floor_bundle(to_floor), v)
     if np.all(v >= h - 1.0):
         return _empty(2)
 
@@ -501,16 +501,15 @@ def view_polygon(to_floor: FloorProjection, undistort, boundary: np.ndarray,
 
 
 @njit(cache=True, nogil=True)
-def _view_top(u, lo, rows, lens, floor, out):
+def _view_top(u, lo, rows, lens, fl, out):
     """The view polygon's upper edge: per column u[i], the lower of row lo[i] and the first
     row whose floor point lies within ``max_range`` (the range falls monotonically down a
     column below the horizon): rows ``step`` apart, then linearly in 1 / range between the
     last row beyond and the first within; the bottom row where no row is within. ``rows``:
     (bottom row, step, max_range); ``lens``: IdealPixels' (stride, map_u, map_v);
-    ``floor``: FloorProjection's (m, height, position, shifted)."""
+    ``fl``: the frame's Floor (crossings.floor_bundle)."""
     bottom, step, max_range = rows
     stride, map_u, map_v = lens
-    m, height, position, shifted = floor
     limit = 1.0 / max_range
     for i in range(u.shape[0]):
         out[i] = bottom
@@ -518,8 +517,8 @@ def _view_top(u, lo, rows, lens, floor, out):
         v = 0.0
         while True:
             x, y = u[i] / stride, v / stride
-            fx, fy = floor_at(m, height, position, shifted, bilinear_at(map_u, x, y, np.nan),
-                              bilinear_at(map_v, x, y, np.nan))
+            fx, fy = floor_at(fl.m, fl.height, fl.pos, fl.shifted,
+                              bilinear_at(map_u, x, y, np.nan), bilinear_at(map_v, x, y, np.nan))
             d = math.sqrt(fx * fx + fy * fy)
             inv = 1.0 / d if d > 0.0 else 0.0  # NaN (above the horizon) compares False
             if inv >= limit:
