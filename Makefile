@@ -47,8 +47,11 @@ $(STAMP): pyproject.toml
 warmup: $(STAMP)
 	$(BIN)/python -m stages.pipelines.warmup
 
+# the suite on up to TEST_JOBS worker processes (pytest-xdist; "auto": one per core, at most
+# 4, as each worker builds the session's shared renders itself; TEST_JOBS=0 runs in one process)
+TEST_JOBS ?= auto
 test: $(STAMP)
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n $(TEST_JOBS) --maxprocesses 4
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
