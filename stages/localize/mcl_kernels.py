@@ -55,12 +55,14 @@ N_LINE_COLS = 12
 
 
 class Poses(NamedTuple):
-    """N poses: positions ``x``, ``y`` and the cosine and sine of the heading, (N,) each."""
+    """N poses: positions ``x``, ``y``, the cosine and sine of the heading and the heading
+    ``th`` (rad, any turn), (N,) each."""
 
     x: np.ndarray
     y: np.ndarray
     cth: np.ndarray
     sth: np.ndarray
+    th: np.ndarray
 
 
 class FieldPoints(NamedTuple):
@@ -354,35 +356,47 @@ def unseen_log_likelihood(out, poses, samples, view):
 
     The term is evaluated at the centre of each pose's bin (``view.bin_xy``,
     ``view.bin_heading``), once per bin the poses occupy: it changes in steps of a piece
-    anyway, and a tracked belief's particles share a few hundred bins."""
-    x, y, cth, sth = poses
-    seen = view.seen
+    anyway, and a tracked belief's particles share a few dozen bins. The bins are found in
+    a hash table (open addressing, Fibonacci hashing): a sort of the poses' keys cost more
+    than the few bins of a tracked belief."""
+    x, y, th = poses.x, poses.y, poses.th
     bin_xy, bin_th = view.bin_xy, view.bin_heading
     n_poses = x.shape[0]
-    keys = np.empty(n_poses, np.int64)
     turns = int(math.ceil(2.0 * math.pi / bin_th))
+    bits = 4
+    while (1 << bits) < 2 * n_poses:
+        bits += 1
+    slot_key = np.full(1 << bits, -1, np.int64)
+    slot_term = np.empty(1 << bits)
+    last = np.int64((1 << bits) - 1)
+    shift = np.uint64(64 - bits)
+    acc = out[3]
     for i in range(n_poses):
         jx = int(math.floor(x[i] / bin_xy)) + (1 << 20)
         jy = int(math.floor(y[i] / bin_xy)) + (1 << 20)
-        jt = int(math.floor((math.atan2(sth[i], cth[i]) + math.pi) / bin_th)) % turns
-        keys[i] = (jx * (1 << 21) + jy) * 1024 + jt
-    order = np.argsort(keys)
-    acc = out[3]
-    k = 0
-    while k < n_poses:
-        key = keys[order[k]]
-        jt = key % 1024
-        jy = (key // 1024) % (1 << 21) - (1 << 20)
-        jx = key // 1024 // (1 << 21) - (1 << 20)
-        th = (jt + 0.5) * bin_th - math.pi
-        length = line_in_view(((jx + 0.5) * bin_xy, (jy + 0.5) * bin_xy, math.cos(th),
-                               math.sin(th)), samples, view.area)
-        n = max(length * view.inv_piece, seen)
-        ll = math.lgamma(n + 1.0) - math.lgamma(n - seen + 1.0) + (n - seen) * view.log_miss
-        term = math.log(view.floor + (1.0 - view.floor) * math.exp(min(ll - view.peak, 0.0)))
-        while k < n_poses and keys[order[k]] == key:
-            acc[order[k]] += term
-            k += 1
+        turn = th[i] - 2.0 * math.pi * math.floor((th[i] + math.pi) / (2.0 * math.pi))
+        jt = int(math.floor((turn + math.pi) / bin_th)) % turns
+        key = (jx * (1 << 21) + jy) * 1024 + jt
+        h = np.int64((np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)) >> shift)
+        while slot_key[h] >= 0 and slot_key[h] != key:
+            h = (h + np.int64(1)) & last
+        if slot_key[h] < 0:
+            head = (jt + 0.5) * bin_th - math.pi
+            length = line_in_view(((jx - (1 << 20) + 0.5) * bin_xy,
+                                   (jy - (1 << 20) + 0.5) * bin_xy,
+                                   math.cos(head), math.sin(head)), samples, view.area)
+            slot_key[h] = key
+            slot_term[h] = _unseen_term(length, view)
+        acc[i] += slot_term[h]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _unseen_term(length, view):
+    """The unseen term of ``length`` m of field line in ``view`` (unseen_log_likelihood)."""
+    seen = view.seen
+    n = max(length * view.inv_piece, seen)
+    ll = math.lgamma(n + 1.0) - math.lgamma(n - seen + 1.0) + (n - seen) * view.log_miss
+    return math.log(view.floor + (1.0 - view.floor) * math.exp(min(ll - view.peak, 0.0)))
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -431,7 +445,7 @@ def point_log_likelihood(out, poses, pts, part, fp, weights):
     """Add each point observation's log-likelihood at every pose (``poses``: Poses) to
     ``out`` (4, N) (row ``part[k]``), against ``fp`` (FieldPoints); ``weights``: (w_b, w_o),
     1 / sigma_b^2 and 1 / sigma_o^2 (0: no orientation term)."""
-    x, y, cth, sth = poses
+    x, y, cth, sth = poses.x, poses.y, poses.cth, poses.sth
     cand, grid = fp.cand, fp.grid
     w_b = weights[0]
     n = x.shape[0]
@@ -497,7 +511,7 @@ def line_log_likelihood(out, poses, lines, fl, rule):
     """Add each line observation's log-likelihood at every pose (``poses``: Poses) to ``out``
     (4, N) (row 0), against ``fl`` (FieldLines); ``rule``: (tol2, w_a, margin), the squared
     tolerance of eq. 5, the angle's weight and the arcs' extent margin."""
-    x, y, cth, sth = poses
+    x, y, cth, sth = poses.x, poses.y, poses.cth, poses.sth
     normals, tangents, seg, group_start, arcs = fl
     tol2, w_a, margin = rule
     n = x.shape[0]

@@ -564,7 +564,7 @@ class ObservationModel:
         cth, sth = np.cos(th), np.sin(th)
         out = np.zeros((len(PARTS), len(x)))
         t = self.tuning
-        poses = K.Poses(x, y, cth, sth)
+        poses = K.Poses(x, y, cth, sth, th)
         if len(prep.lines):
             K.line_log_likelihood(out, poses, prep.lines, self._k_lines,
                                   (float(t.oriented_tolerance) ** 2,
