@@ -614,6 +614,66 @@ def _spec_with(conf: str = "", evaluate: str = "", templates: str = "", methods:
     text += f"templates: {templates}\n" if templates else ""
     return text + f"methods: {methods}\n"
 
+
+# ------------------------------------------------------------------ damaged artifacts' setups
+
+
+def _setup_damaged(key: str, name: str, change):
+    """The shared artifact ``key`` copied to ws/``name`` with ``change(f)`` made to it (``f``
+    open for writing); ``key`` "templates": a templates file built from the shared omni
+    dataset."""
+    def setup(w, ws):
+        if key == "templates":
+            from stages import build_templates
+
+            build_templates.main(None, w["omni"], ws / name)
+        else:
+            shutil.copyfile(w[key], ws / name)
+        with h5py.File(ws / name, "a") as f:
+            change(f)
+        return {}
+    return setup
+
+
+def _attr(name: str, value):
+    return lambda f: f.attrs.__setitem__(name, value)
+
+
+def _replace(path: str, make):
+    """Dataset ``path`` replaced by ``make(its values)``."""
+    def change(f):
+        new = make(f[path][()])
+        del f[path]
+        f[path] = new
+    return change
+
+
+def _as_text(path: str):
+    """Dataset ``path`` replaced by as many strings as it has rows."""
+    return _replace(path, lambda d: np.array([b"abc"] * len(d)))
+
+
+def _nan_first(path: str):
+    """The first value of dataset ``path`` NaN."""
+    def change(f):
+        d = f[path][()]
+        d.flat[0] = np.nan
+        f[path][...] = d
+    return change
+
+
+def _field_size_nan(ds: Path) -> None:
+    rec = yaml.safe_load((ds / "simulation.yaml").read_text())
+    rec["field_size"] = [math.nan, 1.0]
+    (ds / "simulation.yaml").write_text(yaml.safe_dump(rec))
+
+
+def _nulls(report: dict) -> None:
+    for k in report:
+        if k not in ("schema", "schema_version"):
+            report[k] = None
+
+
 CASES = [
     # ------------------------------------------------------------------ data lost
     Case("localize -o the map --overwrite", "data-lost",
@@ -1239,6 +1299,62 @@ CASES = [
     Case("localize with a map path of 300 kB", "silent",
          ["localize", "{omni}", "--map", W + "/" + LONG, "-o", W + "/p.h5"], 1,
          "fieldloc: error: ", check=_check_short_message),
+    # ------------------------------------------------------------------ damaged artifacts read
+    # by commands (fixA): each refused in one line by the module that owns the artifact
+    *[Case(f"a map whose {what}", "traceback", [*args, W + "/m.h5", "-o", W + out], 1,
+           "damaged map file (origin", setup=_setup_damaged("map", "m.h5", _attr(*attr)))
+      for what, args, out, attr in (
+        ("resolution is 0", ["localize", "{omni}", "--features", "{features}", "--map"],
+         "/p.h5", ("resolution", 0.0)),
+        ("resolution is NaN", ["localize", "{omni}", "--features", "{features}", "--map"],
+         "/p.h5", ("resolution", math.nan)),
+        ("origin holds NaN (show map)", ["show", "map"], "/m.png",
+         ("origin", [math.nan, 1.0])))],
+    Case("features whose first stamp is NaN (the frame went to the end of the track)",
+         "silent", [*LOCALIZE[:5], W + "/f.h5", "-o", W + "/p.h5"], 1,
+         "has stamp nan; every stamp must be a finite number",
+         setup=_setup_damaged("features", "f.h5", _nan_first("index/stamp"))),
+    Case("localize --method mcl --smooth on features whose first stamp is NaN", "traceback",
+         ["localize", "{kid}", "--map", "{kmap}", "--features", W + "/f.h5", "--method", "mcl",
+          "--smooth", "-o", W + "/p.h5"], 1,
+         "has stamp nan; every stamp must be a finite number",
+         setup=_setup_damaged("kid_features", "f.h5", _nan_first("index/stamp"))),
+    *[Case(f"poses whose {what}", "traceback",
+           [*args, W + "/p.h5", *more], 1, msg, setup=_setup_damaged("poses", "p.h5", change))
+      for what, args, more, msg, change in (
+        ("/poses/x holds text (export csv)", ["export"], ["--format", "csv", "-o", W + "/o.csv"],
+         "damaged poses file (/poses/x holds text; expected numbers)", _as_text("poses/x")),
+        ("/poses/x holds text (evaluate)", ["evaluate"],
+         ["--truth", "{omni}", "-o", W + "/rep"],
+         "damaged poses file (/poses/x holds text; expected numbers)", _as_text("poses/x")),
+        ("inputs attribute is a JSON list", ["export"], ["--format", "csv", "-o", W + "/o.csv"],
+         "(attribute 'inputs' is '[1]'; expected a JSON object)", _attr("inputs", "[1]")),
+        ("inputs attribute is a JSON list (show hypotheses)", ["show", "hypotheses"],
+         ["--frame", "1", "-o", W + "/h.png"],
+         "(attribute 'inputs' is '[1]'; expected a JSON object)", _attr("inputs", "[1]")),
+        ("field attribute is a number (export json)", ["export"],
+         ["--format", "json", "-o", W + "/o.json"],
+         "(attribute 'field' is '5'; expected text)", _attr("field", 5)))],
+    Case("poses whose /poses/failed holds 2 (read as true)", "silent",
+         ["export", W + "/p.h5", "--format", "csv", "-o", W + "/o.csv"], 1,
+         "(/poses/failed holds int64 values; expected true/false (or 0/1))",
+         setup=_setup_damaged("poses", "p.h5",
+                              _replace("poses/failed", lambda d: np.full(d.shape, 2)))),
+    Case("report of a report.json whose values are null", "traceback",
+         ["report", W + "/r", "-o", W + "/r.html"], 1, "'run' must be text, got null",
+         setup=_setup_bad_report(_nulls)),
+    *[Case(f"localize --method templates on templates whose {what}", "traceback",
+           ["localize", "{omni}", "--method", "templates", "--templates", W + "/t.h5", "-o",
+            W + "/p.h5"], 1, msg, setup=_setup_damaged("templates", "t.h5", change))
+      for what, msg, change in (
+        ("field attribute is a JSON list", "attribute 'field' is '[1]', not a JSON object",
+         _attr("field", "[1]")),
+        ("laplacian holds text", "laplacian holds text where numbers belong",
+         _as_text("laplacian")))],
+    Case("extract of a dataset whose simulation.yaml has field_size [NaN, 1]", "silent",
+         ["extract", "{ds}", "-o", W + "/f.h5"], 1,
+         "field_size [nan, 1.0] must be two finite numbers > 0",
+         setup=_with_ds("omni", _field_size_nan)),
 ]
 
 
@@ -1406,6 +1522,15 @@ def test_dataset_moved_aside_by_a_killed_replacement_is_restored(tmp_path, caplo
 def test_csv_files_have_lf_line_endings(world):
     for name in ("truth.csv", "odometry.csv", "imu.csv", "frames.csv"):
         assert b"\r" not in (world["omni"] / name).read_bytes()
+
+
+def test_poses_flags_stored_as_integers_0_1_are_read(world, tmp_path):
+    """Flags written as 0/1 integers (by another tool) are read; only other values are
+    refused (the case "poses whose /poses/failed holds 2")."""
+    _setup_damaged("poses", "p.h5", _replace("poses/failed", lambda d: d.astype(np.int8)))(
+        world, tmp_path)
+    cols = _poses_columns(tmp_path / "p.h5")
+    assert (cols["failed"] == _poses_columns(world["poses"])["failed"]).all()
 
 
 def test_errors_csv_has_lf_line_endings(world_report):

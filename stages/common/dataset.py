@@ -205,7 +205,8 @@ class Dataset:
     def field_record(self) -> dict:
         """The field the dataset was recorded on, where the dataset says so: the ``field``
         (name) and ``field_size`` ([length, width], m; newer datasets) of simulation.yaml, the
-        record ``fieldloc simulate`` writes. {} when the dataset does not say."""
+        record ``fieldloc simulate`` writes. {} when the dataset does not say; a size that is
+        not two finite numbers > 0 is refused (DatasetError)."""
         p = self.root / SIMULATION_RECORD
         if not p.is_file():
             return {}
@@ -221,6 +222,10 @@ class Dataset:
         size = d.get("field_size")
         if (isinstance(size, list) and len(size) == 2
                 and all(isinstance(v, (int, float)) for v in size)):
+            if not all(math.isfinite(v) and v > 0 for v in size):
+                # recorded with the features, it would be taken for the field's size
+                raise DatasetError(f"{p}: field_size {str(size)[:40]} must be two finite"
+                                   " numbers > 0 (m)")
             out["size"] = [float(v) for v in size]
         return out
 

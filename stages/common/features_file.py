@@ -6,7 +6,8 @@ definition, omni only). Version 2 stores the frames as columns, each dataset of 
 one table of all frames' rows:
 
     /index/name               (N,) str   each frame's name (the image's file stem)
-    /index/stamp              (N,) f8    its stamp, seconds
+    /index/stamp              (N,) f8    its stamp, seconds (finite: a file with a NaN or
+                                         infinite stamp is refused, as frames.csv is)
     /rows/<dataset>           (N,) i8    the frame's rows of <dataset>; -1: the frame has none
     /data/<dataset>           (sum of rows, ...) the frames' rows one after the other, in
                               the order of /index, with a ``units`` attribute
@@ -349,6 +350,12 @@ class FeaturesFile:
             raise SchemaError(f"{self.path}: damaged features file ({str(e)[:200]})") from None
         # by stamp, frames of one stamp by name
         names, stamps = self._layout.names, np.asarray(self._layout.stamps, dtype=float)
+        bad = np.flatnonzero(~np.isfinite(stamps))
+        if len(bad):  # as frames.csv's: a frame without a finite stamp cannot be placed
+            self.h5.close()
+            raise SchemaError(f"{self.path}: damaged features file (frame"
+                              f" {str(names[bad[0]])[:40]} has stamp {stamps[bad[0]]}; every"
+                              " stamp must be a finite number)")
         order = np.lexsort((np.array(names, dtype=str), stamps)) if names else []
         self.names = [names[i] for i in order]
         self.stamps = stamps[order]

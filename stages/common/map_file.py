@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -166,6 +167,7 @@ class MapFile:
             self.grid = Grid(origin=tuple(float(v) for v in a["origin"]),
                              resolution=float(a["resolution"]),
                              shape=tuple(int(v) for v in a["shape"]))
+            self._check_grid()
             self.scanlines = ScanLines(**json.loads(a["scanlines"]))
             spec_text = self.h5["field/spec_yaml"][()]
             spec_text = spec_text.decode() if isinstance(spec_text, bytes) else spec_text
@@ -178,6 +180,17 @@ class MapFile:
             self.h5.close()
             raise
         self._cache: dict[str, np.ndarray] = {}
+
+    def _check_grid(self) -> None:
+        """The grid places every cell: an origin that is not finite, or a resolution that is
+        not a finite positive number, would divide by zero or place cells at NaN in the
+        searches and pictures."""
+        g = self.grid
+        if not (all(math.isfinite(v) for v in g.origin) and math.isfinite(g.resolution)
+                and g.resolution > 0):
+            raise SchemaError(f"{self.path}: damaged map file (origin {str(g.origin)[:40]},"
+                              f" resolution {str(g.resolution)[:20]}: the origin must be"
+                              " finite and the resolution a finite number > 0)")
 
     def _check_field_lines(self) -> None:
         """The lines stored in /field (what the tables were built from) must be finite; lines

@@ -28,6 +28,10 @@ Version 1 files (no ``accepted``, no ``/hypotheses``) are read as if every frame
 fail was accepted and had one hypothesis, its pose with its confidence. Files without the
 ``*_up_to_mirror`` columns are read with them equal to ``confidence`` and ``accepted``.
 
+A file whose columns or root attributes are of another type than these (text in a number
+column, a flag other than true/false or 0/1, ``conf`` or ``inputs`` not a JSON object,
+``method``, ``field`` or ``dataset`` not text) is refused in one line (SchemaError).
+
 ``poses.tum`` beside it holds "stamp x y z qx qy qz qw" rows of the accepted frames (the top
 hypothesis), readable by evo.
 """
@@ -239,6 +243,36 @@ def _check_shapes(out: dict, path) -> None:
                               f" /poses/name has {n} frames)")
 
 
+TEXT_ATTRS = ("method", "field", "dataset")  # root attributes that are text where present
+JSON_ATTRS = ("conf", "inputs")  # JSON mappings ({} where absent)
+
+
+def _check_types(out: dict, attrs: dict, path) -> None:
+    """Each column of COLUMNS numbers (its flags bool or integer 0/1) and the root attributes
+    of their kind (TEXT_ATTRS, JSON_ATTRS): a file edited or damaged elsewhere is refused in
+    one line rather than failing where a command first uses the value."""
+    for k, v in out.items():
+        dtype = COLUMNS.get(k, ("",))[0]
+        if dtype == "bool":
+            ok = v.dtype.kind == "b" or (v.dtype.kind in "iu" and np.isin(v, (0, 1)).all())
+            want = "true/false (or 0/1)"
+        else:
+            ok = k not in COLUMNS or v.dtype.kind in "fiu"
+            want = "numbers"
+        if not ok:
+            held = "text" if v.dtype.kind in "OSU" else f"{v.dtype} values"
+            raise SchemaError(f"{path}: damaged poses file (/poses/{k} holds {held};"
+                              f" expected {want})")
+    for k in TEXT_ATTRS:
+        if k in attrs and not isinstance(attrs[k], str):
+            raise SchemaError(f"{path}: damaged poses file (attribute '{k}' is"
+                              f" {str(attrs[k])[:40]!r}; expected text)")
+    for k in JSON_ATTRS:
+        if not isinstance(attrs[k], dict):
+            raise SchemaError(f"{path}: damaged poses file (attribute '{k}' is"
+                              f" {str(attrs[k])[:40]!r}; expected a JSON object)")
+
+
 def _read_poses(path):
     with open_artifact(path, SCHEMA, VERSION) as h5:
         g = h5["poses"]
@@ -254,6 +288,7 @@ def _read_poses(path):
         attrs["conf"] = read_json_attr(h5, "conf")
         attrs["inputs"] = read_json_attr(h5, "inputs")
     _check_shapes(out, path)
+    _check_types(out, attrs, path)
     failed = np.asarray(out["failed"], bool)
     if "accepted" not in out:
         out["accepted"] = ~failed

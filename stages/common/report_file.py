@@ -144,17 +144,38 @@ def _short(v) -> str:
     return text if len(text) <= 40 else text[:37] + "..."
 
 
+# the other keys evaluate writes, by what each holds where present (null for field_override:
+# no --field given); the report page, its plots and the tables read them as such
+_TEXT = ("run", "method", "field", "dataset", "poses", "truth")
+_MAPPINGS = ("inputs", "conf", "evaluate_conf", "conventions", "files")
+_ABSENT = object()
+
+
+def _at(data: dict, path: str):
+    """The value at ``path`` (keys joined by /), or _ABSENT where a key is missing."""
+    v = data
+    for k in path.split("/"):
+        if not isinstance(v, dict) or k not in v:
+            return _ABSENT
+        v = v[k]
+    return v
+
+
 def _check_figures(data: dict, p: Path) -> None:
-    """A report.json edited or damaged by hand is refused in one line, naming the key."""
+    """A report.json edited or damaged by hand is refused in one line, naming the key: each
+    key evaluate writes holds what it writes there, or is absent."""
     for key in _COUNTS:
         if key in data and not _is_number(data[key]):
             raise SchemaError(f"{p}: '{key}' must be a number, got {_short(data[key])}")
-    for path in ("localised", "hypotheses", "calibration", *_TABLES):
-        keys = path.split("/")
-        v = data
-        for k in keys:
-            v = v.get(k) if isinstance(v, dict) else None
-        if v is None:
+    for key in _TEXT:
+        if key in data and not isinstance(data[key], str):
+            raise SchemaError(f"{p}: '{key}' must be text, got {_short(data[key])}")
+    if not isinstance(data.get("field_override"), (str, type(None))):
+        raise SchemaError(f"{p}: 'field_override' must be text or null, got"
+                          f" {_short(data['field_override'])}")
+    for path in (*_MAPPINGS, "localised", "hypotheses", "calibration", *_TABLES):
+        v = _at(data, path)
+        if v is _ABSENT:
             continue
         if not isinstance(v, dict):
             raise SchemaError(f"{p}: '{path}' must be a table (a JSON object), got {_short(v)}")

@@ -31,7 +31,8 @@ Datasets (the features of all templates one after another, template k owning row
 
 A flat layout (not one group per template): the whole database loads in a few reads, and a
 descriptor index over it is one array. A file that is not of this schema, or whose arrays do
-not agree (lengths, offsets, descriptor width), is refused with one line (SchemaError).
+not agree (lengths, offsets, descriptor width) or are not numbers, or whose JSON attributes are
+not objects, is refused with one line (SchemaError).
 """
 
 from __future__ import annotations
@@ -173,6 +174,12 @@ def read_templates(path: str | Path) -> TemplateDatabase:
         problems.append("points are not (N, 2)")
     if arrays["descriptors"].ndim != 2:
         problems.append("descriptors are not (N, D)")
+    problems += [f"{k} holds {'text' if arrays[k].dtype.kind in 'OSU' else arrays[k].dtype}"
+                 " where numbers belong" for k in ("poses", "offsets", *FEATURE_DATASETS)
+                 if arrays[k].dtype.kind not in "fiu"]
+    problems += [f"attribute '{k}' is {str(v)[:40]!r}, not a JSON object"
+                 for k, v in (("ground_features", ground_conf), ("field", field_record))
+                 if not isinstance(v, dict)]
     if problems:
         raise SchemaError(f"{path}: damaged '{SCHEMA}' file: {problems[0]}")
     return TemplateDatabase(names=names, poses=np.asarray(arrays["poses"], float),
