@@ -15,7 +15,7 @@ from .stage_defaults import BUILD_MAP as D
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path),
               help="Output map file [default: FIELD.map.h5].")
 @click.option("--resolution", type=FINITE, default=None,
-              help=f"Table cell size (m) [default: {D['resolution']}].")
+              help=f"Table cell size (m), at most 1 [default: {D['resolution']}].")
 @click.option("--border", type=FINITE, default=None,
               help=f"World margin around the field (m) [default: {D['border']}].")
 @click.option("--max-range", type=FINITE, default=None,

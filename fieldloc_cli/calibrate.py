@@ -161,9 +161,9 @@ def _rings_needed(cnc_conf, calib_image, centre, conf) -> str:
             f" ({', '.join(f'{v:g}' for v in d)} m) and no radii")
     image = calib_image or (Path(cnc_conf).parent / cnc.IMAGE_NAME)
     if Path(image).is_file():
-        import cv2
+        from stages.common.dataset import read_image
 
-        rings = cnc.detect_rings(cv2.imread(str(image)), centre=centre or None,
+        rings = cnc.detect_rings(read_image(image), centre=centre or None,
                                  conf=conf.get("rings"))
         text += (f"; {Path(image).name} shows {len(rings.radius_px)} rings at"
                  f" {', '.join(f'{v:.1f}' for v in rings.radius_px)} px")

@@ -583,6 +583,52 @@ def _setup_team_files(w, ws):
     return {"capture": str(sorted((ws / "hulks").glob("*.json"))[0])}
 
 
+def _claim_size(png: Path, width: int, height: int) -> None:
+    """Rewrite the IHDR chunk of the PNG file ``png`` to claim ``width`` x ``height`` pixels
+    (with a right CRC: the rest of the file is left as it was)."""
+    import struct
+    import zlib
+
+    data = png.read_bytes()
+    chunk = b"IHDR" + struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
+    png.write_bytes(data[:8] + struct.pack(">I", 13) + chunk
+                    + struct.pack(">I", zlib.crc32(chunk)) + data[33:])
+
+
+def _setup_minho(mirror: str | None = None, image: bytes | None = None):
+    """The shared MINHO folder copied, with ``mirror`` as its mirror.cfg and ``image`` as the
+    one file of its images folder, where given."""
+    def setup(w, ws):
+        minho = ws / "minho"
+        shutil.copytree(w["minho"], minho)
+        if mirror is not None:
+            (minho / "mirror.cfg").write_text(mirror)
+        if image is not None:
+            (minho / "images").mkdir()
+            (minho / "images" / "0001.png").write_bytes(image)
+        return {"m": minho}
+    return setup
+
+
+def _setup_cnc(change):
+    """_setup_team_files, then ``change`` (the CNC folder) applied."""
+    def setup(w, ws):
+        out = _setup_team_files(w, ws)
+        change(ws / "cnc")
+        return out
+    return setup
+
+
+def _odometry_dx(value: str):
+    """The omni dataset copied, the dx of odometry.csv's second row set to the text ``value``."""
+    def change(ds):
+        lines = (ds / "odometry.csv").read_text().splitlines()
+        cells = lines[2].split(",")
+        cells[1] = value
+        edit_csv(ds / "odometry.csv", 3, ",".join(cells))
+    return _with_ds("omni", change)
+
+
 def _check_fifo_frame_failed(paths, res):
     from stages.common.features_file import FeaturesFile
 
@@ -1355,6 +1401,75 @@ CASES = [
          ["extract", "{ds}", "-o", W + "/f.h5"], 1,
          "field_size [nan, 1.0] must be two finite numbers > 0",
          setup=_with_ds("omni", _field_size_nan)),
+    # ------------------------------------------------- images and numbers (hostile review s53)
+    # an empty image, or one whose header claims more pixels than any frame: a failed frame
+    # of extract and a frame left out of build-templates, one line naming the file for
+    # calibrate (an OpenCV assertion's traceback before)
+    Case("extract a dataset with a zero-byte frame", "traceback",
+         ["extract", W + "/omni", "-o", W + "/f.h5"], 0,
+         "frame 000002 skipped: unreadable image",
+         setup=_with_ds("omni", lambda ds: (ds / "images" / "000002.png").write_bytes(b"")),
+         check=_check_fifo_frame_failed),
+    Case("extract a frame whose PNG header claims 60000 x 60000 px", "traceback",
+         ["extract", W + "/omni", "-o", W + "/f.h5"], 0,
+         "000002.png (its header claims 60000 x 60000 px",
+         setup=_with_ds("omni", lambda ds: _claim_size(ds / "images" / "000002.png", 60000,
+                                                       60000)),
+         check=_check_fifo_frame_failed),
+    Case("calibrate --from-minho whose image is a zero-byte file", "traceback",
+         ["calibrate", "omni", "--from-minho", "{m}", "-o", W + "/c.yaml"], 1,
+         "0001.png (empty file)", setup=_setup_minho(image=b"")),
+    Case("calibrate --from-cnc with a zero-byte CarpetCalibImage.png", "traceback",
+         ["calibrate", "omni", "--from-cnc", W + "/cnc/CarpetCalibrator.conf", "--rings",
+          "detected", "-o", W + "/c.yaml"], 1, "CarpetCalibImage.png (empty file)",
+         setup=_setup_cnc(lambda d: (d / "CarpetCalibImage.png").write_bytes(b""))),
+    Case("build-templates on a dataset with a zero-byte frame", "traceback",
+         ["build-templates", W + "/omni", "-o", W + "/t.h5"], 0,
+         "1 of 4 frames left out (first: 000000: unreadable image",
+         setup=_with_ds("omni", lambda ds: (ds / "images" / "000000.png").write_bytes(b""))),
+    # numbers of a dataset CSV: plain ASCII decimals, no value beyond 1e6 but a stamp
+    Case("odometry.csv with dx = 1e300", "traceback",
+         ["localize", W + "/omni", "--map", "{map}", "--features", "{features}", "-o",
+          W + "/p.h5"], 1, "'dx' is 1e300; no robot's value is larger",
+         setup=_odometry_dx("1e300")),
+    Case("odometry.csv with dx = 1_000", "silent",
+         ["localize", W + "/omni", "--map", "{map}", "--features", "{features}", "-o",
+          W + "/p.h5"], 1, "'dx' is not a number ('1_000')", setup=_odometry_dx("1_000")),
+    Case("odometry.csv with an Arabic-Indic digit", "silent",
+         ["localize", W + "/omni", "--map", "{map}", "--features", "{features}", "-o",
+          W + "/p.h5"], 1, "'dx' is not a number", setup=_odometry_dx("\u0663")),
+    # sizes estimated before anything is made
+    Case("simulate --grid 5 --grid-headings 100000000", "silent",
+         ["simulate", "omni", "--field", "msl-2015", "-o", W + "/d", "--grid", "5",
+          "--grid-headings", "100000000"], 1, "would need about"),
+    *[Case(f"show error-surface {opt} {v}", "traceback",
+           ["show", "error-surface", W + "/t.h5", "{omni}", "-o", W + "/e.png", opt, v], 1,
+           "would need about") for opt, v in (("--step", "1e-9"), ("--half-size", "1e9"))],
+    # values no robot, mirror or field has
+    Case("build-map --resolution 1e9", "silent",
+         ["build-map", "spl", "-o", W + "/m.h5", "--resolution", "1e9"], 1,
+         "resolution 1e+09 m is coarser than 1 m"),
+    Case("calib.yaml whose polynomial coefficients are 1e300", "traceback",
+         ["extract", W + "/omni", "-o", W + "/f.h5"], 1,
+         "'polynomial' f(r) is 1.05e+308 m at r = 40.0 px",
+         setup=_with_ds("omni", lambda ds: edit_calib(ds, polynomial=[1e300] * 6))),
+    Case("MINHO mirror.cfg whose PIXEL_DISTANCES end in 1e300", "silent",
+         ["calibrate", "omni", "--from-minho", "{m}", "-o", W + "/c.yaml", "--image-size",
+          "480", "480"], 1, "pair 4 has radius 1e+300 px",
+         setup=_setup_minho(mirror="STEP=0.25\nPIXEL_DISTANCES=60,100,130,1e300\n")),
+    Case("CarpetCalibrator.conf with dist9 = 1e300", "silent",
+         ["calibrate", "omni", "--from-cnc", W + "/cnc/CarpetCalibrator.conf", "--rings",
+          "detected", "-o", W + "/c.yaml"], 1, "has distance 1e+297 m; no mirror sees",
+         setup=_setup_cnc(lambda d: (d / "CarpetCalibrator.conf").write_text(
+             (d / "CarpetCalibrator.conf").read_text().replace("dist9 = 7000",
+                                                                "dist9 = 1e300")))),
+    Case("show points --frame -1", "silent",
+         ["show", "points", "{omni}", "--frame", "-1", "-o", W + "/h.png"], 1,
+         "frame index -1 out of range (0..3)"),
+    Case("a field YAML whose penalty mark lies 30 m into a 9 m field", "silent",
+         ["build-map", W + "/f.yaml", "-o", W + "/m.h5"], 1,
+         "'penalty_mark.distance' (30 m) reaches past the halfway line",
+         setup=_setup_field({"penalty_mark": {"distance": 30, "size": 0.1}})),
 ]
 
 

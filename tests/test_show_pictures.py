@@ -71,7 +71,7 @@ def test_belief_picture_colour_bar_sparse_arrows_and_empty_panel():
 
 def test_frame_by_name_or_position_and_truth_at_its_stamp(tmp_path):
     """The one frame lookup and truth lookup every picture uses (show points, belief,
-    hypotheses): names first, then positions, negative from the end."""
+    hypotheses): names first, then positions from 0 (a negative one is refused)."""
     import pytest
 
     from stages.common.dataset import frame_index, readable_truth, truth_at, write_csv
@@ -79,8 +79,9 @@ def test_frame_by_name_or_position_and_truth_at_its_stamp(tmp_path):
 
     names = ["000000", "000001", "000005"]
     assert frame_index(names, "000005", "d") == 2 and frame_index(names, 1, "d") == 1
-    assert frame_index(names, "-1", "d") == 2 and frame_index(names, -3, "d") == 0
-    for bad, msg in (("3", "out of range"), ("-4", "out of range"), ("x", "no frame named")):
+    assert frame_index(names + ["-1"], "-1", "d") == 3  # a frame named -1 is that frame
+    for bad, msg in (("3", "out of range"), ("-1", "out of range"), ("-4", "out of range"),
+                     ("x", "no frame named")):
         with pytest.raises(FieldlocError, match=msg):
             frame_index(names, bad, "d")
     write_csv(tmp_path / "truth.csv", "truth", {"stamp": [0.0, 0.1], "x": [1.0, 2.0],

@@ -33,6 +33,11 @@ confs = {
     },
 }
 
+# m: the coarsest table cell. A pose from the map is only as good as its cell; the narrowest
+# areas of a field (goal areas, 0.5 to 1 m deep) fall into one cell of a metre, so a coarser map
+# tells nothing (the default is 0.1 m, the tests' coarse maps 0.25 to 0.5 m)
+MAX_RESOLUTION = 1.0
+
 # peak memory of building the tables per world cell (measured: spl at 5 and 2.5 cm, 4.5 KB)
 BYTES_PER_CELL = 4.6e3
 
@@ -52,6 +57,10 @@ def build_tables(fm: FieldModel, conf: dict) -> tuple[Grid, ScanLines, dict]:
         raise FieldlocError(f"build-map conf values must be finite numbers, got {values}")
     if conf["resolution"] <= 0 or conf["border"] < 0:
         raise FieldlocError("resolution must be > 0 and border >= 0")
+    if conf["resolution"] > MAX_RESOLUTION:
+        raise FieldlocError(f"resolution {conf['resolution']:g} m is coarser than"
+                            f" {MAX_RESOLUTION:g} m: a map places the robot no better than its"
+                            " cells, and cells that size cover a goal area's lines in one")
     if not 0 <= conf["robot_radius"] < conf["spiral_end_radius"] <= conf["max_range"]:
         raise FieldlocError("need 0 <= robot_radius < spiral_end_radius <= max_range")
     grid = Grid.around(fm, float(conf["border"]), float(conf["resolution"]))

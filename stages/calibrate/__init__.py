@@ -69,6 +69,7 @@ from ..common.artifacts import check_output, file_hash
 from ..common.camera import (
     MonotoneTable,
     OmniCamera,
+    check_pair_bounds,
     check_radial_table,
     fit_polynomial,
     read_calibration_record,
@@ -217,6 +218,7 @@ def fit(conf: dict, radius_px, distance_m, *, centre, image_size, valid_radius=N
         raise CalibrationError(f"unknown model '{model}' (polynomial or table)")
     r = np.asarray(radius_px, dtype=float)
     d = np.asarray(distance_m, dtype=float)
+    check_pair_bounds(r, d, where, CalibrationError)  # before any arithmetic on them
     source = list(source) if source is not None else ["points"] * len(r)
     if conf.get("max_distance_m") is not None:
         keep = d <= float(conf["max_distance_m"]) + 1e-9

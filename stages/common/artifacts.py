@@ -387,11 +387,15 @@ def _tree_size(p: Path) -> int:
 
 
 def _human_bytes(n: float) -> str:
+    """``n`` bytes in B, KiB, ... PiB; an absurd estimate in PiB with three digits (``:g``),
+    not the hundreds of digits of a float such as 1e300."""
     for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
         if n < 1024 or unit == "PiB":
-            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+            if unit == "B":
+                return f"{n:.0f} B"
+            return f"{n:.1f} {unit}" if n < 1e6 else f"{n:.3g} {unit}"
         n /= 1024
-    return f"{n:.1f} PiB"
+    return f"{n:.3g} PiB"
 
 
 human_bytes = _human_bytes

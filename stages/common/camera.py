@@ -249,7 +249,15 @@ class OmniCamera:
                 f" {MIN_RING_PX:g} px: no scan line has a pixel on the floor")
         if poly is not None:
             samples = np.linspace(valid[0], valid[1], 512)
-            slope = np.diff(np.polynomial.polynomial.polyval(samples, poly))
+            with np.errstate(over="ignore", invalid="ignore"):  # such an f(r) is refused next
+                f = np.polynomial.polynomial.polyval(samples, poly)
+            far = ~(np.abs(f) <= MAX_FLOOR_M)
+            if far.any():
+                i = int(np.argmax(far))
+                raise DatasetError(
+                    f"{where}: 'polynomial' f(r) is {f[i]:.3g} m at r = {samples[i]:.1f} px,"
+                    f" within 'valid_radius'; no mirror sees floor beyond {MAX_FLOOR_M:g} m")
+            slope = np.diff(f)
             if not np.all(slope > 0):
                 turn = samples[1:][int(np.argmax(slope <= 0))]
                 raise DatasetError(
@@ -289,6 +297,11 @@ def image_size_of(d: dict, where: str) -> tuple[int, int]:
             f"{where}: 'image_size' must be [width, height] in whole pixels > 0, got {v!r}")
     return int(v[0]), int(v[1])
 
+
+# m: the farthest floor distance an omni calibration's f(r) may give within its valid ring. The
+# largest field is 22 x 14 m, and a mirror's view ends at a few metres to tens of metres; a
+# coefficient such as 1e300 makes f(r) overflow instead of describing a mirror
+MAX_FLOOR_M = 1000.0
 
 # the narrowest floor ring (px) an omni calibration may give: a scan line is sampled at whole
 # pixels, so a narrower ring can hold none of its samples
@@ -365,6 +378,7 @@ def check_radial_table(radius_px, distance_m, where: str, error=DatasetError) ->
         raise error(f"{where}: needs at least 2 pairs, got {len(r)}")
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(d))):
         raise error(f"{where}: radii and distances must be finite")
+    check_pair_bounds(r, d, where, error)
     for name, v in (("radii", r), ("distances", d)):
         bad = np.flatnonzero(np.diff(v) <= 0)
         if len(bad):
@@ -372,6 +386,20 @@ def check_radial_table(radius_px, distance_m, where: str, error=DatasetError) ->
             raise error(
                 f"{where}: the {name} must increase from pair to pair, but pair {i + 2}"
                 f" ({r[i + 1]:g} px, {d[i + 1]:g} m) follows ({r[i]:g} px, {d[i]:g} m)")
+
+
+def check_pair_bounds(radius_px, distance_m, where: str, error=DatasetError) -> None:
+    """Pairs of an omni calibration (image radius, floor distance) must be ones a mirror can
+    give: radii of 0 to MAX_IMAGE_PX px (a longer radius lies off any image) and distances of
+    0 to MAX_FLOOR_M m. A value such as 1e300 would otherwise overflow the fits and tables
+    made from the pairs (NaN, inf, numpy's warnings) instead of being named."""
+    for i, (r, d) in enumerate(zip(np.asarray(radius_px, float), np.asarray(distance_m, float))):
+        if not 0 <= r <= MAX_IMAGE_PX:
+            raise error(f"{where}: pair {i + 1} has radius {r:.6g} px; an image radius is 0 to"
+                        f" {MAX_IMAGE_PX} px")
+        if not 0 <= d <= MAX_FLOOR_M:
+            raise error(f"{where}: pair {i + 1} has distance {d:.6g} m; no mirror sees floor"
+                        f" beyond {MAX_FLOOR_M:g} m")
 
 
 class MonotoneTable:

@@ -14,8 +14,9 @@
 
 CSV files have a header line with exactly these column names (and, where listed in
 ``CSV_OPTIONAL_COLUMNS``, some of the optional ones after them); metres and radians. Every value
-must be a finite number (a row without a value is left out; only truth.csv may hold NaN poses,
-where a motion capture lost the robot), and the rows of
+must be a finite number in ASCII decimal or scientific notation, of magnitude at most 1e6 except
+stamps (a row without a value is left out; only truth.csv may hold NaN poses, where a motion
+capture lost the robot), and the rows of
 the time series (odometry, imu, truth, head) must be in time order with one row per stamp: a
 file that breaks this is refused with its line number, because a NaN increment or a row out of
 order cannot be placed without guessing (odometry rows are increments since the previous row).
@@ -28,6 +29,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -45,6 +47,19 @@ TIME_SERIES = ("odometry", "imu", "truth", "head")  # rows in time order, one pe
 # columns that may hold NaN: a motion capture that lost the robot writes a truth row without a
 # pose, and a frame at that stamp is then unmatched (stages.evaluate)
 NAN_ALLOWED = {"truth": ("x", "y", "theta")}
+
+
+# a number as a CSV holds one: ASCII decimal or scientific notation, or a spelling of NaN or
+# infinity (refused below, with a message of its own, except where NaN is allowed). Python's
+# float() also takes "1_000" and non-ASCII digits ("٣" is 3), which no logger writes: such a
+# cell is a damaged one, not a number
+NUMBER = re.compile(r"[+-]?(?:(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
+                    r"|(?i:nan|inf|infinity))")
+# the largest magnitude of a value other than a stamp (metres: positions, increments, heights;
+# radians: angles; imu's collision is 0 or 1): a field is at most tens of metres, so 1e6 is
+# far beyond any robot's, and a value such as 1e300 would overflow the arithmetic that places
+# it (grid cells of a map, sums of increments) instead of meaning anything
+MAX_VALUE = 1e6
 
 
 def read_csv(path: str | Path, kind: str) -> dict[str, np.ndarray]:
@@ -84,17 +99,19 @@ def read_csv(path: str | Path, kind: str) -> dict[str, np.ndarray]:
                     raise DatasetError(f"{path}: line {line_no}: empty name")
                 values[name].append(cell)
                 continue
-            try:
-                v = float(cell)
-            except ValueError:
+            if not NUMBER.fullmatch(cell):
                 raise DatasetError(
-                    f"{path}: line {line_no}: '{name}' is not a number ({cell[:20]!r})"
-                ) from None
+                    f"{path}: line {line_no}: '{name}' is not a number ({cell[:20]!r})")
+            v = float(cell)
             if not math.isfinite(v) and not (math.isnan(v)
                                              and name in NAN_ALLOWED.get(kind, ())):
                 raise DatasetError(
                     f"{path}: line {line_no}: '{name}' is {cell}; every value must be a finite"
                     " number (leave a row without a value out)")
+            if name != "stamp" and abs(v) > MAX_VALUE:
+                raise DatasetError(
+                    f"{path}: line {line_no}: '{name}' is {cell[:20]}; no robot's value is"
+                    f" larger than {MAX_VALUE:g} (metres or radians)")
             values[name].append(v)
     out = {name: (np.array(v, dtype=object) if name == "name" else np.array(v, dtype=float))
            for name, v in values.items()}
@@ -280,19 +297,21 @@ def open_dataset(root: str | Path, *, need_images: bool = True) -> Dataset:
 
 
 def frame_index(names: list[str], frame: str | int, where: str) -> int:
-    """The index of a frame given by its name, or else by its position in ``names`` (0-based;
-    negative counts from the end: -1 is the last frame). An unknown name or a position out of
-    range is a user error naming ``where``."""
+    """The index of a frame given by its name, or else by its position in ``names`` (0-based).
+    An unknown name or a position out of range is a user error naming ``where``; so is a
+    negative position (Python's "from the end" would draw another frame than the one asked
+    for, silently, where a mistyped number is likelier than a wish for the last frame)."""
     frame = str(frame)
     if frame in names:
         return names.index(frame)
     try:
         i = int(frame)
     except ValueError:
-        raise DatasetError(f"{where}: no frame named '{frame}'") from None
-    if not -len(names) <= i < len(names):
-        raise DatasetError(f"{where}: frame index {i} out of range (0..{len(names) - 1})")
-    return i % len(names)
+        raise DatasetError(f"{where}: no frame named '{frame[:40]}'") from None
+    if not 0 <= i < len(names):
+        raise DatasetError(f"{where}: frame index {str(i)[:40]} out of range"
+                           f" (0..{len(names) - 1})")
+    return i
 
 
 TRUTH_TOLERANCE = 0.05  # s: the largest stamp difference of a frame and its truth row
@@ -324,29 +343,52 @@ def readable_truth(dataset_dir) -> dict[str, np.ndarray] | None:
         return None
 
 
+# the most pixels an image may have: 64 M (an 8K frame has 33 M). A PNG's header can claim up
+# to 4 G x 4 G pixels in 33 bytes, and OpenCV would reserve the memory for it before finding
+# the data short (or stop at its own assertion); a camera frame is far smaller than this
+MAX_IMAGE_PIXELS = 1 << 26
+
+
 def read_image(path: Path) -> np.ndarray:
     """Read an image as BGR uint8 (what OpenCV's IMREAD_COLOR gives); raises DatasetError if
     unreadable (callers skip the frame). PNG frames of 8-bit grey or RGB are decoded by
     stages.common.png in about half of OpenCV's time, every other file by OpenCV."""
+    return _decode_image(path, "image")
+
+
+def _decode_image(path: Path, what: str) -> np.ndarray:
+    """The one reader of every image a user gives (frames, masks, calibration pictures): the
+    BGR uint8 image at ``path``, or a DatasetError "unreadable ``what``: path (why)" for a file
+    that is not a regular file, empty, larger than MAX_IMAGE_PIXELS (by a PNG's header) or that
+    OpenCV cannot decode (OpenCV's own assertions included: they are not one line)."""
     import cv2
 
-    from .png import decode_png
+    from .png import decode_png, png_size
 
     path = Path(path)
     if not path.is_file():  # a FIFO would block the read forever
-        raise DatasetError(f"unreadable image: {path} (not a regular file)")
-    if path.suffix.lower() == ".png":
-        try:
-            data = path.read_bytes()
-        except OSError as e:
-            raise DatasetError(f"unreadable image: {path} ({e.strerror or e})") from None
-        img = decode_png(data)
+        raise DatasetError(f"unreadable {what}: {path} (not a regular file)")
+    png = path.suffix.lower() == ".png"
+    try:
+        data = path.read_bytes() if png else b""
+        empty = not data if png else path.stat().st_size == 0
+    except OSError as e:
+        raise DatasetError(f"unreadable {what}: {path} ({e.strerror or e})") from None
+    if empty:
+        raise DatasetError(f"unreadable {what}: {path} (empty file)")
+    size = png_size(data)
+    if size is not None and size[0] * size[1] > MAX_IMAGE_PIXELS:
+        raise DatasetError(f"unreadable {what}: {path} (its header claims {size[0]} x"
+                           f" {size[1]} px, more than {MAX_IMAGE_PIXELS} pixels)")
+    try:
+        img = decode_png(data) if png else None
         if img is None:  # a kind the fast path declines: OpenCV, from the bytes read
-            img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-    else:
-        img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+            img = (cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR) if png
+                   else cv2.imread(str(path), cv2.IMREAD_COLOR))
+    except cv2.error:  # an OpenCV assertion (e.g. more than CV_IO_MAX_IMAGE_PIXELS pixels)
+        img = None
     if img is None:
-        raise DatasetError(f"unreadable image: {path}")
+        raise DatasetError(f"unreadable {what}: {path}")
     return img
 
 
@@ -357,9 +399,7 @@ def read_mask(path: str | Path, image_size: tuple[int, int]) -> np.ndarray:
     import cv2
 
     path = Path(path)
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise DatasetError(f"unreadable mask image: {path}")
+    img = _decode_image(path, "mask image")
     w, h = image_size
     if img.shape[:2] != (h, w):
         raise DatasetError(

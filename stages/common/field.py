@@ -373,6 +373,15 @@ def field_from_spec(spec, where: str = "<field>", text: str | None = None) -> Fi
         raise FieldSpecError(f"{where}: key 'corner_arc_radius' is larger than the field")
     if spec["goal"]["width"] >= W:
         raise FieldSpecError(f"{where}: key 'goal.width' is not smaller than the field width")
+    if "penalty_mark" in spec:  # a mark on each half, d from its goal line, on the field
+        d, size = float(spec["penalty_mark"]["distance"]), float(spec["penalty_mark"]["size"])
+        if d >= L / 2:
+            raise FieldSpecError(
+                f"{where}: key 'penalty_mark.distance' ({d:g} m) reaches past the halfway line"
+                f" of a field {L:g} m long")
+        if size >= min(L, W) / 2:
+            raise FieldSpecError(
+                f"{where}: key 'penalty_mark.size' ({size:g} m) is larger than the field")
 
     hx, hy = L / 2, W / 2
     segs = [

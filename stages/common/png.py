@@ -65,6 +65,15 @@ def decode_png(data: bytes) -> np.ndarray | None:
     return out
 
 
+def png_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) that the header of the PNG file ``data`` claims, or None if ``data`` does
+    not start as a PNG file does (signature, then the IHDR chunk): read before decoding, so
+    that a header claiming a huge image is refused before any memory is reserved for it."""
+    if not data.startswith(SIGNATURE) or data[12:16] != b"IHDR" or len(data) < 24:
+        return None
+    return struct.unpack_from(">II", data, 16)
+
+
 def _chunks(data: bytes):
     """(IHDR fields, the concatenated IDAT data) of a PNG file, or None where it breaks a rule
     that makes libpng refuse the file: a critical chunk whose CRC is wrong, an unknown

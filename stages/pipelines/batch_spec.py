@@ -541,7 +541,7 @@ def _grid_conf(w, entry: dict, ds: DatasetSpec, where: str) -> tuple[dict, str]:
     fm = load_field(ds.sim_field)
     try:
         simulate.check_conf(conf)  # the overrides and the grid's centre: before anything runs
-        conf["frames"] = len(trajectory.grid_poses(fm, traj))  # as simulate counts them
+        conf["frames"] = trajectory.grid_count(fm, traj)  # as simulate counts them
     except FieldlocError as e:
         w.fail(where, str(e))
     name = (f"{fm.name}-grid{traj['grid_spacing']:g}-s{seed}-"

@@ -39,6 +39,7 @@ from ..common.conf import stage_conf
 from ..common.dataset import open_dataset, truth_at
 from ..common.errors import FieldlocError
 from ..common.field import load_field
+from ..common.resources import check_memory
 from ..common.surfaces import count_minima
 from ..common.templates import read_templates
 
@@ -69,7 +70,28 @@ def _conf(conf) -> dict:
     if c["template"] is not None and (not isinstance(c["template"], int)
                                       or isinstance(c["template"], bool)):
         raise FieldlocError(f"template must be an index, not {c['template']!r}")
+    check_memory(f"error-surface of +-{float(c['half_size']):g} m at {float(c['step']):g} m"
+                 f" steps and +-{float(c['dtheta_deg']):g} deg", surface_memory(c))
     return c
+
+
+# the crossings of one ray that the white-point table keeps, at most (its segments plus twice
+# its arcs: 27 on msl-2015, the largest built-in field), and the bytes of the table per cell,
+# angle bin and crossing: the uint16 radial table, its float32 radii and their transposed copy
+BYTES_PER_CROSSING = 2 + 4 + 4
+CROSSINGS = 32
+
+
+def surface_memory(c: dict) -> dict[str, float]:
+    """Memory (purpose -> bytes) of the surfaces (a) and (b) of the checked conf ``c``, from
+    the sizes alone (before any is made): the white-point table over the (dx, dy) cells, and
+    the surfaces' (dtheta, dy, dx) arrays of float64, one each."""
+    side = 2 * float(np.floor(float(c["half_size"]) / float(c["step"]) + 1e-9)) + 1
+    headings = 2 * float(np.floor(float(c["dtheta_deg"]) / float(c["angle_step_deg"]) + 1e-9)) + 1
+    angles = 360.0 / float(c["angle_step_deg"])
+    cells = side * side  # float products: inf, not an OverflowError, past the largest float
+    return {"white-point table": cells * angles * CROSSINGS * BYTES_PER_CROSSING,
+            "surfaces": 2.0 * cells * headings * 8}
 
 
 def _truth(ds) -> np.ndarray:

@@ -436,7 +436,7 @@ def main(conf: str | dict | None, field, output_dir, *, overwrite: bool = False,
     grid = conf["trajectory"].get("kind") == "grid"
     if grid:  # one frame per placement (its centre checked first)
         _check_start(conf)
-        conf["frames"] = len(trajectory.grid_poses(field, conf["trajectory"]))
+        conf["frames"] = trajectory.grid_count(field, conf["trajectory"])
     _check_conf(conf)
     _restore_interrupted_replacement(output_dir)
     _check_target(output_dir, overwrite, field_file)

@@ -106,9 +106,31 @@ def _check(conf: dict, box: tuple[float, float]):
     return c
 
 
+def grid_count(field, conf: dict) -> int:
+    """The number of poses of kind ``grid`` (``grid_poses``), counted without making them: a
+    grid of millions of headings is refused by its memory estimate (simulate's
+    ``estimate_needs``), not by the memory it would take to list it."""
+    xs, ys, n_head, _ = _grid_axes(field, conf)
+    return len(xs) * len(ys) * n_head
+
+
 def grid_poses(field, conf: dict) -> np.ndarray:
     """The poses (N, 3) of kind ``grid`` (module doc): nodes in rows of increasing y, x
     increasing within a row, all headings of a node in a row, headings counter-clockwise."""
+    xs, ys, n_head, heading = _grid_axes(field, conf)
+    th = wrap_angle(heading + 2 * math.pi * np.arange(n_head) / n_head)
+    gy, gx, gt = np.meshgrid(ys, xs, th, indexing="ij")
+    return np.stack([gx.ravel(), gy.ravel(), np.asarray(gt, float).ravel()], axis=1)
+
+
+# the most nodes of a grid along one axis: a million, a node every 0.02 mm of the largest
+# field; more would only come from a grid_spacing that is a mistake, and listing them would
+# take the memory the run's estimate is there to refuse
+MAX_GRID_NODES_PER_AXIS = 1_000_000
+
+
+def _grid_axes(field, conf: dict) -> tuple[np.ndarray, np.ndarray, int, float]:
+    """(node x values, node y values, number of headings, first heading) of kind ``grid``."""
     c = {**DEFAULTS, **conf}
     try:
         spacing = float(c["grid_spacing"])
@@ -134,7 +156,12 @@ def grid_poses(field, conf: dict) -> np.ndarray:
     eps = 1e-9 * max(1.0, hx, hy)
 
     def axis(c0, a, lim):
-        k = np.arange(-math.floor(a / spacing + 1e-9), math.floor(a / spacing + 1e-9) + 1)
+        # nodes farther than |c0| + lim from the centre are off the field: not listed
+        k_max = math.floor(min(a, abs(c0) + lim + spacing) / spacing + 1e-9)
+        if 2 * k_max + 1 > MAX_GRID_NODES_PER_AXIS:
+            raise FieldlocError(f"trajectory grid: grid_spacing {spacing:g} m makes more than"
+                                f" {MAX_GRID_NODES_PER_AXIS} nodes along one side")
+        k = np.arange(-k_max, k_max + 1)
         v = c0 + k * spacing
         return v[np.abs(v) <= lim + eps]
 
@@ -142,9 +169,7 @@ def grid_poses(field, conf: dict) -> np.ndarray:
     if not len(xs) or not len(ys):
         raise FieldlocError(f"trajectory grid: no node of the grid around ({cx:g}, {cy:g}) lies"
                             f" on the field ({field.length:g} x {field.width:g} m)")
-    th = wrap_angle(heading + 2 * math.pi * np.arange(n_head) / n_head)
-    gy, gx, gt = np.meshgrid(ys, xs, th, indexing="ij")
-    return np.stack([gx.ravel(), gy.ravel(), np.asarray(gt, float).ravel()], axis=1)
+    return xs, ys, n_head, heading
 
 
 def generate(field, n_frames: int, rate_hz: float, conf: dict, rng: np.random.Generator,
