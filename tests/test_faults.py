@@ -1266,7 +1266,7 @@ CASES = [
          "conf 'omni': 'centre' (1e+12, 1e+12) lies outside the 480 x 480 image"),
         ("omni.polynomial=[]", "traceback", "conf 'omni.polynomial' must be a list of 6"),
         ("omni.polynomial=[1e12,1e12,1e12,1e12,1e12,1e12]", "traceback",
-         "conf 'omni.polynomial' places the floor at the body edge"),
+         "'polynomial' f(r) is 1.05e+20 m at r = 40.0 px"),
         ("omni.valid_radius=[40,193,193]", "silent",
          "conf 'omni.valid_radius' must be a list of 2 numbers [low, high]"),
         ("omni.struts_deg=[1e12]", "silent",
