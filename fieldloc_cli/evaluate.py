@@ -59,7 +59,8 @@ def report_dirs(poses: list[Path], output: Path | None) -> list[Path]:
 @conf_option
 @click.option("--format", "fmt", type=click.Choice(["text", "markdown", "csv"]),
               default="text", show_default=True, help="Table format on stdout.")
-@click.option("--overwrite", is_flag=True, help="Replace reports made from other inputs.")
+@click.option("--overwrite", is_flag=True,
+              help="Replace fieldloc reports made from other inputs (never a user's files).")
 @click.pass_context
 def evaluate(ctx, inputs, truth, output, field, table_only, preset, stamp_tolerance,
              up_to_mirror, overrides, fmt, overwrite):

@@ -22,7 +22,8 @@ from .stage_defaults import EXTRACT_DEFAULT_PRESET, EXTRACT_OMNI_PRESETS
               help="Extract every frame again (default: resume, skipping frames already done).")
 @click.option("--debug-images", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Folder for one overlay PNG per extracted frame (perspective: the boundary, "
-                   "lines used / not used, crossings marked L/T/X).")
+                   "lines used / not used, crossings marked L/T/X): a new or empty folder, or "
+                   "one extract made (debug-images.yaml), whose overlays --overwrite replaces.")
 @click.pass_context
 def extract(ctx, dataset, output, preset, overrides, overwrite, debug_images):
     """Per-frame features of the images in DATASET (omni: scan-line distances and line points;

@@ -78,7 +78,8 @@ SMOOTH_METHODS = ("lut", "fit", "mcl", "templates")
               " [default: DATASET/poses-METHOD.h5].")
 @click.option("--preset", default="default", show_default=True, help="Preset of the method.")
 @conf_option
-@click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
+@click.option("--overwrite", is_flag=True,
+              help="Replace an existing output file (its .tum only if fieldloc wrote it).")
 @click.option("--allow-field-mismatch", is_flag=True,
               help="Localise even when the features were recorded on another field or with"
               " other scan lines than the map's.")

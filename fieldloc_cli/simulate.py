@@ -47,7 +47,8 @@ def simulate_options(preset: str, camera: str):
                          type=click.Choice(SIMULATE_PRESETS[camera]),
                          help="Named conf preset of the stage."),
             click.option("--overwrite", is_flag=True,
-                         help="Replace the dataset folder if it exists and is not empty."),
+                         help="Replace a dataset folder simulate made (simulation.yaml) that"
+                              " holds nothing else."),
             conf_option,
         ]
         for opt in reversed(options):

@@ -452,8 +452,9 @@ def test_debug_images_are_written_per_frame(tmp_path):
     res = CliRunner().invoke(cli, ["extract", str(data), "--debug-images",
                                    str(tmp_path / "dbg")])
     assert res.exit_code == 0, res.output
-    pngs = sorted(p.name for p in (tmp_path / "dbg").iterdir())
+    pngs = sorted(p.name for p in (tmp_path / "dbg").glob("*.png"))
     assert pngs == ["000000.png", "000001.png"]
+    assert (tmp_path / "dbg" / "debug-images.yaml").is_file()  # the folder is extract's
     img = cv2.imread(str(tmp_path / "dbg" / pngs[0]))
     raw = cv2.imread(str(data / "images" / pngs[0]))
     assert img.shape == raw.shape and np.any(img != raw)  # something was drawn

@@ -681,6 +681,49 @@ def _setup_damaged(key: str, name: str, change):
     return setup
 
 
+# ---------------------------------------------------------------------------- outputs that
+# replaced a user's files (hostile review s53: the TUM twin, evaluate's folder, debug images,
+# the report's plots, simulate --overwrite)
+
+
+def _setup_user_tum(w, ws):
+    """ws/mine.tum: a user's file of the name localize -o ws/mine.h5 writes its TUM twin to."""
+    (ws / "mine.tum").write_text("mine\n")
+    return {}
+
+
+def _setup_truth_tum_in_dataset(w, ws):
+    """A copy of the omni dataset holding the user's truth.tum (their truth, converted)."""
+    ds = copy_dataset(w, "omni", ws)
+    shutil.copyfile(ds / "truth.csv", ds / "truth.tum")
+    return {"ds": ds}
+
+
+def _setup_fieldloc_tum(w, ws):
+    """ws/p.tum: the TUM twin an earlier localize wrote (what --overwrite may replace)."""
+    shutil.copyfile(w["poses"].with_suffix(".tum"), ws / "p.tum")
+    return {}
+
+
+def _check_tum_replaced(paths, res):
+    assert (paths["ws"] / "p.tum").read_text().startswith("# stamp x y z qx qy qz qw\n")
+    assert (paths["ws"] / "p.h5").is_file()
+
+
+def _setup_user_report_folder(report_json: bool):
+    """ws/u: a user's folder holding files of the names evaluate writes (report.json too, if
+    ``report_json``), none of them written by fieldloc."""
+    def setup(w, ws):
+        u = ws / "u"
+        (u / "plots").mkdir(parents=True)
+        (u / "errors.csv").write_text("mine\n")
+        (u / "plots" / "trajectory.png").write_text("x")
+        if report_json:
+            (u / "report.json").write_text("mine\n")
+        return {}
+    return setup
+
+
 def _attr(name: str, value):
     return lambda f: f.attrs.__setitem__(name, value)
 
@@ -718,6 +761,52 @@ def _nulls(report: dict) -> None:
     for k in report:
         if k not in ("schema", "schema_version"):
             report[k] = None
+
+
+def _setup_user_debug_folder(w, ws):
+    """ws/dbg: a user's folder holding a copy of a dataset frame and a file of their own, under
+    the names of the overlays extract --debug-images writes."""
+    (ws / "dbg").mkdir()
+    shutil.copyfile(w["omni"] / "images" / "000000.png", ws / "dbg" / "000000.png")
+    (ws / "dbg" / "000001.png").write_text("mine")
+    return {}
+
+
+def _setup_debug_folder_made(w, ws):
+    """ws/dbg: the overlays an earlier extract (into ws/f0.h5) wrote, with its marker."""
+    extract.main(None, w["omni"], ws / "f0.h5", debug_images=ws / "dbg")
+    return {}
+
+
+def _check_overlays_redrawn(paths, res):
+    dbg = paths["ws"] / "dbg"
+    assert (dbg / extract.DEBUG_RECORD).is_file()
+    assert sorted(p.name for p in dbg.glob("*.png")) == [f"{i:06d}.png" for i in range(4)]
+
+
+def _setup_report_with_plots(w, ws):
+    """A copy of the shared report whose plots are a link to /etc/passwd and an empty file."""
+    shutil.copytree(w["omni"] / "runs" / "r", ws / "r")
+    (ws / "r" / "plots").mkdir(exist_ok=True)
+    os.symlink("/etc/passwd", ws / "r" / "plots" / "trajectory.png")
+    (ws / "r" / "plots" / "error_cdf.png").write_bytes(b"")
+    return {}
+
+
+def _check_no_foreign_plot(paths, res):
+    import base64
+
+    page = (paths["ws"] / "r.html").read_text()
+    assert "error_cdf.png not shown: not a PNG image" in page
+    secret = base64.b64encode(Path("/etc/passwd").read_bytes()[:30]).decode()[:24]
+    assert secret not in page
+
+
+def _setup_simulated_with_notes(w, ws):
+    """ws/data: a dataset simulate made, to which the user then added notes.txt."""
+    simulate.main(dict(simulate.confs["omni-clean"], frames=1), "spl", ws / "data")
+    (ws / "data" / "notes.txt").write_text("what I saw")
+    return {}
 
 
 CASES = [
@@ -1470,6 +1559,48 @@ CASES = [
          ["build-map", W + "/f.yaml", "-o", W + "/m.h5"], 1,
          "'penalty_mark.distance' (30 m) reaches past the halfway line",
          setup=_setup_field({"penalty_mark": {"distance": 30, "size": 0.1}})),
+    # ------------------------------------------------------------------ data lost (s53): an
+    # output replaced a user's file of the same name
+    Case("localize -o X.h5 onto a user's X.tum", "data-lost",
+         [*LOCALIZE, "-o", W + "/mine.h5"], 1, "mine.tum exists (use --overwrite",
+         setup=_setup_user_tum),
+    Case("localize -o DIR/truth.h5 --overwrite onto the user's DIR/truth.tum", "data-lost",
+         ["localize", "{ds}", "--map", "{map}", "--features", "{features}", "-o",
+          "{ds}/truth.h5", "--overwrite"], 1,
+         "truth.tum is not a TUM file written by fieldloc", setup=_setup_truth_tum_in_dataset),
+    Case("localize --overwrite replaces a TUM twin fieldloc wrote", "data-lost",
+         [*LOCALIZE, "-o", W + "/p.h5", "--overwrite"], 0, "p.h5: 4 frames",
+         setup=_setup_fieldloc_tum, check=_check_tum_replaced),
+    Case("evaluate -o a user's folder holding report.json --overwrite", "data-lost",
+         ["evaluate", "{poses}", "--truth", "{omni}", "-o", W + "/u", "--overwrite"], 1,
+         "u/report.json is not part of a report written by fieldloc evaluate",
+         setup=_setup_user_report_folder(report_json=True)),
+    Case("evaluate -o a user's folder holding errors.csv", "data-lost",
+         ["evaluate", "{poses}", "--truth", "{omni}", "-o", W + "/u"], 1,
+         "u/errors.csv is not part of a report written by fieldloc evaluate",
+         setup=_setup_user_report_folder(report_json=False)),
+    Case("extract --debug-images into a user's folder", "data-lost",
+         ["extract", "{omni}", "-o", W + "/f.h5", "--debug-images", W + "/dbg"], 1,
+         "holds files extract did not write", setup=_setup_user_debug_folder),
+    Case("extract --debug-images into a user's folder --overwrite", "data-lost",
+         ["extract", "{omni}", "-o", W + "/f.h5", "--debug-images", W + "/dbg",
+          "--overwrite"], 1, "holds files extract did not write",
+         setup=_setup_user_debug_folder),
+    Case("extract --debug-images onto overlays extract made", "data-lost",
+         ["extract", "{omni}", "-o", W + "/f.h5", "--debug-images", W + "/dbg"], 1,
+         "dbg/000000.png exists (use --overwrite", setup=_setup_debug_folder_made),
+    Case("extract --debug-images --overwrite onto overlays extract made", "data-lost",
+         ["extract", "{omni}", "-o", W + "/f.h5", "--debug-images", W + "/dbg",
+          "--overwrite"], 0, "f.h5: 4 frames", setup=_setup_debug_folder_made,
+         check=_check_overlays_redrawn),
+    Case("report of a plot that links to /etc/passwd", "data-lost",
+         ["report", W + "/r", "-o", W + "/r.html"], 0,
+         "trajectory.png not shown: a link to a file outside the report folder",
+         setup=_setup_report_with_plots, check=_check_no_foreign_plot),
+    Case("simulate --overwrite of its dataset holding the user's notes", "data-lost",
+         ["simulate", "omni", "--field", "spl", "-o", W + "/data", "--frames", "1",
+          "--overwrite"], 1, "notes.txt, which simulate did not write",
+         setup=_setup_simulated_with_notes),
 ]
 
 

@@ -83,8 +83,13 @@ def test_refuses_non_empty_folder_unless_overwrite(tmp_path, spl):
     (out / "keep.txt").unlink()
     simulate.main(small_conf(frames=1), spl, out)
     (out / "features.h5").write_text("derived")  # what the pipeline adds to a dataset
+    # ... is never deleted by replacing the dataset: the user moves it out first
+    with pytest.raises(FieldlocError, match="features.h5, which simulate did not write"):
+        simulate.main(small_conf(frames=1), spl, out, overwrite=True)
+    assert (out / "features.h5").read_text() == "derived"
+    (out / "features.h5").unlink()
     simulate.main(small_conf(frames=1), spl, out, overwrite=True)
-    assert not (out / "features.h5").exists() and (out / "images/000000.png").exists()
+    assert (out / "images/000000.png").exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["data"]
     empty = tmp_path / "empty"
     empty.mkdir()

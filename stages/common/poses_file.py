@@ -33,7 +33,9 @@ column, a flag other than true/false or 0/1, ``conf`` or ``inputs`` not a JSON o
 ``method``, ``field`` or ``dataset`` not text) is refused in one line (SchemaError).
 
 ``poses.tum`` beside it holds "stamp x y z qx qy qz qw" rows of the accepted frames (the top
-hypothesis), readable by evo.
+hypothesis), readable by evo. Its first line, the header ``# stamp x y z qx qy qz qw``, is how
+``check_tum_output`` tells a TUM file fieldloc wrote (which ``--overwrite`` may replace) from
+a user's (which nothing replaces).
 """
 
 from __future__ import annotations
@@ -45,7 +47,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from .artifacts import atomic_path, open_artifact, read_json_attr, write_artifact
+from .artifacts import atomic_path, check_output, open_artifact, read_json_attr, write_artifact
 from .errors import FieldlocError, SchemaError
 
 SCHEMA = "fieldloc.poses"
@@ -170,6 +172,30 @@ def write_poses(path: str | Path, track: PoseTrack, attrs: dict, *, tum: bool = 
     return path
 
 
+TUM_HEADER = "stamp x y z qx qy qz qw"  # write_tum's first line, after "# "
+
+
+def is_fieldloc_tum(path: str | Path) -> bool:
+    """Whether ``path`` is a TUM file ``write_tum`` wrote: it starts with its header line."""
+    want = f"# {TUM_HEADER}\n".encode()
+    try:
+        with open(path, "rb") as f:
+            return f.read(len(want)) == want
+    except OSError:
+        return False
+
+
+def check_tum_output(path: str | Path, inputs: dict | None, overwrite: bool) -> Path:
+    """The rule of a TUM twin written beside another output (localize's X.tum): none of the
+    ``inputs``; an existing one needs ``overwrite``, and even then only one fieldloc wrote
+    (``is_fieldloc_tum``) is replaced, never a user's trajectory of the same name."""
+    path = check_output(path, inputs, overwrite=overwrite)
+    if path.exists() and not is_fieldloc_tum(path):
+        raise FieldlocError(f"{path} is not a TUM file written by fieldloc (no '# {TUM_HEADER}'"
+                            " header): --overwrite replaces only those; choose another output")
+    return path
+
+
 def write_tum(path: str | Path, arr: dict) -> Path:
     """TUM trajectory rows 'stamp x y z qx qy qz qw' (z = 0, yaw-only quaternion) of the
     accepted frames."""
@@ -182,7 +208,7 @@ def write_tum(path: str | Path, arr: dict) -> Path:
     )
     with atomic_path(Path(path), suffix=".tum") as tmp:
         with open(tmp, "w", newline="\n") as f:
-            np.savetxt(f, rows, fmt="%.6f", header="stamp x y z qx qy qz qw")
+            np.savetxt(f, rows, fmt="%.6f", header=TUM_HEADER)
     return Path(path)
 
 

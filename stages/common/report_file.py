@@ -15,6 +15,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -90,6 +91,71 @@ def write_report(path: str | Path, report: dict) -> Path:
     with atomic_path(path, suffix=".json") as tmp:
         tmp.write_text(text)
     return path
+
+
+def is_fieldloc_report(path: str | Path) -> bool:
+    """Whether ``path`` (a report.json) says it is a report fieldloc evaluate wrote: a JSON
+    object whose ``schema`` is ``fieldloc.report`` (its figures are not checked here)."""
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, ValueError, RecursionError):  # ValueError: bad JSON or bad UTF-8
+        return False
+    return isinstance(data, dict) and data.get("schema") == SCHEMA
+
+
+def foreign_report_file(folder: str | Path) -> Path | None:
+    """The first of the files evaluate writes into a report folder (report.json, errors.csv,
+    truth.tum, the plots) that is there and that fieldloc did not write, or None: what
+    evaluate may never replace, --overwrite or not. A folder whose report.json is a fieldloc
+    report is fieldloc's; without one, an errors.csv and a truth.tum that an interrupted
+    evaluate left (report.json is written last) are recognised by their header lines, and
+    anything else of those names is a user's file."""
+    from .poses_file import is_fieldloc_tum
+
+    folder = Path(folder)
+    report = folder / REPORT_NAME
+    if report.exists():
+        return None if is_fieldloc_report(report) else report
+    errors = folder / ERRORS_NAME
+    if errors.exists() and not _is_errors_csv(errors):
+        return errors
+    tum = folder / "truth.tum"
+    if tum.exists() and not is_fieldloc_tum(tum):
+        return tum
+    return next((p for n in PLOT_NAMES if (p := folder / PLOTS_DIR / n).exists()), None)
+
+
+def _is_errors_csv(path: Path) -> bool:
+    """Whether ``path`` starts with the header line ``write_errors_csv`` writes."""
+    want = (",".join(ERRORS_COLUMNS) + "\n").encode()
+    try:
+        with open(path, "rb") as f:
+            return f.read(len(want)) == want
+    except OSError:
+        return False
+
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def read_plot(report_dir: str | Path, name: str) -> tuple[bytes | None, str]:
+    """(the bytes of the plot ``plots/<name>`` of a report folder, "") or (None, why not):
+    only a PNG file (its signature) inside the report folder is given, so that a page made
+    of the report never carries another file (a symlink to /etc/passwd, an empty file)."""
+    report_dir = Path(report_dir)
+    p = report_dir / PLOTS_DIR / name
+    if not p.is_file():
+        return None, "not a regular file" if p.exists() else "no such file"
+    real = Path(os.path.realpath(p))
+    if not real.is_relative_to(os.path.realpath(report_dir)):
+        return None, "a link to a file outside the report folder"
+    try:
+        with open(real, "rb") as f:
+            if f.read(len(PNG_SIGNATURE)) != PNG_SIGNATURE:
+                return None, "not a PNG image"
+            return PNG_SIGNATURE + f.read(), ""
+    except OSError as e:
+        return None, f"unreadable ({e.strerror or e})"
 
 
 def report_path(path: str | Path) -> Path:

@@ -40,6 +40,7 @@ from stages.common.report_file import (
     PLOT_NAMES,
     PLOTS_DIR,
     REPORT_NAME,
+    foreign_report_file,
     load_report,
     report_head,
     write_errors_csv,
@@ -168,7 +169,9 @@ def main(conf: str | dict | None, poses, truth, output_dir, *, overwrite: bool =
     (name or YAML path) to draw trajectories on, instead of the poses file's ``field``
     (checked here, drawn by stages.show.report_plots).
     An existing report of the same inputs and conf is kept as it is; one of other inputs is
-    replaced only with ``overwrite``. Returns the report folder."""
+    replaced only with ``overwrite``, and only a report fieldloc wrote: a folder holding a
+    report.json, errors.csv, truth.tum or plot that is not fieldloc's is refused
+    (stages.common.report_file.foreign_report_file). Returns the report folder."""
     conf = _resolve(conf)
     poses = Path(poses)
     columns, attrs = read_poses(poses)
@@ -183,6 +186,11 @@ def main(conf: str | dict | None, poses, truth, output_dir, *, overwrite: bool =
     check_output(out, None, overwrite=None, kind="folder")
     for written in (REPORT_NAME, ERRORS_NAME, *(f"{PLOTS_DIR}/{n}" for n in PLOT_NAMES)):
         refuse_inputs(out / written, given)
+    foreign = foreign_report_file(out)
+    if foreign is not None:
+        raise FieldlocError(f"{foreign} is not part of a report written by fieldloc evaluate:"
+                            " it is never replaced, --overwrite or not; choose another output"
+                            " folder")
     truth_cols = read_csv(truth, "truth")
     inputs = {"poses": file_hash(poses), "truth": file_hash(truth)}
     report_file = out / REPORT_NAME

@@ -39,7 +39,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..common.artifacts import as_stored, check_output, file_hash, output_lock, root_attrs
+from ..common.artifacts import (
+    as_stored,
+    check_output,
+    file_hash,
+    output_lock,
+    root_attrs,
+    written_by,
+)
 from ..common.camera import camera_can
 from ..common.conf import KindPresets, check_bounds, registered_module, resolve_conf, stage_conf
 from ..common.dataset import open_dataset, read_image, read_mask
@@ -51,6 +58,9 @@ from ..common.resources import check_disk, opencv_single_threaded
 log = logging.getLogger(__name__)
 
 KINDS = {"omni": "stages.extract.omni", "perspective": "stages.extract.perspective"}
+GENERATOR = "fieldloc extract"
+# in a --debug-images folder extract made: the marker of folders whose overlays it may replace
+DEBUG_RECORD = "debug-images.yaml"
 DEFAULT_PRESET = "default"
 MASK_NAME = "mask.png"
 
@@ -225,7 +235,9 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
     return its path. ``conf``: a preset name of the dataset's camera kind, None, or a dict of
     overrides on the kind's default preset (``resolve_extract_conf``).
     ``debug_images``: a folder that receives one overlay PNG per extracted frame (the kind's
-    ``debug_overlay``: for perspective frames the paper's fig. 1). ``calib``: a calib.yaml of
+    ``debug_overlay``: for perspective frames the paper's fig. 1): a new or empty folder, or
+    one an earlier extract made (its DEBUG_RECORD), whose overlays are replaced only with
+    ``overwrite``; never a user's folder with files in it. ``calib``: a calib.yaml of
     the same camera kind to extract with instead of the dataset's own (a calibration learnt
     from a recording); the features record it as their calibration."""
     from tqdm import tqdm
@@ -243,13 +255,7 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
     output = Path(output) if output is not None else ds.root / "features.h5"
     check_output(output, {**ds.files(), "calibration": ds.calib_path}, overwrite=None)
     if debug_images is not None:
-        debug_images = Path(debug_images)
-        if debug_images.exists() and not debug_images.is_dir():
-            raise FieldlocError(f"--debug-images {debug_images}: it is a file, not a folder")
-        if debug_images.is_dir():  # overlays are never written over a frame of the dataset
-            for name, img in zip(ds.names, ds.images):
-                check_output(debug_images / f"{name}.png", {"dataset image": img},
-                             overwrite=None)
+        debug_images = _check_debug_folder(Path(debug_images), ds)
 
     # one run at a time per output: a second run would take the first one's committed
     # frames for an interrupted run's and resume them while they are being written
@@ -276,7 +282,16 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
             return output
 
         if debug_images is not None:
+            clash = [] if overwrite else [png for _i, n, _s in todo
+                                          if (png := debug_images / f"{n}.png").exists()]
+            if clash:
+                if not resumed:
+                    parts.remove()  # the empty parts folder this run made
+                raise FieldlocError(f"{clash[0]} exists (use --overwrite to replace it)")
             debug_images.mkdir(parents=True, exist_ok=True)
+            if not written_by(debug_images, DEBUG_RECORD, GENERATOR):
+                (debug_images / DEBUG_RECORD).write_text(
+                    f"generator: {GENERATOR}\ndataset: {json.dumps(str(ds.root.resolve()))}\n")
         done = failed = 0
         with opencv_single_threaded():  # small calls: resources' doc
             try:
@@ -314,6 +329,25 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
         log.info("extract: %d frames extracted, %d already done (%d of them by an interrupted run),"
                  " %d failed -> %s", done, len(in_output) + resumed, resumed, failed, output)
         return output
+
+
+def _check_debug_folder(folder: Path, ds) -> Path:
+    """The ``debug_images`` folder, refused before any work: a file, a folder holding a frame
+    of the dataset, or a folder with files in it that extract did not make (no DEBUG_RECORD
+    naming it: a user's folder, whose pictures an overlay of the same name would replace).
+    Overlays already in a folder extract made are replaced only with ``overwrite`` (``main``
+    checks that once it knows the frames to draw)."""
+    if folder.exists() and not folder.is_dir():
+        raise FieldlocError(f"--debug-images {folder}: it is a file, not a folder")
+    if not folder.is_dir():
+        return folder
+    for name, img in zip(ds.names, ds.images):  # never written over a frame of the dataset
+        check_output(folder / f"{name}.png", {"dataset image": img}, overwrite=None)
+    if any(folder.iterdir()) and not written_by(folder, DEBUG_RECORD, GENERATOR):
+        raise FieldlocError(f"--debug-images {folder} holds files extract did not write (no"
+                            f" {DEBUG_RECORD}); they are never replaced, --overwrite or not:"
+                            " choose a new or empty folder")
+    return folder
 
 
 def _write_debug_image(path: Path, image: np.ndarray) -> None:

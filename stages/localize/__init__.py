@@ -29,7 +29,9 @@ extract first (``fieldloc localize DIR`` without ``--features``).
 Checked before any frame is localised (each a one-line error, or a warning where the run can
 still mean something):
 - the output and poses.tum beside it are none of the inputs (map, features, points, the
-  dataset's files), and an existing output needs ``overwrite``;
+  dataset's files), and an existing output needs ``overwrite``; an existing poses.tum is
+  replaced only if fieldloc wrote it (stages.common.poses_file.check_tum_output), never a
+  user's trajectory of that name;
 - odometry.csv, imu.csv and truth.csv are read once: a NaN or infinite value, a stamp out of
   order or repeated is refused with its line (stages.common.dataset.read_csv). Refused rather
   than skipped: an odometry row is an increment since the previous row, so dropping or
@@ -70,7 +72,7 @@ from ..common.errors import DatasetError, FieldlocError
 from ..common.features_file import FeaturesFile
 from ..common.field import load_field
 from ..common.map_file import MapFile
-from ..common.poses_file import SCHEMA, VERSION, PoseTrack, write_poses
+from ..common.poses_file import SCHEMA, VERSION, PoseTrack, check_tum_output, write_poses
 from ..common.scanlines import bin_points_to_scanlines
 from .symmetry import set_up_to_mirror, start_half_warning
 
@@ -316,7 +318,7 @@ def check_run(conf: dict | str | None, dataset_dir: str | Path, map_path: str | 
     inputs_given = {**dataset.files(), "map": map_path, "features": features, "points": points,
                     "templates": templates}
     check_output(output, inputs_given, overwrite=overwrite)
-    check_output(output.with_suffix(".tum"), inputs_given, overwrite=None)
+    check_tum_output(output.with_suffix(".tum"), inputs_given, overwrite)
     series = {k: dataset.optional(k) for k in ("odometry", "imu", "truth")}  # refused if bad
     method_module(conf["method"])
     if map_path is not None:

@@ -19,6 +19,9 @@ table of all runs at the top). Per report the page holds:
   without a picture, saying why).
 
 Every picture is embedded as a base64 PNG (``data:image/png``): the page needs no other file.
+A plot that is not a PNG file inside the report folder (an empty file, a link to a file
+elsewhere) is not embedded: the page and a warning say so
+(stages.common.report_file.read_plot).
 """
 
 from __future__ import annotations
@@ -37,7 +40,7 @@ from .. import __version__
 from ..common.artifacts import atomic_path, check_output
 from ..common.conf import stage_conf
 from ..common.errors import FieldlocError
-from ..common.report_file import REPORT_NAME, load_report, read_errors_csv
+from ..common.report_file import REPORT_NAME, load_report, read_errors_csv, read_plot
 from ..evaluate.report import table_rows
 
 log = logging.getLogger(__name__)
@@ -308,10 +311,13 @@ def report_section(report_dir: Path, conf: dict, index: int) -> str:
              f' {html.escape(str(report_dir))}</p>', figures_table(report)]
     plots_dir = report_dir / "plots"
     for name in conf["plots"]:
-        p = plots_dir / name
-        if p.is_file():
-            parts.append(f"<figure>{_img(p.read_bytes(), name)}<figcaption>"
+        png, why = read_plot(report_dir, name)
+        if png is not None:
+            parts.append(f"<figure>{_img(png, name)}<figcaption>"
                          f"{html.escape(name)}</figcaption></figure>")
+        elif why != "no such file":
+            log.warning("report: %s not shown: %s", plots_dir / name, why)
+            parts.append(f"<p>{html.escape(name)} not shown: {html.escape(why)}</p>")
     parts.append(reliability_table(report))
     worst = worst_frames(report_dir, int(conf["worst"]))
     if worst:

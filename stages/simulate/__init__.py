@@ -22,7 +22,9 @@ recorded in one lab, with the clutter, movers and lighting of their own seeds.
 
 simulation.yaml is also the marker of a dataset made here: ``overwrite`` replaces an existing
 folder only if it holds that marker (``generator: fieldloc simulate``), never another folder (a
-user's files, the folder holding the field YAML), and never one that holds an input. Before
+user's files, the folder holding the field YAML), never one that holds an input, and never one
+that holds anything simulate did not write (``not_simulated``: notes, or features and poses
+made from the dataset, which the replacement would delete). Before
 anything is rendered, the memory the scene needs (ground textures grow with the field's area)
 and the disk the frames need are estimated, and a run that cannot fit is refused with the
 estimate.
@@ -58,6 +60,7 @@ import inspect
 import logging
 import math
 import os
+import re
 import shutil
 import tempfile
 from pathlib import Path
@@ -297,6 +300,27 @@ def is_simulated_dataset(folder: Path) -> bool:
     return isinstance(d, dict) and d.get("generator") == GENERATOR
 
 
+# what simulate writes into a dataset folder (the perspective renderer adds head.csv and
+# head_truth.csv), and the names of its frames in images/
+WRITTEN = ("images", "frames.csv", "truth.csv", "odometry.csv", "imu.csv", "head.csv",
+           "head_truth.csv", "calib.yaml", SIMULATION_RECORD)
+FRAME_NAME = re.compile(r"[0-9]{6}\.png")
+
+
+def not_simulated(folder: Path) -> Path | None:
+    """The first file or folder in the dataset ``folder`` that simulate does not write
+    (WRITTEN, frames named FRAME_NAME in images/), or None: what replacing the folder would
+    delete of a user's (notes, features, poses made from it)."""
+    for entry in sorted(folder.iterdir()):
+        if entry.name not in WRITTEN:
+            return entry
+    images = folder / "images"
+    if images.is_dir():
+        return next((e for e in sorted(images.iterdir())
+                     if not (FRAME_NAME.fullmatch(e.name) and e.is_file())), None)
+    return None
+
+
 def _check_target(output_dir: Path, overwrite: bool, field_file: Path | None):
     check_output(output_dir, {"field YAML": field_file}, overwrite=None, kind="folder")
     if output_dir.is_dir() and any(output_dir.iterdir()):
@@ -309,6 +333,11 @@ def _check_target(output_dir: Path, overwrite: bool, field_file: Path | None):
                 f"{output_dir} is not a dataset made by fieldloc simulate (no {SIMULATION_RECORD}"
                 " marker); --overwrite replaces only those: choose another folder or remove it"
                 " yourself")
+        other = not_simulated(output_dir)
+        if other is not None:
+            raise FieldlocError(
+                f"{output_dir} holds {other}, which simulate did not write: --overwrite would"
+                " delete it; move it out of the folder or choose another one")
         if Path.cwd().resolve().is_relative_to(output_dir.resolve()):
             raise FieldlocError(
                 f"{output_dir} holds the current folder; run simulate from elsewhere to replace"
