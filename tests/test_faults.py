@@ -643,6 +643,52 @@ def _check_short_message(paths, res):
     assert "x" * 61 not in res.stderr and len(res.stderr) < 2000, len(res.stderr)
 
 
+
+def _setup_user_summaries(batch_json: str | None, dirs=()):
+    """A batch SPEC of the shared omni dataset, and a folder res holding a user's own
+    comparison tables and summary picture (and ``batch.json`` text, and empty ``dirs``)."""
+    def setup(w, ws):
+        (ws / "spec.yaml").write_text(f"map: {w['map']}\ndatasets: [{{path: {w['omni']}}}]\n"
+                                      "methods: [lut]\n")
+        res = ws / "res"
+        (res / "plots").mkdir(parents=True)
+        (res / "comparison.csv").write_text("my thesis table\n")
+        (res / "comparison.md").write_text("notes\n")
+        (res / "plots" / "summary.png").write_bytes(b"a user's own picture")
+        if batch_json is not None:
+            (res / "batch.json").write_text(batch_json)
+        for d in dirs:
+            (res / d).mkdir()
+        return {}
+    return setup
+
+
+def _setup_batch_field_name(w, ws):
+    spec = yaml.safe_load(Path(w["field_yaml"]).read_text())
+    spec["name"] = "../../escaped-batch"
+    (ws / "f.yaml").write_text(yaml.safe_dump(spec))
+    (ws / "spec.yaml").write_text(f"field: {ws / 'f.yaml'}\ndatasets: [{{path: {w['omni']}}}]\n"
+                                  "methods: [lut]\n")
+    return {}
+
+
+def _edit_intrinsics(**values):
+    def change(ds):
+        d = yaml.safe_load((ds / "calib.yaml").read_text())
+        d["intrinsics"].update(values)
+        (ds / "calib.yaml").write_text(yaml.safe_dump(d))
+    return _with_ds("kid", change)
+
+
+def _setup_extract_spec(dataset: str, extract: str, method: str):
+    """A batch SPEC of one shared dataset, with a top-level ``extract`` and one method."""
+    def setup(w, ws):
+        (ws / "spec.yaml").write_text(f"map: {w['map']}\ndatasets: [{{path: {w[dataset]}}}]\n"
+                                      f"extract: {extract}\nmethods: [{method}]\n")
+        return {}
+    return setup
+
+
 LOCALIZE = ["localize", "{omni}", "--map", "{map}", "--features", "{features}"]
 W = "{ws}"
 SIM_OMNI = ["simulate", "omni", "--field", "spl", "--frames", "2", "-o", W + "/sim"]
@@ -1601,6 +1647,57 @@ CASES = [
          ["simulate", "omni", "--field", "spl", "-o", W + "/data", "--frames", "1",
           "--overwrite"], 1, "notes.txt, which simulate did not write",
          setup=_setup_simulated_with_notes),
+    # ------------------------------------------------------------------ s53 hostile2, group D
+    Case("batch -o a folder of a user's comparison tables and batch.json", "data-lost",
+         ["batch", W + "/spec.yaml", "-o", W + "/res", "--serial"], 1,
+         "batch.json exists and no earlier batch wrote it",
+         setup=_setup_user_summaries('{"mine": 1}\n')),
+    Case("batch --overwrite -o a folder with runs/ and a user's comparison tables", "data-lost",
+         ["batch", W + "/spec.yaml", "-o", W + "/res", "--serial", "--overwrite"], 1,
+         "comparison.csv exists and no earlier batch wrote it",
+         setup=_setup_user_summaries(None, dirs=("runs",))),
+    *[Case(f"build-map of a field named {name!r}", "silent",
+           ["build-map", W + "/f.yaml", "--resolution", "0.5"], 1,
+           "is not a plain name (letters, digits", setup=_setup_field({"name": name}))
+      for name in ("../escaped", "/tmp/abs-x", "", "a\nb")],
+    Case("batch of a field named ../../escaped-batch", "silent",
+         ["batch", W + "/spec.yaml", "-o", W + "/sb/res", "--serial"], 1,
+         "field name '../../escaped-batch' is not a plain name", setup=_setup_batch_field_name),
+    Case("field import --name with a newline and a YAML key", "silent",
+         ["field", "import", W + "/fd.cfg", "--format", "bhuman", "--name",
+          "a\ncorner_arc_radius: 2 #", "-o", W + "/x.yaml"], 1,
+         "--name: field name 'a\\ncorner_arc_radius: 2 #' is not a plain name",
+         setup=_setup_team_file),
+    *[Case(f"extract -c {kv}", kind, ["extract", "{omni}", "-o", W + "/f.h5", "-c", kv], 1, msg)
+      for kv, kind, msg in (
+        ("scanlines.max_range=0.1", "traceback",
+         "conf 'scanlines': need 0 <= robot_radius < spiral_end_radius <= max_range, got 0.25,"
+         " 2, 0.1"),
+        ("scanlines.robot_radius=5", "silent",
+         "need 0 <= robot_radius < spiral_end_radius <= max_range, got 5, 2, 4"),
+        ("scanlines.spiral_end_radius=0.1", "silent",
+         "need 0 <= robot_radius < spiral_end_radius <= max_range, got 0.25, 0.1, 4"),
+        ("max_white_m=-1", "silent", "conf 'max_white_m' must be > 0 and <= 5"),
+        ("max_white_m=1e9", "silent", "conf 'max_white_m' must be > 0 and <= 5"))],
+    Case("show points -c scanlines.max_range=0.1", "traceback",
+         ["show", "points", "{omni}", "--frame", "0", "-o", W + "/p.png", "-c",
+          "scanlines.max_range=0.1"], 1, "need 0 <= robot_radius < spiral_end_radius"),
+    Case("extract of a calib.yaml with an unknown key under intrinsics", "silent",
+         ["extract", W + "/kid", "-o", W + "/f.h5"], 1,
+         "unknown key 'intrinsics.extra' (intrinsics: fx, fy, cx, cy)",
+         setup=_edit_intrinsics(extra=1)),
+    *[Case(f"extract of a calib.yaml with intrinsics {values}", "traceback",
+           ["extract", W + "/kid", "-o", W + "/f.h5"], 1, msg,
+           setup=_edit_intrinsics(**values)) for values, msg in (
+        ({"fx": 1e-9}, "focal lengths fx, fy must be > 0, between 0.05 and 100 times"),
+        ({"fy": 1e9}, "focal lengths fx, fy must be > 0, between 0.05 and 100 times"),
+        ({"cx": 1e9}, "the principal point cx, cy must lie in the image"),
+        ({"cy": -5000}, "the principal point cx, cy must lie in the image"))],
+    *[Case(f"a batch SPEC's extract: {text} on {ds} only", "silent",
+           ["batch", W + "/spec.yaml", "-o", W + "/res", "--serial"], 1, msg,
+           setup=_setup_extract_spec(ds, text, method)) for ds, text, method, msg in (
+        ("omni", "{omni: real, perspective: bogus}", "lut", "extract.perspective: unknown"),
+        ("kid", "{omni: bogus}", "mcl", "extract.omni: unknown"))],
 ]
 
 

@@ -61,8 +61,7 @@ def build_tables(fm: FieldModel, conf: dict) -> tuple[Grid, ScanLines, dict]:
         raise FieldlocError(f"resolution {conf['resolution']:g} m is coarser than"
                             f" {MAX_RESOLUTION:g} m: a map places the robot no better than its"
                             " cells, and cells that size cover a goal area's lines in one")
-    if not 0 <= conf["robot_radius"] < conf["spiral_end_radius"] <= conf["max_range"]:
-        raise FieldlocError("need 0 <= robot_radius < spiral_end_radius <= max_range")
+    scanlines_of(conf).check()
     grid = Grid.around(fm, float(conf["border"]), float(conf["resolution"]))
     ny, nx = grid.shape
     log.info("build-map %s: %d x %d cells of %g m", fm.name, nx, ny, grid.resolution)

@@ -67,6 +67,20 @@ def is_batch_folder(path: str | Path) -> bool:
     return (Path(path) / BATCH_NAME).is_file()
 
 
+def written_by_batch(results_dir: str | Path) -> bool:
+    """Whether ``results_dir``'s batch.json is an index a batch wrote (a JSON object with this
+    schema): only then are it and the comparison files beside it a batch's own, which a rerun
+    may replace (a user's batch.json, or a damaged one, which a batch never leaves since it
+    writes atomically, is not)."""
+    path = Path(results_dir) / BATCH_NAME
+    if not path.is_file():
+        return False
+    try:
+        return read_json(path, raw=True).get("schema") == SCHEMA
+    except SchemaError:
+        return False
+
+
 def load_batch(results_dir: str | Path) -> dict:
     """The index of a results folder, its schema checked."""
     path = Path(results_dir) / BATCH_NAME

@@ -13,6 +13,7 @@ the goal posts, and the L/T/X crossings derived from the geometry (never typed b
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -94,6 +95,11 @@ CROSSING_TYPES = ("L", "T", "X")
 # with a memory estimate (stages.common.resources)
 MAX_DIMENSION = 1e6
 MIN_DIMENSION = 1e-3  # below a millimetre a value is a unit slip, and segments degenerate
+# a field's name becomes part of file names (build-map's <name>.map.h5, a batch's
+# maps/<name>-<hash>.map.h5) and the first line of an imported field's YAML: a plain token,
+# so that no name leads out of a folder (/, ..), hides a file (a leading .) or breaks a line
+NAME_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]*")
+NAME_MAX = 64
 
 
 @dataclass
@@ -270,6 +276,16 @@ def load_field(name_or_path: str | Path) -> FieldModel:
     return field_from_spec(spec, str(path), text)
 
 
+def check_field_name(name, where: str) -> str:
+    """``name`` if it is a plain field name (NAME_RE, at most NAME_MAX characters: it names
+    output files), else FieldSpecError."""
+    if not isinstance(name, str) or len(name) > NAME_MAX or not NAME_RE.fullmatch(name):
+        raise FieldSpecError(f"{where}: field name {shown(name, 40)} is not a plain name"
+                             f" (letters, digits, . _ + -, starting with a letter or digit,"
+                             f" at most {NAME_MAX} characters)")
+    return name
+
+
 def _check(spec: dict, schema: dict, where: str, prefix: str = ""):
     if not isinstance(spec, dict):
         raise FieldSpecError(f"{where}: '{prefix or 'field'}' must be a mapping")
@@ -341,6 +357,7 @@ def field_from_spec(spec, where: str = "<field>", text: str | None = None) -> Fi
         raise FieldSpecError(f"{where}: a field file must be a mapping of keys")
     spec = _apply_letters(spec, where)
     _check(spec, SCHEMA, where)
+    check_field_name(spec["name"], where)
     L, W = float(spec["length"]), float(spec["width"])
     lw = float(spec["line_width"])
     for key in ("length", "width", "line_width"):

@@ -46,7 +46,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .errors import DatasetError
+from .errors import DatasetError, shown
 
 # camera axes (x right, y down, z along the optical axis) in the robot frame at zero angles
 _CAMERA_AXES = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
@@ -59,6 +59,11 @@ MAX_HEIGHT_M = 10.0
 # head sits within a few degrees of its drawing; a larger value is a misread unit or a sign of
 # another convention, not a mount
 MAX_MOUNT_OFFSET = 0.3
+# the focal lengths a calib.yaml may give, as shares of the image's size (fx of its width, fy of
+# its height): fields of view from about 170 deg down to about 0.6 deg; outside them a value is
+# a unit slip (metres, normalised coordinates) or a typo, not a lens
+FOCAL_SHARE = (0.05, 100.0)
+INTRINSICS_KEYS = ("fx", "fy", "cx", "cy")
 
 
 def head_rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
@@ -336,6 +341,10 @@ class PerspectiveCamera:
             intr = d["intrinsics"]
             if not isinstance(intr, dict):
                 raise DatasetError(f"{where}: 'intrinsics' must be a mapping of fx, fy, cx, cy")
+            unknown = [str(k) for k in intr if k not in INTRINSICS_KEYS]
+            if unknown:
+                raise DatasetError(f"{where}: unknown key {shown(f'intrinsics.{unknown[0]}', 40)}"
+                                   f" (intrinsics: {', '.join(INTRINSICS_KEYS)})")
             dist = np.asarray(d["distortion"], dtype=float).ravel()
             cam = cls(
                 image_size=(int(size[0]), int(size[1])),
@@ -366,8 +375,15 @@ class PerspectiveCamera:
             raise DatasetError(f"{where}: perspective calibration holds a non-finite number")
         if cam.image_size[0] <= 0 or cam.image_size[1] <= 0:
             raise DatasetError(f"{where}: 'image_size' must be positive, got {list(size)}")
-        if cam.fx <= 0 or cam.fy <= 0:
-            raise DatasetError(f"{where}: focal lengths fx, fy must be > 0")
+        w, h = cam.image_size
+        low, high = FOCAL_SHARE
+        if not (low * w <= cam.fx <= high * w and low * h <= cam.fy <= high * h):
+            raise DatasetError(f"{where}: focal lengths fx, fy must be > 0, between {low:g} and"
+                               f" {high:g} times the image's width (fx) and height (fy), got"
+                               f" {cam.fx:g}, {cam.fy:g} for {w} x {h} px")
+        if not (0 <= cam.cx <= w - 1 and 0 <= cam.cy <= h - 1):
+            raise DatasetError(f"{where}: the principal point cx, cy must lie in the image"
+                               f" (0..{w - 1}, 0..{h - 1}), got {cam.cx:g}, {cam.cy:g}")
         if not 0 < cam.height <= MAX_HEIGHT_M:
             raise DatasetError(f"{where}: 'height' must be > 0 and <= {MAX_HEIGHT_M:g} m (camera"
                                f" above the floor), got {cam.height:g}")
@@ -381,7 +397,6 @@ class PerspectiveCamera:
             if abs(angle) > MAX_MOUNT_OFFSET:
                 raise DatasetError(f"{where}: '{name}' must be a mount angle in radians within"
                                    f" +-{MAX_MOUNT_OFFSET:g}, got {angle:g} (degrees?)")
-        w, h = cam.image_size
         corners = cam._to_normalized(np.array([[0, 0], [w - 1, 0], [0, h - 1], [w - 1, h - 1]]))
         if np.isnan(cam.undistort_normalized(corners)).any():
             raise DatasetError(

@@ -26,6 +26,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from .errors import FieldlocError
+
 NO_HIT_MM = 65535  # uint16 marker for "no crossing" in the tables
 
 
@@ -37,6 +39,16 @@ class ScanLines:
     max_range: float = 4.0  # m, radial search limit
     spiral_end_radius: float = 2.0  # m, spiral radius after one full turn
     spiral_samples_per_turn: int = 1440  # polyline resolution used to walk a spiral
+
+    def check(self, where: str = "") -> ScanLines:
+        """Itself, if its lines can be walked (FieldlocError otherwise): each starts at the
+        robot radius and ends beyond it, and no spiral reaches past the radial lines' range.
+        build-map and extract hold their confs to it, so a map and features agree."""
+        r0, r1, r_max = self.robot_radius, self.spiral_end_radius, self.max_range
+        if not 0 <= r0 < r1 <= r_max:
+            raise FieldlocError(f"{where}need 0 <= robot_radius < spiral_end_radius <= max_range,"
+                                f" got {r0:g}, {r1:g}, {r_max:g}")
+        return self
 
     @property
     def angle_step(self) -> float:

@@ -124,7 +124,15 @@ def former_layout() -> dict:
 BOUNDS = {**{f"colour.{k}": colour.BOUNDS[k] for k in USER_COLOUR_KEYS},
           "scanlines.robot_radius": (0, None),
           "scanlines.max_range": ((0,), 50.0), "scanlines.spiral_end_radius": ((0,), 50.0),
-          "points_radial_lines": (0, 3600)}
+          "points_radial_lines": (0, 3600),
+          # a line's white run is centimetres deep (blooming on real frames: up to ~0.6 m)
+          "max_white_m": ((0,), 5.0)}
+
+
+def check_conf(conf: dict) -> None:
+    """What BOUNDS does not say (FieldlocError): the scan lines must be walkable, as
+    build-map's are (common.scanlines.ScanLines.check)."""
+    scanlines_of(conf).check("conf 'scanlines': ")
 
 
 def colour_conf(conf: dict) -> dict:

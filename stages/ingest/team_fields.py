@@ -61,7 +61,14 @@ from .. import __version__
 from ..common.artifacts import atomic_path, check_output, file_hash
 from ..common.conf import load_yaml
 from ..common.errors import FieldlocError, FieldSpecError
-from ..common.field import MSL_LETTERS, field_from_spec, load_field, msl_letter_value
+from ..common.field import (
+    MSL_LETTERS,
+    NAME_MAX,
+    check_field_name,
+    field_from_spec,
+    load_field,
+    msl_letter_value,
+)
 from . import field_formats as _formats
 
 FORMATS = ("bhuman", "bitbots", "falcons", "minho", "carpenoctem", "cambada", "hulks")
@@ -491,6 +498,8 @@ def read_team_field(path, fmt: str | None = None, *, venue: str | None = None,
     """
     conf = conf or confs["default"]
     path = Path(path)
+    if name is not None:
+        check_field_name(name, "--name")  # it names files, and heads the YAML written
     if fmt is None:
         fmt = _formats.detect_format(path)
     if fmt not in FORMATS:
@@ -530,6 +539,8 @@ def read_team_field(path, fmt: str | None = None, *, venue: str | None = None,
     dec = int(conf["decimals"])
     spec = _rounded(spec, dec)
     stem = extra.get("venue") or extra.get("section") or path.stem
+    # the default name from a file, venue or section name: its other characters as '-'
+    stem = re.sub(r"[^A-Za-z0-9._+-]", "-", stem)[:NAME_MAX - len(fmt) - 1]
     out = {"name": name or f"{fmt}-{stem}",
            "source": f"imported by fieldloc field import --format {fmt} from {path.name}"
                      f" ({extra.get('kind', fmt)})"}
@@ -600,7 +611,9 @@ def main(conf: str | dict | None, path, output, *, fmt: str | None = None,
     fmt = imp.record["format"]
     text = (f"# {imp.spec['name']}: imported from {Path(path).name} (--format {fmt}); metres,"
             " between line centre lines\n" + yaml.safe_dump(imp.spec, sort_keys=False))
+    # what is written must read back as a field: checked before writing (a refusal writes
+    # nothing)
+    field_from_spec(load_yaml(text), str(output), text)
     with atomic_path(output, suffix=".yaml") as tmp:
         tmp.write_text(text)
-    load_field(output)  # what was written reads back as a field
     return output

@@ -179,8 +179,26 @@ def _check_results(plan: Plan) -> Path:
             and not any((results / d).is_dir() for d in ("runs", "datasets", "features")):
         raise FieldlocError(f"{results} holds other files: batch results go into a new folder"
                             " or one an earlier batch wrote")
+    _refuse_foreign_summaries(plan, results)
     results.mkdir(parents=True, exist_ok=True)
     return results
+
+
+def _refuse_foreign_summaries(plan: Plan, results: Path) -> None:
+    """The index, comparison tables and pictures a batch writes at RESULTS' top are replaced
+    only when an earlier batch wrote them (its batch.json vouches for the files beside it,
+    stages.common.batch_file.written_by_batch), --overwrite included: never a user's own
+    comparison.csv or summary.png."""
+    from ..common.batch_file import BATCH_NAME, written_by_batch
+    from ..show.comparison import PLOTS_DIR, SUMMARY_NAME
+
+    names = [BATCH_NAME, "comparison.csv", "comparison.md", f"{PLOTS_DIR}/{SUMMARY_NAME}",
+             *(f"{PLOTS_DIR}/cdf-{ds.name}.png" for ds in plan.datasets)]
+    present = [n for n in names if os.path.lexists(results / n)]
+    if present and not written_by_batch(results):
+        raise FieldlocError(f"{results / present[0]} exists and no earlier batch wrote it (no"
+                            f" '{BATCH_NAME}' index of a batch beside it): batch never replaces"
+                            " it, --overwrite or not; choose another RESULTS folder")
 
 
 # ---------------------------------------------------------------------------- resume

@@ -244,6 +244,11 @@ def read_spec(spec_path: str | Path, results: str | Path) -> Plan:
         w.fail("build_map", str(e))
     extract_default = data.get("extract") or {}
     w.keys(extract_default, "extract", tuple(extract.KINDS))
+    for kind, ex in extract_default.items():  # every one named, used by a dataset or not
+        try:
+            extract.resolve_extract_conf(kind, ex)
+        except FieldlocError as e:
+            w.fail(f"extract.{kind}", str(e))
     try:
         evaluate_conf = evaluate.check_conf(stage_conf(evaluate.confs, data.get("evaluate"),
                                                        default="numbers"))
