@@ -1532,6 +1532,16 @@ CASES = [
          _attr("field", "[1]")),
         ("laplacian holds text", "laplacian holds text where numbers belong",
          _as_text("laplacian")))],
+    *[Case(f"localize --method templates on templates whose {what}", "silent",
+           ["localize", "{omni}", "--method", "templates", "--templates", W + "/t.h5", "-o",
+            W + "/p.h5"], 1, msg, setup=_setup_damaged("templates", "t.h5", change))
+      for what, msg, change in (
+        ("feature kind is unknown", "feature_kind 'akaze' is none of", _attr("feature_kind",
+                                                                          "akaze")),
+        ("descriptor metric is another kind's", "descriptor_metric 'hamming' is not surf's",
+         _attr("descriptor_metric", "hamming")),
+        ("template count is wrong", "n_templates is 99, the file holds",
+         _attr("n_templates", 99)))],
     Case("extract of a dataset whose simulation.yaml has field_size [NaN, 1]", "silent",
          ["extract", "{ds}", "-o", W + "/f.h5"], 1,
          "field_size [nan, 1.0] must be two finite numbers > 0",

@@ -143,6 +143,27 @@ def write_templates(path: str | Path, db: TemplateDatabase, attrs: dict) -> Path
     return path
 
 
+def _attribute_problems(attrs: dict, kind: str, t: int) -> list[str]:
+    """What the root attributes say against the file: a feature kind the matcher knows, the
+    descriptor metric of that kind, and ``n_templates`` the templates held (each used by
+    localize --method templates to match and to size its search; a wrong one matched
+    descriptors with another metric, or passed unnoticed)."""
+    from .local_features import DESCRIPTOR_METRIC
+
+    if kind not in DESCRIPTOR_METRIC:
+        return [f"feature_kind {kind[:40]!r} is none of {', '.join(sorted(DESCRIPTOR_METRIC))}"]
+    out = []
+    metric = attrs.get("descriptor_metric")
+    metric = metric.decode() if isinstance(metric, bytes) else metric
+    if metric is not None and metric != DESCRIPTOR_METRIC[kind]:
+        out.append(f"descriptor_metric {str(metric)[:40]!r} is not {kind}'s"
+                   f" ({DESCRIPTOR_METRIC[kind]})")
+    count = attrs.get("n_templates")
+    if count is not None and not (isinstance(count, (int, np.integer)) and int(count) == t):
+        out.append(f"n_templates is {str(count)[:40]}, the file holds {t}")
+    return out
+
+
 def read_templates(path: str | Path) -> TemplateDatabase:
     """The database of a templates file; SchemaError (one line) for anything else."""
     path = Path(path)
@@ -180,6 +201,7 @@ def read_templates(path: str | Path) -> TemplateDatabase:
     problems += [f"attribute '{k}' is {str(v)[:40]!r}, not a JSON object"
                  for k, v in (("ground_features", ground_conf), ("field", field_record))
                  if not isinstance(v, dict)]
+    problems += _attribute_problems(attrs, kind, t)
     if problems:
         raise SchemaError(f"{path}: damaged '{SCHEMA}' file: {problems[0]}")
     return TemplateDatabase(names=names, poses=np.asarray(arrays["poses"], float),
