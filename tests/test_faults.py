@@ -1615,6 +1615,12 @@ CASES = [
          ["build-map", W + "/f.yaml", "-o", W + "/m.h5"], 1,
          "'penalty_mark.distance' (30 m) reaches past the halfway line",
          setup=_setup_field({"penalty_mark": {"distance": 30, "size": 0.1}})),
+    *[Case(f"a field YAML whose {key} is {value} m", "silent",
+           ["build-map", W + "/f.yaml", "-o", W + "/m.h5"], 1,
+           f"key '{key}' ({value} m) is more than", setup=_setup_field(change))
+      for key, value, change in (("line_width", 5, {"line_width": 5}),
+                                 ("goal.depth", 100, {"goal": {"width": 1.6, "depth": 100,
+                                                               "post_diameter": 0.1}}))],
     # ------------------------------------------------------------------ data lost (s53): an
     # output replaced a user's file of the same name
     Case("localize -o X.h5 onto a user's X.tum", "data-lost",

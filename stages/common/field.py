@@ -95,6 +95,11 @@ CROSSING_TYPES = ("L", "T", "X")
 # with a memory estimate (stages.common.resources)
 MAX_DIMENSION = 1e6
 MIN_DIMENSION = 1e-3  # below a millimetre a value is a unit slip, and segments degenerate
+# the rules of every league paint lines 5 to 12.5 cm wide and build goals 0.5 to 0.6 m deep; a
+# value past these limits is a unit slip or a damaged file, and would draw a field no camera
+# sees (a 5 m line covers a goal area)
+MAX_LINE_WIDTH = 0.5
+MAX_GOAL_DEPTH = 2.0
 # a field's name becomes part of file names (build-map's <name>.map.h5, a batch's
 # maps/<name>-<hash>.map.h5) and the first line of an imported field's YAML: a plain token,
 # so that no name leads out of a folder (/, ..), hides a file (a leading .) or breaks a line
@@ -390,6 +395,11 @@ def field_from_spec(spec, where: str = "<field>", text: str | None = None) -> Fi
         raise FieldSpecError(f"{where}: key 'corner_arc_radius' is larger than the field")
     if spec["goal"]["width"] >= W:
         raise FieldSpecError(f"{where}: key 'goal.width' is not smaller than the field width")
+    for key, value, most in (("line_width", lw, MAX_LINE_WIDTH),
+                             ("goal.depth", float(spec["goal"]["depth"]), MAX_GOAL_DEPTH)):
+        if value > most:
+            raise FieldSpecError(f"{where}: key '{key}' ({value:g} m) is more than {most:g} m,"
+                                 " beyond any league's field")
     if "penalty_mark" in spec:  # a mark on each half, d from its goal line, on the field
         d, size = float(spec["penalty_mark"]["distance"]), float(spec["penalty_mark"]["size"])
         if d >= L / 2:
