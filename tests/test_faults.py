@@ -13,6 +13,7 @@ three are stated in the README and checked against the suite at the end of this 
 from __future__ import annotations
 
 import contextlib
+import copy
 import hashlib
 import logging
 import math
@@ -36,6 +37,7 @@ from click.testing import CliRunner
 from fieldloc_cli.main import cli
 from stages import build_map, extract, localize, simulate
 from stages.common.camera import load_calib
+from stages.common.conf import check_bounds
 from stages.common.field import field_from_spec
 from stages.common.poses_file import read_poses
 
@@ -854,6 +856,54 @@ def _setup_simulated_with_notes(w, ws):
     (ws / "data" / "notes.txt").write_text("what I saw")
     return {}
 
+
+
+# s53 hostile2 F5-F7: simulate's scalar conf keys given a value outside their range
+# (simulate.SCALAR_BOUNDS) through -c, refused in one line naming the key before anything is
+# rendered: (key, value, the sweep's kind). F5 ended in tracebacks, F6 hung, F7 ran silently.
+SIMULATE_SCALAR_FAULTS = [
+    *[(k, v, "traceback") for k, v in (
+        ("trajectory.accel_max", "0"), ("trajectory.lateral_accel_max", "0"),
+        ("trajectory.yaw_accel_max", "-1"),
+        *[(f"odometry.{k}", "-1") for k in (
+            "scale_sigma", "rotation_scale_sigma", "slip_sigma", "slip_rotation", "noise_xy",
+            "noise_theta", "collision_xy", "collision_theta")],
+        *[(f"imu.{k}", "-1") for k in ("yaw_noise", "bias_sigma", "collision_yaw")],
+        ("scene.texture_resolution", "-1"), ("scene.texture_resolution", "0"),
+        ("scene.line_resolution", "-1"), ("scene.line_resolution", "0"),
+        ("scene.line_resolution", "1e9"), ("scene.wall_height", "-1"),
+        ("scene.wall_height", "0"), ("omni.viewpoint_height", "-1"),
+        ("omni.viewpoint_height", "0"), ("omni.rim_radius", "-1"), ("omni.rim_radius", "0"),
+        ("omni.outer_elevation_rate", "-1"), ("omni.outer_elevation_rate", "1e9"),
+        ("omni.body_radius", "1e9"), ("omni.strut_width", "-1"), ("omni.strut_width", "0"),
+        ("omni.strut_width", "1e9"), ("omni.polar_bearings", "-1"),
+        ("omni.polar_bearings", "0"), ("omni.polar_step", "-1"), ("omni.polar_step", "0"),
+        ("omni.polar_step", "1e9"), ("omni.imaging.chroma_subsample", "1e9"),
+        ("perspective.head.bob_pitch", "1e9"), ("perspective.head.tilt", "1e9"),
+        ("perspective.head.jitter", "-1"), ("perspective.head.measurement_noise", "-1"),
+        ("perspective.imaging.exposure_time", "1e9"),
+        ("perspective.imaging.chroma_subsample", "1e9"))],
+    *[(k, "1e9", "hang") for k in (
+        "trajectory.substeps", *[f"scene.{k}" for k in (
+            "robots", "people", "balls", "cables", "sticks", "papers", "tapes", "audience",
+            "sun_patches", "shadows")],
+        "omni.rim_radius", "omni.polar_bearings", "omni.imaging.blur_sigma",
+        "perspective.imaging.blur", "perspective.imaging.corner_blur")],
+    *[(k, v, "silent") for k, v in (
+        ("scene.robots", "-1"), ("imu.collision_rate_hz", "-1"), ("scene.line_wear", "-1"),
+        ("odometry.drift", "-1"), ("imu.bias_walk", "-1"), ("scene.people", "-1"),
+        ("scene.handlers", "-1"), ("scene.carpet_variation", "-1"), ("trajectory.margin", "-1"),
+        ("trajectory.turn_rate_max", "-1"), ("trajectory.grid_spacing", "0"),
+        ("trajectory.grid_headings", "0"), ("scene.goal_height", "-1"),
+        ("omni.imaging.knee", "-1"), ("omni.imaging.saturation", "-1"),
+        ("omni.imaging.jpeg_quality", "1e9"), ("omni.imaging.jpeg_quality", "-1"),
+        ("omni.shadow_depth", "2"), ("perspective.head.walk_speed", "0"),
+        ("perspective.head.turn_speed", "0"), ("perspective.head.step_hz", "-1"),
+        ("perspective.intrinsics.cx", "-1"), ("perspective.sheen", "-1"),
+        ("perspective.imaging.jpeg_quality", "101"), ("perspective.imaging.vignetting", "2"))],
+]
+# keys held by the camera's own checks (camera_from_conf), with their own message
+SCALAR_FRAGMENTS = {"perspective.intrinsics.cx": "the principal point cx, cy must lie in the image"}
 
 CASES = [
     # ------------------------------------------------------------------ data lost
@@ -1714,6 +1764,15 @@ CASES = [
            setup=_setup_extract_spec(ds, text, method)) for ds, text, method, msg in (
         ("omni", "{omni: real, perspective: bogus}", "lut", "extract.perspective: unknown"),
         ("kid", "{omni: bogus}", "mcl", "extract.omni: unknown"))],
+    # ------------------------------------------------ s53 hostile2 F5-F7, simulate's scalars
+    *[Case(f"simulate scalar -c {key}={value}", kind,
+           [*(SIM_NAO if key.startswith("perspective.") else SIM_OMNI), "-c", f"{key}={value}"],
+           1, SCALAR_FRAGMENTS.get(key, f"conf '{key}' must be"))
+      for key, value, kind in SIMULATE_SCALAR_FAULTS],
+    *[Case(f"simulate scalar -c {kv}", "traceback", [*SIM_OMNI, "-c", kv], 1, msg)
+      for kv, msg in (  # keys in range that disagree with the mirror (omni_renderer.check_conf)
+        ("omni.rim_radius=10", "'omni.body_radius' must be below the outer valid radius and"),
+        ("omni.body_radius=300", "'omni.body_radius' must be below the outer valid radius and"))],
 ]
 
 
@@ -1822,6 +1881,39 @@ def test_simulate_list_keys_of_a_wrong_shape_are_refused_in_one_line(kind, prese
         assert f"'{key}" in r.stderr, said
         assert not any(tmp_path.iterdir()), said
 
+
+
+def _scalar_keys(conf: dict, prefix: str = "") -> list[str]:
+    """The dotted keys of every number (not a flag) of a nested conf."""
+    out = []
+    for k, v in conf.items():
+        if isinstance(v, dict):
+            out += _scalar_keys(v, f"{prefix}{k}.")
+        elif isinstance(v, (int, float)) and not isinstance(v, bool):
+            out.append(f"{prefix}{k}")
+    return out
+
+
+# numbers of simulate's presets held by checks of their own, not by simulate.SCALAR_BOUNDS:
+# frames, seeds, the rate (simulate's _check_conf), the trajectory's speeds (trajectory),
+# the calibration error (check_calib_error) and the camera's geometry (camera_from_conf)
+SCALARS_CHECKED_ELSEWHERE = {
+    "frames", "seed", "rate_hz", "trajectory.speed_min", "trajectory.speed_max",
+    "omni.forward_angle", "perspective.intrinsics.fx", "perspective.intrinsics.fy",
+    "perspective.intrinsics.cx", "perspective.intrinsics.cy", "perspective.height",
+    "perspective.pitch", "perspective.roll"}
+
+
+@pytest.mark.parametrize("preset", sorted(simulate.confs))
+def test_simulate_presets_lie_in_their_scalar_bounds(preset):
+    """Every simulate preset's defaults pass the scalar bounds (and the whole conf check), and
+    every number of it is bounded: by SCALAR_BOUNDS or by a check of its own."""
+    conf = simulate.confs[preset]
+    check_bounds(conf, simulate.SCALAR_BOUNDS, optional=True)
+    simulate.check_conf(copy.deepcopy(conf))
+    unbounded = [k for k in _scalar_keys(conf) if k not in simulate.SCALAR_BOUNDS
+                 and k not in SCALARS_CHECKED_ELSEWHERE and not k.startswith("calib_error.")]
+    assert not unbounded, unbounded
 
 def test_list_keys_of_another_legal_size_keep_working(world, tmp_path):
     """Values the list checks must not refuse: frames of another size (with a centre and

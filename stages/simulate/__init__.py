@@ -78,7 +78,7 @@ from ..common.artifacts import (
     remove_stale_parts,
     text_hash,
 )
-from ..common.camera import save_calib
+from ..common.camera import MAX_IMAGE_PX, save_calib
 from ..common.conf import check_bounds, load_yaml, stage_conf
 from ..common.dataset import SIMULATION_RECORD, write_csv
 from ..common.errors import FieldlocError, shown
@@ -378,10 +378,10 @@ def estimate_needs(conf: dict, field: FieldModel) -> tuple[dict, float]:
 
 
 def check_conf(conf: dict) -> None:
-    """The counts and seeds of a resolved simulate conf (frames, rate, seeds), the shapes and
-    ranges of its list-valued keys (``bounds``: colours, ranges drawn from, the camera's
-    sizes) and the camera the renderer would build, checked before anything is rendered;
-    FieldlocError names the key."""
+    """The counts and seeds of a resolved simulate conf (frames, rate, seeds), the ranges of its
+    scalar keys (SCALAR_BOUNDS), the shapes and ranges of its list-valued keys (``bounds``:
+    colours, ranges drawn from, the camera's sizes) and the camera the renderer would build,
+    checked before anything is rendered; FieldlocError names the key."""
     _check_conf(conf)
 
 
@@ -400,6 +400,7 @@ def _check_conf(conf: dict):
             raise FieldlocError(f"{key} must be a whole number >= 0 or null, got"
                                 f" {str(v)[:40]!r}")
     module = renderer_class(conf["camera"])[0]
+    check_bounds(conf, SCALAR_BOUNDS, optional=True)
     check_bounds(conf, bounds(conf["camera"], module), optional=True)
     _check_start(conf)
     if hasattr(module, "check_conf"):
@@ -418,6 +419,125 @@ def bounds(kind: str, module) -> dict:
             **{f"imu.{k}": b for k, b in sensors.IMU_BOUNDS.items()},
             "calib_error.centre_shift": (None, None, 2),  # px [du, dv]
             **{f"{kind}.{k}": b for k, b in getattr(module, "BOUNDS", {}).items()}}
+
+
+# the ranges of simulate's scalar conf keys (common.conf.check_bounds), held with the list keys'
+# (``bounds``) before anything is rendered: the physical or practical range each value must lie
+# in for a run to mean anything, stated once here for every camera kind's preset (a key a conf
+# does not hold, e.g. the other kind's section, is passed over). A one-element tuple (x,) is a
+# strict bound. Calibration errors, frames, seeds, the rate, the trajectory's speeds and the
+# camera's own geometry (focal lengths, principal point, height, angles) are held by their own
+# checks (check_calib_error, _check_conf, trajectory.generate, camera_from_conf).
+MAX_COUNT = 1000  # scene objects of one kind: a field holds a few dozen; 1e9 builds for hours
+MAX_LENGTH_M = 100.0  # m: longer than any field with its border (about 25 m diagonal) and hall
+MAX_HEIGHT_M = 10.0  # m: a camera, robot, goal or wall above the floor, indoors
+MAX_ACCEL = 100.0  # m/s^2 (10 g) along or across the path; 0 divides by zero
+MAX_RATE = 100.0  # rad/s (or steps, collisions per s): far beyond any robot's turn or gait
+MAX_ANGLE_NOISE = math.pi  # rad: a noise or swing of more than half a turn is no longer noise
+MAX_HEAD_SWING = 0.5  # rad (29 deg): a walking head sways a few deg; beyond, it sees the sky
+MAX_TEXEL_M = 0.5  # m per texel: coarser than 0.5 m loses the lines (5-12 cm wide) altogether
+MAX_BLUR_PX = 50.0  # px (Gaussian sigma): a blur of 50 px erases a frame; 1e9 filters for hours
+MAX_CHROMA_SUBSAMPLE = 16  # px a chroma sample spans (4:2:2 is 2, 4:1:1 is 4)
+MAX_EXPOSURE_S = 1.0  # s: ten frames at 10 Hz; a longer exposure smears a whole turn
+MAX_GREY_NOISE = 255.0  # grey levels: read noise as large as the full scale
+MAX_SHOT_NOISE = 16.0  # shot_noise * sqrt(255) ~ 255 grey levels at full scale
+MAX_POLAR_BEARINGS = 16384  # columns: 13 times the presets' 1280; OpenCV's remap refuses a
+# polar grid of 32768 columns, and 1e9 never fit in memory
+MAX_POLAR_STEP_PX = 8.0  # px between rows: coarser leaves too few rows between body and rim
+MAX_ELEVATION_RATE = 0.5  # rad/px: rays up from the floor to the zenith within 3 px
+MAX_STRUT_WIDTH_PX = 100.0  # px: a bar wider than that hides most of the mirror
+SIGMA = (0, None)  # a spread or noise: >= 0 (a negative one is refused by numpy deep inside)
+SHARE = (0, 1)  # a share, probability or relative strength of an effect: 0..1
+COUNT = (0, MAX_COUNT)
+SCALAR_BOUNDS = {
+    # trajectory: accelerations and turn rates > 0 (they divide), margins inside the field
+    "trajectory.accel_max": ((0,), MAX_ACCEL),
+    "trajectory.lateral_accel_max": ((0,), MAX_ACCEL),
+    "trajectory.turn_rate_max": ((0,), MAX_RATE),
+    "trajectory.yaw_rate_max": (0, MAX_RATE),  # 0: the heading never turns (free heading)
+    "trajectory.yaw_accel_max": ((0,), MAX_RATE),
+    "trajectory.margin": (0, MAX_LENGTH_M),
+    "trajectory.waypoint_margin": (0, MAX_LENGTH_M),
+    "trajectory.substeps": (1, 1000),  # integration steps per frame
+    "trajectory.grid_spacing": ((0,), MAX_LENGTH_M),
+    "trajectory.grid_headings": (1, 360),  # at most one heading per degree
+    "trajectory.grid_heading": (-2 * math.pi, 2 * math.pi),  # rad
+    "trajectory.grid_half_size": (0, MAX_LENGTH_M),  # 0: the centre node alone
+    # odometry: relative spreads up to 100 %, per-frame noises of at most a metre or half a
+    # turn; drift is a size (its sign is drawn per run)
+    "odometry.scale_sigma": SHARE,
+    "odometry.rotation_scale_sigma": SHARE,
+    "odometry.slip_sigma": SHARE,
+    "odometry.slip_rotation": (0, MAX_ANGLE_NOISE),  # rad per metre
+    "odometry.drift": (0, MAX_ANGLE_NOISE),  # rad per metre
+    "odometry.noise_xy": (0, 1.0),  # m per frame
+    "odometry.noise_theta": (0, MAX_ANGLE_NOISE),
+    "odometry.collision_xy": (0, 1.0),  # m per collision frame
+    "odometry.collision_theta": (0, MAX_ANGLE_NOISE),
+    # IMU: noises in rad, collisions per second, a contact distance on the field
+    "imu.yaw_noise": (0, MAX_ANGLE_NOISE),
+    "imu.bias_sigma": (0, MAX_ANGLE_NOISE),
+    "imu.bias_walk": (0, MAX_ANGLE_NOISE),
+    "imu.collision_yaw": (0, MAX_ANGLE_NOISE),
+    "imu.collision_rate_hz": (0, MAX_RATE),
+    "imu.contact_distance": (0, MAX_LENGTH_M),
+    # scene: resolutions and sizes > 0 and below their maxima, relative strengths 0..1, counts
+    "scene.texture_resolution": ((0,), MAX_TEXEL_M),
+    "scene.line_resolution": ((0,), MAX_TEXEL_M),
+    "scene.wall_gap": (0, MAX_LENGTH_M),
+    "scene.wall_height": ((0,), MAX_LENGTH_M),
+    "scene.goal_height": ((0,), MAX_HEIGHT_M),
+    "scene.carpet_variation": SHARE,
+    "scene.carpet_hue_variation": SHARE,
+    "scene.carpet_grain": SHARE,
+    "scene.stripe_width": ((0,), MAX_LENGTH_M),
+    "scene.stripe_contrast": SHARE,
+    "scene.line_wear": SHARE,
+    "scene.line_edge_noise": (0, 1.0),  # m
+    "scene.line_width_variation": SHARE,
+    "scene.lamp_spacing": ((0,), MAX_LENGTH_M),
+    "scene.lamp_contrast": SHARE,
+    "scene.robot_radius": ((0,), MAX_HEIGHT_M),
+    "scene.robot_height": ((0,), MAX_HEIGHT_M),
+    "scene.lighting.colour_temperature": SHARE,  # +- relative swing
+    "scene.lighting.tint": SHARE,
+    **{f"scene.{k}": COUNT for k in ("robots", "people", "handlers", "balls", "cables",
+                                     "sticks", "papers", "tapes", "audience", "sun_patches",
+                                     "shadows")},
+    # the omni renderer's mirror, body and polar grid (px) and its imaging chain
+    "omni.viewpoint_height": ((0,), MAX_HEIGHT_M),
+    "omni.rim_radius": ((0,), MAX_IMAGE_PX),
+    "omni.body_radius": ((0,), MAX_IMAGE_PX),  # it divides; below the valid ring: check_conf
+    "omni.outer_elevation_rate": (0, MAX_ELEVATION_RATE),
+    "omni.strut_width": ((0,), MAX_STRUT_WIDTH_PX),
+    "omni.shadow_depth": SHARE,
+    "omni.shadow_length": (0, MAX_HEIGHT_M),  # m of shadow per m of height
+    "omni.polar_bearings": (1, MAX_POLAR_BEARINGS),
+    "omni.polar_step": ((0,), MAX_POLAR_STEP_PX),
+    # the perspective renderer's head and sheen
+    "perspective.head.step_hz": (0, MAX_RATE),
+    "perspective.head.sway_roll": (0, MAX_HEAD_SWING),
+    "perspective.head.bob_pitch": (0, MAX_HEAD_SWING),
+    "perspective.head.tilt": (0, MAX_HEAD_SWING),
+    "perspective.head.jitter": (0, MAX_HEAD_SWING),
+    "perspective.head.measurement_noise": (0, MAX_HEAD_SWING),
+    "perspective.head.walk_speed": ((0,), MAX_RATE),  # m/s: it divides
+    "perspective.head.turn_speed": ((0,), MAX_RATE),  # rad/s: it divides
+    "perspective.sheen": SHARE,
+    "perspective.sheen_power": (0, 100.0),  # exponent of the fall-off
+    # the imaging chains: blurs (px), the keys both renderers have (imaging.py), omni's tone
+    "omni.imaging.blur_sigma": (0, MAX_BLUR_PX),
+    "omni.imaging.saturation": (0, 2.0),  # chroma kept: 0 grey .. 2 twice as vivid
+    "omni.imaging.knee": SHARE,  # share of full scale where highlights start to be compressed
+    "perspective.imaging.blur": (0, MAX_BLUR_PX),
+    "perspective.imaging.corner_blur": (0, MAX_BLUR_PX),
+    "perspective.imaging.chromatic_aberration": (0, MAX_BLUR_PX),
+    **{f"{kind}.imaging.{k}": b for kind in RENDERERS for k, b in {
+        "vignetting": SHARE, "exposure_time": (0, MAX_EXPOSURE_S),
+        "chroma_subsample": (1, MAX_CHROMA_SUBSAMPLE), "noise_sigma": (0, MAX_GREY_NOISE),
+        "shot_noise": (0, MAX_SHOT_NOISE),
+        "jpeg_quality": (0, 100)}.items()},  # 0: no JPEG round trip; OpenCV takes 1..100
+}
 
 
 def _check_start(conf: dict) -> None:
@@ -463,7 +583,8 @@ def main(conf: str | dict | None, field, output_dir, *, overwrite: bool = False,
         field_file = p if p.suffix.lower() in (".yaml", ".yml") or p.exists() else None
         field = load_field(field)
     grid = conf["trajectory"].get("kind") == "grid"
-    if grid:  # one frame per placement (its centre checked first)
+    if grid:  # one frame per placement (its centre and spacing checked first)
+        check_bounds(conf, SCALAR_BOUNDS, optional=True)
         _check_start(conf)
         conf["frames"] = trajectory.grid_count(field, conf["trajectory"])
     _check_conf(conf)

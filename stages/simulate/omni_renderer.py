@@ -33,7 +33,7 @@ import numpy as np
 
 from ..common.camera import MAX_IMAGE_PX, POLYNOMIAL_COEFFICIENTS, OmniCamera, fit_polynomial
 from ..common.conf import PAIR
-from ..common.errors import DatasetError, FieldlocError
+from ..common.errors import DatasetError, FieldlocError, shown
 from ..common.fixed_remap import fixed_maps, remap_linear
 from .imaging import add_sensor_noise, chroma_subsample, frame_light, jpeg_round_trip, noise_window
 from .scene import sample_texture
@@ -114,9 +114,17 @@ def camera_from_conf(c: dict) -> OmniCamera:
 
 
 def check_conf(section: dict | None) -> None:
-    """The renderer's conf section (merged with the defaults) makes a camera (FieldlocError,
-    one line): checked before anything is rendered."""
-    camera_from_conf(_merged(section))
+    """The renderer's conf section (merged with the defaults) makes a camera, and its mirror
+    keys agree with it (FieldlocError, one line): checked before anything is rendered, after
+    each key's own range (simulate.SCALAR_BOUNDS): the body seen in the mirror must leave floor
+    in view (``body_radius`` below the outer valid radius and the rim)."""
+    c = _merged(section)
+    outer = camera_from_conf(c).valid_radius[1]
+    edge = min(outer, float(c["rim_radius"]))
+    if not float(c["body_radius"]) < edge:
+        raise FieldlocError(f"conf 'omni.body_radius' must be below the outer valid radius and"
+                            f" rim_radius, {edge:g} px (the floor seen beyond the body), got"
+                            f" {shown(c['body_radius'], 40)}")
 
 
 CALIB_ERROR_DEFAULTS = {
@@ -258,9 +266,11 @@ class OmniRenderer:
         d = np.maximum(d, 0.02)
         depress = np.arctan2(self.H, d)
         beyond = r > rv
-        depress[beyond] = math.atan2(self.H, float(cam.distance_of_radius(rv))) - float(
+        # rays rise with the radius up to the zenith and no further (past it, their tangent
+        # would turn positive again and the far rows would look at the floor once more)
+        depress[beyond] = np.maximum(math.atan2(self.H, float(cam.distance_of_radius(rv))) - float(
             c["outer_elevation_rate"]
-        ) * (r[beyond] - rv)
+        ) * (r[beyond] - rv), -math.pi / 2)
         self.tan_depression = np.tan(depress)
         ground = self.tan_depression > 1e-6
         self.distance = np.where(ground, self.H / np.maximum(self.tan_depression, 1e-6), np.inf)
