@@ -1636,7 +1636,8 @@ CASES = [
     # sizes estimated before anything is made
     Case("simulate --grid 5 --grid-headings 100000000", "silent",
          ["simulate", "omni", "--field", "msl-2015", "-o", W + "/d", "--grid", "5",
-          "--grid-headings", "100000000"], 1, "would need about"),
+          "--grid-headings", "100000000"], 1,
+         "'trajectory.grid_headings' must be >= 1 and <= 360"),
     *[Case(f"show error-surface {opt} {v}", "traceback",
            ["show", "error-surface", W + "/t.h5", "{omni}", "-o", W + "/e.png", opt, v], 1,
            "would need about") for opt, v in (("--step", "1e-9"), ("--half-size", "1e9"))],
