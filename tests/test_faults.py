@@ -1666,6 +1666,10 @@ CASES = [
          ["build-map", W + "/f.yaml", "-o", W + "/m.h5"], 1,
          "'penalty_mark.distance' (30 m) reaches past the halfway line",
          setup=_setup_field({"penalty_mark": {"distance": 30, "size": 0.1}})),
+    Case("localize mcl -c of keys without a preset value in exponent notation", "newcomer",
+         ["localize", "{kid}", "--map", "{kmap}", "--features", "{kid_features}", "--method",
+          "mcl", "-o", W + "/p.h5", "-c", "observation.camera_height=5e-1", "-c",
+          "imu_heading_sigma=1e-1"], 0, "p.h5: 2 frames"),
     *[Case(f"a field YAML whose {key} is {value} m", "silent",
            ["build-map", W + "/f.yaml", "-o", W + "/m.h5"], 1,
            f"key '{key}' ({value} m) is more than", setup=_setup_field(change))

@@ -128,8 +128,9 @@ _EXPONENT_NUMBER = re.compile(r"[-+]?[0-9]+[eE][-+]?[0-9]+")
 
 
 def _exponent_number(v):
-    """A list element of an override: ``1e12`` as the number the user typed (a key whose preset
-    is None, e.g. a pose, keeps what YAML read; a text would be refused as not a number)."""
+    """``1e12`` (a list element of an override, or the value of a key whose preset is None,
+    e.g. a camera height) as the number the user typed: YAML 1.1 reads it as text, which the
+    stage would refuse as not a number."""
     if isinstance(v, str) and _EXPONENT_NUMBER.fullmatch(v.strip()):
         return float(v)
     return v
@@ -200,8 +201,8 @@ def _number(value, path: str, whole: bool):
 def checked_value(old, value, path: str):
     """``value`` as a replacement of the preset value ``old`` (see the module doc), or a
     FieldlocError naming ``path``."""
-    if old is None:
-        return value
+    if old is None:  # no preset type to read the text by: 5e-1 is the number typed
+        return _exponent_number(value)
     if isinstance(old, dict):
         keys = ", ".join(f"{path}.{k}" for k in list(old)[:4])
         raise FieldlocError(
