@@ -220,6 +220,40 @@ def _points_csv(w, ws, ids, file_name="pts.csv"):
     return {}
 
 
+def _points_with(x: str):
+    """ws/pts.csv: the shared features' points of frame 0, the first x written ``x``."""
+    def setup(w, ws):
+        _points_csv(w, ws, range(4))
+        lines = (ws / "pts.csv").read_text().splitlines()
+        frame, _, y = lines[1].split(",")
+        lines[1] = f"{frame},{x},{y}"
+        (ws / "pts.csv").write_text("\n".join(lines) + "\n")
+        return {}
+    return setup
+
+
+def _pairs_with(distance: str):
+    """ws/m.csv: the shared calibration pairs, the first distance written ``distance``."""
+    def setup(w, ws):
+        lines = Path(w["marks"]).read_text().splitlines()
+        lines[1] = f"{lines[1].split(',')[0]},{distance}"
+        (ws / "m.csv").write_text("\n".join(lines) + "\n")
+        return {}
+    return setup
+
+
+def _minho_with(line: str):
+    """ws/minho: the shared MINHO files, mirror.cfg's key of ``line`` replaced by it."""
+    def setup(w, ws):
+        shutil.copytree(w["minho"], ws / "minho")
+        key = line.split("=", 1)[0]
+        cfg = ws / "minho" / "mirror.cfg"
+        cfg.write_text("".join(line + "\n" if t.startswith(key + "=") else t + "\n"
+                               for t in cfg.read_text().splitlines()))
+        return {}
+    return setup
+
+
 def _setup_relative_run(w, ws):
     """localize run from inside ws with relative paths; evaluate then runs elsewhere."""
     ds = copy_dataset(w, "omni", ws)
@@ -1666,6 +1700,19 @@ CASES = [
          ["build-map", W + "/f.yaml", "-o", W + "/m.h5"], 1,
          "'penalty_mark.distance' (30 m) reaches past the halfway line",
          setup=_setup_field({"penalty_mark": {"distance": 30, "size": 0.1}})),
+    # numbers as a logger writes them, in every reader of numbers (a dataset CSV's cells were
+    # made strict by afc0ccb): "1_000" was read as 1000 by float()
+    Case("localize --points whose x is written 1_000", "silent",
+         ["localize", "{omni}", "--map", "{map}", "--points", W + "/pts.csv", "-o",
+          W + "/p.h5"], 1, "line 2: x and y must be numbers", setup=_points_with("1_000")),
+    Case("calibrate omni on pairs whose distance is written 1_0", "silent",
+         ["calibrate", "omni", W + "/m.csv", "-o", W + "/c.yaml", "--centre", "240", "240",
+          "--image-size", "480", "480", "--valid-radius", "40", "230"], 1,
+         "expected two numbers 'radius_px,distance_m'",
+         setup=_pairs_with("1_0")),
+    Case("calibrate omni --from-minho whose STEP is written 0_25", "silent",
+         ["calibrate", "omni", "--from-minho", W + "/minho", "-o", W + "/c.yaml"], 1,
+         "STEP must be a number, got '0_25'", setup=_minho_with("STEP=0_25")),
     Case("localize mcl -c of keys without a preset value in exponent notation", "newcomer",
          ["localize", "{kid}", "--map", "{kmap}", "--features", "{kid_features}", "--method",
           "mcl", "-o", W + "/p.h5", "-c", "observation.camera_height=5e-1", "-c",

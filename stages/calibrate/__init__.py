@@ -76,7 +76,7 @@ from ..common.camera import (
     save_calib,
 )
 from ..common.conf import stage_conf
-from ..common.dataset import IMAGE_SUFFIXES, csv_rows, read_image, read_mask
+from ..common.dataset import IMAGE_SUFFIXES, csv_rows, parse_number, read_image, read_mask
 from ..common.errors import FieldlocError, present
 from . import cnc as _cnc
 from . import line_images as _line_images
@@ -181,11 +181,11 @@ def read_points(path) -> tuple[np.ndarray, np.ndarray]:
         try:
             if len(row) != 2:
                 raise ValueError
-            rv, dv = float(row[0]), float(row[1])
+            rv, dv = parse_number(row[0]), parse_number(row[1])
         except ValueError:
             raise CalibrationError(
                 f"{path}: line {n}: expected two numbers 'radius_px,distance_m', got"
-                f" '{','.join(row)}'"
+                f" '{','.join(row)[:40]}'"
             ) from None
         if not (math.isfinite(rv) and math.isfinite(dv)) or rv < 0 or dv < 0:
             raise CalibrationError(

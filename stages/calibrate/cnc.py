@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..common.dataset import parse_number
 from ..common.errors import FieldlocError
 
 CONF_NAME = "CarpetCalibrator.conf"
@@ -92,11 +93,12 @@ def read_distances(path) -> np.ndarray:
             continue
         kv = re.fullmatch(r"dist(\d+)\s*=\s*(\S+)", line)
         if not kv:
-            raise CncCalibrationError(f"{path}: cannot read '{line}' (expected distN = MM)")
+            raise CncCalibrationError(f"{path}: cannot read '{line[:40]}' (expected distN ="
+                                      " MM)")
         try:
-            values[int(kv.group(1))] = float(kv.group(2))
+            values[int(kv.group(1))] = parse_number(kv.group(2))
         except ValueError:
-            raise CncCalibrationError(f"{path}: '{line}' is not a number of mm") from None
+            raise CncCalibrationError(f"{path}: '{line[:40]}' is not a number of mm") from None
     d = np.array([values[k] for k in sorted(values)], float) / 1000.0
     if not np.all(np.isfinite(d)) or np.any(d < 0):
         raise CncCalibrationError(f"{path}: distances must be finite and >= 0")
@@ -224,9 +226,10 @@ def parse_rings(text: str):
             out.append(None)
             continue
         try:
-            v = float(part)
+            v = parse_number(part)
         except ValueError:
-            raise CncCalibrationError(f"--rings: '{part}' is not a radius in px or '-'") from None
+            raise CncCalibrationError(f"--rings: '{part[:40]}' is not a radius in px or '-'"
+                                      ) from None
         if not math.isfinite(v) or v <= 0:
             raise CncCalibrationError(f"--rings: radius {part} must be > 0")
         out.append(v)

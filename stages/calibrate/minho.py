@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..common.dataset import parse_number
 from ..common.errors import FieldlocError
 
 MIRROR_CFG = "mirror.cfg"
@@ -67,15 +68,15 @@ def _numbers(cfg: dict, key: str, path: Path, count: int | None = None) -> list[
     text = _value(cfg, key, path)
     parts = [p.strip() for p in text.split(",")]
     try:
-        values = [float(p) for p in parts]
+        values = [parse_number(p) for p in parts]
     except ValueError:
         raise FieldlocError(
             f"{path}: {key} must be {'a number' if count == 1 else 'comma-separated numbers'},"
-            f" got '{text}'") from None
+            f" got '{text[:40]}'") from None
     if not all(math.isfinite(v) for v in values):
-        raise FieldlocError(f"{path}: {key} must be finite, got '{text}'")
+        raise FieldlocError(f"{path}: {key} must be finite, got '{text[:40]}'")
     if count is not None and len(values) != count:
-        raise FieldlocError(f"{path}: {key} needs {count} value(s), got '{text}'")
+        raise FieldlocError(f"{path}: {key} needs {count} value(s), got '{text[:40]}'")
     return values
 
 

@@ -62,6 +62,15 @@ NUMBER = re.compile(r"[+-]?(?:(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+
 MAX_VALUE = 1e6
 
 
+def parse_number(text: str) -> float:
+    """The number a file's cell or value holds (``NUMBER``: ASCII decimal or scientific
+    notation, or a spelling of NaN or infinity), for every reader of numbers a user gives;
+    ValueError otherwise, as float() raises (which also took "1_000" and "٣")."""
+    if not NUMBER.fullmatch(text.strip()):
+        raise ValueError(f"not a number: {text[:20]!r}")
+    return float(text)
+
+
 def read_csv(path: str | Path, kind: str) -> dict[str, np.ndarray]:
     """Read one of the dataset CSVs, checking its header, that every value is a finite number
     (names excepted) and, for time series, that the stamps increase from row to row. Returns
@@ -99,10 +108,12 @@ def read_csv(path: str | Path, kind: str) -> dict[str, np.ndarray]:
                     raise DatasetError(f"{path}: line {line_no}: empty name")
                 values[name].append(cell)
                 continue
-            if not NUMBER.fullmatch(cell):
+            try:
+                v = parse_number(cell)
+            except ValueError:
                 raise DatasetError(
-                    f"{path}: line {line_no}: '{name}' is not a number ({cell[:20]!r})")
-            v = float(cell)
+                    f"{path}: line {line_no}: '{name}' is not a number ({cell[:20]!r})"
+                ) from None
             if not math.isfinite(v) and not (math.isnan(v)
                                              and name in NAN_ALLOWED.get(kind, ())):
                 raise DatasetError(

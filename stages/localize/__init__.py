@@ -67,7 +67,7 @@ import numpy as np
 
 from ..common.artifacts import check_output, file_hash, root_attrs
 from ..common.conf import KindPresets, check_bounds, registered_module, stage_conf
-from ..common.dataset import STAMP_SOURCES, csv_rows, open_dataset
+from ..common.dataset import STAMP_SOURCES, csv_rows, open_dataset, parse_number
 from ..common.errors import DatasetError, FieldlocError
 from ..common.features_file import FeaturesFile
 from ..common.field import load_field
@@ -210,7 +210,7 @@ def _read_points_csv(path: Path) -> list[tuple[str, float, float]]:
         if not name:
             raise DatasetError(f"{path}: line {n}: empty frame id")
         try:
-            x, y = float(r[1]), float(r[2])
+            x, y = parse_number(r[1]), parse_number(r[2])
         except ValueError:
             raise DatasetError(f"{path}: line {n}: x and y must be numbers") from None
         if not (math.isfinite(x) and math.isfinite(y)):
