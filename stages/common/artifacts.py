@@ -221,6 +221,17 @@ def check_importer_target(output: Path, inputs: Mapping[str, object], overwrite:
                     " --overwrite replaces only those; choose another output")
 
 
+def starts_with(path: str | Path, head: bytes) -> bool:
+    """Whether the file ``path`` begins with the bytes ``head`` (False if it cannot be read):
+    how a file fieldloc wrote without a record of its own (a TUM file, errors.csv, a PNG) is
+    told from a user's file of the same name."""
+    try:
+        with open(path, "rb") as f:
+            return f.read(len(head)) == head
+    except OSError:
+        return False
+
+
 def written_by(folder: Path, record: str, generator: str) -> bool:
     """Whether ``folder``'s ``record`` YAML says ``generator`` wrote it."""
     import yaml

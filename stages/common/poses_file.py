@@ -47,7 +47,14 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from .artifacts import atomic_path, check_output, open_artifact, read_json_attr, write_artifact
+from .artifacts import (
+    atomic_path,
+    check_output,
+    open_artifact,
+    read_json_attr,
+    starts_with,
+    write_artifact,
+)
 from .errors import FieldlocError, SchemaError
 
 SCHEMA = "fieldloc.poses"
@@ -177,12 +184,7 @@ TUM_HEADER = "stamp x y z qx qy qz qw"  # write_tum's first line, after "# "
 
 def is_fieldloc_tum(path: str | Path) -> bool:
     """Whether ``path`` is a TUM file ``write_tum`` wrote: it starts with its header line."""
-    want = f"# {TUM_HEADER}\n".encode()
-    try:
-        with open(path, "rb") as f:
-            return f.read(len(want)) == want
-    except OSError:
-        return False
+    return starts_with(path, f"# {TUM_HEADER}\n".encode())
 
 
 def check_tum_output(path: str | Path, inputs: dict | None, overwrite: bool) -> Path:

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .artifacts import atomic_path, provenance
+from .artifacts import atomic_path, provenance, starts_with
 from .errors import FieldlocError, SchemaError
 
 SCHEMA = "fieldloc.report"
@@ -127,14 +127,11 @@ def foreign_report_file(folder: str | Path) -> Path | None:
 
 def _is_errors_csv(path: Path) -> bool:
     """Whether ``path`` starts with the header line ``write_errors_csv`` writes."""
-    want = (",".join(ERRORS_COLUMNS) + "\n").encode()
-    try:
-        with open(path, "rb") as f:
-            return f.read(len(want)) == want
-    except OSError:
-        return False
+    return starts_with(path, (",".join(ERRORS_COLUMNS) + "\n").encode())
 
 
+# a PNG file's first bytes (stages.common.png holds them too; importing it would load numba
+# into every command that reads a report)
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
