@@ -220,24 +220,19 @@ def _points_csv(w, ws, ids, file_name="pts.csv"):
     return {}
 
 
-def _points_with(x: str):
-    """ws/pts.csv: the shared features' points of frame 0, the first x written ``x``."""
+def _first_row_with(name: str, column: int, value: str, make=None, source: str | None = None):
+    """ws/``name``: a CSV (``make(w, ws)`` writes it there, or the shared file ``source`` is
+    copied) whose first data row has ``value`` as its ``column``-th cell."""
     def setup(w, ws):
-        _points_csv(w, ws, range(4))
-        lines = (ws / "pts.csv").read_text().splitlines()
-        frame, _, y = lines[1].split(",")
-        lines[1] = f"{frame},{x},{y}"
-        (ws / "pts.csv").write_text("\n".join(lines) + "\n")
-        return {}
-    return setup
-
-
-def _pairs_with(distance: str):
-    """ws/m.csv: the shared calibration pairs, the first distance written ``distance``."""
-    def setup(w, ws):
-        lines = Path(w["marks"]).read_text().splitlines()
-        lines[1] = f"{lines[1].split(',')[0]},{distance}"
-        (ws / "m.csv").write_text("\n".join(lines) + "\n")
+        if make is not None:
+            make(w, ws)
+        else:
+            shutil.copyfile(w[source], ws / name)
+        lines = (ws / name).read_text().splitlines()
+        cells = lines[1].split(",")
+        cells[column] = value
+        lines[1] = ",".join(cells)
+        (ws / name).write_text("\n".join(lines) + "\n")
         return {}
     return setup
 
@@ -1704,12 +1699,14 @@ CASES = [
     # made strict by afc0ccb): "1_000" was read as 1000 by float()
     Case("localize --points whose x is written 1_000", "silent",
          ["localize", "{omni}", "--map", "{map}", "--points", W + "/pts.csv", "-o",
-          W + "/p.h5"], 1, "line 2: x and y must be numbers", setup=_points_with("1_000")),
+          W + "/p.h5"], 1, "line 2: x and y must be numbers",
+         setup=_first_row_with("pts.csv", 1, "1_000",
+                               make=lambda w, ws: _points_csv(w, ws, range(4)))),
     Case("calibrate omni on pairs whose distance is written 1_0", "silent",
          ["calibrate", "omni", W + "/m.csv", "-o", W + "/c.yaml", "--centre", "240", "240",
           "--image-size", "480", "480", "--valid-radius", "40", "230"], 1,
          "expected two numbers 'radius_px,distance_m'",
-         setup=_pairs_with("1_0")),
+         setup=_first_row_with("m.csv", 1, "1_0", source="marks")),
     Case("calibrate omni --from-minho whose STEP is written 0_25", "silent",
          ["calibrate", "omni", "--from-minho", W + "/minho", "-o", W + "/c.yaml"], 1,
          "STEP must be a number, got '0_25'", setup=_minho_with("STEP=0_25")),
