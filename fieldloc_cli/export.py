@@ -14,7 +14,8 @@ from .stage_defaults import EXPORT_FORMATS
               help="csv: one row per frame; tum: accepted frames for evo; json: frames with"
                    " their ranked hypotheses.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False),
-              help="File to write [default: beside POSES with the format's suffix].")
+              help="File to write, or - for standard output [default: beside POSES with the"
+                   " format's suffix].")
 @click.option("--overwrite", is_flag=True, help="Replace OUTPUT if it exists.")
 @click.pass_context
 def export(ctx, poses, fmt, output, overwrite):
@@ -24,8 +25,10 @@ def export(ctx, poses, fmt, output, overwrite):
     Examples:
       fieldloc export run/poses.h5 --format csv
       fieldloc export run/poses.h5 --format json -o run/poses-with-hypotheses.json
+      fieldloc export run/poses.h5 --format csv -o - | head
     """
-    from stages.evaluate.export import main
+    from stages.evaluate.export import STDOUT, main
 
     out = main(None, poses, output, fmt=fmt, overwrite=overwrite)
-    summary(ctx, f"wrote {out}")
+    if str(out) != STDOUT:
+        summary(ctx, f"wrote {out}")

@@ -24,6 +24,7 @@ import signal
 import stat
 import subprocess
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -391,6 +392,24 @@ def _setup_bags(w, ws):
     _bag(ws, "d/x.bag")
     (ws / "thesis").mkdir()
     (ws / "thesis" / "thesis.txt").write_text("two years of work")
+    return {}
+
+
+def _setup_users_outputs(w, ws):
+    """A user's own files under the names outputs take: an HDF5 file without fieldloc's
+    schema, a picture of each kind, a CSV, a JSON, a TUM trajectory without write_tum's
+    header, a calibration and a field YAML of a team, and a B-Human field file to import."""
+    with h5py.File(ws / "mine.h5", "w") as f:
+        f["data"] = np.arange(5.0)
+        f.attrs["schema"] = "my-lab.log"
+    cv2.imwrite(str(ws / "photo.png"), np.full((8, 8, 3), 90, np.uint8))
+    cv2.imwrite(str(ws / "photo.jpg"), np.full((8, 8, 3), 90, np.uint8))
+    (ws / "notes.csv").write_text("name,x,y\nmy,1,2\n")
+    (ws / "notes.json").write_text('{"schema": "my-lab"}\n')
+    (ws / "traj.tum").write_text("0.0 1 2 0 0 0 0 1\n")
+    (ws / "calib.yaml").write_text("camera: omni\n# our robot's mirror, measured by hand\n")
+    (ws / "field.yaml").write_text("name: our-lab\n")
+    _setup_team_file(w, ws)
     return {}
 
 
@@ -819,12 +838,25 @@ def _as_text(path: str):
     return _replace(path, lambda d: np.array([b"abc"] * len(d)))
 
 
-def _nan_first(path: str):
-    """The first value of dataset ``path`` NaN."""
+def _nan_first(path: str, value: float = math.nan):
+    """The first value of dataset ``path`` NaN (or ``value``)."""
     def change(f):
         d = f[path][()]
-        d.flat[0] = np.nan
+        d.flat[0] = value
         f[path][...] = d
+    return change
+
+
+def _stamp_times(name: str, factor: float):
+    """A dataset copy whose ``name`` CSV has its stamps multiplied by ``factor`` (as if in
+    ms or ns)."""
+    def change(ds: Path):
+        lines = (ds / name).read_text().splitlines()
+        col = lines[0].split(",").index("stamp")
+        rows = [r.split(",") for r in lines[1:]]
+        for r in rows:
+            r[col] = repr(float(r[col]) * factor + factor)
+        (ds / name).write_text("\n".join([lines[0], *(",".join(r) for r in rows)]) + "\n")
     return change
 
 
@@ -929,7 +961,11 @@ SIMULATE_SCALAR_FAULTS = [
         ("omni.shadow_depth", "2"), ("perspective.head.walk_speed", "0"),
         ("perspective.head.turn_speed", "0"), ("perspective.head.step_hz", "-1"),
         ("perspective.intrinsics.cx", "-1"), ("perspective.sheen", "-1"),
-        ("perspective.imaging.jpeg_quality", "101"), ("perspective.imaging.vignetting", "2"))],
+        ("perspective.imaging.jpeg_quality", "101"), ("perspective.imaging.vignetting", "2"),
+        # s53 leftovers: absurd values that ran
+        ("trajectory.speed_max", "1e9"), ("trajectory.speed_min", "1e9"),
+        ("calib_error.scale", "1e9"), ("calib_error.scale", "0.01"),
+        ("calib_error.radius_error_length_px", "1e9"), ("calib_error.table_range", "1e9"))],
 ]
 # keys held by the camera's own checks (camera_from_conf), with their own message
 SCALAR_FRAGMENTS = {"perspective.intrinsics.cx": "the principal point cx, cy must lie in the image"}
@@ -1212,7 +1248,7 @@ CASES = [
          "(the run's poses or features)"),
     Case("report --overwrite onto a user's own page", "data-lost",
          ["report", W + "/runs", "-o", W + "/mine.html", "--overwrite"], 1,
-         "is not a page written by fieldloc report", setup=_setup_report_copy),
+         "was not written by fieldloc", setup=_setup_report_copy),
     Case("import rosbag d/x.bag -o d --overwrite", "data-lost",
          ["import", "rosbag", W + "/d/x.bag", "-o", W + "/d", "--image-topic", "/cam",
           "--overwrite"], 1, "holds an input of this command (bag", setup=_setup_bags),
@@ -1572,12 +1608,12 @@ CASES = [
          ("origin", [math.nan, 1.0])))],
     Case("features whose first stamp is NaN (the frame went to the end of the track)",
          "silent", [*LOCALIZE[:5], W + "/f.h5", "-o", W + "/p.h5"], 1,
-         "has stamp nan; every stamp must be a finite number",
+         "stamp nan is not a finite number",
          setup=_setup_damaged("features", "f.h5", _nan_first("index/stamp"))),
     Case("localize --method mcl --smooth on features whose first stamp is NaN", "traceback",
          ["localize", "{kid}", "--map", "{kmap}", "--features", W + "/f.h5", "--method", "mcl",
           "--smooth", "-o", W + "/p.h5"], 1,
-         "has stamp nan; every stamp must be a finite number",
+         "stamp nan is not a finite number",
          setup=_setup_damaged("kid_features", "f.h5", _nan_first("index/stamp"))),
     *[Case(f"poses whose {what}", "traceback",
            [*args, W + "/p.h5", *more], 1, msg, setup=_setup_damaged("poses", "p.h5", change))
@@ -1728,7 +1764,7 @@ CASES = [
     Case("localize -o DIR/truth.h5 --overwrite onto the user's DIR/truth.tum", "data-lost",
          ["localize", "{ds}", "--map", "{map}", "--features", "{features}", "-o",
           "{ds}/truth.h5", "--overwrite"], 1,
-         "truth.tum is not a TUM file written by fieldloc", setup=_setup_truth_tum_in_dataset),
+         "truth.tum was not written by fieldloc", setup=_setup_truth_tum_in_dataset),
     Case("localize --overwrite replaces a TUM twin fieldloc wrote", "data-lost",
          [*LOCALIZE, "-o", W + "/p.h5", "--overwrite"], 0, "p.h5: 4 frames",
          setup=_setup_fieldloc_tum, check=_check_tum_replaced),
@@ -1822,6 +1858,48 @@ CASES = [
       for kv, msg in (  # keys in range that disagree with the mirror (omni_renderer.check_conf)
         ("omni.rim_radius=10", "'omni.body_radius' must be below the outer valid radius and"),
         ("omni.body_radius=300", "'omni.body_radius' must be below the outer valid radius and"))],
+    # ------------------------------------------------------- s54: stamps beyond 1e11 s
+    *[Case(f"{name} stamps x {factor:g}", "traceback", args, 1,
+           "s is beyond 1e+11 s (the year 5000); stamps are seconds, not ms or ns",
+           setup=_with_ds("omni", _stamp_times(name, factor)))
+      for name, factor, args in (
+        ("frames.csv", 1e12, ["localize", W + "/omni", "--map", "{map}", "-o", W + "/p.h5"]),
+        ("odometry.csv", 1e299, ["localize", W + "/omni", "--map", "{map}", "-o",
+                                 W + "/p.h5"]),
+        ("truth.csv", 1e12, ["evaluate", "{poses}", "--truth", W + "/omni", "-o",
+                             W + "/rep"]))],
+    Case("features whose first stamp is 1e300", "traceback",
+         [*LOCALIZE[:5], W + "/f.h5", "-o", W + "/p.h5"], 1,
+         "stamp 1e+300 s is beyond 1e+11 s",
+         setup=_setup_damaged("features", "f.h5", _nan_first("index/stamp", 1e300))),
+    # --------------------------------------------- s54: the s53 leftovers ("worth a look")
+    *[Case(f"calibrate --valid-radius {lo} {hi}", "silent",
+           ["calibrate", "omni", "{marks}", "-o", W + "/c.yaml", "--centre", "240", "240",
+            "--image-size", "480", "480", "--valid-radius", lo, hi], 1,
+           "px lies beyond the 480 x 480 image (its farthest corner is 339 px from the centre)")
+      for lo, hi in (("40", "1e300"), ("1e300", "1e301"), ("40", "1e9"))],
+    *[Case(f"show map {' '.join(more)} on a table that ignores it", "silent",
+           ["show", "map", "{map}", "-o", W + "/m.png", *more], 1, msg) for more, msg in (
+        (["--cell", "1", "1"], "cell: drawn only from a cell of the radial or spiral table"),
+        (["--heading-deg", "30"], "heading: drawn only from a cell of the radial or spiral"),
+        (["--table", "radial", "--cell", "1", "1", "--spirals", "3"],
+         "family, spirals: drawn only on the spiral table"))],
+    # ------------------------------------- s54: --overwrite onto a user's file of the name
+    *[Case(f"--overwrite onto a user's file: {' '.join(args[:2])} -o {Path(args[-1]).name}",
+           "data-lost",
+           [*args, "--overwrite"], 1, "was not written by fieldloc: --overwrite replaces only",
+           setup=_setup_users_outputs) for args in (
+        ["localize", "{omni}", "--map", "{map}", "--features", "{features}", "-o",
+         W + "/mine.h5"],
+        ["build-map", "spl", "-o", W + "/mine.h5"],
+        ["export", "{poses}", "--format", "csv", "-o", W + "/notes.csv"],
+        ["export", "{poses}", "--format", "json", "-o", W + "/notes.json"],
+        ["export", "{poses}", "--format", "tum", "-o", W + "/traj.tum"],
+        ["show", "map", "{map}", "-o", W + "/photo.png"],
+        ["show", "map", "{map}", "-o", W + "/photo.jpg"],
+        ["calibrate", "omni", "{marks}", "--centre", "240", "240", "--image-size", "480",
+         "480", "--valid-radius", "40", "230", "-o", W + "/calib.yaml"],
+        ["field", "import", W + "/fd.cfg", "--format", "bhuman", "-o", W + "/field.yaml"])],
 ]
 
 
@@ -1944,10 +2022,11 @@ def _scalar_keys(conf: dict, prefix: str = "") -> list[str]:
 
 
 # numbers of simulate's presets held by checks of their own, not by simulate.SCALAR_BOUNDS:
-# frames, seeds, the rate (simulate's _check_conf), the trajectory's speeds (trajectory),
-# the calibration error (check_calib_error) and the camera's geometry (camera_from_conf)
+# frames, seeds, the rate (simulate's _check_conf), the mount's calibration error
+# (check_calib_error) and the camera's geometry (camera_from_conf)
 SCALARS_CHECKED_ELSEWHERE = {
-    "frames", "seed", "rate_hz", "trajectory.speed_min", "trajectory.speed_max",
+    "frames", "seed", "rate_hz", "calib_error.pitch_offset", "calib_error.roll_offset",
+    "calib_error.height_offset",
     "omni.forward_angle", "perspective.intrinsics.fx", "perspective.intrinsics.fy",
     "perspective.intrinsics.cx", "perspective.intrinsics.cy", "perspective.height",
     "perspective.pitch", "perspective.roll"}
@@ -1961,8 +2040,50 @@ def test_simulate_presets_lie_in_their_scalar_bounds(preset):
     check_bounds(conf, simulate.SCALAR_BOUNDS, optional=True)
     simulate.check_conf(copy.deepcopy(conf))
     unbounded = [k for k in _scalar_keys(conf) if k not in simulate.SCALAR_BOUNDS
-                 and k not in SCALARS_CHECKED_ELSEWHERE and not k.startswith("calib_error.")]
+                 and k not in SCALARS_CHECKED_ELSEWHERE]
     assert not unbounded, unbounded
+
+@pytest.mark.parametrize("kind,args", [
+    ("map", ["build-map", "spl", "--resolution", "0.5", "-o", "{out}"]),
+    *[("picture", ["show", "map", "{map}", "-o", "{out}" + suffix])
+      for suffix in (".png", ".jpg", ".pdf", ".svg", ".eps", ".tiff")],
+    *[("export", ["export", "{poses}", "--format", fmt, "-o", "{out}"])
+      for fmt in ("csv", "json", "tum")],
+    ("calibration", ["calibrate", "omni", "{marks}", "--centre", "240", "240", "--image-size",
+                     "480", "480", "--valid-radius", "40", "230", "-o", "{out}.yaml"]),
+    ("poses", ["localize", "{omni}", "--map", "{map}", "--features", "{features}", "-o",
+               "{out}.h5"])], ids=lambda v: v if isinstance(v, str) else " ".join(v[:2]))
+def test_overwrite_replaces_what_fieldloc_wrote(world, tmp_path, kind, args):
+    """The other side of the data-lost cases above: a second run with --overwrite replaces
+    the file the first run wrote, in every format an output takes (each carries fieldloc's
+    mark or schema)."""
+    paths = {**world, "out": tmp_path / "out"}
+    args = [a.format(**paths) for a in args]
+    out = Path(args[-1])
+    first = CliRunner().invoke(cli, ["-q", *args])
+    assert first.exit_code == 0 and out.is_file(), first.output
+    out.touch()
+    stamp = out.stat().st_mtime_ns
+    again = CliRunner().invoke(cli, ["-q", *args])
+    assert again.exit_code == 1 and "exists (use --overwrite" in again.output, again.output
+    time.sleep(0.01)
+    replaced = CliRunner().invoke(cli, ["-q", *args, "--overwrite"])
+    assert replaced.exit_code == 0, replaced.output
+    assert out.stat().st_mtime_ns != stamp
+
+
+def test_export_to_stdout_writes_no_file(world, tmp_path, monkeypatch):
+    """`export -o -` writes the export to standard output (for a pipe), in each format, and no
+    file named '-'."""
+    monkeypatch.chdir(tmp_path)
+    for fmt, head in (("csv", "name,stamp,x,y,theta"), ("json", '{\n "schema": "fieldloc.'),
+                      ("tum", "# stamp x y z qx qy qz qw")):
+        r = CliRunner().invoke(cli, ["export", str(world["poses"]), "--format", fmt, "-o", "-"])
+        assert r.exit_code == 0, r.output
+        assert r.stdout.startswith(head), r.stdout[:80]
+        assert not r.stderr.strip(), r.stderr
+    assert not any(tmp_path.iterdir())
+
 
 def test_list_keys_of_another_legal_size_keep_working(world, tmp_path):
     """Values the list checks must not refuse: frames of another size (with a centre and

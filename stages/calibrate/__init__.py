@@ -241,6 +241,10 @@ def fit(conf: dict, radius_px, distance_m, *, centre, image_size, valid_radius=N
     rmin, rmax = (float(v) for v in valid_radius)
     if not 0 <= rmin < rmax:
         raise CalibrationError(f"valid radius needs 0 <= RMIN < RMAX, got {rmin:g} {rmax:g}")
+    reach = max(math.hypot(cu - x, cv - y) for x in (0, w) for y in (0, h))
+    if rmax > reach:  # a ring beyond the image's corners sees nothing of it
+        raise CalibrationError(f"valid radius RMAX {rmax:.4g} px lies beyond the {w} x {h}"
+                               f" image (its farthest corner is {reach:.0f} px from the centre)")
     loo = None
     if model == "polynomial":
         coef, residuals = _fit_polynomial(conf, r, d, (rmin, rmax), where)
@@ -282,7 +286,7 @@ def _fit_polynomial(conf, r, d, valid_radius, where):
         turn = samples[1:][np.argmax(slope <= 0)]
         raise CalibrationError(
             f"{where}: the fitted f(r) is not increasing between {rmin:g} and {rmax:g} px (it"
-            f" turns at r = {turn:.1f} px); check the pairs or narrow --valid-radius"
+            f" turns at r = {turn:.5g} px); check the pairs or narrow --valid-radius"
         )
     return np.concatenate([coef, np.zeros(5 - degree)]), residuals  # a0..a5, as calib.yaml
 

@@ -12,8 +12,8 @@ finished file gets the mode a plain ``open()`` would give it (0666 less the umas
 temporary file's 0600, so teammates can read shared maps.
 
 ``check_output`` is the one rule every command applies to what it writes: never one of its own
-inputs (with ``--overwrite`` or without), never an existing file without ``--overwrite``, and a
-folder that exists and is writable.
+inputs (with ``--overwrite`` or without), never an existing file without ``--overwrite``, with
+it only a file fieldloc wrote (``fieldloc_wrote``), and a folder that exists and is writable.
 """
 
 from __future__ import annotations
@@ -156,15 +156,56 @@ def _inside(inner: Path, outer: Path) -> bool:
     return Path(os.path.realpath(inner)).is_relative_to(os.path.realpath(outer))
 
 
+# The mark every text file and picture fieldloc writes carries near its start or end (a
+# comment line, a PNG text chunk, a PDF's or SVG's creator): how --overwrite tells a file
+# fieldloc wrote from a user's file of the same name. HDF5 artifacts carry a schema instead.
+WRITTEN_BY = "written by fieldloc"
+WRITTEN_MARK = f"{WRITTEN_BY} {__version__}"
+_MARK_SPAN = 8192  # bytes read at each end of a file for the mark (PDF keeps it at the end)
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def fieldloc_wrote(path: str | Path) -> bool:
+    """Whether the file ``path`` is one fieldloc wrote: an HDF5 file whose root ``schema`` is
+    one of fieldloc's, or a file carrying ``WRITTEN_BY`` within its first or last
+    ``_MARK_SPAN`` bytes. False for anything it cannot read."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(_MARK_SPAN)
+            if head.startswith(HDF5_SIGNATURE):
+                return _hdf5_schema(path).startswith("fieldloc.")
+            f.seek(0, os.SEEK_END)
+            f.seek(max(f.tell() - _MARK_SPAN, len(head)))
+            tail = f.read(_MARK_SPAN)
+    except OSError:
+        return False
+    mark = WRITTEN_BY.encode()
+    return mark in head or mark in tail
+
+
+def _hdf5_schema(path: str | Path) -> str:
+    """The root ``schema`` attribute of an HDF5 file ('' if it has none or cannot be read)."""
+    try:
+        with h5py.File(path, "r") as f:
+            v = f.attrs.get("schema", "")
+    except (OSError, ValueError, RuntimeError):
+        return ""
+    return v.decode(errors="replace") if isinstance(v, bytes) else str(v)
+
+
 def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *,
                  overwrite: bool | None = False, kind: str = "file",
-                 error: type[FieldlocError] = FieldlocError) -> Path:
+                 error: type[FieldlocError] = FieldlocError,
+                 ours=fieldloc_wrote) -> Path:
     """Check an output path before any work is done, and return it as a Path.
 
     - never one of the command's ``inputs`` (role -> path, or an iterable of paths; None
       entries are ignored), with ``overwrite`` or without; for ``kind="folder"`` (a folder the
       command replaces as a whole) no input may lie inside it either;
-    - an existing output needs ``overwrite`` (``overwrite=None``: the caller decides itself);
+    - an existing output needs ``overwrite`` (``overwrite=None``: the caller decides itself),
+      and even then a file is replaced only where ``ours(path)`` says fieldloc wrote it
+      (``fieldloc_wrote``; a format without the mark passes its own test): never a user's
+      file that happens to have the output's name;
     - never a recording's own file (an image, odometry.csv, truth.csv, ... of any dataset
       folder; its calib.yaml only for ``kind="calibration"``, which is a file otherwise);
     - the folder it goes into must exist and be writable; a file output must not be a folder
@@ -182,6 +223,9 @@ def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *
     if overwrite is not None and not overwrite and path.exists():
         if kind == "file" or any(path.iterdir()):
             raise error(f"{path} exists (use --overwrite to replace it)")
+    if overwrite and kind == "file" and path.is_file() and not ours(path):
+        raise error(f"{path} was not written by fieldloc: --overwrite replaces only fieldloc's"
+                    " own outputs, never a user's file; choose another output")
     return path
 
 

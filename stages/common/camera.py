@@ -262,7 +262,7 @@ class OmniCamera:
                 turn = samples[1:][int(np.argmax(slope <= 0))]
                 raise DatasetError(
                     f"{where}: 'polynomial' f(r) is not increasing over 'valid_radius'"
-                    f" {valid[0]:g}..{valid[1]:g} px (it turns at r = {turn:.1f} px); a mirror"
+                    f" {valid[0]:g}..{valid[1]:g} px (it turns at r = {turn:.5g} px); a mirror"
                     " maps farther floor to larger radii")
         return cls(image_size=size, centre=centre, polynomial=poly, valid_radius=valid,
                    forward_angle=forward, mirrored=mirrored, radial_table=table)
@@ -356,8 +356,17 @@ def save_calib(camera, path: str | Path, calibration: dict | None = None) -> Pat
     type(camera).from_dict(d, str(path))  # refused here what load_calib would refuse: nothing
     # fieldloc writes is a calibration it cannot read back
     with atomic_path(path, suffix=".yaml") as tmp:
-        tmp.write_text(yaml.safe_dump(d, sort_keys=False, default_flow_style=None))
+        tmp.write_text(calib_text(d))
     return path
+
+
+def calib_text(d: dict) -> str:
+    """The calib.yaml text of the mapping ``d``: its YAML under a comment naming the writer
+    (``WRITTEN_MARK``, by which --overwrite tells it from a team's own calibration)."""
+    from .artifacts import WRITTEN_MARK
+
+    return (f"# camera calibration, {WRITTEN_MARK}\n"
+            + yaml.safe_dump(d, sort_keys=False, default_flow_style=None))
 
 
 def read_calibration_record(path: str | Path) -> dict:

@@ -60,6 +60,21 @@ NUMBER = re.compile(r"[+-]?(?:(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+
 # far beyond any robot's, and a value such as 1e300 would overflow the arithmetic that places
 # it (grid cells of a map, sums of increments) instead of meaning anything
 MAX_VALUE = 1e6
+# the largest magnitude of a stamp, in seconds: Unix time reaches 1e10 s in the year 2286, so a
+# larger stamp is in other units (ms, ns: a ROS stamp in ns is 1.7e18) or damaged; beyond it
+# the gaps between frames overflow the motion model's noise (1e299 s ended in tracebacks)
+MAX_STAMP = 1e11
+
+
+def stamp_error(stamp: float) -> str | None:
+    """Why ``stamp`` (seconds) cannot be a frame's or a row's stamp, or None: not finite, or
+    beyond ``MAX_STAMP``."""
+    if not math.isfinite(stamp):
+        return f"stamp {stamp} is not a finite number"
+    if abs(stamp) > MAX_STAMP:
+        return (f"stamp {stamp:.4g} s is beyond {MAX_STAMP:g} s (the year 5000); stamps are"
+                " seconds, not ms or ns")
+    return None
 
 
 def parse_number(text: str) -> float:
@@ -123,6 +138,8 @@ def read_csv(path: str | Path, kind: str) -> dict[str, np.ndarray]:
                 raise DatasetError(
                     f"{path}: line {line_no}: '{name}' is {cell[:20]}; no robot's value is"
                     f" larger than {MAX_VALUE:g} (metres or radians)")
+            if name == "stamp" and math.isfinite(v) and (why := stamp_error(v)):
+                raise DatasetError(f"{path}: line {line_no}: {why}")
             values[name].append(v)
     out = {name: (np.array(v, dtype=object) if name == "name" else np.array(v, dtype=float))
            for name, v in values.items()}
@@ -298,7 +315,8 @@ def open_dataset(root: str | Path, *, need_images: bool = True) -> Dataset:
             raise DatasetError(f"{frames}: no stamp for image {missing[0]}")
         stamps = np.array([by_name.get(p.name, by_name.get(p.stem)) for p in images], float)
         source = "frames.csv"
-    elif images and all(_is_float(p.stem) and math.isfinite(float(p.stem)) for p in images):
+    elif images and all(_is_float(p.stem) and stamp_error(float(p.stem)) is None
+                        for p in images):
         stamps = np.array([float(p.stem) for p in images])
         source = "file names"
     else:

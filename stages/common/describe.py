@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .artifacts import HDF5_SIGNATURE, human_bytes
 from .artifacts import describe as describe_hdf5
-from .artifacts import human_bytes
 from .camera import CALIB_KEYS
 from .conf import load_yaml
 from .dataset import CSV_COLUMNS, IMAGE_SUFFIXES, SIMULATION_RECORD, csv_rows
@@ -25,7 +25,6 @@ from .errors import FieldlocError
 READS = ("HDF5 artifacts (map, features, poses, templates), report.json, bench JSON, calib.yaml,"
          " simulation.yaml, field YAML, the dataset CSVs, points and calibration CSVs,"
          " errors.csv, poses.tum, PNG/JPG images, dataset and report folders")
-HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 OTHER_CSV = {("frame", "x", "y"): "line points (localize --points)",
              ("radius_px", "distance_m"): "calibration pairs (calibrate omni POINTS)"}
 

@@ -47,6 +47,7 @@ import h5py
 import numpy as np
 
 from .artifacts import open_artifact, part_name, read_json_attr, write_artifact, writing
+from .dataset import MAX_STAMP, stamp_error
 from .errors import FieldlocError, SchemaError
 
 log = logging.getLogger(__name__)
@@ -350,12 +351,11 @@ class FeaturesFile:
             raise SchemaError(f"{self.path}: damaged features file ({str(e)[:200]})") from None
         # by stamp, frames of one stamp by name
         names, stamps = self._layout.names, np.asarray(self._layout.stamps, dtype=float)
-        bad = np.flatnonzero(~np.isfinite(stamps))
+        bad = np.flatnonzero(~(np.abs(stamps) <= MAX_STAMP))
         if len(bad):  # as frames.csv's: a frame without a finite stamp cannot be placed
             self.h5.close()
             raise SchemaError(f"{self.path}: damaged features file (frame"
-                              f" {str(names[bad[0]])[:40]} has stamp {stamps[bad[0]]}; every"
-                              " stamp must be a finite number)")
+                              f" {str(names[bad[0]])[:40]}: {stamp_error(stamps[bad[0]])})")
         order = np.lexsort((np.array(names, dtype=str), stamps)) if names else []
         self.names = [names[i] for i in order]
         self.stamps = stamps[order]

@@ -191,16 +191,20 @@ def check_tum_output(path: str | Path, inputs: dict | None, overwrite: bool) -> 
     """The rule of a TUM twin written beside another output (localize's X.tum): none of the
     ``inputs``; an existing one needs ``overwrite``, and even then only one fieldloc wrote
     (``is_fieldloc_tum``) is replaced, never a user's trajectory of the same name."""
-    path = check_output(path, inputs, overwrite=overwrite)
-    if path.exists() and not is_fieldloc_tum(path):
-        raise FieldlocError(f"{path} is not a TUM file written by fieldloc (no '# {TUM_HEADER}'"
-                            " header): --overwrite replaces only those; choose another output")
-    return path
+    return check_output(path, inputs, overwrite=overwrite, ours=is_fieldloc_tum)
 
 
 def write_tum(path: str | Path, arr: dict) -> Path:
     """TUM trajectory rows 'stamp x y z qx qy qz qw' (z = 0, yaw-only quaternion) of the
-    accepted frames."""
+    accepted frames, into the file ``path`` (atomically)."""
+    with atomic_path(Path(path), suffix=".tum") as tmp:
+        with open(tmp, "w", newline="\n") as f:
+            write_tum_to(f, arr)
+    return Path(path)
+
+
+def write_tum_to(stream, arr: dict) -> None:
+    """``write_tum``'s text, written to the open text ``stream`` (a file, or stdout)."""
     ok = np.asarray(arr["accepted"], bool) if "accepted" in arr else ~arr["failed"]
     th = arr["theta"][ok]
     rows = np.stack(
@@ -208,10 +212,7 @@ def write_tum(path: str | Path, arr: dict) -> Path:
          np.zeros(ok.sum()), np.zeros(ok.sum()), np.sin(th / 2), np.cos(th / 2)],
         axis=1,
     )
-    with atomic_path(Path(path), suffix=".tum") as tmp:
-        with open(tmp, "w", newline="\n") as f:
-            np.savetxt(f, rows, fmt="%.6f", header=TUM_HEADER)
-    return Path(path)
+    np.savetxt(stream, rows, fmt="%.6f", header=TUM_HEADER)
 
 
 def read_poses(path: str | Path) -> tuple[dict[str, np.ndarray], dict]:

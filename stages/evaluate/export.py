@@ -30,14 +30,21 @@ from __future__ import annotations
 import csv
 import json
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
 
-from ..common.artifacts import atomic_path, check_output
+from ..common.artifacts import atomic_path, check_output, starts_with
 from ..common.errors import FieldlocError
 from ..common.field import FieldModel
-from ..common.poses_file import read_poses, run_inputs, write_tum
+from ..common.poses_file import (
+    is_fieldloc_tum,
+    read_poses,
+    run_inputs,
+    write_tum,
+    write_tum_to,
+)
 
 FORMATS = {"csv": ".csv", "tum": ".tum", "json": ".json"}
 JSON_SCHEMA = "fieldloc.poses-export"
@@ -50,6 +57,13 @@ _COV = {"cov_xx": (0, 0), "cov_xy": (0, 1), "cov_xt": (0, 2), "cov_yy": (1, 1),
         "cov_yt": (1, 2), "cov_tt": (2, 2)}
 
 confs = {"default": {"decimals": 6}}
+
+
+def exported(path: Path) -> bool:
+    """Whether ``path`` is a file ``main`` wrote, in any format (what --overwrite replaces):
+    a TUM file with write_tum's header, a CSV with these columns, this schema's JSON."""
+    return (is_fieldloc_tum(path) or starts_with(path, ",".join(CSV_COLUMNS).encode())
+            or starts_with(path, f'{{\n "schema": "{JSON_SCHEMA}"'.encode()))
 
 
 def default_output(poses, fmt: str) -> Path:
@@ -110,9 +124,13 @@ def _csv_value(v):
     return v if isinstance(v, str) else repr(v) if isinstance(v, float) else str(v)
 
 
+STDOUT = "-"  # the output name that writes to standard output, for a pipe
+
+
 def main(conf: str | dict | None, poses, output=None, *, fmt: str, overwrite: bool = False,
          progress: bool = False) -> Path:
-    """Write ``poses`` (poses.h5) as ``fmt`` (csv, tum or json) to ``output``; returns it."""
+    """Write ``poses`` (poses.h5) as ``fmt`` (csv, tum or json) to ``output`` (``STDOUT``:
+    to standard output); returns it."""
     from ..common.conf import stage_conf
 
     if fmt not in FORMATS:
@@ -120,13 +138,27 @@ def main(conf: str | dict | None, poses, output=None, *, fmt: str, overwrite: bo
     conf = stage_conf(confs, conf)
     poses = Path(poses)
     output = Path(output) if output is not None else default_output(poses, fmt)
-    if output.resolve() == poses.resolve():
+    to_stdout = str(output) == STDOUT
+    if not to_stdout and output.resolve() == poses.resolve():
         raise FieldlocError(f"{output}: the export would replace the poses file itself")
     columns, attrs = read_poses(poses)
-    check_output(output, run_inputs(attrs), overwrite=overwrite)
-    decimals = int(conf["decimals"])
+    if to_stdout:
+        _write(sys.stdout, fmt, columns, attrs, poses, int(conf["decimals"]))
+        sys.stdout.flush()
+        return output
+    check_output(output, run_inputs(attrs), overwrite=overwrite, ours=exported)
+    with atomic_path(output, suffix=FORMATS[fmt]) as tmp:
+        with open(tmp, "w", newline="\n" if fmt == "tum" else "") as f:
+            _write(f, fmt, columns, attrs, poses, int(conf["decimals"]))
+    return output
+
+
+def _write(stream, fmt: str, columns: dict, attrs: dict, poses: Path, decimals: int) -> None:
+    """The text of the export of ``columns`` (with ``attrs``, read from ``poses``) as
+    ``fmt``, written to the open text ``stream``."""
     if fmt == "tum":
-        return write_tum(output, columns)
+        write_tum_to(stream, columns)
+        return
     recs = frames(columns, decimals)
     if fmt == "json":
         doc = {"schema": JSON_SCHEMA, "version": JSON_VERSION, "source": str(poses),
@@ -136,20 +168,16 @@ def main(conf: str | dict | None, poses, output=None, *, fmt: str, overwrite: bo
                "units": {"x": "m", "y": "m", "theta": "rad", "stamp": "s", "runtime": "s",
                          "hypotheses": "x m, y m, theta rad, probability"},
                "frames": recs}
-        with atomic_path(output, suffix=".json") as tmp:
-            tmp.write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n")
-        return output
-    with atomic_path(output, suffix=".csv") as tmp:
-        with open(tmp, "w", newline="") as f:
-            w = csv.writer(f)
-            w.writerow(CSV_COLUMNS)
-            for r in recs:
-                cov = r["covariance"]
-                row = dict(r, hypotheses=len(r["hypotheses"]))
-                for k, (a, b) in _COV.items():
-                    row[k] = None if cov is None else cov[a][b]
-                w.writerow([_csv_value(row[k]) for k in CSV_COLUMNS])
-    return output
+        stream.write(json.dumps(doc, indent=1, allow_nan=False) + "\n")
+        return
+    w = csv.writer(stream)
+    w.writerow(CSV_COLUMNS)
+    for r in recs:
+        cov = r["covariance"]
+        row = dict(r, hypotheses=len(r["hypotheses"]))
+        for k, (a, b) in _COV.items():
+            row[k] = None if cov is None else cov[a][b]
+        w.writerow([_csv_value(row[k]) for k in CSV_COLUMNS])
 
 
 def write_truth_tum(path, truth: dict) -> Path:

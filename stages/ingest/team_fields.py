@@ -58,7 +58,7 @@ import numpy as np
 import yaml
 
 from .. import __version__
-from ..common.artifacts import atomic_path, check_output, file_hash
+from ..common.artifacts import WRITTEN_MARK, atomic_path, check_output, file_hash
 from ..common.conf import load_yaml
 from ..common.errors import FieldlocError, FieldSpecError
 from ..common.field import (
@@ -610,7 +610,8 @@ def main(conf: str | dict | None, path, output, *, fmt: str | None = None,
                           conf=conf)
     fmt = imp.record["format"]
     text = (f"# {imp.spec['name']}: imported from {Path(path).name} (--format {fmt}); metres,"
-            " between line centre lines\n" + yaml.safe_dump(imp.spec, sort_keys=False))
+            f" between line centre lines; {WRITTEN_MARK}\n"
+            + yaml.safe_dump(imp.spec, sort_keys=False))
     # what is written must read back as a field: checked before writing (a refusal writes
     # nothing)
     field_from_spec(load_yaml(text), str(output), text)

@@ -10,10 +10,10 @@ import datetime as _dt
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from .. import __version__
 from ..common.artifacts import atomic_path
+from ..common.camera import calib_text
 from ..common.errors import FieldlocError
 
 # the median absolute deviation times this is a normal distribution's standard deviation
@@ -139,7 +139,7 @@ def write_calib_file(path, calib_dict: dict, read_back, *, dataset_calib=None) -
                                 " over: choose another output")
     read_back(calib_dict, str(path))  # what is written reads back
     with atomic_path(path, suffix=".yaml") as tmp:
-        tmp.write_text(yaml.safe_dump(calib_dict, sort_keys=False, default_flow_style=None))
+        tmp.write_text(calib_text(calib_dict))
     return path
 
 

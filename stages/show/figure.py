@@ -9,7 +9,7 @@ from pathlib import Path
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from ..common.artifacts import atomic_path
+from ..common.artifacts import WRITTEN_MARK, atomic_path
 from ..common.errors import FieldlocError
 
 
@@ -36,10 +36,24 @@ def picture_format(path: str | Path) -> str:
     return FORMATS[suffix]
 
 
+def _marked(fmt: str) -> dict:
+    """savefig's arguments that put WRITTEN_MARK into a picture of format ``fmt`` (how
+    --overwrite tells it from a user's picture): PNG's Software text, the creator of PDF, SVG
+    and EPS, a JPEG comment, a TIFF's image description."""
+    if fmt == "png":
+        return {"metadata": {"Software": WRITTEN_MARK}}
+    if fmt in ("pdf", "svg", "eps"):
+        return {"metadata": {"Creator": WRITTEN_MARK}}
+    if fmt == "jpg":
+        return {"pil_kwargs": {"comment": WRITTEN_MARK.encode()}}
+    return {"pil_kwargs": {"description": WRITTEN_MARK}}  # tiff
+
+
 def save_figure(fig: Figure, path: str | Path, dpi: int | None = None) -> Path:
-    """Write ``fig`` to ``path`` atomically, in the format its suffix names (FORMATS)."""
+    """Write ``fig`` to ``path`` atomically, in the format its suffix names (FORMATS), marked
+    as fieldloc's (``_marked``)."""
     path = Path(path)
     fmt = picture_format(path)
     with atomic_path(path, suffix=path.suffix or ".png") as tmp:
-        fig.savefig(tmp, format=fmt, dpi=dpi or fig.dpi, bbox_inches="tight")
+        fig.savefig(tmp, format=fmt, dpi=dpi or fig.dpi, bbox_inches="tight", **_marked(fmt))
     return path

@@ -351,12 +351,9 @@ def main(conf: str | dict | None, source, output, *, overwrite: bool = False,
         raise FieldlocError(f"worst must be 0 or more frames, got {conf['worst']}")
     output = Path(output)
     dirs = find_reports(source)
-    check_output(output, report_inputs(dirs), overwrite=overwrite)
+    check_output(output, report_inputs(dirs), overwrite=overwrite, ours=is_report_page)
     if output.suffix.lower() not in (".html", ".htm"):  # r.pdf would hold HTML
         raise FieldlocError(f"{output}: the report is an HTML page; name it .html")
-    if output.exists() and not is_report_page(output):
-        raise FieldlocError(f"{output} is not a page written by fieldloc report: --overwrite"
-                            " replaces only those; choose another output")
     header, rows = table_rows(dirs)
     runs = ("<table><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in header) + "</tr>"
             + "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>"

@@ -127,8 +127,19 @@ def main(conf: str | dict | None, map_path: str | Path, output: str | Path, *,
     """Draw the map ``map_path`` into the PNG ``output``: the distance table as a heat map, or
     the radial/spiral scan lines and table crossings from one cell (``conf``: which table, the
     cell and heading, the spiral family and how many spirals; see ``draw_scanlines_from_cell``).
-    An existing ``output`` is replaced only with ``overwrite``, and never the map itself."""
+    An existing ``output`` is replaced only with ``overwrite``, and never the map itself.
+    A cell, heading, family or spiral count given for the distance table is refused: it would
+    be ignored, and the picture would not show what was asked."""
+    given = set(conf) if isinstance(conf, dict) else set()
     conf = stage_conf(confs, conf)
+    unused = sorted(given & {"cell", "heading", "family", "spirals"})
+    if conf["table"] == "distance" and unused:
+        raise FieldlocError(f"{', '.join(unused)}: drawn only from a cell of the radial or"
+                            " spiral table, not on the distance table (give --table radial or"
+                            " spiral)")
+    if conf["table"] == "radial" and given & {"family", "spirals"}:
+        raise FieldlocError("family, spirals: drawn only on the spiral table, not the radial"
+                            " one (give --table spiral)")
     table, cell, family = conf["table"], conf["cell"], conf["family"]
     heading, spirals = float(conf["heading"]), int(conf["spirals"])
     check_output(output, {"map": map_path}, overwrite=overwrite)

@@ -425,13 +425,14 @@ def bounds(kind: str, module) -> dict:
 # (``bounds``) before anything is rendered: the physical or practical range each value must lie
 # in for a run to mean anything, stated once here for every camera kind's preset (a key a conf
 # does not hold, e.g. the other kind's section, is passed over). A one-element tuple (x,) is a
-# strict bound. Calibration errors, frames, seeds, the rate, the trajectory's speeds and the
-# camera's own geometry (focal lengths, principal point, height, angles) are held by their own
-# checks (check_calib_error, _check_conf, trajectory.generate, camera_from_conf).
+# strict bound. The mount's calibration errors, frames, seeds, the rate and the camera's own
+# geometry (focal lengths, principal point, height, angles) are held by their own checks
+# (check_calib_error, _check_conf, camera_from_conf).
 MAX_COUNT = 1000  # scene objects of one kind: a field holds a few dozen; 1e9 builds for hours
 MAX_LENGTH_M = 100.0  # m: longer than any field with its border (about 25 m diagonal) and hall
 MAX_HEIGHT_M = 10.0  # m: a camera, robot, goal or wall above the floor, indoors
 MAX_ACCEL = 100.0  # m/s^2 (10 g) along or across the path; 0 divides by zero
+MAX_SPEED = 10.0  # m/s: a sprinter's; MSL robots drive at up to 4 m/s, humanoids walk at 0.5
 MAX_RATE = 100.0  # rad/s (or steps, collisions per s): far beyond any robot's turn or gait
 MAX_ANGLE_NOISE = math.pi  # rad: a noise or swing of more than half a turn is no longer noise
 MAX_HEAD_SWING = 0.5  # rad (29 deg): a walking head sways a few deg; beyond, it sees the sky
@@ -450,7 +451,10 @@ SIGMA = (0, None)  # a spread or noise: >= 0 (a negative one is refused by numpy
 SHARE = (0, 1)  # a share, probability or relative strength of an effect: 0..1
 COUNT = (0, MAX_COUNT)
 SCALAR_BOUNDS = {
-    # trajectory: accelerations and turn rates > 0 (they divide), margins inside the field
+    # trajectory: speeds, accelerations and turn rates > 0 (they divide), margins inside the
+    # field (speed_min <= speed_max: trajectory.generate)
+    "trajectory.speed_min": ((0,), MAX_SPEED),
+    "trajectory.speed_max": ((0,), MAX_SPEED),
     "trajectory.accel_max": ((0,), MAX_ACCEL),
     "trajectory.lateral_accel_max": ((0,), MAX_ACCEL),
     "trajectory.turn_rate_max": ((0,), MAX_RATE),
@@ -463,6 +467,14 @@ SCALAR_BOUNDS = {
     "trajectory.grid_headings": (1, 360),  # at most one heading per degree
     "trajectory.grid_heading": (-2 * math.pi, 2 * math.pi),  # rad
     "trajectory.grid_half_size": (0, MAX_LENGTH_M),  # 0: the centre node alone
+    # the written calibration's error (omni; the mount's: check_calib_error): f(r) scaled by
+    # at most 2 either way (a team keeps no calibration that far off), a team's mirror table
+    # out to a field's length, its reading error correlated over up to the image's size
+    "calib_error.scale": (0.5, 2.0),
+    "calib_error.distance_error": (0, (0.5,)),  # m rms; 0: the true f(r) is written
+    "calib_error.radius_error_length_px": ((0,), MAX_IMAGE_PX),
+    "calib_error.table_step": ((0,), MAX_LENGTH_M),
+    "calib_error.table_range": ((0,), MAX_LENGTH_M),
     # odometry: relative spreads up to 100 %, per-frame noises of at most a metre or half a
     # turn; drift is a size (its sign is drawn per run)
     "odometry.scale_sigma": SHARE,

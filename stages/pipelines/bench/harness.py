@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...common.artifacts import atomic_path
+from ...common.artifacts import WRITTEN_MARK, atomic_path
 
 
 @dataclass
@@ -311,7 +311,7 @@ def write_json(rows: list[Row], path: str | Path) -> Path:
             return {k: clean(x) for k, x in v.items()}
         return v
 
-    data = {"rows": [clean(asdict(r)) for r in rows]}
+    data = {"generator": WRITTEN_MARK, "rows": [clean(asdict(r)) for r in rows]}
     with atomic_path(Path(path), suffix=".json") as tmp:
         tmp.write_text(json.dumps(data, indent=2))
     return Path(path)
