@@ -19,19 +19,24 @@ def conf_option(f):
 
 
 class FiniteFloat(click.ParamType):
-    """A float option that refuses nan and inf (click's FLOAT accepts both)."""
+    """A float option that refuses nan and inf (click's FLOAT accepts both), and, given
+    ``low``/``high``, a value outside [low, high] in the option's own units."""
 
     name = "number"
 
+    def __init__(self, low: float | None = None, high: float | None = None):
+        self.low, self.high = low, high
+
     def convert(self, value, param, ctx):
-        if isinstance(value, float) and math.isfinite(value):
-            return value
         try:
             v = float(value)
         except (TypeError, ValueError):
-            self.fail(f"{value!r} is not a number", param, ctx)
+            self.fail(f"{str(value)[:40]!r} is not a number", param, ctx)
         if not math.isfinite(v):
-            self.fail(f"{value!r} is not a finite number", param, ctx)
+            self.fail(f"{str(value)[:40]!r} is not a finite number", param, ctx)
+        if (self.low is not None and v < self.low) or (self.high is not None and v > self.high):
+            lo, hi = (f"{b:g}" if b is not None else "" for b in (self.low, self.high))
+            self.fail(f"{v:g} is not within [{lo}, {hi}]", param, ctx)
         return v
 
 

@@ -14,7 +14,15 @@ import math
 
 import click
 
-from .common import FINITE, conf_option, count, overrides_dict, progress_enabled, summary
+from .common import (
+    FINITE,
+    FiniteFloat,
+    conf_option,
+    count,
+    overrides_dict,
+    progress_enabled,
+    summary,
+)
 from .stage_defaults import SIMULATE, SIMULATE_PATH_KINDS, SIMULATE_PRESETS
 
 
@@ -140,7 +148,7 @@ def simulate_omni(ctx, field, output, frames, seed, trajectory_kind, calib_error
 @click.option("--camera-height", type=FINITE, default=None, metavar="M",
               help="Camera height above the floor (m) [preset: "
                    f"{SIMULATE['perspective-default']['height']}].")
-@click.option("--pitch-deg", type=FINITE, default=None,
+@click.option("--pitch-deg", type=FiniteFloat(-180, 180), default=None,
               help="Nominal camera pitch (degrees, > 0 looks down) [preset: "
                    f"{SIMULATE['perspective-default']['pitch_deg']:.1f}].")
 @click.pass_context

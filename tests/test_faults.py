@@ -495,7 +495,7 @@ def _setup_nan_segments(w, ws):
 def _setup_spec(text: str):
     """A batch SPEC in ws (``text`` formatted with the shared map's path)."""
     def setup(w, ws):
-        (ws / "spec.yaml").write_text(text.format(map=w["map"]))
+        (ws / "spec.yaml").write_text(text.format(map=w["map"], field=w["field_yaml"]))
         return {}
     return setup
 
@@ -1331,7 +1331,7 @@ CASES = [
          "worst must be 0 or more frames, got -1"),
     Case("a batch dataset's frames: -1, refused before anything runs", "silent",
          ["batch", W + "/spec.yaml", "-o", W + "/res", "--serial"], 1,
-         "datasets[0].simulate: frames must be a whole number >= 1, got -1",
+         "datasets[0].simulate: frames must be a whole number from 1 to 1000000, got -1",
          setup=_setup_spec("field: spl\ndatasets:\n  - simulate: {{preset: omni-clean, field:"
                            " spl, frames: -1}}\nmethods: [lut]\n")),
     Case("--points naming frame 0 only: the other frames failed, said", "silent",
@@ -1884,6 +1884,27 @@ CASES = [
         (["--heading-deg", "30"], "heading: drawn only from a cell of the radial or spiral"),
         (["--table", "radial", "--cell", "1", "1", "--spirals", "3"],
          "family, spirals: drawn only on the spiral table"))],
+    *[Case(f"a batch SPEC with {what}, refused before anything runs", "silent",
+           ["batch", W + "/spec.yaml", "-o", W + "/res", "--serial"], 1, msg,
+           setup=_setup_spec(head + "datasets:\n  - simulate: {{preset: omni-clean, field:"
+                             " spl, frames: 2}}\nmethods: " + methods + "\n"))
+      for what, head, methods, msg in (
+        ("build_map resolution -1", "field: spl\nbuild_map: {{resolution: -1}}\n", "[lut]",
+         "build_map: resolution must be > 0 and border >= 0"),
+        ("a method's heading 'nosuch'", "field: spl\n",
+         "[{{method: lut, conf: ['heading=nosuch']}}]", "unknown heading source 'nosuch'"),
+        ("a field YAML as its map", "map: {field}\n", "[lut]", "not an HDF5 file"))],
+    Case("a batch dataset's frames: 10000000, refused before anything runs", "silent",
+         ["batch", W + "/spec.yaml", "-o", W + "/res", "--serial"], 1,
+         "frames must be a whole number from 1 to 1000000, got 10000000",
+         setup=_setup_spec("field: spl\ndatasets:\n  - simulate: {{preset: omni-clean, field:"
+                           " spl, frames: 10000000}}\nmethods: [lut]\n")),
+    Case("simulate perspective --pitch-deg 1e9: the range in degrees, as given", "newcomer",
+         [*SIM_NAO, "--pitch-deg", "1e9"], 2, "1e+09 is not within [-180, 180]"),
+    *[Case(f"field import {path}", "newcomer",
+           ["field", "import", path, "--format", "bhuman", "-o", W + "/x.yaml"], 1, msg)
+      for path, msg in (("/dev/null", "field file is not a regular file (a device, pipe or"),
+                        (W, "field file is a folder"))],
     # ------------------------------------- s54: --overwrite onto a user's file of the name
     *[Case(f"--overwrite onto a user's file: {' '.join(args[:2])} -o {Path(args[-1]).name}",
            "data-lost",

@@ -153,7 +153,7 @@ def test_smooth_keys_are_checked(key, value):
     conf = copy.deepcopy(mcl.confs["default"])
     conf[key] = value
     with pytest.raises(FieldlocError, match=key):
-        mcl._check_conf(conf)
+        mcl.check_conf(conf)
 
 
 # ---------------------------------------------------------------------------- a rendered walk

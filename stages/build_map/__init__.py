@@ -50,8 +50,9 @@ def scanlines_of(conf: dict) -> ScanLines:
     )
 
 
-def build_tables(fm: FieldModel, conf: dict) -> tuple[Grid, ScanLines, dict]:
-    """All tables of a map, in memory: name -> (array, attributes)."""
+def check_conf(conf: dict) -> None:
+    """A build-map conf's values checked (FieldlocError), without a field: what a batch SPEC's
+    ``build_map`` is refused for before anything runs."""
     values = {k: conf[k] for k in confs["default"]}
     if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in values.values()):
         raise FieldlocError(f"build-map conf values must be finite numbers, got {values}")
@@ -62,6 +63,11 @@ def build_tables(fm: FieldModel, conf: dict) -> tuple[Grid, ScanLines, dict]:
                             f" {MAX_RESOLUTION:g} m: a map places the robot no better than its"
                             " cells, and cells that size cover a goal area's lines in one")
     scanlines_of(conf).check()
+
+
+def build_tables(fm: FieldModel, conf: dict) -> tuple[Grid, ScanLines, dict]:
+    """All tables of a map, in memory: name -> (array, attributes)."""
+    check_conf(conf)
     grid = Grid.around(fm, float(conf["border"]), float(conf["resolution"]))
     ny, nx = grid.shape
     log.info("build-map %s: %d x %d cells of %g m", fm.name, nx, ny, grid.resolution)

@@ -1,5 +1,9 @@
 """The one exception base a user can cause. The CLI turns it into one line and exit code 1."""
 
+from __future__ import annotations
+
+from pathlib import Path
+
 
 class FieldlocError(Exception):
     """An error caused by the user's input: missing file, wrong schema, invalid field, ..."""
@@ -22,6 +26,19 @@ def shown(value, limit: int = 60) -> str:
     characters of a bad value (a value of megabytes would make a "one-line" error as long)."""
     s = repr(value)
     return s if len(s) <= limit else s[:limit - 3] + "..."
+
+
+def file_problem(path) -> str | None:
+    """Why ``path`` is no file to read, in a message's words ("not found", "is a folder", "is
+    not a regular file ..."), or None for a regular file: /dev/null was "not found"."""
+    path = Path(path)
+    if path.is_file():
+        return None
+    if path.is_dir():
+        return "is a folder"
+    if path.exists():
+        return "is not a regular file (a device, pipe or socket)"
+    return "not found"
 
 
 def present(path) -> bool:

@@ -21,7 +21,7 @@ import numpy as np
 import yaml
 
 from .conf import load_yaml
-from .errors import FieldSpecError, shown
+from .errors import FieldSpecError, file_problem, shown
 from .geometry import wrap_angle
 
 MAPS_DIR = Path(__file__).resolve().parents[2] / "maps"
@@ -259,8 +259,8 @@ def load_field(name_or_path: str | Path) -> FieldModel:
     p = Path(name_or_path)
     if p.suffix.lower() in (".yaml", ".yml") or p.exists():
         path = p
-        if not path.is_file():
-            raise FieldSpecError(f"field file not found: {path}")
+        if why := file_problem(path):
+            raise FieldSpecError(f"field file {why}: {path}")
     else:
         path = MAPS_DIR / f"{name_or_path}.yaml"
         if not path.is_file():

@@ -48,7 +48,7 @@ import json
 import re
 from pathlib import Path
 
-from ..common.errors import FieldlocError
+from ..common.errors import FieldlocError, file_problem
 
 
 class FieldFormatError(FieldlocError):
@@ -56,8 +56,8 @@ class FieldFormatError(FieldlocError):
 
 
 def _read_text(path: Path) -> str:
-    if not path.is_file():
-        raise FieldFormatError(f"field file not found: {path}")
+    if why := file_problem(path):
+        raise FieldFormatError(f"field file {why}: {path}")
     try:
         return path.read_text()
     except (OSError, UnicodeDecodeError) as e:

@@ -60,7 +60,7 @@ import yaml
 from .. import __version__
 from ..common.artifacts import WRITTEN_MARK, atomic_path, check_output, file_hash
 from ..common.conf import load_yaml
-from ..common.errors import FieldlocError, FieldSpecError
+from ..common.errors import FieldlocError, FieldSpecError, file_problem
 from ..common.field import (
     MSL_LETTERS,
     NAME_MAX,
@@ -114,8 +114,8 @@ def _get(spec: dict, path: tuple):
 
 
 def _read_text(path: Path) -> str:
-    if not path.is_file():
-        raise TeamFieldError(f"field file not found: {path}")
+    if why := file_problem(path):
+        raise TeamFieldError(f"field file {why}: {path}")
     try:
         return path.read_text()
     except (OSError, UnicodeDecodeError) as e:

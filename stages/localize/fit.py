@@ -499,9 +499,11 @@ class FitEngine:
 BOUNDS = {**tracking.BOUNDS, "stamp_tolerance": (0, None)}
 
 
-def _check_conf(conf: dict, dataset):
+def check_conf(conf: dict) -> None:
+    """The method's keys checked without a dataset (FieldlocError): at run time, and where a
+    batch SPEC names the method, before anything runs."""
     check_bounds(conf, BOUNDS)
-    heading_mod.check_conf(conf, dataset)
+    heading_mod.check_keys(conf)
     tracking.check_conf(conf)
 
 
@@ -964,7 +966,8 @@ def run(conf: dict, dataset, features, map_file: MapFile, progress=False) -> Pos
     """Localise every frame of ``features`` (names, stamps, frame(name) with ``points``, or
     ``radial`` and ``spiral``) on ``map_file``'s distance table, with the odometry, IMU and
     truth of ``dataset`` (stages.common.dataset.Dataset or None). ``progress``: tqdm."""
-    _check_conf(conf, dataset)
+    check_conf(conf)
+    heading_mod.check_conf(conf, dataset)
     engine = fit_engine(map_file)
     sensors = tracking.frame_sensors(conf, dataset, features.stamps)
     loc = FitLocaliser(conf, engine, map_file.field, map_file.scanlines, yaw=sensors.yaw,

@@ -77,16 +77,23 @@ def check_start_half(conf: dict) -> None:
         raise FieldlocError(f"start_half_error must lie in [0, 1], not {shown(e)}")
 
 
-def check_conf(conf: dict, dataset) -> None:
-    """The heading keys of a method's conf (``heading``, ``imu_alignment``, ``start_half``,
-    ``start_half_error``) checked, and the file the heading source reads present in
-    ``dataset`` (FieldlocError)."""
-    if conf["heading"] not in SOURCES:
+def check_keys(conf: dict) -> None:
+    """The heading keys a method's conf holds (``heading``, ``imu_alignment``, ``start_half``
+    and ``start_half_error``; mcl has only the last two) checked, without a dataset: what a
+    batch SPEC's method can be refused for before anything runs (FieldlocError)."""
+    if "heading" in conf and conf["heading"] not in SOURCES:
         raise FieldlocError(
-            f"unknown heading source '{conf['heading']}' (use {', '.join(SOURCES)})")
-    if conf["imu_alignment"] not in ("field", "vision"):
+            f"unknown heading source {shown(conf['heading'])} (use {', '.join(SOURCES)})")
+    if "imu_alignment" in conf and conf["imu_alignment"] not in ("field", "vision"):
         raise FieldlocError("imu_alignment must be 'field' or 'vision'")
-    check_start_half(conf)
+    if "start_half" in conf:
+        check_start_half(conf)
+
+
+def check_conf(conf: dict, dataset) -> None:
+    """``check_keys``, and the file the heading source reads present in ``dataset``
+    (FieldlocError)."""
+    check_keys(conf)
     need = {"imu": "imu", "truth": "truth"}.get(conf["heading"])
     if need and (dataset is None or dataset.optional(need) is None):
         where = dataset.root if dataset is not None else "the dataset"

@@ -248,9 +248,11 @@ def vision_covariance(result: SearchResult, support: Support, heading_sigma: flo
 BOUNDS = {**tracking.BOUNDS, "stamp_tolerance": (0, None)}
 
 
-def _check_conf(conf: dict, dataset):
+def check_conf(conf: dict) -> None:
+    """The method's keys checked without a dataset (FieldlocError): at run time, and where a
+    batch SPEC names the method, before anything runs."""
     check_bounds(conf, BOUNDS)
-    heading_mod.check_conf(conf, dataset)
+    heading_mod.check_keys(conf)
     tracking.check_conf(conf)
     if conf["global_evidence"] not in ("auto", "points", "scanlines"):
         raise FieldlocError("global_evidence must be auto, points or scanlines, not"
@@ -901,7 +903,8 @@ def run(conf: dict, dataset, features, map_file: MapFile, progress=False) -> Pos
     """Localise every frame of ``features`` (names, stamps, frame(name) with ``radial``,
     ``spiral`` and ``points``) in ``map_file``'s tables, with the odometry, IMU and truth of
     ``dataset`` (stages.common.dataset.Dataset or None). ``progress``: tqdm on the frames."""
-    _check_conf(conf, dataset)
+    check_conf(conf)
+    heading_mod.check_conf(conf, dataset)
     if not map_file.has_table("radial") or not map_file.has_table("spiral"):
         raise FieldlocError(f"{map_file.path}: no scan-line tables for method lut")
     search = table_search(map_file, SEARCH)

@@ -497,7 +497,7 @@ def run(conf: dict, dataset, features, map_file, progress=None) -> PoseTrack:
         raise FieldlocError(
             f"{features.path}: features of a '{kind}' camera; --method mcl needs perspective"
             " features (lines, crossings, goal posts)")
-    _check_conf(conf)
+    check_conf(conf)
     obs_conf = dict(conf["observation"])
     if obs_conf["camera_height"] is None:
         obs_conf["camera_height"] = _camera_height(dataset)
@@ -565,7 +565,9 @@ BOUNDS = {"seed": (0, None), "hypotheses": (1, 1000), "init_spread": (0, MAX_INI
           "init_pose": (None, None, 3), "observation.camera_height": ((0,), 10.0)}
 
 
-def _check_conf(conf: dict):
+def check_conf(conf: dict) -> None:
+    """The method's keys checked (FieldlocError): at run time, and where a batch SPEC names the
+    method, before anything runs."""
     check_bounds(conf, BOUNDS)
     counts = {"particles_min": conf["particles_min"], "particles_max": conf["particles_max"]}
     for key, v in counts.items():

@@ -85,6 +85,7 @@ from ..common.artifacts import file_hash, text_hash
 from ..common.camera import camera_can
 from ..common.conf import check_bounds, load_yaml, parse_overrides, resolve_conf, stage_conf
 from ..common.errors import FieldlocError, shown
+from ..common.map_file import MapFile
 
 TOP_KEYS = ("field", "map", "build_map", "datasets", "extract", "evaluate", "templates",
             "methods", "runs")
@@ -240,6 +241,7 @@ def read_spec(spec_path: str | Path, results: str | Path) -> Plan:
         from .. import build_map
 
         build_conf = stage_conf(build_map.confs, build_conf)
+        build_map.check_conf(build_conf)
     except FieldlocError as e:
         w.fail("build_map", str(e))
     extract_default = data.get("extract") or {}
@@ -286,6 +288,11 @@ def _map_source(w: _Where, d: dict, where: str, base: Path):
         p = _path(base, w.text(d["map"], f"{where}map".lstrip(".")))
         if not p.is_file():
             w.fail(f"{where}map".lstrip("."), f"map not found: {p}")
+        try:  # a map's head read (no table): a calib.yaml or poses file is refused here
+            with MapFile(p):
+                pass
+        except FieldlocError as e:
+            w.fail(f"{where}map".lstrip("."), str(e))
         return ("map", p)
     if "field" in d:
         return ("field", _field_arg(base, w.text(d["field"], f"{where}field".lstrip("."))))
@@ -581,8 +588,15 @@ def _methods(w, entries, skipped) -> list[MethodSpec]:
             try:
                 spec.conf = resolve_conf(localize.confs, localize.preset_name(method, preset),
                                          over)
-                # the method's ranges (its BOUNDS), refused before anything runs
-                check_bounds(spec.conf, getattr(localize.method_module(method), "BOUNDS", {}))
+                # the method's own check of its keys (its BOUNDS and choices; not the files
+                # of a dataset), refused before anything runs; a method module without one:
+                # its BOUNDS
+                module = localize.method_module(method)
+                check = getattr(module, "check_conf", None)
+                if check is not None:
+                    check(spec.conf)
+                else:
+                    check_bounds(spec.conf, getattr(module, "BOUNDS", {}))
             except FieldlocError as e:
                 w.fail(where, str(e))
             spec.cameras = localize.method_camera_kinds(method)

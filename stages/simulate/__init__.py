@@ -385,10 +385,16 @@ def check_conf(conf: dict) -> None:
     _check_conf(conf)
 
 
+# frames of one rendered dataset at most: a day at 10 Hz is 864 000; beyond, a run would render
+# for weeks (the disk and memory checks would refuse it only after the plan is made)
+MAX_FRAMES = 1_000_000
+
+
 def _check_conf(conf: dict):
     n = conf["frames"]
-    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
-        raise FieldlocError(f"frames must be a whole number >= 1, got {n!r}")
+    if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= MAX_FRAMES:
+        raise FieldlocError(f"frames must be a whole number from 1 to {MAX_FRAMES}, got"
+                            f" {shown(n, 40)}")
     if not 0 < float(conf["rate_hz"]) < math.inf:
         raise FieldlocError(f"rate_hz must be > 0, got {conf['rate_hz']!r}")
     s = conf["seed"]
