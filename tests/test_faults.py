@@ -413,6 +413,16 @@ def _setup_users_outputs(w, ws):
     return {}
 
 
+def _setup_lookup_with_notes(w, ws):
+    """A copy of the map whose .lookup folder (the cache beside it) holds a user's notes and
+    a cache file of an earlier content of the map (which may go)."""
+    shutil.copyfile(w["map"], ws / "m.map.h5")
+    (ws / "m.map.h5.lookup").mkdir()
+    (ws / "m.map.h5.lookup" / "notes.txt").write_text("where I keep my maps")
+    (ws / "m.map.h5.lookup" / "results-2026.csv").write_text("run,score\n")
+    return {}
+
+
 def _setup_report_copy(w, ws):
     """The shared report copied to ws/runs/a, with a poses.h5 beside it; a user's page."""
     shutil.copytree(w["omni"] / "runs" / "r", ws / "runs" / "a")
@@ -1905,6 +1915,9 @@ CASES = [
            ["field", "import", path, "--format", "bhuman", "-o", W + "/x.yaml"], 1, msg)
       for path, msg in (("/dev/null", "field file is not a regular file (a device, pipe or"),
                         (W, "field file is a folder"))],
+    Case("a user's files in the map's .lookup folder stay", "data-lost",
+         ["localize", "{omni}", "--map", W + "/m.map.h5", "--features", "{features}", "-o",
+          W + "/p.h5"], 0, "4 frames", setup=_setup_lookup_with_notes),
     # ------------------------------------- s54: --overwrite onto a user's file of the name
     *[Case(f"--overwrite onto a user's file: {' '.join(args[:2])} -o {Path(args[-1]).name}",
            "data-lost",

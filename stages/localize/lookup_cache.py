@@ -35,6 +35,7 @@ import json
 import logging
 import math
 import os
+import re
 import shutil
 import sys
 import time
@@ -175,11 +176,17 @@ def _write(folder: Path, key: str, arrays: dict, map_path, what: str, params: di
              time.perf_counter() - t)
 
 
+# the names of the files this module writes: <key>.json, <key>.lock, <key>.<array>.npy
+CACHE_FILE = re.compile(r"[0-9a-f]{16}-[0-9a-f]{12}\.(?:json|lock|[A-Za-z0-9_]+\.npy)")
+
+
 def _remove_other_hashes(folder: Path, key: str) -> None:
-    """Remove the cached arrays of earlier contents of the same map (it was rebuilt)."""
+    """Remove the cached arrays of earlier contents of the same map (it was rebuilt): only
+    files of this module's names (``CACHE_FILE``), never another file in the folder (a user's
+    notes, or a folder the .lookup name links to)."""
     digest = key.split("-", 1)[0]
     for p in folder.iterdir():
-        if p.name.startswith(".") or p.name.split("-", 1)[0] == digest:
+        if not CACHE_FILE.fullmatch(p.name) or p.name.split("-", 1)[0] == digest:
             continue
         with contextlib.suppress(OSError):
             p.unlink()
