@@ -119,7 +119,7 @@ def _good() -> dict:
         (lambda d: d["intrinsics"].pop("fy"), "misses key 'fy'"),
         (lambda d: d.pop("height"), "misses key 'height'"),
         (lambda d: d.update(height="tall"), "malformed value"),
-        (lambda d: d.update(height=-0.5), "'height' must be > 0"),
+        (lambda d: d.update(height=-0.5), "'height' must be >= 0.001"),
         (lambda d: d.update(distortion=[0.1, 0.2]), "4 or 5 values"),
         (lambda d: d.update(image_size=[752]), r"'image_size' must be \[width, height\]"),
         (lambda d: d.update(intrinsics=[1, 2, 3, 4]), "'intrinsics' must be a mapping"),

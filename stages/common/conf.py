@@ -298,6 +298,9 @@ class KindPresets(Mapping):
 # a count of a check_bounds entry: two numbers [low, high] with low <= high (the range a
 # value is drawn from: reversed, every draw falls outside it or the draw is refused deep inside)
 PAIR = "pair"
+# a count of a check_bounds entry: one number, not a list (a key whose preset is None takes any
+# YAML value when resolved, so a list or a mapping would otherwise reach the stage)
+SCALAR = "scalar"
 _ABSENT = object()  # check_bounds: a key an optional entry names that the conf does not hold
 
 
@@ -309,7 +312,8 @@ def check_bounds(conf: dict, bounds: Mapping[str, tuple], prefix: str = "",
     ``(low, high, count)`` holds its length too: ``count`` elements, or between the two of a
     ``(fewest, most)`` pair (a pair of thresholds given one number unpacks into nothing), or
     ``PAIR``: a range [low, high] whose first number is not above its second; a value that is
-    not a list is refused there (a key whose preset is None takes any value when resolved).
+    not a list is refused there (a key whose preset is None takes any value when resolved);
+    ``SCALAR``: one number, a list refused.
     Every value held is a finite number. One FieldlocError line for the first value outside,
     naming the key as ``prefix`` + its path (the group a part of a conf was taken from).
     With ``optional``, a key the conf does not hold is passed over (a conf of another kind, or
@@ -331,6 +335,10 @@ def check_bounds(conf: dict, bounds: Mapping[str, tuple], prefix: str = "",
             continue
         if isinstance(v, np.ndarray):
             v = v.tolist()
+        if count and count[0] == SCALAR:
+            if isinstance(v, (list, tuple)):
+                raise FieldlocError(f"conf '{path}' must be a number, got {shown(v, 40)}")
+            count = []
         if isinstance(v, (list, tuple)):
             if count and not _count_ok(len(v), count[0]):
                 raise FieldlocError(f"conf '{path}' must be a list of {_count_text(count[0])},"

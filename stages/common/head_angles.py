@@ -15,14 +15,14 @@ import math
 import numpy as np
 
 from .errors import DatasetError
-from .perspective_camera import MAX_HEIGHT_M
+from .perspective_camera import MAX_HEIGHT_M, MIN_HEIGHT_M
 
 HEAD_STAMP_TOLERANCE = 0.05  # s, head.csv row to frame matching
 # head.csv's columns as they may be (low, high, unit): angles in radians, heights in metres
 # above the floor (the calibration's own bounds, perspective_camera); a value outside is most
 # likely in degrees or millimetres, and would silently place every line point wrong
 HEAD_LIMITS = {"pitch": (-math.pi, math.pi, "rad"), "roll": (-math.pi, math.pi, "rad"),
-               "yaw": (-math.pi, math.pi, "rad"), "height": (1e-3, MAX_HEIGHT_M, "m")}
+               "yaw": (-math.pi, math.pi, "rad"), "height": (MIN_HEIGHT_M, MAX_HEIGHT_M, "m")}
 
 
 def head_table(ds) -> tuple[np.ndarray, dict[str, np.ndarray]] | None:

@@ -55,6 +55,9 @@ _RADIUS_CAP = 6.0
 # the highest camera a calib.yaml may give (m): a robot's camera, a few metres at most; a
 # height in millimetres or centimetres is refused rather than read as a flying camera
 MAX_HEIGHT_M = 10.0
+# the lowest (m): a millimetre; below it a value is a unit slip, and the range error of a floor
+# point, which grows as 1 / height, overflows (observation_model.range_sigma)
+MIN_HEIGHT_M = 1e-3
 # the largest mount offset a calib.yaml may give (rad, about 17 deg): a camera screwed into a
 # head sits within a few degrees of its drawing; a larger value is a misread unit or a sign of
 # another convention, not a mount
@@ -63,6 +66,10 @@ MAX_MOUNT_OFFSET = 0.3
 # its height): fields of view from about 170 deg down to about 0.6 deg; outside them a value is
 # a unit slip (metres, normalised coordinates) or a typo, not a lens
 FOCAL_SHARE = (0.05, 100.0)
+# the largest distortion coefficient a calib.yaml may give (|k1|, |k2|, |p1|, |p2|, |k3|):
+# calibrations of robot cameras hold values below 1, wide lenses a few; beyond 100 a value is a
+# typo or another lens model's, and the lens checks' polynomials overflow (max_ideal_radius)
+MAX_DISTORTION = 100.0
 INTRINSICS_KEYS = ("fx", "fy", "cx", "cy")
 
 
@@ -373,6 +380,10 @@ class PerspectiveCamera:
                   *cam.position, *cam.distortion, cam.pitch_offset, cam.roll_offset]
         if not all(math.isfinite(v) for v in values):
             raise DatasetError(f"{where}: perspective calibration holds a non-finite number")
+        if np.abs(cam.distortion).max() > MAX_DISTORTION:
+            raise DatasetError(f"{where}: 'distortion' coefficients must lie within"
+                               f" +-{MAX_DISTORTION:g}, got"
+                               f" [{', '.join(f'{v:g}' for v in cam.distortion)}]")
         if cam.image_size[0] <= 0 or cam.image_size[1] <= 0:
             raise DatasetError(f"{where}: 'image_size' must be positive, got {list(size)}")
         w, h = cam.image_size
@@ -384,9 +395,10 @@ class PerspectiveCamera:
         if not (0 <= cam.cx <= w - 1 and 0 <= cam.cy <= h - 1):
             raise DatasetError(f"{where}: the principal point cx, cy must lie in the image"
                                f" (0..{w - 1}, 0..{h - 1}), got {cam.cx:g}, {cam.cy:g}")
-        if not 0 < cam.height <= MAX_HEIGHT_M:
-            raise DatasetError(f"{where}: 'height' must be > 0 and <= {MAX_HEIGHT_M:g} m (camera"
-                               f" above the floor), got {cam.height:g}")
+        if not MIN_HEIGHT_M <= cam.height <= MAX_HEIGHT_M:
+            raise DatasetError(f"{where}: 'height' must be >= {MIN_HEIGHT_M:g} and <="
+                               f" {MAX_HEIGHT_M:g} m (camera above the floor), got"
+                               f" {cam.height:g}")
         for name in ("pitch", "roll", "yaw"):
             angle = getattr(cam, name)
             if abs(angle) > math.pi:  # radians: a value beyond pi is most likely degrees

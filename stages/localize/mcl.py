@@ -55,7 +55,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from stages.common.conf import check_bounds
+from stages.common.conf import SCALAR, check_bounds
 from stages.common.errors import FieldlocError
 from stages.common.geometry import wrap_angle
 from stages.common.observations import Observations
@@ -82,6 +82,7 @@ from .mcl_resampling import (
 )
 from .mcl_rivals import KIDNAP_PROBABILITY, Rivals
 from .mcl_smoothing import SMOOTH_TEMPERATURE, MclScorer, SmoothingInputs, motion_of, start_prior
+from .observation_model import BOUNDS as OBSERVATION_BOUNDS
 from .observation_model import DEFAULTS as OBSERVATION_DEFAULTS
 from .observation_model import ObservationModel
 
@@ -558,11 +559,21 @@ def run(conf: dict, dataset, features, map_file, progress=None) -> PoseTrack:
 
 
 # the ranges mcl's numeric keys must lie in to run at all (common.conf.check_bounds; the
-# particle counts below); an init_spread beyond MAX_INIT_SPREAD (m, rad) puts the particles
+# particle counts and start_half_error in check_conf, init_pose on the field where the field is
+# known, mcl_start.initial_poses): every number a user may give, so that none reaches the
+# filter's kernels unchecked. An init_spread beyond MAX_INIT_SPREAD (m, rad) puts the particles
 # off any field (the largest is 22 m long) and spreads the heading uniformly many times over
 MAX_INIT_SPREAD = 100.0
-BOUNDS = {"seed": (0, None), "hypotheses": (1, 1000), "init_spread": (0, MAX_INIT_SPREAD, 3),
-          "init_pose": (None, None, 3), "observation.camera_height": ((0,), 10.0)}
+# imu_heading_sigma (rad): below a milliradian no IMU's yaw is that sure (and a heading's
+# log-likelihood, (difference / sigma)^2, overflows as sigma nears 0); above pi the yaw says
+# nothing (a difference of headings lies within +-pi)
+MIN_IMU_HEADING_SIGMA = 1e-3
+MAX_IMU_HEADING_SIGMA = math.pi
+BOUNDS = {"seed": (0, None), "hypotheses": (1, 1000), "min_confidence": (0, 1),
+          "init_spread": (0, MAX_INIT_SPREAD, 3),
+          "init_pose": (None, None, 3),
+          "imu_heading_sigma": (MIN_IMU_HEADING_SIGMA, MAX_IMU_HEADING_SIGMA, SCALAR),
+          **{f"observation.{k}": b for k, b in OBSERVATION_BOUNDS.items()}}
 
 
 def check_conf(conf: dict) -> None:
@@ -579,11 +590,6 @@ def check_conf(conf: dict) -> None:
                             f" particles_max ({conf['particles_max']})")
     if not isinstance(conf["smooth"], bool):
         raise FieldlocError(f"smooth must be true or false, not {str(conf['smooth'])[:40]!r}")
-    s = conf["imu_heading_sigma"]
-    if s is not None and (isinstance(s, bool) or not isinstance(s, (int, float))
-                          or not 0 < s < math.inf):
-        raise FieldlocError(f"imu_heading_sigma must be a number > 0 (rad) or null, not"
-                            f" {str(s)[:40]}")
     check_start_half(conf)
     if conf["start_side"] not in mcl_start.START_SIDES:
         raise FieldlocError(f"start_side must be one of {', '.join(mcl_start.START_SIDES)}, not"

@@ -142,6 +142,9 @@ def initial_poses(mode: str, n: int, rng, field, bounds: tuple, conf: dict,
             raise FieldlocError(
                 f"init_pose ({float(pose[0]):.4g}, {float(pose[1]):.4g}) m lies off the"
                 f" field and its margin (x within {x0:g}..{x1:g}, y within {y0:g}..{y1:g})")
+        if not abs(float(pose[2])) <= 2 * math.pi:
+            raise FieldlocError(f"init_pose heading {float(pose[2]):.4g} rad is not within"
+                                " +-2 pi (radians, not degrees?)")
         s = np.asarray(conf["init_spread"], float)
         p = np.asarray(pose, float) + rng.standard_normal((n, 3)) * s
         p[:, 2] = wrap_angle(p[:, 2])

@@ -83,10 +83,12 @@ import cv2
 import numpy as np
 
 from stages.common import crossing_tables
+from stages.common.conf import SCALAR
 from stages.common.crossing_tables import crossing_association_tables
 from stages.common.field import FieldModel
 from stages.common.map_file import Grid
 from stages.common.observations import Observations
+from stages.common.perspective_camera import MAX_HEIGHT_M, MIN_HEIGHT_M
 
 from . import mcl_kernels as K
 
@@ -102,6 +104,10 @@ DEFAULTS = {
     "use_crossings": True,
     "use_posts": True,
 }
+# the ranges of its numeric keys (common.conf.check_bounds, held by the confs that hold the
+# group, under their name for it): a camera height as a calib.yaml may give it
+# (perspective_camera), one number (its preset is None, so any YAML value is taken)
+BOUNDS = {"camera_height": (MIN_HEIGHT_M, MAX_HEIGHT_M, SCALAR)}
 
 
 class ObservationTuning(NamedTuple):

@@ -17,13 +17,14 @@ import math
 from pathlib import Path
 
 from ..common.artifacts import check_output
-from ..common.conf import stage_conf
+from ..common.conf import check_bounds, stage_conf
 from ..common.dataset import frame_index, open_dataset, readable_truth, truth_at
 from ..common.errors import DatasetError, FieldlocError
 from ..common.features_file import REQUIRED, FeaturesFile
 from ..common.map_file import MapFile
 from ..common.observations import Observations
-from ..localize.belief import belief_grid
+from ..localize.belief import belief_grid, grid_axes
+from ..localize.observation_model import BOUNDS as OBSERVATION_BOUNDS
 from ..localize.observation_model import DEFAULTS as OBSERVATION_DEFAULTS
 from ..localize.observation_model import ObservationModel
 from ..show.belief import draw_belief
@@ -39,6 +40,20 @@ confs = {
         "observation": copy.deepcopy(OBSERVATION_DEFAULTS),
     },
 }
+
+
+# the ranges of the keys (common.conf.check_bounds; resolution and heading_step: the grid's own
+# check, belief.grid_axes): surroundings and arrows of a few metres (MAX_MARGIN_M: a field's
+# border is a metre or two, more shows empty floor), an arrow share of the best likelihood
+MAX_MARGIN_M = 10.0
+BOUNDS = {"margin": (0, MAX_MARGIN_M), "arrow_spacing": ((0,), MAX_MARGIN_M),
+          "arrow_min": (0, 1), **{f"observation.{k}": b for k, b in OBSERVATION_BOUNDS.items()}}
+
+
+def check_conf(conf: dict) -> None:
+    """The ranges of a resolved conf's keys checked (FieldlocError, one line) before anything
+    is read; the grid's size is checked on the map's field (belief.grid_axes)."""
+    check_bounds(conf, BOUNDS)
 
 
 def frame_observations(dataset_dir: Path, frame: str | int, features: Path | None):
@@ -70,19 +85,21 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path,
     """Draw the belief of one frame's observations on the map's field into ``output`` (PNG).
     ``frame``: a frame name or position."""
     conf = stage_conf(confs, conf)
+    check_conf(conf)
     output = Path(output)
     dataset_dir = Path(dataset_dir)
     if not dataset_dir.is_dir():
         raise DatasetError(f"dataset folder not found: {dataset_dir}")
     check_output(output, {**open_dataset(dataset_dir, need_images=False).files(),
                           "map": map_path, "features": features}, overwrite=overwrite)
-    name, stamp, obs = frame_observations(dataset_dir, frame,
-                                          None if features is None else Path(features))
+    grid_conf = {"resolution": float(conf["resolution"]),
+                 "heading_step": float(conf["heading_step"]), "margin": float(conf["margin"])}
     with MapFile(map_path) as mf:
+        grid_axes(mf.field.length, mf.field.width, **grid_conf)  # before a frame is extracted
+        name, stamp, obs = frame_observations(dataset_dir, frame,
+                                              None if features is None else Path(features))
         model = ObservationModel.from_map(mf, conf["observation"])
-        grid = belief_grid(model, obs, resolution=float(conf["resolution"]),
-                           heading_step=float(conf["heading_step"]),
-                           margin=float(conf["margin"]))
+        grid = belief_grid(model, obs, **grid_conf)
         fig = new_figure(12.0, 8.5)
         draw_belief(fig.subplots(2, 2), mf.field, grid,
                     truth=truth_at(readable_truth(dataset_dir), stamp),

@@ -13,6 +13,7 @@ A chain: it may run extract, which no picture module does.
 from __future__ import annotations
 
 import logging
+import math
 from pathlib import Path
 
 from ..common.artifacts import check_output
@@ -41,6 +42,19 @@ def frame_features(conf, ds, i: int, features=None) -> dict:
                                                                              conf))
 
 
+def check_pose(field, pose) -> None:
+    """A pose given to draw the points at: its position on ``field`` or its border (where a
+    robot can stand; farther, no point lands on the field drawn, and a far value overflows the
+    distances to the lines) and its heading within a turn either way (FieldlocError)."""
+    x, y, th = (float(v) for v in pose)
+    x0, x1, y0, y1 = field.world_bounds()
+    if not (x0 <= x <= x1 and y0 <= y <= y1):
+        raise FieldlocError(f"pose ({x:.4g}, {y:.4g}) is off the field and its border (|x| <="
+                            f" {x1:g}, |y| <= {y1:g} m)")
+    if not abs(th) <= 2 * math.pi:
+        raise FieldlocError(f"pose heading {math.degrees(th):.4g} deg is not within +-360 deg")
+
+
 def write_picture(conf, dataset_dir, output, *, frame: str | int = 0, features=None,
                   field=None, pose=None, overwrite: bool = False,
                   field_file=None) -> tuple[Path, dict]:
@@ -49,6 +63,8 @@ def write_picture(conf, dataset_dir, output, *, frame: str | int = 0, features=N
     ds = open_dataset(dataset_dir)
     check_output(output, {**ds.files(), "features": features, "map or field": field_file},
                  overwrite=overwrite)
+    if pose is not None and field is not None:
+        check_pose(field, pose)
     i = frame_index(ds.names, frame, str(ds.root))
     name, stamp = ds.names[i], float(ds.stamps[i])
     image = read_image(ds.images[i])
