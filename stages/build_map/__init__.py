@@ -16,7 +16,7 @@ from ..common.conf import stage_conf
 from ..common.crossing_tables import crossing_association_tables
 from ..common.errors import FieldlocError
 from ..common.field import FieldModel, field_file, load_field
-from ..common.map_file import SCHEMA, VERSION, Grid, write_map
+from ..common.map_file import MAX_RESOLUTION, SCHEMA, VERSION, Grid, write_map
 from ..common.resources import check_memory
 from ..common.scanlines import ScanLines
 from . import tables
@@ -32,11 +32,6 @@ confs = {
         "spiral_end_radius": 2.0,  # m, spiral radius after one full turn
     },
 }
-
-# m: the coarsest table cell. A pose from the map is only as good as its cell; the narrowest
-# areas of a field (goal areas, 0.5 to 1 m deep) fall into one cell of a metre, so a coarser map
-# tells nothing (the default is 0.1 m, the tests' coarse maps 0.25 to 0.5 m)
-MAX_RESOLUTION = 1.0
 
 # peak memory of building the tables per world cell (measured: spl at 5 and 2.5 cm, 4.5 KB)
 BYTES_PER_CELL = 4.6e3

@@ -82,6 +82,13 @@ FRAME_DATASETS = {
 }
 
 
+# m: the farthest a scan line's crossing may lie (radial, spiral: distances from the robot,
+# NaN = none). extract's scan lines reach at most 50 m (its bound on scanlines.max_range and
+# spiral_end_radius), so a distance beyond twice that, or below 0, is damage, and was matched
+# against the map's tables as if seen (every frame placed at one pose, no word said)
+MAX_SCAN_DISTANCE = 100.0
+SCAN_DISTANCES = ("radial", "spiral")
+
 CAMERA_KINDS = ("omni", "perspective")
 # what every frame of a camera kind holds (extract writes these; an absent one is damage, not
 # "nothing seen": an empty observation is stored as an empty array)
@@ -394,7 +401,8 @@ class FeaturesFile:
 
     def frame(self, name: str) -> dict[str, np.ndarray]:
         """The datasets of frame ``name`` and its ``stamp``; a frame missing a dataset its
-        camera kind always has, or holding one of another shape, is refused (SchemaError)."""
+        camera kind always has, holding one of another shape, or scan-line distances below 0
+        or beyond MAX_SCAN_DISTANCE, is refused (SchemaError)."""
         out, stamp = self._layout.read(name)
         for k, v in out.items():
             want = self._shapes.get(k)
@@ -405,6 +413,13 @@ class FeaturesFile:
                           else f"(N, {', '.join(map(str, want))})")
                 raise SchemaError(f"{self.path}: damaged features file (frame {name}: '{k}'"
                                   f" has shape {np.shape(v)}, expected {expect})")
+        for k in SCAN_DISTANCES:
+            v = out.get(k)
+            if v is not None and ((v < 0) | (v > MAX_SCAN_DISTANCE)).any():
+                d = v[(v < 0) | (v > MAX_SCAN_DISTANCE)].flat[0]
+                raise SchemaError(f"{self.path}: damaged features file (frame {name}: '{k}'"
+                                  f" holds the distance {float(d):.6g} m; expected 0 to"
+                                  f" {MAX_SCAN_DISTANCE:g} m, or NaN for none)")
         missing = [k for k in REQUIRED[self._kind] if k not in out]
         if missing:
             raise SchemaError(f"{self.path}: damaged features file (frame {name} has no"

@@ -58,6 +58,13 @@ HDF5_OVERHEAD = 1 << 20  # bytes beyond the arrays: field, attributes, HDF5's ow
 SCHEMA = "fieldloc.map"
 VERSION = 1
 
+# m: the coarsest table cell (build-map's bound on what it writes, and the reader's on what it
+# reads). A pose from the map is only as good as its cell; the narrowest areas of a field (goal
+# areas, 0.5 to 1 m deep) fall into one cell of a metre, so a coarser map tells nothing (the
+# default is 0.1 m, the tests' coarse maps 0.25 to 0.5 m). The finest cell is bounded by the
+# grid itself: its cells must span the field (MapFile._check_grid)
+MAX_RESOLUTION = 1.0
+
 TABLE_UNITS = {
     "radial": "mm",
     "spiral": "mm",
@@ -167,11 +174,11 @@ class MapFile:
             self.grid = Grid(origin=tuple(float(v) for v in a["origin"]),
                              resolution=float(a["resolution"]),
                              shape=tuple(int(v) for v in a["shape"]))
-            self._check_grid()
             self.scanlines = ScanLines(**json.loads(a["scanlines"]))
             spec_text = self.h5["field/spec_yaml"][()]
             spec_text = spec_text.decode() if isinstance(spec_text, bytes) else spec_text
             self.field = field_from_spec(load_yaml(spec_text), str(self.path), spec_text)
+            self._check_grid()
             self._check_field_lines()
         except (KeyError, ValueError, TypeError, OSError, yaml.YAMLError) as e:
             self.h5.close()
@@ -182,15 +189,26 @@ class MapFile:
         self._cache: dict[str, np.ndarray] = {}
 
     def _check_grid(self) -> None:
-        """The grid places every cell: an origin that is not finite, or a resolution that is
-        not a finite positive number, would divide by zero or place cells at NaN in the
-        searches and pictures."""
+        """The grid places every cell and covers the field, as build-map writes it: an origin
+        that is not finite, or a resolution that is not a number in (0, MAX_RESOLUTION], would
+        divide by zero, overflow or place cells at NaN in the searches and pictures, and a
+        grid whose cells do not span the field's lines (a resolution of 1e-308 m: a grid of
+        no size) would place every pose in one corner cell."""
         g = self.grid
+        said = (f"{self.path}: damaged map file (origin {str(g.origin)[:40]}, resolution"
+                f" {str(g.resolution)[:20]}")
         if not (all(math.isfinite(v) for v in g.origin) and math.isfinite(g.resolution)
-                and g.resolution > 0):
-            raise SchemaError(f"{self.path}: damaged map file (origin {str(g.origin)[:40]},"
-                              f" resolution {str(g.resolution)[:20]}: the origin must be"
-                              " finite and the resolution a finite number > 0)")
+                and 0 < g.resolution <= MAX_RESOLUTION):
+            raise SchemaError(f"{said}: the origin must be finite and the resolution a finite"
+                              f" number > 0 and <= {MAX_RESOLUTION:g} m)")
+        xmin, xmax, ymin, ymax = self.field.world_bounds(0.0)
+        (x0, y0), (ny, nx) = g.origin, g.shape
+        tol = 1e-6  # m: the rounding of the cell centres build-map placed
+        if not (x0 <= xmin + tol and x0 + (nx - 1) * g.resolution >= xmax - tol
+                and y0 <= ymin + tol and y0 + (ny - 1) * g.resolution >= ymax - tol):
+            raise SchemaError(f"{said}, shape {str(g.shape)[:30]}: its cells do not span the"
+                              f" field {self.field.name[:40]}, {self.field.length:g} x"
+                              f" {self.field.width:g} m)")
 
     def _check_field_lines(self) -> None:
         """The lines stored in /field (what the tables were built from) must be finite; lines

@@ -30,7 +30,10 @@ fail was accepted and had one hypothesis, its pose with its confidence. Files wi
 
 A file whose columns or root attributes are of another type than these (text in a number
 column, a flag other than true/false or 0/1, ``conf`` or ``inputs`` not a JSON object,
-``method``, ``field`` or ``dataset`` not text) is refused in one line (SchemaError).
+``method``, ``field`` or ``dataset`` not text or longer than a name or path) is refused in one
+line (SchemaError), and so is one whose values no run writes: a stamp that is not finite or
+beyond dataset.MAX_STAMP, a pose that is infinite or beyond dataset.MAX_VALUE, a confidence or
+hypothesis probability outside [0, 1] or NaN.
 
 ``poses.tum`` beside it holds "stamp x y z qx qy qz qw" rows of the accepted frames (the top
 hypothesis), readable by evo. Its first line, the header ``# stamp x y z qx qy qz qw``, is how
@@ -55,6 +58,7 @@ from .artifacts import (
     starts_with,
     write_artifact,
 )
+from .dataset import MAX_STAMP, MAX_VALUE, stamp_error
 from .errors import FieldlocError, SchemaError
 
 SCHEMA = "fieldloc.poses"
@@ -272,7 +276,11 @@ def _check_shapes(out: dict, path) -> None:
                               f" /poses/name has {n} frames)")
 
 
-TEXT_ATTRS = ("method", "field", "dataset")  # root attributes that are text where present
+# root attributes that are text where present, and the most characters each may hold: a
+# method's or field's name is a word (fieldloc's longest are a dozen characters), the dataset
+# a folder's path (Linux's PATH_MAX); longer text is damage, and was drawn into every plot
+# title of a report (100,000 characters took matplotlib minutes)
+TEXT_ATTRS = {"method": 64, "field": 256, "dataset": 4096}
 JSON_ATTRS = ("conf", "inputs")  # JSON mappings ({} where absent)
 
 
@@ -292,14 +300,68 @@ def _check_types(out: dict, attrs: dict, path) -> None:
             held = "text" if v.dtype.kind in "OSU" else f"{v.dtype} values"
             raise SchemaError(f"{path}: damaged poses file (/poses/{k} holds {held};"
                               f" expected {want})")
-    for k in TEXT_ATTRS:
+    for k, most in TEXT_ATTRS.items():
         if k in attrs and not isinstance(attrs[k], str):
             raise SchemaError(f"{path}: damaged poses file (attribute '{k}' is"
                               f" {str(attrs[k])[:40]!r}; expected text)")
+        if k in attrs and len(attrs[k]) > most:
+            raise SchemaError(f"{path}: damaged poses file (attribute '{k}' holds"
+                              f" {len(attrs[k])} characters, {attrs[k][:20]!r}...; expected"
+                              f" at most {most})")
     for k in JSON_ATTRS:
         if not isinstance(attrs[k], dict):
             raise SchemaError(f"{path}: damaged poses file (attribute '{k}' is"
                               f" {str(attrs[k])[:40]!r}; expected a JSON object)")
+
+
+# columns that are probabilities: a number from 0 to 1 in every frame (a failed frame's is 0)
+PROBABILITIES = ("confidence", "confidence_up_to_mirror")
+# how far past 1 a probability may round: a sum of probabilities (up to the mirror) in f8
+# rounds a few ulps past 1; anything beyond this is not a probability
+PROBABILITY_SLACK = 1e-6
+# columns of a pose: NaN where the frame failed, else a number no larger than MAX_VALUE
+# (metres, radians), as a dataset's values
+POSE_COLUMNS = ("x", "y", "theta")
+
+
+def _check_values(out: dict, path) -> None:
+    """Each frame's stamp finite and within MAX_STAMP (as the dataset's and features'
+    stamps), its pose NaN (failed) or within MAX_VALUE, its confidences in [0, 1], its
+    hypotheses' poses and probabilities likewise (NaN rows pad): a file edited or damaged
+    elsewhere is refused in one line, rather than evaluated into a report of NaN or of
+    confidences of 1e30, with numpy's warnings on the way."""
+    def bad(k: str, v: np.ndarray, i: int, want: str) -> SchemaError:
+        return SchemaError(f"{path}: damaged poses file (/poses/{k} of frame"
+                           f" {str(out['name'][i])[:40]} is {float(v[i]):.6g}; expected {want})")
+
+    stamp = np.asarray(out["stamp"], float)
+    wrong = np.flatnonzero(~(np.abs(stamp) <= MAX_STAMP))
+    if len(wrong):
+        i = int(wrong[0])
+        raise SchemaError(f"{path}: damaged poses file (frame {str(out['name'][i])[:40]}:"
+                          f" {stamp_error(float(stamp[i]))})")
+    for k in POSE_COLUMNS:
+        v = np.asarray(out[k], float)
+        wrong = np.flatnonzero(~(np.isnan(v) | (np.abs(v) <= MAX_VALUE)))
+        if len(wrong):
+            raise bad(k, v, int(wrong[0]), f"NaN or a number within {MAX_VALUE:g}")
+    for k in PROBABILITIES:
+        if k in out:
+            v = np.asarray(out[k], float)
+            wrong = np.flatnonzero(~((v >= 0) & (v <= 1 + PROBABILITY_SLACK)))
+            if len(wrong):
+                raise bad(k, v, int(wrong[0]), "a probability from 0 to 1")
+    if "hypotheses" in out:
+        h = np.asarray(out["hypotheses"], float)
+        ok = np.isnan(h) | (np.abs(h) <= MAX_VALUE)
+        ok[..., 3] &= ~(h[..., 3] < 0) & ~(h[..., 3] > 1 + PROBABILITY_SLACK)
+        wrong = np.argwhere(~ok)
+        if len(wrong):
+            i, k, c = (int(n) for n in wrong[0])
+            raise SchemaError(f"{path}: damaged poses file (/hypotheses of frame"
+                              f" {str(out['name'][i])[:40]}: row {k} column {c} is"
+                              f" {h[i, k, c]:.6g}; expected a pose within {MAX_VALUE:g} and a"
+                              " probability from 0 to 1, or NaN padding)")
 
 
 def _read_poses(path):
@@ -318,6 +380,7 @@ def _read_poses(path):
         attrs["inputs"] = read_json_attr(h5, "inputs")
     _check_shapes(out, path)
     _check_types(out, attrs, path)
+    _check_values(out, path)
     failed = np.asarray(out["failed"], bool)
     if "accepted" not in out:
         out["accepted"] = ~failed

@@ -32,7 +32,8 @@ Datasets (the features of all templates one after another, template k owning row
 A flat layout (not one group per template): the whole database loads in a few reads, and a
 descriptor index over it is one array. A file that is not of this schema, or whose arrays do
 not agree (lengths, offsets, descriptor width) or are not numbers, or whose JSON attributes are
-not objects, is refused with one line (SchemaError).
+not objects, or whose numbers are not finite or place a pose or keypoint beyond
+dataset.MAX_VALUE, is refused with one line (SchemaError).
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ import h5py
 import numpy as np
 
 from .artifacts import open_artifact, read_json_attr, write_artifact
+from .dataset import MAX_VALUE
 from .errors import SchemaError
 from .ground_features import GroundFeatures
 
@@ -164,6 +166,27 @@ def _attribute_problems(attrs: dict, kind: str, t: int) -> list[str]:
     return out
 
 
+# datasets of positions (m), each value within MAX_VALUE as a dataset's: a capture's pose and
+# its keypoints lie on or near a field
+POSITIONS = ("poses", "points")
+
+
+def _value_problems(arrays: dict) -> list[str]:
+    """Numbers no build-templates writes: any that is not finite (a NaN pose, descriptor or
+    point), or a pose or keypoint beyond MAX_VALUE. localize matched against such templates
+    failed every frame, with numpy's warnings and no word of the file."""
+    out = []
+    for k in ("poses", *FEATURE_DATASETS):
+        v = arrays[k]
+        if v.dtype.kind == "f" and not np.isfinite(v).all():
+            out.append(f"{k} holds {v[~np.isfinite(v)].flat[0]:.6g} where finite"
+                       " numbers belong")
+        elif k in POSITIONS and v.size and not (np.abs(v) <= MAX_VALUE).all():
+            out.append(f"{k} holds {v[~(np.abs(v) <= MAX_VALUE)].flat[0]:.6g} m;"
+                       f" positions on a field lie within {MAX_VALUE:g} m")
+    return out
+
+
 def read_templates(path: str | Path) -> TemplateDatabase:
     """The database of a templates file; SchemaError (one line) for anything else."""
     path = Path(path)
@@ -198,6 +221,8 @@ def read_templates(path: str | Path) -> TemplateDatabase:
     problems += [f"{k} holds {'text' if arrays[k].dtype.kind in 'OSU' else arrays[k].dtype}"
                  " where numbers belong" for k in ("poses", "offsets", *FEATURE_DATASETS)
                  if arrays[k].dtype.kind not in "fiu"]
+    if not problems:
+        problems += _value_problems(arrays)
     problems += [f"attribute '{k}' is {str(v)[:40]!r}, not a JSON object"
                  for k, v in (("ground_features", ground_conf), ("field", field_record))
                  if not isinstance(v, dict)]
