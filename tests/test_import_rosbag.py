@@ -215,3 +215,14 @@ def test_pose_interpolation_unwraps_heading():
     inc, ok = rosbag.increments_between(poses, inside)
     assert list(ok) == [False, True, False]
     np.testing.assert_allclose(inc[1], between(poses[0], poses[1]))
+
+
+def test_message_problem_names_what_no_robot_sends():
+    """An odometry or IMU message of a value that is not finite, a position beyond
+    MAX_ODOMETRY_POSITION, or a quaternion of no length (a driver's "not set", read as a yaw
+    of 0) is one the import drops; a unit or nearly unit quaternion is taken."""
+    assert rosbag.message_problem((1.0, 2.0), (0.0, 0.0, 0.0, 1.0)) is None
+    assert rosbag.message_problem((), (0.0, 0.0, 0.3, 0.95)) is None
+    assert "not a rotation" in rosbag.message_problem((0.0, 0.0), (0.0, 0.0, 0.0, 0.0))
+    assert "lies beyond" in rosbag.message_problem((1e308, 0.0), (0.0, 0.0, 0.0, 1.0))
+    assert "not all finite" in rosbag.message_problem((), (0.0, 0.0, math.nan, 1.0))

@@ -28,7 +28,15 @@ What is written into ``output``:
   orientation (``orientation_covariance[0] == -1``) is refused;
 - ``calib.yaml``: a copy of ``calib`` when given (a bag holds no fieldloc calibration);
 - ``import.yaml``: where the data came from (bag, topics, message types, counts, encodings,
-  which stamps were used, skipped frames).
+  which stamps were used, skipped frames, dropped messages, frames dropped for a repeated
+  stamp).
+
+Odometry and IMU messages no robot sends (a value that is not finite, a position beyond
+``MAX_ODOMETRY_POSITION``, an orientation quaternion of no length) are dropped, with one
+warning line per topic saying how many; a topic none of whose messages is usable is refused.
+A frame whose stamp repeats an earlier frame's is dropped likewise (the dataset's odometry
+and IMU rows are one per stamp). The dataset written is one ``extract`` and ``localize``
+read.
 
 Stamps (conf ``stamp``): ``header`` uses each message's header stamp, except for a topic any of
 whose messages has a zero header stamp (a driver that never fills it): that topic uses the
@@ -68,7 +76,7 @@ from ..common.artifacts import (
 )
 from ..common.camera import load_calib
 from ..common.conf import load_yaml, stage_conf
-from ..common.dataset import write_csv
+from ..common.dataset import MAX_VALUE, write_csv
 from ..common.errors import FieldlocError
 from ..common.geometry import wrap_angle
 from . import ros_images
@@ -113,6 +121,20 @@ class _Series:
     header: list = field(default_factory=list)
     received: list = field(default_factory=list)
     values: list = field(default_factory=list)
+    dropped: list = field(default_factory=list)  # why each message not imported was dropped
+
+    def check_dropped(self, bag, topic: str | None, what: str) -> int:
+        """One warning line for the messages of ``topic`` dropped as unusable (how many, the
+        first's reason); BagError when none was usable. Returns how many were dropped."""
+        if not self.dropped:
+            return 0
+        n = len(self.dropped)
+        if not self.values:
+            raise BagError(f"{bag}: none of the {n} {what} message(s) on {topic} is usable"
+                           f" (first: {self.dropped[0]})")
+        log.warning("%s: %d of %d %s message(s) dropped as unusable (first: %s)", topic, n,
+                    n + len(self.values), what, self.dropped[0])
+        return n
 
     def stamps(self, mode: str, topic: str) -> tuple[np.ndarray, str]:
         header = np.asarray(self.header, float)
@@ -245,6 +267,32 @@ def _stamp(msg) -> float:
         return msg.stamp_s
     st = msg.header.stamp
     return float(st.sec) + 1e-9 * float(st.nanosec)
+
+
+# m: the largest odometry position imported. The dataset holds increments between frames, each
+# within dataset.MAX_VALUE (which extract and localize demand); two positions within a quarter
+# of it give an increment within it. A position beyond is a damaged message (1e308 became an
+# increment of 0, NaN one of NaN)
+MAX_ODOMETRY_POSITION = MAX_VALUE / 4
+# the smallest norm of an orientation quaternion taken for a rotation: a unit quaternion has
+# norm 1 (drivers in float32 a few ulps off); an all-zero one is a driver's "not set", which
+# atan2 read as a yaw of 0
+MIN_QUATERNION_NORM = 0.1
+
+
+def message_problem(position, quaternion) -> str | None:
+    """Why an odometry (``position`` x, y) or IMU (``position`` empty) message cannot be
+    imported, or None: a value that is not finite, a position beyond MAX_ODOMETRY_POSITION, an
+    orientation quaternion of (nearly) no length."""
+    values = [*position, *quaternion]
+    if not all(math.isfinite(v) for v in values):
+        return f"values {str(tuple(values))[:60]} are not all finite numbers"
+    if any(abs(v) > MAX_ODOMETRY_POSITION for v in position):
+        return (f"position {str(tuple(position))[:40]} lies beyond"
+                f" {MAX_ODOMETRY_POSITION:g} m")
+    if math.sqrt(sum(v * v for v in quaternion)) < MIN_QUATERNION_NORM:
+        return f"orientation quaternion {str(tuple(quaternion))[:40]} is not a rotation"
+    return None
 
 
 def quaternion_yaw(x: float, y: float, z: float, w: float) -> float:
@@ -470,6 +518,9 @@ def main(conf: str | dict | None, bag, output, *, image_topic: str, odom_topic: 
                             msg = _deserialize(reader, raw, conn, bag)
                             p, q = msg.pose.pose.position, msg.pose.pose.orientation
                             v = (_stamp(msg), p.x, p.y, q.x, q.y, q.z, q.w)
+                        if why := message_problem(v[1:3], v[3:7]):
+                            odo.dropped.append(why)
+                            continue
                         odo.header.append(v[0])
                         odo.received.append(t_ns * 1e-9)
                         odo.values.append((v[1], v[2], quaternion_yaw(*v[3:7])))
@@ -483,6 +534,9 @@ def main(conf: str | dict | None, bag, output, *, image_topic: str, odom_topic: 
                         if v[5] == -1.0:
                             raise BagError(f"{bag}: topic {imu_topic} publishes no orientation"
                                            " (orientation_covariance[0] = -1): no yaw to import")
+                        if why := message_problem((), v[1:5]):
+                            imu.dropped.append(why)
+                            continue
                         imu.header.append(v[0])
                         imu.received.append(t_ns * 1e-9)
                         imu.values.append(quaternion_yaw(*v[1:5]))
@@ -493,8 +547,12 @@ def main(conf: str | dict | None, bag, output, *, image_topic: str, odom_topic: 
                 raise BagError(f"{bag}: no frame written from {image_topic} ("
                                + (writer.skipped[0]["reason"] if writer.skipped else
                                   "the topic has no messages") + ")")
+            dropped = {topic: n for topic, n in (
+                (odom_topic, odo.check_dropped(bag, odom_topic, "odometry")),
+                (imu_topic, imu.check_dropped(bag, imu_topic, "IMU"))) if n}
             record = _write_tables(tmp, names, frames, odo, imu, conf["stamp"], image_topic,
                                    odom_topic, imu_topic)
+            record["dropped_messages"] = dropped
             if calib is not None:
                 shutil.copyfile(calib, tmp / "calib.yaml")
             record.update({
@@ -505,7 +563,7 @@ def main(conf: str | dict | None, bag, output, *, image_topic: str, odom_topic: 
                 "bag_format": _bag_format(bag),
                 "every": int(every),
                 "image_messages": int(n_image),
-                "frames": len(names),
+                "frames": len(names) - len(record["repeated_stamps"]),
                 "encodings": writer.encodings,
                 "skipped": writer.skipped,
                 "message_types": {c.topic: c.msgtype for c in conns},
@@ -555,19 +613,25 @@ def _bag_format(bag) -> str:
 def _write_tables(folder, names, frames, odo, imu, stamp_mode, image_topic, odom_topic,
                   imu_topic) -> dict:
     stamps, frame_source = frames.stamps(stamp_mode, image_topic)
+    names, stamps, repeated = _one_frame_per_stamp(folder, names, stamps)
+    if repeated:
+        log.warning("%s: %d frame(s) repeat an earlier frame's stamp; dropped (one frame per"
+                    " stamp: the odometry and IMU rows are one per stamp)", image_topic,
+                    len(repeated))
     if len(stamps) > 1 and np.any(np.diff(stamps) < 0):
         log.warning("%s: frame stamps go backwards %d time(s) (frames are numbered in bag"
                     " order)", image_topic, int(np.sum(np.diff(stamps) < 0)))
     write_csv(folder / "frames.csv", "frames", {"name": names, "stamp": stamps})
     record = {"stamps": {"images": frame_source},
-              "topics": {"images": image_topic}}
+              "topics": {"images": image_topic}, "repeated_stamps": repeated}
     if odom_topic:
         t, source = odo.stamps(stamp_mode, odom_topic)
         v = np.asarray(odo.values, float).reshape(-1, 3)
         poses, inside = pose_at(t, v[:, 0], v[:, 1], v[:, 2], stamps)
         inc, ok = increments_between(poses, inside)
-        write_csv(folder / "odometry.csv", "odometry", {
-            "stamp": stamps[ok], "dx": inc[ok, 0], "dy": inc[ok, 1], "dtheta": inc[ok, 2]})
+        if ok.any():  # a file of no rows is one the dataset's readers refuse
+            write_csv(folder / "odometry.csv", "odometry", {
+                "stamp": stamps[ok], "dx": inc[ok, 0], "dy": inc[ok, 1], "dtheta": inc[ok, 2]})
         record["stamps"]["odometry"] = source
         record["topics"]["odometry"] = odom_topic
         record["odometry_messages"] = len(v)
@@ -579,14 +643,29 @@ def _write_tables(folder, names, frames, odo, imu, stamp_mode, image_topic, odom
         t, source = imu.stamps(stamp_mode, imu_topic)
         yaw = np.asarray(imu.values, float)
         poses, inside = pose_at(t, np.zeros_like(yaw), np.zeros_like(yaw), yaw, stamps)
-        write_csv(folder / "imu.csv", "imu", {
-            "stamp": stamps[inside], "yaw": poses[inside, 2],
-            "collision": np.zeros(int(inside.sum()))})
+        if inside.any():
+            write_csv(folder / "imu.csv", "imu", {
+                "stamp": stamps[inside], "yaw": poses[inside, 2],
+                "collision": np.zeros(int(inside.sum()))})
         record["stamps"]["imu"] = source
         record["topics"]["imu"] = imu_topic
         record["imu_messages"] = len(yaw)
         record["imu_rows"] = int(inside.sum())
     return record
+
+
+def _one_frame_per_stamp(folder, names, stamps) -> tuple[list, np.ndarray, list[str]]:
+    """The frames, the first of each stamp kept and the images of later ones removed from
+    ``folder``/images: the names and stamps kept, and the names dropped. Frames of one stamp
+    (a driver that stamped several images alike) would get odometry and IMU rows of one
+    stamp, which the dataset's readers refuse (rows are one per stamp)."""
+    _, first = np.unique(stamps, return_index=True)
+    keep = np.zeros(len(names), bool)
+    keep[first] = True
+    dropped = [n for n, k in zip(names, keep) if not k]
+    for n in dropped:
+        (folder / "images" / n).unlink()
+    return [n for n, k in zip(names, keep) if k], np.asarray(stamps)[keep], dropped
 
 
 def describe(output) -> dict:
