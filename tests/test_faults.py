@@ -980,6 +980,49 @@ SIMULATE_SCALAR_FAULTS = [
 # keys held by the camera's own checks (camera_from_conf), with their own message
 SCALAR_FRAGMENTS = {"perspective.intrinsics.cx": "the principal point cx, cy must lie in the image"}
 
+# ------------------------------------------- s54 group H3: damaged artifacts' setups
+
+
+def _fill(path: str, value: float):
+    """Every value of dataset ``path`` set to ``value``."""
+    def change(f):
+        f[path][...] = np.full(f[path].shape, value, dtype=f[path].dtype)
+    return change
+
+
+def _setup_odometry_bag(odometry, imu=None, frame_stamps=(1.0, 1.1, 1.2, 1.3)):
+    """ws/x.bag: 64 x 48 frames at ``frame_stamps``, odometry rows (stamp, x, y, yaw), IMU
+    rows (stamp, yaw) as given (a value in them may be damaged)."""
+    def setup(w, ws):
+        from stages.ingest.bag_writer import write_bag
+
+        img = np.zeros((48, 64, 3), np.uint8)
+        write_bag(ws / "x.bag", "ros1", image_topic="/cam",
+                  frames=[(t, (img, "bgr8")) for t in frame_stamps], odometry=odometry,
+                  imu=imu)
+        return {}
+    return setup
+
+
+GOOD_ODOMETRY = [(0.95 + 0.05 * i, 0.1 * i, 0.0, 0.01 * i) for i in range(9)]
+GOOD_IMU = [(0.95 + 0.05 * i, 0.01 * i) for i in range(9)]
+EVALUATE_MORE = ["--truth", "{omni}", "-o", W + "/rep"]
+IMPORT_BAG = ["import", "rosbag", W + "/x.bag", "-o", W + "/ds", "--image-topic", "/cam",
+              "--odom-topic", "/odom", "--imu-topic", "/imu"]
+
+
+def _check_dataset_readable(paths, res):
+    """The imported dataset is one the dataset's readers take, every value finite."""
+    from stages.common.dataset import open_dataset, read_csv
+
+    ds = paths["ws"] / "ds"
+    open_dataset(ds)
+    for name in ("odometry", "imu"):
+        if (ds / f"{name}.csv").is_file():
+            cols = read_csv(ds / f"{name}.csv", name)
+            assert all(np.isfinite(v).all() for v in cols.values()), name
+
+
 CASES = [
     # ------------------------------------------------------------------ data lost
     Case("localize -o the map --overwrite", "data-lost",
@@ -1144,7 +1187,7 @@ CASES = [
          "would need about"),
     Case("simulate --frames 1e12", "traceback",
          ["simulate", "omni", "--field", "spl", "-o", W + "/sim", "--frames",
-          "1000000000000"], 1, "would need about"),
+          "1000000000000"], 1, "frames must be a whole number from 1 to 1000000"),
     Case("simulate --frames that fill the disk", "traceback",
          ["simulate", "omni", "--field", "spl", "-o", W + "/sim", "--frames", "3000000000"],
          1, "would"),
@@ -1995,6 +2038,89 @@ CASES = [
         (("1e308", "1e308", "1e308"), "pose (1e+308, 1e+308) is off the field and its border"),
         (("0", "20", "0"), "pose (0, 20) is off the field and its border"),
         (("0", "0", "1e308"), "pose heading 1e+308 deg is not within +-360 deg"))],
+    # ---- s54 group H3: damaged artifacts (map resolution, poses values, features distances,
+    # templates numbers, rosbag odometry/IMU values)
+    *[Case(f"a map whose resolution is {value:g} ({args[0]})", kind,
+           [*args, W + "/m.h5", *more], 1, msg,
+           setup=_setup_damaged("map", "m.h5", _attr("resolution", value)))
+      for value, kind, msg in (
+        (1e308, "traceback", "the resolution a finite number > 0 and <= 1 m"),
+        (1e-308, "traceback", "its cells do not span the field spl"))
+      for args, more in ((["localize", "{omni}", "--features", "{features}", "--map"],
+                          ["-o", W + "/p.h5"]),
+                         (["show", "map"], ["-o", W + "/m.png"]))],
+    Case("evaluate of poses whose method attribute is 100,000 characters", "hang",
+         ["evaluate", W + "/p.h5", "--truth", "{omni}", "-o", W + "/rep"], 1,
+         "(attribute 'method' holds 100000 characters, 'xxxxxxxxxxxxxxxxxxxx'...; expected at"
+         " most 64)", setup=_setup_damaged("poses", "p.h5", _attr("method", "x" * 100000))),
+    *[Case(f"{' '.join(cmd)}{' ' + more[1] if cmd == ['export'] else ''} of poses whose"
+           f" /poses/{col} is all {value}", kind, [*cmd, W + "/p.h5", *more], 1, msg,
+           setup=_setup_damaged("poses", "p.h5", _fill(f"poses/{col}", value)))
+      for col, value, kind, cmd, more, msg in (
+        ("stamp", math.nan, "silent", ["evaluate"], EVALUATE_MORE,
+         "(frame 000000: stamp nan is not a finite number)"),
+        ("confidence", math.nan, "silent", ["evaluate"], EVALUATE_MORE,
+         "(/poses/confidence of frame 000000 is nan; expected a probability from 0 to 1)"),
+        ("confidence", 1e30, "silent", ["evaluate"], EVALUATE_MORE,
+         "(/poses/confidence of frame 000000 is 1e+30; expected a probability from 0 to 1)"),
+        ("confidence", -0.5, "silent", ["export"],
+         ["--format", "csv", "-o", W + "/o.csv"],
+         "(/poses/confidence of frame 000000 is -0.5; expected a probability from 0 to 1)"),
+        ("theta", math.inf, "silent", ["export"], ["--format", "csv", "-o", W + "/o.csv"],
+         "(/poses/theta of frame 000000 is inf; expected NaN or a number within 1e+06)"),
+        ("theta", math.inf, "silent", ["export"],
+         ["--format", "json", "-o", W + "/o.json"],
+         "(/poses/theta of frame 000000 is inf; expected NaN or a number within 1e+06)"),
+        ("x", 1e300, "silent", ["show", "hypotheses"],
+         ["--frame", "1", "-o", W + "/h.png"],
+         "(/poses/x of frame 000000 is 1e+300; expected NaN or a number within 1e+06)"))],
+    Case("export of poses whose hypotheses hold a probability of 7", "silent",
+         ["export", W + "/p.h5", "--format", "csv", "-o", W + "/o.csv"], 1,
+         "/hypotheses of frame 000000: row 0 column 3 is 7; expected a pose within 1e+06 and a"
+         " probability from 0 to 1", setup=_setup_damaged("poses", "p.h5", _fill(
+             "hypotheses", 7.0))),
+    *[Case(f"localize of features whose /data/radial is all {value:g}", "silent",
+           [*LOCALIZE[:5], W + "/f.h5", "-o", W + "/p.h5"], 1,
+           f"'radial' holds the distance {value:g} m; expected 0 to 100 m, or NaN for none",
+           setup=_setup_damaged("features", "f.h5", _fill("data/radial", value)))
+      for value in (-5.0, 1e30)],
+    Case("show points of features whose /data/spiral is all -1", "silent",
+         ["show", "points", "{omni}", "--frame", "0", "--features", W + "/f.h5", "-o",
+          W + "/p.png"], 1, "'spiral' holds the distance -1 m",
+         setup=_setup_damaged("features", "f.h5", _fill("data/spiral", -1.0))),
+    *[Case(f"localize --method templates on templates whose {path} are all {value:g}", "silent",
+           ["localize", "{omni}", "--method", "templates", "--templates", W + "/t.h5", "-o",
+            W + "/p.h5"], 1, msg, setup=_setup_damaged("templates", "t.h5", _fill(path, value)))
+      for path, value, msg in (
+        ("poses", math.nan, "damaged 'fieldloc.templates' file: poses holds nan where finite"),
+        ("poses", 1e300, "poses holds 1e+300 m; positions on a field lie within 1e+06 m"),
+        ("descriptors", math.nan, "descriptors holds nan where finite numbers belong"),
+        ("points", math.nan, "points holds nan where finite numbers belong"))],
+    *[Case(f"import rosbag whose {what}", "silent", IMPORT_BAG, 1, msg,
+           setup=_setup_odometry_bag(odometry, imu))
+      for what, odometry, imu, msg in (
+        ("odometry x is 1e308 in every message",
+         [(t, 1e308, 0.0, 0.0) for t, *_ in GOOD_ODOMETRY], GOOD_IMU,
+         "none of the 9 odometry message(s) on /odom is usable (first: position (1e+308,"),
+        ("odometry x is NaN in every message",
+         [(t, math.nan, 0.0, 0.0) for t, *_ in GOOD_ODOMETRY], GOOD_IMU,
+         "none of the 9 odometry message(s) on /odom is usable (first: values (nan,"),
+        ("IMU yaw is NaN in every message", GOOD_ODOMETRY,
+         [(t, math.nan) for t, _ in GOOD_IMU],
+         "none of the 9 IMU message(s) on /imu is usable (first: values"))],
+    *[Case(f"import rosbag whose {what}: dropped with one warning", "silent", IMPORT_BAG, 0,
+           msg, setup=_setup_odometry_bag(odometry, imu, stamps),
+           check=_check_dataset_readable)
+      for what, odometry, imu, stamps, msg in (
+        ("one odometry message holds NaN",
+         [*GOOD_ODOMETRY[:4], (GOOD_ODOMETRY[4][0], math.nan, 0.0, 0.0), *GOOD_ODOMETRY[5:]],
+         GOOD_IMU, (1.0, 1.1, 1.2, 1.3),
+         "/odom: 1 of 9 odometry message(s) dropped as unusable (first: values (nan,"),
+        ("one IMU message holds a yaw of NaN", GOOD_ODOMETRY,
+         [*GOOD_IMU[:3], (GOOD_IMU[3][0], math.nan), *GOOD_IMU[4:]], (1.0, 1.1, 1.2, 1.3),
+         "/imu: 1 of 9 IMU message(s) dropped as unusable"),
+        ("frames repeat a stamp", GOOD_ODOMETRY, GOOD_IMU, (1.0, 1.1, 1.1, 1.1, 1.2),
+         "/cam: 2 frame(s) repeat an earlier frame's stamp; dropped"))],
 ]
 
 
