@@ -749,6 +749,48 @@ def _setup_extract_spec(dataset: str, extract: str, method: str):
     return setup
 
 
+# ---- s54 group H1: numbers a user wrote (setups)
+HUGE = "9" * 400  # an integer beyond the float range (1.8e308 has 309 digits)
+
+
+def _with_yaml_value(name: str, file: str, key: str, raw: str):
+    """The shared dataset ``name`` copied, the value of ``key`` (dotted, a list's index as a
+    number: "polynomial.1") in its ``file`` (calib.yaml, simulation.yaml) replaced by the raw
+    YAML text ``raw`` (``yes``, an integer of 400 digits: what a dict would not dump)."""
+    def change(ds):
+        d = yaml.safe_load((ds / file).read_text())
+        *parents, last = key.split(".")
+        node = d
+        for part in parents:
+            node = node[int(part)] if isinstance(node, list) else node[part]
+        node[int(last) if isinstance(node, list) else last] = "@RAW@"
+        (ds / file).write_text(yaml.safe_dump(d).replace("'@RAW@'", raw))
+    return _with_ds(name, change)
+
+
+def _setup_number_file(name: str, text: str):
+    """ws/``name``: a team's field file of ``text``, HUGE standing for an integer of 400
+    digits."""
+    def setup(w, ws):
+        (ws / name).write_text(text.replace("HUGE", HUGE))
+        return {}
+    return setup
+
+
+def _setup_huge_spec(w, ws):
+    """ws/spec.yaml: a batch SPEC of the shared dataset whose lut conf has a 400-digit
+    hypotheses."""
+    (ws / "spec.yaml").write_text(f"map: {w['map']}\ndatasets: [{{path: {w['omni']}}}]\n"
+                                  f"methods: [{{method: lut, conf: {{hypotheses: {HUGE}}}}}]\n")
+    return {}
+
+
+def _setup_one_bag(w, ws):
+    """ws/x.bag: a 2-frame bag."""
+    _bag(ws)
+    return {}
+
+
 LOCALIZE = ["localize", "{omni}", "--map", "{map}", "--features", "{features}"]
 W = "{ws}"
 SIM_OMNI = ["simulate", "omni", "--field", "spl", "--frames", "2", "-o", W + "/sim"]
@@ -1956,10 +1998,9 @@ CASES = [
                            " spl, frames: 10000000}}\nmethods: [lut]\n")),
     Case("simulate perspective --pitch-deg 1e9: the range in degrees, as given", "newcomer",
          [*SIM_NAO, "--pitch-deg", "1e9"], 2, "1e+09 is not within [-180, 180]"),
-    *[Case(f"field import {path}", "newcomer",
-           ["field", "import", path, "--format", "bhuman", "-o", W + "/x.yaml"], 1, msg)
-      for path, msg in (("/dev/null", "field file is not a regular file (a device, pipe or"),
-                        (W, "field file is a folder"))],
+    Case("field import /dev/null", "newcomer",
+         ["field", "import", "/dev/null", "--format", "bhuman", "-o", W + "/x.yaml"], 1,
+         "field file is not a regular file (a device, pipe or"),
     Case("a user's files in the map's .lookup folder stay", "data-lost",
          ["localize", "{omni}", "--map", W + "/m.map.h5", "--features", "{features}", "-o",
           W + "/p.h5"], 0, "4 frames", setup=_setup_lookup_with_notes),
@@ -2123,6 +2164,75 @@ CASES = [
          "/imu: 1 of 9 IMU message(s) dropped as unusable"),
         ("frames repeat a stamp", GOOD_ODOMETRY, GOOD_IMU, (1.0, 1.1, 1.1, 1.1, 1.2),
          "/cam: 2 frame(s) repeat an earlier frame's stamp; dropped"))],
+    # ---- s54 group H1: numbers (one strict reading of a number a user wrote: no bool, no
+    # integer beyond the float range, finite; stages.common.user_numbers)
+    *[Case(f"-c {key}=<400 digits>: {' '.join(args[:2])}", "traceback",
+           [*args, "-c", f"{key}={HUGE}"], 1,
+           f"conf '{key}' must be a {kind}number within the float range, got an integer too",
+           setup=_setup_one_bag if args[0] == "import" else None)
+      for args, key, kind in (
+        ([*LOCALIZE, "-o", W + "/p.h5", "--method", "lut"], "hypotheses", "whole "),
+        ([*LOCALIZE, "-o", W + "/p.h5", "--method", "lut"], "min_confidence", ""),
+        ([*LOCALIZE, "-o", W + "/p.h5", "--method", "mcl"], "observation.camera_height", ""),
+        ([*LOCALIZE, "-o", W + "/p.h5", "--method", "mcl"], "particles_max", "whole "),
+        (["extract", "{omni}", "-o", W + "/f.h5"], "max_white_m", ""),
+        ([*SIM_OMNI], "scene.robots", "whole "),
+        (["import", "rosbag", W + "/x.bag", "-o", W + "/ds", "--image-topic", "/cam"],
+         "png_compression", "whole "))],
+    Case("-c thresholds=[<400 digits>] (a list element)", "traceback",
+         ["evaluate", "{poses}", "--truth", "{omni}", "-o", W + "/r", "-c",
+          f"thresholds=[0.1, {HUGE}]"], 1,
+         "conf 'thresholds[1]' must be a number within the float range"),
+    Case("report --worst <400 digits>", "traceback",
+         ["report", "{omni}/runs/r", "-o", W + "/r.html", "--worst", HUGE], 1,
+         "conf 'worst' must be a whole number within the float range"),
+    Case("batch SPEC conf {hypotheses: <400 digits>}", "traceback",
+         ["batch", W + "/spec.yaml", "-o", W + "/res", "--serial"], 1,
+         "'hypotheses' must be a whole number within the float range",
+         setup=_setup_huge_spec),
+    *[Case(f"{name} calib.yaml {key}: <400 digits>", "traceback",
+           ["extract", W + f"/{name}", "-o", W + "/f.h5"], 1,
+           f"'{shown_key}' must be a {kind}number within the float range",
+           setup=_with_yaml_value(name, "calib.yaml", key, HUGE))
+      for name, key, shown_key, kind in (
+        ("omni", "polynomial.1", "polynomial[1]", ""),
+        ("omni", "centre.0", "centre[0]", ""),
+        ("omni", "image_size.0", "image_size[0]", "whole "),
+        ("omni", "forward_angle", "forward_angle", ""),
+        ("kid", "intrinsics.fx", "intrinsics.fx", ""),
+        ("kid", "distortion.0", "distortion[0]", ""),
+        ("kid", "height", "height", ""),
+        ("kid", "image_size.1", "image_size[1]", "whole "))],
+    Case("simulation.yaml field_size: [<400 digits>, 6]", "traceback",
+         ["extract", W + "/omni", "-o", W + "/f.h5"], 1,
+         "field_size[0] must be a number within the float range",
+         setup=_with_yaml_value("omni", "simulation.yaml", "field_size.0", HUGE)),
+    *[Case(f"field import of a {fmt} file holding a 400-digit integer", "traceback",
+           ["field", "import", W + f"/{file}", "-o", W + "/out.yaml"], 1,
+           f"'{key}' must be a number within the float range",
+           setup=_setup_number_file(file, text)) for fmt, file, key, text in (
+        ("hulks", "field.json", "length",
+         '{"field_dimensions": {"length": HUGE, "width": 6.0}}'),
+        ("cambada", "field.json", "field_length",
+         '{"field_length": HUGE, "field_width": 12000, "line_thickness": 125,'
+         ' "center_circle_radius": 2000, "goal_band_width": 1000, "side_band_width": 1000}'),
+        ("bitbots", "config.yaml", "size.x",
+         "parameter_blackboard:\n  ros__parameters:\n    field:\n      size: {x: HUGE}\n"),
+        ("falcons", "DefaultParams.json", "A", '{"model": {"A": HUGE, "B": 12000, "K": 125}}'))],
+    Case("simulate --grid 1e-308", "traceback",
+         ["simulate", "omni", "--field", "spl", "-o", W + "/sim", "--grid", "1e-308"], 1,
+         "makes more than 1000000 nodes along one side"),
+    *[Case(f"{name} calib.yaml {key}: {raw} (a YAML boolean)", "silent",
+           ["extract", W + f"/{name}", "-o", W + "/f.h5"], 1,
+           f"'{shown_key}' must be a {kind}number, got True",
+           setup=_with_yaml_value(name, "calib.yaml", key, raw))
+      for name, key, shown_key, raw, kind in (
+        ("omni", "polynomial.1", "polynomial[1]", "yes", ""),
+        ("omni", "forward_angle", "forward_angle", "yes", ""),
+        ("omni", "image_size.0", "image_size[0]", "true", "whole "),
+        ("kid", "height", "height", "yes", ""),
+        ("kid", "distortion.0", "distortion[0]", "yes", ""),
+        ("kid", "intrinsics.cx", "intrinsics.cx", "true", ""))],
 ]
 
 

@@ -50,7 +50,8 @@ import numpy as np
 import yaml
 
 from .conf import load_yaml
-from .errors import DatasetError, present
+from .errors import DatasetError, present, shown
+from .user_numbers import user_number, user_numbers
 
 CALIB_VERSION = 2  # newest calib.yaml version this code reads (1: polynomial only)
 RADIAL_MODELS = ("polynomial", "table")
@@ -203,27 +204,25 @@ class OmniCamera:
         poly = table = None
         try:
             if model == "polynomial":
-                poly = np.asarray(d["polynomial"], dtype=float)
-                if poly.ndim != 1 or len(poly) != POLYNOMIAL_COEFFICIENTS:
-                    n = len(poly) if poly.ndim == 1 else "a nested list of"
+                poly = np.asarray(_numbers(d["polynomial"], "polynomial", where))
+                if len(poly) != POLYNOMIAL_COEFFICIENTS:
                     raise DatasetError(
                         f"{where}: 'polynomial' needs the six coefficients a0..a5 of f(r) (write"
-                        f" 0 for unused higher orders), got {n} values")
-                if not np.all(np.isfinite(poly)):
-                    raise DatasetError(f"{where}: 'polynomial' holds a non-finite coefficient")
+                        f" 0 for unused higher orders), got {len(poly)} values")
             else:
                 t = d["radial_table"]
                 if not isinstance(t, dict):
                     raise DatasetError(
                         f"{where}: 'radial_table' needs 'radius_px' and 'distance_m' lists")
-                rr = np.asarray(t["radius_px"], dtype=float)
-                dd = np.asarray(t["distance_m"], dtype=float)
+                rr = np.asarray(_numbers(t["radius_px"], "radial_table.radius_px", where))
+                dd = np.asarray(_numbers(t["distance_m"], "radial_table.distance_m", where))
                 check_radial_table(rr, dd, f"{where}: radial_table", DatasetError)
                 table = np.stack([rr, dd], axis=1)
             size = image_size_of(d, where)
             centre = _finite_pair(d, "centre", where)
             valid = _finite_pair(d, "valid_radius", where)
-            forward = float(d.get("forward_angle", math.pi / 2))
+            forward = user_number(d.get("forward_angle", math.pi / 2), f"{where}: 'forward_angle'",
+                                  error=DatasetError)
             mirrored = d.get("mirrored", False)
         except KeyError as e:
             raise DatasetError(f"{where}: omni calibration misses key {e}") from None
@@ -269,15 +268,14 @@ class OmniCamera:
 
 
 def _finite_pair(d: dict, key: str, where: str) -> tuple[float, float]:
-    v = d[key]
-    if not isinstance(v, (list, tuple)) or len(v) != 2:
-        raise DatasetError(f"{where}: '{key}' must be a list of two numbers, got {v!r}")
-    if any(isinstance(a, bool) for a in v):
-        raise DatasetError(f"{where}: '{key}' must be a list of two numbers, got {v!r}")
-    a, b = float(v[0]), float(v[1])
-    if not (math.isfinite(a) and math.isfinite(b)):
-        raise DatasetError(f"{where}: '{key}' must hold finite numbers, got {v!r}")
+    a, b = user_numbers(d[key], f"{where}: '{key}'", count=2, error=DatasetError)
     return a, b
+
+
+def _numbers(values, key: str, where: str) -> list[float]:
+    """A calib.yaml list of finite numbers (stages.common.user_numbers: no YAML ``yes``, no
+    integer beyond the float range), or DatasetError naming ``key``."""
+    return user_numbers(values, f"{where}: '{key}'", error=DatasetError)
 
 
 # px: the longest image side a conf may give (robot cameras give up to about 2000 px; a side of
@@ -288,14 +286,14 @@ MAX_IMAGE_PX = 8192
 def image_size_of(d: dict, where: str) -> tuple[int, int]:
     """calib.yaml's ``image_size``: [width, height], whole numbers > 0."""
     v = d["image_size"]
-    ok = (isinstance(v, (list, tuple)) and len(v) == 2
-          and all(isinstance(a, (int, float)) and not isinstance(a, bool) for a in v))
-    if ok:
-        ok = all(math.isfinite(a) and a == int(a) and a > 0 for a in v)
-    if not ok:
-        raise DatasetError(
-            f"{where}: 'image_size' must be [width, height] in whole pixels > 0, got {v!r}")
-    return int(v[0]), int(v[1])
+    bad = DatasetError(
+        f"{where}: 'image_size' must be [width, height] in whole pixels > 0, got {shown(v, 40)}")
+    if not isinstance(v, (list, tuple)) or len(v) != 2:
+        raise bad
+    w, h = user_numbers(v, f"{where}: 'image_size'", whole=True, error=DatasetError)
+    if not (w > 0 and h > 0):
+        raise bad
+    return w, h
 
 
 # m: the farthest floor distance an omni calibration's f(r) may give within its valid ring. The

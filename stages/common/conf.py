@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import copy
 import importlib
-import math
 import numbers
 import re
 from collections.abc import Callable, Iterator, Mapping
@@ -21,6 +20,7 @@ import numpy as np
 import yaml
 
 from .errors import FieldlocError, shown
+from .user_numbers import user_number
 
 _BASE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
@@ -82,10 +82,15 @@ def _refuse_alias_bombs(text: str | bytes) -> None:
 
 def load_yaml(text: str | bytes):
     """``yaml.safe_load`` with libyaml's parser where PyYAML has it (the same documents, read
-    10-20x faster: a batch reads every dataset's records several times), refusing alias bombs
-    and keys given twice (yaml.YAMLError, as for any malformed file)."""
+    10-20x faster: a batch reads every dataset's records several times), refusing alias bombs,
+    keys given twice and values its constructors cannot build (yaml.YAMLError, as for any
+    malformed file)."""
     _refuse_alias_bombs(text)
-    return yaml.load(text, Loader=_StrictLoader)  # noqa: S506 (a safe loader)
+    try:
+        return yaml.load(text, Loader=_StrictLoader)  # noqa: S506 (a safe loader)
+    except ValueError as e:  # a constructor's: an int of more than 4300 digits, a date 2024-13-01
+        raise yaml.constructor.ConstructorError(
+            None, None, f"a value YAML cannot read ({str(e)[:60]})") from None
 
 
 def parse_overrides(items) -> dict:
@@ -179,23 +184,9 @@ def _merge(base: dict, key, value, path):
 
 
 def _number(value, path: str, whole: bool):
-    """A finite number (int when ``whole``) from an override value, or FieldlocError."""
-    want = "a whole number" if whole else "a number"
-    v = value
-    if isinstance(v, str):
-        try:
-            v = float(v.strip())
-        except ValueError:
-            raise FieldlocError(f"conf '{path}' must be {want}, got {shown(value)}") from None
-    if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real):
-        raise FieldlocError(f"conf '{path}' must be {want}, got {shown(value)}")
-    if not math.isfinite(float(v)):
-        raise FieldlocError(f"conf '{path}' must be a finite number, got {shown(value)}")
-    if whole:
-        if float(v) != int(v):
-            raise FieldlocError(f"conf '{path}' must be a whole number, got {shown(value)}")
-        return int(v)
-    return float(v)
+    """A finite number (int when ``whole``) from an override value, or FieldlocError: the
+    reading of every number a user writes (stages.common.user_numbers)."""
+    return user_number(value, f"conf '{path}'", whole=whole)
 
 
 def checked_value(old, value, path: str):
@@ -352,8 +343,7 @@ def check_bounds(conf: dict, bounds: Mapping[str, tuple], prefix: str = "",
         for name, x in items:
             if not _is_number(x):
                 raise FieldlocError(f"conf '{name}' must be a number, got {shown(x, 40)}")
-            if not math.isfinite(float(x)):
-                raise FieldlocError(f"conf '{name}' must be a finite number, got {shown(x, 40)}")
+            user_number(x, f"conf '{name}'")  # within the float range, finite
             if _beyond(x, low, 1) or _beyond(x, high, -1):
                 parts = [_bound_text(low, ">"), _bound_text(high, "<")]
                 raise FieldlocError(f"conf '{name}' must be"

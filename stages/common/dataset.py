@@ -29,7 +29,6 @@ from __future__ import annotations
 import csv
 import io
 import math
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -38,6 +37,7 @@ import numpy as np
 from .conf import load_yaml
 from .dataset_layout import CSV_COLUMNS, CSV_OPTIONAL_COLUMNS, OWN_FILES, SIMULATION_RECORD
 from .errors import DatasetError, present
+from .user_numbers import parse_number, user_numbers
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 DEFAULT_RATE_HZ = 30.0
@@ -49,12 +49,6 @@ TIME_SERIES = ("odometry", "imu", "truth", "head")  # rows in time order, one pe
 NAN_ALLOWED = {"truth": ("x", "y", "theta")}
 
 
-# a number as a CSV holds one: ASCII decimal or scientific notation, or a spelling of NaN or
-# infinity (refused below, with a message of its own, except where NaN is allowed). Python's
-# float() also takes "1_000" and non-ASCII digits ("٣" is 3), which no logger writes: such a
-# cell is a damaged one, not a number
-NUMBER = re.compile(r"[+-]?(?:(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
-                    r"|(?i:nan|inf|infinity))")
 # the largest magnitude of a value other than a stamp (metres: positions, increments, heights;
 # radians: angles; imu's collision is 0 or 1): a field is at most tens of metres, so 1e6 is
 # far beyond any robot's, and a value such as 1e300 would overflow the arithmetic that places
@@ -75,15 +69,6 @@ def stamp_error(stamp: float) -> str | None:
         return (f"stamp {stamp:.4g} s is beyond {MAX_STAMP:g} s (the year 5000); stamps are"
                 " seconds, not ms or ns")
     return None
-
-
-def parse_number(text: str) -> float:
-    """The number a file's cell or value holds (``NUMBER``: ASCII decimal or scientific
-    notation, or a spelling of NaN or infinity), for every reader of numbers a user gives;
-    ValueError otherwise, as float() raises (which also took "1_000" and "٣")."""
-    if not NUMBER.fullmatch(text.strip()):
-        raise ValueError(f"not a number: {text[:20]!r}")
-    return float(text)
 
 
 def read_csv(path: str | Path, kind: str) -> dict[str, np.ndarray]:
@@ -265,13 +250,14 @@ class Dataset:
             return {}
         out = {"name": d["field"]}
         size = d.get("field_size")
-        if (isinstance(size, list) and len(size) == 2
-                and all(isinstance(v, (int, float)) for v in size)):
+        if size is not None:
+            size = user_numbers(size, f"{p}: field_size", count=2, finite=False,
+                                error=DatasetError)
             if not all(math.isfinite(v) and v > 0 for v in size):
                 # recorded with the features, it would be taken for the field's size
                 raise DatasetError(f"{p}: field_size {str(size)[:40]} must be two finite"
                                    " numbers > 0 (m)")
-            out["size"] = [float(v) for v in size]
+            out["size"] = size
         return out
 
     def files(self) -> dict[str, list[Path]]:

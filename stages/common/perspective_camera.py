@@ -47,6 +47,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .errors import DatasetError, shown
+from .user_numbers import user_number, user_numbers
 
 # camera axes (x right, y down, z along the optical axis) in the robot frame at zero angles
 _CAMERA_AXES = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
@@ -87,8 +88,9 @@ def head_rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
 def _pair(value, where: str) -> tuple[float, float]:
     """calib.yaml's ``position``: [x, y] metres."""
     if not isinstance(value, (list, tuple)) or len(value) != 2:
-        raise DatasetError(f"{where}: 'position' must be [x, y] (m), got {value!r}")
-    return float(value[0]), float(value[1])
+        raise DatasetError(f"{where}: 'position' must be [x, y] (m), got {shown(value, 40)}")
+    x, y = user_numbers(value, f"{where}: 'position'", error=DatasetError)
+    return x, y
 
 
 @dataclass(eq=False)
@@ -352,22 +354,30 @@ class PerspectiveCamera:
             if unknown:
                 raise DatasetError(f"{where}: unknown key {shown(f'intrinsics.{unknown[0]}', 40)}"
                                    f" (intrinsics: {', '.join(INTRINSICS_KEYS)})")
-            dist = np.asarray(d["distortion"], dtype=float).ravel()
+            if not isinstance(size, (list, tuple)) or len(size) != 2:
+                raise DatasetError(f"{where}: 'image_size' must be [width, height], got"
+                                   f" {shown(size, 40)}")
+
+            def number(value, key: str) -> float:
+                # every number of the file read one way (stages.common.user_numbers)
+                return user_number(value, f"{where}: '{key}'", error=DatasetError)
+
+            dist = np.asarray(user_numbers(d["distortion"], f"{where}: 'distortion'",
+                                           error=DatasetError))
             cam = cls(
-                image_size=(int(size[0]), int(size[1])),
-                fx=float(intr["fx"]), fy=float(intr["fy"]),
-                cx=float(intr["cx"]), cy=float(intr["cy"]),
+                image_size=tuple(user_numbers(size, f"{where}: 'image_size'", whole=True,
+                                              error=DatasetError)),
+                fx=number(intr["fx"], "intrinsics.fx"), fy=number(intr["fy"], "intrinsics.fy"),
+                cx=number(intr["cx"], "intrinsics.cx"), cy=number(intr["cy"], "intrinsics.cy"),
                 distortion=dist if dist.size in (4, 5) else np.zeros(5),
-                height=float(d["height"]),
-                pitch=float(d["pitch"]),
-                roll=float(d.get("roll", 0.0)),
-                yaw=float(d.get("yaw", 0.0)),
+                height=number(d["height"], "height"),
+                pitch=number(d["pitch"], "pitch"),
+                roll=number(d.get("roll", 0.0), "roll"),
+                yaw=number(d.get("yaw", 0.0), "yaw"),
                 position=_pair(d.get("position", (0.0, 0.0)), where),
-                pitch_offset=float(d.get("pitch_offset", 0.0)),
-                roll_offset=float(d.get("roll_offset", 0.0)),
+                pitch_offset=number(d.get("pitch_offset", 0.0), "pitch_offset"),
+                roll_offset=number(d.get("roll_offset", 0.0), "roll_offset"),
             )
-            if len(size) != 2:
-                raise DatasetError(f"{where}: 'image_size' must be [width, height]")
         except KeyError as e:
             raise DatasetError(f"{where}: perspective calibration misses key {e}") from None
         except (TypeError, ValueError, IndexError) as e:

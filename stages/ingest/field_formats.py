@@ -49,6 +49,7 @@ import re
 from pathlib import Path
 
 from ..common.errors import FieldlocError, file_problem
+from ..common.user_numbers import user_number
 
 
 class FieldFormatError(FieldlocError):
@@ -65,16 +66,9 @@ def _read_text(path: Path) -> str:
 
 
 def _num(value, key: str, where: str) -> float:
-    if isinstance(value, bool):
-        raise FieldFormatError(f"{where}: '{key}' must be a number, got {value!r}")
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        shown = str(value)[:40]
-        raise FieldFormatError(f"{where}: '{key}' must be a number, got '{shown}'") from None
-    if v != v or v in (float("inf"), float("-inf")):
-        raise FieldFormatError(f"{where}: '{key}' must be finite, got {value!r}")
-    return v
+    """A number of a field file (stages.common.user_numbers: text as a .view or .conf holds
+    it, no bool, no integer beyond the float range, finite), or FieldFormatError."""
+    return user_number(value, f"{where}: '{key}'", error=FieldFormatError)
 
 
 def _set(spec: dict, path: tuple, value: float):
@@ -388,7 +382,7 @@ def _json5(text: str, where: str):
         return json.loads(text)
     except RecursionError:
         raise FieldFormatError(f"{where}: JSON nested too deep") from None
-    except json.JSONDecodeError:
+    except ValueError:  # JSONDecodeError, or an integer of more than 4300 digits
         pass
     out, i, n, in_str = [], 0, len(text), False
     while i < n:  # drop comments outside strings
@@ -420,8 +414,8 @@ def _json5(text: str, where: str):
         return json.loads(body)
     except RecursionError:
         raise FieldFormatError(f"{where}: JSON nested too deep") from None
-    except json.JSONDecodeError as e:
-        raise FieldFormatError(f"{where}: not valid JSON or JSON5 ({e})") from None
+    except ValueError as e:  # JSONDecodeError, or an integer of more than 4300 digits
+        raise FieldFormatError(f"{where}: not valid JSON or JSON5 ({str(e)[:80]})") from None
 
 
 def read_cambada(path: Path):

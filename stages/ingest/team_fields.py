@@ -49,7 +49,6 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
-import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -69,6 +68,7 @@ from ..common.field import (
     load_field,
     msl_letter_value,
 )
+from ..common.user_numbers import user_number
 from . import field_formats as _formats
 
 FORMATS = ("bhuman", "bitbots", "falcons", "minho", "carpenoctem", "cambada", "hulks")
@@ -314,9 +314,9 @@ def _flatten(d: dict, prefix=()) -> dict:
 
 
 def _number(v, key, where) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise TeamFieldError(f"{where}: '{key}' must be a number, got {v!r}")
-    return float(v)
+    """A number of a YAML or JSON field file (stages.common.user_numbers: no bool, no integer
+    beyond the float range, finite), or TeamFieldError."""
+    return user_number(v, f"{where}: '{key}'", error=TeamFieldError)
 
 
 def read_bitbots(path: Path):
@@ -399,8 +399,8 @@ def read_falcons(path: Path, venue: str | None):
     if path.suffix.lower() == ".json":
         try:
             doc = json.loads(text)
-        except json.JSONDecodeError as e:
-            raise TeamFieldError(f"{where}: not valid JSON ({e})") from None
+        except ValueError as e:  # JSONDecodeError, or an integer of more than 4300 digits
+            raise TeamFieldError(f"{where}: not valid JSON ({str(e)[:80]})") from None
     else:
         body = "\n".join(line for line in text.splitlines() if not line.startswith("%YAML"))
         try:

@@ -157,7 +157,8 @@ def _grid_axes(field, conf: dict) -> tuple[np.ndarray, np.ndarray, int, float]:
 
     def axis(c0, a, lim):
         # nodes farther than |c0| + lim from the centre are off the field: not listed
-        k_max = math.floor(min(a, abs(c0) + lim + spacing) / spacing + 1e-9)
+        reach = min(a, abs(c0) + lim + spacing) / spacing + 1e-9  # inf for a spacing of 1e-308
+        k_max = math.floor(min(reach, MAX_GRID_NODES_PER_AXIS))
         if 2 * k_max + 1 > MAX_GRID_NODES_PER_AXIS:
             raise FieldlocError(f"trajectory grid: grid_spacing {spacing:g} m makes more than"
                                 f" {MAX_GRID_NODES_PER_AXIS} nodes along one side")
