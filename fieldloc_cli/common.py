@@ -50,9 +50,11 @@ def progress_enabled(ctx: click.Context) -> bool:
 
 
 def summary(ctx: click.Context, message: str) -> None:
-    """A command's closing summary ("wrote X: N frames"): stderr, and nothing with -q."""
+    """A command's closing summary ("wrote X: N frames"): stderr, and nothing with -q. One
+    line, as an error is: a line break in a name it quotes (a file called "o\\nut.h5") is
+    shown as a space."""
     if not (ctx.find_root().obj or {}).get("quiet"):
-        click.echo(message, err=True)
+        click.echo(" ".join(str(message).splitlines()), err=True)
 
 
 def count(n: int, noun: str, plural: str | None = None) -> str:

@@ -4,9 +4,12 @@ imported only when used and listed from a table without being imported; user err
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import re
+import signal
 import sys
+import threading
 
 import click
 
@@ -18,22 +21,61 @@ LONG_RUN = 200
 QUOTED = 57
 
 
-def _caused_by_interrupt(e: BaseException | None) -> bool:
-    """Whether a KeyboardInterrupt is in the chain of causes of ``e``."""
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``, a job's time limit, a system shutting down) raised as an interrupt,
+    so that a terminated command cleans up as one stopped by Ctrl-C does (temporary parts
+    removed, extract's finished frames committed, its lock released) and says so in one line,
+    instead of vanishing without a word."""
+
+
+# what a rerun does after an interruption, by command (the others leave no half file and start
+# over): only extract and batch resume, and localize resumes the extraction it runs on the fly
+RESUMES = {
+    "extract": "finished frames were kept; a rerun resumes where it stopped",
+    "localize": "finished files were kept; a rerun resumes an extraction it had begun",
+    "batch": "finished runs were kept; a rerun resumes with the others",
+    "evaluate": "finished reports were kept; a rerun writes the others",
+}
+STARTS_OVER = "no half-written file was left; a rerun starts over"
+
+
+def _interrupt_in(e: BaseException | None) -> KeyboardInterrupt | None:
+    """The KeyboardInterrupt in the chain of causes of ``e`` (``e`` itself included), or None."""
     seen = set()
     while e is not None and id(e) not in seen:
         if isinstance(e, KeyboardInterrupt):
-            return True
+            return e
         seen.add(id(e))
         e = e.__cause__ or e.__context__
-    return False
+    return None
 
 
-def _interrupted(ctx) -> None:
-    """Say that the user interrupted the command, and exit 130 (128 + SIGINT, as a shell)."""
-    click.echo("fieldloc: interrupted (finished files were kept; extract resumes where it"
-               " stopped)", err=True)
-    ctx.exit(130)
+def _interrupted(ctx, e: KeyboardInterrupt) -> None:
+    """Say that the command was interrupted (Ctrl-C) or terminated (SIGTERM) and what a rerun
+    does, and exit 130 or 143 (128 + the signal's number, as a shell)."""
+    term = isinstance(e, Terminated)
+    note = RESUMES.get(ctx.invoked_subcommand or "", STARTS_OVER)
+    click.echo(f"fieldloc: {'terminated' if term else 'interrupted'} ({note})", err=True)
+    ctx.exit(128 + (signal.SIGTERM if term else signal.SIGINT))
+
+
+@contextlib.contextmanager
+def _terminate_as_interrupt():
+    """While the command runs, SIGTERM raises Terminated (where it is not ignored, and only in
+    the main thread, where Python handles signals); the earlier handler is put back after."""
+    old = signal.getsignal(signal.SIGTERM)
+    if threading.current_thread() is not threading.main_thread() or old == signal.SIG_IGN:
+        yield
+        return
+
+    def terminate(signum, frame):
+        raise Terminated()
+
+    signal.signal(signal.SIGTERM, terminate)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL if old is None else old)
 
 
 def _short(text: str) -> str:
@@ -95,7 +137,8 @@ class LazyGroup(click.Group):
     def invoke(self, ctx):
         debug = ctx.params.get("debug") or "--debug" in sys.argv
         try:
-            return super().invoke(ctx)
+            with _terminate_as_interrupt():
+                return super().invoke(ctx)
         except click.ClickException as e:  # a usage error: click says it, the value cut short
             e.message = _short(e.message)
             raise
@@ -127,15 +170,16 @@ class LazyGroup(click.Group):
             click.echo("fieldloc: error: out of memory (try a coarser resolution or fewer"
                        " frames)", err=True)
             ctx.exit(1)
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as e:
             if debug:
                 raise
-            _interrupted(ctx)
+            _interrupted(ctx, e)
         except SystemError as e:
             # Ctrl-C as a numba kernel returns or unpickles its constants: CPython reports the
             # KeyboardInterrupt raised then as a SystemError caused by it ("returned a result
             # with an exception set"), through as many such SystemErrors as calls return;
             # that is an interrupt all the same
-            if debug or not _caused_by_interrupt(e):
+            interrupt = _interrupt_in(e)
+            if debug or interrupt is None:
                 raise
-            _interrupted(ctx)
+            _interrupted(ctx, interrupt)

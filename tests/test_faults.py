@@ -971,6 +971,35 @@ def _setup_simulated_with_notes(w, ws):
 
 
 
+# ---- s54 group H4: files and interruptions (setups and checks of its cases)
+def _setup_simulated_with_picture(w, ws):
+    """ws/data: a 1-frame dataset simulate made, to which the user added a picture in images/
+    under a frame's name that the dataset does not have."""
+    simulate.main(dict(simulate.confs["omni-clean"], frames=1), "spl", ws / "data")
+    (ws / "data" / "images" / "000005.png").write_bytes(b"mine")
+    return {}
+
+
+def _setup_fifo(w, ws):
+    os.mkfifo(ws / "fifo")
+    return {}
+
+
+def _setup_big_json(w, ws):
+    """A (sparse) file larger than bench's bound of a --json file."""
+    from stages.pipelines.bench.harness import MAX_JSON_BYTES
+
+    with open(ws / "big.json", "wb") as f:
+        f.truncate(MAX_JSON_BYTES + 1)
+    return {}
+
+
+def _check_one_summary_line(paths, res):
+    """The summary of an output named with a line break stays one line."""
+    assert len(res.stderr.strip().splitlines()) == 1, res.stderr
+
+
+
 # s53 hostile2 F5-F7: simulate's scalar conf keys given a value outside their range
 # (simulate.SCALAR_BOUNDS) through -c, refused in one line naming the key before anything is
 # rendered: (key, value, the sweep's kind). F5 ended in tracebacks, F6 hung, F7 ran silently.
@@ -2233,6 +2262,23 @@ CASES = [
         ("kid", "height", "height", "yes", ""),
         ("kid", "distortion.0", "distortion[0]", "yes", ""),
         ("kid", "intrinsics.cx", "intrinsics.cx", "true", ""))],
+    # ---- s54 group H4: files and interruptions
+    Case("simulate --overwrite of its dataset holding a user's picture in images/", "data-lost",
+         ["simulate", "omni", "--field", "spl", "-o", W + "/data", "--frames", "1",
+          "--overwrite"], 1, "images/000005.png, which simulate did not write",
+         setup=_setup_simulated_with_picture),
+    Case("bench --from-json a FIFO", "hang", ["bench", "--from-json", W + "/fifo"], 1,
+         "fifo: is not a regular file (a device, pipe or socket), not a bench --json file",
+         setup=_setup_fifo),
+    Case("bench --from-json of a file larger than any bench run's", "silent",
+         ["bench", "--from-json", W + "/big.json"], 1,
+         "big.json: larger than 16 MiB, not a bench --json file", setup=_setup_big_json),
+    Case("localize -o a name with a line break: its summary on one line", "newcomer",
+         ["localize", "{omni}", "--map", "{map}", "--features", "{features}", "-o",
+          W + "/o\nut.h5"], 0, "o ut.h5: 4 frames", check=_check_one_summary_line),
+    Case("simulate -o a name with a line break: its summary on one line", "newcomer",
+         ["simulate", "omni", "--field", "spl", "--frames", "1", "-o", W + "/s\nx"], 0,
+         "/s x", check=_check_one_summary_line),
 ]
 
 
@@ -2974,3 +3020,89 @@ def test_evaluate_draws_a_custom_fields_poses_on_the_maps_field(world_report, tm
     assert res.exit_code == 0 and page.exit_code == 0, text
     assert "unknown field preset" not in text and "without field lines" not in text, text
     assert (tmp_path / "r" / "plots").is_dir() and (tmp_path / "r.html").is_file()
+
+
+# ---- s54 group H4: files and interruptions
+
+
+@pytest.mark.parametrize("command,args,note", [
+    ("extract", ["extract", "{omni}", "-o", "{ws}/f.h5"],
+     "finished frames were kept; a rerun resumes where it stopped"),
+    ("build_map", ["build-map", "spl", "-o", "{ws}/m.h5"],
+     "no half-written file was left; a rerun starts over"),
+    ("simulate", ["simulate", "omni", "--field", "spl", "--frames", "1", "-o", "{ws}/s"],
+     "no half-written file was left; a rerun starts over"),
+])
+@pytest.mark.parametrize("stop,word,rc", [(KeyboardInterrupt, "interrupted", 130),
+                                          ("Terminated", "terminated", 143)])
+def test_an_interrupt_says_what_a_rerun_of_the_command_does(world, tmp_path, monkeypatch,
+                                                           command, args, note, stop, word, rc):
+    """Ctrl-C said "extract resumes where it stopped" after any command, and SIGTERM said
+    nothing: each command now says whether its rerun resumes, and SIGTERM (raised as the
+    interrupt Terminated) says "terminated" with exit code 143."""
+    import importlib
+
+    from fieldloc_cli import lazy_group
+
+    stop = getattr(lazy_group, stop) if isinstance(stop, str) else stop
+
+    def stopped(*a, **k):
+        raise stop()
+
+    monkeypatch.setattr(importlib.import_module(f"stages.{command}"), "main", stopped)
+    res = CliRunner().invoke(cli, [a.format(ws=tmp_path, **world) for a in args])
+    assert res.exit_code == rc, res.output
+    assert res.stderr == f"fieldloc: {word} ({note})\n"
+
+
+def test_sigterm_ends_a_command_as_an_interrupt_cleaning_up(tmp_path):
+    """A terminated simulate (SIGTERM, as `kill` or a job's time limit sends) removes the
+    temporary folder it was rendering into and says so in one line, exit code 143 (it ended
+    without a word, leaving its part)."""
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "from fieldloc_cli.main import cli; cli()", "simulate", "omni",
+         "--field", "spl", "--frames", "200", "-o", str(tmp_path / "s")],
+        stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    end = time.monotonic() + 120
+    while not any(tmp_path.glob(".s.fieldloc-*.part/images/*.png")):
+        assert proc.poll() is None and time.monotonic() < end, proc.stderr.read()
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGTERM)
+    _out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143, err
+    assert err.splitlines() == ["fieldloc: terminated (no half-written file was left; a rerun"
+                                " starts over)"], err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_evaluate_stopped_while_drawing_leaves_no_report_json(world, tmp_path, monkeypatch):
+    """report.json was written before the plots: an evaluate stopped while drawing left a
+    folder that looked finished without its plots, and `report` made a page of it. Now
+    report.json comes last (after the plots), so `report` refuses the folder, and the rerun
+    writes the whole report."""
+    from stages.common.report_file import PLOT_NAMES
+    from stages.show import figure
+
+    save = figure.save_figure
+    calls = []
+
+    def stop_at_the_second(*a, **k):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return save(*a, **k)
+
+    monkeypatch.setattr("stages.show.report_plots.save_figure", stop_at_the_second)
+    r = tmp_path / "r"
+    args = ["evaluate", str(world["poses"]), "--truth", str(world["omni"] / "truth.csv"),
+            "-o", str(r)]
+    res = CliRunner().invoke(cli, args)
+    assert res.exit_code == 130, res.output
+    assert not (r / "report.json").exists()
+    page = CliRunner().invoke(cli, ["report", str(r), "-o", str(tmp_path / "r.html")])
+    assert page.exit_code == 1 and not (tmp_path / "r.html").exists(), page.output
+    monkeypatch.setattr("stages.show.report_plots.save_figure", save)
+    res = CliRunner().invoke(cli, args)
+    assert res.exit_code == 0, res.output
+    assert (r / "report.json").is_file()
+    assert sorted(p.name for p in (r / "plots").iterdir()) == sorted(PLOT_NAMES)

@@ -245,7 +245,7 @@ def test_kill_extract_resumes(inputs, tmp_path, rng):
     run = Run(["extract", str(ds)], tmp_path)
     run.wait_for(path_glob=(parts_dir, "*.npz", chunks + 1))
     rc = run.signal_after(rng.uniform(0.0, 0.1), signal.SIGINT)
-    assert rc == 130 and "extract resumes where it stopped" in run.stderr(), (rc, run.stderr())
+    assert rc == 130 and "a rerun resumes where it stopped" in run.stderr(), (rc, run.stderr())
     assert tree_hashes(target) == earlier
     resumed = _committed_frames(parts_dir)
     assert resumed > kept
@@ -451,3 +451,56 @@ def test_kill_two_rounds(inputs, tmp_path, method):
     for s, path in arts.items():
         _assert_same_artifact(_artifact_content(path), content[s], path.name)
     assert tree_hashes(ds) == dataset_before
+
+
+# ---- s54 group H4: files and interruptions
+
+
+def test_kill_extract_with_debug_images_resumes(inputs, tmp_path, rng):
+    """extract --debug-images killed: its overlays of frames not yet committed were in the
+    folder, and the rerun refused them ("D/000000.png exists") and left the killed run's part
+    of an overlay. The rerun now draws those again (they are newer than the parts folder it
+    resumes), and ends with every frame's overlay and no part."""
+    from click.testing import CliRunner
+
+    from fieldloc_cli.main import cli
+
+    n = 400
+    ds = _frames_dataset(inputs, tmp_path / "ds", n)
+    dbg = tmp_path / "dbg"
+    run = Run(["extract", str(ds), "--debug-images", str(dbg)], tmp_path)
+    started = run.wait_for(path_glob=(dbg, "*.png", 1))  # before its first chunk, mostly
+    rc = run.kill_after(rng.uniform(0.0, 0.3))
+    assert started and rc == -signal.SIGKILL, (rc, "".join(run.seen))
+    res = CliRunner().invoke(cli, ["extract", str(ds), "--debug-images", str(dbg)])
+    assert res.exit_code == 0, res.output
+    names = [f"{i:06d}.png" for i in range(n)]
+    assert sorted(p.name for p in dbg.iterdir()) == sorted([*names, "debug-images.yaml"])
+    assert parts_beside(ds / "features.h5") == []
+
+
+def test_kill_evaluate_leaves_no_report_json_without_its_plots(inputs, tmp_path, rng):
+    """evaluate killed while drawing left report.json (written before the plots) beside some
+    of them: a folder that looked finished. report.json now comes last: a killed run's folder
+    holds it only with every plot, and the rerun completes it."""
+    from click.testing import CliRunner
+
+    from fieldloc_cli.main import cli
+    from stages.common.report_file import PLOT_NAMES
+
+    poses = localize.main({"method": "lut"}, inputs["ds"], inputs["map"],
+                          tmp_path / "poses.h5", features=inputs["features"])
+    r = tmp_path / "r"
+    args = ["evaluate", str(poses), "--truth", str(inputs["ds"] / "truth.csv"), "-o", str(r)]
+    run = Run(args, tmp_path)
+    started = run.wait_for(path_glob=(r / "plots", "*", 1))
+    rc = run.kill_after(rng.uniform(0.0, 0.5))
+    assert started, "".join(run.seen)
+    plots = {p.name for p in (r / "plots").glob("*.png") if not p.name.startswith(".")}
+    if (r / "report.json").exists():
+        assert plots == set(PLOT_NAMES), (rc, plots)
+    res = CliRunner().invoke(cli, args)
+    assert res.exit_code == 0, res.output
+    assert {p.name for p in (r / "plots").iterdir()} == set(PLOT_NAMES)
+    assert sorted(p.name for p in r.iterdir()) == ["errors.csv", "plots", "report.json",
+                                                    "truth.tum"]

@@ -516,6 +516,14 @@ class FrameParts:
         self._write_json(self.dir / "run.json", self.run)
         return 0
 
+    @property
+    def began_ns(self) -> int:
+        """When the run that started the parts folder began (its run.json's modification time,
+        ns; an open() folder has one): a file this run writes beside the frames (extract's
+        debug overlays) that is newer was written by it or by the interrupted runs it
+        resumes."""
+        return (self.dir / "run.json").stat().st_mtime_ns
+
     def discard(self, why: str) -> None:
         """Remove the frames of an interrupted run that cannot be used, saying why."""
         if self.dir.is_dir():

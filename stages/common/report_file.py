@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .artifacts import atomic_path, provenance, starts_with
+from .artifacts import atomic_path, fieldloc_wrote, provenance, starts_with
 from .errors import FieldlocError, SchemaError
 
 SCHEMA = "fieldloc.report"
@@ -107,9 +107,10 @@ def foreign_report_file(folder: str | Path) -> Path | None:
     """The first of the files evaluate writes into a report folder (report.json, errors.csv,
     truth.tum, the plots) that is there and that fieldloc did not write, or None: what
     evaluate may never replace, --overwrite or not. A folder whose report.json is a fieldloc
-    report is fieldloc's; without one, an errors.csv and a truth.tum that an interrupted
-    evaluate left (report.json is written last) are recognised by their header lines, and
-    anything else of those names is a user's file."""
+    report is fieldloc's; without one, an errors.csv, a truth.tum and plots that an
+    interrupted evaluate left (report.json is written last) are recognised by their header
+    lines and the plots' mark (``fieldloc_wrote``), and anything else of those names is a
+    user's file."""
     from .poses_file import is_fieldloc_tum
 
     folder = Path(folder)
@@ -122,7 +123,8 @@ def foreign_report_file(folder: str | Path) -> Path | None:
     tum = folder / "truth.tum"
     if tum.exists() and not is_fieldloc_tum(tum):
         return tum
-    return next((p for n in PLOT_NAMES if (p := folder / PLOTS_DIR / n).exists()), None)
+    return next((p for n in PLOT_NAMES if (p := folder / PLOTS_DIR / n).exists()
+                 and not (p.is_file() and fieldloc_wrote(p))), None)
 
 
 def _is_errors_csv(path: Path) -> bool:

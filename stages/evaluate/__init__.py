@@ -8,8 +8,8 @@ table across runs.
 A report folder holds:
 
     report.json          the numbers (schema ``fieldloc.report``, see
-                         stages.common.report_file), written last:
-                         its presence means the run finished
+                         stages.common.report_file), written last (after
+                         the plots): its presence means the report is whole
     errors.csv           one row per frame: matched truth, position and heading error
     truth.tum            the truth for evo (evo_ape tum truth.tum poses.tum)
     plots/error_cdf.png, plots/trajectory.png, plots/error_over_time.png, plots/reliability.png
@@ -40,6 +40,7 @@ from stages.common.report_file import (
     PLOT_NAMES,
     PLOTS_DIR,
     REPORT_NAME,
+    encode_numbers,
     foreign_report_file,
     load_report,
     report_head,
@@ -161,7 +162,7 @@ def _truth_path(truth, attrs: dict, poses: Path) -> Path:
 
 
 def main(conf: str | dict | None, poses, truth, output_dir, *, overwrite: bool = False,
-         field=None, progress: bool = False) -> Path:
+         field=None, progress: bool = False, draw=None) -> Path:
     """Evaluate ``poses`` (poses.h5) against ``truth`` (truth.csv, or a dataset folder holding
     it; None: the dataset the poses file names) into the report folder ``output_dir``.
 
@@ -171,7 +172,11 @@ def main(conf: str | dict | None, poses, truth, output_dir, *, overwrite: bool =
     An existing report of the same inputs and conf is kept as it is; one of other inputs is
     replaced only with ``overwrite``, and only a report fieldloc wrote: a folder holding a
     report.json, errors.csv, truth.tum or plot that is not fieldloc's is refused
-    (stages.common.report_file.foreign_report_file). Returns the report folder."""
+    (stages.common.report_file.foreign_report_file). ``draw``: called as ``draw(report,
+    folder)`` (the report as report.json will hold it) to draw the plots the report lists,
+    before report.json is written (stages.pipelines.evaluation passes the plots' drawing), so
+    that a run stopped at any moment leaves no report.json without its plots. Returns the
+    report folder."""
     conf = _resolve(conf)
     poses = Path(poses)
     columns, attrs = read_poses(poses)
@@ -224,12 +229,15 @@ def main(conf: str | dict | None, poses, truth, output_dir, *, overwrite: bool =
         log.warning("%s: %s", poses, why)
 
     out.mkdir(parents=True, exist_ok=True)
+    # report.json is written last, its presence meaning the report is whole: the one being
+    # replaced goes first, and its plots with it (a new report must not keep the old plots)
+    report_file.unlink(missing_ok=True)
+    for name in PLOT_NAMES:
+        (out / PLOTS_DIR / name).unlink(missing_ok=True)
     write_errors_csv(out / ERRORS_NAME, fe)
     from .export import write_truth_tum  # truth.tum: evo_ape tum truth.tum poses.tum
 
     write_truth_tum(out / "truth.tum", truth_cols)
-    for name in PLOT_NAMES:  # a replaced report must not keep plots of the old one
-        (out / PLOTS_DIR / name).unlink(missing_ok=True)
 
     report = {
         **report_head(),
@@ -248,6 +256,8 @@ def main(conf: str | dict | None, poses, truth, output_dir, *, overwrite: bool =
         "files": {"errors": ERRORS_NAME,
                   "plots": [f"{PLOTS_DIR}/{n}" for n in PLOT_NAMES] if conf["plots"] else []},
     }
+    if draw is not None and report["files"]["plots"]:
+        draw(encode_numbers(report), out)
     write_report(report_file, report)
     pos = summary["position_error_m"]
     log.info("%s: median position error %s m, within %s", out, _short(pos["median"]),

@@ -282,8 +282,11 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
             return output
 
         if debug_images is not None:
-            clash = [] if overwrite else [png for _i, n, _s in todo
-                                          if (png := debug_images / f"{n}.png").exists()]
+            # an overlay of a frame still to do that is newer than the parts folder was drawn
+            # by the interrupted run this one resumes (its frame not yet committed): drawn again
+            clash = [] if overwrite else [
+                png for _i, n, _s in todo if (png := debug_images / f"{n}.png").exists()
+                and png.stat().st_mtime_ns < parts.began_ns]
             if clash:
                 if not resumed:
                     parts.remove()  # the empty parts folder this run made
@@ -306,10 +309,11 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
                         parts.add_failure(name, str(e))
                         failed += 1
                         continue
-                    parts.add_frame(name, float(stamp), arrays)
-                    if debug_images is not None:
+                    if debug_images is not None:  # before the frame is committed: a
+                        # committed frame, which a resumed run skips, has its overlay
                         _write_debug_image(debug_images / f"{name}.png",
                                            module.debug_overlay(image, arrays))
+                    parts.add_frame(name, float(stamp), arrays)
                     done += 1
             finally:  # Ctrl-C or an error: the finished frames are kept for the next run
                 parts.flush()

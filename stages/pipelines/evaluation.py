@@ -4,9 +4,11 @@ asks for them.
 
     main(conf, poses, truth, output_dir, *, overwrite=False, field=None, progress=False) -> Path
 
-The plots are drawn when the report lists a plot that is missing: after a report written anew
-(evaluate removes the plots of the one it replaces), or after a run stopped while drawing; an
-up-to-date report with its plots is left as it is.
+A report written anew has its plots drawn before its report.json (stages.evaluate.main's
+``draw``), so a run stopped at any moment leaves no report.json without its plots, and the
+next run writes the report again. The plots of an up-to-date report are drawn again only
+where one is missing (a user removed it); an up-to-date report with its plots is left as it
+is.
 """
 
 from __future__ import annotations
@@ -22,7 +24,10 @@ def main(conf, poses, truth, output_dir, *, overwrite: bool = False, field=None,
          progress: bool = False) -> Path:
     """Evaluate ``poses`` against ``truth`` into the report folder ``output_dir`` (see
     stages.evaluate.main) and draw the report's plots; returns the report folder."""
-    out = evaluate.main(conf, poses, truth, output_dir, overwrite=overwrite, field=field)
+    out = evaluate.main(conf, poses, truth, output_dir, overwrite=overwrite, field=field,
+                        draw=lambda report, folder: report_plots.draw(report, folder,
+                                                                      overwrite=True))
+    # an up-to-date report kept as it was: its plots, if one is missing, drawn again
     listed = load_report(out, raw=True)["files"]["plots"]
     if any(not (out / p).is_file() for p in listed):
         report_plots.main(None, out, overwrite=True)

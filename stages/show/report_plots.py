@@ -3,6 +3,7 @@ trajectories on the field, the errors over time and the reliability diagram. Eve
 function draws into a matplotlib ``ax`` it is given (as evo does), so callers compose figures.
 
     main(conf, report_dir, *, overwrite=False) -> Path   # the plots folder
+    draw(report, report_dir, conf=None, *, overwrite=False) -> Path   # of a report not yet written
 
 draws them from a report folder written by stages.evaluate: its frames are matched to the
 truth again from the poses and truth files the report names, with the report's settings
@@ -262,9 +263,18 @@ def main(conf: str | dict | None, report_dir: str | Path, *, overwrite: bool = F
          progress: bool = False) -> Path:
     """Draw the plots of the report folder ``report_dir`` (report.json) into its plots/ folder
     and return that folder. Existing plots are replaced only with ``overwrite``."""
+    conf = stage_conf(confs, conf)  # a bad conf is refused before the report is read
+    report_dir = Path(report_dir)
+    return draw(load_report(report_dir, raw=True), report_dir, conf, overwrite=overwrite)
+
+
+def draw(report: dict, report_dir: str | Path, conf: str | dict | None = None, *,
+         overwrite: bool = False) -> Path:
+    """Draw the plots of ``report`` (a report.json's content, as ``load_report(raw=True)``
+    reads it) into ``report_dir``/plots and return that folder: evaluate draws them before it
+    writes report.json, so that a report.json is there only beside its plots."""
     conf = stage_conf(confs, conf)
     report_dir = Path(report_dir)
-    report = load_report(report_dir, raw=True)
     econf = report["evaluate_conf"]
     plots_dir = report_dir / PLOTS_DIR
     inputs = {"poses": report["poses"], "truth": report["truth"]}

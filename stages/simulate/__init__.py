@@ -288,37 +288,58 @@ BYTES_PER_FRAME = 1024.0
 PNG_RATIO = 0.6  # a rendered PNG's size / raw BGR size (noisy carpet compresses poorly)
 
 
-def is_simulated_dataset(folder: Path) -> bool:
-    """Whether ``folder`` is a dataset written by simulate (its simulation.yaml says so)."""
+def _record(folder: Path) -> dict | None:
+    """``folder``'s simulation.yaml, or None where it is missing or unreadable."""
     rec = folder / SIMULATION_RECORD
     if not rec.is_file():
-        return False
+        return None
     try:
         d = load_yaml(rec.read_text())
-    except (OSError, UnicodeDecodeError, yaml.YAMLError):
-        return False
-    return isinstance(d, dict) and d.get("generator") == GENERATOR
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, FieldlocError):
+        return None
+    return d if isinstance(d, dict) else None
 
 
-# what simulate writes into a dataset folder (the perspective renderer adds head.csv and
-# head_truth.csv), and the names of its frames in images/
+def is_simulated_dataset(folder: Path) -> bool:
+    """Whether ``folder`` is a dataset written by simulate (its simulation.yaml says so)."""
+    rec = _record(folder)
+    return rec is not None and rec.get("generator") == GENERATOR
+
+
+# what simulate may write into a dataset folder (the perspective renderer adds head.csv and
+# head_truth.csv, a grid has no odometry.csv): simulation.yaml lists under ``files`` those a
+# run wrote, and its ``frames`` gives its images' names (FRAME_NAME, from 000000.png on)
 WRITTEN = ("images", "frames.csv", "truth.csv", "odometry.csv", "imu.csv", "head.csv",
            "head_truth.csv", "calib.yaml", SIMULATION_RECORD)
 FRAME_NAME = re.compile(r"[0-9]{6}\.png")
 
 
+def _frame_names(n: int) -> list[str]:
+    return [f"{i:06d}.png" for i in range(n)]
+
+
 def not_simulated(folder: Path) -> Path | None:
-    """The first file or folder in the dataset ``folder`` that simulate does not write
-    (WRITTEN, frames named FRAME_NAME in images/), or None: what replacing the folder would
-    delete of a user's (notes, features, poses made from it)."""
+    """The first file or folder in the dataset ``folder``, at its top or in images/, that
+    simulate did not write, or None: what replacing the folder would delete of a user's
+    (notes, a picture added to images/, features and poses made from it). What it wrote is
+    what its simulation.yaml records (``files``, and ``frames`` images); a record of an older
+    version without ``files`` allows WRITTEN and any frame name."""
+    rec = _record(folder) or {}
+    files = rec.get("files")
+    files = set(files) if isinstance(files, list) else set(WRITTEN)
     for entry in sorted(folder.iterdir()):
-        if entry.name not in WRITTEN:
+        if entry.name not in files:
             return entry
     images = folder / "images"
-    if images.is_dir():
-        return next((e for e in sorted(images.iterdir())
-                     if not (FRAME_NAME.fullmatch(e.name) and e.is_file())), None)
-    return None
+    if not images.is_dir():
+        return None
+    n = rec.get("frames")
+    frames = (set(_frame_names(n)) if isinstance(n, int) and not isinstance(n, bool)
+              else None)
+    return next((e for e in sorted(images.iterdir())
+                 if not e.is_file() or e.is_symlink()
+                 or not (e.name in frames if frames is not None
+                         else FRAME_NAME.fullmatch(e.name))), None)
 
 
 def _check_target(output_dir: Path, overwrite: bool, field_file: Path | None):
@@ -651,7 +672,7 @@ def main(conf: str | dict | None, field, output_dir, *, overwrite: bool = False,
     tmp = Path(tempfile.mkdtemp(prefix=prefix, suffix=suffix, dir=output_dir.parent))
     try:
         (tmp / "images").mkdir()
-        names = [f"{i:06d}.png" for i in range(n)]
+        names = _frame_names(n)
         for i in tqdm(range(n), desc=f"simulate {kind}", unit="frame", disable=not progress):
             img = renderer.render(path.poses[i], i)
             if not cv2.imwrite(str(tmp / "images" / names[i]), img):
@@ -679,6 +700,8 @@ def main(conf: str | dict | None, field, output_dir, *, overwrite: bool = False,
             "calib_seed": calib_seed,
             "world_seed": seed if conf.get("world_seed") is None else int(conf["world_seed"]),
             "frames": n,
+            # what this run wrote (with the n images): all --overwrite may delete
+            "files": sorted([p.name for p in tmp.iterdir()] + [SIMULATION_RECORD]),
             "true_camera": renderer.camera.to_dict(),
             "conf": _plain(conf),
         }

@@ -276,12 +276,26 @@ def format_markdown(rows: list[Row]) -> str:
     return "\n".join(out + ([""] + notes if notes else [])) + "\n"
 
 
-def read_json(path: str | Path) -> list[Row]:
-    """The rows of a ``bench --json`` file."""
-    from ...common.errors import FieldlocError
+# the largest bench --json file read: a full run's rows take a few dozen kB, so this is far
+# above any real one and still refuses /dev/zero or a stray huge file before memory runs out
+MAX_JSON_BYTES = 16 << 20
 
+
+def read_json(path: str | Path) -> list[Row]:
+    """The rows of a ``bench --json`` file: a regular file (a FIFO would block the read, a
+    device never end it) of at most MAX_JSON_BYTES."""
+    from ...common.errors import FieldlocError, file_problem
+
+    problem = file_problem(path)
+    if problem is not None:
+        raise FieldlocError(f"{path}: {problem}, not a bench --json file")
     try:
-        data = json.loads(Path(path).read_text())
+        with open(path, "rb") as f:
+            raw = f.read(MAX_JSON_BYTES + 1)
+        if len(raw) > MAX_JSON_BYTES:
+            raise FieldlocError(f"{path}: larger than {MAX_JSON_BYTES >> 20} MiB, not a bench"
+                                " --json file")
+        data = json.loads(raw)
         names = {f for f in Row.__dataclass_fields__}
         return [Row(**{k: (math.nan if v is None and k.endswith(("msec", "_mb", "ratio"))
                            else v) for k, v in r.items() if k in names})
