@@ -2262,6 +2262,11 @@ CASES = [
         ("kid", "height", "height", "yes", ""),
         ("kid", "distortion.0", "distortion[0]", "yes", ""),
         ("kid", "intrinsics.cx", "intrinsics.cx", "true", ""))],
+    *[Case(f"calib image_size {size}: one line, not a warning per frame", "newcomer",
+           ["extract", W + "/omni", "-o", W + "/f.h5"], 1,
+           "'image_size' must be [width, height] in whole pixels from 1 to 8192",
+           setup=_with_ds("omni", lambda ds, size=size: edit_calib(ds, image_size=size)))
+      for size in ([1e308, 480], [480, 8193])],
     # ---- s54 group H4: files and interruptions
     Case("simulate --overwrite of its dataset holding a user's picture in images/", "data-lost",
          ["simulate", "omni", "--field", "spl", "-o", W + "/data", "--frames", "1",

@@ -284,14 +284,15 @@ MAX_IMAGE_PX = 8192
 
 
 def image_size_of(d: dict, where: str) -> tuple[int, int]:
-    """calib.yaml's ``image_size``: [width, height], whole numbers > 0."""
+    """calib.yaml's ``image_size``: [width, height], whole numbers from 1 to MAX_IMAGE_PX."""
     v = d["image_size"]
     bad = DatasetError(
-        f"{where}: 'image_size' must be [width, height] in whole pixels > 0, got {shown(v, 40)}")
+        f"{where}: 'image_size' must be [width, height] in whole pixels from 1 to"
+        f" {MAX_IMAGE_PX}, got {shown(v, 40)}")
     if not isinstance(v, (list, tuple)) or len(v) != 2:
         raise bad
     w, h = user_numbers(v, f"{where}: 'image_size'", whole=True, error=DatasetError)
-    if not (w > 0 and h > 0):
+    if not (0 < w <= MAX_IMAGE_PX and 0 < h <= MAX_IMAGE_PX):
         raise bad
     return w, h
 
