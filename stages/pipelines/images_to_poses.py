@@ -44,6 +44,7 @@ import yaml
 from .. import extract, localize
 from ..common.artifacts import check_output
 from ..common.errors import FieldlocError
+from ..common.poses_file import check_tum_output
 
 log = logging.getLogger(__name__)
 
@@ -101,9 +102,10 @@ def main(conf, dataset_dir: str | Path, map_path: str | Path, output: str | Path
               and localize.recording_calibration(ds.camera().kind, resolved["method"]))
     if rounds:
         calib, features2, first = recalibrated_paths(output)
-        for path in (calib, features2, first, first.with_suffix(".tum")):
-            check_output(path, {**inputs, "poses": output, "calib": write_calib},
-                         overwrite=overwrite, kind="calibration")
+        given = {**inputs, "poses": output, "calib": write_calib}
+        for path in (calib, features2, first):
+            check_output(path, given, overwrite=overwrite, kind="calibration")
+        check_tum_output(first.with_suffix(".tum"), given, overwrite)  # its own mark: a header
     if features is None:
         features = features_for(dataset_dir, output, inputs, progress)
     kw = {"progress": progress, "allow_field_mismatch": allow_field_mismatch}
