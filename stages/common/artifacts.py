@@ -14,6 +14,10 @@ temporary file's 0600, so teammates can read shared maps.
 ``check_output`` is the one rule every command applies to what it writes: never one of its own
 inputs (with ``--overwrite`` or without), never an existing file without ``--overwrite``, with
 it only a file fieldloc wrote (``fieldloc_wrote``), and a folder that exists and is writable.
+It also records, per output, whether the final rename may replace what it then finds there
+(``may_replace``): an output that did not exist when a run checked it without ``--overwrite``
+is committed without replacing (``commit_file``, ``commit_dir``), so of two runs writing one
+output at once the second to finish refuses instead of silently replacing the first one's.
 """
 
 from __future__ import annotations
@@ -226,7 +230,123 @@ def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *
     if overwrite and kind == "file" and path.is_file() and not ours(path):
         raise error(f"{path} was not written by fieldloc: --overwrite replaces only fieldloc's"
                     " own outputs, never a user's file; choose another output")
+    found = path.exists() and (kind == "file" or not path.is_dir() or any(path.iterdir()))
+    # an internal re-check with overwrite (a second round writing the run's own output) keeps
+    # the decision of this run's first check of an output that is still not there
+    if found or bool(overwrite) and _REPLACE.get(os.path.realpath(path)) is not False:
+        _note_decision(path, True)
+    else:
+        _note_decision(path, False)
     return path
+
+
+# Whether the final commit of an output may replace what it finds at the output's name, per
+# output this process checked (check_output), by real path. An output that did not exist (or,
+# a folder, was empty) when it was checked without --overwrite is False: a run that finds it
+# there at the commit refuses ("... was written by another run meanwhile") instead of
+# silently replacing the other run's result; with --overwrite, or where the caller itself
+# decided about an existing output (overwrite=None), True. A file under a checked folder
+# takes the folder's decision unless it was checked itself; a file this process committed is
+# its own and may be replaced afterwards (True). Files under no checked output (the lookup
+# cache's) are replaced, as they always were. Recorded here rather than passed
+# down as a flag, so that every writer (atomic_path, write_artifact, commit_dir) applies the
+# command's decision without each of dozens of callers passing it on.
+_REPLACE: dict[str, bool] = {}
+
+
+def _note_decision(path: str | Path, replace: bool) -> None:
+    _REPLACE[os.path.realpath(path)] = replace
+
+
+def may_replace(path: str | Path) -> bool:
+    """Whether committing ``path`` may replace an existing file or folder of that name: the
+    decision of ``check_output`` for it or its nearest checked folder (see ``_REPLACE``)."""
+    key = os.path.realpath(path)
+    while True:
+        if key in _REPLACE:
+            return _REPLACE[key]
+        parent = os.path.dirname(key)
+        if parent == key:
+            return True
+        key = parent
+
+
+def _written_meanwhile(path: Path) -> FieldlocError:
+    return FieldlocError(f"{path} was written by another run meanwhile (it did not exist when"
+                         " this run checked it) and is kept as that run wrote it: use"
+                         " --overwrite to replace it, or choose another output")
+
+
+# Tests only (tests/test_concurrent_runs.py): the path of a gate file. A run given it in its
+# environment stops just before its first commit of a file or folder, creates
+# ``<gate>.reached``, and waits while the gate file exists (at most _GATE_WAIT_S), so that a
+# test can let a second run write the same output meanwhile, however loaded the machine. The
+# variable is taken out of the environment at once: the run's own child processes (Dask
+# workers) and later commits do not wait.
+TEST_COMMIT_GATE = "FIELDLOC_TEST_COMMIT_GATE"
+_GATE_WAIT_S = 300.0  # bounded, so a test that forgets its gate cannot hang a run forever
+
+
+def _test_gate() -> None:
+    gate = os.environ.pop(TEST_COMMIT_GATE, "")
+    if not gate:
+        return
+    import time
+
+    Path(gate + ".reached").touch()
+    end = time.monotonic() + _GATE_WAIT_S
+    while os.path.exists(gate) and time.monotonic() < end:
+        time.sleep(0.05)
+
+
+def commit_file(tmp: str | Path, path: str | Path) -> None:
+    """Move the finished part ``tmp`` to ``path``: replacing what is there only where
+    ``may_replace(path)``; otherwise by a hard link, which fails where ``path`` exists (a
+    run that wrote it since this one checked it), then FieldlocError (``tmp`` is left for the
+    caller to remove)."""
+    path = Path(path)
+    _test_gate()
+    if may_replace(path):
+        os.replace(tmp, path)
+    else:
+        try:
+            os.link(tmp, path)
+        except FileExistsError:
+            raise _written_meanwhile(path) from None
+        except OSError:  # a file system without hard links: check, then rename
+            if os.path.lexists(path):
+                raise _written_meanwhile(path) from None
+            os.replace(tmp, path)
+        else:
+            os.unlink(tmp)
+    _note_decision(path, True)  # ours now: this process may write it again
+
+
+def commit_dir(tmp: str | Path, path: str | Path, replace: bool | None = None) -> None:
+    """Move the finished folder ``tmp`` to ``path``. Where it may replace (``replace``; None:
+    ``may_replace(path)``), an existing folder is first moved aside into a pid-tagged
+    ``.old`` part (restored or removed by the next run if this one is killed in between).
+    Otherwise a plain rename, which the system refuses onto a folder that is not empty (an
+    empty one holds nothing to lose): the folder another run wrote meanwhile is kept and this
+    run refuses (FieldlocError; ``tmp`` is left for the caller to remove)."""
+    path, tmp = Path(path), Path(tmp)
+    _test_gate()
+    if replace is None:
+        replace = may_replace(path)
+    if replace and path.exists():
+        prefix, suffix = part_name(path, ".old")
+        old = Path(tempfile.mkdtemp(prefix=prefix, suffix=suffix, dir=path.parent))
+        os.replace(path, old / "data")
+        os.replace(tmp, path)
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        try:
+            os.rename(tmp, path)
+        except OSError as e:
+            if e.errno in (errno.ENOTEMPTY, errno.EEXIST, errno.ENOTDIR, errno.EISDIR):
+                raise _written_meanwhile(path) from None
+            raise
+    _note_decision(path, True)
 
 
 def _refuse_dataset_files(path: Path, kind: str, error: type[FieldlocError]) -> None:
@@ -518,8 +638,10 @@ def part_name(path: Path, suffix: str = ".part") -> tuple[str, str]:
 
 @contextlib.contextmanager
 def atomic_path(path: str | Path, suffix: str | None = None):
-    """Yield a temporary path beside ``path``; rename it onto ``path`` only on success. Stale
-    parts of the same target from killed runs are removed first."""
+    """Yield a temporary path beside ``path``; rename it onto ``path`` only on success
+    (``commit_file``: without replacing a file another run wrote there since this run's
+    ``check_output``, unless it was given --overwrite). Stale parts of the same target from
+    killed runs are removed first."""
     path = Path(path)
     _check_writable(path)
     remove_stale_parts(path)
@@ -535,7 +657,7 @@ def atomic_path(path: str | Path, suffix: str | None = None):
             yield tmp
         if tmp.exists():
             give_default_mode(tmp)
-        os.replace(tmp, path)
+        commit_file(tmp, path)
     finally:
         if tmp.exists():
             tmp.unlink()
@@ -544,8 +666,9 @@ def atomic_path(path: str | Path, suffix: str | None = None):
 @contextlib.contextmanager
 def atomic_dir(path: str | Path, *, overwrite: bool = False):
     """Yield a temporary folder beside ``path``; on success it replaces ``path`` (an existing
-    folder only with ``overwrite``), so an interrupted run leaves neither a half folder under
-    the real name nor a damaged earlier one."""
+    folder only with ``overwrite``, ``commit_dir``: without it, never one another run wrote
+    meanwhile), so an interrupted run leaves neither a half folder under the real name nor a
+    damaged earlier one."""
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise FieldlocError(f"cannot write folder {path}: it is a file")
@@ -562,13 +685,7 @@ def atomic_dir(path: str | Path, *, overwrite: bool = False):
         with writing(path):
             yield tmp
         give_default_mode(tmp)  # mkdtemp makes it 0700; a dataset folder is shared like any
-        if path.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=parent))
-            os.replace(path, old / "previous")
-            os.replace(tmp, path)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, path)
+        commit_dir(tmp, path, replace=overwrite)
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)

@@ -53,6 +53,7 @@ import logging
 import math
 import os
 import shutil
+import signal
 import time
 import traceback
 from pathlib import Path
@@ -670,6 +671,50 @@ def _quiet_stop(record: logging.LogRecord) -> bool:
     return True
 
 
+def _local_worker_setup() -> None:
+    """Run in each local worker process as it joins (in its main thread, the one its event
+    loop runs in). A Ctrl-C in a terminal goes to the whole process group: the workers ignore
+    it, and this process, which gets it too, stops them in order (``_hush_if_interrupted``),
+    rather than each dying of it mid-task with its own lines. tqdm's bars there lock with a
+    thread lock instead of the multiprocessing lock tqdm makes by default, a semaphore that
+    a worker stopped mid-task leaves behind for Python's resource tracker to warn of at exit
+    (the workers' bars are never shown, so no process shares them)."""
+    import threading
+
+    from tqdm import tqdm
+
+    with contextlib.suppress(ValueError):  # not the main thread: nothing to ignore it in
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    tqdm.set_lock(threading.RLock())
+
+
+def _hush_if_interrupted(client):
+    """An exit callback, run before the cluster is stopped: after a Ctrl-C the stop says
+    nothing (Dask's lines of closing, of tasks cancelled and of workers killed mid-task, here
+    and in the workers) and a second Ctrl-C does not break it off half way (which left a
+    cluster for the atexit hook of distributed to trip over with a traceback). ``_unhush``
+    undoes it in this process after the stop."""
+
+    done = []
+
+    def on_exit(exc_type, exc, tb) -> bool:
+        if exc_type is not None and issubclass(exc_type, KeyboardInterrupt) and not done:
+            done.append(True)
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            logging.disable(logging.CRITICAL)
+            with contextlib.suppress(Exception):  # a worker out of reach is stopped anyway
+                client.run(logging.disable, logging.CRITICAL)
+        return False
+
+    return on_exit
+
+
+def _unhush(handler) -> None:
+    logging.disable(logging.NOTSET)
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, handler)
+
+
 def _execute_dask(plan: Plan, todo, conf, progress, say, records: dict, summarise) -> dict:
     """Run ``todo`` on Dask, adding their records to ``records`` (which holds the finished
     runs' before), then ``summarise`` them; returns its index. A dataset's CDF picture
@@ -681,6 +726,7 @@ def _execute_dask(plan: Plan, todo, conf, progress, say, records: dict, summaris
     from ..show import comparison
 
     with contextlib.ExitStack() as stack:
+        stack.callback(_unhush, signal.getsignal(signal.SIGINT))  # last, after the stop
         # Dask's own INFO lines (cluster start and stop) only when our log shows INFO
         dask_log = logging.getLogger("distributed")
         stack.callback(dask_log.setLevel, dask_log.level)
@@ -692,6 +738,7 @@ def _execute_dask(plan: Plan, todo, conf, progress, say, records: dict, summaris
             except (OSError, TimeoutError) as e:
                 raise FieldlocError(f"cannot reach the Dask scheduler {conf['scheduler']}"
                                     f" ({one_line(e)})") from None
+            hush = stack.push(_hush_if_interrupted(client))
             where = f"the Dask cluster at {conf['scheduler']}"
         else:
             n = min(conf["workers"] or core_count(), len(todo))  # no idle workers
@@ -702,6 +749,8 @@ def _execute_dask(plan: Plan, todo, conf, progress, say, records: dict, summaris
                 dashboard_address=":0", silence_logs=logging.WARNING))
             client = stack.enter_context(Client(cluster))
             stack.callback(nanny_log.addFilter, _quiet_stop)  # before it stops
+            hush = stack.push(_hush_if_interrupted(client))  # first on the way out
+            client.register_worker_callbacks(_local_worker_setup)
             where = f"a local Dask cluster of {n} worker processes"
         nw = len(client.scheduler_info().get("workers", {}))
         say(f"running {len(todo)} runs on {where} ({nw} workers)")
@@ -795,6 +844,7 @@ def _execute_dask(plan: Plan, todo, conf, progress, say, records: dict, summaris
                         log.debug("the CDF of %s on a worker failed: %s", name, one_line(e))
                         comparison.draw_dataset_cdf(plan.results, name, index["runs"])
             except KeyboardInterrupt:
+                hush(KeyboardInterrupt, None, None)  # before the cancelled tasks' warnings
                 client.cancel(list(running) + list(pictures.values()))
                 raise
     return index

@@ -71,6 +71,7 @@ import yaml
 
 from ..common.artifacts import (
     check_output,
+    commit_dir,
     give_default_mode,
     part_name,
     part_pattern,
@@ -707,14 +708,7 @@ def main(conf: str | dict | None, field, output_dir, *, overwrite: bool = False,
         }
         (tmp / SIMULATION_RECORD).write_text(yaml.safe_dump(info, sort_keys=False))
         give_default_mode(tmp)
-        if output_dir.exists():
-            prefix, suffix = part_name(output_dir, ".old")
-            old = Path(tempfile.mkdtemp(prefix=prefix, suffix=suffix, dir=output_dir.parent))
-            os.replace(output_dir, old / "data")
-            os.replace(tmp, output_dir)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, output_dir)
+        commit_dir(tmp, output_dir, replace=overwrite)  # never a dataset written meanwhile
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
