@@ -11,6 +11,7 @@ from click.testing import CliRunner
 from unchanged_files import tree_hashes
 
 from fieldloc_cli.main import cli
+from stages.common.camera import calib_text
 from stages.common.poses_file import read_poses
 
 
@@ -105,7 +106,7 @@ def test_a_run_without_a_second_round_removes_an_earlier_ones_files(four_frames,
     """Over an earlier run's output (--overwrite), a run whose first round gives no calibration
     removes the second-round files that run left (a learnt calib.yaml, a features file), so
     nothing beside the poses claims a calibration this run did not learn; a file of the user's
-    at such a name (not a second round's) is left as it is."""
+    at such a name (not fieldloc's) is refused before anything runs and left as it is."""
     runner = CliRunner()
     out = tmp_path / "p.h5"
     args = ["localize", str(four_frames), "--map", str(msl2015_map), "--smooth", "-o",
@@ -113,7 +114,7 @@ def test_a_run_without_a_second_round_removes_an_earlier_ones_files(four_frames,
     assert runner.invoke(cli, args).exit_code == 0
     learnt = yaml.safe_load((four_frames / "calib.yaml").read_text())
     learnt["calibration"] = {"method": "recording", "source": "an earlier run"}
-    (tmp_path / "p.recalibrated.yaml").write_text(yaml.safe_dump(learnt))
+    (tmp_path / "p.recalibrated.yaml").write_text(calib_text(learnt))  # as fieldloc writes it
     (tmp_path / "p.recalibrated.features.h5").write_bytes((tmp_path / "p.features.h5")
                                                           .read_bytes())
     r = runner.invoke(cli, [*args, "--overwrite"])
@@ -123,6 +124,6 @@ def test_a_run_without_a_second_round_removes_an_earlier_ones_files(four_frames,
     mine.write_text("notes: the user's own file\n")
     before = tree_hashes(mine)
     r = runner.invoke(cli, [*args, "--overwrite"])
-    assert r.exit_code == 0, r.output
+    assert r.exit_code == 1 and "was not written by fieldloc" in r.output, r.output
     assert tree_hashes(mine) == before  # a file the user made is never touched
 
