@@ -9,7 +9,9 @@ one has finished, whatever the load of the machine."""
 
 from __future__ import annotations
 
+import copy
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -162,3 +164,63 @@ def test_ctrl_c_on_batch_workers_says_one_line(tmp_path, delay):
     assert len(after) <= 2, "".join(before) + err
     assert "Traceback" not in err and "distributed" not in err and "Warning" not in err, err
     assert any("interrupted" in line for line in after), err
+
+
+def test_a_users_file_saved_at_the_output_meanwhile_is_kept_under_overwrite(tmp_path):
+    """--overwrite replaces an output only if fieldloc wrote it, and that is asked again at the
+    commit: a user's file saved at the output's name while the run works is kept, and the run
+    refuses in one line (s54 hostile trial C, C3)."""
+    assert subprocess.run([*FIELDLOC, "build-map", "spl", "--resolution", "0.5", "-o", "m.h5"],
+                          cwd=tmp_path, capture_output=True, timeout=WAIT_S).returncode == 0
+    gate = tmp_path / "gate"
+    gate.touch()
+    env = {**os.environ, TEST_COMMIT_GATE: str(gate)}
+    a = subprocess.Popen([*FIELDLOC, "build-map", "spl", "--resolution", "0.5", "-o", "m.h5",
+                          "--overwrite"], cwd=tmp_path, env=env, stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True)
+    try:
+        end = time.monotonic() + WAIT_S
+        while not Path(str(gate) + ".reached").exists():
+            assert a.poll() is None, a.stderr.read()
+            assert time.monotonic() < end, "the run never reached its commit"
+            time.sleep(0.1)
+        (tmp_path / "m.h5").write_text("my notes, saved here meanwhile\n")
+    finally:
+        gate.unlink()
+    _out, err = a.communicate(timeout=WAIT_S)
+    assert a.returncode == 1 and err.count("\n") == 1, err
+    assert "was replaced meanwhile by a file fieldloc did not write" in err
+    assert (tmp_path / "m.h5").read_text() == "my notes, saved here meanwhile\n"
+
+
+@pytest.fixture(scope="module")
+def four_frames(tmp_path_factory):
+    """4 rendered omni-clean frames: too few sure frames to calibrate from (5 at least), so
+    localize --smooth has no second round."""
+    from stages import simulate
+
+    conf = copy.deepcopy(simulate.confs["omni-clean"])
+    conf.update(frames=4, seed=2)
+    return simulate.main(conf, "msl-2015", tmp_path_factory.mktemp("sim") / "four")
+
+
+def test_smooth_without_a_second_round_never_replaces_a_poses_file_written_meanwhile(
+        four_frames, msl2015_map, tmp_path):
+    """localize --smooth whose first round gives no calibration moves that round onto the
+    output: as every commit, without replacing a poses file another run wrote there
+    meanwhile (s54 hostile trial C, C1)."""
+    shutil.copytree(four_frames, tmp_path / "ds")
+    common = ["localize", "ds", "--map", str(msl2015_map), "--features", "f.h5", "-o", "p.h5"]
+    assert subprocess.run([*FIELDLOC, "extract", "ds", "-o", "f.h5"], cwd=tmp_path,
+                          capture_output=True, timeout=WAIT_S).returncode == 0
+    # the map's lookup cache built first: the gate then stops the run at its first round's
+    # poses, not at a cache file (whose lock the other run would wait for)
+    warm = [*common[:-1], "warm.h5"]
+    assert subprocess.run([*FIELDLOC, *warm], cwd=tmp_path, capture_output=True,
+                          timeout=WAIT_S).returncode == 0
+    a, b = _race(tmp_path, [*common, "--smooth"], common)
+    assert b.returncode == 0, b.stderr
+    assert a.returncode == 1 and "was written by another run meanwhile" in a.stderr, a.stderr
+    with h5py.File(tmp_path / "p.h5", "r") as f:  # the other run's poses, not smoothed
+        assert "smoothed" not in {m.decode() if isinstance(m, bytes) else m
+                                  for m in f["poses/mode"][()]}

@@ -162,22 +162,27 @@ def _inside(inner: Path, outer: Path) -> bool:
 
 # The mark every text file and picture fieldloc writes carries near its start or end (a
 # comment line, a PNG text chunk, a PDF's or SVG's creator): how --overwrite tells a file
-# fieldloc wrote from a user's file of the same name. HDF5 artifacts carry a schema instead.
-WRITTEN_BY = "written by fieldloc"
-WRITTEN_MARK = f"{WRITTEN_BY} {__version__}"
+# fieldloc wrote from a user's file of the same name. The token in brackets is what is looked
+# for: prose that says "written by fieldloc" (a note, a log of fieldloc's own refusals) is
+# no mark. HDF5 artifacts carry one of HDF5_SCHEMAS instead.
+WRITTEN_BY = "[fieldloc-output]"
+WRITTEN_MARK = f"written by fieldloc {__version__} {WRITTEN_BY}"
 _MARK_SPAN = 8192  # bytes read at each end of a file for the mark (PDF keeps it at the end)
 HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+# the schemas of the HDF5 artifacts (each owned by its module: map_file, features_file,
+# poses_file, templates); another schema, "fieldloc.mine" say, is no artifact of fieldloc's
+HDF5_SCHEMAS = ("fieldloc.map", "fieldloc.features", "fieldloc.poses", "fieldloc.templates")
 
 
 def fieldloc_wrote(path: str | Path) -> bool:
     """Whether the file ``path`` is one fieldloc wrote: an HDF5 file whose root ``schema`` is
-    one of fieldloc's, or a file carrying ``WRITTEN_BY`` within its first or last
+    one of HDF5_SCHEMAS, or a file carrying ``WRITTEN_BY`` within its first or last
     ``_MARK_SPAN`` bytes. False for anything it cannot read."""
     try:
         with open(path, "rb") as f:
             head = f.read(_MARK_SPAN)
             if head.startswith(HDF5_SIGNATURE):
-                return _hdf5_schema(path).startswith("fieldloc.")
+                return _hdf5_schema(path) in HDF5_SCHEMAS
             f.seek(0, os.SEEK_END)
             f.seek(max(f.tell() - _MARK_SPAN, len(head)))
             tail = f.read(_MARK_SPAN)
@@ -231,10 +236,13 @@ def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *
         raise error(f"{path} was not written by fieldloc: --overwrite replaces only fieldloc's"
                     " own outputs, never a user's file; choose another output")
     found = path.exists() and (kind == "file" or not path.is_dir() or any(path.iterdir()))
-    # an internal re-check with overwrite (a second round writing the run's own output) keeps
-    # the decision of this run's first check of an output that is still not there
-    if found or bool(overwrite) and _REPLACE.get(os.path.realpath(path)) is not False:
-        _note_decision(path, True)
+    if found and (overwrite is None or kind != "file"):
+        _note_decision(path, True)  # the caller's own rules decided (folders, companions)
+    elif found or (overwrite and _REPLACE.get(os.path.realpath(path)) is not False):
+        # a file replaced at the commit only if what is there then is still fieldloc's (a
+        # user's file saved there meanwhile is kept); an internal re-check with overwrite (a
+        # second round writing the run's own output) keeps the first check's False
+        _note_decision(path, ours if kind == "file" else True)
     else:
         _note_decision(path, False)
     return path
@@ -244,23 +252,25 @@ def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *
 # output this process checked (check_output), by real path. An output that did not exist (or,
 # a folder, was empty) when it was checked without --overwrite is False: a run that finds it
 # there at the commit refuses ("... was written by another run meanwhile") instead of
-# silently replacing the other run's result; with --overwrite, or where the caller itself
-# decided about an existing output (overwrite=None), True. A file under a checked folder
-# takes the folder's decision unless it was checked itself; a file this process committed is
-# its own and may be replaced afterwards (True). Files under no checked output (the lookup
-# cache's) are replaced, as they always were. Recorded here rather than passed
-# down as a flag, so that every writer (atomic_path, write_artifact, commit_dir) applies the
+# silently replacing the other run's result; a file output with --overwrite holds the test
+# ``ours`` (fieldloc_wrote or the format's own), applied again at the commit to what is there
+# then; where the caller itself decided (overwrite=None) or a folder, True. A file under a
+# checked folder takes the folder's decision unless it was checked itself; a file this
+# process committed is its own and may be replaced afterwards (True). Files under no checked
+# output (the lookup cache's) are replaced, as they always were. Recorded here rather than
+# passed down as a flag, so that every writer (atomic_path, write_artifact, commit_dir) applies the
 # command's decision without each of dozens of callers passing it on.
-_REPLACE: dict[str, bool] = {}
+_REPLACE: dict[str, object] = {}
 
 
-def _note_decision(path: str | Path, replace: bool) -> None:
+def _note_decision(path: str | Path, replace) -> None:
     _REPLACE[os.path.realpath(path)] = replace
 
 
-def may_replace(path: str | Path) -> bool:
+def may_replace(path: str | Path):
     """Whether committing ``path`` may replace an existing file or folder of that name: the
-    decision of ``check_output`` for it or its nearest checked folder (see ``_REPLACE``)."""
+    decision of ``check_output`` for it or its nearest checked folder (see ``_REPLACE``):
+    True, False, or the test what is there must pass."""
     key = os.path.realpath(path)
     while True:
         if key in _REPLACE:
@@ -306,7 +316,11 @@ def commit_file(tmp: str | Path, path: str | Path) -> None:
     caller to remove)."""
     path = Path(path)
     _test_gate()
-    if may_replace(path):
+    rule = may_replace(path)
+    if callable(rule) and os.path.lexists(path) and not rule(path):
+        raise FieldlocError(f"{path} was replaced meanwhile by a file fieldloc did not write; it"
+                            " is kept: choose another output")
+    if rule:
         os.replace(tmp, path)
     else:
         try:
@@ -332,12 +346,19 @@ def commit_dir(tmp: str | Path, path: str | Path, replace: bool | None = None) -
     path, tmp = Path(path), Path(tmp)
     _test_gate()
     if replace is None:
-        replace = may_replace(path)
+        replace = bool(may_replace(path))  # a folder's own rules were applied when checked
     if replace and path.exists():
         prefix, suffix = part_name(path, ".old")
         old = Path(tempfile.mkdtemp(prefix=prefix, suffix=suffix, dir=path.parent))
-        os.replace(path, old / "data")
-        os.replace(tmp, path)
+        try:
+            os.replace(path, old / "data")
+            os.replace(tmp, path)
+        except BaseException:  # interrupted (Ctrl-C, SIGTERM) or failed in between: the old
+            # folder goes back under its name (a SIGKILL there: restore_interrupted_replacement)
+            if not os.path.lexists(path) and (old / "data").exists():
+                os.replace(old / "data", path)
+                shutil.rmtree(old, ignore_errors=True)
+            raise
         shutil.rmtree(old, ignore_errors=True)
     else:
         try:
@@ -374,6 +395,7 @@ def check_importer_target(output: Path, inputs: Mapping[str, object], overwrite:
     and, where it exists and is not empty, replaced only with ``overwrite`` and only when the
     importer wrote it (its ``record`` YAML names ``generator``): never a user's own folder,
     whose other files the replacement would delete."""
+    restore_interrupted_replacement(output)  # a folder a killed replacement moved aside
     check_output(output, inputs, overwrite=None, kind="folder", error=error)
     if not (output.is_dir() and any(output.iterdir())):
         return
@@ -520,6 +542,27 @@ def part_pattern(path: Path) -> re.Pattern:
     """Names of the temporary parts of target ``path`` (group 1: the writer's pid, if any)."""
     name = re.escape(path.name)
     return re.compile(rf"^\.{name}\.(?:{PART_TAG}-(\d+)-[^/]+|{_LEGACY_PART})$")
+
+
+def restore_interrupted_replacement(path: str | Path) -> None:
+    """A run killed between moving the old folder aside (``commit_dir``:
+    ``.<name>.fieldloc-<pid>-*.old/data``) and moving the new one in leaves no folder under
+    the real name: put the old one back, before the stale parts are removed (which would
+    delete it)."""
+    path = Path(path)
+    parent = path.parent if str(path.parent) else Path(".")
+    if os.path.lexists(path) or not parent.is_dir():
+        return
+    pat = part_pattern(path)
+    for entry in sorted(parent.iterdir()):
+        m = pat.match(entry.name)
+        if (m and entry.name.endswith(".old") and (entry / "data").is_dir()
+                and not (m.group(1) and pid_alive(int(m.group(1))))):
+            os.replace(entry / "data", path)
+            shutil.rmtree(entry, ignore_errors=True)
+            log.warning("restored %s from %s, left by a run killed while replacing it", path,
+                        entry)
+            return
 
 
 def remove_stale_parts(path: str | Path) -> list[Path]:
@@ -670,6 +713,7 @@ def atomic_dir(path: str | Path, *, overwrite: bool = False):
     meanwhile), so an interrupted run leaves neither a half folder under the real name nor a
     damaged earlier one."""
     path = Path(path)
+    restore_interrupted_replacement(path)
     if path.exists() and not path.is_dir():
         raise FieldlocError(f"cannot write folder {path}: it is a file")
     if path.is_dir() and any(path.iterdir()) and not overwrite:
@@ -680,7 +724,9 @@ def atomic_dir(path: str | Path, *, overwrite: bool = False):
         raise FieldlocError(f"cannot write {path}: folder {parent} does not exist")
     if not os.access(parent, os.W_OK):
         raise FieldlocError(f"cannot write {path}: folder {parent} is not writable")
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".part", dir=parent))
+    remove_stale_parts(path)  # those of killed runs (tagged with their pid, as this one is)
+    prefix, suffix = part_name(path, ".part")
+    tmp = Path(tempfile.mkdtemp(prefix=prefix, suffix=suffix, dir=parent))
     try:
         with writing(path):
             yield tmp

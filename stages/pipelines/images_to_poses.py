@@ -42,7 +42,7 @@ from pathlib import Path
 import yaml
 
 from .. import extract, localize
-from ..common.artifacts import check_output
+from ..common.artifacts import check_output, commit_file
 from ..common.errors import FieldlocError
 from ..common.poses_file import check_tum_output
 
@@ -129,8 +129,9 @@ def _two_rounds(conf, dataset_dir: Path, map_path, output: Path, features: Path,
                                       source=os.path.abspath(first))
     except FieldlocError as e:
         log.warning("no second round: the first round's poses give no calibration (%s)", e)
-        for src in (first, first.with_suffix(".tum")):  # the first round is the run
-            os.replace(src, output.with_suffix(src.suffix))
+        for src in (first, first.with_suffix(".tum")):  # the first round is the run: committed
+            # as the output is (never over a file another run wrote there meanwhile)
+            commit_file(src, output.with_suffix(src.suffix))
         _remove_earlier_second_round(calib, features2)
         if write_calib is not None:
             raise FieldlocError(f"{e}; the poses are written: {output}") from None
@@ -139,7 +140,7 @@ def _two_rounds(conf, dataset_dir: Path, map_path, output: Path, features: Path,
     extract.main(extract.conf_of(features), dataset_dir, features2, overwrite=overwrite,
                  progress=progress, calib=calib)
     path = localize.main(conf, dataset_dir, map_path, output, features=features2,
-                         overwrite=True, reference=first, **kw)
+                         overwrite=overwrite, reference=first, **kw)
     if write_calib is not None:
         try:
             localize.calibrate_from_poses(write_calib, dataset_dir, features, path, map_path)

@@ -59,7 +59,6 @@ import importlib
 import inspect
 import logging
 import math
-import os
 import re
 import shutil
 import tempfile
@@ -74,9 +73,8 @@ from ..common.artifacts import (
     commit_dir,
     give_default_mode,
     part_name,
-    part_pattern,
-    pid_alive,
     remove_stale_parts,
+    restore_interrupted_replacement,
     text_hash,
 )
 from ..common.camera import MAX_IMAGE_PX, save_calib
@@ -366,24 +364,6 @@ def _check_target(output_dir: Path, overwrite: bool, field_file: Path | None):
                 " it")
 
 
-def _restore_interrupted_replacement(output_dir: Path) -> None:
-    """A run killed between moving the old dataset aside (``.<name>.fieldloc-<pid>-*.old/data``)
-    and moving the new one in leaves no dataset under the real name: put the old one back
-    before the stale parts are removed."""
-    if output_dir.exists() or not output_dir.parent.is_dir():
-        return
-    pat = part_pattern(output_dir)
-    for entry in sorted(output_dir.parent.iterdir()):
-        m = pat.match(entry.name)
-        if (m and entry.name.endswith(".old") and (entry / "data").is_dir()
-                and not (m.group(1) and pid_alive(int(m.group(1))))):
-            os.replace(entry / "data", output_dir)
-            shutil.rmtree(entry, ignore_errors=True)
-            log.warning("restored %s from %s, left by a run killed while replacing it",
-                        output_dir, entry)
-            return
-
-
 def estimate_needs(conf: dict, field: FieldModel) -> tuple[dict, float]:
     """(memory by purpose in bytes, disk bytes) of simulating ``conf`` on ``field``."""
     sc = {**scene_mod.SCENE_DEFAULTS, **conf.get("scene", {})}
@@ -628,7 +608,7 @@ def main(conf: str | dict | None, field, output_dir, *, overwrite: bool = False,
         _check_start(conf)
         conf["frames"] = trajectory.grid_count(field, conf["trajectory"])
     _check_conf(conf)
-    _restore_interrupted_replacement(output_dir)
+    restore_interrupted_replacement(output_dir)
     _check_target(output_dir, overwrite, field_file)
     remove_stale_parts(output_dir)
     memory, disk = estimate_needs(conf, field)
