@@ -423,6 +423,16 @@ def _setup_lookup_with_notes(w, ws):
     return {}
 
 
+def _setup_forged_marks(w, ws):
+    """Files that only mention fieldloc: a note saying "written by fieldloc" (as a log of
+    fieldloc's own refusals does), an HDF5 file of a schema fieldloc does not write."""
+    (ws / "note.h5").write_text("my notes: these poses were written by fieldloc, keep this\n")
+    with h5py.File(ws / "mine.h5", "w") as f:
+        f["x"] = np.arange(3.0)
+        f.attrs["schema"] = "fieldloc.mine"
+    return {}
+
+
 def _setup_report_copy(w, ws):
     """The shared report copied to ws/runs/a, with a poses.h5 beside it; a user's page."""
     shutil.copytree(w["omni"] / "runs" / "r", ws / "runs" / "a")
@@ -2284,6 +2294,14 @@ CASES = [
     Case("simulate -o a name with a line break: its summary on one line", "newcomer",
          ["simulate", "omni", "--field", "spl", "--frames", "1", "-o", W + "/s\nx"], 0,
          "/s x", check=_check_one_summary_line),
+    # ---- s54 trial C: forged marks, an empty bag topic
+    *[Case(f"--overwrite onto {name}, which only mentions fieldloc", "data-lost",
+           ["build-map", "spl", "--resolution", "0.5", "-o", W + "/" + name, "--overwrite"], 1,
+           "was not written by fieldloc", setup=_setup_forged_marks)
+      for name in ("note.h5", "mine.h5")],
+    Case("import rosbag --imu-topic of a topic without a message", "traceback",
+         IMPORT_BAG, 1, "the IMU topic /imu holds no message",
+         setup=_setup_odometry_bag(GOOD_ODOMETRY, [])),
 ]
 
 
@@ -2523,6 +2541,30 @@ def test_dataset_moved_aside_by_a_killed_replacement_is_restored(tmp_path, caplo
     assert snapshot(data) == before
     assert sorted(q.name for q in tmp_path.iterdir()) == ["data"]
 
+
+def test_an_imported_dataset_moved_aside_by_a_killed_replacement_is_restored(tmp_path, caplog):
+    """The same for a folder an importer writes whole (import rosbag; artifacts.atomic_dir and
+    commit_dir): killed between moving the old dataset aside and moving the new one in, the
+    next run puts the old one back instead of leaving it hidden in a part (s54 trial C, C5),
+    then refuses without --overwrite; with --overwrite it replaces it and leaves no part."""
+    _setup_odometry_bag(GOOD_ODOMETRY, GOOD_IMU)(None, tmp_path)
+    args = ["import", "rosbag", str(tmp_path / "x.bag"), "-o", str(tmp_path / "ds"),
+            "--image-topic", "/cam"]
+    assert CliRunner().invoke(cli, args).exit_code == 0
+    before = snapshot(tmp_path / "ds")
+    p = subprocess.Popen([sys.executable, "-c", "pass"])
+    p.wait()
+    aside = tmp_path / f".ds.fieldloc-{p.pid}-x1y2z3.old"
+    aside.mkdir()
+    os.replace(tmp_path / "ds", aside / "data")
+    with caplog.at_level(logging.WARNING):
+        r = CliRunner().invoke(cli, args)
+    assert r.exit_code == 1 and "exists and is not empty" in r.output, r.output
+    assert "restored" in caplog.text
+    assert snapshot(tmp_path / "ds") == before
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["ds", "x.bag"]
+    assert CliRunner().invoke(cli, [*args, "--overwrite"]).exit_code == 0
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["ds", "x.bag"]
 
 def test_csv_files_have_lf_line_endings(world):
     for name in ("truth.csv", "odometry.csv", "imu.csv", "frames.csv"):

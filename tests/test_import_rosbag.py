@@ -226,3 +226,5 @@ def test_message_problem_names_what_no_robot_sends():
     assert "not a rotation" in rosbag.message_problem((0.0, 0.0), (0.0, 0.0, 0.0, 0.0))
     assert "lies beyond" in rosbag.message_problem((1e308, 0.0), (0.0, 0.0, 0.0, 1.0))
     assert "not all finite" in rosbag.message_problem((), (0.0, 0.0, math.nan, 1.0))
+    # a quaternion far from unit length overflowed the yaw's products (90 deg read as 135)
+    assert "not a rotation" in rosbag.message_problem((), (0.0, 0.0, 1e308, 1e308))

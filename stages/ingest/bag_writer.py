@@ -124,6 +124,12 @@ def write_bag(path, fmt: str, *, image_topic: str = "/camera/image", frames=(),
         for _stamp, topic, typ, _msg in rows:
             if topic not in conns:
                 conns[topic] = writer.add_connection(topic, typ, typestore=ts)
+        # a series given empty ([], not None) is a topic without a message, as a driver that
+        # advertised it and never published leaves one
+        for given, topic, typ in ((odometry, odom_topic, "nav_msgs/msg/Odometry"),
+                                  (imu, imu_topic, "sensor_msgs/msg/Imu")):
+            if given is not None and not len(given) and topic not in conns:
+                conns[topic] = writer.add_connection(topic, typ, typestore=ts)
         for stamp, topic, typ, msg in rows:
             writer.write(conns[topic], int(round((stamp + receive_delay) * 1e9)),
                          serialize(msg, typ))

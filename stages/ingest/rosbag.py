@@ -125,7 +125,11 @@ class _Series:
 
     def check_dropped(self, bag, topic: str | None, what: str) -> int:
         """One warning line for the messages of ``topic`` dropped as unusable (how many, the
-        first's reason); BagError when none was usable. Returns how many were dropped."""
+        first's reason); BagError when none was usable, or when the topic named holds no
+        message at all (an IMU or odometry asked for and not there). Returns how many were
+        dropped."""
+        if topic is not None and not self.dropped and not self.values:
+            raise BagError(f"{bag}: the {what} topic {topic} holds no message")
         if not self.dropped:
             return 0
         n = len(self.dropped)
@@ -274,10 +278,11 @@ def _stamp(msg) -> float:
 # of it give an increment within it. A position beyond is a damaged message (1e308 became an
 # increment of 0, NaN one of NaN)
 MAX_ODOMETRY_POSITION = MAX_VALUE / 4
-# the smallest norm of an orientation quaternion taken for a rotation: a unit quaternion has
-# norm 1 (drivers in float32 a few ulps off); an all-zero one is a driver's "not set", which
-# atan2 read as a yaw of 0
+# the norms of an orientation quaternion taken for a rotation: a unit quaternion has norm 1
+# (drivers in float32 a few ulps off); an all-zero one is a driver's "not set", which atan2
+# read as a yaw of 0, and one of norm 1e308 overflowed the yaw's products (90 deg read as 135)
 MIN_QUATERNION_NORM = 0.1
+MAX_QUATERNION_NORM = 10.0
 
 
 def message_problem(position, quaternion) -> str | None:
@@ -290,7 +295,7 @@ def message_problem(position, quaternion) -> str | None:
     if any(abs(v) > MAX_ODOMETRY_POSITION for v in position):
         return (f"position {str(tuple(position))[:40]} lies beyond"
                 f" {MAX_ODOMETRY_POSITION:g} m")
-    if math.sqrt(sum(v * v for v in quaternion)) < MIN_QUATERNION_NORM:
+    if not MIN_QUATERNION_NORM <= math.hypot(*quaternion) <= MAX_QUATERNION_NORM:
         return f"orientation quaternion {str(tuple(quaternion))[:40]} is not a rotation"
     return None
 
@@ -308,16 +313,16 @@ def pose_at(stamps, x, y, yaw, at) -> tuple[np.ndarray, np.ndarray]:
     unwrapping, wrapped back) and a (F,) bool: whether each stamp lies within the samples' span.
     Samples with equal stamps keep the last one."""
     t = np.asarray(stamps, float)
+    at = np.asarray(at, float)
+    if len(t) == 0:  # a topic without a message
+        return np.full((len(at), 3), np.nan), np.zeros(len(at), bool)
     order = np.argsort(t, kind="stable")
     t = t[order]
     vals = np.stack([np.asarray(x, float)[order], np.asarray(y, float)[order],
                      np.unwrap(np.asarray(yaw, float)[order])], axis=1)
     keep = np.append(t[1:] != t[:-1], True)
     t, vals = t[keep], vals[keep]
-    at = np.asarray(at, float)
     out = np.full((len(at), 3), np.nan)
-    if len(t) == 0:
-        return out, np.zeros(len(at), bool)
     inside = (at >= t[0] - 1e-9) & (at <= t[-1] + 1e-9)
     for k in range(3):
         out[:, k] = np.interp(at, t, vals[:, k])
