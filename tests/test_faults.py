@@ -433,6 +433,34 @@ def _setup_forged_marks(w, ws):
     return {}
 
 
+def _setup_batch_version(value: str):
+    """ws/res: a results folder whose batch.json names ``value`` (JSON text) as its version."""
+    def setup(w, ws):
+        (ws / "res").mkdir()
+        (ws / "res" / "batch.json").write_text(
+            '{"schema": "fieldloc.batch", "schema_version": ' + value + ', "runs": []}')
+        return {}
+    return setup
+
+
+def _setup_png_claiming(w, ws):
+    """ws/x.png: a frame of the shared dataset whose header claims 100000 x 100000 px."""
+    shutil.copyfile(w["omni"] / "images" / "000000.png", ws / "x.png")
+    _claim_size(ws / "x.png", 100000, 100000)
+    return {}
+
+
+def _setup_record_of_frames(n: int):
+    """ws/data: a 1-frame simulated dataset whose simulation.yaml claims ``n`` frames."""
+    def setup(w, ws):
+        data = simulate.main(dict(simulate.confs["omni-clean"], frames=1), "spl", ws / "data")
+        rec = yaml.safe_load((data / "simulation.yaml").read_text())
+        rec["frames"] = n
+        (data / "simulation.yaml").write_text(yaml.safe_dump(rec, sort_keys=False))
+        return {}
+    return setup
+
+
 def _setup_report_copy(w, ws):
     """The shared report copied to ws/runs/a, with a poses.h5 beside it; a user's page."""
     shutil.copytree(w["omni"] / "runs" / "r", ws / "runs" / "a")
@@ -2302,6 +2330,27 @@ CASES = [
     Case("import rosbag --imu-topic of a topic without a message", "traceback",
          IMPORT_BAG, 1, "the IMU topic /imu holds no message",
          setup=_setup_odometry_bag(GOOD_ODOMETRY, [])),
+    # ---- s54 trial C: YAML 1.1 numbers, huge integers in a field YAML
+    *[Case(f"build-map of a field YAML with corner_arc_radius: {text[:12]}", kind,
+           ["build-map", W + "/f.yaml", "-o", W + "/m.h5"], 1, msg,
+           setup=_setup_field_text(f"corner_arc_radius: {text}\n"))
+      for text, kind, msg in (
+        ("1:30", "silent", "'1:30' is no decimal number (YAML 1.1's base 60"),
+        ("0x1", "silent", "'0x1' is no decimal number"),
+        ("1_0", "silent", "'1_0' is no decimal number"),
+        ("9" * 400, "traceback", "an integer too large for it"))],
+    Case("localize -c hypotheses=0x10: no hex", "silent",
+         [*LOCALIZE, "-o", W + "/p.h5", "-c", "hypotheses=0x10"], 1, "'0x10'"),
+    # ---- s54 trial C: a batch.json's version, inspect of a PNG claiming 1e10 px
+    *[Case(f"evaluate --table on a batch.json of schema_version {value}", "traceback",
+           ["evaluate", "--table", W + "/res"], 1,
+           f"'fieldloc.batch' version {shown_as} is not supported",
+           setup=_setup_batch_version(value))
+      for value, shown_as in (("null", "nan"), ("[1]", "[1]"), ("true", "True"),
+                              ("1.5", "1.5"))],
+    Case("inspect a PNG whose header claims 100000 x 100000 px", "traceback",
+         ["inspect", W + "/x.png"], 0, "image file that cannot be decoded",
+         setup=_setup_png_claiming),
 ]
 
 
@@ -2565,6 +2614,18 @@ def test_an_imported_dataset_moved_aside_by_a_killed_replacement_is_restored(tmp
     assert sorted(q.name for q in tmp_path.iterdir()) == ["ds", "x.bag"]
     assert CliRunner().invoke(cli, [*args, "--overwrite"]).exit_code == 0
     assert sorted(q.name for q in tmp_path.iterdir()) == ["ds", "x.bag"]
+
+def test_simulate_overwrite_of_a_record_claiming_1e8_frames_does_not_hang(tmp_path):
+    """simulate --overwrite listed every image name a record's frames count implies before it
+    replaced a dataset: a record claiming 1e8 frames ran for minutes (s54 trial C, C10). A
+    count beyond MAX_FRAMES is a damaged record, judged by the names' pattern."""
+    _setup_record_of_frames(10**8)(None, tmp_path)
+    with _deadline(30):
+        r = CliRunner().invoke(cli, ["simulate", "omni", "--field", "spl", "--preset",
+                                     "omni-clean", "--frames", "1", "-o",
+                                     str(tmp_path / "data"), "--overwrite"])
+    assert r.exit_code == 0, r.output
+    assert yaml.safe_load((tmp_path / "data" / "simulation.yaml").read_text())["frames"] == 1
 
 def test_csv_files_have_lf_line_endings(world):
     for name in ("truth.csv", "odometry.csv", "imu.csv", "frames.csv"):

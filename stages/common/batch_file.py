@@ -27,7 +27,7 @@ import json
 from pathlib import Path
 
 from .artifacts import atomic_path, provenance
-from .errors import FieldlocError, SchemaError
+from .errors import FieldlocError, SchemaError, shown
 from .report_file import decode_numbers, encode_numbers
 
 SCHEMA = "fieldloc.batch"
@@ -90,7 +90,8 @@ def load_batch(results_dir: str | Path) -> dict:
     data = read_json(path)
     if data.get("schema") != SCHEMA:
         raise SchemaError(f"{path}: expected a '{SCHEMA}' file, got {data.get('schema')!r}")
-    if not 1 <= int(data.get("schema_version", -1)) <= VERSION:
-        raise SchemaError(f"{path}: '{SCHEMA}' version {data.get('schema_version')} is not"
-                          f" supported (this fieldloc reads versions 1..{VERSION})")
+    v = data.get("schema_version")
+    if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= VERSION:
+        raise SchemaError(f"{path}: '{SCHEMA}' version {shown(v, 40)} is not supported (this"
+                          f" fieldloc reads versions 1..{VERSION})")
     return data

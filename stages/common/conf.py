@@ -44,6 +44,27 @@ class _StrictLoader(_BASE_LOADER):
                     None, None, f"the key {shown!r} is given twice", key_node.start_mark)
         return super().construct_mapping(node, deep=deep)
 
+    def construct_plain_number(self, node):
+        """An int or float as a person writes one: YAML 1.1 also reads ``1:30`` (base 60) as
+        90, ``0x10`` as 16, ``010`` as 8 and ``1_0`` as 10, which no field or conf means (a
+        field ``length: 1:30`` was built 90 m long): those are refused."""
+        text = self.construct_scalar(node)
+        is_int = node.tag.endswith(":int")
+        if not (_PLAIN_INT if is_int else _PLAIN_FLOAT).fullmatch(text.strip()):
+            raise yaml.constructor.ConstructorError(
+                None, None, f"{text[:40]!r} is no decimal number (YAML 1.1's base 60, hex,"
+                " octal or underscores); write it in decimal", node.start_mark)
+        return super().construct_yaml_int(node) if is_int else super().construct_yaml_float(node)
+
+
+# the ints and floats YAML reads that mean what they say: decimal (no leading zero, which
+# YAML 1.1 reads as octal), a decimal fraction with an exponent, infinity or NaN
+_PLAIN_INT = re.compile(r"[-+]?(?:0|[1-9][0-9]*)")
+_PLAIN_FLOAT = re.compile(r"[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][-+]?[0-9]+)?"
+                          r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN)")
+_StrictLoader.add_constructor("tag:yaml.org,2002:int", _StrictLoader.construct_plain_number)
+_StrictLoader.add_constructor("tag:yaml.org,2002:float", _StrictLoader.construct_plain_number)
+
 
 # values a YAML document may hold once its aliases are expanded: fieldloc's files hold a few
 # hundred; a "billion laughs" document (a few nested aliases) holds hundreds of millions

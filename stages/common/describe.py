@@ -81,7 +81,10 @@ def _is_hdf5(path: Path, head: bytes) -> bool:
 def _image(path: Path) -> str:
     import cv2
 
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    try:
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    except cv2.error:  # OpenCV's own assertion: a header claiming more pixels than it reads
+        img = None
     if img is None:
         return f"{path}\n  image file that cannot be decoded ({human_bytes(path.stat().st_size)})"
     ch = 1 if img.ndim == 2 else img.shape[2]

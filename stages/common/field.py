@@ -23,6 +23,7 @@ import yaml
 from .conf import load_yaml
 from .errors import FieldSpecError, file_problem, shown
 from .geometry import wrap_angle
+from .user_numbers import user_number
 
 MAPS_DIR = Path(__file__).resolve().parents[2] / "maps"
 
@@ -308,6 +309,9 @@ def _check(spec: dict, schema: dict, where: str, prefix: str = ""):
         if isinstance(v, bool) or not isinstance(v, typ):
             want = "a number" if typ is _NUM else typ.__name__
             raise FieldSpecError(f"{where}: key '{prefix}{key}' must be {want}, got {shown(v)}")
+        if typ is _NUM:  # an integer beyond the float range refused in one line
+            v = user_number(v, f"{where}: key '{prefix}{key}'", finite=False,
+                            error=FieldSpecError)
         if typ is _NUM and (not math.isfinite(v) or v < 0):
             raise FieldSpecError(f"{where}: key '{prefix}{key}' must be >= 0, got {v}")
         if typ is _NUM and 0 < v < MIN_DIMENSION:
@@ -336,6 +340,7 @@ def _apply_letters(spec: dict, where: str) -> dict:
         if isinstance(value, bool) or not isinstance(value, _NUM):
             raise FieldSpecError(
                 f"{where}: key 'letters.{letter}' must be a number, got {shown(value)}")
+        user_number(value, f"{where}: key 'letters.{letter}'", error=FieldSpecError)
     line_width = letters.get("K", spec.get("line_width"))
     if not isinstance(line_width, _NUM) or isinstance(line_width, bool):
         raise FieldSpecError(f"{where}: 'letters' needs K (the line width): the rulebook's"

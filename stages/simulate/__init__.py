@@ -333,8 +333,10 @@ def not_simulated(folder: Path) -> Path | None:
     if not images.is_dir():
         return None
     n = rec.get("frames")
+    # a record's frame count beyond what simulate renders (MAX_FRAMES) is a damaged record:
+    # its names are not listed (1e8 of them took minutes), the names' pattern decides
     frames = (set(_frame_names(n)) if isinstance(n, int) and not isinstance(n, bool)
-              else None)
+              and 0 <= n <= MAX_FRAMES else None)
     return next((e for e in sorted(images.iterdir())
                  if not e.is_file() or e.is_symlink()
                  or not (e.name in frames if frames is not None
