@@ -2351,6 +2351,17 @@ CASES = [
     Case("inspect a PNG whose header claims 100000 x 100000 px", "traceback",
          ["inspect", W + "/x.png"], 0, "image file that cannot be decoded",
          setup=_setup_png_claiming),
+    Case("calibrate --from-cnc with a 1 x 1 px CarpetCalibImage.png", "traceback",
+         ["calibrate", "omni", "--from-cnc", W + "/cnc/CarpetCalibrator.conf", "--rings",
+          "detected", "-o", W + "/c.yaml"], 1,
+         "the calibration picture is 1 x 1 px: too small to hold the rings",
+         setup=_setup_cnc(lambda d: cv2.imwrite(str(d / "CarpetCalibImage.png"),
+                                                np.zeros((1, 1, 3), np.uint8)))),
+    Case("localize --points with a point at 1e308 m", "silent",
+         ["localize", "{omni}", "--map", "{map}", "--points", W + "/pts.csv", "-o",
+          W + "/p.h5"], 1, "x and y are metres from the robot, at most 1e+06; got 1e+308",
+         setup=lambda w, ws: (ws / "pts.csv").write_text("frame,x,y\n000000,1e308,0\n")
+         and {}),
 ]
 
 

@@ -115,6 +115,11 @@ def test_bad_team_files_are_one_line_errors(tmp_path):
         "<correction_x>-2.0", "<correction_x>abc"))
     res, _ = _calibrate(tmp_path, team)
     assert res.exit_code == 1 and "<correction_x> is not a number" in res.output
+    team = _write_team(tmp_path / "t5")  # "1_5" is no 15 (Python's float reads it so)
+    (team / "mirror_calib.xml").write_text((team / "mirror_calib.xml").read_text().replace(
+        "<para_a>2.0", "<para_a>1_5"))
+    res, _ = _calibrate(tmp_path, team)
+    assert res.exit_code == 1 and "<para_a> is not a number ('1_5')" in res.output
     team = _write_team(tmp_path / "t4")
     (team / "ROI.xml").write_text((team / "ROI.xml").read_text().replace(">464<", ">1e20<"))
     res, _ = _calibrate(tmp_path, team)

@@ -175,12 +175,23 @@ def detect_rings(image, *, centre=None, conf=None) -> CarpetRings:
     conf = conf or confs["default"]
     grey = _grey(image)
     h, w = grey.shape
+    # the rings are searched from min_radius_px outwards: a picture without room for two
+    # samples beyond it around its middle holds no ring (a 1 x 1 picture met OpenCV's
+    # assertion on an empty sampling grid)
+    least = 2 * (float(conf["min_radius_px"]) + float(conf["centre_search_px"])) + 4
+    if min(h, w) < least:
+        raise CncCalibrationError(f"the calibration picture is {w} x {h} px: too small to hold"
+                                  f" the rings (at least {least:.0f} px a side)")
     if centre is None:
         centre = find_centre(grey, conf)
     cu, cv = (float(c) for c in centre)
     rmax = min(cu, cv, w - 1 - cu, h - 1 - cv)
     step = float(conf["sample_px"])
     radii = np.arange(float(conf["min_radius_px"]), rmax, step)
+    if len(radii) < 2:  # a centre at the picture's edge leaves no ray to sample
+        raise CncCalibrationError(f"the centre ({cu:g}, {cv:g}) leaves no room for rings beyond"
+                                  f" {float(conf['min_radius_px']):g} px in the {w} x {h}"
+                                  " picture")
     angles = np.radians(np.arange(0.0, 360.0, float(conf["ray_step_deg"])))
     polar = _polar(grey, (cu, cv), radii, angles)
     mid, prom, width = _profile_peaks(np.nanmedian(polar, axis=0), radii,

@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common.errors import FieldlocError
+from ..common.user_numbers import parse_number
 
 MIRROR_XML = "mirror_calib.xml"
 MAX_IMAGE_SIDE = 65535  # px: PNG's and OpenCV's practical limit; beyond it a value is a typo
@@ -116,7 +117,7 @@ def _number(values: dict, key: str, path: Path, positive: bool = False) -> float
     if key not in values:
         raise NubotCalibrationError(f"{path}: no <{key}>")
     try:
-        v = float(values[key])
+        v = parse_number(values[key])  # strict: "1_5" is no 15, "٣" no 3
     except ValueError:
         raise NubotCalibrationError(
             f"{path}: <{key}> is not a number ('{values[key][:30]}')") from None

@@ -67,7 +67,7 @@ import numpy as np
 
 from ..common.artifacts import check_output, file_hash, root_attrs
 from ..common.conf import KindPresets, check_bounds, registered_module, stage_conf
-from ..common.dataset import STAMP_SOURCES, csv_rows, open_dataset, parse_number
+from ..common.dataset import MAX_VALUE, STAMP_SOURCES, csv_rows, open_dataset, parse_number
 from ..common.errors import DatasetError, FieldlocError
 from ..common.features_file import FeaturesFile
 from ..common.field import load_field
@@ -215,6 +215,9 @@ def _read_points_csv(path: Path) -> list[tuple[str, float, float]]:
             raise DatasetError(f"{path}: line {n}: x and y must be numbers") from None
         if not (math.isfinite(x) and math.isfinite(y)):
             raise DatasetError(f"{path}: line {n}: x and y must be finite numbers")
+        if max(abs(x), abs(y)) > MAX_VALUE:  # metres from the robot: 1e308 overflowed
+            raise DatasetError(f"{path}: line {n}: x and y are metres from the robot, at most"
+                               f" {MAX_VALUE:g}; got {x:g}, {y:g}")
         out.append((name, x, y))
     if not out:
         raise DatasetError(f"{path}: no points")
