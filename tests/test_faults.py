@@ -2362,6 +2362,10 @@ CASES = [
           W + "/p.h5"], 1, "x and y are metres from the robot, at most 1e+06; got 1e+308",
          setup=lambda w, ws: (ws / "pts.csv").write_text("frame,x,y\n000000,1e308,0\n")
          and {}),
+    Case("build-map -o a symbolic link to a missing file", "newcomer",
+         ["build-map", "spl", "--resolution", "0.5", "-o", W + "/dang.h5"], 1,
+         "is a symbolic link to /nonexistent/x.h5, which does not exist",
+         setup=lambda w, ws: os.symlink("/nonexistent/x.h5", ws / "dang.h5") or {}),
 ]
 
 
@@ -2637,6 +2641,17 @@ def test_simulate_overwrite_of_a_record_claiming_1e8_frames_does_not_hang(tmp_pa
                                      str(tmp_path / "data"), "--overwrite"])
     assert r.exit_code == 0, r.output
     assert yaml.safe_load((tmp_path / "data" / "simulation.yaml").read_text())["frames"] == 1
+
+def test_an_eps_picture_prints_no_warning(world, tmp_path, caplog):
+    """PostScript has no transparency: matplotlib logged a warning (twice) for every .eps
+    picture drawn with translucent artists (s54 trial C, C19); the picture is written, and
+    nothing but its summary is said."""
+    with caplog.at_level(logging.WARNING):
+        r = CliRunner().invoke(cli, ["show", "hypotheses", str(world["poses"]), "-o",
+                                     str(tmp_path / "h.eps")])
+    assert r.exit_code == 0, r.output
+    assert "WARNING" not in r.output + caplog.text, r.output + caplog.text
+    assert (tmp_path / "h.eps").stat().st_size > 0
 
 def test_csv_files_have_lf_line_endings(world):
     for name in ("truth.csv", "odometry.csv", "imu.csv", "frames.csv"):

@@ -4,6 +4,8 @@ atomically in the format their file's suffix names (PNG without one)."""
 
 from __future__ import annotations
 
+import contextlib
+import logging
 from pathlib import Path
 
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -54,6 +56,23 @@ def save_figure(fig: Figure, path: str | Path, dpi: int | None = None) -> Path:
     as fieldloc's (``_marked``)."""
     path = Path(path)
     fmt = picture_format(path)
-    with atomic_path(path, suffix=path.suffix or ".png") as tmp:
+    with atomic_path(path, suffix=path.suffix or ".png") as tmp, _opaque_in_postscript(fmt):
         fig.savefig(tmp, format=fmt, dpi=dpi or fig.dpi, bbox_inches="tight", **_marked(fmt))
     return path
+
+
+@contextlib.contextmanager
+def _opaque_in_postscript(fmt: str):
+    """PostScript has no transparency: matplotlib draws a translucent artist opaque in an .eps
+    and logs a warning for each figure (twice), on every picture fieldloc draws with alpha. The
+    picture is what .eps can hold; the warning is held back while an .eps is written."""
+    logger = logging.getLogger("matplotlib.backends.backend_ps")
+    if fmt != "eps":
+        yield
+        return
+    level = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
