@@ -191,6 +191,7 @@ _NO_LINES = np.zeros((0, 4))
 _NO_CROSSINGS = np.zeros((0, 5))
 _NO_POSTS = np.zeros((0, 3))
 _NO_DISTANCES = np.zeros((0, 1))
+_NO_ENDS = np.zeros((0, 4))
 
 
 def line_samples(segments, arcs, spacing: float) -> K.LineSamples:
@@ -483,77 +484,44 @@ class ObservationModel:
         return K.View(area, seen, 1.0 / t.unseen_piece, log_miss, peak,
                       float(t.unseen_floor), UNSEEN_BIN_XY, UNSEEN_BIN_HEADING)
 
+    def _camera_height(self) -> float:
+        """The camera's height (m) the range sigmas grow with."""
+        h = self.conf["camera_height"]
+        return DEFAULT_CAMERA_HEIGHT if h is None else float(h)
+
     def _line_rows(self, obs: Observations, d_o) -> np.ndarray:
-        """The kernel's rows of the usable lines (mcl_kernels.L_*)."""
-        raw = obs.lines
-        rows = np.zeros((len(raw), K.N_LINE_COLS))
-        if not len(raw):
-            return rows
+        """The kernel's rows of the usable lines (mcl_kernels.L_* by mcl_kernels.line_rows)."""
         t = self.tuning
-        a = raw[:, 1] + np.where(raw[:, 0] < 0, math.pi, 0.0)
-        w_d = 1.0 / (2.0 * self.range_sigma(d_o[:, 0], t.sigma_line) ** 2)
-        rows[:, K.L_R] = np.abs(raw[:, 0])
-        rows[:, K.L_CA], rows[:, K.L_SA] = np.cos(a), np.sin(a)
-        rows[:, K.L_WD] = w_d
-        rows[:, K.L_FLOOR] = self._floor(raw[:, 3])[:, 0]
-        if t.line_extent and obs.line_ends is not None:
-            ends = obs.line_ends
-            half = 0.5 * np.hypot(ends[:, 2] - ends[:, 0], ends[:, 3] - ends[:, 1])
-            far = np.maximum(np.hypot(ends[:, 0], ends[:, 1]), np.hypot(ends[:, 2], ends[:, 3]))
-            w_e = 1.0 / (2.0 * self.range_sigma(far, t.sigma_extent) ** 2)
-            rows[:, K.L_MX] = 0.5 * (ends[:, 0] + ends[:, 2])
-            rows[:, K.L_MY] = 0.5 * (ends[:, 1] + ends[:, 3])
-            rows[:, K.L_HM] = half - t.extent_margin
-            rows[:, K.L_RATIO] = w_e / w_d
-            rows[:, K.L_H2] = half * half / 2.0
-            rows[:, K.L_WE] = w_e
-            rows[:, K.L_EXT] = 1.0
-        return rows
+        ends = obs.line_ends if t.line_extent and obs.line_ends is not None else _NO_ENDS
+        return K.line_rows(np.ascontiguousarray(obs.lines, float),
+                           np.ascontiguousarray(d_o[:, 0], float),
+                           np.ascontiguousarray(ends, float),
+                           (self._camera_height(), float(t.elevation_sigma),
+                            float(t.sigma_line), float(t.sigma_extent),
+                            float(t.extent_margin), float(t.uniform_floor),
+                            1.0 if t.line_extent else 0.0))
 
     def _point_rows_kernel(self, obs: Observations):
         """The kernel's rows (mcl_kernels.P_*) of the usable crossings and posts, and the sum
-        each adds to (1 crossings, 2 posts). X crossings on a field without X, and posts on a
-        field without posts, are left out (nothing to associate them with)."""
+        each adds to (1 crossings, 2 posts), by mcl_kernels.point_rows. X crossings on a field
+        without X, and posts on a field without posts, are left out (nothing to associate
+        them with)."""
         t = self.tuning
         cr, po = obs.crossings, obs.posts
-        if not len(self.x_idx):
+        if not len(self.x_idx) and len(cr):
             cr = cr[cr[:, 0] != 2]
         if not len(self.posts):
             po = po[:0]
-        k_c, k_p = len(cr), len(po)
-        rows = np.zeros((k_c + k_p, K.N_POINT_COLS))
-        part = np.concatenate([np.ones(k_c, np.int64), np.full(k_p, 2, np.int64)])
-        if not len(rows):
-            return rows, part
-        kind = cr[:, 0]
-        d = np.concatenate([cr[:, 1], po[:, 0]])
-        b = np.concatenate([cr[:, 2], po[:, 1]])
-        o = np.concatenate([cr[:, 3], np.zeros(k_p)])
-        elevation = np.concatenate([np.full(k_c, t.elevation_sigma),
-                                    np.full(k_p, t.post_elevation_sigma)])
-        rows[:, K.P_D] = d
-        rows[:, K.P_CB], rows[:, K.P_SB] = np.cos(b), np.sin(b)
-        rows[:, K.P_CO], rows[:, K.P_SO] = np.cos(o), np.sin(o)
-        rows[:, K.P_WD] = 1.0 / (2.0 * self.range_sigma(d, t.sigma_range, elevation) ** 2)
-        rows[:k_c, K.P_FLOOR] = self._floor(cr[:, 4])[:, 0]
-        post_base = t.post_uniform_floor
-        rows[k_c:, K.P_FLOOR] = self._floor(po[:, 2], post_base)[:, 0]
-        is_l, is_t, is_x = kind == 0, kind == 1, kind == 2
-        rows[:, K.P_TABLE] = -1.0
-        rows[:k_c, K.P_TABLE][is_l] = K.TABLE_L
-        rows[:k_c, K.P_TABLE][is_t] = 4 * self._cells
-        rows[:, K.P_AS_T] = -1.0
-        x_l, x_t, posts = self._cand_ranges
-        p_conf = float(t.crossing_type_confusion)
-        if p_conf > 0:
-            rows[:k_c, K.P_PEN] = -math.log(min(p_conf, 1.0))
-            if self._t_table:  # an L of a T
-                rows[:k_c, K.P_AS_T][is_l] = 4 * self._cells
-            rows[:k_c, K.P_C0:K.P_C1 + 1][is_l] = x_l  # an L or T of an X
-            rows[:k_c, K.P_C0:K.P_C1 + 1][is_t] = x_t
-        rows[:k_c, K.P_C0:K.P_C1 + 1][is_x] = x_t
-        rows[k_c:, K.P_C0:K.P_C1 + 1] = posts
-        return rows, part
+        post_floor = t.uniform_floor if t.post_uniform_floor is None else t.post_uniform_floor
+        (xl0, xl1), (xt0, xt1), (p0, p1) = self._cand_ranges
+        return K.point_rows(
+            np.ascontiguousarray(cr, float).reshape(-1, 5),
+            np.ascontiguousarray(po, float).reshape(-1, 3),
+            (float(4 * self._cells), 1.0 if self._t_table else 0.0, float(xl0), float(xl1),
+             float(xt0), float(xt1), float(p0), float(p1)),
+            (self._camera_height(), float(t.elevation_sigma), float(t.post_elevation_sigma),
+             float(t.sigma_range), float(t.uniform_floor), float(post_floor),
+             float(t.crossing_type_confusion)))
 
     # ------------------------------------------------------------------ likelihood
     def log_likelihood(self, x, y, theta, obs, *, parts: bool = False,
