@@ -9,8 +9,9 @@ Lar.view (``field import``),
 per image the share of its line points within 15 cm at the top hypothesis, the null baseline
 (random-bearing copies at their best pose), the brute-force best pose, whether the top or second
 hypothesis is that pose (or its mirror) within 15 cm / 2 deg, and whether that pose is what the
-points decide or one of a few (LineRaster.rivals: poses elsewhere within 0.03 of its share);
-the same with the range limit at
+points decide or one of a few (LineRaster.rivals: poses elsewhere within 0.03 of its share),
+and by how many points it beats the best pose elsewhere (apart from it and its mirror: what
+the image says about its pose pair); the same with the range limit at
 3.5, 4 and 5 m (how far the found pose, or its mirror, moves); and the line points of each
 image as a ``frame,x,y`` CSV through ``--points --independent``.
 """
@@ -115,7 +116,11 @@ def minho_lab(realdata: Path, work: Path, method: str = "lut") -> dict:
     for i, n in enumerate(cols["name"]):
         p = pts[str(n)]
         best_share, best = raster.best_pose(p, NEAR)
-        rivals = raster.rivals(p, (best_share, best), NEAR, RIVAL_MARGIN)
+        # the best poses elsewhere (apart from the best and its mirror), best first; those
+        # within RIVAL_MARGIN of its share are its rivals
+        elsewhere = raster.rivals(p, (best_share, best), NEAR, within=1.0)
+        rivals = [r for r in elsewhere if r[0] >= best_share - RIVAL_MARGIN]
+        elsewhere_share = elsewhere[0][0] if elsewhere else 0.0
         h = cols["hypotheses"][i]
         top = h[0, :3]
         rows[str(n)] = {
@@ -130,6 +135,10 @@ def minho_lab(realdata: Path, work: Path, method: str = "lut") -> dict:
             "top_or_second_at_best": bool(at_best(h, best)),
             # poses elsewhere within 0.03 of the best share: the best is one of a few
             "rivals": len(rivals),
+            # how many of the image's points the best pose explains beyond the best pose
+            # elsewhere: what the image says about its pose pair against every other place
+            "best_elsewhere_share": elsewhere_share,
+            "margin_points": int(round((best_share - elsewhere_share) * len(p))),
         }
     # range stability: the top pose (or its mirror) at each range limit against the default's,
     # and the same of the brute-force best pose of each range's points (the judge's own)
@@ -183,6 +192,8 @@ def minho_lab(realdata: Path, work: Path, method: str = "lut") -> dict:
                                             for r in rows.values()),
         "accepted_up_to_mirror": sum(r["accepted_up_to_mirror"] for r in rows.values()),
         "unique_best": sum(r["rivals"] == 0 for r in rows.values()),
+        # the most points by which an image's best pose pair beats every other place
+        "largest_margin_points": max(r["margin_points"] for r in rows.values()),
         "top_or_second_at_unique_best": sum(r["top_or_second_at_best"] and r["rivals"] == 0
                                             for r in rows.values()),
         # the top pose explains as many points as the best, up to the rivals' margin (0.03):
