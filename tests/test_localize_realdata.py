@@ -42,7 +42,8 @@ def lab(tmp_path_factory):
     for n, v in r["rows"].items():
         print(f"  {n}: {v['points']:3d} points  {v['share']:.2f} / {v['null']:.2f} /"
               f" {v['best_share']:.2f}  confidence {v['confidence']:.2f}  moves"
-              f" {v['range_move_m']:.2f} m {v['range_move_deg']:.1f} deg")
+              f" {v['range_move_m']:.2f} m {v['range_move_deg']:.1f} deg  beats elsewhere"
+              f" by {v['margin_points']} points")
     return r
 
 
