@@ -11,7 +11,8 @@ is stored as sensor_msgs/CompressedImage. ``odometry``: rows (stamp, x, y, yaw) 
 nav_msgs/Odometry; ``imu``: rows (stamp, yaw) as sensor_msgs/Imu. Messages are written at their
 stamps (the bag's receive time equals the header stamp unless ``receive_delay`` s is given;
 ``zero_image_stamps``: the frames' header stamps are 0, as from a driver that never fills
-them).
+them; ``header_stamps``: {"images" | "odometry" | "imu": one header stamp per message} for
+messages written at their stamps but stamped otherwise, as by a clock that went back).
 """
 
 from __future__ import annotations
@@ -91,22 +92,29 @@ def _imu(ts, fmt, stamp, yaw, has_orientation=True):
 def write_bag(path, fmt: str, *, image_topic: str = "/camera/image", frames=(),
               odometry=None, imu=None, odom_topic: str = "/odom", imu_topic: str = "/imu",
               imu_has_orientation: bool = True, receive_delay: float = 0.0,
-              zero_image_stamps: bool = False) -> Path:
+              zero_image_stamps: bool = False, header_stamps: dict | None = None) -> Path:
     """Write a bag (see the module doc); returns its path (a .bag file or a bag folder)."""
     if fmt not in FORMATS:
         raise ValueError(f"unknown bag format {fmt!r} ({', '.join(FORMATS)})")
     ts = _typestore(fmt)
     path = Path(path)
+    header_stamps = header_stamps or {}
+
+    def header(kind: str, i: int, stamp) -> float:
+        return float(header_stamps[kind][i]) if kind in header_stamps else float(stamp)
+
     rows = []  # (stamp, topic, msgtype, msg)
-    for stamp, payload in frames:
-        typ, msg = _image(ts, fmt, 0.0 if zero_image_stamps else float(stamp), payload)
+    for i, (stamp, payload) in enumerate(frames):
+        typ, msg = _image(ts, fmt, 0.0 if zero_image_stamps else header("images", i, stamp),
+                          payload)
         rows.append((float(stamp), image_topic, typ, msg))
-    for stamp, x, y, yaw in (odometry if odometry is not None else ()):
+    for i, (stamp, x, y, yaw) in enumerate(odometry if odometry is not None else ()):
         rows.append((float(stamp), odom_topic, "nav_msgs/msg/Odometry",
-                     _odometry(ts, fmt, float(stamp), float(x), float(y), float(yaw))))
-    for stamp, yaw in (imu if imu is not None else ()):
+                     _odometry(ts, fmt, header("odometry", i, stamp), float(x), float(y),
+                               float(yaw))))
+    for i, (stamp, yaw) in enumerate(imu if imu is not None else ()):
         rows.append((float(stamp), imu_topic, "sensor_msgs/msg/Imu",
-                     _imu(ts, fmt, float(stamp), float(yaw), imu_has_orientation)))
+                     _imu(ts, fmt, header("imu", i, stamp), float(yaw), imu_has_orientation)))
     rows.sort(key=lambda r: r[0])
     if fmt == "ros1":
         from rosbags.rosbag1 import Writer

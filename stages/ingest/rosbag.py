@@ -28,15 +28,19 @@ What is written into ``output``:
   orientation (``orientation_covariance[0] == -1``) is refused;
 - ``calib.yaml``: a copy of ``calib`` when given (a bag holds no fieldloc calibration);
 - ``import.yaml``: where the data came from (bag, topics, message types, counts, encodings,
-  which stamps were used, skipped frames, dropped messages, frames dropped for a repeated
-  stamp).
+  which stamps were used, skipped frames, dropped messages, frames dropped for a repeated or
+  a backward stamp).
 
 Odometry and IMU messages no robot sends (a value that is not finite, a position beyond
 ``MAX_ODOMETRY_POSITION``, an orientation quaternion of no length) are dropped, with one
 warning line per topic saying how many; a topic none of whose messages is usable is refused.
-A frame whose stamp repeats an earlier frame's is dropped likewise (the dataset's odometry
-and IMU rows are one per stamp). The dataset written is one ``extract`` and ``localize``
-read.
+Frames are the camera's messages in stamp order: a frame whose stamp is not after every
+earlier kept frame's (one repeating a stamp, or stamped before it: a clock that went back) is
+dropped likewise, with one warning line and its name in import.yaml (the dataset's odometry
+and IMU rows are written at the frame stamps, and its readers take them only in time order,
+one per stamp). Odometry and IMU messages are samples of a pose at their stamps: they are
+interpolated in stamp order, whatever order the bag holds them in. The dataset written is one
+``extract`` and ``localize`` read.
 
 Stamps (conf ``stamp``): ``header`` uses each message's header stamp, except for a topic any of
 whose messages has a zero header stamp (a driver that never fills it): that topic uses the
@@ -568,7 +572,8 @@ def main(conf: str | dict | None, bag, output, *, image_topic: str, odom_topic: 
                 "bag_format": _bag_format(bag),
                 "every": int(every),
                 "image_messages": int(n_image),
-                "frames": len(names) - len(record["repeated_stamps"]),
+                "frames": (len(names) - len(record["repeated_stamps"])
+                           - len(record["backward_stamps"])),
                 "encodings": writer.encodings,
                 "skipped": writer.skipped,
                 "message_types": {c.topic: c.msgtype for c in conns},
@@ -618,17 +623,18 @@ def _bag_format(bag) -> str:
 def _write_tables(folder, names, frames, odo, imu, stamp_mode, image_topic, odom_topic,
                   imu_topic) -> dict:
     stamps, frame_source = frames.stamps(stamp_mode, image_topic)
-    names, stamps, repeated = _one_frame_per_stamp(folder, names, stamps)
+    names, stamps, repeated, backward = _frames_in_stamp_order(folder, names, stamps)
     if repeated:
         log.warning("%s: %d frame(s) repeat an earlier frame's stamp; dropped (one frame per"
                     " stamp: the odometry and IMU rows are one per stamp)", image_topic,
                     len(repeated))
-    if len(stamps) > 1 and np.any(np.diff(stamps) < 0):
-        log.warning("%s: frame stamps go backwards %d time(s) (frames are numbered in bag"
-                    " order)", image_topic, int(np.sum(np.diff(stamps) < 0)))
+    if backward:
+        log.warning("%s: %d frame(s) stamped before an earlier frame; dropped (frames are"
+                    " the camera's messages in stamp order; first: %s)", image_topic,
+                    len(backward), backward[0])
     write_csv(folder / "frames.csv", "frames", {"name": names, "stamp": stamps})
-    record = {"stamps": {"images": frame_source},
-              "topics": {"images": image_topic}, "repeated_stamps": repeated}
+    record = {"stamps": {"images": frame_source}, "topics": {"images": image_topic},
+              "repeated_stamps": repeated, "backward_stamps": backward}
     if odom_topic:
         t, source = odo.stamps(stamp_mode, odom_topic)
         v = np.asarray(odo.values, float).reshape(-1, 3)
@@ -659,18 +665,28 @@ def _write_tables(folder, names, frames, odo, imu, stamp_mode, image_topic, odom
     return record
 
 
-def _one_frame_per_stamp(folder, names, stamps) -> tuple[list, np.ndarray, list[str]]:
-    """The frames, the first of each stamp kept and the images of later ones removed from
-    ``folder``/images: the names and stamps kept, and the names dropped. Frames of one stamp
-    (a driver that stamped several images alike) would get odometry and IMU rows of one
-    stamp, which the dataset's readers refuse (rows are one per stamp)."""
-    _, first = np.unique(stamps, return_index=True)
+def _frames_in_stamp_order(folder, names, stamps) -> tuple[list, np.ndarray, list, list]:
+    """The frames in stamp order: a frame is kept only if its stamp is after every earlier
+    kept frame's, and the images of the others are removed from ``folder``/images. Returns
+    the names and stamps kept, the names dropped for repeating a kept frame's stamp (a driver
+    that stamped several images alike) and those dropped for a stamp before it (a clock that
+    went back, a message stamped late). Frames are read in name order, which is bag order, and
+    their odometry and IMU rows are written at their stamps: a stamp repeated or going back
+    would make rows of one stamp or out of time order, which the dataset's readers refuse
+    (rows are in time order, one per stamp)."""
+    stamps = np.asarray(stamps, float)
     keep = np.zeros(len(names), bool)
-    keep[first] = True
-    dropped = [n for n, k in zip(names, keep) if not k]
-    for n in dropped:
+    repeated, backward = [], []
+    last = -np.inf
+    for i, (name, t) in enumerate(zip(names, stamps)):
+        if t > last:
+            keep[i] = True
+            last = t
+        else:
+            (repeated if t == last else backward).append(name)
+    for n in repeated + backward:
         (folder / "images" / n).unlink()
-    return [n for n, k in zip(names, keep) if k], np.asarray(stamps)[keep], dropped
+    return [n for n, k in zip(names, keep) if k], stamps[keep], repeated, backward
 
 
 def describe(output) -> dict:
