@@ -61,6 +61,15 @@ COMMANDS = {
 }
 
 
+class OneLineFormatter(logging.Formatter):
+    """A log line is one line, as an error and a summary are: a line break in what a message
+    quotes (a file called "a\\nb.png") is shown as a space. A traceback (-vv, --debug) is
+    appended after it as the logging module formats it."""
+
+    def formatMessage(self, record: logging.LogRecord) -> str:
+        return " ".join(super().formatMessage(record).splitlines())
+
+
 @click.group(cls=LazyGroup, lazy_commands=COMMANDS,
              context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="fieldloc")
@@ -73,9 +82,9 @@ def cli(ctx, verbose, quiet, debug):
     level = logging.WARNING if quiet else (logging.INFO if verbose <= 1 else logging.DEBUG)
     if verbose == 0 and not quiet:
         level = logging.WARNING
-    logging.basicConfig(
-        level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr
-    )
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(OneLineFormatter("%(levelname)s %(name)s: %(message)s"))
+    logging.basicConfig(level=level, handlers=[handler])
     ctx.obj = {"verbose": verbose, "quiet": quiet, "debug": debug}
 
 

@@ -1,7 +1,13 @@
 """Stop 55, group F2: what the case table of test_faults cannot express. A bag whose frame
-stamps go backwards imports into a dataset its readers accept."""
+stamps go backwards imports into a dataset its readers accept; a warning quoting a file name
+with a line break is one line."""
 
 from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,7 +18,7 @@ from fieldloc_cli.main import cli
 from stages.common.dataset import open_dataset, read_csv
 from stages.ingest.bag_writer import write_bag
 
-pytest.importorskip("rosbags")
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_a_bag_whose_frame_stamps_go_backwards_imports_in_stamp_order(tmp_path, caplog):
@@ -21,6 +27,7 @@ def test_a_bag_whose_frame_stamps_go_backwards_imports_in_stamp_order(tmp_path, 
     a dataset its own readers refused. Frames are the camera's messages in stamp order now:
     those stamped before an earlier kept frame are dropped, named in import.yaml, and the
     odometry and IMU messages (stamped out of bag order too) are read in stamp order."""
+    pytest.importorskip("rosbags")
     rng = np.random.default_rng(0)
     received = 100.0 + 0.1 * np.arange(7)
     headers = 100.0 + np.array([0.0, 0.1, 0.2, 0.15, 0.3, 0.3, 0.5])  # back once, then a repeat
@@ -53,3 +60,24 @@ def test_a_bag_whose_frame_stamps_go_backwards_imports_in_stamp_order(tmp_path, 
     assert rec["backward_stamps"] == ["000003.png"]
     assert rec["repeated_stamps"] == ["000005.png"]
     assert rec["frames"] == 5 and rec["image_messages"] == 7
+
+
+def _fieldloc(*args, cwd, timeout: float = 120, **kw) -> subprocess.CompletedProcess:
+    """The fieldloc of this tree run as a user runs it: its own process, its own stderr (the
+    log's lines formatted by the CLI, not by pytest's capture)."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    return subprocess.run([sys.executable, "-m", "fieldloc_cli.main", *map(str, args)],
+                          cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout,
+                          **kw)
+
+
+def test_a_warning_quoting_a_file_name_with_a_line_break_is_one_line(tmp_path):
+    """A WARNING line quoting a file called "17\\n0.json" took two lines; the CLI's log
+    formatter shows the line break as a space, as the error and summary lines do."""
+    (tmp_path / "hk").mkdir()
+    (tmp_path / "hk" / "17\n0.json").write_text("{}")
+    r = _fieldloc("calibrate", "perspective", "--from-hulks", "hk", "-o", "c", cwd=tmp_path)
+    assert r.returncode == 1
+    assert r.stderr.splitlines() == [
+        "WARNING stages.calibrate.hulks: hk/17 0.json: no image beside it, skipped",
+        "fieldloc: error: hk: no HULKs capture (<stamp>.json with its image)"], r.stderr
