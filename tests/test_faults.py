@@ -96,6 +96,17 @@ def snapshot(*folders) -> dict[str, str]:
     return out
 
 
+def _cut_first_frame_to_jpeg(ds: Path) -> None:
+    """Frame 000000 of ``ds`` as a JPEG file of which only the first half is left (libjpeg
+    decoded it, grey below the cut, and said so on stderr only)."""
+    first = ds / "images" / "000000.png"
+    ok, data = cv2.imencode(".jpg", cv2.imread(str(first)))
+    first.unlink()
+    (ds / "images" / "000000.jpg").write_bytes(data.tobytes()[:len(data) // 2])
+    frames = ds / "frames.csv"
+    frames.write_text(frames.read_text().replace("000000.png", "000000.jpg"))
+
+
 def copy_dataset(world, name: str, ws: Path) -> Path:
     """A copy of a shared dataset in the case's folder (to break it)."""
     dst = ws / name
@@ -2366,6 +2377,12 @@ CASES = [
          ["build-map", "spl", "--resolution", "0.5", "-o", W + "/dang.h5"], 1,
          "is a symbolic link to /nonexistent/x.h5, which does not exist",
          setup=lambda w, ws: os.symlink("/nonexistent/x.h5", ws / "dang.h5") or {}),
+    # ---- s55 group F2: an image cut short (the one-line output is tested in a subprocess,
+    # tests/test_s55_f2.py: libjpeg and libpng print on the process's stderr)
+    Case("extract of a dataset whose first frame is a JPEG cut in half", "silent",
+         ["extract", "{ds}", "-o", W + "/f.h5"], 0,
+         "(a JPEG file cut short: no end marker)",
+         setup=_with_ds("omni", _cut_first_frame_to_jpeg)),
 ]
 
 

@@ -1,10 +1,13 @@
 """Stop 55, group F2: what the case table of test_faults cannot express. A bag whose frame
 stamps go backwards imports into a dataset its readers accept; a warning quoting a file name
-with a line break is one line."""
+with a line break is one line; an image file cut short is one line of fieldloc's, nothing of
+OpenCV's or its codecs' (run as a user runs fieldloc, in a subprocess: libpng and libjpeg
+write to the process's stderr, which the in-process runner does not see)."""
 
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -81,3 +84,100 @@ def test_a_warning_quoting_a_file_name_with_a_line_break_is_one_line(tmp_path):
     assert r.stderr.splitlines() == [
         "WARNING stages.calibrate.hulks: hk/17 0.json: no image beside it, skipped",
         "fieldloc: error: hk: no HULKs capture (<stamp>.json with its image)"], r.stderr
+
+
+REALDATA = ROOT.parent / "shared" / "realdata"
+
+
+def _cut(image: np.ndarray, kind: str) -> bytes:
+    """The first half of ``image`` encoded as a ``kind`` file: a file cut short."""
+    import cv2
+
+    ok, data = cv2.imencode("." + kind, image)
+    assert ok
+    return data.tobytes()[:len(data) // 2]
+
+
+@pytest.fixture(scope="module")
+def simulated(tmp_path_factory):
+    """Two-frame omni and perspective datasets (SPL field)."""
+    from stages import simulate
+
+    root = tmp_path_factory.mktemp("sim")
+    out = {}
+    for camera, preset in (("omni", "omni-clean"), ("perspective", "perspective-clean")):
+        simulate.main(dict(simulate.confs[preset], frames=2), "spl", root / camera)
+        out[camera] = root / camera
+    return out
+
+
+@pytest.mark.parametrize("camera,kind", [("omni", "png"), ("omni", "jpg"),
+                                         ("perspective", "jpg")])
+def test_extract_of_a_frame_cut_short_prints_one_line_of_its_own(simulated, tmp_path, camera,
+                                                                   kind):
+    """A frame file cut short printed a line of libpng's ("libpng error: PNG input buffer is
+    incomplete") or of libjpeg's ("Premature end of JPEG file") beside fieldloc's warning, and
+    a JPEG cut in half was even taken as a frame, grey below the cut. Now the frame is skipped
+    with one warning line saying why, and nothing of OpenCV's is printed (whatever its
+    version's wording: the test counts lines)."""
+    import cv2
+
+    ds = tmp_path / "ds"
+    shutil.copytree(simulated[camera], ds)
+    first = ds / "images" / "000000.png"
+    image = cv2.imread(str(first))
+    first.unlink()
+    (ds / "images" / f"000000.{kind}").write_bytes(_cut(image, kind))
+    frames = ds / "frames.csv"
+    frames.write_text(frames.read_text().replace("000000.png", f"000000.{kind}"))
+    r = _fieldloc("-q", "extract", ds, "-o", tmp_path / "f.h5", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    lines = r.stderr.splitlines()
+    assert len(lines) == 1 and "frame 000000 skipped: unreadable image" in lines[0], r.stderr
+
+
+@pytest.mark.parametrize("kind", ["png", "jpg"])
+def test_inspect_of_an_image_cut_short_prints_nothing_of_opencv(tmp_path, kind):
+    """`inspect` of a PNG or JPEG cut short says it cannot be decoded, and OpenCV's or the
+    codec's own line ("[ERROR:0@0.016] global grfmt_png.cpp:296 readHeader ...") is gone."""
+    rng = np.random.default_rng(1)
+    (tmp_path / f"x.{kind}").write_bytes(_cut(rng.integers(0, 256, (60, 80, 3), np.uint8),
+                                              kind))
+    (tmp_path / "y.png").write_bytes(b"\x89PNG\r\n\x1a\nxxxx")
+    for name in (f"x.{kind}", "y.png"):
+        r = _fieldloc("inspect", name, cwd=tmp_path)
+        assert r.returncode == 0 and r.stderr == "", r.stderr
+        assert "cannot be decoded" in r.stdout
+
+
+@pytest.mark.realdata
+def test_calibrate_from_nubot_with_a_bmp_cut_short_is_one_line(tmp_path):
+    """A NuBot calibration picture (BMP) cut short printed OpenCV's "[ERROR:0@0.266] global
+    loadsave.cpp:621 imread_ ... can't read data" before fieldloc's one line."""
+    source = REALDATA / "nwpu-nubot-omni-centre" / "2019-08"
+    if not source.is_dir():
+        pytest.skip("no real data")
+    shutil.copytree(source, tmp_path / "nb")
+    with open(tmp_path / "nb" / "pic_save0.bmp", "r+b") as f:
+        f.truncate(100)
+    r = _fieldloc("calibrate", "omni", "--from-nubot", "nb", "-o", "c.yaml", cwd=tmp_path)
+    assert r.returncode == 1
+    assert r.stderr.splitlines() == ["fieldloc: error: unreadable image: nb/pic_save0.bmp"]
+
+
+@pytest.mark.realdata
+def test_cnc_calibration_picture_cut_short_is_one_line(tmp_path):
+    """The --from-cnc picture (PNG) cut short: one line, libpng's own line gone."""
+    source = REALDATA / "cnc-calibration"
+    if not source.is_dir():
+        pytest.skip("no real data")
+    shutil.copytree(source, tmp_path / "cn")
+    picture = tmp_path / "cn" / "CarpetCalibImage.png"
+    picture.write_bytes(picture.read_bytes()[:5000])
+    r = _fieldloc("calibrate", "omni", "--from-cnc", "cn/CarpetCalibrator.conf", "--rings",
+                  "detected", "-o", "c.yaml", cwd=tmp_path)
+    assert r.returncode == 1
+    assert r.stderr.splitlines() == ["fieldloc: error: unreadable image:"
+                                     " cn/CarpetCalibImage.png (a PNG file cut short or"
+                                     " damaged)"]
+

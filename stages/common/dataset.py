@@ -375,36 +375,89 @@ def _decode_image(path: Path, what: str) -> np.ndarray:
     """The one reader of every image a user gives (frames, masks, calibration pictures): the
     BGR uint8 image at ``path``, or a DatasetError "unreadable ``what``: path (why)" for a file
     that is not a regular file, empty, larger than MAX_IMAGE_PIXELS (by a PNG's header) or that
-    OpenCV cannot decode (OpenCV's own assertions included: they are not one line)."""
-    import cv2
-
+    OpenCV cannot decode (OpenCV's own assertions and log lines included: they are not one
+    line)."""
     from .png import decode_png, png_size
 
     path = Path(path)
     if not path.is_file():  # a FIFO would block the read forever
         raise DatasetError(f"unreadable {what}: {path} (not a regular file)")
-    png = path.suffix.lower() == ".png"
     try:
-        data = path.read_bytes() if png else b""
-        empty = not data if png else path.stat().st_size == 0
+        data = path.read_bytes()
     except OSError as e:
         raise DatasetError(f"unreadable {what}: {path} ({e.strerror or e})") from None
-    if empty:
+    if not data:
         raise DatasetError(f"unreadable {what}: {path} (empty file)")
     size = png_size(data)
     if size is not None and size[0] * size[1] > MAX_IMAGE_PIXELS:
         raise DatasetError(f"unreadable {what}: {path} (its header claims {size[0]} x"
                            f" {size[1]} px, more than {MAX_IMAGE_PIXELS} pixels)")
-    try:
-        img = decode_png(data) if png else None
-        if img is None:  # a kind the fast path declines: OpenCV, from the bytes read
-            img = (cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR) if png
-                   else cv2.imread(str(path), cv2.IMREAD_COLOR))
-    except cv2.error:  # an OpenCV assertion (e.g. more than CV_IO_MAX_IMAGE_PIXELS pixels)
-        img = None
+    img = decode_png(data)
+    if img is None:  # a kind the fast path declines: OpenCV, from the bytes read
+        img = opencv_decode(data)
     if img is None:
-        raise DatasetError(f"unreadable {what}: {path}")
+        why = image_damage(data)
+        raise DatasetError(f"unreadable {what}: {path}" + (f" ({why})" if why else ""))
     return img
+
+
+def quiet_opencv():
+    """The cv2 module, its own logging silenced for the process: a file it cannot decode makes
+    OpenCV print a line of its own on stderr ("[ERROR:0@0.266] global loadsave.cpp:621
+    imread_ ... can't read data"), before fieldloc's one line saying the same. Set once rather
+    than around each read: frames are read by several threads at once, and a level put back by
+    one would let another's line through; fieldloc shows none of OpenCV's log lines."""
+    import cv2
+
+    global _OPENCV_SILENCED
+    if not _OPENCV_SILENCED:
+        logging_api = getattr(getattr(cv2, "utils", None), "logging", None)
+        if logging_api is not None and hasattr(logging_api, "setLogLevel"):
+            logging_api.setLogLevel(logging_api.LOG_LEVEL_SILENT)
+        elif hasattr(cv2, "setLogLevel"):  # OpenCV builds without cv2.utils.logging
+            cv2.setLogLevel(0)  # 0: silent
+        _OPENCV_SILENCED = True
+    return cv2
+
+
+_OPENCV_SILENCED = False
+
+
+JPEG_SOI, JPEG_SOS, JPEG_EOI = b"\xff\xd8", b"\xff\xda", b"\xff\xd9"
+
+
+def image_damage(data: bytes) -> str | None:
+    """Why the bytes of an image file are not given to OpenCV, in a message's words, or None:
+    a JPEG file cut short (it starts as one, SOI, and holds no end marker, EOI, after its last
+    scan, SOS: neither marker can occur inside a scan's coded data, where a 0xff byte is
+    followed by 0x00 or a restart marker, and an EXIF thumbnail's EOI lies before the scans),
+    or a PNG file libpng refuses (stages.common.png.png_damaged). libjpeg and libpng report
+    these on stderr themselves, not through OpenCV's logging ("Premature end of JPEG file",
+    "libpng error: PNG input buffer is incomplete"): a line beside fieldloc's own (and
+    libjpeg decodes the cut file, grey below the cut)."""
+    from .png import png_damaged
+
+    if data.startswith(JPEG_SOI) and data.rfind(JPEG_EOI) < data.rfind(JPEG_SOS):
+        return "a JPEG file cut short: no end marker"
+    if png_damaged(data):
+        return "a PNG file cut short or damaged"
+    return None
+
+
+def opencv_decode(data: bytes, *, unchanged: bool = False) -> np.ndarray | None:
+    """The image OpenCV decodes from the bytes of an image file, BGR uint8 (as stored with
+    ``unchanged``), or None where it cannot: OpenCV's failures (its assertions too, e.g. more
+    than CV_IO_MAX_IMAGE_PIXELS pixels) and the files image_damage names, without a line of
+    OpenCV's, libjpeg's or libpng's on stderr (quiet_opencv). The one call of every image read
+    by OpenCV; callers turn None into their own one-line error."""
+    cv2 = quiet_opencv()
+    if image_damage(data) is not None:
+        return None
+    try:
+        return cv2.imdecode(np.frombuffer(data, np.uint8),
+                            cv2.IMREAD_UNCHANGED if unchanged else cv2.IMREAD_COLOR)
+    except cv2.error:
+        return None
 
 
 def read_mask(path: str | Path, image_size: tuple[int, int]) -> np.ndarray:

@@ -79,12 +79,9 @@ def _is_hdf5(path: Path, head: bytes) -> bool:
 
 
 def _image(path: Path) -> str:
-    import cv2
+    from .dataset import opencv_decode
 
-    try:
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    except cv2.error:  # OpenCV's own assertion: a header claiming more pixels than it reads
-        img = None
+    img = opencv_decode(path.read_bytes(), unchanged=True)  # None: it cannot be decoded
     if img is None:
         return f"{path}\n  image file that cannot be decoded ({human_bytes(path.stat().st_size)})"
     ch = 1 if img.ndim == 2 else img.shape[2]

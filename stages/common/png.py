@@ -74,6 +74,14 @@ def png_size(data: bytes) -> tuple[int, int] | None:
     return struct.unpack_from(">II", data, 16)
 
 
+def png_damaged(data: bytes) -> bool:
+    """Whether ``data`` starts as a PNG file and breaks a rule that makes libpng refuse it
+    (cut short, a chunk running past the end, no IEND, a critical chunk's CRC: ``_chunks``).
+    libpng says so on stderr itself ("libpng error: PNG input buffer is incomplete"), a line
+    beside fieldloc's own: such a file is not given to OpenCV."""
+    return data.startswith(SIGNATURE) and _chunks(data) is None
+
+
 def _chunks(data: bytes):
     """(IHDR fields, the concatenated IDAT data) of a PNG file, or None where it breaks a rule
     that makes libpng refuse the file: a critical chunk whose CRC is wrong, an unknown

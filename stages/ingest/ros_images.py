@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..common.dataset import opencv_decode
 from ..common.errors import FieldlocError
 
 JPEG_MAGIC = b"\xff\xd8"
@@ -144,7 +145,7 @@ def compressed_to_file(fmt: str, data) -> tuple[str, bytes | np.ndarray]:
         pattern = source[len("bayer_"):len("bayer_") + 4]
         if pattern not in _bayer_codes():
             raise ImageMessageError(f"unknown Bayer pattern in compressed format '{fmt}'")
-        mosaic = cv2.imdecode(np.frombuffer(bytes(data), np.uint8), cv2.IMREAD_UNCHANGED)
+        mosaic = opencv_decode(bytes(data), unchanged=True)
         if mosaic is None or mosaic.ndim != 2:
             raise ImageMessageError(f"compressed Bayer image ('{fmt}') is not a one-channel"
                                     " mosaic")
