@@ -54,6 +54,7 @@ import math
 import os
 import shutil
 import signal
+import threading
 import time
 import traceback
 from pathlib import Path
@@ -688,25 +689,63 @@ def _local_worker_setup() -> None:
     tqdm.set_lock(threading.RLock())
 
 
-def _hush_if_interrupted(client):
-    """An exit callback, run before the cluster is stopped: after a Ctrl-C the stop says
-    nothing (Dask's lines of closing, of tasks cancelled and of workers killed mid-task, here
-    and in the workers) and a second Ctrl-C does not break it off half way (which left a
+def _hush_if_interrupted(client, done: list):
+    """An exit callback, run before the cluster is stopped: after a Ctrl-C or SIGTERM the stop
+    says nothing (Dask's lines of closing, of tasks cancelled and of workers killed mid-task,
+    here and in the workers) and a second Ctrl-C does not break it off half way (which left a
     cluster for the atexit hook of distributed to trip over with a traceback). ``_unhush``
-    undoes it in this process after the stop."""
-
-    done = []
+    undoes it in this process after the stop, except that distributed's loggers stay silent
+    (``done`` gets True): the process is ending, and what distributed still closes at exit
+    (its atexit hook, a nanny's "closed") must not print after fieldloc's "terminated"."""
 
     def on_exit(exc_type, exc, tb) -> bool:
         if exc_type is not None and issubclass(exc_type, KeyboardInterrupt) and not done:
             done.append(True)
             signal.signal(signal.SIGINT, signal.SIG_IGN)
+            logging.getLogger("distributed").setLevel(DASK_SILENT)
             logging.disable(logging.CRITICAL)
             with contextlib.suppress(Exception):  # a worker out of reach is stopped anyway
                 client.run(logging.disable, logging.CRITICAL)
         return False
 
     return on_exit
+
+
+# above every level distributed logs at: its loggers print nothing
+DASK_SILENT = logging.CRITICAL + 1
+
+
+def _restore_dask_level(level: int, interrupted: list) -> None:
+    """Put distributed's logger back to ``level`` after the cluster stopped, unless the batch
+    was interrupted (``_hush_if_interrupted``)."""
+    if not interrupted:
+        logging.getLogger("distributed").setLevel(level)
+
+
+@contextlib.contextmanager
+def _interrupts_held():
+    """While the cluster and its client are made, a Ctrl-C or SIGTERM waits until they are
+    made and in the ExitStack that stops them, and is raised then, once. Raised half way
+    (LocalCluster starts in seconds on a loaded machine), it left a cluster half started for
+    the atexit hook of distributed to close: its INFO lines and an AssertionError traceback
+    after fieldloc's one "terminated" line. Only in the main thread, where Python handles
+    signals."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    got: list[int] = []
+    old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    for s, handler in old.items():
+        if handler not in (signal.SIG_IGN, None):
+            signal.signal(s, lambda signum, frame: got.append(signum))
+    try:
+        yield
+    finally:
+        for s, handler in old.items():
+            if handler is not None:
+                signal.signal(s, handler)
+        if got:
+            signal.raise_signal(got[0])
 
 
 def _unhush(handler) -> None:
@@ -727,30 +766,34 @@ def _execute_dask(plan: Plan, todo, conf, progress, say, records: dict, summaris
 
     with contextlib.ExitStack() as stack:
         stack.callback(_unhush, signal.getsignal(signal.SIGINT))  # last, after the stop
-        # Dask's own INFO lines (cluster start and stop) only when our log shows INFO
+        # Dask's own lines (cluster start and stop, its warnings) only when our log shows
+        # INFO; distributed sets its logger to INFO, and its records reach our log's handler
         dask_log = logging.getLogger("distributed")
-        stack.callback(dask_log.setLevel, dask_log.level)
+        interrupted: list = []
+        stack.callback(_restore_dask_level, dask_log.level, interrupted)
         if not logging.getLogger().isEnabledFor(logging.INFO):
-            dask_log.setLevel(logging.WARNING)
+            dask_log.setLevel(logging.ERROR)
         if conf["scheduler"]:
-            try:
-                client = stack.enter_context(Client(conf["scheduler"], timeout="10s"))
-            except (OSError, TimeoutError) as e:
-                raise FieldlocError(f"cannot reach the Dask scheduler {conf['scheduler']}"
-                                    f" ({one_line(e)})") from None
-            hush = stack.push(_hush_if_interrupted(client))
+            with _interrupts_held():
+                try:
+                    client = stack.enter_context(Client(conf["scheduler"], timeout="10s"))
+                except (OSError, TimeoutError) as e:
+                    raise FieldlocError(f"cannot reach the Dask scheduler {conf['scheduler']}"
+                                        f" ({one_line(e)})") from None
+                hush = stack.push(_hush_if_interrupted(client, interrupted))
             where = f"the Dask cluster at {conf['scheduler']}"
         else:
             n = min(conf["workers"] or core_count(), len(todo))  # no idle workers
             nanny_log = logging.getLogger("distributed.nanny")
             stack.callback(nanny_log.removeFilter, _quiet_stop)  # after the cluster stopped
-            cluster = stack.enter_context(LocalCluster(
-                n_workers=n, threads_per_worker=1, processes=True,
-                dashboard_address=":0", silence_logs=logging.WARNING))
-            client = stack.enter_context(Client(cluster))
-            stack.callback(nanny_log.addFilter, _quiet_stop)  # before it stops
-            hush = stack.push(_hush_if_interrupted(client))  # first on the way out
-            client.register_worker_callbacks(_local_worker_setup)
+            with _interrupts_held():
+                cluster = stack.enter_context(LocalCluster(
+                    n_workers=n, threads_per_worker=1, processes=True,
+                    dashboard_address=":0", silence_logs=logging.WARNING))
+                client = stack.enter_context(Client(cluster))
+                stack.callback(nanny_log.addFilter, _quiet_stop)  # before it stops
+                hush = stack.push(_hush_if_interrupted(client, interrupted))  # first out
+                client.register_worker_callbacks(_local_worker_setup)
             where = f"a local Dask cluster of {n} worker processes"
         nw = len(client.scheduler_info().get("workers", {}))
         say(f"running {len(todo)} runs on {where} ({nw} workers)")
