@@ -454,6 +454,14 @@ def _setup_batch_version(value: str):
     return setup
 
 
+def _setup_users_parts_folder(w, ws):
+    """A folder of the user's at ``.f.h5.parts`` (extract's resume folder for f.h5): it was
+    removed without a word (trial D1, D12)."""
+    (ws / ".f.h5.parts").mkdir()
+    (ws / ".f.h5.parts" / "thesis.txt").write_text("two years of work")
+    return {}
+
+
 def _setup_png_claiming(w, ws):
     """ws/x.png: a frame of the shared dataset whose header claims 100000 x 100000 px."""
     shutil.copyfile(w["omni"] / "images" / "000000.png", ws / "x.png")
@@ -2383,6 +2391,11 @@ CASES = [
          ["extract", "{ds}", "-o", W + "/f.h5"], 0,
          "(a JPEG file cut short: no end marker)",
          setup=_with_ds("omni", _cut_first_frame_to_jpeg)),
+    # ---- s55 lead: trial D1's user folder at extract's resume name
+    Case("extract beside a user's folder at the name of its resume folder", "data-lost",
+         ["extract", "{omni}", "-o", W + "/f.h5"], 1,
+         "is in the way of extract's resume folder (it holds no run.json of extract's)",
+         setup=_setup_users_parts_folder),
 ]
 
 

@@ -473,6 +473,12 @@ CHUNK_SECONDS = 0.5
 CHUNK_FRAMES = 256
 
 
+def _parts_run(run) -> bool:
+    """Whether ``run`` (a parts folder's run.json, or None where it is absent or unreadable)
+    is one extract wrote, in any layout: a mapping holding RUN_KEYS."""
+    return isinstance(run, dict) and all(k in run for k in RUN_KEYS)
+
+
 class FrameParts:
     """Frames of an unfinished extraction, committed in chunks of at most CHUNK_SECONDS (see the
     module doc): ``<first frame>+<count>.npz`` holds the chunk's ``names``, ``stamps`` and, per
@@ -502,6 +508,11 @@ class FrameParts:
         or start an empty parts folder."""
         if self.dir.is_dir():
             old = self._read_run()
+            if not _parts_run(old) and any(self.dir.iterdir()):
+                # a folder of the user's at the parts' name: never removed (an empty one is
+                # what a run killed between its mkdir and its run.json leaves)
+                raise FieldlocError(f"{self.dir} is in the way of extract's resume folder (it"
+                                    " holds no run.json of extract's); move it")
             if old == self.run:
                 self._scan()
                 n = len(self._frames) + len(self._failures)
