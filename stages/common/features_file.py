@@ -342,6 +342,12 @@ class _NoFrames:
         raise KeyError(f"no frame {name!r}: the file has no frames")
 
 
+# a features frame is a dataset's frame when their names and stamps agree; extract copies the
+# dataset's stamp, so only float formatting separates them: far below a frame interval (33 ms
+# at 30 Hz)
+SAME_STAMP_S = 1e-3
+
+
 class FeaturesFile:
     """Read access to a features file (version 2, or 1)."""
 
@@ -426,6 +432,34 @@ class FeaturesFile:
                               f" '{missing[0]}' dataset)")
         out["stamp"] = stamp
         return out
+
+    def check_of(self, dataset) -> None:
+        """Refuse (FieldlocError, one line) features that are not the dataset's own: of
+        another camera kind than its calib.yaml's, naming none of its frames, or placing one
+        of its frames at another stamp (another recording's, whose frames are other names
+        or other times).
+        The one check every reader of a dataset's frames from a features file applies
+        (localize, show belief, show points). A file of failures only is judged by its kind."""
+        kind = dataset.camera().kind
+        if self._kind != kind:
+            raise FieldlocError(
+                f"{self.path}: features of a '{self._kind}' camera, {dataset.root} was recorded by"
+                f" a '{kind}' camera: are they another dataset's?")
+        if not (self.names and dataset.names):
+            return
+        stamp_of = dict(zip(dataset.names, (float(s) for s in dataset.stamps)))
+        shared = [(n, float(s)) for n, s in zip(self.names, self.stamps) if n in stamp_of]
+        if not shared:
+            raise FieldlocError(
+                f"{self.path}: no frame of {dataset.root} is in the features file (its frames"
+                f" are like '{str(self.names[0])[:40]}'): are they another dataset's?")
+        other = next(((n, s) for n, s in shared if not abs(stamp_of[n] - s) <= SAME_STAMP_S),
+                     None)
+        if other is not None:
+            raise FieldlocError(
+                f"{self.path}: frame {str(other[0])[:40]} is at {other[1]:.6g} s, in"
+                f" {dataset.root} at {stamp_of[other[0]]:.6g} s: are they another dataset's"
+                " (or of its earlier frames.csv)? Extract the dataset again")
 
     def __len__(self):
         return len(self.names)

@@ -434,6 +434,8 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path 
             if len(feats.names) == 0 and not recorded["failures"]:
                 raise FieldlocError(f"{features or points}: no frames to localise")
             _check_camera_kind(conf["method"], feats, features)
+            if isinstance(feats, FeaturesFile):
+                feats.check_of(dataset)
             if not allow_field_mismatch:
                 _check_same_field(recorded, map_file, features or points)
             _warn_stamps(dataset, feats.stamps, series, conf)
@@ -721,11 +723,7 @@ def _with_missing_frames(track: PoseTrack, dataset, feats, failures: list[str]) 
         extra.append((name, stamp_of[name], _failure_reason(text)))
         have.add(name)
     if isinstance(feats, FeaturesFile) and dataset.names:
-        absent = [n for n in dataset.names if n not in have]
-        if absent and len(absent) == len(dataset.names):
-            raise FieldlocError(
-                f"{feats.path}: no frame of {dataset.root} is in the features file (its frames"
-                f" are like '{(feats.names or ['?'])[0]}'): is it another dataset's?")
+        absent = [n for n in dataset.names if n not in have]  # another dataset's: check_of
         if absent:
             log.warning("%d frames of %s are not in %s (first: %s); recorded as failed"
                         " (not-extracted)", len(absent), dataset.root, feats.path, absent[0])

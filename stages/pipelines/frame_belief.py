@@ -63,6 +63,7 @@ def frame_observations(dataset_dir: Path, frame: str | int, features: Path | Non
         features = dataset_dir / "features.h5"
     if features is not None:
         with FeaturesFile(features) as ff:
+            ff.check_of(open_dataset(dataset_dir, need_images=False))
             name = ff.names[frame_index(ff.names, frame, str(features))]
             data = ff.frame(name)
             return name, float(data["stamp"]), Observations.from_features(data)

@@ -33,6 +33,7 @@ def frame_features(conf, ds, i: int, features=None) -> dict:
     name = ds.names[i]
     if features is not None:
         with FeaturesFile(features) as ff:
+            ff.check_of(ds)
             if name not in ff.names:
                 raise FieldlocError(f"{features}: no frame '{name}' (extract it first)")
             return ff.frame(name)
