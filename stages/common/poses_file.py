@@ -53,6 +53,7 @@ import numpy as np
 from .artifacts import (
     atomic_path,
     check_output,
+    may_replace,
     open_artifact,
     read_json_attr,
     starts_with,
@@ -178,12 +179,29 @@ def write_poses(path: str | Path, track: PoseTrack, attrs: dict, *, tum: bool = 
         ds = h5.create_dataset("hypotheses", data=arr["hypotheses"])
         ds.attrs["units"] = "m, m, rad, 1"
         ds.attrs["columns"] = "x, y, theta, probability"
+        if tum:  # the new poses are committed next: the old twin must not outlive them
+            drop_twin(path)
     if tum:
         write_tum(path.with_suffix(".tum"), arr)
     return path
 
 
 TUM_HEADER = "stamp x y z qx qy qz qw"  # write_tum's first line, after "# "
+
+
+def drop_twin(path: str | Path) -> None:
+    """Remove the TUM twin (X.tum) of the poses file ``path`` just before new poses are
+    committed there, so that a run stopped between the two commits (SIGTERM, SIGKILL, power
+    loss) leaves new poses without a twin rather than beside the previous run's: the pair
+    never disagrees. Only a twin this run may replace goes (``may_replace``, as its commit
+    would) and only one fieldloc wrote (``is_fieldloc_tum``); any other file is kept."""
+    tum = Path(path).with_suffix(".tum")
+    if not (tum.is_file() and is_fieldloc_tum(tum)):
+        return
+    rule = may_replace(tum)
+    if rule is False or (callable(rule) and not rule(tum)):
+        return  # another run's, written meanwhile: the twin's own commit refuses it
+    tum.unlink(missing_ok=True)
 
 
 def is_fieldloc_tum(path: str | Path) -> bool:

@@ -44,7 +44,7 @@ import yaml
 from .. import extract, localize
 from ..common.artifacts import check_output, commit_file
 from ..common.errors import FieldlocError
-from ..common.poses_file import check_tum_output
+from ..common.poses_file import check_tum_output, drop_twin
 
 log = logging.getLogger(__name__)
 
@@ -129,6 +129,7 @@ def _two_rounds(conf, dataset_dir: Path, map_path, output: Path, features: Path,
                                       source=os.path.abspath(first))
     except FieldlocError as e:
         log.warning("no second round: the first round's poses give no calibration (%s)", e)
+        drop_twin(output)  # stopped between the two commits: no stale twin beside new poses
         for src in (first, first.with_suffix(".tum")):  # the first round is the run: committed
             # as the output is (never over a file another run wrote there meanwhile)
             commit_file(src, output.with_suffix(src.suffix))
