@@ -1151,6 +1151,61 @@ def _check_dataset_readable(paths, res):
             assert all(np.isfinite(v).all() for v in cols.values()), name
 
 
+def _setup_other_stamps(w, ws):
+    """ws/ds: the omni dataset with frame 000001 at another stamp than its features say."""
+    ds = copy_dataset(w, "omni", ws)
+    edit_csv(ds / "frames.csv", 3, "000001.png,0.050000")
+    return {"ds": ds}
+
+
+def _setup_report_edited(name: str, text: bytes | None):
+    """ws/rep: a report evaluate wrote of the shared poses; then its ``name`` given ``text``
+    appended (None: left as written)."""
+    def setup(w, ws):
+        from stages import evaluate
+
+        evaluate.main(None, w["poses"], w["omni"], ws / "rep")
+        if text is not None:
+            (ws / "rep" / name).parent.mkdir(exist_ok=True)
+            with open(ws / "rep" / name, "ab") as f:
+                f.write(text)
+        return {}
+    return setup
+
+
+def _setup_simulated_edited(name: str | None):
+    """ws/data: a one-frame dataset simulate wrote; then its ``name`` edited (None: not)."""
+    def setup(w, ws):
+        simulate.main(dict(simulate.confs["omni-clean"], frames=1), "spl", ws / "data")
+        if name is not None:
+            with open(ws / "data" / name, "ab") as f:
+                f.write(b"# mine\n")
+        return {}
+    return setup
+
+
+def _setup_debug_folder_with_picture(w, ws):
+    """ws/dbg: a folder extract's --debug-images made (its record), holding a user's picture
+    under the name of frame 000000's overlay."""
+    (ws / "dbg").mkdir()
+    (ws / "dbg" / "debug-images.yaml").write_text("generator: fieldloc extract\n")
+    (ws / "dbg" / "000000.png").write_bytes(b"my own picture")
+    return {}
+
+
+def _setup_imported_edited(change):
+    """ws/ds: a dataset import rosbag wrote from ws/x.bag; then ``change(ds)``."""
+    bag = _setup_odometry_bag(GOOD_ODOMETRY, GOOD_IMU)
+
+    def setup(w, ws):
+        bag(w, ws)
+        res = CliRunner().invoke(cli, [a.format(ws=ws) for a in IMPORT_BAG])
+        assert res.exit_code == 0, res.output
+        change(ws / "ds")
+        return {}
+    return setup
+
+
 CASES = [
     # ------------------------------------------------------------------ data lost
     Case("localize -o the map --overwrite", "data-lost",
@@ -2396,6 +2451,50 @@ CASES = [
          ["extract", "{omni}", "-o", W + "/f.h5"], 1,
          "is in the way of extract's resume folder (it holds no run.json of extract's)",
          setup=_setup_users_parts_folder),
+    # ---- s55 group F1: fieldloc folders' files replaced only as written (C4), features of
+    # another dataset in the pictures (C17)
+    *[Case(f"evaluate --overwrite of a report whose {name} was edited", "data-lost",
+           ["evaluate", "{poses}", "--truth", "{omni}", "-o", W + "/rep", "--overwrite"], 1,
+           f"rep/{name} was edited since fieldloc wrote it",
+           setup=_setup_report_edited(name, text))
+      for name, text in (("errors.csv", b"# mine\n"), ("truth.tum", b"# mine\n"),
+                         ("plots/trajectory.png", b"my own picture"))],
+    *[Case(f"simulate --overwrite of a dataset whose {name} was edited", "data-lost",
+           ["simulate", "omni", "--preset", "omni-clean", "--field", "spl", "--frames", "1",
+            "-o", W + "/data", "--overwrite"], 1,
+           f"data/{name} was edited since fieldloc wrote it; --overwrite replaces only",
+           setup=_setup_simulated_edited(name))
+      for name in ("truth.csv", "images/000000.png", "calib.yaml")],
+    Case("extract --debug-images --overwrite over a user's picture named as an overlay",
+         "data-lost",
+         ["extract", "{omni}", "-o", W + "/f.h5", "--debug-images", W + "/dbg", "--overwrite"],
+         1, "dbg/000000.png was edited since fieldloc wrote it",
+         setup=_setup_debug_folder_with_picture),
+    Case("import rosbag --overwrite of a dataset whose odometry.csv was edited", "data-lost",
+         [*IMPORT_BAG, "--overwrite"], 1, "ds/odometry.csv was edited since fieldloc wrote it",
+         setup=_setup_imported_edited(
+             lambda ds: (ds / "odometry.csv").write_text("stamp,dx,dy,dtheta\n"))),
+    Case("import rosbag --overwrite of a dataset holding a user's notes", "data-lost",
+         [*IMPORT_BAG, "--overwrite"], 1,
+         "ds/notes.txt was not written by fieldloc import rosbag: --overwrite would delete it",
+         setup=_setup_imported_edited(lambda ds: (ds / "notes.txt").write_text("mine"))),
+    Case("show belief of an omni dataset with a perspective dataset's features", "silent",
+         ["show", "belief", "{omni}", "--map", "{map}", "--features", "{kid_features}",
+          "--frame", "0", "--resolution", "0.5", "-o", W + "/b.png"], 1,
+         "features of a 'perspective' camera, "),
+    Case("show points of an omni dataset with a perspective dataset's features", "silent",
+         ["show", "points", "{omni}", "--features", "{kid_features}", "--frame", "0", "-o",
+          W + "/s.png"], 1, "features of a 'perspective' camera, "),
+    *[Case(f"{what} with features of another recording (other stamps)", "silent",
+           args, 1, "frame 000001 is at", setup=_setup_other_stamps)
+      for what, args in (
+          ("show points", ["show", "points", "{ds}", "--features", "{features}", "--frame",
+                           "0", "-o", W + "/s.png"]),
+          ("show belief", ["show", "belief", "{ds}", "--map", "{map}", "--features",
+                           "{features}", "--frame", "0", "--resolution", "0.5", "-o",
+                           W + "/b.png"]),
+          ("localize", ["localize", "{ds}", "--map", "{map}", "--features", "{features}",
+                        "-o", W + "/p.h5"]))],
 ]
 
 

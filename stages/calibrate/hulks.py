@@ -56,7 +56,14 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ..common.artifacts import atomic_dir, check_importer_target, check_output
+from ..common.artifacts import (
+    WRITTEN_FILES,
+    atomic_dir,
+    check_importer_target,
+    check_output,
+    tree_files,
+    written_files,
+)
 from ..common.camera import MAX_IMAGE_PX, save_calib
 from ..common.conf import check_bounds, stage_conf
 from ..common.dataset import write_csv
@@ -255,7 +262,8 @@ def main(conf: str | dict | None, source, output, *, overwrite: bool = False,
             "yaw": [c.yaw for c in cams], "height": [c.height for c in cams],
             "x": [c.position[0] for c in cams], "y": [c.position[1] for c in cams]})
         (tmp / IMPORT_RECORD).write_text(yaml.safe_dump(
-            {"generator": GENERATOR, "source": str(source.resolve()), "frames": len(frames)},
+            {"generator": GENERATOR, "source": str(source.resolve()), "frames": len(frames),
+             WRITTEN_FILES: written_files(tmp, tree_files(tmp))},  # --overwrite's test
             sort_keys=False))
     log.info("imported %d HULKs frames from %s into %s", len(frames), source, output)
     return output

@@ -206,6 +206,90 @@ def _hdf5_schema(path: str | Path) -> str:
     return v.decode(errors="replace") if isinstance(v, bytes) else str(v)
 
 
+# A fieldloc folder's record (simulation.yaml, report.json, import.yaml, ...) lists the files
+# fieldloc wrote into the folder under this key, each with its size and SHA-256 as written:
+# --overwrite replaces such a file only while it is still as fieldloc wrote it (a user's
+# edits, a file saved under its name, are never replaced). The one rule of every fieldloc
+# folder (``edited_file``); its owner says which files it wrote and how a file of a record
+# without hashes (an older fieldloc's) is judged on its own.
+WRITTEN_FILES = "written_files"
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def written_files(folder: str | Path, names) -> dict[str, str]:
+    """``{name: "<size in bytes> <SHA-256 hex>"}`` of the files ``names`` (paths relative to
+    ``folder``, with / between parts) that are there: what a folder's record keeps under
+    WRITTEN_FILES, made from the files just written (one read of each). One short text per
+    file, so that a record of a thousand images stays quick to read."""
+    folder = Path(folder)
+    out = {}
+    for name in names:
+        p = folder / name
+        if p.is_file() and not p.is_symlink():
+            out[name] = f"{p.stat().st_size} {_sha256(p)}"
+    return out
+
+
+def _as_written(path: Path, want) -> bool:
+    """Whether the file ``path`` holds what its record entry ``want`` says was written."""
+    size, _, digest = str(want).partition(" ")
+    try:
+        if os.stat(path).st_size != int(size):
+            return False  # cheaper than a hash, and most edits change the size
+        return _sha256(path) == digest
+    except (OSError, ValueError):
+        return False
+
+
+def edited_file(folder: str | Path, recorded, names, ours=fieldloc_wrote) -> Path | None:
+    """The first of the files ``names`` (relative to ``folder``) that is there and is not as
+    fieldloc wrote it, or None: what --overwrite may not replace in a fieldloc folder. With
+    ``recorded`` (the record's WRITTEN_FILES table), a file must still have the size and
+    SHA-256 written there; a file the table does not list, or a record without a table (an
+    older fieldloc's), is judged on its own by ``ours`` (``fieldloc_wrote``, or the format's
+    own test). A link or a folder under a file's name is never fieldloc's."""
+    folder = Path(folder)
+    table = recorded if isinstance(recorded, Mapping) else {}
+    for name in names:
+        p = folder / name
+        if not os.path.lexists(p):
+            continue  # gone: nothing to lose
+        if p.is_symlink() or not p.is_file():
+            return p
+        if not (_as_written(p, table[name]) if name in table else ours(p)):
+            return p
+    return None
+
+
+def tree_files(folder: str | Path, skip=()) -> list[str]:
+    """The files (and links) anywhere under ``folder``, as sorted relative names with /
+    between parts, but those named in ``skip``: what a folder written whole holds."""
+    folder = Path(folder)
+    out = []
+    for root, dirs, files in os.walk(folder):
+        rel = Path(root).relative_to(folder)
+        out += [(rel / n).as_posix() for n in files]
+        out += [(rel / d).as_posix() for d in dirs if os.path.islink(os.path.join(root, d))]
+    return sorted(n for n in out if n not in skip)
+
+
+def refuse_edited(folder: str | Path, recorded, names, *, ours=fieldloc_wrote,
+                  error: type[FieldlocError] = FieldlocError) -> None:
+    """``edited_file`` as a refusal in one line naming the file, before anything is written."""
+    p = edited_file(folder, recorded, names, ours)
+    if p is not None:
+        raise error(f"{p} was edited since fieldloc wrote it; --overwrite replaces only"
+                    " fieldloc's files as it wrote them: move it aside or choose another"
+                    " output")
+
+
 def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *,
                  overwrite: bool | None = False, kind: str = "file",
                  error: type[FieldlocError] = FieldlocError,
@@ -409,6 +493,16 @@ def check_importer_target(output: Path, inputs: Mapping[str, object], overwrite:
     if not written_by(output, record, generator):
         raise error(f"{output} is not a dataset made by {generator} (no {record} naming it):"
                     " --overwrite replaces only those; choose another output")
+    from .conf import load_yaml
+
+    table = load_yaml((output / record).read_text()).get(WRITTEN_FILES)
+    if isinstance(table, Mapping):  # a record without the table (an older fieldloc's): its word
+        names = tree_files(output, skip={record})
+        extra = next((n for n in names if n not in table), None)
+        if extra is not None:
+            raise error(f"{output / extra} was not written by {generator}: --overwrite would"
+                        " delete it; move it out of the folder or choose another output")
+        refuse_edited(output, table, names, error=error)
 
 
 def starts_with(path: str | Path, head: bytes) -> bool:

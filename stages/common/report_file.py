@@ -20,13 +20,21 @@ from pathlib import Path
 
 import numpy as np
 
-from .artifacts import atomic_path, fieldloc_wrote, provenance, starts_with
+from .artifacts import (
+    WRITTEN_FILES,
+    atomic_path,
+    fieldloc_wrote,
+    provenance,
+    refuse_edited,
+    starts_with,
+)
 from .errors import FieldlocError, SchemaError
 
 SCHEMA = "fieldloc.report"
 VERSION = 1
 REPORT_NAME = "report.json"
 ERRORS_NAME = "errors.csv"
+TRUTH_TUM = "truth.tum"  # the truth as a TUM trajectory: evo_ape tum truth.tum poses.tum
 PLOTS_DIR = "plots"
 PLOT_NAMES = ("error_cdf.png", "trajectory.png", "error_over_time.png", "reliability.png")
 
@@ -120,11 +128,42 @@ def foreign_report_file(folder: str | Path) -> Path | None:
     errors = folder / ERRORS_NAME
     if errors.exists() and not _is_errors_csv(errors):
         return errors
-    tum = folder / "truth.tum"
+    tum = folder / TRUTH_TUM
     if tum.exists() and not is_fieldloc_tum(tum):
         return tum
     return next((p for n in PLOT_NAMES if (p := folder / PLOTS_DIR / n).exists()
                  and not (p.is_file() and fieldloc_wrote(p))), None)
+
+
+def report_files() -> tuple[str, ...]:
+    """The files evaluate writes into a report folder besides report.json (relative names)."""
+    return (ERRORS_NAME, TRUTH_TUM, *(f"{PLOTS_DIR}/{n}" for n in PLOT_NAMES))
+
+
+def _report_file_ours(path: Path) -> bool:
+    """A report folder's file judged on its own (a record without hashes, an older
+    evaluate's): errors.csv and truth.tum by their header lines, a plot by its mark."""
+    from .poses_file import is_fieldloc_tum
+
+    if path.name == ERRORS_NAME:
+        return _is_errors_csv(path)
+    if path.name == TRUTH_TUM:
+        return is_fieldloc_tum(path)
+    return fieldloc_wrote(path)
+
+
+def refuse_edited_report_files(folder: str | Path) -> None:
+    """Before evaluate replaces a report: none of the files the report folder's report.json
+    says evaluate wrote (its WRITTEN_FILES) may have been edited since (artifacts'
+    ``refuse_edited``, one line naming the file). No report.json: ``foreign_report_file``
+    judged each file already."""
+    folder = Path(folder)
+    try:
+        data = json.loads((folder / REPORT_NAME).read_text())
+    except (OSError, ValueError, RecursionError):
+        return
+    recorded = data.get(WRITTEN_FILES) if isinstance(data, dict) else None
+    refuse_edited(folder, recorded, report_files(), ours=_report_file_ours)
 
 
 def _is_errors_csv(path: Path) -> bool:

@@ -29,7 +29,13 @@ import math
 import os
 from pathlib import Path
 
-from stages.common.artifacts import check_output, file_hash, refuse_inputs
+from stages.common.artifacts import (
+    WRITTEN_FILES,
+    check_output,
+    file_hash,
+    refuse_inputs,
+    written_files,
+)
 from stages.common.conf import check_bounds, stage_conf
 from stages.common.dataset import read_csv
 from stages.common.errors import FieldlocError
@@ -43,6 +49,8 @@ from stages.common.report_file import (
     encode_numbers,
     foreign_report_file,
     load_report,
+    refuse_edited_report_files,
+    report_files,
     report_head,
     write_errors_csv,
     write_report,
@@ -213,6 +221,8 @@ def main(conf: str | dict | None, poses, truth, output_dir, *, overwrite: bool =
             " (overwrite=True) to replace it or choose another output folder"
         )
 
+    if report_file.exists():  # replaced (--overwrite): only files still as evaluate wrote them
+        refuse_edited_report_files(out)
     if field:
         load_field(field)  # the plots' field: a user's error is refused before writing
     fe = frame_errors(columns, truth_cols, conf["stamp_tolerance"],
@@ -258,6 +268,7 @@ def main(conf: str | dict | None, poses, truth, output_dir, *, overwrite: bool =
     }
     if draw is not None and report["files"]["plots"]:
         draw(encode_numbers(report), out)
+    report[WRITTEN_FILES] = written_files(out, report_files())  # what --overwrite may replace
     write_report(report_file, report)
     pos = summary["position_error_m"]
     log.info("%s: median position error %s m, within %s", out, _short(pos["median"]),

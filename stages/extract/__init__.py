@@ -44,6 +44,7 @@ from ..common.artifacts import (
     check_output,
     file_hash,
     output_lock,
+    refuse_edited,
     root_attrs,
     written_by,
 )
@@ -53,6 +54,7 @@ from ..common.dataset import open_dataset, read_image, read_mask
 from ..common.errors import FieldlocError, SchemaError
 from ..common.features_file import SCHEMA, VERSION, FeaturesFile, FrameParts, write_features
 from ..common.head_angles import HEAD_STAMP_TOLERANCE, head_at, head_table  # noqa: F401
+from ..common.png import with_mark
 from ..common.resources import check_disk, opencv_single_threaded
 
 log = logging.getLogger(__name__)
@@ -287,10 +289,16 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
             clash = [] if overwrite else [
                 png for _i, n, _s in todo if (png := debug_images / f"{n}.png").exists()
                 and png.stat().st_mtime_ns < parts.began_ns]
-            if clash:
+            try:
+                if clash:
+                    raise FieldlocError(f"{clash[0]} exists (use --overwrite to replace it)")
+                # an overlay replaced only as extract drew it (its mark): never a user's
+                # picture saved under a frame's name, nor an overlay edited by hand
+                refuse_edited(debug_images, None, [f"{n}.png" for _i, n, _s in todo])
+            except FieldlocError:
                 if not resumed:
                     parts.remove()  # the empty parts folder this run made
-                raise FieldlocError(f"{clash[0]} exists (use --overwrite to replace it)")
+                raise
             debug_images.mkdir(parents=True, exist_ok=True)
             if not written_by(debug_images, DEBUG_RECORD, GENERATOR):
                 (debug_images / DEBUG_RECORD).write_text(
@@ -363,4 +371,4 @@ def _write_debug_image(path: Path, image: np.ndarray) -> None:
         ok, buf = cv2.imencode(".png", image)
         if not ok:
             raise FieldlocError(f"could not encode the debug image {path}")
-        tmp.write_bytes(buf.tobytes())
+        tmp.write_bytes(with_mark(buf.tobytes()))

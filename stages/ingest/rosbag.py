@@ -72,11 +72,14 @@ import yaml
 
 from .. import __version__
 from ..common.artifacts import (
+    WRITTEN_FILES,
     atomic_dir,
     check_importer_target,
     check_output,
     file_hash,
+    tree_files,
     written_by,
+    written_files,
 )
 from ..common.camera import load_calib
 from ..common.conf import load_yaml, stage_conf
@@ -581,6 +584,7 @@ def main(conf: str | dict | None, bag, output, *, image_topic: str, odom_topic: 
             })
             if calib is not None:
                 record["calib"] = {"source": str(calib), "hash": file_hash(calib)}
+            record[WRITTEN_FILES] = written_files(tmp, tree_files(tmp))  # --overwrite's test
             (tmp / "import.yaml").write_text(yaml.safe_dump(record, sort_keys=False))
     log.info("imported %d frames from %s into %s", len(names), bag, output)
     return output

@@ -69,13 +69,17 @@ import numpy as np
 import yaml
 
 from ..common.artifacts import (
+    WRITTEN_FILES,
     check_output,
     commit_dir,
+    fieldloc_wrote,
     give_default_mode,
     part_name,
+    refuse_edited,
     remove_stale_parts,
     restore_interrupted_replacement,
     text_hash,
+    written_files,
 )
 from ..common.camera import MAX_IMAGE_PX, save_calib
 from ..common.conf import check_bounds, load_yaml, stage_conf
@@ -343,6 +347,23 @@ def not_simulated(folder: Path) -> Path | None:
                          else FRAME_NAME.fullmatch(e.name))), None)
 
 
+def _dataset_files(folder: Path) -> list[str]:
+    """The files of a dataset folder simulate writes and lists under WRITTEN_FILES (relative
+    names): those at its top but the record, and its images."""
+    images = folder / "images"
+    return ([e.name for e in sorted(folder.iterdir())
+             if e.name not in ("images", SIMULATION_RECORD)]
+            + ([f"images/{e.name}" for e in sorted(images.iterdir())] if images.is_dir()
+               else []))
+
+
+def _written_before_hashes(path: Path) -> bool:
+    """A dataset file of a record without WRITTEN_FILES (an older simulate), judged on its
+    own: calib.yaml by fieldloc's mark; the CSV files and images carry none, and are taken
+    as the record lists them (as that simulate did)."""
+    return fieldloc_wrote(path) if path.name == "calib.yaml" else True
+
+
 def _check_target(output_dir: Path, overwrite: bool, field_file: Path | None):
     check_output(output_dir, {"field YAML": field_file}, overwrite=None, kind="folder")
     if output_dir.is_dir() and any(output_dir.iterdir()):
@@ -360,6 +381,9 @@ def _check_target(output_dir: Path, overwrite: bool, field_file: Path | None):
             raise FieldlocError(
                 f"{output_dir} holds {other}, which simulate did not write: --overwrite would"
                 " delete it; move it out of the folder or choose another one")
+        rec = _record(output_dir) or {}
+        refuse_edited(output_dir, rec.get(WRITTEN_FILES), _dataset_files(output_dir),
+                      ours=_written_before_hashes)
         if Path.cwd().resolve().is_relative_to(output_dir.resolve()):
             raise FieldlocError(
                 f"{output_dir} holds the current folder; run simulate from elsewhere to replace"
@@ -688,6 +712,7 @@ def main(conf: str | dict | None, field, output_dir, *, overwrite: bool = False,
             "true_camera": renderer.camera.to_dict(),
             "conf": _plain(conf),
         }
+        info[WRITTEN_FILES] = written_files(tmp, _dataset_files(tmp))  # --overwrite's test
         (tmp / SIMULATION_RECORD).write_text(yaml.safe_dump(info, sort_keys=False))
         give_default_mode(tmp)
         commit_dir(tmp, output_dir, replace=overwrite)  # never a dataset written meanwhile

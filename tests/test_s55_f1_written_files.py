@@ -1,0 +1,107 @@
+"""Stop 55, group F1: a fieldloc folder's files replaced only as fieldloc wrote them (C4), and
+a poses file's TUM twin that never disagrees with it after an interruption (C6).
+
+The refusals of edited files are cases of tests/test_faults.py (block "s55 group F1"); here
+what must still work: --overwrite of folders left as fieldloc wrote them (and of a record of an
+older fieldloc without hashes), and localize stopped between its two commits.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+
+import pytest
+import yaml
+
+from stages import build_map, evaluate, extract, localize, simulate
+from stages.common import poses_file
+from stages.common.artifacts import WRITTEN_FILES
+
+
+def _sha(path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """A 2-frame omni dataset on spl, its features, a coarse map, and poses."""
+    root = tmp_path_factory.mktemp("f1")
+    ds = simulate.main(dict(simulate.confs["omni-clean"], frames=2, seed=1813), "spl",
+                       root / "omni")
+    feats = extract.main(None, ds, root / "omni.f.h5")
+    mp = build_map.main({"resolution": 0.5}, "spl", root / "spl.map.h5")
+    poses = localize.main({"method": "lut"}, ds, mp, root / "p.h5", features=feats)
+    return {"root": root, "ds": ds, "features": feats, "map": mp, "poses": poses}
+
+
+def test_overwrite_of_folders_as_fieldloc_wrote_them(run, tmp_path):
+    """A report and a dataset left as written are replaced with --overwrite, and their
+    records list what was written, with sizes and hashes."""
+    rep = evaluate.main(None, run["poses"], run["ds"], tmp_path / "rep")
+    table = json.loads((rep / "report.json").read_text())[WRITTEN_FILES]
+    assert set(table) >= {"errors.csv", "truth.tum"}
+    evaluate.main(None, run["poses"], run["ds"], rep, overwrite=True)
+    conf = dict(simulate.confs["omni-clean"], frames=1, seed=1814)
+    data = simulate.main(conf, "spl", tmp_path / "data")
+    table = yaml.safe_load((data / "simulation.yaml").read_text())[WRITTEN_FILES]
+    assert "truth.csv" in table and "images/000000.png" in table
+    size, digest = table["truth.csv"].split()
+    assert int(size) == (data / "truth.csv").stat().st_size
+    assert digest == _sha(data / "truth.csv")
+    simulate.main(conf, "spl", data, overwrite=True)
+
+
+def test_a_record_without_hashes_is_judged_file_by_file(tmp_path):
+    """A dataset of an older simulate (no WRITTEN_FILES): its CSV files carry no mark and are
+    taken as the record lists them; its calib.yaml, which carries fieldloc's mark, is judged
+    by it."""
+    conf = dict(simulate.confs["omni-clean"], frames=1, seed=1815)
+    data = simulate.main(conf, "spl", tmp_path / "data")
+    rec = yaml.safe_load((data / "simulation.yaml").read_text())
+    del rec[WRITTEN_FILES]
+    (data / "simulation.yaml").write_text(yaml.safe_dump(rec, sort_keys=False))
+    simulate.main(conf, "spl", data, overwrite=True)
+    rec = yaml.safe_load((data / "simulation.yaml").read_text())
+    del rec[WRITTEN_FILES]
+    (data / "simulation.yaml").write_text(yaml.safe_dump(rec, sort_keys=False))
+    (data / "calib.yaml").write_text("# my own calibration\n")
+    from stages.common.errors import FieldlocError
+
+    with pytest.raises(FieldlocError, match="calib.yaml was edited since fieldloc wrote it"):
+        simulate.main(conf, "spl", data, overwrite=True)
+    assert (data / "calib.yaml").read_text() == "# my own calibration\n"
+
+
+def test_localize_stopped_between_poses_and_twin_leaves_no_stale_twin(run, tmp_path,
+                                                                      monkeypatch):
+    """C6: localize --overwrite stopped after committing poses.h5 and before its TUM twin
+    left the new poses beside the previous run's poses.tum. The old twin now goes just
+    before the new poses are committed: an interruption leaves new poses without a twin,
+    never a twin that disagrees with them."""
+    out = tmp_path / "p.h5"
+    localize.main({"method": "lut"}, run["ds"], run["map"], out, features=run["features"])
+    old_h5 = _sha(out)
+    assert out.with_suffix(".tum").is_file()
+
+    def stopped(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(poses_file, "write_tum", stopped)
+    with pytest.raises(KeyboardInterrupt):
+        localize.main({"method": "lut", "hypotheses": 3}, run["ds"], run["map"], out,
+                      features=run["features"], overwrite=True)
+    assert _sha(out) != old_h5  # the new poses were committed
+    assert not out.with_suffix(".tum").exists()  # and no twin of the old ones beside them
+    monkeypatch.undo()
+    localize.main({"method": "lut"}, run["ds"], run["map"], out, features=run["features"],
+                  overwrite=True)
+    assert poses_file.is_fieldloc_tum(out.with_suffix(".tum"))
+
+
+def test_a_users_file_named_as_the_twin_is_never_removed(run, tmp_path):
+    """drop_twin removes only a twin fieldloc wrote."""
+    out = tmp_path / "p.h5"
+    out.with_suffix(".tum").write_text("my own trajectory\n")
+    poses_file.drop_twin(out)
+    assert out.with_suffix(".tum").read_text() == "my own trajectory\n"
