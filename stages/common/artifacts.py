@@ -835,9 +835,20 @@ def atomic_dir(path: str | Path, *, overwrite: bool = False):
             shutil.rmtree(tmp, ignore_errors=True)
 
 
+# HDF5 builds an artifact in memory (its "core" driver, growing by this much at a time: few
+# reallocations for a map of megabytes, little waste for a poses file of kilobytes)
+_CORE_BLOCK = 1 << 20
+
+
 @contextlib.contextmanager
 def write_artifact(path: str | Path, attrs: dict, *, resume: bool = False):
     """Open a new HDF5 artifact for writing, atomically.
+
+    The file is built in memory and written to its temporary part in one plain write at the
+    end: HDF5 itself never meets a full disk, which it cannot recover from (a write or close
+    that fails leaves its objects unable to close: "Exception ignored" tracebacks for each,
+    then a segmentation fault at exit). A disk that has no room for the finished file is the
+    plain OSError of that one write, which ``atomic_path`` turns into one line naming ``path``.
 
     With ``resume`` and an existing file of the same schema, its content is copied into the
     temporary file first so per-frame stages can skip frames already done; the original stays
@@ -847,15 +858,22 @@ def write_artifact(path: str | Path, attrs: dict, *, resume: bool = False):
     with atomic_path(path) as tmp:
         if resume and path.exists():
             shutil.copyfile(path, tmp)
-            f = h5py.File(tmp, "a", libver="latest")
+            mode = "r+"
         else:
-            f = h5py.File(tmp, "w", libver="latest")
+            mode = "w"
+        f = h5py.File(tmp, mode, libver="latest", driver="core", backing_store=False,
+                      block_size=_CORE_BLOCK)
         try:
             for k, v in attrs.items():
                 f.attrs[k] = v
             yield f
+            f.flush()
+            image = f.id.get_file_image()
         finally:
-            f.close()
+            f.close()  # in memory: closing cannot fail for lack of room
+        with open(tmp, "wb") as out:
+            out.write(image)
+        del image
 
 
 def _open_hdf5(path: Path) -> h5py.File:

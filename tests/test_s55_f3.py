@@ -1,0 +1,139 @@
+"""Stop 55, group F3: full disks, files fieldloc may not read, caches it cannot write (trial
+D1's findings). What the case table of test_faults cannot express: a command run as a user
+runs it (its own process: a segmentation fault, Dask's workers and matplotlib print on the
+process's stderr), without root's override of file modes (``setpriv``; a user who is not root
+has none), or on a small disk (a tmpfs: where mounting is not allowed, as for a CI user who is
+not root, those tests skip)."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+from stages import build_map, extract, simulate
+from stages.common import artifacts
+
+ROOT = Path(__file__).resolve().parents[1]
+MODES_CAPS = "-dac_override,-dac_read_search"  # root's overrides of file modes
+
+
+def _fieldloc(*args, cwd, env: dict | None = None, unprivileged: bool = False,
+              timeout: float = 300) -> subprocess.CompletedProcess:
+    """The fieldloc of this tree run as a user runs it (its own process and stderr); with
+    ``unprivileged``, without root's override of file modes."""
+    prefix = _without_overrides() if unprivileged else []
+    env = {**os.environ, **(env or {}), "PYTHONPATH": str(ROOT)}
+    return subprocess.run([*prefix, sys.executable, "-m", "fieldloc_cli.main",
+                           *map(str, args)], cwd=cwd, env=env, capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def _without_overrides() -> list[str]:
+    """The prefix that runs a command without root's override of file modes (none for a user
+    who is not root); skips where root cannot drop it."""
+    if os.geteuid() != 0:
+        return []
+    setpriv = shutil.which("setpriv")
+    if setpriv is None:
+        pytest.skip("root without setpriv: file modes cannot be tested")
+    return [setpriv, f"--inh-caps={MODES_CAPS}", f"--bounding-set={MODES_CAPS}"]
+
+
+@contextlib.contextmanager
+def _small_disk(folder: Path, size: str = "3m", left: int | None = None,
+                inodes: int | None = None):
+    """A tmpfs of ``size`` mounted at ``folder`` (made), filled up to ``left`` bytes free if
+    given; unmounted after. Skips where mounting is not allowed."""
+    folder.mkdir()
+    opts = f"size={size}" + (f",nr_inodes={inodes}" if inodes else "")
+    try:
+        r = subprocess.run(["mount", "-t", "tmpfs", "-o", opts, "tmpfs", str(folder)],
+                           capture_output=True, text=True, timeout=30)
+    except (OSError, subprocess.TimeoutExpired) as e:
+        pytest.skip(f"cannot mount a tmpfs here ({e})")
+    if r.returncode:
+        pytest.skip(f"cannot mount a tmpfs here ({r.stderr.strip()[:80]})")
+    try:
+        if left is not None:
+            fill = folder / "fill"
+            with open(fill, "wb", buffering=0) as f, contextlib.suppress(OSError):
+                while True:
+                    f.write(b"\0" * 4096)
+            os.truncate(fill, max(0, fill.stat().st_size - left))
+        yield folder
+    finally:
+        subprocess.run(["umount", "-l", str(folder)], capture_output=True, timeout=30)
+
+
+def _one_line(r: subprocess.CompletedProcess, rc: int = 1) -> str:
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == rc and len(lines) == 1, (r.returncode, r.stderr[-3000:])
+    assert lines[0].startswith("fieldloc: error: "), r.stderr
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory):
+    """A coarse spl map, a 2-frame omni dataset and its features (shared, read-only)."""
+    root = tmp_path_factory.mktemp("f3")
+    p = {"root": root}
+    p["map"] = build_map.main({"resolution": 0.5}, "spl", root / "spl.map.h5")
+    p["omni"] = simulate.main(dict(simulate.confs["omni-default"], frames=2, seed=5), "spl",
+                              root / "omni")
+    p["features"] = extract.main(None, p["omni"], root / "omni.f.h5")
+    return p
+
+
+def _localize(p, out) -> list:
+    return ["-q", "localize", p["omni"], "--map", p["map"], "--features", p["features"],
+            "--method", "lut", "-o", out]
+
+
+# ---------------------------------------------------------------- D1, D2: HDF5 on a full disk
+
+@pytest.mark.parametrize("left_kb", [4, 8, 12])
+def test_localize_onto_a_nearly_full_disk_is_one_line(inputs, tmp_path, left_kb):
+    """HDF5 meeting a full disk could neither write nor close its file: h5py's "Exception
+    ignored" tracebacks for each object, a RuntimeError through click, or a segmentation
+    fault at exit. An artifact is built in memory and written in one plain write now: one
+    line naming the output, no temporary part left."""
+    with _small_disk(tmp_path / "full", left=left_kb * 1024) as full:
+        r = _fieldloc(*_localize(inputs, full / "p.h5"), cwd=tmp_path)
+        line = _one_line(r)
+        assert f"cannot write {full}/p." in line and "no space left on its disk" in line
+        assert not [f for f in os.listdir(full) if ".part" in f or f.startswith(".p.")]
+
+
+@pytest.mark.parametrize("left_kb", [4, 40])
+def test_build_templates_onto_a_nearly_full_disk_is_one_line(inputs, tmp_path, left_kb):
+    """build-templates printed the right line, then died of SIGSEGV at exit (HDF5 closing
+    the file its failed write had left open)."""
+    with _small_disk(tmp_path / "full", left=left_kb * 1024) as full:
+        r = _fieldloc("-q", "build-templates", inputs["omni"], "-o", full / "t.h5",
+                      cwd=tmp_path)
+        line = _one_line(r)
+        assert f"cannot write {full}/t.h5: no space left on its disk" in line
+        assert sorted(os.listdir(full)) == ["fill"]
+
+
+def test_an_artifact_that_fails_while_written_leaves_no_part(tmp_path):
+    """The file is written once, after the block: a block that fails leaves nothing (and
+    HDF5 held nothing on disk to close); a full disk on that write is DiskFullError naming
+    the target."""
+    target = tmp_path / "x.h5"
+    with pytest.raises(ValueError):
+        with artifacts.write_artifact(target, {"schema": "fieldloc.poses"}) as f:
+            f.create_dataset("a", data=np.arange(3))
+            raise ValueError("stop")
+    assert os.listdir(tmp_path) == []
+    with artifacts.write_artifact(target, {"schema": "fieldloc.poses"}) as f:
+        f.create_dataset("a", data=np.arange(3))
+    with h5py.File(target, "r") as f:
+        assert list(f["a"][()]) == [0, 1, 2] and f.attrs["schema"] == "fieldloc.poses"
