@@ -8,6 +8,9 @@ not root, those tests skip)."""
 from __future__ import annotations
 
 import contextlib
+import errno
+import importlib
+import logging
 import os
 import shutil
 import subprocess
@@ -137,3 +140,38 @@ def test_an_artifact_that_fails_while_written_leaves_no_part(tmp_path):
         f.create_dataset("a", data=np.arange(3))
     with h5py.File(target, "r") as f:
         assert list(f["a"][()]) == [0, 1, 2] and f.attrs["schema"] == "fieldloc.poses"
+
+
+# ---------------------------------------------------------------- D15: numba's cache
+
+def test_a_kernel_cache_that_cannot_be_written_is_no_error(tmp_path, monkeypatch, caplog):
+    """numba raised the OSError of its cache's write (a full disk) out of the kernel's first
+    call: the command failed with "No space left on device". fieldloc's njit compiles and runs
+    the kernel all the same, and says so once at INFO."""
+    from numba.core import caching
+    from stages.common import jit
+
+    def full(self, name, data):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(caching.IndexDataCacheFile, "_save_data", full)
+    monkeypatch.setattr(jit, "_told", False)
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
+    (tmp_path / "f3_kernel.py").write_text(
+        "from stages.common.jit import njit\n\n\n@njit(cache=True)\n"
+        "def twice(x):\n    return 2 * x\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    mod = importlib.import_module("f3_kernel")
+    with caplog.at_level(logging.INFO, logger="stages.common.jit"):
+        assert mod.twice(21) == 42
+    notes = [r for r in caplog.records if r.name == "stages.common.jit"]
+    assert len(notes) == 1 and notes[0].levelno == logging.INFO, caplog.text
+    assert "cannot be written" in notes[0].getMessage()
+
+
+def test_every_kernel_takes_fieldlocs_njit():
+    """The guard is in place before any kernel compiles only if every module takes njit
+    from stages.common.jit."""
+    direct = [str(p.relative_to(ROOT)) for p in (ROOT / "stages").rglob("*.py")
+              if p.name != "jit.py" and "from numba import njit" in p.read_text()]
+    assert direct == []

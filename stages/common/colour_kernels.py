@@ -15,8 +15,8 @@ write them; ``colour`` takes them from here.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from .jit import njit
 from .numeric import mean32, median32, var32
 
 # the colour classes' codes in a class image (colour.classify_image)

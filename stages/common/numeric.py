@@ -9,7 +9,8 @@ it does, so a test can hold it to a reference within the rounding it names.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from .jit import njit
 
 
 @njit(cache=True, nogil=True)

@@ -24,7 +24,8 @@ import struct
 
 import numpy as np
 from isal import isal_zlib
-from numba import njit
+
+from .jit import njit
 
 SIGNATURE = b"\x89PNG\r\n\x1a\n"
 # colour type -> samples per pixel, for the types decoded here (0: grey, 2: RGB)

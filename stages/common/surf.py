@@ -83,9 +83,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from .errors import FieldlocError
+from .jit import njit
 
 # keypoint columns (the layout of stages.common.local_features)
 X, Y, SCALE, ORIENTATION, RESPONSE, LAPLACIAN = range(6)

@@ -36,9 +36,9 @@ from dataclasses import asdict, dataclass
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
 from ..common.errors import FieldlocError
+from ..common.jit import njit
 
 REGION_SCALES = 3.0  # region radius in units of the keypoint's scale
 NORMALISED_RADIUS = 30.0  # px, the reference region's radius for the overlap error

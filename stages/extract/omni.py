@@ -59,9 +59,9 @@ from types import MappingProxyType
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
 from ..common import colour
+from ..common.jit import njit
 from ..common.scanlines import ScanLines
 
 _SL = ScanLines()

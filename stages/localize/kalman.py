@@ -32,9 +32,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from ..common.geometry import compose, wrap_angle
+from ..common.jit import njit
 
 
 @dataclass

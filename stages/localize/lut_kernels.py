@@ -40,8 +40,8 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
+from ..common.jit import njit
 from .point_fit import fit_refine
 
 MAX_CROSSINGS = 4

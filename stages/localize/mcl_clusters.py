@@ -15,7 +15,8 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+
+from ..common.jit import njit
 
 HEADING_BINS = 8  # the histogram's 45 deg heading bins
 MEAN_SHIFT_STEPS = 3

@@ -41,7 +41,8 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+
+from ..common.jit import njit
 
 COST_CAP = 60.0  # exp(-60) ~ 1e-26, far below any uniform floor
 BIG = 1e6  # cost of an excluded association

@@ -36,9 +36,9 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
 from ..common.geometry import wrap_angle
+from ..common.jit import njit
 from ..common.observations import Observations
 from .mcl_start import held_count, uniform_poses
 

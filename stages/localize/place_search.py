@@ -16,9 +16,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from stages.common.geometry import wrap_scalar
+
+from ..common.jit import njit
 
 PLACE_M, PLACE_DEG = 1.0, 30.0  # poses farther apart than this are other places
 # the local grids of ``refine``: half width (m), step (m), half turn (deg), turn step (deg)

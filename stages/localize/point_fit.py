@@ -23,9 +23,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from ..common.field import FieldModel
+from ..common.jit import njit
 
 
 class PointFit:

@@ -62,9 +62,9 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numba import njit
 
 from ..common.errors import FieldlocError
+from ..common.jit import njit
 
 SOLVERS = ("descent", "closed-form")
 # L2 groups up to this many descriptors are searched exhaustively (one matrix product) rather

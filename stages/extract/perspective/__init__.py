@@ -30,11 +30,11 @@ from types import MappingProxyType
 
 import cv2
 import numpy as np
-from numba import njit
 
 from ...common import colour
 from ...common.errors import DatasetError, FieldlocError
 from ...common.geometry import polar
+from ...common.jit import njit
 from ...common.numeric import median
 from .crossing_kernels import floor_at
 from .crossings import CROSSINGS, Finds, FrameGrid, find_crossings, floor_bundle

@@ -13,8 +13,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
+from ...common.jit import njit
 from .line_fit_kernels import _fit_points, distort_point, grow_kernel, refine_kernel
 from .line_structure_kernels import bilinear_at
 

@@ -28,8 +28,8 @@ from typing import NamedTuple
 
 import cv2
 import numpy as np
-from numba import njit
 
+from ...common.jit import njit
 from ...common.numeric import sum32
 
 # Weights of the colour classes in the merged grey image: green is field; white is a line on

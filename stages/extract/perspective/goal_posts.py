@@ -22,8 +22,8 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
+from ...common.jit import njit
 from ...common.numeric import median, sum32
 
 

@@ -13,7 +13,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+
+from ...common.jit import njit
 
 # the sum of a float64 array, a plain loop (numeric.sum64)
 from ...common.numeric import sum64 as block_sum
