@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import importlib
+import json
 import logging
 import os
 import shutil
@@ -175,3 +176,21 @@ def test_every_kernel_takes_fieldlocs_njit():
     direct = [str(p.relative_to(ROOT)) for p in (ROOT / "stages").rglob("*.py")
               if p.name != "jit.py" and "from numba import njit" in p.read_text()]
     assert direct == []
+
+
+# ---------------------------------------------------------------- D4: batch's workers
+
+def test_a_run_failing_in_a_worker_is_fieldlocs_line_only(inputs, tmp_path):
+    """A run that failed inside a Dask worker printed the worker's "Compute Failed" block
+    (with a traceback text) and WARNING lines before fieldloc's own line."""
+    spec = tmp_path / "s.yaml"
+    spec.write_text(f"map: {inputs['map']}\ndatasets: [{{path: {inputs['omni']}}}]\n"
+                    "methods: [lut]\n")
+    with _small_disk(tmp_path / "full", left=16 * 1024) as full:
+        r = _fieldloc("-q", "batch", spec, "-o", full / "res", "--workers", "1",
+                      cwd=tmp_path)
+        assert "distributed" not in r.stderr and "Compute Failed" not in r.stderr, r.stderr
+        assert "no space left" in _one_line(r)
+        run = json.loads((full / "res" / "runs" / "omni" / "lut-default" / "run.json")
+                         .read_text())
+        assert run["status"] == "failed", run  # in the worker

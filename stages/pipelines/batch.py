@@ -771,7 +771,8 @@ def _execute_dask(plan: Plan, todo, conf, progress, say, records: dict, summaris
         dask_log = logging.getLogger("distributed")
         interrupted: list = []
         stack.callback(_restore_dask_level, dask_log.level, interrupted)
-        if not logging.getLogger().isEnabledFor(logging.INFO):
+        dask_shown = logging.getLogger().isEnabledFor(logging.INFO)
+        if not dask_shown:
             dask_log.setLevel(logging.ERROR)
         if conf["scheduler"]:
             with _interrupts_held():
@@ -786,10 +787,14 @@ def _execute_dask(plan: Plan, todo, conf, progress, say, records: dict, summaris
             n = min(conf["workers"] or core_count(), len(todo))  # no idle workers
             nanny_log = logging.getLogger("distributed.nanny")
             stack.callback(nanny_log.removeFilter, _quiet_stop)  # after the cluster stopped
+            # the workers' own lines (a run's failure as a "Compute Failed" block with its
+            # traceback, "Async instruction ... CancelledError") only where Dask's lines are
+            # shown: the batch reports each failed run itself, in one line and its run.json
+            worker_logs = logging.WARNING if dask_shown else DASK_SILENT
             with _interrupts_held():
                 cluster = stack.enter_context(LocalCluster(
                     n_workers=n, threads_per_worker=1, processes=True,
-                    dashboard_address=":0", silence_logs=logging.WARNING))
+                    dashboard_address=":0", silence_logs=worker_logs))
                 client = stack.enter_context(Client(cluster))
                 stack.callback(nanny_log.addFilter, _quiet_stop)  # before it stops
                 hush = stack.push(_hush_if_interrupted(client, interrupted))  # first out
