@@ -178,10 +178,19 @@ HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 HDF5_SCHEMAS = ("fieldloc.map", "fieldloc.features", "fieldloc.poses", "fieldloc.templates")
 
 
+def cannot_read(path: str | Path, e: OSError) -> FieldlocError:
+    """The one line for a file that exists but that the system does not let fieldloc read
+    (its mode, its folder's): said as such, not as a file that is damaged or not fieldloc's,
+    which is what the checks that read it would conclude."""
+    reason = "permission denied" if isinstance(e, PermissionError) else (e.strerror or str(e))
+    return FieldlocError(f"cannot read {path}: {reason}")
+
+
 def fieldloc_wrote(path: str | Path) -> bool:
     """Whether the file ``path`` is one fieldloc wrote: an HDF5 file whose root ``schema`` is
     one of HDF5_SCHEMAS, or a file carrying ``WRITTEN_BY`` within its first or last
-    ``_MARK_SPAN`` bytes. False for anything it cannot read."""
+    ``_MARK_SPAN`` bytes. False for anything it cannot read as a file (a folder, a file gone
+    meanwhile); a file it is not allowed to read is FieldlocError (``cannot_read``)."""
     try:
         with open(path, "rb") as f:
             head = f.read(_MARK_SPAN)
@@ -190,6 +199,8 @@ def fieldloc_wrote(path: str | Path) -> bool:
             f.seek(0, os.SEEK_END)
             f.seek(max(f.tell() - _MARK_SPAN, len(head)))
             tail = f.read(_MARK_SPAN)
+    except PermissionError as e:
+        raise cannot_read(path, e) from None
     except OSError:
         return False
     mark = WRITTEN_BY.encode()
@@ -508,16 +519,20 @@ def check_importer_target(output: Path, inputs: Mapping[str, object], overwrite:
 def starts_with(path: str | Path, head: bytes) -> bool:
     """Whether the file ``path`` begins with the bytes ``head`` (False if it cannot be read):
     how a file fieldloc wrote without a record of its own (a TUM file, errors.csv, a PNG) is
-    told from a user's file of the same name."""
+    told from a user's file of the same name. A file it is not allowed to read is
+    FieldlocError (``cannot_read``), not a file of another kind."""
     try:
         with open(path, "rb") as f:
             return f.read(len(head)) == head
+    except PermissionError as e:
+        raise cannot_read(path, e) from None
     except OSError:
         return False
 
 
 def written_by(folder: Path, record: str, generator: str) -> bool:
-    """Whether ``folder``'s ``record`` YAML says ``generator`` wrote it."""
+    """Whether ``folder``'s ``record`` YAML says ``generator`` wrote it (a record it is not
+    allowed to read: FieldlocError, ``cannot_read``)."""
     import yaml
 
     from .conf import load_yaml
@@ -527,6 +542,8 @@ def written_by(folder: Path, record: str, generator: str) -> bool:
         return False
     try:
         d = load_yaml(rec.read_text())
+    except PermissionError as e:
+        raise cannot_read(rec, e) from None
     except (OSError, UnicodeDecodeError, yaml.YAMLError, FieldlocError):
         return False
     return isinstance(d, dict) and d.get("generator") == generator
@@ -882,6 +899,12 @@ def _open_hdf5(path: Path) -> h5py.File:
         raise FieldlocError(f"file not found: {path}")
     if not path.is_file() and not path.is_dir():  # a FIFO would block the open forever
         raise FieldlocError(f"{path}: not a regular file (a pipe, socket or device)")
+    if path.is_file():  # HDF5 says "unable to open" for any reason: an unreadable one is that
+        try:
+            with open(path, "rb"):
+                pass
+        except OSError as e:
+            raise cannot_read(path, e) from None
     try:
         return h5py.File(path, "r")
     except OSError:

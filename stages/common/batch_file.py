@@ -26,7 +26,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from .artifacts import atomic_path, provenance
+from .artifacts import atomic_path, cannot_read, provenance
 from .errors import FieldlocError, SchemaError, shown
 from .report_file import decode_numbers, encode_numbers
 
@@ -51,6 +51,8 @@ def read_json(path: str | Path, *, raw: bool = False) -> dict:
     path = Path(path)
     try:
         data = json.loads(path.read_text())
+    except PermissionError as e:
+        raise cannot_read(path, e) from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
         raise SchemaError(f"{path}: not a readable JSON file ({e})") from None
     if not isinstance(data, dict):

@@ -23,6 +23,7 @@ import numpy as np
 from .artifacts import (
     WRITTEN_FILES,
     atomic_path,
+    cannot_read,
     fieldloc_wrote,
     provenance,
     refuse_edited,
@@ -103,9 +104,12 @@ def write_report(path: str | Path, report: dict) -> Path:
 
 def is_fieldloc_report(path: str | Path) -> bool:
     """Whether ``path`` (a report.json) says it is a report fieldloc evaluate wrote: a JSON
-    object whose ``schema`` is ``fieldloc.report`` (its figures are not checked here)."""
+    object whose ``schema`` is ``fieldloc.report`` (its figures are not checked here). One
+    fieldloc may not read is FieldlocError (``cannot_read``), not another's file."""
     try:
         data = json.loads(Path(path).read_text())
+    except PermissionError as e:
+        raise cannot_read(path, e) from None
     except (OSError, ValueError, RecursionError):  # ValueError: bad JSON or bad UTF-8
         return False
     return isinstance(data, dict) and data.get("schema") == SCHEMA

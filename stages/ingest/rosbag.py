@@ -74,6 +74,7 @@ from .. import __version__
 from ..common.artifacts import (
     WRITTEN_FILES,
     atomic_dir,
+    cannot_read,
     check_importer_target,
     check_output,
     file_hash,
@@ -180,7 +181,13 @@ def bag_paths(bag) -> list[Path]:
 
 def _bag_problem(bag, e: BaseException) -> BagError:
     """One line for what rosbags (or the YAML and SQLite readers below it) raised on a
-    foreign or damaged bag: the first line of its message, at most 120 characters."""
+    foreign or damaged bag: the first line of its message, at most 120 characters; a bag
+    fieldloc may not read is said to be that (``cannot_read``), not damaged."""
+    cause = e
+    while cause is not None and not isinstance(cause, PermissionError):
+        cause = cause.__cause__ or cause.__context__
+    if isinstance(cause, PermissionError):
+        return BagError(str(cannot_read(cause.filename or bag, cause)))
     text = " ".join(str(e).split()) or type(e).__name__
     if len(text) > 120:
         text = text[:117] + "..."

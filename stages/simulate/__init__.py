@@ -70,6 +70,7 @@ import yaml
 
 from ..common.artifacts import (
     WRITTEN_FILES,
+    cannot_read,
     check_output,
     commit_dir,
     fieldloc_wrote,
@@ -292,12 +293,15 @@ PNG_RATIO = 0.6  # a rendered PNG's size / raw BGR size (noisy carpet compresses
 
 
 def _record(folder: Path) -> dict | None:
-    """``folder``'s simulation.yaml, or None where it is missing or unreadable."""
+    """``folder``'s simulation.yaml, or None where it is missing or damaged (one fieldloc is
+    not allowed to read: FieldlocError, ``cannot_read``)."""
     rec = folder / SIMULATION_RECORD
     if not rec.is_file():
         return None
     try:
         d = load_yaml(rec.read_text())
+    except PermissionError as e:
+        raise cannot_read(rec, e) from None
     except (OSError, UnicodeDecodeError, yaml.YAMLError, FieldlocError):
         return None
     return d if isinstance(d, dict) else None

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...common.artifacts import WRITTEN_MARK, atomic_path
+from ...common.artifacts import WRITTEN_MARK, atomic_path, cannot_read
 
 
 @dataclass
@@ -300,6 +300,8 @@ def read_json(path: str | Path) -> list[Row]:
         return [Row(**{k: (math.nan if v is None and k.endswith(("msec", "_mb", "ratio"))
                            else v) for k, v in r.items() if k in names})
                 for r in data["rows"]]
+    except PermissionError as e:
+        raise cannot_read(path, e) from None
     except (OSError, ValueError, KeyError, TypeError, RecursionError) as e:
         raise FieldlocError(f"{path}: not a bench --json file ({e})") from None
 
