@@ -7,12 +7,12 @@ from pathlib import Path
 
 import click
 
-from .common import progress_enabled, summary
+from .common import FilePath, progress_enabled, summary
 
 
 @click.command()
-@click.argument("spec", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("-o", "--output", required=True, type=click.Path(file_okay=False, path_type=Path),
+@click.argument("spec", type=FilePath(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", required=True, type=FilePath(file_okay=False, path_type=Path),
               help="Results folder: runs, comparison.csv/.md, plots/ (a rerun resumes it).")
 @click.option("--workers", type=click.IntRange(min=1), default=None,
               help="Worker processes of the local Dask cluster [default: one per core].")

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from .common import FilePath
+
 
 @click.command("bench")
 @click.option("--only", multiple=True, metavar="NAME",
@@ -13,13 +15,13 @@ import click
 @click.option("--list", "list_rows", is_flag=True, help="Print the rows' names and exit.")
 @click.option("--repeat", type=click.IntRange(min=1), default=5, show_default=True,
               help="Timed runs per row (medians are reported).")
-@click.option("--json", "json_path", type=click.Path(dir_okay=False, path_type=Path),
+@click.option("--json", "json_path", type=FilePath(dir_okay=False, path_type=Path),
               help="Also write the rows as JSON.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing --json file.")
 @click.option("--format", "fmt", type=click.Choice(["text", "markdown"]), default="text",
               show_default=True, help="Table format (markdown: docs/results.md's table).")
 @click.option("--from-json", "from_json", multiple=True,
-              type=click.Path(dir_okay=False, path_type=Path),
+              type=FilePath(dir_okay=False, path_type=Path),
               help="Print the table of a saved --json run instead of timing again (repeatable: "
                    "a later run's rows replace the earlier's of the same name; with --json, "
                    "the merged rows are written).")

@@ -6,13 +6,13 @@ from pathlib import Path
 
 import click
 
-from .common import FINITE, summary
+from .common import FINITE, FilePath, summary
 from .stage_defaults import BUILD_MAP as D
 
 
 @click.command("build-map")
 @click.argument("field")
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path),
+@click.option("-o", "--output", type=FilePath(dir_okay=False, path_type=Path),
               help="Output map file [default: FIELD.map.h5].")
 @click.option("--resolution", type=FINITE, default=None,
               help=f"Table cell size (m), at most 1 [default: {D['resolution']}].")

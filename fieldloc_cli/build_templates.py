@@ -8,13 +8,13 @@ from pathlib import Path
 
 import click
 
-from .common import conf_option, overrides_dict, progress_enabled, summary
+from .common import FilePath, conf_option, overrides_dict, progress_enabled, summary
 from .stage_defaults import BUILD_TEMPLATES_FEATURES
 
 
 @click.command("build-templates")
-@click.argument("dataset", type=click.Path(path_type=Path))
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), default=None,
+@click.argument("dataset", type=FilePath(path_type=Path))
+@click.option("-o", "--output", type=FilePath(dir_okay=False, path_type=Path), default=None,
               help="Templates file [default: DATASET/templates.h5].")
 @click.option("--features", "features", type=click.Choice(BUILD_TEMPLATES_FEATURES),
               default="surf", show_default=True,

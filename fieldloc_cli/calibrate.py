@@ -11,7 +11,7 @@ import click
 
 from stages.common.errors import FieldlocError
 
-from .common import FINITE, conf_option, overrides_dict, summary
+from .common import FINITE, FilePath, conf_option, overrides_dict, summary
 from .stage_defaults import CALIBRATE_PRESETS
 
 DEFAULT_PRESET = {"points": "default", "minho": "minho", "cnc": "cnc", "nubot": "nubot"}
@@ -23,30 +23,30 @@ def calibrate():
 
 
 @calibrate.command("omni")
-@click.argument("points", required=False, type=click.Path(dir_okay=False))
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+@click.argument("points", required=False, type=FilePath(dir_okay=False))
+@click.option("-o", "--output", required=True, type=FilePath(dir_okay=False),
               help="calib.yaml to write.")
-@click.option("--from-minho", "minho_dir", type=click.Path(file_okay=False), metavar="DIR",
+@click.option("--from-minho", "minho_dir", type=FilePath(file_okay=False), metavar="DIR",
               help="Convert the MINHO team's DIR/mirror.cfg and DIR/image.cfg (centre, TILT)"
                    " instead of POINTS; image size from the first image in DIR/images.")
-@click.option("--from-cnc", "cnc_conf", type=click.Path(dir_okay=False), metavar="FILE",
+@click.option("--from-cnc", "cnc_conf", type=FilePath(dir_okay=False), metavar="FILE",
               help="The Carpe Noctem team's CarpetCalibrator.conf (ring distances) instead of"
                    " POINTS; ring radii by --rings.")
-@click.option("--from-nubot", "nubot_dir", type=click.Path(file_okay=False), metavar="DIR",
+@click.option("--from-nubot", "nubot_dir", type=FilePath(file_okay=False), metavar="DIR",
               help="The NuBot team's DIR/mirror_calib.xml (range = 100 a tan(b rho) cm, the"
                    " image centre) and DIR/ROI.xml (the usable ring) instead of POINTS; image"
                    " size from the first image in DIR.")
 @click.option("--rings", metavar="SPEC",
               help="With --from-cnc: 'detected' (the rings of the calibration picture, in"
                    " order) or one radius in px per conf distance, '-' for a ring not seen.")
-@click.option("--calib-image", type=click.Path(dir_okay=False), metavar="FILE",
+@click.option("--calib-image", type=FilePath(dir_okay=False), metavar="FILE",
               help="With --from-cnc: the rings' picture [default: CarpetCalibImage.png beside"
                    " FILE]; gives the centre and image size unless given.")
-@click.option("--line-images", type=click.Path(file_okay=False), metavar="DIR",
+@click.option("--line-images", type=FilePath(file_okay=False), metavar="DIR",
               help="Images of a straight line ahead at known distances, each named by the"
                    " distance in metres (1.25.png): their measured pairs replace the other"
                    " source's pairs over the distances they cover.")
-@click.option("--mask", type=click.Path(dir_okay=False),
+@click.option("--mask", type=FilePath(dir_okay=False),
               help="Mask image for the line images (default with --from-minho: DIR/mask.png).")
 @click.option("--centre", nargs=2, type=FINITE, metavar="U V",
               help="Image centre of the mirror (px); with POINTS.")
@@ -231,10 +231,10 @@ def _echo_report(ctx, out, rec: dict) -> None:
 
 @calibrate.command("perspective")
 @click.option("--from-hulks", "hulks_source", required=True,
-              type=click.Path(exists=True, path_type=Path), metavar="FILE.json|FOLDER",
+              type=FilePath(exists=True, path_type=Path), metavar="FILE.json|FOLDER",
               help="A HULKs capture JSON (camera matrix of one NAO frame), or a folder of them "
                    "beside their images.")
-@click.option("-o", "--output", required=True, type=click.Path(path_type=Path),
+@click.option("-o", "--output", required=True, type=FilePath(path_type=Path),
               help="calib.yaml to write (from a file) or the dataset folder (from a folder).")
 @click.option("--overwrite", is_flag=True, help="Replace OUTPUT if it exists.")
 @conf_option

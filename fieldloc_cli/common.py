@@ -18,6 +18,17 @@ def conf_option(f):
     )(f)
 
 
+class FilePath(click.Path):
+    """click.Path without its check that an existing file is readable (click's default
+    ``readable=True``): a file that cannot be read then gave click's three-line usage error
+    (exit 2) naming no reason, and an output (-o) that existed unreadable was refused before
+    the output rule ran. The stage that reads a file reports it in one line instead ("cannot
+    read FILE: permission denied", stages.common.artifacts.cannot_read)."""
+
+    def __init__(self, *args, readable: bool = False, **kwargs):
+        super().__init__(*args, readable=readable, **kwargs)
+
+
 class FiniteFloat(click.ParamType):
     """A float option that refuses nan and inf (click's FLOAT accepts both), and, given
     ``low``/``high``, a value outside [low, high] in the option's own units."""

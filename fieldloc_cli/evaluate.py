@@ -9,7 +9,7 @@ import click
 
 from stages.common.errors import FieldlocError
 
-from .common import FINITE, conf_option, overrides_dict, summary
+from .common import FINITE, FilePath, conf_option, overrides_dict, summary
 from .stage_defaults import EVALUATE_PRESETS, EVALUATE_STAMP_TOLERANCE
 
 
@@ -35,11 +35,11 @@ def report_dirs(poses: list[Path], output: Path | None) -> list[Path]:
 
 
 @click.command()
-@click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=Path))
-@click.option("--truth", type=click.Path(path_type=Path), default=None,
+@click.argument("inputs", nargs=-1, required=True, type=FilePath(path_type=Path))
+@click.option("--truth", type=FilePath(path_type=Path), default=None,
               help="truth.csv (stamp,x,y,theta) or the dataset folder holding it. Default: the"
               " dataset the poses file names.")
-@click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
+@click.option("-o", "--output", type=FilePath(path_type=Path), default=None,
               help="Report folder (several poses files: one subfolder per file)."
               " Default: <poses>-eval beside each poses file.")
 @click.option("--field", default=None,

@@ -4,16 +4,16 @@ from __future__ import annotations
 
 import click
 
-from .common import summary
+from .common import FilePath, summary
 from .stage_defaults import EXPORT_FORMATS
 
 
 @click.command()
-@click.argument("poses", type=click.Path(dir_okay=False))
+@click.argument("poses", type=FilePath(dir_okay=False))
 @click.option("--format", "fmt", required=True, type=click.Choice(EXPORT_FORMATS),
               help="csv: one row per frame; tum: accepted frames for evo; json: frames with"
                    " their ranked hypotheses.")
-@click.option("-o", "--output", type=click.Path(dir_okay=False),
+@click.option("-o", "--output", type=FilePath(dir_okay=False),
               help="File to write, or - for standard output [default: beside POSES with the"
                    " format's suffix].")
 @click.option("--overwrite", is_flag=True, help="Replace OUTPUT if it exists.")

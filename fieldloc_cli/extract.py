@@ -6,13 +6,13 @@ from pathlib import Path
 
 import click
 
-from .common import conf_option, count, overrides_dict, progress_enabled, summary
+from .common import FilePath, conf_option, count, overrides_dict, progress_enabled, summary
 from .stage_defaults import EXTRACT_DEFAULT_PRESET, EXTRACT_OMNI_PRESETS
 
 
 @click.command()
-@click.argument("dataset", type=click.Path(path_type=Path))
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), default=None,
+@click.argument("dataset", type=FilePath(path_type=Path))
+@click.option("-o", "--output", type=FilePath(dir_okay=False, path_type=Path), default=None,
               help="Features file [default: DATASET/features.h5].")
 @click.option("--preset", default=EXTRACT_DEFAULT_PRESET, show_default=True,
               help="Preset of the camera kind's extractor (omni: "
@@ -20,7 +20,7 @@ from .stage_defaults import EXTRACT_DEFAULT_PRESET, EXTRACT_OMNI_PRESETS
 @conf_option
 @click.option("--overwrite", is_flag=True,
               help="Extract every frame again (default: resume, skipping frames already done).")
-@click.option("--debug-images", type=click.Path(file_okay=False, path_type=Path), default=None,
+@click.option("--debug-images", type=FilePath(file_okay=False, path_type=Path), default=None,
               help="Folder for one overlay PNG per extracted frame (perspective: the boundary, "
                    "lines used / not used, crossings marked L/T/X): a new or empty folder, or "
                    "one extract made (debug-images.yaml), whose overlays --overwrite replaces.")

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import click
 
-from .common import summary
+from .common import FilePath, summary
 from .stage_defaults import FIELD_FORMATS
 
 
@@ -15,14 +15,14 @@ def field():
 
 
 @field.command("import")
-@click.argument("path", type=click.Path(dir_okay=False))
+@click.argument("path", type=FilePath(dir_okay=False))
 @click.option("--format", "fmt", default=None, type=click.Choice(FIELD_FORMATS),
               help="bhuman: fieldDimensions.cfg (mm); bitbots: map generator config (cm) or"
                    " config.yaml (m); falcons: multiCam.yaml or an MSL letters list (m);"
                    " minho: .view (mm); carpenoctem: FootballField.conf (mm); cambada: field"
                    " JSON (mm); hulks: field_dimensions JSON/JSON5 (m)"
                    " [default: told from the file's name and content].")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+@click.option("-o", "--output", required=True, type=FilePath(dir_okay=False),
               help="Field YAML to write.")
 @click.option("--venue", help="falcons multiCam.yaml: the venue block (DeLocht for"
                               " dimensionsDeLocht) [default: the one global.dimensions names].")

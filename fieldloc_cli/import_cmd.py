@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import click
 
-from .common import conf_option, count, overrides_dict, progress_enabled, summary
+from .common import FilePath, conf_option, count, overrides_dict, progress_enabled, summary
 from .stage_defaults import ROSBAG_PRESETS
 
 
@@ -15,8 +15,8 @@ def import_group():
 
 
 @import_group.command("rosbag")
-@click.argument("bag", type=click.Path())
-@click.option("-o", "--output", required=True, type=click.Path(file_okay=False),
+@click.argument("bag", type=FilePath())
+@click.option("-o", "--output", required=True, type=FilePath(file_okay=False),
               help="Dataset folder to write (images/, frames.csv, odometry.csv, imu.csv).")
 @click.option("--image-topic", required=True, metavar="T",
               help="sensor_msgs/Image or CompressedImage topic.")
@@ -24,7 +24,7 @@ def import_group():
 @click.option("--imu-topic", metavar="T", help="sensor_msgs/Imu topic -> imu.csv (yaw).")
 @click.option("--every", type=int, default=1, show_default=True,
               help="Keep every N-th image message.")
-@click.option("--calib", type=click.Path(dir_okay=False),
+@click.option("--calib", type=FilePath(dir_okay=False),
               help="calib.yaml to copy into the dataset folder.")
 @click.option("--preset", default="default", show_default=True, type=click.Choice(ROSBAG_PRESETS),
               help="Conf preset ('fast': raw frames as uncompressed PNG).")

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import click
 
-from .common import conf_option, count, overrides_dict, progress_enabled, summary
+from .common import FilePath, conf_option, count, overrides_dict, progress_enabled, summary
 from .stage_defaults import LOCALIZE, LOCALIZE_DEFAULT_METHOD, LOCALIZE_METHODS
 
 log = logging.getLogger("fieldloc.localize")
@@ -23,21 +23,21 @@ SMOOTH_METHODS = ("lut", "fit", "mcl", "templates")
 
 
 @click.command()
-@click.argument("dataset", type=click.Path(path_type=Path))
-@click.option("--map", "map_path", default=None, type=click.Path(dir_okay=False, path_type=Path),
+@click.argument("dataset", type=FilePath(path_type=Path))
+@click.option("--map", "map_path", default=None, type=FilePath(dir_okay=False, path_type=Path),
               help="Map file from `fieldloc build-map` (tables for lut and mcl; required but"
               " for --method templates, where it only names the field).")
 @click.option("--templates", "templates", default=None,
-              type=click.Path(dir_okay=False, path_type=Path),
+              type=FilePath(dir_okay=False, path_type=Path),
               help="Template database from `fieldloc build-templates` (--method templates).")
 @click.option("--pose-solver", type=click.Choice(["descent", "closed-form"]), default=None,
               help="templates: the pose of the SURF template paper's eq. 4 by its coordinate"
               " descent or in closed form (2D Kabsch) [default: descent].")
-@click.option("--features", type=click.Path(dir_okay=False, path_type=Path), default=None,
+@click.option("--features", type=FilePath(dir_okay=False, path_type=Path), default=None,
               help="Features file from `fieldloc extract` [default: DATASET/features.h5 if it"
               " matches the calibration, mask and default conf and holds every frame, else"
               " extract on the fly into OUTPUT-stem.features.h5].")
-@click.option("--points", type=click.Path(dir_okay=False, path_type=Path), default=None,
+@click.option("--points", type=FilePath(dir_okay=False, path_type=Path), default=None,
               help="CSV of your own line points instead of images: columns frame,x,y"
               " (robot frame, m).")
 @click.option("--method", type=click.Choice(LOCALIZE_METHODS), default=LOCALIZE_DEFAULT_METHOD,
@@ -63,7 +63,7 @@ SMOOTH_METHODS = ("lut", "fit", "mcl", "templates")
               help="decide every frame with the whole recording (offline: a"
               " forward-backward pass over the method's candidates, then a pose graph;"
               " docs/smoothing.md). Same as -c smooth=true.")
-@click.option("--write-calib", type=click.Path(dir_okay=False, path_type=Path), default=None,
+@click.option("--write-calib", type=FilePath(dir_okay=False, path_type=Path), default=None,
               help="lut, fit (omni): also write the dataset's calib.yaml corrected by the"
               " mirror's distance error learnt from the run's poses; mcl (perspective): by the"
               " camera's mount (pitch and roll offsets, height) learnt from them (with"
@@ -73,7 +73,7 @@ SMOOTH_METHODS = ("lut", "fit", "mcl", "templates")
               help="Accept a frame when the probability of its top hypothesis reaches"
               f" this [default: the method's, lut {LOCALIZE['lut', 'min_confidence']}, fit"
               f" {LOCALIZE['fit', 'min_confidence']}].")
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), default=None,
+@click.option("-o", "--output", type=FilePath(dir_okay=False, path_type=Path), default=None,
               help="Poses file, poses.tum is written beside it"
               " [default: DATASET/poses-METHOD.h5].")
 @click.option("--preset", default="default", show_default=True, help="Preset of the method.")

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import click
 
-from .common import conf_option, overrides_dict, summary
+from .common import FilePath, conf_option, overrides_dict, summary
 
 
 @click.command()
-@click.argument("source", type=click.Path(exists=False))
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+@click.argument("source", type=FilePath(exists=False))
+@click.option("-o", "--output", required=True, type=FilePath(dir_okay=False),
               help="HTML file to write.")
 @click.option("--worst", type=click.IntRange(min=0), default=None,
               help="How many of the worst frames to show with overlays [default: 4].")

@@ -10,17 +10,17 @@ from pathlib import Path
 
 import click
 
-from .common import FINITE, conf_option, overrides_dict, summary
+from .common import FINITE, FilePath, conf_option, overrides_dict, summary
 from .stage_defaults import SHOW_BELIEF as D
 
 
 @click.command("belief")
-@click.argument("dataset", type=click.Path(path_type=Path))
+@click.argument("dataset", type=FilePath(path_type=Path))
 @click.option("--frame", required=True, help="Frame index (0-based) or name (image stem).")
 @click.option("--map", "map_path", required=True,
-              type=click.Path(dir_okay=False, path_type=Path),
+              type=FilePath(dir_okay=False, path_type=Path),
               help="Map file from `fieldloc build-map` (field and crossing tables).")
-@click.option("--features", type=click.Path(dir_okay=False, path_type=Path), default=None,
+@click.option("--features", type=FilePath(dir_okay=False, path_type=Path), default=None,
               help="Features file to read the frame from [default: DATASET/features.h5 if"
               " present, else extract the frame now].")
 @click.option("--resolution", type=FINITE, default=None,
@@ -29,7 +29,7 @@ from .stage_defaults import SHOW_BELIEF as D
               help=f"Grid spacing of headings (degrees) [default: {D['heading_step_deg']}].")
 @conf_option
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
+@click.option("-o", "--output", type=FilePath(dir_okay=False, path_type=Path), required=True,
               help="PNG file to write.")
 @click.pass_context
 def show_belief(ctx, dataset, frame, map_path, features, resolution, heading_step_deg, overrides,

@@ -7,13 +7,13 @@ from pathlib import Path
 
 import click
 
-from .common import FINITE, summary
+from .common import FINITE, FilePath, summary
 from .stage_defaults import SHOW_ERROR_SURFACE as D
 
 
 @click.command("error-surface")
-@click.argument("templates", type=click.Path(dir_okay=False, path_type=Path))
-@click.argument("queries", type=click.Path(path_type=Path))
+@click.argument("templates", type=FilePath(dir_okay=False, path_type=Path))
+@click.argument("queries", type=FilePath(path_type=Path))
 @click.option("--template", type=click.IntRange(min=0), default=None,
               help="Template index [default: the one nearest the queries' centre].")
 @click.option("--half-size", type=FINITE, default=None,
@@ -27,7 +27,7 @@ from .stage_defaults import SHOW_ERROR_SURFACE as D
 @click.option("--e-none", type=FINITE, default=None,
               help="Eq. 1's penalty (m) of a white point with no table point at its angle"
               f" [default: {D['e_none']}].")
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
+@click.option("-o", "--output", type=FilePath(dir_okay=False, path_type=Path), required=True,
               help="PNG file to write.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
 @click.pass_context

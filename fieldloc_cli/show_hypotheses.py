@@ -7,21 +7,21 @@ from pathlib import Path
 
 import click
 
-from .common import conf_option, overrides_dict, summary
+from .common import FilePath, conf_option, overrides_dict, summary
 
 
 @click.command("hypotheses")
-@click.argument("poses", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("poses", type=FilePath(dir_okay=False, path_type=Path))
 @click.option("--frame", default="0", show_default=True,
               help="Frame index (0-based) or name.")
-@click.option("--features", type=click.Path(dir_okay=False, path_type=Path), default=None,
+@click.option("--features", type=FilePath(dir_okay=False, path_type=Path), default=None,
               help="Features file with the frame's points [default: the one the poses were"
               " made from].")
 @click.option("--field", default=None,
               help="Field (preset or YAML) [default: the poses file's].")
 @conf_option
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
+@click.option("-o", "--output", type=FilePath(dir_okay=False, path_type=Path), required=True,
               help="PNG file to write.")
 @click.pass_context
 def show_hypotheses(ctx, poses, frame, features, field, overrides, overwrite, output):

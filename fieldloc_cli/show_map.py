@@ -7,13 +7,13 @@ from pathlib import Path
 
 import click
 
-from .common import FINITE, summary
+from .common import FINITE, FilePath, summary
 from .stage_defaults import SHOW_MAP as D
 from .stage_defaults import SHOW_MAP_FAMILIES, SHOW_MAP_TABLES
 
 
 @click.command("map")
-@click.argument("map_file", type=click.Path(dir_okay=False))
+@click.argument("map_file", type=FilePath(dir_okay=False))
 @click.option("--table", type=click.Choice(SHOW_MAP_TABLES), default=None,
               help=f"What to draw [default: {D['table']}].")
 @click.option("--cell", nargs=2, type=FINITE, metavar="X Y",
@@ -26,7 +26,7 @@ from .stage_defaults import SHOW_MAP_FAMILIES, SHOW_MAP_TABLES
 @click.option("--spirals", type=click.IntRange(min=1), default=None,
               help="Spirals: how many of the family's 36 to draw (evenly spaced)"
               f" [default: {D['spirals']}].")
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
+@click.option("-o", "--output", type=FilePath(dir_okay=False, path_type=Path), required=True,
               help="PNG file to write.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
 @click.pass_context

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from .common import FINITE, conf_option, count, overrides_dict, summary
+from .common import FINITE, FilePath, conf_option, count, overrides_dict, summary
 from .stage_defaults import EXTRACT_DEFAULT_PRESET
 
 
@@ -26,9 +26,9 @@ def _field(map_or_field: str):
 
 
 @click.command("points")
-@click.argument("dataset", type=click.Path(path_type=Path))
+@click.argument("dataset", type=FilePath(path_type=Path))
 @click.option("--frame", required=True, help="Frame index (0-based) or name (image stem).")
-@click.option("--features", type=click.Path(dir_okay=False, path_type=Path), default=None,
+@click.option("--features", type=FilePath(dir_okay=False, path_type=Path), default=None,
               help="Features file to read the frame from [default: extract it now].")
 @click.option("--map", "map_or_field", default=None,
               help="Map file or field (preset name or YAML) to draw the points on.")
@@ -38,7 +38,7 @@ def _field(map_or_field: str):
 @click.option("--preset", default=EXTRACT_DEFAULT_PRESET, show_default=True,
               help="Extraction preset when extracting now.")
 @conf_option
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
+@click.option("-o", "--output", type=FilePath(dir_okay=False, path_type=Path), required=True,
               help="PNG file to write.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
 @click.pass_context

@@ -16,6 +16,7 @@ import click
 
 from .common import (
     FINITE,
+    FilePath,
     FiniteFloat,
     conf_option,
     count,
@@ -36,7 +37,7 @@ def simulate_options(preset: str, camera: str):
             click.option("--field", "field", required=True, metavar="FIELD",
                          help="Field preset name (msl-2015, spl, ...) or a field YAML file."),
             click.option("-o", "--output", "output", required=True,
-                         type=click.Path(file_okay=False), help="Dataset folder to write."),
+                         type=FilePath(file_okay=False), help="Dataset folder to write."),
             click.option("--frames", type=click.IntRange(min=1), default=None,
                          help=f"Number of frames [preset: {base['frames']}]."),
             click.option("--seed", type=click.IntRange(min=0), default=None,

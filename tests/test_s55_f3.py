@@ -23,6 +23,7 @@ import numpy as np
 import pytest
 from stages import build_map, extract, simulate
 from stages.common import artifacts
+from stages.common.errors import FieldlocError
 
 ROOT = Path(__file__).resolve().parents[1]
 MODES_CAPS = "-dac_override,-dac_read_search"  # root's overrides of file modes
@@ -194,3 +195,63 @@ def test_a_run_failing_in_a_worker_is_fieldlocs_line_only(inputs, tmp_path):
         run = json.loads((full / "res" / "runs" / "omni" / "lut-default" / "run.json")
                          .read_text())
         assert run["status"] == "failed", run  # in the worker
+
+
+# ---------------------------------------------------------------- D5, D9: unreadable files
+
+def test_an_unreadable_input_is_one_line_of_fieldlocs(inputs, tmp_path):
+    """click's check of a readable file gave its 3-line usage error (exit 2); the readers
+    called an unreadable file "not an HDF5 file (corrupt ...)". One line now, naming the file
+    and the reason."""
+    m = tmp_path / "m.h5"
+    shutil.copyfile(inputs["map"], m)
+    m.chmod(0)
+    r = _fieldloc("-q", "localize", inputs["omni"], "--map", m, "--features",
+                  inputs["features"], "-o", tmp_path / "p.h5", cwd=tmp_path,
+                  unprivileged=True)
+    assert _one_line(r) == f"fieldloc: error: cannot read {m}: permission denied"
+    spec = tmp_path / "s.yaml"
+    spec.write_text(f"map: {m}\ndatasets: [{{path: {inputs['omni']}}}]\nmethods: [lut]\n")
+    r = _fieldloc("-q", "batch", spec, "-o", tmp_path / "res", cwd=tmp_path,
+                  unprivileged=True)
+    assert f"cannot read {m}: permission denied" in _one_line(r)
+    assert not (tmp_path / "res").exists() and not (tmp_path / "p.h5").exists()
+
+
+def test_an_unreadable_output_given_overwrite_is_named_as_such(inputs, tmp_path):
+    """--overwrite of fieldloc's own output that cannot be read was "not written by
+    fieldloc" / "no simulation.yaml marker"; an existing unreadable -o was click's usage
+    error."""
+    m2 = build_map.main({"resolution": 0.5}, "spl", tmp_path / "m2.h5")
+    m2.chmod(0)
+    r = _fieldloc("-q", "build-map", "spl", "--resolution", "0.5", "-o", m2, "--overwrite",
+                  cwd=tmp_path, unprivileged=True)
+    assert _one_line(r) == f"fieldloc: error: cannot read {m2}: permission denied"
+    ds = simulate.main(dict(simulate.confs["omni-default"], frames=1), "spl", tmp_path / "ds")
+    (ds / "simulation.yaml").chmod(0)
+    r = _fieldloc("-q", "simulate", "omni", "--field", "spl", "--frames", "1", "-o", ds,
+                  "--overwrite", cwd=tmp_path, unprivileged=True)
+    assert _one_line(r) == (f"fieldloc: error: cannot read {ds / 'simulation.yaml'}:"
+                            " permission denied")
+
+
+def test_the_readers_say_permission_denied(tmp_path, monkeypatch):
+    """The checks that tell fieldloc's files from others' (and the HDF5 opener) raise the one
+    line for a file they may not read, rather than answering "not ours" or "corrupt"."""
+    from stages.common.batch_file import read_json
+
+    f = tmp_path / "x"
+    f.write_bytes(b"\x89HDF\r\n\x1a\n")
+
+    def refused(*a, **k):
+        raise PermissionError(errno.EACCES, "Permission denied", str(f))
+
+    monkeypatch.setattr("builtins.open", refused)
+    monkeypatch.setattr(Path, "read_text", refused)
+    for check in (artifacts.fieldloc_wrote, lambda p: artifacts.starts_with(p, b"#"),
+                  lambda p: artifacts.open_artifact(p, "fieldloc.map", 9), read_json):
+        with pytest.raises(FieldlocError, match=f"cannot read {f}: permission denied"):
+            check(f)
+    with pytest.raises(FieldlocError, match="simulation.yaml: permission denied"):
+        (tmp_path / "simulation.yaml").touch()
+        artifacts.written_by(tmp_path, "simulation.yaml", "fieldloc simulate")
