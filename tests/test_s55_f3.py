@@ -255,3 +255,24 @@ def test_the_readers_say_permission_denied(tmp_path, monkeypatch):
     with pytest.raises(FieldlocError, match="simulation.yaml: permission denied"):
         (tmp_path / "simulation.yaml").touch()
         artifacts.written_by(tmp_path, "simulation.yaml", "fieldloc simulate")
+
+
+# ---------------------------------------------------------------- D10: matplotlib's caches
+
+@pytest.mark.parametrize("where", ["HOME", "MPLCONFIGDIR"])
+def test_an_unwritable_matplotlib_folder_says_nothing_under_q(inputs, tmp_path, where):
+    """matplotlib's 400-character WARNING about the temporary folder it used instead of an
+    unwritable HOME or MPLCONFIGDIR was printed under -q by every picture."""
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("MPLCONFIGDIR", "XDG_CACHE_HOME", "XDG_CONFIG_HOME")}
+    env[where] = str(ro)
+    prefix = _without_overrides()
+    r = subprocess.run([*prefix, sys.executable, "-m", "fieldloc_cli.main", "-q", "show",
+                        "map", str(inputs["map"]), "-o", str(tmp_path / "m.png")],
+                       cwd=tmp_path, env={**env, "PYTHONPATH": str(ROOT)},
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    assert (tmp_path / "m.png").is_file()

@@ -17,3 +17,31 @@ stages.pipelines.frame_points; its belief, stages.pipelines.frame_belief).
 
 Pictures read the stages' artifacts or draw what a chain computed; none runs a stage, and no
 stage imports them."""
+
+import logging
+
+log = logging.getLogger(__name__)
+
+# matplotlib's warnings about its own caches, which cost a picture nothing: a config folder it
+# cannot make or write (HOME or MPLCONFIGDIR read-only or full: it works in a temporary one,
+# then says so in 400 characters) and a font cache it cannot save. Said under -v, as
+# fieldloc's INFO.
+# (the beginnings of their messages' templates, before the paths are put in)
+_MPL_CACHE_NOTES = ("mkdir -p failed for path %s", "%s is not a writable directory",
+                    "Matplotlib created a temporary cache directory",
+                    "Could not save font_manager cache")
+
+
+def _cache_note(record: logging.LogRecord) -> bool:
+    """A filter on matplotlib's loggers: a note of ``_MPL_CACHE_NOTES`` goes to our INFO log
+    (in one short line) instead of the terminal as a WARNING; every other record passes."""
+    if isinstance(record.msg, str) and record.msg.startswith(_MPL_CACHE_NOTES):
+        log.info("matplotlib: %s", record.getMessage()[:200])
+        return False
+    return True
+
+
+# before matplotlib is imported (each picture module imports it below this package), so that
+# the note of its import is filtered too
+for _name in ("matplotlib", "matplotlib.font_manager"):
+    logging.getLogger(_name).addFilter(_cache_note)
