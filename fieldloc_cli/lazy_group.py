@@ -13,7 +13,7 @@ import threading
 
 import click
 
-from stages.common.errors import FieldlocError
+from stages.common.errors import DiskFullError, FieldlocError
 
 # a run of this many characters without a space in an error line is a value the user gave (a
 # path or a name of kilobytes), not the message: it is quoted by its first few dozen
@@ -145,6 +145,8 @@ class LazyGroup(click.Group):
         except FieldlocError as e:
             if debug:
                 raise
+            if isinstance(e, DiskFullError):  # what a rerun finds: kept work, or none
+                e = e.line(RESUMES.get(ctx.invoked_subcommand or "", ""))
             click.echo(f"fieldloc: error: {_short(e)}", err=True)
             ctx.exit(1)
         except BrokenPipeError:  # stdout closed by its reader (| head): nothing more to say

@@ -21,9 +21,10 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+
 from stages import build_map, extract, simulate
 from stages.common import artifacts
-from stages.common.errors import FieldlocError
+from stages.common.errors import DiskFullError, FieldlocError
 
 ROOT = Path(__file__).resolve().parents[1]
 MODES_CAPS = "-dac_override,-dac_read_search"  # root's overrides of file modes
@@ -151,6 +152,7 @@ def test_a_kernel_cache_that_cannot_be_written_is_no_error(tmp_path, monkeypatch
     call: the command failed with "No space left on device". fieldloc's njit compiles and runs
     the kernel all the same, and says so once at INFO."""
     from numba.core import caching
+
     from stages.common import jit
 
     def full(self, name, data):
@@ -276,3 +278,46 @@ def test_an_unwritable_matplotlib_folder_says_nothing_under_q(inputs, tmp_path, 
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0 and r.stderr == "", r.stderr
     assert (tmp_path / "m.png").is_file()
+
+
+# ---------------------------------------------------------------- D14: what a full disk names
+
+def test_simulate_onto_a_full_disk_names_its_output(tmp_path):
+    """simulate named its hidden temporary folder (removed by then) and said "finished files
+    were kept" when none was; cv2.imwrite's failure gave no reason at all."""
+    with _small_disk(tmp_path / "full", size="20m", inodes=5) as full:
+        r = _fieldloc("-q", "simulate", "omni", "--field", "spl", "--frames", "4", "-o",
+                      full / "ds", cwd=tmp_path)
+        line = _one_line(r)
+        assert line.startswith(f"fieldloc: error: cannot write {full / 'ds'}: no space left")
+        assert ".part" not in line and "kept" not in line
+        assert os.listdir(full) == []
+
+
+def test_import_rosbag_onto_a_full_disk_names_its_output(tmp_path):
+    pytest.importorskip("rosbags")
+    from stages.ingest.bag_writer import write_bag
+
+    rng = np.random.default_rng(0)
+    frames = [(100.0 + 0.1 * i, (rng.integers(0, 256, (64, 64, 3), dtype=np.uint8), "bgr8"))
+              for i in range(6)]
+    bag = write_bag(tmp_path / "b.bag", "ros1", frames=frames)
+    with _small_disk(tmp_path / "full", size="20m", inodes=5) as full:
+        r = _fieldloc("-q", "import", "rosbag", bag, "-o", full / "d", "--image-topic",
+                      "/camera/image", cwd=tmp_path)
+        line = _one_line(r)
+        assert line.startswith(f"fieldloc: error: cannot write {full / 'd'}: no space left")
+        assert ".part" not in line and "kept" not in line
+
+
+def test_a_full_disk_names_the_outermost_output(tmp_path):
+    """A file written inside a temporary folder of an output is reported as the output's."""
+    def full():
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    with pytest.raises(DiskFullError) as e:
+        with artifacts.writing(tmp_path / "ds"):
+            with artifacts.writing(tmp_path / ".ds.fieldloc-1-x.part" / "truth.csv"):
+                full()
+    assert str(e.value).startswith(f"cannot write {tmp_path / 'ds'}: no space left")
+    assert "kept" not in str(e.value)

@@ -23,6 +23,7 @@ output at once the second to finish refuses instead of silently replacing the fi
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import datetime as _dt
 import errno
 import hashlib
@@ -40,7 +41,7 @@ import numpy as np
 
 from .. import __version__
 from .dataset_layout import OWN_FILES
-from .errors import FieldlocError, SchemaError
+from .errors import DiskFullError, FieldlocError, SchemaError
 
 log = logging.getLogger(__name__)
 
@@ -749,22 +750,34 @@ def disk_full(e: BaseException) -> bool:
             or any(f"errno = {n}," in text for n in _FULL))
 
 
-def full_disk_error(path: str | Path) -> FieldlocError:
+def full_disk_error(path: str | Path) -> DiskFullError:
     """The one line for a write of ``path`` the disk had no room for."""
-    return FieldlocError(f"cannot write {path}: no space left on its disk (free some space or"
-                         " write elsewhere; finished files were kept)")
+    return DiskFullError(path)
+
+
+# the outputs being written in this thread or task, outermost first: a file written into a
+# temporary folder (a dataset's truth.csv in .ds.fieldloc-PID-*.part/) is part of the output
+# the user named, and the full disk is reported as that output's
+_WRITING: contextvars.ContextVar[tuple[Path, ...]] = contextvars.ContextVar("_WRITING",
+                                                                             default=())
 
 
 @contextlib.contextmanager
 def writing(path: str | Path):
     """Turn a full disk met while writing ``path`` into one line naming it (the system's
-    message names no file, HDF5's spans two lines); other errors pass unchanged."""
+    message names no file, HDF5's spans two lines); other errors pass unchanged. Nested, the
+    outermost ``path`` is named: the output the user gave, not a temporary part of it (which
+    is removed as the error passes)."""
+    outer = _WRITING.get()
+    token = _WRITING.set((*outer, Path(path)))
     try:
         yield
     except OSError as e:
         if disk_full(e):
-            raise full_disk_error(path) from None
+            raise full_disk_error(outer[0] if outer else path) from None
         raise
+    finally:
+        _WRITING.reset(token)
 
 
 def current_umask() -> int:

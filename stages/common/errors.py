@@ -9,6 +9,23 @@ class FieldlocError(Exception):
     """An error caused by the user's input: missing file, wrong schema, invalid field, ..."""
 
 
+class DiskFullError(FieldlocError):
+    """A write of ``path`` (the output the user gave) that its disk had no room (or quota)
+    for. The message says to free space; what the failed run kept, if anything, is the
+    command's to add (``line``): the CLI adds what a rerun finds for the commands that keep
+    finished work (extract's frames, batch's runs), nothing for those that keep nothing."""
+
+    def __init__(self, path):
+        self.path = path
+        super().__init__(self.line())
+
+    def line(self, kept: str = "") -> str:
+        """The message, with ``kept`` (what the run kept) in its parenthesis if given."""
+        note = f"; {kept}" if kept else ""
+        return (f"cannot write {self.path}: no space left on its disk (free some space or"
+                f" write elsewhere{note})")
+
+
 class FieldSpecError(FieldlocError):
     """A field YAML is invalid; the message names the file and the key."""
 

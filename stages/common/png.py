@@ -21,10 +21,13 @@ PNG is lossless, so there is one right answer.
 from __future__ import annotations
 
 import struct
+from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 from isal import isal_zlib
 
+from .errors import FieldlocError
 from .jit import njit
 
 SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -33,6 +36,20 @@ CHANNELS = {0: 1, 2: 3}
 # rows of more than this many bytes in all are left to OpenCV, so that a header claiming a
 # huge image cannot make this decoder reserve memory for it (a 16k x 16k RGB frame is 768 MB)
 MAX_RAW_BYTES = 1 << 28
+
+
+def write_png(path: str | Path, image: np.ndarray, params: Sequence[int] = ()) -> None:
+    """Write ``image`` as the PNG file ``path``: OpenCV's encoder (``params``: its
+    IMWRITE_PNG_* flags), then a plain write, so that a full disk or a refused write raises
+    the OSError that says which (``cv2.imwrite`` only returns False, and the caller could only
+    say that it "could not write")."""
+    import cv2
+
+    ok, buf = cv2.imencode(".png", image, list(params))
+    if not ok:
+        raise FieldlocError(f"could not encode {Path(path).name} as PNG")
+    with open(path, "wb") as f:
+        f.write(buf)
 
 
 def decode_png(data: bytes) -> np.ndarray | None:

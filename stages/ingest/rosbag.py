@@ -87,6 +87,7 @@ from ..common.conf import load_yaml, stage_conf
 from ..common.dataset import MAX_VALUE, write_csv
 from ..common.errors import FieldlocError
 from ..common.geometry import wrap_angle
+from ..common.png import write_png
 from . import ros_images
 from .rosbag_fields import ImageFields, MessageFields
 
@@ -454,11 +455,9 @@ class _FrameWriter:
         if raw is not None:
             content = ros_images.raw_to_image(*raw)
         if isinstance(content, np.ndarray):
-            import cv2
-
-            # one call that encodes and writes without the GIL
-            if not cv2.imwrite(str(self.folder / name), content, self.png_params()):
-                raise FieldlocError(f"could not write frame {self.folder / name}")
+            # encoded and written without the GIL; a full disk raises its OSError, which
+            # atomic_dir reports as the output's
+            write_png(self.folder / name, content, self.png_params())
             return
         fd = os.open(self.folder / name, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         try:

@@ -64,7 +64,6 @@ import shutil
 import tempfile
 from pathlib import Path
 
-import cv2
 import numpy as np
 import yaml
 
@@ -80,6 +79,7 @@ from ..common.artifacts import (
     remove_stale_parts,
     restore_interrupted_replacement,
     text_hash,
+    writing,
     written_files,
 )
 from ..common.camera import MAX_IMAGE_PX, save_calib
@@ -87,6 +87,7 @@ from ..common.conf import check_bounds, load_yaml, stage_conf
 from ..common.dataset import SIMULATION_RECORD, write_csv
 from ..common.errors import FieldlocError, shown
 from ..common.field import FieldModel, load_field
+from ..common.png import write_png
 from ..common.resources import check_disk, check_memory
 from . import scene as scene_mod
 from . import sensors, trajectory, walk
@@ -682,44 +683,46 @@ def main(conf: str | dict | None, field, output_dir, *, overwrite: bool = False,
     prefix, suffix = part_name(output_dir, ".part")
     tmp = Path(tempfile.mkdtemp(prefix=prefix, suffix=suffix, dir=output_dir.parent))
     try:
-        (tmp / "images").mkdir()
-        names = _frame_names(n)
-        for i in tqdm(range(n), desc=f"simulate {kind}", unit="frame", disable=not progress):
-            img = renderer.render(path.poses[i], i)
-            if not cv2.imwrite(str(tmp / "images" / names[i]), img):
-                raise FieldlocError(f"could not write image {tmp / 'images' / names[i]}")
-        stamps = path.stamps
-        write_csv(tmp / "frames.csv", "frames", {"name": names, "stamp": stamps})
-        write_csv(tmp / "truth.csv", "truth", {"stamp": stamps, "x": path.poses[:, 0],
-                                               "y": path.poses[:, 1], "theta": path.poses[:, 2]})
-        if not grid:  # placements have no odometry between them
-            write_csv(tmp / "odometry.csv", "odometry", {"stamp": stamps, "dx": odo[:, 0],
-                                                         "dy": odo[:, 1], "dtheta": odo[:, 2]})
-        write_csv(tmp / "imu.csv", "imu", {"stamp": stamps, "yaw": yaw,
-                                           "collision": collisions.astype(float)})
-        for stem, (csv_kind, columns) in extra_csv.items():
-            write_csv(tmp / f"{stem}.csv", csv_kind, columns)
-        save_calib(written, tmp / "calib.yaml")
-        info = {
-            "generator": GENERATOR,
-            "field": field.name,
-            "field_source": field.source,
-            "field_size": [float(field.length), float(field.width)],
-            "field_yaml_hash": text_hash(field.spec_text),
-            "camera": kind,
-            "seed": seed,
-            "calib_seed": calib_seed,
-            "world_seed": seed if conf.get("world_seed") is None else int(conf["world_seed"]),
-            "frames": n,
-            # what this run wrote (with the n images): all --overwrite may delete
-            "files": sorted([p.name for p in tmp.iterdir()] + [SIMULATION_RECORD]),
-            "true_camera": renderer.camera.to_dict(),
-            "conf": _plain(conf),
-        }
-        info[WRITTEN_FILES] = written_files(tmp, _dataset_files(tmp))  # --overwrite's test
-        (tmp / SIMULATION_RECORD).write_text(yaml.safe_dump(info, sort_keys=False))
-        give_default_mode(tmp)
-        commit_dir(tmp, output_dir, replace=overwrite)  # never a dataset written meanwhile
+        # a full disk is reported as the output's, not its temporary folder's
+        with writing(output_dir):
+            (tmp / "images").mkdir()
+            names = _frame_names(n)
+            for i in tqdm(range(n), desc=f"simulate {kind}", unit="frame", disable=not progress):
+                img = renderer.render(path.poses[i], i)
+                write_png(tmp / "images" / names[i], img)
+            stamps = path.stamps
+            write_csv(tmp / "frames.csv", "frames", {"name": names, "stamp": stamps})
+            write_csv(tmp / "truth.csv", "truth", {
+                "stamp": stamps, "x": path.poses[:, 0], "y": path.poses[:, 1],
+                "theta": path.poses[:, 2]})
+            if not grid:  # placements have no odometry between them
+                write_csv(tmp / "odometry.csv", "odometry", {
+                    "stamp": stamps, "dx": odo[:, 0], "dy": odo[:, 1], "dtheta": odo[:, 2]})
+            write_csv(tmp / "imu.csv", "imu", {"stamp": stamps, "yaw": yaw,
+                                               "collision": collisions.astype(float)})
+            for stem, (csv_kind, columns) in extra_csv.items():
+                write_csv(tmp / f"{stem}.csv", csv_kind, columns)
+            save_calib(written, tmp / "calib.yaml")
+            info = {
+                "generator": GENERATOR,
+                "field": field.name,
+                "field_source": field.source,
+                "field_size": [float(field.length), float(field.width)],
+                "field_yaml_hash": text_hash(field.spec_text),
+                "camera": kind,
+                "seed": seed,
+                "calib_seed": calib_seed,
+                "world_seed": seed if conf.get("world_seed") is None else int(conf["world_seed"]),
+                "frames": n,
+                # what this run wrote (with the n images): all --overwrite may delete
+                "files": sorted([p.name for p in tmp.iterdir()] + [SIMULATION_RECORD]),
+                "true_camera": renderer.camera.to_dict(),
+                "conf": _plain(conf),
+            }
+            info[WRITTEN_FILES] = written_files(tmp, _dataset_files(tmp))  # --overwrite's test
+            (tmp / SIMULATION_RECORD).write_text(yaml.safe_dump(info, sort_keys=False))
+            give_default_mode(tmp)
+            commit_dir(tmp, output_dir, replace=overwrite)  # never a dataset written meanwhile
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
