@@ -17,7 +17,11 @@ import functools
 import logging
 
 from numba import njit
-from numba.core.caching import Cache
+
+try:  # numba's internal cache class: where a numba release moves it, the guard is skipped
+    from numba.core.caching import Cache
+except ImportError:  # pragma: no cover (every numba the project supports has it)
+    Cache = None
 
 log = logging.getLogger(__name__)
 
@@ -41,5 +45,6 @@ def _save_or_skip(save):
     return save_overload
 
 
-if not getattr(Cache.save_overload, "_fieldloc_guard", False):
-    Cache.save_overload = _save_or_skip(Cache.save_overload)
+_save = getattr(Cache, "save_overload", None)
+if _save is not None and not getattr(_save, "_fieldloc_guard", False):
+    Cache.save_overload = _save_or_skip(_save)
