@@ -2446,6 +2446,14 @@ CASES = [
          ["extract", "{ds}", "-o", W + "/f.h5"], 0,
          "(a JPEG file cut short: no end marker)",
          setup=_with_ds("omni", _cut_first_frame_to_jpeg)),
+    # ---- s55 lead: the rerun's extract --overwrite over a user's file (A1 was not fixed
+    # for extract, whose existing output is otherwise resumed)
+    *[Case(f"extract --overwrite onto a user's {what}", "data-lost",
+           ["extract", "{omni}", "-o", W + "/u.h5", "--overwrite"], 1,
+           "u.h5 was not written by fieldloc: --overwrite replaces only fieldloc's",
+           setup=lambda w, ws, data=data: (ws / "u.h5").write_bytes(data) and {})
+      for what, data in (("text file", b"my notes\n"),
+                         ("HDF5 file", b"\x89HDF\r\n\x1a\n" + bytes(600)))],
     # ---- s55 lead: trial D1's user folder at extract's resume name
     Case("extract beside a user's folder at the name of its resume folder", "data-lost",
          ["extract", "{omni}", "-o", W + "/f.h5"], 1,
