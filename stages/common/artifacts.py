@@ -871,7 +871,8 @@ _CORE_BLOCK = 1 << 20
 
 
 @contextlib.contextmanager
-def write_artifact(path: str | Path, attrs: dict, *, resume: bool = False):
+def write_artifact(path: str | Path, attrs: dict, *, resume: bool = False,
+                   before_commit=None):
     """Open a new HDF5 artifact for writing, atomically.
 
     The file is built in memory and written to its temporary part in one plain write at the
@@ -882,7 +883,8 @@ def write_artifact(path: str | Path, attrs: dict, *, resume: bool = False):
 
     With ``resume`` and an existing file of the same schema, its content is copied into the
     temporary file first so per-frame stages can skip frames already done; the original stays
-    untouched until the new file is complete.
+    untouched until the new file is complete. ``before_commit``: called once the file is
+    written in full to its part, just before it is committed; never after a failure.
     """
     path = Path(path)
     with atomic_path(path) as tmp:
@@ -904,6 +906,8 @@ def write_artifact(path: str | Path, attrs: dict, *, resume: bool = False):
         with open(tmp, "wb") as out:
             out.write(image)
         del image
+        if before_commit is not None:
+            before_commit()
 
 
 def _open_hdf5(path: Path) -> h5py.File:

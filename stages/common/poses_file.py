@@ -43,6 +43,7 @@ a user's (which nothing replaces).
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -162,27 +163,33 @@ def pad_hypotheses(per_frame: list) -> np.ndarray:
 
 
 def write_poses(path: str | Path, track: PoseTrack, attrs: dict, *, tum: bool = True) -> Path:
-    """Write poses.h5 (atomically) and, with ``tum``, poses.tum beside it."""
+    """Write poses.h5 and, with ``tum``, poses.tum beside it, as one pair: both are written in
+    full (temporary parts) before either is committed, so that a failure while writing either
+    (a full disk) leaves neither part and the old pair as it was; then the old twin goes
+    (``drop_twin``), the poses are committed, and the twin."""
     path = Path(path)
     arr = track.arrays()
-    with write_artifact(path, attrs) as h5:
-        g = h5.create_group("poses")
-        for k, (_dtype, units) in COLUMNS.items():
-            ds = g.create_dataset(k, data=arr[k])
-            if units:
-                ds.attrs["units"] = units
-        s = h5py.string_dtype()
-        for k in ("name", "mode", "flags"):
-            g.create_dataset(k, data=np.array(arr[k], dtype=s))
-        ds = g.create_dataset("covariance", data=arr["covariance"])
-        ds.attrs["units"] = "m^2, rad^2"
-        ds = h5.create_dataset("hypotheses", data=arr["hypotheses"])
-        ds.attrs["units"] = "m, m, rad, 1"
-        ds.attrs["columns"] = "x, y, theta, probability"
-        if tum:  # the new poses are committed next: the old twin must not outlive them
-            drop_twin(path)
-    if tum:
-        write_tum(path.with_suffix(".tum"), arr)
+    with contextlib.ExitStack() as pair:
+        if tum:  # committed last (the outer block), removed if the poses fail
+            tum_part = pair.enter_context(atomic_path(path.with_suffix(".tum"), suffix=".tum"))
+            with open(tum_part, "w", newline="\n") as f:
+                write_tum_to(f, arr)
+        # the new poses are committed next: the old twin must not outlive them
+        with write_artifact(path, attrs,
+                            before_commit=(lambda: drop_twin(path)) if tum else None) as h5:
+            g = h5.create_group("poses")
+            for k, (_dtype, units) in COLUMNS.items():
+                ds = g.create_dataset(k, data=arr[k])
+                if units:
+                    ds.attrs["units"] = units
+            s = h5py.string_dtype()
+            for k in ("name", "mode", "flags"):
+                g.create_dataset(k, data=np.array(arr[k], dtype=s))
+            ds = g.create_dataset("covariance", data=arr["covariance"])
+            ds.attrs["units"] = "m^2, rad^2"
+            ds = h5.create_dataset("hypotheses", data=arr["hypotheses"])
+            ds.attrs["units"] = "m, m, rad, 1"
+            ds.attrs["columns"] = "x, y, theta, probability"
     return path
 
 

