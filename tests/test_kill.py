@@ -481,8 +481,9 @@ def test_kill_extract_with_debug_images_resumes(inputs, tmp_path, rng):
 
 def test_kill_evaluate_leaves_no_report_json_without_its_plots(inputs, tmp_path, rng):
     """evaluate killed while drawing left report.json (written before the plots) beside some
-    of them: a folder that looked finished. report.json now comes last: a killed run's folder
-    holds it only with every plot, and the rerun completes it."""
+    of them: a folder that looked finished. report.json now comes last, and the whole report
+    is built beside the folder (s55 D13) and put in place in one rename: a killed run leaves
+    no folder or a whole one, and the rerun writes it (removing the killed run's part)."""
     from click.testing import CliRunner
 
     from fieldloc_cli.main import cli
@@ -493,7 +494,7 @@ def test_kill_evaluate_leaves_no_report_json_without_its_plots(inputs, tmp_path,
     r = tmp_path / "r"
     args = ["evaluate", str(poses), "--truth", str(inputs["ds"] / "truth.csv"), "-o", str(r)]
     run = Run(args, tmp_path)
-    started = run.wait_for(path_glob=(r / "plots", "*", 1))
+    started = run.wait_for(path_glob=(tmp_path, ".r.fieldloc-*.part/plots/*", 1))
     rc = run.kill_after(rng.uniform(0.0, 0.5))
     assert started, "".join(run.seen)
     plots = {p.name for p in (r / "plots").glob("*.png") if not p.name.startswith(".")}
@@ -504,3 +505,4 @@ def test_kill_evaluate_leaves_no_report_json_without_its_plots(inputs, tmp_path,
     assert {p.name for p in (r / "plots").iterdir()} == set(PLOT_NAMES)
     assert sorted(p.name for p in r.iterdir()) == ["errors.csv", "plots", "report.json",
                                                     "truth.tum"]
+    assert not list(tmp_path.glob(".r.*"))  # the killed run's part removed

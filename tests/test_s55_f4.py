@@ -103,3 +103,57 @@ def test_localize_on_a_full_disk_leaves_no_half_pair(run, tmp_path, monkeypatch)
     r = CliRunner().invoke(cli, args)
     assert r.exit_code == 0, r.output
     assert out.is_file() and out.with_suffix(".tum").is_file()
+
+
+# ---------------------------------------------------------------------------- D8, D13
+
+
+def _evaluate(run, out, *extra):
+    return CliRunner().invoke(cli, ["-q", "evaluate", str(run["poses"]), "--truth",
+                                    str(run["ds"]), "-o", str(out), *extra])
+
+
+def test_evaluate_failing_keeps_the_old_report_whole(run, tmp_path, monkeypatch):
+    """D8/D13: a full disk met while drawing a plot of the new report (after errors.csv and
+    truth.tum were written): the old report folder exactly as it was, nothing beside it; a new
+    report folder is not made at all."""
+    rep = tmp_path / "rep"
+    assert _evaluate(run, rep).exit_code == 0
+    before = _snapshot(tmp_path)
+    calls = []
+
+    def full_at_the_second(*a, **k):
+        calls.append(1)
+        if len(calls) == 2:
+            _enospc()
+        return save(*a, **k)
+
+    from stages.show import report_plots
+
+    save = report_plots.save_figure
+    monkeypatch.setattr(report_plots, "save_figure", full_at_the_second)
+    r = _evaluate(run, rep, "--overwrite", "--stamp-tolerance", "0.02")
+    assert r.exit_code == 1 and "no space left" in r.stderr, r.output
+    assert len(r.stderr.strip().splitlines()) == 1 and ".fieldloc-" not in r.stderr, r.stderr
+    assert f"cannot write {rep}" in r.stderr
+    assert _snapshot(tmp_path) == before
+    calls.clear()
+    r = _evaluate(run, tmp_path / "new")
+    assert r.exit_code == 1 and not (tmp_path / "new").exists()
+    assert _snapshot(tmp_path) == before
+    monkeypatch.undo()
+    assert _evaluate(run, rep, "--overwrite", "--stamp-tolerance", "0.02").exit_code == 0
+    assert _snapshot(tmp_path) != before and sorted(os.listdir(tmp_path)) == ["rep"]
+
+
+def test_evaluate_into_a_folder_with_a_users_files_keeps_them(run, tmp_path):
+    """A report folder that also holds a user's notes: the report's files are replaced one by
+    one, the notes kept."""
+    rep = tmp_path / "rep"
+    assert _evaluate(run, rep).exit_code == 0
+    (rep / "notes.txt").write_text("mine")
+    r = _evaluate(run, rep, "--overwrite", "--stamp-tolerance", "0.02")
+    assert r.exit_code == 0, r.output
+    assert (rep / "notes.txt").read_text() == "mine"
+    assert (rep / "report.json").is_file() and len(os.listdir(rep / "plots")) == 4
+    assert sorted(os.listdir(tmp_path)) == ["rep"]

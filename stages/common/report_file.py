@@ -12,10 +12,13 @@ floats (inf and NaN).
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import math
 import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -24,10 +27,16 @@ from .artifacts import (
     WRITTEN_FILES,
     atomic_path,
     cannot_read,
+    commit_dir,
     fieldloc_wrote,
+    give_default_mode,
+    part_name,
     provenance,
     refuse_edited,
+    remove_stale_parts,
+    restore_interrupted_replacement,
     starts_with,
+    writing,
 )
 from .errors import FieldlocError, SchemaError
 
@@ -168,6 +177,76 @@ def refuse_edited_report_files(folder: str | Path) -> None:
         return
     recorded = data.get(WRITTEN_FILES) if isinstance(data, dict) else None
     refuse_edited(folder, recorded, report_files(), ours=_report_file_ours)
+
+
+@contextlib.contextmanager
+def building_report(folder: str | Path):
+    """Yield a temporary folder beside the report folder ``folder`` to write a whole report
+    into (report.json, errors.csv, truth.tum, plots/); on success it takes ``folder``'s place
+    in one rename (``commit_dir``) where ``folder`` is new or holds nothing but a report's
+    files; where a user keeps other files in it too, the report's files are moved in one by
+    one (renames, which need no room), report.json last. On any failure (a full disk) the
+    temporary folder is removed and ``folder`` stays exactly as it was: the old report whole,
+    never a report.json without its files nor files without their report.json."""
+    folder = Path(folder)
+    parent = folder.parent if str(folder.parent) else Path(".")
+    restore_interrupted_replacement(folder)
+    remove_stale_parts(folder)  # those of killed runs (tagged with their pid)
+    whole = _only_report_files(folder)
+    made = [p for p in (parent, *parent.parents) if not p.exists()]  # removed on failure
+    prefix, suffix = part_name(folder, ".part")
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=prefix, suffix=suffix, dir=parent))
+    except OSError as e:
+        raise FieldlocError(f"cannot write {folder}: {e.strerror or e}") from None
+    done = False
+    try:
+        try:
+            with writing(folder):
+                yield tmp
+        except FieldlocError as e:  # name the file where it goes, not the temporary folder
+            raise type(e)(str(e).replace(str(tmp), str(folder))) from None
+        give_default_mode(tmp)  # mkdtemp makes it 0700
+        if whole:
+            commit_dir(tmp, folder)
+        else:
+            _move_report_files(tmp, folder)
+        done = True
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+        for p in [] if done else made:  # the folders made for it, innermost first
+            with contextlib.suppress(OSError):
+                p.rmdir()
+
+
+def _only_report_files(folder: Path) -> bool:
+    """Whether ``folder`` is absent or holds nothing but a report's files (what
+    ``building_report`` may replace as a whole)."""
+    if not folder.is_dir():
+        return True
+    names = {REPORT_NAME, ERRORS_NAME, TRUTH_TUM, PLOTS_DIR}
+    plots = folder / PLOTS_DIR
+    if not all(p.name in names for p in folder.iterdir()):
+        return False
+    return not plots.exists() or (plots.is_dir() and not plots.is_symlink()
+                                  and all(p.name in PLOT_NAMES for p in plots.iterdir()))
+
+
+def _move_report_files(tmp: Path, folder: Path) -> None:
+    """Move the report written in ``tmp`` into ``folder``, which holds a user's files too:
+    the old report.json goes first and the new one comes last, so that a report.json is
+    there only beside its files; an old plot the new report does not draw goes."""
+    (folder / REPORT_NAME).unlink(missing_ok=True)
+    for name in report_files():
+        src, dst = tmp / name, folder / name
+        if src.is_file():
+            dst.parent.mkdir(exist_ok=True)
+            os.replace(src, dst)
+        elif os.path.lexists(dst):
+            dst.unlink()
+    os.replace(tmp / REPORT_NAME, folder / REPORT_NAME)
 
 
 def _is_errors_csv(path: Path) -> bool:

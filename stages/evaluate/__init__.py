@@ -46,6 +46,8 @@ from stages.common.report_file import (
     PLOT_NAMES,
     PLOTS_DIR,
     REPORT_NAME,
+    TRUTH_TUM,
+    building_report,
     encode_numbers,
     foreign_report_file,
     load_report,
@@ -223,6 +225,8 @@ def main(conf: str | dict | None, poses, truth, output_dir, *, overwrite: bool =
 
     if report_file.exists():  # replaced (--overwrite): only files still as evaluate wrote them
         refuse_edited_report_files(out)
+    if (out / PLOTS_DIR).is_dir():  # a read-only plots/ is kept as it is: refused up front
+        check_output(out / PLOTS_DIR, None, overwrite=None, kind="folder")
     if field:
         load_field(field)  # the plots' field: a user's error is refused before writing
     fe = frame_errors(columns, truth_cols, conf["stamp_tolerance"],
@@ -238,38 +242,35 @@ def main(conf: str | dict | None, poses, truth, output_dir, *, overwrite: bool =
     if why:
         log.warning("%s: %s", poses, why)
 
-    out.mkdir(parents=True, exist_ok=True)
-    # report.json is written last, its presence meaning the report is whole: the one being
-    # replaced goes first, and its plots with it (a new report must not keep the old plots)
-    report_file.unlink(missing_ok=True)
-    for name in PLOT_NAMES:
-        (out / PLOTS_DIR / name).unlink(missing_ok=True)
-    write_errors_csv(out / ERRORS_NAME, fe)
     from .export import write_truth_tum  # truth.tum: evo_ape tum truth.tum poses.tum
 
-    write_truth_tum(out / "truth.tum", truth_cols)
-
-    report = {
-        **report_head(),
-        "run": out.name,
-        "method": attrs.get("method", ""),
-        "field": str(field) if field else attrs.get("field", ""),
-        "dataset": attrs.get("dataset", ""),
-        "poses": os.path.abspath(poses),
-        "truth": os.path.abspath(truth),
-        "inputs": inputs,
-        "conf": attrs.get("conf", {}),
-        "evaluate_conf": conf,
-        "field_override": str(field) if field else None,
-        "conventions": CONVENTIONS,
-        **summary,
-        "files": {"errors": ERRORS_NAME,
-                  "plots": [f"{PLOTS_DIR}/{n}" for n in PLOT_NAMES] if conf["plots"] else []},
-    }
-    if draw is not None and report["files"]["plots"]:
-        draw(encode_numbers(report), out)
-    report[WRITTEN_FILES] = written_files(out, report_files())  # what --overwrite may replace
-    write_report(report_file, report)
+    # the whole report is written beside the folder and then takes its place: a run that
+    # fails (a full disk) leaves the old report as it was and no part of the new one
+    with building_report(out) as folder:
+        write_errors_csv(folder / ERRORS_NAME, fe)
+        write_truth_tum(folder / TRUTH_TUM, truth_cols)
+        report = {
+            **report_head(),
+            "run": out.name,
+            "method": attrs.get("method", ""),
+            "field": str(field) if field else attrs.get("field", ""),
+            "dataset": attrs.get("dataset", ""),
+            "poses": os.path.abspath(poses),
+            "truth": os.path.abspath(truth),
+            "inputs": inputs,
+            "conf": attrs.get("conf", {}),
+            "evaluate_conf": conf,
+            "field_override": str(field) if field else None,
+            "conventions": CONVENTIONS,
+            **summary,
+            "files": {"errors": ERRORS_NAME,
+                      "plots": [f"{PLOTS_DIR}/{n}" for n in PLOT_NAMES] if conf["plots"] else []},
+        }
+        if draw is not None and report["files"]["plots"]:
+            draw(encode_numbers(report), folder)
+        # what --overwrite may replace
+        report[WRITTEN_FILES] = written_files(folder, report_files())
+        write_report(folder / REPORT_NAME, report)
     pos = summary["position_error_m"]
     log.info("%s: median position error %s m, within %s", out, _short(pos["median"]),
              summary["within"])
