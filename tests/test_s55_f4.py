@@ -19,6 +19,9 @@ from __future__ import annotations
 import errno
 import hashlib
 import os
+import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import h5py
@@ -27,7 +30,7 @@ from click.testing import CliRunner
 
 from fieldloc_cli.main import cli
 from stages import build_map, extract, localize, simulate
-from stages.common import poses_file
+from stages.common import artifacts, poses_file
 from stages.common.errors import FieldlocError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -157,3 +160,95 @@ def test_evaluate_into_a_folder_with_a_users_files_keeps_them(run, tmp_path):
     assert (rep / "notes.txt").read_text() == "mine"
     assert (rep / "report.json").is_file() and len(os.listdir(rep / "plots")) == 4
     assert sorted(os.listdir(tmp_path)) == ["rep"]
+
+
+# ---------------------------------------------------------------------------- D7
+
+
+def test_a_replaced_folder_that_cannot_be_removed_is_named(tmp_path, monkeypatch, caplog):
+    """D7: commit_dir moved the old folder aside and the system refuses its removal: one
+    warning names it and says to remove it; it is not taken for an interrupted replacement;
+    a later run (another pid) removes it when it can."""
+    path, new = tmp_path / "ds", tmp_path / "new"
+    (path / "images").mkdir(parents=True)
+    (path / "images" / "0.png").write_bytes(b"old")
+    new.mkdir()
+    (new / "a").write_text("new")
+    rmtree = shutil.rmtree
+
+    def refuse(p, ignore_errors=False, **k):
+        if not ignore_errors:
+            raise PermissionError(errno.EACCES, "Permission denied", "0.png")
+
+    monkeypatch.setattr(artifacts.shutil, "rmtree", refuse)
+    artifacts.commit_dir(new, path, replace=True)
+    monkeypatch.setattr(artifacts.shutil, "rmtree", rmtree)
+    left = [p for p in tmp_path.iterdir() if p.name.startswith(".ds.fieldloc-")]
+    assert len(left) == 1 and (path / "a").is_file()
+    said = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len(said) == 1 and str(left[0]) in said[0] and "remove it" in said[0], said
+    assert "\n" not in said[0]
+    shutil.rmtree(path)  # the real name gone: the leftover is no replacement to restore
+    artifacts.restore_interrupted_replacement(path)
+    assert not path.exists()
+    dead = left[0].with_name(left[0].name.replace(f"-{os.getpid()}-", "-999999999-"))
+    left[0].rename(dead)
+    assert artifacts.remove_stale_parts(path) == [dead] and not dead.exists()
+
+
+# ---------------------------------------------------------------------------- read-only
+
+
+NP = ["setpriv", "--inh-caps=-dac_override,-dac_read_search",
+      "--bounding-set=-dac_override,-dac_read_search"]
+
+
+def _without_override(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
+    if os.geteuid() != 0 or shutil.which("setpriv") is None:
+        pytest.skip("needs root and setpriv to drop the DAC override")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.run([*NP, sys.executable, "-m", "fieldloc_cli.main", "-q", *args],
+                          cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
+
+
+def test_evaluate_overwrite_into_a_read_only_plots_folder_is_refused(run, tmp_path):
+    """D8 for real: plots/ read-only (root without its override): refused up front in one
+    line, the old report exactly as it was."""
+    rep = tmp_path / "rep"
+    assert _evaluate(run, rep).exit_code == 0
+    (rep / "plots").chmod(0o555)
+    before = _snapshot(tmp_path)
+    try:
+        r = _without_override(["evaluate", str(run["poses"]), "--truth", str(run["ds"]), "-o",
+                               str(rep), "--overwrite", "--stamp-tolerance", "0.02"], tmp_path)
+        assert r.returncode == 1, r.stderr
+        assert r.stderr.strip() == (f"fieldloc: error: cannot write into {rep / 'plots'}: the"
+                                    " folder is not writable"), r.stderr
+        assert _snapshot(tmp_path) == before
+    finally:
+        (rep / "plots").chmod(0o755)
+
+
+def test_simulate_overwrite_with_read_only_images_says_what_is_left(tmp_path):
+    """D7 for real: the old dataset's images/ read-only: the run succeeds, one WARNING line
+    names the copy left; once images/ is writable again, the next run removes it."""
+    conf = ["simulate", "omni", "--field", "spl", "--frames", "1", "-o", str(tmp_path / "ds")]
+    assert CliRunner().invoke(cli, ["-q", *conf, "--seed", "1"]).exit_code == 0
+    (tmp_path / "ds" / "images").chmod(0o555)
+    try:
+        r = _without_override([*conf, "--seed", "2", "--overwrite"], tmp_path)
+        assert r.returncode == 0, r.stderr
+        left = [p for p in tmp_path.iterdir() if p.name.startswith(".ds.fieldloc-")]
+        assert len(left) == 1, os.listdir(tmp_path)
+        lines = r.stderr.strip().splitlines()
+        assert len(lines) == 1 and "WARNING" in lines[0] and left[0].name in lines[0], lines
+        for p in left[0].rglob("*"):
+            if p.is_dir():
+                p.chmod(0o755)
+        r = _without_override([*conf, "--seed", "3", "--overwrite"], tmp_path)
+        assert r.returncode == 0, r.stderr
+        assert not left[0].exists() and left[0].name in r.stderr
+    finally:
+        for p in tmp_path.rglob("*"):
+            if p.is_dir():
+                p.chmod(0o755)

@@ -459,7 +459,7 @@ def commit_dir(tmp: str | Path, path: str | Path, replace: bool | None = None) -
                 os.replace(old / "data", path)
                 shutil.rmtree(old, ignore_errors=True)
             raise
-        shutil.rmtree(old, ignore_errors=True)
+        _remove_replaced(old, path)
     else:
         try:
             os.rename(tmp, path)
@@ -468,6 +468,25 @@ def commit_dir(tmp: str | Path, path: str | Path, replace: bool | None = None) -
                 raise _written_meanwhile(path) from None
             raise
     _note_decision(path, True)
+
+
+def _remove_replaced(old: Path, path: Path) -> None:
+    """Remove the folder ``old`` holding what ``path`` held before ``commit_dir`` replaced it.
+    Its ``data`` is renamed first, so that a copy the system will not let go of in full (a
+    read-only subfolder) is never taken for a replacement to restore
+    (``restore_interrupted_replacement``). What is left is named in one warning: a later run
+    writing ``path`` removes it when it can (``remove_stale_parts``)."""
+    with contextlib.suppress(OSError):
+        os.rename(old / "data", old / "replaced")
+    shutil.rmtree(old, ignore_errors=True)
+    if not os.path.lexists(old):
+        return
+    try:
+        shutil.rmtree(old)
+    except OSError as e:
+        log.warning("could not remove the old %s, moved aside to %s (%s: %s): remove it (a"
+                    " later run writing %s removes it when it can)", path, old,
+                    e.strerror or e, Path(e.filename or old).name, path)
 
 
 def _refuse_dataset_files(path: Path, kind: str, error: type[FieldlocError]) -> None:
@@ -706,7 +725,9 @@ def remove_stale_parts(path: str | Path) -> list[Path]:
             else:
                 entry.unlink()
         except OSError as e:
-            log.warning("could not remove the stale partial file %s (%s)", entry, e)
+            log.warning("could not remove %s, left by an earlier run writing %s (%s: %s):"
+                        " remove it", entry, path, e.strerror or e,
+                        Path(e.filename or entry).name)
             continue
         log.warning("removed %s (%s) left by an interrupted run writing %s", entry,
                     _human_bytes(size), path)
