@@ -22,6 +22,7 @@ import os
 import shutil
 import subprocess
 import sys
+from collections import namedtuple
 from pathlib import Path
 
 import h5py
@@ -196,6 +197,61 @@ def test_a_replaced_folder_that_cannot_be_removed_is_named(tmp_path, monkeypatch
     assert artifacts.remove_stale_parts(path) == [dead] and not dead.exists()
 
 
+# ---------------------------------------------------------------------------- D3, D11
+
+
+def _extract(ds, out, *extra):
+    return CliRunner().invoke(cli, ["-q", "extract", str(ds), "-o", str(out), *extra])
+
+
+def test_extract_checks_the_least_it_writes_before_the_first_frame(run, tmp_path,
+                                                                    monkeypatch):
+    """D3: a disk without room even for the features file's own structure is refused before
+    any frame is extracted, and nothing is written."""
+    from stages.common import resources
+
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(resources.shutil, "disk_usage", lambda p: usage(10**6, 10**6, 4096))
+    monkeypatch.setattr(extract, "read_image", lambda *a: pytest.fail("a frame was read"))
+    r = _extract(run["ds"], tmp_path / "f.h5")
+    assert r.exit_code == 1 and f"extract into {tmp_path / 'f.h5'} would write" in r.stderr
+    assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize("where", ["run.json", "first image", "first overlay"])
+def test_extract_failing_before_a_frame_leaves_nothing(run, tmp_path, monkeypatch, where):
+    """D3/D11: a failure before any frame finished (the parts' run.json on a full disk, an
+    unreadable first image, a full disk under the debug overlays) ends in one line naming the
+    file and leaves no parts folder, nor the debug folder it made."""
+    out = tmp_path / "f.h5"
+    extra = []
+    if where == "run.json":
+        monkeypatch.setattr(Path, "write_text", _enospc)
+        said = f"cannot write {out}: no space left"
+    elif where == "first image":
+        image = run["ds"] / "images" / "000000.png"
+
+        def unreadable(path, *a, **k):
+            raise PermissionError(errno.EACCES, "Permission denied", str(path))
+        monkeypatch.setattr(extract, "read_image", unreadable)
+        said = f"{image}: Permission denied"
+    else:
+        extra = ["--debug-images", str(tmp_path / "dbg")]
+        monkeypatch.setattr(extract, "with_mark", _enospc)
+        said = f"cannot write {tmp_path / 'dbg' / '000000.png'}: no space left"
+    r = _extract(run["ds"], out, *extra)
+    assert r.exit_code == 1 and said in r.stderr, r.output
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert os.listdir(tmp_path) == []
+
+
+def test_an_os_error_while_writing_names_the_file(tmp_path):
+    """``writing``: a system error without a file (EIO from a write) is given the file."""
+    with pytest.raises(OSError) as e, artifacts.writing(tmp_path / "x.h5"):
+        raise OSError(errno.EIO, "Input/output error")
+    assert e.value.filename == str(tmp_path / "x.h5")
+
+
 # ---------------------------------------------------------------------------- read-only
 
 
@@ -252,3 +308,18 @@ def test_simulate_overwrite_with_read_only_images_says_what_is_left(tmp_path):
         for p in tmp_path.rglob("*"):
             if p.is_dir():
                 p.chmod(0o755)
+
+
+def test_extract_debug_images_in_a_read_only_folder_is_refused_up_front(run, tmp_path):
+    """D11 for real: --debug-images d/dbg with d read-only: refused before anything is
+    written (no parts folder, no lock)."""
+    (tmp_path / "d").mkdir(mode=0o555)
+    try:
+        r = _without_override(["extract", str(run["ds"]), "-o", str(tmp_path / "f.h5"),
+                               "--debug-images", str(tmp_path / "d" / "dbg")], tmp_path)
+        assert r.returncode == 1, r.stderr
+        assert r.stderr.strip() == (f"fieldloc: error: cannot write {tmp_path / 'd' / 'dbg'}:"
+                                    f" folder {tmp_path / 'd'} is not writable"), r.stderr
+        assert os.listdir(tmp_path) == ["d"] and os.listdir(tmp_path / "d") == []
+    finally:
+        (tmp_path / "d").chmod(0o755)

@@ -786,9 +786,10 @@ _WRITING: contextvars.ContextVar[tuple[Path, ...]] = contextvars.ContextVar("_WR
 @contextlib.contextmanager
 def writing(path: str | Path):
     """Turn a full disk met while writing ``path`` into one line naming it (the system's
-    message names no file, HDF5's spans two lines); other errors pass unchanged. Nested, the
-    outermost ``path`` is named: the output the user gave, not a temporary part of it (which
-    is removed as the error passes)."""
+    message names no file, HDF5's spans two lines); another error of the system that names no
+    file is given ``path`` as its file, so that its one line says what could not be written.
+    Nested, the outermost ``path`` is named: the output the user gave, not a temporary part
+    of it (which is removed as the error passes)."""
     outer = _WRITING.get()
     token = _WRITING.set((*outer, Path(path)))
     try:
@@ -796,6 +797,8 @@ def writing(path: str | Path):
     except OSError as e:
         if disk_full(e):
             raise full_disk_error(outer[0] if outer else path) from None
+        if not e.filename:
+            e.filename = str(path)
         raise
     finally:
         _WRITING.reset(token)

@@ -507,6 +507,23 @@ CHUNK_SECONDS = 0.5
 CHUNK_FRAMES = 256
 
 
+# The least a run of extract writes, checked before its first frame (stages.extract), so that
+# a disk without that room refuses the run before any work and any write: the features file's
+# own structure (root attributes, groups, and column datasets allocated a chunk at a time: a
+# one-frame file of a simulated omni dataset is 192 KiB, of a perspective one 293 KiB, as are
+# eight-frame ones; the bound is a third of the smaller, for frames with few features) and
+# each frame's entry (its name, stamp and row counts, 64 bytes even for a frame without
+# features). Lower bounds, so that no run that fits is refused; ``bytes_needed`` counts,
+# after the frames, what they really hold.
+FILE_BYTES_MIN = 64 << 10
+FRAME_BYTES_MIN = 64
+
+
+def least_bytes(frames: int) -> int:
+    """The least that extracting ``frames`` frames into a new features file writes."""
+    return FILE_BYTES_MIN + frames * FRAME_BYTES_MIN
+
+
 def _parts_run(run) -> bool:
     """Whether ``run`` (a parts folder's run.json, or None where it is absent or unreadable)
     is one extract wrote, in any layout: a mapping holding RUN_KEYS."""
@@ -558,7 +575,12 @@ class FrameParts:
         elif self.dir.exists():
             raise FieldlocError(f"{self.dir} is in the way of extract's resume folder; remove it")
         self.dir.mkdir()
-        self._write_json(self.dir / "run.json", self.run)
+        try:
+            with writing(self.target):
+                self._write_json(self.dir / "run.json", self.run)
+        except BaseException:  # a full disk: no parts folder without its run.json
+            self.remove()
+            raise
         return 0
 
     @property

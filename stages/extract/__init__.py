@@ -32,6 +32,7 @@ output is never one of the dataset's own files (calib.yaml, images, CSVs), --ove
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -42,17 +43,26 @@ import numpy as np
 from ..common.artifacts import (
     as_stored,
     check_output,
+    fieldloc_wrote,
     file_hash,
     output_lock,
     refuse_edited,
     root_attrs,
+    writing,
     written_by,
 )
 from ..common.camera import camera_can
 from ..common.conf import KindPresets, check_bounds, registered_module, resolve_conf, stage_conf
 from ..common.dataset import open_dataset, read_image, read_mask
 from ..common.errors import FieldlocError, SchemaError
-from ..common.features_file import SCHEMA, VERSION, FeaturesFile, FrameParts, write_features
+from ..common.features_file import (
+    SCHEMA,
+    VERSION,
+    FeaturesFile,
+    FrameParts,
+    least_bytes,
+    write_features,
+)
 from ..common.head_angles import HEAD_STAMP_TOLERANCE, head_at, head_table  # noqa: F401
 from ..common.png import with_mark
 from ..common.resources import check_disk, opencv_single_threaded
@@ -264,7 +274,8 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
 
     # one run at a time per output: a second run would take the first one's committed
     # frames for an interrupted run's and resume them while they are being written
-    with output_lock(output):
+    leftovers = _Leftovers()
+    with output_lock(output), leftovers:
         attrs, mask, head = _run_attrs(ds, camera, module, conf)
         resume = output.exists() and not overwrite
         in_output: set[str] = set()
@@ -272,10 +283,15 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
             _check_resumable(output, attrs)
             with FeaturesFile(output) as old:
                 in_output = set(old.names)
+        pending = sum(1 for n in ds.names if n not in in_output)
+        if pending:  # the least the run writes, refused before any frame is worked on
+            check_disk(f"extract into {output}", output.parent if str(output.parent) else ".",
+                       least_bytes(pending) + (output.stat().st_size if resume else 0))
         parts = FrameParts(output, attrs)
         if overwrite:
             parts.discard("--overwrite extracts every frame again")
         resumed = parts.open()
+        leftovers.parts = parts
         todo = [(p, n, s) for p, n, s in zip(ds.images, ds.names, ds.stamps)
                 if n not in in_output and not parts.has(n)]
         log.info("extract %s (%s camera, %d frames) -> %s; conf %s", ds.root, kind,
@@ -292,20 +308,19 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
             clash = [] if overwrite else [
                 png for _i, n, _s in todo if (png := debug_images / f"{n}.png").exists()
                 and png.stat().st_mtime_ns < parts.began_ns]
-            try:
-                if clash:
-                    raise FieldlocError(f"{clash[0]} exists (use --overwrite to replace it)")
-                # an overlay replaced only as extract drew it (its mark): never a user's
-                # picture saved under a frame's name, nor an overlay edited by hand
-                refuse_edited(debug_images, None, [f"{n}.png" for _i, n, _s in todo])
-            except FieldlocError:
-                if not resumed:
-                    parts.remove()  # the empty parts folder this run made
-                raise
+            if clash:
+                raise FieldlocError(f"{clash[0]} exists (use --overwrite to replace it)")
+            # an overlay replaced only as extract drew it (its mark): never a user's
+            # picture saved under a frame's name, nor an overlay edited by hand
+            refuse_edited(debug_images, None, [f"{n}.png" for _i, n, _s in todo])
+            if not debug_images.exists():
+                leftovers.debug_folder = debug_images
             debug_images.mkdir(parents=True, exist_ok=True)
             if not written_by(debug_images, DEBUG_RECORD, GENERATOR):
-                (debug_images / DEBUG_RECORD).write_text(
-                    f"generator: {GENERATOR}\ndataset: {json.dumps(str(ds.root.resolve()))}\n")
+                with writing(debug_images / DEBUG_RECORD):
+                    (debug_images / DEBUG_RECORD).write_text(
+                        f"generator: {GENERATOR}\n"
+                        f"dataset: {json.dumps(str(ds.root.resolve()))}\n")
         done = failed = 0
         with opencv_single_threaded():  # small calls: resources' doc
             try:
@@ -348,21 +363,56 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
 
 def _check_debug_folder(folder: Path, ds) -> Path:
     """The ``debug_images`` folder, refused before any work: a file, a folder holding a frame
-    of the dataset, or a folder with files in it that extract did not make (no DEBUG_RECORD
-    naming it: a user's folder, whose pictures an overlay of the same name would replace).
+    of the dataset, one that cannot be made or written into, or a folder with files in it
+    that extract did not make (no DEBUG_RECORD naming it: a user's folder, whose pictures an
+    overlay of the same name would replace).
     Overlays already in a folder extract made are replaced only with ``overwrite`` (``main``
     checks that once it knows the frames to draw)."""
     if folder.exists() and not folder.is_dir():
         raise FieldlocError(f"--debug-images {folder}: it is a file, not a folder")
-    if not folder.is_dir():
-        return folder
-    for name, img in zip(ds.names, ds.images):  # never written over a frame of the dataset
-        check_output(folder / f"{name}.png", {"dataset image": img}, overwrite=None)
-    if any(folder.iterdir()) and not written_by(folder, DEBUG_RECORD, GENERATOR):
+    if folder.is_dir():
+        for name, img in zip(ds.names, ds.images):  # never written over a frame of the dataset
+            check_output(folder / f"{name}.png", {"dataset image": img}, overwrite=None)
+    check_output(folder, None, overwrite=None, kind="folder")  # writable, or refused now
+    if folder.is_dir() and any(folder.iterdir()) and not written_by(folder, DEBUG_RECORD,
+                                                                     GENERATOR):
         raise FieldlocError(f"--debug-images {folder} holds files extract did not write (no"
                             f" {DEBUG_RECORD}); they are never replaced, --overwrite or not:"
                             " choose a new or empty folder")
     return folder
+
+
+class _Leftovers:
+    """What a run of extract made before its first frame finished (its parts folder, the
+    --debug-images folder it made), removed when the run then fails (a refusal, a full disk,
+    Ctrl-C): a failed command leaves nothing of its own. A parts folder holding finished
+    frames is kept, for the run that resumes them."""
+
+    parts: FrameParts | None = None
+    debug_folder: Path | None = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, kind, _value, _tb) -> bool:
+        parts = self.parts
+        if kind is not None and parts is not None and not (parts.frame_names
+                                                            or parts.failures):
+            parts.remove()
+            if self.debug_folder is not None:
+                _remove_debug_folder(self.debug_folder)
+        return False
+
+
+def _remove_debug_folder(folder: Path) -> None:
+    """Remove the --debug-images ``folder`` a run made and then failed before it finished a
+    frame: its record and the overlays it drew; the folder itself only where that empties it."""
+    (folder / DEBUG_RECORD).unlink(missing_ok=True)
+    for png in folder.glob("*.png"):
+        if fieldloc_wrote(png):
+            png.unlink(missing_ok=True)
+    with contextlib.suppress(OSError):
+        folder.rmdir()
 
 
 def _write_debug_image(path: Path, image: np.ndarray) -> None:
