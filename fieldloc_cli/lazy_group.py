@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import importlib.util
+import logging
 import re
 import signal
 import sys
@@ -56,6 +57,12 @@ def _interrupted(ctx, e: KeyboardInterrupt) -> None:
     term = isinstance(e, Terminated)
     note = RESUMES.get(ctx.invoked_subcommand or "", STARTS_OVER)
     click.echo(f"fieldloc: {'terminated' if term else 'interrupted'} ({note})", err=True)
+    # the last line: what a library still closes as the process ends (Dask's nannies at exit,
+    # a signal that came as batch's cluster had just stopped) logs nothing after it on the
+    # command's stderr (its handler, main.py's; a caller's own logging is left alone)
+    for handler in logging.root.handlers:
+        if getattr(handler, "fieldloc_stderr", False):
+            handler.setLevel(logging.CRITICAL + 1)
     ctx.exit(128 + (signal.SIGTERM if term else signal.SIGINT))
 
 

@@ -84,6 +84,7 @@ def cli(ctx, verbose, quiet, debug):
         level = logging.WARNING
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(OneLineFormatter("%(levelname)s %(name)s: %(message)s"))
+    handler.fieldloc_stderr = True  # silenced after an interrupt's last line (lazy_group)
     logging.basicConfig(level=level, handlers=[handler])
     ctx.obj = {"verbose": verbose, "quiet": quiet, "debug": debug}
 

@@ -225,3 +225,31 @@ def test_sigterm_to_a_two_worker_batch_is_one_line_and_143(simulated, tmp_path):
         assert p.returncode == 143, err
         assert err.splitlines() == ["fieldloc: terminated (finished runs were kept; a rerun"
                                     " resumes with the others)"], (delay, err)
+
+
+def test_ctrl_c_to_a_two_worker_batch_starting_up_is_one_line(simulated, tmp_path):
+    """Ctrl-C in a terminal goes to the whole process group. Sent while the cluster's worker
+    processes were starting (before they ignore SIGINT), each worker died of it with its own
+    KeyboardInterrupt traceback, beside Dask's INFO lines (the rerun of trial A, A11: 79-109
+    lines at 2.4-2.6 s). The workers now start with SIGINT blocked; whatever the moment, the
+    batch ends in fieldloc's one line (or finishes)."""
+    spec = tmp_path / "spec.yaml"
+    spec.write_text(yaml.safe_dump({
+        "field": "spl", "build_map": {"resolution": 0.5},
+        "datasets": [{"path": str(simulated["omni"])}],
+        "methods": ["lut", "lut-no-fusion"], "runs": "all"}))
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    for delay in (3.0, 4.0, 5.0):  # s: the cluster starts after about 3 s and takes about 5
+        p = subprocess.Popen([sys.executable, "-m", "fieldloc_cli.main", "-q", "batch", spec,
+                              "-o", tmp_path / f"res{delay:g}", "--workers", "2"], cwd=tmp_path,
+                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                             start_new_session=True)
+        time.sleep(delay)
+        os.killpg(p.pid, signal.SIGINT)  # as a terminal's Ctrl-C: the whole group
+        _out, err = p.communicate(timeout=120)
+        if p.returncode == 0:  # finished before the signal
+            continue
+        assert p.returncode == 130, err
+        assert "Traceback" not in err, (delay, err)
+        assert len(err.splitlines()) == 1 and err.startswith("fieldloc: interrupted"), (
+            delay, err)

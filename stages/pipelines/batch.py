@@ -702,7 +702,7 @@ def _hush_if_interrupted(client, done: list):
         if exc_type is not None and issubclass(exc_type, KeyboardInterrupt) and not done:
             done.append(True)
             signal.signal(signal.SIGINT, signal.SIG_IGN)
-            logging.getLogger("distributed").setLevel(DASK_SILENT)
+            _silence_dask()
             logging.disable(logging.CRITICAL)
             with contextlib.suppress(Exception):  # a worker out of reach is stopped anyway
                 client.run(logging.disable, logging.CRITICAL)
@@ -713,6 +713,16 @@ def _hush_if_interrupted(client, done: list):
 
 # above every level distributed logs at: its loggers print nothing
 DASK_SILENT = logging.CRITICAL + 1
+
+
+def _silence_dask() -> None:
+    """distributed's loggers print nothing from now on: "distributed" and each of its
+    children that exists (a child given its own level, as LocalCluster's ``silence_logs``
+    gives the nanny's, would still print its "Nanny at ... closed." at exit)."""
+    names = ["distributed"] + [n for n in list(logging.root.manager.loggerDict)
+                               if n.startswith("distributed.")]
+    for name in names:
+        logging.getLogger(name).setLevel(DASK_SILENT)
 
 
 def _restore_dask_level(level: int, interrupted: list) -> None:
@@ -729,7 +739,15 @@ def _interrupts_held():
     (LocalCluster starts in seconds on a loaded machine), it left a cluster half started for
     the atexit hook of distributed to close: its INFO lines and an AssertionError traceback
     after fieldloc's one "terminated" line. Only in the main thread, where Python handles
-    signals."""
+    signals.
+
+    SIGINT is also blocked meanwhile: the threads made meanwhile (Dask's loop, and those that
+    start the worker processes) and the worker processes inherit the block, so a Ctrl-C in a
+    terminal, which goes to the whole process group, never reaches a worker still starting up
+    (before ``_local_worker_setup`` makes it ignore SIGINT, each died of it with its own
+    traceback: 79-109 lines). A Ctrl-C that came meanwhile is pending, and is delivered here
+    when unblocked. multiprocessing's resource tracker is started first: starting it unblocks
+    SIGINT in the thread that starts it (Dask's loop, had it been started there)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -738,12 +756,20 @@ def _interrupts_held():
     for s, handler in old.items():
         if handler not in (signal.SIG_IGN, None):
             signal.signal(s, lambda signum, frame: got.append(signum))
+    mask = None
+    if hasattr(signal, "pthread_sigmask"):
+        from multiprocessing import resource_tracker
+
+        resource_tracker.ensure_running()
+        mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         yield
     finally:
         for s, handler in old.items():
             if handler is not None:
                 signal.signal(s, handler)
+        if mask is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)  # a pending Ctrl-C raises here
         if got:
             signal.raise_signal(got[0])
 
