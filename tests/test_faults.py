@@ -454,6 +454,30 @@ def _setup_batch_version(value: str):
     return setup
 
 
+def _setup_parts_of_this_run(change):
+    """extract's resume folder for ws/f.h5 as a run on the shared omni dataset with the
+    defaults leaves it (its run.json), then ``change(folder)``: what the case's extract finds."""
+    def setup(w, ws):
+        from stages import extract
+        from stages.common.dataset import open_dataset
+        from stages.common.features_file import FrameParts
+
+        ds = open_dataset(w["omni"])
+        camera = ds.camera()
+        conf = extract.resolve_extract_conf(camera.kind, None)
+        attrs, _mask, _head = extract._run_attrs(ds, camera, extract.kind_module(camera.kind),
+                                                 conf)
+        parts = FrameParts(ws / "f.h5", attrs)
+        parts.open()
+        change(parts.dir)
+        return {}
+    return setup
+
+
+def _write(name: str, data: bytes):
+    return lambda folder: (folder / name).write_bytes(data)
+
+
 def _setup_users_parts_folder(w, ws):
     """A folder of the user's at ``.f.h5.parts`` (extract's resume folder for f.h5): it was
     removed without a word (trial D1, D12)."""
@@ -2454,10 +2478,32 @@ CASES = [
            setup=lambda w, ws, data=data: (ws / "u.h5").write_bytes(data) and {})
       for what, data in (("text file", b"my notes\n"),
                          ("HDF5 file", b"\x89HDF\r\n\x1a\n" + bytes(600)))],
+    # ---- s55 lead: trial D2's files of a user in extract's resume folder (P1-P3): extract
+    # removes there only what it writes, and refuses a folder holding anything else
+    *[Case(f"extract whose resume folder holds {what}", "data-lost",
+           ["extract", "{omni}", "-o", W + "/f.h5"], 1,
+           f"holds {name!r}, which extract did not write; move it out of the folder",
+           setup=_setup_parts_of_this_run(_write(name, data)))
+      for what, name, data in (
+          ("a user's notes", "notes.txt", b"my notes\n"),
+          ("a user's hidden file", ".mine", b"hidden\n"),
+          ("a user's .npz that is no chunk", "results.npz", b"PK\x05\x06" + bytes(18)))],
+    Case("extract whose resume folder holds another run's run.json and a user's file",
+         "data-lost", ["extract", "{omni}", "-o", W + "/f.h5"], 1,
+         "holds 'thesis.txt', which extract did not write",
+         setup=_setup_parts_of_this_run(lambda d: (
+             (d / "run.json").write_text('{"camera_kind": "omni", "calib_hash": "x",'
+                                         ' "mask_hash": null, "conf": {}, "scanlines": null}'),
+             (d / "thesis.txt").write_text("two years of work")))),
+    Case("extract whose resume folder's name is a link to a user's folder", "data-lost",
+         ["extract", "{omni}", "-o", W + "/f.h5"], 1,
+         "is a link where extract keeps its resume folder",
+         setup=lambda w, ws: ((ws / "mine").mkdir(), (ws / "mine" / ".hidden").write_text("h"),
+                              os.symlink("mine", ws / ".f.h5.parts")) and {}),
     # ---- s55 lead: trial D1's user folder at extract's resume name
     Case("extract beside a user's folder at the name of its resume folder", "data-lost",
          ["extract", "{omni}", "-o", W + "/f.h5"], 1,
-         "is in the way of extract's resume folder (it holds no run.json of extract's)",
+         "holds 'thesis.txt', which extract did not write; move it out of the folder",
          setup=_setup_users_parts_folder),
     # ---- s55 group F1: fieldloc folders' files replaced only as written (C4), features of
     # another dataset in the pictures (C17)
@@ -3377,3 +3423,25 @@ def test_evaluate_stopped_while_drawing_leaves_no_report_json(world, tmp_path, m
     assert res.exit_code == 0, res.output
     assert (r / "report.json").is_file()
     assert sorted(p.name for p in (r / "plots").iterdir()) == sorted(PLOT_NAMES)
+
+
+def test_a_damaged_chunk_of_an_interrupted_extract_is_discarded(world, tmp_path, caplog):
+    """A chunk a crash left unreadable in extract's resume folder (random bytes, or empty)
+    gave a Python traceback or click's bare "Aborted!" (trial D2, P3): it is discarded with
+    one warning and its frames are extracted again."""
+    from stages.common.features_file import FeaturesFile
+
+    for data in (bytes(range(256)) + b"x" * 44, b""):
+        ws = tmp_path / f"ws{len(data)}"
+        ws.mkdir()
+        _setup_parts_of_this_run(_write("000000.png+2.npz", data))(world, ws)
+        caplog.clear()
+        with caplog.at_level(logging.WARNING):
+            res = CliRunner().invoke(cli, ["extract", str(world["omni"]), "-o",
+                                           str(ws / "f.h5")])
+        assert res.exit_code == 0, res.output
+        assert "a damaged chunk of an interrupted run" in caplog.text, caplog.text
+        assert "Traceback" not in res.output
+        with FeaturesFile(ws / "f.h5") as ff:
+            assert len(ff.names) == 4
+        assert not (ws / ".f.h5.parts").exists()

@@ -35,12 +35,14 @@ half file.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
-import shutil
+import re
 import tempfile
 import time
+import zipfile
 from pathlib import Path
 
 import h5py
@@ -524,6 +526,20 @@ def least_bytes(frames: int) -> int:
     return FILE_BYTES_MIN + frames * FRAME_BYTES_MIN
 
 
+# What extract writes in its parts folder, and all it ever removes there: run.json, chunks
+# "<first frame>+<count>.npz", failed frames "<name>.failed", and a file being committed (a
+# temporary part, ".<file>.fieldloc-<pid>-<random>.part")
+_CHUNK_NAME = re.compile(r"[^.][^/]*\+\d+\.npz")
+_COMMIT_PART = re.compile(r"\..+\.fieldloc-\d+-[^/]*\.part")
+
+
+def _parts_file(name: str) -> bool:
+    """Whether ``name`` is the name of a file FrameParts writes in its folder."""
+    return (name == "run.json" or bool(_CHUNK_NAME.fullmatch(name))
+            or (name.endswith(".failed") and not name.startswith("."))
+            or bool(_COMMIT_PART.fullmatch(name)))
+
+
 def _parts_run(run) -> bool:
     """Whether ``run`` (a parts folder's run.json, or None where it is absent or unreadable)
     is one extract wrote, in any layout: a mapping holding RUN_KEYS."""
@@ -557,7 +573,16 @@ class FrameParts:
     def open(self) -> int:
         """Take over the frames of an interrupted run with the same inputs (returns how many),
         or start an empty parts folder."""
+        if self.dir.is_symlink():
+            raise FieldlocError(f"{self.dir} is a link where extract keeps its resume folder;"
+                                " move it")
         if self.dir.is_dir():
+            foreign = next((p for p in sorted(self.dir.iterdir())
+                            if not _parts_file(p.name) or p.is_symlink() or not p.is_file()),
+                           None)
+            if foreign is not None:  # a user's file in it: the folder is never removed then
+                raise FieldlocError(f"{self.dir} holds {str(foreign.name)[:40]!r}, which extract"
+                                    " did not write; move it out of the folder")
             old = self._read_run()
             if not _parts_run(old) and any(self.dir.iterdir()):
                 # a folder of the user's at the parts' name: never removed (an empty one is
@@ -601,9 +626,15 @@ class FrameParts:
         self.remove()
 
     def remove(self) -> None:
-        """Remove the parts folder (its frames are in the features file, or not wanted)."""
-        if self.dir.is_dir():
-            shutil.rmtree(self.dir, ignore_errors=True)
+        """Remove the parts folder (its frames are in the features file, or not wanted): the
+        files extract writes there, then the folder if that emptied it (never a user's file,
+        nor through a link)."""
+        if self.dir.is_dir() and not self.dir.is_symlink():
+            for p in self.dir.iterdir():
+                if _parts_file(p.name) and p.is_file() and not p.is_symlink():
+                    p.unlink(missing_ok=True)
+            with contextlib.suppress(OSError):  # not empty: a file that is not extract's
+                self.dir.rmdir()
         self._frames.clear()
         self._failures.clear()
         self._pending.clear()
@@ -622,14 +653,26 @@ class FrameParts:
 
     def _scan(self):
         for p in sorted(self.dir.iterdir()):
-            if p.name.startswith("."):  # a chunk being written when the run was killed
+            if _COMMIT_PART.fullmatch(p.name):  # a chunk being written when the run was killed
                 p.unlink(missing_ok=True)
-            elif p.suffix == ".npz":
-                with np.load(p, allow_pickle=False) as z:
-                    for k, name in enumerate(z["names"]):
-                        self._frames[str(name)] = (p, k)
-            elif p.suffix == ".failed":
-                self._failures[p.stem] = p.read_text()
+            elif _CHUNK_NAME.fullmatch(p.name):
+                try:
+                    with np.load(p, allow_pickle=False) as z:
+                        names = [str(n) for n in z["names"]]
+                except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile):
+                    # a chunk a crash (a full disk, a lost power) left unreadable: its
+                    # frames are extracted again
+                    log.warning("extract: a damaged chunk of an interrupted run, %s, is"
+                                " discarded", p)
+                    p.unlink(missing_ok=True)
+                    continue
+                for k, name in enumerate(names):
+                    self._frames[name] = (p, k)
+            elif p.name.endswith(".failed"):
+                try:
+                    self._failures[p.stem] = p.read_text()
+                except (OSError, UnicodeDecodeError):
+                    p.unlink(missing_ok=True)
 
     # -------------------------------------------------------------- frames
     def has(self, name: str) -> bool:
