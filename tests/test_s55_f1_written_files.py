@@ -20,7 +20,7 @@ from stages.common.artifacts import WRITTEN_FILES
 
 
 def _sha(path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
+    return hashlib.sha256(path.read_bytes()).hexdigest()  # exact bytes: files on disk
 
 
 @pytest.fixture(scope="module")

@@ -42,7 +42,9 @@ def _snapshot(folder: Path) -> dict[str, str]:
     out = {}
     for p in sorted(folder.rglob("*")):
         rel = str(p.relative_to(folder))
-        out[rel] = hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else "folder"
+        out[rel] = "folder"
+        if p.is_file():
+            out[rel] = hashlib.sha256(p.read_bytes()).hexdigest()  # exact bytes: files on disk
     return out
 
 
@@ -87,7 +89,7 @@ def test_a_poses_pair_is_committed_together(tmp_path, monkeypatch, fails):
         target.parent.mkdir(exist_ok=True)
         with pytest.raises(FieldlocError, match="no space left") as e:
             poses_file.write_poses(target, _track(), {"schema": poses_file.SCHEMA})
-        assert str(target.with_suffix(".tum" if fails == "tum" else ".h5")) in str(e.value)
+        assert str(target) in str(e.value)  # the output given, whichever file failed
         assert _snapshot(target.parent) == old
     assert _snapshot(tmp_path) == {**before, "new": "folder"}
 
@@ -100,7 +102,7 @@ def test_localize_on_a_full_disk_leaves_no_half_pair(run, tmp_path, monkeypatch)
             str(run["features"]), "--method", "lut", "-o", str(out)]
     monkeypatch.setattr(poses_file, "write_tum_to", _enospc)
     r = CliRunner().invoke(cli, args)
-    assert r.exit_code == 1 and f"cannot write {out.with_suffix('.tum')}: no space" in r.stderr
+    assert r.exit_code == 1 and f"cannot write {out}: no space" in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert os.listdir(tmp_path) == []
     monkeypatch.undo()

@@ -442,7 +442,8 @@ class FeaturesFile:
         or other times).
         The one check every reader of a dataset's frames from a features file applies
         (localize, show belief, show points). A file of failures only is judged by its kind."""
-        kind = dataset.camera().kind
+        # a dataset given its features may lack a calib.yaml (localize reads none then)
+        kind = dataset.camera().kind if dataset.calib_path.is_file() else self._kind
         if self._kind != kind:
             raise FieldlocError(
                 f"{self.path}: features of a '{self._kind}' camera, {dataset.root} was recorded by"

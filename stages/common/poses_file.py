@@ -59,6 +59,7 @@ from .artifacts import (
     read_json_attr,
     starts_with,
     write_artifact,
+    writing,
 )
 from .dataset import MAX_STAMP, MAX_VALUE, stamp_error
 from .errors import FieldlocError, SchemaError
@@ -170,6 +171,9 @@ def write_poses(path: str | Path, track: PoseTrack, attrs: dict, *, tum: bool = 
     path = Path(path)
     arr = track.arrays()
     with contextlib.ExitStack() as pair:
+        # a full disk met while writing either file is told as the poses file's (the output
+        # the user gave); the twin would otherwise be named, as the outer block
+        pair.enter_context(writing(path))
         if tum:  # committed last (the outer block), removed if the poses fail
             tum_part = pair.enter_context(atomic_path(path.with_suffix(".tum"), suffix=".tum"))
             with open(tum_part, "w", newline="\n") as f:
