@@ -202,27 +202,40 @@ def test_an_interrupt_while_the_cluster_starts_waits_until_it_is_made():
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
+def _batch_signalled(simulated, folder, delay: float, signum: int, group: bool):
+    """(exit code, stderr) of `fieldloc -q batch SPEC --workers 2` (lut and lut-no-fusion on
+    the 2-frame omni dataset) sent ``signum`` after ``delay`` s: to its whole process group
+    with ``group``, as a terminal's Ctrl-C goes."""
+    folder.mkdir(exist_ok=True)
+    spec = folder / "spec.yaml"
+    spec.write_text(yaml.safe_dump({
+        "field": "spl", "build_map": {"resolution": 0.5},
+        "datasets": [{"path": str(simulated["omni"])}],
+        "methods": ["lut", "lut-no-fusion"], "runs": "all"}))
+    p = subprocess.Popen([sys.executable, "-m", "fieldloc_cli.main", "-q", "batch", spec, "-o",
+                          folder / "res", "--workers", "2"], cwd=folder,
+                         env=dict(os.environ, PYTHONPATH=str(ROOT)), stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True, start_new_session=group)
+    time.sleep(delay)
+    if group:
+        os.killpg(p.pid, signum)
+    else:
+        p.send_signal(signum)
+    _out, err = p.communicate(timeout=120)
+    return p.returncode, err
+
+
 def test_sigterm_to_a_two_worker_batch_is_one_line_and_143(simulated, tmp_path):
     """SIGTERM to `batch -q --workers 2` printed Dask's "INFO distributed.nanny: Nanny at ...
     closed." (or a traceback of its atexit hook) after fieldloc's one "terminated" line. The
     moment decides what is running (before the cluster, while it starts, while runs run):
     not deterministic, so three moments, each of which must give exactly one line and 143."""
-    spec = tmp_path / "spec.yaml"
-    spec.write_text(yaml.safe_dump({
-        "field": "spl", "build_map": {"resolution": 0.5},
-        "datasets": [{"path": str(simulated["omni"])}],
-        "methods": ["lut", "lut-no-fusion"], "runs": "all"}))
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
     for delay in (4.5, 6.5, 11.0):  # s: the cluster starts after about 3 s and takes about 5
-        p = subprocess.Popen([sys.executable, "-m", "fieldloc_cli.main", "-q", "batch", spec,
-                              "-o", tmp_path / f"res{delay:g}", "--workers", "2"], cwd=tmp_path,
-                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        time.sleep(delay)
-        p.send_signal(signal.SIGTERM)
-        out, err = p.communicate(timeout=120)
-        if p.returncode == 0:  # finished before the signal: nothing to check at this moment
+        rc, err = _batch_signalled(simulated, tmp_path / f"t{delay:g}", delay, signal.SIGTERM,
+                                   group=False)
+        if rc == 0:  # finished before the signal: nothing to check at this moment
             continue
-        assert p.returncode == 143, err
+        assert rc == 143, err
         assert err.splitlines() == ["fieldloc: terminated (finished runs were kept; a rerun"
                                     " resumes with the others)"], (delay, err)
 
@@ -233,23 +246,12 @@ def test_ctrl_c_to_a_two_worker_batch_starting_up_is_one_line(simulated, tmp_pat
     KeyboardInterrupt traceback, beside Dask's INFO lines (the rerun of trial A, A11: 79-109
     lines at 2.4-2.6 s). The workers now start with SIGINT blocked; whatever the moment, the
     batch ends in fieldloc's one line (or finishes)."""
-    spec = tmp_path / "spec.yaml"
-    spec.write_text(yaml.safe_dump({
-        "field": "spl", "build_map": {"resolution": 0.5},
-        "datasets": [{"path": str(simulated["omni"])}],
-        "methods": ["lut", "lut-no-fusion"], "runs": "all"}))
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
     for delay in (3.0, 4.0, 5.0):  # s: the cluster starts after about 3 s and takes about 5
-        p = subprocess.Popen([sys.executable, "-m", "fieldloc_cli.main", "-q", "batch", spec,
-                              "-o", tmp_path / f"res{delay:g}", "--workers", "2"], cwd=tmp_path,
-                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                             start_new_session=True)
-        time.sleep(delay)
-        os.killpg(p.pid, signal.SIGINT)  # as a terminal's Ctrl-C: the whole group
-        _out, err = p.communicate(timeout=120)
-        if p.returncode == 0:  # finished before the signal
+        rc, err = _batch_signalled(simulated, tmp_path / f"i{delay:g}", delay, signal.SIGINT,
+                                   group=True)
+        if rc == 0:  # finished before the signal
             continue
-        assert p.returncode == 130, err
+        assert rc == 130, err
         assert "Traceback" not in err, (delay, err)
         assert len(err.splitlines()) == 1 and err.startswith("fieldloc: interrupted"), (
             delay, err)
