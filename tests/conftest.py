@@ -71,3 +71,18 @@ def hulks_extracted(tmp_path_factory):
     res = runner.invoke(cli, ["-q", "extract", str(data)])
     assert res.exit_code == 0, res.output
     return data, data / "features.h5"
+
+
+@pytest.fixture(scope="session")
+def small_omni_run(tmp_path_factory):
+    """A 2-frame omni dataset on spl (omni-clean, seed 1813), its features, a coarse (0.5 m)
+    map and lut's poses: inputs of the tests of outputs and faults, which only read them."""
+    from stages import build_map, extract, localize, simulate
+
+    root = tmp_path_factory.mktemp("small-omni-run")
+    ds = simulate.main(dict(simulate.confs["omni-clean"], frames=2, seed=1813), "spl",
+                       root / "omni")
+    feats = extract.main(None, ds, root / "omni.f.h5")
+    mp = build_map.main({"resolution": 0.5}, "spl", root / "spl.map.h5")
+    poses = localize.main({"method": "lut"}, ds, mp, root / "p.h5", features=feats)
+    return {"root": root, "ds": ds, "features": feats, "map": mp, "poses": poses}

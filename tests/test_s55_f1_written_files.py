@@ -14,7 +14,7 @@ import json
 import pytest
 import yaml
 
-from stages import build_map, evaluate, extract, localize, simulate
+from stages import evaluate, localize, simulate
 from stages.common import artifacts, poses_file
 from stages.common.artifacts import WRITTEN_FILES
 
@@ -24,15 +24,9 @@ def _sha(path) -> str:
 
 
 @pytest.fixture(scope="module")
-def run(tmp_path_factory):
-    """A 2-frame omni dataset on spl, its features, a coarse map, and poses."""
-    root = tmp_path_factory.mktemp("f1")
-    ds = simulate.main(dict(simulate.confs["omni-clean"], frames=2, seed=1813), "spl",
-                       root / "omni")
-    feats = extract.main(None, ds, root / "omni.f.h5")
-    mp = build_map.main({"resolution": 0.5}, "spl", root / "spl.map.h5")
-    poses = localize.main({"method": "lut"}, ds, mp, root / "p.h5", features=feats)
-    return {"root": root, "ds": ds, "features": feats, "map": mp, "poses": poses}
+def run(small_omni_run):
+    """conftest's 2-frame omni dataset, its features, map and poses (read only here)."""
+    return small_omni_run
 
 
 def test_overwrite_of_folders_as_fieldloc_wrote_them(run, tmp_path):

@@ -30,7 +30,7 @@ import pytest
 from click.testing import CliRunner
 
 from fieldloc_cli.main import cli
-from stages import build_map, extract, localize, simulate
+from stages import extract
 from stages.common import artifacts, poses_file
 from stages.common.errors import FieldlocError
 
@@ -53,15 +53,9 @@ def _enospc(*_a, **_k):
 
 
 @pytest.fixture(scope="module")
-def run(tmp_path_factory):
-    """A 2-frame omni dataset on spl, its features, a coarse map, and poses."""
-    root = tmp_path_factory.mktemp("f4")
-    ds = simulate.main(dict(simulate.confs["omni-clean"], frames=2, seed=1855), "spl",
-                       root / "omni")
-    feats = extract.main(None, ds, root / "omni.f.h5")
-    mp = build_map.main({"resolution": 0.5}, "spl", root / "spl.map.h5")
-    poses = localize.main({"method": "lut"}, ds, mp, root / "p.h5", features=feats)
-    return {"root": root, "ds": ds, "features": feats, "map": mp, "poses": poses}
+def run(small_omni_run):
+    """conftest's 2-frame omni dataset, its features, map and poses (read only here)."""
+    return small_omni_run
 
 
 # ---------------------------------------------------------------------------- D6
