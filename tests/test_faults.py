@@ -1230,6 +1230,48 @@ def _setup_imported_edited(change):
     return setup
 
 
+# ------------------------------------------------- s55 group F5: setups
+
+
+def _table_set(value):
+    """A change of an importer's folder: its import.yaml's written_files set to ``value``
+    (the key removed for "del": an older fieldloc's record)."""
+    def change(ds):
+        rec = yaml.safe_load((ds / "import.yaml").read_text())
+        if value == "del":
+            rec.pop("written_files")
+        else:
+            rec["written_files"] = value
+        (ds / "import.yaml").write_text(yaml.safe_dump(rec, sort_keys=False))
+    return change
+
+
+def _f5_damaged_table(value):
+    """A change of an imported folder: import.yaml's written_files set to ``value`` ("del":
+    removed, an older record's), and a user's notes.txt added."""
+    table = _table_set(value)
+
+    def change(ds):
+        table(ds)
+        (ds / "notes.txt").write_text("mine")
+    return change
+
+
+def _setup_hulks_imported(value, extra: str | None):
+    """ws/out: a dataset calibrate --from-hulks wrote from ws/hulks, its import.yaml's
+    written_files set to ``value`` ("del": removed), and a user's file ``extra`` added."""
+    def setup(w, ws):
+        paths = _setup_team_files(w, ws)
+        res = CliRunner().invoke(cli, ["calibrate", "perspective", "--from-hulks",
+                                       str(ws / "hulks"), "-o", str(ws / "out")])
+        assert res.exit_code == 0, res.output
+        _table_set(value)(ws / "out")
+        if extra is not None:
+            (ws / "out" / extra).write_bytes(b"mine")
+        return paths
+    return setup
+
+
 CASES = [
     # ------------------------------------------------------------------ data lost
     Case("localize -o the map --overwrite", "data-lost",
@@ -2549,6 +2591,20 @@ CASES = [
                            W + "/b.png"]),
           ("localize", ["localize", "{ds}", "--map", "{map}", "--features", "{features}",
                         "-o", W + "/p.h5"]))],
+    # ---- s55 group F5: an importer's folder with a damaged written_files table (W1)
+    *[Case(f"import rosbag --overwrite of a dataset holding a user's notes, {what}",
+           "data-lost", [*IMPORT_BAG, "--overwrite"], 1,
+           "ds/notes.txt was not written by fieldloc import rosbag: --overwrite would delete it",
+           setup=_setup_imported_edited(_f5_damaged_table(value)))
+      for what, value in (("written_files a list", [1]), ("written_files a string", "a"),
+                          ("no written_files", "del"))],
+    *[Case(f"calibrate --from-hulks FOLDER --overwrite of its dataset holding {extra}, {what}",
+           "data-lost", ["calibrate", "perspective", "--from-hulks", W + "/hulks", "-o",
+                         W + "/out", "--overwrite"], 1,
+           f"out/{extra} was not written by fieldloc calibrate perspective",
+           setup=_setup_hulks_imported(value, extra))
+      for what, value, extra in (("written_files a list", [1], "notes.txt"),
+                                 ("no written_files", "del", "images/mine.txt"))],
 ]
 
 

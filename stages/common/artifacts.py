@@ -508,12 +508,16 @@ def _refuse_dataset_files(path: Path, kind: str, error: type[FieldlocError]) -> 
 
 
 def check_importer_target(output: Path, inputs: Mapping[str, object], overwrite: bool, *,
-                          record: str, generator: str,
+                          record: str, generator: str, own_names: str,
                           error: type[FieldlocError] = FieldlocError) -> None:
     """The dataset folder an importer writes whole: none of its ``inputs`` nor holding one,
     and, where it exists and is not empty, replaced only with ``overwrite`` and only when the
     importer wrote it (its ``record`` YAML names ``generator``): never a user's own folder,
-    whose other files the replacement would delete."""
+    whose other files the replacement would delete. Every file of the folder must be one the
+    record's WRITTEN_FILES table lists, as written; where the record has no table (an older
+    fieldloc's) or a damaged one (not a mapping), one whose relative name matches the regular
+    expression ``own_names`` (the names the importer writes), so that a user's file added to
+    the folder is never deleted."""
     restore_interrupted_replacement(output)  # a folder a killed replacement moved aside
     check_output(output, inputs, overwrite=None, kind="folder", error=error)
     if not (output.is_dir() and any(output.iterdir())):
@@ -527,12 +531,15 @@ def check_importer_target(output: Path, inputs: Mapping[str, object], overwrite:
     from .conf import load_yaml
 
     table = load_yaml((output / record).read_text()).get(WRITTEN_FILES)
-    if isinstance(table, Mapping):  # a record without the table (an older fieldloc's): its word
-        names = tree_files(output, skip={record})
+    names = tree_files(output, skip={record})
+    if isinstance(table, Mapping):
         extra = next((n for n in names if n not in table), None)
-        if extra is not None:
-            raise error(f"{output / extra} was not written by {generator}: --overwrite would"
-                        " delete it; move it out of the folder or choose another output")
+    else:  # no table, or a damaged one: the importer's own names only
+        extra = next((n for n in names if not re.fullmatch(own_names, n)), None)
+    if extra is not None:
+        raise error(f"{output / extra} was not written by {generator}: --overwrite would"
+                    " delete it; move it out of the folder or choose another output")
+    if isinstance(table, Mapping):
         refuse_edited(output, table, names, error=error)
 
 
