@@ -1272,6 +1272,19 @@ def _setup_hulks_imported(value, extra: str | None):
     return setup
 
 
+def _setup_simulated_frames_with_picture(n):
+    """ws/data: a 1-frame dataset simulate made whose simulation.yaml's ``frames`` was damaged
+    to ``n``, and a user's picture added under a frame-like name."""
+    setup_record = _setup_record_of_frames(n)
+
+    def setup(w, ws):
+        setup_record(w, ws)
+        shutil.copyfile(w["omni"] / "images" / "000003.png",
+                        ws / "data" / "images" / "000009.png")
+        return {}
+    return setup
+
+
 CASES = [
     # ------------------------------------------------------------------ data lost
     Case("localize -o the map --overwrite", "data-lost",
@@ -2605,6 +2618,13 @@ CASES = [
            setup=_setup_hulks_imported(value, extra))
       for what, value, extra in (("written_files a list", [1], "notes.txt"),
                                  ("no written_files", "del", "images/mine.txt"))],
+    # ---- s55 group F5: a file simulate's written_files table does not list (W4)
+    *[Case(f"simulate --overwrite of its dataset of frames: {n!r} holding a user's picture",
+           "data-lost", ["simulate", "omni", "--field", "spl", "-o", W + "/data", "--frames",
+                         "1", "--overwrite"], 1,
+           "data/images/000009.png, which simulate did not write",
+           setup=_setup_simulated_frames_with_picture(n))
+      for n in (99999999, "many", 20)],
 ]
 
 

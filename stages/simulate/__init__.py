@@ -62,6 +62,7 @@ import math
 import re
 import shutil
 import tempfile
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -331,8 +332,16 @@ def not_simulated(folder: Path) -> Path | None:
     simulate did not write, or None: what replacing the folder would delete of a user's
     (notes, a picture added to images/, features and poses made from it). What it wrote is
     what its simulation.yaml records (``files``, and ``frames`` images); a record of an older
-    version without ``files`` allows WRITTEN and any frame name."""
+    version without ``files`` allows WRITTEN and any frame name. Where the record has a
+    WRITTEN_FILES table (a mapping), a file it does not list is not simulate's either,
+    whatever ``files`` and ``frames`` say (a damaged count must not make a user's picture
+    simulate's)."""
     rec = _record(folder) or {}
+    table = rec.get(WRITTEN_FILES)
+    if isinstance(table, Mapping):
+        extra = next((n for n in _dataset_files(folder) if n not in table), None)
+        if extra is not None:
+            return folder / extra
     files = rec.get("files")
     files = set(files) if isinstance(files, list) else set(WRITTEN)
     for entry in sorted(folder.iterdir()):
