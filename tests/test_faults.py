@@ -1285,6 +1285,17 @@ def _setup_simulated_frames_with_picture(n):
     return setup
 
 
+def _setup_report_plots_a_file(w, ws):
+    """ws/rep: a report evaluate wrote of the shared poses, whose plots/ the user replaced by
+    a file of that name."""
+    from stages import evaluate
+
+    evaluate.main(None, w["poses"], w["omni"], ws / "rep")
+    shutil.rmtree(ws / "rep" / "plots", ignore_errors=True)
+    (ws / "rep" / "plots").write_text("mine")
+    return {}
+
+
 CASES = [
     # ------------------------------------------------------------------ data lost
     Case("localize -o the map --overwrite", "data-lost",
@@ -2625,6 +2636,11 @@ CASES = [
            "data/images/000009.png, which simulate did not write",
            setup=_setup_simulated_frames_with_picture(n))
       for n in (99999999, "many", 20)],
+    # ---- s55 group F5: a user's file at a report's plots/ (W3)
+    Case("evaluate --overwrite of a report whose plots/ is a user's file", "data-lost",
+         ["evaluate", "{poses}", "--truth", "{omni}", "-o", W + "/rep", "--overwrite"], 1,
+         "rep/plots is not part of a report written by fieldloc evaluate",
+         setup=_setup_report_plots_a_file),
 ]
 
 

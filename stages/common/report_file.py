@@ -131,10 +131,14 @@ def foreign_report_file(folder: str | Path) -> Path | None:
     report is fieldloc's; without one, an errors.csv, a truth.tum and plots that an
     interrupted evaluate left (report.json is written last) are recognised by their header
     lines and the plots' mark (``fieldloc_wrote``), and anything else of those names is a
-    user's file."""
+    user's file. A plots/ that is not a folder (a user's file of that name) is never
+    replaced either: the plots could not be written into it."""
     from .poses_file import is_fieldloc_tum
 
     folder = Path(folder)
+    plots = folder / PLOTS_DIR
+    if os.path.lexists(plots) and not plots.is_dir():
+        return plots
     report = folder / REPORT_NAME
     if report.exists():
         return None if is_fieldloc_report(report) else report
