@@ -6,12 +6,14 @@ import rosbag keeps the most frames in stamp order when one frame is stamped far
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 import yaml
 from click.testing import CliRunner
 
 from fieldloc_cli.main import cli
+from stages.common.dataset import image_damage, opencv_decode
 
 SEED = 1860
 
@@ -45,3 +47,43 @@ def test_import_rosbag_overwrite_of_its_folder_without_a_table_replaces_it(tmp_p
     res = CliRunner().invoke(cli, [*args, "--overwrite"])
     assert res.exit_code == 0, res.output
     assert isinstance(yaml.safe_load(rec_path.read_text())["written_files"], dict)
+
+
+def _jpeg(seed: int = SEED, **params) -> bytes:
+    rng = np.random.default_rng(seed)
+    img = rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)
+    flags = [cv2.IMWRITE_JPEG_PROGRESSIVE, 1] if params.get("progressive") else []
+    ok, data = cv2.imencode(".jpg", img, flags)
+    assert ok
+    return data.tobytes()
+
+
+def _with_exif_thumbnail(main: bytes, thumb: bytes) -> bytes:
+    """``main`` with an APP1 segment holding the whole JPEG ``thumb`` (its own SOS and EOI)."""
+    payload = b"Exif\0\0" + thumb
+    return main[:2] + b"\xff\xe1" + (len(payload) + 2).to_bytes(2, "big") + payload + main[2:]
+
+
+@pytest.mark.parametrize("progressive", [False, True])
+def test_a_jpeg_with_data_after_its_end_is_read(progressive):
+    """A JPEG whose trailing data held the bytes FF DA (an SOS marker's) was refused as cut
+    short: the last SOS of the file was compared with its last EOI. The image ends at the
+    first EOI after its first scan; what follows is the file's business."""
+    j = _jpeg(progressive=progressive)
+    trailer = j + b"SAMSUNG_TRAILER\xff\xda\x00\x0cmeta" + bytes(50)
+    mpo = j + _jpeg(SEED + 1)[: len(j) // 2]  # a second image, cut short
+    for data in (j, trailer, mpo, _with_exif_thumbnail(j, _jpeg(SEED + 2))):
+        assert image_damage(data) is None
+        img = opencv_decode(data)
+        assert img is not None and img.shape == (48, 64, 3)
+
+
+@pytest.mark.parametrize("progressive", [False, True])
+def test_a_jpeg_cut_short_is_still_refused(progressive):
+    """A JPEG without an EOI after its first scan is cut short, whether or not an EXIF
+    thumbnail's whole JPEG (its own SOS and EOI) comes before the scan."""
+    j = _jpeg(progressive=progressive)
+    with_thumb = _with_exif_thumbnail(j, _jpeg(SEED + 2))
+    for data in (j[: len(j) // 2], j[:-2], with_thumb[: len(with_thumb) - len(j) // 2]):
+        assert image_damage(data) == "a JPEG file cut short: no end marker"
+        assert opencv_decode(data) is None

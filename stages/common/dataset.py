@@ -426,19 +426,44 @@ _OPENCV_SILENCED = False
 JPEG_SOI, JPEG_SOS, JPEG_EOI = b"\xff\xd8", b"\xff\xda", b"\xff\xd9"
 
 
+def _first_scan(data: bytes) -> int:
+    """Where the first scan (SOS marker) of the JPEG ``data`` begins, or -1 where it has none:
+    found by walking the marker segments from SOI, so that the bytes FF DA inside a segment
+    (an EXIF thumbnail's own scan in APP1, a vendor's metadata) are not taken for it. Where the
+    segments do not follow each other (a damaged header), the first FF DA after the last one
+    read."""
+    pos = len(JPEG_SOI)
+    while pos + 4 <= len(data):
+        if data[pos] != 0xFF:
+            break
+        marker = data[pos + 1]
+        if marker == 0xFF:  # a fill byte before a marker
+            pos += 1
+        elif marker == JPEG_SOS[1]:
+            return pos
+        elif marker == 0x01 or 0xD0 <= marker <= 0xD7:  # markers without a length
+            pos += 2
+        else:
+            pos += 2 + int.from_bytes(data[pos + 2:pos + 4], "big")
+    return data.find(JPEG_SOS, pos)
+
+
 def image_damage(data: bytes) -> str | None:
     """Why the bytes of an image file are not given to OpenCV, in a message's words, or None:
-    a JPEG file cut short (it starts as one, SOI, and holds no end marker, EOI, after its last
-    scan, SOS: neither marker can occur inside a scan's coded data, where a 0xff byte is
-    followed by 0x00 or a restart marker, and an EXIF thumbnail's EOI lies before the scans),
-    or a PNG file libpng refuses (stages.common.png.png_damaged). libjpeg and libpng report
-    these on stderr themselves, not through OpenCV's logging ("Premature end of JPEG file",
-    "libpng error: PNG input buffer is incomplete"): a line beside fieldloc's own (and
-    libjpeg decodes the cut file, grey below the cut)."""
+    a JPEG file cut short (it starts as one, SOI, and holds no end marker, EOI, after its
+    first scan, SOS: an EOI cannot occur inside a scan's coded data, where a 0xff byte is
+    followed by 0x00 or a restart marker; what follows the image's EOI, a vendor's trailer
+    or an MPO file's second image, is not the image's and is not looked at), or a PNG file
+    libpng refuses (stages.common.png.png_damaged). libjpeg and libpng report these on stderr
+    themselves, not through OpenCV's logging ("Premature end of JPEG file", "libpng error:
+    PNG input buffer is incomplete"): a line beside fieldloc's own (and libjpeg decodes the
+    cut file, grey below the cut)."""
     from .png import png_damaged
 
-    if data.startswith(JPEG_SOI) and data.rfind(JPEG_EOI) < data.rfind(JPEG_SOS):
-        return "a JPEG file cut short: no end marker"
+    if data.startswith(JPEG_SOI):
+        scan = _first_scan(data)
+        if scan >= 0 and data.find(JPEG_EOI, scan) < 0:
+            return "a JPEG file cut short: no end marker"
     if png_damaged(data):
         return "a PNG file cut short or damaged"
     return None
