@@ -13,7 +13,7 @@ import yaml
 from click.testing import CliRunner
 
 from fieldloc_cli.main import cli
-from stages.common.dataset import image_damage, opencv_decode
+from stages.common.dataset import image_damage, open_dataset, opencv_decode
 
 SEED = 1860
 
@@ -87,3 +87,36 @@ def test_a_jpeg_cut_short_is_still_refused(progressive):
     for data in (j[: len(j) // 2], j[:-2], with_thumb[: len(with_thumb) - len(j) // 2]):
         assert image_damage(data) == "a JPEG file cut short: no end marker"
         assert opencv_decode(data) is None
+
+def test_import_rosbag_keeps_the_good_frames_after_one_stamped_far_ahead(tmp_path, caplog):
+    """One frame whose header stamp jumped ahead (a clock glitch) was kept and every good
+    frame after it dropped as stamped before it. The frames kept are the most whose stamps
+    rise in bag order: the glitch's frame is dropped, named in import.yaml."""
+    pytest.importorskip("rosbags")
+    from stages.ingest.bag_writer import write_bag
+
+    rng = np.random.default_rng(SEED + 3)
+    received = 0.1 * np.arange(1, 7)
+    frames = [(t, (rng.integers(0, 256, (8, 8, 3), dtype=np.uint8), "bgr8")) for t in received]
+    for glitch in (0, 2):
+        headers = received.copy()
+        headers[glitch] = 1000.0
+        odo = [(0.05 * i, 0.1 * i, 0.0, 0.0) for i in range(14)]
+        bag = write_bag(tmp_path / f"g{glitch}.bag", "ros1", frames=frames, odometry=odo,
+                        header_stamps={"images": headers})
+        out = tmp_path / f"ds{glitch}"
+        caplog.clear()
+        res = CliRunner().invoke(cli, ["import", "rosbag", str(bag), "-o", str(out),
+                                       "--image-topic", "/camera/image", "--odom-topic",
+                                       "/odom"])
+        assert res.exit_code == 0, res.output
+        assert "1 frame(s) stamped out of order with the others" in caplog.text
+        assert "frame intervals" not in caplog.text  # the odometry covers every interval
+        ds = open_dataset(out)
+        want = [f"{i:06d}.png" for i in range(6) if i != glitch]
+        assert [p.name for p in ds.images] == want
+        np.testing.assert_allclose(ds.stamps, np.delete(received, glitch))
+        rec = yaml.safe_load((out / "import.yaml").read_text())
+        assert rec["backward_stamps"] == [f"{glitch:06d}.png"]
+        assert rec["repeated_stamps"] == [] and rec["frames"] == 5
+        assert not (out / "images" / f"{glitch:06d}.png").exists()

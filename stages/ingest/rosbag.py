@@ -29,18 +29,19 @@ What is written into ``output``:
 - ``calib.yaml``: a copy of ``calib`` when given (a bag holds no fieldloc calibration);
 - ``import.yaml``: where the data came from (bag, topics, message types, counts, encodings,
   which stamps were used, skipped frames, dropped messages, frames dropped for a repeated or
-  a backward stamp).
+  an out-of-order stamp, ``backward_stamps``).
 
 Odometry and IMU messages no robot sends (a value that is not finite, a position beyond
 ``MAX_ODOMETRY_POSITION``, an orientation quaternion of no length) are dropped, with one
 warning line per topic saying how many; a topic none of whose messages is usable is refused.
-Frames are the camera's messages in stamp order: a frame whose stamp is not after every
-earlier kept frame's (one repeating a stamp, or stamped before it: a clock that went back) is
-dropped likewise, with one warning line and its name in import.yaml (the dataset's odometry
-and IMU rows are written at the frame stamps, and its readers take them only in time order,
-one per stamp). Odometry and IMU messages are samples of a pose at their stamps: they are
-interpolated in stamp order, whatever order the bag holds them in. The dataset written is one
-``extract`` and ``localize`` read.
+Frames are the most of the camera's messages whose stamps rise in bag order: a frame that
+repeats a kept frame's stamp or is stamped out of order (a clock that went back, or one frame
+stamped far ahead, which no longer drops the good frames after it) is dropped likewise, with
+one warning line and its name in import.yaml (the dataset's odometry and IMU rows are
+written at the frame stamps, and its readers take them only in time order, one per stamp).
+Odometry and IMU messages are samples of a pose at their stamps: they are interpolated in
+stamp order, whatever order the bag holds them in. The dataset written is one ``extract``
+and ``localize`` read.
 
 Stamps (conf ``stamp``): ``header`` uses each message's header stamp, except for a topic any of
 whose messages has a zero header stamp (a driver that never fills it): that topic uses the
@@ -57,6 +58,7 @@ than handing them to a thread that must win the GIL back after every system call
 
 from __future__ import annotations
 
+import bisect
 import copy
 import datetime as _dt
 import logging
@@ -643,9 +645,9 @@ def _write_tables(folder, names, frames, odo, imu, stamp_mode, image_topic, odom
                     " stamp: the odometry and IMU rows are one per stamp)", image_topic,
                     len(repeated))
     if backward:
-        log.warning("%s: %d frame(s) stamped before an earlier frame; dropped (frames are"
-                    " the camera's messages in stamp order; first: %s)", image_topic,
-                    len(backward), backward[0])
+        log.warning("%s: %d frame(s) stamped out of order with the others; dropped (frames"
+                    " are the most of the camera's messages in stamp order; first: %s)",
+                    image_topic, len(backward), backward[0])
     write_csv(folder / "frames.csv", "frames", {"name": names, "stamp": stamps})
     record = {"stamps": {"images": frame_source}, "topics": {"images": image_topic},
               "repeated_stamps": repeated, "backward_stamps": backward}
@@ -680,27 +682,53 @@ def _write_tables(folder, names, frames, odo, imu, stamp_mode, image_topic, odom
 
 
 def _frames_in_stamp_order(folder, names, stamps) -> tuple[list, np.ndarray, list, list]:
-    """The frames in stamp order: a frame is kept only if its stamp is after every earlier
-    kept frame's, and the images of the others are removed from ``folder``/images. Returns
-    the names and stamps kept, the names dropped for repeating a kept frame's stamp (a driver
-    that stamped several images alike) and those dropped for a stamp before it (a clock that
-    went back, a message stamped late). Frames are read in name order, which is bag order, and
-    their odometry and IMU rows are written at their stamps: a stamp repeated or going back
-    would make rows of one stamp or out of time order, which the dataset's readers refuse
-    (rows are in time order, one per stamp)."""
+    """The frames in stamp order: the most frames whose stamps rise strictly in bag order
+    (a longest increasing subsequence; of several, the one keeping the earliest frames), and
+    the images of the others are removed from ``folder``/images. Returns the names and stamps
+    kept, the names dropped for repeating a kept frame's stamp (a driver that stamped several
+    images alike) and those dropped for a stamp out of order (a clock that went back or
+    jumped ahead, a message stamped late). Keeping only frames stamped after every earlier
+    kept frame let one frame stamped far ahead drop every good frame after it. Frames are
+    read in name order, which is bag order, and their odometry and IMU rows are written at
+    their stamps: a stamp repeated or out of order would make rows of one stamp or out of
+    time order, which the dataset's readers refuse (rows are in time order, one per stamp).
+    Sorting the frames by stamp instead would keep a glitch's frame and put the names out of
+    order."""
     stamps = np.asarray(stamps, float)
-    keep = np.zeros(len(names), bool)
+    keep = _longest_rising(stamps)
+    kept = set(stamps[keep].tolist())
     repeated, backward = [], []
-    last = -np.inf
-    for i, (name, t) in enumerate(zip(names, stamps)):
-        if t > last:
-            keep[i] = True
-            last = t
-        else:
-            (repeated if t == last else backward).append(name)
+    for name, t, k in zip(names, stamps, keep):
+        if not k:
+            (repeated if t in kept else backward).append(name)
     for n in repeated + backward:
         (folder / "images" / n).unlink()
     return [n for n, k in zip(names, keep) if k], stamps[keep], repeated, backward
+
+
+def _longest_rising(values: np.ndarray) -> np.ndarray:
+    """A mask of the longest subsequence of ``values`` rising strictly (NaN never in it); of
+    several, the one whose positions come first. O(n log n): the longest rising run starting
+    at each position, found from the end (patience sorting of the negated values), then
+    taken greedily from the start."""
+    n = len(values)
+    longest = np.zeros(n, int)  # the longest rising subsequence starting at each position
+    tails: list[float] = []  # tails[k]: the largest -value starting a rise of k + 1
+    for i in range(n - 1, -1, -1):
+        if not np.isfinite(values[i]):
+            continue
+        k = bisect.bisect_left(tails, -values[i])
+        longest[i] = k + 1
+        if k == len(tails):
+            tails.append(-values[i])
+        else:
+            tails[k] = -values[i]
+    keep = np.zeros(n, bool)
+    need, last = int(longest.max(initial=0)), -np.inf
+    for i in range(n):
+        if need and longest[i] == need and values[i] > last:
+            keep[i], need, last = True, need - 1, values[i]
+    return keep
 
 
 def describe(output) -> dict:
