@@ -2531,7 +2531,7 @@ CASES = [
          "is a symbolic link to /nonexistent/x.h5, which does not exist",
          setup=lambda w, ws: os.symlink("/nonexistent/x.h5", ws / "dang.h5") or {}),
     # ---- s55 group F2: an image cut short (the one-line output is tested in a subprocess,
-    # tests/test_s55_f2.py: libjpeg and libpng print on the process's stderr)
+    # tests/test_cut_images_bags_and_signals.py: libjpeg and libpng print on the process's stderr)
     Case("extract of a dataset whose first frame is a JPEG cut in half", "silent",
          ["extract", "{ds}", "-o", W + "/f.h5"], 0,
          "(a JPEG file cut short: no end marker)",

@@ -1,4 +1,4 @@
-"""Stop 55, group F2: what the case table of test_faults cannot express. A bag whose frame
+"""What the case table of test_faults cannot express. A bag whose frame
 stamps go backwards imports into a dataset its readers accept; a warning quoting a file name
 with a line break is one line; an image file cut short is one line of fieldloc's, nothing of
 OpenCV's or its codecs' (run as a user runs fieldloc, in a subprocess: libpng and libjpeg

@@ -1,4 +1,4 @@
-"""simulate never writes a calib.yaml its own readers refuse (stop 55, group F1, item 4).
+"""simulate never writes a calib.yaml its own readers refuse.
 
 `simulate perspective --camera-height 1e-308` was accepted and extract then refused the
 calib.yaml it wrote. simulate reads its camera options through the calib.yaml reader's own

@@ -1,4 +1,4 @@
-"""Stop 55, group F4: trial D1's findings on full disks and read-only folders, part 2.
+"""Full disks and read-only folders: a failed write leaves the outputs as they were.
 
 - D6: localize's poses.h5 and its TUM twin are one pair: both written in full before either
   is committed; a failure while writing either leaves the old pair as it was and no part.

@@ -1,4 +1,4 @@
-"""Stop 55, group F5: what the case table of test_faults cannot express. import rosbag
+"""What the case table of test_faults cannot express. import rosbag
 --overwrite still replaces its own folder whose import.yaml has no written_files table (the
 refusals of a user's file there are cases of test_faults); a JPEG followed by data of its own
 (a vendor's trailer, an MPO file's second image) is read, a JPEG cut short is still refused;

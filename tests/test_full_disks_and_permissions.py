@@ -1,4 +1,4 @@
-"""Stop 55, group F3: full disks, files fieldloc may not read, caches it cannot write (trial
+"""Full disks, files fieldloc may not read, caches it cannot write (trial
 D1's findings). What the case table of test_faults cannot express: a command run as a user
 runs it (its own process: a segmentation fault, Dask's workers and matplotlib print on the
 process's stderr), without root's override of file modes (``setpriv``; a user who is not root

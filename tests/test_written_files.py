@@ -1,4 +1,4 @@
-"""Stop 55, group F1: a fieldloc folder's files replaced only as fieldloc wrote them (C4), and
+"""A fieldloc folder's files replaced only as fieldloc wrote them (C4), and
 a poses file's TUM twin that never disagrees with it after an interruption (C6).
 
 The refusals of edited files are cases of tests/test_faults.py (block "s55 group F1"); here
