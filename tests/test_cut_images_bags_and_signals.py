@@ -204,7 +204,9 @@ def test_an_interrupt_while_the_cluster_starts_waits_until_it_is_made():
 
 def _batch_signalled(simulated, folder, delay: float, signum: int, group: bool):
     """(exit code, stderr) of `fieldloc -q batch SPEC --workers 2` (lut and lut-no-fusion on
-    the 2-frame omni dataset) sent ``signum`` after ``delay`` s: to its whole process group
+    the 2-frame omni dataset) sent ``signum`` ``delay`` s after it made its output folder (its
+    plan made, its handlers in place: a fixed time from the start was, on a loaded machine,
+    Python's start-up, which a signal ends before fieldloc runs): to its whole process group
     with ``group``, as a terminal's Ctrl-C goes."""
     folder.mkdir(exist_ok=True)
     spec = folder / "spec.yaml"
@@ -216,6 +218,9 @@ def _batch_signalled(simulated, folder, delay: float, signum: int, group: bool):
                           folder / "res", "--workers", "2"], cwd=folder,
                          env=dict(os.environ, PYTHONPATH=str(ROOT)), stdout=subprocess.PIPE,
                          stderr=subprocess.PIPE, text=True, start_new_session=group)
+    end = time.monotonic() + 120
+    while not (folder / "res").exists() and p.poll() is None and time.monotonic() < end:
+        time.sleep(0.05)
     time.sleep(delay)
     if group:
         os.killpg(p.pid, signum)
@@ -230,7 +235,7 @@ def test_sigterm_to_a_two_worker_batch_is_one_line_and_143(simulated, tmp_path):
     closed." (or a traceback of its atexit hook) after fieldloc's one "terminated" line. The
     moment decides what is running (before the cluster, while it starts, while runs run):
     not deterministic, so three moments, each of which must give exactly one line and 143."""
-    for delay in (4.5, 6.5, 11.0):  # s: the cluster starts after about 3 s and takes about 5
+    for delay in (1.5, 3.5, 8.0):  # s: the cluster starts about 1 s after, and takes about 5
         rc, err = _batch_signalled(simulated, tmp_path / f"t{delay:g}", delay, signal.SIGTERM,
                                    group=False)
         if rc == 0:  # finished before the signal: nothing to check at this moment
@@ -246,7 +251,7 @@ def test_ctrl_c_to_a_two_worker_batch_starting_up_is_one_line(simulated, tmp_pat
     KeyboardInterrupt traceback, beside Dask's INFO lines (the rerun of trial A, A11: 79-109
     lines at 2.4-2.6 s). The workers now start with SIGINT blocked; whatever the moment, the
     batch ends in fieldloc's one line (or finishes)."""
-    for delay in (3.0, 4.0, 5.0):  # s: the cluster starts after about 3 s and takes about 5
+    for delay in (1.0, 2.0, 3.0):  # s: the cluster starts about 1 s after, and takes about 5
         rc, err = _batch_signalled(simulated, tmp_path / f"i{delay:g}", delay, signal.SIGINT,
                                    group=True)
         if rc == 0:  # finished before the signal
