@@ -38,7 +38,7 @@ from .artifacts import (
     starts_with,
     writing,
 )
-from .errors import FieldlocError, SchemaError
+from .errors import DiskFullError, FieldlocError, SchemaError
 
 SCHEMA = "fieldloc.report"
 VERSION = 1
@@ -209,6 +209,8 @@ def building_report(folder: str | Path):
         try:
             with writing(folder):
                 yield tmp
+        except DiskFullError as e:  # its line is made from its path: that path, renamed
+            raise DiskFullError(str(e.path).replace(str(tmp), str(folder))) from None
         except FieldlocError as e:  # name the file where it goes, not the temporary folder
             raise type(e)(str(e).replace(str(tmp), str(folder))) from None
         give_default_mode(tmp)  # mkdtemp makes it 0700
