@@ -133,8 +133,6 @@ def foreign_report_file(folder: str | Path) -> Path | None:
     lines and the plots' mark (``fieldloc_wrote``), and anything else of those names is a
     user's file. A plots/ that is not a folder (a user's file of that name) is never
     replaced either: the plots could not be written into it."""
-    from .poses_file import is_fieldloc_tum
-
     folder = Path(folder)
     plots = folder / PLOTS_DIR
     if os.path.lexists(plots) and not plots.is_dir():
@@ -142,14 +140,8 @@ def foreign_report_file(folder: str | Path) -> Path | None:
     report = folder / REPORT_NAME
     if report.exists():
         return None if is_fieldloc_report(report) else report
-    errors = folder / ERRORS_NAME
-    if errors.exists() and not _is_errors_csv(errors):
-        return errors
-    tum = folder / TRUTH_TUM
-    if tum.exists() and not is_fieldloc_tum(tum):
-        return tum
-    return next((p for n in PLOT_NAMES if (p := folder / PLOTS_DIR / n).exists()
-                 and not (p.is_file() and fieldloc_wrote(p))), None)
+    return next((p for n in report_files() if (p := folder / n).exists()
+                 and not (p.is_file() and _report_file_ours(p))), None)
 
 
 def report_files() -> tuple[str, ...]:
