@@ -48,7 +48,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from .artifacts import open_artifact, part_name, read_json_attr, write_artifact, writing
+from .artifacts import PART_TAG, open_artifact, part_name, read_json_attr, write_artifact, writing
 from .dataset import MAX_STAMP, stamp_error
 from .errors import FieldlocError, SchemaError
 
@@ -531,7 +531,7 @@ def least_bytes(frames: int) -> int:
 # "<first frame>+<count>.npz", failed frames "<name>.failed", and a file being committed (a
 # temporary part, ".<file>.fieldloc-<pid>-<random>.part")
 _CHUNK_NAME = re.compile(r"[^.][^/]*\+\d+\.npz")
-_COMMIT_PART = re.compile(r"\..+\.fieldloc-\d+-[^/]*\.part")
+_COMMIT_PART = re.compile(rf"\..+\.{PART_TAG}-\d+-[^/]*\.part")  # artifacts.part_name
 
 
 def _parts_file(name: str) -> bool:
