@@ -929,14 +929,11 @@ def _setup_truth_tum_in_dataset(w, ws):
 
 
 def _setup_fieldloc_tum(w, ws):
-    """ws/p.tum: the TUM twin an earlier localize wrote (what --overwrite may replace)."""
+    """ws/p.tum: the TUM twin an earlier localize wrote, without the poses that record it
+    (s56 W5: no poses beside it vouch for it; tests/test_overwrite_vouches.py replaces a
+    pair)."""
     shutil.copyfile(w["poses"].with_suffix(".tum"), ws / "p.tum")
     return {}
-
-
-def _check_tum_replaced(paths, res):
-    assert (paths["ws"] / "p.tum").read_text().startswith("# stamp x y z qx qy qz qw\n")
-    assert (paths["ws"] / "p.h5").is_file()
 
 
 def _setup_user_report_folder(report_json: bool):
@@ -1294,6 +1291,92 @@ def _setup_report_plots_a_file(w, ws):
     shutil.rmtree(ws / "rep" / "plots", ignore_errors=True)
     (ws / "rep" / "plots").write_text("mine")
     return {}
+
+
+# ------------------------------------------------- s56 group G1: setups
+
+
+def _g1_same_size_edit(path: Path) -> None:
+    """Change the last digit of ``path`` that is not a 9 (the file keeps its size)."""
+    t = bytearray(path.read_bytes())
+    i = max(i for i, c in enumerate(t) if chr(c).isdigit() and chr(c) != "9")
+    t[i] += 1
+    path.write_bytes(bytes(t))
+
+
+def _g1_simulated_table(value, change):
+    """ws/data: a one-frame dataset simulate wrote, its simulation.yaml's written_files set
+    to ``value`` ("del": removed, an older simulate's record), then ``change(data)``."""
+    def setup(w, ws):
+        data = simulate.main(dict(simulate.confs["omni-clean"], frames=1), "spl", ws / "data")
+        rec = yaml.safe_load((data / "simulation.yaml").read_text())
+        if value == "del":
+            rec.pop("written_files")
+        else:
+            rec["written_files"] = value
+        (data / "simulation.yaml").write_text(yaml.safe_dump(rec, sort_keys=False))
+        change(data)
+        return {}
+    return setup
+
+
+def _g1_report_table(value, name):
+    """ws/rep: a report evaluate wrote of the shared poses, its report.json's written_files
+    set to ``value`` ("del": removed, an older evaluate's), then ``name`` edited (same size)."""
+    def setup(w, ws):
+        import json
+
+        from stages import evaluate
+
+        rep = evaluate.main(None, w["poses"], w["omni"], ws / "rep")
+        rec = json.loads((rep / "report.json").read_text())
+        if value == "del":
+            rec.pop("written_files")
+        else:
+            rec["written_files"] = value
+        (rep / "report.json").write_text(json.dumps(rec))
+        _g1_same_size_edit(rep / name)
+        return {}
+    return setup
+
+
+def _g1_overlay_edited_keeping_mark(w, ws):
+    """ws/dbg: the overlays an earlier extract drew; 000001.png then painted on by an editor
+    that keeps the PNG's text chunks (fieldloc's mark)."""
+    from PIL import Image, ImageDraw, PngImagePlugin
+
+    extract.main(None, w["omni"], ws / "f0.h5", debug_images=ws / "dbg")
+    png = ws / "dbg" / "000001.png"
+    im = Image.open(png)
+    im.load()
+    info = PngImagePlugin.PngInfo()
+    for k, v in im.text.items():
+        info.add_text(k, v)
+    ImageDraw.Draw(im).rectangle([10, 10, 60, 60], fill=(255, 0, 0))
+    im.save(png, pnginfo=info)
+    return {}
+
+
+def _g1_twin(change):
+    """ws/p.h5 and ws/p.tum: a copy of the shared poses and their twin; then
+    ``change(ws)``."""
+    def setup(w, ws):
+        shutil.copyfile(w["poses"], ws / "p.h5")
+        shutil.copyfile(Path(w["poses"]).with_suffix(".tum"), ws / "p.tum")
+        change(ws)
+        return {}
+    return setup
+
+
+def _g1_note_below_header(ws):
+    lines = (ws / "p.tum").read_text().splitlines(keepends=True)
+    (ws / "p.tum").write_text(lines[0] + "# my note\n" + "".join(lines[1:]))
+
+
+def _g1_users_copy_without_poses(ws):
+    (ws / "p.h5").unlink()
+    head = (ws / "p.tum").read_text().splitlines()[0]
+    (ws / "p.tum").write_text(head + "\n1 2 3 0 0 0 0 1 my data\n")
 
 
 CASES = [
@@ -2092,10 +2175,11 @@ CASES = [
     Case("localize -o DIR/truth.h5 --overwrite onto the user's DIR/truth.tum", "data-lost",
          ["localize", "{ds}", "--map", "{map}", "--features", "{features}", "-o",
           "{ds}/truth.h5", "--overwrite"], 1,
-         "truth.tum was not written by fieldloc", setup=_setup_truth_tum_in_dataset),
-    Case("localize --overwrite replaces a TUM twin fieldloc wrote", "data-lost",
-         [*LOCALIZE, "-o", W + "/p.h5", "--overwrite"], 0, "p.h5: 4 frames",
-         setup=_setup_fieldloc_tum, check=_check_tum_replaced),
+         "truth.tum is not the TUM twin of truth.h5 as fieldloc wrote it",
+         setup=_setup_truth_tum_in_dataset),
+    Case("localize --overwrite over a TUM twin fieldloc wrote, without its poses beside it",
+         "data-lost", [*LOCALIZE, "-o", W + "/p.h5", "--overwrite"], 1,
+         "p.tum is not the TUM twin of p.h5 as fieldloc wrote it", setup=_setup_fieldloc_tum),
     Case("evaluate -o a user's folder holding report.json --overwrite", "data-lost",
          ["evaluate", "{poses}", "--truth", "{omni}", "-o", W + "/u", "--overwrite"], 1,
          "u/report.json is not part of a report written by fieldloc evaluate",
@@ -2575,7 +2659,8 @@ CASES = [
     # another dataset in the pictures (C17)
     *[Case(f"evaluate --overwrite of a report whose {name} was edited", "data-lost",
            ["evaluate", "{poses}", "--truth", "{omni}", "-o", W + "/rep", "--overwrite"], 1,
-           f"rep/{name} was edited since fieldloc wrote it",
+           f"rep/{name} was edited since fieldloc wrote it" if name[0] != "p" else
+           f"rep/{name} is not among the files",  # no trajectory plot of 4 frames: a new file
            setup=_setup_report_edited(name, text))
       for name, text in (("errors.csv", b"# mine\n"), ("truth.tum", b"# mine\n"),
                          ("plots/trajectory.png", b"my own picture"))],
@@ -2588,7 +2673,7 @@ CASES = [
     Case("extract --debug-images --overwrite over a user's picture named as an overlay",
          "data-lost",
          ["extract", "{omni}", "-o", W + "/f.h5", "--debug-images", W + "/dbg", "--overwrite"],
-         1, "dbg/000000.png was edited since fieldloc wrote it",
+         1, "dbg's debug-images.yaml lists no written_files (an older fieldloc's record",
          setup=_setup_debug_folder_with_picture),
     Case("import rosbag --overwrite of a dataset whose odometry.csv was edited", "data-lost",
          [*IMPORT_BAG, "--overwrite"], 1, "ds/odometry.csv was edited since fieldloc wrote it",
@@ -2641,6 +2726,42 @@ CASES = [
          ["evaluate", "{poses}", "--truth", "{omni}", "-o", W + "/rep", "--overwrite"], 1,
          "rep/plots is not part of a report written by fieldloc evaluate",
          setup=_setup_report_plots_a_file),
+    # ---- s56 group G1: --overwrite replaces only a file fieldloc can vouch for (W2, W5)
+    *[Case(f"simulate --overwrite of its dataset whose record's written_files is {what}, {edit}",
+           "data-lost", ["simulate", "omni", "--preset", "omni-clean", "--field", "spl",
+                         "--frames", "1", "-o", W + "/data", "--overwrite"], 1,
+           "data's simulation.yaml lists no written_files (an older fieldloc's record, or"
+           " damaged): --overwrite cannot tell an edited file from fieldloc's",
+           setup=_g1_simulated_table(value, change))
+      for what, value, edit, change in (
+          ("a list", [1, 2], "truth.csv edited", lambda d: _g1_same_size_edit(d / "truth.csv")),
+          ("a string", "x", "truth.csv edited", lambda d: _g1_same_size_edit(d / "truth.csv")),
+          ("null", None, "truth.csv edited", lambda d: _g1_same_size_edit(d / "truth.csv")),
+          ("absent", "del", "truth.csv edited", lambda d: _g1_same_size_edit(d / "truth.csv")),
+          ("absent", "del", "a row added to truth.csv",
+           lambda d: (d / "truth.csv").write_text((d / "truth.csv").read_text() + "9,9,9,9\n")),
+          ("absent", "del", "a user's picture as its image",
+           lambda d: (d / "images" / "000000.png").write_bytes(b"my own picture")))],
+    *[Case(f"evaluate --overwrite of a report whose written_files is {what}, {name} edited",
+           "data-lost", ["evaluate", "{poses}", "--truth", "{omni}", "-o", W + "/rep",
+                         "--overwrite"], 1,
+           "rep's report.json lists no written_files (an older fieldloc's record, or damaged)",
+           setup=_g1_report_table(value, name))
+      for what, value, name in (("a list", [1], "errors.csv"), ("absent", "del", "errors.csv"),
+                                ("absent", "del", "truth.tum"))],
+    Case("extract --debug-images --overwrite over an overlay edited keeping its mark",
+         "data-lost",
+         ["extract", "{omni}", "-o", W + "/f.h5", "--debug-images", W + "/dbg", "--overwrite"],
+         1, "dbg/000001.png was edited since fieldloc wrote it",
+         setup=_g1_overlay_edited_keeping_mark),
+    *[Case(f"localize --overwrite over a TUM twin: {what}", "data-lost",
+           ["localize", "{omni}", "--map", "{map}", "--features", "{features}", "--method",
+            "lut", "-o", W + "/p.h5", "--overwrite"], 1,
+           "p.tum is not the TUM twin of p.h5 as fieldloc wrote it",
+           setup=_g1_twin(change))
+      for what, change in (("edited below its header", _g1_note_below_header),
+                           ("a user's file with its header, no poses beside it",
+                            _g1_users_copy_without_poses))],
 ]
 
 

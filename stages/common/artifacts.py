@@ -218,12 +218,15 @@ def _hdf5_schema(path: str | Path) -> str:
     return v.decode(errors="replace") if isinstance(v, bytes) else str(v)
 
 
-# A fieldloc folder's record (simulation.yaml, report.json, import.yaml, ...) lists the files
-# fieldloc wrote into the folder under this key, each with its size and SHA-256 as written:
-# --overwrite replaces such a file only while it is still as fieldloc wrote it (a user's
-# edits, a file saved under its name, are never replaced). The one rule of every fieldloc
-# folder (``edited_file``); its owner says which files it wrote and how a file of a record
-# without hashes (an older fieldloc's) is judged on its own.
+# A fieldloc folder's record (simulation.yaml, report.json, import.yaml, debug-images.yaml)
+# lists the files fieldloc wrote into the folder under this key, each with its size and
+# SHA-256 as written: --overwrite replaces such a file only while it is still as fieldloc
+# wrote it (a user's edits, a file saved under its name, are never replaced). The one rule of
+# every fieldloc folder (``refuse_edited``): fieldloc replaces only what it can vouch for. A
+# record whose table is absent (an older fieldloc's) or damaged (not a mapping) vouches for
+# nothing, and a file's own mark does not either: a CSV or YAML edited in a text editor, a
+# PNG saved by an image editor that keeps its text chunks, keep the mark (and CSV files carry
+# none). The folder is then refused whole, in one line naming it.
 WRITTEN_FILES = "written_files"
 
 
@@ -245,12 +248,19 @@ def written_files(folder: str | Path, names) -> dict[str, str]:
     for name in names:
         p = folder / name
         if p.is_file() and not p.is_symlink():
-            out[name] = f"{p.stat().st_size} {_sha256(p)}"
+            out[name] = file_entry(p)
     return out
 
 
-def _as_written(path: Path, want) -> bool:
-    """Whether the file ``path`` holds what its record entry ``want`` says was written."""
+def file_entry(path: str | Path) -> str:
+    """``"<size in bytes> <SHA-256 hex>"`` of the file ``path``: a record's entry for a file
+    fieldloc just wrote (``written_files``; a poses file's of its TUM twin)."""
+    return f"{os.stat(path).st_size} {_sha256(Path(path))}"
+
+
+def as_written(path: str | Path, want) -> bool:
+    """Whether the file ``path`` holds what its record entry ``want`` (``file_entry``) says
+    was written."""
     size, _, digest = str(want).partition(" ")
     try:
         if os.stat(path).st_size != int(size):
@@ -260,22 +270,24 @@ def _as_written(path: Path, want) -> bool:
         return False
 
 
-def edited_file(folder: str | Path, recorded, names, ours=fieldloc_wrote) -> Path | None:
+def edited_file(folder: str | Path, recorded: Mapping, names, unlisted=None) -> Path | None:
     """The first of the files ``names`` (relative to ``folder``) that is there and is not as
-    fieldloc wrote it, or None: what --overwrite may not replace in a fieldloc folder. With
-    ``recorded`` (the record's WRITTEN_FILES table), a file must still have the size and
-    SHA-256 written there; a file the table does not list, or a record without a table (an
-    older fieldloc's), is judged on its own by ``ours`` (``fieldloc_wrote``, or the format's
-    own test). A link or a folder under a file's name is never fieldloc's."""
+    fieldloc wrote it, or None: what --overwrite may not replace in a fieldloc folder. A file
+    must still have the size and SHA-256 its record's WRITTEN_FILES table ``recorded`` gives;
+    a file the table does not list is not vouched for (returned), unless ``unlisted`` (the
+    owner's test of a file that cannot be in the table yet, say an overlay a killed run drew)
+    says it is fieldloc's. A link or a folder under a file's name is never fieldloc's."""
     folder = Path(folder)
-    table = recorded if isinstance(recorded, Mapping) else {}
     for name in names:
         p = folder / name
         if not os.path.lexists(p):
             continue  # gone: nothing to lose
         if p.is_symlink() or not p.is_file():
             return p
-        if not (_as_written(p, table[name]) if name in table else ours(p)):
+        if name in recorded:
+            if not as_written(p, recorded[name]):
+                return p
+        elif unlisted is None or not unlisted(p):
             return p
     return None
 
@@ -292,14 +304,31 @@ def tree_files(folder: str | Path, skip=()) -> list[str]:
     return sorted(n for n in out if n not in skip)
 
 
-def refuse_edited(folder: str | Path, recorded, names, *, ours=fieldloc_wrote,
+def refuse_edited(folder: str | Path, recorded, names, *, record: str, unlisted=None,
                   error: type[FieldlocError] = FieldlocError) -> None:
-    """``edited_file`` as a refusal in one line naming the file, before anything is written."""
-    p = edited_file(folder, recorded, names, ours)
-    if p is not None:
+    """Before --overwrite replaces the files ``names`` of ``folder`` (relative names): each
+    that is there must be as ``folder``'s ``record`` (its file name) lists it in the table
+    ``recorded`` (``edited_file``); else one line naming the file. Where ``recorded`` is no
+    table (absent: an older fieldloc's record; or damaged) and any of ``names`` is there, one
+    line naming the folder: fieldloc cannot vouch for any of its files."""
+    folder = Path(folder)
+    if not isinstance(recorded, Mapping):
+        if any(os.path.lexists(folder / n) for n in names):
+            raise error(f"{folder}'s {record} lists no {WRITTEN_FILES} (an older fieldloc's"
+                        " record, or damaged): --overwrite cannot tell an edited file from"
+                        " fieldloc's; remove the folder yourself or write elsewhere")
+        return
+    p = edited_file(folder, recorded, names, unlisted)
+    if p is None:
+        return
+    name = p.relative_to(folder).as_posix()
+    if name in recorded:
         raise error(f"{p} was edited since fieldloc wrote it; --overwrite replaces only"
                     " fieldloc's files as it wrote them: move it aside or choose another"
                     " output")
+    raise error(f"{p} is not among the files {folder}'s {record} lists as fieldloc wrote"
+                " them: --overwrite replaces only those; move it aside or choose another"
+                " output")
 
 
 def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *,
@@ -540,7 +569,7 @@ def check_importer_target(output: Path, inputs: Mapping[str, object], overwrite:
         raise error(f"{output / extra} was not written by {generator}: --overwrite would"
                     " delete it; move it out of the folder or choose another output")
     if isinstance(table, Mapping):
-        refuse_edited(output, table, names, error=error)
+        refuse_edited(output, table, names, record=record, error=error)
 
 
 def starts_with(path: str | Path, head: bytes) -> bool:
@@ -851,6 +880,9 @@ def atomic_path(path: str | Path, suffix: str | None = None):
     try:
         fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=path.parent)
     except OSError as e:
+        if disk_full(e):  # no room for one more file (no inode left): the full disk's line
+            outer = _WRITING.get()
+            raise full_disk_error(outer[0] if outer else path) from None
         raise FieldlocError(f"cannot write {path}: {e.strerror or e}") from None
     os.close(fd)
     tmp = Path(tmp)

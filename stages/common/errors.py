@@ -15,15 +15,16 @@ class DiskFullError(FieldlocError):
     command's to add (``line``): the CLI adds what a rerun finds for the commands that keep
     finished work (extract's frames, batch's runs), nothing for those that keep nothing."""
 
-    def __init__(self, path):
-        self.path = path
+    def __init__(self, path, room: str = ""):
+        self.path, self.room = path, room  # room: what it needs against what is free, if known
         super().__init__(self.line())
 
     def line(self, kept: str = "") -> str:
         """The message, with ``kept`` (what the run kept) in its parenthesis if given."""
         note = f"; {kept}" if kept else ""
-        return (f"cannot write {self.path}: no space left on its disk (free some space or"
-                f" write elsewhere{note})")
+        room = f"{self.room}: " if self.room else ""
+        return (f"cannot write {self.path}: no space left on its disk ({room}free some space"
+                f" or write elsewhere{note})")
 
 
 class FieldSpecError(FieldlocError):

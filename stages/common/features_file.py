@@ -510,21 +510,37 @@ CHUNK_SECONDS = 0.5
 CHUNK_FRAMES = 256
 
 
-# The least a run of extract writes, checked before its first frame (stages.extract), so that
-# a disk without that room refuses the run before any work and any write: the features file's
-# own structure (root attributes, groups, and column datasets allocated a chunk at a time: a
-# one-frame file of a simulated omni dataset is 192 KiB, of a perspective one 293 KiB, as are
-# eight-frame ones; the bound is a third of the smaller, for frames with few features) and
-# each frame's entry (its name, stamp and row counts, 64 bytes even for a frame without
-# features). Lower bounds, so that no run that fits is refused; ``bytes_needed`` counts,
-# after the frames, what they really hold.
-FILE_BYTES_MIN = 64 << 10
-FRAME_BYTES_MIN = 64
+# HDF5's own structure of a features file beside its columns' storage chunks (superblock,
+# groups, object headers, attributes): 14.6 kB of a 4-frame omni file of 197 kB, of which
+# 182 kB are chunks. A lower bound, so that no run that fits is refused for it.
+FILE_HEAD_BYTES = 8 << 10
+_NAME_BYTES = 16  # a frame's name in /index/name as stored (a variable-length string's entry)
 
 
-def least_bytes(frames: int) -> int:
-    """The least that extracting ``frames`` frames into a new features file writes."""
-    return FILE_BYTES_MIN + frames * FRAME_BYTES_MIN
+def _chunked(rows: int, chunk_row: int, stored_row: int | None = None) -> int:
+    """The bytes ``rows`` rows of a column take in whole storage chunks (``_append``'s
+    chunks of rows of ``chunk_row`` bytes in memory, ``stored_row`` on disk if other): HDF5
+    allocates a chunk whole once any row of it is written."""
+    per_chunk = max(64, _CHUNK_BYTES // max(1, chunk_row))
+    return -(-rows // per_chunk) * per_chunk * (stored_row or chunk_row)
+
+
+def file_bytes(columns: dict[str, tuple[int, int]], frames: int) -> int:
+    """The storage of a features file of ``frames`` frames whose columns are ``columns``
+    (key -> (rows of all frames, bytes per row)): each column's rows and row counts in whole
+    chunks, the index (names, stamps), and FILE_HEAD_BYTES. What extract checks the disk
+    for: before its first frame is committed, with that frame's columns (the least the run
+    writes: later frames only add rows), and before the frames are merged, with them all."""
+    size = FILE_HEAD_BYTES + _chunked(frames, 8, _NAME_BYTES) + _chunked(frames, 8)
+    for rows, row in columns.values():
+        size += _chunked(frames, 8) + _chunked(rows, row)
+    return size
+
+
+def frame_columns(arrays: dict[str, np.ndarray]) -> dict[str, tuple[int, int]]:
+    """A frame's columns as ``file_bytes`` takes them: key -> (its rows, bytes per row)."""
+    return {k: (len(a), a.dtype.itemsize * int(np.prod(a.shape[1:], dtype=np.int64)))
+            for k, a in _frame_rows(arrays).items()}
 
 
 # What extract writes in its parts folder, and all it ever removes there: run.json, chunks
@@ -753,15 +769,14 @@ class FrameParts:
         path.write_text(json.dumps(obj, sort_keys=True))
 
     def bytes_needed(self) -> int:
-        """About what merging the committed frames into a features file writes (their
-        arrays as stored, each frame's name, stamp and row counts)."""
-        size = 256 * len(self._frames)
+        """What merging the committed frames into a new features file writes
+        (``file_bytes`` of their columns; the shapes are read from the chunks' array headers,
+        not their data)."""
+        columns: dict[str, tuple[int, int]] = {}
         for p in {p for p, _k in self._frames.values()}:
-            try:
-                size += p.stat().st_size
-            except OSError:
-                pass
-        return size + (256 << 10)
+            for key, (rows, row) in _chunk_columns(p).items():
+                columns[key] = (columns.get(key, (0, row))[0] + rows, row)
+        return file_bytes(columns, len(self._frames))
 
     def merge_into(self, writer: FeaturesWriter) -> int:
         """Add every committed frame and failure to ``writer`` (chunk by chunk, each read
@@ -774,6 +789,31 @@ class FrameParts:
         for name, reason in sorted(self._failures.items()):
             writer.add_failure(name, reason)
         return len(self._frames)
+
+
+def _chunk_columns(path: Path) -> dict[str, tuple[int, int]]:
+    """The columns of a parts chunk (``_packed``) as ``file_bytes`` takes them, from the
+    headers of its arrays ({} for a chunk that cannot be read: the merge then says so)."""
+    import zipfile
+
+    out = {}
+    try:
+        with zipfile.ZipFile(path) as z:
+            for member in z.namelist():
+                key, _sep, part = member.removesuffix(".npy").partition(":")
+                if part != "data":
+                    continue
+                with z.open(member) as f:
+                    version = np.lib.format.read_magic(f)
+                    read = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                            else np.lib.format.read_array_header_2_0)
+                    shape, _order, dtype = read(f)
+                if shape:
+                    out[key] = (int(shape[0]),
+                                dtype.itemsize * int(np.prod(shape[1:], dtype=np.int64)))
+    except (OSError, ValueError, zipfile.BadZipFile):
+        return {}
+    return out
 
 
 def _packed(frames: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:

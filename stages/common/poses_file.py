@@ -36,9 +36,11 @@ beyond dataset.MAX_STAMP, a pose that is infinite or beyond dataset.MAX_VALUE, a
 hypothesis probability outside [0, 1] or NaN.
 
 ``poses.tum`` beside it holds "stamp x y z qx qy qz qw" rows of the accepted frames (the top
-hypothesis), readable by evo. Its first line, the header ``# stamp x y z qx qy qz qw``, is how
-``check_tum_output`` tells a TUM file fieldloc wrote (which ``--overwrite`` may replace) from
-a user's (which nothing replaces).
+hypothesis), readable by evo; its first line is the header ``# stamp x y z qx qy qz qw``. The
+poses file records the twin's size and SHA-256 as written (root attribute ``tum_twin``):
+``--overwrite`` replaces a twin only where the poses file beside it is fieldloc's and its
+record matches the twin (``check_tum_output``), never a twin edited below its header nor a
+user's file that starts with the header.
 """
 
 from __future__ import annotations
@@ -52,11 +54,14 @@ import h5py
 import numpy as np
 
 from .artifacts import (
+    as_written,
     atomic_path,
     check_output,
+    file_entry,
     may_replace,
     open_artifact,
     read_json_attr,
+    refuse_inputs,
     starts_with,
     write_artifact,
     writing,
@@ -178,6 +183,7 @@ def write_poses(path: str | Path, track: PoseTrack, attrs: dict, *, tum: bool = 
             tum_part = pair.enter_context(atomic_path(path.with_suffix(".tum"), suffix=".tum"))
             with open(tum_part, "w", newline="\n") as f:
                 write_tum_to(f, arr)
+            attrs = {**attrs, TWIN_ATTR: file_entry(tum_part)}  # what vouches for the twin
         # the new poses are committed next: the old twin must not outlive them
         with write_artifact(path, attrs,
                             before_commit=(lambda: drop_twin(path)) if tum else None) as h5:
@@ -198,6 +204,9 @@ def write_poses(path: str | Path, track: PoseTrack, attrs: dict, *, tum: bool = 
 
 
 TUM_HEADER = "stamp x y z qx qy qz qw"  # write_tum's first line, after "# "
+# the poses file's root attribute holding its TUM twin's ``file_entry`` as written ("<size>
+# <SHA-256>"): the header line alone is kept by an edit below it and by a user's copy
+TWIN_ATTR = "tum_twin"
 
 
 def drop_twin(path: str | Path) -> None:
@@ -205,9 +214,10 @@ def drop_twin(path: str | Path) -> None:
     committed there, so that a run stopped between the two commits (SIGTERM, SIGKILL, power
     loss) leaves new poses without a twin rather than beside the previous run's: the pair
     never disagrees. Only a twin this run may replace goes (``may_replace``, as its commit
-    would) and only one fieldloc wrote (``is_fieldloc_tum``); any other file is kept."""
+    would) and only one the poses file vouches for (``twin_vouched``); any other file is
+    kept."""
     tum = Path(path).with_suffix(".tum")
-    if not (tum.is_file() and is_fieldloc_tum(tum)):
+    if not (tum.is_file() and twin_vouched(path)(tum)):
         return
     rule = may_replace(tum)
     if rule is False or (callable(rule) and not rule(tum)):
@@ -216,15 +226,43 @@ def drop_twin(path: str | Path) -> None:
 
 
 def is_fieldloc_tum(path: str | Path) -> bool:
-    """Whether ``path`` is a TUM file ``write_tum`` wrote: it starts with its header line."""
+    """Whether ``path`` starts with the header line ``write_tum`` writes: a TUM file of
+    fieldloc's shape (a report's truth.tum, export's output); no proof that it is as written."""
     return starts_with(path, f"# {TUM_HEADER}\n".encode())
 
 
-def check_tum_output(path: str | Path, inputs: dict | None, overwrite: bool) -> Path:
-    """The rule of a TUM twin written beside another output (localize's X.tum): none of the
-    ``inputs``; an existing one needs ``overwrite``, and even then only one fieldloc wrote
-    (``is_fieldloc_tum``) is replaced, never a user's trajectory of the same name."""
-    return check_output(path, inputs, overwrite=overwrite, ours=is_fieldloc_tum)
+def twin_vouched(poses: str | Path):
+    """The test ``--overwrite`` applies to the TUM twin of the poses file ``poses``: whether
+    that poses file is fieldloc's and records the twin as it is now (TWIN_ATTR). A poses file
+    that is absent, not fieldloc's, of an older fieldloc (no record) or unreadable vouches for
+    nothing."""
+    poses = Path(poses)
+
+    def vouched(tum: str | Path) -> bool:
+        try:
+            with h5py.File(poses, "r") as f:
+                schema, entry = f.attrs.get("schema"), f.attrs.get(TWIN_ATTR)
+        except (OSError, ValueError, RuntimeError):
+            return False
+        schema = schema.decode(errors="replace") if isinstance(schema, bytes) else schema
+        entry = entry.decode(errors="replace") if isinstance(entry, bytes) else entry
+        return schema == SCHEMA and isinstance(entry, str) and as_written(tum, entry)
+    return vouched
+
+
+def check_tum_output(poses: str | Path, inputs: dict | None, overwrite: bool) -> Path:
+    """The rule of the TUM twin (X.tum) written beside the poses file ``poses`` (X.h5): none
+    of the ``inputs``; an existing one needs ``overwrite``, and even then is replaced only
+    where the poses file beside it vouches for it (``twin_vouched``): never a twin edited
+    since, nor a user's trajectory of the same name. Returns the twin's path."""
+    tum = Path(poses).with_suffix(".tum")
+    refuse_inputs(tum, inputs)
+    if overwrite and tum.is_file() and not twin_vouched(poses)(tum):
+        raise FieldlocError(f"{tum} is not the TUM twin of {Path(poses).name} as fieldloc"
+                            " wrote it (edited since, a user's file, or beside no poses"
+                            " file of fieldloc's that records it): --overwrite never replaces"
+                            " it; move it aside or choose another output")
+    return check_output(tum, inputs, overwrite=overwrite, ours=twin_vouched(poses))
 
 
 def write_tum(path: str | Path, arr: dict) -> Path:

@@ -150,8 +150,9 @@ def report_files() -> tuple[str, ...]:
 
 
 def _report_file_ours(path: Path) -> bool:
-    """A report folder's file judged on its own (a record without hashes, an older
-    evaluate's): errors.csv and truth.tum by their header lines, a plot by its mark."""
+    """A report folder's file judged on its own where no report.json records it (an
+    evaluate interrupted before its report.json): errors.csv and truth.tum by their header
+    lines, a plot by its mark."""
     from .poses_file import is_fieldloc_tum
 
     if path.name == ERRORS_NAME:
@@ -162,17 +163,17 @@ def _report_file_ours(path: Path) -> bool:
 
 
 def refuse_edited_report_files(folder: str | Path) -> None:
-    """Before evaluate replaces a report: none of the files the report folder's report.json
-    says evaluate wrote (its WRITTEN_FILES) may have been edited since (artifacts'
-    ``refuse_edited``, one line naming the file). No report.json: ``foreign_report_file``
-    judged each file already."""
+    """Before evaluate replaces a report: each of its files must be as the report folder's
+    report.json lists it (its WRITTEN_FILES; artifacts' ``refuse_edited``: one line naming
+    the file, or the folder where report.json has no table). No report.json:
+    ``foreign_report_file`` judged each file already."""
     folder = Path(folder)
     try:
         data = json.loads((folder / REPORT_NAME).read_text())
     except (OSError, ValueError, RecursionError):
         return
     recorded = data.get(WRITTEN_FILES) if isinstance(data, dict) else None
-    refuse_edited(folder, recorded, report_files(), ours=_report_file_ours)
+    refuse_edited(folder, recorded, report_files(), record=REPORT_NAME)
 
 
 @contextlib.contextmanager

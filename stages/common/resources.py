@@ -16,7 +16,7 @@ import threading
 from pathlib import Path
 
 from .artifacts import human_bytes
-from .errors import FieldlocError
+from .errors import DiskFullError, FieldlocError
 
 
 def available_memory() -> int:
@@ -48,12 +48,18 @@ def check_memory(what: str, estimate: dict[str, float]) -> float:
     return total
 
 
-def check_disk(what: str, folder: str | Path, need: float) -> None:
-    """Refuse when ``need`` bytes do not fit on the disk holding ``folder``."""
+def check_disk(what: str, folder: str | Path, need: float, *,
+               target: str | Path | None = None) -> None:
+    """Refuse when ``need`` bytes do not fit on the disk holding ``folder``. With ``target``
+    (the file a run that already kept work would write next), as the full disk's own line
+    (DiskFullError naming ``target``: the CLI adds what the run kept for a rerun)."""
     try:
         free = shutil.disk_usage(folder).free
     except OSError:
         return
+    if need > free and target is not None:
+        raise DiskFullError(target, f"it needs about {human_bytes(need)}, {folder} has"
+                                    f" {human_bytes(free)} free")
     if need > free:
         raise FieldlocError(
             f"{what} would write about {human_bytes(need)}; {folder} has {human_bytes(free)}"

@@ -41,7 +41,9 @@ from pathlib import Path
 import numpy as np
 
 from ..common.artifacts import (
+    WRITTEN_FILES,
     as_stored,
+    atomic_path,
     check_output,
     fieldloc_wrote,
     file_hash,
@@ -50,6 +52,7 @@ from ..common.artifacts import (
     root_attrs,
     writing,
     written_by,
+    written_files,
 )
 from ..common.camera import camera_can
 from ..common.conf import KindPresets, check_bounds, registered_module, resolve_conf, stage_conf
@@ -60,7 +63,8 @@ from ..common.features_file import (
     VERSION,
     FeaturesFile,
     FrameParts,
-    least_bytes,
+    file_bytes,
+    frame_columns,
     write_features,
 )
 from ..common.head_angles import HEAD_STAMP_TOLERANCE, head_at, head_table  # noqa: F401
@@ -71,7 +75,9 @@ log = logging.getLogger(__name__)
 
 KINDS = {"omni": "stages.extract.omni", "perspective": "stages.extract.perspective"}
 GENERATOR = "fieldloc extract"
-# in a --debug-images folder extract made: the marker of folders whose overlays it may replace
+# in a --debug-images folder extract made: the marker of folders whose overlays it may replace,
+# and their WRITTEN_FILES table (each overlay's size and SHA-256 as drawn), by which an overlay
+# is replaced only as it was drawn (``_DebugOverlays``)
 DEBUG_RECORD = "debug-images.yaml"
 DEFAULT_PRESET = "default"
 MASK_NAME = "mask.png"
@@ -284,9 +290,10 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
             with FeaturesFile(output) as old:
                 in_output = set(old.names)
         pending = sum(1 for n in ds.names if n not in in_output)
-        if pending:  # the least the run writes, refused before any frame is worked on
-            check_disk(f"extract into {output}", output.parent if str(output.parent) else ".",
-                       least_bytes(pending) + (output.stat().st_size if resume else 0))
+        folder = output.parent if str(output.parent) else Path(".")
+        kept = output.stat().st_size if resume else 0  # the old file stays until the commit
+        if pending:  # the least the run writes (a file's index), refused before any frame
+            check_disk(f"extract into {output}", folder, file_bytes({}, pending) + kept)
         parts = FrameParts(output, attrs)
         if overwrite:
             parts.discard("--overwrite extracts every frame again")
@@ -310,17 +317,10 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
                 and png.stat().st_mtime_ns < parts.began_ns]
             if clash:
                 raise FieldlocError(f"{clash[0]} exists (use --overwrite to replace it)")
-            # an overlay replaced only as extract drew it (its mark): never a user's
-            # picture saved under a frame's name, nor an overlay edited by hand
-            refuse_edited(debug_images, None, [f"{n}.png" for _i, n, _s in todo])
-            if not debug_images.exists():
-                leftovers.debug_folder = debug_images
-            debug_images.mkdir(parents=True, exist_ok=True)
-            if not written_by(debug_images, DEBUG_RECORD, GENERATOR):
-                with writing(debug_images / DEBUG_RECORD):
-                    (debug_images / DEBUG_RECORD).write_text(
-                        f"generator: {GENERATOR}\n"
-                        f"dataset: {json.dumps(str(ds.root.resolve()))}\n")
+            overlays = _DebugOverlays(debug_images, ds, [f"{n}.png" for _i, n, _s in todo])
+            leftovers.debug_folder = None if debug_images.exists() else debug_images
+            with writing(debug_images):
+                debug_images.mkdir(parents=True, exist_ok=True)
         done = failed = 0
         with opencv_single_threaded():  # small calls: resources' doc
             try:
@@ -335,14 +335,21 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
                         parts.add_failure(name, str(e))
                         failed += 1
                         continue
+                    if not done:  # the first frame's columns: the least the file takes,
+                        # refused before anything is kept (the parts folder goes, as empty;
+                        # frames an interrupted run finished stay: the full disk's line)
+                        check_disk(f"extract into {output}", folder, kept + file_bytes(
+                            frame_columns(arrays), pending),
+                            target=output if parts.frame_names else None)
                     if debug_images is not None:  # before the frame is committed: a
                         # committed frame, which a resumed run skips, has its overlay
-                        _write_debug_image(debug_images / f"{name}.png",
-                                           module.debug_overlay(image, arrays))
+                        overlays.draw(f"{name}.png", module.debug_overlay(image, arrays))
                     parts.add_frame(name, float(stamp), arrays)
                     done += 1
             finally:  # Ctrl-C or an error: the finished frames are kept for the next run
                 parts.flush()
+                if debug_images is not None:
+                    overlays.record()
         good = len(in_output) + len(parts.frame_names)
         if good == 0:
             first = next(iter(sorted(parts.failures.items())), None)
@@ -351,8 +358,9 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
             raise FieldlocError(
                 f"no frame of {ds.root} could be extracted ({n_failed} of {len(ds.images)} failed"
                 + (f"; first: {first[0]}: {first[1]}" if first else "") + ")")
-        need = parts.bytes_needed() + (output.stat().st_size if resume else 0)
-        check_disk(f"extract into {output}", output.parent, need)  # before HDF5 meets it
+        # the file the frames make, before it is built: a disk without that room is the full
+        # disk's line naming it (the finished frames stay in the parts, for a rerun)
+        check_disk(f"extract into {output}", folder, parts.bytes_needed() + kept, target=output)
         with write_features(output, attrs, resume=resume) as writer:
             parts.merge_into(writer)
         parts.remove()
@@ -380,6 +388,60 @@ def _check_debug_folder(folder: Path, ds) -> Path:
                             f" {DEBUG_RECORD}); they are never replaced, --overwrite or not:"
                             " choose a new or empty folder")
     return folder
+
+
+class _DebugOverlays:
+    """The overlays a run draws into its --debug-images ``folder``, and their record
+    (DEBUG_RECORD's WRITTEN_FILES table).
+
+    Before any work, each overlay the run will draw again (``names``) that is there must be
+    as the table lists it (``refuse_edited``: an overlay edited by hand, even by an editor
+    that keeps the PNG text chunks holding fieldloc's mark, or a user's picture saved under
+    a frame's name, is never replaced); a record without a table (an older extract's, or a
+    damaged one) refuses the folder. The first ``draw`` takes those overlays out of the
+    table, and ``record`` (at the end of the run, however it ends but a SIGKILL) puts every overlay
+    drawn back in with its new size and hash. So an overlay the table does not list while
+    its name is there was drawn by a run killed before it could record it: that one is
+    judged by its mark (``fieldloc_wrote``), so that a killed run's overlays are redrawn, not
+    refused forever."""
+
+    def __init__(self, folder: Path, ds, names: list[str]):
+        self.folder, self.names, self.drawn = folder, names, []
+        self.head = {"generator": GENERATOR, "dataset": str(ds.root.resolve())}
+        record = folder / DEBUG_RECORD
+        self.table = {}
+        if written_by(folder, DEBUG_RECORD, GENERATOR):
+            from ..common.conf import load_yaml
+
+            self.table = load_yaml(record.read_text()).get(WRITTEN_FILES)
+        refuse_edited(folder, self.table, names, record=DEBUG_RECORD, unlisted=fieldloc_wrote)
+        if not isinstance(self.table, dict):  # none of ``names`` is there: nothing to vouch
+            self.table = {}
+
+    def _write(self, table: dict) -> None:
+        import yaml
+
+        text = yaml.safe_dump({**self.head, WRITTEN_FILES: table}, sort_keys=False)
+        with atomic_path(self.folder / DEBUG_RECORD, suffix=".yaml") as tmp:
+            tmp.write_text(text)
+
+    def draw(self, name: str, image: np.ndarray) -> None:
+        """Write the overlay ``name``; before the first, the record without the overlays the
+        run draws again (``names``), so that one a killed run drew is unlisted."""
+        if not self.drawn:
+            todo = set(self.names)
+            self._write({k: v for k, v in self.table.items() if k not in todo})
+        self.drawn.append(name)
+        _write_debug_image(self.folder / name, image)
+
+    def record(self) -> None:
+        """The record with every overlay drawn by this run (a disk too full to take it
+        leaves those unlisted, judged by their mark next time: nothing said, the run's own
+        error, if any, is the one line)."""
+        if not self.drawn:
+            return
+        with contextlib.suppress(OSError, FieldlocError):
+            self._write({**self.table, **written_files(self.folder, self.drawn)})
 
 
 class _Leftovers:
@@ -417,8 +479,6 @@ def _remove_debug_folder(folder: Path) -> None:
 
 def _write_debug_image(path: Path, image: np.ndarray) -> None:
     import cv2
-
-    from ..common.artifacts import atomic_path
 
     with atomic_path(path, suffix=".png") as tmp:
         ok, buf = cv2.imencode(".png", image)

@@ -30,8 +30,9 @@ Checked before any frame is localised (each a one-line error, or a warning where
 still mean something):
 - the output and poses.tum beside it are none of the inputs (map, features, points, the
   dataset's files), and an existing output needs ``overwrite``; an existing poses.tum is
-  replaced only if fieldloc wrote it (stages.common.poses_file.check_tum_output), never a
-  user's trajectory of that name;
+  replaced only where the poses file beside it is fieldloc's and records it as it is
+  (stages.common.poses_file.check_tum_output), never an edited twin nor a user's trajectory
+  of that name;
 - odometry.csv, imu.csv and truth.csv are read once: a NaN or infinite value, a stamp out of
   order or repeated is refused with its line (stages.common.dataset.read_csv). Refused rather
   than skipped: an odometry row is an increment since the previous row, so dropping or
@@ -321,7 +322,7 @@ def check_run(conf: dict | str | None, dataset_dir: str | Path, map_path: str | 
     inputs_given = {**dataset.files(), "map": map_path, "features": features, "points": points,
                     "templates": templates}
     check_output(output, inputs_given, overwrite=overwrite)
-    check_tum_output(output.with_suffix(".tum"), inputs_given, overwrite)
+    check_tum_output(output, inputs_given, overwrite)
     series = {k: dataset.optional(k) for k in ("odometry", "imu", "truth")}  # refused if bad
     method_module(conf["method"])
     if map_path is not None:

@@ -105,7 +105,7 @@ def main(conf, dataset_dir: str | Path, map_path: str | Path, output: str | Path
         given = {**inputs, "poses": output, "calib": write_calib}
         for path in (calib, features2, first):
             check_output(path, given, overwrite=overwrite, kind="calibration")
-        check_tum_output(first.with_suffix(".tum"), given, overwrite)  # its own mark: a header
+        check_tum_output(first, given, overwrite)  # its twin, as the first poses record it
     if features is None:
         features = features_for(dataset_dir, output, inputs, progress)
     kw = {"progress": progress, "allow_field_mismatch": allow_field_mismatch}

@@ -73,7 +73,6 @@ from ..common.artifacts import (
     cannot_read,
     check_output,
     commit_dir,
-    fieldloc_wrote,
     give_default_mode,
     part_name,
     refuse_edited,
@@ -371,13 +370,6 @@ def _dataset_files(folder: Path) -> list[str]:
                else []))
 
 
-def _written_before_hashes(path: Path) -> bool:
-    """A dataset file of a record without WRITTEN_FILES (an older simulate), judged on its
-    own: calib.yaml by fieldloc's mark; the CSV files and images carry none, and are taken
-    as the record lists them (as that simulate did)."""
-    return fieldloc_wrote(path) if path.name == "calib.yaml" else True
-
-
 def _check_target(output_dir: Path, overwrite: bool, field_file: Path | None):
     check_output(output_dir, {"field YAML": field_file}, overwrite=None, kind="folder")
     if output_dir.is_dir() and any(output_dir.iterdir()):
@@ -397,7 +389,7 @@ def _check_target(output_dir: Path, overwrite: bool, field_file: Path | None):
                 " delete it; move it out of the folder or choose another one")
         rec = _record(output_dir) or {}
         refuse_edited(output_dir, rec.get(WRITTEN_FILES), _dataset_files(output_dir),
-                      ours=_written_before_hashes)
+                      record=SIMULATION_RECORD)
         if Path.cwd().resolve().is_relative_to(output_dir.resolve()):
             raise FieldlocError(
                 f"{output_dir} holds the current folder; run simulate from elsewhere to replace"
