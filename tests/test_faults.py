@@ -1378,6 +1378,90 @@ def _g1_users_copy_without_poses(ws):
     head = (ws / "p.tum").read_text().splitlines()[0]
     (ws / "p.tum").write_text(head + "\n1 2 3 0 0 0 0 1 my data\n")
 
+# ---- s56 group G2: the setups of its cases (features of another recording, frames of other
+# image kinds, a PNG damaged under right CRCs)
+
+
+def _setup_other_recording(w, ws):
+    """ws/ds: another simulated omni recording, its frames named and stamped as the shared
+    dataset's (every simulated dataset's are: 000000.png at 0 s, ...)."""
+    ds = simulate.main(dict(simulate.confs["omni-default"], frames=4, seed=1864), "spl",
+                       ws / "ds")
+    return {"ds": ds}
+
+
+def _setup_reencoded(w, ws):
+    """ws/ds: the shared omni dataset with frame 000001 written again (the same pixels, other
+    bytes: another image than the one its features were extracted from)."""
+    ds = copy_dataset(w, "omni", ws)
+    p = ds / "images" / "000001.png"
+    cv2.imwrite(str(p), cv2.imread(str(p)), [cv2.IMWRITE_PNG_COMPRESSION, 9])
+    return {"ds": ds}
+
+
+def _setup_cut_to_two(w, ws):
+    """ws/ds: the shared omni dataset cut to its first two frames (after its extraction)."""
+    ds = copy_dataset(w, "omni", ws)
+    for name in ("000002.png", "000003.png"):
+        (ds / "images" / name).unlink()
+    (ds / "frames.csv").write_text("name,stamp\n" + "".join(
+        line + "\n" for line in (ds / "frames.csv").read_text().splitlines()[1:3]))
+    return {"ds": ds}
+
+
+def _check_two_frames(paths, res):
+    columns, _attrs = read_poses(paths["ws"] / "p.h5")
+    assert sorted(set(columns["name"])) == ["000000", "000001"]
+
+
+def _setup_frame_as(suffix: str):
+    """ws/ds: the shared omni dataset whose frame 000001 is a ``suffix`` file (a .gif: a kind
+    fieldloc does not read), named so in frames.csv."""
+    def setup(w, ws):
+        from PIL import Image
+
+        ds = copy_dataset(w, "omni", ws)
+        png_path = ds / "images" / "000001.png"
+        img = cv2.imread(str(png_path))
+        png_path.unlink()
+        if suffix == ".gif":
+            Image.fromarray(img[..., ::-1]).save(ds / "images" / "000001.gif")
+        else:
+            cv2.imwrite(str(ds / "images" / f"000001{suffix}"), img)
+        frames = ds / "frames.csv"
+        frames.write_text(frames.read_text().replace("000001.png", f"000001{suffix}"))
+        return {"ds": ds}
+    return setup
+
+
+def _check_frames_extracted(n: int):
+    def check(paths, res):
+        from stages.common.features_file import FeaturesFile
+
+        with FeaturesFile(paths["ws"] / "f.h5") as ff:
+            assert len(ff.names) == n
+    return check
+
+
+def _setup_idat_damaged_crc_right(w, ws):
+    """ws/ds: the shared omni dataset whose frame 000001's IDAT data is damaged under right
+    CRCs (libpng printed "libpng error: bad adaptive filter value" of it)."""
+    import struct
+    import zlib
+
+    ds = copy_dataset(w, "omni", ws)
+    p = ds / "images" / "000001.png"
+    data = p.read_bytes()
+    at = data.index(b"IDAT")
+    length = struct.unpack(">I", data[at - 4:at])[0]
+    body = bytearray(data[at + 4:at + 4 + length])
+    for i in range(len(body) // 3, len(body) // 3 + 30):
+        body[i] ^= 0x5A
+    chunk = b"IDAT" + bytes(body)
+    p.write_bytes(data[:at] + chunk + struct.pack(">I", zlib.crc32(chunk))
+                  + data[at + 8 + length:])
+    return {"ds": ds}
+
 
 CASES = [
     # ------------------------------------------------------------------ data lost
@@ -2762,6 +2846,43 @@ CASES = [
       for what, change in (("edited below its header", _g1_note_below_header),
                            ("a user's file with its header, no poses beside it",
                             _g1_users_copy_without_poses))],
+
+    # ---- s56 group G2: features of another recording whose frames are named and stamped
+    # alike, or of a frame re-encoded since (F1); a dataset cut after its extraction; frames of
+    # other image kinds (I3); a PNG damaged under right CRCs (I2)
+    *[Case(f"{what} with another simulated recording's features (same names and stamps)",
+           "silent", args, 1, "frame 000000 was extracted from another image than",
+           setup=_setup_other_recording)
+      for what, args in (
+          ("localize", ["localize", "{ds}", "--map", "{map}", "--features", "{features}",
+                        "-o", W + "/p.h5"]),
+          ("show belief", ["show", "belief", "{ds}", "--map", "{map}", "--features",
+                           "{features}", "--frame", "1", "--resolution", "0.5", "-o",
+                           W + "/b.png"]),
+          ("show points", ["show", "points", "{ds}", "--features", "{features}", "--frame",
+                           "1", "-o", W + "/s.png"]))],
+    Case("localize with features of a frame re-encoded since its extraction", "silent",
+         ["localize", "{ds}", "--map", "{map}", "--features", "{features}", "-o", W + "/p.h5"],
+         1, "frame 000001 was extracted from another image than", setup=_setup_reencoded),
+    Case("localize of a dataset cut to 2 frames with its features of 4: its frames only",
+         "silent", ["localize", "{ds}", "--map", "{map}", "--features", "{features}", "-o",
+                    W + "/p.h5"], 0, "", setup=_setup_cut_to_two, check=_check_two_frames),
+    Case("show belief of a frame cut from the dataset, named, with the features of all",
+         "silent", ["show", "belief", "{ds}", "--map", "{map}", "--features", "{features}",
+                    "--frame", "000003", "--resolution", "0.5", "-o", W + "/b.png"], 1,
+         "frame index 3 out of range (0..1)", setup=_setup_cut_to_two),
+    *[Case(f"extract of a dataset with a {suffix} frame listed in frames.csv", "silent",
+           ["extract", "{ds}", "-o", W + "/f.h5"], 0, "", setup=_setup_frame_as(suffix),
+           check=_check_frames_extracted(4))
+      for suffix in (".bmp", ".tiff", ".webp")],
+    Case("extract of a dataset with a .gif frame listed in frames.csv", "silent",
+         ["extract", "{ds}", "-o", W + "/f.h5"], 0,
+         "1 frames are images of a kind fieldloc does not read (first: 000001.gif",
+         setup=_setup_frame_as(".gif"), check=_check_frames_extracted(3)),
+    Case("extract of a PNG frame whose IDAT data is damaged under right CRCs", "silent",
+         ["extract", "{ds}", "-o", W + "/f.h5"], 0,
+         "frame 000001 skipped: unreadable image: ", setup=_setup_idat_damaged_crc_right,
+         check=_check_frames_extracted(3)),
 ]
 
 

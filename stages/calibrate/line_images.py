@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..common.dataset import IMAGE_SUFFIXES, read_image
+from ..common.dataset import IMAGE_KINDS, IMAGE_SUFFIXES, read_image
 from ..common.errors import FieldlocError
 
 confs = {
@@ -81,7 +81,7 @@ def distance_images(folder) -> list[tuple[Path, float]]:
         raise FieldlocError(f"line images folder not found: {folder}")
     images = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
     if not images:
-        raise FieldlocError(f"{folder}: no images (png or jpg)")
+        raise FieldlocError(f"{folder}: no images ({IMAGE_KINDS})")
     bad = [p.name for p in images if not _DISTANCE_NAME.match(p.stem)]
     if bad:
         raise FieldlocError(

@@ -1,6 +1,6 @@
 """Dataset folders (GUIDE section 4): what users bring and what ``fieldloc simulate`` writes.
 
-    DIR/images/        frames, sorted by name (png or jpg)
+    DIR/images/        frames, sorted by name (png, jpg, bmp, tiff or webp)
     DIR/frames.csv     optional: name, stamp (s) per image; without it a numeric file stem is
                        the stamp, otherwise frame index / 30 Hz
     DIR/calib.yaml     camera model (see stages.common.camera)
@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import csv
 import io
+import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,8 +40,15 @@ from .dataset_layout import CSV_COLUMNS, CSV_OPTIONAL_COLUMNS, OWN_FILES, SIMULA
 from .errors import DatasetError, present
 from .user_numbers import parse_number, user_numbers
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+# the image files that are frames: PNG and JPEG (what import and simulate write), and the
+# other kinds OpenCV reads that teams' own tools save frames as (a robot's camera tool may
+# write BMP; TIFF and WebP from image tools). Any other file in images/ is not a frame; one
+# that frames.csv names is said (open_dataset)
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
+IMAGE_KINDS = "png, jpg, bmp, tiff or webp"
 DEFAULT_RATE_HZ = 30.0
+
+log = logging.getLogger(__name__)
 
 
 TIME_SERIES = ("odometry", "imu", "truth", "head")  # rows in time order, one per stamp
@@ -284,7 +292,7 @@ def open_dataset(root: str | Path, *, need_images: bool = True) -> Dataset:
     except OSError as e:
         raise DatasetError(f"{img_dir}: cannot be listed ({e.strerror or e})") from None
     if need_images and not images:
-        raise DatasetError(f"{root}: no images (png or jpg) in {img_dir}")
+        raise DatasetError(f"{root}: no images ({IMAGE_KINDS}) in {img_dir}")
     by_stem: dict[str, Path] = {}
     for p in images:
         if p.stem in by_stem:
@@ -301,6 +309,13 @@ def open_dataset(root: str | Path, *, need_images: bool = True) -> Dataset:
             raise DatasetError(f"{frames}: no stamp for image {missing[0]}")
         stamps = np.array([by_name.get(p.name, by_name.get(p.stem)) for p in images], float)
         source = "frames.csv"
+        other = [n for n in by_name if Path(n).suffix.lower() not in ("", *IMAGE_SUFFIXES)
+                 and (img_dir / n).is_file()]
+        if other and str(frames) not in _SAID_OTHER_KINDS:  # a frame the user listed, left
+            _SAID_OTHER_KINDS.add(str(frames))  # out: said once, however often it is opened
+            log.warning("%s: %d frames are images of a kind fieldloc does not read (first: %s;"
+                        " it reads %s); left out", frames, len(other), str(other[0])[:40],
+                        IMAGE_KINDS)
     elif images and all(_is_float(p.stem) and stamp_error(float(p.stem)) is None
                         for p in images):
         stamps = np.array([float(p.stem) for p in images])
@@ -309,6 +324,11 @@ def open_dataset(root: str | Path, *, need_images: bool = True) -> Dataset:
         stamps = np.arange(len(images)) / DEFAULT_RATE_HZ
         source = "frame order"
     return Dataset(root=root, images=images, stamps=stamps, stamp_source=source)
+
+
+# the frames.csv files whose frames of other image kinds were said (open_dataset): a command
+# opens its dataset more than once
+_SAID_OTHER_KINDS: set[str] = set()
 
 
 def frame_index(names: list[str], frame: str | int, where: str) -> int:
@@ -368,15 +388,44 @@ def read_image(path: Path) -> np.ndarray:
     """Read an image as BGR uint8 (what OpenCV's IMREAD_COLOR gives); raises DatasetError if
     unreadable (callers skip the frame). PNG frames of 8-bit grey or RGB are decoded by
     stages.common.png in about half of OpenCV's time, every other file by OpenCV."""
+    return _decode_image(path, "image")[0]
+
+
+def read_frame(path: Path) -> tuple[np.ndarray, str]:
+    """The image of a frame (as ``read_image``) and what identifies its file's content
+    (``image_identity``), from one read of the file: extract records it with the frame's
+    features, so that features are never taken for another recording's frames."""
     return _decode_image(path, "image")
 
 
-def _decode_image(path: Path, what: str) -> np.ndarray:
+def image_identity(data: bytes) -> str:
+    """What identifies the content of an image file ``data``: "<size in bytes>:<CRC-32 of the
+    bytes, 8 hex digits>". Two datasets' frames of one name and stamp (every simulated
+    dataset's, 000000.png at 0 s) differ in it, and so does a frame re-encoded after its
+    features were extracted (other images: other features). CRC-32 by ISA-L: 0.03 ms for a
+    400 kB frame, nothing next to decoding it."""
+    from isal import isal_zlib
+
+    return f"{len(data)}:{isal_zlib.crc32(data):08x}"
+
+
+def file_identity(path: Path) -> str | None:
+    """``image_identity`` of the file at ``path``, or None where it cannot be read."""
+    path = Path(path)
+    if not path.is_file():  # a FIFO would block the read forever
+        return None
+    try:
+        return image_identity(path.read_bytes())
+    except OSError:
+        return None
+
+
+def _decode_image(path: Path, what: str) -> tuple[np.ndarray, str]:
     """The one reader of every image a user gives (frames, masks, calibration pictures): the
-    BGR uint8 image at ``path``, or a DatasetError "unreadable ``what``: path (why)" for a file
-    that is not a regular file, empty, larger than MAX_IMAGE_PIXELS (by a PNG's header) or that
-    OpenCV cannot decode (OpenCV's own assertions and log lines included: they are not one
-    line)."""
+    BGR uint8 image at ``path`` and its ``image_identity``, or a DatasetError "unreadable
+    ``what``: path (why)" for a file that is not a regular file, empty, larger than
+    MAX_IMAGE_PIXELS (by a PNG's header) or that OpenCV cannot decode (OpenCV's own assertions
+    and log lines included: they are not one line)."""
     from .png import decode_png, png_size
 
     path = Path(path)
@@ -398,7 +447,7 @@ def _decode_image(path: Path, what: str) -> np.ndarray:
     if img is None:
         why = image_damage(data)
         raise DatasetError(f"unreadable {what}: {path}" + (f" ({why})" if why else ""))
-    return img
+    return img, image_identity(data)
 
 
 def quiet_opencv():
@@ -475,8 +524,14 @@ def opencv_decode(data: bytes, *, unchanged: bool = False) -> np.ndarray | None:
     than CV_IO_MAX_IMAGE_PIXELS pixels) and the files image_damage names, without a line of
     OpenCV's, libjpeg's or libpng's on stderr (quiet_opencv). The one call of every image read
     by OpenCV; callers turn None into their own one-line error."""
+    from .png import SIGNATURE, png_for_opencv
+
     cv2 = quiet_opencv()
-    if image_damage(data) is not None:
+    if data.startswith(SIGNATURE):  # checked, and given to libpng without ancillary chunks
+        data = png_for_opencv(data)
+        if data is None:
+            return None
+    elif image_damage(data) is not None:
         return None
     try:
         return cv2.imdecode(np.frombuffer(data, np.uint8),
@@ -492,7 +547,7 @@ def read_mask(path: str | Path, image_size: tuple[int, int]) -> np.ndarray:
     import cv2
 
     path = Path(path)
-    img = _decode_image(path, "mask image")
+    img = _decode_image(path, "mask image")[0]
     w, h = image_size
     if img.shape[:2] != (h, w):
         raise DatasetError(

@@ -56,7 +56,7 @@ from ..common.artifacts import (
 )
 from ..common.camera import camera_can
 from ..common.conf import KindPresets, check_bounds, registered_module, resolve_conf, stage_conf
-from ..common.dataset import open_dataset, read_image, read_mask
+from ..common.dataset import open_dataset, read_frame, read_image, read_mask
 from ..common.errors import FieldlocError, SchemaError
 from ..common.features_file import (
     SCHEMA,
@@ -224,8 +224,9 @@ def conf_of(features: str | Path) -> dict:
 
 def reusable_features(path: str | Path, dataset_dir: str | Path, conf=None) -> str | None:
     """Why the features file ``path`` cannot stand for extracting ``dataset_dir`` now with
-    ``conf`` (None: it can): it must exist, be made from the same calibration, mask and conf,
-    and hold every frame of the dataset (extracted or recorded as failed)."""
+    ``conf`` (None: it can): it must exist, be made from the same calibration, mask and conf
+    and from the dataset's images, and hold every frame of the dataset (extracted or recorded
+    as failed)."""
     path = Path(path)
     if not path.is_file():
         return f"{path} does not exist"
@@ -237,6 +238,7 @@ def reusable_features(path: str | Path, dataset_dir: str | Path, conf=None) -> s
     try:
         _check_resumable(path, attrs)
         with FeaturesFile(path) as ff:
+            ff.check_of(ds)  # of the dataset's images, as localize will check
             have = set(ff.names) | {f.split(":", 1)[0] for f in ff.failures}
     except FieldlocError as e:
         return str(e).split(";")[0]
@@ -327,7 +329,7 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
                 for path, name, stamp in tqdm(todo, desc="extract", unit="frame",
                                               disable=not progress):
                     try:
-                        image = read_image(path)
+                        image, identity = read_frame(path)
                         arrays = module.extract_frame(image, camera, conf,
                                                       **_frame_info(kind, mask, head, float(stamp)))
                     except FieldlocError as e:
@@ -344,7 +346,7 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
                     if debug_images is not None:  # before the frame is committed: a
                         # committed frame, which a resumed run skips, has its overlay
                         overlays.draw(f"{name}.png", module.debug_overlay(image, arrays))
-                    parts.add_frame(name, float(stamp), arrays)
+                    parts.add_frame(name, float(stamp), arrays, identity)
                     done += 1
             finally:  # Ctrl-C or an error: the finished frames are kept for the next run
                 parts.flush()

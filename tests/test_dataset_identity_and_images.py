@@ -1,0 +1,268 @@
+"""What a features file records of the images it was extracted from (their identity, checked
+by every reader against the dataset's frames), and the images a dataset reads: the PNG files
+libpng would print lines of its own about, other kinds of frames (.bmp, .tiff, .webp).
+
+The images are written here with numpy, OpenCV and Pillow, and damaged here."""
+
+from __future__ import annotations
+
+import io
+import logging
+import struct
+import zlib
+from pathlib import Path
+
+import cv2
+import h5py
+import numpy as np
+import pytest
+from PIL import Image
+
+from stages.common import png
+from stages.common.artifacts import root_attrs
+from stages.common.dataset import Dataset, open_dataset, read_frame, read_image
+from stages.common.errors import DatasetError, FieldlocError
+from stages.common.features_file import SCHEMA, VERSION, FeaturesFile, write_features
+
+ATTRS = {**root_attrs(SCHEMA, VERSION), "camera_kind": "omni", "calib_hash": ""}
+
+
+def _chunk(kind: bytes, body: bytes, crc: int | None = None) -> bytes:
+    crc = zlib.crc32(kind + body) if crc is None else crc
+    return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", crc)
+
+
+def _rgb(seed: int, h: int = 24, w: int = 31) -> np.ndarray:
+    return np.random.default_rng(seed).integers(0, 256, (h, w, 3), dtype=np.uint8)
+
+
+def _palette_png(extra: bytes = b"") -> bytes:
+    """An 8-bit palette PNG (Pillow's) with ``extra`` chunks before its end chunk."""
+    b = io.BytesIO()
+    Image.fromarray(_rgb(1)).quantize(40).save(b, "PNG")
+    data = b.getvalue()
+    end = data.rindex(b"IEND") - 4
+    return data[:end] + extra + data[end:]
+
+
+def _idat_damaged_crc_right(data: bytes) -> bytes:
+    """``data`` with bytes of its IDAT data changed and the chunk's CRC made right again (what
+    libpng answers with "bad adaptive filter value")."""
+    at = data.index(b"IDAT")
+    length = struct.unpack(">I", data[at - 4:at])[0]
+    raw = bytearray(zlib.decompress(data[at + 4:at + 4 + length]))
+    raw[0] = 9  # the first row's filter type: none of 0..4
+    return data[:at - 4] + _chunk(b"IDAT", zlib.compress(bytes(raw))) + data[at + 8 + length:]
+
+
+def _opencv(data: bytes) -> np.ndarray | None:
+    return cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+
+
+def _interlaced(img: np.ndarray, filters: int = 0) -> bytes:
+    """An Adam7-interlaced 8-bit RGB PNG of ``img`` (every row unfiltered; the first row's
+    filter type ``filters``)."""
+    h, w = img.shape[:2]
+    raw = bytearray()
+    for x0, y0, dx, dy in png.ADAM7:
+        sub = img[y0::dy, x0::dx]
+        if sub.size:
+            for row in sub:
+                raw.append(0)
+                raw += row.tobytes()
+    raw[0] = filters
+    ihdr = struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 1)
+    return (png.SIGNATURE + _chunk(b"IHDR", ihdr) + _chunk(b"IDAT", zlib.compress(bytes(raw)))
+            + _chunk(b"IEND", b""))
+
+
+# ---------------------------------------------------------------- I2: libpng's own lines
+
+
+@pytest.mark.parametrize("kind", ["rgb", "palette", "interlaced"])
+def test_idat_damaged_under_right_crcs_is_refused_without_libpng_lines(tmp_path, capfd, kind):
+    """A PNG whose IDAT data is damaged but whose CRCs are right made libpng print "libpng
+    error: bad adaptive filter value" beside fieldloc's one line: refused before libpng."""
+    if kind == "rgb":
+        data = png.SIGNATURE + cv2.imencode(".png", _rgb(2))[1].tobytes()[8:]
+        data = _idat_damaged_crc_right(data)
+    elif kind == "palette":
+        data = _idat_damaged_crc_right(_palette_png())
+    else:
+        data = _interlaced(_rgb(3), filters=9)
+    p = tmp_path / "f.png"
+    p.write_bytes(data)
+    capfd.readouterr()
+    with pytest.raises(DatasetError, match="unreadable image: .*damaged"):
+        read_image(p)
+    assert capfd.readouterr().err == ""
+
+
+@pytest.mark.parametrize("chunk", [
+    _chunk(b"tEXt", b"Comment\x00a user's note", crc=0),  # "libpng warning: tEXt: CRC error"
+    _chunk(b"iCCP", b"x\x00\x00ab"),  # "libpng warning: iCCP: too short"
+])
+def test_a_bad_ancillary_chunk_reads_the_image_without_libpng_lines(tmp_path, capfd, chunk):
+    """libpng warned of a bad ancillary chunk and then decoded the image: it is read as
+    OpenCV reads the file, without a line."""
+    for data in (_palette_png(chunk), png.SIGNATURE + cv2.imencode(
+            ".png", cv2.cvtColor(_rgb(4), cv2.COLOR_BGR2BGRA))[1].tobytes()[8:]):
+        end = data.rindex(b"IEND") - 4
+        data = data if chunk in data else data[:end] + chunk + data[end:]
+        p = tmp_path / "f.png"
+        p.write_bytes(data)
+        capfd.readouterr()
+        got = read_image(p)
+        assert capfd.readouterr().err == ""
+        np.testing.assert_array_equal(got, _opencv(data))
+
+
+def test_an_interlaced_png_is_read_as_opencv_reads_it(tmp_path):
+    img = _rgb(5, 13, 11)
+    data = _interlaced(img)
+    assert png.decode_png(data) is None  # left to OpenCV, checked first
+    assert png.png_for_opencv(data) is not None
+    p = tmp_path / "f.png"
+    p.write_bytes(data)
+    np.testing.assert_array_equal(read_image(p), img[..., ::-1])
+
+
+@pytest.mark.parametrize("kind", ["palette", "grey+alpha", "rgba", "grey16", "rgb16",
+                                  "rgba16", "palette+trns"])
+def test_other_png_kinds_decode_as_opencv_reads_them(kind):
+    """Decoded here (png._decode_other), not by libpng: bit for bit OpenCV's image."""
+    rng = np.random.default_rng(6)
+    img = _rgb(7, 20, 17)
+    b = io.BytesIO()
+    if kind == "palette":
+        Image.fromarray(img).quantize(60).save(b, "PNG")
+    elif kind == "palette+trns":
+        Image.fromarray(img).quantize(60).save(b, "PNG", transparency=3)
+    elif kind == "grey+alpha":
+        Image.fromarray(img[..., 0]).convert("LA").save(b, "PNG")
+    else:
+        arr = {"rgba": cv2.cvtColor(img, cv2.COLOR_BGR2BGRA),
+               "grey16": rng.integers(0, 65536, (20, 17), dtype=np.uint16),
+               "rgb16": rng.integers(0, 65536, (20, 17, 3), dtype=np.uint16),
+               "rgba16": rng.integers(0, 65536, (20, 17, 4), dtype=np.uint16)}[kind]
+        b.write(cv2.imencode(".png", arr)[1].tobytes())
+    data = b.getvalue()
+    got = png.decode_png(data)
+    assert got is not None
+    np.testing.assert_array_equal(got, _opencv(data))
+
+
+# ---------------------------------------------------------------- I3: other kinds of frames
+
+
+def _dataset(root: Path, n: int = 3, suffix: str = ".png") -> Path:
+    (root / "images").mkdir(parents=True)
+    rows = ["name,stamp"]
+    for i in range(n):
+        name = f"{i:06d}{suffix if i == 1 else '.png'}"
+        cv2.imwrite(str(root / "images" / name), _rgb(10 + i))
+        rows.append(f"{name},{i / 10:.6f}")
+    (root / "frames.csv").write_text("\n".join(rows) + "\n")
+    return root
+
+
+@pytest.mark.parametrize("suffix", [".bmp", ".tiff", ".tif", ".webp", ".jpeg"])
+def test_frames_of_other_image_kinds_are_read(tmp_path, suffix):
+    """A team's frames saved as BMP (or TIFF, WebP) are frames, read as OpenCV reads them."""
+    ds = open_dataset(_dataset(tmp_path / "ds", suffix=suffix))
+    assert ds.names == ["000000", "000001", "000002"]
+    assert ds.images[1].suffix == suffix
+    img = read_image(ds.images[1])
+    if suffix in (".bmp", ".tiff", ".tif"):  # lossless
+        np.testing.assert_array_equal(img, _rgb(11))
+
+
+def test_a_listed_frame_of_a_kind_not_read_is_said(tmp_path, caplog):
+    root = _dataset(tmp_path / "ds")
+    Image.fromarray(_rgb(20)).save(root / "images" / "000003.gif")
+    with open(root / "frames.csv", "a") as f:
+        f.write("000003.gif,0.3\n")
+    with caplog.at_level(logging.WARNING):
+        ds = open_dataset(root)
+    assert len(ds.names) == 3
+    assert "1 frames are images of a kind fieldloc does not read (first: 000003.gif" in caplog.text
+
+
+# ---------------------------------------------------------------- F1: the images' identity
+
+
+def _features(path: Path, ds: Dataset, identities: bool = True) -> Path:
+    with write_features(path, ATTRS) as w:
+        for p, name, stamp in zip(ds.images, ds.names, ds.stamps):
+            _img, identity = read_frame(p)
+            w.add_frame(name, float(stamp), {"radial": np.full((72, 4), np.nan, np.float32),
+                                             "spiral": np.full((2, 72), np.nan, np.float32),
+                                             "points": np.zeros((0, 2), np.float32)},
+                        identity if identities else "")
+    return path
+
+
+def test_features_of_another_dataset_with_the_same_names_and_stamps_are_refused(tmp_path):
+    mine = open_dataset(_dataset(tmp_path / "mine"))
+    other = open_dataset(_dataset(tmp_path / "other"))
+    cv2.imwrite(str(other.images[2]), _rgb(99))  # the other recording's frame 2
+    f = _features(tmp_path / "f.h5", mine)
+    with FeaturesFile(f) as ff:
+        ff.check_of(mine)
+        with pytest.raises(FieldlocError, match="frame 000002 was extracted from another image"
+                                                " than .*other/images/000002.png"):
+            ff.check_of(other)
+
+
+def test_a_frame_re_encoded_since_its_extraction_is_another_image(tmp_path):
+    ds = open_dataset(_dataset(tmp_path / "ds"))
+    f = _features(tmp_path / "f.h5", ds)
+    cv2.imwrite(str(ds.images[0]), cv2.imread(str(ds.images[0])),
+                [cv2.IMWRITE_PNG_COMPRESSION, 9])  # the same pixels, other bytes
+    with FeaturesFile(f) as ff, pytest.raises(FieldlocError, match="frame 000000 was"):
+        ff.check_of(ds)
+
+
+def test_features_without_the_record_are_judged_by_names_and_stamps(tmp_path, caplog):
+    """Features of a fieldloc before the record (no /index/image) are taken without a word."""
+    mine = open_dataset(_dataset(tmp_path / "mine"))
+    other = open_dataset(_dataset(tmp_path / "other"))
+    cv2.imwrite(str(other.images[2]), _rgb(99))
+    f = _features(tmp_path / "f.h5", mine)
+    with h5py.File(f, "a") as h5:
+        del h5["index/image"]
+    with caplog.at_level(logging.WARNING), FeaturesFile(f) as ff:
+        ff.check_of(other)
+    assert caplog.text == ""
+    g = _features(tmp_path / "g.h5", mine, identities=False)
+    with FeaturesFile(g) as ff:
+        ff.check_of(other)
+
+
+def test_frames_the_dataset_does_not_have_are_left_out(tmp_path):
+    """A dataset cut after its extraction: its readers see its frames only."""
+    root = _dataset(tmp_path / "ds")
+    f = _features(tmp_path / "f.h5", open_dataset(root))
+    (root / "images" / "000002.png").unlink()
+    ds = open_dataset(root)
+    with FeaturesFile(f) as ff:
+        assert len(ff.names) == 3
+        ff.check_of(ds)
+        assert ff.names == ["000000", "000001"] and len(ff.stamps) == 2
+
+
+def test_the_identity_is_kept_through_a_resumed_file(tmp_path):
+    """A file resumed by extract keeps the identities of its frames, and frames stored before
+    the record have none ("")."""
+    ds = open_dataset(_dataset(tmp_path / "ds"))
+    f = _features(tmp_path / "f.h5", ds)
+    with h5py.File(f, "a") as h5:
+        del h5["index/image"]
+    with write_features(f, ATTRS, resume=True) as w:
+        _img, identity = read_frame(ds.images[0])
+        w.add_frame("000009", 0.9, {"radial": np.full((72, 4), np.nan, np.float32),
+                                    "spiral": np.full((2, 72), np.nan, np.float32),
+                                    "points": np.zeros((0, 2), np.float32)}, identity)
+    with h5py.File(f) as h5:
+        got = [v.decode() for v in h5["index/image"][()]]
+    assert got == ["", "", "", identity]
