@@ -2787,14 +2787,14 @@ CASES = [
     # ---- s55 group F5: an importer's folder with a damaged written_files table (W1)
     *[Case(f"import rosbag --overwrite of a dataset holding a user's notes, {what}",
            "data-lost", [*IMPORT_BAG, "--overwrite"], 1,
-           "ds/notes.txt was not written by fieldloc import rosbag: --overwrite would delete it",
+           "ds's import.yaml lists no written_files (an older fieldloc's record, or damaged)",
            setup=_setup_imported_edited(_f5_damaged_table(value)))
       for what, value in (("written_files a list", [1]), ("written_files a string", "a"),
                           ("no written_files", "del"))],
     *[Case(f"calibrate --from-hulks FOLDER --overwrite of its dataset holding {extra}, {what}",
            "data-lost", ["calibrate", "perspective", "--from-hulks", W + "/hulks", "-o",
                          W + "/out", "--overwrite"], 1,
-           f"out/{extra} was not written by fieldloc calibrate perspective",
+           "out's import.yaml lists no written_files (an older fieldloc's record, or damaged)",
            setup=_setup_hulks_imported(value, extra))
       for what, value, extra in (("written_files a list", [1], "notes.txt"),
                                  ("no written_files", "del", "images/mine.txt"))],

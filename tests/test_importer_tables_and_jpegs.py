@@ -1,6 +1,7 @@
 """What the case table of test_faults cannot express. import rosbag
---overwrite still replaces its own folder whose import.yaml has no written_files table (the
-refusals of a user's file there are cases of test_faults); a JPEG followed by data of its own
+--overwrite refuses its own folder whose import.yaml has no written_files table, which vouches
+for none of its files, and keeps every file (the refusals of a user's file there are cases of
+test_faults); a JPEG followed by data of its own
 (a vendor's trailer, an MPO file's second image) is read, a JPEG cut short is still refused;
 import rosbag keeps the most frames in stamp order when one frame is stamped far ahead."""
 
@@ -19,10 +20,11 @@ SEED = 1860
 
 
 @pytest.mark.parametrize("table", ["del", [1], "a"])
-def test_import_rosbag_overwrite_of_its_folder_without_a_table_replaces_it(tmp_path, table):
+def test_import_rosbag_overwrite_of_its_folder_without_a_table_keeps_it(tmp_path, table):
     """A folder whose import.yaml has no written_files table (an older record's) or a damaged
-    one is still replaced by --overwrite where it holds only the importer's own files (the
-    case table holds those that also hold a user's file: refused)."""
+    one: --overwrite cannot tell the importer's files from ones a user edited since (a
+    frames.csv changed in a text editor), so the folder is refused in one line and every file
+    is kept, even where it holds only the importer's own names."""
     pytest.importorskip("rosbags")
     from stages.ingest.bag_writer import write_bag
 
@@ -44,9 +46,13 @@ def test_import_rosbag_overwrite_of_its_folder_without_a_table_replaces_it(tmp_p
     else:
         rec["written_files"] = table
     rec_path.write_text(yaml.safe_dump(rec, sort_keys=False))
+    frames_csv = tmp_path / "ds" / "frames.csv"
+    frames_csv.write_text(frames_csv.read_text() + "# my note\n")
+    before = {p: p.stat().st_mtime_ns for p in (tmp_path / "ds").rglob("*")}
     res = CliRunner().invoke(cli, [*args, "--overwrite"])
-    assert res.exit_code == 0, res.output
-    assert isinstance(yaml.safe_load(rec_path.read_text())["written_files"], dict)
+    assert res.exit_code == 1
+    assert "lists no written_files" in res.output and len(res.output.splitlines()) == 1
+    assert {p: p.stat().st_mtime_ns for p in (tmp_path / "ds").rglob("*")} == before
 
 
 def _jpeg(seed: int = SEED, **params) -> bytes:

@@ -82,10 +82,6 @@ confs = {
 # the ranges of the conf's keys (common.conf.check_bounds), held where the conf is resolved
 BOUNDS = {"image_size": (1, MAX_IMAGE_PX, 2)}
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
-# the names of the files a folder import writes (besides import.yaml): the captures' images
-# under their own names, calib.yaml and head.csv; what --overwrite may delete from a folder
-# whose import.yaml has no written_files table (an older record's)
-OWN_NAMES = r"images/[^/.][^/]*\.(jpg|jpeg|png)|calib\.yaml|head\.csv"
 # the record a folder import writes into its dataset: what made it (the marker that lets
 # --overwrite replace it) and from where
 IMPORT_RECORD = "import.yaml"
@@ -248,7 +244,7 @@ def main(conf: str | dict | None, source, output, *, overwrite: bool = False,
     check_importer_target(output, {"the HULKs captures": [p for p in source.iterdir()
                                                           if p.is_file()]},
                           overwrite, record=IMPORT_RECORD, generator=GENERATOR,
-                          own_names=OWN_NAMES, error=HulksImportError)
+                          error=HulksImportError)
     frames = _frames_of_folder(source, conf)
     cams = [fr.camera for fr, _ in frames]
     nominal = cams[0].with_pose(

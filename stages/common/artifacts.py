@@ -537,16 +537,16 @@ def _refuse_dataset_files(path: Path, kind: str, error: type[FieldlocError]) -> 
 
 
 def check_importer_target(output: Path, inputs: Mapping[str, object], overwrite: bool, *,
-                          record: str, generator: str, own_names: str,
+                          record: str, generator: str,
                           error: type[FieldlocError] = FieldlocError) -> None:
     """The dataset folder an importer writes whole: none of its ``inputs`` nor holding one,
     and, where it exists and is not empty, replaced only with ``overwrite`` and only when the
     importer wrote it (its ``record`` YAML names ``generator``): never a user's own folder,
     whose other files the replacement would delete. Every file of the folder must be one the
-    record's WRITTEN_FILES table lists, as written; where the record has no table (an older
-    fieldloc's) or a damaged one (not a mapping), one whose relative name matches the regular
-    expression ``own_names`` (the names the importer writes), so that a user's file added to
-    the folder is never deleted."""
+    record's WRITTEN_FILES table lists, as written (``refuse_edited``: a record without a
+    table, an older fieldloc's, or with a damaged one vouches for none, and the folder is
+    refused), so that a user's file added to the folder, or one of the importer's files
+    edited since, is never deleted."""
     restore_interrupted_replacement(output)  # a folder a killed replacement moved aside
     check_output(output, inputs, overwrite=None, kind="folder", error=error)
     if not (output.is_dir() and any(output.iterdir())):
@@ -563,13 +563,10 @@ def check_importer_target(output: Path, inputs: Mapping[str, object], overwrite:
     names = tree_files(output, skip={record})
     if isinstance(table, Mapping):
         extra = next((n for n in names if n not in table), None)
-    else:  # no table, or a damaged one: the importer's own names only
-        extra = next((n for n in names if not re.fullmatch(own_names, n)), None)
-    if extra is not None:
-        raise error(f"{output / extra} was not written by {generator}: --overwrite would"
-                    " delete it; move it out of the folder or choose another output")
-    if isinstance(table, Mapping):
-        refuse_edited(output, table, names, record=record, error=error)
+        if extra is not None:
+            raise error(f"{output / extra} was not written by {generator}: --overwrite would"
+                        " delete it; move it out of the folder or choose another output")
+    refuse_edited(output, table, names, record=record, error=error)
 
 
 def starts_with(path: str | Path, head: bytes) -> bool:

@@ -560,7 +560,8 @@ CHUNK_FRAMES = 256
 # groups, object headers, attributes): 14.6 kB of a 4-frame omni file of 197 kB, of which
 # 182 kB are chunks. A lower bound, so that no run that fits is refused for it.
 FILE_HEAD_BYTES = 8 << 10
-_NAME_BYTES = 16  # a frame's name in /index/name as stored (a variable-length string's entry)
+_NAME_BYTES = 16  # an entry of /index/name or /index/image as stored (a variable-length
+# string's)
 
 
 def _chunked(rows: int, chunk_row: int, stored_row: int | None = None) -> int:
@@ -574,10 +575,10 @@ def _chunked(rows: int, chunk_row: int, stored_row: int | None = None) -> int:
 def file_bytes(columns: dict[str, tuple[int, int]], frames: int) -> int:
     """The storage of a features file of ``frames`` frames whose columns are ``columns``
     (key -> (rows of all frames, bytes per row)): each column's rows and row counts in whole
-    chunks, the index (names, stamps), and FILE_HEAD_BYTES. What extract checks the disk
+    chunks, the index (names, stamps, images), and FILE_HEAD_BYTES. What extract checks the disk
     for: before its first frame is committed, with that frame's columns (the least the run
     writes: later frames only add rows), and before the frames are merged, with them all."""
-    size = FILE_HEAD_BYTES + _chunked(frames, 8, _NAME_BYTES) + _chunked(frames, 8)
+    size = FILE_HEAD_BYTES + 2 * _chunked(frames, 8, _NAME_BYTES) + _chunked(frames, 8)
     for rows, row in columns.values():
         size += _chunked(frames, 8) + _chunked(rows, row)
     return size

@@ -100,9 +100,6 @@ ODOMETRY_TYPES = ("nav_msgs/msg/Odometry",)
 IMU_TYPES = ("sensor_msgs/msg/Imu",)
 STAMPS = ("header", "bag")
 GENERATOR = "fieldloc import rosbag"  # import.yaml's generator: the marker of our folders
-# the names of the files this importer writes (besides import.yaml): what --overwrite may
-# delete from a folder whose import.yaml has no written_files table (an older record's)
-OWN_NAMES = r"images/[0-9]{6,}\.(png|jpg)|(frames|odometry|imu)\.csv|calib\.yaml"
 
 # zlib strategies and PNG row filters by name (OpenCV's IMWRITE_PNG_STRATEGY / _FILTER values)
 PNG_STRATEGIES = {"default": 0, "filtered": 1, "huffman": 2, "rle": 3, "fixed": 4}
@@ -616,8 +613,7 @@ def _check_target(output: Path, bag, calib, overwrite: bool) -> None:
     if source.is_dir() and output.resolve().is_relative_to(source.resolve()):
         raise FieldlocError(f"{output} lies inside the bag folder {source}: choose an output"
                             " outside it")
-    check_importer_target(output, {}, overwrite, record="import.yaml", generator=GENERATOR,
-                          own_names=OWN_NAMES)
+    check_importer_target(output, {}, overwrite, record="import.yaml", generator=GENERATOR)
 
 
 def _deserialize(reader, raw, conn, bag):
