@@ -9,6 +9,8 @@ import sys
 
 import click
 
+from stages.common.one_line import one_line
+
 
 def conf_option(f):
     """`-c key=value` overrides of a stage's preset (repeatable)."""
@@ -62,10 +64,10 @@ def progress_enabled(ctx: click.Context) -> bool:
 
 def summary(ctx: click.Context, message: str) -> None:
     """A command's closing summary ("wrote X: N frames"): stderr, and nothing with -q. One
-    line, as an error is: a line break in a name it quotes (a file called "o\\nut.h5") is
-    shown as a space."""
+    line, as an error is (stages.common.one_line: a line break in a name it quotes, a file
+    called "o\\nut.h5", is shown as a space, an escape sequence escaped, a long name cut)."""
     if not (ctx.find_root().obj or {}).get("quiet"):
-        click.echo(" ".join(str(message).splitlines()), err=True)
+        click.echo(one_line(message), err=True)
 
 
 def count(n: int, noun: str, plural: str | None = None) -> str:

@@ -10,6 +10,7 @@ import click
 from stages.common.errors import FieldlocError
 
 from .common import FINITE, FilePath, conf_option, overrides_dict, summary
+from .lazy_group import RESUMES, set_resumes
 from .stage_defaults import EVALUATE_PRESETS, EVALUATE_STAMP_TOLERANCE
 
 
@@ -91,6 +92,8 @@ def evaluate(ctx, inputs, truth, output, field, table_only, preset, stamp_tolera
     outs = report_dirs(list(inputs), output)
     done = []
     for poses, out in zip(inputs, outs):
+        # what a stop (a signal, a full disk) leaves: the reports finished before this one
+        set_resumes(ctx, RESUMES["evaluate"] if done else None)
         done.append(evaluation.main(conf, poses, truth, out, overwrite=overwrite, field=field))
         # where the report went, above all when no -o chose it (beside the poses file, which
         # may be inside the dataset folder)

@@ -7,7 +7,6 @@ from __future__ import annotations
 import contextlib
 import importlib.util
 import logging
-import re
 import signal
 import sys
 import threading
@@ -15,11 +14,9 @@ import threading
 import click
 
 from stages.common.errors import DiskFullError, FieldlocError
+from stages.common.one_line import one_line
 
-# a run of this many characters without a space in an error line is a value the user gave (a
-# path or a name of kilobytes), not the message: it is quoted by its first few dozen
-LONG_RUN = 200
-QUOTED = 57
+from . import _stopped_at_start
 
 
 class Terminated(KeyboardInterrupt):
@@ -30,7 +27,8 @@ class Terminated(KeyboardInterrupt):
 
 
 # what a rerun does after an interruption, by command (the others leave no half file and start
-# over): only extract and batch resume, and localize resumes the extraction it runs on the fly
+# over): only extract and batch resume, and localize resumes the extraction it runs on the fly;
+# a command that knows better for the run at hand says so in ctx.obj["resumes"] (``resumes``)
 RESUMES = {
     "extract": "finished frames were kept; a rerun resumes where it stopped",
     "localize": "finished files were kept; a rerun resumes an extraction it had begun",
@@ -38,6 +36,21 @@ RESUMES = {
     "evaluate": "finished reports were kept; a rerun writes the others",
 }
 STARTS_OVER = "no half-written file was left; a rerun starts over"
+
+
+def resumes(ctx) -> str | None:
+    """What a rerun finds after the command ``ctx`` runs stopped (interrupted, or on a full
+    disk): ``ctx.obj["resumes"]`` where the command set it (None: nothing was kept; localize
+    given its features extracts nothing, evaluate kept no report before the first is
+    done), else the command's RESUMES entry."""
+    obj = ctx.obj if isinstance(ctx.obj, dict) else {}
+    return obj.get("resumes", RESUMES.get(ctx.invoked_subcommand or ""))
+
+
+def set_resumes(ctx, note: str | None) -> None:
+    """Say (in ``ctx.obj``, which the group's context shares) what a rerun finds if the
+    command stops from now on; None: nothing kept, a rerun starts over."""
+    ctx.ensure_object(dict)["resumes"] = note
 
 
 def _interrupt_in(e: BaseException | None) -> KeyboardInterrupt | None:
@@ -55,7 +68,7 @@ def _interrupted(ctx, e: KeyboardInterrupt) -> None:
     """Say that the command was interrupted (Ctrl-C) or terminated (SIGTERM) and what a rerun
     does, and exit 130 or 143 (128 + the signal's number, as a shell)."""
     term = isinstance(e, Terminated)
-    note = RESUMES.get(ctx.invoked_subcommand or "", STARTS_OVER)
+    note = resumes(ctx) or STARTS_OVER
     click.echo(f"fieldloc: {'terminated' if term else 'interrupted'} ({note})", err=True)
     # the last line: what a library still closes as the process ends (Dask's nannies at exit,
     # a signal that came as batch's cluster had just stopped) logs nothing after it on the
@@ -67,11 +80,24 @@ def _interrupted(ctx, e: KeyboardInterrupt) -> None:
 
 
 @contextlib.contextmanager
-def _terminate_as_interrupt():
+def _terminate_as_interrupt(last: bool = False):
     """While the command runs, SIGTERM raises Terminated (where it is not ignored, and only in
-    the main thread, where Python handles signals); the earlier handler is put back after."""
+    the main thread, where Python handles signals); the earlier handler is put back after.
+
+    ``last``: the command is the program's (``fieldloc`` run from a shell, not called by a
+    test), and the process ends after it. Then SIGTERM and SIGINT are ignored from the moment
+    the command is over, instead of the earlier handlers put back: by then its outputs are
+    committed (or its one error or "interrupted" line is being said), and a signal that came
+    in the last milliseconds killed the process by the default action, with exit code 143 and
+    no line at all (SIGTERM), or made click add its "Aborted!" (SIGINT). The process exits
+    as the command ended: 0 with its outputs complete, or its one line and exit code."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    if signal.getsignal(signal.SIGINT) is _stopped_at_start:  # the start is over (__init__)
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     old = signal.getsignal(signal.SIGTERM)
-    if threading.current_thread() is not threading.main_thread() or old == signal.SIG_IGN:
+    if old == signal.SIG_IGN:
         yield
         return
 
@@ -82,14 +108,12 @@ def _terminate_as_interrupt():
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, signal.SIG_DFL if old is None else old)
+        if last:  # never put back: SIG_IGN stays so as the interpreter shuts down
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        else:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL if old is None else old)
 
-
-def _short(text: str) -> str:
-    """An error on one line, each run of more than LONG_RUN characters without a space cut
-    to its first QUOTED (a 100 kB argument made a 100 kB "one-line" error)."""
-    text = " ".join(str(text).split())
-    return re.sub(rf"\S{{{LONG_RUN + 1},}}", lambda m: m.group(0)[:QUOTED] + "...", text)
 
 # command name -> ("module:attribute", its short help as the listing shows it). Each module only
 # parses options and calls a stage, which it imports inside its callback; the short help is here
@@ -104,6 +128,15 @@ class LazyGroup(click.Group):
     def __init__(self, *args, lazy_commands=None, **kwargs):
         super().__init__(*args, **kwargs)
         self.lazy_commands = {} if lazy_commands is None else lazy_commands
+        self.program = False  # run as the program (main without args): see main
+
+    def main(self, args=None, *a, **kwargs):
+        """click's main; called without ``args`` (the ``fieldloc`` command: its arguments
+        from the command line, not a caller's such as click's test runner) the process ends
+        with the command, and the signals that come once it is over are ignored
+        (``_terminate_as_interrupt``'s ``last``)."""
+        self.program = args is None
+        return super().main(args, *a, **kwargs)
 
     def list_commands(self, ctx):
         names = list(self.commands)
@@ -144,17 +177,17 @@ class LazyGroup(click.Group):
     def invoke(self, ctx):
         debug = ctx.params.get("debug") or "--debug" in sys.argv
         try:
-            with _terminate_as_interrupt():
+            with _terminate_as_interrupt(last=self.program and ctx.parent is None):
                 return super().invoke(ctx)
         except click.ClickException as e:  # a usage error: click says it, the value cut short
-            e.message = _short(e.message)
+            e.message = one_line(e.message)
             raise
         except FieldlocError as e:
             if debug:
                 raise
             if isinstance(e, DiskFullError):  # what a rerun finds: kept work, or none
-                e = e.line(RESUMES.get(ctx.invoked_subcommand or "", ""))
-            click.echo(f"fieldloc: error: {_short(e)}", err=True)
+                e = e.line(resumes(ctx) or "")
+            click.echo(one_line(f"fieldloc: error: {e}"), err=True)
             ctx.exit(1)
         except BrokenPipeError:  # stdout closed by its reader (| head): nothing more to say
             import os
@@ -168,10 +201,10 @@ class LazyGroup(click.Group):
             if debug:
                 raise
             where = f"{e.filename}: " if e.filename else ""
-            text = " ".join(str(e.strerror or e).split())  # HDF5's messages span lines
+            text = str(e.strerror or e)  # HDF5's messages span lines (one_line joins them)
             if "errno = 28," in text:
                 text = "No space left on device"
-            click.echo(f"fieldloc: error: {_short(where + text[:300])}", err=True)
+            click.echo(one_line(f"fieldloc: error: {where}{text}"), err=True)
             ctx.exit(1)
         except MemoryError:
             if debug:

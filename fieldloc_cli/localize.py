@@ -13,6 +13,7 @@ from pathlib import Path
 import click
 
 from .common import FilePath, conf_option, count, overrides_dict, progress_enabled, summary
+from .lazy_group import set_resumes
 from .stage_defaults import LOCALIZE, LOCALIZE_DEFAULT_METHOD, LOCALIZE_METHODS
 
 log = logging.getLogger("fieldloc.localize")
@@ -143,6 +144,8 @@ def localize(ctx, dataset, map_path, templates, pose_solver, features, points, m
         conf["min_confidence"] = min_confidence
     conf = resolve_conf(stage.confs, stage.preset_name(method, preset), conf)
     output = output or Path(dataset) / f"poses-{method}.h5"
+    if features is not None or points is not None or method == "templates":
+        set_resumes(ctx, None)  # nothing extracted on the fly: nothing a rerun resumes
     if method == "templates":
         path = stage.main(conf, dataset, map_path, output, templates=templates,
                           overwrite=overwrite, progress=progress_enabled(ctx))

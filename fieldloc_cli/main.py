@@ -7,11 +7,11 @@ in one line on stderr and exit code 1; `--debug` shows the traceback instead."""
 from __future__ import annotations
 
 import logging
-import sys
 
 import click
 
 from stages import __version__
+from stages.common.one_line import stderr_handler
 
 from .lazy_group import LazyGroup
 
@@ -61,15 +61,6 @@ COMMANDS = {
 }
 
 
-class OneLineFormatter(logging.Formatter):
-    """A log line is one line, as an error and a summary are: a line break in what a message
-    quotes (a file called "a\\nb.png") is shown as a space. A traceback (-vv, --debug) is
-    appended after it as the logging module formats it."""
-
-    def formatMessage(self, record: logging.LogRecord) -> str:
-        return " ".join(super().formatMessage(record).splitlines())
-
-
 @click.group(cls=LazyGroup, lazy_commands=COMMANDS,
              context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="fieldloc")
@@ -82,9 +73,7 @@ def cli(ctx, verbose, quiet, debug):
     level = logging.WARNING if quiet else (logging.INFO if verbose <= 1 else logging.DEBUG)
     if verbose == 0 and not quiet:
         level = logging.WARNING
-    handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(OneLineFormatter("%(levelname)s %(name)s: %(message)s"))
-    handler.fieldloc_stderr = True  # silenced after an interrupt's last line (lazy_group)
+    handler = stderr_handler()  # one line each, whatever a name holds
     logging.basicConfig(level=level, handlers=[handler])
     ctx.obj = {"verbose": verbose, "quiet": quiet, "debug": debug}
 

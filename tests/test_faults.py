@@ -873,6 +873,24 @@ def _setup_one_bag(w, ws):
 
 
 LOCALIZE = ["localize", "{omni}", "--map", "{map}", "--features", "{features}"]
+
+
+def _g3_seed_1_0(w, ws):
+    """ws/simulation.yaml: the shared dataset's record, its seed written 1_0 (YAML 1.1's 10)."""
+    text = (w["omni"] / "simulation.yaml").read_text()
+    (ws / "simulation.yaml").write_text(re.sub(r"^seed: .*$", "seed: 1_0", text, flags=re.M))
+    return {}
+
+
+def _g3_bounded_line(paths, res):
+    """The one error line quoting a path of 4000 characters is at most LINE_MAX long and
+    keeps the path's tail (which file)."""
+    from stages.common.one_line import LINE_MAX
+
+    line = res.stderr.splitlines()[0]
+    assert len(line) <= LINE_MAX and line.endswith("/none.h5"), (len(line), line)
+
+
 W = "{ws}"
 SIM_OMNI = ["simulate", "omni", "--field", "spl", "--frames", "2", "-o", W + "/sim"]
 SIM_NAO = ["simulate", "perspective", "--field", "kidsize", "--frames", "2", "-o", W + "/sim",
@@ -2883,6 +2901,15 @@ CASES = [
          ["extract", "{ds}", "-o", W + "/f.h5"], 0,
          "frame 000001 skipped: unreadable image: ", setup=_setup_idat_damaged_crc_right,
          check=_check_frames_extracted(3)),
+    # ---- s56 group G3: one bounded line whatever a name holds (N2); inspect's specific line
+    Case("inspect a simulation.yaml whose seed is 1_0", "newcomer",
+         ["inspect", W + "/simulation.yaml"], 1,
+         "('seed: 1_0'): '1_0' is no decimal number", setup=_g3_seed_1_0),
+    *[Case(f"localize --features at a 4000-character path of {what}", "newcomer",
+           ["localize", "{omni}", "--map", "{map}", "--features", W + "/" + path, "-o",
+            W + "/p.h5"], 1, "fieldloc: error: file not found: ", check=_g3_bounded_line)
+      for what, path in (("spaced words", "/".join(["a " * 100] * 20) + "/none.h5"),
+                         ("names without a space", "/".join(["b" * 200] * 20) + "/none.h5"))],
 ]
 
 

@@ -114,6 +114,19 @@ def load_yaml(text: str | bytes):
             None, None, f"a value YAML cannot read ({str(e)[:60]})") from None
 
 
+def yaml_problem(e: yaml.YAMLError, text: str) -> str:
+    """What is wrong in the YAML ``text`` that ``load_yaml`` refused with ``e``, in a message's
+    words: the problem, after the line it is on, quoted by its first few dozen characters
+    (which key: "line 12 ('seed: 1_0'): '1_0' is no decimal number ...")."""
+    problem = " ".join(str(getattr(e, "problem", None) or e).split()) or type(e).__name__
+    mark = getattr(e, "problem_mark", None)
+    if mark is None:
+        return problem
+    lines = text.splitlines() if isinstance(text, str) else []
+    quoted = f" ({shown(lines[mark.line].strip(), 40)})" if mark.line < len(lines) else ""
+    return f"line {mark.line + 1}{quoted}: {problem}"
+
+
 def parse_overrides(items) -> dict:
     """['a=1', 'b.c=x'] -> {'a': 1, 'b': {'c': 'x'}} (values parsed as YAML scalars; their type
     is checked against the preset in ``resolve_conf``)."""

@@ -18,7 +18,7 @@ import numpy as np
 from .artifacts import HDF5_SIGNATURE, human_bytes
 from .artifacts import describe as describe_hdf5
 from .camera import CALIB_KEYS
-from .conf import load_yaml
+from .conf import load_yaml, yaml_problem
 from .dataset import CSV_COLUMNS, IMAGE_SUFFIXES, SIMULATION_RECORD, csv_rows
 from .errors import FieldlocError
 
@@ -148,7 +148,14 @@ def _yaml(path: Path, text: str) -> str | None:
 
     try:
         d = load_yaml(text)
-    except yaml.YAMLError:
+    except yaml.YAMLError as e:
+        # a YAML document with a value load_yaml refuses (a seed of 1_0, a key given twice),
+        # or a .yaml file that does not parse: what is wrong and where, rather than "not a
+        # file fieldloc reads"; other text is none of the files inspect reads
+        if isinstance(e, yaml.constructor.ConstructorError):
+            raise FieldlocError(f"{path}: {yaml_problem(e, text)}") from None
+        if path.suffix.lower() in (".yaml", ".yml"):
+            raise FieldlocError(f"{path}: not valid YAML, {yaml_problem(e, text)}") from None
         return None
     if not isinstance(d, dict):
         return None

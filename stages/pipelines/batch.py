@@ -679,10 +679,19 @@ def _local_worker_setup() -> None:
     rather than each dying of it mid-task with its own lines. tqdm's bars there lock with a
     thread lock instead of the multiprocessing lock tqdm makes by default, a semaphore that
     a worker stopped mid-task leaves behind for Python's resource tracker to warn of at exit
-    (the workers' bars are never shown, so no process shares them)."""
+    (the workers' bars are never shown, so no process shares them). A stage's warning in a
+    worker (extract's "frame skipped") is one line as in the CLI's process, with the same
+    prefix (``stderr_handler``): without a handler of its own, Python's last resort printed
+    its bare message, a name's line break and escape sequences raw."""
     import threading
 
     from tqdm import tqdm
+
+    from ..common.one_line import stderr_handler
+
+    root = logging.getLogger()
+    if not any(getattr(h, "fieldloc_stderr", False) for h in root.handlers):
+        root.addHandler(stderr_handler())
 
     with contextlib.suppress(ValueError):  # not the main thread: nothing to ignore it in
         signal.signal(signal.SIGINT, signal.SIG_IGN)
