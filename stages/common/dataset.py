@@ -30,6 +30,7 @@ import csv
 import io
 import logging
 import math
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -407,6 +408,17 @@ def image_identity(data: bytes) -> str:
     from isal import isal_zlib
 
     return f"{len(data)}:{isal_zlib.crc32(data):08x}"
+
+
+def file_size_identity(path: Path, recorded: str) -> str | None:
+    """``recorded`` (an ``image_identity``) where the file at ``path`` has its size, else
+    the file's size with no CRC, or None where it cannot be read: what ``image_identity``
+    tells without reading the file."""
+    try:
+        size = os.stat(path).st_size
+    except OSError:
+        return None
+    return recorded if recorded.partition(":")[0] == str(size) else f"{size}:(not read)"
 
 
 def file_identity(path: Path) -> str | None:
