@@ -36,8 +36,10 @@ is "mirror-ambiguous" when the mirrored pose weighs ``MIRROR_RATIO`` of the best
 ``init: uniform`` on a point-symmetric field keeps one particle per mirrored pair
 (mcl_start.SYMMETRIC_PAIRS), reports the member continuing the last estimate at confidence
 <= 0.5, flags every frame and decides ``confidence_up_to_mirror``, unless ``start_half`` names
-the first pose's half (``start_half_error``). ``init: pose``: around ``init_pose``,
-``init_spread``.
+the first pose's half (``start_half_error``): that half, carried to later frames by the
+odometry (mcl_start.StartHalf), then decides which of a pose and its mirror image each pose
+the filter adds stands for (the first frame's places, sensor resets, augmented MCL, the
+rivals). ``init: pose``: around ``init_pose``, ``init_spread``.
 
 All draws come from one ``np.random.default_rng(seed)``: same inputs and seed, same poses. The
 figures behind the tuned constants: docs/results.md, "Why the defaults are what they are".
@@ -199,6 +201,7 @@ class ParticleFilter:
         self._start_search = False  # a uniform start: the first observations place the belief
         self._start_keep = 0  # a dense start: the particles its first observations keep
         self._known_start = False  # a placement or pose start whose belief is still wide
+        self.start_half: mcl_start.StartHalf | None = None  # a uniform start's given half
         hx, hy = self.field.length / 2, self.field.width / 2
         m = float(WORLD_MARGIN)
         self.bounds = (-hx - m, hx + m, -hy - m, hy + m)
@@ -228,6 +231,9 @@ class ParticleFilter:
         self.rivals.start(mode)
         self._start_search = mcl_start.searches_places(mode)
         self._known_start = mcl_start.is_known(mode)
+        self.start_half = (mcl_start.StartHalf(c["start_half"], c["start_half_error"])
+                           if mode == "uniform" and self.symmetric and c["start_half"] != "any"
+                           else None)
         self._start_keep = n if dense > 1 else 0
         self.particles = mcl_start.initial_poses(mode, n * dense, self.rng, self.field,
                                                  self.bounds, c, pose)
@@ -241,6 +247,9 @@ class ParticleFilter:
             self.particles, odometry, dt, self.rng, has_odometry=has_odometry,
             collision=collision, imu_yaw=imu_yaw)
         self.rivals.move(odometry)
+        if self.start_half is not None:
+            self.start_half.move(odometry, dt, has_odometry=has_odometry, collision=collision,
+                                 imu_yaw=imu_yaw)
 
     def fold(self):
         """Paired mode: hold each particle as whichever of itself and its mirrored pose lies
@@ -274,7 +283,7 @@ class ParticleFilter:
             self._start_search = False
             p = mcl_start.placed_start(self.model, prep, len(self.particles), self.rng,
                                        self.bounds, self.conf, symmetric=self.symmetric,
-                                       paired=self.paired)
+                                       paired=self.paired, start_half=self.start_half)
             if p is not None:
                 self.particles, self.weights = p, np.full(len(p), 1.0 / len(p))
         frame.prep = prep
@@ -284,6 +293,8 @@ class ParticleFilter:
             self.rivals.clear()
         pool = (self.new_poses.observed(int(RESET_POOL), frame) if frame.reset
                 else np.zeros((0, 3)))
+        if self.start_half is not None:  # rivals on the side the start half favours
+            pool = self.start_half.sided(pool)
         p, rivals = self.particles, self.rivals.poses
         if len(pool) or len(rivals):
             p = np.concatenate([p, pool, rivals])
@@ -370,7 +381,8 @@ class ParticleFilter:
         if self.paired:
             return poses
         return mirror_guard(poses, Belief(self.particles, self.weights), self.clusters,
-                            None if self.last is None else self.last.pose)
+                            None if self.last is None else self.last.pose,
+                            None if self.start_half is None else self.start_half.log_odds)
 
     # ------------------------------------------------------------------ the estimate
     def estimate(self) -> Estimate:

@@ -40,7 +40,7 @@ import numpy as np
 from ..common.geometry import wrap_angle
 from ..common.jit import njit
 from ..common.observations import Observations
-from .mcl_start import held_count, uniform_poses
+from .mcl_start import HALF_DECIDES, held_count, uniform_poses
 
 SPREAD_LOW = 0.15  # m: belief spread at or below which particles_min are used
 SPREAD_HIGH = 0.8  # m: spread at or above which particles_max are used
@@ -209,24 +209,33 @@ def _log_kernel_density(poses, support, scales, out):
         out[m] = -low + math.log(total) - math.log(n)
 
 
-def mirror_guard(poses: np.ndarray, belief: Belief, clusters, last_pose) -> np.ndarray:
+def mirror_guard(poses: np.ndarray, belief: Belief, clusters, last_pose,
+                 log_odds=None) -> np.ndarray:
     """Without the pairing of a symmetric prior the track has chosen a side of the field: a
     new pose and its mirror image explain the observations equally, so each new pose is
     taken as whichever of the two the ``belief`` supports more (the new poses can then find a
     lost robot, but not flip the track to the mirrored side). The support is the belief's
     density at the pose (``log_support``); where the belief holds neither (a far kidnap), the
-    one nearer the last estimate's pose ``last_pose`` (None before the first)."""
+    one nearer the last estimate's pose ``last_pose`` (None before the first).
+
+    ``log_odds`` (poses -> log prior odds of each pose over its mirror image; a start half
+    carried by the odometry, mcl_start.StartHalf) weighs in: the side is the one of the
+    larger support times prior, and where the belief holds neither, the prior's side where
+    its odds reach mcl_start.HALF_DECIDES."""
     if not len(poses):
         return poses
     mirror = poses.copy()
     mirror[:, 0:2] *= -1.0
     mirror[:, 2] = wrap_angle(mirror[:, 2] + math.pi)
     own, other = log_support(belief, poses, clusters), log_support(belief, mirror, clusters)
-    flip = other > own
+    odds = np.zeros(len(poses)) if log_odds is None else log_odds(poses)
+    flip = other > own + odds
     if last_pose is not None:
         cx, cy = float(last_pose[0]), float(last_pose[1])
         nearer = (poses[:, 0] + cx) ** 2 + (poses[:, 1] + cy) ** 2 < (
             poses[:, 0] - cx) ** 2 + (poses[:, 1] - cy) ** 2
+        if log_odds is not None:
+            nearer = np.where(np.abs(odds) >= HALF_DECIDES, odds < 0.0, nearer)
         none = np.maximum(own, other) < NO_SUPPORT
         flip = np.where(none, nearer, flip)
     out = poses.copy()

@@ -22,7 +22,9 @@ posterior around it; the grid's likelihood outside them is drawn uniformly (or
 ``START_UNIFORM_SHARE``). Drawn uniformly, the particles of a sharp peak are few and off it;
 drawn by the first frame's likelihood, a broad plateau outweighs a sharp peak: either way
 chance picks among places the first frames explain alike. Equal shares keep each place alive
-until the frames decide.
+until the frames decide. With ``start_half`` the places are searched on that half and as far
+past the centre line as the robot may have walked before that frame (``StartHalf.reach``),
+each on the side the start half favours (``StartHalf``).
 
 The particle count of the initial belief (``INIT_PARTICLES``) is larger than the tracking
 one: a wide belief needs more particles (a stand-in for KLD sampling, Fox (2003); the
@@ -42,10 +44,12 @@ import math
 from types import MappingProxyType
 
 import numpy as np
+from scipy.special import log_ndtr
 
 from ..common.errors import FieldlocError
-from ..common.geometry import wrap_angle
+from ..common.geometry import compose, wrap_angle
 from . import place_search
+from .motion_model import motion_sigmas
 
 # particles of the initial belief by the start (``init``), kept until its spread falls below
 # mcl_resampling.SPREAD_HIGH
@@ -220,29 +224,36 @@ def placement_log_density(p: np.ndarray, field, conf: dict) -> np.ndarray:
     return best - 0.5 * (beyond / PLACEMENT_EDGE) ** 2
 
 
-def search_bounds(bounds: tuple, half: str, paired: bool) -> tuple:
-    """Where a uniform start's places are searched: the half ``half`` names, the half x <= 0
-    while particles stand for mirrored pairs, else the world ``bounds``."""
+def search_bounds(bounds: tuple, half: str, paired: bool, reach: float = 0.0) -> tuple:
+    """Where a uniform start's places are searched: the half ``half`` names and ``reach`` m
+    past the centre line (how far the robot may have walked since the first frame,
+    StartHalf.reach), the half x <= 0 while particles stand for mirrored pairs, else the
+    world ``bounds``."""
     x0, x1, y0, y1 = bounds
-    if half == "own" or paired:
+    if paired:
         return (x0, 0.0, y0, y1)
+    if half == "own":
+        return (x0, min(x1, reach), y0, y1)
     if half == "opponent":
-        return (0.0, x1, y0, y1)
+        return (max(x0, -reach), x1, y0, y1)
     return bounds
 
 
 def placed_start(model, prep, n: int, rng, bounds: tuple, conf: dict, *, symmetric: bool,
-                 paired: bool) -> np.ndarray | None:
+                 paired: bool, start_half: StartHalf | None = None) -> np.ndarray | None:
     """A uniform start's belief of ``n`` particles from its first frame with observations
     ``prep`` (the observation model's prepared observations): the places where the frame fits
     best (place_search.search: ``START_PLACES`` of them on the coarse grid ``START_GRID``
     over ``search_bounds``, each refined), an equal share of the particles around each (a
     Gaussian of the frame's posterior near it, place_search.local_posterior), and the grid's
     share of the likelihood outside them uniform over the world (or ``START_UNIFORM_SHARE``
-    when given). None where the search finds no place (the belief stays)."""
+    when given). With ``start_half`` (a start half carried by the odometry) each place's
+    poses are on the side it favours. None where the search finds no place (the belief
+    stays)."""
     step, turn = (float(v) for v in START_GRID)
+    reach = 0.0 if start_half is None else start_half.reach()
     places, elsewhere = place_search.search(
-        model, prep, search_bounds(bounds, conf["start_half"], paired), step, turn,
+        model, prep, search_bounds(bounds, conf["start_half"], paired, reach), step, turn,
         int(START_PLACES), mirror=symmetric, cells=True)
     if not places:
         return None
@@ -259,7 +270,83 @@ def placed_start(model, prep, n: int, rng, bounds: tuple, conf: dict, *, symmetr
             # the place or its mirror image, alike
             flip = rng.random(len(q)) < 0.5
             q[flip] = model.field.mirror_pose(q[flip])
+        elif start_half is not None:
+            q = start_half.sided(q)
         drawn.append(q)
     p = np.concatenate(drawn)
     p[:, 2] = wrap_angle(p[:, 2])
     return p
+
+
+# nats: where the belief supports neither a new pose nor its mirror image (a far kidnap), the
+# start half's log odds between the two decide when they are at least this (20 : 1); weaker
+# odds (a long walk's odometry) leave the choice to the last estimate's side
+HALF_DECIDES = 3.0
+
+
+class StartHalf:
+    """The start half (``start_half``, ``start_half_error``) carried to later frames by the
+    odometry: a pose now is on the start's side of the field when the odometry since the
+    first frame, undone from it, puts the robot's first pose on the half given.
+
+    On a point-symmetric field a pose and its mirror image explain every frame alike, so
+    what a uniform start knows of the side is the half the robot started in. The particles
+    drawn at the start carry it; the poses the filter adds later (sensor resets, augmented
+    MCL, the rivals, the first frame's places) do not, unless each is taken as whichever of
+    itself and its mirror image this prior favours. Undoing the odometry D from a pose P
+    gives the first pose S = P (+) D^-1, and from P's mirror image the mirror image of S, so
+    the prior of P against its mirror is that of x_S against -x_S. The odometry's error
+    (motion_model's noise, summed as a random walk, with the heading's error as a lever on
+    the distance covered) makes x_S uncertain: the prior of the half is the chance that the
+    first pose lay there, Phi(-x_S / sigma) for the own half, mixed with ``start_half_error``.
+    """
+
+    def __init__(self, half: str, error: float):
+        self.sign = -1.0 if half == "own" else 1.0
+        self.error = float(error)
+        self.moved = np.zeros(3)  # the odometry since the first frame, composed
+        self.var_xy = 0.0  # m^2: the variance of the composed translation, per axis
+        self.var_th = 0.0  # rad^2: of the composed heading
+        self.travelled = 0.0  # m: the path's length
+
+    def move(self, odometry, dt: float, **noise_flags) -> None:
+        """Compose one frame's odometry increment (motion_model's arguments)."""
+        s_t, s_r = motion_sigmas(odometry, dt, **noise_flags)
+        self.moved = compose(self.moved, np.asarray(odometry, dtype=float))
+        self.var_xy += s_t * s_t
+        self.var_th += s_r * s_r
+        self.travelled += math.hypot(float(odometry[0]), float(odometry[1]))
+
+    def reach(self) -> float:
+        """m: how far past the centre line a pose may now lie on the start's side: the path
+        covered and three of the first pose's sigmas."""
+        return self.travelled + 3.0 * self._sigma()
+
+    def _sigma(self) -> float:
+        lever = float(np.hypot(self.moved[0], self.moved[1]))
+        return math.sqrt(self.var_xy + self.var_th * lever * lever) + 1e-9
+
+    def log_odds(self, poses: np.ndarray) -> np.ndarray:
+        """log prior(pose) - log prior(its mirror image) for poses (M, 3)."""
+        dx, dy, dth = self.moved
+        th0 = poses[:, 2] - dth  # the first pose's heading
+        x0 = poses[:, 0] - (np.cos(th0) * dx - np.sin(th0) * dy)
+        z = self.sign * x0 / self._sigma()
+        e = self.error
+        # log((1 - e) Phi(z) + e Phi(-z)) for the pose, the same with -z for its mirror
+        if e <= 0.0:
+            return log_ndtr(z) - log_ndtr(-z)
+        right, wrong = math.log1p(-e) if e < 1.0 else -math.inf, math.log(e)
+        return (np.logaddexp(right + log_ndtr(z), wrong + log_ndtr(-z))
+                - np.logaddexp(right + log_ndtr(-z), wrong + log_ndtr(z)))
+
+    def sided(self, poses: np.ndarray) -> np.ndarray:
+        """``poses`` (M, 3), each replaced by its mirror image where the start half's odds
+        favour that by HALF_DECIDES or more."""
+        if not len(poses):
+            return poses
+        flip = self.log_odds(poses) <= -HALF_DECIDES
+        out = poses.copy()
+        out[flip, 0:2] *= -1.0
+        out[flip, 2] = wrap_angle(out[flip, 2] + math.pi)
+        return out
