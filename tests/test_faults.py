@@ -3445,7 +3445,8 @@ def test_start_half_warning_when_the_track_starts_in_the_other_half():
 
     starts_over = [np.nan, 2.0, 2.1, -1.0, 2.3, 2.4, -3.0, -3.5, -4.0]
     msg = warn(starts_over)
-    assert msg and "4 of the run's first 5 accepted poses lie in the opponent half" in msg
+    assert msg and ("4 of the run's first 5 accepted poses place its start in the opponent"
+                    " half") in msg
     assert warn(starts_over, "opponent") is None and warn(starts_over, "any") is None
     mirrored = -np.asarray(starts_over)
     assert "in the own half (x < 0)" in warn(mirrored, "opponent")

@@ -1,4 +1,4 @@
-"""mcl's start half carried by the odometry (mcl_start.StartHalf): a uniform start told the half
+"""mcl's start half carried by the odometry (start_half.StartHalf): a uniform start told the half
 the robot started in keeps telling a pose from its mirror image after the robot has walked,
 for the poses the filter adds later as for its first particles."""
 
@@ -15,8 +15,9 @@ from hypothesis import strategies as st
 from stages.common.field import load_field
 from stages.common.geometry import compose, wrap_angle
 from stages.common.observations import Observations
-from stages.localize import mcl, mcl_start
+from stages.localize import mcl
 from stages.localize.observation_model import ObservationModel
+from stages.localize.start_half import StartHalf
 from stages.simulate.synthetic_observations import synthetic_observations
 
 NOISELESS = {"pitch_noise": 0.0, "roll_noise": 0.0, "point_noise": 0.0, "bearing_noise": 0.0,
@@ -35,8 +36,8 @@ def _mirror(p: np.ndarray) -> np.ndarray:
     return q
 
 
-def _carried(half: str, odometry) -> mcl_start.StartHalf:
-    h = mcl_start.StartHalf(half, 1e-3)
+def _carried(half: str, odometry) -> StartHalf:
+    h = StartHalf(half, 1e-3)
     for inc in odometry:
         h.move(inc, 0.1)
     return h
@@ -81,7 +82,7 @@ def test_the_odds_weaken_as_the_robot_walks(x0, frames):
 def test_sided_takes_the_mirror_image_only_where_the_odds_decide():
     """``sided``: a pose on the start's side stays; one on the other side far enough from
     the centre line becomes its mirror image; one on the line (odds near 1) stays."""
-    h = mcl_start.StartHalf("own", 1e-3)
+    h = StartHalf("own", 1e-3)
     poses = np.array([[-2.0, 1.0, 0.3], [2.0, 1.0, 0.3], [0.0, 1.0, 0.3]])
     out = h.sided(poses)
     np.testing.assert_allclose(out[0], poses[0])
@@ -111,3 +112,26 @@ def test_a_robot_that_crossed_the_centre_line_before_it_saw_anything():
         est, _ = pf.step(inc, 0.1, synthetic_observations(kidsize, pose, rng, NOISELESS))
     assert math.hypot(est.pose[0] - pose[0], est.pose[1] - pose[1]) < 0.3
     assert est.confidence > 0.5
+
+
+def test_the_warning_judges_where_the_accepted_poses_put_the_start():
+    """localize's warning that the frames overruled the given half (symmetry
+    .start_half_warning): a robot told to start on the own half that walked 2 m across the
+    halfway line before its first accepted frames is not warned of, given the odometry (the
+    first pose those frames imply is on the own half); the same poses without the odometry,
+    and a track whose implied start is on the other half, are."""
+    from stages.localize.symmetry import start_half_warning
+
+    n, inc = 30, np.array([0.1, 0.0, 0.0])
+    x = -1.0 + 0.1 * np.arange(n)  # from x = -1 m along +x, one frame a tenth of a second
+    cols = {"x": x, "y": np.full(n, 1.0), "theta": np.zeros(n), "stamp": 0.1 * np.arange(n),
+            "accepted": np.arange(n) >= 22}  # accepted from x = 1.2 m on
+    increments = np.tile(inc, (n, 1))
+    conf = {"conf": {"start_half": "own"}}
+    assert start_half_warning(cols, conf, increments) is None
+    assert start_half_warning(cols, conf) is not None  # where the poses lie: the other half
+    mirrored = dict(cols, x=-x, y=-cols["y"], theta=np.full(n, math.pi))
+    msg = start_half_warning(mirrored, {"conf": {"start_half": "opponent"}}, increments)
+    assert msg is None
+    assert "place its start in the opponent half" in start_half_warning(
+        dict(cols, x=x + 3.0), conf, increments)

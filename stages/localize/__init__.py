@@ -75,6 +75,7 @@ from ..common.field import load_field
 from ..common.map_file import MapFile
 from ..common.poses_file import SCHEMA, VERSION, PoseTrack, check_tum_output, write_poses
 from ..common.scanlines import bin_points_to_scanlines
+from .motion_model import accumulate_odometry
 from .symmetry import set_up_to_mirror, start_half_warning
 
 log = logging.getLogger(__name__)
@@ -449,7 +450,9 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path 
                 against_reference(track, reference, conf["min_confidence"])
             set_up_to_mirror(track, map_file.field.is_point_symmetric(),
                              conf["min_confidence"])
-            warn = start_half_warning(track.arrays(), {"conf": conf})
+            cols = track.arrays()
+            warn = start_half_warning(cols, {"conf": conf}, accumulate_odometry(
+                series["odometry"], cols["stamp"])[0] if len(cols["stamp"]) else None)
             if warn:
                 log.warning(warn)
             calib_refused = None

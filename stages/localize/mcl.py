@@ -37,7 +37,7 @@ is "mirror-ambiguous" when the mirrored pose weighs ``MIRROR_RATIO`` of the best
 (mcl_start.SYMMETRIC_PAIRS), reports the member continuing the last estimate at confidence
 <= 0.5, flags every frame and decides ``confidence_up_to_mirror``, unless ``start_half`` names
 the first pose's half (``start_half_error``): that half, carried to later frames by the
-odometry (mcl_start.StartHalf), then decides which of a pose and its mirror image each pose
+odometry (start_half.StartHalf), then decides which of a pose and its mirror image each pose
 the filter adds stands for (the first frame's places, sensor resets, augmented MCL, the
 rivals). ``init: pose``: around ``init_pose``, ``init_spread``.
 
@@ -87,6 +87,7 @@ from .mcl_smoothing import SMOOTH_TEMPERATURE, MclScorer, SmoothingInputs, motio
 from .observation_model import BOUNDS as OBSERVATION_BOUNDS
 from .observation_model import DEFAULTS as OBSERVATION_DEFAULTS
 from .observation_model import ObservationModel
+from .start_half import StartHalf
 
 log = logging.getLogger(__name__)
 
@@ -201,7 +202,7 @@ class ParticleFilter:
         self._start_search = False  # a uniform start: the first observations place the belief
         self._start_keep = 0  # a dense start: the particles its first observations keep
         self._known_start = False  # a placement or pose start whose belief is still wide
-        self.start_half: mcl_start.StartHalf | None = None  # a uniform start's given half
+        self.start_half: StartHalf | None = None  # a uniform start's given half
         hx, hy = self.field.length / 2, self.field.width / 2
         m = float(WORLD_MARGIN)
         self.bounds = (-hx - m, hx + m, -hy - m, hy + m)
@@ -231,7 +232,7 @@ class ParticleFilter:
         self.rivals.start(mode)
         self._start_search = mcl_start.searches_places(mode)
         self._known_start = mcl_start.is_known(mode)
-        self.start_half = (mcl_start.StartHalf(c["start_half"], c["start_half_error"])
+        self.start_half = (StartHalf(c["start_half"], c["start_half_error"])
                            if mode == "uniform" and self.symmetric and c["start_half"] != "any"
                            else None)
         self._start_keep = n if dense > 1 else 0

@@ -40,7 +40,8 @@ import numpy as np
 from ..common.geometry import wrap_angle
 from ..common.jit import njit
 from ..common.observations import Observations
-from .mcl_start import HALF_DECIDES, held_count, uniform_poses
+from .mcl_start import held_count, uniform_poses
+from .start_half import HALF_DECIDES
 
 SPREAD_LOW = 0.15  # m: belief spread at or below which particles_min are used
 SPREAD_HIGH = 0.8  # m: spread at or above which particles_max are used
@@ -219,9 +220,9 @@ def mirror_guard(poses: np.ndarray, belief: Belief, clusters, last_pose,
     one nearer the last estimate's pose ``last_pose`` (None before the first).
 
     ``log_odds`` (poses -> log prior odds of each pose over its mirror image; a start half
-    carried by the odometry, mcl_start.StartHalf) weighs in: the side is the one of the
+    carried by the odometry, StartHalf) weighs in: the side is the one of the
     larger support times prior, and where the belief holds neither, the prior's side where
-    its odds reach mcl_start.HALF_DECIDES."""
+    its odds reach start_half.HALF_DECIDES."""
     if not len(poses):
         return poses
     mirror = poses.copy()

@@ -27,6 +27,7 @@ import numpy as np
 
 from ..common.geometry import wrap_angle
 from ..common.poses_file import PoseTrack
+from .start_half import HALF_DECIDES, StartHalf
 
 # A hypothesis is the top's mirror image when it lies within half the global search's
 # ambiguity_distance (1 m: the spacing of the separated minima a search proposes) and within
@@ -78,10 +79,10 @@ MIN_HALF_FRAMES = 5  # the first accepted frames that say where the track starte
 CENTRE_MARGIN_M = 0.5
 
 
-def start_half_warning(columns: dict, attrs: dict) -> str | None:
-    """One line when the run's first MIN_HALF_FRAMES accepted poses mostly lie in the other
-    half than the ``start_half`` its conf gave, beyond CENTRE_MARGIN_M of the halfway line
-    (None otherwise, and for ``any``).
+def start_half_warning(columns: dict, attrs: dict, increments=None) -> str | None:
+    """One line when the run's first MIN_HALF_FRAMES accepted poses mostly put the robot's
+    start in the other half than the ``start_half`` its conf gave, beyond CENTRE_MARGIN_M of
+    the halfway line (None otherwise, and for ``any``).
 
     start_half chooses between a pose and its mirror where the frames cannot; where they can
     (a field-aligned IMU heading tells the two apart), they overrule it, and the track starts
@@ -89,20 +90,37 @@ def start_half_warning(columns: dict, attrs: dict) -> str | None:
     can tell which. Only the start is judged: a robot walks across the halfway line as it
     plays, and a track held on the given half says nothing either way (with no heading to
     tell, a wrong start half gives the mirror image of the whole track, which no frame can
-    reveal; evaluate warns of it where a truth is given)."""
+    reveal; evaluate warns of it where a truth is given). With ``increments`` (the odometry
+    between the track's frames, (F, 3)) each pose is judged by the first pose it implies
+    (start_half.StartHalf: the odometry undone from it), counted where that lies beyond the
+    margin on the other half and the odometry's error leaves odds of HALF_DECIDES or more:
+    a robot may have walked across the line before its first accepted frame."""
     half = (attrs.get("conf") or {}).get("start_half")
     if half not in HALVES:
         return None
     x = np.asarray(columns["x"], float)
     acc = np.asarray(columns["accepted"], bool) & np.isfinite(x)
-    first = x[acc][:MIN_HALF_FRAMES]
-    if len(first) < MIN_HALF_FRAMES:
+    at = np.flatnonzero(acc)[:MIN_HALF_FRAMES]
+    if len(at) < MIN_HALF_FRAMES:
         return None
-    other = int(np.sum(first > CENTRE_MARGIN_M) if half == "own"
-                else np.sum(first < -CENTRE_MARGIN_M))
-    if 2 * other <= len(first):
+    sign = 1.0 if half == "own" else -1.0  # the other half's side of x
+    if increments is None:
+        other = int(np.sum(sign * x[at] > CENTRE_MARGIN_M))
+    else:
+        poses = np.stack([x, np.asarray(columns["y"], float),
+                          np.asarray(columns["theta"], float)], axis=1)
+        stamps = np.asarray(columns["stamp"], float)
+        carried, other, k = StartHalf(half, 0.0), 0, 0
+        for i in range(at[-1] + 1):
+            if i:
+                carried.move(increments[i], max(float(stamps[i] - stamps[i - 1]), 0.0))
+            if i == at[k]:
+                k += 1
+                beyond = sign * carried.first_x(poses[i:i + 1])[0] > CENTRE_MARGIN_M
+                other += int(beyond and carried.log_odds(poses[i:i + 1])[0] <= -HALF_DECIDES)
+    if 2 * other <= len(at):
         return None
-    return (f"start_half {half}, yet {other} of the run's first {len(first)} accepted poses lie"
-            f" in the {HALVES['opponent' if half == 'own' else 'own']}: the frames (a"
+    return (f"start_half {half}, yet {other} of the run's first {len(at)} accepted poses place"
+            f" its start in the {HALVES['opponent' if half == 'own' else 'own']}: the frames (a"
             " field-aligned heading) overruled the given half; check it, or the heading's"
             " alignment (--start-half any lets the frames decide)")
