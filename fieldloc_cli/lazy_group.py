@@ -53,15 +53,22 @@ def set_resumes(ctx, note: str | None) -> None:
     ctx.ensure_object(dict)["resumes"] = note
 
 
+# the interrupts the command's signals raised (_terminate_as_interrupt's handlers): a library
+# may turn one into an error of its own, which names no cause (gtsam's ImportError
+# "initialization failed" where SIGTERM came while `import gtsam` ran its module's init)
+_RAISED: list[KeyboardInterrupt] = []
+
+
 def _interrupt_in(e: BaseException | None) -> KeyboardInterrupt | None:
-    """The KeyboardInterrupt in the chain of causes of ``e`` (``e`` itself included), or None."""
+    """The KeyboardInterrupt in the chain of causes of ``e`` (``e`` itself included), else
+    the last one a signal raised while the command ran, or None."""
     seen = set()
     while e is not None and id(e) not in seen:
         if isinstance(e, KeyboardInterrupt):
             return e
         seen.add(id(e))
         e = e.__cause__ or e.__context__
-    return None
+    return _RAISED[-1] if _RAISED else None
 
 
 def _interrupted(ctx, e: KeyboardInterrupt) -> None:
@@ -76,7 +83,17 @@ def _interrupted(ctx, e: KeyboardInterrupt) -> None:
     for handler in logging.root.handlers:
         if getattr(handler, "fieldloc_stderr", False):
             handler.setLevel(logging.CRITICAL + 1)
+    # nor does an object a stopped library leaves half made, finalised as the interpreter
+    # shuts down (llvmlite's "Exception ignored in: <function ValueRef.__del__ ...>")
+    sys.unraisablehook = lambda _unraisable: None
     ctx.exit(128 + (signal.SIGTERM if term else signal.SIGINT))
+
+
+def _interrupt(signum, frame):
+    """Ctrl-C while the command runs: KeyboardInterrupt, as Python's own handler raises it,
+    remembered (_RAISED)."""
+    _RAISED.append(KeyboardInterrupt())
+    raise _RAISED[-1]
 
 
 @contextlib.contextmanager
@@ -94,15 +111,22 @@ def _terminate_as_interrupt(last: bool = False):
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    if signal.getsignal(signal.SIGINT) is _stopped_at_start:  # the start is over (__init__)
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+    _RAISED.clear()
+    old_int = signal.getsignal(signal.SIGINT)
+    if old_int in (_stopped_at_start, signal.default_int_handler):
+        signal.signal(signal.SIGINT, _interrupt)  # the start is over (__init__)
     old = signal.getsignal(signal.SIGTERM)
     if old == signal.SIG_IGN:
-        yield
+        try:
+            yield
+        finally:
+            if signal.getsignal(signal.SIGINT) is _interrupt:
+                signal.signal(signal.SIGINT, signal.default_int_handler)
         return
 
     def terminate(signum, frame):
-        raise Terminated()
+        _RAISED.append(Terminated())
+        raise _RAISED[-1]
 
     signal.signal(signal.SIGTERM, terminate)
     try:
@@ -113,6 +137,8 @@ def _terminate_as_interrupt(last: bool = False):
             signal.signal(signal.SIGTERM, signal.SIG_IGN)
         else:
             signal.signal(signal.SIGTERM, signal.SIG_DFL if old is None else old)
+            if signal.getsignal(signal.SIGINT) is _interrupt:
+                signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 # command name -> ("module:attribute", its short help as the listing shows it). Each module only
@@ -216,11 +242,12 @@ class LazyGroup(click.Group):
             if debug:
                 raise
             _interrupted(ctx, e)
-        except SystemError as e:
+        except Exception as e:
             # Ctrl-C as a numba kernel returns or unpickles its constants: CPython reports the
             # KeyboardInterrupt raised then as a SystemError caused by it ("returned a result
-            # with an exception set"), through as many such SystemErrors as calls return;
-            # that is an interrupt all the same
+            # with an exception set"), through as many such SystemErrors as calls return; a
+            # C extension's module init that a signal stopped says ImportError, naming no
+            # cause: after a signal, an interrupt all the same
             interrupt = _interrupt_in(e)
             if debug or interrupt is None:
                 raise

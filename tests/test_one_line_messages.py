@@ -225,3 +225,30 @@ def test_a_signal_as_fieldloc_starts_is_one_line(tmp_path, sig, rc, what):
                        timeout=120)
     assert (r.returncode, r.stderr) == (
         rc, f"fieldloc: {what} (before it started; nothing was written)\n"), r.stderr
+
+
+@pytest.mark.parametrize("sig, rc", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_a_signal_a_library_turns_into_its_own_error_is_still_one_line(tmp_path, monkeypatch,
+                                                                        sig, rc):
+    """A signal that comes while a C extension's module initialises (SIGTERM during `import
+    gtsam` in localize --smooth) is turned by it into an error of its own that names no cause
+    (pybind11: ImportError "initialization failed"): the command says it was stopped, in one
+    line, with the signal's exit code, not a traceback of that error."""
+    import time
+
+    import stages.common.describe as describe
+
+    def stopped_in_an_init(_path):
+        try:
+            os.kill(os.getpid(), sig)
+            time.sleep(5)  # the signal's handler raises before this ends
+        except KeyboardInterrupt:
+            raise ImportError("initialization failed") from None
+        raise AssertionError("no signal came")
+
+    monkeypatch.setattr(describe, "describe_file", stopped_in_an_init)
+    (tmp_path / "f.yaml").write_text("a: 1\n")
+    res = CliRunner().invoke(cli, ["inspect", str(tmp_path / "f.yaml")])
+    assert res.exit_code == rc, res.output
+    assert res.output.startswith(("fieldloc: terminated", "fieldloc: interrupted"))
+    assert len(res.output.splitlines()) == 1 and "Traceback" not in res.output
