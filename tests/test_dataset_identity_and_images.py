@@ -8,7 +8,11 @@ from __future__ import annotations
 
 import io
 import logging
+import os
 import struct
+import subprocess
+import sys
+import tempfile
 import zlib
 from pathlib import Path
 
@@ -266,3 +270,47 @@ def test_the_identity_is_kept_through_a_resumed_file(tmp_path):
     with h5py.File(f) as h5:
         got = [v.decode() for v in h5["index/image"][()]]
     assert got == ["", "", "", identity]
+
+
+def test_a_png_whose_stream_inflates_far_beyond_its_rows_is_refused_without_inflating_it():
+    """A "zlib bomb": a PNG of 37 x 23 px whose IDAT stream inflates to 64 MB (a few hundred
+    kilobytes of zeros compressed) is refused, and the reader never holds more than its rows
+    and a byte: a 3 MB file of this kind made the reader inflate 3 GB."""
+    import tracemalloc
+
+    def chunk(kind, body):
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(
+            ">I", zlib.crc32(kind + body))
+
+    bomb = zlib.compress(bytes(64 << 20), 9)
+    for colour, depth in ((2, 8), (6, 8), (2, 16)):  # the fast path and the other kinds
+        data = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 37, 23, depth,
+                                                                      colour, 0, 0, 0))
+                + chunk(b"IDAT", bomb) + chunk(b"IEND", b""))
+        path = Path(tempfile.mkdtemp()) / "bomb.png"
+        path.write_bytes(data)
+        tracemalloc.start()
+        with pytest.raises(DatasetError, match="unreadable image"):
+            read_image(path)
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        assert peak < len(data) + (8 << 20), peak  # the file, not what it inflates to
+
+
+def test_opencv_refuses_an_image_whose_header_claims_more_than_the_pixel_limit():
+    """Importing stages sets OpenCV's pixel limit (OPENCV_IO_MAX_IMAGE_PIXELS) to
+    MAX_IMAGE_PIXELS before OpenCV loads: a BMP header claiming 9000 x 8000 px (72 M: under
+    OpenCV's own 1 G) is refused at its header, before OpenCV reserves its memory (a TIFF or
+    WebP of a few hundred kilobytes claiming 20000 x 20000 px took 1.6-2.4 GB)."""
+    code = (
+        "import struct, numpy as np, stages, cv2\n"
+        "info = struct.pack('<IiiHHIIiiII', 40, 9000, 8000, 1, 24, 0, 0, 2835, 2835, 0, 0)\n"
+        "data = b'BM' + struct.pack('<IHHI', 118, 0, 0, 54) + info + bytes(64)\n"
+        "try:\n"
+        "    cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)\n"
+        "except cv2.error as e:\n"
+        "    print('refused' if 'MAX_IMAGE_PIXELS' in str(e) else 'other')\n")
+    env = {k: v for k, v in os.environ.items() if k != "OPENCV_IO_MAX_IMAGE_PIXELS"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=env, cwd=str(Path(__file__).resolve().parents[1]), timeout=120)
+    assert out.stdout.strip() == "refused", out.stdout + out.stderr

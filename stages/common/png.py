@@ -75,16 +75,25 @@ def decode_png(data: bytes) -> np.ndarray | None:
     expected = height * row_bytes
     if expected > MAX_RAW_BYTES:
         return None
-    try:
-        raw = isal_zlib.decompress(idat, 15, expected)
-    except Exception:  # isal's own error class: a damaged stream, left to OpenCV to report
-        return None
-    if len(raw) != expected:
+    raw = _inflated(idat, expected)
+    if raw is None:  # a damaged stream, left to OpenCV (png_for_opencv) to report
         return None
     out = np.empty((height, width, 3), np.uint8)
     if not unfilter_rows(np.frombuffer(raw, np.uint8), channels, out):
         return None
     return out
+
+
+def _inflated(idat, expected: int) -> bytes | None:
+    """The rows ``expected`` bytes long that the zlib stream ``idat`` inflates to, or None
+    where it is damaged or inflates to any other length. Inflated to at most one byte more
+    than ``expected``: a stream of a few megabytes can inflate to gigabytes (a "zlib bomb"),
+    which the header's row count says nothing of."""
+    try:
+        raw = isal_zlib.decompressobj().decompress(idat, expected + 1)
+    except Exception:  # isal's own error class: a damaged stream
+        return None
+    return raw if len(raw) == expected else None
 
 
 def png_size(data: bytes) -> tuple[int, int] | None:
@@ -242,11 +251,8 @@ def _decode_other(header, idat, plte: bytes | None) -> np.ndarray | None:
     expected = height * (width * bpp + 1)
     if expected > MAX_RAW_BYTES:
         return None
-    try:
-        raw = isal_zlib.decompress(idat, 15, expected)
-    except Exception:  # isal's own error class: a damaged stream
-        return None
-    if len(raw) != expected:
+    raw = _inflated(idat, expected)
+    if raw is None:
         return None
     rows = np.empty((height, width * bpp), np.uint8)
     if not unfilter_bytes(np.frombuffer(raw, np.uint8), bpp, rows):
