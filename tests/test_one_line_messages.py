@@ -252,3 +252,21 @@ def test_a_signal_a_library_turns_into_its_own_error_is_still_one_line(tmp_path,
     assert res.exit_code == rc, res.output
     assert res.output.startswith(("fieldloc: terminated", "fieldloc: interrupted"))
     assert len(res.output.splitlines()) == 1 and "Traceback" not in res.output
+
+
+def test_a_dataset_folder_named_with_bytes_no_utf8_is_extracted_and_localised(small_omni_run,
+                                                                              tmp_path):
+    """A folder whose name holds bytes that are no UTF-8 (0xff 0xfe): extract and localize
+    write their artifacts (the name stored with those bytes as \\xff), where h5py's refusal
+    of the name was a traceback on every run."""
+    name = os.fsdecode(b"d\xff\xfex")
+    try:
+        ds = Path(shutil.copytree(small_omni_run["ds"], tmp_path / name))
+    except (OSError, UnicodeEncodeError):
+        pytest.skip("the file system takes no such name")
+    for args in (["extract", str(ds), "-o", str(ds / "f.h5")],
+                 ["localize", str(ds), "--map", str(small_omni_run["map"]), "--features",
+                  str(ds / "f.h5"), "--method", "lut", "-o", str(ds / "p.h5")]):
+        res = CliRunner().invoke(cli, ["-q", *args])
+        assert res.exit_code == 0, res.output
+    assert (ds / "p.h5").is_file()

@@ -930,6 +930,20 @@ def atomic_dir(path: str | Path, *, overwrite: bool = False):
 _CORE_BLOCK = 1 << 20
 
 
+def storable_text(value):
+    """``value``, a text holding a name the file system gave that is no UTF-8 (a folder named
+    with bytes 0xff 0xfe: Python holds them as surrogates) with those bytes written as
+    ``\xff``: HDF5 stores text as UTF-8 and refused it (a traceback of h5py's). Other values
+    as they are."""
+    if not isinstance(value, str):
+        return value
+    try:
+        value.encode("utf-8")
+        return value
+    except UnicodeEncodeError:
+        return value.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
 @contextlib.contextmanager
 def write_artifact(path: str | Path, attrs: dict, *, resume: bool = False,
                    before_commit=None):
@@ -957,7 +971,7 @@ def write_artifact(path: str | Path, attrs: dict, *, resume: bool = False,
                       block_size=_CORE_BLOCK)
         try:
             for k, v in attrs.items():
-                f.attrs[k] = v
+                f.attrs[k] = storable_text(v)
             yield f
             f.flush()
             image = f.id.get_file_image()
