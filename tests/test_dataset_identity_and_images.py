@@ -314,3 +314,40 @@ def test_opencv_refuses_an_image_whose_header_claims_more_than_the_pixel_limit()
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          env=env, cwd=str(Path(__file__).resolve().parents[1]), timeout=120)
     assert out.stdout.strip() == "refused", out.stdout + out.stderr
+
+
+def test_a_frame_whose_image_became_a_fifo_is_refused(tmp_path):
+    """localize with a features file reads no image: a frame whose image was replaced by a
+    FIFO (or a folder) since its extraction was localised from the old image's features,
+    without a word; now refused, as another image is. A frame whose image was deleted
+    (features kept, images thrown away to save room) is still localised."""
+    from click.testing import CliRunner
+
+    from fieldloc_cli.main import cli
+    from stages import extract, simulate
+
+    ds = simulate.main(dict(simulate.confs["omni-clean"], frames=2, seed=1896), "spl",
+                       tmp_path / "ds")
+    feats = extract.main(None, ds, tmp_path / "f.h5")
+    img = ds / "images" / "000001.png"
+    img.unlink()
+    os.mkfifo(img)
+    res = CliRunner().invoke(cli, ["localize", str(ds), "--map", _spl_map(tmp_path),
+                                   "--features", str(feats), "--method", "lut", "-o",
+                                   str(tmp_path / "p.h5")])
+    assert res.exit_code == 1 and "not a regular file" in res.output, res.output
+    img.unlink()
+    res = CliRunner().invoke(cli, ["-q", "localize", str(ds), "--map", _spl_map(tmp_path),
+                                   "--features", str(feats), "--method", "lut", "-o",
+                                   str(tmp_path / "p.h5")])
+    assert res.exit_code == 0, res.output
+
+
+def _spl_map(tmp_path) -> str:
+    """A coarse map of the spl field, built once in ``tmp_path``."""
+    from stages import build_map
+
+    path = tmp_path / "spl.map.h5"
+    if not path.exists():
+        build_map.main({"resolution": 0.5}, "spl", path)
+    return str(path)

@@ -31,6 +31,7 @@ import io
 import logging
 import math
 import os
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -415,17 +416,22 @@ def file_size_identity(path: Path, recorded: str) -> str | None:
     the file's size with no CRC, or None where it cannot be read: what ``image_identity``
     tells without reading the file."""
     try:
-        size = os.stat(path).st_size
+        st = os.stat(path)
     except OSError:
         return None
+    if not stat.S_ISREG(st.st_mode):
+        return "(not a regular file)"
+    size = st.st_size
     return recorded if recorded.partition(":")[0] == str(size) else f"{size}:(not read)"
 
 
 def file_identity(path: Path) -> str | None:
-    """``image_identity`` of the file at ``path``, or None where it cannot be read."""
+    """``image_identity`` of the file at ``path``, "(not a regular file)" where something
+    else stands at its name (a FIFO, whose read would block forever; a folder), or None
+    where nothing is there or it cannot be read."""
     path = Path(path)
-    if not path.is_file():  # a FIFO would block the read forever
-        return None
+    if not path.is_file():
+        return "(not a regular file)" if os.path.lexists(path) else None
     try:
         return image_identity(path.read_bytes())
     except OSError:
