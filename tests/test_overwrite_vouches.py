@@ -43,7 +43,8 @@ def run(small_omni_run):
 
 def test_localize_overwrite_replaces_its_own_twin_and_records_it(run, tmp_path):
     """The poses file records its twin's size and SHA-256; --overwrite replaces a twin the
-    poses beside it vouch for, and refuses one edited since (one line naming it)."""
+    poses beside it vouch for, and refuses one edited since (one line naming it), and a
+    link at its name even to the twin as written (a link is the user's)."""
     out = tmp_path / "p.h5"
     localize.main({"method": "lut"}, run["ds"], run["map"], out, features=run["features"])
     tum = out.with_suffix(".tum")
@@ -58,6 +59,15 @@ def test_localize_overwrite_replaces_its_own_twin_and_records_it(run, tmp_path):
         localize.main({"method": "lut"}, run["ds"], run["map"], out,
                       features=run["features"], overwrite=True)
     assert tum.read_text().endswith("# my note\n")
+    # a user's link at the twin's name (to the twin moved aside, as written) is the user's
+    mine = tmp_path / "mine.tum"
+    tum.rename(mine)
+    mine.write_text(mine.read_text()[: -len("# my note\n")])
+    tum.symlink_to(mine.name)
+    with pytest.raises(FieldlocError, match="p.tum is not the TUM twin of p.h5 as fieldloc"):
+        localize.main({"method": "lut"}, run["ds"], run["map"], out,
+                      features=run["features"], overwrite=True)
+    assert tum.is_symlink()
 
 
 def _table(folder: Path) -> dict:

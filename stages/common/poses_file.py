@@ -246,7 +246,8 @@ def twin_vouched(poses: str | Path):
             return False
         schema = schema.decode(errors="replace") if isinstance(schema, bytes) else schema
         entry = entry.decode(errors="replace") if isinstance(entry, bytes) else entry
-        return schema == SCHEMA and isinstance(entry, str) and as_written(tum, entry)
+        return (schema == SCHEMA and isinstance(entry, str) and not Path(tum).is_symlink()
+                and as_written(tum, entry))  # a link is a user's, wherever it points
     return vouched
 
 
@@ -257,7 +258,7 @@ def check_tum_output(poses: str | Path, inputs: dict | None, overwrite: bool) ->
     since, nor a user's trajectory of the same name. Returns the twin's path."""
     tum = Path(poses).with_suffix(".tum")
     refuse_inputs(tum, inputs)
-    if overwrite and tum.is_file() and not twin_vouched(poses)(tum):
+    if overwrite and (tum.is_file() or tum.is_symlink()) and not twin_vouched(poses)(tum):
         raise FieldlocError(f"{tum} is not the TUM twin of {Path(poses).name} as fieldloc"
                             " wrote it (edited since, a user's file, or beside no poses"
                             " file of fieldloc's that records it): --overwrite never replaces"
