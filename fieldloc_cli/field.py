@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import click
 
+from stages.common.one_line import one_line
+
 from .common import FilePath, summary
 from .stage_defaults import FIELD_FORMATS
 
@@ -59,10 +61,10 @@ def field_import(ctx, path, fmt, output, venue, section, base, name, overwrite):
     if rec.get("from_base"):
         summary(ctx, f"from {rec['from_base']['field']}: {', '.join(rec['from_base']['keys'])}")
     for note in rec.get("notes", []):
-        click.echo(f"note: {note}", err=True)  # what the import could not carry over
+        click.echo(one_line(f"note: {note}"), err=True)  # what the import could not carry over
     if rec.get("field_lines_check"):
-        click.echo(f"check: {rec['field_lines_check']}", err=True)
+        click.echo(one_line(f"check: {rec['field_lines_check']}"), err=True)
     unknown = rec.get("unknown") or {}
     if unknown:
-        click.echo(f"unknown keys ({len(unknown)}, kept under imported.unknown): "
-                   + ", ".join(f"{k}={v}" for k, v in unknown.items()), err=True)
+        click.echo(one_line(f"unknown keys ({len(unknown)}, kept under imported.unknown): "
+                            + ", ".join(f"{k}={v}" for k, v in unknown.items())), err=True)
