@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from .common import FilePath, conf_option, count, overrides_dict, progress_enabled, summary
+from .lazy_group import RESUMES, set_resumes
 from .stage_defaults import EXTRACT_DEFAULT_PRESET, EXTRACT_OMNI_PRESETS
 
 
@@ -29,7 +30,10 @@ def extract(ctx, dataset, output, preset, overrides, overwrite, debug_images):
     """Per-frame features of the images in DATASET (omni: scan-line distances and line points;
     perspective: lines, crossings, boundary) into an HDF5 features file."""
     from stages import extract as stage
+    from stages.common.features_file import kept_frames
 
+    target = output if output is not None else Path(dataset) / "features.h5"
+    set_resumes(ctx, lambda: RESUMES["extract"] if kept_frames(target) else None)
     conf = stage.resolve_extract_conf(stage.camera_kind(dataset), preset,
                                       overrides_dict(overrides))
     path = stage.main(conf, dataset, output, overwrite=overwrite,

@@ -44,12 +44,14 @@ def resumes(ctx) -> str | None:
     given its features extracts nothing, evaluate kept no report before the first is
     done), else the command's RESUMES entry."""
     obj = ctx.obj if isinstance(ctx.obj, dict) else {}
-    return obj.get("resumes", RESUMES.get(ctx.invoked_subcommand or ""))
+    note = obj.get("resumes", RESUMES.get(ctx.invoked_subcommand or ""))
+    return note() if callable(note) else note
 
 
-def set_resumes(ctx, note: str | None) -> None:
+def set_resumes(ctx, note) -> None:
     """Say (in ``ctx.obj``, which the group's context shares) what a rerun finds if the
-    command stops from now on; None: nothing kept, a rerun starts over."""
+    command stops from now on; None: nothing kept, a rerun starts over; a callable: asked
+    when the command stops (extract: whether a finished frame was kept by then)."""
     ctx.ensure_object(dict)["resumes"] = note
 
 

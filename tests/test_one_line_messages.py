@@ -270,3 +270,21 @@ def test_a_dataset_folder_named_with_bytes_no_utf8_is_extracted_and_localised(sm
         res = CliRunner().invoke(cli, ["-q", *args])
         assert res.exit_code == 0, res.output
     assert (ds / "p.h5").is_file()
+
+
+def test_an_extract_stopped_before_its_first_frame_says_nothing_was_kept(small_omni_run,
+                                                                          tmp_path,
+                                                                          monkeypatch):
+    """extract stopped (Ctrl-C) before it finished a frame kept nothing: its line says a
+    rerun starts over, not that finished frames were kept."""
+    import stages.extract as stage
+
+    def stopped(*_a, **_k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(stage, "main", stopped)
+    res = CliRunner().invoke(cli, ["extract", str(small_omni_run["ds"]), "-o",
+                                   str(tmp_path / "f.h5")])
+    assert res.exit_code == 130
+    assert res.output.strip() == ("fieldloc: interrupted (no half-written file was left; a"
+                                  " rerun starts over)")

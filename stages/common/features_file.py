@@ -609,6 +609,16 @@ _CHUNK_NAME = re.compile(r"[^.][^/]*\+\d+\.npz")
 _COMMIT_PART = re.compile(rf"\..+\.{PART_TAG}-\d+-[^/]*\.part")  # artifacts.part_name
 
 
+def kept_frames(target: str | Path) -> bool:
+    """Whether an extraction into ``target`` that stopped kept finished frames for a rerun to
+    resume: a chunk in its parts folder (FrameParts)."""
+    folder = Path(target).with_name(f".{Path(target).name}.parts")
+    try:
+        return any(_CHUNK_NAME.fullmatch(p.name) for p in folder.iterdir())
+    except OSError:
+        return False
+
+
 def _parts_file(name: str) -> bool:
     """Whether ``name`` is the name of a file FrameParts writes in its folder."""
     return (name == "run.json" or bool(_CHUNK_NAME.fullmatch(name))
