@@ -319,7 +319,7 @@ def test_a_dataset_rendered_again_is_extracted_anew(serial, tmp_path, monkeypatc
             {"name": "omni-a", "simulate": {"preset": "omni-clean", "field": "kidsize",
                                             "frames": frames, "seed": seed}}]})
 
-    real, calls = extract.read_image, []
+    real, calls = extract.read_frame, []
 
     def interrupted(path):
         calls.append(path)
@@ -327,11 +327,11 @@ def test_a_dataset_rendered_again_is_extracted_anew(serial, tmp_path, monkeypatc
             raise KeyboardInterrupt
         return real(path)
 
-    monkeypatch.setattr(extract, "read_image", interrupted)
+    monkeypatch.setattr(extract, "read_frame", interrupted)
     with pytest.raises(KeyboardInterrupt):
         batch.main("serial", spec(4, 7), tmp_path / "res")
     assert list((tmp_path / "res" / "features").glob(".omni-a.*.parts"))  # 2 frames in it
-    monkeypatch.setattr(extract, "read_image", real)
+    monkeypatch.setattr(extract, "read_frame", real)
     res = batch.main("serial", spec(3, 8), tmp_path / "res")
     assert not list((res / "features").glob(".omni-a.*"))
     (feats,) = (res / "features").glob("omni-a.*.features.h5")

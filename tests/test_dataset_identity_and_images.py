@@ -118,7 +118,7 @@ def test_a_bad_ancillary_chunk_reads_the_image_without_libpng_lines(tmp_path, ca
         capfd.readouterr()
         got = read_image(p)
         assert capfd.readouterr().err == ""
-        np.testing.assert_array_equal(got, _opencv(data))
+        np.testing.assert_array_equal(got, _opencv(data))  # exact integers: lossless uint8
 
 
 def test_an_interlaced_png_is_read_as_opencv_reads_it(tmp_path):

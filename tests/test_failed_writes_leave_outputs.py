@@ -183,7 +183,8 @@ def test_a_replaced_folder_that_cannot_be_removed_is_named(tmp_path, monkeypatch
     left = [p for p in tmp_path.iterdir() if p.name.startswith(".ds.fieldloc-")]
     assert len(left) == 1 and (path / "a").is_file()
     said = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
-    assert len(said) == 1 and str(left[0]) in said[0] and "remove it" in said[0], said
+    assert len(said) == 1 and f"beside it to {left[0].name} " in said[0], said
+    assert "remove it" in said[0]
     assert "\n" not in said[0]
     shutil.rmtree(path)  # the real name gone: the leftover is no replacement to restore
     artifacts.restore_interrupted_replacement(path)
@@ -208,7 +209,7 @@ def test_extract_checks_the_least_it_writes_before_the_first_frame(run, tmp_path
 
     usage = namedtuple("usage", "total used free")
     monkeypatch.setattr(resources.shutil, "disk_usage", lambda p: usage(10**6, 10**6, 4096))
-    monkeypatch.setattr(extract, "read_image", lambda *a: pytest.fail("a frame was read"))
+    monkeypatch.setattr(extract, "read_frame", lambda *a: pytest.fail("a frame was read"))
     r = _extract(run["ds"], tmp_path / "f.h5")
     assert r.exit_code == 1 and f"extract into {tmp_path / 'f.h5'} would write" in r.stderr
     assert os.listdir(tmp_path) == []
@@ -229,7 +230,7 @@ def test_extract_failing_before_a_frame_leaves_nothing(run, tmp_path, monkeypatc
 
         def unreadable(path, *a, **k):
             raise PermissionError(errno.EACCES, "Permission denied", str(path))
-        monkeypatch.setattr(extract, "read_image", unreadable)
+        monkeypatch.setattr(extract, "read_frame", unreadable)
         said = f"{image}: Permission denied"
     else:
         extra = ["--debug-images", str(tmp_path / "dbg")]

@@ -27,13 +27,13 @@ def test_extract_uses_one_thread_and_restores_the_pool(tmp_path, two_threads, mo
     data = simulate.main(dict(simulate.confs["perspective-default"], frames=2, seed=11),
                          "kidsize", tmp_path / "kid")
     seen = []
-    read = extract.read_image
+    read = extract.read_frame
 
     def reading(path):
         seen.append(cv2.getNumThreads())
         return read(path)
 
-    monkeypatch.setattr(extract, "read_image", reading)
+    monkeypatch.setattr(extract, "read_frame", reading)
     extract.main(None, data, tmp_path / "f.h5")
     assert seen == [1, 1]
     assert cv2.getNumThreads() == 2

@@ -513,9 +513,11 @@ def _remove_replaced(old: Path, path: Path) -> None:
     try:
         shutil.rmtree(old)
     except OSError as e:
-        log.warning("could not remove the old %s, moved aside to %s (%s: %s): remove it (a"
-                    " later run writing %s removes it when it can)", path, old,
-                    e.strerror or e, Path(e.filename or old).name, path)
+        # the copy's own name, beside the output: a line cut to its bound (one_line) keeps
+        # a short name whole, where the copy's full path may lose its middle
+        log.warning("could not remove the old %s, moved aside beside it to %s (%s: %s): remove"
+                    " it (a later run writing %s removes it when it can)", path, old.name,
+                    e.strerror or e, Path(e.filename or old).name, path.name)
 
 
 def _refuse_dataset_files(path: Path, kind: str, error: type[FieldlocError]) -> None:
@@ -758,12 +760,14 @@ def remove_stale_parts(path: str | Path) -> list[Path]:
             else:
                 entry.unlink()
         except OSError as e:
-            log.warning("could not remove %s, left by an earlier run writing %s (%s: %s):"
-                        " remove it", entry, path, e.strerror or e,
+            # the entry's own name, beside the output: kept whole in a line cut to its
+            # bound (one_line), where a long path loses its middle
+            log.warning("could not remove %s beside it, left by an earlier run writing %s"
+                        " (%s: %s): remove it", entry.name, path, e.strerror or e,
                         Path(e.filename or entry).name)
             continue
-        log.warning("removed %s (%s) left by an interrupted run writing %s", entry,
-                    _human_bytes(size), path)
+        log.warning("removed %s (%s) beside it, left by an interrupted run writing %s",
+                    entry.name, _human_bytes(size), path)
         removed.append(entry)
     return removed
 
