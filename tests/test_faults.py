@@ -494,12 +494,16 @@ def _setup_png_claiming(w, ws):
 
 
 def _setup_record_of_frames(n: int):
-    """ws/data: a 1-frame simulated dataset whose simulation.yaml claims ``n`` frames."""
+    """ws/data: a 1-frame simulated dataset whose simulation.yaml claims ``n`` frames
+    (written as simulate writes its record, vouching for itself: what is tested is the
+    count, not a record edited since)."""
     def setup(w, ws):
+        from stages.common.artifacts import record_text
+
         data = simulate.main(dict(simulate.confs["omni-clean"], frames=1), "spl", ws / "data")
         rec = yaml.safe_load((data / "simulation.yaml").read_text())
         rec["frames"] = n
-        (data / "simulation.yaml").write_text(yaml.safe_dump(rec, sort_keys=False))
+        (data / "simulation.yaml").write_text(record_text(rec, "simulation.yaml"))
         return {}
     return setup
 
@@ -1479,6 +1483,75 @@ def _setup_idat_damaged_crc_right(w, ws):
     p.write_bytes(data[:at] + chunk + struct.pack(">I", zlib.crc32(chunk))
                   + data[at + 8 + length:])
     return {"ds": ds}
+
+
+# ------------------------------------------------- s56 group W1: setups
+
+
+def _w1_note(record: Path, how: str) -> None:
+    """A user's note written into the fieldloc record ``record``: a comment line appended
+    ("comment", YAML), a key of its own as the first line ("key", YAML), or a key added to
+    the JSON object ("key", report.json)."""
+    import json
+
+    if record.suffix == ".json":
+        data = json.loads(record.read_text())
+        data["my_notes"] = "keep me"
+        record.write_text(json.dumps(data, indent=2) + "\n")
+    elif how == "comment":
+        record.write_text(record.read_text() + "# my notes: camera was tilted\n")
+    else:
+        record.write_text("my_notes: keep me\n" + record.read_text())
+
+
+def _w1_self_entry_removed(record: Path) -> None:
+    """``record`` as an older fieldloc wrote it: a written_files table without an entry for
+    the record itself."""
+    rec = yaml.safe_load(record.read_text())
+    rec["written_files"].pop(record.name)
+    record.write_text(yaml.safe_dump(rec, sort_keys=False))
+
+
+def _w1_simulated(change):
+    """ws/data: a one-frame dataset simulate wrote; then ``change(its simulation.yaml)``."""
+    def setup(w, ws):
+        data = simulate.main(dict(simulate.confs["omni-clean"], frames=1), "spl", ws / "data")
+        change(data / "simulation.yaml")
+        return {}
+    return setup
+
+
+def _w1_hulks_imported(how: str):
+    """ws/out: a dataset calibrate --from-hulks wrote from ws/hulks; then a user's note in
+    its import.yaml."""
+    def setup(w, ws):
+        paths = _setup_team_files(w, ws)
+        res = CliRunner().invoke(cli, ["calibrate", "perspective", "--from-hulks",
+                                       str(ws / "hulks"), "-o", str(ws / "out")])
+        assert res.exit_code == 0, res.output
+        _w1_note(ws / "out" / "import.yaml", how)
+        return paths
+    return setup
+
+
+def _w1_debug_images(how: str):
+    """ws/dbg: the overlays an earlier extract drew; then a user's note in the folder's
+    debug-images.yaml."""
+    def setup(w, ws):
+        extract.main(None, w["omni"], ws / "f0.h5", debug_images=ws / "dbg")
+        _w1_note(ws / "dbg" / "debug-images.yaml", how)
+        return {}
+    return setup
+
+
+def _w1_report(w, ws):
+    """ws/rep: a report evaluate wrote of the shared poses; then a key of the user's in its
+    report.json."""
+    from stages import evaluate
+
+    evaluate.main(None, w["poses"], w["omni"], ws / "rep")
+    _w1_note(ws / "rep" / "report.json", "key")
+    return {}
 
 
 CASES = [
@@ -2911,6 +2984,38 @@ CASES = [
       # 3600+ characters: within the system's 4096 for a path with any test folder
       for what, path in (("spaced words", "/".join(["a " * 100] * 18) + "/none.h5"),
                          ("names without a space", "/".join(["b" * 200] * 18) + "/none.h5"))],
+    # ---- s56 group W1: a fieldloc folder's record itself is never replaced once edited
+    *[Case(f"simulate --overwrite of its dataset whose simulation.yaml has a user's {how}",
+           "data-lost", ["simulate", "omni", "--preset", "omni-clean", "--field", "spl",
+                         "--frames", "1", "-o", W + "/data", "--overwrite"], 1,
+           "data/simulation.yaml was edited since fieldloc wrote it; --overwrite replaces only",
+           setup=_w1_simulated(lambda rec, how=how: _w1_note(rec, how)))
+      for how in ("comment", "key")],
+    Case("simulate --overwrite of its dataset whose record does not list itself (older)",
+         "data-lost", ["simulate", "omni", "--preset", "omni-clean", "--field", "spl",
+                       "--frames", "1", "-o", W + "/data", "--overwrite"], 1,
+         "data/simulation.yaml does not list itself in its written_files (an older fieldloc's",
+         setup=_w1_simulated(_w1_self_entry_removed)),
+    *[Case(f"import rosbag --overwrite of a dataset whose import.yaml has a user's {how}",
+           "data-lost", [*IMPORT_BAG, "--overwrite"], 1,
+           "ds/import.yaml was edited since fieldloc wrote it",
+           setup=_setup_imported_edited(lambda ds, how=how: _w1_note(ds / "import.yaml", how)))
+      for how in ("comment", "key")],
+    *[Case(f"calibrate --from-hulks FOLDER --overwrite of its dataset, import.yaml with a {how}",
+           "data-lost", ["calibrate", "perspective", "--from-hulks", W + "/hulks", "-o",
+                         W + "/out", "--overwrite"], 1,
+           "out/import.yaml was edited since fieldloc wrote it", setup=_w1_hulks_imported(how))
+      for how in ("comment", "key")],
+    *[Case(f"extract --debug-images --overwrite, debug-images.yaml with a user's {how}",
+           "data-lost", ["extract", "{omni}", "-o", W + "/f.h5", "--debug-images", W + "/dbg",
+                         "--overwrite"], 1,
+           "dbg/debug-images.yaml was edited since fieldloc wrote it",
+           setup=_w1_debug_images(how))
+      for how in ("comment", "key")],
+    Case("evaluate --overwrite of a report whose report.json has a key of the user's",
+         "data-lost", ["evaluate", "{poses}", "--truth", "{omni}", "-o", W + "/rep",
+                       "--overwrite"], 1, "rep/report.json was edited since fieldloc wrote it",
+         setup=_w1_report),
 ]
 
 

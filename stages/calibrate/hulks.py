@@ -54,13 +54,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from ..common.artifacts import (
     WRITTEN_FILES,
     atomic_dir,
     check_importer_target,
     check_output,
+    record_text,
     tree_files,
     written_files,
 )
@@ -261,9 +261,9 @@ def main(conf: str | dict | None, source, output, *, overwrite: bool = False,
             "pitch": [c.pitch for c in cams], "roll": [c.roll for c in cams],
             "yaw": [c.yaw for c in cams], "height": [c.height for c in cams],
             "x": [c.position[0] for c in cams], "y": [c.position[1] for c in cams]})
-        (tmp / IMPORT_RECORD).write_text(yaml.safe_dump(
+        (tmp / IMPORT_RECORD).write_bytes(record_text(
             {"generator": GENERATOR, "source": str(source.resolve()), "frames": len(frames),
              WRITTEN_FILES: written_files(tmp, tree_files(tmp))},  # --overwrite's test
-            sort_keys=False))
+            IMPORT_RECORD).encode())
     log.info("imported %d HULKs frames from %s into %s", len(frames), source, output)
     return output

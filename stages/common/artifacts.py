@@ -306,20 +306,23 @@ def tree_files(folder: str | Path, skip=()) -> list[str]:
 
 def refuse_edited(folder: str | Path, recorded, names, *, record: str, unlisted=None,
                   error: type[FieldlocError] = FieldlocError) -> None:
-    """Before --overwrite replaces the files ``names`` of ``folder`` (relative names): each
-    that is there must be as ``folder``'s ``record`` (its file name) lists it in the table
-    ``recorded`` (``edited_file``); else one line naming the file. Where ``recorded`` is no
-    table (absent: an older fieldloc's record; or damaged) and any of ``names`` is there, one
-    line naming the folder: fieldloc cannot vouch for any of its files."""
+    """Before --overwrite replaces the files ``names`` of ``folder`` (relative names) and its
+    record: each that is there must be as ``folder``'s ``record`` (its file name) lists it in
+    the table ``recorded`` (``edited_file``); else one line naming the file. The record, where
+    it is there, must then be as fieldloc wrote it (``record_as_written``): a user's notes in
+    it are lost when it is replaced. Where ``recorded`` is no table (absent: an older
+    fieldloc's record; or damaged) and the record or any of ``names`` is there, one line
+    naming the folder: fieldloc cannot vouch for any of its files."""
     folder = Path(folder)
     if not isinstance(recorded, Mapping):
-        if any(os.path.lexists(folder / n) for n in names):
+        if any(os.path.lexists(folder / n) for n in (record, *names)):
             raise error(f"{folder}'s {record} lists no {WRITTEN_FILES} (an older fieldloc's"
                         " record, or damaged): --overwrite cannot tell an edited file from"
                         " fieldloc's; remove the folder yourself or write elsewhere")
         return
     p = edited_file(folder, recorded, names, unlisted)
     if p is None:
+        _refuse_edited_record(folder / record, error)
         return
     name = p.relative_to(folder).as_posix()
     if name in recorded:
@@ -329,6 +332,111 @@ def refuse_edited(folder: str | Path, recorded, names, *, record: str, unlisted=
     raise error(f"{p} is not among the files {folder}'s {record} lists as fieldloc wrote"
                 " them: --overwrite replaces only those; move it aside or choose another"
                 " output")
+
+
+# A record vouches for itself too: its WRITTEN_FILES table holds an entry under the record's
+# own name, so that --overwrite never replaces a record a user wrote notes into (a comment
+# line, a key). A YAML record is written as its text without the table, then the table's
+# block; its entry is "<bytes of that text> <SHA-256 of that text and the table's block
+# without the entry>", and the record is as written where the rest of the file is exactly
+# the block fieldloc dumps of the table it holds: an edit anywhere is seen, a comment line
+# included. JSON has no comments: report.json's entry is "<length> <SHA-256>" of the
+# canonical dump of the parsed object without the entry, so a reformat of its whitespace
+# (which loses nothing) is no edit.
+
+
+def _yaml_table_block(table: Mapping) -> str:
+    import yaml
+
+    return yaml.safe_dump({WRITTEN_FILES: dict(table)}, sort_keys=False)
+
+
+def _canonical_json(data) -> bytes:
+    return json.dumps(data, sort_keys=True, separators=(",", ":")).encode()
+
+
+def _digest_entry(data: bytes) -> str:
+    return f"{len(data)} {hashlib.sha256(data).hexdigest()}"
+
+
+def record_text(data: Mapping, name: str) -> str:
+    """The text of a fieldloc folder's record ``name`` (simulation.yaml, import.yaml,
+    debug-images.yaml; report.json: JSON) holding ``data``, whose WRITTEN_FILES table (made
+    where ``data`` has none) gains the record's own entry, so that the record vouches for
+    itself (``record_as_written``): what every writer of a record writes."""
+    table = {k: v for k, v in dict(data.get(WRITTEN_FILES) or {}).items() if k != name}
+    body = {k: v for k, v in data.items() if k != WRITTEN_FILES}
+    if name.endswith(".json"):
+        whole = json.loads(json.dumps({**body, WRITTEN_FILES: table}, allow_nan=False))
+        table[name] = _digest_entry(_canonical_json(whole))
+        return json.dumps({**body, WRITTEN_FILES: table}, indent=2, allow_nan=False) + "\n"
+    import yaml
+
+    head = yaml.safe_dump(body, sort_keys=False) if body else ""
+    entry = _digest_entry((head + _yaml_table_block(table)).encode())
+    table[name] = f"{len(head.encode())} {entry.partition(' ')[2]}"
+    return head + _yaml_table_block(table)
+
+
+def record_as_written(path: str | Path) -> bool | None:
+    """Whether the record ``path`` is as fieldloc wrote it (``record_text``): True; False
+    where it was edited (or cannot be read as a record); None where its WRITTEN_FILES table
+    holds no entry for it (an older fieldloc's record). One fieldloc may not read is
+    FieldlocError (``cannot_read``)."""
+    import yaml
+
+    from .conf import load_yaml
+
+    path = Path(path)
+    name = path.name
+    try:
+        raw = path.read_bytes()
+    except PermissionError as e:
+        raise cannot_read(path, e) from None
+    except OSError:
+        return False
+    try:
+        data = json.loads(raw) if name.endswith(".json") else load_yaml(raw)
+    except (ValueError, RecursionError, yaml.YAMLError, FieldlocError):
+        return False
+    table = data.get(WRITTEN_FILES) if isinstance(data, dict) else None
+    if not isinstance(table, Mapping):
+        return False
+    if name not in table:
+        return None
+    rest = {k: v for k, v in table.items() if k != name}
+    if name.endswith(".json"):
+        return table[name] == _digest_entry(_canonical_json({**data, WRITTEN_FILES: rest}))
+    size, _, digest = str(table[name]).partition(" ")
+    if not re.fullmatch(r"[0-9]{1,15}", size):
+        return False
+    head, tail = raw[:int(size)], raw[int(size):]
+    try:
+        block, block_rest = _yaml_table_block(table), _yaml_table_block(rest)
+    except yaml.YAMLError:  # a value the dumper cannot write: not what fieldloc wrote
+        return False
+    return (tail == block.encode()
+            and hashlib.sha256(head + block_rest.encode()).hexdigest() == digest)
+
+
+def _refuse_edited_record(path: Path, error: type[FieldlocError]) -> None:
+    """Before --overwrite replaces the record ``path`` (where it is there): one line naming
+    it unless it is as fieldloc wrote it (``record_as_written``)."""
+    if not os.path.lexists(path):
+        return
+    if path.is_symlink() or not path.is_file():
+        raise error(f"{path} is a link or not a file, which fieldloc never writes as its"
+                    " record: --overwrite would replace it; move it aside or choose another"
+                    " output")
+    state = record_as_written(path)
+    if state is None:
+        raise error(f"{path} does not list itself in its {WRITTEN_FILES} (an older"
+                    " fieldloc's record, or damaged): --overwrite cannot tell an edit of it"
+                    " from fieldloc's text; remove the folder yourself or write elsewhere")
+    if not state:
+        raise error(f"{path} was edited since fieldloc wrote it; --overwrite replaces only"
+                    " fieldloc's files as it wrote them, its record of them too: move it"
+                    " aside or choose another output")
 
 
 def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *,

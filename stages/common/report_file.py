@@ -32,6 +32,7 @@ from .artifacts import (
     give_default_mode,
     part_name,
     provenance,
+    record_text,
     refuse_edited,
     remove_stale_parts,
     restore_interrupted_replacement,
@@ -105,9 +106,9 @@ def decode_numbers(obj):
 def write_report(path: str | Path, report: dict) -> Path:
     """Write report.json atomically (strict JSON, see module docstring)."""
     path = Path(path)
-    text = json.dumps(encode_numbers(report), indent=2, allow_nan=False) + "\n"
+    text = record_text(encode_numbers(report), REPORT_NAME)  # vouches for itself too
     with atomic_path(path, suffix=".json") as tmp:
-        tmp.write_text(text)
+        tmp.write_bytes(text.encode())
     return path
 
 

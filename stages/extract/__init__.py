@@ -48,6 +48,7 @@ from ..common.artifacts import (
     fieldloc_wrote,
     file_hash,
     output_lock,
+    record_text,
     refuse_edited,
     root_attrs,
     writing,
@@ -421,11 +422,9 @@ class _DebugOverlays:
             self.table = {}
 
     def _write(self, table: dict) -> None:
-        import yaml
-
-        text = yaml.safe_dump({**self.head, WRITTEN_FILES: table}, sort_keys=False)
+        text = record_text({**self.head, WRITTEN_FILES: table}, DEBUG_RECORD)
         with atomic_path(self.folder / DEBUG_RECORD, suffix=".yaml") as tmp:
-            tmp.write_text(text)
+            tmp.write_bytes(text.encode())
 
     def draw(self, name: str, image: np.ndarray) -> None:
         """Write the overlay ``name``; before the first, the record without the overlays the

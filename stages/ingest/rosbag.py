@@ -70,7 +70,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from .. import __version__
 from ..common.artifacts import (
@@ -80,6 +79,7 @@ from ..common.artifacts import (
     check_importer_target,
     check_output,
     file_hash,
+    record_text,
     tree_files,
     written_by,
     written_files,
@@ -593,7 +593,7 @@ def main(conf: str | dict | None, bag, output, *, image_topic: str, odom_topic: 
             if calib is not None:
                 record["calib"] = {"source": str(calib), "hash": file_hash(calib)}
             record[WRITTEN_FILES] = written_files(tmp, tree_files(tmp))  # --overwrite's test
-            (tmp / "import.yaml").write_text(yaml.safe_dump(record, sort_keys=False))
+            (tmp / "import.yaml").write_bytes(record_text(record, "import.yaml").encode())
     log.info("imported %d frames from %s into %s", len(names), bag, output)
     return output
 

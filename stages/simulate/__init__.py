@@ -75,6 +75,7 @@ from ..common.artifacts import (
     commit_dir,
     give_default_mode,
     part_name,
+    record_text,
     refuse_edited,
     remove_stale_parts,
     restore_interrupted_replacement,
@@ -721,7 +722,7 @@ def main(conf: str | dict | None, field, output_dir, *, overwrite: bool = False,
                 "conf": _plain(conf),
             }
             info[WRITTEN_FILES] = written_files(tmp, _dataset_files(tmp))  # --overwrite's test
-            (tmp / SIMULATION_RECORD).write_text(yaml.safe_dump(info, sort_keys=False))
+            (tmp / SIMULATION_RECORD).write_bytes(record_text(info, SIMULATION_RECORD).encode())
             give_default_mode(tmp)
             commit_dir(tmp, output_dir, replace=overwrite)  # never a dataset written meanwhile
     finally:
