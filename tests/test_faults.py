@@ -1256,13 +1256,19 @@ def _table_set(value):
     """A change of an importer's folder: its import.yaml's written_files set to ``value``
     (the key removed for "del": an older fieldloc's record)."""
     def change(ds):
-        rec = yaml.safe_load((ds / "import.yaml").read_text())
-        if value == "del":
-            rec.pop("written_files")
-        else:
-            rec["written_files"] = value
-        (ds / "import.yaml").write_text(yaml.safe_dump(rec, sort_keys=False))
+        _set_written_files(ds / "import.yaml", value)
     return change
+
+
+def _set_written_files(record: Path, value) -> None:
+    """The YAML record ``record`` with its written_files set to ``value`` (removed for
+    "del": an older fieldloc's record)."""
+    rec = yaml.safe_load(record.read_text())
+    if value == "del":
+        rec.pop("written_files")
+    else:
+        rec["written_files"] = value
+    record.write_text(yaml.safe_dump(rec, sort_keys=False))
 
 
 def _f5_damaged_table(value):
@@ -1331,12 +1337,7 @@ def _g1_simulated_table(value, change):
     to ``value`` ("del": removed, an older simulate's record), then ``change(data)``."""
     def setup(w, ws):
         data = simulate.main(dict(simulate.confs["omni-clean"], frames=1), "spl", ws / "data")
-        rec = yaml.safe_load((data / "simulation.yaml").read_text())
-        if value == "del":
-            rec.pop("written_files")
-        else:
-            rec["written_files"] = value
-        (data / "simulation.yaml").write_text(yaml.safe_dump(rec, sort_keys=False))
+        _set_written_files(data / "simulation.yaml", value)
         change(data)
         return {}
     return setup

@@ -11,7 +11,6 @@ the full disk's line (tmpfs mounts: those tests skip where mounting is not allow
 
 from __future__ import annotations
 
-import contextlib
 import os
 import subprocess
 import sys
@@ -20,6 +19,7 @@ from pathlib import Path
 import h5py
 import pytest
 import yaml
+from test_full_disks_and_permissions import _small_disk  # the full-disk tests' tmpfs
 
 from stages import extract, localize
 from stages.common import artifacts, poses_file
@@ -121,25 +121,6 @@ def _fieldloc(*args, cwd) -> subprocess.CompletedProcess:
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     return subprocess.run([sys.executable, "-m", "fieldloc_cli.main", *map(str, args)],
                           cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
-
-
-@contextlib.contextmanager
-def _small_disk(folder: Path, size: str, inodes: int | None = None):
-    """A tmpfs of ``size`` (and ``inodes``) mounted at ``folder``; unmounted after. Skips
-    where mounting is not allowed (a user who is not root)."""
-    folder.mkdir()
-    opts = f"size={size}" + (f",nr_inodes={inodes}" if inodes else "")
-    try:
-        r = subprocess.run(["mount", "-t", "tmpfs", "-o", opts, "tmpfs", str(folder)],
-                           capture_output=True, text=True, timeout=30)
-    except (OSError, subprocess.TimeoutExpired) as e:
-        pytest.skip(f"cannot mount a tmpfs here ({e})")
-    if r.returncode:
-        pytest.skip(f"cannot mount a tmpfs here ({r.stderr.strip()[:80]})")
-    try:
-        yield folder
-    finally:
-        subprocess.run(["umount", "-l", str(folder)], capture_output=True, timeout=30)
 
 
 def _one_line(r: subprocess.CompletedProcess) -> str:
