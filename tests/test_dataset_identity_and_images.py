@@ -128,7 +128,7 @@ def test_an_interlaced_png_is_read_as_opencv_reads_it(tmp_path):
     assert png.png_for_opencv(data) is not None
     p = tmp_path / "f.png"
     p.write_bytes(data)
-    np.testing.assert_array_equal(read_image(p), img[..., ::-1])
+    np.testing.assert_array_equal(read_image(p), img[..., ::-1])  # exact integers: lossless uint8
 
 
 @pytest.mark.parametrize("kind", ["palette", "grey+alpha", "rgba", "grey16", "rgb16",
@@ -153,7 +153,7 @@ def test_other_png_kinds_decode_as_opencv_reads_them(kind):
     data = b.getvalue()
     got = png.decode_png(data)
     assert got is not None
-    np.testing.assert_array_equal(got, _opencv(data))
+    np.testing.assert_array_equal(got, _opencv(data))  # exact integers: lossless uint8
 
 
 # ---------------------------------------------------------------- I3: other kinds of frames
@@ -178,7 +178,7 @@ def test_frames_of_other_image_kinds_are_read(tmp_path, suffix):
     assert ds.images[1].suffix == suffix
     img = read_image(ds.images[1])
     if suffix in (".bmp", ".tiff", ".tif"):  # lossless
-        np.testing.assert_array_equal(img, _rgb(11))
+        np.testing.assert_array_equal(img, _rgb(11))  # exact integers: lossless uint8
 
 
 def test_a_listed_frame_of_a_kind_not_read_is_said(tmp_path, caplog):
