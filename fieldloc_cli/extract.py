@@ -29,11 +29,10 @@ from .stage_defaults import EXTRACT_DEFAULT_PRESET, EXTRACT_OMNI_PRESETS
 def extract(ctx, dataset, output, preset, overrides, overwrite, debug_images):
     """Per-frame features of the images in DATASET (omni: scan-line distances and line points;
     perspective: lines, crossings, boundary) into an HDF5 features file."""
-    from stages import extract as stage
-    from stages.common.features_file import kept_frames
-
     target = output if output is not None else Path(dataset) / "features.h5"
-    set_resumes(ctx, lambda: RESUMES["extract"] if kept_frames(target) else None)
+    set_resumes(ctx, lambda: RESUMES["extract"] if _kept(target) else None)  # before imports
+    from stages import extract as stage
+
     conf = stage.resolve_extract_conf(stage.camera_kind(dataset), preset,
                                       overrides_dict(overrides))
     path = stage.main(conf, dataset, output, overwrite=overwrite,
@@ -46,3 +45,10 @@ def extract(ctx, dataset, output, preset, overrides, overwrite, debug_images):
     if failures:
         msg += f", {len(failures)} failed (first: {failures[0]})"
     summary(ctx, msg)
+
+
+def _kept(target: Path) -> bool:
+    """Whether an extraction into ``target`` that stopped kept finished frames."""
+    from stages.common.features_file import kept_frames
+
+    return kept_frames(target)

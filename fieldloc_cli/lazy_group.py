@@ -27,14 +27,18 @@ class Terminated(KeyboardInterrupt):
 
 
 # what a rerun does after an interruption, by command (the others leave no half file and start
-# over): only extract and batch resume, and localize resumes the extraction it runs on the fly;
-# a command that knows better for the run at hand says so in ctx.obj["resumes"] (``resumes``)
+# over): batch resumes; extract resumes, and localize the extraction it runs on the fly, where
+# they kept a finished frame (they say so, as a callable asked when they stop, in
+# ctx.obj["resumes"], ``set_resumes``; until then, and where they kept none, a rerun starts
+# over); a command that knows better for the run at hand says so there too (``resumes``)
 RESUMES = {
     "extract": "finished frames were kept; a rerun resumes where it stopped",
     "localize": "finished files were kept; a rerun resumes an extraction it had begun",
     "batch": "finished runs were kept; a rerun resumes with the others",
     "evaluate": "finished reports were kept; a rerun writes the others",
 }
+# the commands whose RESUMES note holds only once they set it (set_resumes)
+RESUMES_WHEN_SET = ("extract", "localize")
 STARTS_OVER = "no half-written file was left; a rerun starts over"
 
 
@@ -44,7 +48,8 @@ def resumes(ctx) -> str | None:
     given its features extracts nothing, evaluate kept no report before the first is
     done), else the command's RESUMES entry."""
     obj = ctx.obj if isinstance(ctx.obj, dict) else {}
-    note = obj.get("resumes", RESUMES.get(ctx.invoked_subcommand or ""))
+    name = ctx.invoked_subcommand or ""
+    note = obj.get("resumes", None if name in RESUMES_WHEN_SET else RESUMES.get(name))
     return note() if callable(note) else note
 
 

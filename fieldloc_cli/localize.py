@@ -13,7 +13,7 @@ from pathlib import Path
 import click
 
 from .common import FilePath, conf_option, count, overrides_dict, progress_enabled, summary
-from .lazy_group import set_resumes
+from .lazy_group import RESUMES, set_resumes
 from .stage_defaults import LOCALIZE, LOCALIZE_DEFAULT_METHOD, LOCALIZE_METHODS
 
 log = logging.getLogger("fieldloc.localize")
@@ -146,6 +146,8 @@ def localize(ctx, dataset, map_path, templates, pose_solver, features, points, m
     output = output or Path(dataset) / f"poses-{method}.h5"
     if features is not None or points is not None or method == "templates":
         set_resumes(ctx, None)  # nothing extracted on the fly: nothing a rerun resumes
+    else:  # the features extracted on the fly, where it kept a finished frame
+        set_resumes(ctx, lambda: RESUMES["localize"] if _kept(output) else None)
     if method == "templates":
         path = stage.main(conf, dataset, map_path, output, templates=templates,
                           overwrite=overwrite, progress=progress_enabled(ctx))
@@ -174,3 +176,13 @@ def localize(ctx, dataset, map_path, templates, pose_solver, features, points, m
     if write_calib is not None:
         msg += f"; calib.yaml corrected from the recording -> {write_calib}"
     summary(ctx, msg)
+
+
+def _kept(output: Path) -> bool:
+    """Whether the extraction localize ran on the fly for ``output`` kept finished frames
+    (in the features file beside it, or its parts), or used the dataset's own features."""
+    from stages.common.features_file import kept_frames
+    from stages.pipelines.images_to_poses import default_features_path
+
+    target = default_features_path(output)
+    return target.is_file() or kept_frames(target)

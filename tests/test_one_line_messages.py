@@ -157,7 +157,8 @@ def test_a_signal_once_the_command_is_over_changes_nothing(small_omni_run, tmp_p
 def test_localize_given_its_features_says_no_extraction_resumes(small_omni_run, tmp_path,
                                                                 monkeypatch):
     """localize's "terminated" line said "a rerun resumes an extraction it had begun" when
-    given --features (nothing extracted)."""
+    given --features (nothing extracted), and when its extraction on the fly had kept no
+    frame yet; it says so only once a frame is kept."""
     from stages.pipelines import images_to_poses
 
     w = small_omni_run
@@ -171,6 +172,16 @@ def test_localize_given_its_features_says_no_extraction_resumes(small_omni_run, 
     assert res.exit_code == 128 + signal.SIGTERM
     assert res.stderr == ("fieldloc: terminated (no half-written file was left; a rerun starts"
                           " over)\n"), res.stderr
+    res = CliRunner().invoke(cli, args)  # extracted on the fly, stopped before a frame
+    assert "no half-written file was left; a rerun starts over" in res.stderr, res.stderr
+
+    def stopped_with_a_frame(*args, **kwargs):
+        parts = tmp_path / ".p.features.h5.parts"
+        parts.mkdir()
+        (parts / "000000+1.npz").write_bytes(b"")
+        raise Terminated()
+
+    monkeypatch.setattr(images_to_poses, "main", stopped_with_a_frame)
     res = CliRunner().invoke(cli, args)  # extracted on the fly: a rerun resumes it
     assert "a rerun resumes an extraction it had begun" in res.stderr, res.stderr
 
