@@ -260,3 +260,34 @@ def test_ctrl_c_to_a_two_worker_batch_starting_up_is_one_line(simulated, tmp_pat
         assert "Traceback" not in err, (delay, err)
         assert len(err.splitlines()) == 1 and err.startswith("fieldloc: interrupted"), (
             delay, err)
+
+
+@pytest.mark.parametrize("camera,progressive", [("omni", False), ("perspective", True)])
+def test_a_jpeg_frame_whose_scan_is_damaged_prints_one_line_of_its_own(simulated, tmp_path,
+                                                                        camera, progressive):
+    """A JPEG frame whose scan data is damaged made OpenCV's libjpeg print "Corrupt JPEG data:
+    2974 extraneous bytes before marker 0xd9" on stderr, and the frame was used, garbage
+    pixels and all. Decoded by simplejpeg (the TurboJPEG API returns libjpeg's warnings),
+    extract skips it with one warning line and show points refuses it in one line; nothing
+    of libjpeg's is printed. (The progressive file's damage reaches a Huffman table between
+    its scans: an error of libjpeg's, before which OpenCV's printed a warning.)"""
+    import cv2
+    from test_jpeg_and_image_headers import damaged_scan
+
+    ds = tmp_path / "ds"
+    shutil.copytree(simulated[camera], ds)
+    first = ds / "images" / "000000.png"
+    flags = [cv2.IMWRITE_JPEG_PROGRESSIVE, 1] if progressive else []
+    ok, data = cv2.imencode(".jpg", cv2.imread(str(first)), flags)
+    first.unlink()
+    (ds / "images" / "000000.jpg").write_bytes(damaged_scan(data.tobytes()))
+    frames = ds / "frames.csv"
+    frames.write_text(frames.read_text().replace("000000.png", "000000.jpg"))
+    r = _fieldloc("-q", "extract", ds, "-o", tmp_path / "f.h5", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    lines = r.stderr.splitlines()
+    assert len(lines) == 1 and "frame 000000 skipped: unreadable image" in lines[0], r.stderr
+    assert "(a damaged JPEG file: " in lines[0]
+    r = _fieldloc("show", "points", ds, "--frame", "0", "-o", tmp_path / "b.png", cwd=tmp_path)
+    assert r.returncode == 1
+    assert len(r.stderr.splitlines()) == 1 and "(a damaged JPEG file: " in r.stderr, r.stderr

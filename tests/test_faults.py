@@ -1555,6 +1555,31 @@ def _w1_report(w, ws):
     return {}
 
 
+def _j_frame_as(ds: Path, name: str, suffix: str, data: bytes) -> None:
+    """Frame ``name`` of ``ds`` replaced by the image file ``data`` of ``suffix``."""
+    (ds / "images" / f"{name}.png").unlink()
+    (ds / "images" / f"{name}.{suffix}").write_bytes(data)
+    frames = ds / "frames.csv"
+    frames.write_text(frames.read_text().replace(f"{name}.png", f"{name}.{suffix}"))
+
+
+def _j_damaged_first_frame(ds: Path) -> None:
+    """Frame 000000 of ``ds`` as a JPEG file whose scan data is damaged (libjpeg printed
+    "Corrupt JPEG data: 4682 extraneous bytes before marker 0xd9" and decoded garbage)."""
+    from test_jpeg_and_image_headers import damaged_scan
+
+    ok, data = cv2.imencode(".jpg", cv2.imread(str(ds / "images" / "000000.png")))
+    _j_frame_as(ds, "000000", "jpg", damaged_scan(data.tobytes()))
+
+
+def _j_claiming(kind: str, width: int, height: int):
+    def change(ds: Path) -> None:
+        from test_jpeg_and_image_headers import claiming
+
+        _j_frame_as(ds, "000002", kind, claiming(kind, width, height))
+    return change
+
+
 CASES = [
     # ------------------------------------------------------------------ data lost
     Case("localize -o the map --overwrite", "data-lost",
@@ -3017,6 +3042,24 @@ CASES = [
          "data-lost", ["evaluate", "{poses}", "--truth", "{omni}", "-o", W + "/rep",
                        "--overwrite"], 1, "rep/report.json was edited since fieldloc wrote it",
          setup=_w1_report),
+    # ---- s57 group J: JPEG frames decoded by simplejpeg, a damaged scan in one line (and
+    # nothing of libjpeg's: tests/test_cut_images_bags_and_signals.py runs a real process);
+    # a header claiming too many pixels says how many
+    Case("extract of a dataset whose first frame is a JPEG with damaged scan data", "silent",
+         ["extract", "{ds}", "-o", W + "/f.h5"], 0,
+         "000000.jpg (a damaged JPEG file: Corrupt JPEG data: ",
+         setup=_with_ds("omni", _j_damaged_first_frame)),
+    Case("show points of a frame that is a JPEG with damaged scan data", "silent",
+         ["show", "points", "{ds}", "--frame", "0", "-o", W + "/b.png"], 1,
+         "000000.jpg (a damaged JPEG file: Corrupt JPEG data: ",
+         setup=_with_ds("omni", _j_damaged_first_frame)),
+    *[Case(f"extract of a frame whose {kind} header claims {w} x {h} px", "hang",
+           ["extract", W + "/omni", "-o", W + "/f.h5"], 0,
+           f"000002.{kind} (its header claims {w} x {h} px, more than the 67,108,864 pixels"
+           " fieldloc reads)", setup=_with_ds("omni", _j_claiming(kind, w, h)),
+           check=_check_fifo_frame_failed)
+      for kind, w, h in (("tiff", 20000, 20000), ("webp", 16383, 16383),
+                         ("jpg", 65000, 65000), ("bmp", 30000, 30000))],
 ]
 
 

@@ -14,7 +14,7 @@ import yaml
 from click.testing import CliRunner
 
 from fieldloc_cli.main import cli
-from stages.common.dataset import image_damage, open_dataset, opencv_decode
+from stages.common.dataset import decode_image_bytes, image_damage, open_dataset
 
 SEED = 1860
 
@@ -80,7 +80,7 @@ def test_a_jpeg_with_data_after_its_end_is_read(progressive):
     mpo = j + _jpeg(SEED + 1)[: len(j) // 2]  # a second image, cut short
     for data in (j, trailer, mpo, _with_exif_thumbnail(j, _jpeg(SEED + 2))):
         assert image_damage(data) is None
-        img = opencv_decode(data)
+        img = decode_image_bytes(data)[0]
         assert img is not None and img.shape == (48, 64, 3)
 
 
@@ -92,7 +92,7 @@ def test_a_jpeg_cut_short_is_still_refused(progressive):
     with_thumb = _with_exif_thumbnail(j, _jpeg(SEED + 2))
     for data in (j[: len(j) // 2], j[:-2], with_thumb[: len(with_thumb) - len(j) // 2]):
         assert image_damage(data) == "a JPEG file cut short: no end marker"
-        assert opencv_decode(data) is None
+        assert decode_image_bytes(data)[0] is None
 
 def test_import_rosbag_keeps_the_good_frames_after_one_stamped_far_ahead(tmp_path, caplog):
     """One frame whose header stamp jumped ahead (a clock glitch) was kept and every good

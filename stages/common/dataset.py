@@ -381,15 +381,16 @@ def readable_truth(dataset_dir) -> dict[str, np.ndarray] | None:
 
 
 # the most pixels an image may have: 64 M (an 8K frame has 33 M). A PNG's header can claim up
-# to 4 G x 4 G pixels in 33 bytes, and OpenCV would reserve the memory for it before finding
-# the data short (or stop at its own assertion); a camera frame is far smaller than this
+# to 4 G x 4 G pixels in 33 bytes (a JPEG's 65535 x 65535, a TIFF's or a WebP's in a few
+# hundred kilobytes 20000 x 20000), and the decoder would reserve the memory for it before
+# finding the data short (or stop at its own assertion); a camera frame is far smaller. Also
+# OpenCV's own limit (stages/__init__.py), for a header stages.common.image_header cannot read
 MAX_IMAGE_PIXELS = 1 << 26
 
 
 def read_image(path: Path) -> np.ndarray:
     """Read an image as BGR uint8 (what OpenCV's IMREAD_COLOR gives); raises DatasetError if
-    unreadable (callers skip the frame). PNG frames of 8-bit grey or RGB are decoded by
-    stages.common.png in about half of OpenCV's time, every other file by OpenCV."""
+    unreadable (callers skip the frame). Decoded by ``decode_image_bytes``."""
     return _decode_image(path, "image")[0]
 
 
@@ -441,11 +442,8 @@ def file_identity(path: Path) -> str | None:
 def _decode_image(path: Path, what: str) -> tuple[np.ndarray, str]:
     """The one reader of every image a user gives (frames, masks, calibration pictures): the
     BGR uint8 image at ``path`` and its ``image_identity``, or a DatasetError "unreadable
-    ``what``: path (why)" for a file that is not a regular file, empty, larger than
-    MAX_IMAGE_PIXELS (by a PNG's header) or that OpenCV cannot decode (OpenCV's own assertions
-    and log lines included: they are not one line)."""
-    from .png import decode_png, png_size
-
+    ``what``: path (why)" for a file that is not a regular file, empty, or that
+    ``decode_image_bytes`` cannot decode."""
     path = Path(path)
     if not path.is_file():  # a FIFO would block the read forever
         raise DatasetError(f"unreadable {what}: {path} (not a regular file)")
@@ -455,17 +453,57 @@ def _decode_image(path: Path, what: str) -> tuple[np.ndarray, str]:
         raise DatasetError(f"unreadable {what}: {path} ({e.strerror or e})") from None
     if not data:
         raise DatasetError(f"unreadable {what}: {path} (empty file)")
-    size = png_size(data)
-    if size is not None and size[0] * size[1] > MAX_IMAGE_PIXELS:
-        raise DatasetError(f"unreadable {what}: {path} (its header claims {size[0]} x"
-                           f" {size[1]} px, more than {MAX_IMAGE_PIXELS} pixels)")
-    img = decode_png(data)
-    if img is None:  # a kind the fast path declines: OpenCV, from the bytes read
-        img = opencv_decode(data)
+    img, why = decode_image_bytes(data)
     if img is None:
-        why = image_damage(data)
         raise DatasetError(f"unreadable {what}: {path}" + (f" ({why})" if why else ""))
     return img, image_identity(data)
+
+
+def decode_image_bytes(data: bytes, *,
+                       unchanged: bool = False) -> tuple[np.ndarray | None, str | None]:
+    """(image, None): the image decoded from the bytes of an image file, BGR uint8 as OpenCV's
+    IMREAD_COLOR gives it (as stored, OpenCV's IMREAD_UNCHANGED, with ``unchanged``); or
+    (None, why it cannot be decoded), the why None where all that is known is that OpenCV
+    cannot decode it; callers turn that into their own one-line error. Nothing is
+    printed on stderr but by OpenCV for what only it reads (quiet_opencv): a header claiming
+    more than MAX_IMAGE_PIXELS is refused before decoding (stages.common.image_header); PNG
+    frames of 8-bit grey or RGB are decoded by stages.common.png in about half of OpenCV's
+    time, JPEG files by libjpeg-turbo through simplejpeg, which returns libjpeg's warnings
+    instead of printing them (stages.common.jpeg: a damaged scan is unreadable); a PNG or JPEG
+    file that libpng or libjpeg would complain of on stderr is not given to OpenCV
+    (image_damage); every other file goes to OpenCV. The one decoder of every image read."""
+    from .image_header import image_size
+    from .jpeg import DamagedJPEG, decode_jpeg
+    from .png import SIGNATURE, decode_png, png_for_opencv
+
+    size = image_size(data)
+    if size is not None and size[0] * size[1] > MAX_IMAGE_PIXELS:
+        return None, (f"its header claims {size[0]} x {size[1]} px, more than the"
+                      f" {MAX_IMAGE_PIXELS:,} pixels fieldloc reads")
+    if data.startswith(SIGNATURE):
+        img = None if unchanged else decode_png(data)
+        if img is not None:
+            return img, None
+        data = png_for_opencv(data)  # checked, given to libpng without ancillary chunks
+        if data is None:
+            return None, "a PNG file cut short or damaged"
+    elif data.startswith(JPEG_SOI):
+        why = image_damage(data)
+        if why is not None:
+            return None, why
+        try:
+            img = decode_jpeg(data, unchanged=unchanged)
+        except DamagedJPEG as e:
+            return None, f"a damaged JPEG file: {e}"
+        if img is not None:
+            return img, None
+    cv2 = quiet_opencv()
+    try:
+        img = cv2.imdecode(np.frombuffer(data, np.uint8),
+                           cv2.IMREAD_UNCHANGED if unchanged else cv2.IMREAD_COLOR)
+    except cv2.error:  # its assertions, e.g. more than OPENCV_IO_MAX_IMAGE_PIXELS
+        img = None
+    return img, None
 
 
 def quiet_opencv():
@@ -516,7 +554,7 @@ def _first_scan(data: bytes) -> int:
 
 
 def image_damage(data: bytes) -> str | None:
-    """Why the bytes of an image file are not given to OpenCV, in a message's words, or None:
+    """Why the bytes of an image file are not given to a decoder, in a message's words, or None:
     a JPEG file cut short (it starts as one, SOI, and holds no end marker, EOI, after its
     first scan, SOS: an EOI cannot occur inside a scan's coded data, where a 0xff byte is
     followed by 0x00 or a restart marker; what follows the image's EOI, a vendor's trailer
@@ -524,7 +562,8 @@ def image_damage(data: bytes) -> str | None:
     libpng refuses (stages.common.png.png_damaged). libjpeg and libpng report these on stderr
     themselves, not through OpenCV's logging ("Premature end of JPEG file", "libpng error:
     PNG input buffer is incomplete"): a line beside fieldloc's own (and libjpeg decodes the
-    cut file, grey below the cut)."""
+    cut file, grey below the cut). (simplejpeg, which decodes JPEG files, would say
+    "Premature end of JPEG file"; a CMYK file cut short goes to OpenCV's libjpeg.)"""
     from .png import png_damaged
 
     if data.startswith(JPEG_SOI):
@@ -534,28 +573,6 @@ def image_damage(data: bytes) -> str | None:
     if png_damaged(data):
         return "a PNG file cut short or damaged"
     return None
-
-
-def opencv_decode(data: bytes, *, unchanged: bool = False) -> np.ndarray | None:
-    """The image OpenCV decodes from the bytes of an image file, BGR uint8 (as stored with
-    ``unchanged``), or None where it cannot: OpenCV's failures (its assertions too, e.g. more
-    than CV_IO_MAX_IMAGE_PIXELS pixels) and the files image_damage names, without a line of
-    OpenCV's, libjpeg's or libpng's on stderr (quiet_opencv). The one call of every image read
-    by OpenCV; callers turn None into their own one-line error."""
-    from .png import SIGNATURE, png_for_opencv
-
-    cv2 = quiet_opencv()
-    if data.startswith(SIGNATURE):  # checked, and given to libpng without ancillary chunks
-        data = png_for_opencv(data)
-        if data is None:
-            return None
-    elif image_damage(data) is not None:
-        return None
-    try:
-        return cv2.imdecode(np.frombuffer(data, np.uint8),
-                            cv2.IMREAD_UNCHANGED if unchanged else cv2.IMREAD_COLOR)
-    except cv2.error:
-        return None
 
 
 def read_mask(path: str | Path, image_size: tuple[int, int]) -> np.ndarray:

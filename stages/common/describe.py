@@ -79,11 +79,13 @@ def _is_hdf5(path: Path, head: bytes) -> bool:
 
 
 def _image(path: Path) -> str:
-    from .dataset import opencv_decode
+    from .dataset import decode_image_bytes
 
-    img = opencv_decode(path.read_bytes(), unchanged=True)  # None: it cannot be decoded
+    img, why = decode_image_bytes(path.read_bytes(), unchanged=True)
     if img is None:
-        return f"{path}\n  image file that cannot be decoded ({human_bytes(path.stat().st_size)})"
+        why = f": {why}" if why else ""
+        return (f"{path}\n  image file that cannot be decoded"
+                f" ({human_bytes(path.stat().st_size)}{why})")
     ch = 1 if img.ndim == 2 else img.shape[2]
     return f"{path}\n  image {img.shape[1]} x {img.shape[0]} px, {ch} channels, {img.dtype}"
 

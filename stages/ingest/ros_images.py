@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..common.dataset import opencv_decode
+from ..common.dataset import decode_image_bytes
 from ..common.errors import FieldlocError
 
 JPEG_MAGIC = b"\xff\xd8"
@@ -145,7 +145,7 @@ def compressed_to_file(fmt: str, data) -> tuple[str, bytes | np.ndarray]:
         pattern = source[len("bayer_"):len("bayer_") + 4]
         if pattern not in _bayer_codes():
             raise ImageMessageError(f"unknown Bayer pattern in compressed format '{fmt}'")
-        mosaic = opencv_decode(bytes(data), unchanged=True)
+        mosaic = decode_image_bytes(bytes(data), unchanged=True)[0]
         if mosaic is None or mosaic.ndim != 2:
             raise ImageMessageError(f"compressed Bayer image ('{fmt}') is not a one-channel"
                                     " mosaic")
