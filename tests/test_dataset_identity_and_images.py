@@ -370,3 +370,25 @@ def _spl_map(tmp_path) -> str:
     if not path.exists():
         build_map.main({"resolution": 0.5}, "spl", path)
     return str(path)
+
+
+def test_a_frame_given_by_position_keeps_its_place_when_its_image_is_deleted(tmp_path):
+    """With 000000.png deleted (frames.csv still listing it), `show points --frame 0` drew
+    frame 000001 without a word, and so did `--frame 000000` (not a name any more, read as
+    position 0). Positions count the frames frames.csv lists; such a frame is refused."""
+    (tmp_path / "images").mkdir()
+    for name in ("000001", "000002"):
+        cv2.imwrite(str(tmp_path / "images" / f"{name}.png"), np.zeros((4, 4, 3), np.uint8))
+    (tmp_path / "frames.csv").write_text(
+        "name,stamp\n000000.png,0.0\n000001.png,0.1\n000002.png,0.2\n")
+    ds = open_dataset(tmp_path)
+    assert ds.names == ["000001", "000002"] and ds.missing == ("000000.png",)
+    for frame in (0, "0", "000000"):
+        with pytest.raises(DatasetError, match="frame 000000's image .*000000.png cannot be"
+                                               r" read: there is no such file \(frames.csv"):
+            ds.frame_at(frame)
+    assert [ds.frame_at(f) for f in (1, "2", "000001", "000002")] == [0, 1, 0, 1]
+    with pytest.raises(DatasetError, match=r"frame index 3 out of range \(0..2\)"):
+        ds.frame_at(3)
+    (tmp_path / "frames.csv").unlink()  # no list: the images are the frames
+    assert open_dataset(tmp_path).frame_at(0) == 0

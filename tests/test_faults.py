@@ -1580,6 +1580,12 @@ def _j_claiming(kind: str, width: int, height: int):
     return change
 
 
+def _j_first_image_deleted(w, ws):
+    ds = copy_dataset(w, "omni", ws)
+    (ds / "images" / "000000.png").unlink()
+    return {"ds": ds}
+
+
 CASES = [
     # ------------------------------------------------------------------ data lost
     Case("localize -o the map --overwrite", "data-lost",
@@ -3044,7 +3050,8 @@ CASES = [
          setup=_w1_report),
     # ---- s57 group J: JPEG frames decoded by simplejpeg, a damaged scan in one line (and
     # nothing of libjpeg's: tests/test_cut_images_bags_and_signals.py runs a real process);
-    # a header claiming too many pixels says how many
+    # a header claiming too many pixels says how many; a frame given by its position whose
+    # image was deleted is refused, not taken for the next
     Case("extract of a dataset whose first frame is a JPEG with damaged scan data", "silent",
          ["extract", "{ds}", "-o", W + "/f.h5"], 0,
          "000000.jpg (a damaged JPEG file: Corrupt JPEG data: ",
@@ -3060,6 +3067,12 @@ CASES = [
            check=_check_fifo_frame_failed)
       for kind, w, h in (("tiff", 20000, 20000), ("webp", 16383, 16383),
                          ("jpg", 65000, 65000), ("bmp", 30000, 30000))],
+    *[Case(f"show points --frame {frame} --features, frame 000000's image deleted", "silent",
+           ["show", "points", "{ds}", "--frame", frame, "--features", "{features}", "-o",
+            W + "/b.png"], 1,
+           "images/000000.png cannot be read: there is no such file (frames.csv lists it)",
+           setup=_j_first_image_deleted)
+      for frame in ("0", "000000")],
 ]
 
 

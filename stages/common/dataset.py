@@ -224,10 +224,29 @@ class Dataset:
     # the camera's calib.yaml when it is not the folder's own (one learnt from a recording,
     # stages.pipelines.images_to_poses); None: root/calib.yaml
     calib: Path | None = None
+    # the names frames.csv lists whose image is not in images/ (deleted since): not frames,
+    # but they keep their places when a frame is given by its position (``frame_at``)
+    missing: tuple[str, ...] = ()
 
     @property
     def names(self) -> list[str]:
         return [p.stem for p in self.images]
+
+    def frame_at(self, frame: str | int) -> int:
+        """The index in ``names`` of a frame given by its name or its position (0-based), as
+        ``frame_index``; positions count the frames frames.csv lists whose image is missing
+        too, and such a frame is refused in one line: with 000000.png deleted, "--frame 0"
+        drew frame 000001 (and "--frame 000000", read as position 0, too) without a word."""
+        if not self.missing:
+            return frame_index(self.names, frame, str(self.root))
+        files = sorted([*(p.name for p in self.images), *self.missing])
+        stems = [_frame_name(f) for f in files]
+        i = frame_index(stems, frame, str(self.root))
+        if files[i] in self.missing:
+            raise DatasetError(f"{self.root}: frame {stems[i][:40]}'s image"
+                               f" {self.root / 'images' / files[i][:40]} cannot be read: there"
+                               " is no such file (frames.csv lists it)")
+        return self.names.index(stems[i])
 
     @property
     def calib_path(self) -> Path:
@@ -303,6 +322,7 @@ def open_dataset(root: str | Path, *, need_images: bool = True) -> Dataset:
                 f" '{p.stem}'; rename or remove one")
         by_stem[p.stem] = p
     frames = root / "frames.csv"
+    gone: tuple[str, ...] = ()
     if present(frames):
         tab = read_csv(frames, "frames")
         by_name = dict(zip(tab["name"], tab["stamp"]))
@@ -311,6 +331,9 @@ def open_dataset(root: str | Path, *, need_images: bool = True) -> Dataset:
             raise DatasetError(f"{frames}: no stamp for image {missing[0]}")
         stamps = np.array([by_name.get(p.name, by_name.get(p.stem)) for p in images], float)
         source = "frames.csv"
+        have = {p.name for p in images} | {p.stem for p in images}
+        gone = tuple(n for n in by_name if n not in have
+                     and Path(n).suffix.lower() in ("", *IMAGE_SUFFIXES))
         other = [n for n in by_name if Path(n).suffix.lower() not in ("", *IMAGE_SUFFIXES)
                  and (img_dir / n).is_file()]
         if other and str(frames) not in _SAID_OTHER_KINDS:  # a frame the user listed, left
@@ -325,12 +348,18 @@ def open_dataset(root: str | Path, *, need_images: bool = True) -> Dataset:
     else:
         stamps = np.arange(len(images)) / DEFAULT_RATE_HZ
         source = "frame order"
-    return Dataset(root=root, images=images, stamps=stamps, stamp_source=source)
+    return Dataset(root=root, images=images, stamps=stamps, stamp_source=source, missing=gone)
 
 
 # the frames.csv files whose frames of other image kinds were said (open_dataset): a command
 # opens its dataset more than once
 _SAID_OTHER_KINDS: set[str] = set()
+
+
+def _frame_name(file_name: str) -> str:
+    """The frame name of an image file name as frames.csv gives it (its stem; a name given
+    without a suffix is the frame name itself)."""
+    return Path(file_name).stem if Path(file_name).suffix.lower() in IMAGE_SUFFIXES else file_name
 
 
 def frame_index(names: list[str], frame: str | int, where: str) -> int:

@@ -70,7 +70,7 @@ def frame_observations(dataset_dir: Path, frame: str | int, features: Path | Non
     from .. import extract
 
     ds = open_dataset(dataset_dir)
-    i = frame_index(ds.names, frame, str(dataset_dir))
+    i = ds.frame_at(frame)
     camera = ds.camera()
     if not {"lines", "crossings", "posts"} <= set(REQUIRED.get(camera.kind, ())):
         raise FieldlocError(

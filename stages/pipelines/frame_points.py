@@ -17,7 +17,7 @@ import math
 from pathlib import Path
 
 from ..common.artifacts import check_output
-from ..common.dataset import frame_index, open_dataset, read_image, truth_at
+from ..common.dataset import open_dataset, read_image, truth_at
 from ..common.errors import FieldlocError
 from ..common.features_file import FeaturesFile
 from ..show.figure import save_figure
@@ -66,7 +66,7 @@ def write_picture(conf, dataset_dir, output, *, frame: str | int = 0, features=N
                  overwrite=overwrite)
     if pose is not None and field is not None:
         check_pose(field, pose)
-    i = frame_index(ds.names, frame, str(ds.root))
+    i = ds.frame_at(frame)
     name, stamp = ds.names[i], float(ds.stamps[i])
     image = read_image(ds.images[i])
     arrays = frame_features(conf, ds, i, features)
