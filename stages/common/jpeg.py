@@ -46,8 +46,13 @@ class DamagedJPEG(ValueError):
 def decode_jpeg(data: bytes, *, unchanged: bool = False) -> np.ndarray | None:
     """The image of the JPEG file ``data`` as ``cv2.imdecode`` gives it (module doc), or None
     where simplejpeg does not read it as OpenCV does (CMYK, YCCK, OPENCV_READS: the caller
-    asks OpenCV). Raises DamagedJPEG where libjpeg-turbo finds the file damaged."""
-    import simplejpeg
+    asks OpenCV). Raises DamagedJPEG where libjpeg-turbo finds the file damaged. Where
+    simplejpeg is not installed (a Python it has no wheel for: pyproject.toml), None: OpenCV
+    decodes every JPEG file, and a damaged one's libjpeg line is printed as before."""
+    try:
+        import simplejpeg
+    except ImportError:
+        return None
 
     try:
         _, _, colorspace, _ = simplejpeg.decode_jpeg_header(data)
