@@ -274,6 +274,8 @@ def test_a_jpeg_frame_whose_scan_is_damaged_prints_one_line_of_its_own(simulated
     import cv2
     from test_jpeg_and_image_headers import damaged_scan
 
+    pytest.importorskip("simplejpeg")  # without it, OpenCV reads JPEG files (stages.common.jpeg)
+
     ds = tmp_path / "ds"
     shutil.copytree(simulated[camera], ds)
     first = ds / "images" / "000000.png"

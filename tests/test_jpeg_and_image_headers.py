@@ -8,6 +8,7 @@ tests/test_cut_images_bags_and_signals.py (stderr of a real process)."""
 
 from __future__ import annotations
 
+import importlib.util
 import io
 import struct
 
@@ -22,6 +23,10 @@ from stages.common.image_header import image_size
 from stages.common.jpeg import DamagedJPEG, decode_jpeg
 
 SEED = 57
+# simplejpeg has wheels for CPython 3.9-3.13 only (pyproject.toml); without it OpenCV reads
+# every JPEG file, and the tests of its decoding skip
+needs_simplejpeg = pytest.mark.skipif(importlib.util.find_spec("simplejpeg") is None,
+                                      reason="simplejpeg is not installed")
 
 
 def smooth_image(rng: np.random.Generator, h: int, w: int, channels: int) -> np.ndarray:
@@ -77,6 +82,7 @@ def with_exif_orientation(img: np.ndarray, orientation: int) -> bytes:
     return out.getvalue()
 
 
+@needs_simplejpeg
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), quality=st.integers(30, 100),
        h=st.integers(8, 120), w=st.integers(8, 120), grey=st.booleans(),
@@ -92,6 +98,7 @@ def test_a_jpeg_decodes_to_what_opencv_decodes(seed, quality, h, w, grey, progre
     assert decode_jpeg(data) is not None  # simplejpeg's path, not OpenCV's
 
 
+@needs_simplejpeg
 @pytest.mark.parametrize("orientation", range(1, 9))
 def test_exif_orientation_is_applied_as_opencv_applies_it(orientation):
     """OpenCV's IMREAD_COLOR turns a JPEG upright by its EXIF Orientation (a quarter turn
@@ -117,6 +124,7 @@ def test_a_cmyk_jpeg_is_read_by_opencv():
     assert why is None and np.array_equal(got, opencv(data))
 
 
+@needs_simplejpeg
 @pytest.mark.parametrize("progressive", [False, True])
 def test_a_jpeg_whose_scan_is_damaged_is_unreadable(progressive):
     """libjpeg decoded a damaged scan to garbage and printed "Corrupt JPEG data: ..." on
