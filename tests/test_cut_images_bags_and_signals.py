@@ -293,3 +293,48 @@ def test_a_jpeg_frame_whose_scan_is_damaged_prints_one_line_of_its_own(simulated
     r = _fieldloc("show", "points", ds, "--frame", "0", "-o", tmp_path / "b.png", cwd=tmp_path)
     assert r.returncode == 1
     assert len(r.stderr.splitlines()) == 1 and "(a damaged JPEG file: " in r.stderr, r.stderr
+
+
+# ---- s57 group K: JPEG kinds that went to OpenCV whole (trial F's J1, J2, J4)
+
+
+def test_damaged_cmyk_and_header_warning_jpegs_print_only_fieldlocs_lines(simulated, tmp_path):
+    """A damaged CMYK JPEG frame (J1), a frame cut short behind a JFIF version libjpeg warns
+    of (J2) and one with an unknown marker in its scan (J4) went to OpenCV's libjpeg, which
+    printed "Corrupt JPEG data: ..." or the header's warning on stderr and decoded made-up
+    pixels; extract counted them good frames. Now each is skipped in fieldloc's one line,
+    and nothing of libjpeg's is printed."""
+    import cv2
+    from test_jpeg_and_image_headers import (
+        as_cmyk,
+        damaged_scan,
+        with_header_warning,
+        with_marker_in_scan,
+    )
+
+    pytest.importorskip("simplejpeg")  # without it, OpenCV reads JPEG files (stages.common.jpeg)
+
+    ds = tmp_path / "ds"
+    shutil.copytree(simulated["omni"], ds)
+    frames = ds / "frames.csv"
+    names = sorted(p.name for p in (ds / "images").glob("*.png"))
+    first = cv2.imread(str(ds / "images" / names[0]))
+    bad = [damaged_scan(as_cmyk(first)),
+           with_header_warning(cv2.imencode(".jpg", first)[1].tobytes(), "jfif"),
+           with_marker_in_scan(cv2.imencode(".jpg", first)[1].tobytes())]
+    bad[1] = bad[1][:len(bad[1]) // 2] + b"\xff\xd9"
+    table = frames.read_text()
+    for i, data in enumerate(bad):
+        name = f"bad{i}.jpg"
+        (ds / "images" / name).write_bytes(data)
+        table += f"{name},{10.0 + i:.6f}\n"
+    frames.write_text(table)
+    r = _fieldloc("-q", "extract", ds, "-o", tmp_path / "f.h5", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    lines = r.stderr.splitlines()
+    assert len(lines) == 3, r.stderr
+    assert all("skipped: unreadable image" in line and "(a damaged JPEG file: " in line
+               for line in lines), r.stderr
+    r = _fieldloc("inspect", ds / "images" / "bad0.jpg", cwd=tmp_path)  # describes, on stdout
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    assert "a damaged JPEG file: Corrupt JPEG data: " in r.stdout

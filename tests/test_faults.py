@@ -1589,6 +1589,65 @@ def _j_first_image_deleted(w, ws):
     return {"ds": ds}
 
 
+def _k_jpeg(img: np.ndarray, kind: str) -> bytes:
+    """Frame ``img`` (BGR) as one of trial F's JPEG files that went to OpenCV's libjpeg whole
+    (tests/test_jpeg_and_image_headers.py makes them): "cmyk" a CMYK file whose scan is
+    damaged (J1); "jfif", "adobe", "sos" a header libjpeg warns of, the scan behind it cut short
+    or damaged (J2); "marker" an unknown marker in the scan (J4); "xmp-exif6" an XMP APP1 before
+    the EXIF APP1 of orientation 6 (J3); "segments" more empty segments than MAX_SEGMENTS
+    (P1)."""
+    from test_jpeg_and_image_headers import (
+        EXIF_LAYOUTS,
+        as_cmyk,
+        damaged_scan,
+        segment,
+        with_header_warning,
+        with_marker_in_scan,
+    )
+
+    from stages.common.jpeg import MAX_SEGMENTS
+
+    plain = cv2.imencode(".jpg", img)[1].tobytes()
+    if kind == "cmyk":
+        return damaged_scan(as_cmyk(img))
+    if kind == "jfif":
+        data = with_header_warning(plain, kind)
+        return data[:len(data) // 2] + b"\xff\xd9"
+    if kind in ("adobe", "sos"):
+        return damaged_scan(with_header_warning(plain, kind))
+    if kind == "marker":
+        return with_marker_in_scan(plain)
+    if kind == "xmp-exif6":
+        payloads = EXIF_LAYOUTS["xmp then exif 6"][0]
+        return plain[:2] + b"".join(segment(0xE1, p) for p in payloads) + plain[2:]
+    assert kind == "segments"
+    return plain[:2] + segment(0xE2, b"") * (MAX_SEGMENTS + 1) + plain[2:]
+
+
+def _k_frame(name: str, kind: str):
+    """A dataset change: frame ``name`` as ``_k_jpeg``'s file of ``kind``, or ("png-exif6") as
+    a PNG whose eXIf chunk gives orientation 6 (J5)."""
+    def change(ds: Path) -> None:
+        from test_jpeg_and_image_headers import with_exif_chunk
+
+        pytest.importorskip("simplejpeg")
+        png = (ds / "images" / f"{name}.png").read_bytes()
+        if kind == "png-exif6":
+            (ds / "images" / f"{name}.png").write_bytes(with_exif_chunk(png, 6))
+            return
+        img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+        _j_frame_as(ds, name, "jpg", _k_jpeg(img, kind))
+    return change
+
+
+def _k_cmyk_mask(ds: Path) -> None:
+    """The dataset's mask.png (frame-sized) as a CMYK JPEG file whose scan is damaged (J1)."""
+    pytest.importorskip("simplejpeg")
+    img = np.full((480, 480, 3), 255, np.uint8)
+    cv2.circle(img, (240, 240), 60, (0, 0, 0), -1)
+    (ds / "mask.png").write_bytes(_k_jpeg(img, "cmyk"))
+
+
 CASES = [
     # ------------------------------------------------------------------ data lost
     Case("localize -o the map --overwrite", "data-lost",
@@ -3076,6 +3135,33 @@ CASES = [
            "images/000000.png cannot be read: there is no such file (frames.csv lists it)",
            setup=_j_first_image_deleted)
       for frame in ("0", "000000")],
+    # ---- s57 group K: image decoding (trial F)
+    *[Case(f"extract of a frame that is a {kind} JPEG of trial F (damaged behind what went "
+           "to OpenCV)", "silent", ["extract", "{ds}", "-o", W + "/f.h5"], 0,
+           f"000002.jpg (a damaged JPEG file: {said}", setup=_with_ds("omni", _k_frame(
+               "000002", kind)), check=_check_fifo_frame_failed)
+      for kind, said in (("cmyk", "Corrupt JPEG data: "),
+                         ("jfif", "Corrupt JPEG data: premature end of data segment)"),
+                         ("adobe", "Corrupt JPEG data: "), ("sos", "Corrupt JPEG data: "),
+                         ("marker", "Unsupported marker type 0x1c)"))],
+    Case("show points of a frame that is a damaged CMYK JPEG", "silent",
+         ["show", "points", "{ds}", "--frame", "2", "-o", W + "/b.png"], 1,
+         "000002.jpg (a damaged JPEG file: Corrupt JPEG data: ",
+         setup=_with_ds("omni", _k_frame("000002", "cmyk"))),
+    Case("extract of a dataset whose mask is a damaged CMYK JPEG", "silent",
+         ["extract", "{ds}", "-o", W + "/f.h5"], 1,
+         "mask.png (a damaged JPEG file: Corrupt JPEG data: ",
+         setup=_with_ds("omni", _k_cmyk_mask)),
+    *[Case(f"extract of a perspective frame turned by its EXIF ({kind}) as OpenCV turns it",
+           "silent", ["extract", "{ds}", "-o", W + "/f.h5"], 0,
+           "image is 480 x 752 px, the calibration is for 752 x 480 px",
+           setup=_with_ds("kid", _k_frame("000001", kind)))
+      for kind in ("xmp-exif6", "png-exif6")],
+    Case("extract of a frame of more JPEG segments than a camera's file has", "hang",
+         ["extract", "{ds}", "-o", W + "/f.h5"], 0,
+         "000002.jpg (a JPEG file of more than 4,096 marker segments)",
+         setup=_with_ds("omni", _k_frame("000002", "segments")),
+         check=_check_fifo_frame_failed),
 ]
 
 

@@ -1,9 +1,10 @@
 """JPEG frames decoded by libjpeg-turbo through simplejpeg (stages.common.jpeg): the image
 OpenCV decodes (within a grey level or so: the two may bundle different builds of
-libjpeg-turbo), EXIF orientation applied as OpenCV applies it, CMYK files still read (by
-OpenCV), a damaged scan unreadable in fieldloc's words; and the size every kind of image
+libjpeg-turbo), EXIF orientation applied as OpenCV applies it (a PNG's eXIf too), CMYK and
+YCCK files and files with a harmless header warning decoded strictly too, a damaged scan
+unreadable in fieldloc's words; and the size every kind of image
 header claims (stages.common.image_header), refused beyond MAX_IMAGE_PIXELS before decoding.
-The one-line output of a command given such a frame is in tests/test_faults.py (group J) and
+The one-line output of a command given such a frame is in tests/test_faults.py (groups J and K) and
 tests/test_cut_images_bags_and_signals.py (stderr of a real process)."""
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 import importlib.util
 import io
 import struct
+import zlib
 
 import cv2
 import numpy as np
@@ -21,6 +23,7 @@ from hypothesis import strategies as st
 from stages.common.dataset import MAX_IMAGE_PIXELS, decode_image_bytes
 from stages.common.image_header import image_size
 from stages.common.jpeg import DamagedJPEG, decode_jpeg
+from stages.common.png import decode_png
 
 SEED = 57
 # simplejpeg has wheels for CPython 3.9-3.13 only (pyproject.toml); without it OpenCV reads
@@ -112,18 +115,6 @@ def test_exif_orientation_is_applied_as_opencv_applies_it(orientation):
                  opencv(data, cv2.IMREAD_UNCHANGED))
 
 
-def test_a_cmyk_jpeg_is_read_by_opencv():
-    """simplejpeg converts CMYK with its own formula: such a file goes to OpenCV, as before."""
-    from PIL import Image
-
-    out = io.BytesIO()
-    Image.new("CMYK", (64, 48), (10, 200, 30, 40)).save(out, "JPEG")
-    data = out.getvalue()
-    assert decode_jpeg(data) is None
-    got, why = decode_image_bytes(data)
-    assert why is None and np.array_equal(got, opencv(data))
-
-
 @needs_simplejpeg
 @pytest.mark.parametrize("progressive", [False, True])
 def test_a_jpeg_whose_scan_is_damaged_is_unreadable(progressive):
@@ -171,8 +162,8 @@ def claiming(kind: str, width: int, height: int) -> bytes:
 def test_the_size_every_header_claims_is_read(kind):
     """The size read from the header of each kind of frame is the image's."""
     img = smooth_image(np.random.default_rng(SEED), 37, 53, 3)
-    ok, buf = cv2.imencode("." + kind, img)
-    assert image_size(buf.tobytes()) == (53, 37)
+    data = cv2.imencode("." + kind, img)[1].tobytes()
+    assert image_size(data) == (53, 37)
 
 
 @pytest.mark.parametrize("mode", ["RGB", "RGBA"])
@@ -198,3 +189,198 @@ def test_a_header_claiming_too_many_pixels_says_how_many(kind, width, height):
     assert got is None
     assert why == (f"its header claims {width} x {height} px, more than the"
                    f" {MAX_IMAGE_PIXELS:,} pixels fieldloc reads")
+
+
+# ---- s57 group K: every JPEG decoded strictly (CMYK, YCCK, a header's harmless warning), the
+# EXIF APP1 OpenCV reads, a PNG's eXIf, the marker walk at C speed
+
+
+def as_cmyk(img: np.ndarray, ycck: bool = False) -> bytes:
+    """``img`` (BGR) as a CMYK JPEG file as Pillow writes it (Adobe's inverted CMYK, transform
+    0), or as a YCCK one (TurboJPEG's encoder, Adobe transform 2)."""
+    from PIL import Image
+
+    pil = Image.fromarray(np.ascontiguousarray(img[..., ::-1])).convert("CMYK")
+    if not ycck:
+        out = io.BytesIO()
+        pil.save(out, "JPEG", quality=90)
+        return out.getvalue()
+    import simplejpeg
+
+    return simplejpeg.encode_jpeg(np.asarray(pil), quality=90, colorspace="CMYK")
+
+
+def segment(marker: int, payload: bytes) -> bytes:
+    """A JPEG marker segment: 0xFF, ``marker``, its length, ``payload``."""
+    return bytes((0xFF, marker)) + (len(payload) + 2).to_bytes(2, "big") + payload
+
+
+def with_header_warning(data: bytes, kind: str) -> bytes:
+    """The JPEG file ``data`` (OpenCV's: a JFIF APP0 first, one baseline scan) changed so that
+    libjpeg warns of its header ("jfif": major version 3; "adobe": the JFIF APP0 replaced by an
+    Adobe APP14 of transform code 9; "sos": the scan's spectral selection starting at 1), the
+    image left as it was."""
+    b = bytearray(data)
+    app0 = data.find(b"JFIF\x00") - 4
+    if kind == "jfif":
+        b[app0 + 4 + 5] = 3
+    elif kind == "adobe":
+        length = int.from_bytes(data[app0 + 2:app0 + 4], "big")
+        adobe = segment(0xEE, b"Adobe" + bytes((0, 100, 0, 0, 0, 0, 9)))
+        b[app0:app0 + 2 + length] = adobe
+    else:
+        sos = data.find(b"\xff\xda")
+        length = int.from_bytes(data[sos + 2:sos + 4], "big")
+        b[sos + 2 + length - 3] = 1  # Ss
+    return bytes(b)
+
+
+def with_marker_in_scan(data: bytes) -> bytes:
+    """The JPEG file ``data`` with the bytes FF 1C (a marker code no JPEG file holds) in the
+    middle of its coded data: libjpeg says "Unsupported marker type 0x1c"."""
+    middle = (data.find(b"\xff\xda") + len(data)) // 2
+    while data[middle - 1] == 0xFF:
+        middle += 1
+    return data[:middle] + b"\xff\x1c" + data[middle:]
+
+
+@needs_simplejpeg
+@pytest.mark.parametrize("ycck", [False, True])
+@pytest.mark.parametrize("unchanged", [False, True])
+def test_a_cmyk_or_ycck_jpeg_decodes_to_what_opencv_decodes(ycck, unchanged):
+    """A CMYK or YCCK file went to OpenCV whole, and a damaged one's libjpeg lines with it
+    (J1): decoded by simplejpeg to CMYK and converted by OpenCV's formula, to OpenCV's BGR
+    image (IMREAD_UNCHANGED gives BGR too)."""
+    data = as_cmyk(smooth_image(np.random.default_rng(SEED), 48, 64, 3), ycck)
+    assert decode_jpeg(data) is not None
+    flag = cv2.IMREAD_UNCHANGED if unchanged else cv2.IMREAD_COLOR
+    assert_close(decode_image_bytes(data, unchanged=unchanged)[0], opencv(data, flag))
+
+
+@needs_simplejpeg
+@pytest.mark.parametrize("ycck", [False, True])
+def test_a_cmyk_jpeg_whose_scan_is_damaged_is_unreadable(ycck):
+    """OpenCV printed "Corrupt JPEG data: ..." for a damaged CMYK file and decoded it (J1)."""
+    img = smooth_image(np.random.default_rng(SEED), 240, 320, 3)
+    data = damaged_scan(as_cmyk(img, ycck))
+    with pytest.raises(DamagedJPEG, match="Corrupt JPEG data: "):
+        decode_jpeg(data)
+    got, why = decode_image_bytes(data)
+    assert got is None and why.startswith("a damaged JPEG file: Corrupt JPEG data: "), why
+
+
+@needs_simplejpeg
+@pytest.mark.parametrize("kind", ["jfif", "adobe", "sos"])
+def test_a_header_warning_decodes_as_opencv_and_damage_behind_it_is_found(kind):
+    """A header libjpeg warns of (an unknown JFIF version, Adobe transform, a sequential scan's
+    spectral selection) sent the file to OpenCV, which printed the warning and, printing only
+    its first, decoded a damaged scan behind it without a word (J2). The field is set to
+    what libjpeg assumes in a copy, decoded strictly: OpenCV's image, or the damage said."""
+    img = smooth_image(np.random.default_rng(SEED), 240, 320, 3)
+    data = with_header_warning(encode(img), kind)
+    assert decode_jpeg(data) is not None
+    assert_close(decode_image_bytes(data)[0], opencv(data))
+    for damaged in (damaged_scan(data), data[:len(data) // 2] + b"\xff\xd9"):
+        with pytest.raises(DamagedJPEG, match="Corrupt JPEG data: "):
+            decode_jpeg(damaged)
+
+
+@needs_simplejpeg
+def test_an_unknown_marker_in_a_scan_is_damage():
+    """"Unsupported marker type 0x1c" sent the file to OpenCV, which printed "Corrupt JPEG
+    data: premature end of data segment" and made up the lower half (J4)."""
+    data = with_marker_in_scan(encode(smooth_image(np.random.default_rng(SEED), 240, 320, 3)))
+    got, why = decode_image_bytes(data)
+    assert got is None and why == "a damaged JPEG file: Unsupported marker type 0x1c"
+
+
+def exif_tiff(orientation: int | None) -> bytes:
+    """A big-endian TIFF structure whose IFD0 holds Orientation ``orientation`` (None: another
+    tag, 0x0110, in its stead)."""
+    tag = 0x0110 if orientation is None else 0x0112
+    entry = struct.pack(">HHIHH", tag, 3, 1, orientation or 1, 0)
+    return b"MM\x00*\x00\x00\x00\x08\x00\x01" + entry + bytes(4)
+
+
+EXIF_LAYOUTS = {  # APP1 payloads before the frame; the orientation OpenCV 5 applies
+    "xmp then exif 6": ([b"http://ns.adobe.com/xap/1.0/\x00<x:xmpmeta/>",
+                         b"Exif\x00\x00" + exif_tiff(6)], 6),
+    "no exif header": ([b"Junk\x00\x00" + exif_tiff(6)], 1),
+    "exif without orientation then exif 6": ([b"Exif\x00\x00" + exif_tiff(None),
+                                              b"Exif\x00\x00" + exif_tiff(6)], 6),
+    "exif 3 then exif 6": ([b"Exif\x00\x00" + exif_tiff(3), b"Exif\x00\x00" + exif_tiff(6)], 3),
+    "exif 9 then exif 6": ([b"Exif\x00\x00" + exif_tiff(9), b"Exif\x00\x00" + exif_tiff(6)], 1),
+}
+
+
+@needs_simplejpeg
+@pytest.mark.parametrize("layout", EXIF_LAYOUTS)
+def test_exif_orientation_is_read_from_the_app1_opencv_reads(layout):
+    """fieldloc read the first APP1 whatever it held, OpenCV the first EXIF one ("Exif\\0\\0")
+    with an Orientation: an XMP APP1 before the EXIF one left the frame unturned (J3)."""
+    payloads, orientation = EXIF_LAYOUTS[layout]
+    img = smooth_image(np.random.default_rng(SEED), 48, 64, 3)
+    plain = encode(img)
+    data = plain[:2] + b"".join(segment(0xE1, p) for p in payloads) + plain[2:]
+    got = decode_image_bytes(data)[0]
+    assert got.shape == ((64, 48, 3) if orientation >= 5 else (48, 64, 3))
+    assert_close(got, opencv(data))
+
+
+def with_exif_chunk(png: bytes, orientation: int, after_image: bool = False) -> bytes:
+    """The PNG file ``png`` with an eXIf chunk giving ``orientation``, before its image data
+    (IDAT) or after it."""
+    body = exif_tiff(orientation)
+    chunk = (struct.pack(">I", len(body)) + b"eXIf" + body
+             + struct.pack(">I", zlib.crc32(b"eXIf" + body)))
+    at = png.find(b"IEND" if after_image else b"IDAT") - 4
+    return png[:at] + chunk + png[at:]
+
+
+@pytest.mark.parametrize("orientation", [3, 6, 8])
+@pytest.mark.parametrize("kind", ["rgb", "grey", "16-bit", "1-bit"])
+@pytest.mark.parametrize("after_image", [False, True])
+def test_a_png_is_turned_by_its_exif_as_opencv_turns_it(orientation, kind, after_image):
+    """OpenCV's IMREAD_COLOR turns a PNG by its eXIf chunk; fieldloc's PNG decoder did not,
+    nor the file it gives OpenCV without ancillary chunks (J5). IMREAD_UNCHANGED does not."""
+    from PIL import Image
+
+    img = smooth_image(np.random.default_rng(SEED), 48, 64, 1 if kind == "grey" else 3)
+    if kind == "16-bit":
+        img = img.astype(np.uint16) * 257
+    if kind == "1-bit":  # decoded by OpenCV (stages.common.png declines it)
+        out = io.BytesIO()
+        Image.fromarray(img[..., 1] > 128).save(out, "PNG")
+        png = out.getvalue()
+        assert png[24] == 1 and decode_png(png) is None  # its bit depth
+    else:
+        png = cv2.imencode(".png", img)[1].tobytes()
+    data = with_exif_chunk(png, orientation, after_image)
+    got = decode_image_bytes(data)[0]
+    want = opencv(data)
+    assert got.shape == ((64, 48, 3) if orientation >= 5 else (48, 64, 3))
+    np.testing.assert_array_equal(got, want)  # exact integers: uint8 pixels, PNG is lossless
+    assert decode_image_bytes(data, unchanged=True)[0].shape[:2] == (48, 64)
+
+
+@needs_simplejpeg
+def test_fill_bytes_are_skipped_and_millions_of_segments_refused():
+    """The marker walks went byte by byte and segment by segment in Python: 30 MB of fill
+    bytes or of 7.5 M empty segments before the frame cost 10-18 s (P1). Fill bytes are
+    skipped at C speed; more segments than a camera's file has (MAX_SEGMENTS) are refused
+    before libjpeg reads them (it keeps each: 0.7 GB)."""
+    import time
+
+    from stages.common.jpeg import MAX_SEGMENTS
+
+    data = with_exif_orientation(smooth_image(np.random.default_rng(SEED), 48, 64, 3), 6)
+    filled = data[:2] + b"\xff" * 30_000_000 + data[2:]
+    start = time.perf_counter()
+    got = decode_image_bytes(filled)[0]
+    assert time.perf_counter() - start < 5.0  # 0.3 s; 10 s and more when walked in Python
+    np.testing.assert_array_equal(got, decode_image_bytes(data)[0])  # exact same-run: one decoder
+    many = data[:2] + segment(0xE2, b"") * (MAX_SEGMENTS + 1) + data[2:]
+    assert decode_image_bytes(many) == (
+        None, f"a JPEG file of more than {MAX_SEGMENTS:,} marker segments")
+    fewer = data[:2] + segment(0xE2, b"") * (MAX_SEGMENTS - 20) + data[2:]
+    assert decode_image_bytes(fewer)[0].shape == (64, 48, 3)

@@ -497,42 +497,56 @@ def decode_image_bytes(data: bytes, *,
     printed on stderr but by OpenCV for what only it reads (quiet_opencv): a header claiming
     more than MAX_IMAGE_PIXELS is refused before decoding (stages.common.image_header); PNG
     frames of 8-bit grey or RGB are decoded by stages.common.png in about half of OpenCV's
-    time, JPEG files by libjpeg-turbo through simplejpeg, which returns libjpeg's warnings
+    time (a PNG turned upright by its eXIf chunk's orientation, as IMREAD_COLOR turns it), JPEG
+    files by libjpeg-turbo through simplejpeg, which returns libjpeg's warnings
     instead of printing them (stages.common.jpeg: a damaged scan is unreadable); a PNG or JPEG
     file that libpng or libjpeg would complain of on stderr is not given to OpenCV
     (image_damage); every other file goes to OpenCV. The one decoder of every image read."""
     from .image_header import image_size
-    from .jpeg import DamagedJPEG, decode_jpeg
-    from .png import SIGNATURE, decode_png, png_for_opencv
+    from .jpeg import DamagedJPEG, UnreadJPEG, decode_jpeg, orient
+    from .png import SIGNATURE, decode_png, png_for_opencv, png_orientation
 
+    if data.startswith(JPEG_SOI):
+        # walked before libjpeg reads the header (image_size), which keeps each of millions of
+        # empty segments (0.7 GB, 1 s): image_damage refuses more than a camera's file has
+        why = image_damage(data)
+        if why is not None:
+            return None, why
     size = image_size(data)
     if size is not None and size[0] * size[1] > MAX_IMAGE_PIXELS:
         return None, (f"its header claims {size[0]} x {size[1]} px, more than the"
                       f" {MAX_IMAGE_PIXELS:,} pixels fieldloc reads")
     if data.startswith(SIGNATURE):
+        # IMREAD_COLOR turns a PNG upright by its eXIf chunk, which png_for_opencv leaves out
+        orientation = 1 if unchanged else png_orientation(data)
         img = None if unchanged else decode_png(data)
         if img is not None:
-            return img, None
+            return orient(img, orientation), None
         data = png_for_opencv(data)  # checked, given to libpng without ancillary chunks
         if data is None:
             return None, "a PNG file cut short or damaged"
-    elif data.startswith(JPEG_SOI):
-        why = image_damage(data)
-        if why is not None:
-            return None, why
+        img = _opencv_decode(data, unchanged)
+        return (img if img is None else orient(img, orientation)), None
+    if data.startswith(JPEG_SOI):
         try:
             img = decode_jpeg(data, unchanged=unchanged)
         except DamagedJPEG as e:
             return None, f"a damaged JPEG file: {e}"
+        except UnreadJPEG as e:
+            return None, str(e)
         if img is not None:
             return img, None
+    return _opencv_decode(data, unchanged), None
+
+
+def _opencv_decode(data: bytes, unchanged: bool) -> np.ndarray | None:
+    """OpenCV's image of the file ``data`` (IMREAD_UNCHANGED or IMREAD_COLOR), or None."""
     cv2 = quiet_opencv()
     try:
-        img = cv2.imdecode(np.frombuffer(data, np.uint8),
-                           cv2.IMREAD_UNCHANGED if unchanged else cv2.IMREAD_COLOR)
+        return cv2.imdecode(np.frombuffer(data, np.uint8),
+                            cv2.IMREAD_UNCHANGED if unchanged else cv2.IMREAD_COLOR)
     except cv2.error:  # its assertions, e.g. more than OPENCV_IO_MAX_IMAGE_PIXELS
-        img = None
-    return img, None
+        return None
 
 
 def quiet_opencv():
@@ -560,28 +574,6 @@ _OPENCV_SILENCED = False
 JPEG_SOI, JPEG_SOS, JPEG_EOI = b"\xff\xd8", b"\xff\xda", b"\xff\xd9"
 
 
-def _first_scan(data: bytes) -> int:
-    """Where the first scan (SOS marker) of the JPEG ``data`` begins, or -1 where it has none:
-    found by walking the marker segments from SOI, so that the bytes FF DA inside a segment
-    (an EXIF thumbnail's own scan in APP1, a vendor's metadata) are not taken for it. Where the
-    segments do not follow each other (a damaged header), the first FF DA after the last one
-    read."""
-    pos = len(JPEG_SOI)
-    while pos + 4 <= len(data):
-        if data[pos] != 0xFF:
-            break
-        marker = data[pos + 1]
-        if marker == 0xFF:  # a fill byte before a marker
-            pos += 1
-        elif marker == JPEG_SOS[1]:
-            return pos
-        elif marker == 0x01 or 0xD0 <= marker <= 0xD7:  # markers without a length
-            pos += 2
-        else:
-            pos += 2 + int.from_bytes(data[pos + 2:pos + 4], "big")
-    return data.find(JPEG_SOS, pos)
-
-
 def image_damage(data: bytes) -> str | None:
     """Why the bytes of an image file are not given to a decoder, in a message's words, or None:
     a JPEG file cut short (it starts as one, SOI, and holds no end marker, EOI, after its
@@ -592,11 +584,16 @@ def image_damage(data: bytes) -> str | None:
     themselves, not through OpenCV's logging ("Premature end of JPEG file", "libpng error:
     PNG input buffer is incomplete"): a line beside fieldloc's own (and libjpeg decodes the
     cut file, grey below the cut). (simplejpeg, which decodes JPEG files, would say
-    "Premature end of JPEG file"; a CMYK file cut short goes to OpenCV's libjpeg.)"""
+    "Premature end of JPEG file".) The first scan is found by stages.common.jpeg.first_scan,
+    which refuses a file of more segments than a camera's file has (jpeg.MAX_SEGMENTS)."""
+    from .jpeg import UnreadJPEG, first_scan
     from .png import png_damaged
 
     if data.startswith(JPEG_SOI):
-        scan = _first_scan(data)
+        try:
+            scan = first_scan(data)
+        except UnreadJPEG as e:
+            return str(e)
         if scan >= 0 and data.find(JPEG_EOI, scan) < 0:
             return "a JPEG file cut short: no end marker"
     if png_damaged(data):

@@ -105,6 +105,30 @@ def png_size(data: bytes) -> tuple[int, int] | None:
     return struct.unpack_from(">II", data, 16)
 
 
+def png_orientation(data: bytes) -> int:
+    """The EXIF Orientation (1-8) of the PNG file ``data``, 1 where it gives none: read as
+    OpenCV's IMREAD_COLOR reads it (libpng's eXIf chunk, before or after the image data),
+    from the first eXIf chunk libpng keeps: a right CRC, at least a TIFF header's 8 bytes,
+    starting "II" or "MM" (libpng drops the others with a warning, and a later eXIf as a
+    duplicate of the one it keeps). Only chunk headers are read, an eXIf's CRC computed."""
+    from .jpeg import tiff_orientation
+
+    view = memoryview(data)
+    pos, n = len(SIGNATURE), len(data)
+    while pos + 8 <= n:
+        length, kind = struct.unpack_from(">I4s", data, pos)
+        end = pos + 12 + length
+        if end > n or kind == b"IEND":
+            break
+        if kind == b"eXIf" and length >= 8 and data[pos + 8:pos + 10] in (b"II", b"MM") \
+                and isal_zlib.crc32(view[pos + 4:end - 4]) == \
+                struct.unpack_from(">I", data, end - 4)[0]:
+            value = tiff_orientation(data[pos + 8:end - 4])
+            return 1 if value is None else value
+        pos = end
+    return 1
+
+
 def png_damaged(data: bytes) -> bool:
     """Whether ``data`` starts as a PNG file that ``png_for_opencv`` does not pass on: one
     libpng would refuse or complain of on stderr itself ("libpng error: PNG input buffer is
