@@ -30,7 +30,8 @@ class Terminated(KeyboardInterrupt):
 # over): batch resumes; extract resumes, and localize the extraction it runs on the fly, where
 # they kept a finished frame (they say so, as a callable asked when they stop, in
 # ctx.obj["resumes"], ``set_resumes``; until then, and where they kept none, a rerun starts
-# over); a command that knows better for the run at hand says so there too (``resumes``)
+# over; evaluate once it kept a report); a command that knows better for the run at hand says
+# so there too (``resumes``)
 RESUMES = {
     "extract": "finished frames were kept; a rerun resumes where it stopped",
     "localize": "finished files were kept; a rerun resumes an extraction it had begun",
@@ -38,7 +39,7 @@ RESUMES = {
     "evaluate": "finished reports were kept; a rerun writes the others",
 }
 # the commands whose RESUMES note holds only once they set it (set_resumes)
-RESUMES_WHEN_SET = ("extract", "localize")
+RESUMES_WHEN_SET = ("extract", "localize", "evaluate")
 STARTS_OVER = "no half-written file was left; a rerun starts over"
 
 
@@ -249,6 +250,11 @@ class LazyGroup(click.Group):
             if debug:
                 raise
             _interrupted(ctx, e)
+        except (click.exceptions.Exit, click.exceptions.Abort):
+            # a group's subcommand group (`fieldloc show`) that ended already (its exit code,
+            # its "interrupted" line said): not an error of this group's command, and an
+            # interrupt in its chain of causes is said once, not again here
+            raise
         except Exception as e:
             # Ctrl-C as a numba kernel returns or unpickles its constants: CPython reports the
             # KeyboardInterrupt raised then as a SystemError caused by it ("returned a result

@@ -1648,6 +1648,52 @@ def _k_cmyk_mask(ds: Path) -> None:
     (ds / "mask.png").write_bytes(_k_jpeg(img, "cmyk"))
 
 
+def _l_dotted_stems_first_deleted(w, ws):
+    """ws/omni with its frames named like timestamps (1687078170.100.png: a dot inside the
+    stem), frames.csv listing the stems, the first image deleted."""
+    ds = copy_dataset(w, "omni", ws)
+    rows = ["name,stamp"]
+    for i in range(4):
+        stem = f"1687078170.{i + 1}00"
+        (ds / "images" / f"{i:06d}.png").rename(ds / "images" / f"{stem}.png")
+        rows.append(f"{stem},{i / 10:.1f}")
+    (ds / "frames.csv").write_text("\n".join(rows) + "\n")
+    (ds / "images" / "1687078170.100.png").unlink()
+    return {"ds": ds}
+
+
+def _l_deleted_frame_listed_twice(w, ws):
+    """ws/omni with 000000.png deleted and frames.csv listing it twice: by its file name and
+    by its stem (one frame)."""
+    ds = copy_dataset(w, "omni", ws)
+    (ds / "images" / "000000.png").unlink()
+    with open(ds / "frames.csv", "a") as f:
+        f.write("000000,0.000000\n")
+    return {"ds": ds}
+
+
+def _l_perspective_first_frame_failed(w, ws):
+    """ws/kid with frame 000000's image junk, and ws/f.h5 extracted from it (000000 failed,
+    so only 000001 is in it)."""
+    ds = copy_dataset(w, "kid", ws)
+    (ds / "images" / "000000.png").write_bytes(b"junk")
+    extract.main(None, ds, ws / "f.h5")
+    return {"ds": ds}
+
+
+def _l_report_with_a_repeated_key(w, ws):
+    """ws/rep: a report evaluate wrote; then a user's note as a first "schema" key before
+    fieldloc's (json keeps the last of a repeated key: the parsed report is unchanged)."""
+    from stages import evaluate
+
+    evaluate.main(None, w["poses"], w["omni"], ws / "rep")
+    rec = ws / "rep" / "report.json"
+    text = rec.read_text()
+    rec.write_text(text.replace('  "schema"', '  "schema": "MY NOTE: redo, camera tilted",\n'
+                                '  "schema"', 1))
+    return {}
+
+
 CASES = [
     # ------------------------------------------------------------------ data lost
     Case("localize -o the map --overwrite", "data-lost",
@@ -3162,6 +3208,33 @@ CASES = [
          "000002.jpg (a JPEG file of more than 4,096 marker segments)",
          setup=_with_ds("omni", _k_frame("000002", "segments")),
          check=_check_fifo_frame_failed),
+    # ---- s57 group L: frames, names, signals (trial F)
+    Case("show points --frame 0, its dotted-stem image deleted (1687078170.100)", "silent",
+         ["show", "points", "{ds}", "--frame", "0", "-o", W + "/b.png"], 1,
+         "frame 1687078170.100's image ", setup=_l_dotted_stems_first_deleted),
+    Case("show points --frame 1, the dotted-stem image before it deleted", "silent",
+         ["show", "points", "{ds}", "--frame", "1", "-o", W + "/b.png"], 0,
+         "b.png: frame 1687078170.200, ", setup=_l_dotted_stems_first_deleted),
+    *[Case(f"show points --frame {frame}, a deleted frame listed by name and stem", "silent",
+           ["show", "points", "{ds}", "--frame", frame, "-o", W + "/b.png"], 0,
+           f"b.png: frame 00000{frame}, ", setup=_l_deleted_frame_listed_twice)
+      for frame in ("1", "3")],
+    Case("show points --frame 4, a deleted frame listed by name and stem", "silent",
+         ["show", "points", "{ds}", "--frame", "4", "-o", W + "/b.png"], 1,
+         "frame index 4 out of range (0..3)", setup=_l_deleted_frame_listed_twice),
+    *[Case(f"show belief --features --frame {frame}, that frame's extraction failed",
+           "silent", ["show", "belief", "{ds}", "--frame", frame, "--features", W + "/f.h5",
+                      "--map", "{kmap}", "-o", W + "/b.png"], 1,
+           "f.h5: no frame '000000' (its extraction failed, or extract it first)",
+           setup=_l_perspective_first_frame_failed)
+      for frame in ("000000", "0")],
+    Case("evaluate --overwrite of a report.json holding a note as a repeated key",
+         "data-lost", ["evaluate", "{poses}", "--truth", "{omni}", "-o", W + "/rep",
+                       "--overwrite"], 1, "rep/report.json was edited since fieldloc wrote it",
+         setup=_l_report_with_a_repeated_key),
+    Case("localize --method lut of a perspective dataset without features", "newcomer",
+         ["localize", "{kid}", "--map", "{kmap}", "--method", "lut", "-o", W + "/p.h5"], 1,
+         "kid: a 'perspective' camera (its calib.yaml); --method lut needs omni features"),
 ]
 
 

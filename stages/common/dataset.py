@@ -21,7 +21,8 @@ the time series (odometry, imu, truth, head) must be in time order with one row 
 file that breaks this is refused with its line number, because a NaN increment or a row out of
 order cannot be placed without guessing (odometry rows are increments since the previous row).
 Two images with the same stem (``000003.png`` and ``000003.jpg``) would be one frame name and
-are refused too.
+are refused too, and so is an image whose file name is no UTF-8 (a frame's name is written as
+text into every artifact).
 """
 
 from __future__ import annotations
@@ -234,19 +235,31 @@ class Dataset:
 
     def frame_at(self, frame: str | int) -> int:
         """The index in ``names`` of a frame given by its name or its position (0-based), as
-        ``frame_index``; positions count the frames frames.csv lists whose image is missing
-        too, and such a frame is refused in one line: with 000000.png deleted, "--frame 0"
-        drew frame 000001 (and "--frame 000000", read as position 0, too) without a word."""
+        ``frame_index``: the one reading of a user's ``--frame`` (show points, show belief).
+        Positions count the frames frames.csv lists whose image is missing too, each frame
+        once (a name listed both as its file name and as its stem, or with two suffixes, is
+        one frame; ``_frame_name``), in the order of their file names; such a frame is
+        refused in one line: with 000000.png deleted, "--frame 0" drew frame 000001 (and
+        "--frame 000000", read as position 0, too) without a word."""
         if not self.missing:
             return frame_index(self.names, frame, str(self.root))
-        files = sorted([*(p.name for p in self.images), *self.missing])
-        stems = [_frame_name(f) for f in files]
-        i = frame_index(stems, frame, str(self.root))
-        if files[i] in self.missing:
-            raise DatasetError(f"{self.root}: frame {stems[i][:40]}'s image"
-                               f" {self.root / 'images' / files[i][:40]} cannot be read: there"
-                               " is no such file (frames.csv lists it)")
-        return self.names.index(stems[i])
+        order = [(p.name, p.stem) for p in self.images]
+        known = set(self.names)
+        # a missing frame listed by its stem sorts as a file of the images' suffix would
+        suffix = self.images[0].suffix if self.images else ""
+        for listed in self.missing:
+            name = _frame_name(listed)
+            if name not in known:
+                known.add(name)
+                order.append((listed if name != listed else listed + suffix, name))
+        order.sort()
+        names = [name for _file, name in order]
+        i = frame_index(names, frame, str(self.root))
+        if names[i] in self.names:
+            return self.names.index(names[i])
+        raise DatasetError(f"{self.root}: frame {names[i][:40]}'s image"
+                           f" {self.root / 'images' / order[i][0][:40]} cannot be read: there"
+                           " is no such file (frames.csv lists it)")
 
     @property
     def calib_path(self) -> Path:
@@ -314,8 +327,14 @@ def open_dataset(root: str | Path, *, need_images: bool = True) -> Dataset:
         raise DatasetError(f"{img_dir}: cannot be listed ({e.strerror or e})") from None
     if need_images and not images:
         raise DatasetError(f"{root}: no images ({IMAGE_KINDS}) in {img_dir}")
+    from .artifacts import storable_text
+
     by_stem: dict[str, Path] = {}
     for p in images:
+        if storable_text(p.name) != p.name:
+            raise DatasetError(
+                f"{img_dir}: image file name {storable_text(p.name)[:40]} is not UTF-8 text;"
+                " frame names are written as text into every artifact: rename it")
         if p.stem in by_stem:
             raise DatasetError(
                 f"{img_dir}: {by_stem[p.stem].name} and {p.name} would both be frame"
@@ -332,10 +351,11 @@ def open_dataset(root: str | Path, *, need_images: bool = True) -> Dataset:
         stamps = np.array([by_name.get(p.name, by_name.get(p.stem)) for p in images], float)
         source = "frames.csv"
         have = {p.name for p in images} | {p.stem for p in images}
-        gone = tuple(n for n in by_name if n not in have
-                     and Path(n).suffix.lower() in ("", *IMAGE_SUFFIXES))
         other = [n for n in by_name if Path(n).suffix.lower() not in ("", *IMAGE_SUFFIXES)
                  and (img_dir / n).is_file()]
+        # every other name is a frame whose image is missing: one of an image suffix, or a
+        # stem, with a dot or not (a timestamp name 1687078170.100 has the "suffix" .100)
+        gone = tuple(n for n in by_name if n not in have and n not in other)
         if other and str(frames) not in _SAID_OTHER_KINDS:  # a frame the user listed, left
             _SAID_OTHER_KINDS.add(str(frames))  # out: said once, however often it is opened
             log.warning("%s: %d frames are images of a kind fieldloc does not read (first: %s;"

@@ -326,6 +326,10 @@ def check_run(conf: dict | str | None, dataset_dir: str | Path, map_path: str | 
     check_tum_output(output, inputs_given, overwrite)
     series = {k: dataset.optional(k) for k in ("odometry", "imu", "truth")}  # refused if bad
     method_module(conf["method"])
+    if features is None and points is None and not uses_templates(conf["method"]):
+        # the features still to be made are of the dataset's camera: a method that cannot
+        # read them refused now, not after minutes of extraction left a features file
+        _check_camera_kind(conf["method"], None, dataset_dir, kind=dataset.camera().kind)
     if map_path is not None:
         MapFile(map_path).close()
     elif not uses_templates(conf["method"]):
@@ -605,15 +609,18 @@ def _json_attr(feats, key: str):
         return None
 
 
-def _check_camera_kind(method: str, feats, features) -> None:
+def _check_camera_kind(method: str, feats, features, *, kind: str | None = None) -> None:
     """Features of a camera kind the method does not read (its ``camera_kinds``) refused in
-    one line, naming the methods that read them."""
-    kind = getattr(feats, "camera_kind", "")
+    one line, naming the methods that read them. ``kind``: the camera kind of a dataset
+    whose features are still to be extracted (``features``: the dataset), refused before
+    any frame is."""
+    said = "a '{}' camera (its calib.yaml)" if kind else "features of a '{}' camera"
+    kind = kind or getattr(feats, "camera_kind", "")
     kinds = method_camera_kinds(method)
     if kind and kinds is not None and kind not in kinds:
         others = [m for m in available_methods() if kind in (method_camera_kinds(m) or ())]
         raise FieldlocError(
-            f"{features}: features of a '{kind}' camera; --method {method} needs"
+            f"{features}: {said.format(kind)}; --method {method} needs"
             f" {' or '.join(kinds)} features" + (f": use --method {' or '.join(others)}"
                                                  if others else ""))
 

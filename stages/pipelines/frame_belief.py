@@ -62,9 +62,16 @@ def frame_observations(dataset_dir: Path, frame: str | int, features: Path | Non
     if features is None and (dataset_dir / "features.h5").is_file():
         features = dataset_dir / "features.h5"
     if features is not None:
+        ds = open_dataset(dataset_dir, need_images=False)
         with FeaturesFile(features) as ff:
-            ff.check_of(open_dataset(dataset_dir, need_images=False))
-            name = ff.names[frame_index(ff.names, frame, str(features))]
+            ff.check_of(ds)
+            if ds.images:  # the frame the dataset's --frame is (show points' too)
+                name = ds.names[ds.frame_at(frame)]
+                if name not in ff.names:  # a frame whose extraction failed: not another
+                    raise FieldlocError(f"{features}: no frame '{name[:40]}' (its extraction"
+                                        " failed, or extract it first)")
+            else:  # a dataset given its features only: the file's frames are its frames
+                name = ff.names[frame_index(ff.names, frame, str(features))]
             data = ff.frame(name)
             return name, float(data["stamp"]), Observations.from_features(data)
     from .. import extract

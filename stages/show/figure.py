@@ -11,7 +11,7 @@ from pathlib import Path
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from ..common.artifacts import WRITTEN_MARK, atomic_path
+from ..common.artifacts import WRITTEN_MARK, atomic_path, storable_text
 from ..common.errors import FieldlocError
 
 
@@ -56,9 +56,25 @@ def save_figure(fig: Figure, path: str | Path, dpi: int | None = None) -> Path:
     as fieldloc's (``_marked``)."""
     path = Path(path)
     fmt = picture_format(path)
+    drawable_texts(fig)
     with atomic_path(path, suffix=path.suffix or ".png") as tmp, _opaque_in_postscript(fmt):
         fig.savefig(tmp, format=fmt, dpi=dpi or fig.dpi, bbox_inches="tight", **_marked(fmt))
     return path
+
+
+def drawable_texts(fig: Figure) -> Figure:
+    """``fig`` with each of its texts that holds a name the file system gave that is no UTF-8
+    (a dataset folder or frame file named with bytes 0xff 0xfe: Python holds them as
+    surrogates) written with those bytes as ``\\xff`` (``storable_text``): matplotlib's font
+    code refused such a title with an 80-line traceback. Called before every figure is
+    drawn into a file (``save_figure``, the report page's pictures)."""
+    from matplotlib.text import Text
+
+    for text in fig.findobj(Text):
+        shown = text.get_text()
+        if isinstance(shown, str) and storable_text(shown) != shown:
+            text.set_text(storable_text(shown))
+    return fig
 
 
 @contextlib.contextmanager

@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..common.artifacts import atomic_path, check_output
+from ..common.artifacts import atomic_path, check_output, storable_text
 from ..common.conf import stage_conf
 from ..common.errors import FieldlocError
 from ..common.report_file import REPORT_NAME, load_report, read_errors_csv, read_plot
@@ -175,8 +175,10 @@ def _img(data: bytes, alt: str) -> str:
 
 
 def _figure_png(fig, dpi) -> bytes:
+    from .figure import drawable_texts
+
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
+    drawable_texts(fig).savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
     return buf.getvalue()
 
 
@@ -366,6 +368,6 @@ def main(conf: str | dict | None, source, output, *, overwrite: bool = False,
             f" run(s); written {created} by fieldloc {__version__}. Distances between line"
             " centre lines; failures count as infinite error.</p>" + runs
             + "\n".join(sections) + "</body></html>\n")
-    with atomic_path(output, suffix=".html") as tmp:
-        tmp.write_text(page)
+    with atomic_path(output, suffix=".html") as tmp:  # a name that is no UTF-8 as \xff
+        tmp.write_text(storable_text(page), encoding="utf-8")
     return output
