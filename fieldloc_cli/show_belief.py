@@ -43,6 +43,6 @@ def show_belief(ctx, dataset, frame, map_path, features, resolution, heading_ste
         conf["resolution"] = resolution
     if heading_step_deg is not None:
         conf["heading_step"] = math.radians(heading_step_deg)
-    path = stage.main(conf, dataset, map_path, output, frame=frame, features=features,
-                      overwrite=overwrite)
-    summary(ctx, f"{path}: belief of frame {frame}")
+    path, name = stage.write_picture(conf, dataset, map_path, output, frame=frame,
+                                     features=features, overwrite=overwrite)
+    summary(ctx, f"{path}: belief of frame {name}")

@@ -3228,6 +3228,10 @@ CASES = [
            "f.h5: no frame '000000' (its extraction failed, or extract it first)",
            setup=_l_perspective_first_frame_failed)
       for frame in ("000000", "0")],
+    Case("show belief --features --frame 1 says the name of the frame it drew", "silent",
+         ["show", "belief", "{ds}", "--frame", "1", "--features", W + "/f.h5", "--map",
+          "{kmap}", "-o", W + "/b.png"], 0, "b.png: belief of frame 000001",
+         setup=_l_perspective_first_frame_failed),
     Case("evaluate --overwrite of a report.json holding a note as a repeated key",
          "data-lost", ["evaluate", "{poses}", "--truth", "{omni}", "-o", W + "/rep",
                        "--overwrite"], 1, "rep/report.json was edited since fieldloc wrote it",

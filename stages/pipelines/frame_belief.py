@@ -92,6 +92,16 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path,
          overwrite: bool = False, progress: bool = False) -> Path:
     """Draw the belief of one frame's observations on the map's field into ``output`` (PNG).
     ``frame``: a frame name or position."""
+    return write_picture(conf, dataset_dir, map_path, output, frame=frame, features=features,
+                         overwrite=overwrite)[0]
+
+
+def write_picture(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path,
+                  output: str | Path, *, frame: str | int = 0,
+                  features: str | Path | None = None,
+                  overwrite: bool = False) -> tuple[Path, str]:
+    """``main``, returning the path and the name of the frame drawn (``frame`` may be a
+    position: the summary names the frame)."""
     conf = stage_conf(confs, conf)
     check_conf(conf)
     output = Path(output)
@@ -115,4 +125,4 @@ def main(conf: dict | str | None, dataset_dir: str | Path, map_path: str | Path,
                     arrow_min=float(conf["arrow_min"]),
                     title=f"{dataset_dir.name} frame {name} (t = {stamp:.2f} s): belief from"
                     " one frame's observations; yellow: best pose, white: truth")
-    return save_figure(fig, output)
+    return save_figure(fig, output), name
