@@ -82,8 +82,15 @@ from .mcl_resampling import (
     reset_share,
     resetting,
 )
-from .mcl_rivals import KIDNAP_PROBABILITY, Rivals
-from .mcl_smoothing import SMOOTH_TEMPERATURE, MclScorer, SmoothingInputs, motion_of, start_prior
+from .mcl_rivals import Rivals
+from .mcl_smoothing import (
+    SMOOTH_KIDNAP_PROBABILITY,
+    SMOOTH_TEMPERATURE,
+    MclScorer,
+    SmoothingInputs,
+    motion_of,
+    start_prior,
+)
 from .observation_model import BOUNDS as OBSERVATION_BOUNDS
 from .observation_model import DEFAULTS as OBSERVATION_DEFAULTS
 from .observation_model import ObservationModel
@@ -564,9 +571,8 @@ def run(conf: dict, dataset, features, map_file, progress=None) -> PoseTrack:
                        temperature=float(SMOOTH_TEMPERATURE))
     motion = motion_of(increments, stamps, odometry is not None, collision, imu_yaw)
     x0, x1, y0, y1 = pf.bounds
-    # the smoother's outlier floor: the filter's kidnap prior
     return smooth.smooth_track(scorer, track, motion, conf,
-                               kidnap_probability=KIDNAP_PROBABILITY,
+                               kidnap_probability=SMOOTH_KIDNAP_PROBABILITY,
                                area=(x1 - x0) * (y1 - y0),
                                log_prior0=start_prior(conf, model.field))
 

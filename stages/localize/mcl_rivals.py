@@ -34,8 +34,8 @@ from ..common.geometry import compose, inverse
 from . import motion_model
 
 KIDNAP_PROBABILITY = 1e-3  # per frame, that the robot is not where the belief says: while
-# tracking, the landmarks place the posterior share of "elsewhere" (module doc); also the
-# smoother's outlier floor (smooth.Transition)
+# tracking, the landmarks place the posterior share of "elsewhere" (module doc); the
+# smoother has its own (mcl_smoothing.SMOOTH_KIDNAP_PROBABILITY)
 # while tracking, the pool's best poses kept over frames as rivals of the belief, each
 # accumulating its evidence against it (a sequential test of "elsewhere"), by the initial
 # belief: a uniform start's first frames settle on one of several places that explain

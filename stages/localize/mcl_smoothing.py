@@ -32,6 +32,15 @@ from .smooth import FrameCandidates
 
 SMOOTH_TEMPERATURE = 2.0  # the smoother's frame likelihood is the model's to the power
 # 1 / this (consecutive frames' errors are not independent; docs/smoothing.md)
+# per frame, that the robot is not where the path says: the smoother's outlier floor
+# (smooth.Transition), the value lut, fit and templates smooth with (tracking.
+# KIDNAP_PROBABILITY). Not the filter's 1e-3 (mcl_rivals.KIDNAP_PROBABILITY), the share its
+# resampling gives "elsewhere" so that a live filter recovers: over a whole recording that
+# made a jump about as cheap as 13 nats, and on NAO tuning walk 463 (placement start, either
+# touch line) the start's reflection onto the other touch line, ruled out once the robot
+# turned, passed its mass to the mirror image, held at confidence 0.93 for 300 frames
+# (docs/smoothing.md, "mcl")
+SMOOTH_KIDNAP_PROBABILITY = 1e-5
 
 # places the sensor-resetting pool of a frame adds to the smoother's candidates (its best
 # poses that are other places, place_search.separate)
