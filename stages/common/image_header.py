@@ -14,12 +14,16 @@ import struct
 TIFF_WIDTH_TAG, TIFF_HEIGHT_TAG = 256, 257
 
 
+# the first bytes of every PNG file (PNG specification, 5.2)
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+# the EXIF tag of an image's orientation (1-8: how to turn it to be seen upright)
+EXIF_ORIENTATION_TAG = 0x0112
+
+
 def image_size(data: bytes) -> tuple[int, int] | None:
     """(width, height) that the header of the image file ``data`` claims (PNG, JPEG, BMP,
     TIFF or WebP), or None where it is none of these or its header cannot be read (the
     decoder then says what is wrong)."""
-    from .png import png_size
-
     if data.startswith(b"\xff\xd8"):
         return jpeg_size(data)
     if data.startswith(b"BM") and len(data) >= 26:
@@ -86,3 +90,21 @@ def tiff_ifd0(tiff: bytes, tags: tuple[int, ...]) -> dict[int, int]:
             found[tag] = struct.unpack_from(order + ("H" if kind == 3 else "I"), tiff,
                                             entry + 8)[0]
     return found
+
+
+def png_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) that the header of the PNG file ``data`` claims, or None if ``data`` does
+    not start as a PNG file does (signature, then the IHDR chunk): read before decoding, so
+    that a header claiming a huge image is refused before any memory is reserved for it."""
+    if not data.startswith(PNG_SIGNATURE) or data[12:16] != b"IHDR" or len(data) < 24:
+        return None
+    return struct.unpack_from(">II", data, 16)
+
+
+def tiff_orientation(tiff: bytes) -> int | None:
+    """The Orientation (1-8; 1 for a value outside) that IFD0 of the TIFF structure ``tiff``
+    (EXIF's) gives, or None where it holds none."""
+    value = tiff_ifd0(tiff, (EXIF_ORIENTATION_TAG,)).get(EXIF_ORIENTATION_TAG)
+    if value is None:
+        return None
+    return value if 1 <= value <= 8 else 1

@@ -50,7 +50,7 @@ import re
 
 import numpy as np
 
-from .image_header import tiff_ifd0
+from .image_header import tiff_orientation
 
 # the exact starts of libjpeg's messages (jerror.h) about a file that is not damaged but that
 # TurboJPEG's 8-bit decoder does not read: 12-bit samples, a lossless or hierarchical process
@@ -68,7 +68,6 @@ APP0, APP1, APP14, SOS, EOI = 0xE0, 0xE1, 0xEE, 0xDA, 0xD9
 # the frame headers (SOF0-3, 5-7, 9-11, 13-15): not DHT (C4), JPG (C8), DAC (CC)
 SOF_MARKERS = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
 EXIF_HEADER = b"Exif\x00\x00"
-EXIF_ORIENTATION_TAG = 0x0112
 # how long the quoted libjpeg-turbo message may be in fieldloc's line
 MESSAGE_CHARS = 70
 # the most marker segments read: a camera's JPEG file has a few dozen (APPn metadata, DQT, SOF,
@@ -239,15 +238,6 @@ def exif_orientation(data: bytes) -> int:
             if value is not None:
                 return value
     return 1
-
-
-def tiff_orientation(tiff: bytes) -> int | None:
-    """The Orientation (1-8; 1 for a value outside) that IFD0 of the TIFF structure ``tiff``
-    (EXIF's) gives, or None where it holds none."""
-    value = tiff_ifd0(tiff, (EXIF_ORIENTATION_TAG,)).get(EXIF_ORIENTATION_TAG)
-    if value is None:
-        return None
-    return value if 1 <= value <= 8 else 1
 
 
 def orient(img: np.ndarray, orientation: int) -> np.ndarray:

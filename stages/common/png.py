@@ -30,9 +30,10 @@ import numpy as np
 from isal import isal_zlib
 
 from .errors import FieldlocError
+from .image_header import PNG_SIGNATURE as SIGNATURE
+from .image_header import tiff_orientation
 from .jit import njit
 
-SIGNATURE = b"\x89PNG\r\n\x1a\n"
 # colour type -> samples per pixel, for the types decoded here (0: grey, 2: RGB)
 CHANNELS = {0: 1, 2: 3}
 # rows of more than this many bytes in all are left to OpenCV, so that a header claiming a
@@ -96,23 +97,12 @@ def _inflated(idat, expected: int) -> bytes | None:
     return raw if len(raw) == expected else None
 
 
-def png_size(data: bytes) -> tuple[int, int] | None:
-    """(width, height) that the header of the PNG file ``data`` claims, or None if ``data`` does
-    not start as a PNG file does (signature, then the IHDR chunk): read before decoding, so
-    that a header claiming a huge image is refused before any memory is reserved for it."""
-    if not data.startswith(SIGNATURE) or data[12:16] != b"IHDR" or len(data) < 24:
-        return None
-    return struct.unpack_from(">II", data, 16)
-
-
 def png_orientation(data: bytes) -> int:
     """The EXIF Orientation (1-8) of the PNG file ``data``, 1 where it gives none: read as
     OpenCV's IMREAD_COLOR reads it (libpng's eXIf chunk, before or after the image data),
     from the first eXIf chunk libpng keeps: a right CRC, at least a TIFF header's 8 bytes,
     starting "II" or "MM" (libpng drops the others with a warning, and a later eXIf as a
     duplicate of the one it keeps). Only chunk headers are read, an eXIf's CRC computed."""
-    from .jpeg import tiff_orientation
-
     view = memoryview(data)
     pos, n = len(SIGNATURE), len(data)
     while pos + 8 <= n:
