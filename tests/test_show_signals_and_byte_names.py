@@ -1,9 +1,8 @@
-"""s57 group L (trial F): a `show` command stopped by a signal says so once (S2); evaluate
-stopped before its first report says nothing was kept (M2); a dataset folder or a frame file
-named with bytes that are no UTF-8 is drawn, reported or refused in one line, never a
-traceback (X2, X3). Each run as the program, in its own process: the signal's handlers are
-the program's, and such a name in a test's own report would stop pytest-xdist, which sends
-reports as UTF-8."""
+"""A `show` command stopped by a signal says so once; evaluate stopped before its first report
+says nothing was kept; a dataset folder or a frame file named with bytes that are no UTF-8 is
+drawn, reported or refused in one line, never a traceback (trial F's S2, M2, X2, X3). Each
+run as the program, in its own process: the signal's handlers are the program's, and such a
+name in a test's own report would stop pytest-xdist, which sends reports as UTF-8."""
 
 from __future__ import annotations
 
