@@ -313,6 +313,42 @@ EXIF_LAYOUTS = {  # APP1 payloads before the frame; the orientation OpenCV 5 app
 }
 
 
+def exif_entries(order: str, entries: list[tuple[int, int, int, bytes]]) -> bytes:
+    """A TIFF structure of byte order ``order`` ("<" or ">") whose IFD0 holds ``entries``
+    (tag, type, count, the 4 bytes of the value field)."""
+    head = (b"II*\x00" if order == "<" else b"MM\x00*") + struct.pack(order + "I", 8)
+    body = b"".join(struct.pack(order + "HHI", t, k, c) + v for t, k, c, v in entries)
+    return head + struct.pack(order + "H", len(entries)) + body + bytes(4)
+
+
+ORIENTATION_ENTRIES = {  # trial G's G1: an Orientation of another type or count, repeated
+    "big-endian LONG 6": (">", [(0x0112, 4, 1, b"\x00\x00\x00\x06")]),
+    "little-endian LONG 0x10006": ("<", [(0x0112, 4, 1, b"\x06\x00\x01\x00")]),
+    "BYTE 6": ("<", [(0x0112, 1, 1, b"\x06\x00\x00\x00")]),
+    "SLONG 6": ("<", [(0x0112, 9, 1, b"\x06\x00\x00\x00")]),
+    "SHORT, count 2": ("<", [(0x0112, 3, 2, b"\x06\x00\x00\x00")]),
+    "SHORT, count 0": ("<", [(0x0112, 3, 0, b"\x06\x00\x00\x00")]),
+    "SHORT 3, then SHORT 6": ("<", [(0x0112, 3, 1, b"\x03\x00\x00\x00"),
+                                    (0x0112, 3, 1, b"\x06\x00\x00\x00")]),
+}
+
+
+@needs_simplejpeg
+@pytest.mark.parametrize("entry", ORIENTATION_ENTRIES)
+def test_an_orientation_of_any_type_is_read_as_opencv_reads_it(entry):
+    """OpenCV 5 reads the first Orientation entry's value field as 16 bits whatever its type
+    and count; fieldloc read one SHORT or LONG only, and the last of a repeated tag, and
+    turned such frames otherwise (trial G, G1). The frame's shape and pixels are OpenCV's."""
+    order, entries = ORIENTATION_ENTRIES[entry]
+    img = smooth_image(np.random.default_rng(SEED), 48, 64, 3)
+    plain = encode(img)
+    data = plain[:2] + segment(0xE1, b"Exif\x00\x00" + exif_entries(order, entries)) + plain[2:]
+    want = opencv(data)
+    got = decode_image_bytes(data)[0]
+    assert got.shape == want.shape
+    assert_close(got, want)
+
+
 @needs_simplejpeg
 @pytest.mark.parametrize("layout", EXIF_LAYOUTS)
 def test_exif_orientation_is_read_from_the_app1_opencv_reads(layout):

@@ -103,8 +103,22 @@ def png_size(data: bytes) -> tuple[int, int] | None:
 
 def tiff_orientation(tiff: bytes) -> int | None:
     """The Orientation (1-8; 1 for a value outside) that IFD0 of the TIFF structure ``tiff``
-    (EXIF's) gives, or None where it holds none."""
-    value = tiff_ifd0(tiff, (EXIF_ORIENTATION_TAG,)).get(EXIF_ORIENTATION_TAG)
-    if value is None:
+    (EXIF's) gives, or None where it holds none: read as OpenCV 5 reads it, the first entry
+    of tag 0x0112 and the 16 bits at the start of its value field in the structure's byte
+    order, whatever the entry's type and count (a big-endian LONG 6 is then 0: no turn; a
+    BYTE 6 in a little-endian structure is 6). Read as one SHORT or LONG only, a frame was
+    turned otherwise than OpenCV turns it (trial G, G1)."""
+    order = {b"II": "<", b"MM": ">"}.get(tiff[:2])
+    if order is None or len(tiff) < 8:
         return None
-    return value if 1 <= value <= 8 else 1
+    ifd = struct.unpack_from(order + "I", tiff, 4)[0]
+    if ifd + 2 > len(tiff):
+        return None
+    for i in range(struct.unpack_from(order + "H", tiff, ifd)[0]):
+        entry = ifd + 2 + 12 * i
+        if entry + 12 > len(tiff):
+            break
+        if struct.unpack_from(order + "H", tiff, entry)[0] == EXIF_ORIENTATION_TAG:
+            value = struct.unpack_from(order + "H", tiff, entry + 8)[0]
+            return value if 1 <= value <= 8 else 1
+    return None
