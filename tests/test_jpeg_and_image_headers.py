@@ -395,7 +395,10 @@ def test_a_png_is_turned_by_its_exif_as_opencv_turns_it(orientation, kind, after
     got = decode_image_bytes(data)[0]
     want = opencv(data)
     assert got.shape == ((64, 48, 3) if orientation >= 5 else (48, 64, 3))
-    np.testing.assert_array_equal(got, want)  # exact integers: uint8 pixels, PNG is lossless
+    # PNG is lossless: the same pixels, but for a 16-bit sample, which libpng takes by its
+    # high byte and libspng (another OpenCV build) rounds: one level at most. A turn other
+    # than OpenCV's moves every pixel, by far more
+    assert np.abs(got.astype(int) - want.astype(int)).max() <= 1
     assert decode_image_bytes(data, unchanged=True)[0].shape[:2] == (48, 64)
 
 
@@ -414,7 +417,7 @@ def test_fill_bytes_are_skipped_and_millions_of_segments_refused():
     start = time.perf_counter()
     got = decode_image_bytes(filled)[0]
     assert time.perf_counter() - start < 5.0  # 0.3 s; 10 s and more when walked in Python
-    np.testing.assert_array_equal(got, decode_image_bytes(data)[0])  # exact same-run: one decoder
+    assert_close(got, decode_image_bytes(data)[0])  # fill bytes change no pixel
     many = data[:2] + segment(0xE2, b"") * (MAX_SEGMENTS + 1) + data[2:]
     assert decode_image_bytes(many) == (
         None, f"a JPEG file of more than {MAX_SEGMENTS:,} marker segments")
