@@ -70,22 +70,30 @@ def _webp_size(data: bytes) -> tuple[int, int] | None:
     return None
 
 
+def _ifd0_entries(tiff: bytes):
+    """(byte order, tag, type, count, offset of the entry) of each entry of the first image
+    file directory (IFD0) of the TIFF structure ``tiff``, in their order; none where the
+    structure is not TIFF, fewer where it is cut short."""
+    order = {b"II": "<", b"MM": ">"}.get(tiff[:2])
+    if order is None or len(tiff) < 8:
+        return
+    ifd = struct.unpack_from(order + "I", tiff, 4)[0]
+    if ifd + 2 > len(tiff):
+        return
+    for i in range(struct.unpack_from(order + "H", tiff, ifd)[0]):
+        entry = ifd + 2 + 12 * i
+        if entry + 12 > len(tiff):
+            return
+        tag, kind, count = struct.unpack_from(order + "HHI", tiff, entry)
+        yield order, tag, kind, count, entry
+
+
 def tiff_ifd0(tiff: bytes, tags: tuple[int, ...]) -> dict[int, int]:
     """The values of those of ``tags`` that the first image file directory (IFD0) of the TIFF
     structure ``tiff`` holds as one SHORT or LONG (a TIFF file's, or EXIF's inside a JPEG);
     fewer where the structure is cut short or not TIFF."""
-    order = {b"II": "<", b"MM": ">"}.get(tiff[:2])
-    if order is None or len(tiff) < 8:
-        return {}
-    ifd = struct.unpack_from(order + "I", tiff, 4)[0]
-    if ifd + 2 > len(tiff):
-        return {}
     found = {}
-    for i in range(struct.unpack_from(order + "H", tiff, ifd)[0]):
-        entry = ifd + 2 + 12 * i
-        if entry + 12 > len(tiff):
-            break
-        tag, kind, count = struct.unpack_from(order + "HHI", tiff, entry)
+    for order, tag, kind, count, entry in _ifd0_entries(tiff):
         if tag in tags and count == 1 and kind in (3, 4):  # 3: SHORT, 4: LONG
             found[tag] = struct.unpack_from(order + ("H" if kind == 3 else "I"), tiff,
                                             entry + 8)[0]
@@ -108,17 +116,8 @@ def tiff_orientation(tiff: bytes) -> int | None:
     order, whatever the entry's type and count (a big-endian LONG 6 is then 0: no turn; a
     BYTE 6 in a little-endian structure is 6). Read as one SHORT or LONG only, a frame was
     turned otherwise than OpenCV turns it (trial G, G1)."""
-    order = {b"II": "<", b"MM": ">"}.get(tiff[:2])
-    if order is None or len(tiff) < 8:
-        return None
-    ifd = struct.unpack_from(order + "I", tiff, 4)[0]
-    if ifd + 2 > len(tiff):
-        return None
-    for i in range(struct.unpack_from(order + "H", tiff, ifd)[0]):
-        entry = ifd + 2 + 12 * i
-        if entry + 12 > len(tiff):
-            break
-        if struct.unpack_from(order + "H", tiff, entry)[0] == EXIF_ORIENTATION_TAG:
+    for order, tag, _kind, _count, entry in _ifd0_entries(tiff):
+        if tag == EXIF_ORIENTATION_TAG:
             value = struct.unpack_from(order + "H", tiff, entry + 8)[0]
             return value if 1 <= value <= 8 else 1
     return None
