@@ -392,3 +392,15 @@ def test_a_frame_given_by_position_keeps_its_place_when_its_image_is_deleted(tmp
         ds.frame_at(3)
     (tmp_path / "frames.csv").unlink()  # no list: the images are the frames
     assert open_dataset(tmp_path).frame_at(0) == 0
+
+
+@pytest.mark.parametrize("second", ["000001", "000001.png", "000001.jpg", "sub/000001.png"])
+def test_a_frame_listed_twice_is_refused(tmp_path, second):
+    """Trial G (G3): 000001.png and 000001 listed at two stamps were accepted (one stamp
+    kept, silently); a frame listed twice is refused, as a name listed twice is."""
+    root = _dataset(tmp_path / "ds")
+    with open(root / "frames.csv", "a") as f:
+        f.write(f"{second},0.15\n")
+    with pytest.raises(DatasetError, match="frames.csv: line 5: frame '000001' is given twice"
+                                           r" \(line 3"):
+        open_dataset(root)

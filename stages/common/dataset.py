@@ -21,8 +21,9 @@ the time series (odometry, imu, truth, head) must be in time order with one row 
 file that breaks this is refused with its line number, because a NaN increment or a row out of
 order cannot be placed without guessing (odometry rows are increments since the previous row).
 Two images with the same stem (``000003.png`` and ``000003.jpg``) would be one frame name and
-are refused too, and so is an image whose file name is no UTF-8 (a frame's name is written as
-text into every artifact).
+are refused too, and so is a frame frames.csv lists twice (``000003.png`` and ``000003``: which
+stamp is it?) and an image whose file name is no UTF-8 (a frame's name is written as text into
+every artifact). Frame positions: ``Dataset.frame_at``.
 """
 
 from __future__ import annotations
@@ -148,13 +149,17 @@ def read_csv(path: str | Path, kind: str) -> dict[str, np.ndarray]:
             raise DatasetError(
                 f"{path}: line {body[i + 1][0]}: stamp {st[i + 1]:g} {what} line"
                 f" {body[i][0]}'s stamp {st[i]:g}; rows must be in time order, one per stamp")
-    if kind == "frames":
-        seen: dict[str, int] = {}
+    if kind == "frames":  # one row per frame: 000003.png and 000003 are one frame
+        seen: dict[str, tuple[int, str]] = {}
         for (line_no, _), nm in zip(body, out["name"]):
-            if nm in seen:
+            frame = _frame_name(nm)
+            if frame in seen:
+                first_line, first = seen[frame]
+                also = "" if first == nm else f" as '{first[:40]}'"
                 raise DatasetError(
-                    f"{path}: line {line_no}: name '{nm}' is given twice (line {seen[nm]})")
-            seen[nm] = line_no
+                    f"{path}: line {line_no}: frame '{frame[:40]}' is given twice (line"
+                    f" {first_line}{also})")
+            seen[frame] = line_no, nm
     return out
 
 
@@ -378,8 +383,10 @@ _SAID_OTHER_KINDS: set[str] = set()
 
 def _frame_name(file_name: str) -> str:
     """The frame name of an image file name as frames.csv gives it (its stem; a name given
-    without a suffix is the frame name itself)."""
-    return Path(file_name).stem if Path(file_name).suffix.lower() in IMAGE_SUFFIXES else file_name
+    without a suffix is the frame name itself); a folder it names is no part of it (the
+    frames are the files in images/)."""
+    name = Path(file_name).name
+    return Path(name).stem if Path(name).suffix.lower() in IMAGE_SUFFIXES else name
 
 
 def frame_index(names: list[str], frame: str | int, where: str) -> int:
