@@ -1681,6 +1681,19 @@ def _g_listed_by_name_and_stem(w, ws):
     return {"ds": ds}
 
 
+def _g_rows_of_no_frame(name: str):
+    """ws/<name> with frames.csv rows after frame 000000's that name no frame and no file:
+    a text file, a .gif (a kind fieldloc does not read) and a .jpg among PNG frames, each
+    sorting before frame 000001."""
+    def setup(w, ws):
+        ds = copy_dataset(w, name, ws)
+        lines = (ds / "frames.csv").read_text().splitlines()
+        lines[2:2] = ["000000b.txt,0.01", "000000c.gif,0.02", "000000d.jpg,0.03"]
+        (ds / "frames.csv").write_text("\n".join(lines) + "\n")
+        return {"ds": ds}
+    return setup
+
+
 def _l_perspective_first_frame_failed(w, ws):
     """ws/kid with frame 000000's image junk, and ws/f.h5 extracted from it (000000 failed,
     so only 000001 is in it)."""
@@ -3117,7 +3130,8 @@ CASES = [
       for suffix in (".bmp", ".tiff", ".webp")],
     Case("extract of a dataset with a .gif frame listed in frames.csv", "silent",
          ["extract", "{ds}", "-o", W + "/f.h5"], 0,
-         "1 frames are images of a kind fieldloc does not read (first: 000001.gif",
+         "1 frames are files of a kind fieldloc does not read or none of the images is"
+         " (first: 000001.gif",
          setup=_setup_frame_as(".gif"), check=_check_frames_extracted(3)),
     Case("extract of a PNG frame whose IDAT data is damaged under right CRCs", "silent",
          ["extract", "{ds}", "-o", W + "/f.h5"], 0,
@@ -3252,6 +3266,17 @@ CASES = [
            setup=_g_listed_by_name_and_stem)
       for cmd, args in (("extract", ["extract", "{ds}"]),
                         ("show points", ["show", "points", "{ds}", "--frame", "000003"]))],
+    Case("show points --frame 1, frames.csv rows of no frame before it", "silent",
+         ["show", "points", "{ds}", "--frame", "1", "--features", "{features}", "-o",
+          W + "/b.png"], 0, "b.png: frame 000001, ", setup=_g_rows_of_no_frame("omni")),
+    Case("show points --frame 1 (perspective), frames.csv rows of no frame before it",
+         "silent", ["show", "points", "{ds}", "--frame", "1", "--features", "{kid_features}",
+                    "-o", W + "/b.png"], 0, "b.png: frame 000001, ",
+         setup=_g_rows_of_no_frame("kid")),
+    Case("show belief --frame 1, frames.csv rows of no frame before it", "silent",
+         ["show", "belief", "{ds}", "--frame", "1", "--features", "{kid_features}", "--map",
+          "{kmap}", "-o", W + "/b.png"], 0, "b.png: belief of frame 000001",
+         setup=_g_rows_of_no_frame("kid")),
 ]
 
 

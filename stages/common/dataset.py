@@ -241,29 +241,30 @@ class Dataset:
     def frame_at(self, frame: str | int) -> int:
         """The index in ``names`` of a frame given by its name or its position (0-based), as
         ``frame_index``: the one reading of a user's ``--frame`` (show points, show belief).
-        Positions count the frames frames.csv lists whose image is missing too, each frame
-        once (a name listed both as its file name and as its stem, or with two suffixes, is
-        one frame; ``_frame_name``), in the order of their file names; such a frame is
+        A frame's position is its place in the order of the frames' file names (the order
+        of features.h5's and poses.h5's rows), the frames frames.csv lists whose image is
+        missing counted in their places (listed by its stem, as a file of the images'
+        suffix), so that a frame keeps its position when another's image is deleted (the
+        rows of the artifacts made before); a row naming a file of another kind
+        (``_names_frame``: x.txt, a .gif) is no frame and takes no place. A missing frame is
         refused in one line: with 000000.png deleted, "--frame 0" drew frame 000001 (and
         "--frame 000000", read as position 0, too) without a word."""
         if not self.missing:
             return frame_index(self.names, frame, str(self.root))
-        order = [(p.name, p.stem) for p in self.images]
-        known = set(self.names)
-        # a missing frame listed by its stem sorts as a file of the images' suffix would
+        order = [(p.name, p.stem, None) for p in self.images]
         suffix = self.images[0].suffix if self.images else ""
-        for listed in self.missing:
+        for listed in self.missing:  # each frame once (read_csv refuses a frame twice)
             name = _frame_name(listed)
-            if name not in known:
-                known.add(name)
-                order.append((listed if name != listed else listed + suffix, name))
+            order.append((listed if name != Path(listed).name else listed + suffix, name,
+                          listed))
         order.sort()
-        names = [name for _file, name in order]
+        names = [name for _file, name, _listed in order]
         i = frame_index(names, frame, str(self.root))
-        if names[i] in self.names:
-            return self.names.index(names[i])
-        raise DatasetError(f"{self.root}: frame {names[i][:40]}'s image"
-                           f" {self.root / 'images' / order[i][0][:40]} cannot be read: there"
+        file, name, listed = order[i]
+        if listed is None:
+            return self.names.index(name)
+        raise DatasetError(f"{self.root}: frame {name[:40]}'s image"
+                           f" {self.root / 'images' / file[:40]} cannot be read: there"
                            " is no such file (frames.csv lists it)")
 
     @property
@@ -356,16 +357,14 @@ def open_dataset(root: str | Path, *, need_images: bool = True) -> Dataset:
         stamps = np.array([by_name.get(p.name, by_name.get(p.stem)) for p in images], float)
         source = "frames.csv"
         have = {p.name for p in images} | {p.stem for p in images}
-        other = [n for n in by_name if Path(n).suffix.lower() not in ("", *IMAGE_SUFFIXES)
-                 and (img_dir / n).is_file()]
-        # every other name is a frame whose image is missing: one of an image suffix, or a
-        # stem, with a dot or not (a timestamp name 1687078170.100 has the "suffix" .100)
-        gone = tuple(n for n in by_name if n not in have and n not in other)
+        kinds = {p.suffix.lower() for p in images}
+        gone = tuple(n for n in by_name if n not in have and _names_frame(n, kinds))
+        other = [n for n in by_name if n not in have and not _names_frame(n, kinds)]
         if other and str(frames) not in _SAID_OTHER_KINDS:  # a frame the user listed, left
             _SAID_OTHER_KINDS.add(str(frames))  # out: said once, however often it is opened
-            log.warning("%s: %d frames are images of a kind fieldloc does not read (first: %s;"
-                        " it reads %s); left out", frames, len(other), str(other[0])[:40],
-                        IMAGE_KINDS)
+            log.warning("%s: %d frames are files of a kind fieldloc does not read or none of"
+                        " the images is (first: %s; it reads %s); left out", frames,
+                        len(other), str(other[0])[:40], IMAGE_KINDS)
     elif images and all(_is_float(p.stem) and stamp_error(float(p.stem)) is None
                         for p in images):
         stamps = np.array([float(p.stem) for p in images])
@@ -387,6 +386,17 @@ def _frame_name(file_name: str) -> str:
     frames are the files in images/)."""
     name = Path(file_name).name
     return Path(name).stem if Path(name).suffix.lower() in IMAGE_SUFFIXES else name
+
+
+def _names_frame(file_name: str, kinds: set[str]) -> bool:
+    """Whether a name frames.csv lists that is no image in images/ is a frame whose image is
+    missing (deleted since): a stem (no suffix, or digits after a dot: a timestamp name
+    1687078170.100) or a file of an image kind the dataset's images are (``kinds``: their
+    suffixes, lower case), in any folder. Any other row (x.txt, a .gif, a .jpg among PNG
+    frames) is no frame and takes no place among the frames' positions
+    (``Dataset.frame_at``)."""
+    suffix = Path(file_name).suffix.lower()
+    return suffix in kinds or not suffix or suffix[1:].isdigit()
 
 
 def frame_index(names: list[str], frame: str | int, where: str) -> int:
