@@ -396,21 +396,22 @@ def test_a_frame_given_by_position_keeps_its_place_when_its_image_is_deleted(tmp
 
 
 def test_rows_of_no_frame_take_no_position_and_deleted_frames_keep_theirs(tmp_path):
-    """Trial G (G2): rows naming a text file, a .gif or a .jpg among PNG frames (no such
-    files) shifted every later frame's position (`--frame 2` drew 000001). A frame's
-    position is its place among the frames' file names, a deleted frame's in its place; a
-    row of no frame takes none."""
+    """Trial G: (G2) rows naming a text file, a .gif or a .jpg among PNG frames (no such
+    files) shifted every later frame's position (`--frame 2` drew 000001), and (G6) a
+    deleted frame named in a folder (sub/000000.png) sorted after the frames. A frame's
+    position is its place among the frames' file names, a deleted frame's in its place
+    whatever its folder; a row of no frame takes none."""
     root = _dataset(tmp_path / "ds", n=4)
     (root / "images" / "000000.png").unlink()
     (root / "frames.csv").write_text(
         "name,stamp\n000001.png,0.1\n0000001.txt,0.11\n000001a.gif,0.12\n000001b.jpg,0.13\n"
-        "000000.png,0.0\n000002.png,0.2\n000003.png,0.3\n")
+        "sub/000000.png,0.0\n000002.png,0.2\n000003.png,0.3\n")
     ds = open_dataset(root)
     assert ds.names == ["000001", "000002", "000003"]
     # the positions of the frames there: their places among the four frames listed
     assert [ds.names[ds.frame_at(i)] for i in (1, 2, 3)] == ds.names
     for frame in (0, "000000"):
-        with pytest.raises(DatasetError, match="images/000000.png cannot be read"):
+        with pytest.raises(DatasetError, match="images/sub/000000.png cannot be read"):
             ds.frame_at(frame)
     with pytest.raises(DatasetError, match=r"frame index 4 out of range \(0..3\)"):
         ds.frame_at(4)

@@ -1694,6 +1694,14 @@ def _g_rows_of_no_frame(name: str):
     return setup
 
 
+def _g_deleted_frame_in_a_folder(w, ws):
+    """ws/omni with 000000.png deleted and frames.csv naming it in a folder (sub/000000.png)."""
+    ds = copy_dataset(w, "omni", ws)
+    (ds / "images" / "000000.png").unlink()
+    edit_csv(ds / "frames.csv", 2, "sub/000000.png,0.000000")
+    return {"ds": ds}
+
+
 def _l_perspective_first_frame_failed(w, ws):
     """ws/kid with frame 000000's image junk, and ws/f.h5 extracted from it (000000 failed,
     so only 000001 is in it)."""
@@ -3277,6 +3285,12 @@ CASES = [
          ["show", "belief", "{ds}", "--frame", "1", "--features", "{kid_features}", "--map",
           "{kmap}", "-o", W + "/b.png"], 0, "b.png: belief of frame 000001",
          setup=_g_rows_of_no_frame("kid")),
+    *[Case(f"show points --frame {frame}, the deleted frame 0 listed in a folder", "silent",
+           ["show", "points", "{ds}", "--frame", frame, "-o", W + "/b.png"], rc, said,
+           setup=_g_deleted_frame_in_a_folder)
+      for frame, rc, said in (
+          ("0", 1, "omni/images/sub/000000.png cannot be read: there is no such file (frames.csv"
+                   " lists it)"), ("1", 0, "b.png: frame 000001, "))],
 ]
 
 

@@ -243,9 +243,10 @@ class Dataset:
         ``frame_index``: the one reading of a user's ``--frame`` (show points, show belief).
         A frame's position is its place in the order of the frames' file names (the order
         of features.h5's and poses.h5's rows), the frames frames.csv lists whose image is
-        missing counted in their places (listed by its stem, as a file of the images'
-        suffix), so that a frame keeps its position when another's image is deleted (the
-        rows of the artifacts made before); a row naming a file of another kind
+        missing counted in their places (by their file names, whatever folder a row
+        names; listed by its stem, as a file of the images' suffix), so that a frame keeps
+        its position when another's image is deleted (the rows of the artifacts made
+        before); a row naming a file of another kind
         (``_names_frame``: x.txt, a .gif) is no frame and takes no place. A missing frame is
         refused in one line: with 000000.png deleted, "--frame 0" drew frame 000001 (and
         "--frame 000000", read as position 0, too) without a word."""
@@ -254,17 +255,18 @@ class Dataset:
         order = [(p.name, p.stem, None) for p in self.images]
         suffix = self.images[0].suffix if self.images else ""
         for listed in self.missing:  # each frame once (read_csv refuses a frame twice)
-            name = _frame_name(listed)
-            order.append((listed if name != Path(listed).name else listed + suffix, name,
-                          listed))
+            # sorted by its file name, whatever folder the row names (images/ has none)
+            name, file = _frame_name(listed), Path(listed).name
+            order.append((file if name != file else file + suffix, name, listed))
         order.sort()
         names = [name for _file, name, _listed in order]
         i = frame_index(names, frame, str(self.root))
         file, name, listed = order[i]
         if listed is None:
             return self.names.index(name)
+        shown = listed if file == Path(listed).name else file  # as listed, or the stem's
         raise DatasetError(f"{self.root}: frame {name[:40]}'s image"
-                           f" {self.root / 'images' / file[:40]} cannot be read: there"
+                           f" {self.root / 'images' / shown[:40]} cannot be read: there"
                            " is no such file (frames.csv lists it)")
 
     @property
