@@ -53,7 +53,15 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from .artifacts import PART_TAG, open_artifact, part_name, read_json_attr, write_artifact, writing
+from .artifacts import (
+    PART_TAG,
+    open_artifact,
+    part_name,
+    raise_deferred_stop,
+    read_json_attr,
+    write_artifact,
+    writing,
+)
 from .dataset import MAX_STAMP, file_identity, file_size_identity, stamp_error
 from .errors import FieldlocError, SchemaError
 
@@ -837,6 +845,7 @@ class FrameParts:
         return (*self._cached[1], k)
 
     def _commit(self, path: Path, write) -> None:
+        raise_deferred_stop()  # a stop a callback dropped: no frame committed after it
         prefix, suffix = part_name(path)
         fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=self.dir)
         try:

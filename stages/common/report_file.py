@@ -32,6 +32,7 @@ from .artifacts import (
     give_default_mode,
     part_name,
     provenance,
+    raise_deferred_stop,
     record_text,
     refuse_edited,
     remove_stale_parts,
@@ -238,6 +239,7 @@ def _move_report_files(tmp: Path, folder: Path) -> None:
     """Move the report written in ``tmp`` into ``folder``, which holds a user's files too:
     the old report.json goes first and the new one comes last, so that a report.json is
     there only beside its files; an old plot the new report does not draw goes."""
+    raise_deferred_stop()  # a stop a callback dropped: nothing moved after it
     (folder / REPORT_NAME).unlink(missing_ok=True)
     for name in report_files():
         src, dst = tmp / name, folder / name
