@@ -13,9 +13,9 @@ import threading
 
 import click
 
-from stages.common.artifacts import DEFERRED_STOPS, raise_deferred_stop
 from stages.common.errors import DiskFullError, FieldlocError
 from stages.common.one_line import one_line
+from stages.common.stops import DEFERRED_STOPS, raise_deferred_stop
 
 from . import _stopped_at_start
 
@@ -103,9 +103,9 @@ def _keeping_dropped_stops(hook):
     inside a callback whose exceptions Python drops (llvmlite's object-cache notifier as numba
     loads a cached kernel, importlib's module-lock weakref callback) printed "Exception ignored
     in: ..." with a traceback, and the run went on to exit 0 as if no signal had come (3 of
-    about 500 runs stopped at random). It is kept instead (stages.common.artifacts
-    .DEFERRED_STOPS), without a word, and raised at the run's next commit or, after its last,
-    as the command returns (``LazyGroup.invoke``); anything else goes to ``hook``."""
+    about 500 runs stopped at random). It is kept instead (stages.common.stops), without a
+    word, and raised at the run's next commit or, after its last, as the command returns
+    (``LazyGroup.invoke``); anything else goes to ``hook``."""
     def unraisable(unraisable):
         if any(unraisable.exc_value is e for e in _RAISED):
             if not DEFERRED_STOPS:

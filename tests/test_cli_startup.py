@@ -25,9 +25,10 @@ from fieldloc_cli.main import COMMANDS, LazyGroup, cli
 
 ROOT = Path(__file__).resolve().parents[1]
 HEAVY = ("numpy", "cv2", "numba", "h5py", "scipy", "matplotlib", "dask")
-# the package root, its error classes, and the formatting of the lines on stderr (stdlib only)
+# the package root, its error classes, the formatting of the lines on stderr and the stops a
+# signal's handler could not raise (stdlib only)
 LIGHT_STAGE_MODULES = {"stages", "stages.common", "stages.common.errors",
-                       "stages.common.one_line"}
+                       "stages.common.one_line", "stages.common.stops"}
 
 # runs the CLI on argv[1:] as the `fieldloc` script does, without exiting, then prints the
 # exit code and the sorted names of the imported modules as the last line (JSON)

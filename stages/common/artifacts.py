@@ -42,6 +42,7 @@ import numpy as np
 from .. import __version__
 from .dataset_layout import OWN_FILES
 from .errors import DiskFullError, FieldlocError, SchemaError
+from .stops import raise_deferred_stop
 
 log = logging.getLogger(__name__)
 
@@ -546,24 +547,6 @@ def _written_meanwhile(path: Path) -> FieldlocError:
 # workers) and later commits do not wait.
 TEST_COMMIT_GATE = "FIELDLOC_TEST_COMMIT_GATE"
 _GATE_WAIT_S = 300.0  # bounded, so a test that forgets its gate cannot hang a run forever
-
-
-# a stop (Ctrl-C, SIGTERM) that the command line's handler raised where Python drops what is
-# raised (a C library's callback, as llvmlite's object-cache notifier, or a weakref's, as
-# importlib's module locks: "Exception ignored in ..."): the command line keeps it here
-# (fieldloc_cli.lazy_group) and the next commit raises it before moving anything into place,
-# so that a run whose stop was dropped commits nothing more (and says so) instead of running
-# to its end as if no signal had come
-DEFERRED_STOPS: list[BaseException] = []
-
-
-def raise_deferred_stop() -> None:
-    """Raise the stop kept in ``DEFERRED_STOPS`` (the first; all are taken), if any: the
-    safe point of every commit."""
-    if DEFERRED_STOPS:
-        stop = DEFERRED_STOPS[0]
-        DEFERRED_STOPS.clear()
-        raise stop
 
 
 def _test_gate() -> None:

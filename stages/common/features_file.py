@@ -53,17 +53,10 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from .artifacts import (
-    PART_TAG,
-    open_artifact,
-    part_name,
-    raise_deferred_stop,
-    read_json_attr,
-    write_artifact,
-    writing,
-)
+from .artifacts import PART_TAG, open_artifact, part_name, read_json_attr, write_artifact, writing
 from .dataset import MAX_STAMP, file_identity, file_size_identity, stamp_error
 from .errors import FieldlocError, SchemaError
+from .stops import raise_deferred_stop
 
 log = logging.getLogger(__name__)
 

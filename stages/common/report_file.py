@@ -32,7 +32,6 @@ from .artifacts import (
     give_default_mode,
     part_name,
     provenance,
-    raise_deferred_stop,
     record_text,
     refuse_edited,
     remove_stale_parts,
@@ -41,6 +40,7 @@ from .artifacts import (
     writing,
 )
 from .errors import DiskFullError, FieldlocError, SchemaError
+from .stops import raise_deferred_stop
 
 SCHEMA = "fieldloc.report"
 VERSION = 1
