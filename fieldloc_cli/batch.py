@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from .common import FilePath, progress_enabled, summary
+from .lazy_group import outputs_complete
 
 
 @click.command()
@@ -35,6 +36,7 @@ def batch(ctx, spec, output, workers, scheduler, serial, overwrite):
     conf = {"serial": bool(serial), "scheduler": scheduler or "", "workers": workers or 0}
     results = stage.main(conf, spec, output, overwrite=overwrite,
                          progress=progress_enabled(ctx), report=lambda s: summary(ctx, s))
+    outputs_complete(ctx)
     from stages.evaluate.report import comparison_table
 
     click.echo(comparison_table(results))

@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from .common import FINITE, FilePath, summary
+from .lazy_group import outputs_complete
 from .stage_defaults import BUILD_MAP as D
 
 
@@ -38,6 +39,7 @@ def build_map(ctx, field, output, resolution, border, max_range, robot_radius, s
                  robot_radius=robot_radius, spiral_end_radius=spiral_end_radius)
     conf = {k: v for k, v in given.items() if v is not None}  # the rest: the stage's preset
     path = stage.main(conf, field, output, overwrite=overwrite)  # the name: main checks it
+    outputs_complete(ctx)
     s = fm.summary()
     c = s["crossings"]
     summary(ctx, f"{path}: field {fm.name} {fm.length:g} x {fm.width:g} m, "

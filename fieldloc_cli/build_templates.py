@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from .common import FilePath, conf_option, overrides_dict, progress_enabled, summary
+from .lazy_group import outputs_complete
 from .stage_defaults import BUILD_TEMPLATES_FEATURES
 
 
@@ -35,6 +36,7 @@ def build_templates(ctx, dataset, output, features, overrides, overwrite):
     output = output or Path(dataset) / "templates.h5"
     path = stage.main(conf, dataset, output, overwrite=overwrite,
                       progress=progress_enabled(ctx))
+    outputs_complete(ctx)
     from stages.common.templates import read_templates
 
     db = read_templates(path)

@@ -12,6 +12,7 @@ import click
 from stages.common.errors import FieldlocError
 
 from .common import FINITE, FilePath, conf_option, overrides_dict, summary
+from .lazy_group import outputs_complete
 from .stage_defaults import CALIBRATE_PRESETS
 
 DEFAULT_PRESET = {"points": "default", "minho": "minho", "cnc": "cnc", "nubot": "nubot"}
@@ -147,6 +148,7 @@ def calibrate_omni(ctx, points, output, minho_dir, cnc_conf, nubot_dir, rings, c
         out = from_minho(conf, minho_dir, output, image_size=image_size or None,
                          valid_radius=valid_radius or None, line_images=line_images,
                          mask=mask, overwrite=overwrite)
+    outputs_complete(ctx)
     _echo_report(ctx, out, report(out))
 
 
@@ -255,4 +257,5 @@ def calibrate_perspective(ctx, hulks_source, output, overwrite, overrides):
 
     conf = resolve_conf(hulks.confs, "default", overrides_dict(overrides))
     out = hulks.main(conf, hulks_source, output, overwrite=overwrite)
+    outputs_complete(ctx)
     summary(ctx, f"wrote {out}")

@@ -10,7 +10,7 @@ import click
 from stages.common.errors import FieldlocError
 
 from .common import FINITE, FilePath, conf_option, overrides_dict, summary
-from .lazy_group import RESUMES, set_resumes
+from .lazy_group import RESUMES, outputs_complete, set_resumes
 from .stage_defaults import EVALUATE_PRESETS, EVALUATE_STAMP_TOLERANCE
 
 
@@ -99,6 +99,7 @@ def evaluate(ctx, inputs, truth, output, field, table_only, preset, stamp_tolera
         # may be inside the dataset folder)
         summary(ctx, f"report of {poses} written to {out}"
                 + ("" if output is not None else " (beside the poses file; -o to choose)"))
+    outputs_complete(ctx)
     click.echo(stage.tabulate(done, fmt=fmt))
     if fmt == "text":
         for out in done:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import click
 
 from .common import FilePath, summary
+from .lazy_group import outputs_complete
 from .stage_defaults import EXPORT_FORMATS
 
 
@@ -30,5 +31,6 @@ def export(ctx, poses, fmt, output, overwrite):
     from stages.evaluate.export import STDOUT, main
 
     out = main(None, poses, output, fmt=fmt, overwrite=overwrite)
+    outputs_complete(ctx)
     if str(out) != STDOUT:
         summary(ctx, f"wrote {out}")

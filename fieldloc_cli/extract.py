@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from .common import FilePath, conf_option, count, overrides_dict, progress_enabled, summary
-from .lazy_group import RESUMES, set_resumes
+from .lazy_group import RESUMES, outputs_complete, set_resumes
 from .stage_defaults import EXTRACT_DEFAULT_PRESET, EXTRACT_OMNI_PRESETS
 
 
@@ -37,6 +37,7 @@ def extract(ctx, dataset, output, preset, overrides, overwrite, debug_images):
                                       overrides_dict(overrides))
     path = stage.main(conf, dataset, output, overwrite=overwrite,
                       progress=progress_enabled(ctx), debug_images=debug_images)
+    outputs_complete(ctx)
     from stages.common.features_file import FeaturesFile
 
     with FeaturesFile(path) as ff:

@@ -8,6 +8,7 @@ import click
 from stages.common.one_line import one_line
 
 from .common import FilePath, summary
+from .lazy_group import outputs_complete
 from .stage_defaults import FIELD_FORMATS
 
 
@@ -53,6 +54,7 @@ def field_import(ctx, path, fmt, output, venue, section, base, name, overwrite):
 
     out = main(None, path, output, fmt=fmt, venue=venue, section=section, base=base, name=name,
                overwrite=overwrite)
+    outputs_complete(ctx)
     fm = load_field(out)
     rec = fm.spec.get("imported", {})
     summary(ctx, f"wrote {out}: {fm.name}, {fm.length:g} x {fm.width:g} m between line centres,"

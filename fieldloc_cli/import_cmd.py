@@ -6,6 +6,7 @@ from __future__ import annotations
 import click
 
 from .common import FilePath, conf_option, count, overrides_dict, progress_enabled, summary
+from .lazy_group import outputs_complete
 from .stage_defaults import ROSBAG_PRESETS
 
 
@@ -49,6 +50,7 @@ def import_rosbag(ctx, bag, output, image_topic, odom_topic, imu_topic, every, c
     out = main(conf, bag, output, image_topic=image_topic, odom_topic=odom_topic,
                imu_topic=imu_topic, every=every, calib=calib, overwrite=overwrite,
                progress=progress_enabled(ctx))
+    outputs_complete(ctx)
     rec = describe(out)
     parts = [f"{count(rec['frames'], 'frame')} of {count(rec['image_messages'], 'image message')}"]
     if "odometry_rows" in rec:

@@ -55,6 +55,22 @@ def resumes(ctx) -> str | None:
     return note() if callable(note) else note
 
 
+# what a command stopped after its outputs were complete says (``outputs_complete``)
+COMPLETE = ("its outputs were complete before it stopped; only what it printed may be cut"
+            " short")
+
+
+def outputs_complete(ctx) -> None:
+    """Say (``set_resumes``) that the command's outputs are complete and committed: a signal
+    from now on (as it prints its summary or its table, or one Python dropped earlier,
+    raised as it returns) still ends it in its one line and exit code 130 or 143, but the
+    line says its outputs were complete (COMPLETE), not that a rerun must redo or finish
+    them. Called by every command that writes files, at once after its last stage main
+    returns (trial G, G5: `evaluate --overwrite` terminated while printing its table, its
+    reports complete, said "finished reports were kept; a rerun writes the others")."""
+    set_resumes(ctx, COMPLETE)
+
+
 def set_resumes(ctx, note) -> None:
     """Say (in ``ctx.obj``, which the group's context shares) what a rerun finds if the
     command stops from now on; None: nothing kept, a rerun starts over; a callable: asked

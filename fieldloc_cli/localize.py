@@ -13,7 +13,7 @@ from pathlib import Path
 import click
 
 from .common import FilePath, conf_option, count, overrides_dict, progress_enabled, summary
-from .lazy_group import RESUMES, set_resumes
+from .lazy_group import RESUMES, outputs_complete, set_resumes
 from .stage_defaults import LOCALIZE, LOCALIZE_DEFAULT_METHOD, LOCALIZE_METHODS
 
 log = logging.getLogger("fieldloc.localize")
@@ -151,6 +151,7 @@ def localize(ctx, dataset, map_path, templates, pose_solver, features, points, m
     if method == "templates":
         path = stage.main(conf, dataset, map_path, output, templates=templates,
                           overwrite=overwrite, progress=progress_enabled(ctx))
+        outputs_complete(ctx)
     else:  # the features given, or extracted first (or reused); two rounds with --smooth
         from stages.pipelines import images_to_poses
 
@@ -160,6 +161,7 @@ def localize(ctx, dataset, map_path, templates, pose_solver, features, points, m
                                     progress=progress_enabled(ctx),
                                     allow_field_mismatch=allow_field_mismatch,
                                     write_calib=write_calib)
+        outputs_complete(ctx)
     from stages.common.poses_file import read_poses
 
     cols, attrs = read_poses(path)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import click
 
 from .common import FilePath, conf_option, overrides_dict, summary
+from .lazy_group import outputs_complete
 
 
 @click.command()
@@ -32,4 +33,5 @@ def report(ctx, source, output, worst, overwrite, overrides):
     if worst is not None:
         conf["worst"] = worst
     out = main(conf, source, output, overwrite=overwrite)
+    outputs_complete(ctx)
     summary(ctx, f"wrote {out}")

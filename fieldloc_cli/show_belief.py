@@ -11,6 +11,7 @@ from pathlib import Path
 import click
 
 from .common import FINITE, FilePath, conf_option, overrides_dict, summary
+from .lazy_group import outputs_complete
 from .stage_defaults import SHOW_BELIEF as D
 
 
@@ -45,4 +46,5 @@ def show_belief(ctx, dataset, frame, map_path, features, resolution, heading_ste
         conf["heading_step"] = math.radians(heading_step_deg)
     path, name = stage.write_picture(conf, dataset, map_path, output, frame=frame,
                                      features=features, overwrite=overwrite)
+    outputs_complete(ctx)
     summary(ctx, f"{path}: belief of frame {name}")

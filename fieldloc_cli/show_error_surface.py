@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from .common import FINITE, FilePath, summary
+from .lazy_group import outputs_complete
 from .stage_defaults import SHOW_ERROR_SURFACE as D
 
 
@@ -44,6 +45,7 @@ def show_error_surface(ctx, templates, queries, template, half_size, step, dthet
              "dtheta_deg": dtheta_deg, "e_none": e_none}
     conf = {k: v for k, v in given.items() if v is not None}  # the rest: the stage's preset
     path, m = stage.write_picture(conf, templates, queries, output, overwrite=overwrite)
+    outputs_complete(ctx)
     for line in summary_lines(m):
         click.echo(line)
     summary(ctx, f"wrote {path}")

@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from .common import FilePath, conf_option, overrides_dict, summary
+from .lazy_group import outputs_complete
 
 
 @click.command("hypotheses")
@@ -31,4 +32,5 @@ def show_hypotheses(ctx, poses, frame, features, field, overrides, overwrite, ou
 
     path = stage.main(overrides_dict(overrides), poses, output, frame=frame, features=features,
                       field=field, overwrite=overwrite)
+    outputs_complete(ctx)
     summary(ctx, f"{path}: hypotheses of frame {frame}")

@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from .common import FINITE, FilePath, summary
+from .lazy_group import outputs_complete
 from .stage_defaults import SHOW_MAP as D
 from .stage_defaults import SHOW_MAP_FAMILIES, SHOW_MAP_TABLES
 
@@ -38,4 +39,5 @@ def show_map(ctx, map_file, table, cell, heading_deg, family, spirals, output, o
              "heading": None if heading_deg is None else math.radians(heading_deg)}
     conf = {k: v for k, v in given.items() if v is not None}  # the rest: the stage's preset
     path = stage.main(conf, map_file, output, overwrite=overwrite)
+    outputs_complete(ctx)
     summary(ctx, str(path))

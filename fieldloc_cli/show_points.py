@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from .common import FINITE, FilePath, conf_option, count, overrides_dict, summary
+from .lazy_group import outputs_complete
 from .stage_defaults import EXTRACT_DEFAULT_PRESET
 
 
@@ -60,6 +61,7 @@ def show_points(ctx, dataset, frame, features, map_or_field, pose, preset, overr
     path, s = stage.write_picture(conf, dataset, output, frame=frame, features=features,
                                   field=field, pose=pose_rad, overwrite=overwrite,
                                   field_file=field_file)
+    outputs_complete(ctx)
     msg = (f"{path}: frame {s['frame']}, " + (count(s["points"], "line point") if "points" in s
                                               else count(s["lines"], "line")))
     if "share_near_lines" in s:

@@ -24,6 +24,7 @@ from .common import (
     progress_enabled,
     summary,
 )
+from .lazy_group import outputs_complete
 from .stage_defaults import SIMULATE, SIMULATE_PATH_KINDS, SIMULATE_PRESETS
 
 
@@ -87,6 +88,7 @@ def run_simulation(ctx, *, field, output, frames, seed, trajectory_kind, preset,
         if "distance_error" in ce:
             ce["distance_error"] = 0.0
     out = main(conf, field, output, overwrite=overwrite, progress=progress_enabled(ctx))
+    outputs_complete(ctx)
     n = sum(1 for _ in (out / "images").glob("*.png"))  # a grid's count is the grid's
     summary(ctx, f"wrote {count(n, 'frame')} to {out}")
     return out
