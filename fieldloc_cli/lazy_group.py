@@ -52,7 +52,18 @@ def resumes(ctx) -> str | None:
     obj = ctx.obj if isinstance(ctx.obj, dict) else {}
     name = ctx.invoked_subcommand or ""
     note = obj.get("resumes", None if name in RESUMES_WHEN_SET else RESUMES.get(name))
-    return note() if callable(note) else note
+    if not callable(note):
+        return note
+    try:
+        return note()
+    except Exception:  # a module a signal stopped half imported (below)
+        # the note imports what tells it (extract's kept frames: the features file's module);
+        # a signal that stopped the first import of a module it needs (PyYAML's C part) left
+        # it unimportable in this process ("partially initialized module 'yaml'"): a
+        # traceback and exit code 1 instead of the interrupted line (19 of 290 runs of
+        # `extract` given SIGTERM at random). The stage imports the same modules before it
+        # writes anything, so nothing was kept
+        return None
 
 
 # what a command stopped after its outputs were complete says (``outputs_complete``)
