@@ -427,3 +427,12 @@ def test_a_frame_listed_twice_is_refused(tmp_path, second):
     with pytest.raises(DatasetError, match="frames.csv: line 5: frame '000001' is given twice"
                                            r" \(line 3"):
         open_dataset(root)
+
+
+def test_a_dataset_given_without_its_images_keeps_its_listed_frames(tmp_path, caplog):
+    """A dataset folder of frames.csv and no images (show belief given a features file):
+    its listed frames are frames whose image is missing, not rows of another kind."""
+    (tmp_path / "frames.csv").write_text("name,stamp\n000000.png,0.0\n000001.jpg,0.1\n")
+    with caplog.at_level(logging.WARNING):
+        ds = open_dataset(tmp_path, need_images=False)
+    assert ds.missing == ("000000.png", "000001.jpg") and caplog.text == ""

@@ -359,7 +359,8 @@ def open_dataset(root: str | Path, *, need_images: bool = True) -> Dataset:
         stamps = np.array([by_name.get(p.name, by_name.get(p.stem)) for p in images], float)
         source = "frames.csv"
         have = {p.name for p in images} | {p.stem for p in images}
-        kinds = {p.suffix.lower() for p in images}
+        # the image kinds of the frames (any, for a dataset given without its images)
+        kinds = {p.suffix.lower() for p in images} or set(IMAGE_SUFFIXES)
         gone = tuple(n for n in by_name if n not in have and _names_frame(n, kinds))
         other = [n for n in by_name if n not in have and not _names_frame(n, kinds)]
         if other and str(frames) not in _SAID_OTHER_KINDS:  # a frame the user listed, left
