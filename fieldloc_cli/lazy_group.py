@@ -15,7 +15,7 @@ import click
 
 from stages.common.errors import DiskFullError, FieldlocError
 from stages.common.one_line import one_line
-from stages.common.stops import DEFERRED_STOPS, raise_deferred_stop
+from stages.common.stops import DEFERRED_STOPS
 
 from . import _stopped_at_start
 
@@ -132,7 +132,7 @@ def _keeping_dropped_stops(hook):
     in: ..." with a traceback, and the run went on to exit 0 as if no signal had come (3 of
     about 500 runs stopped at random). It is kept instead (stages.common.stops), without a
     word, and raised at the run's next commit or, after its last, as the command returns
-    (``LazyGroup.invoke``); anything else goes to ``hook``."""
+    (``_raise_swallowed``); anything else goes to ``hook``."""
     def unraisable(unraisable):
         if any(unraisable.exc_value is e for e in _RAISED):
             if not DEFERRED_STOPS:
@@ -140,6 +140,20 @@ def _keeping_dropped_stops(hook):
             return
         hook(unraisable)
     return unraisable
+
+
+def _raise_swallowed() -> None:
+    """At the end of a command that returned as if no signal had come: raise the interrupt a
+    signal raised while it ran, if any, so that the run ends in its one line and exit code
+    130 or 143 (its outputs complete: ``outputs_complete``). Python dropped it in a callback
+    after the last commit (``_keeping_dropped_stops``), or a library took it for another
+    error and went on: a SIGINT as numba imported scipy stopped the init of scipy's C module,
+    which Python then reports as an ImportError, and numba imports scipy in a ``try`` that
+    passes on ImportError; `extract` ran to its end with exit code 0 and no word (1 of 250
+    runs given SIGINT at random)."""
+    DEFERRED_STOPS.clear()
+    if _RAISED:
+        raise _RAISED[-1]
 
 
 def _interrupt(signum, frame):
@@ -270,7 +284,7 @@ class LazyGroup(click.Group):
         try:
             with _terminate_as_interrupt(last=self.program and ctx.parent is None):
                 result = super().invoke(ctx)
-                raise_deferred_stop()  # dropped after the last commit: the run says it
+                _raise_swallowed()
                 return result
         except click.ClickException as e:  # a usage error: click says it, the value cut short
             e.message = one_line(e.message)

@@ -158,3 +158,37 @@ def test_a_signal_that_left_a_module_half_imported_is_one_line(small_omni_run, t
     assert res.stderr == ("fieldloc: terminated (no half-written file was left; a rerun starts"
                           " over)\n")
     assert os.listdir(tmp_path) == []
+
+
+# `fieldloc extract ...` as the program runs it, a SIGINT coming as its stage starts, caught
+# by a library that goes on (as numba's import of scipy passes on the ImportError Python makes
+# of an interrupt in scipy's C module's init)
+SWALLOWED = """
+import signal, sys
+sys.argv = ["fieldloc", *sys.argv[1:]]
+import fieldloc_cli
+from fieldloc_cli.main import cli
+import stages.extract as stage
+real = stage.main
+def main(*args, **kwargs):
+    try:
+        signal.raise_signal(signal.SIGINT)
+    except BaseException:
+        pass
+    return real(*args, **kwargs)
+stage.main = main
+cli()
+"""
+
+
+def test_a_signal_a_library_swallowed_still_ends_the_run_as_stopped(small_omni_run, tmp_path):
+    """The run goes on to its end (nothing tells it sooner), then says it was interrupted,
+    its outputs complete: before, exit code 0 and no word of the signal."""
+    from fieldloc_cli.lazy_group import COMPLETE
+
+    res = subprocess.run([sys.executable, "-c", SWALLOWED, "-q", "extract",
+                          small_omni_run["ds"], "-o", tmp_path / "f.h5"], env=ENV,
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 130, res.stderr
+    assert res.stderr == f"fieldloc: interrupted ({COMPLETE})\n"
+    assert (tmp_path / "f.h5").is_file()
