@@ -550,7 +550,6 @@ _GATE_WAIT_S = 300.0  # bounded, so a test that forgets its gate cannot hang a r
 
 
 def _test_gate() -> None:
-    raise_deferred_stop()
     gate = os.environ.pop(TEST_COMMIT_GATE, "")
     if not gate:
         return
@@ -568,6 +567,7 @@ def commit_file(tmp: str | Path, path: str | Path) -> None:
     run that wrote it since this one checked it), then FieldlocError (``tmp`` is left for the
     caller to remove)."""
     path = Path(path)
+    raise_deferred_stop()  # a stop a callback dropped: nothing moved after it
     _test_gate()
     rule = may_replace(path)
     if callable(rule) and os.path.lexists(path) and not rule(path):
@@ -597,6 +597,7 @@ def commit_dir(tmp: str | Path, path: str | Path, replace: bool | None = None) -
     empty one holds nothing to lose): the folder another run wrote meanwhile is kept and this
     run refuses (FieldlocError; ``tmp`` is left for the caller to remove)."""
     path, tmp = Path(path), Path(tmp)
+    raise_deferred_stop()  # a stop a callback dropped: nothing moved after it
     _test_gate()
     if replace is None:
         replace = bool(may_replace(path))  # a folder's own rules were applied when checked
