@@ -408,3 +408,31 @@ def test_a_fix_follows_its_own_start_not_the_nearest():
     fused = smooth._fused(fixes, starts, step)
     assert abs(fused.poses[0, 0] - 2.0) < 0.05
     assert abs(fused.poses[0, 1] - 2.02) < 0.01
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(0.0, 2.5), st.floats(-0.5, 0.5), st.floats(0.03, 0.2))
+def test_a_collision_loosens_the_odometry_but_is_no_free_walk(speed, turn, dt):
+    """On a collision frame the odometry still says where the robot went, only less surely:
+    its position noise grows by the fusion's process noise (model_xy per second, with the
+    speed) and lies well below a random walk at max_speed over the same interval; its turn is
+    free up to max_turn_rate. A frame with no odometry at all is that free walk."""
+    from dataclasses import asdict
+
+    from stages.localize.tracking import FUSION
+
+    fusion = asdict(FUSION)
+    step = speed * dt  # m/s over the frame interval: a robot's speed, below max_speed
+    inc = np.array([[0.0, 0.0, 0.0], [step, 0.0, turn]] * 3)
+    stamps = np.arange(6) * dt
+    has = np.array([True, True, True, True, False, False])
+    collision = np.array([False, False, True, True, False, True])
+    m = smooth.motion_of(inc, has, stamps, fusion, collision)
+    sxy = np.sqrt(m.cov[:, 0, 0])
+    sth = np.sqrt(m.cov[:, 2, 2])
+    free = fusion["max_speed"] * dt
+    assert sxy[3] > sxy[1]  # a collision loosens the same increment
+    assert sxy[3] <= 0.5 * free  # not a walk at max_speed
+    assert sth[3] >= fusion["max_turn_rate"] * dt - 1e-9
+    assert sxy[5] >= free - 1e-9 and sxy[4] >= free - 1e-9  # no odometry: the free walk
+    assert np.all(np.isfinite(m.cov))
