@@ -218,3 +218,28 @@ def test_frames_sure_of_the_pose_up_to_the_mirror_count_on_a_symmetric_field(sea
     err = mc.estimate_distance_error(search, frames, track)
     assert err.frames == n
     np.testing.assert_allclose(err(JUDGED), 0.04, atol=0.01)
+
+
+@settings(max_examples=40, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.floats(-0.5, 1.5))
+def test_an_error_that_puts_the_floor_behind_the_mirror_is_refused(omni_default_rendered, e):
+    """A learnt e(d) is constant below the distances its crossings covered: one larger than the
+    inner rim's distance would put that floor at a negative distance. Such a calibration is
+    refused in words (FieldlocError, which the two-round pipeline takes as "no second round"),
+    never a traceback from the camera's own check; any other is written with the floor moved
+    by e."""
+    ds, _ = omni_default_rendered
+    calib = yaml.safe_load((ds / "calib.yaml").read_text())
+    cam = OmniCamera.from_dict(calib, "calib.yaml")
+    error = mc.DistanceError(knots=np.array([1.0, 3.0]), values=np.array([e, e]),
+                             support=(1.0, 3.0))
+    inner = float(cam.distance_of_radius(np.array([cam.valid_radius[0]]))[0])
+    if e < inner - 1e-3:
+        new, _departure = mc.corrected_camera(cam, error)
+        r = np.linspace(*cam.valid_radius, 50)
+        np.testing.assert_allclose(new.distance_of_radius(r), cam.distance_of_radius(r) - e,
+                                   atol=mc.POLYNOMIAL_TOLERANCE + 1e-3)
+    elif e > inner + 1e-3:
+        with pytest.raises(FieldlocError, match="inner radius"):
+            mc.corrected_calibration(calib, error, source=str(ds))

@@ -384,6 +384,13 @@ def corrected_camera(camera: OmniCamera, error: DistanceError) -> tuple[OmniCame
     if not np.all(np.diff(target) > 0):
         raise FieldlocError("the estimated distance error would make f(r) fall with the radius;"
                             " refusing to write a calibration from it")
+    if not target[0] > 0:  # e(d) is constant below the distances seen: the inner rim's floor
+        # would lie behind the mirror (held-out omni renders whose first round held a
+        # look-alike: e = 0.5 m where f(r0) is 0.2 m, and a traceback from the camera's check)
+        raise FieldlocError(
+            f"the estimated distance error ({float(error(f[0])):.2f} m at {f[0]:.2f} m) would put"
+            f" the floor at the inner radius at {target[0]:.2f} m; refusing to write a"
+            " calibration from it")
     common = dict(image_size=camera.image_size, centre=camera.centre,
                   valid_radius=camera.valid_radius, forward_angle=camera.forward_angle,
                   mirrored=camera.mirrored)
