@@ -404,7 +404,12 @@ def corrected_camera(camera: OmniCamera, error: DistanceError) -> tuple[OmniCame
     radius = np.round(np.r_[r0, inner[(inner > r0 + 0.5) & (inner < r1 - 0.5)], r1], 3)
     dist = camera.distance_of_radius(radius)
     dist = np.round(dist - error(dist), 5)
-    out = OmniCamera(polynomial=None, radial_table=np.stack([radius, dist], axis=1), **common)
+    try:
+        out = OmniCamera(polynomial=None, radial_table=np.stack([radius, dist], axis=1),
+                         **common)
+    except ValueError as e:  # the camera's own check of the table, said as a refusal
+        raise FieldlocError(f"the corrected distance table is no calibration ({e}); refusing to"
+                            " write a calibration from it") from None
     return out, float(np.max(np.abs(out.distance_of_radius(rr) - target)))
 
 
