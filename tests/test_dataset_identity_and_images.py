@@ -20,11 +20,13 @@ import cv2
 import h5py
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from PIL import Image
 
 from stages.common import png
 from stages.common.artifacts import root_attrs
-from stages.common.dataset import Dataset, open_dataset, read_frame, read_image
+from stages.common.dataset import Dataset, frame_index, open_dataset, read_frame, read_image
 from stages.common.errors import DatasetError, FieldlocError
 from stages.common.features_file import SCHEMA, VERSION, FeaturesFile, write_features
 
@@ -436,3 +438,24 @@ def test_a_dataset_given_without_its_images_keeps_its_listed_frames(tmp_path, ca
     with caplog.at_level(logging.WARNING):
         ds = open_dataset(tmp_path, need_images=False)
     assert ds.missing == ("000000.png", "000001.jpg") and caplog.text == ""
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.integers(0, 50), st.integers(1, 4))
+def test_a_zero_padded_number_is_a_name_never_a_position(n, pad):
+    """Trial H: with 000001.png deleted, `--frame 000001` was read as position 1 and drew
+    frame 000002 with exit 0. A position is a plain whole number; a zero-padded one (or one
+    with a sign or spaces) that names no frame is refused as a name, whatever it would count
+    to."""
+    names = [f"{i:06d}" for i in range(0, 60, 2)]  # the odd frames deleted
+    padded = "0" * pad + str(n)
+    if padded in names:
+        assert frame_index(names, padded, "d") == names.index(padded)
+    else:
+        with pytest.raises(DatasetError, match="no frame named"):
+            frame_index(names, padded, "d")
+    for written in (f"+{n}", f" {n}", f"{n} "):
+        with pytest.raises(DatasetError, match="no frame named"):
+            frame_index(names, written, "d")
+    if n < len(names):
+        assert frame_index(names, str(n), "d") == n  # a plain number is a position

@@ -3131,7 +3131,7 @@ CASES = [
     Case("show belief of a frame cut from the dataset, named, with the features of all",
          "silent", ["show", "belief", "{ds}", "--map", "{map}", "--features", "{features}",
                     "--frame", "000003", "--resolution", "0.5", "-o", W + "/b.png"], 1,
-         "frame index 3 out of range (0..1)", setup=_setup_cut_to_two),
+         "no frame named '000003'", setup=_setup_cut_to_two),
     *[Case(f"extract of a dataset with a {suffix} frame listed in frames.csv", "silent",
            ["extract", "{ds}", "-o", W + "/f.h5"], 0, "", setup=_setup_frame_as(suffix),
            check=_check_frames_extracted(4))

@@ -33,6 +33,7 @@ import io
 import logging
 import math
 import os
+import re
 import stat
 from dataclasses import dataclass
 from pathlib import Path
@@ -402,18 +403,24 @@ def _names_frame(file_name: str, kinds: set[str]) -> bool:
     return suffix in kinds or not suffix or suffix[1:].isdigit()
 
 
+# a frame position as a user writes it: a whole number without leading zeros (a negative one
+# is refused as out of range). A zero-padded number is a frame's name: with 000001.png deleted,
+# `--frame 000001` was read as position 1 and drew frame 000002 (trial H)
+POSITION = re.compile(r"-?(0|[1-9][0-9]*)")
+
+
 def frame_index(names: list[str], frame: str | int, where: str) -> int:
-    """The index of a frame given by its name, or else by its position in ``names`` (0-based).
-    An unknown name or a position out of range is a user error naming ``where``; so is a
-    negative position (Python's "from the end" would draw another frame than the one asked
-    for, silently, where a mistyped number is likelier than a wish for the last frame)."""
+    """The index of a frame given by its name, or else by its position in ``names`` (0-based,
+    written as ``POSITION``). An unknown name or a position out of range is a user error
+    naming ``where``; so is a negative position (Python's "from the end" would draw another
+    frame than the one asked for, silently, where a mistyped number is likelier than a wish
+    for the last frame)."""
     frame = str(frame)
     if frame in names:
         return names.index(frame)
-    try:
-        i = int(frame)
-    except ValueError:
-        raise DatasetError(f"{where}: no frame named '{frame[:40]}'") from None
+    if not POSITION.fullmatch(frame):  # 000001, +1, " 1": a name, never a position
+        raise DatasetError(f"{where}: no frame named '{frame[:40]}'")
+    i = int(frame)
     if not 0 <= i < len(names):
         raise DatasetError(f"{where}: frame index {str(i)[:40]} out of range"
                            f" (0..{len(names) - 1})")
