@@ -1702,6 +1702,18 @@ def _g_deleted_frame_in_a_folder(w, ws):
     return {"ds": ds}
 
 
+def _h_folder_row(row: str):
+    """ws/omni with a frames.csv row after frame 000000's naming a folder (``row``), which
+    was taken for a deleted frame with an empty or folder name (trial H)."""
+    def setup(w, ws):
+        ds = copy_dataset(w, "omni", ws)
+        lines = (ds / "frames.csv").read_text().splitlines()
+        lines[2:2] = [f"{row},0.01"]
+        (ds / "frames.csv").write_text("\n".join(lines) + "\n")
+        return {"ds": ds}
+    return setup
+
+
 def _l_perspective_first_frame_failed(w, ws):
     """ws/kid with frame 000000's image junk, and ws/f.h5 extracted from it (000000 failed,
     so only 000001 is in it)."""
@@ -3267,6 +3279,13 @@ CASES = [
     Case("localize --method lut of a perspective dataset without features", "newcomer",
          ["localize", "{kid}", "--map", "{kmap}", "--method", "lut", "-o", W + "/p.h5"], 1,
          "kid: a 'perspective' camera (its calib.yaml); --method lut needs omni features"),
+    # ---- s58 group H: a frames.csv row naming a folder (trial H)
+    *[Case(f"{cmd} of a dataset whose frames.csv has a row '{row}'", "silent",
+           [*args, "-o", W + "/out"], 1, f"frames.csv: line 3: '{row}' names a folder, not a"
+           " frame's image", setup=_h_folder_row(row))
+      for row in (".", "images/", "a/b/")
+      for cmd, args in (("extract", ["extract", "{ds}"]),
+                        ("show points", ["show", "points", "{ds}", "--frame", "1"]))],
     # ---- s58 group G: frames.csv rows and positions (trial G)
     *[Case(f"{cmd} of a frame listed by its file name and by its stem at two stamps",
            "silent", [*args, "-o", W + "/out"], 1,

@@ -153,6 +153,11 @@ def read_csv(path: str | Path, kind: str) -> dict[str, np.ndarray]:
     if kind == "frames":  # one row per frame: 000003.png and 000003 are one frame
         seen: dict[str, tuple[int, str]] = {}
         for (line_no, _), nm in zip(body, out["name"]):
+            if re.split(r"[/\\]", nm)[-1] in ("", ".", ".."):
+                # a folder (images/, a/b/, ., ..) is no frame: taken for a deleted one, it
+                # sorted first and shifted every position (trial H)
+                raise DatasetError(f"{path}: line {line_no}: '{nm[:40]}' names a folder, not"
+                                   " a frame's image")
             frame = _frame_name(nm)
             if frame in seen:
                 first_line, first = seen[frame]
