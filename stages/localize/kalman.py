@@ -146,6 +146,14 @@ class FusionParams:
         return cls(**{k: float(conf[k]) for k in cls.__dataclass_fields__})
 
 
+def model_sigma_xy(model_xy, model_min_xy, dt, speed):
+    """The model's position noise (m, sigma) over ``dt`` s at ``speed`` m/s: how far the robot
+    may deviate from the motion it last made, ``model_xy`` per second growing with the speed,
+    never below ``model_min_xy``. Scalars or arrays (the smoother's collision frames,
+    smooth.motion_of)."""
+    return np.maximum(model_min_xy, model_xy * dt * (1.0 + speed))
+
+
 class DecentralisedFusion:
     """Vision node + odometry node + fusion over a sequence of frames.
 
@@ -172,7 +180,7 @@ class DecentralisedFusion:
         p = self.params
         if self.motion_known:
             speed = np.hypot(*self.last_motion[:2]) / max(dt, 1e-3)
-            sxy = max(p.model_min_xy, p.model_xy * dt * (1.0 + speed))
+            sxy = float(model_sigma_xy(p.model_xy, p.model_min_xy, dt, speed))
             sth = max(p.model_min_theta, p.model_theta * dt)
         else:
             sxy = max(p.model_min_xy, p.max_speed * dt)

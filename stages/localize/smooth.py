@@ -66,6 +66,7 @@ import numpy as np
 
 from ..common.geometry import inverse, wrap_angle
 from ..common.poses_file import PoseTrack
+from .kalman import model_sigma_xy
 from .motion_model import Motion, moved
 from .tracking import SAME_BASIN_M, SAME_BASIN_RAD
 
@@ -216,7 +217,8 @@ def motion_of(increments: np.ndarray, has_odometry: np.ndarray, stamps: np.ndarr
     sth = np.maximum(fusion["odometry_min_theta"], fusion["odometry_theta"] * np.abs(inc[:, 2]))
     hit = has & np.asarray(collision, bool)
     speed = dist / np.maximum(dt, 1e-3)
-    sxy = np.where(hit, np.hypot(sxy, fusion["model_xy"] * dt * (1.0 + speed)), sxy)
+    model = model_sigma_xy(fusion["model_xy"], fusion["model_min_xy"], dt, speed)
+    sxy = np.where(hit, np.hypot(sxy, model), sxy)
     sth = np.where(hit, np.maximum(sth, fusion["max_turn_rate"] * dt), sth)
     sxy = np.where(has, sxy, np.maximum(sxy, fusion["max_speed"] * dt))
     sth = np.where(has, sth, np.maximum(sth, fusion["max_turn_rate"] * dt))
