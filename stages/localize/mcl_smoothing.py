@@ -29,6 +29,7 @@ from .heading import heading_log_likelihood
 from .mcl_start import placement_log_density
 from .observation_model import ObservationModel
 from .smooth import FrameCandidates
+from .tracking import KIDNAP_PROBABILITY
 
 SMOOTH_TEMPERATURE = 2.0  # the smoother's frame likelihood is the model's to the power
 # 1 / this (consecutive frames' errors are not independent; docs/smoothing.md)
@@ -40,7 +41,7 @@ SMOOTH_TEMPERATURE = 2.0  # the smoother's frame likelihood is the model's to th
 # touch line) the start's reflection onto the other touch line, ruled out once the robot
 # turned, passed its mass to the mirror image, held at confidence 0.93 for 300 frames
 # (docs/smoothing.md, "mcl")
-SMOOTH_KIDNAP_PROBABILITY = 1e-5
+SMOOTH_KIDNAP_PROBABILITY = KIDNAP_PROBABILITY
 
 # places the sensor-resetting pool of a frame adds to the smoother's candidates (its best
 # poses that are other places, place_search.separate)
