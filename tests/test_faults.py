@@ -1681,17 +1681,24 @@ def _g_listed_by_name_and_stem(w, ws):
     return {"ds": ds}
 
 
+def _rows_after_frame_0(name: str, rows: list[str]):
+    """ws/<name> with ``rows`` (name,stamp) in frames.csv after frame 000000's, none of them
+    a file."""
+    def setup(w, ws):
+        ds = copy_dataset(w, name, ws)
+        lines = (ds / "frames.csv").read_text().splitlines()
+        lines[2:2] = rows
+        (ds / "frames.csv").write_text("\n".join(lines) + "\n")
+        return {"ds": ds}
+    return setup
+
+
 def _g_rows_of_no_frame(name: str):
     """ws/<name> with frames.csv rows after frame 000000's that name no frame and no file:
     a text file, a .gif (a kind fieldloc does not read) and a .jpg among PNG frames, each
     sorting before frame 000001."""
-    def setup(w, ws):
-        ds = copy_dataset(w, name, ws)
-        lines = (ds / "frames.csv").read_text().splitlines()
-        lines[2:2] = ["000000b.txt,0.01", "000000c.gif,0.02", "000000d.jpg,0.03"]
-        (ds / "frames.csv").write_text("\n".join(lines) + "\n")
-        return {"ds": ds}
-    return setup
+    return _rows_after_frame_0(name, ["000000b.txt,0.01", "000000c.gif,0.02",
+                                      "000000d.jpg,0.03"])
 
 
 def _g_deleted_frame_in_a_folder(w, ws):
@@ -1705,13 +1712,7 @@ def _g_deleted_frame_in_a_folder(w, ws):
 def _h_folder_row(row: str):
     """ws/omni with a frames.csv row after frame 000000's naming a folder (``row``), which
     was taken for a deleted frame with an empty or folder name (trial H)."""
-    def setup(w, ws):
-        ds = copy_dataset(w, "omni", ws)
-        lines = (ds / "frames.csv").read_text().splitlines()
-        lines[2:2] = [f"{row},0.01"]
-        (ds / "frames.csv").write_text("\n".join(lines) + "\n")
-        return {"ds": ds}
-    return setup
+    return _rows_after_frame_0("omni", [f"{row},0.01"])
 
 
 def _l_perspective_first_frame_failed(w, ws):
