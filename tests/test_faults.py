@@ -1648,18 +1648,26 @@ def _k_cmyk_mask(ds: Path) -> None:
     (ds / "mask.png").write_bytes(_k_jpeg(img, "cmyk"))
 
 
-def _l_dotted_stems_first_deleted(w, ws):
-    """ws/omni with its frames named like timestamps (1687078170.100.png: a dot inside the
-    stem), frames.csv listing the stems, the first image deleted."""
-    ds = copy_dataset(w, "omni", ws)
-    rows = ["name,stamp"]
-    for i in range(4):
-        stem = f"1687078170.{i + 1}00"
-        (ds / "images" / f"{i:06d}.png").rename(ds / "images" / f"{stem}.png")
-        rows.append(f"{stem},{i / 10:.1f}")
-    (ds / "frames.csv").write_text("\n".join(rows) + "\n")
-    (ds / "images" / "1687078170.100.png").unlink()
-    return {"ds": ds}
+def _stems_listed_one_deleted(stem_of, deleted: int):
+    """A setup: ws/omni with its frames renamed to ``stem_of(i)`` + .png (a dot inside the
+    stem), frames.csv listing the stems, frame ``deleted``'s image deleted."""
+    def setup(w, ws):
+        ds = copy_dataset(w, "omni", ws)
+        rows = ["name,stamp"]
+        for i in range(4):
+            (ds / "images" / f"{i:06d}.png").rename(ds / "images" / f"{stem_of(i)}.png")
+            rows.append(f"{stem_of(i)},{i / 10:.1f}")
+        (ds / "frames.csv").write_text("\n".join(rows) + "\n")
+        (ds / "images" / f"{stem_of(deleted)}.png").unlink()
+        return {"ds": ds}
+    return setup
+
+
+# frames named like timestamps (1687078170.100.png), the first image deleted (trial F)
+_l_dotted_stems_first_deleted = _stems_listed_one_deleted(lambda i: f"1687078170.{i + 1}00", 0)
+# frames named f0.v2.png .. (a dot and letters in the stem), f1.v2.png deleted (trial H: taken
+# for a file of kind "v2", it took no position)
+_h_stems_with_a_dot_second_deleted = _stems_listed_one_deleted(lambda i: f"f{i}.v2", 1)
 
 
 def _l_deleted_frame_listed_twice(w, ws):
@@ -1713,6 +1721,27 @@ def _h_folder_row(row: str):
     """ws/omni with a frames.csv row after frame 000000's naming a folder (``row``), which
     was taken for a deleted frame with an empty or folder name (trial H)."""
     return _rows_after_frame_0("omni", [f"{row},0.01"])
+
+
+def _check_drew(frame: str):
+    """A show command's check: it said it drew frame ``frame``."""
+    def check(paths, res):
+        assert f"b.png: frame {frame}, " in res.output, res.output
+    return check
+
+
+def _h_jpg_frame_deleted(w, ws):
+    """ws/omni with frames 000001 and 000003 as JPG files among the PNG ones, 000001.jpg
+    deleted."""
+    ds = copy_dataset(w, "omni", ws)
+    for i in (1, 3):
+        png = ds / "images" / f"{i:06d}.png"
+        cv2.imwrite(str(png.with_suffix(".jpg")), cv2.imread(str(png)))
+        png.unlink()
+        frames = ds / "frames.csv"
+        frames.write_text(frames.read_text().replace(png.name, png.with_suffix(".jpg").name))
+    (ds / "images" / "000001.jpg").unlink()
+    return {"ds": ds}
 
 
 def _l_perspective_first_frame_failed(w, ws):
@@ -3311,6 +3340,31 @@ CASES = [
       for frame, rc, said in (
           ("0", 1, "omni/images/sub/000000.png cannot be read: there is no such file (frames.csv"
                    " lists it)"), ("1", 0, "b.png: frame 000001, "))],
+    # ---- s59 group H: frames.csv rows of the dataset's kinds and of others (trial H)
+    *[Case(f"show points --frame {frame}, the deleted frame f1.v2 listed by its stem",
+           "silent", ["show", "points", "{ds}", "--frame", frame, "-o", W + "/b.png"], rc,
+           said, setup=_h_stems_with_a_dot_second_deleted)
+      for frame, rc, said in (("1", 1, "frame f1.v2's image "), ("2", 0, "frame f2.v2, "))],
+    *[Case(f"show points --frame {frame}, a deleted JPG frame among PNG and JPG frames",
+           "silent", ["show", "points", "{ds}", "--frame", frame, "-o", W + "/b.png"], rc,
+           said, setup=_h_jpg_frame_deleted)
+      for frame, rc, said in (("1", 1, "images/000001.jpg cannot be read: there is no such"
+                                       " file"), ("2", 0, "b.png: frame 000002, "))],
+    Case("extract of a dataset whose frames.csv lists an image as images/000000.png",
+         "newcomer", ["extract", "{ds}", "-o", W + "/f.h5"], 0, "",
+         setup=_with_ds("omni", lambda ds: edit_csv(ds / "frames.csv", 2,
+                                                    "images/000000.png,0.000000")),
+         check=_check_frames_extracted(4)),
+    Case("extract of a dataset whose frames.csv lists 000001.png as 000001.PNG", "newcomer",
+         ["extract", "{ds}", "-o", W + "/f.h5"], 1,
+         "frames.csv: line 3: '000001.PNG' is no image in images/; frame 000001's image is"
+         " 000001.png", setup=_with_ds("omni", lambda ds: edit_csv(ds / "frames.csv", 3,
+                                                                   "000001.PNG,0.100000"))),
+    Case("show points --frame 2, frames.csv lists 000001.jpg beside 000001.png (PNG frames)",
+         "silent", ["show", "points", "{ds}", "--frame", "2", "-o", W + "/b.png"], 0,
+         "1 frames are files of a kind fieldloc does not read or none of the images is"
+         " (first: 000001.jpg", setup=_rows_after_frame_0("omni", ["000001.jpg,0.15"]),
+         check=_check_drew("000002")),
 ]
 
 

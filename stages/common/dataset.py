@@ -23,7 +23,8 @@ order cannot be placed without guessing (odometry rows are increments since the 
 Two images with the same stem (``000003.png`` and ``000003.jpg``) would be one frame name and
 are refused too, and so is a frame frames.csv lists twice (``000003.png`` and ``000003``: which
 stamp is it?) and an image whose file name is no UTF-8 (a frame's name is written as text into
-every artifact). Frame positions: ``Dataset.frame_at``.
+every artifact). Which frame a frames.csv row lists: ``_listed_frame``; frame positions:
+``Dataset.frame_at``.
 """
 
 from __future__ import annotations
@@ -87,7 +88,9 @@ def stamp_error(stamp: float) -> str | None:
 def read_csv(path: str | Path, kind: str) -> dict[str, np.ndarray]:
     """Read one of the dataset CSVs, checking its header, that every value is a finite number
     (names excepted) and, for time series, that the stamps increase from row to row. Returns
-    column -> array. Every problem is a DatasetError naming the file and line."""
+    column -> array (frames.csv: also "line", each row's line number). Every problem is a
+    DatasetError naming the file and line; frames.csv's rows are matched with the images by
+    open_dataset."""
     path = Path(path)
     cols = CSV_COLUMNS[kind]
     if not present(path):
@@ -141,6 +144,8 @@ def read_csv(path: str | Path, kind: str) -> dict[str, np.ndarray]:
             values[name].append(v)
     out = {name: (np.array(v, dtype=object) if name == "name" else np.array(v, dtype=float))
            for name, v in values.items()}
+    if kind == "frames":  # the line of each row: open_dataset's messages name it
+        out["line"] = np.array([line_no for line_no, _ in body], dtype=int)
     if kind in TIME_SERIES:
         st = out["stamp"]
         bad = np.flatnonzero(np.diff(st) <= 0)
@@ -150,22 +155,13 @@ def read_csv(path: str | Path, kind: str) -> dict[str, np.ndarray]:
             raise DatasetError(
                 f"{path}: line {body[i + 1][0]}: stamp {st[i + 1]:g} {what} line"
                 f" {body[i][0]}'s stamp {st[i]:g}; rows must be in time order, one per stamp")
-    if kind == "frames":  # one row per frame: 000003.png and 000003 are one frame
-        seen: dict[str, tuple[int, str]] = {}
-        for (line_no, _), nm in zip(body, out["name"]):
+    if kind == "frames":
+        for line_no, nm in zip(out["line"], out["name"]):
             if re.split(r"[/\\]", nm)[-1] in ("", ".", ".."):
                 # a folder (images/, a/b/, ., ..) is no frame: taken for a deleted one, it
                 # sorted first and shifted every position (trial H)
                 raise DatasetError(f"{path}: line {line_no}: '{nm[:40]}' names a folder, not"
                                    " a frame's image")
-            frame = _frame_name(nm)
-            if frame in seen:
-                first_line, first = seen[frame]
-                also = "" if first == nm else f" as '{first[:40]}'"
-                raise DatasetError(
-                    f"{path}: line {line_no}: frame '{frame[:40]}' is given twice (line"
-                    f" {first_line}{also})")
-            seen[frame] = line_no, nm
     return out
 
 
@@ -253,14 +249,14 @@ class Dataset:
         names; listed by its stem, as a file of the images' suffix), so that a frame keeps
         its position when another's image is deleted (the rows of the artifacts made
         before); a row naming a file of another kind
-        (``_names_frame``: x.txt, a .gif) is no frame and takes no place. A missing frame is
+        (``_listed_frame``: x.txt, a .gif) is no frame and takes no place. A missing frame is
         refused in one line: with 000000.png deleted, "--frame 0" drew frame 000001 (and
         "--frame 000000", read as position 0, too) without a word."""
         if not self.missing:
             return frame_index(self.names, frame, str(self.root))
         order = [(p.name, p.stem, None) for p in self.images]
         suffix = self.images[0].suffix if self.images else ""
-        for listed in self.missing:  # each frame once (read_csv refuses a frame twice)
+        for listed in self.missing:  # each frame once (open_dataset refuses one twice)
             # sorted by its file name, whatever folder the row names (images/ has none)
             name, file = _frame_name(listed), Path(listed).name
             order.append((file if name != file else file + suffix, name, listed))
@@ -357,18 +353,8 @@ def open_dataset(root: str | Path, *, need_images: bool = True) -> Dataset:
     frames = root / "frames.csv"
     gone: tuple[str, ...] = ()
     if present(frames):
-        tab = read_csv(frames, "frames")
-        by_name = dict(zip(tab["name"], tab["stamp"]))
-        missing = [p.name for p in images if p.name not in by_name and p.stem not in by_name]
-        if missing:
-            raise DatasetError(f"{frames}: no stamp for image {missing[0]}")
-        stamps = np.array([by_name.get(p.name, by_name.get(p.stem)) for p in images], float)
+        stamps, gone, other = _listed_frames(frames, read_csv(frames, "frames"), images)
         source = "frames.csv"
-        have = {p.name for p in images} | {p.stem for p in images}
-        # the image kinds of the frames (any, for a dataset given without its images)
-        kinds = {p.suffix.lower() for p in images} or set(IMAGE_SUFFIXES)
-        gone = tuple(n for n in by_name if n not in have and _names_frame(n, kinds))
-        other = [n for n in by_name if n not in have and not _names_frame(n, kinds)]
         if other and str(frames) not in _SAID_OTHER_KINDS:  # a frame the user listed, left
             _SAID_OTHER_KINDS.add(str(frames))  # out: said once, however often it is opened
             log.warning("%s: %d frames are files of a kind fieldloc does not read or none of"
@@ -391,21 +377,85 @@ _SAID_OTHER_KINDS: set[str] = set()
 
 def _frame_name(file_name: str) -> str:
     """The frame name of an image file name as frames.csv gives it (its stem; a name given
-    without a suffix is the frame name itself); a folder it names is no part of it (the
-    frames are the files in images/)."""
+    without an image suffix is the frame name itself: 1687078170.100, f1.v2); a folder it
+    names is no part of it (the frames are the files in images/)."""
     name = Path(file_name).name
     return Path(name).stem if Path(name).suffix.lower() in IMAGE_SUFFIXES else name
 
 
-def _names_frame(file_name: str, kinds: set[str]) -> bool:
-    """Whether a name frames.csv lists that is no image in images/ is a frame whose image is
-    missing (deleted since): a stem (no suffix, or digits after a dot: a timestamp name
-    1687078170.100) or a file of an image kind the dataset's images are (``kinds``: their
-    suffixes, lower case), in any folder. Any other row (x.txt, a .gif, a .jpg among PNG
-    frames) is no frame and takes no place among the frames' positions
-    (``Dataset.frame_at``)."""
-    suffix = Path(file_name).suffix.lower()
-    return suffix in kinds or not suffix or suffix[1:].isdigit()
+# image suffixes of one kind: a deleted frame 000001.jpeg among .jpg frames is a JPEG frame
+SAME_KIND = {".jpeg": ".jpg", ".tif": ".tiff"}
+
+
+def _image_kind(suffix: str) -> str:
+    """The kind of image a suffix (of IMAGE_SUFFIXES, any case) is: .jpg for .JPEG too."""
+    suffix = suffix.lower()
+    return SAME_KIND.get(suffix, suffix)
+
+
+# the suffix of a file of another kind than an image: a dot and letters only (notes.txt,
+# x.gif, a.yaml). A dot followed by anything else is part of a frame's name as frames.csv
+# lists it by its stem (a timestamp 1687078170.100, a version f1.v2: trial H, whose deleted
+# f1.v2 was taken for a file of kind "v2" and took no frame position)
+OTHER_KIND_SUFFIX = re.compile(r"\.[A-Za-z]+")
+
+
+def _listed_frame(row: str, images: dict[str, str], kinds: set[str]) -> str | None:
+    """The frame a frames.csv row lists, or None for a row of another kind, which is no frame
+    and takes no frame position (``Dataset.frame_at``). A row is read by its file name,
+    whatever folder it names: the frame of an image in images/ of that file name or stem
+    (``images``: file name and stem -> stem); else a frame whose image is missing (deleted
+    since) if it is a file of one of the dataset's image kinds (``kinds``, as
+    ``_image_kind``: in a folder of PNG and JPG frames, both) or a stem (no suffix of letters
+    only); else (x.txt, a .gif, a .jpg among PNG frames) of another kind."""
+    name = Path(row).name
+    if name in images:
+        return images[name]
+    suffix = Path(name).suffix
+    if suffix.lower() in IMAGE_SUFFIXES:
+        return Path(name).stem if _image_kind(suffix) in kinds else None
+    return None if OTHER_KIND_SUFFIX.fullmatch(suffix) else name
+
+
+def _listed_frames(path: Path, tab: dict[str, np.ndarray],
+                   images: list[Path]) -> tuple[np.ndarray, tuple[str, ...], list[str]]:
+    """The stamps of ``images`` from frames.csv (``path``, read as ``tab``), the rows that
+    list frames whose image is missing (``Dataset.missing``) and the rows of another kind
+    (``_listed_frame``). A frame listed twice (by its file name and its stem: which stamp
+    is it?) is refused naming both lines, and so is an image no row lists, naming the row
+    that lists its frame by another file name (000001.PNG, 000001.jpg beside JPG frames)
+    or as a file of another kind (000001.jpg among PNG frames)."""
+    by_file = {p.name: p.stem for p in images} | {p.stem: p.stem for p in images}
+    # the image kinds of the frames (any, for a dataset given without its images)
+    kinds = {_image_kind(p.suffix) for p in images} or set(map(_image_kind, IMAGE_SUFFIXES))
+    listed: dict[str, tuple[int, str, float]] = {}  # frame -> its row's line, text, stamp
+    other: list[tuple[int, str]] = []  # the rows of another kind: line, text
+    for line_no, row, stamp in zip(tab["line"], tab["name"], tab["stamp"]):
+        frame = _listed_frame(row, by_file, kinds)
+        if frame is None:
+            other.append((int(line_no), row))
+        elif frame in listed:
+            first_line, first, _ = listed[frame]
+            also = "" if first == row else f" as '{first[:40]}'"
+            raise DatasetError(f"{path}: line {line_no}: frame '{frame[:40]}' is given twice"
+                               f" (line {first_line}{also})")
+        else:
+            listed[frame] = int(line_no), row, float(stamp)
+    stamps = []
+    for p in images:
+        if p.stem not in listed:
+            # a row of another kind of its stem (000001.jpg among PNG frames) is said
+            near = next((f" (line {ln}'s '{r[:40]}' is a file of another kind)"
+                         for ln, r in other if _frame_name(r) == p.stem), "")
+            raise DatasetError(f"{path}: no stamp for image {p.name}{near}")
+        line_no, row, stamp = listed[p.stem]
+        if Path(row).name not in (p.name, p.stem):
+            raise DatasetError(f"{path}: line {line_no}: '{row[:40]}' is no image in images/;"
+                               f" frame {p.stem[:40]}'s image is {p.name[:40]}")
+        stamps.append(stamp)
+    have = {p.stem for p in images}
+    gone = tuple(row for frame, (_, row, _) in listed.items() if frame not in have)
+    return np.array(stamps, float), gone, [row for _, row in other]
 
 
 # a frame position as a user writes it: a whole number without leading zeros (a negative one
