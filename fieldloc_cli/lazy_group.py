@@ -5,8 +5,10 @@ imported only when used and listed from a table without being imported; user err
 from __future__ import annotations
 
 import contextlib
+import errno
 import importlib.util
 import logging
+import os
 import signal
 import sys
 import threading
@@ -220,6 +222,87 @@ def _raising_signals(last: bool):
                 signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
+class StdoutError(OSError):
+    """A write to standard output failed (``_Stdout``): a full disk (``> /dev/full``), or a
+    reader that closed the pipe (``| head``: errno EPIPE)."""
+
+
+class _Stdout:
+    """sys.stdout while `fieldloc` runs: the stream it stands for, its write errors raised as
+    StdoutError, so that they are said as standard output's (``_stdout_failed``). A full
+    disk said "No space left on device" as if an output file were cut short, and `--help`
+    or `--version` into /dev/full ended in a traceback (trial H, H9)."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def __getattr__(self, name):  # encoding, isatty, fileno, buffer: the stream's own
+        return getattr(self._stream, name)
+
+    def write(self, text):
+        with _as_stdout_error():
+            return self._stream.write(text)
+
+    def writelines(self, lines):
+        with _as_stdout_error():
+            return self._stream.writelines(lines)
+
+    def flush(self):
+        with _as_stdout_error():
+            return self._stream.flush()
+
+
+@contextlib.contextmanager
+def _as_stdout_error():
+    try:
+        yield
+    except StdoutError:
+        raise
+    except OSError as e:
+        raise StdoutError(e.errno, e.strerror) from e
+
+
+def _stdout_failed(e: StdoutError, complete: bool) -> int:
+    """Say that standard output could not be written (``e``) and return the exit code, 1. A
+    reader that closed the pipe (`fieldloc evaluate ... | head -1`) is said nothing: the
+    reader wanted no more, as with any Unix tool, and exit code 1 is what click and Python's
+    own handling of a closed pipe give. Anything else is one line on stderr, saying whether
+    the command's outputs were complete (``outputs_complete``): evaluate's table into a full
+    disk, its reports all written. Standard output is then the null device, so that
+    Python's flush at exit meets no closed pipe or full disk ("Exception ignored ...
+    BrokenPipeError")."""
+    try:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.__stdout__.fileno())
+    except (OSError, ValueError, AttributeError):  # no file (a caller's stream: a test's)
+        pass
+    if e.errno != errno.EPIPE:
+        done = "; its output files are complete" if complete else ""
+        click.echo(one_line(f"fieldloc: error: could not write to standard output"
+                            f" ({e.strerror or e}){done}"), err=True)
+    return 1
+
+
+@contextlib.contextmanager
+def _stdout_errors_said():
+    """Around the whole of `fieldloc` (its options, --help and --version, the command): its
+    standard output as ``_Stdout``, flushed at the end, and a write error on it that the
+    command did not say already (``LazyGroup.invoke``) said (``_stdout_failed``)."""
+    out = sys.stdout
+    if isinstance(out, _Stdout):  # a group's subcommand group (`fieldloc show`)
+        yield
+        return
+    sys.stdout = _Stdout(out)
+    try:
+        try:
+            yield
+        finally:
+            sys.stdout = out
+            with _as_stdout_error():
+                out.flush()
+    except StdoutError as e:
+        sys.exit(_stdout_failed(e, complete=False))
+
+
 # command name -> ("module:attribute", its short help as the listing shows it). Each module only
 # parses options and calls a stage, which it imports inside its callback; the short help is here
 # so that listing the commands imports none of them (tests/test_cli_startup.py checks it is the
@@ -241,7 +324,8 @@ class LazyGroup(click.Group):
         with the command, and the signals that come once it is over are ignored
         (``_terminate_as_interrupt``'s ``last``)."""
         self.program = args is None
-        return super().main(args, *a, **kwargs)
+        with _stdout_errors_said():
+            return super().main(args, *a, **kwargs)
 
     def list_commands(self, ctx):
         names = list(self.commands)
@@ -296,14 +380,8 @@ class LazyGroup(click.Group):
                 e = e.line(resumes(ctx) or "")
             click.echo(one_line(f"fieldloc: error: {e}"), err=True)
             ctx.exit(1)
-        except BrokenPipeError:  # stdout closed by its reader (| head): nothing more to say
-            import os
-
-            try:  # so that the interpreter's own flush at exit finds no closed pipe either
-                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-            except (OSError, ValueError):
-                pass
-            ctx.exit(1)
+        except StdoutError as e:  # said with what was complete; the output's own error
+            ctx.exit(_stdout_failed(e, complete=resumes(ctx) == COMPLETE))
         except OSError as e:  # the system refused: permission, disk full, a path that vanished
             if debug:
                 raise

@@ -1,0 +1,84 @@
+"""Standard output that cannot be written (trial H, H9): a full disk (`> /dev/full`) is one
+line saying it was standard output, and whether the command's output files are complete; a
+reader that closed the pipe (`| head -1`) ends the command quietly with exit code 1, with
+nothing of Python's at exit ("Exception ignored ... BrokenPipeError"). Each command runs as a
+user runs it, in its own process: what Python prints as it shuts down is part of it."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from stages import build_map, extract, localize, simulate
+
+ROOT = Path(__file__).resolve().parents[1]
+FULL = "could not write to standard output (No space left on device)"
+
+
+@pytest.fixture(scope="module")
+def poses(tmp_path_factory):
+    """A 2-frame omni dataset on spl and its poses (lut, a coarse map)."""
+    root = tmp_path_factory.mktemp("stdout")
+    ds = simulate.main(dict(simulate.confs["omni-clean"], frames=2, seed=5), "spl", root / "ds")
+    mp = build_map.main({"resolution": 0.5}, "spl", root / "spl.map.h5")
+    feats = extract.main(None, ds, root / "f.h5")
+    return localize.main({"method": "lut"}, ds, mp, root / "p.h5", features=feats), ds
+
+
+def _fieldloc(args, stdout) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.run([sys.executable, "-m", "fieldloc_cli.main", *map(str, args)],
+                          stdout=stdout, stderr=subprocess.PIPE, text=True, env=env,
+                          timeout=300)
+
+
+def _closed_pipe():
+    """The write end of a pipe whose reader is gone (a write to it fails with EPIPE)."""
+    read, write = os.pipe()
+    os.close(read)
+    return write
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="no /dev/full")
+@pytest.mark.parametrize("args, complete", [
+    (["evaluate", "{poses}", "--truth", "{ds}", "-o", "{out}"], True),
+    (["inspect", "{poses}"], False),
+    (["--help"], False),
+    (["--version"], False),
+])
+def test_a_full_standard_output_is_one_line_saying_so(poses, tmp_path, args, complete):
+    """`evaluate > /dev/full` said "No space left on device" as if an output file were cut
+    short, and `--help`, `--version` ended in a traceback: now one line, naming standard
+    output and, once a command's output files are written, that they are complete."""
+    values = {"poses": poses[0], "ds": poses[1], "out": tmp_path / "rep"}
+    with open("/dev/full", "w") as full:
+        r = _fieldloc(["-q", *(str(a).format(**values) for a in args)], full)
+    said = FULL + ("; its output files are complete" if complete else "")
+    assert r.returncode == 1 and r.stderr == f"fieldloc: error: {said}\n", r.stderr
+    if complete:
+        assert json.loads((tmp_path / "rep" / "report.json").read_text())["frames"] == 2
+
+
+@pytest.mark.parametrize("args", [
+    ["evaluate", "{poses}", "--truth", "{ds}", "-o", "{out}"],
+    ["export", "{poses}", "--format", "csv", "-o", "-"],
+    ["inspect", "{poses}"],
+    ["--help"],
+])
+def test_a_closed_pipe_ends_the_command_quietly(poses, tmp_path, args):
+    """`evaluate ... | true`: exit code 1 and no line (the reader wanted no more, as with
+    any Unix tool), nothing of Python's as it shuts down, and the outputs written."""
+    values = {"poses": poses[0], "ds": poses[1], "out": tmp_path / "rep"}
+    pipe = _closed_pipe()
+    try:
+        r = _fieldloc(["-q", *(str(a).format(**values) for a in args)], pipe)
+    finally:
+        os.close(pipe)
+    assert r.returncode == 1 and r.stderr == "", r.stderr
+    if args[0] == "evaluate":
+        assert (tmp_path / "rep" / "report.json").is_file()
