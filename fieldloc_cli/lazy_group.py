@@ -127,6 +127,33 @@ def _interrupted(ctx, e: KeyboardInterrupt) -> None:
     ctx.exit(128 + (signal.SIGTERM if term else signal.SIGINT))
 
 
+# the exit codes of a command stopped by a signal (``_interrupted``): 128 + its number
+STOPPED_CODES = (128 + signal.SIGINT, 128 + signal.SIGTERM)
+
+
+def _end_stopped_process(code: int) -> None:
+    """End the `fieldloc` process whose command a signal stopped, its line said and its
+    cleanup done (temporary parts removed as the interrupt unwound the command): Python's
+    exit functions run (atexit: logging's flush, tempfile's and weakref's finalizers, Dask's
+    and multiprocessing's children, h5py's converters unregistered), standard output and
+    error flushed, then ``os._exit(code)``, without the interpreter's finalisation and C's
+    exit handlers. A signal that stopped `import h5py` between registering its type
+    converters with HDF5 and registering their removal at exit left HDF5's own exit handler
+    (H5_term_library) calling h5py's converter after Python was finalised: "Fatal Python
+    error: PyThreadState_Get: ... the GIL is released" or a segmentation fault, exit code
+    134 or 139 after the interrupted line (trial H, H1: 2 of about 170 `evaluate` runs given
+    SIGINT 0.2-0.3 s after the start). Nothing of a stopped command is left to finalise: what
+    it wrote is committed or removed, and a worker thread it leaves has nothing to commit
+    (Python's finalisation would let it finish its task, for a caller that is gone)."""
+    import atexit
+
+    atexit._run_exitfuncs()  # what Python's finalisation would call first (its errors ignored)
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):  # a closed or full stream: nothing more to say
+            stream.flush()
+    os._exit(code)
+
+
 def _keeping_dropped_stops(hook):
     """``sys.unraisablehook`` while the command runs: an interrupt the command's signal raised
     inside a callback whose exceptions Python drops (llvmlite's object-cache notifier as numba
@@ -324,8 +351,13 @@ class LazyGroup(click.Group):
         with the command, and the signals that come once it is over are ignored
         (``_terminate_as_interrupt``'s ``last``)."""
         self.program = args is None
-        with _stdout_errors_said():
-            return super().main(args, *a, **kwargs)
+        try:
+            with _stdout_errors_said():
+                return super().main(args, *a, **kwargs)
+        except SystemExit as e:
+            if self.program and _RAISED and e.code in STOPPED_CODES:
+                _end_stopped_process(e.code)
+            raise
 
     def list_commands(self, ctx):
         names = list(self.commands)
