@@ -33,6 +33,7 @@ _TABLE: dict[str, tuple[str, str, tuple]] = {
     "mcl-walks": ("mcl_walks", "rows", ()),
     "mcl-smooth-walks": ("mcl_walks", "smooth_rows", ()),
     "mcl-side-walks": ("mcl_walks", "side_rows", ()),
+    "mcl-kidnap-walks": ("mcl_walks", "kidnap_rows", ()),
     "surf-speed": ("features", "bench_surf_speed", ()),
     "surf-quality": ("features", "bench_feature_quality", ()),
     "lut-tracked-frame": ("hypotheses", "bench_lut_tracked_frame", ()),
