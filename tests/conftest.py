@@ -1,5 +1,6 @@
 import importlib
 import os
+import signal
 from pathlib import Path
 
 import pytest
@@ -14,6 +15,14 @@ settings.register_profile("explore", derandomize=False)
 settings.load_profile(os.environ.get("FIELDLOC_HYPOTHESIS", "reproducible"))
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
+
+# The tests of interrupts send SIGINT to fieldloc (in this process or a child) and expect
+# Python's KeyboardInterrupt. A shell that starts a job in the background without job control
+# (`make test &` in a script, nohup) starts it with SIGINT ignored, which the children inherit,
+# and Python then installs no handler: nine such tests failed that way. Ignoring SIGINT is the
+# launcher's wish for itself, not a condition of the product under test.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(scope="session", autouse=True)
