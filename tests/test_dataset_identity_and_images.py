@@ -453,6 +453,9 @@ def _positions(ds) -> list[str]:
     (["000000", "000001.jpg", "000002.jpg"], "000001.jpg", "000001.jpg"),
     (["000000", "000001.jpeg", "000002.jpg"], "000001.jpeg", "000001.jpeg"),
     (["000000", "000001.TIF", "000002.tiff"], "000001.TIF", "000001.TIF"),
+    # trial I (I2): listed in a folder written with a backslash (a Windows frames.csv): it was
+    # a missing frame named cam\000001 that sorted last
+    (["000000", "000001", "000002"], "000001.png", "cam\\000001.png"),
 ])
 def test_a_deleted_frame_of_the_datasets_kinds_keeps_its_position(tmp_path, caplog, stems,
                                                                    deleted, listed):
@@ -492,6 +495,7 @@ def test_a_row_of_another_kind_beside_a_frame_of_its_stem_takes_no_position(tmp_
 
 @pytest.mark.parametrize("row, said", [
     ("images/000001.png", None), ("sub/000001.png", None), ("images/000001", None),
+    ("images\\000001.png", None), ("a/b\\000001", None),  # trial I: a Windows folder
     ("000001.PNG", "line 3: '000001.PNG' is no image in images/; frame 000001's image is"
                    " 000001.png"),
     ("images/000001.jpg", "no stamp for image 000001.png (line 3's 'images/000001.jpg' is a"

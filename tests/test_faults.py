@@ -1723,6 +1723,24 @@ def _h_folder_row(row: str):
     return _rows_after_frame_0("omni", [f"{row},0.01"])
 
 
+def _i_deleted_frame_in_a_windows_folder(w, ws):
+    """ws/omni with 000001.png deleted and frames.csv naming it in a folder written with a
+    backslash (cam\\000001.png): it became a missing frame named cam\\000001 that sorted
+    last (trial I)."""
+    ds = copy_dataset(w, "omni", ws)
+    (ds / "images" / "000001.png").unlink()
+    edit_csv(ds / "frames.csv", 3, "cam\\000001.png,0.100000")
+    return {"ds": ds}
+
+
+def _i_rows_in_images_backslash(ds):
+    """Every frames.csv row of ``ds`` as images\\<file name> (a frames.csv written on
+    Windows)."""
+    frames = ds / "frames.csv"
+    head, *rows = frames.read_text().splitlines()
+    frames.write_text("\n".join([head, *(f"images\\{r}" for r in rows)]) + "\n")
+
+
 def _check_drew(frame: str):
     """A show command's check: it said it drew frame ``frame``."""
     def check(paths, res):
@@ -3365,6 +3383,15 @@ CASES = [
          "1 frames are files of a kind fieldloc does not read or none of the images is"
          " (first: 000001.jpg", setup=_rows_after_frame_0("omni", ["000001.jpg,0.15"]),
          check=_check_drew("000002")),
+    # ---- s59 group I: frames.csv rows written on Windows, folder names, stems (trial I)
+    *[Case(f"show points --frame {frame}, the deleted frame 1 listed as cam\\000001.png",
+           "silent", ["show", "points", "{ds}", "--frame", frame, "-o", W + "/b.png"], rc,
+           said, setup=_i_deleted_frame_in_a_windows_folder)
+      for frame, rc, said in (("1", 1, "frame 000001's image "),
+                              ("2", 0, "b.png: frame 000002, "))],
+    Case("extract of a dataset whose frames.csv lists every image as images\\000000.png ..",
+         "newcomer", ["extract", "{ds}", "-o", W + "/f.h5"], 0, "",
+         setup=_with_ds("omni", _i_rows_in_images_backslash), check=_check_frames_extracted(4)),
 ]
 
 

@@ -157,7 +157,7 @@ def read_csv(path: str | Path, kind: str) -> dict[str, np.ndarray]:
                 f" {body[i][0]}'s stamp {st[i]:g}; rows must be in time order, one per stamp")
     if kind == "frames":
         for line_no, nm in zip(out["line"], out["name"]):
-            if re.split(r"[/\\]", nm)[-1] in ("", ".", ".."):
+            if row_file_name(nm) in ("", ".", ".."):
                 # a folder (images/, a/b/, ., ..) is no frame: taken for a deleted one, it
                 # sorted first and shifted every position (trial H)
                 raise DatasetError(f"{path}: line {line_no}: '{nm[:40]}' names a folder, not"
@@ -258,7 +258,7 @@ class Dataset:
         suffix = self.images[0].suffix if self.images else ""
         for listed in self.missing:  # each frame once (open_dataset refuses one twice)
             # sorted by its file name, whatever folder the row names (images/ has none)
-            name, file = _frame_name(listed), Path(listed).name
+            name, file = _frame_name(listed), row_file_name(listed)
             order.append((file if name != file else file + suffix, name, listed))
         order.sort()
         names = [name for _file, name, _listed in order]
@@ -266,7 +266,7 @@ class Dataset:
         file, name, listed = order[i]
         if listed is None:
             return self.names.index(name)
-        shown = listed if file == Path(listed).name else file  # as listed, or the stem's
+        shown = listed if file == row_file_name(listed) else file  # as listed, or the stem's
         raise DatasetError(f"{self.root}: frame {name[:40]}'s image"
                            f" {self.root / 'images' / shown[:40]} cannot be read: there"
                            " is no such file (frames.csv lists it)")
@@ -375,11 +375,21 @@ def open_dataset(root: str | Path, *, need_images: bool = True) -> Dataset:
 _SAID_OTHER_KINDS: set[str] = set()
 
 
+def row_file_name(row: str) -> str:
+    """The file name a frames.csv row gives: all after its last ``/`` or ``\\``; the folder
+    before it is no part of it (the frames are the files in images/). A backslash is a folder
+    separator too, of a frames.csv written on Windows (``images\\000001.png``): Path(row).name
+    does not split at it on Linux, and a deleted ``cam\\000001.png`` became a missing frame
+    named ``cam\\000001`` that sorted last, so that ``--frame 1`` drew frame 000002 (trial
+    I)."""
+    return re.split(r"[/\\]", row)[-1]
+
+
 def _frame_name(file_name: str) -> str:
     """The frame name of an image file name as frames.csv gives it (its stem; a name given
     without an image suffix is the frame name itself: 1687078170.100, f1.v2); a folder it
-    names is no part of it (the frames are the files in images/)."""
-    name = Path(file_name).name
+    names is no part of it (``row_file_name``)."""
+    name = row_file_name(file_name)
     return Path(name).stem if Path(name).suffix.lower() in IMAGE_SUFFIXES else name
 
 
@@ -408,7 +418,7 @@ def _listed_frame(row: str, images: dict[str, str], kinds: set[str]) -> str | No
     since) if it is a file of one of the dataset's image kinds (``kinds``, as
     ``_image_kind``: in a folder of PNG and JPG frames, both) or a stem (no suffix of letters
     only); else (x.txt, a .gif, a .jpg among PNG frames) of another kind."""
-    name = Path(row).name
+    name = row_file_name(row)
     if name in images:
         return images[name]
     suffix = Path(name).suffix
@@ -449,7 +459,7 @@ def _listed_frames(path: Path, tab: dict[str, np.ndarray],
                          for ln, r in other if _frame_name(r) == p.stem), "")
             raise DatasetError(f"{path}: no stamp for image {p.name}{near}")
         line_no, row, stamp = listed[p.stem]
-        if Path(row).name not in (p.name, p.stem):
+        if row_file_name(row) not in (p.name, p.stem):
             raise DatasetError(f"{path}: line {line_no}: '{row[:40]}' is no image in images/;"
                                f" frame {p.stem[:40]}'s image is {p.name[:40]}")
         stamps.append(stamp)
