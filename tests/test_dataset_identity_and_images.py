@@ -517,6 +517,30 @@ def test_a_frame_is_listed_by_its_file_name_or_stem_in_any_folder(tmp_path, row,
             open_dataset(root)
 
 
+@pytest.mark.parametrize("row, said", [
+    ("images", "names a folder, not a frame's image"),
+    ("sub", "names a folder, not a frame's image"),
+    ("cam\\inner", "names a folder, not a frame's image"),
+    (".png", "names no frame: its file name has no stem before its suffix"),
+    ("images\\.PNG", "names no frame: its file name has no stem before its suffix"),
+    (".txt", "names no frame: its file name has no stem before its suffix"),
+])
+def test_a_row_naming_a_folder_or_no_stem_is_refused_naming_its_line(tmp_path, row, said):
+    """Trial I (I3, I5): a row "images" (the images folder's name, without a slash) was a
+    deleted frame "images", and a row ".png" (a hidden file images/.png beside it) a deleted
+    frame ".png" at position 0: each took a frame position. A row whose stem is the images
+    folder's name or a folder's in the dataset or in images/, or whose file name has no stem
+    before its suffix, is refused naming its line."""
+    root = _dataset(tmp_path / "ds", n=3)
+    (root / "sub").mkdir()
+    (root / "images" / "inner").mkdir()
+    (root / "images" / ".png").write_bytes((root / "images" / "000000.png").read_bytes())
+    with open(root / "frames.csv", "a") as f:
+        f.write(f"{row},0.15\n")
+    with pytest.raises(DatasetError, match=re.escape(f"frames.csv: line 5: '{row}' {said}")):
+        open_dataset(root)
+
+
 def test_a_dataset_given_without_its_images_keeps_its_listed_frames(tmp_path, caplog):
     """A dataset folder of frames.csv and no images (show belief given a features file):
     its listed frames are frames whose image is missing, not rows of another kind."""

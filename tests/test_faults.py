@@ -1741,6 +1741,14 @@ def _i_rows_in_images_backslash(ds):
     frames.write_text("\n".join([head, *(f"images\\{r}" for r in rows)]) + "\n")
 
 
+def _i_hidden_image_listed(w, ws):
+    """ws/omni with a hidden file images/.png (a copy of 000000.png) and a frames.csv row
+    .png after frame 000000's: it was a deleted frame ".png" at position 0 (trial I)."""
+    paths = _rows_after_frame_0("omni", [".png,0.01"])(w, ws)
+    shutil.copy(paths["ds"] / "images" / "000000.png", paths["ds"] / "images" / ".png")
+    return paths
+
+
 def _check_drew(frame: str):
     """A show command's check: it said it drew frame ``frame``."""
     def check(paths, res):
@@ -3392,6 +3400,14 @@ CASES = [
     Case("extract of a dataset whose frames.csv lists every image as images\\000000.png ..",
          "newcomer", ["extract", "{ds}", "-o", W + "/f.h5"], 0, "",
          setup=_with_ds("omni", _i_rows_in_images_backslash), check=_check_frames_extracted(4)),
+    *[Case(f"{cmd} of a dataset whose frames.csv has a row '{row}'", "silent",
+           [*args, "-o", W + "/out"], 1, f"frames.csv: line 3: '{row}' {said}", setup=setup)
+      for row, said, setup in (
+          ("images", "names a folder, not a frame's image", _h_folder_row("images")),
+          (".png", "names no frame: its file name has no stem before its suffix",
+           _i_hidden_image_listed))
+      for cmd, args in (("extract", ["extract", "{ds}"]),
+                        ("show points", ["show", "points", "{ds}", "--frame", "1"]))],
 ]
 
 

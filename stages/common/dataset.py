@@ -157,12 +157,25 @@ def read_csv(path: str | Path, kind: str) -> dict[str, np.ndarray]:
                 f" {body[i][0]}'s stamp {st[i]:g}; rows must be in time order, one per stamp")
     if kind == "frames":
         for line_no, nm in zip(out["line"], out["name"]):
-            if row_file_name(nm) in ("", ".", ".."):
+            file = row_file_name(nm)
+            if file in ("", ".", ".."):
                 # a folder (images/, a/b/, ., ..) is no frame: taken for a deleted one, it
                 # sorted first and shifted every position (trial H)
-                raise DatasetError(f"{path}: line {line_no}: '{nm[:40]}' names a folder, not"
-                                   " a frame's image")
+                raise folder_row(path, line_no, nm)
+            if OTHER_KIND_SUFFIX.fullmatch(file):
+                # a file name of a suffix only (.png: a hidden file, which is no frame) has
+                # no stem to be a frame's name: it was a deleted frame ".png" at position 0,
+                # "images/.png.png cannot be read" (trial I)
+                raise DatasetError(f"{path}: line {line_no}: '{nm[:40]}' names no frame: its"
+                                   " file name has no stem before its suffix")
     return out
+
+
+def folder_row(path: Path, line_no: int, row: str) -> DatasetError:
+    """The error of frames.csv (``path``)'s row ``row`` on line ``line_no`` that names a
+    folder, not a frame's image: taken for a deleted frame, it would take a frame position."""
+    return DatasetError(f"{path}: line {line_no}: '{row[:40]}' names a folder, not a frame's"
+                        " image")
 
 
 def csv_rows(path: Path) -> list[tuple[int, list[str]]]:
@@ -465,6 +478,13 @@ def _listed_frames(path: Path, tab: dict[str, np.ndarray],
         stamps.append(stamp)
     have = {p.stem for p in images}
     gone = tuple(row for frame, (_, row, _) in listed.items() if frame not in have)
+    for frame, (line_no, row, _) in listed.items():
+        # a missing frame listed by a stem that is a folder's name (images, or a folder in
+        # the dataset) is that folder: a row "images" was a deleted frame "images" (trial I)
+        if frame not in have and frame == row_file_name(row) and (
+                frame == "images" or (path.parent / frame).is_dir()
+                or (path.parent / "images" / frame).is_dir()):
+            raise folder_row(path, line_no, row)
     return np.array(stamps, float), gone, [row for _, row in other]
 
 
