@@ -82,3 +82,25 @@ def test_a_closed_pipe_ends_the_command_quietly(poses, tmp_path, args):
     assert r.returncode == 1 and r.stderr == "", r.stderr
     if args[0] == "evaluate":
         assert (tmp_path / "rep" / "report.json").is_file()
+
+
+@pytest.mark.parametrize("args", [
+    ["show", "map", "{map}"],
+    ["show", "points", "{ds}", "--frame", "1"],
+    ["show", "hypotheses", "{poses}", "--frame", "1"],
+])
+def test_a_picture_to_standard_output_is_refused(poses, tmp_path, monkeypatch, args):
+    """Trial I (I1): `show map M -o -` wrote a PNG file named `-` in the current folder (and
+    a rerun said "- exists"), where `export -o -` writes to standard output. A picture is
+    of no use on a terminal: refused in one line naming a file to give, nothing written."""
+    from click.testing import CliRunner
+
+    from fieldloc_cli.main import cli
+
+    values = {"poses": poses[0], "ds": poses[1], "map": poses[0].parent / "spl.map.h5"}
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(cli, [*(str(a).format(**values) for a in args), "-o", "-"])
+    assert r.exit_code == 1 and r.stderr == (
+        "fieldloc: error: -: a picture is written to a file, not to standard output; name a"
+        " .png file (or .pdf, .svg, .jpg, .eps, .tif)\n"), r.stderr
+    assert list(tmp_path.iterdir()) == []

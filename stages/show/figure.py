@@ -29,7 +29,12 @@ FORMATS = {".png": "png", ".pdf": "pdf", ".svg": "svg", ".jpg": "jpg", ".jpeg": 
 
 def picture_format(path: str | Path) -> str:
     """The format a picture at ``path`` is written in, by its suffix (FORMATS); another suffix
-    is a FieldlocError (a picture named .xyz or .html would hold a PNG)."""
+    is a FieldlocError (a picture named .xyz or .html would hold a PNG), and so is ``-``,
+    which names standard output for export: a show command wrote a PNG file named ``-``
+    (trial I), and a picture on a terminal is of no use."""
+    if str(path) == "-":
+        raise FieldlocError("-: a picture is written to a file, not to standard output; name a"
+                            " .png file (or .pdf, .svg, .jpg, .eps, .tif)")
     suffix = Path(path).suffix.lower()
     if suffix not in FORMATS:
         known = ", ".join(s for s in FORMATS if s)
