@@ -414,7 +414,10 @@ def test_rows_of_no_frame_take_no_position_and_deleted_frames_keep_theirs(tmp_pa
     # the positions of the frames there: their places among the four frames listed
     assert [ds.names[ds.frame_at(i)] for i in (1, 2, 3)] == ds.names
     for frame in (0, "000000"):
-        with pytest.raises(DatasetError, match="images/sub/000000.png cannot be read"):
+        # trial I (I4): the path looked for, not one built from the row's folder
+        with pytest.raises(DatasetError, match=re.escape(
+                "images/000000.png cannot be read: there is no such file (frames.csv lists it"
+                " as 'sub/000000.png')")):
             ds.frame_at(frame)
     with pytest.raises(DatasetError, match=r"frame index 4 out of range \(0..3\)"):
         ds.frame_at(4)
@@ -440,7 +443,7 @@ def _positions(ds) -> list[str]:
         try:
             out.append(ds.names[ds.frame_at(i)])
         except DatasetError as e:
-            assert "cannot be read: there is no such file (frames.csv lists it)" in str(e)
+            assert "cannot be read: there is no such file (frames.csv lists it" in str(e)
             out.append("-")
     return out
 

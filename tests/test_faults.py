@@ -1723,14 +1723,12 @@ def _h_folder_row(row: str):
     return _rows_after_frame_0("omni", [f"{row},0.01"])
 
 
-def _i_deleted_frame_in_a_windows_folder(w, ws):
-    """ws/omni with 000001.png deleted and frames.csv naming it in a folder written with a
-    backslash (cam\\000001.png): it became a missing frame named cam\\000001 that sorted
-    last (trial I)."""
-    ds = copy_dataset(w, "omni", ws)
-    (ds / "images" / "000001.png").unlink()
-    edit_csv(ds / "frames.csv", 3, "cam\\000001.png,0.100000")
-    return {"ds": ds}
+def _i_second_frame_deleted_listed_as(row: str):
+    """ws/omni with 000001.png deleted and frames.csv listing it as ``row`` in a folder: with
+    a backslash (cam\\000001.png) it became a missing frame named cam\\000001 that sorted
+    last, and its message named a path built from the row (trial I)."""
+    return _with_ds("omni", lambda ds: ((ds / "images" / "000001.png").unlink(),
+                                        edit_csv(ds / "frames.csv", 3, f"{row},0.100000")))
 
 
 def _i_rows_in_images_backslash(ds):
@@ -3364,8 +3362,8 @@ CASES = [
            ["show", "points", "{ds}", "--frame", frame, "-o", W + "/b.png"], rc, said,
            setup=_g_deleted_frame_in_a_folder)
       for frame, rc, said in (
-          ("0", 1, "omni/images/sub/000000.png cannot be read: there is no such file (frames.csv"
-                   " lists it)"), ("1", 0, "b.png: frame 000001, "))],
+          ("0", 1, "omni/images/000000.png cannot be read: there is no such file (frames.csv"
+                   " lists it as 'sub/000000.png')"), ("1", 0, "b.png: frame 000001, "))],
     # ---- s59 group H: frames.csv rows of the dataset's kinds and of others (trial H)
     *[Case(f"show points --frame {frame}, the deleted frame f1.v2 listed by its stem",
            "silent", ["show", "points", "{ds}", "--frame", frame, "-o", W + "/b.png"], rc,
@@ -3392,10 +3390,12 @@ CASES = [
          " (first: 000001.jpg", setup=_rows_after_frame_0("omni", ["000001.jpg,0.15"]),
          check=_check_drew("000002")),
     # ---- s59 group I: frames.csv rows written on Windows, folder names, stems (trial I)
-    *[Case(f"show points --frame {frame}, the deleted frame 1 listed as cam\\000001.png",
-           "silent", ["show", "points", "{ds}", "--frame", frame, "-o", W + "/b.png"], rc,
-           said, setup=_i_deleted_frame_in_a_windows_folder)
-      for frame, rc, said in (("1", 1, "frame 000001's image "),
+    *[Case(f"show points --frame {frame}, the deleted frame 1 listed as {row}", "silent",
+           ["show", "points", "{ds}", "--frame", frame, "-o", W + "/b.png"], rc, said,
+           setup=_i_second_frame_deleted_listed_as(row))
+      for row in ("cam\\000001.png", "../../../../etc/000001.png")
+      for frame, rc, said in (("1", 1, "omni/images/000001.png cannot be read: there is no"
+                                       f" such file (frames.csv lists it as '{row}')"),
                               ("2", 0, "b.png: frame 000002, "))],
     Case("extract of a dataset whose frames.csv lists every image as images\\000000.png ..",
          "newcomer", ["extract", "{ds}", "-o", W + "/f.h5"], 0, "",

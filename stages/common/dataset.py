@@ -279,10 +279,12 @@ class Dataset:
         file, name, listed = order[i]
         if listed is None:
             return self.names.index(name)
-        shown = listed if file == row_file_name(listed) else file  # as listed, or the stem's
+        # the file looked for is in images/, whatever folder the row names: the path built
+        # from the row (images/../../etc/000001.png) was not where fieldloc looked (trial I)
+        row = "" if listed == file else f" as '{listed[:40]}'"
         raise DatasetError(f"{self.root}: frame {name[:40]}'s image"
-                           f" {self.root / 'images' / shown[:40]} cannot be read: there"
-                           " is no such file (frames.csv lists it)")
+                           f" {self.root / 'images' / file[:40]} cannot be read: there"
+                           f" is no such file (frames.csv lists it{row})")
 
     @property
     def calib_path(self) -> Path:
