@@ -544,6 +544,28 @@ def test_a_row_naming_a_folder_or_no_stem_is_refused_naming_its_line(tmp_path, r
         open_dataset(root)
 
 
+@pytest.mark.parametrize("image, row, how", [
+    ("a0.png", "A0.png", "letter case"),
+    ("a0.png", "images/A0", "letter case"),
+    ("caf\u00e9.png", "cafe\u0301.png", "Unicode normalisation (NFC, NFD)"),
+    ("caf\u00e9.png", "CAFE\u0301.png", "letter case and Unicode normalisation"),
+])
+def test_a_row_naming_an_image_but_for_case_or_normalisation_is_refused_naming_its_line(
+        tmp_path, image, row, how):
+    """Trial I (I6): a row A0.png for image a0.png, or café.png written NFD (as macOS
+    writes file names) for an NFC file name, was refused as "no stamp for image a0.png",
+    naming neither the line nor the row; as a row 000001.PNG for 000001.png is, it is refused
+    naming its line, its row and how the names differ."""
+    root = _dataset(tmp_path / "ds", n=2)
+    (root / "images" / image).write_bytes(cv2.imencode(".png", _rgb(3))[1].tobytes())
+    with open(root / "frames.csv", "a", encoding="utf-8") as f:
+        f.write(f"{row},0.2\n")
+    with pytest.raises(DatasetError, match=re.escape(
+            f"frames.csv: line 4: '{row}' is no image in images/; image {image} differs from"
+            f" it only in {how}")):
+        open_dataset(root)
+
+
 def test_a_dataset_given_without_its_images_keeps_its_listed_frames(tmp_path, caplog):
     """A dataset folder of frames.csv and no images (show belief given a features file):
     its listed frames are frames whose image is missing, not rows of another kind."""

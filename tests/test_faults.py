@@ -1747,6 +1747,12 @@ def _i_hidden_image_listed(w, ws):
     return paths
 
 
+def _i_image_listed_in_another_case(ds):
+    """``ds`` with frame 000000's image renamed a0.png and frames.csv listing it as A0.png."""
+    (ds / "images" / "000000.png").rename(ds / "images" / "a0.png")
+    edit_csv(ds / "frames.csv", 2, "A0.png,0.000000")
+
+
 def _check_drew(frame: str):
     """A show command's check: it said it drew frame ``frame``."""
     def check(paths, res):
@@ -3408,6 +3414,10 @@ CASES = [
            _i_hidden_image_listed))
       for cmd, args in (("extract", ["extract", "{ds}"]),
                         ("show points", ["show", "points", "{ds}", "--frame", "1"]))],
+    Case("extract of a dataset whose frames.csv lists image a0.png as A0.png", "newcomer",
+         ["extract", "{ds}", "-o", W + "/f.h5"], 1,
+         "frames.csv: line 2: 'A0.png' is no image in images/; image a0.png differs from it"
+         " only in letter case", setup=_with_ds("omni", _i_image_listed_in_another_case)),
 ]
 
 

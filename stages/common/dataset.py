@@ -449,7 +449,8 @@ def _listed_frames(path: Path, tab: dict[str, np.ndarray],
     (``_listed_frame``). A frame listed twice (by its file name and its stem: which stamp
     is it?) is refused naming both lines, and so is an image no row lists, naming the row
     that lists its frame by another file name (000001.PNG, 000001.jpg beside JPG frames)
-    or as a file of another kind (000001.jpg among PNG frames)."""
+    or as a file of another kind (000001.jpg among PNG frames), or by its stem in another
+    letter case or Unicode normalisation (``_refuse_near_name``)."""
     by_file = {p.name: p.stem for p in images} | {p.stem: p.stem for p in images}
     # the image kinds of the frames (any, for a dataset given without its images)
     kinds = {_image_kind(p.suffix) for p in images} or set(map(_image_kind, IMAGE_SUFFIXES))
@@ -467,8 +468,10 @@ def _listed_frames(path: Path, tab: dict[str, np.ndarray],
         else:
             listed[frame] = int(line_no), row, float(stamp)
     stamps = []
+    have = {p.stem for p in images}
     for p in images:
         if p.stem not in listed:
+            _refuse_near_name(path, p, {f: v for f, v in listed.items() if f not in have})
             # a row of another kind of its stem (000001.jpg among PNG frames) is said
             near = next((f" (line {ln}'s '{r[:40]}' is a file of another kind)"
                          for ln, r in other if _frame_name(r) == p.stem), "")
@@ -478,7 +481,6 @@ def _listed_frames(path: Path, tab: dict[str, np.ndarray],
             raise DatasetError(f"{path}: line {line_no}: '{row[:40]}' is no image in images/;"
                                f" frame {p.stem[:40]}'s image is {p.name[:40]}")
         stamps.append(stamp)
-    have = {p.stem for p in images}
     gone = tuple(row for frame, (_, row, _) in listed.items() if frame not in have)
     for frame, (line_no, row, _) in listed.items():
         # a missing frame listed by a stem that is a folder's name (images, or a folder in
@@ -488,6 +490,27 @@ def _listed_frames(path: Path, tab: dict[str, np.ndarray],
                 or (path.parent / "images" / frame).is_dir()):
             raise folder_row(path, line_no, row)
     return np.array(stamps, float), gone, [row for _, row in other]
+
+
+def _refuse_near_name(path: Path, image: Path,
+                      missing: dict[str, tuple[int, str, float]]) -> None:
+    """Refuse, naming its line, the frames.csv (``path``) row of a missing frame (``missing``:
+    frame -> line, row, stamp) whose name is ``image``'s stem but for letter case or Unicode
+    normalisation (A0.png for a0.png; café written NFD for an NFC file name): the image had
+    "no stamp" without a line (trial I), where the row was meant for it."""
+    import unicodedata
+
+    def nfc(text: str) -> str:
+        return unicodedata.normalize("NFC", text)
+
+    for frame, (line_no, row, _) in missing.items():
+        if nfc(frame).casefold() != nfc(image.stem).casefold():
+            continue
+        how = ("Unicode normalisation (NFC, NFD)" if nfc(frame) == nfc(image.stem) else
+               "letter case" if frame.casefold() == image.stem.casefold() else
+               "letter case and Unicode normalisation")
+        raise DatasetError(f"{path}: line {line_no}: '{row[:40]}' is no image in images/;"
+                           f" image {image.name[:40]} differs from it only in {how}")
 
 
 # a frame position as a user writes it: a whole number without leading zeros (a negative one
