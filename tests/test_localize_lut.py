@@ -523,6 +523,35 @@ def test_cli_localize_points_csv(omni_default_rendered, msl2015_map, tmp_path):
     assert (~p["failed"]).sum() >= 10 and np.median(pos) <= 0.2
 
 
+def test_cli_points_for_frames_named_by_timestamps(omni_default_rendered, msl2015_map,
+                                                   tmp_path):
+    """A team's points for a dataset of no images whose frames.csv names its frames by their
+    timestamps (``1687078170.100``): the ids are the frames' names as the dataset reads them,
+    not their stems (the rows' "1687078170" matched no id: "no frame id matches")."""
+    from click.testing import CliRunner
+
+    from fieldloc_cli.main import cli
+    from stages.common.features_file import FeaturesFile
+
+    _ds, features = omni_default_rendered
+    ds = tmp_path / "ds"
+    ds.mkdir()
+    names = ("1687078170.100", "1687078170.200")
+    (ds / "frames.csv").write_text("name,stamp\n" + "".join(
+        f"{n},{0.1 * i:.1f}\n" for i, n in enumerate(names)))
+    rows = ["frame,x,y"]
+    with FeaturesFile(features) as ff:
+        for n, frame in zip(names, ff.names):
+            rows += [f"{n},{x:.4f},{y:.4f}" for x, y in ff.frame(frame)["points"]]
+    points = tmp_path / "points.csv"
+    points.write_text("\n".join(rows) + "\n")
+    res = CliRunner().invoke(cli, ["localize", str(ds), "--map", str(msl2015_map), "--points",
+                                   str(points), "--heading", "histogram", "-o",
+                                   str(tmp_path / "p.h5")])
+    assert res.exit_code == 0, res.output
+    assert "2 frames" in res.output and "0 failed" in res.output
+
+
 def test_cli_errors_are_one_line(msl2015_map, tmp_path):
     from click.testing import CliRunner
 

@@ -271,7 +271,7 @@ class Dataset:
         suffix = self.images[0].suffix if self.images else ""
         for listed in self.missing:  # each frame once (open_dataset refuses one twice)
             # sorted by its file name, whatever folder the row names (images/ has none)
-            name, file = _frame_name(listed), row_file_name(listed)
+            name, file = row_frame_name(listed), row_file_name(listed)
             order.append((file if name != file else file + suffix, name, listed))
         order.sort()
         names = [name for _file, name, _listed in order]
@@ -400,7 +400,7 @@ def row_file_name(row: str) -> str:
     return re.split(r"[/\\]", row)[-1]
 
 
-def _frame_name(file_name: str) -> str:
+def row_frame_name(file_name: str) -> str:
     """The frame name of an image file name as frames.csv gives it (its stem; a name given
     without an image suffix is the frame name itself: 1687078170.100, f1.v2); a folder it
     names is no part of it (``row_file_name``)."""
@@ -474,7 +474,7 @@ def _listed_frames(path: Path, tab: dict[str, np.ndarray],
             _refuse_near_name(path, p, {f: v for f, v in listed.items() if f not in have})
             # a row of another kind of its stem (000001.jpg among PNG frames) is said
             near = next((f" (line {ln}'s '{r[:40]}' is a file of another kind)"
-                         for ln, r in other if _frame_name(r) == p.stem), "")
+                         for ln, r in other if row_frame_name(r) == p.stem), "")
             raise DatasetError(f"{path}: no stamp for image {p.name}{near}")
         line_no, row, stamp = listed[p.stem]
         if row_file_name(row) not in (p.name, p.stem):

@@ -68,7 +68,14 @@ import numpy as np
 
 from ..common.artifacts import check_output, file_hash, root_attrs
 from ..common.conf import KindPresets, check_bounds, registered_module, stage_conf
-from ..common.dataset import MAX_VALUE, STAMP_SOURCES, csv_rows, open_dataset, parse_number
+from ..common.dataset import (
+    MAX_VALUE,
+    STAMP_SOURCES,
+    csv_rows,
+    open_dataset,
+    parse_number,
+    row_frame_name,
+)
 from ..common.errors import DatasetError, FieldlocError
 from ..common.features_file import FeaturesFile
 from ..common.field import load_field
@@ -246,7 +253,9 @@ def _point_frames_in_dataset(path: Path, ids: list[str], dataset):
         frames = dataset.optional("frames")
         if frames is not None:
             for nm, s in zip(frames["name"], frames["stamp"]):
-                known.setdefault(Path(str(nm)).stem, float(s))
+                # the frame's name as the dataset reads the row (a stem with a dot, f1.v2,
+                # is a name, not f1 with a suffix; a folder before it is no part of it)
+                known.setdefault(row_frame_name(str(nm)), float(s))
     if not known:
         try:
             stamps = {i: float(i) for i in ids}
