@@ -84,11 +84,14 @@ def test_a_closed_pipe_ends_the_command_quietly(poses, tmp_path, args):
         assert (tmp_path / "rep" / "report.json").is_file()
 
 
-@pytest.mark.parametrize("args", [
+PICTURES = [
     ["show", "map", "{map}"],
     ["show", "points", "{ds}", "--frame", "1"],
     ["show", "hypotheses", "{poses}", "--frame", "1"],
-])
+]
+
+
+@pytest.mark.parametrize("args", PICTURES)
 def test_a_picture_to_standard_output_is_refused(poses, tmp_path, monkeypatch, args):
     """Trial I (I1): `show map M -o -` wrote a PNG file named `-` in the current folder (and
     a rerun said "- exists"), where `export -o -` writes to standard output. A picture is
@@ -104,3 +107,20 @@ def test_a_picture_to_standard_output_is_refused(poses, tmp_path, monkeypatch, a
         "fieldloc: error: -: a picture is written to a file, not to standard output; name a"
         " .png file (or .pdf, .svg, .jpg, .eps, .tif)\n"), r.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("args", PICTURES)
+def test_a_picture_to_standard_output_is_refused_before_a_file_named_so(poses, tmp_path,
+                                                                        monkeypatch, args):
+    """A file named `-` left by an older version (or the user's): the refusal still comes
+    first, before "- exists", and before anything is drawn; the file is left as it was."""
+    from click.testing import CliRunner
+
+    from fieldloc_cli.main import cli
+
+    values = {"poses": poses[0], "ds": poses[1], "map": poses[0].parent / "spl.map.h5"}
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "-").write_bytes(b"the user's")
+    r = CliRunner().invoke(cli, [*(str(a).format(**values) for a in args), "-o", "-"])
+    assert r.exit_code == 1 and "not to standard output" in r.stderr, r.stderr
+    assert (tmp_path / "-").read_bytes() == b"the user's"

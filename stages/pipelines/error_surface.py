@@ -33,7 +33,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..common.artifacts import check_output
 from ..common.camera import camera_can
 from ..common.conf import stage_conf
 from ..common.dataset import open_dataset, truth_at
@@ -180,11 +179,12 @@ def write_picture(conf, templates, queries, output, *, overwrite: bool = False,
                   progress: bool = False) -> tuple[Path, dict]:
     """``main``, returning the path and ``measure``'s result."""
     from ..show.error_surface import error_surface_figure
-    from ..show.figure import save_figure
+    from ..show.figure import check_picture_output, save_figure
 
     conf = _conf(conf)  # the conf before the inputs (the stage contract)
     ds = open_dataset(queries)
-    check_output(output, {**ds.files(), "templates": Path(templates)}, overwrite=overwrite)
+    check_picture_output(output, {**ds.files(), "templates": Path(templates)},
+                         overwrite=overwrite)
     m = measure(conf, templates, queries, progress=progress)
     return save_figure(error_surface_figure(m), output), m
 

@@ -16,7 +16,6 @@ import copy
 import math
 from pathlib import Path
 
-from ..common.artifacts import check_output
 from ..common.conf import check_bounds, stage_conf
 from ..common.dataset import frame_index, open_dataset, readable_truth, truth_at
 from ..common.errors import DatasetError, FieldlocError
@@ -28,7 +27,7 @@ from ..localize.observation_model import BOUNDS as OBSERVATION_BOUNDS
 from ..localize.observation_model import DEFAULTS as OBSERVATION_DEFAULTS
 from ..localize.observation_model import ObservationModel
 from ..show.belief import draw_belief
-from ..show.figure import new_figure, save_figure
+from ..show.figure import check_picture_output, new_figure, save_figure
 
 confs = {
     "default": {
@@ -108,8 +107,8 @@ def write_picture(conf: dict | str | None, dataset_dir: str | Path, map_path: st
     dataset_dir = Path(dataset_dir)
     if not dataset_dir.is_dir():
         raise DatasetError(f"dataset folder not found: {dataset_dir}")
-    check_output(output, {**open_dataset(dataset_dir, need_images=False).files(),
-                          "map": map_path, "features": features}, overwrite=overwrite)
+    check_picture_output(output, {**open_dataset(dataset_dir, need_images=False).files(),
+                                  "map": map_path, "features": features}, overwrite=overwrite)
     grid_conf = {"resolution": float(conf["resolution"]),
                  "heading_step": float(conf["heading_step"]), "margin": float(conf["margin"])}
     with MapFile(map_path) as mf:

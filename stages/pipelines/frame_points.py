@@ -16,11 +16,10 @@ import logging
 import math
 from pathlib import Path
 
-from ..common.artifacts import check_output
 from ..common.dataset import open_dataset, read_image, truth_at
 from ..common.errors import FieldlocError
 from ..common.features_file import FeaturesFile
-from ..show.figure import save_figure
+from ..show.figure import check_picture_output, save_figure
 from ..show.points import line_point_share, points_figure
 
 log = logging.getLogger(__name__)
@@ -62,8 +61,8 @@ def write_picture(conf, dataset_dir, output, *, frame: str | int = 0, features=N
     """``main``, returning the path and a summary of the frame drawn: its name, its number of
     line points, the pose used and the share of points near a line at that pose."""
     ds = open_dataset(dataset_dir)
-    check_output(output, {**ds.files(), "features": features, "map or field": field_file},
-                 overwrite=overwrite)
+    check_picture_output(output, {**ds.files(), "features": features,
+                                  "map or field": field_file}, overwrite=overwrite)
     if pose is not None and field is not None:
         check_pose(field, pose)
     i = ds.frame_at(frame)

@@ -11,7 +11,7 @@ from pathlib import Path
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from ..common.artifacts import WRITTEN_MARK, atomic_path, storable_text
+from ..common.artifacts import WRITTEN_MARK, atomic_path, check_output, storable_text
 from ..common.errors import FieldlocError
 
 
@@ -54,6 +54,18 @@ def _marked(fmt: str) -> dict:
     if fmt == "jpg":
         return {"pil_kwargs": {"comment": WRITTEN_MARK.encode()}}
     return {"pil_kwargs": {"description": WRITTEN_MARK}}  # tiff
+
+
+def check_picture_output(path: str | Path, inputs: dict | None, *, overwrite: bool) -> None:
+    """A picture's output checked before anything is drawn: ``-`` refused as a picture's
+    (``picture_format``), then the file rules (artifacts.check_output, with the command's
+    ``inputs``: an input named as the output is said as such first), then its format by the
+    suffix. Checked only at ``save_figure``, the refusal came after the drawing, and a file
+    named ``-`` left by an older version said "exists" first."""
+    if str(path) == "-":
+        picture_format(path)
+    check_output(path, inputs, overwrite=overwrite)
+    picture_format(path)
 
 
 def save_figure(fig: Figure, path: str | Path, dpi: int | None = None) -> Path:

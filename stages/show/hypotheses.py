@@ -13,7 +13,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..common.artifacts import check_output
 from ..common.conf import stage_conf
 from ..common.dataset import frame_index, readable_truth, truth_at
 from ..common.errors import FieldlocError
@@ -77,13 +76,14 @@ def main(conf: str | dict | None, poses: str | Path, output: str | Path, *,
     from ``field`` (default: the poses file's)."""
     from ..common.features_file import FeaturesFile
     from ..common.poses_file import read_poses, run_inputs
-    from .figure import new_figure, save_figure
+    from .figure import check_picture_output, new_figure, save_figure
 
     conf = stage_conf(confs, conf)
     output = Path(output)
     cols, attrs = read_poses(poses)
-    check_output(output, {"poses": poses, "features": features, "field": field_file(field),
-                          **run_inputs(attrs)}, overwrite=overwrite)
+    check_picture_output(output, {"poses": poses, "features": features,
+                                  "field": field_file(field), **run_inputs(attrs)},
+                         overwrite=overwrite)
     names = [str(n) for n in cols["name"]]
     i = frame_index(names, frame, str(poses))
     fm = poses_field(attrs, field)

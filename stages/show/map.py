@@ -12,13 +12,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..common.artifacts import check_output
 from ..common.conf import stage_conf
 from ..common.errors import FieldlocError
 from ..common.map_file import MapFile
 from ..common.scanlines import NO_HIT_MM
 from .field import draw_field
-from .figure import new_figure, save_figure
+from .figure import check_picture_output, new_figure, save_figure
 
 TABLES = ("distance", "radial", "spiral")
 
@@ -142,7 +141,7 @@ def main(conf: str | dict | None, map_path: str | Path, output: str | Path, *,
                             " one (give --table spiral)")
     table, cell, family = conf["table"], conf["cell"], conf["family"]
     heading, spirals = float(conf["heading"]), int(conf["spirals"])
-    check_output(output, {"map": map_path}, overwrite=overwrite)
+    check_picture_output(output, {"map": map_path}, overwrite=overwrite)
     if not math.isfinite(heading):
         raise FieldlocError(f"heading must be a finite angle, got {heading}")
     if cell is not None and not all(math.isfinite(v) for v in cell):
