@@ -527,13 +527,17 @@ def test_a_frame_is_listed_by_its_file_name_or_stem_in_any_folder(tmp_path, row,
     (".png", "names no frame: its file name has no stem before its suffix"),
     ("images\\.PNG", "names no frame: its file name has no stem before its suffix"),
     (".txt", "names no frame: its file name has no stem before its suffix"),
+    ("..png", "names a hidden file, which is no frame"),
+    (".thumb.png", "names a hidden file, which is no frame"),
+    ("images\\.x.png", "names a hidden file, which is no frame"),
 ])
 def test_a_row_naming_a_folder_or_no_stem_is_refused_naming_its_line(tmp_path, row, said):
     """Trial I (I3, I5): a row "images" (the images folder's name, without a slash) was a
     deleted frame "images", and a row ".png" (a hidden file images/.png beside it) a deleted
     frame ".png" at position 0: each took a frame position. A row whose stem is the images
     folder's name or a folder's in the dataset or in images/, or whose file name has no stem
-    before its suffix, is refused naming its line."""
+    before its suffix, is refused naming its line; so is a row naming a hidden file with a
+    stem (trial J: ".thumb.png" was a deleted frame ".thumb" that sorted first)."""
     root = _dataset(tmp_path / "ds", n=3)
     (root / "sub").mkdir()
     (root / "images" / "inner").mkdir()

@@ -124,3 +124,27 @@ def test_a_picture_to_standard_output_is_refused_before_a_file_named_so(poses, t
     r = CliRunner().invoke(cli, [*(str(a).format(**values) for a in args), "-o", "-"])
     assert r.exit_code == 1 and "not to standard output" in r.stderr, r.stderr
     assert (tmp_path / "-").read_bytes() == b"the user's"
+
+
+@pytest.mark.parametrize("args", [
+    ["build-map", "spl"],
+    ["simulate", "omni", "--field", "spl", "--frames", "1", "--seed", "1896"],
+    ["extract", "{ds}"],
+    ["localize", "{ds}", "--map", "{map}"],
+    ["evaluate", "{poses}"],
+])
+def test_an_output_named_standard_output_is_refused(poses, tmp_path, monkeypatch, args):
+    """Trial J (J2): `-o -` made extract, localize (and its `-.tum`), build-map, simulate and
+    evaluate write a file or folder named `-`; only export writes to standard output. Refused
+    in one line before any work, nothing written."""
+    from click.testing import CliRunner
+
+    from fieldloc_cli.main import cli
+
+    values = {"poses": poses[0], "ds": poses[1], "map": poses[0].parent / "spl.map.h5"}
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(cli, [*(str(a).format(**values) for a in args), "-o", "-"])
+    assert r.exit_code == 1 and r.stderr.startswith(
+        "fieldloc: error: -: this output is a file or folder, not standard output"), r.stderr
+    assert r.stderr.count("\n") == 1
+    assert list(tmp_path.iterdir()) == []

@@ -470,8 +470,14 @@ def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *
     - never a recording's own file (an image, odometry.csv, truth.csv, ... of any dataset
       folder; its calib.yaml only for ``kind="calibration"``, which is a file otherwise);
     - the folder it goes into must exist and be writable; a file output must not be a folder
-      and a folder output not a file.
+      and a folder output not a file;
+    - never ``-``: standard output, which only export writes to (before this check); taken
+      as a name, a file or folder called ``-`` was written (trial J: extract, localize,
+      build-map, simulate, evaluate).
     """
+    if str(path) == "-":  # standard output: only export writes there, before this check
+        raise error("-: this output is a file or folder, not standard output (`fieldloc export"
+                    " -o -` writes poses there); name a file or folder")
     path = Path(path)
     refuse_inputs(path, inputs, kind=kind, error=error)
     _refuse_dataset_files(path, kind, error)

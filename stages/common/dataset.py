@@ -168,6 +168,12 @@ def read_csv(path: str | Path, kind: str) -> dict[str, np.ndarray]:
                 # "images/.png.png cannot be read" (trial I)
                 raise DatasetError(f"{path}: line {line_no}: '{nm[:40]}' names no frame: its"
                                    " file name has no stem before its suffix")
+            if file.startswith("."):
+                # a hidden file (..png, .thumb.png) is never a frame (the images' listing
+                # skips them): taken for a deleted frame ".thumb", it sorted first and
+                # shifted every position (trial J)
+                raise DatasetError(f"{path}: line {line_no}: '{nm[:40]}' names a hidden file,"
+                                   " which is no frame")
     return out
 
 
