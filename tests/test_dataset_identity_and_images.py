@@ -598,3 +598,31 @@ def test_a_zero_padded_number_is_a_name_never_a_position(n, pad):
             frame_index(names, written, "d")
     if n < len(names):
         assert frame_index(names, str(n), "d") == n  # a plain number is a position
+
+
+def test_two_images_whose_names_differ_only_in_unicode_form_are_refused(tmp_path):
+    """Trial J (J3): café.png written NFC and NFD (two files on Linux) were two frames
+    "café" in every table, which no one could tell apart: refused as two images of one
+    frame, saying how their names differ."""
+    root = tmp_path / "ds"
+    (root / "images").mkdir(parents=True)
+    for name in ("caf\u00e9.png", "cafe\u0301.png"):
+        cv2.imwrite(str(root / "images" / name), _rgb(3))
+    with pytest.raises(DatasetError, match=r"differ only in Unicode form\); rename or remove one"):
+        open_dataset(root)
+
+
+@pytest.mark.parametrize("file, typed", [("cafe\u0301", "caf\u00e9"), ("caf\u00e9", "cafe\u0301")])
+def test_a_frame_typed_in_another_unicode_form_is_found(tmp_path, file, typed):
+    """Trial J (J4): `--frame café` typed NFC for a file whose name is NFD (as macOS writes
+    them) said "no frame named 'café'" though every listing printed café: the frame a user's
+    --frame names (Dataset.frame_at, show points and show belief's reading) is found by the
+    name's composed form."""
+    root = tmp_path / "ds"
+    (root / "images").mkdir(parents=True)
+    for name in (file, "z0"):
+        cv2.imwrite(str(root / "images" / f"{name}.png"), _rgb(3))
+    ds = open_dataset(root)
+    assert ds.names[ds.frame_at(typed)] == file
+    with pytest.raises(DatasetError, match="no frame named"):
+        ds.frame_at("cafe")

@@ -36,6 +36,7 @@ import math
 import os
 import re
 import stat
+import unicodedata
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -360,17 +361,21 @@ def open_dataset(root: str | Path, *, need_images: bool = True) -> Dataset:
         raise DatasetError(f"{root}: no images ({IMAGE_KINDS}) in {img_dir}")
     from .artifacts import storable_text
 
-    by_stem: dict[str, Path] = {}
+    by_stem: dict[str, Path] = {}  # by the stem's NFC form (``nfc``)
     for p in images:
         if storable_text(p.name) != p.name:
             raise DatasetError(
                 f"{img_dir}: image file name {storable_text(p.name)[:40]} is not UTF-8 text;"
                 " frame names are written as text into every artifact: rename it")
-        if p.stem in by_stem:
+        # two stems that differ only in Unicode normalisation (café NFC and NFD) print alike:
+        # two frames "café" in every table could not be told apart (trial J)
+        other = by_stem.get(nfc(p.stem))
+        if other is not None:
+            alike = "" if other.stem == p.stem else " (their names differ only in Unicode form)"
             raise DatasetError(
-                f"{img_dir}: {by_stem[p.stem].name} and {p.name} would both be frame"
-                f" '{p.stem}'; rename or remove one")
-        by_stem[p.stem] = p
+                f"{img_dir}: {other.name[:40]} and {p.name[:40]} would both be frame"
+                f" '{p.stem[:40]}'{alike}; rename or remove one")
+        by_stem[nfc(p.stem)] = p
     frames = root / "frames.csv"
     gone: tuple[str, ...] = ()
     if present(frames):
@@ -394,6 +399,11 @@ def open_dataset(root: str | Path, *, need_images: bool = True) -> Dataset:
 # the frames.csv files whose frames of other image kinds were said (open_dataset): a command
 # opens its dataset more than once
 _SAID_OTHER_KINDS: set[str] = set()
+
+
+def nfc(text: str) -> str:
+    """``text`` in Unicode's composed form (NFC): names that print alike compare alike."""
+    return unicodedata.normalize("NFC", text)
 
 
 def row_file_name(row: str) -> str:
@@ -504,11 +514,6 @@ def _refuse_near_name(path: Path, image: Path,
     frame -> line, row, stamp) whose name is ``image``'s stem but for letter case or Unicode
     normalisation (A0.png for a0.png; café written NFD for an NFC file name): the image had
     "no stamp" without a line (trial I), where the row was meant for it."""
-    import unicodedata
-
-    def nfc(text: str) -> str:
-        return unicodedata.normalize("NFC", text)
-
     for frame, (line_no, row, _) in missing.items():
         if nfc(frame).casefold() != nfc(image.stem).casefold():
             continue
@@ -534,6 +539,11 @@ def frame_index(names: list[str], frame: str | int, where: str) -> int:
     frame = str(frame)
     if frame in names:
         return names.index(frame)
+    # typed in another Unicode form than the file's (café NFC for an NFD file name, as macOS
+    # writes them): the name every listing prints, not found (trial J)
+    alike = [k for k, n in enumerate(names) if nfc(n) == nfc(frame)]
+    if len(alike) == 1:
+        return alike[0]
     if not POSITION.fullmatch(frame):  # 000001, +1, " 1": a name, never a position
         raise DatasetError(f"{where}: no frame named '{frame[:40]}'")
     i = int(frame)
