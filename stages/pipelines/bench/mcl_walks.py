@@ -45,9 +45,7 @@ IMU_SIGMA = 0.2  # rad: imu_heading_sigma of the rows with the IMU heading (docs
 def _run(preset: str, field: str, seed: int, conf: dict, tag: str, frames: int = WALK_FRAMES):
     """(frame errors, frame errors up to the mirror, CPU s) of mcl on one held-out walk of
     ``frames`` frames."""
-    from ... import localize
     from ...common.dataset import read_csv
-    from ...common.poses_file import read_poses
     from ...evaluate.metrics import frame_errors
 
     inp = rendered_inputs("perspective", field, frames, seed, preset)
@@ -58,13 +56,21 @@ def _run(preset: str, field: str, seed: int, conf: dict, tag: str, frames: int =
     if conf.get("start_side") == "given":  # the touch line the walk enters from
         conf["start_side"] = "left" if truth["y"][0] > 0 else "right"
     out = work_dir() / f"walk-mcl-{preset}-{seed}-{frames}-{tag}.poses.h5"
-    t0 = time.process_time()
-    localize.main(conf, inp["data"], inp["map"], out, features=inp["features"],
-                  overwrite=True)
-    cpu = time.process_time() - t0
-    cols, _ = read_poses(out)
+    cols, cpu = _localised(conf, inp["data"], inp["map"], inp["features"], out)
     return (frame_errors(cols, truth, 0.02), frame_errors(cols, truth, 0.02, up_to_mirror=True),
             cpu)
+
+
+def _localised(conf: dict, data, map_path, features, out: Path) -> tuple[dict, float]:
+    """The poses columns of ``localize.main`` (``conf``) on the dataset ``data`` written to
+    ``out``, and its CPU time (s)."""
+    from ... import localize
+    from ...common.poses_file import read_poses
+
+    t0 = time.process_time()
+    localize.main(conf, data, map_path, out, features=features, overwrite=True)
+    cpu = time.process_time() - t0
+    return read_poses(out)[0], cpu
 
 
 def _pooled(runs, first: int, mirror: bool) -> dict:
@@ -217,6 +223,8 @@ def _spliced(a: Path, b: Path, out: Path, cut: float) -> Path:
     and the record of ``a``."""
     import shutil
 
+    from ...common.dataset import csv_rows
+
     if out.exists():
         return out
     part = out.with_name(out.name + ".part")
@@ -228,17 +236,15 @@ def _spliced(a: Path, b: Path, out: Path, cut: float) -> Path:
     sides = ((a, lambda t: t < cut), (b, lambda t: t >= cut))
     for csv in sorted(p.name for p in a.glob("*.csv")):
         col = 1 if csv == "frames.csv" else 0  # the stamp's column
-        header, rows = None, []
+        rows = []
         for src, keep in sides:
-            lines = (src / csv).read_text().splitlines()
-            header = lines[0]
-            kept = [r for r in lines[1:] if keep(float(r.split(",")[col]))]
+            header, *body = [cells for _line, cells in csv_rows(src / csv)]
+            kept = [cells for cells in body if keep(float(cells[col]))]
             rows += kept
             if csv == "frames.csv":
-                for r in kept:
-                    name = r.split(",")[0]
-                    shutil.copy2(src / "images" / name, part / "images" / name)
-        (part / csv).write_text("\n".join([header, *rows]) + "\n")
+                for cells in kept:
+                    shutil.copy2(src / "images" / cells[0], part / "images" / cells[0])
+        (part / csv).write_text("".join(",".join(c) + "\n" for c in [header, *rows]))
     part.rename(out)
     return out
 
@@ -247,9 +253,8 @@ def _kidnap_run(preset: str, field: str, a: int, b: int) -> dict:
     """mcl with the CLI's defaults on walks ``a`` and ``b`` spliced at KIDNAP_FRAME: whether
     and when the robot is found again (FOUND_RUN frames in a row accepted within 40 cm), the
     frames accepted more than 1 m off after the kidnap, the frames within 40 cm before it."""
-    from ... import extract, localize
+    from ... import extract
     from ...common.dataset import read_csv
-    from ...common.poses_file import read_poses
     from ...evaluate.metrics import frame_errors
 
     ia = rendered_inputs("perspective", field, WALK_FRAMES, a, preset)
@@ -258,11 +263,7 @@ def _kidnap_run(preset: str, field: str, a: int, b: int) -> dict:
     data = _spliced(Path(ia["data"]), Path(ib["data"]),
                     work_dir() / f"kidnap-{preset}-{a}-{b}", float(stamps[KIDNAP_FRAME]))
     feats = extract.main(None, data, data / "features.h5", overwrite=True)
-    out = data / "poses.h5"
-    t0 = time.process_time()
-    localize.main({"method": "mcl"}, data, ia["map"], out, features=feats, overwrite=True)
-    cpu = time.process_time() - t0
-    cols, _ = read_poses(out)
+    cols, cpu = _localised({"method": "mcl"}, data, ia["map"], feats, data / "poses.h5")
     f = frame_errors(cols, read_csv(data / "truth.csv", "truth"), 0.02)
     good = f.accepted & (f.position_error <= 0.4)
     after = np.arange(len(good)) >= KIDNAP_FRAME
