@@ -497,15 +497,18 @@ def _listed_frames(path: Path, tab: dict[str, np.ndarray],
             raise DatasetError(f"{path}: line {line_no}: '{row[:40]}' is no image in images/;"
                                f" frame {p.stem[:40]}'s image is {p.name[:40]}")
         stamps.append(stamp)
-    gone = tuple(row for frame, (_, row, _) in listed.items() if frame not in have)
+    gone = []
     for frame, (line_no, row, _) in listed.items():
+        if frame in have:
+            continue
         # a missing frame listed by a stem that is a folder's name (images, or a folder in
         # the dataset) is that folder: a row "images" was a deleted frame "images" (trial I)
-        if frame not in have and frame == row_file_name(row) and (
+        if frame == row_file_name(row) and (
                 frame == "images" or (path.parent / frame).is_dir()
                 or (path.parent / "images" / frame).is_dir()):
             raise folder_row(path, line_no, row)
-    return np.array(stamps, float), gone, [row for _, row in other]
+        gone.append(row)
+    return np.array(stamps, float), tuple(gone), [row for _, row in other]
 
 
 def _refuse_near_name(path: Path, image: Path,
