@@ -499,11 +499,17 @@ def test_a_row_of_another_kind_beside_a_frame_of_its_stem_takes_no_position(tmp_
 @pytest.mark.parametrize("row, said", [
     ("images/000001.png", None), ("sub/000001.png", None), ("images/000001", None),
     ("images\\000001.png", None), ("a/b\\000001", None),  # trial I: a Windows folder
+    ("C:000001.png", None), ("c:000001", None),  # trial J: a Windows drive, no separator
+    ("C:images\\000001.png", None), ("D:\\rec\\000001.png", None),
     ("000001.PNG", "line 3: '000001.PNG' is no image in images/; frame 000001's image is"
                    " 000001.png"),
     ("images/000001.jpg", "no stamp for image 000001.png (line 3's 'images/000001.jpg' is a"
                           " file of another kind)"),
-    ("000009.png", "no stamp for image 000001.png"),
+    # trial J: a row that names no image is named with the image no row lists
+    ("000009.png", "no stamp for image 000001.png (no row lists it; line 3's '000009.png'"
+                   " names no image in images/, a deleted frame)"),
+    ("C|000001.png", "no stamp for image 000001.png (no row lists it; line 3's"
+                     " 'C|000001.png' names no image"),
 ])
 def test_a_frame_is_listed_by_its_file_name_or_stem_in_any_folder(tmp_path, row, said):
     """Trial H (H7): a row images/000000.png for an existing image gave "no stamp for image
@@ -520,10 +526,23 @@ def test_a_frame_is_listed_by_its_file_name_or_stem_in_any_folder(tmp_path, row,
             open_dataset(root)
 
 
+def test_an_image_no_row_lists_names_the_row_that_names_its_stem(tmp_path):
+    """Trial J (J6): of the rows that name no image, the message of an image no row lists
+    names the one whose frame holds the image's stem, not merely the first: with deleted
+    frames listed before it, that is the row meant for the image."""
+    root = _dataset(tmp_path / "ds", n=3)
+    text = (root / "frames.csv").read_text().replace("000001.png", "cam0|000001.png")
+    (root / "frames.csv").write_text(text.replace("000000.png,", "000009.png,0.01\n000000.png,"))
+    with pytest.raises(DatasetError, match=re.escape(
+            "no stamp for image 000001.png (no row lists it; line 4's 'cam0|000001.png'")):
+        open_dataset(root)
+
+
 @pytest.mark.parametrize("row, said", [
     ("images", "names a folder, not a frame's image"),
     ("sub", "names a folder, not a frame's image"),
     ("cam\\inner", "names a folder, not a frame's image"),
+    ("C:", "names a folder, not a frame's image"),
     (".png", "names no frame: its file name has no stem before its suffix"),
     ("images\\.PNG", "names no frame: its file name has no stem before its suffix"),
     (".txt", "names no frame: its file name has no stem before its suffix"),

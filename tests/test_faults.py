@@ -1739,6 +1739,15 @@ def _i_rows_in_images_backslash(ds):
     frames.write_text("\n".join([head, *(f"images\\{r}" for r in rows)]) + "\n")
 
 
+def _j_rows_on_drive_c(ds):
+    """Every frames.csv row of ``ds`` as C:<file name> (a Windows drive-relative path, no
+    separator): each was a deleted frame C:000000 .., and image 000000.png had "no stamp"
+    naming no line (trial J)."""
+    frames = ds / "frames.csv"
+    head, *rows = frames.read_text().splitlines()
+    frames.write_text("\n".join([head, *(f"C:{r}" for r in rows)]) + "\n")
+
+
 def _i_hidden_image_listed(w, ws):
     """ws/omni with a hidden file images/.png (a copy of 000000.png) and a frames.csv row
     .png after frame 000000's: it was a deleted frame ".png" at position 0 (trial I)."""
@@ -3418,6 +3427,16 @@ CASES = [
          ["extract", "{ds}", "-o", W + "/f.h5"], 1,
          "frames.csv: line 2: 'A0.png' is no image in images/; image a0.png differs from it"
          " only in letter case", setup=_with_ds("omni", _i_image_listed_in_another_case)),
+    # ---- s60 group J: output folders that are recordings, drive letters in rows (trial J)
+    Case("extract of a dataset whose frames.csv lists every image as C:000000.png ..",
+         "newcomer", ["extract", "{ds}", "-o", W + "/f.h5"], 0, "",
+         setup=_with_ds("omni", _j_rows_on_drive_c), check=_check_frames_extracted(4)),
+    Case("extract of a dataset whose frames.csv lists 000001.png as cam0|000001.png",
+         "newcomer", ["extract", "{ds}", "-o", W + "/f.h5"], 1,
+         "frames.csv: no stamp for image 000001.png (no row lists it; line 3's"
+         " 'cam0|000001.png' names no image in images/, a deleted frame)",
+         setup=_with_ds("omni", lambda ds: edit_csv(ds / "frames.csv", 3,
+                                                    "cam0|000001.png,0.100000"))),
 ]
 
 

@@ -406,14 +406,21 @@ def nfc(text: str) -> str:
     return unicodedata.normalize("NFC", text)
 
 
+# the folder part of a frames.csv row: all up to its last / or \\, or a leading Windows drive
+# letter (C:000001.png is 000001.png in drive C's current folder)
+ROW_FOLDER = re.compile(r"^(?:.*[/\\]|[A-Za-z]:)", re.DOTALL)
+
+
 def row_file_name(row: str) -> str:
-    """The file name a frames.csv row gives: all after its last ``/`` or ``\\``; the folder
-    before it is no part of it (the frames are the files in images/). A backslash is a folder
+    """The file name a frames.csv row gives: all after its folder part (``ROW_FOLDER``), which
+    is no part of it (the frames are the files in images/). A backslash is a folder
     separator too, of a frames.csv written on Windows (``images\\000001.png``): Path(row).name
     does not split at it on Linux, and a deleted ``cam\\000001.png`` became a missing frame
     named ``cam\\000001`` that sorted last, so that ``--frame 1`` drew frame 000002 (trial
-    I)."""
-    return re.split(r"[/\\]", row)[-1]
+    I). So is a leading drive letter without a separator (``C:000001.png``, Windows' name of
+    a file in drive C's current folder): read whole, it was a deleted frame ``C:000001``, and
+    the image 000001.png had "no stamp" naming no line (trial J)."""
+    return ROW_FOLDER.sub("", row, count=1)
 
 
 def row_frame_name(file_name: str) -> str:
@@ -491,7 +498,8 @@ def _listed_frames(path: Path, tab: dict[str, np.ndarray],
             # a row of another kind of its stem (000001.jpg among PNG frames) is said
             near = next((f" (line {ln}'s '{r[:40]}' is a file of another kind)"
                          for ln, r in other if row_frame_name(r) == p.stem), "")
-            raise DatasetError(f"{path}: no stamp for image {p.name}{near}")
+            raise DatasetError(f"{path}: no stamp for image {p.name}"
+                               f"{near or _unmatched_row(listed, have, p.stem)}")
         line_no, row, stamp = listed[p.stem]
         if row_file_name(row) not in (p.name, p.stem):
             raise DatasetError(f"{path}: line {line_no}: '{row[:40]}' is no image in images/;"
@@ -509,6 +517,23 @@ def _listed_frames(path: Path, tab: dict[str, np.ndarray],
             raise folder_row(path, line_no, row)
         gone.append(row)
     return np.array(stamps, float), tuple(gone), [row for _, row in other]
+
+
+def _unmatched_row(listed: dict[str, tuple[int, str, float]], have: set[str],
+                   stem: str) -> str:
+    """What the message of an image no frames.csv row lists (stem ``stem``) says of the rows
+    that name no image (``listed``: frame -> line, row, stamp; ``have``: the images' stems):
+    the line of one, the first whose frame's name holds ``stem`` (cam0-000001.png for
+    000001.png) or else the first, since it may be the row meant for the image; nothing where
+    every row names an image. A row read as a deleted frame that no image matched ended in
+    "no stamp for image ..." naming no line (trial J: C:000000.png)."""
+    rows = sorted((stem not in frame, line_no, row) for frame, (line_no, row, _)
+                  in listed.items() if frame not in have)
+    if not rows:
+        return ""
+    _, line_no, row = rows[0]
+    return (f" (no row lists it; line {line_no}'s '{row[:40]}' names no image in images/, a"
+            " deleted frame)")
 
 
 def _refuse_near_name(path: Path, image: Path,
