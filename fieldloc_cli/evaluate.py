@@ -89,6 +89,10 @@ def evaluate(ctx, inputs, truth, output, field, table_only, preset, stamp_tolera
     from stages.common.conf import resolve_conf
 
     conf = resolve_conf(stage.confs, preset, over)
+    if output is not None and len(inputs) > 1:  # the folder of the reports' folders: no
+        from stages.common.artifacts import check_output  # recording's, before any report
+
+        check_output(output, None, overwrite=None, kind="folder")
     outs = report_dirs(list(inputs), output)
     done = []
     for poses, out in zip(inputs, outs):

@@ -1748,6 +1748,37 @@ def _j_rows_on_drive_c(ds):
     frames.write_text("\n".join([head, *(f"C:{r}" for r in rows)]) + "\n")
 
 
+def _j_recording(held: str):
+    """ws/rec, a recording: a copy of the shared omni dataset (``held`` "frames.csv"), or a
+    folder holding only images/ with one frame (``held`` "images/"); a batch SPEC of the
+    shared omni dataset and a copy b.h5 of the shared poses beside it."""
+    def setup(w, ws):
+        _copy(w["poses"], ws / "b.h5")
+        (ws / "spec.yaml").write_text(f"map: {w['map']}\ndatasets: [{{path: {w['omni']}}}]\n"
+                                      "methods: [lut]\n")
+        if held == "frames.csv":
+            return {"rec": copy_dataset(w, "omni", ws)}
+        (ws / "rec" / "images").mkdir(parents=True)
+        _copy(Path(w["omni"]) / "images" / "000000.png", ws / "rec" / "images" / "000000.png")
+        return {"rec": ws / "rec"}
+    return setup
+
+
+def _j_poses_in_dataset(w, ws):
+    """ws/omni, a copy of the shared dataset, with the shared run's poses.h5 in it."""
+    ds = copy_dataset(w, "omni", ws)
+    _copy(w["poses"], ds / "poses.h5")
+    return {"ds": ds}
+
+
+def _check_report_beside_the_poses(paths, res):
+    """evaluate without -o wrote its report into a new folder beside the poses file, and no
+    file among the recording's own."""
+    ds = Path(paths["ds"])
+    assert (ds / "poses-eval" / "report.json").is_file()
+    assert not any((ds / n).exists() for n in ("report.json", "errors.csv", "plots"))
+
+
 def _i_hidden_image_listed(w, ws):
     """ws/omni with a hidden file images/.png (a copy of 000000.png) and a frames.csv row
     .png after frame 000000's: it was a deleted frame ".png" at position 0 (trial I)."""
@@ -3437,6 +3468,23 @@ CASES = [
          " 'cam0|000001.png' names no image in images/, a deleted frame)",
          setup=_with_ds("omni", lambda ds: edit_csv(ds / "frames.csv", 3,
                                                     "cam0|000001.png,0.100000"))),
+    *[Case(f"{what} -o a recording's folder (it holds {held})", "silent",
+           [*args, "{rec}"], 1, f"is a recording (holds {held}); name another folder for"
+           " the outputs", setup=_j_recording(held))
+      for held in ("frames.csv", "images/")
+      for what, args in (
+          ("evaluate", ["evaluate", "{poses}", "--truth", "{omni}", "-o"]),
+          ("evaluate --overwrite", ["evaluate", "{poses}", "--truth", "{omni}", "--overwrite",
+                                    "-o"]),
+          ("evaluate of two poses files", ["evaluate", "{poses}", W + "/b.h5", "--truth",
+                                           "{omni}", "-o"]),
+          ("batch", ["batch", W + "/spec.yaml", "--serial", "-o"]),
+          ("extract --debug-images", ["extract", "{omni}", "-o", W + "/f.h5",
+                                      "--debug-images"]))],
+    Case("evaluate without -o of poses.h5 in a dataset folder", "silent",
+         ["evaluate", "{ds}/poses.h5", "--truth", "{omni}"], 0,
+         "poses-eval (beside the poses file; -o to choose)", setup=_j_poses_in_dataset,
+         check=_check_report_beside_the_poses),
 ]
 
 

@@ -13,7 +13,8 @@ temporary file's 0600, so teammates can read shared maps.
 
 ``check_output`` is the one rule every command applies to what it writes: never one of its own
 inputs (with ``--overwrite`` or without), never an existing file without ``--overwrite``, with
-it only a file fieldloc wrote (``fieldloc_wrote``), and a folder that exists and is writable.
+it only a file fieldloc wrote (``fieldloc_wrote``), a folder that exists and is writable, and
+no folder output that is a recording's (but for the commands that write recordings whole).
 It also records, per output, whether the final rename may replace what it then finds there
 (``may_replace``): an output that did not exist when a run checked it without ``--overwrite``
 is committed without replacing (``commit_file``, ``commit_dir``), so of two runs writing one
@@ -457,7 +458,7 @@ def _refuse_edited_record(path: Path, error: type[FieldlocError]) -> None:
 def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *,
                  overwrite: bool | None = False, kind: str = "file",
                  error: type[FieldlocError] = FieldlocError,
-                 ours=fieldloc_wrote) -> Path:
+                 ours=fieldloc_wrote, recording: bool = False) -> Path:
     """Check an output path before any work is done, and return it as a Path.
 
     - never one of the command's ``inputs`` (role -> path, or an iterable of paths; None
@@ -473,7 +474,10 @@ def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *
       and a folder output not a file;
     - never ``-``: standard output, which only export writes to (before this check); taken
       as a name, a file or folder called ``-`` was written (trial J: extract, localize,
-      build-map, simulate, evaluate).
+      build-map, simulate, evaluate);
+    - a folder output is never a recording's folder (``_refuse_recording_folder``), but for
+      a command that writes recordings whole (``recording``: simulate, the importers, whose
+      own rules replace only a recording they wrote).
     """
     if str(path) == "-":  # standard output: only export writes there, before this check
         raise error("-: this output is a file or folder, not standard output (`fieldloc export"
@@ -481,6 +485,8 @@ def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *
     path = Path(path)
     refuse_inputs(path, inputs, kind=kind, error=error)
     _refuse_dataset_files(path, kind, error)
+    if kind == "folder" and not recording:
+        _refuse_recording_folder(path, error)
     if kind == "calibration":
         kind = "file"
     try:
@@ -669,6 +675,22 @@ def _refuse_dataset_files(path: Path, kind: str, error: type[FieldlocError]) -> 
                         " never written over, --overwrite or not: choose another output")
 
 
+def _refuse_recording_folder(path: Path, error: type[FieldlocError]) -> None:
+    """No folder output (reports, batch results, overlays) is a recording's folder, one that
+    holds frames.csv or an images/ folder (what stages.common.dataset opens as a dataset), nor
+    its images/: a recording is a user's input, and ``evaluate -o DATASET`` wrote its report,
+    errors.csv and plots/ among the recording's files (trial J)."""
+    if not path.is_dir():
+        return
+    for folder in (path, path.parent) if path.name == "images" else (path,):
+        held = ("frames.csv" if os.path.lexists(folder / "frames.csv") else
+                "images/" if (folder / "images").is_dir() else None)
+        if held is not None:
+            what = "" if folder == path else f"the images of {folder}, "
+            raise error(f"{path} is {what}a recording (holds {held}); name another folder for"
+                        " the outputs")
+
+
 def check_importer_target(output: Path, inputs: Mapping[str, object], overwrite: bool, *,
                           record: str, generator: str,
                           error: type[FieldlocError] = FieldlocError) -> None:
@@ -681,7 +703,7 @@ def check_importer_target(output: Path, inputs: Mapping[str, object], overwrite:
     refused), so that a user's file added to the folder, or one of the importer's files
     edited since, is never deleted."""
     restore_interrupted_replacement(output)  # a folder a killed replacement moved aside
-    check_output(output, inputs, overwrite=None, kind="folder", error=error)
+    check_output(output, inputs, overwrite=None, kind="folder", error=error, recording=True)
     if not (output.is_dir() and any(output.iterdir())):
         return
     if not overwrite:

@@ -609,7 +609,7 @@ def _check_target(output: Path, bag, calib, overwrite: bool) -> None:
     folder (the whole folder is replaced, so anything else in it would be lost)."""
     source = bag_paths(bag)[0]
     check_output(output, {"bag": [Path(bag), source], "calibration": calib}, overwrite=None,
-                 kind="folder")
+                 kind="folder", recording=True)
     if source.is_dir() and output.resolve().is_relative_to(source.resolve()):
         raise FieldlocError(f"{output} lies inside the bag folder {source}: choose an output"
                             " outside it")

@@ -372,7 +372,8 @@ def _dataset_files(folder: Path) -> list[str]:
 
 
 def _check_target(output_dir: Path, overwrite: bool, field_file: Path | None):
-    check_output(output_dir, {"field YAML": field_file}, overwrite=None, kind="folder")
+    check_output(output_dir, {"field YAML": field_file}, overwrite=None, kind="folder",
+                 recording=True)
     if output_dir.is_dir() and any(output_dir.iterdir()):
         if not overwrite:
             raise FieldlocError(
