@@ -3485,6 +3485,18 @@ CASES = [
          ["evaluate", "{ds}/poses.h5", "--truth", "{omni}"], 0,
          "poses-eval (beside the poses file; -o to choose)", setup=_j_poses_in_dataset,
          check=_check_report_beside_the_poses),
+    # ---- s60 trial K
+    *[Case(f"bench --from-json whose rows are {what}", kind,
+           ["bench", "--from-json", W + "/b.json"], 1,
+           f"b.json: not a bench --json file ({why})", setup=_setup_number_file("b.json", text))
+      for what, kind, text, why in (
+        ("a mapping", "traceback", '{"rows": {"a": 1}}', "no list of rows"),
+        ("a string", "traceback", '{"rows": "abc"}', "no list of rows"),
+        ("a list of numbers", "traceback", '{"rows": [1, 2]}', "row 0: not an object"),
+        ("named by a number", "silent", '{"rows": [{"name": 5, "median_ms": 1}]}',
+         "row 0: name is not text"),
+        ("timed in text", "silent", '{"rows": [{"name": "a", "median_ms": "x"}]}',
+         "row 0: median_ms is not a number"))],
 ]
 
 
