@@ -3497,6 +3497,13 @@ CASES = [
          "row 0: name is not text"),
         ("timed in text", "silent", '{"rows": [{"name": "a", "median_ms": "x"}]}',
          "row 0: median_ms is not a number"))],
+    *[Case(f"build-map {opt} {value}", kind,
+           ["build-map", "spl", opt, value, "--resolution", "1", "-o", W + "/m.h5"], 1,
+           f"conf '{key}' must be {low} and <= {high}, got {value}")
+      for opt, key, value, kind, low, high in (
+        ("--max-range", "max_range", "1e+308", "traceback", "> 0", 50),
+        ("--max-range", "max_range", "1000000.0", "silent", "> 0", 50),
+        ("--border", "border", "1e+308", "traceback", ">= 0", 10))],
 ]
 
 

@@ -12,13 +12,13 @@ import time
 from pathlib import Path
 
 from ..common.artifacts import check_output, root_attrs, text_hash
-from ..common.conf import stage_conf
+from ..common.conf import check_bounds, stage_conf
 from ..common.crossing_tables import crossing_association_tables
 from ..common.errors import FieldlocError
 from ..common.field import FieldModel, field_file, load_field
 from ..common.map_file import MAX_RESOLUTION, SCHEMA, VERSION, Grid, write_map
 from ..common.resources import check_memory
-from ..common.scanlines import ScanLines
+from ..common.scanlines import MAX_RANGE_M, ScanLines
 from . import tables
 
 log = logging.getLogger(__name__)
@@ -32,6 +32,16 @@ confs = {
         "spiral_end_radius": 2.0,  # m, spiral radius after one full turn
     },
 }
+
+# m: the widest world margin around the field a map covers. A robot stands on the field or
+# the floor strip around it (1 m in MSL's rules, up to ~2 m in a lab); 10 m holds any hall
+# around a field, while 1e308 m overflows the grid's cell count before memory is checked
+MAX_BORDER_M = 10.0
+
+# the ranges a conf's values must lie in for the tables to be built at all
+# (common.conf.check_bounds): the scan lines' ranges are extract's (common.scanlines)
+BOUNDS = {"border": (0, MAX_BORDER_M), "max_range": ((0,), MAX_RANGE_M),
+          "spiral_end_radius": ((0,), MAX_RANGE_M)}
 
 # peak memory of building the tables per world cell (measured: spl at 5 and 2.5 cm, 4.5 KB)
 BYTES_PER_CELL = 4.6e3
@@ -57,6 +67,7 @@ def check_conf(conf: dict) -> None:
         raise FieldlocError(f"resolution {conf['resolution']:g} m is coarser than"
                             f" {MAX_RESOLUTION:g} m: a map places the robot no better than its"
                             " cells, and cells that size cover a goal area's lines in one")
+    check_bounds(conf, BOUNDS)
     scanlines_of(conf).check()
 
 

@@ -29,6 +29,11 @@ import numpy as np
 from .errors import FieldlocError
 
 NO_HIT_MM = 65535  # uint16 marker for "no crossing" in the tables
+# m: the farthest a scan line (radial or spiral) may reach, for build-map and extract alike.
+# A camera on a robot resolves field lines a few metres away; 50 m is past the diagonal of
+# the largest league field (MSL, 22 x 14 m: 26 m) plus its border, so no real range is
+# refused, while 1e308 m would overflow the tables' cell arithmetic
+MAX_RANGE_M = 50.0
 
 
 @dataclass(frozen=True)

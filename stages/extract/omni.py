@@ -62,7 +62,7 @@ import numpy as np
 
 from ..common import colour
 from ..common.jit import njit
-from ..common.scanlines import ScanLines
+from ..common.scanlines import MAX_RANGE_M, ScanLines
 
 _SL = ScanLines()
 
@@ -123,7 +123,8 @@ def former_layout() -> dict:
 # ranges are colour.BOUNDS: a pair given one number unpacks into nothing)
 BOUNDS = {**{f"colour.{k}": colour.BOUNDS[k] for k in USER_COLOUR_KEYS},
           "scanlines.robot_radius": (0, None),
-          "scanlines.max_range": ((0,), 50.0), "scanlines.spiral_end_radius": ((0,), 50.0),
+          "scanlines.max_range": ((0,), MAX_RANGE_M),
+          "scanlines.spiral_end_radius": ((0,), MAX_RANGE_M),
           "points_radial_lines": (0, 3600),
           # a line's white run is centimetres deep (blooming on real frames: up to ~0.6 m)
           "max_white_m": ((0,), 5.0)}
