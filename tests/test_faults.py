@@ -3504,6 +3504,20 @@ CASES = [
         ("--max-range", "max_range", "1e+308", "traceback", "> 0", 50),
         ("--max-range", "max_range", "1000000.0", "silent", "> 0", 50),
         ("--border", "border", "1e+308", "traceback", ">= 0", 10))],
+    *[Case(f"{what} a FIFO: not a regular file, not 'not found'", "silent", args, 1,
+           f"/{name} is not a regular file (a device, pipe or socket)",
+           setup=_setup_special(name))
+      for what, name, args in (
+        ("batch SPEC", "s.yaml", ["batch", W + "/s.yaml", "-o", W + "/b", "--serial"]),
+        ("calibrate omni POINTS", "p.csv",
+         ["calibrate", "omni", W + "/p.csv", "-o", W + "/c.yaml", "--image-size", "480", "480",
+          "--valid-radius", "40", "230", "--centre", "240", "240"]),
+        ("localize --points", "p.csv",
+         ["localize", "{omni}", "--map", "{map}", "--points", W + "/p.csv", "-o", W + "/p.h5"]),
+        ("calibrate --from-cnc", "c.conf",
+         ["calibrate", "omni", "--from-cnc", W + "/c.conf", "-o", W + "/c.yaml"]),
+        ("evaluate --table", "report.json",
+         ["evaluate", "--table", W + "/report.json"]))],
 ]
 
 

@@ -5,6 +5,7 @@ the extracted points against the team's own white pixels, and a global localisat
 
 import json
 import math
+import os
 import re
 from pathlib import Path
 
@@ -129,6 +130,32 @@ def test_bad_team_files_are_one_line_errors(tmp_path):
     res, _ = _calibrate(tmp_path, _write_team(tmp_path / "t2"), "--centre", "1", "2")
     assert res.exit_code == 1 and "not with --from-nubot" in res.output
     assert "Traceback" not in res.output
+
+
+@pytest.mark.parametrize("kind", ["fifo", "link loop"])
+@pytest.mark.parametrize("name", ["ROI.xml", "mirror_calib.xml"])
+def test_a_team_file_that_is_no_regular_file_is_refused_not_taken_as_absent(tmp_path, name,
+                                                                             kind):
+    """A FIFO or a link to itself as ROI.xml was taken as no ROI.xml (a calib.yaml of the
+    model's whole ring written, exit 0), as mirror_calib.xml said "not found"."""
+    team = _write_team(tmp_path / "team")
+    (team / name).unlink()
+    if kind == "fifo":
+        os.mkfifo(team / name)
+    else:
+        (team / name).symlink_to(name)
+    res, out = _calibrate(tmp_path, team)
+    assert res.exit_code == 1 and not out.exists()
+    assert f"{name}" in res.output and "not a regular file" in res.output, res.output
+    assert len(res.output.strip().splitlines()) == 1
+
+
+def test_without_roi_the_extrapolation_warning_is_said_once(tmp_path, caplog):
+    res, out = _calibrate(tmp_path, _write_team(tmp_path / "team", roi=False),
+                          "--image-size", "480", "480")
+    assert res.exit_code == 0, res.output
+    said = [r for r in caplog.records if "is extrapolated there" in r.getMessage()]
+    assert len(said) == 1
 
 
 # ---------------------------------------------------------------------------- real frame

@@ -77,7 +77,7 @@ from ..common.camera import (
 )
 from ..common.conf import stage_conf
 from ..common.dataset import IMAGE_SUFFIXES, csv_rows, parse_number, read_image, read_mask
-from ..common.errors import FieldlocError, present
+from ..common.errors import FieldlocError, check_file, present
 from . import cnc as _cnc
 from . import line_images as _line_images
 from . import nubot as _nubot
@@ -166,8 +166,7 @@ class PairSource(NamedTuple):
 def read_points(path) -> tuple[np.ndarray, np.ndarray]:
     """(radius_px, distance_m) from a CSV with the header ``radius_px,distance_m``."""
     path = Path(path)
-    if not path.is_file():
-        raise CalibrationError(f"calibration points not found: {path}")
+    check_file(path, "calibration points", CalibrationError)
     rows = csv_rows(path)
     if not rows:
         raise CalibrationError(f"{path}: empty; expected a header '{','.join(COLUMNS)}'")
@@ -210,9 +209,10 @@ def leave_one_out(radius_px, distance_m) -> np.ndarray:
 
 def fit(conf: dict, radius_px, distance_m, *, centre, image_size, valid_radius=None,
         forward_angle: float = math.pi / 2, mirrored: bool = False,
-        where: str = "calibration points", source=None) -> CalibrationFit:
+        where: str = "calibration points", source=None, warn: bool = True) -> CalibrationFit:
     """Fit f(r) to the pairs with the conf's model and check it; returns the camera and the
-    residuals. ``valid_radius`` None: the radii of the first and last pair used."""
+    residuals. ``valid_radius`` None: the radii of the first and last pair used. ``warn``
+    False: no warning logged (a fit made again by the caller logs them once)."""
     model = conf.get("model", "polynomial")
     if model not in MODELS:
         raise CalibrationError(f"unknown model '{model}' (polynomial or table)")
@@ -254,7 +254,7 @@ def fit(conf: dict, radius_px, distance_m, *, centre, image_size, valid_radius=N
         residuals = np.zeros(len(r))
         loo = leave_one_out(r, d)
         radial = {"polynomial": None, "radial_table": np.stack([r, d], axis=1)}
-    if rmax > r.max() + 1e-9 or rmin < r.min() - 1e-9:
+    if warn and (rmax > r.max() + 1e-9 or rmin < r.min() - 1e-9):
         log.warning(
             "valid radius %g..%g px reaches beyond the measured radii %g..%g px: f(r) is"
             " extrapolated there", rmin, rmax, r.min(), r.max(),
@@ -527,7 +527,8 @@ def from_nubot(conf: dict | str | None, nubot_dir, output, *, image_size=None,
                  kind="calibration", error=CalibrationError)
     nconf = conf["nubot"]
     mirror = _nubot.read_mirror(folder / _nubot.MIRROR_XML)
-    roi = _nubot.read_roi(folder / _nubot.ROI_XML) if (folder / _nubot.ROI_XML).is_file() \
+    # a ROI.xml that is no regular file is refused, not taken as absent (present)
+    roi = _nubot.read_roi(folder / _nubot.ROI_XML) if present(folder / _nubot.ROI_XML) \
         else None
     sources = {"nubot": str(folder), "mirror_calib_hash": file_hash(mirror.path)}
     if roi is not None:
@@ -554,7 +555,8 @@ def from_nubot(conf: dict | str | None, nubot_dir, output, *, image_size=None,
     rest = {k: v for k, v in conf.items() if k != "nubot"}
     rest["nubot"] = nconf
     geometry = MirrorGeometry(mirror.centre, image_size, vr, 0.0, True)
-    fitted = fit(rest, r, d, **geometry._asdict(), where=str(mirror.path))
+    # _calibrate fits the same pairs again and warns: this fit only measures the model's gap
+    fitted = fit(rest, r, d, **geometry._asdict(), where=str(mirror.path), warn=False)
     extra["model_fit"] = _nubot.model_fit(fitted.camera, mirror, nconf)
     pairs = PairSource(r, d, _nubot.MIRROR_XML, str(mirror.path), sources, extra)
     return _calibrate(rest, pairs, output, geometry)

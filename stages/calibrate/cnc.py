@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common.dataset import parse_number
-from ..common.errors import FieldlocError
+from ..common.errors import FieldlocError, check_file
 
 CONF_NAME = "CarpetCalibrator.conf"
 IMAGE_NAME = "CarpetCalibImage.png"
@@ -77,8 +77,7 @@ class CarpetRings:
 def read_distances(path) -> np.ndarray:
     """The ring distances (m, increasing, without the centre's 0) of a CarpetCalibrator.conf."""
     path = Path(path)
-    if not path.is_file():
-        raise CncCalibrationError(f"CNC calibration file not found: {path}")
+    check_file(path, "CNC calibration file", CncCalibrationError)
     try:
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as e:

@@ -46,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..common.errors import FieldlocError
+from ..common.errors import FieldlocError, check_file
 from ..common.user_numbers import parse_number
 
 MIRROR_XML = "mirror_calib.xml"
@@ -101,8 +101,7 @@ class NubotRoi:
 
 
 def _storage(path: Path, what: str) -> dict[str, str]:
-    if not path.is_file():
-        raise NubotCalibrationError(f"NuBot {what} not found: {path}")
+    check_file(path, f"NuBot {what}", NubotCalibrationError)
     try:
         root = ET.parse(path).getroot()
     except (ET.ParseError, OSError) as e:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import errno
+import os
 from pathlib import Path
 
 
@@ -46,6 +48,16 @@ def shown(value, limit: int = 60) -> str:
     return s if len(s) <= limit else s[:limit - 3] + "..."
 
 
+def _link_loop(path: Path) -> bool:
+    """Whether ``path`` is a symbolic link that leads back to itself (Path.exists says False
+    for it, as for nothing at all)."""
+    try:
+        os.stat(path)
+    except OSError as e:
+        return e.errno == errno.ELOOP
+    return False
+
+
 def file_problem(path) -> str | None:
     """Why ``path`` is no file to read, in a message's words ("not found", "is a folder", "is
     not a regular file ..."), or None for a regular file: /dev/null was "not found"."""
@@ -56,16 +68,33 @@ def file_problem(path) -> str | None:
         return "is a folder"
     if path.exists():
         return "is not a regular file (a device, pipe or socket)"
+    if _link_loop(path):
+        return "is not a regular file (a symbolic link loop)"
     return "not found"
+
+
+def check_file(path, what: str, error: type[FieldlocError] = FieldlocError) -> Path:
+    """``path`` if it is a regular file to read; else ``error``: "<what> not found: <path>"
+    when nothing is there, "<what>: <path> is not a regular file ..." for a FIFO, a device,
+    a folder or a link loop (a FIFO was reported "not found": the wrong reason; reading it
+    would block)."""
+    why = file_problem(path)
+    if why is None:
+        return Path(path)
+    if why == "not found":
+        raise error(f"{what} not found: {path}")
+    raise error(f"{what}: {path} {why}")
 
 
 def present(path) -> bool:
     """Whether a dataset file is there (``path``: a pathlib.Path): True for a regular file,
-    False when nothing is at ``path``; anything else (a FIFO, a socket, a device, a folder) is
-    a DatasetError, not an absent file (a FIFO would block its read forever; taking it as
-    absent would run on silently without the odometry, the IMU or the stamps it names)."""
+    False when nothing is at ``path``; anything else (a FIFO, a socket, a device, a folder, a
+    link loop) is a DatasetError, not an absent file (a FIFO would block its read forever;
+    taking it as absent would run on silently without the odometry, the IMU or the stamps it
+    names)."""
     if path.is_file():
         return True
-    if not path.exists():  # nothing there, or a link to nothing
+    if not path.exists() and not _link_loop(path):  # nothing there, or a link to nothing
         return False
-    raise DatasetError(f"{path}: not a regular file (a pipe, socket, device or folder)")
+    raise DatasetError(f"{path}: not a regular file (a pipe, socket, device, folder or link"
+                       " loop)")

@@ -39,7 +39,7 @@ from .artifacts import (
     starts_with,
     writing,
 )
-from .errors import DiskFullError, FieldlocError, SchemaError
+from .errors import DiskFullError, FieldlocError, SchemaError, check_file, file_problem
 from .stops import raise_deferred_stop
 
 SCHEMA = "fieldloc.report"
@@ -291,9 +291,9 @@ def load_report(path: str | Path, *, raw: bool = False) -> dict:
     """Read a report folder or report.json, checking the schema. Numbers decoded (inf, NaN)
     unless ``raw``."""
     p = report_path(path)
-    if not p.is_file():
-        where = f"no {REPORT_NAME} in folder {path}" if Path(path).is_dir() else f"{p}"
-        raise FieldlocError(f"report not found: {where}")
+    if Path(path).is_dir() and file_problem(p) == "not found":
+        raise FieldlocError(f"report not found: no {REPORT_NAME} in folder {path}")
+    check_file(p, "report")
     try:
         data = json.loads(p.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as e:  # nested deep

@@ -76,7 +76,7 @@ from ..common.dataset import (
     parse_number,
     row_frame_name,
 )
-from ..common.errors import DatasetError, FieldlocError
+from ..common.errors import DatasetError, FieldlocError, check_file
 from ..common.features_file import FeaturesFile
 from ..common.field import load_field
 from ..common.map_file import MapFile
@@ -205,8 +205,7 @@ class PointFrames:
 
 
 def _read_points_csv(path: Path) -> list[tuple[str, float, float]]:
-    if not path.is_file():
-        raise DatasetError(f"points file not found: {path}")
+    check_file(path, "points file", DatasetError)
     rows = csv_rows(path)
     if not rows or [h.strip() for h in rows[0][1]] != ["frame", "x", "y"]:
         found = ",".join(h.strip() for h in rows[0][1])[:80] if rows else "nothing"

@@ -84,7 +84,7 @@ from .. import evaluate, extract, localize, simulate
 from ..common.artifacts import file_hash, text_hash
 from ..common.camera import camera_can
 from ..common.conf import check_bounds, load_yaml, parse_overrides, resolve_conf, stage_conf
-from ..common.errors import FieldlocError, shown
+from ..common.errors import FieldlocError, check_file, shown
 from ..common.map_file import MapFile
 
 TOP_KEYS = ("field", "map", "build_map", "datasets", "extract", "evaluate", "templates",
@@ -219,8 +219,7 @@ class _Where:
 def read_spec(spec_path: str | Path, results: str | Path) -> Plan:
     """The plan of the SPEC at ``spec_path`` for the results folder ``results`` (module doc)."""
     spec_path = Path(spec_path)
-    if not spec_path.is_file():
-        raise FieldlocError(f"SPEC not found: {spec_path}")
+    check_file(spec_path, "SPEC")
     try:
         data = load_yaml(spec_path.read_text())
     except (yaml.YAMLError, UnicodeDecodeError) as e:
