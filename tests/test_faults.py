@@ -3518,6 +3518,17 @@ CASES = [
          ["calibrate", "omni", "--from-cnc", W + "/c.conf", "-o", W + "/c.yaml"]),
         ("evaluate --table", "report.json",
          ["evaluate", "--table", W + "/report.json"]))],
+    *[Case(f"extract of a dataset whose simulation.yaml is {what}: run, and said", "silent",
+           ["extract", "{ds}", "-o", W + "/f.h5"], 0,
+           f"simulation.yaml: ignored, the field it records is not read ({why}",
+           setup=setup)
+      for what, why, setup in (
+        ("not YAML", "not YAML: line 2",
+         _with_ds("omni", _write("simulation.yaml", b"{{{ not yaml\n"))),
+        ("an alias bomb", "not YAML: line 2",
+         _with_ds("omni", _write("simulation.yaml",
+                                 f"field: spl\nnotes: {ALIAS_BOMB}\n".encode()))),
+        ("a FIFO", "is not a regular file", _setup_fifo_file("simulation.yaml")))],
 ]
 
 

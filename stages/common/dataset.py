@@ -42,9 +42,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .conf import load_yaml
+from .conf import load_yaml, yaml_problem
 from .dataset_layout import CSV_COLUMNS, CSV_OPTIONAL_COLUMNS, OWN_FILES, SIMULATION_RECORD
-from .errors import DatasetError, present
+from .errors import DatasetError, file_problem, present
 from .user_numbers import parse_number, user_numbers
 
 # the image files that are frames: PNG and JPEG (what import and simulate write), and the
@@ -310,15 +310,27 @@ class Dataset:
         """The field the dataset was recorded on, where the dataset says so: the ``field``
         (name) and ``field_size`` ([length, width], m; newer datasets) of simulation.yaml, the
         record ``fieldloc simulate`` writes. {} when the dataset does not say; a size that is
-        not two finite numbers > 0 is refused (DatasetError)."""
+        not two finite numbers > 0 is refused (DatasetError). A record that cannot be read
+        (no regular file, not YAML, an alias bomb) is {} with one warning naming it and why:
+        the record only names the field, the run needs it not."""
         p = self.root / SIMULATION_RECORD
-        if not p.is_file():
+        why = file_problem(p)
+        if why == "not found":
             return {}
         import yaml
 
         try:
-            d = load_yaml(p.read_text())
-        except (OSError, UnicodeDecodeError, yaml.YAMLError):
+            if why is not None:  # a FIFO would block the read
+                raise OSError(why)
+            text = p.read_text()
+            d = load_yaml(text)
+        except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
+            if isinstance(e, yaml.YAMLError):
+                reason = f"not YAML: {yaml_problem(e, text)}"
+            else:
+                reason = "not UTF-8 text" if isinstance(e, UnicodeDecodeError) else \
+                    e.strerror or str(e)
+            log.warning("%s: ignored, the field it records is not read (%s)", p, reason[:100])
             return {}
         if not isinstance(d, dict) or not isinstance(d.get("field"), str):
             return {}
