@@ -3529,6 +3529,11 @@ CASES = [
          _with_ds("omni", _write("simulation.yaml",
                                  f"field: spl\nnotes: {ALIAS_BOMB}\n".encode()))),
         ("a FIFO", "is not a regular file", _setup_fifo_file("simulation.yaml")))],
+    Case("simulate -o a folder in a missing folder: the missing folder named, not a part",
+         "newcomer", ["simulate", "omni", "--field", "spl", "--frames", "1", "-o",
+                      W + "/sp ace/\u00fc"], 1, "/sp ace/\u00fc: folder ",
+         check=lambda paths, res: res.stderr.rstrip().endswith("/sp ace does not exist")
+         or pytest.fail(res.stderr)),
 ]
 
 

@@ -1051,6 +1051,20 @@ def atomic_path(path: str | Path, suffix: str | None = None):
             tmp.unlink()
 
 
+def part_dir(path: Path) -> Path:
+    """A new temporary folder beside the folder output ``path`` (its part, tagged with our
+    pid), to be renamed onto ``path`` when complete. The folder ``path`` goes in must exist
+    and be writable: refused in one line naming that folder (the part's name is no name the
+    user gave)."""
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise FieldlocError(f"cannot write {path}: folder {parent} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise FieldlocError(f"cannot write {path}: folder {parent} is not writable")
+    prefix, suffix = part_name(path, ".part")
+    return Path(tempfile.mkdtemp(prefix=prefix, suffix=suffix, dir=parent))
+
+
 @contextlib.contextmanager
 def atomic_dir(path: str | Path, *, overwrite: bool = False):
     """Yield a temporary folder beside ``path``; on success it replaces ``path`` (an existing
@@ -1064,14 +1078,8 @@ def atomic_dir(path: str | Path, *, overwrite: bool = False):
     if path.is_dir() and any(path.iterdir()) and not overwrite:
         raise FieldlocError(f"folder {path} exists and is not empty (use --overwrite to"
                             " replace it)")
-    parent = path.parent if str(path.parent) else Path(".")
-    if not parent.is_dir():
-        raise FieldlocError(f"cannot write {path}: folder {parent} does not exist")
-    if not os.access(parent, os.W_OK):
-        raise FieldlocError(f"cannot write {path}: folder {parent} is not writable")
     remove_stale_parts(path)  # those of killed runs (tagged with their pid, as this one is)
-    prefix, suffix = part_name(path, ".part")
-    tmp = Path(tempfile.mkdtemp(prefix=prefix, suffix=suffix, dir=parent))
+    tmp = part_dir(path)
     try:
         with writing(path):
             yield tmp

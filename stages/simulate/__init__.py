@@ -61,7 +61,6 @@ import logging
 import math
 import re
 import shutil
-import tempfile
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -74,7 +73,7 @@ from ..common.artifacts import (
     check_output,
     commit_dir,
     give_default_mode,
-    part_name,
+    part_dir,
     record_text,
     refuse_edited,
     remove_stale_parts,
@@ -683,8 +682,7 @@ def main(conf: str | dict | None, field, output_dir, *, overwrite: bool = False,
     odo = sensors.odometry(path.poses, conf["odometry"], rng_odo, collisions)
     yaw = sensors.imu_yaw(path.poses, path.stamps, conf["imu"], rng_imu, collisions)
 
-    prefix, suffix = part_name(output_dir, ".part")
-    tmp = Path(tempfile.mkdtemp(prefix=prefix, suffix=suffix, dir=output_dir.parent))
+    tmp = part_dir(output_dir)
     try:
         # a full disk is reported as the output's, not its temporary folder's
         with writing(output_dir):
