@@ -2092,7 +2092,9 @@ CASES = [
     Case("localize DIR -o DIR/features.h5 --overwrite, the features it would reuse",
          "data-lost", ["localize", W + "/omni", "--map", "{map}", "-o",
                        W + "/omni/features.h5", "--overwrite"], 1,
-         "is an input of this command (features)", setup=_setup_own_features),
+         # refused as a features file before the reuse of DIR/features.h5 is decided
+         "features.h5 is a fieldloc.features file, not a fieldloc.poses",
+         setup=_setup_own_features),
     Case("inspect report.json", "newcomer", ["inspect", "{omni}/runs/r/report.json"], 0,
          "schema fieldloc.report"),
     Case("inspect a FIFO", "hang", ["inspect", W + "/pipe.h5"], 1, "not a regular file",
@@ -3534,6 +3536,16 @@ CASES = [
                       W + "/sp ace/\u00fc"], 1, "/sp ace/\u00fc: folder ",
          check=lambda paths, res: res.stderr.rstrip().endswith("/sp ace does not exist")
          or pytest.fail(res.stderr)),
+    *[Case(f"{args[0]} -o a {found} file --overwrite: not its own kind, kept", "data-lost",
+           [*args, "-o", W + "/x.h5", "--overwrite"], 1,
+           f"x.h5 is a fieldloc.{found} file, not a fieldloc.{schema}; --overwrite replaces only"
+           " its own kind", setup=lambda w, ws, found=found: _copy(w[found], ws / "x.h5"))
+      for args, found, schema in (
+        (["build-templates", "{omni}"], "map", "templates"),
+        (["build-map", "spl", "--resolution", "1"], "poses", "map"),
+        (["localize", "{omni}", "--map", "{map}", "--features", "{features}"], "map", "poses"),
+        (["build-templates", "{omni}"], "features", "templates"),
+        (["extract", "{omni}"], "poses", "features"))],
 ]
 
 

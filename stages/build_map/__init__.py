@@ -115,7 +115,7 @@ def main(conf: str | dict | None, field: str | Path | FieldModel, output: str | 
     ``conf``: a preset name, None, or a dict of values replacing the default preset's."""
     conf = stage_conf(confs, conf)
     yaml_file = None if isinstance(field, FieldModel) else field_file(field)
-    output = check_output(output, {"field": yaml_file}, overwrite=overwrite)
+    output = check_output(output, {"field": yaml_file}, overwrite=overwrite, schema=SCHEMA)
     fm = field if isinstance(field, FieldModel) else load_field(field)
     grid, sl, tabs = build_tables(fm, conf)
     attrs = root_attrs(SCHEMA, VERSION, conf=conf,

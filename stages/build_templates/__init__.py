@@ -107,7 +107,7 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path, *
     min_features = int(conf["min_features"])
     ds = open_dataset(dataset_dir)
     output = Path(output)
-    check_output(output, ds.files(), overwrite=overwrite)
+    check_output(output, ds.files(), overwrite=overwrite, schema=SCHEMA)
     camera = ds.camera()
     if not camera_can(camera.kind, "ground_image"):
         raise FieldlocError(f"{ds.root}: a '{camera.kind}' camera; templates are made from"

@@ -458,7 +458,8 @@ def _refuse_edited_record(path: Path, error: type[FieldlocError]) -> None:
 def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *,
                  overwrite: bool | None = False, kind: str = "file",
                  error: type[FieldlocError] = FieldlocError,
-                 ours=fieldloc_wrote, recording: bool = False) -> Path:
+                 ours=fieldloc_wrote, recording: bool = False,
+                 schema: str | None = None) -> Path:
     """Check an output path before any work is done, and return it as a Path.
 
     - never one of the command's ``inputs`` (role -> path, or an iterable of paths; None
@@ -467,7 +468,10 @@ def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *
     - an existing output needs ``overwrite`` (``overwrite=None``: the caller decides itself),
       and even then a file is replaced only where ``ours(path)`` says fieldloc wrote it
       (``fieldloc_wrote``; a format without the mark passes its own test): never a user's
-      file that happens to have the output's name;
+      file that happens to have the output's name; given the ``schema`` the command writes,
+      nor a fieldloc HDF5 artifact of another schema (a map under a features file's name is
+      no earlier run of this command: build-templates -o msl.map.h5 --overwrite replaced the
+      map);
     - never a recording's own file (an image, odometry.csv, truth.csv, ... of any dataset
       folder; its calib.yaml only for ``kind="calibration"``, which is a file otherwise);
     - the folder it goes into must exist and be writable; a file output must not be a folder
@@ -499,6 +503,11 @@ def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *
     if overwrite and kind == "file" and path.is_file() and not ours(path):
         raise error(f"{path} was not written by fieldloc: --overwrite replaces only fieldloc's"
                     " own outputs, never a user's file; choose another output")
+    if overwrite and schema is not None and kind == "file" and path.is_file():
+        found = _hdf5_schema(path)
+        if found in HDF5_SCHEMAS and found != schema:
+            raise error(f"{path} is a {found} file, not a {schema}; --overwrite replaces only"
+                        " its own kind: choose another output")
     found = path.exists() and (kind == "file" or not path.is_dir() or any(path.iterdir()))
     if found and (overwrite is None or kind != "file"):
         _note_decision(path, True)  # the caller's own rules decided (folders, companions)

@@ -277,7 +277,7 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
     # without --overwrite an existing output is resumed (_check_resumable decides); with it,
     # only a file fieldloc wrote is replaced, never a user's file of the output's name
     check_output(output, {**ds.files(), "calibration": ds.calib_path},
-                 overwrite=True if overwrite else None)
+                 overwrite=True if overwrite else None, schema=SCHEMA)
     if debug_images is not None:
         debug_images = _check_debug_folder(Path(debug_images), ds)
 

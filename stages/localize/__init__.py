@@ -330,7 +330,7 @@ def check_run(conf: dict | str | None, dataset_dir: str | Path, map_path: str | 
     dataset = open_dataset(dataset_dir, need_images=False)
     inputs_given = {**dataset.files(), "map": map_path, "features": features, "points": points,
                     "templates": templates}
-    check_output(output, inputs_given, overwrite=overwrite)
+    check_output(output, inputs_given, overwrite=overwrite, schema=SCHEMA)
     check_tum_output(output, inputs_given, overwrite)
     series = {k: dataset.optional(k) for k in ("odometry", "imu", "truth")}  # refused if bad
     method_module(conf["method"])
