@@ -3546,6 +3546,9 @@ CASES = [
         (["localize", "{omni}", "--map", "{map}", "--features", "{features}"], "map", "poses"),
         (["build-templates", "{omni}"], "features", "templates"),
         (["extract", "{omni}"], "poses", "features"))],
+    Case("evaluate spl poses against a kidsize dataset's truth: said", "silent",
+         ["evaluate", "{poses}", "--truth", "{kid}", "-o", W + "/r"], 0,
+         "poses on field 'spl' scored against"),
 ]
 
 

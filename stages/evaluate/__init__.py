@@ -37,7 +37,7 @@ from stages.common.artifacts import (
     written_files,
 )
 from stages.common.conf import check_bounds, stage_conf
-from stages.common.dataset import read_csv
+from stages.common.dataset import open_dataset, read_csv
 from stages.common.errors import FieldlocError
 from stages.common.field import field_file, load_field
 from stages.common.poses_file import read_poses
@@ -171,6 +171,20 @@ def _truth_path(truth, attrs: dict, poses: Path) -> Path:
     return truth
 
 
+def _truth_on_another_field(attrs: dict, truth: Path) -> str | None:
+    """The field the truth's dataset records (its simulation.yaml) where it is not the poses'
+    (their map's): poses of one dataset scored against another's truth, which the errors
+    alone do not show (trial K229). None where either does not say."""
+    ours = attrs.get("field")
+    if not ours:
+        return None
+    try:
+        recorded = open_dataset(truth.parent, need_images=False).field_record().get("name")
+    except FieldlocError:  # truth.csv outside a dataset folder: nothing recorded to compare
+        return None
+    return recorded if recorded and recorded != ours else None
+
+
 def main(conf: str | dict | None, poses, truth, output_dir, *, overwrite: bool = False,
          field=None, progress: bool = False, draw=None) -> Path:
     """Evaluate ``poses`` (poses.h5) against ``truth`` (truth.csv, or a dataset folder holding
@@ -241,6 +255,10 @@ def main(conf: str | dict | None, poses, truth, output_dir, *, overwrite: bool =
     why = start_half_contradicted(fe, attrs, max(conf["thresholds"], default=0.4))
     if why:
         log.warning("%s: %s", poses, why)
+    other = _truth_on_another_field(attrs, truth)
+    if other:
+        log.warning("%s: poses on field '%s' scored against %s, of a dataset recorded on field"
+                    " '%s': is it this run's truth?", poses, attrs["field"], truth, other)
 
     from .export import write_truth_tum  # truth.tum: evo_ape tum truth.tum poses.tum
 
