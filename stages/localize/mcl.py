@@ -210,9 +210,7 @@ class ParticleFilter:
         self._start_keep = 0  # a dense start: the particles its first observations keep
         self._known_start = False  # a placement or pose start whose belief is still wide
         self.start_half: StartHalf | None = None  # a uniform start's given half
-        hx, hy = self.field.length / 2, self.field.width / 2
-        m = float(WORLD_MARGIN)
-        self.bounds = (-hx - m, hx + m, -hy - m, hy + m)
+        self.bounds = world_bounds(self.field)
         self.clusters = Clustering(self.bounds, float(CLUSTER_RADIUS), float(CLUSTER_HEADING))
         self.rivals = Rivals(model, self.clusters, self.bounds)
         self.new_poses = NewPoses(model, PosePlacer(model, self.bounds), self.bounds,
@@ -504,6 +502,21 @@ def _camera_height(dataset) -> float | None:
     return float(h) if h is not None and math.isfinite(h) and h > 0 else None
 
 
+def world_bounds(field) -> tuple[float, float, float, float]:
+    """(x0, x1, y0, y1): the field and WORLD_MARGIN around it, where particles may lie."""
+    hx, hy = field.length / 2 + float(WORLD_MARGIN), field.width / 2 + float(WORLD_MARGIN)
+    return (-hx, hx, -hy, hy)
+
+
+def observation_model(conf: dict, dataset, map_file) -> ObservationModel:
+    """The observation model of ``conf`` (a resolved preset) on ``map_file``, with the camera's
+    height from the dataset's calibration where the conf leaves it open."""
+    obs_conf = dict(conf["observation"])
+    if obs_conf["camera_height"] is None:
+        obs_conf["camera_height"] = _camera_height(dataset)
+    return ObservationModel.from_map(map_file, obs_conf)
+
+
 def run(conf: dict, dataset, features, map_file, progress=None) -> PoseTrack:
     """Localise every frame of ``features`` (stages.common.features_file.FeaturesFile, with
     perspective features) on ``map_file`` (stages.common.map_file.MapFile) with the odometry of
@@ -519,10 +532,7 @@ def run(conf: dict, dataset, features, map_file, progress=None) -> PoseTrack:
             f"{features.path}: features of a '{kind}' camera; --method mcl needs perspective"
             " features (lines, crossings, goal posts)")
     check_conf(conf)
-    obs_conf = dict(conf["observation"])
-    if obs_conf["camera_height"] is None:
-        obs_conf["camera_height"] = _camera_height(dataset)
-    model = ObservationModel.from_map(map_file, obs_conf)
+    model = observation_model(conf, dataset, map_file)
     odometry = dataset.optional("odometry") if dataset is not None else None
     stamps = np.asarray(features.stamps, float)
     increments, _has = motion_model.accumulate_odometry(odometry, stamps)
