@@ -34,6 +34,7 @@ _TABLE: dict[str, tuple[str, str, tuple]] = {
     "mcl-smooth-walks": ("mcl_walks", "smooth_rows", ()),
     "mcl-side-walks": ("mcl_walks", "side_rows", ()),
     "mcl-kidnap-walks": ("mcl_walks", "kidnap_rows", ()),
+    "mcl-walks-bound": ("mcl_walks", "bound_rows", ()),
     "surf-speed": ("features", "bench_surf_speed", ()),
     "surf-quality": ("features", "bench_feature_quality", ()),
     "lut-tracked-frame": ("hypotheses", "bench_lut_tracked_frame", ()),

@@ -50,15 +50,21 @@ def _run(preset: str, field: str, seed: int, conf: dict, tag: str, frames: int =
 
     inp = rendered_inputs("perspective", field, frames, seed, preset)
     truth = read_csv(Path(inp["data"]) / "truth.csv", "truth")
-    conf = dict(conf, method="mcl")
-    if conf.get("start_half") == "given":
-        conf["start_half"] = "own" if truth["x"][0] < 0 else "opponent"
-    if conf.get("start_side") == "given":  # the touch line the walk enters from
-        conf["start_side"] = "left" if truth["y"][0] > 0 else "right"
+    conf = _given(dict(conf, method="mcl"), truth)
     out = work_dir() / f"walk-mcl-{preset}-{seed}-{frames}-{tag}.poses.h5"
     cols, cpu = _localised(conf, inp["data"], inp["map"], inp["features"], out)
     return (frame_errors(cols, truth, 0.02), frame_errors(cols, truth, 0.02, up_to_mirror=True),
             cpu)
+
+
+def _given(conf: dict, truth: dict) -> dict:
+    """``conf`` with a start_half or start_side of "given" replaced by the walk's own (the
+    half and the touch line of the truth's first pose, as a team knows them)."""
+    if conf.get("start_half") == "given":
+        conf["start_half"] = "own" if truth["x"][0] < 0 else "opponent"
+    if conf.get("start_side") == "given":  # the touch line the walk enters from
+        conf["start_side"] = "left" if truth["y"][0] > 0 else "right"
+    return conf
 
 
 def _localised(conf: dict, data, map_path, features, out: Path) -> tuple[dict, float]:
@@ -300,4 +306,82 @@ def kidnap_rows(repeat: int) -> list[Row]:
             cpu_ms=1e3 * float(np.median([r["cpu"] for r in runs])), repeats=1, note=note,
             extra={"found": len(found), "recordings": len(runs), "wrong": sum(wrong),
                    "median_found": float(np.median(found)) if found else math.nan}))
+    return out
+
+
+def _decidable(preset: str, field: str, seed: int, conf: dict) -> np.ndarray:
+    """Per frame of one held-out walk, whether start_bound finds it decidable with mcl's
+    defaults (``conf`` overrides them): from the placement, or from a uniform start (up to
+    the mirror without ``start_half``)."""
+    from ...common.dataset import open_dataset, read_csv
+    from ...common.features_file import FeaturesFile
+    from ...common.map_file import MapFile
+    from ...common.observations import Observations
+    from ...localize import mcl, resolve_localize_conf, start_bound
+
+    inp = rendered_inputs("perspective", field, WALK_FRAMES, seed, preset)
+    truth = read_csv(Path(inp["data"]) / "truth.csv", "truth")
+    conf = resolve_localize_conf(_given(dict(conf, method="mcl"), truth))
+    with MapFile(inp["map"]) as map_file, FeaturesFile(inp["features"]) as feats:
+        model = mcl.observation_model(conf, open_dataset(inp["data"], need_images=False),
+                                      map_file)
+        stamps = np.asarray(feats.stamps, float)
+        at = np.minimum(np.searchsorted(truth["stamp"], stamps), len(truth["stamp"]) - 1)
+        if not np.allclose(truth["stamp"][at], stamps, atol=1e-6):
+            raise ValueError(f"{inp['data']}: truth.csv lacks frames' stamps")
+        frames = [model.prepare(Observations.from_features(feats.frame(n)))
+                  for n in feats.names]
+    poses = np.stack([truth[k][at] for k in ("x", "y", "theta")], axis=1)
+    if conf["init"] == "uniform":
+        start = start_bound.uniform_start(mcl.world_bounds(model.field), conf, poses[0])
+    else:
+        start = start_bound.placement_start(model.field, conf, poses[0])
+    mirror = conf["init"] == "uniform" and conf["start_half"] == "any"
+    mass = start_bound.decidable_mass(model, frames, poses, start, up_to_mirror=mirror)
+    return mass >= conf["min_confidence"]
+
+
+# the bound's starts: (robots, how, conf overrides, first frame judged), as the rows of
+# ``rows`` and ``side_rows`` judge them; a uniform start's grid takes some 10 s of CPU a walk,
+# so only the NAO's (the KidSize walks meet those goals)
+BOUND_STARTS = (
+    ("NAO KidSize", "from the placement", {}, 0),
+    ("NAO KidSize", "from the placement, start_side given", {"start_side": "given"}, 0),
+    ("NAO", "uniform start, start_half given, frame 20 on",
+     {"init": "uniform", "start_half": "given"}, LATE),
+    ("NAO", "uniform start up to the mirror, frame 20 on", {"init": "uniform"}, LATE))
+
+
+def bound_rows(repeat: int) -> list[Row]:
+    """What the walks of ``rows`` and ``side_rows`` decide (stages.localize.start_bound: the
+    Bayes posterior over the first pose with odometry without noise, mcl's observation model
+    and start prior): the frames decidable pooled and per walk, beside the goals those rows
+    hold mcl to. A filter accepting more frames states more than its model's evidence."""
+    out = []
+    for robot, preset, field in ROBOTS:
+        for robots, how, conf, first in BOUND_STARTS:
+            if robot not in robots.split():
+                continue
+            for s in WALK_SEEDS:  # rendered before the clock starts
+                rendered_inputs("perspective", field, WALK_FRAMES, s, preset)
+            t0 = time.process_time()
+            walks = [_decidable(preset, field, s, conf)[first:] for s in WALK_SEEDS]
+            cpu = (time.process_time() - t0) / len(walks)
+            share = [float(np.mean(w)) for w in walks]
+            pooled = float(np.mean(np.concatenate(walks)))
+            goal = GOAL_MIRROR if "mirror" in how else GOAL_WITHIN
+            below = sum(w < GOAL_WORST for w in share)
+            out.append(Row(
+                name=f"mcl bound, {how} (odometry without noise), held-out rendered {robot}"
+                     f" walks ({len(WALK_SEEDS)} x {WALK_FRAMES} frames, seeds"
+                     f" {WALK_SEEDS[0]}-{WALK_SEEDS[-1]})",
+                median_ms=math.nan, cpu_ms=1e3 * cpu, goal="", meets_goal=None, repeats=1,
+                note=f"{100 * pooled:.2f} % of {sum(len(w) for w in walks)} frames decidable"
+                     f" (worst walk {100 * min(share):.0f} %, {below} walks below"
+                     f" {100 * GOAL_WORST:g} %): what mcl's own model and start prior decide,"
+                     f" beside mcl's goal of {100 * goal:g} %; per walk (%): "
+                     + ", ".join(f"{100 * w:.0f}" for w in share)
+                     + f"; CPU per walk {cpu:.1f} s",
+                extra={"decidable": pooled, "worst": min(share), "below": below,
+                       "per_walk": share}))
     return out
