@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from stages.common.errors import FieldlocError
+from stages.common.errors import FieldlocError, real_path
 
 from .common import FINITE, FilePath, conf_option, overrides_dict, summary
 from .lazy_group import RESUMES, outputs_complete, set_resumes
@@ -24,7 +24,7 @@ def report_dirs(poses: list[Path], output: Path | None) -> list[Path]:
         return [output]
     names = [p.stem for p in poses]
     if len(set(names)) < len(names):
-        names = [f"{p.resolve().parent.name}-{p.stem}" if names.count(p.stem) > 1 else p.stem
+        names = [f"{real_path(p).parent.name}-{p.stem}" if names.count(p.stem) > 1 else p.stem
                  for p in poses]
     if len(set(names)) < len(names):
         dup = next(n for n in names if names.count(n) > 1)

@@ -678,6 +678,26 @@ def _setup_minho_fifo_image(w, ws):
     return {"m": minho}
 
 
+def _setup_loops(*names):
+    """Symbolic links in the case's folder, each to itself (``ln -s x x``): a link loop, which
+    Path.resolve raised RuntimeError for (Python < 3.13) and Path.exists calls absent."""
+    def setup(w, ws):
+        for name in names:
+            (ws / name).parent.mkdir(parents=True, exist_ok=True)
+            os.symlink(Path(name).name, ws / name)
+        return {}
+    return setup
+
+
+def _setup_loops_and_spec(w, ws):
+    """ws/loop and ws/d/loop, link loops, and ws/spec.yaml, a batch SPEC of the shared omni
+    dataset."""
+    _setup_loops("loop", "d/loop")(w, ws)
+    (ws / "spec.yaml").write_text(f"map: {w['map']}\ndatasets: [{{path: {w['omni']}}}]\n"
+                                  "methods: [lut]\n")
+    return {}
+
+
 def _setup_special(name, kind="fifo"):
     """A FIFO (or, as root, a character device like /dev/null) named ``name`` in the case's
     folder: an output that an atomic write would replace with a file."""
@@ -3549,6 +3569,13 @@ CASES = [
     Case("evaluate spl poses against a kidsize dataset's truth: said", "silent",
          ["evaluate", "{poses}", "--truth", "{kid}", "-o", W + "/r"], 0,
          "poses on field 'spl' scored against"),
+    *[Case(f"{what} a symbolic link loop: one line, no RuntimeError", "traceback", args, 1,
+           "loop: it is a symbolic link loop; remove the link", setup=_setup_loops_and_spec)
+      for what, args in (
+        ("export -o", ["export", "{poses}", "--format", "csv", "-o", W + "/loop"]),
+        ("export --overwrite -o", ["export", "{poses}", "--format", "csv", "-o", W + "/loop",
+                                   "--overwrite"]),
+        ("batch -o", ["batch", W + "/spec.yaml", "-o", W + "/loop", "--serial"]))],
 ]
 
 

@@ -67,7 +67,7 @@ from ..common.artifacts import (
 from ..common.camera import MAX_IMAGE_PX, save_calib
 from ..common.conf import check_bounds, stage_conf
 from ..common.dataset import write_csv
-from ..common.errors import FieldlocError
+from ..common.errors import FieldlocError, real_path
 from ..common.perspective_camera import PerspectiveCamera
 
 log = logging.getLogger(__name__)
@@ -262,7 +262,7 @@ def main(conf: str | dict | None, source, output, *, overwrite: bool = False,
             "yaw": [c.yaw for c in cams], "height": [c.height for c in cams],
             "x": [c.position[0] for c in cams], "y": [c.position[1] for c in cams]})
         (tmp / IMPORT_RECORD).write_bytes(record_text(
-            {"generator": GENERATOR, "source": str(source.resolve()), "frames": len(frames),
+            {"generator": GENERATOR, "source": str(real_path(source)), "frames": len(frames),
              WRITTEN_FILES: written_files(tmp, tree_files(tmp))},  # --overwrite's test
             IMPORT_RECORD).encode())
     log.info("imported %d HULKs frames from %s into %s", len(frames), source, output)

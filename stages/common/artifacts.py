@@ -42,7 +42,7 @@ import numpy as np
 
 from .. import __version__
 from .dataset_layout import OWN_FILES
-from .errors import DiskFullError, FieldlocError, SchemaError
+from .errors import DiskFullError, FieldlocError, SchemaError, link_loop
 from .stops import raise_deferred_stop
 
 log = logging.getLogger(__name__)
@@ -128,9 +128,10 @@ def _check_writable(path: Path, kind: str = "file"):
     if kind == "file" and path.is_dir():
         raise FieldlocError(f"cannot write {path}: it is a folder")
     if path.is_symlink() and not path.exists():  # the commit would find the link, not a file
-        raise FieldlocError(f"cannot write {path}: it is a symbolic link to"
-                            f" {str(os.readlink(path))[:60]}, which does not exist; remove the"
-                            " link or choose another output")
+        leads = ("a symbolic link loop" if link_loop(path) else
+                 f"a symbolic link to {str(os.readlink(path))[:60]}, which does not exist")
+        raise FieldlocError(f"cannot write {path}: it is {leads}; remove the link or choose"
+                            " another output")
     if path.exists() and not path.is_file() and not path.is_dir():
         # a device, a FIFO or a socket: an atomic write would rename a file over it (as root,
         # /dev/full became a CSV), and writing into it is no artifact

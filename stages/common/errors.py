@@ -48,7 +48,7 @@ def shown(value, limit: int = 60) -> str:
     return s if len(s) <= limit else s[:limit - 3] + "..."
 
 
-def _link_loop(path: Path) -> bool:
+def link_loop(path: Path) -> bool:
     """Whether ``path`` is a symbolic link that leads back to itself (Path.exists says False
     for it, as for nothing at all)."""
     try:
@@ -56,6 +56,14 @@ def _link_loop(path: Path) -> bool:
     except OSError as e:
         return e.errno == errno.ELOOP
     return False
+
+
+def real_path(path) -> Path:
+    """``path`` absolute with its symbolic links followed, never raising: Path.resolve raises
+    RuntimeError for a link loop (Python < 3.13), a traceback for a path the user gave;
+    os.path.realpath leaves the looping part as it is, for the file checks (file_problem) to
+    name."""
+    return Path(os.path.realpath(path))
 
 
 def file_problem(path) -> str | None:
@@ -68,7 +76,7 @@ def file_problem(path) -> str | None:
         return "is a folder"
     if path.exists():
         return "is not a regular file (a device, pipe or socket)"
-    if _link_loop(path):
+    if link_loop(path):
         return "is not a regular file (a symbolic link loop)"
     return "not found"
 
@@ -94,7 +102,7 @@ def present(path) -> bool:
     names)."""
     if path.is_file():
         return True
-    if not path.exists() and not _link_loop(path):  # nothing there, or a link to nothing
+    if not path.exists() and not link_loop(path):  # nothing there, or a link to nothing
         return False
     raise DatasetError(f"{path}: not a regular file (a pipe, socket, device, folder or link"
                        " loop)")

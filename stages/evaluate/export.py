@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common.artifacts import atomic_path, check_output, starts_with
-from ..common.errors import FieldlocError
+from ..common.errors import FieldlocError, real_path
 from ..common.field import FieldModel
 from ..common.poses_file import (
     is_fieldloc_tum,
@@ -139,7 +139,7 @@ def main(conf: str | dict | None, poses, output=None, *, fmt: str, overwrite: bo
     poses = Path(poses)
     output = Path(output) if output is not None else default_output(poses, fmt)
     to_stdout = str(output) == STDOUT
-    if not to_stdout and output.resolve() == poses.resolve():
+    if not to_stdout and real_path(output) == real_path(poses):
         raise FieldlocError(f"{output}: the export would replace the poses file itself")
     columns, attrs = read_poses(poses)
     if to_stdout:

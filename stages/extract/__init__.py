@@ -58,7 +58,7 @@ from ..common.artifacts import (
 from ..common.camera import camera_can
 from ..common.conf import KindPresets, check_bounds, registered_module, resolve_conf, stage_conf
 from ..common.dataset import open_dataset, read_frame, read_image, read_mask
-from ..common.errors import FieldlocError, SchemaError
+from ..common.errors import FieldlocError, SchemaError, real_path
 from ..common.features_file import (
     SCHEMA,
     VERSION,
@@ -410,7 +410,7 @@ class _DebugOverlays:
 
     def __init__(self, folder: Path, ds, names: list[str]):
         self.folder, self.names, self.drawn = folder, names, []
-        self.head = {"generator": GENERATOR, "dataset": str(ds.root.resolve())}
+        self.head = {"generator": GENERATOR, "dataset": str(real_path(ds.root))}
         record = folder / DEBUG_RECORD
         self.table = {}
         if written_by(folder, DEBUG_RECORD, GENERATOR):

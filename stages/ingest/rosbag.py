@@ -87,7 +87,7 @@ from ..common.artifacts import (
 from ..common.camera import load_calib
 from ..common.conf import load_yaml, stage_conf
 from ..common.dataset import MAX_VALUE, write_csv
-from ..common.errors import FieldlocError
+from ..common.errors import FieldlocError, real_path
 from ..common.geometry import wrap_angle
 from ..common.png import write_png
 from . import ros_images
@@ -610,7 +610,7 @@ def _check_target(output: Path, bag, calib, overwrite: bool) -> None:
     source = bag_paths(bag)[0]
     check_output(output, {"bag": [Path(bag), source], "calibration": calib}, overwrite=None,
                  kind="folder", recording=True)
-    if source.is_dir() and output.resolve().is_relative_to(source.resolve()):
+    if source.is_dir() and real_path(output).is_relative_to(real_path(source)):
         raise FieldlocError(f"{output} lies inside the bag folder {source}: choose an output"
                             " outside it")
     check_importer_target(output, {}, overwrite, record="import.yaml", generator=GENERATOR)

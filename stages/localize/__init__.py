@@ -76,7 +76,7 @@ from ..common.dataset import (
     parse_number,
     row_frame_name,
 )
-from ..common.errors import DatasetError, FieldlocError, check_file
+from ..common.errors import DatasetError, FieldlocError, check_file, real_path
 from ..common.features_file import FeaturesFile
 from ..common.field import load_field
 from ..common.map_file import MapFile
@@ -508,7 +508,7 @@ def check_write_calib(path, conf, dataset, points, output, given: dict, overwrit
                             f" {' or '.join(learnt.methods)}")
     path = Path(path)
     own = dataset.root / "calib.yaml"
-    if path.exists() and own.exists() and path.resolve() == own.resolve():
+    if path.exists() and own.exists() and real_path(path) == real_path(own):
         raise FieldlocError(f"{path} is the dataset's own calib.yaml; it is never written over:"
                             " choose another output")
     check_output(path, {**given, "poses": output, "calib": own}, overwrite=overwrite,

@@ -14,7 +14,7 @@ import numpy as np
 from .. import __version__
 from ..common.artifacts import atomic_path
 from ..common.camera import calib_text
-from ..common.errors import FieldlocError
+from ..common.errors import FieldlocError, real_path
 
 # the median absolute deviation times this is a normal distribution's standard deviation
 MAD_TO_SIGMA = 1.4826
@@ -149,4 +149,4 @@ def same_file(a: Path, b: Path) -> bool:
             return a.samefile(b)
     except OSError:
         pass
-    return a.resolve() == b.resolve()
+    return real_path(a) == real_path(b)

@@ -53,7 +53,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..common.conf import check_bounds
-from ..common.errors import FieldlocError
+from ..common.errors import FieldlocError, real_path
 from ..common.field import FieldModel
 from ..common.geometry import wrap_angle
 from ..common.map_file import MapFile
@@ -813,7 +813,7 @@ _ENGINES: dict = {}
 
 def fit_engine(map_file: MapFile) -> FitEngine:
     """The FitEngine of a map (the last one is kept)."""
-    p = map_file.path.resolve()
+    p = real_path(map_file.path)
     key = (str(p), p.stat().st_mtime_ns)
     if key not in _ENGINES:
         _ENGINES.clear()

@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common.artifacts import atomic_path, current_umask, file_hash
-from ..common.errors import FieldlocError
+from ..common.errors import FieldlocError, real_path
 
 log = logging.getLogger(__name__)
 
@@ -70,7 +70,7 @@ def cache_folder(map_path: str | Path) -> Path:
 def map_hash(map_path: str | Path) -> str:
     """The content hash of a map file (stages.common.artifacts.file_hash, which reads an
     unchanged file once per process)."""
-    return file_hash(Path(map_path).resolve())
+    return file_hash(real_path(map_path))
 
 
 def cache_key(map_digest: str, what: str, params: dict, shapes: dict) -> str:

@@ -88,7 +88,7 @@ from functools import cached_property
 import numpy as np
 
 from ..common.conf import check_bounds
-from ..common.errors import FieldlocError
+from ..common.errors import FieldlocError, real_path
 from ..common.field import FieldModel
 from ..common.geometry import wrap_angle
 from ..common.map_file import MapFile
@@ -204,7 +204,7 @@ def point_fit(map_file: MapFile, params: MatchingParams) -> PointFit:
 
 
 def _cached(map_file: MapFile, params: MatchingParams):
-    p = map_file.path.resolve()
+    p = real_path(map_file.path)
     key = (str(p), p.stat().st_mtime_ns, params)
     if key not in _SEARCH_CACHE:
         _SEARCH_CACHE.clear()

@@ -62,7 +62,7 @@ from pathlib import Path
 from ..common.artifacts import check_output, file_hash, refuse_inputs, text_hash
 from ..common.batch_file import RUN_NAME, read_json, write_batch, write_json
 from ..common.conf import load_yaml, stage_conf
-from ..common.errors import FieldlocError
+from ..common.errors import FieldlocError, real_path
 from .batch_spec import DatasetSpec, Plan, RunSpec, TemplatesSpec, read_spec
 
 log = logging.getLogger("fieldloc.batch")
@@ -973,7 +973,7 @@ def _index(plan: Plan, records: dict) -> dict:
                      for ds in plan.datasets},
         "runs": [_public(records[r.key]) for r in plan.runs if r.key in records],
         "skipped": plan.skipped,
-        "results": str(results.resolve()),
+        "results": str(real_path(results)),
     }
 
 

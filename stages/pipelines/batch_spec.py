@@ -84,7 +84,7 @@ from .. import evaluate, extract, localize, simulate
 from ..common.artifacts import file_hash, text_hash
 from ..common.camera import camera_can
 from ..common.conf import check_bounds, load_yaml, parse_overrides, resolve_conf, stage_conf
-from ..common.errors import FieldlocError, check_file, shown
+from ..common.errors import FieldlocError, check_file, real_path, shown
 from ..common.map_file import MapFile
 
 TOP_KEYS = ("field", "map", "build_map", "datasets", "extract", "evaluate", "templates",
@@ -229,7 +229,7 @@ def read_spec(spec_path: str | Path, results: str | Path) -> Plan:
         raise FieldlocError(f"{spec_path}: not valid YAML ({first}{';' if where else ''}"
                             f"{where})") from None
     w = _Where(spec_path)
-    base = spec_path.resolve().parent
+    base = real_path(spec_path).parent
     results = Path(results)
     w.keys(data, "", TOP_KEYS, required=("datasets", "methods"))
     if "field" in data and "map" in data:
@@ -262,7 +262,7 @@ def read_spec(spec_path: str | Path, results: str | Path) -> Plan:
     skipped: list[str] = []
     methods = _methods(w, data["methods"], skipped)
     runs = _runs(w, data.get("runs", "all"), datasets, methods, skipped)
-    return Plan(spec=spec_path.resolve(), spec_hash=file_hash(spec_path), results=results,
+    return Plan(spec=real_path(spec_path), spec_hash=file_hash(spec_path), results=results,
                 datasets=datasets, methods=methods, runs=runs, maps=maps,
                 evaluate=evaluate_conf, skipped=skipped, templates=templates)
 
@@ -302,7 +302,7 @@ def _map_for(w: _Where, source, where: str, results: Path, build_conf: dict, map
     """The map file of a map source; a field's map is planned under RESULTS/maps/."""
     kind, value = source
     if kind == "map":
-        return str(Path(value).resolve())
+        return str(real_path(value))
     from ..common.field import load_field
 
     try:
@@ -313,7 +313,7 @@ def _map_for(w: _Where, source, where: str, results: Path, build_conf: dict, map
 
     plain = not Path(str(value)).suffix and build_conf == build_map.confs["default"]
     name = fm.name if plain else f"{fm.name}-{short_hash([fm.spec_text, build_conf])}"
-    path = str((results / "maps" / f"{name}.map.h5").resolve())
+    path = str(real_path(results / "maps" / f"{name}.map.h5"))
     maps[path] = (value, build_conf)
     return path
 
@@ -372,7 +372,7 @@ def _datasets(w, entries, base, results, default_map, build_conf, extract_defaul
                 w.fail(f"{where}.extract", str(e))
             tag = ex if isinstance(ex, str) else ("default" if ex is None else
                                                   f"custom-{short_hash(ds.extract)}")
-            ds.features = str((results / "features" / f"{ds.name}.{tag}.features.h5").resolve())
+            ds.features = str(real_path(results / "features" / f"{ds.name}.{tag}.features.h5"))
             if "templates" in d:
                 ds.templates = _templates(w, d["templates"], ds, f"{where}.templates", base,
                                           results, templates)
@@ -405,22 +405,22 @@ def _folder(w, path: Path, name: str, where: str, results: Path, calib, base=Non
         if not calib_file.is_file():
             w.fail(where, f"{path} has no calib.yaml (give the dataset a 'calib')")
         camera = load_calib(calib_file).kind
-        return DatasetSpec(name=name, kind="folder", camera=camera, dir=path.resolve(),
-                           source=path.resolve(), truth=(path / "truth.csv").is_file())
+        return DatasetSpec(name=name, kind="folder", camera=camera, dir=real_path(path),
+                           source=real_path(path), truth=(path / "truth.csv").is_file())
     if isinstance(calib, dict):
         w.keys(calib, f"{where}.calib", ("from_minho",), required=("from_minho",))
         minho = _path(base, w.text(calib["from_minho"], f"{where}.calib.from_minho"))
         if not minho.is_dir():
             w.fail(f"{where}.calib.from_minho", f"folder not found: {minho}")
-        calib, camera = {"from_minho": str(minho.resolve())}, "omni"
+        calib, camera = {"from_minho": str(real_path(minho))}, "omni"
     else:
         c = _path(base, w.text(calib, f"{where}.calib"))
         if not c.is_file():
             w.fail(f"{where}.calib", f"calibration not found: {c}")
         camera = load_calib(c).kind
-        calib = str(c.resolve())
+        calib = str(real_path(c))
     return DatasetSpec(name=name, kind="calibrated", camera=camera,
-                       dir=(results / "datasets" / name).resolve(), source=path.resolve(),
+                       dir=real_path(results / "datasets" / name), source=real_path(path),
                        calib=calib, truth=(path / "truth.csv").is_file())
 
 
@@ -451,7 +451,7 @@ def _simulated(w, d, where, results):
     name = d.get("name") or (f"{preset}-{fm.name}-f{conf['frames']}-s{conf['seed']}"
                              + (f"-{short_hash(extra)}" if extra else ""))
     return DatasetSpec(name=w.text(name, f"{where}.name"), kind="simulate",
-                       camera=conf["camera"], dir=(results / "datasets" / name).resolve(),
+                       camera=conf["camera"], dir=real_path(results / "datasets" / name),
                        simulate=conf, sim_field=field_arg)
 
 
@@ -475,7 +475,7 @@ def _templates(w, entry, ds: DatasetSpec, where: str, base: Path, results: Path,
         p = _path(base, w.text(entry, where))
         if not p.is_file():
             w.fail(where, f"template database not found: {p}")
-        spec = TemplatesSpec(kind="file", path=str(p.resolve()))
+        spec = TemplatesSpec(kind="file", path=str(real_path(p)))
         return planned.setdefault(spec.path, spec)
     w.keys(entry, where, TEMPLATES_KEYS)
     if ("grid" in entry) == ("captures" in entry):
@@ -498,18 +498,18 @@ def _templates(w, entry, ds: DatasetSpec, where: str, base: Path, results: Path,
         c = _path(base, w.text(entry["captures"], f"{where}.captures"))
         if not (c / "truth.csv").is_file():
             w.fail(f"{where}.captures", f"{c} is not a folder of captures with a truth.csv")
-        c = c.resolve()
+        c = real_path(c)
         name = f"{c.name}-{short_hash(str(c))}"
         spec = TemplatesSpec(kind="captures", captures=c, build=build,
-                             path=str((folder / f"{name}.{tag}.templates.h5").resolve()))
+                             path=str(real_path(folder / f"{name}.{tag}.templates.h5")))
         return planned.setdefault(spec.path, spec)
     if ds.kind != "simulate":
         w.fail(where, f"dataset {ds.name} is a recording: a rendered grid is for a simulated"
                " dataset (give a recording 'captures' or a templates.h5 path)")
     conf, name = _grid_conf(w, entry, ds, where)
-    spec = TemplatesSpec(kind="grid", captures=(folder / "grids" / name).resolve(),
+    spec = TemplatesSpec(kind="grid", captures=real_path(folder / "grids" / name),
                          build=build, simulate=conf, sim_field=ds.sim_field,
-                         path=str((folder / f"{name}.{tag}.templates.h5").resolve()))
+                         path=str(real_path(folder / f"{name}.{tag}.templates.h5")))
     return planned.setdefault(spec.path, spec)
 
 

@@ -85,7 +85,7 @@ from ..common.artifacts import (
 from ..common.camera import MAX_IMAGE_PX, save_calib
 from ..common.conf import check_bounds, load_yaml, stage_conf
 from ..common.dataset import SIMULATION_RECORD, write_csv
-from ..common.errors import FieldlocError, shown
+from ..common.errors import FieldlocError, real_path, shown
 from ..common.field import FieldModel, load_field
 from ..common.png import write_png
 from ..common.resources import check_disk, check_memory
@@ -391,7 +391,7 @@ def _check_target(output_dir: Path, overwrite: bool, field_file: Path | None):
         rec = _record(output_dir) or {}
         refuse_edited(output_dir, rec.get(WRITTEN_FILES), _dataset_files(output_dir),
                       record=SIMULATION_RECORD)
-        if Path.cwd().resolve().is_relative_to(output_dir.resolve()):
+        if real_path(Path.cwd()).is_relative_to(real_path(output_dir)):
             raise FieldlocError(
                 f"{output_dir} holds the current folder; run simulate from elsewhere to replace"
                 " it")
