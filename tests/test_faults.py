@@ -658,6 +658,16 @@ def _setup_fifo_image(w, ws):
     return {"ds": ds}
 
 
+def _sparse(name: str, size: int):
+    """A change of a folder: its file ``name`` replaced by a sparse file of ``size`` bytes
+    (zeros, no disk used) -- a text file fieldloc would read whole."""
+    def change(folder: Path):
+        (folder / name).unlink(missing_ok=True)
+        with open(folder / name, "wb") as f:
+            f.truncate(size)
+    return change
+
+
 def _setup_fifo_file(name):
     """The omni dataset copied, its file ``name`` a FIFO: reading it would block forever, and
     taking it as absent would run on without what it holds."""
@@ -3550,7 +3560,17 @@ CASES = [
         ("an alias bomb", "not YAML: line 2",
          _with_ds("omni", _write("simulation.yaml",
                                  f"field: spl\nnotes: {ALIAS_BOMB}\n".encode()))),
-        ("a FIFO", "is not a regular file", _setup_fifo_file("simulation.yaml")))],
+        ("a FIFO", "is not a regular file", _setup_fifo_file("simulation.yaml")),
+        ("a sparse 3 GB file", "3221 MB, more than the 10 MB",
+         _with_ds("omni", _sparse("simulation.yaml", 3 << 30))))],
+    Case("extract of a dataset whose calib.yaml is a sparse 3 GB file: not read whole", "hang",
+         ["extract", "{ds}", "-o", W + "/f.h5"], 1,
+         "calib.yaml: cannot be read (3221 MB, more than the 10 MB",
+         setup=_with_ds("omni", _sparse("calib.yaml", 3 << 30))),
+    Case("build-map of a sparse 3 GB field YAML: not read whole", "hang",
+         ["build-map", W + "/f.yaml", "-o", W + "/m.h5"], 1,
+         "f.yaml: cannot be read (3221 MB, more than the 10 MB",
+         setup=lambda w, ws: _sparse("f.yaml", 3 << 30)(ws)),
     Case("simulate -o a folder in a missing folder: the missing folder named, not a part",
          "newcomer", ["simulate", "omni", "--field", "spl", "--frames", "1", "-o",
                       W + "/sp ace/\u00fc"], 1, "/sp ace/\u00fc: folder ",

@@ -49,7 +49,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from .conf import load_yaml
+from .conf import load_yaml, read_record
 from .errors import DatasetError, present, shown
 from .user_numbers import user_number, user_numbers
 
@@ -313,11 +313,13 @@ def load_calib(path: str | Path):
     if not present(path):
         raise DatasetError(f"calibration not found: {path}")
     try:
-        d = load_yaml(path.read_bytes().decode("utf-8-sig"))
+        d = load_yaml(read_record(path).decode("utf-8-sig"))
     except UnicodeDecodeError:
         raise DatasetError(f"{path}: not a text YAML file (binary content)") from None
     except yaml.YAMLError as e:
         raise DatasetError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
+    except OSError as e:
+        raise DatasetError(f"{path}: cannot be read ({e.strerror or e})") from None
     if not isinstance(d, dict) or "kind" not in d:
         raise DatasetError(f"{path}: calibration needs a 'kind' (omni or perspective)")
     kind = d["kind"]

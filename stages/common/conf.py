@@ -11,8 +11,10 @@ Presets whose value is None (optional) take anything.
 from __future__ import annotations
 
 import copy
+import errno
 import importlib
 import numbers
+import os
 import re
 from collections.abc import Callable, Iterator, Mapping
 
@@ -99,6 +101,25 @@ def _refuse_alias_bombs(text: str | bytes) -> None:
             raise yaml.composer.ComposerError(
                 None, None, f"YAML aliases expand to more than {MAX_YAML_VALUES} values",
                 event.start_mark)
+
+
+# the most a text file fieldloc reads whole (a dataset's simulation.yaml and calib.yaml, a field
+# YAML, a batch SPEC, a team's field file) may weigh: the largest real one is a few tens of kB,
+# and a 3 GB (sparse) simulation.yaml was read whole (16 s, 6.4 GB of memory) to be ignored
+MAX_RECORD_BYTES = 10 << 20
+
+
+def read_record(path) -> bytes:
+    """The bytes of a small text file fieldloc reads whole; OSError (its strerror the reason,
+    as the readers' handlers of an unreadable file quote) when it weighs more than
+    MAX_RECORD_BYTES, before any of it is read."""
+    size = os.stat(path).st_size
+    with open(path, "rb") as f:
+        data = f.read(MAX_RECORD_BYTES + 1)  # a file that grew since its stat
+    if max(size, len(data)) > MAX_RECORD_BYTES:
+        raise OSError(errno.EFBIG, f"{size / 1e6:.0f} MB, more than the"
+                      f" {MAX_RECORD_BYTES >> 20} MB such a text file may weigh")
+    return data
 
 
 def load_yaml(text: str | bytes):

@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .conf import load_yaml, yaml_problem
+from .conf import load_yaml, read_record, yaml_problem
 from .dataset_layout import CSV_COLUMNS, CSV_OPTIONAL_COLUMNS, OWN_FILES, SIMULATION_RECORD
 from .errors import DatasetError, file_problem, present
 from .user_numbers import parse_number, user_numbers
@@ -322,7 +322,7 @@ class Dataset:
         try:
             if why is not None:  # a FIFO would block the read
                 raise OSError(why)
-            text = p.read_text()
+            text = read_record(p).decode()
             d = load_yaml(text)
         except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
             if isinstance(e, yaml.YAMLError):

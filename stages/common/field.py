@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from .conf import load_yaml
+from .conf import load_yaml, read_record
 from .errors import FieldSpecError, file_problem, shown
 from .geometry import wrap_angle
 from .user_numbers import user_number
@@ -270,7 +270,7 @@ def load_field(name_or_path: str | Path) -> FieldModel:
                 " or give a path to a field YAML)"
             )
     try:
-        text = path.read_bytes().decode("utf-8-sig")
+        text = read_record(path).decode("utf-8-sig")
     except UnicodeDecodeError:
         raise FieldSpecError(f"{path}: not a text YAML file (binary content)") from None
     except OSError as e:

@@ -58,7 +58,7 @@ import yaml
 
 from .. import __version__
 from ..common.artifacts import WRITTEN_MARK, atomic_path, check_output, file_hash
-from ..common.conf import load_yaml
+from ..common.conf import load_yaml, read_record
 from ..common.errors import FieldlocError, FieldSpecError, file_problem
 from ..common.field import (
     MSL_LETTERS,
@@ -117,9 +117,10 @@ def _read_text(path: Path) -> str:
     if why := file_problem(path):
         raise TeamFieldError(f"field file {why}: {path}")
     try:
-        return path.read_text()
+        return read_record(path).decode()
     except (OSError, UnicodeDecodeError) as e:
-        raise TeamFieldError(f"{path}: unreadable ({e})") from None
+        raise TeamFieldError(f"{path}: unreadable ({getattr(e, 'strerror', None) or e})"
+                             ) from None
 
 
 # ---------------------------------------------------------------------------- B-Human

@@ -83,7 +83,14 @@ import yaml
 from .. import evaluate, extract, localize, simulate
 from ..common.artifacts import file_hash, text_hash
 from ..common.camera import camera_can
-from ..common.conf import check_bounds, load_yaml, parse_overrides, resolve_conf, stage_conf
+from ..common.conf import (
+    check_bounds,
+    load_yaml,
+    parse_overrides,
+    read_record,
+    resolve_conf,
+    stage_conf,
+)
 from ..common.errors import FieldlocError, check_file, real_path, shown
 from ..common.map_file import MapFile
 
@@ -221,7 +228,9 @@ def read_spec(spec_path: str | Path, results: str | Path) -> Plan:
     spec_path = Path(spec_path)
     check_file(spec_path, "SPEC")
     try:
-        data = load_yaml(spec_path.read_text())
+        data = load_yaml(read_record(spec_path).decode())
+    except OSError as e:
+        raise FieldlocError(f"{spec_path}: cannot be read ({e.strerror or e})") from None
     except (yaml.YAMLError, UnicodeDecodeError) as e:
         line = getattr(getattr(e, "problem_mark", None), "line", None)
         where = f" line {line + 1}" if line is not None else ""
