@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from stages.common.errors import FieldlocError, real_path
+from stages.common.errors import FieldlocError, check_file, real_path
 
 from .common import FINITE, FilePath, conf_option, overrides_dict, summary
 from .lazy_group import RESUMES, outputs_complete, set_resumes
@@ -93,6 +93,8 @@ def evaluate(ctx, inputs, truth, output, field, table_only, preset, stamp_tolera
         from stages.common.artifacts import check_output  # recording's, before any report
 
         check_output(output, None, overwrite=None, kind="folder")
+    for poses in inputs if len(inputs) > 1 else ():  # each there before any report is written
+        check_file(poses, "file")
     outs = report_dirs(list(inputs), output)
     done = []
     for poses, out in zip(inputs, outs):

@@ -699,12 +699,26 @@ def _setup_loops(*names):
     return setup
 
 
+LOOP_SPECS = {  # batch SPECs naming ws/loop (a link loop) as a dataset's ...
+    "path": "map: {map}\ndatasets: [{{path: loop}}]\nmethods: [lut]\n",
+    "calib": "map: {map}\ndatasets: [{{path: {omni}, calib: loop}}]\nmethods: [lut]\n",
+    "from_minho": "map: {map}\ndatasets: [{{path: {omni}, calib: {{from_minho: loop}}}}]\n"
+                  "methods: [lut]\n",
+    "map": "datasets: [{{path: {omni}, map: loop}}]\nmethods: [lut]\n",
+    "templates": "field: spl\ndatasets: [{{path: {omni}, templates: loop}}]\n"
+                 "methods: [templates]\n",
+}
+
+
 def _setup_loops_and_spec(w, ws):
-    """ws/loop and ws/d/loop, link loops, and ws/spec.yaml, a batch SPEC of the shared omni
-    dataset."""
-    _setup_loops("loop", "d/loop")(w, ws)
+    """Link loops ws/loop, ws/loop.yaml, ws/d/poses.h5 (the stem of the shared poses) and
+    ws/R/report.json; ws/spec.yaml, a batch SPEC of the shared omni dataset, and ws/<key>.yaml
+    of LOOP_SPECS."""
+    _setup_loops("loop", "loop.yaml", "d/poses.h5", "R/report.json")(w, ws)
     (ws / "spec.yaml").write_text(f"map: {w['map']}\ndatasets: [{{path: {w['omni']}}}]\n"
                                   "methods: [lut]\n")
+    for key, text in LOOP_SPECS.items():
+        (ws / f"{key}.yaml").write_text(text.format(map=w["map"], omni=w["omni"]))
     return {}
 
 
@@ -2273,11 +2287,11 @@ CASES = [
          "(the run's map)"),
     Case("localize --map a FIFO", "hang",
          [*LOCALIZE[:3], W + "/pipe.h5", *LOCALIZE[4:], "-o", W + "/p.h5"], 1,
-         "not a regular file (a pipe, socket or device)",
+         "is not a regular file (a device, pipe or socket)",
          setup=lambda w, ws: os.mkfifo(ws / "pipe.h5") or {}),
     Case("evaluate a FIFO as the poses", "hang",
          ["evaluate", W + "/pipe.h5", "--truth", "{omni}", "-o", W + "/rep"], 1,
-         "not a regular file (a pipe, socket or device)",
+         "is not a regular file (a device, pipe or socket)",
          setup=lambda w, ws: os.mkfifo(ws / "pipe.h5") or {}),
     Case("extract a dataset whose image is a FIFO", "hang",
          ["extract", "{ds}", "-o", W + "/f.h5"], 0,
@@ -3596,6 +3610,25 @@ CASES = [
         ("export --overwrite -o", ["export", "{poses}", "--format", "csv", "-o", W + "/loop",
                                    "--overwrite"]),
         ("batch -o", ["batch", W + "/spec.yaml", "-o", W + "/loop", "--serial"]))],
+    *[Case(f"{what} a symbolic link loop: said so, not 'not found'", "silent", args, 1,
+           "(a symbolic link loop)", setup=_setup_loops_and_spec)
+      for what, args in (
+        ("localize --features", ["localize", "{omni}", "--map", "{map}", "--features",
+                                 W + "/loop", "-o", W + "/p.h5"]),
+        ("localize --map", ["localize", "{omni}", "--map", W + "/loop", "--features",
+                            "{features}", "-o", W + "/p.h5"]),
+        ("export POSES (K1: a RuntimeError)", ["export", W + "/loop", "--format", "tum"]),
+        ("export POSES -o -", ["export", W + "/loop", "--format", "json", "-o", "-"]),
+        ("evaluate POSES", ["evaluate", W + "/loop", "--truth", "{omni}", "-o", W + "/r"]),
+        ("evaluate of two POSES of one stem (K4: a RuntimeError), the second",
+         ["evaluate", "{poses}", W + "/d/poses.h5", "--truth", "{omni}", "-o", W + "/r"]),
+        ("inspect", ["inspect", W + "/loop"]),
+        ("show hypotheses POSES", ["show", "hypotheses", W + "/loop", "--frame", "0", "-o",
+                                   W + "/o.png"]),
+        ("show map FIELD", ["show", "map", W + "/loop.yaml", "-o", W + "/o.png"]),
+        ("report of a folder whose report.json is", ["report", W + "/R", "-o", W + "/r.html"]),
+        *((f"batch SPEC's datasets[0].{key}", ["batch", W + f"/{key}.yaml", "-o", W + "/b",
+                                               "--serial"]) for key in LOOP_SPECS))],
 ]
 
 

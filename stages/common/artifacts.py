@@ -42,7 +42,7 @@ import numpy as np
 
 from .. import __version__
 from .dataset_layout import OWN_FILES
-from .errors import DiskFullError, FieldlocError, SchemaError, link_loop
+from .errors import DiskFullError, FieldlocError, SchemaError, check_file, link_loop
 from .stops import raise_deferred_stop
 
 log = logging.getLogger(__name__)
@@ -1161,10 +1161,8 @@ def write_artifact(path: str | Path, attrs: dict, *, resume: bool = False,
 
 def _open_hdf5(path: Path) -> h5py.File:
     """Open an HDF5 file for reading, or fail with one clear line."""
-    if not path.exists():
-        raise FieldlocError(f"file not found: {path}")
-    if not path.is_file() and not path.is_dir():  # a FIFO would block the open forever
-        raise FieldlocError(f"{path}: not a regular file (a pipe, socket or device)")
+    if not path.is_dir():  # absent, or a FIFO (which would block the open forever), a link loop
+        check_file(path, "file")
     if path.is_file():  # HDF5 says "unable to open" for any reason: an unreadable one is that
         try:
             with open(path, "rb"):

@@ -20,7 +20,7 @@ from .artifacts import describe as describe_hdf5
 from .camera import CALIB_KEYS
 from .conf import load_yaml, yaml_problem
 from .dataset import CSV_COLUMNS, IMAGE_SUFFIXES, SIMULATION_RECORD, csv_rows
-from .errors import FieldlocError
+from .errors import FieldlocError, check_file
 
 READS = ("HDF5 artifacts (map, features, poses, templates), report.json, bench JSON, calib.yaml,"
          " simulation.yaml, field YAML, the dataset CSVs, points and calibration CSVs,"
@@ -32,12 +32,9 @@ OTHER_CSV = {("frame", "x", "y"): "line points (localize --points)",
 def describe_file(path: str | Path) -> str:
     """The listing of ``path`` (see the module doc); FieldlocError when it is none of those."""
     path = Path(path)
-    if not path.exists():
-        raise FieldlocError(f"file not found: {path}")
     if path.is_dir():
         return _folder(path)
-    if not path.is_file():  # a FIFO, socket or device: opening one may block forever
-        raise FieldlocError(f"{path}: not a regular file (a pipe, socket or device)")
+    check_file(path, "file")  # absent, a FIFO (opening one may block forever), a link loop
     try:
         with open(path, "rb") as f:
             head = f.read(2048)

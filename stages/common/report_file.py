@@ -410,8 +410,7 @@ def write_errors_csv(path: str | Path, fe) -> Path:
 def read_errors_csv(path: str | Path) -> dict[str, np.ndarray]:
     """errors.csv back as columns (numbers as floats, empty cells NaN)."""
     path = Path(path)
-    if not path.is_file():
-        raise FieldlocError(f"file not found: {path}")
+    check_file(path, "file")
     with open(path, newline="") as f:
         rows = list(csv.reader(f))
     if not rows or tuple(rows[0]) != ERRORS_COLUMNS:

@@ -91,7 +91,7 @@ from ..common.conf import (
     resolve_conf,
     stage_conf,
 )
-from ..common.errors import FieldlocError, check_file, real_path, shown
+from ..common.errors import FieldlocError, check_file, file_problem, link_loop, real_path, shown
 from ..common.map_file import MapFile
 
 TOP_KEYS = ("field", "map", "build_map", "datasets", "extract", "evaluate", "templates",
@@ -194,6 +194,21 @@ class _Where:
     def fail(self, where: str, message: str):
         raise FieldlocError(f"{self.spec}: {where + ': ' if where else ''}{message}")
 
+    def file(self, path: Path, where: str, what: str) -> None:
+        """Fail unless ``path`` is a regular file: "<what> not found", or why it is none (a
+        link loop, a FIFO: not "not found")."""
+        why = file_problem(path)
+        if why == "not found":
+            self.fail(where, f"{what} not found: {path}")
+        if why:
+            self.fail(where, f"{what}: {path} {why}")
+
+    def folder(self, path: Path, where: str, what: str) -> None:
+        """Fail unless ``path`` is a folder: "<what> not found", or that it is a link loop."""
+        if not path.is_dir():
+            self.fail(where, f"{what}: {path} is not a folder (a symbolic link loop)"
+                      if link_loop(path) else f"{what} not found: {path}")
+
     def keys(self, d, where: str, allowed, required=()) -> dict:
         if not isinstance(d, dict):
             self.fail(where, f"expected a mapping of {', '.join(allowed)}, got {shown(d)}")
@@ -294,8 +309,7 @@ def _map_source(w: _Where, d: dict, where: str, base: Path):
     """("map", path) or ("field", argument) of an entry, or None."""
     if "map" in d:
         p = _path(base, w.text(d["map"], f"{where}map".lstrip(".")))
-        if not p.is_file():
-            w.fail(f"{where}map".lstrip("."), f"map not found: {p}")
+        w.file(p, f"{where}map".lstrip("."), "map")
         try:  # a map's head read (no table): a calib.yaml or poses file is refused here
             with MapFile(p):
                 pass
@@ -407,8 +421,7 @@ def _check_names(w, where: str, what: str, names: list[str], remedy: str = "") -
 def _folder(w, path: Path, name: str, where: str, results: Path, calib, base=None):
     from ..common.camera import load_calib
 
-    if not path.is_dir():
-        w.fail(f"{where}.path", f"dataset folder not found: {path}")
+    w.folder(path, f"{where}.path", "dataset folder")
     if calib is None:
         calib_file = path / "calib.yaml"
         if not calib_file.is_file():
@@ -419,13 +432,11 @@ def _folder(w, path: Path, name: str, where: str, results: Path, calib, base=Non
     if isinstance(calib, dict):
         w.keys(calib, f"{where}.calib", ("from_minho",), required=("from_minho",))
         minho = _path(base, w.text(calib["from_minho"], f"{where}.calib.from_minho"))
-        if not minho.is_dir():
-            w.fail(f"{where}.calib.from_minho", f"folder not found: {minho}")
+        w.folder(minho, f"{where}.calib.from_minho", "folder")
         calib, camera = {"from_minho": str(real_path(minho))}, "omni"
     else:
         c = _path(base, w.text(calib, f"{where}.calib"))
-        if not c.is_file():
-            w.fail(f"{where}.calib", f"calibration not found: {c}")
+        w.file(c, f"{where}.calib", "calibration")
         camera = load_calib(c).kind
         calib = str(real_path(c))
     return DatasetSpec(name=name, kind="calibrated", camera=camera,
@@ -482,8 +493,7 @@ def _templates(w, entry, ds: DatasetSpec, where: str, base: Path, results: Path,
                " omni frames (the SURF template paper)")
     if isinstance(entry, str):
         p = _path(base, w.text(entry, where))
-        if not p.is_file():
-            w.fail(where, f"template database not found: {p}")
+        w.file(p, where, "template database")
         spec = TemplatesSpec(kind="file", path=str(real_path(p)))
         return planned.setdefault(spec.path, spec)
     w.keys(entry, where, TEMPLATES_KEYS)

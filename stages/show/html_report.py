@@ -39,7 +39,7 @@ import numpy as np
 from .. import __version__
 from ..common.artifacts import atomic_path, check_output, storable_text
 from ..common.conf import stage_conf
-from ..common.errors import FieldlocError
+from ..common.errors import FieldlocError, check_file, file_problem
 from ..common.report_file import REPORT_NAME, load_report, read_errors_csv, read_plot
 from ..evaluate.report import table_rows
 
@@ -124,12 +124,13 @@ def find_reports(source) -> list[Path]:
     that does (sorted)."""
     source = Path(source)
     if not source.exists():
-        raise FieldlocError(f"not found: {source}")
+        check_file(source, "report folder")  # absent, or a link loop
     if source.is_file():
         if source.name == REPORT_NAME:
             return [source.parent]
         raise FieldlocError(f"{source}: give a report folder or a folder of reports")
-    if (source / REPORT_NAME).is_file():
+    if file_problem(source / REPORT_NAME) != "not found":  # a link loop is no absent report
+        check_file(source / REPORT_NAME, "report")
         return [source]
     found = sorted(p.parent for p in source.rglob(REPORT_NAME))
     if not found:
