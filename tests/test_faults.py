@@ -3629,6 +3629,15 @@ CASES = [
         ("report of a folder whose report.json is", ["report", W + "/R", "-o", W + "/r.html"]),
         *((f"batch SPEC's datasets[0].{key}", ["batch", W + f"/{key}.yaml", "-o", W + "/b",
                                                "--serial"]) for key in LOOP_SPECS))],
+    *[Case(f"field import of a {fmt} JSON file giving {key} twice: refused", "silent",
+           ["field", "import", W + "/field.json", "--format", fmt, "-o", W + "/out.yaml"], 1,
+           f"key '{key}' given twice", setup=_setup_number_file("field.json", text))
+      for fmt, key, text in (
+        ("hulks", "length", '{"field_dimensions": {"length": 9.0, "length": 90, "width": 6.0}}'),
+        ("cambada", "field_length",
+         '{"field_length": 18000, "field_length": 30000, "field_width": 12000,'
+         ' "line_thickness": 125, "center_circle_radius": 2000, "goal_band_width": 1000,'
+         ' "side_band_width": 1000}'))],
 ]
 
 

@@ -381,20 +381,6 @@ def record_text(data: Mapping, name: str) -> str:
     return head + _yaml_table_block(table)
 
 
-def _json_without_repeats(raw: bytes):
-    """The JSON text ``raw`` parsed; ValueError where an object repeats a key. json keeps the
-    last of a repeated key: a note written as a first "run" key before fieldloc's left the
-    parsed object (and its digest) as written, and --overwrite replaced the file, the note
-    lost. fieldloc never writes a key twice."""
-    def no_repeats(pairs):
-        out = dict(pairs)
-        if len(out) != len(pairs):
-            raise ValueError("a key given twice")
-        return out
-
-    return json.loads(raw, object_pairs_hook=no_repeats)
-
-
 def record_as_written(path: str | Path) -> bool | None:
     """Whether the record ``path`` is as fieldloc wrote it (``record_text``): True; False
     where it was edited (or cannot be read as a record); None where its WRITTEN_FILES table
@@ -402,7 +388,7 @@ def record_as_written(path: str | Path) -> bool | None:
     FieldlocError (``cannot_read``)."""
     import yaml
 
-    from .conf import load_yaml
+    from .conf import load_json, load_yaml
 
     path = Path(path)
     name = path.name
@@ -413,7 +399,7 @@ def record_as_written(path: str | Path) -> bool | None:
     except OSError:
         return False
     try:
-        data = _json_without_repeats(raw) if name.endswith(".json") else load_yaml(raw)
+        data = load_json(raw) if name.endswith(".json") else load_yaml(raw)
     except (ValueError, RecursionError, yaml.YAMLError, FieldlocError):
         return False
     table = data.get(WRITTEN_FILES) if isinstance(data, dict) else None

@@ -13,6 +13,7 @@ from __future__ import annotations
 import copy
 import errno
 import importlib
+import json
 import numbers
 import os
 import re
@@ -120,6 +121,22 @@ def read_record(path) -> bytes:
         raise OSError(errno.EFBIG, f"{size / 1e6:.0f} MB, more than the"
                       f" {MAX_RECORD_BYTES >> 20} MB such a text file may weigh")
     return data
+
+
+def load_json(raw: str | bytes):
+    """The JSON text ``raw`` parsed; ValueError (as json's own) where an object repeats a key,
+    as load_yaml refuses one. json keeps the last of a repeated key: a note written as a first
+    "run" key before fieldloc's left a record's digest as written, and a team's field file
+    with "length" twice became a 90 m field, silently."""
+    def no_repeats(pairs):
+        out = dict(pairs)
+        if len(out) != len(pairs):
+            seen = set()
+            key = next(k for k, _ in pairs if k in seen or seen.add(k))
+            raise ValueError(f"key {shown(key, 40)} given twice")
+        return out
+
+    return json.loads(raw, object_pairs_hook=no_repeats)
 
 
 def load_yaml(text: str | bytes):

@@ -44,10 +44,10 @@ Formats:
 
 from __future__ import annotations
 
-import json
 import re
 from pathlib import Path
 
+from ..common.conf import load_json
 from ..common.errors import FieldlocError, file_problem
 from ..common.user_numbers import user_number
 
@@ -379,7 +379,7 @@ _CAMBADA_NOT_GEOMETRY = {
 def _json5(text: str, where: str):
     """JSON, or the JSON5 subset teams write: // and /* */ comments, trailing commas."""
     try:
-        return json.loads(text)
+        return load_json(text)
     except RecursionError:
         raise FieldFormatError(f"{where}: JSON nested too deep") from None
     except ValueError:  # JSONDecodeError, or an integer of more than 4300 digits
@@ -411,7 +411,7 @@ def _json5(text: str, where: str):
     body = re.sub(r",(\s*[}\]])", r"\1", "".join(out))
     body = re.sub(r"([{,]\s*)([A-Za-z_][A-Za-z0-9_]*)(\s*:)", r'\1"\2"\3', body)
     try:
-        return json.loads(body)
+        return load_json(body)
     except RecursionError:
         raise FieldFormatError(f"{where}: JSON nested too deep") from None
     except ValueError as e:  # JSONDecodeError, or an integer of more than 4300 digits

@@ -48,7 +48,6 @@ dimension is an error that names it.
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -58,7 +57,7 @@ import yaml
 
 from .. import __version__
 from ..common.artifacts import WRITTEN_MARK, atomic_path, check_output, file_hash
-from ..common.conf import load_yaml, read_record
+from ..common.conf import load_json, load_yaml, read_record
 from ..common.errors import FieldlocError, FieldSpecError, file_problem
 from ..common.field import (
     MSL_LETTERS,
@@ -399,7 +398,7 @@ def read_falcons(path: Path, venue: str | None):
     text = _read_text(path)
     if path.suffix.lower() == ".json":
         try:
-            doc = json.loads(text)
+            doc = load_json(text)
         except ValueError as e:  # JSONDecodeError, or an integer of more than 4300 digits
             raise TeamFieldError(f"{where}: not valid JSON ({str(e)[:80]})") from None
     else:
