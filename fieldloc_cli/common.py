@@ -32,7 +32,8 @@ class FilePath(click.Path):
 
 
 class FiniteFloat(click.ParamType):
-    """A float option that refuses nan and inf (click's FLOAT accepts both), and, given
+    """A float option that refuses nan and inf (click's FLOAT accepts both) and underscores
+    (as the YAML confs do: float reads ``1_0`` as 10), and, given
     ``low``/``high``, a value outside [low, high] in the option's own units."""
 
     name = "number"
@@ -41,6 +42,9 @@ class FiniteFloat(click.ParamType):
         self.low, self.high = low, high
 
     def convert(self, value, param, ctx):
+        if isinstance(value, str) and "_" in value:  # Python's float reads 1_0 as 10
+            self.fail(f"{value[:40]!r} is no decimal number (underscores); write it in"
+                      " decimal", param, ctx)
         try:
             v = float(value)
         except (TypeError, ValueError):

@@ -3638,6 +3638,34 @@ CASES = [
          '{"field_length": 18000, "field_length": 30000, "field_width": 12000,'
          ' "line_thickness": 125, "center_circle_radius": 2000, "goal_band_width": 1000,'
          ' "side_band_width": 1000}'))],
+    *[Case(f"bench --from-json of {what}: refused", "silent",
+           ["bench", "--from-json", W + "/b.json"], 1,
+           f"b.json: not a bench --json file (row 0: {why}",
+           setup=_setup_number_file("b.json", text))
+      for what, text, why in (
+        ("a median of 400 digits", '{"rows": [{"name": "a", "median_ms": HUGE}]}',
+         "median_ms 99999999999999999... is beyond 1e+300"),
+        ("a ratio of -Infinity", '{"rows": [{"name": "a", "ratio": -Infinity}]}',
+         "ratio -inf is beyond 1e+300"),
+        ("repeats -5", '{"rows": [{"name": "a", "repeats": -5}]}',
+         "repeats -5 is not a whole number >= 0"),
+        ("a name holding ESC [31m and a line break",
+         '{"rows": [{"name": "a\\u001b[31mRED\\nb"}]}', "name 'a\\x1b[31mRED\\nb' holds"))],
+    Case("frames.csv row 000000.png:Zone.Identifier (an NTFS stream): its line named",
+         "newcomer", ["extract", "{ds}", "-o", W + "/f.h5"], 1,
+         "line 2's '000000.png:Zone.Identifier' is read as a file of another kind",
+         setup=_with_ds("omni", lambda ds: edit_csv(ds / "frames.csv", 2,
+                                                    "000000.png:Zone.Identifier,0.0"))),
+    Case("field import --format carpenoctem --section '': refused, not the CurrentField",
+         "silent", ["field", "import", W + "/f.conf", "--format", "carpenoctem", "--section",
+                    "", "-o", W + "/out.yaml"], 1, "--section '' names no section (sections: Lab)",
+         setup=_setup_number_file("f.conf", "[FootballField]\nCurrentField = Lab\n[Lab]\n"
+                                  "FieldLength = 18000\n[!Lab]\n[!FootballField]\n")),
+    Case("build-map --max-range 1_0: refused, not read as 10", "silent",
+         ["build-map", "spl", "--max-range", "1_0", "-o", W + "/m.h5"], 2,
+         "'1_0' is no decimal number (underscores)"),
+    Case("bench --only '': refused, not every row", "silent", ["bench", "--only", ""], 1,
+         "--only '' names no row"),
 ]
 
 

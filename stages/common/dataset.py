@@ -510,8 +510,12 @@ def _listed_frames(path: Path, tab: dict[str, np.ndarray],
             # a row of another kind of its stem (000001.jpg among PNG frames) is said
             near = next((f" (line {ln}'s '{r[:40]}' is a file of another kind)"
                          for ln, r in other if row_frame_name(r) == p.stem), "")
-            raise DatasetError(f"{path}: no stamp for image {p.name}"
-                               f"{near or _unmatched_row(listed, have, p.stem)}")
+            # else a row of another kind holding its name (000000.png:Zone.Identifier, an
+            # NTFS stream's name, is a file of kind .Identifier): it named no line (trial L)
+            near = near or _unmatched_row(listed, have, p.stem) or next(
+                (f" (no row lists it; line {ln}'s '{r[:40]}' is read as a file of another"
+                 " kind)" for ln, r in other if p.stem in r), "")
+            raise DatasetError(f"{path}: no stamp for image {p.name}{near}")
         line_no, row, stamp = listed[p.stem]
         if row_file_name(row) not in (p.name, p.stem):
             raise DatasetError(f"{path}: line {line_no}: '{row[:40]}' is no image in images/;"

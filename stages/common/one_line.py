@@ -57,6 +57,12 @@ def _names_cut(text: str, longest: int) -> str:
                   lambda m: _middle_cut(m.group(0), longest, longest // 2), text)
 
 
+def has_control(text: str) -> bool:
+    """Whether ``text`` holds a character a terminal acts on instead of showing (a line
+    break, ESC, ...): text read from a file to be printed in a table refuses one."""
+    return _CONTROL.search(text) is not None
+
+
 def one_line(text, limit: int = LINE_MAX) -> str:
     """``text`` as one line a terminal shows as it is, at most ``limit`` characters: a line
     break (of any kind) becomes a space, any other control character is shown escaped as

@@ -279,6 +279,9 @@ def read_carpenoctem(path: Path, section: str | None = None):
     ``FootballField.conf`` (module doc)."""
     where = str(path)
     top, sections = cnc_sections(_read_text(path), where)
+    if section is not None and not section.strip():  # '' was taken for no --section
+        raise FieldFormatError(f"{where}: --section {section!r} names no section (sections:"
+                               f" {', '.join(sections)})")
     chosen = section or top.get("CurrentField")
     if not chosen:
         raise FieldFormatError(f"{where}: no CurrentField; pass --section"

@@ -84,6 +84,8 @@ def run(only: list[str] | None = None, repeat: int = 5, progress=None) -> list[R
     from ...common.errors import FieldlocError
 
     for o in only or []:
+        if not o.strip():  # '' is in every name: it selected every row, the whole bench
+            raise FieldlocError("--only '' names no row (`fieldloc bench --list` names them)")
         if not any(o in n for n in ROWS):
             shown = o if len(o) <= 40 else o[:37] + "..."
             raise FieldlocError(f"no bench row matches {shown!r} (`fieldloc bench --list` names"

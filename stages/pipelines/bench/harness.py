@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from ...common.artifacts import WRITTEN_MARK, atomic_path, cannot_read
+from ...common.conf import load_json
 
 
 @dataclass
@@ -295,7 +296,7 @@ def read_json(path: str | Path) -> list[Row]:
         if len(raw) > MAX_JSON_BYTES:
             raise FieldlocError(f"{path}: larger than {MAX_JSON_BYTES >> 20} MiB, not a bench"
                                 " --json file")
-        data = json.loads(raw)
+        data = load_json(raw)
     except PermissionError as e:
         raise cannot_read(path, e) from None
     except (OSError, ValueError, RecursionError) as e:
@@ -310,13 +311,17 @@ def read_json(path: str | Path) -> list[Row]:
 # field takes null too (read back as NaN)
 _NUMBER_FIELDS = ("median_ms", "baseline_ms", "ratio", "peak_mb", "cpu_ms")
 _TEXT_FIELDS = ("name", "goal", "baseline", "note")
+# the largest magnitude a number field takes: a time, a ratio or a memory figure above it is no
+# measure (an integer of 401 digits made a 400-character table column)
+MAX_BENCH_NUMBER = 1e300
 
 
 def _row_from_json(path, i: int, r) -> Row:
     """Row ``i`` of a bench --json file, refused in one line when a field has the wrong kind
     (a name of 5 would otherwise print as a row of the table). Keys Row does not know are
     ignored: a newer run's file still prints."""
-    from ...common.errors import FieldlocError
+    from ...common.errors import FieldlocError, shown
+    from ...common.one_line import has_control
 
     def wrong(what: str) -> FieldlocError:
         return FieldlocError(f"{path}: not a bench --json file (row {i}: {what})")
@@ -332,12 +337,17 @@ def _row_from_json(path, i: int, r) -> Row:
                 v = math.nan
             elif isinstance(v, bool) or not isinstance(v, int | float):
                 raise wrong(f"{k} is not a number")
+            elif abs(v) > MAX_BENCH_NUMBER:  # an int beyond the float range too; NaN passes
+                raise wrong(f"{k} {shown(v, 20)} is beyond {MAX_BENCH_NUMBER:g}")
         elif k in _TEXT_FIELDS and not isinstance(v, str):
             raise wrong(f"{k} is not text")
+        elif k in _TEXT_FIELDS and has_control(v):  # ESC [31m, a line break: printed raw
+            raise wrong(f"{k} {shown(v, 30)} holds a control character")
         elif k == "meets_goal" and not (v is None or isinstance(v, bool)):
             raise wrong("meets_goal is not true, false or null")
-        elif k == "repeats" and (isinstance(v, bool) or not isinstance(v, int)):
-            raise wrong("repeats is not a whole number")
+        elif k == "repeats" and (isinstance(v, bool) or not isinstance(v, int) or v < 0
+                                 or v > MAX_BENCH_NUMBER):
+            raise wrong(f"repeats {shown(v, 20)} is not a whole number >= 0")
         elif k == "extra" and not isinstance(v, dict):
             raise wrong("extra is not an object")
         elif k not in Row.__dataclass_fields__:
