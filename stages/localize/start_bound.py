@@ -37,8 +37,9 @@ from .mcl_start import PLACEMENT_EDGE, placement_log_density, placement_sign
 # standard deviations of init_spread across the line and in heading (the prior's mass beyond
 # them is below 1 %), and the stretch's ends widened by EDGES x PLACEMENT_EDGE
 STEP, TURN, SPAN, EDGES = 0.05, math.radians(3.0), 3.0, 2.0
-# a uniform start's grid over the world: UNIFORM_STEP m, UNIFORM_TURN rad (coarser: the world
-# is 90 times the placement's stretch; coarser cells favour the truth more, see the module doc)
+# a uniform start's grid over the world: UNIFORM_STEP m, UNIFORM_TURN rad (coarser: at the
+# placement's cells the world would take some 30 times its 110k poses; coarser cells favour
+# the truth more, see the module doc)
 UNIFORM_STEP, UNIFORM_TURN = 0.1, math.radians(6.0)
 # nats: a grid pose this far below the best is dropped (a weight below e^-PRUNE of the best;
 # coming back would take that much evidence against the best, more than a whole walk's
