@@ -279,6 +279,30 @@ class _Stdout:
             return self._stream.flush()
 
 
+class _ClosedStdout:
+    """Standard output when the process has none (started with it closed, `>&-`: sys.stdout
+    is None): what is written to it fails as a closed descriptor does, said as standard
+    output's; a command that writes nothing there runs as ever (trial M, M2: an
+    AttributeError traceback from flushing None)."""
+
+    encoding, errors = "utf-8", "strict"
+
+    def write(self, text):
+        raise OSError(errno.EBADF, "standard output is closed")
+
+    def writelines(self, lines):
+        self.write("")
+
+    def flush(self):
+        pass
+
+    def isatty(self):
+        return False
+
+    def fileno(self):
+        raise OSError(errno.EBADF, "standard output is closed")
+
+
 @contextlib.contextmanager
 def _as_stdout_error():
     try:
@@ -314,7 +338,7 @@ def _stdout_errors_said():
     """Around the whole of `fieldloc` (its options, --help and --version, the command): its
     standard output as ``_Stdout``, flushed at the end, and a write error on it that the
     command did not say already (``LazyGroup.invoke``) said (``_stdout_failed``)."""
-    out = sys.stdout
+    out = sys.stdout if sys.stdout is not None else _ClosedStdout()
     if isinstance(out, _Stdout):  # a group's subcommand group (`fieldloc show`)
         yield
         return

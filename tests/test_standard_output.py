@@ -148,3 +148,34 @@ def test_an_output_named_standard_output_is_refused(poses, tmp_path, monkeypatch
         "fieldloc: error: -: this output is a file or folder, not standard output"), r.stderr
     assert r.stderr.count("\n") == 1
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_closed_standard_output_is_one_line_or_no_matter(poses, tmp_path):
+    """Started with standard output closed (`>&-`: Python's sys.stdout is None), a command
+    that prints says so in one line and exits 1 (trial M: an AttributeError traceback); one
+    that writes only files runs as ever."""
+    def closed(*args):
+        return subprocess.run([sys.executable, "-c", "import os, runpy, sys; os.close(1);"
+                               " sys.stdout = None; sys.argv = ['fieldloc', *sys.argv[1:]];"
+                               " runpy.run_module('fieldloc_cli.main', run_name='__main__')",
+                               *map(str, args)], capture_output=True, text=True,
+                              env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=300)
+
+    for args in (["--version"], ["export", poses[0], "--format", "json", "-o", "-"]):
+        res = closed(*args)
+        assert res.returncode == 1
+        assert res.stderr.strip().splitlines() == [
+            "fieldloc: error: could not write to standard output (standard output is closed)"]
+    res = closed("-q", "export", poses[0], "--format", "csv", "-o", tmp_path / "p.csv")
+    assert res.returncode == 0 and res.stderr == "", res.stderr
+    assert (tmp_path / "p.csv").stat().st_size > 0
+
+
+def test_a_path_holding_a_nul_byte_is_said_to_be_none(tmp_path):
+    """os.stat raises ValueError for a NUL byte: a batch spec's path holding one ended in a
+    traceback from the link-loop check (trial M, M1)."""
+    from stages.common.errors import FieldlocError, check_file, file_problem
+
+    assert file_problem(tmp_path / "a\0b") == "is no path (it holds a NUL byte)"
+    with pytest.raises(FieldlocError, match="holds a NUL byte"):
+        check_file(tmp_path / "a\0b", "SPEC")

@@ -55,6 +55,8 @@ def link_loop(path: Path) -> bool:
         os.stat(path)
     except OSError as e:
         return e.errno == errno.ELOOP
+    except ValueError:  # a NUL byte: no path at all (file_problem says so)
+        return False
     return False
 
 
@@ -70,6 +72,8 @@ def file_problem(path) -> str | None:
     """Why ``path`` is no file to read, in a message's words ("not found", "is a folder", "is
     not a regular file ..."), or None for a regular file: /dev/null was "not found"."""
     path = Path(path)
+    if "\0" in str(path):  # os.stat's ValueError "embedded null byte" (trial M, M1)
+        return "is no path (it holds a NUL byte)"
     if path.is_file():
         return None
     if path.is_dir():
