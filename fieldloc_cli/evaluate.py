@@ -7,32 +7,11 @@ from pathlib import Path
 
 import click
 
-from stages.common.errors import FieldlocError, check_file, real_path
+from stages.common.errors import FieldlocError
 
 from .common import FINITE, FilePath, conf_option, overrides_dict, summary
 from .lazy_group import RESUMES, outputs_complete, set_resumes
 from .stage_defaults import EVALUATE_PRESETS, EVALUATE_STAMP_TOLERANCE
-
-
-def report_dirs(poses: list[Path], output: Path | None) -> list[Path]:
-    """Where each poses file's report goes: ``output`` for one file; ``output/<stem>`` for
-    several (parent folder names prefixed where stems repeat); without ``output``,
-    ``<poses folder>/<stem>-eval`` beside each poses file."""
-    if output is None:
-        return [p.parent / f"{p.stem}-eval" for p in poses]
-    if len(poses) == 1:
-        return [output]
-    names = [p.stem for p in poses]
-    if len(set(names)) < len(names):
-        names = [f"{real_path(p).parent.name}-{p.stem}" if names.count(p.stem) > 1 else p.stem
-                 for p in poses]
-    if len(set(names)) < len(names):
-        dup = next(n for n in names if names.count(n) > 1)
-        raise FieldlocError(
-            f"two poses files would share the report folder {output / dup}; evaluate them"
-            " with separate -o folders"
-        )
-    return [output / n for n in names]
 
 
 @click.command()
@@ -89,13 +68,7 @@ def evaluate(ctx, inputs, truth, output, field, table_only, preset, stamp_tolera
     from stages.common.conf import resolve_conf
 
     conf = resolve_conf(stage.confs, preset, over)
-    if output is not None and len(inputs) > 1:  # the folder of the reports' folders: no
-        from stages.common.artifacts import check_output  # recording's, before any report
-
-        check_output(output, None, overwrite=None, kind="folder")
-    for poses in inputs if len(inputs) > 1 else ():  # each there before any report is written
-        check_file(poses, "file")
-    outs = report_dirs(list(inputs), output)
+    outs = stage.report_dirs(list(inputs), output)
     done = []
     for poses, out in zip(inputs, outs):
         # what a stop (a signal, a full disk) leaves: the reports finished before this one

@@ -38,7 +38,7 @@ from stages.common.artifacts import (
 )
 from stages.common.conf import check_bounds, stage_conf
 from stages.common.dataset import open_dataset, read_csv
-from stages.common.errors import FieldlocError
+from stages.common.errors import FieldlocError, check_file, real_path
 from stages.common.field import field_file, load_field
 from stages.common.poses_file import read_poses
 from stages.common.report_file import (
@@ -124,6 +124,34 @@ CONVENTIONS = {
 MAX_THRESHOLDS = 20
 MAX_THRESHOLD_M = 100.0
 BOUNDS = {"thresholds": ((0,), MAX_THRESHOLD_M, (1, MAX_THRESHOLDS))}
+
+
+def report_dirs(poses: list[Path], output: Path | None) -> list[Path]:
+    """Where each poses file's report goes: ``output`` for one file; ``output/<stem>`` for
+    several (parent folder names prefixed where stems repeat); without ``output``,
+    ``<poses folder>/<stem>-eval`` beside each poses file. With several, every poses file
+    is checked to be there and ``output`` (the folder of their folders) to be no
+    recording's, before any report is written."""
+    if len(poses) > 1:
+        if output is not None:
+            check_output(output, None, overwrite=None, kind="folder")
+        for p in poses:
+            check_file(p, "file")
+    if output is None:
+        return [p.parent / f"{p.stem}-eval" for p in poses]
+    if len(poses) == 1:
+        return [output]
+    names = [p.stem for p in poses]
+    if len(set(names)) < len(names):
+        names = [f"{real_path(p).parent.name}-{p.stem}" if names.count(p.stem) > 1 else p.stem
+                 for p in poses]
+    if len(set(names)) < len(names):
+        dup = next(n for n in names if names.count(n) > 1)
+        raise FieldlocError(
+            f"two poses files would share the report folder {output / dup}; evaluate them"
+            " with separate -o folders"
+        )
+    return [output / n for n in names]
 
 
 def check_conf(conf: dict) -> dict:
