@@ -734,11 +734,24 @@ def _silence_dask() -> None:
         logging.getLogger(name).setLevel(DASK_SILENT)
 
 
-def _restore_dask_level(level: int, interrupted: list) -> None:
-    """Put distributed's logger back to ``level`` after the cluster stopped, unless the batch
-    was interrupted (``_hush_if_interrupted``)."""
-    if not interrupted:
-        logging.getLogger("distributed").setLevel(level)
+def _restore_dask_level(level: int, interrupted: list):
+    """An exit callback, run after the cluster stopped: distributed's logger back to
+    ``level``, unless the batch was interrupted (``_hush_if_interrupted``) or a Ctrl-C or
+    SIGTERM came as the cluster was stopping, the runs done. Then its loggers are silenced
+    instead: the signal breaks off the stop's wait (distributed's ``sync``), which cancels
+    the stop in Dask's event loop thread, and each nanny logs its "Nanny at ... closed." there
+    at once, racing this process's unwinding; restored to INFO, the nannies' lines came
+    before or after fieldloc's "terminated" line (5 of 8 SIGTERMs 0-0.6 s after the batch's
+    last picture; the lines were this process's, of its "IO loop" thread)."""
+
+    def on_exit(exc_type, exc, tb) -> bool:
+        if exc_type is not None and issubclass(exc_type, KeyboardInterrupt):
+            _silence_dask()
+        elif not interrupted:
+            logging.getLogger("distributed").setLevel(level)
+        return False
+
+    return on_exit
 
 
 @contextlib.contextmanager
@@ -805,7 +818,7 @@ def _execute_dask(plan: Plan, todo, conf, progress, say, records: dict, summaris
         # INFO; distributed sets its logger to INFO, and its records reach our log's handler
         dask_log = logging.getLogger("distributed")
         interrupted: list = []
-        stack.callback(_restore_dask_level, dask_log.level, interrupted)
+        stack.push(_restore_dask_level(dask_log.level, interrupted))
         dask_shown = logging.getLogger().isEnabledFor(logging.INFO)
         if not dask_shown:
             dask_log.setLevel(logging.ERROR)
