@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import copy
 import hashlib
+import json
 import logging
 import math
 import os
@@ -770,6 +771,18 @@ def _setup_team_files(w, ws):
     (ws / "thesis").mkdir()
     (ws / "thesis" / "thesis.txt").write_text("two years of work")
     return {"capture": str(sorted((ws / "hulks").glob("*.json"))[0])}
+
+
+def _setup_hulks_capture(old: str, new: str):
+    """ws/h.json: the first HULKs capture of ``_setup_team_files`` (written compact, as
+    json.dumps does) with the text ``old`` replaced by ``new``."""
+    def setup(w, ws):
+        paths = _setup_team_files(w, ws)
+        text = json.dumps(json.loads(Path(paths["capture"]).read_text()))
+        assert old in text, old
+        (ws / "h.json").write_text(text.replace(old, new, 1))
+        return paths
+    return setup
 
 
 def _claim_size(png: Path, width: int, height: int) -> None:
@@ -2469,6 +2482,12 @@ CASES = [
          "conf 'init_pose[0]' must be a number, got 'a'"),
         (["init=pose", "init_pose=7"], "traceback",
          "conf 'init_pose' must be a list of 3 numbers, got 7"))],
+    *[Case(f"calibrate perspective --from-hulks of a capture {what}: refused", kind,
+           ["calibrate", "perspective", "--from-hulks", W + "/h.json", "-o", W + "/c.yaml"],
+           1, msg, setup=_setup_hulks_capture(old, new)) for what, kind, old, new, msg in (
+        ("giving focal_length twice (M3: the last won)", "silent", '"optical_center"',
+         '"focal_length": [500.0, 500.0], "optical_center"',
+         "h.json: not a readable JSON file (key 'focal_length' given twice)"),)],
     *[Case(f"calibrate perspective --from-hulks -c {kv}", kind,
            ["calibrate", "perspective", "--from-hulks", "{capture}", "-o", W + "/calib.yaml",
             "-c", kv], 1, msg, setup=_setup_team_files) for kv, kind, msg in (

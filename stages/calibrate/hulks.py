@@ -39,14 +39,14 @@ Marker" panel writes them. A folder becomes a dataset folder (GUIDE section 4) a
   ``fieldloc extract``, which reads these columns. Top and bottom camera frames may share one
   dataset this way when their intrinsics agree.
 
-Refused, each with one clear message: an unreadable or malformed file, a quaternion that is
+Refused, each with one clear message: an unreadable or malformed file (a key given twice
+included: json keeps the last one), a quaternion that is
 not of unit length, a camera that does not look below the horizon, intrinsics that differ
 between the files of a folder, an output that exists (without ``overwrite``).
 """
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import shutil
@@ -65,7 +65,7 @@ from ..common.artifacts import (
     written_files,
 )
 from ..common.camera import MAX_IMAGE_PX, save_calib
-from ..common.conf import check_bounds, stage_conf
+from ..common.conf import check_bounds, load_json, read_record, stage_conf
 from ..common.dataset import write_csv
 from ..common.errors import FieldlocError, real_path
 from ..common.perspective_camera import PerspectiveCamera
@@ -182,8 +182,8 @@ def read_frame(path, conf: dict | None = None) -> HulksFrame:
     if not path.is_file():
         raise HulksImportError(f"HULKs camera file not found: {path}")
     try:
-        d = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
+        d = load_json(read_record(path))
+    except (OSError, ValueError, RecursionError) as e:  # ValueError: bad JSON, a key twice
         raise HulksImportError(f"{path}: not a readable JSON file ({e})") from None
     if not isinstance(d, dict) or "camera_matrix" not in d:
         raise HulksImportError(f"{path}: no 'camera_matrix' (not a HULKs capture file)")
