@@ -2564,6 +2564,15 @@ CASES = [
         ("field attribute is a number (export json)", ["export"],
          ["--format", "json", "-o", W + "/o.json"],
          "(attribute 'field' is '5'; expected text)", _attr("field", 5)))],
+    *[Case(f"poses whose {what}", "silent",
+           [*args, W + "/p.h5", *more], 1, msg, setup=_setup_damaged("poses", "p.h5", change))
+      for what, args, more, msg, change in (
+        ("/poses/x is NaN on accepted frames (M7: export tum wrote 'nan' rows)", ["export"],
+         ["--format", "tum", "-o", W + "/o.tum"], "damaged poses file (x not finite on accepted"
+         " frame", _replace("poses/x", lambda d: np.full(d.shape, np.nan))),
+        ("/poses/theta is NaN on accepted frames (M7: evaluate scored them)", ["evaluate"],
+         ["--truth", "{omni}", "-o", W + "/rep"], "damaged poses file (theta not finite on"
+         " accepted frame", _replace("poses/theta", lambda d: np.full(d.shape, np.nan))))],
     Case("poses whose /poses/failed holds 2 (read as true)", "silent",
          ["export", W + "/p.h5", "--format", "csv", "-o", W + "/o.csv"], 1,
          "(/poses/failed holds int64 values; expected true/false (or 0/1))",

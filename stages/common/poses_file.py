@@ -32,7 +32,8 @@ A file whose columns or root attributes are of another type than these (text in 
 column, a flag other than true/false or 0/1, ``conf`` or ``inputs`` not a JSON object,
 ``method``, ``field`` or ``dataset`` not text or longer than a name or path) is refused in one
 line (SchemaError), and so is one whose values no run writes: a stamp that is not finite or
-beyond dataset.MAX_STAMP, a pose that is infinite or beyond dataset.MAX_VALUE, a confidence or
+beyond dataset.MAX_STAMP, a pose that is infinite or beyond dataset.MAX_VALUE (or NaN on an
+accepted frame), a confidence or
 hypothesis probability outside [0, 1] or NaN.
 
 ``poses.tum`` beside it holds "stamp x y z qx qy qz qw" rows of the accepted frames (the top
@@ -394,7 +395,8 @@ POSE_COLUMNS = ("x", "y", "theta")
 
 def _check_values(out: dict, path) -> None:
     """Each frame's stamp finite and within MAX_STAMP (as the dataset's and features'
-    stamps), its pose NaN (failed) or within MAX_VALUE, its confidences in [0, 1], its
+    stamps), its pose NaN (failed) or within MAX_VALUE and finite where the frame is accepted
+    (up to the mirror or not), its confidences in [0, 1], its
     hypotheses' poses and probabilities likewise (NaN rows pad): a file edited or damaged
     elsewhere is refused in one line, rather than evaluated into a report of NaN or of
     confidences of 1e30, with numpy's warnings on the way."""
@@ -408,11 +410,18 @@ def _check_values(out: dict, path) -> None:
         i = int(wrong[0])
         raise SchemaError(f"{path}: damaged poses file (frame {str(out['name'][i])[:40]}:"
                           f" {stamp_error(float(stamp[i]))})")
+    accepted = np.zeros(len(stamp), bool)  # a frame a command uses: its pose must be finite
+    for k in ("accepted", "accepted_up_to_mirror"):
+        accepted |= np.asarray(out.get(k, ~np.asarray(out["failed"], bool)), bool)
     for k in POSE_COLUMNS:
         v = np.asarray(out[k], float)
         wrong = np.flatnonzero(~(np.isnan(v) | (np.abs(v) <= MAX_VALUE)))
         if len(wrong):
             raise bad(k, v, int(wrong[0]), f"NaN or a number within {MAX_VALUE:g}")
+        wrong = np.flatnonzero(accepted & np.isnan(v))
+        if len(wrong):  # export wrote "nan" rows of it, evaluate scored them
+            raise SchemaError(f"{path}: damaged poses file ({k} not finite on accepted frame"
+                              f" {str(out['name'][int(wrong[0])])[:40]})")
     for k in PROBABILITIES:
         if k in out:
             v = np.asarray(out[k], float)
