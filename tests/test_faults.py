@@ -2572,7 +2572,16 @@ CASES = [
          " frame", _replace("poses/x", lambda d: np.full(d.shape, np.nan))),
         ("/poses/theta is NaN on accepted frames (M7: evaluate scored them)", ["evaluate"],
          ["--truth", "{omni}", "-o", W + "/rep"], "damaged poses file (theta not finite on"
-         " accepted frame", _replace("poses/theta", lambda d: np.full(d.shape, np.nan))))],
+         " accepted frame", _replace("poses/theta", lambda d: np.full(d.shape, np.nan))),
+        ("schema_version is the text '2' (M8: read as 2)", ["export"],
+         ["--format", "csv", "-o", W + "/o.csv"], "damaged 'fieldloc.poses' file"
+         " (schema_version '2' is not a whole number)", _attr("schema_version", "2")),
+        ("inputs give the map as a number (M8)", ["show", "hypotheses"],
+         ["--frame", "1", "-o", W + "/h.png"], "(attribute 'inputs' gives 'map' '5'; expected"
+         " a path as text)", _attr("inputs", '{"map": 5}')),
+        ("method_report is not JSON (M8)", ["evaluate"], ["--truth", "{omni}", "-o", W + "/rep"],
+         "(attribute 'method_report' is '[[['; expected a JSON object)",
+         _attr("method_report", "[[[")))],
     Case("poses whose /poses/failed holds 2 (read as true)", "silent",
          ["export", W + "/p.h5", "--format", "csv", "-o", W + "/o.csv"], 1,
          "(/poses/failed holds int64 values; expected true/false (or 0/1))",

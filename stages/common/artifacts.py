@@ -1174,7 +1174,11 @@ def open_artifact(path: str | Path, schema: str, max_version: int) -> h5py.File:
         f.close()
         what = f"a '{got}' file" if got else "not a fieldloc artifact"
         raise SchemaError(f"{path}: expected a '{schema}' file, but it is {what}")
-    version = int(f.attrs.get("schema_version", -1))
+    version = f.attrs.get("schema_version", -1)
+    if not isinstance(version, (int, np.integer)) or isinstance(version, bool):
+        f.close()  # written as an integer; "2" or 1.9 is damage (int() read them as 2 and 1)
+        raise SchemaError(f"{path}: damaged '{schema}' file (schema_version"
+                          f" {str(version)[:40]!r} is not a whole number)")
     if not 1 <= version <= max_version:
         f.close()
         raise SchemaError(

@@ -2,7 +2,7 @@
 
 Root attributes: the common ones plus ``method`` (lut, mcl, templates), ``field`` (name),
 ``dataset``, ``method_report`` (JSON: what the method learnt over the run, e.g. lut's
-estimated calibration error).
+estimated calibration error; ``read_poses`` decodes it, as ``conf`` and ``inputs``).
 
     /poses/name        (N,) str    frame name
     /poses/stamp       (N,) f8     s
@@ -29,12 +29,13 @@ fail was accepted and had one hypothesis, its pose with its confidence. Files wi
 ``*_up_to_mirror`` columns are read with them equal to ``confidence`` and ``accepted``.
 
 A file whose columns or root attributes are of another type than these (text in a number
-column, a flag other than true/false or 0/1, ``conf`` or ``inputs`` not a JSON object,
-``method``, ``field`` or ``dataset`` not text or longer than a name or path) is refused in one
-line (SchemaError), and so is one whose values no run writes: a stamp that is not finite or
-beyond dataset.MAX_STAMP, a pose that is infinite or beyond dataset.MAX_VALUE (or NaN on an
-accepted frame), a confidence or
-hypothesis probability outside [0, 1] or NaN.
+column, a flag other than true/false or 0/1, ``conf``, ``inputs`` or ``method_report`` not a
+JSON object, an input's path not text, ``method``, ``field`` or ``dataset`` not text or longer
+than a name or path) is refused in one line (SchemaError), and so is one whose values no run
+writes: a stamp that is not finite or beyond dataset.MAX_STAMP, a pose that is infinite or
+beyond dataset.MAX_VALUE (or NaN on an accepted frame), a confidence or hypothesis probability
+outside [0, 1] or NaN. ``tum_twin`` is not checked: a record matching no file vouches for no
+twin, so ``--overwrite`` keeps the twin (``twin_vouched``), the safe side.
 
 ``poses.tum`` beside it holds "stamp x y z qx qy qz qw" rows of the accepted frames (the top
 hypothesis), readable by evo; its first line is the header ``# stamp x y z qx qy qz qw``. The
@@ -350,7 +351,8 @@ def _check_shapes(out: dict, path) -> None:
 # a folder's path (Linux's PATH_MAX); longer text is damage, and was drawn into every plot
 # title of a report (100,000 characters took matplotlib minutes)
 TEXT_ATTRS = {"method": 64, "field": 256, "dataset": 4096}
-JSON_ATTRS = ("conf", "inputs")  # JSON mappings ({} where absent)
+# JSON mappings ({} where absent); ``inputs`` maps each input's role to its path or hash
+JSON_ATTRS = ("conf", "inputs", "method_report")
 
 
 def _check_types(out: dict, attrs: dict, path) -> None:
@@ -381,6 +383,10 @@ def _check_types(out: dict, attrs: dict, path) -> None:
         if not isinstance(attrs[k], dict):
             raise SchemaError(f"{path}: damaged poses file (attribute '{k}' is"
                               f" {str(attrs[k])[:40]!r}; expected a JSON object)")
+    wrong = [k for k, v in attrs["inputs"].items() if not isinstance(v, str)]
+    if wrong:  # a role's path is opened (show hypotheses: the map) or checked against -o
+        raise SchemaError(f"{path}: damaged poses file (attribute 'inputs' gives {wrong[0][:40]!r}"
+                          f" {str(attrs['inputs'][wrong[0]])[:40]!r}; expected a path as text)")
 
 
 # columns that are probabilities: a number from 0 to 1 in every frame (a failed frame's is 0)
@@ -453,8 +459,12 @@ def _read_poses(path):
         if "hypotheses" in h5:
             out["hypotheses"] = h5["hypotheses"][()]
         attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in h5.attrs.items()}
-        attrs["conf"] = read_json_attr(h5, "conf")
-        attrs["inputs"] = read_json_attr(h5, "inputs")
+        for k in JSON_ATTRS:
+            try:
+                attrs[k] = read_json_attr(h5, k)
+            except (ValueError, RecursionError):
+                raise SchemaError(f"{path}: damaged poses file (attribute '{k}' is"
+                                  f" {str(h5.attrs[k])[:40]!r}; expected a JSON object)") from None
     _check_shapes(out, path)
     _check_types(out, attrs, path)
     _check_values(out, path)

@@ -115,10 +115,7 @@ def _figures(poses: Path, run: Path) -> dict:
     cols, attrs = read_poses(poses)
     fe = frame_errors(cols, read_csv(run / "truth.csv", "truth"), 0.02)
     ok = ~fe.failed
-    import json
-
-    meta = attrs.get("method_report", "{}")
-    meta = json.loads(meta.decode() if isinstance(meta, bytes) else meta)
+    meta = attrs["method_report"]
     from ...common.geometry import wrap_angle
 
     dth = np.abs(wrap_angle(np.asarray(fe.theta, float) - np.asarray(fe.truth_theta, float)))
