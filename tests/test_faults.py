@@ -2508,7 +2508,11 @@ CASES = [
         ("mcl conf init_spread=[1e12,1,1]",
          _spec_with(methods='[{{method: mcl, conf: ["init_spread=[1e12,1,1]"]}}]',
                     preset="perspective-clean"),
-         "methods[0]: conf 'init_spread[0]' must be >= 0 and <= 100"))],
+         "methods[0]: conf 'init_spread[0]' must be >= 0 and <= 100"),
+        ("method conf list naming min_confidence twice (M4: the last won)",
+         _spec_with(methods='[{{method: lut, conf: ["min_confidence=0.5",'
+                            ' "min_confidence=0.9"]}}]'),
+         "methods[0].conf: the key 'min_confidence' is given twice"))],
     Case("a field key whose value is 300 kB of text", "silent",
          ["build-map", W + "/f.yaml", "-o", W + "/m.h5"], 1,
          "key 'length' must be a number, got 'xxxxxxxx", setup=_setup_field({"length": LONG}),

@@ -165,10 +165,14 @@ def yaml_problem(e: yaml.YAMLError, text: str) -> str:
     return f"line {mark.line + 1}{quoted}: {problem}"
 
 
-def parse_overrides(items) -> dict:
+def parse_overrides(items, *, once: bool = False) -> dict:
     """['a=1', 'b.c=x'] -> {'a': 1, 'b': {'c': 'x'}} (values parsed as YAML scalars; their type
-    is checked against the preset in ``resolve_conf``)."""
+    is checked against the preset in ``resolve_conf``). A key given twice: the last wins (the
+    command line's ``-c``, where a wrapper may append to a user's options), or with ``once``
+    (a file's list, as a batch SPEC's ``conf:``, where a repeat is a slip as a YAML key given
+    twice is) FieldlocError "the key KEY is given twice"."""
     out: dict = {}
+    seen: set[str] = set()
     for item in items or ():
         if "=" not in item:
             raise FieldlocError(f"conf override '{item}' is not of the form key=value")
@@ -176,6 +180,9 @@ def parse_overrides(items) -> dict:
         parts = [p.strip() for p in key.strip().split(".")]
         if not all(parts):
             raise FieldlocError(f"conf override '{item}': the key '{key}' is not a conf key name")
+        if once and ".".join(parts) in seen:
+            raise FieldlocError(f"the key {shown('.'.join(parts), 40)} is given twice")
+        seen.add(".".join(parts))
         try:
             parsed = load_yaml(value)
         except yaml.YAMLError:

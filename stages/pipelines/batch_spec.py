@@ -230,7 +230,7 @@ class _Where:
         over = v or {}
         if isinstance(over, list):
             try:
-                over = parse_overrides(over)
+                over = parse_overrides(over, once=True)
             except FieldlocError as e:
                 self.fail(where, str(e))
         if not isinstance(over, dict):
