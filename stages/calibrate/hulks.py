@@ -39,9 +39,10 @@ Marker" panel writes them. A folder becomes a dataset folder (GUIDE section 4) a
   ``fieldloc extract``, which reads these columns. Top and bottom camera frames may share one
   dataset this way when their intrinsics agree.
 
-Refused, each with one clear message: an unreadable or malformed file (a key given twice
-included: json keeps the last one), a quaternion that is
-not of unit length, a camera that does not look below the horizon, intrinsics that differ
+Refused, each with one clear message naming the input's field: an unreadable or malformed
+file (a key given twice included: json keeps the last one), a value that is no number (a
+``true``), a focal length no lens has, an optical centre outside the image, a quaternion that
+is not of unit length, a camera that does not look below the horizon, intrinsics that differ
 between the files of a folder, an output that exists (without ``overwrite``).
 """
 
@@ -66,9 +67,10 @@ from ..common.artifacts import (
 )
 from ..common.camera import MAX_IMAGE_PX, save_calib
 from ..common.conf import check_bounds, load_json, read_record, stage_conf
-from ..common.dataset import write_csv
-from ..common.errors import FieldlocError, real_path
-from ..common.perspective_camera import PerspectiveCamera
+from ..common.dataset import MAX_VALUE, write_csv
+from ..common.errors import FieldlocError, real_path, shown
+from ..common.perspective_camera import FOCAL_SHARE, PerspectiveCamera
+from ..common.user_numbers import user_numbers
 
 log = logging.getLogger(__name__)
 
@@ -125,47 +127,59 @@ def zyx_angles(rotation: np.ndarray) -> tuple[float, float, float]:
     return yaw, pitch, roll
 
 
+def _numbers(d: dict, key: str, n: int, where: str) -> np.ndarray:
+    """The ``n`` finite numbers of ``d[key]`` (a JSON list), or one line naming the field of
+    the input file: a ``true`` read as 1 was refused later under the output's name."""
+    return np.array(user_numbers(d[key], f"{where}: {key}", count=n, error=HulksImportError))
+
+
 def _transform(d, key: str, where: str, tol: float) -> tuple[np.ndarray, np.ndarray]:
-    try:
-        t = d[key]
-        q = np.asarray(t["rotation"], float).ravel()
-        p = np.asarray(t["translation"], float).ravel()
-    except (KeyError, TypeError, ValueError):
+    t = d.get(key)
+    if not isinstance(t, dict) or "rotation" not in t or "translation" not in t:
         raise HulksImportError(f"{where}: '{key}' needs 'rotation' [x, y, z, w] and "
-                               "'translation' [x, y, z]") from None
-    if q.size != 4 or p.size != 3 or not (np.all(np.isfinite(q)) and np.all(np.isfinite(p))):
-        raise HulksImportError(f"{where}: '{key}' needs a finite rotation [x, y, z, w] and "
-                               "translation [x, y, z]")
-    if abs(float(np.linalg.norm(q)) - 1.0) > tol:
+                               "'translation' [x, y, z]")
+    q = _numbers(t, "rotation", 4, f"{where}: {key}")
+    p = _numbers(t, "translation", 3, f"{where}: {key}")
+    # |q| from components within 1 + tol: a component of 1e308 overflowed numpy's norm
+    if np.abs(q).max() > 1 + tol or abs(math.hypot(*q) - 1.0) > tol:
         raise HulksImportError(f"{where}: '{key}' rotation is not a unit quaternion "
-                               f"(|q| = {np.linalg.norm(q):.4f})")
+                               f"(|q| = {math.hypot(*q):.4g})")
+    if np.abs(p).max() > MAX_VALUE:
+        raise HulksImportError(f"{where}: '{key}' translation {shown(p.tolist(), 40)} is"
+                               f" beyond {MAX_VALUE:g} m")
     return quaternion_matrix(q), p
 
 
 def camera_from_hulks(d: dict, conf: dict | None = None, where: str = "HULKs camera matrix"
                       ) -> PerspectiveCamera:
     """The PerspectiveCamera of a HULKs ``camera_matrix`` mapping (see the module doc) at the
-    pose of its ``camera_to_ground``."""
+    pose of its ``camera_to_ground``. Its numbers are checked before any maths, each refusal
+    naming the field of ``where``: a focal length within FOCAL_SHARE of the image (as a
+    calib.yaml's), the optical centre in the image, a unit quaternion, a camera above the
+    floor."""
     conf = {**confs["default"], **(conf or {})}
     if not isinstance(d, dict):
         raise HulksImportError(f"{where}: 'camera_matrix' must be a mapping")
-    try:
-        fx, fy = (float(v) for v in d["focal_length"])
-        cx, cy = (float(v) for v in d["optical_center"])
-    except KeyError as e:
-        raise HulksImportError(f"{where}: camera matrix misses {e}") from None
-    except (TypeError, ValueError):
-        raise HulksImportError(f"{where}: 'focal_length' and 'optical_center' must be two "
-                               "numbers each") from None
+    missing = [k for k in ("focal_length", "optical_center", "camera_to_ground") if k not in d]
+    if missing:
+        raise HulksImportError(f"{where}: camera matrix misses '{missing[0]}'")
+    w, h = (int(v) for v in conf["image_size"])
+    fx, fy = _numbers(d, "focal_length", 2, where)
+    cx, cy = _numbers(d, "optical_center", 2, where)
+    low, high = FOCAL_SHARE
+    if not (low * w <= fx <= high * w and low * h <= fy <= high * h):
+        raise HulksImportError(f"{where}: focal_length ({fx:g}, {fy:g}) must lie between"
+                               f" {low:g} and {high:g} times the {w} x {h} px image's width"
+                               " and height")
+    if not (0 <= cx <= w and 0 <= cy <= h):
+        raise HulksImportError(f"{where}: optical_center ({cx:g}, {cy:g}) must lie in the"
+                               f" {w} x {h} px image")
     rot, t = _transform(d, "camera_to_ground", where, float(conf["unit_tolerance"]))
     yaw, pitch, roll = zyx_angles(rot)
-    if not (fx > 0 and fy > 0 and math.isfinite(cx) and math.isfinite(cy)):
-        raise HulksImportError(f"{where}: focal lengths must be > 0, got {fx}, {fy}")
     if t[2] <= 0:
         raise HulksImportError(f"{where}: camera_to_ground puts the camera {t[2]:.3f} m above "
                                "the floor (must be > 0)")
     shift = float(conf["pixel_origin_shift"])
-    w, h = (int(v) for v in conf["image_size"])
     cam = PerspectiveCamera(image_size=(w, h), fx=fx, fy=fy, cx=cx + shift, cy=cy + shift,
                             distortion=np.zeros(5), height=float(t[2]), pitch=pitch, roll=roll,
                             yaw=yaw, position=(float(t[0]), float(t[1])))
