@@ -256,7 +256,8 @@ def main(conf: str | dict | None, source, output, *, overwrite: bool = False,
     if not source.is_dir():
         raise HulksImportError(f"HULKs camera file or folder not found: {source}")
     check_importer_target(output, {"the HULKs captures": [p for p in source.iterdir()
-                                                          if p.is_file()]},
+                                                          if p.is_file()],
+                                   "the HULKs capture folder": source},
                           overwrite, record=IMPORT_RECORD, generator=GENERATOR,
                           error=HulksImportError)
     frames = _frames_of_folder(source, conf)

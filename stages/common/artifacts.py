@@ -690,16 +690,22 @@ def _refuse_recording_folder(path: Path, error: type[FieldlocError]) -> None:
 def check_importer_target(output: Path, inputs: Mapping[str, object], overwrite: bool, *,
                           record: str, generator: str,
                           error: type[FieldlocError] = FieldlocError) -> None:
-    """The dataset folder an importer writes whole: none of its ``inputs`` nor holding one,
-    and, where it exists and is not empty, replaced only with ``overwrite`` and only when the
-    importer wrote it (its ``record`` YAML names ``generator``): never a user's own folder,
-    whose other files the replacement would delete. Every file of the folder must be one the
+    """The dataset folder an importer writes whole: none of its ``inputs``, nor holding one, nor
+    inside one that is a folder (a folder of captures), and, where it exists and is not empty,
+    replaced only with ``overwrite`` and only when the importer wrote it (its ``record`` YAML
+    names ``generator``): never a user's own folder, whose other files the replacement would
+    delete. Every file of the folder must be one the
     record's WRITTEN_FILES table lists, as written (``refuse_edited``: a record without a
     table, an older fieldloc's, or with a damaged one vouches for none, and the folder is
     refused), so that a user's file added to the folder, or one of the importer's files
     edited since, is never deleted."""
     restore_interrupted_replacement(output)  # a folder a killed replacement moved aside
     check_output(output, inputs, overwrite=None, kind="folder", error=error, recording=True)
+    for role, given in inputs.items():  # a source folder: the dataset goes beside it
+        if isinstance(given, (str, os.PathLike)) and Path(given).is_dir() \
+                and _inside(output, given):
+            raise error(f"{output} lies inside {role} ({given}), an input of this command: a"
+                        " dataset written into its source mixes with it; choose another output")
     if not (output.is_dir() and any(output.iterdir())):
         return
     if not overwrite:
