@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from .common import FilePath, progress_enabled, summary
+from .common import FilePath, WholeNumber, progress_enabled, summary
 from .lazy_group import outputs_complete
 
 
@@ -15,7 +15,7 @@ from .lazy_group import outputs_complete
 @click.argument("spec", type=FilePath(dir_okay=False, path_type=Path))
 @click.option("-o", "--output", required=True, type=FilePath(file_okay=False, path_type=Path),
               help="Results folder: runs, comparison.csv/.md, plots/ (a rerun resumes it).")
-@click.option("--workers", type=click.IntRange(min=1), default=None,
+@click.option("--workers", type=WholeNumber(min=1), default=None,
               help="Worker processes of the local Dask cluster [default: one per core].")
 @click.option("--scheduler", default=None, metavar="ADDRESS",
               help="Run on an existing Dask cluster (tcp://host:8786; `dask scheduler`,"

@@ -6,14 +6,14 @@ from pathlib import Path
 
 import click
 
-from .common import FilePath
+from .common import FilePath, WholeNumber
 
 
 @click.command("bench")
 @click.option("--only", multiple=True, metavar="NAME",
               help="Run rows whose name contains NAME (repeatable; --list names the rows).")
 @click.option("--list", "list_rows", is_flag=True, help="Print the rows' names and exit.")
-@click.option("--repeat", type=click.IntRange(min=1), default=5, show_default=True,
+@click.option("--repeat", type=WholeNumber(min=1), default=5, show_default=True,
               help="Timed runs per row (medians are reported).")
 @click.option("--json", "json_path", type=FilePath(dir_okay=False, path_type=Path),
               help="Also write the rows as JSON.")

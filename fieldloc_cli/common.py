@@ -31,6 +31,31 @@ class FilePath(click.Path):
         super().__init__(*args, readable=readable, **kwargs)
 
 
+def refuse_underscores(kind: click.ParamType, value, param, ctx) -> None:
+    """A number option's text with an underscore refused (click's usage error), as the YAML
+    confs refuse it: Python's float and int read ``1_0`` as 10."""
+    if isinstance(value, str) and "_" in value:
+        kind.fail(f"{value[:40]!r} is no decimal number (underscores); write it in decimal",
+                  param, ctx)
+
+
+class WholeNumber(click.IntRange):
+    """The CLI's whole-number option type: click's IntRange (``min``/``max`` optional),
+    refusing underscores as FiniteFloat does (``--frames 1_0`` ran 10 frames)."""
+
+    def __init__(self, min: int | None = None, max: int | None = None):
+        super().__init__(min=min, max=max)
+        if min is None and max is None:
+            self.name = "integer"  # help as click's INT: no "RANGE", no range line
+
+    def _describe_range(self) -> str:
+        return "" if self.min is None and self.max is None else super()._describe_range()
+
+    def convert(self, value, param, ctx):
+        refuse_underscores(self, value, param, ctx)
+        return super().convert(value, param, ctx)
+
+
 class FiniteFloat(click.ParamType):
     """A float option that refuses nan and inf (click's FLOAT accepts both) and underscores
     (as the YAML confs do: float reads ``1_0`` as 10), and, given
@@ -42,9 +67,7 @@ class FiniteFloat(click.ParamType):
         self.low, self.high = low, high
 
     def convert(self, value, param, ctx):
-        if isinstance(value, str) and "_" in value:  # Python's float reads 1_0 as 10
-            self.fail(f"{value[:40]!r} is no decimal number (underscores); write it in"
-                      " decimal", param, ctx)
+        refuse_underscores(self, value, param, ctx)
         try:
             v = float(value)
         except (TypeError, ValueError):

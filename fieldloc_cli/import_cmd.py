@@ -5,7 +5,15 @@ from __future__ import annotations
 
 import click
 
-from .common import FilePath, conf_option, count, overrides_dict, progress_enabled, summary
+from .common import (
+    FilePath,
+    WholeNumber,
+    conf_option,
+    count,
+    overrides_dict,
+    progress_enabled,
+    summary,
+)
 from .lazy_group import outputs_complete
 from .stage_defaults import ROSBAG_PRESETS
 
@@ -23,7 +31,7 @@ def import_group():
               help="sensor_msgs/Image or CompressedImage topic.")
 @click.option("--odom-topic", metavar="T", help="nav_msgs/Odometry topic -> odometry.csv.")
 @click.option("--imu-topic", metavar="T", help="sensor_msgs/Imu topic -> imu.csv (yaw).")
-@click.option("--every", type=int, default=1, show_default=True,
+@click.option("--every", type=WholeNumber(), default=1, show_default=True,
               help="Keep every N-th image message.")
 @click.option("--calib", type=FilePath(dir_okay=False),
               help="calib.yaml to copy into the dataset folder.")

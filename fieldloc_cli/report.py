@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from .common import FilePath, conf_option, overrides_dict, summary
+from .common import FilePath, WholeNumber, conf_option, overrides_dict, summary
 from .lazy_group import outputs_complete
 
 
@@ -12,7 +12,7 @@ from .lazy_group import outputs_complete
 @click.argument("source", type=FilePath(exists=False))
 @click.option("-o", "--output", required=True, type=FilePath(dir_okay=False),
               help="HTML file to write.")
-@click.option("--worst", type=click.IntRange(min=0), default=None,
+@click.option("--worst", type=WholeNumber(min=0), default=None,
               help="How many of the worst frames to show with overlays [default: 4].")
 @click.option("--overwrite", is_flag=True, help="Replace OUTPUT if it exists.")
 @conf_option

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from .common import FINITE, FilePath, summary
+from .common import FINITE, FilePath, WholeNumber, summary
 from .lazy_group import outputs_complete
 from .stage_defaults import SHOW_ERROR_SURFACE as D
 
@@ -15,7 +15,7 @@ from .stage_defaults import SHOW_ERROR_SURFACE as D
 @click.command("error-surface")
 @click.argument("templates", type=FilePath(dir_okay=False, path_type=Path))
 @click.argument("queries", type=FilePath(path_type=Path))
-@click.option("--template", type=click.IntRange(min=0), default=None,
+@click.option("--template", type=WholeNumber(min=0), default=None,
               help="Template index [default: the one nearest the queries' centre].")
 @click.option("--half-size", type=FINITE, default=None,
               help="Surfaces (a), (b): +- this many metres of (dx, dy)"

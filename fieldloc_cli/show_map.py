@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from .common import FINITE, FilePath, summary
+from .common import FINITE, FilePath, WholeNumber, summary
 from .lazy_group import outputs_complete
 from .stage_defaults import SHOW_MAP as D
 from .stage_defaults import SHOW_MAP_FAMILIES, SHOW_MAP_TABLES
@@ -24,7 +24,7 @@ from .stage_defaults import SHOW_MAP_FAMILIES, SHOW_MAP_TABLES
               f" [default: {D['heading_deg']}].")
 @click.option("--family", type=click.Choice(SHOW_MAP_FAMILIES), default=None,
               help=f"Spirals: the counter-clockwise or clockwise family [default: {D['family']}].")
-@click.option("--spirals", type=click.IntRange(min=1), default=None,
+@click.option("--spirals", type=WholeNumber(min=1), default=None,
               help="Spirals: how many of the family's 36 to draw (evenly spaced)"
               f" [default: {D['spirals']}].")
 @click.option("-o", "--output", type=FilePath(dir_okay=False, path_type=Path), required=True,

@@ -18,6 +18,7 @@ from .common import (
     FINITE,
     FilePath,
     FiniteFloat,
+    WholeNumber,
     conf_option,
     count,
     overrides_dict,
@@ -39,9 +40,9 @@ def simulate_options(preset: str, camera: str):
                          help="Field preset name (msl-2015, spl, ...) or a field YAML file."),
             click.option("-o", "--output", "output", required=True,
                          type=FilePath(file_okay=False), help="Dataset folder to write."),
-            click.option("--frames", type=click.IntRange(min=1), default=None,
+            click.option("--frames", type=WholeNumber(min=1), default=None,
                          help=f"Number of frames [preset: {base['frames']}]."),
-            click.option("--seed", type=click.IntRange(min=0), default=None,
+            click.option("--seed", type=WholeNumber(min=0), default=None,
                          help=f"Seed of every random choice [preset: {base['seed']}]."),
             click.option("--trajectory", "trajectory_kind", type=click.Choice(SIMULATE_PATH_KINDS),
                          default=None,
@@ -106,13 +107,13 @@ def simulate():
               help="Template captures (the SURF template paper): the robot placed at the nodes of"
               " a grid of SPACING m over the field instead of a path (one frame per node and"
               " heading, no odometry.csv; --frames and --trajectory do not apply).")
-@click.option("--grid-headings", type=click.IntRange(min=1), default=None, metavar="N",
+@click.option("--grid-headings", type=WholeNumber(min=1), default=None, metavar="N",
               help="With --grid: N headings per node, 360/N deg apart from 0"
               f" [preset: {SIMULATE['omni-default']['grid_headings']}].")
-@click.option("--calib-seed", type=int, default=None,
+@click.option("--calib-seed", type=WholeNumber(), default=None,
               help="Seed of the calibration error calib.yaml states [default: --seed]: the"
               " same for two datasets makes them one robot's (a template grid and a run).")
-@click.option("--world-seed", type=int, default=None,
+@click.option("--world-seed", type=WholeNumber(), default=None,
               help="Seed of the venue (carpet, paint, walls) [default: --seed]: the same for"
               " two datasets records both in one lab.")
 @click.pass_context

@@ -3708,6 +3708,10 @@ CASES = [
     Case("build-map --max-range 1_0: refused, not read as 10", "silent",
          ["build-map", "spl", "--max-range", "1_0", "-o", W + "/m.h5"], 2,
          "'1_0' is no decimal number (underscores)"),
+    *[Case(f"{' '.join(args[:2])} {opt} 1_0: refused, not read as 10", "silent",
+           [*args, opt, "1_0"], 2, "'1_0' is no decimal number (underscores)")
+      for args, opt in ((["simulate", "omni", "--field", "spl", "-o", W + "/s"], "--frames"),
+                        (["report", W + "/r", "-o", W + "/r.html"], "--worst"))],
     Case("bench --only '': refused, not every row", "silent", ["bench", "--only", ""], 1,
          "--only '' names no row"),
 ]
