@@ -3682,6 +3682,10 @@ CASES = [
          '{"field_length": 18000, "field_length": 30000, "field_width": 12000,'
          ' "line_thickness": 125, "center_circle_radius": 2000, "goal_band_width": 1000,'
          ' "side_band_width": 1000}'))],
+    Case("field import of a JSON file giving length twice, no --format: the key named",
+         "silent", ["field", "import", W + "/field.json", "-o", W + "/out.yaml"], 1,
+         "field.json: key 'length' given twice", setup=_setup_number_file(
+             "field.json", '{"field_dimensions": {"length": 9.0, "length": 90, "width": 6}}')),
     *[Case(f"bench --from-json of {what}: refused", "silent",
            ["bench", "--from-json", W + "/b.json"], 1,
            f"b.json: not a bench --json file (row 0: {why}",

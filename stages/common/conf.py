@@ -123,8 +123,14 @@ def read_record(path) -> bytes:
     return data
 
 
+class RepeatedKeyError(ValueError):
+    """A JSON object naming a key twice (``load_json``): valid JSON that is refused, which a
+    reader trying several formats says as such rather than as no format at all."""
+
+
 def load_json(raw: str | bytes):
-    """The JSON text ``raw`` parsed; ValueError (as json's own) where an object repeats a key,
+    """The JSON text ``raw`` parsed; RepeatedKeyError (a ValueError, as json's own) where an
+    object repeats a key,
     as load_yaml refuses one. json keeps the last of a repeated key: a note written as a first
     "run" key before fieldloc's left a record's digest as written, and a team's field file
     with "length" twice became a 90 m field, silently."""
@@ -133,7 +139,7 @@ def load_json(raw: str | bytes):
         if len(out) != len(pairs):
             seen = set()
             key = next(k for k, _ in pairs if k in seen or seen.add(k))
-            raise ValueError(f"key {shown(key, 40)} given twice")
+            raise RepeatedKeyError(f"key {shown(key, 40)} given twice")
         return out
 
     return json.loads(raw, object_pairs_hook=no_repeats)

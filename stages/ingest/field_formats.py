@@ -47,7 +47,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from ..common.conf import load_json
+from ..common.conf import RepeatedKeyError, load_json
 from ..common.errors import FieldlocError, file_problem
 from ..common.user_numbers import user_number
 
@@ -113,7 +113,9 @@ def detect_format(path) -> str:
     if suffix in (".json", ".json5"):
         try:
             doc = _json5(text, str(path))
-        except FieldFormatError:
+        except FieldFormatError as e:
+            if isinstance(e.__cause__, RepeatedKeyError):
+                raise  # its format is plain, its key given twice is what to say
             doc = None
         if isinstance(doc, dict):
             if "field_dimensions" in doc:
@@ -385,6 +387,8 @@ def _json5(text: str, where: str):
         return load_json(text)
     except RecursionError:
         raise FieldFormatError(f"{where}: JSON nested too deep") from None
+    except RepeatedKeyError as e:  # JSON, refused (detect_format tells it by its cause)
+        raise FieldFormatError(f"{where}: {e}") from e
     except ValueError:  # JSONDecodeError, or an integer of more than 4300 digits
         pass
     out, i, n, in_str = [], 0, len(text), False
@@ -417,6 +421,8 @@ def _json5(text: str, where: str):
         return load_json(body)
     except RecursionError:
         raise FieldFormatError(f"{where}: JSON nested too deep") from None
+    except RepeatedKeyError as e:
+        raise FieldFormatError(f"{where}: {e}") from e
     except ValueError as e:  # JSONDecodeError, or an integer of more than 4300 digits
         raise FieldFormatError(f"{where}: not valid JSON or JSON5 ({str(e)[:80]})") from None
 
