@@ -723,6 +723,20 @@ def _setup_loops_and_spec(w, ws):
     return {}
 
 
+def _check_said_once(twice: str):
+    def check(paths, res):
+        assert twice not in res.stderr and "symbolic link loop" in res.stderr, res.stderr
+    return check
+
+
+def _setup_loop_map_spec(w, ws):
+    """ws/loop (a link loop) and ws/top.yaml, a batch SPEC whose top-level map is it."""
+    _setup_loops_and_spec(w, ws)
+    (ws / "top.yaml").write_text(f"map: loop\ndatasets: [{{path: {w['omni']}}}]\n"
+                                 "methods: [lut]\n")
+    return {}
+
+
 def _setup_special(name, kind="fifo"):
     """A FIFO (or, as root, a character device like /dev/null) named ``name`` in the case's
     folder: an output that an atomic write would replace with a file."""
@@ -3673,6 +3687,9 @@ CASES = [
         ("report of a folder whose report.json is", ["report", W + "/R", "-o", W + "/r.html"]),
         *((f"batch SPEC's datasets[0].{key}", ["batch", W + f"/{key}.yaml", "-o", W + "/b",
                                                "--serial"]) for key in LOOP_SPECS))],
+    Case("batch SPEC's map a symbolic link loop: the key said once", "silent",
+         ["batch", W + "/top.yaml", "-o", W + "/b", "--serial"], 1,
+         "top.yaml: map: /", setup=_setup_loop_map_spec, check=_check_said_once("map: map:")),
     *[Case(f"field import of a {fmt} JSON file giving {key} twice: refused", "silent",
            ["field", "import", W + "/field.json", "--format", fmt, "-o", W + "/out.yaml"], 1,
            f"key '{key}' given twice", setup=_setup_number_file("field.json", text))

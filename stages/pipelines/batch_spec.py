@@ -196,12 +196,14 @@ class _Where:
 
     def file(self, path: Path, where: str, what: str) -> None:
         """Fail unless ``path`` is a regular file: "<what> not found", or why it is none (a
-        link loop, a FIFO: not "not found")."""
+        link loop, a FIFO: not "not found"). ``what`` is left out where ``where`` ends with
+        it ("map: map: ..." said it twice)."""
         why = file_problem(path)
+        named = where.rsplit(".", 1)[-1] != what
         if why == "not found":
-            self.fail(where, f"{what} not found: {path}")
+            self.fail(where, f"{what} not found: {path}" if named else f"{path} not found")
         if why:
-            self.fail(where, f"{what}: {path} {why}")
+            self.fail(where, f"{what + ': ' if named else ''}{path} {why}")
 
     def folder(self, path: Path, where: str, what: str) -> None:
         """Fail unless ``path`` is a folder: "<what> not found", or that it is a link loop."""
