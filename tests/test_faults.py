@@ -517,6 +517,13 @@ def _setup_report_copy(w, ws):
     return {}
 
 
+def _setup_read_only_poses(w, ws):
+    """A poses file fieldloc wrote, made read-only by its user (chmod 444) to keep it."""
+    shutil.copyfile(w["poses"], ws / "kept.h5")
+    os.chmod(ws / "kept.h5", 0o444)
+    return {}
+
+
 def _setup_bad_report(change):
     def setup(w, ws):
         import json
@@ -2880,6 +2887,10 @@ CASES = [
     Case("a user's files in the map's .lookup folder stay", "data-lost",
          ["localize", "{omni}", "--map", W + "/m.map.h5", "--features", "{features}", "-o",
           W + "/p.h5"], 0, "4 frames", setup=_setup_lookup_with_notes),
+    Case("--overwrite onto a poses file made read-only (chmod 444)", "data-lost",
+         ["localize", "{omni}", "--map", "{map}", "--features", "{features}", "-o",
+          W + "/kept.h5", "--overwrite"], 1, "kept.h5 is read-only: --overwrite does not",
+         setup=_setup_read_only_poses),
     # ------------------------------------- s54: --overwrite onto a user's file of the name
     *[Case(f"--overwrite onto a user's file: {' '.join(args[:2])} -o {Path(args[-1]).name}",
            "data-lost",

@@ -458,7 +458,7 @@ def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *
       file that happens to have the output's name; given the ``schema`` the command writes,
       nor a fieldloc HDF5 artifact of another schema (a map under a features file's name is
       no earlier run of this command: build-templates -o msl.map.h5 --overwrite replaced the
-      map);
+      map), nor a file without write permission (made read-only to keep it);
     - never a recording's own file (an image, odometry.csv, truth.csv, ... of any dataset
       folder; its calib.yaml only for ``kind="calibration"``, which is a file otherwise);
     - the folder it goes into must exist and be writable; a file output must not be a folder
@@ -490,6 +490,11 @@ def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *
     if overwrite and kind == "file" and path.is_file() and not ours(path):
         raise error(f"{path} was not written by fieldloc: --overwrite replaces only fieldloc's"
                     " own outputs, never a user's file; choose another output")
+    if overwrite and kind == "file" and path.is_file() and not path.stat().st_mode & 0o222:
+        # a file with no write bit was made read-only by someone: a user's wish to keep it,
+        # which --overwrite does not override (os.access would say writable to root)
+        raise error(f"{path} is read-only: --overwrite does not replace a file made read-only;"
+                    " make it writable (chmod u+w) or choose another output")
     if overwrite and schema is not None and kind == "file" and path.is_file():
         found = _hdf5_schema(path)
         if found in HDF5_SCHEMAS and found != schema:
