@@ -294,6 +294,24 @@ def test_truth_from_dataset_named_in_poses(tmp_path):
         stage.main(None, noset, None, tmp_path / "r2")
 
 
+def test_truth_of_another_recording_said_a_copy_not(tmp_path, caplog):
+    """`fieldloc evaluate --truth` warns where the truth is not the poses' dataset's (another
+    recording's, trial K229) and keeps quiet for that truth itself or a copy of it."""
+    ds = tmp_path / "dataset"
+    ds.mkdir()
+    write_truth(ds / "truth.csv", [0, 1])
+    poses = write_track(tmp_path / "p.h5", [(0, (0.1, 0, 0)), (1, (0, 0, 0))], dataset=ds)
+    copy = write_truth(tmp_path / "copy.csv", [0, 1])
+    other = write_truth(tmp_path / "other.csv", [0, 1], xs=[1.0, 1.0])
+    said = "not the truth of the dataset the poses were made from"
+    for k, (truth, warned) in enumerate([(ds, False), (copy, False), (other, True)]):
+        caplog.clear()
+        res = CliRunner().invoke(cli, ["evaluate", str(poses), "--truth", str(truth), "-o",
+                                       str(tmp_path / f"r{k}")])
+        assert res.exit_code == 0, res.output
+        assert (said in caplog.text) == warned, (truth, caplog.text)
+
+
 # ---------------------------------------------------------------------------- plots
 
 

@@ -517,6 +517,14 @@ def _setup_report_copy(w, ws):
     return {}
 
 
+def _shift_truth(ds: Path) -> None:
+    """Another recording's truth on the same field: every x 1 m further."""
+    rows = (ds / "truth.csv").read_text().splitlines()
+    head, body = rows[0], [r.split(",") for r in rows[1:]]
+    (ds / "truth.csv").write_text("\n".join(
+        [head] + [",".join([r[0], str(float(r[1]) + 1.0), *r[2:]]) for r in body]) + "\n")
+
+
 def _setup_read_only_poses(w, ws):
     """A poses file fieldloc wrote, made read-only by its user (chmod 444) to keep it."""
     shutil.copyfile(w["poses"], ws / "kept.h5")
@@ -3671,7 +3679,11 @@ CASES = [
         (["extract", "{omni}"], "poses", "features"))],
     Case("evaluate spl poses against a kidsize dataset's truth: said", "silent",
          ["evaluate", "{poses}", "--truth", "{kid}", "-o", W + "/r"], 0,
-         "poses on field 'spl' scored against"),
+         "of a dataset recorded on field 'kidsize', not the poses' 'spl'"),
+    Case("evaluate against a same-field dataset's other truth: said", "silent",
+         ["evaluate", "{poses}", "--truth", "{ds}", "-o", W + "/r"], 0,
+         "not the truth of the dataset the poses were made from",
+         setup=_with_ds("omni", _shift_truth)),
     *[Case(f"{what} a symbolic link loop: one line, no RuntimeError", "traceback", args, 1,
            "loop: it is a symbolic link loop; remove the link", setup=_setup_loops_and_spec)
       for what, args in (

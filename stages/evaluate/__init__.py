@@ -199,18 +199,27 @@ def _truth_path(truth, attrs: dict, poses: Path) -> Path:
     return truth
 
 
-def _truth_on_another_field(attrs: dict, truth: Path) -> str | None:
-    """The field the truth's dataset records (its simulation.yaml) where it is not the poses'
-    (their map's): poses of one dataset scored against another's truth, which the errors
-    alone do not show (trial K229). None where either does not say."""
+def _truth_of_another_recording(attrs: dict, truth: Path) -> str | None:
+    """Why ``truth`` looks like another recording's than the poses' (trial K229: the errors
+    alone do not show it), or None: the field its dataset records (simulation.yaml) is not
+    the poses' (their map's); or the dataset the poses record is still there with a truth.csv
+    of other contents than ``truth`` (a copy of the dataset elsewhere is the same truth; a
+    moved dataset leaves nothing to compare)."""
     ours = attrs.get("field")
-    if not ours:
-        return None
     try:
         recorded = open_dataset(truth.parent, need_images=False).field_record().get("name")
-    except FieldlocError:  # truth.csv outside a dataset folder: nothing recorded to compare
+    except FieldlocError:  # truth.csv outside a dataset folder: no field recorded
+        recorded = None
+    if ours and recorded and recorded != ours:
+        return f"of a dataset recorded on field '{recorded}', not the poses' '{ours}'"
+    own = Path(attrs.get("dataset") or "") / "truth.csv"
+    try:
+        if (attrs.get("dataset") and own.is_file() and not own.samefile(truth)
+                and own.read_bytes() != truth.read_bytes()):
+            return f"not the truth of the dataset the poses were made from ({own.parent})"
+    except OSError:  # unreadable either way: the scoring below says so, or has it already
         return None
-    return recorded if recorded and recorded != ours else None
+    return None
 
 
 def main(conf: str | dict | None, poses, truth, output_dir, *, overwrite: bool = False,
@@ -283,10 +292,9 @@ def main(conf: str | dict | None, poses, truth, output_dir, *, overwrite: bool =
     why = start_half_contradicted(fe, attrs, max(conf["thresholds"], default=0.4))
     if why:
         log.warning("%s: %s", poses, why)
-    other = _truth_on_another_field(attrs, truth)
+    other = _truth_of_another_recording(attrs, truth)
     if other:
-        log.warning("%s: poses on field '%s' scored against %s, of a dataset recorded on field"
-                    " '%s': is it this run's truth?", poses, attrs["field"], truth, other)
+        log.warning("%s: scored against %s, %s: is it this run's truth?", poses, truth, other)
 
     from .export import write_truth_tum  # truth.tum: evo_ape tum truth.tum poses.tum
 
