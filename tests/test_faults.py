@@ -532,6 +532,13 @@ def _setup_read_only_poses(w, ws):
     return {}
 
 
+def _setup_report_copy_read_only(w, ws):
+    """The shared report copied to ws/runs/a, its errors.csv made read-only (chmod 444)."""
+    _setup_report_copy(w, ws)
+    os.chmod(ws / "runs" / "a" / "errors.csv", 0o444)
+    return {}
+
+
 def _setup_bad_report(change):
     def setup(w, ws):
         import json
@@ -2899,6 +2906,10 @@ CASES = [
          ["localize", "{omni}", "--map", "{map}", "--features", "{features}", "-o",
           W + "/kept.h5", "--overwrite"], 1, "kept.h5 is read-only: --overwrite does not",
          setup=_setup_read_only_poses),
+    Case("evaluate --overwrite onto a report folder whose errors.csv is read-only", "data-lost",
+         ["evaluate", "{poses}", "-o", W + "/runs/a", "--overwrite"], 1,
+         "errors.csv is read-only: --overwrite does not",
+         setup=_setup_report_copy_read_only),
     # ------------------------------------- s54: --overwrite onto a user's file of the name
     *[Case(f"--overwrite onto a user's file: {' '.join(args[:2])} -o {Path(args[-1]).name}",
            "data-lost",

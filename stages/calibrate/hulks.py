@@ -269,7 +269,9 @@ def main(conf: str | dict | None, source, output, *, overwrite: bool = False,
     with atomic_dir(output, overwrite=overwrite) as tmp:
         (tmp / "images").mkdir()
         for _, image in frames:
-            shutil.copy2(image, tmp / "images" / image.name)
+            # the bytes only: a capture's mode (read-only where it came from) is not the
+            # dataset's, whose files --overwrite must be able to replace
+            shutil.copyfile(image, tmp / "images" / image.name)
         save_calib(nominal, tmp / "calib.yaml")
         write_csv(tmp / "head.csv", "head", {
             "stamp": [fr.stamp for fr, _ in frames],

@@ -317,6 +317,8 @@ def refuse_edited(folder: str | Path, recorded, names, *, record: str, unlisted=
     fieldloc's record; or damaged) and the record or any of ``names`` is there, one line
     naming the folder: fieldloc cannot vouch for any of its files."""
     folder = Path(folder)
+    for n in (record, *names):
+        _refuse_read_only(folder / n, error)
     if not isinstance(recorded, Mapping):
         if any(os.path.lexists(folder / n) for n in (record, *names)):
             raise error(f"{folder}'s {record} lists no {WRITTEN_FILES} (an older fieldloc's"
@@ -422,6 +424,15 @@ def record_as_written(path: str | Path) -> bool | None:
             and hashlib.sha256(head + block_rest.encode()).hexdigest() == digest)
 
 
+def _refuse_read_only(path: Path, error: type[FieldlocError]) -> None:
+    """One line where ``path`` is a file without any write permission bit: made read-only
+    by someone, a wish to keep it that --overwrite does not override (the mode bits are read:
+    os.access says writable to root)."""
+    if path.is_file() and not path.is_symlink() and not path.stat().st_mode & 0o222:
+        raise error(f"{path} is read-only: --overwrite does not replace a file made read-only;"
+                    " make it writable (chmod u+w) or choose another output")
+
+
 def _refuse_edited_record(path: Path, error: type[FieldlocError]) -> None:
     """Before --overwrite replaces the record ``path`` (where it is there): one line naming
     it unless it is as fieldloc wrote it (``record_as_written``)."""
@@ -490,11 +501,8 @@ def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *
     if overwrite and kind == "file" and path.is_file() and not ours(path):
         raise error(f"{path} was not written by fieldloc: --overwrite replaces only fieldloc's"
                     " own outputs, never a user's file; choose another output")
-    if overwrite and kind == "file" and path.is_file() and not path.stat().st_mode & 0o222:
-        # a file with no write bit was made read-only by someone: a user's wish to keep it,
-        # which --overwrite does not override (os.access would say writable to root)
-        raise error(f"{path} is read-only: --overwrite does not replace a file made read-only;"
-                    " make it writable (chmod u+w) or choose another output")
+    if overwrite and kind == "file":
+        _refuse_read_only(path, error)
     if overwrite and schema is not None and kind == "file" and path.is_file():
         found = _hdf5_schema(path)
         if found in HDF5_SCHEMAS and found != schema:

@@ -54,8 +54,8 @@ def lab_dataset(realdata: Path, out: Path) -> tuple[Path, Path]:
     ds = Path(out) / "minho-lab"
     (ds / "images").mkdir(parents=True, exist_ok=True)
     for p in sorted((src / "images").glob("*.png")):
-        shutil.copy(p, ds / "images" / p.name)
-    shutil.copy(src / "mask.png", ds / "mask.png")
+        shutil.copyfile(p, ds / "images" / p.name)  # not the source's read-only mode
+    shutil.copyfile(src / "mask.png", ds / "mask.png")
     calibrate.from_minho(None, src, ds / "calib.yaml", overwrite=True)
     field = team_fields.main(None, src / "Lar.view", Path(out) / "minho-lab.yaml", fmt="minho",
                              name=LAB_FIELD_NAME, overwrite=True)
