@@ -18,7 +18,7 @@ from .stage_defaults import LOCALIZE, LOCALIZE_DEFAULT_METHOD, LOCALIZE_METHODS
 
 log = logging.getLogger("fieldloc.localize")
 
-TABLE_METHODS = ("lut", "fit")  # the omni methods: heading source, start half, independent
+TABLE_METHODS = ("lut", "fit")  # the omni methods: heading source, start half
 # the methods with a smoother's scorer (stages.localize.smooth)
 SMOOTH_METHODS = ("lut", "fit", "mcl", "templates")
 
@@ -58,8 +58,8 @@ SMOOTH_METHODS = ("lut", "fit", "mcl", "templates")
               help="mcl: initial belief, the game's placement (own half, at the touch"
               f" lines) or anywhere on the field [default: {LOCALIZE['mcl', 'init']}].")
 @click.option("--independent", is_flag=True, default=None,
-              help="lut, fit, templates: localise every frame on its own, globally, with no"
-              " prior and no odometry (snapshots at unknown poses).")
+              help="localise every frame on its own, globally, with no prior and no"
+              " odometry (snapshots at unknown poses; mcl: each from a uniform start).")
 @click.option("--smooth", is_flag=True, default=None,
               help="decide every frame with the whole recording (offline: a"
               " forward-backward pass over the method's candidates, then a pose graph;"
@@ -133,8 +133,9 @@ def localize(ctx, dataset, map_path, templates, pose_solver, features, points, m
             raise click.UsageError("--pose-solver applies to --method templates")
         conf["pose_solver"] = pose_solver
     if independent:
-        if method not in TABLE_METHODS + ("templates",):
-            raise click.UsageError("--independent applies to --method lut, fit and templates")
+        if method == "mcl" and init not in (None, "uniform"):
+            raise click.UsageError("--independent starts every frame from a uniform belief:"
+                                   " no --init placement")
         conf["independent"] = True
     if smooth:
         if method not in SMOOTH_METHODS:

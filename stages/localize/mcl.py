@@ -143,6 +143,9 @@ _DEFAULT = {
     "imu_heading_sigma": None,
     "smooth": False,  # decide every frame with the whole recording (smooth.py, MclScorer):
     # offline; the causal run's poses are then replaced by the smoothed ones
+    # every frame localised on its own, from a uniform start, with no odometry and nothing
+    # of the other frames (snapshots at unknown poses: real stills); ``init`` is not used
+    "independent": False,
     "observation": dict(OBSERVATION_DEFAULTS),  # camera height, kinds of observation used
 }
 
@@ -164,6 +167,8 @@ confs = {
     "no-lines": _preset(observation={"use_lines": False}),
     # global localisation from anywhere on the field (up to the field's symmetry)
     "uniform": _preset(init="uniform"),
+    # every frame on its own (snapshots)
+    "independent": _preset(init="uniform", independent=True),
 }
 
 
@@ -541,7 +546,10 @@ def run(conf: dict, dataset, features, map_file, progress=None) -> PoseTrack:
     imu_yaw = collision & np.isfinite(dyaw)
     increments[imu_yaw, 2] = dyaw[imu_yaw]  # a pushed robot's odometry does not know its turn
     headings = frame_headings(imu, stamps, collision, conf["imu_heading_sigma"])
-    pf = ParticleFilter(model, conf, imu_heading=any(h is not None for h in headings))
+    imu_heading = any(h is not None for h in headings)
+    if conf["independent"]:
+        return _independent(conf, model, features, headings, imu_heading, progress)
+    pf = ParticleFilter(model, conf, imu_heading=imu_heading)
     pf.initialise()
     keep = SmoothingInputs() if conf["smooth"] else None
     track = PoseTrack()
@@ -550,13 +558,7 @@ def run(conf: dict, dataset, features, map_file, progress=None) -> PoseTrack:
         name = features.names[i]
         stamp = float(stamps[i])
         t0 = time.perf_counter()
-        reason = None
-        try:
-            obs = Observations.from_features(features.frame(name))
-        except (KeyError, ValueError) as e:
-            log.warning("frame %s: unreadable features (%s); prediction only", name, e)
-            obs = Observations.empty()
-            reason = "unreadable-features"
+        obs, reason = _frame_observations(features, name)
         dt = 0.0 if prev_stamp is None else max(stamp - prev_stamp, 0.0)
         est, frame = pf.step(increments[i], dt, obs, has_odometry=odometry is not None,
                       first=prev_stamp is None, collision=bool(collision[i]),
@@ -566,15 +568,7 @@ def run(conf: dict, dataset, features, map_file, progress=None) -> PoseTrack:
         if collision[i]:
             est.flags.append("collision")
         prev_stamp = stamp
-        runtime = time.perf_counter() - t0
-        accepted = est.confidence >= conf["min_confidence"]
-        if not accepted:
-            est.flags.append("low-confidence")
-        track.add(name, stamp, est.pose, hypotheses=est.hypotheses, accepted=accepted,
-                  error=float(np.sqrt(max(np.trace(est.covariance[:2, :2]), 0.0)))
-                  if np.all(np.isfinite(est.covariance)) else math.nan,
-                  confidence=est.confidence, mode=est.mode, runtime=runtime,
-                  covariance=est.covariance, flags=",".join(est.flags))
+        _add(track, conf, name, stamp, est, time.perf_counter() - t0)
     if keep is None:
         return track
     scorer = MclScorer(model, keep, mirrored=pf.symmetric,
@@ -585,6 +579,50 @@ def run(conf: dict, dataset, features, map_file, progress=None) -> PoseTrack:
                                kidnap_probability=SMOOTH_KIDNAP_PROBABILITY,
                                area=(x1 - x0) * (y1 - y0),
                                log_prior0=start_prior(conf, model.field))
+
+
+def _frame_observations(features, name: str) -> tuple[Observations, str | None]:
+    """A frame's observations, and why there are none where its features are unreadable
+    (the frame is then a prediction only)."""
+    try:
+        return Observations.from_features(features.frame(name)), None
+    except (KeyError, ValueError) as e:
+        log.warning("frame %s: unreadable features (%s); prediction only", name, e)
+        return Observations.empty(), "unreadable-features"
+
+
+def _add(track: PoseTrack, conf: dict, name: str, stamp: float, est: Estimate,
+         runtime: float) -> None:
+    """One frame's estimate onto ``track``, accepted at the conf's ``min_confidence``."""
+    accepted = est.confidence >= conf["min_confidence"]
+    if not accepted:
+        est.flags.append("low-confidence")
+    track.add(name, stamp, est.pose, hypotheses=est.hypotheses, accepted=accepted,
+              error=float(np.sqrt(max(np.trace(est.covariance[:2, :2]), 0.0)))
+              if np.all(np.isfinite(est.covariance)) else math.nan,
+              confidence=est.confidence, mode=est.mode, runtime=runtime,
+              covariance=est.covariance, flags=",".join(est.flags))
+
+
+def _independent(conf: dict, model: ObservationModel, features, headings, imu_heading: bool,
+                 progress) -> PoseTrack:
+    """Every frame localised on its own (conf ``independent``): a filter of its own from a
+    uniform start (its first-frame place search) and one update with the frame's observations
+    and IMU heading, no odometry; what the frame alone says, its pose and its mirror image
+    sharing the belief on a symmetric field (the pair's share: symmetry.py). The same seed
+    for each frame, so a frame's result does not depend on the others."""
+    track = PoseTrack()
+    stamps = np.asarray(features.stamps, float)
+    for i in _iterate(range(len(features.names)), progress):
+        name = features.names[i]
+        t0 = time.perf_counter()
+        obs, _ = _frame_observations(features, name)
+        pf = ParticleFilter(model, conf, imu_heading=imu_heading)
+        pf.initialise("uniform")
+        est, _ = pf.step(np.zeros(3), 0.0, obs, has_odometry=False, first=True,
+                         collision=False, imu_yaw=False, heading=headings[i])
+        _add(track, conf, name, float(stamps[i]), est, time.perf_counter() - t0)
+    return track
 
 
 # the ranges mcl's numeric keys must lie in to run at all (common.conf.check_bounds; the
@@ -617,8 +655,12 @@ def check_conf(conf: dict) -> None:
     if conf["particles_min"] > conf["particles_max"]:
         raise FieldlocError(f"particles_min ({conf['particles_min']}) must not exceed"
                             f" particles_max ({conf['particles_max']})")
-    if not isinstance(conf["smooth"], bool):
-        raise FieldlocError(f"smooth must be true or false, not {str(conf['smooth'])[:40]!r}")
+    for key in ("smooth", "independent"):
+        if not isinstance(conf[key], bool):
+            raise FieldlocError(f"{key} must be true or false, not {str(conf[key])[:40]!r}")
+    if conf["smooth"] and conf["independent"]:
+        raise FieldlocError("smooth decides every frame with the whole recording; it does not"
+                            " localise frames independently")
     check_start_half(conf)
     if conf["start_side"] not in mcl_start.START_SIDES:
         raise FieldlocError(f"start_side must be one of {', '.join(mcl_start.START_SIDES)}, not"
