@@ -262,6 +262,16 @@ def _minho_with(line: str):
     return setup
 
 
+def _minho_plus(name: str, text: str):
+    """ws/minho: the shared MINHO files, ``text`` added at the end of its ``name``."""
+    def setup(w, ws):
+        shutil.copytree(w["minho"], ws / "minho")
+        with open(ws / "minho" / name, "a") as f:
+            f.write(text)
+        return {}
+    return setup
+
+
 def _setup_relative_run(w, ws):
     """localize run from inside ws with relative paths; evaluate then runs elsewhere."""
     ds = copy_dataset(w, "omni", ws)
@@ -3769,6 +3779,33 @@ CASES = [
                         (["report", W + "/r", "-o", W + "/r.html"], "--worst"))],
     Case("bench --only '': refused, not every row", "silent", ["bench", "--only", ""], 1,
          "--only '' names no row"),
+    # ---------------------------------------------------------- trial N (issue 25, session 61)
+    *[Case(f"{what} giving {key} twice: refused, not the last kept (N1-N3)", "silent", args, 1,
+           f"{key} given twice", setup=setup)
+      for what, key, setup, args in (
+        ("field import of a B-Human .cfg", "key 'xPosOpponentGoalLine'",
+         _setup_number_file("f.cfg", "xPosOpponentGoalLine = 4500;\nxPosOpponentGoalLine ="
+                            " 4400;\n"),
+         ["field", "import", W + "/f.cfg", "--format", "bhuman", "-o", W + "/o.yaml"]),
+        ("field import of a Carpe Noctem .conf", "key 'CurrentField'",
+         _setup_number_file("f.conf", "[FootballField]\nCurrentField = Lab\nCurrentField ="
+                            " Official\n[Lab]\nFieldLength = 18000\n[!Lab]\n[!FootballField]\n"),
+         ["field", "import", W + "/f.conf", "--format", "carpenoctem", "-o", W + "/o.yaml"]),
+        ("calibrate --from-cnc of a CarpetCalibrator.conf", "key dist1",
+         _setup_number_file("c.conf", "[Dist]\ndist0 = 0\ndist1 = 1000\ndist1 = 1200\n"
+                            "dist2 = 2000\n[!Dist]\n"),
+         ["calibrate", "omni", "--from-cnc", W + "/c.conf", "-o", W + "/c.yaml"]),
+        ("calibrate --from-cnc of a CarpetCalibrator.conf", "section [Dist]",
+         _setup_number_file("c.conf", "[Dist]\ndist0 = 0\ndist1 = 1000\ndist2 = 2000\n"
+                            "[!Dist]\n" * 2),
+         ["calibrate", "omni", "--from-cnc", W + "/c.conf", "-o", W + "/c.yaml"]),
+        ("calibrate --from-minho of an image.cfg", "image.cfg: key TILT",
+         _minho_plus("image.cfg", "TILT=10\n"),
+         ["calibrate", "omni", "--from-minho", W + "/minho", "-o", W + "/c.yaml"]),
+        ("calibrate --from-minho of a mirror.cfg (once run into a comment)",
+         "mirror.cfg: key STEP",
+         _minho_plus("mirror.cfg", "#DONT CHANGE THE ORDER OF THE CONFIGURATIONSSTEP=0.5\n"),
+         ["calibrate", "omni", "--from-minho", W + "/minho", "-o", W + "/c.yaml"]))],
 ]
 
 

@@ -82,11 +82,13 @@ def read_distances(path) -> np.ndarray:
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as e:
         raise CncCalibrationError(f"{path}: unreadable ({e})") from None
-    m = re.search(r"\[Dist\](.*?)\[!Dist\]", text, re.S)
-    if not m:
+    blocks = re.findall(r"\[Dist\](.*?)\[!Dist\]", text, re.S)
+    if not blocks:
         raise CncCalibrationError(f"{path}: no [Dist] ... [!Dist] block")
+    if len(blocks) > 1:  # the first was read, the others went by unseen
+        raise CncCalibrationError(f"{path}: section [Dist] given twice")
     values = {}
-    for line in m.group(1).splitlines():
+    for line in blocks[0].splitlines():
         line = line.split("#", 1)[0].strip()
         if not line:
             continue
@@ -94,6 +96,8 @@ def read_distances(path) -> np.ndarray:
         if not kv:
             raise CncCalibrationError(f"{path}: cannot read '{line[:40]}' (expected distN ="
                                       " MM)")
+        if int(kv.group(1)) in values:  # the last was kept: a ring at two distances
+            raise CncCalibrationError(f"{path}: key dist{kv.group(1)} given twice")
         try:
             values[int(kv.group(1))] = parse_number(kv.group(2))
         except ValueError:

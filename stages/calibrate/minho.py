@@ -28,6 +28,11 @@ from ..common.errors import FieldlocError
 MIRROR_CFG = "mirror.cfg"
 IMAGE_CFG = "image.cfg"
 _KEY_VALUE = re.compile(r"([A-Z][A-Z0-9_]*)=([^#\n]*)")
+# the keys read here, found also at the end of a comment they run into (the comment's last word
+# and the key are one run of capitals: CONFIGURATIONSMAX_DISTANCE=4 was read as a key of that
+# name, and its MAX_DISTANCE, or a STEP given a second time there, went unseen)
+_READ_KEYS = ("MAX_DISTANCE", "PIXEL_DISTANCES", "STEP", "IMG_CENTER", "TILT")
+_RUN_IN_KEY = re.compile(r"#[^\n]*?[A-Za-z0-9](" + "|".join(_READ_KEYS) + r")=([^#\n]*)")
 
 
 @dataclass
@@ -53,7 +58,10 @@ def read_cfg(path: Path) -> dict[str, str]:
         raise FieldlocError(f"{path}: unreadable ({e})") from None
     out: dict[str, str] = {}
     for line in text.splitlines():
-        for key, value in _KEY_VALUE.findall(line):
+        code, hashed, comment = line.partition("#")
+        for key, value in _KEY_VALUE.findall(code) + _RUN_IN_KEY.findall(hashed + comment):
+            if key in out:  # the last was kept: a TILT given twice went by unseen
+                raise FieldlocError(f"{path}: key {key} given twice")
             out[key] = value.strip()
     return out
 

@@ -257,6 +257,8 @@ def cnc_sections(text: str, where: str) -> tuple[dict, dict]:
         if not stack:
             raise FieldFormatError(f"{where}:{n}: '{kv.group(1)}' outside [FootballField]")
         if len(stack) == 1:
+            if kv.group(1) in top:  # a CurrentField given twice: the last went unseen
+                raise FieldFormatError(f"{where}:{n}: key '{kv.group(1)}' given twice")
             top[kv.group(1)] = kv.group(2).strip()
         else:
             sections[stack[-1]].append((kv.group(1), kv.group(2).strip(), n))

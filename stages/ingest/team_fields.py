@@ -160,6 +160,8 @@ def _bh_statements(text: str, where: str) -> dict[str, str]:
             k += 1
         if k >= n:
             raise TeamFieldError(f"{where}: '{key}' has no closing ';'")
+        if key in out:  # B-Human's reader keeps the last: a second value went by unseen
+            raise TeamFieldError(f"{where}: key '{key}' given twice")
         out[key] = text[j:k].strip()
         i = k + 1
     return out
