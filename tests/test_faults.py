@@ -3806,6 +3806,13 @@ CASES = [
          "mirror.cfg: key STEP",
          _minho_plus("mirror.cfg", "#DONT CHANGE THE ORDER OF THE CONFIGURATIONSSTEP=0.5\n"),
          ["calibrate", "omni", "--from-minho", W + "/minho", "-o", W + "/c.yaml"]))],
+    *[Case(f"field import of a {what}: refused, not a {size} field (N5)", "silent",
+           ["field", "import", W + "/f.json", "--format", "falcons", "--base", "msl-2015", "-o",
+            W + "/o.yaml"], 1, f"the field's {key} would be {size}, not a soccer field's (1-40 m)",
+           setup=_setup_number_file("f.json", f'{{"model": {{{letters}, "K": 0.125}}}}'))
+      for what, letters, key, size in (
+        ("Falcons letters list in mm", '"A": 22000, "B": 14', "length", "21999.9 m"),
+        ("Falcons letters list with B 0.14 m", '"A": 22, "B": 0.14', "width", "0.015 m"))],
 ]
 
 

@@ -72,6 +72,10 @@ from . import field_formats as _formats
 
 FORMATS = ("bhuman", "bitbots", "falcons", "minho", "carpenoctem", "cambada", "hulks")
 confs = {"default": {"decimals": 6, "check_tolerance_m": 0.001}}
+# the length and width (m) an imported field may have: the leagues' fields run from 9 x 6 m
+# (SPL, KidSize) to 22 x 14 m (MSL); a team file read in the wrong unit lands far outside
+# (trial N5: a Falcons "A": 22000 in mm gave a 22 km field, refused later only for memory)
+FIELD_SIDE_M = (1.0, 40.0)
 
 # the generic schema's dimensions, as (key path) -> what a team file must provide
 DIMENSIONS = (
@@ -538,6 +542,12 @@ def read_team_field(path, fmt: str | None = None, *, venue: str | None = None,
     if missing:
         raise TeamFieldError(f"{path}: the file gives no {', '.join(missing)}; pass --base"
                              " FIELD (a preset or field YAML) to take them from it")
+    low, high = FIELD_SIDE_M
+    for key in ("length", "width"):
+        if not low <= spec[key] <= high:
+            raise TeamFieldError(
+                f"{path}: the field's {key} would be {spec[key]:.6g} m, not a soccer field's"
+                f" ({low:g}-{high:g} m): is the file in another unit?")
     dec = int(conf["decimals"])
     spec = _rounded(spec, dec)
     stem = extra.get("venue") or extra.get("section") or path.stem
