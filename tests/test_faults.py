@@ -272,6 +272,17 @@ def _minho_plus(name: str, text: str):
     return setup
 
 
+def _setup_tiny_frame(w, ws):
+    """ws/omni: the shared omni dataset with its frame 000001 a 1 x 1 px PNG; ws/t.h5: the
+    templates of the shared one."""
+    from stages import build_templates
+
+    ds = copy_dataset(w, "omni", ws)
+    cv2.imwrite(str(ds / "images" / "000001.png"), np.zeros((1, 1, 3), np.uint8))
+    build_templates.main(None, w["omni"], ws / "t.h5")
+    return {"ds": ds}
+
+
 def _setup_relative_run(w, ws):
     """localize run from inside ws with relative paths; evaluate then runs elsewhere."""
     ds = copy_dataset(w, "omni", ws)
@@ -3813,6 +3824,14 @@ CASES = [
       for what, letters, key, size in (
         ("Falcons letters list in mm", '"A": 22000, "B": 14', "length", "21999.9 m"),
         ("Falcons letters list with B 0.14 m", '"A": 22, "B": 0.14', "width", "0.015 m"))],
+    *[Case(f"{what} of a dataset with a 1 x 1 px frame: the frame left out, named (N6)",
+           "newcomer", args, 0, msg, setup=_setup_tiny_frame)
+      for what, args, msg in (
+        ("build-templates", ["build-templates", "{ds}", "-o", W + "/t2.h5"],
+         "/omni/images/000001.png: image is 1 x 1 px, the calibration's is 480 x 480)"),
+        ("localize --method templates",
+         ["localize", "{ds}", "--method", "templates", "--templates", W + "/t.h5", "-o",
+          W + "/p.h5"], "frame 000001 skipped: image is 1 x 1 px, the calibration's is"))],
 ]
 
 

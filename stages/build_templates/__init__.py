@@ -129,11 +129,11 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path, *
             continue
         try:
             image = read_image(path)
-        except DatasetError as e:
-            skipped.append(f"{name}: {e}")
+            f = gf.ground_features(image, camera, gconf, mask,
+                                   heading=float(pose[2]) if conf["field_axes"] else None)
+        except DatasetError as e:  # unreadable, or not the calibration's size
+            skipped.append(f"{name}: {e}" if str(path) in str(e) else f"{name}: {path}: {e}")
             continue
-        f = gf.ground_features(image, camera, gconf, mask,
-                               heading=float(pose[2]) if conf["field_axes"] else None)
         if len(f) < min_features:
             skipped.append(f"{name}: {len(f)} features on the field (< {min_features})")
             continue

@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 
 from .camera import camera_can
-from .errors import FieldlocError
+from .errors import DatasetError, FieldlocError
 
 confs = {
     # 512 x 512 px of 1 cm: +-2.56 m around the robot, about as fine as the default mirror's
@@ -176,8 +176,8 @@ def unwarp(image: np.ndarray, camera, grid: GroundGrid,
     image = np.asarray(image)
     w, h = camera.image_size
     if image.shape[:2] != (h, w):
-        raise FieldlocError(f"image is {image.shape[1]} x {image.shape[0]} px, the"
-                            f" calibration's is {w} x {h}")
+        raise DatasetError(f"image is {image.shape[1]} x {image.shape[0]} px, the"
+                           f" calibration's is {w} x {h}")  # a frame's fault: callers skip it
     m = unwarp_map(camera, grid, mask)
     ground = cv2.remap(image, m.map_u, m.map_v, cv2.INTER_LINEAR,
                        borderMode=cv2.BORDER_CONSTANT, borderValue=0)

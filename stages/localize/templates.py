@@ -600,6 +600,11 @@ def run(conf: dict, dataset, templates, map_file=None, progress=False) -> PoseTr
             hyps, top, pose, cov, accepted = loc.frame(
                 i, image, dt, odo, flags, float(yaw[i]),
                 cache=queries.setdefault(i, {}) if conf["smooth"] else None)
+        except DatasetError as e:  # an image not of the calibration's size, as extract's
+            log.warning("frame %s skipped: %s", name, e)
+            loc.failed(dt, odo)
+            track.add(name, stamp, None, mode="failed", flags="unreadable-image")
+            continue
         except FrameFailed as e:
             loc.failed(dt, odo)
             track.add(name, stamp, None, error=math.nan, confidence=0.0, mode="failed",
