@@ -3832,6 +3832,12 @@ CASES = [
         ("localize --method templates",
          ["localize", "{ds}", "--method", "templates", "--templates", W + "/t.h5", "-o",
           W + "/p.h5"], "frame 000001 skipped: image is 1 x 1 px, the calibration's is"))],
+    *[Case(f"localize {ds} --method mcl --points: the points file named, not None (N4)",
+           "newcomer", ["localize", ds, "--method", "mcl", "--map", "{map}", "--points",
+                        W + "/pts.csv", "-o", W + "/p.h5"], 1,
+           "/pts.csv: line points, read as an omni camera's scan lines; --method mcl needs"
+           " perspective features", setup=lambda w, ws: _points_csv(w, ws, range(2)))
+      for ds in ("{omni}", "{kid}")],
 ]
 
 

@@ -334,6 +334,9 @@ def check_run(conf: dict | str | None, dataset_dir: str | Path, map_path: str | 
     check_tum_output(output, inputs_given, overwrite)
     series = {k: dataset.optional(k) for k in ("odometry", "imu", "truth")}  # refused if bad
     method_module(conf["method"])
+    if points is not None:  # binned into an omni camera's scan lines (PointFrames)
+        _check_camera_kind(conf["method"], None, f"--points {points}", kind="omni",
+                           said="line points, read as an omni camera's scan lines")
     if features is None and points is None and not uses_templates(conf["method"]):
         # the features still to be made are of the dataset's camera: a method that cannot
         # read them refused now, not after minutes of extraction left a features file
@@ -617,12 +620,13 @@ def _json_attr(feats, key: str):
         return None
 
 
-def _check_camera_kind(method: str, feats, features, *, kind: str | None = None) -> None:
+def _check_camera_kind(method: str, feats, features, *, kind: str | None = None,
+                       said: str | None = None) -> None:
     """Features of a camera kind the method does not read (its ``camera_kinds``) refused in
     one line, naming the methods that read them. ``kind``: the camera kind of a dataset
     whose features are still to be extracted (``features``: the dataset), refused before
-    any frame is."""
-    said = "a '{}' camera (its calib.yaml)" if kind else "features of a '{}' camera"
+    any frame is, or of a points file (``said`` says what they are)."""
+    said = said or ("a '{}' camera (its calib.yaml)" if kind else "features of a '{}' camera")
     kind = kind or getattr(feats, "camera_kind", "")
     kinds = method_camera_kinds(method)
     if kind and kinds is not None and kind not in kinds:
