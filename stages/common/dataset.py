@@ -23,8 +23,9 @@ order cannot be placed without guessing (odometry rows are increments since the 
 Two images with the same stem (``000003.png`` and ``000003.jpg``) would be one frame name and
 are refused too, and so is a frame frames.csv lists twice (``000003.png`` and ``000003``: which
 stamp is it?) and an image whose file name is no UTF-8 (a frame's name is written as text into
-every artifact). Which frame a frames.csv row lists: ``_listed_frame``; frame positions:
-``Dataset.frame_at``.
+every artifact). frames.csv stamps must not decrease in the frames' order (of their names),
+and no row may lead out of the dataset (``..``): both refused naming the line. Which frame a
+frames.csv row lists: ``_listed_frame``; frame positions: ``Dataset.frame_at``.
 """
 
 from __future__ import annotations
@@ -492,6 +493,9 @@ def _listed_frames(path: Path, tab: dict[str, np.ndarray],
     listed: dict[str, tuple[int, str, float]] = {}  # frame -> its row's line, text, stamp
     other: list[tuple[int, str]] = []  # the rows of another kind: line, text
     for line_no, row, stamp in zip(tab["line"], tab["name"], tab["stamp"]):
+        if ".." in re.split(r"[/\\]", row)[:-1]:  # its file name was read, from images/
+            raise DatasetError(f"{path}: line {line_no}: '{row[:40]}' leads out of the dataset"
+                               " (..); a row names an image in images/")
         frame = _listed_frame(row, by_file, kinds)
         if frame is None:
             other.append((int(line_no), row))
@@ -504,6 +508,7 @@ def _listed_frames(path: Path, tab: dict[str, np.ndarray],
             listed[frame] = int(line_no), row, float(stamp)
     stamps = []
     have = {p.stem for p in images}
+    before = None  # (line, frame, stamp) of the frame before
     for p in images:
         if p.stem not in listed:
             _refuse_near_name(path, p, {f: v for f, v in listed.items() if f not in have})
@@ -520,6 +525,12 @@ def _listed_frames(path: Path, tab: dict[str, np.ndarray],
         if row_file_name(row) not in (p.name, p.stem):
             raise DatasetError(f"{path}: line {line_no}: '{row[:40]}' is no image in images/;"
                                f" frame {p.stem[:40]}'s image is {p.name[:40]}")
+        if before is not None and stamp < before[2]:  # a frame is placed by its name
+            raise DatasetError(
+                f"{path}: line {line_no}: frame {p.stem[:40]}'s stamp {stamp:g} is before frame"
+                f" {before[1][:40]}'s {before[2]:g} (line {before[0]}); stamps must not"
+                " decrease in the order of the frames' names")
+        before = line_no, p.stem, stamp
         stamps.append(stamp)
     gone = []
     for frame, (line_no, row, _) in listed.items():
