@@ -216,6 +216,8 @@ class ParticleFilter:
         self._known_start = False  # a placement or pose start whose belief is still wide
         self.start_half: StartHalf | None = None  # a uniform start's given half
         self.bounds = world_bounds(self.field)
+        if self.conf["init_pose"] is not None:  # refused off the world, whatever the init
+            mcl_start.check_init_pose(self.conf["init_pose"], self.bounds)
         self.clusters = Clustering(self.bounds, float(CLUSTER_RADIUS), float(CLUSTER_HEADING))
         self.rivals = Rivals(model, self.clusters, self.bounds)
         self.new_poses = NewPoses(model, PosePlacer(model, self.bounds), self.bounds,

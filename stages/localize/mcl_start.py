@@ -138,21 +138,31 @@ def initial_poses(mode: str, n: int, rng, field, bounds: tuple, conf: dict,
         return placement_poses(n, rng, field, conf)
     if mode == "pose":
         pose = conf["init_pose"] if pose is None else pose
-        if pose is None or len(pose) != 3:
+        if pose is None:
             raise FieldlocError("init=pose needs init_pose=[x, y, theta]")
-        x0, x1, y0, y1 = bounds
-        if not (x0 <= float(pose[0]) <= x1 and y0 <= float(pose[1]) <= y1):
-            raise FieldlocError(
-                f"init_pose ({float(pose[0]):.4g}, {float(pose[1]):.4g}) m lies off the"
-                f" field and its margin (x within {x0:g}..{x1:g}, y within {y0:g}..{y1:g})")
-        if not abs(float(pose[2])) <= 2 * math.pi:
-            raise FieldlocError(f"init_pose heading {float(pose[2]):.4g} rad is not within"
-                                " +-2 pi (radians, not degrees?)")
+        check_init_pose(pose, bounds)
         s = np.asarray(conf["init_spread"], float)
         p = np.asarray(pose, float) + rng.standard_normal((n, 3)) * s
         p[:, 2] = wrap_angle(p[:, 2])
         return p
     raise FieldlocError(f"unknown init '{mode}' (placement, uniform or pose)")
+
+
+def check_init_pose(pose, bounds: tuple) -> None:
+    """FieldlocError unless ``pose`` is [x, y, theta] within the world ``bounds`` (x0, x1, y0,
+    y1: the field and its margin) and a heading within +-2 pi: checked whenever an init_pose
+    is given, whatever the start mode (init_pose=[1e9, 0, 0] ran on silently unless init was
+    pose: trial N8)."""
+    if len(pose) != 3:
+        raise FieldlocError("init=pose needs init_pose=[x, y, theta]")
+    x0, x1, y0, y1 = bounds
+    if not (x0 <= float(pose[0]) <= x1 and y0 <= float(pose[1]) <= y1):
+        raise FieldlocError(
+            f"init_pose ({float(pose[0]):.4g}, {float(pose[1]):.4g}) m lies off the"
+            f" field and its margin (x within {x0:g}..{x1:g}, y within {y0:g}..{y1:g})")
+    if not abs(float(pose[2])) <= 2 * math.pi:
+        raise FieldlocError(f"init_pose heading {float(pose[2]):.4g} rad is not within"
+                            " +-2 pi (radians, not degrees?)")
 
 
 def uniform_poses(n: int, rng, bounds: tuple, half: str = "any",
