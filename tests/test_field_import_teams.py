@@ -287,3 +287,31 @@ def test_format_told_by_file_or_refused(tmp_path):
         res = runner.invoke(cli, args + (["--format", fmt] if fmt else []))
         assert res.exit_code == 1 and message in res.output, res.output
         assert len(res.output.strip().splitlines()) == 1 and not (tmp_path / "h.yaml").exists()
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize("rel, fmt", [
+    ("field-dimensions/bhuman/fieldDimensions_SPL2020-2024.cfg", "bhuman"),
+    ("minho-lab/Lar.view", "minho"),
+    ("field-dimensions/cnc_msl/FootballField.conf", "carpenoctem"),
+    ("field-dimensions/hulks/default_HEAD_field_dimensions.json", "hulks"),
+    ("field-dimensions/cambada/cambada_conf_field.json", "cambada")])
+def test_a_byte_order_mark_is_read_as_the_other_readers_read_it(tmp_path, rel, fmt):
+    """A team file saved with a UTF-8 byte-order mark and CRLF line ends (an editor on
+    Windows) imports as the file itself: B-Human's, MINHO's and Carpe Noctem's readers
+    refused it quoting the invisible mark ("cannot read '\\ufeffTOTAL_LENGTH=12100'", trial
+    N7), where the JSON, YAML, dataset and MINHO calibration readers read it."""
+    src = _need(REALDATA / rel)
+    bom = tmp_path / src.name
+    bom.write_bytes(b"\xef\xbb\xbf" + src.read_bytes().replace(b"\r\n", b"\n")
+                    .replace(b"\n", b"\r\n"))
+    runner = CliRunner()
+    specs = []
+    for path, out in ((src, tmp_path / "plain.yaml"), (bom, tmp_path / "bom.yaml")):
+        res = runner.invoke(cli, ["field", "import", str(path), "--format", fmt, "--base",
+                                  "msl-2015", "--name", "f", "-o", str(out)])
+        assert res.exit_code == 0, res.output
+        spec = load_field(out).spec
+        spec.pop("imported"), spec.pop("source")
+        specs.append(spec)
+    assert specs[0] == specs[1]

@@ -207,6 +207,14 @@ def leave_one_out(radius_px, distance_m) -> np.ndarray:
     return out
 
 
+def check_centre(centre, image_size, said: str = "centre") -> None:
+    """CalibrationError unless ``centre`` (u, v) px lies in the image of ``image_size`` (w, h);
+    ``said``: what gave it (a team file's key is named so)."""
+    (cu, cv), (w, h) = (float(v) for v in centre), (int(v) for v in image_size)
+    if not (0 <= cu < w and 0 <= cv < h):
+        raise CalibrationError(f"{said} ({cu:g}, {cv:g}) lies outside the {w} x {h} image")
+
+
 def fit(conf: dict, radius_px, distance_m, *, centre, image_size, valid_radius=None,
         forward_angle: float = math.pi / 2, mirrored: bool = False,
         where: str = "calibration points", source=None, warn: bool = True) -> CalibrationFit:
@@ -233,9 +241,8 @@ def fit(conf: dict, radius_px, distance_m, *, centre, image_size, valid_radius=N
     w, h = (int(v) for v in image_size)
     if w <= 0 or h <= 0:
         raise CalibrationError(f"image size must be positive, got {w} x {h}")
+    check_centre(centre, (w, h))
     cu, cv = (float(v) for v in centre)
-    if not (0 <= cu < w and 0 <= cv < h):
-        raise CalibrationError(f"centre ({cu:g}, {cv:g}) lies outside the {w} x {h} image")
     if valid_radius is None:
         valid_radius = (float(r[0]), float(r[-1]))
     rmin, rmax = (float(v) for v in valid_radius)
@@ -447,6 +454,7 @@ def from_minho(conf: dict | str | None, minho_dir, output, *, image_size=None, v
     team = read_minho(folder)
     if image_size is None:
         image_size = _image_size_of(folder / "images")
+    check_centre(team.centre, image_size, f"{team.image_cfg}: IMG_CENTER")
     sources = {"minho": str(folder), "mirror_cfg_hash": file_hash(team.mirror_cfg),
                "image_cfg_hash": file_hash(team.image_cfg)}
     if mask is None and (folder / MASK_NAME).is_file():

@@ -79,7 +79,7 @@ def read_distances(path) -> np.ndarray:
     path = Path(path)
     check_file(path, "CNC calibration file", CncCalibrationError)
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8-sig")  # a BOM, as every reader reads it
     except (OSError, UnicodeDecodeError) as e:
         raise CncCalibrationError(f"{path}: unreadable ({e})") from None
     blocks = re.findall(r"\[Dist\](.*?)\[!Dist\]", text, re.S)

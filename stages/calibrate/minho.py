@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common.dataset import parse_number
-from ..common.errors import FieldlocError
+from ..common.errors import FieldlocError, check_file
 
 MIRROR_CFG = "mirror.cfg"
 IMAGE_CFG = "image.cfg"
@@ -50,10 +50,9 @@ class MinhoCalibration:
 def read_cfg(path: Path) -> dict[str, str]:
     """KEY=VALUE pairs of a MINHO .cfg file (see the module doc)."""
     path = Path(path)
-    if not path.is_file():
-        raise FieldlocError(f"MINHO calibration file not found: {path}")
+    check_file(path, "MINHO calibration file")  # a folder, a FIFO: said, not "not found"
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8-sig")  # a BOM, as every reader reads it
     except (OSError, UnicodeDecodeError) as e:
         raise FieldlocError(f"{path}: unreadable ({e})") from None
     out: dict[str, str] = {}

@@ -60,7 +60,7 @@ def _read_text(path: Path) -> str:
     if why := file_problem(path):
         raise FieldFormatError(f"field file {why}: {path}")
     try:
-        return path.read_text()
+        return path.read_text(encoding="utf-8-sig")  # a BOM, as every reader reads it
     except (OSError, UnicodeDecodeError) as e:
         raise FieldFormatError(f"{path}: unreadable ({e})") from None
 

@@ -120,7 +120,7 @@ def _read_text(path: Path) -> str:
     if why := file_problem(path):
         raise TeamFieldError(f"field file {why}: {path}")
     try:
-        return read_record(path).decode()
+        return read_record(path).decode("utf-8-sig")  # a BOM, as every reader reads it
     except (OSError, UnicodeDecodeError) as e:
         raise TeamFieldError(f"{path}: unreadable ({getattr(e, 'strerror', None) or e})"
                              ) from None
