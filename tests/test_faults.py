@@ -283,6 +283,19 @@ def _setup_tiny_frame(w, ws):
     return {"ds": ds}
 
 
+def _minho_replaced(name: str, text: str | None):
+    """ws/minho: the shared MINHO files, its ``name`` holding ``text`` (None: a folder)."""
+    def setup(w, ws):
+        shutil.copytree(w["minho"], ws / "minho")
+        (ws / "minho" / name).unlink()
+        if text is None:
+            (ws / "minho" / name).mkdir()
+        else:
+            (ws / "minho" / name).write_text(text)
+        return {}
+    return setup
+
+
 def _setup_relative_run(w, ws):
     """localize run from inside ws with relative paths; evaluate then runs elsewhere."""
     ds = copy_dataset(w, "omni", ws)
@@ -3594,7 +3607,7 @@ CASES = [
     *[Case(f"show points --frame {frame}, the deleted frame 1 listed as {row}", "silent",
            ["show", "points", "{ds}", "--frame", frame, "-o", W + "/b.png"], rc, said,
            setup=_i_second_frame_deleted_listed_as(row))
-      for row in ("cam\\000001.png", "../../../../etc/000001.png")
+      for row in ("cam\\000001.png",)  # a row leading out with ..: refused (N11, below)
       for frame, rc, said in (("1", 1, "omni/images/000001.png cannot be read: there is no"
                                        f" such file (frames.csv lists it as '{row}')"),
                               ("2", 0, "b.png: frame 000002, "))],
@@ -3838,6 +3851,32 @@ CASES = [
            "/pts.csv: line points, read as an omni camera's scan lines; --method mcl needs"
            " perspective features", setup=lambda w, ws: _points_csv(w, ws, range(2)))
       for ds in ("{omni}", "{kid}")],
+    *[Case(f"frames.csv whose {what}: refused, naming the row (N9, N11)", "silent",
+           ["extract", "{ds}", "-o", W + "/f.h5"], 1, msg,
+           setup=_with_ds("omni", lambda ds, row=row: edit_csv(ds / "frames.csv", 4, row)))
+      for what, row, msg in (
+        ("stamp of 000002 goes back", "000002.png,-5.0",
+         "frames.csv: line 4: frame 000002's stamp -5 is before frame 000001's 0.1 (line 3);"
+         " stamps must not decrease in the order of the frames' names"),
+        ("row names ../../D/images/000002.png", "../../D/images/000002.png,0.2",
+         "frames.csv: line 4: '../../D/images/000002.png' leads out of the dataset (..)"))],
+    Case("show points --frame 1, the deleted frame 1 listed as ../../../../etc/000001.png:"
+         " refused, naming the row (N11)", "silent",
+         ["show", "points", "{ds}", "--frame", "1", "-o", W + "/b.png"], 1,
+         "frames.csv: line 3: '../../../../etc/000001.png' leads out of the dataset (..)",
+         setup=_i_second_frame_deleted_listed_as("../../../../etc/000001.png")),
+    *[Case(f"localize --method mcl -c {' -c '.join(kvs)}: refused, whatever the init (N8)",
+           "silent", ["localize", "{kid}", "--map", "{kmap}", "--features", "{kid_features}",
+                      "--method", "mcl", "-o", W + "/p.h5", *[a for kv in kvs for a in ("-c", kv)]],
+           1, "init_pose (1e+09, 0) m lies off the field and its margin (x within")
+      for kvs in (["init_pose=[1e9,0,0]"], ["init=uniform", "init_pose=[1e9,0,0]"])],
+    *[Case(f"calibrate --from-minho whose {what}: said so, naming the file (N10)", "newcomer",
+           ["calibrate", "omni", "--from-minho", W + "/minho", "-o", W + "/c.yaml",
+            "--image-size", "480", "480"], 1, msg, setup=_minho_replaced(name, text))
+      for what, name, text, msg in (
+        ("mirror.cfg is a folder", "mirror.cfg", None, "/minho/mirror.cfg is a folder"),
+        ("IMG_CENTER lies outside the image", "image.cfg", "IMG_CENTER=5000,233\nTILT=90\n",
+         "minho/image.cfg: IMG_CENTER (5000, 233) lies outside the 480 x 480 image"))],
 ]
 
 
