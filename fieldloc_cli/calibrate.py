@@ -121,7 +121,8 @@ def calibrate_omni(ctx, points, output, minho_dir, cnc_conf, nubot_dir, rings, c
         if line_images or mask:
             raise FieldlocError("--line-images and --mask do not go with --from-cnc")
         if not rings:
-            raise FieldlocError(_rings_needed(cnc_conf, calib_image, centre, conf))
+            raise FieldlocError(_rings_needed(cnc_conf, calib_image, centre, image_size,
+                                              conf))
         forward = math.radians(90.0 if forward_angle_deg is None else forward_angle_deg)
         geometry = MirrorGeometry(centre or None, image_size or None, valid_radius or None,
                                   forward, mirrored)
@@ -152,7 +153,7 @@ def calibrate_omni(ctx, points, output, minho_dir, cnc_conf, nubot_dir, rings, c
     _echo_report(ctx, out, report(out))
 
 
-def _rings_needed(cnc_conf, calib_image, centre, conf) -> str:
+def _rings_needed(cnc_conf, calib_image, centre, image_size, conf) -> str:
     """The message when --rings is missing: the conf's distances and the picture's rings."""
     from pathlib import Path
 
@@ -165,10 +166,13 @@ def _rings_needed(cnc_conf, calib_image, centre, conf) -> str:
     if Path(image).is_file():
         from stages.common.dataset import read_image
 
-        rings = cnc.detect_rings(read_image(image), centre=centre or None,
+        img = read_image(image)
+        rings = cnc.detect_rings(img, centre=cnc.search_centre(img.shape[1::-1], centre or None,
+                                                               image_size or None),
                                  conf=conf.get("rings"))
-        text += (f"; {Path(image).name} shows {len(rings.radius_px)} rings at"
-                 f" {', '.join(f'{v:.1f}' for v in rings.radius_px)} px")
+        text += f"; {Path(image).name} shows {len(rings.radius_px)} rings" + (
+            f" at {', '.join(f'{v:.1f}' for v in rings.radius_px)} px" if len(rings.radius_px)
+            else "")
     return (text + ". Pair them: --rings detected (in order, as many rings as distances) or"
             " one radius per distance, '-' for a ring not seen (see stages/calibrate/cnc.py)")
 

@@ -473,9 +473,11 @@ def from_cnc(conf: dict | str | None, carpet_conf, output, *, rings, calib_image
     radii: ``rings`` is the user's pairing (stages.calibrate.cnc: 'detected', or radii with
     '-' / None for a distance whose ring is not seen). ``calib_image`` (default
     CarpetCalibImage.png beside the conf, if there): where rings are detected, and the centre
-    and image size unless ``geometry`` (a MirrorGeometry) gives them. The rings' detection is
-    recorded beside the pairs. ``conf``: a preset name, None (``cnc``) or a dict of overrides
-    on ``cnc``. Returns ``output``."""
+    and image size unless ``geometry`` (a MirrorGeometry) gives them; the rings are measured
+    about the picture's own centre unless the picture has the geometry's image size
+    (``cnc.search_centre``): a given centre places the calibration in the camera's frames.
+    The rings' detection is recorded beside the pairs. ``conf``: a preset name, None
+    (``cnc``) or a dict of overrides on ``cnc``. Returns ``output``."""
     conf = stage_conf(confs, conf, default="cnc")
     carpet_conf = Path(carpet_conf)
     distances = _cnc.read_distances(carpet_conf)
@@ -491,7 +493,8 @@ def from_cnc(conf: dict | str | None, carpet_conf, output, *, rings, calib_image
     extra = {"ring_distances_m": [float(v) for v in distances]}
     if calib_image is not None:
         img = read_image(calib_image)
-        detected = _cnc.detect_rings(img, centre=centre, conf=conf.get("rings"))
+        search = _cnc.search_centre(img.shape[1::-1], centre, image_size)
+        detected = _cnc.detect_rings(img, centre=search, conf=conf.get("rings"))
         sources["calib_image"] = str(calib_image)
         sources["calib_image_hash"] = file_hash(calib_image)
         extra["detected_rings"] = {"centre": [round(v, 2) for v in detected.centre],

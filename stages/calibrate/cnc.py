@@ -170,6 +170,19 @@ def find_centre(grey, conf) -> tuple[float, float]:
     return float(best[1][0]), float(best[1][1])
 
 
+def search_centre(picture_size, centre, image_size):
+    """The centre to measure the rings about in a calibration picture of ``picture_size``
+    (w, h), given the ``centre`` and ``image_size`` the calibration is written for (each None
+    when not given): that centre when the picture is such a frame (``image_size`` None or the
+    picture's), else None (the picture's own centre is found). The team's picture is a 460 x
+    460 view of the mirror, their frames 640 x 480 with the centre elsewhere: the frames'
+    centre searched in the picture found no ring."""
+    if centre is None or (image_size is not None
+                          and tuple(int(v) for v in image_size) != tuple(picture_size)):
+        return None
+    return centre
+
+
 def detect_rings(image, *, centre=None, conf=None) -> CarpetRings:
     """The bright rings of a carpet calibration picture (BGR or grey): each a peak of the
     ray-median luminance profile (robust to the mirror holder's spokes) of at least
@@ -264,7 +277,8 @@ def pair_rings(distances, rings, detected: CarpetRings | None, where: str):
                 raise CncCalibrationError(
                     f"{where}: {len(d)} ring distances but {len(detected.radius_px)} rings in"
                     " the picture; pass --rings with one radius per distance ('-' for a ring"
-                    f" not seen). Rings found: {_fmt(detected.radius_px)} px")
+                    f" not seen). Rings found: {_fmt(detected.radius_px) or 'none'}"
+                    + (" px" if len(detected.radius_px) else ""))
             rings = list(detected.radius_px)
     if len(rings) != len(d):
         raise CncCalibrationError(
