@@ -5,6 +5,8 @@ the team's frames through extract and localize on their lab field. The real-data
 when ../shared/realdata is absent."""
 
 
+from pathlib import Path
+
 import cv2
 import numpy as np
 import pytest
@@ -71,7 +73,7 @@ def test_manual_cnc_route_on_the_team_files(tmp_path):
     """docs/manual.md's commands, pasted: the calibration of the team's frames has the
     picture's ring radii and the frames' centre; the frames' poses explain their line points
     well beyond the null baseline (random bearings)."""
-    for p in (CNC_CONF, FRAMES, FIELD_CONF):
+    for p in (CNC_CONF, FRAMES):
         if not p.exists():
             pytest.skip(f"{p} absent")
     from stages.common.features_file import FeaturesFile
@@ -99,8 +101,8 @@ def test_manual_cnc_route_on_the_team_files(tmp_path):
     np.testing.assert_allclose(frames.radial_table[:, 0], picture.radial_table[:, 0], atol=0.5)
     np.testing.assert_allclose(frames.radial_table[:, 1], picture.radial_table[:, 1])
 
-    run("field", "import", FIELD_CONF, "--section", "Lab", "--base",
-        "msl-2015", "-o", tmp_path / "lab.yaml")
+    run("field", "import", FRAMES / "Globals.conf", "--base", "msl-2015", "-o",
+        tmp_path / "lab.yaml")
     run("build-map", tmp_path / "lab.yaml", "-o", tmp_path / "lab.map.h5")
     run("extract", ds, "-o", tmp_path / "features.h5", "--preset", "real")
     run("localize", ds, "--map", tmp_path / "lab.map.h5", "--features",
@@ -118,3 +120,72 @@ def test_manual_cnc_route_on_the_team_files(tmp_path):
             assert len(p) >= 100 and share >= raster.null_share(p, 3, near, seed=i) + 0.3, (
                 name, len(p), share)
 
+
+
+GLOBALS = """[Globals]
+\tOwnTeamColour = magenta
+\t[FootballField]
+\t\tGoalInnerAreaExists = true
+\t\tFieldWidth = 5580.0
+\t\tFieldLength = 8900.0
+\t\tMiddleCircleRadius = 1000.0
+\t\tGoalAreaXSize = 400.0
+\t\tGoalAreaYSize = 2800.0
+\t\tPenaltySpot = 2000.0
+\t\tPenaltyAreaYSize = 3600.0
+\t\tPenaltyAreaXSize = 1290.0
+\t\tCornerCircleRadius = 350.0
+\t\tSurrounding = 1000.0
+\t\tGoalWidth = 2000.0
+\t\tGoalDepth = 580.0
+\t\tGoalPostWidth = 125.0
+\t\tLineWidth = 122.3
+\t[!FootballField]
+\t[Team]
+\t\t[nase]
+\t\t\tID = 9
+\t\t[!nase]
+\t[!Team]
+[!Globals]
+"""
+
+
+def _geometry(path):
+    """A field YAML's geometry: all but its name, source and import record."""
+    import yaml
+
+    doc = yaml.safe_load(Path(path).read_text())
+    return {k: v for k, v in doc.items() if k not in ("name", "source", "imported")}
+
+
+def test_globals_conf_field_block_imported(tmp_path):
+    """The team's Globals.conf holds one field's keys directly in [FootballField], inside
+    [Globals] beside their team settings: that block is the field; the rest is recorded as
+    not the field, and --section (which names a field among several) is refused."""
+    src = tmp_path / "Globals.conf"
+    src.write_text(GLOBALS)
+    runner = CliRunner()
+    res = runner.invoke(cli, ["field", "import", str(src), "-o", str(tmp_path / "g.yaml"),
+                              "--base", "msl-2015"])
+    assert res.exit_code == 0, res.output
+    g = _geometry(tmp_path / "g.yaml")
+    assert (g["length"], g["width"], g["line_width"], g["goal"]["width"]) == (
+        8.9, 5.58, 0.1223, 2.125)
+    res = runner.invoke(cli, ["field", "import", str(src), "-o", str(tmp_path / "h.yaml"),
+                              "--section", "Lab"])
+    assert res.exit_code == 1 and "without --section" in res.output
+    assert len(res.output.strip().splitlines()) == 1 and not (tmp_path / "h.yaml").exists()
+
+
+@pytest.mark.realdata
+def test_team_globals_conf_is_their_lab_field(tmp_path):
+    src = FRAMES / "Globals.conf"
+    for p in (src, FIELD_CONF):
+        if not p.exists():
+            pytest.skip(f"{p} absent")
+    runner = CliRunner()
+    for args, out in (([src], "g.yaml"), ([FIELD_CONF, "--section", "Lab"], "lab.yaml")):
+        res = runner.invoke(cli, ["field", "import", *map(str, args), "--base", "msl-2015",
+                                  "-o", str(tmp_path / out)])
+        assert res.exit_code == 0, res.output
+    assert _geometry(tmp_path / "g.yaml") == _geometry(tmp_path / "lab.yaml")

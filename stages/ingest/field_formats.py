@@ -31,7 +31,9 @@ Formats:
   the border; ``GoalWidth`` is inside the posts (post centres ``GoalWidth + GoalPostWidth``
   apart). ``GoalInnerAreaExists: false`` drops the goal area, ``CornerCircleExists: false`` the
   corner arcs. No penalty mark size: from ``--base``. A key given twice in a section with the
-  same value is noted; with two values it is an error.
+  same value is noted; with two values it is an error. Their ``Globals.conf`` holds a
+  ``[FootballField]`` with one field's keys directly, inside ``[Globals]`` beside team
+  settings: that block is the field (``cnc_sections``).
 - ``cambada``: CAMBADA's field block (``cambada.conf.xml``'s field attributes as a JSON mapping,
   mm). ``field_length`` 17875 for the 18 m MSL field: centre lines. ``goal_band_width`` (behind
   the goal lines) and ``side_band_width`` are the border strips (the smaller is used).
@@ -226,10 +228,14 @@ _CNC_NOT_GEOMETRY = {
 }
 
 
-def cnc_sections(text: str, where: str) -> tuple[dict, dict]:
-    """(top-level keys of [FootballField], {section: [(key, value, line number)]}) of a
-    FootballField.conf."""
-    stack, top, sections = [], {}, {}
+def cnc_sections(text: str, where: str) -> tuple[dict, dict, list]:
+    """(top-level keys of [FootballField], {section: [(key, value, line number)]}, the
+    sections outside [FootballField]) of a FootballField.conf, or of a conf that holds a
+    [FootballField] block among other settings: the team's Globals.conf has it inside
+    [Globals], beside [Team] and the like (not read), and with one field's keys in it
+    directly: that block is then the one section, named ``FootballField``."""
+    stack, top, sections, outside = [], {}, {}, []
+    block = []  # the keys directly in [FootballField], with their line numbers
     for n, line in enumerate(text.splitlines(), 1):
         line = line.split("#", 1)[0].strip()
         if not line:
@@ -242,12 +248,16 @@ def cnc_sections(text: str, where: str) -> tuple[dict, dict]:
                     raise FieldFormatError(f"{where}:{n}: [!{name}] closes no open [{name}]")
                 stack.pop()
             else:
-                if len(stack) == 1 and stack[0] == "FootballField":
+                if stack and stack[-1] == "FootballField":
                     if name in sections:
                         raise FieldFormatError(f"{where}:{n}: section [{name}] given twice")
                     sections[name] = []
-                elif stack:
+                elif "FootballField" in stack:
                     raise FieldFormatError(f"{where}:{n}: [{name}] nested too deep")
+                elif name != "FootballField":
+                    outside.append(name)
+                elif "FootballField" in sections or top or block:
+                    raise FieldFormatError(f"{where}:{n}: [FootballField] given twice")
                 stack.append(name)
             continue
         kv = _CNC_KEY.match(line)
@@ -256,17 +266,22 @@ def cnc_sections(text: str, where: str) -> tuple[dict, dict]:
                                    " Key = Value or [Section])")
         if not stack:
             raise FieldFormatError(f"{where}:{n}: '{kv.group(1)}' outside [FootballField]")
-        if len(stack) == 1:
+        if "FootballField" not in stack:
+            continue  # another setting of the conf (outside)
+        if stack[-1] == "FootballField":
             if kv.group(1) in top:  # a CurrentField given twice: the last went unseen
                 raise FieldFormatError(f"{where}:{n}: key '{kv.group(1)}' given twice")
             top[kv.group(1)] = kv.group(2).strip()
+            block.append((kv.group(1), kv.group(2).strip(), n))
         else:
             sections[stack[-1]].append((kv.group(1), kv.group(2).strip(), n))
     if stack:
         raise FieldFormatError(f"{where}: [{stack[-1]}] is never closed ([!{stack[-1]}])")
+    if not sections and any(k in top for k in _CNC_USED):
+        return {}, {"FootballField": block}, outside
     if not sections:
         raise FieldFormatError(f"{where}: no field sections inside [FootballField]")
-    return top, sections
+    return top, sections, outside
 
 
 def _flag(value: str, key: str, where: str) -> bool:
@@ -282,11 +297,15 @@ def read_carpenoctem(path: Path, section: str | None = None):
     """(spec, used, not_geometry, warnings, extra) of one section of a Carpe Noctem
     ``FootballField.conf`` (module doc)."""
     where = str(path)
-    top, sections = cnc_sections(_read_text(path), where)
+    top, sections, outside = cnc_sections(_read_text(path), where)
+    one_block = not top and list(sections) == ["FootballField"]  # Globals.conf's form
+    if one_block and section is not None:
+        raise FieldFormatError(f"{where}: its [FootballField] holds one field's keys, no"
+                               f" sections: import it without --section {section[:40]!r}")
     if section is not None and not section.strip():  # '' was taken for no --section
         raise FieldFormatError(f"{where}: --section {section!r} names no section (sections:"
                                f" {', '.join(sections)})")
-    chosen = section or top.get("CurrentField")
+    chosen = "FootballField" if one_block else section or top.get("CurrentField")
     if not chosen:
         raise FieldFormatError(f"{where}: no CurrentField; pass --section"
                                f" ({', '.join(sections)})")
@@ -352,6 +371,12 @@ def read_carpenoctem(path: Path, section: str | None = None):
     others = [s for s in sections if s != chosen]
     if others:
         not_geom["other_sections"] = ", ".join(others)
+    if outside:
+        not_geom["outside_FootballField"] = ", ".join(outside) + " (the team's other settings)"
+    if one_block:
+        return spec, used, not_geom, warnings, {
+            "unknown": unknown,
+            "kind": f"Carpe Noctem {Path(path).name} [FootballField] (mm, line centres)"}
     return spec, used, not_geom, warnings, {
         "unknown": unknown, "section": chosen,
         "kind": f"Carpe Noctem FootballField.conf [{chosen}] (mm, line centres)"}
