@@ -3849,7 +3849,8 @@ CASES = [
            "newcomer", ["localize", ds, "--method", "mcl", "--map", "{map}", "--points",
                         W + "/pts.csv", "-o", W + "/p.h5"], 1,
            "/pts.csv: line points, read as an omni camera's scan lines; --method mcl needs"
-           " perspective features", setup=lambda w, ws: _points_csv(w, ws, range(2)))
+           " perspective features: use --method lut or fit",
+           setup=lambda w, ws: _points_csv(w, ws, range(2)))
       for ds in ("{omni}", "{kid}")],
     *[Case(f"frames.csv whose {what}: refused, naming the row (N9, N11)", "silent",
            ["extract", "{ds}", "-o", W + "/f.h5"], 1, msg,

@@ -336,7 +336,8 @@ def check_run(conf: dict | str | None, dataset_dir: str | Path, map_path: str | 
     method_module(conf["method"])
     if points is not None:  # binned into an omni camera's scan lines (PointFrames)
         _check_camera_kind(conf["method"], None, f"--points {points}", kind="omni",
-                           said="line points, read as an omni camera's scan lines")
+                           said="line points, read as an omni camera's scan lines",
+                           readers=[m for m in available_methods() if not uses_templates(m)])
     if features is None and points is None and not uses_templates(conf["method"]):
         # the features still to be made are of the dataset's camera: a method that cannot
         # read them refused now, not after minutes of extraction left a features file
@@ -621,16 +622,18 @@ def _json_attr(feats, key: str):
 
 
 def _check_camera_kind(method: str, feats, features, *, kind: str | None = None,
-                       said: str | None = None) -> None:
+                       said: str | None = None, readers=None) -> None:
     """Features of a camera kind the method does not read (its ``camera_kinds``) refused in
-    one line, naming the methods that read them. ``kind``: the camera kind of a dataset
-    whose features are still to be extracted (``features``: the dataset), refused before
-    any frame is, or of a points file (``said`` says what they are)."""
+    one line, naming the methods that read them (of ``readers``, default every method).
+    ``kind``: the camera kind of a dataset whose features are still to be extracted
+    (``features``: the dataset), refused before any frame is, or of a points file (``said``
+    says what they are; templates reads images, not points: not among its ``readers``)."""
     said = said or ("a '{}' camera (its calib.yaml)" if kind else "features of a '{}' camera")
     kind = kind or getattr(feats, "camera_kind", "")
     kinds = method_camera_kinds(method)
     if kind and kinds is not None and kind not in kinds:
-        others = [m for m in available_methods() if kind in (method_camera_kinds(m) or ())]
+        others = [m for m in (readers or available_methods())
+                  if kind in (method_camera_kinds(m) or ())]
         raise FieldlocError(
             f"{features}: {said.format(kind)}; --method {method} needs"
             f" {' or '.join(kinds)} features" + (f": use --method {' or '.join(others)}"
