@@ -15,7 +15,7 @@ from ..common.artifacts import check_output, root_attrs, text_hash
 from ..common.conf import check_bounds, stage_conf
 from ..common.crossing_tables import crossing_association_tables
 from ..common.errors import FieldlocError
-from ..common.field import FieldModel, field_file, load_field
+from ..common.field import MAX_BORDER_M, FieldModel, field_file, load_field
 from ..common.map_file import MAX_RESOLUTION, SCHEMA, VERSION, Grid, write_map
 from ..common.resources import check_memory
 from ..common.scanlines import MAX_RANGE_M, ScanLines
@@ -33,10 +33,9 @@ confs = {
     },
 }
 
-# m: the widest world margin around the field a map covers. A robot stands on the field or
-# the floor strip around it (1 m in MSL's rules, up to ~2 m in a lab); 10 m holds any hall
-# around a field, while 1e308 m overflows the grid's cell count before memory is checked
-MAX_BORDER_M = 10.0
+# the widest world margin around the field a map covers (m): a field's own border's bound
+# (common.field.MAX_BORDER_M); 1e308 m overflowed the grid's cell count before memory was
+# checked
 
 # the ranges a conf's values must lie in for the tables to be built at all
 # (common.conf.check_bounds): the scan lines' ranges are extract's (common.scanlines)

@@ -59,6 +59,14 @@ def msl_letter_value(letter: str, value: float, line_width: float) -> float:
     return float(value)
 
 
+# the length and width (m) a field may have: the leagues' fields run from 9 x 6 m (SPL,
+# KidSize) to 22 x 14 m (MSL), labs' from ~6 x 4 m; a file in another unit lands far outside
+# (a team's "A": 22000 in mm gave a 22 km field; a 4 km one took build-map 106 s and 2.7 GB)
+FIELD_SIDE_M = (1.0, 40.0)
+# m: the widest border (floor around the lines) a field may have: 1 m in MSL's rules, up to
+# ~2 m in a lab; 10 m holds any hall (a 5 km border wrote a map simulate could not hold)
+MAX_BORDER_M = 10.0
+
 # The generic schema: key -> (type, required, sub-schema or None).
 _NUM = (int, float)
 SCHEMA = {
@@ -373,6 +381,14 @@ def field_from_spec(spec, where: str = "<field>", text: str | None = None) -> Fi
     for key in ("length", "width", "line_width"):
         if spec[key] <= 0:
             raise FieldSpecError(f"{where}: key '{key}' must be > 0, got {spec[key]}")
+    low, high = FIELD_SIDE_M
+    for key in ("length", "width"):
+        if not low <= spec[key] <= high:
+            raise FieldSpecError(f"{where}: key '{key}' is {spec[key]:.6g} m, not a soccer"
+                                 f" field's ({low:g}-{high:g} m): is the file in another unit?")
+    if spec["border"] > MAX_BORDER_M:
+        raise FieldSpecError(f"{where}: key 'border' is {spec['border']:.6g} m; the floor"
+                             f" around a field is at most {MAX_BORDER_M:g} m")
     for area in ("goal_area", "penalty_area"):
         if area in spec:
             a = spec[area]

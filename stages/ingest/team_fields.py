@@ -60,6 +60,7 @@ from ..common.artifacts import WRITTEN_MARK, atomic_path, check_output, file_has
 from ..common.conf import load_json, load_yaml, read_record
 from ..common.errors import FieldlocError, FieldSpecError, file_problem
 from ..common.field import (
+    FIELD_SIDE_M,
     MSL_LETTERS,
     NAME_MAX,
     check_field_name,
@@ -72,10 +73,6 @@ from . import field_formats as _formats
 
 FORMATS = ("bhuman", "bitbots", "falcons", "minho", "carpenoctem", "cambada", "hulks")
 confs = {"default": {"decimals": 6, "check_tolerance_m": 0.001}}
-# the length and width (m) an imported field may have: the leagues' fields run from 9 x 6 m
-# (SPL, KidSize) to 22 x 14 m (MSL); a team file read in the wrong unit lands far outside
-# (trial N5: a Falcons "A": 22000 in mm gave a 22 km field, refused later only for memory)
-FIELD_SIDE_M = (1.0, 40.0)
 
 # the generic schema's dimensions, as (key path) -> what a team file must provide
 DIMENSIONS = (
