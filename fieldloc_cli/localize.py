@@ -133,9 +133,11 @@ def localize(ctx, dataset, map_path, templates, pose_solver, features, points, m
             raise click.UsageError("--pose-solver applies to --method templates")
         conf["pose_solver"] = pose_solver
     if independent:
-        if method == "mcl" and init not in (None, "uniform"):
-            raise click.UsageError("--independent starts every frame from a uniform belief:"
-                                   " no --init placement")
+        if method == "mcl":
+            if init not in (None, "uniform") or start_side not in (None, "any"):
+                raise click.UsageError("--independent starts every frame from a uniform"
+                                       " belief: no --init placement or --start-side")
+            conf.setdefault("init", "uniform")  # a -c init=... given is the stage's to judge
         conf["independent"] = True
     if smooth:
         if method not in SMOOTH_METHODS:

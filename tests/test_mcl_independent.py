@@ -69,7 +69,11 @@ def test_a_frame_alone_is_localised_as_among_others(nao):
 
 @pytest.mark.parametrize("extra, rc, said", [
     (["--init", "placement"], 2, "--independent starts every frame from a uniform belief"),
+    (["--start-side", "left"], 2, "--independent starts every frame from a uniform belief"),
     (["--smooth"], 1, "it does not localise frames independently"),
+    (["-c", "init=placement"], 1, "independent starts every frame from a uniform belief"
+     " (init uniform, start_side any), not init 'placement'"),
+    (["-c", "start_side=left"], 1, "not start_side 'left'"),
 ])
 def test_options_against_independent_are_refused(nao, extra, rc, said):
     root, data = nao

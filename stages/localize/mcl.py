@@ -143,8 +143,9 @@ _DEFAULT = {
     "imu_heading_sigma": None,
     "smooth": False,  # decide every frame with the whole recording (smooth.py, MclScorer):
     # offline; the causal run's poses are then replaced by the smoothed ones
-    # every frame localised on its own, from a uniform start, with no odometry and nothing
-    # of the other frames (snapshots at unknown poses: real stills); ``init`` is not used
+    # every frame localised on its own, from a uniform start (init uniform; start_half still
+    # puts every frame on that half), with no odometry and nothing of the other frames
+    # (snapshots at unknown poses: real stills)
     "independent": False,
     "observation": dict(OBSERVATION_DEFAULTS),  # camera height, kinds of observation used
 }
@@ -660,6 +661,13 @@ def check_conf(conf: dict) -> None:
     for key in ("smooth", "independent"):
         if not isinstance(conf[key], bool):
             raise FieldlocError(f"{key} must be true or false, not {str(conf[key])[:40]!r}")
+    if conf["independent"] and (conf["init"] != "uniform" or conf["start_side"] != "any"):
+        # each frame starts from a uniform belief: a placement (or its touch line) is a
+        # start's, and would go unused (start_half holds: every frame on that half)
+        what = (f"init {str(conf['init'])[:40]!r}" if conf["init"] != "uniform"
+                else f"start_side {str(conf['start_side'])[:40]!r}")
+        raise FieldlocError(f"independent starts every frame from a uniform belief (init"
+                            f" uniform, start_side any), not {what}")
     if conf["smooth"] and conf["independent"]:
         raise FieldlocError("smooth decides every frame with the whole recording; it does not"
                             " localise frames independently")
