@@ -2133,7 +2133,16 @@ CASES = [
          setup=_setup_field_text("\nname: twice\n")),
     Case("build-map --resolution 0.001", "traceback",
          ["build-map", "spl", "-o", W + "/m.h5", "--resolution", "0.001"], 1,
-         "would need about"),
+         "11001 x 8001 cells, more than the 500,000 a map may hold"),
+    Case("a frames.csv of a million and one rows: refused before any is read (trial P2)",
+         "hang", ["extract", "{ds}", "-o", W + "/f.h5"], 1,
+         "frames.csv: more than 1,000,000 rows; a dataset's frames.csv holds at most",
+         setup=_with_ds("omni", lambda ds: (ds / "frames.csv").write_text(
+             "name,stamp\n" + "x.png,0\n" * 1_000_001))),
+    *[Case(f"build-map {field} --resolution {res}: refused, not a minute of CPU (trial P1)",
+           "hang", ["build-map", field, "-o", W + "/m.h5", "--resolution", res], 1,
+           "a map may hold (about a minute of CPU a million)")
+      for field, res in (("msl-2015", "0.012"), ("spl", "0.01"))],
     Case("simulate --frames 1e12", "traceback",
          ["simulate", "omni", "--field", "spl", "-o", W + "/sim", "--frames",
           "1000000000000"], 1, "frames must be a whole number from 1 to 1000000"),

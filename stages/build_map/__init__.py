@@ -44,6 +44,11 @@ BOUNDS = {"border": (0, MAX_BORDER_M), "max_range": ((0,), MAX_RANGE_M),
 
 # peak memory of building the tables per world cell (measured: spl at 5 and 2.5 cm, 4.5 KB)
 BYTES_PER_CELL = 4.6e3
+# the most cells a map may hold: building takes about a minute of CPU per million cells
+# (msl at 2 cm, 0.96 million: 62 s on a loaded host; trial P: msl-2015 at 1.2 cm, 1.9
+# million, ran past a minute), and half a million holds the largest league field (MSL,
+# 24 x 16 m with its border) at 3 cm and SPL's at 1.5 cm, finer than the paper's 10 cm
+MAX_CELLS = 500_000
 
 
 def scanlines_of(conf: dict) -> ScanLines:
@@ -76,6 +81,11 @@ def build_tables(fm: FieldModel, conf: dict) -> tuple[Grid, ScanLines, dict]:
     grid = Grid.around(fm, float(conf["border"]), float(conf["resolution"]))
     ny, nx = grid.shape
     log.info("build-map %s: %d x %d cells of %g m", fm.name, nx, ny, grid.resolution)
+    if nx * ny > MAX_CELLS:
+        raise FieldlocError(
+            f"build-map of {fm.name} at {conf['resolution']:g} m: {nx} x {ny} cells, more than"
+            f" the {MAX_CELLS:,} a map may hold (about a minute of CPU a million); choose a coarser"
+            " --resolution (the paper's is 0.1 m)")
     check_memory(
         f"build-map of {fm.name} ({fm.length:g} x {fm.width:g} m + {conf['border']:g} m border"
         f" at {conf['resolution']:g} m: {nx} x {ny} cells)",
