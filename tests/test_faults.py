@@ -3896,6 +3896,47 @@ CASES = [
         ("mirror.cfg is a folder", "mirror.cfg", None, "/minho/mirror.cfg is a folder"),
         ("IMG_CENTER lies outside the image", "image.cfg", "IMG_CENTER=5000,233\nTILT=90\n",
          "minho/image.cfg: IMG_CENTER (5000, 233) lies outside the 480 x 480 image"))],
+    *[Case(f"poses whose {what}: refused as damaged (O5-O7)", "silent",
+           [*args, W + "/p.h5", *more], 1, f"damaged poses file ({msg}",
+           setup=_setup_damaged("poses", "p.h5", change))
+      for what, args, more, msg, change in (
+        ("runtime is -5 s (O5: evaluate's median runtime -5000 ms)", ["evaluate"],
+         ["--truth", "{omni}", "-o", W + "/rep"], "/poses/runtime of frame 000000 is -5;"
+         " expected a finite time of 0 s or more", _replace("poses/runtime", lambda d: d * 0 - 5)),
+        ("runtime is NaN (O5)", ["export"], ["--format", "tum", "-o", W + "/o.tum"],
+         "/poses/runtime of frame 000000 is nan", _nan_first("poses/runtime")),
+        ("frames are both accepted and failed (O6: export wrote them, evaluate not)",
+         ["export"], ["--format", "tum", "-o", W + "/o.tum"], "frame 000000 both accepted and"
+         " failed)", lambda f: [_replace(f"poses/{k}", np.ones_like)(f)
+                                for k in ("failed", "accepted")]),
+        ("covariance is infinite (O7)", ["export"], ["--format", "json", "-o", W + "/o.json"],
+         "/poses/covariance of frame 000000 is neither finite nor all NaN",
+         _replace("poses/covariance", lambda d: np.full(d.shape, np.inf, d.dtype))),
+        ("hypotheses are all padding on frames that did not fail (O7)", ["evaluate"],
+         ["--truth", "{omni}", "-o", W + "/rep"], "/hypotheses of frame 000000 holds none",
+         _replace("hypotheses", lambda d: np.full(d.shape, np.nan))),
+        ("hypotheses' probabilities are NaN beside poses (O7)", ["export"],
+         ["--format", "json", "-o", W + "/o.json"], "/hypotheses of frame 000000: row 0"
+         " column 3 is nan", _replace("hypotheses", lambda d: np.concatenate(
+             [d[..., :3], np.full(d.shape[:2] + (1,), np.nan)], axis=2))),
+        ("error is -1 (O7)", ["export"], ["--format", "csv", "-o", W + "/o.csv"],
+         "/poses/error of frame 000000 is -1", _replace("poses/error", lambda d: d * 0 - 1)),
+        ("stamps go backwards (O7)", ["evaluate"], ["--truth", "{omni}", "-o", W + "/rep"],
+         "frame 000001's stamp 0.4 is before frame 000000's 0.5; frames are in time order",
+         _replace("poses/stamp", lambda d: 0.5 - 0.1 * np.arange(len(d)))),
+        ("frames are all named 000000 (O7)", ["export"], ["--format", "tum", "-o", W + "/o.tum"],
+         "frame name '000000' is given twice", _replace("poses/name",
+                                                        lambda d: np.array([b"000000"] * len(d)))),
+        ("frame is named ../../etc/passwd (O7)", ["evaluate"],
+         ["--truth", "{omni}", "-o", W + "/rep"], "frame name '../../etc/passwd' is not a plain"
+         " image name", _replace("poses/name", lambda d: np.array(
+             [b"../../etc/passwd", *d[1:]]))),
+        ("mode is 'bogus' (O7)", ["export"], ["--format", "csv", "-o", W + "/o.csv"],
+         "/poses/mode 'bogus' is none of failed, global,",
+         _replace("poses/mode", lambda d: np.array([b"bogus"] * len(d)))),
+        ("flags are numbers (O7)", ["export"], ["--format", "json", "-o", W + "/o.json"],
+         "/poses/flags holds int64 values; expected text",
+         _replace("poses/flags", lambda d: np.arange(len(d)))))],
 ]
 
 

@@ -34,8 +34,14 @@ JSON object, an input's path not text, ``method``, ``field`` or ``dataset`` not 
 than a name or path) is refused in one line (SchemaError), and so is one whose values no run
 writes: a stamp that is not finite or beyond dataset.MAX_STAMP, a pose that is infinite or
 beyond dataset.MAX_VALUE (or NaN on an accepted frame), a confidence or hypothesis probability
-outside [0, 1] or NaN. ``tum_twin`` is not checked: a record matching no file vouches for no
-twin, so ``--overwrite`` keeps the twin (``twin_vouched``), the safe side.
+outside [0, 1] or NaN, a hypotheses row part NaN or a frame that did not fail without its top
+hypothesis, a runtime negative or not finite, an error below 0, a covariance neither finite nor
+all NaN (none given), a frame both accepted (or accepted up to the mirror) and failed, stamps
+going backwards, a frame name given twice or not a plain image name (a folder, ..), a mode no
+writer records (MODES), a text column (name, mode, flags) of other values. ``created`` and
+``method`` are labels no command decides by, and are not checked. ``tum_twin`` is not
+checked: a record matching no file vouches for no twin, so ``--overwrite`` keeps the twin
+(``twin_vouched``), the safe side.
 
 ``poses.tum`` beside it holds "stamp x y z qx qy qz qw" rows of the accepted frames (the top
 hypothesis), readable by evo; its first line is the header ``# stamp x y z qx qy qz qw``. The
@@ -120,6 +126,8 @@ class PoseTrack:
         default every frame that did not fail."""
         failed = pose is None
         x, y, th = (math.nan, math.nan, math.nan) if failed else (float(v) for v in pose)
+        if mode not in MODES:  # a reader refuses any other (_check_frames)
+            raise ValueError(f"mode {mode!r} is none of {sorted(MODES)}")
         self.name.append(str(name))
         self.stamp.append(float(stamp))
         self.x.append(x)
@@ -351,6 +359,8 @@ def _check_shapes(out: dict, path) -> None:
 # a folder's path (Linux's PATH_MAX); longer text is damage, and was drawn into every plot
 # title of a report (100,000 characters took matplotlib minutes)
 TEXT_ATTRS = {"method": 64, "field": 256, "dataset": 4096}
+# columns of text, one string per frame (frame name, mode, flags)
+TEXT_COLUMNS = ("name", "mode", "flags")
 # JSON mappings ({} where absent); ``inputs`` maps each input's role to its path or hash
 JSON_ATTRS = ("conf", "inputs", "method_report")
 
@@ -371,6 +381,10 @@ def _check_types(out: dict, attrs: dict, path) -> None:
             held = "text" if v.dtype.kind in "OSU" else f"{v.dtype} values"
             raise SchemaError(f"{path}: damaged poses file (/poses/{k} holds {held};"
                               f" expected {want})")
+    for k in TEXT_COLUMNS:
+        if k in out and not all(isinstance(s, str) for s in out[k]):
+            raise SchemaError(f"{path}: damaged poses file (/poses/{k} holds"
+                              f" {out[k].dtype} values; expected text)")
     for k, most in TEXT_ATTRS.items():
         if k in attrs and not isinstance(attrs[k], str):
             raise SchemaError(f"{path}: damaged poses file (attribute '{k}' is"
@@ -387,6 +401,13 @@ def _check_types(out: dict, attrs: dict, path) -> None:
     if wrong:  # a role's path is opened (show hypotheses: the map) or checked against -o
         raise SchemaError(f"{path}: damaged poses file (attribute 'inputs' gives {wrong[0][:40]!r}"
                           f" {str(attrs['inputs'][wrong[0]])[:40]!r}; expected a path as text)")
+
+
+# the modes writers record (PoseTrack.add refuses any other): lut's and the fit's global,
+# global-heading, local, null; the grid belief's grid and predicted; mcl's tracking,
+# predicted, recovering, initial; smoothing's smoothed; failed; "" where none is given
+MODES = frozenset({"", "global", "global-heading", "local", "null", "grid", "predicted",
+                   "tracking", "recovering", "initial", "smoothed", "failed"})
 
 
 # columns that are probabilities: a number from 0 to 1 in every frame (a failed frame's is 0)
@@ -416,9 +437,31 @@ def _check_values(out: dict, path) -> None:
         i = int(wrong[0])
         raise SchemaError(f"{path}: damaged poses file (frame {str(out['name'][i])[:40]}:"
                           f" {stamp_error(float(stamp[i]))})")
+    _check_frames(out, stamp, path)
+    failed = np.asarray(out["failed"], bool)
     accepted = np.zeros(len(stamp), bool)  # a frame a command uses: its pose must be finite
     for k in ("accepted", "accepted_up_to_mirror"):
-        accepted |= np.asarray(out.get(k, ~np.asarray(out["failed"], bool)), bool)
+        v = np.asarray(out.get(k, ~failed), bool)
+        wrong = np.flatnonzero(v & failed)
+        if len(wrong):  # evaluate counted it failed, export wrote its row
+            raise SchemaError(f"{path}: damaged poses file (frame"
+                              f" {str(out['name'][int(wrong[0])])[:40]} both {k} and failed)")
+        accepted |= v
+    for k, want, ok in (("runtime", "a finite time of 0 s or more",
+                         lambda v: np.isfinite(v) & (v >= 0)),
+                        ("error", "NaN or a number of 0 or more", lambda v: ~(v < 0))):
+        if k in out:
+            v = np.asarray(out[k], float)
+            wrong = np.flatnonzero(~ok(v))
+            if len(wrong):
+                raise bad(k, v, int(wrong[0]), want)
+    if "covariance" in out:  # nine numbers, or nine NaN where none was given (PoseTrack.add)
+        c = np.asarray(out["covariance"], float)
+        wrong = np.flatnonzero(~(np.isfinite(c).all(axis=(1, 2)) | np.isnan(c).all(axis=(1, 2))))
+        if len(wrong):  # export wrote its inf entries
+            raise SchemaError(f"{path}: damaged poses file (/poses/covariance of frame"
+                              f" {str(out['name'][int(wrong[0])])[:40]} is neither finite nor"
+                              " all NaN (none given))")
     for k in POSE_COLUMNS:
         v = np.asarray(out[k], float)
         wrong = np.flatnonzero(~(np.isnan(v) | (np.abs(v) <= MAX_VALUE)))
@@ -438,6 +481,9 @@ def _check_values(out: dict, path) -> None:
         h = np.asarray(out["hypotheses"], float)
         ok = np.isnan(h) | (np.abs(h) <= MAX_VALUE)
         ok[..., 3] &= ~(h[..., 3] < 0) & ~(h[..., 3] > 1 + PROBABILITY_SLACK)
+        # a row is a hypothesis (four numbers) or padding (four NaN, as pad_hypotheses writes)
+        nan = np.isnan(h)
+        ok &= (nan == nan.all(axis=2, keepdims=True))
         wrong = np.argwhere(~ok)
         if len(wrong):
             i, k, c = (int(n) for n in wrong[0])
@@ -445,6 +491,35 @@ def _check_values(out: dict, path) -> None:
                               f" {str(out['name'][i])[:40]}: row {k} column {c} is"
                               f" {h[i, k, c]:.6g}; expected a pose within {MAX_VALUE:g} and a"
                               " probability from 0 to 1, or NaN padding)")
+        wrong = np.flatnonzero(~np.asarray(out["failed"], bool) & np.isnan(h[:, 0, 3]))
+        if len(wrong):  # every writer ranks a frame's pose first (PoseTrack.add)
+            raise SchemaError(f"{path}: damaged poses file (/hypotheses of frame"
+                              f" {str(out['name'][int(wrong[0])])[:40]} holds none; a frame"
+                              " that did not fail has its pose as the first)")
+
+
+def _check_frames(out: dict, stamp: np.ndarray, path) -> None:
+    """The frames as a dataset lists them (localize writes them in its order): stamps that do
+    not decrease, each name once and a plain image name (no folder, no ..), each mode one that
+    writers record (MODES). A file edited elsewhere is refused in one line: evaluate matched
+    truth by name and stamp, and a name was drawn into paths and plot titles."""
+    back = np.flatnonzero(np.diff(stamp) < 0)
+    if len(back):
+        i = int(back[0]) + 1
+        now, before = (str(out["name"][j])[:40] for j in (i, i - 1))
+        raise SchemaError(f"{path}: damaged poses file (frame {now}'s stamp {float(stamp[i])!r}"
+                          f" is before frame {before}'s {float(stamp[i - 1])!r}; frames are in"
+                          " time order)")
+    seen = set()
+    for name in out["name"]:
+        if name in seen or name in ("", ".", "..") or "/" in name or "\\" in name:
+            why = "given twice" if name in seen else "not a plain image name"
+            raise SchemaError(f"{path}: damaged poses file (frame name {name[:40]!r} is {why})")
+        seen.add(name)
+    wrong = [m for m in out.get("mode", ()) if m not in MODES]
+    if wrong:
+        raise SchemaError(f"{path}: damaged poses file (/poses/mode {wrong[0][:40]!r} is none"
+                          f" of {', '.join(sorted(m for m in MODES if m))})")
 
 
 def _read_poses(path):
