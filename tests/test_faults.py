@@ -3937,6 +3937,15 @@ CASES = [
         ("flags are numbers (O7)", ["export"], ["--format", "json", "-o", W + "/o.json"],
          "/poses/flags holds int64 values; expected text",
          _replace("poses/flags", lambda d: np.arange(len(d)))))],
+    *[Case(f"frames.csv whose {what}: refused, naming the row (O9)", "silent",
+           ["extract", "{ds}", "-o", W + "/f.h5"], 1, msg,
+           setup=_with_ds("omni", lambda ds, row=row: edit_csv(ds / "frames.csv", 4, row)))
+      for what, row, msg in (
+        ("row names /tmp/D/images/000002.png (matched by its file name)",
+         "/tmp/D/images/000002.png,0.2", "frames.csv: line 4: '/tmp/D/images/000002.png' is an"
+         " absolute path; a row names an image in images/"),
+        ("row names \\D\\images\\000002.png", "\\D\\images\\000002.png,0.2",
+         "is an absolute path; a row names an image in images/"))],
 ]
 
 

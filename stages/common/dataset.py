@@ -517,6 +517,11 @@ def _listed_frames(path: Path, tab: dict[str, np.ndarray],
         if ".." in re.split(r"[/\\]", row)[:-1]:  # its file name was read, from images/
             raise DatasetError(f"{path}: line {line_no}: '{row[:40]}' leads out of the dataset"
                                " (..); a row names an image in images/")
+        # a root path (/data/D/images/000002.png) was matched by its file name alone (O9);
+        # a Windows drive's (D:\rec\000002.png) is a recording's own list, read so (trial J)
+        if row.startswith(("/", "\\")):
+            raise DatasetError(f"{path}: line {line_no}: '{row[:40]}' is an absolute path; a"
+                               " row names an image in images/")
         frame = _listed_frame(row, by_file, kinds)
         if frame is None:
             other.append((int(line_no), row))
