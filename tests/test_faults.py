@@ -3875,7 +3875,7 @@ CASES = [
            setup=_with_ds("omni", lambda ds, row=row: edit_csv(ds / "frames.csv", 4, row)))
       for what, row, msg in (
         ("stamp of 000002 goes back", "000002.png,-5.0",
-         "frames.csv: line 4: frame 000002's stamp -5 is before frame 000001's 0.1 (line 3);"
+         "frames.csv: line 4: frame 000002's stamp -5.0 is before frame 000001's 0.1 (line 3);"
          " stamps must not decrease in the order of the frames' names"),
         ("row names ../../D/images/000002.png", "../../D/images/000002.png,0.2",
          "frames.csv: line 4: '../../D/images/000002.png' leads out of the dataset (..)"))],
@@ -3946,6 +3946,12 @@ CASES = [
          " absolute path; a row names an image in images/"),
         ("row names \\D\\images\\000002.png", "\\D\\images\\000002.png,0.2",
          "is an absolute path; a row names an image in images/"))],
+    Case("frames.csv whose stamp of 000002 is 0.0999999999, just before 000001's 0.1: both"
+         " told apart (O10: said '0.1 is before 0.1')", "newcomer",
+         ["extract", "{ds}", "-o", W + "/f.h5"], 1, "frames.csv: line 4: frame 000002's stamp"
+         " 0.0999999999 is before frame 000001's 0.1 (line 3)",
+         setup=_with_ds("omni", lambda ds: edit_csv(ds / "frames.csv", 4,
+                                                    "000002.png,0.0999999999"))),
 ]
 
 

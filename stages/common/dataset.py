@@ -161,8 +161,9 @@ def read_csv(path: str | Path, kind: str) -> dict[str, np.ndarray]:
             i = int(bad[0])
             what = "repeats" if st[i + 1] == st[i] else "is before"
             raise DatasetError(
-                f"{path}: line {body[i + 1][0]}: stamp {st[i + 1]:g} {what} line"
-                f" {body[i][0]}'s stamp {st[i]:g}; rows must be in time order, one per stamp")
+                f"{path}: line {body[i + 1][0]}: stamp {float(st[i + 1])!r} {what} line"
+                f" {body[i][0]}'s stamp {float(st[i])!r}; rows must be in time order, one per"
+                " stamp")
     if kind == "frames":
         for line_no, nm in zip(out["line"], out["name"]):
             file = row_file_name(nm)
@@ -553,8 +554,8 @@ def _listed_frames(path: Path, tab: dict[str, np.ndarray],
                                f" frame {p.stem[:40]}'s image is {p.name[:40]}")
         if before is not None and stamp < before[2]:  # a frame is placed by its name
             raise DatasetError(
-                f"{path}: line {line_no}: frame {p.stem[:40]}'s stamp {stamp:g} is before frame"
-                f" {before[1][:40]}'s {before[2]:g} (line {before[0]}); stamps must not"
+                f"{path}: line {line_no}: frame {p.stem[:40]}'s stamp {stamp!r} is before frame"
+                f" {before[1][:40]}'s {before[2]!r} (line {before[0]}); stamps must not"
                 " decrease in the order of the frames' names")
         before = line_no, p.stem, stamp
         stamps.append(stamp)
