@@ -32,11 +32,15 @@ class FilePath(click.Path):
 
 
 def refuse_underscores(kind: click.ParamType, value, param, ctx) -> None:
-    """A number option's text with an underscore refused (click's usage error), as the YAML
-    confs refuse it: Python's float and int read ``1_0`` as 10."""
+    """A number option's text with an underscore or a character outside ASCII refused
+    (click's usage error), as the YAML confs refuse them: Python's float and int read ``1_0``
+    as 10 and the digits of other scripts (Arabic-Indic ``٦``, fullwidth ``６``) as 6."""
     if isinstance(value, str) and "_" in value:
         kind.fail(f"{value[:40]!r} is no decimal number (underscores); write it in decimal",
                   param, ctx)
+    if isinstance(value, str) and not value.isascii():
+        kind.fail(f"{value[:40]!r} is no decimal number (characters outside ASCII); write it"
+                  " in the digits 0-9", param, ctx)
 
 
 class WholeNumber(click.IntRange):

@@ -3952,6 +3952,11 @@ CASES = [
          " 0.0999999999 is before frame 000001's 0.1 (line 3)",
          setup=_with_ds("omni", lambda ds: edit_csv(ds / "frames.csv", 4,
                                                     "000002.png,0.0999999999"))),
+    *[Case(f"{' '.join(args[:2])} {opt} {text}: refused, not read as 6 (O11)", "silent",
+           [*args, opt, text], 2, f"{text!r} is no decimal number (characters outside ASCII)")
+      for args, opt in ((["simulate", "omni", "--field", "spl", "-o", W + "/s"], "--frames"),
+                        (["build-map", "spl", "-o", W + "/m.h5"], "--max-range"))
+      for text in ("\u0666", "\uff16")],
 ]
 
 
