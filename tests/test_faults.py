@@ -3957,6 +3957,10 @@ CASES = [
       for args, opt in ((["simulate", "omni", "--field", "spl", "-o", W + "/s"], "--frames"),
                         (["build-map", "spl", "-o", W + "/m.h5"], "--max-range"))
       for text in ("\u0666", "\uff16")],
+    Case("evaluate of poses whose recorded dataset is gone, no --truth: said so (O8)",
+         "newcomer", ["evaluate", W + "/p.h5", "-o", W + "/rep"], 1, "the poses' dataset"
+         " /nonexistent/D (recorded in the poses file) is not there: pass --truth",
+         setup=_setup_damaged("poses", "p.h5", _attr("dataset", "/nonexistent/D"))),
 ]
 
 

@@ -193,6 +193,9 @@ def _truth_path(truth, attrs: dict, poses: Path) -> Path:
                 f"no truth given and {poses} does not name its dataset: pass --truth TRUTH.csv"
             )
         truth = Path(ds)
+        if not (truth.exists() or truth.is_symlink()):  # moved or deleted since the run
+            raise FieldlocError(f"the poses' dataset {ds[:200]} (recorded in the poses file)"
+                                " is not there: pass --truth")
     truth = Path(truth)
     if truth.is_dir():
         truth = truth / "truth.csv"
