@@ -3961,6 +3961,22 @@ CASES = [
          "newcomer", ["evaluate", W + "/p.h5", "-o", W + "/rep"], 1, "the poses' dataset"
          " /nonexistent/D (recorded in the poses file) is not there: pass --truth",
          setup=_setup_damaged("poses", "p.h5", _attr("dataset", "/nonexistent/D"))),
+    *[Case(f"field import of a Carpe Noctem conf {what} (O12, O13)", "newcomer",
+           ["field", "import", W + "/f.conf", "--format", "carpenoctem", "-o", W + "/f.yaml"],
+           1, msg, setup=_setup_number_file("f.conf", text))
+      for what, text, msg in (
+        ("whose [FootballField] is never closed, [Team] after it: named with its line",
+         "[Globals]\n[FootballField]\nFieldLength = 18000\n[Team]\n[mops]\nX = 1\n[!mops]\n"
+         "[!Team]\n[!Globals]\n", "f.conf:2: [FootballField] is never closed"
+         " ([!FootballField]); line 5's [mops] lies within it"),
+        ("whose [FootballField] is closed by [!Globals]: named with its line",
+         "[Globals]\n[FootballField]\nFieldLength = 18000\n[!Globals]\n",
+         "f.conf:2: [FootballField] is never closed ([!FootballField]) before line 4's"
+         " [!Globals]"),
+        ("that ends inside [FootballField]: named with its line",
+         "[FootballField]\nFieldLength = 18000\n", "f.conf:1: [FootballField] is never closed"),
+        ("without any [FootballField] (a Vision.conf)", "[Vision]\nX = 1\n[!Vision]\n",
+         "f.conf: no [FootballField] block"))],
 ]
 
 

@@ -235,6 +235,7 @@ def cnc_sections(text: str, where: str) -> tuple[dict, dict, list]:
     [Globals], beside [Team] and the like (not read), and with one field's keys in it
     directly: that block is then the one section, named ``FootballField``."""
     stack, top, sections, outside = [], {}, {}, []
+    opened = []  # the line of each section in ``stack``
     block = []  # the keys directly in [FootballField], with their line numbers
     for n, line in enumerate(text.splitlines(), 1):
         line = line.split("#", 1)[0].strip()
@@ -244,21 +245,33 @@ def cnc_sections(text: str, where: str) -> tuple[dict, dict, list]:
         if m:
             closing, name = m.group(1) == "!", m.group(2)
             if closing:
+                if stack and stack[-1] != name and name in stack:  # an inner one left open (O12)
+                    raise FieldFormatError(f"{where}:{opened[-1]}: [{stack[-1]}] is never"
+                                           f" closed ([!{stack[-1]}]) before line {n}'s"
+                                           f" [!{name}]")
                 if not stack or stack[-1] != name:
                     raise FieldFormatError(f"{where}:{n}: [!{name}] closes no open [{name}]")
                 stack.pop()
+                opened.pop()
             else:
                 if stack and stack[-1] == "FootballField":
                     if name in sections:
                         raise FieldFormatError(f"{where}:{n}: section [{name}] given twice")
                     sections[name] = []
                 elif "FootballField" in stack:
+                    if any(k in top for k in _CNC_USED):  # a field's keys directly in it
+                        # (Globals.conf): its [!FootballField] is missing, not a level
+                        line = opened[stack.index("FootballField")]
+                        raise FieldFormatError(f"{where}:{line}: [FootballField] is never"
+                                               " closed ([!FootballField]); line"
+                                               f" {n}'s [{name}] lies within it")
                     raise FieldFormatError(f"{where}:{n}: [{name}] nested too deep")
                 elif name != "FootballField":
                     outside.append(name)
                 elif "FootballField" in sections or top or block:
                     raise FieldFormatError(f"{where}:{n}: [FootballField] given twice")
                 stack.append(name)
+                opened.append(n)
             continue
         kv = _CNC_KEY.match(line)
         if not kv:
@@ -276,7 +289,11 @@ def cnc_sections(text: str, where: str) -> tuple[dict, dict, list]:
         else:
             sections[stack[-1]].append((kv.group(1), kv.group(2).strip(), n))
     if stack:
-        raise FieldFormatError(f"{where}: [{stack[-1]}] is never closed ([!{stack[-1]}])")
+        raise FieldFormatError(f"{where}:{opened[-1]}: [{stack[-1]}] is never closed"
+                               f" ([!{stack[-1]}])")
+    if not sections and not block:
+        raise FieldFormatError(f"{where}: no [FootballField] block (a field conf holds"
+                               " [FootballField] ... [!FootballField])")
     if not sections and any(k in top for k in _CNC_USED):
         return {}, {"FootballField": block}, outside
     if not sections:
