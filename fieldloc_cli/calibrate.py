@@ -13,7 +13,7 @@ from stages.common.errors import FieldlocError
 
 from .common import FINITE, FilePath, WholeNumber, conf_option, overrides_dict, summary
 from .lazy_group import outputs_complete
-from .stage_defaults import CALIBRATE_PRESETS
+from .stage_defaults import CALIBRATE_MAX_IMAGE_PX, CALIBRATE_PRESETS
 
 DEFAULT_PRESET = {"points": "default", "minho": "minho", "cnc": "cnc", "nubot": "nubot"}
 
@@ -51,7 +51,8 @@ def calibrate():
               help="Mask image for the line images (default with --from-minho: DIR/mask.png).")
 @click.option("--centre", nargs=2, type=FINITE, metavar="U V",
               help="Image centre of the mirror (px); with POINTS.")
-@click.option("--image-size", nargs=2, type=WholeNumber(), metavar="W H",
+@click.option("--image-size", nargs=2, type=WholeNumber(1, CALIBRATE_MAX_IMAGE_PX),
+              metavar="W H",
               help="Image width and height (px); with POINTS, or when DIR/images is empty.")
 @click.option("--valid-radius", nargs=2, type=FINITE, metavar="RMIN RMAX",
               help="Radii (px) of the robot-body mask and of the outer limit of the floor"

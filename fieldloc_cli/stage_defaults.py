@@ -21,6 +21,9 @@ BUILD_TEMPLATES_FEATURES = ("surf", "surf-rotating", "sift", "orb")
 # sorted(stages.calibrate.confs)
 CALIBRATE_PRESETS = ("cnc", "default", "minho", "nubot")
 
+# stages.common.camera.MAX_IMAGE_PX: the longest image side (px) a calibration may give
+CALIBRATE_MAX_IMAGE_PX = 8192
+
 # sorted(stages.evaluate.confs); stages.evaluate.confs["default"]["stamp_tolerance"]
 EVALUATE_PRESETS = ("default", "loose", "numbers")
 EVALUATE_STAMP_TOLERANCE = 0.02

@@ -113,6 +113,7 @@ def test_the_tables_short_help_is_each_commands_own(group, table):
 def test_the_shown_defaults_are_the_stages():
     """Every copy in fieldloc_cli/stage_defaults.py equals the stage value its comment names."""
     from stages import build_map, build_templates, calibrate, evaluate, extract, localize, simulate
+    from stages.common import camera
     from stages.common.describe import READS
     from stages.evaluate import export
     from stages.ingest import rosbag, team_fields
@@ -124,6 +125,7 @@ def test_the_shown_defaults_are_the_stages():
     assert shown.BUILD_MAP == {k: build_map.confs["default"][k] for k in shown.BUILD_MAP}
     assert shown.BUILD_TEMPLATES_FEATURES == tuple(build_templates.FEATURE_PRESETS)
     assert shown.CALIBRATE_PRESETS == tuple(sorted(calibrate.confs))
+    assert shown.CALIBRATE_MAX_IMAGE_PX == camera.MAX_IMAGE_PX
     assert shown.EVALUATE_PRESETS == tuple(sorted(evaluate.confs))
     assert shown.EVALUATE_STAMP_TOLERANCE == evaluate.confs["default"]["stamp_tolerance"]
     assert shown.EXPORT_FORMATS == tuple(sorted(export.FORMATS))

@@ -3977,6 +3977,11 @@ CASES = [
          "[FootballField]\nFieldLength = 18000\n", "f.conf:1: [FootballField] is never closed"),
         ("without any [FootballField] (a Vision.conf)", "[Vision]\nX = 1\n[!Vision]\n",
          "f.conf: no [FootballField] block"))],
+    Case("calibrate omni --image-size 1000000 1000000: --image-size named, not the output"
+         " (O14)", "newcomer",
+         ["calibrate", "omni", "{marks}", "--centre", "240", "240", "--image-size", "1000000",
+          "1000000", "--valid-radius", "40", "230", "-o", W + "/calib.yaml"], 2,
+         "Invalid value for '--image-size': 1000000 is not in the range 1<=x<=8192"),
 ]
 
 
