@@ -467,3 +467,15 @@ def test_the_line_share_judge_tells_a_unique_best_pose_from_one_of_a_few():
     seen = field_to_robot(np.array([0.0, 2.5, 0.0]), touch)
     best = raster.best_pose(seen)
     assert best[0] == 1.0 and len(raster.rivals(seen, best)) >= 2
+
+
+def test_poses_of_frames_ordered_by_name_not_stamp_are_read(tmp_path):
+    """A dataset stamped from its file names orders its frames by name (9.5.png after
+    10.5.png), so localize writes stamps that go back; the poses reader takes them, and
+    `fieldloc evaluate` scores them by stamp."""
+    poses = write_track(tmp_path / "p.h5", [(10.5, (0.1, 0, 0)), (9.5, (0.2, 0, 0))])
+    truth = write_truth(tmp_path / "truth.csv", [9.5, 10.5])
+    res = CliRunner().invoke(cli, ["evaluate", str(poses), "--truth", str(truth), "-o",
+                                   str(tmp_path / "r")])
+    assert res.exit_code == 0, res.output
+    assert load_report(tmp_path / "r")["position_error_m"]["max"] == pytest.approx(0.2)

@@ -36,8 +36,8 @@ writes: a stamp that is not finite or beyond dataset.MAX_STAMP, a pose that is i
 beyond dataset.MAX_VALUE (or NaN on an accepted frame), a confidence or hypothesis probability
 outside [0, 1] or NaN, a hypotheses row part NaN or a frame that did not fail without its top
 hypothesis, a runtime negative or not finite, an error below 0, a covariance neither finite nor
-all NaN (none given), a frame both accepted (or accepted up to the mirror) and failed, stamps
-going backwards, a frame name given twice or not a plain image name (a folder, ..), a mode no
+all NaN (none given), a frame both accepted (or accepted up to the mirror) and failed, a frame
+name given twice or not a plain image name (a folder, ..), a mode no
 writer records (MODES), a text column (name, mode, flags) of other values. ``created`` and
 ``method`` are labels no command decides by, and are not checked. ``tum_twin`` is not
 checked: a record matching no file vouches for no twin, so ``--overwrite`` keeps the twin
@@ -437,7 +437,7 @@ def _check_values(out: dict, path) -> None:
         i = int(wrong[0])
         raise SchemaError(f"{path}: damaged poses file (frame {str(out['name'][i])[:40]}:"
                           f" {stamp_error(float(stamp[i]))})")
-    _check_frames(out, stamp, path)
+    _check_frames(out, path)
     failed = np.asarray(out["failed"], bool)
     accepted = np.zeros(len(stamp), bool)  # a frame a command uses: its pose must be finite
     for k in ("accepted", "accepted_up_to_mirror"):
@@ -498,18 +498,12 @@ def _check_values(out: dict, path) -> None:
                               " that did not fail has its pose as the first)")
 
 
-def _check_frames(out: dict, stamp: np.ndarray, path) -> None:
-    """The frames as a dataset lists them (localize writes them in its order): stamps that do
-    not decrease, each name once and a plain image name (no folder, no ..), each mode one that
-    writers record (MODES). A file edited elsewhere is refused in one line: evaluate matched
-    truth by name and stamp, and a name was drawn into paths and plot titles."""
-    back = np.flatnonzero(np.diff(stamp) < 0)
-    if len(back):
-        i = int(back[0]) + 1
-        now, before = (str(out["name"][j])[:40] for j in (i, i - 1))
-        raise SchemaError(f"{path}: damaged poses file (frame {now}'s stamp {float(stamp[i])!r}"
-                          f" is before frame {before}'s {float(stamp[i - 1])!r}; frames are in"
-                          " time order)")
+def _check_frames(out: dict, path) -> None:
+    """The frames as a dataset lists them (localize writes them in its order): each name once
+    and a plain image name (no folder, no ..), each mode one that writers record (MODES). A
+    file edited elsewhere is refused in one line: evaluate matched truth by name and stamp,
+    and a name was drawn into paths and plot titles. Stamps are not held to an order: a
+    dataset stamped from its file names orders its frames by name (9.5.png after 10.5.png)."""
     seen = set()
     for name in out["name"]:
         if name in seen or name in ("", ".", "..") or "/" in name or "\\" in name:
