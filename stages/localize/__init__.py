@@ -320,8 +320,12 @@ def check_run(conf: dict | str | None, dataset_dir: str | Path, map_path: str | 
     dataset, its series, the inputs the outputs must not be), so that a chain that makes the
     features first (stages.pipelines.images_to_poses) refuses a run before extracting."""
     conf = resolve_localize_conf(conf)
-    # the method's ranges (its BOUNDS; its run checks them too): refused before any input is read
-    check_bounds(conf, getattr(method_module(conf["method"]), "BOUNDS", {}))
+    # the method's ranges (its BOUNDS) and rules (its check_conf; its run checks them too):
+    # refused before any input is read or features extracted
+    module = method_module(conf["method"])
+    check_bounds(conf, getattr(module, "BOUNDS", {}))
+    if hasattr(module, "check_conf"):
+        module.check_conf(conf)
     output = Path(output)
     features, points = split_features(features)
     dataset_dir = Path(dataset_dir)

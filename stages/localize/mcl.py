@@ -667,7 +667,9 @@ def check_conf(conf: dict) -> None:
         what = (f"init {str(conf['init'])[:40]!r}" if conf["init"] != "uniform"
                 else f"start_side {str(conf['start_side'])[:40]!r}")
         raise FieldlocError(f"independent starts every frame from a uniform belief (init"
-                            f" uniform, start_side any), not {what}")
+                            f" uniform, start_side any), not {what}: give init=uniform with"
+                            " it (mcl's default init is placement), or use --independent or"
+                            " the preset 'independent', which do")
     if conf["smooth"] and conf["independent"]:
         raise FieldlocError("smooth decides every frame with the whole recording; it does not"
                             " localise frames independently")
