@@ -12,7 +12,15 @@ from pathlib import Path
 
 import click
 
-from .common import FilePath, conf_option, count, overrides_dict, progress_enabled, summary
+from .common import (
+    FilePath,
+    FiniteFloat,
+    conf_option,
+    count,
+    overrides_dict,
+    progress_enabled,
+    summary,
+)
 from .lazy_group import RESUMES, outputs_complete, set_resumes
 from .stage_defaults import LOCALIZE, LOCALIZE_DEFAULT_METHOD, LOCALIZE_METHODS
 
@@ -70,7 +78,7 @@ SMOOTH_METHODS = ("lut", "fit", "mcl", "templates")
               " camera's mount (pitch and roll offsets, height) learnt from them (with"
               " --smooth: from the smoothed ones; docs/recording-calibration.md), to this"
               " file.")
-@click.option("--min-confidence", type=click.FloatRange(0.0, 1.0), default=None,
+@click.option("--min-confidence", type=FiniteFloat(0.0, 1.0), default=None,
               help="Accept a frame when the probability of its top hypothesis reaches"
               f" this [default: the method's, lut {LOCALIZE['lut', 'min_confidence']}, fit"
               f" {LOCALIZE['fit', 'min_confidence']}].")

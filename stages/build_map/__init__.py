@@ -40,15 +40,21 @@ confs = {
 # the ranges a conf's values must lie in for the tables to be built at all
 # (common.conf.check_bounds): the scan lines' ranges are extract's (common.scanlines)
 BOUNDS = {"border": (0, MAX_BORDER_M), "max_range": ((0,), MAX_RANGE_M),
+          # m: a robot of no radius divided by zero in the scan lines' tables (trial Q8); the
+          # largest robots (MSL) are about 0.26 m in radius, 2 m is none
+          "robot_radius": ((0,), 2.0),
           "spiral_end_radius": ((0,), MAX_RANGE_M)}
 
 # peak memory of building the tables per world cell (measured: spl at 5 and 2.5 cm, 4.5 KB)
 BYTES_PER_CELL = 4.6e3
-# the most cells a map may hold: building takes about a minute of CPU per million cells
-# (msl at 2 cm, 0.96 million: 62 s on a loaded host; trial P: msl-2015 at 1.2 cm, 1.9
-# million, ran past a minute), and half a million holds the largest league field (MSL,
-# 24 x 16 m with its border) at 3 cm and SPL's at 1.5 cm, finer than the paper's 10 cm
-MAX_CELLS = 500_000
+# the most cells a map may hold with the default spiral (2 m after one turn; a wider spiral
+# costs more a cell: at 0.1 m on msl-2015, 28,000 cells, 1.5-2.1 s at 2 m, 11 s at 10 m, 21
+# s at 49.9 m; the radial scan lines' max_range barely counts, 2.7 s at 50 m): a cell costs
+# about 75 us (msl-2015 at 5 cm, 112,000 cells: 8.5 s of CPU; trial P: at 1.2 cm, 1.9 million,
+# past a minute), and 300,000 holds the largest league field (MSL, 24 x 16 m with its
+# border) at 4 cm and SPL's at 2 cm, finer than the paper's 10 cm
+MAX_CELLS = 300_000
+DEFAULT_SPIRAL_M = 2.0
 
 
 def scanlines_of(conf: dict) -> ScanLines:
@@ -81,11 +87,14 @@ def build_tables(fm: FieldModel, conf: dict) -> tuple[Grid, ScanLines, dict]:
     grid = Grid.around(fm, float(conf["border"]), float(conf["resolution"]))
     ny, nx = grid.shape
     log.info("build-map %s: %d x %d cells of %g m", fm.name, nx, ny, grid.resolution)
-    if nx * ny > MAX_CELLS:
+    # a cell's cost grows with the spiral's radius about as 1 + r / 2 (measured above)
+    spiral = max(float(conf["spiral_end_radius"]), DEFAULT_SPIRAL_M)
+    most = int(MAX_CELLS * (1 + DEFAULT_SPIRAL_M / 2) / (1 + spiral / 2))
+    if nx * ny > most:
         raise FieldlocError(
             f"build-map of {fm.name} at {conf['resolution']:g} m: {nx} x {ny} cells, more than"
-            f" the {MAX_CELLS:,} a map may hold (about a minute of CPU a million); choose a coarser"
-            " --resolution (the paper's is 0.1 m)")
+            f" the {most:,} a map may hold with a {spiral:g} m spiral (about 75 us of CPU a"
+            " cell); choose a coarser --resolution (the paper's is 0.1 m)")
     check_memory(
         f"build-map of {fm.name} ({fm.length:g} x {fm.width:g} m + {conf['border']:g} m border"
         f" at {conf['resolution']:g} m: {nx} x {ny} cells)",

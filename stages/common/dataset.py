@@ -74,11 +74,12 @@ MAX_VALUE = 1e6
 # larger stamp is in other units (ms, ns: a ROS stamp in ns is 1.7e18) or damaged; beyond it
 # the gaps between frames overflow the motion model's noise (1e299 s ended in tracebacks)
 MAX_STAMP = 1e11
-# rows a dataset CSV may hold, counted before any is read (a row costs 5-15 us of checks: a
-# 117 MB frames.csv of 5 million rows ran past a minute only to refuse its first row, trial
-# P2): frames.csv one per image, as many as a rendered dataset's most (simulate's
-# MAX_FRAMES, a day at 10 Hz); a time series 5 million (14 hours at 100 Hz)
-MAX_CSV_ROWS = {"frames": 1_000_000, "series": 5_000_000}
+# rows a CSV may hold (a dataset's, --points, calibration points), counted before any is
+# read (a row costs 5-15 us of checks: a 117 MB frames.csv of 5 million rows ran past a
+# minute only to refuse its first row, trial P2; 4.9 million truth rows took evaluate past a
+# minute, trial Q3): a rendered dataset's most frames (simulate's MAX_FRAMES, a day at 10
+# Hz), a time series of 2.8 hours at 100 Hz, 5,000 frames of 200 line points
+MAX_CSV_ROWS = 1_000_000
 
 
 def stamp_error(stamp: float) -> str | None:
@@ -102,7 +103,6 @@ def read_csv(path: str | Path, kind: str) -> dict[str, np.ndarray]:
     cols = CSV_COLUMNS[kind]
     if not present(path):
         raise DatasetError(f"file not found: {path}")
-    _refuse_many_rows(path, MAX_CSV_ROWS["frames" if kind == "frames" else "series"])
     lines = csv_rows(path)
     if not lines:
         raise DatasetError(f"{path}: empty; expected a header '{','.join(cols)}'")
@@ -193,23 +193,26 @@ def folder_row(path: Path, line_no: int, row: str) -> DatasetError:
                         " image")
 
 
-def _refuse_many_rows(path: Path, most: int) -> None:
-    """DatasetError where ``path`` holds more than ``most`` lines past its header, counted in
-    its bytes before anything is parsed (MAX_CSV_ROWS)."""
-    lines = 0
+def _refuse_many_rows(path: Path, most: int = MAX_CSV_ROWS) -> None:
+    """DatasetError where ``path`` holds more than ``most`` rows past its header, counted in
+    its bytes before anything is parsed (MAX_CSV_ROWS): line feeds or carriage returns,
+    whichever more (the CSV reader ends a row at either; a row of CR LF counts once)."""
+    lf = cr = 0
     try:
         with open(path, "rb") as f:
             while chunk := f.read(1 << 22):
-                lines += chunk.count(b"\n")
-                if lines > most + 1:
-                    raise DatasetError(f"{path}: more than {most:,} rows; a dataset's"
-                                       f" {path.name} holds at most that many")
+                lf, cr = lf + chunk.count(b"\n"), cr + chunk.count(b"\r")
+                if max(lf, cr) > most + 1:
+                    raise DatasetError(f"{path}: more than {most:,} rows; a CSV fieldloc"
+                                       " reads holds at most that many")
     except OSError as e:
         raise DatasetError(f"{path}: cannot be read ({e.strerror or e})") from None
 
 
 def csv_rows(path: Path) -> list[tuple[int, list[str]]]:
-    """(line number, cells) of the non-empty, non-comment rows of a text CSV file."""
+    """(line number, cells) of the non-empty, non-comment rows of a text CSV file of at most
+    MAX_CSV_ROWS rows."""
+    _refuse_many_rows(path)
     try:
         text = path.read_bytes().decode("utf-8-sig")
     except UnicodeDecodeError:

@@ -403,6 +403,9 @@ def _check_types(out: dict, attrs: dict, path) -> None:
                           f" {str(attrs['inputs'][wrong[0]])[:40]!r}; expected a path as text)")
 
 
+# the most hypotheses a frame lists: the methods' ``hypotheses`` conf keys are bounded far
+# below it; more is damage, refused before the array is read
+MAX_HYPOTHESES = 10_000
 # the modes writers record (PoseTrack.add refuses any other): lut's and the fit's global,
 # global-heading, local, null; the grid belief's grid and predicted; mcl's tracking,
 # predicted, recovering, initial; smoothing's smoothed; failed; "" where none is given
@@ -491,7 +494,8 @@ def _check_values(out: dict, path) -> None:
                               f" {str(out['name'][i])[:40]}: row {k} column {c} is"
                               f" {h[i, k, c]:.6g}; expected a pose within {MAX_VALUE:g} and a"
                               " probability from 0 to 1, or NaN padding)")
-        wrong = np.flatnonzero(~np.asarray(out["failed"], bool) & np.isnan(h[:, 0, 3]))
+        first = h[:, 0, 3] if h.shape[1] else np.full(len(h), np.nan)  # (N, 0, 4): none
+        wrong = np.flatnonzero(~np.asarray(out["failed"], bool) & np.isnan(first))
         if len(wrong):  # every writer ranks a frame's pose first (PoseTrack.add)
             raise SchemaError(f"{path}: damaged poses file (/hypotheses of frame"
                               f" {str(out['name'][int(wrong[0])])[:40]} holds none; a frame"
@@ -506,7 +510,8 @@ def _check_frames(out: dict, path) -> None:
     dataset stamped from its file names orders its frames by name (9.5.png after 10.5.png)."""
     seen = set()
     for name in out["name"]:
-        if name in seen or name in ("", ".", "..") or "/" in name or "\\" in name:
+        if (name in seen or name in ("", ".", "..") or "/" in name or "\\" in name
+                or not name.isprintable() or name != name.strip()):  # a line break, a tab
             why = "given twice" if name in seen else "not a plain image name"
             raise SchemaError(f"{path}: damaged poses file (frame name {name[:40]!r} is {why})")
         seen.add(name)
@@ -526,6 +531,11 @@ def _read_poses(path):
                 v = np.array([s.decode() if isinstance(s, bytes) else s for s in v], dtype=object)
             out[k] = v
         if "hypotheses" in h5:
+            shape = h5["hypotheses"].shape  # bounded before it is read: a compressed (6,
+            # 2e8, 4) of 15 kB read for a minute into "out of memory" (trial Q10)
+            if len(shape) != 3 or shape[1] > MAX_HYPOTHESES:
+                raise SchemaError(f"{path}: damaged poses file (/hypotheses of shape"
+                                  f" {shape}; expected (frames, at most {MAX_HYPOTHESES}, 4))")
             out["hypotheses"] = h5["hypotheses"][()]
         attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in h5.attrs.items()}
         for k in JSON_ATTRS:
