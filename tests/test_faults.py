@@ -1112,6 +1112,25 @@ def _replace(path: str, make):
     return change
 
 
+def _as_group(path: str):
+    """Dataset ``path`` replaced by an empty group."""
+    def change(f):
+        del f[path]
+        f.create_group(path)
+    return change
+
+
+def _external(path: str):
+    """Dataset ``path`` replaced by a link to the same name in another file beside it."""
+    def change(f):
+        other = Path(f.filename).with_name("elsewhere.h5")
+        with h5py.File(other, "w") as g:
+            g[path] = f[path][()]
+        del f[path]
+        f[path] = h5py.ExternalLink(other.name, path)
+    return change
+
+
 def _as_text(path: str):
     """Dataset ``path`` replaced by as many strings as it has rows."""
     return _replace(path, lambda d: np.array([b"abc"] * len(d)))
@@ -2157,7 +2176,7 @@ CASES = [
          "'0_1' is no decimal number (underscores)"),
     Case("build-map --robot-radius 0: refused, no numpy warnings (trial Q8)", "silent",
          ["build-map", "spl", "--robot-radius", "0", "-o", W + "/m.h5"], 1,
-         "conf 'robot_radius' must be > 0 and <= 2, got 0.0"),
+         "conf 'robot_radius' must be >= 0.01 and <= 2, got 0.0"),
     Case("simulate --frames 1e12", "traceback",
          ["simulate", "omni", "--field", "spl", "-o", W + "/sim", "--frames",
           "1000000000000"], 1, "frames must be a whole number from 1 to 1000000"),
@@ -3948,8 +3967,15 @@ CASES = [
          _replace("hypotheses", lambda d: d[:, :0, :])),
         ("hypotheses are 10,001 a frame (trial Q10: read a minute into 'out of memory')",
          ["export"], ["--format", "csv", "-o", W + "/o.csv"],
-         "/hypotheses of shape (4, 10001, 4); expected (frames, at most 10000, 4))",
+         "/hypotheses has shape (4, 10001, 4); expected (N, K <= 10,000, 4) for N <=",
          _replace("hypotheses", lambda d: np.full((len(d), 10_001, 4), np.nan))),
+        ("hypotheses are a group (trial R: an AttributeError)", ["export"],
+         ["--format", "csv", "-o", W + "/o.csv"], "/hypotheses is a Group, not a dataset)",
+         _as_group("hypotheses")),
+        ("x is a link to another file (trial R: a FIFO there blocked every reader)",
+         ["evaluate"], ["--truth", "{omni}", "-o", W + "/rep"],
+         "/poses/x is a ExternalLink; fieldloc writes its data in the file)",
+         _external("poses/x")),
         ("first frame is named with a line break (trial Q9)", ["export"],
          ["--format", "csv", "-o", W + "/o.csv"],
          "frame name '000000.png\\n' is not a plain image name",

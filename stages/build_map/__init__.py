@@ -40,9 +40,10 @@ confs = {
 # the ranges a conf's values must lie in for the tables to be built at all
 # (common.conf.check_bounds): the scan lines' ranges are extract's (common.scanlines)
 BOUNDS = {"border": (0, MAX_BORDER_M), "max_range": ((0,), MAX_RANGE_M),
-          # m: a robot of no radius divided by zero in the scan lines' tables (trial Q8); the
-          # largest robots (MSL) are about 0.26 m in radius, 2 m is none
-          "robot_radius": ((0,), 2.0),
+          # m: a robot of no radius divided by zero in the scan lines' tables (trial Q8), one
+          # of 1e-300 m overflowed there (trial R); the smallest robots (NAO) are about 0.1 m
+          # in radius, the largest (MSL) about 0.26 m: 1 cm to 2 m
+          "robot_radius": (0.01, 2.0),
           "spiral_end_radius": ((0,), MAX_RANGE_M)}
 
 # peak memory of building the tables per world cell (measured: spl at 5 and 2.5 cm, 4.5 KB)

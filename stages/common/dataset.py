@@ -195,14 +195,18 @@ def folder_row(path: Path, line_no: int, row: str) -> DatasetError:
 
 def _refuse_many_rows(path: Path, most: int = MAX_CSV_ROWS) -> None:
     """DatasetError where ``path`` holds more than ``most`` rows past its header, counted in
-    its bytes before anything is parsed (MAX_CSV_ROWS): line feeds or carriage returns,
-    whichever more (the CSV reader ends a row at either; a row of CR LF counts once)."""
-    lf = cr = 0
+    its bytes before anything is parsed (MAX_CSV_ROWS): as the CSV reader ends rows, at a line
+    feed, a carriage return or the two together (counted once; trial R: rows ending
+    alternately in LF and CR passed twice the cap as the larger count of either)."""
+    ends = 0
+    last = b""  # a chunk's last byte: a CR LF split between two chunks is one end
     try:
         with open(path, "rb") as f:
             while chunk := f.read(1 << 22):
-                lf, cr = lf + chunk.count(b"\n"), cr + chunk.count(b"\r")
-                if max(lf, cr) > most + 1:
+                ends += (chunk.count(b"\n") + chunk.count(b"\r") - chunk.count(b"\r\n")
+                         - (last == b"\r" and chunk[:1] == b"\n"))
+                last = chunk[-1:]
+                if ends > most + 1:
                     raise DatasetError(f"{path}: more than {most:,} rows; a CSV fieldloc"
                                        " reads holds at most that many")
     except OSError as e:

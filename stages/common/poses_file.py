@@ -406,6 +406,9 @@ def _check_types(out: dict, attrs: dict, path) -> None:
 # the most hypotheses a frame lists: the methods' ``hypotheses`` conf keys are bounded far
 # below it; more is damage, refused before the array is read
 MAX_HYPOTHESES = 10_000
+# the most frames a poses file holds: a dataset's most (dataset.MAX_CSV_ROWS, simulate's
+# MAX_FRAMES); more is damage, refused before a column is read
+MAX_FRAMES = 1_000_000
 # the modes writers record (PoseTrack.add refuses any other): lut's and the fit's global,
 # global-heading, local, null; the grid belief's grid and predicted; mcl's tracking,
 # predicted, recovering, initial; smoothing's smoothed; failed; "" where none is given
@@ -521,22 +524,54 @@ def _check_frames(out: dict, path) -> None:
                           f" of {', '.join(sorted(m for m in MODES if m))})")
 
 
+def _group(h5, name: str, path):
+    """The group ``name`` of a poses file, stored in it (not a link elsewhere)."""
+    link = h5.get(name, getlink=True)
+    if not isinstance(link, h5py.HardLink) or not isinstance(h5[name], h5py.Group):
+        raise SchemaError(f"{path}: damaged poses file (/{name} is no group of the file)")
+    return h5[name]
+
+
+def _stored(h5, name: str, path):
+    """The dataset ``name`` of a poses file, checked before a byte of it is read: a dataset
+    stored in the file (not a group, a link to another file, a virtual dataset or external
+    storage: a FIFO behind any of them blocked every reader, trial R), of one value per frame
+    (``hypotheses`` (N, K, 4), ``covariance`` (N, 3, 3)) for at most MAX_FRAMES frames and
+    MAX_HYPOTHESES hypotheses (a compressed 15 kB file of (6, 2e8, 4) read for a minute into
+    "out of memory", trial Q10)."""
+    link = h5.get(name, getlink=True)
+    if not isinstance(link, h5py.HardLink):
+        raise SchemaError(f"{path}: damaged poses file (/{name} is a"
+                          f" {type(link).__name__}; fieldloc writes its data in the file)")
+    d = h5[name]
+    if not isinstance(d, h5py.Dataset):
+        raise SchemaError(f"{path}: damaged poses file (/{name} is a {type(d).__name__}, not"
+                          " a dataset)")
+    if d.is_virtual or d.external:
+        raise SchemaError(f"{path}: damaged poses file (/{name} is stored outside the file)")
+    shape = d.shape or ()
+    tail = {"hypotheses": 3, "poses/covariance": 3}.get(name, 1)
+    if (len(shape) != tail or shape[0] > MAX_FRAMES
+            or (name == "hypotheses" and (shape[1] > MAX_HYPOTHESES or shape[2] != 4))
+            or (name == "poses/covariance" and shape[1:] != (3, 3))):
+        want = {"hypotheses": f"(N, K <= {MAX_HYPOTHESES:,}, 4)",
+                "poses/covariance": "(N, 3, 3)"}.get(name, "(N,)")
+        raise SchemaError(f"{path}: damaged poses file (/{name} has shape {shape}; expected"
+                          f" {want} for N <= {MAX_FRAMES:,} frames)")
+    return d[()]
+
+
 def _read_poses(path):
     with open_artifact(path, SCHEMA, VERSION) as h5:
-        g = h5["poses"]
+        g = _group(h5, "poses", path)
         out = {}
         for k in g.keys():
-            v = g[k][()]
+            v = _stored(h5, f"poses/{k}", path)
             if v.dtype.kind in ("O", "S"):
                 v = np.array([s.decode() if isinstance(s, bytes) else s for s in v], dtype=object)
             out[k] = v
         if "hypotheses" in h5:
-            shape = h5["hypotheses"].shape  # bounded before it is read: a compressed (6,
-            # 2e8, 4) of 15 kB read for a minute into "out of memory" (trial Q10)
-            if len(shape) != 3 or shape[1] > MAX_HYPOTHESES:
-                raise SchemaError(f"{path}: damaged poses file (/hypotheses of shape"
-                                  f" {shape}; expected (frames, at most {MAX_HYPOTHESES}, 4))")
-            out["hypotheses"] = h5["hypotheses"][()]
+            out["hypotheses"] = _stored(h5, "hypotheses", path)
         attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in h5.attrs.items()}
         for k in JSON_ATTRS:
             try:
