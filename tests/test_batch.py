@@ -211,6 +211,28 @@ def test_a_wrong_spec_is_one_clear_line(change, message, tmp_path):
     assert not (tmp_path / "res").exists()
 
 
+def test_a_simulated_datasets_field_file_is_relative_to_the_spec(tmp_path, monkeypatch):
+    """A dataset's simulate.field given as a YAML path is read from the SPEC's folder, as
+    every path of the SPEC (trial P4: it was read from the working folder): run from another
+    folder, a field file there is found, and a missing one is named by its path there."""
+    specs = tmp_path / "specs"
+    (specs / "fields").mkdir(parents=True)
+    (specs / "fields" / "lab.yaml").write_text((Path(__file__).resolve().parents[1] / "maps"
+                                                / "spl.yaml").read_text())
+    monkeypatch.chdir(tmp_path)  # another folder than the SPEC's
+    for field, found in (("fields/lab.yaml", True), ("fields/none.yaml", False)):
+        spec = _write_spec(specs, {**SPEC, "datasets": [
+            {"simulate": {"preset": "omni-clean", "field": field, "frames": 2}}]})
+        if found:
+            assert read_spec(spec, tmp_path / "res").datasets[0].sim_field == str(
+                specs / field)
+        else:
+            r = CliRunner().invoke(cli, ["batch", str(spec), "-o", str(tmp_path / "res"),
+                                         "--serial"])
+            assert r.exit_code == 1 and str(specs / field) in r.stderr, r.stderr
+            assert not (tmp_path / "res").exists()
+
+
 def test_workers_beyond_four_per_core_are_refused(tmp_path):
     """--workers 100000 would start as many worker processes (each holding a map): refused
     in one line before anything is made."""

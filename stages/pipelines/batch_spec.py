@@ -369,7 +369,7 @@ def _datasets(w, entries, base, results, default_map, build_conf, extract_defaul
         own_map = _map_source(w, d, f"{where}.", base)
         found = []
         if "simulate" in d:
-            found.append(_simulated(w, d, where, results))
+            found.append(_simulated(w, d, where, results, base))
             if own_map is None:
                 own_map = ("field", found[0].sim_field)
         elif "glob" in d:
@@ -446,7 +446,7 @@ def _folder(w, path: Path, name: str, where: str, results: Path, calib, base=Non
                        calib=calib, truth=(path / "truth.csv").is_file())
 
 
-def _simulated(w, d, where, results):
+def _simulated(w, d, where, results, base: Path):
     s = w.keys(d["simulate"], f"{where}.simulate", SIMULATE_KEYS, required=("field",))
     preset = w.text(s.get("preset", "default"), f"{where}.simulate.preset")
     if preset not in simulate.confs:
@@ -462,7 +462,8 @@ def _simulated(w, d, where, results):
         simulate.check_conf(conf)  # frames, seeds: refused before anything runs
     except FieldlocError as e:
         w.fail(f"{where}.simulate", str(e))
-    field_arg = w.text(s["field"], f"{where}.simulate.field")
+    # a field YAML's path relative to the SPEC's folder, as every path of the SPEC
+    field_arg = _field_arg(base, w.text(s["field"], f"{where}.simulate.field"))
     from ..common.field import load_field
 
     try:
