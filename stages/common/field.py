@@ -384,10 +384,10 @@ def field_from_spec(spec, where: str = "<field>", text: str | None = None) -> Fi
     low, high = FIELD_SIDE_M
     for key in ("length", "width"):
         if not low <= spec[key] <= high:
-            raise FieldSpecError(f"{where}: key '{key}' is {spec[key]:.6g} m, not a soccer"
+            raise FieldSpecError(f"{where}: key '{key}' is {float(spec[key])!r} m, not a soccer"
                                  f" field's ({low:g}-{high:g} m): is the file in another unit?")
     if spec["border"] > MAX_BORDER_M:
-        raise FieldSpecError(f"{where}: key 'border' is {spec['border']:.6g} m; the floor"
+        raise FieldSpecError(f"{where}: key 'border' is {float(spec['border'])!r} m; the floor"
                              f" around a field is at most {MAX_BORDER_M:g} m")
     for area in ("goal_area", "penalty_area"):
         if area in spec:
