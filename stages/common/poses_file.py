@@ -38,10 +38,12 @@ outside [0, 1] or NaN, a hypotheses row part NaN or a frame that did not fail wi
 hypothesis, a runtime negative or not finite, an error below 0, a covariance neither finite nor
 all NaN (none given), a frame both accepted (or accepted up to the mirror) and failed, a frame
 name given twice or not a plain image name (a folder, ..), a mode no
-writer records (MODES), a text column (name, mode, flags) of other values. ``created`` and
-``method`` are labels no command decides by, and are not checked. ``tum_twin`` is not
-checked: a record matching no file vouches for no twin, so ``--overwrite`` keeps the twin
-(``twin_vouched``), the safe side.
+writer records (MODES), a text column (name, mode, flags) of other values; and, before
+any data is read (``_stored``), a dataset that is a group, a link to another file, virtual or
+stored outside the file, or of more than MAX_FRAMES frames or MAX_HYPOTHESES hypotheses.
+``created`` and ``method`` are labels no command decides by, and are not checked.
+``tum_twin`` is not checked: a record matching no file vouches for no twin, so
+``--overwrite`` keeps the twin (``twin_vouched``), the safe side.
 
 ``poses.tum`` beside it holds "stamp x y z qx qy qz qw" rows of the accepted frames (the top
 hypothesis), readable by evo; its first line is the header ``# stamp x y z qx qy qz qw``. The
