@@ -2175,6 +2175,16 @@ CASES = [
     Case("localize --min-confidence 0_1: refused, not read as 1 (trial Q7)", "silent",
          [*LOCALIZE, "-o", W + "/p.h5", "--min-confidence", "0_1"], 2,
          "'0_1' is no decimal number (underscores)"),
+    *[Case(f"{args[0]} of a {kind} whose {name} is a link to another file (trial R: a FIFO"
+           " there blocked the reader)", "hang", [*args, "-o", W + out], 1,
+           f"m.h5: damaged 'fieldloc.{kind}' file (/{name} is stored outside the file",
+           setup=_setup_damaged(kind, "m.h5", _external(name)))
+      for kind, name, args, out in (
+        ("map", "tables/distance",
+         ["localize", "{omni}", "--features", "{features}", "--map", W + "/m.h5"], "/p.h5"),
+        ("features", "index/stamp",
+         ["localize", "{omni}", "--map", "{map}", "--features", W + "/m.h5"], "/p.h5"),
+        ("poses", "poses/x", ["export", W + "/m.h5", "--format", "csv"], "/o.csv"))],
     Case("build-map --robot-radius 0: refused, no numpy warnings (trial Q8)", "silent",
          ["build-map", "spl", "--robot-radius", "0", "-o", W + "/m.h5"], 1,
          "conf 'robot_radius' must be >= 0.01 and <= 2, got 0.0"),
@@ -3973,10 +3983,6 @@ CASES = [
         ("hypotheses are a group (trial R: an AttributeError)", ["export"],
          ["--format", "csv", "-o", W + "/o.csv"], "/hypotheses is a Group, not a dataset)",
          _as_group("hypotheses")),
-        ("x is a link to another file (trial R: a FIFO there blocked every reader)",
-         ["evaluate"], ["--truth", "{omni}", "-o", W + "/rep"],
-         "/poses/x is a ExternalLink; fieldloc writes its data in the file)",
-         _external("poses/x")),
         ("first frame is named with a line break (trial Q9)", ["export"],
          ["--format", "csv", "-o", W + "/o.csv"],
          "frame name '000000.png\\n' is not a plain image name",

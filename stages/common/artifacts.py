@@ -1204,7 +1204,37 @@ def open_artifact(path: str | Path, schema: str, max_version: int) -> h5py.File:
             f"{path}: '{schema}' version {version} is not supported (this fieldloc reads"
             f" versions 1..{max_version})"
         )
+    outside = _stored_outside(f)
+    if outside:
+        f.close()
+        raise SchemaError(f"{path}: damaged '{schema}' file (/{outside[:60]} is stored outside"
+                          " the file; fieldloc writes its data in it)")
     return f
+
+
+def _stored_outside(f: h5py.File) -> str | None:
+    """The first object of ``f`` whose data lies outside the file: a link to another file, a
+    virtual dataset, external storage (a FIFO behind any of them blocked every reader, trial
+    R), or None. Links are read without being followed (visititems_links), datasets' layouts
+    without reading them; an artifact holds a few dozen objects."""
+    found: list[str] = []
+
+    def link(name, lk):
+        if isinstance(lk, h5py.ExternalLink):
+            found.append(name)
+            return True
+        return None
+
+    def obj(name, o):
+        if isinstance(o, h5py.Dataset) and (o.is_virtual or o.external):
+            found.append(name)
+            return True
+        return None
+
+    f.visititems_links(link)
+    if not found:
+        f.visititems(obj)
+    return found[0] if found else None
 
 
 def read_json_attr(f: h5py.File, key: str):
