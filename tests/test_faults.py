@@ -1112,6 +1112,16 @@ def _replace(path: str, make):
     return change
 
 
+def _subarray(path: str, each: tuple):
+    """Dataset ``path`` replaced by one of as many rows whose every element is an array of
+    shape ``each`` (an HDF5 array type, stored as such)."""
+    def change(f):
+        n = len(f[path])
+        del f[path]
+        f.create_dataset(path, shape=(n,), dtype=np.dtype(("<f8", each)))
+    return change
+
+
 def _as_group(path: str):
     """Dataset ``path`` replaced by an empty group."""
     def change(f):
@@ -2177,7 +2187,7 @@ CASES = [
          "'0_1' is no decimal number (underscores)"),
     *[Case(f"{args[0]} of a {kind} whose {name} is a link to another file (trial R: a FIFO"
            " there blocked the reader)", "hang", [*args, "-o", W + out], 1,
-           f"m.h5: damaged 'fieldloc.{kind}' file (/{name} is stored outside the file",
+           f"m.h5: damaged 'fieldloc.{kind}' file (/{name} is a link to another file",
            setup=_setup_damaged(kind, "m.h5", _external(name)))
       for kind, name, args, out in (
         ("map", "tables/distance",
@@ -2185,6 +2195,16 @@ CASES = [
         ("features", "index/stamp",
          ["localize", "{omni}", "--map", "{map}", "--features", W + "/m.h5"], "/p.h5"),
         ("poses", "poses/x", ["export", W + "/m.h5", "--format", "csv"], "/o.csv"))],
+    *[Case(f"export of poses whose {what} (trial S: minutes, or 10 GB read)", "hang",
+           ["export", W + "/p.h5", "--format", "csv", "-o", W + "/o.csv"], 1, msg,
+           setup=_setup_damaged("poses", "p.h5", change))
+      for what, change, msg in (
+        ("groups nest 20 deep", lambda f: f.create_group("/".join(["junk"] * 20)),
+         "/junk/junk/junk/junk/junk/junk/junk is nested more than 8 deep"),
+        ("x's elements are arrays", _subarray("poses/x", (30, 30)),
+         "/poses/x holds elements of 7,200 bytes"),
+        ("hypotheses outnumber the frames", _replace("hypotheses", lambda d: np.concatenate(
+            [d, d])), "for N = 4 frames (/poses/name)"))],
     Case("build-map --robot-radius 0: refused, no numpy warnings (trial Q8)", "silent",
          ["build-map", "spl", "--robot-radius", "0", "-o", W + "/m.h5"], 1,
          "conf 'robot_radius' must be >= 0.01 and <= 2, got 0.0"),
@@ -3978,7 +3998,7 @@ CASES = [
          _replace("hypotheses", lambda d: d[:, :0, :])),
         ("hypotheses are 10,001 a frame (trial Q10: read a minute into 'out of memory')",
          ["export"], ["--format", "csv", "-o", W + "/o.csv"],
-         "/hypotheses has shape (4, 10001, 4); expected (N, K <= 10,000, 4) for N <=",
+         "/hypotheses has shape (4, 10001, 4); expected (N, K <= 10,000, 4) for N = 4",
          _replace("hypotheses", lambda d: np.full((len(d), 10_001, 4), np.nan))),
         ("hypotheses are a group (trial R: an AttributeError)", ["export"],
          ["--format", "csv", "-o", W + "/o.csv"], "/hypotheses is a Group, not a dataset)",

@@ -1204,37 +1204,47 @@ def open_artifact(path: str | Path, schema: str, max_version: int) -> h5py.File:
             f"{path}: '{schema}' version {version} is not supported (this fieldloc reads"
             f" versions 1..{max_version})"
         )
-    outside = _stored_outside(f)
-    if outside:
+    why = _stored_outside(f)
+    if why:
         f.close()
-        raise SchemaError(f"{path}: damaged '{schema}' file (/{outside[:60]} is stored outside"
-                          " the file; fieldloc writes its data in it)")
+        raise SchemaError(f"{path}: damaged '{schema}' file ({why}; fieldloc writes its data"
+                          " in the file, a few dozen objects)")
     return f
 
 
+# what an artifact's walk (``_stored_outside``) visits at most: fieldloc's artifacts hold
+# 9-19 objects at most 3 deep; a file of thousands of nested groups or a million links took
+# the walk minutes (trial S), so more is damage
+MAX_OBJECTS, MAX_DEPTH = 1000, 8
+
+
 def _stored_outside(f: h5py.File) -> str | None:
-    """The first object of ``f`` whose data lies outside the file: a link to another file, a
-    virtual dataset, external storage (a FIFO behind any of them blocked every reader, trial
-    R), or None. Links are read without being followed (visititems_links), datasets' layouts
-    without reading them; an artifact holds a few dozen objects."""
-    found: list[str] = []
-
-    def link(name, lk):
-        if isinstance(lk, h5py.ExternalLink):
-            found.append(name)
-            return True
-        return None
-
-    def obj(name, o):
-        if isinstance(o, h5py.Dataset) and (o.is_virtual or o.external):
-            found.append(name)
-            return True
-        return None
-
-    f.visititems_links(link)
-    if not found:
-        f.visititems(obj)
-    return found[0] if found else None
+    """Why ``f`` is no artifact fieldloc wrote, its data not all in the file: an object that
+    is a link to another file, a virtual dataset or external storage (a FIFO behind any of
+    them blocked every reader, trial R), or more objects or deeper nesting than an artifact
+    holds (MAX_OBJECTS, MAX_DEPTH); None where none is. Links are read without being followed
+    and no data is read."""
+    todo, seen = [(f, "", 1)], 0
+    while todo:
+        group, prefix, depth = todo.pop()
+        for name in group:
+            seen += 1
+            where = f"/{prefix}{name}"[:60]
+            if seen > MAX_OBJECTS:
+                return f"it holds more than {MAX_OBJECTS} objects (at {where})"
+            link = group.get(name, getlink=True)
+            if isinstance(link, h5py.ExternalLink):
+                return f"{where} is a link to another file"
+            if not isinstance(link, h5py.HardLink):
+                continue  # a soft link names an object of this file
+            obj = group[name]
+            if isinstance(obj, h5py.Group):
+                if depth >= MAX_DEPTH:
+                    return f"{where} is nested more than {MAX_DEPTH} deep"
+                todo.append((obj, f"{prefix}{name}/", depth + 1))
+            elif isinstance(obj, h5py.Dataset) and (obj.is_virtual or obj.external):
+                return f"{where} is stored outside the file"
+    return None
 
 
 def read_json_attr(f: h5py.File, key: str):

@@ -411,6 +411,9 @@ MAX_HYPOTHESES = 10_000
 # the most frames a poses file holds: a dataset's most (dataset.MAX_CSV_ROWS, simulate's
 # MAX_FRAMES); more is damage, refused before a column is read
 MAX_FRAMES = 1_000_000
+# the largest element of a poses dataset: numbers are 8 bytes, names and flags short text
+# (a frame name is a file name, at most 255 bytes; flags a few words)
+MAX_ITEM_BYTES = 4096
 # the modes writers record (PoseTrack.add refuses any other): lut's and the fit's global,
 # global-heading, local, null; the grid belief's grid and predicted; mcl's tracking,
 # predicted, recovering, initial; smoothing's smoothed; failed; "" where none is given
@@ -551,15 +554,22 @@ def _stored(h5, name: str, path):
                           " a dataset)")
     if d.is_virtual or d.external:
         raise SchemaError(f"{path}: damaged poses file (/{name} is stored outside the file)")
+    if d.dtype.subdtype is not None or d.dtype.itemsize > MAX_ITEM_BYTES:
+        # an element that is itself an array, or text of gigabytes: 10 GB read from 15 kB
+        raise SchemaError(f"{path}: damaged poses file (/{name} holds elements of"
+                          f" {d.dtype.itemsize:,} bytes ({str(d.dtype)[:40]}); fieldloc writes"
+                          " numbers and short text)")
     shape = d.shape or ()
     tail = {"hypotheses": 3, "poses/covariance": 3}.get(name, 1)
-    if (len(shape) != tail or shape[0] > MAX_FRAMES
+    frames = h5["poses/name"].shape[:1] if name != "poses/name" and "poses/name" in h5 else ()
+    if (len(shape) != tail or shape[0] > MAX_FRAMES or (frames and shape[0] != frames[0])
             or (name == "hypotheses" and (shape[1] > MAX_HYPOTHESES or shape[2] != 4))
             or (name == "poses/covariance" and shape[1:] != (3, 3))):
         want = {"hypotheses": f"(N, K <= {MAX_HYPOTHESES:,}, 4)",
                 "poses/covariance": "(N, 3, 3)"}.get(name, "(N,)")
+        n = f"N = {frames[0]:,} frames (/poses/name)" if frames else f"N <= {MAX_FRAMES:,} frames"
         raise SchemaError(f"{path}: damaged poses file (/{name} has shape {shape}; expected"
-                          f" {want} for N <= {MAX_FRAMES:,} frames)")
+                          f" {want} for {n})")
     return d[()]
 
 
