@@ -2204,7 +2204,12 @@ CASES = [
         ("x's elements are arrays", _subarray("poses/x", (30, 30)),
          "/poses/x holds elements of 7,200 bytes"),
         ("hypotheses outnumber the frames", _replace("hypotheses", lambda d: np.concatenate(
-            [d, d])), "for N = 4 frames (/poses/name)"))],
+            [d, d])), "for N = 4 frames (/poses/name)"),
+        ("name is a group (trial T: an AttributeError)", _as_group("poses/name"),
+         "/poses/name is a Group, not a dataset"),
+        ("root holds 1001 attributes (trial T: a million took a minute)",
+         lambda f: [f.attrs.create(f"a{i}", i) for i in range(1001)],
+         "root attributes (more than 1000)"))],
     Case("build-map --robot-radius 0: refused, no numpy warnings (trial Q8)", "silent",
          ["build-map", "spl", "--robot-radius", "0", "-o", W + "/m.h5"], 1,
          "conf 'robot_radius' must be >= 0.01 and <= 2, got 0.0"),

@@ -1204,7 +1204,8 @@ def open_artifact(path: str | Path, schema: str, max_version: int) -> h5py.File:
             f"{path}: '{schema}' version {version} is not supported (this fieldloc reads"
             f" versions 1..{max_version})"
         )
-    why = _stored_outside(f)
+    why = _stored_outside(f) or (f"it holds {len(f.attrs):,} root attributes (more than"
+                                 f" {MAX_OBJECTS})" if len(f.attrs) > MAX_OBJECTS else None)
     if why:
         f.close()
         raise SchemaError(f"{path}: damaged '{schema}' file ({why}; fieldloc writes its data"
@@ -1212,9 +1213,10 @@ def open_artifact(path: str | Path, schema: str, max_version: int) -> h5py.File:
     return f
 
 
-# what an artifact's walk (``_stored_outside``) visits at most: fieldloc's artifacts hold
-# 9-19 objects at most 3 deep; a file of thousands of nested groups or a million links took
-# the walk minutes (trial S), so more is damage
+# what an artifact's walk (``_stored_outside``) visits at most, and the most root attributes
+# it may hold: fieldloc's artifacts hold 9-19 objects at most 3 deep and about a dozen
+# attributes; a file of thousands of nested groups or a million links took the walk minutes
+# (trial S), a million attributes took a reader past a minute (trial T), so more is damage
 MAX_OBJECTS, MAX_DEPTH = 1000, 8
 
 

@@ -561,7 +561,8 @@ def _stored(h5, name: str, path):
                           " numbers and short text)")
     shape = d.shape or ()
     tail = {"hypotheses": 3, "poses/covariance": 3}.get(name, 1)
-    frames = h5["poses/name"].shape[:1] if name != "poses/name" and "poses/name" in h5 else ()
+    names = h5.get("poses/name") if name != "poses/name" else None  # checked as read first
+    frames = names.shape[:1] if isinstance(names, h5py.Dataset) else ()
     if (len(shape) != tail or shape[0] > MAX_FRAMES or (frames and shape[0] != frames[0])
             or (name == "hypotheses" and (shape[1] > MAX_HYPOTHESES or shape[2] != 4))
             or (name == "poses/covariance" and shape[1:] != (3, 3))):
