@@ -193,32 +193,24 @@ def folder_row(path: Path, line_no: int, row: str) -> DatasetError:
                         " image")
 
 
-def _refuse_many_rows(path: Path, most: int = MAX_CSV_ROWS) -> None:
-    """DatasetError where ``path`` holds more than ``most`` rows past its header, counted in
-    its bytes before anything is parsed (MAX_CSV_ROWS): as the CSV reader ends rows, at a line
-    feed, a carriage return or the two together (counted once; trial R: rows ending
+def _refuse_many_rows(path: Path, data: bytes, most: int = MAX_CSV_ROWS) -> None:
+    """DatasetError where the CSV bytes ``data`` of ``path`` hold more than ``most`` rows past
+    the header, counted before any is parsed (MAX_CSV_ROWS): as the CSV reader ends rows, at
+    a line feed, a carriage return or the two together (counted once; trial R: rows ending
     alternately in LF and CR passed twice the cap as the larger count of either)."""
-    ends = 0
-    last = b""  # a chunk's last byte: a CR LF split between two chunks is one end
-    try:
-        with open(path, "rb") as f:
-            while chunk := f.read(1 << 22):
-                ends += (chunk.count(b"\n") + chunk.count(b"\r") - chunk.count(b"\r\n")
-                         - (last == b"\r" and chunk[:1] == b"\n"))
-                last = chunk[-1:]
-                if ends > most + 1:
-                    raise DatasetError(f"{path}: more than {most:,} rows; a CSV fieldloc"
-                                       " reads holds at most that many")
-    except OSError as e:
-        raise DatasetError(f"{path}: cannot be read ({e.strerror or e})") from None
+    ends = data.count(b"\n") + data.count(b"\r") - data.count(b"\r\n")
+    if ends > most + 1:
+        raise DatasetError(f"{path}: more than {most:,} rows; a CSV fieldloc reads holds at"
+                           " most that many")
 
 
 def csv_rows(path: Path) -> list[tuple[int, list[str]]]:
     """(line number, cells) of the non-empty, non-comment rows of a text CSV file of at most
     MAX_CSV_ROWS rows."""
-    _refuse_many_rows(path)
     try:
-        text = path.read_bytes().decode("utf-8-sig")
+        data = path.read_bytes()
+        _refuse_many_rows(path, data)
+        text = data.decode("utf-8-sig")
     except UnicodeDecodeError:
         raise DatasetError(
             f"{path}: not a text CSV file (binary content; is it the file you meant?)"
