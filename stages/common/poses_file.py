@@ -539,8 +539,8 @@ def _group(h5, name: str, path):
 
 def _stored(h5, name: str, path):
     """The dataset ``name`` of a poses file, checked before a byte of it is read: a dataset
-    stored in the file (not a group, a link to another file, a virtual dataset or external
-    storage: a FIFO behind any of them blocked every reader, trial R), of one value per frame
+    in the file under its own name (not a group or a soft link; data outside the file is
+    open_artifact's to refuse), of one value per frame
     (``hypotheses`` (N, K, 4), ``covariance`` (N, 3, 3)) for at most MAX_FRAMES frames and
     MAX_HYPOTHESES hypotheses (a compressed 15 kB file of (6, 2e8, 4) read for a minute into
     "out of memory", trial Q10)."""
@@ -552,8 +552,7 @@ def _stored(h5, name: str, path):
     if not isinstance(d, h5py.Dataset):
         raise SchemaError(f"{path}: damaged poses file (/{name} is a {type(d).__name__}, not"
                           " a dataset)")
-    if d.is_virtual or d.external:
-        raise SchemaError(f"{path}: damaged poses file (/{name} is stored outside the file)")
+    # a link to another file, a virtual dataset or external storage: refused by open_artifact
     if d.dtype.subdtype is not None or d.dtype.itemsize > MAX_ITEM_BYTES:
         # an element that is itself an array, or text of gigabytes: 10 GB read from 15 kB
         raise SchemaError(f"{path}: damaged poses file (/{name} holds elements of"
