@@ -2210,6 +2210,36 @@ CASES = [
         ("root holds 1001 attributes (trial T: a million took a minute)",
          lambda f: [f.attrs.create(f"a{i}", i) for i in range(1001)],
          "root attributes (more than 1000)"))],
+    *[Case(f"{args[0]} of a {kind} whose {what} (trial T: gigabytes read, or h5py's text)",
+           "hang", [*args, "-o", W + "/o.png"], 1, msg,
+           setup=_setup_damaged(kind, "m.h5", change))
+      for kind, what, change, args, msg in (
+        ("map", "field lines' elements are arrays", _subarray("field/segments", (30, 30)),
+         ["show", "map", W + "/m.h5"], "/field/segments holds elements of 7,200 bytes"),
+        ("map", "distance table is not of its grid's shape", _replace(
+            "tables/distance", lambda d: np.zeros((d.shape[0] + 1, d.shape[1]), d.dtype)),
+         ["show", "map", W + "/m.h5"],
+         "/tables/distance is (34, 45) float32; expected numbers of shape (33, 45)"),
+        ("map", "grid holds a million cells", _attr("shape", np.array([1000, 1000])),
+         ["show", "map", W + "/m.h5"], "a map holds 1 to 300,000 cells"),
+        ("features", "points' elements are arrays", _subarray("data/points", (600,)),
+         ["show", "points", "{omni}", "--features", W + "/m.h5", "--frame", "0"],
+         "/data/points holds elements of 4,800 bytes"),
+        ("features", "frame names are a group", _as_group("index/name"),
+         ["show", "points", "{omni}", "--features", W + "/m.h5", "--frame", "0"],
+         "/index/name is a Group, not a dataset"),
+        ("features", "points have three columns", _replace(
+            "data/points", lambda d: np.zeros((len(d), 3), d.dtype)),
+         ["show", "points", "{omni}", "--features", W + "/m.h5", "--frame", "0"],
+         "expected rows of (2,) numbers"))],
+    *[Case(f"localize --method templates on templates whose {what} (trial T)", "hang",
+           ["localize", "{omni}", "--method", "templates", "--templates", W + "/t.h5", "-o",
+            W + "/p.h5"], 1, msg, setup=_setup_damaged("templates", "t.h5", change))
+      for what, change, msg in (
+        ("offsets are 3e8 long", lambda f: (f.__delitem__("offsets"), f.create_dataset(
+            "offsets", shape=(300_000_000,), dtype="<i8", chunks=True, compression="gzip")),
+         "offsets has shape (300000000,), expected"),
+        ("names are a group", _as_group("names"), "/names is a Group, not a dataset"))],
     Case("build-map --robot-radius 0: refused, no numpy warnings (trial Q8)", "silent",
          ["build-map", "spl", "--robot-radius", "0", "-o", W + "/m.h5"], 1,
          "conf 'robot_radius' must be >= 0.01 and <= 2, got 0.0"),
@@ -2390,7 +2420,8 @@ CASES = [
          setup=_setup_features_edit(_drop_radial)),
     Case("a features frame whose radial is (72, 3)", "silent",
          [*LOCALIZE[:5], W + "/f.h5", "-o", W + "/p.h5"], 1,
-         "'radial' has shape (72, 3), expected (72, 4)", setup=_setup_features_edit(_cut_radial)),
+         "data/radial is (288, 3) float32; expected rows of (4,) numbers",
+         setup=_setup_features_edit(_cut_radial)),
     Case("features of camera_kind fisheye", "silent",
          [*LOCALIZE[:5], W + "/f.h5", "-o", W + "/p.h5"], 1,
          "camera_kind 'fisheye' is not one of omni, perspective",

@@ -16,7 +16,7 @@ from ..common.conf import check_bounds, stage_conf
 from ..common.crossing_tables import crossing_association_tables
 from ..common.errors import FieldlocError
 from ..common.field import MAX_BORDER_M, FieldModel, field_file, load_field
-from ..common.map_file import MAX_RESOLUTION, SCHEMA, VERSION, Grid, write_map
+from ..common.map_file import MAX_CELLS, MAX_RESOLUTION, SCHEMA, VERSION, Grid, write_map
 from ..common.resources import check_memory
 from ..common.scanlines import MAX_RANGE_M, ScanLines
 from . import tables
@@ -48,13 +48,6 @@ BOUNDS = {"border": (0, MAX_BORDER_M), "max_range": ((0,), MAX_RANGE_M),
 
 # peak memory of building the tables per world cell (measured: spl at 5 and 2.5 cm, 4.5 KB)
 BYTES_PER_CELL = 4.6e3
-# the most cells a map may hold with the default spiral (2 m after one turn; a wider spiral
-# costs more a cell: at 0.1 m on msl-2015, 28,000 cells, 1.5-2.1 s at 2 m, 11 s at 10 m, 21
-# s at 49.9 m; the radial scan lines' max_range barely counts, 2.7 s at 50 m): a cell costs
-# about 75 us (msl-2015 at 5 cm, 112,000 cells: 8.5 s of CPU; trial P: at 1.2 cm, 1.9 million,
-# past a minute), and 300,000 holds the largest league field (MSL, 24 x 16 m with its
-# border) at 4 cm and SPL's at 2 cm, finer than the paper's 10 cm
-MAX_CELLS = 300_000
 DEFAULT_SPIRAL_M = 2.0
 
 
@@ -88,7 +81,9 @@ def build_tables(fm: FieldModel, conf: dict) -> tuple[Grid, ScanLines, dict]:
     grid = Grid.around(fm, float(conf["border"]), float(conf["resolution"]))
     ny, nx = grid.shape
     log.info("build-map %s: %d x %d cells of %g m", fm.name, nx, ny, grid.resolution)
-    # a cell's cost grows with the spiral's radius about as 1 + r / 2 (measured above)
+    # a cell's cost grows with the spiral's radius about as 1 + r / 2 (measured at 0.1 m on
+    # msl-2015, 28,000 cells: 1.5-2.1 s at 2 m after one turn, 11 s at 10 m, 21 s at 49.9 m;
+    # the radial lines' max_range barely counts, 2.7 s at 50 m); MAX_CELLS is the default's
     spiral = max(float(conf["spiral_end_radius"]), DEFAULT_SPIRAL_M)
     most = int(MAX_CELLS * (1 + DEFAULT_SPIRAL_M / 2) / (1 + spiral / 2))
     if nx * ny > most:

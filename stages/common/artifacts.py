@@ -1249,6 +1249,39 @@ def _stored_outside(f: h5py.File) -> str | None:
     return None
 
 
+# the most frames an artifact holds (poses, features): a dataset's most (dataset.MAX_CSV_ROWS,
+# simulate's MAX_FRAMES); more is damage, refused before a column is read
+MAX_FRAMES = 1_000_000
+# the largest element of an artifact's dataset: numbers are at most 8 bytes, text a frame or
+# image name (a file name, at most 255 bytes) or a few words; field YAML is stored as text of
+# any length (a variable-length string, 16 bytes an element)
+MAX_ITEM_BYTES = 4096
+
+
+def stored_dataset(h5: h5py.File, name: str, what: str) -> h5py.Dataset:
+    """The dataset ``name`` of an artifact opened by open_artifact, checked before a byte of
+    it is read: in the file under its own name (not missing, a group or a soft link; data
+    outside the file is open_artifact's to refuse) and of elements fieldloc writes, numbers
+    and short text, not arrays (a subarray type) and at most MAX_ITEM_BYTES each: a 230 kB
+    file of such elements read 3-12 GB for half a minute before a misleading line (trials Q,
+    T). ``what`` names the file in the message ("poses file"). Shapes are the schema's own."""
+    def damaged(why: str) -> SchemaError:
+        return SchemaError(f"{h5.filename}: damaged {what} (/{name[:60]} {why})")
+
+    link = h5.get(name, getlink=True)
+    if link is None:
+        raise damaged("is missing")
+    if not isinstance(link, h5py.HardLink):
+        raise damaged(f"is a {type(link).__name__}; fieldloc writes its data in the file")
+    d = h5[name]
+    if not isinstance(d, h5py.Dataset):
+        raise damaged(f"is a {type(d).__name__}, not a dataset")
+    if d.dtype.subdtype is not None or d.dtype.itemsize > MAX_ITEM_BYTES:
+        raise damaged(f"holds elements of {d.dtype.itemsize:,} bytes ({str(d.dtype)[:40]});"
+                      " fieldloc writes numbers and short text")
+    return d
+
+
 def read_json_attr(f: h5py.File, key: str):
     v = f.attrs.get(key, "{}")
     return json.loads(v.decode() if isinstance(v, bytes) else v)

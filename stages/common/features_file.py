@@ -53,9 +53,20 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from .artifacts import PART_TAG, open_artifact, part_name, read_json_attr, write_artifact, writing
+from .artifacts import (
+    MAX_FRAMES,
+    MAX_ITEM_BYTES,
+    PART_TAG,
+    open_artifact,
+    part_name,
+    read_json_attr,
+    stored_dataset,
+    write_artifact,
+    writing,
+)
 from .dataset import MAX_STAMP, file_identity, file_size_identity, stamp_error
 from .errors import FieldlocError, SchemaError
+from .scanlines import MAX_SCAN_ANGLES, MAX_SCAN_CROSSINGS
 from .stops import raise_deferred_stop
 
 log = logging.getLogger(__name__)
@@ -274,15 +285,24 @@ def write_features(path: str | Path, attrs: dict, *, resume: bool = False):
 
 class _Columns:
     """The frames of a version 2 file (the module doc's columns), read a block of BLOCK_FRAMES
-    stored frames at a time. Anything inconsistent raises ValueError or KeyError."""
+    stored frames at a time. Each column is checked before it is read (stored_dataset: in the
+    file, of numbers or short text; a frame index of at most MAX_FRAMES, a data column of
+    the rows ``trailing`` gives); anything else inconsistent raises ValueError or KeyError."""
 
-    def __init__(self, h5: h5py.File):
-        names = _text(h5["index/name"][()])
-        stamps = np.asarray(h5["index/stamp"][()], dtype=float)
+    def __init__(self, h5: h5py.File, trailing: dict[str, tuple]):
+        def column(name: str) -> h5py.Dataset:
+            d = stored_dataset(h5, name, "features file")
+            if d.ndim != 1 or d.shape[0] > MAX_FRAMES:
+                raise ValueError(f"{name} has shape {d.shape}; expected (N,) for N <="
+                                 f" {MAX_FRAMES:,} frames")
+            return d
+
+        names = _text(column("index/name")[()])
+        stamps = np.asarray(column("index/stamp")[()], dtype=float)
         n = len(names)
         if stamps.shape != (n,):
             raise ValueError(f"{n} frame names but {stamps.shape[0]} stamps")
-        images = _text(h5["index/image"][()]) if "index/image" in h5 else [""] * n
+        images = _text(column("index/image")[()]) if "index/image" in h5 else [""] * n
         if len(images) != n:
             raise ValueError(f"{n} frame names but {len(images)} image identities")
         self._rows, self._start, self._data = {}, {}, {}
@@ -290,14 +310,20 @@ class _Columns:
         for key in rows_g if rows_g is not None else ():
             if key not in FRAME_DATASETS:
                 raise ValueError(f"no dataset '{key[:40]}' in the schema")
-            rows = np.asarray(rows_g[key][()])
+            rows = np.asarray(column(f"rows/{key}")[()])
             if rows.shape != (n,) or rows.dtype.kind not in "iu" or (rows < -1).any():
                 raise ValueError(f"rows/{key} does not give one row count per frame")
             start = _starts(rows)
-            data = h5["data"][key]
+            data = stored_dataset(h5, f"data/{key}", "features file")
             if data.ndim < 1 or data.shape[0] != start[-1]:
                 raise ValueError(f"data/{key} holds {data.shape[0] if data.ndim else 0} rows,"
                                  f" its frames {start[-1]}")
+            want = trailing.get(key)
+            if want is None:
+                raise ValueError(f"its camera's frames hold no '{key}'")
+            if data.shape[1:] != want or data.dtype.kind not in "fiu":
+                raise ValueError(f"data/{key} is {str(data.shape)[:40]} {str(data.dtype)[:20]};"
+                                 f" expected rows of {want} numbers")
             self._rows[key], self._start[key], self._data[key] = rows, start, data
         self._pos = {name: i for i, name in enumerate(names)}  # a name stored twice: the last
         keep = sorted(self._pos.values())
@@ -342,6 +368,10 @@ class _GroupPerFrame:
         for key in group:
             d = h5py.h5d.open(group, key)
             k = key.decode()
+            if d.dtype.subdtype is not None or d.dtype.itemsize > MAX_ITEM_BYTES:
+                raise SchemaError(f"{frames.file.filename}: damaged features file (frame"
+                                  f" {name[:40]}: '{k[:40]}' holds elements of"
+                                  f" {d.dtype.itemsize:,} bytes; fieldloc writes numbers)")
             if d.dtype.kind not in "fiu":
                 out[k] = frames[name][k][()]
                 continue
@@ -376,10 +406,35 @@ class FeaturesFile:
         self.path = Path(path)
         self.h5 = open_artifact(self.path, SCHEMA, VERSION)
         _small_metadata_cache(self.h5)
+        # the camera kind, read once (a FeaturesFile only reads: each frame's check asks it)
+        v = self.h5.attrs.get("camera_kind", "")
+        kind = self._kind = v.decode() if isinstance(v, bytes) else v
+        if kind not in CAMERA_KINDS:
+            self.h5.close()
+            raise SchemaError(f"{self.path}: damaged features file (camera_kind"
+                              f" {str(kind)[:40]!r} is not one of {', '.join(CAMERA_KINDS)})")
+        self._shapes = dict(TRAILING)
+        if "radial" in REQUIRED[kind]:  # read along scan lines: their layout shapes them
+            try:
+                sl = read_json_attr(self.h5, "scanlines") or {}
+                n, k = int(sl.get("n_angles", 72)), int(sl.get("max_crossings", 4))
+                if not (1 <= n <= MAX_SCAN_ANGLES and 1 <= k <= MAX_SCAN_CROSSINGS):
+                    raise ValueError(f"n_angles {n}, max_crossings {k}; expected 1 to"
+                                     f" {MAX_SCAN_ANGLES} and 1 to {MAX_SCAN_CROSSINGS}")
+            except (ValueError, TypeError, AttributeError, OverflowError) as e:
+                self.h5.close()
+                raise SchemaError(f"{self.path}: damaged features file (scanlines: {e})"
+                                  ) from None
+            self._shapes.update(radial=(n, k), spiral=(2, n))
+        # a column's rows: a frame's radial (n, k) is n rows of k, its spiral (2, n) 2 rows of n
+        trailing = {k: v[1:] if k in SCAN_DISTANCES else v for k, v in self._shapes.items()}
         try:
-            self._layout = (_Columns(self.h5) if "index" in self.h5
+            self._layout = (_Columns(self.h5, trailing) if "index" in self.h5
                             else _GroupPerFrame(self.h5) if "frames" in self.h5
                             else _NoFrames())
+        except SchemaError:
+            self.h5.close()
+            raise
         except (KeyError, ValueError, TypeError, OSError, AttributeError) as e:
             self.h5.close()
             raise SchemaError(f"{self.path}: damaged features file ({str(e)[:200]})") from None
@@ -394,24 +449,6 @@ class FeaturesFile:
         self.names = [names[i] for i in order]
         self.stamps = stamps[order]
         self._images = dict(zip(names, self._layout.images))
-        # the camera kind, read once (a FeaturesFile only reads: each frame's check asks it)
-        v = self.h5.attrs.get("camera_kind", "")
-        kind = self._kind = v.decode() if isinstance(v, bytes) else v
-        if kind not in CAMERA_KINDS:
-            self.h5.close()
-            raise SchemaError(f"{self.path}: damaged features file (camera_kind"
-                              f" {str(kind)[:40]!r} is not one of {', '.join(CAMERA_KINDS)})")
-        self._shapes = dict(TRAILING)
-        if "radial" in REQUIRED[kind]:  # read along scan lines: their layout shapes them
-            try:
-                sl = read_json_attr(self.h5, "scanlines") or {}
-                n, k = int(sl.get("n_angles", 72)), int(sl.get("max_crossings", 4))
-            except (ValueError, TypeError, AttributeError) as e:
-                self.h5.close()
-                raise SchemaError(f"{self.path}: damaged features file (scanlines: {e})"
-                                  ) from None
-            self._shapes.update(radial=(n, k), spiral=(2, n))
-
     @property
     def camera_kind(self) -> str:
         return self._kind

@@ -44,12 +44,12 @@ import h5py
 import numpy as np
 import yaml
 
-from .artifacts import open_artifact, read_json_attr, write_artifact
+from .artifacts import open_artifact, read_json_attr, stored_dataset, write_artifact
 from .conf import load_yaml
 from .errors import SchemaError
 from .field import FieldModel, field_from_spec
 from .resources import check_disk
-from .scanlines import ScanLines
+from .scanlines import MAX_SCAN_ANGLES, MAX_SCAN_CROSSINGS, ScanLines
 
 log = logging.getLogger(__name__)
 
@@ -64,6 +64,14 @@ VERSION = 1
 # default is 0.1 m, the tests' coarse maps 0.25 to 0.5 m). The finest cell is bounded by the
 # grid itself: its cells must span the field (MapFile._check_grid)
 MAX_RESOLUTION = 1.0
+# the most cells a map may hold (build-map's bound, scaled down for a wider spiral, and the
+# reader's): a cell costs build-map about 75 us with the default spiral (msl-2015 at 5 cm,
+# 112,000 cells: 8.5 s of CPU; trial P: at 1.2 cm, 1.9 million, past a minute), and 300,000
+# holds the largest league field (MSL, 24 x 16 m with its border) at 4 cm and SPL's at 2 cm,
+# finer than the paper's 10 cm. A reader refuses more, as it refuses tables of another shape
+# than the grid's, before reading them (a 25 MB file of a (72, 4, 14100, 20100) table read
+# into "out of memory", trial T)
+MAX_CELLS = 300_000
 
 TABLE_UNITS = {
     "radial": "mm",
@@ -175,7 +183,10 @@ class MapFile:
                              resolution=float(a["resolution"]),
                              shape=tuple(int(v) for v in a["shape"]))
             self.scanlines = ScanLines(**json.loads(a["scanlines"]))
-            spec_text = self.h5["field/spec_yaml"][()]
+            spec = stored_dataset(self.h5, "field/spec_yaml", "map file")
+            if spec.shape != ():
+                raise ValueError(f"/field/spec_yaml has shape {spec.shape}; expected one text")
+            spec_text = spec[()]
             spec_text = spec_text.decode() if isinstance(spec_text, bytes) else spec_text
             self.field = field_from_spec(load_yaml(spec_text), str(self.path), spec_text)
             self._check_grid()
@@ -201,8 +212,20 @@ class MapFile:
                 and 0 < g.resolution <= MAX_RESOLUTION):
             raise SchemaError(f"{said}: the origin must be finite and the resolution a finite"
                               f" number > 0 and <= {MAX_RESOLUTION:g} m)")
+        (ny, nx), sl = g.shape, self.scanlines
+        if not (0 < ny and 0 < nx and ny * nx <= MAX_CELLS):
+            raise SchemaError(f"{said}, shape {str(g.shape)[:30]}: a map holds 1 to"
+                              f" {MAX_CELLS:,} cells)")
+        counts = (sl.n_angles, sl.max_crossings)
+        if not (all(isinstance(v, int) and not isinstance(v, bool) for v in counts)
+                and 1 <= sl.n_angles <= MAX_SCAN_ANGLES
+                and 1 <= sl.max_crossings <= MAX_SCAN_CROSSINGS):
+            raise SchemaError(f"{self.path}: damaged map file (scanlines n_angles"
+                              f" {str(sl.n_angles)[:20]}, max_crossings"
+                              f" {str(sl.max_crossings)[:20]}; expected whole numbers from 1 to"
+                              f" {MAX_SCAN_ANGLES} and 1 to {MAX_SCAN_CROSSINGS})")
         xmin, xmax, ymin, ymax = self.field.world_bounds(0.0)
-        (x0, y0), (ny, nx) = g.origin, g.shape
+        x0, y0 = g.origin
         tol = 1e-6  # m: the rounding of the cell centres build-map placed
         if not (x0 <= xmin + tol and x0 + (nx - 1) * g.resolution >= xmax - tol
                 and y0 <= ymin + tol and y0 + (ny - 1) * g.resolution >= ymax - tol):
@@ -217,13 +240,14 @@ class MapFile:
         for name in ("segments", "arcs"):
             if name not in self.h5["field"]:
                 continue
-            stored = np.asarray(self.h5["field"][name][()], float)
+            d = stored_dataset(self.h5, f"field/{name}", "map file")
             model = np.asarray(getattr(self.field, name), float)
+            # of another shape: not read (a file's own shape may be of gigabytes)
+            stored = np.asarray(d[()], float) if d.shape == model.shape else model
             if not np.isfinite(stored).all():
                 raise SchemaError(f"{self.path}: damaged map file (/field/{name} holds values"
                                   " that are not finite numbers)")
-            if stored.shape != model.shape or not np.allclose(stored, model, rtol=0,
-                                                              atol=1e-6):
+            if d.shape != model.shape or not np.allclose(stored, model, rtol=0, atol=1e-6):
                 log.warning("%s: /field/%s differs from the field its spec gives now (built"
                             " by another fieldloc version?); build the map again",
                             self.path, name)
@@ -235,13 +259,27 @@ class MapFile:
     def has_table(self, name: str) -> bool:
         return "tables" in self.h5 and name in self.h5["tables"]
 
+    def table_shape(self, name: str) -> tuple[int, ...]:
+        """The shape table ``name`` has in a map of this grid and these scan lines (the
+        module doc's)."""
+        n, k = self.scanlines.n_angles, self.scanlines.max_crossings
+        lead = {"radial": (n, k), "spiral": (2, n), "distance": (), "distance_gradient": (2,),
+                "crossing_lut_L": (4,), "crossing_lut_T": ()}[name]
+        return (*lead, *self.grid.shape)
+
     def table(self, name: str) -> np.ndarray:
-        """A table fully in memory (cached)."""
+        """A table fully in memory (cached), refused (SchemaError) before it is read where it
+        is not of the shape its grid and scan lines give, or not of numbers."""
         if name not in self._cache:
             if not self.has_table(name):
                 raise SchemaError(f"{self.path}: map has no table '{name}'")
+            d = stored_dataset(self.h5, f"tables/{name}", "map file")
+            if d.shape != self.table_shape(name) or d.dtype.kind not in "fiu":
+                raise SchemaError(f"{self.path}: damaged map file (/tables/{name} is"
+                                  f" {str(d.shape)[:40]} {str(d.dtype)[:20]}; expected numbers"
+                                  f" of shape {self.table_shape(name)} for its grid)")
             try:
-                self._cache[name] = self.h5["tables"][name][()]
+                self._cache[name] = d[()]
             except (OSError, KeyError) as e:
                 raise SchemaError(f"{self.path}: damaged table '{name}' ({e})") from None
         return self._cache[name]

@@ -64,6 +64,7 @@ import h5py
 import numpy as np
 
 from .artifacts import (
+    MAX_FRAMES,
     as_written,
     atomic_path,
     check_output,
@@ -73,6 +74,7 @@ from .artifacts import (
     read_json_attr,
     refuse_inputs,
     starts_with,
+    stored_dataset,
     write_artifact,
     writing,
 )
@@ -408,12 +410,6 @@ def _check_types(out: dict, attrs: dict, path) -> None:
 # the most hypotheses a frame lists: the methods' ``hypotheses`` conf keys are bounded far
 # below it; more is damage, refused before the array is read
 MAX_HYPOTHESES = 10_000
-# the most frames a poses file holds: a dataset's most (dataset.MAX_CSV_ROWS, simulate's
-# MAX_FRAMES); more is damage, refused before a column is read
-MAX_FRAMES = 1_000_000
-# the largest element of a poses dataset: numbers are 8 bytes, names and flags short text
-# (a frame name is a file name, at most 255 bytes; flags a few words)
-MAX_ITEM_BYTES = 4096
 # the modes writers record (PoseTrack.add refuses any other): lut's and the fit's global,
 # global-heading, local, null; the grid belief's grid and predicted; mcl's tracking,
 # predicted, recovering, initial; smoothing's smoothed; failed; "" where none is given
@@ -538,26 +534,12 @@ def _group(h5, name: str, path):
 
 
 def _stored(h5, name: str, path):
-    """The dataset ``name`` of a poses file, checked before a byte of it is read: a dataset
-    in the file under its own name (not a group or a soft link; data outside the file is
-    open_artifact's to refuse), of one value per frame
-    (``hypotheses`` (N, K, 4), ``covariance`` (N, 3, 3)) for at most MAX_FRAMES frames and
-    MAX_HYPOTHESES hypotheses (a compressed 15 kB file of (6, 2e8, 4) read for a minute into
-    "out of memory", trial Q10)."""
-    link = h5.get(name, getlink=True)
-    if not isinstance(link, h5py.HardLink):
-        raise SchemaError(f"{path}: damaged poses file (/{name} is a"
-                          f" {type(link).__name__}; fieldloc writes its data in the file)")
-    d = h5[name]
-    if not isinstance(d, h5py.Dataset):
-        raise SchemaError(f"{path}: damaged poses file (/{name} is a {type(d).__name__}, not"
-                          " a dataset)")
-    # a link to another file, a virtual dataset or external storage: refused by open_artifact
-    if d.dtype.subdtype is not None or d.dtype.itemsize > MAX_ITEM_BYTES:
-        # an element that is itself an array, or text of gigabytes: 10 GB read from 15 kB
-        raise SchemaError(f"{path}: damaged poses file (/{name} holds elements of"
-                          f" {d.dtype.itemsize:,} bytes ({str(d.dtype)[:40]}); fieldloc writes"
-                          " numbers and short text)")
+    """The dataset ``name`` of a poses file, read after its checks: stored in the file and of
+    numbers or short text (artifacts.stored_dataset), of one value per frame (``hypotheses``
+    (N, K, 4), ``covariance`` (N, 3, 3)) for at most MAX_FRAMES frames and MAX_HYPOTHESES
+    hypotheses (a compressed 15 kB file of (6, 2e8, 4) read for a minute into "out of
+    memory", trial Q10)."""
+    d = stored_dataset(h5, name, "poses file")
     shape = d.shape or ()
     tail = {"hypotheses": 3, "poses/covariance": 3}.get(name, 1)
     names = h5.get("poses/name") if name != "poses/name" else None  # checked as read first

@@ -34,6 +34,12 @@ NO_HIT_MM = 65535  # uint16 marker for "no crossing" in the tables
 # the largest league field (MSL, 22 x 14 m: 26 m) plus its border, so no real range is
 # refused, while 1e308 m would overflow the tables' cell arithmetic
 MAX_RANGE_M = 50.0
+# the most scan lines and crossings per line a stored map or features file may give: build-map
+# and extract write ScanLines' 72 lines 5 deg apart with 4 crossings each; a reader takes up
+# to a line a degree and 16 crossings (a 4 m line crosses at most 5 of a field's lines), which
+# bounds the tables and columns it reads from those numbers
+MAX_SCAN_ANGLES = 360
+MAX_SCAN_CROSSINGS = 16
 
 
 @dataclass(frozen=True)

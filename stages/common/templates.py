@@ -46,7 +46,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from .artifacts import open_artifact, read_json_attr, write_artifact
+from .artifacts import MAX_FRAMES, open_artifact, read_json_attr, stored_dataset, write_artifact
 from .dataset import MAX_VALUE
 from .errors import SchemaError
 from .ground_features import GroundFeatures
@@ -187,11 +187,47 @@ def _value_problems(arrays: dict) -> list[str]:
     return out
 
 
+# the most features a template may hold: a template is one ground image (about a megapixel);
+# build-templates' SURF keeps 5-130 keypoints on one, so 10,000 a template is far beyond what
+# it writes, and bounds what a reader reads (a 0.2 MB file of (3e8,) offsets read 2.4 GB for
+# 11 s before it was refused, trial T)
+MAX_FEATURES_PER_TEMPLATE = 10_000
+# the widest descriptor (SIFT's 128 numbers; SURF's 64, ORB's 32 bytes)
+MAX_DESCRIPTOR = 128
+
+
+def _stored_shapes(f: h5py.File) -> list[str]:
+    """What the datasets' shapes and element types say against the file, before a byte of
+    them is read (stored_dataset refuses one not stored in the file or of elements no writer
+    writes): T names, poses (T, 3), offsets (T + 1,), N rows of each feature dataset (points
+    (N, 2), descriptors (N, D)), for at most MAX_FRAMES templates of MAX_FEATURES_PER_TEMPLATE
+    features each."""
+    d = {k: stored_dataset(f, k, f"'{SCHEMA}' file")
+         for k in ("names", "poses", "offsets", *FEATURE_DATASETS)}
+    t = d["names"].shape[0] if d["names"].ndim == 1 else -1
+    n = d["points"].shape[0] if d["points"].ndim == 2 else -1
+    want = {"names": (t,), "poses": (t, 3), "offsets": (t + 1,), "points": (n, 2),
+            "descriptors": (n, d["descriptors"].shape[-1] if d["descriptors"].ndim else -1)}
+    if not 0 <= t <= MAX_FRAMES:
+        return [f"names has shape {d['names'].shape}; expected (T,) for T <= {MAX_FRAMES:,}"]
+    if not 0 <= n <= MAX_FEATURES_PER_TEMPLATE * max(t, 1):
+        return [f"points has shape {d['points'].shape}; expected (N, 2) for N <="
+                f" {MAX_FEATURES_PER_TEMPLATE:,} a template"]
+    if not 1 <= want["descriptors"][1] <= MAX_DESCRIPTOR:
+        return [f"descriptors has shape {d['descriptors'].shape}; expected (N, D) for D <="
+                f" {MAX_DESCRIPTOR}"]
+    return [f"{k} has shape {d[k].shape}, expected {want.get(k, (n,))}" for k in d
+            if d[k].shape != want.get(k, (n,))][:1]
+
+
 def read_templates(path: str | Path) -> TemplateDatabase:
     """The database of a templates file; SchemaError (one line) for anything else."""
     path = Path(path)
     f = open_artifact(path, SCHEMA, VERSION)
     with f:
+        problems = _stored_shapes(f)
+        if problems:
+            raise SchemaError(f"{path}: damaged '{SCHEMA}' file: {problems[0]}")
         try:
             names = [n.decode() if isinstance(n, bytes) else str(n) for n in f["names"][()]]
             arrays = {k: f[k][()] for k in ("poses", "offsets", *FEATURE_DATASETS)}
