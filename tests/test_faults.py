@@ -3874,6 +3874,19 @@ CASES = [
         ("report of a folder whose report.json is", ["report", W + "/R", "-o", W + "/r.html"]),
         *((f"batch SPEC's datasets[0].{key}", ["batch", W + f"/{key}.yaml", "-o", W + "/b",
                                                "--serial"]) for key in LOOP_SPECS))],
+    Case("batch SPEC whose top-level field no dataset uses is not found (trial P5)", "silent",
+         ["batch", W + "/spec.yaml", "-o", W + "/b", "--serial"], 1,
+         "spec.yaml: field: field file not found",
+         setup=_setup_spec("field: nofield.yaml\ndatasets:\n  - name: d\n    map: {map}\n"
+                           "    simulate: {{preset: omni-clean, field: spl, frames: 2, seed:"
+                           " 1}}\nmethods: [lut]\n")),
+    Case("batch SPEC building its map of another robot_radius than extract's (trial N7)",
+         "silent", ["batch", W + "/spec.yaml", "-o", W + "/b", "--serial"], 1,
+         "datasets[0].extract: its scan lines have robot_radius = 0.25, the map's 0.3: give"
+         " the SPEC 'extract: {omni: {scanlines: {robot_radius: 0.3}}}'",
+         setup=_setup_spec("field: spl\nbuild_map: {{resolution: 0.5, robot_radius: 0.3}}\n"
+                           "datasets:\n  - name: d\n    simulate: {{preset: omni-clean, field:"
+                           " spl, frames: 2, seed: 1}}\nmethods: [lut]\n")),
     Case("batch SPEC's map a symbolic link loop: the key said once", "silent",
          ["batch", W + "/top.yaml", "-o", W + "/b", "--serial"], 1,
          "top.yaml: map: /", setup=_setup_loop_map_spec, check=_check_said_once("map: map:")),

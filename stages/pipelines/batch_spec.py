@@ -319,8 +319,40 @@ def _map_source(w: _Where, d: dict, where: str, base: Path):
             w.fail(f"{where}map".lstrip("."), str(e))
         return ("map", p)
     if "field" in d:
-        return ("field", _field_arg(base, w.text(d["field"], f"{where}field".lstrip("."))))
+        arg = _field_arg(base, w.text(d["field"], f"{where}field".lstrip(".")))
+        from ..common.field import load_field
+
+        try:  # read now, whether a dataset uses it or not (trial P5: a SPEC's unused field)
+            load_field(arg)
+        except FieldlocError as e:
+            w.fail(f"{where}field".lstrip("."), str(e))
+        return ("field", arg)
     return None
+
+
+def _map_scanlines(source, build_conf: dict) -> dict:
+    """The scan lines (robot_radius, max_range, spiral_end_radius) of a map source's map: a
+    map file's own, a field's map built with ``build_conf``."""
+    from .. import build_map
+
+    kind, value = source
+    if kind == "map":
+        with MapFile(value) as mf:
+            return mf.scanlines.as_dict()
+    return build_map.scanlines_of(build_conf).as_dict()
+
+
+def _check_scanlines(w: _Where, where: str, extract_conf: dict, map_lines: dict) -> None:
+    """An omni dataset's extract conf walks the scan lines its map was built with, or the SPEC
+    is refused before anything runs (trial N7: a build_map robot_radius of 0.3 failed every
+    run at localize, extract's being 0.25)."""
+    mine = extract_conf.get("scanlines") or {}
+    for k, v in mine.items():
+        if k in map_lines and abs(float(v) - float(map_lines[k])) > 1e-6:
+            w.fail(f"{where}.extract", f"its scan lines have {k} = {float(v):g}, the map's"
+                   f" {float(map_lines[k]):g}: give the SPEC 'extract: {{omni: {{scanlines: {{{k}:"
+                   f" {float(map_lines[k]):g}}}}}}}' (or the dataset its own), or build the map"
+                   f" with {float(v):g}")
 
 
 def _map_for(w: _Where, source, where: str, results: Path, build_conf: dict, maps: dict) -> str:
@@ -397,6 +429,8 @@ def _datasets(w, entries, base, results, default_map, build_conf, extract_defaul
                 w.fail(f"{where}.extract", str(e))
             tag = ex if isinstance(ex, str) else ("default" if ex is None else
                                                   f"custom-{short_hash(ds.extract)}")
+            if "scanlines" in ds.extract:  # walked along scan lines (omni): the map's
+                _check_scanlines(w, where, ds.extract, _map_scanlines(source, build_conf))
             ds.features = str(real_path(results / "features" / f"{ds.name}.{tag}.features.h5"))
             if "templates" in d:
                 ds.templates = _templates(w, d["templates"], ds, f"{where}.templates", base,
