@@ -2182,6 +2182,34 @@ CASES = [
          "t.csv: more than 1,000,000 rows; a CSV fieldloc reads holds at most that many",
          setup=lambda w, ws: (ws / "t.csv").write_text(
              "stamp,x,y,theta\r" + "0.1,0,0,0\r" * 1_000_001, newline="") and {}),
+    Case("truth.csv of a million and one rows, the last without its line end (trial U1-5)",
+         "silent", ["evaluate", "{poses}", "--truth", W + "/t.csv", "-o", W + "/r"], 1,
+         "t.csv: more than 1,000,000 rows; a CSV fieldloc reads holds at most that many",
+         setup=lambda w, ws: (ws / "t.csv").write_text(
+             "stamp,x,y,theta" + "\n0.1,0,0,0" * 1_000_001) and {}),
+    Case("truth.csv of 256 MB and a byte (sparse): refused by its size, unread (trial U1-4)",
+         "hang", ["evaluate", "{poses}", "--truth", W + "/t.csv", "-o", W + "/r"], 1,
+         "t.csv: 256 MB, more than the 256 MB a CSV fieldloc reads may weigh",
+         setup=lambda w, ws: ((ws / "t.csv").write_text("stamp,x,y,theta\n"),
+                              os.truncate(ws / "t.csv", 256_000_001)) and {}),
+    Case("inspect a poses file of 1001 root attributes: not listed (trial U1-3)", "hang",
+         ["inspect", W + "/p.h5"], 0, "root attributes, not listed: an artifact holds",
+         setup=_setup_damaged("poses", "p.h5", lambda f: [f.attrs.create(f"a{i}", i)
+                                                         for i in range(1001)])),
+    Case("inspect a poses file of groups nested 20 deep: listed 8 deep (trial U1-3)", "hang",
+         ["inspect", W + "/p.h5"], 0, "/junk/ ... (nested more than 8 deep)",
+         setup=_setup_damaged("poses", "p.h5",
+                              lambda f: f.create_group("/".join(["junk"] * 20)))),
+    *[Case(f"export of poses whose {what} (trial U1-7, U1-8: Python's or numpy's text)",
+           "silent", ["export", W + "/p.h5", "--format", "csv", "-o", W + "/o.csv"], 1, msg,
+           setup=_setup_damaged("poses", "p.h5", change))
+      for what, change, msg in (
+        ("covariance is text", _replace("poses/covariance", lambda d: np.full(
+            d.shape, b"abc")), "/poses/covariance holds text; expected numbers"),
+        ("names are not UTF-8", _replace("poses/name", lambda d: np.array(
+            [b"\xff%d" % i for i in range(len(d))])), "/poses/name holds text that is not UTF-8"),
+        ("schema is an array of numbers", _attr("schema", np.arange(3)),
+         "expected a 'fieldloc.poses' file, but it is a 'ndarray [0 1 2]' file"))],
     Case("localize --min-confidence 0_1: refused, not read as 1 (trial Q7)", "silent",
          [*LOCALIZE, "-o", W + "/p.h5", "--min-confidence", "0_1"], 2,
          "'0_1' is no decimal number (underscores)"),

@@ -1188,7 +1188,9 @@ def open_artifact(path: str | Path, schema: str, max_version: int) -> h5py.File:
     f = _open_hdf5(path)
     got = f.attrs.get("schema")
     if isinstance(got, bytes):
-        got = got.decode()
+        got = got.decode(errors="replace")
+    if not isinstance(got, (str, type(None))):  # an array of numbers: no comparison of text
+        got = f"{type(got).__name__} {str(got)[:30]}"
     if got != schema:
         f.close()
         what = f"a '{got}' file" if got else "not a fieldloc artifact"
@@ -1289,41 +1291,71 @@ def read_json_attr(f: h5py.File, key: str):
 
 def describe(path: str | Path) -> str:
     """A text listing of an artifact's root attributes and tree (datasets with shape, dtype and
-    units), for ``fieldloc inspect``."""
+    units), for ``fieldloc inspect``; of a damaged file too, bounded as open_artifact bounds
+    it: at most MAX_OBJECTS attributes and objects listed, MAX_DEPTH deep, links named and not
+    followed (a million attributes or thousands of nested groups listed for minutes, trial
+    U1)."""
     path = Path(path)
     f = _open_hdf5(path)
     lines = [f"{path}"]
     with f:
         if "schema" not in f.attrs:
             lines.append("  (no 'schema' attribute: not a fieldloc artifact)")
-        for k in sorted(f.attrs):
-            lines.append(f"  @{k} = {_fmt_attr(f.attrs[k])}")
-        groups_shown: dict[str, int] = {}
-
-        def visit(name, obj):
-            depth = name.count("/")
-            parent = name.rsplit("/", 1)[0] if "/" in name else ""
-            # per-frame files: show the first three frame groups, then a count
-            if depth == 1 and isinstance(obj, h5py.Group) and parent in ("frames", "templates"):
-                groups_shown[parent] = groups_shown.get(parent, 0) + 1
-                if groups_shown[parent] == 4:
-                    lines.append(f"  {'  ' * depth}... ({len(f[parent])} groups in /{parent})")
-            if parent in groups_shown and groups_shown[parent] > 3:
-                return
-            if "/" in name and name.split("/")[0] in groups_shown:
-                if groups_shown[name.split("/")[0]] > 3:
-                    return
-            indent = "  " * (depth + 1)
-            if isinstance(obj, h5py.Dataset):
-                units = obj.attrs.get("units", "")
-                units = units.decode() if isinstance(units, bytes) else units
-                u = f" [{units}]" if units else ""
-                lines.append(f"{indent}/{name}  {obj.shape} {obj.dtype}{u}")
-            else:
-                lines.append(f"{indent}/{name}/")
-
-        f.visititems(visit)
+        n = len(f.attrs)
+        if n > MAX_OBJECTS:
+            lines.append(f"  ({n:,} root attributes, not listed: an artifact holds about a"
+                         " dozen)")
+        else:
+            for k in sorted(f.attrs):
+                lines.append(f"  @{k} = {_fmt_attr(f.attrs[k])}")
+        lines += _tree_lines(f)
     return "\n".join(lines)
+
+
+def _tree_lines(f: h5py.File) -> list[str]:
+    """The objects under ``f`` in name order, one line each: datasets with shape, dtype and
+    units, groups, links (named, not followed); of a per-frame group (/frames, /templates)
+    the first three and a count; at most MAX_OBJECTS lines, MAX_DEPTH deep."""
+    lines: list[str] = []
+    todo: list = []
+
+    def push(group, prefix: str, depth: int) -> None:
+        names = sorted(group)
+        if depth == 1 and prefix.strip("/") in ("frames", "templates") and len(names) > 3:
+            todo.append(f"  {'  ' * depth}... ({len(names)} groups in /{prefix.strip('/')})")
+            names = names[:3]
+        todo.extend((group, name, prefix, depth) for name in reversed(names))
+
+    push(f, "", 0)
+    while todo:
+        if len(lines) >= MAX_OBJECTS:
+            lines.append(f"  ... (more than {MAX_OBJECTS} objects: not listed)")
+            break
+        item = todo.pop()
+        if isinstance(item, str):
+            lines.append(item)
+            continue
+        group, name, prefix, depth = item
+        where, indent = f"{prefix}{name}", "  " * (depth + 1)
+        link = group.get(name, getlink=True)
+        if isinstance(link, h5py.SoftLink):
+            lines.append(f"{indent}/{where} -> {link.path[:60]}")
+            continue
+        if isinstance(link, h5py.ExternalLink):
+            lines.append(f"{indent}/{where} -> {link.filename[:60]}:{link.path[:60]}")
+            continue
+        obj = group[name]
+        if isinstance(obj, h5py.Dataset):
+            units = obj.attrs.get("units", "")
+            units = units.decode() if isinstance(units, bytes) else units
+            u = f" [{str(units)[:40]}]" if units else ""
+            lines.append(f"{indent}/{where}  {obj.shape} {obj.dtype}{u}")
+        elif depth + 1 >= MAX_DEPTH:
+            lines.append(f"{indent}/{where}/ ... (nested more than {MAX_DEPTH} deep)")
+        else:
+            lines.append(f"{indent}/{where}/")
+            push(obj, f"{where}/", depth + 1)
+    return lines
 
 
 def _fmt_attr(v):

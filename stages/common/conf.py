@@ -110,16 +110,16 @@ def _refuse_alias_bombs(text: str | bytes) -> None:
 MAX_RECORD_BYTES = 10 << 20
 
 
-def read_record(path) -> bytes:
+def read_record(path, most: int = MAX_RECORD_BYTES) -> bytes:
     """The bytes of a small text file fieldloc reads whole; OSError (its strerror the reason,
-    as the readers' handlers of an unreadable file quote) when it weighs more than
-    MAX_RECORD_BYTES, before any of it is read."""
+    as the readers' handlers of an unreadable file quote) when it weighs more than ``most``
+    bytes (MAX_RECORD_BYTES), before any of it is read."""
     size = os.stat(path).st_size
     with open(path, "rb") as f:
-        data = f.read(MAX_RECORD_BYTES + 1)  # a file that grew since its stat
-    if max(size, len(data)) > MAX_RECORD_BYTES:
+        data = f.read(most + 1)  # a file that grew since its stat
+    if max(size, len(data)) > most:
         raise OSError(errno.EFBIG, f"{size / 1e6:.0f} MB, more than the"
-                      f" {MAX_RECORD_BYTES >> 20} MB such a text file may weigh")
+                      f" {most >> 20} MB such a text file may weigh")
     return data
 
 

@@ -80,6 +80,11 @@ MAX_STAMP = 1e11
 # minute, trial Q3): a rendered dataset's most frames (simulate's MAX_FRAMES, a day at 10
 # Hz), a time series of 2.8 hours at 100 Hz, 5,000 frames of 200 line points
 MAX_CSV_ROWS = 1_000_000
+# bytes a CSV may weigh, told from its size before a byte is read: MAX_CSV_ROWS rows of 256
+# bytes (a frames.csv row holds a stamp and a file name of at most 255 bytes; a truth or
+# odometry row about 60); a 4 GB file was read and decoded whole for 24 s, a 40 GB one said
+# "out of memory" (trial U1)
+MAX_CSV_BYTES = MAX_CSV_ROWS * 256
 
 
 def stamp_error(stamp: float) -> str | None:
@@ -199,16 +204,22 @@ def _refuse_many_rows(path: Path, data: bytes, most: int = MAX_CSV_ROWS) -> None
     a line feed, a carriage return or the two together (counted once; trial R: rows ending
     alternately in LF and CR passed twice the cap as the larger count of either)."""
     ends = data.count(b"\n") + data.count(b"\r") - data.count(b"\r\n")
-    if ends > most + 1:
+    lines = ends + (data[-1:] not in (b"", b"\n", b"\r"))  # the last row without its end
+    if lines > most + 1:
         raise DatasetError(f"{path}: more than {most:,} rows; a CSV fieldloc reads holds at"
                            " most that many")
 
 
 def csv_rows(path: Path) -> list[tuple[int, list[str]]]:
     """(line number, cells) of the non-empty, non-comment rows of a text CSV file of at most
-    MAX_CSV_ROWS rows."""
+    MAX_CSV_ROWS rows and MAX_CSV_BYTES bytes."""
     try:
-        data = path.read_bytes()
+        size = os.stat(path).st_size
+        with open(path, "rb") as f:
+            data = f.read(MAX_CSV_BYTES + 1)  # a file that grew since its stat: no further
+        if max(size, len(data)) > MAX_CSV_BYTES:
+            raise DatasetError(f"{path}: {size / 1e6:,.0f} MB, more than the"
+                               f" {MAX_CSV_BYTES / 1e6:,.0f} MB a CSV fieldloc reads may weigh")
         _refuse_many_rows(path, data)
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError:
@@ -263,6 +274,18 @@ STAMP_SOURCES = {
     "frame order": f"from the frame order at {DEFAULT_RATE_HZ:g} Hz (there is no frames.csv"
                    " and the file names are not numbers)",
 }
+
+
+def read_simulation_record(folder: str | Path):
+    """The parsed simulation.yaml of ``folder`` (what ``fieldloc simulate`` records), read only
+    where it is a regular file (a FIFO blocks a read) of at most conf.MAX_RECORD_BYTES (a 2 GB
+    one was read for 16 s, trial U1) as UTF-8 YAML; OSError (``strerror`` the reason),
+    UnicodeDecodeError or yaml.YAMLError (an alias bomb included) otherwise."""
+    p = Path(folder) / SIMULATION_RECORD
+    why = file_problem(p)
+    if why is not None:
+        raise OSError(0, why)
+    return load_yaml(read_record(p).decode())
 
 
 @dataclass
@@ -336,19 +359,15 @@ class Dataset:
         (no regular file, not YAML, an alias bomb) is {} with one warning naming it and why:
         the record only names the field, the run needs it not."""
         p = self.root / SIMULATION_RECORD
-        why = file_problem(p)
-        if why == "not found":
+        if file_problem(p) == "not found":
             return {}
         import yaml
 
         try:
-            if why is not None:  # a FIFO would block the read
-                raise OSError(why)
-            text = read_record(p).decode()
-            d = load_yaml(text)
+            d = read_simulation_record(self.root)
         except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
             if isinstance(e, yaml.YAMLError):
-                reason = f"not YAML: {yaml_problem(e, text)}"
+                reason = f"not YAML: {yaml_problem(e, read_record(p).decode())}"
             else:
                 reason = "not UTF-8 text" if isinstance(e, UnicodeDecodeError) else \
                     e.strerror or str(e)

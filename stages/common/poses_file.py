@@ -365,6 +365,8 @@ def _check_shapes(out: dict, path) -> None:
 TEXT_ATTRS = {"method": 64, "field": 256, "dataset": 4096}
 # columns of text, one string per frame (frame name, mode, flags)
 TEXT_COLUMNS = ("name", "mode", "flags")
+# numbers of more than one a frame, beside COLUMNS
+NUMBER_ARRAYS = ("covariance", "hypotheses")
 # JSON mappings ({} where absent); ``inputs`` maps each input's role to its path or hash
 JSON_ATTRS = ("conf", "inputs", "method_report")
 
@@ -379,11 +381,12 @@ def _check_types(out: dict, attrs: dict, path) -> None:
             ok = v.dtype.kind == "b" or (v.dtype.kind in "iu" and np.isin(v, (0, 1)).all())
             want = "true/false (or 0/1)"
         else:
-            ok = k not in COLUMNS or v.dtype.kind in "fiu"
+            ok = (k not in COLUMNS and k not in NUMBER_ARRAYS) or v.dtype.kind in "fiu"
             want = "numbers"
         if not ok:
             held = "text" if v.dtype.kind in "OSU" else f"{v.dtype} values"
-            raise SchemaError(f"{path}: damaged poses file (/poses/{k} holds {held};"
+            where = k if k == "hypotheses" else f"poses/{k}"
+            raise SchemaError(f"{path}: damaged poses file (/{where} holds {held};"
                               f" expected {want})")
     for k in TEXT_COLUMNS:
         if k in out and not all(isinstance(s, str) for s in out[k]):
@@ -562,7 +565,12 @@ def _read_poses(path):
         for k in g.keys():
             v = _stored(h5, f"poses/{k}", path)
             if v.dtype.kind in ("O", "S"):
-                v = np.array([s.decode() if isinstance(s, bytes) else s for s in v], dtype=object)
+                try:
+                    v = np.array([s.decode() if isinstance(s, bytes) else s for s in v],
+                                 dtype=object)
+                except UnicodeDecodeError:
+                    raise SchemaError(f"{path}: damaged poses file (/poses/{k} holds text that"
+                                      " is not UTF-8)") from None
             out[k] = v
         if "hypotheses" in h5:
             out["hypotheses"] = _stored(h5, "hypotheses", path)

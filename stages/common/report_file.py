@@ -39,6 +39,7 @@ from .artifacts import (
     starts_with,
     writing,
 )
+from .conf import read_record
 from .errors import DiskFullError, FieldlocError, SchemaError, check_file, file_problem
 from .stops import raise_deferred_stop
 
@@ -118,7 +119,7 @@ def is_fieldloc_report(path: str | Path) -> bool:
     object whose ``schema`` is ``fieldloc.report`` (its figures are not checked here). One
     fieldloc may not read is FieldlocError (``cannot_read``), not another's file."""
     try:
-        data = json.loads(Path(path).read_text())
+        data = json.loads(read_record(path).decode())
     except PermissionError as e:
         raise cannot_read(path, e) from None
     except (OSError, ValueError, RecursionError):  # ValueError: bad JSON or bad UTF-8
@@ -171,7 +172,7 @@ def refuse_edited_report_files(folder: str | Path) -> None:
     ``foreign_report_file`` judged each file already."""
     folder = Path(folder)
     try:
-        data = json.loads((folder / REPORT_NAME).read_text())
+        data = json.loads(read_record(folder / REPORT_NAME).decode())
     except (OSError, ValueError, RecursionError):
         return
     recorded = data.get(WRITTEN_FILES) if isinstance(data, dict) else None
@@ -295,7 +296,9 @@ def load_report(path: str | Path, *, raw: bool = False) -> dict:
         raise FieldlocError(f"report not found: no {REPORT_NAME} in folder {path}")
     check_file(p, "report")
     try:
-        data = json.loads(p.read_text())
+        data = json.loads(read_record(p).decode())
+    except OSError as e:  # more than a report weighs (a few kB)
+        raise SchemaError(f"{p}: cannot be read ({e.strerror or e})") from None
     except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as e:  # nested deep
         raise SchemaError(f"{p}: not valid JSON ({e})") from None
     if not isinstance(data, dict) or data.get("schema") != SCHEMA:

@@ -59,9 +59,17 @@ import time
 import traceback
 from pathlib import Path
 
-from ..common.artifacts import check_output, file_hash, refuse_inputs, text_hash
+from ..common import templates as templates_file
+from ..common.artifacts import (
+    check_output,
+    file_hash,
+    open_artifact,
+    read_json_attr,
+    refuse_inputs,
+    text_hash,
+)
 from ..common.batch_file import RUN_NAME, read_json, write_batch, write_json
-from ..common.conf import load_yaml, stage_conf
+from ..common.conf import stage_conf
 from ..common.errors import FieldlocError, real_path
 from .batch_spec import DatasetSpec, Plan, RunSpec, TemplatesSpec, read_spec
 
@@ -303,14 +311,11 @@ def _rendered_as_asked(folder: Path, conf: dict, field_arg: str) -> bool:
     """Whether ``folder`` holds a rendering by simulate of ``conf`` on ``field_arg``."""
     import yaml
 
-    from ..common.dataset import SIMULATION_RECORD
+    from ..common.dataset import read_simulation_record
 
-    rec = folder / SIMULATION_RECORD
-    if not rec.is_file():
-        return False
-    try:
-        got = load_yaml(rec.read_text())
-    except (OSError, yaml.YAMLError):
+    try:  # one not read (missing, damaged, too large, an alias bomb) is rendered again
+        got = read_simulation_record(folder)
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, FieldlocError):
         return False
     from ..common.field import load_field
 
@@ -361,11 +366,11 @@ def prepare_map(path: str, field_arg: str, build_conf: dict) -> str:
     if p.is_file():
         try:
             with MapFile(p) as mf:
-                inputs = json.loads(mf.h5.attrs.get("inputs", "{}"))
-                same = mf.conf == build_conf and inputs.get("field_yaml") == text_hash(
-                    fm.spec_text)
-        except (FieldlocError, ValueError):
-            same = False
+                inputs = read_json_attr(mf.h5, "inputs")
+                same = (mf.conf == build_conf and isinstance(inputs, dict)
+                        and inputs.get("field_yaml") == text_hash(fm.spec_text))
+        except (FieldlocError, ValueError, TypeError, RecursionError):
+            same = False  # a damaged map (trial U1-6: inputs an array) is built again
         if same:
             return path
     p.parent.mkdir(parents=True, exist_ok=True)
@@ -378,8 +383,6 @@ def reusable_templates(t: TemplatesSpec) -> str | None:
     the user's always can; one built here must exist, from the captures as they are (a grid
     rendered from its simulate conf; their calib.yaml, truth.csv and mask by content hash) and
     with the build conf of the SPEC."""
-    import h5py
-
     if t.kind == "file":
         return None
     path = Path(t.path)
@@ -387,11 +390,10 @@ def reusable_templates(t: TemplatesSpec) -> str | None:
         return f"{path} does not exist"
     if t.kind == "grid" and not _rendered_as_asked(t.captures, t.simulate, t.sim_field):
         return f"{t.captures} is not rendered from the SPEC's grid"
-    try:
-        with h5py.File(path, "r") as f:
-            conf = json.loads(f.attrs["conf"])
-            inputs = json.loads(f.attrs["inputs"])
-    except (OSError, KeyError, ValueError):
+    try:  # a damaged one (attributes of another kind, JSON nested 100k deep) is built again
+        with open_artifact(path, templates_file.SCHEMA, templates_file.VERSION) as f:
+            conf, inputs = read_json_attr(f, "conf"), read_json_attr(f, "inputs")
+    except (FieldlocError, OSError, KeyError, ValueError, TypeError, RecursionError):
         return f"{path} is not a template database"
     want = {"dataset": os.path.abspath(t.captures), "calib_hash": _hash(t.captures / "calib.yaml"),
             "truth_hash": _hash(t.captures / "truth.csv")}

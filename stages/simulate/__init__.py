@@ -83,8 +83,8 @@ from ..common.artifacts import (
     written_files,
 )
 from ..common.camera import MAX_IMAGE_PX, save_calib
-from ..common.conf import check_bounds, load_yaml, stage_conf
-from ..common.dataset import SIMULATION_RECORD, write_csv
+from ..common.conf import check_bounds, stage_conf
+from ..common.dataset import SIMULATION_RECORD, read_simulation_record, write_csv
 from ..common.errors import FieldlocError, real_path, shown
 from ..common.field import FieldModel, load_field
 from ..common.png import write_png
@@ -300,7 +300,7 @@ def _record(folder: Path) -> dict | None:
     if not rec.is_file():
         return None
     try:
-        d = load_yaml(rec.read_text())
+        d = read_simulation_record(folder)
     except PermissionError as e:
         raise cannot_read(rec, e) from None
     except (OSError, UnicodeDecodeError, yaml.YAMLError, FieldlocError):
