@@ -408,8 +408,8 @@ class FeaturesFile:
         _small_metadata_cache(self.h5)
         # the camera kind, read once (a FeaturesFile only reads: each frame's check asks it)
         v = self.h5.attrs.get("camera_kind", "")
-        kind = self._kind = v.decode() if isinstance(v, bytes) else v
-        if kind not in CAMERA_KINDS:
+        kind = self._kind = v.decode(errors="replace") if isinstance(v, bytes) else v
+        if not isinstance(kind, str) or kind not in CAMERA_KINDS:
             self.h5.close()
             raise SchemaError(f"{self.path}: damaged features file (camera_kind"
                               f" {str(kind)[:40]!r} is not one of {', '.join(CAMERA_KINDS)})")
