@@ -1,6 +1,6 @@
 """JPEG frames decoded by libjpeg-turbo through simplejpeg (stages.common.jpeg): the image
 OpenCV decodes (within a grey level or so: the two may bundle different builds of
-libjpeg-turbo), EXIF orientation applied as OpenCV applies it (a PNG's eXIf too), CMYK and
+libjpeg-turbo), its pixels as stored (an EXIF orientation, a PNG's eXIf too, not applied), CMYK and
 YCCK files and files with a harmless header warning decoded strictly too, a damaged scan
 unreadable in fieldloc's words; and the size every kind of image
 header claims (stages.common.image_header), refused beyond MAX_IMAGE_PIXELS before decoding.
@@ -49,7 +49,11 @@ def encode(img: np.ndarray, quality: int = 90, **params) -> bytes:
     return data.tobytes()
 
 
-def opencv(data: bytes, flag: int = cv2.IMREAD_COLOR) -> np.ndarray:
+# OpenCV's colour image of a file, its pixels as stored (fieldloc applies no EXIF orientation)
+AS_STORED = cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION
+
+
+def opencv(data: bytes, flag: int = AS_STORED) -> np.ndarray:
     return cv2.imdecode(np.frombuffer(data, np.uint8), flag)
 
 
@@ -103,14 +107,17 @@ def test_a_jpeg_decodes_to_what_opencv_decodes(seed, quality, h, w, grey, progre
 
 @needs_simplejpeg
 @pytest.mark.parametrize("orientation", range(1, 9))
-def test_exif_orientation_is_applied_as_opencv_applies_it(orientation):
+def test_exif_orientation_is_not_applied(orientation):
     """OpenCV's IMREAD_COLOR turns a JPEG upright by its EXIF Orientation (a quarter turn
-    for 6 and 8): fieldloc's frames were read so, and still are; IMREAD_UNCHANGED does not."""
+    for 6 and 8), and fieldloc's frames were read so: a frame of 3 was extracted upside down,
+    its mirror centre moved (trial U2, U2-4). A camera's frame is its sensor's pixels: the
+    file's size and pixels whatever the tag, the same as without it."""
     img = smooth_image(np.random.default_rng(SEED), 48, 64, 3)
     data = with_exif_orientation(img, orientation)
     got = decode_image_bytes(data)[0]
-    assert got.shape == ((64, 48, 3) if orientation >= 5 else (48, 64, 3))
+    assert got.shape == (48, 64, 3)
     assert_close(got, opencv(data))
+    assert_close(got, decode_image_bytes(with_exif_orientation(img, 1))[0])
     assert_close(decode_image_bytes(data, unchanged=True)[0],
                  opencv(data, cv2.IMREAD_UNCHANGED))
 
@@ -302,65 +309,26 @@ def exif_tiff(orientation: int | None) -> bytes:
     return b"MM\x00*\x00\x00\x00\x08\x00\x01" + entry + bytes(4)
 
 
-EXIF_LAYOUTS = {  # APP1 payloads before the frame; the orientation OpenCV 5 applies
-    "xmp then exif 6": ([b"http://ns.adobe.com/xap/1.0/\x00<x:xmpmeta/>",
-                         b"Exif\x00\x00" + exif_tiff(6)], 6),
-    "no exif header": ([b"Junk\x00\x00" + exif_tiff(6)], 1),
-    "exif without orientation then exif 6": ([b"Exif\x00\x00" + exif_tiff(None),
-                                              b"Exif\x00\x00" + exif_tiff(6)], 6),
-    "exif 3 then exif 6": ([b"Exif\x00\x00" + exif_tiff(3), b"Exif\x00\x00" + exif_tiff(6)], 3),
-    "exif 9 then exif 6": ([b"Exif\x00\x00" + exif_tiff(9), b"Exif\x00\x00" + exif_tiff(6)], 1),
+EXIF_LAYOUTS = {  # APP1 payloads before the frame (OpenCV 5 would turn the first and third)
+    "xmp then exif 6": [b"http://ns.adobe.com/xap/1.0/\x00<x:xmpmeta/>",
+                        b"Exif\x00\x00" + exif_tiff(6)],
+    "no exif header": [b"Junk\x00\x00" + exif_tiff(6)],
+    "exif without orientation then exif 6": [b"Exif\x00\x00" + exif_tiff(None),
+                                             b"Exif\x00\x00" + exif_tiff(6)],
 }
-
-
-def exif_entries(order: str, entries: list[tuple[int, int, int, bytes]]) -> bytes:
-    """A TIFF structure of byte order ``order`` ("<" or ">") whose IFD0 holds ``entries``
-    (tag, type, count, the 4 bytes of the value field)."""
-    head = (b"II*\x00" if order == "<" else b"MM\x00*") + struct.pack(order + "I", 8)
-    body = b"".join(struct.pack(order + "HHI", t, k, c) + v for t, k, c, v in entries)
-    return head + struct.pack(order + "H", len(entries)) + body + bytes(4)
-
-
-ORIENTATION_ENTRIES = {  # trial G's G1: an Orientation of another type or count, repeated
-    "big-endian LONG 6": (">", [(0x0112, 4, 1, b"\x00\x00\x00\x06")]),
-    "little-endian LONG 0x10006": ("<", [(0x0112, 4, 1, b"\x06\x00\x01\x00")]),
-    "BYTE 6": ("<", [(0x0112, 1, 1, b"\x06\x00\x00\x00")]),
-    "SLONG 6": ("<", [(0x0112, 9, 1, b"\x06\x00\x00\x00")]),
-    "SHORT, count 2": ("<", [(0x0112, 3, 2, b"\x06\x00\x00\x00")]),
-    "SHORT, count 0": ("<", [(0x0112, 3, 0, b"\x06\x00\x00\x00")]),
-    "SHORT 3, then SHORT 6": ("<", [(0x0112, 3, 1, b"\x03\x00\x00\x00"),
-                                    (0x0112, 3, 1, b"\x06\x00\x00\x00")]),
-}
-
-
-@needs_simplejpeg
-@pytest.mark.parametrize("entry", ORIENTATION_ENTRIES)
-def test_an_orientation_of_any_type_is_read_as_opencv_reads_it(entry):
-    """OpenCV 5 reads the first Orientation entry's value field as 16 bits whatever its type
-    and count; fieldloc read one SHORT or LONG only, and the last of a repeated tag, and
-    turned such frames otherwise (trial G, G1). The frame's shape and pixels are OpenCV's."""
-    order, entries = ORIENTATION_ENTRIES[entry]
-    img = smooth_image(np.random.default_rng(SEED), 48, 64, 3)
-    plain = encode(img)
-    data = plain[:2] + segment(0xE1, b"Exif\x00\x00" + exif_entries(order, entries)) + plain[2:]
-    want = opencv(data)
-    got = decode_image_bytes(data)[0]
-    assert got.shape == want.shape
-    assert_close(got, want)
 
 
 @needs_simplejpeg
 @pytest.mark.parametrize("layout", EXIF_LAYOUTS)
-def test_exif_orientation_is_read_from_the_app1_opencv_reads(layout):
-    """fieldloc read the first APP1 whatever it held, OpenCV the first EXIF one ("Exif\\0\\0")
-    with an Orientation: an XMP APP1 before the EXIF one left the frame unturned (J3)."""
-    payloads, orientation = EXIF_LAYOUTS[layout]
+def test_a_frame_behind_any_exif_segments_is_read_as_stored(layout):
+    """Whatever APP1 segments come before the frame (an XMP one, an EXIF one with or without
+    an Orientation), its pixels are the file's, as without them."""
     img = smooth_image(np.random.default_rng(SEED), 48, 64, 3)
     plain = encode(img)
-    data = plain[:2] + b"".join(segment(0xE1, p) for p in payloads) + plain[2:]
+    data = plain[:2] + b"".join(segment(0xE1, p) for p in EXIF_LAYOUTS[layout]) + plain[2:]
     got = decode_image_bytes(data)[0]
-    assert got.shape == ((64, 48, 3) if orientation >= 5 else (48, 64, 3))
-    assert_close(got, opencv(data))
+    assert got.shape == (48, 64, 3)
+    assert_close(got, decode_image_bytes(plain)[0])
 
 
 def with_exif_chunk(png: bytes, orientation: int, after_image: bool = False) -> bytes:
@@ -376,9 +344,9 @@ def with_exif_chunk(png: bytes, orientation: int, after_image: bool = False) -> 
 @pytest.mark.parametrize("orientation", [3, 6, 8])
 @pytest.mark.parametrize("kind", ["rgb", "grey", "16-bit", "1-bit"])
 @pytest.mark.parametrize("after_image", [False, True])
-def test_a_png_is_turned_by_its_exif_as_opencv_turns_it(orientation, kind, after_image):
-    """OpenCV's IMREAD_COLOR turns a PNG by its eXIf chunk; fieldloc's PNG decoder did not,
-    nor the file it gives OpenCV without ancillary chunks (J5). IMREAD_UNCHANGED does not."""
+def test_a_png_is_not_turned_by_its_exif(orientation, kind, after_image):
+    """OpenCV's IMREAD_COLOR turns a PNG by its eXIf chunk (J5); fieldloc reads its pixels as
+    stored, by its own PNG decoder or by OpenCV (a 1-bit or 16-bit file), as a JPEG's."""
     from PIL import Image
 
     img = smooth_image(np.random.default_rng(SEED), 48, 64, 1 if kind == "grey" else 3)
@@ -394,10 +362,10 @@ def test_a_png_is_turned_by_its_exif_as_opencv_turns_it(orientation, kind, after
     data = with_exif_chunk(png, orientation, after_image)
     got = decode_image_bytes(data)[0]
     want = opencv(data)
-    assert got.shape == ((64, 48, 3) if orientation >= 5 else (48, 64, 3))
+    assert got.shape == (48, 64, 3)
     # PNG is lossless: the same pixels, but for a 16-bit sample, which libpng takes by its
-    # high byte and libspng (another OpenCV build) rounds: one level at most. A turn other
-    # than OpenCV's moves every pixel, by far more
+    # high byte and libspng (another OpenCV build) rounds: one level at most. A turn moves
+    # every pixel, by far more
     assert np.abs(got.astype(int) - want.astype(int)).max() <= 1
     assert decode_image_bytes(data, unchanged=True)[0].shape[:2] == (48, 64)
 
@@ -422,4 +390,4 @@ def test_fill_bytes_are_skipped_and_millions_of_segments_refused():
     assert decode_image_bytes(many) == (
         None, f"a JPEG file of more than {MAX_SEGMENTS:,} marker segments")
     fewer = data[:2] + segment(0xE2, b"") * (MAX_SEGMENTS - 20) + data[2:]
-    assert decode_image_bytes(fewer)[0].shape == (64, 48, 3)
+    assert decode_image_bytes(fewer)[0].shape == (48, 64, 3)

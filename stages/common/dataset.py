@@ -691,8 +691,8 @@ MAX_IMAGE_PIXELS = 1 << 26
 
 
 def read_image(path: Path) -> np.ndarray:
-    """Read an image as BGR uint8 (what OpenCV's IMREAD_COLOR gives); raises DatasetError if
-    unreadable (callers skip the frame). Decoded by ``decode_image_bytes``."""
+    """Read an image as BGR uint8, its pixels as stored (``decode_image_bytes``); raises
+    DatasetError if unreadable (callers skip the frame). Decoded by ``decode_image_bytes``."""
     return _decode_image(path, "image")[0]
 
 
@@ -764,20 +764,26 @@ def _decode_image(path: Path, what: str) -> tuple[np.ndarray, str]:
 def decode_image_bytes(data: bytes, *,
                        unchanged: bool = False) -> tuple[np.ndarray | None, str | None]:
     """(image, None): the image decoded from the bytes of an image file, BGR uint8 as OpenCV's
-    IMREAD_COLOR gives it (as stored, OpenCV's IMREAD_UNCHANGED, with ``unchanged``); or
+    IMREAD_COLOR | IMREAD_IGNORE_ORIENTATION gives it (its depth and channels as stored,
+    OpenCV's IMREAD_UNCHANGED, with ``unchanged``); or
     (None, why it cannot be decoded), the why None where all that is known is that OpenCV
     cannot decode it; callers turn that into their own one-line error. Nothing is
     printed on stderr but by OpenCV for what only it reads (quiet_opencv): a header claiming
     more than MAX_IMAGE_PIXELS is refused before decoding (stages.common.image_header); PNG
     frames of 8-bit grey or RGB are decoded by stages.common.png in about half of OpenCV's
-    time (a PNG turned upright by its eXIf chunk's orientation, as IMREAD_COLOR turns it), JPEG
-    files by libjpeg-turbo through simplejpeg, which returns libjpeg's warnings
+    time, JPEG files by libjpeg-turbo through simplejpeg, which returns libjpeg's warnings
     instead of printing them (stages.common.jpeg: a damaged scan is unreadable); a PNG or JPEG
     file that libpng or libjpeg would complain of on stderr is not given to OpenCV
-    (image_damage); every other file goes to OpenCV. The one decoder of every image read."""
+    (image_damage); every other file goes to OpenCV. The one decoder of every image read.
+
+    The pixels are the file's as stored: an EXIF Orientation (a JPEG's APP1, a PNG's eXIf, a
+    TIFF's or WebP's) is not applied, as OpenCV's IMREAD_COLOR alone would apply it. A robot
+    camera's frames are its sensor's pixels, which its calibration (image size, mirror
+    centre, intrinsics) describes; a frame turned upright by a tag some tool wrote would be
+    another image of another size, its mirror centre moved (trial U2, U2-4)."""
     from .image_header import image_size
-    from .jpeg import DamagedJPEG, UnreadJPEG, decode_jpeg, orient
-    from .png import SIGNATURE, decode_png, png_for_opencv, png_orientation
+    from .jpeg import DamagedJPEG, UnreadJPEG, decode_jpeg
+    from .png import SIGNATURE, decode_png, png_for_opencv
 
     if data.startswith(JPEG_SOI):
         # walked before libjpeg reads the header (image_size), which keeps each of millions of
@@ -790,16 +796,13 @@ def decode_image_bytes(data: bytes, *,
         return None, (f"its header claims {size[0]} x {size[1]} px, more than the"
                       f" {MAX_IMAGE_PIXELS:,} pixels fieldloc reads")
     if data.startswith(SIGNATURE):
-        # IMREAD_COLOR turns a PNG upright by its eXIf chunk, which png_for_opencv leaves out
-        orientation = 1 if unchanged else png_orientation(data)
         img = None if unchanged else decode_png(data)
         if img is not None:
-            return orient(img, orientation), None
+            return img, None
         data = png_for_opencv(data)  # checked, given to libpng without ancillary chunks
         if data is None:
             return None, "a PNG file cut short or damaged"
-        img = _opencv_decode(data, unchanged)
-        return (img if img is None else orient(img, orientation)), None
+        return _opencv_decode(data, unchanged), None
     if data.startswith(JPEG_SOI):
         try:
             img = decode_jpeg(data, unchanged=unchanged)
@@ -813,11 +816,13 @@ def decode_image_bytes(data: bytes, *,
 
 
 def _opencv_decode(data: bytes, unchanged: bool) -> np.ndarray | None:
-    """OpenCV's image of the file ``data`` (IMREAD_UNCHANGED or IMREAD_COLOR), or None."""
+    """OpenCV's image of the file ``data`` (IMREAD_UNCHANGED, or IMREAD_COLOR with
+    IMREAD_IGNORE_ORIENTATION: pixels as stored), or None."""
     cv2 = quiet_opencv()
+    flags = (cv2.IMREAD_UNCHANGED if unchanged
+             else cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
     try:
-        return cv2.imdecode(np.frombuffer(data, np.uint8),
-                            cv2.IMREAD_UNCHANGED if unchanged else cv2.IMREAD_COLOR)
+        return cv2.imdecode(np.frombuffer(data, np.uint8), flags)
     except cv2.error:  # its assertions, e.g. more than OPENCV_IO_MAX_IMAGE_PIXELS
         return None
 

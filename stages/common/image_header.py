@@ -16,8 +16,6 @@ TIFF_WIDTH_TAG, TIFF_HEIGHT_TAG = 256, 257
 
 # the first bytes of every PNG file (PNG specification, 5.2)
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-# the EXIF tag of an image's orientation (1-8: how to turn it to be seen upright)
-EXIF_ORIENTATION_TAG = 0x0112
 
 
 def image_size(data: bytes) -> tuple[int, int] | None:
@@ -107,17 +105,3 @@ def png_size(data: bytes) -> tuple[int, int] | None:
     if not data.startswith(PNG_SIGNATURE) or data[12:16] != b"IHDR" or len(data) < 24:
         return None
     return struct.unpack_from(">II", data, 16)
-
-
-def tiff_orientation(tiff: bytes) -> int | None:
-    """The Orientation (1-8; 1 for a value outside) that IFD0 of the TIFF structure ``tiff``
-    (EXIF's) gives, or None where it holds none: read as OpenCV 5 reads it, the first entry
-    of tag 0x0112 and the 16 bits at the start of its value field in the structure's byte
-    order, whatever the entry's type and count (a big-endian LONG 6 is then 0: no turn; a
-    BYTE 6 in a little-endian structure is 6). Read as one SHORT or LONG only, a frame was
-    turned otherwise than OpenCV turns it (trial G, G1)."""
-    for order, tag, _kind, _count, entry in _ifd0_entries(tiff):
-        if tag == EXIF_ORIENTATION_TAG:
-            value = struct.unpack_from(order + "H", tiff, entry + 8)[0]
-            return value if 1 <= value <= 8 else 1
-    return None

@@ -10,8 +10,9 @@ default, accurate DCT and upsampling; tests/test_jpeg_and_image_headers.py) in n
 (0.8-1.3 ms for a 480 x 480 or 752 x 480 frame).
 
 ``decode_jpeg`` returns what ``cv2.imdecode`` returns with IMREAD_COLOR (BGR, a grey JPEG's
-levels replicated into three channels, EXIF orientation applied) or IMREAD_UNCHANGED (BGR,
-or one channel (h, w) for a grey JPEG; orientation not applied). Every kind of file libjpeg
+levels replicated into three channels) or IMREAD_UNCHANGED (BGR, or one channel (h, w) for a
+grey JPEG), its pixels as stored: an EXIF Orientation is not applied (stages.common.dataset's
+decode_image_bytes says why). Every kind of file libjpeg
 could print a warning about is decoded here, strictly, never by OpenCV (whose libjpeg prints
 the first warning only: a damaged scan behind a harmless warning went unsaid and was used):
 
@@ -50,8 +51,6 @@ import re
 
 import numpy as np
 
-from .image_header import tiff_orientation
-
 # the exact starts of libjpeg's messages (jerror.h) about a file that is not damaged but that
 # TurboJPEG's 8-bit decoder does not read: 12-bit samples, a lossless or hierarchical process
 # (SOF3, SOF5-7, SOF11, SOF13-15; its colour conversion then fails). OpenCV reads none of them
@@ -64,10 +63,9 @@ JFIF_VERSION = "Warning: unknown JFIF revision number "
 ADOBE_TRANSFORM = "Unknown Adobe color transform code "
 SOS_PARAMETERS = "Invalid SOS parameters for sequential JPEG"
 BENIGN = (JFIF_VERSION, ADOBE_TRANSFORM, SOS_PARAMETERS)
-APP0, APP1, APP14, SOS, EOI = 0xE0, 0xE1, 0xEE, 0xDA, 0xD9
+APP0, APP14, SOS, EOI = 0xE0, 0xEE, 0xDA, 0xD9
 # the frame headers (SOF0-3, 5-7, 9-11, 13-15): not DHT (C4), JPG (C8), DAC (CC)
 SOF_MARKERS = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
-EXIF_HEADER = b"Exif\x00\x00"
 # how long the quoted libjpeg-turbo message may be in fieldloc's line
 MESSAGE_CHARS = 70
 # the most marker segments read: a camera's JPEG file has a few dozen (APPn metadata, DQT, SOF,
@@ -118,7 +116,7 @@ def decode_jpeg(data: bytes, *, unchanged: bool = False) -> np.ndarray | None:
         img = cmyk_to_bgr(img)
     elif space == "GRAY":
         img = img[..., 0]
-    return img if unchanged else orient(img, exif_orientation(data))
+    return img
 
 
 def _decode_strictly(simplejpeg, data: bytes, space: str) -> np.ndarray | None:
@@ -222,33 +220,3 @@ def first_scan(data: bytes) -> int:
             return start - 4
         last = end
     return data.find(b"\xff\xda", last)
-
-
-def exif_orientation(data: bytes) -> int:
-    """The EXIF Orientation (1-8) of the JPEG file ``data``, 1 where it gives none: read as
-    OpenCV 5 reads it, from the APP1 segments before the first scan whose payload starts
-    with "Exif\\0\\0" (not an XMP APP1, not one without that header), the first whose IFD0
-    holds tag 0x0112; a value outside 1-8 is 1. A file without those six bytes anywhere is
-    not walked."""
-    if data.find(EXIF_HEADER) < 0:
-        return 1
-    for marker, start, end in marker_segments(data):
-        if marker == APP1 and data.startswith(EXIF_HEADER, start):
-            value = tiff_orientation(data[start + len(EXIF_HEADER):end])
-            if value is not None:
-                return value
-    return 1
-
-
-def orient(img: np.ndarray, orientation: int) -> np.ndarray:
-    """``img`` turned upright for its EXIF ``orientation`` as OpenCV's
-    ``ApplyExifOrientation`` turns it (2: mirrored, 3: upside down, 6: a quarter turn
-    clockwise to be upright, ...), a C-contiguous array."""
-    if orientation == 1:
-        return img
-    if orientation >= 5:  # the rows are the picture's columns
-        img = img.swapaxes(0, 1)
-    flips = {2: (1,), 3: (0, 1), 4: (0,), 5: (), 6: (1,), 7: (0, 1), 8: (0,)}[orientation]
-    for axis in flips:
-        img = np.flip(img, axis)
-    return np.ascontiguousarray(img)

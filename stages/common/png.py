@@ -31,7 +31,6 @@ from isal import isal_zlib
 
 from .errors import FieldlocError
 from .image_header import PNG_SIGNATURE as SIGNATURE
-from .image_header import tiff_orientation
 from .jit import njit
 
 # colour type -> samples per pixel, for the types decoded here (0: grey, 2: RGB)
@@ -95,28 +94,6 @@ def _inflated(idat, expected: int) -> bytes | None:
     except Exception:  # isal's own error class: a damaged stream
         return None
     return raw if len(raw) == expected else None
-
-
-def png_orientation(data: bytes) -> int:
-    """The EXIF Orientation (1-8) of the PNG file ``data``, 1 where it gives none: read as
-    OpenCV's IMREAD_COLOR reads it (libpng's eXIf chunk, before or after the image data),
-    from the first eXIf chunk libpng keeps: a right CRC, at least a TIFF header's 8 bytes,
-    starting "II" or "MM" (libpng drops the others with a warning, and a later eXIf as a
-    duplicate of the one it keeps). Only chunk headers are read, an eXIf's CRC computed."""
-    view = memoryview(data)
-    pos, n = len(SIGNATURE), len(data)
-    while pos + 8 <= n:
-        length, kind = struct.unpack_from(">I4s", data, pos)
-        end = pos + 12 + length
-        if end > n or kind == b"IEND":
-            break
-        if kind == b"eXIf" and length >= 8 and data[pos + 8:pos + 10] in (b"II", b"MM") \
-                and isal_zlib.crc32(view[pos + 4:end - 4]) == \
-                struct.unpack_from(">I", data, end - 4)[0]:
-            value = tiff_orientation(data[pos + 8:end - 4])
-            return 1 if value is None else value
-        pos = end
-    return 1
 
 
 def png_damaged(data: bytes) -> bool:

@@ -81,8 +81,9 @@ def real_ground_images() -> list:
         camera = load_calib(ds / "calib.yaml")
         mask = read_mask(ds / "mask.png", camera.image_size)
         grid = unwarp.grid_of_conf(unwarp.confs["default"])
-        INPUTS[key] = [unwarp.unwarp(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE), camera, grid,
-                                      mask) for p in sorted((ds / "images").glob("*.png"))]
+        grey = cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION  # the pixels as stored
+        INPUTS[key] = [unwarp.unwarp(cv2.imread(str(p), grey), camera, grid, mask)
+                       for p in sorted((ds / "images").glob("*.png"))]
     return INPUTS[key]
 
 
