@@ -253,13 +253,14 @@ def test_main_writes_features_records_bad_frame_and_resumes(tmp_path, caplog):
         assert abs(fr["radial"][0, 0] - 0.9) <= 0.02
         assert fr["points"].shape[1] == 2 and fr["points_px"].shape == fr["points"].shape
         assert ff.conf == extract.resolve_extract_conf("omni")
-    # resume: existing frames are not extracted again (a changed image keeps its old features)
+    # resume: a frame whose image changed is extracted again (trial U2, U2-5; its old
+    # features were kept), and a frame the dataset no longer has is dropped, its failure too
     cv2.imwrite(str(ds / "images" / "000.png"), draw(line_band(0.0, 1.5), ss=1))
     (ds / "images" / "001x.png").unlink()
     extract.main(None, ds, out)
     with FeaturesFile(out) as ff:
-        assert abs(ff.frame("000")["radial"][0, 0] - 0.7) <= 0.02
-        assert len(ff.failures) == 1  # the old failure stays recorded
+        assert abs(ff.frame("000")["radial"][0, 0] - 1.5) <= 0.02
+        assert ff.names == ["000", "001", "002"] and ff.failures == []
     # overwrite: everything again, failures forgotten
     extract.main(None, ds, out, overwrite=True)
     with FeaturesFile(out) as ff:

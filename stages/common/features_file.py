@@ -532,9 +532,31 @@ class FeaturesFile:
                 f"{self.path}: frame {str(other[0])[:40]} is at {other[1]:.6g} s, in"
                 f" {dataset.root} at {stamp_of[other[0]]:.6g} s: are they another dataset's"
                 " (or of its earlier frames.csv)? Extract the dataset again")
+        for name, path, want, have in self.changed_images(dataset, first=True):
+            raise FieldlocError(
+                f"{self.path}: frame {str(name)[:40]} was extracted from another image"
+                f" than {path} (size:CRC-32 {want[:40]}, now {have}): are they"
+                " another dataset's features, or was the image changed? Extract the"
+                " dataset again")
+        if len(shared) < len(self.names):  # the dataset's frames only
+            keep = [i for i, n in enumerate(self.names) if n in stamp_of]
+            log.info("%s: %d of its frames are not in %s; left out", self.path,
+                     len(self.names) - len(keep), dataset.root)
+            self.names = [self.names[i] for i in keep]
+            self.stamps = self.stamps[keep]
+
+    def changed_images(self, dataset, *, first: bool = False):
+        """(name, image path, recorded identity, identity now) of each frame of the file that
+        the dataset has, whose recorded ``image_identity`` its image file no longer has
+        (``first``: the first such frame only). Every such frame's image file has its size
+        compared (a stat), and a sample of IDENTITY_SAMPLE of them, spread over the
+        recording, its CRC-32 too: check_of's doc says why. A frame without a recorded
+        identity, or whose image cannot be read now (its reader says so), is not listed."""
         path_of = dict(zip(dataset.names, dataset.images))
+        shared = [n for n in self.names if n in path_of]
         sample = {int(i) for i in np.linspace(0, len(shared) - 1, IDENTITY_SAMPLE)}
-        for k, (name, _s) in enumerate(shared):
+        out = []
+        for k, name in enumerate(shared):
             want = self._images.get(name)
             if not want:
                 continue
@@ -542,18 +564,15 @@ class FeaturesFile:
                 have = file_identity(path_of[name])
             else:  # the size alone, from a stat
                 have = file_size_identity(path_of[name], want)
-            if have is not None and have != want:  # an unreadable image: its reader says so
-                raise FieldlocError(
-                    f"{self.path}: frame {str(name)[:40]} was extracted from another image"
-                    f" than {path_of[name]} (size:CRC-32 {want[:40]}, now {have}): are they"
-                    " another dataset's features, or was the image changed? Extract the"
-                    " dataset again")
-        if len(shared) < len(self.names):  # the dataset's frames only
-            keep = [i for i, n in enumerate(self.names) if n in stamp_of]
-            log.info("%s: %d of its frames are not in %s; left out", self.path,
-                     len(self.names) - len(keep), dataset.root)
-            self.names = [self.names[i] for i in keep]
-            self.stamps = self.stamps[keep]
+            if have is not None and have != want:
+                out.append((name, path_of[name], want, have))
+                if first:
+                    break
+        return out
+
+    def image(self, name: str) -> str:
+        """The recorded ``image_identity`` of frame ``name``'s image ("" none)."""
+        return self._images.get(name, "")
 
     def __len__(self):
         return len(self.names)

@@ -18,9 +18,11 @@ dict of overrides on the kind's default preset (``resolve_extract_conf``):
   ``HEAD_STAMP_TOLERANCE``) when that file exists.
 
 One frame per image, named by the image's file stem. Frames already in the output are skipped
-(resume) unless ``overwrite``; a frame that cannot be read or processed is logged, recorded in
-the file's ``failures`` and skipped. If no frame at all can be extracted (images of another
-size than calib.yaml says, every image unreadable), that is an error and nothing is written.
+(resume) unless ``overwrite``, but for those of images or stamps changed since, extracted
+again, and those frames.csv no longer lists, dropped (``_stale_frames``); a frame that
+cannot be read or processed is logged, recorded in the file's ``failures`` and skipped. If
+no frame at all can be extracted (images of another size than calib.yaml says, every image
+unreadable), that is an error and nothing is written.
 
 Finished frames are committed as they come, a chunk every half second
 (stages.common.features_file.FrameParts), so a run that is killed keeps its frames and the
@@ -60,6 +62,7 @@ from ..common.conf import KindPresets, check_bounds, registered_module, resolve_
 from ..common.dataset import open_dataset, read_frame, read_image, read_mask
 from ..common.errors import FieldlocError, SchemaError, real_path
 from ..common.features_file import (
+    SAME_STAMP_S,
     SCHEMA,
     VERSION,
     FeaturesFile,
@@ -151,6 +154,42 @@ def _check_resumable(output: Path, attrs: dict):
     if not _same_conf(old_conf, conf, as_stored(former)):
         raise FieldlocError(
             f"{output} was extracted with another conf; use --overwrite to extract again")
+
+
+def _stale_frames(output: Path, ds) -> tuple[set[str], set[str]]:
+    """(the frames of the features file ``output`` a resumed run keeps, those it does not):
+    a frame the dataset no longer has (taken out of frames.csv) is dropped, one whose image
+    changed since (``FeaturesFile.changed_images``) or whose stamp in frames.csv did is
+    extracted again, so that the file holds the dataset's frames, of its images, only.
+    Kept, they were counted as the dataset's and refused by localize's check (trial U2,
+    U2-5 and U2-6)."""
+    stamp_of = dict(zip(ds.names, (float(s) for s in ds.stamps)))
+    with FeaturesFile(output) as old:
+        names = set(old.names)
+        stale = {n for n, s in zip(old.names, old.stamps)
+                 if n not in stamp_of or not abs(stamp_of[n] - float(s)) <= SAME_STAMP_S}
+        stale |= {n for n, *_ in old.changed_images(ds)}
+    if stale:
+        dropped = len(stale - set(stamp_of))
+        log.info("extract: %s of %s; %d frames dropped (not in frames.csv), %d extracted"
+                 " again (image or stamp changed)", output, ds.root, dropped,
+                 len(stale) - dropped)
+    return names - stale, stale
+
+
+def _copy_frames(source: Path, writer, keep: set[str], names: set[str]) -> None:
+    """The frames ``keep`` of the features file ``source``, with their image identities,
+    and its failures of frames in ``names``, added to ``writer``."""
+    with FeaturesFile(source) as old:
+        for name in old.names:
+            if name in keep:
+                arrays = old.frame(name)
+                stamp = float(arrays.pop("stamp"))
+                writer.add_frame(name, stamp, arrays, old.image(name))
+        for failure in old.failures:  # "name: reason"
+            name, _sep, reason = failure.partition(": ")
+            if name in names:
+                writer.add_failure(name, reason)
 
 
 _ABSENT = object()
@@ -288,10 +327,10 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
         attrs, mask, head = _run_attrs(ds, camera, module, conf)
         resume = output.exists() and not overwrite
         in_output: set[str] = set()
+        stale: set[str] = set()  # frames of the output it no longer may hold
         if resume:
             _check_resumable(output, attrs)
-            with FeaturesFile(output) as old:
-                in_output = set(old.names)
+            in_output, stale = _stale_frames(output, ds)
         pending = sum(1 for n in ds.names if n not in in_output)
         folder = output.parent if str(output.parent) else Path(".")
         kept = output.stat().st_size if resume else 0  # the old file stays until the commit
@@ -306,7 +345,7 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
                 if n not in in_output and not parts.has(n)]
         log.info("extract %s (%s camera, %d frames) -> %s; conf %s", ds.root, kind,
                  len(ds.images), output, json.dumps(conf, sort_keys=True))
-        if resume and not todo and not resumed:
+        if resume and not todo and not resumed and not stale:
             parts.remove()
             log.info("extract: all %d frames of %s are already in %s", len(in_output), ds.root,
                      output)
@@ -364,7 +403,9 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
         # the file the frames make, before it is built: a disk without that room is the full
         # disk's line naming it (the finished frames stay in the parts, for a rerun)
         check_disk(f"extract into {output}", folder, parts.bytes_needed() + kept, target=output)
-        with write_features(output, attrs, resume=resume) as writer:
+        with write_features(output, attrs, resume=resume and not stale) as writer:
+            if resume and stale:  # the file again, without its stale frames
+                _copy_frames(output, writer, in_output, set(ds.names))
             parts.merge_into(writer)
         parts.remove()
         log.info("extract: %d frames extracted, %d already done (%d of them by an interrupted run),"
