@@ -1806,6 +1806,14 @@ def _check_all_frames_extracted(paths, res):
         assert "000001" in ff.names
 
 
+def _u2_head_stamps_far(ds: Path) -> None:
+    """head.csv's stamps moved by 1e6 s, far from every frame's (trial U2, U2-7)."""
+    lines = (ds / "head.csv").read_text().splitlines()
+    moved = [f"{float(s) + 1e6:.6f},{rest}" for s, _c, rest in
+             (line.partition(",") for line in lines[1:])]
+    (ds / "head.csv").write_text("\n".join([lines[0], *moved]) + "\n")
+
+
 def _k_cmyk_mask(ds: Path) -> None:
     """The dataset's mask.png (frame-sized) as a CMYK JPEG file whose scan is damaged (J1)."""
     pytest.importorskip("simplejpeg")
@@ -2085,8 +2093,21 @@ CASES = [
          setup=_with_ds("kid", lambda ds: edit_calib(ds, height=550.0))),
     Case("head.csv pitch in degrees", "silent",
          ["extract", W + "/kid", "-o", W + "/f.h5"], 1,
-         "head.csv: line 3: pitch 25 is not within [-3.14159, 3.14159] rad",
+         "head.csv: line 3: pitch 25 is not within [-1.5708, 1.5708] rad",
          setup=_with_ds("kid", lambda ds: edit_csv(ds / "head.csv", 3, "0.1,25,0"))),
+    # trial U2 (U2-8, U2-7): a head turned beyond a quarter turn; head.csv of other stamps
+    *[Case(f"head.csv {what} beyond a quarter turn", "silent",
+           ["extract", W + "/kid", "-o", W + "/f.h5"], 1,
+           f"head.csv: line 2: {what} is not within [-1.5708, 1.5708] rad (beyond a quarter"
+           " turn the camera faces the sky, or is upside down)",
+           setup=_with_ds("kid", lambda ds, row=row: edit_csv(ds / "head.csv", 2, row)))
+      for what, row in (("pitch 1.6", "0,1.6,0"), ("pitch -1.6", "0,-1.6,0"),
+                        ("roll 3.14", "0,0.1,3.14"))],
+    Case("head.csv stamps far from every frame's", "silent",
+         ["extract", W + "/kid", "-o", W + "/f.h5"], 0,
+         "2 of 2 frames have no head.csv row within 0.05 s: the frame stamps (from frames.csv,"
+         " 0..0.1 s) and head.csv (1000000..1000000.1 s) do not meet",
+         setup=_with_ds("kid", _u2_head_stamps_far)),
     Case("omni calib forward_angle in degrees", "silent",
          ["extract", W + "/omni", "-o", W + "/f.h5"], 1,
          "'forward_angle' must be an angle in radians within [-2 pi, 2 pi], got 90 (degrees?)",

@@ -59,7 +59,7 @@ from ..common.artifacts import (
 )
 from ..common.camera import camera_can
 from ..common.conf import KindPresets, check_bounds, registered_module, resolve_conf, stage_conf
-from ..common.dataset import open_dataset, read_frame, read_image, read_mask
+from ..common.dataset import STAMP_SOURCES, open_dataset, read_frame, read_image, read_mask
 from ..common.errors import FieldlocError, SchemaError, real_path
 from ..common.features_file import (
     SAME_STAMP_S,
@@ -71,7 +71,12 @@ from ..common.features_file import (
     frame_columns,
     write_features,
 )
-from ..common.head_angles import HEAD_STAMP_TOLERANCE, head_at, head_table  # noqa: F401
+from ..common.head_angles import (  # noqa: F401
+    HEAD_STAMP_TOLERANCE,
+    frames_without_head,
+    head_at,
+    head_table,
+)
 from ..common.png import with_mark
 from ..common.resources import check_disk, opencv_single_threaded
 
@@ -154,6 +159,20 @@ def _check_resumable(output: Path, attrs: dict):
     if not _same_conf(old_conf, conf, as_stored(former)):
         raise FieldlocError(
             f"{output} was extracted with another conf; use --overwrite to extract again")
+
+
+def _warn_head_stamps(ds, head) -> None:
+    """Warn once when frames have no head.csv row near their stamp (they take the nominal
+    head pose), in localize's words for imu.csv and odometry.csv."""
+    missing = frames_without_head(head, ds.stamps)
+    if missing:
+        source = STAMP_SOURCES.get(ds.stamp_source, ds.stamp_source)
+        stamps = np.asarray(ds.stamps, float)
+        log.warning(
+            "%d of %d frames have no head.csv row within %g s: the frame stamps"
+            " (%s, %.10g..%.10g s) and head.csv (%.10g..%.10g s) do not meet; those frames"
+            " take the calibration's head pose", missing, len(stamps), HEAD_STAMP_TOLERANCE,
+            source, stamps.min(), stamps.max(), head[0][0], head[0][-1])
 
 
 def _stale_frames(output: Path, ds) -> tuple[set[str], set[str]]:
@@ -325,6 +344,7 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
     leftovers = _Leftovers()
     with output_lock(output), leftovers:
         attrs, mask, head = _run_attrs(ds, camera, module, conf)
+        _warn_head_stamps(ds, head)
         resume = output.exists() and not overwrite
         in_output: set[str] = set()
         stale: set[str] = set()  # frames of the output it no longer may hold
