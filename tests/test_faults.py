@@ -1189,6 +1189,15 @@ def _setup_user_debug_folder(w, ws):
     return {}
 
 
+def _setup_user_debug_folder_with_record(w, ws):
+    """ws/dbg: a user's notes and a debug-images.yaml extract did not write (trial U2,
+    U2-13: the refusal said "(no debug-images.yaml)")."""
+    (ws / "dbg").mkdir()
+    (ws / "dbg" / "notes.txt").write_text("mine")
+    (ws / "dbg" / "debug-images.yaml").write_text("a: 1\n")
+    return {}
+
+
 def _setup_debug_folder_made(w, ws):
     """ws/dbg: the overlays an earlier extract (into ws/f0.h5) wrote, with its marker."""
     extract.main(None, w["omni"], ws / "f0.h5", debug_images=ws / "dbg")
@@ -2988,8 +2997,13 @@ CASES = [
          "holds files extract did not write", setup=_setup_user_debug_folder),
     Case("extract --debug-images into a user's folder --overwrite", "data-lost",
          ["extract", "{omni}", "-o", W + "/f.h5", "--debug-images", W + "/dbg",
-          "--overwrite"], 1, "holds files extract did not write",
+          "--overwrite"], 1, "holds files extract did not write (no debug-images.yaml)",
          setup=_setup_user_debug_folder),
+    Case("extract --debug-images into a user's folder with a debug-images.yaml of theirs",
+         "data-lost", ["extract", "{omni}", "-o", W + "/f.h5", "--debug-images", W + "/dbg",
+                       "--overwrite"], 1,
+         "holds files extract did not write (its debug-images.yaml is not extract's)",
+         setup=_setup_user_debug_folder_with_record),
     Case("extract --debug-images onto overlays extract made", "data-lost",
          ["extract", "{omni}", "-o", W + "/f.h5", "--debug-images", W + "/dbg"], 1,
          "dbg/000000.png exists (use --overwrite", setup=_setup_debug_folder_made),

@@ -448,8 +448,10 @@ def _check_debug_folder(folder: Path, ds) -> Path:
     check_output(folder, None, overwrite=None, kind="folder")  # writable, or refused now
     if folder.is_dir() and any(folder.iterdir()) and not written_by(folder, DEBUG_RECORD,
                                                                      GENERATOR):
-        raise FieldlocError(f"--debug-images {folder} holds files extract did not write (no"
-                            f" {DEBUG_RECORD}); they are never replaced, --overwrite or not:"
+        record = ("its " + DEBUG_RECORD + " is not extract's"  # a user's file of that name
+                  if (folder / DEBUG_RECORD).exists() else "no " + DEBUG_RECORD)
+        raise FieldlocError(f"--debug-images {folder} holds files extract did not write"
+                            f" ({record}); they are never replaced, --overwrite or not:"
                             " choose a new or empty folder")
     return folder
 
