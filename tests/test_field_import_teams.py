@@ -258,6 +258,34 @@ def test_hulks_json5_comments_and_trailing_commas(tmp_path):
     assert fm.length == 6.0 and fm.spec["goal"]["width"] == pytest.approx(1.1)
 
 
+def test_hulks_json5_hexadecimal_numbers(tmp_path):
+    """JSON5's hexadecimal numbers (``"length": 0x9``) were refused as "not valid JSON or
+    JSON5" (trial U2-12): read as the numbers they stand for, in values only (not in strings
+    or keys); one beyond any field's size is refused as such, in one line."""
+    body = ('{field_dimensions: {"length": LEN, "width": 0X4, "line_width": 0.05,'
+            ' "penalty_marker_size": 0.1, "goal_box_area_length": 0.5,'
+            ' "goal_box_area_width": 2.0, "penalty_area_length": 1.0,'
+            ' "penalty_area_width": 3.0, "penalty_marker_distance": 1.0,'
+            ' "center_circle_diameter": 1.2, "border_strip_width": 0.5,'
+            ' "goal_inner_width": 1.0, "goal_post_diameter": 0.1, "goal_depth": 0.4,'
+            ' "note": "0x9 in a string", x0x1: 2}}')
+    runner = CliRunner()
+    src = tmp_path / "field.json5"
+    src.write_text(body.replace("LEN", "0x9"))
+    res = runner.invoke(cli, ["field", "import", str(src), "--format", "hulks", "-o",
+                              str(tmp_path / "f.yaml")])
+    assert res.exit_code == 0, res.output
+    assert "unknown keys (2, kept under imported.unknown): note=0x9 in a string, x0x1=2" in (
+        res.output)
+    fm = load_field(tmp_path / "f.yaml")
+    assert (fm.length, fm.width) == (9.0, 4.0)
+    src.write_text(body.replace("LEN", "0x" + "f" * 300))
+    res = runner.invoke(cli, ["field", "import", str(src), "--format", "hulks", "-o",
+                              str(tmp_path / "g.yaml")])
+    assert res.exit_code == 1 and res.stderr.strip().splitlines() == [
+        f"fieldloc: error: {src}: 'length' must be a finite number, got inf"], res.stderr
+
+
 def test_format_told_by_file_or_refused(tmp_path):
     (tmp_path / "a.view").write_text("TOTAL_LENGTH=1\n")
     (tmp_path / "b.json").write_text('{"field_dimensions": {}}')

@@ -425,8 +425,17 @@ _CAMBADA_NOT_GEOMETRY = {
 }
 
 
+# a JSON5 hexadecimal number (its sign, if any, is left before it); _WORD: a character a
+# number cannot follow (a key or another number); _HEX_BITS: larger values are read as
+# Infinity, which the readers refuse as they refuse any value beyond a field's
+_JSON5_HEX = re.compile(r"0[xX]([0-9A-Fa-f]+)")
+_WORD = re.compile(r"[A-Za-z0-9_.$]")
+_HEX_BITS = 1024
+
+
 def _json5(text: str, where: str):
-    """JSON, or the JSON5 subset teams write: // and /* */ comments, trailing commas."""
+    """JSON, or the JSON5 subset teams write: // and /* */ comments, trailing commas,
+    unquoted keys, hexadecimal numbers (0x9: JSON5's, read as the decimal they stand for)."""
     try:
         return load_json(text)
     except RecursionError:
@@ -455,6 +464,12 @@ def _json5(text: str, where: str):
         elif text.startswith("/*", i):
             j = text.find("*/", i + 2)
             i = n if j < 0 else j + 2
+            continue
+        elif (m := _JSON5_HEX.match(text, i)) and not (out and _WORD.match(out[-1])):
+            value = int(m.group(1), 16)
+            # beyond what any field number is (and the decimal digits Python writes)
+            out.append(str(value) if value.bit_length() <= _HEX_BITS else "Infinity")
+            i = m.end()
             continue
         else:
             out.append(c)
