@@ -867,6 +867,16 @@ def _claim_size(png: Path, width: int, height: int) -> None:
                     + struct.pack(">I", zlib.crc32(chunk)) + data[33:])
 
 
+def _setup_line_image(name: str):
+    """The shared MINHO folder copied and ws/li, a folder of one line image named ``name``
+    (a grey 480 x 480 picture: what is tested is the name)."""
+    def setup(w, ws):
+        (ws / "li").mkdir()
+        cv2.imwrite(str(ws / "li" / name), np.full((480, 480, 3), 90, np.uint8))
+        return _setup_minho()(w, ws)
+    return setup
+
+
 def _setup_minho(mirror: str | None = None, image: bytes | None = None):
     """The shared MINHO folder copied, with ``mirror`` as its mirror.cfg and ``image`` as the
     one file of its images folder, where given."""
@@ -4180,6 +4190,15 @@ CASES = [
          ["calibrate", "omni", "{marks}", "--centre", "240", "240", "--image-size", "1000000",
           "1000000", "--valid-radius", "40", "230", "-o", W + "/calib.yaml"], 2,
          "Invalid value for '--image-size': 1000000 is not in the range 1<=x<=8192"),
+    # s62 trial U2: a line image's distance
+    *[Case(f"calibrate --from-minho --line-images of {name}: refused naming it (U2-{n})",
+           "silent", ["calibrate", "omni", "--from-minho", "{m}", "--line-images", W + "/li",
+                      "-o", W + "/c.yaml", "--image-size", "480", "480"], 1,
+           f"li/{name}: a line image's distance must be 0.1 to 20 m (nearer lies under the"
+           f" robot, farther no mirror shows a line), not {name[:-4][:24]} m",
+           setup=_setup_line_image(name))
+      for n, name in ((1, "1000.png"), (1, "125.png"), (2, "0.000000001.png"),
+                      (3, "99999999999999999999.png"))],
 ]
 
 

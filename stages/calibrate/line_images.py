@@ -53,6 +53,16 @@ confs = {
 # a distance in metres: 1.25, 1,25 (the MINHO team's own names), 2; not 01 (a frame number)
 _DISTANCE_NAME = re.compile(r"^(?:0|[1-9]\d*)(?:[.,]\d+)?$")
 
+# m: the distances a line image's line can lie at, from the robot's centre. Nearer than 0.1 m
+# the line lies under the robot's own body (a robot carrying a mirror camera is wider than
+# 20 cm; the MINHO table starts at 0.25 m, the simulated mirror's body edge is at 0.28 m), so
+# the mirror shows no floor there. Farther than 20 m no mirror shows a line as a ridge: in the
+# MINHO mirror the floor moves 16 px/m at 4 m, falling about as 1/d^2, so a 12 cm line is half
+# a pixel wide at 8 m; 20 m leaves room for larger images and other mirrors. A name outside
+# is a slip (cm or mm: 125.png), which would otherwise replace the other source's pairs
+# (1000.png, a line at 1 m, dropped 13 of MINHO's 16 and fitted a floor seen to 1000 m)
+LINE_DISTANCE_M = (0.1, 20.0)
+
 
 @dataclass
 class LineMark:
@@ -93,8 +103,12 @@ def distance_images(folder) -> list[tuple[Path, float]]:
     if dup:
         at = ", ".join(f"{d:g}" for d in dup)
         raise FieldlocError(f"{folder}: more than one image at {at} m")
-    if any(d <= 0 for d in dist):
-        raise FieldlocError(f"{folder}: line distances must be > 0 m")
+    lo, hi = LINE_DISTANCE_M
+    for p, d in out:
+        if not lo <= d <= hi:
+            raise FieldlocError(
+                f"{p}: a line image's distance must be {lo:g} to {hi:g} m (nearer lies under"
+                f" the robot, farther no mirror shows a line), not {p.stem[:24]} m")
     return out
 
 
