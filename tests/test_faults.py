@@ -877,6 +877,33 @@ def _setup_line_image(name: str):
     return setup
 
 
+def _setup_bag_of_frames(*frames):
+    """ws/x.bag: a ROS 1 bag of ``frames`` on /cam, each "grey" (a 64 x 48 PNG), "raw WxH" (a
+    mono8 frame of that size) or "bayer WxH" (a compressed Bayer PNG whose header claims that
+    size); raw frames and compressed ones are not mixed (one message type per topic)."""
+    def setup(w, ws):
+        from stages.ingest.bag_writer import write_bag
+
+        out = []
+        for i, kind in enumerate(frames):
+            what, _, size = kind.partition(" ")
+            width, height = (int(v) for v in size.split("x")) if size else (0, 0)
+            if what == "grey":
+                payload = (cv2.imencode(".png", np.full((48, 64), 90, np.uint8))[1].tobytes(),
+                           "png")
+            elif what == "raw":
+                payload = (np.zeros((height, width), np.uint8), "mono8")
+            else:
+                cv2.imwrite(str(ws / "m.png"), np.zeros((8, 8), np.uint8))
+                _claim_size(ws / "m.png", width, height)
+                payload = ((ws / "m.png").read_bytes(), "bayer_rggb8; png compressed mono8")
+                (ws / "m.png").unlink()
+            out.append((1.0 + 0.1 * i, payload))
+        write_bag(ws / "x.bag", "ros1", image_topic="/cam", frames=out)
+        return {}
+    return setup
+
+
 def _setup_minho(mirror: str | None = None, image: bytes | None = None):
     """The shared MINHO folder copied, with ``mirror`` as its mirror.cfg and ``image`` as the
     one file of its images folder, where given."""
@@ -1355,6 +1382,12 @@ GOOD_IMU = [(0.95 + 0.05 * i, 0.01 * i) for i in range(9)]
 EVALUATE_MORE = ["--truth", "{omni}", "-o", W + "/rep"]
 IMPORT_BAG = ["import", "rosbag", W + "/x.bag", "-o", W + "/ds", "--image-topic", "/cam",
               "--odom-topic", "/odom", "--imu-topic", "/imu"]
+
+
+def _check_frames_written(ds: Path, n: int) -> None:
+    """The imported dataset holds ``n`` frames, each an image file."""
+    assert len((ds / "frames.csv").read_text().splitlines()) == n + 1
+    assert len(list((ds / "images").iterdir())) == n
 
 
 def _check_dataset_readable(paths, res):
@@ -4190,7 +4223,7 @@ CASES = [
          ["calibrate", "omni", "{marks}", "--centre", "240", "240", "--image-size", "1000000",
           "1000000", "--valid-radius", "40", "230", "-o", W + "/calib.yaml"], 2,
          "Invalid value for '--image-size': 1000000 is not in the range 1<=x<=8192"),
-    # s62 trial U2: a line image's distance
+    # s62 trial U2: a line image's distance, and frames beyond the pixel bound at import
     *[Case(f"calibrate --from-minho --line-images of {name}: refused naming it (U2-{n})",
            "silent", ["calibrate", "omni", "--from-minho", "{m}", "--line-images", W + "/li",
                       "-o", W + "/c.yaml", "--image-size", "480", "480"], 1,
@@ -4199,6 +4232,27 @@ CASES = [
            setup=_setup_line_image(name))
       for n, name in ((1, "1000.png"), (1, "125.png"), (2, "0.000000001.png"),
                       (3, "99999999999999999999.png"))],
+    Case("import rosbag of one 8193 x 8193 px raw frame: refused, not written (U2-9)",
+         "silent", ["import", "rosbag", W + "/x.bag", "-o", W + "/ds", "--image-topic", "/cam"],
+         1, "x.bag: no frame written from /cam (image of 8193 x 8193 px, more than the"
+         " 67,108,864 pixels fieldloc reads)", setup=_setup_bag_of_frames("raw 8193x8193")),
+    Case("import rosbag of one compressed Bayer PNG of 9000 x 9000 px: the pixels named, in"
+         " one line (U2-10: 'not a one-channel mosaic' after a warning)", "newcomer",
+         ["import", "rosbag", W + "/x.bag", "-o", W + "/ds", "--image-topic", "/cam"], 1,
+         "x.bag: no frame written from /cam (compressed image of 9000 x 9000 px, more than the"
+         " 67,108,864 pixels fieldloc reads)", setup=_setup_bag_of_frames("bayer 9000x9000")),
+    Case("import rosbag of a frame, a 9000 x 9000 px Bayer PNG and a frame: the large one"
+         " skipped with a warning naming it (U2-9)", "silent",
+         ["import", "rosbag", W + "/x.bag", "-o", W + "/ds", "--image-topic", "/cam"], 0,
+         "image message 1 skipped: compressed image of 9000 x 9000 px",
+         setup=_setup_bag_of_frames("grey", "bayer 9000x9000", "grey"),
+         check=lambda paths, res: _check_frames_written(paths["ws"] / "ds", 2)),
+    Case("import rosbag of a 9000 x 9000 px Bayer PNG, then a frame: the skip still said"
+         " (U2-9)", "silent",
+         ["import", "rosbag", W + "/x.bag", "-o", W + "/ds", "--image-topic", "/cam"], 0,
+         "image message 0 skipped: compressed image of 9000 x 9000 px",
+         setup=_setup_bag_of_frames("bayer 9000x9000", "grey"),
+         check=lambda paths, res: _check_frames_written(paths["ws"] / "ds", 1)),
 ]
 
 

@@ -193,6 +193,40 @@ def test_bad_frames_skipped_and_user_errors(tmp_path):
     assert res.exit_code == 1 and "not a ROS bag" in res.output
 
 
+def test_a_bag_of_only_skipped_frames_is_refused_in_one_line(tmp_path, caplog):
+    """A bag none of whose frames can be written was refused after a warning per skipped
+    message (trial U2-10: two lines for one message): the refusal alone names the first
+    reason and the count, and a bag whose later frames are written says each skip, in order."""
+    import logging
+
+    bad = np.zeros((4, 4), np.float32)
+    ok = _frames(1)[0]
+    runner = CliRunner()
+    for n in (1, 3):
+        bag = write_bag(tmp_path / f"b{n}.bag", "ros1",
+                        frames=[(1.0 + 0.1 * i, (bad, "32FC1")) for i in range(n)])
+        caplog.clear()
+        with caplog.at_level(logging.WARNING):
+            res = runner.invoke(cli, ["import", "rosbag", str(bag), "-o", str(tmp_path / "ds"),
+                                      "--image-topic", "/camera/image"])
+        assert res.exit_code == 1 and not caplog.records, caplog.text
+        lines = res.stderr.strip().splitlines()
+        first = "image encoding '32FC1' is not supported"
+        assert len(lines) == 1 and (first in lines[0] if n == 1 else
+                                    f"(3 image messages skipped; the first: {first}" in lines[0])
+        assert not (tmp_path / "ds").exists()
+    payloads = [(bad, "32FC1"), (bad, "32FC1"), (ok, "bgr8"), (bad, "32FC1")]
+    bag = write_bag(tmp_path / "c.bag", "ros1",
+                    frames=[(1.0 + 0.1 * i, f) for i, f in enumerate(payloads)])
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        res = runner.invoke(cli, ["import", "rosbag", str(bag), "-o", str(tmp_path / "ds"),
+                                  "--image-topic", "/camera/image"])
+    assert res.exit_code == 0, res.output
+    assert [r.getMessage()[:23] for r in caplog.records] == [
+        f"image message {i} skipped" for i in (0, 1, 3)], caplog.text
+
+
 def test_zero_header_stamps_fall_back_to_receive_times(tmp_path, caplog):
     imgs = _frames(3)
     stamps = 5.0 + np.arange(3) * 0.2

@@ -690,6 +690,15 @@ def readable_truth(dataset_dir) -> dict[str, np.ndarray] | None:
 MAX_IMAGE_PIXELS = 1 << 26
 
 
+def too_many_pixels(width: int, height: int) -> str | None:
+    """Why an image of ``width`` x ``height`` px is not read (more than MAX_IMAGE_PIXELS), or
+    None: the one wording of the bound, for the readers and for the importers that would
+    otherwise write a frame the readers refuse."""
+    if width * height > MAX_IMAGE_PIXELS:
+        return f"{width} x {height} px, more than the {MAX_IMAGE_PIXELS:,} pixels fieldloc reads"
+    return None
+
+
 def read_image(path: Path) -> np.ndarray:
     """Read an image as BGR uint8, its pixels as stored (``decode_image_bytes``); raises
     DatasetError if unreadable (callers skip the frame). Decoded by ``decode_image_bytes``."""
@@ -792,9 +801,8 @@ def decode_image_bytes(data: bytes, *,
         if why is not None:
             return None, why
     size = image_size(data)
-    if size is not None and size[0] * size[1] > MAX_IMAGE_PIXELS:
-        return None, (f"its header claims {size[0]} x {size[1]} px, more than the"
-                      f" {MAX_IMAGE_PIXELS:,} pixels fieldloc reads")
+    if size is not None and (why := too_many_pixels(*size)):
+        return None, f"its header claims {why}"
     if data.startswith(SIGNATURE):
         img = None if unchanged else decode_png(data)
         if img is not None:

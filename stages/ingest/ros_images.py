@@ -12,6 +12,10 @@ Raw images (sensor_msgs/Image) by ``encoding``, as ROS names them (sensor_msgs i
 
 Rows may be padded (``step`` > width x pixel size); 16-bit data honours ``is_bigendian``.
 
+An image of more than stages.common.dataset.MAX_IMAGE_PIXELS (a raw message's height x width,
+a compressed one's header) is refused before it is converted or written: the readers refuse
+such a file (a 6.6 MB LZ4 bag held a 40000 x 40000 frame, written as a 1.6-gigapixel PNG).
+
 Compressed images (sensor_msgs/CompressedImage): the container is told by its first bytes (JPEG
 or PNG), whatever ``format`` says. When ``format`` names a colour or grey source (``jpeg``,
 ``png``, ``bgr8; jpeg compressed bgr8``, ``rgb8; jpeg compressed bgr8``, ...) the bytes are
@@ -24,8 +28,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..common.dataset import decode_image_bytes
+from ..common.dataset import decode_image_bytes, too_many_pixels
 from ..common.errors import FieldlocError
+from ..common.image_header import image_size
 
 JPEG_MAGIC = b"\xff\xd8"
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -73,6 +78,8 @@ def raw_pixels(height: int, width: int, encoding: str, step: int, data, is_bigen
             f"image encoding '{encoding}' is not supported (supported: {', '.join(ENCODINGS)})")
     channels, size = _LAYOUT[enc]
     h, w, step = int(height), int(width), int(step)
+    if h > 0 and w > 0 and (why := too_many_pixels(w, h)):
+        raise ImageMessageError(f"image of {why}")
     row = w * channels * size
     buf = (data.reshape(-1).view(np.uint8) if isinstance(data, np.ndarray)
            else np.frombuffer(data, dtype=np.uint8))
@@ -140,13 +147,19 @@ def compressed_to_file(fmt: str, data) -> tuple[str, bytes | np.ndarray]:
     for a Bayer mosaic ('.png', the demosaiced BGR image as an array to encode)."""
     container = compressed_container(data)
     source = compressed_source_encoding(fmt)
+    size = image_size(bytes(data))
+    if size is not None and (why := too_many_pixels(*size)):
+        raise ImageMessageError(f"compressed image of {why}")
     if source.startswith("bayer_"):
         cv2 = _cv2()
         pattern = source[len("bayer_"):len("bayer_") + 4]
         if pattern not in _bayer_codes():
             raise ImageMessageError(f"unknown Bayer pattern in compressed format '{fmt}'")
-        mosaic = decode_image_bytes(bytes(data), unchanged=True)[0]
-        if mosaic is None or mosaic.ndim != 2:
+        mosaic, why = decode_image_bytes(bytes(data), unchanged=True)
+        if mosaic is None:
+            raise ImageMessageError(f"compressed Bayer image ('{fmt}') cannot be decoded"
+                                    + (f": {why}" if why else ""))
+        if mosaic.ndim != 2:
             raise ImageMessageError(f"compressed Bayer image ('{fmt}') is not a one-channel"
                                     " mosaic")
         return ".png", cv2.cvtColor(mosaic, _bayer_codes()[pattern])

@@ -432,6 +432,9 @@ class _FrameWriter:
         except ros_images.ImageMessageError as e:
             self._skip(index, str(e))
             return None
+        if not self.encodings:  # the first frame: the skips before it are said now
+            for s in self.skipped:
+                log.warning("image message %d skipped: %s", s["message"], s["reason"])
         self.encodings[key] = self.encodings.get(key, 0) + 1
         name = name_stem + suffix
         if self.pool is None or isinstance(job[0], bytes):
@@ -445,7 +448,10 @@ class _FrameWriter:
         return name
 
     def _skip(self, index, reason):
-        log.warning("image message %d skipped: %s", index, reason)
+        """Record a skipped message; said at once after the first frame, else when the first
+        frame comes: a bag none of whose frames is written is refused in one line (main)."""
+        if self.encodings:
+            log.warning("image message %d skipped: %s", index, reason)
         self.skipped.append({"message": int(index), "reason": reason})
 
     def png_params(self) -> list:
@@ -564,9 +570,11 @@ def main(conf: str | dict | None, bag, output, *, image_topic: str, odom_topic: 
             finally:
                 writer.close()
             if not names:
-                raise BagError(f"{bag}: no frame written from {image_topic} ("
-                               + (writer.skipped[0]["reason"] if writer.skipped else
-                                  "the topic has no messages") + ")")
+                skipped = writer.skipped
+                why = skipped[0]["reason"] if skipped else "the topic has no messages"
+                if len(skipped) > 1:
+                    why = f"{len(skipped)} image messages skipped; the first: {why}"
+                raise BagError(f"{bag}: no frame written from {image_topic} ({why})")
             dropped = {topic: n for topic, n in (
                 (odom_topic, odo.check_dropped(bag, odom_topic, "odometry")),
                 (imu_topic, imu.check_dropped(bag, imu_topic, "IMU"))) if n}
