@@ -4,6 +4,7 @@ table model), MINHO files, pairs measured in images of a line, residuals, reject
 from __future__ import annotations
 
 import math
+import shutil
 
 import cv2
 import numpy as np
@@ -409,3 +410,30 @@ def test_cli_from_minho(tmp_path, line_image_folder):
         assert message in res.output and "Traceback" not in res.output
 
 
+
+
+def test_cli_line_images_named_in_decimetres_refused(tmp_path, line_image_folder):
+    """Line images named in decimetres (5.png for 0.5 m: inside the 0.1-20 m names allow)
+    contradict most of the team's table (trial V2-2: 14 of MINHO's 16 pairs dropped, a
+    floor seen to 20 m written at rc 0): refused in one line naming the folder; the same
+    images named in metres are taken."""
+    folder, cam = line_image_folder
+    r, d = table_pairs()
+    team = write_minho(tmp_path / "robot", cam.radius_of_distance(d), d,
+                       centre=f"{cam.centre[0]:g},{cam.centre[1]:g}", image=False)
+    dm = tmp_path / "dm"
+    dm.mkdir()
+    for p in folder.glob("*.png"):
+        shutil.copyfile(p, dm / f"{float(p.stem) * 10:g}.png")
+    runner = CliRunner()
+    args = ["calibrate", "omni", "--from-minho", str(team), "--image-size", "480", "480",
+            "--line-images"]
+    res = runner.invoke(cli, [*args, str(dm), "-o", str(tmp_path / "c.yaml")])
+    assert res.exit_code == 1, res.output
+    assert res.stderr.strip().splitlines() == [
+        f"fieldloc: error: {dm}: the line images contradict mirror.cfg: 14 of its 16 pairs"
+        " would make the distance fall with the radius beside them; name each image by its"
+        " line's distance in metres (1.25.png)"], res.stderr
+    assert not (tmp_path / "c.yaml").exists()
+    res = runner.invoke(cli, [*args, str(folder), "-o", str(tmp_path / "c.yaml")])
+    assert res.exit_code == 0, res.output

@@ -34,6 +34,7 @@ def _copy(ds, tmp_path):
 
 
 def _hashes(ds) -> dict[str, str]:
+    # exact bytes: the dataset's own files checked unchanged
     return {str(p): hashlib.sha256(p.read_bytes()).hexdigest()
             for p in sorted(ds.rglob("*")) if p.is_file() and p.name != "features.h5"}
 

@@ -23,6 +23,7 @@ import re
 import shutil
 import signal
 import stat
+import struct
 import subprocess
 import sys
 import time
@@ -1159,6 +1160,62 @@ def _subarray(path: str, each: tuple):
     return change
 
 
+def _corrupt_chunk(path: str):
+    """Dataset ``path`` stored again gzip-compressed, its first chunk's bytes then overwritten
+    (a damaged block of a file: the filter fails on reading it)."""
+    def change(f):
+        data = f[path][()]
+        del f[path]
+        d = f.create_dataset(path, data=data, chunks=data.shape, compression="gzip")
+        offset, size = d.id.get_chunk_info(0).byte_offset, d.id.get_chunk_info(0).size
+        name = f.filename
+        f.flush()
+        with open(name, "r+b") as raw:
+            raw.seek(offset)
+            raw.write(bytes(range(256)) * (size // 256 + 1))
+    return change
+
+
+def _extracted_then(change):
+    """A dataset change: its features.h5 extracted, then ``change(ds)``."""
+    def edit(ds):
+        from stages import extract
+
+        extract.main(None, ds, ds / "features.h5")
+        change(ds)
+    return edit
+
+
+def _add_mask(ds):
+    """A robot mask (all of the image seen) put into the dataset folder."""
+    import cv2
+
+    from stages.common.dataset import open_dataset
+
+    w, h = open_dataset(ds).camera().image_size
+    cv2.imwrite(str(ds / "mask.png"), np.full((h, w), 255, np.uint8))
+
+
+def _as_jp2(ds):
+    """Frame 000002's image renamed .jp2 (a kind fieldloc does not read), as frames.csv lists
+    it."""
+    os.replace(ds / "images" / "000002.png", ds / "images" / "000002.jp2")
+    csv_path = ds / "frames.csv"
+    csv_path.write_text(csv_path.read_text().replace("000002.png", "000002.jp2"))
+
+
+def _as_bigtiff(ds):
+    """Frame 000002's image replaced by a BigTIFF header (64-bit offsets) claiming 9000 x 9000
+    px, as frames.csv lists it."""
+    (ds / "images" / "000002.png").unlink()
+    entries = b"".join(struct.pack("<HHQQ", tag, 4, 1, 9000) for tag in (256, 257))
+    (ds / "images" / "000002.tif").write_bytes(
+        b"II+\0" + struct.pack("<HHQ", 8, 0, 16) + struct.pack("<Q", 2) + entries
+        + struct.pack("<Q", 0))
+    csv_path = ds / "frames.csv"
+    csv_path.write_text(csv_path.read_text().replace("000002.png", "000002.tif"))
+
+
 def _as_group(path: str):
     """Dataset ``path`` replaced by an empty group."""
     def change(f):
@@ -2293,6 +2350,52 @@ CASES = [
             [b"\xff%d" % i for i in range(len(d))])), "/poses/name holds text that is not UTF-8"),
         ("schema is an array of numbers", _attr("schema", np.arange(3)),
          "expected a 'fieldloc.poses' file, but it is a 'ndarray [0 1 2]' file"))],
+    Case("fit on a map whose distance table is NaN (trial V1-1: a StopIteration traceback)",
+         "traceback", [*LOCALIZE[:3], W + "/m.h5", *LOCALIZE[4:], "--method", "fit", "-o",
+                       W + "/p.h5"], 1,
+         "m.h5: damaged map file (/tables/distance holds nan where finite numbers belong)",
+         setup=_setup_damaged("map", "m.h5", _fill("tables/distance", math.nan))),
+    Case("mcl on a map whose L crossing table points past the field's crossings (trial V1-3)",
+         "silent", ["localize", "{kid}", "--map", W + "/m.h5", "--features", "{kid_features}",
+                    "--method", "mcl", "-o", W + "/p.h5"], 1,
+         "/tables/crossing_lut_L holds the index 30000; the field has",
+         setup=_setup_damaged("kmap", "m.h5", _fill("tables/crossing_lut_L", 30000))),
+    Case("localize on features of a damaged compressed block (trial V1-4: frames failed"
+         " without a word)", "silent", [*LOCALIZE[:5], W + "/f.h5", "-o", W + "/p.h5"], 1,
+         "f.h5: damaged features file (frame ",
+         setup=_setup_damaged("features", "f.h5", _corrupt_chunk("data/radial"))),
+    Case("localize on a map whose grid shape is three numbers (trial V1-5)", "silent",
+         [*LOCALIZE[:3], W + "/m.h5", *LOCALIZE[4:], "-o", W + "/p.h5"], 1,
+         "must be two numbers each",
+         setup=_setup_damaged("map", "m.h5", lambda f: f.attrs.__setitem__(
+             "shape", np.append(f.attrs["shape"], 3)))),
+    Case("localize on a map whose field YAML weighs 11 MB (trial V1-8)", "hang",
+         [*LOCALIZE[:3], W + "/m.h5", *LOCALIZE[4:], "-o", W + "/p.h5"], 1,
+         "/field/spec_yaml is no field YAML of at most 10 MB",
+         setup=_setup_damaged("map", "m.h5", _replace(
+             "field/spec_yaml", lambda d: (d.decode() if isinstance(d, bytes) else d)
+             + "#" * (11 << 20)))),
+    Case("templates whose names are numbers (trial V1-6)", "silent",
+         ["localize", "{omni}", "--method", "templates", "--templates", W + "/t.h5", "-o",
+          W + "/p.h5"], 1, "names hold int64 values where text belongs",
+         setup=_setup_damaged("templates", "t.h5", _replace(
+             "names", lambda d: np.arange(len(d))))),
+    *[Case(f"extract resuming features of a {what} (trial V2-1, V2-6)", "silent",
+           ["extract", "{ds}"], 1, f"features.h5 was extracted {said}; use --overwrite",
+           setup=_with_ds(name, change))
+      for what, name, change, said in (
+        ("head.csv changed since", "kid", _extracted_then(lambda ds: (ds / "head.csv").write_text(
+            (ds / "head.csv").read_text() + "\n")), "with another head.csv"),
+        ("dataset that had no mask", "omni", _extracted_then(_add_mask), "without a mask"))],
+    Case("batch into a results folder another batch is writing (trial V3-1)", "silent",
+         ["batch", W + "/spec.yaml", "-o", W + "/b", "--serial"], 1,
+         "another fieldloc run (pid 1) is writing", setup=lambda w, ws: (
+             _setup_spec(_spec_with())(w, ws), (ws / ".b.fieldloc-lock").write_text("1\n"))
+         and {}),
+    Case("extract of a dataset whose frames.csv lists a JPEG 2000 frame (trial V2-3: left out"
+         " without a word)", "silent", ["extract", "{ds}", "-o", W + "/f.h5"], 0,
+         "frames.csv: 1 frames are files of a kind fieldloc does not read (first: 000002.jp2",
+         setup=_with_ds("omni", _as_jp2)),
     Case("localize --min-confidence 0_1: refused, not read as 1 (trial Q7)", "silent",
          [*LOCALIZE, "-o", W + "/p.h5", "--min-confidence", "0_1"], 2,
          "'0_1' is no decimal number (underscores)"),
@@ -2934,6 +3037,11 @@ CASES = [
          setup=_with_ds("omni", lambda ds: _claim_size(ds / "images" / "000002.png", 60000,
                                                        60000)),
          check=_check_fifo_frame_failed),
+    Case("extract a frame that is a BigTIFF whose header claims 9000 x 9000 px (trial V2-5:"
+         " refused without its reason)", "newcomer",
+         ["extract", W + "/omni", "-o", W + "/f.h5"], 0,
+         "000002.tif (its header claims 9000 x 9000 px",
+         setup=_with_ds("omni", _as_bigtiff), check=_check_fifo_frame_failed),
     Case("calibrate --from-minho whose image is a zero-byte file", "traceback",
          ["calibrate", "omni", "--from-minho", "{m}", "-o", W + "/c.yaml"], 1,
          "0001.png (empty file)", setup=_setup_minho(image=b"")),

@@ -262,3 +262,23 @@ def test_message_problem_names_what_no_robot_sends():
     assert "not all finite" in rosbag.message_problem((), (0.0, 0.0, math.nan, 1.0))
     # a quaternion far from unit length overflowed the yaw's products (90 deg read as 135)
     assert "not a rotation" in rosbag.message_problem((), (0.0, 0.0, 1e308, 1e308))
+
+
+def test_frames_of_another_size_than_the_first_are_skipped(tmp_path, caplog):
+    """Frames of two sizes were written without a word (trial V2-4), though a dataset's
+    frames share one calib.yaml and extract leaves the others out: each frame of another size
+    than the first is skipped with a warning naming both sizes."""
+    import logging
+
+    small, large = np.zeros((48, 64), np.uint8), np.zeros((96, 128), np.uint8)
+    payloads = [(small, "mono8"), (large, "mono8"), (small, "mono8"), (large, "mono8")]
+    bag = write_bag(tmp_path / "s.bag", "ros1",
+                    frames=[(1.0 + 0.1 * i, f) for i, f in enumerate(payloads)])
+    with caplog.at_level(logging.WARNING):
+        res = CliRunner().invoke(cli, ["import", "rosbag", str(bag), "-o", str(tmp_path / "ds"),
+                                       "--image-topic", "/camera/image"])
+    assert res.exit_code == 0, res.output
+    assert [r.getMessage() for r in caplog.records] == [
+        f"image message {i} skipped: image of 128 x 96 px, the first frame's 64 x 48 (a"
+        " dataset's frames share one calib.yaml)" for i in (1, 3)], caplog.text
+    assert len(list((tmp_path / "ds" / "images").iterdir())) == 2

@@ -304,8 +304,9 @@ def _fit_polynomial(conf, r, d, valid_radius, where):
 def merge_line_marks(radius_px, distance_m, marks, source: str):
     """The pairs of another source with the measured line marks in their place: within the
     marks' range of distances only the marks count; outside it the other pairs are kept unless
-    they would make the radius fall with distance (then they are dropped). Returns (radius,
-    distance, per-pair source, dropped pairs as (radius, distance))."""
+    they would make the radius fall with distance (then they are dropped, and the caller
+    says so). Returns (radius, distance, per-pair source, dropped pairs as (radius,
+    distance))."""
     r = np.asarray(radius_px, dtype=float)
     d = np.asarray(distance_m, dtype=float)
     mr = np.array([round(m.radius_px, 3) for m in marks])
@@ -322,9 +323,6 @@ def merge_line_marks(radius_px, distance_m, marks, source: str):
             dropped.append((t[0], t[1]))
         else:
             kept.append(t)
-    if dropped:
-        log.warning("line images: %d %s pair(s) dropped that would make f(r) fall: %s",
-                    len(dropped), source, ", ".join(f"({a:g} px, {b:g} m)" for a, b in dropped))
     return (np.array([t[0] for t in kept]), np.array([t[1] for t in kept]),
             [t[2] for t in kept], dropped)
 
@@ -380,7 +378,20 @@ def _calibrate(conf, pairs: PairSource, output, geometry: MirrorGeometry, *, lin
         sources["line_image_hashes"] = {
             p.name: file_hash(p) for p, _ in _line_images.distance_images(line_images)}
         marks_rec = _mark_records(marks, r, d)
+        others = len(r)
         r, d, labels, dropped = merge_line_marks(r, d, marks, source_label)
+        if 2 * len(dropped) > others:
+            # most of the other source contradicted: the line images' names are no distances
+            # in metres (decimetres: 5.png for 0.5 m dropped 14 of MINHO's 16 pairs and
+            # fitted a floor seen to 20 m, trial V2-2; the real images drop none)
+            raise FieldlocError(
+                f"{line_images}: the line images contradict {source_label}: {len(dropped)} of"
+                f" its {others} pairs would make the distance fall with the radius beside"
+                " them; name each image by its line's distance in metres (1.25.png)")
+        if dropped:
+            log.warning("line images: %d %s pair(s) dropped that would make f(r) fall: %s",
+                        len(dropped), source_label,
+                        ", ".join(f"({a:g} px, {b:g} m)" for a, b in dropped))
     result = fit(conf, r, d, **geometry._asdict(), where=pairs.where, source=labels)
     record = {
         "fieldloc_version": __version__,

@@ -439,6 +439,14 @@ def open_dataset(root: str | Path, *, need_images: bool = True) -> Dataset:
             log.warning("%s: %d frames are files of a kind fieldloc does not read or none of"
                         " the images is (first: %s; it reads %s); left out", frames,
                         len(other), str(other[0])[:40], IMAGE_KINDS)
+        # a listed frame whose file is in images/, of a kind not read (000002.jp2: a stem
+        # with a suffix of digits, trial V2-3), is no deleted frame: said once, left out
+        unread = [g for g in gone if (img_dir / row_file_name(g)).is_file()]
+        if unread and str(frames) not in _SAID_OTHER_KINDS:
+            _SAID_OTHER_KINDS.add(str(frames))
+            log.warning("%s: %d frames are files of a kind fieldloc does not read (first: %s;"
+                        " it reads %s); left out", frames, len(unread), str(unread[0])[:40],
+                        IMAGE_KINDS)
     elif images and all(_is_float(p.stem) and stamp_error(float(p.stem)) is None
                         for p in images):
         stamps = np.array([float(p.stem) for p in images])

@@ -468,7 +468,11 @@ class FeaturesFile:
         """The datasets of frame ``name`` and its ``stamp``; a frame missing a dataset its
         camera kind always has, holding one of another shape, or scan-line distances below 0
         or beyond MAX_SCAN_DISTANCE, is refused (SchemaError)."""
-        out, stamp = self._layout.read(name)
+        try:
+            out, stamp = self._layout.read(name)
+        except OSError as e:  # a damaged block: the file, not the frame (trial V1-4)
+            raise SchemaError(f"{self.path}: damaged features file (frame {name[:40]}:"
+                              f" {str(e)[:120]})") from None
         for k, v in out.items():
             want = self._shapes.get(k)
             if want is not None and (np.ndim(v) != 2 or v.dtype.kind not in "fiu" or (
@@ -612,11 +616,14 @@ def _small_metadata_cache(h5: h5py.File) -> None:
 
 # ---------------------------------------------------------------------------- resume parts
 
-RUN_KEYS = ("camera_kind", "calib_hash", "mask_hash", "conf", "scanlines")  # what frames depend on
+# what frames depend on (head_hash since parts format 5); the keys of every format's run.json
+# mark a parts folder as extract's (``_parts_run``)
+RUN_KEYS = ("camera_kind", "calib_hash", "mask_hash", "head_hash", "conf", "scanlines")
+MARK_KEYS = ("camera_kind", "calib_hash", "mask_hash", "conf", "scanlines")
 # The parts' layout, in run.json beside RUN_KEYS: a folder of another layout (one file per
-# frame, format 1; one entry per frame and dataset, format 2; each frame's shape, format 3) is
-# discarded like one of other inputs.
-PARTS_FORMAT = 4
+# frame, format 1; one entry per frame and dataset, format 2; each frame's shape, format 3;
+# no head_hash, format 4) is discarded like one of other inputs.
+PARTS_FORMAT = 5
 # Finished frames are committed together at most this often (s): a commit (a temporary file,
 # written and renamed) costs about 1-1.7 ms, as much as extracting an omni frame, so committing
 # every frame spent a fifth of extract's time on it; a run killed by kill -9 loses at most this
@@ -685,8 +692,8 @@ def _parts_file(name: str) -> bool:
 
 def _parts_run(run) -> bool:
     """Whether ``run`` (a parts folder's run.json, or None where it is absent or unreadable)
-    is one extract wrote, in any layout: a mapping holding RUN_KEYS."""
-    return isinstance(run, dict) and all(k in run for k in RUN_KEYS)
+    is one extract wrote, in any layout: a mapping holding MARK_KEYS."""
+    return isinstance(run, dict) and all(k in run for k in MARK_KEYS)
 
 
 class FrameParts:

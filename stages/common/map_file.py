@@ -45,7 +45,7 @@ import numpy as np
 import yaml
 
 from .artifacts import open_artifact, read_json_attr, stored_dataset, write_artifact
-from .conf import load_yaml
+from .conf import MAX_RECORD_BYTES, load_yaml
 from .errors import SchemaError
 from .field import FieldModel, field_from_spec
 from .resources import check_disk
@@ -171,6 +171,10 @@ def write_map(path: str | Path, fm: FieldModel, grid: Grid, scanlines: ScanLines
     return path
 
 
+# the (map, dataset) pairs whose difference from the spec was said in this process
+_SAID: set[tuple[str, str]] = set()
+
+
 class MapFile:
     """Read access to a map: the field model, the grid, and tables loaded on demand."""
 
@@ -179,15 +183,22 @@ class MapFile:
         self.h5 = open_artifact(self.path, SCHEMA, VERSION)
         try:
             a = self.h5.attrs
-            self.grid = Grid(origin=tuple(float(v) for v in a["origin"]),
+            origin, shape = np.ravel(a["origin"]), np.ravel(a["shape"])
+            if len(origin) != 2 or len(shape) != 2:
+                raise ValueError(f"origin {str(a['origin'])[:40]} and shape"
+                                 f" {str(a['shape'])[:40]} must be two numbers each")
+            self.grid = Grid(origin=tuple(float(v) for v in origin),
                              resolution=float(a["resolution"]),
-                             shape=tuple(int(v) for v in a["shape"]))
+                             shape=tuple(int(v) for v in shape))
             self.scanlines = ScanLines(**json.loads(a["scanlines"]))
             spec = stored_dataset(self.h5, "field/spec_yaml", "map file")
             if spec.shape != ():
                 raise ValueError(f"/field/spec_yaml has shape {spec.shape}; expected one text")
             spec_text = spec[()]
             spec_text = spec_text.decode() if isinstance(spec_text, bytes) else spec_text
+            if not isinstance(spec_text, str) or len(spec_text) > MAX_RECORD_BYTES:
+                raise ValueError(f"/field/spec_yaml is no field YAML of at most"
+                                 f" {MAX_RECORD_BYTES >> 20} MB, as a field file may weigh")
             self.field = field_from_spec(load_yaml(spec_text), str(self.path), spec_text)
             self._check_grid()
             self._check_field_lines()
@@ -237,17 +248,21 @@ class MapFile:
         """The lines stored in /field (what the tables were built from) must be finite; lines
         that differ from what the stored spec gives today (a map built by a fieldloc that
         read the spec otherwise) are reported: the pictures draw the spec's."""
-        for name in ("segments", "arcs"):
+        for name, attr in (("segments", "segments"), ("arcs", "arcs"),
+                           ("crossings/position", "crossings")):
             if name not in self.h5["field"]:
                 continue
             d = stored_dataset(self.h5, f"field/{name}", "map file")
-            model = np.asarray(getattr(self.field, name), float)
+            model = np.asarray(getattr(self.field, attr), float)
             # of another shape: not read (a file's own shape may be of gigabytes)
             stored = np.asarray(d[()], float) if d.shape == model.shape else model
             if not np.isfinite(stored).all():
                 raise SchemaError(f"{self.path}: damaged map file (/field/{name} holds values"
                                   " that are not finite numbers)")
-            if d.shape != model.shape or not np.allclose(stored, model, rtol=0, atol=1e-6):
+            said = (str(self.path.resolve()), name)  # once a process: a run opens a map often
+            if (d.shape != model.shape or not np.allclose(stored, model, rtol=0, atol=1e-6)) \
+                    and said not in _SAID:
+                _SAID.add(said)
                 log.warning("%s: /field/%s differs from the field its spec gives now (built"
                             " by another fieldloc version?); build the map again",
                             self.path, name)
@@ -279,10 +294,27 @@ class MapFile:
                                   f" {str(d.shape)[:40]} {str(d.dtype)[:20]}; expected numbers"
                                   f" of shape {self.table_shape(name)} for its grid)")
             try:
-                self._cache[name] = d[()]
+                table = d[()]
             except (OSError, KeyError) as e:
                 raise SchemaError(f"{self.path}: damaged table '{name}' ({e})") from None
+            if why := self._wrong_values(name, table):
+                raise SchemaError(f"{self.path}: damaged map file (/tables/{name} {why})")
+            self._cache[name] = table
         return self._cache[name]
+
+    def _wrong_values(self, name: str, table: np.ndarray) -> str | None:
+        """Why table ``name``'s values are none build-map writes, or None: its distances and
+        gradients finite (NaN ended fit in a traceback, trial V1-1), its crossing indices
+        within the field's crossings or -1 (none)."""
+        if table.dtype.kind == "f" and not np.isfinite(table).all():
+            return f"holds {table[~np.isfinite(table)].flat[0]} where finite numbers belong"
+        if name.startswith("crossing_lut"):
+            n = len(self.field.crossings)
+            wrong = (table < -1) | (table >= n)
+            if wrong.any():
+                return (f"holds the index {int(table[wrong].flat[0])}; the field has {n}"
+                        " crossings (-1: none)")
+        return None
 
     def table_attrs(self, name: str) -> dict:
         return dict(self.h5["tables"][name].attrs)

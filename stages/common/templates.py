@@ -204,6 +204,8 @@ def _stored_shapes(f: h5py.File) -> list[str]:
     features each."""
     d = {k: stored_dataset(f, k, f"'{SCHEMA}' file")
          for k in ("names", "poses", "offsets", *FEATURE_DATASETS)}
+    if d["names"].dtype.kind not in "OSU":  # numbers where frame names belong (trial V1-6)
+        return [f"names hold {d['names'].dtype} values where text belongs"]
     t = d["names"].shape[0] if d["names"].ndim == 1 else -1
     n = d["points"].shape[0] if d["points"].ndim == 2 else -1
     want = {"names": (t,), "poses": (t, 3), "offsets": (t + 1,), "points": (n, 2),

@@ -140,20 +140,29 @@ def _frame_info(kind: str, mask, head, stamp: float) -> dict:
 
 
 def _check_resumable(output: Path, attrs: dict):
-    """An existing output may only be continued if it was made from the same calibration, mask
-    and conf; otherwise the user has to ask for --overwrite."""
+    """An existing output may only be continued if it was made from the same calibration,
+    mask, head angles (head.csv) and conf; otherwise the user has to ask for --overwrite. A
+    file of before head.csv was recorded counts as made without one."""
     try:
         with FeaturesFile(output) as old:
-            same = {k: old.h5.attrs.get(k) for k in ("camera_kind", "calib_hash", "mask_hash")}
+            same = {k: old.h5.attrs.get(k, "") for k in ("camera_kind", "calib_hash",
+                                                         "mask_hash", "head_hash")}
             old_conf = old.conf
     except SchemaError as e:
         raise FieldlocError(f"{e}; use --overwrite to replace it") from None
     for k, v in same.items():
         v = v.decode() if isinstance(v, bytes) else v
-        if v != attrs[k]:
-            raise FieldlocError(
-                f"{output} was extracted with another {k.replace('_', ' ')} ({v});"
-                " use --overwrite to extract again")
+        if not (isinstance(v, str) and v == attrs[k]):
+            what = {"mask_hash": "mask", "head_hash": "head.csv"}.get(k)
+            if what is None:
+                said = f"with another {k.replace('_', ' ')} ({str(v)[:40]})"
+            elif not v:
+                said = f"without a {what}"
+            else:
+                said = f"with {'another' if attrs[k] else 'a'} {what}" + (
+                    "" if attrs[k] else " the dataset no longer has")
+            raise FieldlocError(f"{output} was extracted {said}; use --overwrite to extract"
+                                " again")
     conf = json.loads(attrs["conf"])
     former = getattr(kind_module(attrs["camera_kind"]), "former_layout", dict)()
     if not _same_conf(old_conf, conf, as_stored(former)):
@@ -241,15 +250,20 @@ def _run_attrs(ds, camera, module, conf: dict):
         mask = read_mask(mask_path, camera.image_size)
         mask_hash = file_hash(mask_path)
     head = _head_angles(ds) if camera_can(kind, "head_angles") else None
+    # head.csv places a perspective frame's points: features of another head.csv are stale
+    head_path = ds.root / "head.csv"
+    head_hash = file_hash(head_path) if head is not None and head_path.is_file() else ""
     calib_hash = file_hash(ds.calib_path)
     root = os.path.abspath(ds.root)
     inputs = {"dataset": root, "calib": os.path.abspath(ds.calib_path),
               "calib_hash": calib_hash}
     if mask is not None:
         inputs.update(mask=os.path.abspath(mask_path), mask_hash=mask_hash)
+    if head_hash:
+        inputs.update(head=os.path.abspath(head_path), head_hash=head_hash)
     attrs = root_attrs(SCHEMA, VERSION, conf, inputs)
     attrs.update(camera_kind=kind, dataset=root, calib_hash=calib_hash,
-                 mask_hash=mask_hash, field=json.dumps(ds.field_record()))
+                 mask_hash=mask_hash, head_hash=head_hash, field=json.dumps(ds.field_record()))
     if hasattr(module, "scanlines_of"):  # an extractor along scan lines records their layout
         attrs["scanlines"] = json.dumps(module.scanlines_of(conf).as_dict())
     return attrs, mask, head

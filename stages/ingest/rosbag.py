@@ -89,6 +89,7 @@ from ..common.conf import load_yaml, stage_conf
 from ..common.dataset import MAX_VALUE, write_csv
 from ..common.errors import FieldlocError, real_path
 from ..common.geometry import wrap_angle
+from ..common.image_header import image_size
 from ..common.png import write_png
 from . import ros_images
 from .rosbag_fields import ImageFields, MessageFields
@@ -414,6 +415,7 @@ class _FrameWriter:
         self.pending: list = []
         self.skipped: list[dict] = []
         self.encodings: dict[str, int] = {}
+        self.size: tuple[int, int] | None = None  # (width, height) of the first frame
 
     def add(self, index: int, name_stem: str, msgtype: str, msg) -> str | None:
         """Queue one frame; returns its file name, or None if it was skipped."""
@@ -422,6 +424,8 @@ class _FrameWriter:
                 key = msg.format or "(none)"
                 suffix, content = ros_images.compressed_to_file(msg.format, msg.data)
                 job = (content, None)
+                size = (image_size(content) if isinstance(content, bytes)
+                        else content.shape[1::-1])
             else:
                 key = msg.encoding
                 ros_images.raw_pixels(msg.height, msg.width, msg.encoding, msg.step, msg.data,
@@ -429,6 +433,8 @@ class _FrameWriter:
                 suffix = ".png"
                 job = (None, (msg.height, msg.width, msg.encoding, msg.step, msg.data,
                               bool(msg.is_bigendian)))
+                size = (int(msg.width), int(msg.height))
+            self._check_size(size)
         except ros_images.ImageMessageError as e:
             self._skip(index, str(e))
             return None
@@ -446,6 +452,20 @@ class _FrameWriter:
                 self._drain(self.limit // 2)
             self.pending.append(self.pool.submit(self._write, index, name, *job))
         return name
+
+    def _check_size(self, size) -> None:
+        """A frame of another size than the first (``size``: (width, height), None where its
+        header does not say) is skipped: a dataset's frames share one calib.yaml, and extract
+        would leave it out (trial V2-4: frames of two sizes written without a word)."""
+        if size is None:
+            return
+        size = (int(size[0]), int(size[1]))
+        if self.size is None:
+            self.size = size
+        elif size != self.size:
+            raise ros_images.ImageMessageError(
+                f"image of {size[0]} x {size[1]} px, the first frame's {self.size[0]} x"
+                f" {self.size[1]} (a dataset's frames share one calib.yaml)")
 
     def _skip(self, index, reason):
         """Record a skipped message; said at once after the first frame, else when the first

@@ -64,6 +64,7 @@ from ..common.artifacts import (
     check_output,
     file_hash,
     open_artifact,
+    output_lock,
     read_json_attr,
     refuse_inputs,
     text_hash,
@@ -124,6 +125,14 @@ def main(conf, spec, results, *, overwrite: bool = False, progress: bool = False
         why = "; ".join(plan.skipped) or "its 'runs' pair no method with a dataset"
         raise FieldlocError(f"{plan.spec}: nothing to run: {why}")
     results = _check_results(plan)
+    with output_lock(results):  # a second batch into RESULTS refuses (trial V3-1)
+        return _run_plan(plan, results, conf, overwrite=overwrite, progress=progress, say=say)
+
+
+def _run_plan(plan: Plan, results: Path, conf: dict, *, overwrite: bool, progress: bool,
+              say) -> Path:
+    """``main``'s runs of ``plan`` into ``results`` (checked, locked): those not finished
+    before (all with ``overwrite``), then the index and summaries."""
     for line in plan.skipped:
         say(f"skipped: {line}")
     todo, done = [], []
