@@ -2396,6 +2396,19 @@ CASES = [
          " without a word)", "silent", ["extract", "{ds}", "-o", W + "/f.h5"], 0,
          "frames.csv: 1 frames are files of a kind fieldloc does not read (first: 000002.jp2",
          setup=_with_ds("omni", _as_jp2)),
+    *[Case(f"{args[0]} whose output's lock name is {what} (trial W3-1: blocked for ever)",
+           "hang", [*args, "-o", W + "/" + out], 1, f".{out}.fieldloc-lock is no lock fieldloc"
+           " wrote (not a regular file)", setup=lambda w, ws, out=out, make=make: (
+               _setup_spec(_spec_with())(w, ws), make(ws / f".{out}.fieldloc-lock")) and {})
+      for what, make in (("a FIFO", os.mkfifo),
+                         ("a link to /dev/zero", lambda p: os.symlink("/dev/zero", p)))
+      for args, out in ((["batch", W + "/spec.yaml", "--serial"], "b"),
+                        (["extract", "{omni}"], "f.h5"))],
+    Case("batch rerun over RESULTS holding only maps/ (trial W3-2: stopped while it built its"
+         " map, refused as a folder of other files)", "silent",
+         ["batch", W + "/spec.yaml", "-o", W + "/b", "--serial"], 0, "runs finished",
+         setup=lambda w, ws: (_setup_spec(_spec_with())(w, ws),
+                              (ws / "b" / "maps").mkdir(parents=True)) and {}),
     Case("localize --min-confidence 0_1: refused, not read as 1 (trial Q7)", "silent",
          [*LOCALIZE, "-o", W + "/p.h5", "--min-confidence", "0_1"], 2,
          "'0_1' is no decimal number (underscores)"),

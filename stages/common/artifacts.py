@@ -33,6 +33,7 @@ import logging
 import os
 import re
 import shutil
+import stat
 import tempfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -815,8 +816,15 @@ LOCK_SUFFIX = ".fieldloc-lock"  # .<target name>.fieldloc-lock: the pid of the r
 
 
 def _lock_pid(lock: Path) -> int | None:
+    """The pid a lock holds (None where it holds none); FieldlocError where the lock is no
+    regular file fieldloc wrote (a FIFO there blocked the read forever, a link to /dev/zero
+    read without end, trial W3-1): one line, and it is left where it is."""
     try:
-        return int(lock.read_text().strip())
+        if not stat.S_ISREG(os.lstat(lock).st_mode):
+            raise FieldlocError(f"{lock} is no lock fieldloc wrote (not a regular file):"
+                                " remove it if no run is writing")
+        with open(lock, "rb") as f:
+            return int(f.read(64).strip())
     except (OSError, ValueError):
         return None
 
@@ -871,8 +879,8 @@ def output_lock(path: str | Path):
     try:
         yield lock
     finally:
-        if _lock_pid(lock) == os.getpid():
-            with contextlib.suppress(OSError):
+        with contextlib.suppress(OSError, FieldlocError):
+            if _lock_pid(lock) == os.getpid():
                 lock.unlink()
 
 

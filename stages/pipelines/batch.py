@@ -174,6 +174,11 @@ def _run_plan(plan: Plan, results: Path, conf: dict, *, overwrite: bool, progres
     return results
 
 
+# the folders a batch makes in RESULTS before its index: one stopped while it built its maps
+# or templates left only maps/ (trial W3-2: every rerun refused as a folder of other files)
+BATCH_FOLDERS = ("runs", "datasets", "features", "maps", "templates")
+
+
 def _check_results(plan: Plan) -> Path:
     """RESULTS: a new folder, or one an earlier batch wrote; never one holding the SPEC's own
     inputs."""
@@ -195,7 +200,7 @@ def _check_results(plan: Plan) -> Path:
     from ..common.batch_file import is_batch_folder
 
     if results.is_dir() and any(results.iterdir()) and not is_batch_folder(results) \
-            and not any((results / d).is_dir() for d in ("runs", "datasets", "features")):
+            and not any((results / d).is_dir() for d in BATCH_FOLDERS):
         raise FieldlocError(f"{results} holds other files: batch results go into a new folder"
                             " or one an earlier batch wrote")
     _refuse_foreign_summaries(plan, results)

@@ -440,7 +440,8 @@ def _datasets(w, entries, base, results, default_map, build_conf, extract_defaul
                 ds.templates = _templates(w, templates_default, ds, "templates", base, results,
                                           templates)
             out.append(ds)
-    _check_names(w, "datasets", "dataset", [ds.name for ds in out], ": give it a 'name'")
+    _check_names(w, "datasets", "dataset", [ds.name for ds in out],
+                 ": give it another 'name'")
     return out
 
 
