@@ -2394,7 +2394,8 @@ CASES = [
          and {}),
     Case("extract of a dataset whose frames.csv lists a JPEG 2000 frame (trial V2-3: left out"
          " without a word)", "silent", ["extract", "{ds}", "-o", W + "/f.h5"], 0,
-         "frames.csv: 1 frames are files of a kind fieldloc does not read (first: 000002.jp2",
+         "frames.csv: 1 frames are files of a kind fieldloc does not read or none of the"
+         " images is (first: 000002.jp2",
          setup=_with_ds("omni", _as_jp2)),
     *[Case(f"{args[0]} whose output's lock name is {what} (trial W3-1: blocked for ever)",
            "hang", [*args, "-o", W + "/" + out], 1, f".{out}.fieldloc-lock is no lock fieldloc"
@@ -2409,6 +2410,29 @@ CASES = [
          ["batch", W + "/spec.yaml", "-o", W + "/b", "--serial"], 0, "runs finished",
          setup=lambda w, ws: (_setup_spec(_spec_with())(w, ws),
                               (ws / "b" / "maps").mkdir(parents=True)) and {}),
+    *[Case(f"bench --json onto a {kind} file --overwrite (trial W1-5: replaced by JSON)",
+           "data-lost", ["bench", "--only", "none", "--json", W + "/x.h5", "--overwrite"], 1,
+           f"x.h5 is a fieldloc.{kind} file; this command writes no such file",
+           setup=lambda w, ws, kind=kind: _copy(w[kind], ws / "x.h5"))
+      for kind in ("poses", "features", "map")],
+    *[Case(f"localize on a {what} whose {key} attribute is JSON nested 100,000 deep (trial"
+           " W1-1, W1-2: RecursionError)", "traceback", args, 1, msg,
+           setup=_setup_damaged(kind, name, _attr(key, "[" * 100_000 + "]" * 100_000)))
+      for what, kind, name, key, args, msg in (
+        ("map", "map", "m.h5", "scanlines",
+         [*LOCALIZE[:3], W + "/m.h5", *LOCALIZE[4:], "-o", W + "/p.h5"],
+         "m.h5: damaged map file (its scanlines attribute is JSON nested too deep)"),
+        ("features file", "features", "f.h5", "scanlines",
+         [*LOCALIZE[:5], W + "/f.h5", "-o", W + "/p.h5"],
+         "f.h5: damaged features file (scanlines: attribute 'scanlines' holds JSON nested"),
+        ("features file", "features", "f.h5", "field",
+         [*LOCALIZE[:5], W + "/f.h5", "-o", W + "/p.h5"],
+         "f.h5: damaged features file (attribute 'field' holds JSON nested too deep)"))],
+    Case("fit on a map whose distance table is float64 of -1e300 (trial W1-3: inf in float32)",
+         "traceback", [*LOCALIZE[:3], W + "/m.h5", *LOCALIZE[4:], "--method", "fit", "-o",
+                       W + "/p.h5"], 1, "/tables/distance is (33, 45) float64; expected float32",
+         setup=_setup_damaged("map", "m.h5", _replace("tables/distance", lambda d: np.full(
+             d.shape, -1e300)))),
     Case("localize --min-confidence 0_1: refused, not read as 1 (trial Q7)", "silent",
          [*LOCALIZE, "-o", W + "/p.h5", "--min-confidence", "0_1"], 2,
          "'0_1' is no decimal number (underscores)"),
@@ -2565,7 +2589,7 @@ CASES = [
          "data-lost", ["localize", W + "/omni", "--map", "{map}", "-o",
                        W + "/omni/features.h5", "--overwrite"], 1,
          # refused as a features file before the reuse of DIR/features.h5 is decided
-         "features.h5 is a fieldloc.features file, not a fieldloc.poses",
+         "features.h5 is a fieldloc.features file; this command writes fieldloc.poses files",
          setup=_setup_own_features),
     Case("inspect report.json", "newcomer", ["inspect", "{omni}/runs/r/report.json"], 0,
          "schema fieldloc.report"),
@@ -4070,8 +4094,9 @@ CASES = [
          or pytest.fail(res.stderr)),
     *[Case(f"{args[0]} -o a {found} file --overwrite: not its own kind, kept", "data-lost",
            [*args, "-o", W + "/x.h5", "--overwrite"], 1,
-           f"x.h5 is a fieldloc.{found} file, not a fieldloc.{schema}; --overwrite replaces only"
-           " its own kind", setup=lambda w, ws, found=found: _copy(w[found], ws / "x.h5"))
+           f"x.h5 is a fieldloc.{found} file; this command writes fieldloc.{schema} files:"
+           " --overwrite replaces only its own kind",
+           setup=lambda w, ws, found=found: _copy(w[found], ws / "x.h5"))
       for args, found, schema in (
         (["build-templates", "{omni}"], "map", "templates"),
         (["build-map", "spl", "--resolution", "1"], "poses", "map"),

@@ -495,7 +495,7 @@ def test_images_to_poses_reuses_the_datasets_features(omni_default_rendered, msl
     before = features.read_bytes()
     # onto the features it would use: refused as another kind of artifact (--overwrite replaces
     # only poses with poses), before the features are found to be its input
-    with pytest.raises(FieldlocError, match="is an input|not a fieldloc.poses"):
+    with pytest.raises(FieldlocError, match="is an input|writes fieldloc.poses files"):
         images_to_poses.main(None, ds, msl2015_map, features, overwrite=True)
     assert features.read_bytes() == before
 

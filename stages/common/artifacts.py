@@ -499,16 +499,19 @@ def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *
     if overwrite is not None and not overwrite and path.exists():
         if kind == "file" or any(path.iterdir()):
             raise error(f"{path} exists (use --overwrite to replace it)")
+    if overwrite and kind == "file" and path.is_file():
+        # a fieldloc artifact of another schema, or any artifact where the command writes
+        # none (bench --json, report, export: a poses file replaced by JSON, trial W1-5)
+        found = _hdf5_schema(path)
+        if found in HDF5_SCHEMAS and found != schema:
+            writes = f"{schema} files" if schema else "no such file"
+            raise error(f"{path} is a {found} file; this command writes {writes}: --overwrite"
+                        " replaces only its own kind: choose another output")
     if overwrite and kind == "file" and path.is_file() and not ours(path):
         raise error(f"{path} was not written by fieldloc: --overwrite replaces only fieldloc's"
                     " own outputs, never a user's file; choose another output")
     if overwrite and kind == "file":
         _refuse_read_only(path, error)
-    if overwrite and schema is not None and kind == "file" and path.is_file():
-        found = _hdf5_schema(path)
-        if found in HDF5_SCHEMAS and found != schema:
-            raise error(f"{path} is a {found} file, not a {schema}; --overwrite replaces only"
-                        " its own kind: choose another output")
     found = path.exists() and (kind == "file" or not path.is_dir() or any(path.iterdir()))
     if found and (overwrite is None or kind != "file"):
         _note_decision(path, True)  # the caller's own rules decided (folders, companions)
@@ -1293,8 +1296,17 @@ def stored_dataset(h5: h5py.File, name: str, what: str) -> h5py.Dataset:
 
 
 def read_json_attr(f: h5py.File, key: str):
+    """The JSON root attribute ``key`` of ``f`` parsed ({} where absent); ValueError where it
+    is no JSON text: numbers, bytes not UTF-8, or JSON nested past Python's recursion limit
+    (a RecursionError traceback through every reader but the poses', trial W1-2)."""
     v = f.attrs.get(key, "{}")
-    return json.loads(v.decode() if isinstance(v, bytes) else v)
+    try:
+        return json.loads(v.decode() if isinstance(v, bytes) else v)
+    except RecursionError:
+        raise ValueError(f"attribute '{key}' holds JSON nested too deep") from None
+    except TypeError:
+        raise ValueError(f"attribute '{key}' is {type(v).__name__} {str(v)[:30]}, not JSON"
+                         " text") from None
 
 
 def describe(path: str | Path) -> str:

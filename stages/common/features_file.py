@@ -455,10 +455,14 @@ class FeaturesFile:
 
     @property
     def conf(self) -> dict:
-        return read_json_attr(self.h5, "conf")
+        return self.attr_json("conf")
 
     def attr_json(self, key: str):
-        return read_json_attr(self.h5, key)
+        """The JSON root attribute ``key``; SchemaError where it is no JSON text."""
+        try:
+            return read_json_attr(self.h5, key)
+        except ValueError as e:
+            raise SchemaError(f"{self.path}: damaged features file ({e})") from None
 
     @property
     def failures(self) -> list[str]:

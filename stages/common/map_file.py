@@ -73,6 +73,11 @@ MAX_RESOLUTION = 1.0
 # into "out of memory", trial T)
 MAX_CELLS = 300_000
 
+# each table's element type, as build-map writes it: the searches read radial and spiral as
+# millimetres in uint16 and the distances as float32 (float64 of 1e300 became inf there, and
+# radial tables of other types indexed past their lookups: tracebacks, trial W1-3, W1-4)
+TABLE_DTYPES = {"radial": "u2", "spiral": "u2", "distance": "f4", "distance_gradient": "f4",
+                "crossing_lut_L": "i2", "crossing_lut_T": "i2"}
 TABLE_UNITS = {
     "radial": "mm",
     "spiral": "mm",
@@ -184,9 +189,11 @@ class MapFile:
         try:
             a = self.h5.attrs
             origin, shape = np.ravel(a["origin"]), np.ravel(a["shape"])
-            if len(origin) != 2 or len(shape) != 2:
+            if (len(origin) != 2 or len(shape) != 2 or origin.dtype.kind not in "fiu"
+                    or shape.dtype.kind not in "iu"):
                 raise ValueError(f"origin {str(a['origin'])[:40]} and shape"
-                                 f" {str(a['shape'])[:40]} must be two numbers each")
+                                 f" {str(a['shape'])[:40]} must be two real numbers and two"
+                                 " whole numbers")
             self.grid = Grid(origin=tuple(float(v) for v in origin),
                              resolution=float(a["resolution"]),
                              shape=tuple(int(v) for v in shape))
@@ -202,9 +209,13 @@ class MapFile:
             self.field = field_from_spec(load_yaml(spec_text), str(self.path), spec_text)
             self._check_grid()
             self._check_field_lines()
+        except RecursionError:  # the scanlines attribute nested 100k deep (trial W1-1)
+            self.h5.close()
+            raise SchemaError(f"{self.path}: damaged map file (its scanlines attribute is JSON"
+                              " nested too deep)") from None
         except (KeyError, ValueError, TypeError, OSError, yaml.YAMLError) as e:
             self.h5.close()
-            raise SchemaError(f"{self.path}: damaged map file ({e})") from None
+            raise SchemaError(f"{self.path}: damaged map file ({str(e)[:200]})") from None
         except SchemaError:
             self.h5.close()
             raise
@@ -269,7 +280,11 @@ class MapFile:
 
     @property
     def conf(self) -> dict:
-        return read_json_attr(self.h5, "conf")
+        """The build conf; SchemaError where its attribute is no JSON text."""
+        try:
+            return read_json_attr(self.h5, "conf")
+        except ValueError as e:
+            raise SchemaError(f"{self.path}: damaged map file ({e})") from None
 
     def has_table(self, name: str) -> bool:
         return "tables" in self.h5 and name in self.h5["tables"]
@@ -289,9 +304,10 @@ class MapFile:
             if not self.has_table(name):
                 raise SchemaError(f"{self.path}: map has no table '{name}'")
             d = stored_dataset(self.h5, f"tables/{name}", "map file")
-            if d.shape != self.table_shape(name) or d.dtype.kind not in "fiu":
+            want = np.dtype(TABLE_DTYPES[name])
+            if d.shape != self.table_shape(name) or d.dtype != want:
                 raise SchemaError(f"{self.path}: damaged map file (/tables/{name} is"
-                                  f" {str(d.shape)[:40]} {str(d.dtype)[:20]}; expected numbers"
+                                  f" {str(d.shape)[:40]} {str(d.dtype)[:20]}; expected {want}"
                                   f" of shape {self.table_shape(name)} for its grid)")
             try:
                 table = d[()]

@@ -465,7 +465,8 @@ def _json5(text: str, where: str):
             j = text.find("*/", i + 2)
             i = n if j < 0 else j + 2
             continue
-        elif (m := _JSON5_HEX.match(text, i)) and not (out and _WORD.match(out[-1])):
+        elif ((m := _JSON5_HEX.match(text, i)) and not (out and _WORD.match(out[-1]))
+              and not _WORD.match(text, m.end())):  # 0x45d3.5 is no number (trial W2-7)
             value = int(m.group(1), 16)
             # beyond what any field number is (and the decimal digits Python writes)
             out.append(str(value) if value.bit_length() <= _HEX_BITS else "Infinity")

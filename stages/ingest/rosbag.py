@@ -416,6 +416,7 @@ class _FrameWriter:
         self.skipped: list[dict] = []
         self.encodings: dict[str, int] = {}
         self.size: tuple[int, int] | None = None  # (width, height) of the first frame
+        self.sizes_said = False  # frames of another size than the first were warned of
 
     def add(self, index: int, name_stem: str, msgtype: str, msg) -> str | None:
         """Queue one frame; returns its file name, or None if it was skipped."""
@@ -434,7 +435,7 @@ class _FrameWriter:
                 job = (None, (msg.height, msg.width, msg.encoding, msg.step, msg.data,
                               bool(msg.is_bigendian)))
                 size = (int(msg.width), int(msg.height))
-            self._check_size(size)
+            self._check_size(index, size)
         except ros_images.ImageMessageError as e:
             self._skip(index, str(e))
             return None
@@ -453,19 +454,22 @@ class _FrameWriter:
             self.pending.append(self.pool.submit(self._write, index, name, *job))
         return name
 
-    def _check_size(self, size) -> None:
-        """A frame of another size than the first (``size``: (width, height), None where its
-        header does not say) is skipped: a dataset's frames share one calib.yaml, and extract
-        would leave it out (trial V2-4: frames of two sizes written without a word)."""
+    def _check_size(self, index: int, size) -> None:
+        """Warn once where a frame is of another size than the first (``size``: (width,
+        height), None where its header does not say): a dataset's frames share one
+        calib.yaml, and extract leaves out those of another size (trial V2-4: two sizes
+        written without a word). Not skipped here: a first frame whose header lies (its
+        pixels cut short, trial W2-2) would have every good frame after it dropped."""
         if size is None:
             return
         size = (int(size[0]), int(size[1]))
         if self.size is None:
             self.size = size
-        elif size != self.size:
-            raise ros_images.ImageMessageError(
-                f"image of {size[0]} x {size[1]} px, the first frame's {self.size[0]} x"
-                f" {self.size[1]} (a dataset's frames share one calib.yaml)")
+        elif size != self.size and not self.sizes_said:
+            self.sizes_said = True
+            log.warning("image message %d is of %d x %d px, the first frame's %d x %d: a"
+                        " dataset's frames share one calib.yaml, and extract leaves out those"
+                        " of another size than it gives", index, *size, *self.size)
 
     def _skip(self, index, reason):
         """Record a skipped message; said at once after the first frame, else when the first
