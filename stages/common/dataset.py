@@ -590,11 +590,12 @@ def _listed_frames(path: Path, tab: dict[str, np.ndarray],
         if frame == row_file_name(row) and (
                 frame == "images" or frame in folders or in_images.get(frame)):
             raise folder_row(path, line_no, row)
-        gone.append(row)
-    # a listed frame whose file is in images/, of a kind not read (000002.jp2: a stem with a
-    # suffix of digits, trial V2-3), is no deleted frame: said by open_dataset, left out
-    other += [(0, row) for row in gone if in_images.get(row_file_name(row)) is False]
-    gone = [row for row in gone if in_images.get(row_file_name(row)) is not False]
+        if in_images.get(row_file_name(row)) is False:
+            # its file is in images/, of a kind not read (000002.jp2: a stem with a suffix
+            # of digits, trial V2-3): no deleted frame, a row of another kind (said once)
+            other.append((int(line_no), row))
+        else:
+            gone.append(row)
     return np.array(stamps, float), tuple(gone), [row for _, row in other]
 
 
