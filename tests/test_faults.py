@@ -39,6 +39,7 @@ from click.testing import CliRunner
 
 from fieldloc_cli.main import cli
 from stages import build_map, extract, localize, simulate
+from stages.common.artifacts import LOCK_SUFFIX
 from stages.common.camera import load_calib
 from stages.common.conf import check_bounds
 from stages.common.field import field_from_spec
@@ -144,7 +145,7 @@ class Case:
     fragment: str
     setup: object = None  # (world, ws) -> dict of more placeholders
     check: object = None  # (paths, result) -> None, extra assertions
-    removes_parts: bool = False  # stale temporary parts set up by the case may vanish
+    removes_parts: bool = False  # stale temporary parts and locks set up by it may vanish
 
 
 def _with_ds(name, change):
@@ -2412,7 +2413,7 @@ CASES = [
                               (ws / "b" / "maps").mkdir(parents=True)) and {}),
     *[Case(f"bench --json onto a {kind} file --overwrite (trial W1-5: replaced by JSON)",
            "data-lost", ["bench", "--only", "none", "--json", W + "/x.h5", "--overwrite"], 1,
-           f"x.h5 is a fieldloc.{kind} file; this command writes no such file",
+           f"x.h5 is a fieldloc.{kind} file; this output is no fieldloc artifact",
            setup=lambda w, ws, kind=kind: _copy(w[kind], ws / "x.h5"))
       for kind in ("poses", "features", "map")],
     *[Case(f"localize on a {what} whose {key} attribute is JSON nested 100,000 deep (trial"
@@ -2433,6 +2434,28 @@ CASES = [
                        W + "/p.h5"], 1, "/tables/distance is (33, 45) float64; expected float32",
          setup=_setup_damaged("map", "m.h5", _replace("tables/distance", lambda d: np.full(
              d.shape, -1e300)))),
+    Case("localize on features whose line points are all inf (trial X1-1: every frame placed"
+         " at one pose, rc 0)", "silent", [*LOCALIZE[:5], W + "/f.h5", "-o", W + "/p.h5"], 1,
+         "'points' holds inf where finite numbers belong",
+         setup=_setup_damaged("features", "f.h5", _fill("data/points", math.inf))),
+    *[Case(f"extract whose output's lock holds the pid {pid} (trial X3-1, X3-2)", "traceback",
+           ["extract", "{omni}", "-o", W + "/f.h5"], 0,
+           "removed the lock of an interrupted run (no pid in it)",
+           setup=lambda w, ws, pid=pid: (ws / ".f.h5.fieldloc-lock").write_text(f"{pid}\n")
+           and {}, removes_parts=True)
+      for pid in ("2147483648", "99999999999999999999", "-1", "0")],
+    Case("batch --overwrite into a user's folder of notes and maps/ (trial X3-3)", "data-lost",
+         ["batch", W + "/spec.yaml", "-o", W + "/b", "--serial", "--overwrite"], 1,
+         "b holds other files: batch results go into a new folder",
+         setup=lambda w, ws: (_setup_spec(_spec_with())(w, ws),
+                              (ws / "b" / "maps").mkdir(parents=True),
+                              (ws / "b" / "notes.txt").write_text("mine\n")) and {}),
+    Case("calibrate omni of 1001 pairs (trial X2-1: 300,000 ran past a minute)", "hang",
+         ["calibrate", "omni", W + "/m.csv", "-o", W + "/c.yaml", "--centre", "240", "240",
+          "--image-size", "480", "480", "--valid-radius", "40", "230"], 1,
+         "m.csv: 1,001 pairs, more than the 1000 a mirror table holds",
+         setup=lambda w, ws: (ws / "m.csv").write_text("radius_px,distance_m\n" + "".join(
+             f"{45 + 0.15 * i:.4f},{0.3 + 0.003 * i:.5f}\n" for i in range(1001))) and {}),
     Case("localize --min-confidence 0_1: refused, not read as 1 (trial Q7)", "silent",
          [*LOCALIZE, "-o", W + "/p.h5", "--min-confidence", "0_1"], 2,
          "'0_1' is no decimal number (underscores)"),
@@ -4454,7 +4477,7 @@ def test_fault(case, world_report, tmp_path, caplog):
         assert res.stderr.count("Error:") == 1, res.stderr
     after = snapshot(world["root"], tmp_path)
     changed = [p for p, h in before.items() if after.get(p) != h
-               and not (case.removes_parts and p.endswith(".part"))]
+               and not (case.removes_parts and p.endswith((".part", LOCK_SUFFIX)))]
     assert not changed, f"inputs changed or removed: {changed}"
     if case.rc:
         assert set(after) == set(before), f"a refused command wrote {set(after) - set(before)}"

@@ -505,9 +505,10 @@ def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *
         # none (bench --json, report, export: a poses file replaced by JSON, trial W1-5)
         found = _hdf5_schema(path)
         if found in HDF5_SCHEMAS and found != schema:
-            writes = f"{schema} files" if schema else "no such file"
-            raise error(f"{path} is a {found} file; this command writes {writes}: --overwrite"
-                        " replaces only its own kind: choose another output")
+            writes = (f"this command writes {schema} files" if schema
+                      else "this output is no fieldloc artifact")
+            raise error(f"{path} is a {found} file; {writes}: --overwrite replaces only its own"
+                        " kind: choose another output")
     if overwrite and kind == "file" and path.is_file() and not ours(path):
         raise error(f"{path} was not written by fieldloc: --overwrite replaces only fieldloc's"
                     " own outputs, never a user's file; choose another output")
@@ -816,6 +817,8 @@ def pid_alive(pid: int) -> bool:
     return True
 
 
+# one more than the largest process id: Linux's pid_max is at most 2**22, a C int's bound 2**31
+MAX_PID = 2**31
 LOCK_SUFFIX = ".fieldloc-lock"  # .<target name>.fieldloc-lock: the pid of the run writing it
 
 
@@ -828,9 +831,12 @@ def _lock_pid(lock: Path) -> int | None:
             raise FieldlocError(f"{lock} is no lock fieldloc wrote (not a regular file):"
                                 " remove it if no run is writing")
         with open(lock, "rb") as f:
-            return int(f.read(64).strip())
+            pid = int(f.read(64).strip())
     except (OSError, ValueError):
         return None
+    # a pid fieldloc wrote is a process's: 0, -1 (every process to os.kill) or 2**31 and more
+    # (os.kill's OverflowError, a traceback: trial X3-1) hold none, and the lock is stale
+    return pid if 0 < pid < MAX_PID else None
 
 
 def _create_lock(lock: Path, path: Path) -> None:
@@ -875,7 +881,8 @@ def output_lock(path: str | Path):
                     f" finish or stop it (its lock: {lock.name})") from None
             with contextlib.suppress(FileNotFoundError):
                 lock.unlink()
-            log.warning("removed the lock of an interrupted run (pid %s) writing %s", pid, path)
+            log.warning("removed the lock of an interrupted run (%s) writing %s",
+                        f"pid {pid}" if pid is not None else "no pid in it", path)
         except OSError as e:
             raise FieldlocError(f"cannot write {path}: {e.strerror or e}") from None
     else:

@@ -398,11 +398,22 @@ def check_radial_table(radius_px, distance_m, where: str, error=DatasetError) ->
                 f" ({r[i + 1]:g} px, {d[i + 1]:g} m) follows ({r[i]:g} px, {d[i]:g} m)")
 
 
+# the most (radius, distance) pairs an omni calibration holds: teams' tables hold 16-100,
+# the NuBot model's sampling and the CNC rings a few hundred; 1000 is a pair a pixel of a
+# 2000 px image's radius. The table model's leave-one-out check costs n^2 (2000 pairs: 4 s,
+# 20,000 past a minute) and calib.yaml's pairs are read on every command (trial X2-1)
+MAX_PAIRS = 1000
+
+
 def check_pair_bounds(radius_px, distance_m, where: str, error=DatasetError) -> None:
     """Pairs of an omni calibration (image radius, floor distance) must be ones a mirror can
-    give: radii of 0 to MAX_IMAGE_PX px (a longer radius lies off any image) and distances of
-    0 to MAX_FLOOR_M m. A value such as 1e300 would otherwise overflow the fits and tables
-    made from the pairs (NaN, inf, numpy's warnings) instead of being named."""
+    give: at most MAX_PAIRS, radii of 0 to MAX_IMAGE_PX px (a longer radius lies off any
+    image) and distances of 0 to MAX_FLOOR_M m. A value such as 1e300 would otherwise
+    overflow the fits and tables made from the pairs (NaN, inf, numpy's warnings) instead of
+    being named."""
+    if len(radius_px) > MAX_PAIRS:
+        raise error(f"{where}: {len(radius_px):,} pairs, more than the {MAX_PAIRS} a mirror"
+                    " table holds (teams' hold 16-100)")
     for i, (r, d) in enumerate(zip(np.asarray(radius_px, float), np.asarray(distance_m, float))):
         if not 0 <= r <= MAX_IMAGE_PX:
             raise error(f"{where}: pair {i + 1} has radius {r:.6g} px; an image radius is 0 to"

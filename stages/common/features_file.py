@@ -107,6 +107,8 @@ FRAME_DATASETS = {
 # against the map's tables as if seen (every frame placed at one pose, no word said)
 MAX_SCAN_DISTANCE = 100.0
 SCAN_DISTANCES = ("radial", "spiral")
+# the line points, in the robot frame and in the image: finite numbers, as extract writes them
+POINT_DATASETS = ("points", "points_px")
 
 CAMERA_KINDS = ("omni", "perspective")
 # what every frame of a camera kind holds (extract writes these; an absent one is damage, not
@@ -455,7 +457,11 @@ class FeaturesFile:
 
     @property
     def conf(self) -> dict:
-        return self.attr_json("conf")
+        conf = self.attr_json("conf")
+        if not isinstance(conf, dict):  # [1, 2] or null: no conf (trial X1-6)
+            raise SchemaError(f"{self.path}: damaged features file (attribute 'conf' is"
+                              f" {str(conf)[:40]}; expected a JSON object)")
+        return conf
 
     def attr_json(self, key: str):
         """The JSON root attribute ``key``; SchemaError where it is no JSON text."""
@@ -486,6 +492,12 @@ class FeaturesFile:
                           else f"(N, {', '.join(map(str, want))})")
                 raise SchemaError(f"{self.path}: damaged features file (frame {name}: '{k}'"
                                   f" has shape {np.shape(v)}, expected {expect})")
+        for k in POINT_DATASETS:  # extract writes finite points only (trial X1-1: inf
+            v = out.get(k)        # points placed every frame at one pose, rc 0)
+            if v is not None and v.dtype.kind == "f" and not np.isfinite(v).all():
+                raise SchemaError(f"{self.path}: damaged features file (frame {name}: '{k}'"
+                                  f" holds {v[~np.isfinite(v)].flat[0]} where finite numbers"
+                                  " belong)")
         for k in SCAN_DISTANCES:
             v = out.get(k)
             if v is not None and ((v < 0) | (v > MAX_SCAN_DISTANCE)).any():

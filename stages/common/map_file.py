@@ -282,9 +282,13 @@ class MapFile:
     def conf(self) -> dict:
         """The build conf; SchemaError where its attribute is no JSON text."""
         try:
-            return read_json_attr(self.h5, "conf")
+            conf = read_json_attr(self.h5, "conf")
         except ValueError as e:
             raise SchemaError(f"{self.path}: damaged map file ({e})") from None
+        if not isinstance(conf, dict):  # 7, a list: no conf (trial X1-6)
+            raise SchemaError(f"{self.path}: damaged map file (attribute 'conf' is"
+                              f" {str(conf)[:40]}; expected a JSON object)")
+        return conf
 
     def has_table(self, name: str) -> bool:
         return "tables" in self.h5 and name in self.h5["tables"]

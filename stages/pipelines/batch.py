@@ -199,8 +199,12 @@ def _check_results(plan: Plan) -> Path:
     check_output(results, None, overwrite=None, kind="folder")
     from ..common.batch_file import is_batch_folder
 
-    if results.is_dir() and any(results.iterdir()) and not is_batch_folder(results) \
-            and not any((results / d).is_dir() for d in BATCH_FOLDERS):
+    entries = list(results.iterdir()) if results.is_dir() else []
+    # runs/, datasets/ or features/ mark a batch's folder; one stopped before them holds its
+    # maps/ or templates/ alone (a user's folder of maps/ and notes is no batch's, trial X3-3)
+    alone = all(e.is_dir() and e.name in BATCH_FOLDERS for e in entries)
+    if entries and not is_batch_folder(results) and not alone \
+            and not any((results / d).is_dir() for d in ("runs", "datasets", "features")):
         raise FieldlocError(f"{results} holds other files: batch results go into a new folder"
                             " or one an earlier batch wrote")
     _refuse_foreign_summaries(plan, results)
