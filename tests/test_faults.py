@@ -2456,6 +2456,18 @@ CASES = [
          "m.csv: 1,001 pairs, more than the 1000 a mirror table holds",
          setup=lambda w, ws: (ws / "m.csv").write_text("radius_px,distance_m\n" + "".join(
              f"{45 + 0.15 * i:.4f},{0.3 + 0.003 * i:.5f}\n" for i in range(1001))) and {}),
+    *[Case(f"batch SPEC whose {what} is refused before anything runs (trial {trial})",
+           "silent", ["batch", W + "/spec.yaml", "-o", W + "/b", "--serial"], 1, msg,
+           setup=_setup_spec(text))
+      for what, trial, text, msg in (
+        ("build_map resolution gives a map of 1e19 cells", "X3-5",
+         "build_map: {{resolution: 1.0e-9}}\ndatasets:\n  - name: d\n    simulate:"
+         " {{preset: omni-clean, field: spl, frames: 2, seed: 1}}\nmethods: [lut]\n",
+         "spec.yaml: build_map: build-map of spl at 1e-09 m:"),
+        ("template grid of 0.1 mm gives 1e10 captures", "X3-4",
+         "build_map: {{resolution: 0.5}}\ntemplates: {{grid: 0.0001, seed: 3}}\ndatasets:\n"
+         "  - name: d\n    simulate: {{preset: omni-clean, field: spl, frames: 2, seed: 1}}\n"
+         "methods: [templates]\n", "frames must be a whole number from 1 to 1000000"))],
     Case("localize --min-confidence 0_1: refused, not read as 1 (trial Q7)", "silent",
          [*LOCALIZE, "-o", W + "/p.h5", "--min-confidence", "0_1"], 2,
          "'0_1' is no decimal number (underscores)"),

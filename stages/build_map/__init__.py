@@ -75,12 +75,13 @@ def check_conf(conf: dict) -> None:
     scanlines_of(conf).check()
 
 
-def build_tables(fm: FieldModel, conf: dict) -> tuple[Grid, ScanLines, dict]:
-    """All tables of a map, in memory: name -> (array, attributes)."""
+def check_size(fm: FieldModel, conf: dict) -> Grid:
+    """The grid of the map of ``fm`` with ``conf`` (checked), refused (FieldlocError) where it
+    holds more cells than a map may (MAX_CELLS, fewer with a wider spiral): what a batch SPEC
+    is refused for before anything runs (trial X3-5), and build-map before it builds."""
     check_conf(conf)
     grid = Grid.around(fm, float(conf["border"]), float(conf["resolution"]))
     ny, nx = grid.shape
-    log.info("build-map %s: %d x %d cells of %g m", fm.name, nx, ny, grid.resolution)
     # a cell's cost grows with the spiral's radius about as 1 + r / 2 (measured at 0.1 m on
     # msl-2015, 28,000 cells: 1.5-2.1 s at 2 m after one turn, 11 s at 10 m, 21 s at 49.9 m;
     # the radial lines' max_range barely counts, 2.7 s at 50 m); MAX_CELLS is the default's
@@ -91,6 +92,14 @@ def build_tables(fm: FieldModel, conf: dict) -> tuple[Grid, ScanLines, dict]:
             f"build-map of {fm.name} at {conf['resolution']:g} m: {nx} x {ny} cells, more than"
             f" the {most:,} a map may hold with a {spiral:g} m spiral (about 75 us of CPU a"
             " cell); choose a coarser --resolution (the paper's is 0.1 m)")
+    return grid
+
+
+def build_tables(fm: FieldModel, conf: dict) -> tuple[Grid, ScanLines, dict]:
+    """All tables of a map, in memory: name -> (array, attributes)."""
+    grid = check_size(fm, conf)
+    ny, nx = grid.shape
+    log.info("build-map %s: %d x %d cells of %g m", fm.name, nx, ny, grid.resolution)
     check_memory(
         f"build-map of {fm.name} ({fm.length:g} x {fm.width:g} m + {conf['border']:g} m border"
         f" at {conf['resolution']:g} m: {nx} x {ny} cells)",

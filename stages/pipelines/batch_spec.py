@@ -368,6 +368,10 @@ def _map_for(w: _Where, source, where: str, results: Path, build_conf: dict, map
         w.fail(where, str(e))
     from .. import build_map
 
+    try:  # a grid of more cells than a map holds: refused now, not when its run builds it
+        build_map.check_size(fm, build_conf)
+    except FieldlocError as e:
+        w.fail("build_map", str(e))
     plain = not Path(str(value)).suffix and build_conf == build_map.confs["default"]
     name = fm.name if plain else f"{fm.name}-{short_hash([fm.spec_text, build_conf])}"
     path = str(real_path(results / "maps" / f"{name}.map.h5"))
@@ -610,8 +614,9 @@ def _grid_conf(w, entry: dict, ds: DatasetSpec, where: str) -> tuple[dict, str]:
     try:
         simulate.check_conf(conf)  # the overrides and the grid's centre: before anything runs
         conf["frames"] = trajectory.grid_count(fm, traj)  # as simulate counts them
+        simulate.check_conf(conf)  # its count too (a 0.1 mm grid: 2e10 captures, X3-4)
     except FieldlocError as e:
-        w.fail(where, str(e))
+        w.fail(where, f"{e} (the grid's captures)")
     name = (f"{fm.name}-grid{traj['grid_spacing']:g}-s{seed}-"
             f"{short_hash([conf, fm.spec_text])}")
     return conf, name
