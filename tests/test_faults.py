@@ -2468,6 +2468,16 @@ CASES = [
          "build_map: {{resolution: 0.5}}\ntemplates: {{grid: 0.0001, seed: 3}}\ndatasets:\n"
          "  - name: d\n    simulate: {{preset: omni-clean, field: spl, frames: 2, seed: 1}}\n"
          "methods: [templates]\n", "frames must be a whole number from 1 to 1000000"))],
+    *[Case(f"batch into RESULTS whose {rel} is a link to a user's folder (trial Y3-1: the"
+           " user's poses replaced through it)", "data-lost",
+           ["batch", W + "/spec.yaml", "-o", W + "/b", "--serial", "--overwrite"], 1,
+           f"b/{rel} is a symbolic link: batch writes only into its own folders",
+           setup=lambda w, ws, rel=rel: (
+               _setup_spec(_spec_with())(w, ws), (ws / "u").mkdir(),
+               (ws / "u" / "poses.h5").write_text("mine\n"),
+               (ws / "b" / rel).parent.mkdir(parents=True, exist_ok=True),
+               (ws / "b" / rel).symlink_to(ws / "u")) and {})
+      for rel in ("runs", "runs/d", "runs/d/lut-default")],
     Case("localize --min-confidence 0_1: refused, not read as 1 (trial Q7)", "silent",
          [*LOCALIZE, "-o", W + "/p.h5", "--min-confidence", "0_1"], 2,
          "'0_1' is no decimal number (underscores)"),

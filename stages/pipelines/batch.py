@@ -208,8 +208,24 @@ def _check_results(plan: Plan) -> Path:
         raise FieldlocError(f"{results} holds other files: batch results go into a new folder"
                             " or one an earlier batch wrote")
     _refuse_foreign_summaries(plan, results)
+    _refuse_linked_folders(plan, results)
     results.mkdir(parents=True, exist_ok=True)
     return results
+
+
+def _refuse_linked_folders(plan: Plan, results: Path) -> None:
+    """RESULTS' own folders (runs/, a dataset's and a run's under it, plots/, features/,
+    maps/, templates/) are never symbolic links: batch writes into them, and through a link
+    it replaced a user's poses.h5 and pictures outside RESULTS (trial Y3-1, Y3-2). A
+    dataset's folder under datasets/ has its own rule (``_calibrated_view``)."""
+    folders = {Path(d) for d in ("plots", *BATCH_FOLDERS)}
+    for run in plan.runs:
+        parts = Path(run.dir).parts  # runs/<dataset>/<method>
+        folders |= {Path(*parts[:i]) for i in range(1, len(parts) + 1)}
+    for rel in sorted(folders, key=lambda p: len(p.parts)):
+        if (results / rel).is_symlink():
+            raise FieldlocError(f"{results / rel} is a symbolic link: batch writes only into"
+                                " its own folders in RESULTS; remove the link")
 
 
 def _refuse_foreign_summaries(plan: Plan, results: Path) -> None:
