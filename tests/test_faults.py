@@ -2478,6 +2478,18 @@ CASES = [
                (ws / "b" / rel).parent.mkdir(parents=True, exist_ok=True),
                (ws / "b" / rel).symlink_to(ws / "u")) and {})
       for rel in ("runs", "runs/d", "runs/d/lut-default")],
+    *[Case(f"localize on features whose {key} attribute is {value} (trial Y1-1, Y1-2, Y1-5)",
+           "traceback", [*LOCALIZE[:5], W + "/f.h5", "-o", W + "/p.h5"], 1,
+           f"f.h5: damaged features file (attribute '{key}' is",
+           setup=_setup_damaged("features", "f.h5", _attr(key, value)))
+      for key, value in (("field", "[1, 2]"), ("field", '{"name": "spl", "size": "ab"}'),
+                         ("field", '{"name": "spl", "size": [1]}'),
+                         ("scanlines", '{"a": 1}'))],
+    Case("evaluate --table over a report.json whose frames is a 5001-digit number (trial"
+         " Y1-3)", "traceback", ["evaluate", "--table", W + "/r"], 1,
+         "report.json: not valid JSON (Exceeds the limit",
+         setup=lambda w, ws: ((ws / "r").mkdir(), (ws / "r" / "report.json").write_text(
+             '{"schema": "fieldloc.report", "frames": 1' + "0" * 5000 + "}")) and {}),
     Case("localize --min-confidence 0_1: refused, not read as 1 (trial Q7)", "silent",
          [*LOCALIZE, "-o", W + "/p.h5", "--min-confidence", "0_1"], 2,
          "'0_1' is no decimal number (underscores)"),

@@ -58,8 +58,9 @@ def read_json(path: str | Path, *, raw: bool = False) -> dict:
         data = json.loads(read_record(path, MAX_INDEX_BYTES).decode())
     except PermissionError as e:
         raise cannot_read(path, e) from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
-        raise SchemaError(f"{path}: not a readable JSON file ({e})") from None
+    except (OSError, ValueError, RecursionError) as e:  # ValueError: bad JSON or UTF-8, or an
+        # integer of more than 4300 digits (trial Y1-3: a traceback)
+        raise SchemaError(f"{path}: not a readable JSON file ({str(e)[:120]})") from None
     if not isinstance(data, dict):
         raise SchemaError(f"{path}: expected a JSON object")
     return data if raw else decode_numbers(data)

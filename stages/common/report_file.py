@@ -299,8 +299,8 @@ def load_report(path: str | Path, *, raw: bool = False) -> dict:
         data = json.loads(read_record(p).decode())
     except OSError as e:  # more than a report weighs (a few kB)
         raise SchemaError(f"{p}: cannot be read ({e.strerror or e})") from None
-    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as e:  # nested deep
-        raise SchemaError(f"{p}: not valid JSON ({e})") from None
+    except (ValueError, RecursionError) as e:  # bad JSON or UTF-8, nested deep, an integer
+        raise SchemaError(f"{p}: not valid JSON ({str(e)[:120]})") from None  # of 5000 digits
     if not isinstance(data, dict) or data.get("schema") != SCHEMA:
         got = data.get("schema") if isinstance(data, dict) else None
         raise SchemaError(

@@ -76,7 +76,7 @@ from ..common.dataset import (
     parse_number,
     row_frame_name,
 )
-from ..common.errors import DatasetError, FieldlocError, check_file, real_path
+from ..common.errors import DatasetError, FieldlocError, SchemaError, check_file, real_path
 from ..common.features_file import FeaturesFile
 from ..common.field import load_field
 from ..common.map_file import MapFile
@@ -644,11 +644,34 @@ def _check_camera_kind(method: str, feats, features, *, kind: str | None = None,
                                                  if others else ""))
 
 
+# the keys of a features file's scanlines attribute (ScanLines' fields)
+SCANLINE_KEYS = ("n_angles", "max_crossings", "robot_radius", "max_range", "spiral_end_radius",
+                 "spiral_samples_per_turn")
+
+
+def _finite_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _check_field_record(rec, source) -> None:
+    """A features file's ``field`` attribute is a JSON object of a name (text) and a size (two
+    finite numbers, m), either absent: a list, or a size of text, ended the field check in a
+    traceback (trial Y1-1, Y1-2)."""
+    size = rec.get("size") if isinstance(rec, dict) else None
+    if not isinstance(rec, dict) or not isinstance(rec.get("name", ""), str) or (
+            size is not None and not (isinstance(size, list) and len(size) == 2
+                                      and all(_finite_number(v) for v in size))):
+        raise SchemaError(f"{source}: damaged features file (attribute 'field' is"
+                          f" {str(rec)[:60]}; expected a JSON object of a name and a size of"
+                          " two numbers)")
+
+
 def _check_same_field(recorded: dict, map_file, source) -> None:
     """The features' field and scan lines must be the map's (see the module doc)."""
     hint = "build the map of that field, or pass --allow-field-mismatch"
     fm = map_file.field
     rec = recorded.get("field") or {}
+    _check_field_record(rec, source)
     if rec.get("name"):
         size = rec.get("size")
         same_size = size is None or (abs(size[0] - fm.length) < 0.01
@@ -659,6 +682,10 @@ def _check_same_field(recorded: dict, map_file, source) -> None:
                 f"{source}: the dataset was recorded on field '{rec['name']}'{where}, the map"
                 f" {map_file.path} is of '{fm.name}' ({fm.length:g} x {fm.width:g} m); {hint}")
     sl = recorded.get("scanlines")
+    if sl is not None and not (isinstance(sl, dict) and set(sl) <= set(SCANLINE_KEYS) and all(
+            _finite_number(v) for v in sl.values())):
+        raise SchemaError(f"{source}: damaged features file (attribute 'scanlines' is"
+                          f" {str(sl)[:40]}; expected numbers of {', '.join(SCANLINE_KEYS)})")
     if isinstance(sl, dict):
         mine = map_file.scanlines.as_dict()
         diff = [k for k in ("n_angles", "max_crossings", "robot_radius", "max_range",
