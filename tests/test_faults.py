@@ -2490,6 +2490,19 @@ CASES = [
          "report.json: not valid JSON (Exceeds the limit",
          setup=lambda w, ws: ((ws / "r").mkdir(), (ws / "r" / "report.json").write_text(
              '{"schema": "fieldloc.report", "frames": 1' + "0" * 5000 + "}")) and {}),
+    *[Case(f"{args[0]} -o a calib.yaml fieldloc wrote, --overwrite (trial Y2-5: replaced by an"
+           " HDF5 file)", "data-lost", [*args, "-o", W + "/c.yaml", "--overwrite"], 1,
+           f"c.yaml is no fieldloc artifact; this command writes fieldloc.{schema} files",
+           setup=lambda w, ws: _copy(Path(w["omni"]) / "calib.yaml", ws / "c.yaml"))
+      for args, schema in ((["extract", "{omni}"], "features"),
+                           (["build-templates", "{omni}"], "templates"))],
+    Case("calibrate --line-images of 1001 images: refused before any is read (trial Y2-1)",
+         "hang", ["calibrate", "omni", "--from-minho", "{m}", "--line-images", W + "/li",
+                  "-o", W + "/c.yaml", "--image-size", "480", "480"], 1,
+         "li: 1,001 line images, more than the 1000 pairs a calibration holds",
+         setup=lambda w, ws: ((ws / "li").mkdir(), [
+             (ws / "li" / f"{0.5 + 0.001 * i:.3f}.png").write_bytes(b"") for i in range(1001)],
+             _setup_minho()(w, ws))[-1]),
     Case("localize --min-confidence 0_1: refused, not read as 1 (trial Q7)", "silent",
          [*LOCALIZE, "-o", W + "/p.h5", "--min-confidence", "0_1"], 2,
          "'0_1' is no decimal number (underscores)"),

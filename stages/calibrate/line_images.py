@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..common.camera import MAX_PAIRS
 from ..common.dataset import IMAGE_KINDS, IMAGE_SUFFIXES, read_image
 from ..common.errors import FieldlocError
 
@@ -92,6 +93,9 @@ def distance_images(folder) -> list[tuple[Path, float]]:
     images = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
     if not images:
         raise FieldlocError(f"{folder}: no images ({IMAGE_KINDS})")
+    if len(images) > MAX_PAIRS:  # each is read and measured: 3000 took 44 s (trial Y2-1)
+        raise FieldlocError(f"{folder}: {len(images):,} line images, more than the {MAX_PAIRS}"
+                            " pairs a calibration holds")
     bad = [p.name for p in images if not _DISTANCE_NAME.match(p.stem)]
     if bad:
         raise FieldlocError(

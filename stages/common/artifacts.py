@@ -500,18 +500,21 @@ def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *
     if overwrite is not None and not overwrite and path.exists():
         if kind == "file" or any(path.iterdir()):
             raise error(f"{path} exists (use --overwrite to replace it)")
-    if overwrite and kind == "file" and path.is_file():
+    found = _hdf5_schema(path) if overwrite and kind == "file" and path.is_file() else None
+    writes = (f"this command writes {schema} files" if schema
+              else "this output is no fieldloc artifact")
+    if found in HDF5_SCHEMAS and found != schema:
         # a fieldloc artifact of another schema, or any artifact where the command writes
         # none (bench --json, report, export: a poses file replaced by JSON, trial W1-5)
-        found = _hdf5_schema(path)
-        if found in HDF5_SCHEMAS and found != schema:
-            writes = (f"this command writes {schema} files" if schema
-                      else "this output is no fieldloc artifact")
-            raise error(f"{path} is a {found} file; {writes}: --overwrite replaces only its own"
-                        " kind: choose another output")
-    if overwrite and kind == "file" and path.is_file() and not ours(path):
+        raise error(f"{path} is a {found} file; {writes}: --overwrite replaces only its own"
+                    " kind: choose another output")
+    if found is not None and not ours(path):
         raise error(f"{path} was not written by fieldloc: --overwrite replaces only fieldloc's"
                     " own outputs, never a user's file; choose another output")
+    if found is not None and schema is not None and found != schema:
+        # fieldloc's own file of no artifact (a calib.yaml replaced by features, trial Y2-5)
+        raise error(f"{path} is no fieldloc artifact; {writes}: --overwrite replaces only its"
+                    " own kind: choose another output")
     if overwrite and kind == "file":
         _refuse_read_only(path, error)
     found = path.exists() and (kind == "file" or not path.is_dir() or any(path.iterdir()))
