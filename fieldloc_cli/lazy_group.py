@@ -268,7 +268,11 @@ class _Stdout:
 
     def write(self, text):
         with _as_stdout_error():
-            return self._stream.write(text)
+            try:
+                return self._stream.write(text)
+            except UnicodeEncodeError:  # a lone surrogate from a file's text (trial Z1-4)
+                return self._stream.write(text.encode(
+                    "utf-8", "backslashreplace").decode("utf-8"))
 
     def writelines(self, lines):
         with _as_stdout_error():

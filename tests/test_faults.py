@@ -2367,7 +2367,7 @@ CASES = [
          setup=_setup_damaged("features", "f.h5", _corrupt_chunk("data/radial"))),
     Case("localize on a map whose grid shape is three numbers (trial V1-5)", "silent",
          [*LOCALIZE[:3], W + "/m.h5", *LOCALIZE[4:], "-o", W + "/p.h5"], 1,
-         "must be two numbers each",
+         "must be two real numbers and two whole numbers",
          setup=_setup_damaged("map", "m.h5", lambda f: f.attrs.__setitem__(
              "shape", np.append(f.attrs["shape"], 3)))),
     Case("localize on a map whose field YAML weighs 11 MB (trial V1-8)", "hang",
@@ -2503,6 +2503,34 @@ CASES = [
          setup=lambda w, ws: ((ws / "li").mkdir(), [
              (ws / "li" / f"{0.5 + 0.001 * i:.3f}.png").write_bytes(b"") for i in range(1001)],
              _setup_minho()(w, ws))[-1]),
+    Case("field import -o a calib.yaml fieldloc wrote, --overwrite (trial Z2-1: replaced)",
+         "data-lost", ["field", "import", W + "/f.json", "--format", "hulks", "-o",
+                       W + "/c.yaml", "--overwrite"], 1,
+         "c.yaml is another kind of file fieldloc wrote: --overwrite replaces only this",
+         setup=lambda w, ws: (_copy(Path(w["omni"]) / "calib.yaml", ws / "c.yaml"),
+                              (ws / "f.json").write_text(
+                                  '{"field_dimensions": {"length": 9.0, "width": 6.0}}'))
+         and {}),
+    Case("extract -o the features of another dataset, no --overwrite (trial Z2-2: its frames"
+         " dropped as gone)", "data-lost", ["extract", "{ds}", "-o", "{features}"], 1,
+         "was extracted from another dataset (", setup=_with_ds("omni", lambda ds: None)),
+    Case("batch SPEC whose glob runs through a link loop (trial Z3-1: 4^11 paths listed past a"
+         " minute)", "hang", ["batch", W + "/spec.yaml", "-o", W + "/b", "--serial"], 1,
+         "datasets[0].glob: ", setup=lambda w, ws: (
+             (ws / "loop").mkdir(), [(ws / "loop" / n).symlink_to(".") for n in "abcd"],
+             (ws / "spec.yaml").write_text(
+                 f"map: {w['map']}\ndatasets:\n  - glob: loop/{'/'.join(['*'] * 11)}\n"
+                 "methods: [lut]\n")) and {}),
+    Case("report of a report.json whose frames is a 401-digit number (trial Z1-2: an"
+         " OverflowError)", "traceback", ["report", W + "/r", "-o", W + "/r.html"], 1,
+         "report.json: not valid JSON (an integer of 401 digits)",
+         setup=lambda w, ws: ((ws / "r").mkdir(), (ws / "r" / "report.json").write_text(
+             '{"schema": "fieldloc.report", "frames": 1' + "0" * 400 + "}")) and {}),
+    Case("localize on features whose field size is a 401-digit number (trial Z1-1: an"
+         " OverflowError)", "traceback", [*LOCALIZE[:5], W + "/f.h5", "-o", W + "/p.h5"], 1,
+         "f.h5: damaged features file (attribute 'field' is",
+         setup=_setup_damaged("features", "f.h5", _attr(
+             "field", '{"name": "spl", "size": [1' + "0" * 400 + ', 6]}'))),
     Case("localize --min-confidence 0_1: refused, not read as 1 (trial Q7)", "silent",
          [*LOCALIZE, "-o", W + "/p.h5", "--min-confidence", "0_1"], 2,
          "'0_1' is no decimal number (underscores)"),
@@ -2540,7 +2568,7 @@ CASES = [
         ("map", "distance table is not of its grid's shape", _replace(
             "tables/distance", lambda d: np.zeros((d.shape[0] + 1, d.shape[1]), d.dtype)),
          ["show", "map", W + "/m.h5"],
-         "/tables/distance is (34, 45) float32; expected numbers of shape (33, 45)"),
+         "/tables/distance is (34, 45) float32; expected float32 of shape (33, 45)"),
         ("map", "grid holds a million cells", _attr("shape", np.array([1000, 1000])),
          ["show", "map", W + "/m.h5"], "a map holds 1 to 300,000 cells"),
         ("features", "points' elements are arrays", _subarray("data/points", (600,)),

@@ -213,6 +213,22 @@ def fieldloc_wrote(path: str | Path) -> bool:
     return mark in head or mark in tail
 
 
+# the first line of a calib.yaml fieldloc writes, before its WRITTEN_MARK
+CALIB_TITLE = "# camera calibration, "
+
+
+def first_line_says(text: str):
+    """An ``ours`` test of check_output: a file fieldloc wrote whose first line holds ``text``
+    (what a command writes: --overwrite replaced a calib.yaml by a field YAML and back, trial
+    Z2-1, as each was fieldloc's)."""
+    def ours(path) -> bool:
+        if not fieldloc_wrote(path):
+            return False
+        with open(path, "rb") as f:
+            return text.encode() in f.readline(_MARK_SPAN)
+    return ours
+
+
 def _hdf5_schema(path: str | Path) -> str:
     """The root ``schema`` attribute of an HDF5 file ('' if it has none or cannot be read)."""
     try:
@@ -493,6 +509,7 @@ def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *
         _refuse_recording_folder(path, error)
     if kind == "calibration":
         kind = "file"
+        ours = first_line_says(CALIB_TITLE) if ours is fieldloc_wrote else ours
     try:
         _check_writable(path, kind)
     except FieldlocError as e:
@@ -509,6 +526,9 @@ def check_output(path: str | Path, inputs: Mapping[str, object] | None = None, *
         raise error(f"{path} is a {found} file; {writes}: --overwrite replaces only its own"
                     " kind: choose another output")
     if found is not None and not ours(path):
+        if ours is not fieldloc_wrote and fieldloc_wrote(path):  # fieldloc's, of another kind
+            raise error(f"{path} is another kind of file fieldloc wrote: --overwrite replaces"
+                        " only this command's own kind: choose another output")
         raise error(f"{path} was not written by fieldloc: --overwrite replaces only fieldloc's"
                     " own outputs, never a user's file; choose another output")
     if found is not None and schema is not None and found != schema:
@@ -1142,8 +1162,15 @@ def storable_text(value):
     try:
         value.encode("utf-8")
         return value
-    except UnicodeEncodeError:
-        return value.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    except UnicodeEncodeError:  # a lone surrogate of no byte (\ud800, from JSON: trial Z1-3)
+        return (value.encode("utf-8", "surrogateescape") if _bytes_only(value) else
+                value.encode("utf-8", "backslashreplace")).decode("utf-8", "backslashreplace")
+
+
+def _bytes_only(value: str) -> bool:
+    """Whether every surrogate of ``value`` stands for a byte (U+DC80-U+DCFF), as the file
+    system's names not UTF-8 are held."""
+    return all(not 0xD800 <= ord(c) <= 0xDFFF or 0xDC80 <= ord(c) <= 0xDCFF for c in value)
 
 
 @contextlib.contextmanager

@@ -29,7 +29,7 @@ from pathlib import Path
 from .artifacts import atomic_path, cannot_read, provenance
 from .conf import read_record
 from .errors import FieldlocError, SchemaError, shown
-from .report_file import decode_numbers, encode_numbers
+from .report_file import bounded_int, decode_numbers, encode_numbers
 
 # the most a batch.json or run.json may weigh: an index holds about 700 bytes a run, so 64 MB
 # is some 90,000 runs
@@ -55,7 +55,7 @@ def read_json(path: str | Path, *, raw: bool = False) -> dict:
     SchemaError."""
     path = Path(path)
     try:  # a batch.json of 3 GB was read whole for 11 s to be refused (trial U1)
-        data = json.loads(read_record(path, MAX_INDEX_BYTES).decode())
+        data = json.loads(read_record(path, MAX_INDEX_BYTES).decode(), parse_int=bounded_int)
     except PermissionError as e:
         raise cannot_read(path, e) from None
     except (OSError, ValueError, RecursionError) as e:  # ValueError: bad JSON or UTF-8, or an

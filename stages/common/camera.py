@@ -364,9 +364,9 @@ def save_calib(camera, path: str | Path, calibration: dict | None = None) -> Pat
 def calib_text(d: dict) -> str:
     """The calib.yaml text of the mapping ``d``: its YAML under a comment naming the writer
     (``WRITTEN_MARK``, by which --overwrite tells it from a team's own calibration)."""
-    from .artifacts import WRITTEN_MARK
+    from .artifacts import CALIB_TITLE, WRITTEN_MARK
 
-    return (f"# camera calibration, {WRITTEN_MARK}\n"
+    return (f"{CALIB_TITLE}{WRITTEN_MARK}\n"
             + yaml.safe_dump(d, sort_keys=False, default_flow_style=None))
 
 

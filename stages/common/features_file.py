@@ -419,10 +419,13 @@ class FeaturesFile:
         if "radial" in REQUIRED[kind]:  # read along scan lines: their layout shapes them
             try:
                 sl = read_json_attr(self.h5, "scanlines") or {}
+                if not isinstance(sl, dict):
+                    raise ValueError(f"{str(sl)[:40]} is no JSON object")
                 n, k = int(sl.get("n_angles", 72)), int(sl.get("max_crossings", 4))
                 if not (1 <= n <= MAX_SCAN_ANGLES and 1 <= k <= MAX_SCAN_CROSSINGS):
-                    raise ValueError(f"n_angles {n}, max_crossings {k}; expected 1 to"
-                                     f" {MAX_SCAN_ANGLES} and 1 to {MAX_SCAN_CROSSINGS}")
+                    raise ValueError(f"n_angles {str(n)[:20]}, max_crossings {str(k)[:20]};"
+                                     f" expected 1 to {MAX_SCAN_ANGLES} and 1 to"
+                                     f" {MAX_SCAN_CROSSINGS}")
             except (ValueError, TypeError, AttributeError, OverflowError) as e:
                 self.h5.close()
                 raise SchemaError(f"{self.path}: damaged features file (scanlines: {e})"

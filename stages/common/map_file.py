@@ -49,7 +49,7 @@ from .conf import MAX_RECORD_BYTES, load_yaml
 from .errors import SchemaError
 from .field import FieldModel, field_from_spec
 from .resources import check_disk
-from .scanlines import MAX_SCAN_ANGLES, MAX_SCAN_CROSSINGS, ScanLines
+from .scanlines import MAX_RANGE_M, MAX_SCAN_ANGLES, MAX_SCAN_CROSSINGS, ScanLines
 
 log = logging.getLogger(__name__)
 
@@ -180,6 +180,16 @@ def write_map(path: str | Path, fm: FieldModel, grid: Grid, scanlines: ScanLines
 _SAID: set[tuple[str, str]] = set()
 
 
+def _metres(v) -> bool:
+    """Whether ``v`` is a scan-line length a map may give: a number from 0 to MAX_RANGE_M."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return False
+    try:
+        return 0 <= float(v) <= MAX_RANGE_M
+    except OverflowError:
+        return False
+
+
 class MapFile:
     """Read access to a map: the field model, the grid, and tables loaded on demand."""
 
@@ -238,6 +248,11 @@ class MapFile:
         if not (0 < ny and 0 < nx and ny * nx <= MAX_CELLS):
             raise SchemaError(f"{said}, shape {str(g.shape)[:30]}: a map holds 1 to"
                               f" {MAX_CELLS:,} cells)")
+        ranges = (sl.robot_radius, sl.max_range, sl.spiral_end_radius)
+        if not all(_metres(v) for v in ranges):  # an integer of 401 digits: trial Z1-1
+            raise SchemaError(f"{self.path}: damaged map file (scanlines robot_radius,"
+                              f" max_range, spiral_end_radius {str(ranges)[:60]}; expected"
+                              f" numbers from 0 to {MAX_RANGE_M:g} m)")
         counts = (sl.n_angles, sl.max_crossings)
         if not (all(isinstance(v, int) and not isinstance(v, bool) for v in counts)
                 and 1 <= sl.n_angles <= MAX_SCAN_ANGLES

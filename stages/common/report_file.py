@@ -288,6 +288,20 @@ def report_path(path: str | Path) -> Path:
     return p / REPORT_NAME if p.is_dir() else p
 
 
+# the most digits of an integer a report or batch index holds: counts of frames and runs (a
+# float's range is 309 digits; more ended the reports' float() in an OverflowError, trial
+# Z1-2)
+MAX_INT_DIGITS = 20
+
+
+def bounded_int(text: str) -> int:
+    """A JSON integer of at most MAX_INT_DIGITS digits; ValueError (not JSON fieldloc wrote)
+    otherwise."""
+    if len(text.lstrip("-")) > MAX_INT_DIGITS:
+        raise ValueError(f"an integer of {len(text):,} digits")
+    return int(text)
+
+
 def load_report(path: str | Path, *, raw: bool = False) -> dict:
     """Read a report folder or report.json, checking the schema. Numbers decoded (inf, NaN)
     unless ``raw``."""
@@ -296,7 +310,7 @@ def load_report(path: str | Path, *, raw: bool = False) -> dict:
         raise FieldlocError(f"report not found: no {REPORT_NAME} in folder {path}")
     check_file(p, "report")
     try:
-        data = json.loads(read_record(p).decode())
+        data = json.loads(read_record(p).decode(), parse_int=bounded_int)
     except OSError as e:  # more than a report weighs (a few kB)
         raise SchemaError(f"{p}: cannot be read ({e.strerror or e})") from None
     except (ValueError, RecursionError) as e:  # bad JSON or UTF-8, nested deep, an integer

@@ -139,14 +139,18 @@ def _frame_info(kind: str, mask, head, stamp: float) -> dict:
     return {"mask": mask} if camera_can(kind, "robot_mask") else head_at(head, stamp)
 
 
-def _check_resumable(output: Path, attrs: dict):
+def _check_resumable(output: Path, attrs: dict, *, same_dataset: bool = False):
     """An existing output may only be continued if it was made from the same calibration,
-    mask, head angles (head.csv) and conf; otherwise the user has to ask for --overwrite. A
-    file of before head.csv was recorded counts as made without one."""
+    mask, head angles (head.csv) and conf, and, with ``same_dataset`` (extract resuming it,
+    which drops the frames the dataset lacks), from the same dataset folder; otherwise the
+    user has to ask for --overwrite. A file of before head.csv was recorded counts as made
+    without one. Features reused as they are need not be of the same folder: a copied
+    recording's are its (localize checks the images they were made from)."""
     try:
         with FeaturesFile(output) as old:
-            same = {k: old.h5.attrs.get(k, "") for k in ("camera_kind", "calib_hash",
-                                                         "mask_hash", "head_hash")}
+            keys = ("dataset",) * same_dataset + ("camera_kind", "calib_hash", "mask_hash",
+                                                  "head_hash")
+            same = {k: old.h5.attrs.get(k, "") for k in keys}
             old_conf = old.conf
     except SchemaError as e:
         raise FieldlocError(f"{e}; use --overwrite to replace it") from None
@@ -154,7 +158,9 @@ def _check_resumable(output: Path, attrs: dict):
         v = v.decode() if isinstance(v, bytes) else v
         if not (isinstance(v, str) and v == attrs[k]):
             what = {"mask_hash": "mask", "head_hash": "head.csv"}.get(k)
-            if what is None:
+            if k == "dataset":  # another recording's frames (trial Z2-2: dropped as gone)
+                said = f"from another dataset ({str(v)[:60]})"
+            elif what is None:
                 said = f"with another {k.replace('_', ' ')} ({str(v)[:40]})"
             elif not v:
                 said = f"without a {what}"
@@ -363,7 +369,7 @@ def main(conf: str | dict | None, dataset_dir: str | Path, output: str | Path | 
         in_output: set[str] = set()
         stale: set[str] = set()  # frames of the output it no longer may hold
         if resume:
-            _check_resumable(output, attrs)
+            _check_resumable(output, attrs, same_dataset=True)
             in_output, stale = _stale_frames(output, ds)
         pending = sum(1 for n in ds.names if n not in in_output)
         folder = output.parent if str(output.parent) else Path(".")

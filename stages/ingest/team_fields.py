@@ -56,7 +56,13 @@ import numpy as np
 import yaml
 
 from .. import __version__
-from ..common.artifacts import WRITTEN_MARK, atomic_path, check_output, file_hash
+from ..common.artifacts import (
+    WRITTEN_MARK,
+    atomic_path,
+    check_output,
+    file_hash,
+    first_line_says,
+)
 from ..common.conf import load_json, load_yaml, read_record
 from ..common.errors import FieldlocError, FieldSpecError, file_problem
 from ..common.field import (
@@ -71,6 +77,9 @@ from ..common.field import (
 from ..common.user_numbers import user_number
 from . import field_formats as _formats
 
+# the first line of a field YAML field import writes: "# <name>: imported from <file> ..."; by
+# it --overwrite tells the file from a calib.yaml fieldloc wrote (trial Z2-1)
+IMPORTED_FROM = ": imported from "
 FORMATS = ("bhuman", "bitbots", "falcons", "minho", "carpenoctem", "cambada", "hulks")
 confs = {"default": {"decimals": 6, "check_tolerance_m": 0.001}}
 
@@ -614,11 +623,12 @@ def main(conf: str | dict | None, path, output, *, fmt: str | None = None,
     conf = stage_conf(confs, conf)
     base_file = Path(base) if base is not None and Path(base).is_file() else None
     output = check_output(output, {"the team file": path, "base": base_file},
-                          overwrite=overwrite, error=TeamFieldError)
+                          overwrite=overwrite, error=TeamFieldError,
+                          ours=first_line_says(IMPORTED_FROM))
     imp = read_team_field(path, fmt, venue=venue, section=section, base=base, name=name,
                           conf=conf)
     fmt = imp.record["format"]
-    text = (f"# {imp.spec['name']}: imported from {Path(path).name} (--format {fmt}); metres,"
+    text = (f"# {imp.spec['name']}{IMPORTED_FROM}{Path(path).name} (--format {fmt}); metres,"
             f" between line centre lines; {WRITTEN_MARK}\n"
             + yaml.safe_dump(imp.spec, sort_keys=False))
     # what is written must read back as a field: checked before writing (a refusal writes

@@ -650,7 +650,13 @@ SCANLINE_KEYS = ("n_angles", "max_crossings", "robot_radius", "max_range", "spir
 
 
 def _finite_number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    """A JSON number that is a finite float (an integer of 400 digits is none: trial Z1-1)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return False
+    try:
+        return math.isfinite(float(v))
+    except OverflowError:
+        return False
 
 
 def _check_field_record(rec, source) -> None:

@@ -412,8 +412,8 @@ def _datasets(w, entries, base, results, default_map, build_conf, extract_defaul
             pattern = str(_path(base, w.text(d["glob"], f"{where}.glob")))
             # RESULTS is never one of its own datasets (a results folder beside the recordings
             # the glob names would otherwise be a dataset holding RESULTS on every rerun)
-            folders = sorted(Path(p) for p in globmod.glob(pattern) if Path(p).is_dir()
-                             and not _within(Path(p), results))
+            folders = sorted(Path(p) for p in _matches(w, pattern, f"{where}.glob")
+                             if os.path.isdir(p) and not _within(Path(p), results))
             if not folders:
                 w.fail(f"{where}.glob", f"no folder matches {pattern}")
             found += [_folder(w, p, p.name, where, results, None) for p in folders]
@@ -518,6 +518,26 @@ def _simulated(w, d, where, results, base: Path):
 
 
 # ---------------------------------------------------------------------------- templates
+
+
+# the most paths a dataset glob may match: a batch of a thousand recordings is beyond any
+# team's; a glob through a link loop (loop/*/*/... of four links: 4^11 paths) or over the
+# whole file system was listed whole for minutes (trial Z3-1)
+MAX_GLOB_MATCHES = 1000
+
+
+def _matches(w: _Where, pattern: str, where: str) -> list[str]:
+    """The paths ``pattern`` matches, at most MAX_GLOB_MATCHES (more: the SPEC refused, naming
+    ``where``), read lazily; a folder it may not read refused naming ``where``."""
+    out = []
+    try:
+        for p in globmod.iglob(pattern):
+            out.append(p)
+            if len(out) > MAX_GLOB_MATCHES:
+                w.fail(where, f"{pattern[:80]} matches more than {MAX_GLOB_MATCHES} paths")
+    except OSError as e:
+        w.fail(where, f"{pattern[:80]}: {e.strerror or e} ({str(e.filename)[:60]})")
+    return out
 
 
 def _is_grid(entry) -> bool:
