@@ -28,8 +28,11 @@ def extracted(tmp_path_factory):
 
 
 def _copy(ds, tmp_path):
+    """The dataset copied, its features.h5 made again in the copy: a resume continues the
+    features of its own folder only (another folder's are refused, trial Z2-2)."""
     dst = tmp_path / "ds"
     shutil.copytree(ds, dst)
+    extract.main(None, dst, dst / "features.h5", overwrite=True)
     return dst
 
 

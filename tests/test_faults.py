@@ -2531,6 +2531,28 @@ CASES = [
          "f.h5: damaged features file (attribute 'field' is",
          setup=_setup_damaged("features", "f.h5", _attr(
              "field", '{"name": "spl", "size": [1' + "0" * 400 + ', 6]}'))),
+    Case("extract resuming features whose dataset attribute is bytes not UTF-8 (trial A2-1: a"
+         " UnicodeDecodeError)", "traceback", ["extract", "{ds}", "-o", W + "/f.h5"], 1,
+         "f.h5 was extracted from another dataset (",
+         setup=lambda w, ws: (_with_ds("omni", lambda ds: None)(w, ws), _copy(
+             w["features"], ws / "f.h5"), _setup_damaged("features", "f.h5", _attr(
+                 "dataset", np.bytes_(b"\xff\xfe/work")))(w, ws))[0]),
+    Case("batch SPEC glob through a link loop that matches nothing (trial A3-2: 4^13 folders"
+         " walked)", "hang", ["batch", W + "/spec.yaml", "-o", W + "/b", "--serial"], 1,
+         "datasets[0].glob: ", setup=lambda w, ws: (
+             (ws / "loop").mkdir(), [(ws / "loop" / n).symlink_to(".") for n in "abcd"],
+             (ws / "spec.yaml").write_text(
+                 f"map: {w['map']}\ndatasets:\n  - glob: loop/{'/'.join(['*'] * 13)}/none\n"
+                 "methods: [lut]\n")) and {}),
+    Case("batch into RESULTS whose simulated dataset's folder is a link to a user's dataset"
+         " (trial A3-1: re-rendered through it)", "data-lost",
+         ["batch", W + "/spec.yaml", "-o", W + "/b", "--serial"], 1,
+         "b/datasets/d is a symbolic link: batch writes only into its own folders",
+         setup=lambda w, ws: (
+             _setup_spec(_spec_with())(w, ws), (ws / "u").mkdir(),
+             (ws / "u" / "notes.txt").write_text("mine\n"),
+             (ws / "b" / "datasets").mkdir(parents=True),
+             (ws / "b" / "datasets" / "d").symlink_to(ws / "u")) and {}),
     Case("localize --min-confidence 0_1: refused, not read as 1 (trial Q7)", "silent",
          [*LOCALIZE, "-o", W + "/p.h5", "--min-confidence", "0_1"], 2,
          "'0_1' is no decimal number (underscores)"),

@@ -224,10 +224,11 @@ def test_kill_extract_resumes(inputs, tmp_path, rng):
     busy machine (with 120, a run sometimes finished before the kill landed; with 400, once
     PNG frames decoded in 40 % of OpenCV's time, two half-second chunks held 360 frames)."""
     n = 1200
-    part = _frames_dataset(inputs, tmp_path / "first40", 40)
-    ds = _frames_dataset(inputs, tmp_path / "ds", n)
+    ds = _frames_dataset(inputs, tmp_path / "ds", 40)  # the recording's first 40 frames...
     target = ds / "features.h5"
-    extract.main(None, part, target)
+    extract.main(None, ds, target)
+    shutil.rmtree(ds / "images")  # ... then all n of them (a resume needs its own folder)
+    _frames_dataset(inputs, ds, n)
     earlier = tree_hashes(target)
     parts_dir = ds / ".features.h5.parts"
     run = Run(["-v", "extract", str(ds)], tmp_path)

@@ -475,7 +475,9 @@ class FeaturesFile:
 
     @property
     def failures(self) -> list[str]:
-        return _text(self.h5.get("failures", []))
+        """'name: reason' of each frame extract left out (text not UTF-8 escaped: A2-6)."""
+        return [v.decode(errors="backslashreplace") if isinstance(v, bytes) else str(v)
+                for v in self.h5.get("failures", [])]
 
     def frame(self, name: str) -> dict[str, np.ndarray]:
         """The datasets of frame ``name`` and its ``stamp``; a frame missing a dataset its

@@ -155,7 +155,9 @@ def _check_resumable(output: Path, attrs: dict, *, same_dataset: bool = False):
     except SchemaError as e:
         raise FieldlocError(f"{e}; use --overwrite to replace it") from None
     for k, v in same.items():
-        v = v.decode() if isinstance(v, bytes) else v
+        v = v.decode(errors="replace") if isinstance(v, bytes) else v  # not UTF-8: A2-1
+        if k == "dataset" and isinstance(v, str) and v:
+            v = os.path.realpath(v)  # the folder behind a link, as attrs["dataset"] is
         if not (isinstance(v, str) and v == attrs[k]):
             what = {"mask_hash": "mask", "head_hash": "head.csv"}.get(k)
             if k == "dataset":  # another recording's frames (trial Z2-2: dropped as gone)
@@ -268,7 +270,9 @@ def _run_attrs(ds, camera, module, conf: dict):
     if head_hash:
         inputs.update(head=os.path.abspath(head_path), head_hash=head_hash)
     attrs = root_attrs(SCHEMA, VERSION, conf, inputs)
-    attrs.update(camera_kind=kind, dataset=root, calib_hash=calib_hash,
+    # the folder itself, behind any link: a link moved to another recording between runs
+    # had a resume drop the first's frames (trial A3-3)
+    attrs.update(camera_kind=kind, dataset=os.path.realpath(ds.root), calib_hash=calib_hash,
                  mask_hash=mask_hash, head_hash=head_hash, field=json.dumps(ds.field_record()))
     if hasattr(module, "scanlines_of"):  # an extractor along scan lines records their layout
         attrs["scanlines"] = json.dumps(module.scanlines_of(conf).as_dict())

@@ -624,7 +624,7 @@ def main(conf: str | dict | None, path, output, *, fmt: str | None = None,
     base_file = Path(base) if base is not None and Path(base).is_file() else None
     output = check_output(output, {"the team file": path, "base": base_file},
                           overwrite=overwrite, error=TeamFieldError,
-                          ours=first_line_says(IMPORTED_FROM))
+                          ours=first_line_says(f"# [^\\n]*?{IMPORTED_FROM}"))
     imp = read_team_field(path, fmt, venue=venue, section=section, base=base, name=name,
                           conf=conf)
     fmt = imp.record["format"]

@@ -219,6 +219,10 @@ def _refuse_linked_folders(plan: Plan, results: Path) -> None:
     it replaced a user's poses.h5 and pictures outside RESULTS (trial Y3-1, Y3-2). A
     dataset's folder under datasets/ has its own rule (``_calibrated_view``)."""
     folders = {Path(d) for d in ("plots", *BATCH_FOLDERS)}
+    # a simulated dataset's folder is rendered again through a link (trial A3-1: a user's
+    # dataset replaced); a recording's is batch's view of it, its own rule
+    folders |= {Path("datasets"), *(Path("datasets", ds.name) for ds in plan.datasets
+                                     if ds.kind == "simulate")}
     for run in plan.runs:
         parts = Path(run.dir).parts  # runs/<dataset>/<method>
         folders |= {Path(*parts[:i]) for i in range(1, len(parts) + 1)}

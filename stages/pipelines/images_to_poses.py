@@ -103,8 +103,12 @@ def main(conf, dataset_dir: str | Path, map_path: str | Path, output: str | Path
     if rounds:
         calib, features2, first = recalibrated_paths(output)
         given = {**inputs, "poses": output, "calib": write_calib}
-        for path in (calib, features2, first):
-            check_output(path, given, overwrite=overwrite, kind="calibration")
+        from ..common import features_file, poses_file
+
+        for path, kind, schema in ((calib, "calibration", None),
+                                   (features2, "file", features_file.SCHEMA),
+                                   (first, "file", poses_file.SCHEMA)):
+            check_output(path, given, overwrite=overwrite, kind=kind, schema=schema)
         check_tum_output(first, given, overwrite)  # its twin, as the first poses record it
     if features is None:
         features = features_for(dataset_dir, output, inputs, progress)
