@@ -2553,6 +2553,16 @@ CASES = [
              (ws / "u" / "notes.txt").write_text("mine\n"),
              (ws / "b" / "datasets").mkdir(parents=True),
              (ws / "b" / "datasets" / "d").symlink_to(ws / "u")) and {}),
+    Case("calibrate --from-minho of a folder named with a byte not UTF-8 (trial B2-1: a"
+         " calib.yaml its own reader refused)", "traceback",
+         ["calibrate", "omni", "--from-minho", W + "/mh\udcff", "-o", W + "/c.yaml",
+          "--image-size", "480", "480"], 0, "wrote ",
+         setup=lambda w, ws: shutil.copytree(w["minho"], ws / "mh\udcff") and {}),
+    Case("field import of a team file whose name holds line breaks (trial B2-3: a traceback)",
+         "traceback", ["field", "import", W + "/a\nlength: 99\nx.json", "--format", "hulks",
+                       "--name", "hx", "--base", "spl", "-o", W + "/f.yaml"], 0, "wrote ",
+         setup=lambda w, ws: (ws / "a\nlength: 99\nx.json").write_text(
+             '{"field_dimensions": {"length": 9.0, "width": 6.0}}') and {}),
     Case("localize --min-confidence 0_1: refused, not read as 1 (trial Q7)", "silent",
          [*LOCALIZE, "-o", W + "/p.h5", "--min-confidence", "0_1"], 2,
          "'0_1' is no decimal number (underscores)"),

@@ -392,7 +392,7 @@ def record_text(data: Mapping, name: str) -> str:
     where ``data`` has none) gains the record's own entry, so that the record vouches for
     itself (``record_as_written``): what every writer of a record writes."""
     table = {k: v for k, v in dict(data.get(WRITTEN_FILES) or {}).items() if k != name}
-    body = {k: v for k, v in data.items() if k != WRITTEN_FILES}
+    body = storable({k: v for k, v in data.items() if k != WRITTEN_FILES})
     if name.endswith(".json"):
         whole = json.loads(json.dumps({**body, WRITTEN_FILES: table}, allow_nan=False))
         table[name] = _digest_entry(_canonical_json(whole))
@@ -1170,6 +1170,17 @@ def storable_text(value):
     except UnicodeEncodeError:  # a lone surrogate of no byte (\ud800, from JSON: trial Z1-3)
         return (value.encode("utf-8", "surrogateescape") if _bytes_only(value) else
                 value.encode("utf-8", "backslashreplace")).decode("utf-8", "backslashreplace")
+
+
+def storable(value):
+    """``value`` (a record's mapping, list or text) with every text ``storable_text``: a path
+    of bytes not UTF-8 written into a YAML record as "\udcff" made the record unreadable to
+    fieldloc's own reader (trial B2-1, B2-2)."""
+    if isinstance(value, Mapping):
+        return {storable(k): storable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [storable(v) for v in value]
+    return storable_text(value)
 
 
 def _bytes_only(value: str) -> bool:

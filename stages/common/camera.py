@@ -364,10 +364,10 @@ def save_calib(camera, path: str | Path, calibration: dict | None = None) -> Pat
 def calib_text(d: dict) -> str:
     """The calib.yaml text of the mapping ``d``: its YAML under a comment naming the writer
     (``WRITTEN_MARK``, by which --overwrite tells it from a team's own calibration)."""
-    from .artifacts import CALIB_TITLE, WRITTEN_MARK
+    from .artifacts import CALIB_TITLE, WRITTEN_MARK, storable
 
     return (f"{CALIB_TITLE}{WRITTEN_MARK}\n"
-            + yaml.safe_dump(d, sort_keys=False, default_flow_style=None))
+            + yaml.safe_dump(storable(d), sort_keys=False, default_flow_style=None))
 
 
 def read_calibration_record(path: str | Path) -> dict:

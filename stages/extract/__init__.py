@@ -53,6 +53,7 @@ from ..common.artifacts import (
     record_text,
     refuse_edited,
     root_attrs,
+    storable_text,
     writing,
     written_by,
     written_files,
@@ -157,7 +158,12 @@ def _check_resumable(output: Path, attrs: dict, *, same_dataset: bool = False):
     for k, v in same.items():
         v = v.decode(errors="replace") if isinstance(v, bytes) else v  # not UTF-8: A2-1
         if k == "dataset" and isinstance(v, str) and v:
-            v = os.path.realpath(v)  # the folder behind a link, as attrs["dataset"] is
+            # the folder behind a link, as attrs["dataset"] is, stored as storable_text
+            # writes a name of bytes not UTF-8 (trial B2-5); a NUL is no folder (B2-4)
+            mine = storable_text(attrs[k])
+            same_folder = v == mine or ("\0" not in v and os.path.realpath(v) == mine)
+            if same_folder:
+                continue
         if not (isinstance(v, str) and v == attrs[k]):
             what = {"mask_hash": "mask", "head_hash": "head.csv"}.get(k)
             if k == "dataset":  # another recording's frames (trial Z2-2: dropped as gone)

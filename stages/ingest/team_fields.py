@@ -48,6 +48,7 @@ dimension is an error that names it.
 from __future__ import annotations
 
 import datetime as _dt
+import json
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -62,6 +63,8 @@ from ..common.artifacts import (
     check_output,
     file_hash,
     first_line_says,
+    storable,
+    storable_text,
 )
 from ..common.conf import load_json, load_yaml, read_record
 from ..common.errors import FieldlocError, FieldSpecError, file_problem
@@ -628,9 +631,12 @@ def main(conf: str | dict | None, path, output, *, fmt: str | None = None,
     imp = read_team_field(path, fmt, venue=venue, section=section, base=base, name=name,
                           conf=conf)
     fmt = imp.record["format"]
-    text = (f"# {imp.spec['name']}{IMPORTED_FROM}{Path(path).name} (--format {fmt}); metres,"
+    # the team file's name as JSON writes it: a line break or bytes not UTF-8 in it broke the
+    # comment line (trial B2-3)
+    shown_name = json.dumps(storable_text(Path(path).name))[1:-1]
+    text = (f"# {imp.spec['name']}{IMPORTED_FROM}{shown_name} (--format {fmt}); metres,"
             f" between line centre lines; {WRITTEN_MARK}\n"
-            + yaml.safe_dump(imp.spec, sort_keys=False))
+            + yaml.safe_dump(storable(imp.spec), sort_keys=False))
     # what is written must read back as a field: checked before writing (a refusal writes
     # nothing)
     field_from_spec(load_yaml(text), str(output), text)
