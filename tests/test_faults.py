@@ -2563,6 +2563,22 @@ CASES = [
                        "--name", "hx", "--base", "spl", "-o", W + "/f.yaml"], 0, "wrote ",
          setup=lambda w, ws: (ws / "a\nlength: 99\nx.json").write_text(
              '{"field_dimensions": {"length": 9.0, "width": 6.0}}') and {}),
+    *[Case(f"localize on features whose failures are {what} (trial B1-1, B1-3)", kind,
+           [*LOCALIZE[:5], W + "/f.h5", "-o", W + "/p.h5"], 1,
+           "f.h5: damaged features file (/failures is",
+           setup=_setup_damaged("features", "f.h5", change))
+      for what, kind, change in (
+        ("a scalar", "traceback", lambda f: (f.__delitem__("failures"), f.create_dataset(
+            "failures", data="x", dtype=h5py.string_dtype()))),
+        ("50 million float rows", "hang", lambda f: (f.__delitem__("failures"),
+                                                       f.create_dataset(
+            "failures", shape=(50_000_000,), dtype="<f8", chunks=True,
+            compression="gzip"))))],
+    Case("localize on a map whose /field is a soft link to itself (trial B1-2: RuntimeError)",
+         "traceback", [*LOCALIZE[:3], W + "/m.h5", *LOCALIZE[4:], "-o", W + "/p.h5"], 1,
+         "m.h5: damaged 'fieldloc.map' file (/field is a soft link",
+         setup=_setup_damaged("map", "m.h5", lambda f: (f.__delitem__("field"), f.__setitem__(
+             "field", h5py.SoftLink("/field"))))),
     Case("localize --min-confidence 0_1: refused, not read as 1 (trial Q7)", "silent",
          [*LOCALIZE, "-o", W + "/p.h5", "--min-confidence", "0_1"], 2,
          "'0_1' is no decimal number (underscores)"),

@@ -1290,7 +1290,8 @@ MAX_OBJECTS, MAX_DEPTH = 1000, 8
 def _stored_outside(f: h5py.File) -> str | None:
     """Why ``f`` is no artifact fieldloc wrote, its data not all in the file: an object that
     is a link to another file, a virtual dataset or external storage (a FIFO behind any of
-    them blocked every reader, trial R), or more objects or deeper nesting than an artifact
+    them blocked every reader, trial R), a soft link (fieldloc writes none; one to itself
+    looped every reader, trial B1-2), or more objects or deeper nesting than an artifact
     holds (MAX_OBJECTS, MAX_DEPTH); None where none is. Links are read without being followed
     and no data is read."""
     todo, seen = [(f, "", 1)], 0
@@ -1304,8 +1305,9 @@ def _stored_outside(f: h5py.File) -> str | None:
             link = group.get(name, getlink=True)
             if isinstance(link, h5py.ExternalLink):
                 return f"{where} is a link to another file"
-            if not isinstance(link, h5py.HardLink):
-                continue  # a soft link names an object of this file
+            if not isinstance(link, h5py.HardLink):  # fieldloc writes none; one to itself
+                # ended every reader going through it in h5py's RuntimeError (trial B1-2)
+                return f"{where} is a soft link"
             obj = group[name]
             if isinstance(obj, h5py.Group):
                 if depth >= MAX_DEPTH:

@@ -407,6 +407,7 @@ class FeaturesFile:
     def __init__(self, path: str | Path):
         self.path = Path(path)
         self.h5 = open_artifact(self.path, SCHEMA, VERSION)
+        self._failures: list[str] | None = None  # read on first use (``failures``)
         _small_metadata_cache(self.h5)
         # the camera kind, read once (a FeaturesFile only reads: each frame's check asks it)
         v = self.h5.attrs.get("camera_kind", "")
@@ -475,9 +476,22 @@ class FeaturesFile:
 
     @property
     def failures(self) -> list[str]:
-        """'name: reason' of each frame extract left out (text not UTF-8 escaped: A2-6)."""
-        return [v.decode(errors="backslashreplace") if isinstance(v, bytes) else str(v)
-                for v in self.h5.get("failures", [])]
+        """'name: reason' of each frame extract left out (text not UTF-8 escaped: A2-6), read
+        once; a ``/failures`` that is no 1-D text dataset of at most MAX_FRAMES rows is
+        SchemaError (a scalar, a 50-million-row float or a group ended in a traceback or ran
+        past a minute, trial B1)."""
+        if self._failures is None:
+            if "failures" not in self.h5:
+                self._failures = []
+            else:
+                d = stored_dataset(self.h5, "failures", "features file")
+                if d.ndim != 1 or d.shape[0] > MAX_FRAMES or d.dtype.kind not in "OS":
+                    raise SchemaError(f"{self.path}: damaged features file (/failures is"
+                                      f" {str(d.shape)[:30]} {str(d.dtype)[:20]}; expected"
+                                      f" one text a frame left out, at most {MAX_FRAMES:,})")
+                self._failures = [v.decode(errors="backslashreplace") if isinstance(v, bytes)
+                                  else str(v) for v in d[()]]
+        return self._failures
 
     def frame(self, name: str) -> dict[str, np.ndarray]:
         """The datasets of frame ``name`` and its ``stamp``; a frame missing a dataset its
