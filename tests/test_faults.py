@@ -2438,12 +2438,20 @@ CASES = [
          " at one pose, rc 0)", "silent", [*LOCALIZE[:5], W + "/f.h5", "-o", W + "/p.h5"], 1,
          "'points' holds inf where finite numbers belong",
          setup=_setup_damaged("features", "f.h5", _fill("data/points", math.inf))),
-    *[Case(f"extract whose output's lock holds the pid {pid} (trial X3-1, X3-2)", "traceback",
-           ["extract", "{omni}", "-o", W + "/f.h5"], 0,
-           "removed the lock of an interrupted run (no pid in it)",
+    *[Case(f"extract whose output's lock holds {pid!r} (trial X3-1, X3-2, B3-4: a user's notes"
+           " removed as a stale lock)", "traceback", ["extract", "{omni}", "-o", W + "/f.h5"], 1,
+           ".f.h5.fieldloc-lock is no lock fieldloc wrote (it holds no process id)",
            setup=lambda w, ws, pid=pid: (ws / ".f.h5.fieldloc-lock").write_text(f"{pid}\n")
-           and {}, removes_parts=True)
-      for pid in ("2147483648", "99999999999999999999", "-1", "0")],
+           and {})
+      for pid in ("2147483648", "99999999999999999999", "-1", "0", "my notes")],
+    *[Case(f"batch into RESULTS whose {rel} is a link to a user's (trial B3-1, B3-2, B3-7)",
+           "data-lost", ["batch", W + "/spec.yaml", "-o", W + "/b", "--serial"], 1,
+           f"b/{rel} is a symbolic link: batch writes only its own files in RESULTS",
+           setup=lambda w, ws, rel=rel: (
+               _setup_spec(_spec_with())(w, ws), (ws / "u.h5").write_text("mine\n"),
+               (ws / "b" / rel).parent.mkdir(parents=True, exist_ok=True),
+               (ws / "b" / rel).symlink_to(ws / "u.h5")) and {})
+      for rel in ("features/d.default.features.h5", "maps/spl.map.h5")],
     Case("batch --overwrite into a user's folder of notes and maps/ (trial X3-3)", "data-lost",
          ["batch", W + "/spec.yaml", "-o", W + "/b", "--serial", "--overwrite"], 1,
          "b holds other files: batch results go into a new folder",
@@ -2547,7 +2555,7 @@ CASES = [
     Case("batch into RESULTS whose simulated dataset's folder is a link to a user's dataset"
          " (trial A3-1: re-rendered through it)", "data-lost",
          ["batch", W + "/spec.yaml", "-o", W + "/b", "--serial"], 1,
-         "b/datasets/d is a symbolic link: batch writes only into its own folders",
+         "b/datasets/d is a symbolic link: batch writes only its own files in RESULTS",
          setup=lambda w, ws: (
              _setup_spec(_spec_with())(w, ws), (ws / "u").mkdir(),
              (ws / "u" / "notes.txt").write_text("mine\n"),

@@ -859,12 +859,18 @@ def _lock_pid(lock: Path) -> int | None:
             raise FieldlocError(f"{lock} is no lock fieldloc wrote (not a regular file):"
                                 " remove it if no run is writing")
         with open(lock, "rb") as f:
-            pid = int(f.read(64).strip())
-    except (OSError, ValueError):
+            text = f.read(64).strip()
+    except OSError:  # gone meanwhile: no run holds it
         return None
-    # a pid fieldloc wrote is a process's: 0, -1 (every process to os.kill) or 2**31 and more
-    # (os.kill's OverflowError, a traceback: trial X3-1) hold none, and the lock is stale
-    return pid if 0 < pid < MAX_PID else None
+    # fieldloc writes a process's id, whole, before the lock has its name (_create_lock):
+    # anything else is a file fieldloc did not write, kept (trial B3-4: a user's notes there
+    # were removed as a stale lock), as are 0, -1 (every process to os.kill) and 2**31 or
+    # more (os.kill's OverflowError, trial X3-1)
+    pid = int(text) if text.isdigit() and len(text) < 12 else 0
+    if not 0 < pid < MAX_PID:
+        raise FieldlocError(f"{lock} is no lock fieldloc wrote (it holds no process id):"
+                            " remove it if no run is writing")
+    return pid
 
 
 def _create_lock(lock: Path, path: Path) -> None:

@@ -221,8 +221,7 @@ def _refuse_linked_folders(plan: Plan, results: Path) -> None:
     folders = {Path(d) for d in ("plots", *BATCH_FOLDERS)}
     # a simulated dataset's folder is rendered again through a link (trial A3-1: a user's
     # dataset replaced); a recording's is batch's view of it, its own rule
-    folders |= {Path("datasets"), *(Path("datasets", ds.name) for ds in plan.datasets
-                                     if ds.kind == "simulate")}
+    folders |= {Path("datasets"), Path("templates", "grids")}
     for run in plan.runs:
         parts = Path(run.dir).parts  # runs/<dataset>/<method>
         folders |= {Path(*parts[:i]) for i in range(1, len(parts) + 1)}
@@ -230,6 +229,19 @@ def _refuse_linked_folders(plan: Plan, results: Path) -> None:
         if (results / rel).is_symlink():
             raise FieldlocError(f"{results / rel} is a symbolic link: batch writes only into"
                                 " its own folders in RESULTS; remove the link")
+    # nor is anything batch makes in them: its features, maps, template databases and grids,
+    # and each dataset's folder (a link at a cached file had batch write the user's file
+    # behind it, a link at a grid or a recording's view re-render or rewrite a user's
+    # dataset: trial B3-1, B3-2, B3-7)
+    for rel in ("features", "maps", "templates", "templates/grids", "datasets"):
+        try:
+            with os.scandir(results / rel) as it:
+                linked = sorted(e.name for e in it if e.is_symlink())
+        except OSError:  # not there yet
+            continue
+        if linked:
+            raise FieldlocError(f"{results / rel / linked[0]} is a symbolic link: batch"
+                                " writes only its own files in RESULTS; remove the link")
 
 
 def _refuse_foreign_summaries(plan: Plan, results: Path) -> None:
