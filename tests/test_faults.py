@@ -2495,7 +2495,7 @@ CASES = [
                          ("scanlines", '{"a": 1}'))],
     Case("evaluate --table over a report.json whose frames is a 5001-digit number (trial"
          " Y1-3)", "traceback", ["evaluate", "--table", W + "/r"], 1,
-         "report.json: not valid JSON (Exceeds the limit",
+         "report.json: not valid JSON (an integer of 5,001 digits)",
          setup=lambda w, ws: ((ws / "r").mkdir(), (ws / "r" / "report.json").write_text(
              '{"schema": "fieldloc.report", "frames": 1' + "0" * 5000 + "}")) and {}),
     *[Case(f"{args[0]} -o a calib.yaml fieldloc wrote, --overwrite (trial Y2-5: replaced by an"

@@ -4,6 +4,7 @@ number equals the named constant that replaced it: a user's old override of a no
 makes another conf."""
 
 import json
+import os
 import shutil
 
 import h5py
@@ -31,6 +32,8 @@ def _dataset_with_stored_conf(src, tmp_path, **changes):
         full["colour"] = {**as_stored(extract.kind_module("omni").former_layout())["colour"],
                           **stored["colour"]}
         h5.attrs["conf"] = json.dumps(full, sort_keys=True)
+        # as extracted in this folder: a resume continues only its own folder's features
+        h5.attrs["dataset"] = os.path.realpath(ds)
     return ds
 
 

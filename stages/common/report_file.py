@@ -298,7 +298,7 @@ def bounded_int(text: str) -> int:
     """A JSON integer of at most MAX_INT_DIGITS digits; ValueError (not JSON fieldloc wrote)
     otherwise."""
     if len(text.lstrip("-")) > MAX_INT_DIGITS:
-        raise ValueError(f"an integer of {len(text):,} digits")
+        raise ValueError(f"an integer of {len(text.lstrip('-')):,} digits")
     return int(text)
 
 

@@ -215,12 +215,12 @@ def _check_results(plan: Plan) -> Path:
 
 def _refuse_linked_folders(plan: Plan, results: Path) -> None:
     """RESULTS' own folders (runs/, a dataset's and a run's under it, plots/, features/,
-    maps/, templates/) are never symbolic links: batch writes into them, and through a link
-    it replaced a user's poses.h5 and pictures outside RESULTS (trial Y3-1, Y3-2). A
-    dataset's folder under datasets/ has its own rule (``_calibrated_view``)."""
+    maps/, templates/, its grids/, datasets/) and what batch makes in them are never
+    symbolic links: batch writes into them, and through a link it replaced a user's poses.h5
+    and pictures (trial Y3-1, Y3-2), features and maps (B3-1), and rendered or rewrote a
+    user's dataset (A3-1, B3-2, B3-7) outside RESULTS. The files inside a recording's view
+    (datasets/<name>/) are batch's own links to the recording (``_calibrated_view``)."""
     folders = {Path(d) for d in ("plots", *BATCH_FOLDERS)}
-    # a simulated dataset's folder is rendered again through a link (trial A3-1: a user's
-    # dataset replaced); a recording's is batch's view of it, its own rule
     folders |= {Path("datasets"), Path("templates", "grids")}
     for run in plan.runs:
         parts = Path(run.dir).parts  # runs/<dataset>/<method>
@@ -230,9 +230,7 @@ def _refuse_linked_folders(plan: Plan, results: Path) -> None:
             raise FieldlocError(f"{results / rel} is a symbolic link: batch writes only into"
                                 " its own folders in RESULTS; remove the link")
     # nor is anything batch makes in them: its features, maps, template databases and grids,
-    # and each dataset's folder (a link at a cached file had batch write the user's file
-    # behind it, a link at a grid or a recording's view re-render or rewrite a user's
-    # dataset: trial B3-1, B3-2, B3-7)
+    # and each dataset's folder
     for rel in ("features", "maps", "templates", "templates/grids", "datasets"):
         try:
             with os.scandir(results / rel) as it:
