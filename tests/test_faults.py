@@ -2587,6 +2587,10 @@ CASES = [
          "m.h5: damaged 'fieldloc.map' file (/field is a soft link",
          setup=_setup_damaged("map", "m.h5", lambda f: (f.__delitem__("field"), f.__setitem__(
              "field", h5py.SoftLink("/field"))))),
+    Case("localize --write-calib onto the TUM twin of -o (trial C1-5: the calibration replaced"
+         " by the TUM after a success line)", "data-lost",
+         [*LOCALIZE, "-o", W + "/p.h5", "--write-calib", W + "/p.tum"], 1,
+         "p.tum is the poses' TUM twin this command writes beside p.h5"),
     Case("localize --min-confidence 0_1: refused, not read as 1 (trial Q7)", "silent",
          [*LOCALIZE, "-o", W + "/p.h5", "--min-confidence", "0_1"], 2,
          "'0_1' is no decimal number (underscores)"),

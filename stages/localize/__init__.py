@@ -519,6 +519,10 @@ def check_write_calib(path, conf, dataset, points, output, given: dict, overwrit
     if path.exists() and own.exists() and real_path(path) == real_path(own):
         raise FieldlocError(f"{path} is the dataset's own calib.yaml; it is never written over:"
                             " choose another output")
+    tum = Path(output).with_suffix(".tum")
+    if os.path.realpath(path) == os.path.realpath(tum):  # written last, over the calibration
+        raise FieldlocError(f"{path} is the poses' TUM twin this command writes beside"  # C1-5
+                            f" {Path(output).name}: choose another --write-calib output")
     check_output(path, {**given, "poses": output, "calib": own}, overwrite=overwrite,
                  kind="calibration")
 
