@@ -5,11 +5,11 @@ that the file holds the dataset's frames of its images only, as localize's check
 
 from __future__ import annotations
 
-import hashlib
 import shutil
 
 import pytest
 from click.testing import CliRunner
+from unchanged_files import tree_hashes
 
 from fieldloc_cli.main import cli
 from stages import extract, simulate
@@ -37,9 +37,8 @@ def _copy(ds, tmp_path):
 
 
 def _hashes(ds) -> dict[str, str]:
-    # exact bytes: the dataset's own files checked unchanged
-    return {str(p): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(ds.rglob("*")) if p.is_file() and p.name != "features.h5"}
+    """The dataset's own files' digests (its features.h5, the output, left out)."""
+    return {k: v for k, v in tree_hashes(ds).items() if not k.endswith("features.h5")}
 
 
 def _resume(ds):
