@@ -50,6 +50,7 @@ from .errors import SchemaError
 from .field import FieldModel, field_from_spec
 from .resources import check_disk
 from .scanlines import MAX_RANGE_M, MAX_SCAN_ANGLES, MAX_SCAN_CROSSINGS, ScanLines
+from .user_numbers import json_float
 
 log = logging.getLogger(__name__)
 
@@ -182,12 +183,8 @@ _SAID: set[tuple[str, str]] = set()
 
 def _metres(v) -> bool:
     """Whether ``v`` is a scan-line length a map may give: a number from 0 to MAX_RANGE_M."""
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        return False
-    try:
-        return 0 <= float(v) <= MAX_RANGE_M
-    except OverflowError:
-        return False
+    x = json_float(v)
+    return x is not None and 0 <= x <= MAX_RANGE_M
 
 
 class MapFile:

@@ -88,3 +88,16 @@ def user_numbers(values, name: str, *, count: int | tuple[int, ...] | None = Non
     quote = "'" if name.endswith("'") else ""  # "calib.yaml: 'centre'" -> "... 'centre[0]'"
     stem = name[:len(name) - len(quote)]
     return [user_number(v, f"{stem}[{i}]{quote}", **kwargs) for i, v in enumerate(values)]
+
+
+def json_float(value) -> float | None:
+    """``value`` as a float where it is a JSON number (not a boolean) a float holds finitely;
+    None otherwise (text, NaN, inf, or an integer of 400 digits, whose float() overflows:
+    trial Z1-1)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    try:
+        v = float(value)
+    except OverflowError:
+        return None
+    return v if math.isfinite(v) else None

@@ -82,6 +82,7 @@ from ..common.field import load_field
 from ..common.map_file import MapFile
 from ..common.poses_file import SCHEMA, VERSION, PoseTrack, check_tum_output, write_poses
 from ..common.scanlines import bin_points_to_scanlines
+from ..common.user_numbers import json_float
 from .motion_model import accumulate_odometry
 from .symmetry import set_up_to_mirror, start_half_warning
 
@@ -654,13 +655,7 @@ SCANLINE_KEYS = ("n_angles", "max_crossings", "robot_radius", "max_range", "spir
 
 
 def _finite_number(v) -> bool:
-    """A JSON number that is a finite float (an integer of 400 digits is none: trial Z1-1)."""
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        return False
-    try:
-        return math.isfinite(float(v))
-    except OverflowError:
-        return False
+    return json_float(v) is not None
 
 
 def _check_field_record(rec, source) -> None:
